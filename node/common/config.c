@@ -1,0 +1,660 @@
+/*
+ * YAML config -> struct vlff_config.
+ *
+ * The schema is one table: each row names a dotted key, its type, where it
+ * lives in the struct, its range and its default. Defaults, validation,
+ * unknown-key detection and the dump all read the same table, so a key can
+ * never be documented, parsed and defaulted three different ways.
+ * Parsing uses libyaml's document API because we want the source mark
+ * (line:column) of every key and value for error messages.
+ */
+#include "config.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <yaml.h>
+
+enum ktype { T_INT, T_DOUBLE, T_BOOL, T_STRING, T_ENUM, T_DVEC };
+
+struct key {
+  const char *path;
+  enum ktype type;
+  size_t off;
+  size_t size; /* bytes for strings, element count for vectors */
+  double lo, hi;
+  double def;
+  const char *sdef; /* strings and enum names */
+  const char *const *names;
+  const double *vdef;
+};
+
+#define F(field) offsetof(struct vlff_config, field)
+#define SZ(field) sizeof(((struct vlff_config *)0)->field)
+#define INT(p, f, lo, hi, d) {p, T_INT, F(f), 0, lo, hi, d, NULL, NULL, NULL}
+#define DBL(p, f, lo, hi, d) {p, T_DOUBLE, F(f), 0, lo, hi, d, NULL, NULL, NULL}
+#define BOOL(p, f, d) {p, T_BOOL, F(f), 0, 0, 1, d, NULL, NULL, NULL}
+#define STR(p, f, d) {p, T_STRING, F(f), SZ(f), 0, 0, 0, d, NULL, NULL}
+#define ENUM(p, f, names, d) {p, T_ENUM, F(f), 0, 0, 0, 0, d, names, NULL}
+#define DVEC(p, f, lo, hi, d) \
+  {p, T_DVEC, F(f), SZ(f) / sizeof(double), lo, hi, 0, NULL, NULL, d}
+
+static const char *const log_levels[] = {"error", "warn", "info", "debug", NULL};
+static const char *const source_kinds[] = {"sim", "ring", "dataset", NULL};
+static const char *const feature_sources[] = {"sim", "model", "ring", NULL};
+static const char *const feat_losses[] = {"l2", "l1", NULL};
+static const char *const samplings[] = {"depth", "uniform", NULL};
+static const char *const trajectories[] = {"walk", "orbit", NULL};
+static const char *const camera_kinds[] = {"aravis", "libcamera", "sim", NULL};
+static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
+static const char *const gpio_modes[] = {"off", "output", "input", NULL};
+static const char *const depth_kinds[] = {"none", "stream", "stereo", NULL};
+
+static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
+static const double scene_max_def[3] = {2.5, 2.5, 2.5};
+static const double zero4[4] = {0, 0, 0, 0};
+static const double zero5[5] = {0, 0, 0, 0, 0};
+/* CLIP's image normalisation, which LSeg inherits. */
+static const double clip_mean[3] = {0.48145466, 0.4578275, 0.40821073};
+static const double clip_std[3] = {0.26862954, 0.26130258, 0.27577711};
+
+static const struct key schema[] = {
+    STR("node.name", node.name, "vlff"),
+    ENUM("node.log_level", node.log_level, log_levels, "info"),
+    STR("node.state_dir", node.state_dir, "/var/lib/vlff"),
+    DBL("node.checkpoint_period_s", node.checkpoint_period_s, 0, 86400, 60),
+    DBL("node.run_seconds", node.run_seconds, 0, 1e7, 0),
+    INT("node.threads", node.threads, 0, 256, 0),
+
+    STR("shm.ring", shm.ring, "/vlff-frames"),
+    INT("shm.ring_slots", shm.ring_slots, 2, 1024, 8),
+    INT("shm.max_width", shm.max_width, 16, 8192, 1920),
+    INT("shm.max_height", shm.max_height, 16, 8192, 1080),
+    STR("shm.pose_ring", shm.pose_ring, "/vlff-poses"),
+    INT("shm.pose_slots", shm.pose_slots, 2, 65536, 256),
+    STR("shm.map", shm.map, "/vlff-map"),
+    INT("shm.map_max_voxels", shm.map_max_voxels, 1, 1 << 26, 1 << 21),
+    INT("shm.label_max_width", shm.label_max_width, 16, 8192, 640),
+    INT("shm.label_max_height", shm.label_max_height, 16, 8192, 480),
+    STR("shm.prompts", shm.prompts, "/vlff-prompts"),
+    STR("shm.feature_ring", shm.feature_ring, "/vlff-features"),
+    STR("shm.group", shm.group, ""),
+    INT("shm.mode", shm.mode, 0, 0777, 0640),
+
+    ENUM("source.kind", source.kind, source_kinds, "ring"),
+    STR("source.dataset", source.dataset, ""),
+    ENUM("source.features", source.features, feature_sources, "sim"),
+    DBL("source.pose_tolerance_s", source.pose_tolerance_s, 0, 10, 1.0 / 60),
+
+    INT("sim.seed", sim.seed, 0, 2147483647, 1),
+    DBL("sim.rate_hz", sim.rate_hz, 0.1, 1000, 5),
+    INT("sim.width", sim.width, 16, 4096, 320),
+    INT("sim.height", sim.height, 16, 4096, 240),
+    INT("sim.feature_dim", sim.feature_dim, 8, 1024, 512),
+    DBL("sim.difficulty", sim.difficulty, 0, 1, 0.5),
+    ENUM("sim.trajectory", sim.trajectory, trajectories, "walk"),
+    DBL("sim.speed_mps", sim.speed_mps, 0.01, 10, 0.4),
+    DBL("sim.depth_noise_m", sim.depth_noise_m, 0, 1, 0.01),
+    DBL("sim.depth_hole_frac", sim.depth_hole_frac, 0, 1, 0.02),
+    DBL("sim.depth_max_m", sim.depth_max_m, 0.1, 100, 6),
+    INT("sim.frames", sim.frames, 1, 1000000, 300),
+    DBL("sim.bad_pose_frac", sim.bad_pose_frac, 0, 1, 0),
+
+    INT("field.feature_dim", field.feature_dim, 8, 1024, 512),
+    INT("field.hash_levels", field.hash_levels, 1, 32, 16),
+    INT("field.hash_features", field.hash_features, 1, 8, 2),
+    INT("field.hash_log2_size", field.hash_log2_size, 10, 24, 19),
+    INT("field.base_resolution", field.base_resolution, 2, 4096, 16),
+    INT("field.finest_resolution", field.finest_resolution, 2, 1 << 20, 2048),
+    INT("field.freq_bands", field.freq_bands, 0, 16, 2),
+    INT("field.geo_dim", field.geo_dim, 1, 256, 15),
+    INT("field.density_width", field.density_width, 8, 1024, 64),
+    INT("field.density_layers", field.density_layers, 1, 8, 1),
+    INT("field.color_width", field.color_width, 8, 1024, 64),
+    INT("field.color_layers", field.color_layers, 1, 8, 2),
+    INT("field.feature_width", field.feature_width, 8, 1024, 128),
+    INT("field.feature_layers", field.feature_layers, 1, 8, 2),
+    INT("field.sh_degree", field.sh_degree, 1, 4, 4),
+    DVEC("field.scene_min", field.scene_min, -1e4, 1e4, scene_min_def),
+    DVEC("field.scene_max", field.scene_max, -1e4, 1e4, scene_max_def),
+
+    DBL("train.lr", train.lr, 0, 10, 1e-2),
+    DBL("train.beta1", train.beta1, 0, 0.999999, 0.9),
+    DBL("train.beta2", train.beta2, 0, 0.9999999, 0.99),
+    DBL("train.eps", train.eps, 0, 1, 1e-15),
+    DBL("train.weight_decay", train.weight_decay, 0, 1, 1e-6),
+    DBL("train.lr_decay", train.lr_decay, 0, 1, 1),
+    INT("train.lr_decay_steps", train.lr_decay_steps, 1, 1 << 30, 10000),
+    INT("train.rays_per_step", train.rays_per_step, 1, 1 << 20, 2048),
+    INT("train.samples_per_ray", train.samples_per_ray, 1, 4096, 32),
+    ENUM("train.sampling", train.sampling, samplings, "depth"),
+    DBL("train.depth_weight", train.depth_weight, 0, 100, 0.1),
+    DBL("train.feature_weight", train.feature_weight, 0, 100, 0.5),
+    ENUM("train.feature_loss", train.feature_loss, feat_losses, "l2"),
+    DBL("train.near_m", train.near_m, 0, 100, 0.05),
+    INT("train.occupancy_resolution", train.occupancy_resolution, 8, 512, 64),
+    INT("train.occupancy_update_steps", train.occupancy_update_steps, 1, 1 << 20, 16),
+    DBL("train.image_scale", train.image_scale, 0.05, 1, 0.5),
+
+    DBL("keyframes.rate_hz", keyframes.rate_hz, 0.01, 1000, 5),
+    DBL("keyframes.min_translation_m", keyframes.min_translation_m, 0, 100, 0.0),
+    DBL("keyframes.min_rotation_deg", keyframes.min_rotation_deg, 0, 180, 0.0),
+    INT("keyframes.memory_mb", keyframes.memory_mb, 1, 1 << 20, 1024),
+    INT("keyframes.max_keyframes", keyframes.max_keyframes, 1, 1 << 20, 325),
+    INT("keyframes.start_after", keyframes.start_after, 1, 1 << 20, 5),
+    DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0, 100, 0.15),
+
+    DBL("publish.rate_hz", publish.rate_hz, 0.01, 1000, 1),
+    DBL("publish.voxel_size_m", publish.voxel_size_m, 0.001, 100, 0.05),
+    INT("publish.label_width", publish.label_width, 8, 8192, 320),
+    INT("publish.label_height", publish.label_height, 8, 8192, 240),
+    DBL("publish.free_density", publish.free_density, 0, 1e6, 1.0),
+
+    INT("prompts.active", prompts.active, 0, VLFF_MAX_PROMPT_SETS - 1, 0),
+    STR("prompts.template", prompts.templ, "{}"),
+    STR("prompts.embeddings", prompts.embeddings, ""),
+
+    BOOL("can.enabled", can.enabled, 0),
+    STR("can.interface", can.interface, "can0"),
+    INT("can.node_id", can.node_id, 1, 127, 0x2a),
+    INT("can.heartbeat_ms", can.heartbeat_ms, 1, 65535, 100),
+    INT("can.status_ms", can.status_ms, 1, 65535, 200),
+    INT("can.status_base_id", can.status_base_id, 0, 0x7ff, 0x180),
+    INT("can.command_id", can.command_id, 0, 0x7ff, 0x600),
+    INT("can.ack_id", can.ack_id, 0, 0x7ff, 0x580),
+    BOOL("can.fd", can.fd, 0),
+
+    ENUM("camera.kind", camera.kind, camera_kinds, "sim"),
+    STR("camera.device", camera.device, ""),
+    STR("camera.pixel_format", camera.pixel_format, "RGB8"),
+    INT("camera.width", camera.width, 0, 16384, 0),
+    INT("camera.height", camera.height, 0, 16384, 0),
+    INT("camera.offset_x", camera.offset_x, 0, 16384, 0),
+    INT("camera.offset_y", camera.offset_y, 0, 16384, 0),
+    DBL("camera.exposure_us", camera.exposure_us, 1, 1e7, 10000),
+    DBL("camera.gain_db", camera.gain_db, 0, 100, 0),
+    DBL("camera.frame_rate", camera.frame_rate, 0.1, 1000, 30),
+    INT("camera.packet_size", camera.packet_size, 0, 16384, 0),
+    ENUM("camera.trigger", camera.trigger, trigger_modes, "freerun"),
+    STR("camera.trigger_line", camera.trigger_line, "Line1"),
+    INT("camera.sensor_id", camera.sensor_id, 0, 255, 0),
+    DVEC("camera.intrinsics", camera.intrinsics, 0, 1e6, zero4),
+    DVEC("camera.distortion", camera.distortion, -1e3, 1e3, zero5),
+    STR("camera.calibration", camera.calibration, ""),
+    ENUM("camera.depth", camera.depth, depth_kinds, "none"),
+    DBL("camera.stereo_baseline_m", camera.stereo_baseline_m, 0, 10, 0),
+    INT("camera.stereo_disparities", camera.stereo_disparities, 16, 1024, 64),
+    DBL("camera.reconnect_max_s", camera.reconnect_max_s, 0.1, 3600, 5),
+
+    ENUM("gpio.mode", gpio.mode, gpio_modes, "off"),
+    STR("gpio.chip", gpio.chip, "gpiochip0"),
+    STR("gpio.line", gpio.line, "0"),
+    DBL("gpio.rate_hz", gpio.rate_hz, 0.01, 10000, 10),
+    DBL("gpio.pulse_us", gpio.pulse_us, 1, 1e6, 1000),
+    BOOL("gpio.active_low", gpio.active_low, 0),
+    DBL("gpio.debounce_us", gpio.debounce_us, 0, 1e6, 0),
+
+    STR("vlm.image_model", vlm.image_model, ""),
+    STR("vlm.text_model", vlm.text_model, ""),
+    STR("vlm.bpe_vocab", vlm.bpe_vocab, "/usr/share/vlff/bpe_simple_vocab_16e6.txt.gz"),
+    INT("vlm.input_width", vlm.input_width, 16, 4096, 320),
+    INT("vlm.input_height", vlm.input_height, 16, 4096, 240),
+    DVEC("vlm.mean", vlm.mean, -10, 10, clip_mean),
+    DVEC("vlm.std", vlm.std, 1e-6, 10, clip_std),
+    BOOL("vlm.bgr", vlm.bgr, 0),
+    BOOL("vlm.normalize", vlm.normalize, 1),
+    BOOL("vlm.cuda", vlm.cuda, 0),
+    DBL("vlm.feature_timeout_s", vlm.feature_timeout_s, 0.001, 600, 2),
+};
+
+#define NKEYS (sizeof schema / sizeof schema[0])
+
+/* prompts.sets is the one structured key: a sequence of {name, prompts}. */
+static const char PROMPT_SETS[] = "prompts.sets";
+
+static const char *const default_prompts[] = {
+    "wall",   "floor",   "cabinet", "bed",      "chair",        "sofa",           "table",
+    "door",   "window",  "bookshelf", "picture", "counter",     "desk",           "curtain",
+    "refrigerator", "shower curtain", "toilet", "sink", "bathtub", "other furniture", NULL};
+
+size_t vlff_config_key_count(void) { return NKEYS; }
+
+const char *vlff_config_key_path(size_t i) { return i < NKEYS ? schema[i].path : NULL; }
+
+static void *at(struct vlff_config *cfg, const struct key *k) { return (char *)cfg + k->off; }
+static const void *cat(const struct vlff_config *cfg, const struct key *k) {
+  return (const char *)cfg + k->off;
+}
+
+void vlff_config_defaults(struct vlff_config *cfg) {
+  memset(cfg, 0, sizeof *cfg);
+  for (size_t i = 0; i < NKEYS; i++) {
+    const struct key *k = &schema[i];
+    switch (k->type) {
+    case T_INT: *(int *)at(cfg, k) = (int)k->def; break;
+    case T_DOUBLE: *(double *)at(cfg, k) = k->def; break;
+    case T_BOOL: *(bool *)at(cfg, k) = k->def != 0; break;
+    case T_STRING: snprintf(at(cfg, k), k->size, "%s", k->sdef); break;
+    case T_ENUM:
+      for (int j = 0; k->names[j]; j++)
+        if (!strcmp(k->names[j], k->sdef)) *(int *)at(cfg, k) = j;
+      break;
+    case T_DVEC: memcpy(at(cfg, k), k->vdef, k->size * sizeof(double)); break;
+    }
+  }
+  struct vlff_prompt_set *s = &cfg->prompts.sets[0];
+  snprintf(s->name, sizeof s->name, "scannet20");
+  for (s->count = 0; default_prompts[s->count]; s->count++)
+    snprintf(s->text[s->count], VLFF_PROMPT_LEN, "%s", default_prompts[s->count]);
+  cfg->prompts.set_count = 1;
+}
+
+/* ---- parsing ------------------------------------------------------------ */
+
+struct parse {
+  yaml_document_t doc;
+  const yaml_node_t *where[sizeof schema / sizeof schema[0]]; /* value node per key, if set */
+  const char *name;
+  char *err;
+  size_t errlen;
+};
+
+static int fail(struct parse *p, const yaml_node_t *n, const char *key, const char *fmt, ...) {
+  char what[256];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(what, sizeof what, fmt, ap);
+  va_end(ap);
+  unsigned line = n ? (unsigned)n->start_mark.line + 1 : 0;
+  unsigned col = n ? (unsigned)n->start_mark.column + 1 : 0;
+  if (key)
+    snprintf(p->err, p->errlen, "%s:%u:%u: key '%s': %s", p->name, line, col, key, what);
+  else
+    snprintf(p->err, p->errlen, "%s:%u:%u: %s", p->name, line, col, what);
+  return -1;
+}
+
+static const char *node_kind(const yaml_node_t *n) {
+  switch (n->type) {
+  case YAML_SCALAR_NODE: return "a scalar";
+  case YAML_SEQUENCE_NODE: return "a sequence";
+  case YAML_MAPPING_NODE: return "a mapping";
+  default: return "nothing";
+  }
+}
+
+static const char *scalar(const yaml_node_t *n) { return (const char *)n->data.scalar.value; }
+
+/* "got" text for messages: the scalar quoted, or the node kind. */
+static void got(const yaml_node_t *n, char *buf, size_t len) {
+  if (n->type == YAML_SCALAR_NODE)
+    snprintf(buf, len, "'%.60s'", scalar(n));
+  else
+    snprintf(buf, len, "%s", node_kind(n));
+}
+
+static int parse_number(const yaml_node_t *n, bool integer, double *out) {
+  if (n->type != YAML_SCALAR_NODE || !*scalar(n)) return -1;
+  const char *s = scalar(n);
+  char *end;
+  errno = 0;
+  if (integer) {
+    long long v = strtoll(s, &end, 0);
+    if (errno || *end) return -1;
+    *out = (double)v;
+  } else {
+    double v = strtod(s, &end);
+    if (errno == ERANGE || *end || !isfinite(v)) return -1;
+    *out = v;
+  }
+  return 0;
+}
+
+static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct vlff_config *cfg) {
+  char g[96];
+  got(n, g, sizeof g);
+  double v;
+  switch (k->type) {
+  case T_INT:
+    if (parse_number(n, true, &v) || v < k->lo || v > k->hi)
+      return fail(p, n, k->path, "expected integer in [%.0f, %.0f], got %s", k->lo, k->hi, g);
+    *(int *)at(cfg, k) = (int)v;
+    return 0;
+  case T_DOUBLE:
+    if (parse_number(n, false, &v) || v < k->lo || v > k->hi)
+      return fail(p, n, k->path, "expected number in [%g, %g], got %s", k->lo, k->hi, g);
+    *(double *)at(cfg, k) = v;
+    return 0;
+  case T_BOOL: {
+    static const char *const yes[] = {"true", "yes", "on", NULL};
+    static const char *const no[] = {"false", "no", "off", NULL};
+    if (n->type == YAML_SCALAR_NODE) {
+      for (int i = 0; yes[i]; i++)
+        if (!strcasecmp(scalar(n), yes[i])) return *(bool *)at(cfg, k) = true, 0;
+      for (int i = 0; no[i]; i++)
+        if (!strcasecmp(scalar(n), no[i])) return *(bool *)at(cfg, k) = false, 0;
+    }
+    return fail(p, n, k->path, "expected true or false, got %s", g);
+  }
+  case T_STRING:
+    if (n->type != YAML_SCALAR_NODE)
+      return fail(p, n, k->path, "expected string, got %s", g);
+    if (strlen(scalar(n)) >= k->size)
+      return fail(p, n, k->path, "expected string of at most %zu bytes, got %zu bytes", k->size - 1,
+                  strlen(scalar(n)));
+    snprintf(at(cfg, k), k->size, "%s", scalar(n));
+    return 0;
+  case T_ENUM: {
+    char opts[160] = "";
+    for (int i = 0; k->names[i]; i++) {
+      if (n->type == YAML_SCALAR_NODE && !strcmp(scalar(n), k->names[i]))
+        return *(int *)at(cfg, k) = i, 0;
+      size_t l = strlen(opts);
+      snprintf(opts + l, sizeof opts - l, "%s%s", i ? "|" : "", k->names[i]);
+    }
+    return fail(p, n, k->path, "expected one of %s, got %s", opts, g);
+  }
+  case T_DVEC: {
+    double tmp[8];
+    if (n->type != YAML_SEQUENCE_NODE ||
+        n->data.sequence.items.top - n->data.sequence.items.start != (long)k->size)
+      return fail(p, n, k->path, "expected sequence of %zu numbers, got %s", k->size, g);
+    for (size_t i = 0; i < k->size; i++) {
+      yaml_node_t *e = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
+      char ge[96];
+      got(e, ge, sizeof ge);
+      if (parse_number(e, false, &tmp[i]) || tmp[i] < k->lo || tmp[i] > k->hi)
+        return fail(p, e, k->path, "expected number in [%g, %g] at index %zu, got %s", k->lo, k->hi,
+                    i, ge);
+    }
+    memcpy(at(cfg, k), tmp, k->size * sizeof(double));
+    return 0;
+  }
+  }
+  return -1;
+}
+
+static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
+  char g[96];
+  got(n, g, sizeof g);
+  if (n->type != YAML_SEQUENCE_NODE)
+    return fail(p, n, PROMPT_SETS, "expected sequence of {name, prompts}, got %s", g);
+  long count = n->data.sequence.items.top - n->data.sequence.items.start;
+  if (count < 1 || count > VLFF_MAX_PROMPT_SETS)
+    return fail(p, n, PROMPT_SETS, "expected 1 to %d prompt sets, got %ld", VLFF_MAX_PROMPT_SETS,
+                count);
+  for (long i = 0; i < count; i++) {
+    yaml_node_t *s = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
+    struct vlff_prompt_set *set = &cfg->prompts.sets[i];
+    memset(set, 0, sizeof *set);
+    char path[64];
+    snprintf(path, sizeof path, "%s[%ld]", PROMPT_SETS, i);
+    got(s, g, sizeof g);
+    if (s->type != YAML_MAPPING_NODE)
+      return fail(p, s, path, "expected mapping with name and prompts, got %s", g);
+    bool have_prompts = false;
+    for (yaml_node_pair_t *pr = s->data.mapping.pairs.start; pr < s->data.mapping.pairs.top; pr++) {
+      yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
+      yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
+      const char *kname = kn->type == YAML_SCALAR_NODE ? scalar(kn) : "";
+      char sub[96];
+      snprintf(sub, sizeof sub, "%s.%s", path, kname);
+      got(vn, g, sizeof g);
+      if (!strcmp(kname, "name")) {
+        if (vn->type != YAML_SCALAR_NODE || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
+          return fail(p, vn, sub, "expected string of at most %d bytes, got %s",
+                      VLFF_PROMPT_LEN - 1, g);
+        snprintf(set->name, sizeof set->name, "%s", scalar(vn));
+      } else if (!strcmp(kname, "prompts")) {
+        long m = vn->type == YAML_SEQUENCE_NODE
+                     ? vn->data.sequence.items.top - vn->data.sequence.items.start
+                     : -1;
+        if (m < 1 || m > VLFF_MAX_PROMPTS)
+          return fail(p, vn, sub, "expected sequence of 1 to %d prompts, got %s", VLFF_MAX_PROMPTS,
+                      g);
+        for (long j = 0; j < m; j++) {
+          yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
+          got(e, g, sizeof g);
+          if (e->type != YAML_SCALAR_NODE || !*scalar(e) ||
+              strlen(scalar(e)) >= VLFF_PROMPT_LEN)
+            return fail(p, e, sub, "expected non-empty prompt of at most %d bytes at index %ld, got %s",
+                        VLFF_PROMPT_LEN - 1, j, g);
+          snprintf(set->text[j], VLFF_PROMPT_LEN, "%s", scalar(e));
+        }
+        set->count = (int)m;
+        have_prompts = true;
+      } else {
+        return fail(p, kn, sub, "unknown key (expected name or prompts)");
+      }
+    }
+    if (!have_prompts) return fail(p, s, path, "expected a 'prompts' list, got none");
+  }
+  cfg->prompts.set_count = (int)count;
+  return 0;
+}
+
+static bool has_prefix(const char *prefix) {
+  size_t l = strlen(prefix);
+  for (size_t i = 0; i < NKEYS; i++)
+    if (!strncmp(schema[i].path, prefix, l) && schema[i].path[l] == '.') return true;
+  return !strcmp(prefix, "prompts");
+}
+
+static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vlff_config *cfg) {
+  for (yaml_node_pair_t *pr = map->data.mapping.pairs.start; pr < map->data.mapping.pairs.top; pr++) {
+    yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
+    yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
+    if (kn->type != YAML_SCALAR_NODE) return fail(p, kn, prefix[0] ? prefix : NULL, "expected a plain key");
+    char path[160];
+    snprintf(path, sizeof path, "%s%s%s", prefix, prefix[0] ? "." : "", scalar(kn));
+    /* Duplicate keys are almost always an edit mistake: refuse them. */
+    for (yaml_node_pair_t *q = map->data.mapping.pairs.start; q < pr; q++) {
+      yaml_node_t *qk = yaml_document_get_node(&p->doc, q->key);
+      if (qk->type == YAML_SCALAR_NODE && !strcmp(scalar(qk), scalar(kn)))
+        return fail(p, kn, path, "duplicate key (first at line %u)", (unsigned)qk->start_mark.line + 1);
+    }
+    if (!strcmp(path, PROMPT_SETS)) {
+      if (parse_prompt_sets(p, vn, cfg)) return -1;
+      continue;
+    }
+    const struct key *k = NULL;
+    for (size_t i = 0; i < NKEYS && !k; i++)
+      if (!strcmp(schema[i].path, path)) k = &schema[i];
+    if (k) {
+      if (set_key(p, k, vn, cfg)) return -1;
+      p->where[k - schema] = vn;
+    } else if (has_prefix(path)) {
+      char g[96];
+      got(vn, g, sizeof g);
+      if (vn->type != YAML_MAPPING_NODE) return fail(p, vn, path, "expected a mapping, got %s", g);
+      if (walk(p, vn, path, cfg)) return -1;
+    } else {
+      return fail(p, kn, path, "unknown key");
+    }
+  }
+  return 0;
+}
+
+/* Cross-key checks point at the value in the file when the file set it,
+ * else name the file alone: the default was combined with another key. */
+static const yaml_node_t *where(struct parse *p, const char *path) {
+  for (size_t i = 0; i < NKEYS; i++)
+    if (!strcmp(schema[i].path, path)) return p->where[i];
+  return NULL;
+}
+
+static int fail_cross(struct parse *p, const char *key, const char *fmt, ...) {
+  char what[256];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(what, sizeof what, fmt, ap);
+  va_end(ap);
+  const yaml_node_t *n = where(p, key);
+  if (n) return fail(p, n, key, "%s", what);
+  snprintf(p->err, p->errlen, "%s: key '%s': %s", p->name, key, what);
+  return -1;
+}
+
+static int check_cross(struct parse *p, struct vlff_config *cfg) {
+  for (int i = 0; i < 3; i++)
+    if (!(cfg->field.scene_min[i] < cfg->field.scene_max[i]))
+      return fail_cross(p, "field.scene_max", "expected scene_max > scene_min on every axis, got axis %d with %g <= %g", i,
+                  cfg->field.scene_max[i], cfg->field.scene_min[i]);
+  if (cfg->prompts.active >= cfg->prompts.set_count)
+    return fail_cross(p, "prompts.active", "expected an index below %d (the number of prompt sets), got %d",
+                cfg->prompts.set_count, cfg->prompts.active);
+  if (cfg->shm.mode & 0002)
+    return fail_cross(p, "shm.mode", "expected a mode that is not world-writable, got %04o", cfg->shm.mode);
+  if (cfg->field.finest_resolution < cfg->field.base_resolution)
+    return fail_cross(p, "field.finest_resolution", "expected >= field.base_resolution (%d), got %d",
+                cfg->field.base_resolution, cfg->field.finest_resolution);
+  if (!strstr(cfg->prompts.templ, "{}"))
+    return fail_cross(p, "prompts.template", "expected a template containing {}, got '%s'", cfg->prompts.templ);
+  return 0;
+}
+
+int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct vlff_config *cfg,
+                         char *err, size_t errlen) {
+  struct parse p = {.name = name, .err = err, .errlen = errlen};
+  struct vlff_config tmp;
+  vlff_config_defaults(&tmp);
+  vlff_config_defaults(cfg);
+  yaml_parser_t parser;
+  if (!yaml_parser_initialize(&parser)) return fail(&p, NULL, NULL, "out of memory");
+  yaml_parser_set_input_string(&parser, (const unsigned char *)buf, len);
+  if (!yaml_parser_load(&parser, &p.doc)) {
+    snprintf(err, errlen, "%s:%u:%u: YAML syntax error: %s", name,
+             (unsigned)parser.problem_mark.line + 1, (unsigned)parser.problem_mark.column + 1,
+             parser.problem ? parser.problem : "unknown");
+    yaml_parser_delete(&parser);
+    return -1;
+  }
+  int rc = 0;
+  yaml_node_t *root = yaml_document_get_root_node(&p.doc);
+  if (root) { /* an empty file is all defaults */
+    if (root->type != YAML_MAPPING_NODE) {
+      char g[96];
+      got(root, g, sizeof g);
+      rc = fail(&p, root, NULL, "expected a mapping at top level, got %s", g);
+    } else {
+      rc = walk(&p, root, "", &tmp);
+    }
+  }
+  /* A document after the first would be silently ignored: refuse it. */
+  if (rc == 0) {
+    yaml_document_t extra;
+    if (!yaml_parser_load(&parser, &extra)) {
+      rc = fail(&p, NULL, NULL, "YAML syntax error after the first document");
+    } else {
+      if (yaml_document_get_root_node(&extra)) {
+        snprintf(err, errlen, "%s:%u:%u: expected one YAML document, got more", name,
+                 (unsigned)extra.start_mark.line + 1, (unsigned)extra.start_mark.column + 1);
+        rc = -1;
+      }
+      yaml_document_delete(&extra);
+    }
+  }
+  if (rc == 0) rc = check_cross(&p, &tmp);
+  yaml_document_delete(&p.doc);
+  yaml_parser_delete(&parser);
+  if (rc == 0) *cfg = tmp;
+  return rc;
+}
+
+int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_t errlen) {
+  vlff_config_defaults(cfg);
+  FILE *f = fopen(path, "rb");
+  if (!f) {
+    snprintf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+    return -1;
+  }
+  char *buf = NULL;
+  size_t cap = 0, len = 0;
+  for (;;) {
+    if (len == cap) {
+      if (cap >= (size_t)16 << 20) {
+        fclose(f);
+        free(buf);
+        snprintf(err, errlen, "%s: larger than 16 MiB, not a config file", path);
+        return -1;
+      }
+      cap = cap ? cap * 2 : 8192;
+      char *nb = realloc(buf, cap);
+      if (!nb) {
+        fclose(f);
+        free(buf);
+        snprintf(err, errlen, "%s: out of memory", path);
+        return -1;
+      }
+      buf = nb;
+    }
+    size_t r = fread(buf + len, 1, cap - len, f);
+    len += r;
+    if (r == 0) break;
+  }
+  int bad = ferror(f);
+  fclose(f);
+  if (bad) {
+    free(buf);
+    snprintf(err, errlen, "%s: read error", path);
+    return -1;
+  }
+  int rc = vlff_config_load_mem(buf, len, path, cfg, err, errlen);
+  free(buf);
+  return rc;
+}
+
+/* ---- dump and hash ------------------------------------------------------ */
+
+void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
+  for (size_t i = 0; i < NKEYS; i++) {
+    const struct key *k = &schema[i];
+    fprintf(out, "%s: ", k->path);
+    switch (k->type) {
+    case T_INT:
+      if (!strcmp(k->path, "shm.mode"))
+        fprintf(out, "0%o\n", *(const int *)cat(cfg, k));
+      else
+        fprintf(out, "%d\n", *(const int *)cat(cfg, k));
+      break;
+    case T_DOUBLE: fprintf(out, "%.17g\n", *(const double *)cat(cfg, k)); break;
+    case T_BOOL: fprintf(out, "%s\n", *(const bool *)cat(cfg, k) ? "true" : "false"); break;
+    case T_STRING: fprintf(out, "\"%s\"\n", (const char *)cat(cfg, k)); break;
+    case T_ENUM: fprintf(out, "%s\n", k->names[*(const int *)cat(cfg, k)]); break;
+    case T_DVEC: {
+      const double *v = cat(cfg, k);
+      fputc('[', out);
+      for (size_t j = 0; j < k->size; j++) fprintf(out, "%s%.17g", j ? ", " : "", v[j]);
+      fputs("]\n", out);
+      break;
+    }
+    }
+  }
+  for (int s = 0; s < cfg->prompts.set_count; s++) {
+    const struct vlff_prompt_set *set = &cfg->prompts.sets[s];
+    fprintf(out, "%s[%d]: \"%s\" [", PROMPT_SETS, s, set->name);
+    for (int j = 0; j < set->count; j++) fprintf(out, "%s\"%s\"", j ? ", " : "", set->text[j]);
+    fputs("]\n", out);
+  }
+}
+
+static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
+  const unsigned char *b = p;
+  for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 0x100000001b3ull;
+  return h;
+}
+
+uint64_t vlff_config_field_hash(const struct vlff_config *cfg) {
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (size_t i = 0; i < NKEYS; i++) {
+    const struct key *k = &schema[i];
+    if (strncmp(k->path, "field.", 6)) continue;
+    h = fnv1a(h, k->path, strlen(k->path));
+    size_t n = k->type == T_DVEC ? k->size * sizeof(double) : k->type == T_INT ? sizeof(int) : sizeof(double);
+    h = fnv1a(h, cat(cfg, k), n);
+  }
+  return h;
+}

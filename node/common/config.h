@@ -1,0 +1,231 @@
+/*
+ * vlff configuration: one YAML file parsed into typed structs.
+ *
+ * Contract
+ *  - vlff_config_defaults() fills every field with its documented default;
+ *    configs/default.yaml lists exactly those values (a test checks this).
+ *  - vlff_config_load*() start from the defaults and apply the file. Any
+ *    error (syntax, unknown key, wrong type, value out of range) rejects the
+ *    whole file: the output struct is then left holding the defaults, and
+ *    err receives one line "file:line:column: key 'a.b': expected <what>,
+ *    got <what>". Unknown keys are errors so that typos never pass silently.
+ *  - Strings are stored NUL-terminated in fixed arrays; over-long values are
+ *    errors, never truncated.
+ *  - The struct is plain data: copy it freely; it owns no memory.
+ *  - Thread-safe: no global state.
+ */
+#ifndef VLFF_CONFIG_H
+#define VLFF_CONFIG_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdbool.h>
+
+#define VLFF_CFG_STR 128
+#define VLFF_CFG_PATH 256
+#define VLFF_PROMPT_LEN 64
+#define VLFF_MAX_PROMPTS 32
+#define VLFF_MAX_PROMPT_SETS 8
+
+enum vlff_log_level { VLFF_LOG_ERROR, VLFF_LOG_WARN, VLFF_LOG_INFO, VLFF_LOG_DEBUG };
+enum vlff_source_kind { VLFF_SOURCE_SIM, VLFF_SOURCE_RING, VLFF_SOURCE_DATASET };
+enum vlff_feature_source { VLFF_FEAT_SIM, VLFF_FEAT_MODEL, VLFF_FEAT_RING };
+enum vlff_feat_loss { VLFF_FEAT_LOSS_L2, VLFF_FEAT_LOSS_L1 };
+enum vlff_sampling { VLFF_SAMPLING_DEPTH, VLFF_SAMPLING_UNIFORM };
+enum vlff_trajectory { VLFF_TRAJ_WALK, VLFF_TRAJ_ORBIT };
+enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA, VLFF_CAM_SIM };
+enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
+enum vlff_gpio_mode { VLFF_GPIO_OFF, VLFF_GPIO_OUTPUT, VLFF_GPIO_INPUT };
+enum vlff_depth_kind { VLFF_DEPTH_NONE, VLFF_DEPTH_STREAM, VLFF_DEPTH_STEREO };
+
+struct vlff_prompt_set {
+  char name[VLFF_PROMPT_LEN];
+  int count;
+  char text[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
+};
+
+struct vlff_config {
+  struct {
+    char name[VLFF_CFG_STR];         /* instance name, used in shm names */
+    int log_level;                   /* enum vlff_log_level */
+    char state_dir[VLFF_CFG_PATH];   /* checkpoints live here */
+    double checkpoint_period_s;      /* 0 = only on SIGTERM / command */
+    double run_seconds;              /* 0 = run until signalled */
+    int threads;                     /* 0 = one per core */
+  } node;
+
+  struct {
+    char ring[VLFF_CFG_STR];         /* frame ring segment name ("/vlff-frames") */
+    int ring_slots;
+    int max_width, max_height;       /* slot size: largest frame accepted */
+    char pose_ring[VLFF_CFG_STR];
+    int pose_slots;
+    char map[VLFF_CFG_STR];
+    int map_max_voxels;              /* map segment capacity */
+    int label_max_width, label_max_height;
+    char prompts[VLFF_CFG_STR];      /* prompt mailbox segment */
+    char feature_ring[VLFF_CFG_STR];
+    char group[VLFF_CFG_STR];        /* owning group, "" = creator's */
+    int mode;                        /* permission bits, 0640 or 0660 */
+  } shm;
+
+  struct {
+    int kind;                        /* enum vlff_source_kind */
+    char dataset[VLFF_CFG_PATH];     /* scene directory for kind=dataset */
+    int features;                    /* enum vlff_feature_source */
+    double pose_tolerance_s;         /* frame<->pose timestamp match */
+  } source;
+
+  struct {
+    int seed;
+    double rate_hz;
+    int width, height;
+    int feature_dim;
+    double difficulty;               /* 0 = clean features, 1 = very noisy */
+    int trajectory;                  /* enum vlff_trajectory */
+    double speed_mps;
+    double depth_noise_m;
+    double depth_hole_frac;
+    double depth_max_m;
+    int frames;                      /* frames per trajectory loop */
+    double bad_pose_frac;            /* fraction of frames with corrupted poses */
+  } sim;
+
+  struct {
+    int feature_dim;                 /* D */
+    int hash_levels;
+    int hash_features;
+    int hash_log2_size;
+    int base_resolution;
+    int finest_resolution;
+    int freq_bands;                  /* L of the frequency encoding */
+    int geo_dim;                     /* geometric code */
+    int density_width, density_layers;
+    int color_width, color_layers;
+    int feature_width, feature_layers;
+    int sh_degree;
+    double scene_min[3], scene_max[3];
+  } field;
+
+  struct {
+    double lr;
+    double beta1, beta2, eps;
+    double weight_decay;
+    double lr_decay;                 /* multiplier applied every lr_decay_steps */
+    int lr_decay_steps;
+    int rays_per_step;
+    int samples_per_ray;
+    int sampling;                    /* enum vlff_sampling */
+    double depth_weight;
+    double feature_weight;
+    int feature_loss;                /* enum vlff_feat_loss */
+    double near_m;
+    int occupancy_resolution;
+    int occupancy_update_steps;
+    double image_scale;              /* training images scaled by this */
+  } train;
+
+  struct {
+    double rate_hz;                  /* keyframe selection upper bound */
+    double min_translation_m;
+    double min_rotation_deg;
+    int memory_mb;                   /* keyframe store budget */
+    int max_keyframes;
+    int start_after;                 /* train once this many are held */
+    double bad_pose_threshold_m;     /* median depth residual that rejects */
+  } keyframes;
+
+  struct {
+    double rate_hz;
+    double voxel_size_m;
+    int label_width, label_height;
+    double free_density;             /* below: free; unobserved stays unknown */
+  } publish;
+
+  struct {
+    int active;                      /* index into sets */
+    char templ[VLFF_CFG_STR];        /* prompt template, "{}" = the class */
+    char embeddings[VLFF_CFG_PATH];  /* precomputed prompt->vector file */
+    int set_count;
+    struct vlff_prompt_set sets[VLFF_MAX_PROMPT_SETS];
+  } prompts;
+
+  struct {
+    bool enabled;
+    char interface[32];
+    int node_id;                     /* 1..127, CANopen */
+    int heartbeat_ms;
+    int status_ms;
+    int status_base_id;
+    int command_id;
+    int ack_id;
+    bool fd;
+  } can;
+
+  struct {
+    int kind;                        /* enum vlff_camera_kind */
+    char device[VLFF_CFG_STR];       /* IP, serial, "Fake", libcamera id or index */
+    char pixel_format[32];
+    int width, height;               /* 0 = sensor maximum */
+    int offset_x, offset_y;
+    double exposure_us;
+    double gain_db;
+    double frame_rate;
+    int packet_size;
+    int trigger;                     /* enum vlff_trigger_mode */
+    char trigger_line[32];
+    int sensor_id;
+    double intrinsics[4];            /* fx fy cx cy; 0 = unknown */
+    double distortion[5];            /* k1 k2 p1 p2 k3 */
+    char calibration[VLFF_CFG_PATH]; /* OpenCV calibration YAML */
+    int depth;                       /* enum vlff_depth_kind */
+    double stereo_baseline_m;
+    int stereo_disparities;
+    double reconnect_max_s;
+  } camera;
+
+  struct {
+    int mode;                        /* enum vlff_gpio_mode */
+    char chip[VLFF_CFG_STR];
+    char line[VLFF_CFG_STR];         /* name or number */
+    double rate_hz;
+    double pulse_us;
+    bool active_low;
+    double debounce_us;
+  } gpio;
+
+  struct {
+    char image_model[VLFF_CFG_PATH];
+    char text_model[VLFF_CFG_PATH];
+    char bpe_vocab[VLFF_CFG_PATH];
+    int input_width, input_height;
+    double mean[3], std[3];
+    bool bgr;
+    bool normalize;
+    bool cuda;
+    double feature_timeout_s;
+  } vlm;
+};
+
+void vlff_config_defaults(struct vlff_config *cfg);
+
+/* Load a YAML file. Returns 0, or -1 with err filled ("file:line:col: ..."). */
+int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_t errlen);
+
+/* The same from memory; name is used in messages. */
+int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct vlff_config *cfg,
+                         char *err, size_t errlen);
+
+/* Write every key with its effective value as "a.b: value" lines. */
+void vlff_config_dump(const struct vlff_config *cfg, FILE *out);
+
+/* Number of scalar/array keys in the schema and the dotted path of key i. */
+size_t vlff_config_key_count(void);
+const char *vlff_config_key_path(size_t i);
+
+/* Stable 64-bit hash of the fields that shape learned state (field.*),
+ * stored in checkpoints so a mismatched model is refused. */
+uint64_t vlff_config_field_hash(const struct vlff_config *cfg);
+
+#endif

@@ -1,0 +1,57 @@
+/*
+ * The level is an atomic so it can change at run time (a CAN command or a
+ * signal) without a lock on the logging path.
+ */
+#include "log.h"
+
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include <unistd.h>
+
+static _Atomic int log_level = VLFF_LOG_INFO;
+static _Atomic long long log_t0_ns;
+
+void vlff_log_set_level(enum vlff_log_level level) { atomic_store(&log_level, (int)level); }
+enum vlff_log_level vlff_log_get_level(void) { return (enum vlff_log_level)atomic_load(&log_level); }
+
+static long long now_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (long long)ts.tv_sec * 1000000000ll + ts.tv_nsec;
+}
+
+void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_list ap) {
+  if ((int)level > atomic_load(&log_level)) return;
+  /* syslog priorities: err=3 warning=4 info=6 debug=7 */
+  static const int prio[] = {3, 4, 6, 7};
+  static const char letter[] = "EWID";
+  char line[1024];
+  int n;
+  if (getenv("JOURNAL_STREAM")) {
+    n = snprintf(line, sizeof line, "<%d>%s: ", prio[level], tag);
+  } else {
+    long long t = now_ns(), zero = 0;
+    atomic_compare_exchange_strong(&log_t0_ns, &zero, t);
+    long long rel = t - atomic_load(&log_t0_ns);
+    n = snprintf(line, sizeof line, "[%5lld.%06lld] %c %s: ", rel / 1000000000ll,
+                 (rel % 1000000000ll) / 1000, letter[level], tag);
+  }
+  if (n < 0) return;
+  int m = vsnprintf(line + n, sizeof line - (size_t)n, fmt, ap);
+  if (m < 0) return;
+  size_t len = (size_t)n + (size_t)m;
+  if (len > sizeof line - 2) len = sizeof line - 2;
+  line[len++] = '\n';
+  /* Best effort: a full or closed stderr must never stop the node. */
+  ssize_t w = write(STDERR_FILENO, line, len);
+  (void)w;
+}
+
+void vlff_log(enum vlff_log_level level, const char *tag, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  vlff_logv(level, tag, fmt, ap);
+  va_end(ap);
+}

@@ -1,0 +1,32 @@
+/*
+ * vlff logging: levelled, tagged lines on stderr.
+ *
+ * Contract
+ *  - One line per call, written with a single write(2) so lines from
+ *    different threads and processes never interleave.
+ *  - Interactive: "[   12.345678] W tag: message" with CLOCK_MONOTONIC
+ *    seconds since the process started logging.
+ *  - Under systemd (JOURNAL_STREAM set) lines start with the syslog
+ *    priority "<N>" and carry no timestamp: journald adds its own.
+ *  - Thread-safe; callable from any thread. Not async-signal-safe.
+ */
+#ifndef VLFF_LOG_H
+#define VLFF_LOG_H
+
+#include <stdarg.h>
+
+#include "config.h"
+
+void vlff_log_set_level(enum vlff_log_level level);
+enum vlff_log_level vlff_log_get_level(void);
+
+void vlff_log(enum vlff_log_level level, const char *tag, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_list ap);
+
+#define VLFF_ERROR(tag, ...) vlff_log(VLFF_LOG_ERROR, tag, __VA_ARGS__)
+#define VLFF_WARN(tag, ...) vlff_log(VLFF_LOG_WARN, tag, __VA_ARGS__)
+#define VLFF_INFO(tag, ...) vlff_log(VLFF_LOG_INFO, tag, __VA_ARGS__)
+#define VLFF_DEBUG(tag, ...) vlff_log(VLFF_LOG_DEBUG, tag, __VA_ARGS__)
+
+#endif

@@ -1,0 +1,187 @@
+/* Config parser: good files, every error path, and default.yaml's promise. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "config.h"
+
+static char err[512];
+
+static int load(const char *yaml, struct vlff_config *cfg) {
+  err[0] = 0;
+  return vlff_config_load_mem(yaml, strlen(yaml), "t.yaml", cfg, err, sizeof err);
+}
+
+/* Expect rejection with a message that starts "t.yaml:LINE:COL: key 'KEY': "
+ * and contains every fragment given. */
+static void expect_error(const char *yaml, const char *prefix, const char *fragment) {
+  struct vlff_config cfg;
+  assert_int_equal(load(yaml, &cfg), -1);
+  if (strncmp(err, prefix, strlen(prefix)) != 0 || !strstr(err, fragment)) {
+    fail_msg("error message\n  %s\nlacks prefix '%s' or fragment '%s'", err, prefix, fragment);
+  }
+  /* A rejected file leaves the defaults in place. */
+  struct vlff_config def;
+  vlff_config_defaults(&def);
+  assert_memory_equal(&cfg, &def, sizeof cfg);
+}
+
+static void test_defaults_valid(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  assert_int_equal(load("", &cfg), 0);
+  assert_int_equal(cfg.field.feature_dim, 512);
+  assert_int_equal(cfg.field.hash_levels, 16);
+  assert_int_equal(cfg.field.hash_log2_size, 19);
+  assert_true(cfg.train.depth_weight == 0.1);
+  assert_true(cfg.train.feature_weight == 0.5);
+  assert_int_equal(cfg.prompts.set_count, 1);
+  assert_int_equal(cfg.prompts.sets[0].count, 20);
+  assert_string_equal(cfg.prompts.sets[0].text[15], "shower curtain");
+  assert_int_equal(cfg.shm.mode, 0640);
+}
+
+static void test_good_file(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *y = "node:\n  name: robot1\n  log_level: debug\n"
+                  "field:\n  feature_dim: 128\n  scene_min: [-1, -2, -3]\n  scene_max: [1, 2, 3.5]\n"
+                  "can:\n  enabled: yes\n  node_id: 0x10\n"
+                  "shm:\n  mode: 0660\n"
+                  "prompts:\n  active: 1\n  sets:\n    - name: a\n      prompts: [x, y]\n"
+                  "    - name: b\n      prompts: [chair, \"shower curtain\", z]\n";
+  assert_int_equal(load(y, &cfg), 0);
+  assert_string_equal(cfg.node.name, "robot1");
+  assert_int_equal(cfg.node.log_level, VLFF_LOG_DEBUG);
+  assert_int_equal(cfg.field.feature_dim, 128);
+  assert_true(cfg.field.scene_min[2] == -3 && cfg.field.scene_max[2] == 3.5);
+  assert_true(cfg.can.enabled);
+  assert_int_equal(cfg.can.node_id, 16);
+  assert_int_equal(cfg.shm.mode, 0660);
+  assert_int_equal(cfg.prompts.set_count, 2);
+  assert_int_equal(cfg.prompts.active, 1);
+  assert_int_equal(cfg.prompts.sets[1].count, 3);
+  assert_string_equal(cfg.prompts.sets[1].text[1], "shower curtain");
+  /* Untouched keys keep their defaults. */
+  assert_int_equal(cfg.train.rays_per_step, 2048);
+}
+
+static void test_errors(void **state) {
+  (void)state;
+  expect_error("node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key");
+  expect_error("nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key");
+  expect_error("field:\n  feature_dim: abc\n", "t.yaml:2:16: key 'field.feature_dim': ",
+               "expected integer in [8, 1024], got 'abc'");
+  expect_error("field:\n  feature_dim: 2000\n", "t.yaml:2:16: key 'field.feature_dim': ", "got '2000'");
+  expect_error("field:\n  feature_dim: 1.5\n", "t.yaml:2:16: key 'field.feature_dim': ", "expected integer");
+  expect_error("train:\n  lr: fast\n", "t.yaml:2:7: key 'train.lr': ", "expected number in [0, 10], got 'fast'");
+  expect_error("train:\n  lr: nan\n", "t.yaml:2:7: key 'train.lr': ", "expected number");
+  expect_error("train:\n  lr: -1\n", "t.yaml:2:7: key 'train.lr': ", "got '-1'");
+  expect_error("can:\n  enabled: maybe\n", "t.yaml:2:12: key 'can.enabled': ", "expected true or false, got 'maybe'");
+  expect_error("train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ",
+               "expected one of depth|uniform, got 'random'");
+  expect_error("node:\n  name: [a, b]\n", "t.yaml:2:9: key 'node.name': ", "expected string, got a sequence");
+  expect_error("can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n",
+               "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes");
+  expect_error("field:\n  scene_min: [1, 2]\n", "t.yaml:2:14: key 'field.scene_min': ",
+               "expected sequence of 3 numbers, got a sequence");
+  expect_error("field:\n  scene_min: [1, x, 2]\n", "t.yaml:2:18: key 'field.scene_min': ", "at index 1, got 'x'");
+  expect_error("field: 3\n", "t.yaml:1:8: key 'field': ", "expected a mapping, got '3'");
+  expect_error("- a\n- b\n", "t.yaml:1:1: ", "expected a mapping at top level, got a sequence");
+  expect_error("node:\n  name: a\n  name: b\n", "t.yaml:3:3: key 'node.name': ", "duplicate key (first at line 2)");
+  expect_error("node:\n  name: [a\n", "t.yaml:", "YAML syntax error");
+  expect_error("node:\n  name: a\n---\nnode:\n  name: b\n", "t.yaml:", "expected one YAML document");
+  expect_error("prompts:\n  sets: x\n", "t.yaml:2:9: key 'prompts.sets': ", "expected sequence of {name, prompts}");
+  expect_error("prompts:\n  sets: []\n", "t.yaml:2:9: key 'prompts.sets': ", "expected 1 to 8 prompt sets, got 0");
+  expect_error("prompts:\n  sets:\n    - name: a\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected a 'prompts' list");
+  expect_error("prompts:\n  sets:\n    - name: a\n      promts: [x]\n", "t.yaml:4:7: key 'prompts.sets[0].promts': ",
+               "unknown key");
+  expect_error("prompts:\n  sets:\n    - prompts: [x, \"\"]\n", "t.yaml:3:20: key 'prompts.sets[0].prompts': ",
+               "at index 1, got ''");
+  expect_error("prompts:\n  sets:\n    - prompts: []\n", "t.yaml:3:16: key 'prompts.sets[0].prompts': ",
+               "expected sequence of 1 to 32 prompts");
+  expect_error("prompts:\n  sets:\n    - 5\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected mapping");
+  /* Cross-key checks name the key; they have no single source position. */
+  expect_error("field:\n  scene_min: [0, 0, 0]\n  scene_max: [1, 0, 1]\n", "t.yaml:3:14: key 'field.scene_max': ",
+               "axis 1");
+  expect_error("prompts:\n  active: 1\n", "t.yaml:2:11: key 'prompts.active': ", "below 1");
+  expect_error("shm:\n  mode: 0666\n", "t.yaml:2:9: key 'shm.mode': ", "world-writable");
+  expect_error("field:\n  base_resolution: 64\n  finest_resolution: 32\n", "t.yaml:3:22: key 'field.finest_resolution': ",
+               ">= field.base_resolution");
+  expect_error("field:\n  base_resolution: 4096\n", "t.yaml: key 'field.finest_resolution': ", "got 2048");
+  expect_error("prompts:\n  template: a photo\n", "t.yaml:2:13: key 'prompts.template': ", "containing {}");
+}
+
+static void test_missing_file(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  assert_int_equal(vlff_config_load("/nonexistent/x.yaml", &cfg, err, sizeof err), -1);
+  assert_non_null(strstr(err, "/nonexistent/x.yaml: cannot open"));
+}
+
+static char *dump_to_string(const struct vlff_config *cfg) {
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *f = open_memstream(&buf, &len);
+  vlff_config_dump(cfg, f);
+  fclose(f);
+  return buf;
+}
+
+/* configs/default.yaml must list every key with exactly the built-in default,
+ * and the shipped example configs must all be valid. */
+static void test_shipped_configs(void **state) {
+  (void)state;
+  const char *src = getenv("VLFF_SOURCE_DIR");
+  assert_non_null(src);
+  char path[1024];
+  struct vlff_config cfg, def;
+  vlff_config_defaults(&def);
+  snprintf(path, sizeof path, "%s/configs/default.yaml", src);
+  assert_int_equal(vlff_config_load(path, &cfg, err, sizeof err), 0);
+  char *a = dump_to_string(&cfg), *b = dump_to_string(&def);
+  assert_string_equal(a, b);
+  free(a);
+  free(b);
+  FILE *f = fopen(path, "r");
+  assert_non_null(f);
+  char text[65536];
+  size_t n = fread(text, 1, sizeof text - 1, f);
+  text[n] = 0;
+  fclose(f);
+  for (size_t i = 0; i < vlff_config_key_count(); i++) {
+    const char *k = strrchr(vlff_config_key_path(i), '.') + 1;
+    char needle[80];
+    snprintf(needle, sizeof needle, "\n  %s:", k);
+    if (!strstr(text, needle)) fail_msg("default.yaml lacks key %s", vlff_config_key_path(i));
+  }
+  const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "libcamera.yaml"};
+  for (size_t i = 0; i < 3; i++) {
+    snprintf(path, sizeof path, "%s/configs/%s", src, examples[i]);
+    if (vlff_config_load(path, &cfg, err, sizeof err)) fail_msg("%s", err);
+  }
+}
+
+static void test_field_hash(void **state) {
+  (void)state;
+  struct vlff_config a, b;
+  vlff_config_defaults(&a);
+  b = a;
+  b.train.lr = 0.5; /* training knobs do not change the model's shape */
+  assert_true(vlff_config_field_hash(&a) == vlff_config_field_hash(&b));
+  b.field.feature_dim = 128;
+  assert_true(vlff_config_field_hash(&a) != vlff_config_field_hash(&b));
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
+      cmocka_unit_test(test_errors),         cmocka_unit_test(test_missing_file),
+      cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_field_hash),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
