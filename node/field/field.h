@@ -1,0 +1,97 @@
+/*
+ * vlff_field: the vision-language feature field (the learner core).
+ *
+ * A hash-grid + low-frequency encoding feeds MLP1 (density, geometric code);
+ * MLP2 gives colour from the code and an SH view encoding; MLP3 gives the
+ * D-dim feature. Colour, depth and features are volume-rendered and trained
+ * on posed RGB-D views with dense feature maps (see docs/ and the paper).
+ *
+ * Conventions (every caller in vlff uses these)
+ *  - World frame in metres. Cameras follow OpenCV: x right, y down, z
+ *    forward; a pose is camera-to-world, 4x4 row-major double; pixel (u,v)
+ *    centre is at (u+0.5, v+0.5).
+ *  - Depth is metres along the camera z axis; 0 or non-finite = invalid.
+ *  - Features are IEEE float16 (uint16_t bits), HWC, D = field.feature_dim.
+ *  - Prompt embeddings are float32 [K][D]; the field L2-normalises them.
+ *
+ * Contract
+ *  - Functions returning int give 0 on success, -1 on error with a message
+ *    in err (when err is not NULL) naming what was wrong.
+ *  - A vlff_field is used by one thread at a time (the caller serialises
+ *    training, queries and checkpoints); internally each call uses
+ *    node.threads worker threads. Distinct fields are independent.
+ *  - All memory for a training step is planned at create time: steps and
+ *    queries of up to the planned batch sizes do not allocate.
+ *  - The caller owns every buffer it passes; nothing is retained after a
+ *    call returns except the prompt embeddings (copied).
+ */
+#ifndef VLFF_FIELD_H
+#define VLFF_FIELD_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "config.h"
+
+struct vlff_field;
+
+/* One posed RGB-D(-feature) view, at training or rendering resolution. */
+struct vlff_view {
+  int width, height;
+  const uint8_t *rgb;        /* RGB8, tightly packed rows; may be NULL (no colour loss) */
+  const float *depth;        /* metres, width*height; may be NULL */
+  double fx, fy, cx, cy;     /* intrinsics at width x height */
+  double c2w[16];            /* camera-to-world, row-major */
+  int feat_width, feat_height;
+  const uint16_t *features;  /* float16 [feat_height][feat_width][D]; may be NULL */
+};
+
+struct vlff_train_stats {
+  long long step;
+  double loss, loss_rgb, loss_depth, loss_feat;
+  double psnr;               /* of this step's rays */
+  long long samples;         /* network evaluations this step */
+};
+
+/* Create from cfg's field.*, train.* and node.threads sections. */
+struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, size_t errlen);
+void vlff_field_destroy(struct vlff_field *f);
+
+/* One optimisation step on train.rays_per_step rays drawn from views.
+ * weights (may be NULL = uniform) gives each view's share of the rays.
+ * Views with features of the wrong D are an error, checked up front. */
+int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews,
+                    const float *weights, struct vlff_train_stats *stats, char *err, size_t errlen);
+
+long long vlff_field_steps(const struct vlff_field *f);
+
+/* Set the prompt set: K embeddings of dimension D (K <= VLFF_MAX_PROMPTS).
+ * The prompts are folded into MLP3's last layer; queries then cost K, not D,
+ * output dot products. */
+int vlff_field_set_prompts(struct vlff_field *f, const float *emb, int k, char *err, size_t errlen);
+
+/* 3D queries at n points (xyz interleaved). Any output may be NULL.
+ *  density[n]; feature[n][D] (unfolded, raw MLP3 output);
+ *  label[n] = argmax_k E_k . f(x) over the prompt set, -1 outside the box;
+ *  score[n] = the winning cosine similarity; margin[n] = best - second best. */
+int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *density,
+                     float *feature, int *label, float *score, float *margin);
+
+/* Render a view at cam's pose and intrinsics (cam->rgb/depth/features are
+ * ignored). Outputs may be NULL: rgb[h][w][3] in [0,1], depth[h][w] metres,
+ * feature[h][w][D], label[h][w] (prompt index, -1 where nothing was hit),
+ * score[h][w]. */
+int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *rgb, float *depth,
+                      float *feature, int *label, float *score);
+
+/* Atomic checkpoint (temp file, fsync, rename) of the whole learned state;
+ * load refuses truncated, corrupt or mismatched (config hash) files and then
+ * leaves f untouched. */
+int vlff_field_save(const struct vlff_field *f, const char *path, char *err, size_t errlen);
+int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t errlen);
+
+/* float16 helpers shared by every module that handles features. */
+uint16_t vlff_f32_to_f16(float x);
+float vlff_f16_to_f32(uint16_t h);
+
+#endif
