@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# vlff-node's command line: version, help, config checking, clean exit on signals.
+set -u
+node=$1
+src=$2
+fails=0 passes=0
+check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
+tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+
+check "--version" '"$node" --version | grep -qE "^vlff-node [0-9]+\.[0-9]+\.[0-9]+$"'
+check "--help lists --check-config" '"$node" --help | grep -q -- "--check-config"'
+check "bad option exits 2" '"$node" --bogus >/dev/null 2>&1; [[ $? == 2 ]]'
+check "default.yaml checks" '"$node" --check-config "$src/configs/default.yaml" >/dev/null 2>&1'
+printf 'node:\n  name: x\ntrain:\n  lr: fast\n' >"$tmp/bad.yaml"
+check "bad config exits 1 with file:line:col" \
+  '! "$node" --check-config "$tmp/bad.yaml" >/dev/null 2>"$tmp/err" && grep -q "bad.yaml:4:7: key .train.lr.: expected number" "$tmp/err"'
+check "bad --config refuses to start" '! "$node" --config "$tmp/bad.yaml" >/dev/null 2>&1'
+for sig in INT TERM; do
+  printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\n' "$tmp" >"$tmp/ok.yaml"
+  "$node" --config "$tmp/ok.yaml" 2>"$tmp/log.$sig" &
+  pid=$!
+  sleep 1
+  kill -$sig $pid
+  wait $pid
+  rc=$?
+  check "SIG$sig exits 0 (rc=$rc)" '[[ $rc == 0 ]]'
+  check "SIG$sig logged" 'grep -q "stopping (SIG$sig)" "$tmp/log.$sig"'
+done
+JOURNAL_STREAM=1:2 timeout 5 "$node" --config "$tmp/ok.yaml" 2>"$tmp/j" & p=$!; sleep 0.5; kill -TERM $p; wait $p
+check "journald lines start with <6>" 'head -1 "$tmp/j" | grep -q "^<6>node: "'
+echo "$passes passed, $fails failed"
+(( fails == 0 ))
