@@ -1,0 +1,88 @@
+/*
+ * The pose check is the paper's open problem made concrete: a SLAM pose that
+ * jumped makes the measured depth disagree with what the map already knows.
+ * A median (not a mean) residual keeps a few moving objects or depth holes
+ * from rejecting a good frame.
+ */
+#include "select.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+void vlff_kf_selector_init(struct vlff_kf_selector *s, double rate_hz, double min_translation_m,
+                           double min_rotation_deg) {
+  s->min_interval_s = rate_hz > 0 ? 1.0 / rate_hz : 0;
+  s->min_translation_m = min_translation_m;
+  s->min_rotation_deg = min_rotation_deg;
+  s->have_last = false;
+  s->last_t_ns = 0;
+}
+
+static double rotation_deg(const double a[16], const double b[16]) {
+  double tr = 0;
+  for (int r = 0; r < 3; r++)
+    for (int c = 0; c < 3; c++) tr += a[r * 4 + c] * b[r * 4 + c];
+  double cosv = fmin(1.0, fmax(-1.0, (tr - 1.0) / 2.0));
+  return acos(cosv) * 180.0 / M_PI;
+}
+
+bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const double c2w[16]) {
+  if (s->have_last) {
+    if ((double)(t_ns - s->last_t_ns) * 1e-9 < s->min_interval_s) return false;
+    if (s->min_translation_m > 0 || s->min_rotation_deg > 0) {
+      double dt = 0;
+      for (int i = 0; i < 3; i++) dt += pow(c2w[i * 4 + 3] - s->last_c2w[i * 4 + 3], 2);
+      bool moved = (s->min_translation_m > 0 && sqrt(dt) >= s->min_translation_m) ||
+                   (s->min_rotation_deg > 0 && rotation_deg(c2w, s->last_c2w) >= s->min_rotation_deg);
+      if (!moved) return false;
+    }
+  }
+  s->have_last = true;
+  s->last_t_ns = t_ns;
+  for (int i = 0; i < 16; i++) s->last_c2w[i] = c2w[i];
+  return true;
+}
+
+bool vlff_pose_valid(const double m[16]) {
+  for (int i = 0; i < 16; i++)
+    if (!isfinite(m[i])) return false;
+  if (fabs(m[12]) > 1e-6 || fabs(m[13]) > 1e-6 || fabs(m[14]) > 1e-6 || fabs(m[15] - 1) > 1e-6)
+    return false;
+  for (int a = 0; a < 3; a++)
+    for (int b = 0; b < 3; b++) {
+      double dot = 0;
+      for (int r = 0; r < 3; r++) dot += m[r * 4 + a] * m[r * 4 + b];
+      if (fabs(dot - (a == b)) > 1e-3) return false;
+    }
+  double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
+               m[2] * (m[4] * m[9] - m[5] * m[8]);
+  return fabs(det - 1) < 1e-3;
+}
+
+static int cmp_float(const void *a, const void *b) {
+  float x = *(const float *)a, y = *(const float *)b;
+  return (x > y) - (x < y);
+}
+
+enum vlff_posecheck vlff_posecheck(const float *rendered, const unsigned char *hit,
+                                   const float *measured, size_t n, double threshold_m,
+                                   double min_frac, double *residual_m) {
+  *residual_m = -1;
+  if (n == 0) return VLFF_POSE_UNKNOWN;
+  /* The residuals are sorted in a small stack buffer: callers render the
+   * check at low resolution, so n stays small. */
+  enum { MAXN = 4096 };
+  float r[MAXN];
+  size_t m = 0, step = n > MAXN ? (n + MAXN - 1) / MAXN : 1;
+  size_t considered = 0;
+  for (size_t i = 0; i < n; i += step) {
+    considered++;
+    float d = measured[i], e = rendered[i];
+    if (!hit[i] || !(d > 0) || !isfinite(d) || !isfinite(e)) continue;
+    r[m++] = fabsf(e - d);
+  }
+  if ((double)m < min_frac * (double)considered || m == 0) return VLFF_POSE_UNKNOWN;
+  qsort(r, m, sizeof r[0], cmp_float);
+  *residual_m = r[m / 2];
+  return *residual_m > threshold_m ? VLFF_POSE_BAD : VLFF_POSE_OK;
+}

@@ -1,0 +1,95 @@
+/* Keyframe selection by time and motion, pose validation, bad-pose check. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "select.h"
+
+static void ident(double m[16], double x) {
+  memset(m, 0, 16 * sizeof m[0]);
+  m[0] = m[5] = m[10] = m[15] = 1;
+  m[3] = x;
+}
+
+static void test_time_only(void **st) {
+  (void)st;
+  struct vlff_kf_selector s;
+  vlff_kf_selector_init(&s, 5, 0, 0);
+  double p[16];
+  ident(p, 0);
+  int n = 0;
+  /* 30 Hz for 2 s at 5 Hz keyframes: 10 keyframes. */
+  for (int i = 0; i < 60; i++) n += vlff_kf_selector_offer(&s, (long long)i * 1000000000ll / 30, p);
+  assert_int_equal(n, 10);
+}
+
+static void test_motion_required(void **st) {
+  (void)st;
+  struct vlff_kf_selector s;
+  vlff_kf_selector_init(&s, 5, 0.1, 0);
+  double p[16];
+  ident(p, 0);
+  assert_true(vlff_kf_selector_offer(&s, 0, p));
+  assert_false(vlff_kf_selector_offer(&s, 1000000000ll, p)); /* time ok, no motion */
+  ident(p, 0.05);
+  assert_false(vlff_kf_selector_offer(&s, 2000000000ll, p));
+  ident(p, 0.2);
+  assert_true(vlff_kf_selector_offer(&s, 3000000000ll, p));
+  /* Rotation alone counts when min_rotation_deg is set. */
+  vlff_kf_selector_init(&s, 5, 0, 10);
+  ident(p, 0);
+  assert_true(vlff_kf_selector_offer(&s, 0, p));
+  double r[16];
+  ident(r, 0);
+  double a = 15 * M_PI / 180;
+  r[0] = cos(a), r[1] = -sin(a), r[4] = sin(a), r[5] = cos(a);
+  assert_true(vlff_kf_selector_offer(&s, 1000000000ll, r));
+}
+
+static void test_pose_valid(void **st) {
+  (void)st;
+  double p[16];
+  ident(p, 1);
+  assert_true(vlff_pose_valid(p));
+  p[3] = NAN;
+  assert_false(vlff_pose_valid(p));
+  ident(p, 1);
+  p[0] = 2; /* scaled axis */
+  assert_false(vlff_pose_valid(p));
+  ident(p, 1);
+  p[0] = -1; /* reflection: det -1 */
+  assert_false(vlff_pose_valid(p));
+  ident(p, 1);
+  p[14] = 1;
+  assert_false(vlff_pose_valid(p));
+}
+
+static void test_posecheck(void **st) {
+  (void)st;
+  enum { N = 100 };
+  float ren[N], meas[N];
+  unsigned char hit[N];
+  double res;
+  for (int i = 0; i < N; i++) ren[i] = 2.0f, meas[i] = 2.02f, hit[i] = 1;
+  meas[3] = 9; /* an outlier does not move the median */
+  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_OK);
+  assert_float_equal(res, 0.02, 1e-5);
+  for (int i = 0; i < N; i++) meas[i] = 2.5f;
+  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_BAD);
+  /* Too little of the view is known to the map: no verdict. */
+  for (int i = 0; i < N; i++) hit[i] = i < 10;
+  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_UNKNOWN);
+  /* Invalid measured depth is not evidence. */
+  for (int i = 0; i < N; i++) hit[i] = 1, meas[i] = 0;
+  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_UNKNOWN);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_time_only), cmocka_unit_test(test_motion_required),
+      cmocka_unit_test(test_pose_valid), cmocka_unit_test(test_posecheck)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
