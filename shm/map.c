@@ -200,7 +200,7 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     if (g->confidence)
       shm_racy_copy(bufp(m, nb, off_conf(mv)), g->confidence, n);
     else
-      memset(bufp(m, nb, off_conf(mv)), 255, n);
+      shm_racy_fill(bufp(m, nb, off_conf(mv)), 255, n);
   } else if (meta.version) {
     uint64_t n = (uint64_t)meta.dims[0] * meta.dims[1] * meta.dims[2];
     shm_racy_copy(bufp(m, nb, off_labels()), bufp(m, cur, off_labels()), 2 * n);
@@ -228,7 +228,7 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     if (li->confidence)
       shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), li->confidence, n);
     else
-      memset(bufp(m, nb, off_lconf(mv, lpx)), 255, n);
+      shm_racy_fill(bufp(m, nb, off_lconf(mv, lpx)), 255, n);
   } else if (meta.has_limg) {
     uint64_t n = (uint64_t)meta.lw * meta.lh;
     shm_racy_copy(bufp(m, nb, off_llabels(mv)), bufp(m, cur, off_llabels(mv)), 2 * n);

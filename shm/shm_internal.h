@@ -75,6 +75,7 @@ void shm_seg_close(struct seg *s);
  * validates afterwards and discards torn data). Kept out of ThreadSanitizer's view;
  * the sequence words around them are real atomics that TSan does check. */
 void shm_racy_copy(void *dst, const void *src, size_t n);
+void shm_racy_fill(void *dst, int c, size_t n);
 
 uint64_t shm_ring_total(const uint64_t g[6]);
 uint64_t shm_map_total(const uint64_t g[6]);
