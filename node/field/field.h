@@ -43,6 +43,7 @@ struct vlff_view {
   double fx, fy, cx, cy;     /* intrinsics at width x height */
   double c2w[16];            /* camera-to-world, row-major */
   int feat_width, feat_height;
+  int feat_dim;              /* D of features; must equal field.feature_dim when features != NULL */
   const uint16_t *features;  /* float16 [feat_height][feat_width][D]; may be NULL */
 };
 

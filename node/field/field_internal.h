@@ -1,0 +1,308 @@
+/*
+ * Internal interface of the learner core: the pieces behind field.h.
+ *
+ * The trainer wires encoding -> MLP1 (density, code) -> MLP2 (colour) and
+ * MLP3 (feature) -> renderer -> loss -> backward -> Adam. Every piece works on
+ * a block of samples laid out row-major ([sample][channel]) so the dense
+ * layers are GEMMs; nothing here allocates: buffers come from the caller.
+ * Not part of the public API; only node/field and its tests include it.
+ */
+#ifndef VLFF_FIELD_INTERNAL_H
+#define VLFF_FIELD_INTERNAL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "field.h"
+
+/* Hot kernels get AVX-512 / AVX2+FMA clones on x86-64 with GCC; elsewhere
+ * (ARM, clang) the portable vector-extension code is compiled for the target
+ * the build selects. */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(VLFF_NO_CLONES)
+#define VLFF_HOT __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#else
+#define VLFF_HOT
+/* ---- the field object (trainer.c, query.c, checkpoint.c) -------------- */
+#define VLFF_CHUNK_SAMPLES 1024  /* samples per work chunk (L2-sized activations) */
+#define VLFF_FEAT_WMIN 1e-3f     /* MLP3 runs only where a sample's weight reaches this */
+#define VLFF_QUERY_BLOCK 256     /* points per query task */
+
+struct vlff_ray {
+  float o[3], d[3];        /* world origin, direction with unit camera-z */
+  float rgb[3], depth;     /* targets; depth <= 0: none */
+  int has_rgb;
+  int view, feat_index;    /* feat_index < 0: no feature target */
+};
+
+/* Per-thread scratch, planned at create for one chunk. */
+struct vlff_work {
+  int cap;                 /* samples */
+  int rcap;                /* rays */
+  float *t, *delta, *sigma, *w, *trans, *e, *dsig;
+  int *ray_off, *ray_cnt, *ray_used;
+  int *sel2, *sel3, *ray_of;
+  float *p, *enc;
+  float *a1[VLFF_MLP_MAX_LAYERS], *a2[VLFF_MLP_MAX_LAYERS], *a3[VLFF_MLP_MAX_LAYERS];
+  float *in2, *in3, *dy_a, *dy_b, *dout1, *din2, *din3, *denc;
+  float *hray, *fray, *gf, *dh, *wsum, *tfeat, *rgb, *depth, *logits, *opac, *norm;
+  struct vlff_ray *rbuf;
+  float *grad;             /* this thread's MLP gradient */
+  double loss_rgb, loss_depth, loss_feat, sq_rgb;
+  long long samples;
+  uint64_t rng;
+};
+
+struct vlff_field {
+  struct vlff_config cfg;
+  struct vlff_pool *pool;
+  int threads;
+  struct vlff_encoding enc;
+  struct vlff_mlp m1, m2, m3;
+  int D, H, geo, shdim, E;
+  int spr;                 /* samples per ray */
+  int chunk_rays;
+  size_t ntable, nmlp, nparams;   /* table floats, MLP floats (params = table, then MLP) */
+  float *params, *adam_m, *adam_v, *grad;
+  float *wT;               /* transposed MLP weights, MLP-relative offsets */
+  uint32_t *stamp, *touched;
+  uint32_t ntouched[32];
+  struct vlff_adam adam;
+  struct vlff_occupancy occ;
+  long long step;
+  uint64_t rng;
+  int occ_cursor;
+  struct vlff_work *work;  /* [threads] */
+  struct vlff_ray *rays;   /* [rays_per_step] */
+  int nrays;
+  float *step_p, *step_denc;   /* per chunk slots of chunk_rays*spr samples */
+  int *chunk_n;
+  /* prompts (folded) */
+  int K;
+  float *E_, *EW, *EWt, *Eb, *G, *u;
+  float bb;
+  /* step context */
+  const struct vlff_view *views;
+  float scale_rgb, scale_depth, scale_feat;
+  int feat_l1;
+  int render_feat;         /* rendering needs MLP3 */
+};
+
+static inline float *vlff_mlp_params(struct vlff_field *f) { return f->params + f->ntable; }
+
+/* Forward through encoding and MLP1 for n normalised points of work w;
+ * fills w->sigma and w->a1 (out layer = [density raw, code]). */
+void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *p, int n);
+/* Work chunk of rays [r0, r0+nr) of the given rays: samples, forward,
+ * optional loss + backward (train). */
+void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
+                      float *pslot, float *dencslot, int *nsamples);
+/* Refresh derived data after parameters change (transposes, folded prompts). */
+void vlff_field_refresh(struct vlff_field *f);
+void vlff_field_occupancy_update(struct vlff_field *f, int full);
+void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d);
+
+#endif
+
+/* ---- thread pool (pool.c) ---------------------------------------------- */
+struct vlff_pool;
+typedef void (*vlff_task_fn)(void *ctx, int task, int thread);
+/* threads <= 0: one per online core. The calling thread is worker 0. */
+struct vlff_pool *vlff_pool_create(int threads);
+void vlff_pool_destroy(struct vlff_pool *p);
+int vlff_pool_threads(const struct vlff_pool *p);
+/* Runs fn(ctx, t, thread) for t in [0, ntasks): task t goes to thread
+ * t % threads, so a run is deterministic for a given thread count. */
+void vlff_pool_run(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
+
+/* ---- encoding (encoding.c) --------------------------------------------- */
+struct vlff_encoding {
+  int levels, feats, log2_size, freq_bands;
+  int dim;                 /* levels*feats + 6*freq_bands */
+  uint32_t size;           /* entries per level */
+  float box_min[3], box_scale[3];  /* p = (x - min) * scale, in [0,1] */
+  float res[32];           /* grid cells per axis, per level */
+  int dense[32];           /* level indexed densely (no hashing) */
+};
+void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_config *cfg);
+/* Normalised position of world point x, clamped to [0,1]; returns 0 when x
+ * was outside the box. */
+int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float *p);
+/* out[n][dim] for n normalised points p[n][3]; table = level-major params. */
+void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, const float *p, int n,
+                           float *out, int ldo);
+/* Accumulate dL/dtable for levels [l0, l1) from d[n][ld] (hash part only).
+ * Entries touched for the first time in this step (stamp != step) are zeroed
+ * first and appended to touched[level] (lazy Adam). */
+void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
+                            int l0, int l1, float *grad, uint32_t *stamp, uint32_t step,
+                            uint32_t *touched, uint32_t *ntouched);
+
+/* ---- dense layers (mlp.c) ---------------------------------------------- */
+#define VLFF_MLP_MAX_LAYERS 9
+struct vlff_mlp {
+  int nin, nout, width, hidden;      /* hidden = number of hidden layers */
+  int nl;                            /* linear layers = hidden + 1 */
+  int din[VLFF_MLP_MAX_LAYERS], dout[VLFF_MLP_MAX_LAYERS];
+  size_t woff[VLFF_MLP_MAX_LAYERS], boff[VLFF_MLP_MAX_LAYERS];  /* into params: Wt[in][out], b[out] */
+  size_t nparams;
+};
+/* Lays the MLP out at params offset base; returns the next offset (each
+ * block padded to 16 floats so rows stay vector aligned). */
+size_t vlff_mlp_init(struct vlff_mlp *m, int nin, int width, int hidden, int nout, size_t base);
+void vlff_mlp_init_params(const struct vlff_mlp *m, float *params, uint64_t *rng);
+/* C[M][N] (+)= A[M][K] B[K][N]; A(i,k) = a[i*ars + k*acs]. bias (may be
+ * NULL) initialises C; accumulate adds to C instead; relu clamps at 0. */
+void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
+               float *c, int ldc, const float *bias, int accumulate, int relu);
+/* Forward of layers [0, upto): act[l] is [n][dout[l]] (ReLU applied for
+ * hidden layers, none for the output layer). x is [n][ldx]. */
+void vlff_mlp_forward(const struct vlff_mlp *m, const float *params, const float *x, int ldx, int n,
+                      int upto, float **act);
+/* Backward through layers [0, upto): dy = dL/d(act[upto-1]) (already through
+ * the output activation; overwritten). Accumulates parameter gradients into
+ * grad (same layout as params) and writes dL/dx to dx[n][ldx] when dx is not
+ * NULL. wT = per-layer transposed weights W[out][in]; tmp = scratch of
+ * n*max(width,nin,nout) floats. */
+void vlff_mlp_backward(const struct vlff_mlp *m, const float *wT, const float *x, int ldx, int n, int upto,
+                       float *const *act, float *dy, float *grad, float *dx, float *tmp);
+/* Refresh the transposed weight copies from params. */
+void vlff_mlp_transpose(const struct vlff_mlp *m, const float *params, float *wT);
+
+/* ---- volume rendering (render.c) --------------------------------------- */
+/* Weights of one ray: sigma[s], delta[s] -> w[s], T[s] (transmittance before
+ * sample s). Stops when T drops below VLFF_T_MIN; returns the samples used
+ * (later weights are 0). */
+#define VLFF_T_MIN 1e-4f
+int vlff_render_weights(const float *sigma, const float *delta, int ns, float *w, float *trans);
+/* dL/dsigma[s] from e[s] = dL/dw_s-direction scalars (see render.c). */
+void vlff_render_backward(const float *w, const float *trans, const float *sigma, const float *delta,
+                          const float *e, int ns, float *dsigma);
+
+/* ---- losses (loss.c) --------------------------------------------------- */
+/* Each returns the loss of one ray and writes its gradient (scaled by
+ * scale). */
+float vlff_loss_rgb(const float *pred, const float *target, float scale, float *grad);
+float vlff_loss_depth(float pred, float target, float scale, float *grad);
+float vlff_loss_feat(const float *pred, const float *target, int d, int l1, float scale, float *grad);
+
+/* ---- Adam (adam.c) ----------------------------------------------------- */
+struct vlff_adam {
+  float lr, beta1, beta2, eps, wd;
+};
+/* Dense update of params[i0,i1) (decay = apply weight decay). */
+void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
+                     float *v, size_t i0, size_t i1, int decay);
+/* Lazy update of the listed entries (each `width` floats wide). */
+void vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
+                      float *v, const uint32_t *idx, uint32_t n, int width);
+
+/* ---- sampling (sampler.c) ---------------------------------------------- */
+struct vlff_occupancy {
+  int res;
+  float box_min[3], cell[3];
+  float *density;          /* res^3, EMA of max density */
+  uint8_t *occ;            /* res^3 */
+  float threshold;         /* density above which a cell is occupied */
+};
+/* Box entry/exit of a ray (t along dir); returns 0 when it misses. */
+int vlff_ray_box(const float *o, const float *d, const float *bmin, const float *bmax, float *t0, float *t1);
+/* Stratified samples in [t0,t1] restricted to occupied cells; returns the
+ * count (<= ns) and the spacing of the samples in t. u = jitter source
+ * (NULL = centred). */
+int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const float *d, float t0, float t1,
+                         int ns, uint64_t *rng, float *t, float *dt);
+int vlff_sample_uniform(float t0, float t1, int ns, uint64_t *rng, float *t, float *dt);
+/* Depth-guided: a band around the measured depth plus free space before it. */
+int vlff_sample_depth(float depth, float t0, float t1, int ns, uint64_t *rng, float *t, float *dt);
+
+/* ---- small shared helpers ---------------------------------------------- */
+static inline uint64_t vlff_rng_next(uint64_t *s) {
+  uint64_t z = (*s += 0x9e3779b97f4a7c15ull);
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+  return z ^ (z >> 31);
+}
+static inline float vlff_rng_uniform(uint64_t *s) { return (float)(vlff_rng_next(s) >> 40) * (1.0f / 16777216.0f); }
+/* Real spherical harmonics up to degree deg (deg*deg values) of unit d. */
+void vlff_sh_encode(const float *d, int deg, float *out);
+
+/* ---- the field object (trainer.c, query.c, checkpoint.c) -------------- */
+#define VLFF_CHUNK_SAMPLES 1024  /* samples per work chunk (L2-sized activations) */
+#define VLFF_FEAT_WMIN 1e-3f     /* MLP3 runs only where a sample's weight reaches this */
+#define VLFF_QUERY_BLOCK 256     /* points per query task */
+
+struct vlff_ray {
+  float o[3], d[3];        /* world origin, direction with unit camera-z */
+  float rgb[3], depth;     /* targets; depth <= 0: none */
+  int has_rgb;
+  int view, feat_index;    /* feat_index < 0: no feature target */
+};
+
+/* Per-thread scratch, planned at create for one chunk. */
+struct vlff_work {
+  int cap;                 /* samples */
+  int rcap;                /* rays */
+  float *t, *delta, *sigma, *w, *trans, *e, *dsig;
+  int *ray_off, *ray_cnt, *ray_used;
+  int *sel2, *sel3, *ray_of;
+  float *p, *enc;
+  float *a1[VLFF_MLP_MAX_LAYERS], *a2[VLFF_MLP_MAX_LAYERS], *a3[VLFF_MLP_MAX_LAYERS];
+  float *in2, *in3, *dy_a, *dy_b, *dout1, *din2, *din3, *denc;
+  float *hray, *fray, *gf, *dh, *wsum, *tfeat, *rgb, *depth, *logits, *opac, *norm;
+  struct vlff_ray *rbuf;
+  float *grad;             /* this thread's MLP gradient */
+  double loss_rgb, loss_depth, loss_feat, sq_rgb;
+  long long samples;
+  uint64_t rng;
+};
+
+struct vlff_field {
+  struct vlff_config cfg;
+  struct vlff_pool *pool;
+  int threads;
+  struct vlff_encoding enc;
+  struct vlff_mlp m1, m2, m3;
+  int D, H, geo, shdim, E;
+  int spr;                 /* samples per ray */
+  int chunk_rays;
+  size_t ntable, nmlp, nparams;   /* table floats, MLP floats (params = table, then MLP) */
+  float *params, *adam_m, *adam_v, *grad;
+  float *wT;               /* transposed MLP weights, MLP-relative offsets */
+  uint32_t *stamp, *touched;
+  uint32_t ntouched[32];
+  struct vlff_adam adam;
+  struct vlff_occupancy occ;
+  long long step;
+  uint64_t rng;
+  int occ_cursor;
+  struct vlff_work *work;  /* [threads] */
+  struct vlff_ray *rays;   /* [rays_per_step] */
+  int nrays;
+  float *step_p, *step_denc;   /* per chunk slots of chunk_rays*spr samples */
+  int *chunk_n;
+  /* prompts (folded) */
+  int K;
+  float *E_, *EW, *EWt, *Eb, *G, *u;
+  float bb;
+  /* step context */
+  const struct vlff_view *views;
+  float scale_rgb, scale_depth, scale_feat;
+  int feat_l1;
+  int render_feat;         /* rendering needs MLP3 */
+};
+
+static inline float *vlff_mlp_params(struct vlff_field *f) { return f->params + f->ntable; }
+
+/* Forward through encoding and MLP1 for n normalised points of work w;
+ * fills w->sigma and w->a1 (out layer = [density raw, code]). */
+void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *p, int n);
+/* Work chunk of rays [r0, r0+nr) of the given rays: samples, forward,
+ * optional loss + backward (train). */
+void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
+                      float *pslot, float *dencslot, int *nsamples);
+/* Refresh derived data after parameters change (transposes, folded prompts). */
+void vlff_field_refresh(struct vlff_field *f);
+void vlff_field_occupancy_update(struct vlff_field *f, int full);
+void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d);
+
+#endif

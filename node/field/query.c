@@ -1,0 +1,257 @@
+/*
+ * Queries: prompts, 3D points and 2D renders.
+ *
+ * With prompts set, labels never form the D-dim feature: the prompt matrix E
+ * (K x D, rows unit length) is folded into MLP3's last layer, so
+ * E f = (E W) h + E b costs K x H per point instead of D x H, and the norm
+ * |f|^2 = hᵀ(WᵀW)h + 2 (Wᵀb).h + |b|^2 (needed for cosine scores) costs H x H
+ * and is computed only when scores or margins are requested. Rendering is
+ * linear in the feature, so 2D labels fold the same way on the rendered h.
+ * Large 3D batches are processed in Morton order of their positions, which
+ * keeps hash-table lookups of neighbouring points in cache.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <stdio.h>
+
+#include "field_internal.h"
+
+int vlff_field_set_prompts(struct vlff_field *f, const float *emb, int k, char *err, size_t errlen) {
+  if (k < 0 || k > VLFF_MAX_PROMPTS || (k > 0 && !emb)) {
+    if (err && errlen) snprintf(err, errlen, "field prompts: expected 0..%d embeddings, got %d", VLFF_MAX_PROMPTS, k);
+    return -1;
+  }
+  const int D = f->D;
+  for (int i = 0; i < k; i++) {
+    double n = 0;
+    for (int j = 0; j < D; j++) {
+      float x = emb[(size_t)i * D + j];
+      if (!isfinite(x)) {
+        if (err && errlen) snprintf(err, errlen, "field prompts: embedding %d has a non-finite value at %d", i, j);
+        return -1;
+      }
+      n += (double)x * x;
+    }
+    if (!(n > 1e-20)) {
+      if (err && errlen) snprintf(err, errlen, "field prompts: embedding %d is zero", i);
+      return -1;
+    }
+  }
+  for (int i = 0; i < k; i++) {
+    double n = 0;
+    for (int j = 0; j < D; j++) n += (double)emb[(size_t)i * D + j] * emb[(size_t)i * D + j];
+    float inv = (float)(1.0 / sqrt(n));
+    for (int j = 0; j < D; j++) f->E_[(size_t)i * D + j] = emb[(size_t)i * D + j] * inv;
+  }
+  f->K = k;
+  vlff_field_refresh(f);
+  return 0;
+}
+
+/* Label, score and margin from K logits and the feature norm. */
+static void pick(const float *logit, int K, float norm, int *label, float *score, float *margin) {
+  int best = 0;
+  float b1 = -INFINITY, b2 = -INFINITY;
+  for (int k = 0; k < K; k++) {
+    float v = logit[k];
+    if (v > b1) {
+      b2 = b1;
+      b1 = v;
+      best = k;
+    } else if (v > b2) {
+      b2 = v;
+    }
+  }
+  float inv = norm > 1e-20f ? 1.0f / norm : 0.0f;
+  if (label) *label = best;
+  if (score) *score = b1 * inv;
+  if (margin) *margin = K > 1 ? (b1 - b2) * inv : 0.0f;
+}
+
+/* Feature norms of n rendered/queried hidden vectors h (weight sums ws, or
+ * NULL for 1): |W h + s b|. tmp holds n x H. */
+static void feat_norms(const struct vlff_field *f, const float *h, const float *ws, int n, float *tmp, float *out) {
+  const int H = f->H;
+  vlff_gemm(n, H, H, h, H, 1, f->G, H, tmp, H, NULL, 0, 0);
+  for (int i = 0; i < n; i++) {
+    const float *hi = h + (size_t)i * H, *ti = tmp + (size_t)i * H;
+    float s = ws ? ws[i] : 1.0f, q = 0, uh = 0;
+    for (int j = 0; j < H; j++) {
+      q += hi[j] * ti[j];
+      uh += f->u[j] * hi[j];
+    }
+    float v = q + 2.0f * s * uh + s * s * f->bb;
+    out[i] = sqrtf(v > 0 ? v : 0);
+  }
+}
+
+struct query_ctx {
+  struct vlff_field *f;
+  const float *xyz;
+  const uint32_t *order;   /* NULL = identity */
+  size_t n;
+  float *density, *feature, *score, *margin;
+  int *label;
+  int ntasks;
+};
+
+static void query_task(void *ctx, int task, int thread) {
+  struct query_ctx *q = ctx;
+  struct vlff_field *f = q->f;
+  struct vlff_work *w = &f->work[thread];
+  const int H = f->H, D = f->D, K = f->K, geo = f->geo;
+  const float *pm = vlff_mlp_params(f);
+  size_t a = (size_t)task * VLFF_QUERY_BLOCK;
+  int n = (int)(q->n - a < VLFF_QUERY_BLOCK ? q->n - a : VLFF_QUERY_BLOCK);
+  uint32_t idx[VLFF_QUERY_BLOCK];
+  unsigned char inside[VLFF_QUERY_BLOCK];
+  for (int i = 0; i < n; i++) {
+    idx[i] = q->order ? q->order[a + i] : (uint32_t)(a + i);
+    inside[i] = (unsigned char)vlff_encoding_normalise(&f->enc, q->xyz + 3 * (size_t)idx[i], w->p + 3 * i);
+  }
+  vlff_field_density(f, w, w->p, n);
+  if (q->density)
+    for (int i = 0; i < n; i++) q->density[idx[i]] = inside[i] ? w->sigma[i] : 0.0f;
+  int need_h = q->feature || q->label || q->score || q->margin;
+  if (!need_h) return;
+  const float *out1 = w->a1[f->m1.nl - 1];
+  for (int i = 0; i < n; i++) memcpy(w->in3 + (size_t)i * geo, out1 + (size_t)i * f->m1.nout + 1, geo * sizeof(float));
+  const struct vlff_mlp *m3 = &f->m3;
+  vlff_mlp_forward(m3, pm, w->in3, geo, n, m3->nl - 1, w->a3);
+  const float *h = w->a3[m3->nl - 2];
+  int last = m3->nl - 1;
+  if (q->feature) {
+    vlff_gemm(n, D, H, h, H, 1, pm + m3->woff[last], D, w->fray, D, pm + m3->boff[last], 0, 0);
+    for (int i = 0; i < n; i++) {
+      float *dst = q->feature + (size_t)idx[i] * D;
+      if (inside[i])
+        memcpy(dst, w->fray + (size_t)i * D, (size_t)D * sizeof(float));
+      else
+        memset(dst, 0, (size_t)D * sizeof(float));
+    }
+  }
+  if (!(q->label || q->score || q->margin)) return;
+  vlff_gemm(n, K, H, h, H, 1, f->EWt, K, w->logits, K, f->Eb, 0, 0);
+  int want_norm = q->score || q->margin;
+  if (want_norm) feat_norms(f, h, NULL, n, w->norm, w->opac);
+  for (int i = 0; i < n; i++) {
+    int lb;
+    float sc, mg;
+    if (inside[i]) {
+      pick(w->logits + (size_t)i * K, K, want_norm ? w->opac[i] : 1.0f, &lb, &sc, &mg);
+    } else {
+      lb = -1;
+      sc = mg = 0;
+    }
+    if (q->label) q->label[idx[i]] = lb;
+    if (q->score) q->score[idx[i]] = sc;
+    if (q->margin) q->margin[idx[i]] = mg;
+  }
+}
+
+int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *density, float *feature, int *label,
+                     float *score, float *margin) {
+  if (!f || (n && !xyz)) return -1;
+  if ((label || score || margin) && f->K == 0) return -1;
+  if (n > UINT32_MAX) return -1;
+  struct query_ctx q = {f, xyz, NULL, 0, density, feature, score, margin, label, 0};
+  for (size_t a = 0; a < n;) {
+    size_t m = n - a > (size_t)1 << 24 ? (size_t)1 << 24 : n - a;
+    q.xyz = xyz;
+    q.n = a + m;
+    /* Tasks index from a: offset via a shifted view of the arrays. */
+    struct query_ctx sub = q;
+    sub.xyz = xyz + 3 * a;
+    sub.n = m;
+    sub.density = density ? density + a : NULL;
+    sub.feature = feature ? feature + a * (size_t)f->D : NULL;
+    sub.label = label ? label + a : NULL;
+    sub.score = score ? score + a : NULL;
+    sub.margin = margin ? margin + a : NULL;
+    sub.ntasks = (int)((m + VLFF_QUERY_BLOCK - 1) / VLFF_QUERY_BLOCK);
+    vlff_pool_run(f->pool, sub.ntasks, query_task, &sub);
+    a += m;
+  }
+  return 0;
+}
+
+/* ---- 2D rendering --------------------------------------------------------- */
+
+struct render_ctx {
+  struct vlff_field *f;
+  const struct vlff_view *cam;
+  float *rgb, *depth, *feature, *score;
+  int *label;
+};
+
+static void render_task(void *ctx, int task, int thread) {
+  struct render_ctx *rc = ctx;
+  struct vlff_field *f = rc->f;
+  struct vlff_work *w = &f->work[thread];
+  const struct vlff_view *cam = rc->cam;
+  const int H = f->H, D = f->D, K = f->K;
+  size_t npx = (size_t)cam->width * cam->height;
+  size_t a = (size_t)task * f->chunk_rays;
+  int nr = (int)(npx - a < (size_t)f->chunk_rays ? npx - a : (size_t)f->chunk_rays);
+  for (int r = 0; r < nr; r++) {
+    size_t pix = a + r;
+    double u = (double)(pix % cam->width) + 0.5, v = (double)(pix / cam->width) + 0.5;
+    struct vlff_ray *ray = &w->rbuf[r];
+    vlff_camera_ray(cam, u, v, ray->o, ray->d);
+    ray->depth = 0;
+    ray->has_rgb = 0;
+    ray->feat_index = -1;
+    ray->view = 0;
+  }
+  int ns;
+  vlff_field_chunk(f, w, w->rbuf, nr, 0, NULL, NULL, &ns);
+  for (int r = 0; r < nr; r++) {
+    size_t pix = a + r;
+    if (rc->rgb)
+      for (int c = 0; c < 3; c++) rc->rgb[3 * pix + c] = w->rgb[3 * r + c];
+    if (rc->depth) rc->depth[pix] = w->depth[r];
+  }
+  const float *pm = vlff_mlp_params(f);
+  const struct vlff_mlp *m3 = &f->m3;
+  int last = m3->nl - 1;
+  if (rc->feature) {
+    vlff_gemm(nr, D, H, w->hray, H, 1, pm + m3->woff[last], D, w->fray, D, NULL, 0, 0);
+    const float *b = pm + m3->boff[last];
+    for (int r = 0; r < nr; r++) {
+      float *dst = rc->feature + (a + r) * (size_t)D;
+      const float *src = w->fray + (size_t)r * D;
+      for (int j = 0; j < D; j++) dst[j] = src[j] + w->wsum[r] * b[j];
+    }
+  }
+  if (rc->label || rc->score) {
+    vlff_gemm(nr, K, H, w->hray, H, 1, f->EWt, K, w->logits, K, NULL, 0, 0);
+    float norms[VLFF_CHUNK_SAMPLES];
+    if (rc->score) feat_norms(f, w->hray, w->wsum, nr, w->norm, norms);
+    for (int r = 0; r < nr; r++) {
+      float *lg = w->logits + (size_t)r * K;
+      for (int k = 0; k < K; k++) lg[k] += w->wsum[r] * f->Eb[k];
+      int lb = -1;
+      float sc = 0;
+      if (w->opac[r] >= 0.5f) pick(lg, K, rc->score ? norms[r] : 1.0f, &lb, &sc, NULL);
+      if (rc->label) rc->label[a + r] = lb;
+      if (rc->score) rc->score[a + r] = sc;
+    }
+  }
+}
+
+int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *rgb, float *depth, float *feature,
+                      int *label, float *score) {
+  if (!f || !cam || cam->width <= 0 || cam->height <= 0 || !(cam->fx > 0) || !(cam->fy > 0)) return -1;
+  for (int k = 0; k < 16; k++)
+    if (!isfinite(cam->c2w[k])) return -1;
+  if ((label || score) && f->K == 0) return -1;
+  struct render_ctx rc = {f, cam, rgb, depth, feature, score, label};
+  f->render_feat = feature || label || score;
+  size_t npx = (size_t)cam->width * cam->height;
+  size_t ntasks = (npx + f->chunk_rays - 1) / f->chunk_rays;
+  if (ntasks > (size_t)1 << 30) return -1;
+  vlff_pool_run(f->pool, (int)ntasks, render_task, &rc);
+  f->render_feat = 0;
+  return 0;
+}

@@ -1,0 +1,760 @@
+/*
+ * The trainer: plans every buffer at create, then each step
+ *   1. draws rays from the views (serial, cheap, deterministic),
+ *   2. runs work chunks of rays in parallel: sample, encode, MLP1, weights,
+ *      MLP2 on live samples, MLP3's hidden layers on samples that carry
+ *      weight, render, loss, backward; MLP gradients go to per-thread buffers,
+ *   3. reduces those, scatters hash-grid gradients level by level (each level
+ *      owned by one thread: no atomics, no races),
+ *   4. Adam (lazy on the table), refreshes derived weights.
+ *
+ * MLP3's output layer is linear, so it commutes with rendering: the hidden
+ * activation h is rendered per ray, H = sum w_s h_s, and the D-wide layer is
+ * applied once per ray, F = W H + (sum w_s) b. Backward likewise: dH = Wᵀ dF,
+ * dh_s = w_s dH, and the sample's scalar for the weight gradient is
+ * dF . f_s = dH . h_s + dF . b. Exact, and D x H work per ray, not per sample.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <stdio.h>
+
+#include "field_internal.h"
+
+static void seterr(char *err, size_t n, const char *fmt, const char *what) {
+  if (err && n) snprintf(err, n, fmt, what);
+}
+
+static void *xalloc(size_t n, int *ok) {
+  if (!*ok) return NULL;
+  void *p = NULL;
+  if (n == 0) n = 64;
+  if (posix_memalign(&p, 64, (n + 63) & ~(size_t)63)) {
+    *ok = 0;
+    return NULL;
+  }
+  memset(p, 0, n);
+  return p;
+}
+
+static int imax(int a, int b) { return a > b ? a : b; }
+
+static void work_free(struct vlff_work *w) {
+  void **ptrs[] = {(void **)&w->t, (void **)&w->delta, (void **)&w->sigma, (void **)&w->w, (void **)&w->trans,
+                   (void **)&w->e, (void **)&w->dsig, (void **)&w->ray_off, (void **)&w->ray_cnt,
+                   (void **)&w->ray_used, (void **)&w->sel2, (void **)&w->sel3, (void **)&w->ray_of,
+                   (void **)&w->p, (void **)&w->enc, (void **)&w->in2, (void **)&w->in3, (void **)&w->dy_a,
+                   (void **)&w->dy_b, (void **)&w->dout1, (void **)&w->din2, (void **)&w->din3,
+                   (void **)&w->denc, (void **)&w->hray, (void **)&w->fray, (void **)&w->gf, (void **)&w->dh,
+                   (void **)&w->wsum, (void **)&w->tfeat, (void **)&w->rgb, (void **)&w->depth,
+                   (void **)&w->logits, (void **)&w->grad, (void **)&w->opac, (void **)&w->norm, (void **)&w->rbuf};
+  for (size_t i = 0; i < sizeof(ptrs) / sizeof(ptrs[0]); i++) {
+    free(*ptrs[i]);
+    *ptrs[i] = NULL;
+  }
+  for (int l = 0; l < VLFF_MLP_MAX_LAYERS; l++) {
+    free(w->a1[l]);
+    free(w->a2[l]);
+    free(w->a3[l]);
+    w->a1[l] = w->a2[l] = w->a3[l] = NULL;
+  }
+}
+
+static int work_alloc(struct vlff_field *f, struct vlff_work *w) {
+  int ok = 1;
+  size_t N = (size_t)w->cap, R = (size_t)w->rcap, fs = sizeof(float);
+  int maxw = imax(imax(imax(f->E, f->m1.width), imax(f->m2.width, f->H)), imax(f->geo + f->shdim, 16));
+  w->t = xalloc(N * fs, &ok);
+  w->delta = xalloc(N * fs, &ok);
+  w->sigma = xalloc(N * fs, &ok);
+  w->w = xalloc(N * fs, &ok);
+  w->trans = xalloc(N * fs, &ok);
+  w->e = xalloc(N * fs, &ok);
+  w->dsig = xalloc(N * fs, &ok);
+  w->ray_off = xalloc(R * sizeof(int), &ok);
+  w->ray_cnt = xalloc(R * sizeof(int), &ok);
+  w->ray_used = xalloc(R * sizeof(int), &ok);
+  w->sel2 = xalloc(N * sizeof(int), &ok);
+  w->sel3 = xalloc(N * sizeof(int), &ok);
+  w->ray_of = xalloc(N * sizeof(int), &ok);
+  w->p = xalloc(N * 3 * fs, &ok);
+  w->enc = xalloc(N * f->E * fs, &ok);
+  for (int l = 0; l < f->m1.nl; l++) w->a1[l] = xalloc(N * f->m1.dout[l] * fs, &ok);
+  for (int l = 0; l < f->m2.nl; l++) w->a2[l] = xalloc(N * f->m2.dout[l] * fs, &ok);
+  for (int l = 0; l < f->m3.nl - 1; l++) w->a3[l] = xalloc(N * f->m3.dout[l] * fs, &ok);
+  w->in2 = xalloc(N * (f->geo + f->shdim) * fs, &ok);
+  w->in3 = xalloc(N * f->geo * fs, &ok);
+  w->dy_a = xalloc(N * maxw * fs, &ok);
+  w->dy_b = xalloc(N * maxw * fs, &ok);
+  w->dout1 = xalloc(N * maxw * fs, &ok);
+  w->din2 = xalloc(N * (f->geo + f->shdim) * fs, &ok);
+  w->din3 = xalloc(N * f->geo * fs, &ok);
+  w->denc = xalloc(N * f->E * fs, &ok);
+  size_t RD = R * (size_t)imax(f->D, imax(f->H, VLFF_MAX_PROMPTS));
+  w->hray = xalloc(R * f->H * fs, &ok);
+  w->fray = xalloc(RD * fs, &ok);
+  w->gf = xalloc(RD * fs, &ok);
+  w->dh = xalloc(R * f->H * fs, &ok);
+  w->wsum = xalloc(R * fs, &ok);
+  w->tfeat = xalloc(RD * fs, &ok);
+  w->rgb = xalloc(R * 3 * fs, &ok);
+  w->depth = xalloc(R * fs, &ok);
+  w->logits = xalloc(RD * fs, &ok);
+  w->grad = xalloc(f->nmlp * fs, &ok);
+  w->opac = xalloc(R * fs, &ok);
+  w->norm = xalloc(R * (size_t)f->H * fs, &ok);
+  w->rbuf = xalloc(R * sizeof(struct vlff_ray), &ok);
+  return ok ? 0 : -1;
+}
+
+void vlff_field_destroy(struct vlff_field *f) {
+  if (!f) return;
+  if (f->pool) vlff_pool_destroy(f->pool);
+  if (f->work)
+    for (int i = 0; i < f->threads; i++) work_free(&f->work[i]);
+  free(f->work);
+  free(f->params);
+  free(f->adam_m);
+  free(f->adam_v);
+  free(f->grad);
+  free(f->wT);
+  free(f->stamp);
+  free(f->touched);
+  free(f->occ.density);
+  free(f->occ.occ);
+  free(f->rays);
+  free(f->step_p);
+  free(f->step_denc);
+  free(f->chunk_n);
+  free(f->E_);
+  free(f->EW);
+  free(f->EWt);
+  free(f->Eb);
+  free(f->G);
+  free(f->u);
+  free(f);
+}
+
+struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, size_t errlen) {
+  if (!cfg) {
+    seterr(err, errlen, "field: %s", "no config");
+    return NULL;
+  }
+  const int levels = cfg->field.hash_levels;
+  if (levels > 32) {
+    seterr(err, errlen, "field: %s", "field.hash_levels must be <= 32");
+    return NULL;
+  }
+  struct vlff_field *f = calloc(1, sizeof(*f));
+  if (!f) {
+    seterr(err, errlen, "field: %s", "out of memory");
+    return NULL;
+  }
+  f->cfg = *cfg;
+  vlff_encoding_init(&f->enc, cfg);
+  f->D = cfg->field.feature_dim;
+  f->H = cfg->field.feature_width;
+  f->geo = cfg->field.geo_dim;
+  f->shdim = cfg->field.sh_degree * cfg->field.sh_degree;
+  f->E = f->enc.dim;
+  f->spr = cfg->train.samples_per_ray;
+  f->chunk_rays = imax(1, VLFF_CHUNK_SAMPLES / f->spr);
+  f->ntable = (size_t)levels * f->enc.size * f->enc.feats;
+  size_t off = 0;
+  off = vlff_mlp_init(&f->m1, f->E, cfg->field.density_width, cfg->field.density_layers, 1 + f->geo, off);
+  off = vlff_mlp_init(&f->m2, f->geo + f->shdim, cfg->field.color_width, cfg->field.color_layers, 3, off);
+  off = vlff_mlp_init(&f->m3, f->geo, f->H, cfg->field.feature_layers, f->D, off);
+  f->nmlp = off;
+  f->nparams = f->ntable + f->nmlp;
+  f->adam.lr = (float)cfg->train.lr;
+  f->adam.beta1 = (float)cfg->train.beta1;
+  f->adam.beta2 = (float)cfg->train.beta2;
+  f->adam.eps = (float)cfg->train.eps;
+  f->adam.wd = (float)cfg->train.weight_decay;
+  f->feat_l1 = cfg->train.feature_loss == VLFF_FEAT_LOSS_L1;
+
+  f->pool = vlff_pool_create(cfg->node.threads);
+  if (!f->pool) {
+    seterr(err, errlen, "field: %s", "cannot start worker threads");
+    vlff_field_destroy(f);
+    return NULL;
+  }
+  f->threads = vlff_pool_threads(f->pool);
+
+  int ok = 1;
+  size_t fs = sizeof(float);
+  f->params = xalloc(f->nparams * fs, &ok);
+  f->adam_m = xalloc(f->nparams * fs, &ok);
+  f->adam_v = xalloc(f->nparams * fs, &ok);
+  f->grad = xalloc(f->nparams * fs, &ok);
+  f->wT = xalloc(f->nmlp * fs, &ok);
+  f->stamp = xalloc((size_t)levels * f->enc.size * sizeof(uint32_t), &ok);
+  f->touched = xalloc((size_t)levels * f->enc.size * sizeof(uint32_t), &ok);
+  int ores = cfg->train.occupancy_resolution;
+  size_t ncell = (size_t)ores * ores * ores;
+  f->occ.res = ores;
+  for (int a = 0; a < 3; a++) {
+    f->occ.box_min[a] = (float)cfg->field.scene_min[a];
+    f->occ.cell[a] = (float)((cfg->field.scene_max[a] - cfg->field.scene_min[a]) / ores);
+  }
+  f->occ.density = xalloc(ncell * fs, &ok);
+  f->occ.occ = xalloc(ncell, &ok);
+  {
+    /* Occupied when a cell-long interval would stop >= 1 % of the light. */
+    float cmin = fminf(f->occ.cell[0], fminf(f->occ.cell[1], f->occ.cell[2]));
+    f->occ.threshold = 0.01005f / cmin;
+  }
+  f->nrays = cfg->train.rays_per_step;
+  f->rays = xalloc((size_t)f->nrays * sizeof(struct vlff_ray), &ok);
+  int nchunks = (f->nrays + f->chunk_rays - 1) / f->chunk_rays;
+  size_t slot = (size_t)f->chunk_rays * f->spr;
+  f->step_p = xalloc((size_t)nchunks * slot * 3 * fs, &ok);
+  f->step_denc = xalloc((size_t)nchunks * slot * f->E * fs, &ok);
+  f->chunk_n = xalloc((size_t)nchunks * sizeof(int), &ok);
+  f->E_ = xalloc((size_t)VLFF_MAX_PROMPTS * f->D * fs, &ok);
+  f->EW = xalloc((size_t)VLFF_MAX_PROMPTS * f->H * fs, &ok);
+  f->EWt = xalloc((size_t)VLFF_MAX_PROMPTS * f->H * fs, &ok);
+  f->Eb = xalloc((size_t)VLFF_MAX_PROMPTS * fs, &ok);
+  f->G = xalloc((size_t)f->H * f->H * fs, &ok);
+  f->u = xalloc((size_t)f->H * fs, &ok);
+  f->work = ok ? calloc((size_t)f->threads, sizeof(struct vlff_work)) : NULL;
+  if (!f->work) ok = 0;
+  for (int i = 0; ok && i < f->threads; i++) {
+    f->work[i].cap = f->chunk_rays * f->spr;
+    f->work[i].rcap = imax(f->chunk_rays, VLFF_QUERY_BLOCK);
+    if (f->work[i].cap < VLFF_QUERY_BLOCK) f->work[i].cap = VLFF_QUERY_BLOCK;
+    if (work_alloc(f, &f->work[i])) ok = 0;
+  }
+  if (!ok) {
+    seterr(err, errlen, "field: %s", "out of memory planning the model and step buffers");
+    vlff_field_destroy(f);
+    return NULL;
+  }
+  /* Deterministic init from a fixed seed: two fields built from one config
+   * start identical. */
+  f->rng = 0x5eed0f1e1dull;
+  for (size_t i = 0; i < f->ntable; i++) f->params[i] = (2.0f * vlff_rng_uniform(&f->rng) - 1.0f) * 1e-4f;
+  float *pm = vlff_mlp_params(f);
+  vlff_mlp_init_params(&f->m1, pm, &f->rng);
+  vlff_mlp_init_params(&f->m2, pm, &f->rng);
+  vlff_mlp_init_params(&f->m3, pm, &f->rng);
+  memset(f->occ.occ, 1, ncell);
+  vlff_field_refresh(f);
+  return f;
+}
+
+long long vlff_field_steps(const struct vlff_field *f) { return f->step; }
+
+void vlff_field_refresh(struct vlff_field *f) {
+  float *pm = vlff_mlp_params(f);
+  vlff_mlp_transpose(&f->m1, pm, f->wT);
+  vlff_mlp_transpose(&f->m2, pm, f->wT);
+  vlff_mlp_transpose(&f->m3, pm, f->wT);
+  /* Folded prompts: EW = E W (K x H) and Eb = E b; Gram G = WᵀW, u = Wᵀb and
+   * |b|^2 give |F|^2 = Hᵀ G H + 2 s u.H + s^2 |b|^2 without forming F. */
+  const struct vlff_mlp *m = &f->m3;
+  int last = m->nl - 1, H = f->H, D = f->D;
+  const float *Wt = pm + m->woff[last];  /* [H][D] */
+  const float *b = pm + m->boff[last];
+  const float *W = f->wT + m->woff[last]; /* [D][H] */
+  if (f->K > 0) {
+    vlff_gemm(f->K, H, D, f->E_, D, 1, W, H, f->EW, H, NULL, 0, 0);
+    for (int k = 0; k < f->K; k++)
+      for (int h = 0; h < H; h++) f->EWt[(size_t)h * f->K + k] = f->EW[(size_t)k * H + h];
+    for (int k = 0; k < f->K; k++) {
+      float s = 0;
+      for (int j = 0; j < D; j++) s += f->E_[(size_t)k * D + j] * b[j];
+      f->Eb[k] = s;
+    }
+  }
+  vlff_gemm(H, H, D, Wt, D, 1, W, H, f->G, H, NULL, 0, 0);
+  float bb = 0;
+  for (int j = 0; j < D; j++) bb += b[j] * b[j];
+  f->bb = bb;
+  for (int h = 0; h < H; h++) {
+    float s = 0;
+    for (int j = 0; j < D; j++) s += Wt[(size_t)h * D + j] * b[j];
+    f->u[h] = s;
+  }
+}
+
+void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *p, int n) {
+  const float *pm = vlff_mlp_params(f);
+  vlff_encoding_forward(&f->enc, f->params, p, n, w->enc, f->E);
+  vlff_mlp_forward(&f->m1, pm, w->enc, f->E, n, f->m1.nl, w->a1);
+  const float *o = w->a1[f->m1.nl - 1];
+  int ld = f->m1.nout;
+  for (int i = 0; i < n; i++) w->sigma[i] = expf(fminf(o[(size_t)i * ld], 15.0f));
+}
+
+/* The chunk pipeline shared by training and rendering. */
+void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
+                      float *pslot, float *dencslot, int *nsamples) {
+  const struct vlff_config *cfg = &f->cfg;
+  const int S = f->spr, geo = f->geo, shd = f->shdim, H = f->H, D = f->D;
+  const int in2w = geo + shd;
+  const int ld1 = f->m1.nout;
+  float bmin[3], bmax[3];
+  for (int a = 0; a < 3; a++) {
+    bmin[a] = (float)cfg->field.scene_min[a];
+    bmax[a] = (float)cfg->field.scene_max[a];
+  }
+  const int uniform = cfg->train.sampling == VLFF_SAMPLING_UNIFORM;
+  float *p = pslot ? pslot : w->p;
+  int N = 0;
+  for (int r = 0; r < nr; r++) {
+    const struct vlff_ray *ray = &rays[r];
+    w->ray_off[r] = N;
+    float t0, t1, dt = 0;
+    int cnt = 0;
+    float *tt = w->t + N, *dd = w->delta + N;
+    if (vlff_ray_box(ray->o, ray->d, bmin, bmax, &t0, &t1)) {
+      t0 = fmaxf(t0, (float)cfg->train.near_m);
+      if (t1 > t0) {
+        if (uniform) {
+          cnt = vlff_sample_uniform(t0, t1, S, &w->rng, tt, &dt);
+          for (int s = 0; s < cnt; s++) dd[s] = dt;
+        } else if (train && ray->depth > 0) {
+          cnt = vlff_sample_depth(ray->depth, t0, t1, S, &w->rng, tt, dd);
+        } else {
+          cnt = vlff_sample_occupied(&f->occ, ray->o, ray->d, t0, t1, S, train ? &w->rng : NULL, tt, &dt);
+          for (int s = 0; s < cnt; s++) dd[s] = dt;
+        }
+      }
+    }
+    float dn = sqrtf(ray->d[0] * ray->d[0] + ray->d[1] * ray->d[1] + ray->d[2] * ray->d[2]);
+    for (int s = 0; s < cnt; s++) {
+      float x[3] = {ray->o[0] + tt[s] * ray->d[0], ray->o[1] + tt[s] * ray->d[1], ray->o[2] + tt[s] * ray->d[2]};
+      vlff_encoding_normalise(&f->enc, x, p + 3 * (size_t)(N + s));
+      dd[s] *= dn;
+      w->ray_of[N + s] = r;
+    }
+    w->ray_cnt[r] = cnt;
+    N += cnt;
+  }
+  *nsamples = N;
+  w->samples += N;
+  if (N > 0) vlff_field_density(f, w, p, N);
+
+  /* Weights; live samples (before termination) go to MLP2, those with weight
+   * to MLP3. */
+  int n2 = 0, n3 = 0;
+  const float *out1 = w->a1[f->m1.nl - 1];
+  int need_feat = 0;
+  if (train)
+    for (int r = 0; r < nr; r++) need_feat |= rays[r].feat_index >= 0;
+  else
+    need_feat = f->render_feat;
+  for (int r = 0; r < nr; r++) {
+    int o = w->ray_off[r], c = w->ray_cnt[r];
+    int used = c ? vlff_render_weights(w->sigma + o, w->delta + o, c, w->w + o, w->trans + o) : 0;
+    w->ray_used[r] = used;
+    float sh[16];
+    float dn = sqrtf(rays[r].d[0] * rays[r].d[0] + rays[r].d[1] * rays[r].d[1] + rays[r].d[2] * rays[r].d[2]);
+    float u[3] = {rays[r].d[0] / dn, rays[r].d[1] / dn, rays[r].d[2] / dn};
+    vlff_sh_encode(u, cfg->field.sh_degree, sh);
+    for (int s = o; s < o + used; s++) {
+      float *row = w->in2 + (size_t)n2 * in2w;
+      memcpy(row, out1 + (size_t)s * ld1 + 1, geo * sizeof(float));
+      memcpy(row + geo, sh, shd * sizeof(float));
+      w->sel2[n2++] = s;
+      if (need_feat && w->w[s] >= VLFF_FEAT_WMIN) {
+        memcpy(w->in3 + (size_t)n3 * geo, out1 + (size_t)s * ld1 + 1, geo * sizeof(float));
+        w->sel3[n3++] = s;
+      }
+    }
+  }
+  const float *pm = vlff_mlp_params(f);
+  float *c2 = NULL;
+  if (n2) {
+    vlff_mlp_forward(&f->m2, pm, w->in2, in2w, n2, f->m2.nl, w->a2);
+    c2 = w->a2[f->m2.nl - 1];
+    for (int k = 0; k < n2 * 3; k++) c2[k] = 1.0f / (1.0f + expf(-c2[k]));
+  }
+  const float *h3 = NULL;
+  if (n3) {
+    vlff_mlp_forward(&f->m3, pm, w->in3, geo, n3, f->m3.nl - 1, w->a3);
+    h3 = w->a3[f->m3.nl - 2];
+  }
+  /* Ray outputs. */
+  memset(w->hray, 0, (size_t)nr * H * sizeof(float));
+  {
+    int k2 = 0, k3 = 0;
+    for (int r = 0; r < nr; r++) {
+      int o = w->ray_off[r], used = w->ray_used[r];
+      float cr[3] = {0, 0, 0}, dep = 0, ws = 0, op = 0;
+      float *hr = w->hray + (size_t)r * H;
+      for (int s = o; s < o + used; s++, k2++) {
+        float ww = w->w[s];
+        for (int ch = 0; ch < 3; ch++) cr[ch] += ww * c2[(size_t)k2 * 3 + ch];
+        dep += ww * w->t[s];
+        op += ww;
+        if (k3 < n3 && w->sel3[k3] == s) {
+          const float *hs = h3 + (size_t)k3 * H;
+          for (int j = 0; j < H; j++) hr[j] += ww * hs[j];
+          ws += ww;
+          k3++;
+        }
+      }
+      memcpy(w->rgb + 3 * r, cr, sizeof(cr));
+      w->depth[r] = dep;
+      w->wsum[r] = ws;
+      w->opac[r] = op;
+    }
+  }
+  if (!train) return;
+
+  /* ---- loss and backward ---- */
+  const struct vlff_mlp *m3 = &f->m3;
+  const int last = m3->nl - 1;
+  const float *b3 = pm + m3->boff[last];
+  float *g = w->grad;
+  float grgb[VLFF_CHUNK_SAMPLES][3];
+  float gdep[VLFF_CHUNK_SAMPLES], gfb[VLFF_CHUNK_SAMPLES];
+  if (need_feat) {
+    vlff_gemm(nr, D, H, w->hray, H, 1, pm + m3->woff[last], D, w->fray, D, NULL, 0, 0);
+    for (int r = 0; r < nr; r++)
+      for (int j = 0; j < D; j++) w->fray[(size_t)r * D + j] += w->wsum[r] * b3[j];
+  }
+  for (int r = 0; r < nr; r++) {
+    const struct vlff_ray *ray = &rays[r];
+    grgb[r][0] = grgb[r][1] = grgb[r][2] = 0;
+    gdep[r] = 0;
+    gfb[r] = 0;
+    if (ray->has_rgb) {
+      float l = vlff_loss_rgb(w->rgb + 3 * r, ray->rgb, f->scale_rgb, grgb[r]);
+      w->loss_rgb += l * f->scale_rgb;
+      w->sq_rgb += l;
+    }
+    if (ray->depth > 0) w->loss_depth += vlff_loss_depth(w->depth[r], ray->depth, f->scale_depth, &gdep[r]) * f->scale_depth;
+    float *gfr = w->gf + (size_t)r * D;
+    if (need_feat) {
+      if (ray->feat_index >= 0) {
+        const struct vlff_view *v = &f->views[ray->view];
+        const uint16_t *src = v->features + (size_t)ray->feat_index * D;
+        for (int j = 0; j < D; j++) w->tfeat[j] = vlff_f16_to_f32(src[j]);
+        w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_l1, f->scale_feat, gfr) *
+                        f->scale_feat;
+        float s = 0, ws = w->wsum[r];
+        for (int j = 0; j < D; j++) s += gfr[j] * b3[j];
+        gfb[r] = s;
+        float *gb = g + m3->boff[last];
+        for (int j = 0; j < D; j++) gb[j] += ws * gfr[j];
+      } else {
+        memset(gfr, 0, (size_t)D * sizeof(float));
+      }
+    }
+  }
+  if (need_feat) {
+    vlff_gemm(H, D, nr, w->hray, 1, H, w->gf, D, g + m3->woff[last], D, NULL, 1, 0);
+    vlff_gemm(nr, H, D, w->gf, D, 1, f->wT + m3->woff[last], H, w->dh, H, NULL, 0, 0);
+  }
+  /* Per-sample scalars e_s and the gradients into MLP2/MLP3 outputs. */
+  float *dout1 = w->dout1;
+  memset(dout1, 0, (size_t)N * ld1 * sizeof(float));
+  float *dy2 = w->dy_a;
+  float *dy3 = w->dy_b;  /* used after MLP2's backward is done with dy_b */
+  {
+    int k2 = 0;
+    for (int r = 0; r < nr; r++) {
+      int o = w->ray_off[r], used = w->ray_used[r];
+      for (int s = o; s < o + used; s++, k2++) {
+        const float *c = c2 + (size_t)k2 * 3;
+        float e = grgb[r][0] * c[0] + grgb[r][1] * c[1] + grgb[r][2] * c[2] + gdep[r] * w->t[s];
+        float ww = w->w[s];
+        for (int ch = 0; ch < 3; ch++) dy2[(size_t)k2 * 3 + ch] = ww * grgb[r][ch] * c[ch] * (1.0f - c[ch]);
+        w->e[s] = e;
+      }
+    }
+  }
+  if (n3) {
+    for (int k3 = 0; k3 < n3; k3++) {
+      int s = w->sel3[k3], r = w->ray_of[s];
+      const float *hs = h3 + (size_t)k3 * H, *dhr = w->dh + (size_t)r * H;
+      float e = gfb[r];
+      for (int j = 0; j < H; j++) e += dhr[j] * hs[j];
+      w->e[s] += e;
+    }
+  }
+  for (int r = 0; r < nr; r++) {
+    int o = w->ray_off[r], used = w->ray_used[r];
+    if (!used) continue;
+    vlff_render_backward(w->w + o, w->trans + o, w->sigma + o, w->delta + o, w->e + o, used, w->dsig + o);
+    for (int s = o; s < o + used; s++) {
+      float raw = out1[(size_t)s * ld1];
+      dout1[(size_t)s * ld1] = raw < 15.0f ? w->dsig[s] * w->sigma[s] : 0.0f;
+    }
+  }
+  if (n2) {
+    vlff_mlp_backward(&f->m2, f->wT, w->in2, in2w, n2, f->m2.nl, w->a2, dy2, g, w->din2, w->dy_b);
+    for (int k = 0; k < n2; k++) {
+      float *d1 = dout1 + (size_t)w->sel2[k] * ld1 + 1;
+      const float *d2 = w->din2 + (size_t)k * in2w;
+      for (int j = 0; j < geo; j++) d1[j] += d2[j];
+    }
+  }
+  if (n3) {
+    for (int k3 = 0; k3 < n3; k3++) {
+      int s = w->sel3[k3], r = w->ray_of[s];
+      float ww = w->w[s];
+      const float *hs = h3 + (size_t)k3 * H, *dhr = w->dh + (size_t)r * H;
+      float *d = dy3 + (size_t)k3 * H;
+      for (int j = 0; j < H; j++) d[j] = hs[j] > 0 ? ww * dhr[j] : 0.0f;
+    }
+    vlff_mlp_backward(m3, f->wT, w->in3, geo, n3, m3->nl - 1, w->a3, dy3, g, w->din3, w->dy_a);
+    for (int k = 0; k < n3; k++) {
+      float *d1 = dout1 + (size_t)w->sel3[k] * ld1 + 1;
+      const float *d3 = w->din3 + (size_t)k * geo;
+      for (int j = 0; j < geo; j++) d1[j] += d3[j];
+    }
+  }
+  if (N) vlff_mlp_backward(&f->m1, f->wT, w->enc, f->E, N, f->m1.nl, w->a1, dout1, g, dencslot, w->dy_b);
+}
+
+/* ---- one optimisation step ---------------------------------------------- */
+
+struct step_ctx {
+  struct vlff_field *f;
+  int nchunks;
+};
+
+static void chunk_task(void *ctx, int c, int thread) {
+  struct step_ctx *sc = ctx;
+  struct vlff_field *f = sc->f;
+  struct vlff_work *w = &f->work[thread];
+  int r0 = c * f->chunk_rays;
+  int nr = f->nrays - r0 < f->chunk_rays ? f->nrays - r0 : f->chunk_rays;
+  size_t slot = (size_t)f->chunk_rays * f->spr;
+  /* Per-chunk seed: sampling jitter does not depend on the thread count. */
+  w->rng = (uint64_t)f->step * 0x9e3779b97f4a7c15ull ^ ((uint64_t)c << 32) ^ 0x243f6a8885a308d3ull;
+  vlff_field_chunk(f, w, f->rays + r0, nr, 1, f->step_p + (size_t)c * slot * 3,
+                   f->step_denc + (size_t)c * slot * f->E, &f->chunk_n[c]);
+}
+
+static void hash_task(void *ctx, int level, int thread) {
+  struct step_ctx *sc = ctx;
+  struct vlff_field *f = sc->f;
+  (void)thread;
+  size_t slot = (size_t)f->chunk_rays * f->spr;
+  uint32_t stamp = (uint32_t)f->step;
+  f->ntouched[level] = 0;
+  for (int c = 0; c < sc->nchunks; c++)
+    vlff_encoding_backward(&f->enc, f->step_p + (size_t)c * slot * 3, f->chunk_n[c],
+                           f->step_denc + (size_t)c * slot * f->E, f->E, level, level + 1,
+                           f->grad, f->stamp, stamp, f->touched, f->ntouched);
+  float lr = f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps));
+  size_t base = (size_t)level * f->enc.size;
+  size_t off = base * f->enc.feats;
+  vlff_adam_sparse(&f->adam, f->step, lr, f->params + off, f->grad + off, f->adam_m + off, f->adam_v + off,
+                   f->touched + base, f->ntouched[level], f->enc.feats);
+}
+
+#define MLP_SPLIT 64
+
+static void mlp_task(void *ctx, int part, int thread) {
+  struct step_ctx *sc = ctx;
+  struct vlff_field *f = sc->f;
+  (void)thread;
+  size_t n = f->nmlp, i0 = n * part / MLP_SPLIT, i1 = n * (part + 1) / MLP_SPLIT;
+  float *g = f->grad + f->ntable;
+  for (size_t i = i0; i < i1; i++) {
+    float s = 0;
+    for (int t = 0; t < f->threads; t++) s += f->work[t].grad[i];
+    g[i] = s;
+  }
+  float lr = f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps));
+  float *p = vlff_mlp_params(f), *m = f->adam_m + f->ntable, *v = f->adam_v + f->ntable;
+  /* Weight decay applies to weights, not biases: walk the layer blocks. */
+  const struct vlff_mlp *mm[3] = {&f->m1, &f->m2, &f->m3};
+  for (int k = 0; k < 3; k++)
+    for (int l = 0; l < mm[k]->nl; l++) {
+      size_t w0 = mm[k]->woff[l], w1 = mm[k]->boff[l];
+      size_t b1 = l + 1 < mm[k]->nl ? mm[k]->woff[l + 1] : (k < 2 ? mm[k + 1]->woff[0] : f->nmlp);
+      size_t a0 = w0 > i0 ? w0 : i0, a1 = w1 < i1 ? w1 : i1;
+      if (a1 > a0) vlff_adam_dense(&f->adam, f->step, lr, p, g, m, v, a0, a1, 1);
+      a0 = w1 > i0 ? w1 : i0;
+      a1 = b1 < i1 ? b1 : i1;
+      if (a1 > a0) vlff_adam_dense(&f->adam, f->step, lr, p, g, m, v, a0, a1, 0);
+    }
+}
+
+static int check_views(const struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
+                       char *err, size_t errlen) {
+  if (!views || nviews <= 0) {
+    if (err && errlen) snprintf(err, errlen, "field step: no views");
+    return -1;
+  }
+  double wsum = 0;
+  for (int i = 0; i < nviews; i++) {
+    const struct vlff_view *v = &views[i];
+    const char *bad = NULL;
+    if (v->width <= 0 || v->height <= 0)
+      bad = "width/height must be positive";
+    else if (!(v->fx > 0) || !(v->fy > 0) || !isfinite(v->fx) || !isfinite(v->fy) || !isfinite(v->cx) ||
+             !isfinite(v->cy))
+      bad = "intrinsics must be finite with fx, fy > 0";
+    else if (!v->rgb && !v->depth && !v->features)
+      bad = "has no rgb, depth or features";
+    else if (v->features && (v->feat_width <= 0 || v->feat_height <= 0))
+      bad = "features need feat_width/feat_height > 0";
+    else if (v->features && v->feat_dim != f->D)
+      bad = "feature dimension differs from field.feature_dim";
+    for (int k = 0; !bad && k < 16; k++)
+      if (!isfinite(v->c2w[k])) bad = "pose has a non-finite entry";
+    if (!bad && weights && (!(weights[i] >= 0) || !isfinite(weights[i]))) bad = "weight must be finite and >= 0";
+    if (bad) {
+      if (err && errlen) snprintf(err, errlen, "field step: view %d: %s", i, bad);
+      return -1;
+    }
+    wsum += weights ? weights[i] : 1.0;
+  }
+  if (!(wsum > 0)) {
+    if (err && errlen) snprintf(err, errlen, "field step: view weights sum to 0");
+    return -1;
+  }
+  return 0;
+}
+
+/* Camera ray through continuous pixel coordinate (u, v). */
+void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d) {
+  double dc[3] = {(u - v->cx) / v->fx, (vv - v->cy) / v->fy, 1.0};
+  for (int a = 0; a < 3; a++) {
+    d[a] = (float)(v->c2w[4 * a] * dc[0] + v->c2w[4 * a + 1] * dc[1] + v->c2w[4 * a + 2] * dc[2]);
+    o[a] = (float)v->c2w[4 * a + 3];
+  }
+}
+
+int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
+                    struct vlff_train_stats *stats, char *err, size_t errlen) {
+  if (check_views(f, views, nviews, weights, err, errlen)) return -1;
+  f->step++;
+  /* Draw the rays: view by weight, pixel uniformly with sub-pixel jitter. */
+  double wtot = 0;
+  for (int i = 0; i < nviews; i++) wtot += weights ? weights[i] : 1.0;
+  int n_rgb = 0, n_depth = 0, n_feat = 0;
+  for (int i = 0; i < f->nrays; i++) {
+    struct vlff_ray *r = &f->rays[i];
+    double pick = vlff_rng_uniform(&f->rng) * wtot, acc = 0;
+    int vi = nviews - 1;
+    for (int k = 0; k < nviews; k++) {
+      acc += weights ? weights[k] : 1.0;
+      if (pick < acc) {
+        vi = k;
+        break;
+      }
+    }
+    const struct vlff_view *v = &views[vi];
+    double u = vlff_rng_uniform(&f->rng) * v->width, vv = vlff_rng_uniform(&f->rng) * v->height;
+    int px = (int)u, py = (int)vv;
+    if (px >= v->width) px = v->width - 1;
+    if (py >= v->height) py = v->height - 1;
+    vlff_camera_ray(v, u, vv, r->o, r->d);
+    r->view = vi;
+    r->has_rgb = v->rgb != NULL;
+    if (r->has_rgb) {
+      const uint8_t *c = v->rgb + 3 * ((size_t)py * v->width + px);
+      for (int ch = 0; ch < 3; ch++) r->rgb[ch] = c[ch] * (1.0f / 255.0f);
+      n_rgb++;
+    }
+    r->depth = 0;
+    if (v->depth) {
+      float dv = v->depth[(size_t)py * v->width + px];
+      if (isfinite(dv) && dv > 0.01f) {
+        r->depth = dv;
+        n_depth++;
+      }
+    }
+    r->feat_index = -1;
+    if (v->features) {
+      int fx = (int)(u * v->feat_width / v->width), fy = (int)(vv * v->feat_height / v->height);
+      if (fx >= v->feat_width) fx = v->feat_width - 1;
+      if (fy >= v->feat_height) fy = v->feat_height - 1;
+      r->feat_index = fy * v->feat_width + fx;
+      n_feat++;
+    }
+  }
+  f->views = views;
+  f->scale_rgb = n_rgb ? 1.0f / (float)n_rgb : 0.0f;
+  f->scale_depth = n_depth ? (float)f->cfg.train.depth_weight / (float)n_depth : 0.0f;
+  f->scale_feat = n_feat ? (float)f->cfg.train.feature_weight / (float)n_feat : 0.0f;
+  for (int t = 0; t < f->threads; t++) {
+    struct vlff_work *w = &f->work[t];
+    memset(w->grad, 0, f->nmlp * sizeof(float));
+    w->loss_rgb = w->loss_depth = w->loss_feat = w->sq_rgb = 0;
+    w->samples = 0;
+  }
+  struct step_ctx sc = {f, (f->nrays + f->chunk_rays - 1) / f->chunk_rays};
+  vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
+  vlff_pool_run(f->pool, f->enc.levels, hash_task, &sc);
+  vlff_pool_run(f->pool, MLP_SPLIT, mlp_task, &sc);
+  vlff_field_refresh(f);
+  f->views = NULL;
+  if (f->cfg.train.sampling != VLFF_SAMPLING_UNIFORM && f->step % f->cfg.train.occupancy_update_steps == 0)
+    vlff_field_occupancy_update(f, 0);
+
+  if (stats) {
+    memset(stats, 0, sizeof(*stats));
+    double sq = 0;
+    for (int t = 0; t < f->threads; t++) {
+      struct vlff_work *w = &f->work[t];
+      stats->loss_rgb += w->loss_rgb;
+      stats->loss_depth += w->loss_depth;
+      stats->loss_feat += w->loss_feat;
+      stats->samples += w->samples;
+      sq += w->sq_rgb;
+    }
+    stats->step = f->step;
+    stats->loss = stats->loss_rgb + stats->loss_depth + stats->loss_feat;
+    double mse = n_rgb ? sq / n_rgb : 0;
+    stats->psnr = n_rgb ? -10.0 * log10(mse > 1e-10 ? mse : 1e-10) : 0;
+  }
+  return 0;
+}
+
+/* ---- occupancy grid ------------------------------------------------------- */
+
+struct occ_ctx {
+  struct vlff_field *f;
+  size_t c0, n;          /* cells [c0, c0+n) (mod total) */
+  int ntasks;
+};
+
+static void occ_task(void *ctx, int task, int thread) {
+  struct occ_ctx *oc = ctx;
+  struct vlff_field *f = oc->f;
+  struct vlff_work *w = &f->work[thread];
+  struct vlff_occupancy *g = &f->occ;
+  size_t total = (size_t)g->res * g->res * g->res;
+  size_t a = oc->n * task / oc->ntasks, b = oc->n * (task + 1) / oc->ntasks;
+  uint64_t rng = (uint64_t)f->step * 0x9e3779b97f4a7c15ull + (uint64_t)task * 0x632be59bd9b4e019ull + 1;
+  for (size_t i = a; i < b;) {
+    int n = 0;
+    size_t first = i;
+    for (; i < b && n < VLFF_QUERY_BLOCK; i++, n++) {
+      size_t c = (oc->c0 + i) % total;
+      int cx = (int)(c % g->res), cy = (int)(c / g->res % g->res), cz = (int)(c / ((size_t)g->res * g->res));
+      float x[3] = {g->box_min[0] + (cx + vlff_rng_uniform(&rng)) * g->cell[0],
+                    g->box_min[1] + (cy + vlff_rng_uniform(&rng)) * g->cell[1],
+                    g->box_min[2] + (cz + vlff_rng_uniform(&rng)) * g->cell[2]};
+      vlff_encoding_normalise(&f->enc, x, w->p + 3 * n);
+    }
+    vlff_field_density(f, w, w->p, n);
+    for (int k = 0; k < n; k++) {
+      size_t c = (oc->c0 + first + k) % total;
+      float d = fmaxf(g->density[c] * 0.95f, w->sigma[k]);
+      g->density[c] = d;
+      g->occ[c] = d > g->threshold;
+    }
+  }
+}
+
+void vlff_field_occupancy_update(struct vlff_field *f, int full) {
+  struct vlff_occupancy *g = &f->occ;
+  size_t total = (size_t)g->res * g->res * g->res;
+  /* A quarter of the grid per update keeps the cost small; the grid is swept
+   * completely every four updates. */
+  size_t n = full ? total : (total + 3) / 4;
+  struct occ_ctx oc = {f, (size_t)f->occ_cursor, n, 16};
+  vlff_pool_run(f->pool, oc.ntasks, occ_task, &oc);
+  f->occ_cursor = (int)((f->occ_cursor + n) % total);
+}
