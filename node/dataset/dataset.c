@@ -1,0 +1,731 @@
+/*
+ * Scene directories: listing and validating the reference and ScanNet
+ * layouts, reading frames and features, and writing the reference layout.
+ * See dataset.h for the layouts and the conventions they use.
+ */
+#include "dataset.h"
+
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#ifdef VLFF_HAVE_HDF5
+#include <hdf5.h>
+#endif
+
+#include "dataset_internal.h"
+
+#define seterr vlff_ds_seterr
+#define PATHMAX 4352
+
+static int is_dir(const char *p) {
+  struct stat st;
+  return stat(p, &st) == 0 && S_ISDIR(st.st_mode);
+}
+
+static int is_file(const char *p) {
+  struct stat st;
+  return stat(p, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* a/b into out[PATHMAX], truncated (callers cap a at 4000 bytes, b is short) */
+static void join(char *out, const char *a, const char *b) {
+  size_t la = strnlen(a, PATHMAX - 2), lb = strnlen(b, PATHMAX - 2 - la);
+  memcpy(out, a, la);
+  out[la] = '/';
+  memcpy(out + la + 1, b, lb);
+  out[la + 1 + lb] = 0;
+}
+
+/* ---- listing ------------------------------------------------------------ */
+
+struct stems {
+  char (*s)[VLFF_DS_NAME];
+  int n, cap;
+  char ext[8];
+};
+
+static int all_digits(const char *s) {
+  if (!*s) return 0;
+  for (; *s; s++)
+    if (*s < '0' || *s > '9') return 0;
+  return 1;
+}
+
+static int numeric_sort;
+static int stem_cmp(const void *a, const void *b) {
+  const char *x = a, *y = b;
+  if (numeric_sort) {
+    long long u = atoll(x), v = atoll(y);
+    if (u != v) return u < v ? -1 : 1;
+  }
+  return strcmp(x, y);
+}
+
+/* Stems of the files in dir with one of the extensions (".png,.jpg"). */
+static int list_stems(const char *dir, const char *exts, struct stems *st, char *err, size_t errlen) {
+  memset(st, 0, sizeof *st);
+  DIR *d = opendir(dir);
+  if (!d) {
+    seterr(err, errlen, "%s: cannot open directory: %s", dir, strerror(errno));
+    return -1;
+  }
+  struct dirent *e;
+  while ((e = readdir(d))) {
+    const char *dot = strrchr(e->d_name, '.');
+    if (!dot || dot == e->d_name) continue;
+    char ext[8];
+    size_t el = strlen(dot);
+    if (el >= sizeof ext) continue;
+    memcpy(ext, dot, el + 1);
+    char want[64];
+    snprintf(want, sizeof want, ",%s,", exts);
+    char probe[16];
+    snprintf(probe, sizeof probe, ",%s,", ext);
+    if (!strstr(want, probe)) continue;
+    size_t sl = (size_t)(dot - e->d_name);
+    if (sl >= VLFF_DS_NAME) {
+      closedir(d);
+      seterr(err, errlen, "%s/%s: file name too long", dir, e->d_name);
+      free(st->s);
+      return -1;
+    }
+    if (st->ext[0] && strcmp(st->ext, ext)) {
+      closedir(d);
+      seterr(err, errlen, "%s: mixes %s and %s files", dir, st->ext, ext);
+      free(st->s);
+      return -1;
+    }
+    snprintf(st->ext, sizeof st->ext, "%s", ext);
+    if (st->n == st->cap) {
+      int nc = st->cap ? 2 * st->cap : 256;
+      void *p = realloc(st->s, (size_t)nc * sizeof *st->s);
+      if (!p) {
+        closedir(d);
+        free(st->s);
+        seterr(err, errlen, "%s: out of memory", dir);
+        return -1;
+      }
+      st->s = p, st->cap = nc;
+    }
+    memcpy(st->s[st->n], e->d_name, sl);
+    st->s[st->n][sl] = 0;
+    st->n++;
+  }
+  closedir(d);
+  numeric_sort = 1;
+  for (int i = 0; i < st->n; i++)
+    if (!all_digits(st->s[i])) numeric_sort = 0;
+  if (st->n) qsort(st->s, (size_t)st->n, sizeof *st->s, stem_cmp);
+  return 0;
+}
+
+static int read_text(const char *path, char **buf, size_t *len, char *err, size_t errlen) {
+  uint8_t *b;
+  if (vlff_read_file(path, 1 << 20, &b, len, err, errlen) < 0) return -1;
+  *buf = (char *)b;
+  return 0;
+}
+
+/* ---- HDF5 --------------------------------------------------------------- */
+
+#ifdef VLFF_HAVE_HDF5
+/* IEEE binary16 as HDF5 describes it (the layout numpy/h5py write). */
+static hid_t h5_half(void) {
+  hid_t t = H5Tcopy(H5T_IEEE_F32LE);
+  H5Tset_fields(t, 15, 10, 5, 0, 10);
+  H5Tset_size(t, 2);
+  H5Tset_ebias(t, 15);
+  return t;
+}
+
+struct h5find {
+  char name[VLFF_DS_NAME];
+  int found;
+};
+
+static herr_t h5_first_dataset(hid_t g, const char *name, const H5L_info_t *info, void *op) {
+  (void)info;
+  struct h5find *f = op;
+  H5O_info_t oi;
+  if (H5Oget_info_by_name(g, name, &oi, H5P_DEFAULT) < 0) return 0;
+  if (oi.type != H5O_TYPE_DATASET || strlen(name) >= VLFF_DS_NAME) return 0;
+  snprintf(f->name, sizeof f->name, "%s", name);
+  f->found = 1;
+  return 1;
+}
+
+static int features_probe(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) {
+    seterr(err, errlen, "%s: not a readable HDF5 file", path);
+    return -1;
+  }
+  int rc = -1;
+  hid_t g = -1, d = -1, sp = -1, ty = -1;
+  g = H5Gopen2(f, "features", H5P_DEFAULT);
+  if (g < 0) {
+    seterr(err, errlen, "%s: no group 'features'", path);
+    goto out;
+  }
+  struct h5find fd = {.found = 0};
+  H5Literate(g, H5_INDEX_NAME, H5_ITER_INC, NULL, h5_first_dataset, &fd);
+  if (!fd.found) {
+    seterr(err, errlen, "%s: group 'features' holds no dataset", path);
+    goto out;
+  }
+  d = H5Dopen2(g, fd.name, H5P_DEFAULT);
+  sp = d >= 0 ? H5Dget_space(d) : -1;
+  ty = d >= 0 ? H5Dget_type(d) : -1;
+  if (d < 0 || sp < 0 || ty < 0) {
+    seterr(err, errlen, "%s: features/%s cannot be opened", path, fd.name);
+    goto out;
+  }
+  hsize_t dims[4];
+  if (H5Sget_simple_extent_ndims(sp) != 4 || H5Sget_simple_extent_dims(sp, dims, NULL) != 4) {
+    seterr(err, errlen, "%s: features/%s must be 4-D [N,H,W,C]", path, fd.name);
+    goto out;
+  }
+  if (H5Tget_class(ty) != H5T_FLOAT) {
+    seterr(err, errlen, "%s: features/%s is not floating point", path, fd.name);
+    goto out;
+  }
+  if (dims[0] != (hsize_t)ds->n || dims[1] < 1 || dims[2] < 1 || dims[3] < 1 || dims[1] > 8192 ||
+      dims[2] > 8192 || dims[3] > 8192) {
+    seterr(err, errlen, "%s: features/%s has shape [%llu,%llu,%llu,%llu]; expected N=%d frames and sane sizes",
+           path, fd.name, (unsigned long long)dims[0], (unsigned long long)dims[1],
+           (unsigned long long)dims[2], (unsigned long long)dims[3], ds->n);
+    goto out;
+  }
+  snprintf(ds->feat_name, sizeof ds->feat_name, "%s", fd.name);
+  ds->feat_height = (int)dims[1], ds->feat_width = (int)dims[2], ds->feat_dim = (int)dims[3];
+  ds->has_features = 1;
+  rc = 0;
+out:
+  if (ty >= 0) H5Tclose(ty);
+  if (sp >= 0) H5Sclose(sp);
+  if (d >= 0) H5Dclose(d);
+  if (g >= 0) H5Gclose(g);
+  H5Fclose(f);
+  return rc;
+}
+#endif
+
+/* ---- open --------------------------------------------------------------- */
+
+void vlff_dataset_close(struct vlff_dataset *ds) {
+  if (!ds) return;
+  free(ds->c2w);
+  free(ds->stem);
+  memset(ds, 0, sizeof *ds);
+}
+
+static int check_intrinsics(struct vlff_dataset *ds, const double K[16], const char *path, char *err,
+                            size_t errlen) {
+  ds->fx = K[0], ds->fy = K[5], ds->cx = K[2], ds->cy = K[6];
+  if (!(ds->fx > 0) || !(ds->fy > 0)) {
+    seterr(err, errlen, "%s: focal lengths fx=%g fy=%g must be positive", path, ds->fx, ds->fy);
+    return -1;
+  }
+  if (!(ds->cx > 0 && ds->cx < ds->width) || !(ds->cy > 0 && ds->cy < ds->height)) {
+    seterr(err, errlen, "%s: principal point (%g, %g) lies outside the %dx%d image", path, ds->cx, ds->cy,
+           ds->width, ds->height);
+    return -1;
+  }
+  if (fabs(K[8]) > 1e-9 || fabs(K[9]) > 1e-9 || fabs(K[10] - 1) > 1e-9 || fabs(K[4]) > 1e-9) {
+    seterr(err, errlen, "%s: not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1])", path);
+    return -1;
+  }
+  return 0;
+}
+
+int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char *err, size_t errlen) {
+  memset(ds, 0, sizeof *ds);
+  if (strlen(dir) >= sizeof ds->dir - 64) {
+    seterr(err, errlen, "%s: path too long", dir);
+    return -1;
+  }
+  snprintf(ds->dir, sizeof ds->dir, "%s", dir);
+  char p[PATHMAX], q[PATHMAX];
+  if (layout == VLFF_DS_AUTO) {
+    join(p, dir, "rgb");
+    join(q, dir, "color");
+    if (is_dir(p)) layout = VLFF_DS_REFERENCE;
+    else if (is_dir(q)) layout = VLFF_DS_SCANNET;
+    else {
+      seterr(err, errlen, "%s: neither rgb/ (reference layout) nor color/ (ScanNet export) found", dir);
+      return -1;
+    }
+  }
+  ds->layout = layout;
+  const int ref = layout == VLFF_DS_REFERENCE;
+  struct stems rgb = {0};
+  join(p, dir, ref ? "rgb" : "color");
+  if (list_stems(p, ".png,.jpg,.jpeg", &rgb, err, errlen) < 0) return -1;
+  if (rgb.n == 0) {
+    seterr(err, errlen, "%s: no .png or .jpg images", p);
+    free(rgb.s);
+    return -1;
+  }
+  snprintf(ds->rgb_ext, sizeof ds->rgb_ext, "%s", rgb.ext);
+  /* depth/ and pose/ must hold exactly one file per image */
+  const char *sub[2] = {"depth", "pose"};
+  const char *ext[2] = {".png", ".txt"};
+  for (int k = 0; k < 2; k++) {
+    struct stems o;
+    join(p, dir, sub[k]);
+    if (list_stems(p, ext[k], &o, err, errlen) < 0) {
+      free(rgb.s);
+      return -1;
+    }
+    int bad = -1;
+    for (int i = 0; i < rgb.n && bad < 0; i++)
+      if (i >= o.n || strcmp(rgb.s[i], o.s[i])) bad = i;
+    if (bad < 0 && o.n != rgb.n) bad = rgb.n;
+    if (bad >= 0) {
+      if (bad < rgb.n)
+        seterr(err, errlen, "%s/%s%s: missing (there is an image %s%s)", p, rgb.s[bad], ext[k], rgb.s[bad], rgb.ext);
+      else
+        seterr(err, errlen, "%s/%s%s: no matching image", p, o.s[bad], ext[k]);
+      free(o.s), free(rgb.s);
+      return -1;
+    }
+    free(o.s);
+  }
+  ds->stem = calloc((size_t)rgb.n, sizeof *ds->stem);
+  ds->c2w = calloc((size_t)rgb.n, 16 * sizeof(double));
+  if (!ds->stem || !ds->c2w) {
+    free(rgb.s);
+    vlff_dataset_close(ds);
+    seterr(err, errlen, "%s: out of memory", dir);
+    return -1;
+  }
+  for (int i = 0; i < rgb.n; i++) {
+    char name[VLFF_DS_NAME + 8];
+    snprintf(name, sizeof name, "pose/%s.txt", rgb.s[i]);
+    join(p, dir, name);
+    char *buf;
+    size_t len;
+    if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
+    double m[16];
+    int rc = vlff_parse_matrix(buf, len, p, m, err, errlen);
+    int nonfinite = rc < 0 && (strstr(buf, "inf") || strstr(buf, "nan") || strstr(buf, "INF") || strstr(buf, "NaN"));
+    free(buf);
+    if (rc < 0 && !ref && nonfinite) {
+      ds->skipped++; /* ScanNet: lost tracking */
+      continue;
+    }
+    if (rc < 0 || vlff_check_pose(m, p, err, errlen) < 0) goto fail;
+    double *out = ds->c2w + (size_t)ds->n * 16;
+    if (ref) vlff_pose_invert(m, out); /* stored world-to-camera */
+    else memcpy(out, m, sizeof m);
+    snprintf(ds->stem[ds->n], VLFF_DS_NAME, "%s", rgb.s[i]);
+    ds->n++;
+  }
+  free(rgb.s);
+  rgb.s = NULL;
+  if (ds->n == 0) {
+    seterr(err, errlen, "%s: every frame's pose is invalid", dir);
+    goto fail;
+  }
+  /* image size from the first frame */
+  {
+    char name[VLFF_DS_NAME + 16];
+    snprintf(name, sizeof name, "%s/%s%s", ref ? "rgb" : "color", ds->stem[0], ds->rgb_ext);
+    join(p, dir, name);
+    struct vlff_image im;
+    if (vlff_image_read(p, &im, err, errlen) < 0) goto fail;
+    ds->width = im.width, ds->height = im.height;
+    int ok = im.channels == 3 && !im.depth16;
+    vlff_image_free(&im);
+    if (!ok) {
+      seterr(err, errlen, "%s: expected an 8-bit RGB image", p);
+      goto fail;
+    }
+  }
+  {
+    join(p, dir, ref ? "intrinsics.txt" : "intrinsic/intrinsic_color.txt");
+    char *buf;
+    size_t len;
+    double K[16];
+    if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
+    int rc = vlff_parse_matrix(buf, len, p, K, err, errlen);
+    free(buf);
+    if (rc < 0 || check_intrinsics(ds, K, p, err, errlen) < 0) goto fail;
+  }
+  join(p, dir, "bbox.txt");
+  if (is_file(p)) {
+    char *buf;
+    size_t len;
+    if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
+    int rc = vlff_parse_bbox(buf, len, p, ds->bbox_lo, ds->bbox_hi, err, errlen);
+    free(buf);
+    if (rc < 0) goto fail;
+    ds->has_bbox = 1;
+  }
+  join(p, dir, "gt_semantic");
+  if (is_dir(p)) {
+    for (int i = 0; i < ds->n; i++) {
+      char name[VLFF_DS_NAME + 24];
+      snprintf(name, sizeof name, "gt_semantic/%s.png", ds->stem[i]);
+      join(q, dir, name);
+      if (!is_file(q)) {
+        seterr(err, errlen, "%s: missing (gt_semantic/ must label every frame)", q);
+        goto fail;
+      }
+    }
+    ds->has_labels = 1;
+  }
+  join(p, dir, "features.hdf");
+  if (is_file(p)) {
+#ifdef VLFF_HAVE_HDF5
+    if (features_probe(ds, p, err, errlen) < 0) goto fail;
+#endif
+    /* without HDF5 the features are simply not offered (has_features = 0) */
+  }
+  return 0;
+fail:
+  free(rgb.s);
+  vlff_dataset_close(ds);
+  return -1;
+}
+
+/* ---- frames ------------------------------------------------------------- */
+
+int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, float *depth,
+                            uint8_t *label, char *err, size_t errlen) {
+  if (i < 0 || i >= ds->n) {
+    seterr(err, errlen, "%s: frame %d out of range 0..%d", ds->dir, i, ds->n - 1);
+    return -1;
+  }
+  const int ref = ds->layout == VLFF_DS_REFERENCE;
+  const int W = ds->width, H = ds->height;
+  char name[VLFF_DS_NAME + 24], p[PATHMAX];
+  struct vlff_image im;
+  if (rgb) {
+    snprintf(name, sizeof name, "%s/%s%s", ref ? "rgb" : "color", ds->stem[i], ds->rgb_ext);
+    join(p, ds->dir, name);
+    if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
+    if (im.width != W || im.height != H || im.channels != 3 || im.depth16) {
+      seterr(err, errlen, "%s: %dx%d %d-channel %d-bit; expected %dx%d RGB8 like the first frame", p,
+             im.width, im.height, im.channels, im.depth16 ? 16 : 8, W, H);
+      vlff_image_free(&im);
+      return -1;
+    }
+    memcpy(rgb, im.data, (size_t)W * H * 3);
+    vlff_image_free(&im);
+  }
+  if (depth) {
+    snprintf(name, sizeof name, "depth/%s.png", ds->stem[i]);
+    join(p, ds->dir, name);
+    if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
+    if (im.channels != 1 || !im.depth16) {
+      seterr(err, errlen, "%s: depth must be a 16-bit single-channel PNG (millimetres)", p);
+      vlff_image_free(&im);
+      return -1;
+    }
+    if ((long long)im.width * H != (long long)im.height * W) {
+      /* a different aspect ratio cannot share the colour intrinsics */
+      seterr(err, errlen, "%s: %dx%d does not have the colour images' %dx%d aspect", p, im.width,
+             im.height, W, H);
+      vlff_image_free(&im);
+      return -1;
+    }
+    const uint16_t *d = im.data;
+    for (int v = 0; v < H; v++)
+      for (int u = 0; u < W; u++) {
+        int su = (int)((u + 0.5) * im.width / W), sv = (int)((v + 0.5) * im.height / H);
+        depth[(size_t)v * W + u] = d[(size_t)sv * im.width + su] * 0.001f;
+      }
+    vlff_image_free(&im);
+  }
+  if (label) {
+    if (!ds->has_labels) {
+      seterr(err, errlen, "%s: no gt_semantic/ labels", ds->dir);
+      return -1;
+    }
+    snprintf(name, sizeof name, "gt_semantic/%s.png", ds->stem[i]);
+    join(p, ds->dir, name);
+    if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
+    if (im.channels != 1 || im.width != W || im.height != H) {
+      seterr(err, errlen, "%s: labels must be single-channel %dx%d, got %dx%d with %d channels", p, W, H,
+             im.width, im.height, im.channels);
+      vlff_image_free(&im);
+      return -1;
+    }
+    for (size_t k = 0; k < (size_t)W * H; k++) {
+      unsigned v = im.depth16 ? ((uint16_t *)im.data)[k] : ((uint8_t *)im.data)[k];
+      label[k] = v < 255 ? (uint8_t)v : 255;
+    }
+    vlff_image_free(&im);
+  }
+  return 0;
+}
+
+int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *out, char *err,
+                               size_t errlen) {
+  if (!ds->has_features) {
+    seterr(err, errlen, "%s: no features.hdf", ds->dir);
+    return -1;
+  }
+  if (i < 0 || i >= ds->n) {
+    seterr(err, errlen, "%s: frame %d out of range", ds->dir, i);
+    return -1;
+  }
+#ifdef VLFF_HAVE_HDF5
+  char p[PATHMAX], dname[VLFF_DS_NAME + 16];
+  join(p, ds->dir, "features.hdf");
+  snprintf(dname, sizeof dname, "features/%s", ds->feat_name);
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  hid_t f = H5Fopen(p, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) {
+    seterr(err, errlen, "%s: cannot open", p);
+    return -1;
+  }
+  hid_t d = H5Dopen2(f, dname, H5P_DEFAULT);
+  hid_t fs = d >= 0 ? H5Dget_space(d) : -1;
+  hid_t ht = h5_half();
+  hsize_t start[4] = {(hsize_t)i, 0, 0, 0};
+  hsize_t cnt[4] = {1, (hsize_t)ds->feat_height, (hsize_t)ds->feat_width, (hsize_t)ds->feat_dim};
+  hid_t ms = H5Screate_simple(4, cnt, NULL);
+  int rc = -1;
+  if (d >= 0 && fs >= 0 && H5Sselect_hyperslab(fs, H5S_SELECT_SET, start, NULL, cnt, NULL) >= 0 &&
+      H5Dread(d, ht, ms, fs, H5P_DEFAULT, out) >= 0)
+    rc = 0;
+  else
+    seterr(err, errlen, "%s: reading %s frame %d failed (compressed with a filter this libhdf5 lacks, e.g. lzf?)", p,
+           dname, i);
+  H5Sclose(ms);
+  H5Tclose(ht);
+  if (fs >= 0) H5Sclose(fs);
+  if (d >= 0) H5Dclose(d);
+  H5Fclose(f);
+  if (rc == 0) {
+    /* non-finite features would poison training and evaluation */
+    size_t n = (size_t)ds->feat_height * ds->feat_width * ds->feat_dim;
+    for (size_t k = 0; k < n; k++)
+      if ((out[k] & 0x7c00u) == 0x7c00u) {
+        seterr(err, errlen, "%s: %s frame %d has a non-finite value at element %zu", p, dname, i, k);
+        return -1;
+      }
+  }
+  return rc;
+#else
+  seterr(err, errlen, "%s: this build has no HDF5 support", ds->dir);
+  return -1;
+#endif
+}
+
+/* ---- writer ------------------------------------------------------------- */
+
+struct vlff_dataset_writer {
+  char dir[PATHMAX];
+  int n, width, height, fw, fh, dim;
+  unsigned char *added;
+#ifdef VLFF_HAVE_HDF5
+  hid_t file, dset, half;
+  char h5tmp[PATHMAX];
+#endif
+};
+
+static int mkdir_p1(const char *p, char *err, size_t errlen) {
+  if (mkdir(p, 0755) < 0 && errno != EEXIST) {
+    seterr(err, errlen, "%s: cannot create directory: %s", p, strerror(errno));
+    return -1;
+  }
+  if (!is_dir(p)) {
+    seterr(err, errlen, "%s: exists and is not a directory", p);
+    return -1;
+  }
+  return 0;
+}
+
+static int write_text_matrix(const char *path, const double m[16], char *err, size_t errlen) {
+  char b[1024];
+  size_t n = 0;
+  for (int r = 0; r < 4; r++)
+    n += (size_t)snprintf(b + n, sizeof b - n, "%.17g %.17g %.17g %.17g\n", m[4 * r], m[4 * r + 1],
+                          m[4 * r + 2], m[4 * r + 3]);
+  return vlff_write_file_atomic(path, b, n, err, errlen);
+}
+
+void vlff_dataset_writer_abort(struct vlff_dataset_writer *w) {
+  if (!w) return;
+#ifdef VLFF_HAVE_HDF5
+  if (w->dset >= 0) H5Dclose(w->dset);
+  if (w->half >= 0) H5Tclose(w->half);
+  if (w->file >= 0) {
+    H5Fclose(w->file);
+    unlink(w->h5tmp);
+  }
+#endif
+  free(w->added);
+  free(w);
+}
+
+struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframes, int width,
+                                                     int height, double fx, double fy, double cx,
+                                                     double cy, const double bbox_lo[3],
+                                                     const double bbox_hi[3], const char *feat_name,
+                                                     int feat_width, int feat_height, int feat_dim,
+                                                     char *err, size_t errlen) {
+  if (nframes < 1 || width < 1 || height < 1 || !(fx > 0) || !(fy > 0) || feat_dim < 0 ||
+      (feat_dim > 0 && (feat_width < 1 || feat_height < 1 || !feat_name || !feat_name[0] ||
+                        strlen(feat_name) >= VLFF_DS_NAME || strchr(feat_name, '/')))) {
+    seterr(err, errlen, "%s: invalid dataset shape", dir);
+    return NULL;
+  }
+  if (strlen(dir) > 4000) {
+    seterr(err, errlen, "%s: path too long", dir);
+    return NULL;
+  }
+  struct vlff_dataset_writer *w = calloc(1, sizeof *w);
+  if (!w) return NULL;
+#ifdef VLFF_HAVE_HDF5
+  w->file = w->dset = w->half = -1;
+#endif
+  snprintf(w->dir, sizeof w->dir, "%s", dir);
+  w->n = nframes, w->width = width, w->height = height;
+  w->fw = feat_width, w->fh = feat_height, w->dim = feat_dim;
+  w->added = calloc((size_t)nframes, 1);
+  char p[PATHMAX];
+  if (!w->added || mkdir_p1(dir, err, errlen) < 0) goto fail;
+  const char *subs[] = {"rgb", "depth", "pose", "gt_semantic"};
+  for (int i = 0; i < 4; i++) {
+    join(p, dir, subs[i]);
+    if (mkdir_p1(p, err, errlen) < 0) goto fail;
+  }
+  double K[16] = {fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  join(p, dir, "intrinsics.txt");
+  if (write_text_matrix(p, K, err, errlen) < 0) goto fail;
+  if (bbox_lo && bbox_hi) {
+    char b[512];
+    int n = snprintf(b, sizeof b, "%.9g %.9g %.9g %.9g %.9g %.9g\n", bbox_lo[0], bbox_lo[1], bbox_lo[2],
+                     bbox_hi[0], bbox_hi[1], bbox_hi[2]);
+    join(p, dir, "bbox.txt");
+    if (vlff_write_file_atomic(p, b, (size_t)n, err, errlen) < 0) goto fail;
+  }
+  if (feat_dim > 0) {
+#ifdef VLFF_HAVE_HDF5
+    H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+    snprintf(w->h5tmp, sizeof w->h5tmp, "%s/features.hdf.tmp.%ld", dir, (long)getpid());
+    w->file = H5Fcreate(w->h5tmp, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    if (w->file < 0) {
+      seterr(err, errlen, "%s: cannot create HDF5 file", w->h5tmp);
+      goto fail;
+    }
+    hid_t g = H5Gcreate2(w->file, "features", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    hsize_t dims[4] = {(hsize_t)nframes, (hsize_t)feat_height, (hsize_t)feat_width, (hsize_t)feat_dim};
+    hsize_t chunk[4] = {1, (hsize_t)feat_height, (hsize_t)feat_width, (hsize_t)feat_dim};
+    hid_t sp = H5Screate_simple(4, dims, NULL);
+    hid_t pl = H5Pcreate(H5P_DATASET_CREATE);
+    H5Pset_chunk(pl, 4, chunk);
+    w->half = h5_half();
+    w->dset = g >= 0 ? H5Dcreate2(g, feat_name, w->half, sp, H5P_DEFAULT, pl, H5P_DEFAULT) : -1;
+    H5Pclose(pl);
+    H5Sclose(sp);
+    if (g >= 0) H5Gclose(g);
+    if (w->dset < 0) {
+      seterr(err, errlen, "%s: cannot create dataset features/%s", w->h5tmp, feat_name);
+      goto fail;
+    }
+#else
+    seterr(err, errlen, "%s: features need HDF5, which this build was configured without", dir);
+    goto fail;
+#endif
+  }
+  return w;
+fail:
+  vlff_dataset_writer_abort(w);
+  return NULL;
+}
+
+int vlff_dataset_writer_add(struct vlff_dataset_writer *w, int i, const uint8_t *rgb,
+                            const uint16_t *depth_mm, const uint8_t *label, const double c2w[16],
+                            const uint16_t *features, char *err, size_t errlen) {
+  if (i < 0 || i >= w->n || !rgb) {
+    seterr(err, errlen, "%s: frame %d out of range 0..%d or without rgb", w->dir, i, w->n - 1);
+    return -1;
+  }
+  char name[64], p[PATHMAX];
+  if (vlff_check_pose(c2w, "pose to write", err, errlen) < 0) return -1;
+  snprintf(name, sizeof name, "rgb/%05d.png", i);
+  join(p, w->dir, name);
+  if (vlff_png_write(p, rgb, w->width, w->height, 3, 0, err, errlen) < 0) return -1;
+  if (depth_mm) {
+    snprintf(name, sizeof name, "depth/%05d.png", i);
+    join(p, w->dir, name);
+    if (vlff_png_write(p, depth_mm, w->width, w->height, 1, 1, err, errlen) < 0) return -1;
+  }
+  if (label) {
+    snprintf(name, sizeof name, "gt_semantic/%05d.png", i);
+    join(p, w->dir, name);
+    if (vlff_png_write(p, label, w->width, w->height, 1, 0, err, errlen) < 0) return -1;
+  }
+  double tcw[16];
+  vlff_pose_invert(c2w, tcw);
+  snprintf(name, sizeof name, "pose/%05d.txt", i);
+  join(p, w->dir, name);
+  if (write_text_matrix(p, tcw, err, errlen) < 0) return -1;
+  if (w->dim > 0) {
+    if (!features) {
+      seterr(err, errlen, "%s: frame %d needs features", w->dir, i);
+      return -1;
+    }
+#ifdef VLFF_HAVE_HDF5
+    hsize_t start[4] = {(hsize_t)i, 0, 0, 0};
+    hsize_t cnt[4] = {1, (hsize_t)w->fh, (hsize_t)w->fw, (hsize_t)w->dim};
+    hid_t fs = H5Dget_space(w->dset);
+    hid_t ms = H5Screate_simple(4, cnt, NULL);
+    int ok = H5Sselect_hyperslab(fs, H5S_SELECT_SET, start, NULL, cnt, NULL) >= 0 &&
+             H5Dwrite(w->dset, w->half, ms, fs, H5P_DEFAULT, features) >= 0;
+    H5Sclose(ms);
+    H5Sclose(fs);
+    if (!ok) {
+      seterr(err, errlen, "%s: writing features of frame %d failed", w->h5tmp, i);
+      return -1;
+    }
+#endif
+  }
+  w->added[i] = 1;
+  return 0;
+}
+
+int vlff_dataset_writer_close(struct vlff_dataset_writer *w, char *err, size_t errlen) {
+  for (int i = 0; i < w->n; i++)
+    if (!w->added[i]) {
+      seterr(err, errlen, "%s: frame %d was never written", w->dir, i);
+      vlff_dataset_writer_abort(w);
+      return -1;
+    }
+#ifdef VLFF_HAVE_HDF5
+  if (w->file >= 0) {
+    H5Dclose(w->dset);
+    H5Tclose(w->half);
+    w->dset = w->half = -1;
+    herr_t rc = H5Fclose(w->file);
+    w->file = -1;
+    char p[PATHMAX];
+    join(p, w->dir, "features.hdf");
+    int fd = rc >= 0 ? open(w->h5tmp, O_RDONLY | O_CLOEXEC) : -1;
+    int ok = fd >= 0 && fsync(fd) == 0;
+    if (fd >= 0) close(fd);
+    if (!ok || rename(w->h5tmp, p) < 0) {
+      seterr(err, errlen, "%s: finishing features.hdf failed: %s", w->h5tmp, strerror(errno));
+      unlink(w->h5tmp);
+      vlff_dataset_writer_abort(w);
+      return -1;
+    }
+  }
+#endif
+  free(w->added);
+  free(w);
+  return 0;
+}

@@ -1,0 +1,164 @@
+/*
+ * vlff_dataset: RGB-D scene directories on disk, read and written.
+ *
+ * Layouts
+ *  Reference layout (the paper's implementation; read and written):
+ *    rgb/<stem>.png|.jpg       RGB8 (we write PNG: lossless round trips)
+ *    depth/<stem>.png          uint16 millimetres, 0 = invalid
+ *    pose/<stem>.txt           4x4 WORLD-TO-CAMERA (T_cw), OpenCV camera axes
+ *                              (x right, y down, z forward); inverted on read
+ *    intrinsics.txt            4x4 (or 3x3) camera matrix at the rgb size
+ *    bbox.txt                  6 numbers: scene min xyz, max xyz (metres)
+ *    features.hdf              HDF5 dataset features/<name>, [N,H,W,C] float16
+ *    gt_semantic/<stem>.png    8- or 16-bit class ids 0..K-1; >= K (255) = unlabelled
+ *    points.ply (or mesh.ply)  labelled point set: vertex x,y,z + "label"
+ *    prompt_embeddings.txt     the prompt embeddings file (below)
+ *  ScanNet export layout (read only): color/<i>.jpg, depth/<i>.png (uint16
+ *  mm), pose/<i>.txt CAMERA-TO-WORLD, intrinsic/intrinsic_color.txt; frames
+ *  whose pose is non-finite (ScanNet marks lost tracking with -inf) are
+ *  skipped and counted, as ScanNet's own tools do.
+ *  Frames are matched by file stem; stems sort numerically when all are
+ *  integers, otherwise by name. Depth of a different size than rgb is
+ *  resampled (nearest) to the rgb size, so one set of intrinsics serves both.
+ *
+ * Prompt embeddings file (text, UTF-8):
+ *    # comment lines start with '#'
+ *    <prompt text><TAB><v1> <v2> ... <vD>
+ *  one record per line; every record has the same D; values finite; the
+ *  vector non-zero; prompt text 1..63 bytes without tabs, unique.
+ *
+ * Contract
+ *  - Functions returning int give 0 on success, -1 on error with one line in
+ *    err naming the offending file (and line or frame) and what was wrong.
+ *  - Every value read is validated: sizes against each other, counts, finite
+ *    numbers, orthonormal right-handed rotations (|R^T R - I| < 1e-3,
+ *    det > 0), a [0 0 0 1] last row, positive focal lengths, principal points
+ *    inside the image, bbox min < max.
+ *  - Files are written atomically: temp file, fsync, rename.
+ *  - A vlff_dataset is used by one thread at a time; the caller owns every
+ *    buffer it passes. The parse functions take memory buffers (the fuzz
+ *    targets call them directly).
+ */
+#ifndef VLFF_DATASET_H
+#define VLFF_DATASET_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define VLFF_DS_NAME 64
+
+enum vlff_dataset_layout { VLFF_DS_AUTO, VLFF_DS_REFERENCE, VLFF_DS_SCANNET };
+
+struct vlff_dataset {
+  char dir[4096];
+  int layout;                  /* enum vlff_dataset_layout actually found */
+  int n;                       /* usable frames */
+  int skipped;                 /* ScanNet frames dropped for invalid poses */
+  int width, height;           /* rgb size (depth and labels are returned at it) */
+  double fx, fy, cx, cy;
+  int has_bbox;
+  double bbox_lo[3], bbox_hi[3];
+  double *c2w;                 /* [n][16] camera-to-world */
+  char (*stem)[VLFF_DS_NAME];  /* [n] */
+  int has_labels;              /* gt_semantic/ present for every frame */
+  int has_features;
+  char feat_name[VLFF_DS_NAME];
+  int feat_height, feat_width, feat_dim;
+  char rgb_ext[8];
+};
+
+/* Open a scene directory: list and validate every frame's pose, the
+ * intrinsics, bbox and the features' shape; images are read per frame. */
+int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char *err, size_t errlen);
+void vlff_dataset_close(struct vlff_dataset *ds);
+
+/* Frame i's images: rgb [h][w][3], depth metres [h][w], label [h][w] (255 =
+ * unlabelled; only when has_labels). Any output may be NULL. */
+int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, float *depth,
+                            uint8_t *label, char *err, size_t errlen);
+/* Frame i's features, float16 [feat_height][feat_width][feat_dim]. */
+int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *out, char *err,
+                               size_t errlen);
+
+/* Writer for the reference layout. nframes and the feature shape are fixed
+ * at open (feat_dim 0 = no features.hdf). */
+struct vlff_dataset_writer;
+struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframes, int width,
+                                                     int height, double fx, double fy, double cx,
+                                                     double cy, const double bbox_lo[3],
+                                                     const double bbox_hi[3], const char *feat_name,
+                                                     int feat_width, int feat_height, int feat_dim,
+                                                     char *err, size_t errlen);
+/* Frame i (0..nframes-1): rgb required; depth_mm, label, features may be NULL. */
+int vlff_dataset_writer_add(struct vlff_dataset_writer *w, int i, const uint8_t *rgb,
+                            const uint16_t *depth_mm, const uint8_t *label, const double c2w[16],
+                            const uint16_t *features, char *err, size_t errlen);
+/* Finish (features.hdf is renamed into place only here) and free. Fails if
+ * a frame was never added. */
+int vlff_dataset_writer_close(struct vlff_dataset_writer *w, char *err, size_t errlen);
+void vlff_dataset_writer_abort(struct vlff_dataset_writer *w);
+
+/* ---- formats ------------------------------------------------------------ */
+
+/* Decoded image: channels 1 or 3, bit depth 8 or 16 (16: host-order uint16). */
+struct vlff_image {
+  int width, height, channels, depth16;
+  void *data;
+};
+void vlff_image_free(struct vlff_image *im);
+/* PNG (and JPEG when built with OpenCV), from memory or a file. Images
+ * larger than 16384 x 16384 are refused. */
+int vlff_image_decode(const uint8_t *buf, size_t len, const char *name, struct vlff_image *im,
+                      char *err, size_t errlen);
+int vlff_image_read(const char *path, struct vlff_image *im, char *err, size_t errlen);
+/* PNG writer: channels 1 or 3, 8 or 16 bit (16 = host-order uint16 input). */
+int vlff_png_write(const char *path, const void *data, int width, int height, int channels,
+                   int depth16, char *err, size_t errlen);
+
+/* A 4x4 (16 numbers) or 3x3 (9 numbers, expanded) matrix from text. */
+int vlff_parse_matrix(const char *buf, size_t len, const char *name, double m[16], char *err,
+                      size_t errlen);
+/* Validate a rigid transform (see the contract). */
+int vlff_check_pose(const double m[16], const char *name, char *err, size_t errlen);
+/* Invert a rigid transform. */
+void vlff_pose_invert(const double m[16], double out[16]);
+int vlff_parse_bbox(const char *buf, size_t len, const char *name, double lo[3], double hi[3],
+                    char *err, size_t errlen);
+
+/* Labelled point set. */
+struct vlff_points {
+  size_t n;
+  float *xyz;     /* [n][3] */
+  uint8_t *label; /* [n]; 255 = unlabelled (values > 255 map to 255) */
+};
+void vlff_points_free(struct vlff_points *p);
+int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff_points *p,
+                   char *err, size_t errlen);
+int vlff_ply_read(const char *path, struct vlff_points *p, char *err, size_t errlen);
+/* Binary little-endian PLY: float x,y,z; uchar red,green,blue (optional
+ * colours, may be NULL); uchar label. */
+int vlff_ply_write(const char *path, const float *xyz, const uint8_t *rgb, const uint8_t *label,
+                   size_t n, char *err, size_t errlen);
+
+/* Prompt embeddings. expect_dim > 0 also checks D. */
+struct vlff_prompt_embeddings {
+  int count, dim;
+  char (*text)[VLFF_DS_NAME];
+  float *vec;     /* [count][dim] as stored */
+};
+void vlff_prompt_embeddings_free(struct vlff_prompt_embeddings *e);
+int vlff_prompt_embeddings_parse(const char *buf, size_t len, const char *name, int expect_dim,
+                                 struct vlff_prompt_embeddings *e, char *err, size_t errlen);
+int vlff_prompt_embeddings_read(const char *path, int expect_dim, struct vlff_prompt_embeddings *e,
+                                char *err, size_t errlen);
+int vlff_prompt_embeddings_write(const char *path, const char *const *text, const float *vec,
+                                 int count, int dim, char *err, size_t errlen);
+/* The vector of `text` in e (exact match), or NULL. */
+const float *vlff_prompt_embeddings_find(const struct vlff_prompt_embeddings *e, const char *text);
+
+/* Whole-file read with a size cap; *buf is NUL-terminated, caller frees. */
+int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);
+/* Atomic write: path.tmp.<pid>, fsync, rename. */
+int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen);
+
+#endif

@@ -1,0 +1,125 @@
+/*
+ * vlff_sim: procedural indoor RGB-D scenes with ground truth and LSeg-like
+ * simulated vision-language features.
+ *
+ * A seed picks a room (walls, floor, ceiling) furnished with the 20 ScanNet
+ * benchmark classes, built from axis-aligned boxes and vertical cylinders
+ * with procedural textures. Frames are ray-cast analytically: RGB with
+ * Lambertian shading (view-independent, so the field's photometric loss sees
+ * consistent colours), depth with range-dependent noise, holes and a range
+ * limit like a stereo camera, per-pixel class ids, and dense features at a
+ * quarter of the image resolution whose errors mimic LSeg's: blurred
+ * boundaries, per-pixel noise, per-frame confusion patches and
+ * view-dependent confusions between similar classes.
+ *
+ * Conventions (the same as node/field/field.h)
+ *  - World frame in metres, z up. The room is centred in field.scene_min/max
+ *    (shrunk by 0.1 m), floor and ceiling within the box.
+ *  - Cameras follow OpenCV: x right, y down, z forward; poses are
+ *    camera-to-world, 4x4 row-major double; pixel (u,v)'s centre is at
+ *    (u+0.5, v+0.5).
+ *  - Depth is metres along the camera z axis; 0 = invalid.
+ *  - Class ids 0..19 follow the default prompt set (wall, floor, ..., other
+ *    furniture); VLFF_SIM_UNLABELLED (255) marks the ceiling and misses.
+ *  - Features are IEEE float16 bits, HWC, D = sim.feature_dim, not
+ *    normalised (like LSeg's raw output).
+ *
+ * Contract
+ *  - Functions returning int give 0 on success, -1 on error with a message
+ *    in err (when not NULL).
+ *  - Everything is a pure function of (config, frame index): two sims made
+ *    from the same config give bit-identical frames.
+ *  - A vlff_sim is immutable after create: any number of threads may render
+ *    different frames concurrently, each into its own vlff_sim_frame.
+ *  - The caller owns frames (vlff_sim_frame_new/free) and point sets.
+ */
+#ifndef VLFF_SIM_H
+#define VLFF_SIM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "config.h"
+
+#define VLFF_SIM_CLASSES 20
+#define VLFF_SIM_UNLABELLED 255
+
+struct vlff_sim;
+
+/* One rendered frame; buffers are allocated by vlff_sim_frame_new for the
+ * sim's sizes and reused across renders. */
+struct vlff_sim_frame {
+  long long index;
+  double time_s;              /* index / sim.rate_hz */
+  int width, height;
+  double fx, fy, cx, cy;
+  double c2w[16];             /* the pose reported (corrupted on bad-pose frames) */
+  double c2w_true[16];        /* the pose actually rendered */
+  int bad_pose;               /* 1 when c2w != c2w_true (sim.bad_pose_frac) */
+  uint8_t *rgb;               /* [h][w][3] */
+  float *depth;               /* [h][w] measured metres: noise, holes, range limit; 0 = invalid */
+  float *depth_gt;            /* [h][w] exact metres to the first surface */
+  uint16_t *depth_mm;         /* [h][w] measured depth in millimetres (0 = invalid) */
+  uint8_t *label;             /* [h][w] class id, 255 = unlabelled */
+  int feat_width, feat_height, feat_dim;
+  uint16_t *features;         /* float16 [fh][fw][D] */
+};
+
+/* Render flags. */
+enum { VLFF_SIM_RGBD = 1, VLFF_SIM_FEATURES = 2, VLFF_SIM_ALL = 3 };
+
+/* Create from cfg->sim.* and cfg->field.scene_min/max. */
+struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_t errlen);
+void vlff_sim_destroy(struct vlff_sim *s);
+
+struct vlff_sim_frame *vlff_sim_frame_new(const struct vlff_sim *s);
+void vlff_sim_frame_free(struct vlff_sim_frame *f);
+
+/* Render frame `index` (>= 0; the trajectory continues past sim.frames).
+ * Thread-safe for distinct frames. */
+int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
+                    struct vlff_sim_frame *f, char *err, size_t errlen);
+
+/* The camera of frame `index` without rendering it. */
+void vlff_sim_pose(const struct vlff_sim *s, long long index, double c2w[16]);
+void vlff_sim_intrinsics(const struct vlff_sim *s, double *fx, double *fy, double *cx, double *cy);
+void vlff_sim_size(const struct vlff_sim *s, int *width, int *height, int *feat_width,
+                   int *feat_height, int *feat_dim);
+/* Room bounds (inside of the walls) and the scene box of all geometry. */
+void vlff_sim_bounds(const struct vlff_sim *s, double lo[3], double hi[3]);
+/* Number of primitives of each class present (counts[VLFF_SIM_CLASSES]). */
+void vlff_sim_class_counts(const struct vlff_sim *s, int counts[VLFF_SIM_CLASSES]);
+
+/* Exact ray cast from world point o along direction d (need not be unit):
+ * returns the hit parameter t (point = o + t d) or -1 when nothing is hit,
+ * and the hit's class id and unit normal facing the ray (either may be NULL). */
+double vlff_sim_raycast(const struct vlff_sim *s, const double o[3], const double d[3],
+                        int *label, double normal[3]);
+
+/* The class name of id c (0..19), or NULL. */
+const char *vlff_sim_class_name(int c);
+/* Class id of a prompt text (case-insensitive exact name), or -1. */
+int vlff_sim_class_of(const char *name);
+
+/* The simulated text encoder: the unit-norm embedding of `text` (D floats).
+ * A class name gets a vector close to, but not equal to, its feature
+ * prototype; any other text gets a deterministic vector from a hash of the
+ * text, with only the generic similarity every embedding shares. */
+void vlff_sim_text_embedding(const struct vlff_sim *s, const char *text, float *out);
+/* The unit-norm feature prototype of class c (D floats); c may be
+ * VLFF_SIM_CLASSES for the unlabelled ceiling's. */
+void vlff_sim_prototype(const struct vlff_sim *s, int c, float *out);
+
+/* A ground-truth labelled point set for 3D evaluation: surface points seen
+ * from frames 0, step, 2 step, ... < nframes (exact depth), one per cubic
+ * voxel of `voxel` metres. xyz [n][3], label [n] (255 = unlabelled). */
+struct vlff_sim_points {
+  size_t n;
+  float *xyz;
+  uint8_t *label;
+};
+int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxel,
+                    struct vlff_sim_points *out, char *err, size_t errlen);
+void vlff_sim_points_free(struct vlff_sim_points *p);
+
+#endif
