@@ -14,6 +14,7 @@
 
 #include "config.h"
 #include "log.h"
+#include "node.h"
 
 #ifndef VLFF_VERSION
 #define VLFF_VERSION "unknown"
@@ -104,16 +105,40 @@ int main(int argc, char **argv) {
 
   VLFF_INFO("node", "vlff-node %s starting, config %s", VLFF_VERSION,
             config_path ? config_path : "(defaults)");
-  double t0 = mono_s();
-  while (!stop_requested) {
-    if (cfg.node.run_seconds > 0 && mono_s() - t0 >= cfg.node.run_seconds) break;
+  struct vlff_node *node = vlff_node_create(&cfg, err, sizeof err);
+  if (!node) {
+    VLFF_ERROR("node", "%s", err);
+    return 1;
+  }
+  double t0 = mono_s(), last_line = 0;
+  while (!stop_requested && !vlff_node_finished(node)) {
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
-    if (status_view) fprintf(stderr, "\rvlff-node: up %.1f s", mono_s() - t0);
+    double now = mono_s();
+    if (status_view && now - last_line >= 0.5) {
+      last_line = now;
+      struct vlff_node_status st;
+      vlff_node_status(node, &st);
+      char m2[16] = "  -  ", m3[16] = "  -  ";
+      if (st.miou2d >= 0) snprintf(m2, sizeof m2, "%5.1f", st.miou2d);
+      if (st.miou3d >= 0) snprintf(m3, sizeof m3, "%5.1f", st.miou3d);
+      fprintf(stderr,
+              "\r[%6.1f s] frames %lld (%.1f/s) kf %d rej %lld | it %lld (%.1f/s) loss %.4f psnr %.1f | "
+              "map v%llu mIoU 2D %s 3D %s   ",
+              now - t0, st.frames_in, st.fps_in, st.keyframes, st.poses_rejected, st.iteration, st.it_per_s,
+              st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
+    }
   }
   if (status_view) fputc('\n', stderr);
   VLFF_INFO("node", "stopping (%s)", stop_requested == SIGTERM ? "SIGTERM"
                                      : stop_requested == SIGINT ? "SIGINT"
                                                                 : "run_seconds reached");
+  struct vlff_node_status st;
+  vlff_node_status(node, &st);
+  vlff_node_destroy(node, true);
+  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes, %lld frames in, %lld invalid, %lld lost, "
+            "%lld poses rejected, map version %llu",
+            st.iteration, st.keyframes, st.frames_in, st.frames_invalid, st.frames_lost, st.poses_rejected,
+            (unsigned long long)st.map_version);
   return 0;
 }

@@ -16,17 +16,20 @@ check "bad config exits 1 with file:line:col" \
   '! "$node" --check-config "$tmp/bad.yaml" >/dev/null 2>"$tmp/err" && grep -q "bad.yaml:4:7: key .train.lr.: expected number" "$tmp/err"'
 check "bad --config refuses to start" '! "$node" --config "$tmp/bad.yaml" >/dev/null 2>&1'
 for sig in INT TERM; do
-  printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\n' "$tmp" >"$tmp/ok.yaml"
+  printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\nshm:\n  ring: /cli-%s-r\n  map: /cli-%s-m\n  prompts: /cli-%s-p\n' "$tmp" $$ $$ $$ >"$tmp/ok.yaml"
   "$node" --config "$tmp/ok.yaml" 2>"$tmp/log.$sig" &
   pid=$!
-  sleep 1
+  for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/log.$sig" && break; sleep 0.1; done
   kill -$sig $pid
   wait $pid
   rc=$?
   check "SIG$sig exits 0 (rc=$rc)" '[[ $rc == 0 ]]'
   check "SIG$sig logged" 'grep -q "stopping (SIG$sig)" "$tmp/log.$sig"'
 done
-JOURNAL_STREAM=1:2 timeout 5 "$node" --config "$tmp/ok.yaml" 2>"$tmp/j" & p=$!; sleep 0.5; kill -TERM $p; wait $p
+JOURNAL_STREAM=1:2 timeout 20 "$node" --config "$tmp/ok.yaml" 2>"$tmp/j" & p=$!
+for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/j" && break; sleep 0.1; done
+kill -TERM $p; wait $p
 check "journald lines start with <6>" 'head -1 "$tmp/j" | grep -q "^<6>node: "'
 echo "$passes passed, $fails failed"
+rm -f /dev/shm/cli-$$-*
 (( fails == 0 ))

@@ -1,0 +1,961 @@
+/*
+ * The online learner: threads, queues and policies around the field.
+ *
+ * Two threads do the work. The ingest thread never touches the field: it
+ * turns ring records into candidate keyframes (validated, posed, downscaled,
+ * with features) and hands them over through a small queue that drops the
+ * oldest candidate rather than ever blocking the ring. The trainer thread
+ * owns the field, the keyframe store and the map writer; it interleaves pose
+ * checks, optimisation steps, publishes and checkpoints, so none of them
+ * needs a lock around the model.
+ */
+#include "node.h"
+
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "dataset.h"
+#include "field.h"
+#include "keyframes.h"
+#include "log.h"
+#include "metrics.h"
+#include "publish.h"
+#include "select.h"
+#include "sim.h"
+#include "vlff/shm.h"
+
+#define TAG "node"
+#define QUEUE_CAP 4
+#define PENDING_CAP 16
+#define LAT_CAP 4096
+#define KF_PROTECT 8 /* newest keyframes never evicted, and given half the rays */
+
+struct candidate {
+  long long id;
+  uint64_t t_host_ns;
+  struct vlff_view view; /* points into the buffers below */
+  uint8_t *rgb;
+  float *depth;
+  uint16_t *features;
+  double deadline_s;     /* features must arrive by then (feature ring) */
+};
+
+struct vlff_node {
+  struct vlff_config cfg;
+  struct vlff_field *field;
+  struct vlff_kfstore *store;
+  struct vlff_sim *sim;               /* sim features, text embeddings, ground truth */
+  struct vlff_prompt_embeddings emb_file;
+  struct vlff_publisher *pub;
+  struct vlff_prompts *mailbox;
+  struct vlff_sim_points gt_points;
+
+  pthread_t ingest_thread, trainer_thread;
+  bool ingest_started, trainer_started;
+  atomic_bool stop;
+  atomic_bool finished;
+  double t_start;
+
+  /* ingest -> trainer */
+  pthread_mutex_t qlock;
+  pthread_cond_t qcond;
+  struct candidate *queue[QUEUE_CAP];
+  int qlen;
+
+  /* commands -> trainer */
+  pthread_mutex_t clock;
+  int cmds[16][2];
+  int ncmds;
+
+  /* status (short critical sections, never held across work) */
+  pthread_mutex_t slock;
+  struct vlff_node_status st;
+  double last_frame_s, last_pose_ok_s, last_lapped_s;
+
+  /* trainer-private */
+  float *prompt_emb;           /* [k][D] */
+  int prompt_k;
+  char prompt_text[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
+  bool mapping;
+  int ckpt_slot;
+  double lat_ms[LAT_CAP];
+  int lat_n;
+  uint64_t pending_t_host[64];
+  int pending_lat;
+};
+
+static double mono_s(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static void candidate_free(struct candidate *c) {
+  if (!c) return;
+  free(c->rgb);
+  free(c->depth);
+  free(c->features);
+  free(c);
+}
+
+#define STAT_ADD(n, field, v)          \
+  do {                                 \
+    pthread_mutex_lock(&(n)->slock);   \
+    (n)->st.field += (v);              \
+    pthread_mutex_unlock(&(n)->slock); \
+  } while (0)
+
+/* ---- prompts ------------------------------------------------------------ */
+
+/* Embeddings for texts: the embeddings file when configured, else the
+ * simulated text encoder when features are simulated. */
+static int embed_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN], int k,
+                         float *out, char *err, size_t errlen) {
+  int d = n->cfg.field.feature_dim;
+  for (int i = 0; i < k; i++) {
+    char full[2 * VLFF_PROMPT_LEN + VLFF_CFG_STR];
+    const char *t = n->cfg.prompts.templ, *at = strstr(t, "{}");
+    snprintf(full, sizeof full, "%.*s%s%s", (int)(at - t), t, texts[i], at + 2);
+    if (n->emb_file.count) {
+      const float *v = vlff_prompt_embeddings_find(&n->emb_file, full);
+      if (!v) v = vlff_prompt_embeddings_find(&n->emb_file, texts[i]);
+      if (!v) {
+        snprintf(err, errlen, "prompt '%s': not in the embeddings file %s", full,
+                 n->cfg.prompts.embeddings);
+        return -1;
+      }
+      memcpy(out + (size_t)i * d, v, (size_t)d * sizeof(float));
+    } else if (n->sim) {
+      /* The simulated encoder knows class names, not templated sentences. */
+      vlff_sim_text_embedding(n->sim, texts[i], out + (size_t)i * d);
+    } else {
+      snprintf(err, errlen, "prompt '%s': no text encoder (set prompts.embeddings)", texts[i]);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+static int apply_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN], int k, int set_index,
+                         char *err, size_t errlen) {
+  if (k < 1 || k > VLFF_MAX_PROMPTS) {
+    snprintf(err, errlen, "prompt set of %d prompts (expected 1..%d)", k, VLFF_MAX_PROMPTS);
+    return -1;
+  }
+  float *emb = malloc((size_t)k * n->cfg.field.feature_dim * sizeof(float));
+  if (!emb) return snprintf(err, errlen, "out of memory"), -1;
+  if (embed_prompts(n, texts, k, emb, err, errlen) ||
+      vlff_field_set_prompts(n->field, emb, k, err, errlen)) {
+    free(emb);
+    return -1;
+  }
+  free(n->prompt_emb);
+  n->prompt_emb = emb;
+  n->prompt_k = k;
+  for (int i = 0; i < k; i++) snprintf(n->prompt_text[i], VLFF_PROMPT_LEN, "%s", texts[i]);
+  pthread_mutex_lock(&n->slock);
+  n->st.prompt_set = set_index;
+  n->st.prompt_count = k;
+  pthread_mutex_unlock(&n->slock);
+  VLFF_INFO(TAG, "prompts: %d (%s%s)", k, set_index >= 0 ? "set " : "posted texts",
+            set_index >= 0 ? n->cfg.prompts.sets[set_index].name : "");
+  return 0;
+}
+
+static int apply_prompt_set(struct vlff_node *n, int idx, char *err, size_t errlen) {
+  if (idx < 0 || idx >= n->cfg.prompts.set_count) {
+    snprintf(err, errlen, "prompt set %d does not exist (have %d)", idx, n->cfg.prompts.set_count);
+    return -1;
+  }
+  const struct vlff_prompt_set *s = &n->cfg.prompts.sets[idx];
+  return apply_prompts(n, (const char(*)[VLFF_PROMPT_LEN])s->text, s->count, idx, err, errlen);
+}
+
+/* ---- ingest ------------------------------------------------------------- */
+
+/* Area-average downscale by an integer factor, or nearest for any other. */
+static void resample_rgb(const uint8_t *src, int sw, int sh, size_t sstride, int ch, uint8_t *dst,
+                         int dw, int dh) {
+  int fx = sw / dw, fy = sh / dh;
+  bool box = fx * dw == sw && fy * dh == sh;
+  for (int y = 0; y < dh; y++)
+    for (int x = 0; x < dw; x++) {
+      unsigned acc[3] = {0, 0, 0};
+      int cnt = 0;
+      int y0 = box ? y * fy : (int)((y + 0.5) * sh / dh), x0 = box ? x * fx : (int)((x + 0.5) * sw / dw);
+      int ny = box ? fy : 1, nx = box ? fx : 1;
+      for (int yy = 0; yy < ny; yy++)
+        for (int xx = 0; xx < nx; xx++) {
+          const uint8_t *p = src + (size_t)(y0 + yy) * sstride + (size_t)(x0 + xx) * ch;
+          for (int c = 0; c < 3; c++) acc[c] += p[ch == 1 ? 0 : c];
+          cnt++;
+        }
+      for (int c = 0; c < 3; c++) dst[((size_t)y * dw + x) * 3 + c] = (uint8_t)(acc[c] / cnt);
+    }
+}
+
+/* Depth is sampled, never averaged: averaging across an edge invents
+ * surfaces floating between foreground and background. */
+static size_t resample_depth(const void *src, uint32_t fmt, int sw, int sh, size_t sstride, float *dst,
+                             int dw, int dh) {
+  size_t valid = 0;
+  for (int y = 0; y < dh; y++)
+    for (int x = 0; x < dw; x++) {
+      int sy = (int)((y + 0.5) * sh / dh), sx = (int)((x + 0.5) * sw / dw);
+      const uint8_t *row = (const uint8_t *)src + (size_t)sy * sstride;
+      float d;
+      if (fmt == VLFF_PIX_DEPTH_U16_MM) {
+        uint16_t mm;
+        memcpy(&mm, row + (size_t)sx * 2, 2);
+        d = mm * 1e-3f;
+      } else {
+        memcpy(&d, row + (size_t)sx * 4, 4);
+      }
+      if (!(d > 0) || !isfinite(d)) d = 0;
+      valid += d > 0;
+      dst[(size_t)y * dw + x] = d;
+    }
+  return valid;
+}
+
+static void queue_push(struct vlff_node *n, struct candidate *c) {
+  struct candidate *dropped = NULL;
+  pthread_mutex_lock(&n->qlock);
+  if (n->qlen == QUEUE_CAP) {
+    dropped = n->queue[0];
+    memmove(n->queue, n->queue + 1, (QUEUE_CAP - 1) * sizeof n->queue[0]);
+    n->qlen--;
+  }
+  n->queue[n->qlen++] = c;
+  pthread_cond_signal(&n->qcond);
+  pthread_mutex_unlock(&n->qlock);
+  if (dropped) {
+    STAT_ADD(n, candidates_dropped, 1);
+    candidate_free(dropped);
+  }
+}
+
+/* Features [D][h][w] from the feature ring, transposed to the field's HWC. */
+static bool take_ring_features(struct candidate **pending, int *npend, const void *rec, int dim) {
+  const struct vlff_feature_hdr *h = rec;
+  if ((int)h->dim != dim) return false;
+  for (int i = 0; i < *npend; i++) {
+    struct candidate *c = pending[i];
+    if ((uint64_t)c->id != h->frame_id) continue;
+    size_t px = (size_t)h->width * h->height;
+    c->features = malloc(px * dim * sizeof(uint16_t));
+    if (!c->features) return false;
+    const uint16_t *src = (const uint16_t *)((const char *)rec + h->data_offset);
+    for (size_t p = 0; p < px; p++)
+      for (int d = 0; d < dim; d++) c->features[p * dim + d] = src[(size_t)d * px + p];
+    c->view.features = c->features;
+    c->view.feat_width = (int)h->width;
+    c->view.feat_height = (int)h->height;
+    c->view.feat_dim = dim;
+    return true;
+  }
+  return false;
+}
+
+static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
+  bool warned = false;
+  while (!atomic_load(&n->stop)) {
+    struct vlff_ring *r = vlff_ring_attach(name, kind);
+    if (r) {
+      VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
+                (unsigned long long)vlff_ring_slot_size(r));
+      return r;
+    }
+    if (!warned) VLFF_WARN(TAG, "waiting for ring %s: %s", name, vlff_shm_last_message());
+    warned = true;
+    struct timespec ts = {0, 100 * 1000 * 1000};
+    nanosleep(&ts, NULL);
+  }
+  return NULL;
+}
+
+static void frame_invalid(struct vlff_node *n, long long id, const char *why) {
+  STAT_ADD(n, frames_invalid, 1);
+  VLFF_DEBUG(TAG, "frame %lld dropped: %s", id, why);
+}
+
+static void *ingest_main(void *arg) {
+  struct vlff_node *n = arg;
+  const struct vlff_config *cfg = &n->cfg;
+  struct vlff_ring *ring = attach_retry(n, cfg->shm.ring, VLFF_RECORD_FRAME);
+  struct vlff_ring *poses = NULL, *feats = NULL;
+  struct vlff_sim_frame *sf = n->sim ? vlff_sim_frame_new(n->sim) : NULL;
+  struct candidate *pending[PENDING_CAP];
+  int npend = 0;
+  size_t cap = ring ? vlff_ring_slot_size(ring) : 0, fcap = 0;
+  void *buf = cap ? malloc(cap) : NULL, *fbuf = NULL;
+  struct vlff_kf_selector sel;
+  vlff_kf_selector_init(&sel, cfg->keyframes.rate_hz, cfg->keyframes.min_translation_m,
+                        cfg->keyframes.min_rotation_deg);
+  uint64_t lost_seen = 0;
+  double fps_t0 = mono_s();
+  long long fps_count = 0;
+  int dim = cfg->field.feature_dim;
+  while (ring && buf && !atomic_load(&n->stop)) {
+    if (!poses) poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
+    if (cfg->source.features == VLFF_FEAT_RING && !feats) {
+      feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
+      if (feats) {
+        fcap = vlff_ring_slot_size(feats);
+        fbuf = malloc(fcap);
+      }
+    }
+    /* Join arrived features to waiting keyframes; time out the rest. */
+    if (feats && fbuf) {
+      struct vlff_ring_view fv;
+      ssize_t fl;
+      while ((fl = vlff_ring_read_copy(feats, fbuf, fcap, &fv, 0)) >= 0) {
+        if (vlff_feature_validate(fbuf, (size_t)fl) != 0 ||
+            !take_ring_features(pending, &npend, fbuf, dim))
+          continue;
+        for (int i = 0; i < npend; i++)
+          if (pending[i]->features) {
+            queue_push(n, pending[i]);
+            memmove(pending + i, pending + i + 1, (size_t)(npend - i - 1) * sizeof *pending);
+            npend--;
+            i--;
+          }
+      }
+      if (fl < 0 && errno == EPIPE) {
+        vlff_ring_close(feats);
+        feats = NULL;
+      }
+    }
+    for (int i = 0; i < npend; i++)
+      if (mono_s() > pending[i]->deadline_s) {
+        STAT_ADD(n, features_timeout, 1);
+        VLFF_WARN(TAG, "frame %lld: features did not arrive within %.1f s", pending[i]->id,
+                  cfg->vlm.feature_timeout_s);
+        candidate_free(pending[i]);
+        memmove(pending + i, pending + i + 1, (size_t)(npend - i - 1) * sizeof *pending);
+        npend--;
+        i--;
+      }
+
+    struct vlff_ring_view info;
+    ssize_t len = vlff_ring_read_copy(ring, buf, cap, &info, 50 * 1000 * 1000ull);
+    uint64_t lost = vlff_ring_lost(ring);
+    if (lost != lost_seen) {
+      pthread_mutex_lock(&n->slock);
+      n->st.frames_lost += (long long)(lost - lost_seen);
+      n->last_lapped_s = mono_s();
+      pthread_mutex_unlock(&n->slock);
+      lost_seen = lost;
+    }
+    if (len < 0) {
+      if (errno == EPIPE) { /* the producer replaced the ring: follow it */
+        vlff_ring_close(ring);
+        ring = attach_retry(n, cfg->shm.ring, VLFF_RECORD_FRAME);
+        lost_seen = 0;
+        if (ring && vlff_ring_slot_size(ring) > cap) {
+          cap = vlff_ring_slot_size(ring);
+          void *nb = realloc(buf, cap);
+          if (!nb) break;
+          buf = nb;
+        }
+      } else if (errno == EMSGSIZE) {
+        frame_invalid(n, -1, "record larger than the read buffer");
+      }
+      continue;
+    }
+    double now = mono_s();
+    pthread_mutex_lock(&n->slock);
+    n->st.frames_in++;
+    n->last_frame_s = now;
+    pthread_mutex_unlock(&n->slock);
+    fps_count++;
+    if (now - fps_t0 >= 1.0) {
+      pthread_mutex_lock(&n->slock);
+      n->st.fps_in = fps_count / (now - fps_t0);
+      pthread_mutex_unlock(&n->slock);
+      fps_t0 = now;
+      fps_count = 0;
+    }
+
+    const struct vlff_frame_hdr *h = buf;
+    long long id = (long long)h->frame_id;
+    if (vlff_frame_validate(buf, (size_t)len) != 0) {
+      frame_invalid(n, id, "malformed frame record");
+      continue;
+    }
+    const struct vlff_plane *cp = &h->plane[VLFF_PLANE_COLOR];
+    const struct vlff_plane *dp = h->nplanes > 1 ? &h->plane[VLFF_PLANE_DEPTH] : NULL;
+    if ((int)cp->width > cfg->shm.max_width || (int)cp->height > cfg->shm.max_height) {
+      frame_invalid(n, id, "larger than shm.max_width x shm.max_height");
+      continue;
+    }
+    if (cp->format != VLFF_PIX_RGB8 && cp->format != VLFF_PIX_MONO8) {
+      frame_invalid(n, id, "colour plane is not RGB8 or Mono8");
+      continue;
+    }
+    if (!(h->flags & VLFF_FRAME_INTRINSICS_VALID) || !(h->fx > 0) || !(h->fy > 0) ||
+        !isfinite(h->cx) || !isfinite(h->cy)) {
+      frame_invalid(n, id, "no valid intrinsics");
+      continue;
+    }
+    double pose[16];
+    bool have_pose = false;
+    if ((h->flags & VLFF_FRAME_POSE_VALID) && !(h->flags & VLFF_FRAME_POSE_UNTRUSTED)) {
+      memcpy(pose, h->pose, sizeof pose);
+      have_pose = true;
+    } else if (poses) {
+      struct vlff_pose_rec pr;
+      if (vlff_pose_lookup(poses, h->t_host_ns, (uint64_t)(cfg->source.pose_tolerance_s * 1e9), &pr) == 0 &&
+          !(pr.flags & VLFF_FRAME_POSE_UNTRUSTED)) {
+        memcpy(pose, pr.pose, sizeof pose);
+        have_pose = true;
+      }
+    }
+    if (!have_pose || !vlff_pose_valid(pose)) {
+      frame_invalid(n, id, have_pose ? "pose not a rigid transform (NaN or not orthonormal)" : "no pose");
+      continue;
+    }
+    pthread_mutex_lock(&n->slock);
+    n->last_pose_ok_s = now;
+    pthread_mutex_unlock(&n->slock);
+    if (!dp || (dp->format != VLFF_PIX_DEPTH_U16_MM && dp->format != VLFF_PIX_DEPTH_F32_M) ||
+        dp->width != cp->width || dp->height != cp->height) {
+      frame_invalid(n, id, "no depth plane of the colour plane's size");
+      continue;
+    }
+    if (!vlff_kf_selector_offer(&sel, (long long)h->t_host_ns, pose)) continue;
+
+    int dw = (int)lround(cp->width * cfg->train.image_scale), dh = (int)lround(cp->height * cfg->train.image_scale);
+    if (dw < 4 || dh < 4) {
+      frame_invalid(n, id, "too small at train.image_scale");
+      continue;
+    }
+    struct candidate *c = calloc(1, sizeof *c);
+    if (!c) continue;
+    c->id = id;
+    c->t_host_ns = h->t_host_ns;
+    c->rgb = malloc((size_t)dw * dh * 3);
+    c->depth = malloc((size_t)dw * dh * sizeof(float));
+    if (!c->rgb || !c->depth) {
+      candidate_free(c);
+      continue;
+    }
+    resample_rgb(vlff_frame_plane(buf, VLFF_PLANE_COLOR), (int)cp->width, (int)cp->height, cp->stride,
+                 cp->format == VLFF_PIX_RGB8 ? 3 : 1, c->rgb, dw, dh);
+    size_t valid = resample_depth(vlff_frame_plane(buf, VLFF_PLANE_DEPTH), dp->format, (int)dp->width,
+                                  (int)dp->height, dp->stride, c->depth, dw, dh);
+    if (valid == 0) {
+      candidate_free(c);
+      frame_invalid(n, id, "depth plane has no valid pixel");
+      continue;
+    }
+    double sx = (double)dw / cp->width, sy = (double)dh / cp->height;
+    struct vlff_view *v = &c->view;
+    v->width = dw;
+    v->height = dh;
+    v->rgb = c->rgb;
+    v->depth = c->depth;
+    v->fx = h->fx * sx;
+    v->fy = h->fy * sy;
+    v->cx = h->cx * sx;
+    v->cy = h->cy * sy;
+    memcpy(v->c2w, pose, sizeof pose);
+
+    if (cfg->source.features == VLFF_FEAT_SIM) {
+      char err[256];
+      if (!sf || vlff_sim_render(n->sim, id, VLFF_SIM_FEATURES, sf, err, sizeof err)) {
+        candidate_free(c);
+        frame_invalid(n, id, "simulated features unavailable");
+        continue;
+      }
+      size_t fb = (size_t)sf->feat_width * sf->feat_height * sf->feat_dim * sizeof(uint16_t);
+      c->features = malloc(fb);
+      if (!c->features) {
+        candidate_free(c);
+        continue;
+      }
+      memcpy(c->features, sf->features, fb);
+      v->features = c->features;
+      v->feat_width = sf->feat_width;
+      v->feat_height = sf->feat_height;
+      v->feat_dim = sf->feat_dim;
+      queue_push(n, c);
+    } else {
+      c->deadline_s = now + cfg->vlm.feature_timeout_s;
+      if (npend == PENDING_CAP) {
+        STAT_ADD(n, features_timeout, 1);
+        candidate_free(pending[0]);
+        memmove(pending, pending + 1, (PENDING_CAP - 1) * sizeof *pending);
+        npend--;
+      }
+      pending[npend++] = c;
+    }
+  }
+  for (int i = 0; i < npend; i++) candidate_free(pending[i]);
+  free(buf);
+  free(fbuf);
+  vlff_sim_frame_free(sf);
+  vlff_ring_close(ring);
+  vlff_ring_close(poses);
+  vlff_ring_close(feats);
+  return NULL;
+}
+
+/* ---- trainer ------------------------------------------------------------ */
+
+static void ckpt_path(const struct vlff_node *n, int slot, char *out, size_t len) {
+  snprintf(out, len, "%s/field.%d.ckpt", n->cfg.node.state_dir, slot);
+}
+
+static int save_checkpoint(struct vlff_node *n) {
+  char path[VLFF_CFG_PATH + 32], err[256];
+  int slot = n->ckpt_slot;
+  ckpt_path(n, slot, path, sizeof path);
+  if (vlff_field_save(n->field, path, err, sizeof err)) {
+    VLFF_ERROR(TAG, "checkpoint failed: %s", err);
+    pthread_mutex_lock(&n->slock);
+    n->st.checkpoint_failures++;
+    n->st.error_flags |= VLFF_NODE_ERR_CHECKPOINT;
+    pthread_mutex_unlock(&n->slock);
+    return -1;
+  }
+  /* Two alternating files: a crash while writing one leaves the other. */
+  n->ckpt_slot ^= 1;
+  pthread_mutex_lock(&n->slock);
+  n->st.checkpoints++;
+  n->st.error_flags &= ~(unsigned)VLFF_NODE_ERR_CHECKPOINT;
+  pthread_mutex_unlock(&n->slock);
+  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, vlff_field_steps(n->field));
+  return 0;
+}
+
+static void restore_checkpoint(struct vlff_node *n) {
+  char path[2][VLFF_CFG_PATH + 32];
+  struct stat sb[2];
+  bool have[2];
+  for (int i = 0; i < 2; i++) {
+    ckpt_path(n, i, path[i], sizeof path[i]);
+    have[i] = stat(path[i], &sb[i]) == 0;
+  }
+  /* Newest first; fall back to the other when it is refused. */
+  int order[2] = {0, 1};
+  if (have[0] && have[1] &&
+      (sb[1].st_mtim.tv_sec > sb[0].st_mtim.tv_sec ||
+       (sb[1].st_mtim.tv_sec == sb[0].st_mtim.tv_sec && sb[1].st_mtim.tv_nsec > sb[0].st_mtim.tv_nsec)))
+    order[0] = 1, order[1] = 0;
+  for (int k = 0; k < 2; k++) {
+    int i = order[k];
+    if (!have[i]) continue;
+    char err[256];
+    if (vlff_field_load(n->field, path[i], err, sizeof err) == 0) {
+      VLFF_INFO(TAG, "resumed from %s at step %lld", path[i], vlff_field_steps(n->field));
+      n->ckpt_slot = i ^ 1;
+      return;
+    }
+    VLFF_ERROR(TAG, "checkpoint refused, skipped: %s", err);
+    pthread_mutex_lock(&n->slock);
+    n->st.checkpoint_failures++;
+    pthread_mutex_unlock(&n->slock);
+  }
+}
+
+/* Render depth at the candidate's pose at low resolution and compare with
+ * what it measured, where the map is already confident. */
+static bool pose_check(struct vlff_node *n, const struct candidate *c) {
+  const struct vlff_config *cfg = &n->cfg;
+  if (vlff_kfstore_count(n->store) < cfg->keyframes.start_after || vlff_field_steps(n->field) < 300)
+    return true;
+  enum { S = 4 };
+  int w = c->view.width / S, h = c->view.height / S;
+  if (w < 4 || h < 4) return true;
+  size_t px = (size_t)w * h;
+  float *rd = malloc(px * sizeof(float)), *md = malloc(px * sizeof(float));
+  int *lab = malloc(px * sizeof(int));
+  unsigned char *hit = malloc(px);
+  bool ok = true;
+  if (rd && md && lab && hit) {
+    struct vlff_view cam = c->view;
+    cam.width = w;
+    cam.height = h;
+    cam.fx /= S, cam.fy /= S, cam.cx /= S, cam.cy /= S;
+    if (vlff_field_render(n->field, &cam, NULL, rd, NULL, lab, NULL) == 0) {
+      for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+          size_t i = (size_t)y * w + x;
+          hit[i] = lab[i] >= 0;
+          md[i] = c->view.depth[(size_t)(y * S + S / 2) * c->view.width + x * S + S / 2];
+        }
+      double res;
+      enum vlff_posecheck v = vlff_posecheck(rd, hit, md, px, cfg->keyframes.bad_pose_threshold_m, 0.3, &res);
+      pthread_mutex_lock(&n->slock);
+      n->st.last_pose_residual_m = res;
+      pthread_mutex_unlock(&n->slock);
+      if (v == VLFF_POSE_BAD) {
+        VLFF_WARN(TAG, "keyframe %lld rejected: median depth residual %.3f m > %.3f m", c->id, res,
+                  cfg->keyframes.bad_pose_threshold_m);
+        ok = false;
+      }
+    }
+  }
+  free(rd);
+  free(md);
+  free(lab);
+  free(hit);
+  return ok;
+}
+
+static void take_candidates(struct vlff_node *n, bool wait) {
+  struct candidate *batch[QUEUE_CAP];
+  int nb;
+  pthread_mutex_lock(&n->qlock);
+  if (wait && n->qlen == 0) {
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    ts.tv_nsec += 20 * 1000 * 1000;
+    if (ts.tv_nsec >= 1000000000) ts.tv_sec++, ts.tv_nsec -= 1000000000;
+    pthread_cond_timedwait(&n->qcond, &n->qlock, &ts);
+  }
+  nb = n->qlen;
+  memcpy(batch, n->queue, (size_t)nb * sizeof batch[0]);
+  n->qlen = 0;
+  pthread_mutex_unlock(&n->qlock);
+  for (int i = 0; i < nb; i++) {
+    struct candidate *c = batch[i];
+    if (n->mapping) {
+      if (!pose_check(n, c)) {
+        STAT_ADD(n, poses_rejected, 1);
+      } else {
+        struct vlff_keyframe_in kin = {.id = c->id, .t_ns = (long long)c->t_host_ns, .view = c->view,
+                                       .feature_dim = n->cfg.field.feature_dim};
+        if (vlff_kfstore_add(n->store, &kin) == 0) {
+          vlff_publisher_observe(n->pub, &c->view);
+          vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id);
+          if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
+        } else {
+          VLFF_WARN(TAG, "keyframe %lld does not fit the keyframe store: %s", c->id, strerror(errno));
+        }
+      }
+    }
+    candidate_free(c);
+  }
+}
+
+static void do_publish(struct vlff_node *n) {
+  char err[256];
+  struct vlff_publish_result r;
+  const char *texts[VLFF_MAX_PROMPTS];
+  for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
+  if (vlff_publisher_publish(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
+    VLFF_ERROR(TAG, "publish failed: %s", err);
+    return;
+  }
+  uint64_t now = vlff_shm_now_ns();
+  for (int i = 0; i < n->pending_lat; i++) {
+    double ms = (double)(now - n->pending_t_host[i]) * 1e-6;
+    n->lat_ms[n->lat_n++ % LAT_CAP] = ms;
+  }
+  n->pending_lat = 0;
+  int cnt = n->lat_n < LAT_CAP ? n->lat_n : LAT_CAP;
+  double p50 = -1, p99 = -1;
+  if (cnt > 0) {
+    double *tmp = malloc((size_t)cnt * sizeof(double));
+    if (tmp) {
+      memcpy(tmp, n->lat_ms, (size_t)cnt * sizeof(double));
+      for (int i = 1; i < cnt; i++) /* insertion sort: cnt is small */
+        for (int j = i; j > 0 && tmp[j - 1] > tmp[j]; j--) {
+          double t = tmp[j];
+          tmp[j] = tmp[j - 1];
+          tmp[j - 1] = t;
+        }
+      p50 = tmp[cnt / 2];
+      p99 = tmp[(int)floor(0.99 * (cnt - 1))];
+      free(tmp);
+    }
+  }
+  pthread_mutex_lock(&n->slock);
+  n->st.map_version = r.version;
+  n->st.miou2d = r.miou2d;
+  n->st.miou3d = r.miou3d;
+  n->st.frame_to_map_ms_p50 = p50;
+  n->st.frame_to_map_ms_p99 = p99;
+  pthread_mutex_unlock(&n->slock);
+}
+
+static void reset_mapping(struct vlff_node *n) {
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&n->cfg, err, sizeof err);
+  struct vlff_kfstore *s =
+      vlff_kfstore_create((size_t)n->cfg.keyframes.memory_mb << 20, n->cfg.keyframes.max_keyframes, KF_PROTECT);
+  if (!f || !s) {
+    VLFF_ERROR(TAG, "reset failed: %s", f ? "out of memory" : err);
+    vlff_field_destroy(f);
+    vlff_kfstore_destroy(s);
+    return;
+  }
+  vlff_field_destroy(n->field);
+  vlff_kfstore_destroy(n->store);
+  n->field = f;
+  n->store = s;
+  vlff_publisher_reset(n->pub);
+  if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);
+  VLFF_INFO(TAG, "mapping reset");
+}
+
+static void run_commands(struct vlff_node *n, bool *publish_now) {
+  int cmds[16][2], nc;
+  pthread_mutex_lock(&n->clock);
+  nc = n->ncmds;
+  memcpy(cmds, n->cmds, sizeof cmds);
+  n->ncmds = 0;
+  pthread_mutex_unlock(&n->clock);
+  for (int i = 0; i < nc; i++) {
+    char err[256];
+    switch (cmds[i][0]) {
+    case VLFF_CMD_START: n->mapping = true; VLFF_INFO(TAG, "mapping started"); break;
+    case VLFF_CMD_STOP: n->mapping = false; VLFF_INFO(TAG, "mapping stopped"); break;
+    case VLFF_CMD_RESET: reset_mapping(n); break;
+    case VLFF_CMD_SAVE: save_checkpoint(n); break;
+    case VLFF_CMD_PUBLISH: *publish_now = true; break;
+    case VLFF_CMD_PROMPT_SET:
+      if (apply_prompt_set(n, cmds[i][1], err, sizeof err))
+        VLFF_ERROR(TAG, "prompt set command: %s", err);
+      else
+        *publish_now = true;
+      break;
+    }
+  }
+}
+
+static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) {
+  struct vlff_prompt_request req;
+  if (!n->mailbox || vlff_prompts_poll(n->mailbox, seq, &req) != 1) return;
+  char err[256];
+  int rc;
+  if (req.set_index >= 0) {
+    rc = apply_prompt_set(n, req.set_index, err, sizeof err);
+  } else {
+    char texts[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
+    int k = req.count > VLFF_MAX_PROMPTS ? VLFF_MAX_PROMPTS : req.count;
+    for (int i = 0; i < k; i++) snprintf(texts[i], VLFF_PROMPT_LEN, "%s", req.text[i]);
+    rc = apply_prompts(n, (const char(*)[VLFF_PROMPT_LEN])texts, k, -1, err, sizeof err);
+  }
+  if (rc)
+    VLFF_ERROR(TAG, "prompt mailbox request %llu from pid %d refused: %s", (unsigned long long)req.seq,
+               req.poster_pid, err);
+  else
+    *publish_now = true;
+}
+
+static void update_state(struct vlff_node *n) {
+  double now = mono_s();
+  pthread_mutex_lock(&n->slock);
+  unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
+  if (n->last_frame_s > 0 ? now - n->last_frame_s > 2.0 : now - n->t_start > 5.0) f |= VLFF_NODE_ERR_CAMERA_LOST;
+  if (n->last_frame_s > 0 && now - n->last_pose_ok_s > 2.0) f |= VLFF_NODE_ERR_POSE_STALE;
+  if (n->last_lapped_s > 0 && now - n->last_lapped_s < 2.0) f |= VLFF_NODE_ERR_SHM_LAPPED;
+  n->st.error_flags = f;
+  n->st.keyframes = vlff_kfstore_count(n->store);
+  n->st.keyframes_evicted = vlff_kfstore_evicted(n->store);
+  n->st.state = !n->mapping ? VLFF_NODE_STOPPED
+                : n->st.keyframes >= n->cfg.keyframes.start_after ? VLFF_NODE_OPERATIONAL
+                                                                  : VLFF_NODE_PREOP;
+  n->st.map_age_s = vlff_publisher_age_s(n->pub);
+  pthread_mutex_unlock(&n->slock);
+}
+
+static void *trainer_main(void *arg) {
+  struct vlff_node *n = arg;
+  const struct vlff_config *cfg = &n->cfg;
+  double next_publish = mono_s() + 1.0 / cfg->publish.rate_hz;
+  double next_ckpt = cfg->node.checkpoint_period_s > 0 ? mono_s() + cfg->node.checkpoint_period_s : INFINITY;
+  uint64_t mailbox_seq = 0;
+  double rate_t0 = mono_s();
+  long long rate_steps = 0;
+  while (!atomic_load(&n->stop)) {
+    bool publish_now = false;
+    run_commands(n, &publish_now);
+    poll_mailbox(n, &mailbox_seq, &publish_now);
+    bool train = n->mapping && vlff_kfstore_count(n->store) >= cfg->keyframes.start_after;
+    take_candidates(n, !train);
+    if (train) {
+      const struct vlff_view *views;
+      const float *w;
+      int nv = vlff_kfstore_views(n->store, &views, &w);
+      struct vlff_train_stats ts;
+      char err[256];
+      if (vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err) == 0) {
+        rate_steps++;
+        pthread_mutex_lock(&n->slock);
+        n->st.iteration = ts.step;
+        n->st.loss = ts.loss;
+        n->st.loss_rgb = ts.loss_rgb;
+        n->st.loss_depth = ts.loss_depth;
+        n->st.loss_feat = ts.loss_feat;
+        n->st.psnr = ts.psnr;
+        pthread_mutex_unlock(&n->slock);
+      } else {
+        VLFF_ERROR(TAG, "training step failed: %s", err);
+      }
+    }
+    double now = mono_s();
+    if (now - rate_t0 >= 1.0) {
+      pthread_mutex_lock(&n->slock);
+      n->st.it_per_s = rate_steps / (now - rate_t0);
+      pthread_mutex_unlock(&n->slock);
+      rate_t0 = now;
+      rate_steps = 0;
+    }
+    if (publish_now || now >= next_publish) {
+      do_publish(n);
+      next_publish = now + 1.0 / cfg->publish.rate_hz;
+    } else {
+      vlff_publisher_heartbeat(n->pub);
+    }
+    if (now >= next_ckpt) {
+      save_checkpoint(n);
+      next_ckpt = now + cfg->node.checkpoint_period_s;
+    }
+    update_state(n);
+    if (cfg->node.run_seconds > 0 && now - n->t_start >= cfg->node.run_seconds) {
+      atomic_store(&n->finished, true);
+      break;
+    }
+  }
+  return NULL;
+}
+
+/* ---- lifecycle ---------------------------------------------------------- */
+
+struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, size_t errlen) {
+  if (cfg->source.kind == VLFF_SOURCE_DATASET) {
+    snprintf(err, errlen, "source.kind: dataset is for vlff-eval; vlff-node reads the frame ring (sim or ring)");
+    return NULL;
+  }
+  if (cfg->source.features == VLFF_FEAT_MODEL) {
+    snprintf(err, errlen, "source.features: model: run the image encoder as an external extractor "
+                          "(source.features: ring) in this build");
+    return NULL;
+  }
+  if (cfg->source.features == VLFF_FEAT_SIM && cfg->sim.feature_dim != cfg->field.feature_dim) {
+    snprintf(err, errlen, "sim.feature_dim (%d) must equal field.feature_dim (%d)", cfg->sim.feature_dim,
+             cfg->field.feature_dim);
+    return NULL;
+  }
+  struct vlff_node *n = calloc(1, sizeof *n);
+  if (!n) return snprintf(err, errlen, "out of memory"), NULL;
+  n->cfg = *cfg;
+  n->mapping = true;
+  n->t_start = mono_s();
+  n->st.prompt_set = cfg->prompts.active;
+  n->st.map_age_s = -1;
+  n->st.miou2d = n->st.miou3d = -1;
+  n->st.last_pose_residual_m = -1;
+  n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = -1;
+  pthread_mutex_init(&n->qlock, NULL);
+  pthread_cond_init(&n->qcond, NULL);
+  pthread_mutex_init(&n->clock, NULL);
+  pthread_mutex_init(&n->slock, NULL);
+
+  if (mkdir(cfg->node.state_dir, 0750) != 0 && errno != EEXIST) {
+    snprintf(err, errlen, "node.state_dir '%s': %s", cfg->node.state_dir, strerror(errno));
+    goto fail;
+  }
+  n->field = vlff_field_create(cfg, err, errlen);
+  if (!n->field) goto fail;
+  n->store = vlff_kfstore_create((size_t)cfg->keyframes.memory_mb << 20, cfg->keyframes.max_keyframes, KF_PROTECT);
+  if (!n->store) {
+    snprintf(err, errlen, "keyframe store: %s", strerror(errno));
+    goto fail;
+  }
+  if (cfg->source.features == VLFF_FEAT_SIM || cfg->source.kind == VLFF_SOURCE_SIM) {
+    n->sim = vlff_sim_create(cfg, err, errlen);
+    if (!n->sim) goto fail;
+  }
+  if (cfg->prompts.embeddings[0] &&
+      vlff_prompt_embeddings_read(cfg->prompts.embeddings, cfg->field.feature_dim, &n->emb_file, err, errlen))
+    goto fail;
+  if (n->sim && cfg->source.kind == VLFF_SOURCE_SIM &&
+      vlff_sim_points(n->sim, cfg->sim.frames, 5, 0.05, &n->gt_points, err, errlen))
+    goto fail;
+  n->pub = vlff_publisher_create(cfg, n->sim, n->gt_points.n ? &n->gt_points : NULL, err, errlen);
+  if (!n->pub) goto fail;
+  struct vlff_shm_perm perm = {.mode = (mode_t)cfg->shm.mode, .group = cfg->shm.group};
+  n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);
+  if (!n->mailbox) {
+    snprintf(err, errlen, "prompt mailbox %s: %s", cfg->shm.prompts, vlff_shm_last_message());
+    goto fail;
+  }
+  restore_checkpoint(n);
+  if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
+  if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
+    snprintf(err, errlen, "cannot start the trainer thread");
+    goto fail;
+  }
+  n->trainer_started = true;
+  if (pthread_create(&n->ingest_thread, NULL, ingest_main, n) != 0) {
+    snprintf(err, errlen, "cannot start the ingest thread");
+    goto fail;
+  }
+  n->ingest_started = true;
+  return n;
+fail:
+  vlff_node_destroy(n, false);
+  return NULL;
+}
+
+void vlff_node_stop(struct vlff_node *n) { atomic_store(&n->stop, true); }
+
+bool vlff_node_finished(struct vlff_node *n) {
+  return atomic_load(&n->finished) || atomic_load(&n->stop);
+}
+
+void vlff_node_destroy(struct vlff_node *n, bool save_on_exit) {
+  if (!n) return;
+  atomic_store(&n->stop, true);
+  if (n->ingest_started) pthread_join(n->ingest_thread, NULL);
+  if (n->trainer_started) pthread_join(n->trainer_thread, NULL);
+  if (save_on_exit && n->field && n->trainer_started && vlff_field_steps(n->field) > 0) save_checkpoint(n);
+  for (int i = 0; i < n->qlen; i++) candidate_free(n->queue[i]);
+  vlff_publisher_destroy(n->pub);
+  vlff_prompts_close(n->mailbox);
+  vlff_field_destroy(n->field);
+  vlff_kfstore_destroy(n->store);
+  vlff_sim_points_free(&n->gt_points);
+  vlff_sim_destroy(n->sim);
+  vlff_prompt_embeddings_free(&n->emb_file);
+  free(n->prompt_emb);
+  pthread_mutex_destroy(&n->qlock);
+  pthread_cond_destroy(&n->qcond);
+  pthread_mutex_destroy(&n->clock);
+  pthread_mutex_destroy(&n->slock);
+  free(n);
+}
+
+void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out) {
+  pthread_mutex_lock(&n->slock);
+  *out = n->st;
+  pthread_mutex_unlock(&n->slock);
+}
+
+int vlff_node_command(struct vlff_node *n, int cmd, int arg) {
+  if (cmd < VLFF_CMD_START || cmd > VLFF_CMD_PUBLISH) return -1;
+  if (cmd == VLFF_CMD_PROMPT_SET && (arg < 0 || arg >= n->cfg.prompts.set_count)) return -1;
+  pthread_mutex_lock(&n->clock);
+  int rc = -1;
+  if (n->ncmds < 16) {
+    n->cmds[n->ncmds][0] = cmd;
+    n->cmds[n->ncmds][1] = arg;
+    n->ncmds++;
+    rc = 0;
+  }
+  pthread_mutex_unlock(&n->clock);
+  return rc;
+}

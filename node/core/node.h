@@ -1,0 +1,94 @@
+/*
+ * vlff_node: the online learner process, as a library so that tests and
+ * benchmarks drive exactly what vlff-node runs.
+ *
+ * Data path: frame ring -> ingest thread (validate, pose, keyframe
+ * selection, features) -> candidate queue -> trainer thread (pose check,
+ * keyframe store, field steps, publishing, checkpoints) -> map segment.
+ * The trainer thread is the only user of the field, so training, queries
+ * and checkpoints never race.
+ *
+ * Contract
+ *  - vlff_node_create() validates the config, creates the map and prompt
+ *    segments, restores the newest valid checkpoint from node.state_dir (a
+ *    corrupt one is reported, counted and skipped) and starts the threads.
+ *    It returns NULL with err filled on failure.
+ *  - vlff_node_stop() asks the threads to finish; vlff_node_destroy() joins
+ *    them, writes a final checkpoint when save_on_exit is set, and frees.
+ *  - vlff_node_status() and vlff_node_command() may be called from any
+ *    thread at any time (they take a short internal lock; the trainer never
+ *    waits on callers).
+ */
+#ifndef VLFF_NODE_H
+#define VLFF_NODE_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "config.h"
+
+struct vlff_node;
+
+enum vlff_node_state { /* CANopen NMT-like */
+  VLFF_NODE_BOOT = 0x00,
+  VLFF_NODE_PREOP = 0x7f,   /* running, not yet learning (too few keyframes) */
+  VLFF_NODE_OPERATIONAL = 0x05,
+  VLFF_NODE_STOPPED = 0x04, /* mapping stopped by command */
+  VLFF_NODE_ERROR = 0x7e
+};
+
+enum vlff_node_error_flags {
+  VLFF_NODE_ERR_CAMERA_LOST = 1u << 0, /* no frame for 2 s */
+  VLFF_NODE_ERR_POSE_STALE = 1u << 1,  /* recent frames lack a usable pose */
+  VLFF_NODE_ERR_SHM_LAPPED = 1u << 2,  /* the ring lapped us recently */
+  VLFF_NODE_ERR_CHECKPOINT = 1u << 3   /* the last checkpoint failed */
+};
+
+struct vlff_node_status {
+  int state;                    /* enum vlff_node_state */
+  unsigned error_flags;         /* enum vlff_node_error_flags */
+  long long iteration;
+  double loss, loss_rgb, loss_depth, loss_feat, psnr;
+  double it_per_s;
+  int keyframes;
+  long long keyframes_evicted;
+  long long frames_in;          /* frames read from the ring */
+  long long frames_lost;        /* lapped or torn in the ring */
+  long long frames_invalid;     /* malformed, oversize, no usable pose, no valid depth */
+  long long poses_rejected;     /* keyframes refused by the depth-residual pose check */
+  long long features_timeout;   /* keyframes whose features never arrived */
+  long long candidates_dropped; /* keyframes the trainer could not take in time */
+  double fps_in;
+  uint64_t map_version;
+  double map_age_s;             /* since the last publish; -1 before the first */
+  int prompt_set;               /* index of the active configured set, -1 = posted texts */
+  int prompt_count;
+  long long checkpoints;
+  long long checkpoint_failures;
+  double miou2d, miou3d;        /* against synthetic ground truth; -1 when unknown */
+  double last_pose_residual_m;
+  double frame_to_map_ms_p50, frame_to_map_ms_p99;
+};
+
+enum vlff_node_command {
+  VLFF_CMD_START = 1,    /* resume mapping */
+  VLFF_CMD_STOP = 2,     /* keep the map, stop learning and admitting keyframes */
+  VLFF_CMD_RESET = 3,    /* forget the field and keyframes, start over */
+  VLFF_CMD_SAVE = 4,     /* checkpoint now */
+  VLFF_CMD_PROMPT_SET = 5, /* arg = configured prompt set index */
+  VLFF_CMD_PUBLISH = 6   /* publish the map now */
+};
+
+struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, size_t errlen);
+void vlff_node_stop(struct vlff_node *n);
+/* True once the node stopped by itself (node.run_seconds) or was asked to. */
+bool vlff_node_finished(struct vlff_node *n);
+void vlff_node_destroy(struct vlff_node *n, bool save_on_exit);
+
+void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out);
+
+/* Queue a command for the trainer. Returns 0, or -1 for an unknown command
+ * or an out-of-range argument (nothing is queued then). */
+int vlff_node_command(struct vlff_node *n, int cmd, int arg);
+
+#endif

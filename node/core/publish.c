@@ -1,0 +1,348 @@
+/*
+ * Why measured depth decides "occupied": the field's density at a voxel
+ * centre is a poor occupancy test for thin surfaces (a wall 2 cm thick
+ * crosses a 10 cm voxel off its centre); where the sensor saw a surface we
+ * know the voxel holds one, and the field only supplies its meaning.
+ */
+#include "publish.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "log.h"
+#include "metrics.h"
+#include "vlff/shm.h"
+
+#define TAG "publish"
+
+struct vlff_publisher {
+  struct vlff_map *map;
+  const struct vlff_sim *sim;
+  const struct vlff_sim_points *gt;
+  double origin[3], voxel;
+  uint32_t dims[3];
+  size_t nvox;
+  uint8_t *observed;   /* rays passed through */
+  uint16_t *hits;      /* measured surface points inside */
+  float *hit_sum;      /* [nvox][3] sum of those points */
+  uint16_t *labels;
+  uint8_t *conf;
+  /* query batch */
+  size_t *qidx;
+  float *qxyz, *qdens, *qscore, *qmargin;
+  int *qlabel;
+  /* label image */
+  int lw, lh;
+  uint16_t *img_labels;
+  uint8_t *img_conf;
+  int *img_lab;
+  float *img_score;
+  struct vlff_view cam;
+  bool have_cam;
+  uint64_t cam_t_ns;
+  long long cam_frame;
+  struct vlff_sim_frame *gt_frame;
+  double free_density;
+  double last_publish_s, last_heartbeat_s;
+};
+
+static double mono_s(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+void vlff_publisher_destroy(struct vlff_publisher *p) {
+  if (!p) return;
+  vlff_map_detach(p->map);
+  free(p->observed);
+  free(p->hits);
+  free(p->hit_sum);
+  free(p->labels);
+  free(p->conf);
+  free(p->qidx);
+  free(p->qxyz);
+  free(p->qdens);
+  free(p->qscore);
+  free(p->qmargin);
+  free(p->qlabel);
+  free(p->img_labels);
+  free(p->img_conf);
+  free(p->img_lab);
+  free(p->img_score);
+  vlff_sim_frame_free(p->gt_frame);
+  free(p);
+}
+
+struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_sim *sim,
+                                             const struct vlff_sim_points *gt, char *err, size_t errlen) {
+  struct vlff_publisher *p = calloc(1, sizeof *p);
+  if (!p) return snprintf(err, errlen, "out of memory"), NULL;
+  p->sim = sim;
+  p->gt = gt;
+  p->free_density = cfg->publish.free_density;
+  p->voxel = cfg->publish.voxel_size_m;
+  double ext[3];
+  for (int i = 0; i < 3; i++) ext[i] = cfg->field.scene_max[i] - cfg->field.scene_min[i];
+  /* Coarsen the voxels until the grid fits the segment's capacity. */
+  for (;;) {
+    size_t n = 1;
+    for (int i = 0; i < 3; i++) {
+      p->dims[i] = (uint32_t)ceil(ext[i] / p->voxel - 1e-9);
+      if (p->dims[i] < 1) p->dims[i] = 1;
+      n *= p->dims[i];
+    }
+    if (n <= (size_t)cfg->shm.map_max_voxels) {
+      p->nvox = n;
+      break;
+    }
+    p->voxel *= 1.1;
+  }
+  if (p->voxel > cfg->publish.voxel_size_m)
+    VLFF_WARN(TAG, "publish.voxel_size_m %.3f m needs more than shm.map_max_voxels; using %.3f m",
+              cfg->publish.voxel_size_m, p->voxel);
+  for (int i = 0; i < 3; i++) p->origin[i] = cfg->field.scene_min[i];
+  p->lw = cfg->publish.label_width;
+  p->lh = cfg->publish.label_height;
+  if (p->lw > cfg->shm.label_max_width || p->lh > cfg->shm.label_max_height) {
+    snprintf(err, errlen, "publish.label_width x label_height (%dx%d) exceeds shm.label_max_width x height (%dx%d)",
+             p->lw, p->lh, cfg->shm.label_max_width, cfg->shm.label_max_height);
+    vlff_publisher_destroy(p);
+    return NULL;
+  }
+  size_t n = p->nvox, li = (size_t)p->lw * p->lh;
+  p->observed = calloc(n, 1);
+  p->hits = calloc(n, sizeof *p->hits);
+  p->hit_sum = calloc(n * 3, sizeof *p->hit_sum);
+  p->labels = malloc(n * sizeof *p->labels);
+  p->conf = malloc(n);
+  p->qidx = malloc(n * sizeof *p->qidx);
+  p->qxyz = malloc(n * 3 * sizeof *p->qxyz);
+  p->qdens = malloc(n * sizeof *p->qdens);
+  p->qscore = malloc(n * sizeof *p->qscore);
+  p->qmargin = malloc(n * sizeof *p->qmargin);
+  p->qlabel = malloc(n * sizeof *p->qlabel);
+  p->img_labels = malloc(li * sizeof *p->img_labels);
+  p->img_conf = malloc(li);
+  p->img_lab = malloc(li * sizeof *p->img_lab);
+  p->img_score = malloc(li * sizeof *p->img_score);
+  p->gt_frame = sim ? vlff_sim_frame_new(sim) : NULL;
+  if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
+      !p->qdens || !p->qscore || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
+      !p->img_lab || !p->img_score || (sim && !p->gt_frame)) {
+    snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
+    vlff_publisher_destroy(p);
+    return NULL;
+  }
+  struct vlff_map_params mp = {.max_voxels = (uint32_t)cfg->shm.map_max_voxels,
+                               .label_max_width = (uint32_t)cfg->shm.label_max_width,
+                               .label_max_height = (uint32_t)cfg->shm.label_max_height,
+                               .perm = {.mode = (mode_t)cfg->shm.mode, .group = cfg->shm.group}};
+  p->map = vlff_map_create(cfg->shm.map, &mp);
+  if (!p->map) {
+    snprintf(err, errlen, "map segment %s: %s", cfg->shm.map, vlff_shm_last_message());
+    vlff_publisher_destroy(p);
+    return NULL;
+  }
+  p->last_publish_s = -1;
+  VLFF_INFO(TAG, "map %s: %u x %u x %u voxels of %.3f m", cfg->shm.map, p->dims[0], p->dims[1], p->dims[2],
+            p->voxel);
+  return p;
+}
+
+void vlff_publisher_reset(struct vlff_publisher *p) {
+  memset(p->observed, 0, p->nvox);
+  memset(p->hits, 0, p->nvox * sizeof *p->hits);
+  memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
+}
+
+static long voxel_of(const struct vlff_publisher *p, const double x[3]) {
+  long idx[3];
+  for (int i = 0; i < 3; i++) {
+    double f = (x[i] - p->origin[i]) / p->voxel;
+    if (!(f >= 0) || f >= p->dims[i]) return -1;
+    idx[i] = (long)f;
+  }
+  return idx[0] + (long)p->dims[0] * (idx[1] + (long)p->dims[1] * idx[2]);
+}
+
+void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v) {
+  if (!v->depth) return;
+  const double *m = v->c2w;
+  double o[3] = {m[3], m[7], m[11]};
+  int stride = v->width >= 160 ? 2 : 1;
+  for (int y = 0; y < v->height; y += stride)
+    for (int x = 0; x < v->width; x += stride) {
+      float d = v->depth[(size_t)y * v->width + x];
+      if (!(d > 0)) continue;
+      double c[3] = {(x + 0.5 - v->cx) / v->fx * d, (y + 0.5 - v->cy) / v->fy * d, d};
+      double w[3];
+      for (int i = 0; i < 3; i++) w[i] = m[i * 4] * c[0] + m[i * 4 + 1] * c[1] + m[i * 4 + 2] * c[2];
+      double len = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+      /* March to just before the surface: the surface voxel is a hit, not free. */
+      int steps = (int)((len - p->voxel * 0.5) / (p->voxel * 0.5));
+      for (int s = 0; s < steps; s++) {
+        double t = (double)s / (len / (p->voxel * 0.5));
+        double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
+        long vi = voxel_of(p, q);
+        if (vi >= 0) p->observed[vi] = 1;
+      }
+      double hp[3] = {o[0] + w[0], o[1] + w[1], o[2] + w[2]};
+      long vi = voxel_of(p, hp);
+      if (vi >= 0) {
+        p->observed[vi] = 1;
+        if (p->hits[vi] < UINT16_MAX) {
+          p->hits[vi]++;
+          for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
+        }
+      }
+    }
+}
+
+void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id) {
+  p->cam = *v;
+  p->cam.rgb = NULL;
+  p->cam.depth = NULL;
+  p->cam.features = NULL;
+  p->have_cam = true;
+  p->cam_t_ns = t_ns;
+  p->cam_frame = frame_id;
+}
+
+static uint8_t conf_of(float margin) {
+  /* A cosine margin of 0.1 between the best and second prompt is already a
+   * clear decision for CLIP-like embeddings. */
+  float c = margin / 0.1f * 255.0f;
+  return (uint8_t)(c < 0 ? 0 : c > 255 ? 255 : c);
+}
+
+/* Prompt index -> synthetic class id, so a prompt set in any order (or with
+ * texts the sim does not know) is scored against the ground truth. */
+static int class_of_prompt(const char *const *prompts, int k, int label) {
+  if (label < 0 || label >= k) return -1;
+  return vlff_sim_class_of(prompts[label]);
+}
+
+static double miou_of(struct vlff_confusion *c) {
+  struct vlff_summary s;
+  vlff_confusion_summary(c, &s);
+  return s.present ? s.miou * 100.0 : -1;
+}
+
+int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                           struct vlff_publish_result *r, char *err, size_t errlen) {
+  memset(r, 0, sizeof *r);
+  r->miou2d = r->miou3d = -1;
+  size_t nq = 0;
+  for (size_t i = 0; i < p->nvox; i++) {
+    if (!p->observed[i]) continue;
+    float *q = p->qxyz + nq * 3;
+    if (p->hits[i]) {
+      for (int a = 0; a < 3; a++) q[a] = p->hit_sum[i * 3 + a] / p->hits[i];
+    } else {
+      size_t ix = i % p->dims[0], iy = (i / p->dims[0]) % p->dims[1], iz = i / ((size_t)p->dims[0] * p->dims[1]);
+      q[0] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
+      q[1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
+      q[2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
+    }
+    p->qidx[nq++] = i;
+  }
+  if (nq && vlff_field_query(f, p->qxyz, nq, p->qdens, NULL, p->qlabel, p->qscore, p->qmargin)) {
+    snprintf(err, errlen, "field query of %zu voxels failed", nq);
+    return -1;
+  }
+  for (size_t i = 0; i < p->nvox; i++) p->labels[i] = VLFF_LABEL_UNKNOWN, p->conf[i] = 0;
+  for (size_t j = 0; j < nq; j++) {
+    size_t i = p->qidx[j];
+    bool occupied = p->hits[i] > 0 || p->qdens[j] >= p->free_density;
+    if (occupied && p->qlabel[j] >= 0) {
+      p->labels[i] = (uint16_t)p->qlabel[j];
+      p->conf[i] = conf_of(p->qmargin[j]);
+      r->labelled++;
+    } else {
+      p->labels[i] = VLFF_LABEL_FREE;
+      p->conf[i] = 255;
+      r->free_voxels++;
+    }
+  }
+  r->unknown = p->nvox - r->labelled - r->free_voxels;
+  struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
+  memcpy(grid.origin, p->origin, sizeof grid.origin);
+  memcpy(grid.dims, p->dims, sizeof grid.dims);
+
+  struct vlff_map_label_image img;
+  bool have_img = false;
+  if (p->have_cam) {
+    struct vlff_view cam = p->cam;
+    double sx = (double)p->lw / cam.width, sy = (double)p->lh / cam.height;
+    cam.width = p->lw;
+    cam.height = p->lh;
+    cam.fx *= sx, cam.cx *= sx, cam.fy *= sy, cam.cy *= sy;
+    if (vlff_field_render(f, &cam, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) {
+      size_t li = (size_t)p->lw * p->lh;
+      for (size_t i = 0; i < li; i++) {
+        p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;
+        float s = p->img_score[i] * 255.0f;
+        p->img_conf[i] = (uint8_t)(s < 0 ? 0 : s > 255 ? 255 : s);
+      }
+      img = (struct vlff_map_label_image){.width = (uint32_t)p->lw, .height = (uint32_t)p->lh,
+                                          .labels = p->img_labels, .confidence = p->img_conf,
+                                          .fx = cam.fx, .fy = cam.fy, .cx = cam.cx, .cy = cam.cy,
+                                          .t_ns = p->cam_t_ns};
+      memcpy(img.pose, cam.c2w, sizeof img.pose);
+      have_img = true;
+    }
+  }
+  struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k,
+                               .label_image = have_img ? &img : NULL};
+  if (vlff_map_publish(p->map, &up)) {
+    snprintf(err, errlen, "map publish: %s", vlff_shm_last_message());
+    return -1;
+  }
+  r->version = vlff_map_version(p->map);
+  p->last_publish_s = p->last_heartbeat_s = mono_s();
+
+  /* Quality against the synthetic ground truth, what the demo shows live. */
+  if (p->sim) {
+    struct vlff_confusion c;
+    char e2[128];
+    if (vlff_confusion_init(&c, VLFF_SIM_CLASSES, e2, sizeof e2) == 0) {
+      if (have_img && vlff_sim_render(p->sim, p->cam_frame, VLFF_SIM_RGBD, p->gt_frame, e2, sizeof e2) == 0) {
+        const struct vlff_sim_frame *g = p->gt_frame;
+        for (int y = 0; y < p->lh; y++)
+          for (int x = 0; x < p->lw; x++) {
+            int gy = y * g->height / p->lh, gx = x * g->width / p->lw;
+            vlff_confusion_add_one(&c, g->label[(size_t)gy * g->width + gx],
+                                   class_of_prompt(prompts, k, p->img_lab[(size_t)y * p->lw + x]));
+          }
+        r->miou2d = miou_of(&c);
+      }
+      if (p->gt && p->gt->n) {
+        vlff_confusion_reset(&c);
+        for (size_t i = 0; i < p->gt->n; i++) {
+          const float *x = p->gt->xyz + i * 3;
+          double xd[3] = {x[0], x[1], x[2]};
+          long vi = voxel_of(p, xd);
+          int lab = vi >= 0 && p->labels[vi] <= VLFF_LABEL_MAX ? p->labels[vi] : -1;
+          vlff_confusion_add_one(&c, p->gt->label[i], class_of_prompt(prompts, k, lab));
+        }
+        r->miou3d = miou_of(&c);
+      }
+      vlff_confusion_free(&c);
+    }
+  }
+  return 0;
+}
+
+void vlff_publisher_heartbeat(struct vlff_publisher *p) {
+  double now = mono_s();
+  if (now - p->last_heartbeat_s < 0.1) return;
+  p->last_heartbeat_s = now;
+  vlff_map_heartbeat(p->map);
+}
+
+double vlff_publisher_age_s(const struct vlff_publisher *p) {
+  return p->last_publish_s < 0 ? -1 : mono_s() - p->last_publish_s;
+}

@@ -1,0 +1,52 @@
+/*
+ * The map publisher: turns the field into the segmented voxel map and 2D
+ * label image that controllers read from the map segment.
+ *
+ * Voxel states: a voxel where measured depth ended ("hit") or where the
+ * field's density is at least publish.free_density gets the label of the
+ * field's feature there; a voxel only passed through by measured rays is
+ * FREE; a voxel no ray reached is UNKNOWN. Hit voxels are queried at the
+ * mean of the measured points inside them, so the feature is read on the
+ * surface rather than in the air at the voxel centre.
+ *
+ * Contract: one owner thread (the trainer). Functions returning int give 0,
+ * or -1 with err filled.
+ */
+#ifndef VLFF_PUBLISH_H
+#define VLFF_PUBLISH_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "config.h"
+#include "field.h"
+#include "sim.h"
+
+struct vlff_publisher;
+
+struct vlff_publish_result {
+  uint64_t version;
+  double miou2d, miou3d; /* vs synthetic ground truth, -1 when not available */
+  size_t labelled, free_voxels, unknown;
+};
+
+/* sim and gt may be NULL (no ground truth). Creates the map segment. */
+struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_sim *sim,
+                                             const struct vlff_sim_points *gt, char *err, size_t errlen);
+void vlff_publisher_destroy(struct vlff_publisher *p);
+
+/* Account an admitted keyframe's measured depth (observed / hit voxels). */
+void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v);
+/* The view the next 2D label image is rendered for (the latest keyframe). */
+void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id);
+/* Forget observations (mapping reset). */
+void vlff_publisher_reset(struct vlff_publisher *p);
+
+int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                           struct vlff_publish_result *r, char *err, size_t errlen);
+/* Tell readers the writer is alive (rate-limited to 10 Hz). */
+void vlff_publisher_heartbeat(struct vlff_publisher *p);
+/* Seconds since the last publish, -1 before the first. */
+double vlff_publisher_age_s(const struct vlff_publisher *p);
+
+#endif
