@@ -22,6 +22,7 @@
 #include "dataset_internal.h"
 
 #define MAX_IMAGE_SIDE 16384
+#define MAX_IMAGE_BYTES (256 << 20)
 
 void vlff_ds_seterr(char *err, size_t errlen, const char *fmt, ...) {
   if (!err || !errlen) return;
@@ -190,6 +191,11 @@ static int png_decode(const uint8_t *buf, size_t len, const char *name, struct v
     longjmp(pe.jb, 1);
   }
   size_t rowbytes = png_get_rowbytes(png, info);
+  if ((size_t)h * rowbytes > MAX_IMAGE_BYTES) {
+    snprintf(pe.msg, sizeof pe.msg, "%ux%u image is larger than %d MiB", (unsigned)w, (unsigned)h,
+             MAX_IMAGE_BYTES >> 20);
+    longjmp(pe.jb, 1);
+  }
   if (rowbytes != (size_t)w * channels * (obit / 8)) {
     snprintf(pe.msg, sizeof pe.msg, "unexpected row size");
     longjmp(pe.jb, 1);

@@ -1,0 +1,624 @@
+/*
+ * vlff-eval: fit a scene offline and measure it (the paper's Table I, here).
+ *
+ * A scene (a synthetic room from the sim, or a scene directory) is split into
+ * training frames and held-out frames (every --holdout'th). The field is fit
+ * on the training frames for --iters steps; then
+ *   2D: the held-out frames are rendered at the feature-map resolution and
+ *       segmented with the prompts; the raw per-frame features of the same
+ *       frames are the baseline;
+ *   3D: the labelled points are queried; OpenScene-style multi-view fusion of
+ *       the training frames' features is the baseline.
+ * Both protocols (metrics.h) are reported. Output: report.md, report.json,
+ * overlay_<frame>.png (image | prediction | ground truth), prediction.ply and
+ * a last line "RESULT miou2d=... miou2d_raw=... miou3d=... miou3d_fusion=...
+ * macc2d=... macc3d=..." (standard protocol, percent).
+ */
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "config.h"
+#include "dataset.h"
+#include "field.h"
+#include "metrics.h"
+#include "sim.h"
+
+#define TAG "eval"
+#define MAXK VLFF_MAX_PROMPTS
+
+static const char usage[] =
+    "usage: vlff-eval [options]\n"
+    "Fit a feature field to a scene, then evaluate 2D (held-out frames) and 3D\n"
+    "(labelled points) segmentation against ground truth and two baselines.\n"
+    "\n"
+    "  --config FILE       vlff YAML config (default: built-in defaults)\n"
+    "  --dataset DIR       scene directory (reference or ScanNet layout);\n"
+    "                      default: the synthetic room of sim.*\n"
+    "  --seed N            sim.seed\n"
+    "  --frames N          frames of the synthetic trajectory (sim.frames)\n"
+    "  --difficulty X      sim.difficulty\n"
+    "  --feature-dim D     sim.feature_dim and field.feature_dim\n"
+    "  --iters N           training steps (default 1500; 0 = baselines only)\n"
+    "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
+    "  --threads N         node.threads\n"
+    "  --out DIR           report directory (default eval-out)\n"
+    "  --overlays N        overlay images to write (default 3)\n"
+    "  --quiet             no progress bar\n"
+    "\n"
+    "examples:\n"
+    "  vlff-eval --seed 3 --iters 2000 --out /tmp/eval3\n"
+    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n";
+
+struct opts {
+  const char *config, *dataset, *out;
+  int seed, frames, dim, iters, holdout, threads, overlays, quiet;
+  double difficulty;
+};
+
+/* One scene frame in memory. */
+struct frame {
+  int index;
+  double c2w[16];
+  uint8_t *rgb, *label;
+  float *depth;
+  uint16_t *feat;
+  /* training copies at train.image_scale */
+  uint8_t *trgb;
+  float *tdepth;
+};
+
+struct scene {
+  int n, W, H, fw, fh, D;
+  double fx, fy, cx, cy;
+  struct frame *f;
+  int K;
+  char names[MAXK][VLFF_PROMPT_LEN];
+  float emb[MAXK * 1024];  /* unit rows, K x D (D <= 1024) */
+  struct vlff_points pts;
+  int tw, th;              /* training image size */
+};
+
+static const uint8_t palette[21][3] = {
+    {174, 199, 232}, {152, 223, 138}, {31, 119, 180},  {255, 187, 120}, {188, 189, 34},
+    {140, 86, 75},   {255, 152, 150}, {214, 39, 40},   {197, 176, 213}, {148, 103, 189},
+    {196, 156, 148}, {23, 190, 207},  {247, 182, 210}, {219, 219, 141}, {255, 127, 14},
+    {158, 218, 229}, {44, 160, 44},   {112, 128, 144}, {227, 119, 194}, {82, 84, 163},
+    {0, 0, 0}};
+
+static double now_s(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static void die(const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  fprintf(stderr, "vlff-eval: ");
+  vfprintf(stderr, fmt, ap);
+  fputc('\n', stderr);
+  va_end(ap);
+  exit(1);
+}
+
+static void *xcalloc(size_t n, size_t s) {
+  void *p = calloc(n ? n : 1, s);
+  if (!p) die("out of memory (%zu x %zu bytes)", n, s);
+  return p;
+}
+
+static int parse_int(const char *s, const char *opt, int lo, int hi) {
+  char *e;
+  errno = 0;
+  long v = strtol(s, &e, 10);
+  if (!*s || *e || errno || v < lo || v > hi) die("%s: expected an integer in %d..%d, got '%s'", opt, lo, hi, s);
+  return (int)v;
+}
+
+static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
+  char *e;
+  double v = strtod(s, &e);
+  if (!*s || *e || !(v >= lo && v <= hi)) die("%s: expected a number in %g..%g, got '%s'", opt, lo, hi, s);
+  return v;
+}
+
+static void parse_args(int argc, char **argv, struct opts *o) {
+  memset(o, 0, sizeof *o);
+  o->seed = o->frames = o->dim = o->threads = -1;
+  o->difficulty = -1;
+  o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out";
+  for (int i = 1; i < argc; i++) {
+    const char *a = argv[i];
+    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+      fputs(usage, stdout);
+      exit(0);
+    }
+    if (!strcmp(a, "--quiet")) {
+      o->quiet = 1;
+      continue;
+    }
+    if (i + 1 >= argc) die("%s needs a value\n%s", a, usage);
+    const char *v = argv[++i];
+    if (!strcmp(a, "--config")) o->config = v;
+    else if (!strcmp(a, "--dataset")) o->dataset = v;
+    else if (!strcmp(a, "--out")) o->out = v;
+    else if (!strcmp(a, "--seed")) o->seed = parse_int(v, a, 0, 2147483647);
+    else if (!strcmp(a, "--frames")) o->frames = parse_int(v, a, 2, 100000);
+    else if (!strcmp(a, "--feature-dim")) o->dim = parse_int(v, a, 8, 1024);
+    else if (!strcmp(a, "--iters")) o->iters = parse_int(v, a, 0, 100000000);
+    else if (!strcmp(a, "--holdout")) o->holdout = parse_int(v, a, 2, 1000);
+    else if (!strcmp(a, "--threads")) o->threads = parse_int(v, a, 0, 256);
+    else if (!strcmp(a, "--overlays")) o->overlays = parse_int(v, a, 0, 1000);
+    else if (!strcmp(a, "--difficulty")) o->difficulty = parse_dbl(v, a, 0, 1);
+    else die("unknown option %s\n%s", a, usage);
+  }
+}
+
+/* ---- scene loading ------------------------------------------------------ */
+
+static void load_sim(struct scene *sc, const struct vlff_config *cfg) {
+  char err[512];
+  struct vlff_sim *s = vlff_sim_create(cfg, err, sizeof err);
+  if (!s) die("%s", err);
+  vlff_sim_size(s, &sc->W, &sc->H, &sc->fw, &sc->fh, &sc->D);
+  vlff_sim_intrinsics(s, &sc->fx, &sc->fy, &sc->cx, &sc->cy);
+  sc->n = cfg->sim.frames;
+  sc->f = xcalloc((size_t)sc->n, sizeof *sc->f);
+  struct vlff_sim_frame *fr = vlff_sim_frame_new(s);
+  if (!fr) die("out of memory");
+  size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
+  for (int i = 0; i < sc->n; i++) {
+    if (vlff_sim_render(s, i, VLFF_SIM_ALL, fr, err, sizeof err) < 0) die("%s", err);
+    struct frame *f = &sc->f[i];
+    f->index = i;
+    memcpy(f->c2w, fr->c2w, sizeof f->c2w);
+    f->rgb = xcalloc(npx, 3), f->label = xcalloc(npx, 1), f->depth = xcalloc(npx, sizeof(float));
+    f->feat = xcalloc(nf, sizeof(uint16_t));
+    memcpy(f->rgb, fr->rgb, npx * 3);
+    memcpy(f->label, fr->label, npx);
+    memcpy(f->depth, fr->depth, npx * sizeof(float));
+    memcpy(f->feat, fr->features, nf * sizeof(uint16_t));
+  }
+  vlff_sim_frame_free(fr);
+  /* 3D ground truth from every other frame's exact depth, 4 cm voxels */
+  struct vlff_sim_points p;
+  if (vlff_sim_points(s, sc->n, 2, 0.04, &p, err, sizeof err) < 0) die("%s", err);
+  sc->pts.n = p.n, sc->pts.xyz = p.xyz, sc->pts.label = p.label;
+  const struct vlff_prompt_set *set = &cfg->prompts.sets[cfg->prompts.active];
+  sc->K = set->count;
+  float *e = xcalloc((size_t)sc->D, sizeof(float));
+  for (int k = 0; k < sc->K; k++) {
+    snprintf(sc->names[k], VLFF_PROMPT_LEN, "%s", set->text[k]);
+    vlff_sim_text_embedding(s, set->text[k], e);
+    memcpy(sc->emb + (size_t)k * sc->D, e, (size_t)sc->D * sizeof(float));
+  }
+  free(e);
+  vlff_sim_destroy(s);
+}
+
+static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *cfg) {
+  char err[1024], p[4200];
+  struct vlff_dataset ds;
+  if (vlff_dataset_open(&ds, dir, VLFF_DS_AUTO, err, sizeof err) < 0) die("%s", err);
+  if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
+  if (!ds.has_labels) die("%s: no gt_semantic/ (needed for 2D evaluation)", dir);
+  if (ds.feat_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feat_dim);
+  sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feat_dim;
+  sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;
+  sc->n = ds.n;
+  sc->f = xcalloc((size_t)sc->n, sizeof *sc->f);
+  size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
+  for (int i = 0; i < sc->n; i++) {
+    struct frame *f = &sc->f[i];
+    f->index = i;
+    memcpy(f->c2w, ds.c2w + 16 * (size_t)i, sizeof f->c2w);
+    f->rgb = xcalloc(npx, 3), f->label = xcalloc(npx, 1), f->depth = xcalloc(npx, sizeof(float));
+    f->feat = xcalloc(nf, sizeof(uint16_t));
+    if (vlff_dataset_read_frame(&ds, i, f->rgb, f->depth, f->label, err, sizeof err) < 0 ||
+        vlff_dataset_read_features(&ds, i, f->feat, err, sizeof err) < 0)
+      die("%s", err);
+  }
+  snprintf(p, sizeof p, "%s/points.ply", dir);
+  if (access(p, R_OK) != 0) snprintf(p, sizeof p, "%s/mesh.ply", dir);
+  if (vlff_ply_read(p, &sc->pts, err, sizeof err) < 0) die("%s", err);
+  struct vlff_prompt_embeddings pe;
+  if (cfg->prompts.embeddings[0]) snprintf(p, sizeof p, "%s", cfg->prompts.embeddings);
+  else snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
+  if (vlff_prompt_embeddings_read(p, sc->D, &pe, err, sizeof err) < 0) die("%s", err);
+  if (pe.count > MAXK) die("%s: %d prompts, at most %d", p, pe.count, MAXK);
+  /* ground-truth id k is record k of the embeddings file */
+  sc->K = pe.count;
+  for (int k = 0; k < sc->K; k++) {
+    snprintf(sc->names[k], VLFF_PROMPT_LEN, "%s", pe.text[k]);
+    memcpy(sc->emb + (size_t)k * sc->D, pe.vec + (size_t)k * sc->D, (size_t)sc->D * sizeof(float));
+  }
+  vlff_prompt_embeddings_free(&pe);
+  if (ds.has_bbox) {
+    memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
+    memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);
+  }
+  vlff_dataset_close(&ds);
+}
+
+/* Training copies at train.image_scale: colour box-filtered, depth the
+ * nearest sample (averaging depth across an edge invents surfaces). */
+static void make_training_images(struct scene *sc, double scale) {
+  sc->tw = (int)(sc->W * scale + 0.5), sc->th = (int)(sc->H * scale + 0.5);
+  if (sc->tw < 8) sc->tw = 8;
+  if (sc->th < 8) sc->th = 8;
+  for (int i = 0; i < sc->n; i++) {
+    struct frame *f = &sc->f[i];
+    f->trgb = xcalloc((size_t)sc->tw * sc->th, 3);
+    f->tdepth = xcalloc((size_t)sc->tw * sc->th, sizeof(float));
+    for (int v = 0; v < sc->th; v++)
+      for (int u = 0; u < sc->tw; u++) {
+        int u0 = u * sc->W / sc->tw, u1 = (u + 1) * sc->W / sc->tw;
+        int v0 = v * sc->H / sc->th, v1 = (v + 1) * sc->H / sc->th;
+        if (u1 <= u0) u1 = u0 + 1;
+        if (v1 <= v0) v1 = v0 + 1;
+        unsigned acc[3] = {0, 0, 0}, cnt = 0;
+        for (int y = v0; y < v1; y++)
+          for (int x = u0; x < u1; x++) {
+            for (int c = 0; c < 3; c++) acc[c] += f->rgb[((size_t)y * sc->W + x) * 3 + c];
+            cnt++;
+          }
+        for (int c = 0; c < 3; c++) f->trgb[((size_t)v * sc->tw + u) * 3 + c] = (uint8_t)((acc[c] + cnt / 2) / cnt);
+        int cu = (int)((u + 0.5) * sc->W / sc->tw), cv = (int)((v + 0.5) * sc->H / sc->th);
+        f->tdepth[(size_t)v * sc->tw + u] = f->depth[(size_t)cv * sc->W + cu];
+      }
+  }
+}
+
+/* ---- progress ----------------------------------------------------------- */
+
+static void progress(int it, int total, const struct vlff_train_stats *st, double t0, int tty) {
+  double el = now_s() - t0, rate = it / (el > 1e-9 ? el : 1e-9);
+  double eta = rate > 0 ? (total - it) / rate : 0;
+  int bar = total ? 30 * it / total : 30;
+  char b[31];
+  for (int i = 0; i < 30; i++) b[i] = i < bar ? '#' : '.';
+  b[30] = 0;
+  fprintf(stderr, "%s[%s] it %d/%d  loss %.4f (rgb %.4f depth %.4f feat %.4f)  psnr %.1f  %.1f it/s  ETA %d:%02d%s",
+          tty ? "\r" : "", b, it, total, st->loss, st->loss_rgb, st->loss_depth, st->loss_feat, st->psnr, rate,
+          (int)eta / 60, (int)eta % 60, tty ? "  " : "\n");
+  fflush(stderr);
+}
+
+/* ---- output helpers ----------------------------------------------------- */
+
+static void colour_of(int k, uint8_t out[3]) {
+  const uint8_t *c = palette[k >= 0 && k < 20 ? k : 20];
+  memcpy(out, c, 3);
+}
+
+/* image | prediction | ground truth, at the image size (predictions at the
+ * evaluation resolution are shown nearest-upsampled). */
+static void write_overlay(const char *dir, const struct scene *sc, const struct frame *f, const int *pred,
+                          int pw, int ph) {
+  int W = sc->W, H = sc->H;
+  uint8_t *img = xcalloc((size_t)W * 3 * H, 3);
+  for (int v = 0; v < H; v++)
+    for (int u = 0; u < W; u++) {
+      uint8_t *row = img + (size_t)v * W * 3 * 3;
+      memcpy(row + (size_t)u * 3, f->rgb + ((size_t)v * W + u) * 3, 3);
+      int pu = u * pw / W, pv = v * ph / H;
+      uint8_t c[3];
+      colour_of(pred[(size_t)pv * pw + pu], c);
+      for (int k = 0; k < 3; k++) row[(size_t)(W + u) * 3 + k] = (uint8_t)(0.35 * f->rgb[((size_t)v * W + u) * 3 + k] + 0.65 * c[k]);
+      int g = f->label[(size_t)v * W + u];
+      colour_of(g < sc->K ? g : -1, c);
+      memcpy(row + (size_t)(2 * W + u) * 3, c, 3);
+    }
+  char p[4200], err[512];
+  snprintf(p, sizeof p, "%s/overlay_%05d.png", dir, f->index);
+  if (vlff_png_write(p, img, 3 * W, H, 3, 0, err, sizeof err) < 0) fprintf(stderr, "vlff-eval: %s\n", err);
+  free(img);
+}
+
+struct result {
+  struct vlff_confusion c;
+  struct vlff_summary s;
+  int valid;
+};
+
+static void summarize(struct result *r) {
+  vlff_confusion_summary(&r->c, &r->s);
+  r->valid = 1;
+}
+
+static void json_summary(FILE *o, const char *name, const struct result *r, int last) {
+  if (!r->valid) {
+    fprintf(o, "    \"%s\": null%s\n", name, last ? "" : ",");
+    return;
+  }
+  fprintf(o, "    \"%s\": {\"miou\": %.6f, \"macc\": %.6f, \"mprec\": %.6f, \"pixel_acc\": %.6f, \"present\": %d, \"classes\": [",
+          name, r->s.miou, r->s.macc, r->s.mprec, r->s.pixel_acc, r->s.present);
+  for (int k = 0; k < r->c.k; k++) {
+    struct vlff_class_score cs;
+    vlff_confusion_class(&r->c, k, &cs);
+    fprintf(o, "%s{\"tp\": %llu, \"fp\": %llu, \"fn\": %llu}", k ? ", " : "", (unsigned long long)cs.tp,
+            (unsigned long long)cs.fp, (unsigned long long)cs.fn);
+  }
+  fprintf(o, "]}%s\n", last ? "" : ",");
+}
+
+static const char *pct(const struct result *r, double v, char *buf) {
+  if (!r->valid) return "n/a";
+  snprintf(buf, 16, "%.1f", 100 * v);
+  return buf;
+}
+
+/* ---- main --------------------------------------------------------------- */
+
+int main(int argc, char **argv) {
+  struct opts o;
+  parse_args(argc, argv, &o);
+  struct vlff_config cfg;
+  char err[1024];
+  vlff_config_defaults(&cfg);
+  if (o.config && vlff_config_load(o.config, &cfg, err, sizeof err) < 0) die("%s", err);
+  if (o.seed >= 0) cfg.sim.seed = o.seed;
+  if (o.frames > 0) cfg.sim.frames = o.frames;
+  if (o.difficulty >= 0) cfg.sim.difficulty = o.difficulty;
+  if (o.dim > 0) cfg.sim.feature_dim = cfg.field.feature_dim = o.dim;
+  if (o.threads >= 0) cfg.node.threads = o.threads;
+  if (!o.dataset) cfg.field.feature_dim = cfg.sim.feature_dim;
+  if (mkdir(o.out, 0755) < 0 && errno != EEXIST) die("%s: cannot create: %s", o.out, strerror(errno));
+
+  struct scene sc;
+  memset(&sc, 0, sizeof sc);
+  double t_load = now_s();
+  if (o.dataset) load_dataset(&sc, o.dataset, &cfg);
+  else load_sim(&sc, &cfg);
+  if (sc.D != cfg.field.feature_dim) {
+    if (o.dataset) cfg.field.feature_dim = sc.D;
+    else die("feature dims differ: scene %d, field %d", sc.D, cfg.field.feature_dim);
+  }
+  float *emb_raw = xcalloc((size_t)sc.K * sc.D, sizeof(float));
+  memcpy(emb_raw, sc.emb, (size_t)sc.K * sc.D * sizeof(float));
+  vlff_normalize_rows(emb_raw, sc.emb, sc.K, sc.D);
+  make_training_images(&sc, cfg.train.image_scale);
+  int ntrain = 0, ntest = 0;
+  for (int i = 0; i < sc.n; i++) (i % o.holdout == o.holdout / 2) ? ntest++ : ntrain++;
+  if (ntest == 0 || ntrain == 0) die("%d frames with --holdout %d leave no training or no test frames", sc.n, o.holdout);
+  fprintf(stderr, "vlff-eval: scene %s: %d frames (%d train, %d held out) %dx%d, features %dx%dx%d, %zu labelled points, %d prompts (%.1f s)\n",
+          o.dataset ? o.dataset : "synthetic", sc.n, ntrain, ntest, sc.W, sc.H, sc.fw, sc.fh, sc.D, sc.pts.n, sc.K,
+          now_s() - t_load);
+
+  const int K = sc.K, D = sc.D, fw = sc.fw, fh = sc.fh;
+  struct result r2_raw = {0}, r2_field = {0}, r3_fusion = {0}, r3_field = {0}, r3_field_ref = {0};
+  if (vlff_confusion_init(&r2_raw.c, K, err, sizeof err) < 0 || vlff_confusion_init(&r2_field.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&r3_fusion.c, K, err, sizeof err) < 0 || vlff_confusion_init(&r3_field.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&r3_field_ref.c, K, err, sizeof err) < 0)
+    die("%s", err);
+
+  /* ---- baselines ---- */
+  uint8_t *gl = xcalloc((size_t)fw * fh, 1);
+  int *pl = xcalloc((size_t)fw * fh, sizeof(int));
+  for (int i = 0; i < sc.n; i++) {
+    if (i % o.holdout != o.holdout / 2) continue;
+    vlff_downsample_labels(sc.f[i].label, sc.W, sc.H, gl, fw, fh);
+    vlff_classify_f16(sc.f[i].feat, (size_t)fw * fh, D, sc.emb, K, pl, NULL);
+    vlff_confusion_add(&r2_raw.c, gl, pl, (size_t)fw * fh);
+  }
+  summarize(&r2_raw);
+  size_t np = sc.pts.n;
+  int *p3 = xcalloc(np, sizeof(int));
+  {
+    double t = now_s();
+    struct vlff_fusion_view *fv = xcalloc((size_t)ntrain, sizeof *fv);
+    int nv = 0;
+    for (int i = 0; i < sc.n; i++) {
+      if (i % o.holdout == o.holdout / 2) continue;
+      struct vlff_fusion_view *v = &fv[nv++];
+      v->width = sc.W, v->height = sc.H, v->fx = sc.fx, v->fy = sc.fy, v->cx = sc.cx, v->cy = sc.cy;
+      memcpy(v->c2w, sc.f[i].c2w, sizeof v->c2w);
+      v->depth = sc.f[i].depth, v->feat_width = fw, v->feat_height = fh, v->features = sc.f[i].feat;
+    }
+    /* in chunks: [n][D] floats of a whole scene can be large */
+    const size_t chunk = 8192;
+    float *acc = xcalloc(chunk * D, sizeof(float));
+    for (size_t s0 = 0; s0 < np; s0 += chunk) {
+      size_t m = np - s0 < chunk ? np - s0 : chunk;
+      if (vlff_fusion(sc.pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, NULL, err, sizeof err) < 0) die("%s", err);
+      vlff_classify_f32(acc, m, D, sc.emb, K, p3 + s0, NULL);
+    }
+    free(acc);
+    free(fv);
+    vlff_confusion_add(&r3_fusion.c, sc.pts.label, p3, np);
+    summarize(&r3_fusion);
+    fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f (%.1f s)\n", 100 * r2_raw.s.miou,
+            100 * r3_fusion.s.miou, now_s() - t);
+  }
+
+  /* ---- field ---- */
+  int *pred3 = xcalloc(np, sizeof(int));
+  memcpy(pred3, p3, np * sizeof(int));
+  int fitted = 0;
+  double fit_s = 0;
+  struct vlff_train_stats st = {0};
+  int *overlay_pred = NULL;
+  if (o.iters > 0) {
+    struct vlff_field *fld = vlff_field_create(&cfg, err, sizeof err);
+    if (!fld) die("%s", err);
+    struct vlff_view *views = xcalloc((size_t)ntrain, sizeof *views);
+    int nv = 0;
+    double s = (double)sc.tw / sc.W, sy = (double)sc.th / sc.H;
+    for (int i = 0; i < sc.n; i++) {
+      if (i % o.holdout == o.holdout / 2) continue;
+      struct vlff_view *v = &views[nv++];
+      v->width = sc.tw, v->height = sc.th, v->rgb = sc.f[i].trgb, v->depth = sc.f[i].tdepth;
+      v->fx = sc.fx * s, v->fy = sc.fy * sy, v->cx = sc.cx * s, v->cy = sc.cy * sy;
+      memcpy(v->c2w, sc.f[i].c2w, sizeof v->c2w);
+      v->feat_width = fw, v->feat_height = fh, v->feat_dim = D, v->features = sc.f[i].feat;
+    }
+    int tty = isatty(2) && !o.quiet;
+    double t0 = now_s(), last = 0;
+    for (int it = 1; it <= o.iters; it++) {
+      if (vlff_field_step(fld, views, nv, NULL, &st, err, sizeof err) < 0) die("training step %d: %s", it, err);
+      double t = now_s();
+      if (!o.quiet && (it == o.iters || (tty ? t - last > 0.25 : it % (o.iters / 10 > 0 ? o.iters / 10 : 1) == 0))) {
+        progress(it, o.iters, &st, t0, tty);
+        last = t;
+      }
+    }
+    if (tty) fputc('\n', stderr);
+    fit_s = now_s() - t0;
+    if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
+    /* 2D on held-out frames at the feature-map resolution */
+    struct vlff_view cam = {0};
+    cam.width = fw, cam.height = fh;
+    cam.fx = sc.fx * fw / sc.W, cam.fy = sc.fy * fh / sc.H, cam.cx = sc.cx * fw / sc.W, cam.cy = sc.cy * fh / sc.H;
+    overlay_pred = xcalloc((size_t)o.overlays * fw * fh + 1, sizeof(int));
+    int nover = 0;
+    for (int i = 0; i < sc.n; i++) {
+      if (i % o.holdout != o.holdout / 2) continue;
+      memcpy(cam.c2w, sc.f[i].c2w, sizeof cam.c2w);
+      if (vlff_field_render(fld, &cam, NULL, NULL, NULL, pl, NULL) < 0) die("render of frame %d failed", i);
+      vlff_downsample_labels(sc.f[i].label, sc.W, sc.H, gl, fw, fh);
+      vlff_confusion_add(&r2_field.c, gl, pl, (size_t)fw * fh);
+      if (nover < o.overlays) {
+        write_overlay(o.out, &sc, &sc.f[i], pl, fw, fh);
+        nover++;
+      }
+    }
+    summarize(&r2_field);
+    /* 3D standard: one query per point */
+    if (vlff_field_query(fld, sc.pts.xyz, np, NULL, NULL, pred3, NULL, NULL) < 0) die("3D query failed");
+    vlff_confusion_add(&r3_field.c, sc.pts.label, pred3, np);
+    summarize(&r3_field);
+    /* 3D reference protocol: features averaged over 10 queries jittered
+     * uniformly within +-2 cm per axis */
+    const size_t chunk = 4096;
+    float *acc = xcalloc(chunk * D, sizeof(float)), *fb = xcalloc(chunk * D, sizeof(float));
+    float *jx = xcalloc(chunk * 3, sizeof(float));
+    int *pr = xcalloc(chunk, sizeof(int));
+    uint64_t rs = 0x9e3779b97f4a7c15ull;
+    for (size_t s0 = 0; s0 < np; s0 += chunk) {
+      size_t m = np - s0 < chunk ? np - s0 : chunk;
+      memset(acc, 0, m * D * sizeof(float));
+      for (int q = 0; q < 10; q++) {
+        for (size_t k = 0; k < 3 * m; k++) {
+          rs = rs * 6364136223846793005ull + 1442695040888963407ull;
+          jx[k] = sc.pts.xyz[3 * s0 + k] + (float)(((rs >> 11) * 0x1.0p-53) * 0.04 - 0.02);
+        }
+        if (vlff_field_query(fld, jx, m, NULL, fb, NULL, NULL, NULL) < 0) die("3D query failed");
+        for (size_t k = 0; k < m * D; k++) acc[k] += fb[k];
+      }
+      vlff_classify_f32(acc, m, D, sc.emb, K, pr, NULL);
+      vlff_confusion_add(&r3_field_ref.c, sc.pts.label + s0, pr, m);
+    }
+    free(acc), free(fb), free(jx), free(pr);
+    summarize(&r3_field_ref);
+    free(views);
+    vlff_field_destroy(fld);
+    fitted = 1;
+  }
+
+  /* ---- prediction point cloud ---- */
+  {
+    uint8_t *col = xcalloc(np, 3), *lab = xcalloc(np, 1);
+    for (size_t k = 0; k < np; k++) {
+      colour_of(pred3[k], col + 3 * k);
+      lab[k] = pred3[k] >= 0 && pred3[k] < 255 ? (uint8_t)pred3[k] : 255;
+    }
+    char p[4200];
+    snprintf(p, sizeof p, "%s/prediction.ply", o.out);
+    if (vlff_ply_write(p, sc.pts.xyz, col, lab, np, err, sizeof err) < 0) fprintf(stderr, "vlff-eval: %s\n", err);
+    free(col), free(lab);
+  }
+
+  /* ---- reports ---- */
+  char a[16], b[16], c[16], d[16], e[16];
+  char path[4200];
+  snprintf(path, sizeof path, "%s/report.md", o.out);
+  FILE *md = fopen(path, "w");
+  if (!md) die("%s: %s", path, strerror(errno));
+  fprintf(md, "# vlff-eval report\n\nScene: %s (seed %d, difficulty %.2f), %d frames: %d train, %d held out "
+              "(every %d-th); %dx%d images, features %dx%dx%d; %zu labelled points; %d prompts.\n"
+              "Field: %s.\n\n",
+          o.dataset ? o.dataset : "synthetic room", cfg.sim.seed, cfg.sim.difficulty, sc.n, ntrain, ntest, o.holdout,
+          sc.W, sc.H, fw, fh, D, np, K,
+          fitted ? "fitted" : "not fitted (--iters 0)");
+  if (fitted)
+    fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", o.iters, fit_s,
+            o.iters / fit_s, st.loss, st.psnr);
+  fprintf(md, "## Standard protocol\n\nPer-class IoU from TP/FP/FN summed over the scene; mIoU and mAcc "
+              "(per-class recall) averaged over classes present in the ground truth. Percent.\n\n"
+              "| method | 2D mIoU | 2D mAcc | 3D mIoU | 3D mAcc |\n|---|---|---|---|---|\n");
+  fprintf(md, "| raw per-frame features (2D) | %s | %s | - | - |\n", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.macc, b));
+  fprintf(md, "| multi-view fusion (3D) | - | - | %s | %s |\n", pct(&r3_fusion, r3_fusion.s.miou, a), pct(&r3_fusion, r3_fusion.s.macc, b));
+  fprintf(md, "| vlff field | %s | %s | %s | %s |\n\n", pct(&r2_field, r2_field.s.miou, a), pct(&r2_field, r2_field.s.macc, b),
+          pct(&r3_field, r3_field.s.miou, c), pct(&r3_field, r3_field.s.macc, d));
+  fprintf(md, "## Reference-code protocol\n\n2D: summed IoU, \"accuracy\" = mean per-class precision. 3D: "
+              "features averaged over 10 queries jittered within +-2 cm, \"accuracy\" = mean recall. Per scene "
+              "(average scenes yourself).\n\n| method | 2D mIoU | 2D acc (precision) | 3D mIoU | 3D acc (recall) |\n|---|---|---|---|---|\n");
+  fprintf(md, "| raw per-frame features (2D) | %s | %s | - | - |\n", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.mprec, b));
+  fprintf(md, "| multi-view fusion (3D, unjittered) | - | - | %s | %s |\n", pct(&r3_fusion, r3_fusion.s.miou, a),
+          pct(&r3_fusion, r3_fusion.s.macc, b));
+  fprintf(md, "| vlff field | %s | %s | %s | %s |\n\n", pct(&r2_field, r2_field.s.miou, a), pct(&r2_field, r2_field.s.mprec, b),
+          pct(&r3_field_ref, r3_field_ref.s.miou, c), pct(&r3_field_ref, r3_field_ref.s.macc, d));
+  fprintf(md, "## Per class (standard protocol, IoU %%)\n\n| class | 2D raw | 2D field | 3D fusion | 3D field | 3D field (ref) |\n|---|---|---|---|---|---|\n");
+  for (int k = 0; k < K; k++) {
+    struct vlff_class_score s1, s2, s3, s4, s5;
+    vlff_confusion_class(&r2_raw.c, k, &s1);
+    vlff_confusion_class(&r2_field.c, k, &s2);
+    vlff_confusion_class(&r3_fusion.c, k, &s3);
+    vlff_confusion_class(&r3_field.c, k, &s4);
+    vlff_confusion_class(&r3_field_ref.c, k, &s5);
+#define CELL(r, s, buf) ((r).valid && (s).present ? pct(&(r), (s).iou, buf) : "-")
+    fprintf(md, "| %s | %s | %s | %s | %s | %s |\n", sc.names[k], CELL(r2_raw, s1, a), CELL(r2_field, s2, b),
+            CELL(r3_fusion, s3, c), CELL(r3_field, s4, d), CELL(r3_field_ref, s5, e));
+  }
+  fclose(md);
+  snprintf(path, sizeof path, "%s/report.json", o.out);
+  FILE *js = fopen(path, "w");
+  if (!js) die("%s: %s", path, strerror(errno));
+  fprintf(js, "{\n  \"scene\": \"%s\",\n  \"seed\": %d,\n  \"difficulty\": %.4f,\n  \"frames\": %d,\n  \"train_frames\": %d,\n"
+              "  \"test_frames\": %d,\n  \"points\": %zu,\n  \"iters\": %d,\n  \"fit_seconds\": %.3f,\n  \"classes\": [",
+          o.dataset ? "dataset" : "synthetic", cfg.sim.seed, cfg.sim.difficulty, sc.n, ntrain, ntest, np,
+          fitted ? o.iters : 0, fit_s);
+  for (int k = 0; k < K; k++) fprintf(js, "%s\"%s\"", k ? ", " : "", sc.names[k]);
+  fprintf(js, "],\n  \"results\": {\n");
+  json_summary(js, "raw_2d", &r2_raw, 0);
+  json_summary(js, "field_2d", &r2_field, 0);
+  json_summary(js, "fusion_3d", &r3_fusion, 0);
+  json_summary(js, "field_3d", &r3_field, 0);
+  json_summary(js, "field_3d_reference", &r3_field_ref, 1);
+  fprintf(js, "  }\n}\n");
+  fclose(js);
+
+  printf("scene: %s seed %d, %d train / %d held-out frames, %zu points\n", o.dataset ? o.dataset : "synthetic",
+         cfg.sim.seed, ntrain, ntest, np);
+  printf("%-34s %8s %8s %8s %8s\n", "standard protocol", "2D mIoU", "2D mAcc", "3D mIoU", "3D mAcc");
+  printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.macc, b), "-", "-");
+  printf("%-34s %8s %8s %8s %8s\n", "multi-view fusion", "-", "-", pct(&r3_fusion, r3_fusion.s.miou, a), pct(&r3_fusion, r3_fusion.s.macc, b));
+  printf("%-34s %8s %8s %8s %8s\n", "vlff field", pct(&r2_field, r2_field.s.miou, a), pct(&r2_field, r2_field.s.macc, b),
+         pct(&r3_field, r3_field.s.miou, c), pct(&r3_field, r3_field.s.macc, d));
+  printf("%-34s %8s %8s %8s %8s\n", "reference protocol", "2D mIoU", "2D prec", "3D mIoU", "3D rec");
+  printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.mprec, b), "-", "-");
+  printf("%-34s %8s %8s %8s %8s\n", "vlff field (3D: 10 jittered)", pct(&r2_field, r2_field.s.miou, a),
+         pct(&r2_field, r2_field.s.mprec, b), pct(&r3_field_ref, r3_field_ref.s.miou, c), pct(&r3_field_ref, r3_field_ref.s.macc, d));
+  printf("report: %s/report.md\n", o.out);
+  printf("RESULT miou2d=%s miou2d_raw=%s miou3d=%s miou3d_fusion=%s macc2d=%s macc3d=%s\n",
+         pct(&r2_field, r2_field.s.miou, a), pct(&r2_raw, r2_raw.s.miou, b), pct(&r3_field, r3_field.s.miou, c),
+         pct(&r3_fusion, r3_fusion.s.miou, d), pct(&r2_field, r2_field.s.macc, e),
+         pct(&r3_field, r3_field.s.macc, path));
+
+  for (int i = 0; i < sc.n; i++) {
+    free(sc.f[i].rgb), free(sc.f[i].label), free(sc.f[i].depth), free(sc.f[i].feat);
+    free(sc.f[i].trgb), free(sc.f[i].tdepth);
+  }
+  free(sc.f), free(gl), free(pl), free(p3), free(pred3), free(overlay_pred), free(emb_raw);
+  vlff_points_free(&sc.pts);
+  vlff_confusion_free(&r2_raw.c), vlff_confusion_free(&r2_field.c), vlff_confusion_free(&r3_fusion.c);
+  vlff_confusion_free(&r3_field.c), vlff_confusion_free(&r3_field_ref.c);
+  return 0;
+}

@@ -1,0 +1,297 @@
+/*
+ * vlff-sim: the synthetic room as a live camera, or as a dataset on disk.
+ *
+ * Live: frames (RGB8 + uint16 mm depth, intrinsics, camera-to-world pose)
+ * go into the frame ring shm.ring at sim.rate_hz, and the simulated features
+ * of the same frame into shm.feature_ring ([D][h][w] float16, same frame_id).
+ * frame_id counts up from 0; the scene index rendered is frame_id modulo
+ * sim.frames, so the trajectory loops like a recorded sequence. A consumer
+ * that prefers not to read the feature ring can regenerate any frame's
+ * features from (config, frame_id % sim.frames) with vlff_sim_render: the
+ * sim is a pure function of both. Frames with a corrupted pose
+ * (sim.bad_pose_frac) are deliberately NOT flagged: catching them is the
+ * learner's job.
+ *
+ * Dataset: --write-dataset DIR writes sim.frames frames in the reference
+ * layout (see node/dataset/dataset.h), the labelled point set points.ply and
+ * prompt_embeddings.txt for the active prompt set.
+ */
+#include <errno.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "config.h"
+#include "dataset.h"
+#include "log.h"
+#include "sim.h"
+#include "vlff/shm.h"
+
+#define TAG "sim"
+
+static const char usage[] =
+    "usage: vlff-sim [--config FILE] [--seed N] [--frames N] [--rate HZ] [--count N]\n"
+    "                [--no-features] [--write-dataset DIR] [--quiet]\n"
+    "Publish the synthetic room into the frame ring (and its features into the\n"
+    "feature ring) at sim.rate_hz, or write it as a scene directory.\n"
+    "\n"
+    "  --count N            stop after N frames (default: until SIGINT/SIGTERM)\n"
+    "  --no-features        do not publish features (consumers regenerate them)\n"
+    "  --write-dataset DIR  write sim.frames frames to DIR and exit\n"
+    "\n"
+    "examples:\n"
+    "  vlff-sim --config configs/default.yaml --rate 10\n"
+    "  vlff-sim --seed 3 --frames 200 --write-dataset /tmp/room3\n";
+
+static volatile sig_atomic_t stop;
+static void on_signal(int sig) {
+  (void)sig;
+  stop = 1;
+}
+
+static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, const char *dir, int quiet) {
+  char err[1024];
+  int W, H, fw, fh, D;
+  double fx, fy, cx, cy, lo[3], hi[3];
+  vlff_sim_size(s, &W, &H, &fw, &fh, &D);
+  vlff_sim_intrinsics(s, &fx, &fy, &cx, &cy);
+  for (int k = 0; k < 3; k++) lo[k] = cfg->field.scene_min[k], hi[k] = cfg->field.scene_max[k];
+  int n = cfg->sim.frames;
+  struct vlff_dataset_writer *w =
+      vlff_dataset_writer_open(dir, n, W, H, fx, fy, cx, cy, lo, hi, "sim", fw, fh, D, err, sizeof err);
+  if (!w) {
+    fprintf(stderr, "vlff-sim: %s\n", err);
+    return 1;
+  }
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  if (!f) {
+    vlff_dataset_writer_abort(w);
+    fprintf(stderr, "vlff-sim: out of memory\n");
+    return 1;
+  }
+  for (int i = 0; i < n; i++) {
+    if (vlff_sim_render(s, i, VLFF_SIM_ALL, f, err, sizeof err) < 0 ||
+        vlff_dataset_writer_add(w, i, f->rgb, f->depth_mm, f->label, f->c2w, f->features, err, sizeof err) < 0) {
+      fprintf(stderr, "vlff-sim: %s\n", err);
+      vlff_sim_frame_free(f);
+      vlff_dataset_writer_abort(w);
+      return 1;
+    }
+    if (!quiet && (i + 1) % 25 == 0) fprintf(stderr, "vlff-sim: %d/%d frames\n", i + 1, n);
+  }
+  vlff_sim_frame_free(f);
+  if (vlff_dataset_writer_close(w, err, sizeof err) < 0) {
+    fprintf(stderr, "vlff-sim: %s\n", err);
+    return 1;
+  }
+  char p[4200];
+  struct vlff_sim_points pts;
+  if (vlff_sim_points(s, n, 2, 0.04, &pts, err, sizeof err) < 0) {
+    fprintf(stderr, "vlff-sim: %s\n", err);
+    return 1;
+  }
+  snprintf(p, sizeof p, "%s/points.ply", dir);
+  int rc = vlff_ply_write(p, pts.xyz, NULL, pts.label, pts.n, err, sizeof err);
+  vlff_sim_points_free(&pts);
+  if (rc < 0) {
+    fprintf(stderr, "vlff-sim: %s\n", err);
+    return 1;
+  }
+  const struct vlff_prompt_set *set = &cfg->prompts.sets[cfg->prompts.active];
+  float *emb = calloc((size_t)set->count * D, sizeof(float));
+  const char *names[VLFF_MAX_PROMPTS];
+  if (!emb) return 1;
+  for (int k = 0; k < set->count; k++) {
+    names[k] = set->text[k];
+    vlff_sim_text_embedding(s, set->text[k], emb + (size_t)k * D);
+  }
+  snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
+  rc = vlff_prompt_embeddings_write(p, names, emb, set->count, D, err, sizeof err);
+  free(emb);
+  if (rc < 0) {
+    fprintf(stderr, "vlff-sim: %s\n", err);
+    return 1;
+  }
+  if (!quiet) fprintf(stderr, "vlff-sim: wrote %d frames to %s\n", n, dir);
+  return 0;
+}
+
+static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long count, int features, int quiet) {
+  char err[512];
+  int W, H, fw, fh, D;
+  vlff_sim_size(s, &W, &H, &fw, &fh, &D);
+  struct vlff_ring_params rp = {VLFF_RECORD_FRAME, (uint32_t)cfg->shm.ring_slots,
+                                vlff_frame_slot_size((uint32_t)W, (uint32_t)H, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM),
+                                {(mode_t)cfg->shm.mode, cfg->shm.group}};
+  struct vlff_ring *ring = vlff_ring_create(cfg->shm.ring, &rp);
+  if (!ring) {
+    fprintf(stderr, "vlff-sim: frame ring %s: %s\n", cfg->shm.ring, vlff_shm_last_message());
+    return 1;
+  }
+  struct vlff_ring *fring = NULL;
+  if (features) {
+    struct vlff_ring_params fp = {VLFF_RECORD_FEATURE, (uint32_t)cfg->shm.ring_slots,
+                                  vlff_feature_slot_size((uint32_t)D, (uint32_t)fh, (uint32_t)fw),
+                                  {(mode_t)cfg->shm.mode, cfg->shm.group}};
+    fring = vlff_ring_create(cfg->shm.feature_ring, &fp);
+    if (!fring) {
+      fprintf(stderr, "vlff-sim: feature ring %s: %s\n", cfg->shm.feature_ring, vlff_shm_last_message());
+      vlff_ring_close(ring);
+      return 1;
+    }
+  }
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  if (!f) {
+    vlff_ring_close(ring), vlff_ring_close(fring);
+    return 1;
+  }
+  const uint64_t period = (uint64_t)(1e9 / cfg->sim.rate_hz);
+  struct timespec next;
+  clock_gettime(CLOCK_MONOTONIC, &next);
+  long long late = 0;
+  int status = 0;
+  for (long long id = 0; !stop && (count <= 0 || id < count); id++) {
+    long long idx = id % cfg->sim.frames;
+    if (vlff_sim_render(s, idx, features ? VLFF_SIM_ALL : VLFF_SIM_RGBD, f, err, sizeof err) < 0) {
+      fprintf(stderr, "vlff-sim: %s\n", err);
+      status = 1;
+      break;
+    }
+    uint64_t seq;
+    struct vlff_frame_hdr *h = vlff_ring_reserve(ring, &seq);
+    uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), (uint32_t)W, (uint32_t)H, VLFF_PIX_RGB8,
+                                     VLFF_PIX_DEPTH_U16_MM);
+    if (!len) {
+      fprintf(stderr, "vlff-sim: frame does not fit the ring slot\n");
+      status = 1;
+      break;
+    }
+    uint64_t now = vlff_shm_now_ns();
+    h->frame_id = (uint64_t)id;
+    h->t_host_ns = now;
+    h->t_device_ns = (uint64_t)(f->time_s * 1e9);
+    h->flags = VLFF_FRAME_POSE_VALID | VLFF_FRAME_INTRINSICS_VALID;
+    h->fx = f->fx, h->fy = f->fy, h->cx = f->cx, h->cy = f->cy;
+    memcpy(h->pose, f->c2w, sizeof h->pose);
+    h->pose_t_ns = now;
+    uint8_t *rgb = (uint8_t *)h + h->plane[VLFF_PLANE_COLOR].offset;
+    uint8_t *dep = (uint8_t *)h + h->plane[VLFF_PLANE_DEPTH].offset;
+    for (int v = 0; v < H; v++) {
+      memcpy(rgb + (size_t)v * h->plane[VLFF_PLANE_COLOR].stride, f->rgb + (size_t)v * W * 3, (size_t)W * 3);
+      memcpy(dep + (size_t)v * h->plane[VLFF_PLANE_DEPTH].stride, f->depth_mm + (size_t)v * W, (size_t)W * 2);
+    }
+    if (vlff_ring_commit(ring, len) < 0) {
+      fprintf(stderr, "vlff-sim: commit: %s\n", strerror(errno));
+      status = 1;
+      break;
+    }
+    if (fring) {
+      struct vlff_feature_hdr *fhd = vlff_ring_reserve(fring, NULL);
+      uint64_t flen = vlff_feature_layout(fhd, vlff_ring_slot_size(fring), (uint32_t)D, (uint32_t)fh, (uint32_t)fw);
+      if (!flen) {
+        fprintf(stderr, "vlff-sim: features do not fit the ring slot\n");
+        status = 1;
+        break;
+      }
+      fhd->frame_id = (uint64_t)id, fhd->t_host_ns = now;
+      /* the ring carries [D][h][w]; the sim makes [h][w][D] */
+      uint16_t *out = (uint16_t *)((uint8_t *)fhd + fhd->data_offset);
+      size_t hw = (size_t)fw * fh;
+      for (size_t p = 0; p < hw; p++)
+        for (int d = 0; d < D; d++) out[(size_t)d * hw + p] = f->features[p * D + d];
+      if (vlff_ring_commit(fring, flen) < 0) {
+        fprintf(stderr, "vlff-sim: feature commit: %s\n", strerror(errno));
+        status = 1;
+        break;
+      }
+    }
+    if (!quiet && id % 50 == 0) VLFF_INFO(TAG, "frame %lld (scene frame %lld) published, %lld late", id, idx, late);
+    next.tv_nsec += (long)(period % 1000000000ull);
+    next.tv_sec += (time_t)(period / 1000000000ull);
+    if (next.tv_nsec >= 1000000000L) next.tv_nsec -= 1000000000L, next.tv_sec++;
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    if (t.tv_sec > next.tv_sec || (t.tv_sec == next.tv_sec && t.tv_nsec > next.tv_nsec)) {
+      late++; /* rendering slower than the rate: do not try to catch up */
+      next = t;
+    } else {
+      while (!stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
+      }
+    }
+  }
+  vlff_sim_frame_free(f);
+  vlff_ring_close(ring);
+  vlff_ring_close(fring);
+  return status;
+}
+
+int main(int argc, char **argv) {
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  const char *config = NULL, *dataset = NULL;
+  long long count = 0;
+  int features = 1, quiet = 0;
+  char err[1024];
+  for (int i = 1; i < argc; i++) {
+    const char *a = argv[i];
+    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+      fputs(usage, stdout);
+      return 0;
+    }
+    if (!strcmp(a, "--no-features")) {
+      features = 0;
+      continue;
+    }
+    if (!strcmp(a, "--quiet")) {
+      quiet = 1;
+      continue;
+    }
+    if (!strcmp(a, "--config") && i + 1 < argc) {
+      config = argv[++i];
+      if (vlff_config_load(config, &cfg, err, sizeof err) < 0) {
+        fprintf(stderr, "vlff-sim: %s\n", err);
+        return 2;
+      }
+      continue;
+    }
+    if (i + 1 >= argc) {
+      fprintf(stderr, "vlff-sim: %s needs a value\n%s", a, usage);
+      return 2;
+    }
+    const char *v = argv[++i];
+    char *end;
+    double x = strtod(v, &end);
+    int bad = !*v || *end;
+    if (!strcmp(a, "--write-dataset")) dataset = v, bad = 0;
+    else if (!strcmp(a, "--seed") && !bad && x >= 0 && x <= 2147483647 && x == (int)x) cfg.sim.seed = (int)x;
+    else if (!strcmp(a, "--frames") && !bad && x >= 1 && x <= 1000000 && x == (int)x) cfg.sim.frames = (int)x;
+    else if (!strcmp(a, "--rate") && !bad && x >= 0.1 && x <= 1000) cfg.sim.rate_hz = x;
+    else if (!strcmp(a, "--count") && !bad && x >= 1 && x == (long long)x) count = (long long)x;
+    else {
+      fprintf(stderr, "vlff-sim: bad option or value: %s %s\n%s", a, v, usage);
+      return 2;
+    }
+  }
+  vlff_log_set_level((enum vlff_log_level)cfg.node.log_level);
+  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  if (!s) {
+    fprintf(stderr, "vlff-sim: %s\n", err);
+    return 1;
+  }
+  int rc;
+  if (dataset) {
+    rc = write_dataset(&cfg, s, dataset, quiet);
+  } else {
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    if (cfg.node.run_seconds > 0 && count == 0) count = (long long)(cfg.node.run_seconds * cfg.sim.rate_hz + 0.5);
+    rc = live(&cfg, s, count, features, quiet);
+  }
+  vlff_sim_destroy(s);
+  return rc;
+}

@@ -1,0 +1,323 @@
+/* Scene datasets: exact write -> read round trips, malformed inputs that
+ * must fail naming the file, the ScanNet export layout, and the formats. */
+#define _XOPEN_SOURCE 700
+#include <ftw.h>
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "config.h"
+#include "dataset.h"
+#include "sim.h"
+
+#define NF 4
+
+static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
+  (void)st, (void)flag, (void)ftw;
+  return remove(p);
+}
+
+static void rm_rf(const char *dir) { nftw(dir, rm_one, 16, FTW_DEPTH | FTW_PHYS); }
+
+struct fixture {
+  char dir[256];
+  struct vlff_sim *sim;
+  struct vlff_sim_frame *f[NF];
+  struct vlff_sim_points pts;
+  float emb[VLFF_SIM_CLASSES * 16];
+};
+
+static void write_file(const char *dir, const char *name, const char *text) {
+  char p[512];
+  snprintf(p, sizeof p, "%s/%s", dir, name);
+  FILE *f = fopen(p, "w");
+  assert_non_null(f);
+  fputs(text, f);
+  fclose(f);
+}
+
+static int setup(void **state) {
+  struct fixture *x = calloc(1, sizeof *x);
+  snprintf(x->dir, sizeof x->dir, "/tmp/vlff-test-dataset-%ld-XXXXXX", (long)getpid());
+  if (!mkdtemp(x->dir)) return -1;
+  struct vlff_config c;
+  vlff_config_defaults(&c);
+  c.sim.width = 64, c.sim.height = 48, c.sim.feature_dim = 16, c.sim.seed = 11;
+  char err[512];
+  x->sim = vlff_sim_create(&c, err, sizeof err);
+  if (!x->sim) return -1;
+  for (int i = 0; i < NF; i++) {
+    x->f[i] = vlff_sim_frame_new(x->sim);
+    if (vlff_sim_render(x->sim, i * 3, VLFF_SIM_ALL, x->f[i], err, sizeof err) < 0) return -1;
+  }
+  if (vlff_sim_points(x->sim, 10, 2, 0.1, &x->pts, err, sizeof err) < 0) return -1;
+  for (int k = 0; k < VLFF_SIM_CLASSES; k++) vlff_sim_text_embedding(x->sim, vlff_sim_class_name(k), x->emb + 16 * k);
+  *state = x;
+  return 0;
+}
+
+static int teardown(void **state) {
+  struct fixture *x = *state;
+  rm_rf(x->dir);
+  for (int i = 0; i < NF; i++) vlff_sim_frame_free(x->f[i]);
+  vlff_sim_points_free(&x->pts);
+  vlff_sim_destroy(x->sim);
+  free(x);
+  return 0;
+}
+
+/* Write the fixture as a dataset under x->dir/<name>. */
+static void write_dataset(struct fixture *x, const char *name, char *path) {
+  snprintf(path, 400, "%s/%s", x->dir, name);
+  char err[512] = "";
+  const struct vlff_sim_frame *f0 = x->f[0];
+  double lo[3], hi[3];
+  vlff_sim_bounds(x->sim, lo, hi);
+  struct vlff_dataset_writer *w = vlff_dataset_writer_open(path, NF, f0->width, f0->height, f0->fx, f0->fy, f0->cx,
+                                                           f0->cy, lo, hi, "sim", f0->feat_width, f0->feat_height,
+                                                           f0->feat_dim, err, sizeof err);
+  if (!w) fail_msg("%s", err);
+  for (int i = 0; i < NF; i++)
+    if (vlff_dataset_writer_add(w, i, x->f[i]->rgb, x->f[i]->depth_mm, x->f[i]->label, x->f[i]->c2w,
+                                x->f[i]->features, err, sizeof err) < 0)
+      fail_msg("%s", err);
+  if (vlff_dataset_writer_close(w, err, sizeof err) < 0) fail_msg("%s", err);
+  char p[512];
+  snprintf(p, sizeof p, "%s/points.ply", path);
+  if (vlff_ply_write(p, x->pts.xyz, NULL, x->pts.label, x->pts.n, err, sizeof err) < 0) fail_msg("%s", err);
+  const char *names[VLFF_SIM_CLASSES];
+  for (int k = 0; k < VLFF_SIM_CLASSES; k++) names[k] = vlff_sim_class_name(k);
+  snprintf(p, sizeof p, "%s/prompt_embeddings.txt", path);
+  if (vlff_prompt_embeddings_write(p, names, x->emb, VLFF_SIM_CLASSES, 16, err, sizeof err) < 0) fail_msg("%s", err);
+}
+
+static void test_round_trip_exact(void **state) {
+  struct fixture *x = *state;
+  char path[400], err[512] = "";
+  write_dataset(x, "rt", path);
+  struct vlff_dataset ds;
+  if (vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  const struct vlff_sim_frame *f0 = x->f[0];
+  assert_int_equal(ds.layout, VLFF_DS_REFERENCE);
+  assert_int_equal(ds.n, NF);
+  assert_int_equal(ds.width, f0->width);
+  assert_int_equal(ds.height, f0->height);
+  assert_true(ds.fx == f0->fx && ds.fy == f0->fy && ds.cx == f0->cx && ds.cy == f0->cy);
+  assert_true(ds.has_bbox && ds.has_labels && ds.has_features);
+  assert_int_equal(ds.feat_dim, 16);
+  assert_int_equal(ds.feat_width, f0->feat_width);
+  size_t n = (size_t)f0->width * f0->height, nf = (size_t)f0->feat_width * f0->feat_height * 16;
+  uint8_t *rgb = malloc(n * 3), *lab = malloc(n);
+  float *dep = malloc(n * sizeof(float));
+  uint16_t *feat = malloc(nf * 2);
+  for (int i = 0; i < NF; i++) {
+    if (vlff_dataset_read_frame(&ds, i, rgb, dep, lab, err, sizeof err) < 0) fail_msg("%s", err);
+    assert_memory_equal(rgb, x->f[i]->rgb, n * 3);
+    assert_memory_equal(lab, x->f[i]->label, n);
+    for (size_t k = 0; k < n; k++) assert_true(dep[k] == x->f[i]->depth_mm[k] * 0.001f);
+    for (int k = 0; k < 16; k++) assert_true(fabs(ds.c2w[16 * i + k] - x->f[i]->c2w[k]) < 1e-12);
+    if (vlff_dataset_read_features(&ds, i, feat, err, sizeof err) < 0) fail_msg("%s", err);
+    assert_memory_equal(feat, x->f[i]->features, nf * 2);
+  }
+  char p[512];
+  struct vlff_points pts;
+  snprintf(p, sizeof p, "%s/points.ply", path);
+  if (vlff_ply_read(p, &pts, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_int_equal(pts.n, x->pts.n);
+  assert_memory_equal(pts.xyz, x->pts.xyz, pts.n * 12);
+  assert_memory_equal(pts.label, x->pts.label, pts.n);
+  vlff_points_free(&pts);
+  struct vlff_prompt_embeddings e;
+  snprintf(p, sizeof p, "%s/prompt_embeddings.txt", path);
+  if (vlff_prompt_embeddings_read(p, 16, &e, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_int_equal(e.count, VLFF_SIM_CLASSES);
+  assert_memory_equal(e.vec, x->emb, sizeof x->emb);
+  assert_string_equal(e.text[15], "shower curtain");
+  assert_non_null(vlff_prompt_embeddings_find(&e, "desk"));
+  assert_null(vlff_prompt_embeddings_find(&e, "mug"));
+  vlff_prompt_embeddings_free(&e);
+  /* the pose files hold world-to-camera */
+  snprintf(p, sizeof p, "%s/pose/00001.txt", path);
+  uint8_t *buf;
+  size_t len;
+  assert_int_equal(vlff_read_file(p, 4096, &buf, &len, err, sizeof err), 0);
+  double m[16], inv[16];
+  assert_int_equal(vlff_parse_matrix((char *)buf, len, p, m, err, sizeof err), 0);
+  free(buf);
+  vlff_pose_invert(x->f[1]->c2w, inv);
+  for (int k = 0; k < 16; k++) assert_true(fabs(m[k] - inv[k]) < 1e-12);
+  free(rgb), free(lab), free(dep), free(feat);
+  vlff_dataset_close(&ds);
+}
+
+static void expect_open_error(const char *path, const char *what1, const char *what2) {
+  struct vlff_dataset ds;
+  char err[1024] = "";
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
+  print_message("  error: %s\n", err);
+  if (!strstr(err, what1) || (what2 && !strstr(err, what2))) fail_msg("error '%s' lacks '%s'/'%s'", err, what1, what2 ? what2 : "");
+}
+
+static void test_malformed(void **state) {
+  struct fixture *x = *state;
+  char path[400], p[512];
+  write_dataset(x, "bad1", path);
+  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0.5 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "pose/00002.txt", "orthonormal");
+  write_file(path, "pose/00002.txt", "1 0 0 nan\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "pose/00002.txt", "not finite");
+  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n");
+  expect_open_error(path, "pose/00002.txt", "9");
+  write_file(path, "pose/00002.txt", "-1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "pose/00002.txt", "reflection");
+  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  write_file(path, "intrinsics.txt", "-50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "intrinsics.txt", "positive");
+  write_file(path, "intrinsics.txt", "50 0 320 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "intrinsics.txt", "outside");
+  write_file(path, "intrinsics.txt", "50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
+  write_file(path, "bbox.txt", "1 1 1 0 2 2\n");
+  expect_open_error(path, "bbox.txt", "min");
+  write_file(path, "bbox.txt", "0 0 0 2 2 2\n");
+  snprintf(p, sizeof p, "%s/depth/00003.png", path);
+  assert_int_equal(remove(p), 0);
+  expect_open_error(path, "depth/00003.png", "missing");
+  /* a truncated image is reported when its frame is read */
+  write_dataset(x, "bad2", path);
+  snprintf(p, sizeof p, "%s/depth/00001.png", path);
+  assert_int_equal(truncate(p, 60), 0);
+  struct vlff_dataset ds;
+  char err[1024] = "";
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), 0);
+  float *dep = malloc(64 * 48 * sizeof(float));
+  assert_int_equal(vlff_dataset_read_frame(&ds, 1, NULL, dep, NULL, err, sizeof err), -1);
+  assert_non_null(strstr(err, "depth/00001.png"));
+  /* an RGB image in place of a depth map */
+  snprintf(p, sizeof p, "%s/depth/00002.png", path);
+  assert_int_equal(vlff_png_write(p, x->f[0]->rgb, 64, 48, 3, 0, err, sizeof err), 0);
+  assert_int_equal(vlff_dataset_read_frame(&ds, 2, NULL, dep, NULL, err, sizeof err), -1);
+  assert_non_null(strstr(err, "16-bit"));
+  free(dep);
+  vlff_dataset_close(&ds);
+  /* features with the wrong frame count */
+  write_dataset(x, "bad3", path);
+  snprintf(p, sizeof p, "%s/rgb/00003.png", path);
+  assert_int_equal(remove(p), 0);
+  snprintf(p, sizeof p, "%s/depth/00003.png", path);
+  assert_int_equal(remove(p), 0);
+  snprintf(p, sizeof p, "%s/pose/00003.txt", path);
+  assert_int_equal(remove(p), 0);
+  snprintf(p, sizeof p, "%s/gt_semantic/00003.png", path);
+  assert_int_equal(remove(p), 0);
+  expect_open_error(path, "features.hdf", "N=3");
+  expect_open_error("/nonexistent-vlff-dir", "nonexistent-vlff-dir", NULL);
+}
+
+static void test_scannet_layout(void **state) {
+  struct fixture *x = *state;
+  char path[400], p[512], err[512];
+  snprintf(path, sizeof path, "%s/scannet", x->dir);
+  const char *subs[] = {"", "/color", "/depth", "/pose", "/intrinsic"};
+  for (int i = 0; i < 5; i++) {
+    snprintf(p, sizeof p, "%s%s", path, subs[i]);
+    assert_int_equal(mkdir(p, 0755), 0);
+  }
+  const struct vlff_sim_frame *f0 = x->f[0];
+  for (int i = 0; i < NF; i++) {
+    snprintf(p, sizeof p, "%s/color/%d.png", path, i);
+    assert_int_equal(vlff_png_write(p, x->f[i]->rgb, 64, 48, 3, 0, err, sizeof err), 0);
+    /* depth at half resolution, like ScanNet's 640x480 against 1296x968 */
+    uint16_t half[32 * 24];
+    for (int v = 0; v < 24; v++)
+      for (int u = 0; u < 32; u++) half[v * 32 + u] = x->f[i]->depth_mm[(2 * v) * 64 + 2 * u];
+    snprintf(p, sizeof p, "%s/depth/%d.png", path, i);
+    assert_int_equal(vlff_png_write(p, half, 32, 24, 1, 1, err, sizeof err), 0);
+    char txt[1024];
+    const double *m = x->f[i]->c2w;
+    if (i == 2)
+      snprintf(txt, sizeof txt, "-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n");
+    else
+      snprintf(txt, sizeof txt, "%.17g %.17g %.17g %.17g\n%.17g %.17g %.17g %.17g\n%.17g %.17g %.17g %.17g\n0 0 0 1\n", m[0],
+               m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11]);
+    snprintf(p, sizeof p, "pose/%d.txt", i);
+    write_file(path, p, txt);
+  }
+  char k[256];
+  snprintf(k, sizeof k, "%.17g 0 %.17g 0\n0 %.17g %.17g 0\n0 0 1 0\n0 0 0 1\n", f0->fx, f0->cx, f0->fy, f0->cy);
+  write_file(path, "intrinsic/intrinsic_color.txt", k);
+  struct vlff_dataset ds;
+  if (vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_int_equal(ds.layout, VLFF_DS_SCANNET);
+  assert_int_equal(ds.n, NF - 1);
+  assert_int_equal(ds.skipped, 1);
+  assert_string_equal(ds.stem[2], "3");
+  for (int q = 0; q < 16; q++) assert_true(ds.c2w[16 * 2 + q] == x->f[3]->c2w[q]);
+  float dep[64 * 48];
+  assert_int_equal(vlff_dataset_read_frame(&ds, 0, NULL, dep, NULL, err, sizeof err), 0);
+  assert_true(dep[10 * 64 + 20] == x->f[0]->depth_mm[10 * 64 + 20] * 0.001f);
+  vlff_dataset_close(&ds);
+}
+
+static void test_prompt_embeddings_validation(void **state) {
+  (void)state;
+  struct vlff_prompt_embeddings e;
+  char err[512];
+  const char ok[] = "# comment\nchair\t1 0 0\nsofa bed\t0 1 0\n";
+  assert_int_equal(vlff_prompt_embeddings_parse(ok, strlen(ok), "ok.txt", 3, &e, err, sizeof err), 0);
+  assert_int_equal(e.count, 2);
+  assert_string_equal(e.text[1], "sofa bed");
+  vlff_prompt_embeddings_free(&e);
+  struct {
+    const char *text, *want;
+  } bad[] = {
+      {"chair\t1 0 0\nsofa\t0 1\n", "e.txt:2"},        {"chair\t1 0 nan\n", "not finite"},
+      {"chair\t0 0 0\n", "zero"},                       {"chair 1 0 0\n", "TAB"},
+      {"chair\t1 0 0\nchair\t0 1 0\n", "twice"},        {"chair\t1 x 0\n", "not a number"},
+      {"chair\t1 0\n", "expected D=3"},                 {"# nothing\n", "no records"},
+  };
+  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    err[0] = 0;
+    assert_int_equal(vlff_prompt_embeddings_parse(bad[i].text, strlen(bad[i].text), "e.txt", 3, &e, err, sizeof err), -1);
+    if (!strstr(err, bad[i].want)) fail_msg("case %zu: '%s' lacks '%s'", i, err, bad[i].want);
+  }
+}
+
+static void test_ply_formats(void **state) {
+  (void)state;
+  struct vlff_points p;
+  char err[512];
+  const char ascii[] = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+                       "property ushort label\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
+                       "0 1 2 3\n4 5 6 300\n";
+  assert_int_equal(vlff_ply_parse((const uint8_t *)ascii, strlen(ascii), "a.ply", &p, err, sizeof err), 0);
+  assert_int_equal(p.n, 2);
+  assert_true(p.xyz[5] == 6.0f && p.label[0] == 3 && p.label[1] == 255);
+  vlff_points_free(&p);
+  const char nolabel[] = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n";
+  assert_int_equal(vlff_ply_parse((const uint8_t *)nolabel, strlen(nolabel), "b.ply", &p, err, sizeof err), -1);
+  assert_non_null(strstr(err, "label"));
+  const char trunc[] = "ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+                       "property float z\nproperty uchar label\nend_header\n0123456789abc";
+  assert_int_equal(vlff_ply_parse((const uint8_t *)trunc, strlen(trunc), "c.ply", &p, err, sizeof err), -1);
+  assert_non_null(strstr(err, "truncated"));
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_round_trip_exact),
+      cmocka_unit_test(test_malformed),
+      cmocka_unit_test(test_scannet_layout),
+      cmocka_unit_test(test_prompt_embeddings_validation),
+      cmocka_unit_test(test_ply_formats),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}

@@ -1,0 +1,329 @@
+/* The synthetic scene: determinism, geometry, labels, poses and features. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "config.h"
+#include "field.h"
+#include "metrics.h"
+#include "sim.h"
+
+static void small_cfg(struct vlff_config *c, int seed) {
+  vlff_config_defaults(c);
+  c->sim.seed = seed;
+  c->sim.width = 160, c->sim.height = 120, c->sim.feature_dim = 32;
+}
+
+static struct vlff_sim *make(const struct vlff_config *c) {
+  char err[256] = "";
+  struct vlff_sim *s = vlff_sim_create(c, err, sizeof err);
+  if (!s) fail_msg("%s", err);
+  return s;
+}
+
+static void render(struct vlff_sim *s, long long i, struct vlff_sim_frame *f) {
+  char err[256] = "";
+  if (vlff_sim_render(s, i, VLFF_SIM_ALL, f, err, sizeof err) < 0) fail_msg("%s", err);
+}
+
+static void test_deterministic_per_seed(void **state) {
+  (void)state;
+  struct vlff_config c;
+  small_cfg(&c, 7);
+  struct vlff_sim *a = make(&c), *b = make(&c);
+  struct vlff_sim_frame *fa = vlff_sim_frame_new(a), *fb = vlff_sim_frame_new(b);
+  render(a, 13, fa);
+  render(b, 13, fb);
+  size_t n = (size_t)fa->width * fa->height;
+  assert_memory_equal(fa->rgb, fb->rgb, n * 3);
+  assert_memory_equal(fa->depth, fb->depth, n * sizeof(float));
+  assert_memory_equal(fa->label, fb->label, n);
+  assert_memory_equal(fa->features, fb->features,
+                      (size_t)fa->feat_width * fa->feat_height * fa->feat_dim * sizeof(uint16_t));
+  /* rendering out of order gives the same frame */
+  render(b, 2, fb);
+  render(b, 13, fb);
+  assert_memory_equal(fa->features, fb->features,
+                      (size_t)fa->feat_width * fa->feat_height * fa->feat_dim * sizeof(uint16_t));
+  /* another seed: another room */
+  struct vlff_config c2;
+  small_cfg(&c2, 8);
+  struct vlff_sim *d = make(&c2);
+  struct vlff_sim_frame *fd = vlff_sim_frame_new(d);
+  render(d, 13, fd);
+  assert_true(memcmp(fa->label, fd->label, n) != 0);
+  vlff_sim_frame_free(fa), vlff_sim_frame_free(fb), vlff_sim_frame_free(fd);
+  vlff_sim_destroy(a), vlff_sim_destroy(b), vlff_sim_destroy(d);
+}
+
+/* Back-projected depth lands on the surfaces the labels name: floor pixels
+ * at floor height, wall pixels on a wall plane; measured depth stays within
+ * the noise model, is 0 beyond the range limit, and holes are about as
+ * frequent as configured. */
+static void test_depth_matches_geometry(void **state) {
+  (void)state;
+  struct vlff_config c;
+  small_cfg(&c, 3);
+  c.sim.depth_max_m = 3.0;
+  struct vlff_sim *s = make(&c);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  double lo[3], hi[3];
+  vlff_sim_bounds(s, lo, hi);
+  long floor_px = 0, wall_px = 0, valid = 0, holes = 0, inrange = 0;
+  for (int fi = 0; fi < 40; fi += 5) {
+    render(s, fi, f);
+    const double *M = f->c2w_true;
+    for (int v = 0; v < f->height; v++)
+      for (int u = 0; u < f->width; u++) {
+        size_t k = (size_t)v * f->width + u;
+        double z = f->depth_gt[k];
+        assert_true(z > 0);
+        double xc = (u + 0.5 - f->cx) / f->fx * z, yc = (v + 0.5 - f->cy) / f->fy * z;
+        double w[3];
+        for (int r = 0; r < 3; r++) w[r] = M[4 * r] * xc + M[4 * r + 1] * yc + M[4 * r + 2] * z + M[4 * r + 3];
+        if (f->label[k] == 1) {
+          assert_true(fabs(w[2] - lo[2]) < 1e-6);
+          floor_px++;
+        }
+        if (f->label[k] == 0) {
+          double dmin = fmin(fmin(fabs(w[0] - lo[0]), fabs(w[0] - hi[0])), fmin(fabs(w[1] - lo[1]), fabs(w[1] - hi[1])));
+          assert_true(dmin < 1e-6);
+          wall_px++;
+        }
+        double m = f->depth[k];
+        if (z <= 3.0) {
+          inrange++;
+          if (m == 0) holes++;
+          else assert_true(fabs(m - z) < 6 * c.sim.depth_noise_m * z * z + 1e-6);
+        } else {
+          assert_true(m == 0);
+        }
+        if (m > 0) {
+          valid++;
+          assert_int_equal(f->depth_mm[k], (uint16_t)(m * 1000.0 + 0.5));
+        } else {
+          assert_int_equal(f->depth_mm[k], 0);
+        }
+      }
+  }
+  assert_true(floor_px > 1000 && wall_px > 1000 && valid > 0);
+  double hf = (double)holes / inrange;
+  assert_true(hf > 0.3 * c.sim.depth_hole_frac && hf < 3.0 * c.sim.depth_hole_frac);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+}
+
+static void test_labels_cover_classes(void **state) {
+  (void)state;
+  for (int seed = 1; seed <= 3; seed++) {
+    struct vlff_config c;
+    small_cfg(&c, seed);
+    struct vlff_sim *s = make(&c);
+    int counts[VLFF_SIM_CLASSES];
+    vlff_sim_class_counts(s, counts);
+    int placed = 0;
+    for (int k = 0; k < VLFF_SIM_CLASSES; k++) placed += counts[k] > 0;
+    assert_true(placed >= 19);
+    struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+    int seen[256] = {0};
+    for (int fi = 0; fi < c.sim.frames; fi += 6) {
+      render(s, fi, f);
+      for (int k = 0; k < f->width * f->height; k++) seen[f->label[k]] = 1;
+    }
+    int nseen = 0;
+    for (int k = 0; k < VLFF_SIM_CLASSES; k++) nseen += seen[k];
+    assert_true(nseen >= 17);
+    for (int k = VLFF_SIM_CLASSES; k < 255; k++) assert_int_equal(seen[k], 0);
+    vlff_sim_frame_free(f);
+    vlff_sim_destroy(s);
+  }
+}
+
+static void test_poses_opencv_and_speed(void **state) {
+  (void)state;
+  struct vlff_config c;
+  small_cfg(&c, 2);
+  c.sim.trajectory = VLFF_TRAJ_ORBIT;
+  c.sim.speed_mps = 0.5, c.sim.rate_hz = 5;
+  struct vlff_sim *s = make(&c);
+  double prev[16] = {0};
+  for (int i = 0; i < 30; i++) {
+    double m[16];
+    vlff_sim_pose(s, i, m);
+    for (int a = 0; a < 3; a++)
+      for (int b = 0; b < 3; b++) {
+        double d = 0;
+        for (int k = 0; k < 3; k++) d += m[4 * k + a] * m[4 * k + b];
+        assert_true(fabs(d - (a == b)) < 1e-9);
+      }
+    assert_true(m[12] == 0 && m[13] == 0 && m[14] == 0 && m[15] == 1);
+    /* OpenCV camera: y (down) points down in the z-up world, z looks down a little */
+    assert_true(m[9] < 0);
+    assert_true(m[10] < 0);
+    if (i) {
+      double dx = m[3] - prev[3], dy = m[7] - prev[7], dz = m[11] - prev[11];
+      double step = sqrt(dx * dx + dy * dy + dz * dz);
+      assert_true(fabs(step - 0.5 / 5) < 0.01);
+    }
+    memcpy(prev, m, sizeof prev);
+  }
+  vlff_sim_destroy(s);
+  /* corrupted poses are flagged and differ from the rendered pose */
+  small_cfg(&c, 2);
+  c.sim.bad_pose_frac = 0.5;
+  s = make(&c);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  int bad = 0;
+  for (int i = 0; i < 20; i++) {
+    render(s, i, f);
+    double d = fabs(f->c2w[3] - f->c2w_true[3]) + fabs(f->c2w[7] - f->c2w_true[7]);
+    if (f->bad_pose) {
+      bad++;
+      assert_true(d > 0.1);
+    } else {
+      assert_true(d == 0);
+    }
+  }
+  assert_true(bad >= 4 && bad <= 16);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+}
+
+static double cosine(const float *a, const float *b, int d) {
+  double ab = 0, aa = 0, bb = 0;
+  for (int i = 0; i < d; i++) ab += a[i] * b[i], aa += a[i] * a[i], bb += b[i] * b[i];
+  return ab / sqrt(aa * bb);
+}
+
+static void test_embeddings_structure(void **state) {
+  (void)state;
+  struct vlff_config c;
+  small_cfg(&c, 1);
+  c.sim.feature_dim = 512;
+  struct vlff_sim *s = make(&c);
+  const int D = 512;
+  float t[VLFF_SIM_CLASSES][512], p[512], u1[512], u2[512];
+  for (int k = 0; k < VLFF_SIM_CLASSES; k++) {
+    vlff_sim_text_embedding(s, vlff_sim_class_name(k), t[k]);
+    vlff_sim_prototype(s, k, p);
+    double cp = cosine(t[k], p, D);
+    assert_true(cp > 0.8 && cp < 0.99); /* close to, not equal to, the prototype */
+  }
+  /* look-alikes are closer than unrelated classes */
+  int desk = vlff_sim_class_of("desk"), table = vlff_sim_class_of("table"), bed = vlff_sim_class_of("bed");
+  int cur = vlff_sim_class_of("curtain"), sh = vlff_sim_class_of("Shower Curtain"), floor = vlff_sim_class_of("floor");
+  assert_true(desk >= 0 && table >= 0 && sh >= 0);
+  assert_true(cosine(t[desk], t[table], D) > cosine(t[desk], t[bed], D) + 0.1);
+  assert_true(cosine(t[cur], t[sh], D) > cosine(t[cur], t[floor], D) + 0.1);
+  /* any text has a deterministic embedding */
+  vlff_sim_text_embedding(s, "a red mug", u1);
+  vlff_sim_text_embedding(s, "a red mug", u2);
+  assert_memory_equal(u1, u2, sizeof u1);
+  vlff_sim_text_embedding(s, "a blue mug", u2);
+  assert_true(cosine(u1, u2, D) < 0.5);
+  assert_int_equal(vlff_sim_class_of("chairs"), -1);
+  vlff_sim_destroy(s);
+}
+
+/* Per-frame features: informative (far above chance) but imperfect, and
+ * worse with difficulty. */
+static double raw_miou(double difficulty) {
+  struct vlff_config c;
+  small_cfg(&c, 4);
+  c.sim.difficulty = difficulty;
+  c.sim.feature_dim = 64;
+  struct vlff_sim *s = make(&c);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  int K = VLFF_SIM_CLASSES, D = 64, n = f->feat_width * f->feat_height;
+  float emb[VLFF_SIM_CLASSES * 64], unit[VLFF_SIM_CLASSES * 64];
+  for (int k = 0; k < K; k++) vlff_sim_text_embedding(s, vlff_sim_class_name(k), emb + k * D);
+  vlff_normalize_rows(emb, unit, K, D);
+  struct vlff_confusion cm;
+  char err[128];
+  assert_int_equal(vlff_confusion_init(&cm, K, err, sizeof err), 0);
+  uint8_t *gl = malloc((size_t)n);
+  int *pl = malloc((size_t)n * sizeof(int));
+  for (int fi = 0; fi < 300; fi += 15) {
+    render(s, fi, f);
+    vlff_downsample_labels(f->label, f->width, f->height, gl, f->feat_width, f->feat_height);
+    vlff_classify_f16(f->features, (size_t)n, D, unit, K, pl, NULL);
+    vlff_confusion_add(&cm, gl, pl, (size_t)n);
+  }
+  struct vlff_summary sm;
+  vlff_confusion_summary(&cm, &sm);
+  free(gl), free(pl);
+  vlff_confusion_free(&cm);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+  return sm.miou;
+}
+
+static void test_features_imperfect_but_informative(void **state) {
+  (void)state;
+  double easy = raw_miou(0.0), mid = raw_miou(0.5), hard = raw_miou(1.0);
+  print_message("per-frame 2D mIoU: difficulty 0 %.3f, 0.5 %.3f, 1 %.3f\n", easy, mid, hard);
+  assert_true(mid > 0.25 && mid < 0.8);
+  assert_true(easy > mid + 0.05);
+  assert_true(mid > hard + 0.05);
+  assert_true(hard > 0.1); /* chance is 0.05 */
+}
+
+static void test_points(void **state) {
+  (void)state;
+  struct vlff_config c;
+  small_cfg(&c, 5);
+  struct vlff_sim *s = make(&c);
+  struct vlff_sim_points p;
+  char err[128];
+  assert_int_equal(vlff_sim_points(s, 60, 4, 0.05, &p, err, sizeof err), 0);
+  double lo[3], hi[3];
+  vlff_sim_bounds(s, lo, hi);
+  assert_true(p.n > 2000);
+  int cls[256] = {0};
+  for (size_t i = 0; i < p.n; i++) {
+    for (int k = 0; k < 3; k++) assert_true(p.xyz[3 * i + k] >= lo[k] - 1e-4 && p.xyz[3 * i + k] <= hi[k] + 1e-4);
+    cls[p.label[i]]++;
+  }
+  for (int k = VLFF_SIM_CLASSES; k < 255; k++) assert_int_equal(cls[k], 0);
+  assert_true(cls[0] > 0 && cls[1] > 0);
+  /* each labelled point lies on a surface of its class: a short ray down
+   * onto a floor point hits the floor */
+  for (size_t i = 0; i < p.n; i++)
+    if (p.label[i] == 1) {
+      double o[3] = {p.xyz[3 * i], p.xyz[3 * i + 1], p.xyz[3 * i + 2] + 0.01}, d[3] = {0, 0, -1};
+      int lab;
+      double t = vlff_sim_raycast(s, o, d, &lab, NULL);
+      assert_true(fabs(t - 0.01) < 1e-4);
+      assert_int_equal(lab, 1);
+      break;
+    }
+  assert_int_equal(vlff_sim_points(s, 0, 1, 0.05, &p, err, sizeof err) == 0 ? 0 : -1, -1);
+  vlff_sim_points_free(&p);
+  vlff_sim_destroy(s);
+}
+
+static void test_bad_config(void **state) {
+  (void)state;
+  struct vlff_config c;
+  small_cfg(&c, 1);
+  c.field.scene_min[2] = -1, c.field.scene_max[2] = 1;
+  char err[256] = "";
+  assert_null(vlff_sim_create(&c, err, sizeof err));
+  assert_non_null(strstr(err, "scene_min/max"));
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_deterministic_per_seed), cmocka_unit_test(test_depth_matches_geometry),
+      cmocka_unit_test(test_labels_cover_classes),   cmocka_unit_test(test_poses_opencv_and_speed),
+      cmocka_unit_test(test_embeddings_structure),   cmocka_unit_test(test_features_imperfect_but_informative),
+      cmocka_unit_test(test_points),                 cmocka_unit_test(test_bad_config),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
