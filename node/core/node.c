@@ -471,7 +471,8 @@ static void *ingest_main(void *arg) {
 
     if (cfg->source.features == VLFF_FEAT_SIM) {
       char err[256];
-      if (!sf || vlff_sim_render(n->sim, id, VLFF_SIM_FEATURES, sf, err, sizeof err)) {
+      /* vlff-sim loops its trajectory: scene frame = frame id mod sim.frames. */
+      if (!sf || vlff_sim_render(n->sim, id % cfg->sim.frames, VLFF_SIM_FEATURES, sf, err, sizeof err)) {
         candidate_free(c);
         frame_invalid(n, id, "simulated features unavailable");
         continue;
@@ -637,7 +638,7 @@ static void take_candidates(struct vlff_node *n, bool wait) {
                                        .feature_dim = n->cfg.field.feature_dim};
         if (vlff_kfstore_add(n->store, &kin) == 0) {
           vlff_publisher_observe(n->pub, &c->view);
-          vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id);
+          vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames);
           if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
         } else {
           VLFF_WARN(TAG, "keyframe %lld does not fit the keyframe store: %s", c->id, strerror(errno));
@@ -653,10 +654,13 @@ static void do_publish(struct vlff_node *n) {
   struct vlff_publish_result r;
   const char *texts[VLFF_MAX_PROMPTS];
   for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
+  double t0 = mono_s();
   if (vlff_publisher_publish(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
     VLFF_ERROR(TAG, "publish failed: %s", err);
     return;
   }
+  VLFF_DEBUG(TAG, "published map v%llu in %.0f ms: %zu labelled, %zu free, %zu unknown voxels",
+             (unsigned long long)r.version, (mono_s() - t0) * 1e3, r.labelled, r.free_voxels, r.unknown);
   uint64_t now = vlff_shm_now_ns();
   for (int i = 0; i < n->pending_lat; i++) {
     double ms = (double)(now - n->pending_t_host[i]) * 1e-6;
@@ -813,7 +817,9 @@ static void *trainer_main(void *arg) {
       rate_t0 = now;
       rate_steps = 0;
     }
-    if (publish_now || now >= next_publish) {
+    /* An untrained field has nothing to say: readers see version 0 until
+     * the first step, and the heartbeat says the writer is alive. */
+    if ((publish_now || now >= next_publish) && vlff_field_steps(n->field) > 0) {
       do_publish(n);
       next_publish = now + 1.0 / cfg->publish.rate_hz;
     } else {
