@@ -35,7 +35,7 @@ int guarded(const char *where, char *err, size_t errlen, F &&f) {
 
 // GenICam names a Bayer pattern by the first row's first two pixels; OpenCV
 // names it by the second row's second and third. Hence the apparent swap.
-int bayer_code(vlff_pix fmt) {
+int bayer_code(vlff_pix_t fmt) {
   switch (fmt) {
   case VLFF_PIX_BAYER_RG8: return cv::COLOR_BayerBG2RGB;
   case VLFF_PIX_BAYER_BG8: return cv::COLOR_BayerRG2RGB;
@@ -61,7 +61,7 @@ struct vlff_cv_stereo {
   int w, h;
 };
 
-extern "C" int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlff_pix fmt,
+extern "C" int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlff_pix_t fmt,
                               uint8_t *dst, size_t dstride, char *err, size_t errlen) {
   return guarded("convert to RGB8", err, errlen, [&]() -> int {
     cv::Mat out(h, w, CV_8UC3, dst, dstride);

@@ -28,7 +28,7 @@ extern "C" {
 /* Convert one image of format fmt to packed RGB8. Bayer patterns are named
  * the GenICam way (the colour of the first two pixels of the first row).
  * Mono16 is not a colour format and is refused. */
-int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, enum vlff_pix fmt, uint8_t *dst,
+int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlff_pix_t fmt, uint8_t *dst,
                    size_t dstride, char *err, size_t errlen);
 
 /* A pinhole + Brown-Conrady (k1 k2 p1 p2 k3) undistortion for a fixed image

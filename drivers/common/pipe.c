@@ -19,7 +19,7 @@
 
 struct vlff_pipe {
   struct vlff_config cfg;
-  enum vlff_pix pix;
+  vlff_pix_t pix;
   double k[4];                  /* intrinsics from config or calibration */
   double dist[5];
   bool undistort;
@@ -55,7 +55,7 @@ int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err
   const __typeof__(cfg->camera) *c = &cfg->camera;
   if (c->kind != VLFF_CAM_ARAVIS && c->kind != VLFF_CAM_LIBCAMERA)
     BAD("camera.kind", "expected aravis or libcamera (vlff-camd drives real cameras), got sim");
-  enum vlff_pix pix = vlff_pix_from_name(c->pixel_format);
+  vlff_pix_t pix = vlff_pix_from_name(c->pixel_format);
   if (pix == VLFF_PIX_INVALID)
     BAD("camera.pixel_format", "expected one of %s, got '%s'", vlff_pix_names(), c->pixel_format);
   if (c->depth == VLFF_DEPTH_STREAM && pix != VLFF_PIX_MONO16)
@@ -149,7 +149,7 @@ void vlff_pipe_free(struct vlff_pipe *p) {
 }
 
 const struct vlff_pipe_stats *vlff_pipe_stats(const struct vlff_pipe *p) { return &p->st; }
-enum vlff_pix vlff_pipe_pix(const struct vlff_pipe *p) { return p->pix; }
+vlff_pix_t vlff_pipe_pix(const struct vlff_pipe *p) { return p->pix; }
 
 static void drop(struct vlff_pipe *p, uint64_t *counter, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
@@ -318,8 +318,10 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
   memcpy(f.intrinsics, p->k, sizeof f.intrinsics);
   f.pose_valid = false;
   if (poses && poses->lookup &&
-      poses->lookup(poses->ctx, raw->host_ns, p->cfg.source.pose_tolerance_s, f.pose, &f.pose_ns) == 0) {
+      poses->lookup(poses->ctx, raw->host_ns, p->cfg.source.pose_tolerance_s, f.pose, &f.pose_ns,
+                    &f.pose_untrusted) == 0) {
     f.pose_valid = true;
+    if (f.pose_untrusted) p->st.no_pose++;
   } else {
     p->st.no_pose++;
     memset(f.pose, 0, sizeof f.pose);

@@ -31,7 +31,7 @@ struct vlff_raw_frame {
   size_t size;            /* bytes available at data */
   size_t stride;          /* bytes per row */
   int width, height;
-  enum vlff_pix pix;
+  vlff_pix_t pix;
   uint64_t device_frame_id;
   uint64_t device_ns, host_ns;
 };
@@ -55,6 +55,6 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
                    const struct vlff_pose_source *poses);
 const struct vlff_pipe_stats *vlff_pipe_stats(const struct vlff_pipe *p);
 /* The pixel format the camera is configured to deliver. */
-enum vlff_pix vlff_pipe_pix(const struct vlff_pipe *p);
+vlff_pix_t vlff_pipe_pix(const struct vlff_pipe *p);
 
 #endif

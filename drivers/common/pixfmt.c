@@ -4,7 +4,7 @@
 #include <string.h>
 
 static const struct {
-  enum vlff_pix pix;
+  vlff_pix_t pix;
   const char *name;
   size_t bytes;
 } table[] = {
@@ -16,25 +16,25 @@ static const struct {
 
 #define N (sizeof table / sizeof table[0])
 
-enum vlff_pix vlff_pix_from_name(const char *name) {
+vlff_pix_t vlff_pix_from_name(const char *name) {
   for (size_t i = 0; i < N; i++)
     if (!strcmp(table[i].name, name)) return table[i].pix;
   return VLFF_PIX_INVALID;
 }
 
-const char *vlff_pix_name(enum vlff_pix pix) {
+const char *vlff_pix_name(vlff_pix_t pix) {
   for (size_t i = 0; i < N; i++)
     if (table[i].pix == pix) return table[i].name;
   return "invalid";
 }
 
-size_t vlff_pix_bytes(enum vlff_pix pix) {
+size_t vlff_pix_bytes(vlff_pix_t pix) {
   for (size_t i = 0; i < N; i++)
     if (table[i].pix == pix) return table[i].bytes;
   return 0;
 }
 
-int vlff_pix_is_bayer(enum vlff_pix pix) {
+int vlff_pix_is_bayer(vlff_pix_t pix) {
   return pix == VLFF_PIX_BAYER_RG8 || pix == VLFF_PIX_BAYER_BG8 || pix == VLFF_PIX_BAYER_GR8 ||
          pix == VLFF_PIX_BAYER_GB8;
 }

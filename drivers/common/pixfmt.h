@@ -12,23 +12,17 @@
 
 #include <stddef.h>
 
-enum vlff_pix {
-  VLFF_PIX_INVALID = 0,
-  VLFF_PIX_MONO8,
-  VLFF_PIX_MONO16,
-  VLFF_PIX_RGB8,
-  VLFF_PIX_BGR8,
-  VLFF_PIX_BAYER_RG8,
-  VLFF_PIX_BAYER_BG8,
-  VLFF_PIX_BAYER_GR8,
-  VLFF_PIX_BAYER_GB8,
-};
+/* The formats are the frame ring's (enum vlff_pixfmt of vlff/shm.h), so a
+ * raw camera format and a ring plane format are one vocabulary. */
+#include <vlff/shm.h>
+#define VLFF_PIX_INVALID VLFF_PIX_NONE
+typedef enum vlff_pixfmt vlff_pix_t;
 
-enum vlff_pix vlff_pix_from_name(const char *name);
-const char *vlff_pix_name(enum vlff_pix pix);
+vlff_pix_t vlff_pix_from_name(const char *name);
+const char *vlff_pix_name(vlff_pix_t pix);
 /* Bytes per pixel of the packed format (Bayer: one sample). 0 for INVALID. */
-size_t vlff_pix_bytes(enum vlff_pix pix);
-int vlff_pix_is_bayer(enum vlff_pix pix);
+size_t vlff_pix_bytes(vlff_pix_t pix);
+int vlff_pix_is_bayer(vlff_pix_t pix);
 /* Comma-separated list of accepted names, for error messages. */
 const char *vlff_pix_names(void);
 

@@ -43,7 +43,8 @@ struct vlff_sink_frame {
   uint64_t device_ns, host_ns;
   uint32_t sensor_id;
   double intrinsics[4];           /* fx fy cx cy; zeros = unknown */
-  bool pose_valid;                /* false: no trustworthy pose, learner skips */
+  bool pose_valid;                /* false: no pose within tolerance, learner skips */
+  bool pose_untrusted;            /* the tracker flagged it (lost / low quality) */
   double pose[16];                /* camera-to-world, row-major */
   uint64_t pose_ns;
 };
@@ -56,9 +57,11 @@ struct vlff_sink {
 };
 
 /* Pose lookup by host timestamp (external SLAM through the pose ring).
- * Returns 0 with pose and its timestamp when one lies within tol_s, else -1. */
+ * Returns 0 with pose, its timestamp and whether the tracker flagged it
+ * untrusted when one lies within tol_s, else -1. */
 struct vlff_pose_source {
-  int (*lookup)(void *ctx, uint64_t t_ns, double tol_s, double pose[16], uint64_t *pose_ns);
+  int (*lookup)(void *ctx, uint64_t t_ns, double tol_s, double pose[16], uint64_t *pose_ns,
+                bool *untrusted);
   void *ctx;
 };
 
