@@ -146,7 +146,7 @@ struct vlff_ring_params {
 struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_params *params);
 
 /* Attaches as a consumer, read-only: validates magic, ABI version, kind, sizes and
- * that the file is as large as the header says. The read cursor starts at the newest
+ * that the file is as large as the header says. The read cursor starts after the newest
  * committed record (live data, not history); see vlff_ring_seek_oldest(). */
 struct vlff_ring *vlff_ring_attach(const char *name, uint32_t record_kind);
 
