@@ -13,6 +13,8 @@
 #include "aravis.h"
 
 #include <arv.h>
+#include <errno.h>
+#include <stdbool.h>
 #include <math.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -56,8 +58,15 @@ static void on_control_lost(ArvDevice *dev, gpointer data) {
 }
 
 /* A GError from setting a feature becomes "key: message" and frees it. */
+static int open_errno; /* why the last open failed: ENODEV (retry) or EINVAL */
+
 static int gfail(GError **e, char *err, size_t errlen, const char *key, const char *what) {
   snprintf(err, errlen, "key '%s': %s: %s", key, what, *e ? (*e)->message : "failed");
+  /* A camera that stops answering mid-configuration is gone, not misconfigured. */
+  bool gone = *e && (*e)->domain == ARV_DEVICE_ERROR &&
+              ((*e)->code == ARV_DEVICE_ERROR_TIMEOUT || (*e)->code == ARV_DEVICE_ERROR_NOT_CONNECTED ||
+               (*e)->code == ARV_DEVICE_ERROR_TRANSFER_ERROR);
+  open_errno = gone ? ENODEV : EINVAL;
   g_clear_error(e);
   return -1;
 }
@@ -213,8 +222,12 @@ struct vlff_arv *vlff_arv_open(const struct vlff_config *cfg, char *err, size_t 
   snprintf(a->name, sizeof a->name, "%s", cfg->camera.device[0] ? cfg->camera.device : "(first found)");
   atomic_init(&a->lost, false);
   GError *e = NULL;
+  open_errno = EINVAL;
   a->cam = connect(cfg->camera.device, err, errlen);
-  if (!a->cam) goto fail;
+  if (!a->cam) {
+    open_errno = ENODEV;
+    goto fail;
+  }
   ArvDevice *dev = arv_camera_get_device(a->cam);
   a->lost_handler = g_signal_connect(dev, "control-lost", G_CALLBACK(on_control_lost), a);
   if (configure(a, err, errlen)) goto fail;
@@ -245,6 +258,7 @@ struct vlff_arv *vlff_arv_open(const struct vlff_config *cfg, char *err, size_t 
   return a;
 fail:
   vlff_arv_close(a);
+  errno = open_errno;
   return NULL;
 }
 

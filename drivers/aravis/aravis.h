@@ -7,7 +7,9 @@
  *    camera), sets every feature from the config explicitly (cameras keep
  *    register values across connections), allocates the buffer pool and
  *    starts acquisition. Returns NULL with err filled; errors about a value
- *    name the config key ("camera.offset_x: ...").
+ *    name the config key ("camera.offset_x: ..."). errno tells the caller
+ *    what to do: ENODEV = camera unreachable (retry later), EINVAL = the
+ *    camera refuses the configuration (retrying will not help).
  *  - vlff_arv_grab() waits up to timeout_ms for one buffer and passes a
  *    complete one through the pipeline into the sink. Returns 1 (frame
  *    committed), 0 (nothing, or a dropped frame; see the stats), or -1 when

@@ -34,6 +34,8 @@ struct vlff_pipe {
   uint16_t *u16_scratch;
   size_t scratch_size;
   struct vlff_pipe_stats st;
+  struct vlff_stamps *stamps;
+  uint64_t stamp_window_ns;
   uint64_t drops_logged;
 };
 
@@ -149,6 +151,11 @@ void vlff_pipe_free(struct vlff_pipe *p) {
 }
 
 const struct vlff_pipe_stats *vlff_pipe_stats(const struct vlff_pipe *p) { return &p->st; }
+
+void vlff_pipe_set_stamps(struct vlff_pipe *p, struct vlff_stamps *q, uint64_t window_ns) {
+  p->stamps = q;
+  p->stamp_window_ns = window_ns;
+}
 vlff_pix_t vlff_pipe_pix(const struct vlff_pipe *p) { return p->pix; }
 
 static void drop(struct vlff_pipe *p, uint64_t *counter, const char *fmt, ...)
@@ -262,7 +269,7 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
   }
 
   struct vlff_sink_frame f = {.width = w, .height = h};
-  f.has_color = p->cfg.camera.depth != VLFF_DEPTH_STREAM;
+  f.color_format = p->cfg.camera.depth == VLFF_DEPTH_STREAM ? VLFF_PIX_MONO16 : VLFF_PIX_RGB8;
   if (p->cfg.camera.depth != VLFF_DEPTH_NONE)
     f.depth_format = p->cfg.camera.depth_unit == VLFF_DEPTH_UNIT_MM ? VLFF_DEPTH_FMT_U16_MM : VLFF_DEPTH_FMT_F32_M;
   if (sink->reserve(sink, &f, err, sizeof err)) {
@@ -272,6 +279,8 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
 
   int rc = 0;
   if (p->cfg.camera.depth == VLFF_DEPTH_STREAM) {
+    for (int y = 0; y < h; y++)
+      memcpy(f.color + (size_t)y * f.color_stride, (const char *)raw->data + (size_t)y * raw->stride, (size_t)w * 2);
     if (p->und) {
       rc = vlff_cv_undistort_apply(p->und, raw->data, raw->stride, p->u16_scratch, (size_t)w * 2, 1, 2, err,
                                    sizeof err);
@@ -314,11 +323,18 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
   f.device_frame_id = raw->device_frame_id;
   f.device_ns = raw->device_ns;
   f.host_ns = raw->host_ns;
+  if (p->stamps) {
+    uint64_t t = vlff_stamps_match(p->stamps, raw->host_ns, p->stamp_window_ns);
+    if (t) {
+      f.host_ns = t;
+      p->st.trigger_stamped++;
+    }
+  }
   f.sensor_id = (uint32_t)p->cfg.camera.sensor_id;
   memcpy(f.intrinsics, p->k, sizeof f.intrinsics);
   f.pose_valid = false;
   if (poses && poses->lookup &&
-      poses->lookup(poses->ctx, raw->host_ns, p->cfg.source.pose_tolerance_s, f.pose, &f.pose_ns,
+      poses->lookup(poses->ctx, f.host_ns, p->cfg.source.pose_tolerance_s, f.pose, &f.pose_ns,
                     &f.pose_untrusted) == 0) {
     f.pose_valid = true;
     if (f.pose_untrusted) p->st.no_pose++;

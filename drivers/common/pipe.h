@@ -25,6 +25,7 @@
 #include "config.h"
 #include "pixfmt.h"
 #include "sink.h"
+#include "stamps.h"
 
 struct vlff_raw_frame {
   const void *data;
@@ -43,6 +44,7 @@ struct vlff_pipe_stats {
   uint64_t dropped_convert;  /* OpenCV refused it */
   uint64_t dropped_sink;     /* no slot (too large) */
   uint64_t no_pose;          /* committed but marked without a trustworthy pose */
+  uint64_t trigger_stamped;  /* host time taken from a matched GPIO pulse/edge */
 };
 
 int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err, size_t errlen);
@@ -53,6 +55,10 @@ void vlff_pipe_free(struct vlff_pipe *p);
 /* poses may be NULL: frames are then committed without a pose. */
 int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct vlff_sink *sink,
                    const struct vlff_pose_source *poses);
+/* Stamp frames with the trigger (GPIO pulse or edge) that exposed them: the
+ * newest stamp within window_ns before a frame's arrival replaces its host
+ * timestamp. q is borrowed and must outlive the pipeline. */
+void vlff_pipe_set_stamps(struct vlff_pipe *p, struct vlff_stamps *q, uint64_t window_ns);
 const struct vlff_pipe_stats *vlff_pipe_stats(const struct vlff_pipe *p);
 /* The pixel format the camera is configured to deliver. */
 vlff_pix_t vlff_pipe_pix(const struct vlff_pipe *p);

@@ -11,7 +11,8 @@
  *  - reserve() returns 0, or -1 with err filled (frame larger than a slot,
  *    sink closed); the producer drops and counts that frame. A sink never
  *    blocks the producer.
- *  - Plane formats: colour is packed RGB8; depth is uint16 millimetres or
+ *  - Plane formats: colour is packed RGB8 (a range camera's raw Mono16 image
+ *    for depth: stream); depth is uint16 millimetres or
  *    float32 metres, 0 meaning "no valid depth" (the validity mask).
  *  - Timestamps are nanoseconds: device_ns on the camera's clock, host_ns on
  *    this host's CLOCK_MONOTONIC.
@@ -30,7 +31,7 @@ enum vlff_depth_fmt { VLFF_DEPTH_FMT_NONE = 0, VLFF_DEPTH_FMT_U16_MM, VLFF_DEPTH
 struct vlff_sink_frame {
   /* In to reserve(): */
   int width, height;
-  bool has_color;
+  int color_format;               /* VLFF_PIX_RGB8, or VLFF_PIX_MONO16 for a raw range image */
   int depth_format;               /* enum vlff_depth_fmt */
   /* Out of reserve(): */
   uint8_t *color;
