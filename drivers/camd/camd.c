@@ -245,7 +245,7 @@ int main(int argc, char **argv) {
   bool ever_open = false;
   while (!stop_req) {
     if (max_seconds > 0 && (double)(mono_ns() - t0) * 1e-9 >= max_seconds) break;
-    if (max_frames > 0 && vlff_pipe_stats(pipe)->committed >= (uint64_t)max_frames) break;
+    if (max_frames > 0 && vlff_pipe_get_stats(pipe)->committed >= (uint64_t)max_frames) break;
     if (!cam) {
       uint64_t now = mono_ns();
       if (now < next_try) {
@@ -312,7 +312,7 @@ int main(int argc, char **argv) {
   vlff_gpio_out_stop(gout);
   vlff_gpio_in_stop(gin);
 #endif
-  const struct vlff_pipe_stats *st = vlff_pipe_stats(pipe);
+  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(pipe);
   printf("vlff-camd: committed=%llu incomplete=%llu dropped=%llu timeouts=%llu lost=%llu reconnects=%llu "
          "triggers=%llu trigger_failures=%llu no_pose=%llu trigger_stamped=%llu pulses=%llu edges=%llu\n",
          (unsigned long long)st->committed, (unsigned long long)incomplete,

@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "cvshim.h"
+#include "stamps.h"
 #include "log.h"
 
 #define TAG "pipe"
@@ -150,7 +151,7 @@ void vlff_pipe_free(struct vlff_pipe *p) {
   free(p);
 }
 
-const struct vlff_pipe_stats *vlff_pipe_stats(const struct vlff_pipe *p) { return &p->st; }
+const struct vlff_pipe_stats *vlff_pipe_get_stats(const struct vlff_pipe *p) { return &p->st; }
 
 void vlff_pipe_set_stamps(struct vlff_pipe *p, struct vlff_stamps *q, uint64_t window_ns) {
   p->stamps = q;

@@ -25,7 +25,11 @@
 #include "config.h"
 #include "pixfmt.h"
 #include "sink.h"
-#include "stamps.h"
+struct vlff_stamps;
+
+#ifdef __cplusplus
+extern "C" {
+#endif
 
 struct vlff_raw_frame {
   const void *data;
@@ -59,8 +63,12 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
  * newest stamp within window_ns before a frame's arrival replaces its host
  * timestamp. q is borrowed and must outlive the pipeline. */
 void vlff_pipe_set_stamps(struct vlff_pipe *p, struct vlff_stamps *q, uint64_t window_ns);
-const struct vlff_pipe_stats *vlff_pipe_stats(const struct vlff_pipe *p);
+const struct vlff_pipe_stats *vlff_pipe_get_stats(const struct vlff_pipe *p);
 /* The pixel format the camera is configured to deliver. */
 vlff_pix_t vlff_pipe_pix(const struct vlff_pipe *p);
+
+#ifdef __cplusplus
+}
+#endif
 
 #endif

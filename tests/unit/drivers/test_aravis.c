@@ -103,7 +103,7 @@ static void test_mono8_pattern_and_timestamps(void **state) {
       assert_true(newer->device_frame_id > f->device_frame_id);
     }
   }
-  const struct vlff_pipe_stats *st = vlff_pipe_stats(p);
+  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(p);
   assert_int_equal(st->committed, 8);
   assert_int_equal(st->dropped_format + st->dropped_short + st->dropped_convert + st->dropped_sink, 0);
   vlff_memsink_free(m);
@@ -241,8 +241,8 @@ static void test_lossy_link_counts_incomplete(void **state) {
   const struct vlff_arv_stats *st = vlff_arv_stats(a);
   /* Every popped buffer is either committed or counted as incomplete. */
   assert_true(st->incomplete > 0);
-  assert_true(vlff_pipe_stats(p)->committed > 0);
-  assert_int_equal(st->buffers, vlff_pipe_stats(p)->committed + st->incomplete);
+  assert_true(vlff_pipe_get_stats(p)->committed > 0);
+  assert_int_equal(st->buffers, vlff_pipe_get_stats(p)->committed + st->incomplete);
   /* Whatever was committed is intact. */
   for (int i = 0; i < 4 && vlff_memsink_get(m, i); i++) {
     const struct vlff_sink_frame *f = vlff_memsink_get(m, i);
