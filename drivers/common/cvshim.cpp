@@ -134,8 +134,7 @@ static int read_mat(const cv::FileStorage &fs, const char *key, double *out, int
   if (m.empty()) return 1;
   m.convertTo(m, CV_64F);
   int n = (int)m.total();
-  if ((!allow_short && n != rows * cols) || n < 4 || (allow_short && n > 14) ||
-      (!allow_short && (m.rows * m.cols != rows * cols))) {
+  if (allow_short ? (n < 4 || n > 14) : n != rows * cols) {
     char what[160];
     std::snprintf(what, sizeof what, "key '%s': expected %dx%d matrix, got %dx%d", key, rows, cols,
                   m.rows, m.cols);
