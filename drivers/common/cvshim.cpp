@@ -3,6 +3,7 @@
 // exception unwinding into C frames is undefined behaviour.
 #include "cvshim.h"
 
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -157,6 +158,13 @@ extern "C" int vlff_cv_calib_load(const char *path, struct vlff_cv_calib *out, c
                                   size_t errlen) {
   std::memset(out, 0, sizeof *out);
   return guarded(path, err, errlen, [&]() -> int {
+    // Check first: OpenCV would also print its own error line to stderr.
+    if (FILE *f = std::fopen(path, "r")) {
+      std::fclose(f);
+    } else {
+      set_err(err, errlen, path, std::strerror(errno));
+      return -1;
+    }
     cv::FileStorage fs(path, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
     if (!fs.isOpened()) {
       set_err(err, errlen, path, "cannot open as OpenCV calibration YAML");

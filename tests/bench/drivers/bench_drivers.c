@@ -171,7 +171,7 @@ int main(void) {
   }
   double fb = 0, fc = 0, cb = 0, cc = 0;
   for (int round = 0; round < 2; round++) {
-    double cpu_b, cpu_c;
+    double cpu_b = 0, cpu_c = 0;
     double b = bare(&cpu_b), c = camd(&cpu_c);
     printf("round %d: bare %.1f fps (%.2f ms CPU/frame), vlff-camd %.1f fps (%.2f ms CPU/frame)\n", round, b, cpu_b, c,
            cpu_c);
