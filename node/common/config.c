@@ -52,6 +52,7 @@ static const char *const camera_kinds[] = {"aravis", "libcamera", "sim", NULL};
 static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
 static const char *const depth_kinds[] = {"none", "stream", "stereo", NULL};
+static const char *const depth_units[] = {"mm", "m", NULL};
 
 static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
@@ -185,6 +186,8 @@ static const struct key schema[] = {
     DVEC("camera.distortion", camera.distortion, -1e3, 1e3, zero5),
     STR("camera.calibration", camera.calibration, ""),
     ENUM("camera.depth", camera.depth, depth_kinds, "none"),
+    ENUM("camera.depth_unit", camera.depth_unit, depth_units, "mm"),
+    DBL("camera.depth_scale_m", camera.depth_scale_m, 1e-6, 1, 0.001),
     DBL("camera.stereo_baseline_m", camera.stereo_baseline_m, 0, 10, 0),
     INT("camera.stereo_disparities", camera.stereo_disparities, 16, 1024, 64),
     DBL("camera.reconnect_max_s", camera.reconnect_max_s, 0.1, 3600, 5),

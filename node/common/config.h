@@ -38,6 +38,7 @@ enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA, VLFF_CAM_SIM };
 enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
 enum vlff_gpio_mode { VLFF_GPIO_OFF, VLFF_GPIO_OUTPUT, VLFF_GPIO_INPUT };
 enum vlff_depth_kind { VLFF_DEPTH_NONE, VLFF_DEPTH_STREAM, VLFF_DEPTH_STEREO };
+enum vlff_depth_unit { VLFF_DEPTH_UNIT_MM, VLFF_DEPTH_UNIT_M };
 
 struct vlff_prompt_set {
   char name[VLFF_PROMPT_LEN];
@@ -180,6 +181,8 @@ struct vlff_config {
     double distortion[5];            /* k1 k2 p1 p2 k3 */
     char calibration[VLFF_CFG_PATH]; /* OpenCV calibration YAML */
     int depth;                       /* enum vlff_depth_kind */
+    int depth_unit;                  /* enum vlff_depth_unit of the depth plane */
+    double depth_scale_m;            /* metres per count of a Mono16 range stream */
     double stereo_baseline_m;
     int stereo_disparities;
     double reconnect_max_s;

@@ -1,0 +1,280 @@
+// OpenCV behind a C interface (see cvshim.h). Every entry point is a
+// try/catch wall: OpenCV reports bad input by throwing cv::Exception, and an
+// exception unwinding into C frames is undefined behaviour.
+#include "cvshim.h"
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <new>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace {
+
+void set_err(char *err, size_t errlen, const char *where, const char *what) {
+  if (err && errlen) std::snprintf(err, errlen, "%s: %s", where, what);
+}
+
+template <typename F>
+int guarded(const char *where, char *err, size_t errlen, F &&f) {
+  try {
+    return f();
+  } catch (const cv::Exception &e) {
+    set_err(err, errlen, where, e.err.c_str());
+  } catch (const std::exception &e) {
+    set_err(err, errlen, where, e.what());
+  } catch (...) {
+    set_err(err, errlen, where, "unknown C++ exception");
+  }
+  return -1;
+}
+
+// GenICam names a Bayer pattern by the first row's first two pixels; OpenCV
+// names it by the second row's second and third. Hence the apparent swap.
+int bayer_code(vlff_pix_t fmt) {
+  switch (fmt) {
+  case VLFF_PIX_BAYER_RG8: return cv::COLOR_BayerBG2RGB;
+  case VLFF_PIX_BAYER_BG8: return cv::COLOR_BayerRG2RGB;
+  case VLFF_PIX_BAYER_GR8: return cv::COLOR_BayerGB2RGB;
+  case VLFF_PIX_BAYER_GB8: return cv::COLOR_BayerGR2RGB;
+  default: return -1;
+  }
+}
+
+}  // namespace
+
+struct vlff_cv_undistort {
+  cv::Mat map1, map2;
+  int w, h;
+};
+
+struct vlff_cv_stereo {
+  cv::Mat lmap1, lmap2, rmap1, rmap2;
+  cv::Ptr<cv::StereoSGBM> sgbm;
+  cv::Mat rect_r, gray_l, gray_r, disp;
+  double k[4];
+  double baseline;
+  int w, h;
+};
+
+extern "C" int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlff_pix_t fmt,
+                              uint8_t *dst, size_t dstride, char *err, size_t errlen) {
+  return guarded("convert to RGB8", err, errlen, [&]() -> int {
+    cv::Mat out(h, w, CV_8UC3, dst, dstride);
+    void *s = const_cast<void *>(src);
+    switch (fmt) {
+    case VLFF_PIX_RGB8: cv::Mat(h, w, CV_8UC3, s, sstride).copyTo(out); return 0;
+    case VLFF_PIX_BGR8: cv::cvtColor(cv::Mat(h, w, CV_8UC3, s, sstride), out, cv::COLOR_BGR2RGB); return 0;
+    case VLFF_PIX_MONO8: cv::cvtColor(cv::Mat(h, w, CV_8UC1, s, sstride), out, cv::COLOR_GRAY2RGB); return 0;
+    default: break;
+    }
+    int code = bayer_code(fmt);
+    if (code < 0) {
+      set_err(err, errlen, "convert to RGB8", "pixel format is not a colour format");
+      return -1;
+    }
+    if (w < 2 || h < 2) {
+      set_err(err, errlen, "convert to RGB8", "Bayer image smaller than 2x2");
+      return -1;
+    }
+    cv::cvtColor(cv::Mat(h, w, CV_8UC1, s, sstride), out, code);
+    // cvtColor reallocates instead of failing when the sizes disagree; that
+    // would silently leave the slot unwritten.
+    if (out.data != dst) {
+      set_err(err, errlen, "convert to RGB8", "output was reallocated");
+      return -1;
+    }
+    return 0;
+  });
+}
+
+extern "C" struct vlff_cv_undistort *vlff_cv_undistort_new(int w, int h, const double k[4],
+                                                           const double dist[5], char *err,
+                                                           size_t errlen) {
+  vlff_cv_undistort *u = nullptr;
+  int rc = guarded("undistortion maps", err, errlen, [&]() -> int {
+    u = new vlff_cv_undistort();
+    u->w = w;
+    u->h = h;
+    cv::Matx33d K(k[0], 0, k[2], 0, k[1], k[3], 0, 0, 1);
+    cv::Mat D(1, 5, CV_64F, const_cast<double *>(dist));
+    cv::initUndistortRectifyMap(K, D, cv::noArray(), K, cv::Size(w, h), CV_16SC2, u->map1, u->map2);
+    return 0;
+  });
+  if (rc) {
+    delete u;
+    return nullptr;
+  }
+  return u;
+}
+
+extern "C" int vlff_cv_undistort_apply(struct vlff_cv_undistort *u, const void *src, size_t sstride,
+                                       void *dst, size_t dstride, int channels, int bytes_per_sample,
+                                       char *err, size_t errlen) {
+  return guarded("undistort", err, errlen, [&]() -> int {
+    int type = bytes_per_sample == 2 ? CV_MAKETYPE(CV_16U, channels) : CV_MAKETYPE(CV_8U, channels);
+    cv::Mat in(u->h, u->w, type, const_cast<void *>(src), sstride);
+    cv::Mat out(u->h, u->w, type, dst, dstride);
+    int interp = bytes_per_sample == 2 ? cv::INTER_NEAREST : cv::INTER_LINEAR;
+    cv::remap(in, out, u->map1, u->map2, interp, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+    return 0;
+  });
+}
+
+extern "C" void vlff_cv_undistort_free(struct vlff_cv_undistort *u) { delete u; }
+
+static int read_mat(const cv::FileStorage &fs, const char *key, double *out, int rows, int cols,
+                    bool allow_short, char *err, size_t errlen, const char *path) {
+  cv::Mat m;
+  fs[key] >> m;
+  if (m.empty()) return 1;
+  m.convertTo(m, CV_64F);
+  int n = (int)m.total();
+  if (allow_short ? (n < 4 || n > 14) : n != rows * cols) {
+    char what[160];
+    std::snprintf(what, sizeof what, "key '%s': expected %dx%d matrix, got %dx%d", key, rows, cols,
+                  m.rows, m.cols);
+    set_err(err, errlen, path, what);
+    return -1;
+  }
+  m = m.reshape(1, 1);
+  for (int i = 0; i < rows * cols; i++) out[i] = i < n ? m.at<double>(0, i) : 0.0;
+  for (int i = 0; i < rows * cols; i++)
+    if (!std::isfinite(out[i])) {
+      char what[160];
+      std::snprintf(what, sizeof what, "key '%s': element %d is not finite", key, i);
+      set_err(err, errlen, path, what);
+      return -1;
+    }
+  return 0;
+}
+
+extern "C" int vlff_cv_calib_load(const char *path, struct vlff_cv_calib *out, char *err,
+                                  size_t errlen) {
+  std::memset(out, 0, sizeof *out);
+  return guarded(path, err, errlen, [&]() -> int {
+    // Check first: OpenCV would also print its own error line to stderr.
+    if (FILE *f = std::fopen(path, "r")) {
+      std::fclose(f);
+    } else {
+      set_err(err, errlen, path, std::strerror(errno));
+      return -1;
+    }
+    cv::FileStorage fs(path, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
+    if (!fs.isOpened()) {
+      set_err(err, errlen, path, "cannot open as OpenCV calibration YAML");
+      return -1;
+    }
+    if (!fs["image_width"].empty()) fs["image_width"] >> out->width;
+    if (!fs["image_height"].empty()) fs["image_height"] >> out->height;
+    int a = read_mat(fs, "camera_matrix", out->k, 3, 3, false, err, errlen, path);
+    if (a < 0) return -1;
+    int b = read_mat(fs, "distortion_coefficients", out->dist, 1, 5, true, err, errlen, path);
+    if (b < 0) return -1;
+    out->has_mono = a == 0;
+    int s[6] = {
+        read_mat(fs, "M1", out->k1, 3, 3, false, err, errlen, path),
+        read_mat(fs, "D1", out->d1, 1, 5, true, err, errlen, path),
+        read_mat(fs, "M2", out->k2, 3, 3, false, err, errlen, path),
+        read_mat(fs, "D2", out->d2, 1, 5, true, err, errlen, path),
+        read_mat(fs, "R", out->r, 3, 3, false, err, errlen, path),
+        read_mat(fs, "T", out->t, 3, 1, false, err, errlen, path),
+    };
+    int present = 0;
+    for (int v : s) {
+      if (v < 0) return -1;
+      present += v == 0;
+    }
+    if (present != 0 && present != 6) {
+      set_err(err, errlen, path, "stereo calibration needs all of M1 D1 M2 D2 R T");
+      return -1;
+    }
+    out->has_stereo = present == 6;
+    if (!out->has_mono && !out->has_stereo) {
+      set_err(err, errlen, path, "neither camera_matrix nor stereo keys M1 D1 M2 D2 R T found");
+      return -1;
+    }
+    if (out->has_mono && !(out->k[0] > 0 && out->k[4] > 0)) {
+      set_err(err, errlen, path, "camera_matrix has non-positive focal length");
+      return -1;
+    }
+    return 0;
+  });
+}
+
+extern "C" struct vlff_cv_stereo *vlff_cv_stereo_new(const struct vlff_cv_calib *c, int w, int h,
+                                                     int disparities, char *err, size_t errlen) {
+  vlff_cv_stereo *s = nullptr;
+  int rc = guarded("stereo rectification", err, errlen, [&]() -> int {
+    if (!c->has_stereo) {
+      set_err(err, errlen, "stereo rectification", "calibration has no stereo keys (M1 D1 M2 D2 R T)");
+      return -1;
+    }
+    s = new vlff_cv_stereo();
+    s->w = w;
+    s->h = h;
+    cv::Mat K1(3, 3, CV_64F, const_cast<double *>(c->k1)), K2(3, 3, CV_64F, const_cast<double *>(c->k2));
+    cv::Mat D1(1, 5, CV_64F, const_cast<double *>(c->d1)), D2(1, 5, CV_64F, const_cast<double *>(c->d2));
+    cv::Mat R(3, 3, CV_64F, const_cast<double *>(c->r)), T(3, 1, CV_64F, const_cast<double *>(c->t));
+    cv::Mat R1, R2, P1, P2, Q;
+    cv::stereoRectify(K1, D1, K2, D2, cv::Size(w, h), R, T, R1, R2, P1, P2, Q,
+                      cv::CALIB_ZERO_DISPARITY, 0);
+    cv::initUndistortRectifyMap(K1, D1, R1, P1, cv::Size(w, h), CV_16SC2, s->lmap1, s->lmap2);
+    cv::initUndistortRectifyMap(K2, D2, R2, P2, cv::Size(w, h), CV_16SC2, s->rmap1, s->rmap2);
+    s->k[0] = P1.at<double>(0, 0);
+    s->k[1] = P1.at<double>(1, 1);
+    s->k[2] = P1.at<double>(0, 2);
+    s->k[3] = P1.at<double>(1, 2);
+    s->baseline = cv::norm(T);
+    if (!(s->k[0] > 0) || !(s->baseline > 0)) {
+      set_err(err, errlen, "stereo rectification", "degenerate calibration (focal length or baseline is 0)");
+      return -1;
+    }
+    int nd = (disparities + 15) / 16 * 16;
+    int block = 5;
+    s->sgbm = cv::StereoSGBM::create(0, nd, block, 8 * 3 * block * block, 32 * 3 * block * block, 1,
+                                     63, 10, 100, 2, cv::StereoSGBM::MODE_SGBM);
+    return 0;
+  });
+  if (rc) {
+    delete s;
+    return nullptr;
+  }
+  return s;
+}
+
+extern "C" void vlff_cv_stereo_geometry(const struct vlff_cv_stereo *s, double k[4], double *baseline_m) {
+  std::memcpy(k, s->k, sizeof s->k);
+  *baseline_m = s->baseline;
+}
+
+extern "C" int vlff_cv_stereo_compute(struct vlff_cv_stereo *s, const uint8_t *left, size_t lstride,
+                                      const uint8_t *right, size_t rstride, uint8_t *rect_left,
+                                      size_t rect_stride, float *depth_m, size_t depth_stride,
+                                      char *err, size_t errlen) {
+  return guarded("stereo depth", err, errlen, [&]() -> int {
+    cv::Mat l(s->h, s->w, CV_8UC3, const_cast<uint8_t *>(left), lstride);
+    cv::Mat r(s->h, s->w, CV_8UC3, const_cast<uint8_t *>(right), rstride);
+    cv::Mat rl(s->h, s->w, CV_8UC3, rect_left, rect_stride);
+    cv::remap(l, rl, s->lmap1, s->lmap2, cv::INTER_LINEAR);
+    cv::remap(r, s->rect_r, s->rmap1, s->rmap2, cv::INTER_LINEAR);
+    cv::cvtColor(rl, s->gray_l, cv::COLOR_RGB2GRAY);
+    cv::cvtColor(s->rect_r, s->gray_r, cv::COLOR_RGB2GRAY);
+    s->sgbm->compute(s->gray_l, s->gray_r, s->disp);
+    const double fb = s->k[0] * s->baseline;
+    for (int y = 0; y < s->h; y++) {
+      const int16_t *d = s->disp.ptr<int16_t>(y);
+      float *o = (float *)((char *)depth_m + (size_t)y * depth_stride);
+      for (int x = 0; x < s->w; x++)
+        o[x] = d[x] > 0 ? (float)(fb * 16.0 / d[x]) : 0.0f; // SGBM disparities are fixed-point x16
+    }
+    return 0;
+  });
+}
+
+extern "C" void vlff_cv_stereo_free(struct vlff_cv_stereo *s) { delete s; }

@@ -1,0 +1,283 @@
+/*
+ * vlff-camd end to end: the real binary streams Aravis' fake GigE camera
+ * into a real frame ring, read back here as a consumer through libvlff-shm.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <errno.h>
+#include <fcntl.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+#include <vlff/shm.h>
+
+#include "fakecam.h"
+
+static pid_t cam_pid = -1;
+static char ring_name[64], cfg_path[256], out_path[256];
+static int case_no;
+
+static void sleep_ms(int ms) {
+  struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+  while (nanosleep(&ts, &ts) && errno == EINTR) {}
+}
+
+static int setup(void **state) {
+  (void)state;
+  cam_pid = fakecam_start(0);
+  return cam_pid > 0 ? 0 : -1;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  fakecam_stop(cam_pid);
+  return 0;
+}
+
+/* Writes a config with a unique ring name; extra is appended to camera:. */
+static void write_cfg(const char *fmt, int w, int h, const char *camera_extra) {
+  snprintf(ring_name, sizeof ring_name, "/vlff-test-camd-%d-%d", (int)getpid(), ++case_no);
+  snprintf(cfg_path, sizeof cfg_path, "/tmp/vlff-test-camd-%d-%d.yaml", (int)getpid(), case_no);
+  snprintf(out_path, sizeof out_path, "/tmp/vlff-test-camd-%d-%d.out", (int)getpid(), case_no);
+  FILE *f = fopen(cfg_path, "w");
+  assert_non_null(f);
+  fprintf(f,
+          "node:\n  log_level: warn\nshm:\n  ring: %s\n  pose_ring: %s-poses\n  ring_slots: 64\n"
+          "  max_width: 640\n  max_height: 480\n"
+          "camera:\n  kind: aravis\n  device: 127.0.0.1\n  pixel_format: %s\n  width: %d\n  height: %d\n"
+          "  frame_rate: 40\n  reconnect_max_s: 0.5\n%s%s",
+          ring_name, ring_name, fmt, w, h,
+          camera_extra && strstr(camera_extra, "intrinsics:") ? "" : "  intrinsics: [500, 500, 160, 120]\n",
+          camera_extra ? camera_extra : "");
+  fclose(f);
+}
+
+static pid_t spawn_camd(const char *args) {
+  pid_t parent = getpid();
+  pid_t pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (getppid() != parent) _exit(1);
+    int fd = open(out_path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) dup2(fd, 1);
+    char bin[512];
+    snprintf(bin, sizeof bin, "%s/drivers/camd/vlff-camd", getenv("VLFF_BINARY_DIR"));
+    char frames[32] = "";
+    if (args) snprintf(frames, sizeof frames, "%s", args);
+    if (frames[0])
+      execl(bin, bin, "--config", cfg_path, "--frames", frames, (char *)NULL);
+    else
+      execl(bin, bin, "--config", cfg_path, (char *)NULL);
+    _exit(127);
+  }
+  return pid;
+}
+
+static int wait_exit(pid_t pid, int timeout_s) {
+  for (int i = 0; i < timeout_s * 20; i++) {
+    int st;
+    if (waitpid(pid, &st, WNOHANG) == pid) return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+    sleep_ms(50);
+  }
+  kill(pid, SIGKILL);
+  waitpid(pid, NULL, 0);
+  return -1;
+}
+
+static struct vlff_ring *attach(void) {
+  for (int i = 0; i < 100; i++) {
+    struct vlff_ring *r = vlff_ring_attach(ring_name, VLFF_RECORD_FRAME);
+    if (r) return r;
+    sleep_ms(50);
+  }
+  fail_msg("ring %s never appeared: %s", ring_name, vlff_shm_last_message());
+  return NULL;
+}
+
+static uint64_t stat_of(const char *key) {
+  FILE *f = fopen(out_path, "r");
+  if (!f) return UINT64_MAX;
+  char line[1024] = "";
+  if (!fgets(line, sizeof line, f)) line[0] = 0;
+  fclose(f);
+  char pat[64];
+  snprintf(pat, sizeof pat, " %s=", key);
+  const char *p = strstr(line, pat);
+  return p ? strtoull(p + strlen(pat), NULL, 10) : UINT64_MAX;
+}
+
+static void cleanup(void) {
+  vlff_shm_unlink(ring_name);
+  unlink(cfg_path);
+  unlink(out_path);
+}
+
+static void check_frame(const void *rec, size_t len, int w, int h) {
+  assert_int_equal(vlff_frame_validate(rec, len), 0);
+  const struct vlff_frame_hdr *hd = rec;
+  assert_int_equal(hd->plane[VLFF_PLANE_COLOR].width, w);
+  assert_int_equal(hd->plane[VLFF_PLANE_COLOR].height, h);
+  assert_int_equal(hd->plane[VLFF_PLANE_COLOR].format, VLFF_PIX_RGB8);
+  assert_int_equal(hd->nplanes, 1);
+  assert_true(hd->flags & VLFF_FRAME_INTRINSICS_VALID);
+  assert_false(hd->flags & VLFF_FRAME_POSE_VALID); /* no SLAM publishing poses */
+  assert_true(hd->fx == 500.0 && hd->cy == 120.0);
+  const uint8_t *px = vlff_frame_plane(rec, VLFF_PLANE_COLOR);
+  uint32_t stride = hd->plane[VLFF_PLANE_COLOR].stride;
+  for (int y = 0; y < h; y += 3)
+    for (int x = 0; x < w; x += 7) {
+      uint8_t want = (uint8_t)((x + y + hd->frame_id) % 255);
+      const uint8_t *p = px + (size_t)y * stride + (size_t)x * 3;
+      if (p[0] != want || p[1] != want || p[2] != want)
+        fail_msg("frame %llu (%d,%d): %u, expected %u", (unsigned long long)hd->frame_id, x, y, p[0], want);
+    }
+}
+
+static void test_streams_n_frames(void **state) {
+  (void)state;
+  write_cfg("Mono8", 320, 240, NULL);
+  pid_t pid = spawn_camd("30");
+  struct vlff_ring *r = attach();
+  vlff_ring_seek_oldest(r);
+  size_t cap = vlff_ring_slot_size(r);
+  void *buf = malloc(cap);
+  uint64_t last_host = 0, last_dev = 0, last_id = 0;
+  int n = 0;
+  while (n < 30) {
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(r, buf, cap, &v, 5000000000ull);
+    if (len < 0) fail_msg("read: %s after %d frames", strerror(errno), n);
+    check_frame(buf, (size_t)len, 320, 240);
+    const struct vlff_frame_hdr *hd = buf;
+    if (n) {
+      assert_true(hd->t_host_ns > last_host);
+      assert_true(hd->t_device_ns > last_dev);
+      assert_true(hd->frame_id > last_id);
+    }
+    last_host = hd->t_host_ns, last_dev = hd->t_device_ns, last_id = hd->frame_id;
+    n++;
+  }
+  assert_int_equal(wait_exit(pid, 10), 0);
+  assert_int_equal(vlff_ring_head(r), 30);
+  assert_int_equal(vlff_ring_lost(r), 0);
+  assert_int_equal(stat_of("committed"), 30);
+  assert_int_equal(stat_of("dropped"), 0);
+  free(buf);
+  vlff_ring_close(r);
+  cleanup();
+}
+
+static void test_software_trigger_one_frame_each(void **state) {
+  (void)state;
+  write_cfg("Mono8", 160, 120, "  trigger: software\n");
+  pid_t pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach();
+  sleep_ms(800); /* camera opened and idle: no triggers, no frames */
+  assert_int_equal(vlff_ring_head(r), 0);
+  for (int i = 1; i <= 5; i++) {
+    kill(pid, SIGUSR1);
+    for (int k = 0; k < 100 && vlff_ring_head(r) < (uint64_t)i; k++) sleep_ms(20);
+    assert_int_equal(vlff_ring_head(r), i);
+    sleep_ms(200); /* > the fake camera's 25 Hz trigger tick: still one frame */
+    assert_int_equal(vlff_ring_head(r), i);
+  }
+  kill(pid, SIGTERM);
+  assert_int_equal(wait_exit(pid, 10), 0);
+  assert_int_equal(stat_of("committed"), 5);
+  assert_int_equal(stat_of("triggers"), 5);
+  vlff_ring_close(r);
+  cleanup();
+}
+
+static void test_reconnects_after_camera_restart(void **state) {
+  (void)state;
+  write_cfg("Mono8", 160, 120, NULL);
+  pid_t pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach();
+  for (int k = 0; k < 100 && vlff_ring_head(r) < 10; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= 10);
+  fakecam_kill(cam_pid);
+  sleep_ms(1500);
+  uint64_t during = vlff_ring_head(r);
+  cam_pid = fakecam_start(0);
+  assert_true(cam_pid > 0);
+  /* The ring stayed, the driver kept running, frames flow again. */
+  int k;
+  for (k = 0; k < 400 && vlff_ring_head(r) < during + 10; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= during + 10);
+  assert_int_equal(kill(pid, 0), 0);
+  uint32_t gen = vlff_ring_generation(r);
+  kill(pid, SIGTERM);
+  assert_int_equal(wait_exit(pid, 15), 0);
+  assert_int_equal(stat_of("lost"), 1);
+  assert_int_equal(stat_of("reconnects"), 1);
+  assert_int_equal(gen, 1); /* same ring generation throughout */
+  /* The newest frame after reconnection is whole and right. */
+  struct vlff_ring_view v;
+  void *buf = malloc(vlff_ring_slot_size(r));
+  ssize_t len = vlff_ring_read_latest(r, buf, vlff_ring_slot_size(r), &v);
+  assert_true(len > 0);
+  check_frame(buf, (size_t)len, 160, 120);
+  free(buf);
+  vlff_ring_close(r);
+  cleanup();
+}
+
+/* Bad configurations are refused before any camera is touched, naming the key. */
+static void test_bad_configs(void **state) {
+  (void)state;
+  static const struct {
+    const char *extra, *key;
+  } cases[] = {
+      {"  depth: stereo\n", "camera.calibration"},
+      {"  depth: stream\n", "camera.depth"},
+      {"  distortion: [0.1, 0, 0, 0, 0]\n  intrinsics: [0, 0, 0, 0]\n", "camera.distortion"},
+      {"  offset_x: 1900\n", "camera.offset_x"}, /* sensor is 2048 wide: the camera says so */
+      {"  calibration: /nonexistent/calib.yaml\n", "camera.calibration"},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    write_cfg("Mono8", 320, 240, cases[i].extra);
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "%s/drivers/camd/vlff-camd --config %s --frames 1 2>&1", getenv("VLFF_BINARY_DIR"),
+             cfg_path);
+    FILE *p = popen(cmd, "r");
+    char out[2048] = "";
+    size_t n = fread(out, 1, sizeof out - 1, p);
+    out[n] = 0;
+    int st = pclose(p);
+    if (!strstr(out, cases[i].key)) fail_msg("case %zu: output lacks '%s': %s", i, cases[i].key, out);
+    assert_int_equal(WEXITSTATUS(st), 2);
+    cleanup();
+  }
+  write_cfg("Mono9", 320, 240, NULL);
+  char cmd[1024];
+  snprintf(cmd, sizeof cmd, "%s/drivers/camd/vlff-camd --check-config %s 2>&1", getenv("VLFF_BINARY_DIR"), cfg_path);
+  FILE *p = popen(cmd, "r");
+  char out[2048] = "";
+  size_t n = fread(out, 1, sizeof out - 1, p);
+  out[n] = 0;
+  assert_int_equal(WEXITSTATUS(pclose(p)), 2);
+  assert_non_null(strstr(out, "camera.pixel_format"));
+  assert_non_null(strstr(out, "Mono9"));
+  cleanup();
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_streams_n_frames),
+      cmocka_unit_test(test_software_trigger_one_frame_each),
+      cmocka_unit_test(test_bad_configs),
+      cmocka_unit_test(test_reconnects_after_camera_restart),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
