@@ -29,7 +29,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   for (long i = 0; i < n && i < VLFF_CLIP_CONTEXT; i++)
     if (ids[i] < 0 || ids[i] >= VLFF_CLIP_VOCAB) abort();
   if (n < 0 && !err[0]) abort();
-  /* Every token is at least one input byte, so never more ids than bytes. */
-  if (n > (long)size) abort();
+  /* Cleaning grows text by at most 3 bytes for 2 (U+0130 -> i + U+0307). */
+  if (n > 2 * (long)size) abort();
   return 0;
 }
