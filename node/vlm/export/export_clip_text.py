@@ -9,10 +9,15 @@ Examples:
   export_clip_text.py --random --small --out small.onnx \\
       --reference-tokens tokens.txt --reference-out ref.f32
 
-The model contract: input "tokens" [1,77] token ids (as floats; the node's
-tokenizer makes them), output "embeddings" [1,77,P]: every position through
-ln_final and the text projection. The node reads the row at the
-end-of-text token (CLIP's argmax of the ids) and L2-normalises it.
+The model contract: input "x" [1,77,W], the token embeddings of the
+prompt's ids (OpenCV 4.6 cannot gather with computed indices, so the node
+looks ids up itself in OUT.tokemb, written beside the ONNX file), output
+"embeddings" [1,77,P]: every position through the transformer, ln_final and
+the text projection. The node reads the row at the end-of-text token (CLIP's
+argmax of the ids) and L2-normalises it.
+
+OUT.tokemb: 8 bytes "VLFFTOK1", uint32 vocab V, uint32 width W (little
+endian), then V*W float32 row-major.
 """
 import argparse
 import os
@@ -23,7 +28,7 @@ import torch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import export, load_into, load_state_dict  # noqa: E402
-from vlff_models import ClipText  # noqa: E402
+from vlff_models import ClipText, TextGraph  # noqa: E402
 
 SMALL = dict(width=64, layers=2, heads=4, embed_dim=32)
 VITB = dict(width=512, layers=12, heads=8, embed_dim=512)
@@ -35,6 +40,18 @@ def dims_from(sd):
     layers = len({k.split(".")[2] for k in sd if k.startswith("transformer.resblocks.")})
     return dict(vocab=sd["token_embedding.weight"].shape[0], context=sd["positional_embedding"].shape[0],
                 width=width, layers=layers, heads=width // 64, embed_dim=sd["text_projection"].shape[1])
+
+
+def write_tokemb(table, path):
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "wb") as f:
+        f.write(b"VLFFTOK1")
+        f.write(np.array(table.shape, dtype="<u4").tobytes())
+        f.write(np.ascontiguousarray(table, dtype="<f4").tobytes())
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    print(f"wrote {path} ({table.shape[0]} x {table.shape[1]} token embeddings)")
 
 
 def main():
@@ -69,7 +86,9 @@ def main():
         err = float(np.abs(folded - ref).max())
         if err > 1e-3 * max(1.0, float(np.abs(ref).max())):
             sys.exit(f"export_clip_text: folding LayerNorm changed the output by {err}")
-    export(model, torch.zeros(1, model.context), a.out, "tokens", "embeddings")
+    width = model.token_embedding.weight.shape[1]
+    export(TextGraph(model), torch.zeros(1, model.context, width), a.out, "x", "embeddings")
+    write_tokemb(model.token_embedding.weight.detach().numpy(), a.out + ".tokemb")
     if ref is not None and a.reference_out:
         ref.astype(np.float32).tofile(a.reference_out)
         print(f"reference: {ref.shape[0]} prompts -> {ref.shape[1]}-dim embeddings")

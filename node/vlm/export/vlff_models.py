@@ -125,9 +125,11 @@ class ClipTransformer(nn.Module):
 
 
 class ClipText(nn.Module):
-    """CLIP's text tower. Input: token ids [1, 77] (float, as OpenCV feeds
-    them). Output: [1, 77, P], every position projected; the node reads the
-    row at the end-of-text token, so the graph needs no ArgMax."""
+    """CLIP's text tower. The exported graph (TextGraph) starts after the
+    token embedding: OpenCV 4.6's Gather takes only constant indices, so the
+    node looks token ids up in the table itself (the .tokemb file). Output
+    [1, 77, P], every position projected; the node reads the row at the
+    end-of-text token, so the graph needs no ArgMax either."""
 
     def __init__(self, vocab=49408, context=77, width=512, layers=12, heads=8, embed_dim=512):
         super().__init__()
@@ -169,7 +171,10 @@ class ClipText(nn.Module):
         fold_norm(self.ln_final, self.proj)
 
     def forward(self, ids):
-        x = self.token_embedding(ids.long()) + self.positional_embedding
+        return self.forward_embedded(self.token_embedding(ids.long()))
+
+    def forward_embedded(self, x):
+        x = x + self.positional_embedding
         for blk in self.transformer.resblocks:
             x = blk(x, self.mask)
         x = self.ln_final(x)
@@ -181,6 +186,17 @@ class ClipText(nn.Module):
         """The reference: CLIP's encode_text, row at argmax(ids)."""
         out = self.forward(ids)
         return out[torch.arange(out.shape[0]), ids.long().argmax(dim=-1)]
+
+
+class TextGraph(nn.Module):
+    """What is exported: [1, 77, width] token embeddings -> [1, 77, P]."""
+
+    def __init__(self, text):
+        super().__init__()
+        self.text = text
+
+    def forward(self, x):
+        return self.text.forward_embedded(x)
 
 
 def fold_norm_copy(norm, linear):
@@ -261,29 +277,34 @@ class Vit(nn.Module):
 
 
 class ProjectReadout(nn.Module):
-    """DPT's 'project' readout: Linear(concat(token, cls)) + GELU. Exported as
-    token @ W1 + (cls @ W2 + b): the same sum without an Expand of cls."""
+    """DPT's 'project' readout: Linear(concat(token, cls)) + GELU, for n
+    patch tokens. OpenCV 4.6 fails on the token slice + broadcast of cls, so
+    both are constant matrix products on the transposed tokens: X^T @ S
+    selects the patch tokens, X^T @ R copies cls to every one of them."""
 
-    def __init__(self, dim):
+    def __init__(self, dim, n):
         super().__init__()
         self.project = nn.Sequential(nn.Linear(2 * dim, dim), nn.GELU())
+        sel = torch.zeros(n + 1, n)
+        sel[1:] = torch.eye(n)
+        rep = torch.zeros(n + 1, n)
+        rep[0] = 1.0
+        self.register_buffer("sel", sel, persistent=False)
+        self.register_buffer("rep", rep, persistent=False)
 
     def forward(self, x):
-        dim = x.shape[-1]
-        lin = self.project[0]
-        tok = x[:, 1:]
-        cls = x[:, :1]
-        y = F.linear(tok, lin.weight[:, :dim]) + F.linear(cls, lin.weight[:, dim:], lin.bias)
-        return self.project[1](y)
+        xt = x.transpose(1, 2)
+        y = torch.cat([torch.matmul(xt, self.sel), torch.matmul(xt, self.rep)], dim=1)
+        return self.project(y.transpose(1, 2))
 
 
 class Tokens2Image(nn.Module):
-    def __init__(self, h, w):
+    def __init__(self, dim, h, w):
         super().__init__()
-        self.h, self.w = h, w
+        self.dim, self.h, self.w = dim, h, w
 
     def forward(self, x):
-        return x.transpose(1, 2).reshape(1, x.shape[2], self.h, self.w)
+        return x.transpose(1, 2).reshape(1, self.dim, self.h, self.w)
 
 
 class ResidualConvUnit(nn.Module):
@@ -357,7 +378,8 @@ class LSegImage(nn.Module):
         vit = Vit(dim, depth, heads, patch, pos_grid)
         post = []
         for i, c in enumerate(feats):
-            seq = [ProjectReadout(dim), nn.Identity(), Tokens2Image(self.gh, self.gw), nn.Conv2d(dim, c, 1)]
+            seq = [ProjectReadout(dim, self.gh * self.gw), nn.Identity(), Tokens2Image(dim, self.gh, self.gw),
+                   nn.Conv2d(dim, c, 1)]
             if i == 0:
                 seq.append(nn.ConvTranspose2d(c, c, 4, 4))
             elif i == 1:
