@@ -1,0 +1,459 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * vlff/shm.h - the shared-memory layer of vlff, and the controller reader library.
+ *
+ * Segments (POSIX shared memory, shm_open + mmap, names start with '/'):
+ *   - rings (vlff_ring_*): one producer, any number of consumers, N fixed-size slots.
+ *     Frames (drivers -> learner), features (external extractor -> learner) and poses
+ *     (external SLAM -> learner) are records in such rings.
+ *   - the map (vlff_map_*): the learner's latest segmented voxel map, prompt list and
+ *     2D label image, read by controllers.
+ *   - the prompt mailbox (vlff_prompts_*): controllers post a new prompt set, the learner
+ *     picks it up.
+ *
+ * CONTRACT (every function follows it unless its comment says otherwise)
+ *
+ * Errors: functions returning a pointer return NULL on failure, functions returning int
+ *   return -1 on failure (0 or a documented non-negative value on success), and set
+ *   errno. Segment-level failures also record, per thread, a vlff_shm_err code and a
+ *   message naming the segment and what is wrong ("/vlff-map: ABI version 7, this
+ *   library speaks 1"): read them with vlff_shm_last_error() and vlff_shm_last_message()
+ *   right after the failing call. errno values used: ENOENT (no such segment), EEXIST
+ *   (a live creator owns it), EACCES (permissions), EPROTO (not a vlff segment, or
+ *   a vlff segment of another kind), EPROTONOSUPPORT (other ABI version), EBADMSG
+ *   (truncated or corrupt header), EMSGSIZE (record does not fit a slot), EINVAL (bad
+ *   argument), EAGAIN (nothing new / try again), ETIMEDOUT (wait timed out), ESTALE
+ *   (the record was overwritten while being read), EPIPE (the segment was abandoned:
+ *   its creator replaced it with a new one; detach and attach again).
+ *
+ * Ownership: every object returned by a *_create, *_attach or *_new function is owned
+ *   by the caller and released with the matching *_close / *_detach / *_free function
+ *   (which accept NULL). Pointers returned into a segment (vlff_ring_reserve, views,
+ *   snapshot accessors) live until the next call on the same object or its release,
+ *   whichever comes first. Closing a creator's handle does not remove the segment (a
+ *   restarted creator takes it over); vlff_shm_unlink() removes it.
+ *
+ * Threads and processes: one object may be used by one thread at a time; different
+ *   objects (including several handles to the same segment, in one or many processes)
+ *   may be used concurrently without locks. Exactly one producer per ring and one
+ *   writer per map (the creator); vlff_*_create refuses a second live creator.
+ *   Nothing in this library ever makes a producer or map writer wait for a reader:
+ *   readers detect that data changed underneath them and retry or count it as lost.
+ *
+ * Clocks: every timestamp is CLOCK_MONOTONIC in nanoseconds (vlff_shm_now_ns()).
+ *
+ * Coordinates: poses are 4x4 row-major double camera-to-world matrices, OpenCV camera
+ *   convention (x right, y down, z forward), world units metres.
+ *
+ * The header is C99 and needs only libc; link with -lvlff-shm (pkg-config vlff-shm).
+ */
+#ifndef VLFF_SHM_H
+#define VLFF_SHM_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <sys/types.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Bumped on every incompatible change of any segment layout. */
+#define VLFF_SHM_ABI_VERSION 1
+
+/* ------------------------------------------------------------------ errors */
+
+enum vlff_shm_err {
+  VLFF_SHM_OK = 0,
+  VLFF_SHM_ERR_SYS,       /* a system call failed; errno says which */
+  VLFF_SHM_ERR_INVAL,     /* bad argument */
+  VLFF_SHM_ERR_MISSING,   /* no segment of that name */
+  VLFF_SHM_ERR_EXISTS,    /* the segment is owned by a live creator */
+  VLFF_SHM_ERR_PERM,      /* permission denied */
+  VLFF_SHM_ERR_FOREIGN,   /* not a vlff segment (wrong magic) */
+  VLFF_SHM_ERR_KIND,      /* a vlff segment, but of another kind or record type */
+  VLFF_SHM_ERR_VERSION,   /* another ABI version */
+  VLFF_SHM_ERR_TRUNCATED, /* the segment is smaller than its header says */
+  VLFF_SHM_ERR_CORRUPT,   /* header fields inconsistent or checksum wrong */
+  VLFF_SHM_ERR_NOTREADY,  /* the creator has not finished initialising it */
+  VLFF_SHM_ERR_ABANDONED, /* replaced by a new segment of the same name: re-attach */
+  VLFF_SHM_ERR_SIZE       /* a record or argument is larger than the segment allows */
+};
+
+/* The code and message of the last failure of this library in the calling thread.
+ * The message is valid until the thread's next failing call into this library. */
+int vlff_shm_last_error(void);
+const char *vlff_shm_last_message(void);
+/* A static description of a code ("segment truncated"). Never NULL. */
+const char *vlff_shm_strerror(int err);
+
+/* CLOCK_MONOTONIC now, ns. */
+uint64_t vlff_shm_now_ns(void);
+
+/* Removes a segment name (shm_unlink). Processes still attached keep their mapping. */
+int vlff_shm_unlink(const char *name);
+
+/* Creation options shared by every *_create call. */
+struct vlff_shm_perm {
+  mode_t mode;        /* permission bits; 0 = 0640. World-write bits are refused (EINVAL). */
+  const char *group;  /* group name or numeric gid owning the segment; NULL or "" = creator's */
+};
+
+/* What vlff_shm_stat() reports for any vlff segment (used by the CLI). */
+enum vlff_shm_kind { VLFF_SHM_KIND_RING = 1, VLFF_SHM_KIND_MAP = 2, VLFF_SHM_KIND_PROMPTS = 3 };
+struct vlff_shm_info {
+  uint32_t kind;          /* enum vlff_shm_kind */
+  uint32_t abi_version;
+  uint32_t record_kind;   /* rings: enum vlff_record_kind */
+  uint32_t generation;    /* bumped each time a creator (re)starts on the segment */
+  int32_t creator_pid;
+  int creator_alive;      /* 1 if creator_pid exists (or cannot be checked), else 0 */
+  uint64_t total_size;    /* bytes */
+  uint32_t slots;         /* rings */
+  uint64_t slot_size;     /* rings: usable bytes per record */
+  uint64_t head;          /* rings: records committed so far; map: version; prompts: sequence */
+  uint64_t last_ns;       /* rings: last commit; map: heartbeat; prompts: last post */
+};
+/* Validates any vlff segment by name and fills *info. Same errors as the attach calls. */
+int vlff_shm_stat(const char *name, struct vlff_shm_info *info);
+
+/* -------------------------------------------------------------------- rings */
+
+/* What the records of a ring are; checked on attach so that a frame consumer never
+ * attaches to a pose ring. VLFF_RECORD_ANY on attach accepts any. */
+enum vlff_record_kind {
+  VLFF_RECORD_ANY = 0,
+  VLFF_RECORD_RAW = 1,     /* application-defined bytes */
+  VLFF_RECORD_FRAME = 2,   /* struct vlff_frame_hdr + planes */
+  VLFF_RECORD_FEATURE = 3, /* struct vlff_feature_hdr + [D,h,w] float16 */
+  VLFF_RECORD_POSE = 4     /* struct vlff_pose_rec */
+};
+
+struct vlff_ring; /* opaque: a producer (from create) or a consumer (from attach) */
+
+struct vlff_ring_params {
+  uint32_t record_kind;  /* enum vlff_record_kind, not ANY */
+  uint32_t slots;        /* >= 2 */
+  uint64_t slot_size;    /* bytes per record, > 0 */
+  struct vlff_shm_perm perm;
+};
+
+/* Creates the ring and becomes its producer. The segment is created O_EXCL. If a
+ * segment of that name exists whose creator is dead, it is taken over: with the same
+ * geometry in place (generation + 1, record numbering continues, attached consumers
+ * see the new generation and carry on), otherwise it is marked abandoned (consumers
+ * get EPIPE) and replaced. A live creator gives EEXIST. */
+struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_params *params);
+
+/* Attaches as a consumer, read-only: validates magic, ABI version, kind, sizes and
+ * that the file is as large as the header says. The read cursor starts after the newest
+ * committed record (live data, not history); see vlff_ring_seek_oldest(). */
+struct vlff_ring *vlff_ring_attach(const char *name, uint32_t record_kind);
+
+/* Releases the handle (unmaps). Never removes the segment. */
+void vlff_ring_close(struct vlff_ring *ring);
+
+uint32_t vlff_ring_slots(const struct vlff_ring *ring);
+uint64_t vlff_ring_slot_size(const struct vlff_ring *ring);
+uint32_t vlff_ring_generation(const struct vlff_ring *ring);
+/* Records committed so far (over all generations). */
+uint64_t vlff_ring_head(const struct vlff_ring *ring);
+
+/* Producer: returns the next slot's record area (slot_size bytes, 64-byte aligned) to
+ * fill in place; *seq receives its record number (may be NULL). Never waits. Calling
+ * it again before commit returns the same slot. Consumers cannot see the slot's old
+ * record any more once this returns. */
+void *vlff_ring_reserve(struct vlff_ring *ring, uint64_t *seq);
+/* Producer: publishes the reserved record with its length (<= slot_size) and wakes
+ * waiting consumers. Returns 0, or -1 (EINVAL: nothing reserved; EMSGSIZE). */
+int vlff_ring_commit(struct vlff_ring *ring, size_t len);
+/* Producer: copy-in convenience = reserve + memcpy + commit. */
+int vlff_ring_write(struct vlff_ring *ring, const void *data, size_t len);
+
+/* A record being read in place by a consumer. */
+struct vlff_ring_view {
+  const void *data;      /* record bytes, in the segment; may change under you */
+  size_t len;
+  uint64_t seq;          /* record number */
+  uint32_t generation;   /* producer generation that wrote it */
+  uint32_t new_generation; /* 1 if the producer restarted since the previous read */
+};
+
+/* Consumer: waits up to timeout_ns (0 = do not wait, UINT64_MAX = forever) for the next
+ * unread record and points *view at it. If the producer lapped this consumer, skips to
+ * the oldest record still intact and adds the skipped records to vlff_ring_lost().
+ * Returns 0, or -1 with EAGAIN (timeout 0, nothing new), ETIMEDOUT, EINTR, EPIPE.
+ * The data may be overwritten while you read it: copy or use what you need, then call
+ * vlff_ring_read_end() and trust what you read only if it returns 0. */
+int vlff_ring_read_begin(struct vlff_ring *ring, struct vlff_ring_view *view, uint64_t timeout_ns);
+/* Consumer: 0 if the record was not touched since read_begin (what you read is whole),
+ * -1 with ESTALE if it was overwritten (discard what you read; it is counted as lost).
+ * Either way the cursor moves past it. */
+int vlff_ring_read_end(struct vlff_ring *ring, const struct vlff_ring_view *view);
+/* Consumer: read_begin + copy into buf (cap bytes) + read_end, retrying torn records.
+ * Returns the record length, or -1 (EMSGSIZE if cap is too small: the record is
+ * skipped and counted as lost, and errors of read_begin). */
+ssize_t vlff_ring_read_copy(struct vlff_ring *ring, void *buf, size_t cap,
+                            struct vlff_ring_view *info, uint64_t timeout_ns);
+/* Consumer: copies the newest committed record without moving the cursor (CLI, tools).
+ * Returns its length, or -1 (EAGAIN: ring empty; EMSGSIZE). */
+ssize_t vlff_ring_read_latest(struct vlff_ring *ring, void *buf, size_t cap,
+                              struct vlff_ring_view *info);
+/* Consumer: records this consumer lost to lapping or overwrite since attach. Exact:
+ * every record number up to the last one returned was either delivered by a
+ * successful read_end/read_copy or counted here. */
+uint64_t vlff_ring_lost(const struct vlff_ring *ring);
+/* Consumer: moves the cursor to the oldest record still held / past the newest one. */
+void vlff_ring_seek_oldest(struct vlff_ring *ring);
+void vlff_ring_seek_newest(struct vlff_ring *ring);
+
+/* ------------------------------------------------------------ frame records */
+
+enum vlff_pixfmt {
+  VLFF_PIX_NONE = 0,
+  VLFF_PIX_RGB8 = 1,
+  VLFF_PIX_BGR8 = 2,
+  VLFF_PIX_MONO8 = 3,
+  VLFF_PIX_MONO16 = 4,
+  VLFF_PIX_BAYER_RG8 = 5,
+  VLFF_PIX_BAYER_BG8 = 6,
+  VLFF_PIX_BAYER_GR8 = 7,
+  VLFF_PIX_BAYER_GB8 = 8,
+  VLFF_PIX_DEPTH_U16_MM = 16, /* depth, uint16 millimetres, 0 = invalid */
+  VLFF_PIX_DEPTH_F32_M = 17   /* depth, float32 metres, 0 or NaN = invalid */
+};
+/* Bytes per pixel of a format, 0 for an unknown one. */
+unsigned vlff_pixfmt_bpp(uint32_t fmt);
+const char *vlff_pixfmt_name(uint32_t fmt);
+
+enum { VLFF_PLANE_COLOR = 0, VLFF_PLANE_DEPTH = 1, VLFF_FRAME_MAX_PLANES = 2 };
+
+struct vlff_plane {
+  uint32_t width, height;
+  uint32_t stride;   /* bytes per row */
+  uint32_t format;   /* enum vlff_pixfmt; VLFF_PIX_NONE = plane absent */
+  uint64_t offset;   /* of the first pixel from the start of the record (64-aligned) */
+  uint64_t size;     /* bytes = stride * height */
+};
+
+enum vlff_frame_flags {
+  VLFF_FRAME_POSE_VALID = 1u << 0,     /* pose[] and pose_t_ns hold a pose */
+  VLFF_FRAME_POSE_UNTRUSTED = 1u << 1, /* tracker reported loss / low quality */
+  VLFF_FRAME_INTRINSICS_VALID = 1u << 2,
+  VLFF_FRAME_DROPPED_BEFORE = 1u << 3  /* the source dropped frames just before this one */
+};
+
+/* The record of a VLFF_RECORD_FRAME ring: this header, then the planes at their
+ * offsets. Fixed layout, 512 bytes, no implicit padding. */
+struct vlff_frame_hdr {
+  uint32_t hdr_size;     /* sizeof(struct vlff_frame_hdr) */
+  uint32_t flags;        /* enum vlff_frame_flags */
+  uint64_t frame_id;     /* per-sensor counter from the source */
+  uint64_t t_device_ns;  /* camera clock, as reported (0 = unknown) */
+  uint64_t t_host_ns;    /* CLOCK_MONOTONIC at arrival */
+  uint32_t sensor_id;
+  uint32_t nplanes;      /* planes in use, 1 or 2 */
+  struct vlff_plane plane[VLFF_FRAME_MAX_PLANES];
+  double fx, fy, cx, cy; /* pinhole intrinsics in pixels of the color plane */
+  double pose[16];       /* camera-to-world, row-major */
+  uint64_t pose_t_ns;    /* timestamp of the pose source sample */
+  uint8_t reserved[512 - 4 * 4 - 3 * 8 - VLFF_FRAME_MAX_PLANES * 32 - 4 * 8 - 16 * 8 - 8];
+};
+
+/* Bytes a slot needs for frames up to max_w x max_h with a color plane of color_fmt and
+ * optionally a depth plane of depth_fmt (VLFF_PIX_NONE = none). 0 on bad arguments. */
+uint64_t vlff_frame_slot_size(uint32_t max_w, uint32_t max_h, uint32_t color_fmt, uint32_t depth_fmt);
+/* Fills hdr->plane[] (offsets, strides, sizes) for the given geometry, tightly packed
+ * after the header; zeroes the rest of hdr except what is kept below. Returns the
+ * record length, or 0 if it would exceed slot_size. Callers then set ids, times,
+ * intrinsics, pose and flags. */
+uint64_t vlff_frame_layout(struct vlff_frame_hdr *hdr, uint64_t slot_size, uint32_t w, uint32_t h,
+                           uint32_t color_fmt, uint32_t depth_fmt);
+/* Checks that a record of len bytes holds a well-formed frame (sizes, formats,
+ * planes inside the record, finite intrinsics/pose when flagged valid). 0 or -1/EBADMSG. */
+int vlff_frame_validate(const void *record, size_t len);
+/* Pointer to plane i's first pixel inside a validated record, NULL if absent. */
+const void *vlff_frame_plane(const void *record, unsigned i);
+
+/* ---------------------------------------------------------- feature records */
+
+enum { VLFF_FEAT_F16 = 1 };
+/* The record of a VLFF_RECORD_FEATURE ring: this header, then dim*height*width IEEE
+ * half floats laid out [D][h][w] at data_offset. */
+struct vlff_feature_hdr {
+  uint32_t hdr_size;   /* sizeof(struct vlff_feature_hdr) */
+  uint32_t dtype;      /* VLFF_FEAT_F16 */
+  uint64_t frame_id;   /* of the frame the features were computed from */
+  uint64_t t_host_ns;  /* that frame's host timestamp */
+  uint32_t sensor_id;
+  uint32_t dim, height, width;
+  uint64_t data_offset; /* from the record start, 64-aligned */
+  uint64_t data_size;   /* bytes = 2 * dim * height * width */
+  uint8_t reserved[128 - 4 * 2 - 8 * 2 - 4 * 4 - 8 * 2];
+};
+uint64_t vlff_feature_slot_size(uint32_t dim, uint32_t h, uint32_t w);
+/* Fills the layout fields; returns the record length or 0 if over slot_size. */
+uint64_t vlff_feature_layout(struct vlff_feature_hdr *hdr, uint64_t slot_size, uint32_t dim, uint32_t h, uint32_t w);
+int vlff_feature_validate(const void *record, size_t len);
+
+/* ------------------------------------------------------------- pose records */
+
+/* The record of a VLFF_RECORD_POSE ring: one timestamped camera-to-world pose. */
+struct vlff_pose_rec {
+  uint64_t t_ns;
+  uint32_t flags;       /* VLFF_FRAME_POSE_UNTRUSTED may be set */
+  uint32_t source_id;
+  double pose[16];      /* camera-to-world, row-major; rotation block orthonormal */
+};
+
+/* Pure helper: the pose at time t between a (t_a <= t) and b (t >= t), translation
+ * linear, rotation slerp. 0, or -1/EINVAL if t is outside [a.t_ns, b.t_ns]. */
+int vlff_pose_interpolate(const struct vlff_pose_rec *a, const struct vlff_pose_rec *b, uint64_t t_ns,
+                          double out_pose[16]);
+/* Finds the pose for t_ns in a pose ring (a consumer handle; its cursor is untouched):
+ * the two consecutive poses bracketing t_ns, both within tolerance_ns of it, are
+ * interpolated; a pose at exactly t_ns is returned as is. The result's flags are the
+ * OR of the bracketing poses' flags. Returns 0, or -1 with EAGAIN (t_ns is newer than
+ * every pose: it may still arrive), ERANGE (no bracketing pair within tolerance: reject
+ * the frame), ENOENT (ring empty). */
+int vlff_pose_lookup(struct vlff_ring *poses, uint64_t t_ns, uint64_t tolerance_ns, struct vlff_pose_rec *out);
+
+/* ---------------------------------------------------------------- the map */
+
+/* Labels 0..VLFF_LABEL_MAX index the map's prompt list. */
+#define VLFF_LABEL_MAX 0xFFFDu
+#define VLFF_LABEL_FREE 0xFFFEu    /* observed empty space */
+#define VLFF_LABEL_UNKNOWN 0xFFFFu /* never observed */
+#define VLFF_SHM_MAX_PROMPTS 32
+#define VLFF_SHM_PROMPT_LEN 64     /* bytes including the terminating NUL */
+
+struct vlff_map; /* opaque: the writer (create) or a reader (attach) */
+struct vlff_map_snapshot; /* opaque: a reader's private consistent copy */
+
+struct vlff_map_params {
+  uint32_t max_voxels;                     /* grid capacity */
+  uint32_t label_max_width, label_max_height; /* 2D label image capacity (0 = none) */
+  struct vlff_shm_perm perm;
+};
+
+/* A voxel grid: voxel (i,j,k) covers origin + [i,i+1)*voxel_size in x (j in y, k in z)
+ * and is stored at index i + dims[0] * (j + dims[1] * k). */
+struct vlff_map_grid {
+  double origin[3];      /* world position of the grid's min corner, metres */
+  double voxel_size;     /* metres, > 0 */
+  uint32_t dims[3];
+  const uint16_t *labels;     /* dims[0]*dims[1]*dims[2] labels */
+  const uint8_t *confidence;  /* same count, 0..255; NULL = all 255 */
+};
+
+/* The latest 2D label image and the view it was rendered from. */
+struct vlff_map_label_image {
+  uint32_t width, height;
+  const uint16_t *labels;     /* width*height, row-major */
+  const uint8_t *confidence;  /* same count; NULL = all 255 */
+  double fx, fy, cx, cy;
+  double pose[16];            /* camera-to-world */
+  uint64_t t_ns;              /* capture time of the frame it was rendered for */
+};
+
+/* What a publish replaces; a NULL member keeps the previous value. */
+struct vlff_map_update {
+  const struct vlff_map_grid *grid;
+  const char *const *prompts; /* prompt_count texts; label i = prompts[i] */
+  int prompt_count;           /* -1 = keep (when prompts is NULL) */
+  const struct vlff_map_label_image *label_image;
+};
+
+/* Writer: creates the map segment (same O_EXCL / stale-creator rules as rings; a
+ * taken-over segment keeps its last map and bumps the generation). */
+struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *params);
+/* Writer: publishes a new consistent version (version + 1, publish time and heartbeat
+ * = now). Never waits for readers. -1/EMSGSIZE if the grid, image or a prompt is
+ * larger than the segment allows, EINVAL for malformed input. */
+int vlff_map_publish(struct vlff_map *map, const struct vlff_map_update *update);
+/* Writer: says "alive" without a new map. */
+int vlff_map_heartbeat(struct vlff_map *map);
+
+/* Reader: attaches read-only and validates the segment. */
+struct vlff_map *vlff_map_attach(const char *name);
+/* Releases either handle; the segment stays. */
+void vlff_map_detach(struct vlff_map *map);
+
+/* Reader: the label and confidence of the voxel holding world point (x,y,z) in the
+ * current version, read consistently. 0 and the label (VLFF_LABEL_UNKNOWN outside
+ * the grid or before the first publish), or -1 (EPIPE, EAGAIN if the writer kept
+ * changing it for too long). conf may be NULL. */
+int vlff_map_label_at(struct vlff_map *map, double x, double y, double z, uint16_t *label, uint8_t *conf);
+/* Reader: copies the prompt text of a label (NUL-terminated, truncated to len) into buf.
+ * Returns 0, or -1/ENOENT for a label without a prompt (FREE, UNKNOWN, >= count). */
+int vlff_map_prompt(struct vlff_map *map, uint16_t label, char *buf, size_t len);
+/* Reader: the current map version (0 = nothing published yet). */
+uint64_t vlff_map_version(struct vlff_map *map);
+/* ns since the current version was published; UINT64_MAX if never. */
+uint64_t vlff_map_age_ns(struct vlff_map *map);
+/* 1 if the writer's heartbeat is younger than max_silence_ns and its process exists,
+ * else 0. */
+int vlff_map_writer_alive(struct vlff_map *map, uint64_t max_silence_ns);
+uint32_t vlff_map_generation(struct vlff_map *map);
+
+/* Reader: a snapshot buffer sized for this map's capacity. */
+struct vlff_map_snapshot *vlff_map_snapshot_new(struct vlff_map *map);
+void vlff_map_snapshot_free(struct vlff_map_snapshot *snap);
+/* Reader: copies the current version into snap, retrying while the writer overwrites
+ * it. 0, or -1 (EAGAIN after many retries, EPIPE). */
+int vlff_map_snapshot_take(struct vlff_map *map, struct vlff_map_snapshot *snap);
+
+/* Accessors of a taken snapshot; pointers live as long as snap's contents. */
+struct vlff_map_info {
+  uint64_t version;
+  uint64_t publish_ns;
+  uint32_t generation;
+  int prompt_count;
+  struct vlff_map_grid grid;               /* labels/confidence point into snap */
+  int has_label_image;
+  struct vlff_map_label_image label_image; /* idem */
+};
+int vlff_map_snapshot_info(const struct vlff_map_snapshot *snap, struct vlff_map_info *info);
+uint16_t vlff_map_snapshot_label_at(const struct vlff_map_snapshot *snap, double x, double y, double z,
+                                    uint8_t *conf);
+/* Prompt text of a label, NULL if none. */
+const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *snap, uint16_t label);
+
+/* -------------------------------------------------------- prompt mailbox */
+
+struct vlff_prompts; /* opaque */
+
+/* A prompt set posted to the mailbox: either texts, or the index of a set the learner
+ * has configured (set_index >= 0, count = 0). */
+struct vlff_prompt_request {
+  uint64_t seq;        /* 1, 2, ... per post; 0 = nothing posted yet */
+  uint64_t t_ns;       /* when posted */
+  int32_t poster_pid;
+  int32_t set_index;   /* -1 when texts are given */
+  int count;
+  char text[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+};
+
+/* The learner creates the mailbox (same O_EXCL / stale-creator rules; use mode 0660
+ * with a group so that controllers may post). */
+struct vlff_prompts *vlff_prompts_create(const char *name, const struct vlff_shm_perm *perm);
+/* A controller attaches read-write to post. */
+struct vlff_prompts *vlff_prompts_attach(const char *name);
+void vlff_prompts_close(struct vlff_prompts *p);
+/* Posts texts (1..VLFF_SHM_MAX_PROMPTS, each non-empty and shorter than
+ * VLFF_SHM_PROMPT_LEN). Several posters may race: posts are serialised, none is torn.
+ * Returns 0 (the new sequence number is in vlff_prompts_poll's req->seq), -1/EINVAL,
+ * EAGAIN if another poster kept the mailbox busy for too long. */
+int vlff_prompts_post(struct vlff_prompts *p, const char *const *texts, int count);
+/* Posts "switch to configured set index". */
+int vlff_prompts_post_index(struct vlff_prompts *p, int set_index);
+/* Copies the newest request if its seq differs from *last_seq, then updates *last_seq.
+ * Returns 1 (new request in *req), 0 (nothing new), -1 (EAGAIN while a post is in
+ * progress for too long, EPIPE). */
+int vlff_prompts_poll(struct vlff_prompts *p, uint64_t *last_seq, struct vlff_prompt_request *req);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* VLFF_SHM_H */

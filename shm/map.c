@@ -1,0 +1,510 @@
+/* The published map: learner -> controllers.
+ *
+ * Two complete buffers. The writer always fills the one readers are not pointed at,
+ * under that buffer's sequence word (odd while writing), then flips `current`. A
+ * reader copies the current buffer between two reads of its sequence word and retries
+ * if it moved, so it never takes a lock and the writer never waits: a reader only
+ * loses a race when it is slower than a whole publish period. Partial updates copy
+ * the untouched parts from the current buffer, which only the writer ever writes. */
+#include "shm_internal.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#define MAP_BUF_OFFSET 4096u
+#define READ_RETRIES 10000
+
+struct map_meta {
+  uint64_t version, publish_ns;
+  double origin[3], voxel_size;
+  uint32_t dims[3];
+  int32_t prompt_count;
+  uint32_t has_limg, lw, lh, pad;
+  double lfx, lfy, lcx, lcy, lpose[16];
+  uint64_t lt_ns;
+  char prompts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+};
+
+struct map_buf {
+  _Atomic uint64_t seq;
+  uint8_t pad[56];
+  struct map_meta meta;
+};
+#define BUF_HDR align64(sizeof(struct map_buf))
+
+struct map_ctl {
+  _Atomic uint32_t current;
+  uint32_t pad;
+  _Atomic uint64_t version;
+};
+
+struct vlff_map {
+  struct seg seg;
+  struct map_ctl *ctl;
+  uint64_t max_voxels, lw_max, lh_max, stride;
+  bool writer;
+};
+
+struct vlff_map_snapshot {
+  uint64_t max_voxels, lw_max, lh_max;
+  uint32_t generation;
+  struct map_meta meta;
+  uint16_t *labels;
+  uint8_t *conf;
+  uint16_t *llabels;
+  uint8_t *lconf;
+};
+
+/* Offsets inside one buffer. */
+static uint64_t off_labels(void) { return BUF_HDR; }
+static uint64_t off_conf(uint64_t mv) { return off_labels() + align64(2 * mv); }
+static uint64_t off_llabels(uint64_t mv) { return off_conf(mv) + align64(mv); }
+static uint64_t off_lconf(uint64_t mv, uint64_t lpx) { return off_llabels(mv) + align64(2 * lpx); }
+static uint64_t buf_stride(uint64_t mv, uint64_t lpx) { return align64(off_lconf(mv, lpx) + lpx); }
+
+uint64_t shm_map_total(const uint64_t g[6]) {
+  uint64_t mv = g[0], lw = g[1], lh = g[2];
+  if (!mv || mv > (1ull << 32) || lw > 65536 || lh > 65536 || (!lw) != (!lh))
+    return 0;
+  if (g[3] != buf_stride(mv, lw * lh) || g[4] != MAP_BUF_OFFSET || g[5])
+    return 0;
+  return MAP_BUF_OFFSET + 2 * g[3];
+}
+
+static struct map_buf *buf(const struct vlff_map *m, uint32_t i) {
+  return (struct map_buf *)(m->seg.base + MAP_BUF_OFFSET + (uint64_t)(i & 1) * m->stride);
+}
+static uint8_t *bufp(const struct vlff_map *m, uint32_t i, uint64_t off) { return (uint8_t *)buf(m, i) + off; }
+
+void shm_map_stat(const struct seg *s, struct vlff_shm_info *info) {
+  const struct map_ctl *c = (const struct map_ctl *)(s->base + sizeof(struct seg_hdr));
+  info->head = atomic_load((_Atomic uint64_t *)&c->version);
+  info->slot_size = s->h->geom[0]; /* voxel capacity */
+}
+
+static void bind(struct vlff_map *m) {
+  m->ctl = (struct map_ctl *)(m->seg.base + sizeof(struct seg_hdr));
+  m->max_voxels = m->seg.h->geom[0];
+  m->lw_max = m->seg.h->geom[1];
+  m->lh_max = m->seg.h->geom[2];
+  m->stride = m->seg.h->geom[3];
+}
+
+API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *p) {
+  if (!p || !p->max_voxels || (!p->label_max_width) != (!p->label_max_height)) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: map needs a voxel capacity and both or neither label image sizes",
+            name ? name : "(null)");
+    return NULL;
+  }
+  struct vlff_map *m = calloc(1, sizeof *m);
+  if (!m) {
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
+    return NULL;
+  }
+  uint64_t lpx = (uint64_t)p->label_max_width * p->label_max_height;
+  uint64_t geom[6] = {p->max_voxels, p->label_max_width, p->label_max_height, buf_stride(p->max_voxels, lpx),
+                      MAP_BUF_OFFSET, 0};
+  struct seg_spec spec = {.kind = VLFF_SHM_KIND_MAP};
+  int fresh = shm_seg_create(&m->seg, name, &spec, geom, &p->perm);
+  if (fresh < 0) {
+    free(m);
+    return NULL;
+  }
+  bind(m);
+  m->writer = true;
+  if (fresh)
+    shm_seg_ready(&m->seg);
+  atomic_store(&m->seg.h->last_ns, shm_now());
+  return m;
+}
+
+API struct vlff_map *vlff_map_attach(const char *name) {
+  struct vlff_map *m = calloc(1, sizeof *m);
+  if (!m) {
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
+    return NULL;
+  }
+  struct seg_spec spec = {.kind = VLFF_SHM_KIND_MAP};
+  if (shm_seg_attach(&m->seg, name, &spec, false) < 0) {
+    free(m);
+    return NULL;
+  }
+  bind(m);
+  return m;
+}
+
+API void vlff_map_detach(struct vlff_map *m) {
+  if (!m)
+    return;
+  shm_seg_close(&m->seg);
+  free(m);
+}
+
+static int bad_update(const struct vlff_map *m, int code, int e, const char *why) {
+  shm_err(code, e, "%s: publish refused: %s", m->seg.name, why);
+  return -1;
+}
+
+static int check_update(const struct vlff_map *m, const struct vlff_map_update *u) {
+  if (u->grid) {
+    const struct vlff_map_grid *g = u->grid;
+    if (!g->labels || !isfinite(g->voxel_size) || g->voxel_size <= 0 || !isfinite(g->origin[0]) ||
+        !isfinite(g->origin[1]) || !isfinite(g->origin[2]) || !g->dims[0] || !g->dims[1] || !g->dims[2])
+      return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "grid without labels, with non-finite geometry or 0 dims");
+    if ((uint64_t)g->dims[0] * g->dims[1] * g->dims[2] > m->max_voxels)
+      return bad_update(m, VLFF_SHM_ERR_SIZE, EMSGSIZE, "grid larger than the map capacity");
+  }
+  if (u->prompts) {
+    if (u->prompt_count < 0 || u->prompt_count > VLFF_SHM_MAX_PROMPTS)
+      return bad_update(m, VLFF_SHM_ERR_SIZE, EMSGSIZE, "prompt count out of range");
+    for (int i = 0; i < u->prompt_count; i++)
+      if (!u->prompts[i] || strlen(u->prompts[i]) >= VLFF_SHM_PROMPT_LEN)
+        return bad_update(m, VLFF_SHM_ERR_SIZE, EMSGSIZE, "prompt missing or too long");
+  }
+  if (u->label_image) {
+    const struct vlff_map_label_image *li = u->label_image;
+    if (!li->labels || !li->width || !li->height)
+      return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "label image without pixels");
+    if (li->width > m->lw_max || li->height > m->lh_max)
+      return bad_update(m, VLFF_SHM_ERR_SIZE, EMSGSIZE, "label image larger than the segment's");
+  }
+  return 0;
+}
+
+API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
+  if (!m || !m->writer || !u) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_publish: not a writer handle or no update");
+    return -1;
+  }
+  if (check_update(m, u) < 0)
+    return -1;
+  uint32_t cur = atomic_load_explicit(&m->ctl->current, memory_order_relaxed) & 1, nb = cur ^ 1;
+  struct map_buf *b = buf(m, nb);
+  struct map_meta meta;
+  shm_racy_copy(&meta, &buf(m, cur)->meta, sizeof meta);
+  /* A writer that died mid-publish left this buffer odd; continue from there. */
+  uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
+  atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
+  atomic_thread_fence(memory_order_release);
+
+  uint64_t mv = m->max_voxels, lpx = m->lw_max * m->lh_max;
+  if (u->grid) {
+    const struct vlff_map_grid *g = u->grid;
+    uint64_t n = (uint64_t)g->dims[0] * g->dims[1] * g->dims[2];
+    memcpy(meta.origin, g->origin, sizeof meta.origin);
+    meta.voxel_size = g->voxel_size;
+    memcpy(meta.dims, g->dims, sizeof meta.dims);
+    shm_racy_copy(bufp(m, nb, off_labels()), g->labels, 2 * n);
+    if (g->confidence)
+      shm_racy_copy(bufp(m, nb, off_conf(mv)), g->confidence, n);
+    else
+      shm_racy_fill(bufp(m, nb, off_conf(mv)), 255, n);
+  } else if (meta.version) {
+    uint64_t n = (uint64_t)meta.dims[0] * meta.dims[1] * meta.dims[2];
+    shm_racy_copy(bufp(m, nb, off_labels()), bufp(m, cur, off_labels()), 2 * n);
+    shm_racy_copy(bufp(m, nb, off_conf(mv)), bufp(m, cur, off_conf(mv)), n);
+  }
+  if (u->prompts) {
+    memset(meta.prompts, 0, sizeof meta.prompts);
+    for (int i = 0; i < u->prompt_count; i++)
+      memcpy(meta.prompts[i], u->prompts[i], strlen(u->prompts[i]));
+    meta.prompt_count = u->prompt_count;
+  }
+  if (u->label_image) {
+    const struct vlff_map_label_image *li = u->label_image;
+    uint64_t n = (uint64_t)li->width * li->height;
+    meta.has_limg = 1;
+    meta.lw = li->width;
+    meta.lh = li->height;
+    meta.lfx = li->fx;
+    meta.lfy = li->fy;
+    meta.lcx = li->cx;
+    meta.lcy = li->cy;
+    memcpy(meta.lpose, li->pose, sizeof meta.lpose);
+    meta.lt_ns = li->t_ns;
+    shm_racy_copy(bufp(m, nb, off_llabels(mv)), li->labels, 2 * n);
+    if (li->confidence)
+      shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), li->confidence, n);
+    else
+      shm_racy_fill(bufp(m, nb, off_lconf(mv, lpx)), 255, n);
+  } else if (meta.has_limg) {
+    uint64_t n = (uint64_t)meta.lw * meta.lh;
+    shm_racy_copy(bufp(m, nb, off_llabels(mv)), bufp(m, cur, off_llabels(mv)), 2 * n);
+    shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), bufp(m, cur, off_lconf(mv, lpx)), n);
+  }
+  uint64_t now = shm_now();
+  meta.version = atomic_load_explicit(&m->ctl->version, memory_order_relaxed) + 1;
+  meta.publish_ns = now;
+  shm_racy_copy(&b->meta, &meta, sizeof meta);
+  atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
+  atomic_store_explicit(&m->ctl->current, nb, memory_order_release);
+  atomic_store_explicit(&m->ctl->version, meta.version, memory_order_release);
+  atomic_store_explicit(&m->seg.h->last_ns, now, memory_order_release);
+  return 0;
+}
+
+API int vlff_map_heartbeat(struct vlff_map *m) {
+  if (!m || !m->writer) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_heartbeat: not a writer handle");
+    return -1;
+  }
+  atomic_store_explicit(&m->seg.h->last_ns, shm_now(), memory_order_release);
+  return 0;
+}
+
+static int abandoned(const struct vlff_map *m) {
+  if (atomic_load_explicit(&m->seg.h->state, memory_order_acquire) == SEG_ABANDONED) {
+    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its writer; attach again", m->seg.name);
+    return 1;
+  }
+  return 0;
+}
+
+/* A meta block read from shared memory is checked before any of it is used to index. */
+static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm) {
+  if (mm->version == 0)
+    return true;
+  bool has_grid = mm->dims[0] && mm->dims[1] && mm->dims[2];
+  if (has_grid && (!isfinite(mm->voxel_size) || mm->voxel_size <= 0 || !isfinite(mm->origin[0]) || !isfinite(mm->origin[1]) ||
+      !isfinite(mm->origin[2])))
+    return false;
+  if ((uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2] > m->max_voxels)
+    return false;
+  if (mm->prompt_count < 0 || mm->prompt_count > VLFF_SHM_MAX_PROMPTS)
+    return false;
+  if (mm->has_limg && (mm->lw > m->lw_max || mm->lh > m->lh_max))
+    return false;
+  return true;
+}
+
+/* Reads `fn` consistently from the current buffer: the seqlock retry loop. */
+typedef bool (*reader_fn)(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx);
+
+static int read_consistent(const struct vlff_map *m, struct map_meta *mm, reader_fn fn, void *ctx) {
+  for (int i = 0; i < READ_RETRIES; i++) {
+    if (abandoned(m))
+      return -1;
+    uint32_t c = atomic_load_explicit(&m->ctl->current, memory_order_acquire) & 1;
+    struct map_buf *b = buf(m, c);
+    uint64_t s1 = atomic_load_explicit(&b->seq, memory_order_acquire);
+    if (s1 & 1)
+      continue;
+    shm_racy_copy(mm, &b->meta, sizeof *mm);
+    bool ok = meta_sane(m, mm) && (!fn || fn(m, c, mm, ctx));
+    atomic_thread_fence(memory_order_acquire);
+    if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)
+      continue;
+    if (!ok) {
+      shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: published map metadata is inconsistent", m->seg.name);
+      return -1;
+    }
+    return 0;
+  }
+  shm_err(VLFF_SHM_OK, EAGAIN, "%s: writer kept overwriting the map for %d reads", m->seg.name, READ_RETRIES);
+  return -1;
+}
+
+static bool voxel_index(const struct map_meta *mm, double x, double y, double z, uint64_t *idx) {
+  if (!mm->version || !(mm->voxel_size > 0))
+    return false;
+  double p[3] = {x, y, z};
+  uint64_t ijk[3];
+  for (int a = 0; a < 3; a++) {
+    double f = floor((p[a] - mm->origin[a]) / mm->voxel_size);
+    if (!(f >= 0 && f < (double)mm->dims[a]))
+      return false;
+    ijk[a] = (uint64_t)f;
+  }
+  *idx = ijk[0] + (uint64_t)mm->dims[0] * (ijk[1] + (uint64_t)mm->dims[1] * ijk[2]);
+  return true;
+}
+
+struct at_ctx {
+  double x, y, z;
+  uint16_t label;
+  uint8_t conf;
+};
+
+static bool read_voxel(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
+  struct at_ctx *c = vctx;
+  uint64_t i;
+  c->label = VLFF_LABEL_UNKNOWN;
+  c->conf = 0;
+  if (voxel_index(mm, c->x, c->y, c->z, &i)) {
+    shm_racy_copy(&c->label, bufp(m, b, off_labels() + 2 * i), 2);
+    shm_racy_copy(&c->conf, bufp(m, b, off_conf(m->max_voxels) + i), 1);
+  }
+  return true;
+}
+
+API int vlff_map_label_at(struct vlff_map *m, double x, double y, double z, uint16_t *label, uint8_t *conf) {
+  if (!m || !label) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_label_at: NULL argument");
+    return -1;
+  }
+  struct map_meta mm;
+  struct at_ctx c = {.x = x, .y = y, .z = z};
+  if (read_consistent(m, &mm, read_voxel, &c) < 0)
+    return -1;
+  *label = c.label;
+  if (conf)
+    *conf = c.conf;
+  return 0;
+}
+
+API int vlff_map_prompt(struct vlff_map *m, uint16_t label, char *out, size_t len) {
+  struct map_meta mm;
+  if (!m || !out || !len) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_prompt: NULL argument");
+    return -1;
+  }
+  if (read_consistent(m, &mm, NULL, NULL) < 0)
+    return -1;
+  if (label >= mm.prompt_count) {
+    shm_err(VLFF_SHM_OK, ENOENT, "%s: label %u has no prompt (%d prompts)", m->seg.name, label,
+            mm.prompt_count);
+    return -1;
+  }
+  mm.prompts[label][VLFF_SHM_PROMPT_LEN - 1] = 0;
+  snprintf(out, len, "%s", mm.prompts[label]);
+  return 0;
+}
+
+API uint64_t vlff_map_version(struct vlff_map *m) {
+  return atomic_load_explicit(&m->ctl->version, memory_order_acquire);
+}
+
+API uint64_t vlff_map_age_ns(struct vlff_map *m) {
+  struct map_meta mm;
+  if (read_consistent(m, &mm, NULL, NULL) < 0 || !mm.version)
+    return UINT64_MAX;
+  uint64_t now = shm_now();
+  return now > mm.publish_ns ? now - mm.publish_ns : 0;
+}
+
+API int vlff_map_writer_alive(struct vlff_map *m, uint64_t max_silence_ns) {
+  if (abandoned(m))
+    return 0;
+  uint64_t hb = atomic_load_explicit(&m->seg.h->last_ns, memory_order_acquire), now = shm_now();
+  if (now > hb && now - hb > max_silence_ns)
+    return 0;
+  return shm_pid_alive(atomic_load(&m->seg.h->creator_pid));
+}
+
+API uint32_t vlff_map_generation(struct vlff_map *m) { return atomic_load(&m->seg.h->generation); }
+
+API struct vlff_map_snapshot *vlff_map_snapshot_new(struct vlff_map *m) {
+  if (!m) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_new: NULL map");
+    return NULL;
+  }
+  struct vlff_map_snapshot *s = calloc(1, sizeof *s);
+  uint64_t lpx = m->lw_max * m->lh_max;
+  if (s) {
+    s->max_voxels = m->max_voxels;
+    s->lw_max = m->lw_max;
+    s->lh_max = m->lh_max;
+    s->labels = malloc(2 * m->max_voxels);
+    s->conf = malloc(m->max_voxels);
+    s->llabels = malloc(2 * lpx + 2);
+    s->lconf = malloc(lpx + 1);
+  }
+  if (!s || !s->labels || !s->conf || !s->llabels || !s->lconf) {
+    vlff_map_snapshot_free(s);
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "snapshot: out of memory");
+    return NULL;
+  }
+  return s;
+}
+
+API void vlff_map_snapshot_free(struct vlff_map_snapshot *s) {
+  if (!s)
+    return;
+  free(s->labels);
+  free(s->conf);
+  free(s->llabels);
+  free(s->lconf);
+  free(s);
+}
+
+static bool copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx) {
+  struct vlff_map_snapshot *s = ctx;
+  uint64_t mv = m->max_voxels;
+  if (mm->version) {
+    uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2];
+    shm_racy_copy(s->labels, bufp(m, b, off_labels()), 2 * n);
+    shm_racy_copy(s->conf, bufp(m, b, off_conf(mv)), n);
+  }
+  if (mm->has_limg) {
+    uint64_t n = (uint64_t)mm->lw * mm->lh;
+    shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * n);
+    shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), n);
+  }
+  return true;
+}
+
+API int vlff_map_snapshot_take(struct vlff_map *m, struct vlff_map_snapshot *s) {
+  if (!m || !s || s->max_voxels != m->max_voxels || s->lw_max != m->lw_max || s->lh_max != m->lh_max) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_take: snapshot not made for this map");
+    return -1;
+  }
+  if (read_consistent(m, &s->meta, copy_all, s) < 0)
+    return -1;
+  for (int i = 0; i < VLFF_SHM_MAX_PROMPTS; i++)
+    s->meta.prompts[i][VLFF_SHM_PROMPT_LEN - 1] = 0;
+  s->generation = atomic_load(&m->seg.h->generation);
+  return 0;
+}
+
+API int vlff_map_snapshot_info(const struct vlff_map_snapshot *s, struct vlff_map_info *info) {
+  if (!s || !info) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_info: NULL argument");
+    return -1;
+  }
+  const struct map_meta *mm = &s->meta;
+  memset(info, 0, sizeof *info);
+  info->version = mm->version;
+  info->publish_ns = mm->publish_ns;
+  info->generation = s->generation;
+  info->prompt_count = mm->prompt_count;
+  memcpy(info->grid.origin, mm->origin, sizeof mm->origin);
+  info->grid.voxel_size = mm->voxel_size;
+  memcpy(info->grid.dims, mm->dims, sizeof mm->dims);
+  info->grid.labels = s->labels;
+  info->grid.confidence = s->conf;
+  info->has_label_image = (int)mm->has_limg;
+  if (mm->has_limg) {
+    struct vlff_map_label_image *li = &info->label_image;
+    li->width = mm->lw;
+    li->height = mm->lh;
+    li->labels = s->llabels;
+    li->confidence = s->lconf;
+    li->fx = mm->lfx;
+    li->fy = mm->lfy;
+    li->cx = mm->lcx;
+    li->cy = mm->lcy;
+    memcpy(li->pose, mm->lpose, sizeof li->pose);
+    li->t_ns = mm->lt_ns;
+  }
+  return 0;
+}
+
+API uint16_t vlff_map_snapshot_label_at(const struct vlff_map_snapshot *s, double x, double y, double z,
+                                        uint8_t *conf) {
+  uint64_t i;
+  if (conf)
+    *conf = 0;
+  if (!s || !voxel_index(&s->meta, x, y, z, &i))
+    return VLFF_LABEL_UNKNOWN;
+  if (conf)
+    *conf = s->conf[i];
+  return s->labels[i];
+}
+
+API const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *s, uint16_t label) {
+  if (!s || label >= s->meta.prompt_count)
+    return NULL;
+  return s->meta.prompts[label];
+}

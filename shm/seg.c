@@ -1,0 +1,491 @@
+/* Segment plumbing shared by rings, the map and the prompt mailbox.
+ *
+ * A segment is created O_EXCL so two creators never share one by accident. A creator
+ * that died leaves its segment behind; the next creator takes it over in place when
+ * the geometry matches (attached readers keep their mapping and see the generation
+ * change) and otherwise marks it abandoned and replaces it (readers get EPIPE and
+ * re-attach). Attach never trusts the file: every header field is checked before the
+ * body is mapped, and the file must be as large as the header claims, because a
+ * reader touching a page past EOF would die of SIGBUS. */
+#include "shm_internal.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <grp.h>
+#include <limits.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+static _Thread_local int last_code;
+static _Thread_local char last_msg[320];
+
+void shm_err(int code, int errnum, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(last_msg, sizeof last_msg, fmt, ap);
+  va_end(ap);
+  last_code = code;
+  errno = errnum;
+}
+
+API int vlff_shm_last_error(void) { return last_code; }
+API const char *vlff_shm_last_message(void) { return last_msg[0] ? last_msg : vlff_shm_strerror(last_code); }
+
+API const char *vlff_shm_strerror(int err) {
+  switch (err) {
+  case VLFF_SHM_OK: return "no error";
+  case VLFF_SHM_ERR_SYS: return "system call failed";
+  case VLFF_SHM_ERR_INVAL: return "invalid argument";
+  case VLFF_SHM_ERR_MISSING: return "no such segment";
+  case VLFF_SHM_ERR_EXISTS: return "segment owned by a live creator";
+  case VLFF_SHM_ERR_PERM: return "permission denied";
+  case VLFF_SHM_ERR_FOREIGN: return "not a vlff segment";
+  case VLFF_SHM_ERR_KIND: return "vlff segment of another kind";
+  case VLFF_SHM_ERR_VERSION: return "unsupported ABI version";
+  case VLFF_SHM_ERR_TRUNCATED: return "segment truncated";
+  case VLFF_SHM_ERR_CORRUPT: return "corrupt segment header";
+  case VLFF_SHM_ERR_NOTREADY: return "segment not initialised yet";
+  case VLFF_SHM_ERR_ABANDONED: return "segment abandoned by its creator";
+  case VLFF_SHM_ERR_SIZE: return "too large for the segment";
+  default: return "unknown error";
+  }
+}
+
+uint64_t shm_now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
+}
+API uint64_t vlff_shm_now_ns(void) { return shm_now(); }
+
+int shm_pid_alive(int32_t pid) {
+  if (pid <= 0)
+    return 0;
+  /* EPERM: exists but belongs to someone else - alive as far as we can tell. */
+  return kill(pid, 0) == 0 || errno != ESRCH;
+}
+
+uint32_t shm_geom_check(const struct seg_hdr *h) {
+  /* FNV-1a over the immutable fields. */
+  uint32_t x = 2166136261u;
+  uint64_t w[10] = {h->magic, h->abi_version, h->kind, h->record_kind, h->total_size,
+                    h->geom[0], h->geom[1], h->geom[2], h->geom[3], h->geom[4] ^ (h->geom[5] << 1)};
+  const uint8_t *p = (const uint8_t *)w;
+  for (size_t i = 0; i < sizeof w; i++)
+    x = (x ^ p[i]) * 16777619u;
+  return x ? x : 1;
+}
+
+#if defined(__SANITIZE_THREAD__)
+#define VLFF_TSAN 1
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+#define VLFF_TSAN 1
+#endif
+#endif
+
+#ifdef VLFF_TSAN
+/* Under ThreadSanitizer the seqlock's data copies are made of relaxed atomics on both
+ * sides, which is the formally race-free form of the pattern, so that TSan checks the
+ * protocol instead of flagging the by-design overlap of a reader with the writer. */
+void shm_racy_copy(void *dst, const void *src, size_t n) {
+  uint8_t *d = dst;
+  const uint8_t *s = src;
+  for (size_t i = 0; i < n; i++)
+    __atomic_store_n(d + i, __atomic_load_n(s + i, __ATOMIC_RELAXED), __ATOMIC_RELAXED);
+}
+void shm_racy_fill(void *dst, int c, size_t n) {
+  uint8_t *d = dst;
+  for (size_t i = 0; i < n; i++)
+    __atomic_store_n(d + i, (uint8_t)c, __ATOMIC_RELAXED);
+}
+#else
+void shm_racy_copy(void *dst, const void *src, size_t n) { memcpy(dst, src, n); }
+void shm_racy_fill(void *dst, int c, size_t n) { memset(dst, c, n); }
+#endif
+
+static int check_name(const char *name) {
+  if (!name || name[0] != '/' || strlen(name) < 2 || strlen(name) >= 250 || strchr(name + 1, '/')) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: a segment name is '/' followed by 1..248 characters without '/'",
+            name ? name : "(null)");
+    return -1;
+  }
+  return 0;
+}
+
+static int open_error(const char *name, const char *what) {
+  int e = errno;
+  if (e == ENOENT)
+    shm_err(VLFF_SHM_ERR_MISSING, e, "%s: no such segment", name);
+  else if (e == EACCES || e == EPERM)
+    shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: permission denied (%s)", name, what);
+  else
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: %s: %s", name, what, strerror(e));
+  return -1;
+}
+
+
+static uint64_t total_for(uint32_t kind, const uint64_t g[6]) {
+  switch (kind) {
+  case VLFF_SHM_KIND_RING: return shm_ring_total(g);
+  case VLFF_SHM_KIND_MAP: return shm_map_total(g);
+  case VLFF_SHM_KIND_PROMPTS: return shm_prompts_total(g);
+  default: return 0;
+  }
+}
+
+/* Validates a header copy against the file size. Returns 0 or -1 with the error set. */
+static int validate(const char *name, const struct seg_hdr *h, uint64_t file_size, const struct seg_spec *spec) {
+  if (h->magic == 0) {
+    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header not written yet (creator starting or died)", name);
+    return -1;
+  }
+  if (h->magic != SEG_MAGIC) {
+    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", name,
+            (unsigned long long)h->magic);
+    return -1;
+  }
+  if (h->abi_version != VLFF_SHM_ABI_VERSION) {
+    shm_err(VLFF_SHM_ERR_VERSION, EPROTONOSUPPORT, "%s: ABI version %u, this library speaks %u", name,
+            h->abi_version, VLFF_SHM_ABI_VERSION);
+    return -1;
+  }
+  if (h->geom_check != shm_geom_check(h)) {
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: header checksum %08x does not match its fields (%08x)", name,
+            h->geom_check, shm_geom_check(h));
+    return -1;
+  }
+  uint64_t want = total_for(h->kind, h->geom);
+  if (want == 0 || want != h->total_size) {
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: kind %u geometry inconsistent with total size %llu", name, h->kind,
+            (unsigned long long)h->total_size);
+    return -1;
+  }
+  if (spec && spec->kind && h->kind != spec->kind) {
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u", name, h->kind, spec->kind);
+    return -1;
+  }
+  if (spec && spec->record_kind && h->record_kind != spec->record_kind) {
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u", name, h->record_kind,
+            spec->record_kind);
+    return -1;
+  }
+  if (file_size < h->total_size) {
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: %llu bytes, header says %llu", name,
+            (unsigned long long)file_size, (unsigned long long)h->total_size);
+    return -1;
+  }
+  uint32_t st = atomic_load_explicit(&((struct seg_hdr *)h)->state, memory_order_acquire);
+  if (st == SEG_INIT) {
+    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: creator pid %d has not finished initialising it", name,
+            (int)h->creator_pid);
+    return -1;
+  }
+  if (st == SEG_ABANDONED) {
+    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its creator; attach again", name);
+    return -1;
+  }
+  if (st != SEG_READY) {
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: state word %u is not a valid state", name, st);
+    return -1;
+  }
+  return 0;
+}
+
+static int map_checked(struct seg *s, const char *name, int fd, bool writable, const struct seg_spec *spec) {
+  struct stat st;
+  if (fstat(fd, &st) < 0)
+    return open_error(name, "fstat");
+  if ((uint64_t)st.st_size < sizeof(struct seg_hdr)) {
+    uint64_t magic = 0;
+    if (pread(fd, &magic, sizeof magic, 0) == (ssize_t)sizeof magic && magic != 0 && magic != SEG_MAGIC)
+      shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", name,
+              (unsigned long long)magic);
+    else if (st.st_size == 0)
+      shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: empty (creator starting or died)", name);
+    else
+      shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: %lld bytes, smaller than a segment header", name,
+              (long long)st.st_size);
+    return -1;
+  }
+  int prot = PROT_READ | (writable ? PROT_WRITE : 0);
+  void *hp = mmap(NULL, sizeof(struct seg_hdr), PROT_READ, MAP_SHARED, fd, 0);
+  if (hp == MAP_FAILED)
+    return open_error(name, "mmap");
+  struct seg_hdr copy;
+  memcpy(&copy, hp, sizeof copy);
+  munmap(hp, sizeof(struct seg_hdr));
+  if (validate(name, &copy, (uint64_t)st.st_size, spec) < 0)
+    return -1;
+  void *p = mmap(NULL, copy.total_size, prot, MAP_SHARED, fd, 0);
+  if (p == MAP_FAILED)
+    return open_error(name, "mmap");
+  s->base = p;
+  s->size = copy.total_size;
+  s->h = p;
+  /* The mapped header must still say what the copy said (a creator replacing it in
+   * between would change it). */
+  if (memcmp(s->h, &copy, offsetof(struct seg_hdr, state)) != 0) {
+    munmap(p, copy.total_size);
+    s->base = NULL;
+    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header changed while attaching", name);
+    return -1;
+  }
+  return 0;
+}
+
+int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable) {
+  memset(s, 0, sizeof *s);
+  s->fd = -1;
+  if (check_name(name) < 0)
+    return -1;
+  snprintf(s->name, sizeof s->name, "%s", name);
+  int fd = shm_open(name, writable ? O_RDWR : O_RDONLY, 0);
+  if (fd < 0)
+    return open_error(name, writable ? "open read-write" : "open read-only");
+  if (map_checked(s, name, fd, writable, spec) < 0) {
+    int e = errno;
+    close(fd);
+    errno = e;
+    return -1;
+  }
+  s->fd = fd;
+  s->writable = writable;
+  return 0;
+}
+
+void shm_seg_close(struct seg *s) {
+  if (s->base)
+    munmap(s->base, s->size);
+  if (s->fd >= 0)
+    close(s->fd);
+  s->base = NULL;
+  s->fd = -1;
+}
+
+static int resolve_group(const char *name, const char *group, gid_t *gid) {
+  if (!group || !group[0])
+    return 0;
+  char *end;
+  long v = strtol(group, &end, 10);
+  if (*end == 0 && v >= 0) {
+    *gid = (gid_t)v;
+    return 1;
+  }
+  char buf[4096];
+  struct group gr, *res = NULL;
+  if (getgrnam_r(group, &gr, buf, sizeof buf, &res) != 0 || !res) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: unknown group '%s'", name, group);
+    return -1;
+  }
+  *gid = res->gr_gid;
+  return 1;
+}
+
+static int apply_perm(const char *name, int fd, mode_t mode, const char *group) {
+  gid_t gid;
+  int g = resolve_group(name, group, &gid);
+  if (g < 0)
+    return -1;
+  if (g && fchown(fd, (uid_t)-1, gid) < 0) {
+    shm_err(VLFF_SHM_ERR_PERM, errno, "%s: cannot give it to group %s: %s", name, group, strerror(errno));
+    return -1;
+  }
+  /* Explicit chmod: the umask must not widen or narrow what the config asked for. */
+  if (fchmod(fd, mode) < 0) {
+    shm_err(VLFF_SHM_ERR_SYS, errno, "%s: fchmod: %s", name, strerror(errno));
+    return -1;
+  }
+  return 0;
+}
+
+/* Looks at an existing segment: 0 = taken over in place, 1 = stale (unlinked, create
+ * again), -1 = error (live creator, foreign, ...). */
+static int try_take_over(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
+                         uint64_t total, mode_t mode, const char *group) {
+  int fd = shm_open(name, O_RDWR, 0);
+  if (fd < 0) {
+    if (errno == ENOENT)
+      return 1;
+    return open_error(name, "open existing read-write");
+  }
+  struct stat st;
+  if (fstat(fd, &st) < 0) {
+    close(fd);
+    return open_error(name, "fstat");
+  }
+  if ((uint64_t)st.st_size < sizeof(struct seg_hdr)) {
+    uint64_t magic = 0;
+    if (pread(fd, &magic, sizeof magic, 0) == (ssize_t)sizeof magic && magic != 0 && magic != SEG_MAGIC) {
+      close(fd);
+      shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a vlff segment; not touching it", name);
+      return -1;
+    }
+    /* A creator died before writing a header. */
+    close(fd);
+    shm_unlink(name);
+    return 1;
+  }
+  struct seg_hdr *h = mmap(NULL, sizeof *h, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+  if (h == MAP_FAILED) {
+    close(fd);
+    return open_error(name, "mmap");
+  }
+  int rc = 1;
+  if (h->magic != SEG_MAGIC && h->magic != 0) {
+    shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a vlff segment; not touching it", name);
+    rc = -1;
+    goto out;
+  }
+  int32_t pid = atomic_load(&h->creator_pid);
+  uint32_t state = atomic_load(&h->state);
+  if (state != SEG_ABANDONED && pid != getpid() && shm_pid_alive(pid)) {
+    shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: owned by live process %d", name, (int)pid);
+    rc = -1;
+    goto out;
+  }
+  bool same = h->magic == SEG_MAGIC && h->abi_version == VLFF_SHM_ABI_VERSION && h->kind == spec->kind &&
+              h->record_kind == spec->record_kind && h->total_size == total &&
+              !memcmp(h->geom, geom, sizeof h->geom) && h->geom_check == shm_geom_check(h) &&
+              (uint64_t)st.st_size >= total && state == SEG_READY;
+  if (same && atomic_compare_exchange_strong(&h->creator_pid, &pid, (int32_t)getpid())) {
+    if (apply_perm(name, fd, mode, group) < 0) {
+      atomic_store(&h->creator_pid, pid);
+      rc = -1;
+      goto out;
+    }
+    munmap(h, sizeof *h);
+    memset(s, 0, sizeof *s);
+    snprintf(s->name, sizeof s->name, "%s", name);
+    if (map_checked(s, name, fd, true, spec) < 0) {
+      close(fd);
+      return -1;
+    }
+    s->fd = fd;
+    s->writable = true;
+    atomic_fetch_add(&s->h->generation, 1);
+    return 0;
+  }
+  if (h->magic == SEG_MAGIC)
+    atomic_store(&h->state, SEG_ABANDONED); /* tell attached readers to re-attach */
+  shm_unlink(name);
+out:
+  munmap(h, sizeof *h);
+  close(fd);
+  return rc;
+}
+
+int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
+                   const struct vlff_shm_perm *perm) {
+  memset(s, 0, sizeof *s);
+  s->fd = -1;
+  if (check_name(name) < 0)
+    return -1;
+  mode_t mode = perm && perm->mode ? perm->mode : 0640;
+  const char *group = perm ? perm->group : NULL;
+  if (mode & 0002 || mode & ~(mode_t)0777) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: mode %04o refused: world-writable or not permission bits", name,
+            (unsigned)mode);
+    return -1;
+  }
+  uint64_t total = total_for(spec->kind, geom);
+  if (total == 0) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: invalid geometry", name);
+    return -1;
+  }
+  for (int attempt = 0; attempt < 4; attempt++) {
+    int fd = shm_open(name, O_RDWR | O_CREAT | O_EXCL, mode & 0600);
+    if (fd < 0) {
+      if (errno != EEXIST)
+        return open_error(name, "create");
+      int r = try_take_over(s, name, spec, geom, total, mode, group);
+      if (r <= 0)
+        return r;
+      continue;
+    }
+    snprintf(s->name, sizeof s->name, "%s", name);
+    int bad = apply_perm(name, fd, mode, group);
+    if (bad == 0 && ftruncate(fd, (off_t)total) < 0) {
+      shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", name, (unsigned long long)total,
+              strerror(errno));
+      bad = -1;
+    }
+    if (bad < 0) {
+      int e = errno;
+      close(fd);
+      shm_unlink(name);
+      errno = e;
+      return -1;
+    }
+    void *p = mmap(NULL, total, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    if (p == MAP_FAILED) {
+      int e = errno;
+      close(fd);
+      shm_unlink(name);
+      errno = e;
+      return open_error(name, "mmap");
+    }
+    s->fd = fd;
+    s->writable = true;
+    s->base = p;
+    s->size = total;
+    s->h = p;
+    struct seg_hdr *h = s->h;
+    h->abi_version = VLFF_SHM_ABI_VERSION;
+    h->kind = spec->kind;
+    h->record_kind = spec->record_kind;
+    h->total_size = total;
+    memcpy(h->geom, geom, sizeof h->geom);
+    atomic_store(&h->creator_pid, (int32_t)getpid());
+    atomic_store(&h->generation, 1);
+    atomic_store(&h->state, SEG_INIT);
+    h->magic = SEG_MAGIC;
+    h->geom_check = shm_geom_check(h);
+    return 1;
+  }
+  shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: kept reappearing while being replaced", name);
+  return -1;
+}
+
+void shm_seg_ready(struct seg *s) { atomic_store_explicit(&s->h->state, SEG_READY, memory_order_release); }
+
+API int vlff_shm_unlink(const char *name) {
+  if (check_name(name) < 0)
+    return -1;
+  if (shm_unlink(name) < 0)
+    return open_error(name, "unlink");
+  return 0;
+}
+
+API int vlff_shm_stat(const char *name, struct vlff_shm_info *info) {
+  struct seg s;
+  if (!info) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_shm_stat: info is NULL");
+    return -1;
+  }
+  if (shm_seg_attach(&s, name, NULL, false) < 0)
+    return -1;
+  memset(info, 0, sizeof *info);
+  info->kind = s.h->kind;
+  info->abi_version = s.h->abi_version;
+  info->record_kind = s.h->record_kind;
+  info->generation = atomic_load(&s.h->generation);
+  info->creator_pid = atomic_load(&s.h->creator_pid);
+  info->creator_alive = shm_pid_alive(info->creator_pid);
+  info->total_size = s.h->total_size;
+  info->last_ns = atomic_load(&s.h->last_ns);
+  if (s.h->kind == VLFF_SHM_KIND_RING)
+    shm_ring_stat(&s, info);
+  else if (s.h->kind == VLFF_SHM_KIND_MAP)
+    shm_map_stat(&s, info);
+  else
+    shm_prompts_stat(&s, info);
+  shm_seg_close(&s);
+  return 0;
+}

@@ -1,0 +1,91 @@
+/* Internals shared by the shm/ sources: the common segment header every vlff segment
+ * starts with, creation/attach with validation, and error recording. */
+#ifndef VLFF_SHM_INTERNAL_H
+#define VLFF_SHM_INTERNAL_H
+
+#include "vlff/shm.h"
+
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include <string.h>
+
+#define API __attribute__((visibility("default")))
+
+/* "VLFFSHM" + NUL as a little-endian word. */
+#define SEG_MAGIC 0x004D485346464C56ull
+
+enum seg_state { SEG_INIT = 0, SEG_READY = 1, SEG_ABANDONED = 2 };
+
+/* Every segment starts with these 128 bytes. The geometry words are immutable after
+ * creation and covered by geom_check, so a reader can tell a corrupt header from a
+ * segment of another shape. */
+struct seg_hdr {
+  uint64_t magic;
+  uint32_t abi_version;
+  uint32_t kind;        /* enum vlff_shm_kind */
+  uint32_t record_kind; /* rings */
+  uint32_t geom_check;
+  uint64_t total_size;
+  uint64_t geom[6];     /* kind-specific */
+  _Atomic uint32_t state;
+  _Atomic int32_t creator_pid;
+  _Atomic uint32_t generation;
+  uint32_t pad0;
+  _Atomic uint64_t last_ns;
+  uint8_t pad1[128 - 32 - 48 - 24];
+};
+_Static_assert(sizeof(struct seg_hdr) == 128, "segment header is 128 bytes");
+
+/* One mapped segment. */
+struct seg {
+  char name[256];
+  int fd;
+  bool writable;
+  uint8_t *base;
+  uint64_t size;
+  struct seg_hdr *h;
+};
+
+/* Kind-specific description used to validate and create. compute_total returns the
+ * expected total size from the geometry, or 0 if the geometry is not sane. */
+struct seg_spec {
+  uint32_t kind;
+  uint32_t record_kind; /* 0 = any on attach */
+  uint64_t (*compute_total)(const uint64_t geom[6]);
+};
+
+void shm_err(int code, int errnum, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+uint32_t shm_geom_check(const struct seg_hdr *h);
+int shm_pid_alive(int32_t pid);
+uint64_t shm_now(void);
+
+/* Attach: maps the whole segment after validating it against spec (spec->kind 0 =
+ * any kind, then compute_total is looked up by kind). */
+int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable);
+/* Create: returns 1 if a fresh segment was created (header written, state INIT: the
+ * caller initialises its body then calls shm_seg_ready), 0 if a dead creator's
+ * segment of identical geometry was taken over (generation bumped, state READY). */
+int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
+                   const struct vlff_shm_perm *perm);
+void shm_seg_ready(struct seg *s);
+void shm_seg_close(struct seg *s);
+
+/* Copies that may race with a writer in another thread by design (seqlock: the reader
+ * validates afterwards and discards torn data). Kept out of ThreadSanitizer's view;
+ * the sequence words around them are real atomics that TSan does check. */
+void shm_racy_copy(void *dst, const void *src, size_t n);
+void shm_racy_fill(void *dst, int c, size_t n);
+
+uint64_t shm_ring_total(const uint64_t g[6]);
+uint64_t shm_map_total(const uint64_t g[6]);
+uint64_t shm_prompts_total(const uint64_t g[6]);
+void shm_ring_stat(const struct seg *s, struct vlff_shm_info *info);
+void shm_map_stat(const struct seg *s, struct vlff_shm_info *info);
+void shm_prompts_stat(const struct seg *s, struct vlff_shm_info *info);
+
+int shm_ring_peek(struct vlff_ring *r, uint64_t n, void *out, size_t want);
+
+static inline uint64_t align64(uint64_t v) { return (v + 63) & ~(uint64_t)63; }
+
+#endif

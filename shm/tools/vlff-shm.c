@@ -1,0 +1,363 @@
+/* vlff-shm - look into vlff shared-memory segments from a shell.
+ *
+ * One line per fact, "key value" or fixed columns, so that the output can be pasted
+ * into a bug report or scripted against; errors go to stderr with the library's
+ * message and a non-zero exit status. */
+#include "vlff/shm.h"
+
+#include <dirent.h>
+#include <errno.h>
+#include <inttypes.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+static const char usage_text[] =
+  "Usage: vlff-shm <command> [arguments]\n"
+  "\n"
+  "Commands:\n"
+  "  list                      vlff segments under /dev/shm, one per line\n"
+  "  stat NAME                 header of a segment (kind, generation, creator, sizes)\n"
+  "  dump-frame NAME FILE      newest frame of a frame ring to FILE (.ppm color, .pgm mono/depth)\n"
+  "  label NAME X Y Z          label, confidence and prompt of the map voxel at world point X Y Z (m)\n"
+  "  set-prompts NAME TEXT...  post a prompt set to a prompt mailbox\n"
+  "  set-prompts NAME -i N     post \"switch to configured prompt set N\"\n"
+  "  watch NAME [COUNT]        print records of a ring / versions of a map as they come\n"
+  "\n"
+  "Examples:\n"
+  "  vlff-shm list\n"
+  "  vlff-shm stat /vlff-map\n"
+  "  vlff-shm dump-frame /vlff-frames frame.ppm\n"
+  "  vlff-shm label /vlff-map 1.25 0.4 -0.1\n"
+  "  vlff-shm set-prompts /vlff-prompts \"chair\" \"table\" \"door\"\n"
+  "  vlff-shm watch /vlff-frames 100\n"
+  "\n"
+  "Exit status: 0 ok, 1 error (message on stderr), 2 usage.\n";
+
+static int usage(void) {
+  fputs(usage_text, stderr);
+  return 2;
+}
+
+static int fail(const char *what) {
+  fprintf(stderr, "vlff-shm: %s: %s (%s)\n", what, vlff_shm_last_message(), strerror(errno));
+  return 1;
+}
+
+static const char *kind_name(uint32_t k) {
+  return k == VLFF_SHM_KIND_RING ? "ring" : k == VLFF_SHM_KIND_MAP ? "map" : k == VLFF_SHM_KIND_PROMPTS ? "prompts" : "?";
+}
+static const char *record_name(uint32_t k) {
+  static const char *n[] = {"any", "raw", "frame", "feature", "pose"};
+  return k < 5 ? n[k] : "?";
+}
+
+static void print_age(uint64_t last) {
+  if (!last) {
+    printf("-");
+    return;
+  }
+  uint64_t now = vlff_shm_now_ns();
+  printf("%.3fs", now > last ? (double)(now - last) / 1e9 : 0.0);
+}
+
+static int cmd_list(void) {
+  DIR *d = opendir("/dev/shm");
+  if (!d) {
+    perror("vlff-shm: /dev/shm");
+    return 1;
+  }
+  printf("%-32s %-8s %-8s %4s %8s %5s %12s %10s %s\n", "NAME", "KIND", "RECORDS", "GEN", "PID", "ALIVE", "BYTES",
+         "HEAD", "AGE");
+  struct dirent *e;
+  while ((e = readdir(d))) {
+    if (e->d_name[0] == '.' || strlen(e->d_name) > 240)
+      continue;
+    char name[300];
+    snprintf(name, sizeof name, "/%s", e->d_name);
+    struct vlff_shm_info in;
+    if (vlff_shm_stat(name, &in) < 0) {
+      int err = vlff_shm_last_error();
+      /* Other programs' segments are not ours to list; broken vlff ones are. */
+      if (err == VLFF_SHM_ERR_VERSION || err == VLFF_SHM_ERR_CORRUPT || err == VLFF_SHM_ERR_TRUNCATED ||
+          err == VLFF_SHM_ERR_ABANDONED)
+        printf("%-32s error: %s\n", name, vlff_shm_last_message());
+      continue;
+    }
+    printf("%-32s %-8s %-8s %4" PRIu32 " %8d %5s %12" PRIu64 " %10" PRIu64 " ", name, kind_name(in.kind),
+           in.kind == VLFF_SHM_KIND_RING ? record_name(in.record_kind) : "-", in.generation, (int)in.creator_pid,
+           in.creator_alive ? "yes" : "no", in.total_size, in.head);
+    print_age(in.last_ns);
+    printf("\n");
+  }
+  closedir(d);
+  return 0;
+}
+
+static int cmd_stat(const char *name) {
+  struct vlff_shm_info in;
+  if (vlff_shm_stat(name, &in) < 0)
+    return fail(name);
+  printf("name %s\nkind %s\nabi_version %" PRIu32 "\ngeneration %" PRIu32 "\ncreator_pid %d\ncreator_alive %s\n"
+         "bytes %" PRIu64 "\n",
+         name, kind_name(in.kind), in.abi_version, in.generation, (int)in.creator_pid,
+         in.creator_alive ? "yes" : "no", in.total_size);
+  if (in.kind == VLFF_SHM_KIND_RING)
+    printf("records %s\nslots %" PRIu32 "\nslot_size %" PRIu64 "\nhead %" PRIu64 "\n", record_name(in.record_kind),
+           in.slots, in.slot_size, in.head);
+  else if (in.kind == VLFF_SHM_KIND_MAP)
+    printf("max_voxels %" PRIu64 "\nversion %" PRIu64 "\n", in.slot_size, in.head);
+  else
+    printf("posts %" PRIu64 "\n", in.head);
+  printf("last_update_age ");
+  print_age(in.last_ns);
+  printf("\n");
+  if (in.kind == VLFF_SHM_KIND_MAP) {
+    struct vlff_map *m = vlff_map_attach(name);
+    if (!m)
+      return fail(name);
+    struct vlff_map_snapshot *s = vlff_map_snapshot_new(m);
+    struct vlff_map_info mi;
+    if (!s || vlff_map_snapshot_take(m, s) < 0 || vlff_map_snapshot_info(s, &mi) < 0) {
+      vlff_map_snapshot_free(s);
+      vlff_map_detach(m);
+      return fail(name);
+    }
+    printf("grid_origin %.4f %.4f %.4f\ngrid_voxel_size %.4f\ngrid_dims %" PRIu32 " %" PRIu32 " %" PRIu32 "\n",
+           mi.grid.origin[0], mi.grid.origin[1], mi.grid.origin[2], mi.grid.voxel_size, mi.grid.dims[0],
+           mi.grid.dims[1], mi.grid.dims[2]);
+    for (int i = 0; i < mi.prompt_count; i++)
+      printf("prompt %d %s\n", i, vlff_map_snapshot_prompt(s, (uint16_t)i));
+    if (mi.has_label_image)
+      printf("label_image %" PRIu32 "x%" PRIu32 "\n", mi.label_image.width, mi.label_image.height);
+    printf("writer_alive %s\n", vlff_map_writer_alive(m, 2000000000ull) ? "yes" : "no");
+    vlff_map_snapshot_free(s);
+    vlff_map_detach(m);
+  }
+  return 0;
+}
+
+static int write_image(const char *path, const struct vlff_plane *p, const uint8_t *px) {
+  unsigned bpp = vlff_pixfmt_bpp(p->format);
+  int color = p->format == VLFF_PIX_RGB8 || p->format == VLFF_PIX_BGR8;
+  int wide = bpp >= 2 && !color;
+  FILE *f = fopen(path, "wb");
+  if (!f) {
+    fprintf(stderr, "vlff-shm: %s: %s\n", path, strerror(errno));
+    return 1;
+  }
+  fprintf(f, "P%c\n%" PRIu32 " %" PRIu32 "\n%d\n", color ? '6' : '5', p->width, p->height, wide ? 65535 : 255);
+  for (uint32_t y = 0; y < p->height; y++) {
+    const uint8_t *row = px + (uint64_t)y * p->stride;
+    for (uint32_t x = 0; x < p->width; x++) {
+      const uint8_t *q = row + (uint64_t)x * bpp;
+      if (p->format == VLFF_PIX_BGR8) {
+        fputc(q[2], f), fputc(q[1], f), fputc(q[0], f);
+      } else if (color || bpp == 1) {
+        fwrite(q, 1, bpp, f);
+      } else {
+        /* PGM 16-bit is big-endian; float metres are written as millimetres. */
+        uint32_t v;
+        if (p->format == VLFF_PIX_DEPTH_F32_M) {
+          float m;
+          memcpy(&m, q, 4);
+          v = m > 0 && m < 65.535f ? (uint32_t)(m * 1000.0f + 0.5f) : 0;
+        } else {
+          uint16_t u;
+          memcpy(&u, q, 2);
+          v = u;
+        }
+        fputc((int)(v >> 8), f), fputc((int)(v & 255), f);
+      }
+    }
+  }
+  if (fclose(f) != 0) {
+    fprintf(stderr, "vlff-shm: %s: %s\n", path, strerror(errno));
+    return 1;
+  }
+  return 0;
+}
+
+static int cmd_dump_frame(const char *name, const char *path) {
+  struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_FRAME);
+  if (!r)
+    return fail(name);
+  size_t cap = vlff_ring_slot_size(r);
+  uint8_t *buf = malloc(cap);
+  struct vlff_ring_view v;
+  int rc = 1;
+  if (!buf) {
+    perror("vlff-shm");
+  } else if (vlff_ring_read_latest(r, buf, cap, &v) < 0) {
+    rc = fail(name);
+  } else if (vlff_frame_validate(buf, v.len) < 0) {
+    rc = fail("frame record");
+  } else {
+    const struct vlff_frame_hdr *h = (const struct vlff_frame_hdr *)buf;
+    size_t plen = strlen(path);
+    unsigned plane = VLFF_PLANE_COLOR;
+    /* A .pgm request for a frame with depth and a color plane gets the depth. */
+    if (plen > 4 && !strcmp(path + plen - 4, ".pgm") && h->nplanes == 2 && vlff_pixfmt_bpp(h->plane[0].format) == 3)
+      plane = VLFF_PLANE_DEPTH;
+    rc = write_image(path, &h->plane[plane], vlff_frame_plane(buf, plane));
+    if (!rc)
+      printf("seq %" PRIu64 " frame_id %" PRIu64 " sensor %" PRIu32 " t_host_ns %" PRIu64 " %" PRIu32 "x%" PRIu32
+             " %s -> %s\n",
+             v.seq, h->frame_id, h->sensor_id, h->t_host_ns, h->plane[plane].width, h->plane[plane].height,
+             vlff_pixfmt_name(h->plane[plane].format), path);
+  }
+  free(buf);
+  vlff_ring_close(r);
+  return rc;
+}
+
+static int parse_double(const char *s, double *v) {
+  char *end;
+  errno = 0;
+  *v = strtod(s, &end);
+  return errno || end == s || *end ? -1 : 0;
+}
+
+static int cmd_label(const char *name, char **xyz) {
+  double p[3];
+  for (int i = 0; i < 3; i++)
+    if (parse_double(xyz[i], &p[i]) < 0) {
+      fprintf(stderr, "vlff-shm: '%s' is not a number\n", xyz[i]);
+      return 2;
+    }
+  struct vlff_map *m = vlff_map_attach(name);
+  if (!m)
+    return fail(name);
+  uint16_t label;
+  uint8_t conf;
+  int rc = 0;
+  if (vlff_map_label_at(m, p[0], p[1], p[2], &label, &conf) < 0) {
+    rc = fail(name);
+  } else {
+    char text[VLFF_SHM_PROMPT_LEN];
+    if (label == VLFF_LABEL_FREE)
+      snprintf(text, sizeof text, "(free)");
+    else if (label == VLFF_LABEL_UNKNOWN)
+      snprintf(text, sizeof text, "(unknown)");
+    else if (vlff_map_prompt(m, label, text, sizeof text) < 0)
+      snprintf(text, sizeof text, "(no prompt)");
+    printf("label %u confidence %u prompt %s version %" PRIu64 "\n", label, conf, text, vlff_map_version(m));
+  }
+  vlff_map_detach(m);
+  return rc;
+}
+
+static int cmd_set_prompts(const char *name, int n, char **texts) {
+  struct vlff_prompts *p = vlff_prompts_attach(name);
+  if (!p)
+    return fail(name);
+  int rc;
+  if (n == 2 && !strcmp(texts[0], "-i")) {
+    char *end;
+    long idx = strtol(texts[1], &end, 10);
+    if (*end || idx < 0 || idx > INT32_MAX) {
+      vlff_prompts_close(p);
+      fprintf(stderr, "vlff-shm: '%s' is not a prompt set index\n", texts[1]);
+      return 2;
+    }
+    rc = vlff_prompts_post_index(p, (int)idx);
+  } else {
+    rc = vlff_prompts_post(p, (const char *const *)texts, n);
+  }
+  if (rc < 0) {
+    rc = fail(name);
+  } else {
+    struct vlff_shm_info in;
+    if (vlff_shm_stat(name, &in) == 0)
+      printf("posted %" PRIu64 "\n", in.head);
+  }
+  vlff_prompts_close(p);
+  return rc;
+}
+
+static volatile sig_atomic_t stop;
+static void on_signal(int sig) { stop = sig; }
+
+static int cmd_watch(const char *name, long count) {
+  struct vlff_shm_info in;
+  if (vlff_shm_stat(name, &in) < 0)
+    return fail(name);
+  signal(SIGINT, on_signal);
+  signal(SIGTERM, on_signal);
+  long seen = 0;
+  if (in.kind == VLFF_SHM_KIND_RING) {
+    struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_ANY);
+    if (!r)
+      return fail(name);
+    while (!stop && (count <= 0 || seen < count)) {
+      struct vlff_ring_view v;
+      if (vlff_ring_read_begin(r, &v, 500000000ull) < 0) {
+        if (errno == ETIMEDOUT || errno == EINTR)
+          continue;
+        vlff_ring_close(r);
+        return fail(name);
+      }
+      struct vlff_frame_hdr fh;
+      int is_frame = in.record_kind == VLFF_RECORD_FRAME && v.len >= sizeof fh;
+      if (is_frame)
+        memcpy(&fh, v.data, sizeof fh);
+      if (vlff_ring_read_end(r, &v) < 0)
+        continue;
+      printf("seq %" PRIu64 " len %zu gen %" PRIu32 "%s lost %" PRIu64, v.seq, v.len, v.generation,
+             v.new_generation ? " (new)" : "", vlff_ring_lost(r));
+      if (is_frame)
+        printf(" frame_id %" PRIu64 " sensor %" PRIu32 " t_host_ns %" PRIu64, fh.frame_id, fh.sensor_id, fh.t_host_ns);
+      printf("\n");
+      fflush(stdout);
+      seen++;
+    }
+    vlff_ring_close(r);
+    return 0;
+  }
+  if (in.kind == VLFF_SHM_KIND_MAP) {
+    struct vlff_map *m = vlff_map_attach(name);
+    if (!m)
+      return fail(name);
+    uint64_t last = 0;
+    while (!stop && (count <= 0 || seen < count)) {
+      uint64_t v = vlff_map_version(m);
+      if (v != last) {
+        printf("version %" PRIu64 " age_ms %.1f writer_alive %s\n", v, (double)vlff_map_age_ns(m) / 1e6,
+               vlff_map_writer_alive(m, 2000000000ull) ? "yes" : "no");
+        fflush(stdout);
+        last = v;
+        seen++;
+      }
+      nanosleep(&(struct timespec){0, 10000000}, NULL);
+    }
+    vlff_map_detach(m);
+    return 0;
+  }
+  fprintf(stderr, "vlff-shm: %s: watch works on rings and maps\n", name);
+  return 1;
+}
+
+int main(int argc, char **argv) {
+  if (argc < 2)
+    return usage();
+  const char *c = argv[1];
+  if (!strcmp(c, "-h") || !strcmp(c, "--help")) {
+    fputs(usage_text, stdout);
+    return 0;
+  }
+  if (!strcmp(c, "list") && argc == 2)
+    return cmd_list();
+  if (!strcmp(c, "stat") && argc == 3)
+    return cmd_stat(argv[2]);
+  if (!strcmp(c, "dump-frame") && argc == 4)
+    return cmd_dump_frame(argv[2], argv[3]);
+  if (!strcmp(c, "label") && argc == 6)
+    return cmd_label(argv[2], argv + 3);
+  if (!strcmp(c, "set-prompts") && argc >= 4)
+    return cmd_set_prompts(argv[2], argc - 3, argv + 3);
+  if (!strcmp(c, "watch") && (argc == 3 || argc == 4))
+    return cmd_watch(argv[2], argc == 4 ? strtol(argv[3], NULL, 10) : 0);
+  return usage();
+}

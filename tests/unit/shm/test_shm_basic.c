@@ -1,0 +1,556 @@
+/* Single-process behaviour of libvlff-shm: ring protocol and exact loss counting,
+ * take-over of a dead creator's segment, every attach error, records, pose lookup,
+ * the map and the prompt mailbox. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <cmocka.h>
+
+#include "shm_test_util.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdlib.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+
+static struct vlff_ring *mk_ring(const char *name, uint32_t slots, uint64_t size) {
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_RAW, .slots = slots, .slot_size = size};
+  return vlff_ring_create(name, &p);
+}
+
+static void ring_roundtrip_and_exact_lapping(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "ring");
+  struct vlff_ring *w = mk_ring(name, 4, 256);
+  assert_non_null(w);
+  struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_RAW);
+  assert_non_null(r);
+  struct vlff_ring_view v;
+  assert_int_equal(vlff_ring_read_begin(r, &v, 0), -1);
+  assert_int_equal(errno, EAGAIN);
+  assert_int_equal(vlff_ring_read_begin(r, &v, 2000000), -1);
+  assert_int_equal(errno, ETIMEDOUT);
+
+  uint8_t buf[256], out[256];
+  for (uint64_t id = 0; id < 3; id++) {
+    size_t len = test_rec_len(id, 256);
+    test_rec_fill(buf, id, len);
+    assert_int_equal(vlff_ring_write(w, buf, len), 0);
+  }
+  for (uint64_t id = 0; id < 3; id++) {
+    ssize_t n = vlff_ring_read_copy(r, out, sizeof out, &v, 0);
+    assert_int_equal(n, (ssize_t)test_rec_len(id, 256));
+    assert_int_equal(v.seq, id);
+    assert_int_equal(test_rec_check(out, (size_t)n, id), 0);
+  }
+  assert_int_equal(vlff_ring_lost(r), 0);
+
+  /* Lap the consumer by exactly 7 records: 10 written, 4 slots, the oldest slot is
+   * intact until the producer reserves the next one. */
+  for (uint64_t id = 3; id < 13; id++) {
+    size_t len = test_rec_len(id, 256);
+    test_rec_fill(buf, id, len);
+    assert_int_equal(vlff_ring_write(w, buf, len), 0);
+  }
+  ssize_t n = vlff_ring_read_copy(r, out, sizeof out, &v, 0);
+  assert_true(n > 0);
+  assert_int_equal(v.seq, 9);
+  assert_int_equal(vlff_ring_lost(r), 6);
+  assert_int_equal(test_rec_check(out, (size_t)n, 9), 0);
+
+  /* A reservation overwrites the oldest record: begun reads of it must fail. */
+  assert_int_equal(vlff_ring_read_begin(r, &v, 0), 0);
+  assert_int_equal(v.seq, 10);
+  uint8_t *slot = vlff_ring_reserve(w, NULL); /* record 13 -> slot of 9 */
+  assert_non_null(slot);
+  assert_int_equal(vlff_ring_read_end(r, &v), 0); /* 10 untouched */
+  test_rec_fill(slot, 13, 64);
+  assert_int_equal(vlff_ring_commit(w, 64), 0);
+  slot = vlff_ring_reserve(w, NULL); /* record 14 overwrites slot of 10 */
+  assert_int_equal(vlff_ring_read_begin(r, &v, 0), 0);
+  assert_int_equal(v.seq, 11);
+  assert_non_null(slot);
+  (void)vlff_ring_reserve(w, NULL); /* idempotent */
+  assert_int_equal(vlff_ring_commit(w, 64), 0);
+  assert_int_equal(vlff_ring_commit(w, 64), -1); /* nothing reserved */
+  assert_int_equal(errno, EINVAL);
+  /* 11's slot is the next to be overwritten: do it while "reading" it. */
+  slot = vlff_ring_reserve(w, NULL);
+  assert_int_equal(vlff_ring_read_end(r, &v), -1);
+  assert_int_equal(errno, ESTALE);
+  assert_int_equal(vlff_ring_lost(r), 7);
+  test_rec_fill(slot, 15, 64);
+  assert_int_equal(vlff_ring_commit(w, 64), 0);
+
+  /* Oversized records are refused on both sides. */
+  assert_int_equal(vlff_ring_write(w, buf, 257), -1);
+  assert_int_equal(errno, EMSGSIZE);
+  assert_int_equal(vlff_ring_read_latest(r, out, sizeof out, &v), 64);
+  assert_int_equal(v.seq, 15);
+  assert_int_equal(test_rec_check(out, 64, 15), 0);
+
+  vlff_ring_close(r);
+  vlff_ring_close(w);
+  assert_int_equal(vlff_shm_unlink(name), 0);
+}
+
+static void ring_takeover_of_dead_creator(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "takeover");
+  /* A live creator (this process, through a child that holds it) refuses a second. */
+  int ready[2];
+  assert_int_equal(pipe(ready), 0);
+  pid_t pid = fork();
+  if (pid == 0) {
+    struct vlff_ring *w = mk_ring(name, 4, 128);
+    uint8_t rec[64];
+    test_rec_fill(rec, 0, 64);
+    if (!w || vlff_ring_write(w, rec, 64) < 0)
+      _exit(1);
+    (void)!write(ready[1], "x", 1);
+    pause();
+    _exit(0);
+  }
+  char c;
+  assert_int_equal(read(ready[0], &c, 1), 1);
+  struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_ANY);
+  assert_non_null(r);
+  vlff_ring_seek_oldest(r);
+  assert_null(mk_ring(name, 4, 128));
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_EXISTS);
+  assert_int_equal(errno, EEXIST);
+  kill(pid, SIGKILL);
+  waitpid(pid, NULL, 0);
+
+  /* Same geometry: taken over in place, numbering continues, consumers carry on. */
+  assert_int_equal(vlff_ring_generation(r), 1);
+  struct vlff_ring *w = mk_ring(name, 4, 128);
+  assert_non_null(w);
+  assert_int_equal(vlff_ring_generation(r), 2);
+  uint8_t rec[64], out[128];
+  test_rec_fill(rec, 1, 64);
+  assert_int_equal(vlff_ring_write(w, rec, 64), 0);
+  struct vlff_ring_view v;
+  assert_int_equal(vlff_ring_read_copy(r, out, sizeof out, &v, 0), 64);
+  assert_int_equal(v.seq, 0);
+  assert_int_equal(v.generation, 1);
+  assert_int_equal(v.new_generation, 0);
+  assert_int_equal(vlff_ring_read_copy(r, out, sizeof out, &v, 0), 64);
+  assert_int_equal(v.seq, 1);
+  assert_int_equal(v.generation, 2);
+  assert_int_equal(v.new_generation, 1);
+  assert_int_equal(test_rec_check(out, 64, 1), 0);
+  vlff_ring_close(w);
+
+  /* Other geometry: the old segment is abandoned (EPIPE) and replaced. */
+  w = mk_ring(name, 8, 128);
+  assert_non_null(w);
+  assert_int_equal(vlff_ring_read_begin(r, &v, 0), -1);
+  assert_int_equal(errno, EPIPE);
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_ABANDONED);
+  vlff_ring_close(r);
+  r = vlff_ring_attach(name, VLFF_RECORD_RAW);
+  assert_non_null(r);
+  assert_int_equal(vlff_ring_slots(r), 8);
+  vlff_ring_close(r);
+  vlff_ring_close(w);
+  vlff_shm_unlink(name);
+  close(ready[0]);
+  close(ready[1]);
+}
+
+/* Writes a copy of a valid segment with one modification and attaches to it. */
+static int attach_modified(const char *good, const char *bad, void (*edit)(uint8_t *, size_t *), int *code) {
+  int fd = shm_open(good, O_RDONLY, 0);
+  struct stat st;
+  fstat(fd, &st);
+  size_t len = (size_t)st.st_size;
+  uint8_t *copy = malloc(len);
+  assert_int_equal(pread(fd, copy, len, 0), (ssize_t)len);
+  close(fd);
+  edit(copy, &len);
+  int bfd = shm_open(bad, O_RDWR | O_CREAT | O_TRUNC, 0600);
+  assert_true(bfd >= 0);
+  assert_int_equal(write(bfd, copy, len), (ssize_t)len);
+  close(bfd);
+  free(copy);
+  struct vlff_ring *r = vlff_ring_attach(bad, VLFF_RECORD_RAW);
+  int e = errno;
+  *code = vlff_shm_last_error();
+  vlff_ring_close(r);
+  shm_unlink(bad);
+  errno = e;
+  return r ? 0 : -1;
+}
+
+static void e_magic(uint8_t *p, size_t *n) { (void)n; p[0] ^= 0x55; }
+static void e_version(uint8_t *p, size_t *n) { (void)n; p[8] = 99; }
+static void e_slots(uint8_t *p, size_t *n) { (void)n; p[32] += 1; } /* geom[0] without fixing the check */
+static void e_trunc(uint8_t *p, size_t *n) { (void)p; *n /= 2; }
+static void e_tiny(uint8_t *p, size_t *n) { (void)p; *n = 20; }
+static void e_state(uint8_t *p, size_t *n) { (void)n; p[80] = 7; }
+static void e_kind(uint8_t *p, size_t *n) { (void)n; p[16] = VLFF_RECORD_POSE; }
+
+static void attach_rejects_bad_segments(void **state) {
+  (void)state;
+  char good[64], bad[64];
+  test_name(good, sizeof good, "good");
+  test_name(bad, sizeof bad, "bad");
+  struct vlff_ring *w = mk_ring(good, 4, 128);
+  assert_non_null(w);
+  int code;
+  assert_int_equal(attach_modified(good, bad, e_magic, &code), -1);
+  assert_int_equal(code, VLFF_SHM_ERR_FOREIGN);
+  assert_int_equal(errno, EPROTO);
+  assert_int_equal(attach_modified(good, bad, e_version, &code), -1);
+  assert_int_equal(code, VLFF_SHM_ERR_VERSION);
+  assert_int_equal(errno, EPROTONOSUPPORT);
+  assert_non_null(strstr(vlff_shm_last_message(), "ABI version 99"));
+  assert_int_equal(attach_modified(good, bad, e_slots, &code), -1);
+  assert_int_equal(code, VLFF_SHM_ERR_CORRUPT);
+  assert_int_equal(attach_modified(good, bad, e_trunc, &code), -1);
+  assert_int_equal(code, VLFF_SHM_ERR_TRUNCATED);
+  assert_int_equal(errno, EBADMSG);
+  assert_int_equal(attach_modified(good, bad, e_tiny, &code), -1);
+  assert_int_equal(code, VLFF_SHM_ERR_TRUNCATED);
+  assert_int_equal(attach_modified(good, bad, e_state, &code), -1);
+  assert_int_equal(code, VLFF_SHM_ERR_CORRUPT);
+  assert_int_equal(attach_modified(good, bad, e_kind, &code), -1); /* record kind checked after checksum */
+  assert_true(code == VLFF_SHM_ERR_CORRUPT || code == VLFF_SHM_ERR_KIND);
+
+  /* Wrong record kind / segment kind. */
+  assert_null(vlff_ring_attach(good, VLFF_RECORD_FRAME));
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_KIND);
+  assert_null(vlff_map_attach(good));
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_KIND);
+  /* Missing, bad names, world-writable mode. */
+  assert_null(vlff_ring_attach("/vlff-test-does-not-exist", 0));
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_MISSING);
+  assert_int_equal(errno, ENOENT);
+  assert_null(vlff_ring_attach("no-slash", 0));
+  assert_int_equal(errno, EINVAL);
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_RAW, .slots = 4, .slot_size = 64, .perm = {.mode = 0666}};
+  assert_null(vlff_ring_create(bad, &p));
+  assert_int_equal(errno, EINVAL);
+  p.perm.group = "no-such-group-vlff";
+  p.perm.mode = 0640;
+  assert_null(vlff_ring_create(bad, &p));
+  assert_int_equal(errno, EINVAL);
+  /* Empty file (creator died before sizing it). */
+  int fd = shm_open(bad, O_RDWR | O_CREAT, 0600);
+  close(fd);
+  assert_null(vlff_ring_attach(bad, 0));
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_NOTREADY);
+  /* ... and a creator replaces it. */
+  p.perm.group = NULL;
+  struct vlff_ring *w2 = vlff_ring_create(bad, &p);
+  assert_non_null(w2);
+  vlff_ring_close(w2);
+  shm_unlink(bad);
+  /* A foreign segment is never replaced. */
+  fd = shm_open(bad, O_RDWR | O_CREAT, 0600);
+  assert_int_equal(write(fd, "not a vlff segment at all, just some bytes of something else.......", 64), 64);
+  close(fd);
+  assert_null(vlff_ring_create(bad, &p));
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_FOREIGN);
+  assert_null(vlff_ring_attach(bad, 0));
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_FOREIGN);
+  shm_unlink(bad);
+
+  /* Permissions: mode is applied exactly; an unreadable segment gives EACCES for
+   * a non-root user (root bypasses modes, so only check the bits there). */
+  struct stat st;
+  char path[128];
+  snprintf(path, sizeof path, "/dev/shm%s", good);
+  assert_int_equal(stat(path, &st), 0);
+  assert_int_equal(st.st_mode & 0777, 0640);
+  if (geteuid() != 0) {
+    chmod(path, 0);
+    assert_null(vlff_ring_attach(good, 0));
+    assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_PERM);
+    assert_int_equal(errno, EACCES);
+  }
+  vlff_ring_close(w);
+  vlff_shm_unlink(good);
+  assert_string_equal(vlff_shm_strerror(VLFF_SHM_ERR_TRUNCATED), "segment truncated");
+}
+
+static void frame_records(void **state) {
+  (void)state;
+  uint64_t sz = vlff_frame_slot_size(64, 48, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  assert_int_equal(sz, 512 + 64 * 48 * 3 + 64 * 48 * 2);
+  uint8_t *rec = calloc(1, sz);
+  struct vlff_frame_hdr h;
+  assert_int_equal(vlff_frame_layout(&h, sz, 64, 48, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), sz);
+  assert_int_equal(vlff_frame_layout(&h, sz - 1, 64, 48, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), 0);
+  assert_int_equal(vlff_frame_layout(&h, sz, 64, 48, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), sz);
+  h.flags = VLFF_FRAME_INTRINSICS_VALID | VLFF_FRAME_POSE_VALID;
+  h.fx = h.fy = 50;
+  h.cx = 32;
+  h.cy = 24;
+  h.pose[0] = h.pose[5] = h.pose[10] = h.pose[15] = 1;
+  memcpy(rec, &h, sizeof h);
+  assert_int_equal(vlff_frame_validate(rec, sz), 0);
+  assert_ptr_equal(vlff_frame_plane(rec, 1), rec + h.plane[1].offset);
+  assert_int_equal(vlff_frame_validate(rec, sz - 1), -1); /* depth plane past the end */
+  struct vlff_frame_hdr b = h;
+  b.plane[0].stride = 10;
+  memcpy(rec, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  b = h;
+  b.pose[3] = NAN;
+  memcpy(rec, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  b = h;
+  b.plane[0].offset = UINT64_MAX - 10;
+  memcpy(rec, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  b = h;
+  b.plane[1].format = VLFF_PIX_RGB8;
+  memcpy(rec, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  free(rec);
+
+  struct vlff_feature_hdr f;
+  uint64_t fs = vlff_feature_slot_size(512, 30, 40);
+  assert_int_equal(vlff_feature_layout(&f, fs, 512, 30, 40), fs);
+  uint8_t *fr = calloc(1, fs);
+  memcpy(fr, &f, sizeof f);
+  assert_int_equal(vlff_feature_validate(fr, fs), 0);
+  assert_int_equal(vlff_feature_validate(fr, fs - 2), -1);
+  f.dim = 0;
+  memcpy(fr, &f, sizeof f);
+  assert_int_equal(vlff_feature_validate(fr, fs), -1);
+  free(fr);
+}
+
+static void rot_z(double a, double tx, double out[16]) {
+  double m[16] = {cos(a), -sin(a), 0, tx, sin(a), cos(a), 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  memcpy(out, m, sizeof m);
+}
+
+static void pose_interpolation_and_tolerance(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "poses");
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_POSE, .slots = 8, .slot_size = sizeof(struct vlff_pose_rec)};
+  struct vlff_ring *w = vlff_ring_create(name, &p);
+  assert_non_null(w);
+  struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_POSE);
+  assert_non_null(r);
+  struct vlff_pose_rec out;
+  assert_int_equal(vlff_pose_lookup(r, 100, 10, &out), -1);
+  assert_int_equal(errno, ENOENT);
+  /* Poses every 10 ms rotating 0.1 rad about z and moving 1 m in x per step; a gap
+   * of 100 ms between t=40ms and t=140ms. */
+  uint64_t times[] = {0, 10, 20, 30, 40, 140, 150};
+  for (int i = 0; i < 7; i++) {
+    struct vlff_pose_rec pr = {.t_ns = times[i] * 1000000ull};
+    rot_z(0.01 * (double)times[i], (double)times[i] / 10.0, pr.pose);
+    if (i == 2)
+      pr.flags = VLFF_FRAME_POSE_UNTRUSTED;
+    assert_int_equal(vlff_ring_write(w, &pr, sizeof pr), 0);
+  }
+  uint64_t tol = 15000000; /* 15 ms */
+  assert_int_equal(vlff_pose_lookup(r, 25000000, tol, &out), 0);
+  double want[16];
+  rot_z(0.25, 2.5, want);
+  for (int i = 0; i < 16; i++)
+    assert_true(fabs(out.pose[i] - want[i]) < 1e-9);
+  assert_int_equal(out.flags, VLFF_FRAME_POSE_UNTRUSTED); /* 20 ms pose was untrusted */
+  assert_int_equal(out.t_ns, 25000000);
+  /* Exact hit. */
+  assert_int_equal(vlff_pose_lookup(r, 140000000, tol, &out), 0);
+  rot_z(1.4, 14, want);
+  for (int i = 0; i < 16; i++)
+    assert_true(fabs(out.pose[i] - want[i]) < 1e-12);
+  /* In the gap: bracketing poses 90 ms apart -> rejected. */
+  assert_int_equal(vlff_pose_lookup(r, 90000000, tol, &out), -1);
+  assert_int_equal(errno, ERANGE);
+  /* Within tolerance of one end only is still a reject: no extrapolation. */
+  assert_int_equal(vlff_pose_lookup(r, 50000000, tol, &out), -1);
+  assert_int_equal(errno, ERANGE);
+  /* Newer than all: may arrive later. */
+  assert_int_equal(vlff_pose_lookup(r, 151000000, tol, &out), -1);
+  assert_int_equal(errno, EAGAIN);
+  /* Older than everything held (ring of 8 still holds all 7): before t=0 is ERANGE. */
+  struct vlff_pose_rec a = {.t_ns = 0}, b = {.t_ns = 10};
+  rot_z(0, 0, a.pose);
+  rot_z(3.0, 0, b.pose); /* large rotation: slerp, not lerp */
+  double mid[16];
+  assert_int_equal(vlff_pose_interpolate(&a, &b, 5, mid), 0);
+  rot_z(1.5, 0, want);
+  for (int i = 0; i < 16; i++)
+    assert_true(fabs(mid[i] - want[i]) < 1e-9);
+  assert_int_equal(vlff_pose_interpolate(&a, &b, 11, mid), -1);
+  vlff_ring_close(r);
+  vlff_ring_close(w);
+  vlff_shm_unlink(name);
+}
+
+static void map_publish_and_read(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "map");
+  struct vlff_map_params mp = {.max_voxels = 1000, .label_max_width = 8, .label_max_height = 6};
+  struct vlff_map *w = vlff_map_create(name, &mp);
+  assert_non_null(w);
+  struct vlff_map *r = vlff_map_attach(name);
+  assert_non_null(r);
+  uint16_t label;
+  uint8_t conf;
+  assert_int_equal(vlff_map_version(r), 0);
+  assert_int_equal(vlff_map_label_at(r, 0, 0, 0, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN);
+  assert_int_equal(vlff_map_age_ns(r), UINT64_MAX);
+  assert_int_equal(vlff_map_writer_alive(r, 1000000000ull), 1);
+
+  uint16_t labels[10 * 10 * 10];
+  uint8_t confs[1000];
+  for (int i = 0; i < 1000; i++) {
+    labels[i] = (uint16_t)(i % 3);
+    confs[i] = (uint8_t)i;
+  }
+  labels[1 + 10 * (2 + 10 * 3)] = VLFF_LABEL_FREE;
+  const char *prompts[] = {"chair", "table", "door"};
+  struct vlff_map_grid g = {.origin = {-1, -1, 0}, .voxel_size = 0.2, .dims = {10, 10, 10}, .labels = labels,
+                            .confidence = confs};
+  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 3};
+  assert_int_equal(vlff_map_publish(w, &u), 0);
+  /* World (-0.7,-0.5,0.7) -> voxel (1,2,3) = FREE. (0.05,-0.95,0.1) -> (5,0,0) = label 2. */
+  assert_int_equal(vlff_map_label_at(r, -0.7, -0.5, 0.7, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_FREE);
+  assert_int_equal(vlff_map_label_at(r, 0.05, -0.95, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 2);
+  assert_int_equal(conf, 5);
+  assert_int_equal(vlff_map_label_at(r, 5, 0, 0, &label, NULL), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN);
+  char text[64];
+  assert_int_equal(vlff_map_prompt(r, 2, text, sizeof text), 0);
+  assert_string_equal(text, "door");
+  assert_int_equal(vlff_map_prompt(r, 3, text, sizeof text), -1);
+  assert_int_equal(errno, ENOENT);
+  assert_int_equal(vlff_map_prompt(r, VLFF_LABEL_FREE, text, sizeof text), -1);
+  assert_true(vlff_map_age_ns(r) < 5000000000ull);
+
+  /* A label-image-only update keeps the grid and prompts. */
+  uint16_t li[8 * 6];
+  for (int i = 0; i < 48; i++)
+    li[i] = (uint16_t)(i & 1);
+  struct vlff_map_label_image img = {.width = 8, .height = 6, .labels = li, .fx = 5, .fy = 5, .cx = 4, .cy = 3,
+                                     .t_ns = 42};
+  img.pose[0] = img.pose[5] = img.pose[10] = img.pose[15] = 1;
+  struct vlff_map_update u2 = {.label_image = &img, .prompt_count = -1};
+  assert_int_equal(vlff_map_publish(w, &u2), 0);
+  struct vlff_map_snapshot *s = vlff_map_snapshot_new(r);
+  assert_non_null(s);
+  assert_int_equal(vlff_map_snapshot_take(r, s), 0);
+  struct vlff_map_info info;
+  assert_int_equal(vlff_map_snapshot_info(s, &info), 0);
+  assert_int_equal(info.version, 2);
+  assert_int_equal(info.prompt_count, 3);
+  assert_int_equal(info.grid.dims[2], 10);
+  assert_memory_equal(info.grid.labels, labels, sizeof labels);
+  assert_memory_equal(info.grid.confidence, confs, sizeof confs);
+  assert_int_equal(info.has_label_image, 1);
+  assert_memory_equal(info.label_image.labels, li, sizeof li);
+  assert_int_equal(info.label_image.confidence[7], 255);
+  assert_int_equal(info.label_image.t_ns, 42);
+  assert_int_equal(vlff_map_snapshot_label_at(s, 0.05, -0.95, 0.1, &conf), 2);
+  assert_string_equal(vlff_map_snapshot_prompt(s, 1), "table");
+  assert_null(vlff_map_snapshot_prompt(s, 3));
+
+  /* Bad updates are refused and change nothing. */
+  struct vlff_map_grid big = g;
+  big.dims[0] = 11;
+  struct vlff_map_update ub = {.grid = &big, .prompt_count = -1};
+  assert_int_equal(vlff_map_publish(w, &ub), -1);
+  assert_int_equal(errno, EMSGSIZE);
+  struct vlff_map_grid nan = g;
+  nan.voxel_size = NAN;
+  ub.grid = &nan;
+  assert_int_equal(vlff_map_publish(w, &ub), -1);
+  assert_int_equal(errno, EINVAL);
+  const char *longp[] = {"a prompt that is far too long to fit into the sixty-four bytes of a slot...."};
+  struct vlff_map_update up = {.prompts = longp, .prompt_count = 1};
+  assert_int_equal(vlff_map_publish(w, &up), -1);
+  assert_int_equal(vlff_map_version(r), 2);
+  /* Heartbeat without a new map; a reader handle cannot publish. */
+  assert_int_equal(vlff_map_heartbeat(w), 0);
+  assert_int_equal(vlff_map_publish(r, &u), -1);
+  assert_int_equal(vlff_map_writer_alive(r, 1000000000ull), 1);
+  assert_int_equal(vlff_map_writer_alive(r, 0), 0);
+
+  /* Writer restart on the same segment: generation visible, last map kept. */
+  vlff_map_snapshot_free(s);
+  vlff_map_detach(w);
+  assert_int_equal(vlff_map_generation(r), 1);
+  /* this process is the creator: a restart of it is a take-over */
+  w = vlff_map_create(name, &mp);
+  assert_non_null(w);
+  assert_int_equal(vlff_map_generation(r), 2);
+  assert_int_equal(vlff_map_version(r), 2);
+  assert_int_equal(vlff_map_label_at(r, 0.05, -0.95, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 2);
+  vlff_map_detach(r);
+  vlff_map_detach(w);
+  vlff_shm_unlink(name);
+}
+
+static void prompt_mailbox(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "prompts");
+  struct vlff_shm_perm perm = {.mode = 0660};
+  struct vlff_prompts *learner = vlff_prompts_create(name, &perm);
+  assert_non_null(learner);
+  struct vlff_prompts *ctl = vlff_prompts_attach(name);
+  assert_non_null(ctl);
+  uint64_t last = 0;
+  struct vlff_prompt_request *req = malloc(sizeof *req);
+  assert_int_equal(vlff_prompts_poll(learner, &last, req), 0);
+  const char *set[] = {"red mug", "laptop"};
+  assert_int_equal(vlff_prompts_post(ctl, set, 2), 0);
+  assert_int_equal(vlff_prompts_poll(learner, &last, req), 1);
+  assert_int_equal(last, 1);
+  assert_int_equal(req->seq, 1);
+  assert_int_equal(req->count, 2);
+  assert_int_equal(req->set_index, -1);
+  assert_string_equal(req->text[1], "laptop");
+  assert_int_equal(req->poster_pid, getpid());
+  assert_int_equal(vlff_prompts_poll(learner, &last, req), 0);
+  assert_int_equal(vlff_prompts_post_index(ctl, 3), 0);
+  assert_int_equal(vlff_prompts_poll(learner, &last, req), 1);
+  assert_int_equal(req->set_index, 3);
+  assert_int_equal(req->count, 0);
+  const char *bad[] = {""};
+  assert_int_equal(vlff_prompts_post(ctl, bad, 1), -1);
+  assert_int_equal(errno, EINVAL);
+  assert_int_equal(vlff_prompts_post(ctl, set, 0), -1);
+  struct vlff_shm_info in;
+  assert_int_equal(vlff_shm_stat(name, &in), 0);
+  assert_int_equal(in.kind, VLFF_SHM_KIND_PROMPTS);
+  assert_int_equal(in.head, 2);
+  free(req);
+  vlff_prompts_close(ctl);
+  vlff_prompts_close(learner);
+  vlff_shm_unlink(name);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(ring_roundtrip_and_exact_lapping),
+    cmocka_unit_test(ring_takeover_of_dead_creator),
+    cmocka_unit_test(attach_rejects_bad_segments),
+    cmocka_unit_test(frame_records),
+    cmocka_unit_test(pose_interpolation_and_tolerance),
+    cmocka_unit_test(map_publish_and_read),
+    cmocka_unit_test(prompt_mailbox),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
