@@ -133,6 +133,7 @@ static void test_python_extractor_round_trip(void **state) {
   struct vlff_feature_join_stats st;
   vlff_feature_join_stats(j, &st);
   assert_int_equal(joined, 5);
+  for (int k = 1; k <= 5; k++) assert_true(seen[k]);
   assert_int_equal(expired, 1);
   assert_int_equal(st.joined, 5);
   assert_int_equal(st.expired, 1);
