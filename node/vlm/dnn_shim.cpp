@@ -137,3 +137,17 @@ extern "C" int vlff_dnn_resize(const uint8_t *src, int w, int h, int channels, u
   }
   return -1;
 }
+
+extern "C" int vlff_dnn_set_threads(int n, char *err, size_t errlen) {
+  if (n < 0) {
+    set_err(err, errlen, "OpenCV threads: %d is negative", n);
+    return -1;
+  }
+  try {
+    cv::setNumThreads(n);
+    return 0;
+  } catch (const std::exception &e) {
+    set_err(err, errlen, "OpenCV threads: %s", one_line(e).c_str());
+  }
+  return -1;
+}

@@ -49,6 +49,11 @@ void vlff_dnn_close(struct vlff_dnn *net);
 int vlff_dnn_run(struct vlff_dnn *net, const float *input, const int *shape, int ndim, struct vlff_tensor *out,
                  int max_out, char *err, size_t errlen);
 
+/* OpenCV's own worker threads for every network in the process (it is a
+ * process-wide setting): n > 0 threads, 0 = run sequentially (no pool), for
+ * sharing cores with the learner. 0, or -1 with err. */
+int vlff_dnn_set_threads(int n, char *err, size_t errlen);
+
 /* Resize a packed 8-bit image (channels 1..4) with bilinear interpolation,
  * area averaging when shrinking. 0 or -1 with err. */
 int vlff_dnn_resize(const uint8_t *src, int w, int h, int channels, uint8_t *dst, int dw, int dh, char *err,
