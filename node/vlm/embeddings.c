@@ -1,0 +1,287 @@
+/*
+ * Embeddings file. Text rather than binary so a deployment can read, diff
+ * and hand-edit it; floats are written with %.9g so they round-trip
+ * exactly.
+ */
+#include "embeddings.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#define PROMPT_MAX 63
+
+struct vlff_embeddings {
+  int dim, count;
+  char (*prompts)[PROMPT_MAX + 1];
+  float *vectors;
+};
+
+static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static void set_err(char *err, size_t errlen, const char *fmt, ...) {
+  if (!err || !errlen) return;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(err, errlen, fmt, ap);
+  va_end(ap);
+}
+
+/* Valid UTF-8 without control characters (tabs and newlines included). */
+static bool prompt_ok(const char *s, size_t n) {
+  for (size_t i = 0; i < n;) {
+    uint8_t c = (uint8_t)s[i];
+    if (c < 0x20 || c == 0x7F) return false;
+    size_t len = c < 0x80 ? 1 : (c >= 0xC2 && c <= 0xDF) ? 2 : (c >= 0xE0 && c <= 0xEF) ? 3 : (c >= 0xF0 && c <= 0xF4) ? 4 : 0;
+    if (!len || i + len > n) return false;
+    uint32_t cp = len == 1 ? c : len == 2 ? (c & 0x1Fu) : len == 3 ? (c & 0x0Fu) : (c & 0x07u);
+    for (size_t k = 1; k < len; k++) {
+      uint8_t cc = (uint8_t)s[i + k];
+      if ((cc & 0xC0) != 0x80) return false;
+      cp = cp << 6 | (cc & 0x3Fu);
+    }
+    if ((len == 3 && (cp < 0x800 || (cp >= 0xD800 && cp <= 0xDFFF))) || (len == 4 && (cp < 0x10000 || cp > 0x10FFFF)))
+      return false;
+    if (cp >= 0x80 && cp <= 0x9F) return false;
+    i += len;
+  }
+  return n > 0;
+}
+
+void vlff_embeddings_free(struct vlff_embeddings *e) {
+  if (!e) return;
+  free(e->prompts);
+  free(e->vectors);
+  free(e);
+}
+
+struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const char *name, int expected_dim,
+                                              char *err, size_t errlen) {
+  if (!name) name = "embeddings";
+  if (!buf || len > VLFF_EMBEDDINGS_MAX_BYTES) {
+    set_err(err, errlen, "%s: larger than %u MiB", name, VLFF_EMBEDDINGS_MAX_BYTES >> 20);
+    return NULL;
+  }
+  struct vlff_embeddings *e = calloc(1, sizeof *e);
+  char *line = NULL;
+  if (!e) goto oom;
+  int lineno = 0, cap = 0;
+  bool have_magic = false;
+  for (size_t pos = 0; pos < len;) {
+    const char *nl = memchr(buf + pos, '\n', len - pos);
+    size_t ll = nl ? (size_t)(nl - (buf + pos)) : len - pos;
+    lineno++;
+    free(line);
+    if (!(line = malloc(ll + 1))) goto oom;
+    memcpy(line, buf + pos, ll);
+    line[ll] = 0;
+    pos += ll + (nl ? 1 : 0);
+    if (memchr(line, 0, ll)) {
+      set_err(err, errlen, "%s:%d: NUL byte", name, lineno);
+      goto fail;
+    }
+    if (!have_magic) {
+      if (strcmp(line, "vlff-embeddings 1")) {
+        set_err(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%.40s'", name, lineno, line);
+        goto fail;
+      }
+      have_magic = true;
+      continue;
+    }
+    if (!e->dim) {
+      char *end;
+      long d = strncmp(line, "dim ", 4) ? 0 : strtol(line + 4, &end, 10);
+      if (d < 1 || d > 4096 || *end) {
+        set_err(err, errlen, "%s:%d: expected 'dim N' with N in 1..4096, got '%.40s'", name, lineno, line);
+        goto fail;
+      }
+      if (expected_dim && d != expected_dim) {
+        set_err(err, errlen, "%s:%d: vectors have dim %ld, but field.feature_dim is %d", name, lineno, d, expected_dim);
+        goto fail;
+      }
+      e->dim = (int)d;
+      continue;
+    }
+    if (!ll || line[0] == '#') continue;
+    char *tab = strchr(line, '\t');
+    if (!tab) {
+      set_err(err, errlen, "%s:%d: expected 'prompt<TAB>numbers'", name, lineno);
+      goto fail;
+    }
+    size_t pl = (size_t)(tab - line);
+    if (pl > PROMPT_MAX || !prompt_ok(line, pl)) {
+      set_err(err, errlen, "%s:%d: prompt must be 1..%d bytes of UTF-8 without control characters", name, lineno,
+              PROMPT_MAX);
+      goto fail;
+    }
+    *tab = 0;
+    for (int i = 0; i < e->count; i++)
+      if (!strcmp(e->prompts[i], line)) {
+        set_err(err, errlen, "%s:%d: duplicate prompt '%s'", name, lineno, line);
+        goto fail;
+      }
+    if (e->count == VLFF_EMBEDDINGS_MAX) {
+      set_err(err, errlen, "%s:%d: more than %d prompts", name, lineno, VLFF_EMBEDDINGS_MAX);
+      goto fail;
+    }
+    if (e->count == cap) {
+      int nc = cap ? cap * 2 : 16;
+      if (nc > VLFF_EMBEDDINGS_MAX) nc = VLFF_EMBEDDINGS_MAX;
+      void *np = realloc(e->prompts, (size_t)nc * sizeof *e->prompts);
+      if (!np) goto oom;
+      e->prompts = np;
+      float *nv = realloc(e->vectors, (size_t)nc * e->dim * sizeof *nv);
+      if (!nv) goto oom;
+      e->vectors = nv;
+      cap = nc;
+    }
+    float *v = e->vectors + (size_t)e->count * e->dim;
+    const char *p = tab + 1;
+    double ss = 0;
+    for (int k = 0; k < e->dim; k++) {
+      if (k && *p++ != ' ') {
+        set_err(err, errlen, "%s:%d: expected %d numbers separated by single spaces, got %d", name, lineno, e->dim, k);
+        goto fail;
+      }
+      if (*p == ' ' || *p == 0 || *p == '\t') {
+        set_err(err, errlen, "%s:%d: expected %d numbers, got %d", name, lineno, e->dim, k);
+        goto fail;
+      }
+      char *end;
+      errno = 0;
+      float f = strtof(p, &end);
+      if (end == p || (*end && *end != ' ') || !isfinite(f) || errno == ERANGE) {
+        set_err(err, errlen, "%s:%d: number %d is not a finite float", name, lineno, k + 1);
+        goto fail;
+      }
+      v[k] = f;
+      ss += (double)f * f;
+      p = end;
+    }
+    if (*p) {
+      set_err(err, errlen, "%s:%d: more than %d numbers", name, lineno, e->dim);
+      goto fail;
+    }
+    if (!(ss > 0)) {
+      set_err(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, line);
+      goto fail;
+    }
+    memcpy(e->prompts[e->count], line, pl + 1);
+    e->count++;
+  }
+  if (!have_magic || !e->dim) {
+    set_err(err, errlen, "%s: missing '%s' header line", name, have_magic ? "dim N" : "vlff-embeddings 1");
+    goto fail;
+  }
+  if (!e->count) {
+    set_err(err, errlen, "%s: no prompts", name);
+    goto fail;
+  }
+  free(line);
+  return e;
+oom:
+  set_err(err, errlen, "%s: out of memory", name);
+fail:
+  free(line);
+  vlff_embeddings_free(e);
+  return NULL;
+}
+
+struct vlff_embeddings *vlff_embeddings_load(const char *path, int expected_dim, char *err, size_t errlen) {
+  FILE *f = fopen(path, "rb");
+  if (!f) {
+    set_err(err, errlen, "%s: cannot open embeddings file: %s", path, strerror(errno));
+    return NULL;
+  }
+  size_t cap = 1u << 16, n = 0;
+  char *buf = malloc(cap);
+  while (buf) {
+    if (n == cap) {
+      if (cap > VLFF_EMBEDDINGS_MAX_BYTES) break;
+      char *nb = realloc(buf, cap * 2);
+      if (!nb) {
+        free(buf);
+        buf = NULL;
+        break;
+      }
+      buf = nb, cap *= 2;
+    }
+    size_t r = fread(buf + n, 1, cap - n, f);
+    n += r;
+    if (!r) break;
+  }
+  bool io = ferror(f);
+  fclose(f);
+  if (!buf || io) {
+    set_err(err, errlen, "%s: %s", path, buf ? "read error" : "out of memory");
+    free(buf);
+    return NULL;
+  }
+  struct vlff_embeddings *e = vlff_embeddings_parse(buf, n, path, expected_dim, err, errlen);
+  free(buf);
+  return e;
+}
+
+int vlff_embeddings_dim(const struct vlff_embeddings *e) { return e->dim; }
+int vlff_embeddings_count(const struct vlff_embeddings *e) { return e->count; }
+const char *vlff_embeddings_prompt(const struct vlff_embeddings *e, int i) {
+  return i >= 0 && i < e->count ? e->prompts[i] : NULL;
+}
+const float *vlff_embeddings_vector(const struct vlff_embeddings *e, int i) {
+  return i >= 0 && i < e->count ? e->vectors + (size_t)i * e->dim : NULL;
+}
+
+const float *vlff_embeddings_lookup(const struct vlff_embeddings *e, const char *prompt) {
+  for (int i = 0; i < e->count; i++)
+    if (!strcmp(e->prompts[i], prompt)) return e->vectors + (size_t)i * e->dim;
+  return NULL;
+}
+
+int vlff_embeddings_save(const char *path, int dim, int count, const char *const *prompts, const float *vectors,
+                         char *err, size_t errlen) {
+  if (!path || dim < 1 || dim > 4096 || count < 1 || count > VLFF_EMBEDDINGS_MAX || !prompts || !vectors) {
+    set_err(err, errlen, "%s: bad arguments (dim %d, count %d)", path ? path : "embeddings", dim, count);
+    return -1;
+  }
+  for (int i = 0; i < count; i++) {
+    if (!prompts[i] || strlen(prompts[i]) > PROMPT_MAX || !prompt_ok(prompts[i], strlen(prompts[i]))) {
+      set_err(err, errlen, "%s: prompt %d is not 1..%d bytes of UTF-8 without control characters", path, i, PROMPT_MAX);
+      return -1;
+    }
+    for (int k = 0; k < dim; k++)
+      if (!isfinite(vectors[(size_t)i * dim + k])) {
+        set_err(err, errlen, "%s: non-finite value in the vector of '%s'", path, prompts[i]);
+        return -1;
+      }
+  }
+  char tmp[4096];
+  snprintf(tmp, sizeof tmp, "%s.tmp.%d", path, (int)getpid());
+  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
+  if (!f) {
+    set_err(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));
+    if (fd >= 0) close(fd);
+    return -1;
+  }
+  fprintf(f, "vlff-embeddings 1\ndim %d\n", dim);
+  for (int i = 0; i < count; i++) {
+    fprintf(f, "%s\t", prompts[i]);
+    for (int k = 0; k < dim; k++) fprintf(f, k ? " %.9g" : "%.9g", (double)vectors[(size_t)i * dim + k]);
+    fputc('\n', f);
+  }
+  bool ok = fflush(f) == 0 && fsync(fileno(f)) == 0;
+  ok &= fclose(f) == 0;
+  if (!ok || rename(tmp, path)) {
+    set_err(err, errlen, "%s: write failed: %s", path, strerror(errno));
+    unlink(tmp);
+    return -1;
+  }
+  return 0;
+}

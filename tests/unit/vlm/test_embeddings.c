@@ -1,0 +1,89 @@
+/* Embeddings file: round trip, lookups, and every validation rule. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "embeddings.h"
+
+static void test_round_trip(void **state) {
+  char path[128], err[256];
+  snprintf(path, sizeof path, "/tmp/vlff-test-emb-%d.txt", (int)getpid());
+  const char *prompts[] = {"chair", "shower curtain", "caf\xc3\xa9"};
+  float v[3 * 8];
+  for (int i = 0; i < 24; i++) v[i] = (float)(i - 11) / 7.0f + 1e-7f * (float)i;
+  assert_int_equal(vlff_embeddings_save(path, 8, 3, prompts, v, err, sizeof err), 0);
+  struct vlff_embeddings *e = vlff_embeddings_load(path, 8, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  assert_int_equal(vlff_embeddings_dim(e), 8);
+  assert_int_equal(vlff_embeddings_count(e), 3);
+  assert_string_equal(vlff_embeddings_prompt(e, 1), "shower curtain");
+  assert_memory_equal(vlff_embeddings_vector(e, 0), v, sizeof v); /* %.9g round-trips exactly */
+  assert_memory_equal(vlff_embeddings_lookup(e, "caf\xc3\xa9"), v + 16, 8 * sizeof(float));
+  assert_null(vlff_embeddings_lookup(e, "Chair"));
+  vlff_embeddings_free(e);
+  /* The field's D differs: refused with both numbers. */
+  assert_null(vlff_embeddings_load(path, 512, err, sizeof err));
+  assert_non_null(strstr(err, "dim 8, but field.feature_dim is 512"));
+  unlink(path);
+  assert_null(vlff_embeddings_load(path, 8, err, sizeof err));
+  assert_non_null(strstr(err, "cannot open"));
+  /* Saving refuses what loading would refuse. */
+  v[3] = 1.0f / 0.0f;
+  assert_int_equal(vlff_embeddings_save(path, 8, 3, prompts, v, err, sizeof err), -1);
+  const char *bad[] = {"tab\there", "b", "c"};
+  v[3] = 0;
+  assert_int_equal(vlff_embeddings_save(path, 8, 3, bad, v, err, sizeof err), -1);
+  assert_int_equal(access(path, F_OK), -1);
+}
+
+static void refused(const char *text, const char *what) {
+  char err[256] = "";
+  struct vlff_embeddings *e = vlff_embeddings_parse(text, strlen(text), "t.emb", 0, err, sizeof err);
+  if (e) fail_msg("accepted: %s", text);
+  if (!strstr(err, what)) fail_msg("error '%s' lacks '%s'", err, what);
+}
+
+static void test_validation(void **state) {
+  const char *ok = "vlff-embeddings 1\ndim 2\n# comment\n\nchair\t1 0\ntable\t0 -2.5e-1\n";
+  char err[256];
+  struct vlff_embeddings *e = vlff_embeddings_parse(ok, strlen(ok), "t.emb", 2, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  assert_int_equal(vlff_embeddings_count(e), 2);
+  assert_true(vlff_embeddings_lookup(e, "table")[1] == -0.25f);
+  vlff_embeddings_free(e);
+
+  refused("", "missing 'vlff-embeddings 1'");
+  refused("vlff-embeddings 2\n", "t.emb:1: expected 'vlff-embeddings 1'");
+  refused("vlff-embeddings 1\n", "missing 'dim N'");
+  refused("vlff-embeddings 1\ndim 0\n", ":2: expected 'dim N'");
+  refused("vlff-embeddings 1\ndim 5000\n", ":2: expected 'dim N'");
+  refused("vlff-embeddings 1\ndim 2\n", "no prompts");
+  refused("vlff-embeddings 1\ndim 2\nchair 1 0\n", ":3: expected 'prompt<TAB>numbers'");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1\n", ":3: expected 2 numbers");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1 0 3\n", ":3: more than 2 numbers");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1  0\n", ":3: expected 2 numbers");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1 nan\n", ":3: number 2 is not a finite float");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1 1e99\n", "not a finite float");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1 x\n", "not a finite float");
+  refused("vlff-embeddings 1\ndim 2\nchair\t0 0\n", "zero vector");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1 0\nchair\t0 1\n", ":4: duplicate prompt 'chair'");
+  refused("vlff-embeddings 1\ndim 2\n\t1 0\n", ":3: prompt must be");
+  refused("vlff-embeddings 1\ndim 2\nch\xff" "air\t1 0\n", ":3: prompt must be");
+  refused("vlff-embeddings 1\ndim 2\n0123456789012345678901234567890123456789012345678901234567890123\t1 0\n",
+          "prompt must be");
+  const char nul[] = "vlff-embeddings 1\ndim 2\nch\0ir\t1 0\n";
+  assert_null(vlff_embeddings_parse(nul, sizeof nul - 1, "t.emb", 0, err, sizeof err));
+  assert_non_null(strstr(err, ":3: NUL byte"));
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_round_trip), cmocka_unit_test(test_validation)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,238 @@
+/* External extractor: the Python client (ctypes over libvlff-shm) reads
+ * frames from a frame ring and writes features into a feature ring; the C
+ * join pairs them with keyframes by id and expires the ones never served.
+ * Also the join's own rules without Python. */
+#include <errno.h>
+#include <math.h>
+#include <setjmp.h>
+#include <signal.h>
+#include <spawn.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+#include <vlff/shm.h>
+
+#include "f16.h"
+#include "feature_join.h"
+#include "vlm_fixture.h"
+
+extern char **environ;
+
+#define FW 24
+#define FH 16
+#define D 16
+#define HH 8
+#define WW 12
+
+static uint8_t pix(uint64_t id, int x, int y, int c) { return (uint8_t)((id * 13 + (uint64_t)x * 7 + (uint64_t)y * 3 + (uint64_t)c * 5) & 255); }
+
+static float expected(uint64_t id, int d, int y, int x) {
+  double m = (pix(id, 2 * x, 2 * y, 0) + pix(id, 2 * x, 2 * y, 1) + pix(id, 2 * x, 2 * y, 2)) / 3.0 / 255.0;
+  return (float)(m * (d + 1) / D);
+}
+
+static void write_frame(struct vlff_ring *ring, uint64_t id) {
+  uint64_t seq;
+  uint8_t *rec = vlff_ring_reserve(ring, &seq);
+  assert_non_null(rec);
+  struct vlff_frame_hdr *h = (struct vlff_frame_hdr *)rec;
+  uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE);
+  assert_true(len > 0);
+  h->frame_id = id;
+  h->t_host_ns = vlff_shm_now_ns();
+  uint8_t *px = rec + h->plane[0].offset;
+  for (int y = 0; y < FH; y++)
+    for (int x = 0; x < FW; x++)
+      for (int c = 0; c < 3; c++) px[(size_t)y * h->plane[0].stride + (size_t)x * 3 + (size_t)c] = pix(id, x, y, c);
+  assert_int_equal(vlff_ring_commit(ring, len), 0);
+}
+
+static void test_python_extractor_round_trip(void **state) {
+  if (!fixture_have_torch()) skip(); /* numpy comes with the same packages */
+  char frames[64], feats[64];
+  snprintf(frames, sizeof frames, "/vlff-test-frames-%d", (int)getpid());
+  snprintf(feats, sizeof feats, "/vlff-test-features-%d", (int)getpid());
+  vlff_shm_unlink(frames);
+  vlff_shm_unlink(feats);
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_FRAME, .slots = 8,
+                               .slot_size = vlff_frame_slot_size(FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE)};
+  struct vlff_ring *fr = vlff_ring_create(frames, &p);
+  if (!fr) fail_msg("%s", vlff_shm_last_message());
+
+  char script[512], fn[512], dim[8], hh[8], ww[8];
+  snprintf(script, sizeof script, "%s/node/vlm/extractor/vlff_extractor.py", getenv("VLFF_SOURCE_DIR"));
+  snprintf(fn, sizeof fn, "%s/tests/unit/vlm/fake_features.py:features", getenv("VLFF_SOURCE_DIR"));
+  snprintf(dim, sizeof dim, "%d", D), snprintf(hh, sizeof hh, "%d", HH), snprintf(ww, sizeof ww, "%d", WW);
+  char *argv[] = {"/usr/bin/python3", script, "--lib", VLFF_SHM_SO, "--frames", frames, "--features", feats,
+                  "--dim", dim, "--height", hh, "--width", ww, "--fn", fn, "--max-frames", "5",
+                  "--idle-exit", "20", NULL};
+  pid_t pid;
+  assert_int_equal(posix_spawn(&pid, argv[0], NULL, NULL, argv, environ), 0);
+
+  struct vlff_ring *ft = NULL;
+  for (int i = 0; i < 400 && !ft; i++) { /* python + numpy start-up */
+    ft = vlff_ring_attach(feats, VLFF_RECORD_FEATURE);
+    if (!ft) usleep(50000);
+  }
+  if (!ft) {
+    kill(pid, SIGTERM);
+    waitpid(pid, NULL, 0);
+    fail_msg("extractor never created %s: %s", feats, vlff_shm_last_message());
+  }
+  char err[256];
+  struct vlff_feature_join *j = vlff_feature_join_create(8, 10.0, D, HH, WW, err, sizeof err);
+  assert_non_null(j);
+  /* Frame 1000 is a keyframe that never reaches the extractor; registered
+   * 9.5 s in the past it expires soon, while the served frames have 10 s. */
+  assert_int_equal(vlff_feature_join_add_frame(j, 1000, vlff_shm_now_ns() - 9500000000ull, err, sizeof err), 0);
+  for (uint64_t id = 1; id <= 5; id++) {
+    write_frame(fr, id * 11);
+    assert_int_equal(vlff_feature_join_add_frame(j, id * 11, vlff_shm_now_ns(), err, sizeof err), 0);
+  }
+  uint16_t *out = malloc((size_t)D * HH * WW * sizeof *out);
+  int joined = 0, expired = 0;
+  bool seen[6] = {false};
+  uint64_t t0 = vlff_shm_now_ns();
+  while ((joined < 5 || expired < 1) && vlff_shm_now_ns() - t0 < 30ull * 1000000000ull) {
+    vlff_feature_join_pump(j, ft);
+    uint64_t id;
+    int h, w;
+    int r = vlff_feature_join_poll(j, vlff_shm_now_ns(), &id, out, &h, &w);
+    if (r == VLFF_JOIN_NONE) {
+      usleep(10000);
+      continue;
+    }
+    if (r == VLFF_JOIN_EXPIRED) {
+      assert_int_equal(id, 1000);
+      expired++;
+      continue;
+    }
+    assert_int_equal(r, VLFF_JOIN_READY);
+    assert_int_equal(h, HH);
+    assert_int_equal(w, WW);
+    assert_int_equal(id % 11, 0);
+    seen[id / 11] = true;
+    double worst = 0;
+    for (int y = 0; y < HH; y++)
+      for (int x = 0; x < WW; x++)
+        for (int d = 0; d < D; d++) {
+          double e = fabs(vlm_f16_to_f32(out[((size_t)y * WW + x) * D + d]) - expected(id, d, y, x));
+          if (e > worst) worst = e;
+        }
+    if (worst > 1e-3) fail_msg("frame %llu: features differ by %g", (unsigned long long)id, worst);
+    joined++;
+  }
+  struct vlff_feature_join_stats st;
+  vlff_feature_join_stats(j, &st);
+  assert_int_equal(joined, 5);
+  for (int k = 1; k <= 5; k++) assert_true(seen[k]);
+  assert_int_equal(expired, 1);
+  assert_int_equal(st.joined, 5);
+  assert_int_equal(st.expired, 1);
+  assert_int_equal(st.bad_records, 0);
+  int status = 0;
+  assert_int_equal(waitpid(pid, &status, 0), pid);
+  assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  free(out);
+  vlff_feature_join_destroy(j);
+  vlff_ring_close(ft);
+  vlff_ring_close(fr);
+  vlff_shm_unlink(frames);
+  vlff_shm_unlink(feats);
+}
+
+/* A [D][h][w] record built in memory. */
+static size_t make_record(uint8_t *buf, size_t cap, uint64_t id, uint32_t dim, uint32_t h, uint32_t w, float v) {
+  struct vlff_feature_hdr *hdr = (struct vlff_feature_hdr *)buf;
+  uint64_t len = vlff_feature_layout(hdr, cap, dim, h, w);
+  assert_true(len > 0);
+  hdr->frame_id = id;
+  uint16_t *data = (uint16_t *)(buf + hdr->data_offset);
+  for (size_t i = 0; i < (size_t)dim * h * w; i++) data[i] = vlm_f32_to_f16(v + (float)i * 1e-3f);
+  return (size_t)(hdr->data_offset + hdr->data_size);
+}
+
+static void test_join_rules(void **state) {
+  char err[256];
+  assert_null(vlff_feature_join_create(0, 1, 8, 2, 2, err, sizeof err));
+  struct vlff_feature_join *j = vlff_feature_join_create(2, 1.0, 8, 4, 4, err, sizeof err);
+  assert_non_null(j);
+  size_t cap = vlff_feature_slot_size(16, 8, 8);
+  uint8_t *buf = aligned_alloc(64, cap);
+  uint16_t out[4 * 4 * 8];
+  uint64_t id;
+  int h, w;
+  const uint64_t s = 1000000000ull;
+
+  /* Features first, keyframe later: still joined, transposed to [h][w][D]. */
+  size_t len = make_record(buf, cap, 7, 8, 2, 3, 0.5f);
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), 0);
+  assert_int_equal(vlff_feature_join_poll(j, 10 * s, &id, out, &h, &w), VLFF_JOIN_NONE);
+  assert_int_equal(vlff_feature_join_add_frame(j, 7, 10 * s, err, sizeof err), 0);
+  assert_int_equal(vlff_feature_join_poll(j, 10 * s, &id, out, &h, &w), VLFF_JOIN_READY);
+  assert_int_equal(id, 7);
+  assert_int_equal(h, 2);
+  assert_int_equal(w, 3);
+  /* element (y=1, x=2, d=5) came from [d][y][x] index 5*6 + 1*3 + 2 = 35 */
+  assert_true(fabsf(vlm_f16_to_f32(out[(1 * 3 + 2) * 8 + 5]) - (0.5f + 35e-3f)) < 1e-3f);
+
+  /* Expiry exactly after the timeout, once. */
+  assert_int_equal(vlff_feature_join_add_frame(j, 8, 20 * s, err, sizeof err), 0);
+  assert_int_equal(vlff_feature_join_add_frame(j, 8, 20 * s, err, sizeof err), -1); /* duplicate */
+  assert_int_equal(vlff_feature_join_poll(j, 21 * s, &id, out, &h, &w), VLFF_JOIN_NONE);
+  assert_int_equal(vlff_feature_join_poll(j, 21 * s + 1, &id, out, &h, &w), VLFF_JOIN_EXPIRED);
+  assert_int_equal(id, 8);
+  assert_int_equal(vlff_feature_join_poll(j, 30 * s, &id, out, &h, &w), VLFF_JOIN_NONE);
+
+  /* Full: a third waiting keyframe is refused. */
+  assert_int_equal(vlff_feature_join_add_frame(j, 1, 40 * s, err, sizeof err), 0);
+  assert_int_equal(vlff_feature_join_add_frame(j, 2, 40 * s, err, sizeof err), 0);
+  assert_int_equal(vlff_feature_join_add_frame(j, 3, 40 * s, err, sizeof err), -1);
+
+  /* Bad records: wrong D, too large, non-finite, corrupt header, truncated. */
+  len = make_record(buf, cap, 1, 16, 2, 2, 0.f);
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), -1);
+  assert_non_null(strstr(err, "D=8"));
+  len = make_record(buf, cap, 1, 8, 8, 8, 0.f);
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), -1);
+  len = make_record(buf, cap, 1, 8, 2, 2, 0.f);
+  ((uint16_t *)(buf + ((struct vlff_feature_hdr *)buf)->data_offset))[3] = 0x7E00; /* NaN */
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), -1);
+  assert_non_null(strstr(err, "non-finite"));
+  len = make_record(buf, cap, 1, 8, 2, 2, 0.f);
+  ((struct vlff_feature_hdr *)buf)->data_size += 2;
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), -1);
+  len = make_record(buf, cap, 1, 8, 2, 2, 0.f);
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len - 2, err, sizeof err), -1);
+  struct vlff_feature_join_stats st;
+  vlff_feature_join_stats(j, &st);
+  assert_int_equal(st.bad_records, 5);
+  /* None of them reached keyframe 1. */
+  assert_int_equal(vlff_feature_join_poll(j, 40 * s, &id, out, &h, &w), VLFF_JOIN_NONE);
+
+  /* Orphans beyond capacity: the oldest goes. */
+  for (uint64_t k = 100; k < 103; k++) {
+    len = make_record(buf, cap, k, 8, 2, 2, 0.f);
+    assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), 0);
+  }
+  vlff_feature_join_stats(j, &st);
+  assert_int_equal(st.orphans_evicted, 1);
+  free(buf);
+  vlff_feature_join_destroy(j);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_join_rules),
+      cmocka_unit_test(test_python_extractor_round_trip),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
