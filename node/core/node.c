@@ -22,7 +22,8 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "dataset.h"
+#include "embeddings.h"
+#include "feature_join.h"
 #include "field.h"
 #include "keyframes.h"
 #include "log.h"
@@ -31,6 +32,10 @@
 #include "select.h"
 #include "sim.h"
 #include "vlff/shm.h"
+#ifdef VLFF_HAVE_VLM
+#include "image_encoder.h"
+#include "text_encoder.h"
+#endif
 
 #define TAG "node"
 #define QUEUE_CAP 4
@@ -53,7 +58,12 @@ struct vlff_node {
   struct vlff_field *field;
   struct vlff_kfstore *store;
   struct vlff_sim *sim;               /* sim features, text embeddings, ground truth */
-  struct vlff_prompt_embeddings emb_file;
+  struct vlff_embeddings *emb_file;   /* prompts.embeddings */
+#ifdef VLFF_HAVE_VLM
+  struct vlff_text_encoder *text_enc; /* vlm.text_model */
+  struct vlff_image_worker *image_worker; /* source.features: model */
+#endif
+  int model_h, model_w;               /* largest feature map accepted */
   struct vlff_publisher *pub;
   struct vlff_prompts *mailbox;
   struct vlff_sim_points gt_points;
@@ -117,27 +127,29 @@ static void candidate_free(struct candidate *c) {
 
 /* Embeddings for texts: the embeddings file when configured, else the
  * simulated text encoder when features are simulated. */
+/* Embeddings for prompt texts, from the first source configured: the
+ * precomputed file, the in-node text encoder, or the simulated encoder. */
 static int embed_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN], int k,
                          float *out, char *err, size_t errlen) {
   int d = n->cfg.field.feature_dim;
   for (int i = 0; i < k; i++) {
-    char full[2 * VLFF_PROMPT_LEN + VLFF_CFG_STR];
-    const char *t = n->cfg.prompts.templ, *at = strstr(t, "{}");
-    snprintf(full, sizeof full, "%.*s%s%s", (int)(at - t), t, texts[i], at + 2);
-    if (n->emb_file.count) {
-      const float *v = vlff_prompt_embeddings_find(&n->emb_file, full);
-      if (!v) v = vlff_prompt_embeddings_find(&n->emb_file, texts[i]);
+    float *o = out + (size_t)i * d;
+    if (n->emb_file) {
+      const float *v = vlff_embeddings_lookup(n->emb_file, texts[i]);
       if (!v) {
-        snprintf(err, errlen, "prompt '%s': not in the embeddings file %s", full,
-                 n->cfg.prompts.embeddings);
+        snprintf(err, errlen, "prompt '%s': not in the embeddings file %s", texts[i], n->cfg.prompts.embeddings);
         return -1;
       }
-      memcpy(out + (size_t)i * d, v, (size_t)d * sizeof(float));
+      memcpy(o, v, (size_t)d * sizeof(float));
+#ifdef VLFF_HAVE_VLM
+    } else if (n->text_enc) {
+      if (vlff_text_encoder_encode(n->text_enc, texts[i], o, err, errlen)) return -1;
+#endif
     } else if (n->sim) {
       /* The simulated encoder knows class names, not templated sentences. */
-      vlff_sim_text_embedding(n->sim, texts[i], out + (size_t)i * d);
+      vlff_sim_text_embedding(n->sim, texts[i], o);
     } else {
-      snprintf(err, errlen, "prompt '%s': no text encoder (set prompts.embeddings)", texts[i]);
+      snprintf(err, errlen, "prompt '%s': no text encoder (set prompts.embeddings or vlm.text_model)", texts[i]);
       return -1;
     }
   }
@@ -243,26 +255,39 @@ static void queue_push(struct vlff_node *n, struct candidate *c) {
   }
 }
 
-/* Features [D][h][w] from the feature ring, transposed to the field's HWC. */
-static bool take_ring_features(struct candidate **pending, int *npend, const void *rec, int dim) {
-  const struct vlff_feature_hdr *h = rec;
-  if ((int)h->dim != dim) return false;
-  for (int i = 0; i < *npend; i++) {
-    struct candidate *c = pending[i];
-    if ((uint64_t)c->id != h->frame_id) continue;
-    size_t px = (size_t)h->width * h->height;
-    c->features = malloc(px * dim * sizeof(uint16_t));
-    if (!c->features) return false;
-    const uint16_t *src = (const uint16_t *)((const char *)rec + h->data_offset);
-    for (size_t p = 0; p < px; p++)
-      for (int d = 0; d < dim; d++) c->features[p * dim + d] = src[(size_t)d * px + p];
-    c->view.features = c->features;
-    c->view.feat_width = (int)h->width;
-    c->view.feat_height = (int)h->height;
-    c->view.feat_dim = dim;
-    return true;
+/* A keyframe waiting for its features leaves the pending list either
+ * with them (queued for the trainer) or without (dropped and counted). */
+static int pending_find(struct candidate **pending, int npend, uint64_t id) {
+  for (int i = 0; i < npend; i++)
+    if ((uint64_t)pending[i]->id == id) return i;
+  return -1;
+}
+
+static void pending_remove(struct candidate **pending, int *npend, int i) {
+  memmove(pending + i, pending + i + 1, (size_t)(*npend - i - 1) * sizeof *pending);
+  (*npend)--;
+}
+
+static void pending_complete(struct vlff_node *n, struct candidate **pending, int *npend, uint64_t id,
+                             const uint16_t *feat, int fh, int fw) {
+  int i = pending_find(pending, *npend, id);
+  if (i < 0) return;
+  struct candidate *c = pending[i];
+  pending_remove(pending, npend, i);
+  int d = n->cfg.field.feature_dim;
+  size_t bytes = (size_t)fh * fw * d * sizeof(uint16_t);
+  c->features = feat ? malloc(bytes) : NULL;
+  if (!c->features) {
+    STAT_ADD(n, features_timeout, 1);
+    candidate_free(c);
+    return;
   }
-  return false;
+  memcpy(c->features, feat, bytes);
+  c->view.features = c->features;
+  c->view.feat_width = fw;
+  c->view.feat_height = fh;
+  c->view.feat_dim = d;
+  queue_push(n, c);
 }
 
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
@@ -295,53 +320,65 @@ static void *ingest_main(void *arg) {
   struct vlff_sim_frame *sf = n->sim ? vlff_sim_frame_new(n->sim) : NULL;
   struct candidate *pending[PENDING_CAP];
   int npend = 0;
-  size_t cap = ring ? vlff_ring_slot_size(ring) : 0, fcap = 0;
-  void *buf = cap ? malloc(cap) : NULL, *fbuf = NULL;
+  size_t cap = ring ? vlff_ring_slot_size(ring) : 0;
+  void *buf = cap ? malloc(cap) : NULL;
+  int dim = cfg->field.feature_dim;
+  /* Feature maps are at most the model input's size (the extractor's
+   * contract); the join and the image worker hand results out through fbuf. */
+  int model_h = n->model_h, model_w = n->model_w;
+  uint16_t *fbuf = malloc((size_t)model_h * model_w * dim * sizeof(uint16_t));
+  struct vlff_feature_join *join = NULL;
+  if (cfg->source.features == VLFF_FEAT_RING) {
+    char jerr[256];
+    join = vlff_feature_join_create(PENDING_CAP, cfg->vlm.feature_timeout_s, dim, model_h, model_w, jerr, sizeof jerr);
+    if (!join) VLFF_ERROR(TAG, "feature join: %s", jerr);
+  }
   struct vlff_kf_selector sel;
   vlff_kf_selector_init(&sel, cfg->keyframes.rate_hz, cfg->keyframes.min_translation_m,
                         cfg->keyframes.min_rotation_deg);
   uint64_t lost_seen = 0;
   double fps_t0 = mono_s();
   long long fps_count = 0;
-  int dim = cfg->field.feature_dim;
-  while (ring && buf && !atomic_load(&n->stop)) {
+  while (ring && buf && fbuf && !atomic_load(&n->stop)) {
     if (!poses) poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
-    if (cfg->source.features == VLFF_FEAT_RING && !feats) {
-      feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
-      if (feats) {
-        fcap = vlff_ring_slot_size(feats);
-        fbuf = malloc(fcap);
+    if (join && !feats) feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
+    /* Features that arrived (external extractor or in-node model) complete
+     * their waiting keyframes; keyframes whose features never come expire. */
+    if (join) {
+      vlff_feature_join_pump(join, feats);
+      uint64_t fid;
+      int fh, fw, ev;
+      while ((ev = vlff_feature_join_poll(join, vlff_shm_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {
+        if (ev == VLFF_JOIN_READY) pending_complete(n, pending, &npend, fid, fbuf, fh, fw);
       }
     }
-    /* Join arrived features to waiting keyframes; time out the rest. */
-    if (feats && fbuf) {
-      struct vlff_ring_view fv;
-      ssize_t fl;
-      while ((fl = vlff_ring_read_copy(feats, fbuf, fcap, &fv, 0)) >= 0) {
-        if (vlff_feature_validate(fbuf, (size_t)fl) != 0 ||
-            !take_ring_features(pending, &npend, fbuf, dim))
-          continue;
-        for (int i = 0; i < npend; i++)
-          if (pending[i]->features) {
-            queue_push(n, pending[i]);
-            memmove(pending + i, pending + i + 1, (size_t)(npend - i - 1) * sizeof *pending);
-            npend--;
-            i--;
+#ifdef VLFF_HAVE_VLM
+    if (n->image_worker) {
+      uint64_t fid;
+      char werr[256];
+      int r;
+      while ((r = vlff_image_worker_poll(n->image_worker, &fid, fbuf, werr, sizeof werr)) != 0) {
+        if (r > 0) {
+          pending_complete(n, pending, &npend, fid, fbuf, model_h, model_w);
+        } else {
+          VLFF_WARN(TAG, "frame %llu: image encoder failed: %s", (unsigned long long)fid, werr);
+          int i = pending_find(pending, npend, fid);
+          if (i >= 0) {
+            STAT_ADD(n, features_timeout, 1);
+            candidate_free(pending[i]);
+            pending_remove(pending, &npend, i);
           }
-      }
-      if (fl < 0 && errno == EPIPE) {
-        vlff_ring_close(feats);
-        feats = NULL;
+        }
       }
     }
+#endif
     for (int i = 0; i < npend; i++)
       if (mono_s() > pending[i]->deadline_s) {
         STAT_ADD(n, features_timeout, 1);
         VLFF_WARN(TAG, "frame %lld: features did not arrive within %.1f s", pending[i]->id,
                   cfg->vlm.feature_timeout_s);
         candidate_free(pending[i]);
-        memmove(pending + i, pending + i + 1, (size_t)(npend - i - 1) * sizeof *pending);
-        npend--;
+        pending_remove(pending, &npend, i);
         i--;
       }
 
@@ -494,15 +531,22 @@ static void *ingest_main(void *arg) {
       if (npend == PENDING_CAP) {
         STAT_ADD(n, features_timeout, 1);
         candidate_free(pending[0]);
-        memmove(pending, pending + 1, (PENDING_CAP - 1) * sizeof *pending);
-        npend--;
+        pending_remove(pending, &npend, 0);
       }
+      char jerr[256];
+      if (join) vlff_feature_join_add_frame(join, (uint64_t)id, vlff_shm_now_ns(), jerr, sizeof jerr);
+#ifdef VLFF_HAVE_VLM
+      if (n->image_worker)
+        vlff_image_worker_submit(n->image_worker, (uint64_t)id, vlff_frame_plane(buf, VLFF_PLANE_COLOR),
+                                 (int)cp->width, (int)cp->height, cp->stride);
+#endif
       pending[npend++] = c;
     }
   }
   for (int i = 0; i < npend; i++) candidate_free(pending[i]);
   free(buf);
   free(fbuf);
+  vlff_feature_join_destroy(join);
   vlff_sim_frame_free(sf);
   vlff_ring_close(ring);
   vlff_ring_close(poses);
@@ -845,11 +889,13 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     snprintf(err, errlen, "source.kind: dataset is for vlff-eval; vlff-node reads the frame ring (sim or ring)");
     return NULL;
   }
-  if (cfg->source.features == VLFF_FEAT_MODEL) {
-    snprintf(err, errlen, "source.features: model: run the image encoder as an external extractor "
-                          "(source.features: ring) in this build");
+#ifndef VLFF_HAVE_VLM
+  if (cfg->source.features == VLFF_FEAT_MODEL || cfg->vlm.text_model[0]) {
+    snprintf(err, errlen, "%s: this vlff-node was built without OpenCV (VLFF_WITH_OPENCV=OFF)",
+             cfg->source.features == VLFF_FEAT_MODEL ? "source.features: model" : "vlm.text_model");
     return NULL;
   }
+#endif
   if (cfg->source.features == VLFF_FEAT_SIM && cfg->sim.feature_dim != cfg->field.feature_dim) {
     snprintf(err, errlen, "sim.feature_dim (%d) must equal field.feature_dim (%d)", cfg->sim.feature_dim,
              cfg->field.feature_dim);
@@ -885,9 +931,26 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     n->sim = vlff_sim_create(cfg, err, errlen);
     if (!n->sim) goto fail;
   }
-  if (cfg->prompts.embeddings[0] &&
-      vlff_prompt_embeddings_read(cfg->prompts.embeddings, cfg->field.feature_dim, &n->emb_file, err, errlen))
-    goto fail;
+  n->model_h = cfg->vlm.input_height;
+  n->model_w = cfg->vlm.input_width;
+  if (cfg->prompts.embeddings[0]) {
+    n->emb_file = vlff_embeddings_load(cfg->prompts.embeddings, cfg->field.feature_dim, err, errlen);
+    if (!n->emb_file) goto fail;
+  }
+#ifdef VLFF_HAVE_VLM
+  if (!n->emb_file && cfg->vlm.text_model[0]) {
+    n->text_enc = vlff_text_encoder_open(cfg, err, errlen);
+    if (!n->text_enc) goto fail;
+  }
+  if (cfg->source.features == VLFF_FEAT_MODEL) {
+    struct vlff_image_encoder *enc = vlff_image_encoder_open(cfg, err, errlen);
+    if (!enc) goto fail;
+    int dd;
+    vlff_image_encoder_shape(enc, &dd, &n->model_h, &n->model_w);
+    n->image_worker = vlff_image_worker_start(enc, 2, err, errlen);
+    if (!n->image_worker) goto fail;
+  }
+#endif
   if (n->sim && cfg->source.kind == VLFF_SOURCE_SIM &&
       vlff_sim_points(n->sim, cfg->sim.frames, 5, 0.05, &n->gt_points, err, errlen))
     goto fail;
@@ -936,7 +999,11 @@ void vlff_node_destroy(struct vlff_node *n, bool save_on_exit) {
   vlff_kfstore_destroy(n->store);
   vlff_sim_points_free(&n->gt_points);
   vlff_sim_destroy(n->sim);
-  vlff_prompt_embeddings_free(&n->emb_file);
+  vlff_embeddings_free(n->emb_file);
+#ifdef VLFF_HAVE_VLM
+  vlff_text_encoder_close(n->text_enc);
+  vlff_image_worker_stop(n->image_worker);
+#endif
   free(n->prompt_emb);
   pthread_mutex_destroy(&n->qlock);
   pthread_cond_destroy(&n->qcond);
