@@ -1,0 +1,48 @@
+/* Heartbeat timing against the ideal grid. With absolute deadlines the i-th
+ * heartbeat belongs to deadline anchor + k_i * period; its lateness is the
+ * distance to that deadline (a late wake never shifts later ones). The
+ * anchor is the least-late observation, so lateness >= 0 and the figure is
+ * free of the receiver's own scheduling (kernel timestamps). */
+#ifndef VLFF_TEST_HB_GRID_H
+#define VLFF_TEST_HB_GRID_H
+
+#include <math.h>
+#include <stdlib.h>
+
+struct hb_grid {
+  int n;             /* heartbeats analysed */
+  int missed;        /* deadlines in the span with no heartbeat */
+  int duplicates;    /* two heartbeats on one deadline (must be 0) */
+  double p50_ms, p99_ms, max_ms;
+  double mean_period_ms;
+};
+
+static int hb_cmp(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return x < y ? -1 : x > y;
+}
+
+/* t: timestamps in seconds (ascending); anchor: the boot-up message's
+ * timestamp, which starts the deadline grid; lat: scratch of n doubles.
+ * A heartbeat up to a quarter period before its deadline (the anchor itself
+ * carries some latency) or up to 3/4 period after it is attributed to it. */
+static inline struct hb_grid hb_grid_analyse(const double *t, int n, double period_s, double anchor, double *lat) {
+  struct hb_grid g = {.n = n};
+  if (n < 2) return g;
+  long prev = -1;
+  for (int i = 0; i < n; i++) {
+    long k = (long)floor((t[i] - anchor) / period_s + 0.25);
+    lat[i] = fabs(t[i] - anchor - (double)k * period_s) * 1e3;
+    if (k == prev) g.duplicates++;
+    else if (prev >= 0 && k > prev) g.missed += (int)(k - prev - 1);
+    prev = k;
+  }
+  g.mean_period_ms = (t[n - 1] - t[0]) / (n - 1) * 1e3;
+  qsort(lat, (size_t)n, sizeof lat[0], hb_cmp);
+  g.p50_ms = lat[n / 2];
+  g.p99_ms = lat[(int)((n - 1) * 0.99)];
+  g.max_ms = lat[n - 1];
+  return g;
+}
+
+#endif
