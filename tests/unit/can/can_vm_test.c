@@ -786,6 +786,16 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_tx_queue_full), cmocka_unit_test(test_link_down_up),
   };
   setvbuf(stdout, NULL, _IOLBF, 0);
+  if (argc == 4 && !strcmp(argv[1], "--serve")) {
+    /* A node for the vlff-can tool case: frozen status, operational. */
+    struct node *n = node_start(argv[2], 20, 40, false);
+    atomic_store(&n->frozen, true);
+    vlff_can_set_state(n->can, VLFF_NMT_OPERATIONAL);
+    usleep((useconds_t)(atof(argv[3]) * 1e6));
+    printf("served: %d saves, %d prompt set\n", atomic_load(&n->saves), atomic_load(&n->prompt_set));
+    node_stop(n);
+    return 0;
+  }
   if (argc > 1) cmocka_set_test_filter(argv[1]);
   return cmocka_run_group_tests(tests, setup, NULL);
 }
