@@ -6,10 +6,11 @@
 set -uo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
 build=${VLFF_BUILD:-$root/build/release}
+echo "host load: $(cut -d' ' -f1-3 /proc/loadavg) on $(nproc) cores (the VM's timing depends on it)"
 "$root/tests/vm/run" "$build" "$root/tests/vm/bench/can.sh"
 rc=$?
 if (( rc == 77 )); then echo "bench can: SKIPPED (no VM)"; exit 77; fi
-grep -aE '^(heartbeat|send capacity)' "$build/vm/console.log"
+grep -aE '^(timer|heartbeat|send capacity)' "$build/vm/console.log"
 line=$(grep -aE '^RESULT ' "$build/vm/console.log" | tail -1)
 [[ -n "$line" ]] || { echo "bench can: no RESULT line"; exit 1; }
 echo "$line"

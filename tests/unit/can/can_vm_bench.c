@@ -12,6 +12,7 @@
 #include <linux/can/raw.h>
 #include <net/if.h>
 #include <pthread.h>
+#include <sched.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -102,6 +103,48 @@ static struct hb_grid heartbeat(const char *iface, int period_ms, int n, int loa
   return g;
 }
 
+/* Baseline: what the VM's timers give any thread. A bare clock_nanosleep
+ * TIMER_ABSTIME loop at the CAN thread's priority, lateness measured on wake. */
+struct sleeper_arg {
+  int period_ms, n;
+  double *lat;
+};
+
+static void *sleeper(void *arg) {
+  struct sleeper_arg *a = arg;
+  struct sched_param sp = {.sched_priority = 10};
+  pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+  struct timespec next;
+  clock_gettime(CLOCK_MONOTONIC, &next);
+  for (int i = 0; i < a->n; i++) {
+    next.tv_nsec += a->period_ms * 1000000L;
+    while (next.tv_nsec >= 1000000000L) {
+      next.tv_nsec -= 1000000000L;
+      next.tv_sec++;
+    }
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL);
+    struct timespec now;
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    a->lat[i] = ((now.tv_sec - next.tv_sec) + (now.tv_nsec - next.tv_nsec) * 1e-9) * 1e3;
+  }
+  return NULL;
+}
+
+static void timer_baseline(int period_ms, int n, int load, double *p50, double *p99) {
+  struct sleeper_arg a = {.period_ms = period_ms, .n = n, .lat = calloc((size_t)n, sizeof(double))};
+  pthread_t th[8], t;
+  atomic_store(&quit, false);
+  for (int i = 0; i < load; i++) pthread_create(&th[i], NULL, burn, NULL);
+  pthread_create(&t, NULL, sleeper, &a);
+  pthread_join(t, NULL);
+  atomic_store(&quit, true);
+  for (int i = 0; i < load; i++) pthread_join(th[i], NULL);
+  qsort(a.lat, (size_t)n, sizeof(double), hb_cmp);
+  *p50 = a.lat[n / 2];
+  *p99 = a.lat[(int)((n - 1) * 0.99)];
+  free(a.lat);
+}
+
 /* Frames/s accepted by the kernel over seconds; encode = the status path. */
 static double send_rate(const char *iface, double seconds, bool encode, uint64_t *drops) {
   int s = socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK, CAN_RAW);
@@ -135,6 +178,11 @@ int main(int argc, char **argv) {
   const char *iface = argc > 1 ? argv[1] : "vbench0";
   const int period = 10;
   uint64_t late_idle, late_load, d1, d2;
+  double b50_idle, b99_idle, b50_load, b99_load;
+  timer_baseline(period, 300, 0, &b50_idle, &b99_idle);
+  printf("timer baseline idle:      p50 %.3f ms p99 %.3f ms (bare clock_nanosleep loop)\n", b50_idle, b99_idle);
+  timer_baseline(period, 500, 2, &b50_load, &b99_load);
+  printf("timer baseline full load: p50 %.3f ms p99 %.3f ms\n", b50_load, b99_load);
   struct hb_grid idle = heartbeat(iface, period, 300, 0, &late_idle);
   printf("heartbeat idle:      p50 %.3f ms p99 %.3f ms max %.3f ms, %llu late of %d\n", idle.p50_ms, idle.p99_ms,
          idle.max_ms, (unsigned long long)late_idle, idle.n);
@@ -146,8 +194,9 @@ int main(int argc, char **argv) {
   printf("send capacity: constant frames %.0f/s, status frames %.0f/s (drops %llu / %llu)\n", raw, status,
          (unsigned long long)d1, (unsigned long long)d2);
   printf("RESULT hb_jitter_p99_ms=%.3f status_fps=%.0f hb_jitter_p50_ms=%.3f hb_p99_over_period=%.4f "
-         "hb_idle_p99_ms=%.3f hb_late=%llu raw_fps=%.0f status_vs_raw=%.3f\n",
-         load.p99_ms, status, load.p50_ms, load.p99_ms / period, idle.p99_ms, (unsigned long long)late_load, raw,
-         status / raw);
+         "hb_idle_p99_ms=%.3f hb_late=%llu timer_p99_ms=%.3f hb_p99_over_timer_p99=%.2f raw_fps=%.0f "
+         "status_vs_raw=%.3f\n",
+         load.p99_ms, status, load.p50_ms, load.p99_ms / period, idle.p99_ms, (unsigned long long)late_load, b99_load,
+         load.p99_ms / (b99_load > 1e-6 ? b99_load : 1e-6), raw, status / raw);
   return 0;
 }

@@ -24,15 +24,31 @@ static int hb_cmp(const void *a, const void *b) {
 
 /* t: timestamps in seconds (ascending); anchor: the boot-up message's
  * timestamp, which starts the deadline grid; lat: scratch of n doubles.
- * A heartbeat up to a quarter period before its deadline (the anchor itself
- * carries some latency) or up to 3/4 period after it is attributed to it. */
+ * The boot-up frame can itself be late, so the grid's phase is re-estimated:
+ * the median residual first (most heartbeats are nearly on time), then the
+ * least-late heartbeat within [-P/4, 3P/4) of it is taken as "on time".
+ * Lateness is thus measured against the best case seen, a slight
+ * underestimate by the minimum wake latency. */
 static inline struct hb_grid hb_grid_analyse(const double *t, int n, double period_s, double anchor, double *lat) {
   struct hb_grid g = {.n = n};
   if (n < 2) return g;
+  for (int i = 0; i < n; i++) {
+    double x = (t[i] - anchor) / period_s;
+    lat[i] = (x - floor(x + 0.5)) * period_s;
+  }
+  qsort(lat, (size_t)n, sizeof lat[0], hb_cmp);
+  double phase = anchor + lat[n / 2];
+  double rmin = 1e9;
+  for (int i = 0; i < n; i++) {
+    double x = (t[i] - phase) / period_s;
+    double r = (x - floor(x + 0.25)) * period_s;
+    if (r < rmin) rmin = r;
+  }
+  phase += rmin;
   long prev = -1;
   for (int i = 0; i < n; i++) {
-    long k = (long)floor((t[i] - anchor) / period_s + 0.25);
-    lat[i] = fabs(t[i] - anchor - (double)k * period_s) * 1e3;
+    long k = (long)floor((t[i] - phase) / period_s + 0.25);
+    lat[i] = fmax(0.0, (t[i] - phase - (double)k * period_s) * 1e3);
     if (k == prev) g.duplicates++;
     else if (prev >= 0 && k > prev) g.missed += (int)(k - prev - 1);
     prev = k;
