@@ -287,7 +287,7 @@ static void test_heartbeat(void **state) {
   struct node *n = node_start(ifn, period_ms, 50, false);
   const uint32_t hb_id = 0x700 + (uint32_t)n->cfg.can.node_id;
   struct canfd_frame f;
-  double t;
+  double t = 0;
   /* The very first frame on the bus from the node is the boot-up heartbeat. */
   assert_true(bus_recv(bus, &f, 2.0, &t) > 0);
   assert_int_equal(f.can_id, hb_id);

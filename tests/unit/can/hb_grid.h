@@ -26,7 +26,10 @@ static int hb_cmp(const void *a, const void *b) {
  * timestamp, which starts the deadline grid; lat: scratch of n doubles.
  * The boot-up frame can itself be late, so the grid's phase is re-estimated:
  * the median residual first (most heartbeats are nearly on time), then the
- * least-late heartbeat within [-P/4, 3P/4) of it is taken as "on time".
+ * least-late heartbeat within [-P/20, 19P/20) of it is taken as "on time".
+ * Nothing is sent early and a deadline missed by a whole period is skipped,
+ * so every heartbeat is 0..P late and the window attributes it uniquely
+ * (up to 0.95 P; the node counts later ones in tx_late).
  * Lateness is thus measured against the best case seen, a slight
  * underestimate by the minimum wake latency. */
 static inline struct hb_grid hb_grid_analyse(const double *t, int n, double period_s, double anchor, double *lat) {
@@ -41,13 +44,13 @@ static inline struct hb_grid hb_grid_analyse(const double *t, int n, double peri
   double rmin = 1e9;
   for (int i = 0; i < n; i++) {
     double x = (t[i] - phase) / period_s;
-    double r = (x - floor(x + 0.25)) * period_s;
+    double r = (x - floor(x + 0.05)) * period_s;
     if (r < rmin) rmin = r;
   }
   phase += rmin;
   long prev = -1;
   for (int i = 0; i < n; i++) {
-    long k = (long)floor((t[i] - phase) / period_s + 0.25);
+    long k = (long)floor((t[i] - phase) / period_s + 0.05);
     lat[i] = fmax(0.0, (t[i] - phase - (double)k * period_s) * 1e3);
     if (k == prev) g.duplicates++;
     else if (prev >= 0 && k > prev) g.missed += (int)(k - prev - 1);
