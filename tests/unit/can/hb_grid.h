@@ -58,9 +58,13 @@ static inline struct hb_grid hb_grid_analyse(const double *t, int n, double peri
   }
   g.mean_period_ms = (t[n - 1] - t[0]) / (n - 1) * 1e3;
   qsort(lat, (size_t)n, sizeof lat[0], hb_cmp);
-  g.p50_ms = lat[n / 2];
-  g.p99_ms = lat[(int)((n - 1) * 0.99)];
-  g.max_ms = lat[n - 1];
+  /* Percentiles over every deadline: a skipped one counts as a full period
+   * late (a lower bound), so skipping can never flatter the tail. */
+  int all = n + g.missed;
+  int i50 = all / 2, i99 = (int)((all - 1) * 0.99);
+  g.p50_ms = i50 < n ? lat[i50] : period_s * 1e3;
+  g.p99_ms = i99 < n ? lat[i99] : period_s * 1e3;
+  g.max_ms = g.missed ? period_s * 1e3 : lat[n - 1];
   return g;
 }
 
