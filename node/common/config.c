@@ -167,6 +167,7 @@ static const struct key schema[] = {
     INT("can.command_id", can.command_id, 0, 0x7ff, 0x600),
     INT("can.ack_id", can.ack_id, 0, 0x7ff, 0x580),
     BOOL("can.fd", can.fd, 0),
+    INT("can.rt_priority", can.rt_priority, 0, 99, 10),
 
     ENUM("camera.kind", camera.kind, camera_kinds, "sim"),
     STR("camera.device", camera.device, ""),

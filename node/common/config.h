@@ -162,6 +162,7 @@ struct vlff_config {
     int command_id;
     int ack_id;
     bool fd;
+    int rt_priority;                 /* SCHED_FIFO priority of the CAN thread, 0 = normal */
   } can;
 
   struct {

@@ -345,7 +345,7 @@ static void *ingest_main(void *arg) {
     /* Features that arrived (external extractor or in-node model) complete
      * their waiting keyframes; keyframes whose features never come expire. */
     if (join) {
-      vlff_feature_join_pump(join, feats);
+      if (feats) vlff_feature_join_pump(join, feats);
       uint64_t fid;
       int fh, fw, ev;
       while ((ev = vlff_feature_join_poll(join, vlff_shm_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {

@@ -1,0 +1,313 @@
+/*
+ * vlff-can: watch a vlff node on a CAN bus, or send it a command.
+ * In the spirit of can-utils' candump/cansend: one line per frame, stable
+ * enough to grep, and a usage text with real examples.
+ */
+#include <errno.h>
+#include <getopt.h>
+#include <linux/can.h>
+#include <linux/can/raw.h>
+#include <net/if.h>
+#include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "can_proto.h"
+#include "config.h"
+
+static void usage(FILE *out) {
+  fprintf(out,
+          "usage: vlff-can [options] IFACE dump\n"
+          "       vlff-can [options] IFACE send start|stop|reset|save|publish|prompt-set N\n"
+          "\n"
+          "  dump   decode heartbeat, status, command and ack frames of a vlff node\n"
+          "  send   send one command and wait for its ack (exit 0 ok, 1 nak, 2 no ack)\n"
+          "\n"
+          "options (defaults: configs/default.yaml, or the file given with -f):\n"
+          "  -f FILE    read can.* ids from a vlff config file\n"
+          "  -n ID      node id (can.node_id)\n"
+          "  -b ID      status base id (can.status_base_id)\n"
+          "  -c ID      command id (can.command_id)\n"
+          "  -a ID      ack id (can.ack_id)\n"
+          "  -t SEC     dump: stop after SEC seconds; send: ack timeout (default 1)\n"
+          "  -N COUNT   dump: stop after COUNT frames\n"
+          "  -s SEQ     send: sequence number echoed in the ack (default: pid)\n"
+          "\n"
+          "examples:\n"
+          "  vlff-can can0 dump\n"
+          "    0.100213 72A heartbeat node=42 state=operational\n"
+          "    0.200118 180 TRAIN iteration=1532 keyframes=41 prompt_set=0 state=operational\n"
+          "  vlff-can -n 42 can0 send prompt-set 2\n"
+          "    580 ACK node=42 cmd=prompt-set seq=17 result=ok\n");
+}
+
+static long num(const char *s, const char *what) {
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 0);
+  if (errno || *end || end == s) {
+    fprintf(stderr, "vlff-can: %s: not a number: '%s'\n", what, s);
+    exit(2);
+  }
+  return v;
+}
+
+static double now_s(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static int open_iface(const char *iface, bool fd) {
+  int s = socket(PF_CAN, SOCK_RAW | SOCK_CLOEXEC, CAN_RAW);
+  if (s < 0) {
+    fprintf(stderr, "vlff-can: socket(PF_CAN): %s\n", strerror(errno));
+    return -1;
+  }
+  struct sockaddr_can a = {.can_family = AF_CAN, .can_ifindex = (int)if_nametoindex(iface)};
+  if (a.can_ifindex == 0) {
+    fprintf(stderr, "vlff-can: %s: no such interface\n", iface);
+    close(s);
+    return -1;
+  }
+  int on = 1;
+  can_err_mask_t em = CAN_ERR_MASK;
+  if (fd) setsockopt(s, SOL_CAN_RAW, CAN_RAW_FD_FRAMES, &on, sizeof on); /* classic-only links refuse: fine */
+  setsockopt(s, SOL_CAN_RAW, CAN_RAW_ERR_FILTER, &em, sizeof em);
+  if (bind(s, (struct sockaddr *)&a, sizeof a) < 0) {
+    fprintf(stderr, "vlff-can: bind %s: %s\n", iface, strerror(errno));
+    close(s);
+    return -1;
+  }
+  return s;
+}
+
+static void flags_text(unsigned f, char *out, size_t n) {
+  static const char *names[] = {"camera-lost", "pose-stale", "shm-lapped", "checkpoint-failed",
+                                "bus-error", "tx-dropped", "cmd-rejected", "bit7"};
+  size_t k = 0;
+  out[0] = 0;
+  for (int i = 0; i < 8; i++)
+    if (f & (1u << i)) k += (size_t)snprintf(out + k, n - k, "%s%s", k ? "," : "", names[i]);
+}
+
+static void bus_text(unsigned f, char *out, size_t n) {
+  static const char *names[] = {"bus-off", "error-passive", "error-warning", "controller",
+                                "tx-timeout", "protocol", "no-ack", "restarted"};
+  size_t k = 0;
+  out[0] = 0;
+  for (int i = 0; i < 8; i++)
+    if (f & (1u << i)) k += (size_t)snprintf(out + k, n - k, "%s%s", k ? "," : "", names[i]);
+}
+
+static void print_loss(const char *name, double v) {
+  if (v < 0) printf(" %s=invalid", name);
+  else printf(" %s=%.4f", name, v);
+}
+
+static void print_status(int index, const uint8_t *d) {
+  struct vlff_canp_status_view v;
+  char a[96], b[96];
+  vlff_canp_decode_status(index, d, 8, &v);
+  switch (index) {
+    case VLFF_CANP_TRAIN:
+      printf("TRAIN iteration=%u keyframes=%u prompt_set=%u state=%s", v.iteration, v.keyframes, v.prompt_set,
+             vlff_can_nmt_name(v.nmt_state));
+      break;
+    case VLFF_CANP_LOSS:
+      printf("LOSS");
+      print_loss("total", v.loss_total);
+      print_loss("color", v.loss_color);
+      print_loss("depth", v.loss_depth);
+      print_loss("feature", v.loss_feature);
+      break;
+    case VLFF_CANP_MAP:
+      printf("MAP version=%u", v.map_version);
+      if (v.map_age_ms == 0xffff) printf(" age_ms=never");
+      else printf(" age_ms=%u", v.map_age_ms);
+      if (v.fps_in < 0) printf(" fps_in=invalid");
+      else printf(" fps_in=%.2f", v.fps_in);
+      break;
+    case VLFF_CANP_HEALTH:
+      flags_text(v.error_flags, a, sizeof a);
+      bus_text(v.can_errors, b, sizeof b);
+      printf("HEALTH flags=0x%02x[%s] fps_dropped=%.2f cmd_rejected=%u tx_dropped=%u can_errors=0x%02x[%s]",
+             v.error_flags, a, v.fps_dropped < 0 ? -1.0 : v.fps_dropped, v.cmd_rejected, v.tx_dropped,
+             v.can_errors, b);
+      break;
+  }
+}
+
+static void print_frame(const struct vlff_config *c, const struct canfd_frame *f, double t) {
+  uint32_t id = f->can_id & CAN_SFF_MASK;
+  if (f->can_id & CAN_ERR_FLAG) {
+    char desc[160];
+    vlff_canp_decode_error(f->can_id, f->data, desc, sizeof desc);
+    printf("%.6f ERR %s\n", t, desc);
+    return;
+  }
+  if (f->can_id & CAN_EFF_FLAG) return;
+  uint32_t base = (uint32_t)c->can.status_base_id;
+  if (id == VLFF_CANP_HEARTBEAT_BASE + (uint32_t)c->can.node_id && f->len == 1) {
+    printf("%.6f %03X heartbeat node=%d state=%s\n", t, id, c->can.node_id, vlff_can_nmt_name(f->data[0]));
+  } else if (id >= base && id < base + VLFF_CANP_STATUS_FRAMES && f->len == 8) {
+    printf("%.6f %03X ", t, id);
+    print_status((int)(id - base), f->data);
+    printf("\n");
+  } else if (id == base + VLFF_CANP_STATUS_FD_OFFSET && f->len == 32) {
+    for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {
+      printf("%.6f %03X FD ", t, id);
+      print_status(i, f->data + 8 * i);
+      printf("\n");
+    }
+  } else if (id == (uint32_t)c->can.ack_id && f->len == VLFF_CANP_ACK_LEN) {
+    printf("%.6f %03X ACK node=%u cmd=%s seq=%u result=%s\n", t, id, f->data[0], vlff_can_cmd_name(f->data[1]),
+           f->data[3], vlff_can_result_name(f->data[2]));
+  } else if (id == (uint32_t)c->can.command_id) {
+    if (f->len == VLFF_CANP_CMD_LEN)
+      printf("%.6f %03X CMD target=%u cmd=%s arg=%u seq=%u\n", t, id, f->data[0], vlff_can_cmd_name(f->data[1]),
+             f->data[2], f->data[3]);
+    else
+      printf("%.6f %03X CMD malformed len=%u\n", t, id, f->len);
+  } else {
+    return;
+  }
+  fflush(stdout);
+}
+
+static int dump(const struct vlff_config *c, const char *iface, double seconds, long count) {
+  int s = open_iface(iface, true);
+  if (s < 0) return 2;
+  double t0 = now_s();
+  long n = 0;
+  for (;;) {
+    double left = seconds > 0 ? seconds - (now_s() - t0) : 1e9;
+    if (left <= 0 || (count > 0 && n >= count)) break;
+    struct pollfd p = {.fd = s, .events = POLLIN};
+    int r = poll(&p, 1, left > 1e6 ? -1 : (int)(left * 1000) + 1);
+    if (r < 0 && errno != EINTR) break;
+    if (r <= 0) continue;
+    struct canfd_frame f;
+    ssize_t got = read(s, &f, sizeof f);
+    if (got < 0) {
+      fprintf(stderr, "vlff-can: read %s: %s\n", iface, strerror(errno));
+      if (errno == ENETDOWN) continue;
+      break;
+    }
+    if (got != CAN_MTU && got != CANFD_MTU) continue;
+    print_frame(c, &f, now_s() - t0);
+    n++;
+  }
+  close(s);
+  return 0;
+}
+
+static int send_cmd(const struct vlff_config *c, const char *iface, int argc, char **argv, int seq, double timeout) {
+  static const struct { const char *name; int code; } cmds[] = {
+      {"start", VLFF_CAN_CMD_START}, {"stop", VLFF_CAN_CMD_STOP},       {"reset", VLFF_CAN_CMD_RESET},
+      {"save", VLFF_CAN_CMD_SAVE},   {"prompt-set", VLFF_CAN_CMD_PROMPT_SET}, {"publish", VLFF_CAN_CMD_PUBLISH}};
+  if (argc < 1) {
+    usage(stderr);
+    return 2;
+  }
+  struct vlff_can_command cmd = {.seq = (uint8_t)seq};
+  int code = -1;
+  for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; i++)
+    if (!strcmp(argv[0], cmds[i].name)) code = cmds[i].code;
+  if (code < 0) {
+    fprintf(stderr, "vlff-can: unknown command '%s'\n", argv[0]);
+    return 2;
+  }
+  cmd.code = (uint8_t)code;
+  if (code == VLFF_CAN_CMD_PROMPT_SET) {
+    if (argc < 2) {
+      fprintf(stderr, "vlff-can: prompt-set needs an index\n");
+      return 2;
+    }
+    long v = num(argv[1], "prompt set index");
+    if (v < 0 || v > 255) {
+      fprintf(stderr, "vlff-can: prompt set index %ld outside 0..255\n", v);
+      return 2;
+    }
+    cmd.arg = (uint8_t)v;
+  }
+  int s = open_iface(iface, false);
+  if (s < 0) return 2;
+  struct can_filter flt = {.can_id = (canid_t)c->can.ack_id, .can_mask = CAN_SFF_MASK | CAN_EFF_FLAG};
+  setsockopt(s, SOL_CAN_RAW, CAN_RAW_FILTER, &flt, sizeof flt);
+  struct can_frame f = {.can_id = (canid_t)c->can.command_id, .len = VLFF_CANP_CMD_LEN};
+  vlff_canp_encode_command(c->can.node_id, &cmd, f.data);
+  if (write(s, &f, sizeof f) != (ssize_t)sizeof f) {
+    fprintf(stderr, "vlff-can: send on %s: %s\n", iface, strerror(errno));
+    close(s);
+    return 2;
+  }
+  double t0 = now_s();
+  for (;;) {
+    double left = timeout - (now_s() - t0);
+    if (left <= 0) break;
+    struct pollfd p = {.fd = s, .events = POLLIN};
+    if (poll(&p, 1, (int)(left * 1000) + 1) <= 0) continue;
+    struct can_frame a;
+    if (read(s, &a, sizeof a) != (ssize_t)sizeof a) continue;
+    if (a.len != VLFF_CANP_ACK_LEN || a.data[0] != c->can.node_id || a.data[1] != cmd.code || a.data[3] != cmd.seq)
+      continue;
+    printf("%03X ACK node=%u cmd=%s seq=%u result=%s\n", c->can.ack_id, a.data[0], vlff_can_cmd_name(a.data[1]),
+           a.data[3], vlff_can_result_name(a.data[2]));
+    close(s);
+    return a.data[2] == VLFF_CAN_RES_OK ? 0 : 1;
+  }
+  fprintf(stderr, "vlff-can: no ack from node %d within %.1f s\n", c->can.node_id, timeout);
+  close(s);
+  return 2;
+}
+
+int main(int argc, char **argv) {
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  double seconds = 0;
+  long count = 0;
+  int seq = getpid() & 0xff;
+  int opt;
+  while ((opt = getopt(argc, argv, "f:n:b:c:a:t:N:s:h")) != -1) {
+    switch (opt) {
+      case 'f': {
+        char err[512];
+        if (vlff_config_load(optarg, &cfg, err, sizeof err) < 0) {
+          fprintf(stderr, "vlff-can: %s\n", err);
+          return 2;
+        }
+        break;
+      }
+      case 'n': cfg.can.node_id = (int)num(optarg, "-n"); break;
+      case 'b': cfg.can.status_base_id = (int)num(optarg, "-b"); break;
+      case 'c': cfg.can.command_id = (int)num(optarg, "-c"); break;
+      case 'a': cfg.can.ack_id = (int)num(optarg, "-a"); break;
+      case 't': seconds = strtod(optarg, NULL); break;
+      case 'N': count = num(optarg, "-N"); break;
+      case 's': seq = (int)num(optarg, "-s") & 0xff; break;
+      case 'h': usage(stdout); return 0;
+      default: usage(stderr); return 2;
+    }
+  }
+  if (argc - optind < 2) {
+    usage(stderr);
+    return 2;
+  }
+  const char *iface = argv[optind];
+  const char *verb = argv[optind + 1];
+  if (cfg.can.node_id < 1 || cfg.can.node_id > 127) {
+    fprintf(stderr, "vlff-can: node id %d outside 1..127\n", cfg.can.node_id);
+    return 2;
+  }
+  if (!strcmp(verb, "dump")) return dump(&cfg, iface, seconds, count);
+  if (!strcmp(verb, "send"))
+    return send_cmd(&cfg, iface, argc - optind - 2, argv + optind + 2, seq, seconds > 0 ? seconds : 1.0);
+  fprintf(stderr, "vlff-can: unknown verb '%s' (dump or send)\n", verb);
+  return 2;
+}
