@@ -15,6 +15,10 @@
 #include "config.h"
 #include "log.h"
 #include "node.h"
+#include "vlff/shm.h"
+#ifdef VLFF_HAVE_CAN
+#include "vlff_can.h"
+#endif
 
 #ifndef VLFF_VERSION
 #define VLFF_VERSION "unknown"
@@ -39,6 +43,37 @@ static void usage(FILE *out) {
         "  vlff-node --check-config configs/aravis-gige.yaml\n",
         out);
 }
+
+#ifdef VLFF_HAVE_CAN
+/* Runs on the CAN thread: commands only queue work for the trainer, so the
+ * bus never waits on learning. */
+static int on_can_command(void *ctx, const struct vlff_can_command *cmd) {
+  return vlff_node_command(ctx, cmd->code, cmd->arg) == 0 ? VLFF_CAN_RES_OK : VLFF_CAN_RES_BUSY;
+}
+
+static void can_publish_status(struct vlff_can *can, const struct vlff_node_status *st, double dropped_per_s) {
+  struct vlff_can_status cs = {
+      .iteration = (uint32_t)st->iteration,
+      .loss_total = (float)st->loss,
+      .loss_color = (float)st->loss_rgb,
+      .loss_depth = (float)st->loss_depth,
+      .loss_feature = (float)st->loss_feat,
+      .keyframes = (uint32_t)st->keyframes,
+      .map_version = (uint32_t)st->map_version,
+      .map_published_ns = st->map_age_s < 0 ? 0 : (int64_t)vlff_shm_now_ns() - (int64_t)(st->map_age_s * 1e9),
+      .fps_in = (float)st->fps_in,
+      .fps_dropped = (float)dropped_per_s,
+      .prompt_set = st->prompt_set < 0 ? 0xff : (uint32_t)st->prompt_set,
+      .error_flags = st->error_flags & 0x0f, /* the node's bits 0..3 are CAN's */
+  };
+  vlff_can_set_status(can, &cs);
+  int nmt = st->state == VLFF_NODE_OPERATIONAL ? VLFF_NMT_OPERATIONAL
+            : st->state == VLFF_NODE_STOPPED   ? VLFF_NMT_STOPPED
+            : st->state == VLFF_NODE_ERROR     ? VLFF_NMT_ERROR
+                                               : VLFF_NMT_PREOPERATIONAL;
+  vlff_can_set_state(can, nmt);
+}
+#endif
 
 static double mono_s(void) {
   struct timespec ts;
@@ -81,6 +116,12 @@ int main(int argc, char **argv) {
       fprintf(stderr, "%s\n", err);
       return 1;
     }
+#ifdef VLFF_HAVE_CAN
+    if (vlff_can_check_config(&cfg, err, sizeof err)) {
+      fprintf(stderr, "%s: %s\n", check_path, err);
+      return 1;
+    }
+#endif
     vlff_config_dump(&cfg, stdout);
     fprintf(stderr, "%s: OK\n", check_path);
     return 0;
@@ -110,11 +151,37 @@ int main(int argc, char **argv) {
     VLFF_ERROR("node", "%s", err);
     return 1;
   }
+#ifdef VLFF_HAVE_CAN
+  struct vlff_can *can = NULL;
+  if (cfg.can.enabled) {
+    if (vlff_can_check_config(&cfg, err, sizeof err)) {
+      VLFF_ERROR("node", "%s", err);
+      vlff_node_destroy(node, false);
+      return 1;
+    }
+    can = vlff_can_open(&cfg, on_can_command, node);
+    if (!can) VLFF_ERROR("node", "CAN on %s could not start; running without it", cfg.can.interface);
+  }
+  long long last_dropped = 0;
+  double last_can = 0;
+#else
+  if (cfg.can.enabled) VLFF_WARN("node", "can.enabled, but this vlff-node was built without SocketCAN");
+#endif
   double t0 = mono_s(), last_line = 0;
   while (!stop_requested && !vlff_node_finished(node)) {
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
     double now = mono_s();
+#ifdef VLFF_HAVE_CAN
+    if (can && now - last_can >= 0.1) {
+      struct vlff_node_status st;
+      vlff_node_status(node, &st);
+      long long dropped = st.frames_lost + st.frames_invalid + st.poses_rejected;
+      can_publish_status(can, &st, (double)(dropped - last_dropped) / (now - last_can));
+      last_dropped = dropped;
+      last_can = now;
+    }
+#endif
     if (status_view && now - last_line >= 0.5) {
       last_line = now;
       struct vlff_node_status st;
@@ -135,6 +202,9 @@ int main(int argc, char **argv) {
                                                                 : "run_seconds reached");
   struct vlff_node_status st;
   vlff_node_status(node, &st);
+#ifdef VLFF_HAVE_CAN
+  vlff_can_close(can); /* first: its command callback points at the node */
+#endif
   vlff_node_destroy(node, true);
   VLFF_INFO("node", "stopped: %lld iterations, %d keyframes, %lld frames in, %lld invalid, %lld lost, "
             "%lld poses rejected, map version %llu",
