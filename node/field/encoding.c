@@ -115,19 +115,29 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
     const float *t = table + (size_t)l * e->size * F;
     float *ol = out + l * F;
     if (F == 2) {
-      for (int i = 0; i < n; i++) {
-        uint32_t idx[8];
-        float w[8];
-        corners(e, l, p + 3 * i, idx, w);
-        float a0 = 0, a1 = 0;
-#pragma GCC unroll 8
-        for (int c = 0; c < 8; c++) {
-          const float *v = t + (size_t)idx[c] * 2;
-          a0 += w[c] * v[0];
-          a1 += w[c] * v[1];
+      /* Two passes per block: all corner addresses first (prefetched, so
+       * the block's cache misses overlap), then the gathers. */
+      enum { B = 32 };
+      uint32_t idx[B][8];
+      float w[B][8];
+      for (int i0 = 0; i0 < n; i0 += B) {
+        int m = n - i0 < B ? n - i0 : B;
+        for (int i = 0; i < m; i++) {
+          corners(e, l, p + 3 * (i0 + i), idx[i], w[i]);
+          if (!e->dense[l])
+            for (int c = 0; c < 8; c++) __builtin_prefetch(t + (size_t)idx[i][c] * 2);
         }
-        ol[(size_t)i * ldo] = a0;
-        ol[(size_t)i * ldo + 1] = a1;
+        for (int i = 0; i < m; i++) {
+          float a0 = 0, a1 = 0;
+#pragma GCC unroll 8
+          for (int c = 0; c < 8; c++) {
+            const float *v = t + (size_t)idx[i][c] * 2;
+            a0 += w[i][c] * v[0];
+            a1 += w[i][c] * v[1];
+          }
+          ol[(size_t)(i0 + i) * ldo] = a0;
+          ol[(size_t)(i0 + i) * ldo + 1] = a1;
+        }
       }
     } else {
       for (int i = 0; i < n; i++) {
@@ -166,30 +176,45 @@ void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n
   const size_t base = (size_t)l * e->size;
   float *g = grad + base * F;
   uint64_t *bt = bits + base / 64;
+  if (F == 2) {
+    /* As in the forward: addresses (prefetched) first, then the updates.
+     * First touch writes instead of zeroing then adding. */
+    enum { B = 32 };
+    uint32_t ix[B][8];
+    float wt[B][8];
+    for (int i0 = 0; i0 < n; i0 += B) {
+      int m = n - i0 < B ? n - i0 : B;
+      for (int i = 0; i < m; i++) {
+        corners(e, l, p + 3 * (i0 + i), ix[i], wt[i]);
+        if (!e->dense[l])
+          for (int c = 0; c < 8; c++) __builtin_prefetch(g + (size_t)ix[i][c] * 2, 1);
+      }
+      for (int i = 0; i < m; i++) {
+        const float *di = d + (size_t)(i0 + i) * ld;
+        const float d0 = di[0], d1 = di[1];
+#pragma GCC unroll 8
+        for (int c = 0; c < 8; c++) {
+          uint32_t h = ix[i][c];
+          float *gv = g + (size_t)h * 2;
+          uint64_t bit = 1ull << (h & 63), word = bt[h >> 6];
+          if (word & bit) {
+            gv[0] += wt[i][c] * d0;
+            gv[1] += wt[i][c] * d1;
+          } else {
+            bt[h >> 6] = word | bit;
+            gv[0] = wt[i][c] * d0;
+            gv[1] = wt[i][c] * d1;
+          }
+        }
+      }
+    }
+    return;
+  }
   for (int i = 0; i < n; i++) {
     const float *di = d + (size_t)i * ld;
     uint32_t idx[8];
     float w[8];
     corners(e, l, p + 3 * i, idx, w);
-    if (F == 2) {
-      /* First touch writes instead of zeroing then adding. */
-      const float d0 = di[0], d1 = di[1];
-#pragma GCC unroll 8
-      for (int c = 0; c < 8; c++) {
-        uint32_t h = idx[c];
-        float *gv = g + (size_t)h * 2;
-        uint64_t bit = 1ull << (h & 63), word = bt[h >> 6];
-        if (word & bit) {
-          gv[0] += w[c] * d0;
-          gv[1] += w[c] * d1;
-        } else {
-          bt[h >> 6] = word | bit;
-          gv[0] = w[c] * d0;
-          gv[1] = w[c] * d1;
-        }
-      }
-      continue;
-    }
     for (int c = 0; c < 8; c++) {
       uint32_t h = idx[c];
       float *gv = g + (size_t)h * F;

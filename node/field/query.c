@@ -7,8 +7,9 @@
  * |f|^2 = hᵀ(WᵀW)h + 2 (Wᵀb).h + |b|^2 (needed for cosine scores) costs H x H
  * and is computed only when scores or margins are requested. Rendering is
  * linear in the feature, so 2D labels fold the same way on the rendered h.
- * Large 3D batches are processed in Morton order of their positions, which
- * keeps hash-table lookups of neighbouring points in cache.
+ * Points are processed in the caller's order, in blocks of VLFF_QUERY_BLOCK;
+ * callers get the best cache behaviour by passing grid (x-fastest) order,
+ * which the map publisher does anyway (see the benchmark: grid vs random).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -89,7 +90,6 @@ static void feat_norms(const struct vlff_field *f, const float *h, const float *
 struct query_ctx {
   struct vlff_field *f;
   const float *xyz;
-  const uint32_t *order;   /* NULL = identity */
   size_t n;
   float *density, *feature, *score, *margin;
   int *label;
@@ -107,7 +107,7 @@ static void query_task(void *ctx, int task, int thread) {
   uint32_t idx[VLFF_QUERY_BLOCK];
   unsigned char inside[VLFF_QUERY_BLOCK];
   for (int i = 0; i < n; i++) {
-    idx[i] = q->order ? q->order[a + i] : (uint32_t)(a + i);
+    idx[i] = (uint32_t)(a + i);
     inside[i] = (unsigned char)vlff_encoding_normalise(&f->enc, q->xyz + 3 * (size_t)idx[i], w->p + 3 * i);
   }
   vlff_field_density(f, w, w->p, n);
@@ -155,20 +155,12 @@ int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *de
   if (!f || (n && !xyz)) return -1;
   if ((label || score || margin) && f->K == 0) return -1;
   if (n > UINT32_MAX) return -1;
-  struct query_ctx q = {f, xyz, NULL, 0, density, feature, score, margin, label, 0};
+  /* Batches of at most 2^24 points keep task indices in int range. */
   for (size_t a = 0; a < n;) {
     size_t m = n - a > (size_t)1 << 24 ? (size_t)1 << 24 : n - a;
-    q.xyz = xyz;
-    q.n = a + m;
-    /* Tasks index from a: offset via a shifted view of the arrays. */
-    struct query_ctx sub = q;
-    sub.xyz = xyz + 3 * a;
-    sub.n = m;
-    sub.density = density ? density + a : NULL;
-    sub.feature = feature ? feature + a * (size_t)f->D : NULL;
-    sub.label = label ? label + a : NULL;
-    sub.score = score ? score + a : NULL;
-    sub.margin = margin ? margin + a : NULL;
+    struct query_ctx sub = {f, xyz + 3 * a, m, density ? density + a : NULL,
+                            feature ? feature + a * (size_t)f->D : NULL, score ? score + a : NULL,
+                            margin ? margin + a : NULL, label ? label + a : NULL, 0};
     sub.ntasks = (int)((m + VLFF_QUERY_BLOCK - 1) / VLFF_QUERY_BLOCK);
     vlff_pool_run(f->pool, sub.ntasks, query_task, &sub);
     a += m;

@@ -17,10 +17,17 @@
 #include "field_internal.h"
 #include "scene.h"
 
-#if defined(__SANITIZE_THREAD__) || defined(__SANITIZE_ADDRESS__)
+/* Sanitizer builds run fewer steps (ThreadSanitizer fewest) against looser
+ * thresholds; the assertions stay the same. */
+#if defined(__SANITIZE_THREAD__)
 #define SANITIZED 1
+#define CONV_STEPS 60
+#elif defined(__SANITIZE_ADDRESS__)
+#define SANITIZED 1
+#define CONV_STEPS 60
 #else
 #define SANITIZED 0
+#define CONV_STEPS 150
 #endif
 
 static void scene_cfg(struct vlff_config *cfg, int d) {
@@ -86,7 +93,7 @@ static void test_chunk_gradient(void **state) {
       for (int kind = 0; kind < 2; kind++) {
         size_t o = kind ? mm[k]->boff[l] : mm[k]->woff[l];
         size_t cnt = kind ? (size_t)mm[k]->dout[l] : (size_t)mm[k]->din[l] * mm[k]->dout[l];
-        for (int pick = 0; pick < 3; pick++) {
+        for (int pick = 0; pick < (SANITIZED ? 2 : 3); pick++) {
           size_t best = o;
           float bv = -1;
           for (size_t i = o; i < o + cnt; i++)
@@ -112,7 +119,7 @@ static void test_chunk_gradient(void **state) {
         }
       }
   print_message("chunk gradient: %d of %d parameters within 5%%\n", good, checked);
-  assert_true(checked >= 20);
+  assert_true(checked >= (SANITIZED ? 14 : 20));
   assert_true(good >= checked * 9 / 10);
   free(g);
   for (int k = 0; k < 4; k++) scene_view_free(&sv[k]);
@@ -173,7 +180,7 @@ static struct eval evaluate(struct vlff_field *f, int d, int w, int h) {
   int *lab = malloc((size_t)w * h * 4);
   for (int k = 0; k < 2; k++) {
     double c2w[16];
-    scene_pose(2 * k + 1, 16, c2w); /* between the training poses */
+    scene_pose(8 * k + 3, 32, c2w); /* between training poses */
     struct scene_view tv;
     scene_render(&tv, w, h, d, c2w);
     assert_int_equal(vlff_field_render(f, &tv.v, rgb, dep, NULL, lab, NULL), 0);
@@ -200,17 +207,17 @@ static struct eval evaluate(struct vlff_field *f, int d, int w, int h) {
 
 static void test_convergence(void **state) {
   (void)state;
-  const int d = 16, nv = 8, W = 48, H = 36;
+  const int d = 16, nv = 16, W = 40, H = 30;
   struct vlff_config cfg;
   scene_cfg(&cfg, d);
   cfg.train.rays_per_step = SANITIZED ? 256 : 512;
   cfg.train.feature_loss = VLFF_FEAT_LOSS_L1;
-  const int steps = SANITIZED ? 60 : 150;
+  const int steps = CONV_STEPS;
   char err[256];
   struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
   assert_non_null(f);
-  struct scene_view sv[8];
-  struct vlff_view v[8];
+  struct scene_view sv[16];
+  struct vlff_view v[16];
   for (int k = 0; k < nv; k++) {
     double c2w[16];
     scene_pose(2 * k, 2 * nv, c2w);
@@ -231,13 +238,13 @@ static void test_convergence(void **state) {
                 ev.depth_err, ev.label_acc);
   /* Thresholds sit with a margin below what the deterministic run reaches. */
   if (SANITIZED) {
-    assert_true(ev.psnr > 15.0);
-    assert_true(ev.depth_err < 0.25);
-    assert_true(ev.label_acc > 0.75);
+    assert_true(ev.psnr > 17.5);
+    assert_true(ev.depth_err < 0.22);
+    assert_true(ev.label_acc > 0.9);
   } else {
-    assert_true(ev.psnr > 20.0);
-    assert_true(ev.depth_err < 0.08);
-    assert_true(ev.label_acc > 0.93);
+    assert_true(ev.psnr > 20.5);
+    assert_true(ev.depth_err < 0.07);
+    assert_true(ev.label_acc > 0.94);
   }
   for (int k = 0; k < nv; k++) scene_view_free(&sv[k]);
   vlff_field_destroy(f);
