@@ -102,12 +102,15 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
   for (int i = 0; i < n; i++) {
     float *o = out + (size_t)i * ldo + off;
     for (int a = 0; a < 3; a++) {
+      /* One sin/cos per axis; higher octaves by the double-angle formulas. */
       float x = p[3 * i + a] * (float)M_PI;
+      float s = sinf(x), c = cosf(x);
       for (int b = 0; b < e->freq_bands; b++) {
-        float s = sinf(x), c = cosf(x);
         *o++ = s;
         *o++ = c;
-        x *= 2.0f;
+        float s2 = 2.0f * s * c;
+        c = 1.0f - 2.0f * s * s;
+        s = s2;
       }
     }
   }

@@ -99,6 +99,10 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
 /* Refresh derived data after parameters change (transposes, folded prompts). */
 void vlff_field_refresh(struct vlff_field *f);
 void vlff_field_occupancy_update(struct vlff_field *f, int full);
+/* Draw train.rays_per_step rays into f->rays and set the loss scales;
+ * counts = rays with rgb, depth, features (may be NULL). */
+void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
+                          int *counts);
 void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d);
 
 #endif
@@ -154,6 +158,11 @@ void vlff_mlp_init_params(const struct vlff_mlp *m, float *params, uint64_t *rng
  * NULL) initialises C; accumulate adds to C instead; relu clamps at 0. */
 void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                float *c, int ldc, const float *bias, int accumulate, int relu);
+/* Name of the GEMM kernel in use ("avx512", "avx2+fma", "generic"). */
+const char *vlff_gemm_isa(void);
+/* Same, with C zeroed wherever mask (laid out like C) is not > 0. */
+void vlff_gemm_mask(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
+                    float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
 /* Forward of layers [0, upto): act[l] is [n][dout[l]] (ReLU applied for
  * hidden layers, none for the output layer). x is [n][ldx]. */
 void vlff_mlp_forward(const struct vlff_mlp *m, const float *params, const float *x, int ldx, int n,
@@ -303,6 +312,10 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
 /* Refresh derived data after parameters change (transposes, folded prompts). */
 void vlff_field_refresh(struct vlff_field *f);
 void vlff_field_occupancy_update(struct vlff_field *f, int full);
+/* Draw train.rays_per_step rays into f->rays and set the loss scales;
+ * counts = rays with rgb, depth, features (may be NULL). */
+void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
+                          int *counts);
 void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d);
 
 #endif

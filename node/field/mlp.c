@@ -5,99 +5,67 @@
  * (dY·W, with W a transposed copy refreshed after each update) and weight
  * gradients (Xᵀ·dY, reading X with swapped strides). The micro-kernel keeps a
  * 4 x 32 tile of C in registers and streams a 32-wide panel of B, which stays
- * in L1 while the rows of A pass by. It is written with GCC/clang vector
- * extensions, so the same source becomes AVX-512, AVX2, SSE or NEON code.
+ * in L1 while the rows of A pass by (gemm_impl.h). The kernel is written with
+ * GCC/clang vector extensions and built per instruction set; this file picks
+ * the best one the CPU runs.
  */
 #include <math.h>
+#include <pthread.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "field_internal.h"
 
-typedef float v16 __attribute__((vector_size(64)));
-typedef int v16i __attribute__((vector_size(64)));
+typedef void (*gemm_fn)(int, int, int, const float *, ptrdiff_t, ptrdiff_t, const float *, int, float *, int,
+                        const float *, int, int, const float *);
+void vlff_gemm_generic(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
+                       float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
+#if VLFF_GEMM_X86
+void vlff_gemm_v4(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
+                  float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
+void vlff_gemm_v3(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
+                  float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
+#endif
 
-#define MR 4
-#define NV 2   /* vectors of 16 per tile row */
-
-static inline __attribute__((always_inline)) v16 vload(const float *p) {
-  v16 v;
-  memcpy(&v, p, sizeof(v));
-  return v;
-}
-static inline __attribute__((always_inline)) void vstore(float *p, v16 v) { memcpy(p, &v, sizeof(v)); }
-
-static inline __attribute__((always_inline)) void tile(int mr, int nv, int k, const float *a, ptrdiff_t ars,
-                                                       ptrdiff_t acs, const float *b, int ldb, float *c, int ldc,
-                                                       const float *bias, int accumulate, int relu) {
-  v16 acc[MR][NV];
-  for (int r = 0; r < mr; r++)
-    for (int v = 0; v < nv; v++) {
-      if (bias)
-        acc[r][v] = vload(bias + 16 * v);
-      else if (accumulate)
-        acc[r][v] = vload(c + (ptrdiff_t)r * ldc + 16 * v);
-      else
-        acc[r][v] = (v16){0};
-    }
-  for (int kk = 0; kk < k; kk++) {
-    const float *bk = b + (ptrdiff_t)kk * ldb;
-    v16 bv[NV];
-    for (int v = 0; v < nv; v++) bv[v] = vload(bk + 16 * v);
-    for (int r = 0; r < mr; r++) {
-      float av = a[(ptrdiff_t)r * ars + (ptrdiff_t)kk * acs];
-      for (int v = 0; v < nv; v++) acc[r][v] += av * bv[v];
-    }
-  }
-  for (int r = 0; r < mr; r++)
-    for (int v = 0; v < nv; v++) {
-      v16 x = acc[r][v];
-      if (relu) x = (v16)((v16i)x & (x > 0));
-      vstore(c + (ptrdiff_t)r * ldc + 16 * v, x);
-    }
+/* The widest kernel this CPU runs; resolved once (a benign race: every
+ * thread computes the same value). */
+static gemm_fn pick_gemm(void) {
+#if VLFF_GEMM_X86
+  __builtin_cpu_init();
+  if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512bw") &&
+      __builtin_cpu_supports("avx512vl"))
+    return vlff_gemm_v4;
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return vlff_gemm_v3;
+#endif
+  return vlff_gemm_generic;
 }
 
-static void tail_cols(int m, int n0, int n1, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b,
-                      int ldb, float *c, int ldc, const float *bias, int accumulate, int relu) {
-  for (int i = 0; i < m; i++)
-    for (int j = n0; j < n1; j++) {
-      float s = bias ? bias[j] : accumulate ? c[(ptrdiff_t)i * ldc + j] : 0.0f;
-      for (int kk = 0; kk < k; kk++) s += a[(ptrdiff_t)i * ars + (ptrdiff_t)kk * acs] * b[(ptrdiff_t)kk * ldb + j];
-      if (relu && !(s > 0)) s = 0;
-      c[(ptrdiff_t)i * ldc + j] = s;
-    }
+static gemm_fn gemm_impl;
+static pthread_once_t gemm_once = PTHREAD_ONCE_INIT;
+static void gemm_init(void) {
+  const char *force = getenv("VLFF_GEMM");
+  gemm_impl = pick_gemm();
+  if (force && !strcmp(force, "generic")) gemm_impl = vlff_gemm_generic;
 }
 
-#define TILE_CASES(NVV)                                                                                       \
-  switch (mr) {                                                                                               \
-  case 4: tile(4, NVV, k, ai, ars, acs, b + j, ldb, ci, ldc, bj, accumulate, relu); break;                    \
-  case 3: tile(3, NVV, k, ai, ars, acs, b + j, ldb, ci, ldc, bj, accumulate, relu); break;                    \
-  case 2: tile(2, NVV, k, ai, ars, acs, b + j, ldb, ci, ldc, bj, accumulate, relu); break;                    \
-  default: tile(1, NVV, k, ai, ars, acs, b + j, ldb, ci, ldc, bj, accumulate, relu); break;                   \
-  }
+const char *vlff_gemm_isa(void) {
+  pthread_once(&gemm_once, gemm_init);
+#if VLFF_GEMM_X86
+  if (gemm_impl == vlff_gemm_v4) return "avx512";
+  if (gemm_impl == vlff_gemm_v3) return "avx2+fma";
+#endif
+  return "generic";
+}
 
-VLFF_HOT
+void vlff_gemm_mask(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
+                    float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask) {
+  pthread_once(&gemm_once, gemm_init);
+  gemm_impl(m, n, k, a, ars, acs, b, ldb, c, ldc, bias, accumulate, relu, mask);
+}
+
 void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                float *c, int ldc, const float *bias, int accumulate, int relu) {
-  int j = 0;
-  for (; j + 16 * NV <= n; j += 16 * NV) {
-    const float *bj = bias ? bias + j : NULL;
-    for (int i = 0; i < m; i += MR) {
-      int mr = m - i < MR ? m - i : MR;
-      const float *ai = a + (ptrdiff_t)i * ars;
-      float *ci = c + (ptrdiff_t)i * ldc + j;
-      TILE_CASES(NV)
-    }
-  }
-  for (; j + 16 <= n; j += 16) {
-    const float *bj = bias ? bias + j : NULL;
-    for (int i = 0; i < m; i += MR) {
-      int mr = m - i < MR ? m - i : MR;
-      const float *ai = a + (ptrdiff_t)i * ars;
-      float *ci = c + (ptrdiff_t)i * ldc + j;
-      TILE_CASES(1)
-    }
-  }
-  if (j < n) tail_cols(m, j, n, k, a, ars, acs, b, ldb, c, ldc, bias, accumulate, relu);
+  vlff_gemm_mask(m, n, k, a, ars, acs, b, ldb, c, ldc, bias, accumulate, relu, NULL);
 }
 
 static size_t pad16(size_t x) { return (x + 15) & ~(size_t)15; }
@@ -160,11 +128,6 @@ static void col_sums(const float *dy, int n, int d, float *g) {
     for (int j = 0; j < d; j++) g[j] += dy[(size_t)i * d + j];
 }
 
-VLFF_HOT
-static void relu_mask(float *d, const float *act, size_t n) {
-  for (size_t i = 0; i < n; i++) d[i] = act[i] > 0 ? d[i] : 0.0f;
-}
-
 void vlff_mlp_backward(const struct vlff_mlp *m, const float *wT, const float *x, int ldx, int n, int upto,
                        float *const *act, float *dy, float *grad, float *dx, float *tmp) {
   for (int l = upto - 1; l >= 0; l--) {
@@ -174,8 +137,8 @@ void vlff_mlp_backward(const struct vlff_mlp *m, const float *wT, const float *x
     vlff_gemm(din, dout, n, in, 1, ldin, dy, dout, grad + m->woff[l], dout, NULL, 1, 0);
     col_sums(dy, n, dout, grad + m->boff[l]);
     if (l > 0) {
-      vlff_gemm(n, din, dout, dy, dout, 1, wT + m->woff[l], din, tmp, din, NULL, 0, 0);
-      relu_mask(tmp, act[l - 1], (size_t)n * din);
+      /* The ReLU of the layer below masks the gradient in the same pass. */
+      vlff_gemm_mask(n, din, dout, dy, dout, 1, wT + m->woff[l], din, tmp, din, NULL, 0, 0, act[l - 1]);
       float *t = dy;
       dy = tmp;
       tmp = t;

@@ -624,10 +624,8 @@ void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, f
   }
 }
 
-int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
-                    struct vlff_train_stats *stats, char *err, size_t errlen) {
-  if (check_views(f, views, nviews, weights, err, errlen)) return -1;
-  f->step++;
+void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
+                          int *counts) {
   /* Draw the rays: view by weight, pixel uniformly with sub-pixel jitter. */
   double wtot = 0;
   for (int i = 0; i < nviews; i++) wtot += weights ? weights[i] : 1.0;
@@ -677,6 +675,20 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   f->scale_rgb = n_rgb ? 1.0f / (float)n_rgb : 0.0f;
   f->scale_depth = n_depth ? (float)f->cfg.train.depth_weight / (float)n_depth : 0.0f;
   f->scale_feat = n_feat ? (float)f->cfg.train.feature_weight / (float)n_feat : 0.0f;
+  if (counts) {
+    counts[0] = n_rgb;
+    counts[1] = n_depth;
+    counts[2] = n_feat;
+  }
+}
+
+int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
+                    struct vlff_train_stats *stats, char *err, size_t errlen) {
+  if (check_views(f, views, nviews, weights, err, errlen)) return -1;
+  f->step++;
+  int counts[3];
+  vlff_field_draw_rays(f, views, nviews, weights, counts);
+  int n_rgb = counts[0];
   for (int t = 0; t < f->threads; t++) {
     struct vlff_work *w = &f->work[t];
     memset(w->grad, 0, f->nmlp * sizeof(float));

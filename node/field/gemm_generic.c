@@ -1,0 +1,6 @@
+/* GEMM kernel build for generic (see gemm_impl.h). */
+#include <stddef.h>
+void vlff_gemm_generic(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb, float *c,
+                  int ldc, const float *bias, int accumulate, int relu, const float *mask);
+#define GEMM_FN vlff_gemm_generic
+#include "gemm_impl.h"

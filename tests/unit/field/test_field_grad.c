@@ -1,0 +1,352 @@
+/*
+ * Gradient checks of every stage against finite differences in double
+ * precision: the float kernels' analytic gradients must match central
+ * differences of a double-precision reference of the same function.
+ */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "field_internal.h"
+
+static uint64_t rng = 42;
+static float frand(void) { return 2.0f * vlff_rng_uniform(&rng) - 1.0f; }
+static float *falloc(size_t n) {
+  float *p = calloc(n + 16, sizeof(float));
+  assert_non_null(p);
+  return p;
+}
+
+/* GEMM against a double reference over shapes that hit every kernel path:
+ * full tiles, row and column tails, strided A, bias, accumulate, relu, mask. */
+static void test_gemm(void **state) {
+  (void)state;
+  const int shapes[][3] = {{1, 1, 1}, {3, 5, 7}, {17, 33, 9}, {64, 64, 44}, {9, 15, 128}, {8, 3, 64},
+                           {33, 48, 300}, {4, 512, 16}, {130, 16, 1}, {7, 47, 260}};
+  for (size_t s = 0; s < sizeof(shapes) / sizeof(shapes[0]); s++) {
+    int m = shapes[s][0], n = shapes[s][1], k = shapes[s][2];
+    for (int variant = 0; variant < 6; variant++) {
+      int trans = variant & 1, mode = variant >> 1; /* 0 bias+relu, 1 accumulate, 2 plain+mask */
+      float *a = falloc((size_t)m * k), *b = falloc((size_t)k * n), *c = falloc((size_t)m * n);
+      float *bias = falloc(n), *mask = falloc((size_t)m * n);
+      double *ref = calloc((size_t)m * n, sizeof(double));
+      for (int i = 0; i < m * k; i++) a[i] = frand();
+      for (int i = 0; i < k * n; i++) b[i] = frand();
+      for (int i = 0; i < m * n; i++) {
+        c[i] = frand();
+        mask[i] = frand();
+      }
+      for (int i = 0; i < n; i++) bias[i] = frand();
+      ptrdiff_t ars = trans ? 1 : k, acs = trans ? m : 1;
+      for (int i = 0; i < m; i++)
+        for (int j = 0; j < n; j++) {
+          double v = mode == 0 ? bias[j] : mode == 1 ? c[i * n + j] : 0.0;
+          for (int q = 0; q < k; q++) v += (double)a[i * ars + q * acs] * b[q * n + j];
+          if (mode == 0 && v < 0) v = 0;
+          if (mode == 2 && !(mask[i * n + j] > 0)) v = 0;
+          ref[i * n + j] = v;
+        }
+      vlff_gemm_mask(m, n, k, a, ars, acs, b, n, c, n, mode == 0 ? bias : NULL, mode == 1, mode == 0,
+                     mode == 2 ? mask : NULL);
+      for (int i = 0; i < m * n; i++) {
+        double tol = 1e-5 * (k + 1) + 1e-5 * fabs(ref[i]);
+        if (fabs(c[i] - ref[i]) > tol) fail_msg("gemm %dx%dx%d variant %d at %d: %g vs %g", m, n, k, variant, i, c[i], ref[i]);
+      }
+      free(a);
+      free(b);
+      free(c);
+      free(bias);
+      free(mask);
+      free(ref);
+    }
+  }
+}
+
+/* Double reference of an MLP (ReLU hidden, linear output) and its loss
+ * L = sum g . y. */
+static double mlp_ref_loss(const struct vlff_mlp *m, const double *p, const float *x, int n, const float *g) {
+  double loss = 0;
+  double *cur = malloc(sizeof(double) * 1024), *nxt = malloc(sizeof(double) * 1024);
+  for (int s = 0; s < n; s++) {
+    for (int i = 0; i < m->nin; i++) cur[i] = x[s * m->nin + i];
+    for (int l = 0; l < m->nl; l++) {
+      for (int o = 0; o < m->dout[l]; o++) {
+        double v = p[m->boff[l] + o];
+        for (int i = 0; i < m->din[l]; i++) v += cur[i] * p[m->woff[l] + (size_t)i * m->dout[l] + o];
+        nxt[o] = l < m->nl - 1 && v < 0 ? 0 : v;
+      }
+      double *t = cur;
+      cur = nxt;
+      nxt = t;
+    }
+    for (int o = 0; o < m->nout; o++) loss += g[s * m->nout + o] * cur[o];
+  }
+  free(cur);
+  free(nxt);
+  return loss;
+}
+
+static void test_mlp(void **state) {
+  (void)state;
+  struct vlff_mlp m;
+  size_t np = vlff_mlp_init(&m, 13, 24, 2, 19, 0);
+  const int n = 11;
+  float *p = falloc(np), *wT = falloc(np), *grad = falloc(np), *x = falloc(n * 13), *g = falloc(n * 19);
+  float *dx = falloc(n * 13), *tmp = falloc(n * 64), *dy = falloc(n * 64);
+  uint64_t r = 7;
+  vlff_mlp_init_params(&m, p, &r);
+  for (int l = 0; l < m.nl; l++)
+    for (int o = 0; o < m.dout[l]; o++) p[m.boff[l] + o] = 0.1f * frand();
+  vlff_mlp_transpose(&m, p, wT);
+  for (int i = 0; i < n * 13; i++) x[i] = frand();
+  for (int i = 0; i < n * 19; i++) g[i] = frand();
+  float *act[VLFF_MLP_MAX_LAYERS];
+  for (int l = 0; l < m.nl; l++) act[l] = falloc(n * 64);
+  vlff_mlp_forward(&m, p, x, 13, n, m.nl, act);
+  memcpy(dy, g, sizeof(float) * n * 19);
+  vlff_mlp_backward(&m, wT, x, 13, n, m.nl, act, dy, grad, dx, tmp);
+  double *pd = malloc(sizeof(double) * np);
+  for (size_t i = 0; i < np; i++) pd[i] = p[i];
+  int checked = 0;
+  for (int l = 0; l < m.nl; l++) {
+    size_t offs[2] = {m.woff[l], m.boff[l]};
+    size_t cnt[2] = {(size_t)m.din[l] * m.dout[l], (size_t)m.dout[l]};
+    for (int kind = 0; kind < 2; kind++)
+      for (size_t q = 0; q < cnt[kind]; q += 5) {
+        size_t i = offs[kind] + q;
+        double h = 1e-6, save = pd[i];
+        pd[i] = save + h;
+        double lp = mlp_ref_loss(&m, pd, x, n, g);
+        pd[i] = save - h;
+        double lm = mlp_ref_loss(&m, pd, x, n, g);
+        pd[i] = save;
+        double fd = (lp - lm) / (2 * h);
+        if (fabs(fd - grad[i]) > 1e-3 * (1 + fabs(fd)))
+          fail_msg("mlp layer %d %s %zu: analytic %g vs fd %g", l, kind ? "bias" : "weight", q, grad[i], fd);
+        checked++;
+      }
+  }
+  /* Input gradient. */
+  float *xs = falloc(n * 13);
+  for (int i = 0; i < n * 13; i += 3) {
+    memcpy(xs, x, sizeof(float) * n * 13);
+    double h = 1e-3;
+    xs[i] = x[i] + (float)h;
+    double lp = mlp_ref_loss(&m, pd, xs, n, g);
+    xs[i] = x[i] - (float)h;
+    double lm = mlp_ref_loss(&m, pd, xs, n, g);
+    double hh = ((double)(x[i] + (float)h) - (double)(x[i] - (float)h)) / 2;
+    double fd = (lp - lm) / (2 * hh);
+    if (fabs(fd - dx[i]) > 2e-3 * (1 + fabs(fd))) fail_msg("mlp dx %d: analytic %g vs fd %g", i, dx[i], fd);
+    checked++;
+  }
+  assert_true(checked > 100);
+  for (int l = 0; l < m.nl; l++) free(act[l]);
+  free(p);
+  free(wT);
+  free(grad);
+  free(x);
+  free(g);
+  free(dx);
+  free(tmp);
+  free(dy);
+  free(pd);
+  free(xs);
+}
+
+static void small_cfg(struct vlff_config *cfg) {
+  vlff_config_defaults(cfg);
+  cfg->field.hash_levels = 6;
+  cfg->field.hash_log2_size = 10;
+  cfg->field.base_resolution = 4;
+  cfg->field.finest_resolution = 64;
+  cfg->field.feature_dim = 16;
+}
+
+/* The encoding is linear in the table: its gradient must equal the
+ * derivative of a double-precision trilinear interpolation. */
+static void test_encoding(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  small_cfg(&cfg);
+  struct vlff_encoding e;
+  vlff_encoding_init(&e, &cfg);
+  size_t nt = (size_t)e.levels * e.size * e.feats;
+  float *table = falloc(nt), *grad = falloc(nt);
+  for (size_t i = 0; i < nt; i++) table[i] = frand();
+  const int n = 9;
+  float p[3 * n], *out = falloc((size_t)n * e.dim), *d = falloc((size_t)n * e.dim);
+  for (int i = 0; i < 3 * n; i++) p[i] = 0.5f + 0.5f * frand();
+  p[0] = 0.0f;
+  p[1] = 1.0f;  /* box faces */
+  for (int i = 0; i < n * e.dim; i++) d[i] = frand();
+  vlff_encoding_forward(&e, table, p, n, out, e.dim);
+  uint32_t *stamp = calloc(e.levels * e.size, 4), *touched = calloc(e.levels * e.size, 4), nt_[32] = {0};
+  vlff_encoding_backward(&e, p, n, d, e.dim, 0, e.levels, grad, stamp, 1, touched, nt_);
+  /* Double FD: L(table) = sum d . out; perturb each touched entry. */
+  int checked = 0;
+  for (int l = 0; l < e.levels; l++) {
+    assert_true(nt_[l] > 0 && nt_[l] <= 8u * n);
+    for (uint32_t q = 0; q < nt_[l]; q++)
+      for (int f = 0; f < e.feats; f++) {
+        size_t i = ((size_t)l * e.size + touched[(size_t)l * e.size + q]) * e.feats + f;
+        double fd = 0;
+        /* out is linear: FD with a unit perturbation in double is exact. */
+        float save = table[i];
+        float *o2 = falloc((size_t)n * e.dim);
+        table[i] = save + 1.0f;
+        vlff_encoding_forward(&e, table, p, n, o2, e.dim);
+        table[i] = save;
+        for (int s = 0; s < n; s++)
+          for (int c = 0; c < e.levels * e.feats; c++)
+            fd += (double)d[s * e.dim + c] * ((double)o2[s * e.dim + c] - out[s * e.dim + c]);
+        free(o2);
+        if (fabs(fd - grad[i]) > 1e-4 * (1 + fabs(fd))) fail_msg("encoding level %d entry %u: %g vs %g", l, q, grad[i], fd);
+        checked++;
+      }
+  }
+  assert_true(checked > 50);
+  /* Frequency part: sin/cos of the normalised position. */
+  for (int s = 0; s < n; s++)
+    for (int a = 0; a < 3; a++)
+      for (int b = 0; b < e.freq_bands; b++) {
+        double x = M_PI * p[3 * s + a] * (1 << b);
+        const float *o = out + s * e.dim + e.levels * e.feats + a * 2 * e.freq_bands + 2 * b;
+        assert_true(fabs(o[0] - sin(x)) < 1e-5 && fabs(o[1] - cos(x)) < 1e-5);
+      }
+  free(table);
+  free(grad);
+  free(out);
+  free(d);
+  free(stamp);
+  free(touched);
+}
+
+static double render_ref(const double *sig, const float *delta, const float *v, int ns) {
+  double T = 1, o = 0;
+  for (int s = 0; s < ns; s++) {
+    double a = 1 - exp(-sig[s] * delta[s]);
+    o += T * a * v[s];
+    T *= 1 - a;
+  }
+  return o;
+}
+
+static void test_render(void **state) {
+  (void)state;
+  const int ns = 24;
+  float sigma[ns], delta[ns], w[ns], tr[ns], v[ns], ds[ns];
+  double sd[ns];
+  for (int s = 0; s < ns; s++) {
+    sigma[s] = 2.0f * (1.0f + frand());
+    delta[s] = 0.05f + 0.02f * frand();
+    v[s] = frand();
+    sd[s] = sigma[s];
+  }
+  int used = vlff_render_weights(sigma, delta, ns, w, tr);
+  assert_int_equal(used, ns);
+  vlff_render_backward(w, tr, sigma, delta, v, ns, ds);
+  for (int s = 0; s < ns; s++) {
+    double h = 1e-6, save = sd[s];
+    sd[s] = save + h;
+    double lp = render_ref(sd, delta, v, ns);
+    sd[s] = save - h;
+    double lm = render_ref(sd, delta, v, ns);
+    sd[s] = save;
+    double fd = (lp - lm) / (2 * h);
+    if (fabs(fd - ds[s]) > 1e-4 * (1 + fabs(fd))) fail_msg("render dsigma[%d]: %g vs %g", s, ds[s], fd);
+  }
+  /* Early termination: a wall of density stops the ray. */
+  for (int s = 0; s < ns; s++) sigma[s] = s == 5 ? 1e4f : 0.1f;
+  used = vlff_render_weights(sigma, delta, ns, w, tr);
+  assert_int_equal(used, 6);
+  assert_true(w[ns - 1] == 0.0f);
+}
+
+static void test_losses(void **state) {
+  (void)state;
+  float pred[8], tgt[8], g[8];
+  for (int i = 0; i < 8; i++) {
+    pred[i] = frand();
+    tgt[i] = frand();
+  }
+  vlff_loss_rgb(pred, tgt, 1.0f, g);
+  for (int c = 0; c < 3; c++) {
+    double h = 1e-4, l0 = 0, l1 = 0;
+    for (int q = 0; q < 3; q++) {
+      double a = pred[q] + (q == c ? h : 0) - tgt[q], b = pred[q] - (q == c ? h : 0) - tgt[q];
+      l0 += a * a / 3;
+      l1 += b * b / 3;
+    }
+    assert_true(fabs((l0 - l1) / (2 * h) - g[c]) < 1e-5);
+  }
+  float gd;
+  assert_true(fabsf(vlff_loss_depth(2.0f, 1.5f, 0.5f, &gd) - 0.5f) < 1e-6f && gd == 0.5f);
+  for (int l1 = 0; l1 < 2; l1++) {
+    float loss = vlff_loss_feat(pred, tgt, 8, l1, 2.0f, g);
+    double ref = 0;
+    for (int i = 0; i < 8; i++) {
+      double e = (double)pred[i] - tgt[i];
+      ref += l1 ? fabs(e) : e * e;
+    }
+    assert_true(fabs(loss - ref / 8) < 1e-5);
+    for (int i = 0; i < 8; i++) {
+      double h = 1e-4, e = (double)pred[i] - tgt[i];
+      double fd = l1 ? (fabs(e + h) - fabs(e - h)) / (2 * h) : ((e + h) * (e + h) - (e - h) * (e - h)) / (2 * h);
+      assert_true(fabs(2.0 * fd / 8 - g[i]) < 1e-4);
+    }
+  }
+}
+
+static void test_adam(void **state) {
+  (void)state;
+  /* One step from zero moments moves each parameter by lr * sign(g)
+   * (bias-corrected Adam); weight decay adds wd * p to the gradient. */
+  struct vlff_adam a = {0.01f, 0.9f, 0.99f, 1e-15f, 0.1f};
+  float p[4] = {1, -1, 2, 0.5f}, g[4] = {0.3f, -2, 0, 1e-3f}, m[4] = {0}, v[4] = {0};
+  vlff_adam_dense(&a, 1, a.lr, p, g, m, v, 0, 4, 0);
+  assert_true(fabsf(p[0] - 0.99f) < 1e-6f && fabsf(p[1] + 0.99f) < 1e-6f && p[2] == 2.0f &&
+              fabsf(p[3] - 0.49f) < 1e-6f);
+  float q[2] = {1, 1}, gq[2] = {0, 0}, mq[2] = {0}, vq[2] = {0};
+  vlff_adam_dense(&a, 1, a.lr, q, gq, mq, vq, 0, 2, 1);
+  assert_true(fabsf(q[0] - 0.99f) < 1e-6f);
+  uint32_t idx[1] = {1};
+  float s[4] = {1, 1, 1, 1}, gs[4] = {1, 1, 1, 1}, ms[4] = {0}, vs[4] = {0};
+  vlff_adam_sparse(&a, 1, a.lr, s, gs, ms, vs, idx, 1, 2);
+  assert_true(s[0] == 1 && s[1] == 1 && fabsf(s[2] - 0.99f) < 1e-6f && fabsf(s[3] - 0.99f) < 1e-6f);
+}
+
+static void test_f16(void **state) {
+  (void)state;
+  const float vals[] = {0.0f, -0.0f, 1.0f, -2.5f, 65504.0f, 6.1035156e-05f, 5.9604645e-08f, 0.333251953125f};
+  for (size_t i = 0; i < sizeof(vals) / sizeof(vals[0]); i++)
+    assert_true(vlff_f16_to_f32(vlff_f32_to_f16(vals[i])) == vals[i]);
+  assert_int_equal(vlff_f32_to_f16(1e6f), 0x7c00);
+  assert_true(isnan(vlff_f16_to_f32(vlff_f32_to_f16(NAN))));
+  /* Every half value survives a round trip; rounding is to nearest even. */
+  for (uint32_t h = 0; h < 0x10000; h++) {
+    if ((h & 0x7c00) == 0x7c00 && (h & 0x3ff)) continue;
+    assert_int_equal(vlff_f32_to_f16(vlff_f16_to_f32((uint16_t)h)), h);
+  }
+  assert_int_equal(vlff_f32_to_f16(1.0f + 1.0f / 2048), 0x3c00);        /* tie -> even */
+  assert_int_equal(vlff_f32_to_f16(1.0f + 3.0f / 2048), 0x3c02);        /* tie -> even (up) */
+  for (float x = -3.0f; x < 3.0f; x += 0.01234f) {
+    float y = vlff_f16_to_f32(vlff_f32_to_f16(x));
+    assert_true(fabsf(y - x) <= fabsf(x) * (1.0f / 2048) + 1e-7f);
+  }
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_gemm),   cmocka_unit_test(test_mlp),  cmocka_unit_test(test_encoding),
+      cmocka_unit_test(test_render), cmocka_unit_test(test_losses), cmocka_unit_test(test_adam),
+      cmocka_unit_test(test_f16),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
