@@ -84,7 +84,42 @@ static void test_dataset_matches_synthetic(void **state) {
   assert_int_equal(system(cmd), 0);
 }
 
+/* A small fit on a tiny synthetic scene beats the raw per-frame features in
+ * 2D (the point of fusing views into a field). Deterministic: fixed seed and
+ * thread count. Observed here: field 51.0 vs raw 41.4 2D mIoU after 300
+ * steps; the threshold keeps a margin of half that gain. */
+static void test_small_fit_beats_raw(void **state) {
+  (void)state;
+  const char *bin = getenv("VLFF_BINARY_DIR");
+  assert_non_null(bin);
+  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-fit-%ld-XXXXXX", (long)getpid());
+  assert_non_null(mkdtemp(tmp));
+  char cfg[512], cmd[2048], r[1024];
+  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
+  FILE *f = fopen(cfg, "w");
+  assert_non_null(f);
+  fputs("node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  feature_dim: 16\n  frames: 32\n"
+        "field:\n  feature_dim: 16\n  hash_log2_size: 15\n  finest_resolution: 256\n  feature_width: 32\n"
+        "train:\n  rays_per_step: 512\n  samples_per_ray: 24\n  feature_loss: l1\n",
+        f);
+  fclose(f);
+  snprintf(cmd, sizeof cmd, "%s/node/eval/vlff-eval --config %s --iters 300 --holdout 4 --quiet --overlays 1 --out %s/o 2>/dev/null",
+           bin, cfg, tmp);
+  run(cmd, r, sizeof r);
+  print_message("%s", r);
+  double field2d = field(r, "miou2d"), raw2d = field(r, "miou2d_raw");
+  assert_true(field2d > raw2d + 4.0);
+  assert_true(field(r, "miou3d") > 25.0);
+  char p[512];
+  struct stat st;
+  snprintf(p, sizeof p, "%s/o/overlay_00002.png", tmp);
+  assert_int_equal(stat(p, &st), 0);
+  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+  assert_int_equal(system(cmd), 0);
+}
+
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_dataset_matches_synthetic)};
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_dataset_matches_synthetic),
+                                     cmocka_unit_test(test_small_fit_beats_raw)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
