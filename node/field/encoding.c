@@ -45,53 +45,96 @@ int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float
   return inside;
 }
 
-/* Corner indices and trilinear weights of point p at level l. */
-static inline void corners(const struct vlff_encoding *e, int l, const float *p, uint32_t idx[8], float w[8]) {
-  float r = e->res[l];
-  uint32_t ri = (uint32_t)r;
+/* Corner indices and trilinear weights of point p at level l, straight-line
+ * (the compiler keeps everything in registers). Corner c has x offset c&1,
+ * y offset (c>>1)&1, z offset (c>>2)&1. */
+static inline __attribute__((always_inline)) void corners(const struct vlff_encoding *e, int l, const float *p,
+                                                          uint32_t idx[8], float w[8]) {
+  const float r = e->res[l];
+  const uint32_t ri = (uint32_t)r;
   uint32_t i0[3];
   float f[3];
   for (int a = 0; a < 3; a++) {
     float pos = p[a] * r;
     uint32_t c = (uint32_t)pos;
-    if (c >= ri) c = ri - 1;
+    c = c >= ri ? ri - 1 : c;
     i0[a] = c;
     f[a] = pos - (float)c;
   }
-  uint32_t mask = e->size - 1;
-  for (int c = 0; c < 8; c++) {
-    uint32_t x = i0[0] + (c & 1), y = i0[1] + ((c >> 1) & 1), z = i0[2] + ((c >> 2) & 1);
-    uint32_t h;
-    if (e->dense[l])
-      h = x + (ri + 1) * (y + (ri + 1) * z);
-    else
-      h = (x ^ (y * 2654435761u) ^ (z * 805459861u)) & mask;
-    idx[c] = h;
-    w[c] = ((c & 1) ? f[0] : 1.0f - f[0]) * (((c >> 1) & 1) ? f[1] : 1.0f - f[1]) *
-           (((c >> 2) & 1) ? f[2] : 1.0f - f[2]);
+  uint32_t x0, x1, y0, y1, z0, z1;
+  if (e->dense[l]) {
+    uint32_t s1 = ri + 1, s2 = s1 * s1;
+    x0 = i0[0];
+    x1 = x0 + 1;
+    y0 = i0[1] * s1;
+    y1 = y0 + s1;
+    z0 = i0[2] * s2;
+    z1 = z0 + s2;
+    idx[0] = x0 + y0 + z0;
+    idx[1] = x1 + y0 + z0;
+    idx[2] = x0 + y1 + z0;
+    idx[3] = x1 + y1 + z0;
+    idx[4] = x0 + y0 + z1;
+    idx[5] = x1 + y0 + z1;
+    idx[6] = x0 + y1 + z1;
+    idx[7] = x1 + y1 + z1;
+  } else {
+    const uint32_t mask = e->size - 1;
+    x0 = i0[0];
+    x1 = x0 + 1;
+    y0 = i0[1] * 2654435761u;
+    y1 = y0 + 2654435761u;
+    z0 = i0[2] * 805459861u;
+    z1 = z0 + 805459861u;
+    idx[0] = (x0 ^ y0 ^ z0) & mask;
+    idx[1] = (x1 ^ y0 ^ z0) & mask;
+    idx[2] = (x0 ^ y1 ^ z0) & mask;
+    idx[3] = (x1 ^ y1 ^ z0) & mask;
+    idx[4] = (x0 ^ y0 ^ z1) & mask;
+    idx[5] = (x1 ^ y0 ^ z1) & mask;
+    idx[6] = (x0 ^ y1 ^ z1) & mask;
+    idx[7] = (x1 ^ y1 ^ z1) & mask;
   }
+  float gx = 1.0f - f[0], gy = 1.0f - f[1], gz = 1.0f - f[2];
+  float w00 = gx * gy, w10 = f[0] * gy, w01 = gx * f[1], w11 = f[0] * f[1];
+  w[0] = w00 * gz;
+  w[1] = w10 * gz;
+  w[2] = w01 * gz;
+  w[3] = w11 * gz;
+  w[4] = w00 * f[2];
+  w[5] = w10 * f[2];
+  w[6] = w01 * f[2];
+  w[7] = w11 * f[2];
 }
 
+VLFF_HOT
 void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, const float *p, int n,
                            float *out, int ldo) {
   const int F = e->feats;
   for (int l = 0; l < e->levels; l++) {
     const float *t = table + (size_t)l * e->size * F;
-    for (int i = 0; i < n; i++) {
-      uint32_t idx[8];
-      float w[8];
-      corners(e, l, p + 3 * i, idx, w);
-      float *o = out + (size_t)i * ldo + l * F;
-      if (F == 2) {
+    float *ol = out + l * F;
+    if (F == 2) {
+      for (int i = 0; i < n; i++) {
+        uint32_t idx[8];
+        float w[8];
+        corners(e, l, p + 3 * i, idx, w);
         float a0 = 0, a1 = 0;
+#pragma GCC unroll 8
         for (int c = 0; c < 8; c++) {
           const float *v = t + (size_t)idx[c] * 2;
           a0 += w[c] * v[0];
           a1 += w[c] * v[1];
         }
-        o[0] = a0;
-        o[1] = a1;
-      } else {
+        ol[(size_t)i * ldo] = a0;
+        ol[(size_t)i * ldo + 1] = a1;
+      }
+    } else {
+      for (int i = 0; i < n; i++) {
+        uint32_t idx[8];
+        float w[8];
+        corners(e, l, p + 3 * i, idx, w);
+        float *o = ol + (size_t)i * ldo;
         for (int f = 0; f < F; f++) o[f] = 0;
         for (int c = 0; c < 8; c++)
           for (int f = 0; f < F; f++) o[f] += w[c] * t[(size_t)idx[c] * F + f];
@@ -116,6 +159,7 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
   }
 }
 
+VLFF_HOT
 void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
                             int l0, int l1, float *grad, uint32_t *stamp, uint32_t step,
                             uint32_t *touched, uint32_t *ntouched) {
@@ -131,6 +175,7 @@ void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n
       uint32_t idx[8];
       float w[8];
       corners(e, l, p + 3 * i, idx, w);
+#pragma GCC unroll 8
       for (int c = 0; c < 8; c++) {
         uint32_t h = idx[c];
         float *gv = g + (size_t)h * F;

@@ -52,6 +52,7 @@ struct vlff_train_stats {
   double loss, loss_rgb, loss_depth, loss_feat;
   double psnr;               /* of this step's rays */
   long long samples;         /* network evaluations this step */
+  double flops;              /* dense-layer FLOPs executed this step (forward + backward) */
 };
 
 /* Create from cfg's field.*, train.* and node.threads sections. */

@@ -49,6 +49,7 @@ struct vlff_work {
   float *grad;             /* this thread's MLP gradient */
   double loss_rgb, loss_depth, loss_feat, sq_rgb;
   long long samples;
+  double flops;            /* dense-layer FLOPs executed */
   uint64_t rng;
 };
 
@@ -160,9 +161,14 @@ void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs
                float *c, int ldc, const float *bias, int accumulate, int relu);
 /* Name of the GEMM kernel in use ("avx512", "avx2+fma", "generic"). */
 const char *vlff_gemm_isa(void);
+/* Runs the FMA throughput probe of the kernel's ISA for iters iterations
+ * on the calling thread; *flops_per_iter receives its FLOPs per iteration. */
+float vlff_fma_probe(long iters, int *flops_per_iter);
 /* Same, with C zeroed wherever mask (laid out like C) is not > 0. */
 void vlff_gemm_mask(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                     float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
+/* FLOPs of forward (and backward) through layers [0, upto) for one row. */
+double vlff_mlp_flops(const struct vlff_mlp *m, int upto, int backward);
 /* Forward of layers [0, upto): act[l] is [n][dout[l]] (ReLU applied for
  * hidden layers, none for the output layer). x is [n][ldx]. */
 void vlff_mlp_forward(const struct vlff_mlp *m, const float *params, const float *x, int ldx, int n,
@@ -262,6 +268,7 @@ struct vlff_work {
   float *grad;             /* this thread's MLP gradient */
   double loss_rgb, loss_depth, loss_feat, sq_rgb;
   long long samples;
+  double flops;            /* dense-layer FLOPs executed */
   uint64_t rng;
 };
 

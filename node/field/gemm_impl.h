@@ -141,3 +141,19 @@ void GEMM_FN(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, 
     if (k == 0) break;
   }
 }
+
+/* FMA throughput probe for this ISA: 12 independent chains per vector width
+ * (enough to cover the latency of two FMA pipes). The chains are loop-carried
+ * and the result depends on all of them, so nothing can be optimised away. */
+float GEMM_PEAK_FN(long iters) {
+  vf a[12], x = (vf){0} + 0.999f, y = (vf){0} + 1e-3f;
+  for (int i = 0; i < 12; i++) a[i] = (vf){0} + (float)i;
+  for (long it = 0; it < iters; it++) {
+#pragma GCC unroll 12
+    for (int i = 0; i < 12; i++) a[i] = a[i] * x + y;
+  }
+  float s = 0;
+  for (int i = 0; i < 12; i++)
+    for (int j = 0; j < VW; j++) s += a[i][j];
+  return s;
+}

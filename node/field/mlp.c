@@ -27,6 +27,29 @@ void vlff_gemm_v3(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t 
                   float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
 #endif
 
+float vlff_fma_peak_generic(long iters);
+#if VLFF_GEMM_X86
+float vlff_fma_peak_v4(long iters);
+float vlff_fma_peak_v3(long iters);
+#endif
+
+float vlff_fma_probe(long iters, int *flops_per_iter) {
+  const char *isa = vlff_gemm_isa();
+#if VLFF_GEMM_X86
+  if (!strcmp(isa, "avx512")) {
+    *flops_per_iter = 12 * 16 * 2;
+    return vlff_fma_peak_v4(iters);
+  }
+  if (!strcmp(isa, "avx2+fma")) {
+    *flops_per_iter = 12 * 8 * 2;
+    return vlff_fma_peak_v3(iters);
+  }
+#endif
+  (void)isa;
+  *flops_per_iter = 12 * 4 * 2;
+  return vlff_fma_peak_generic(iters);
+}
+
 /* The widest kernel this CPU runs; resolved once (a benign race: every
  * thread computes the same value). */
 static gemm_fn pick_gemm(void) {
@@ -146,4 +169,10 @@ void vlff_mlp_backward(const struct vlff_mlp *m, const float *wT, const float *x
       vlff_gemm(n, din, dout, dy, dout, 1, wT + m->woff[l], din, dx, ldx, NULL, 0, 0);
     }
   }
+}
+
+double vlff_mlp_flops(const struct vlff_mlp *m, int upto, int backward) {
+  double f = 0;
+  for (int l = 0; l < upto; l++) f += 2.0 * m->din[l] * m->dout[l];
+  return backward ? 3 * f : f;
 }

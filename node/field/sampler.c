@@ -106,6 +106,7 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
   for (int i = 0; i < nseg; i++) total += seg1[i] - seg0[i];
   if (total <= 0.0f) return 0;
   float q = total / (float)ns;
+  *dt = q;
   int s = 0;
   float acc = 0.0f;
   for (int i = 0; i < ns; i++) {
@@ -116,7 +117,6 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
     }
     float v = seg0[s] + (u - acc);
     t[i] = fminf(v, seg1[s]);
-    dt[i] = q;
   }
   return ns;
 }

@@ -371,6 +371,10 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
     c2 = w->a2[f->m2.nl - 1];
     for (int k = 0; k < n2 * 3; k++) c2[k] = 1.0f / (1.0f + expf(-c2[k]));
   }
+  w->flops += (double)N * vlff_mlp_flops(&f->m1, f->m1.nl, train) +
+              (double)n2 * vlff_mlp_flops(&f->m2, f->m2.nl, train) +
+              (double)n3 * vlff_mlp_flops(&f->m3, f->m3.nl - 1, train);
+  if (need_feat) w->flops += (train ? 6.0 : 2.0) * nr * H * D;
   const float *h3 = NULL;
   if (n3) {
     vlff_mlp_forward(&f->m3, pm, w->in3, geo, n3, f->m3.nl - 1, w->a3);
@@ -694,6 +698,7 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
     memset(w->grad, 0, f->nmlp * sizeof(float));
     w->loss_rgb = w->loss_depth = w->loss_feat = w->sq_rgb = 0;
     w->samples = 0;
+    w->flops = 0;
   }
   struct step_ctx sc = {f, (f->nrays + f->chunk_rays - 1) / f->chunk_rays};
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
@@ -713,6 +718,7 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
       stats->loss_depth += w->loss_depth;
       stats->loss_feat += w->loss_feat;
       stats->samples += w->samples;
+      stats->flops += w->flops;
       sq += w->sq_rgb;
     }
     stats->step = f->step;

@@ -1,0 +1,331 @@
+/*
+ * Queries and persistence: folded prompt labels equal the unfolded argmax
+ * over features (3D and 2D), checkpoints round-trip bit-exactly and bad
+ * files are refused without touching the field, bad inputs are refused, and
+ * training is deterministic.
+ */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "field_internal.h"
+#include "scene.h"
+
+#define D 24
+#define NV 4
+
+static struct scene_view sv[NV];
+static struct vlff_view views[NV];
+
+static void cfg_small(struct vlff_config *cfg) {
+  vlff_config_defaults(cfg);
+  cfg->node.threads = 2;
+  cfg->field.feature_dim = D;
+  cfg->field.feature_width = 32;
+  cfg->field.hash_log2_size = 12;
+  cfg->field.hash_levels = 8;
+  cfg->field.finest_resolution = 128;
+  for (int a = 0; a < 3; a++) {
+    cfg->field.scene_min[a] = -2.0;
+    cfg->field.scene_max[a] = 2.5;
+  }
+  cfg->train.rays_per_step = 128;
+  cfg->train.samples_per_ray = 16;
+  cfg->train.occupancy_resolution = 16;
+  cfg->train.occupancy_update_steps = 4;
+}
+
+static struct vlff_field *trained(const struct vlff_config *cfg, int steps) {
+  char err[256];
+  struct vlff_field *f = vlff_field_create(cfg, err, sizeof(err));
+  assert_non_null(f);
+  for (int i = 0; i < steps; i++) assert_int_equal(vlff_field_step(f, views, NV, NULL, NULL, err, sizeof(err)), 0);
+  return f;
+}
+
+static int setup(void **state) {
+  (void)state;
+  for (int k = 0; k < NV; k++) {
+    double c2w[16];
+    scene_pose(k, NV, c2w);
+    scene_render(&sv[k], 24, 18, D, c2w);
+    views[k] = sv[k].v;
+  }
+  return 0;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  for (int k = 0; k < NV; k++) scene_view_free(&sv[k]);
+  return 0;
+}
+
+static void random_prompts(float *e, int k) {
+  uint64_t r = 5;
+  for (int i = 0; i < k * D; i++) e[i] = 2.0f * vlff_rng_uniform(&r) - 1.0f;
+}
+
+/* Labels from folded prompts equal argmax_k cos(E_k, f) computed in double
+ * from the unfolded features; scores and margins match too. */
+static void test_folded_equals_unfolded(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  cfg_small(&cfg);
+  struct vlff_field *f = trained(&cfg, 20);
+  const int K = 20;
+  float e[K * D];
+  random_prompts(e, K);
+  char err[256];
+  assert_int_equal(vlff_field_set_prompts(f, e, K, err, sizeof(err)), 0);
+  const size_t n = 3000;
+  float *xyz = malloc(n * 12), *feat = malloc(n * D * 4), *dens = malloc(n * 4), *score = malloc(n * 4),
+        *margin = malloc(n * 4);
+  int *label = malloc(n * sizeof(int));
+  uint64_t r = 9;
+  for (size_t i = 0; i < n; i++)
+    for (int a = 0; a < 3; a++) xyz[3 * i + a] = -2.2f + 5.0f * vlff_rng_uniform(&r); /* some outside the box */
+  assert_int_equal(vlff_field_query(f, xyz, n, dens, feat, label, score, margin), 0);
+  size_t inside = 0, agree = 0, close = 0;
+  for (size_t i = 0; i < n; i++) {
+    int in = xyz[3 * i] >= -2 && xyz[3 * i] <= 2.5 && xyz[3 * i + 1] >= -2 && xyz[3 * i + 1] <= 2.5 &&
+             xyz[3 * i + 2] >= -2 && xyz[3 * i + 2] <= 2.5;
+    if (!in) {
+      assert_int_equal(label[i], -1);
+      assert_true(dens[i] == 0.0f);
+      continue;
+    }
+    inside++;
+    assert_true(dens[i] > 0 && isfinite(dens[i]));
+    double fn = 0, best = -1e30, second = -1e30;
+    int bk = -1;
+    for (int j = 0; j < D; j++) fn += (double)feat[i * D + j] * feat[i * D + j];
+    fn = sqrt(fn);
+    for (int k = 0; k < K; k++) {
+      double en = 0, dot = 0;
+      for (int j = 0; j < D; j++) {
+        en += (double)e[k * D + j] * e[k * D + j];
+        dot += (double)e[k * D + j] * feat[i * D + j];
+      }
+      double c = dot / (sqrt(en) * fn);
+      if (c > best) {
+        second = best;
+        best = c;
+        bk = k;
+      } else if (c > second) {
+        second = c;
+      }
+    }
+    if (label[i] == bk) agree++;
+    else if (best - second < 1e-4) close++;  /* a float tie: either label is right */
+    assert_true(fabs(score[i] - best) < 1e-3);
+    assert_true(fabs(margin[i] - (best - second)) < 1e-3);
+  }
+  assert_true(inside > n / 2);
+  assert_int_equal(agree + close, inside);
+  assert_true(close * 100 < inside);
+  /* 2D: rendered labels equal the argmax over rendered features. */
+  const int w = 24, h = 18; /* the size of views[1] */
+  float *rf = malloc((size_t)w * h * D * 4), *rs = malloc((size_t)w * h * 4);
+  int *rl = malloc((size_t)w * h * sizeof(int));
+  struct vlff_view cam = views[1];
+  assert_int_equal(vlff_field_render(f, &cam, NULL, NULL, rf, rl, rs), 0);
+  int ok2 = 0, hit = 0;
+  for (int i = 0; i < w * h; i++) {
+    if (rl[i] < 0) continue;
+    hit++;
+    double best = -1e30;
+    int bk = -1;
+    for (int k = 0; k < K; k++) {
+      double dot = 0, en = 0;
+      for (int j = 0; j < D; j++) {
+        dot += (double)e[k * D + j] * rf[i * D + j];
+        en += (double)e[k * D + j] * e[k * D + j];
+      }
+      if (dot / sqrt(en) > best) {
+        best = dot / sqrt(en);
+        bk = k;
+      }
+    }
+    ok2 += bk == rl[i];
+  }
+  assert_true(hit > w * h / 2);
+  assert_true(ok2 >= hit - hit / 100);
+  free(rf);
+  free(rs);
+  free(rl);
+  free(xyz);
+  free(feat);
+  free(dens);
+  free(score);
+  free(margin);
+  free(label);
+  vlff_field_destroy(f);
+}
+
+static void tmp_path(char *buf, size_t n, const char *tag) {
+  const char *dir = getenv("TMPDIR");
+  snprintf(buf, n, "%s/vlff-field-%s-%ld.ckpt", dir ? dir : "/tmp", tag, (long)getpid());
+}
+
+static int same_queries(struct vlff_field *a, struct vlff_field *b) {
+  float xyz[3 * 64], da[64], db[64], fa[64 * D], fb[64 * D];
+  uint64_t r = 3;
+  for (int i = 0; i < 3 * 64; i++) xyz[i] = -1.5f + 3.0f * vlff_rng_uniform(&r);
+  vlff_field_query(a, xyz, 64, da, fa, NULL, NULL, NULL);
+  vlff_field_query(b, xyz, 64, db, fb, NULL, NULL, NULL);
+  return !memcmp(da, db, sizeof(da)) && !memcmp(fa, fb, sizeof(fa));
+}
+
+static void test_checkpoint(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  cfg_small(&cfg);
+  struct vlff_field *a = trained(&cfg, 10);
+  char path[512], err[512];
+  tmp_path(path, sizeof(path), "rt");
+  assert_int_equal(vlff_field_save(a, path, err, sizeof(err)), 0);
+  struct vlff_field *b = trained(&cfg, 3);  /* different state, same model */
+  assert_false(same_queries(a, b));
+  assert_int_equal(vlff_field_load(b, path, err, sizeof(err)), 0);
+  assert_int_equal(vlff_field_steps(b), 10);
+  assert_true(same_queries(a, b));
+  /* Bit-exact: training on continues identically, and a re-save is the
+   * same file byte for byte. */
+  assert_int_equal(vlff_field_step(a, views, NV, NULL, NULL, err, sizeof(err)), 0);
+  assert_int_equal(vlff_field_step(b, views, NV, NULL, NULL, err, sizeof(err)), 0);
+  assert_true(same_queries(a, b));
+  char path2[512];
+  tmp_path(path2, sizeof(path2), "rt2");
+  assert_int_equal(vlff_field_save(a, path, err, sizeof(err)), 0);
+  assert_int_equal(vlff_field_save(b, path2, err, sizeof(err)), 0);
+  FILE *fa = fopen(path, "rb"), *fb = fopen(path2, "rb");
+  assert_non_null(fa);
+  assert_non_null(fb);
+  fseek(fa, 0, SEEK_END);
+  long size = ftell(fa);
+  rewind(fa);
+  unsigned char *ba = malloc(size), *bb = malloc(size + 1);
+  assert_int_equal(fread(ba, 1, size, fa), size);
+  assert_int_equal(fread(bb, 1, size + 1, fb), size);
+  assert_memory_equal(ba, bb, size);
+  fclose(fa);
+  fclose(fb);
+
+  /* Corrupt: one flipped bit anywhere is refused and b stays as it was. */
+  struct vlff_field *c = trained(&cfg, 2);
+  long offsets[] = {3, 40, size / 2, size - 3};
+  for (size_t q = 0; q < sizeof(offsets) / sizeof(offsets[0]); q++) {
+    ba[offsets[q]] ^= 0x10;
+    FILE *o = fopen(path2, "wb");
+    fwrite(ba, 1, size, o);
+    fclose(o);
+    ba[offsets[q]] ^= 0x10;
+    err[0] = 0;
+    assert_int_equal(vlff_field_load(c, path2, err, sizeof(err)), -1);
+    assert_non_null(strstr(err, "refused"));
+    assert_int_equal(vlff_field_steps(c), 2);
+  }
+  /* Truncated. */
+  FILE *o = fopen(path2, "wb");
+  fwrite(ba, 1, size - 100, o);
+  fclose(o);
+  assert_int_equal(vlff_field_load(c, path2, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "truncated"));
+  o = fopen(path2, "wb");
+  fwrite(ba, 1, 20, o);
+  fclose(o);
+  assert_int_equal(vlff_field_load(c, path2, err, sizeof(err)), -1);
+  /* Missing file. */
+  unlink(path2);
+  assert_int_equal(vlff_field_load(c, path2, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "cannot open"));
+  struct vlff_field *c_ref = trained(&cfg, 2);
+  assert_true(same_queries(c, c_ref));
+  /* Mismatched model configuration. */
+  struct vlff_config cfg2 = cfg;
+  cfg2.field.geo_dim = 14;
+  char e2[256];
+  struct vlff_field *m = vlff_field_create(&cfg2, e2, sizeof(e2));
+  assert_non_null(m);
+  assert_int_equal(vlff_field_load(m, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "configuration"));
+  assert_int_equal(vlff_field_steps(m), 0);
+  vlff_field_destroy(m);
+  unlink(path);
+  free(ba);
+  free(bb);
+  vlff_field_destroy(a);
+  vlff_field_destroy(b);
+  vlff_field_destroy(c);
+  vlff_field_destroy(c_ref);
+}
+
+static void test_determinism(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  cfg_small(&cfg);
+  struct vlff_field *a = trained(&cfg, 6), *b = trained(&cfg, 6);
+  assert_true(same_queries(a, b));
+  vlff_field_destroy(a);
+  vlff_field_destroy(b);
+}
+
+static void test_bad_inputs(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  cfg_small(&cfg);
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
+  assert_non_null(f);
+  struct vlff_view v = views[0];
+  v.feat_dim = D + 1;
+  assert_int_equal(vlff_field_step(f, &v, 1, NULL, NULL, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "feature dimension"));
+  v = views[0];
+  v.c2w[3] = NAN;
+  assert_int_equal(vlff_field_step(f, &v, 1, NULL, NULL, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "pose"));
+  v = views[0];
+  v.fx = 0;
+  assert_int_equal(vlff_field_step(f, &v, 1, NULL, NULL, err, sizeof(err)), -1);
+  float wts[2] = {0, 0};
+  assert_int_equal(vlff_field_step(f, views, 2, wts, NULL, err, sizeof(err)), -1);
+  assert_int_equal(vlff_field_step(f, NULL, 0, NULL, NULL, err, sizeof(err)), -1);
+  assert_int_equal(vlff_field_steps(f), 0);
+  float e[D] = {0};
+  assert_int_equal(vlff_field_set_prompts(f, e, 1, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "zero"));
+  e[0] = NAN;
+  assert_int_equal(vlff_field_set_prompts(f, e, 1, err, sizeof(err)), -1);
+  assert_int_equal(vlff_field_set_prompts(f, e, VLFF_MAX_PROMPTS + 1, err, sizeof(err)), -1);
+  /* Labels need prompts. */
+  float xyz[3] = {0, 0, 1};
+  int lab;
+  assert_int_equal(vlff_field_query(f, xyz, 1, NULL, NULL, &lab, NULL, NULL), -1);
+  float dens;
+  assert_int_equal(vlff_field_query(f, xyz, 1, &dens, NULL, NULL, NULL, NULL), 0);
+  /* Weighted views: a zero weight view never supplies rays. */
+  float w2[2] = {1, 0};
+  struct vlff_view two[2] = {views[0], views[1]};
+  two[1].feat_dim = D + 3; /* would be an error if it were validated lazily */
+  assert_int_equal(vlff_field_step(f, two, 2, w2, NULL, err, sizeof(err)), -1);
+  vlff_field_destroy(f);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_folded_equals_unfolded),
+      cmocka_unit_test(test_checkpoint),
+      cmocka_unit_test(test_determinism),
+      cmocka_unit_test(test_bad_inputs),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
