@@ -26,21 +26,31 @@ void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p,
   }
 }
 
-void vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
-                      float *v, const uint32_t *idx, uint32_t n, int width) {
+VLFF_HOT
+size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
+                        float *v, uint64_t *bits, size_t n, int width) {
   float b1 = a->beta1, b2 = a->beta2;
   float c1 = 1.0f / (1.0f - powf(b1, (float)t)), c2 = 1.0f / (1.0f - powf(b2, (float)t));
   float eps = a->eps;
-  for (uint32_t k = 0; k < n; k++) {
-    size_t base = (size_t)idx[k] * width;
-    for (int f = 0; f < width; f++) {
-      size_t i = base + f;
-      float gi = g[i];
-      float mi = b1 * m[i] + (1.0f - b1) * gi;
-      float vi = b2 * v[i] + (1.0f - b2) * gi * gi;
-      m[i] = mi;
-      v[i] = vi;
-      p[i] -= lr * (mi * c1) / (sqrtf(vi * c2) + eps);
+  size_t count = 0;
+  for (size_t wi = 0; wi < (n + 63) / 64; wi++) {
+    uint64_t word = bits[wi];
+    if (!word) continue;
+    bits[wi] = 0;
+    while (word) {
+      size_t e = wi * 64 + (size_t)__builtin_ctzll(word);
+      word &= word - 1;
+      count++;
+      for (int f = 0; f < width; f++) {
+        size_t i = e * width + f;
+        float gi = g[i];
+        float mi = b1 * m[i] + (1.0f - b1) * gi;
+        float vi = b2 * v[i] + (1.0f - b2) * gi * gi;
+        m[i] = mi;
+        v[i] = vi;
+        p[i] -= lr * (mi * c1) / (sqrtf(vi * c2) + eps);
+      }
     }
   }
+  return count;
 }

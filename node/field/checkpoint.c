@@ -249,8 +249,6 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   f->step = h.step;
   f->rng = h.rng;
   f->occ_cursor = (int)h.occ_cursor;
-  /* Lazy-Adam stamps refer to steps of the old run. */
-  memset(f->stamp, 0, (size_t)f->enc.levels * f->enc.size * sizeof(uint32_t));
   vlff_field_refresh(f);
   return 0;
 }

@@ -161,32 +161,44 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
 
 VLFF_HOT
 void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
-                            int l0, int l1, float *grad, uint32_t *stamp, uint32_t step,
-                            uint32_t *touched, uint32_t *ntouched) {
-  const int F = e->feats;
-  for (int l = l0; l < l1; l++) {
-    size_t base = (size_t)l * e->size;
-    float *g = grad + base * F;
-    uint32_t *st = stamp + base;
-    uint32_t *tl = touched + base;
-    uint32_t nt = ntouched[l];
-    for (int i = 0; i < n; i++) {
-      const float *di = d + (size_t)i * ld + l * F;
-      uint32_t idx[8];
-      float w[8];
-      corners(e, l, p + 3 * i, idx, w);
+                            int level, float *grad, uint64_t *bits) {
+  const int F = e->feats, l = level;
+  const size_t base = (size_t)l * e->size;
+  float *g = grad + base * F;
+  uint64_t *bt = bits + base / 64;
+  for (int i = 0; i < n; i++) {
+    const float *di = d + (size_t)i * ld;
+    uint32_t idx[8];
+    float w[8];
+    corners(e, l, p + 3 * i, idx, w);
+    if (F == 2) {
+      /* First touch writes instead of zeroing then adding. */
+      const float d0 = di[0], d1 = di[1];
 #pragma GCC unroll 8
       for (int c = 0; c < 8; c++) {
         uint32_t h = idx[c];
-        float *gv = g + (size_t)h * F;
-        if (st[h] != step) {
-          st[h] = step;
-          for (int f = 0; f < F; f++) gv[f] = 0;
-          tl[nt++] = h;
+        float *gv = g + (size_t)h * 2;
+        uint64_t bit = 1ull << (h & 63), word = bt[h >> 6];
+        if (word & bit) {
+          gv[0] += w[c] * d0;
+          gv[1] += w[c] * d1;
+        } else {
+          bt[h >> 6] = word | bit;
+          gv[0] = w[c] * d0;
+          gv[1] = w[c] * d1;
         }
-        for (int f = 0; f < F; f++) gv[f] += w[c] * di[f];
       }
+      continue;
     }
-    ntouched[l] = nt;
+    for (int c = 0; c < 8; c++) {
+      uint32_t h = idx[c];
+      float *gv = g + (size_t)h * F;
+      uint64_t bit = 1ull << (h & 63);
+      if (!(bt[h >> 6] & bit)) {
+        bt[h >> 6] |= bit;
+        for (int f = 0; f < F; f++) gv[f] = 0;
+      }
+      for (int f = 0; f < F; f++) gv[f] += w[c] * di[f];
+    }
   }
 }

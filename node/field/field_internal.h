@@ -22,90 +22,6 @@
 #define VLFF_HOT __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
 #define VLFF_HOT
-/* ---- the field object (trainer.c, query.c, checkpoint.c) -------------- */
-#define VLFF_CHUNK_SAMPLES 1024  /* samples per work chunk (L2-sized activations) */
-#define VLFF_FEAT_WMIN 1e-3f     /* MLP3 runs only where a sample's weight reaches this */
-#define VLFF_QUERY_BLOCK 256     /* points per query task */
-
-struct vlff_ray {
-  float o[3], d[3];        /* world origin, direction with unit camera-z */
-  float rgb[3], depth;     /* targets; depth <= 0: none */
-  int has_rgb;
-  int view, feat_index;    /* feat_index < 0: no feature target */
-};
-
-/* Per-thread scratch, planned at create for one chunk. */
-struct vlff_work {
-  int cap;                 /* samples */
-  int rcap;                /* rays */
-  float *t, *delta, *sigma, *w, *trans, *e, *dsig;
-  int *ray_off, *ray_cnt, *ray_used;
-  int *sel2, *sel3, *ray_of;
-  float *p, *enc;
-  float *a1[VLFF_MLP_MAX_LAYERS], *a2[VLFF_MLP_MAX_LAYERS], *a3[VLFF_MLP_MAX_LAYERS];
-  float *in2, *in3, *dy_a, *dy_b, *dout1, *din2, *din3, *denc;
-  float *hray, *fray, *gf, *dh, *wsum, *tfeat, *rgb, *depth, *logits, *opac, *norm;
-  struct vlff_ray *rbuf;
-  float *grad;             /* this thread's MLP gradient */
-  double loss_rgb, loss_depth, loss_feat, sq_rgb;
-  long long samples;
-  double flops;            /* dense-layer FLOPs executed */
-  uint64_t rng;
-};
-
-struct vlff_field {
-  struct vlff_config cfg;
-  struct vlff_pool *pool;
-  int threads;
-  struct vlff_encoding enc;
-  struct vlff_mlp m1, m2, m3;
-  int D, H, geo, shdim, E;
-  int spr;                 /* samples per ray */
-  int chunk_rays;
-  size_t ntable, nmlp, nparams;   /* table floats, MLP floats (params = table, then MLP) */
-  float *params, *adam_m, *adam_v, *grad;
-  float *wT;               /* transposed MLP weights, MLP-relative offsets */
-  uint32_t *stamp, *touched;
-  uint32_t ntouched[32];
-  struct vlff_adam adam;
-  struct vlff_occupancy occ;
-  long long step;
-  uint64_t rng;
-  int occ_cursor;
-  struct vlff_work *work;  /* [threads] */
-  struct vlff_ray *rays;   /* [rays_per_step] */
-  int nrays;
-  float *step_p, *step_denc;   /* per chunk slots of chunk_rays*spr samples */
-  int *chunk_n;
-  /* prompts (folded) */
-  int K;
-  float *E_, *EW, *EWt, *Eb, *G, *u;
-  float bb;
-  /* step context */
-  const struct vlff_view *views;
-  float scale_rgb, scale_depth, scale_feat;
-  int feat_l1;
-  int render_feat;         /* rendering needs MLP3 */
-};
-
-static inline float *vlff_mlp_params(struct vlff_field *f) { return f->params + f->ntable; }
-
-/* Forward through encoding and MLP1 for n normalised points of work w;
- * fills w->sigma and w->a1 (out layer = [density raw, code]). */
-void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *p, int n);
-/* Work chunk of rays [r0, r0+nr) of the given rays: samples, forward,
- * optional loss + backward (train). */
-void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
-                      float *pslot, float *dencslot, int *nsamples);
-/* Refresh derived data after parameters change (transposes, folded prompts). */
-void vlff_field_refresh(struct vlff_field *f);
-void vlff_field_occupancy_update(struct vlff_field *f, int full);
-/* Draw train.rays_per_step rays into f->rays and set the loss scales;
- * counts = rays with rgb, depth, features (may be NULL). */
-void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
-                          int *counts);
-void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d);
-
 #endif
 
 /* ---- thread pool (pool.c) ---------------------------------------------- */
@@ -135,12 +51,15 @@ int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float
 /* out[n][dim] for n normalised points p[n][3]; table = level-major params. */
 void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, const float *p, int n,
                            float *out, int ldo);
-/* Accumulate dL/dtable for levels [l0, l1) from d[n][ld] (hash part only).
- * Entries touched for the first time in this step (stamp != step) are zeroed
- * first and appended to touched[level] (lazy Adam). */
+/* Accumulate dL/dtable of one level from d[n][ld] (that level's F values
+ * per point).
+ * Entries touched for the first time in this step (bit clear in bits, one
+ * bit per entry, level-major) are zeroed and marked; the lazy Adam update
+ * walks the bits in index order and clears them. A bitmap (64 KB per
+ * 2^19-entry level) stays in cache, unlike per-entry stamps, and walking it
+ * turns the update's random accesses into an ordered sweep. */
 void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
-                            int l0, int l1, float *grad, uint32_t *stamp, uint32_t step,
-                            uint32_t *touched, uint32_t *ntouched);
+                            int level, float *grad, uint64_t *bits);
 
 /* ---- dense layers (mlp.c) ---------------------------------------------- */
 #define VLFF_MLP_MAX_LAYERS 9
@@ -207,9 +126,10 @@ struct vlff_adam {
 /* Dense update of params[i0,i1) (decay = apply weight decay). */
 void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
                      float *v, size_t i0, size_t i1, int decay);
-/* Lazy update of the listed entries (each `width` floats wide). */
-void vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
-                      float *v, const uint32_t *idx, uint32_t n, int width);
+/* Lazy update of the entries whose bit is set in bits (n entries, each
+ * `width` floats wide); clears the bits. Returns the entries updated. */
+size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
+                        float *v, uint64_t *bits, size_t n, int width);
 
 /* ---- sampling (sampler.c) ---------------------------------------------- */
 struct vlff_occupancy {
@@ -284,8 +204,7 @@ struct vlff_field {
   size_t ntable, nmlp, nparams;   /* table floats, MLP floats (params = table, then MLP) */
   float *params, *adam_m, *adam_v, *grad;
   float *wT;               /* transposed MLP weights, MLP-relative offsets */
-  uint32_t *stamp, *touched;
-  uint32_t ntouched[32];
+  uint64_t *bits;          /* touched-entry bitmap, levels * size bits */
   struct vlff_adam adam;
   struct vlff_occupancy occ;
   long long step;
@@ -294,7 +213,8 @@ struct vlff_field {
   struct vlff_work *work;  /* [threads] */
   struct vlff_ray *rays;   /* [rays_per_step] */
   int nrays;
-  float *step_p, *step_denc;   /* per chunk slots of chunk_rays*spr samples */
+  float *step_p;           /* per chunk slots of chunk_rays*spr samples: positions */
+  float *step_denc;        /* and dL/d(hash features), level-major [level][sample][F] */
   int *chunk_n;
   /* prompts (folded) */
   int K;

@@ -178,12 +178,131 @@ int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *de
 
 /* ---- 2D rendering --------------------------------------------------------- */
 
+/* Rays per render task: a chunk, at most a query block (per-ray scratch). */
+static size_t render_rays(const struct vlff_field *f) {
+  return f->chunk_rays < VLFF_QUERY_BLOCK ? (size_t)f->chunk_rays : VLFF_QUERY_BLOCK;
+}
+
 struct render_ctx {
   struct vlff_field *f;
   const struct vlff_view *cam;
   float *rgb, *depth, *feature, *score;
   int *label;
 };
+
+/* Rendering marches each ray front to back in rounds of a few samples: only
+ * rays still transparent get their next samples evaluated, so a ray that
+ * hits a surface costs the samples up to it, not all samples_per_ray. The
+ * colour head runs only when colour is requested, the feature head only on
+ * samples that carry weight. */
+static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int want_rgb,
+                         int want_feat) {
+  const struct vlff_config *cfg = &f->cfg;
+  const int S = f->spr, geo = f->geo, shd = f->shdim, H = f->H;
+  const int in2w = geo + shd, ld1 = f->m1.nout;
+  const int round = S >= 64 ? S / 8 : S >= 4 ? 4 : S;
+  float bmin[3], bmax[3];
+  for (int a = 0; a < 3; a++) {
+    bmin[a] = (float)cfg->field.scene_min[a];
+    bmax[a] = (float)cfg->field.scene_max[a];
+  }
+  const int uniform = cfg->train.sampling == VLFF_SAMPLING_UNIFORM;
+  float *code = w->din3;       /* [nr*S][geo], per (ray, sample) */
+  float *pos = w->denc;        /* [nr*S][3] normalised positions */
+  float trans[VLFF_QUERY_BLOCK];
+  int next[VLFF_QUERY_BLOCK];
+  for (int r = 0; r < nr; r++) {
+    const struct vlff_ray *ray = &rays[r];
+    float *tt = w->t + (size_t)r * S, t0, t1, dt = 0;
+    int cnt = 0;
+    if (vlff_ray_box(ray->o, ray->d, bmin, bmax, &t0, &t1)) {
+      t0 = fmaxf(t0, (float)cfg->train.near_m);
+      if (t1 > t0)
+        cnt = uniform ? vlff_sample_uniform(t0, t1, S, NULL, tt, &dt)
+                      : vlff_sample_occupied(&f->occ, ray->o, ray->d, t0, t1, S, NULL, tt, &dt);
+    }
+    float dn = sqrtf(ray->d[0] * ray->d[0] + ray->d[1] * ray->d[1] + ray->d[2] * ray->d[2]);
+    for (int q = 0; q < cnt; q++) {
+      float x[3] = {ray->o[0] + tt[q] * ray->d[0], ray->o[1] + tt[q] * ray->d[1], ray->o[2] + tt[q] * ray->d[2]};
+      vlff_encoding_normalise(&f->enc, x, pos + 3 * ((size_t)r * S + q));
+      w->delta[(size_t)r * S + q] = dt * dn;
+    }
+    w->ray_cnt[r] = cnt;
+    trans[r] = 1.0f;
+    next[r] = 0;
+    w->rgb[3 * r] = w->rgb[3 * r + 1] = w->rgb[3 * r + 2] = 0;
+    w->depth[r] = 0;
+    w->opac[r] = 0;
+    w->wsum[r] = 0;
+  }
+  memset(w->hray, 0, (size_t)nr * H * sizeof(float));
+  int n2 = 0, n3 = 0;
+  for (;;) {
+    int nb = 0;
+    for (int r = 0; r < nr; r++) {
+      if (next[r] >= w->ray_cnt[r] || trans[r] < VLFF_T_MIN) continue;
+      int e = next[r] + round < w->ray_cnt[r] ? next[r] + round : w->ray_cnt[r];
+      for (int q = next[r]; q < e; q++) {
+        memcpy(w->p + 3 * nb, pos + 3 * ((size_t)r * S + q), 3 * sizeof(float));
+        w->sel2[nb] = r * S + q;
+        nb++;
+      }
+    }
+    if (!nb) break;
+    vlff_field_density(f, w, w->p, nb);
+    w->samples += nb;
+    const float *out1 = w->a1[f->m1.nl - 1];
+    for (int b = 0; b < nb; b++) {
+      int id = w->sel2[b], r = id / S, q = id % S;
+      next[r] = q + 1;
+      if (trans[r] < VLFF_T_MIN) continue;
+      float keep = expf(-w->sigma[b] * w->delta[id]);
+      float wt = trans[r] * (1.0f - keep);
+      trans[r] *= keep;
+      w->depth[r] += wt * w->t[id];
+      w->opac[r] += wt;
+      if (want_rgb && wt > 0) {
+        float *row = w->in2 + (size_t)n2 * in2w;
+        memcpy(row, out1 + (size_t)b * ld1 + 1, geo * sizeof(float));
+        w->sel3[n2] = id;
+        w->w[n2] = wt;
+        n2++;
+      }
+      if (want_feat && wt >= VLFF_FEAT_WMIN) {
+        memcpy(code + (size_t)n3 * geo, out1 + (size_t)b * ld1 + 1, geo * sizeof(float));
+        w->ray_of[n3] = r;
+        w->e[n3] = wt;
+        n3++;
+      }
+    }
+  }
+  const float *pm = vlff_mlp_params(f);
+  if (n2) {
+    for (int k = 0; k < n2; k++) {
+      int id = w->sel3[k], r = id / S;
+      const float *d = rays[r].d;
+      float dn = sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), u[3] = {d[0] / dn, d[1] / dn, d[2] / dn};
+      vlff_sh_encode(u, cfg->field.sh_degree, w->in2 + (size_t)k * in2w + geo);
+    }
+    vlff_mlp_forward(&f->m2, pm, w->in2, in2w, n2, f->m2.nl, w->a2);
+    const float *c2 = w->a2[f->m2.nl - 1];
+    for (int k = 0; k < n2; k++) {
+      int r = w->sel3[k] / S;
+      for (int ch = 0; ch < 3; ch++) w->rgb[3 * r + ch] += w->w[k] / (1.0f + expf(-c2[(size_t)k * 3 + ch]));
+    }
+  }
+  if (n3) {
+    vlff_mlp_forward(&f->m3, pm, code, geo, n3, f->m3.nl - 1, w->a3);
+    const float *h3 = w->a3[f->m3.nl - 2];
+    for (int k = 0; k < n3; k++) {
+      int r = w->ray_of[k];
+      float wt = w->e[k], *hr = w->hray + (size_t)r * H;
+      const float *hs = h3 + (size_t)k * H;
+      for (int j = 0; j < H; j++) hr[j] += wt * hs[j];
+      w->wsum[r] += wt;
+    }
+  }
+}
 
 static void render_task(void *ctx, int task, int thread) {
   struct render_ctx *rc = ctx;
@@ -192,8 +311,9 @@ static void render_task(void *ctx, int task, int thread) {
   const struct vlff_view *cam = rc->cam;
   const int H = f->H, D = f->D, K = f->K;
   size_t npx = (size_t)cam->width * cam->height;
-  size_t a = (size_t)task * f->chunk_rays;
-  int nr = (int)(npx - a < (size_t)f->chunk_rays ? npx - a : (size_t)f->chunk_rays);
+  const size_t per = render_rays(f);
+  size_t a = (size_t)task * per;
+  int nr = (int)(npx - a < per ? npx - a : per);
   for (int r = 0; r < nr; r++) {
     size_t pix = a + r;
     double u = (double)(pix % cam->width) + 0.5, v = (double)(pix / cam->width) + 0.5;
@@ -204,8 +324,7 @@ static void render_task(void *ctx, int task, int thread) {
     ray->feat_index = -1;
     ray->view = 0;
   }
-  int ns;
-  vlff_field_chunk(f, w, w->rbuf, nr, 0, NULL, NULL, &ns);
+  render_chunk(f, w, w->rbuf, nr, rc->rgb != NULL, rc->feature || rc->label || rc->score);
   for (int r = 0; r < nr; r++) {
     size_t pix = a + r;
     if (rc->rgb)
@@ -247,11 +366,9 @@ int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *
     if (!isfinite(cam->c2w[k])) return -1;
   if ((label || score) && f->K == 0) return -1;
   struct render_ctx rc = {f, cam, rgb, depth, feature, score, label};
-  f->render_feat = feature || label || score;
   size_t npx = (size_t)cam->width * cam->height;
-  size_t ntasks = (npx + f->chunk_rays - 1) / f->chunk_rays;
+  size_t ntasks = (npx + render_rays(f) - 1) / render_rays(f);
   if (ntasks > (size_t)1 << 30) return -1;
   vlff_pool_run(f->pool, (int)ntasks, render_task, &rc);
-  f->render_feat = 0;
   return 0;
 }

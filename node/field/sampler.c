@@ -105,7 +105,12 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
   }
   for (int i = 0; i < nseg; i++) total += seg1[i] - seg0[i];
   if (total <= 0.0f) return 0;
-  float q = total / (float)ns;
+  /* Samples are spaced at least a sixth of a cell apart (so a ray stops a few
+   * samples past its surface, and rendering marches front to back), and
+   * spread wider only when the occupied length needs more than ns. */
+  float q = fmaxf(total / (float)ns, cmin / (6.0f * dn));
+  ns = (int)ceilf(total / q - 1e-3f);
+  if (ns < 1) ns = 1;
   *dt = q;
   int s = 0;
   float acc = 0.0f;

@@ -118,8 +118,7 @@ void vlff_field_destroy(struct vlff_field *f) {
   free(f->adam_v);
   free(f->grad);
   free(f->wT);
-  free(f->stamp);
-  free(f->touched);
+  free(f->bits);
   free(f->occ.density);
   free(f->occ.occ);
   free(f->rays);
@@ -188,8 +187,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->adam_v = xalloc(f->nparams * fs, &ok);
   f->grad = xalloc(f->nparams * fs, &ok);
   f->wT = xalloc(f->nmlp * fs, &ok);
-  f->stamp = xalloc((size_t)levels * f->enc.size * sizeof(uint32_t), &ok);
-  f->touched = xalloc((size_t)levels * f->enc.size * sizeof(uint32_t), &ok);
+  f->bits = xalloc((size_t)levels * f->enc.size / 8 + 8, &ok);
   int ores = cfg->train.occupancy_resolution;
   size_t ncell = (size_t)ores * ores * ores;
   f->occ.res = ores;
@@ -209,7 +207,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   int nchunks = (f->nrays + f->chunk_rays - 1) / f->chunk_rays;
   size_t slot = (size_t)f->chunk_rays * f->spr;
   f->step_p = xalloc((size_t)nchunks * slot * 3 * fs, &ok);
-  f->step_denc = xalloc((size_t)nchunks * slot * f->E * fs, &ok);
+  f->step_denc = xalloc((size_t)nchunks * slot * levels * f->enc.feats * fs, &ok);
   f->chunk_n = xalloc((size_t)nchunks * sizeof(int), &ok);
   f->E_ = xalloc((size_t)VLFF_MAX_PROMPTS * f->D * fs, &ok);
   f->EW = xalloc((size_t)VLFF_MAX_PROMPTS * f->H * fs, &ok);
@@ -512,7 +510,15 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
       for (int j = 0; j < geo; j++) d1[j] += d3[j];
     }
   }
-  if (N) vlff_mlp_backward(&f->m1, f->wT, w->enc, f->E, N, f->m1.nl, w->a1, dout1, g, dencslot, w->dy_b);
+  if (N) vlff_mlp_backward(&f->m1, f->wT, w->enc, f->E, N, f->m1.nl, w->a1, dout1, g, w->denc, w->dy_b);
+  /* Level-major copy while it is in cache: each level's scatter (one thread
+   * per level) then streams its own contiguous gradients. */
+  const int F = f->enc.feats;
+  for (int l = 0; l < f->enc.levels; l++) {
+    float *dl = dencslot + (size_t)l * N * F;
+    for (int i = 0; i < N; i++)
+      for (int q = 0; q < F; q++) dl[(size_t)i * F + q] = w->denc[(size_t)i * f->E + l * F + q];
+  }
 }
 
 /* ---- one optimisation step ---------------------------------------------- */
@@ -532,7 +538,7 @@ static void chunk_task(void *ctx, int c, int thread) {
   /* Per-chunk seed: sampling jitter does not depend on the thread count. */
   w->rng = (uint64_t)f->step * 0x9e3779b97f4a7c15ull ^ ((uint64_t)c << 32) ^ 0x243f6a8885a308d3ull;
   vlff_field_chunk(f, w, f->rays + r0, nr, 1, f->step_p + (size_t)c * slot * 3,
-                   f->step_denc + (size_t)c * slot * f->E, &f->chunk_n[c]);
+                   f->step_denc + (size_t)c * slot * f->enc.levels * f->enc.feats, &f->chunk_n[c]);
 }
 
 static void hash_task(void *ctx, int level, int thread) {
@@ -540,17 +546,15 @@ static void hash_task(void *ctx, int level, int thread) {
   struct vlff_field *f = sc->f;
   (void)thread;
   size_t slot = (size_t)f->chunk_rays * f->spr;
-  uint32_t stamp = (uint32_t)f->step;
-  f->ntouched[level] = 0;
   for (int c = 0; c < sc->nchunks; c++)
     vlff_encoding_backward(&f->enc, f->step_p + (size_t)c * slot * 3, f->chunk_n[c],
-                           f->step_denc + (size_t)c * slot * f->E, f->E, level, level + 1,
-                           f->grad, f->stamp, stamp, f->touched, f->ntouched);
+                           f->step_denc + ((size_t)c * slot * f->enc.levels + (size_t)level * f->chunk_n[c]) * f->enc.feats,
+                           f->enc.feats, level, f->grad, f->bits);
   float lr = f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps));
   size_t base = (size_t)level * f->enc.size;
   size_t off = base * f->enc.feats;
   vlff_adam_sparse(&f->adam, f->step, lr, f->params + off, f->grad + off, f->adam_m + off, f->adam_v + off,
-                   f->touched + base, f->ntouched[level], f->enc.feats);
+                   f->bits + base / 64, f->enc.size, f->enc.feats);
 }
 
 #define MLP_SPLIT 64
@@ -759,7 +763,9 @@ static void occ_task(void *ctx, int task, int thread) {
     vlff_field_density(f, w, w->p, n);
     for (int k = 0; k < n; k++) {
       size_t c = (oc->c0 + first + k) % total;
-      float d = fmaxf(g->density[c] * 0.95f, w->sigma[k]);
+      /* Halving per visit (every fourth update) lets early, untrained density
+       * fade within a few hundred steps; a surface keeps its cell alive. */
+      float d = fmaxf(g->density[c] * 0.5f, w->sigma[k]);
       g->density[c] = d;
       g->occ[c] = d > g->threshold;
     }
