@@ -349,6 +349,18 @@ static void json_summary(FILE *o, const char *name, const struct result *r, int 
   fprintf(o, "]}%s\n", last ? "" : ",");
 }
 
+/* JSON string body: prompt texts come from user files */
+static void json_str(FILE *o, const char *s) {
+  fputc('"', o);
+  for (; *s; s++) {
+    unsigned char c = (unsigned char)*s;
+    if (c == '"' || c == '\\') fprintf(o, "\\%c", c);
+    else if (c < 0x20) fprintf(o, "\\u%04x", c);
+    else fputc(c, o);
+  }
+  fputc('"', o);
+}
+
 static const char *pct(const struct result *r, double v, char *buf) {
   if (!r->valid) return "n/a";
   snprintf(buf, 16, "%.1f", 100 * v);
@@ -585,7 +597,10 @@ int main(int argc, char **argv) {
               "  \"test_frames\": %d,\n  \"points\": %zu,\n  \"iters\": %d,\n  \"fit_seconds\": %.3f,\n  \"classes\": [",
           o.dataset ? "dataset" : "synthetic", cfg.sim.seed, cfg.sim.difficulty, sc.n, ntrain, ntest, np,
           fitted ? o.iters : 0, fit_s);
-  for (int k = 0; k < K; k++) fprintf(js, "%s\"%s\"", k ? ", " : "", sc.names[k]);
+  for (int k = 0; k < K; k++) {
+    if (k) fputs(", ", js);
+    json_str(js, sc.names[k]);
+  }
   fprintf(js, "],\n  \"results\": {\n");
   json_summary(js, "raw_2d", &r2_raw, 0);
   json_summary(js, "field_2d", &r2_field, 0);

@@ -4,6 +4,8 @@
 
 #include "dataset.h"
 
+static volatile uint8_t sink;
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   struct vlff_image im;
   char err[256];
@@ -13,8 +15,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (vlff_image_decode(data, size, "fuzz.png", &im, err, sizeof err) == 0) {
     /* touch every byte so a short allocation would be caught by ASan */
     size_t n = (size_t)im.width * im.height * im.channels * (im.depth16 ? 2 : 1);
-    volatile uint8_t s = 0;
-    for (size_t i = 0; i < n; i++) s ^= ((uint8_t *)im.data)[i];
+    for (size_t i = 0; i < n; i++) sink ^= ((uint8_t *)im.data)[i];
     vlff_image_free(&im);
   }
   return 0;

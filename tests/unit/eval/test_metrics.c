@@ -84,6 +84,7 @@ static void test_absent_classes(void **state) {
   NEAR(m.miou, (0.5 + 0.75) / 2);
   NEAR(m.macc, (0.5 + 0.75) / 2);
   NEAR(m.mprec, (1 + 1) / 2.0);
+  vlff_confusion_free(&c);
   assert_int_equal(vlff_confusion_init(&c, 0, err, sizeof err), -1);
   assert_non_null(strstr(err, "class count"));
 }

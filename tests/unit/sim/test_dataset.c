@@ -37,7 +37,7 @@ struct fixture {
 };
 
 static void write_file(const char *dir, const char *name, const char *text) {
-  char p[512];
+  char p[2048];
   snprintf(p, sizeof p, "%s/%s", dir, name);
   FILE *f = fopen(p, "w");
   assert_non_null(f);

@@ -303,8 +303,9 @@ static void test_points(void **state) {
       assert_int_equal(lab, 1);
       break;
     }
-  assert_int_equal(vlff_sim_points(s, 0, 1, 0.05, &p, err, sizeof err) == 0 ? 0 : -1, -1);
   vlff_sim_points_free(&p);
+  assert_int_equal(vlff_sim_points(s, 0, 1, 0.05, &p, err, sizeof err), -1);
+  assert_null(p.xyz);
   vlff_sim_destroy(s);
 }
 

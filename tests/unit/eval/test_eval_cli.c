@@ -1,0 +1,125 @@
+/* vlff-eval end to end on the programs themselves: a synthetic scene written
+ * by vlff-sim --write-dataset and read back by vlff-eval --dataset gives the
+ * same raw-feature baseline as vlff-eval on the synthetic scene directly
+ * (features and labels round-trip exactly), and every report file appears. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+static char tmp[256];
+
+static void run(const char *cmd, char *last, size_t cap) {
+  FILE *p = popen(cmd, "r");
+  assert_non_null(p);
+  char line[1024];
+  last[0] = 0;
+  while (fgets(line, sizeof line, p))
+    if (!strncmp(line, "RESULT ", 7)) snprintf(last, cap, "%s", line);
+  int rc = pclose(p);
+  if (rc != 0) fail_msg("'%s' exited with %d", cmd, rc);
+}
+
+static double field(const char *res, const char *key) {
+  char k[64];
+  snprintf(k, sizeof k, " %s=", key);
+  const char *p = strstr(res, k);
+  if (!p) fail_msg("no %s in '%s'", key, res);
+  return atof(p + strlen(k));
+}
+
+static void test_dataset_matches_synthetic(void **state) {
+  (void)state;
+  const char *bin = getenv("VLFF_BINARY_DIR");
+  assert_non_null(bin);
+  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-cli-%ld-XXXXXX", (long)getpid());
+  assert_non_null(mkdtemp(tmp));
+  char cfg[512], cmd[2048], a[1024], b[1024];
+  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
+  FILE *f = fopen(cfg, "w");
+  assert_non_null(f);
+  fputs("sim:\n  width: 96\n  height: 72\n  feature_dim: 16\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n", f);
+  fclose(f);
+  snprintf(cmd, sizeof cmd, "%s/node/sim/vlff-sim --config %s --quiet --write-dataset %s/ds", bin, cfg, tmp);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "%s/node/eval/vlff-eval --config %s --iters 0 --quiet --holdout 4 --out %s/a 2>/dev/null", bin,
+           cfg, tmp);
+  run(cmd, a, sizeof a);
+  snprintf(cmd, sizeof cmd,
+           "%s/node/eval/vlff-eval --config %s --dataset %s/ds --iters 0 --quiet --holdout 4 --out %s/b 2>/dev/null", bin,
+           cfg, tmp, tmp);
+  run(cmd, b, sizeof b);
+  print_message("synthetic: %sdataset:   %s", a, b);
+  assert_true(field(a, "miou2d_raw") > 5);
+  assert_true(field(a, "miou2d_raw") == field(b, "miou2d_raw"));
+  /* fusion sees millimetre-quantised depth from the dataset: nearly equal */
+  assert_true(fabs(field(a, "miou3d_fusion") - field(b, "miou3d_fusion")) < 1.0);
+  assert_non_null(strstr(a, "miou2d=n/a"));
+  const char *files[] = {"report.md", "report.json", "prediction.ply"};
+  for (int i = 0; i < 3; i++) {
+    char p[512];
+    struct stat st;
+    snprintf(p, sizeof p, "%s/b/%s", tmp, files[i]);
+    assert_int_equal(stat(p, &st), 0);
+    assert_true(st.st_size > 100);
+  }
+  /* a malformed dataset fails naming the file */
+  snprintf(cmd, sizeof cmd, "echo '1 2 3' > %s/ds/pose/00003.txt", tmp);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "%s/node/eval/vlff-eval --dataset %s/ds --iters 0 --quiet --out %s/c 2>&1", bin, tmp, tmp);
+  FILE *p = popen(cmd, "r");
+  char out[2048] = "";
+  size_t n = fread(out, 1, sizeof out - 1, p);
+  out[n] = 0;
+  assert_int_not_equal(pclose(p), 0);
+  assert_non_null(strstr(out, "pose/00003.txt"));
+  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+  assert_int_equal(system(cmd), 0);
+}
+
+/* A small fit on a tiny synthetic scene beats the raw per-frame features in
+ * 2D (the point of fusing views into a field). Deterministic: fixed seed and
+ * thread count. Observed here: field 51.0 vs raw 41.4 2D mIoU after 300
+ * steps; the threshold keeps a margin of half that gain. */
+static void test_small_fit_beats_raw(void **state) {
+  (void)state;
+  const char *bin = getenv("VLFF_BINARY_DIR");
+  assert_non_null(bin);
+  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-fit-%ld-XXXXXX", (long)getpid());
+  assert_non_null(mkdtemp(tmp));
+  char cfg[512], cmd[2048], r[1024];
+  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
+  FILE *f = fopen(cfg, "w");
+  assert_non_null(f);
+  fputs("node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  feature_dim: 16\n  frames: 32\n"
+        "field:\n  feature_dim: 16\n  hash_log2_size: 15\n  finest_resolution: 256\n  feature_width: 32\n"
+        "train:\n  rays_per_step: 512\n  samples_per_ray: 24\n  feature_loss: l1\n",
+        f);
+  fclose(f);
+  snprintf(cmd, sizeof cmd, "%s/node/eval/vlff-eval --config %s --iters 300 --holdout 4 --quiet --overlays 1 --out %s/o 2>/dev/null",
+           bin, cfg, tmp);
+  run(cmd, r, sizeof r);
+  print_message("%s", r);
+  double field2d = field(r, "miou2d"), raw2d = field(r, "miou2d_raw");
+  assert_true(field2d > raw2d + 4.0);
+  assert_true(field(r, "miou3d") > 25.0);
+  char p[512];
+  struct stat st;
+  snprintf(p, sizeof p, "%s/o/overlay_00002.png", tmp);
+  assert_int_equal(stat(p, &st), 0);
+  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+  assert_int_equal(system(cmd), 0);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_dataset_matches_synthetic),
+                                     cmocka_unit_test(test_small_fit_beats_raw)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
