@@ -146,12 +146,13 @@ static const struct key schema[] = {
     INT("keyframes.memory_mb", keyframes.memory_mb, 1, 1 << 20, 1024),
     INT("keyframes.max_keyframes", keyframes.max_keyframes, 1, 1 << 20, 325),
     INT("keyframes.start_after", keyframes.start_after, 1, 1 << 20, 5),
-    DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0, 100, 0.15),
+    DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0, 100, 0.25),
+    INT("keyframes.posecheck_min_steps", keyframes.posecheck_min_steps, 0, 1 << 30, 200),
 
     DBL("publish.rate_hz", publish.rate_hz, 0.01, 1000, 1),
     DBL("publish.voxel_size_m", publish.voxel_size_m, 0.001, 100, 0.05),
-    INT("publish.label_width", publish.label_width, 8, 8192, 320),
-    INT("publish.label_height", publish.label_height, 8, 8192, 240),
+    INT("publish.label_width", publish.label_width, 8, 8192, 160),
+    INT("publish.label_height", publish.label_height, 8, 8192, 120),
     DBL("publish.free_density", publish.free_density, 0, 1e6, 1.0),
 
     INT("prompts.active", prompts.active, 0, VLFF_MAX_PROMPT_SETS - 1, 0),

@@ -135,6 +135,7 @@ struct vlff_config {
     int max_keyframes;
     int start_after;                 /* train once this many are held */
     double bad_pose_threshold_m;     /* median depth residual that rejects */
+    int posecheck_min_steps;         /* the map judges poses only after this much training */
   } keyframes;
 
   struct {

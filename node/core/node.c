@@ -100,6 +100,8 @@ struct vlff_node {
   int lat_n;
   uint64_t pending_t_host[64];
   int pending_lat;
+  float accepted_res[32];      /* residuals of recently admitted keyframes */
+  int n_accepted_res;
 };
 
 static double mono_s(void) {
@@ -612,11 +614,20 @@ static void restore_checkpoint(struct vlff_node *n) {
   }
 }
 
-/* Render depth at the candidate's pose at low resolution and compare with
- * what it measured, where the map is already confident. */
+static int cmp_float(const void *a, const void *b) {
+  float x = *(const float *)a, y = *(const float *)b;
+  return (x > y) - (x < y);
+}
+
+/* Render depth at the candidate's pose at low resolution and compare it with
+ * what the frame measured, on surfaces the map has already seen measured.
+ * The bar adapts to how well the map currently explains good frames: a
+ * young map disagrees with every frame by tens of centimetres, a wrong pose
+ * disagrees by several times more than the frames admitted just before. */
 static bool pose_check(struct vlff_node *n, const struct candidate *c) {
   const struct vlff_config *cfg = &n->cfg;
-  if (vlff_kfstore_count(n->store) < cfg->keyframes.start_after || vlff_field_steps(n->field) < 300)
+  if (vlff_kfstore_count(n->store) < cfg->keyframes.start_after ||
+      vlff_field_steps(n->field) < cfg->keyframes.posecheck_min_steps)
     return true;
   enum { S = 4 };
   int w = c->view.width / S, h = c->view.height / S;
@@ -632,21 +643,34 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
     cam.height = h;
     cam.fx /= S, cam.fy /= S, cam.cx /= S, cam.cy /= S;
     if (vlff_field_render(n->field, &cam, NULL, rd, NULL, lab, NULL) == 0) {
+      const double *m = cam.c2w;
       for (int y = 0; y < h; y++)
         for (int x = 0; x < w; x++) {
           size_t i = (size_t)y * w + x;
-          hit[i] = lab[i] >= 0;
           md[i] = c->view.depth[(size_t)(y * S + S / 2) * c->view.width + x * S + S / 2];
+          double d = rd[i], q[3] = {(x + 0.5 - cam.cx) / cam.fx * d, (y + 0.5 - cam.cy) / cam.fy * d, d}, wp[3];
+          for (int a = 0; a < 3; a++) wp[a] = m[a * 4] * q[0] + m[a * 4 + 1] * q[1] + m[a * 4 + 2] * q[2] + m[a * 4 + 3];
+          hit[i] = lab[i] >= 0 && isfinite(d) && vlff_publisher_surface_known(n->pub, wp);
         }
+      double bar = cfg->keyframes.bad_pose_threshold_m;
+      int k = n->n_accepted_res < 32 ? n->n_accepted_res : 32;
+      if (k >= 4) {
+        float tmp[32];
+        memcpy(tmp, n->accepted_res, (size_t)k * sizeof tmp[0]);
+        qsort(tmp, (size_t)k, sizeof tmp[0], cmp_float);
+        bar = fmax(bar, 2.5 * tmp[k / 2]);
+      }
       double res;
-      enum vlff_posecheck v = vlff_posecheck(rd, hit, md, px, cfg->keyframes.bad_pose_threshold_m, 0.3, &res);
+      enum vlff_posecheck v = vlff_posecheck(rd, hit, md, px, bar, 0.3, &res);
       pthread_mutex_lock(&n->slock);
       n->st.last_pose_residual_m = res;
       pthread_mutex_unlock(&n->slock);
       if (v == VLFF_POSE_BAD) {
-        VLFF_WARN(TAG, "keyframe %lld rejected: median depth residual %.3f m > %.3f m", c->id, res,
-                  cfg->keyframes.bad_pose_threshold_m);
+        VLFF_WARN(TAG, "keyframe %lld rejected: median depth residual %.3f m > %.3f m", c->id, res, bar);
         ok = false;
+      } else if (v == VLFF_POSE_OK) {
+        VLFF_DEBUG(TAG, "keyframe %lld pose ok: median depth residual %.3f m <= %.3f m", c->id, res, bar);
+        n->accepted_res[n->n_accepted_res++ % 32] = (float)res;
       }
     }
   }

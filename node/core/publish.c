@@ -168,6 +168,11 @@ static long voxel_of(const struct vlff_publisher *p, const double x[3]) {
   return idx[0] + (long)p->dims[0] * (idx[1] + (long)p->dims[1] * idx[2]);
 }
 
+bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]) {
+  long vi = voxel_of(p, x);
+  return vi >= 0 && p->hits[vi] >= 2;
+}
+
 void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v) {
   if (!v->depth) return;
   const double *m = v->c2w;

@@ -15,6 +15,7 @@
 #ifndef VLFF_PUBLISH_H
 #define VLFF_PUBLISH_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -39,6 +40,9 @@ void vlff_publisher_destroy(struct vlff_publisher *p);
 void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v);
 /* The view the next 2D label image is rendered for (the latest keyframe). */
 void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id);
+/* True when measured depth of admitted keyframes already ended in the voxel
+ * holding world point x (at least twice): a surface the map has seen. */
+bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]);
 /* Forget observations (mapping reset). */
 void vlff_publisher_reset(struct vlff_publisher *p);
 
