@@ -562,11 +562,19 @@ static void ckpt_path(const struct vlff_node *n, int slot, char *out, size_t len
   snprintf(out, len, "%s/field.%d.ckpt", n->cfg.node.state_dir, slot);
 }
 
+static void obs_path(const struct vlff_node *n, int slot, char *out, size_t len) {
+  snprintf(out, len, "%s/map.%d.obs", n->cfg.node.state_dir, slot);
+}
+
 static int save_checkpoint(struct vlff_node *n) {
   char path[VLFF_CFG_PATH + 32], err[256];
   int slot = n->ckpt_slot;
+  /* The observation grid first: a field checkpoint is only ever newer than
+   * (or as new as) the grid beside it. */
+  obs_path(n, slot, path, sizeof path);
+  int obs_rc = vlff_publisher_save(n->pub, path, err, sizeof err);
   ckpt_path(n, slot, path, sizeof path);
-  if (vlff_field_save(n->field, path, err, sizeof err)) {
+  if (obs_rc || vlff_field_save(n->field, path, err, sizeof err)) {
     VLFF_ERROR(TAG, "checkpoint failed: %s", err);
     pthread_mutex_lock(&n->slock);
     n->st.checkpoint_failures++;
@@ -605,6 +613,10 @@ static void restore_checkpoint(struct vlff_node *n) {
     if (vlff_field_load(n->field, path[i], err, sizeof err) == 0) {
       VLFF_INFO(TAG, "resumed from %s at step %lld", path[i], vlff_field_steps(n->field));
       n->ckpt_slot = i ^ 1;
+      char op[VLFF_CFG_PATH + 32];
+      obs_path(n, i, op, sizeof op);
+      if (vlff_publisher_load(n->pub, op, err, sizeof err))
+        VLFF_WARN(TAG, "observation grid not restored (the map refills as keyframes arrive): %s", err);
       return;
     }
     VLFF_ERROR(TAG, "checkpoint refused, skipped: %s", err);

@@ -11,6 +11,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "dataset.h"
 #include "log.h"
 #include "metrics.h"
 #include "vlff/shm.h"
@@ -150,6 +151,76 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
   VLFF_INFO(TAG, "map %s: %u x %u x %u voxels of %.3f m", cfg->shm.map, p->dims[0], p->dims[1], p->dims[2],
             p->voxel);
   return p;
+}
+
+/* File: magic, version, dims, voxel, origin; observed u8[n], hits u16[n],
+ * hit_sum f32[3n]; FNV-1a 64 of everything before it. */
+#define OBS_MAGIC "VLFFOBS1"
+
+static uint64_t fnv1a64(const uint8_t *b, size_t n) {
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 0x100000001b3ull;
+  return h;
+}
+
+struct obs_header {
+  char magic[8];
+  uint32_t dims[3];
+  uint32_t pad;
+  double voxel, origin[3];
+};
+
+int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
+  size_t n = p->nvox, len = sizeof(struct obs_header) + n + n * 2 + n * 12 + 8;
+  uint8_t *buf = malloc(len);
+  if (!buf) return snprintf(err, errlen, "%s: out of memory", path), -1;
+  struct obs_header h = {.voxel = p->voxel};
+  memcpy(h.magic, OBS_MAGIC, 8);
+  memcpy(h.dims, p->dims, sizeof h.dims);
+  memcpy(h.origin, p->origin, sizeof h.origin);
+  uint8_t *q = buf;
+  memcpy(q, &h, sizeof h), q += sizeof h;
+  memcpy(q, p->observed, n), q += n;
+  memcpy(q, p->hits, n * 2), q += n * 2;
+  memcpy(q, p->hit_sum, n * 12), q += n * 12;
+  uint64_t sum = fnv1a64(buf, (size_t)(q - buf));
+  memcpy(q, &sum, 8);
+  int rc = vlff_write_file_atomic(path, buf, len, err, errlen);
+  free(buf);
+  return rc;
+}
+
+int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
+  size_t n = p->nvox, want = sizeof(struct obs_header) + n + n * 2 + n * 12 + 8, len;
+  uint8_t *buf;
+  if (vlff_read_file(path, want + 1, &buf, &len, err, errlen)) return -1;
+  int rc = -1;
+  struct obs_header h;
+  uint64_t sum;
+  if (len != want) {
+    snprintf(err, errlen, "%s: %zu bytes, expected %zu for a %ux%ux%u grid", path, len, want, p->dims[0],
+             p->dims[1], p->dims[2]);
+    goto out;
+  }
+  memcpy(&h, buf, sizeof h);
+  memcpy(&sum, buf + want - 8, 8);
+  if (memcmp(h.magic, OBS_MAGIC, 8) || memcmp(h.dims, p->dims, sizeof h.dims) || h.voxel != p->voxel ||
+      memcmp(h.origin, p->origin, sizeof h.origin)) {
+    snprintf(err, errlen, "%s: not an observation grid of this map's geometry", path);
+    goto out;
+  }
+  if (fnv1a64(buf, want - 8) != sum) {
+    snprintf(err, errlen, "%s: checksum mismatch (corrupt file)", path);
+    goto out;
+  }
+  const uint8_t *q = buf + sizeof h;
+  memcpy(p->observed, q, n), q += n;
+  memcpy(p->hits, q, n * 2), q += n * 2;
+  memcpy(p->hit_sum, q, n * 12);
+  rc = 0;
+out:
+  free(buf);
+  return rc;
 }
 
 void vlff_publisher_reset(struct vlff_publisher *p) {

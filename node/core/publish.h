@@ -43,6 +43,12 @@ void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view 
 /* True when measured depth of admitted keyframes already ended in the voxel
  * holding world point x (at least twice): a surface the map has seen. */
 bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]);
+/* The observation grids (what measured depth has seen) are learned state
+ * too: saved beside each field checkpoint so a restarted node publishes the
+ * same map at once. Save is atomic; load refuses a file of another grid,
+ * a truncated or corrupt one, and then leaves the grids untouched. */
+int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen);
+int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
 /* Forget observations (mapping reset). */
 void vlff_publisher_reset(struct vlff_publisher *p);
 
