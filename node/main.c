@@ -35,6 +35,8 @@ static void usage(FILE *out) {
         "  -c, --config FILE        run with this YAML config (default: built-in defaults)\n"
         "      --check-config FILE  validate FILE, print the effective config, exit 0/1\n"
         "      --status             print a live progress line on the terminal\n"
+        "      --snapshot DIR       on exit, write DIR/strip.png (image | segmentation | truth)\n"
+        "                           and DIR/map.ply (the labelled map)\n"
         "  -V, --version            print the version and exit\n"
         "  -h, --help               print this help and exit\n"
         "\n"
@@ -82,22 +84,24 @@ static double mono_s(void) {
 }
 
 int main(int argc, char **argv) {
-  enum { OPT_CHECK = 256, OPT_STATUS };
+  enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
       {"check-config", required_argument, NULL, OPT_CHECK},
       {"status", no_argument, NULL, OPT_STATUS},
+      {"snapshot", required_argument, NULL, OPT_SNAPSHOT},
       {"version", no_argument, NULL, 'V'},
       {"help", no_argument, NULL, 'h'},
       {NULL, 0, NULL, 0},
   };
-  const char *config_path = NULL, *check_path = NULL;
+  const char *config_path = NULL, *check_path = NULL, *snapshot_dir = NULL;
   int status_view = 0, c;
   while ((c = getopt_long(argc, argv, "c:Vh", opts, NULL)) != -1) {
     switch (c) {
     case 'c': config_path = optarg; break;
     case OPT_CHECK: check_path = optarg; break;
     case OPT_STATUS: status_view = 1; break;
+    case OPT_SNAPSHOT: snapshot_dir = optarg; break;
     case 'V': printf("vlff-node %s\n", VLFF_VERSION); return 0;
     case 'h': usage(stdout); return 0;
     default: usage(stderr); return 2;
@@ -205,10 +209,19 @@ int main(int argc, char **argv) {
 #ifdef VLFF_HAVE_CAN
   vlff_can_close(can); /* first: its command callback points at the node */
 #endif
+  int rc = 0;
+  if (snapshot_dir) {
+    if (vlff_node_snapshot(node, snapshot_dir, err, sizeof err)) {
+      VLFF_ERROR("node", "snapshot: %s", err);
+      rc = 1;
+    } else {
+      VLFF_INFO("node", "snapshot written to %s/strip.png and %s/map.ply", snapshot_dir, snapshot_dir);
+    }
+  }
   vlff_node_destroy(node, true);
   VLFF_INFO("node", "stopped: %lld iterations, %d keyframes, %lld frames in, %lld invalid, %lld lost, "
             "%lld poses rejected, map version %llu",
             st.iteration, st.keyframes, st.frames_in, st.frames_invalid, st.frames_lost, st.poses_rejected,
             (unsigned long long)st.map_version);
-  return 0;
+  return rc;
 }

@@ -69,7 +69,7 @@ struct vlff_node {
   struct vlff_sim_points gt_points;
 
   pthread_t ingest_thread, trainer_thread;
-  bool ingest_started, trainer_started;
+  bool ingest_started, trainer_started, joined;
   atomic_bool stop;
   atomic_bool finished;
   double t_start;
@@ -1018,15 +1018,22 @@ fail:
 
 void vlff_node_stop(struct vlff_node *n) { atomic_store(&n->stop, true); }
 
+/* After this only the calling thread touches the node. */
+static void join_threads(struct vlff_node *n) {
+  if (n->joined) return;
+  atomic_store(&n->stop, true);
+  if (n->ingest_started) pthread_join(n->ingest_thread, NULL);
+  if (n->trainer_started) pthread_join(n->trainer_thread, NULL);
+  n->joined = true;
+}
+
 bool vlff_node_finished(struct vlff_node *n) {
   return atomic_load(&n->finished) || atomic_load(&n->stop);
 }
 
 void vlff_node_destroy(struct vlff_node *n, bool save_on_exit) {
   if (!n) return;
-  atomic_store(&n->stop, true);
-  if (n->ingest_started) pthread_join(n->ingest_thread, NULL);
-  if (n->trainer_started) pthread_join(n->trainer_thread, NULL);
+  join_threads(n);
   if (save_on_exit && n->field && n->trainer_started && vlff_field_steps(n->field) > 0) save_checkpoint(n);
   for (int i = 0; i < n->qlen; i++) candidate_free(n->queue[i]);
   vlff_publisher_destroy(n->pub);
@@ -1046,6 +1053,16 @@ void vlff_node_destroy(struct vlff_node *n, bool save_on_exit) {
   pthread_mutex_destroy(&n->clock);
   pthread_mutex_destroy(&n->slock);
   free(n);
+}
+
+int vlff_node_snapshot(struct vlff_node *n, const char *dir, char *err, size_t errlen) {
+  join_threads(n);
+  if (mkdir(dir, 0755) != 0 && errno != EEXIST) return snprintf(err, errlen, "%s: %s", dir, strerror(errno)), -1;
+  if (vlff_field_steps(n->field) == 0) return snprintf(err, errlen, "the field was never trained"), -1;
+  const char *texts[VLFF_MAX_PROMPTS];
+  for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
+  do_publish(n); /* the snapshot shows the final map */
+  return vlff_publisher_snapshot(n->pub, n->field, texts, n->prompt_k, dir, err, errlen);
 }
 
 void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out) {

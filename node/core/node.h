@@ -85,6 +85,10 @@ void vlff_node_stop(struct vlff_node *n);
 bool vlff_node_finished(struct vlff_node *n);
 void vlff_node_destroy(struct vlff_node *n, bool save_on_exit);
 
+/* Stop the threads (as vlff_node_stop, and wait for them), then write the
+ * publisher's snapshot (strip.png, map.ply) into dir. 0, or -1 with err. */
+int vlff_node_snapshot(struct vlff_node *n, const char *dir, char *err, size_t errlen);
+
 void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out);
 
 /* Queue a command for the trainer. Returns 0, or -1 for an unknown command

@@ -422,3 +422,87 @@ void vlff_publisher_heartbeat(struct vlff_publisher *p) {
 double vlff_publisher_age_s(const struct vlff_publisher *p) {
   return p->last_publish_s < 0 ? -1 : mono_s() - p->last_publish_s;
 }
+
+/* Map a label of the prompt set to the synthetic class colours when the
+ * prompt is a known class, so segmentation and ground truth compare by eye. */
+static const uint8_t *prompt_color(const char *const *prompts, int k, int label) {
+  int c = class_of_prompt(prompts, k, label);
+  return vlff_label_color(c >= 0 ? c : label < 0 ? -1 : label);
+}
+
+int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                            const char *dir, char *err, size_t errlen) {
+  if (!p->have_cam) return snprintf(err, errlen, "no keyframe yet: nothing to show"), -1;
+  struct vlff_view cam = p->cam;
+  int w = cam.width, h = cam.height, panels = p->sim ? 3 : 2;
+  size_t px = (size_t)w * h;
+  float *rgbf = malloc(px * 3 * sizeof(float));
+  int *lab = malloc(px * sizeof(int));
+  uint8_t *strip = calloc(px * 3 * panels, 1);
+  uint8_t *pcol = NULL, *plab = NULL;
+  float *pxyz = NULL;
+  int rc = -1;
+  if (!rgbf || !lab || !strip) {
+    snprintf(err, errlen, "out of memory");
+    goto out;
+  }
+  if (vlff_field_render(f, &cam, rgbf, NULL, NULL, lab, NULL)) {
+    snprintf(err, errlen, "render failed");
+    goto out;
+  }
+  const struct vlff_sim_frame *g = NULL;
+  char e2[128];
+  if (p->sim && vlff_sim_render(p->sim, p->cam_frame, VLFF_SIM_RGBD, p->gt_frame, e2, sizeof e2) == 0)
+    g = p->gt_frame;
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      size_t i = (size_t)y * w + x;
+      uint8_t *row = strip + ((size_t)y * w * panels) * 3;
+      const uint8_t *seg = prompt_color(prompts, k, lab[i]);
+      for (int c = 0; c < 3; c++) {
+        /* Left: the camera image (the field's own rendering without a sim). */
+        int gy = g ? y * g->height / h : 0, gx = g ? x * g->width / w : 0;
+        row[x * 3 + c] = g ? g->rgb[((size_t)gy * g->width + gx) * 3 + c]
+                           : (uint8_t)fminf(255.f, fmaxf(0.f, rgbf[i * 3 + c] * 255.f + 0.5f));
+        row[(w + x) * 3 + c] = seg[c];
+        if (g) {
+          int gl = g->label[(size_t)gy * g->width + gx];
+          row[(2 * w + x) * 3 + c] = vlff_label_color(gl < VLFF_SIM_CLASSES ? gl : -1)[c];
+        }
+      }
+    }
+  char path[1024];
+  snprintf(path, sizeof path, "%s/strip.png", dir);
+  if (vlff_png_write(path, strip, w * panels, h, 3, 0, err, errlen)) goto out;
+  size_t n = 0;
+  for (size_t i = 0; i < p->nvox; i++) n += p->labels[i] <= VLFF_LABEL_MAX;
+  pxyz = malloc((n ? n : 1) * 3 * sizeof(float));
+  pcol = malloc((n ? n : 1) * 3);
+  plab = malloc(n ? n : 1);
+  if (!pxyz || !pcol || !plab) {
+    snprintf(err, errlen, "out of memory");
+    goto out;
+  }
+  size_t j = 0;
+  for (size_t i = 0; i < p->nvox; i++) {
+    if (p->labels[i] > VLFF_LABEL_MAX) continue;
+    size_t ix = i % p->dims[0], iy = (i / p->dims[0]) % p->dims[1], iz = i / ((size_t)p->dims[0] * p->dims[1]);
+    pxyz[j * 3] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
+    pxyz[j * 3 + 1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
+    pxyz[j * 3 + 2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
+    memcpy(pcol + j * 3, prompt_color(prompts, k, p->labels[i]), 3);
+    plab[j] = (uint8_t)(p->labels[i] < 255 ? p->labels[i] : 255);
+    j++;
+  }
+  snprintf(path, sizeof path, "%s/map.ply", dir);
+  if (vlff_ply_write(path, pxyz, pcol, plab, n, err, errlen)) goto out;
+  rc = 0;
+out:
+  free(rgbf);
+  free(lab);
+  free(strip);
+  free(pxyz);
+  free(pcol);
+  free(plab);
+  return rc;
+}

@@ -54,6 +54,11 @@ void vlff_publisher_reset(struct vlff_publisher *p);
 
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen);
+/* For people: dir/strip.png (camera image | segmentation | ground truth
+ * when the source is synthetic) at the latest keyframe's view, and
+ * dir/map.ply (the labelled voxels, coloured by label). */
+int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                            const char *dir, char *err, size_t errlen);
 /* Tell readers the writer is alive (rate-limited to 10 Hz). */
 void vlff_publisher_heartbeat(struct vlff_publisher *p);
 /* Seconds since the last publish, -1 before the first. */

@@ -85,12 +85,6 @@ struct scene {
   int tw, th;              /* training image size */
 };
 
-static const uint8_t palette[21][3] = {
-    {174, 199, 232}, {152, 223, 138}, {31, 119, 180},  {255, 187, 120}, {188, 189, 34},
-    {140, 86, 75},   {255, 152, 150}, {214, 39, 40},   {197, 176, 213}, {148, 103, 189},
-    {196, 156, 148}, {23, 190, 207},  {247, 182, 210}, {219, 219, 141}, {255, 127, 14},
-    {158, 218, 229}, {44, 160, 44},   {112, 128, 144}, {227, 119, 194}, {82, 84, 163},
-    {0, 0, 0}};
 
 static double now_s(void) {
   struct timespec ts;
@@ -294,7 +288,7 @@ static void progress(int it, int total, const struct vlff_train_stats *st, doubl
 /* ---- output helpers ----------------------------------------------------- */
 
 static void colour_of(int k, uint8_t out[3]) {
-  const uint8_t *c = palette[k >= 0 && k < 20 ? k : 20];
+  const uint8_t *c = vlff_label_color(k >= 0 && k < 20 ? k : -1);
   memcpy(out, c, 3);
 }
 

@@ -35,6 +35,8 @@ extern char **environ;
 static char dir[256], cfg_path[300], tag[64];
 static double scale = 1.0;
 static struct vlff_sim_points gt; /* the scene's labelled points, made once */
+static pid_t children[8];         /* killed in teardown, also after a failed assertion */
+static int nchildren;
 
 static double mono_s(void) {
   struct timespec ts;
@@ -83,6 +85,7 @@ static pid_t spawn(const char *prog, const char *const *args) {
   argv[n] = NULL;
   pid_t pid;
   assert_int_equal(posix_spawn(&pid, path, NULL, NULL, argv, environ), 0);
+  if (nchildren < 8) children[nchildren++] = pid;
   return pid;
 }
 
@@ -91,6 +94,8 @@ static void stop_child(pid_t pid, int sig) {
   kill(pid, sig);
   int st;
   waitpid(pid, &st, 0);
+  for (int i = 0; i < nchildren; i++)
+    if (children[i] == pid) children[i] = 0;
 }
 
 /* 3D mIoU of the published map at the scene's labelled points, through the
@@ -143,6 +148,8 @@ static int setup(void **state) {
 
 static int teardown(void **state) {
   (void)state;
+  for (int i = 0; i < nchildren; i++) stop_child(children[i], SIGKILL);
+  nchildren = 0;
   vlff_sim_points_free(&gt);
   memset(&gt, 0, sizeof gt);
   char cmd[600];
