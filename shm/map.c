@@ -57,6 +57,17 @@ struct vlff_map_snapshot {
   uint8_t *lconf;
 };
 
+/* Voxel count of a grid if it fits cap (three uint32 factors can overflow 64 bits). */
+static bool dims_fit(const uint32_t d[3], uint64_t cap, uint64_t *n) {
+  uint64_t a, b;
+  if (__builtin_mul_overflow((uint64_t)d[0], (uint64_t)d[1], &a) || __builtin_mul_overflow(a, (uint64_t)d[2], &b) ||
+      b > cap)
+    return false;
+  if (n)
+    *n = b;
+  return true;
+}
+
 /* Offsets inside one buffer. */
 static uint64_t off_labels(void) { return BUF_HDR; }
 static uint64_t off_conf(uint64_t mv) { return off_labels() + align64(2 * mv); }
@@ -142,6 +153,8 @@ API void vlff_map_detach(struct vlff_map *m) {
   free(m);
 }
 
+static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm);
+
 static int bad_update(const struct vlff_map *m, int code, int e, const char *why) {
   shm_err(code, e, "%s: publish refused: %s", m->seg.name, why);
   return -1;
@@ -153,7 +166,7 @@ static int check_update(const struct vlff_map *m, const struct vlff_map_update *
     if (!g->labels || !isfinite(g->voxel_size) || g->voxel_size <= 0 || !isfinite(g->origin[0]) ||
         !isfinite(g->origin[1]) || !isfinite(g->origin[2]) || !g->dims[0] || !g->dims[1] || !g->dims[2])
       return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "grid without labels, with non-finite geometry or 0 dims");
-    if ((uint64_t)g->dims[0] * g->dims[1] * g->dims[2] > m->max_voxels)
+    if (!dims_fit(g->dims, m->max_voxels, NULL))
       return bad_update(m, VLFF_SHM_ERR_SIZE, EMSGSIZE, "grid larger than the map capacity");
   }
   if (u->prompts) {
@@ -184,6 +197,10 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
   struct map_buf *b = buf(m, nb);
   struct map_meta meta;
   shm_racy_copy(&meta, &buf(m, cur)->meta, sizeof meta);
+  /* A taken-over segment is only as good as what the dead writer (or anyone else
+   * with write access) left: start from nothing rather than from garbage. */
+  if (!meta_sane(m, &meta))
+    memset(&meta, 0, sizeof meta);
   /* A writer that died mid-publish left this buffer odd; continue from there. */
   uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
   atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
@@ -264,13 +281,11 @@ static int abandoned(const struct vlff_map *m) {
 
 /* A meta block read from shared memory is checked before any of it is used to index. */
 static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm) {
-  if (mm->version == 0)
-    return true;
   bool has_grid = mm->dims[0] && mm->dims[1] && mm->dims[2];
   if (has_grid && (!isfinite(mm->voxel_size) || mm->voxel_size <= 0 || !isfinite(mm->origin[0]) || !isfinite(mm->origin[1]) ||
       !isfinite(mm->origin[2])))
     return false;
-  if ((uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2] > m->max_voxels)
+  if (!dims_fit(mm->dims, m->max_voxels, NULL))
     return false;
   if (mm->prompt_count < 0 || mm->prompt_count > VLFF_SHM_MAX_PROMPTS)
     return false;

@@ -334,9 +334,8 @@ API ssize_t vlff_ring_read_copy(struct vlff_ring *r, void *buf, size_t cap, stru
     if (vlff_ring_read_begin(r, &v, timeout_ns) < 0)
       return -1;
     if (v.len > cap) {
-      vlff_ring_read_end(r, &v);
-      if (errno != ESTALE)
-        r->lost++;
+      if (vlff_ring_read_end(r, &v) == 0)
+        r->lost++; /* intact but undeliverable: skipped, so counted (a torn one already was) */
       shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %zu bytes, buffer holds %zu", r->seg.name, v.len, cap);
       return -1;
     }

@@ -93,6 +93,15 @@ static void ring_roundtrip_and_exact_lapping(void **state) {
   assert_int_equal(v.seq, 15);
   assert_int_equal(test_rec_check(out, 64, 15), 0);
 
+  /* A record too big for the caller's buffer is skipped and counted. */
+  vlff_ring_seek_newest(r);
+  uint64_t lost0 = vlff_ring_lost(r);
+  test_rec_fill(buf, 16, 128);
+  assert_int_equal(vlff_ring_write(w, buf, 128), 0);
+  assert_int_equal(vlff_ring_read_copy(r, out, 64, &v, 0), -1);
+  assert_int_equal(errno, EMSGSIZE);
+  assert_int_equal(vlff_ring_lost(r), lost0 + 1);
+
   vlff_ring_close(r);
   vlff_ring_close(w);
   assert_int_equal(vlff_shm_unlink(name), 0);

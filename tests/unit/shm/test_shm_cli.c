@@ -1,0 +1,101 @@
+/* The vlff-shm tool against real segments: list, stat, dump-frame, label,
+ * set-prompts, and a clear error for a missing segment. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <cmocka.h>
+
+#include "shm_test_util.h"
+
+#include <stdlib.h>
+#include <sys/wait.h>
+
+static int run(const char *args, char *out, size_t cap) {
+  char cmd[1024];
+  snprintf(cmd, sizeof cmd, "%s %s 2>&1", VLFF_SHM_CLI, args);
+  FILE *f = popen(cmd, "r");
+  assert_non_null(f);
+  size_t n = fread(out, 1, cap - 1, f);
+  out[n] = 0;
+  int st = pclose(f);
+  return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+static void cli_commands(void **state) {
+  (void)state;
+  char ring[64], map[64], mbox[64], args[512], out[8192];
+  test_name(ring, sizeof ring, "cliring");
+  test_name(map, sizeof map, "climap");
+  test_name(mbox, sizeof mbox, "clibox");
+  uint64_t slot = vlff_frame_slot_size(4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_FRAME, .slots = 2, .slot_size = slot};
+  struct vlff_ring *w = vlff_ring_create(ring, &rp);
+  assert_non_null(w);
+  struct vlff_frame_hdr *h = vlff_ring_reserve(w, NULL);
+  uint64_t len = vlff_frame_layout(h, slot, 4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  h->frame_id = 77;
+  uint8_t *rgb = (uint8_t *)h + h->plane[0].offset;
+  for (int i = 0; i < 24; i++)
+    rgb[i] = (uint8_t)(i * 10);
+  assert_int_equal(vlff_ring_commit(w, len), 0);
+
+  struct vlff_map_params mp = {.max_voxels = 8};
+  struct vlff_map *m = vlff_map_create(map, &mp);
+  uint16_t labels[8] = {0, 1, 1, 0, 0, 1, 1, 0};
+  const char *prompts[] = {"floor", "door"};
+  struct vlff_map_grid g = {.voxel_size = 1, .dims = {2, 2, 2}, .labels = labels};
+  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 2};
+  assert_int_equal(vlff_map_publish(m, &u), 0);
+  struct vlff_shm_perm perm = {.mode = 0660};
+  struct vlff_prompts *pb = vlff_prompts_create(mbox, &perm);
+  assert_non_null(pb);
+
+  assert_int_equal(run("list", out, sizeof out), 0);
+  assert_non_null(strstr(out, ring));
+  assert_non_null(strstr(out, "frame"));
+  snprintf(args, sizeof args, "stat %s", map);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  assert_non_null(strstr(out, "kind map\n"));
+  assert_non_null(strstr(out, "prompt 1 door\n"));
+  snprintf(args, sizeof args, "label %s 1.5 0.5 0.5", map);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  assert_string_equal(out, "label 1 confidence 255 prompt door version 1\n");
+  char ppm[128];
+  snprintf(ppm, sizeof ppm, "/tmp/vlff-cli-%d.ppm", (int)getpid());
+  snprintf(args, sizeof args, "dump-frame %s %s", ring, ppm);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  assert_non_null(strstr(out, "frame_id 77"));
+  FILE *f = fopen(ppm, "rb");
+  assert_non_null(f);
+  uint8_t img[64];
+  size_t n = fread(img, 1, sizeof img, f);
+  fclose(f);
+  unlink(ppm);
+  assert_int_equal(n, 11 + 24);
+  assert_memory_equal(img, "P6\n4 2\n255\n", 11);
+  assert_memory_equal(img + 11, rgb, 24);
+  snprintf(args, sizeof args, "set-prompts %s \"red cup\" chair", mbox);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  assert_string_equal(out, "posted 1\n");
+  uint64_t last = 0;
+  struct vlff_prompt_request *req = malloc(sizeof *req);
+  assert_int_equal(vlff_prompts_poll(pb, &last, req), 1);
+  assert_string_equal(req->text[0], "red cup");
+  assert_string_equal(req->text[1], "chair");
+  free(req);
+  assert_int_equal(run("stat /vlff-test-cli-missing", out, sizeof out), 1);
+  assert_non_null(strstr(out, "no such segment"));
+  assert_int_equal(run("frobnicate", out, sizeof out), 2);
+  assert_non_null(strstr(out, "Examples:"));
+  vlff_prompts_close(pb);
+  vlff_map_detach(m);
+  vlff_ring_close(w);
+  vlff_shm_unlink(ring);
+  vlff_shm_unlink(map);
+  vlff_shm_unlink(mbox);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test(cli_commands)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
