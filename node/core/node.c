@@ -901,7 +901,10 @@ static void *trainer_main(void *arg) {
      * the first step, and the heartbeat says the writer is alive. */
     if ((publish_now || now >= next_publish) && vlff_field_steps(n->field) > 0) {
       do_publish(n);
-      next_publish = now + 1.0 / cfg->publish.rate_hz;
+      /* publish.rate_hz is an upper bound: publishing never takes more than
+       * a fifth of the trainer's time, or learning would stall behind it. */
+      double spent = mono_s() - now;
+      next_publish = now + fmax(1.0 / cfg->publish.rate_hz, 5.0 * spent);
     } else {
       vlff_publisher_heartbeat(n->pub);
     }
