@@ -1,0 +1,169 @@
+/*
+ * bench_node: time to a useful map on the synthetic 5 Hz stream.
+ *
+ * vlff-sim streams configs/demo-sim.yaml's room into the frame and feature
+ * rings; the node (in this process, exactly the library vlff-node runs)
+ * learns it. Every 0.5 s the node's own 2D mIoU (its published label image
+ * against the synthetic ground truth) is sampled. Useful = the smoothed 2D
+ * mIoU first reaches 90 % of its value at the end (120 s by default,
+ * VLFF_BENCH_SECONDS). Baseline in the same run: the raw per-frame
+ * features' 2D mIoU on the same scene (what the field must beat).
+ */
+#include <math.h>
+#include <signal.h>
+#include <spawn.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "config.h"
+#include "metrics.h"
+#include "node.h"
+#include "sim.h"
+
+extern char **environ;
+
+static double mono_s(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static long peak_rss_kb(void) {
+  FILE *f = fopen("/proc/self/status", "r");
+  char line[256];
+  long kb = -1;
+  while (f && fgets(line, sizeof line, f))
+    if (!strncmp(line, "VmHWM:", 6)) kb = atol(line + 6);
+  if (f) fclose(f);
+  return kb;
+}
+
+/* Raw per-frame features: argmax over the prompt embeddings at feature
+ * resolution, against the ground truth sampled at the same pixels. */
+static double raw_miou2d(const struct vlff_config *cfg, int frames) {
+  char err[256];
+  struct vlff_sim *s = vlff_sim_create(cfg, err, sizeof err);
+  struct vlff_sim_frame *f = s ? vlff_sim_frame_new(s) : NULL;
+  struct vlff_confusion c;
+  if (!f || vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err)) return -1;
+  const struct vlff_prompt_set *ps = &cfg->prompts.sets[cfg->prompts.active];
+  int d = cfg->sim.feature_dim, k = ps->count;
+  float *emb = malloc((size_t)k * d * sizeof(float)), *unit = malloc((size_t)k * d * sizeof(float));
+  int *cls = malloc((size_t)k * sizeof(int));
+  for (int i = 0; i < k; i++) {
+    vlff_sim_text_embedding(s, ps->text[i], emb + (size_t)i * d);
+    cls[i] = vlff_sim_class_of(ps->text[i]);
+  }
+  vlff_normalize_rows(emb, unit, k, d);
+  for (int i = 0; i < frames; i++) {
+    vlff_sim_render(s, (long long)i * cfg->sim.frames / frames, VLFF_SIM_ALL, f, err, sizeof err);
+    size_t n = (size_t)f->feat_width * f->feat_height;
+    int *lab = malloc(n * sizeof(int));
+    vlff_classify_f16(f->features, n, d, unit, k, lab, NULL);
+    for (int y = 0; y < f->feat_height; y++)
+      for (int x = 0; x < f->feat_width; x++) {
+        int gy = (y * f->height + f->height / 2) / f->feat_height, gx = (x * f->width + f->width / 2) / f->feat_width;
+        int l = lab[(size_t)y * f->feat_width + x];
+        vlff_confusion_add_one(&c, f->label[(size_t)gy * f->width + gx], l >= 0 ? cls[l] : -1);
+      }
+    free(lab);
+  }
+  struct vlff_summary sum;
+  vlff_confusion_summary(&c, &sum);
+  vlff_confusion_free(&c);
+  free(emb), free(unit), free(cls);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+  return sum.miou * 100;
+}
+
+int main(int argc, char **argv) {
+  (void)argc;
+  const char *src = getenv("VLFF_SOURCE_DIR") ? getenv("VLFF_SOURCE_DIR") : VLFF_SOURCE_DEFAULT;
+  double seconds = getenv("VLFF_BENCH_SECONDS") ? atof(getenv("VLFF_BENCH_SECONDS")) : 120;
+  char path[1024], err[512], tmp[256], yaml[2048];
+  snprintf(tmp, sizeof tmp, "/tmp/vlff-bench-node-%d", (int)getpid());
+  snprintf(path, sizeof path, "mkdir -p %s", tmp);
+  if (system(path)) return 1;
+  /* The demo's config with this run's own segments and an empty state. */
+  snprintf(path, sizeof path, "%s/configs/demo-sim.yaml", src);
+  FILE *in = fopen(path, "r");
+  if (!in) return fprintf(stderr, "bench_node: %s missing\n", path), 1;
+  size_t len = fread(yaml, 1, sizeof yaml - 1, in);
+  yaml[len] = 0;
+  fclose(in);
+  char cfg_path[300];
+  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", tmp);
+  FILE *out = fopen(cfg_path, "w");
+  for (char *line = strtok(yaml, "\n"); line; line = strtok(NULL, "\n")) {
+    if (strstr(line, "state_dir:")) fprintf(out, "  state_dir: %s/state\n  checkpoint_period_s: 0\n", tmp);
+    else if (strstr(line, "checkpoint_period_s:")) continue;
+    else if (strstr(line, ": /vlff-demo-")) fprintf(out, "%.*s/bn%d-%s\n", (int)(strstr(line, "/vlff-demo-") - line), line, (int)getpid(), strstr(line, "/vlff-demo-") + 11);
+    else fprintf(out, "%s\n", line);
+  }
+  fclose(out);
+  struct vlff_config cfg;
+  if (vlff_config_load(cfg_path, &cfg, err, sizeof err)) return fprintf(stderr, "%s\n", err), 1;
+
+  double raw = raw_miou2d(&cfg, 30);
+  printf("raw per-frame features: 2D mIoU %.1f (baseline)\n", raw);
+
+  char simpath[1024];
+  snprintf(simpath, sizeof simpath, "%.*s/../node/sim/vlff-sim", (int)(strrchr(argv[0], '/') - argv[0]), argv[0]);
+  char *sargv[] = {simpath, "--config", cfg_path, "--quiet", NULL};
+  pid_t sim;
+  if (posix_spawn(&sim, simpath, NULL, NULL, sargv, environ)) return fprintf(stderr, "cannot start %s\n", simpath), 1;
+  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  if (!n) {
+    kill(sim, SIGKILL);
+    return fprintf(stderr, "%s\n", err), 1;
+  }
+  enum { MAXS = 4096 };
+  static double ts[MAXS], m2[MAXS];
+  int ns = 0;
+  double t0 = mono_s();
+  struct vlff_node_status st;
+  while (mono_s() - t0 < seconds && ns < MAXS) {
+    struct timespec nap = {0, 500 * 1000 * 1000};
+    nanosleep(&nap, NULL);
+    vlff_node_status(n, &st);
+    ts[ns] = mono_s() - t0;
+    m2[ns++] = st.miou2d;
+    if (ns % 20 == 0)
+      printf("t=%5.1f s  it %lld  kf %d  2D mIoU %.1f  3D mIoU %.1f\n", ts[ns - 1], st.iteration, st.keyframes,
+             st.miou2d, st.miou3d);
+  }
+  vlff_node_status(n, &st);
+  vlff_node_destroy(n, false);
+  kill(sim, SIGTERM);
+  waitpid(sim, NULL, 0);
+  snprintf(path, sizeof path, "rm -rf %s /dev/shm/bn%d-*", tmp, (int)getpid());
+  if (system(path)) fprintf(stderr, "bench_node: cleanup failed\n");
+
+  /* Smooth over 5 s: each sample is one view's label image. */
+  static double sm[MAXS];
+  for (int i = 0; i < ns; i++) {
+    double acc = 0;
+    int c = 0;
+    for (int j = i; j >= 0 && ts[i] - ts[j] < 5.0; j--)
+      if (m2[j] >= 0) acc += m2[j], c++;
+    sm[i] = c ? acc / c : -1;
+  }
+  double final = sm[ns - 1], useful = -1;
+  for (int i = 0; i < ns; i++)
+    if (final > 0 && sm[i] >= 0.9 * final) {
+      useful = ts[i];
+      break;
+    }
+  printf("final: %lld iterations, %d keyframes, 3D mIoU %.1f, frame-to-map p50 %.0f ms\n", st.iteration,
+         st.keyframes, st.miou3d, st.frame_to_map_ms_p50);
+  printf("RESULT time_to_useful_s=%.1f miou2d_at_%.0fs=%.1f frame_to_map_p99_ms=%.0f rss_mb=%.0f miou2d_raw=%.1f "
+         "miou2d_vs_raw=%.2f miou3d=%.1f\n",
+         useful, seconds, final, st.frame_to_map_ms_p99, peak_rss_kb() / 1024.0, raw, raw > 0 ? final / raw : 0,
+         st.miou3d);
+  return 0;
+}
