@@ -6,7 +6,7 @@
  * learns it. Every 0.5 s the node's own 2D mIoU (its published label image
  * against the synthetic ground truth) is sampled. Useful = the smoothed 2D
  * mIoU first reaches 90 % of its value at the end (120 s by default,
- * VLFF_BENCH_SECONDS). Baseline in the same run: the raw per-frame
+ * VLFF_BENCH_SECONDS; VLFF_BENCH_CONFIG replaces the config). Baseline in the same run: the raw per-frame
  * features' 2D mIoU on the same scene (what the field must beat).
  */
 #include <math.h>
@@ -91,6 +91,7 @@ int main(int argc, char **argv) {
   if (system(path)) return 1;
   /* The demo's config with this run's own segments and an empty state. */
   snprintf(path, sizeof path, "%s/configs/demo-sim.yaml", src);
+  if (getenv("VLFF_BENCH_CONFIG")) snprintf(path, sizeof path, "%s", getenv("VLFF_BENCH_CONFIG"));
   FILE *in = fopen(path, "r");
   if (!in) return fprintf(stderr, "bench_node: %s missing\n", path), 1;
   size_t len = fread(yaml, 1, sizeof yaml - 1, in);
