@@ -67,7 +67,7 @@ static void test_good_file(void **state) {
   assert_int_equal(cfg.prompts.sets[1].count, 3);
   assert_string_equal(cfg.prompts.sets[1].text[1], "shower curtain");
   /* Untouched keys keep their defaults. */
-  assert_int_equal(cfg.train.rays_per_step, 2048);
+  assert_int_equal(cfg.train.rays_per_step, 1024);
 }
 
 static void test_errors(void **state) {
