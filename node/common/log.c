@@ -55,3 +55,11 @@ void vlff_log(enum vlff_log_level level, const char *tag, const char *fmt, ...) 
   vlff_logv(level, tag, fmt, ap);
   va_end(ap);
 }
+
+void vlff_errf(char *err, size_t errlen, const char *fmt, ...) {
+  if (!err || !errlen) return;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(err, errlen, fmt, ap);
+  va_end(ap);
+}

@@ -14,8 +14,13 @@
 #define VLFF_LOG_H
 
 #include <stdarg.h>
+#include <stddef.h>
 
 #include "config.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
 
 void vlff_log_set_level(enum vlff_log_level level);
 enum vlff_log_level vlff_log_get_level(void);
@@ -24,9 +29,17 @@ void vlff_log(enum vlff_log_level level, const char *tag, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_list ap);
 
+/* Format an error message into a caller's buffer (err may be NULL): the
+ * "-1 with err filled" convention every vlff module follows. */
+void vlff_errf(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
 #define VLFF_ERROR(tag, ...) vlff_log(VLFF_LOG_ERROR, tag, __VA_ARGS__)
 #define VLFF_WARN(tag, ...) vlff_log(VLFF_LOG_WARN, tag, __VA_ARGS__)
 #define VLFF_INFO(tag, ...) vlff_log(VLFF_LOG_INFO, tag, __VA_ARGS__)
 #define VLFF_DEBUG(tag, ...) vlff_log(VLFF_LOG_DEBUG, tag, __VA_ARGS__)
+
+#ifdef __cplusplus
+}
+#endif
 
 #endif

@@ -11,24 +11,18 @@
 #include <string.h>
 
 #include "half.h"
+#include "log.h"
 
-static void seterr(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 int vlff_confusion_init(struct vlff_confusion *c, int k, char *err, size_t errlen) {
   memset(c, 0, sizeof *c);
   if (k < 1 || k > VLFF_METRICS_MAX_CLASSES) {
-    seterr(err, errlen, "metrics: class count %d outside 1..%d", k, VLFF_METRICS_MAX_CLASSES);
+    vlff_errf(err, errlen, "metrics: class count %d outside 1..%d", k, VLFF_METRICS_MAX_CLASSES);
     return -1;
   }
   c->m = calloc((size_t)k * (k + 1), sizeof *c->m);
   if (!c->m) {
-    seterr(err, errlen, "metrics: out of memory");
+    vlff_errf(err, errlen, "metrics: out of memory");
     return -1;
   }
   c->k = k;
@@ -156,14 +150,14 @@ void vlff_classify_f16(const uint16_t *feat, size_t n, int d, const float *emb_u
 int vlff_fusion(const float *xyz, size_t n, const struct vlff_fusion_view *views, int nviews, int d,
                 double tol, float *out, int *count, char *err, size_t errlen) {
   if (d < 1 || nviews < 0 || !(tol > 0)) {
-    seterr(err, errlen, "fusion: bad arguments (D=%d, views=%d, tol=%g)", d, nviews, tol);
+    vlff_errf(err, errlen, "fusion: bad arguments (D=%d, views=%d, tol=%g)", d, nviews, tol);
     return -1;
   }
   for (int v = 0; v < nviews; v++) {
     const struct vlff_fusion_view *w = &views[v];
     if (w->width < 1 || w->height < 1 || w->feat_width < 1 || w->feat_height < 1 || !w->depth ||
         !w->features || !(w->fx > 0) || !(w->fy > 0)) {
-      seterr(err, errlen, "fusion: view %d has invalid sizes, intrinsics or buffers", v);
+      vlff_errf(err, errlen, "fusion: view %d has invalid sizes, intrinsics or buffers", v);
       return -1;
     }
   }

@@ -24,6 +24,7 @@
 #include <strings.h>
 
 #include "half.h"
+#include "log.h"
 
 static const char *const class_names[VLFF_SIM_CLASSES] = {
     "wall",    "floor",       "cabinet", "bed",          "chair",          "sofa",   "table",
@@ -131,13 +132,6 @@ static float rng_fastnormal(struct rng *r) {
   return (float)(((double)sum / 65536.0 - 2.0) * 1.7320508075688772);
 }
 
-static void seterr(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 /* ---- small vector helpers ---------------------------------------------- */
 
@@ -923,11 +917,11 @@ static void render_features(const struct vlff_sim *s, long long index, struct vl
 int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
                     struct vlff_sim_frame *f, char *err, size_t errlen) {
   if (index < 0) {
-    seterr(err, errlen, "sim: frame index %lld is negative", index);
+    vlff_errf(err, errlen, "sim: frame index %lld is negative", index);
     return -1;
   }
   if (!f || f->width != s->width || f->height != s->height || f->feat_dim != s->dim) {
-    seterr(err, errlen, "sim: frame buffer does not match this sim's sizes");
+    vlff_errf(err, errlen, "sim: frame buffer does not match this sim's sizes");
     return -1;
   }
   const int W = s->width, H = s->height;
@@ -944,7 +938,7 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
   float *scratch = malloc((size_t)(NPROTO + 2 * s->dim) * sizeof(float));
   if (!cosview || !scratch) {
     free(cosview), free(scratch);
-    seterr(err, errlen, "sim: out of memory rendering frame %lld", index);
+    vlff_errf(err, errlen, "sim: out of memory rendering frame %lld", index);
     return -1;
   }
   struct rng nr = rng_make(s->seed, 2, (uint64_t)index);
@@ -1018,18 +1012,18 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
   const double *bl = cfg->field.scene_min, *bh = cfg->field.scene_max;
   for (int k = 0; k < 3; k++)
     if (!(bh[k] - bl[k] >= 2.6)) {
-      seterr(err, errlen, "sim: field.scene_min/max axis %d spans %.2f m; the room needs at least 2.6 m", k,
+      vlff_errf(err, errlen, "sim: field.scene_min/max axis %d spans %.2f m; the room needs at least 2.6 m", k,
              bh[k] - bl[k]);
       return NULL;
     }
   if (cfg->sim.width < 16 || cfg->sim.height < 16 || cfg->sim.feature_dim < 1 || cfg->sim.rate_hz <= 0) {
-    seterr(err, errlen, "sim: invalid sizes (%dx%d, D=%d) or rate %.3f", cfg->sim.width, cfg->sim.height,
+    vlff_errf(err, errlen, "sim: invalid sizes (%dx%d, D=%d) or rate %.3f", cfg->sim.width, cfg->sim.height,
            cfg->sim.feature_dim, cfg->sim.rate_hz);
     return NULL;
   }
   struct vlff_sim *s = calloc(1, sizeof *s);
   if (!s) {
-    seterr(err, errlen, "sim: out of memory");
+    vlff_errf(err, errlen, "sim: out of memory");
     return NULL;
   }
   s->cfg = *cfg;
@@ -1063,7 +1057,7 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
   build_room(s, best_attempt);
   if (s->nprims < 6) {
     vlff_sim_destroy(s);
-    seterr(err, errlen, "sim: out of memory building the room");
+    vlff_errf(err, errlen, "sim: out of memory building the room");
     return NULL;
   }
   for (int k = 0; k < 3; k++) s->bbox_lo[k] = s->room_lo[k] - 0.1, s->bbox_hi[k] = s->room_hi[k] + 0.1;
@@ -1073,7 +1067,7 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
   s->nodes = malloc((size_t)2 * s->nprims * sizeof *s->nodes);
   if (!s->order || !s->nodes || build_features(s) < 0) {
     vlff_sim_destroy(s);
-    seterr(err, errlen, "sim: out of memory");
+    vlff_errf(err, errlen, "sim: out of memory");
     return NULL;
   }
   for (int i = 0; i < s->nprims; i++) s->order[i] = i;
@@ -1146,7 +1140,7 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
                     struct vlff_sim_points *out, char *err, size_t errlen) {
   memset(out, 0, sizeof *out);
   if (nframes < 1 || step < 1 || !(voxel > 0)) {
-    seterr(err, errlen, "sim: points need nframes >= 1, step >= 1 and voxel > 0");
+    vlff_errf(err, errlen, "sim: points need nframes >= 1, step >= 1 and voxel > 0");
     return -1;
   }
   size_t cap = 1 << 16, n = 0;
@@ -1221,7 +1215,7 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
 oom:
   free(tab);
   vlff_sim_points_free(out);
-  seterr(err, errlen, "sim: out of memory sampling points");
+  vlff_errf(err, errlen, "sim: out of memory sampling points");
   return -1;
 }
 

@@ -12,6 +12,7 @@
 #include <opencv2/core/cuda.hpp>
 #include <opencv2/dnn.hpp>
 #include <opencv2/imgproc.hpp>
+#include "log.h"
 
 struct vlff_dnn {
   cv::dnn::Net net;
@@ -20,14 +21,6 @@ struct vlff_dnn {
   std::vector<cv::Mat> outs;
 };
 
-static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 // OpenCV's messages span lines; keep the first meaningful one.
 static std::string one_line(const std::exception &e) {
@@ -44,7 +37,7 @@ extern "C" struct vlff_dnn *vlff_dnn_open(const char *path, bool want_cuda, bool
                                           size_t errlen) {
   if (used_cuda) *used_cuda = false;
   if (!path || !*path) {
-    set_err(err, errlen, "no ONNX model path given");
+    vlff_errf(err, errlen, "no ONNX model path given");
     return nullptr;
   }
   vlff_dnn *d = nullptr;
@@ -53,7 +46,7 @@ extern "C" struct vlff_dnn *vlff_dnn_open(const char *path, bool want_cuda, bool
     d->path = path;
     d->net = cv::dnn::readNetFromONNX(path);
     if (d->net.empty()) {
-      set_err(err, errlen, "%s: OpenCV loaded an empty network", path);
+      vlff_errf(err, errlen, "%s: OpenCV loaded an empty network", path);
       delete d;
       return nullptr;
     }
@@ -69,16 +62,16 @@ extern "C" struct vlff_dnn *vlff_dnn_open(const char *path, bool want_cuda, bool
     if (used_cuda) *used_cuda = cuda;
     d->out_names = d->net.getUnconnectedOutLayersNames();
     if (d->out_names.empty() || d->out_names.size() > VLFF_DNN_MAX_OUTPUTS) {
-      set_err(err, errlen, "%s: model has %zu outputs, expected 1 to %d", path, d->out_names.size(),
+      vlff_errf(err, errlen, "%s: model has %zu outputs, expected 1 to %d", path, d->out_names.size(),
               VLFF_DNN_MAX_OUTPUTS);
       delete d;
       return nullptr;
     }
     return d;
   } catch (const std::exception &e) {
-    set_err(err, errlen, "%s: cannot load ONNX model: %s", path, one_line(e).c_str());
+    vlff_errf(err, errlen, "%s: cannot load ONNX model: %s", path, one_line(e).c_str());
   } catch (...) {
-    set_err(err, errlen, "%s: cannot load ONNX model: unknown exception", path);
+    vlff_errf(err, errlen, "%s: cannot load ONNX model: unknown exception", path);
   }
   delete d;
   return nullptr;
@@ -89,7 +82,7 @@ extern "C" void vlff_dnn_close(struct vlff_dnn *d) { delete d; }
 extern "C" int vlff_dnn_run(struct vlff_dnn *d, const float *input, const int *shape, int ndim,
                             struct vlff_tensor *out, int max_out, char *err, size_t errlen) {
   if (!d || !input || !shape || ndim < 1 || ndim > VLFF_DNN_MAX_DIMS || !out || max_out < 1) {
-    set_err(err, errlen, "vlff_dnn_run: bad arguments");
+    vlff_errf(err, errlen, "vlff_dnn_run: bad arguments");
     return -1;
   }
   try {
@@ -102,7 +95,7 @@ extern "C" int vlff_dnn_run(struct vlff_dnn *d, const float *input, const int *s
     for (int i = 0; i < n; i++) {
       cv::Mat &m = d->outs[(size_t)i];
       if (m.type() != CV_32F || !m.isContinuous() || m.dims > VLFF_DNN_MAX_DIMS) {
-        set_err(err, errlen, "%s: output %d is not a continuous float32 tensor of <= %d dims", d->path.c_str(), i,
+        vlff_errf(err, errlen, "%s: output %d is not a continuous float32 tensor of <= %d dims", d->path.c_str(), i,
                 VLFF_DNN_MAX_DIMS);
         return -1;
       }
@@ -113,9 +106,9 @@ extern "C" int vlff_dnn_run(struct vlff_dnn *d, const float *input, const int *s
     }
     return n;
   } catch (const std::exception &e) {
-    set_err(err, errlen, "%s: inference failed: %s", d->path.c_str(), one_line(e).c_str());
+    vlff_errf(err, errlen, "%s: inference failed: %s", d->path.c_str(), one_line(e).c_str());
   } catch (...) {
-    set_err(err, errlen, "%s: inference failed: unknown exception", d->path.c_str());
+    vlff_errf(err, errlen, "%s: inference failed: unknown exception", d->path.c_str());
   }
   return -1;
 }
@@ -123,7 +116,7 @@ extern "C" int vlff_dnn_run(struct vlff_dnn *d, const float *input, const int *s
 extern "C" int vlff_dnn_resize(const uint8_t *src, int w, int h, int channels, uint8_t *dst, int dw, int dh,
                                char *err, size_t errlen) {
   if (!src || !dst || w < 1 || h < 1 || dw < 1 || dh < 1 || channels < 1 || channels > 4) {
-    set_err(err, errlen, "resize: bad arguments");
+    vlff_errf(err, errlen, "resize: bad arguments");
     return -1;
   }
   try {
@@ -133,21 +126,21 @@ extern "C" int vlff_dnn_resize(const uint8_t *src, int w, int h, int channels, u
     cv::resize(s, t, t.size(), 0, 0, shrink ? cv::INTER_AREA : cv::INTER_LINEAR);
     return 0;
   } catch (const std::exception &e) {
-    set_err(err, errlen, "resize: %s", one_line(e).c_str());
+    vlff_errf(err, errlen, "resize: %s", one_line(e).c_str());
   }
   return -1;
 }
 
 extern "C" int vlff_dnn_set_threads(int n, char *err, size_t errlen) {
   if (n < 0) {
-    set_err(err, errlen, "OpenCV threads: %d is negative", n);
+    vlff_errf(err, errlen, "OpenCV threads: %d is negative", n);
     return -1;
   }
   try {
     cv::setNumThreads(n);
     return 0;
   } catch (const std::exception &e) {
-    set_err(err, errlen, "OpenCV threads: %s", one_line(e).c_str());
+    vlff_errf(err, errlen, "OpenCV threads: %s", one_line(e).c_str());
   }
   return -1;
 }

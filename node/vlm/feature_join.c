@@ -14,6 +14,7 @@
 #include <string.h>
 
 #include <vlff/shm.h>
+#include "log.h"
 
 struct waiting {
   bool used;
@@ -37,20 +38,12 @@ struct vlff_feature_join {
   struct vlff_feature_join_stats st;
 };
 
-static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 struct vlff_feature_join *vlff_feature_join_create(int capacity, double timeout_s, int dim, int max_h, int max_w,
                                                    char *err, size_t errlen) {
   if (capacity < 1 || capacity > 1024 || !(timeout_s > 0) || dim < 1 || dim > 4096 || max_h < 1 || max_w < 1 ||
       (size_t)max_h * max_w * dim > ((size_t)1 << 28)) {
-    set_err(err, errlen, "feature join: bad geometry (capacity %d, timeout %g s, D %d, %dx%d)", capacity, timeout_s,
+    vlff_errf(err, errlen, "feature join: bad geometry (capacity %d, timeout %g s, D %d, %dx%d)", capacity, timeout_s,
             dim, max_w, max_h);
     return NULL;
   }
@@ -67,7 +60,7 @@ struct vlff_feature_join *vlff_feature_join_create(int capacity, double timeout_
     if (!(j->feats[i].hwc = malloc((size_t)max_h * max_w * dim * sizeof(uint16_t)))) goto oom;
   return j;
 oom:
-  set_err(err, errlen, "feature join: out of memory");
+  vlff_errf(err, errlen, "feature join: out of memory");
   vlff_feature_join_destroy(j);
   return NULL;
 }
@@ -86,14 +79,14 @@ int vlff_feature_join_add_frame(struct vlff_feature_join *j, uint64_t frame_id, 
   struct waiting *free_slot = NULL;
   for (int i = 0; i < j->cap; i++) {
     if (j->frames[i].used && j->frames[i].id == frame_id) {
-      set_err(err, errlen, "feature join: frame %llu is already waiting", (unsigned long long)frame_id);
+      vlff_errf(err, errlen, "feature join: frame %llu is already waiting", (unsigned long long)frame_id);
       j->st.frames_refused++;
       return -1;
     }
     if (!j->frames[i].used && !free_slot) free_slot = &j->frames[i];
   }
   if (!free_slot) {
-    set_err(err, errlen, "feature join: %d keyframes already wait for features", j->cap);
+    vlff_errf(err, errlen, "feature join: %d keyframes already wait for features", j->cap);
     j->st.frames_refused++;
     return -1;
   }
@@ -107,16 +100,16 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
                                  size_t errlen) {
   const struct vlff_feature_hdr *h = record;
   if (!record || vlff_feature_validate(record, len) != 0) {
-    set_err(err, errlen, "feature record: malformed (%zu bytes)", len);
+    vlff_errf(err, errlen, "feature record: malformed (%zu bytes)", len);
     goto bad;
   }
   if (h->data_offset % 2) {
-    set_err(err, errlen, "feature record for frame %llu: misaligned data", (unsigned long long)h->frame_id);
+    vlff_errf(err, errlen, "feature record for frame %llu: misaligned data", (unsigned long long)h->frame_id);
     goto bad;
   }
   if (h->dtype != VLFF_FEAT_F16 || (int)h->dim != j->dim || h->height < 1 || h->width < 1 ||
       (int)h->height > j->max_h || (int)h->width > j->max_w) {
-    set_err(err, errlen, "feature record for frame %llu: dtype %u, [%u,%u,%u]; expected float16 with D=%d, at most %dx%d",
+    vlff_errf(err, errlen, "feature record for frame %llu: dtype %u, [%u,%u,%u]; expected float16 with D=%d, at most %dx%d",
             (unsigned long long)h->frame_id, h->dtype, h->dim, h->height, h->width, j->dim, j->max_h, j->max_w);
     goto bad;
   }
@@ -125,7 +118,7 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
   /* Refuse non-finite data before touching any slot. */
   for (size_t i = 0; i < hw * (size_t)j->dim; i++)
     if ((src[i] & 0x7C00u) == 0x7C00u) {
-      set_err(err, errlen, "feature record for frame %llu: non-finite value at %zu", (unsigned long long)h->frame_id, i);
+      vlff_errf(err, errlen, "feature record for frame %llu: non-finite value at %zu", (unsigned long long)h->frame_id, i);
       goto bad;
     }
   struct feat *slot = NULL;

@@ -31,14 +31,6 @@ struct vlff_image_encoder {
   float *blob;       /* 3 * in_h * in_w */
 };
 
-static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 static int infer(struct vlff_image_encoder *e, const uint8_t *rgb, int width, int height, size_t stride,
                  struct vlff_tensor *t, char *err, size_t errlen) {
@@ -47,7 +39,7 @@ static int infer(struct vlff_image_encoder *e, const uint8_t *rgb, int width, in
   if (stride != (size_t)width * 3) { /* the shim takes packed rows */
     packed = malloc((size_t)width * height * 3);
     if (!packed) {
-      set_err(err, errlen, "%s: out of memory", e->path);
+      vlff_errf(err, errlen, "%s: out of memory", e->path);
       return -1;
     }
     for (int y = 0; y < height; y++) memcpy(packed + (size_t)y * width * 3, rgb + (size_t)y * stride, (size_t)width * 3);
@@ -73,12 +65,12 @@ static int infer(struct vlff_image_encoder *e, const uint8_t *rgb, int width, in
 struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg, char *err, size_t errlen) {
   const char *path = cfg->vlm.image_model;
   if (!path[0]) {
-    set_err(err, errlen, "vlm.image_model: no image model configured");
+    vlff_errf(err, errlen, "vlm.image_model: no image model configured");
     return NULL;
   }
   struct vlff_image_encoder *e = calloc(1, sizeof *e);
   if (!e) {
-    set_err(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", path);
     return NULL;
   }
   snprintf(e->path, sizeof e->path, "%s", path);
@@ -93,7 +85,7 @@ struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg
   e->resized = malloc((size_t)e->in_w * e->in_h * 3);
   e->blob = malloc((size_t)e->in_w * e->in_h * 3 * sizeof *e->blob);
   if (!e->resized || !e->blob) {
-    set_err(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", path);
     goto fail;
   }
   e->net = vlff_dnn_open(path, cfg->vlm.cuda, &e->cuda, err, errlen);
@@ -105,24 +97,24 @@ struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg
   struct vlff_tensor t;
   char why[384];
   if (infer(e, e->resized, e->in_w, e->in_h, (size_t)e->in_w * 3, &t, why, sizeof why)) {
-    set_err(err, errlen, "%s: probe inference at %dx%d (vlm.input_width/height) failed: %s", path, e->in_w, e->in_h,
+    vlff_errf(err, errlen, "%s: probe inference at %dx%d (vlm.input_width/height) failed: %s", path, e->in_w, e->in_h,
             why);
     goto fail;
   }
   if (t.ndim != 4 || t.shape[0] != 1 || t.shape[2] < 1 || t.shape[3] < 1) {
     char s[96] = "";
     for (int i = 0, o = 0; i < t.ndim && o < 80; i++) o += snprintf(s + o, sizeof s - (size_t)o, "%s%d", i ? "," : "", t.shape[i]);
-    set_err(err, errlen, "%s: output shape [%s], expected [1,D,h,w] dense features", path, s);
+    vlff_errf(err, errlen, "%s: output shape [%s], expected [1,D,h,w] dense features", path, s);
     goto fail;
   }
   if (t.shape[1] != cfg->field.feature_dim) {
-    set_err(err, errlen, "%s: features have D=%d, but field.feature_dim is %d", path, t.shape[1],
+    vlff_errf(err, errlen, "%s: features have D=%d, but field.feature_dim is %d", path, t.shape[1],
             cfg->field.feature_dim);
     goto fail;
   }
   for (size_t i = 0; i < t.count; i++)
     if (!isfinite(t.data[i])) {
-      set_err(err, errlen, "%s: probe inference gave non-finite features (corrupt weights?)", path);
+      vlff_errf(err, errlen, "%s: probe inference gave non-finite features (corrupt weights?)", path);
       goto fail;
     }
   e->dim = t.shape[1];
@@ -155,13 +147,13 @@ bool vlff_image_encoder_uses_cuda(const struct vlff_image_encoder *e) { return e
 int vlff_image_encoder_run(struct vlff_image_encoder *e, const uint8_t *rgb, int width, int height, size_t stride,
                            uint16_t *out, char *err, size_t errlen) {
   if (!e || !rgb || !out || width < 1 || height < 1 || width > 16384 || height > 16384 || stride < (size_t)width * 3) {
-    set_err(err, errlen, "image encoder: invalid frame %dx%d (stride %zu)", width, height, stride);
+    vlff_errf(err, errlen, "image encoder: invalid frame %dx%d (stride %zu)", width, height, stride);
     return -1;
   }
   struct vlff_tensor t;
   if (infer(e, rgb, width, height, stride, &t, err, errlen)) return -1;
   if (t.ndim != 4 || t.shape[1] != e->dim || t.shape[2] != e->out_h || t.shape[3] != e->out_w) {
-    set_err(err, errlen, "%s: output shape changed between frames", e->path);
+    vlff_errf(err, errlen, "%s: output shape changed between frames", e->path);
     return -1;
   }
   size_t hw = (size_t)e->out_h * e->out_w;
@@ -171,7 +163,7 @@ int vlff_image_encoder_run(struct vlff_image_encoder *e, const uint8_t *rgb, int
     for (int d = 0; d < e->dim; d++) {
       float v = f[(size_t)d * hw + p];
       if (!isfinite(v)) {
-        set_err(err, errlen, "%s: non-finite feature at pixel %zu, channel %d", e->path, p, d);
+        vlff_errf(err, errlen, "%s: non-finite feature at pixel %zu, channel %d", e->path, p, d);
         return -1;
       }
       ss += (double)v * v;
@@ -257,7 +249,7 @@ static void *worker_main(void *arg) {
 struct vlff_image_worker *vlff_image_worker_start(struct vlff_image_encoder *enc, int depth, char *err,
                                                   size_t errlen) {
   if (!enc || depth < 1 || depth > 64) {
-    set_err(err, errlen, "image worker: depth %d outside 1..64", depth);
+    vlff_errf(err, errlen, "image worker: depth %d outside 1..64", depth);
     vlff_image_encoder_close(enc);
     return NULL;
   }
@@ -275,14 +267,14 @@ struct vlff_image_worker *vlff_image_worker_start(struct vlff_image_encoder *enc
   pthread_mutex_init(&w->mu, NULL);
   pthread_cond_init(&w->cv, NULL);
   if (pthread_create(&w->thread, NULL, worker_main, w)) {
-    set_err(err, errlen, "image worker: cannot start thread");
+    vlff_errf(err, errlen, "image worker: cannot start thread");
     pthread_mutex_destroy(&w->mu);
     pthread_cond_destroy(&w->cv);
     goto free_all;
   }
   return w;
 oom:
-  set_err(err, errlen, "image worker: out of memory");
+  vlff_errf(err, errlen, "image worker: out of memory");
   if (!w) {
     vlff_image_encoder_close(enc);
     return NULL;
@@ -361,7 +353,7 @@ int vlff_image_worker_poll(struct vlff_image_worker *w, uint64_t *frame_id, uint
   *frame_id = r->id;
   int rc = r->ok ? 1 : -1;
   if (r->ok) memcpy(out, r->feat, w->feat_count * sizeof *out);
-  else set_err(err, errlen, "%s", r->err);
+  else vlff_errf(err, errlen, "%s", r->err);
   w->r_head = (w->r_head + 1) % w->depth;
   w->r_count--;
   pthread_mutex_unlock(&w->mu);

@@ -39,50 +39,42 @@ struct vlff_text_encoder {
   long hits, misses;
 };
 
-static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 static int load_table(struct vlff_text_encoder *e, const char *path, char *err, size_t errlen) {
   FILE *f = fopen(path, "rb");
   if (!f) {
-    set_err(err, errlen, "%s: cannot open token-embedding table: %s", path, strerror(errno));
+    vlff_errf(err, errlen, "%s: cannot open token-embedding table: %s", path, strerror(errno));
     return -1;
   }
   uint8_t hdr[16];
   int rc = -1;
   if (fread(hdr, 1, 16, f) != 16 || memcmp(hdr, "VLFFTOK1", 8)) {
-    set_err(err, errlen, "%s: not a token-embedding table (expected magic VLFFTOK1)", path);
+    vlff_errf(err, errlen, "%s: not a token-embedding table (expected magic VLFFTOK1)", path);
     goto out;
   }
   uint32_t v = (uint32_t)hdr[8] | (uint32_t)hdr[9] << 8 | (uint32_t)hdr[10] << 16 | (uint32_t)hdr[11] << 24;
   uint32_t w = (uint32_t)hdr[12] | (uint32_t)hdr[13] << 8 | (uint32_t)hdr[14] << 16 | (uint32_t)hdr[15] << 24;
   if (v != VLFF_CLIP_VOCAB || w < 8 || w > 4096) {
-    set_err(err, errlen, "%s: table is %u x %u, expected %d x (8..4096)", path, v, w, VLFF_CLIP_VOCAB);
+    vlff_errf(err, errlen, "%s: table is %u x %u, expected %d x (8..4096)", path, v, w, VLFF_CLIP_VOCAB);
     goto out;
   }
   size_t n = (size_t)v * w;
   e->table = malloc(n * sizeof *e->table);
   if (!e->table) {
-    set_err(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", path);
     goto out;
   }
   if (fread(e->table, sizeof *e->table, n, f) != n) {
-    set_err(err, errlen, "%s: truncated token-embedding table (expected %zu floats)", path, n);
+    vlff_errf(err, errlen, "%s: truncated token-embedding table (expected %zu floats)", path, n);
     goto out;
   }
   if (fgetc(f) != EOF) {
-    set_err(err, errlen, "%s: trailing bytes after %zu floats", path, n);
+    vlff_errf(err, errlen, "%s: trailing bytes after %zu floats", path, n);
     goto out;
   }
   for (size_t i = 0; i < n; i++)
     if (!isfinite(e->table[i])) {
-      set_err(err, errlen, "%s: non-finite value in row %zu", path, i / w);
+      vlff_errf(err, errlen, "%s: non-finite value in row %zu", path, i / w);
       goto out;
     }
   e->vocab = (int)v;
@@ -101,7 +93,7 @@ static int run_ids(struct vlff_text_encoder *e, const int32_t *ids, int eot, flo
   struct vlff_tensor t;
   if (vlff_dnn_run(e->net, e->x, shape, 3, &t, 1, err, errlen) != 1) return -1;
   if (t.ndim != 3 || t.shape[0] != 1 || t.shape[1] != VLFF_CLIP_CONTEXT || (e->dim && t.shape[2] != e->dim)) {
-    set_err(err, errlen, "%s: output of %d dims (%d x %d ...), expected [1,77,D]", e->path, t.ndim, t.shape[0],
+    vlff_errf(err, errlen, "%s: output of %d dims (%d x %d ...), expected [1,77,D]", e->path, t.ndim, t.shape[0],
             t.ndim > 1 ? t.shape[1] : 0);
     return -1;
   }
@@ -113,12 +105,12 @@ static int run_ids(struct vlff_text_encoder *e, const int32_t *ids, int eot, flo
 struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, char *err, size_t errlen) {
   const char *path = cfg->vlm.text_model;
   if (!path[0]) {
-    set_err(err, errlen, "vlm.text_model: no text model configured");
+    vlff_errf(err, errlen, "vlm.text_model: no text model configured");
     return NULL;
   }
   struct vlff_text_encoder *e = calloc(1, sizeof *e);
   if (!e) {
-    set_err(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", path);
     return NULL;
   }
   snprintf(e->path, sizeof e->path, "%s", path);
@@ -129,7 +121,7 @@ struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, 
   if (load_table(e, tpath, err, errlen)) goto fail;
   e->x = malloc((size_t)VLFF_CLIP_CONTEXT * e->width * sizeof *e->x);
   if (!e->x) {
-    set_err(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", path);
     goto fail;
   }
   bool cuda = false;
@@ -139,12 +131,12 @@ struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, 
   int eot = vlff_tokenizer_context(e->tok, "a photo of a chair.", ids, why, sizeof why);
   int d = eot < 0 ? -1 : run_ids(e, ids, eot, NULL, why, sizeof why);
   if (d < 0) {
-    set_err(err, errlen, "%s: probe inference failed (does the model match %s's width %d?): %s", path, tpath,
+    vlff_errf(err, errlen, "%s: probe inference failed (does the model match %s's width %d?): %s", path, tpath,
             e->width, why);
     goto fail;
   }
   if (d != cfg->field.feature_dim) {
-    set_err(err, errlen, "%s: embeddings have D=%d, but field.feature_dim is %d", path, d, cfg->field.feature_dim);
+    vlff_errf(err, errlen, "%s: embeddings have D=%d, but field.feature_dim is %d", path, d, cfg->field.feature_dim);
     goto fail;
   }
   e->dim = d;
@@ -154,7 +146,7 @@ struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, 
     if (!isfinite(probe[i])) prc = -1;
   free(probe);
   if (prc) {
-    set_err(err, errlen, "%s: probe inference gave non-finite embeddings (corrupt weights?)", path);
+    vlff_errf(err, errlen, "%s: probe inference gave non-finite embeddings (corrupt weights?)", path);
     goto fail;
   }
   VLFF_INFO("vlm", "%s: text encoder, width %d -> D=%d on %s", path, e->width, d, cuda ? "CUDA" : "CPU");
@@ -203,12 +195,12 @@ static int apply_template(const char *templ, const char *prompt, char *out, size
 
 int vlff_text_encoder_encode(struct vlff_text_encoder *e, const char *prompt, float *out, char *err, size_t errlen) {
   if (!e || !prompt || !out) {
-    set_err(err, errlen, "text encoder: NULL argument");
+    vlff_errf(err, errlen, "text encoder: NULL argument");
     return -1;
   }
   char text[TEMPLATED_MAX];
   if (apply_template(e->templ, prompt, text, sizeof text)) {
-    set_err(err, errlen, "prompt '%.40s': longer than %d bytes with its template", prompt, TEMPLATED_MAX - 1);
+    vlff_errf(err, errlen, "prompt '%.40s': longer than %d bytes with its template", prompt, TEMPLATED_MAX - 1);
     return -1;
   }
   for (int i = 0; i < VLFF_TEXT_CACHE; i++)
@@ -223,20 +215,20 @@ int vlff_text_encoder_encode(struct vlff_text_encoder *e, const char *prompt, fl
   /* A literal <|endoftext|> would move CLIP's argmax read-out. */
   for (int i = 1; i < eot; i++)
     if (ids[i] == VLFF_CLIP_SOT || ids[i] == VLFF_CLIP_EOT) {
-      set_err(err, errlen, "prompt '%.40s': contains a CLIP special token", prompt);
+      vlff_errf(err, errlen, "prompt '%.40s': contains a CLIP special token", prompt);
       return -1;
     }
   if (run_ids(e, ids, eot, out, err, errlen)) return -1;
   double ss = 0;
   for (int i = 0; i < e->dim; i++) {
     if (!isfinite(out[i])) {
-      set_err(err, errlen, "prompt '%.40s': non-finite embedding", prompt);
+      vlff_errf(err, errlen, "prompt '%.40s': non-finite embedding", prompt);
       return -1;
     }
     ss += (double)out[i] * out[i];
   }
   if (ss <= 0) {
-    set_err(err, errlen, "prompt '%.40s': zero embedding", prompt);
+    vlff_errf(err, errlen, "prompt '%.40s': zero embedding", prompt);
     return -1;
   }
   float s = (float)(1.0 / sqrt(ss));

@@ -18,6 +18,7 @@
 #include <zlib.h>
 
 #include "unicode_tables.h"
+#include "log.h"
 
 #define NUM_MERGES (49152 - 256 - 2)  /* the reference's merges[1:49152-256-2+1] */
 #define MAX_FILE_BYTES (64u << 20)    /* a gzip bomb stops here */
@@ -38,14 +39,6 @@ struct vlff_tokenizer {
   int32_t byte_eow[256];           /* byte -> id of its symbol + "</w>" */
 };
 
-static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 static uint64_t fnv1a(const char *s, size_t n) {
   uint64_t h = 1469598103934665603ull;
@@ -435,11 +428,11 @@ static bool match_ascii(const uint32_t *s, size_t n, size_t i, const char *lit) 
 long vlff_tokenizer_encode(const struct vlff_tokenizer *t, const char *text, size_t len, int32_t *ids, size_t cap,
                            char *err, size_t errlen) {
   if (!t || (!text && len)) {
-    set_err(err, errlen, "tokenizer: NULL argument");
+    vlff_errf(err, errlen, "tokenizer: NULL argument");
     return -1;
   }
   if (len > VLFF_TOKENIZER_MAX_TEXT) {
-    set_err(err, errlen, "prompt: %zu bytes, longer than the limit of %d", len, VLFF_TOKENIZER_MAX_TEXT);
+    vlff_errf(err, errlen, "prompt: %zu bytes, longer than the limit of %d", len, VLFF_TOKENIZER_MAX_TEXT);
     return -1;
   }
   uint32_t *buf = malloc((3 * len + 1) * sizeof *buf);
@@ -447,13 +440,13 @@ long vlff_tokenizer_encode(const struct vlff_tokenizer *t, const char *text, siz
   int32_t *word = malloc((4 * len + 1) * sizeof *word);
   long count = -1;
   if (!buf || !tmp || !word) {
-    set_err(err, errlen, "tokenizer: out of memory");
+    vlff_errf(err, errlen, "tokenizer: out of memory");
     goto out;
   }
   size_t bad = 0;
   long ncp = utf8_decode(text, len, buf, &bad);
   if (ncp < 0) {
-    set_err(err, errlen, "prompt: invalid UTF-8 at byte %zu", bad);
+    vlff_errf(err, errlen, "prompt: invalid UTF-8 at byte %zu", bad);
     goto out;
   }
   size_t n = clean(buf, (size_t)ncp, tmp);
@@ -509,7 +502,7 @@ out:
 int vlff_tokenizer_context(const struct vlff_tokenizer *t, const char *text, int32_t out[VLFF_CLIP_CONTEXT],
                            char *err, size_t errlen) {
   if (!text) {
-    set_err(err, errlen, "prompt: NULL");
+    vlff_errf(err, errlen, "prompt: NULL");
     return -1;
   }
   memset(out, 0, VLFF_CLIP_CONTEXT * sizeof *out);
@@ -517,7 +510,7 @@ int vlff_tokenizer_context(const struct vlff_tokenizer *t, const char *text, int
   if (n < 0) return -1;
   if (n > VLFF_CLIP_CONTEXT - 2) {
     memset(out, 0, VLFF_CLIP_CONTEXT * sizeof *out);
-    set_err(err, errlen, "prompt '%.40s': %ld tokens, more than the %d CLIP's context holds", text, n,
+    vlff_errf(err, errlen, "prompt '%.40s': %ld tokens, more than the %d CLIP's context holds", text, n,
             VLFF_CLIP_CONTEXT - 2);
     return -1;
   }
@@ -531,7 +524,7 @@ int vlff_tokenizer_context(const struct vlff_tokenizer *t, const char *text, int
 static char *read_gz(const char *path, size_t *len, char *err, size_t errlen) {
   gzFile f = gzopen(path, "rb");
   if (!f) {
-    set_err(err, errlen, "%s: cannot open BPE merges file: %s", path, errno ? strerror(errno) : "out of memory");
+    vlff_errf(err, errlen, "%s: cannot open BPE merges file: %s", path, errno ? strerror(errno) : "out of memory");
     return NULL;
   }
   size_t cap = 4u << 20, n = 0;
@@ -539,7 +532,7 @@ static char *read_gz(const char *path, size_t *len, char *err, size_t errlen) {
   while (buf) {
     if (n == cap) {
       if (cap >= MAX_FILE_BYTES) {
-        set_err(err, errlen, "%s: BPE merges file decompresses to more than %u MiB: not a merges file", path,
+        vlff_errf(err, errlen, "%s: BPE merges file decompresses to more than %u MiB: not a merges file", path,
                 MAX_FILE_BYTES >> 20);
         goto fail;
       }
@@ -551,21 +544,21 @@ static char *read_gz(const char *path, size_t *len, char *err, size_t errlen) {
     if (r < 0) {
       int e;
       const char *m = gzerror(f, &e);
-      set_err(err, errlen, "%s: corrupt BPE merges file (gzip: %s)", path, m);
+      vlff_errf(err, errlen, "%s: corrupt BPE merges file (gzip: %s)", path, m);
       goto fail;
     }
     if (r == 0) break;
     n += (size_t)r;
   }
   if (!buf) {
-    set_err(err, errlen, "%s: out of memory reading BPE merges file", path);
+    vlff_errf(err, errlen, "%s: out of memory reading BPE merges file", path);
     gzclose(f);
     return NULL;
   }
   int e;
   const char *m = gzerror(f, &e);
   if (e != Z_OK) {
-    set_err(err, errlen, "%s: truncated or corrupt BPE merges file (gzip: %s)", path, m);
+    vlff_errf(err, errlen, "%s: truncated or corrupt BPE merges file (gzip: %s)", path, m);
     goto fail;
   }
   gzclose(f);
@@ -580,7 +573,7 @@ fail:
 
 struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t errlen) {
   if (!path || !*path) {
-    set_err(err, errlen, "vlm.bpe_vocab: no BPE merges file configured");
+    vlff_errf(err, errlen, "vlm.bpe_vocab: no BPE merges file configured");
     return NULL;
   }
   size_t len = 0;
@@ -588,7 +581,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
   if (!text) return NULL;
   struct vlff_tokenizer *t = calloc(1, sizeof *t);
   if (!t) {
-    set_err(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", path);
     free(text);
     return NULL;
   }
@@ -610,7 +603,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
     char *s = malloc(ul + 5), *s2 = malloc(ul + 5);
     if (!s || !s2) {
       free(s), free(s2);
-      set_err(err, errlen, "%s: out of memory", path);
+      vlff_errf(err, errlen, "%s: out of memory", path);
       goto fail;
     }
     memcpy(s, u, ul), s[ul] = 0;
@@ -623,7 +616,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
   /* Header line, then NUM_MERGES lines "a b". */
   char *p = strchr(text, '\n');
   if (!p || !strstr(text, "#version") || (size_t)(p - text) > 200 || memchr(text, 0, len)) {
-    set_err(err, errlen, "%s:1: expected a BPE merges header ('#version: ...'), not a CLIP merges file", path);
+    vlff_errf(err, errlen, "%s:1: expected a BPE merges header ('#version: ...'), not a CLIP merges file", path);
     goto fail;
   }
   p++;
@@ -632,7 +625,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
     char *eol = strchr(p, '\n');
     size_t ll = eol ? (size_t)(eol - p) : strlen(p);
     if (!ll && !eol) {
-      set_err(err, errlen, "%s: only %d merges, expected %d (truncated file?)", path, r, NUM_MERGES);
+      vlff_errf(err, errlen, "%s: only %d merges, expected %d (truncated file?)", path, r, NUM_MERGES);
       goto fail;
     }
     size_t bad_at;
@@ -640,7 +633,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
     size_t sp = 0;
     while (sp < ll && p[sp] != ' ') sp++;
     if (sp == 0 || sp >= ll - 1 || sp >= sizeof a || ll - sp - 1 >= sizeof b || memchr(p + sp + 1, ' ', ll - sp - 1)) {
-      set_err(err, errlen, "%s:%d: expected a merge 'a b' (two symbols, one space), got '%.*s'", path, line,
+      vlff_errf(err, errlen, "%s:%d: expected a merge 'a b' (two symbols, one space), got '%.*s'", path, line,
               (int)(ll > 60 ? 60 : ll), p);
       goto fail;
     }
@@ -650,18 +643,18 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
     long ok = cps ? utf8_decode(p, ll, cps, &bad_at) : -1;
     free(cps);
     if (ok < 0) {
-      set_err(err, errlen, "%s:%d: invalid UTF-8 in merge", path, line);
+      vlff_errf(err, errlen, "%s:%d: invalid UTF-8 in merge", path, line);
       goto fail;
     }
     int32_t ia = str_lookup(t, a, sp), ib = str_lookup(t, b, ll - sp - 1);
     if (ia < 0 || ib < 0) {
-      set_err(err, errlen, "%s:%d: merge of unknown symbol '%s' (corrupt merges file)", path, line, ia < 0 ? a : b);
+      vlff_errf(err, errlen, "%s:%d: merge of unknown symbol '%s' (corrupt merges file)", path, line, ia < 0 ? a : b);
       goto fail;
     }
     size_t nl = sp + (ll - sp - 1);
     char *s = malloc(nl + 1);
     if (!s) {
-      set_err(err, errlen, "%s: out of memory", path);
+      vlff_errf(err, errlen, "%s: out of memory", path);
       goto fail;
     }
     memcpy(s, a, sp), memcpy(s + sp, b, ll - sp - 1), s[nl] = 0;
@@ -672,7 +665,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
   t->strings[VLFF_CLIP_SOT] = strdup("<|startoftext|>");
   t->strings[VLFF_CLIP_EOT] = strdup("<|endoftext|>");
   if (!t->strings[VLFF_CLIP_SOT] || !t->strings[VLFF_CLIP_EOT]) {
-    set_err(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", path);
     goto fail;
   }
   str_insert(t, VLFF_CLIP_SOT);
