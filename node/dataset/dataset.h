@@ -12,7 +12,11 @@
  *    features.hdf              HDF5 dataset features/<name>, [N,H,W,C] float16
  *    gt_semantic/<stem>.png    8- or 16-bit class ids 0..K-1; >= K (255) = unlabelled
  *    points.ply (or mesh.ply)  labelled point set: vertex x,y,z + "label"
- *    prompt_embeddings.txt     the prompt embeddings file (below)
+ *    prompt_embeddings.txt     prompt -> vector, in the vlff-embeddings format
+ *                              (node/vlm/embeddings.h: read with
+ *                              vlff_embeddings_load, written with
+ *                              vlff_embeddings_save); ground-truth id k is
+ *                              record k
  *  ScanNet export layout (read only): color/<i>.jpg, depth/<i>.png (uint16
  *  mm), pose/<i>.txt CAMERA-TO-WORLD, intrinsic/intrinsic_color.txt; frames
  *  whose pose is non-finite (ScanNet marks lost tracking with -inf) are
@@ -20,12 +24,6 @@
  *  Frames are matched by file stem; stems sort numerically when all are
  *  integers, otherwise by name. Depth of a different size than rgb is
  *  resampled (nearest) to the rgb size, so one set of intrinsics serves both.
- *
- * Prompt embeddings file (text, UTF-8):
- *    # comment lines start with '#'
- *    <prompt text><TAB><v1> <v2> ... <vD>
- *  one record per line; every record has the same D; values finite; the
- *  vector non-zero; prompt text 1..63 bytes without tabs, unique.
  *
  * Contract
  *  - Functions returning int give 0 on success, -1 on error with one line in
@@ -139,22 +137,6 @@ int vlff_ply_read(const char *path, struct vlff_points *p, char *err, size_t err
  * colours, may be NULL); uchar label. */
 int vlff_ply_write(const char *path, const float *xyz, const uint8_t *rgb, const uint8_t *label,
                    size_t n, char *err, size_t errlen);
-
-/* Prompt embeddings. expect_dim > 0 also checks D. */
-struct vlff_prompt_embeddings {
-  int count, dim;
-  char (*text)[VLFF_DS_NAME];
-  float *vec;     /* [count][dim] as stored */
-};
-void vlff_prompt_embeddings_free(struct vlff_prompt_embeddings *e);
-int vlff_prompt_embeddings_parse(const char *buf, size_t len, const char *name, int expect_dim,
-                                 struct vlff_prompt_embeddings *e, char *err, size_t errlen);
-int vlff_prompt_embeddings_read(const char *path, int expect_dim, struct vlff_prompt_embeddings *e,
-                                char *err, size_t errlen);
-int vlff_prompt_embeddings_write(const char *path, const char *const *text, const float *vec,
-                                 int count, int dim, char *err, size_t errlen);
-/* The vector of `text` in e (exact match), or NULL. */
-const float *vlff_prompt_embeddings_find(const struct vlff_prompt_embeddings *e, const char *text);
 
 /* Whole-file read with a size cap; *buf is NUL-terminated, caller frees. */
 int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);

@@ -26,6 +26,7 @@
 
 #include "config.h"
 #include "dataset.h"
+#include "embeddings.h"
 #include "field.h"
 #include "metrics.h"
 #include "sim.h"
@@ -222,18 +223,18 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
   snprintf(p, sizeof p, "%s/points.ply", dir);
   if (access(p, R_OK) != 0) snprintf(p, sizeof p, "%s/mesh.ply", dir);
   if (vlff_ply_read(p, &sc->pts, err, sizeof err) < 0) die("%s", err);
-  struct vlff_prompt_embeddings pe;
   if (cfg->prompts.embeddings[0]) snprintf(p, sizeof p, "%s", cfg->prompts.embeddings);
   else snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
-  if (vlff_prompt_embeddings_read(p, sc->D, &pe, err, sizeof err) < 0) die("%s", err);
-  if (pe.count > MAXK) die("%s: %d prompts, at most %d", p, pe.count, MAXK);
+  struct vlff_embeddings *pe = vlff_embeddings_load(p, sc->D, err, sizeof err);
+  if (!pe) die("%s", err);
+  if (vlff_embeddings_count(pe) > MAXK) die("%s: %d prompts, at most %d", p, vlff_embeddings_count(pe), MAXK);
   /* ground-truth id k is record k of the embeddings file */
-  sc->K = pe.count;
+  sc->K = vlff_embeddings_count(pe);
   for (int k = 0; k < sc->K; k++) {
-    snprintf(sc->names[k], VLFF_PROMPT_LEN, "%s", pe.text[k]);
-    memcpy(sc->emb + (size_t)k * sc->D, pe.vec + (size_t)k * sc->D, (size_t)sc->D * sizeof(float));
+    snprintf(sc->names[k], VLFF_PROMPT_LEN, "%s", vlff_embeddings_prompt(pe, k));
+    memcpy(sc->emb + (size_t)k * sc->D, vlff_embeddings_vector(pe, k), (size_t)sc->D * sizeof(float));
   }
-  vlff_prompt_embeddings_free(&pe);
+  vlff_embeddings_free(pe);
   if (ds.has_bbox) {
     memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
     memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);

@@ -14,7 +14,8 @@
  *
  * Dataset: --write-dataset DIR writes sim.frames frames in the reference
  * layout (see node/dataset/dataset.h), the labelled point set points.ply and
- * prompt_embeddings.txt for the active prompt set.
+ * prompt_embeddings.txt (vlff-embeddings format, the same file the node
+ * reads as prompts.embeddings) for the active prompt set.
  */
 #include <errno.h>
 #include <signal.h>
@@ -25,6 +26,7 @@
 
 #include "config.h"
 #include "dataset.h"
+#include "embeddings.h"
 #include "log.h"
 #include "sim.h"
 #include "vlff/shm.h"
@@ -108,7 +110,7 @@ static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, cons
     vlff_sim_text_embedding(s, set->text[k], emb + (size_t)k * D);
   }
   snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
-  rc = vlff_prompt_embeddings_write(p, names, emb, set->count, D, err, sizeof err);
+  rc = vlff_embeddings_save(p, D, set->count, names, emb, err, sizeof err);
   free(emb);
   if (rc < 0) {
     fprintf(stderr, "vlff-sim: %s\n", err);

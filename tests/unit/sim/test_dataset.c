@@ -17,6 +17,7 @@
 
 #include "config.h"
 #include "dataset.h"
+#include "embeddings.h"
 #include "sim.h"
 
 #define NF 4
@@ -97,7 +98,7 @@ static void write_dataset(struct fixture *x, const char *name, char *path) {
   const char *names[VLFF_SIM_CLASSES];
   for (int k = 0; k < VLFF_SIM_CLASSES; k++) names[k] = vlff_sim_class_name(k);
   snprintf(p, sizeof p, "%s/prompt_embeddings.txt", path);
-  if (vlff_prompt_embeddings_write(p, names, x->emb, VLFF_SIM_CLASSES, 16, err, sizeof err) < 0) fail_msg("%s", err);
+  if (vlff_embeddings_save(p, 16, VLFF_SIM_CLASSES, names, x->emb, err, sizeof err) < 0) fail_msg("%s", err);
 }
 
 static void test_round_trip_exact(void **state) {
@@ -136,15 +137,22 @@ static void test_round_trip_exact(void **state) {
   assert_memory_equal(pts.xyz, x->pts.xyz, pts.n * 12);
   assert_memory_equal(pts.label, x->pts.label, pts.n);
   vlff_points_free(&pts);
-  struct vlff_prompt_embeddings e;
+  /* The scene's embeddings file is the node's prompts.embeddings format:
+   * ground-truth id k is record k, vectors bit-exact. */
   snprintf(p, sizeof p, "%s/prompt_embeddings.txt", path);
-  if (vlff_prompt_embeddings_read(p, 16, &e, err, sizeof err) < 0) fail_msg("%s", err);
-  assert_int_equal(e.count, VLFF_SIM_CLASSES);
-  assert_memory_equal(e.vec, x->emb, sizeof x->emb);
-  assert_string_equal(e.text[15], "shower curtain");
-  assert_non_null(vlff_prompt_embeddings_find(&e, "desk"));
-  assert_null(vlff_prompt_embeddings_find(&e, "mug"));
-  vlff_prompt_embeddings_free(&e);
+  struct vlff_embeddings *e = vlff_embeddings_load(p, 16, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  assert_int_equal(vlff_embeddings_dim(e), 16);
+  assert_int_equal(vlff_embeddings_count(e), VLFF_SIM_CLASSES);
+  for (int k = 0; k < VLFF_SIM_CLASSES; k++) {
+    assert_string_equal(vlff_embeddings_prompt(e, k), vlff_sim_class_name(k));
+    assert_memory_equal(vlff_embeddings_vector(e, k), x->emb + (size_t)k * 16, 16 * sizeof(float));
+  }
+  assert_string_equal(vlff_embeddings_prompt(e, 15), "shower curtain");
+  assert_non_null(vlff_embeddings_lookup(e, "desk"));
+  assert_null(vlff_embeddings_lookup(e, "mug"));
+  vlff_embeddings_free(e);
+  assert_null(vlff_embeddings_load(p, 512, err, sizeof err)); /* another D is refused */
   /* the pose files hold world-to-camera */
   snprintf(p, sizeof p, "%s/pose/00001.txt", path);
   uint8_t *buf;
@@ -267,30 +275,6 @@ static void test_scannet_layout(void **state) {
   vlff_dataset_close(&ds);
 }
 
-static void test_prompt_embeddings_validation(void **state) {
-  (void)state;
-  struct vlff_prompt_embeddings e;
-  char err[512];
-  const char ok[] = "# comment\nchair\t1 0 0\nsofa bed\t0 1 0\n";
-  assert_int_equal(vlff_prompt_embeddings_parse(ok, strlen(ok), "ok.txt", 3, &e, err, sizeof err), 0);
-  assert_int_equal(e.count, 2);
-  assert_string_equal(e.text[1], "sofa bed");
-  vlff_prompt_embeddings_free(&e);
-  struct {
-    const char *text, *want;
-  } bad[] = {
-      {"chair\t1 0 0\nsofa\t0 1\n", "e.txt:2"},        {"chair\t1 0 nan\n", "not finite"},
-      {"chair\t0 0 0\n", "zero"},                       {"chair 1 0 0\n", "TAB"},
-      {"chair\t1 0 0\nchair\t0 1 0\n", "twice"},        {"chair\t1 x 0\n", "not a number"},
-      {"chair\t1 0\n", "expected D=3"},                 {"# nothing\n", "no records"},
-  };
-  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
-    err[0] = 0;
-    assert_int_equal(vlff_prompt_embeddings_parse(bad[i].text, strlen(bad[i].text), "e.txt", 3, &e, err, sizeof err), -1);
-    if (!strstr(err, bad[i].want)) fail_msg("case %zu: '%s' lacks '%s'", i, err, bad[i].want);
-  }
-}
-
 static void test_ply_formats(void **state) {
   (void)state;
   struct vlff_points p;
@@ -316,7 +300,6 @@ int main(void) {
       cmocka_unit_test(test_round_trip_exact),
       cmocka_unit_test(test_malformed),
       cmocka_unit_test(test_scannet_layout),
-      cmocka_unit_test(test_prompt_embeddings_validation),
       cmocka_unit_test(test_ply_formats),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
