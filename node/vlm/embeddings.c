@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include "log.h"
 
 #define PROMPT_MAX 63
 
@@ -25,14 +26,6 @@ struct vlff_embeddings {
   float *vectors;
 };
 
-static void set_err(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static void set_err(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
 
 /* Valid UTF-8 without control characters (tabs and newlines included). */
 static bool prompt_ok(const char *s, size_t n) {
@@ -66,7 +59,7 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
                                               char *err, size_t errlen) {
   if (!name) name = "embeddings";
   if (!buf || len > VLFF_EMBEDDINGS_MAX_BYTES) {
-    set_err(err, errlen, "%s: larger than %u MiB", name, VLFF_EMBEDDINGS_MAX_BYTES >> 20);
+    vlff_errf(err, errlen, "%s: larger than %u MiB", name, VLFF_EMBEDDINGS_MAX_BYTES >> 20);
     return NULL;
   }
   struct vlff_embeddings *e = calloc(1, sizeof *e);
@@ -84,12 +77,12 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
     line[ll] = 0;
     pos += ll + (nl ? 1 : 0);
     if (memchr(line, 0, ll)) {
-      set_err(err, errlen, "%s:%d: NUL byte", name, lineno);
+      vlff_errf(err, errlen, "%s:%d: NUL byte", name, lineno);
       goto fail;
     }
     if (!have_magic) {
       if (strcmp(line, "vlff-embeddings 1")) {
-        set_err(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%.40s'", name, lineno, line);
+        vlff_errf(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%.40s'", name, lineno, line);
         goto fail;
       }
       have_magic = true;
@@ -99,11 +92,11 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
       char *end;
       long d = strncmp(line, "dim ", 4) ? 0 : strtol(line + 4, &end, 10);
       if (d < 1 || d > 4096 || *end) {
-        set_err(err, errlen, "%s:%d: expected 'dim N' with N in 1..4096, got '%.40s'", name, lineno, line);
+        vlff_errf(err, errlen, "%s:%d: expected 'dim N' with N in 1..4096, got '%.40s'", name, lineno, line);
         goto fail;
       }
       if (expected_dim && d != expected_dim) {
-        set_err(err, errlen, "%s:%d: vectors have dim %ld, but field.feature_dim is %d", name, lineno, d, expected_dim);
+        vlff_errf(err, errlen, "%s:%d: vectors have dim %ld, but field.feature_dim is %d", name, lineno, d, expected_dim);
         goto fail;
       }
       e->dim = (int)d;
@@ -112,23 +105,23 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
     if (!ll || line[0] == '#') continue;
     char *tab = strchr(line, '\t');
     if (!tab) {
-      set_err(err, errlen, "%s:%d: expected 'prompt<TAB>numbers'", name, lineno);
+      vlff_errf(err, errlen, "%s:%d: expected 'prompt<TAB>numbers'", name, lineno);
       goto fail;
     }
     size_t pl = (size_t)(tab - line);
     if (pl > PROMPT_MAX || !prompt_ok(line, pl)) {
-      set_err(err, errlen, "%s:%d: prompt must be 1..%d bytes of UTF-8 without control characters", name, lineno,
+      vlff_errf(err, errlen, "%s:%d: prompt must be 1..%d bytes of UTF-8 without control characters", name, lineno,
               PROMPT_MAX);
       goto fail;
     }
     *tab = 0;
     for (int i = 0; i < e->count; i++)
       if (!strcmp(e->prompts[i], line)) {
-        set_err(err, errlen, "%s:%d: duplicate prompt '%s'", name, lineno, line);
+        vlff_errf(err, errlen, "%s:%d: duplicate prompt '%s'", name, lineno, line);
         goto fail;
       }
     if (e->count == VLFF_EMBEDDINGS_MAX) {
-      set_err(err, errlen, "%s:%d: more than %d prompts", name, lineno, VLFF_EMBEDDINGS_MAX);
+      vlff_errf(err, errlen, "%s:%d: more than %d prompts", name, lineno, VLFF_EMBEDDINGS_MAX);
       goto fail;
     }
     if (e->count == cap) {
@@ -147,18 +140,18 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
     double ss = 0;
     for (int k = 0; k < e->dim; k++) {
       if (k && *p++ != ' ') {
-        set_err(err, errlen, "%s:%d: expected %d numbers separated by single spaces, got %d", name, lineno, e->dim, k);
+        vlff_errf(err, errlen, "%s:%d: expected %d numbers separated by single spaces, got %d", name, lineno, e->dim, k);
         goto fail;
       }
       if (*p == ' ' || *p == 0 || *p == '\t') {
-        set_err(err, errlen, "%s:%d: expected %d numbers, got %d", name, lineno, e->dim, k);
+        vlff_errf(err, errlen, "%s:%d: expected %d numbers, got %d", name, lineno, e->dim, k);
         goto fail;
       }
       char *end;
       errno = 0;
       float f = strtof(p, &end);
       if (end == p || (*end && *end != ' ') || !isfinite(f) || errno == ERANGE) {
-        set_err(err, errlen, "%s:%d: number %d is not a finite float", name, lineno, k + 1);
+        vlff_errf(err, errlen, "%s:%d: number %d is not a finite float", name, lineno, k + 1);
         goto fail;
       }
       v[k] = f;
@@ -166,28 +159,28 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
       p = end;
     }
     if (*p) {
-      set_err(err, errlen, "%s:%d: more than %d numbers", name, lineno, e->dim);
+      vlff_errf(err, errlen, "%s:%d: more than %d numbers", name, lineno, e->dim);
       goto fail;
     }
     if (!(ss > 0)) {
-      set_err(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, line);
+      vlff_errf(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, line);
       goto fail;
     }
     memcpy(e->prompts[e->count], line, pl + 1);
     e->count++;
   }
   if (!have_magic || !e->dim) {
-    set_err(err, errlen, "%s: missing '%s' header line", name, have_magic ? "dim N" : "vlff-embeddings 1");
+    vlff_errf(err, errlen, "%s: missing '%s' header line", name, have_magic ? "dim N" : "vlff-embeddings 1");
     goto fail;
   }
   if (!e->count) {
-    set_err(err, errlen, "%s: no prompts", name);
+    vlff_errf(err, errlen, "%s: no prompts", name);
     goto fail;
   }
   free(line);
   return e;
 oom:
-  set_err(err, errlen, "%s: out of memory", name);
+  vlff_errf(err, errlen, "%s: out of memory", name);
 fail:
   free(line);
   vlff_embeddings_free(e);
@@ -197,7 +190,7 @@ fail:
 struct vlff_embeddings *vlff_embeddings_load(const char *path, int expected_dim, char *err, size_t errlen) {
   FILE *f = fopen(path, "rb");
   if (!f) {
-    set_err(err, errlen, "%s: cannot open embeddings file: %s", path, strerror(errno));
+    vlff_errf(err, errlen, "%s: cannot open embeddings file: %s", path, strerror(errno));
     return NULL;
   }
   size_t cap = 1u << 16, n = 0;
@@ -220,7 +213,7 @@ struct vlff_embeddings *vlff_embeddings_load(const char *path, int expected_dim,
   bool io = ferror(f);
   fclose(f);
   if (!buf || io) {
-    set_err(err, errlen, "%s: %s", path, buf ? "read error" : "out of memory");
+    vlff_errf(err, errlen, "%s: %s", path, buf ? "read error" : "out of memory");
     free(buf);
     return NULL;
   }
@@ -247,17 +240,17 @@ const float *vlff_embeddings_lookup(const struct vlff_embeddings *e, const char 
 int vlff_embeddings_save(const char *path, int dim, int count, const char *const *prompts, const float *vectors,
                          char *err, size_t errlen) {
   if (!path || dim < 1 || dim > 4096 || count < 1 || count > VLFF_EMBEDDINGS_MAX || !prompts || !vectors) {
-    set_err(err, errlen, "%s: bad arguments (dim %d, count %d)", path ? path : "embeddings", dim, count);
+    vlff_errf(err, errlen, "%s: bad arguments (dim %d, count %d)", path ? path : "embeddings", dim, count);
     return -1;
   }
   for (int i = 0; i < count; i++) {
     if (!prompts[i] || strlen(prompts[i]) > PROMPT_MAX || !prompt_ok(prompts[i], strlen(prompts[i]))) {
-      set_err(err, errlen, "%s: prompt %d is not 1..%d bytes of UTF-8 without control characters", path, i, PROMPT_MAX);
+      vlff_errf(err, errlen, "%s: prompt %d is not 1..%d bytes of UTF-8 without control characters", path, i, PROMPT_MAX);
       return -1;
     }
     for (int k = 0; k < dim; k++)
       if (!isfinite(vectors[(size_t)i * dim + k])) {
-        set_err(err, errlen, "%s: non-finite value in the vector of '%s'", path, prompts[i]);
+        vlff_errf(err, errlen, "%s: non-finite value in the vector of '%s'", path, prompts[i]);
         return -1;
       }
   }
@@ -266,7 +259,7 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
   int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
   if (!f) {
-    set_err(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));
+    vlff_errf(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));
     if (fd >= 0) close(fd);
     return -1;
   }
@@ -279,7 +272,7 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
   bool ok = fflush(f) == 0 && fsync(fileno(f)) == 0;
   ok &= fclose(f) == 0;
   if (!ok || rename(tmp, path)) {
-    set_err(err, errlen, "%s: write failed: %s", path, strerror(errno));
+    vlff_errf(err, errlen, "%s: write failed: %s", path, strerror(errno));
     unlink(tmp);
     return -1;
   }
