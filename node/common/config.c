@@ -146,7 +146,7 @@ static const struct key schema[] = {
     INT("keyframes.memory_mb", keyframes.memory_mb, 1, 1 << 20, 1024),
     INT("keyframes.max_keyframes", keyframes.max_keyframes, 1, 1 << 20, 325),
     INT("keyframes.start_after", keyframes.start_after, 1, 1 << 20, 5),
-    DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0, 100, 0.25),
+    DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0, 100, 0.1),
     INT("keyframes.posecheck_min_steps", keyframes.posecheck_min_steps, 0, 1 << 30, 200),
 
     DBL("publish.rate_hz", publish.rate_hz, 0.01, 1000, 1),

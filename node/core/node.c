@@ -41,7 +41,8 @@
 #define QUEUE_CAP 4
 #define PENDING_CAP 16
 #define LAT_CAP 4096
-#define KF_PROTECT 8 /* newest keyframes never evicted, and given half the rays */
+#define KF_PROTECT 8  /* newest keyframes never evicted, and given half the rays */
+#define KF_HISTORY 32 /* admitted keyframes the pose check compares against */
 
 struct candidate {
   long long id;
@@ -100,8 +101,9 @@ struct vlff_node {
   int lat_n;
   uint64_t pending_t_host[64];
   int pending_lat;
-  float accepted_res[32];      /* residuals of recently admitted keyframes */
-  int n_accepted_res;
+  float accepted_res[KF_HISTORY]; /* pose evidence of recently admitted keyframes */
+  float accepted_inl[KF_HISTORY];
+  int n_accepted;
 };
 
 static double mono_s(void) {
@@ -664,25 +666,32 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
           for (int a = 0; a < 3; a++) wp[a] = m[a * 4] * q[0] + m[a * 4 + 1] * q[1] + m[a * 4 + 2] * q[2] + m[a * 4 + 3];
           hit[i] = lab[i] >= 0 && isfinite(d) && vlff_publisher_surface_known(n->pub, wp);
         }
-      double bar = cfg->keyframes.bad_pose_threshold_m;
-      int k = n->n_accepted_res < 32 ? n->n_accepted_res : 32;
+      struct vlff_pose_evidence ev;
+      double med_r = 0, med_i = 0;
+      int k = n->n_accepted < KF_HISTORY ? n->n_accepted : KF_HISTORY;
       if (k >= 4) {
-        float tmp[32];
-        memcpy(tmp, n->accepted_res, (size_t)k * sizeof tmp[0]);
-        qsort(tmp, (size_t)k, sizeof tmp[0], cmp_float);
-        bar = fmax(bar, 2.5 * tmp[k / 2]);
+        float tr[KF_HISTORY], ti[KF_HISTORY];
+        memcpy(tr, n->accepted_res, (size_t)k * sizeof tr[0]);
+        memcpy(ti, n->accepted_inl, (size_t)k * sizeof ti[0]);
+        qsort(tr, (size_t)k, sizeof tr[0], cmp_float);
+        qsort(ti, (size_t)k, sizeof ti[0], cmp_float);
+        med_r = tr[k / 2], med_i = ti[k / 2];
       }
-      double res;
-      enum vlff_posecheck v = vlff_posecheck(rd, hit, md, px, bar, 0.3, &res);
+      enum vlff_posecheck v = vlff_pose_evidence(rd, hit, md, px, 0.15, &ev);
+      if (v != VLFF_POSE_UNKNOWN) v = vlff_pose_verdict(&ev, cfg->keyframes.bad_pose_threshold_m, med_r, med_i);
       pthread_mutex_lock(&n->slock);
-      n->st.last_pose_residual_m = res;
+      n->st.last_pose_residual_m = ev.residual_m;
       pthread_mutex_unlock(&n->slock);
       if (v == VLFF_POSE_BAD) {
-        VLFF_WARN(TAG, "keyframe %lld rejected: median depth residual %.3f m > %.3f m", c->id, res, bar);
+        VLFF_WARN(TAG, "keyframe %lld rejected: depth residual %.3f m with %.0f %% inliers (recent good: %.3f m, %.0f %%)",
+                  c->id, ev.residual_m, 100 * ev.inlier_frac, med_r, 100 * med_i);
         ok = false;
       } else if (v == VLFF_POSE_OK) {
-        VLFF_DEBUG(TAG, "keyframe %lld pose ok: median depth residual %.3f m <= %.3f m", c->id, res, bar);
-        n->accepted_res[n->n_accepted_res++ % 32] = (float)res;
+        VLFF_DEBUG(TAG, "keyframe %lld pose ok: depth residual %.3f m, %.0f %% inliers", c->id, ev.residual_m,
+                   100 * ev.inlier_frac);
+        n->accepted_res[n->n_accepted % KF_HISTORY] = (float)ev.residual_m;
+        n->accepted_inl[n->n_accepted % KF_HISTORY] = (float)ev.inlier_frac;
+        n->n_accepted++;
       }
     }
   }

@@ -64,25 +64,37 @@ static int cmp_float(const void *a, const void *b) {
   return (x > y) - (x < y);
 }
 
-enum vlff_posecheck vlff_posecheck(const float *rendered, const unsigned char *hit,
-                                   const float *measured, size_t n, double threshold_m,
-                                   double min_frac, double *residual_m) {
-  *residual_m = -1;
+enum vlff_posecheck vlff_pose_evidence(const float *rendered, const unsigned char *hit, const float *measured,
+                                       size_t n, double min_frac, struct vlff_pose_evidence *ev) {
+  ev->residual_m = ev->inlier_frac = -1;
+  ev->usable = 0;
   if (n == 0) return VLFF_POSE_UNKNOWN;
   /* The residuals are sorted in a small stack buffer: callers render the
    * check at low resolution, so n stays small. */
   enum { MAXN = 4096 };
   float r[MAXN];
-  size_t m = 0, step = n > MAXN ? (n + MAXN - 1) / MAXN : 1;
-  size_t considered = 0;
+  size_t m = 0, inliers = 0, step = n > MAXN ? (n + MAXN - 1) / MAXN : 1, considered = 0;
   for (size_t i = 0; i < n; i += step) {
     considered++;
     float d = measured[i], e = rendered[i];
     if (!hit[i] || !(d > 0) || !isfinite(d) || !isfinite(e)) continue;
-    r[m++] = fabsf(e - d);
+    r[m] = fabsf(e - d);
+    inliers += r[m] < 0.1f + 0.05f * d;
+    m++;
   }
-  if ((double)m < min_frac * (double)considered || m == 0) return VLFF_POSE_UNKNOWN;
+  ev->usable = m;
+  if (m == 0 || (double)m < min_frac * (double)considered) return VLFF_POSE_UNKNOWN;
   qsort(r, m, sizeof r[0], cmp_float);
-  *residual_m = r[m / 2];
-  return *residual_m > threshold_m ? VLFF_POSE_BAD : VLFF_POSE_OK;
+  ev->residual_m = r[m / 2];
+  ev->inlier_frac = (double)inliers / (double)m;
+  return VLFF_POSE_OK;
+}
+
+enum vlff_posecheck vlff_pose_verdict(const struct vlff_pose_evidence *ev, double floor_m, double recent_residual,
+                                      double recent_inliers) {
+  if (ev->residual_m < 0) return VLFF_POSE_UNKNOWN;
+  if (ev->residual_m <= floor_m) return VLFF_POSE_OK;
+  if (recent_residual <= 0 || recent_inliers <= 0) return ev->residual_m > 3 * floor_m ? VLFF_POSE_BAD : VLFF_POSE_OK;
+  bool far = ev->residual_m > 1.6 * recent_residual && ev->inlier_frac < 0.8 * recent_inliers;
+  return far ? VLFF_POSE_BAD : VLFF_POSE_OK;
 }

@@ -72,19 +72,34 @@ static void test_posecheck(void **st) {
   enum { N = 100 };
   float ren[N], meas[N];
   unsigned char hit[N];
-  double res;
+  struct vlff_pose_evidence ev;
   for (int i = 0; i < N; i++) ren[i] = 2.0f, meas[i] = 2.02f, hit[i] = 1;
   meas[3] = 9; /* an outlier does not move the median */
-  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_OK);
-  assert_float_equal(res, 0.02, 1e-5);
-  for (int i = 0; i < N; i++) meas[i] = 2.5f;
-  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_BAD);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_OK);
+  assert_float_equal(ev.residual_m, 0.02, 1e-5);
+  assert_float_equal(ev.inlier_frac, 0.99, 1e-9);
+  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0, 0), VLFF_POSE_OK);
+  /* Half the view 0.6 m off: far from what good frames show. */
+  for (int i = 0; i < N; i++) meas[i] = i % 2 ? 2.6f : 2.02f;
+  meas[0] = 2.6f;
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_OK);
+  assert_true(ev.residual_m > 0.5 && ev.inlier_frac < 0.5);
+  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.1, 0.85), VLFF_POSE_BAD);
+  /* The same evidence when good frames disagree as much: a young map. */
+  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.5, 0.5), VLFF_POSE_OK);
+  /* Without history only a gross residual is bad. */
+  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0, 0), VLFF_POSE_BAD);
+  assert_int_equal(vlff_pose_verdict(&ev, 0.3, 0, 0), VLFF_POSE_OK);
+  /* Below the floor is always fine. */
+  ev.residual_m = 0.05;
+  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.01, 0.99), VLFF_POSE_OK);
   /* Too little of the view is known to the map: no verdict. */
   for (int i = 0; i < N; i++) hit[i] = i < 10;
-  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_UNKNOWN);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_UNKNOWN);
+  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.1, 0.9), VLFF_POSE_UNKNOWN);
   /* Invalid measured depth is not evidence. */
   for (int i = 0; i < N; i++) hit[i] = 1, meas[i] = 0;
-  assert_int_equal(vlff_posecheck(ren, hit, meas, N, 0.15, 0.2, &res), VLFF_POSE_UNKNOWN);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_UNKNOWN);
 }
 
 int main(void) {

@@ -211,6 +211,7 @@ static void test_convergence(void **state) {
   struct vlff_config cfg;
   scene_cfg(&cfg, d);
   cfg.train.rays_per_step = SANITIZED ? 256 : 512;
+  cfg.train.samples_per_ray = 32; /* the thresholds were fixed at this budget */
   cfg.train.feature_loss = VLFF_FEAT_LOSS_L1;
   const int steps = CONV_STEPS;
   char err[256];

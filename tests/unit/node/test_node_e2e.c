@@ -366,8 +366,9 @@ static void test_bad_frames(void **state) {
   assert_int_equal(st.frames_lost, 0);
   assert_int_equal(st.frames_invalid, invalid_sent);
   assert_true(lies_sent >= lies_wanted);
-  assert_true(st.poses_rejected >= lies_sent / 2);
-  assert_true(st.poses_rejected <= lies_sent + 2);
+  /* One lie may land where the map cannot judge yet; good frames pass. */
+  assert_true(st.poses_rejected >= lies_sent - 1);
+  assert_true(st.poses_rejected <= lies_sent + 1);
   assert_true(st.iteration > (it_at_lies < 0 ? 0 : it_at_lies));
   vlff_node_destroy(n, false);
   vlff_ring_close(ring);
