@@ -220,7 +220,11 @@ int main(int argc, char **argv) {
     gin = vlff_gpio_in_start(cfg.gpio.chip, cfg.gpio.line, cfg.gpio.debounce_us, cfg.gpio.active_low, on_edge, NULL,
                              err, sizeof err);
     if (!gin) goto gpio_fail;
-    vlff_pipe_set_stamps(pipe, &stamps, (uint64_t)(1e9 / cfg.camera.frame_rate));
+    /* A frame the edge triggered arrives after trigger latency, exposure,
+     * readout and transfer, easily more than a frame period; it is still the
+     * edge's frame. Stamping-only edges must fall within one period. */
+    uint64_t period = (uint64_t)(1e9 / cfg.camera.frame_rate);
+    vlff_pipe_set_stamps(pipe, &stamps, trigger_on_edge && period < 1000000000u ? 1000000000u : period);
   }
   if (0) {
   gpio_fail:

@@ -132,9 +132,22 @@ extern "C" struct vlff_lcam *vlff_lcam_open(const struct vlff_config *cfg, char 
       }
     }
     c = new vlff_lcam();
-    auto cams = g_cm->cameras();
-    std::string want = cfg->camera.device;
-    if (cams.empty()) {
+    // The list holds a reference to every camera: it must be gone before
+    // teardown() stops the manager, or the cameras outlive it.
+    bool none = false;
+    std::string want = cfg->camera.device, list;
+    {
+      auto cams = g_cm->cameras();
+      none = cams.empty();
+      char *end = nullptr;
+      long idx = want.empty() ? 0 : std::strtol(want.c_str(), &end, 10);
+      bool by_index = want.empty() || (end && !*end);
+      for (size_t i = 0; i < cams.size(); i++) {
+        if ((by_index && (long)i == idx) || (!by_index && cams[i]->id() == want)) c->cam = cams[i];
+        list += (i ? ", " : "") + std::to_string(i) + "=" + cams[i]->id();
+      }
+    }
+    if (none) {
       fail(err, errlen, ENODEV,
            "key 'camera.device': libcamera found no cameras at all (no sensor driver bound, or no /dev/media*; "
            "looking for '%s')",
@@ -142,14 +155,7 @@ extern "C" struct vlff_lcam *vlff_lcam_open(const struct vlff_config *cfg, char 
       teardown(c);
       return nullptr;
     }
-    char *end = nullptr;
-    long idx = want.empty() ? 0 : std::strtol(want.c_str(), &end, 10);
-    bool by_index = want.empty() || (end && !*end);
-    for (size_t i = 0; i < cams.size(); i++)
-      if ((by_index && (long)i == idx) || (!by_index && cams[i]->id() == want)) c->cam = cams[i];
     if (!c->cam) {
-      std::string list;
-      for (size_t i = 0; i < cams.size(); i++) list += (i ? ", " : "") + std::to_string(i) + "=" + cams[i]->id();
       fail(err, errlen, ENODEV, "key 'camera.device': no libcamera camera '%s' (have: %s)", want, list);
       teardown(c);
       return nullptr;
