@@ -77,11 +77,7 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
 }
 #endif
 
-static double mono_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
+static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 
 int main(int argc, char **argv) {
   enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT };

@@ -5,6 +5,8 @@
  */
 #include "keyframes.h"
 
+#include "select.h"
+
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>
@@ -67,12 +69,7 @@ double vlff_pose_distance(const double a[16], const double b[16]) {
     double d = a[i * 4 + 3] - b[i * 4 + 3];
     dt += d * d;
   }
-  /* trace(Ra^T Rb) = 1 + 2 cos(theta) */
-  double tr = 0;
-  for (int r = 0; r < 3; r++)
-    for (int c = 0; c < 3; c++) tr += a[r * 4 + c] * b[r * 4 + c];
-  double cosv = fmin(1.0, fmax(-1.0, (tr - 1.0) / 2.0));
-  return sqrt(dt) + 0.5 * acos(cosv);
+  return sqrt(dt) + 0.5 * vlff_pose_angle(a, b);
 }
 
 static void evict_one(struct vlff_kfstore *s) {

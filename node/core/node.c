@@ -106,11 +106,7 @@ struct vlff_node {
   int n_accepted;
 };
 
-static double mono_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
+static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 
 static void candidate_free(struct candidate *c) {
   if (!c) return;
@@ -628,11 +624,6 @@ static void restore_checkpoint(struct vlff_node *n) {
   }
 }
 
-static int cmp_float(const void *a, const void *b) {
-  float x = *(const float *)a, y = *(const float *)b;
-  return (x > y) - (x < y);
-}
-
 /* Render depth at the candidate's pose at low resolution and compare it with
  * what the frame measured, on surfaces the map has already seen measured.
  * The bar adapts to how well the map currently explains good frames: a
@@ -657,13 +648,12 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
     cam.height = h;
     cam.fx /= S, cam.fy /= S, cam.cx /= S, cam.cy /= S;
     if (vlff_field_render(n->field, &cam, NULL, rd, NULL, lab, NULL) == 0) {
-      const double *m = cam.c2w;
       for (int y = 0; y < h; y++)
         for (int x = 0; x < w; x++) {
           size_t i = (size_t)y * w + x;
           md[i] = c->view.depth[(size_t)(y * S + S / 2) * c->view.width + x * S + S / 2];
-          double d = rd[i], q[3] = {(x + 0.5 - cam.cx) / cam.fx * d, (y + 0.5 - cam.cy) / cam.fy * d, d}, wp[3];
-          for (int a = 0; a < 3; a++) wp[a] = m[a * 4] * q[0] + m[a * 4 + 1] * q[1] + m[a * 4 + 2] * q[2] + m[a * 4 + 3];
+          double d = rd[i], wp[3];
+          vlff_unproject(cam.c2w, cam.fx, cam.fy, cam.cx, cam.cy, x + 0.5, y + 0.5, d, wp);
           hit[i] = lab[i] >= 0 && isfinite(d) && vlff_publisher_surface_known(n->pub, wp);
         }
       struct vlff_pose_evidence ev;
@@ -673,9 +663,7 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
         float tr[KF_HISTORY], ti[KF_HISTORY];
         memcpy(tr, n->accepted_res, (size_t)k * sizeof tr[0]);
         memcpy(ti, n->accepted_inl, (size_t)k * sizeof ti[0]);
-        qsort(tr, (size_t)k, sizeof tr[0], cmp_float);
-        qsort(ti, (size_t)k, sizeof ti[0], cmp_float);
-        med_r = tr[k / 2], med_i = ti[k / 2];
+        med_r = vlff_medianf(tr, (size_t)k), med_i = vlff_medianf(ti, (size_t)k);
       }
       enum vlff_posecheck v = vlff_pose_evidence(rd, hit, md, px, 0.15, &ev);
       if (v != VLFF_POSE_UNKNOWN) v = vlff_pose_verdict(&ev, cfg->keyframes.bad_pose_threshold_m, med_r, med_i);

@@ -9,11 +9,11 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "dataset.h"
 #include "log.h"
 #include "metrics.h"
+#include "select.h"
 #include "vlff/shm.h"
 
 #define TAG "publish"
@@ -49,11 +49,7 @@ struct vlff_publisher {
   double last_publish_s, last_heartbeat_s;
 };
 
-static double mono_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
+static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 
 void vlff_publisher_destroy(struct vlff_publisher *p) {
   if (!p) return;
@@ -253,9 +249,9 @@ void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v)
     for (int x = 0; x < v->width; x += stride) {
       float d = v->depth[(size_t)y * v->width + x];
       if (!(d > 0)) continue;
-      double c[3] = {(x + 0.5 - v->cx) / v->fx * d, (y + 0.5 - v->cy) / v->fy * d, d};
-      double w[3];
-      for (int i = 0; i < 3; i++) w[i] = m[i * 4] * c[0] + m[i * 4 + 1] * c[1] + m[i * 4 + 2] * c[2];
+      double hp[3], w[3];
+      vlff_unproject(m, v->fx, v->fy, v->cx, v->cy, x + 0.5, y + 0.5, d, hp);
+      for (int i = 0; i < 3; i++) w[i] = hp[i] - o[i];
       double len = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
       /* March to just before the surface: the surface voxel is a hit, not free. */
       int steps = (int)((len - p->voxel * 0.5) / (p->voxel * 0.5));
@@ -265,7 +261,6 @@ void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v)
         long vi = voxel_of(p, q);
         if (vi >= 0) p->observed[vi] = 1;
       }
-      double hp[3] = {o[0] + w[0], o[1] + w[1], o[2] + w[2]};
       long vi = voxel_of(p, hp);
       if (vi >= 0) {
         p->observed[vi] = 1;

@@ -18,12 +18,17 @@ void vlff_kf_selector_init(struct vlff_kf_selector *s, double rate_hz, double mi
   s->last_t_ns = 0;
 }
 
-static double rotation_deg(const double a[16], const double b[16]) {
+double vlff_pose_angle(const double a[16], const double b[16]) {
   double tr = 0;
   for (int r = 0; r < 3; r++)
     for (int c = 0; c < 3; c++) tr += a[r * 4 + c] * b[r * 4 + c];
-  double cosv = fmin(1.0, fmax(-1.0, (tr - 1.0) / 2.0));
-  return acos(cosv) * 180.0 / M_PI;
+  return acos(fmin(1.0, fmax(-1.0, (tr - 1.0) / 2.0)));
+}
+
+void vlff_unproject(const double m[16], double fx, double fy, double cx, double cy, double u, double v, double d,
+                    double out[3]) {
+  double q[3] = {(u - cx) / fx * d, (v - cy) / fy * d, d};
+  for (int a = 0; a < 3; a++) out[a] = m[a * 4] * q[0] + m[a * 4 + 1] * q[1] + m[a * 4 + 2] * q[2] + m[a * 4 + 3];
 }
 
 bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const double c2w[16]) {
@@ -33,7 +38,7 @@ bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const do
       double dt = 0;
       for (int i = 0; i < 3; i++) dt += pow(c2w[i * 4 + 3] - s->last_c2w[i * 4 + 3], 2);
       bool moved = (s->min_translation_m > 0 && sqrt(dt) >= s->min_translation_m) ||
-                   (s->min_rotation_deg > 0 && rotation_deg(c2w, s->last_c2w) >= s->min_rotation_deg);
+                   (s->min_rotation_deg > 0 && vlff_pose_angle(c2w, s->last_c2w) * 180.0 / M_PI >= s->min_rotation_deg);
       if (!moved) return false;
     }
   }
@@ -64,6 +69,11 @@ static int cmp_float(const void *a, const void *b) {
   return (x > y) - (x < y);
 }
 
+float vlff_medianf(float *v, size_t n) {
+  qsort(v, n, sizeof v[0], cmp_float);
+  return v[n / 2];
+}
+
 enum vlff_posecheck vlff_pose_evidence(const float *rendered, const unsigned char *hit, const float *measured,
                                        size_t n, double min_frac, struct vlff_pose_evidence *ev) {
   ev->residual_m = ev->inlier_frac = -1;
@@ -84,8 +94,7 @@ enum vlff_posecheck vlff_pose_evidence(const float *rendered, const unsigned cha
   }
   ev->usable = m;
   if (m == 0 || (double)m < min_frac * (double)considered) return VLFF_POSE_UNKNOWN;
-  qsort(r, m, sizeof r[0], cmp_float);
-  ev->residual_m = r[m / 2];
+  ev->residual_m = vlff_medianf(r, m);
   ev->inlier_frac = (double)inliers / (double)m;
   return VLFF_POSE_OK;
 }

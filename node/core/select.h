@@ -27,6 +27,18 @@ void vlff_kf_selector_init(struct vlff_kf_selector *s, double rate_hz, double mi
  * last one. */
 bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const double c2w[16]);
 
+/* Angle in radians between two poses' rotations (trace(Ra^T Rb) = 1 + 2 cos). */
+double vlff_pose_angle(const double a[16], const double b[16]);
+
+/* World point seen at pixel (u, v) (continuous coordinates, pixel centres at
+ * +0.5) at depth d along the camera z axis of a camera with these
+ * intrinsics and camera-to-world pose. */
+void vlff_unproject(const double c2w[16], double fx, double fy, double cx, double cy, double u, double v, double d,
+                    double out[3]);
+
+/* Median of n values (n > 0); reorders v. */
+float vlff_medianf(float *v, size_t n);
+
 /* A pose is usable: finite, rotation orthonormal with det +1 (within 1e-3),
  * last row 0 0 0 1. */
 bool vlff_pose_valid(const double c2w[16]);

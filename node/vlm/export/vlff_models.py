@@ -17,6 +17,22 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 
+
+def init_params(module, g, norm_key):
+    """Random weights of realistic scale (no checkpoints here): small biases,
+    norm gains near 1 (named by norm_key), fan-in scaled matrices."""
+    with torch.no_grad():
+        for name, p in module.named_parameters():
+            if name.endswith("bias"):
+                p.copy_(torch.randn(p.shape, generator=g) * 0.02)
+            elif norm_key in name and name.endswith("weight"):
+                p.copy_(1.0 + 0.1 * torch.randn(p.shape, generator=g))
+            elif p.dim() >= 2:
+                fan_in = p[0].numel() if p.shape[0] else 1
+                p.copy_(torch.randn(p.shape, generator=g) / math.sqrt(max(fan_in, 1)))
+            else:
+                p.copy_(torch.randn(p.shape, generator=g) * 0.02)
+
 class Norm(nn.Module):
     """LayerNorm whose affine part is folded into the next Linear at export."""
 
@@ -146,15 +162,7 @@ class ClipText(nn.Module):
 
     def init_random(self, seed):
         g = torch.Generator().manual_seed(seed)
-        with torch.no_grad():
-            for name, p in self.named_parameters():
-                if name.endswith("bias"):
-                    p.copy_(torch.randn(p.shape, generator=g) * 0.02)
-                elif "ln" in name and name.endswith("weight"):
-                    p.copy_(1.0 + 0.1 * torch.randn(p.shape, generator=g))
-                else:
-                    std = 0.02 if p.dim() < 2 else 1.0 / math.sqrt(p.shape[-1])
-                    p.copy_(torch.randn(p.shape, generator=g) * std)
+        init_params(self, g, "ln")
 
     def prepare_export(self):
         for blk in self.transformer.resblocks:
@@ -393,17 +401,8 @@ class LSegImage(nn.Module):
 
     def init_random(self, seed):
         g = torch.Generator().manual_seed(seed)
+        init_params(self, g, "norm")
         with torch.no_grad():
-            for name, p in self.named_parameters():
-                if name.endswith("bias"):
-                    p.copy_(torch.randn(p.shape, generator=g) * 0.02)
-                elif "norm" in name and name.endswith("weight"):
-                    p.copy_(1.0 + 0.1 * torch.randn(p.shape, generator=g))
-                elif p.dim() >= 2:
-                    fan_in = p[0].numel() if p.shape[0] else 1
-                    p.copy_(torch.randn(p.shape, generator=g) / math.sqrt(max(fan_in, 1)))
-                else:
-                    p.copy_(torch.randn(p.shape, generator=g) * 0.02)
             for m in self.modules():
                 if isinstance(m, nn.BatchNorm2d):
                     m.weight.copy_(1.0 + 0.1 * torch.randn(m.weight.shape, generator=g))
