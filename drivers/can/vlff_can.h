@@ -125,6 +125,8 @@ struct vlff_can_stats {
   uint64_t acks_sent;
   uint64_t tx_dropped;      /* frames the kernel refused or that found the link down */
   uint64_t tx_late;         /* heartbeat deadlines missed by more than a period */
+  uint64_t hb_spin_ns;      /* time spent spinning before heartbeats (the price of punctuality) */
+  uint64_t hb_timer_late;   /* heartbeat wakes already past the deadline (the margin fell short) */
   uint64_t cmd_ok;          /* commands passed to the callback */
   uint64_t cmd_malformed;
   uint64_t cmd_unknown;

@@ -169,6 +169,7 @@ static const struct key schema[] = {
     INT("can.ack_id", can.ack_id, 0, 0x7ff, 0x580),
     BOOL("can.fd", can.fd, 0),
     INT("can.rt_priority", can.rt_priority, 0, 99, 10),
+    INT("can.heartbeat_spin_max_us", can.heartbeat_spin_max_us, 0, 20000, 4000),
 
     ENUM("camera.kind", camera.kind, camera_kinds, "sim"),
     STR("camera.device", camera.device, ""),

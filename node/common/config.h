@@ -164,6 +164,7 @@ struct vlff_config {
     int ack_id;
     bool fd;
     int rt_priority;                 /* SCHED_FIFO priority of the CAN thread, 0 = normal */
+    int heartbeat_spin_max_us;       /* cap on the early wake + spin before a heartbeat, 0 = sleep only */
   } can;
 
   struct {
