@@ -134,7 +134,7 @@ int main(int argc, char **argv) {
     vlff_node_status(n, &st);
     ts[ns] = mono_s() - t0;
     m2[ns++] = st.miou2d;
-    if (ns % 20 == 0)
+    if (ns % 10 == 0)
       printf("t=%5.1f s  it %lld  kf %d  2D mIoU %.1f  3D mIoU %.1f\n", ts[ns - 1], st.iteration, st.keyframes,
              st.miou2d, st.miou3d);
   }
