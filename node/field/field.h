@@ -95,5 +95,9 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
 /* float16 helpers shared by every module that handles features. */
 uint16_t vlff_f32_to_f16(float x);
 float vlff_f16_to_f32(uint16_t h);
+/* The same conversions over n values (hardware-assisted where available,
+ * bit-identical to the scalar pair). */
+void vlff_f32_to_f16_n(const float *src, uint16_t *dst, size_t n);
+void vlff_f16_to_f32_n(const uint16_t *src, float *dst, size_t n);
 
 #endif

@@ -434,7 +434,7 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
       if (ray->feat_index >= 0) {
         const struct vlff_view *v = &f->views[ray->view];
         const uint16_t *src = v->features + (size_t)ray->feat_index * D;
-        for (int j = 0; j < D; j++) w->tfeat[j] = vlff_f16_to_f32(src[j]);
+        vlff_f16_to_f32_n(src, w->tfeat, (size_t)D);
         w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_l1, f->scale_feat, gfr) *
                         f->scale_feat;
         float s = 0, ws = w->wsum[r];

@@ -907,7 +907,7 @@ static void render_features(const struct vlff_sim *s, long long index, struct vl
         const float *p = s->proto + (size_t)c * D;
         for (int d = 0; d < D; d++) v[d] += w[c] * p[d];
       }
-      for (int d = 0; d < D; d++) out[d] = vlff_half_from_f32(v[d]);
+      vlff_f32_to_f16_n(v, out, (size_t)D);
     }
   }
 }

@@ -328,6 +328,33 @@ static void test_adam(void **state) {
   assert_true(bits[0] == 0 && bits[1] == 0);
 }
 
+/* The bulk conversions agree bit for bit with the scalar reference over
+ * every binary16 value and over floats near every rounding boundary. */
+static void test_f16_bulk(void **state) {
+  (void)state;
+  enum { N = 65536 };
+  uint16_t *h = malloc(N * sizeof *h), *h2 = malloc(4 * N * sizeof *h2);
+  float *x = malloc(4 * N * sizeof *x), *y = malloc(N * sizeof *y);
+  for (int i = 0; i < N; i++) h[i] = (uint16_t)i;
+  vlff_f16_to_f32_n(h, y, N);
+  for (int i = 0; i < N; i++) {
+    float r = vlff_f16_to_f32(h[i]);
+    if (isnan(r)) assert_true(isnan(y[i]));
+    else assert_memory_equal(&r, &y[i], sizeof r);
+  }
+  /* Each finite half value, and points a quarter, a half (the tie) and
+   * three quarters of the way to the next one. */
+  int m = 0;
+  for (int i = 0; i < N; i++) {
+    float a = vlff_f16_to_f32((uint16_t)i), b = vlff_f16_to_f32((uint16_t)(i + 1));
+    if (!isfinite(a) || !isfinite(b) || ((i + 1) & 0x7fff) == 0) continue;
+    for (int q = 0; q < 4 && m < 4 * N; q++) x[m++] = a + (b - a) * (float)q / 4;
+  }
+  vlff_f32_to_f16_n(x, h2, (size_t)m);
+  for (int i = 0; i < m; i++) assert_int_equal(h2[i], vlff_f32_to_f16(x[i]));
+  free(h), free(h2), free(x), free(y);
+}
+
 static void test_f16(void **state) {
   (void)state;
   const float vals[] = {0.0f, -0.0f, 1.0f, -2.5f, 65504.0f, 6.1035156e-05f, 5.9604645e-08f, 0.333251953125f};
@@ -352,7 +379,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_gemm),   cmocka_unit_test(test_mlp),  cmocka_unit_test(test_encoding),
       cmocka_unit_test(test_render), cmocka_unit_test(test_losses), cmocka_unit_test(test_adam),
-      cmocka_unit_test(test_f16),
+      cmocka_unit_test(test_f16),    cmocka_unit_test(test_f16_bulk),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
