@@ -222,6 +222,11 @@ struct vlff_field {
   int K;
   float *E_, *EW, *EWt, *Eb, *G, *u;
   float bb;
+  /* Cholesky factor of the Gram matrix of [W b]: |W h + s b| = |Rt h + s r12|
+   * and (r22 s), with Rt = R11ᵀ lower triangular ([k][j], zero for k < j);
+   * chol_ok = 0 (rank-deficient W) falls back to G. */
+  float *Rt, *r12, r22;
+  int chol_ok;
   /* step context */
   const struct vlff_view *views;
   float scale_rgb, scale_depth, scale_feat;

@@ -74,6 +74,26 @@ static void pick(const float *logit, int K, float norm, int *label, float *score
  * NULL for 1): |W h + s b|. tmp holds n x H. */
 static void feat_norms(const struct vlff_field *f, const float *h, const float *ws, int n, float *tmp, float *out) {
   const int H = f->H;
+  if (f->chol_ok) {
+    /* tmp = h Rt + s r12, one column block at a time over only the rows of
+     * Rt that are not zero for it (k >= j0). */
+    enum { JB = 32 };
+    for (int j0 = 0; j0 < H; j0 += JB) {
+      int nb = H - j0 < JB ? H - j0 : JB;
+      vlff_gemm(n, nb, H - j0, h + j0, H, 1, f->Rt + (size_t)j0 * H + j0, H, tmp + j0, H, NULL, 0, 0);
+    }
+    for (int i = 0; i < n; i++) {
+      const float *ti = tmp + (size_t)i * H;
+      float s = ws ? ws[i] : 1.0f, q = 0;
+      for (int j = 0; j < H; j++) {
+        float y = ti[j] + s * f->r12[j];
+        q += y * y;
+      }
+      float z = s * f->r22;
+      out[i] = sqrtf(q + z * z);
+    }
+    return;
+  }
   vlff_gemm(n, H, H, h, H, 1, f->G, H, tmp, H, NULL, 0, 0);
   for (int i = 0; i < n; i++) {
     const float *hi = h + (size_t)i * H, *ti = tmp + (size_t)i * H;

@@ -131,6 +131,8 @@ void vlff_field_destroy(struct vlff_field *f) {
   free(f->Eb);
   free(f->G);
   free(f->u);
+  free(f->Rt);
+  free(f->r12);
   free(f);
 }
 
@@ -215,6 +217,8 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->Eb = xalloc((size_t)VLFF_MAX_PROMPTS * fs, &ok);
   f->G = xalloc((size_t)f->H * f->H * fs, &ok);
   f->u = xalloc((size_t)f->H * fs, &ok);
+  f->Rt = xalloc((size_t)f->H * f->H * fs, &ok);
+  f->r12 = xalloc((size_t)f->H * fs, &ok);
   f->work = ok ? calloc((size_t)f->threads, sizeof(struct vlff_work)) : NULL;
   if (!f->work) ok = 0;
   for (int i = 0; ok && i < f->threads; i++) {
@@ -242,6 +246,48 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
 }
 
 long long vlff_field_steps(const struct vlff_field *f) { return f->step; }
+
+/* Cholesky A = RᵀR of A = [[G, u], [uᵀ, |b|^2]] (the Gram matrix of
+ * [W b]), in double. The triangular factor computes a feature norm with
+ * 5/8 of the multiply-adds of the quadratic form through G (blocks of the
+ * zero half are skipped) and as a sum of squares, never negative. */
+static void gram_factor(struct vlff_field *f) {
+  const int H = f->H, n = H + 1;
+  double *a = malloc((size_t)n * n * sizeof(double));
+  f->chol_ok = 0;
+  if (!a) return;
+  for (int i = 0; i < H; i++) {
+    for (int j = 0; j < H; j++) a[(size_t)i * n + j] = f->G[(size_t)i * H + j];
+    a[(size_t)i * n + H] = a[(size_t)H * n + i] = f->u[i];
+  }
+  a[(size_t)H * n + H] = f->bb;
+  /* Upper factor in place, row by row: R[i][j] for j >= i. */
+  int ok = 1;
+  for (int i = 0; i < n && ok; i++) {
+    double d = a[(size_t)i * n + i];
+    for (int k = 0; k < i; k++) d -= a[(size_t)k * n + i] * a[(size_t)k * n + i];
+    /* Relative pivot floor: below it float rounding would dominate. */
+    if (!(d > 1e-6 * (a[(size_t)i * n + i] + 1e-30))) {
+      ok = 0;
+      break;
+    }
+    double r = sqrt(d);
+    a[(size_t)i * n + i] = r;
+    for (int j = i + 1; j < n; j++) {
+      double v = a[(size_t)i * n + j];
+      for (int k = 0; k < i; k++) v -= a[(size_t)k * n + i] * a[(size_t)k * n + j];
+      a[(size_t)i * n + j] = v / r;
+    }
+  }
+  if (ok) {
+    for (int k = 0; k < H; k++)
+      for (int j = 0; j < H; j++) f->Rt[(size_t)k * H + j] = k >= j ? (float)a[(size_t)j * n + k] : 0.0f;
+    for (int j = 0; j < H; j++) f->r12[j] = (float)a[(size_t)j * n + H];
+    f->r22 = (float)a[(size_t)H * n + H];
+    f->chol_ok = 1;
+  }
+  free(a);
+}
 
 void vlff_field_refresh(struct vlff_field *f) {
   float *pm = vlff_mlp_params(f);
@@ -274,6 +320,7 @@ void vlff_field_refresh(struct vlff_field *f) {
     for (int j = 0; j < D; j++) s += Wt[(size_t)h * D + j] * b[j];
     f->u[h] = s;
   }
+  gram_factor(f);
 }
 
 void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *p, int n) {

@@ -73,6 +73,59 @@ static void random_prompts(float *e, int k) {
   for (int i = 0; i < k * D; i++) e[i] = 2.0f * vlff_rng_uniform(&r) - 1.0f;
 }
 
+/* Max |score - best cosine| over n points, the cosine in double from the
+ * unfolded features. */
+static double score_error(struct vlff_field *f, const float *e, int K, size_t n) {
+  float *xyz = calloc(n, 12), *feat = calloc(n, D * 4), *score = calloc(n, 4);
+  int *label = malloc(n * sizeof(int));
+  uint64_t r = 21;
+  for (size_t i = 0; i < n; i++)
+    for (int a = 0; a < 3; a++) xyz[3 * i + a] = -1.5f + 3.0f * vlff_rng_uniform(&r);
+  assert_int_equal(vlff_field_query(f, xyz, n, NULL, feat, label, score, NULL), 0);
+  double worst = 0;
+  for (size_t i = 0; i < n; i++) {
+    double fn = 0, best = -1e30;
+    for (int j = 0; j < D; j++) fn += (double)feat[i * D + j] * feat[i * D + j];
+    for (int k = 0; k < K; k++) {
+      double en = 0, dot = 0;
+      for (int j = 0; j < D; j++) {
+        en += (double)e[k * D + j] * e[k * D + j];
+        dot += (double)e[k * D + j] * feat[i * D + j];
+      }
+      if (dot / sqrt(en * fn) > best) best = dot / sqrt(en * fn);
+    }
+    if (fabs(score[i] - best) > worst) worst = fabs(score[i] - best);
+  }
+  free(xyz), free(feat), free(score), free(label);
+  return worst;
+}
+
+/* Feature norms come from the Cholesky factor of the Gram matrix of [W b]
+ * when it has full rank, and from the Gram matrix itself when it does not;
+ * both give the scores of the unfolded features. */
+static void test_norm_paths(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  cfg_small(&cfg);
+  cfg.field.feature_width = 16; /* H < D: W can have full column rank */
+  struct vlff_field *f = trained(&cfg, 20);
+  const int K = 6;
+  float e[K * D];
+  random_prompts(e, K);
+  char err[256];
+  assert_int_equal(vlff_field_set_prompts(f, e, K, err, sizeof(err)), 0);
+  assert_int_equal(f->chol_ok, 1);
+  assert_true(score_error(f, e, K, 400) < 1e-3);
+  /* Two hidden units with the same output weights: WᵀW is singular. */
+  const struct vlff_mlp *m3 = &f->m3;
+  float *wt = vlff_mlp_params(f) + m3->woff[m3->nl - 1]; /* [H][D] */
+  memcpy(wt + D, wt, D * sizeof(float));
+  vlff_field_refresh(f);
+  assert_int_equal(f->chol_ok, 0);
+  assert_true(score_error(f, e, K, 400) < 1e-3);
+  vlff_field_destroy(f);
+}
+
 /* Labels from folded prompts equal argmax_k cos(E_k, f) computed in double
  * from the unfolded features; scores and margins match too. */
 static void test_folded_equals_unfolded(void **state) {
@@ -322,7 +375,7 @@ static void test_bad_inputs(void **state) {
 
 int main(void) {
   const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_folded_equals_unfolded),
+      cmocka_unit_test(test_folded_equals_unfolded), cmocka_unit_test(test_norm_paths),
       cmocka_unit_test(test_checkpoint),
       cmocka_unit_test(test_determinism),
       cmocka_unit_test(test_bad_inputs),
