@@ -227,6 +227,7 @@ struct vlff_field {
    * chol_ok = 0 (rank-deficient W) falls back to G. */
   float *Rt, *r12, r22;
   int chol_ok;
+  int fold_stale;          /* a step changed W since the fold was computed */
   /* step context */
   const struct vlff_view *views;
   float scale_rgb, scale_depth, scale_feat;
@@ -245,6 +246,8 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
                       float *pslot, float *dencslot, int *nsamples);
 /* Refresh derived data after parameters change (transposes, folded prompts). */
 void vlff_field_refresh(struct vlff_field *f);
+/* Refresh the prompt fold and Gram factor if a step made them stale. */
+void vlff_field_fold(struct vlff_field *f);
 void vlff_field_occupancy_update(struct vlff_field *f, int full);
 /* Draw train.rays_per_step rays into f->rays and set the loss scales;
  * counts = rays with rgb, depth, features (may be NULL). */

@@ -175,6 +175,7 @@ int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *de
   if (!f || (n && !xyz)) return -1;
   if ((label || score || margin) && f->K == 0) return -1;
   if (n > UINT32_MAX) return -1;
+  vlff_field_fold(f);
   /* Batches of at most 2^24 points keep task indices in int range. */
   for (size_t a = 0; a < n;) {
     size_t m = n - a > (size_t)1 << 24 ? (size_t)1 << 24 : n - a;
@@ -376,6 +377,7 @@ int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *
   if (!f || !cam || cam->width <= 0 || cam->height <= 0 || !(cam->fx > 0) || !(cam->fy > 0)) return -1;
   for (int k = 0; k < 16; k++)
     if (!isfinite(cam->c2w[k])) return -1;
+  vlff_field_fold(f);
   if ((label || score) && f->K == 0) return -1;
   struct render_ctx rc = {f, cam, rgb, depth, feature, score, label};
   size_t npx = (size_t)cam->width * cam->height;

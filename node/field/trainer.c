@@ -289,11 +289,27 @@ static void gram_factor(struct vlff_field *f) {
   free(a);
 }
 
+/* After a step the backward needs the transposed weights at once; the
+ * prompt fold and the Gram factor (~18 MFLOP at the default sizes, on the
+ * trainer thread while the pool idles) only when a query or render comes. */
+static void refresh_weights(struct vlff_field *f) {
+  float *pm = vlff_mlp_params(f);
+  vlff_mlp_transpose(&f->m1, pm, f->wT);
+  vlff_mlp_transpose(&f->m2, pm, f->wT);
+  vlff_mlp_transpose(&f->m3, pm, f->wT);
+  f->fold_stale = 1;
+}
+
+void vlff_field_fold(struct vlff_field *f) {
+  if (f->fold_stale) vlff_field_refresh(f);
+}
+
 void vlff_field_refresh(struct vlff_field *f) {
   float *pm = vlff_mlp_params(f);
   vlff_mlp_transpose(&f->m1, pm, f->wT);
   vlff_mlp_transpose(&f->m2, pm, f->wT);
   vlff_mlp_transpose(&f->m3, pm, f->wT);
+  f->fold_stale = 0;
   /* Folded prompts: EW = E W (K x H) and Eb = E b; Gram G = WᵀW, u = Wᵀb and
    * |b|^2 give |F|^2 = Hᵀ G H + 2 s u.H + s^2 |b|^2 without forming F. */
   const struct vlff_mlp *m = &f->m3;
@@ -755,7 +771,7 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
   vlff_pool_run(f->pool, f->enc.levels, hash_task, &sc);
   vlff_pool_run(f->pool, MLP_SPLIT, mlp_task, &sc);
-  vlff_field_refresh(f);
+  refresh_weights(f);
   f->views = NULL;
   if (f->cfg.train.sampling != VLFF_SAMPLING_UNIFORM && f->step % f->cfg.train.occupancy_update_steps == 0)
     vlff_field_occupancy_update(f, 0);
