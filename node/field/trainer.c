@@ -306,9 +306,7 @@ void vlff_field_fold(struct vlff_field *f) {
 
 void vlff_field_refresh(struct vlff_field *f) {
   float *pm = vlff_mlp_params(f);
-  vlff_mlp_transpose(&f->m1, pm, f->wT);
-  vlff_mlp_transpose(&f->m2, pm, f->wT);
-  vlff_mlp_transpose(&f->m3, pm, f->wT);
+  refresh_weights(f);
   f->fold_stale = 0;
   /* Folded prompts: EW = E W (K x H) and Eb = E b; Gram G = WᵀW, u = Wᵀb and
    * |b|^2 give |F|^2 = Hᵀ G H + 2 s u.H + s^2 |b|^2 without forming F. */
