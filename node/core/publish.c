@@ -32,7 +32,7 @@ struct vlff_publisher {
   uint8_t *conf;
   /* query batch */
   size_t *qidx;
-  float *qxyz, *qdens, *qscore, *qmargin;
+  float *qxyz, *qdens, *qmargin;
   int *qlabel;
   /* label image */
   int lw, lh;
@@ -62,7 +62,6 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   free(p->qidx);
   free(p->qxyz);
   free(p->qdens);
-  free(p->qscore);
   free(p->qmargin);
   free(p->qlabel);
   free(p->img_labels);
@@ -118,7 +117,6 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
   p->qidx = malloc(n * sizeof *p->qidx);
   p->qxyz = malloc(n * 3 * sizeof *p->qxyz);
   p->qdens = malloc(n * sizeof *p->qdens);
-  p->qscore = malloc(n * sizeof *p->qscore);
   p->qmargin = malloc(n * sizeof *p->qmargin);
   p->qlabel = malloc(n * sizeof *p->qlabel);
   p->img_labels = malloc(li * sizeof *p->img_labels);
@@ -127,7 +125,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
   p->img_score = malloc(li * sizeof *p->img_score);
   p->gt_frame = sim ? vlff_sim_frame_new(sim) : NULL;
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
-      !p->qdens || !p->qscore || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
+      !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || (sim && !p->gt_frame)) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
@@ -320,15 +318,34 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     }
     p->qidx[nq++] = i;
   }
-  if (nq && vlff_field_query(f, p->qxyz, nq, p->qdens, NULL, p->qlabel, p->qscore, p->qmargin)) {
+  /* Two passes: density for every observed voxel (the hash grid and MLP1
+   * only), then labels and margins for the occupied ones. Free voxels, most
+   * of a room, never need MLP3, the prompt fold or a feature norm. */
+  if (nq && vlff_field_query(f, p->qxyz, nq, p->qdens, NULL, NULL, NULL, NULL)) {
     snprintf(err, errlen, "field query of %zu voxels failed", nq);
     return -1;
   }
   for (size_t i = 0; i < p->nvox; i++) p->labels[i] = VLFF_LABEL_UNKNOWN, p->conf[i] = 0;
+  size_t nocc = 0;
   for (size_t j = 0; j < nq; j++) {
     size_t i = p->qidx[j];
-    bool occupied = p->hits[i] > 0 || p->qdens[j] >= p->free_density;
-    if (occupied && p->qlabel[j] >= 0) {
+    if (p->hits[i] > 0 || p->qdens[j] >= p->free_density) {
+      /* Compacted in place: nocc <= j. */
+      memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
+      p->qidx[nocc++] = i;
+    } else {
+      p->labels[i] = VLFF_LABEL_FREE;
+      p->conf[i] = 255;
+      r->free_voxels++;
+    }
+  }
+  if (nocc && vlff_field_query(f, p->qxyz, nocc, NULL, NULL, p->qlabel, NULL, p->qmargin)) {
+    snprintf(err, errlen, "field query of %zu occupied voxels failed", nocc);
+    return -1;
+  }
+  for (size_t j = 0; j < nocc; j++) {
+    size_t i = p->qidx[j];
+    if (p->qlabel[j] >= 0) {
       p->labels[i] = (uint16_t)p->qlabel[j];
       p->conf[i] = conf_of(p->qmargin[j]);
       r->labelled++;
