@@ -32,6 +32,7 @@
 #include <time.h>
 #include <unistd.h>
 #include <vlff/shm.h>
+#include "drvtest.h"
 
 static char ring_name[64], cfg_path[128], out_path[128], err_path[128];
 static pid_t camd_pid = -1;
@@ -72,17 +73,6 @@ static void failf(const char *fmt, ...) {
   do {                \
     if (!(c)) failf(__VA_ARGS__); \
   } while (0)
-
-static uint64_t now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
-static void sleep_ms(int ms) {
-  struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
-  while (nanosleep(&ts, &ts) && errno == EINTR) {}
-}
 
 static void names(const char *what) {
   snprintf(ring_name, sizeof ring_name, "/vlff-vm-%s-%d", what, (int)getpid());
@@ -137,18 +127,7 @@ static struct vlff_ring *attach(int timeout_s) {
 }
 
 /* A key of vlff-camd's statistics line, UINT64_MAX if absent. */
-static uint64_t stat_of(const char *key) {
-  FILE *f = fopen(out_path, "r");
-  char line[1024] = "";
-  if (f) {
-    if (!fgets(line, sizeof line, f)) line[0] = 0;
-    fclose(f);
-  }
-  char pat[64];
-  snprintf(pat, sizeof pat, " %s=", key);
-  const char *p = strstr(line, pat);
-  return p ? strtoull(p + strlen(pat), NULL, 10) : UINT64_MAX;
-}
+static uint64_t stat_of(const char *key) { return stats_value(out_path, key); }
 
 static int file_has(const char *path, const char *needle) {
   FILE *f = fopen(path, "r");

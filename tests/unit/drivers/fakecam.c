@@ -11,13 +11,9 @@
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
+#include "drvtest.h"
 
 static int lock_fd = -1;
-
-static void sleep_ms(int ms) {
-  struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
-  while (nanosleep(&ts, &ts) && errno == EINTR) {}
-}
 
 pid_t fakecam_start(int lost) {
   if (lock_fd < 0) {

@@ -18,6 +18,7 @@
 #include <unistd.h>
 
 #include "gpio.h"
+#include "drvtest.h"
 
 #define CHECK(c, ...)                                    \
   do {                                                   \
@@ -28,17 +29,6 @@
       exit(1);                                           \
     }                                                    \
   } while (0)
-
-static uint64_t now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
-static void sleep_ms(int ms) {
-  struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
-  while (nanosleep(&ts, &ts) && errno == EINTR) {}
-}
 
 static int read_value(const char *path) {
   char c = '?';

@@ -21,6 +21,7 @@
 #include "log.h"
 #include "pipe.h"
 #include "sink.h"
+#include "drvtest.h"
 
 static pid_t cam_pid = -1;
 
@@ -47,12 +48,6 @@ static void base_cfg(struct vlff_config *cfg, const char *fmt, int w, int h) {
   cfg->camera.height = h;
   cfg->camera.frame_rate = 50;
   cfg->camera.sensor_id = 3;
-}
-
-static uint64_t now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
 /* Grabs until n frames are committed or timeout_s passes; returns count. */

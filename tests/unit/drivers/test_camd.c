@@ -21,15 +21,11 @@
 #include <vlff/shm.h>
 
 #include "fakecam.h"
+#include "drvtest.h"
 
 static pid_t cam_pid = -1;
 static char ring_name[64], cfg_path[256], out_path[256];
 static int case_no;
-
-static void sleep_ms(int ms) {
-  struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
-  while (nanosleep(&ts, &ts) && errno == EINTR) {}
-}
 
 static int setup(void **state) {
   (void)state;
@@ -104,17 +100,7 @@ static struct vlff_ring *attach(void) {
   return NULL;
 }
 
-static uint64_t stat_of(const char *key) {
-  FILE *f = fopen(out_path, "r");
-  if (!f) return UINT64_MAX;
-  char line[1024] = "";
-  if (!fgets(line, sizeof line, f)) line[0] = 0;
-  fclose(f);
-  char pat[64];
-  snprintf(pat, sizeof pat, " %s=", key);
-  const char *p = strstr(line, pat);
-  return p ? strtoull(p + strlen(pat), NULL, 10) : UINT64_MAX;
-}
+static uint64_t stat_of(const char *key) { return stats_value(out_path, key); }
 
 static void cleanup(void) {
   vlff_shm_unlink(ring_name);
