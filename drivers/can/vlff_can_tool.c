@@ -87,18 +87,13 @@ static int open_iface(const char *iface, bool fd) {
   return s;
 }
 
-static void flags_text(unsigned f, char *out, size_t n) {
-  static const char *names[] = {"camera-lost", "pose-stale", "shm-lapped", "checkpoint-failed",
-                                "bus-error", "tx-dropped", "cmd-rejected", "bit7"};
-  size_t k = 0;
-  out[0] = 0;
-  for (int i = 0; i < 8; i++)
-    if (f & (1u << i)) k += (size_t)snprintf(out + k, n - k, "%s%s", k ? "," : "", names[i]);
-}
+static const char *const flag_names[8] = {"camera-lost", "pose-stale", "shm-lapped", "checkpoint-failed",
+                                          "bus-error", "tx-dropped", "cmd-rejected", "bit7"};
+static const char *const bus_names[8] = {"bus-off", "error-passive", "error-warning", "controller",
+                                         "tx-timeout", "protocol", "no-ack", "restarted"};
 
-static void bus_text(unsigned f, char *out, size_t n) {
-  static const char *names[] = {"bus-off", "error-passive", "error-warning", "controller",
-                                "tx-timeout", "protocol", "no-ack", "restarted"};
+/* The set bits of an 8-bit field as comma-separated names. */
+static void bits_text(unsigned f, const char *const names[8], char *out, size_t n) {
   size_t k = 0;
   out[0] = 0;
   for (int i = 0; i < 8; i++)
@@ -134,8 +129,8 @@ static void print_status(int index, const uint8_t *d) {
       else printf(" fps_in=%.2f", v.fps_in);
       break;
     case VLFF_CANP_HEALTH:
-      flags_text(v.error_flags, a, sizeof a);
-      bus_text(v.can_errors, b, sizeof b);
+      bits_text(v.error_flags, flag_names, a, sizeof a);
+      bits_text(v.can_errors, bus_names, b, sizeof b);
       printf("HEALTH flags=0x%02x[%s] fps_dropped=%.2f cmd_rejected=%u tx_dropped=%u can_errors=0x%02x[%s]",
              v.error_flags, a, v.fps_dropped < 0 ? -1.0 : v.fps_dropped, v.cmd_rejected, v.tx_dropped,
              v.can_errors, b);
