@@ -73,6 +73,31 @@ static void random_prompts(float *e, int k) {
   for (int i = 0; i < k * D; i++) e[i] = 2.0f * vlff_rng_uniform(&r) - 1.0f;
 }
 
+/* Best and second-best cos(E_k, f) in double; returns the best k. */
+static int best_cosines(const float *feat, const float *e, int K, double *best, double *second) {
+  double fn = 0;
+  int bk = -1;
+  *best = *second = -1e30;
+  for (int j = 0; j < D; j++) fn += (double)feat[j] * feat[j];
+  fn = sqrt(fn);
+  for (int k = 0; k < K; k++) {
+    double en = 0, dot = 0;
+    for (int j = 0; j < D; j++) {
+      en += (double)e[k * D + j] * e[k * D + j];
+      dot += (double)e[k * D + j] * feat[j];
+    }
+    double c = dot / (sqrt(en) * fn);
+    if (c > *best) {
+      *second = *best;
+      *best = c;
+      bk = k;
+    } else if (c > *second) {
+      *second = c;
+    }
+  }
+  return bk;
+}
+
 /* Max |score - best cosine| over n points, the cosine in double from the
  * unfolded features. */
 static double score_error(struct vlff_field *f, const float *e, int K, size_t n) {
@@ -84,16 +109,8 @@ static double score_error(struct vlff_field *f, const float *e, int K, size_t n)
   assert_int_equal(vlff_field_query(f, xyz, n, NULL, feat, label, score, NULL), 0);
   double worst = 0;
   for (size_t i = 0; i < n; i++) {
-    double fn = 0, best = -1e30;
-    for (int j = 0; j < D; j++) fn += (double)feat[i * D + j] * feat[i * D + j];
-    for (int k = 0; k < K; k++) {
-      double en = 0, dot = 0;
-      for (int j = 0; j < D; j++) {
-        en += (double)e[k * D + j] * e[k * D + j];
-        dot += (double)e[k * D + j] * feat[i * D + j];
-      }
-      if (dot / sqrt(en * fn) > best) best = dot / sqrt(en * fn);
-    }
+    double best, second;
+    best_cosines(feat + i * D, e, K, &best, &second);
     if (fabs(score[i] - best) > worst) worst = fabs(score[i] - best);
   }
   free(xyz), free(feat), free(score), free(label);
@@ -157,25 +174,8 @@ static void test_folded_equals_unfolded(void **state) {
     }
     inside++;
     assert_true(dens[i] > 0 && isfinite(dens[i]));
-    double fn = 0, best = -1e30, second = -1e30;
-    int bk = -1;
-    for (int j = 0; j < D; j++) fn += (double)feat[i * D + j] * feat[i * D + j];
-    fn = sqrt(fn);
-    for (int k = 0; k < K; k++) {
-      double en = 0, dot = 0;
-      for (int j = 0; j < D; j++) {
-        en += (double)e[k * D + j] * e[k * D + j];
-        dot += (double)e[k * D + j] * feat[i * D + j];
-      }
-      double c = dot / (sqrt(en) * fn);
-      if (c > best) {
-        second = best;
-        best = c;
-        bk = k;
-      } else if (c > second) {
-        second = c;
-      }
-    }
+    double best, second;
+    int bk = best_cosines(feat + i * D, e, K, &best, &second);
     if (label[i] == bk) agree++;
     else if (best - second < 1e-4) close++;  /* a float tie: either label is right */
     assert_true(fabs(score[i] - best) < 1e-3);
@@ -194,20 +194,8 @@ static void test_folded_equals_unfolded(void **state) {
   for (int i = 0; i < w * h; i++) {
     if (rl[i] < 0) continue;
     hit++;
-    double best = -1e30;
-    int bk = -1;
-    for (int k = 0; k < K; k++) {
-      double dot = 0, en = 0;
-      for (int j = 0; j < D; j++) {
-        dot += (double)e[k * D + j] * rf[i * D + j];
-        en += (double)e[k * D + j] * e[k * D + j];
-      }
-      if (dot / sqrt(en) > best) {
-        best = dot / sqrt(en);
-        bk = k;
-      }
-    }
-    ok2 += bk == rl[i];
+    double best, second;
+    ok2 += best_cosines(rf + i * D, e, K, &best, &second) == rl[i];
   }
   assert_true(hit > w * h / 2);
   assert_true(ok2 >= hit - hit / 100);
