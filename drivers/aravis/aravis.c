@@ -71,6 +71,26 @@ static int gfail(GError **e, char *err, size_t errlen, const char *key, const ch
   return -1;
 }
 
+/* A numeric feature the camera may lack (exposure, gain, frame rate): when it
+ * has it, the configured value must lie within the camera's own bounds and
+ * is then set. 0, or -1 with err naming the key. */
+static int set_bounded(ArvCamera *cam, gboolean (*available)(ArvCamera *, GError **),
+                       void (*bounds)(ArvCamera *, double *, double *, GError **),
+                       void (*set)(ArvCamera *, double, GError **), double value, const char *key,
+                       const char *refused, char *err, size_t errlen) {
+  if (!available(cam, NULL)) return 0;
+  GError *e = NULL;
+  double lo, hi;
+  bounds(cam, &lo, &hi, &e);
+  if (!e && (value < lo || value > hi))
+    return snprintf(err, errlen, "key '%s': expected [%g, %g] for this camera, got %g", key, lo, hi, value), -1;
+  g_clear_error(&e);
+  set(cam, value, &e);
+  if (e) return gfail(&e, err, errlen, key, refused);
+  return 0;
+}
+
+
 static ArvCamera *connect(const char *device, char *err, size_t errlen) {
   GError *e = NULL;
   const char *id = device[0] ? device : NULL;
@@ -150,45 +170,25 @@ static int configure(struct vlff_arv *a, char *err, size_t errlen) {
   a->w = w;
   a->h = h;
 
-  double lo, hi;
   if (arv_camera_is_exposure_auto_available(cam, NULL)) {
     arv_camera_set_exposure_time_auto(cam, ARV_AUTO_OFF, &e);
     if (e) return gfail(&e, err, errlen, "camera.exposure_us", "cannot turn auto exposure off");
   }
-  if (arv_camera_is_exposure_time_available(cam, NULL)) {
-    arv_camera_get_exposure_time_bounds(cam, &lo, &hi, &e);
-    if (!e && (c->exposure_us < lo || c->exposure_us > hi))
-      return snprintf(err, errlen, "key 'camera.exposure_us': expected [%g, %g] for this camera, got %g",
-                      lo, hi, c->exposure_us),
-             -1;
-    g_clear_error(&e);
-    arv_camera_set_exposure_time(cam, c->exposure_us, &e);
-    if (e) return gfail(&e, err, errlen, "camera.exposure_us", "camera refused the exposure");
-  }
+  if (set_bounded(cam, arv_camera_is_exposure_time_available, arv_camera_get_exposure_time_bounds,
+                  arv_camera_set_exposure_time, c->exposure_us, "camera.exposure_us", "camera refused the exposure",
+                  err, errlen))
+    return -1;
   if (arv_camera_is_gain_auto_available(cam, NULL)) {
     arv_camera_set_gain_auto(cam, ARV_AUTO_OFF, &e);
     if (e) return gfail(&e, err, errlen, "camera.gain_db", "cannot turn auto gain off");
   }
-  if (arv_camera_is_gain_available(cam, NULL)) {
-    arv_camera_get_gain_bounds(cam, &lo, &hi, &e);
-    if (!e && (c->gain_db < lo || c->gain_db > hi))
-      return snprintf(err, errlen, "key 'camera.gain_db': expected [%g, %g] for this camera, got %g", lo,
-                      hi, c->gain_db),
-             -1;
-    g_clear_error(&e);
-    arv_camera_set_gain(cam, c->gain_db, &e);
-    if (e) return gfail(&e, err, errlen, "camera.gain_db", "camera refused the gain");
-  }
-  if (arv_camera_is_frame_rate_available(cam, NULL)) {
-    arv_camera_get_frame_rate_bounds(cam, &lo, &hi, &e);
-    if (!e && (c->frame_rate < lo || c->frame_rate > hi))
-      return snprintf(err, errlen, "key 'camera.frame_rate': expected [%g, %g] for this camera, got %g",
-                      lo, hi, c->frame_rate),
-             -1;
-    g_clear_error(&e);
-    arv_camera_set_frame_rate(cam, c->frame_rate, &e);
-    if (e) return gfail(&e, err, errlen, "camera.frame_rate", "camera refused the frame rate");
-  }
+  if (set_bounded(cam, arv_camera_is_gain_available, arv_camera_get_gain_bounds, arv_camera_set_gain, c->gain_db,
+                  "camera.gain_db", "camera refused the gain", err, errlen))
+    return -1;
+  if (set_bounded(cam, arv_camera_is_frame_rate_available, arv_camera_get_frame_rate_bounds,
+                  arv_camera_set_frame_rate, c->frame_rate, "camera.frame_rate", "camera refused the frame rate", err,
+                  errlen))
+    return -1;
 
   if (arv_camera_is_gv_device(cam)) {
     if (c->packet_size > 0)
