@@ -130,6 +130,7 @@ static const struct key schema[] = {
     DBL("train.lr_decay", train.lr_decay, 0, 1, 1),
     INT("train.lr_decay_steps", train.lr_decay_steps, 1, 1 << 30, 10000),
     INT("train.rays_per_step", train.rays_per_step, 1, 1 << 20, 1024),
+    INT("train.rays_per_keyframe", train.rays_per_keyframe, 0, 1 << 20, 16),
     INT("train.samples_per_ray", train.samples_per_ray, 1, 4096, 24),
     ENUM("train.sampling", train.sampling, samplings, "depth"),
     DBL("train.depth_weight", train.depth_weight, 0, 100, 0.1),
@@ -146,6 +147,7 @@ static const struct key schema[] = {
     INT("keyframes.memory_mb", keyframes.memory_mb, 1, 1 << 20, 1024),
     INT("keyframes.max_keyframes", keyframes.max_keyframes, 1, 1 << 20, 325),
     INT("keyframes.start_after", keyframes.start_after, 1, 1 << 20, 5),
+    INT("keyframes.recent", keyframes.recent, 1, 1 << 20, 8),
     DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0, 100, 0.1),
     INT("keyframes.posecheck_min_steps", keyframes.posecheck_min_steps, 0, 1 << 30, 200),
 

@@ -116,6 +116,7 @@ struct vlff_config {
     double lr_decay;                 /* multiplier applied every lr_decay_steps */
     int lr_decay_steps;
     int rays_per_step;
+    int rays_per_keyframe;           /* node: rays per held keyframe while few are held (0 = off) */
     int samples_per_ray;
     int sampling;                    /* enum vlff_sampling */
     double depth_weight;
@@ -134,6 +135,7 @@ struct vlff_config {
     int memory_mb;                   /* keyframe store budget */
     int max_keyframes;
     int start_after;                 /* train once this many are held */
+    int recent;                      /* the newest this many share half the rays */
     double bad_pose_threshold_m;     /* median depth residual that rejects */
     int posecheck_min_steps;         /* the map judges poses only after this much training */
   } keyframes;

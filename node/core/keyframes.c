@@ -136,9 +136,10 @@ size_t vlff_kfstore_bytes(const struct vlff_kfstore *s) { return s->bytes; }
 long long vlff_kfstore_evicted(const struct vlff_kfstore *s) { return s->evicted; }
 long long vlff_kfstore_id(const struct vlff_kfstore *s, int i) { return s->kfs[i].id; }
 
-int vlff_kfstore_views(struct vlff_kfstore *s, const struct vlff_view **views, const float **weights) {
+int vlff_kfstore_views(struct vlff_kfstore *s, int recent, const struct vlff_view **views, const float **weights) {
   int n = s->count;
-  int recent = s->protect < n ? s->protect : n;
+  if (recent > n) recent = n;
+  if (recent < 1) recent = 1;
   int old = n - recent;
   for (int i = 0; i < n; i++) {
     s->views[i] = s->kfs[i].view;

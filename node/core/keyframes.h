@@ -10,7 +10,7 @@
  *    dropped, so fresh views always get trained on.
  *  - vlff_kfstore_views() hands out views pointing into the store; they stay
  *    valid until the next add. Weights favour recent keyframes (half of the
- *    rays go to the newest `protect`) while every keyframe keeps a share.
+ *    rays go to the newest `recent`) while every keyframe keeps a share.
  *  - Not thread-safe: one owner (the trainer thread).
  */
 #ifndef VLFF_KEYFRAMES_H
@@ -45,7 +45,7 @@ size_t vlff_kfstore_bytes(const struct vlff_kfstore *s);
 long long vlff_kfstore_evicted(const struct vlff_kfstore *s);
 
 /* Views and per-view sampling weights for vlff_field_step; returns count. */
-int vlff_kfstore_views(struct vlff_kfstore *s, const struct vlff_view **views, const float **weights);
+int vlff_kfstore_views(struct vlff_kfstore *s, int recent, const struct vlff_view **views, const float **weights);
 
 /* The id of keyframe i in the order views() returns them. */
 long long vlff_kfstore_id(const struct vlff_kfstore *s, int i);

@@ -41,7 +41,7 @@
 #define QUEUE_CAP 4
 #define PENDING_CAP 16
 #define LAT_CAP 4096
-#define KF_PROTECT 8  /* newest keyframes never evicted, and given half the rays */
+#define KF_PROTECT 8  /* newest keyframes never evicted */
 #define KF_HISTORY 32 /* admitted keyframes the pose check compares against */
 
 struct candidate {
@@ -869,7 +869,14 @@ static void *trainer_main(void *arg) {
     if (train) {
       const struct vlff_view *views;
       const float *w;
-      int nv = vlff_kfstore_views(n->store, &views, &w);
+      int nv = vlff_kfstore_views(n->store, cfg->keyframes.recent, &views, &w);
+      /* A young map learns faster from more, cheaper steps: with few
+       * keyframes a full batch mostly re-samples the same pixels. */
+      int rpk = cfg->train.rays_per_keyframe, full = cfg->train.rays_per_step;
+      if (rpk > 0) {
+        long long want = (long long)rpk * nv;
+        vlff_field_set_rays(n->field, want < full / 4 ? full / 4 : want > full ? full : (int)want);
+      }
       struct vlff_train_stats ts;
       char err[256];
       if (vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err) == 0) {

@@ -406,6 +406,11 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
                                    class_of_prompt(prompts, k, p->img_lab[(size_t)y * p->lw + x]));
           }
         r->miou2d = miou_of(&c);
+        if (getenv("VLFF_DIAG")) {
+          size_t unk = 0, li = (size_t)p->lw * p->lh;
+          for (size_t i = 0; i < li; i++) unk += p->img_lab[i] < 0;
+          fprintf(stderr, "DIAG t=%.1f miou2d=%.1f unknown=%.3f\n", mono_s(), r->miou2d, (double)unk / li);
+        }
       }
       if (p->gt && p->gt->n) {
         vlff_confusion_reset(&c);

@@ -67,6 +67,10 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
 
 long long vlff_field_steps(const struct vlff_field *f);
 
+/* Rays the next steps draw: n clamped to [1, train.rays_per_step] (the
+ * batch memory planned at create); returns the value used. */
+int vlff_field_set_rays(struct vlff_field *f, int n);
+
 /* Set the prompt set: K embeddings of dimension D (K <= VLFF_MAX_PROMPTS).
  * The prompts are folded into MLP3's last layer; queries then cost K, not D,
  * output dot products. */

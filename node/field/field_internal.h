@@ -214,7 +214,7 @@ struct vlff_field {
   int occ_cursor;
   struct vlff_work *work;  /* [threads] */
   struct vlff_ray *rays;   /* [rays_per_step] */
-  int nrays;
+  int nrays, nrays_max;
   float *step_p;           /* per chunk slots of chunk_rays*spr samples: positions */
   float *step_denc;        /* and dL/d(hash features), level-major [level][sample][F] */
   int *chunk_n;

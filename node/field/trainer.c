@@ -204,7 +204,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
     float cmin = fminf(f->occ.cell[0], fminf(f->occ.cell[1], f->occ.cell[2]));
     f->occ.threshold = 0.01005f / cmin;
   }
-  f->nrays = cfg->train.rays_per_step;
+  f->nrays = f->nrays_max = cfg->train.rays_per_step;
   f->rays = xalloc((size_t)f->nrays * sizeof(struct vlff_ray), &ok);
   int nchunks = (f->nrays + f->chunk_rays - 1) / f->chunk_rays;
   size_t slot = (size_t)f->chunk_rays * f->spr;
@@ -749,6 +749,11 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
     counts[1] = n_depth;
     counts[2] = n_feat;
   }
+}
+
+int vlff_field_set_rays(struct vlff_field *f, int n) {
+  f->nrays = n < 1 ? 1 : n > f->nrays_max ? f->nrays_max : n;
+  return f->nrays;
 }
 
 int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,

@@ -53,7 +53,7 @@ static void test_budget_and_copy(void **st) {
   assert_int_equal(vlff_kfstore_evicted(s), 7);
   const struct vlff_view *v;
   const float *w;
-  int n = vlff_kfstore_views(s, &v, &w);
+  int n = vlff_kfstore_views(s, 1, &v, &w);
   assert_int_equal(n, 3);
   /* The store copied the pixels: the newest keeps its own value. */
   assert_int_equal(v[2].rgb[0], 9);
@@ -97,7 +97,7 @@ static void test_newest_protected_and_weights(void **st) {
   assert_true(has_id(s, 4) && has_id(s, 5));
   const struct vlff_view *v;
   const float *w;
-  int n = vlff_kfstore_views(s, &v, &w);
+  int n = vlff_kfstore_views(s, 2, &v, &w);
   float sum = 0, recent = 0;
   for (int i = 0; i < n; i++) {
     assert_true(w[i] > 0);

@@ -251,8 +251,44 @@ static void test_convergence(void **state) {
   vlff_field_destroy(f);
 }
 
+/* The node shrinks the batch while it holds few keyframes: the step must
+ * draw exactly that many rays, within the memory planned at create. */
+static void test_ray_budget(void **state) {
+  (void)state;
+  const int d = 16, W = 40, H = 30;
+  struct vlff_config cfg;
+  scene_cfg(&cfg, d);
+  cfg.train.rays_per_step = 512;
+  cfg.train.samples_per_ray = 16;
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
+  assert_non_null(f);
+  struct scene_view sv;
+  double c2w[16];
+  scene_pose(0, 16, c2w);
+  scene_render(&sv, W, H, d, c2w);
+  assert_int_equal(vlff_field_set_rays(f, 0), 1);
+  assert_int_equal(vlff_field_set_rays(f, 1 << 20), 512);
+  long long samples[2];
+  const int rays[2] = {64, 512};
+  for (int k = 0; k < 2; k++) {
+    assert_int_equal(vlff_field_set_rays(f, rays[k]), rays[k]);
+    struct vlff_train_stats st;
+    assert_int_equal(vlff_field_step(f, &sv.v, 1, NULL, &st, err, sizeof(err)), 0);
+    assert_true(isfinite(st.loss));
+    samples[k] = st.samples;
+    /* Every ray of this view hits the scene and has depth: S samples each. */
+    assert_true(samples[k] > (long long)rays[k] * cfg.train.samples_per_ray / 2);
+    assert_true(samples[k] <= (long long)rays[k] * cfg.train.samples_per_ray);
+  }
+  assert_true(samples[1] > 4 * samples[0]);
+  scene_view_free(&sv);
+  vlff_field_destroy(f);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_ray_budget),
       cmocka_unit_test(test_slab),
       cmocka_unit_test(test_chunk_gradient),
       cmocka_unit_test(test_convergence),
