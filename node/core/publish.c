@@ -397,7 +397,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     struct vlff_confusion c;
     char e2[128];
     if (vlff_confusion_init(&c, VLFF_SIM_CLASSES, e2, sizeof e2) == 0) {
-      if (have_img && vlff_sim_render(p->sim, p->cam_frame, VLFF_SIM_RGBD, p->gt_frame, e2, sizeof e2) == 0) {
+      if (have_img && vlff_sim_render(p->sim, p->cam_frame, 0, p->gt_frame, e2, sizeof e2) == 0) {
         const struct vlff_sim_frame *g = p->gt_frame;
         for (int y = 0; y < p->lh; y++)
           for (int x = 0; x < p->lw; x++) {
@@ -406,11 +406,6 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
                                    class_of_prompt(prompts, k, p->img_lab[(size_t)y * p->lw + x]));
           }
         r->miou2d = miou_of(&c);
-        if (getenv("VLFF_DIAG")) {
-          size_t unk = 0, li = (size_t)p->lw * p->lh;
-          for (size_t i = 0; i < li; i++) unk += p->img_lab[i] < 0;
-          fprintf(stderr, "DIAG t=%.1f miou2d=%.1f unknown=%.3f\n", mono_s(), r->miou2d, (double)unk / li);
-        }
       }
       if (p->gt && p->gt->n) {
         vlff_confusion_reset(&c);

@@ -65,7 +65,7 @@ struct vlff_sim_frame {
   uint16_t *features;         /* float16 [fh][fw][D] */
 };
 
-/* Render flags. */
+/* Render flags (0 renders the labels, exact depth and pose alone). */
 enum { VLFF_SIM_RGBD = 1, VLFF_SIM_FEATURES = 2, VLFF_SIM_ALL = 3 };
 
 /* Create from cfg->sim.* and cfg->field.scene_min/max. */
