@@ -21,7 +21,7 @@
 
 #include "dataset_internal.h"
 
-#define seterr vlff_ds_seterr
+#define seterr vlff_errf
 #define PATHMAX 4352
 
 static int is_dir(const char *p) {

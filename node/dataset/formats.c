@@ -11,7 +11,6 @@
 #include <math.h>
 #include <png.h>
 #include <setjmp.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,14 +23,7 @@
 #define MAX_IMAGE_SIDE 16384
 #define MAX_IMAGE_BYTES (256 << 20)
 
-void vlff_ds_seterr(char *err, size_t errlen, const char *fmt, ...) {
-  if (!err || !errlen) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-}
-#define seterr vlff_ds_seterr
+#define seterr vlff_errf
 
 /* ---- files -------------------------------------------------------------- */
 

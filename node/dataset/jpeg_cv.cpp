@@ -14,17 +14,17 @@ extern "C" int vlff_cv_decode_jpeg(const uint8_t *buf, size_t len, int max_side,
                                    uint8_t **rgb, char *err, size_t errlen) {
   try {
     if (len > (size_t)INT32_MAX) {
-      vlff_ds_seterr(err, errlen, "file too large");
+      vlff_errf(err, errlen, "file too large");
       return -1;
     }
     cv::Mat raw(1, (int)len, CV_8UC1, const_cast<uint8_t *>(buf));
     cv::Mat bgr = cv::imdecode(raw, cv::IMREAD_COLOR);
     if (bgr.empty()) {
-      vlff_ds_seterr(err, errlen, "cannot be decoded");
+      vlff_errf(err, errlen, "cannot be decoded");
       return -1;
     }
     if (bgr.cols > max_side || bgr.rows > max_side) {
-      vlff_ds_seterr(err, errlen, "%dx%d is larger than %d pixels a side", bgr.cols, bgr.rows, max_side);
+      vlff_errf(err, errlen, "%dx%d is larger than %d pixels a side", bgr.cols, bgr.rows, max_side);
       return -1;
     }
     cv::Mat out;
@@ -32,16 +32,16 @@ extern "C" int vlff_cv_decode_jpeg(const uint8_t *buf, size_t len, int max_side,
     size_t n = (size_t)out.cols * out.rows * 3;
     uint8_t *p = (uint8_t *)std::malloc(n);
     if (!p) {
-      vlff_ds_seterr(err, errlen, "out of memory");
+      vlff_errf(err, errlen, "out of memory");
       return -1;
     }
     for (int y = 0; y < out.rows; y++) std::memcpy(p + (size_t)y * out.cols * 3, out.ptr(y), (size_t)out.cols * 3);
     *w = out.cols, *h = out.rows, *rgb = p;
     return 0;
   } catch (const std::exception &e) {
-    vlff_ds_seterr(err, errlen, "%s", e.what());
+    vlff_errf(err, errlen, "%s", e.what());
   } catch (...) {
-    vlff_ds_seterr(err, errlen, "unknown error");
+    vlff_errf(err, errlen, "unknown error");
   }
   return -1;
 }
