@@ -770,12 +770,7 @@ static void test_link_down_up(void **state) {
 
 static int setup(void **state) {
   (void)state;
-  char err[256];
-  if (dbc_load_vlff(&db, err, sizeof err) < 0) {
-    fprintf(stderr, "%s\n", err);
-    return -1;
-  }
-  return 0;
+  return dbc_load_vlff(&db);
 }
 
 int main(int argc, char **argv) {

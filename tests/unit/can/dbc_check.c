@@ -5,13 +5,17 @@
 #include <stdlib.h>
 #include <string.h>
 
-int dbc_load_vlff(struct dbc *db, char *err, size_t errlen) {
+int dbc_load_vlff(struct dbc *db) {
   const char *root = getenv("VLFF_SOURCE_DIR");
   if (!root) root = getenv("VLFF_SRC");
   if (!root) root = ".";
-  char path[512];
+  char path[512], err[256];
   snprintf(path, sizeof path, "%s/configs/vlff.dbc", root);
-  return dbc_load(path, db, err, errlen);
+  if (dbc_load(path, db, err, sizeof err) < 0) {
+    fprintf(stderr, "%s\n", err);
+    return -1;
+  }
+  return 0;
 }
 
 /* What a receiver should read for a value sent as u16 with this scale. */

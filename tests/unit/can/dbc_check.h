@@ -15,7 +15,9 @@
 int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data, int len,
                      const struct vlff_can_status *st, int nmt_state, char *why, size_t n);
 
-/* Load configs/vlff.dbc from $VLFF_SOURCE_DIR (or $VLFF_SRC in the VM). */
-int dbc_load_vlff(struct dbc *db, char *err, size_t errlen);
+/* Load configs/vlff.dbc from $VLFF_SOURCE_DIR (or $VLFF_SRC in the VM);
+ * a failure says why on stderr (every caller is a test's setup). Returns
+ * 0 or -1. */
+int dbc_load_vlff(struct dbc *db);
 
 #endif

@@ -20,12 +20,7 @@ static struct dbc db;
 
 static int setup(void **state) {
   (void)state;
-  char err[256];
-  if (dbc_load_vlff(&db, err, sizeof err) < 0) {
-    fprintf(stderr, "%s\n", err);
-    return -1;
-  }
-  return 0;
+  return dbc_load_vlff(&db);
 }
 
 /* Every bit of each 8-byte status payload belongs to at most one signal, and
