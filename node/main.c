@@ -215,9 +215,9 @@ int main(int argc, char **argv) {
     }
   }
   vlff_node_destroy(node, true);
-  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes, %lld frames in, %lld invalid, %lld lost, "
-            "%lld poses rejected, map version %llu",
-            st.iteration, st.keyframes, st.frames_in, st.frames_invalid, st.frames_lost, st.poses_rejected,
-            (unsigned long long)st.map_version);
+  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld invalid, "
+            "%lld lost, %lld poses rejected, map version %llu",
+            st.iteration, st.keyframes, st.keyframes_evicted, st.frames_in, st.frames_invalid, st.frames_lost,
+            st.poses_rejected, (unsigned long long)st.map_version);
   return rc;
 }
