@@ -7,6 +7,7 @@
  * 4 x 64 MB would cost more than the rest of the step.
  */
 #include <math.h>
+#include <stdbool.h>
 
 #include "field_internal.h"
 
@@ -26,9 +27,36 @@ void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p,
   }
 }
 
+/* One 64-entry block of the table in whole: every lane is computed and
+ * the old values are kept where the entry was not touched. Late in a run most
+ * words of the fine levels have many bits set; a streaming vector pass over
+ * the block then costs less than one scattered scalar update per bit. */
+static inline __attribute__((always_inline)) void adam_block(float b1, float b2, float c1, float c2, float eps,
+                                                             float lr, float *restrict p, const float *restrict g,
+                                                             float *restrict m, float *restrict v, uint64_t word,
+                                                             size_t entries, int width) {
+  enum { MAXW = 8 };
+  float on[64 * MAXW];
+  size_t len = entries * (size_t)width;
+  for (size_t j = 0; j < len; j++) on[j] = (float)((word >> (j / (size_t)width)) & 1);
+  for (size_t j = 0; j < len; j++) {
+    float gi = g[j];
+    float mi = b1 * m[j] + (1.0f - b1) * gi;
+    float vi = b2 * v[j] + (1.0f - b2) * gi * gi;
+    float pi = p[j] - lr * (mi * c1) / (sqrtf(vi * c2) + eps);
+    bool t = on[j] != 0.0f;
+    m[j] = t ? mi : m[j];
+    v[j] = t ? vi : v[j];
+    p[j] = t ? pi : p[j];
+  }
+}
+
 VLFF_HOT
 size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
                         float *v, uint64_t *bits, size_t n, int width) {
+  /* Break-even, measured: a vectorised block costs about what 16 scattered
+   * single-entry updates do. */
+  enum { BLOCK_MIN_BITS = 16 };
   float b1 = a->beta1, b2 = a->beta2;
   float c1 = 1.0f / (1.0f - powf(b1, (float)t)), c2 = 1.0f / (1.0f - powf(b2, (float)t));
   float eps = a->eps;
@@ -37,6 +65,16 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
     uint64_t word = bits[wi];
     if (!word) continue;
     bits[wi] = 0;
+    int pop = __builtin_popcountll(word);
+    if (pop >= BLOCK_MIN_BITS && width <= 8) {
+      size_t e0 = wi * 64, ne = n - e0 < 64 ? n - e0 : 64, o = e0 * (size_t)width;
+      if (width == 2)
+        adam_block(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word, ne, 2);
+      else
+        adam_block(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word, ne, width);
+      count += (size_t)pop;
+      continue;
+    }
     while (word) {
       size_t e = wi * 64 + (size_t)__builtin_ctzll(word);
       word &= word - 1;
