@@ -79,14 +79,22 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
   int nseg = 0, open = 0;
   float total = 0.0f;
   int res = g->res;
+  /* The march in cell units: no division per step (it was most of the
+   * sampler's cost on long rays through an empty room). */
+  float x0[3], dx[3];
+  for (int a = 0; a < 3; a++) {
+    float inv = 1.0f / g->cell[a];
+    x0[a] = (o[a] - g->box_min[a]) * inv;
+    dx[a] = d[a] * inv;
+  }
+  const float top = (float)res;
   for (float tt = t0; tt < t1 && nseg < MAX_SEGS; tt += step) {
     float tm = fminf(tt + 0.5f * step, t1);
     int c[3], ok = 1;
     for (int a = 0; a < 3; a++) {
-      float x = (o[a] + tm * d[a] - g->box_min[a]) / g->cell[a];
-      c[a] = (int)floorf(x);
-      if (c[a] < 0) c[a] = 0;
-      if (c[a] >= res) c[a] = res - 1;
+      float x = x0[a] + tm * dx[a];
+      /* Clamped as a float first: the cast of an out-of-range float is undefined. */
+      c[a] = x >= top ? res - 1 : x > 0.0f ? (int)x : 0;
     }
     ok = g->occ[((size_t)c[2] * res + c[1]) * res + c[0]];
     float te = fminf(tt + step, t1);

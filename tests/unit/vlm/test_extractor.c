@@ -160,6 +160,40 @@ static size_t make_record(uint8_t *buf, size_t cap, uint64_t id, uint32_t dim, u
   return (size_t)(hdr->data_offset + hdr->data_size);
 }
 
+/* Sizes that cross the transpose's 16-pixel, 64-channel tiles in both directions: every
+ * element lands where [d][y][x] says, bit for bit. */
+static void test_join_transpose(void **state) {
+  (void)state;
+  enum { TD = 70, TH = 9, TW = 11 };
+  char err[256];
+  struct vlff_feature_join *j = vlff_feature_join_create(2, 1.0, TD, TH, TW, err, sizeof err);
+  assert_non_null(j);
+  size_t cap = vlff_feature_slot_size(TD, TH, TW);
+  uint8_t *buf = aligned_alloc(64, (cap + 63) / 64 * 64);
+  struct vlff_feature_hdr *hdr = (struct vlff_feature_hdr *)buf;
+  assert_true(vlff_feature_layout(hdr, cap, TD, TH, TW) > 0);
+  hdr->frame_id = 3;
+  uint16_t *data = (uint16_t *)(buf + hdr->data_offset);
+  for (size_t i = 0; i < (size_t)TD * TH * TW; i++) data[i] = (uint16_t)(i * 7 % 0x7000); /* finite halves */
+  assert_int_equal(vlff_feature_join_add_record(j, buf, (size_t)(hdr->data_offset + hdr->data_size), err, sizeof err), 0);
+  assert_int_equal(vlff_feature_join_add_frame(j, 3, 1, err, sizeof err), 0);
+  uint16_t *out = malloc((size_t)TD * TH * TW * sizeof *out);
+  uint64_t id;
+  int h, w;
+  assert_int_equal(vlff_feature_join_poll(j, 1, &id, out, &h, &w), VLFF_JOIN_READY);
+  assert_int_equal(h, TH);
+  assert_int_equal(w, TW);
+  for (int y = 0; y < TH; y++)
+    for (int x = 0; x < TW; x++)
+      for (int d = 0; d < TD; d++) {
+        size_t src = ((size_t)d * TH + y) * TW + x, dst = ((size_t)y * TW + x) * TD + d;
+        if (out[dst] != data[src]) fail_msg("(y=%d, x=%d, d=%d): %u, expected %u", y, x, d, out[dst], data[src]);
+      }
+  free(out);
+  free(buf);
+  vlff_feature_join_destroy(j);
+}
+
 static void test_join_rules(void **state) {
   char err[256];
   assert_null(vlff_feature_join_create(0, 1, 8, 2, 2, err, sizeof err));
@@ -232,6 +266,7 @@ static void test_join_rules(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_join_rules),
+      cmocka_unit_test(test_join_transpose),
       cmocka_unit_test(test_python_extractor_round_trip),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
