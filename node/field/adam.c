@@ -11,20 +11,23 @@
 
 #include "field_internal.h"
 
+/* The update of one value; every path below goes through it. */
+static inline __attribute__((always_inline)) void adam_one(float b1, float b2, float c1, float c2, float eps,
+                                                           float lr, float g, float *p, float *m, float *v) {
+  float mi = b1 * *m + (1.0f - b1) * g;
+  float vi = b2 * *v + (1.0f - b2) * g * g;
+  *m = mi;
+  *v = vi;
+  *p -= lr * (mi * c1) / (sqrtf(vi * c2) + eps);
+}
+
 VLFF_HOT
 void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
                      float *v, size_t i0, size_t i1, int decay) {
   float b1 = a->beta1, b2 = a->beta2;
   float c1 = 1.0f / (1.0f - powf(b1, (float)t)), c2 = 1.0f / (1.0f - powf(b2, (float)t));
   float wd = decay ? a->wd : 0.0f, eps = a->eps;
-  for (size_t i = i0; i < i1; i++) {
-    float gi = g[i] + wd * p[i];
-    float mi = b1 * m[i] + (1.0f - b1) * gi;
-    float vi = b2 * v[i] + (1.0f - b2) * gi * gi;
-    m[i] = mi;
-    v[i] = vi;
-    p[i] -= lr * (mi * c1) / (sqrtf(vi * c2) + eps);
-  }
+  for (size_t i = i0; i < i1; i++) adam_one(b1, b2, c1, c2, eps, lr, g[i] + wd * p[i], &p[i], &m[i], &v[i]);
 }
 
 /* One 64-entry block of the table in whole: every lane is computed and
@@ -40,10 +43,8 @@ static inline __attribute__((always_inline)) void adam_block(float b1, float b2,
   size_t len = entries * (size_t)width;
   for (size_t j = 0; j < len; j++) on[j] = (float)((word >> (j / (size_t)width)) & 1);
   for (size_t j = 0; j < len; j++) {
-    float gi = g[j];
-    float mi = b1 * m[j] + (1.0f - b1) * gi;
-    float vi = b2 * v[j] + (1.0f - b2) * gi * gi;
-    float pi = p[j] - lr * (mi * c1) / (sqrtf(vi * c2) + eps);
+    float pi = p[j], mi = m[j], vi = v[j];
+    adam_one(b1, b2, c1, c2, eps, lr, g[j], &pi, &mi, &vi);
     bool t = on[j] != 0.0f;
     m[j] = t ? mi : m[j];
     v[j] = t ? vi : v[j];
@@ -81,12 +82,7 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
       count++;
       for (int f = 0; f < width; f++) {
         size_t i = e * width + f;
-        float gi = g[i];
-        float mi = b1 * m[i] + (1.0f - b1) * gi;
-        float vi = b2 * v[i] + (1.0f - b2) * gi * gi;
-        m[i] = mi;
-        v[i] = vi;
-        p[i] -= lr * (mi * c1) / (sqrtf(vi * c2) + eps);
+        adam_one(b1, b2, c1, c2, eps, lr, g[i], &p[i], &m[i], &v[i]);
       }
     }
   }
