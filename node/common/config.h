@@ -116,7 +116,7 @@ struct vlff_config {
     double lr_decay;                 /* multiplier applied every lr_decay_steps */
     int lr_decay_steps;
     int rays_per_step;
-    int rays_per_keyframe;           /* node: rays per held keyframe while few are held (0 = off) */
+    int warmup_steps;                /* node: a young field's steps grow from rays_per_step / 4 over these */
     int samples_per_ray;
     int sampling;                    /* enum vlff_sampling */
     double depth_weight;

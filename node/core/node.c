@@ -870,12 +870,15 @@ static void *trainer_main(void *arg) {
       const struct vlff_view *views;
       const float *w;
       int nv = vlff_kfstore_views(n->store, cfg->keyframes.recent, &views, &w);
-      /* A young map learns faster from more, cheaper steps: with few
-       * keyframes a full batch mostly re-samples the same pixels. */
-      int rpk = cfg->train.rays_per_keyframe, full = cfg->train.rays_per_step;
-      if (rpk > 0) {
-        long long want = (long long)rpk * nv;
-        vlff_field_set_rays(n->field, want < full / 4 ? full / 4 : want > full ? full : (int)want);
+      /* A young field learns faster from more, cheaper steps: a quarter
+       * of the batch at first, growing geometrically to all of it. Keyed
+       * on the field's steps, not on keyframes held, so a map resumed from
+       * a checkpoint trains on full batches and is not pulled toward its
+       * first few new keyframes. */
+      int warm = cfg->train.warmup_steps, full = cfg->train.rays_per_step;
+      if (warm > 0) {
+        double fr = fmin(1.0, (double)vlff_field_steps(n->field) / warm);
+        vlff_field_set_rays(n->field, (int)lround(full / 4.0 * pow(4.0, fr)));
       }
       struct vlff_train_stats ts;
       char err[256];
