@@ -69,6 +69,8 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
     int pop = __builtin_popcountll(word);
     if (pop >= BLOCK_MIN_BITS && width <= 8) {
       size_t e0 = wi * 64, ne = n - e0 < 64 ? n - e0 : 64, o = e0 * (size_t)width;
+      /* The default width as a constant, so that call's index arithmetic
+       * folds to shifts and its loop vectorises. */
       if (width == 2)
         adam_block(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word, ne, 2);
       else

@@ -46,7 +46,7 @@ awk -v tag="$tag" -v out="$out" -v secs="$secs" -v budget="$budget_mb" '
   { print }
   END { print "keyframes:"; print "  rate_hz: 20"; print "  memory_mb: " budget }
 ' "$here/../../configs/demo-sim.yaml" >"$out/soak.yaml"
-"$node" --check-config "$out/soak.yaml" >/dev/null 2>&1 || "$node" --check-config "$out/soak.yaml" || exit 1
+"$node" --check-config "$out/soak.yaml" >/dev/null 2>"$out/check.log" || { cat "$out/check.log" >&2; exit 1; }
 
 "$sim" --config "$out/soak.yaml" --quiet 2>"$out/sim.log" &
 simpid=$!
