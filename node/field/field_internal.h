@@ -14,17 +14,7 @@
 #include <stdint.h>
 
 #include "field.h"
-
-/* Hot kernels get AVX-512 / AVX2+FMA clones on x86-64 with GCC; elsewhere
- * (ARM, clang) the portable vector-extension code is compiled for the target
- * the build selects. Not under ThreadSanitizer: its instrumented ifunc
- * resolvers run before the runtime is initialised and crash. */
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(VLFF_NO_CLONES) && \
-    !defined(__SANITIZE_THREAD__)
-#define VLFF_HOT __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
-#else
-#define VLFF_HOT
-#endif
+#include "hot.h"
 
 /* ---- thread pool (pool.c) ---------------------------------------------- */
 struct vlff_pool;

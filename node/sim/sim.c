@@ -24,6 +24,7 @@
 #include <strings.h>
 
 #include "half.h"
+#include "hot.h"
 #include "log.h"
 
 static const char *const class_names[VLFF_SIM_CLASSES] = {
@@ -121,17 +122,6 @@ static double rng_normal(struct rng *r) {
   if (u1 < 1e-300) u1 = 1e-300;
   return sqrt(-2.0 * log(u1)) * cos(2.0 * M_PI * u2);
 }
-
-/* Approximately normal (Irwin-Hall of four 16-bit uniforms, unit variance)
- * from one 64-bit draw: the feature noise dominates the frame cost and its
- * tails do not matter. */
-static float rng_fastnormal(struct rng *r) {
-  uint64_t x = rng_u64(r);
-  uint32_t sum = (uint32_t)(x & 0xffff) + (uint32_t)((x >> 16) & 0xffff) +
-                 (uint32_t)((x >> 32) & 0xffff) + (uint32_t)(x >> 48);
-  return (float)(((double)sum / 65536.0 - 2.0) * 1.7320508075688772);
-}
-
 
 /* ---- small vector helpers ---------------------------------------------- */
 
@@ -613,22 +603,37 @@ static double lattice(uint32_t seed, int x, int y, int z) {
 
 static double smooth(double t) { return t * t * (3 - 2 * t); }
 
-static double value_noise(uint32_t seed, double x, double y, double z) {
+/* The eight lattice values of the last cell one octave of one texture
+ * looked up: neighbouring pixels mostly fall in the same cell (cells are
+ * 3-33 cm, pixels about 1 cm), and each value costs three 64-bit hashes. */
+struct lattice_cache {
+  int valid;
+  uint32_t seed;
+  int ix, iy, iz;
+  double v[8];
+};
+
+static double value_noise(struct lattice_cache *lc, uint32_t seed, double x, double y, double z) {
   int ix = (int)floor(x), iy = (int)floor(y), iz = (int)floor(z);
   double fx = smooth(x - ix), fy = smooth(y - iy), fz = smooth(z - iz);
+  if (!lc->valid || lc->seed != seed || lc->ix != ix || lc->iy != iy || lc->iz != iz) {
+    for (int c = 0; c < 8; c++) lc->v[c] = lattice(seed, ix + (c & 1), iy + ((c >> 1) & 1), iz + (c >> 2));
+    lc->valid = 1, lc->seed = seed, lc->ix = ix, lc->iy = iy, lc->iz = iz;
+  }
   double v = 0;
   for (int c = 0; c < 8; c++) {
     int dx = c & 1, dy = (c >> 1) & 1, dz = c >> 2;
     double w = (dx ? fx : 1 - fx) * (dy ? fy : 1 - fy) * (dz ? fz : 1 - fz);
-    v += w * lattice(seed, ix + dx, iy + dy, iz + dz);
+    v += w * lc->v[c];
   }
   return v;
 }
 
-static double pattern(const struct prim *p, const double x[3]) {
+static double pattern(struct lattice_cache lc[2], const struct prim *p, const double x[3]) {
   double sc = p->tex_scale;
   double a = x[0] * sc, b = x[1] * sc, c = x[2] * sc;
-  double n = 0.65 * value_noise(p->tex_seed, a, b, c) + 0.35 * value_noise(p->tex_seed + 1, 3 * a, 3 * b, 3 * c);
+  double n = 0.65 * value_noise(&lc[0], p->tex_seed, a, b, c) +
+             0.35 * value_noise(&lc[1], p->tex_seed + 1, 3 * a, 3 * b, 3 * c);
   switch (p->pattern) {
   case 1: return 0.55 + 0.45 * sin((a + b + c) * 1.7 + 2 * n);
   case 2: return (((int)floor(a * 0.5) + (int)floor(b * 0.5) + (int)floor(c * 0.5)) & 1) ? 0.35 + 0.3 * n : 0.75 + 0.25 * n;
@@ -637,7 +642,7 @@ static double pattern(const struct prim *p, const double x[3]) {
   }
 }
 
-static void shade(const struct vlff_sim *s, const struct prim *p, const double x[3],
+static void shade(const struct vlff_sim *s, struct lattice_cache lc[2], const struct prim *p, const double x[3],
                   const double n[3], float rgb[3]) {
   double light[3] = {0.5 * (s->room_lo[0] + s->room_hi[0]), 0.5 * (s->room_lo[1] + s->room_hi[1]),
                      s->room_hi[2] - 0.2};
@@ -646,7 +651,7 @@ static void shade(const struct vlff_sim *s, const struct prim *p, const double x
   norm3(l);
   double ndl = fabs(n[0] * l[0] + n[1] * l[1] + n[2] * l[2]);
   double lum = 0.35 + 0.9 * ndl / (1.0 + 0.08 * dist2);
-  double tex = 0.55 + 0.6 * pattern(p, x);
+  double tex = 0.55 + 0.6 * pattern(lc, p, x);
   for (int i = 0; i < 3; i++) {
     double v = p->albedo[i] * tex * lum;
     rgb[i] = (float)(v > 1 ? 1 : v);
@@ -832,6 +837,31 @@ struct patch {
   int to, from;  /* from = -1: any class inside */
 };
 
+/* v[d] = scale off[d] + sigma n_d. n_d is approximately normal: Irwin-Hall
+ * of the four 16-bit parts of the d-th draw of rng_u64 from state s0, scaled
+ * to unit variance (its tails do not matter). D draws per feature pixel make
+ * this most of a frame's cost, so it is written for the vectoriser: the
+ * generator is a counter (draw k mixes s0 + k gamma), so no draw waits for
+ * the one before. */
+VLFF_HOT
+static void feature_noise(uint64_t s0, float scale, const float *off, float sigma, float *v, int D) {
+  for (int d = 0; d < D; d++) {
+    uint64_t z = s0 + (uint64_t)(d + 1) * 0x9e3779b97f4a7c15ull;
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    z ^= z >> 31;
+    uint32_t sum = (uint32_t)(z & 0xffff) + (uint32_t)((z >> 16) & 0xffff) + (uint32_t)((z >> 32) & 0xffff) +
+                   (uint32_t)(z >> 48);
+    float n = (float)(((double)sum / 65536.0 - 2.0) * 1.7320508075688772);
+    v[d] = scale * off[d] + sigma * n;
+  }
+}
+
+VLFF_HOT
+static void feature_mix(float w, const float *p, float *v, int D) {
+  for (int d = 0; d < D; d++) v[d] += w * p[d];
+}
+
 static void render_features(const struct vlff_sim *s, long long index, struct vlff_sim_frame *f,
                             const float *cosview, float *acc) {
   const int D = s->dim, W = s->width, H = s->height, fw = s->fw, fh = s->fh;
@@ -901,12 +931,9 @@ static void render_features(const struct vlff_sim *s, long long index, struct vl
       uint16_t *out = f->features + ((size_t)j * fw + i) * D;
       struct rng pr = rng_make(s->seed, 4, ((uint64_t)index << 24) ^ ((uint64_t)j << 12) ^ (uint64_t)i);
       float *v = frame_offset + D; /* scratch: one feature vector */
-      for (int d = 0; d < D; d++) v[d] = offset_scale * frame_offset[d] + sigma * rng_fastnormal(&pr);
-      for (int c = 0; c < NPROTO; c++) {
-        if (w[c] == 0) continue;
-        const float *p = s->proto + (size_t)c * D;
-        for (int d = 0; d < D; d++) v[d] += w[c] * p[d];
-      }
+      feature_noise(pr.s, offset_scale, frame_offset, sigma, v, D);
+      for (int c = 0; c < NPROTO; c++)
+        if (w[c] != 0) feature_mix(w[c], s->proto + (size_t)c * D, v, D);
       vlff_f32_to_f16_n(v, out, (size_t)D);
     }
   }
@@ -947,6 +974,7 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
   /* Holes come in small blobs, like stereo matching failures: seed blob
    * centres so the expected invalid fraction is depth_hole_frac. */
   int nblob = (int)(holes * W * H / 18.0 + 0.5);
+  struct lattice_cache lc[2] = {{0}, {0}};
   for (int v = 0; v < H; v++) {
     for (int u = 0; u < W; u++) {
       size_t k = (size_t)v * W + u;
@@ -972,7 +1000,7 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
       cosview[k] = (float)fabs((n[0] * d[0] + n[1] * d[1] + n[2] * d[2]) / dl);
       if (what & VLFF_SIM_RGBD) {
         float c[3];
-        shade(s, p, x, n, c);
+        shade(s, lc, p, x, n, c);
         for (int i = 0; i < 3; i++) {
           double val = c[i] * 255.0 + 1.5 * rng_normal(&nr);
           f->rgb[3 * k + i] = (uint8_t)(val < 0 ? 0 : val > 255 ? 255 : val + 0.5);

@@ -201,8 +201,14 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       /* the ring carries [D][h][w]; the sim makes [h][w][D] */
       uint16_t *out = (uint16_t *)((uint8_t *)fhd + fhd->data_offset);
       size_t hw = (size_t)fw * fh;
-      for (size_t p = 0; p < hw; p++)
-        for (int d = 0; d < D; d++) out[(size_t)d * hw + p] = f->features[p * D + d];
+      /* in 32 x 32 tiles, so both sides stay in cache lines already fetched */
+      for (size_t p0 = 0; p0 < hw; p0 += 32)
+        for (int d0 = 0; d0 < D; d0 += 32) {
+          size_t p1 = p0 + 32 < hw ? p0 + 32 : hw;
+          int d1 = d0 + 32 < D ? d0 + 32 : D;
+          for (int d = d0; d < d1; d++)
+            for (size_t p = p0; p < p1; p++) out[(size_t)d * hw + p] = f->features[p * D + d];
+        }
       if (vlff_ring_commit(fring, flen) < 0) {
         fprintf(stderr, "vlff-sim: feature commit: %s\n", strerror(errno));
         status = 1;
