@@ -117,6 +117,8 @@ struct vlff_config {
     int lr_decay_steps;
     int rays_per_step;
     int warmup_steps;                /* node: a young field's steps grow from rays_per_step / 4 over these */
+    int warmup_levels;               /* node: a young field starts on this many hash levels (0 = all) */
+    int warmup_level_steps;          /* node: ... and adds the finer ones over these steps */
     int samples_per_ray;
     int sampling;                    /* enum vlff_sampling */
     double depth_weight;

@@ -880,10 +880,17 @@ static void *trainer_main(void *arg) {
        * shared MLPs toward those views and away from the rest of the map
        * (the end-to-end kill -9 test saw 3D mIoU fall from 23 to 4). */
       int warm = cfg->train.warmup_steps, full = cfg->train.rays_per_step;
+      long long steps = vlff_field_steps(n->field);
       if (warm > 0 && !n->resumed) {
-        double fr = fmin(1.0, (double)vlff_field_steps(n->field) / warm);
+        double fr = fmin(1.0, (double)steps / warm);
         vlff_field_set_rays(n->field, (int)lround(full / 4.0 * pow(4.0, fr)));
       }
+      /* Coarse to fine, likewise only for a fresh field: the coarse levels,
+       * shared by many samples, fit a new view's layout in fewer steps, and
+       * the finer ones, cheaper to leave out, add detail once it is there. */
+      int l0 = cfg->train.warmup_levels, lw = cfg->train.warmup_level_steps, levels = cfg->field.hash_levels;
+      if (l0 > 0 && l0 < levels && lw > 0 && !n->resumed && steps <= lw)
+        vlff_field_set_levels(n->field, l0 + (int)((levels - l0) * steps / lw));
       struct vlff_train_stats ts;
       char err[256];
       if (vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err) == 0) {

@@ -14,6 +14,7 @@
 
 void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_config *cfg) {
   e->levels = cfg->field.hash_levels;
+  e->active = e->levels;
   e->feats = cfg->field.hash_features;
   e->log2_size = cfg->field.hash_log2_size;
   e->freq_bands = cfg->field.freq_bands;
@@ -114,6 +115,11 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
   for (int l = 0; l < e->levels; l++) {
     const float *t = table + (size_t)l * e->size * F;
     float *ol = out + l * F;
+    if (l >= e->active) {
+      for (int i = 0; i < n; i++)
+        for (int q = 0; q < F; q++) ol[(size_t)i * ldo + q] = 0;
+      continue;
+    }
     if (F == 2) {
       /* Two passes per block: all corner addresses first (prefetched, so
        * the block's cache misses overlap), then the gathers. */

@@ -71,6 +71,13 @@ long long vlff_field_steps(const struct vlff_field *f);
  * batch memory planned at create); returns the value used. */
 int vlff_field_set_rays(struct vlff_field *f, int n);
 
+/* Hash levels in use, coarsest first: n clamped to [1, field.hash_levels]
+ * (all by default); returns the value used. The finer levels then encode 0
+ * in steps, queries and renders alike, and steps leave their parameters and
+ * optimiser moments untouched, so a level joins later from where it was.
+ * Not saved in checkpoints. */
+int vlff_field_set_levels(struct vlff_field *f, int n);
+
 /* Set the prompt set: K embeddings of dimension D (K <= VLFF_MAX_PROMPTS).
  * The prompts are folded into MLP3's last layer; queries then cost K, not D,
  * output dot products. */

@@ -30,6 +30,7 @@ void vlff_pool_run(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
 /* ---- encoding (encoding.c) --------------------------------------------- */
 struct vlff_encoding {
   int levels, feats, log2_size, freq_bands;
+  int active;              /* levels in use: finer ones output 0 and get no gradient */
   int dim;                 /* levels*feats + 6*freq_bands */
   uint32_t size;           /* entries per level */
   float box_min[3], box_scale[3];  /* p = (x - min) * scale, in [0,1] */

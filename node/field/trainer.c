@@ -606,6 +606,7 @@ static void hash_task(void *ctx, int level, int thread) {
   struct step_ctx *sc = ctx;
   struct vlff_field *f = sc->f;
   (void)thread;
+  if (level >= f->enc.active) return;
   size_t slot = (size_t)f->chunk_rays * f->spr;
   for (int c = 0; c < sc->nchunks; c++)
     vlff_encoding_backward(&f->enc, f->step_p + (size_t)c * slot * 3, f->chunk_n[c],
@@ -749,6 +750,11 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
     counts[1] = n_depth;
     counts[2] = n_feat;
   }
+}
+
+int vlff_field_set_levels(struct vlff_field *f, int n) {
+  f->enc.active = n < 1 ? 1 : n > f->enc.levels ? f->enc.levels : n;
+  return f->enc.active;
 }
 
 int vlff_field_set_rays(struct vlff_field *f, int n) {

@@ -286,9 +286,58 @@ static void test_ray_budget(void **state) {
   vlff_field_destroy(f);
 }
 
+/* Coarse levels only: the finer levels encode 0 and a step leaves their
+ * parameters and moments bit for bit as they were; restoring every level
+ * trains them again. */
+static void test_level_mask(void **state) {
+  (void)state;
+  const int d = 16, W = 40, H = 30;
+  struct vlff_config cfg;
+  scene_cfg(&cfg, d);
+  cfg.train.rays_per_step = 256;
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
+  assert_non_null(f);
+  const int L = f->enc.levels, F = f->enc.feats, keep = 3;
+  assert_int_equal(vlff_field_set_levels(f, 0), 1);
+  assert_int_equal(vlff_field_set_levels(f, 1000), L);
+  assert_int_equal(vlff_field_set_levels(f, keep), keep);
+  struct scene_view sv;
+  double c2w[16];
+  scene_pose(0, 16, c2w);
+  scene_render(&sv, W, H, d, c2w);
+  const size_t nt = f->ntable, split = (size_t)keep * f->enc.size * F;
+  float *p0 = malloc(nt * sizeof(float)), *m0 = malloc(nt * sizeof(float));
+  assert_non_null(p0);
+  assert_non_null(m0);
+  memcpy(p0, f->params, nt * sizeof(float));
+  memcpy(m0, f->adam_m, nt * sizeof(float));
+  struct vlff_train_stats st;
+  for (int i = 0; i < 3; i++) assert_int_equal(vlff_field_step(f, &sv.v, 1, NULL, &st, err, sizeof(err)), 0);
+  assert_memory_equal(f->params + split, p0 + split, (nt - split) * sizeof(float));
+  assert_memory_equal(f->adam_m + split, m0 + split, (nt - split) * sizeof(float));
+  assert_memory_not_equal(f->params, p0, split * sizeof(float));
+  /* The encoding's masked columns are 0 wherever the point is. */
+  float p[3 * 8], out[8 * 64];
+  uint64_t r = 5;
+  for (int i = 0; i < 3 * 8; i++) p[i] = vlff_rng_uniform(&r);
+  assert_true(f->enc.dim <= 64);
+  vlff_encoding_forward(&f->enc, f->params, p, 8, out, 64);
+  for (int i = 0; i < 8; i++)
+    for (int c = keep * F; c < L * F; c++) assert_true(out[i * 64 + c] == 0.0f);
+  assert_int_equal(vlff_field_set_levels(f, L), L);
+  assert_int_equal(vlff_field_step(f, &sv.v, 1, NULL, &st, err, sizeof(err)), 0);
+  assert_memory_not_equal(f->params + split, p0 + split, (nt - split) * sizeof(float));
+  free(p0);
+  free(m0);
+  scene_view_free(&sv);
+  vlff_field_destroy(f);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_ray_budget),
+      cmocka_unit_test(test_level_mask),
       cmocka_unit_test(test_slab),
       cmocka_unit_test(test_chunk_gradient),
       cmocka_unit_test(test_convergence),
