@@ -131,7 +131,7 @@ static const struct key schema[] = {
     INT("train.lr_decay_steps", train.lr_decay_steps, 1, 1 << 30, 10000),
     INT("train.rays_per_step", train.rays_per_step, 1, 1 << 20, 1024),
     INT("train.warmup_steps", train.warmup_steps, 0, 1 << 30, 800),
-    INT("train.warmup_levels", train.warmup_levels, 0, 32, 4),
+    INT("train.warmup_levels", train.warmup_levels, 0, 32, 0),
     INT("train.warmup_level_steps", train.warmup_level_steps, 0, 1 << 30, 1200),
     INT("train.samples_per_ray", train.samples_per_ray, 1, 4096, 24),
     ENUM("train.sampling", train.sampling, samplings, "depth"),
