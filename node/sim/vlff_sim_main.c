@@ -29,6 +29,7 @@
 #include "embeddings.h"
 #include "log.h"
 #include "sim.h"
+#include "transpose.h"
 #include "vlff/shm.h"
 
 #define TAG "sim"
@@ -200,15 +201,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       fhd->frame_id = (uint64_t)id, fhd->t_host_ns = now;
       /* the ring carries [D][h][w]; the sim makes [h][w][D] */
       uint16_t *out = (uint16_t *)((uint8_t *)fhd + fhd->data_offset);
-      size_t hw = (size_t)fw * fh;
-      /* in 32 x 32 tiles, so both sides stay in cache lines already fetched */
-      for (size_t p0 = 0; p0 < hw; p0 += 32)
-        for (int d0 = 0; d0 < D; d0 += 32) {
-          size_t p1 = p0 + 32 < hw ? p0 + 32 : hw;
-          int d1 = d0 + 32 < D ? d0 + 32 : D;
-          for (int d = d0; d < d1; d++)
-            for (size_t p = p0; p < p1; p++) out[(size_t)d * hw + p] = f->features[p * D + d];
-        }
+      vlff_transpose_u16(f->features, (size_t)fw * fh, (size_t)D, out);
       if (vlff_ring_commit(fring, flen) < 0) {
         fprintf(stderr, "vlff-sim: feature commit: %s\n", strerror(errno));
         status = 1;
