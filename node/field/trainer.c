@@ -573,9 +573,10 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
   }
   if (N) vlff_mlp_backward(&f->m1, f->wT, w->enc, f->E, N, f->m1.nl, w->a1, dout1, g, w->denc, w->dy_b);
   /* Level-major copy while it is in cache: each level's scatter (one thread
-   * per level) then streams its own contiguous gradients. */
+   * per level) then streams its own contiguous gradients. Levels masked by
+   * vlff_field_set_levels get no scatter, so need no copy. */
   const int F = f->enc.feats;
-  for (int l = 0; l < f->enc.levels; l++) {
+  for (int l = 0; l < f->enc.active; l++) {
     float *dl = dencslot + (size_t)l * N * F;
     for (int i = 0; i < N; i++)
       for (int q = 0; q < F; q++) dl[(size_t)i * F + q] = w->denc[(size_t)i * f->E + l * F + q];
