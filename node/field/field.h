@@ -97,6 +97,12 @@ int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *de
 int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *rgb, float *depth,
                       float *feature, int *label, float *score);
 
+/* The same for the n pixels listed in pix (y * width + x, each < width *
+ * height): outputs are still image-sized, and only the listed pixels are
+ * written. For filling in a few pixels without rendering the whole view. */
+int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
+                             float *rgb, float *depth, float *feature, int *label, float *score);
+
 /* Atomic checkpoint (temp file, fsync, rename) of the whole learned state;
  * load refuses truncated, corrupt or mismatched (config hash) files and then
  * leaves f untouched. */

@@ -215,6 +215,8 @@ static size_t render_rays(const struct vlff_field *f) {
 struct render_ctx {
   struct vlff_field *f;
   const struct vlff_view *cam;
+  const uint32_t *pix; /* NULL: every pixel */
+  size_t n;
   float *rgb, *depth, *feature, *score;
   int *label;
 };
@@ -339,12 +341,14 @@ static void render_task(void *ctx, int task, int thread) {
   struct vlff_work *w = &f->work[thread];
   const struct vlff_view *cam = rc->cam;
   const int H = f->H, D = f->D, K = f->K;
-  size_t npx = (size_t)cam->width * cam->height;
   const size_t per = render_rays(f);
   size_t a = (size_t)task * per;
-  int nr = (int)(npx - a < per ? npx - a : per);
+  int nr = (int)(rc->n - a < per ? rc->n - a : per);
+  /* The chunk's image pixels: a slice of rc->pix, or a run of the image. */
+  size_t pixel[VLFF_QUERY_BLOCK];
+  for (int r = 0; r < nr; r++) pixel[r] = rc->pix ? rc->pix[a + r] : a + r;
   for (int r = 0; r < nr; r++) {
-    size_t pix = a + r;
+    size_t pix = pixel[r];
     double u = (double)(pix % cam->width) + 0.5, v = (double)(pix / cam->width) + 0.5;
     struct vlff_ray *ray = &w->rbuf[r];
     vlff_camera_ray(cam, u, v, ray->o, ray->d);
@@ -355,7 +359,7 @@ static void render_task(void *ctx, int task, int thread) {
   }
   render_chunk(f, w, w->rbuf, nr, rc->rgb != NULL, rc->feature || rc->label || rc->score);
   for (int r = 0; r < nr; r++) {
-    size_t pix = a + r;
+    size_t pix = pixel[r];
     if (rc->rgb)
       for (int c = 0; c < 3; c++) rc->rgb[3 * pix + c] = w->rgb[3 * r + c];
     if (rc->depth) rc->depth[pix] = w->depth[r];
@@ -367,7 +371,7 @@ static void render_task(void *ctx, int task, int thread) {
     vlff_gemm(nr, D, H, w->hray, H, 1, pm + m3->woff[last], D, w->fray, D, NULL, 0, 0);
     const float *b = pm + m3->boff[last];
     for (int r = 0; r < nr; r++) {
-      float *dst = rc->feature + (a + r) * (size_t)D;
+      float *dst = rc->feature + pixel[r] * (size_t)D;
       const float *src = w->fray + (size_t)r * D;
       for (int j = 0; j < D; j++) dst[j] = src[j] + w->wsum[r] * b[j];
     }
@@ -382,23 +386,32 @@ static void render_task(void *ctx, int task, int thread) {
       int lb = -1;
       float sc = 0;
       if (w->opac[r] >= 0.5f) pick(lg, K, rc->score ? norms[r] : 1.0f, &lb, &sc, NULL);
-      if (rc->label) rc->label[a + r] = lb;
-      if (rc->score) rc->score[a + r] = sc;
+      if (rc->label) rc->label[pixel[r]] = lb;
+      if (rc->score) rc->score[pixel[r]] = sc;
     }
   }
 }
 
-int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *rgb, float *depth, float *feature,
-                      int *label, float *score) {
+int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
+                             float *rgb, float *depth, float *feature, int *label, float *score) {
   if (!f || !cam || cam->width <= 0 || cam->height <= 0 || !(cam->fx > 0) || !(cam->fy > 0)) return -1;
   for (int k = 0; k < 16; k++)
     if (!isfinite(cam->c2w[k])) return -1;
+  size_t npx = (size_t)cam->width * cam->height;
+  if (!pix && n != npx) return -1;
+  for (size_t i = 0; pix && i < n; i++)
+    if (pix[i] >= npx) return -1;
   vlff_field_fold(f);
   if ((label || score) && f->K == 0) return -1;
-  struct render_ctx rc = {f, cam, rgb, depth, feature, score, label};
-  size_t npx = (size_t)cam->width * cam->height;
-  size_t ntasks = (npx + render_rays(f) - 1) / render_rays(f);
+  struct render_ctx rc = {f, cam, pix, n, rgb, depth, feature, score, label};
+  size_t ntasks = (n + render_rays(f) - 1) / render_rays(f);
   if (ntasks > (size_t)1 << 30) return -1;
   vlff_pool_run(f->pool, (int)ntasks, render_task, &rc);
   return 0;
+}
+
+int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *rgb, float *depth, float *feature,
+                      int *label, float *score) {
+  if (!cam || cam->width <= 0 || cam->height <= 0) return -1;
+  return vlff_field_render_pixels(f, cam, NULL, (size_t)cam->width * cam->height, rgb, depth, feature, label, score);
 }

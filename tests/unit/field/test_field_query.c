@@ -199,6 +199,28 @@ static void test_folded_equals_unfolded(void **state) {
   }
   assert_true(hit > w * h / 2);
   assert_true(ok2 >= hit - hit / 100);
+  /* A pixel list, out of order, renders those pixels as the whole view
+   * does and leaves every other pixel alone. */
+  uint32_t pix[24 * 18];
+  size_t np = 0;
+  for (int i = w * h - 1; i >= 0; i -= 3) pix[np++] = (uint32_t)i;
+  int *pl = malloc((size_t)w * h * sizeof(int));
+  float *ps = malloc((size_t)w * h * 4);
+  for (int i = 0; i < w * h; i++) pl[i] = -7, ps[i] = -7;
+  assert_int_equal(vlff_field_render_pixels(f, &cam, pix, np, NULL, NULL, NULL, pl, ps), 0);
+  for (int i = 0; i < w * h; i++) {
+    if ((w * h - 1 - i) % 3) {
+      assert_int_equal(pl[i], -7);
+      assert_true(ps[i] == -7);
+      continue;
+    }
+    assert_true(fabsf(ps[i] - rs[i]) < 1e-4f);
+    if (pl[i] != rl[i]) assert_true(pl[i] >= 0 && rl[i] >= 0 && fabsf(ps[i] - rs[i]) < 1e-4f);
+  }
+  pix[0] = (uint32_t)(w * h); /* off the image: refused */
+  assert_int_equal(vlff_field_render_pixels(f, &cam, pix, np, NULL, NULL, NULL, pl, ps), -1);
+  free(pl);
+  free(ps);
   free(rf);
   free(rs);
   free(rl);
