@@ -47,6 +47,7 @@ static const char *const source_kinds[] = {"sim", "ring", "dataset", NULL};
 static const char *const feature_sources[] = {"sim", "model", "ring", NULL};
 static const char *const feat_losses[] = {"l2", "l1", NULL};
 static const char *const samplings[] = {"depth", "uniform", NULL};
+static const char *const label_images[] = {"surface", "render", NULL};
 static const char *const trajectories[] = {"walk", "orbit", NULL};
 static const char *const camera_kinds[] = {"aravis", "libcamera", "sim", NULL};
 static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
@@ -131,7 +132,7 @@ static const struct key schema[] = {
     INT("train.lr_decay_steps", train.lr_decay_steps, 1, 1 << 30, 10000),
     INT("train.rays_per_step", train.rays_per_step, 1, 1 << 20, 1024),
     INT("train.warmup_steps", train.warmup_steps, 0, 1 << 30, 800),
-    INT("train.warmup_levels", train.warmup_levels, 0, 32, 0),
+    INT("train.warmup_levels", train.warmup_levels, 0, 32, 4),
     INT("train.warmup_level_steps", train.warmup_level_steps, 0, 1 << 30, 1200),
     INT("train.samples_per_ray", train.samples_per_ray, 1, 4096, 24),
     ENUM("train.sampling", train.sampling, samplings, "depth"),
@@ -157,6 +158,7 @@ static const struct key schema[] = {
     DBL("publish.voxel_size_m", publish.voxel_size_m, 0.001, 100, 0.05),
     INT("publish.label_width", publish.label_width, 8, 8192, 160),
     INT("publish.label_height", publish.label_height, 8, 8192, 120),
+    ENUM("publish.label_image", publish.label_image, label_images, "surface"),
     DBL("publish.free_density", publish.free_density, 0, 1e6, 1.0),
 
     INT("prompts.active", prompts.active, 0, VLFF_MAX_PROMPT_SETS - 1, 0),

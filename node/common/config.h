@@ -33,6 +33,7 @@ enum vlff_source_kind { VLFF_SOURCE_SIM, VLFF_SOURCE_RING, VLFF_SOURCE_DATASET }
 enum vlff_feature_source { VLFF_FEAT_SIM, VLFF_FEAT_MODEL, VLFF_FEAT_RING };
 enum vlff_feat_loss { VLFF_FEAT_LOSS_L2, VLFF_FEAT_LOSS_L1 };
 enum vlff_sampling { VLFF_SAMPLING_DEPTH, VLFF_SAMPLING_UNIFORM };
+enum vlff_label_image { VLFF_LABEL_IMAGE_SURFACE, VLFF_LABEL_IMAGE_RENDER };
 enum vlff_trajectory { VLFF_TRAJ_WALK, VLFF_TRAJ_ORBIT };
 enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA, VLFF_CAM_SIM };
 enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
@@ -146,6 +147,7 @@ struct vlff_config {
     double rate_hz;
     double voxel_size_m;
     int label_width, label_height;
+    int label_image;                 /* enum vlff_label_image */
     double free_density;             /* below: free; unobserved stays unknown */
   } publish;
 

@@ -855,6 +855,32 @@ static void update_state(struct vlff_node *n) {
   pthread_mutex_unlock(&n->slock);
 }
 
+/* The young-field schedules, both keyed on the field's step count. */
+static void apply_warmup(struct vlff_node *n) {
+  /* A young field learns faster from more, cheaper steps: a quarter
+   * of the batch at first, growing geometrically to all of it. Not for
+   * a field resumed from a checkpoint, however young: its keyframes are
+   * gone, and many small steps on its first few new ones would pull the
+   * shared MLPs toward those views and away from the rest of the map
+   * (the end-to-end kill -9 test saw 3D mIoU fall from 23 to 4). */
+  const struct vlff_config *cfg = &n->cfg;
+  int warm = cfg->train.warmup_steps, full = cfg->train.rays_per_step;
+  long long steps = vlff_field_steps(n->field);
+  if (warm > 0 && !n->resumed) {
+    double fr = fmin(1.0, (double)steps / warm);
+    vlff_field_set_rays(n->field, (int)lround(full / 4.0 * pow(4.0, fr)));
+  }
+  /* Coarse to fine: the coarse levels, shared by many samples, fit a
+   * new view's layout in fewer steps, and the finer ones, cheaper to
+   * leave out, add detail once it is there. Keyed on the field's own
+   * step, so a field resumed young goes on where it stopped: switching
+   * its untrained fine levels on all at once perturbed the restored map
+   * (the kill -9 test's 3D mIoU fell to half). */
+  int l0 = cfg->train.warmup_levels, lw = cfg->train.warmup_level_steps, levels = cfg->field.hash_levels;
+  if (l0 > 0 && l0 < levels && lw > 0 && steps <= lw)
+    vlff_field_set_levels(n->field, l0 + (int)((levels - l0) * steps / lw));
+}
+
 static void *trainer_main(void *arg) {
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
@@ -863,8 +889,13 @@ static void *trainer_main(void *arg) {
   uint64_t mailbox_seq = 0;
   double rate_t0 = mono_s();
   long long rate_steps = 0;
+  /* A resumed map is published before it trains on anything new, so
+   * controllers have it back at once. */
+  bool first = n->resumed;
+  if (first) apply_warmup(n);
   while (!atomic_load(&n->stop)) {
-    bool publish_now = false;
+    bool publish_now = first;
+    first = false;
     run_commands(n, &publish_now);
     poll_mailbox(n, &mailbox_seq, &publish_now);
     bool train = n->mapping && vlff_kfstore_count(n->store) >= cfg->keyframes.start_after;
@@ -873,24 +904,7 @@ static void *trainer_main(void *arg) {
       const struct vlff_view *views;
       const float *w;
       int nv = vlff_kfstore_views(n->store, cfg->keyframes.recent, &views, &w);
-      /* A young field learns faster from more, cheaper steps: a quarter
-       * of the batch at first, growing geometrically to all of it. Not for
-       * a field resumed from a checkpoint, however young: its keyframes are
-       * gone, and many small steps on its first few new ones would pull the
-       * shared MLPs toward those views and away from the rest of the map
-       * (the end-to-end kill -9 test saw 3D mIoU fall from 23 to 4). */
-      int warm = cfg->train.warmup_steps, full = cfg->train.rays_per_step;
-      long long steps = vlff_field_steps(n->field);
-      if (warm > 0 && !n->resumed) {
-        double fr = fmin(1.0, (double)steps / warm);
-        vlff_field_set_rays(n->field, (int)lround(full / 4.0 * pow(4.0, fr)));
-      }
-      /* Coarse to fine, likewise only for a fresh field: the coarse levels,
-       * shared by many samples, fit a new view's layout in fewer steps, and
-       * the finer ones, cheaper to leave out, add detail once it is there. */
-      int l0 = cfg->train.warmup_levels, lw = cfg->train.warmup_level_steps, levels = cfg->field.hash_levels;
-      if (l0 > 0 && l0 < levels && lw > 0 && !n->resumed && steps <= lw)
-        vlff_field_set_levels(n->field, l0 + (int)((levels - l0) * steps / lw));
+      apply_warmup(n);
       struct vlff_train_stats ts;
       char err[256];
       if (vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err) == 0) {

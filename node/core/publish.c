@@ -40,6 +40,14 @@ struct vlff_publisher {
   uint8_t *img_conf;
   int *img_lab;
   float *img_score;
+  /* The latest camera's label pixels, split by its measured depth: those
+   * with a surface point (labelled by a 3D query there) and holes
+   * (rendered). Without depth, or with label_image: render, all are holes. */
+  bool surface;
+  uint32_t *sel_pix, *hole_pix;
+  size_t nsel, nhole;
+  float *sel_xyz, *sel_score;
+  int *sel_lab;
   struct vlff_view cam;
   bool have_cam;
   uint64_t cam_t_ns;
@@ -68,6 +76,11 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   free(p->img_conf);
   free(p->img_lab);
   free(p->img_score);
+  free(p->sel_pix);
+  free(p->hole_pix);
+  free(p->sel_xyz);
+  free(p->sel_score);
+  free(p->sel_lab);
   vlff_sim_frame_free(p->gt_frame);
   free(p);
 }
@@ -123,10 +136,17 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
   p->img_conf = malloc(li);
   p->img_lab = malloc(li * sizeof *p->img_lab);
   p->img_score = malloc(li * sizeof *p->img_score);
+  p->surface = cfg->publish.label_image == VLFF_LABEL_IMAGE_SURFACE;
+  p->sel_pix = malloc(li * sizeof *p->sel_pix);
+  p->hole_pix = malloc(li * sizeof *p->hole_pix);
+  p->sel_xyz = malloc(li * 3 * sizeof *p->sel_xyz);
+  p->sel_score = malloc(li * sizeof *p->sel_score);
+  p->sel_lab = malloc(li * sizeof *p->sel_lab);
   p->gt_frame = sim ? vlff_sim_frame_new(sim) : NULL;
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
-      !p->img_lab || !p->img_score || (sim && !p->gt_frame)) {
+      !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->sel_score ||
+      !p->sel_lab || (sim && !p->gt_frame)) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
     return NULL;
@@ -272,6 +292,22 @@ void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v)
 
 void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id) {
   p->cam = *v;
+  p->nsel = p->nhole = 0;
+  for (int y = 0; y < p->lh; y++)
+    for (int x = 0; x < p->lw; x++) {
+      /* The camera pixel under the label pixel's centre. */
+      double u = (x + 0.5) * v->width / p->lw, w = (y + 0.5) * v->height / p->lh;
+      float d = p->surface && v->depth ? v->depth[(size_t)(int)w * v->width + (int)u] : 0;
+      uint32_t pix = (uint32_t)(y * p->lw + x);
+      if (!(d > 0 && isfinite(d))) {
+        p->hole_pix[p->nhole++] = pix;
+        continue;
+      }
+      double hp[3];
+      vlff_unproject(v->c2w, v->fx, v->fy, v->cx, v->cy, u, w, d, hp);
+      for (int a = 0; a < 3; a++) p->sel_xyz[p->nsel * 3 + a] = (float)hp[a];
+      p->sel_pix[p->nsel++] = pix;
+    }
   p->cam.rgb = NULL;
   p->cam.depth = NULL;
   p->cam.features = NULL;
@@ -368,7 +404,13 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     cam.width = p->lw;
     cam.height = p->lh;
     cam.fx *= sx, cam.cx *= sx, cam.fy *= sy, cam.cy *= sy;
-    if (vlff_field_render(f, &cam, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) {
+    if ((!p->nhole ||
+         vlff_field_render_pixels(f, &cam, p->hole_pix, p->nhole, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) &&
+        (!p->nsel || vlff_field_query(f, p->sel_xyz, p->nsel, NULL, NULL, p->sel_lab, p->sel_score, NULL) == 0)) {
+      for (size_t j = 0; j < p->nsel; j++) {
+        p->img_lab[p->sel_pix[j]] = p->sel_lab[j];
+        p->img_score[p->sel_pix[j]] = p->sel_score[j];
+      }
       size_t li = (size_t)p->lw * p->lh;
       for (size_t i = 0; i < li; i++) {
         p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;

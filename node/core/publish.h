@@ -9,6 +9,12 @@
  * mean of the measured points inside them, so the feature is read on the
  * surface rather than in the air at the voxel centre.
  *
+ * The 2D label image is made at the latest keyframe's pose. With
+ * publish.label_image: surface, a pixel with measured depth gets the label
+ * of the field's feature at that measured surface point, for the same
+ * reason; the rest are volume-rendered (label -1, UNKNOWN, where the
+ * rendered opacity stays under one half).
+ *
  * Contract: one owner thread (the trainer). Functions returning int give 0,
  * or -1 with err filled.
  */
@@ -38,7 +44,8 @@ void vlff_publisher_destroy(struct vlff_publisher *p);
 
 /* Account an admitted keyframe's measured depth (observed / hit voxels). */
 void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v);
-/* The view the next 2D label image is rendered for (the latest keyframe). */
+/* The view the next 2D label image is made for (the latest keyframe); its
+ * depth, if any, is read now, not kept. */
 void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id);
 /* True when measured depth of admitted keyframes already ended in the voxel
  * holding world point x (at least twice): a surface the map has seen. */

@@ -181,6 +181,25 @@ static void test_learns_and_reprompts(void **state) {
          st.iteration, st.keyframes, (unsigned long long)version);
   assert_true(best >= 35);
   assert_int_equal(st.frames_invalid, 0);
+  /* The 2D label image at the latest keyframe: the camera sees the room's
+   * surfaces everywhere, so nearly every pixel carries a prompt's label, and
+   * they beat chance by far against the ground truth (the node's own score). */
+  struct vlff_map *mi = vlff_map_attach(cfg.shm.map);
+  assert_non_null(mi);
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(mi);
+  struct vlff_map_info info;
+  assert_int_equal(vlff_map_snapshot_take(mi, snap), 0);
+  assert_int_equal(vlff_map_snapshot_info(snap, &info), 0);
+  assert_true(info.has_label_image);
+  assert_int_equal(info.label_image.width, 80);
+  assert_int_equal(info.label_image.height, 60);
+  int labelled = 0;
+  for (int i = 0; i < 80 * 60; i++) labelled += info.label_image.labels[i] < info.prompt_count;
+  vlff_map_snapshot_free(snap);
+  vlff_map_detach(mi);
+  printf("label image: %d of %d pixels labelled, node's 2D mIoU %.1f\n", labelled, 80 * 60, st.miou2d);
+  assert_true(labelled >= 80 * 60 * 9 / 10);
+  assert_true(st.miou2d >= 30);
 
   /* A controller posts its own prompts: the next publish uses them. */
   struct vlff_prompts *pb = vlff_prompts_attach(cfg.shm.prompts);
@@ -201,18 +220,25 @@ static void test_learns_and_reprompts(void **state) {
   assert_int_equal(vlff_map_prompt(m, 0, text, sizeof text), 0);
   assert_string_equal(text, "floor");
   assert_int_equal(vlff_map_prompt(m, 2, text, sizeof text), -1);
-  /* Floor points now read "floor", walls "wall". */
+  /* Observed floor points now read "floor", walls "wall". Points no keyframe
+   * has seen yet stay unknown whatever the prompts: how much of the room the
+   * camera has swept when the map first passes 35 depends on how fast it
+   * learns (a fifth to a half of it), not on prompts. A few hundred points of
+   * each class keep the fractions meaningful. */
   const struct vlff_sim_points pts = gt;
-  int floor_ok = 0, floor_n = 0, wall_ok = 0, wall_n = 0;
+  int floor_ok = 0, floor_n = 0, wall_ok = 0, wall_n = 0, floor_all = 0, wall_all = 0;
   for (size_t i = 0; i < pts.n; i++) {
     uint16_t lab;
     const float *x = pts.xyz + i * 3;
-    if (vlff_map_label_at(m, x[0], x[1], x[2], &lab, NULL) != 0) continue;
+    floor_all += pts.label[i] == 1;
+    wall_all += pts.label[i] == 0;
+    if (vlff_map_label_at(m, x[0], x[1], x[2], &lab, NULL) != 0 || lab == VLFF_LABEL_UNKNOWN) continue;
     if (pts.label[i] == 1) floor_n++, floor_ok += lab == 0;
     if (pts.label[i] == 0) wall_n++, wall_ok += lab == 1;
   }
-  printf("two prompts: floor %d/%d, wall %d/%d\n", floor_ok, floor_n, wall_ok, wall_n);
-  assert_true(floor_n > 0 && wall_n > 0);
+  printf("two prompts: floor %d/%d, wall %d/%d (observed of %d, %d)\n", floor_ok, floor_n, wall_ok, wall_n,
+         floor_all, wall_all);
+  assert_true(floor_n >= 300 && wall_n >= 300);
   assert_true(floor_ok > floor_n * 0.7 && wall_ok > wall_n * 0.7);
   vlff_map_detach(m);
 
@@ -232,9 +258,15 @@ static void test_learns_and_reprompts(void **state) {
 }
 
 
-static bool file_exists(const char *path) {
-  struct stat sb;
-  return stat(path, &sb) == 0;
+/* Modification time of the newer of two files, 0 when neither exists. */
+static double newest_mtime(const char *a, const char *b) {
+  double t = 0;
+  const char *p[2] = {a, b};
+  for (int i = 0; i < 2; i++) {
+    struct stat sb;
+    if (stat(p[i], &sb) == 0) t = fmax(t, (double)sb.st_mtim.tv_sec + sb.st_mtim.tv_nsec * 1e-9);
+  }
+  return t;
 }
 
 /* kill -9 the node mid-run: the camera side never notices, and the restarted
@@ -255,10 +287,14 @@ static void test_kill9_resumes(void **state) {
   while (mono_s() - t0 < 90 * scale) {
     sleep_s(2);
     before = map_miou3d(&cfg, &v_before, NULL);
-    if (before >= 20 && (file_exists(ck0) || file_exists(ck1))) break;
+    if (before >= 20 && newest_mtime(ck0, ck1) > 0) break;
   }
-  /* Let one more checkpoint land after that quality was reached. */
-  sleep_s(cfg.node.checkpoint_period_s + 1);
+  /* Kill right after the next checkpoint lands, so the map measured here is
+   * the one it saved, give or take a publish: a young map gains several
+   * points a second, and the restart is judged against this. */
+  double m0 = newest_mtime(ck0, ck1);
+  t0 = mono_s();
+  while (newest_mtime(ck0, ck1) == m0 && mono_s() - t0 < 4.0 * cfg.node.checkpoint_period_s * scale) sleep_s(0.1);
   before = map_miou3d(&cfg, &v_before, NULL);
   printf("before kill: 3D mIoU %.1f at map v%llu\n", before, (unsigned long long)v_before);
   assert_true(before >= 20);
