@@ -4,9 +4,12 @@
  * vlff-sim streams configs/demo-sim.yaml's room into the frame and feature
  * rings; the node (in this process, exactly the library vlff-node runs)
  * learns it. Every 0.5 s the node's own 2D mIoU (its published label image
- * against the synthetic ground truth) is sampled. Useful = the smoothed 2D
- * mIoU first reaches 90 % of its value at the end (120 s by default,
- * VLFF_BENCH_SECONDS; VLFF_BENCH_CONFIG replaces the config). Baseline in the same run: the raw per-frame
+ * against the synthetic ground truth) is sampled. Useful = the 2D mIoU,
+ * smoothed over the last 5 s, first reaches 90 % of its value at 120 s
+ * (VLFF_BENCH_SECONDS; VLFF_BENCH_CONFIG replaces the config). That value is
+ * the mean over 120 +- 15 s: one view's mIoU swings by 20 points with what
+ * it sees (a chair or a bare wall), and a 5-s window's by 10, which moved
+ * the threshold, not the map. Baseline in the same run: the raw per-frame
  * features' 2D mIoU on the same scene (what the field must beat).
  */
 #include <math.h>
@@ -128,7 +131,8 @@ int main(int argc, char **argv) {
   int ns = 0;
   double t0 = mono_s();
   struct vlff_node_status st;
-  while (mono_s() - t0 < seconds && ns < MAXS) {
+  const double half = 15; /* the final value's window, each side of `seconds` */
+  while (mono_s() - t0 < seconds + half && ns < MAXS) {
     struct timespec nap = {0, 500 * 1000 * 1000};
     nanosleep(&nap, NULL);
     vlff_node_status(n, &st);
@@ -154,12 +158,20 @@ int main(int argc, char **argv) {
       if (m2[j] >= 0) acc += m2[j], c++;
     sm[i] = c ? acc / c : -1;
   }
-  double final = sm[ns - 1], useful = -1;
+  double acc = 0;
+  int cnt = 0;
+  for (int i = 0; i < ns; i++)
+    if (fabs(ts[i] - seconds) <= half && m2[i] >= 0) acc += m2[i], cnt++;
+  double final = cnt ? acc / cnt : -1, useful = -1;
   for (int i = 0; i < ns; i++)
     if (final > 0 && sm[i] >= 0.9 * final) {
       useful = ts[i];
       break;
     }
+  /* The first 30 s, where time to useful is decided. */
+  printf("smoothed 2D mIoU (threshold %.1f):", 0.9 * final);
+  for (int i = 1; i < ns && ts[i] < 30.5; i += 2) printf(" %.0f", sm[i]);
+  printf("\n");
   printf("final: %lld iterations, %d keyframes, 3D mIoU %.1f, frame-to-map p50 %.0f ms\n", st.iteration,
          st.keyframes, st.miou3d, st.frame_to_map_ms_p50);
   printf("RESULT time_to_useful_s=%.1f miou2d_at_%.0fs=%.1f frame_to_map_p99_ms=%.0f rss_mb=%.0f miou2d_raw=%.1f "
