@@ -873,9 +873,8 @@ static void apply_warmup(struct vlff_node *n) {
   /* Coarse to fine: the coarse levels, shared by many samples, fit a
    * new view's layout in fewer steps, and the finer ones, cheaper to
    * leave out, add detail once it is there. Keyed on the field's own
-   * step, so a field resumed young goes on where it stopped: switching
-   * its untrained fine levels on all at once perturbed the restored map
-   * (the kill -9 test's 3D mIoU fell to half). */
+   * step, so a field resumed young goes on where it stopped rather than
+   * switching its untrained fine levels on at once. */
   int l0 = cfg->train.warmup_levels, lw = cfg->train.warmup_level_steps, levels = cfg->field.hash_levels;
   if (l0 > 0 && l0 < levels && lw > 0 && steps <= lw)
     vlff_field_set_levels(n->field, l0 + (int)((levels - l0) * steps / lw));
