@@ -7,10 +7,26 @@
  * neighbouring entries: points processed in grid order (x fastest) share cache
  * lines. Each level is processed for the whole block of points before the
  * next, keeping one level's table (the working set) hot.
+ *
+ * The forward is bound by instructions, not by cache misses (measured: a
+ * level whose table sits in L1 cost 7.4 ns per point and core, a hashed one
+ * 10). On CPUs with AVX-512 it runs 16 points per vector and fetches each
+ * corner's two features as one 64-bit gather lane, 1.8x less time per point
+ * and level than the scalar loop; its arithmetic is the scalar loop's, in
+ * the same order, so the outputs are bit-identical (tested). Elsewhere (ARM,
+ * older x86, VLFF_GEMM=generic) the portable loop runs.
  */
 #include <math.h>
+#include <string.h>
 
 #include "field_internal.h"
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define VLFF_ENC_V4 1
+#include <immintrin.h>
+#else
+#define VLFF_ENC_V4 0
+#endif
 
 void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_config *cfg) {
   e->levels = cfg->field.hash_levels;
@@ -33,6 +49,9 @@ void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_config *cfg) 
     double pts = (r + 1) * (r + 1) * (r + 1);
     e->dense[l] = pts <= (double)e->size;
   }
+  /* The gather kernel follows the GEMM's choice, so VLFF_GEMM=generic
+   * makes the whole field portable code. */
+  e->simd = VLFF_ENC_V4 && e->feats == 2 && !strcmp(vlff_gemm_isa(), "avx512");
 }
 
 int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float *p) {
@@ -108,10 +127,155 @@ static inline __attribute__((always_inline)) void corners(const struct vlff_enco
   w[7] = w11 * f[2];
 }
 
+#if VLFF_ENC_V4
+/* One level for n <= VLFF_ENC_V4_BLOCK points given as coordinate arrays.
+ * Pass 1 computes a group's corner indices and weights 16 points per vector
+ * (and prefetches hashed levels' corners, so the group's misses overlap);
+ * pass 2 gathers each corner's feature pair as one 64-bit lane and
+ * accumulates in the scalar loop's order (c = 0..7, fused multiply-add), so
+ * the result is bit for bit the scalar one. */
+enum { VLFF_ENC_V4_BLOCK = 256 };
+__attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")))
+static void level_v4(const struct vlff_encoding *e, int l, const float *t, const float *px, const float *py,
+                     const float *pz, int n, float *ol, int ldo) {
+  enum { G = 4 }; /* vectors per prefetch group */
+  const float r = e->res[l];
+  const int dense = e->dense[l];
+  const uint32_t s1 = (uint32_t)r + 1, s2 = s1 * s1;
+  const __m512 vr = _mm512_set1_ps(r), fone = _mm512_set1_ps(1.0f);
+  const __m512i rim1 = _mm512_set1_epi32((int)r - 1), one = _mm512_set1_epi32(1);
+  const __m512i my = _mm512_set1_epi32(dense ? (int)s1 : (int)2654435761u);
+  const __m512i mz = _mm512_set1_epi32(dense ? (int)s2 : (int)805459861u);
+  const __m512i mask = _mm512_set1_epi32((int)(e->size - 1));
+  /* Lane i of a pair vector holds point i's two features: weights repeat. */
+  const __m512i dup_lo = _mm512_set_epi32(7, 7, 6, 6, 5, 5, 4, 4, 3, 3, 2, 2, 1, 1, 0, 0);
+  const __m512i dup_hi = _mm512_set_epi32(15, 15, 14, 14, 13, 13, 12, 12, 11, 11, 10, 10, 9, 9, 8, 8);
+  uint32_t ib[G][8][16] __attribute__((aligned(64)));
+  float wb[G][8][16] __attribute__((aligned(64)));
+  for (int g0 = 0; g0 < n; g0 += 16 * G) {
+    int nv = (n - g0 + 15) / 16;
+    nv = nv > G ? G : nv;
+    for (int v = 0; v < nv; v++) {
+      int i0 = g0 + 16 * v, m = n - i0 < 16 ? n - i0 : 16;
+      __mmask16 k = (__mmask16)((1u << m) - 1);
+      __m512 x = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, px + i0), vr);
+      __m512 y = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, py + i0), vr);
+      __m512 z = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, pz + i0), vr);
+      __m512i cx = _mm512_min_epu32(_mm512_cvttps_epu32(x), rim1);
+      __m512i cy = _mm512_min_epu32(_mm512_cvttps_epu32(y), rim1);
+      __m512i cz = _mm512_min_epu32(_mm512_cvttps_epu32(z), rim1);
+      __m512 fx = _mm512_sub_ps(x, _mm512_cvtepu32_ps(cx));
+      __m512 fy = _mm512_sub_ps(y, _mm512_cvtepu32_ps(cy));
+      __m512 fz = _mm512_sub_ps(z, _mm512_cvtepu32_ps(cz));
+      __m512i x0 = cx, x1 = _mm512_add_epi32(cx, one);
+      __m512i y0 = _mm512_mullo_epi32(cy, my), y1 = _mm512_add_epi32(y0, my);
+      __m512i z0 = _mm512_mullo_epi32(cz, mz), z1 = _mm512_add_epi32(z0, mz);
+      __m512i c[8];
+      if (dense) {
+        __m512i a00 = _mm512_add_epi32(y0, z0), a10 = _mm512_add_epi32(y1, z0);
+        __m512i a01 = _mm512_add_epi32(y0, z1), a11 = _mm512_add_epi32(y1, z1);
+        c[0] = _mm512_add_epi32(x0, a00), c[1] = _mm512_add_epi32(x1, a00);
+        c[2] = _mm512_add_epi32(x0, a10), c[3] = _mm512_add_epi32(x1, a10);
+        c[4] = _mm512_add_epi32(x0, a01), c[5] = _mm512_add_epi32(x1, a01);
+        c[6] = _mm512_add_epi32(x0, a11), c[7] = _mm512_add_epi32(x1, a11);
+      } else {
+        __m512i a00 = _mm512_xor_si512(y0, z0), a10 = _mm512_xor_si512(y1, z0);
+        __m512i a01 = _mm512_xor_si512(y0, z1), a11 = _mm512_xor_si512(y1, z1);
+        c[0] = _mm512_and_si512(_mm512_xor_si512(x0, a00), mask), c[1] = _mm512_and_si512(_mm512_xor_si512(x1, a00), mask);
+        c[2] = _mm512_and_si512(_mm512_xor_si512(x0, a10), mask), c[3] = _mm512_and_si512(_mm512_xor_si512(x1, a10), mask);
+        c[4] = _mm512_and_si512(_mm512_xor_si512(x0, a01), mask), c[5] = _mm512_and_si512(_mm512_xor_si512(x1, a01), mask);
+        c[6] = _mm512_and_si512(_mm512_xor_si512(x0, a11), mask), c[7] = _mm512_and_si512(_mm512_xor_si512(x1, a11), mask);
+      }
+      __m512 gx = _mm512_sub_ps(fone, fx), gy = _mm512_sub_ps(fone, fy), gz = _mm512_sub_ps(fone, fz);
+      __m512 w00 = _mm512_mul_ps(gx, gy), w10 = _mm512_mul_ps(fx, gy);
+      __m512 w01 = _mm512_mul_ps(gx, fy), w11 = _mm512_mul_ps(fx, fy);
+      _mm512_store_ps(wb[v][0], _mm512_mul_ps(w00, gz));
+      _mm512_store_ps(wb[v][1], _mm512_mul_ps(w10, gz));
+      _mm512_store_ps(wb[v][2], _mm512_mul_ps(w01, gz));
+      _mm512_store_ps(wb[v][3], _mm512_mul_ps(w11, gz));
+      _mm512_store_ps(wb[v][4], _mm512_mul_ps(w00, fz));
+      _mm512_store_ps(wb[v][5], _mm512_mul_ps(w10, fz));
+      _mm512_store_ps(wb[v][6], _mm512_mul_ps(w01, fz));
+      _mm512_store_ps(wb[v][7], _mm512_mul_ps(w11, fz));
+      for (int q = 0; q < 8; q++) _mm512_store_si512(ib[v][q], c[q]);
+    }
+    if (!dense)
+      for (int v = 0; v < nv; v++)
+        for (int q = 0; q < 8; q++)
+          for (int i = 0; i < 16; i++) __builtin_prefetch(t + (size_t)ib[v][q][i] * 2);
+    for (int v = 0; v < nv; v++) {
+      int i0 = g0 + 16 * v, m = n - i0 < 16 ? n - i0 : 16;
+      __mmask16 k = (__mmask16)((1u << m) - 1);
+      __mmask8 klo = (__mmask8)(k & 0xff), khi = (__mmask8)(k >> 8);
+      __m512 alo = _mm512_setzero_ps(), ahi = _mm512_setzero_ps();
+      for (int q = 0; q < 8; q++) {
+        __m512i ix = _mm512_load_si512(ib[v][q]);
+        __m512 w = _mm512_load_ps(wb[v][q]);
+        __m512i glo = _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), klo, _mm512_castsi512_si256(ix), t, 8);
+        __m512i ghi = _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), khi, _mm512_extracti64x4_epi64(ix, 1), t, 8);
+        alo = _mm512_fmadd_ps(_mm512_permutexvar_ps(dup_lo, w), _mm512_castsi512_ps(glo), alo);
+        ahi = _mm512_fmadd_ps(_mm512_permutexvar_ps(dup_hi, w), _mm512_castsi512_ps(ghi), ahi);
+      }
+      float pair[32] __attribute__((aligned(64)));
+      _mm512_store_ps(pair, alo);
+      _mm512_store_ps(pair + 16, ahi);
+      for (int i = 0; i < m; i++) memcpy(ol + (size_t)(i0 + i) * ldo, pair + 2 * i, 2 * sizeof(float));
+    }
+  }
+}
+
+static void forward_v4(const struct vlff_encoding *e, const float *table, const float *p, int n, float *out,
+                       int ldo) {
+  float px[VLFF_ENC_V4_BLOCK], py[VLFF_ENC_V4_BLOCK], pz[VLFF_ENC_V4_BLOCK];
+  for (int b0 = 0; b0 < n; b0 += VLFF_ENC_V4_BLOCK) {
+    int m = n - b0 < VLFF_ENC_V4_BLOCK ? n - b0 : VLFF_ENC_V4_BLOCK;
+    for (int i = 0; i < m; i++) {
+      px[i] = p[3 * (b0 + i)];
+      py[i] = p[3 * (b0 + i) + 1];
+      pz[i] = p[3 * (b0 + i) + 2];
+    }
+    for (int l = 0; l < e->levels; l++) {
+      float *ol = out + (size_t)b0 * ldo + 2 * l;
+      if (l < e->active)
+        level_v4(e, l, table + (size_t)l * e->size * 2, px, py, pz, m, ol, ldo);
+      else
+        for (int i = 0; i < m; i++) ol[(size_t)i * ldo] = ol[(size_t)i * ldo + 1] = 0;
+    }
+  }
+}
+#endif
+
+/* The frequency part: one sin/cos per axis, higher octaves by the
+ * double-angle formulas. */
+static void encode_freq(const struct vlff_encoding *e, const float *p, int n, float *out, int ldo) {
+  const int off = e->levels * e->feats;
+  for (int i = 0; i < n; i++) {
+    float *o = out + (size_t)i * ldo + off;
+    for (int a = 0; a < 3; a++) {
+      float x = p[3 * i + a] * (float)M_PI;
+      float s = sinf(x), c = cosf(x);
+      for (int b = 0; b < e->freq_bands; b++) {
+        *o++ = s;
+        *o++ = c;
+        float s2 = 2.0f * s * c;
+        c = 1.0f - 2.0f * s * s;
+        s = s2;
+      }
+    }
+  }
+}
+
 VLFF_HOT
 void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, const float *p, int n,
                            float *out, int ldo) {
   const int F = e->feats;
+#if VLFF_ENC_V4
+  if (e->simd && F == 2) {
+    forward_v4(e, table, p, n, out, ldo);
+    encode_freq(e, p, n, out, ldo);
+    return;
+  }
+#endif
   for (int l = 0; l < e->levels; l++) {
     const float *t = table + (size_t)l * e->size * F;
     float *ol = out + l * F;
@@ -157,22 +321,7 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
       }
     }
   }
-  const int off = e->levels * F;
-  for (int i = 0; i < n; i++) {
-    float *o = out + (size_t)i * ldo + off;
-    for (int a = 0; a < 3; a++) {
-      /* One sin/cos per axis; higher octaves by the double-angle formulas. */
-      float x = p[3 * i + a] * (float)M_PI;
-      float s = sinf(x), c = cosf(x);
-      for (int b = 0; b < e->freq_bands; b++) {
-        *o++ = s;
-        *o++ = c;
-        float s2 = 2.0f * s * c;
-        c = 1.0f - 2.0f * s * s;
-        s = s2;
-      }
-    }
-  }
+  encode_freq(e, p, n, out, ldo);
 }
 
 VLFF_HOT
