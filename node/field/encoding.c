@@ -128,17 +128,18 @@ static inline __attribute__((always_inline)) void corners(const struct vlff_enco
 }
 
 #if VLFF_ENC_V4
-/* One level for n <= VLFF_ENC_V4_BLOCK points given as coordinate arrays.
- * Pass 1 computes a group's corner indices and weights 16 points per vector
- * (and prefetches hashed levels' corners, so the group's misses overlap);
- * pass 2 gathers each corner's feature pair as one 64-bit lane and
- * accumulates in the scalar loop's order (c = 0..7, fused multiply-add), so
- * the result is bit for bit the scalar one. */
-enum { VLFF_ENC_V4_BLOCK = 256 };
-__attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")))
-static void level_v4(const struct vlff_encoding *e, int l, const float *t, const float *px, const float *py,
-                     const float *pz, int n, float *ol, int ldo) {
-  enum { G = 4 }; /* vectors per prefetch group */
+/* Points per coordinate block (arrays on the stack), vectors per prefetch
+ * group. */
+enum { VLFF_ENC_V4_BLOCK = 256, V4_GROUP = 4 };
+#define V4_TARGET __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")))
+
+/* Corner indices and trilinear weights of up to V4_GROUP x 16 points from
+ * g0 (of n) at level l, 16 points per vector, with the scalar corners()'s
+ * arithmetic; lanes past n are computed from zeros (valid indices) and
+ * never used. Returns the vectors filled. */
+V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const float *px, const float *py,
+                                const float *pz, int g0, int n, uint32_t ib[V4_GROUP][8][16],
+                                float wb[V4_GROUP][8][16]) {
   const float r = e->res[l];
   const int dense = e->dense[l];
   const uint32_t s1 = (uint32_t)r + 1, s2 = s1 * s1;
@@ -147,59 +148,70 @@ static void level_v4(const struct vlff_encoding *e, int l, const float *t, const
   const __m512i my = _mm512_set1_epi32(dense ? (int)s1 : (int)2654435761u);
   const __m512i mz = _mm512_set1_epi32(dense ? (int)s2 : (int)805459861u);
   const __m512i mask = _mm512_set1_epi32((int)(e->size - 1));
+  int nv = (n - g0 + 15) / 16;
+  nv = nv > V4_GROUP ? V4_GROUP : nv;
+  for (int v = 0; v < nv; v++) {
+    int i0 = g0 + 16 * v, m = n - i0 < 16 ? n - i0 : 16;
+    __mmask16 k = (__mmask16)((1u << m) - 1);
+    __m512 x = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, px + i0), vr);
+    __m512 y = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, py + i0), vr);
+    __m512 z = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, pz + i0), vr);
+    __m512i cx = _mm512_min_epu32(_mm512_cvttps_epu32(x), rim1);
+    __m512i cy = _mm512_min_epu32(_mm512_cvttps_epu32(y), rim1);
+    __m512i cz = _mm512_min_epu32(_mm512_cvttps_epu32(z), rim1);
+    __m512 fx = _mm512_sub_ps(x, _mm512_cvtepu32_ps(cx));
+    __m512 fy = _mm512_sub_ps(y, _mm512_cvtepu32_ps(cy));
+    __m512 fz = _mm512_sub_ps(z, _mm512_cvtepu32_ps(cz));
+    __m512i x0 = cx, x1 = _mm512_add_epi32(cx, one);
+    __m512i y0 = _mm512_mullo_epi32(cy, my), y1 = _mm512_add_epi32(y0, my);
+    __m512i z0 = _mm512_mullo_epi32(cz, mz), z1 = _mm512_add_epi32(z0, mz);
+    __m512i c[8];
+    if (dense) {
+      __m512i a00 = _mm512_add_epi32(y0, z0), a10 = _mm512_add_epi32(y1, z0);
+      __m512i a01 = _mm512_add_epi32(y0, z1), a11 = _mm512_add_epi32(y1, z1);
+      c[0] = _mm512_add_epi32(x0, a00), c[1] = _mm512_add_epi32(x1, a00);
+      c[2] = _mm512_add_epi32(x0, a10), c[3] = _mm512_add_epi32(x1, a10);
+      c[4] = _mm512_add_epi32(x0, a01), c[5] = _mm512_add_epi32(x1, a01);
+      c[6] = _mm512_add_epi32(x0, a11), c[7] = _mm512_add_epi32(x1, a11);
+    } else {
+      __m512i a00 = _mm512_xor_si512(y0, z0), a10 = _mm512_xor_si512(y1, z0);
+      __m512i a01 = _mm512_xor_si512(y0, z1), a11 = _mm512_xor_si512(y1, z1);
+      c[0] = _mm512_and_si512(_mm512_xor_si512(x0, a00), mask), c[1] = _mm512_and_si512(_mm512_xor_si512(x1, a00), mask);
+      c[2] = _mm512_and_si512(_mm512_xor_si512(x0, a10), mask), c[3] = _mm512_and_si512(_mm512_xor_si512(x1, a10), mask);
+      c[4] = _mm512_and_si512(_mm512_xor_si512(x0, a01), mask), c[5] = _mm512_and_si512(_mm512_xor_si512(x1, a01), mask);
+      c[6] = _mm512_and_si512(_mm512_xor_si512(x0, a11), mask), c[7] = _mm512_and_si512(_mm512_xor_si512(x1, a11), mask);
+    }
+    __m512 gx = _mm512_sub_ps(fone, fx), gy = _mm512_sub_ps(fone, fy), gz = _mm512_sub_ps(fone, fz);
+    __m512 w00 = _mm512_mul_ps(gx, gy), w10 = _mm512_mul_ps(fx, gy);
+    __m512 w01 = _mm512_mul_ps(gx, fy), w11 = _mm512_mul_ps(fx, fy);
+    _mm512_store_ps(wb[v][0], _mm512_mul_ps(w00, gz));
+    _mm512_store_ps(wb[v][1], _mm512_mul_ps(w10, gz));
+    _mm512_store_ps(wb[v][2], _mm512_mul_ps(w01, gz));
+    _mm512_store_ps(wb[v][3], _mm512_mul_ps(w11, gz));
+    _mm512_store_ps(wb[v][4], _mm512_mul_ps(w00, fz));
+    _mm512_store_ps(wb[v][5], _mm512_mul_ps(w10, fz));
+    _mm512_store_ps(wb[v][6], _mm512_mul_ps(w01, fz));
+    _mm512_store_ps(wb[v][7], _mm512_mul_ps(w11, fz));
+    for (int q = 0; q < 8; q++) _mm512_store_si512(ib[v][q], c[q]);
+  }
+  return nv;
+}
+
+/* One level for n <= VLFF_ENC_V4_BLOCK points given as coordinate arrays:
+ * a group's corners (prefetched on hashed levels, so the group's misses
+ * overlap), then each corner's feature pair as one 64-bit gather lane,
+ * accumulated in the scalar loop's order (c = 0..7, fused multiply-add), so
+ * the result is bit for bit the scalar one. */
+V4_TARGET static void level_v4(const struct vlff_encoding *e, int l, const float *t, const float *px,
+                               const float *py, const float *pz, int n, float *ol, int ldo) {
   /* Lane i of a pair vector holds point i's two features: weights repeat. */
   const __m512i dup_lo = _mm512_set_epi32(7, 7, 6, 6, 5, 5, 4, 4, 3, 3, 2, 2, 1, 1, 0, 0);
   const __m512i dup_hi = _mm512_set_epi32(15, 15, 14, 14, 13, 13, 12, 12, 11, 11, 10, 10, 9, 9, 8, 8);
-  uint32_t ib[G][8][16] __attribute__((aligned(64)));
-  float wb[G][8][16] __attribute__((aligned(64)));
-  for (int g0 = 0; g0 < n; g0 += 16 * G) {
-    int nv = (n - g0 + 15) / 16;
-    nv = nv > G ? G : nv;
-    for (int v = 0; v < nv; v++) {
-      int i0 = g0 + 16 * v, m = n - i0 < 16 ? n - i0 : 16;
-      __mmask16 k = (__mmask16)((1u << m) - 1);
-      __m512 x = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, px + i0), vr);
-      __m512 y = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, py + i0), vr);
-      __m512 z = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, pz + i0), vr);
-      __m512i cx = _mm512_min_epu32(_mm512_cvttps_epu32(x), rim1);
-      __m512i cy = _mm512_min_epu32(_mm512_cvttps_epu32(y), rim1);
-      __m512i cz = _mm512_min_epu32(_mm512_cvttps_epu32(z), rim1);
-      __m512 fx = _mm512_sub_ps(x, _mm512_cvtepu32_ps(cx));
-      __m512 fy = _mm512_sub_ps(y, _mm512_cvtepu32_ps(cy));
-      __m512 fz = _mm512_sub_ps(z, _mm512_cvtepu32_ps(cz));
-      __m512i x0 = cx, x1 = _mm512_add_epi32(cx, one);
-      __m512i y0 = _mm512_mullo_epi32(cy, my), y1 = _mm512_add_epi32(y0, my);
-      __m512i z0 = _mm512_mullo_epi32(cz, mz), z1 = _mm512_add_epi32(z0, mz);
-      __m512i c[8];
-      if (dense) {
-        __m512i a00 = _mm512_add_epi32(y0, z0), a10 = _mm512_add_epi32(y1, z0);
-        __m512i a01 = _mm512_add_epi32(y0, z1), a11 = _mm512_add_epi32(y1, z1);
-        c[0] = _mm512_add_epi32(x0, a00), c[1] = _mm512_add_epi32(x1, a00);
-        c[2] = _mm512_add_epi32(x0, a10), c[3] = _mm512_add_epi32(x1, a10);
-        c[4] = _mm512_add_epi32(x0, a01), c[5] = _mm512_add_epi32(x1, a01);
-        c[6] = _mm512_add_epi32(x0, a11), c[7] = _mm512_add_epi32(x1, a11);
-      } else {
-        __m512i a00 = _mm512_xor_si512(y0, z0), a10 = _mm512_xor_si512(y1, z0);
-        __m512i a01 = _mm512_xor_si512(y0, z1), a11 = _mm512_xor_si512(y1, z1);
-        c[0] = _mm512_and_si512(_mm512_xor_si512(x0, a00), mask), c[1] = _mm512_and_si512(_mm512_xor_si512(x1, a00), mask);
-        c[2] = _mm512_and_si512(_mm512_xor_si512(x0, a10), mask), c[3] = _mm512_and_si512(_mm512_xor_si512(x1, a10), mask);
-        c[4] = _mm512_and_si512(_mm512_xor_si512(x0, a01), mask), c[5] = _mm512_and_si512(_mm512_xor_si512(x1, a01), mask);
-        c[6] = _mm512_and_si512(_mm512_xor_si512(x0, a11), mask), c[7] = _mm512_and_si512(_mm512_xor_si512(x1, a11), mask);
-      }
-      __m512 gx = _mm512_sub_ps(fone, fx), gy = _mm512_sub_ps(fone, fy), gz = _mm512_sub_ps(fone, fz);
-      __m512 w00 = _mm512_mul_ps(gx, gy), w10 = _mm512_mul_ps(fx, gy);
-      __m512 w01 = _mm512_mul_ps(gx, fy), w11 = _mm512_mul_ps(fx, fy);
-      _mm512_store_ps(wb[v][0], _mm512_mul_ps(w00, gz));
-      _mm512_store_ps(wb[v][1], _mm512_mul_ps(w10, gz));
-      _mm512_store_ps(wb[v][2], _mm512_mul_ps(w01, gz));
-      _mm512_store_ps(wb[v][3], _mm512_mul_ps(w11, gz));
-      _mm512_store_ps(wb[v][4], _mm512_mul_ps(w00, fz));
-      _mm512_store_ps(wb[v][5], _mm512_mul_ps(w10, fz));
-      _mm512_store_ps(wb[v][6], _mm512_mul_ps(w01, fz));
-      _mm512_store_ps(wb[v][7], _mm512_mul_ps(w11, fz));
-      for (int q = 0; q < 8; q++) _mm512_store_si512(ib[v][q], c[q]);
-    }
-    if (!dense)
+  uint32_t ib[V4_GROUP][8][16] __attribute__((aligned(64)));
+  float wb[V4_GROUP][8][16] __attribute__((aligned(64)));
+  for (int g0 = 0; g0 < n; g0 += 16 * V4_GROUP) {
+    int nv = corners_v4(e, l, px, py, pz, g0, n, ib, wb);
+    if (!e->dense[l])
       for (int v = 0; v < nv; v++)
         for (int q = 0; q < 8; q++)
           for (int i = 0; i < 16; i++) __builtin_prefetch(t + (size_t)ib[v][q][i] * 2);
@@ -224,22 +236,76 @@ static void level_v4(const struct vlff_encoding *e, int l, const float *t, const
   }
 }
 
+/* Coordinate arrays of points [b0, b0+m) of p[n][3]. */
+static void split_xyz(const float *p, int b0, int m, float *px, float *py, float *pz) {
+  for (int i = 0; i < m; i++) {
+    px[i] = p[3 * (b0 + i)];
+    py[i] = p[3 * (b0 + i) + 1];
+    pz[i] = p[3 * (b0 + i) + 2];
+  }
+}
+
 static void forward_v4(const struct vlff_encoding *e, const float *table, const float *p, int n, float *out,
                        int ldo) {
   float px[VLFF_ENC_V4_BLOCK], py[VLFF_ENC_V4_BLOCK], pz[VLFF_ENC_V4_BLOCK];
   for (int b0 = 0; b0 < n; b0 += VLFF_ENC_V4_BLOCK) {
     int m = n - b0 < VLFF_ENC_V4_BLOCK ? n - b0 : VLFF_ENC_V4_BLOCK;
-    for (int i = 0; i < m; i++) {
-      px[i] = p[3 * (b0 + i)];
-      py[i] = p[3 * (b0 + i) + 1];
-      pz[i] = p[3 * (b0 + i) + 2];
-    }
+    split_xyz(p, b0, m, px, py, pz);
     for (int l = 0; l < e->levels; l++) {
       float *ol = out + (size_t)b0 * ldo + 2 * l;
       if (l < e->active)
         level_v4(e, l, table + (size_t)l * e->size * 2, px, py, pz, m, ol, ldo);
       else
         for (int i = 0; i < m; i++) ol[(size_t)i * ldo] = ol[(size_t)i * ldo + 1] = 0;
+    }
+  }
+}
+
+/* The gradient of one level: vector corners, then the scalar loop's
+ * scatter in its order (point by point, c = 0..7). The touched entries are
+ * the scalar loop's exactly; sums agree to float rounding (here each term
+ * is one fused multiply-add, where the scalar loop may round the product
+ * first, as its compiler decides). */
+V4_TARGET static void backward_v4(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
+                                  int l, float *g, uint64_t *bt) {
+  float px[VLFF_ENC_V4_BLOCK], py[VLFF_ENC_V4_BLOCK], pz[VLFF_ENC_V4_BLOCK];
+  uint32_t ib[V4_GROUP][8][16] __attribute__((aligned(64)));
+  float wb[V4_GROUP][8][16] __attribute__((aligned(64)));
+  for (int b0 = 0; b0 < n; b0 += VLFF_ENC_V4_BLOCK) {
+    int m = n - b0 < VLFF_ENC_V4_BLOCK ? n - b0 : VLFF_ENC_V4_BLOCK;
+    split_xyz(p, b0, m, px, py, pz);
+    for (int g0 = 0; g0 < m; g0 += 16 * V4_GROUP) {
+      int nv = corners_v4(e, l, px, py, pz, g0, m, ib, wb);
+      if (!e->dense[l])
+        for (int v = 0; v < nv; v++)
+          for (int q = 0; q < 8; q++)
+            for (int i = 0; i < 16; i++) __builtin_prefetch(g + (size_t)ib[v][q][i] * 2, 1);
+      int gm = m - g0 < 16 * V4_GROUP ? m - g0 : 16 * V4_GROUP;
+      for (int j = 0; j < gm; j++) {
+        const float *dj = d + (size_t)(b0 + g0 + j) * ld;
+        const float d0 = dj[0], d1 = dj[1];
+        const int v = j / 16, i = j % 16;
+        for (int c = 0; c < 8; c++) {
+          /* Branch-free first touch (about half the touches early in a
+           * step, so a branch mispredicts): add onto the old value where
+           * the bit is set, else onto -0, the exact identity of addition
+           * (x + -0 is x, signed zeros included). */
+          uint32_t h = ib[v][c][i];
+          float wt = wb[v][c][i], *gv = g + (size_t)h * 2;
+          uint64_t word = bt[h >> 6];
+          uint32_t keep = -(uint32_t)((word >> (h & 63)) & 1), o0, o1;
+          bt[h >> 6] = word | 1ull << (h & 63);
+          memcpy(&o0, gv, 4);
+          memcpy(&o1, gv + 1, 4);
+          o0 = (o0 & keep) | (0x80000000u & ~keep);
+          o1 = (o1 & keep) | (0x80000000u & ~keep);
+          float base0, base1;
+          memcpy(&base0, &o0, 4);
+          memcpy(&base1, &o1, 4);
+          gv[0] = base0 + wt * d0;
+          gv[1] = base1 + wt * d1;
+        }
+      }
     }
   }
 }
@@ -331,6 +397,12 @@ void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n
   const size_t base = (size_t)l * e->size;
   float *g = grad + base * F;
   uint64_t *bt = bits + base / 64;
+#if VLFF_ENC_V4
+  if (e->simd && F == 2) {
+    backward_v4(e, p, n, d, ld, l, g, bt);
+    return;
+  }
+#endif
   if (F == 2) {
     /* As in the forward: addresses (prefetched) first, then the updates.
      * First touch writes instead of zeroing then adding. */

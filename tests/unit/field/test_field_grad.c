@@ -232,8 +232,10 @@ static void test_encoding(void **state) {
   free(bits);
 }
 
-/* The AVX-512 gather kernel must give the portable loop's outputs bit for
- * bit: dense and hashed levels, points on the box faces, a count that ends
+/* The AVX-512 kernels against the portable loops: the same outputs bit for
+ * bit, the same touched entries, gradients equal to float rounding (a term
+ * may be one fused multiply-add in one and a rounded product plus an add in
+ * the other, as the compiler decides): dense and hashed levels, points on the box faces, a count that ends
  * inside a vector, a prefetch group and a coordinate block, and masked
  * (inactive) levels. */
 static void test_encoding_simd(void **state) {
@@ -264,6 +266,37 @@ static void test_encoding_simd(void **state) {
     vlff_encoding_forward(&e, table, p, n, b, e.dim);
     assert_memory_equal(a, b, (size_t)n * e.dim * sizeof(float));
   }
+  /* Gradients and touched-entry bitmaps, every level, from the same d; a
+   * second pass accumulates onto entries the first one touched. */
+  float *d = falloc((size_t)n * e.dim), *ga = falloc(nt), *gb = falloc(nt);
+  size_t nw = (size_t)e.levels * e.size / 64 + 1;
+  uint64_t *ba = calloc(nw, 8), *bb = calloc(nw, 8);
+  for (int i = 0; i < n * e.dim; i++) d[i] = frand();
+  for (int pass = 0; pass < 2; pass++)
+    for (int l = 0; l < e.levels; l++) {
+      e.simd = 1;
+      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, ga, ba);
+      e.simd = 0;
+      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, gb, bb);
+    }
+  assert_memory_equal(ba, bb, nw * 8);
+  size_t touched = 0;
+  for (size_t q = 0; q < nt / 2; q++)
+    if (ba[q / 64] >> (q % 64) & 1) {
+      touched++;
+      /* |d| <= 1 and trilinear weights sum to 1: terms are at most 1, an
+       * entry sums a handful, so 1e-6 is a few ulps of them. A wrong
+       * corner or weight is off by O(0.1). */
+      for (int f = 0; f < 2; f++)
+        if (fabsf(ga[2 * q + f] - gb[2 * q + f]) > 1e-6f)
+          fail_msg("encoding level %zu entry %zu: %g vs %g", q / e.size, q % e.size, ga[2 * q + f], gb[2 * q + f]);
+    }
+  assert_true(touched > (size_t)n);
+  free(d);
+  free(ga);
+  free(gb);
+  free(ba);
+  free(bb);
   /* A kernel that ignored a level or a point would still agree with
    * itself: the outputs must depend on the table. */
   double sum = 0;
