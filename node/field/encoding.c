@@ -13,8 +13,10 @@
  * 10). On CPUs with AVX-512 it runs 16 points per vector and fetches each
  * corner's two features as one 64-bit gather lane, 1.8x less time per point
  * and level than the scalar loop; its arithmetic is the scalar loop's, in
- * the same order, so the outputs are bit-identical (tested). Elsewhere (ARM,
- * older x86, VLFF_GEMM=generic) the portable loop runs.
+ * the same order with fused multiply-adds, so the outputs are bit-identical
+ * to the scalar loop's AVX-512 clone (the default GCC build) and equal to
+ * float rounding otherwise (tested). Elsewhere (ARM, older x86,
+ * VLFF_GEMM=generic) the portable loop runs.
  */
 #include <math.h>
 #include <string.h>
@@ -201,7 +203,7 @@ V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const floa
  * a group's corners (prefetched on hashed levels, so the group's misses
  * overlap), then each corner's feature pair as one 64-bit gather lane,
  * accumulated in the scalar loop's order (c = 0..7, fused multiply-add), so
- * the result is bit for bit the scalar one. */
+ * the result is bit for bit that of the scalar loop's AVX-512 clone. */
 V4_TARGET static void level_v4(const struct vlff_encoding *e, int l, const float *t, const float *px,
                                const float *py, const float *pz, int n, float *ol, int ldo) {
   /* Lane i of a pair vector holds point i's two features: weights repeat. */
