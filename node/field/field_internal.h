@@ -72,6 +72,17 @@ void vlff_mlp_init_params(const struct vlff_mlp *m, float *params, uint64_t *rng
  * NULL) initialises C; accumulate adds to C instead; relu clamps at 0. */
 void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                float *c, int ldc, const float *bias, int accumulate, int relu);
+/* Labels, scores and margins of m points from their MLP3 hidden vectors,
+ * feature-major: hT[H][ldh], point i in column i; ldh and the columns read
+ * are m rounded up to the kernel's panel (at most 32), so hT holds finite
+ * values (zeros) there. Logits l = E W h + E b from ewt = (E W)ᵀ [H][K] and
+ * eb [K] (K <= VLFF_MAX_PROMPTS); label = first argmax, score = l_best/|f|,
+ * margin = (l_best - l_second)/|f|. |f|^2 = |R h + rv|^2 + r22^2 with rt =
+ * Rᵀ [H][H], R upper triangular; or, with gram set, hᵀ G h + 2 rv.h + r22^2
+ * with rt = G. rt NULL: no norm (score and margin unscaled). label, score,
+ * margin may each be NULL. */
+void vlff_score(int m, int H, int K, const float *hT, int ldh, const float *ewt, const float *eb, const float *rt,
+                const float *rv, float r22, int gram, int *label, float *score, float *margin);
 /* Name of the GEMM kernel in use ("avx512", "avx2+fma", "generic"). */
 const char *vlff_gemm_isa(void);
 /* Runs the FMA throughput probe of the kernel's ISA for iters iterations

@@ -20,7 +20,15 @@ typedef void (*gemm_fn)(int, int, int, const float *, ptrdiff_t, ptrdiff_t, cons
                         const float *, int, int, const float *);
 void vlff_gemm_generic(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                        float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
+typedef void (*score_fn)(int, int, int, const float *, int, const float *, const float *, const float *,
+                         const float *, float, int, int *, float *, float *);
+#define SCORE_ARGS                                                                                                   \
+  int m, int H, int K, const float *hT, int ldh, const float *ewt, const float *eb, const float *rt, const float *rv, \
+      float r22, int gram, int *label, float *score, float *margin
+void vlff_score_generic(SCORE_ARGS);
 #if VLFF_GEMM_X86
+void vlff_score_v4(SCORE_ARGS);
+void vlff_score_v3(SCORE_ARGS);
 void vlff_gemm_v4(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                   float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
 void vlff_gemm_v3(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
@@ -64,11 +72,17 @@ static gemm_fn pick_gemm(void) {
 }
 
 static gemm_fn gemm_impl;
+static score_fn score_impl;
 static pthread_once_t gemm_once = PTHREAD_ONCE_INIT;
 static void gemm_init(void) {
   const char *force = getenv("VLFF_GEMM");
   gemm_impl = pick_gemm();
   if (force && !strcmp(force, "generic")) gemm_impl = vlff_gemm_generic;
+  score_impl = vlff_score_generic;
+#if VLFF_GEMM_X86
+  if (gemm_impl == vlff_gemm_v4) score_impl = vlff_score_v4;
+  if (gemm_impl == vlff_gemm_v3) score_impl = vlff_score_v3;
+#endif
 }
 
 const char *vlff_gemm_isa(void) {
@@ -84,6 +98,11 @@ void vlff_gemm_mask(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_
                     float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask) {
   pthread_once(&gemm_once, gemm_init);
   gemm_impl(m, n, k, a, ars, acs, b, ldb, c, ldc, bias, accumulate, relu, mask);
+}
+
+void vlff_score(SCORE_ARGS) {
+  pthread_once(&gemm_once, gemm_init);
+  score_impl(m, H, K, hT, ldh, ewt, eb, rt, rv, r22, gram, label, score, margin);
 }
 
 void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,

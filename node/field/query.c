@@ -7,6 +7,10 @@
  * |f|^2 = hᵀ(WᵀW)h + 2 (Wᵀb).h + |b|^2 (needed for cosine scores) costs H x H
  * and is computed only when scores or margins are requested. Rendering is
  * linear in the feature, so 2D labels fold the same way on the rendered h.
+ * 3D queries run MLP3's hidden layers feature-major (points along rows) and
+ * score them with a kernel that keeps a panel of points in vector lanes
+ * (score_impl.h): the logits cost exactly K x H, the triangular norm skips
+ * R's zeros and never stores R h, and the argmax runs across lanes.
  * Points are processed in the caller's order, in blocks of VLFF_QUERY_BLOCK;
  * callers get the best cache behaviour by passing grid (x-fastest) order,
  * which the map publisher does anyway (see the benchmark: grid vs random).
@@ -151,14 +155,34 @@ static void query_task(void *ctx, int task, int thread) {
     for (int i = 0; i < n; i++) q->density[idx[i]] = inside[i] ? w->sigma[i] : 0.0f;
   int need_h = q->feature || q->label || q->score || q->margin;
   if (!need_h) return;
+  /* MLP3's hidden layers feature-major (points along rows), the layout the
+   * scoring kernel wants: xT = the geometric codes transposed, columns past
+   * n zero so the kernel's last panel reads finite values. */
+  const int ldh = VLFF_QUERY_BLOCK, ncol = (n + 31) & ~31;
   const float *out1 = w->a1[f->m1.nl - 1];
-  for (int i = 0; i < n; i++) memcpy(w->in3 + (size_t)i * geo, out1 + (size_t)i * f->m1.nout + 1, geo * sizeof(float));
+  const int ld1 = f->m1.nout;
+  float *xT = w->dout1;
+  for (int j = 0; j < geo; j++) {
+    float *row = xT + (size_t)j * ldh;
+    for (int i = 0; i < n; i++) row[i] = out1[(size_t)i * ld1 + 1 + j];
+    for (int i = n; i < ncol; i++) row[i] = 0.0f;
+  }
   const struct vlff_mlp *m3 = &f->m3;
-  vlff_mlp_forward(m3, pm, w->in3, geo, n, m3->nl - 1, w->a3);
-  const float *h = w->a3[m3->nl - 2];
+  const float *hT = xT;
+  for (int l = 0; l < m3->nl - 1; l++) {
+    float *o = l & 1 ? w->dy_b : w->dy_a;
+    const float *b = pm + m3->boff[l];
+    for (int i = 0; i < m3->dout[l]; i++) {
+      const float bi = b[i]; /* a local and a fixed count: vectorised at -O2 */
+      for (int c = 0; c < ncol; c += 32)
+        for (int t = 0; t < 32; t++) o[(size_t)i * ldh + c + t] = bi;
+    }
+    vlff_gemm(m3->dout[l], ncol, m3->din[l], pm + m3->woff[l], 1, m3->dout[l], hT, ldh, o, ldh, NULL, 1, 1);
+    hT = o;
+  }
   int last = m3->nl - 1;
   if (q->feature) {
-    vlff_gemm(n, D, H, h, H, 1, pm + m3->woff[last], D, w->fray, D, pm + m3->boff[last], 0, 0);
+    vlff_gemm(n, D, H, hT, 1, ldh, pm + m3->woff[last], D, w->fray, D, pm + m3->boff[last], 0, 0);
     for (int i = 0; i < n; i++) {
       float *dst = q->feature + (size_t)idx[i] * D;
       if (inside[i])
@@ -168,22 +192,22 @@ static void query_task(void *ctx, int task, int thread) {
     }
   }
   if (!(q->label || q->score || q->margin)) return;
-  vlff_gemm(n, K, H, h, H, 1, f->EWt, K, w->logits, K, f->Eb, 0, 0);
-  int want_norm = q->score || q->margin;
-  if (want_norm) feat_norms(f, h, NULL, n, w->norm, w->opac);
-  for (int i = 0; i < n; i++) {
-    int lb;
-    float sc, mg;
-    if (inside[i]) {
-      pick(w->logits + (size_t)i * K, K, want_norm ? w->opac[i] : 1.0f, &lb, &sc, &mg);
-    } else {
-      lb = -1;
-      sc = mg = 0;
-    }
-    if (q->label) q->label[idx[i]] = lb;
-    if (q->score) q->score[idx[i]] = sc;
-    if (q->margin) q->margin[idx[i]] = mg;
+  const float *rt = NULL, *rv = NULL;
+  float r22 = 0;
+  if (q->score || q->margin) {
+    rt = f->chol_ok ? f->Rt : f->G;
+    rv = f->chol_ok ? f->r12 : f->u;
+    r22 = f->chol_ok ? f->r22 : sqrtf(f->bb);
   }
+  int *lab = q->label ? q->label + a : NULL;
+  float *sc = q->score ? q->score + a : NULL, *mg = q->margin ? q->margin + a : NULL;
+  vlff_score(n, H, K, hT, ldh, f->EWt, f->Eb, rt, rv, r22, !f->chol_ok, lab, sc, mg);
+  for (int i = 0; i < n; i++)
+    if (!inside[i]) {
+      if (lab) lab[i] = -1;
+      if (sc) sc[i] = 0;
+      if (mg) mg[i] = 0;
+    }
 }
 
 int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *density, float *feature, int *label,

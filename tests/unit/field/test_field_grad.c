@@ -24,6 +24,105 @@ static float *falloc(size_t n) {
   return p;
 }
 
+/* The prompt-scoring kernel of every instruction set this CPU runs, against
+ * a double reference: logits, first argmax, second best, and the norm from
+ * the triangular factor or the Gram matrix, over shapes with row, prompt
+ * and panel tails. */
+typedef void (*score_kernel)(int, int, int, const float *, int, const float *, const float *, const float *,
+                             const float *, float, int, int *, float *, float *);
+void vlff_score_generic(int, int, int, const float *, int, const float *, const float *, const float *, const float *,
+                        float, int, int *, float *, float *);
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+void vlff_score_v3(int, int, int, const float *, int, const float *, const float *, const float *, const float *,
+                   float, int, int *, float *, float *);
+void vlff_score_v4(int, int, int, const float *, int, const float *, const float *, const float *, const float *,
+                   float, int, int *, float *, float *);
+#endif
+
+static void check_score(score_kernel fn, const char *isa, int m, int H, int K, int mode) {
+  const int ldh = (m + 31) / 32 * 32;
+  float *hT = falloc((size_t)H * ldh), *ewt = falloc((size_t)H * K), *eb = falloc(K), *rt = falloc((size_t)H * H);
+  float *rv = falloc(H), *score = falloc(m), *margin = falloc(m);
+  int *label = calloc((size_t)m, sizeof(int));
+  assert_non_null(label);
+  for (int i = 0; i < H * ldh; i++) hT[i] = (i % ldh) < m ? frand() : 0.0f;
+  for (int i = 0; i < H * K; i++) ewt[i] = frand();
+  for (int i = 0; i < K; i++) eb[i] = frand();
+  for (int k = 0; k < H; k++)
+    for (int i = 0; i < H; i++) rt[k * H + i] = mode == 2 ? 0.0f : frand();
+  for (int k = 0; k < H; k++)
+    for (int i = 0; i < H; i++) {
+      if (mode == 1 && k < i) rt[k * H + i] = 0; /* Rᵀ: R upper triangular */
+      if (mode == 2) {                           /* a symmetric G = AᵀA */
+        double v = 0;
+        for (int q = 0; q < H; q++) v += (double)((3 * q + i) % 5 - 2) * ((3 * q + k) % 5 - 2);
+        rt[k * H + i] = (float)(v / H);
+      }
+    }
+  for (int i = 0; i < H; i++) rv[i] = frand();
+  const float r22 = 0.3f;
+  fn(m, H, K, hT, ldh, ewt, eb, mode ? rt : NULL, rv, r22, mode == 2, label, score, margin);
+  for (int p = 0; p < m; p++) {
+    double b1 = -INFINITY, b2 = -INFINITY, l[64];
+    int best = 0;
+    for (int k = 0; k < K; k++) {
+      double v = eb[k];
+      for (int j = 0; j < H; j++) v += (double)ewt[j * K + k] * hT[j * ldh + p];
+      l[k] = v;
+      if (v > b1) {
+        b2 = b1, b1 = v, best = k;
+      } else if (v > b2) {
+        b2 = v;
+      }
+    }
+    double nrm = 1;
+    if (mode) {
+      double q = (double)r22 * r22;
+      for (int i = 0; i < H; i++) {
+        double y = 0;
+        for (int k = 0; k < H; k++) y += (double)rt[k * H + i] * hT[k * ldh + p];
+        q += mode == 1 ? (y + rv[i]) * (y + rv[i]) : (y + 2.0 * rv[i]) * hT[i * ldh + p];
+      }
+      nrm = sqrt(q > 0 ? q : 0);
+    }
+    double tol = 1e-5 * (H + 1) * (1 + fabs(b1));
+    if (label[p] != best && !(l[label[p]] > b1 - tol))
+      fail_msg("score %s m=%d H=%d K=%d mode %d point %d: label %d, best %d", isa, m, H, K, mode, p, label[p], best);
+    if (fabs(score[p] - b1 / nrm) > tol / nrm + 1e-5 * fabs(b1 / nrm))
+      fail_msg("score %s m=%d H=%d K=%d mode %d point %d: score %g vs %g", isa, m, H, K, mode, p, score[p], b1 / nrm);
+    double mg = K > 1 ? (b1 - b2) / nrm : 0;
+    if (fabs(margin[p] - mg) > 2 * tol / nrm + 1e-5 * fabs(mg))
+      fail_msg("score %s m=%d H=%d K=%d mode %d point %d: margin %g vs %g", isa, m, H, K, mode, p, margin[p], mg);
+  }
+  free(hT), free(ewt), free(eb), free(rt), free(rv), free(score), free(margin), free(label);
+}
+
+static void test_score(void **state) {
+  (void)state;
+  struct {
+    score_kernel fn;
+    const char *isa;
+    int runs;
+  } kernels[] = {
+      {vlff_score_generic, "generic", 1},
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+      {vlff_score_v3, "avx2", __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")},
+      {vlff_score_v4, "avx512", __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+                                    __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl")},
+#endif
+  };
+  const int shapes[][3] = {{1, 1, 1}, {5, 13, 3}, {37, 37, 20}, {64, 128, 20}, {33, 40, 32}, {100, 9, 7}, {17, 16, 2}};
+  int ran = 0;
+  for (size_t q = 0; q < sizeof(kernels) / sizeof(kernels[0]); q++) {
+    if (!kernels[q].runs) continue;
+    ran++;
+    for (size_t s = 0; s < sizeof(shapes) / sizeof(shapes[0]); s++)
+      for (int mode = 0; mode < 3; mode++)
+        check_score(kernels[q].fn, kernels[q].isa, shapes[s][0], shapes[s][1], shapes[s][2], mode);
+  }
+  assert_true(ran >= 1);
+}
+
 /* GEMM against a double reference over shapes that hit every kernel path:
  * full tiles, row and column tails, strided A, bias, accumulate, relu, mask. */
 static void test_gemm(void **state) {
@@ -511,7 +610,7 @@ static void test_f16(void **state) {
 
 int main(void) {
   const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_gemm),   cmocka_unit_test(test_mlp),    cmocka_unit_test(test_encoding),
+      cmocka_unit_test(test_gemm),   cmocka_unit_test(test_score),  cmocka_unit_test(test_mlp),    cmocka_unit_test(test_encoding),
       cmocka_unit_test(test_encoding_simd),
       cmocka_unit_test(test_render), cmocka_unit_test(test_losses), cmocka_unit_test(test_adam),
       cmocka_unit_test(test_f16),    cmocka_unit_test(test_f16_bulk),
