@@ -11,8 +11,9 @@
  * The forward is bound by instructions, not by cache misses (measured: a
  * level whose table sits in L1 cost 7.4 ns per point and core, a hashed one
  * 10). On CPUs with AVX-512 it runs 16 points per vector and fetches each
- * corner's two features as one 64-bit gather lane, 1.8x less time per point
- * and level than the scalar loop; its arithmetic is the scalar loop's, in
+ * corner's two features as one 64-bit lane (scalar loads and inserts, which
+ * beat the gather instruction on Zen 5), about 2x less time per point and
+ * level than the scalar loop; its arithmetic is the scalar loop's, in
  * the same order with fused multiply-adds, so the outputs are bit-identical
  * to the scalar loop's AVX-512 clone (the default GCC build) and equal to
  * float rounding otherwise (tested). Elsewhere (ARM, older x86,
@@ -199,9 +200,29 @@ V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const floa
   return nv;
 }
 
+/* Eight 64-bit table entries (a corner's feature pair each) into one
+ * vector by scalar loads and inserts. On the Zen 5 this was measured on, an
+ * 8-lane vpgatherqq cost 18 cycles even from L1, the loads and inserts
+ * replacing it about a third of that: the encoding took 19 % less time. */
+static inline __attribute__((always_inline)) long long pair_bits(const float *t, uint32_t i) {
+  long long v;
+  memcpy(&v, t + (size_t)i * 2, sizeof(v)); /* one 8-byte load; no aliasing of float as integer */
+  return v;
+}
+V4_TARGET static inline __m512i load8_pairs(const float *t, const uint32_t *ix) {
+  __m128i a = _mm_insert_epi64(_mm_cvtsi64_si128(pair_bits(t, ix[0])), pair_bits(t, ix[1]), 1);
+  __m128i b = _mm_insert_epi64(_mm_cvtsi64_si128(pair_bits(t, ix[2])), pair_bits(t, ix[3]), 1);
+  __m128i c = _mm_insert_epi64(_mm_cvtsi64_si128(pair_bits(t, ix[4])), pair_bits(t, ix[5]), 1);
+  __m128i d = _mm_insert_epi64(_mm_cvtsi64_si128(pair_bits(t, ix[6])), pair_bits(t, ix[7]), 1);
+  __m256i ab = _mm256_inserti128_si256(_mm256_castsi128_si256(a), b, 1);
+  __m256i cd = _mm256_inserti128_si256(_mm256_castsi128_si256(c), d, 1);
+  return _mm512_inserti64x4(_mm512_castsi256_si512(ab), cd, 1);
+}
+
 /* One level for n <= VLFF_ENC_V4_BLOCK points given as coordinate arrays:
  * a group's corners (prefetched on hashed levels, so the group's misses
- * overlap), then each corner's feature pair as one 64-bit gather lane,
+ * overlap), then each corner's feature pair as one 64-bit lane (lanes past
+ * n load the valid entry that zero coordinates give, and are not stored),
  * accumulated in the scalar loop's order (c = 0..7, fused multiply-add), so
  * the result is bit for bit that of the scalar loop's AVX-512 clone. */
 V4_TARGET static void level_v4(const struct vlff_encoding *e, int l, const float *t, const float *px,
@@ -219,14 +240,11 @@ V4_TARGET static void level_v4(const struct vlff_encoding *e, int l, const float
           for (int i = 0; i < 16; i++) __builtin_prefetch(t + (size_t)ib[v][q][i] * 2);
     for (int v = 0; v < nv; v++) {
       int i0 = g0 + 16 * v, m = n - i0 < 16 ? n - i0 : 16;
-      __mmask16 k = (__mmask16)((1u << m) - 1);
-      __mmask8 klo = (__mmask8)(k & 0xff), khi = (__mmask8)(k >> 8);
       __m512 alo = _mm512_setzero_ps(), ahi = _mm512_setzero_ps();
       for (int q = 0; q < 8; q++) {
-        __m512i ix = _mm512_load_si512(ib[v][q]);
         __m512 w = _mm512_load_ps(wb[v][q]);
-        __m512i glo = _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), klo, _mm512_castsi512_si256(ix), t, 8);
-        __m512i ghi = _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), khi, _mm512_extracti64x4_epi64(ix, 1), t, 8);
+        __m512i glo = load8_pairs(t, ib[v][q]);
+        __m512i ghi = load8_pairs(t, ib[v][q] + 8);
         alo = _mm512_fmadd_ps(_mm512_permutexvar_ps(dup_lo, w), _mm512_castsi512_ps(glo), alo);
         ahi = _mm512_fmadd_ps(_mm512_permutexvar_ps(dup_hi, w), _mm512_castsi512_ps(ghi), ahi);
       }

@@ -25,15 +25,32 @@ static inline __attribute__((always_inline)) vf vsel(vi m, vf x, vf y) { return 
 
 /* acc[r][v] = sum over k in [k0, H) of A(r, k) hT[k][panel v], A(r,k) =
  * a[r + k*acs]: mr rows of a transposed (column-major) matrix, whose mr
- * values per k are adjacent. */
-static inline __attribute__((always_inline)) void score_rows(const int mr, int k0, int H, const float *a,
+ * values per k are adjacent. tri: A is upper triangular from k0 (A(r,k) = 0
+ * for k < k0 + r), so the first mr steps touch only the rows not yet zero. */
+static inline __attribute__((always_inline)) void score_rows(const int mr, int tri, int k0, int H, const float *a,
                                                              ptrdiff_t acs, const float *hp, int ldh,
                                                              vf acc[MR][NV]) {
 #pragma GCC unroll 8
   for (int r = 0; r < mr; r++)
 #pragma GCC unroll 2
     for (int v = 0; v < NV; v++) acc[r][v] = (vf){0};
-  for (int k = k0; k < H; k++) {
+  int k = k0;
+  if (tri && k0 + mr <= H) {
+#pragma GCC unroll 8
+    for (int t = 0; t < mr; t++, k++) {
+      const float *bk = hp + (ptrdiff_t)k * ldh, *ak = a + (ptrdiff_t)k * acs;
+      vf bv[NV];
+#pragma GCC unroll 2
+      for (int v = 0; v < NV; v++) bv[v] = vload(bk + VW * v);
+#pragma GCC unroll 8
+      for (int r = 0; r <= t; r++) {
+        float av = ak[r];
+#pragma GCC unroll 2
+        for (int v = 0; v < NV; v++) acc[r][v] += av * bv[v];
+      }
+    }
+  }
+  for (; k < H; k++) {
     const float *bk = hp + (ptrdiff_t)k * ldh, *ak = a + (ptrdiff_t)k * acs;
     vf bv[NV];
 #pragma GCC unroll 2
@@ -70,7 +87,7 @@ void SCORE_FN(int m, int H, int K, const float *hT, int ldh, const float *ewt, c
     const float *hp = hT + p0;
     for (int k0 = 0; k0 < K; k0 += MR) {
       int mr = K - k0 < MR ? K - k0 : MR;
-      SCORE_ROWS_CASES(mr, 0, H, ewt + k0, K, hp, ldh, acc)
+      SCORE_ROWS_CASES(mr, 0, 0, H, ewt + k0, K, hp, ldh, acc)
       for (int r = 0; r < mr; r++)
         for (int v = 0; v < NV; v++) lg[k0 + r][v] = acc[r][v] + eb[k0 + r];
     }
@@ -97,7 +114,7 @@ void SCORE_FN(int m, int H, int K, const float *hT, int ldh, const float *ewt, c
         int mr = H - i0 < MR ? H - i0 : MR;
         /* R is upper triangular: row i needs k >= i only, so the tile
          * starts at its first row's diagonal. The Gram form needs all k. */
-        SCORE_ROWS_CASES(mr, gram ? 0 : i0, H, rt + i0, H, hp, ldh, acc)
+        SCORE_ROWS_CASES(mr, !gram, gram ? 0 : i0, H, rt + i0, H, hp, ldh, acc)
         for (int r = 0; r < mr; r++)
           for (int v = 0; v < NV; v++) {
             if (gram) {
