@@ -9,10 +9,10 @@
  * cheap where the point-major GEMMs were not:
  * - K logits cost K x H per point with no padding of K to the vector width
  *   (K = 20 ran as 32 point-major, at half the FMA rate for the remainder);
- * - the norm's triangular product skips the zero part of R row tile by row
- *   tile (H^2/2 + H*MR/2 multiply-adds, against H^2/2 + H*32/2 for the
- *   point-major column blocks), and its squares are summed in the tile's
- *   epilogue, so the H-vector R h is never stored;
+ * - the norm's triangular product skips the zeros of R (H(H+1)/2
+ *   multiply-adds, against H^2/2 + 16 H for the point-major 32-column
+ *   blocks), and its squares are summed in the tile's epilogue, so the
+ *   H-vector R h is never stored;
  * - label, best and second-best are selected across lanes with masks
  *   instead of a branchy loop per point.
  * Sums run in a fixed order, so results do not vary from run to run.
