@@ -346,6 +346,42 @@ void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *
   for (int i = 0; i < n; i++) w->sigma[i] = expf(fminf(o[(size_t)i * ld], 15.0f));
 }
 
+/* The chunk's per-sample loops over MLP3's H = 128 hidden units, as
+ * helpers with restrict pointers and fixed-width inner loops: inline, the
+ * compiler could not rule out aliasing and ran them a float at a time
+ * (9.7 % of a default step was the chunk). The dot product keeps 16 partial
+ * sums in a fixed order, so results do not vary from run to run. */
+enum { CHUNK_VW = 16 };
+
+VLFF_HOT
+static void axpy_h(int n, float a, const float *restrict x, float *restrict y) {
+  int j = 0;
+  for (; j + CHUNK_VW <= n; j += CHUNK_VW)
+    for (int t = 0; t < CHUNK_VW; t++) y[j + t] += a * x[j + t];
+  for (; j < n; j++) y[j] += a * x[j];
+}
+
+VLFF_HOT
+static float dot_h(int n, const float *restrict x, const float *restrict y) {
+  float acc[CHUNK_VW] = {0};
+  int j = 0;
+  for (; j + CHUNK_VW <= n; j += CHUNK_VW)
+    for (int t = 0; t < CHUNK_VW; t++) acc[t] += x[j + t] * y[j + t];
+  float s = 0;
+  for (; j < n; j++) s += x[j] * y[j];
+  for (int t = 0; t < CHUNK_VW; t++) s += acc[t];
+  return s;
+}
+
+/* d = a g where the ReLU's output h is positive, else 0. */
+VLFF_HOT
+static void relu_scale_h(int n, float a, const float *restrict h, const float *restrict g, float *restrict d) {
+  int j = 0;
+  for (; j + CHUNK_VW <= n; j += CHUNK_VW)
+    for (int t = 0; t < CHUNK_VW; t++) d[j + t] = h[j + t] > 0 ? a * g[j + t] : 0.0f;
+  for (; j < n; j++) d[j] = h[j] > 0 ? a * g[j] : 0.0f;
+}
+
 /* The chunk pipeline shared by training and rendering. */
 void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
                       float *pslot, float *dencslot, int *nsamples) {
@@ -454,7 +490,7 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
         op += ww;
         if (k3 < n3 && w->sel3[k3] == s) {
           const float *hs = h3 + (size_t)k3 * H;
-          for (int j = 0; j < H; j++) hr[j] += ww * hs[j];
+          axpy_h(H, ww, hs, hr);
           ws += ww;
           k3++;
         }
@@ -534,9 +570,7 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
     for (int k3 = 0; k3 < n3; k3++) {
       int s = w->sel3[k3], r = w->ray_of[s];
       const float *hs = h3 + (size_t)k3 * H, *dhr = w->dh + (size_t)r * H;
-      float e = gfb[r];
-      for (int j = 0; j < H; j++) e += dhr[j] * hs[j];
-      w->e[s] += e;
+      w->e[s] += gfb[r] + dot_h(H, dhr, hs);
     }
   }
   for (int r = 0; r < nr; r++) {
@@ -562,7 +596,7 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
       float ww = w->w[s];
       const float *hs = h3 + (size_t)k3 * H, *dhr = w->dh + (size_t)r * H;
       float *d = dy3 + (size_t)k3 * H;
-      for (int j = 0; j < H; j++) d[j] = hs[j] > 0 ? ww * dhr[j] : 0.0f;
+      relu_scale_h(H, ww, hs, dhr, d);
     }
     vlff_mlp_backward(m3, f->wT, w->in3, geo, n3, m3->nl - 1, w->a3, dy3, g, w->din3, w->dy_a);
     for (int k = 0; k < n3; k++) {
