@@ -8,9 +8,12 @@
  * lines. Each level is processed for the whole block of points before the
  * next, keeping one level's table (the working set) hot.
  *
- * The forward is bound by instructions, not by cache misses (measured: a
- * level whose table sits in L1 cost 7.4 ns per point and core, a hashed one
- * 10). On CPUs with AVX-512 it runs 16 points per vector and fetches each
+ * One level on one thread is bound by instructions (measured: a level whose
+ * table sits in L1 cost 7.4 ns per point and core, a hashed one 10); in a
+ * full two-thread query the finer hashed levels wait on cache misses, and
+ * prefetching every corner of a group was the fastest variant measured
+ * (fewer, shallower or L2-only prefetches were slower). On CPUs with
+ * AVX-512 it runs 16 points per vector and fetches each
  * corner's two features as one 64-bit lane (scalar loads and inserts, which
  * beat the gather instruction on Zen 5), about 2x less time per point and
  * level than the scalar loop; its arithmetic is the scalar loop's, in
@@ -336,9 +339,10 @@ V4_TARGET static void backward_v4(const struct vlff_encoding *e, const float *p,
 /* sin and cos of x: reduction by pi/2 in two parts (pi/2 rounded to float,
  * then its error) and minimax polynomials on [-pi/4, pi/4] (the Cephes
  * single-precision coefficients): within 1e-7 of the exact values over the
- * [0, pi] used here (measured; the points are normalised into [0, 1]). Written without calls or branches so that the loop over a
- * block's points vectorises: libm's sinf and cosf, called per point, were a
- * fifth of the encoding's time. */
+ * [0, pi] used here (measured; the points are normalised into [0, 1]).
+ * Written without calls or branches so that the loop over a block's points
+ * vectorises: libm's sinf and cosf, called per point, were a fifth of the
+ * encoding's time. */
 static inline __attribute__((always_inline)) void sincos_poly(float x, float *s, float *c) {
   const float pio2_hi = 1.57079637050628662109375f, pio2_lo = -4.37113900018624283e-8f;
   float j = rintf(x * 0.636619772367581343f);
