@@ -8,6 +8,7 @@
  */
 #include <math.h>
 #include <stdbool.h>
+#include <string.h>
 
 #include "field_internal.h"
 
@@ -35,7 +36,7 @@ void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p,
  * words of the fine levels have many bits set; a streaming vector pass over
  * the block then costs less than one scattered scalar update per bit. */
 static inline __attribute__((always_inline)) void adam_block(float b1, float b2, float c1, float c2, float eps,
-                                                             float lr, float *restrict p, const float *restrict g,
+                                                             float lr, float *restrict p, float *restrict g,
                                                              float *restrict m, float *restrict v, uint64_t word,
                                                              size_t entries, int width) {
   enum { MAXW = 8 };
@@ -45,6 +46,7 @@ static inline __attribute__((always_inline)) void adam_block(float b1, float b2,
   for (size_t j = 0; j < len; j++) {
     float pi = p[j], mi = m[j], vi = v[j];
     adam_one(b1, b2, c1, c2, eps, lr, g[j], &pi, &mi, &vi);
+    g[j] = 0.0f; /* untouched lanes hold 0 already */
     bool t = on[j] != 0.0f;
     m[j] = t ? mi : m[j];
     v[j] = t ? vi : v[j];
@@ -52,56 +54,121 @@ static inline __attribute__((always_inline)) void adam_block(float b1, float b2,
   }
 }
 
+/* Bit j: entry j of a run of ne <= 64 carries the stamp. */
+static inline uint64_t marks_word(const uint8_t *t, uint8_t stamp, size_t ne) {
+  uint64_t word = 0;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+  if (ne == 64) {
+    const uint64_t ones = 0x0101010101010101ull, low7 = 0x7f7f7f7f7f7f7f7full, high = 0x8080808080808080ull;
+    for (int q = 0; q < 8; q++) {
+      uint64_t x;
+      memcpy(&x, t + 8 * q, 8);
+      x ^= stamp * ones;
+      /* High bit of each byte: that byte is nonzero (no carry crosses a
+       * byte, as (x & 0x7f) + 0x7f <= 0xfe); then one 0/1 per equal byte. */
+      uint64_t eq = (~(((x & low7) + low7) | x) & high) >> 7;
+      /* Eight flags per multiply: byte q lands on bit 56 + q, and no two
+       * partial products overlap, so nothing carries. */
+      word |= ((eq * 0x0102040810204080ull) >> 56) << (8 * q);
+    }
+    return word;
+  }
+#endif
+  for (size_t j = 0; j < ne; j++) word |= (uint64_t)(t[j] == stamp) << j;
+  return word;
+}
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define ADAM_BW 1
+#include <immintrin.h>
+/* One compare per 64 marks. The fine levels' marks (512 KB each) are read
+ * whole every step; portably that took 65 against 17 us per level. */
+__attribute__((target("avx512f,avx512bw"))) static void marks_words_bw(const uint8_t *t, uint8_t stamp, size_t nw,
+                                                                      uint64_t *words) {
+  const __m512i s = _mm512_set1_epi8((char)stamp);
+  for (size_t k = 0; k < nw; k++) words[k] = _mm512_cmpeq_epi8_mask(_mm512_loadu_si512(t + 64 * k), s);
+}
+#else
+#define ADAM_BW 0
+#endif
+
+/* words[k] for the 64-entry runs from entry e0 on, nw of them, within n. */
+static void marks_words(int simd, const uint8_t *marks, uint8_t stamp, size_t e0, size_t n, size_t nw,
+                        uint64_t *words) {
+  size_t k = 0;
+#if ADAM_BW
+  if (simd) {
+    k = (n - e0) / 64 < nw ? (n - e0) / 64 : nw;
+    marks_words_bw(marks + e0, stamp, k, words);
+  }
+#else
+  (void)simd;
+#endif
+  for (; k < nw; k++) {
+    size_t s = e0 + 64 * k;
+    words[k] = marks_word(marks + s, stamp, n - s < 64 ? n - s : 64);
+  }
+}
+
 VLFF_HOT
-size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
-                        float *v, uint64_t *bits, size_t n, int width) {
+size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, float *g, float *m, float *v,
+                        const uint8_t *marks, uint8_t stamp, size_t n, int width) {
   /* Break-even, measured: a vectorised block costs about what 16 scattered
-   * single-entry updates do. */
-  enum { BLOCK_MIN_BITS = 16, PF_AHEAD = 16 };
+   * single-entry updates do. Marks are packed to words a run at a time,
+   * PF_AHEAD words beyond it, for the prefetch below. */
+  enum { BLOCK_MIN_BITS = 16, PF_AHEAD = 16, RUN = 256 };
   float b1 = a->beta1, b2 = a->beta2;
   float c1 = 1.0f / (1.0f - powf(b1, (float)t)), c2 = 1.0f / (1.0f - powf(b2, (float)t));
   float eps = a->eps;
   size_t count = 0;
   const size_t nw = (n + 63) / 64;
-  for (size_t wi = 0; wi < nw; wi++) {
-    /* A sparse word's entries are scattered cache misses in four arrays:
-     * its lines are requested 16 words (8 KB per array) ahead, so they
-     * overlap with the updates in between. Measured on a default-config
-     * step: the table's Adam went from 1.31x to 0.93-1.09x the GEMMs' time
-     * (4 words ahead: 1.07-1.22x). Dense words stream; the hardware
-     * prefetcher has those. */
-    uint64_t ahead = wi + PF_AHEAD < nw ? bits[wi + PF_AHEAD] : 0;
-    if (ahead && __builtin_popcountll(ahead) < BLOCK_MIN_BITS)
-      for (int by = 0; by < 8; by++)
-        if ((ahead >> (8 * by)) & 0xff) {
-          size_t i = ((wi + PF_AHEAD) * 64 + 8 * (size_t)by) * (size_t)width;
-          __builtin_prefetch(p + i, 1);
-          __builtin_prefetch(m + i, 1);
-          __builtin_prefetch(v + i, 1);
-          __builtin_prefetch(g + i);
+  uint64_t words[RUN + PF_AHEAD];
+  for (size_t w0 = 0; w0 < nw; w0 += RUN) {
+    size_t nrun = nw - w0 < RUN ? nw - w0 : RUN;
+    size_t npack = nw - w0 < RUN + PF_AHEAD ? nw - w0 : RUN + PF_AHEAD;
+    marks_words(a->simd, marks, stamp, w0 * 64, n, npack, words);
+    for (size_t k = 0; k < nrun; k++) {
+      const size_t wi = w0 + k;
+      /* A sparse word's entries are scattered cache misses in four arrays:
+       * its lines are requested 16 words (8 KB per array) ahead, so they
+       * overlap with the updates in between. Measured on a default-config
+       * step: the table's Adam went from 1.31x to 0.93-1.09x the GEMMs'
+       * time (4 words ahead: 1.07-1.22x). Dense words stream; the hardware
+       * prefetcher has those. */
+      uint64_t ahead = k + PF_AHEAD < npack ? words[k + PF_AHEAD] : 0;
+      if (ahead && __builtin_popcountll(ahead) < BLOCK_MIN_BITS)
+        for (int by = 0; by < 8; by++)
+          if ((ahead >> (8 * by)) & 0xff) {
+            size_t i = ((wi + PF_AHEAD) * 64 + 8 * (size_t)by) * (size_t)width;
+            __builtin_prefetch(p + i, 1);
+            __builtin_prefetch(m + i, 1);
+            __builtin_prefetch(v + i, 1);
+            __builtin_prefetch(g + i, 1);
+          }
+      uint64_t word = words[k];
+      if (!word) continue;
+      size_t e0 = wi * 64, ne = n - e0 < 64 ? n - e0 : 64;
+      int pop = __builtin_popcountll(word);
+      if (pop >= BLOCK_MIN_BITS && width <= 8) {
+        size_t o = e0 * (size_t)width;
+        /* The default width as a constant, so that call's index arithmetic
+         * folds to shifts and its loop vectorises. */
+        if (width == 2)
+          adam_block(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word, ne, 2);
+        else
+          adam_block(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word, ne, width);
+        count += (size_t)pop;
+        continue;
+      }
+      while (word) {
+        size_t e = e0 + (size_t)__builtin_ctzll(word);
+        word &= word - 1;
+        count++;
+        for (int f = 0; f < width; f++) {
+          size_t i = e * width + f;
+          adam_one(b1, b2, c1, c2, eps, lr, g[i], &p[i], &m[i], &v[i]);
+          g[i] = 0.0f;
         }
-    uint64_t word = bits[wi];
-    if (!word) continue;
-    bits[wi] = 0;
-    int pop = __builtin_popcountll(word);
-    if (pop >= BLOCK_MIN_BITS && width <= 8) {
-      size_t e0 = wi * 64, ne = n - e0 < 64 ? n - e0 : 64, o = e0 * (size_t)width;
-      /* The default width as a constant, so that call's index arithmetic
-       * folds to shifts and its loop vectorises. */
-      if (width == 2)
-        adam_block(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word, ne, 2);
-      else
-        adam_block(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word, ne, width);
-      count += (size_t)pop;
-      continue;
-    }
-    while (word) {
-      size_t e = wi * 64 + (size_t)__builtin_ctzll(word);
-      word &= word - 1;
-      count++;
-      for (int f = 0; f < width; f++) {
-        size_t i = e * width + f;
-        adam_one(b1, b2, c1, c2, eps, lr, g[i], &p[i], &m[i], &v[i]);
       }
     }
   }

@@ -292,7 +292,7 @@ static void forward_v4(const struct vlff_encoding *e, const float *table, const 
  * is one fused multiply-add, where the scalar loop may round the product
  * first, as its compiler decides). */
 V4_TARGET static void backward_v4(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
-                                  int l, float *g, uint64_t *bt) {
+                                  int l, float *g, uint8_t *tb, uint8_t stamp) {
   float px[VLFF_ENC_V4_BLOCK], py[VLFF_ENC_V4_BLOCK], pz[VLFF_ENC_V4_BLOCK];
   uint32_t ib[V4_GROUP][8][16] __attribute__((aligned(64)));
   float wb[V4_GROUP][8][16] __attribute__((aligned(64)));
@@ -311,24 +311,11 @@ V4_TARGET static void backward_v4(const struct vlff_encoding *e, const float *p,
         const float d0 = dj[0], d1 = dj[1];
         const int v = j / 16, i = j % 16;
         for (int c = 0; c < 8; c++) {
-          /* Branch-free first touch (about half the touches early in a
-           * step, so a branch mispredicts): add onto the old value where
-           * the bit is set, else onto -0, the exact identity of addition
-           * (x + -0 is x, signed zeros included). */
           uint32_t h = ib[v][c][i];
           float wt = wb[v][c][i], *gv = g + (size_t)h * 2;
-          uint64_t word = bt[h >> 6];
-          uint32_t keep = -(uint32_t)((word >> (h & 63)) & 1), o0, o1;
-          bt[h >> 6] = word | 1ull << (h & 63);
-          memcpy(&o0, gv, 4);
-          memcpy(&o1, gv + 1, 4);
-          o0 = (o0 & keep) | (0x80000000u & ~keep);
-          o1 = (o1 & keep) | (0x80000000u & ~keep);
-          float base0, base1;
-          memcpy(&base0, &o0, 4);
-          memcpy(&base1, &o1, 4);
-          gv[0] = base0 + wt * d0;
-          gv[1] = base1 + wt * d1;
+          tb[h] = stamp;
+          gv[0] += wt * d0;
+          gv[1] += wt * d1;
         }
       }
     }
@@ -447,22 +434,27 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
   encode_freq(e, p, n, out, ldo);
 }
 
+size_t vlff_encoding_entries(const struct vlff_encoding *e, int l) {
+  if (!e->dense[l]) return e->size;
+  size_t s1 = (size_t)e->res[l] + 1;
+  return s1 * s1 * s1;
+}
+
 VLFF_HOT
 void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
-                            int level, float *grad, uint64_t *bits) {
+                            int level, float *grad, uint8_t *marks, uint8_t stamp) {
   const int F = e->feats, l = level;
   const size_t base = (size_t)l * e->size;
   float *g = grad + base * F;
-  uint64_t *bt = bits + base / 64;
+  uint8_t *tb = marks + base;
 #if VLFF_ENC_V4
   if (e->simd && F == 2) {
-    backward_v4(e, p, n, d, ld, l, g, bt);
+    backward_v4(e, p, n, d, ld, l, g, tb, stamp);
     return;
   }
 #endif
   if (F == 2) {
-    /* As in the forward: addresses (prefetched) first, then the updates.
-     * First touch writes instead of zeroing then adding. */
+    /* As in the forward: addresses (prefetched) first, then the updates. */
     enum { B = 32 };
     uint32_t ix[B][8];
     float wt[B][8];
@@ -480,15 +472,9 @@ void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n
         for (int c = 0; c < 8; c++) {
           uint32_t h = ix[i][c];
           float *gv = g + (size_t)h * 2;
-          uint64_t bit = 1ull << (h & 63), word = bt[h >> 6];
-          if (word & bit) {
-            gv[0] += wt[i][c] * d0;
-            gv[1] += wt[i][c] * d1;
-          } else {
-            bt[h >> 6] = word | bit;
-            gv[0] = wt[i][c] * d0;
-            gv[1] = wt[i][c] * d1;
-          }
+          tb[h] = stamp;
+          gv[0] += wt[i][c] * d0;
+          gv[1] += wt[i][c] * d1;
         }
       }
     }
@@ -500,13 +486,8 @@ void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n
     float w[8];
     corners(e, l, p + 3 * i, idx, w);
     for (int c = 0; c < 8; c++) {
-      uint32_t h = idx[c];
-      float *gv = g + (size_t)h * F;
-      uint64_t bit = 1ull << (h & 63);
-      if (!(bt[h >> 6] & bit)) {
-        bt[h >> 6] |= bit;
-        for (int f = 0; f < F; f++) gv[f] = 0;
-      }
+      float *gv = g + (size_t)idx[c] * F;
+      tb[idx[c]] = stamp;
       for (int f = 0; f < F; f++) gv[f] += w[c] * di[f];
     }
   }

@@ -118,7 +118,7 @@ void vlff_field_destroy(struct vlff_field *f) {
   free(f->adam_v);
   free(f->grad);
   free(f->wT);
-  free(f->bits);
+  free(f->marks);
   free(f->occ.density);
   free(f->occ.occ);
   free(f->rays);
@@ -172,6 +172,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->adam.beta2 = (float)cfg->train.beta2;
   f->adam.eps = (float)cfg->train.eps;
   f->adam.wd = (float)cfg->train.weight_decay;
+  f->adam.simd = !strcmp(vlff_gemm_isa(), "avx512"); /* as the encoding: VLFF_GEMM=generic is all portable */
   f->feat_l1 = cfg->train.feature_loss == VLFF_FEAT_LOSS_L1;
 
   f->pool = vlff_pool_create(cfg->node.threads);
@@ -189,7 +190,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->adam_v = xalloc(f->nparams * fs, &ok);
   f->grad = xalloc(f->nparams * fs, &ok);
   f->wT = xalloc(f->nmlp * fs, &ok);
-  f->bits = xalloc((size_t)levels * f->enc.size / 8 + 8, &ok);
+  f->marks = xalloc((size_t)levels * f->enc.size, &ok);
   int ores = cfg->train.occupancy_resolution;
   size_t ncell = (size_t)ores * ores * ores;
   f->occ.res = ores;
@@ -646,12 +647,12 @@ static void hash_task(void *ctx, int level, int thread) {
   for (int c = 0; c < sc->nchunks; c++)
     vlff_encoding_backward(&f->enc, f->step_p + (size_t)c * slot * 3, f->chunk_n[c],
                            f->step_denc + ((size_t)c * slot * f->enc.levels + (size_t)level * f->chunk_n[c]) * f->enc.feats,
-                           f->enc.feats, level, f->grad, f->bits);
+                           f->enc.feats, level, f->grad, f->marks, f->stamp);
   float lr = f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps));
   size_t base = (size_t)level * f->enc.size;
   size_t off = base * f->enc.feats;
   vlff_adam_sparse(&f->adam, f->step, lr, f->params + off, f->grad + off, f->adam_m + off, f->adam_v + off,
-                   f->bits + base / 64, f->enc.size, f->enc.feats);
+                   f->marks + base, f->stamp, vlff_encoding_entries(&f->enc, level), f->enc.feats);
 }
 
 #define MLP_SPLIT 64
@@ -813,6 +814,9 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   }
   struct step_ctx sc = {f, (f->nrays + f->chunk_rays - 1) / f->chunk_rays};
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
+  /* A stamp comes back after 255 steps: clear its old marks first. */
+  f->stamp = (uint8_t)(f->stamp % 255 + 1);
+  if (f->stamp == 1) memset(f->marks, 0, (size_t)f->enc.levels * f->enc.size);
   vlff_pool_run(f->pool, f->enc.levels, hash_task, &sc);
   vlff_pool_run(f->pool, MLP_SPLIT, mlp_task, &sc);
   refresh_weights(f);

@@ -287,14 +287,19 @@ static void test_encoding(void **state) {
   p[1] = 1.0f;  /* box faces */
   for (int i = 0; i < n * e.dim; i++) d[i] = frand();
   vlff_encoding_forward(&e, table, p, n, out, e.dim);
-  uint64_t *bits = calloc(e.levels * e.size / 64 + 1, 8);
-  for (int l = 0; l < e.levels; l++) vlff_encoding_backward(&e, p, n, d + l * e.feats, e.dim, l, grad, bits);
+  uint8_t *marks = calloc((size_t)e.levels * e.size, 1);
+  for (int l = 0; l < e.levels; l++) vlff_encoding_backward(&e, p, n, d + l * e.feats, e.dim, l, grad, marks, 1);
   /* Double FD: L(table) = sum d . out; perturb each touched entry. */
   int checked = 0;
   for (int l = 0; l < e.levels; l++) {
     uint32_t marked = 0;
     for (uint32_t q = 0; q < e.size; q++) {
-      if (!(bits[((size_t)l * e.size + q) / 64] >> (q % 64) & 1)) continue;
+      if (!marks[(size_t)l * e.size + q]) {
+        /* Unmarked entries keep the zero gradient Adam relies on. */
+        for (int f = 0; f < e.feats; f++) assert_true(grad[((size_t)l * e.size + q) * e.feats + f] == 0.0f);
+        continue;
+      }
+      assert_true(marks[(size_t)l * e.size + q] == 1);
       marked++;
       for (int f = 0; f < e.feats; f++) {
         size_t i = ((size_t)l * e.size + q) * e.feats + f;
@@ -329,7 +334,7 @@ static void test_encoding(void **state) {
   free(grad);
   free(out);
   free(d);
-  free(bits);
+  free(marks);
 }
 
 /* The AVX-512 kernels against the portable loops: the same touched entries,
@@ -368,23 +373,23 @@ static void test_encoding_simd(void **state) {
     for (int i = 0; i < n * e.dim; i++)
       if (fabsf(a[i] - b[i]) > 1e-6f) fail_msg("encoding output %d of point %d: %g vs %g", i % e.dim, i / e.dim, a[i], b[i]);
   }
-  /* Gradients and touched-entry bitmaps, every level, from the same d; a
+  /* Gradients and touched-entry marks, every level, from the same d; a
    * second pass accumulates onto entries the first one touched. */
   float *d = falloc((size_t)n * e.dim), *ga = falloc(nt), *gb = falloc(nt);
-  size_t nw = (size_t)e.levels * e.size / 64 + 1;
-  uint64_t *ba = calloc(nw, 8), *bb = calloc(nw, 8);
+  size_t nm = (size_t)e.levels * e.size;
+  uint8_t *ba = calloc(nm, 1), *bb = calloc(nm, 1);
   for (int i = 0; i < n * e.dim; i++) d[i] = frand();
   for (int pass = 0; pass < 2; pass++)
     for (int l = 0; l < e.levels; l++) {
       e.simd = 1;
-      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, ga, ba);
+      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, ga, ba, 9);
       e.simd = 0;
-      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, gb, bb);
+      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, gb, bb, 9);
     }
-  assert_memory_equal(ba, bb, nw * 8);
+  assert_memory_equal(ba, bb, nm);
   size_t touched = 0;
   for (size_t q = 0; q < nt / 2; q++)
-    if (ba[q / 64] >> (q % 64) & 1) {
+    if (ba[q] == 9) {
       touched++;
       /* |d| <= 1 and trilinear weights sum to 1: terms are at most 1, an
        * entry sums a handful, so 1e-6 is a few ulps of them. A wrong
@@ -491,7 +496,7 @@ static void test_adam(void **state) {
   (void)state;
   /* One step from zero moments moves each parameter by lr * sign(g)
    * (bias-corrected Adam); weight decay adds wd * p to the gradient. */
-  struct vlff_adam a = {0.01f, 0.9f, 0.99f, 1e-15f, 0.1f};
+  struct vlff_adam a = {0.01f, 0.9f, 0.99f, 1e-15f, 0.1f, 0};
   float p[4] = {1, -1, 2, 0.5f}, g[4] = {0.3f, -2, 0, 1e-3f}, m[4] = {0}, v[4] = {0};
   vlff_adam_dense(&a, 1, a.lr, p, g, m, v, 0, 4, 0);
   assert_true(fabsf(p[0] - 0.99f) < 1e-6f && fabsf(p[1] + 0.99f) < 1e-6f && p[2] == 2.0f &&
@@ -499,24 +504,33 @@ static void test_adam(void **state) {
   float q[2] = {1, 1}, gq[2] = {0, 0}, mq[2] = {0}, vq[2] = {0};
   vlff_adam_dense(&a, 1, a.lr, q, gq, mq, vq, 0, 2, 1);
   assert_true(fabsf(q[0] - 0.99f) < 1e-6f);
-  uint64_t bits[2] = {2, 1}; /* entries 1 and 64 of 70 */
-  float s[140], gs[140], ms[140] = {0}, vs[140] = {0};
-  for (int i = 0; i < 140; i++) s[i] = gs[i] = 1;
-  assert_int_equal(vlff_adam_sparse(&a, 1, a.lr, s, gs, ms, vs, bits, 70, 2), 2);
+  uint8_t marks[70] = {0};
+  marks[1] = marks[64] = 5; /* entries 1 and 64 of 70 */
+  marks[2] = 4;             /* an earlier step's */
+  float s[140], gs[140] = {0}, ms[140] = {0}, vs[140] = {0};
+  for (int i = 0; i < 140; i++) s[i] = 1;
+  gs[2] = gs[3] = gs[128] = gs[129] = 1;
+  assert_int_equal(vlff_adam_sparse(&a, 1, a.lr, s, gs, ms, vs, marks, 5, 70, 2), 2);
   assert_true(s[0] == 1 && s[1] == 1 && fabsf(s[2] - 0.99f) < 1e-6f && fabsf(s[3] - 0.99f) < 1e-6f);
   assert_true(fabsf(s[128] - 0.99f) < 1e-6f && s[130] == 1 && s[126] == 1);
-  assert_true(bits[0] == 0 && bits[1] == 0);
+  for (int i = 0; i < 70; i++) assert_true(gs[2 * i] == 0 && gs[2 * i + 1] == 0);
+  assert_true(s[4] == 1 && s[5] == 1);
 
   /* Dense words go through the whole-block path: it must move exactly the
-   * entries whose bit is set, by the scalar update (to rounding: the library
+   * marked entries, by the scalar update (to rounding: the library
    * may be built for another ISA than this test), and leave the others (and
-   * the partial last word's tail) bit for bit alone. Width 2 and 3. */
+   * the partial last word's tail) bit for bit alone. Width 2 and 3, marks
+   * read portably and, where the CPU has it, with AVX-512BW. */
+  const int simd_max = !strcmp(vlff_gemm_isa(), "avx512");
+  for (int simd = 0; simd <= simd_max; simd++)
   for (int width = 2; width <= 3; width++) {
+    a.simd = simd;
     enum { NE = 64 * 5 + 37 };
     size_t nf = (size_t)NE * width;
     float *pp = malloc(nf * 4), *gg = malloc(nf * 4), *mm = malloc(nf * 4), *vv = malloc(nf * 4);
     float *rp = malloc(nf * 4), *rm = malloc(nf * 4), *rv = malloc(nf * 4);
     uint64_t bb[6], seed = 99;
+    uint8_t mk[NE];
     for (size_t i = 0; i < nf; i++) {
       rp[i] = pp[i] = vlff_rng_uniform(&seed) - 0.5f;
       gg[i] = vlff_rng_uniform(&seed) - 0.5f;
@@ -530,8 +544,24 @@ static void test_adam(void **state) {
     bb[4] = 0x00ff00ff0000f00full;                 /* 28 bits */
     bb[5] = (1ull << 37) - 1 - (1ull << 5);        /* partial last word */
     size_t expect = 0;
-    uint64_t bb_copy[6];
-    memcpy(bb_copy, bb, sizeof bb);
+    /* Marks from the words: this step's stamp (200), else a stamp of an
+     * earlier step. Those run through 195 distinct values from stamp ^ 0x80
+     * (in steps of 37), 0 where that would give the stamp: values one bit
+     * or one carry from it among them. Unmarked entries hold a zero
+     * gradient, as the scatter leaves them. */
+    const uint8_t stamp = 200;
+    unsigned u = 0;
+    for (size_t e = 0; e < NE; e++) {
+      if ((bb[e / 64] >> (e % 64)) & 1) {
+        mk[e] = stamp;
+        continue;
+      }
+      mk[e] = (uint8_t)((stamp + 128 + 37 * u++) % 256);
+      if (mk[e] == stamp) mk[e] = 0;
+      for (int f = 0; f < width; f++) gg[e * width + f] = 0;
+    }
+    uint8_t mk_copy[NE];
+    memcpy(mk_copy, mk, sizeof mk);
     for (int wi = 0; wi < 6; wi++) expect += (size_t)__builtin_popcountll(bb[wi]);
     float c1 = 1.0f / (1.0f - powf(a.beta1, 3.0f)), c2 = 1.0f / (1.0f - powf(a.beta2, 3.0f));
     for (size_t e = 0; e < NE; e++) {
@@ -544,10 +574,11 @@ static void test_adam(void **state) {
         rp[i] -= a.lr * (mi * c1) / (sqrtf(vi * c2) + a.eps);
       }
     }
-    assert_int_equal(vlff_adam_sparse(&a, 3, a.lr, pp, gg, mm, vv, bb, NE, width), expect);
+    assert_int_equal(vlff_adam_sparse(&a, 3, a.lr, pp, gg, mm, vv, mk, stamp, NE, width), expect);
     for (size_t i = 0; i < nf; i++) {
       size_t e = i / width;
-      bool moved = (bb_copy[e / 64] >> (e % 64)) & 1;
+      bool moved = (bb[e / 64] >> (e % 64)) & 1;
+      assert_true(gg[i] == 0.0f);
       /* Tolerances: a few ulps of each quantity's largest term. */
       bool ok = moved ? fabsf(pp[i] - rp[i]) <= 1e-6f && fabsf(mm[i] - rm[i]) <= 1e-7f &&
                             fabsf(vv[i] - rv[i]) <= 1e-9f
@@ -556,7 +587,7 @@ static void test_adam(void **state) {
         fail_msg("width %d entry %zu feature %zu: %g %g %g, expected %g %g %g", width, i / width, i % width,
                  pp[i], mm[i], vv[i], rp[i], rm[i], rv[i]);
     }
-    for (int wi = 0; wi < 6; wi++) assert_true(bb[wi] == 0);
+    assert_memory_equal(mk, mk_copy, sizeof mk);
     free(pp), free(gg), free(mm), free(vv), free(rp), free(rm), free(rv);
   }
 }

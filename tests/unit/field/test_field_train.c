@@ -334,10 +334,50 @@ static void test_level_mask(void **state) {
   vlff_field_destroy(f);
 }
 
+/* The table's gradient is zero again after every step (the scatter adds onto
+ * it and Adam zeroes what it used), and when a step's stamp comes round
+ * again after 255 steps no older mark is left to pass for it. */
+static void test_marks_wrap(void **state) {
+  (void)state;
+  const int d = 16, W = 40, H = 30;
+  struct vlff_config cfg;
+  scene_cfg(&cfg, d);
+  cfg.train.rays_per_step = 32;
+  cfg.train.samples_per_ray = 8;
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
+  assert_non_null(f);
+  struct scene_view sv;
+  double c2w[16];
+  scene_pose(0, 16, c2w);
+  scene_render(&sv, W, H, d, c2w);
+  const size_t nm = (size_t)f->enc.levels * f->enc.size;
+  struct vlff_train_stats st;
+  for (int i = 1; i <= 256; i++) {
+    assert_int_equal(vlff_field_step(f, &sv.v, 1, NULL, &st, err, sizeof(err)), 0);
+    if (i % 32 == 0 || i >= 254)
+      for (size_t k = 0; k < f->ntable; k++)
+        if (f->grad[k] != 0.0f) fail_msg("step %d: table gradient %zu is %g", i, k, f->grad[k]);
+    size_t marked = 0, high = 0;
+    for (size_t k = 0; k < nm; k++) {
+      marked += f->marks[k] == f->stamp;
+      high += f->marks[k] > f->stamp;
+    }
+    assert_true(marked > 0);
+    /* Stamps grow by one a step from 1: a mark above this step's is a
+     * leftover that a later step would read as its own. */
+    if (i == 255) assert_true(f->stamp == 255);
+    if (i == 256) assert_true(f->stamp == 1 && high == 0);
+  }
+  scene_view_free(&sv);
+  vlff_field_destroy(f);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_ray_budget),
       cmocka_unit_test(test_level_mask),
+      cmocka_unit_test(test_marks_wrap),
       cmocka_unit_test(test_slab),
       cmocka_unit_test(test_chunk_gradient),
       cmocka_unit_test(test_convergence),
