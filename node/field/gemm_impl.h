@@ -7,7 +7,9 @@
  * A read with swapped strides). An MR x (NV*VW) tile of C lives in registers
  * while a NV*VW-wide panel of B streams from L1; tile sizes fit the register
  * file of each ISA: AVX-512 8x32 (16 of 32 zmm), AVX2 6x16 (12 of 16 ymm),
- * otherwise 4x8 (SSE / NEON).
+ * otherwise 4x8 (SSE / NEON). Columns past the last whole vector: AVX-512
+ * runs the same tile on masked loads and stores; the others copy that panel
+ * zero-padded to a vector's width.
  */
 #include <stddef.h>
 #include <string.h>
@@ -29,26 +31,57 @@
 typedef float vf __attribute__((vector_size(VW * 4)));
 typedef int vi __attribute__((vector_size(VW * 4)));
 
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#define MASKED_TAIL 1
+typedef __mmask16 tailmask;
+#else
+#define MASKED_TAIL 0
+typedef unsigned tailmask;
+#endif
+
 static inline __attribute__((always_inline)) vf vload(const float *p) {
   vf v;
   memcpy(&v, p, sizeof(v));
   return v;
 }
 static inline __attribute__((always_inline)) void vstore(float *p, vf v) { memcpy(p, &v, sizeof(v)); }
+/* Vector v of nv, where the last one may be partial (tail: its lanes, when
+ * masked; only AVX-512 builds pass masked = 1). */
+static inline __attribute__((always_inline)) vf vload_t(const float *p, int v, int nv, int masked, tailmask tail) {
+#if MASKED_TAIL
+  if (masked && v == nv - 1) return (vf)_mm512_maskz_loadu_ps(tail, p);
+#else
+  (void)v, (void)nv, (void)masked, (void)tail;
+#endif
+  return vload(p);
+}
+static inline __attribute__((always_inline)) void vstore_t(float *p, vf x, int v, int nv, int masked,
+                                                           tailmask tail) {
+#if MASKED_TAIL
+  if (masked && v == nv - 1) {
+    _mm512_mask_storeu_ps(p, tail, (__m512)x);
+    return;
+  }
+#else
+  (void)v, (void)nv, (void)masked, (void)tail;
+#endif
+  vstore(p, x);
+}
 
-static inline __attribute__((always_inline)) void tile(const int mr, const int nv, int k, const float *a,
-                                                       ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
-                                                       float *c, int ldc, const float *bias, int accumulate,
-                                                       int relu, const float *mask) {
+static inline __attribute__((always_inline)) void tile(const int mr, const int nv, const int masked, tailmask tail,
+                                                       int k, const float *a, ptrdiff_t ars, ptrdiff_t acs,
+                                                       const float *b, int ldb, float *c, int ldc, const float *bias,
+                                                       int accumulate, int relu, const float *mask) {
   vf acc[MR][NV];
 #pragma GCC unroll 8
   for (int r = 0; r < mr; r++)
 #pragma GCC unroll 2
     for (int v = 0; v < nv; v++) {
       if (bias)
-        acc[r][v] = vload(bias + VW * v);
+        acc[r][v] = vload_t(bias + VW * v, v, nv, masked, tail);
       else if (accumulate)
-        acc[r][v] = vload(c + (ptrdiff_t)r * ldc + VW * v);
+        acc[r][v] = vload_t(c + (ptrdiff_t)r * ldc + VW * v, v, nv, masked, tail);
       else
         acc[r][v] = (vf){0};
     }
@@ -57,7 +90,7 @@ static inline __attribute__((always_inline)) void tile(const int mr, const int n
     const float *ak = a + (ptrdiff_t)kk * acs;
     vf bv[NV];
 #pragma GCC unroll 2
-    for (int v = 0; v < nv; v++) bv[v] = vload(bk + VW * v);
+    for (int v = 0; v < nv; v++) bv[v] = vload_t(bk + VW * v, v, nv, masked, tail);
 #pragma GCC unroll 8
     for (int r = 0; r < mr; r++) {
       float av = ak[(ptrdiff_t)r * ars];
@@ -71,23 +104,42 @@ static inline __attribute__((always_inline)) void tile(const int mr, const int n
     for (int v = 0; v < nv; v++) {
       vf x = acc[r][v];
       if (relu) x = (vf)((vi)x & (x > 0));
-      if (mask) x = (vf)((vi)x & (vload(mask + (ptrdiff_t)r * ldc + VW * v) > 0));
-      vstore(c + (ptrdiff_t)r * ldc + VW * v, x);
+      if (mask) x = (vf)((vi)x & (vload_t(mask + (ptrdiff_t)r * ldc + VW * v, v, nv, masked, tail) > 0));
+      vstore_t(c + (ptrdiff_t)r * ldc + VW * v, x, v, nv, masked, tail);
     }
 }
 
 /* All rows for one column block of nv vectors. */
-static inline __attribute__((always_inline)) void rows(const int nv, int m, int k, const float *a, ptrdiff_t ars,
-                                                       ptrdiff_t acs, const float *b, int ldb, float *c, int ldc,
-                                                       const float *bias, int accumulate, int relu,
-                                                       const float *mask) {
+static inline __attribute__((always_inline)) void rows(const int nv, const int masked, tailmask tail, int m, int k,
+                                                       const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b,
+                                                       int ldb, float *c, int ldc, const float *bias, int accumulate,
+                                                       int relu, const float *mask) {
   int i = 0;
   for (; i + MR <= m; i += MR)
-    tile(MR, nv, k, a + (ptrdiff_t)i * ars, ars, acs, b, ldb, c + (ptrdiff_t)i * ldc, ldc, bias, accumulate, relu,
-         mask ? mask + (ptrdiff_t)i * ldc : NULL);
-  for (; i < m; i++)
-    tile(1, nv, k, a + (ptrdiff_t)i * ars, ars, acs, b, ldb, c + (ptrdiff_t)i * ldc, ldc, bias, accumulate, relu,
-         mask ? mask + (ptrdiff_t)i * ldc : NULL);
+    tile(MR, nv, masked, tail, k, a + (ptrdiff_t)i * ars, ars, acs, b, ldb, c + (ptrdiff_t)i * ldc, ldc, bias,
+         accumulate, relu, mask ? mask + (ptrdiff_t)i * ldc : NULL);
+  /* The last m % MR rows as one tile of that height: row by row, a tile
+   * has NV accumulator chains, too few to hide the FMA latency (the weight
+   * gradients' m = 15, 31, 44 ran at 40-70 % of the full tiles' rate). */
+#define TAIL(R)                                                                                                 \
+  case R:                                                                                                       \
+    tile(R, nv, masked, tail, k, a + (ptrdiff_t)i * ars, ars, acs, b, ldb, c + (ptrdiff_t)i * ldc, ldc, bias,   \
+         accumulate, relu, mask ? mask + (ptrdiff_t)i * ldc : NULL);                                            \
+    break;
+  switch (m - i) {
+    TAIL(1)
+    TAIL(2)
+    TAIL(3)
+#if MR > 4
+    TAIL(4)
+    TAIL(5)
+#endif
+#if MR > 6
+    TAIL(6)
+    TAIL(7)
+#endif
+  }
+#undef TAIL
 }
 
 #define KB 256
@@ -96,10 +148,24 @@ void GEMM_FN(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, 
              int ldc, const float *bias, int accumulate, int relu, const float *mask) {
   int j = 0;
   for (; j + VW * NV <= n; j += VW * NV)
-    rows(NV, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
+    rows(NV, 0, 0, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
          mask ? mask + j : NULL);
+#if MASKED_TAIL
+  /* 1 to 2 * VW - 1 columns left: one or two vectors, the last masked (a
+   * padded copy cost 30-50 % on top of the tile at n = 15, 31, 44). */
+  if (j < n) {
+    const int left = n - j, last = left > VW ? left - VW : left;
+    const tailmask tail = (tailmask)((1u << last) - 1u);
+    if (left > VW)
+      rows(2, 1, tail, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
+           mask ? mask + j : NULL);
+    else
+      rows(1, 1, tail, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
+           mask ? mask + j : NULL);
+  }
+#else
   for (; j + VW <= n; j += VW)
-    rows(1, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
+    rows(1, 0, 0, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
          mask ? mask + j : NULL);
   if (j >= n) return;
   /* Fewer than VW columns left: pack that panel of B zero-padded to VW wide
@@ -123,9 +189,10 @@ void GEMM_FN(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, 
       }
       const float *ai = a + (ptrdiff_t)i * ars + (ptrdiff_t)k0 * acs;
       if (mr == MR)
-        tile(MR, 1, kb, ai, ars, acs, bp, VW, ct, VW, NULL, 1, 0, NULL);
+        tile(MR, 1, 0, 0, kb, ai, ars, acs, bp, VW, ct, VW, NULL, 1, 0, NULL);
       else
-        for (int r = 0; r < mr; r++) tile(1, 1, kb, ai + (ptrdiff_t)r * ars, ars, acs, bp, VW, ct + r * VW, VW, NULL, 1, 0, NULL);
+        for (int r = 0; r < mr; r++)
+          tile(1, 1, 0, 0, kb, ai + (ptrdiff_t)r * ars, ars, acs, bp, VW, ct + r * VW, VW, NULL, 1, 0, NULL);
       for (int r = 0; r < mr; r++) {
         float *cr = c + (ptrdiff_t)(i + r) * ldc + j;
         for (int q = 0; q < nc; q++) {
@@ -140,6 +207,7 @@ void GEMM_FN(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, 
     }
     if (k == 0) break;
   }
+#endif
 }
 
 /* FMA throughput probe for this ISA: 12 independent chains per vector width

@@ -39,6 +39,30 @@ void vlff_score_v4(int, int, int, const float *, int, const float *, const float
                    float, int, int *, float *, float *);
 #endif
 
+typedef void (*gemm_kernel)(int, int, int, const float *, ptrdiff_t, ptrdiff_t, const float *, int, float *, int,
+                            const float *, int, int, const float *);
+void vlff_gemm_generic(int, int, int, const float *, ptrdiff_t, ptrdiff_t, const float *, int, float *, int,
+                       const float *, int, int, const float *);
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+void vlff_gemm_v3(int, int, int, const float *, ptrdiff_t, ptrdiff_t, const float *, int, float *, int,
+                  const float *, int, int, const float *);
+void vlff_gemm_v4(int, int, int, const float *, ptrdiff_t, ptrdiff_t, const float *, int, float *, int,
+                  const float *, int, int, const float *);
+#endif
+
+/* Whether this CPU runs the kernels of isa 0 (portable), 1 (AVX2 + FMA) or
+ * 2 (AVX-512), each built beside the others. */
+static int cpu_runs(int isa) {
+  if (isa == 0) return 1;
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+  if (isa == 1) return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+         __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl");
+#else
+  return 0;
+#endif
+}
+
 static void check_score(score_kernel fn, const char *isa, int m, int H, int K, int mode) {
   const int ldh = (m + 31) / 32 * 32;
   float *hT = falloc((size_t)H * ldh), *ewt = falloc((size_t)H * K), *eb = falloc(K), *rt = falloc((size_t)H * H);
@@ -104,11 +128,10 @@ static void test_score(void **state) {
     const char *isa;
     int runs;
   } kernels[] = {
-      {vlff_score_generic, "generic", 1},
+      {vlff_score_generic, "generic", cpu_runs(0)},
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-      {vlff_score_v3, "avx2", __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")},
-      {vlff_score_v4, "avx512", __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
-                                    __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl")},
+      {vlff_score_v3, "avx2", cpu_runs(1)},
+      {vlff_score_v4, "avx512", cpu_runs(2)},
 #endif
   };
   const int shapes[][3] = {{1, 1, 1}, {5, 13, 3}, {37, 37, 20}, {64, 128, 20}, {33, 40, 32}, {100, 9, 7}, {17, 16, 2}};
@@ -123,49 +146,72 @@ static void test_score(void **state) {
   assert_true(ran >= 1);
 }
 
-/* GEMM against a double reference over shapes that hit every kernel path:
- * full tiles, row and column tails, strided A, bias, accumulate, relu, mask. */
+/* GEMM against a double reference over shapes that hit every kernel path
+ * of every kernel this CPU runs: full tiles, row tails of each height (1-7
+ * rows past a multiple of 8, 6 or 4), column tails, strided A, bias,
+ * accumulate, relu, mask. */
+static void check_gemm(gemm_kernel fn, const char *isa, int m, int n, int k, int variant) {
+  int trans = variant & 1, mode = variant >> 1; /* 0 bias+relu, 1 accumulate, 2 plain+mask */
+  float *a = falloc((size_t)m * k), *b = falloc((size_t)k * n), *c = falloc((size_t)m * n);
+  float *bias = falloc(n), *mask = falloc((size_t)m * n);
+  double *ref = calloc((size_t)m * n, sizeof(double));
+  for (int i = 0; i < m * k; i++) a[i] = frand();
+  for (int i = 0; i < k * n; i++) b[i] = frand();
+  for (int i = 0; i < m * n; i++) {
+    c[i] = frand();
+    mask[i] = frand();
+  }
+  for (int i = 0; i < n; i++) bias[i] = frand();
+  ptrdiff_t ars = trans ? 1 : k, acs = trans ? m : 1;
+  for (int i = 0; i < m; i++)
+    for (int j = 0; j < n; j++) {
+      double v = mode == 0 ? bias[j] : mode == 1 ? c[i * n + j] : 0.0;
+      for (int q = 0; q < k; q++) v += (double)a[i * ars + q * acs] * b[q * n + j];
+      if (mode == 0 && v < 0) v = 0;
+      if (mode == 2 && !(mask[i * n + j] > 0)) v = 0;
+      ref[i * n + j] = v;
+    }
+  fn(m, n, k, a, ars, acs, b, n, c, n, mode == 0 ? bias : NULL, mode == 1, mode == 0, mode == 2 ? mask : NULL);
+  for (int i = 0; i < m * n; i++) {
+    double tol = 1e-5 * (k + 1) + 1e-5 * fabs(ref[i]);
+    if (fabs(c[i] - ref[i]) > tol)
+      fail_msg("gemm %s %dx%dx%d variant %d at %d: %g vs %g", isa, m, n, k, variant, i, c[i], ref[i]);
+  }
+  free(a);
+  free(b);
+  free(c);
+  free(bias);
+  free(mask);
+  free(ref);
+}
+
 static void test_gemm(void **state) {
   (void)state;
-  const int shapes[][3] = {{1, 1, 1}, {3, 5, 7}, {17, 33, 9}, {64, 64, 44}, {9, 15, 128}, {8, 3, 64},
-                           {33, 48, 300}, {4, 512, 16}, {130, 16, 1}, {7, 47, 260}};
-  for (size_t s = 0; s < sizeof(shapes) / sizeof(shapes[0]); s++) {
-    int m = shapes[s][0], n = shapes[s][1], k = shapes[s][2];
-    for (int variant = 0; variant < 6; variant++) {
-      int trans = variant & 1, mode = variant >> 1; /* 0 bias+relu, 1 accumulate, 2 plain+mask */
-      float *a = falloc((size_t)m * k), *b = falloc((size_t)k * n), *c = falloc((size_t)m * n);
-      float *bias = falloc(n), *mask = falloc((size_t)m * n);
-      double *ref = calloc((size_t)m * n, sizeof(double));
-      for (int i = 0; i < m * k; i++) a[i] = frand();
-      for (int i = 0; i < k * n; i++) b[i] = frand();
-      for (int i = 0; i < m * n; i++) {
-        c[i] = frand();
-        mask[i] = frand();
-      }
-      for (int i = 0; i < n; i++) bias[i] = frand();
-      ptrdiff_t ars = trans ? 1 : k, acs = trans ? m : 1;
-      for (int i = 0; i < m; i++)
-        for (int j = 0; j < n; j++) {
-          double v = mode == 0 ? bias[j] : mode == 1 ? c[i * n + j] : 0.0;
-          for (int q = 0; q < k; q++) v += (double)a[i * ars + q * acs] * b[q * n + j];
-          if (mode == 0 && v < 0) v = 0;
-          if (mode == 2 && !(mask[i * n + j] > 0)) v = 0;
-          ref[i * n + j] = v;
-        }
-      vlff_gemm_mask(m, n, k, a, ars, acs, b, n, c, n, mode == 0 ? bias : NULL, mode == 1, mode == 0,
-                     mode == 2 ? mask : NULL);
-      for (int i = 0; i < m * n; i++) {
-        double tol = 1e-5 * (k + 1) + 1e-5 * fabs(ref[i]);
-        if (fabs(c[i] - ref[i]) > tol) fail_msg("gemm %dx%dx%d variant %d at %d: %g vs %g", m, n, k, variant, i, c[i], ref[i]);
-      }
-      free(a);
-      free(b);
-      free(c);
-      free(bias);
-      free(mask);
-      free(ref);
-    }
+  struct {
+    gemm_kernel fn;
+    const char *isa;
+    int runs;
+  } kernels[] = {
+      {vlff_gemm_generic, "generic", cpu_runs(0)},
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+      {vlff_gemm_v3, "avx2", cpu_runs(1)},
+      {vlff_gemm_v4, "avx512", cpu_runs(2)},
+#endif
+  };
+  const int shapes[][3] = {{1, 1, 1},    {3, 5, 7},    {17, 33, 9},  {64, 64, 44}, {9, 15, 128},  {8, 3, 64},
+                           {33, 48, 300}, {4, 512, 16}, {130, 16, 1}, {7, 47, 260}, {15, 128, 45}, {44, 64, 30},
+                           {31, 40, 20}, {6, 33, 5},    {5, 17, 12},  {13, 16, 3},  {2, 64, 9}};
+  int ran = 0;
+  for (size_t q = 0; q < sizeof(kernels) / sizeof(kernels[0]); q++) {
+    if (!kernels[q].runs) continue;
+    ran++;
+    for (size_t s = 0; s < sizeof(shapes) / sizeof(shapes[0]); s++)
+      for (int variant = 0; variant < 6; variant++)
+        check_gemm(kernels[q].fn, kernels[q].isa, shapes[s][0], shapes[s][1], shapes[s][2], variant);
   }
+  assert_true(ran >= 1);
+  /* And through the dispatcher. */
+  check_gemm(vlff_gemm_mask, vlff_gemm_isa(), 15, 128, 45, 1);
 }
 
 /* Double reference of an MLP (ReLU hidden, linear output) and its loss
