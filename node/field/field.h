@@ -53,6 +53,10 @@ struct vlff_train_stats {
   double psnr;               /* of this step's rays */
   long long samples;         /* network evaluations this step */
   double flops;              /* dense-layer FLOPs executed this step (forward + backward) */
+  /* Wall seconds of the step's three phases: the rays (sampling, network
+   * forward and backward, losses), the hash table (gradient scatter and
+   * its Adam update), the dense layers' Adam update. */
+  double time_rays, time_table, time_dense;
 };
 
 /* Create from cfg's field.*, train.* and node.threads sections. */

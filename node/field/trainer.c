@@ -18,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <stdio.h>
+#include <time.h>
 
 #include "field_internal.h"
 
@@ -620,6 +621,12 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
 
 /* ---- one optimisation step ---------------------------------------------- */
 
+static double seconds(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
 struct step_ctx {
   struct vlff_field *f;
   int nchunks;
@@ -813,13 +820,17 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
     w->flops = 0;
   }
   struct step_ctx sc = {f, (f->nrays + f->chunk_rays - 1) / f->chunk_rays};
+  double t0 = seconds();
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
+  double t1 = seconds();
   /* A stamp comes back after 255 steps: clear its old marks first. */
   f->stamp = (uint8_t)(f->stamp % 255 + 1);
   if (f->stamp == 1) memset(f->marks, 0, (size_t)f->enc.levels * f->enc.size);
   vlff_pool_run(f->pool, f->enc.levels, hash_task, &sc);
+  double t2 = seconds();
   vlff_pool_run(f->pool, MLP_SPLIT, mlp_task, &sc);
   refresh_weights(f);
+  double t3 = seconds();
   f->views = NULL;
   if (f->cfg.train.sampling != VLFF_SAMPLING_UNIFORM && f->step % f->cfg.train.occupancy_update_steps == 0)
     vlff_field_occupancy_update(f, 0);
@@ -838,6 +849,9 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
     }
     stats->step = f->step;
     stats->loss = stats->loss_rgb + stats->loss_depth + stats->loss_feat;
+    stats->time_rays = t1 - t0;
+    stats->time_table = t2 - t1;
+    stats->time_dense = t3 - t2;
     double mse = n_rgb ? sq / n_rgb : 0;
     stats->psnr = n_rgb ? -10.0 * log10(mse > 1e-10 ? mse : 1e-10) : 0;
   }

@@ -85,14 +85,20 @@ static int cmp_double(const void *a, const void *b) {
   return x < y ? -1 : x > y;
 }
 
-/* Trains `steps` steps, timing each of the last `timed`; returns the median
- * per-step samples/s and FLOP/s (the machine is shared: a median of short
- * windows resists other processes' bursts better than one long window). */
-static void train(struct vlff_field *f, struct scene *s, int steps, int timed, double *sps, double *fps,
-                  double *psnr) {
+/* Medians over the timed steps: samples/s, dense-layer FLOP/s, the same
+ * FLOP/s over the rays phase alone (what a free table update would leave),
+ * and each phase's share of the step. */
+struct rate {
+  double sps, fps, fps_rays, share[3];
+};
+
+/* Trains `steps` steps, timing each of the last `timed` (the machine is
+ * shared: a median of short windows resists other processes' bursts better
+ * than one long window). */
+static struct rate train(struct vlff_field *f, struct scene *s, int steps, int timed, double *psnr) {
   char err[256];
   struct vlff_train_stats st;
-  double rs[256], rf[256];
+  double col[6][256];
   int k = 0;
   for (int i = 0; i < steps; i++) {
     double t0 = now();
@@ -102,16 +108,22 @@ static void train(struct vlff_field *f, struct scene *s, int steps, int timed, d
     }
     double t = now() - t0;
     if (i >= steps - timed && k < 256) {
-      rs[k] = st.samples / t;
-      rf[k] = st.flops / t;
+      col[0][k] = st.samples / t;
+      col[1][k] = st.flops / t;
+      col[2][k] = st.flops / st.time_rays;
+      col[3][k] = st.time_rays / t;
+      col[4][k] = st.time_table / t;
+      col[5][k] = st.time_dense / t;
       k++;
     }
   }
-  qsort(rs, k, sizeof(double), cmp_double);
-  qsort(rf, k, sizeof(double), cmp_double);
-  *sps = rs[k / 2];
-  *fps = rf[k / 2];
+  double med[6];
+  for (int c = 0; c < 6; c++) {
+    qsort(col[c], k, sizeof(double), cmp_double);
+    med[c] = col[c][k / 2];
+  }
   *psnr = st.psnr;
+  return (struct rate){med[0], med[1], med[2], {med[3], med[4], med[5]}};
 }
 
 struct argmax_ctx {
@@ -168,7 +180,9 @@ int main(int argc, char **argv) {
       fprintf(stderr, "bench: %s\n", err);
       return 1;
     }
-    train(f, &s, 16, 12, &sps128, &fps128, &psnr);
+    struct rate r = train(f, &s, 16, 12, &psnr);
+    sps128 = r.sps;
+    fps128 = r.fps;
     vlff_field_destroy(f);
     scene_free(&s);
   }
@@ -182,16 +196,18 @@ int main(int argc, char **argv) {
     fprintf(stderr, "bench: %s\n", err);
     return 1;
   }
-  double sps, fps;
-  train(f, &s, 16, 12, &sps, &fps, &psnr);
+  struct rate tr = train(f, &s, 16, 12, &psnr);
+  double sps = tr.sps, fps = tr.fps;
   double p2 = fma_peak(threads);
   if (p2 > peak) peak = p2;
   printf("FMA peak (all cores, %s): %.1f GFLOP/s\n", vlff_gemm_isa(), peak / 1e9);
   printf("train D=128: %.0f samples/s, %.1f GFLOP/s = %.1f%% of peak\n", sps128, fps128 / 1e9, 100 * fps128 / peak);
   printf("train D=512: %.0f samples/s, %.1f GFLOP/s = %.1f%% of peak (%d rays per step)\n", sps, fps / 1e9,
          100 * fps / peak, c.train.rays_per_step);
-  double sd, fd;
-  train(f, &s, 60, 2, &sd, &fd, &psnr);
+  printf("train D=512 step: rays %.0f%%, hash table (scatter + Adam) %.0f%%, dense-layer Adam %.0f%% of the time;\n"
+         "  over the rays phase alone the dense layers run at %.1f%% of peak (the bound with a free table update)\n",
+         100 * tr.share[0], 100 * tr.share[1], 100 * tr.share[2], 100 * tr.fps_rays / peak);
+  train(f, &s, 60, 2, &psnr);
   printf("fitted for %lld steps: train PSNR %.1f dB\n", vlff_field_steps(f), psnr);
 
   /* 3D queries. */
