@@ -153,7 +153,10 @@ void GEMM_FN(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, 
 #if MASKED_TAIL
   /* 1 to 2 * VW - 1 columns left: one or two vectors, the last masked (a
    * padded copy cost 30-50 % on top of the tile at n = 15, 31, 44). */
-  if (j < n) {
+  if (j + VW == n)
+    rows(1, 0, 0, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
+         mask ? mask + j : NULL);
+  else if (j < n) {
     const int left = n - j, last = left > VW ? left - VW : left;
     const tailmask tail = (tailmask)((1u << last) - 1u);
     if (left > VW)
