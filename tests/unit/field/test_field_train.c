@@ -251,22 +251,29 @@ static void test_convergence(void **state) {
   vlff_field_destroy(f);
 }
 
+/* A field for cfg and one 40 x 30 view of the scene (pose 0 of 16). */
+static struct vlff_field *one_view_field(const struct vlff_config *cfg, int d, struct scene_view *sv) {
+  char err[256];
+  struct vlff_field *f = vlff_field_create(cfg, err, sizeof(err));
+  assert_non_null(f);
+  double c2w[16];
+  scene_pose(0, 16, c2w);
+  scene_render(sv, 40, 30, d, c2w);
+  return f;
+}
+
 /* The node shrinks the batch while it holds few keyframes: the step must
  * draw exactly that many rays, within the memory planned at create. */
 static void test_ray_budget(void **state) {
   (void)state;
-  const int d = 16, W = 40, H = 30;
+  const int d = 16;
   struct vlff_config cfg;
   scene_cfg(&cfg, d);
   cfg.train.rays_per_step = 512;
   cfg.train.samples_per_ray = 16;
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
-  assert_non_null(f);
   struct scene_view sv;
-  double c2w[16];
-  scene_pose(0, 16, c2w);
-  scene_render(&sv, W, H, d, c2w);
+  struct vlff_field *f = one_view_field(&cfg, d, &sv);
   assert_int_equal(vlff_field_set_rays(f, 0), 1);
   assert_int_equal(vlff_field_set_rays(f, 1 << 20), 512);
   long long samples[2];
@@ -291,21 +298,17 @@ static void test_ray_budget(void **state) {
  * trains them again. */
 static void test_level_mask(void **state) {
   (void)state;
-  const int d = 16, W = 40, H = 30;
+  const int d = 16;
   struct vlff_config cfg;
   scene_cfg(&cfg, d);
   cfg.train.rays_per_step = 256;
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
-  assert_non_null(f);
+  struct scene_view sv;
+  struct vlff_field *f = one_view_field(&cfg, d, &sv);
   const int L = f->enc.levels, F = f->enc.feats, keep = 3;
   assert_int_equal(vlff_field_set_levels(f, 0), 1);
   assert_int_equal(vlff_field_set_levels(f, 1000), L);
   assert_int_equal(vlff_field_set_levels(f, keep), keep);
-  struct scene_view sv;
-  double c2w[16];
-  scene_pose(0, 16, c2w);
-  scene_render(&sv, W, H, d, c2w);
   const size_t nt = f->ntable, split = (size_t)keep * f->enc.size * F;
   float *p0 = malloc(nt * sizeof(float)), *m0 = malloc(nt * sizeof(float));
   assert_non_null(p0);
@@ -339,18 +342,14 @@ static void test_level_mask(void **state) {
  * again after 255 steps no older mark is left to pass for it. */
 static void test_marks_wrap(void **state) {
   (void)state;
-  const int d = 16, W = 40, H = 30;
+  const int d = 16;
   struct vlff_config cfg;
   scene_cfg(&cfg, d);
   cfg.train.rays_per_step = 32;
   cfg.train.samples_per_ray = 8;
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
-  assert_non_null(f);
   struct scene_view sv;
-  double c2w[16];
-  scene_pose(0, 16, c2w);
-  scene_render(&sv, W, H, d, c2w);
+  struct vlff_field *f = one_view_field(&cfg, d, &sv);
   const size_t nm = (size_t)f->enc.levels * f->enc.size;
   struct vlff_train_stats st;
   for (int i = 1; i <= 256; i++) {
