@@ -630,6 +630,7 @@ static double seconds(void) {
 struct step_ctx {
   struct vlff_field *f;
   int nchunks;
+  float lr;                /* this step's learning rate, table and MLPs alike */
 };
 
 static void chunk_task(void *ctx, int c, int thread) {
@@ -655,7 +656,7 @@ static void hash_task(void *ctx, int level, int thread) {
     vlff_encoding_backward(&f->enc, f->step_p + (size_t)c * slot * 3, f->chunk_n[c],
                            f->step_denc + ((size_t)c * slot * f->enc.levels + (size_t)level * f->chunk_n[c]) * f->enc.feats,
                            f->enc.feats, level, f->grad, f->marks, f->stamp);
-  float lr = f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps));
+  const float lr = sc->lr;
   size_t base = (size_t)level * f->enc.size;
   size_t off = base * f->enc.feats;
   vlff_adam_sparse(&f->adam, f->step, lr, f->params + off, f->grad + off, f->adam_m + off, f->adam_v + off,
@@ -675,7 +676,7 @@ static void mlp_task(void *ctx, int part, int thread) {
     for (int t = 0; t < f->threads; t++) s += f->work[t].grad[i];
     g[i] = s;
   }
-  float lr = f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps));
+  const float lr = sc->lr;
   float *p = vlff_mlp_params(f), *m = f->adam_m + f->ntable, *v = f->adam_v + f->ntable;
   /* Weight decay applies to weights, not biases: walk the layer blocks. */
   const struct vlff_mlp *mm[3] = {&f->m1, &f->m2, &f->m3};
@@ -819,7 +820,8 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
     w->samples = 0;
     w->flops = 0;
   }
-  struct step_ctx sc = {f, (f->nrays + f->chunk_rays - 1) / f->chunk_rays};
+  struct step_ctx sc = {f, (f->nrays + f->chunk_rays - 1) / f->chunk_rays,
+                        f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps))};
   double t0 = seconds();
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
   double t1 = seconds();
