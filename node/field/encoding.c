@@ -442,11 +442,8 @@ size_t vlff_encoding_entries(const struct vlff_encoding *e, int l) {
 
 VLFF_HOT
 void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
-                            int level, float *grad, uint8_t *marks, uint8_t stamp) {
+                            int level, float *g, uint8_t *tb, uint8_t stamp) {
   const int F = e->feats, l = level;
-  const size_t base = (size_t)l * e->size;
-  float *g = grad + base * F;
-  uint8_t *tb = marks + base;
 #if VLFF_ENC_V4
   if (e->simd && F == 2) {
     backward_v4(e, p, n, d, ld, l, g, tb, stamp);

@@ -46,18 +46,18 @@ int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float
 void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, const float *p, int n,
                            float *out, int ldo);
 /* Accumulate dL/dtable of one level from d[n][ld] (that level's F values
- * per point) into grad, which holds zeros at every entry not marked in this
- * step, and mark each entry reached: marks[entry] = stamp (one byte per
- * entry, level-major; the caller's stamp differs from every mark left by an
- * earlier step). The lazy Adam update consumes the marked entries in index
- * order and zeroes the gradient it used, which keeps that invariant.
+ * per point) into g[entries][F], which holds zeros at every entry not marked
+ * with this stamp, and mark each entry reached: marks[entry] = stamp (one
+ * byte per entry of the level; the caller's stamp differs from every mark
+ * left by an earlier call). The lazy Adam update consumes the marked entries
+ * in index order and zeroes the gradient it used, which keeps that invariant.
  * Bytes, not bits: a bit's read-modify-write of a word shared by x-adjacent
  * corners chains each corner's store to the next one's load, and that chain
  * bounded the scatter (measured: 11.5 against 5.2 ns per point on a coarse
  * level); a byte store depends on nothing. A stamp, not a flag: nothing has
- * to clear the marks, which would write 512 KB per level and step back. */
+ * to clear the marks, which would write 512 KB per level back. */
 void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
-                            int level, float *grad, uint8_t *marks, uint8_t stamp);
+                            int level, float *g, uint8_t *marks, uint8_t stamp);
 /* Table entries level l indexes: (res+1)^3 for a dense level, else size. */
 size_t vlff_encoding_entries(const struct vlff_encoding *e, int l);
 
@@ -199,6 +199,14 @@ struct vlff_work {
   float *hray, *fray, *gf, *dh, *wsum, *tfeat, *rgb, *depth, *logits, *opac, *norm;
   struct vlff_ray *rbuf;
   float *grad;             /* this thread's MLP gradient */
+  /* The table gradient of the level this thread updates, zero between
+   * uses, and its touched-entry marks (the current one is tstamp). One level
+   * at a time per thread, reused level after level: it stays in cache, where
+   * a gradient array per level made every step read and write 8 MB of fine
+   * level gradient and 512 KB of marks from memory. */
+  float *tgrad;            /* size * feats */
+  uint8_t *tmarks;         /* size */
+  uint8_t tstamp;          /* 1..255, one more per level updated */
   double loss_rgb, loss_depth, loss_feat, sq_rgb;
   long long samples;
   double flops;            /* dense-layer FLOPs executed */
@@ -215,10 +223,9 @@ struct vlff_field {
   int spr;                 /* samples per ray */
   int chunk_rays;
   size_t ntable, nmlp, nparams;   /* table floats, MLP floats (params = table, then MLP) */
-  float *params, *adam_m, *adam_v, *grad;
+  float *params, *adam_m, *adam_v;
+  float *grad;             /* the MLP gradient, summed over threads (the table's is in vlff_work) */
   float *wT;               /* transposed MLP weights, MLP-relative offsets */
-  uint8_t *marks;          /* touched-entry stamps, levels * size bytes */
-  uint8_t stamp;           /* this step's stamp, 1..255 */
   struct vlff_adam adam;
   struct vlff_occupancy occ;
   long long step;

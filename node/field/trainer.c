@@ -48,7 +48,8 @@ static void work_free(struct vlff_work *w) {
                    (void **)&w->dy_b, (void **)&w->dout1, (void **)&w->din2, (void **)&w->din3,
                    (void **)&w->denc, (void **)&w->hray, (void **)&w->fray, (void **)&w->gf, (void **)&w->dh,
                    (void **)&w->wsum, (void **)&w->tfeat, (void **)&w->rgb, (void **)&w->depth,
-                   (void **)&w->logits, (void **)&w->grad, (void **)&w->opac, (void **)&w->norm, (void **)&w->rbuf};
+                   (void **)&w->logits, (void **)&w->grad, (void **)&w->opac, (void **)&w->norm, (void **)&w->rbuf,
+                   (void **)&w->tgrad, (void **)&w->tmarks};
   for (size_t i = 0; i < sizeof(ptrs) / sizeof(ptrs[0]); i++) {
     free(*ptrs[i]);
     *ptrs[i] = NULL;
@@ -102,6 +103,8 @@ static int work_alloc(struct vlff_field *f, struct vlff_work *w) {
   w->depth = xalloc(R * fs, &ok);
   w->logits = xalloc(RD * fs, &ok);
   w->grad = xalloc(f->nmlp * fs, &ok);
+  w->tgrad = xalloc(f->enc.size * (size_t)f->enc.feats * fs, &ok);
+  w->tmarks = xalloc(f->enc.size, &ok);
   w->opac = xalloc(R * fs, &ok);
   w->norm = xalloc(R * (size_t)f->H * fs, &ok);
   w->rbuf = xalloc(R * sizeof(struct vlff_ray), &ok);
@@ -119,7 +122,6 @@ void vlff_field_destroy(struct vlff_field *f) {
   free(f->adam_v);
   free(f->grad);
   free(f->wT);
-  free(f->marks);
   free(f->occ.density);
   free(f->occ.occ);
   free(f->rays);
@@ -189,9 +191,8 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->params = xalloc(f->nparams * fs, &ok);
   f->adam_m = xalloc(f->nparams * fs, &ok);
   f->adam_v = xalloc(f->nparams * fs, &ok);
-  f->grad = xalloc(f->nparams * fs, &ok);
+  f->grad = xalloc(f->nmlp * fs, &ok);
   f->wT = xalloc(f->nmlp * fs, &ok);
-  f->marks = xalloc((size_t)levels * f->enc.size, &ok);
   int ores = cfg->train.occupancy_resolution;
   size_t ncell = (size_t)ores * ores * ores;
   f->occ.res = ores;
@@ -649,18 +650,19 @@ static void chunk_task(void *ctx, int c, int thread) {
 static void hash_task(void *ctx, int level, int thread) {
   struct step_ctx *sc = ctx;
   struct vlff_field *f = sc->f;
-  (void)thread;
+  struct vlff_work *w = &f->work[thread];
   if (level >= f->enc.active) return;
+  /* A stamp comes back after 255 uses: clear its old marks first. */
+  w->tstamp = (uint8_t)(w->tstamp % 255 + 1);
+  if (w->tstamp == 1) memset(w->tmarks, 0, f->enc.size);
   size_t slot = (size_t)f->chunk_rays * f->spr;
   for (int c = 0; c < sc->nchunks; c++)
     vlff_encoding_backward(&f->enc, f->step_p + (size_t)c * slot * 3, f->chunk_n[c],
                            f->step_denc + ((size_t)c * slot * f->enc.levels + (size_t)level * f->chunk_n[c]) * f->enc.feats,
-                           f->enc.feats, level, f->grad, f->marks, f->stamp);
-  const float lr = sc->lr;
-  size_t base = (size_t)level * f->enc.size;
-  size_t off = base * f->enc.feats;
-  vlff_adam_sparse(&f->adam, f->step, lr, f->params + off, f->grad + off, f->adam_m + off, f->adam_v + off,
-                   f->marks + base, f->stamp, vlff_encoding_entries(&f->enc, level), f->enc.feats);
+                           f->enc.feats, level, w->tgrad, w->tmarks, w->tstamp);
+  size_t off = (size_t)level * f->enc.size * f->enc.feats;
+  vlff_adam_sparse(&f->adam, f->step, sc->lr, f->params + off, w->tgrad, f->adam_m + off, f->adam_v + off,
+                   w->tmarks, w->tstamp, vlff_encoding_entries(&f->enc, level), f->enc.feats);
 }
 
 #define MLP_SPLIT 64
@@ -670,7 +672,7 @@ static void mlp_task(void *ctx, int part, int thread) {
   struct vlff_field *f = sc->f;
   (void)thread;
   size_t n = f->nmlp, i0 = n * part / MLP_SPLIT, i1 = n * (part + 1) / MLP_SPLIT;
-  float *g = f->grad + f->ntable;
+  float *g = f->grad;
   for (size_t i = i0; i < i1; i++) {
     float s = 0;
     for (int t = 0; t < f->threads; t++) s += f->work[t].grad[i];
@@ -825,9 +827,6 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   double t0 = seconds();
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
   double t1 = seconds();
-  /* A stamp comes back after 255 steps: clear its old marks first. */
-  f->stamp = (uint8_t)(f->stamp % 255 + 1);
-  if (f->stamp == 1) memset(f->marks, 0, (size_t)f->enc.levels * f->enc.size);
   vlff_pool_run(f->pool, f->enc.levels, hash_task, &sc);
   double t2 = seconds();
   vlff_pool_run(f->pool, MLP_SPLIT, mlp_task, &sc);

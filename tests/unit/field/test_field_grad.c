@@ -334,7 +334,9 @@ static void test_encoding(void **state) {
   for (int i = 0; i < n * e.dim; i++) d[i] = frand();
   vlff_encoding_forward(&e, table, p, n, out, e.dim);
   uint8_t *marks = calloc((size_t)e.levels * e.size, 1);
-  for (int l = 0; l < e.levels; l++) vlff_encoding_backward(&e, p, n, d + l * e.feats, e.dim, l, grad, marks, 1);
+  for (int l = 0; l < e.levels; l++)
+    vlff_encoding_backward(&e, p, n, d + l * e.feats, e.dim, l, grad + (size_t)l * e.size * e.feats,
+                           marks + (size_t)l * e.size, 1);
   /* Double FD: L(table) = sum d . out; perturb each touched entry. */
   int checked = 0;
   for (int l = 0; l < e.levels; l++) {
@@ -428,9 +430,10 @@ static void test_encoding_simd(void **state) {
   for (int pass = 0; pass < 2; pass++)
     for (int l = 0; l < e.levels; l++) {
       e.simd = 1;
-      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, ga, ba, 9);
+      size_t go = (size_t)l * e.size * e.feats, mo = (size_t)l * e.size;
+      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, ga + go, ba + mo, 9);
       e.simd = 0;
-      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, gb, bb, 9);
+      vlff_encoding_backward(&e, p + 3 * pass, n - pass, d, e.dim, l, gb + go, bb + mo, 9);
     }
   assert_memory_equal(ba, bb, nm);
   size_t touched = 0;
