@@ -164,10 +164,33 @@ void vlff_mlp_forward(const struct vlff_mlp *m, const float *params, const float
   }
 }
 
-VLFF_HOT
-static void col_sums(const float *dy, int n, int d, float *g) {
+/* g[0..w) += the column sums of dy's columns [0, w) (row stride d). */
+static inline __attribute__((always_inline)) void col_sums_w(const float *restrict dy, int n, int d,
+                                                             float *restrict g, int w) {
+  float acc[32];
+  for (int j = 0; j < w; j++) acc[j] = g[j];
   for (int i = 0; i < n; i++)
-    for (int j = 0; j < d; j++) g[j] += dy[(size_t)i * d + j];
+    for (int j = 0; j < w; j++) acc[j] += dy[(size_t)i * d + j];
+  for (int j = 0; j < w; j++) g[j] = acc[j];
+}
+
+/* Bias gradients: g += column sums of dy[n][d]. Every column is summed over
+ * the rows in order, from g's value, as a plain double loop into g would,
+ * so the result is the same to the bit; but in registers, a constant-width
+ * block of columns at a time. Into g, each add waited for the store of the
+ * row before (measured: 4.5 % of a default training step, scalar). */
+VLFF_HOT
+static void col_sums(const float *restrict dy, int n, int d, float *restrict g) {
+  int j0 = 0;
+  for (; j0 + 32 <= d; j0 += 32) col_sums_w(dy + j0, n, d, g + j0, 32);
+  if (j0 + 16 <= d) {
+    col_sums_w(dy + j0, n, d, g + j0, 16);
+    j0 += 16;
+  }
+  if (d - j0 == 3)
+    col_sums_w(dy + j0, n, d, g + j0, 3); /* the colour layer */
+  else if (j0 < d)
+    col_sums_w(dy + j0, n, d, g + j0, d - j0);
 }
 
 void vlff_mlp_backward(const struct vlff_mlp *m, const float *wT, const float *x, int ldx, int n, int upto,

@@ -238,24 +238,23 @@ static double mlp_ref_loss(const struct vlff_mlp *m, const double *p, const floa
   return loss;
 }
 
-static void test_mlp(void **state) {
-  (void)state;
+static void check_mlp(int width, int hidden, int nout) {
   struct vlff_mlp m;
-  size_t np = vlff_mlp_init(&m, 13, 24, 2, 19, 0);
-  const int n = 11;
-  float *p = falloc(np), *wT = falloc(np), *grad = falloc(np), *x = falloc(n * 13), *g = falloc(n * 19);
-  float *dx = falloc(n * 13), *tmp = falloc(n * 64), *dy = falloc(n * 64);
+  size_t np = vlff_mlp_init(&m, 13, width, hidden, nout, 0);
+  const int n = 11, wmax = width > nout ? width : nout;
+  float *p = falloc(np), *wT = falloc(np), *grad = falloc(np), *x = falloc(n * 13), *g = falloc(n * nout);
+  float *dx = falloc(n * 13), *tmp = falloc(n * wmax), *dy = falloc(n * wmax);
   uint64_t r = 7;
   vlff_mlp_init_params(&m, p, &r);
   for (int l = 0; l < m.nl; l++)
     for (int o = 0; o < m.dout[l]; o++) p[m.boff[l] + o] = 0.1f * frand();
   vlff_mlp_transpose(&m, p, wT);
   for (int i = 0; i < n * 13; i++) x[i] = frand();
-  for (int i = 0; i < n * 19; i++) g[i] = frand();
+  for (int i = 0; i < n * nout; i++) g[i] = frand();
   float *act[VLFF_MLP_MAX_LAYERS];
-  for (int l = 0; l < m.nl; l++) act[l] = falloc(n * 64);
+  for (int l = 0; l < m.nl; l++) act[l] = falloc(n * wmax);
   vlff_mlp_forward(&m, p, x, 13, n, m.nl, act);
-  memcpy(dy, g, sizeof(float) * n * 19);
+  memcpy(dy, g, sizeof(float) * n * nout);
   vlff_mlp_backward(&m, wT, x, 13, n, m.nl, act, dy, grad, dx, tmp);
   double *pd = malloc(sizeof(double) * np);
   for (size_t i = 0; i < np; i++) pd[i] = p[i];
@@ -263,8 +262,10 @@ static void test_mlp(void **state) {
   for (int l = 0; l < m.nl; l++) {
     size_t offs[2] = {m.woff[l], m.boff[l]};
     size_t cnt[2] = {(size_t)m.din[l] * m.dout[l], (size_t)m.dout[l]};
+    /* Every bias (their sums run in column blocks of 32, 16, 3 and the
+     * rest), every fifth weight. */
     for (int kind = 0; kind < 2; kind++)
-      for (size_t q = 0; q < cnt[kind]; q += 5) {
+      for (size_t q = 0; q < cnt[kind]; q += kind ? 1 : 5) {
         size_t i = offs[kind] + q;
         double h = 1e-6, save = pd[i];
         pd[i] = save + h;
@@ -304,6 +305,13 @@ static void test_mlp(void **state) {
   free(dy);
   free(pd);
   free(xs);
+}
+
+static void test_mlp(void **state) {
+  (void)state;
+  check_mlp(24, 2, 19);
+  check_mlp(67, 1, 3); /* the colour layer's 3 outputs; 67 = 32 + 32 + 3 */
+  check_mlp(53, 1, 12); /* 53 = 32 + 16 + 5 */
 }
 
 static void small_cfg(struct vlff_config *cfg) {
