@@ -58,6 +58,19 @@ void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, co
  * to clear the marks, which would write 512 KB per level back. */
 void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n, const float *d, int ld,
                             int level, float *g, uint8_t *marks, uint8_t stamp);
+/* The bulk binary16 conversions' kernels (half.c); the public pair picks
+ * one. Exposed so that the tests run every one the CPU has. */
+void vlff_f16_to_f32_generic(const uint16_t *src, float *dst, size_t n);
+void vlff_f32_to_f16_generic(const float *src, uint16_t *dst, size_t n);
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define VLFF_HALF_X86 1
+void vlff_f16_to_f32_v4(const uint16_t *src, float *dst, size_t n);
+void vlff_f32_to_f16_v4(const float *src, uint16_t *dst, size_t n);
+void vlff_f16_to_f32_v3(const uint16_t *src, float *dst, size_t n);
+void vlff_f32_to_f16_v3(const float *src, uint16_t *dst, size_t n);
+#else
+#define VLFF_HALF_X86 0
+#endif
 /* Table entries level l indexes: (res+1)^3 for a dense level, else size. */
 size_t vlff_encoding_entries(const struct vlff_encoding *e, int l);
 

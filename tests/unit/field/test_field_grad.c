@@ -649,20 +649,30 @@ static void test_adam(void **state) {
   }
 }
 
-/* The bulk conversions agree bit for bit with the scalar reference over
- * every binary16 value and over floats near every rounding boundary. */
+typedef void (*to_f32_fn)(const uint16_t *, float *, size_t);
+typedef void (*to_f16_fn)(const float *, uint16_t *, size_t);
+
+/* Each bulk conversion kernel the CPU runs, and the dispatcher, agree bit
+ * for bit with the scalar reference over every binary16 value and over
+ * floats near every rounding boundary, at every offset of a vector's tail. */
 static void test_f16_bulk(void **state) {
   (void)state;
   enum { N = 65536 };
+  const struct {
+    to_f32_fn to32;
+    to_f16_fn to16;
+    int runs;
+  } kernels[] = {
+      {vlff_f16_to_f32_n, vlff_f32_to_f16_n, 1},
+      {vlff_f16_to_f32_generic, vlff_f32_to_f16_generic, cpu_runs(0)},
+#if VLFF_HALF_X86
+      {vlff_f16_to_f32_v3, vlff_f32_to_f16_v3, cpu_runs(1)},
+      {vlff_f16_to_f32_v4, vlff_f32_to_f16_v4, cpu_runs(2)},
+#endif
+  };
   uint16_t *h = malloc(N * sizeof *h), *h2 = malloc(4 * N * sizeof *h2);
   float *x = malloc(4 * N * sizeof *x), *y = malloc(N * sizeof *y);
   for (int i = 0; i < N; i++) h[i] = (uint16_t)i;
-  vlff_f16_to_f32_n(h, y, N);
-  for (int i = 0; i < N; i++) {
-    float r = vlff_f16_to_f32(h[i]);
-    if (isnan(r)) assert_true(isnan(y[i]));
-    else assert_memory_equal(&r, &y[i], sizeof r);
-  }
   /* Each finite half value, and points a quarter, a half (the tie) and
    * three quarters of the way to the next one. */
   int m = 0;
@@ -671,8 +681,30 @@ static void test_f16_bulk(void **state) {
     if (!isfinite(a) || !isfinite(b) || ((i + 1) & 0x7fff) == 0) continue;
     for (int q = 0; q < 4 && m < 4 * N; q++) x[m++] = a + (b - a) * (float)q / 4;
   }
-  vlff_f32_to_f16_n(x, h2, (size_t)m);
-  for (int i = 0; i < m; i++) assert_int_equal(h2[i], vlff_f32_to_f16(x[i]));
+  int ran = 0;
+  for (size_t k = 0; k < sizeof(kernels) / sizeof(kernels[0]); k++) {
+    if (!kernels[k].runs) continue;
+    ran++;
+    /* Offsets 0..16 leave every tail length after the 16- and 8-wide
+     * loops; the lengths end inside a vector too. */
+    for (int off = 0; off <= 16; off += 5) {
+      memset(y, 0, N * sizeof *y);
+      kernels[k].to32(h + off, y, (size_t)(N - off - 3));
+      for (int i = 0; i < N - off - 3; i++) {
+        float r = vlff_f16_to_f32(h[i + off]);
+        if (isnan(r)) assert_true(isnan(y[i]));
+        else if (memcmp(&r, &y[i], sizeof r)) fail_msg("kernel %zu: half 0x%04x gave %a, not %a", k, h[i + off], y[i], r);
+      }
+      assert_true(y[N - off - 3] == 0.0f); /* nothing past n */
+      memset(h2, 0, 4 * N * sizeof *h2);
+      kernels[k].to16(x + off, h2, (size_t)(m - off - 3));
+      for (int i = 0; i < m - off - 3; i++)
+        if (h2[i] != vlff_f32_to_f16(x[i + off]))
+          fail_msg("kernel %zu: %a gave 0x%04x, not 0x%04x", k, x[i + off], h2[i], vlff_f32_to_f16(x[i + off]));
+      assert_int_equal(h2[m - off - 3], 0);
+    }
+  }
+  assert_true(ran >= 2);
   free(h), free(h2), free(x), free(y);
 }
 
