@@ -116,7 +116,7 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
   /* Break-even, measured: a vectorised block costs about what 16 scattered
    * single-entry updates do. Marks are packed to words a run at a time,
    * PF_AHEAD words beyond it, for the prefetch below. */
-    enum { BLOCK_MIN_BITS = 16, PF_AHEAD = 16, RUN = 256 };
+  enum { BLOCK_MIN_BITS = 16, PF_AHEAD = 16, RUN = 256 };
   float b1 = a->beta1, b2 = a->beta2;
   float c1 = 1.0f / (1.0f - powf(b1, (float)t)), c2 = 1.0f / (1.0f - powf(b2, (float)t));
   float eps = a->eps;

@@ -355,9 +355,10 @@ static void test_marks_wrap(void **state) {
   int wrapped = 0;
   uint8_t last[64] = {0};
   assert_true(f->threads <= 64);
-  /* Each thread's stamp moves on once per level it updates, 16 a step in
-   * all: 64 steps take the threads past 255 several times. */
-  for (int i = 1; i <= 64; i++) {
+  /* Each thread's stamp moves on once per level it updates. Thread 0 takes
+   * levels 0, T, 2T, ... of each step: enough steps to pass 255 twice. */
+  const int per_step = (f->enc.levels + f->threads - 1) / f->threads, steps = 2 * 256 / per_step + 1;
+  for (int i = 1; i <= steps; i++) {
     assert_int_equal(vlff_field_step(f, &sv.v, 1, NULL, &st, err, sizeof(err)), 0);
     size_t marked = 0;
     for (int t = 0; t < f->threads; t++) {
