@@ -122,33 +122,27 @@ __attribute__((target("avx,f16c"))) void vlff_f32_to_f16_v3(const float *src, ui
 }
 #endif
 
-/* The kernel set follows the GEMM's choice (VLFF_GEMM=generic makes both
- * portable): 2 = AVX-512, 1 = F16C, 0 = portable. x86-64-v3 includes F16C,
- * and no CPU with AVX2 and FMA lacks it; libgcc 12's __builtin_cpu_supports
- * does not report f16c. */
-static int half_isa(void) {
+/* The kernel pair follows the GEMM's choice (VLFF_GEMM=generic makes it
+ * portable). x86-64-v3 includes F16C, and no CPU with AVX2 and FMA lacks it;
+ * libgcc 12's __builtin_cpu_supports does not report f16c. */
+struct half_kernels {
+  void (*to32)(const uint16_t *, float *, size_t);
+  void (*to16)(const float *, uint16_t *, size_t);
+};
+
+static const struct half_kernels *half_pick(void) {
+  static const struct half_kernels k[] = {
+      {vlff_f16_to_f32_generic, vlff_f32_to_f16_generic},
+#if VLFF_HALF_X86
+      {vlff_f16_to_f32_v3, vlff_f32_to_f16_v3},
+      {vlff_f16_to_f32_v4, vlff_f32_to_f16_v4},
+#endif
+  };
   const char *isa = vlff_gemm_isa();
-  return !strcmp(isa, "avx512") ? 2 : !strcmp(isa, "avx2+fma") ? 1 : 0;
+  int i = !strcmp(isa, "avx512") ? 2 : !strcmp(isa, "avx2+fma") ? 1 : 0;
+  return &k[VLFF_HALF_X86 ? i : 0];
 }
 
-void vlff_f16_to_f32_n(const uint16_t *src, float *dst, size_t n) {
-#if VLFF_HALF_X86
-  switch (half_isa()) {
-    case 2: vlff_f16_to_f32_v4(src, dst, n); return;
-    case 1: vlff_f16_to_f32_v3(src, dst, n); return;
-    default: break;
-  }
-#endif
-  vlff_f16_to_f32_generic(src, dst, n);
-}
+void vlff_f16_to_f32_n(const uint16_t *src, float *dst, size_t n) { half_pick()->to32(src, dst, n); }
 
-void vlff_f32_to_f16_n(const float *src, uint16_t *dst, size_t n) {
-#if VLFF_HALF_X86
-  switch (half_isa()) {
-    case 2: vlff_f32_to_f16_v4(src, dst, n); return;
-    case 1: vlff_f32_to_f16_v3(src, dst, n); return;
-    default: break;
-  }
-#endif
-  vlff_f32_to_f16_generic(src, dst, n);
-}
+void vlff_f32_to_f16_n(const float *src, uint16_t *dst, size_t n) { half_pick()->to16(src, dst, n); }

@@ -127,6 +127,20 @@ static struct rate train(struct vlff_field *f, struct scene *s, int steps, int t
   return (struct rate){med[0], med[1], med[2], {med[3], med[4], med[5]}};
 }
 
+/* train() on a field made for the occasion. */
+static struct rate train_fresh(const struct vlff_config *c, struct scene *s, int steps, int timed) {
+  char err[256];
+  struct vlff_field *f = vlff_field_create(c, err, sizeof(err));
+  if (!f) {
+    fprintf(stderr, "bench: %s\n", err);
+    exit(1);
+  }
+  double psnr;
+  struct rate r = train(f, s, steps, timed, &psnr);
+  vlff_field_destroy(f);
+  return r;
+}
+
 struct argmax_ctx {
   const float *feat, *e;
   int n, k, d;
@@ -170,23 +184,17 @@ int main(int argc, char **argv) {
 
   /* Training, D = 128 first (then D = 512, which is fitted further and used
    * for queries and rendering). */
-  double sps128, fps128, psnr;
+  double psnr;
+  struct rate r128;
   {
     struct vlff_config c = cfg;
     c.field.feature_dim = 128;
     struct scene s;
     scene_make(&s, 128);
-    struct vlff_field *f = vlff_field_create(&c, err, sizeof(err));
-    if (!f) {
-      fprintf(stderr, "bench: %s\n", err);
-      return 1;
-    }
-    struct rate r = train(f, &s, 16, 12, &psnr);
-    sps128 = r.sps;
-    fps128 = r.fps;
-    vlff_field_destroy(f);
+    r128 = train_fresh(&c, &s, 16, 12);
     scene_free(&s);
   }
+  double sps128 = r128.sps, fps128 = r128.fps;
   /* D = 512 at the reference's online batch, 2048 rays: the table's update
    * costs about the same per step at either size (the fine levels' lines
    * are almost all touched at 1024 already), so it shows how much of the gap
@@ -200,15 +208,9 @@ int main(int argc, char **argv) {
   if (c.train.rays_per_step != 2048) {
     struct vlff_config c2 = c;
     c2.train.rays_per_step = 2048;
-    struct vlff_field *f2 = vlff_field_create(&c2, err, sizeof(err));
-    if (!f2) {
-      fprintf(stderr, "bench: %s\n", err);
-      return 1;
-    }
-    struct rate r = train(f2, &s, 8, 6, &psnr);
+    struct rate r = train_fresh(&c2, &s, 8, 6);
     sps2k = r.sps;
     fps2k = r.fps;
-    vlff_field_destroy(f2);
   }
   struct vlff_field *f = vlff_field_create(&c, err, sizeof(err));
   if (!f) {
