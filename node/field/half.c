@@ -6,6 +6,7 @@
  * and libgcc's soft conversion otherwise, all rounding the same way. The
  * sim converts 1.2 M feature values per frame: the bit loop was a fifth of
  * its time. */
+#include <pthread.h>
 #include <string.h>
 
 #include "field_internal.h"
@@ -130,17 +131,26 @@ struct half_kernels {
   void (*to16)(const float *, uint16_t *, size_t);
 };
 
-static const struct half_kernels *half_pick(void) {
-  static const struct half_kernels k[] = {
-      {vlff_f16_to_f32_generic, vlff_f32_to_f16_generic},
+static const struct half_kernels half_kernels[] = {
+    {vlff_f16_to_f32_generic, vlff_f32_to_f16_generic},
 #if VLFF_HALF_X86
-      {vlff_f16_to_f32_v3, vlff_f32_to_f16_v3},
-      {vlff_f16_to_f32_v4, vlff_f32_to_f16_v4},
+    {vlff_f16_to_f32_v3, vlff_f32_to_f16_v3},
+    {vlff_f16_to_f32_v4, vlff_f32_to_f16_v4},
 #endif
-  };
+};
+static const struct half_kernels *half_used;
+static pthread_once_t half_once = PTHREAD_ONCE_INIT;
+
+/* Picked once: the conversions run per ray and per pixel. */
+static void half_init(void) {
   const char *isa = vlff_gemm_isa();
   int i = !strcmp(isa, "avx512") ? 2 : !strcmp(isa, "avx2+fma") ? 1 : 0;
-  return &k[VLFF_HALF_X86 ? i : 0];
+  half_used = &half_kernels[VLFF_HALF_X86 ? i : 0];
+}
+
+static const struct half_kernels *half_pick(void) {
+  pthread_once(&half_once, half_init);
+  return half_used;
 }
 
 void vlff_f16_to_f32_n(const uint16_t *src, float *dst, size_t n) { half_pick()->to32(src, dst, n); }

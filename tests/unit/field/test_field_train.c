@@ -337,9 +337,9 @@ static void test_level_mask(void **state) {
   vlff_field_destroy(f);
 }
 
-/* The table's gradient is zero again after every step (the scatter adds onto
- * it and Adam zeroes what it used), and when a step's stamp comes round
- * again after 255 steps no older mark is left to pass for it. */
+/* Each thread's table gradient is zero again after every step (the scatter
+ * adds onto it and Adam zeroes what it used), and when a thread's stamp comes
+ * round again after 255 levels updated no older mark is left to pass for it. */
 static void test_marks_wrap(void **state) {
   (void)state;
   const int d = 16;
