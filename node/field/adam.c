@@ -12,14 +12,17 @@
 
 #include "field_internal.h"
 
-/* The update of one value; every path below goes through it. */
+/* The update of one value; every portable path below goes through it. The
+ * fused multiply-adds are spelled out (not left to contraction) so that the
+ * AVX-512 kernel, which spells out the same ones, gives the same bits; they
+ * are the ones GCC had contracted to, so results did not change. */
 static inline __attribute__((always_inline)) void adam_one(float b1, float b2, float c1, float c2, float eps,
                                                            float lr, float g, float *p, float *m, float *v) {
-  float mi = b1 * *m + (1.0f - b1) * g;
-  float vi = b2 * *v + (1.0f - b2) * g * g;
+  float mi = fmaf(b1, *m, (1.0f - b1) * g);
+  float vi = fmaf(b2, *v, (1.0f - b2) * g * g);
   *m = mi;
   *v = vi;
-  *p -= lr * (mi * c1) / (sqrtf(vi * c2) + eps);
+  *p -= (lr * (mi * c1)) / (sqrtf(vi * c2) + eps);
 }
 
 VLFF_HOT
@@ -88,6 +91,41 @@ __attribute__((target("avx512f,avx512bw"))) static void marks_words_bw(const uin
   const __m512i s = _mm512_set1_epi8((char)stamp);
   for (size_t k = 0; k < nw; k++) words[k] = _mm512_cmpeq_epi8_mask(_mm512_loadu_si512(t + 64 * k), s);
 }
+
+/* One 64-entry word at width 2, a vector (eight entries: one line of each
+ * array) per nonzero byte of its marks, untouched lanes kept by mask;
+ * adam_one's arithmetic in the same order. Measured on a default-config
+ * step's marks, two threads: a vector whenever any of a line's entries was
+ * touched took 15 % less time than the portable policy below (scalar
+ * updates for words with fewer than 16 bits, a whole-block vector pass
+ * otherwise), whose loops GCC compiles with scalar mask building. The sqrt
+ * and division are not what bounds it: replaced by products, the time
+ * stayed the same; the lines' misses are. */
+__attribute__((target("avx512f,avx512dq,fma"))) static void adam_word_v4(float b1, float b2, float c1, float c2,
+                                                                        float eps, float lr, float *p, float *g,
+                                                                        float *m, float *v, uint64_t word) {
+  /* Lane pairs 2j, 2j+1 belong to entry j of the byte. */
+  const __m512i lane_bit = _mm512_setr_epi32(1, 1, 2, 2, 4, 4, 8, 8, 16, 16, 32, 32, 64, 64, 128, 128);
+  const __m512 vb1 = _mm512_set1_ps(b1), vb2 = _mm512_set1_ps(b2), nb1 = _mm512_set1_ps(1.0f - b1);
+  const __m512 nb2 = _mm512_set1_ps(1.0f - b2), vc1 = _mm512_set1_ps(c1), vc2 = _mm512_set1_ps(c2);
+  const __m512 veps = _mm512_set1_ps(eps), vlr = _mm512_set1_ps(lr);
+  for (int by = 0; by < 8; by++) {
+    unsigned bits = (unsigned)(word >> (8 * by)) & 0xffu;
+    if (!bits) continue;
+    const __mmask16 on = _mm512_test_epi32_mask(_mm512_set1_epi32((int)bits), lane_bit);
+    const size_t o = 16 * (size_t)by;
+    __m512 G = _mm512_loadu_ps(g + o), P = _mm512_loadu_ps(p + o);
+    __m512 M = _mm512_loadu_ps(m + o), V = _mm512_loadu_ps(v + o);
+    __m512 mi = _mm512_fmadd_ps(vb1, M, _mm512_mul_ps(nb1, G));
+    __m512 vi = _mm512_fmadd_ps(vb2, V, _mm512_mul_ps(_mm512_mul_ps(nb2, G), G));
+    __m512 den = _mm512_add_ps(_mm512_sqrt_ps(_mm512_mul_ps(vi, vc2)), veps);
+    __m512 pi = _mm512_sub_ps(P, _mm512_div_ps(_mm512_mul_ps(vlr, _mm512_mul_ps(mi, vc1)), den));
+    _mm512_storeu_ps(g + o, _mm512_setzero_ps()); /* untouched lanes hold 0 already */
+    _mm512_mask_storeu_ps(p + o, on, pi);
+    _mm512_mask_storeu_ps(m + o, on, mi);
+    _mm512_mask_storeu_ps(v + o, on, vi);
+  }
+}
 #else
 #define ADAM_BW 0
 #endif
@@ -122,6 +160,9 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
   float eps = a->eps;
   size_t count = 0;
   const size_t nw = (n + 63) / 64;
+#if ADAM_BW
+  const int lines_v4 = a->simd && width == 2;
+#endif
   uint64_t words[RUN + PF_AHEAD];
   for (size_t w0 = 0; w0 < nw; w0 += RUN) {
     size_t nrun = nw - w0 < RUN ? nw - w0 : RUN;
@@ -151,6 +192,14 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
       if (!word) continue;
       size_t e0 = wi * 64, ne = n - e0 < 64 ? n - e0 : 64;
       int pop = __builtin_popcountll(word);
+#if ADAM_BW
+      if (lines_v4 && ne == 64) {
+        size_t o = e0 * 2;
+        adam_word_v4(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word);
+        count += (size_t)pop;
+        continue;
+      }
+#endif
       if (pop >= BLOCK_MIN_BITS && width <= 8) {
         size_t o = e0 * (size_t)width;
         /* The default width as a constant, so that call's index arithmetic

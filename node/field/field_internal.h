@@ -146,7 +146,7 @@ float vlff_loss_feat(const float *pred, const float *target, int d, int l1, floa
 /* ---- Adam (adam.c) ----------------------------------------------------- */
 struct vlff_adam {
   float lr, beta1, beta2, eps, wd;
-  int simd;                /* 1: read marks with AVX-512BW (same result as the portable code) */
+  int simd;                /* 1: AVX-512 marks and line updates (the portable code's results, bit for bit) */
 };
 /* Dense update of params[i0,i1) (decay = apply weight decay). */
 void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,
