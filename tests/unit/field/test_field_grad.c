@@ -200,7 +200,10 @@ static void test_gemm(void **state) {
   };
   const int shapes[][3] = {{1, 1, 1},    {3, 5, 7},    {17, 33, 9},  {64, 64, 44}, {9, 15, 128},  {8, 3, 64},
                            {33, 48, 300}, {4, 512, 16}, {130, 16, 1}, {7, 47, 260}, {15, 128, 45}, {44, 64, 30},
-                           {31, 40, 20}, {6, 33, 5},    {5, 17, 12},  {13, 16, 3},  {2, 64, 9}};
+                           {31, 40, 20}, {6, 33, 5},    {5, 17, 12},  {13, 16, 3},  {2, 64, 9},
+                           /* narrow outputs: dot products (k >= a vector), outer products (m a
+                            * multiple of 16) */
+                           {70, 3, 64},  {9, 4, 37},   {5, 1, 16},   {64, 3, 70},  {32, 2, 1},   {48, 4, 19}};
   int ran = 0;
   for (size_t q = 0; q < sizeof(kernels) / sizeof(kernels[0]); q++) {
     if (!kernels[q].runs) continue;
