@@ -183,6 +183,8 @@ static void narrow_dot(int m, int n, int k, const float *a, ptrdiff_t ars, const
   for (; i < m; i += NARROW_RB) {
     const int rb = m - i < NARROW_RB ? m - i : NARROW_RB;
     vf acc[NARROW_RB][NARROW];
+    /* Zeroed by loops: an initializer left them in memory (4.4 -> 7.0 us
+     * for the colour layer's forward). */
 #pragma GCC unroll 4
     for (int r = 0; r < NARROW_RB; r++)
 #pragma GCC unroll 4
@@ -218,11 +220,7 @@ static void narrow_outer(int m, int n, int k, const float *a, ptrdiff_t acs, con
                          int ldc, const float *bias, int accumulate, int relu, const float *mask) {
   for (int i0 = 0; i0 < m; i0 += VW * NARROW_MV) {
     const int mv = (m - i0) / VW < NARROW_MV ? (m - i0) / VW : NARROW_MV;
-    vf acc[NARROW_MV][NARROW];
-#pragma GCC unroll 4
-    for (int v = 0; v < NARROW_MV; v++)
-#pragma GCC unroll 4
-      for (int j = 0; j < NARROW; j++) acc[v][j] = (vf){0};
+    vf acc[NARROW_MV][NARROW] = {{{0}}};
     for (int kk = 0; kk < k; kk++) {
       const float *bk = b + (ptrdiff_t)kk * ldb;
       const float *ak = a + (ptrdiff_t)kk * acs + i0;
