@@ -161,13 +161,17 @@ static inline __attribute__((always_inline)) float vsum(vf x) {
 #endif
 }
 
+/* The tile's ReLU and mask for one output, where a scalar loop stores it. */
+static inline __attribute__((always_inline)) float relu_mask1(float x, int relu, const float *maskij) {
+  if (relu && !(x > 0)) x = 0;
+  if (maskij && !(*maskij > 0)) x = 0;
+  return x;
+}
+
 /* The epilogue of one output: bias or accumulation, then ReLU and mask. */
 static inline __attribute__((always_inline)) void narrow_put(float *cij, float sum, int j, const float *bias,
                                                              int accumulate, int relu, const float *maskij) {
-  float x = bias ? bias[j] + sum : accumulate ? *cij + sum : sum;
-  if (relu && !(x > 0)) x = 0;
-  if (maskij && !(*maskij > 0)) x = 0;
-  *cij = x;
+  *cij = relu_mask1(bias ? bias[j] + sum : accumulate ? *cij + sum : sum, relu, maskij);
 }
 
 /* Rows of A contiguous along k (acs = 1), k >= VW: a dot product per
@@ -310,10 +314,7 @@ void GEMM_FN(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, 
         float *cr = c + (ptrdiff_t)(i + r) * ldc + j;
         for (int q = 0; q < nc; q++) {
           float x = ct[r * VW + q];
-          if (lastblk) {
-            if (relu && !(x > 0)) x = 0;
-            if (mask && !(mask[(ptrdiff_t)(i + r) * ldc + j + q] > 0)) x = 0;
-          }
+          if (lastblk) x = relu_mask1(x, relu, mask ? mask + (ptrdiff_t)(i + r) * ldc + j + q : NULL);
           cr[q] = x;
         }
       }
