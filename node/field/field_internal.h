@@ -26,6 +26,10 @@ int vlff_pool_threads(const struct vlff_pool *p);
 /* Runs fn(ctx, t, thread) for t in [0, ntasks): task t goes to thread
  * t % threads, so a run is deterministic for a given thread count. */
 void vlff_pool_run(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
+/* The same, but each thread claims the next unclaimed task (in increasing
+ * t) when it is free: for tasks of unequal cost whose results do not depend
+ * on the thread that runs them. */
+void vlff_pool_run_dynamic(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
 
 /* ---- encoding (encoding.c) --------------------------------------------- */
 struct vlff_encoding {
