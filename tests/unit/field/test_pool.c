@@ -81,41 +81,38 @@ static void test_every_task_once(void **state) {
   }
 }
 
+/* runs runs on a pool of threads, alternating static and dynamic, with
+ * idle_us between runs and tasks of task_us each. */
+static void hand_offs(int threads, int runs, int idle_us, int task_us) {
+  static struct rec r;
+  struct vlff_pool *p = vlff_pool_create(threads);
+  assert_non_null(p);
+  r.sleep_us = task_us;
+  for (int i = 0; i < runs; i++) {
+    if (idle_us) sleep_us(idle_us);
+    check_run(p, &r, 1 + i % 17, i & 1);
+  }
+  vlff_pool_destroy(p);
+}
+
 /* Back to back: the workers never reach their sleep. */
 static void test_back_to_back(void **state) {
   (void)state;
-  static struct rec r;
-  struct vlff_pool *p = vlff_pool_create(3);
-  assert_non_null(p);
-  for (int i = 0; i < 2000; i++) check_run(p, &r, 1 + i % 17, i & 1);
-  vlff_pool_destroy(p);
+  hand_offs(3, 2000, 0, 0);
 }
 
 /* Idle longer than the spin between runs: the workers sleep on the
  * condition variable and the next run must wake them. */
 static void test_after_sleep(void **state) {
   (void)state;
-  static struct rec r;
-  struct vlff_pool *p = vlff_pool_create(2);
-  assert_non_null(p);
-  for (int i = 0; i < 20; i++) {
-    sleep_us(2000);
-    check_run(p, &r, 2 + i % 5, i & 1);
-  }
-  vlff_pool_destroy(p);
+  hand_offs(2, 20, 2000, 0);
 }
 
 /* Tasks longer than the caller's spin: it waits on the condition variable
  * for the last worker. */
 static void test_long_tasks(void **state) {
   (void)state;
-  static struct rec r;
-  struct vlff_pool *p = vlff_pool_create(2);
-  assert_non_null(p);
-  r.sleep_us = 1500;
-  for (int i = 0; i < 10; i++) check_run(p, &r, 3, i & 1);
-  r.sleep_us = 0;
-  vlff_pool_destroy(p);
+  hand_offs(2, 10, 0, 1500);
 }
 
 /* Dynamic runs balance: while one thread holds a long task, the other
