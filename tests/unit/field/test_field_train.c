@@ -355,9 +355,11 @@ static void test_marks_wrap(void **state) {
   int wrapped = 0;
   uint8_t last[64] = {0};
   assert_true(f->threads <= 64);
-  /* Each thread's stamp moves on once per level it updates. Thread 0 takes
-   * levels 0, T, 2T, ... of each step: enough steps to pass 255 twice. */
-  const int per_step = (f->enc.levels + f->threads - 1) / f->threads, steps = 2 * 256 / per_step + 1;
+  /* Each thread's stamp moves on once per level it updates. Levels go to
+   * whichever thread is free, so only the sum over threads is known: levels
+   * per step. Enough steps that the busiest thread (at least the mean share)
+   * passes 255 twice. */
+  const int steps = (2 * 256 * f->threads + f->enc.levels - 1) / f->enc.levels + 1;
   for (int i = 1; i <= steps; i++) {
     assert_int_equal(vlff_field_step(f, &sv.v, 1, NULL, &st, err, sizeof(err)), 0);
     size_t marked = 0;
