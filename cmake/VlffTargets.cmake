@@ -22,9 +22,14 @@ endfunction()
 # vlff_test(NAME SOURCES a.c b.c LIBS x y [LABELS tsan ...] [TIMEOUT s] [ARGS ...])
 # Every unit test is a cmocka executable run by ctest. Label "tsan" marks the
 # threaded/shm tests that the ThreadSanitizer build runs; "nosan" the ones the
-# sanitizer builds leave out; "spawns" the ones that start programs of the
-# build (or load its library into the host's python), which cannot start
-# under a user-mode emulator: the cross-built aarch64 tree leaves them out.
+# sanitizer builds leave out; "spawns" the ones whose child processes cannot
+# run under a user-mode emulator (the host's python loading the build's
+# library, the node end to end on a wall-clock budget): the cross-built
+# aarch64 tree leaves them out. Tests that start programs of the build put
+# VLFF_EMULATOR (qemu-user there, empty otherwise) before the program.
+string(REPLACE ";" " " VLFF_EMULATOR "${CMAKE_CROSSCOMPILING_EMULATOR}")
+set(VLFF_TEST_ENV "VLFF_SOURCE_DIR=${PROJECT_SOURCE_DIR}" "VLFF_BINARY_DIR=${PROJECT_BINARY_DIR}"
+    "VLFF_SHARED_DIR=${PROJECT_SOURCE_DIR}/../shared" "VLFF_EMULATOR=${VLFF_EMULATOR}")
 function(vlff_test name)
   cmake_parse_arguments(T "" "TIMEOUT" "SOURCES;LIBS;LABELS;ARGS" ${ARGN})
   add_executable(${name} ${T_SOURCES})
@@ -39,7 +44,7 @@ function(vlff_test name)
     math(EXPR T_TIMEOUT "${T_TIMEOUT} * 4")
   endif()
   set_tests_properties(${name} PROPERTIES LABELS "unit;${T_LABELS}" TIMEOUT ${T_TIMEOUT}
-    ENVIRONMENT "VLFF_SOURCE_DIR=${PROJECT_SOURCE_DIR};VLFF_BINARY_DIR=${PROJECT_BINARY_DIR};VLFF_SHARED_DIR=${PROJECT_SOURCE_DIR}/../shared")
+    ENVIRONMENT "${VLFF_TEST_ENV}")
 endfunction()
 
 # vlff_bench(NAME SOURCES ... LIBS ...): a program under tests/bench whose last

@@ -1,23 +1,25 @@
 #!/usr/bin/env bash
 # vlff-node's command line: version, help, config checking, clean exit on signals.
 set -u
-node=$1
+# VLFF_EMULATOR: qemu-user in a cross-built tree (word-split on purpose)
+# shellcheck disable=SC2206
+node=(${VLFF_EMULATOR:-} "$1")
 src=$2
 fails=0 passes=0
 check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
 tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
 
-check "--version" '"$node" --version | grep -qE "^vlff-node [0-9]+\.[0-9]+\.[0-9]+$"'
-check "--help lists --check-config" '"$node" --help | grep -q -- "--check-config"'
-check "bad option exits 2" '"$node" --bogus >/dev/null 2>&1; [[ $? == 2 ]]'
-check "default.yaml checks" '"$node" --check-config "$src/configs/default.yaml" >/dev/null 2>&1'
+check "--version" '"${node[@]}" --version | grep -qE "^vlff-node [0-9]+\.[0-9]+\.[0-9]+$"'
+check "--help lists --check-config" '"${node[@]}" --help | grep -q -- "--check-config"'
+check "bad option exits 2" '"${node[@]}" --bogus >/dev/null 2>&1; [[ $? == 2 ]]'
+check "default.yaml checks" '"${node[@]}" --check-config "$src/configs/default.yaml" >/dev/null 2>&1'
 printf 'node:\n  name: x\ntrain:\n  lr: fast\n' >"$tmp/bad.yaml"
 check "bad config exits 1 with file:line:col" \
-  '! "$node" --check-config "$tmp/bad.yaml" >/dev/null 2>"$tmp/err" && grep -q "bad.yaml:4:7: key .train.lr.: expected number" "$tmp/err"'
-check "bad --config refuses to start" '! "$node" --config "$tmp/bad.yaml" >/dev/null 2>&1'
+  '! "${node[@]}" --check-config "$tmp/bad.yaml" >/dev/null 2>"$tmp/err" && grep -q "bad.yaml:4:7: key .train.lr.: expected number" "$tmp/err"'
+check "bad --config refuses to start" '! "${node[@]}" --config "$tmp/bad.yaml" >/dev/null 2>&1'
 for sig in INT TERM; do
   printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\nshm:\n  ring: /cli-%s-r\n  map: /cli-%s-m\n  prompts: /cli-%s-p\n' "$tmp" $$ $$ $$ >"$tmp/ok.yaml"
-  "$node" --config "$tmp/ok.yaml" 2>"$tmp/log.$sig" &
+  "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/log.$sig" &
   pid=$!
   for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/log.$sig" && break; sleep 0.1; done
   kill -$sig $pid
@@ -26,7 +28,7 @@ for sig in INT TERM; do
   check "SIG$sig exits 0 (rc=$rc)" '[[ $rc == 0 ]]'
   check "SIG$sig logged" 'grep -q "stopping (SIG$sig)" "$tmp/log.$sig"'
 done
-JOURNAL_STREAM=1:2 timeout 20 "$node" --config "$tmp/ok.yaml" 2>"$tmp/j" & p=$!
+JOURNAL_STREAM=1:2 timeout 20 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/j" & p=$!
 for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/j" && break; sleep 0.1; done
 kill -TERM $p; wait $p
 check "journald lines start with <6>" 'head -1 "$tmp/j" | grep -q "^<6>node: "'

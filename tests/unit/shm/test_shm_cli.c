@@ -12,7 +12,8 @@
 
 static int run(const char *args, char *out, size_t cap) {
   char cmd[1024];
-  snprintf(cmd, sizeof cmd, "%s %s 2>&1", VLFF_SHM_CLI, args);
+  const char *emu = getenv("VLFF_EMULATOR"); /* qemu-user in a cross-built tree */
+  snprintf(cmd, sizeof cmd, "%s %s %s 2>&1", emu ? emu : "", VLFF_SHM_CLI, args);
   FILE *f = popen(cmd, "r");
   assert_non_null(f);
   size_t n = fread(out, 1, cap - 1, f);
