@@ -127,14 +127,19 @@ static struct rate train(struct vlff_field *f, struct scene *s, int steps, int t
   return (struct rate){med[0], med[1], med[2], {med[3], med[4], med[5]}};
 }
 
-/* train() on a field made for the occasion. */
-static struct rate train_fresh(const struct vlff_config *c, struct scene *s, int steps, int timed) {
+static struct vlff_field *field_or_exit(const struct vlff_config *c) {
   char err[256];
   struct vlff_field *f = vlff_field_create(c, err, sizeof(err));
   if (!f) {
     fprintf(stderr, "bench: %s\n", err);
     exit(1);
   }
+  return f;
+}
+
+/* train() on a field made for the occasion. */
+static struct rate train_fresh(const struct vlff_config *c, struct scene *s, int steps, int timed) {
+  struct vlff_field *f = field_or_exit(c);
   double psnr;
   struct rate r = train(f, s, steps, timed, &psnr);
   vlff_field_destroy(f);
@@ -212,11 +217,7 @@ int main(int argc, char **argv) {
     sps2k = r.sps;
     fps2k = r.fps;
   }
-  struct vlff_field *f = vlff_field_create(&c, err, sizeof(err));
-  if (!f) {
-    fprintf(stderr, "bench: %s\n", err);
-    return 1;
-  }
+  struct vlff_field *f = field_or_exit(&c);
   struct rate tr = train(f, &s, 16, 12, &psnr);
   double sps = tr.sps, fps = tr.fps;
   double p2 = fma_peak(threads);
