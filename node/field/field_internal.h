@@ -106,8 +106,13 @@ void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs
  * margin may each be NULL. */
 void vlff_score(int m, int H, int K, const float *hT, int ldh, const float *ewt, const float *eb, const float *rt,
                 const float *rv, float r22, int gram, int *label, float *score, float *margin);
-/* Name of the GEMM kernel in use ("avx512", "avx2+fma", "generic"). */
+/* Name of the GEMM kernel in use ("avx512", "avx2+fma", "generic").
+ * VLFF_GEMM=generic forces the portable kernels everywhere, VLFF_GEMM=avx2
+ * the AVX2 ones on a CPU with AVX-512 (as an AVX2-only CPU runs). */
 const char *vlff_gemm_isa(void);
+/* The same as a level: the kernels that follow the GEMM's choice. */
+enum { VLFF_ISA_PORTABLE = 0, VLFF_ISA_AVX2 = 1, VLFF_ISA_AVX512 = 2 };
+int vlff_gemm_isa_level(void);
 /* Runs the FMA throughput probe of the kernel's ISA for iters iterations
  * on the calling thread; *flops_per_iter receives its FLOPs per iteration. */
 float vlff_fma_probe(long iters, int *flops_per_iter);
@@ -150,7 +155,7 @@ float vlff_loss_feat(const float *pred, const float *target, int d, int l1, floa
 /* ---- Adam (adam.c) ----------------------------------------------------- */
 struct vlff_adam {
   float lr, beta1, beta2, eps, wd;
-  int simd;                /* 1: AVX-512 marks and line updates (the portable code's results, bit for bit) */
+  int simd;                /* VLFF_ISA_*: vector marks and line updates (the portable code's results, bit for bit) */
 };
 /* Dense update of params[i0,i1) (decay = apply weight decay). */
 void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p, const float *g, float *m,

@@ -143,9 +143,7 @@ static pthread_once_t half_once = PTHREAD_ONCE_INIT;
 
 /* Picked once: the conversions run per ray and per pixel. */
 static void half_init(void) {
-  const char *isa = vlff_gemm_isa();
-  int i = !strcmp(isa, "avx512") ? 2 : !strcmp(isa, "avx2+fma") ? 1 : 0;
-  half_used = &half_kernels[VLFF_HALF_X86 ? i : 0];
+  half_used = &half_kernels[VLFF_HALF_X86 ? vlff_gemm_isa_level() : 0];
 }
 
 static const struct half_kernels *half_pick(void) {

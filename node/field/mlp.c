@@ -78,6 +78,11 @@ static void gemm_init(void) {
   const char *force = getenv("VLFF_GEMM");
   gemm_impl = pick_gemm();
   if (force && !strcmp(force, "generic")) gemm_impl = vlff_gemm_generic;
+#if VLFF_GEMM_X86
+  /* What an AVX2-only CPU (most x86 robot computers) runs, on a CPU with
+   * more: the kernels that follow this choice are then the AVX2 ones. */
+  if (force && !strcmp(force, "avx2") && gemm_impl == vlff_gemm_v4) gemm_impl = vlff_gemm_v3;
+#endif
   score_impl = vlff_score_generic;
 #if VLFF_GEMM_X86
   if (gemm_impl == vlff_gemm_v4) score_impl = vlff_score_v4;
@@ -92,6 +97,11 @@ const char *vlff_gemm_isa(void) {
   if (gemm_impl == vlff_gemm_v3) return "avx2+fma";
 #endif
   return "generic";
+}
+
+int vlff_gemm_isa_level(void) {
+  const char *isa = vlff_gemm_isa();
+  return !strcmp(isa, "avx512") ? VLFF_ISA_AVX512 : !strcmp(isa, "avx2+fma") ? VLFF_ISA_AVX2 : VLFF_ISA_PORTABLE;
 }
 
 void vlff_gemm_mask(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,

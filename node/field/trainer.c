@@ -185,7 +185,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->adam.beta2 = (float)cfg->train.beta2;
   f->adam.eps = (float)cfg->train.eps;
   f->adam.wd = (float)cfg->train.weight_decay;
-  f->adam.simd = !strcmp(vlff_gemm_isa(), "avx512"); /* as the encoding: VLFF_GEMM=generic is all portable */
+  f->adam.simd = vlff_gemm_isa_level(); /* as the encoding: VLFF_GEMM=generic is all portable */
   f->feat_l1 = cfg->train.feature_loss == VLFF_FEAT_LOSS_L1;
 
   f->pool = vlff_pool_create(cfg->node.threads);
