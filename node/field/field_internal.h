@@ -40,7 +40,7 @@ struct vlff_encoding {
   float box_min[3], box_scale[3];  /* p = (x - min) * scale, in [0,1] */
   float res[32];           /* grid cells per axis, per level */
   int dense[32];           /* level indexed densely (no hashing) */
-  int simd;                /* 1: the AVX-512 kernels (the portable loops' results to float rounding) */
+  int simd;                /* VLFF_ISA_*: the vector kernels (the portable loops' results to float rounding) */
 };
 void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_config *cfg);
 /* Normalised position of world point x, clamped to [0,1]; returns 0 when x
