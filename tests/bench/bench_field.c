@@ -12,7 +12,9 @@
  *  4. 2D segmented rendering at 320x240 of the fitted scene: px/s with our
  *     sampling (occupancy grid, train.samples_per_ray) against the reference's
  *     256 uniform samples per ray.
- * Usage: bench_field [config.yaml]   (default: built-in defaults)
+ * Usage: bench_field [--train-only] [config.yaml]   (default: built-in defaults)
+ * --train-only: the peak and D = 512 training only, for the kernel ISA that
+ * VLFF_GEMM selects (tests/bench/field_isa.sh runs it for each).
  */
 #include <pthread.h>
 #include <stdio.h>
@@ -170,9 +172,31 @@ static void argmax_task(void *p, int task, int thread) {
   }
 }
 
+/* The peak of the ISA in use and D = 512 training against it. */
+static int train_only(const struct vlff_config *cfg, int threads) {
+  double peak = fma_peak(threads), psnr;
+  struct vlff_config c = *cfg;
+  c.field.feature_dim = 512;
+  struct scene s;
+  scene_make(&s, 512);
+  struct vlff_field *f = field_or_exit(&c);
+  struct rate tr = train(f, &s, 16, 12, &psnr);
+  double p2 = fma_peak(threads);
+  if (p2 > peak) peak = p2;
+  printf("kernels %s: FMA peak %.1f GFLOP/s; train D=512: %.0f samples/s, %.1f GFLOP/s = %.1f%% of that peak\n",
+         vlff_gemm_isa(), peak / 1e9, tr.sps, tr.fps / 1e9, 100 * tr.fps / peak);
+  printf("RESULT isa=%s train_samples_per_s=%.0f train_peak_frac=%.3f peak_gflops=%.1f\n", vlff_gemm_isa(), tr.sps,
+         tr.fps / peak, peak / 1e9);
+  vlff_field_destroy(f);
+  scene_free(&s);
+  return 0;
+}
+
 int main(int argc, char **argv) {
   struct vlff_config cfg;
   char err[512];
+  int only = argc > 1 && !strcmp(argv[1], "--train-only");
+  argc -= only, argv += only;
   if (argc > 1) {
     if (vlff_config_load(argv[1], &cfg, err, sizeof(err))) {
       fprintf(stderr, "bench: %s\n", err);
@@ -182,6 +206,7 @@ int main(int argc, char **argv) {
     vlff_config_defaults(&cfg);
   }
   int threads = cfg.node.threads > 0 ? cfg.node.threads : (int)sysconf(_SC_NPROCESSORS_ONLN);
+  if (only) return train_only(&cfg, threads);
   printf("field bench: %d threads, GEMM kernel %s\n", threads, vlff_gemm_isa());
   /* The peak is probed again between phases and the best value kept: on a
    * shared machine a single probe can land in someone else's burst. */
