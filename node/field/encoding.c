@@ -567,12 +567,11 @@ void vlff_encoding_backward(const struct vlff_encoding *e, const float *p, int n
                             int level, float *g, uint8_t *tb, uint8_t stamp) {
   const int F = e->feats, l = level;
 #if VLFF_ENC_V4
-  if (e->simd == VLFF_ISA_AVX512 && F == 2) {
-    backward_v4(e, p, n, d, ld, l, g, tb, stamp);
-    return;
-  }
-  if (e->simd == VLFF_ISA_AVX2 && F == 2) {
-    backward_v3(e, p, n, d, ld, l, g, tb, stamp);
+  if (e->simd && F == 2) {
+    if (e->simd == VLFF_ISA_AVX512)
+      backward_v4(e, p, n, d, ld, l, g, tb, stamp);
+    else
+      backward_v3(e, p, n, d, ld, l, g, tb, stamp);
     return;
   }
 #endif

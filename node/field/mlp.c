@@ -42,13 +42,13 @@ float vlff_fma_peak_v3(long iters);
 #endif
 
 float vlff_fma_probe(long iters, int *flops_per_iter) {
-  const char *isa = vlff_gemm_isa();
+  const int isa = vlff_gemm_isa_level();
 #if VLFF_GEMM_X86
-  if (!strcmp(isa, "avx512")) {
+  if (isa == VLFF_ISA_AVX512) {
     *flops_per_iter = 12 * 16 * 2;
     return vlff_fma_peak_v4(iters);
   }
-  if (!strcmp(isa, "avx2+fma")) {
+  if (isa == VLFF_ISA_AVX2) {
     *flops_per_iter = 12 * 8 * 2;
     return vlff_fma_peak_v3(iters);
   }
@@ -90,18 +90,18 @@ static void gemm_init(void) {
 #endif
 }
 
-const char *vlff_gemm_isa(void) {
+int vlff_gemm_isa_level(void) {
   pthread_once(&gemm_once, gemm_init);
 #if VLFF_GEMM_X86
-  if (gemm_impl == vlff_gemm_v4) return "avx512";
-  if (gemm_impl == vlff_gemm_v3) return "avx2+fma";
+  if (gemm_impl == vlff_gemm_v4) return VLFF_ISA_AVX512;
+  if (gemm_impl == vlff_gemm_v3) return VLFF_ISA_AVX2;
 #endif
-  return "generic";
+  return VLFF_ISA_PORTABLE;
 }
 
-int vlff_gemm_isa_level(void) {
-  const char *isa = vlff_gemm_isa();
-  return !strcmp(isa, "avx512") ? VLFF_ISA_AVX512 : !strcmp(isa, "avx2+fma") ? VLFF_ISA_AVX2 : VLFF_ISA_PORTABLE;
+const char *vlff_gemm_isa(void) {
+  static const char *const name[] = {"generic", "avx2+fma", "avx512"};
+  return name[vlff_gemm_isa_level()];
 }
 
 void vlff_gemm_mask(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
