@@ -16,7 +16,7 @@ exe=$build/bench/bench_field
 declare -A sps frac name
 for round in 1 2; do
   for isa in default avx2 generic; do
-    if [[ $isa == default ]]; then out=$("$exe" --train-only); else out=$(VLFF_GEMM=$isa "$exe" --train-only); fi
+    if [[ $isa == default ]]; then out=$(env -u VLFF_GEMM "$exe" --train-only); else out=$(VLFF_GEMM=$isa "$exe" --train-only); fi
     echo "round $round, VLFF_GEMM=$isa: $(grep -v '^RESULT' <<<"$out")"
     res=$(grep '^RESULT' <<<"$out")
     s=$(sed -n 's/.*train_samples_per_s=\([0-9.]*\).*/\1/p' <<<"$res")
