@@ -8,6 +8,7 @@
  */
 #include <math.h>
 #include <stdbool.h>
+#include <stdint.h>
 #include <string.h>
 
 #include "field_internal.h"
@@ -198,9 +199,31 @@ static void marks_words(int simd, const uint8_t *marks, uint8_t stamp, size_t e0
   }
 }
 
+/* 64-byte lines of p holding an entry of the word at entry e0 (words start
+ * on a line when a line holds whole entries; otherwise *last carries the
+ * line counted last, which the next word's first entry may share). */
+static inline size_t word_lines(uint64_t word, size_t e0, int width, size_t *last) {
+  if (16 % width == 0) {
+    const int per = 16 / width;
+    uint64_t any = word;
+    for (int s = 1; s < per; s <<= 1) any |= any >> s;
+    return (size_t)__builtin_popcountll(any & (~0ull / ((1ull << per) - 1)));
+  }
+  size_t count = 0;
+  for (; word; word &= word - 1) {
+    size_t e = e0 + (size_t)__builtin_ctzll(word), bytes = (size_t)width * sizeof(float);
+    for (size_t l = e * bytes / 64; l <= ((e + 1) * bytes - 1) / 64; l++)
+      if (*last == SIZE_MAX || l > *last) {
+        *last = l;
+        count++;
+      }
+  }
+  return count;
+}
+
 VLFF_HOT
 size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, float *g, float *m, float *v,
-                        const uint8_t *marks, uint8_t stamp, size_t n, int width) {
+                        const uint8_t *marks, uint8_t stamp, size_t n, int width, size_t *lines) {
   /* Break-even, measured: a vectorised block costs about what 16 scattered
    * single-entry updates do. Marks are packed to words a run at a time,
    * PF_AHEAD words beyond it, for the prefetch below. */
@@ -208,10 +231,10 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
   float b1 = a->beta1, b2 = a->beta2;
   float c1 = 1.0f / (1.0f - powf(b1, (float)t)), c2 = 1.0f / (1.0f - powf(b2, (float)t));
   float eps = a->eps;
-  size_t count = 0;
+  size_t count = 0, nlines = 0, last = SIZE_MAX;
   const size_t nw = (n + 63) / 64;
 #if ADAM_BW
-  const int lines = width == 2 ? a->simd : 0;
+  const int line_isa = width == 2 ? a->simd : 0;
 #endif
   uint64_t words[RUN + PF_AHEAD];
   for (size_t w0 = 0; w0 < nw; w0 += RUN) {
@@ -242,10 +265,11 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
       if (!word) continue;
       size_t e0 = wi * 64, ne = n - e0 < 64 ? n - e0 : 64;
       int pop = __builtin_popcountll(word);
+      nlines += word_lines(word, e0, width, &last);
 #if ADAM_BW
-      if (lines && ne == 64) {
+      if (line_isa && ne == 64) {
         size_t o = e0 * 2;
-        if (lines == VLFF_ISA_AVX512)
+        if (line_isa == VLFF_ISA_AVX512)
           adam_word_v4(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word);
         else
           adam_word_v3(b1, b2, c1, c2, eps, lr, p + o, g + o, m + o, v + o, word);
@@ -276,5 +300,6 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
       }
     }
   }
+  if (lines) *lines = nlines;
   return count;
 }

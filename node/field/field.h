@@ -53,6 +53,8 @@ struct vlff_train_stats {
   double psnr;               /* of this step's rays */
   long long samples;         /* network evaluations this step */
   double flops;              /* dense-layer FLOPs executed this step (forward + backward) */
+  double time_gemm;          /* thread seconds in those layers' matrix products, summed over threads */
+  double table_bytes;        /* the table's parameters and Adam moments its update read and wrote (64-byte lines) */
   /* Wall seconds of the step's three phases: the rays (sampling, network
    * forward and backward, losses), the hash table (gradient scatter and
    * its Adam update), the dense layers' Adam update. */

@@ -95,6 +95,8 @@ void vlff_mlp_init_params(const struct vlff_mlp *m, float *params, uint64_t *rng
  * NULL) initialises C; accumulate adds to C instead; relu clamps at 0. */
 void vlff_gemm(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                float *c, int ldc, const float *bias, int accumulate, int relu);
+/* Seconds the calling thread has spent in vlff_gemm and vlff_gemm_mask. */
+double vlff_gemm_thread_seconds(void);
 /* Labels, scores and margins of m points from their MLP3 hidden vectors,
  * feature-major: hT[H][ldh], point i in column i; ldh and the columns read
  * are m rounded up to the kernel's panel (at most 32), so hT holds finite
@@ -162,9 +164,11 @@ void vlff_adam_dense(const struct vlff_adam *a, long long t, float lr, float *p,
                      float *v, size_t i0, size_t i1, int decay);
 /* Lazy update of the entries whose mark equals stamp (n entries, each
  * `width` floats wide); sets those entries' g to 0. Returns the entries
- * updated. */
+ * updated; *lines (when not NULL) gets the 64-byte lines of p, counted from
+ * p, that hold one: the least memory any update of them reads and writes in
+ * p, and in m and v alike (the same layout). */
 size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, float *g, float *m,
-                        float *v, const uint8_t *marks, uint8_t stamp, size_t n, int width);
+                        float *v, const uint8_t *marks, uint8_t stamp, size_t n, int width, size_t *lines);
 
 /* ---- sampling (sampler.c) ---------------------------------------------- */
 struct vlff_occupancy {
@@ -232,6 +236,8 @@ struct vlff_work {
   double loss_rgb, loss_depth, loss_feat, sq_rgb;
   long long samples;
   double flops;            /* dense-layer FLOPs executed */
+  double gemm_s;           /* seconds in their products, this step */
+  size_t table_lines;      /* 64-byte lines of parameters the table update moved, this step */
   uint64_t rng;
 };
 

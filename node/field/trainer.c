@@ -685,8 +685,10 @@ static void chunk_task(void *ctx, int c, int thread) {
   size_t slot = (size_t)f->chunk_rays * f->spr;
   /* Per-chunk seed: sampling jitter does not depend on the thread count. */
   w->rng = (uint64_t)f->step * 0x9e3779b97f4a7c15ull ^ ((uint64_t)c << 32) ^ 0x243f6a8885a308d3ull;
+  double g0 = vlff_gemm_thread_seconds();
   vlff_field_chunk(f, w, f->rays + r0, nr, 1, f->step_p + (size_t)c * slot * 3,
                    f->step_denc + (size_t)c * slot * f->enc.levels * f->enc.feats, &f->chunk_n[c]);
+  w->gemm_s += vlff_gemm_thread_seconds() - g0;
 }
 
 /* A level's update does not depend on the thread that runs it (each
@@ -709,8 +711,10 @@ static void hash_task(void *ctx, int level, int thread) {
                            f->step_denc + ((size_t)c * slot * f->enc.levels + (size_t)level * f->chunk_n[c]) * f->enc.feats,
                            f->enc.feats, level, w->tgrad, w->tmarks, w->tstamp);
   size_t off = (size_t)level * f->enc.size * f->enc.feats;
+  size_t lines;
   vlff_adam_sparse(&f->adam, f->step, sc->lr, f->params + off, w->tgrad, f->adam_m + off, f->adam_v + off,
-                   w->tmarks, w->tstamp, vlff_encoding_entries(&f->enc, level), f->enc.feats);
+                   w->tmarks, w->tstamp, vlff_encoding_entries(&f->enc, level), f->enc.feats, &lines);
+  w->table_lines += lines;
 }
 
 #define MLP_SPLIT 64
@@ -868,7 +872,8 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
     memset(w->grad, 0, f->nmlp * sizeof(float));
     w->loss_rgb = w->loss_depth = w->loss_feat = w->sq_rgb = 0;
     w->samples = 0;
-    w->flops = 0;
+    w->flops = w->gemm_s = 0;
+    w->table_lines = 0;
   }
   struct step_ctx sc = {f, step_chunks(f, f->nrays),
                         f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps))};
@@ -894,6 +899,9 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
       stats->loss_feat += w->loss_feat;
       stats->samples += w->samples;
       stats->flops += w->flops;
+      stats->time_gemm += w->gemm_s;
+      /* Each line of p, m and v read once and written once. */
+      stats->table_bytes += 6.0 * 64.0 * (double)w->table_lines;
       sq += w->sq_rgb;
     }
     stats->step = f->step;

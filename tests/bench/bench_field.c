@@ -5,7 +5,12 @@
  *     all threads; the best of three runs.
  *  2. Training on the analytic test scene: samples/s and dense-layer FLOP/s
  *     as a fraction of that peak, for D = 512 and D = 128 (and D = 512 at
- *     the reference's 2048 rays per step, for comparison).
+ *     the reference's 2048 rays per step and with the paper's MLP sizes, for
+ *     comparison). A second baseline, the memory's streaming bandwidth
+ *     (read-modify-write of three arrays, as Adam does), gives the step's
+ *     roofline: the fraction of peak it would reach if its matrix products
+ *     ran as measured, its table update moved its parameters and moments at
+ *     that bandwidth, and everything else took no time.
  *  3. 3D prompt queries (K = 20, D = 512): points/s folded (labels from E W)
  *     against unfolded (D-dim features, then K dot products), for points in
  *     voxel-grid order and in random order.
@@ -63,6 +68,58 @@ static double fma_peak(int threads) {
   return best;
 }
 
+/* Read-modify-write streams over p, m and v, Adam's pattern (each element
+ * read and written once per array), larger than any last-level cache. */
+struct bw_arg {
+  float *p, *m, *v;
+  size_t n;
+  double t;
+};
+/* One pass each call, behind a barrier: as a loop nest, -O3's loop
+ * interchange would sweep each element four times while it is in cache. */
+__attribute__((noinline)) static void bw_pass(float *restrict p, float *restrict m, float *restrict v, size_t n) {
+  for (size_t i = 0; i < n; i++) {
+    m[i] = 0.9f * m[i] + 0.1f;
+    v[i] = 0.99f * v[i] + 0.01f;
+    p[i] -= 1e-3f * m[i];
+  }
+  __asm__ volatile("" ::: "memory");
+}
+static void *bw_thread(void *q) {
+  struct bw_arg *a = q;
+  for (size_t i = 0; i < a->n; i++) a->p[i] = a->m[i] = a->v[i] = 1.0f;
+  double t0 = now();
+  for (int pass = 0; pass < 4; pass++) bw_pass(a->p, a->m, a->v, a->n);
+  a->t = now() - t0;
+  return NULL;
+}
+
+/* Bytes/s over all threads: 256 MB of arrays in all, best of three. */
+static double stream_bw(int threads) {
+  double best = 0;
+  size_t n = ((size_t)256 << 20) / 12 / (size_t)threads;
+  float *mem = malloc(n * 12 * (size_t)threads);
+  if (!mem) return 0;
+  for (int rep = 0; rep < 3; rep++) {
+    pthread_t tid[256];
+    struct bw_arg arg[256];
+    for (int i = 0; i < threads; i++) {
+      float *base = mem + (size_t)i * 3 * n;
+      arg[i] = (struct bw_arg){base, base + n, base + 2 * n, n, 0};
+      pthread_create(&tid[i], NULL, bw_thread, &arg[i]);
+    }
+    double slow = 0;
+    for (int i = 0; i < threads; i++) {
+      pthread_join(tid[i], NULL);
+      if (arg[i].t > slow) slow = arg[i].t;
+    }
+    double b = 4.0 * 24.0 * (double)n * threads / slow;
+    if (b > best) best = b;
+  }
+  free(mem);
+  return best;
+}
+
 struct scene {
   int nv, d;
   struct scene_view sv[12];
@@ -90,10 +147,18 @@ static int cmp_double(const void *a, const void *b) {
 
 /* Medians over the timed steps: samples/s, dense-layer FLOP/s, the same
  * FLOP/s over the rays phase alone (what a free table update would leave),
- * and each phase's share of the step. */
+ * each phase's share of the step, and per step: the FLOPs, their products'
+ * seconds (summed over threads) and the table update's bytes. */
 struct rate {
-  double sps, fps, fps_rays, share[3];
+  double sps, fps, fps_rays, share[3], flops, gemm_s, table_bytes;
 };
+
+/* The roofline above: FLOPs at the peak over the products' wall time (their
+ * thread time spread over the threads) plus the table's bytes at the
+ * streaming bandwidth. */
+static double bound(const struct rate *r, double peak, double bw, int threads) {
+  return r->flops / peak / (r->gemm_s / threads + r->table_bytes / bw);
+}
 
 /* Trains `steps` steps, timing each of the last `timed` (the machine is
  * shared: a median of short windows resists other processes' bursts better
@@ -101,7 +166,7 @@ struct rate {
 static struct rate train(struct vlff_field *f, struct scene *s, int steps, int timed, double *psnr) {
   char err[256];
   struct vlff_train_stats st;
-  double col[6][256];
+  double col[9][256];
   int k = 0;
   for (int i = 0; i < steps; i++) {
     double t0 = now();
@@ -117,16 +182,19 @@ static struct rate train(struct vlff_field *f, struct scene *s, int steps, int t
       col[3][k] = st.time_rays / t;
       col[4][k] = st.time_table / t;
       col[5][k] = st.time_dense / t;
+      col[6][k] = st.flops;
+      col[7][k] = st.time_gemm;
+      col[8][k] = st.table_bytes;
       k++;
     }
   }
-  double med[6];
-  for (int c = 0; c < 6; c++) {
+  double med[9];
+  for (int c = 0; c < 9; c++) {
     qsort(col[c], k, sizeof(double), cmp_double);
     med[c] = col[c][k / 2];
   }
   *psnr = st.psnr;
-  return (struct rate){med[0], med[1], med[2], {med[3], med[4], med[5]}};
+  return (struct rate){med[0], med[1], med[2], {med[3], med[4], med[5]}, med[6], med[7], med[8]};
 }
 
 static struct vlff_field *field_or_exit(const struct vlff_config *c) {
@@ -242,11 +310,22 @@ int main(int argc, char **argv) {
     sps2k = r.sps;
     fps2k = r.fps;
   }
+  /* The paper's MLP sizes (density and colour 128 x 2, feature 512 x 2
+   * hidden) on the same table: about 25x the dense FLOPs per sample of the
+   * defaults, so the step is bound by its matrix products, not the table.
+   * Informative: the defaults trade those FLOPs for samples/s. */
+  struct vlff_config cp = c;
+  cp.field.density_width = cp.field.color_width = 128;
+  cp.field.density_layers = cp.field.color_layers = 2;
+  cp.field.feature_width = 512;
+  cp.field.feature_layers = 2;
+  struct rate rp = train_fresh(&cp, &s, 6, 4);
   struct vlff_field *f = field_or_exit(&c);
   struct rate tr = train(f, &s, 16, 12, &psnr);
   double sps = tr.sps, fps = tr.fps;
   double p2 = fma_peak(threads);
   if (p2 > peak) peak = p2;
+  double bw = stream_bw(threads);
   printf("FMA peak (all cores, %s): %.1f GFLOP/s\n", vlff_gemm_isa(), peak / 1e9);
   printf("train D=128: %.0f samples/s, %.1f GFLOP/s = %.1f%% of peak\n", sps128, fps128 / 1e9, 100 * fps128 / peak);
   printf("train D=512: %.0f samples/s, %.1f GFLOP/s = %.1f%% of peak (%d rays per step)\n", sps, fps / 1e9,
@@ -257,6 +336,16 @@ int main(int argc, char **argv) {
   printf("train D=512 step: rays %.0f%%, hash table (scatter + Adam) %.0f%%, dense-layer Adam %.0f%% of the time;\n"
          "  over the rays phase alone the dense layers run at %.1f%% of peak (the bound with a free table update)\n",
          100 * tr.share[0], 100 * tr.share[1], 100 * tr.share[2], 100 * tr.fps_rays / peak);
+  double roof = bound(&tr, peak, bw, threads);
+  printf("memory streaming bandwidth (read-modify-write, all cores): %.1f GB/s\n"
+         "train D=512 roofline: its matrix products at %.1f%% of peak while they run (%.2f ms of thread time per "
+         "step), the table's parameters and moments %.1f MB per step (%.2f ms at that bandwidth); were all else "
+         "free (hash-grid gather and scatter, sampling, rendering, losses), the step would reach %.1f%% of peak\n",
+         bw / 1e9, 100 * tr.flops / tr.gemm_s / peak * threads, 1e3 * tr.gemm_s, tr.table_bytes / 1e6,
+         1e3 * tr.table_bytes / bw, 100 * roof);
+  printf("train D=512 with the paper's MLP sizes: %.0f samples/s, %.1f GFLOP/s = %.1f%% of peak "
+         "(%.1fx the default's dense FLOPs per sample)\n",
+         rp.sps, rp.fps / 1e9, 100 * rp.fps / peak, (rp.fps / rp.sps) / (fps / sps));
   train(f, &s, 60, 2, &psnr);
   printf("fitted for %lld steps: train PSNR %.1f dB\n", vlff_field_steps(f), psnr);
 
@@ -404,8 +493,8 @@ int main(int argc, char **argv) {
          "(speedup %.1fx); label accuracy %.3f vs %.3f\n",
          W, H, px, c.train.samples_per_ray, pxu, px / pxu, (double)ok / (W * H), (double)oku / (W * H));
   printf("RESULT train_samples_per_s=%.0f train_peak_frac=%.3f query3d_pts_per_s=%.0f fold_speedup=%.2f "
-         "render2d_px_per_s=%.0f\n",
-         sps, fps / peak, q_grid, q_grid / q_unf, px);
+         "render2d_px_per_s=%.0f train_roofline_frac=%.3f paper_mlp_peak_frac=%.3f\n",
+         sps, fps / peak, q_grid, q_grid / q_unf, px, roof, rp.fps / peak);
   vlff_pool_destroy(pool);
   vlff_field_destroy(fu);
   vlff_field_destroy(f);

@@ -592,7 +592,9 @@ static void test_adam(void **state) {
   float s[140], gs[140] = {0}, ms[140] = {0}, vs[140] = {0};
   for (int i = 0; i < 140; i++) s[i] = 1;
   gs[2] = gs[3] = gs[128] = gs[129] = 1;
-  assert_int_equal(vlff_adam_sparse(&a, 1, a.lr, s, gs, ms, vs, marks, 5, 70, 2), 2);
+  size_t lines = 0;
+  assert_int_equal(vlff_adam_sparse(&a, 1, a.lr, s, gs, ms, vs, marks, 5, 70, 2, &lines), 2);
+  assert_int_equal(lines, 2); /* bytes 8-15 and 512-519 of p */
   assert_true(s[0] == 1 && s[1] == 1 && fabsf(s[2] - 0.99f) < 1e-6f && fabsf(s[3] - 0.99f) < 1e-6f);
   assert_true(fabsf(s[128] - 0.99f) < 1e-6f && s[130] == 1 && s[126] == 1);
   for (int i = 0; i < 70; i++) assert_true(gs[2 * i] == 0 && gs[2 * i + 1] == 0);
@@ -657,7 +659,17 @@ static void test_adam(void **state) {
         rp[i] -= a.lr * (mi * c1) / (sqrtf(vi * c2) + a.eps);
       }
     }
-    assert_int_equal(vlff_adam_sparse(&a, 3, a.lr, pp, gg, mm, vv, mk, stamp, NE, width), expect);
+    /* The lines: every 64-byte block of p that a marked entry's bytes
+     * reach, counted once (at width 3 an entry can straddle two, and the
+     * words' boundaries fall inside lines). */
+    bool hit[NE * 3 * 4 / 64 + 1] = {false};
+    size_t expect_lines = 0;
+    for (size_t e = 0; e < NE; e++)
+      if ((bb[e / 64] >> (e % 64)) & 1)
+        for (size_t l = e * width * 4 / 64; l <= ((e + 1) * width * 4 - 1) / 64; l++)
+          if (!hit[l]) hit[l] = true, expect_lines++;
+    assert_int_equal(vlff_adam_sparse(&a, 3, a.lr, pp, gg, mm, vv, mk, stamp, NE, width, &lines), expect);
+    assert_int_equal(lines, expect_lines);
     for (size_t i = 0; i < nf; i++) {
       size_t e = i / width;
       bool moved = (bb[e / 64] >> (e % 64)) & 1;
