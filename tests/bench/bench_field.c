@@ -99,7 +99,10 @@ static double stream_bw(int threads) {
   double best = 0;
   size_t n = ((size_t)256 << 20) / 12 / (size_t)threads;
   float *mem = malloc(n * 12 * (size_t)threads);
-  if (!mem) return 0;
+  if (!mem) {
+    fprintf(stderr, "bench: no memory for the bandwidth baseline (256 MB)\n");
+    exit(1);
+  }
   for (int rep = 0; rep < 3; rep++) {
     pthread_t tid[256];
     struct bw_arg arg[256];
@@ -311,7 +314,7 @@ int main(int argc, char **argv) {
     fps2k = r.fps;
   }
   /* The paper's MLP sizes (density and colour 128 x 2, feature 512 x 2
-   * hidden) on the same table: about 25x the dense FLOPs per sample of the
+   * hidden) on the same table: about 30x the dense FLOPs per sample of the
    * defaults, so the step is bound by its matrix products, not the table.
    * Informative: the defaults trade those FLOPs for samples/s. */
   struct vlff_config cp = c;

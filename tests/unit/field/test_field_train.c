@@ -277,6 +277,7 @@ static void test_ray_budget(void **state) {
   assert_int_equal(vlff_field_set_rays(f, 0), 1);
   assert_int_equal(vlff_field_set_rays(f, 1 << 20), 512);
   long long samples[2];
+  double table[2];
   const int rays[2] = {64, 512};
   for (int k = 0; k < 2; k++) {
     assert_int_equal(vlff_field_set_rays(f, rays[k]), rays[k]);
@@ -284,11 +285,17 @@ static void test_ray_budget(void **state) {
     assert_int_equal(vlff_field_step(f, &sv.v, 1, NULL, &st, err, sizeof(err)), 0);
     assert_true(isfinite(st.loss));
     samples[k] = st.samples;
+    /* The roofline's counters: products timed, whole lines of p, m and v
+     * each read and written, more of them for more rays. */
+    assert_true(st.flops > 0 && st.time_gemm > 0);
+    table[k] = st.table_bytes;
+    assert_true(table[k] > 0 && fmod(table[k], 6 * 64) == 0);
     /* Every ray of this view hits the scene and has depth: S samples each. */
     assert_true(samples[k] > (long long)rays[k] * cfg.train.samples_per_ray / 2);
     assert_true(samples[k] <= (long long)rays[k] * cfg.train.samples_per_ray);
   }
   assert_true(samples[1] > 4 * samples[0]);
+  assert_true(table[1] > table[0]);
   scene_view_free(&sv);
   vlff_field_destroy(f);
 }
