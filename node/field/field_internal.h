@@ -30,6 +30,9 @@ void vlff_pool_run(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
  * t) when it is free: for tasks of unequal cost whose results do not depend
  * on the thread that runs them. */
 void vlff_pool_run_dynamic(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
+/* CLOCK_MONOTONIC in seconds: the pool's spin, the step's phases and the
+ * GEMM's per-thread time share it. */
+double vlff_seconds(void);
 
 /* ---- encoding (encoding.c) --------------------------------------------- */
 struct vlff_encoding {

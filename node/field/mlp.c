@@ -13,7 +13,6 @@
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "field_internal.h"
 
@@ -110,20 +109,14 @@ const char *vlff_gemm_isa(void) {
  * about 500 per default step, 0.2 % of it. */
 static _Thread_local double gemm_seconds;
 
-static double now_s(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
-
 double vlff_gemm_thread_seconds(void) { return gemm_seconds; }
 
 void vlff_gemm_mask(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
                     float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask) {
   pthread_once(&gemm_once, gemm_init);
-  double t0 = now_s();
+  double t0 = vlff_seconds();
   gemm_impl(m, n, k, a, ars, acs, b, ldb, c, ldc, bias, accumulate, relu, mask);
-  gemm_seconds += now_s() - t0;
+  gemm_seconds += vlff_seconds() - t0;
 }
 
 void vlff_score(SCORE_ARGS) {

@@ -56,10 +56,10 @@ static void cpu_relax(void) {
 #endif
 }
 
-static double now_us(void) {
+double vlff_seconds(void) {
   struct timespec t;
   clock_gettime(CLOCK_MONOTONIC, &t);
-  return 1e6 * (double)t.tv_sec + 1e-3 * (double)t.tv_nsec;
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
 /* Polls until done(p, arg) holds or VLFF_POOL_SPIN_US pass; returns whether
@@ -70,7 +70,7 @@ static int spin_until(struct vlff_pool *p, int (*done)(struct vlff_pool *, unsig
   for (unsigned i = 0;; i++) {
     if (done(p, arg)) return 1;
     if ((i & 63) == 0) {
-      double t = now_us();
+      double t = 1e6 * vlff_seconds();
       if (end == 0) end = t + VLFF_POOL_SPIN_US;
       else if (t >= end) return done(p, arg);
     }

@@ -18,7 +18,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <stdio.h>
-#include <time.h>
 
 #include "field_internal.h"
 
@@ -664,11 +663,6 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
 
 /* ---- one optimisation step ---------------------------------------------- */
 
-static double seconds(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
 
 struct step_ctx {
   struct vlff_field *f;
@@ -877,14 +871,14 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   }
   struct step_ctx sc = {f, step_chunks(f, f->nrays),
                         f->adam.lr * powf((float)f->cfg.train.lr_decay, (float)(f->step / f->cfg.train.lr_decay_steps))};
-  double t0 = seconds();
+  double t0 = vlff_seconds();
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
-  double t1 = seconds();
+  double t1 = vlff_seconds();
   vlff_pool_run_dynamic(f->pool, f->enc.levels, hash_task, &sc);
-  double t2 = seconds();
+  double t2 = vlff_seconds();
   vlff_pool_run(f->pool, MLP_SPLIT, mlp_task, &sc);
   refresh_weights(f);
-  double t3 = seconds();
+  double t3 = vlff_seconds();
   f->views = NULL;
   if (f->cfg.train.sampling != VLFF_SAMPLING_UNIFORM && f->step % f->cfg.train.occupancy_update_steps == 0)
     vlff_field_occupancy_update(f, 0);

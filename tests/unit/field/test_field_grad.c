@@ -399,20 +399,20 @@ static void test_encoding(void **state) {
   free(marks);
 }
 
-/* The AVX-512 and AVX2 kernels (isa) against the portable loops: the same touched entries,
- * outputs and gradients equal to float rounding (a term is one fused
- * multiply-add in the kernels; the portable loops contract to the same in
- * GCC's AVX-512 clones, the default build, and round the product first
- * where they are compiled without FMA). Dense and hashed levels, points on
- * the box faces, a count that ends inside a vector, a prefetch group and a
- * coordinate block, and masked (inactive) levels. */
 /* FNV-1a of n bytes, continuing from h. */
 static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
   for (size_t i = 0; i < n; i++) h = (h ^ ((const unsigned char *)p)[i]) * 0x100000001b3ull;
   return h;
 }
 
-/* *bits receives a digest of the kernel's outputs and gradients. */
+/* The AVX-512 and AVX2 kernels (isa) against the portable loops: the same touched entries,
+ * outputs and gradients equal to float rounding (a term is one fused
+ * multiply-add in the kernels; the portable loops contract to the same in
+ * GCC's AVX-512 clones, the default build, and round the product first
+ * where they are compiled without FMA). Dense and hashed levels, points on
+ * the box faces, a count that ends inside a vector, a prefetch group and a
+ * coordinate block, and masked (inactive) levels. *bits receives a digest
+ * of the kernel's outputs and gradients. */
 static void check_encoding_simd(int isa, uint64_t *bits) {
   struct vlff_config cfg;
   vlff_config_defaults(&cfg);
