@@ -29,7 +29,7 @@ endfunction()
 # VLFF_EMULATOR (qemu-user there, empty otherwise) before the program.
 string(REPLACE ";" " " VLFF_EMULATOR "${CMAKE_CROSSCOMPILING_EMULATOR}")
 set(VLFF_TEST_ENV "VLFF_SOURCE_DIR=${PROJECT_SOURCE_DIR}" "VLFF_BINARY_DIR=${PROJECT_BINARY_DIR}"
-    "VLFF_SHARED_DIR=${PROJECT_SOURCE_DIR}/../shared" "VLFF_EMULATOR=${VLFF_EMULATOR}")
+    "VLFF_DATA_DIR=${PROJECT_SOURCE_DIR}/node/vlm/data" "VLFF_EMULATOR=${VLFF_EMULATOR}")
 function(vlff_test name)
   cmake_parse_arguments(T "" "TIMEOUT" "SOURCES;LIBS;LABELS;ARGS" ${ARGN})
   add_executable(${name} ${T_SOURCES})

@@ -129,7 +129,7 @@ int main(void) {
   vlff_log_set_level(VLFF_LOG_WARN);
   const char *src = getenv("VLFF_SOURCE_DIR") ? getenv("VLFF_SOURCE_DIR") : VLFF_SOURCE_DEFAULT;
   char bpe[512], cmd[1024];
-  snprintf(bpe, sizeof bpe, "%s/../shared/data/clip/bpe_simple_vocab_16e6.txt.gz", src);
+  snprintf(bpe, sizeof bpe, "%s/node/vlm/data/bpe_simple_vocab_16e6.txt.gz", src);
   snprintf(dir, sizeof dir, "/tmp/vlff-bench-vlm-%d", (int)getpid());
   snprintf(cmd, sizeof cmd, "mkdir -p %s", dir);
   if (system(cmd)) return 1;

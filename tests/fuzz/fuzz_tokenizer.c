@@ -10,9 +10,9 @@
 static struct vlff_tokenizer *tok;
 
 int LLVMFuzzerInitialize(int *argc, char ***argv) {
-  const char *dir = getenv("VLFF_SHARED_DIR");
+  const char *dir = getenv("VLFF_DATA_DIR");
   char path[1024];
-  snprintf(path, sizeof path, "%s/data/clip/bpe_simple_vocab_16e6.txt.gz", dir ? dir : VLFF_SHARED_DEFAULT);
+  snprintf(path, sizeof path, "%s/bpe_simple_vocab_16e6.txt.gz", dir ? dir : VLFF_DATA_DEFAULT);
   char err[512];
   tok = vlff_tokenizer_open(path, err, sizeof err);
   if (!tok) {

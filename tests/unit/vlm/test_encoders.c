@@ -189,8 +189,8 @@ static const char *prompts[] = {"chair", "a photo of a chair.", "there's a red m
 static void text_config(struct vlff_config *cfg) {
   vlff_config_defaults(cfg);
   snprintf(cfg->vlm.text_model, sizeof cfg->vlm.text_model, "%s/text.onnx", dir);
-  snprintf(cfg->vlm.bpe_vocab, sizeof cfg->vlm.bpe_vocab, "%s/data/clip/bpe_simple_vocab_16e6.txt.gz",
-           getenv("VLFF_SHARED_DIR"));
+  snprintf(cfg->vlm.bpe_vocab, sizeof cfg->vlm.bpe_vocab, "%s/bpe_simple_vocab_16e6.txt.gz",
+           getenv("VLFF_DATA_DIR"));
   cfg->field.feature_dim = 32;
 }
 

@@ -17,9 +17,9 @@ static char merges_path[512];
 static struct vlff_tokenizer *tok;
 
 static int setup(void **state) {
-  const char *shared = getenv("VLFF_SHARED_DIR");
-  assert_non_null(shared);
-  snprintf(merges_path, sizeof merges_path, "%s/data/clip/bpe_simple_vocab_16e6.txt.gz", shared);
+  const char *data = getenv("VLFF_DATA_DIR");
+  assert_non_null(data);
+  snprintf(merges_path, sizeof merges_path, "%s/bpe_simple_vocab_16e6.txt.gz", data);
   char err[256] = "";
   tok = vlff_tokenizer_open(merges_path, err, sizeof err);
   if (!tok) fprintf(stderr, "%s\n", err);
@@ -40,7 +40,7 @@ static long enc(const char *s, int32_t *ids, size_t cap) {
 
 static void test_reference_vectors(void **state) {
   char path[512];
-  snprintf(path, sizeof path, "%s/data/clip/tokenizer-vectors.tsv", getenv("VLFF_SHARED_DIR"));
+  snprintf(path, sizeof path, "%s/tokenizer-vectors.tsv", getenv("VLFF_DATA_DIR"));
   FILE *f = fopen(path, "r");
   assert_non_null(f);
   char line[4096];
