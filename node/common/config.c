@@ -49,6 +49,7 @@ static const char *const feat_losses[] = {"l2", "l1", NULL};
 static const char *const samplings[] = {"depth", "uniform", NULL};
 static const char *const label_images[] = {"surface", "render", NULL};
 static const char *const trajectories[] = {"walk", "orbit", NULL};
+static const char *const sim_layouts[] = {"room", "flat", NULL};
 static const char *const camera_kinds[] = {"aravis", "libcamera", "sim", NULL};
 static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
@@ -98,6 +99,8 @@ static const struct key schema[] = {
     INT("sim.feature_dim", sim.feature_dim, 8, 1024, 512),
     DBL("sim.difficulty", sim.difficulty, 0, 1, 0.5),
     ENUM("sim.trajectory", sim.trajectory, trajectories, "walk"),
+    ENUM("sim.layout", sim.layout, sim_layouts, "room"),
+    DBL("sim.object_bias", sim.object_bias, 0, 1, 0),
     DBL("sim.speed_mps", sim.speed_mps, 0.01, 10, 0.4),
     DBL("sim.depth_noise_m", sim.depth_noise_m, 0, 1, 0.01),
     DBL("sim.depth_hole_frac", sim.depth_hole_frac, 0, 1, 0.02),
