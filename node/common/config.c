@@ -45,7 +45,7 @@ struct key {
 static const char *const log_levels[] = {"error", "warn", "info", "debug", NULL};
 static const char *const source_kinds[] = {"sim", "ring", "dataset", NULL};
 static const char *const feature_sources[] = {"sim", "model", "ring", NULL};
-static const char *const feat_losses[] = {"l2", "l1", NULL};
+static const char *const feat_losses[] = {"l2", "l1", "cos", NULL};
 static const char *const samplings[] = {"depth", "uniform", NULL};
 static const char *const label_images[] = {"surface", "render", NULL};
 static const char *const trajectories[] = {"walk", "orbit", NULL};

@@ -185,7 +185,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->adam.eps = (float)cfg->train.eps;
   f->adam.wd = (float)cfg->train.weight_decay;
   f->adam.simd = vlff_gemm_isa_level(); /* as the encoding: VLFF_GEMM=generic is all portable */
-  f->feat_l1 = cfg->train.feature_loss == VLFF_FEAT_LOSS_L1;
+  f->feat_loss = cfg->train.feature_loss;
 
   f->pool = vlff_pool_create(cfg->node.threads);
   if (!f->pool) {
@@ -584,7 +584,7 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
         const struct vlff_view *v = &f->views[ray->view];
         const uint16_t *src = v->features + (size_t)ray->feat_index * D;
         vlff_f16_to_f32_n(src, w->tfeat, (size_t)D);
-        w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_l1, f->scale_feat, gfr) *
+        w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_loss, f->scale_feat, gfr) *
                         f->scale_feat;
         gfb[r] = dot_h(D, gfr, b3);
         axpy_h(D, w->wsum[r], gfr, g + m3->boff[last]);
