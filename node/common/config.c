@@ -142,6 +142,7 @@ static const struct key schema[] = {
     DBL("train.depth_weight", train.depth_weight, 0, 100, 0.1),
     DBL("train.feature_weight", train.feature_weight, 0, 100, 0.5),
     ENUM("train.feature_loss", train.feature_loss, feat_losses, "l1"),
+    DBL("train.class_balance", train.class_balance, 0, 1, 0),
     DBL("train.near_m", train.near_m, 0, 100, 0.05),
     INT("train.occupancy_resolution", train.occupancy_resolution, 8, 512, 64),
     INT("train.occupancy_update_steps", train.occupancy_update_steps, 1, 1 << 20, 16),

@@ -128,6 +128,7 @@ struct vlff_config {
     double depth_weight;
     double feature_weight;
     int feature_loss;                /* enum vlff_feat_loss */
+    double class_balance;            /* 0..1: ray drawing evens out the raw features' prompt classes */
     double near_m;
     int occupancy_resolution;
     int occupancy_update_steps;

@@ -434,17 +434,20 @@ int main(int argc, char **argv) {
     /* in chunks: [n][D] floats of a whole scene can be large */
     const size_t chunk = 8192;
     float *acc = xcalloc(chunk * D, sizeof(float));
+    int *seen = xcalloc(chunk, sizeof(int));
+    size_t unseen = 0;
     for (size_t s0 = 0; s0 < np; s0 += chunk) {
       size_t m = np - s0 < chunk ? np - s0 : chunk;
-      if (vlff_fusion(sc.pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, NULL, err, sizeof err) < 0) die("%s", err);
+      if (vlff_fusion(sc.pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, seen, err, sizeof err) < 0) die("%s", err);
       vlff_classify_f32(acc, m, D, sc.emb, K, p3 + s0, NULL);
+      for (size_t k = 0; k < m; k++) unseen += seen[k] == 0 && sc.pts.label[s0 + k] < K;
     }
-    free(acc);
+    free(acc), free(seen);
     free(fv);
     vlff_confusion_add(&r3_fusion.c, sc.pts.label, p3, np);
     summarize(&r3_fusion);
-    fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f (%.1f s)\n", 100 * r2_raw.s.miou,
-            100 * r3_fusion.s.miou, now_s() - t);
+    fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f, %zu labelled points no training view saw (%.1f s)\n",
+            100 * r2_raw.s.miou, 100 * r3_fusion.s.miou, unseen, now_s() - t);
   }
 
   /* ---- field ---- */
@@ -457,6 +460,9 @@ int main(int argc, char **argv) {
   if (o.iters > 0 || o.fit_seconds > 0) {
     struct vlff_field *fld = vlff_field_create(&cfg, err, sizeof err);
     if (!fld) die("%s", err);
+    /* the prompts are known before fitting, as in the node (class-balanced
+     * ray drawing reads them) */
+    if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
     struct vlff_view *views = xcalloc((size_t)ntrain, sizeof *views);
     int nv = 0;
     double s = (double)sc.tw / sc.W, sy = (double)sc.th / sc.H;

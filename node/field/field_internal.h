@@ -282,6 +282,11 @@ struct vlff_field {
   const struct vlff_view *views;
   float scale_rgb, scale_depth, scale_feat;
   int feat_loss;                 /* enum vlff_feat_loss */
+  /* class-balanced ray drawing (train.class_balance): running frequency of
+   * each prompt's pseudo-class among candidate pixels, and a scratch
+   * feature */
+  double bal_freq[VLFF_MAX_PROMPTS];
+  float *bal_feat;
   int render_feat;         /* rendering needs MLP3 */
 };
 

@@ -37,13 +37,13 @@ printf '%s\n' "${rows[@]}" | awk '
   function val(k) { return (k in v) ? v[k] : "n/a" }
   BEGIN {
     nk = split("miou3d miou3d_fusion miou2d miou2d_raw macc2d macc2d_raw worst_class_vs_fusion fit_seconds steps", key, " ")
-    hdr = sprintf("%-8s", "scene"); for (i = 1; i <= nk; i++) hdr = hdr sprintf(" %13s", key[i]); print hdr
+    hdr = sprintf("%-9s", "scene"); for (i = 1; i <= nk; i++) hdr = hdr sprintf(" %13s", key[i]); print hdr
     worst = ""
   }
   {
     delete v
     for (i = 2; i <= NF; i++) { split($i, kv, "="); v[kv[1]] = kv[2] }
-    line = sprintf("%-8s", $1); for (i = 1; i <= nk; i++) line = line sprintf(" %13s", val(key[i])); print line
+    line = sprintf("%-9s", $1); for (i = 1; i <= nk; i++) line = line sprintf(" %13s", val(key[i])); print line
     if ($1 ~ /^flat:/) {
       nf++
       for (i = 1; i <= nk; i++) if (val(key[i]) != "n/a") { s[key[i]] += v[key[i]]; c[key[i]]++ }
@@ -52,7 +52,7 @@ printf '%s\n' "${rows[@]}" | awk '
     } else if ($1 ~ /^room:/) { room3 = val("miou3d"); roomf = val("miou3d_fusion") }
   }
   END {
-    res = "RESULT"; line = sprintf("%-8s", "flat mean")
+    res = "RESULT"; line = sprintf("%-9s", "flat mean")
     for (i = 1; i <= nk; i++) {
       k = key[i]
       m = (k == "worst_class_vs_fusion") ? (worst == "" ? "n/a" : worst) : (c[k] ? sprintf("%.1f", s[k] / c[k]) : "n/a")
