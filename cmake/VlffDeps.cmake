@@ -57,17 +57,6 @@ vlff_optional(OPENCV OpenCV_FOUND "OpenCV core/imgproc/calib3d/imgcodecs/dnn not
 find_package(HDF5 QUIET COMPONENTS C)
 vlff_optional(HDF5 HDF5_FOUND "HDF5 C library not found: apt install libhdf5-dev")
 
-check_language(CUDA)
-if(CMAKE_CUDA_COMPILER)
-  set(_cuda_found TRUE)
-else()
-  set(_cuda_found FALSE)
-endif()
-vlff_optional(CUDA _cuda_found "no CUDA compiler (nvcc) found")
-if(VLFF_WITH_CUDA)
-  enable_language(CUDA)
-endif()
-
 if(VLFF_FUZZ AND NOT CMAKE_C_COMPILER_ID STREQUAL "Clang")
   message(FATAL_ERROR "VLFF_FUZZ=ON needs clang (configure with CC=clang)")
 endif()
