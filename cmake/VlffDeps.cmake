@@ -63,4 +63,7 @@ endif()
 
 string(REPLACE ";" " " _on "${_vlff_on}")
 string(REPLACE ";" ", " _off "${_vlff_off}")
+if(NOT _off)
+  set(_off "none")
+endif()
 message(STATUS "vlff parts on: ${_on}; off: ${_off}")
