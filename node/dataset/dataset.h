@@ -44,6 +44,8 @@
 #include <stdint.h>
 
 #define VLFF_DS_NAME 64
+/* One frame's features may claim at most this much memory. */
+#define VLFF_DS_MAX_FEATURE_FRAME_BYTES (256ull << 20)
 
 enum vlff_dataset_layout { VLFF_DS_AUTO, VLFF_DS_REFERENCE, VLFF_DS_SCANNET };
 
