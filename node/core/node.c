@@ -719,7 +719,7 @@ static void take_candidates(struct vlff_node *n, bool wait) {
     if (n->mapping && vlff_publisher_check_view(n->pub, &c->view, verr, sizeof verr)) {
       /* Implausible intrinsics or pose would make every ray of this view
        * wrong (and, unbounded, endless): never train on or map it. */
-      VLFF_WARN(TAG, "keyframe %lld refused: %s", c->id, verr);
+      VLFF_WARN(TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s", c->id, verr);
       STAT_ADD(n, frames_invalid, 1);
     } else if (n->mapping) {
       if (!pose_check(n, c)) {
