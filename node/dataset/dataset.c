@@ -19,6 +19,7 @@
 #include <hdf5.h>
 #endif
 
+#include "bounds.h"
 #include "dataset_internal.h"
 #include "files.h"
 
@@ -282,6 +283,11 @@ static int check_intrinsics(struct vlff_dataset *ds, const double K[16], const c
     seterr(err, errlen, "%s: not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1])", path);
     return -1;
   }
+  char why[200];
+  if (vlff_intrinsics_plausible(ds->width, ds->height, ds->fx, ds->fy, ds->cx, ds->cy, why, sizeof why)) {
+    seterr(err, errlen, "%s: not a physical camera for the %dx%d images: %s", path, ds->width, ds->height, why);
+    return -1;
+  }
   return 0;
 }
 
@@ -410,6 +416,19 @@ int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char
     free(buf);
     if (rc < 0) goto fail;
     ds->has_bbox = 1;
+  }
+  /* Camera positions against the scene box (or an absolute bound without
+   * one): a translation of 1e300 would wreck every result silently. */
+  for (int i = 0; i < ds->n; i++) {
+    char why[200];
+    if (vlff_pose_plausible(ds->c2w + (size_t)i * 16, ds->has_bbox ? ds->bbox_lo : NULL,
+                            ds->has_bbox ? ds->bbox_hi : NULL, why, sizeof why)) {
+      char name[VLFF_DS_NAME + 8];
+      snprintf(name, sizeof name, "pose/%s.txt", ds->stem[i]);
+      join(p, dir, name);
+      seterr(err, errlen, "%s: %s", p, why);
+      goto fail;
+    }
   }
   join(p, dir, "gt_semantic");
   if (is_dir(p)) {
