@@ -225,7 +225,7 @@ struct entity {
 };
 
 /* Entities a prompt plausibly holds; html.unescape knows ~2200, the rest of
- * which are left as literal text here (documented in the README). */
+ * which are left as literal text here (documented in docs/vlm.md). */
 static const struct entity entities[] = {
     {"amp", '&', true},      {"lt", '<', true},        {"gt", '>', true},         {"quot", '"', true},
     {"apos", '\'', false},   {"nbsp", 0xA0, true},     {"copy", 0xA9, true},      {"reg", 0xAE, true},
