@@ -233,6 +233,24 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
     memcpy(sc->emb + (size_t)k * sc->D, vlff_embeddings_vector(pe, k), (size_t)sc->D * sizeof(float));
   }
   vlff_embeddings_free(pe);
+  /* A ground-truth class without a record would silently count as
+   * unlabelled and drop out of every score: refuse, naming the first file
+   * that uses one. */
+  for (int i = 0; i < sc->n; i++)
+    for (size_t j = 0; j < npx; j++)
+      if (sc->f[i].label[j] != 255 && sc->f[i].label[j] >= sc->K)
+        die("%s: %d records, but %s/gt_semantic/%s.png uses class id %d: ground-truth id k is record k, so "
+            "every class needs one",
+            p, sc->K, dir, ds.stem[i], sc->f[i].label[j]);
+  for (size_t j = 0; j < sc->pts.n; j++)
+    if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K) {
+      char pp[4200];
+      snprintf(pp, sizeof pp, "%s/points.ply", dir);
+      if (access(pp, R_OK) != 0) snprintf(pp, sizeof pp, "%s/mesh.ply", dir);
+      die("%s: %d records, but %s uses class id %d (vertex %zu): ground-truth id k is record k, so every class "
+          "needs one",
+          p, sc->K, pp, sc->pts.label[j], j);
+    }
   if (ds.has_bbox) {
     memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
     memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);
