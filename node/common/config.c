@@ -16,6 +16,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <unistd.h>
 #include <yaml.h>
 
 enum ktype { T_INT, T_DOUBLE, T_BOOL, T_STRING, T_ENUM, T_DVEC };
@@ -574,6 +575,22 @@ int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct v
   yaml_parser_delete(&parser);
   if (rc == 0) *cfg = tmp;
   return rc;
+}
+
+#ifndef VLFF_SYSCONFDIR
+#error "VLFF_SYSCONFDIR must come from the install's sysconfdir (CMake)"
+#endif
+
+const char *vlff_config_default_path(void) { return VLFF_SYSCONFDIR "/vlff/vlff.yaml"; }
+
+const char *vlff_config_find(const char *path, char *err, size_t errlen) {
+  if (path) return path;
+  const char *env = getenv("VLFF_CONFIG");
+  if (env && *env) return env;
+  const char *def = vlff_config_default_path();
+  if (access(def, F_OK) == 0) return def;
+  snprintf(err, errlen, "no config: no --config given, $VLFF_CONFIG not set, %s: %s", def, strerror(errno));
+  return NULL;
 }
 
 int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_t errlen) {

@@ -27,6 +27,7 @@
 #include "config.h"
 #include "dataset.h"
 #include "embeddings.h"
+#include "cli.h"
 #include "field.h"
 #include "metrics.h"
 #include "sim.h"
@@ -34,8 +35,9 @@
 #define TAG "eval"
 #define MAXK VLFF_MAX_PROMPTS
 
-static const char usage[] =
-    "usage: vlff-eval [options]\n"
+static const struct vlff_cli cli = {
+    "vlff-eval",
+    "Usage: vlff-eval [OPTIONS]\n"
     "Fit a feature field to a scene, then evaluate 2D (held-out frames) and 3D\n"
     "(labelled points) segmentation against ground truth and two baselines.\n"
     "\n"
@@ -52,10 +54,13 @@ static const char usage[] =
     "  --out DIR           report directory (default eval-out)\n"
     "  --overlays N        overlay images to write (default 3)\n"
     "  --quiet             no progress bar\n"
+    "  -V, --version       print the version and exit\n"
+    "  -h, --help          print this help and exit\n"
     "\n"
     "examples:\n"
     "  vlff-eval --seed 3 --iters 2000 --out /tmp/eval3\n"
-    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n";
+    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n",
+};
 
 struct opts {
   const char *config, *dataset, *out;
@@ -109,51 +114,61 @@ static void *xcalloc(size_t n, size_t s) {
   return p;
 }
 
+/* A bad value is a usage error like an unknown option: one line, the usage, 2. */
 static int parse_int(const char *s, const char *opt, int lo, int hi) {
   char *e;
   errno = 0;
   long v = strtol(s, &e, 10);
-  if (!*s || *e || errno || v < lo || v > hi) die("%s: expected an integer in %d..%d, got '%s'", opt, lo, hi, s);
+  if (!*s || *e || errno || v < lo || v > hi)
+    exit(vlff_cli_usage_error(&cli, "%s: expected an integer in %d..%d, got '%s'", opt, lo, hi, s));
   return (int)v;
 }
 
 static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
   char *e;
   double v = strtod(s, &e);
-  if (!*s || *e || !(v >= lo && v <= hi)) die("%s: expected a number in %g..%g, got '%s'", opt, lo, hi, s);
+  if (!*s || *e || !(v >= lo && v <= hi))
+    exit(vlff_cli_usage_error(&cli, "%s: expected a number in %g..%g, got '%s'", opt, lo, hi, s));
   return v;
 }
 
 static void parse_args(int argc, char **argv, struct opts *o) {
+  enum { O_CONFIG = 256, O_DATASET, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
+         O_DIFFICULTY, O_QUIET };
+  static const struct option longopts[] = {
+      {"config", required_argument, NULL, O_CONFIG},     {"dataset", required_argument, NULL, O_DATASET},
+      {"out", required_argument, NULL, O_OUT},           {"seed", required_argument, NULL, O_SEED},
+      {"frames", required_argument, NULL, O_FRAMES},     {"feature-dim", required_argument, NULL, O_DIM},
+      {"iters", required_argument, NULL, O_ITERS},       {"holdout", required_argument, NULL, O_HOLDOUT},
+      {"threads", required_argument, NULL, O_THREADS},   {"overlays", required_argument, NULL, O_OVERLAYS},
+      {"difficulty", required_argument, NULL, O_DIFFICULTY}, {"quiet", no_argument, NULL, O_QUIET},
+      VLFF_CLI_COMMON_OPTIONS,
+  };
   memset(o, 0, sizeof *o);
   o->seed = o->frames = o->dim = o->threads = -1;
   o->difficulty = -1;
   o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out";
-  for (int i = 1; i < argc; i++) {
-    const char *a = argv[i];
-    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
-      fputs(usage, stdout);
-      exit(0);
+  int c, status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "", longopts, &status)) != -1) {
+    const char *a = argv[optind - 1], *v = optarg;
+    switch (c) {
+    case VLFF_CLI_EXIT: exit(status);
+    case O_QUIET: o->quiet = 1; break;
+    case O_CONFIG: o->config = v; break;
+    case O_DATASET: o->dataset = v; break;
+    case O_OUT: o->out = v; break;
+    case O_SEED: o->seed = parse_int(v, a, 0, 2147483647); break;
+    case O_FRAMES: o->frames = parse_int(v, a, 2, 100000); break;
+    case O_DIM: o->dim = parse_int(v, a, 8, 1024); break;
+    case O_ITERS: o->iters = parse_int(v, a, 0, 100000000); break;
+    case O_HOLDOUT: o->holdout = parse_int(v, a, 2, 1000); break;
+    case O_THREADS: o->threads = parse_int(v, a, 0, 256); break;
+    case O_OVERLAYS: o->overlays = parse_int(v, a, 0, 1000); break;
+    case O_DIFFICULTY: o->difficulty = parse_dbl(v, a, 0, 1); break;
+    default: exit(vlff_cli_usage_error(&cli, "option '%s' not handled", a));
     }
-    if (!strcmp(a, "--quiet")) {
-      o->quiet = 1;
-      continue;
-    }
-    if (i + 1 >= argc) die("%s needs a value\n%s", a, usage);
-    const char *v = argv[++i];
-    if (!strcmp(a, "--config")) o->config = v;
-    else if (!strcmp(a, "--dataset")) o->dataset = v;
-    else if (!strcmp(a, "--out")) o->out = v;
-    else if (!strcmp(a, "--seed")) o->seed = parse_int(v, a, 0, 2147483647);
-    else if (!strcmp(a, "--frames")) o->frames = parse_int(v, a, 2, 100000);
-    else if (!strcmp(a, "--feature-dim")) o->dim = parse_int(v, a, 8, 1024);
-    else if (!strcmp(a, "--iters")) o->iters = parse_int(v, a, 0, 100000000);
-    else if (!strcmp(a, "--holdout")) o->holdout = parse_int(v, a, 2, 1000);
-    else if (!strcmp(a, "--threads")) o->threads = parse_int(v, a, 0, 256);
-    else if (!strcmp(a, "--overlays")) o->overlays = parse_int(v, a, 0, 1000);
-    else if (!strcmp(a, "--difficulty")) o->difficulty = parse_dbl(v, a, 0, 1);
-    else die("unknown option %s\n%s", a, usage);
   }
+  if (optind < argc) exit(vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]));
 }
 
 /* ---- scene loading ------------------------------------------------------ */
