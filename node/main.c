@@ -20,6 +20,9 @@
 #ifdef VLFF_HAVE_CAN
 #include "vlff_can.h"
 #endif
+#ifdef VLFF_HAVE_SYSTEMD
+#include <systemd/sd-daemon.h>
+#endif
 
 #ifndef VLFF_SYSCONFDIR
 #error "VLFF_SYSCONFDIR must come from the install's sysconfdir (CMake)"
@@ -161,11 +164,32 @@ int main(int argc, char **argv) {
 #else
   if (cfg.can.enabled) VLFF_WARN("node", "can.enabled, but this vlff-node was built without SocketCAN");
 #endif
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Under systemd (Type=notify) the node is ready once its threads run; with
+   * WatchdogSec the watchdog is fed only while both the trainer and the
+   * ingest thread pass their loops, so a hung thread gets the node restarted
+   * even though this main loop still runs. Outside systemd these are no-ops. */
+  uint64_t wd_usec = 0;
+  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
+  sd_notify(0, "READY=1");
+  double last_wd = 0;
+#endif
   double t0 = mono_s(), last_line = 0;
   while (!stop_requested && !vlff_node_finished(node)) {
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
     double now = mono_s();
+#ifdef VLFF_HAVE_SYSTEMD
+    if (wd_usec && now - last_wd >= (double)wd_usec * 0.25e-6) {
+      struct vlff_node_status st;
+      vlff_node_status(node, &st);
+      uint64_t t = vlff_shm_now_ns(), stale = wd_usec * 500; /* half the period, in ns */
+      if (t - st.trainer_beat_ns < stale && t - st.ingest_beat_ns < stale) sd_notify(0, "WATCHDOG=1");
+      else VLFF_WARN("node", "watchdog not fed: trainer %.1f s, ingest %.1f s since their last loop",
+                     (double)(t - st.trainer_beat_ns) * 1e-9, (double)(t - st.ingest_beat_ns) * 1e-9);
+      last_wd = now;
+    }
+#endif
 #ifdef VLFF_HAVE_CAN
     if (can && now - last_can >= 0.1) {
       struct vlff_node_status st;
@@ -191,6 +215,9 @@ int main(int argc, char **argv) {
     }
   }
   if (status_view) fputc('\n', stderr);
+#ifdef VLFF_HAVE_SYSTEMD
+  sd_notify(0, "STOPPING=1");
+#endif
   VLFF_INFO("node", "stopping (%s)", stop_requested == SIGTERM ? "SIGTERM"
                                      : stop_requested == SIGINT ? "SIGINT"
                                                                 : "run_seconds reached");

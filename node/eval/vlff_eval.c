@@ -27,6 +27,8 @@
 #include "config.h"
 #include "dataset.h"
 #include "embeddings.h"
+#include <json-c/json.h>
+
 #include "cli.h"
 #include "field.h"
 #include "metrics.h"
@@ -343,32 +345,28 @@ static void summarize(struct result *r) {
   r->valid = 1;
 }
 
-static void json_summary(FILE *o, const char *name, const struct result *r, int last) {
-  if (!r->valid) {
-    fprintf(o, "    \"%s\": null%s\n", name, last ? "" : ",");
-    return;
-  }
-  fprintf(o, "    \"%s\": {\"miou\": %.6f, \"macc\": %.6f, \"mprec\": %.6f, \"pixel_acc\": %.6f, \"present\": %d, \"classes\": [",
-          name, r->s.miou, r->s.macc, r->s.mprec, r->s.pixel_acc, r->s.present);
+/* A result as JSON (null when it was not computed). json-c escapes every
+ * string: scene paths and prompt texts come from users. */
+static struct json_object *json_result(const struct result *r) {
+  if (!r->valid) return NULL;
+  struct json_object *o = json_object_new_object();
+  json_object_object_add(o, "miou", json_object_new_double(r->s.miou));
+  json_object_object_add(o, "macc", json_object_new_double(r->s.macc));
+  json_object_object_add(o, "mprec", json_object_new_double(r->s.mprec));
+  json_object_object_add(o, "pixel_acc", json_object_new_double(r->s.pixel_acc));
+  json_object_object_add(o, "present", json_object_new_int(r->s.present));
+  struct json_object *cl = json_object_new_array();
   for (int k = 0; k < r->c.k; k++) {
     struct vlff_class_score cs;
     vlff_confusion_class(&r->c, k, &cs);
-    fprintf(o, "%s{\"tp\": %llu, \"fp\": %llu, \"fn\": %llu}", k ? ", " : "", (unsigned long long)cs.tp,
-            (unsigned long long)cs.fp, (unsigned long long)cs.fn);
+    struct json_object *c = json_object_new_object();
+    json_object_object_add(c, "tp", json_object_new_uint64(cs.tp));
+    json_object_object_add(c, "fp", json_object_new_uint64(cs.fp));
+    json_object_object_add(c, "fn", json_object_new_uint64(cs.fn));
+    json_object_array_add(cl, c);
   }
-  fprintf(o, "]}%s\n", last ? "" : ",");
-}
-
-/* JSON string body: prompt texts come from user files */
-static void json_str(FILE *o, const char *s) {
-  fputc('"', o);
-  for (; *s; s++) {
-    unsigned char c = (unsigned char)*s;
-    if (c == '"' || c == '\\') fprintf(o, "\\%c", c);
-    else if (c < 0x20) fprintf(o, "\\u%04x", c);
-    else fputc(c, o);
-  }
-  fputc('"', o);
+  json_object_object_add(o, "classes", cl);
+  return o;
 }
 
 static const char *pct(const struct result *r, double v, char *buf) {
@@ -563,12 +561,15 @@ int main(int argc, char **argv) {
   snprintf(path, sizeof path, "%s/report.md", o.out);
   FILE *md = fopen(path, "w");
   if (!md) die("%s: %s", path, strerror(errno));
-  fprintf(md, "# vlff-eval report\n\nScene: %s (seed %d, difficulty %.2f), %d frames: %d train, %d held out "
-              "(every %d-th); %dx%d images, features %dx%dx%d; %zu labelled points; %d prompts.\n"
-              "Field: %s.\n\n",
-          o.dataset ? o.dataset : "synthetic room", cfg.sim.seed, cfg.sim.difficulty, sc.n, ntrain, ntest, o.holdout,
-          sc.W, sc.H, fw, fh, D, np, K,
-          fitted ? "fitted" : "not fitted (--iters 0)");
+  if (o.dataset)
+    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %d to %d", o.dataset, sc.f[0].index,
+            sc.f[sc.n - 1].index);
+  else
+    fprintf(md, "# vlff-eval report\n\nScene: synthetic room (seed %d, difficulty %.2f)", cfg.sim.seed,
+            cfg.sim.difficulty);
+  fprintf(md, ", %d frames: %d train, %d held out (every %d-th); %dx%d images, features %dx%dx%d; "
+              "%zu labelled points; %d prompts.\nField: %s.\n\n",
+          sc.n, ntrain, ntest, o.holdout, sc.W, sc.H, fw, fh, D, np, K, fitted ? "fitted" : "not fitted (--iters 0)");
   if (fitted)
     fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", o.iters, fit_s,
             o.iters / fit_s, st.loss, st.psnr);
@@ -601,27 +602,45 @@ int main(int argc, char **argv) {
   }
   fclose(md);
   snprintf(path, sizeof path, "%s/report.json", o.out);
-  FILE *js = fopen(path, "w");
-  if (!js) die("%s: %s", path, strerror(errno));
-  fprintf(js, "{\n  \"scene\": \"%s\",\n  \"seed\": %d,\n  \"difficulty\": %.4f,\n  \"frames\": %d,\n  \"train_frames\": %d,\n"
-              "  \"test_frames\": %d,\n  \"points\": %zu,\n  \"iters\": %d,\n  \"fit_seconds\": %.3f,\n  \"classes\": [",
-          o.dataset ? "dataset" : "synthetic", cfg.sim.seed, cfg.sim.difficulty, sc.n, ntrain, ntest, np,
-          fitted ? o.iters : 0, fit_s);
-  for (int k = 0; k < K; k++) {
-    if (k) fputs(", ", js);
-    json_str(js, sc.names[k]);
+  struct json_object *root = json_object_new_object(), *src = json_object_new_object();
+  /* The source is named by what it is: a dataset's path and frames, or the
+   * simulator's parameters; never the simulator's for a dataset run. */
+  if (o.dataset) {
+    json_object_object_add(src, "kind", json_object_new_string("dataset"));
+    json_object_object_add(src, "path", json_object_new_string(o.dataset));
+  } else {
+    json_object_object_add(src, "kind", json_object_new_string("synthetic"));
+    json_object_object_add(src, "seed", json_object_new_int(cfg.sim.seed));
+    json_object_object_add(src, "difficulty", json_object_new_double(cfg.sim.difficulty));
   }
-  fprintf(js, "],\n  \"results\": {\n");
-  json_summary(js, "raw_2d", &r2_raw, 0);
-  json_summary(js, "field_2d", &r2_field, 0);
-  json_summary(js, "fusion_3d", &r3_fusion, 0);
-  json_summary(js, "field_3d", &r3_field, 0);
-  json_summary(js, "field_3d_reference", &r3_field_ref, 1);
-  fprintf(js, "  }\n}\n");
-  fclose(js);
+  struct json_object *trf = json_object_new_array(), *tef = json_object_new_array();
+  for (int i = 0; i < sc.n; i++)
+    json_object_array_add(i % o.holdout == o.holdout / 2 ? tef : trf, json_object_new_int(sc.f[i].index));
+  json_object_object_add(src, "train_frames", trf);
+  json_object_object_add(src, "test_frames", tef);
+  json_object_object_add(root, "source", src);
+  json_object_object_add(root, "frames", json_object_new_int(sc.n));
+  json_object_object_add(root, "holdout", json_object_new_int(o.holdout));
+  json_object_object_add(root, "points", json_object_new_int64((int64_t)np));
+  json_object_object_add(root, "iters", json_object_new_int(fitted ? o.iters : 0));
+  json_object_object_add(root, "fit_seconds", json_object_new_double(fit_s));
+  struct json_object *names = json_object_new_array();
+  for (int k = 0; k < K; k++) json_object_array_add(names, json_object_new_string(sc.names[k]));
+  json_object_object_add(root, "classes", names);
+  struct json_object *res = json_object_new_object();
+  json_object_object_add(res, "raw_2d", json_result(&r2_raw));
+  json_object_object_add(res, "field_2d", json_result(&r2_field));
+  json_object_object_add(res, "fusion_3d", json_result(&r3_fusion));
+  json_object_object_add(res, "field_3d", json_result(&r3_field));
+  json_object_object_add(res, "field_3d_reference", json_result(&r3_field_ref));
+  json_object_object_add(root, "results", res);
+  if (json_object_to_file_ext(path, root, JSON_C_TO_STRING_PRETTY | JSON_C_TO_STRING_NOSLASHESCAPE) < 0)
+    die("%s: %s", path, json_util_get_last_err());
+  json_object_put(root);
 
-  printf("scene: %s seed %d, %d train / %d held-out frames, %zu points\n", o.dataset ? o.dataset : "synthetic",
-         cfg.sim.seed, ntrain, ntest, np);
+  if (o.dataset) printf("scene: dataset %s, frames %d to %d", o.dataset, sc.f[0].index, sc.f[sc.n - 1].index);
+  else printf("scene: synthetic room, seed %d, difficulty %.2f", cfg.sim.seed, cfg.sim.difficulty);
+  printf(", %d train / %d held-out frames, %zu points\n", ntrain, ntest, np);
   printf("%-34s %8s %8s %8s %8s\n", "standard protocol", "2D mIoU", "2D mAcc", "3D mIoU", "3D mAcc");
   printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.macc, b), "-", "-");
   printf("%-34s %8s %8s %8s %8s\n", "multi-view fusion", "-", "-", pct(&r3_fusion, r3_fusion.s.miou, a), pct(&r3_fusion, r3_fusion.s.macc, b));
