@@ -19,7 +19,9 @@
 #include <hdf5.h>
 #endif
 
+#include "bounds.h"
 #include "dataset_internal.h"
+#include "files.h"
 
 #define seterr vlff_errf
 #define PATHMAX 4352
@@ -32,6 +34,15 @@ static int is_dir(const char *p) {
 static int is_file(const char *p) {
   struct stat st;
   return stat(p, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* An optional file: 1 when present (and regular), 0 when absent, -1 with
+ * err when something else sits at its name (a FIFO would block a reader,
+ * a directory is a mistake worth naming). */
+static int optional_file(const char *p, char *err, size_t errlen) {
+  struct stat st;
+  if (stat(p, &st) < 0) return 0;
+  return vlff_check_regular(p, err, errlen) < 0 ? -1 : 1;
 }
 
 /* a/b into out[PATHMAX], truncated (callers cap a at 4000 bytes, b is short) */
@@ -162,6 +173,11 @@ static herr_t h5_first_dataset(hid_t g, const char *name, const H5L_info_t *info
 }
 
 static int features_probe(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
+  struct stat fst;
+  if (stat(path, &fst) < 0) {
+    seterr(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
+    return -1;
+  }
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) {
@@ -204,6 +220,30 @@ static int features_probe(struct vlff_dataset *ds, const char *path, char *err, 
            (unsigned long long)dims[2], (unsigned long long)dims[3], ds->n);
     goto out;
   }
+  /* The reader allocates one frame's features: a header may claim any
+   * shape, so the frame is capped, and the data the file really stores must
+   * account for the shape (deflate cannot shrink data below about 1/1032
+   * of its size, and unfiltered data is stored whole). */
+  unsigned long long frame_bytes = (unsigned long long)dims[1] * dims[2] * dims[3] * sizeof(uint16_t);
+  if (frame_bytes > VLFF_DS_MAX_FEATURE_FRAME_BYTES) {
+    seterr(err, errlen, "%s: features/%s claims %llu bytes per frame ([%llu,%llu,%llu] float16), more than the %llu allowed",
+           path, fd.name, frame_bytes, (unsigned long long)dims[1], (unsigned long long)dims[2],
+           (unsigned long long)dims[3], (unsigned long long)VLFF_DS_MAX_FEATURE_FRAME_BYTES);
+    goto out;
+  }
+  {
+    unsigned long long raw = frame_bytes * dims[0], stored = (unsigned long long)H5Dget_storage_size(d);
+    hid_t pl = H5Dget_create_plist(d);
+    int nfilters = pl >= 0 ? H5Pget_nfilters(pl) : -1;
+    if (pl >= 0) H5Pclose(pl);
+    unsigned long long need = nfilters == 0 ? raw : raw / 1032;
+    if (nfilters < 0 || stored < need || (unsigned long long)fst.st_size < need) {
+      seterr(err, errlen, "%s: features/%s claims shape [%llu,%llu,%llu,%llu] (%llu bytes) but the file stores %llu bytes of it",
+             path, fd.name, (unsigned long long)dims[0], (unsigned long long)dims[1], (unsigned long long)dims[2],
+             (unsigned long long)dims[3], raw, stored);
+      goto out;
+    }
+  }
   snprintf(ds->feat_name, sizeof ds->feat_name, "%s", fd.name);
   ds->feat_height = (int)dims[1], ds->feat_width = (int)dims[2], ds->feat_dim = (int)dims[3];
   ds->has_features = 1;
@@ -243,6 +283,11 @@ static int check_intrinsics(struct vlff_dataset *ds, const double K[16], const c
   }
   if (fabs(K[8]) > 1e-9 || fabs(K[9]) > 1e-9 || fabs(K[10] - 1) > 1e-9 || fabs(K[4]) > 1e-9) {
     seterr(err, errlen, "%s: not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1])", path);
+    return -1;
+  }
+  char why[200];
+  if (vlff_intrinsics_plausible(ds->width, ds->height, ds->fx, ds->fy, ds->cx, ds->cy, why, sizeof why)) {
+    seterr(err, errlen, "%s: not a physical camera for the %dx%d images: %s", path, ds->width, ds->height, why);
     return -1;
   }
   return 0;
@@ -491,7 +536,9 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
 cameras_done:
   dir = ds->dir;
   join(p, dir, "bbox.txt");
-  if (is_file(p)) {
+  int have = optional_file(p, err, errlen);
+  if (have < 0) goto fail;
+  if (have) {
     char *buf;
     size_t len;
     if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
@@ -500,9 +547,28 @@ cameras_done:
     if (rc < 0) goto fail;
     ds->has_bbox = 1;
   }
+  /* Camera positions against the scene box (or an absolute bound without
+   * one): a translation of 1e300 would wreck every result silently. */
+  for (int i = 0; i < ds->n; i++) {
+    char why[200];
+    if (vlff_pose_plausible(ds->c2w + (size_t)i * 16, ds->has_bbox ? ds->bbox_lo : NULL,
+                            ds->has_bbox ? ds->bbox_hi : NULL, why, sizeof why)) {
+      if (ds->layout == VLFF_DS_SENS) {
+        seterr(err, errlen, "%s: frame %s: %s", sens, ds->stem[i], why);
+      } else {
+        char name[VLFF_DS_NAME + 8];
+        snprintf(name, sizeof name, "pose/%s.txt", ds->stem[i]);
+        join(p, dir, name);
+        seterr(err, errlen, "%s: %s", p, why);
+      }
+      goto fail;
+    }
+  }
   if (open_labels(ds, dir, opts, err, errlen) < 0) goto fail;
   join(p, dir, "features.hdf");
-  if (is_file(p)) {
+  have = optional_file(p, err, errlen);
+  if (have < 0) goto fail;
+  if (have) {
 #ifdef VLFF_HAVE_HDF5
     if (features_probe(ds, p, err, errlen) < 0) goto fail;
 #endif
@@ -666,6 +732,7 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   char p[PATHMAX], dname[VLFF_DS_NAME + 16];
   join(p, ds->dir, "features.hdf");
   snprintf(dname, sizeof dname, "features/%s", ds->feat_name);
+  if (vlff_check_regular(p, err, errlen) < 0) return -1;
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   hid_t f = H5Fopen(p, H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) {

@@ -52,7 +52,14 @@
  *  - Every value read is validated: sizes against each other, counts, finite
  *    numbers, orthonormal right-handed rotations (|R^T R - I| < 1e-3,
  *    det > 0), a [0 0 0 1] last row, positive focal lengths, principal points
- *    inside the image, bbox min < max.
+ *    inside the image, bbox min < max; intrinsics and camera positions
+ *    within physical bounds (bounds.h: field of view, pixel aspect, the
+ *    camera no further outside bbox.txt than the box is big, or within an
+ *    absolute bound without one); features.hdf's shape at most
+ *    VLFF_DS_MAX_FEATURE_FRAME_BYTES per frame and backed by the data the
+ *    file really stores, checked before anything is allocated for it.
+ *  - Only regular files are read (files.h): a FIFO or device at a dataset
+ *    file's name is refused, never waited on.
  *  - Files are written atomically: temp file, fsync, rename.
  *  - A vlff_dataset is used by one thread at a time; the caller owns every
  *    buffer it passes. The parse functions take memory buffers (the fuzz
@@ -65,6 +72,8 @@
 #include <stdint.h>
 
 #define VLFF_DS_NAME 64
+/* One frame's features may claim at most this much memory. */
+#define VLFF_DS_MAX_FEATURE_FRAME_BYTES (256ull << 20)
 
 enum vlff_dataset_layout { VLFF_DS_AUTO, VLFF_DS_REFERENCE, VLFF_DS_SCANNET, VLFF_DS_SENS };
 /* ScanNet label sets: the 20 benchmark classes (NYU40 ids 1 2 3 4 5 6 7 8 9

@@ -26,6 +26,7 @@
 #include <unistd.h>
 #include <zlib.h>
 
+#include "bounds.h"
 #include "dataset.h"
 #include "dataset_internal.h"
 
@@ -149,10 +150,10 @@ fail:
 
 static int check_camera(const double K[16], int w, int h, const char *path, char *err, size_t errlen) {
   double fx = K[0], fy = K[5], cx = K[2], cy = K[6];
-  /* a focal length outside [w/20, 20w] is a field of view below 3 or above
-   * 175 degrees: a wrong file, not a camera */
-  if (!(fx >= w / 20.0 && fx <= 20.0 * w) || !(fy >= h / 20.0 && fy <= 20.0 * h)) {
-    seterr(err, errlen, "%s: focal lengths fx=%g fy=%g are implausible for a %dx%d image", path, fx, fy, w, h);
+  /* the physical bounds every camera in vlff is held to (bounds.h) */
+  char why[200];
+  if (vlff_intrinsics_plausible(w, h, fx, fy, cx, cy, why, sizeof why)) {
+    seterr(err, errlen, "%s: implausible camera for a %dx%d image: %s", path, w, h, why);
     return -1;
   }
   if (!(cx > 0 && cx < w) || !(cy > 0 && cy < h)) {
