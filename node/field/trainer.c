@@ -798,10 +798,16 @@ static int pseudo_class(struct vlff_field *f, const struct vlff_view *v, double 
   vlff_f16_to_f32_n(v->features + ((size_t)fy * v->feat_width + fx) * D, f->bal_feat, (size_t)D);
   int best = 0;
   float bs = -INFINITY;
+  const float *x = f->bal_feat;
   for (int k = 0; k < f->K; k++) {
     const float *e = f->E_ + (size_t)k * D;
-    float s = 0;
-    for (int j = 0; j < D; j++) s += e[j] * f->bal_feat[j];
+    /* sixteen partial sums, so the dot product vectorises */
+    float part[16] = {0}, s = 0;
+    int j = 0;
+    for (; j + 16 <= D; j += 16)
+      for (int q = 0; q < 16; q++) part[q] += e[j + q] * x[j + q];
+    for (; j < D; j++) part[0] += e[j] * x[j];
+    for (int q = 0; q < 16; q++) s += part[q];
     if (s > bs) bs = s, best = k;
   }
   return best;
