@@ -26,12 +26,21 @@
 
 #define MAX_SIDE 16384
 
+/* A pixel corner in one frame: shared by pixels of one surface (projected
+ * once, at their mean range), or at a range jump (each pixel projects it at
+ * its own range), or behind the colour camera. */
+enum { CORNER_OWN = 0, CORNER_SHARED = 1, CORNER_BEHIND = 2 };
+struct corner {
+  float u, v;
+  int state;
+};
+
 struct vlff_depthreg {
   int dw, dh, ow, oh;
   double k[4];     /* output camera fx fy cx cy */
   double t[3];
   float *q;        /* [(dh+1)][(dw+1)][3] rotated corner rays */
-  float *cz;       /* [(dh+1)][(dw+1)] per frame: a corner's range on one surface, 0 at a jump */
+  struct corner *corner; /* [(dh+1)][(dw+1)], per frame */
   int max_fp;      /* a footprint wider than this is a grazing surface: left empty */
 };
 
@@ -165,7 +174,7 @@ struct vlff_depthreg *vlff_depthreg_new(const struct vlff_rgbd_calib *c, int dw,
   if (vlff_rgbd_calib_check(&sized, "depth registration", err, errlen)) return NULL;
   struct vlff_depthreg *r = calloc(1, sizeof *r);
   if (!r || !(r->q = malloc((size_t)(dw + 1) * (dh + 1) * 3 * sizeof(float))) ||
-      !(r->cz = malloc((size_t)(dw + 1) * (dh + 1) * sizeof(float)))) {
+      !(r->corner = malloc((size_t)(dw + 1) * (dh + 1) * sizeof *r->corner))) {
     vlff_depthreg_free(r);
     bad(err, errlen, "depth registration: out of memory for a %dx%d ray table", dw + 1, dh + 1);
     return NULL;
@@ -201,7 +210,7 @@ struct vlff_depthreg *vlff_depthreg_new(const struct vlff_rgbd_calib *c, int dw,
 void vlff_depthreg_free(struct vlff_depthreg *r) {
   if (!r) return;
   free(r->q);
-  free(r->cz);
+  free(r->corner);
   free(r);
 }
 
@@ -222,44 +231,69 @@ long vlff_depthreg_apply(struct vlff_depthreg *r, const uint16_t *depth, size_t 
   const float fx = (float)r->k[0], fy = (float)r->k[1], cx = (float)r->k[2], cy = (float)r->k[3];
   const float tx = (float)r->t[0], ty = (float)r->t[1], tz = (float)r->t[2];
   for (int y = 0; y < oh; y++) memset((char *)out + (size_t)y * out_stride, 0, (size_t)ow * 2);
-  /* Corner ranges: the pixels around a corner lie on one surface when
-   * their ranges agree to a few percent (a slope seen at a steep angle
-   * still does; an object in front of another does not). */
+  /* Corners: the pixels around a corner lie on one surface when their
+   * ranges agree to a few percent (a slope seen at a steep angle still
+   * does; an object in front of another does not). Such a corner is
+   * projected once, here, at their mean range, for all of them. */
+  const float inv[5] = {0, (float)unit_m, (float)unit_m / 2, (float)unit_m / 3, (float)unit_m / 4};
   for (int j = 0; j <= r->dh; j++) {
     const uint16_t *up = j > 0 ? (const uint16_t *)((const char *)depth + (size_t)(j - 1) * stride) : NULL;
     const uint16_t *dn = j < r->dh ? (const uint16_t *)((const char *)depth + (size_t)j * stride) : NULL;
-    float *czr = r->cz + (size_t)j * cw;
+    struct corner *cr = r->corner + (size_t)j * cw;
+    const float *qr = r->q + (size_t)j * cw * 3;
     for (int i = 0; i <= r->dw; i++) {
       unsigned v[4] = {up && i > 0 ? up[i - 1] : 0u, up && i < r->dw ? up[i] : 0u, dn && i > 0 ? dn[i - 1] : 0u,
                        dn && i < r->dw ? dn[i] : 0u};
       unsigned lo = 65535, hi = 0, sum = 0, n = 0;
       for (int a = 0; a < 4; a++)
         if (v[a]) lo = v[a] < lo ? v[a] : lo, hi = v[a] > hi ? v[a] : hi, sum += v[a], n++;
-      czr[i] = n && (hi - lo) * 25 <= lo ? (float)(sum * unit_m / n) : 0.0f;
+      cr[i].state = CORNER_OWN;
+      if (!n || (hi - lo) * 25 > lo) continue;
+      const float zc = (float)sum * inv[n], *q = qr + i * 3;
+      const float Z = zc * q[2] + tz;
+      if (!(Z > 1e-3f)) {
+        cr[i].state = CORNER_BEHIND;
+        continue;
+      }
+      const float iz = 1.0f / Z;
+      cr[i].u = fx * (zc * q[0] + tx) * iz + cx;
+      cr[i].v = fy * (zc * q[1] + ty) * iz + cy;
+      cr[i].state = CORNER_SHARED;
     }
   }
   for (int j = 0; j < r->dh; j++) {
     const uint16_t *drow = (const uint16_t *)((const char *)depth + (size_t)j * stride);
     const float *top = r->q + (size_t)j * cw * 3, *bot = top + (size_t)cw * 3;
-    const float *czt = r->cz + (size_t)j * cw, *czb = czt + cw;
+    const struct corner *ct = r->corner + (size_t)j * cw, *cb = ct + cw;
     for (int i = 0; i < r->dw; i++) {
       if (!drow[i]) continue;
       const float z = (float)(drow[i] * unit_m);
       const float *cs[4] = {top + i * 3, top + i * 3 + 3, bot + i * 3, bot + i * 3 + 3};
-      const float zs[4] = {czt[i], czt[i + 1], czb[i], czb[i + 1]};
+      const struct corner *cc[4] = {ct + i, ct + i + 1, cb + i, cb + i + 1};
       float umin = INFINITY, umax = -INFINITY, vmin = INFINITY, vmax = -INFINITY, qz = 0;
       int behind = 0;
       for (int a = 0; a < 4; a++) {
-        const float *q = cs[a], zc = zs[a] > 0 ? zs[a] : z;
-        float X = zc * q[0] + tx, Y = zc * q[1] + ty, Z = zc * q[2] + tz;
-        behind |= !(Z > 1e-3f);
-        float iz = 1.0f / Z, u = fx * X * iz + cx, v = fy * Y * iz + cy;
-        umin = fminf(umin, u), umax = fmaxf(umax, u), vmin = fminf(vmin, v), vmax = fmaxf(vmax, v);
+        const float *q = cs[a];
+        float u, v;
         qz += q[2];
+        if (cc[a]->state == CORNER_SHARED) {
+          u = cc[a]->u, v = cc[a]->v;
+        } else {
+          /* at an edge the corner sits at this pixel's own range */
+          const float Z = z * q[2] + tz;
+          behind |= cc[a]->state == CORNER_BEHIND || !(Z > 1e-3f);
+          const float iz = 1.0f / Z;
+          u = fx * (z * q[0] + tx) * iz + cx, v = fy * (z * q[1] + ty) * iz + cy;
+        }
+        /* plain compares (fminf's NaN rules cost a library call): ranges and
+         * rays are finite and Z is checked, so no NaN reaches them */
+        umin = u < umin ? u : umin, umax = u > umax ? u : umax;
+        vmin = v < vmin ? v : vmin, vmax = v > vmax ? v : vmax;
       }
       if (behind) continue;
-      long mm = lrintf((z * qz * 0.25f + tz) * 1000.0f); /* the pixel's own range, along the colour axis */
-      if (mm < 1 || mm > 65535) continue;
+      const float zmm = (z * qz * 0.25f + tz) * 1000.0f; /* the pixel's own range, along the colour axis */
+      if (!(zmm >= 0.5f && zmm < 65535.5f)) continue;
+      const long mm = (long)(zmm + 0.5f);
       /* Off the output, or so large (edge-on, or near the colour camera)
        * that it would smear: nothing to draw. Checked before any float
        * becomes an int. */
@@ -268,8 +302,8 @@ long vlff_depthreg_apply(struct vlff_depthreg *r, const uint16_t *depth, size_t 
       /* The output pixels whose centres lie in the footprint; a footprint
        * smaller than a pixel (output coarser than depth) takes the nearest. */
       int x0 = (int)ceilf(umin), x1 = (int)floorf(umax), y0 = (int)ceilf(vmin), y1 = (int)floorf(vmax);
-      if (x0 > x1) x0 = x1 = (int)lrintf(0.5f * (umin + umax));
-      if (y0 > y1) y0 = y1 = (int)lrintf(0.5f * (vmin + vmax));
+      if (x0 > x1) x0 = x1 = (int)floorf(0.5f * (umin + umax) + 0.5f);
+      if (y0 > y1) y0 = y1 = (int)floorf(0.5f * (vmin + vmax) + 0.5f);
       if (x0 < 0) x0 = 0;
       if (y0 < 0) y0 = 0;
       if (x1 >= ow) x1 = ow - 1;
