@@ -20,7 +20,6 @@
  * recording (loop * n + i) / fps.
  */
 #include <errno.h>
-#include <getopt.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
@@ -28,47 +27,46 @@
 #include <string.h>
 #include <time.h>
 
+#include "cli.h"
 #include "config.h"
 #include "dataset.h"
 #include "transpose.h"
 #include "vlff/shm.h"
 
-#ifndef VLFF_VERSION
-#define VLFF_VERSION "unknown"
-#endif
-
 #define POSE_SLOTS 256
 
-static void usage(FILE *out) {
-  fputs("Usage: vlff-replay [OPTIONS] SCENE_DIR\n"
-        "Play a recorded scene directory into the frame, pose and feature rings, as live\n"
-        "cameras, a pose source and a feature extractor would.\n"
-        "\n"
-        "  -c, --config FILE      ring names, slots and permissions from FILE's shm section\n"
-        "                         (default: built-in defaults)\n"
-        "      --layout NAME      auto (default), reference or scannet\n"
-        "      --fps HZ           the recording's frame rate (default 30)\n"
-        "  -r, --rate X           play at X times the recorded rate (default 1)\n"
-        "  -b, --backpressure     as fast as the frame ring's reader takes the frames:\n"
-        "                         wait before each frame until it has read everything\n"
-        "  -l, --loop             start over after the last frame, until SIGINT/SIGTERM\n"
-        "  -n, --count N          stop after N frames\n"
-        "      --start I          begin at frame I of the scene\n"
-        "      --pose-in-frame    put the pose into the frame record, not the pose ring\n"
-        "      --no-features      do not publish the scene's features\n"
-        "  -q, --quiet            no progress lines\n"
-        "  -V, --version          print the version and exit\n"
-        "  -h, --help             print this help and exit\n"
-        "\n"
-        "Exit status: 0 when every frame was published, 1 when a frame could not be\n"
-        "read (it is skipped, named and counted) or a ring failed, 2 for a bad command line.\n"
-        "\n"
-        "Examples:\n"
-        "  vlff-replay --config /etc/vlff/node.yaml /data/scene0000_00\n"
-        "  vlff-replay -c node.yaml --rate 2 --loop /data/room3\n"
-        "  vlff-replay -c node.yaml --backpressure --count 500 /data/room3\n",
-        out);
-}
+static const struct vlff_cli cli = {
+    "vlff-replay",
+    "Usage: vlff-replay [OPTIONS] SCENE\n"
+    "Play a recorded scene (a directory, or a ScanNet .sens file) into the frame,\n"
+    "pose and feature rings, as live cameras, a pose source and a feature extractor\n"
+    "would.\n"
+    "\n"
+    "  -c, --config FILE      ring names, slots and permissions from FILE's shm section\n"
+    "                         (else $VLFF_CONFIG, else the installed vlff.yaml, else\n"
+    "                         built-in defaults)\n"
+    "      --layout NAME      auto (default), reference, scannet or sens\n"
+    "      --fps HZ           the recording's frame rate (default 30)\n"
+    "  -r, --rate X           play at X times the recorded rate (default 1)\n"
+    "  -b, --backpressure     as fast as the frame ring's reader takes the frames:\n"
+    "                         wait before each frame until it has read everything\n"
+    "  -l, --loop             start over after the last frame, until SIGINT/SIGTERM\n"
+    "  -n, --count N          stop after N frames\n"
+    "      --start I          begin at frame I of the scene\n"
+    "      --pose-in-frame    put the pose into the frame record, not the pose ring\n"
+    "      --no-features      do not publish the scene's features\n"
+    "  -q, --quiet            no progress lines\n"
+    "  -V, --version          print the version and exit\n"
+    "  -h, --help             print this help and exit\n"
+    "\n"
+    "Exit status: 0 when every frame was published, 1 when a frame could not be\n"
+    "read (it is skipped, named and counted) or a ring failed, 2 for a bad command line.\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-replay --config /etc/vlff/vlff.yaml /data/scannet/scene0000_00\n"
+    "  vlff-replay -c node.yaml --rate 2 --loop /data/room3\n"
+    "  vlff-replay -c node.yaml --backpressure --count 500 /data/room3\n",
+};
 
 static volatile sig_atomic_t stop;
 static void on_signal(int sig) {
@@ -229,15 +227,13 @@ static int run(struct replay *r, double fps, double rate, int loop, long long co
   return 0;
 }
 
-static int parse_num(const char *opt, const char *s, double lo, double hi, double *out) {
+static int parse_num(const char *opt, const char *v, double lo, double hi, double *out) {
   char *end;
   errno = 0;
-  double v = strtod(s, &end);
-  if (!*s || *end || errno || !(v >= lo && v <= hi)) {
-    fprintf(stderr, "vlff-replay: %s: '%s' is not a number in [%g, %g]\n", opt, s, lo, hi);
-    return -1;
-  }
-  *out = v;
+  double x = strtod(v, &end);
+  if (!*v || *end || errno || !(x >= lo && x <= hi))
+    return vlff_cli_usage_error(&cli, "%s: expected a number in [%g, %g], got '%s'", opt, lo, hi, v);
+  *out = x;
   return 0;
 }
 
@@ -255,9 +251,7 @@ int main(int argc, char **argv) {
       {"pose-in-frame", no_argument, NULL, OPT_POSE_IN_FRAME},
       {"no-features", no_argument, NULL, OPT_NO_FEATURES},
       {"quiet", no_argument, NULL, 'q'},
-      {"version", no_argument, NULL, 'V'},
-      {"help", no_argument, NULL, 'h'},
-      {NULL, 0, NULL, 0},
+      VLFF_CLI_COMMON_OPTIONS,
   };
   struct vlff_config cfg;
   vlff_config_defaults(&cfg);
@@ -268,56 +262,51 @@ int main(int argc, char **argv) {
   long long count = 0;
   int start = 0;
   char err[1024];
-  while ((c = getopt_long(argc, argv, "c:r:bln:qVh", opts, NULL)) != -1) {
+  const char *config = NULL;
+  int cli_status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:r:bln:q", opts, &cli_status)) != -1) {
     switch (c) {
-    case 'c':
-      if (vlff_config_load(optarg, &cfg, err, sizeof err) < 0) {
-        fprintf(stderr, "vlff-replay: %s\n", err);
-        return 2;
-      }
-      break;
+    case VLFF_CLI_EXIT: return cli_status;
+    case 'c': config = optarg; break;
     case OPT_LAYOUT:
       if (!strcmp(optarg, "auto")) layout = VLFF_DS_AUTO;
       else if (!strcmp(optarg, "reference")) layout = VLFF_DS_REFERENCE;
       else if (!strcmp(optarg, "scannet")) layout = VLFF_DS_SCANNET;
-      else {
-        fprintf(stderr, "vlff-replay: --layout: '%s' is not auto, reference or scannet\n", optarg);
-        return 2;
-      }
+      else if (!strcmp(optarg, "sens")) layout = VLFF_DS_SENS;
+      else return vlff_cli_usage_error(&cli, "--layout: expected auto, reference, scannet or sens, got '%s'", optarg);
       break;
     case OPT_FPS:
-      if (parse_num("--fps", optarg, 0.01, 10000, &fps) < 0) return 2;
+      if (parse_num("--fps", optarg, 0.01, 10000, &fps)) return 2;
       break;
     case 'r':
-      if (parse_num("--rate", optarg, 0.001, 1000, &rate) < 0) return 2;
+      if (parse_num("--rate", optarg, 0.001, 1000, &rate)) return 2;
       break;
     case 'b': r.backpressure = 1; break;
     case 'l': loop = 1; break;
     case 'n':
-      if (parse_num("--count", optarg, 1, 1e15, &x) < 0 || x != floor(x)) return 2;
+      if (parse_num("--count", optarg, 1, 1e15, &x)) return 2;
+      if (x != floor(x)) return vlff_cli_usage_error(&cli, "--count: expected an integer, got '%s'", optarg);
       count = (long long)x;
       break;
     case OPT_START:
-      if (parse_num("--start", optarg, 0, 1e9, &x) < 0 || x != floor(x)) return 2;
+      if (parse_num("--start", optarg, 0, 1e9, &x)) return 2;
+      if (x != floor(x)) return vlff_cli_usage_error(&cli, "--start: expected an integer, got '%s'", optarg);
       start = (int)x;
       break;
     case OPT_POSE_IN_FRAME: r.pose_in_frame = 1; break;
     case OPT_NO_FEATURES: features = 0; break;
     case 'q': r.quiet = 1; break;
-    case 'V': printf("vlff-replay %s\n", VLFF_VERSION); return 0;
-    case 'h': usage(stdout); return 0;
-    default: usage(stderr); return 2;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
-  if (optind != argc - 1) {
-    fprintf(stderr, optind < argc ? "vlff-replay: one SCENE_DIR only\n" : "vlff-replay: no SCENE_DIR given\n");
-    usage(stderr);
-    return 2;
-  }
-  if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) {
-    fprintf(stderr, "vlff-replay: %s\n", err);
-    return 1;
-  }
+  if (optind >= argc) return vlff_cli_usage_error(&cli, "no SCENE given");
+  if (optind < argc - 1) return vlff_cli_usage_error(&cli, "one SCENE only, got also '%s'", argv[optind + 1]);
+  /* The node's config names the rings; without one anywhere on the search
+   * path the built-in names are the node's defaults too. */
+  char ferr[512];
+  const char *path = vlff_config_find(config, ferr, sizeof ferr);
+  if (path && vlff_config_load(path, &cfg, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
+  if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
   int status = 1;
   if (start >= r.ds.n) {
     fprintf(stderr, "vlff-replay: --start %d: the scene has %d frames\n", start, r.ds.n);

@@ -309,7 +309,7 @@ static void test_cli(void **state) {
   assert_int_equal(run_cli("-V", out, sizeof out), 0);
   assert_non_null(strstr(out, "vlff-replay "));
   assert_int_equal(run_cli("", out, sizeof out), 2);
-  assert_non_null(strstr(out, "no SCENE_DIR"));
+  assert_non_null(strstr(out, "no SCENE given"));
   assert_int_equal(run_cli("--rate 0 /tmp", out, sizeof out), 2);
   assert_non_null(strstr(out, "--rate"));
   assert_int_equal(run_cli("--layout tum /tmp", out, sizeof out), 2);
