@@ -401,7 +401,18 @@ static void test_calibration_files(void **state) {
   assert_int_equal(vlff_rgbd_calib_load(cmd, &c, err, sizeof err), -1);
   assert_non_null(strstr(err, "missing.yaml"));
 
-  /* Sizes the file states must be the cameras'. */
+  /* The shipped example loads and fits the cameras it names. */
+  const char *src = getenv("VLFF_SOURCE_DIR");
+  assert_non_null(src);
+  char ex[1024];
+  snprintf(ex, sizeof ex, "%s/configs/rgbd-calibration.yaml", src);
+  if (vlff_rgbd_calib_load(ex, &c, err, sizeof err)) fail_msg("%s", err);
+  assert_true(fabs(c.t[0] + 0.02512) < 1e-12);
+  struct vlff_depthreg *ex_reg = vlff_depthreg_new(&c, 640, 480, 1280, 960, 0, 0, err, sizeof err);
+  if (!ex_reg) fail_msg("%s", err);
+  vlff_depthreg_free(ex_reg);
+
+    /* Sizes the file states must be the cameras'. */
   p = write_file("sized.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI TM "depth_width: 320\ndepth_height: 240\n");
   assert_int_equal(vlff_rgbd_calib_load(p, &c, err, sizeof err), 0);
   assert_null(vlff_depthreg_new(&c, 640, 480, CW, CH, 0, 0, err, sizeof err));

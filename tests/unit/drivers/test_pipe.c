@@ -286,6 +286,10 @@ static void test_config_combinations(void **state) {
                      "depth_camera: {kind: aravis, device: Fake, pixel_format: Coord3D_C16, calibration: r.yaml}\n";
   assert_int_equal(vlff_config_load_mem(pair, strlen(pair), "t.yaml", &c, err, sizeof err), 0);
   if (vlff_camcfg_check(&c, "t.yaml", err, sizeof err)) fail_msg("%s", err);
+  /* the shipped RGB-D example passes the camera checks */
+  char path[1024];
+  snprintf(path, sizeof path, "%s/configs/aravis-rgbd.yaml", getenv("VLFF_SOURCE_DIR"));
+  if (vlff_config_load(path, &c, err, sizeof err) || vlff_camcfg_check(&c, path, err, sizeof err)) fail_msg("%s", err);
 }
 
 int main(void) {
