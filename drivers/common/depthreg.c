@@ -22,6 +22,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bounds.h"
 #include "cvshim.h"
 
 #define MAX_SIDE 16384
@@ -108,6 +109,12 @@ static int check_camera(const double *k, const double *d, int n, int w, int h, c
   if (w || h) {
     if (w < 1 || w > MAX_SIDE || h < 1 || h > MAX_SIDE)
       return bad(err, errlen, "%s: %s image size %dx%d outside 1..%d", name, which, w, h, MAX_SIDE);
+    /* the bounds every camera of the project meets (field of view, aspect) */
+    char why[256];
+    if (vlff_intrinsics_plausible(w, h, fx, fy, k[2], k[5], why, sizeof why))
+      return bad(err, errlen, "%s: %s camera matrix: %s", name, which, why);
+    /* a calibrated principal point lies in the image: outside it, the sizes
+     * the matrix was calibrated for are not these */
     if (!(k[2] > 0 && k[2] < w && k[5] > 0 && k[5] < h))
       return bad(err, errlen, "%s: %s principal point (%g, %g) lies outside the %dx%d image", name, which, k[2], k[5],
                  w, h);

@@ -73,8 +73,9 @@ int vlff_rgbd_calib_load(const char *path, struct vlff_rgbd_calib *c, char *err,
 /* The physical bounds every calibration must meet: focal lengths 1..1e5
  * px, aspect fx/fy within 0.2..5, no skew, a [0 0 1] last row, finite
  * distortion of magnitude < 1000, R orthonormal with det +1 (to 1e-4), T
- * finite and under 1 m (two cameras of one rig), image sizes 1..16384 and
- * principal points inside them when given. name prefixes the message. */
+ * finite and under 1 m (two cameras of one rig); when image sizes are given,
+ * sizes 1..16384, bounds.h's field of view and aspect, and principal points
+ * inside the images. name prefixes the message. */
 int vlff_rgbd_calib_check(const struct vlff_rgbd_calib *c, const char *name, char *err, size_t errlen);
 
 struct vlff_depthreg;

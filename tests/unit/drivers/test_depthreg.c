@@ -394,6 +394,10 @@ static void test_calibration_files(void **state) {
                  "not supported");
   expect_refused("pp.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI TM "color_width: 300\ncolor_height: 240\n",
                  "principal point");
+  expect_refused("fov.yaml",
+                 "%YAML:1.0\n---\n" YMAT("K1", 3, 3, "30000., 0., 159.3, 0., 30000., 119.6, 0., 0., 1.") D1 K2 D2 RI TM
+                 "depth_width: 320\ndepth_height: 240\n",
+                 "field of view");
   expect_refused("nan.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI YMAT("T", 3, 1, "-0.05, .nan, 0."), "not finite");
   expect_refused("unit.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI TM "translation_unit_m: 5\n", "translation_unit_m");
   expect_refused("garbage.yaml", "this is not a calibration: [\n", "garbage.yaml");
