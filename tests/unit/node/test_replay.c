@@ -4,8 +4,9 @@
  * vlff-replay program into the frame, pose and feature rings; the node,
  * reading them as it reads live cameras, must train and publish a map whose
  * labels, read through libvlff-shm at the scene's labelled points, are right.
- * Also: the back-pressure mode loses nothing through a small ring, and the
- * command line behaves.
+ * Also: a ScanNet export played into the rings arrives exactly (pixels,
+ * depth, poses at the frames' times), the back-pressure mode loses nothing
+ * through a small ring, and the command line behaves.
  *
  * Timings scale with VLFF_E2E_SCALE; the quality thresholds do not.
  */
@@ -285,6 +286,89 @@ static void test_backpressure_loses_nothing(void **state) {
   vlff_node_destroy(n, false);
 }
 
+/* A ScanNet export (color/, depth/, pose/ camera-to-world, intrinsic/),
+ * played paced by a reader that is this test: every frame arrives with the
+ * scene's pixels and millimetre depth, its pose waits in the pose ring at the
+ * frame's host time (the lookup finds it exactly), and nothing is lost. */
+static void test_scannet_layout_into_rings(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg, 2);
+  char err[1024], p[512];
+  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  if (!s) fail_msg("%s", err);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  const char *subs[] = {"", "/color", "/depth", "/pose", "/intrinsic"};
+  for (int k = 0; k < 5; k++) {
+    snprintf(p, sizeof p, "%s%s", scene, subs[k]);
+    assert_int_equal(mkdir(p, 0755), 0);
+  }
+  enum { N = 6 };
+  double c2w[N][16];
+  for (int i = 0; i < N; i++) {
+    assert_int_equal(vlff_sim_render(s, i * 7, VLFF_SIM_RGBD, f, err, sizeof err), 0);
+    snprintf(p, sizeof p, "%s/color/%d.png", scene, i);
+    if (vlff_png_write(p, f->rgb, f->width, f->height, 3, 0, err, sizeof err)) fail_msg("%s", err);
+    snprintf(p, sizeof p, "%s/depth/%d.png", scene, i);
+    if (vlff_png_write(p, f->depth_mm, f->width, f->height, 1, 1, err, sizeof err)) fail_msg("%s", err);
+    snprintf(p, sizeof p, "%s/pose/%d.txt", scene, i);
+    FILE *pf = fopen(p, "w");
+    assert_non_null(pf);
+    for (int e = 0; e < 16; e++) fprintf(pf, "%.17g%c", f->c2w[e], e % 4 == 3 ? '\n' : ' ');
+    fclose(pf);
+    memcpy(c2w[i], f->c2w, sizeof c2w[i]);
+  }
+  snprintf(p, sizeof p, "%s/intrinsic/intrinsic_color.txt", scene);
+  FILE *kf = fopen(p, "w");
+  assert_non_null(kf);
+  fprintf(kf, "%.17g 0 %.17g 0\n0 %.17g %.17g 0\n0 0 1 0\n0 0 0 1\n", f->fx, f->cx, f->fy, f->cy);
+  fclose(kf);
+  const int W = f->width, H = f->height;
+  uint8_t *rgb0 = malloc((size_t)W * H * 3);
+  uint16_t *dep0 = malloc((size_t)W * H * 2);
+  const char *args[] = {"-c", cfg_path, "--layout", "scannet", "--backpressure", "--quiet", scene, NULL};
+  pid_t pid = spawn_replay(args);
+  struct vlff_ring *fr = NULL, *pr = NULL;
+  for (int k = 0; k < 200 && !(fr && pr); k++) {
+    if (!fr) fr = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
+    if (!pr) pr = vlff_ring_attach(cfg.shm.pose_ring, VLFF_RECORD_POSE);
+    if (!(fr && pr)) sleep_s(0.02);
+  }
+  assert_non_null(fr);
+  assert_non_null(pr);
+  void *buf = malloc(vlff_ring_slot_size(fr));
+  for (int i = 0; i < N; i++) {
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(fr, buf, vlff_ring_slot_size(fr), &v, 10ull * 1000 * 1000 * 1000);
+    if (len < 0) fail_msg("frame %d: %s", i, vlff_shm_last_message());
+    assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
+    const struct vlff_frame_hdr *h = buf;
+    assert_int_equal(h->frame_id, (uint64_t)i);
+    assert_false(h->flags & VLFF_FRAME_POSE_VALID);
+    assert_true(h->flags & VLFF_FRAME_INTRINSICS_VALID);
+    assert_true(fabs(h->fx - f->fx) < 1e-9 && fabs(h->cy - f->cy) < 1e-9);
+    struct vlff_pose_rec pose;
+    assert_int_equal(vlff_pose_lookup(pr, h->t_host_ns, 0, &pose), 0);
+    for (int e = 0; e < 16; e++) assert_true(fabs(pose.pose[e] - c2w[i][e]) < 1e-9);
+    assert_int_equal(vlff_sim_render(s, i * 7, VLFF_SIM_RGBD, f, err, sizeof err), 0);
+    const uint8_t *rgb = vlff_frame_plane(buf, VLFF_PLANE_COLOR);
+    const uint8_t *dep = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+    for (int y = 0; y < H; y++) {
+      memcpy(rgb0 + (size_t)y * W * 3, rgb + (size_t)y * h->plane[0].stride, (size_t)W * 3);
+      memcpy(dep0 + (size_t)y * W, dep + (size_t)y * h->plane[1].stride, (size_t)W * 2);
+    }
+    assert_memory_equal(rgb0, f->rgb, (size_t)W * H * 3);
+    assert_memory_equal(dep0, f->depth_mm, (size_t)W * H * 2);
+  }
+  assert_int_equal(vlff_ring_lost(fr), 0);
+  assert_int_equal(wait_child(pid), 0);
+  free(buf), free(rgb0), free(dep0);
+  vlff_ring_close(fr);
+  vlff_ring_close(pr);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+}
+
 /* Runs the program with output into a file; returns its exit status and
  * the output in out. */
 static int run_cli(const char *args, char *out, size_t cap) {
@@ -341,6 +425,7 @@ static void test_cli(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_setup_teardown(test_cli, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_scannet_layout_into_rings, setup, teardown),
       cmocka_unit_test_setup_teardown(test_backpressure_loses_nothing, setup, teardown),
       cmocka_unit_test_setup_teardown(test_node_trains_from_replay, setup, teardown),
   };
