@@ -126,15 +126,28 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   p->st.pairs++;
 }
 
+static uint64_t dist(uint64_t a, uint64_t b) { return a > b ? a - b : b - a; }
+
 /* Frames arrive in time order per stream, so an oldest frame more than the
- * tolerance before the other stream's oldest can never be paired. */
+ * tolerance before the other stream's oldest can never be paired. Within the
+ * tolerance the pair must also be mutually nearest among the frames held: a
+ * camera running faster than configured can put two frames near one of the
+ * other's, and only the nearer is its partner. */
 static void match(struct vlff_pair *p) {
   struct held *c, *d;
   while ((c = oldest(&p->color)) && (d = oldest(&p->depth))) {
     uint64_t tc = c->meta.host_ns, td = d->meta.host_ns;
-    if ((tc > td ? tc - td : td - tc) <= p->tol_ns) {
-      emit(p, c, d);
-      pop(&p->color), pop(&p->depth);
+    if (dist(tc, td) <= p->tol_ns) {
+      const struct held *c2 = p->color.n > 1 ? &p->color.f[(p->color.head + 1) % HOLD] : NULL;
+      const struct held *d2 = p->depth.n > 1 ? &p->depth.f[(p->depth.head + 1) % HOLD] : NULL;
+      if (c2 && dist(c2->meta.host_ns, td) < dist(tc, td)) {
+        pop(&p->color), p->st.unmatched_color++;
+      } else if (d2 && dist(tc, d2->meta.host_ns) < dist(tc, td)) {
+        pop(&p->depth), p->st.unmatched_depth++;
+      } else {
+        emit(p, c, d);
+        pop(&p->color), pop(&p->depth);
+      }
     } else if (tc < td) {
       pop(&p->color), p->st.unmatched_color++;
     } else {

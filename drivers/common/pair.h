@@ -6,10 +6,12 @@
  * camera's into vlff_pair_depth_sink; each keeps a few frames. A colour and
  * a range frame are paired when their host timestamps (the trigger stamp
  * when the pipelines stamp frames from a GPIO trigger, else the arrival
- * time) lie within depth_camera.pair_tolerance_s of each other. The config
- * check keeps that tolerance under half of either camera's frame period, so
- * at most one frame of each stream can qualify: frames are never paired
- * wrongly, and the oldest frame of either queue that can no longer find a
+ * time) lie within depth_camera.pair_tolerance_s of each other and each is
+ * the other's nearest among the frames held. The config check keeps that
+ * tolerance under half of either camera's frame period, so at most one frame
+ * of each stream can qualify: frames are never paired wrongly (and a camera
+ * running faster than configured still gets its nearer frame paired), and
+ * the oldest frame of either queue that can no longer find a
  * partner (the other stream is already past it by more than the tolerance,
  * or its queue overflowed) is dropped and counted.
  *

@@ -158,6 +158,22 @@ static void test_skew_and_gaps(void **state) {
   assert_int_equal(st->unmatched_depth, 2);
 }
 
+/* The colour camera runs faster than configured (4 ms apart, two of its
+ * frames within the tolerance of one range frame): only the nearer pairs. */
+static void test_faster_than_configured(void **state) {
+  (void)state;
+  const uint64_t t0 = 7000 * MS;
+  /* range frames 3 ms after colours 1, 5, 9, arriving after colour 2 (1 ms
+   * from them, so nearer than colour 1) */
+  for (int k = 0; k < 12; k++) {
+    push_color(k, t0 + (uint64_t)k * 4 * MS);
+    if (k % 4 == 2) push_depth(k, t0 + (uint64_t)(k - 1) * 4 * MS + 3 * MS);
+  }
+  int first = -1;
+  assert_int_equal(check_records(&first), 3);
+  assert_int_equal(first, 2);
+}
+
 /* The range camera stops: colour frames overflow the queue and are
  * counted; when it comes back, pairing resumes with the right partners. */
 static void test_stalled_stream(void **state) {
@@ -185,6 +201,7 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_pairs_in_step, setup, teardown),
       cmocka_unit_test_setup_teardown(test_skew_and_gaps, setup, teardown),
       cmocka_unit_test_setup_teardown(test_stalled_stream, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_faster_than_configured, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
