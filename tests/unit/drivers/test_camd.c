@@ -225,11 +225,13 @@ static void test_reconnects_after_camera_restart(void **state) {
  * range image registered into it; through an identity rig (one camera
  * matrix, no offset) the depth plane is the range image itself, in mm.
  * The record's ids and intrinsics are the colour camera's. */
-static void test_pairs_colour_and_range(void **state) {
-  (void)state;
-  char calib[256];
-  snprintf(calib, sizeof calib, "/tmp/vlff-test-camd-%d-rig.yaml", (int)getpid());
-  FILE *f = fopen(calib, "w");
+static char rig_path[256];
+
+/* The pair's config: the fake GigE camera as colour, the in-process fake
+ * camera as range, an identity rig. */
+static void write_pair_cfg(void) {
+  snprintf(rig_path, sizeof rig_path, "/tmp/vlff-test-camd-%d-rig.yaml", (int)getpid());
+  FILE *f = fopen(rig_path, "w");
   assert_non_null(f);
   fputs("%YAML:1.0\n---\n"
         "K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 300., 0., 159.5, 0., 300., 119.5, 0., 0., 1. ]\n"
@@ -245,8 +247,13 @@ static void test_pairs_colour_and_range(void **state) {
            "  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
            "depth_camera:\n  kind: aravis\n  device: Fake\n  pixel_format: Mono16\n  width: 320\n  height: 240\n"
            "  frame_rate: 40\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.012\n",
-           calib);
+           rig_path);
   write_cfg("Mono8", 320, 240, extra);
+}
+
+static void test_pairs_colour_and_range(void **state) {
+  (void)state;
+  write_pair_cfg();
   pid_t pid = spawn_camd("12");
   struct vlff_ring *r = attach();
   vlff_ring_seek_oldest(r);
@@ -295,7 +302,35 @@ static void test_pairs_colour_and_range(void **state) {
   }
   free(buf);
   vlff_ring_close(r);
-  unlink(calib);
+  unlink(rig_path);
+  cleanup();
+}
+
+/* The colour camera of a pair loses power and comes back: the range
+ * camera's frames meanwhile find no partner and are counted, the ring stays,
+ * and pairs flow again after the reconnection. */
+static void test_pair_survives_camera_restart(void **state) {
+  (void)state;
+  write_pair_cfg();
+  pid_t pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach();
+  for (int k = 0; k < 200 && vlff_ring_head(r) < 5; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= 5);
+  fakecam_kill(cam_pid);
+  sleep_ms(1500);
+  uint64_t during = vlff_ring_head(r);
+  cam_pid = fakecam_start(0);
+  assert_true(cam_pid > 0);
+  for (int k = 0; k < 400 && vlff_ring_head(r) < during + 5; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= during + 5);
+  kill(pid, SIGTERM);
+  assert_int_equal(wait_exit(pid, 15), 0);
+  assert_int_equal(stat_of("lost"), 1);
+  assert_int_equal(stat_of("reconnects"), 1);
+  assert_true(stat_of("unmatched_depth") > 0);
+  assert_int_equal(stat_of("committed"), vlff_ring_head(r));
+  vlff_ring_close(r);
+  unlink(rig_path);
   cleanup();
 }
 
@@ -345,6 +380,7 @@ int main(void) {
       cmocka_unit_test(test_bad_configs),
       cmocka_unit_test(test_reconnects_after_camera_restart),
       cmocka_unit_test(test_pairs_colour_and_range),
+      cmocka_unit_test(test_pair_survives_camera_restart),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
