@@ -42,7 +42,7 @@ else
   echo "note: $def exists here; the no-config refusal is not checked"
 fi
 VLFF_CONFIG="$tmp/ok.yaml" timeout 20 "${node[@]}" 2>"$tmp/env" & p=$!
-for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/env" && break; sleep 0.1; done
+for ((i = 0; i < 100; i++)); do grep -qs "waiting for ring" "$tmp/env" && break; sleep 0.1; done
 kill -TERM $p; wait $p
 check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
 
@@ -51,7 +51,7 @@ check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
 mkdir -p "$tmp/idle-state"
 sed "s|state_dir: $tmp|state_dir: $tmp/idle-state\n  checkpoint_period_s: 0.2|" "$tmp/ok.yaml" >"$tmp/idle.yaml"
 "${node[@]}" --config "$tmp/idle.yaml" 2>"$tmp/idle" & p=$!
-for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/idle" && break; sleep 0.1; done
+for ((i = 0; i < 100; i++)); do grep -qs "waiting for ring" "$tmp/idle" && break; sleep 0.1; done
 sleep 1.5
 kill -TERM $p; wait $p
 check "idle node wrote no checkpoint" '[[ -z "$(ls -A "$tmp/idle-state")" ]]'
