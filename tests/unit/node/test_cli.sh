@@ -73,7 +73,10 @@ while time.time() < end:
 ' "$tmp/notify.sock" "$tmp/notify.log" & listener=$!
   for ((i = 0; i < 50; i++)); do [[ -S "$tmp/notify.sock" ]] && break; sleep 0.1; done
   NOTIFY_SOCKET="$tmp/notify.sock" WATCHDOG_USEC=2000000 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/sd" & p=$!
-  sleep 3
+  # the main loop starts after the node is up (slow under sanitizers), then
+  # feeds the watchdog every quarter period
+  for ((i = 0; i < 300; i++)); do grep -qs "waiting for ring" "$tmp/sd" && break; sleep 0.1; done
+  sleep 1.5
   kill -TERM $p; wait $p
   wait $listener
   check "sd_notify READY=1" 'grep -qx "READY=1" "$tmp/notify.log"'
