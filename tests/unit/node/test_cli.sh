@@ -70,6 +70,9 @@ else
 fi
 VLFF_CONFIG="$tmp/ok.yaml" timeout 20 "${node[@]}" 2>"$tmp/env" & p=$!
 for ((i = 0; i < 100; i++)); do grep -qs "waiting for ring" "$tmp/env" && break; sleep 0.1; done
+# The segments' group reads the map and posts prompts: map 0640, mailbox 0660.
+check "map segment is 0640" '[[ "$(stat -c %a /dev/shm/cli-$$-m)" == 640 ]]'
+check "prompt mailbox is 0660 (group posts prompts)" '[[ "$(stat -c %a /dev/shm/cli-$$-p)" == 660 ]]'
 kill -TERM $p; wait $p
 check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
 
