@@ -6,6 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -34,6 +35,11 @@ static void test_round_trip(void **state) {
   unlink(path);
   assert_null(vlff_embeddings_load(path, 8, err, sizeof err));
   assert_non_null(strstr(err, "cannot open"));
+  /* A FIFO at the file's name: refused at once, not waited on. */
+  assert_int_equal(mkfifo(path, 0600), 0);
+  assert_null(vlff_embeddings_load(path, 8, err, sizeof err));
+  assert_non_null(strstr(err, "is a FIFO, expected a regular file"));
+  unlink(path);
   /* Saving refuses what loading would refuse. */
   v[3] = 1.0f / 0.0f;
   assert_int_equal(vlff_embeddings_save(path, 8, 3, prompts, v, err, sizeof err), -1);
