@@ -78,6 +78,15 @@ static void test_validation(void **state) {
   refused("vlff-embeddings 1\ndim 2\nchair\t1 nan\n", ":3: number 2 is not a finite float");
   refused("vlff-embeddings 1\ndim 2\nchair\t1 1e99\n", "not a finite float");
   refused("vlff-embeddings 1\ndim 2\nchair\t1 x\n", "not a finite float");
+  refused("vlff-embeddings 1\r\ndim 2\r\nchair\t1 0\r\n", "t.emb:1: CRLF line end");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1 0\r\n", "t.emb:3: CRLF line end");
+  /* Underflow is a tiny finite number, not an error. */
+  const char *tiny = "vlff-embeddings 1\ndim 2\nchair\t1 1e-45\ntable\t1 -1e-50\n";
+  e = vlff_embeddings_parse(tiny, strlen(tiny), "t.emb", 2, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  assert_true(vlff_embeddings_lookup(e, "chair")[1] > 0);
+  assert_true(vlff_embeddings_lookup(e, "table")[1] == 0);
+  vlff_embeddings_free(e);
   refused("vlff-embeddings 1\ndim 2\nchair\t0 0\n", "zero vector");
   refused("vlff-embeddings 1\ndim 2\nchair\t1 0\nchair\t0 1\n", ":4: duplicate prompt 'chair'");
   refused("vlff-embeddings 1\ndim 2\n\t1 0\n", ":3: prompt must be");
