@@ -99,6 +99,16 @@ static void test_dataset_matches_synthetic(void **state) {
   assert_non_null(strstr(peout, "prompt_embeddings.txt: 3 records, but "));
   assert_non_null(strstr(peout, "uses class id"));
   assert_null(strstr(peout, "RESULT"));
+  /* Embeddings of another width than the features: both files named. */
+  snprintf(cmd, sizeof cmd, "printf 'vlff-embeddings 1\\ndim 2\\nwall\\t1 0\\n' > %s/ds/prompt_embeddings.txt", tmp);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/ds --iters 0 --quiet --out %s/d 2>&1", eval, cfg, tmp, tmp);
+  pe = popen(cmd, "r");
+  pn = fread(peout, 1, sizeof peout - 1, pe);
+  peout[pn] = 0;
+  assert_int_not_equal(pclose(pe), 0);
+  assert_non_null(strstr(peout, "prompt_embeddings.txt: vectors have dim 2, but the features in "));
+  assert_non_null(strstr(peout, "features.hdf have D=16"));
   /* a malformed dataset fails naming the file */
   snprintf(cmd, sizeof cmd, "echo '1 2 3' > %s/ds/pose/00003.txt", tmp);
   assert_int_equal(system(cmd), 0);
