@@ -269,7 +269,7 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
   }
   char tmp[4096];
   snprintf(tmp, sizeof tmp, "%s.tmp.%d", path, (int)getpid());
-  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  int fd = vlff_create_temp(tmp, 0644, NULL, 0);
   FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
   if (!f) {
     vlff_errf(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));

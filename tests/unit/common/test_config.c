@@ -275,6 +275,31 @@ static void test_dead_temps(void **state) {
     snprintf(p, sizeof p, "%s/%s", dir, name);
     assert_int_equal(access(p, F_OK), -1);
   }
+  /* A writer's temporary: a FIFO or a link planted at its name is
+   * replaced, never opened (the link's target stays untouched). */
+  snprintf(p, sizeof p, "%s/w.tmp.%d", dir, (int)getpid());
+  assert_int_equal(mkfifo(p, 0600), 0);
+  int wfd = vlff_create_temp(p, 0600, err, sizeof err);
+  assert_true(wfd >= 0);
+  struct stat wst;
+  assert_int_equal(fstat(wfd, &wst), 0);
+  assert_true(S_ISREG(wst.st_mode));
+  close(wfd);
+  char target[600];
+  snprintf(target, sizeof target, "%s/target", dir);
+  int tfd = open(target, O_CREAT | O_WRONLY, 0600);
+  assert_true(tfd >= 0);
+  close(tfd);
+  unlink(p);
+  assert_int_equal(symlink(target, p), 0);
+  wfd = vlff_create_temp(p, 0600, err, sizeof err);
+  assert_true(wfd >= 0);
+  assert_int_equal(write(wfd, "x", 1), 1);
+  close(wfd);
+  assert_int_equal(lstat(p, &wst), 0);
+  assert_true(S_ISREG(wst.st_mode));
+  assert_int_equal(stat(target, &wst), 0);
+  assert_int_equal(wst.st_size, 0);
   long pid;
   assert_true(vlff_temp_name_pid("a.tmp.b.tmp.42", &pid) && pid == 42);
   assert_false(vlff_temp_name_pid("a.tmp.", &pid));
