@@ -32,6 +32,9 @@
 #include "pipe.h"
 #include "ringsink.h"
 #include "stamps.h"
+#ifdef VLFF_HAVE_SYSTEMD
+#include <systemd/sd-daemon.h>
+#endif
 #ifdef VLFF_HAVE_ARAVIS
 #include "aravis.h"
 #endif
@@ -380,8 +383,22 @@ int main(int argc, char **argv) {
   }
 #endif
 
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Type=notify: ready once the ring exists (consumers may attach; the camera
+   * may come later). The watchdog is fed from this loop, which passes every
+   * grab timeout whether a camera is there or not: only a hang stops it. */
+  uint64_t wd_usec = 0, last_wd = 0;
+  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
+  sd_notify(0, "READY=1");
+#endif
   uint64_t t0 = mono_ns();
   while (!stop_req) {
+#ifdef VLFF_HAVE_SYSTEMD
+    if (wd_usec && mono_ns() - last_wd >= wd_usec * 250) {
+      sd_notify(0, "WATCHDOG=1");
+      last_wd = mono_ns();
+    }
+#endif
     if (max_seconds > 0 && (double)(mono_ns() - t0) * 1e-9 >= max_seconds) break;
     uint64_t committed = pair ? vlff_pair_get_stats(pair)->pairs : vlff_pipe_get_stats(color->pipe)->committed;
     if (max_frames > 0 && committed >= (uint64_t)max_frames) break;
@@ -408,6 +425,9 @@ int main(int argc, char **argv) {
      * wait per camera keeps both drained. */
     for (int i = 0; i < nslots; i++) slot_grab(&slots[i], 20 / nslots, cfg.shm.ring);
   }
+#ifdef VLFF_HAVE_SYSTEMD
+  sd_notify(0, "STOPPING=1");
+#endif
   for (int i = 0; i < nslots; i++) slot_close(&slots[i]);
   uint64_t pulses = 0, edges = 0;
 #ifdef VLFF_HAVE_GPIOD
