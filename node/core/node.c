@@ -291,10 +291,16 @@ static void pending_complete(struct vlff_node *n, struct candidate **pending, in
   queue_push(n, c);
 }
 
+static mode_t shm_mode(const struct vlff_node *n) {
+  return n->cfg.shm.mode ? (mode_t)n->cfg.shm.mode : 0640;
+}
+
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
   bool warned = false;
   while (!atomic_load(&n->stop)) {
-    struct vlff_ring *r = vlff_ring_attach(name, kind);
+    /* Only rings of this node's uid, within the configured mode: anyone else able
+     * to write one could forge its records. */
+    struct vlff_ring *r = vlff_ring_attach_owned(name, kind, geteuid(), shm_mode(n));
     if (r) {
       VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
                 (unsigned long long)vlff_ring_slot_size(r));
@@ -341,8 +347,9 @@ static void *ingest_main(void *arg) {
   double fps_t0 = mono_s();
   long long fps_count = 0;
   while (ring && buf && fbuf && !atomic_load(&n->stop)) {
-    if (!poses) poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
-    if (join && !feats) feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
+    if (!poses) poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
+    if (join && !feats)
+      feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
     /* Features that arrived (external extractor or in-node model) complete
      * their waiting keyframes; keyframes whose features never come expire. */
     if (join) {
@@ -818,9 +825,18 @@ static void run_commands(struct vlff_node *n, bool *publish_now) {
   }
 }
 
+/* Every request gets an answer in the mailbox, so that the poster learns whether its
+ * prompts were taken; a malformed or half-written one is answered by the library and
+ * only logged here. */
 static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) {
   struct vlff_prompt_request req;
-  if (!n->mailbox || vlff_prompts_poll(n->mailbox, seq, &req) != 1) return;
+  if (!n->mailbox) return;
+  int got = vlff_prompts_poll(n->mailbox, seq, &req);
+  if (got < 0) {
+    VLFF_ERROR(TAG, "prompt mailbox: %s", vlff_shm_last_message());
+    return;
+  }
+  if (got != 1) return;
   char err[256];
   int rc;
   if (req.set_index >= 0) {
@@ -836,6 +852,9 @@ static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) 
                req.poster_pid, err);
   else
     *publish_now = true;
+  if (vlff_prompts_answer(n->mailbox, req.seq, rc == 0, rc ? err : NULL))
+    VLFF_ERROR(TAG, "prompt mailbox: cannot answer request %llu: %s", (unsigned long long)req.seq,
+               vlff_shm_last_message());
 }
 
 static void update_state(struct vlff_node *n) {
@@ -1026,7 +1045,11 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     goto fail;
   n->pub = vlff_publisher_create(cfg, n->sim, n->gt_points.n ? &n->gt_points : NULL, err, errlen);
   if (!n->pub) goto fail;
-  struct vlff_shm_perm perm = {.mode = (mode_t)cfg->shm.mode, .group = cfg->shm.group};
+  /* Controllers post: whoever may read the node's segments as a group member may
+   * also write the mailbox (and only the mailbox). */
+  mode_t mbox_mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;
+  if (mbox_mode & 0040) mbox_mode |= 0020;
+  struct vlff_shm_perm perm = {.mode = mbox_mode, .group = cfg->shm.group};
   n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);
   if (!n->mailbox) {
     snprintf(err, errlen, "prompt mailbox %s: %s", cfg->shm.prompts, vlff_shm_last_message());

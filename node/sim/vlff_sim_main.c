@@ -164,6 +164,11 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
     }
     uint64_t seq;
     struct vlff_frame_hdr *h = vlff_ring_reserve(ring, &seq);
+    if (!h && errno == EPIPE) {
+      /* The ring's file was truncated under us; the library has replaced it. */
+      VLFF_ERROR(TAG, "frame ring: %s", vlff_shm_last_message());
+      continue;
+    }
     uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), (uint32_t)W, (uint32_t)H, VLFF_PIX_RGB8,
                                      VLFF_PIX_DEPTH_U16_MM);
     if (!len) {
@@ -186,9 +191,12 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       memcpy(dep + (size_t)v * h->plane[VLFF_PLANE_DEPTH].stride, f->depth_mm + (size_t)v * W, (size_t)W * 2);
     }
     if (vlff_ring_commit(ring, len) < 0) {
-      fprintf(stderr, "vlff-sim: commit: %s\n", strerror(errno));
-      status = 1;
-      break;
+      if (errno != EPIPE) {
+        fprintf(stderr, "vlff-sim: commit: %s\n", strerror(errno));
+        status = 1;
+        break;
+      }
+      VLFF_ERROR(TAG, "frame ring: %s", vlff_shm_last_message());
     }
     if (fring) {
       struct vlff_feature_hdr *fhd = vlff_ring_reserve(fring, NULL);

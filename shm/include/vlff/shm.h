@@ -59,7 +59,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 1
+#define VLFF_SHM_ABI_VERSION 2
 
 /* ------------------------------------------------------------------ errors */
 
@@ -149,6 +149,10 @@ struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_para
  * that the file is as large as the header says. The read cursor starts after the newest
  * committed record (live data, not history); see vlff_ring_seek_oldest(). */
 struct vlff_ring *vlff_ring_attach(const char *name, uint32_t record_kind);
+/* Same, and the segment's file must belong to uid and have no permission bit outside
+ * mode (0 = any but world-writable); otherwise -1/EACCES (VLFF_SHM_ERR_PERM) naming
+ * the owner or the mode found. A learner attaches its input rings this way. */
+struct vlff_ring *vlff_ring_attach_owned(const char *name, uint32_t record_kind, uid_t uid, mode_t mode);
 
 /* Releases the handle (unmaps). Never removes the segment. */
 void vlff_ring_close(struct vlff_ring *ring);
@@ -440,17 +444,44 @@ struct vlff_prompts *vlff_prompts_create(const char *name, const struct vlff_shm
 /* A controller attaches read-write to post. */
 struct vlff_prompts *vlff_prompts_attach(const char *name);
 void vlff_prompts_close(struct vlff_prompts *p);
-/* Posts texts (1..VLFF_SHM_MAX_PROMPTS, each non-empty and shorter than
- * VLFF_SHM_PROMPT_LEN). Several posters may race: posts are serialised, none is torn.
- * Returns 0 (the new sequence number is in vlff_prompts_poll's req->seq), -1/EINVAL,
- * EAGAIN if another poster kept the mailbox busy for too long. */
+
+/* Checks a prompt set as the learner will, and as the embeddings file format checks
+ * prompts: 1..VLFF_SHM_MAX_PROMPTS texts, each 1..VLFF_SHM_PROMPT_LEN-1 bytes of valid
+ * UTF-8 without control characters (tabs and newlines included), none repeated.
+ * 0, or -1/EINVAL with the reason in vlff_shm_last_message(). */
+int vlff_prompt_check(const char *const *texts, int count);
+
+/* Posts texts (checked with vlff_prompt_check). Posts are serialised by a lock that
+ * dies with its holder, none is torn, and a post waits until the learner has answered
+ * the previous request, so no request is ever overwritten unread. Returns 0 (the
+ * request's number is vlff_prompts_last_post()), or -1: EINVAL (texts refused),
+ * EBUSY (the previous request still had no answer, or another poster held the lock,
+ * after a bounded wait; the message says which and whether the learner runs), EPIPE
+ * (mailbox abandoned or truncated: attach again). */
 int vlff_prompts_post(struct vlff_prompts *p, const char *const *texts, int count);
-/* Posts "switch to configured set index". */
+/* Posts "switch to configured set index". Same rules. */
 int vlff_prompts_post_index(struct vlff_prompts *p, int set_index);
-/* Copies the newest request if its seq differs from *last_seq, then updates *last_seq.
- * Returns 1 (new request in *req), 0 (nothing new), -1 (EAGAIN while a post is in
- * progress for too long, EPIPE). */
+/* The number of this handle's last successful post, 0 if none. */
+uint64_t vlff_prompts_last_post(const struct vlff_prompts *p);
+
+enum vlff_prompt_answer { VLFF_PROMPT_PENDING = 0, VLFF_PROMPT_ACCEPTED = 1, VLFF_PROMPT_REFUSED = 2 };
+/* Poster: waits up to timeout_ns (UINT64_MAX = forever) for the learner's answer to
+ * request seq. Returns VLFF_PROMPT_ACCEPTED or VLFF_PROMPT_REFUSED (the reason, NUL
+ * terminated, in reason[len]), or -1: ETIMEDOUT (the message says whether the learner
+ * runs), ENOENT (never answered: a later request was answered instead), EPIPE. */
+int vlff_prompts_wait_answer(struct vlff_prompts *p, uint64_t seq, uint64_t timeout_ns, char *reason, size_t len);
+
+/* Learner: copies the newest request if its seq differs from *last_seq, then updates
+ * *last_seq. Never waits for a poster. Returns 1 (new request in *req: apply it, then
+ * vlff_prompts_answer it), 0 (nothing new, or a post is being written: poll again
+ * later), -1 with a message worth logging: EBADMSG (a malformed request, or one left
+ * half-written by a poster that died; it has been answered "refused" with the reason
+ * and *last_seq moved past it), EPIPE (the mailbox file was truncated; it has been
+ * replaced by a new one, numbering on). */
 int vlff_prompts_poll(struct vlff_prompts *p, uint64_t *last_seq, struct vlff_prompt_request *req);
+/* Learner: answers request seq: accepted, or refused with a reason (truncated to a
+ * line of text) that the poster's vlff_prompts_wait_answer returns. 0 or -1. */
+int vlff_prompts_answer(struct vlff_prompts *p, uint64_t seq, int accepted, const char *reason);
 
 #ifdef __cplusplus
 }
