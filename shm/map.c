@@ -138,7 +138,7 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
  * The map is replaced by a new segment whose version goes on from the last one
  * published, so that readers re-attaching never see the version go back; the publish
  * that found it is refused with the reason. */
-static int writer_replace(struct vlff_map *m) {
+static int writer_replace(struct vlff_map *m, const char *what) {
   char msg[320];
   snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
   if (shm_seg_replace(&m->seg) < 0) {
@@ -150,7 +150,7 @@ static int writer_replace(struct vlff_map *m) {
     atomic_store(&m->ctl->version, m->last_version);
   shm_seg_ready(&m->seg);
   atomic_store(&m->seg.h->last_ns, shm_now());
-  shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s; this update was not published", msg);
+  shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s%s", msg, what);
   return -1;
 }
 
@@ -221,7 +221,7 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
   if (check_update(m, u) < 0)
     return -1;
   if (shm_seg_check(&m->seg, true) < 0)
-    return writer_replace(m);
+    return writer_replace(m, "; this update was not published");
   uint32_t cur = atomic_load_explicit(&m->ctl->current, memory_order_relaxed) & 1, nb = cur ^ 1;
   struct map_buf *b = buf(m, nb);
   struct map_meta meta;
@@ -290,7 +290,7 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
   atomic_store_explicit(&m->seg.h->last_ns, now, memory_order_release);
   /* Shrunk while we wrote (the guard fired): that version reached nobody. */
   if (shm_seg_check(&m->seg, false) < 0)
-    return writer_replace(m);
+    return writer_replace(m, "; this update was not published");
   m->last_version = meta.version;
   return 0;
 }
@@ -301,7 +301,7 @@ API int vlff_map_heartbeat(struct vlff_map *m) {
     return -1;
   }
   if (shm_seg_check(&m->seg, true) < 0)
-    return writer_replace(m);
+    return writer_replace(m, "");
   atomic_store_explicit(&m->seg.h->last_ns, shm_now(), memory_order_release);
   return 0;
 }

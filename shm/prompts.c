@@ -24,32 +24,43 @@
 
 #define BODY_OFFSET 256u
 #define LOCK_WAIT_NS 2000000000ull
-#define ANSWER_REASON_LEN 88
+#define ANSWER_REASON_LEN 104
+/* Answers are kept per request number, several at once, so that a poster slow to
+ * read its answer does not lose it to the next poster's. */
+#define ANSWER_SLOTS 8u
+#define ANSWERS_OFFSET (BODY_OFFSET + align64(sizeof(struct vlff_prompt_request)))
 
 struct mbox_ctl {
   _Atomic uint64_t seq;      /* 2 * posts, odd while a post is being written */
   _Atomic int32_t lock_pid;  /* the poster writing, for messages only (0 = none) */
   uint32_t pad;
-  _Atomic uint64_t ans_word; /* 2 * answers, odd while the learner writes one */
-  _Atomic uint64_t ans_seq;  /* the request answered last */
-  _Atomic int32_t ans_status; /* enum vlff_prompt_answer */
-  uint32_t pad2;
-  char ans_reason[ANSWER_REASON_LEN];
+  _Atomic uint64_t answered; /* the newest request answered */
 };
 _Static_assert(sizeof(struct mbox_ctl) <= BODY_OFFSET - sizeof(struct seg_hdr), "mailbox control block fits");
+
+struct answer {
+  _Atomic uint64_t word;    /* 2 * writes, odd while the learner writes it */
+  _Atomic uint64_t seq;     /* the request it answers */
+  _Atomic int32_t status;   /* enum vlff_prompt_answer */
+  uint32_t pad;
+  char reason[ANSWER_REASON_LEN];
+};
+_Static_assert(sizeof(struct answer) == 128, "answer slots are two cache lines");
 
 struct vlff_prompts {
   struct seg seg;
   struct mbox_ctl *ctl;
   struct vlff_prompt_request *body;
+  struct answer *answers;
   uint64_t posted; /* this handle's last post */
   bool broken;     /* learner: the mailbox could not be replaced */
 };
 
 uint64_t shm_prompts_total(const uint64_t g[6]) {
-  if (g[0] != sizeof(struct vlff_prompt_request) || g[1] != BODY_OFFSET || g[2] || g[3] || g[4] || g[5])
+  if (g[0] != sizeof(struct vlff_prompt_request) || g[1] != BODY_OFFSET || g[2] != ANSWER_SLOTS ||
+      g[3] != ANSWERS_OFFSET || g[4] || g[5])
     return 0;
-  return BODY_OFFSET + align64(sizeof(struct vlff_prompt_request));
+  return ANSWERS_OFFSET + ANSWER_SLOTS * sizeof(struct answer);
 }
 
 void shm_prompts_stat(const struct seg *s, struct vlff_shm_info *info) {
@@ -60,6 +71,7 @@ void shm_prompts_stat(const struct seg *s, struct vlff_shm_info *info) {
 static void bind(struct vlff_prompts *p) {
   p->ctl = (struct mbox_ctl *)(p->seg.base + sizeof(struct seg_hdr));
   p->body = (struct vlff_prompt_request *)(p->seg.base + BODY_OFFSET);
+  p->answers = (struct answer *)(p->seg.base + ANSWERS_OFFSET);
 }
 
 static const struct seg_spec spec = {.kind = VLFF_SHM_KIND_PROMPTS};
@@ -70,7 +82,7 @@ API struct vlff_prompts *vlff_prompts_create(const char *name, const struct vlff
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
     return NULL;
   }
-  uint64_t geom[6] = {sizeof(struct vlff_prompt_request), BODY_OFFSET, 0, 0, 0, 0};
+  uint64_t geom[6] = {sizeof(struct vlff_prompt_request), BODY_OFFSET, ANSWER_SLOTS, ANSWERS_OFFSET, 0, 0};
   int fresh = shm_seg_create(&p->seg, name, &spec, geom, perm);
   if (fresh < 0) {
     free(p);
@@ -167,25 +179,30 @@ API int vlff_prompt_check(const char *const *texts, int count) {
   return 0;
 }
 
-/* The learner's last answer, read consistently. 0, or -1 if it kept changing. */
-static int read_answer(struct vlff_prompts *p, uint64_t *seq, int *status, char *reason, size_t len) {
+/* The answer to request seq, read consistently: 1 (found), 0 (not answered yet),
+ * -1 (its slot holds a later request's answer, or it kept changing). */
+static int read_answer(struct vlff_prompts *p, uint64_t seq, int *status, char *reason, size_t len) {
+  struct answer *a = &p->answers[seq % ANSWER_SLOTS];
   for (int i = 0; i < 1000; i++) {
-    uint64_t w1 = atomic_load_explicit(&p->ctl->ans_word, memory_order_acquire);
+    uint64_t w1 = atomic_load_explicit(&a->word, memory_order_acquire);
     if (w1 & 1) {
       nanosleep(&(struct timespec){0, 20000}, NULL);
       continue;
     }
     char r[ANSWER_REASON_LEN];
-    *seq = atomic_load_explicit(&p->ctl->ans_seq, memory_order_relaxed);
-    *status = atomic_load_explicit(&p->ctl->ans_status, memory_order_relaxed);
-    shm_racy_copy(r, p->ctl->ans_reason, sizeof r);
+    uint64_t aseq = atomic_load_explicit(&a->seq, memory_order_relaxed);
+    int st = atomic_load_explicit(&a->status, memory_order_relaxed);
+    shm_racy_copy(r, a->reason, sizeof r);
     atomic_thread_fence(memory_order_acquire);
-    if (atomic_load_explicit(&p->ctl->ans_word, memory_order_relaxed) != w1)
+    if (atomic_load_explicit(&a->word, memory_order_relaxed) != w1)
       continue;
+    if (aseq != seq)
+      return aseq > seq ? -1 : 0;
     r[sizeof r - 1] = 0;
+    *status = st;
     if (reason && len)
       snprintf(reason, len, "%s", r);
-    return 0;
+    return 1;
   }
   return -1;
 }
@@ -194,13 +211,16 @@ static int write_answer(struct vlff_prompts *p, uint64_t seq, int status, const 
   char r[ANSWER_REASON_LEN] = {0};
   if (reason)
     snprintf(r, sizeof r, "%s", reason);
-  uint64_t odd = atomic_load_explicit(&p->ctl->ans_word, memory_order_relaxed) | 1;
-  atomic_store_explicit(&p->ctl->ans_word, odd, memory_order_relaxed);
+  struct answer *a = &p->answers[seq % ANSWER_SLOTS];
+  uint64_t odd = atomic_load_explicit(&a->word, memory_order_relaxed) | 1;
+  atomic_store_explicit(&a->word, odd, memory_order_relaxed);
   atomic_thread_fence(memory_order_release);
-  atomic_store_explicit(&p->ctl->ans_seq, seq, memory_order_relaxed);
-  atomic_store_explicit(&p->ctl->ans_status, status, memory_order_relaxed);
-  shm_racy_copy(p->ctl->ans_reason, r, sizeof r);
-  atomic_store_explicit(&p->ctl->ans_word, odd + 1, memory_order_release);
+  atomic_store_explicit(&a->seq, seq, memory_order_relaxed);
+  atomic_store_explicit(&a->status, status, memory_order_relaxed);
+  shm_racy_copy(a->reason, r, sizeof r);
+  atomic_store_explicit(&a->word, odd + 1, memory_order_release);
+  if (atomic_load_explicit(&p->ctl->answered, memory_order_relaxed) < seq)
+    atomic_store_explicit(&p->ctl->answered, seq, memory_order_release);
   return 0;
 }
 
@@ -220,11 +240,8 @@ static int check_live(struct vlff_prompts *p, bool stat_it) {
 
 /* The number of the newest request that has no answer yet, 0 if none. */
 static uint64_t unanswered(struct vlff_prompts *p) {
-  uint64_t posted = atomic_load_explicit(&p->ctl->seq, memory_order_acquire) / 2, aseq;
-  int st;
-  if (!posted || read_answer(p, &aseq, &st, NULL, 0) < 0)
-    return posted;
-  return aseq >= posted ? 0 : posted;
+  uint64_t posted = atomic_load_explicit(&p->ctl->seq, memory_order_acquire) / 2;
+  return atomic_load_explicit(&p->ctl->answered, memory_order_acquire) >= posted ? 0 : posted;
 }
 
 static int post(struct vlff_prompts *p, const struct vlff_prompt_request *req) {
@@ -443,20 +460,14 @@ API int vlff_prompts_wait_answer(struct vlff_prompts *p, uint64_t seq, uint64_t 
   for (;;) {
     if (check_live(p, false) < 0)
       return -1;
-    uint64_t aseq;
-    int st;
-    char r[ANSWER_REASON_LEN];
-    if (read_answer(p, &aseq, &st, r, sizeof r) == 0) {
-      if (aseq == seq && (st == VLFF_PROMPT_ACCEPTED || st == VLFF_PROMPT_REFUSED)) {
-        if (reason && len)
-          snprintf(reason, len, "%s", r);
-        return st;
-      }
-      if (aseq > seq) {
-        shm_err(VLFF_SHM_OK, ENOENT, "%s: request %llu was never answered; the learner has answered %llu since",
-                p->seg.name, (unsigned long long)seq, (unsigned long long)aseq);
-        return -1;
-      }
+    int st = 0;
+    int got = read_answer(p, seq, &st, reason, len);
+    if (got == 1 && (st == VLFF_PROMPT_ACCEPTED || st == VLFF_PROMPT_REFUSED))
+      return st;
+    if (got < 0) {
+      shm_err(VLFF_SHM_OK, ENOENT, "%s: the answer to request %llu is gone (%u later requests were answered since)",
+              p->seg.name, (unsigned long long)seq, ANSWER_SLOTS);
+      return -1;
     }
     if (timeout_ns != UINT64_MAX && shm_now() - t0 >= timeout_ns) {
       int32_t learner = atomic_load(&p->seg.h->creator_pid);

@@ -8,6 +8,7 @@
 #include <dirent.h>
 #include <errno.h>
 #include <inttypes.h>
+#include <math.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -220,14 +221,15 @@ static int parse_double(const char *s, double *v) {
   char *end;
   errno = 0;
   *v = strtod(s, &end);
-  return errno || end == s || *end ? -1 : 0;
+  /* A NaN or infinite coordinate names no point of the world. */
+  return errno || end == s || *end || !isfinite(*v) ? -1 : 0;
 }
 
 static int cmd_label(const char *name, char **xyz) {
   double p[3];
   for (int i = 0; i < 3; i++)
     if (parse_double(xyz[i], &p[i]) < 0) {
-      fprintf(stderr, "vlff-shm: '%s' is not a number\n", xyz[i]);
+      fprintf(stderr, "vlff-shm: '%s' is not a finite number\n", xyz[i]);
       return 2;
     }
   struct vlff_map *m = vlff_map_attach(name);

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# A running vlff-node against its prompt mailbox and hostile shared memory (issue 29):
+# vlff-shm set-prompts prints the node's answer, forged and refused sets fail loudly,
+# a burst of posters is answered one by one, and truncating the map, the mailbox or
+# the frame ring under the node and the simulator kills neither.
+set -u
+node=$1 shm=$2 sim=$3
+fails=0 passes=0
+check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
+tmp=$(mktemp -d)
+p=/mbx-$$
+cleanup() {
+  [[ -n ${simpid:-} ]] && kill "$simpid" 2>/dev/null
+  [[ -n ${nodepid:-} ]] && kill -9 "$nodepid" 2>/dev/null
+  rm -rf "$tmp"
+  rm -f /dev/shm$p-*
+}
+trap cleanup EXIT
+printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n' \
+  "$tmp" $p $p $p >"$tmp/n.yaml"
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
+nodepid=$!
+for ((i = 0; i < 200; i++)); do grep -q "waiting for ring" "$tmp/log" && break; sleep 0.1; done
+
+check "mailbox is group-writable (0660)" '[[ $(stat -c %a /dev/shm$p-p) == 660 ]]'
+check "set -i 0 accepted" '[[ $("$shm" set-prompts $p-p -i 0) == "accepted 1" ]]'
+out=$("$shm" set-prompts $p-p -i 99 2>&1); rc=$?
+check "set -i 99 refused with the node's reason, rc 1 ($out)" '[[ $rc == 1 && $out == "refused 2: "*"prompt set 99"* ]]'
+out=$("$shm" set-prompts $p-p "$(printf 'wall\nlabel 0 confidence 255 prompt FAKE')" floor 2>&1); rc=$?
+check "forged newline refused before posting ($out)" '[[ $rc == 1 && $out == *"control characters"* ]]'
+check "nothing was posted" '"$shm" stat $p-p | grep -qE "^posts 2$"'
+out=$("$shm" set-prompts $p-p chair chair 2>&1); rc=$?
+check "duplicate prompts refused ($out)" '[[ $rc == 1 && $out == *"repeats"* ]]'
+for k in 1 2 3 4 5; do "$shm" set-prompts $p-p -i 0 >"$tmp/burst.$k" 2>&1 & done
+wait %2 %3 %4 %5 %6 2>/dev/null
+check "a burst of 5 posters: every one accepted, 5 distinct numbers" \
+  '[[ $(cat "$tmp"/burst.* | grep -c "^accepted") == 5 && $(cat "$tmp"/burst.* | sort -u | wc -l) == 5 ]]'
+
+# Truncation under the node: the map writer and the mailbox.
+truncate -s 4096 /dev/shm$p-m
+truncate -s 100 /dev/shm$p-p
+sleep 1
+check "node alive after its map and mailbox were truncated" 'kill -0 $nodepid'
+check "map truncation logged" 'grep -q "map heartbeat: .*shrank" "$tmp/log"'
+check "mailbox posts answered again after the truncation" '"$shm" set-prompts $p-p -i 0 | grep -q "^accepted"'
+check "the map segment is whole again" '[[ $(stat -c %s /dev/shm$p-m) -gt 4096 ]]'
+
+# Truncation of the frame ring under the simulator (writer) and the node (reader).
+"$sim" --config "$tmp/n.yaml" --no-features --quiet 2>"$tmp/simlog" &
+simpid=$!
+for ((i = 0; i < 300; i++)); do grep -q "attached to ring" "$tmp/log" && break; sleep 0.1; done
+check "node attached to the simulator's ring" 'grep -q "attached to ring" "$tmp/log"'
+truncate -s 4096 /dev/shm$p-r
+sleep 2
+check "simulator alive after its ring was truncated" 'kill -0 $simpid'
+check "simulator logged it" 'grep -q "frame ring: .*shrank" "$tmp/simlog"'
+check "node alive after its input ring was truncated" 'kill -0 $nodepid'
+check "node re-attached to the replaced ring" '[[ $(grep -c "attached to ring" "$tmp/log") -ge 2 ]]'
+kill "$simpid"; wait "$simpid"; simpid=
+kill -TERM "$nodepid"; wait "$nodepid"; rc=$?; nodepid=
+check "node exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
+echo "$passes passed, $fails failed"
+(( fails == 0 )) || { echo "--- node log"; tail -30 "$tmp/log"; }
+(( fails == 0 ))
