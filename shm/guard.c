@@ -55,11 +55,11 @@ static int recover(uintptr_t addr) {
     uint32_t s1 = atomic_load_explicit(&e->seq, memory_order_acquire);
     if (s1 & 1)
       continue;
-    uintptr_t start = atomic_load_explicit(&e->start, memory_order_relaxed);
-    uintptr_t len = atomic_load_explicit(&e->len, memory_order_relaxed);
-    int prot = atomic_load_explicit(&e->prot, memory_order_relaxed);
-    _Atomic uint32_t *flag = atomic_load_explicit(&e->flag, memory_order_relaxed);
-    atomic_thread_fence(memory_order_acquire);
+    /* Acquire loads: the re-check of seq below stays after them. */
+    uintptr_t start = atomic_load_explicit(&e->start, memory_order_acquire);
+    uintptr_t len = atomic_load_explicit(&e->len, memory_order_acquire);
+    int prot = atomic_load_explicit(&e->prot, memory_order_acquire);
+    _Atomic uint32_t *flag = atomic_load_explicit(&e->flag, memory_order_acquire);
     if (atomic_load_explicit(&e->seq, memory_order_relaxed) != s1 || !start || addr < start || addr - start >= len)
       continue;
     /* The raw system call, not mmap(): sanitizer interceptors are not signal-safe. */

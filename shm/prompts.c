@@ -181,7 +181,9 @@ API int vlff_prompt_check(const char *const *texts, int count) {
 
 /* The answer to request seq, read consistently: 1 (found), 0 (not answered yet),
  * -1 (its slot holds a later request's answer, or it kept changing). */
-static int read_answer(struct vlff_prompts *p, uint64_t seq, int *status, char *reason, size_t len) {
+/* Out of line: GCC refuses the fence below when it is inlined into the wait loop
+ * under -fsanitize=thread. */
+__attribute__((noinline)) static int read_answer(struct vlff_prompts *p, uint64_t seq, int *status, char *reason, size_t len) {
   struct answer *a = &p->answers[seq % ANSWER_SLOTS];
   for (int i = 0; i < 1000; i++) {
     uint64_t w1 = atomic_load_explicit(&a->word, memory_order_acquire);

@@ -24,7 +24,8 @@
  *   (truncated or corrupt header), EMSGSIZE (record does not fit a slot), EINVAL (bad
  *   argument), EAGAIN (nothing new / try again), ETIMEDOUT (wait timed out), ESTALE
  *   (the record was overwritten while being read), EPIPE (the segment was abandoned:
- *   its creator replaced it with a new one; detach and attach again).
+ *   its creator replaced it with a new one, or its file was truncated under this
+ *   handle; detach and attach again), EBUSY (the prompt mailbox is busy).
  *
  * Ownership: every object returned by a *_create, *_attach or *_new function is owned
  *   by the caller and released with the matching *_close / *_detach / *_free function
@@ -39,6 +40,31 @@
  *   writer per map (the creator); vlff_*_create refuses a second live creator.
  *   Nothing in this library ever makes a producer or map writer wait for a reader:
  *   readers detect that data changed underneath them and retry or count it as lost.
+ *
+ * Hostile files (docs/shm.md says why each choice was made):
+ *   - A segment's file may be truncated at any moment by anyone with write access to
+ *     it. No user of this library dies of it: attach checks the size against the
+ *     header (read with pread, never through a mapping), and every mapping is
+ *     registered with a SIGBUS guard that, on a fault inside it, replaces the whole
+ *     mapping with private zero-filled memory and flags the handle. This covers
+ *     accesses through pointers handed out (reserved slots, views) as well as the
+ *     library's own, in any thread. The next call on the handle fails with EPIPE
+ *     and VLFF_SHM_ERR_TRUNCATED: readers attach again; creators (map writer, ring
+ *     producer, the learner's mailbox) have by then replaced the segment by a new one
+ *     whose numbering (map version, record numbers, request numbers) goes on, and
+ *     the next call works. Until then whatever was read through the handle is zeros
+ *     that no seqlock check accepts.
+ *   - The guard is a process-wide SIGBUS handler, installed when a segment is mapped
+ *     (again if something replaced it since). Faults outside every segment go to the
+ *     handler installed before it, or to the default action. An application that
+ *     installs its own SIGBUS handler after attaching must chain to the previous one
+ *     for faults it does not recognise.
+ *   - A creator never takes over or removes a file its uid does not own (EACCES,
+ *     VLFF_SHM_ERR_PERM, naming the owner), never touches a non-vlff or non-regular
+ *     file (EEXIST, VLFF_SHM_ERR_FOREIGN), and replaces rather than takes over in place
+ *     a stale segment of its own whose mode or group is wider than configured. Every
+ *     attacher refuses world-writable and non-regular files; vlff_ring_attach_owned()
+ *     also demands an owner and a mode.
  *
  * Clocks: every timestamp is CLOCK_MONOTONIC in nanoseconds (vlff_shm_now_ns()).
  *
@@ -140,9 +166,12 @@ struct vlff_ring_params {
 
 /* Creates the ring and becomes its producer. The segment is created O_EXCL. If a
  * segment of that name exists whose creator is dead, it is taken over: with the same
- * geometry in place (generation + 1, record numbering continues, attached consumers
- * see the new generation and carry on), otherwise it is marked abandoned (consumers
- * get EPIPE) and replaced. A live creator gives EEXIST. */
+ * geometry and permissions in place (generation + 1, record numbering continues,
+ * attached consumers see the new generation and carry on), otherwise it is marked
+ * abandoned (consumers get EPIPE) and replaced. A live creator gives EEXIST, a file
+ * of another uid EACCES. If the file is truncated later, vlff_ring_reserve (before
+ * handing out a slot) or vlff_ring_commit (for a record written into the shrunk
+ * mapping, which is lost) fail once with EPIPE after replacing the ring. */
 struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_params *params);
 
 /* Attaches as a consumer, read-only: validates magic, ABI version, kind, sizes and
@@ -368,8 +397,10 @@ struct vlff_map_update {
   const struct vlff_map_label_image *label_image;
 };
 
-/* Writer: creates the map segment (same O_EXCL / stale-creator rules as rings; a
- * taken-over segment keeps its last map and bumps the generation). */
+/* Writer: creates the map segment (same O_EXCL / stale-creator / owner rules as
+ * rings; a taken-over segment keeps its last map and bumps the generation). A publish
+ * or heartbeat that finds the file truncated fails once with EPIPE after replacing
+ * the segment (version numbering on, the previous map is gone: publish it again). */
 struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *params);
 /* Writer: publishes a new consistent version (version + 1, publish time and heartbeat
  * = now). Never waits for readers. -1/EMSGSIZE if the grid, image or a prompt is
@@ -391,7 +422,8 @@ int vlff_map_label_at(struct vlff_map *map, double x, double y, double z, uint16
 /* Reader: copies the prompt text of a label (NUL-terminated, truncated to len) into buf.
  * Returns 0, or -1/ENOENT for a label without a prompt (FREE, UNKNOWN, >= count). */
 int vlff_map_prompt(struct vlff_map *map, uint16_t label, char *buf, size_t len);
-/* Reader: the current map version (0 = nothing published yet). */
+/* The current map version (0 = nothing published yet); for the writer, the last
+ * version it published. */
 uint64_t vlff_map_version(struct vlff_map *map);
 /* ns since the current version was published; UINT64_MAX if never. */
 uint64_t vlff_map_age_ns(struct vlff_map *map);
@@ -438,8 +470,13 @@ struct vlff_prompt_request {
   char text[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
 };
 
-/* The learner creates the mailbox (same O_EXCL / stale-creator rules; use mode 0660
- * with a group so that controllers may post). */
+/* The prompt mailbox: posts are serialised by flock() on the segment's file, a lock
+ * the kernel drops with its holder, so a poster killed mid-post never blocks the next
+ * one; the learner's poll never waits for a poster; every request gets an answer that
+ * the poster can wait for (the answers to the last 8 requests are kept).
+ *
+ * The learner creates the mailbox (same O_EXCL / stale-creator / owner rules; use
+ * mode 0660 with a group so that controllers may post). */
 struct vlff_prompts *vlff_prompts_create(const char *name, const struct vlff_shm_perm *perm);
 /* A controller attaches read-write to post. */
 struct vlff_prompts *vlff_prompts_attach(const char *name);
