@@ -281,7 +281,11 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), bufp(m, cur, off_lconf(mv, lpx)), n);
   }
   uint64_t now = shm_now();
-  meta.version = atomic_load_explicit(&m->ctl->version, memory_order_relaxed) + 1;
+  /* A writer killed between flipping `current` and storing the version left a
+   * published buffer one version ahead of ctl->version: number on from the higher,
+   * so that no version number ever names two different maps. */
+  uint64_t base = atomic_load_explicit(&m->ctl->version, memory_order_relaxed);
+  meta.version = (meta.version > base ? meta.version : base) + 1;
   meta.publish_ns = now;
   shm_racy_copy(&b->meta, &meta, sizeof meta);
   atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
