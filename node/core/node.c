@@ -25,6 +25,7 @@
 #include "embeddings.h"
 #include "feature_join.h"
 #include "field.h"
+#include "files.h"
 #include "keyframes.h"
 #include "log.h"
 #include "metrics.h"
@@ -599,6 +600,11 @@ static int save_checkpoint(struct vlff_node *n) {
 }
 
 static void restore_checkpoint(struct vlff_node *n) {
+  /* A node killed while writing a checkpoint leaves its temporary behind,
+   * as large as a checkpoint: nothing else would ever remove it. */
+  static const char *const temps[] = {"field.", "map.", NULL};
+  int stale = vlff_remove_dead_temps(n->cfg.node.state_dir, temps);
+  if (stale) VLFF_INFO(TAG, "removed %d temporary file(s) of a dead writer in %s", stale, n->cfg.node.state_dir);
   char path[2][VLFF_CFG_PATH + 32];
   struct stat sb[2];
   bool have[2];
@@ -716,15 +722,22 @@ static void take_candidates(struct vlff_node *n, bool wait) {
   pthread_mutex_unlock(&n->qlock);
   for (int i = 0; i < nb; i++) {
     struct candidate *c = batch[i];
-    if (n->mapping) {
+    char verr[256];
+    if (n->mapping && vlff_publisher_check_view(n->pub, &c->view, verr, sizeof verr)) {
+      /* Implausible intrinsics or pose would make every ray of this view
+       * wrong (and, unbounded, endless): never train on or map it. */
+      VLFF_WARN(TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s", c->id, verr);
+      STAT_ADD(n, frames_invalid, 1);
+    } else if (n->mapping) {
       if (!pose_check(n, c)) {
         STAT_ADD(n, poses_rejected, 1);
       } else {
         struct vlff_keyframe_in kin = {.id = c->id, .t_ns = (long long)c->t_host_ns, .view = c->view,
                                        .feature_dim = n->cfg.field.feature_dim};
         if (vlff_kfstore_add(n->store, &kin) == 0) {
-          vlff_publisher_observe(n->pub, &c->view);
-          vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames);
+          /* The view passed the same check just above: these cannot refuse it. */
+          if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
+            vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames, verr, sizeof verr);
           if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
         } else {
           VLFF_WARN(TAG, "keyframe %lld does not fit the keyframe store: %s", c->id, strerror(errno));

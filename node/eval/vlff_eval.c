@@ -203,7 +203,7 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
   struct vlff_dataset ds;
   if (vlff_dataset_open(&ds, dir, VLFF_DS_AUTO, err, sizeof err) < 0) die("%s", err);
   if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
-  if (!ds.has_labels) die("%s: no gt_semantic/ (needed for 2D evaluation)", dir);
+  if (!ds.has_labels) die("%s: no gt_semantic/ or label-filt/ (needed for 2D evaluation)", dir);
   if (ds.feat_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feat_dim);
   sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feat_dim;
   sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;
@@ -220,9 +220,7 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
         vlff_dataset_read_features(&ds, i, f->feat, err, sizeof err) < 0)
       die("%s", err);
   }
-  snprintf(p, sizeof p, "%s/points.ply", dir);
-  if (access(p, R_OK) != 0) snprintf(p, sizeof p, "%s/mesh.ply", dir);
-  if (vlff_ply_read(p, &sc->pts, err, sizeof err) < 0) die("%s", err);
+  if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
   if (cfg->prompts.embeddings[0]) snprintf(p, sizeof p, "%s", cfg->prompts.embeddings);
   else snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
   struct vlff_embeddings *pe = vlff_embeddings_load(p, sc->D, err, sizeof err);
@@ -235,6 +233,24 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
     memcpy(sc->emb + (size_t)k * sc->D, vlff_embeddings_vector(pe, k), (size_t)sc->D * sizeof(float));
   }
   vlff_embeddings_free(pe);
+  /* A ground-truth class without a record would silently count as
+   * unlabelled and drop out of every score: refuse, naming the first file
+   * that uses one. */
+  for (int i = 0; i < sc->n; i++)
+    for (size_t j = 0; j < npx; j++)
+      if (sc->f[i].label[j] != 255 && sc->f[i].label[j] >= sc->K)
+        die("%s: %d records, but %s/gt_semantic/%s.png uses class id %d: ground-truth id k is record k, so "
+            "every class needs one",
+            p, sc->K, dir, ds.stem[i], sc->f[i].label[j]);
+  for (size_t j = 0; j < sc->pts.n; j++)
+    if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K) {
+      char pp[4200];
+      snprintf(pp, sizeof pp, "%s/points.ply", dir);
+      if (access(pp, R_OK) != 0) snprintf(pp, sizeof pp, "%s/mesh.ply", dir);
+      die("%s: %d records, but %s uses class id %d (vertex %zu): ground-truth id k is record k, so every class "
+          "needs one",
+          p, sc->K, pp, sc->pts.label[j], j);
+    }
   if (ds.has_bbox) {
     memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
     memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);

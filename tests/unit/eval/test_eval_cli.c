@@ -83,6 +83,22 @@ static void test_dataset_matches_synthetic(void **state) {
     assert_int_equal(stat(p, &st), 0);
     assert_true(st.st_size > 100);
   }
+  /* Fewer embeddings records than ground-truth classes (issue 29 S4): the
+   * missing classes would silently become unlabelled and lift every score. */
+  snprintf(cmd, sizeof cmd,
+           "cd %s/ds && awk 'NR <= 2 || (!/^#/ && NF && n++ < 3)' prompt_embeddings.txt > pe && mv pe prompt_embeddings.txt",
+           tmp);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/ds --iters 0 --quiet --out %s/d 2>&1", eval, cfg, tmp, tmp);
+  FILE *pe = popen(cmd, "r");
+  char peout[2048] = "";
+  size_t pn = fread(peout, 1, sizeof peout - 1, pe);
+  peout[pn] = 0;
+  assert_int_not_equal(pclose(pe), 0);
+  print_message("%s", peout);
+  assert_non_null(strstr(peout, "prompt_embeddings.txt: 3 records, but "));
+  assert_non_null(strstr(peout, "uses class id"));
+  assert_null(strstr(peout, "RESULT"));
   /* a malformed dataset fails naming the file */
   snprintf(cmd, sizeof cmd, "echo '1 2 3' > %s/ds/pose/00003.txt", tmp);
   assert_int_equal(system(cmd), 0);

@@ -32,6 +32,33 @@ JOURNAL_STREAM=1:2 timeout 20 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/j" & 
 for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/j" && break; sleep 0.1; done
 kill -TERM $p; wait $p
 check "journald lines start with <6>" 'head -1 "$tmp/j" | grep -q "^<6>node: "'
+# Hostile configs and state (issue 29): refused with file:line, never waited on.
+printf 'shm:\n  map: /x\n  prompts: /x\n' >"$tmp/same.yaml"
+check "shm.map == shm.prompts refused with file:line" \
+  '! "${node[@]}" --check-config "$tmp/same.yaml" >/dev/null 2>"$tmp/err" && grep -q "same.yaml:3:12: key .shm.prompts.: expected a segment name distinct from shm.map" "$tmp/err"'
+printf 'shm:\n  ring: no-slash\n' >"$tmp/slash.yaml"
+check "ring without a slash refused with file:line" \
+  '! "${node[@]}" --check-config "$tmp/slash.yaml" >/dev/null 2>"$tmp/err" && grep -q "slash.yaml:2:9: key .shm.ring.: expected a POSIX shared-memory name" "$tmp/err"'
+python3 -c "print('node: '+'['*100000+']'*100000)" >"$tmp/deep.yaml"
+check "100000-deep YAML refused at once" \
+  'timeout 20 "${node[@]}" --check-config "$tmp/deep.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "deep.yaml:1:38: nesting deeper than 32 levels" "$tmp/err"'
+mkfifo "$tmp/fifo.yaml"
+check "a FIFO as config refused, not waited on" \
+  'timeout 20 "${node[@]}" --check-config "$tmp/fifo.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "fifo.yaml: is a FIFO, expected a regular file" "$tmp/err"'
+mkdir -p "$tmp/state"
+mkfifo "$tmp/state/field.1.ckpt"
+(exit 0) & dead=$!; wait $dead
+: >"$tmp/state/field.0.ckpt.tmp.$dead"
+: >"$tmp/state/map.1.obs.tmp.$dead"
+printf 'node:\n  state_dir: %s/state\nsource:\n  kind: sim\nsim:\n  frames: 20\nshm:\n  ring: /cli-%s-r\n  map: /cli-%s-m\n  prompts: /cli-%s-p\n' "$tmp" $$ $$ $$ >"$tmp/fifo-state.yaml"
+timeout 60 "${node[@]}" --config "$tmp/fifo-state.yaml" 2>"$tmp/log.fifo" & pid=$!
+for ((i = 0; i < 200; i++)); do grep -q "waiting for ring" "$tmp/log.fifo" && break; sleep 0.1; done
+check "a FIFO checkpoint does not block start-up" 'grep -q "waiting for ring" "$tmp/log.fifo"'
+check "the FIFO checkpoint is refused and named" 'grep -q "field.1.ckpt: is a FIFO, expected a regular file" "$tmp/log.fifo"'
+check "a dead writer's checkpoint temporaries are removed" \
+  '[[ ! -e "$tmp/state/field.0.ckpt.tmp.$dead" && ! -e "$tmp/state/map.1.obs.tmp.$dead" ]]'
+kill -TERM $pid; wait $pid; rc=$?
+check "and it stops on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
 echo "$passes passed, $fails failed"
 rm -f /dev/shm/cli-$$-*
 (( fails == 0 ))
