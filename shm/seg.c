@@ -5,8 +5,10 @@
  * the geometry matches (attached readers keep their mapping and see the generation
  * change) and otherwise marks it abandoned and replaces it (readers get EPIPE and
  * re-attach). Attach never trusts the file: every header field is checked before the
- * body is mapped, and the file must be as large as the header claims, because a
- * reader touching a page past EOF would die of SIGBUS. */
+ * body is mapped, and the file must be as large as the header claims; a file that
+ * shrinks later is the SIGBUS guard's business (guard.c). Only files of this
+ * process's uid are ever taken over or removed: another user's file at our name
+ * could be truncated or rewritten by its owner under us. */
 #include "shm_internal.h"
 
 #include <errno.h>
