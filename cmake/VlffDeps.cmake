@@ -54,6 +54,12 @@ vlff_optional(CAN HAVE_LINUX_CAN_RAW_H "linux/can/raw.h missing: apt install lin
 find_package(OpenCV QUIET COMPONENTS core imgproc calib3d imgcodecs dnn)
 vlff_optional(OPENCV OpenCV_FOUND "OpenCV core/imgproc/calib3d/imgcodecs/dnn not found: apt install libopencv-dnn-dev libopencv-calib3d-dev libopencv-imgcodecs-dev")
 
+pkg_check_modules(SYSTEMD QUIET IMPORTED_TARGET libsystemd)
+vlff_optional(SYSTEMD SYSTEMD_FOUND "pkg-config libsystemd not found: apt install libsystemd-dev")
+
+# vlff-eval's JSON report (strings escaped by the library, not by hand).
+pkg_check_modules(JSONC REQUIRED IMPORTED_TARGET json-c)
+
 find_package(HDF5 QUIET COMPONENTS C)
 vlff_optional(HDF5 HDF5_FOUND "HDF5 C library not found: apt install libhdf5-dev")
 

@@ -655,6 +655,22 @@ int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct v
   return rc;
 }
 
+#ifndef VLFF_SYSCONFDIR
+#error "VLFF_SYSCONFDIR must come from the install's sysconfdir (CMake)"
+#endif
+
+const char *vlff_config_default_path(void) { return VLFF_SYSCONFDIR "/vlff/vlff.yaml"; }
+
+const char *vlff_config_find(const char *path, char *err, size_t errlen) {
+  if (path) return path;
+  const char *env = getenv("VLFF_CONFIG");
+  if (env && *env) return env;
+  const char *def = vlff_config_default_path();
+  if (access(def, F_OK) == 0) return def;
+  snprintf(err, errlen, "no config: no --config given, $VLFF_CONFIG not set, %s: %s", def, strerror(errno));
+  return NULL;
+}
+
 int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_t errlen) {
   vlff_config_defaults(cfg);
   int fd = vlff_open_regular(path, err, errlen);

@@ -233,6 +233,19 @@ struct vlff_config {
 
 void vlff_config_defaults(struct vlff_config *cfg);
 
+/* The config a program runs with, by the search path every vlff program
+ * follows: path (its --config) when given, else $VLFF_CONFIG when set and not
+ * empty, else vlff_config_default_path() when that file exists. Returns the
+ * chosen path (path itself, the environment's string, or a static string);
+ * a path chosen from --config or $VLFF_CONFIG is returned even when it does
+ * not exist (loading it then says so). NULL when nothing was found, with err
+ * naming every place looked at. */
+const char *vlff_config_find(const char *path, char *err, size_t errlen);
+
+/* The installed config: <sysconfdir>/vlff/vlff.yaml of this build's install
+ * prefix (/etc/vlff/vlff.yaml for prefix /usr). */
+const char *vlff_config_default_path(void);
+
 /* Load a YAML file. Returns 0, or -1 with err filled ("file:line:col: ..."). */
 int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_t errlen);
 

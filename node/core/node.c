@@ -98,6 +98,10 @@ struct vlff_node {
   char prompt_text[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
   bool mapping;
   bool resumed;                /* the field came from a checkpoint: no batch warm-up */
+  long long ckpt_steps;        /* field steps in the newest checkpoint (or at start) */
+  /* Monotonic ns of each thread's last loop pass: the service watchdog is
+   * fed only while both move (vlff_node_status). */
+  _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
   double lat_ms[LAT_CAP];
   int lat_n;
@@ -299,6 +303,7 @@ static mode_t shm_mode(const struct vlff_node *n) {
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
   bool warned = false;
   while (!atomic_load(&n->stop)) {
+    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     /* Only rings of this node's uid, within the configured mode: anyone else able
      * to write one could forge its records. */
     struct vlff_ring *r = vlff_ring_attach_owned(name, kind, geteuid(), shm_mode(n));
@@ -348,6 +353,7 @@ static void *ingest_main(void *arg) {
   double fps_t0 = mono_s();
   long long fps_count = 0;
   while (ring && buf && fbuf && !atomic_load(&n->stop)) {
+    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     if (!poses) poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
     if (join && !feats)
       feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
@@ -576,6 +582,14 @@ static void obs_path(const struct vlff_node *n, int slot, char *out, size_t len)
 static int save_checkpoint(struct vlff_node *n) {
   char path[VLFF_CFG_PATH + 32], err[256];
   int slot = n->ckpt_slot;
+  /* Only learning changes what a checkpoint holds, and every change is a
+   * step: an idle node (no frames, stopped, a camera unplugged) writes
+   * nothing, sparing the robot's flash. */
+  long long steps = vlff_field_steps(n->field);
+  if (steps == n->ckpt_steps) {
+    VLFF_DEBUG(TAG, "checkpoint skipped: nothing learned since step %lld", steps);
+    return 0;
+  }
   /* The observation grid first: a field checkpoint is only ever newer than
    * (or as new as) the grid beside it. */
   obs_path(n, slot, path, sizeof path);
@@ -595,7 +609,8 @@ static int save_checkpoint(struct vlff_node *n) {
   n->st.checkpoints++;
   n->st.error_flags &= ~(unsigned)VLFF_NODE_ERR_CHECKPOINT;
   pthread_mutex_unlock(&n->slock);
-  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, vlff_field_steps(n->field));
+  n->ckpt_steps = steps;
+  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, steps);
   return 0;
 }
 
@@ -625,6 +640,7 @@ static void restore_checkpoint(struct vlff_node *n) {
     if (vlff_field_load(n->field, path[i], err, sizeof err) == 0) {
       VLFF_INFO(TAG, "resumed from %s at step %lld", path[i], vlff_field_steps(n->field));
       n->resumed = true;
+      n->ckpt_steps = vlff_field_steps(n->field);
       n->ckpt_slot = i ^ 1;
       char op[VLFF_CFG_PATH + 32];
       obs_path(n, i, op, sizeof op);
@@ -807,6 +823,7 @@ static void reset_mapping(struct vlff_node *n) {
   vlff_kfstore_destroy(n->store);
   n->field = f;
   n->resumed = false;
+  n->ckpt_steps = -1; /* the saved map is no longer the learned one */
   n->store = s;
   vlff_publisher_reset(n->pub);
   if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);
@@ -925,6 +942,7 @@ static void *trainer_main(void *arg) {
   bool first = n->resumed;
   if (first) apply_warmup(n);
   while (!atomic_load(&n->stop)) {
+    atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
     bool publish_now = first;
     first = false;
     run_commands(n, &publish_now);
@@ -1058,11 +1076,11 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     goto fail;
   n->pub = vlff_publisher_create(cfg, n->sim, n->gt_points.n ? &n->gt_points : NULL, err, errlen);
   if (!n->pub) goto fail;
-  /* Controllers post: whoever may read the node's segments as a group member may
-   * also write the mailbox (and only the mailbox). */
-  mode_t mbox_mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;
-  if (mbox_mode & 0040) mbox_mode |= 0020;
-  struct vlff_shm_perm perm = {.mode = mbox_mode, .group = cfg->shm.group};
+  /* Controllers of the segments' group post prompts: the mailbox alone is
+   * group-writable whenever the group may read. */
+  mode_t mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;
+  if (mode & S_IRGRP) mode |= S_IWGRP;
+  struct vlff_shm_perm perm = {.mode = mode, .group = cfg->shm.group};
   n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);
   if (!n->mailbox) {
     snprintf(err, errlen, "prompt mailbox %s: %s", cfg->shm.prompts, vlff_shm_last_message());
@@ -1070,6 +1088,8 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
   }
   restore_checkpoint(n);
   if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
+  atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
+  atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
   if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
     snprintf(err, errlen, "cannot start the trainer thread");
     goto fail;
@@ -1139,6 +1159,8 @@ void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out) {
   pthread_mutex_lock(&n->slock);
   *out = n->st;
   pthread_mutex_unlock(&n->slock);
+  out->trainer_beat_ns = atomic_load(&n->trainer_beat_ns);
+  out->ingest_beat_ns = atomic_load(&n->ingest_beat_ns);
 }
 
 int vlff_node_command(struct vlff_node *n, int cmd, int arg) {
