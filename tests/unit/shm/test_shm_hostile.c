@@ -12,6 +12,8 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <signal.h>
 #include <stdbool.h>
 #include <stdlib.h>
@@ -233,6 +235,68 @@ static void test_truncate_under_mailbox(void **state) {
   vlff_prompts_close(poster);
   vlff_prompts_close(learner);
   vlff_shm_unlink(name);
+}
+
+/* Threads: readers of two maps in two threads while one map is truncated. The
+ * reader of the truncated map gets EPIPE, the other one keeps reading. */
+struct reader_arg {
+  const char *name;
+  atomic_int stop, reads;
+  int epipe, other_errors;
+};
+
+static void *reader_thread(void *v) {
+  struct reader_arg *a = v;
+  struct vlff_map *r = vlff_map_attach(a->name);
+  if (!r) {
+    a->other_errors++;
+    return NULL;
+  }
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(r);
+  while (!atomic_load(&a->stop)) {
+    if (vlff_map_snapshot_take(r, snap) == 0) {
+      atomic_fetch_add(&a->reads, 1);
+    } else if (errno == EPIPE && vlff_shm_last_error() == VLFF_SHM_ERR_TRUNCATED) {
+      a->epipe++;
+      break;
+    } else if (errno != EAGAIN) {
+      a->other_errors++;
+    }
+  }
+  vlff_map_snapshot_free(snap);
+  vlff_map_detach(r);
+  return NULL;
+}
+
+static void test_truncate_with_threads(void **state) {
+  (void)state;
+  char n1[64], n2[64];
+  test_name(n1, sizeof n1, "thr1");
+  test_name(n2, sizeof n2, "thr2");
+  struct vlff_map *w1 = make_map(n1), *w2 = make_map(n2);
+  assert_int_equal(publish(w1, 1), 0);
+  assert_int_equal(publish(w2, 2), 0);
+  struct reader_arg a1 = {.name = n1}, a2 = {.name = n2};
+  pthread_t t1, t2;
+  assert_int_equal(pthread_create(&t1, NULL, reader_thread, &a1), 0);
+  assert_int_equal(pthread_create(&t2, NULL, reader_thread, &a2), 0);
+  while (atomic_load(&a1.reads) < 3 || atomic_load(&a2.reads) < 3)
+    nanosleep(&(struct timespec){0, 1000000}, NULL);
+  truncate_seg(n1, 4096);
+  pthread_join(t1, NULL);
+  int before = atomic_load(&a2.reads);
+  while (atomic_load(&a2.reads) < before + 3)
+    nanosleep(&(struct timespec){0, 1000000}, NULL);
+  atomic_store(&a2.stop, 1);
+  pthread_join(t2, NULL);
+  assert_int_equal(a1.epipe, 1);
+  assert_int_equal(a1.other_errors, 0);
+  assert_int_equal(a2.epipe, 0);
+  assert_int_equal(a2.other_errors, 0);
+  vlff_map_detach(w1);
+  vlff_map_detach(w2);
+  vlff_shm_unlink(n1);
+  vlff_shm_unlink(n2);
 }
 
 /* The application's SIGBUS handler still gets the faults that are not the library's. */
@@ -486,6 +550,7 @@ int main(void) {
     cmocka_unit_test(test_truncate_under_ring_writer),
     cmocka_unit_test(test_truncate_under_ring_reader),
     cmocka_unit_test(test_truncate_under_mailbox),
+    cmocka_unit_test(test_truncate_with_threads),
     cmocka_unit_test(test_application_sigbus_handler_kept),
     cmocka_unit_test(test_foreign_fault_still_fatal),
     cmocka_unit_test(test_other_users_stale_segment_refused),
