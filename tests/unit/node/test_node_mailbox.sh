@@ -31,8 +31,9 @@ check "forged newline refused before posting ($out)" '[[ $rc == 1 && $out == *"c
 check "nothing was posted" '"$shm" stat $p-p | grep -qE "^posts 2$"'
 out=$("$shm" set-prompts $p-p chair chair 2>&1); rc=$?
 check "duplicate prompts refused ($out)" '[[ $rc == 1 && $out == *"repeats"* ]]'
-for k in 1 2 3 4 5; do "$shm" set-prompts $p-p -i 0 >"$tmp/burst.$k" 2>&1 & done
-wait %2 %3 %4 %5 %6 2>/dev/null
+burst=()
+for k in 1 2 3 4 5; do "$shm" set-prompts $p-p -i 0 >"$tmp/burst.$k" 2>&1 & burst+=($!); done
+wait "${burst[@]}"
 check "a burst of 5 posters: every one accepted, 5 distinct numbers" \
   '[[ $(cat "$tmp"/burst.* | grep -c "^accepted") == 5 && $(cat "$tmp"/burst.* | sort -u | wc -l) == 5 ]]'
 
