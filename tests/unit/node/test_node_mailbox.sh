@@ -16,8 +16,8 @@ cleanup() {
   rm -f /dev/shm$p-*
 }
 trap cleanup EXIT
-printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n' \
-  "$tmp" $p $p $p >"$tmp/n.yaml"
+printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
+  "$tmp" $p $p $p $p >"$tmp/n.yaml"
 "$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
 nodepid=$!
 for ((i = 0; i < 200; i++)); do grep -q "waiting for ring" "$tmp/log" && break; sleep 0.1; done
@@ -46,15 +46,17 @@ check "map truncation logged" 'grep -q "map heartbeat: .*shrank" "$tmp/log"'
 check "mailbox posts answered again after the truncation" '"$shm" set-prompts $p-p -i 0 | grep -q "^accepted"'
 check "the map segment is whole again" '[[ $(stat -c %s /dev/shm$p-m) -gt 4096 ]]'
 
-# Truncation of the frame ring under the simulator (writer) and the node (reader).
-"$sim" --config "$tmp/n.yaml" --no-features --quiet 2>"$tmp/simlog" &
+# Truncation of the frame and feature rings under the simulator (writer) and of the
+# frame ring under the node (reader).
+"$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
 simpid=$!
 for ((i = 0; i < 300; i++)); do grep -q "attached to ring" "$tmp/log" && break; sleep 0.1; done
 check "node attached to the simulator's ring" 'grep -q "attached to ring" "$tmp/log"'
 truncate -s 4096 /dev/shm$p-r
+truncate -s 4096 /dev/shm$p-f
 sleep 2
 check "simulator alive after its ring was truncated" 'kill -0 $simpid'
-check "simulator logged it" 'grep -q "frame ring: .*shrank" "$tmp/simlog"'
+check "simulator logged it" 'grep -q "frame ring: .*shrank" "$tmp/simlog" && grep -q "feature ring: .*shrank" "$tmp/simlog"'
 check "node alive after its input ring was truncated" 'kill -0 $nodepid'
 check "node re-attached to the replaced ring" '[[ $(grep -c "attached to ring" "$tmp/log") -ge 2 ]]'
 kill "$simpid"; wait "$simpid"; simpid=
