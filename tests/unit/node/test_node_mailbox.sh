@@ -59,6 +59,27 @@ check "simulator alive after its ring was truncated" 'kill -0 $simpid'
 check "simulator logged it" 'grep -q "frame ring: .*shrank" "$tmp/simlog" && grep -q "feature ring: .*shrank" "$tmp/simlog"'
 check "node alive after its input ring was truncated" 'kill -0 $nodepid'
 check "node re-attached to the replaced ring" '[[ $(grep -c "attached to ring" "$tmp/log") -ge 2 ]]'
+# A poster that holds the mailbox mid-post (its sequence word odd) and then dies:
+# the node keeps training and publishing meanwhile, then discards the half-written
+# request with a log line, and posting works again.
+mapv() { "$shm" stat $p-m | awk '$1 == "version" { print $2 }'; }
+for ((i = 0; i < 600; i++)); do [[ $(mapv) -ge 1 ]] && break; sleep 0.1; done
+# One process holding the lock, as a poster would (flock(1) would leave its child
+# holding it after the kill).
+python3 -c 'import fcntl, os, sys, time
+fcntl.flock(os.open(sys.argv[1], os.O_RDONLY), fcntl.LOCK_EX)
+time.sleep(120)' /dev/shm$p-p &
+holder=$!
+sleep 0.2
+b=$(od -An -tu1 -j128 -N1 /dev/shm$p-p | tr -d ' ')
+printf "\\x$(printf %02x $((b + 1)))" | dd of=/dev/shm$p-p bs=1 seek=128 count=1 conv=notrunc status=none
+v0=$(mapv)
+for ((i = 0; i < 600; i++)); do (( $(mapv) >= v0 + 2 )) && break; sleep 0.1; done
+check "node publishes while a poster holds the mailbox mid-post (v$v0 -> v$(mapv))" '(( $(mapv) >= v0 + 2 ))'
+kill -9 $holder; wait $holder 2>/dev/null
+for ((i = 0; i < 100; i++)); do grep -q "left half-written" "$tmp/log" && break; sleep 0.1; done
+check "the dead poster's half-written request is logged" 'grep -q "left half-written by poster pid" "$tmp/log"'
+check "posting works after the dead poster" '"$shm" set-prompts $p-p -i 0 | grep -q "^accepted"'
 kill "$simpid"; wait "$simpid"; simpid=
 kill -TERM "$nodepid"; wait "$nodepid"; rc=$?; nodepid=
 check "node exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
