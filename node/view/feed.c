@@ -368,7 +368,7 @@ static void map_attach(struct vlff_feed *f, uint64_t now) {
 }
 
 /* Reads a new map version, if any, and appends its delta messages. */
-static int map_poll(struct vlff_feed *f, struct vlff_view_msg **out, int cap) {
+static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   struct feed_map *m = &f->m;
   uint64_t now = vlff_shm_now_ns();
   map_attach(f, now);
@@ -430,7 +430,8 @@ static int map_poll(struct vlff_feed *f, struct vlff_view_msg **out, int cap) {
 
   if (full) {
     count_labels(m);
-    struct vlff_view_msg *s = scene_msg(m, NULL, edge, t, 1), *vx = voxels_full_msg(m, t);
+    struct vlff_view_msg *s = wanted & 1u << VLFF_VIEW_CH_SCENE ? scene_msg(m, NULL, edge, t, 1) : NULL;
+    struct vlff_view_msg *vx = voxels_full_msg(m, t);
     if (s && nout < cap) out[nout++] = s;
     if (vx && nout < cap) out[nout++] = vx;
     set_current(f, VLFF_VIEW_CH_SCENE, s);
@@ -488,7 +489,7 @@ static int map_poll(struct vlff_feed *f, struct vlff_view_msg **out, int cap) {
     }
     /* a version that changed no voxel still reaches the voxel channel (clients
      * learn the version); the scene has nothing to replace then */
-    if (changed) s = scene_msg(m, dirty, edge, t, 1);
+    if (changed && (wanted & 1u << VLFF_VIEW_CH_SCENE)) s = scene_msg(m, dirty, edge, t, 1);
     free(dirty);
     if (s && nout < cap) out[nout++] = s;
     else vlff_view_msg_unref(s);
@@ -499,7 +500,8 @@ static int map_poll(struct vlff_feed *f, struct vlff_view_msg **out, int cap) {
     set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
   }
 
-  if (info.has_label_image && info.label_image.t_ns != m->label_image_t_ns && nout < cap) {
+  if (info.has_label_image && info.label_image.t_ns != m->label_image_t_ns && (wanted & 1u << VLFF_VIEW_CH_LABELS) &&
+      nout < cap) {
     m->label_image_t_ns = info.label_image.t_ns;
     struct vlff_view_msg *li = label_image_msg(f, &info.label_image);
     if (li) {
@@ -533,8 +535,9 @@ static const char *image_encoding(uint32_t fmt) {
   }
 }
 
-static int frames_poll(struct vlff_feed *f, struct vlff_view_msg **out, int cap) {
+static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   if (!f->p.frames_name || !*f->p.frames_name || cap < 1) return 0;
+  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE))) return 0;
   uint64_t now = vlff_shm_now_ns();
   if (!f->ring) {
     if (now < f->ring_next_attach_ns) return 0;
@@ -653,10 +656,11 @@ static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_v
   return jw_finish(&w);
 }
 
-int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, struct vlff_view_msg **out, int out_cap) {
+int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsigned wanted, struct vlff_view_msg **out,
+                   int out_cap) {
   uint64_t before = f->m.version;
-  int n = map_poll(f, out, out_cap);
-  n += frames_poll(f, out + n, out_cap - n);
+  int n = map_poll(f, wanted, out, out_cap);
+  n += frames_poll(f, wanted, out + n, out_cap - n);
   uint64_t now = vlff_shm_now_ns();
   if (n < out_cap && (f->m.version != before || now - f->last_status_ns >= NS)) {
     struct vlff_view_msg *s = status_msg(f, c);
@@ -673,7 +677,9 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch) {
   if (ch < 1 || ch > VLFF_VIEW_CH_COUNT) return NULL;
   if (!f->current[ch] && f->m.labels && f->m.version) {
     uint64_t t = to_real(f, f->m.publish_ns);
-    if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(&f->m, NULL, f->p.brick, t, 0);
+    /* deltas are not built while nobody subscribes to the scene: the whole scene
+     * sent now is what its clients hold from here on */
+    if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(&f->m, NULL, f->p.brick, t, 1);
     else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(&f->m, t);
   }
   return vlff_view_msg_ref(f->current[ch]);

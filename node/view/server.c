@@ -420,7 +420,11 @@ static int write_one(struct client *cl) {
 static void tick(lws_sorted_usec_list_t *sul) {
   struct vlff_view *v = lws_container_of(sul, struct vlff_view, sul);
   struct vlff_view_msg *out[16];
-  int n = vlff_feed_poll(v->feed, &v->c, out, 16);
+  unsigned wanted = 0;
+  for (struct client *cl = v->clients; cl; cl = cl->next)
+    for (int ch = 1; ch <= VLFF_VIEW_CH_COUNT; ch++)
+      if (cl->subscribed[ch]) wanted |= 1u << ch;
+  int n = vlff_feed_poll(v->feed, &v->c, wanted, out, 16);
   for (int i = 0; i < n; i++) {
     for (struct client *cl = v->clients; cl; cl = cl->next)
       if (cl->subscribed[out[i]->channel]) enqueue(cl, out[i], cl->sub_id[out[i]->channel], 0);

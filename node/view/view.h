@@ -93,9 +93,11 @@ void vlff_feed_free(struct vlff_feed *f);
  * replaced them) and appends the new messages to out (at most out_cap): a map delta
  * on the scene and voxel channels for a new map version, the label image and pose,
  * a camera image when the frame ring has a new frame and the rate allows, a status
- * message at least once a second. Returns the number of messages appended; the
- * caller owns them. */
-int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, struct vlff_view_msg **out, int out_cap);
+ * message at least once a second. Channels whose bit (1u << channel) is clear in
+ * wanted have no subscriber and are not encoded. Returns the number of messages
+ * appended; the caller owns them. */
+int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsigned wanted, struct vlff_view_msg **out,
+                   int out_cap);
 /* A new subscriber's first message on channel ch: the whole map (scene, voxels) or
  * the latest image/pose/status. NULL when there is nothing yet. One new reference. */
 struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch);
