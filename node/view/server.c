@@ -330,38 +330,50 @@ static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
              !token_ok(v->p.token, json_object_get_string(t))) {
     send_status(cl, 2, PROMPT_TOPIC ": wrong or missing token");
   } else {
-    if (!v->mailbox) v->mailbox = vlff_prompts_attach(v->p.prompts_name);
-    int rc = -1;
-    if (!v->mailbox) {
-      send_status(cl, 2, PROMPT_TOPIC ": mailbox %s: %s", v->p.prompts_name, vlff_shm_last_message());
-    } else if (json_object_object_get_ex(o, "set_index", &si)) {
-      int64_t k = json_object_is_type(si, json_type_int) ? json_object_get_int64(si) : -1;
-      if (k < 0 || k > 1000) send_status(cl, 2, PROMPT_TOPIC ": set_index must be an integer 0..1000");
-      else if ((rc = vlff_prompts_post_index(v->mailbox, (int)k)) != 0)
-        send_status(cl, 2, PROMPT_TOPIC ": posting set %lld: %s", (long long)k, strerror(errno));
+    /* validate the request whole before touching the mailbox */
+    const char *texts[VLFF_SHM_MAX_PROMPTS];
+    int np = -1;
+    int64_t set = -1;
+    if (json_object_object_get_ex(o, "set_index", &si)) {
+      set = json_object_is_type(si, json_type_int) ? json_object_get_int64(si) : -1;
+      if (set < 0 || set > 1000) {
+        send_status(cl, 2, PROMPT_TOPIC ": set_index must be an integer 0..1000");
+        goto out;
+      }
     } else if (!json_object_object_get_ex(o, "prompts", &p) || !json_object_is_type(p, json_type_array)) {
       send_status(cl, 2, PROMPT_TOPIC ": \"prompts\" must be an array of strings");
+      goto out;
     } else {
-      size_t np = json_object_array_length(p);
-      const char *texts[VLFF_SHM_MAX_PROMPTS];
-      int ok = np >= 1 && np <= VLFF_SHM_MAX_PROMPTS;
-      for (size_t i = 0; ok && i < np; i++) {
+      size_t len = json_object_array_length(p);
+      int ok = len >= 1 && len <= VLFF_SHM_MAX_PROMPTS;
+      for (size_t i = 0; ok && i < len; i++) {
         json_object *x = json_object_array_get_idx(p, i);
         texts[i] = json_object_is_type(x, json_type_string) ? json_object_get_string(x) : NULL;
         ok = texts[i] && *texts[i] && strlen(texts[i]) < VLFF_SHM_PROMPT_LEN;
       }
-      if (!ok)
+      if (!ok) {
         send_status(cl, 2, PROMPT_TOPIC ": 1..%d prompts, each a non-empty string shorter than %d bytes",
                     VLFF_SHM_MAX_PROMPTS, VLFF_SHM_PROMPT_LEN);
-      else if ((rc = vlff_prompts_post(v->mailbox, texts, (int)np)) != 0)
-        send_status(cl, 2, PROMPT_TOPIC ": posting: %s", vlff_shm_last_message());
+        goto out;
+      }
+      np = (int)len;
     }
-    if (rc == 0) {
+    if (!v->mailbox) v->mailbox = vlff_prompts_attach(v->p.prompts_name);
+    if (!v->mailbox) {
+      send_status(cl, 2, PROMPT_TOPIC ": mailbox %s: %s", v->p.prompts_name, vlff_shm_last_message());
+    } else if ((np > 0 ? vlff_prompts_post(v->mailbox, texts, np) : vlff_prompts_post_index(v->mailbox, (int)set)) != 0) {
+      send_status(cl, 2, PROMPT_TOPIC ": posting to %s: %s", v->p.prompts_name, vlff_shm_last_message());
+      if (errno == EPIPE) {
+        vlff_prompts_close(v->mailbox); /* replaced by a restarted node: attach again next time */
+        v->mailbox = NULL;
+      }
+    } else {
       v->c.prompts_posted++;
       send_status(cl, 0, "prompt set posted to %s", v->p.prompts_name);
       fprintf(stderr, "vlff-view: client %s posted a prompt set to %s\n", cl->peer, v->p.prompts_name);
     }
   }
+out:
   json_object_put(o);
 }
 
