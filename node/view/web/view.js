@@ -30,10 +30,15 @@ function resize() {
   renderer.setSize(host.clientWidth, host.clientHeight);
   camera.aspect = host.clientWidth / Math.max(1, host.clientHeight);
   camera.updateProjectionMatrix();
+  redraw();
 }
 window.addEventListener('resize', resize);
+// draw only when something changed: a software-rendered browser stays responsive
+let dirty = true;
+const redraw = () => { dirty = true; };
+controls.addEventListener('change', redraw);
+renderer.setAnimationLoop(() => { if (dirty) { dirty = false; renderer.render(scene, camera); } });
 resize();
-renderer.setAnimationLoop(() => { controls.update(); renderer.render(scene, camera); });
 
 function rebuild(centre) {
   if (mesh) { scene.remove(mesh); mesh.geometry.dispose(); mesh.material.dispose(); }
@@ -53,23 +58,35 @@ function rebuild(centre) {
   if (centre) {
     controls.target.set(...voxelCentre(map.dims[0] / 2, map.dims[1] / 2, 0));
     camera.position.copy(controls.target).add(new THREE.Vector3(-0.6, -1.0, 1.0).multiplyScalar(nx * s));
+    controls.update();
   }
+  redraw();
 }
 const voxelCentre = (i, j, k) => [0, 1, 2].map((a) => map.origin[a] + ([i, j, k][a] + 0.5) * map.voxel_size);
 
-// --- picking: the voxel under the cursor
+// --- picking: the voxel under a point of the window
 const ray = new THREE.Raycaster(), ndc = new THREE.Vector2();
-renderer.domElement.addEventListener('pointermove', (e) => {
+function pickAt(x, y) {
   const r = renderer.domElement.getBoundingClientRect();
-  ndc.set(((e.clientX - r.left) / r.width) * 2 - 1, -((e.clientY - r.top) / r.height) * 2 + 1);
+  ndc.set(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
   ray.setFromCamera(ndc, camera);
   const hit = mesh && ray.intersectObject(mesh)[0];
-  if (!hit) { $('pick').textContent = 'point at a voxel'; return; }
+  if (!hit) return null;
   const idx = order[hit.instanceId], [label, conf] = map.vox.get(idx);
-  const p = hit.point;
-  $('pick').textContent = `label ${label} prompt ${map.prompts[label] ?? '(none)'} confidence ${conf} ` +
-    `at (${p.x.toFixed(2)}, ${p.y.toFixed(2)}, ${p.z.toFixed(2)})`;
+  return { idx, label, conf, prompt: map.prompts[label] ?? '(none)', point: hit.point };
+}
+renderer.domElement.addEventListener('pointermove', (e) => {
+  const h = pickAt(e.clientX, e.clientY), p = h && h.point;
+  $('pick').textContent = h ? `label ${h.label} prompt ${h.prompt} confidence ${h.conf} ` +
+    `at (${p.x.toFixed(2)}, ${p.y.toFixed(2)}, ${p.z.toFixed(2)})` : 'point at a voxel';
 });
+// where a voxel's centre is on the screen (for scripts and the browser console)
+function screenOf(idx) {
+  const [nx, ny] = map.dims, v = new THREE.Vector3(...voxelCentre(idx % nx, Math.floor(idx / nx) % ny,
+    Math.floor(idx / (nx * ny)))).project(camera), r = renderer.domElement.getBoundingClientRect();
+  return { x: r.left + (v.x + 1) / 2 * r.width, y: r.top + (1 - v.y) / 2 * r.height };
+}
+window.vlff = { map, pickAt, screenOf, render: () => renderer.render(scene, camera) };
 
 // --- messages
 function onVoxels(d) {
@@ -82,6 +99,7 @@ function onVoxels(d) {
     if (v[n + 1] >= FREE) map.vox.delete(v[n]); else map.vox.set(v[n], [v[n + 1], v[n + 2]]);
   }
   rebuild(fresh && !mesh);
+  document.body.dataset.version = d.version;
   $('legend').replaceChildren(...d.prompts.map((p, i) => {
     const li = document.createElement('li');
     li.innerHTML = `<span style="background:${d.colors[i]}"></span>`;
@@ -119,12 +137,17 @@ function onPose(d) {
   cameraMark.visible = true;
   cameraMark.position.set(d.translation.x, d.translation.y, d.translation.z);
   cameraMark.quaternion.set(d.rotation.x, d.rotation.y, d.rotation.z, d.rotation.w);
+  redraw();
 }
 const handlers = { '/map/voxels': onVoxels, '/camera/image': (d) => onImage($('image'), d),
   '/camera/labels': (d) => onImage($('labels'), d), '/tf': onPose, '/vlff/status': onStatus };
 
 ws.onopen = () => { $('conn').textContent = 'live'; };
-ws.onclose = (e) => { $('conn').textContent = `closed ${e.code} ${e.reason}`; $('conn').style.color = '#c66'; };
+ws.onclose = (e) => {
+  $('conn').textContent = `closed ${e.code} ${e.reason}; reconnecting`;
+  $('conn').style.color = '#c66';
+  setTimeout(() => location.reload(), 3000);
+};
 ws.onmessage = (ev) => {
   if (typeof ev.data === 'string') {
     const m = JSON.parse(ev.data);

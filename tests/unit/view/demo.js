@@ -38,7 +38,8 @@ async function start({ withNode = true, viewArgs = [], token = null } = {}) {
   fs.writeFileSync(`${dir}/cfg.yaml`, cfg);
   const procs = [];
   procs.push(run(prog.sim, ['--config', `${dir}/cfg.yaml`, '--quiet'], `${dir}/sim.log`));
-  if (withNode) procs.push(run(prog.node, ['--config', `${dir}/cfg.yaml`], `${dir}/node.log`));
+  const node = withNode ? run(prog.node, ['--config', `${dir}/cfg.yaml`], `${dir}/node.log`) : null;
+  if (node) procs.push(node);
   const args = ['--port', '0', '--map', names.map, '--frames', names.frames, '--prompts', names.prompts, ...viewArgs];
   if (token) {
     fs.writeFileSync(`${dir}/token`, `${token}\n`, { mode: 0o600 });
@@ -57,8 +58,12 @@ async function start({ withNode = true, viewArgs = [], token = null } = {}) {
   });
   const demo = {
     dir, names, port, view, url: `http://127.0.0.1:${port}/`, ws: `ws://127.0.0.1:${port}/`,
+    // Freezes the learner (SIGSTOP) so that the map holds one version; resume() goes on.
+    pause: () => node.kill('SIGSTOP'),
+    resume: () => node.kill('SIGCONT'),
     log: (p) => fs.readFileSync(`${dir}/${p}.log`, 'utf8'),
     async stop(keep = false) {
+      if (node && node.exitCode === null) node.kill('SIGCONT');
       for (const p of procs.reverse()) {
         if (p.exitCode === null) {
           p.kill('SIGINT');
