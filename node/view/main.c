@@ -117,7 +117,7 @@ int main(int argc, char **argv) {
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
                                 .max_request_bytes = 64u << 10};
-  struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 8};
+  struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
   const char *token_file = NULL, *www = NULL;
   double x;
   int c;

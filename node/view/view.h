@@ -7,7 +7,7 @@
  * Two parts:
  *   - the feed (feed.c) turns what the segments hold into Foxglove messages: it keeps
  *     the last map version it sent and, for a new version, encodes only the voxels
- *     and 8x8x8 bricks that changed;
+ *     and bricks (4x4x4 voxels by default) that changed;
  *   - the server (server.c) speaks the foxglove.websocket.v1 subprotocol through
  *     libwebsockets on one port, serves the page's files on the same port, fans each
  *     message out to the clients subscribed to its channel and drops a client whose
