@@ -57,7 +57,7 @@ function rebuild(centre) {
   scene.add(mesh);
   if (centre) {
     controls.target.set(...voxelCentre(map.dims[0] / 2, map.dims[1] / 2, 0));
-    camera.position.copy(controls.target).add(new THREE.Vector3(-0.6, -1.0, 1.0).multiplyScalar(nx * s));
+    camera.position.copy(controls.target).add(new THREE.Vector3(-0.3, -0.7, 1.25).multiplyScalar(nx * s));
     controls.update();
   }
   redraw();
