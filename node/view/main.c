@@ -28,7 +28,7 @@ static void usage(FILE *out) {
         "Serve the node's live map, camera and status to Foxglove (foxglove.websocket.v1)\n"
         "and to a built-in web page, on one port.\n"
         "\n"
-        "  -l, --listen ADDR       address to listen on (default 127.0.0.1; 0.0.0.0 = every interface)\n"
+        "  -l, --listen ADDR       IP address or interface to listen on (default 127.0.0.1; 0.0.0.0 = all)\n"
         "  -p, --port N            port (default 8765; 0 = any free port, printed on start)\n"
         "  -m, --map NAME          map segment (default /vlff-map)\n"
         "  -f, --frames NAME       frame ring for the camera image (default /vlff-frames; \"\" = none)\n"
