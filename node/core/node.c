@@ -25,6 +25,7 @@
 #include "embeddings.h"
 #include "feature_join.h"
 #include "field.h"
+#include "files.h"
 #include "keyframes.h"
 #include "log.h"
 #include "metrics.h"
@@ -97,6 +98,10 @@ struct vlff_node {
   char prompt_text[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
   bool mapping;
   bool resumed;                /* the field came from a checkpoint: no batch warm-up */
+  long long ckpt_steps;        /* field steps in the newest checkpoint (or at start) */
+  /* Monotonic ns of each thread's last loop pass: the service watchdog is
+   * fed only while both move (vlff_node_status). */
+  _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
   double lat_ms[LAT_CAP];
   int lat_n;
@@ -294,6 +299,7 @@ static void pending_complete(struct vlff_node *n, struct candidate **pending, in
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
   bool warned = false;
   while (!atomic_load(&n->stop)) {
+    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     struct vlff_ring *r = vlff_ring_attach(name, kind);
     if (r) {
       VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
@@ -341,6 +347,7 @@ static void *ingest_main(void *arg) {
   double fps_t0 = mono_s();
   long long fps_count = 0;
   while (ring && buf && fbuf && !atomic_load(&n->stop)) {
+    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     if (!poses) poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
     if (join && !feats) feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
     /* Features that arrived (external extractor or in-node model) complete
@@ -568,6 +575,14 @@ static void obs_path(const struct vlff_node *n, int slot, char *out, size_t len)
 static int save_checkpoint(struct vlff_node *n) {
   char path[VLFF_CFG_PATH + 32], err[256];
   int slot = n->ckpt_slot;
+  /* Only learning changes what a checkpoint holds, and every change is a
+   * step: an idle node (no frames, stopped, a camera unplugged) writes
+   * nothing, sparing the robot's flash. */
+  long long steps = vlff_field_steps(n->field);
+  if (steps == n->ckpt_steps) {
+    VLFF_DEBUG(TAG, "checkpoint skipped: nothing learned since step %lld", steps);
+    return 0;
+  }
   /* The observation grid first: a field checkpoint is only ever newer than
    * (or as new as) the grid beside it. */
   obs_path(n, slot, path, sizeof path);
@@ -587,11 +602,17 @@ static int save_checkpoint(struct vlff_node *n) {
   n->st.checkpoints++;
   n->st.error_flags &= ~(unsigned)VLFF_NODE_ERR_CHECKPOINT;
   pthread_mutex_unlock(&n->slock);
-  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, vlff_field_steps(n->field));
+  n->ckpt_steps = steps;
+  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, steps);
   return 0;
 }
 
 static void restore_checkpoint(struct vlff_node *n) {
+  /* A node killed while writing a checkpoint leaves its temporary behind,
+   * as large as a checkpoint: nothing else would ever remove it. */
+  static const char *const temps[] = {"field.", "map.", NULL};
+  int stale = vlff_remove_dead_temps(n->cfg.node.state_dir, temps);
+  if (stale) VLFF_INFO(TAG, "removed %d temporary file(s) of a dead writer in %s", stale, n->cfg.node.state_dir);
   char path[2][VLFF_CFG_PATH + 32];
   struct stat sb[2];
   bool have[2];
@@ -612,6 +633,7 @@ static void restore_checkpoint(struct vlff_node *n) {
     if (vlff_field_load(n->field, path[i], err, sizeof err) == 0) {
       VLFF_INFO(TAG, "resumed from %s at step %lld", path[i], vlff_field_steps(n->field));
       n->resumed = true;
+      n->ckpt_steps = vlff_field_steps(n->field);
       n->ckpt_slot = i ^ 1;
       char op[VLFF_CFG_PATH + 32];
       obs_path(n, i, op, sizeof op);
@@ -709,15 +731,22 @@ static void take_candidates(struct vlff_node *n, bool wait) {
   pthread_mutex_unlock(&n->qlock);
   for (int i = 0; i < nb; i++) {
     struct candidate *c = batch[i];
-    if (n->mapping) {
+    char verr[256];
+    if (n->mapping && vlff_publisher_check_view(n->pub, &c->view, verr, sizeof verr)) {
+      /* Implausible intrinsics or pose would make every ray of this view
+       * wrong (and, unbounded, endless): never train on or map it. */
+      VLFF_WARN(TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s", c->id, verr);
+      STAT_ADD(n, frames_invalid, 1);
+    } else if (n->mapping) {
       if (!pose_check(n, c)) {
         STAT_ADD(n, poses_rejected, 1);
       } else {
         struct vlff_keyframe_in kin = {.id = c->id, .t_ns = (long long)c->t_host_ns, .view = c->view,
                                        .feature_dim = n->cfg.field.feature_dim};
         if (vlff_kfstore_add(n->store, &kin) == 0) {
-          vlff_publisher_observe(n->pub, &c->view);
-          vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames);
+          /* The view passed the same check just above: these cannot refuse it. */
+          if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
+            vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames, verr, sizeof verr);
           if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
         } else {
           VLFF_WARN(TAG, "keyframe %lld does not fit the keyframe store: %s", c->id, strerror(errno));
@@ -787,6 +816,7 @@ static void reset_mapping(struct vlff_node *n) {
   vlff_kfstore_destroy(n->store);
   n->field = f;
   n->resumed = false;
+  n->ckpt_steps = -1; /* the saved map is no longer the learned one */
   n->store = s;
   vlff_publisher_reset(n->pub);
   if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);
@@ -893,6 +923,7 @@ static void *trainer_main(void *arg) {
   bool first = n->resumed;
   if (first) apply_warmup(n);
   while (!atomic_load(&n->stop)) {
+    atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
     bool publish_now = first;
     first = false;
     run_commands(n, &publish_now);
@@ -1026,7 +1057,11 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     goto fail;
   n->pub = vlff_publisher_create(cfg, n->sim, n->gt_points.n ? &n->gt_points : NULL, err, errlen);
   if (!n->pub) goto fail;
-  struct vlff_shm_perm perm = {.mode = (mode_t)cfg->shm.mode, .group = cfg->shm.group};
+  /* Controllers of the segments' group post prompts: the mailbox alone is
+   * group-writable whenever the group may read. */
+  mode_t mode = (mode_t)cfg->shm.mode;
+  if (mode & S_IRGRP) mode |= S_IWGRP;
+  struct vlff_shm_perm perm = {.mode = mode, .group = cfg->shm.group};
   n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);
   if (!n->mailbox) {
     snprintf(err, errlen, "prompt mailbox %s: %s", cfg->shm.prompts, vlff_shm_last_message());
@@ -1034,6 +1069,8 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
   }
   restore_checkpoint(n);
   if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
+  atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
+  atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
   if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
     snprintf(err, errlen, "cannot start the trainer thread");
     goto fail;
@@ -1103,6 +1140,8 @@ void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out) {
   pthread_mutex_lock(&n->slock);
   *out = n->st;
   pthread_mutex_unlock(&n->slock);
+  out->trainer_beat_ns = atomic_load(&n->trainer_beat_ns);
+  out->ingest_beat_ns = atomic_load(&n->ingest_beat_ns);
 }
 
 int vlff_node_command(struct vlff_node *n, int cmd, int arg) {

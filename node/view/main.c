@@ -4,6 +4,7 @@
  * controller and serves them to Foxglove (foxglove.websocket.v1) and to its own page
  * on one port, until SIGINT/SIGTERM.
  */
+#include "cli.h"
 #include "view.h"
 
 #include <errno.h>
@@ -23,40 +24,40 @@ static void on_signal(int sig) {
   if (running) vlff_view_stop(running);
 }
 
-static void usage(FILE *out) {
-  fputs("Usage: vlff-view [OPTIONS]\n"
-        "Serve the node's live map, camera and status to Foxglove (foxglove.websocket.v1)\n"
-        "and to a built-in web page, on one port.\n"
-        "\n"
-        "  -l, --listen ADDR       IP address or interface to listen on (default 127.0.0.1; 0.0.0.0 = all)\n"
-        "  -p, --port N            port (default 8765; 0 = any free port, printed on start)\n"
-        "  -m, --map NAME          map segment (default /vlff-map)\n"
-        "  -f, --frames NAME       frame ring for the camera image (default /vlff-frames; \"\" = none)\n"
-        "      --prompts NAME      prompt mailbox (default /vlff-prompts)\n"
-        "      --token-file FILE   enable posting prompt sets; clients must send the token in FILE\n"
-        "      --image-hz HZ       most camera images per second (default 2, 0.1..60)\n"
-        "      --poll-hz HZ        segment checks per second (default 50, 1..1000)\n"
-        "      --max-clients N     clients at once (default 10, 1..1000)\n"
-        "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32)\n"
-        "      --max-request-kb KB largest client message (default 64)\n"
-        "      --www DIR           the page's files (default: installed with the program)\n"
-        "  -v, --verbose           log connections (twice: libwebsockets' notices too)\n"
-        "  -V, --version           print the version and exit\n"
-        "  -h, --help              print this help and exit\n"
-        "\n"
-        "Examples:\n"
-        "  vlff-view --map /vlff-demo-map --frames /vlff-demo-frames --prompts /vlff-demo-prompts\n"
-        "  vlff-view --listen 0.0.0.0 --token-file /etc/vlff/view.token\n"
-        "Then open http://127.0.0.1:8765/ or connect Foxglove to ws://127.0.0.1:8765.\n",
-        out);
-}
+static const struct vlff_cli cli = {
+    "vlff-view",
+    "Usage: vlff-view [OPTIONS]\n"
+    "Serve the node's live map, camera and status to Foxglove (foxglove.websocket.v1)\n"
+    "and to a built-in web page, on one port.\n"
+    "\n"
+    "  -l, --listen ADDR       IP address or interface to listen on (default 127.0.0.1; 0.0.0.0 = all)\n"
+    "  -p, --port N            port (default 8765; 0 = any free port, printed on start)\n"
+    "  -m, --map NAME          map segment (default /vlff-map)\n"
+    "  -f, --frames NAME       frame ring for the camera image (default /vlff-frames; \"\" = none)\n"
+    "      --prompts NAME      prompt mailbox (default /vlff-prompts)\n"
+    "      --token-file FILE   enable posting prompt sets; clients must send the token in FILE\n"
+    "      --image-hz HZ       most camera images per second (default 2, 0.1..60)\n"
+    "      --poll-hz HZ        segment checks per second (default 50, 1..1000)\n"
+    "      --max-clients N     clients at once (default 10, 1..1000)\n"
+    "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32)\n"
+    "      --max-request-kb KB largest client message (default 64)\n"
+    "      --www DIR           the page's files (default: installed with the program)\n"
+    "  -v, --verbose           log connections (twice: libwebsockets' notices too)\n"
+    "  -V, --version           print the version and exit\n"
+    "  -h, --help              print this help and exit\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-view --map /vlff-demo-map --frames /vlff-demo-frames --prompts /vlff-demo-prompts\n"
+    "  vlff-view --listen 0.0.0.0 --token-file /etc/vlff/view.token\n"
+    "Then open http://127.0.0.1:8765/ or connect Foxglove to ws://127.0.0.1:8765.\n",
+};
 
 static int parse_num(const char *opt, const char *s, double lo, double hi, double *out) {
   char *end;
   errno = 0;
   double x = strtod(s, &end);
   if (errno || end == s || *end || !(x >= lo && x <= hi)) {
-    fprintf(stderr, "vlff-view: --%s '%s' is not a number in %g..%g\n", opt, s, lo, hi);
+    vlff_cli_usage_error(&cli, "--%s '%s' is not a number in %g..%g", opt, s, lo, hi);
     return -1;
   }
   *out = x;
@@ -67,7 +68,7 @@ static int parse_num(const char *opt, const char *s, double lo, double hi, doubl
 static char *read_token(const char *path) {
   FILE *f = fopen(path, "r");
   if (!f) {
-    fprintf(stderr, "vlff-view: --token-file %s: %s\n", path, strerror(errno));
+    vlff_cli_error(&cli, "--token-file %s: %s", path, strerror(errno));
     return NULL;
   }
   char buf[512];
@@ -112,17 +113,17 @@ int main(int argc, char **argv) {
       {"image-hz", required_argument, NULL, OPT_IMAGE_HZ}, {"poll-hz", required_argument, NULL, OPT_POLL_HZ},
       {"max-clients", required_argument, NULL, OPT_MAX_CLIENTS}, {"max-queue-mb", required_argument, NULL, OPT_QUEUE},
       {"max-request-kb", required_argument, NULL, OPT_REQUEST}, {"www", required_argument, NULL, OPT_WWW},
-      {"verbose", no_argument, NULL, 'v'},          {"version", no_argument, NULL, 'V'},
-      {"help", no_argument, NULL, 'h'},             {NULL, 0, NULL, 0}};
+      {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
                                 .max_request_bytes = 64u << 10};
   struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
   const char *token_file = NULL, *www = NULL;
   double x;
-  int c;
-  while ((c = getopt_long(argc, argv, "l:p:m:f:vVh", opts, NULL)) != -1) {
+  int c, status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "l:p:m:f:v", opts, &status)) != -1) {
     switch (c) {
+    case VLFF_CLI_EXIT: return status;
     case 'l': vp.address = optarg; break;
     case 'p':
       if (parse_num("port", optarg, 0, 65535, &x) || x != (int)x) return 2;
@@ -152,35 +153,22 @@ int main(int argc, char **argv) {
       break;
     case OPT_WWW: www = optarg; break;
     case 'v': vp.verbose++; break;
-    case 'V': printf("vlff-view %s\n", VLFF_VERSION); return 0;
-    case 'h': usage(stdout); return 0;
-    default: usage(stderr); return 2;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
-  if (optind < argc) {
-    fprintf(stderr, "vlff-view: unexpected argument '%s'\n", argv[optind]);
-    usage(stderr);
-    return 2;
-  }
-  if (fp.map_name[0] != '/') {
-    fprintf(stderr, "vlff-view: --map '%s' must start with '/'\n", fp.map_name);
-    return 2;
-  }
+  if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
+  if (fp.map_name[0] != '/') return vlff_cli_usage_error(&cli, "--map '%s' must start with '/'", fp.map_name);
   char wwwbuf[PATH_MAX];
   if (www) {
-    if (!is_dir_with_index(www)) {
-      fprintf(stderr, "vlff-view: --www %s: no index.html there\n", www);
-      return 2;
-    }
+    if (!is_dir_with_index(www)) return vlff_cli_usage_error(&cli, "--www %s: no index.html there", www);
     vp.www_dir = www;
   } else if (default_www(wwwbuf, sizeof wwwbuf) == 0) {
     vp.www_dir = wwwbuf;
   } else {
-    fprintf(stderr, "vlff-view: the page's files are not installed beside the program; pass --www DIR\n");
-    return 2;
+    return vlff_cli_error(&cli, "the page's files are not installed beside the program; pass --www DIR");
   }
   char *token = NULL;
-  if (token_file && !(token = read_token(token_file))) return 2;
+  if (token_file && !(token = read_token(token_file))) return 1;
   vp.token = token;
 
   struct vlff_feed *feed = vlff_feed_new(&fp);
