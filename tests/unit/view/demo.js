@@ -2,7 +2,7 @@
 // streaming the synthetic room, vlff-node learning it (unless withNode is false)
 // and vlff-view on a free port, all on segment names of their own. stop() ends them.
 'use strict';
-const { spawn, spawnSync } = require('child_process');
+const { execFile, spawn, spawnSync } = require('child_process');
 const fs = require('fs');
 const os = require('os');
 const path = require('path');
@@ -25,6 +25,16 @@ function shm(...args) {
   const r = spawnSync(prog.shm, args, { encoding: 'utf8' });
   if (r.status !== 0) throw new Error(`vlff-shm ${args.join(' ')}: ${r.stderr}`);
   return r.stdout;
+}
+
+// vlff-shm CLI without blocking the event loop (a blocked client stops reading its
+// socket, and the viewer would rightly drop it as too slow): its stdout.
+function shmAsync(...args) {
+  return new Promise((resolve, reject) => {
+    execFile(prog.shm, args, { encoding: 'utf8' }, (err, stdout, stderr) => {
+      if (err) reject(new Error(`vlff-shm ${args.join(' ')}: ${stderr}`)); else resolve(stdout);
+    });
+  });
 }
 
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
@@ -92,4 +102,4 @@ async function waitVersion(demo, v, timeoutMs) {
   }
 }
 
-module.exports = { start, shm, sleep, waitVersion, prog };
+module.exports = { start, shm, shmAsync, sleep, waitVersion, prog };
