@@ -432,10 +432,13 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
     count_labels(m);
     struct vlff_view_msg *s = wanted & 1u << VLFF_VIEW_CH_SCENE ? scene_msg(m, NULL, edge, t, 1) : NULL;
     struct vlff_view_msg *vx = voxels_full_msg(m, t);
-    if (s && nout < cap) out[nout++] = s;
-    if (vx && nout < cap) out[nout++] = vx;
     set_current(f, VLFF_VIEW_CH_SCENE, s);
     set_current(f, VLFF_VIEW_CH_VOXELS, vx);
+    /* the small voxel message first: it is not queued behind the scene */
+    if (vx && nout < cap) out[nout++] = vx;
+    else vlff_view_msg_unref(vx);
+    if (s && nout < cap) out[nout++] = s;
+    else vlff_view_msg_unref(s);
   } else {
     /* the delta: changed voxels, in index order, and the bricks holding them */
     uint32_t nb = brick_count(m, edge);
@@ -491,10 +494,10 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
      * learn the version); the scene has nothing to replace then */
     if (changed && (wanted & 1u << VLFF_VIEW_CH_SCENE)) s = scene_msg(m, dirty, edge, t, 1);
     free(dirty);
-    if (s && nout < cap) out[nout++] = s;
-    else vlff_view_msg_unref(s);
     if (vx && nout < cap) out[nout++] = vx;
     else vlff_view_msg_unref(vx);
+    if (s && nout < cap) out[nout++] = s;
+    else vlff_view_msg_unref(s);
     /* the whole map for new subscribers is rebuilt when first asked for */
     set_current(f, VLFF_VIEW_CH_SCENE, NULL);
     set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
