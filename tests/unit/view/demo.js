@@ -80,6 +80,7 @@ async function start({ withNode = true, viewArgs = [], token = null } = {}) {
           await new Promise((r) => { p.once('exit', r); setTimeout(r, 10000); });
         }
       }
+      demo.viewExit = view.exitCode; // 0 after a clean SIGINT (a sanitizer's report makes it non-zero)
       if (!keep) fs.rmSync(dir, { recursive: true, force: true });
       for (const n of Object.values(names).concat([`/${tag}-poses`, `/${tag}-features`])) {
         try { fs.unlinkSync(`/dev/shm${n}`); } catch (e) { /* never created */ }

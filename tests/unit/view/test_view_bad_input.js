@@ -189,7 +189,10 @@ async function main() {
     console.log(`logs kept in ${demo.dir}`);
     process.exit(1);
   }
+  const log = demo.log('view');
   await demo.stop();
+  assert.strictEqual(demo.viewExit, 0, `vlff-view exits 0 on SIGINT: ${log.slice(-2000)}`);
+  ok('vlff-view stops cleanly on SIGINT after all that');
   console.log(`1..${passed}`);
 }
 main();

@@ -14,6 +14,7 @@
 
 #include <json-c/json.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
@@ -37,6 +38,15 @@ static int publish(struct vlff_map *m, const char *const *p, int np) {
   return vlff_map_publish(m, &up);
 }
 
+/* A message's payload is exactly len bytes of one JSON text, not NUL-terminated. */
+static json_object *parse(struct vlff_view_msg *m) {
+  char *copy = strndup((const char *)vlff_view_msg_payload(m), m->len);
+  json_object *o = json_tokener_parse(copy);
+  free(copy);
+  assert_non_null(o);
+  return o;
+}
+
 struct polled {
   json_object *msg[VLFF_VIEW_CH_COUNT + 1];
   int count[VLFF_VIEW_CH_COUNT + 1];
@@ -50,15 +60,9 @@ static void poll_feed(struct vlff_feed *f, unsigned wanted, struct polled *out) 
   for (int i = 0; i < n; i++) {
     int ch = m[i]->channel;
     assert_true(ch >= 1 && ch <= VLFF_VIEW_CH_COUNT);
-    json_object *o = json_tokener_parse((const char *)vlff_view_msg_payload(m[i]));
-    /* every message is one whole JSON text of exactly len bytes */
-    char *copy = strndup((const char *)vlff_view_msg_payload(m[i]), m[i]->len);
-    json_object *o2 = json_tokener_parse(copy);
-    free(copy);
-    assert_non_null(o2);
-    json_object_put(o);
+    json_object *o = parse(m[i]);
     json_object_put(out->msg[ch]);
-    out->msg[ch] = o2;
+    out->msg[ch] = o;
     out->count[ch]++;
     vlff_view_msg_unref(m[i]);
   }
@@ -170,7 +174,7 @@ static void test_feed(void **state) {
   free_polled(&p);
   struct vlff_view_msg *cur = vlff_feed_current(f, VLFF_VIEW_CH_SCENE);
   assert_non_null(cur);
-  json_object *whole = json_tokener_parse((const char *)vlff_view_msg_payload(cur));
+  json_object *whole = parse(cur);
   assert_int_equal(cube_count(whole), NX * NY + 2);
   json_object_put(whole);
   vlff_view_msg_unref(cur);
