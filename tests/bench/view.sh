@@ -18,7 +18,7 @@ export NODE_PATH=$root/node/view/node_modules
 tag=bv$$
 tmp=$(mktemp -d)
 pids=()
-cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null; done; wait 2>/dev/null; rm -rf "$tmp"; }
+cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null; done; wait 2>/dev/null; rm -rf "$tmp" /dev/shm/$tag-*; }
 trap cleanup EXIT
 echo "host load: $(cut -d' ' -f1-3 /proc/loadavg) on $(nproc) cores"
 "$build/bench/bench_view" publish /$tag-map /$tag-frames $((secs + 8)) >"$tmp/pub" &

@@ -57,6 +57,8 @@ async function start({ withNode = true, viewArgs = [], token = null } = {}) {
   }
   const view = run(prog.view, args, `${dir}/view.log`);
   procs.push(view);
+  // however this test ends, it leaves no program running
+  process.on('exit', () => procs.forEach((p) => { if (p.exitCode === null) { p.kill('SIGCONT'); p.kill('SIGKILL'); } }));
   const port = await new Promise((resolve, reject) => {
     let text = '';
     view.stdout.on('data', (d) => {
