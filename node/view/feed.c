@@ -540,7 +540,6 @@ static const char *image_encoding(uint32_t fmt) {
 
 static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   if (!f->p.frames_name || !*f->p.frames_name || cap < 1) return 0;
-  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE))) return 0;
   uint64_t now = vlff_shm_now_ns();
   if (!f->ring) {
     if (now < f->ring_next_attach_ns) return 0;
@@ -572,6 +571,8 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
     f->fps_head = head;
     f->fps_t_ns = now;
   }
+  /* the ring is watched for the status either way; frames are read for subscribers */
+  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE))) return 0;
   if (head == f->ring_head || (f->p.image_hz > 0 && now - f->last_image_ns < (uint64_t)(1e9 / f->p.image_hz)))
     return 0;
   struct vlff_ring_view info;
