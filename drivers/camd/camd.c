@@ -26,6 +26,9 @@
 #include "pipe.h"
 #include "ringsink.h"
 #include "stamps.h"
+#ifdef VLFF_HAVE_SYSTEMD
+#include <systemd/sd-daemon.h>
+#endif
 #ifdef VLFF_HAVE_ARAVIS
 #include "aravis.h"
 #endif
@@ -247,12 +250,26 @@ int main(int argc, char **argv) {
   }
 #endif
 
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Type=notify: ready once the ring exists (consumers may attach; the camera
+   * may come later). The watchdog is fed from this loop, which passes every
+   * grab timeout whether a camera is there or not: only a hang stops it. */
+  uint64_t wd_usec = 0, last_wd = 0;
+  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
+  sd_notify(0, "READY=1");
+#endif
   void *cam = NULL;
   uint64_t t0 = mono_ns(), next_try = t0, lost_at = 0;
   double backoff = 0.1;
   uint64_t lost = 0, reconnects = 0, open_failures = 0, incomplete = 0, timeouts = 0, triggers = 0, trig_fail = 0;
   bool ever_open = false;
   while (!stop_req) {
+#ifdef VLFF_HAVE_SYSTEMD
+    if (wd_usec && mono_ns() - last_wd >= wd_usec * 250) {
+      sd_notify(0, "WATCHDOG=1");
+      last_wd = mono_ns();
+    }
+#endif
     if (max_seconds > 0 && (double)(mono_ns() - t0) * 1e-9 >= max_seconds) break;
     if (max_frames > 0 && vlff_pipe_get_stats(pipe)->committed >= (uint64_t)max_frames) break;
     if (!cam) {
@@ -308,6 +325,9 @@ int main(int argc, char **argv) {
       next_try = mono_ns() + (uint64_t)(backoff * 1e9);
     }
   }
+#ifdef VLFF_HAVE_SYSTEMD
+  sd_notify(0, "STOPPING=1");
+#endif
   if (cam) {
     uint64_t inc, to;
     be->counters(cam, &inc, &to);

@@ -15,6 +15,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <sys/socket.h>
+#include <sys/un.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -129,10 +131,49 @@ static void check_frame(const void *rec, size_t len, int w, int h) {
     }
 }
 
+#ifdef VLFF_HAVE_SYSTEMD
+/* A notify socket of our own, as systemd gives a Type=notify service. */
+static int notify_listen(char *path, size_t len) {
+  snprintf(path, len, "/tmp/vlff-test-camd-notify-%ld", (long)getpid());
+  unlink(path);
+  int fd = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  assert_true(fd >= 0);
+  struct sockaddr_un a = {.sun_family = AF_UNIX};
+  snprintf(a.sun_path, sizeof a.sun_path, "%s", path);
+  assert_int_equal(bind(fd, (struct sockaddr *)&a, sizeof a), 0);
+  setenv("NOTIFY_SOCKET", path, 1);
+  setenv("WATCHDOG_USEC", "2000000", 1); /* a few messages a second: the queue never fills */
+  return fd;
+}
+
+/* Appends every datagram received so far, one per line. Called while camd
+ * runs: a unix datagram socket's queue is short and a full one blocks the
+ * sender, as it would under a systemd that stopped reading. */
+static void notify_collect(int fd, char *out, size_t cap) {
+  size_t n = strlen(out);
+  char msg[256];
+  ssize_t got;
+  while ((got = recv(fd, msg, sizeof msg - 1, MSG_DONTWAIT)) > 0 && n + (size_t)got + 2 < cap) {
+    memcpy(out + n, msg, (size_t)got);
+    n += (size_t)got;
+    out[n++] = '\n';
+    out[n] = 0;
+  }
+}
+#endif
+
 static void test_streams_n_frames(void **state) {
   (void)state;
   write_cfg("Mono8", 320, 240, NULL);
+#ifdef VLFF_HAVE_SYSTEMD
+  char npath[108], notes[8192] = "";
+  int nfd = notify_listen(npath, sizeof npath);
+#endif
   pid_t pid = spawn_camd("30");
+#ifdef VLFF_HAVE_SYSTEMD
+  unsetenv("NOTIFY_SOCKET");
+  unsetenv("WATCHDOG_USEC");
+#endif
   struct vlff_ring *r = attach();
   vlff_ring_seek_oldest(r);
   size_t cap = vlff_ring_slot_size(r);
@@ -152,12 +193,23 @@ static void test_streams_n_frames(void **state) {
     }
     last_host = hd->t_host_ns, last_dev = hd->t_device_ns, last_id = hd->frame_id;
     n++;
+#ifdef VLFF_HAVE_SYSTEMD
+    notify_collect(nfd, notes, sizeof notes);
+#endif
   }
   assert_int_equal(wait_exit(pid, 10), 0);
   assert_int_equal(vlff_ring_head(r), 30);
   assert_int_equal(vlff_ring_lost(r), 0);
   assert_int_equal(stat_of("committed"), 30);
   assert_int_equal(stat_of("dropped"), 0);
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Type=notify: ready, watchdog fed while streaming, stopping. */
+  notify_collect(nfd, notes, sizeof notes);
+  close(nfd);
+  unlink(npath);
+  if (!strstr(notes, "READY=1\n") || !strstr(notes, "WATCHDOG=1\n") || !strstr(notes, "STOPPING=1\n"))
+    fail_msg("notify messages: %s", notes);
+#endif
   free(buf);
   vlff_ring_close(r);
   cleanup();
