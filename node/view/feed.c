@@ -187,11 +187,10 @@ static int brick_has_voxels(const struct feed_map *m, uint32_t b, uint32_t edge)
   return 0;
 }
 
-static void palette(const struct feed_map *m, uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3]) {
+static void palette(uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3]) {
   for (unsigned l = 0; l < VLFF_SHM_MAX_PROMPTS; l++) label_rgb(l, rgb[l]);
   /* a label without a prompt (the map names more labels than prompts) is grey */
   rgb[VLFF_SHM_MAX_PROMPTS][0] = rgb[VLFF_SHM_MAX_PROMPTS][1] = rgb[VLFF_SHM_MAX_PROMPTS][2] = 128;
-  (void)m;
 }
 
 /* The scene message: the listed bricks (dirty == NULL: every brick; full also
@@ -201,7 +200,7 @@ static struct vlff_view_msg *scene_msg(struct feed_map *m, const uint8_t *dirty,
                                        int update_sent) {
   uint32_t nb = brick_count(m, edge);
   uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
-  palette(m, rgb);
+  palette(rgb);
   struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_SCENE, 4096), 0};
   if (!w.m) return NULL;
   w.m->t_ns = t;
