@@ -78,11 +78,17 @@ void jw_f(struct jw *w, const char *fmt, ...) {
   va_start(ap, fmt);
   int n = vsnprintf(tmp, sizeof tmp, fmt, ap);
   va_end(ap);
-  if (n < 0 || (size_t)n >= sizeof tmp) {
+  if (n < 0) {
     w->failed = 1;
-    return;
+  } else if ((size_t)n < sizeof tmp) {
+    jw_raw(w, tmp, (size_t)n);
+  } else if (!reserve(w, (size_t)n + 1)) {
+    /* a long line (a huge coordinate printed in full): straight into the message */
+    va_start(ap, fmt);
+    vsnprintf((char *)vlff_view_msg_payload(w->m) + w->m->len, (size_t)n + 1, fmt, ap);
+    va_end(ap);
+    w->m->len += (size_t)n;
   }
-  jw_raw(w, tmp, (size_t)n);
 }
 
 void jw_str(struct jw *w, const char *s) {
