@@ -404,3 +404,25 @@ int shm_ring_peek(struct vlff_ring *r, uint64_t n, void *out, size_t want) {
   atomic_thread_fence(memory_order_acquire);
   return atomic_load_explicit(&s->seq, memory_order_relaxed) == s1;
 }
+
+/* A consumer with nothing left to read sleeps on the futex word, so a FUTEX_WAKE of
+ * one waiter that finds somebody proves a consumer is caught up. Nothing else tells
+ * the producer: consumers map the segment read-only and leave no cursor in it. The
+ * woken consumer re-reads head, finds it unchanged and waits again. */
+API int vlff_ring_wait_reader(struct vlff_ring *r, uint64_t timeout_ns) {
+  if (!r || !r->producer) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_ring_wait_reader: not a producer handle");
+    return -1;
+  }
+  uint64_t t0 = shm_now();
+  for (;;) {
+    if (futex(&r->ctl->futex, FUTEX_WAKE, 1, NULL) > 0)
+      return 0;
+    if (shm_now() - t0 >= timeout_ns) {
+      shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no consumer caught up within the timeout", r->seg.name);
+      return -1;
+    }
+    struct timespec ts = {0, 200 * 1000};
+    nanosleep(&ts, NULL);
+  }
+}

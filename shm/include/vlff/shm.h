@@ -37,8 +37,9 @@
  *   objects (including several handles to the same segment, in one or many processes)
  *   may be used concurrently without locks. Exactly one producer per ring and one
  *   writer per map (the creator); vlff_*_create refuses a second live creator.
- *   Nothing in this library ever makes a producer or map writer wait for a reader:
- *   readers detect that data changed underneath them and retry or count it as lost.
+ *   Nothing in this library ever makes a producer or map writer wait for a reader
+ *   (a replay tool may choose to, with vlff_ring_wait_reader): readers detect that
+ *   data changed underneath them and retry or count it as lost.
  *
  * Clocks: every timestamp is CLOCK_MONOTONIC in nanoseconds (vlff_shm_now_ns()).
  *
@@ -169,6 +170,15 @@ void *vlff_ring_reserve(struct vlff_ring *ring, uint64_t *seq);
 int vlff_ring_commit(struct vlff_ring *ring, size_t len);
 /* Producer: copy-in convenience = reserve + memcpy + commit. */
 int vlff_ring_write(struct vlff_ring *ring, const void *data, size_t len);
+
+/* Producer: waits until a consumer sleeps in vlff_ring_read_begin for a record newer
+ * than the newest committed one, i.e. until some consumer has read everything. For
+ * tools that replay recorded data as fast as their reader takes it; live producers
+ * never wait. Consumers that poll with timeout 0 are never seen; with several
+ * consumers the first one that catches up ends the wait. Finding a sleeping consumer
+ * wakes it once; it finds nothing new and sleeps again. Returns 0, or -1 with
+ * ETIMEDOUT, EINVAL (not a producer handle). */
+int vlff_ring_wait_reader(struct vlff_ring *ring, uint64_t timeout_ns);
 
 /* A record being read in place by a consumer. */
 struct vlff_ring_view {

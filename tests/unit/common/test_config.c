@@ -353,8 +353,8 @@ static void test_shipped_configs(void **state) {
     snprintf(needle, sizeof needle, "\n  %s:", k);
     if (!strstr(text, needle)) fail_msg("default.yaml lacks key %s", vlff_config_key_path(i));
   }
-  const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "libcamera.yaml", "vlff.yaml"};
-  for (size_t i = 0; i < 4; i++) {
+  const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "aravis-rgbd.yaml", "libcamera.yaml", "vlff.yaml"};
+  for (size_t i = 0; i < sizeof examples / sizeof examples[0]; i++) {
     snprintf(path, sizeof path, "%s/configs/%s", src, examples[i]);
     if (vlff_config_load(path, &cfg, err, sizeof err)) fail_msg("%s", err);
   }
