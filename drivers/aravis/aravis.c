@@ -277,11 +277,6 @@ void vlff_arv_shutdown(void) { arv_shutdown(); }
 
 const struct vlff_arv_stats *vlff_arv_stats(const struct vlff_arv *a) { return &a->st; }
 
-void vlff_arv_region(const struct vlff_arv *a, int *w, int *h) {
-  *w = a->w;
-  *h = a->h;
-}
-
 int vlff_arv_software_trigger(struct vlff_arv *a, char *err, size_t errlen) {
   GError *e = NULL;
   arv_camera_software_trigger(a->cam, &e);

@@ -14,7 +14,6 @@ static _Atomic int log_level = VLFF_LOG_INFO;
 static _Atomic long long log_t0_ns;
 
 void vlff_log_set_level(enum vlff_log_level level) { atomic_store(&log_level, (int)level); }
-enum vlff_log_level vlff_log_get_level(void) { return (enum vlff_log_level)atomic_load(&log_level); }
 
 static long long now_ns(void) {
   struct timespec ts;
