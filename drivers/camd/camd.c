@@ -26,6 +26,7 @@
 #include <time.h>
 
 #include "cli.h"
+#include "clock.h"
 #include "config.h"
 #include "log.h"
 #include "pair.h"
@@ -58,12 +59,6 @@ static void on_stop(int sig) {
 static void on_usr1(int sig) {
   (void)sig;
   atomic_fetch_add(&trigger_req, 1);
-}
-
-static uint64_t mono_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
 static void sleep_ms(int ms) {
@@ -142,7 +137,7 @@ struct slot {
 static int slot_open(struct slot *s, const char *path) {
   if (s->cam) return 1;
   char err[1024];
-  uint64_t now = mono_ns();
+  uint64_t now = vlff_now_ns();
   if (now < s->next_try) return 0;
   s->cam = s->be->open(&s->cfg, err, sizeof err);
   if (!s->cam) {
@@ -160,7 +155,7 @@ static int slot_open(struct slot *s, const char *path) {
   }
   if (s->ever_open) {
     s->reconnects++;
-    VLFF_INFO(TAG, "%s back after %.1f s (reconnect %llu)", s->what, (double)(mono_ns() - s->lost_at) * 1e-9,
+    VLFF_INFO(TAG, "%s back after %.1f s (reconnect %llu)", s->what, (double)(vlff_now_ns() - s->lost_at) * 1e-9,
               (unsigned long long)s->reconnects);
   }
   s->ever_open = true;
@@ -194,11 +189,11 @@ static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
   if (!s->cam) return;
   if (s->be->grab(s->cam, timeout_ms, s->pipe, s->sink, s->poses) >= 0) return;
   s->lost++;
-  s->lost_at = mono_ns();
+  s->lost_at = vlff_now_ns();
   slot_close(s);
   VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, s->cfg.camera.device,
              (unsigned long long)s->lost, ring);
-  s->next_try = mono_ns() + (uint64_t)(s->backoff * 1e9);
+  s->next_try = vlff_now_ns() + (uint64_t)(s->backoff * 1e9);
 }
 
 static const struct vlff_cli cli = {
@@ -391,15 +386,15 @@ int main(int argc, char **argv) {
   if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
   sd_notify(0, "READY=1");
 #endif
-  uint64_t t0 = mono_ns();
+  uint64_t t0 = vlff_now_ns();
   while (!stop_req) {
 #ifdef VLFF_HAVE_SYSTEMD
-    if (wd_usec && mono_ns() - last_wd >= wd_usec * 250) {
+    if (wd_usec && vlff_now_ns() - last_wd >= wd_usec * 250) {
       sd_notify(0, "WATCHDOG=1");
-      last_wd = mono_ns();
+      last_wd = vlff_now_ns();
     }
 #endif
-    if (max_seconds > 0 && (double)(mono_ns() - t0) * 1e-9 >= max_seconds) break;
+    if (max_seconds > 0 && (double)(vlff_now_ns() - t0) * 1e-9 >= max_seconds) break;
     uint64_t committed = pair ? vlff_pair_get_stats(pair)->pairs : vlff_pipe_get_stats(color->pipe)->committed;
     if (max_frames > 0 && committed >= (uint64_t)max_frames) break;
     int open = 0, refused = 0;

@@ -3,6 +3,7 @@
 // the caller's thread does all the work in vlff_lcam_grab(), so the frame
 // pipeline and the sink stay single-threaded as their contracts require.
 #include "lcam.h"
+#include "clock.h"
 
 #include <cerrno>
 #include <chrono>
@@ -48,12 +49,6 @@ const FormatName kFormats[] = {
 };
 
 std::unique_ptr<CameraManager> g_cm;
-
-uint64_t mono_ns() {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 }  // namespace
 
@@ -300,7 +295,7 @@ extern "C" int vlff_lcam_grab(struct vlff_lcam *c, int timeout_ms, struct vlff_p
       auto ts = r->metadata().get(controls::SensorTimestamp);
       raw.device_ns = ts ? (uint64_t)*ts : fb->metadata().timestamp;
       // V4L2 stamps buffers on CLOCK_MONOTONIC, the host clock we report.
-      uint64_t now = mono_ns();
+      uint64_t now = vlff_now_ns();
       raw.host_ns = raw.device_ns && raw.device_ns <= now && now - raw.device_ns < 1000000000u ? raw.device_ns : now;
       rc = vlff_pipe_push(pipe, &raw, sink, poses) == 0 ? 1 : 0;
     }
