@@ -5,6 +5,7 @@
  * know the voxel holds one, and the field only supplies its meaning.
  */
 #include "publish.h"
+#include "files.h" /* vlff_write_file_atomic */
 #include "hash.h"
 
 #include <math.h>

@@ -69,40 +69,6 @@ int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, cha
   return 0;
 }
 
-int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen) {
-  char tmp[4200];
-  if (snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid()) >= (int)sizeof tmp) {
-    seterr(err, errlen, "%s: path too long", path);
-    return -1;
-  }
-  int fd = vlff_create_temp(tmp, 0644, err, errlen);
-  if (fd < 0) return -1;
-  const uint8_t *p = data;
-  size_t left = len;
-  while (left) {
-    ssize_t w = write(fd, p, left);
-    if (w < 0 && errno == EINTR) continue;
-    if (w <= 0) {
-      seterr(err, errlen, "%s: write failed: %s", tmp, strerror(errno));
-      close(fd);
-      unlink(tmp);
-      return -1;
-    }
-    p += w, left -= (size_t)w;
-  }
-  if (fsync(fd) < 0 || close(fd) < 0) {
-    seterr(err, errlen, "%s: fsync/close failed: %s", tmp, strerror(errno));
-    unlink(tmp);
-    return -1;
-  }
-  if (rename(tmp, path) < 0) {
-    seterr(err, errlen, "%s: rename failed: %s", path, strerror(errno));
-    unlink(tmp);
-    return -1;
-  }
-  return 0;
-}
-
 /* ---- PNG ---------------------------------------------------------------- */
 
 struct membuf {
