@@ -10,6 +10,11 @@
  * Software triggers come from SIGUSR1 (one per signal, for tests and simple
  * integrations) or from GPIO input edges; they are sent from this loop so
  * that the camera object is only ever touched by one thread.
+ *
+ * With camera.depth: stream the process drives two cameras, the colour
+ * camera and a range camera (depth_camera.*), each with its own pipeline
+ * and reconnect state; their frames meet in the pairing (pair.h), which
+ * writes one record per matched pair.
  */
 #include <errno.h>
 #include <getopt.h>
@@ -21,11 +26,16 @@
 #include <time.h>
 
 #include "cli.h"
+#include "clock.h"
 #include "config.h"
 #include "log.h"
+#include "pair.h"
 #include "pipe.h"
 #include "ringsink.h"
 #include "stamps.h"
+#ifdef VLFF_HAVE_SYSTEMD
+#include <systemd/sd-daemon.h>
+#endif
 #ifdef VLFF_HAVE_ARAVIS
 #include "aravis.h"
 #endif
@@ -40,7 +50,7 @@
 
 static volatile sig_atomic_t stop_req;
 static atomic_uint_fast64_t trigger_req; /* signal handler and GPIO thread add, loop consumes */
-static struct vlff_stamps stamps;
+static struct vlff_stamps stamps, depth_stamps; /* one consumer each: the two pipelines */
 
 static void on_stop(int sig) {
   (void)sig;
@@ -49,12 +59,6 @@ static void on_stop(int sig) {
 static void on_usr1(int sig) {
   (void)sig;
   atomic_fetch_add(&trigger_req, 1);
-}
-
-static uint64_t mono_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
 static void sleep_ms(int ms) {
@@ -103,19 +107,102 @@ static int trigger_on_edge;
 static void on_pulse(void *ctx, uint64_t t, uint64_t n) {
   (void)ctx, (void)n;
   vlff_stamps_push(&stamps, t);
+  vlff_stamps_push(&depth_stamps, t);
 }
 static void on_edge(void *ctx, uint64_t t, uint64_t n) {
   (void)ctx, (void)n;
   vlff_stamps_push(&stamps, t);
+  vlff_stamps_push(&depth_stamps, t);
   if (trigger_on_edge) atomic_fetch_add(&trigger_req, 1);
 }
 #endif
+
+/* One camera of the process, its pipeline and its reconnect state. */
+struct slot {
+  const char *what; /* "camera" or "depth camera", for messages */
+  const struct backend *be;
+  struct vlff_config cfg; /* camera.* describes this camera */
+  struct vlff_pipe *pipe;
+  struct vlff_sink *sink;
+  const struct vlff_pose_source *poses;
+  void *cam;
+  uint64_t next_try, lost_at;
+  double backoff;
+  uint64_t lost, reconnects, open_failures, incomplete, timeouts, triggers, trig_fail;
+  bool ever_open;
+};
+
+/* Opens the camera when it is due; 1 open, 0 not (yet), -1 the camera
+ * refuses its configuration (retrying will not help). */
+static int slot_open(struct slot *s, const char *path) {
+  if (s->cam) return 1;
+  char err[1024];
+  uint64_t now = vlff_now_ns();
+  if (now < s->next_try) return 0;
+  s->cam = s->be->open(&s->cfg, err, sizeof err);
+  if (!s->cam) {
+    if (errno != ENODEV) {
+      fprintf(stderr, "vlff-camd: %s: %s%s\n", path, strcmp(s->what, "camera") ? "depth camera: " : "", err);
+      return -1;
+    }
+    s->open_failures++;
+    if (s->open_failures == 1 || s->open_failures % 10 == 0)
+      VLFF_WARN(TAG, "%s: %s (attempt %llu, next in %.1f s)", s->what, err, (unsigned long long)s->open_failures,
+                s->backoff);
+    s->next_try = now + (uint64_t)(s->backoff * 1e9);
+    s->backoff = s->backoff * 2 < s->cfg.camera.reconnect_max_s ? s->backoff * 2 : s->cfg.camera.reconnect_max_s;
+    return 0;
+  }
+  if (s->ever_open) {
+    s->reconnects++;
+    VLFF_INFO(TAG, "%s back after %.1f s (reconnect %llu)", s->what, (double)(vlff_now_ns() - s->lost_at) * 1e-9,
+              (unsigned long long)s->reconnects);
+  }
+  s->ever_open = true;
+  s->open_failures = 0;
+  s->backoff = 0.1;
+  return 1;
+}
+
+static void slot_close(struct slot *s) {
+  if (!s->cam) return;
+  uint64_t inc, to;
+  s->be->counters(s->cam, &inc, &to);
+  s->incomplete += inc, s->timeouts += to;
+  s->be->close(s->cam);
+  s->cam = NULL;
+}
+
+static void slot_trigger(struct slot *s, uint64_t n) {
+  char err[512];
+  for (; n > 0 && s->cam && s->be->trigger && s->cfg.camera.trigger == VLFF_TRIG_SOFTWARE; n--) {
+    if (s->be->trigger(s->cam, err, sizeof err)) {
+      s->trig_fail++;
+      VLFF_WARN(TAG, "%s: %s", s->what, err);
+    } else {
+      s->triggers++;
+    }
+  }
+}
+
+static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
+  if (!s->cam) return;
+  if (s->be->grab(s->cam, timeout_ms, s->pipe, s->sink, s->poses) >= 0) return;
+  s->lost++;
+  s->lost_at = vlff_now_ns();
+  slot_close(s);
+  VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, s->cfg.camera.device,
+             (unsigned long long)s->lost, ring);
+  s->next_try = vlff_now_ns() + (uint64_t)(s->backoff * 1e9);
+}
 
 static const struct vlff_cli cli = {
     "vlff-camd",
     "Usage: vlff-camd [--config FILE] [--frames N] [--seconds S]\n"
     "       vlff-camd --check-config FILE\n"
-    "Streams one camera (camera.* keys) into the frame ring (shm.ring).\n"
+    "Streams one camera (camera.* keys) into the frame ring (shm.ring), or with\n"
+    "camera.depth: stream a colour camera and a range camera (depth_camera.*) as\n"
+    "one record per pair, the range image registered into the colour camera.\n"
     "  -c, --config FILE  the config; without it $VLFF_CONFIG, then the installed\n"
     "                     vlff.yaml (vlff-node --help names it); none found is an error\n"
     "  --check-config FILE  check FILE's camera keys and exit 0/1\n"
@@ -130,11 +217,25 @@ static const struct vlff_cli cli = {
     "  vlff-camd --check-config my-camera.yaml\n",
 };
 
-int main(int argc, char **argv) {
-  const char *path = NULL;
-  long max_frames = 0;
-  double max_seconds = 0;
-  bool check_only = false;
+/* The process: its options, its cameras and where their frames go. */
+struct camd {
+  const char *path;
+  long max_frames;
+  double max_seconds;
+  bool check_only;
+  struct vlff_config cfg;
+  struct slot slots[2];
+  int nslots;
+  struct vlff_ringsink *ring;
+  struct vlff_pair *pair;
+#ifdef VLFF_HAVE_GPIOD
+  struct vlff_gpio_out *gout;
+  struct vlff_gpio_in *gin;
+#endif
+};
+
+/* -1 to go on, else the exit status. */
+static int parse_args(struct camd *d, int argc, char **argv) {
   static const struct option opts[] = {{"config", required_argument, 0, 'c'},
                                        {"check-config", required_argument, 0, 'k'},
                                        {"frames", required_argument, 0, 'n'},
@@ -145,195 +246,270 @@ int main(int argc, char **argv) {
     char *end;
     switch (o) {
     case VLFF_CLI_EXIT: return exit_status;
-    case 'c': path = optarg; break;
-    case 'k': path = optarg, check_only = true; break;
+    case 'c': d->path = optarg; break;
+    case 'k': d->path = optarg, d->check_only = true; break;
     case 'n':
-      max_frames = strtol(optarg, &end, 10);
-      if (*end || max_frames < 1) return vlff_cli_usage_error(&cli, "--frames expects a positive integer");
+      d->max_frames = strtol(optarg, &end, 10);
+      if (*end || d->max_frames < 1) return vlff_cli_usage_error(&cli, "--frames expects a positive integer");
       break;
     case 's':
-      max_seconds = strtod(optarg, &end);
-      if (*end || !(max_seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds expects a positive number");
+      d->max_seconds = strtod(optarg, &end);
+      if (*end || !(d->max_seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds expects a positive number");
       break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
   if (optind != argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
   char ferr[512];
-  path = vlff_config_find(path, ferr, sizeof ferr);
-  if (!path) return vlff_cli_error(&cli, "%s", ferr);
+  d->path = vlff_config_find(d->path, ferr, sizeof ferr);
+  if (!d->path) return vlff_cli_error(&cli, "%s", ferr);
+  return -1;
+}
 
-  static struct vlff_config cfg;
+/* The config, the backend and each camera's pipeline: 0, or 2 (the
+ * configuration cannot run), said on stderr. */
+static int setup_cameras(struct camd *d) {
   char err[1024];
-  if (vlff_config_load(path, &cfg, err, sizeof err) || vlff_camcfg_check(&cfg, path, err, sizeof err)) {
+  struct vlff_config *cfg = &d->cfg;
+  if (vlff_config_load(d->path, cfg, err, sizeof err) || vlff_camcfg_check(cfg, d->path, err, sizeof err)) {
     fprintf(stderr, "vlff-camd: %s\n", err);
     return 2;
   }
-  vlff_log_set_level((enum vlff_log_level)cfg.node.log_level);
+  vlff_log_set_level((enum vlff_log_level)cfg->node.log_level);
   const struct backend *be = NULL;
 #ifdef VLFF_HAVE_ARAVIS
-  if (cfg.camera.kind == VLFF_CAM_ARAVIS) be = &aravis_backend;
+  if (cfg->camera.kind == VLFF_CAM_ARAVIS) be = &aravis_backend;
 #endif
 #ifdef VLFF_HAVE_LIBCAMERA
-  if (cfg.camera.kind == VLFF_CAM_LIBCAMERA) be = &libcamera_backend;
+  if (cfg->camera.kind == VLFF_CAM_LIBCAMERA) be = &libcamera_backend;
 #endif
   if (!be) {
-    fprintf(stderr, "vlff-camd: %s: key 'camera.kind': this build has no %s support\n", path,
-            cfg.camera.kind == VLFF_CAM_ARAVIS ? "Aravis" : "libcamera");
+    fprintf(stderr, "vlff-camd: %s: key 'camera.kind': this build has no %s support\n", d->path,
+            cfg->camera.kind == VLFF_CAM_ARAVIS ? "Aravis" : "libcamera");
     return 2;
   }
-  struct vlff_pipe *pipe = vlff_pipe_new(&cfg, err, sizeof err);
-  if (!pipe) {
-    fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
+  const bool paired = cfg->camera.depth == VLFF_DEPTH_STREAM;
+  d->nslots = paired ? 2 : 1;
+  struct slot *color = &d->slots[0], *range = paired ? &d->slots[1] : NULL;
+  color->what = "camera", color->be = be, color->cfg = *cfg, color->backoff = 0.1;
+  color->pipe = vlff_pipe_new(cfg, err, sizeof err);
+  if (!color->pipe) {
+    fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
     return 2;
   }
-  if (check_only) {
-    printf("%s: ok (%s camera '%s', %s)\n", path, be->name, cfg.camera.device, cfg.camera.pixel_format);
-    vlff_pipe_free(pipe);
-    return 0;
+  if (range) {
+#ifdef VLFF_HAVE_ARAVIS
+    range->what = "depth camera", range->be = &aravis_backend, range->backoff = 0.1;
+    vlff_depth_camera_config(cfg, &range->cfg);
+    range->pipe = vlff_pipe_new_depth(cfg, err, sizeof err);
+#else
+    snprintf(err, sizeof err, "key 'depth_camera.kind': this build has no Aravis support");
+#endif
+    if (!range->pipe) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 2;
+    }
   }
+  if (d->check_only) {
+    /* the calibration is read by the pairing: check it here too */
+    if (paired && !(d->pair = vlff_pair_new(cfg, NULL, err, sizeof err))) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 2;
+    }
+    printf("%s: ok (%s camera '%s', %s%s%s)\n", d->path, be->name, cfg->camera.device, cfg->camera.pixel_format,
+           paired ? ", range camera " : "", paired ? cfg->depth_camera.device : "");
+  }
+  return 0;
+}
 
-  struct sigaction sa = {0};
-  sa.sa_handler = on_stop;
-  sigaction(SIGINT, &sa, NULL);
-  sigaction(SIGTERM, &sa, NULL);
-  sa.sa_handler = on_usr1;
-  sa.sa_flags = SA_RESTART;
-  sigaction(SIGUSR1, &sa, NULL);
-  vlff_stamps_init(&stamps);
-
-  int status = 0;
-  struct vlff_ringsink *ring = vlff_ringsink_new(&cfg, err, sizeof err);
-  if (!ring) {
+/* The frame ring, and the pairing between the cameras and it: 0, 1 (the
+ * ring) or 2 (the pairing's calibration). */
+static int setup_ring(struct camd *d) {
+  char err[1024];
+  d->ring = vlff_ringsink_new(&d->cfg, err, sizeof err);
+  if (!d->ring) {
     fprintf(stderr, "vlff-camd: %s\n", err);
-    vlff_pipe_free(pipe);
     return 1;
   }
+  struct slot *color = &d->slots[0];
+  color->poses = vlff_ringsink_poses(d->ring);
+  color->sink = vlff_ringsink_sink(d->ring);
+  if (d->nslots == 2) {
+    d->pair = vlff_pair_new(&d->cfg, vlff_ringsink_sink(d->ring), err, sizeof err);
+    if (!d->pair) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 2;
+    }
+    color->sink = vlff_pair_color_sink(d->pair);
+    d->slots[1].sink = vlff_pair_depth_sink(d->pair);
+  }
+  return 0;
+}
 
+/* The GPIO line, driving the trigger or stamping its edges: 0, 1 (the line
+ * failed) or 2 (no libgpiod in this build). */
+static int setup_gpio(struct camd *d) {
+  const struct vlff_config *cfg = &d->cfg;
 #ifdef VLFF_HAVE_GPIOD
-  struct vlff_gpio_out *gout = NULL;
-  struct vlff_gpio_in *gin = NULL;
-  if (cfg.gpio.mode == VLFF_GPIO_OUTPUT) {
-    gout = vlff_gpio_out_start(cfg.gpio.chip, cfg.gpio.line, cfg.gpio.rate_hz, cfg.gpio.pulse_us, cfg.gpio.active_low,
-                               on_pulse, NULL, err, sizeof err);
-    if (!gout) goto gpio_fail;
-    /* A hardware-triggered frame belongs to the newest pulse before it. */
-    if (cfg.camera.trigger == VLFF_TRIG_HARDWARE)
-      vlff_pipe_set_stamps(pipe, &stamps, (uint64_t)(1e9 / cfg.gpio.rate_hz));
-  } else if (cfg.gpio.mode == VLFF_GPIO_INPUT) {
-    trigger_on_edge = cfg.camera.trigger == VLFF_TRIG_SOFTWARE;
-    gin = vlff_gpio_in_start(cfg.gpio.chip, cfg.gpio.line, cfg.gpio.debounce_us, cfg.gpio.active_low, on_edge, NULL,
-                             err, sizeof err);
-    if (!gin) goto gpio_fail;
+  char err[1024];
+  struct slot *color = &d->slots[0], *range = d->nslots == 2 ? &d->slots[1] : NULL;
+  if (cfg->gpio.mode == VLFF_GPIO_OUTPUT) {
+    d->gout = vlff_gpio_out_start(cfg->gpio.chip, cfg->gpio.line, cfg->gpio.rate_hz, cfg->gpio.pulse_us,
+                                  cfg->gpio.active_low, on_pulse, NULL, err, sizeof err);
+    if (!d->gout) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 1;
+    }
+    /* A hardware-triggered frame belongs to the newest pulse before it; a
+     * pair fired by one pulse carries that pulse's stamp on both sides. */
+    if (cfg->camera.trigger == VLFF_TRIG_HARDWARE)
+      vlff_pipe_set_stamps(color->pipe, &stamps, (uint64_t)(1e9 / cfg->gpio.rate_hz));
+    if (range && cfg->depth_camera.trigger == VLFF_TRIG_HARDWARE)
+      vlff_pipe_set_stamps(range->pipe, &depth_stamps, (uint64_t)(1e9 / cfg->gpio.rate_hz));
+  } else if (cfg->gpio.mode == VLFF_GPIO_INPUT) {
+    trigger_on_edge = cfg->camera.trigger == VLFF_TRIG_SOFTWARE ||
+                      (range && cfg->depth_camera.trigger == VLFF_TRIG_SOFTWARE);
+    d->gin = vlff_gpio_in_start(cfg->gpio.chip, cfg->gpio.line, cfg->gpio.debounce_us, cfg->gpio.active_low,
+                                on_edge, NULL, err, sizeof err);
+    if (!d->gin) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 1;
+    }
     /* A frame the edge triggered arrives after trigger latency, exposure,
      * readout and transfer, easily more than a frame period; it is still the
      * edge's frame. Stamping-only edges must fall within one period. */
-    uint64_t period = (uint64_t)(1e9 / cfg.camera.frame_rate);
-    vlff_pipe_set_stamps(pipe, &stamps, trigger_on_edge && period < 1000000000u ? 1000000000u : period);
-  }
-  if (0) {
-  gpio_fail:
-    fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-    vlff_ringsink_free(ring);
-    vlff_pipe_free(pipe);
-    return 1;
+    for (int i = 0; i < d->nslots; i++) {
+      uint64_t period = (uint64_t)(1e9 / d->slots[i].cfg.camera.frame_rate);
+      vlff_pipe_set_stamps(d->slots[i].pipe, i ? &depth_stamps : &stamps,
+                           trigger_on_edge && period < 1000000000u ? 1000000000u : period);
+    }
   }
 #else
-  if (cfg.gpio.mode != VLFF_GPIO_OFF) {
-    fprintf(stderr, "vlff-camd: %s: key 'gpio.mode': this build has no libgpiod support\n", path);
-    vlff_ringsink_free(ring);
-    vlff_pipe_free(pipe);
+  if (cfg->gpio.mode != VLFF_GPIO_OFF) {
+    fprintf(stderr, "vlff-camd: %s: key 'gpio.mode': this build has no libgpiod support\n", d->path);
     return 2;
   }
 #endif
+  return 0;
+}
 
-  void *cam = NULL;
-  uint64_t t0 = mono_ns(), next_try = t0, lost_at = 0;
-  double backoff = 0.1;
-  uint64_t lost = 0, reconnects = 0, open_failures = 0, incomplete = 0, timeouts = 0, triggers = 0, trig_fail = 0;
-  bool ever_open = false;
+/* Grabs until a signal, --frames or --seconds: 0, or 2 when a camera
+ * refuses its configuration. */
+static int run(struct camd *d) {
+  int status = 0;
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Type=notify: ready once the ring exists (consumers may attach; the camera
+   * may come later). The watchdog is fed from this loop, which passes every
+   * grab timeout whether a camera is there or not: only a hang stops it. */
+  uint64_t wd_usec = 0, last_wd = 0;
+  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
+  sd_notify(0, "READY=1");
+#endif
+  uint64_t t0 = vlff_now_ns();
   while (!stop_req) {
-    if (max_seconds > 0 && (double)(mono_ns() - t0) * 1e-9 >= max_seconds) break;
-    if (max_frames > 0 && vlff_pipe_get_stats(pipe)->committed >= (uint64_t)max_frames) break;
-    if (!cam) {
-      uint64_t now = mono_ns();
-      if (now < next_try) {
-        sleep_ms(20);
-        continue;
-      }
-      cam = be->open(&cfg, err, sizeof err);
-      if (!cam) {
-        if (errno != ENODEV) { /* the camera refuses our configuration: retrying will not help */
-          fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-          status = 2;
-          break;
-        }
-        open_failures++;
-        if (open_failures == 1 || open_failures % 10 == 0)
-          VLFF_WARN(TAG, "%s (attempt %llu, next in %.1f s)", err, (unsigned long long)open_failures, backoff);
-        next_try = now + (uint64_t)(backoff * 1e9);
-        backoff = backoff * 2 < cfg.camera.reconnect_max_s ? backoff * 2 : cfg.camera.reconnect_max_s;
-        continue;
-      }
-      if (ever_open) {
-        reconnects++;
-        VLFF_INFO(TAG, "camera back after %.1f s (reconnect %llu)", (double)(mono_ns() - lost_at) * 1e-9,
-                  (unsigned long long)reconnects);
-      }
-      ever_open = true;
-      open_failures = 0;
-      backoff = 0.1;
-      atomic_store(&trigger_req, 0); /* triggers asked for while no camera was there are void */
+#ifdef VLFF_HAVE_SYSTEMD
+    if (wd_usec && vlff_now_ns() - last_wd >= wd_usec * 250) {
+      sd_notify(0, "WATCHDOG=1");
+      last_wd = vlff_now_ns();
+    }
+#endif
+    if (d->max_seconds > 0 && (double)(vlff_now_ns() - t0) * 1e-9 >= d->max_seconds) break;
+    uint64_t committed =
+        d->pair ? vlff_pair_get_stats(d->pair)->pairs : vlff_pipe_get_stats(d->slots[0].pipe)->committed;
+    if (d->max_frames > 0 && committed >= (uint64_t)d->max_frames) break;
+    int open = 0, refused = 0;
+    for (int i = 0; i < d->nslots; i++) {
+      bool was = d->slots[i].cam != NULL;
+      int r = slot_open(&d->slots[i], d->path);
+      refused |= r < 0;
+      open += r > 0;
+      /* triggers asked for while no camera was there are void */
+      if (r > 0 && !was && d->nslots == 1) atomic_store(&trigger_req, 0);
+    }
+    if (refused) {
+      status = 2;
+      break;
+    }
+    if (!open) {
+      sleep_ms(20);
+      continue;
     }
     uint64_t pend = atomic_exchange(&trigger_req, 0);
-    for (; pend > 0 && be->trigger && cfg.camera.trigger == VLFF_TRIG_SOFTWARE; pend--) {
-      if (be->trigger(cam, err, sizeof err)) {
-        trig_fail++;
-        VLFF_WARN(TAG, "%s", err);
-      } else {
-        triggers++;
-      }
-    }
-    int rc = be->grab(cam, 20, pipe, vlff_ringsink_sink(ring), vlff_ringsink_poses(ring));
-    if (rc < 0) {
-      lost++;
-      lost_at = mono_ns();
-      uint64_t inc, to;
-      be->counters(cam, &inc, &to);
-      incomplete += inc, timeouts += to;
-      be->close(cam);
-      cam = NULL;
-      VLFF_ERROR(TAG, "camera '%s' lost (%llu so far); ring %s stays up, reconnecting", cfg.camera.device,
-                 (unsigned long long)lost, cfg.shm.ring);
-      next_try = mono_ns() + (uint64_t)(backoff * 1e9);
-    }
+    for (int i = 0; i < d->nslots; i++) slot_trigger(&d->slots[i], pend);
+    /* Each camera's stream fills its buffers in the background: a short
+     * wait per camera keeps both drained. */
+    for (int i = 0; i < d->nslots; i++) slot_grab(&d->slots[i], 20 / d->nslots, d->cfg.shm.ring);
   }
-  if (cam) {
-    uint64_t inc, to;
-    be->counters(cam, &inc, &to);
-    incomplete += inc, timeouts += to;
-    be->close(cam);
-  }
+#ifdef VLFF_HAVE_SYSTEMD
+  sd_notify(0, "STOPPING=1");
+#endif
+  for (int i = 0; i < d->nslots; i++) slot_close(&d->slots[i]);
+  return status;
+}
+
+/* The one statistics line at exit (scripts parse it). */
+static void print_stats(const struct camd *d) {
   uint64_t pulses = 0, edges = 0;
 #ifdef VLFF_HAVE_GPIOD
-  if (gout) pulses = vlff_gpio_out_stats(gout).pulses;
-  if (gin) edges = vlff_gpio_in_stats(gin).edges;
-  vlff_gpio_out_stop(gout);
-  vlff_gpio_in_stop(gin);
+  if (d->gout) pulses = vlff_gpio_out_stats(d->gout).pulses;
+  if (d->gin) edges = vlff_gpio_in_stats(d->gin).edges;
 #endif
-  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(pipe);
+  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(d->slots[0].pipe);
+  uint64_t dropped = 0, incomplete = 0, timeouts = 0, lost = 0, reconnects = 0, triggers = 0, trig_fail = 0;
+  for (int i = 0; i < d->nslots; i++) {
+    const struct slot *s = &d->slots[i];
+    const struct vlff_pipe_stats *ps = vlff_pipe_get_stats(s->pipe);
+    dropped += ps->dropped_format + ps->dropped_short + ps->dropped_convert + ps->dropped_sink;
+    incomplete += s->incomplete, timeouts += s->timeouts, lost += s->lost;
+    reconnects += s->reconnects, triggers += s->triggers, trig_fail += s->trig_fail;
+  }
+  const struct vlff_pair_stats *ps = d->pair ? vlff_pair_get_stats(d->pair) : NULL;
   printf("vlff-camd: committed=%llu incomplete=%llu dropped=%llu timeouts=%llu lost=%llu reconnects=%llu "
-         "triggers=%llu trigger_failures=%llu no_pose=%llu trigger_stamped=%llu pulses=%llu edges=%llu\n",
-         (unsigned long long)st->committed, (unsigned long long)incomplete,
-         (unsigned long long)(st->dropped_format + st->dropped_short + st->dropped_convert + st->dropped_sink),
-         (unsigned long long)timeouts, (unsigned long long)lost, (unsigned long long)reconnects,
-         (unsigned long long)triggers, (unsigned long long)trig_fail, (unsigned long long)st->no_pose,
-         (unsigned long long)st->trigger_stamped, (unsigned long long)pulses, (unsigned long long)edges);
+         "triggers=%llu trigger_failures=%llu no_pose=%llu trigger_stamped=%llu pulses=%llu edges=%llu",
+         (unsigned long long)(ps ? ps->pairs : st->committed), (unsigned long long)incomplete,
+         (unsigned long long)(dropped + (ps ? ps->dropped : 0)), (unsigned long long)timeouts,
+         (unsigned long long)lost, (unsigned long long)reconnects, (unsigned long long)triggers,
+         (unsigned long long)trig_fail, (unsigned long long)st->no_pose, (unsigned long long)st->trigger_stamped,
+         (unsigned long long)pulses, (unsigned long long)edges);
+  if (ps)
+    printf(" color_frames=%llu depth_frames=%llu unmatched_color=%llu unmatched_depth=%llu",
+           (unsigned long long)st->committed, (unsigned long long)vlff_pipe_get_stats(d->slots[1].pipe)->committed,
+           (unsigned long long)ps->unmatched_color, (unsigned long long)ps->unmatched_depth);
+  printf("\n");
   fflush(stdout);
-  vlff_ringsink_free(ring);
-  vlff_pipe_free(pipe);
+}
+
+int main(int argc, char **argv) {
+  static struct camd d; /* large (two configs): not on the stack */
+  int status = parse_args(&d, argc, argv);
+  if (status >= 0) return status;
+  status = setup_cameras(&d);
+  if (status == 0 && !d.check_only) {
+    struct sigaction sa = {0};
+    sa.sa_handler = on_stop;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    sa.sa_handler = on_usr1;
+    sa.sa_flags = SA_RESTART;
+    sigaction(SIGUSR1, &sa, NULL);
+    vlff_stamps_init(&stamps);
+    vlff_stamps_init(&depth_stamps);
+    status = setup_ring(&d);
+    if (status == 0) status = setup_gpio(&d);
+    if (status == 0) {
+      status = run(&d);
+      print_stats(&d);
+    }
+  }
+#ifdef VLFF_HAVE_GPIOD
+  vlff_gpio_out_stop(d.gout);
+  vlff_gpio_in_stop(d.gin);
+#endif
+  vlff_pair_free(d.pair);
+  vlff_ringsink_free(d.ring);
+  for (int i = 0; i < d.nslots; i++) vlff_pipe_free(d.slots[i].pipe);
 #ifdef VLFF_HAVE_ARAVIS
-  vlff_arv_shutdown();
+  if (!d.check_only) vlff_arv_shutdown();
 #endif
   return status;
 }

@@ -9,6 +9,7 @@
  * (line:column) of every key and value for error messages.
  */
 #include "config.h"
+#include "hash.h"
 
 #include <errno.h>
 #include <math.h>
@@ -58,6 +59,7 @@ static const char *const trigger_modes[] = {"freerun", "software", "hardware", N
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
 static const char *const depth_kinds[] = {"none", "stream", "stereo", NULL};
 static const char *const depth_units[] = {"mm", "m", NULL};
+static const char *const depth_camera_kinds[] = {"none", "aravis", NULL};
 
 static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
@@ -203,10 +205,23 @@ static const struct key schema[] = {
     STR("camera.calibration", camera.calibration, ""),
     ENUM("camera.depth", camera.depth, depth_kinds, "none"),
     ENUM("camera.depth_unit", camera.depth_unit, depth_units, "mm"),
-    DBL("camera.depth_scale_m", camera.depth_scale_m, 1e-6, 1, 0.001),
     DBL("camera.stereo_baseline_m", camera.stereo_baseline_m, 0, 10, 0),
     INT("camera.stereo_disparities", camera.stereo_disparities, 16, 1024, 64),
     DBL("camera.reconnect_max_s", camera.reconnect_max_s, 0.1, 3600, 5),
+
+    ENUM("depth_camera.kind", depth_camera.kind, depth_camera_kinds, "none"),
+    STR("depth_camera.device", depth_camera.device, ""),
+    STR("depth_camera.pixel_format", depth_camera.pixel_format, "Mono16"),
+    INT("depth_camera.width", depth_camera.width, 0, 16384, 0),
+    INT("depth_camera.height", depth_camera.height, 0, 16384, 0),
+    DBL("depth_camera.exposure_us", depth_camera.exposure_us, 1, 1e7, 10000),
+    DBL("depth_camera.frame_rate", depth_camera.frame_rate, 0.1, 1000, 30),
+    INT("depth_camera.packet_size", depth_camera.packet_size, 0, 16384, 0),
+    ENUM("depth_camera.trigger", depth_camera.trigger, trigger_modes, "freerun"),
+    STR("depth_camera.trigger_line", depth_camera.trigger_line, "Line1"),
+    DBL("depth_camera.scale_m", depth_camera.scale_m, 1e-6, 1, 0.001),
+    STR("depth_camera.calibration", depth_camera.calibration, ""),
+    DBL("depth_camera.pair_tolerance_s", depth_camera.pair_tolerance_s, 1e-6, 1, 0.005),
 
     ENUM("gpio.mode", gpio.mode, gpio_modes, "off"),
     STR("gpio.chip", gpio.chip, "gpiochip0"),
@@ -281,12 +296,32 @@ struct parse {
   size_t errlen;
 };
 
+/* Bytes of the file quoted in a message, with everything but printable
+ * ASCII as \xNN: binary garbage in a config must not reach the terminal
+ * raw (escape sequences, a NUL cutting the message short). At most max
+ * input bytes are quoted. */
+static void escape(const char *s, size_t n, size_t max, char *out, size_t outlen) {
+  size_t o = 0;
+  for (size_t i = 0; i < n && i < max && o + 5 < outlen; i++) {
+    unsigned char c = (unsigned char)s[i];
+    if (c >= 0x20 && c < 0x7f)
+      out[o++] = (char)c;
+    else
+      o += (size_t)snprintf(out + o, outlen - o, "\\x%02x", c);
+  }
+  out[o] = 0;
+}
+
 static int fail(struct parse *p, const yaml_node_t *n, const char *key, const char *fmt, ...) {
-  char what[256];
+  char what[512], ekey[512];
   va_list ap;
   va_start(ap, fmt);
   vsnprintf(what, sizeof what, fmt, ap);
   va_end(ap);
+  if (key) {
+    escape(key, strlen(key), 120, ekey, sizeof ekey);
+    key = ekey;
+  }
   unsigned line = n ? (unsigned)n->start_mark.line + 1 : 0;
   unsigned col = n ? (unsigned)n->start_mark.column + 1 : 0;
   if (key)
@@ -309,10 +344,20 @@ static const char *scalar(const yaml_node_t *n) { return (const char *)n->data.s
 
 /* "got" text for messages: the scalar quoted, or the node kind. */
 static void got(const yaml_node_t *n, char *buf, size_t len) {
-  if (n->type == YAML_SCALAR_NODE)
-    snprintf(buf, len, "'%.60s'", scalar(n));
-  else
+  if (n->type == YAML_SCALAR_NODE) {
+    char e[256];
+    escape(scalar(n), n->data.scalar.length, 60, e, sizeof e);
+    /* the caller's buffer bounds the quote; an escaped value may be cut */
+    snprintf(buf, len, "'%.*s'", (int)(len > 3 ? len - 3 : 0), e);
+  } else {
     snprintf(buf, len, "%s", node_kind(n));
+  }
+}
+
+/* A scalar holding a NUL ("a\0b") would be cut short silently by every C
+ * string use after it. */
+static bool has_nul(const yaml_node_t *n) {
+  return n->type == YAML_SCALAR_NODE && strlen(scalar(n)) != n->data.scalar.length;
 }
 
 static int parse_number(const yaml_node_t *n, bool integer, double *out) {
@@ -361,6 +406,7 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
   case T_STRING:
     if (n->type != YAML_SCALAR_NODE)
       return fail(p, n, k->path, "expected string, got %s", g);
+    if (has_nul(n)) return fail(p, n, k->path, "expected a string without NUL bytes, got %s", g);
     if (strlen(scalar(n)) >= k->size)
       return fail(p, n, k->path, "expected string of at most %zu bytes, got %zu bytes", k->size - 1,
                   strlen(scalar(n)));
@@ -423,7 +469,7 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
       snprintf(sub, sizeof sub, "%s.%s", path, kname);
       got(vn, g, sizeof g);
       if (!strcmp(kname, "name")) {
-        if (vn->type != YAML_SCALAR_NODE || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
+        if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
           return fail(p, vn, sub, "expected string of at most %d bytes, got %s",
                       VLFF_PROMPT_LEN - 1, g);
         snprintf(set->name, sizeof set->name, "%s", scalar(vn));
@@ -437,7 +483,7 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
         for (long j = 0; j < m; j++) {
           yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
           got(e, g, sizeof g);
-          if (e->type != YAML_SCALAR_NODE || !*scalar(e) ||
+          if (e->type != YAML_SCALAR_NODE || !*scalar(e) || has_nul(e) ||
               strlen(scalar(e)) >= VLFF_PROMPT_LEN)
             return fail(p, e, sub, "expected non-empty prompt of at most %d bytes at index %ld, got %s",
                         VLFF_PROMPT_LEN - 1, j, g);
@@ -536,8 +582,9 @@ static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
   const char *vals[] = {cfg->shm.ring, cfg->shm.pose_ring, cfg->shm.map, cfg->shm.prompts, cfg->shm.feature_ring};
   for (int i = 0; i < 5; i++) {
     const char *why = shm_name_problem(vals[i]);
-    if (why)
-      return fail_cross(p, keys[i], "expected a POSIX shared-memory name (%s), got '%.60s'", why, vals[i]);
+    char e[256];
+    escape(vals[i], strlen(vals[i]), 60, e, sizeof e);
+    if (why) return fail_cross(p, keys[i], "expected a POSIX shared-memory name (%s), got '%s'", why, e);
   }
   /* Two segments of one name would replace each other (the prompt mailbox
    * overwriting the map). The later key is the one blamed. */
@@ -755,20 +802,14 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
   }
 }
 
-static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
-  const unsigned char *b = p;
-  for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 0x100000001b3ull;
-  return h;
-}
-
 uint64_t vlff_config_field_hash(const struct vlff_config *cfg) {
-  uint64_t h = 0xcbf29ce484222325ull;
+  uint64_t h = VLFF_FNV1A64_INIT;
   for (size_t i = 0; i < NKEYS; i++) {
     const struct key *k = &schema[i];
     if (strncmp(k->path, "field.", 6)) continue;
-    h = fnv1a(h, k->path, strlen(k->path));
+    h = vlff_fnv1a64(h, k->path, strlen(k->path));
     size_t n = k->type == T_DVEC ? k->size * sizeof(double) : k->type == T_INT ? sizeof(int) : sizeof(double);
-    h = fnv1a(h, cat(cfg, k), n);
+    h = vlff_fnv1a64(h, cat(cfg, k), n);
   }
   return h;
 }

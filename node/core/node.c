@@ -296,11 +296,17 @@ static void pending_complete(struct vlff_node *n, struct candidate **pending, in
   queue_push(n, c);
 }
 
+static mode_t shm_mode(const struct vlff_node *n) {
+  return n->cfg.shm.mode ? (mode_t)n->cfg.shm.mode : 0640;
+}
+
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
   bool warned = false;
   while (!atomic_load(&n->stop)) {
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
-    struct vlff_ring *r = vlff_ring_attach(name, kind);
+    /* Only rings of this node's uid, within the configured mode: anyone else able
+     * to write one could forge its records. */
+    struct vlff_ring *r = vlff_ring_attach_owned(name, kind, geteuid(), shm_mode(n));
     if (r) {
       VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
                 (unsigned long long)vlff_ring_slot_size(r));
@@ -348,8 +354,9 @@ static void *ingest_main(void *arg) {
   long long fps_count = 0;
   while (ring && buf && fbuf && !atomic_load(&n->stop)) {
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
-    if (!poses) poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
-    if (join && !feats) feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
+    if (!poses) poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
+    if (join && !feats)
+      feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
     /* Features that arrived (external extractor or in-node model) complete
      * their waiting keyframes; keyframes whose features never come expire. */
     if (join) {
@@ -848,9 +855,18 @@ static void run_commands(struct vlff_node *n, bool *publish_now) {
   }
 }
 
+/* Every request gets an answer in the mailbox, so that the poster learns whether its
+ * prompts were taken; a malformed or half-written one is answered by the library and
+ * only logged here. */
 static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) {
   struct vlff_prompt_request req;
-  if (!n->mailbox || vlff_prompts_poll(n->mailbox, seq, &req) != 1) return;
+  if (!n->mailbox) return;
+  int got = vlff_prompts_poll(n->mailbox, seq, &req);
+  if (got < 0) {
+    VLFF_ERROR(TAG, "prompt mailbox: %s", vlff_shm_last_message());
+    return;
+  }
+  if (got != 1) return;
   char err[256];
   int rc;
   if (req.set_index >= 0) {
@@ -866,6 +882,9 @@ static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) 
                req.poster_pid, err);
   else
     *publish_now = true;
+  if (vlff_prompts_answer(n->mailbox, req.seq, rc == 0, rc ? err : NULL))
+    VLFF_ERROR(TAG, "prompt mailbox: cannot answer request %llu: %s", (unsigned long long)req.seq,
+               vlff_shm_last_message());
 }
 
 static void update_state(struct vlff_node *n) {
@@ -1059,7 +1078,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
   if (!n->pub) goto fail;
   /* Controllers of the segments' group post prompts: the mailbox alone is
    * group-writable whenever the group may read. */
-  mode_t mode = (mode_t)cfg->shm.mode;
+  mode_t mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;
   if (mode & S_IRGRP) mode |= S_IWGRP;
   struct vlff_shm_perm perm = {.mode = mode, .group = cfg->shm.group};
   n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);

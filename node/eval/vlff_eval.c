@@ -27,6 +27,7 @@
 #include <unistd.h>
 
 #include "config.h"
+#include "clock.h"
 #include "dataset.h"
 #include "embeddings.h"
 #include <json-c/json.h>
@@ -55,6 +56,10 @@ static const struct vlff_cli cli = {
     "  --iters N           training steps (default 1500; 0 = baselines only)\n"
     "  --fit-seconds S     fit for S seconds of wall clock instead of --iters steps\n"
     "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
+    "  --stride N          dataset: use every N-th frame (default 1)\n"
+    "  --label-set SET     ScanNet labels as scannet20 (default) or nyu40 classes\n"
+    "  --label-tsv FILE    ScanNet's scannetv2-labels.combined.tsv (default: looked\n"
+    "                      for in the scene directory and its two parents)\n"
     "  --threads N         node.threads\n"
     "  --out DIR           report directory (default eval-out)\n"
     "  --overlays N        overlay images to write (default 3)\n"
@@ -64,12 +69,13 @@ static const struct vlff_cli cli = {
     "\n"
     "examples:\n"
     "  vlff-eval --seed 3 --iters 2000 --out /tmp/eval3\n"
-    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n",
+    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n"
+    "  vlff-eval --dataset scans/scene0000_00/scene0000_00.sens --stride 10 --label-set nyu40\n",
 };
 
 struct opts {
-  const char *config, *dataset, *out;
-  int seed, frames, dim, iters, holdout, threads, overlays, quiet;
+  const char *config, *dataset, *out, *label_tsv;
+  int seed, frames, dim, iters, holdout, threads, overlays, quiet, stride, label_set;
   double difficulty, fit_seconds;
 };
 
@@ -94,14 +100,14 @@ struct scene {
   float emb[MAXK * 1024];  /* unit rows, K x D (D <= 1024) */
   struct vlff_points pts;
   int tw, th;              /* training image size */
+  int holdout;             /* frame i is held out when i % holdout == holdout / 2 */
+  /* dataset: held-out frames' images and features are read when scored */
+  struct vlff_dataset ds;
+  int streaming;
+  uint8_t *srgb;
+  uint16_t *sfeat;
 };
 
-
-static double now_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 static void die(const char *fmt, ...) {
   va_list ap;
@@ -139,7 +145,7 @@ static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
 
 static void parse_args(int argc, char **argv, struct opts *o) {
   enum { O_CONFIG = 256, O_DATASET, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
-         O_DIFFICULTY, O_QUIET, O_FIT_SECONDS };
+         O_DIFFICULTY, O_QUIET, O_STRIDE, O_LABEL_SET, O_LABEL_TSV, O_FIT_SECONDS };
   static const struct option longopts[] = {
       {"config", required_argument, NULL, O_CONFIG},     {"dataset", required_argument, NULL, O_DATASET},
       {"out", required_argument, NULL, O_OUT},           {"seed", required_argument, NULL, O_SEED},
@@ -147,13 +153,16 @@ static void parse_args(int argc, char **argv, struct opts *o) {
       {"iters", required_argument, NULL, O_ITERS},       {"holdout", required_argument, NULL, O_HOLDOUT},
       {"threads", required_argument, NULL, O_THREADS},   {"overlays", required_argument, NULL, O_OVERLAYS},
       {"difficulty", required_argument, NULL, O_DIFFICULTY}, {"quiet", no_argument, NULL, O_QUIET},
+      {"stride", required_argument, NULL, O_STRIDE},     {"label-set", required_argument, NULL, O_LABEL_SET},
+      {"label-tsv", required_argument, NULL, O_LABEL_TSV},
       {"fit-seconds", required_argument, NULL, O_FIT_SECONDS},
       VLFF_CLI_COMMON_OPTIONS,
   };
   memset(o, 0, sizeof *o);
   o->seed = o->frames = o->dim = o->threads = -1;
   o->difficulty = -1;
-  o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out";
+  o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out", o->stride = 1;
+  o->label_set = VLFF_LABELS_SCANNET20;
   int c, status;
   while ((c = vlff_cli_next(&cli, argc, argv, "", longopts, &status)) != -1) {
     const char *a = argv[optind - 1], *v = optarg;
@@ -172,6 +181,13 @@ static void parse_args(int argc, char **argv, struct opts *o) {
     case O_OVERLAYS: o->overlays = parse_int(v, a, 0, 1000); break;
     case O_DIFFICULTY: o->difficulty = parse_dbl(v, a, 0, 1); break;
     case O_FIT_SECONDS: o->fit_seconds = parse_dbl(v, a, 0.001, 1e7); break;
+    case O_STRIDE: o->stride = parse_int(v, a, 1, 100000); break;
+    case O_LABEL_TSV: o->label_tsv = v; break;
+    case O_LABEL_SET:
+      if (!strcmp(v, "scannet20")) o->label_set = VLFF_LABELS_SCANNET20;
+      else if (!strcmp(v, "nyu40")) o->label_set = VLFF_LABELS_NYU40;
+      else exit(vlff_cli_usage_error(&cli, "%s: expected scannet20 or nyu40, got '%s'", a, v));
+      break;
     default: exit(vlff_cli_usage_error(&cli, "option '%s' not handled", a));
     }
   }
@@ -220,33 +236,76 @@ static void load_sim(struct scene *sc, const struct vlff_config *cfg) {
   vlff_sim_destroy(s);
 }
 
-static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *cfg) {
+static int held_out(int i, int holdout) { return i % holdout == holdout / 2; }
+
+/* Frame i's images and features in memory: training frames hold theirs,
+ * a held-out frame of a dataset is read into scratch buffers until the
+ * next call (the field's training set stays resident, as the node's
+ * keyframe store does; the frames it is scored on need not). */
+static struct frame *frame_data(struct scene *sc, int i) {
+  struct frame *f = &sc->f[i];
+  if (!sc->streaming || !held_out(i, sc->holdout)) return f;
+  char err[1024];
+  f->rgb = sc->srgb, f->feat = sc->sfeat;
+  if (vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, NULL, NULL, err, sizeof err) < 0 ||
+      vlff_dataset_read_features(&sc->ds, f->index, f->feat, err, sizeof err) < 0)
+    die("%s", err);
+  return f;
+}
+
+static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_config *cfg) {
+  const char *dir = o->dataset;
   char err[1024], p[4200];
+  struct vlff_dataset_options dopt = {.layout = VLFF_DS_AUTO, .label_set = o->label_set, .label_tsv = o->label_tsv};
   struct vlff_dataset ds;
-  if (vlff_dataset_open(&ds, dir, VLFF_DS_AUTO, err, sizeof err) < 0) die("%s", err);
+  if (vlff_dataset_open_opts(&ds, dir, &dopt, err, sizeof err) < 0) die("%s", err);
   if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
   if (!ds.has_labels) die("%s: no gt_semantic/ or label-filt/ (needed for 2D evaluation)", dir);
   if (ds.feat_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feat_dim);
   sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feat_dim;
   sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;
-  sc->n = ds.n;
+  sc->n = (ds.n + o->stride - 1) / o->stride;
+  sc->holdout = o->holdout;
   sc->f = xcalloc((size_t)sc->n, sizeof *sc->f);
   size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
+  /* The training frames' images and features stay in memory: bound them by
+   * the keyframe store's budget, as the node is bound. */
+  int ntrain = 0;
+  for (int i = 0; i < sc->n; i++) ntrain += !held_out(i, o->holdout);
+  double need_mb = (double)ntrain * (npx * (3 + sizeof(float)) + nf * sizeof(uint16_t)) / (1 << 20);
+  if (need_mb > cfg->keyframes.memory_mb) {
+    int stride = (int)ceil(o->stride * need_mb / cfg->keyframes.memory_mb);
+    die("%s: %d training frames need %.0f MiB of images and features, more than keyframes.memory_mb (%d): "
+        "use --stride %d or raise keyframes.memory_mb",
+        dir, ntrain, need_mb, cfg->keyframes.memory_mb, stride);
+  }
+  sc->srgb = xcalloc(npx, 3), sc->sfeat = xcalloc(nf, sizeof(uint16_t));
   for (int i = 0; i < sc->n; i++) {
     struct frame *f = &sc->f[i];
-    f->index = i;
-    memcpy(f->c2w, ds.c2w + 16 * (size_t)i, sizeof f->c2w);
-    f->rgb = xcalloc(npx, 3), f->label = xcalloc(npx, 1), f->depth = xcalloc(npx, sizeof(float));
+    f->index = i * o->stride;
+    memcpy(f->c2w, ds.c2w + 16 * (size_t)f->index, sizeof f->c2w);
+    f->label = xcalloc(npx, 1);
+    if (held_out(i, o->holdout)) { /* labels only; images and features when scored */
+      if (vlff_dataset_read_frame(&ds, f->index, NULL, NULL, f->label, err, sizeof err) < 0) die("%s", err);
+      continue;
+    }
+    f->rgb = xcalloc(npx, 3), f->depth = xcalloc(npx, sizeof(float));
     f->feat = xcalloc(nf, sizeof(uint16_t));
-    if (vlff_dataset_read_frame(&ds, i, f->rgb, f->depth, f->label, err, sizeof err) < 0 ||
-        vlff_dataset_read_features(&ds, i, f->feat, err, sizeof err) < 0)
+    if (vlff_dataset_read_frame(&ds, f->index, f->rgb, f->depth, f->label, err, sizeof err) < 0 ||
+        vlff_dataset_read_features(&ds, f->index, f->feat, err, sizeof err) < 0)
       die("%s", err);
   }
   if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
   if (cfg->prompts.embeddings[0]) snprintf(p, sizeof p, "%s", cfg->prompts.embeddings);
   else snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
-  struct vlff_embeddings *pe = vlff_embeddings_load(p, sc->D, err, sizeof err);
+  /* Loaded with any dimension, then compared: a mismatch is between two
+   * files, and either may be the wrong one. */
+  struct vlff_embeddings *pe = vlff_embeddings_load(p, 0, err, sizeof err);
   if (!pe) die("%s", err);
+  if (vlff_embeddings_dim(pe) != sc->D)
+    die("%s: vectors have dim %d, but the features in %s/features.hdf have D=%d: one of the two files is from "
+        "another model",
+        p, vlff_embeddings_dim(pe), dir, sc->D);
   if (vlff_embeddings_count(pe) > MAXK) die("%s: %d prompts, at most %d", p, vlff_embeddings_count(pe), MAXK);
   /* ground-truth id k is record k of the embeddings file */
   sc->K = vlff_embeddings_count(pe);
@@ -261,9 +320,9 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
   for (int i = 0; i < sc->n; i++)
     for (size_t j = 0; j < npx; j++)
       if (sc->f[i].label[j] != 255 && sc->f[i].label[j] >= sc->K)
-        die("%s: %d records, but %s/gt_semantic/%s.png uses class id %d: ground-truth id k is record k, so "
+        die("%s: %d records, but %s/%s/%s.png uses class id %d: ground-truth id k is record k, so "
             "every class needs one",
-            p, sc->K, dir, ds.stem[i], sc->f[i].label[j]);
+            p, sc->K, dir, ds.label_dir, ds.stem[sc->f[i].index], sc->f[i].label[j]);
   for (size_t j = 0; j < sc->pts.n; j++)
     if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K) {
       char pp[4200];
@@ -277,7 +336,8 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
     memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
     memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);
   }
-  vlff_dataset_close(&ds);
+  sc->ds = ds; /* kept open: held-out frames are read when scored */
+  sc->streaming = 1;
 }
 
 /* Training copies at train.image_scale: colour box-filtered, depth the
@@ -288,6 +348,7 @@ static void make_training_images(struct scene *sc, double scale) {
   if (sc->th < 8) sc->th = 8;
   for (int i = 0; i < sc->n; i++) {
     struct frame *f = &sc->f[i];
+    if (held_out(i, sc->holdout)) continue; /* they train nothing */
     f->trgb = xcalloc((size_t)sc->tw * sc->th, 3);
     f->tdepth = xcalloc((size_t)sc->tw * sc->th, sizeof(float));
     for (int v = 0; v < sc->th; v++)
@@ -312,7 +373,7 @@ static void make_training_images(struct scene *sc, double scale) {
 /* ---- progress ----------------------------------------------------------- */
 
 static void progress(int it, int total, const struct vlff_train_stats *st, double t0, int tty) {
-  double el = now_s() - t0, rate = it / (el > 1e-9 ? el : 1e-9);
+  double el = vlff_seconds() - t0, rate = it / (el > 1e-9 ? el : 1e-9);
   double eta = rate > 0 ? (total - it) / rate : 0;
   int bar = total ? 30 * it / total : 30;
   char b[31];
@@ -415,8 +476,9 @@ int main(int argc, char **argv) {
 
   struct scene sc;
   memset(&sc, 0, sizeof sc);
-  double t_load = now_s();
-  if (o.dataset) load_dataset(&sc, o.dataset, &cfg);
+  double t_load = vlff_seconds();
+  sc.holdout = o.holdout;
+  if (o.dataset) load_dataset(&sc, &o, &cfg);
   else load_sim(&sc, &cfg);
   if (sc.D != cfg.field.feature_dim) {
     if (o.dataset) cfg.field.feature_dim = sc.D;
@@ -431,7 +493,7 @@ int main(int argc, char **argv) {
   if (ntest == 0 || ntrain == 0) die("%d frames with --holdout %d leave no training or no test frames", sc.n, o.holdout);
   fprintf(stderr, "vlff-eval: scene %s: %d frames (%d train, %d held out) %dx%d, features %dx%dx%d, %zu labelled points, %d prompts (%.1f s)\n",
           o.dataset ? o.dataset : "synthetic", sc.n, ntrain, ntest, sc.W, sc.H, sc.fw, sc.fh, sc.D, sc.pts.n, sc.K,
-          now_s() - t_load);
+          vlff_seconds() - t_load);
 
   const int K = sc.K, D = sc.D, fw = sc.fw, fh = sc.fh;
   struct result r2_raw = {0}, r2_field = {0}, r3_fusion = {0}, r3_field = {0}, r3_field_ref = {0};
@@ -445,15 +507,16 @@ int main(int argc, char **argv) {
   int *pl = xcalloc((size_t)fw * fh, sizeof(int));
   for (int i = 0; i < sc.n; i++) {
     if (i % o.holdout != o.holdout / 2) continue;
-    vlff_downsample_labels(sc.f[i].label, sc.W, sc.H, gl, fw, fh);
-    vlff_classify_f16(sc.f[i].feat, (size_t)fw * fh, D, sc.emb, K, pl, NULL);
+    const struct frame *f = frame_data(&sc, i);
+    vlff_downsample_labels(f->label, sc.W, sc.H, gl, fw, fh);
+    vlff_classify_f16(f->feat, (size_t)fw * fh, D, sc.emb, K, pl, NULL);
     vlff_confusion_add(&r2_raw.c, gl, pl, (size_t)fw * fh);
   }
   summarize(&r2_raw);
   size_t np = sc.pts.n;
   int *p3 = xcalloc(np, sizeof(int));
   {
-    double t = now_s();
+    double t = vlff_seconds();
     struct vlff_fusion_view *fv = xcalloc((size_t)ntrain, sizeof *fv);
     int nv = 0;
     for (int i = 0; i < sc.n; i++) {
@@ -479,7 +542,7 @@ int main(int argc, char **argv) {
     vlff_confusion_add(&r3_fusion.c, sc.pts.label, p3, np);
     summarize(&r3_fusion);
     fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f, %zu labelled points no training view saw (%.1f s)\n",
-            100 * r2_raw.s.miou, 100 * r3_fusion.s.miou, unseen, now_s() - t);
+            100 * r2_raw.s.miou, 100 * r3_fusion.s.miou, unseen, vlff_seconds() - t);
   }
 
   /* ---- field ---- */
@@ -507,13 +570,13 @@ int main(int argc, char **argv) {
       v->feat_width = fw, v->feat_height = fh, v->feat_dim = D, v->features = sc.f[i].feat;
     }
     int tty = isatty(2) && !o.quiet;
-    double t0 = now_s(), last = t0;
+    double t0 = vlff_seconds(), last = t0;
     /* --fit-seconds: steps until the budget is spent (the clock is read
      * after each step, so the last step may end a little past it) */
-    for (int it = 1; o.fit_seconds > 0 ? now_s() - t0 < o.fit_seconds : it <= o.iters; it++) {
+    for (int it = 1; o.fit_seconds > 0 ? vlff_seconds() - t0 < o.fit_seconds : it <= o.iters; it++) {
       if (vlff_field_step(fld, views, nv, NULL, &st, err, sizeof err) < 0) die("training step %d: %s", it, err);
       steps = it;
-      double t = now_s();
+      double t = vlff_seconds();
       int total = o.iters;
       if (o.fit_seconds > 0) total = (int)(it * o.fit_seconds / fmax(t - t0, 1e-9));
       int every = o.fit_seconds > 0 ? 0 : (o.iters / 10 > 0 ? o.iters / 10 : 1);
@@ -524,7 +587,7 @@ int main(int argc, char **argv) {
       }
     }
     if (tty) fputc('\n', stderr);
-    fit_s = now_s() - t0;
+    fit_s = vlff_seconds() - t0;
     if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
     /* 2D on held-out frames at the feature-map resolution */
     struct vlff_view cam = {0};
@@ -539,7 +602,7 @@ int main(int argc, char **argv) {
       vlff_downsample_labels(sc.f[i].label, sc.W, sc.H, gl, fw, fh);
       vlff_confusion_add(&r2_field.c, gl, pl, (size_t)fw * fh);
       if (nover < o.overlays) {
-        write_overlay(o.out, &sc, &sc.f[i], pl, fw, fh);
+        write_overlay(o.out, &sc, frame_data(&sc, i), pl, fw, fh);
         nover++;
       }
     }
@@ -722,9 +785,12 @@ int main(int argc, char **argv) {
          fit_s, steps);
 
   for (int i = 0; i < sc.n; i++) {
+    if (sc.streaming && held_out(i, sc.holdout)) sc.f[i].rgb = NULL, sc.f[i].feat = NULL; /* scratch */
     free(sc.f[i].rgb), free(sc.f[i].label), free(sc.f[i].depth), free(sc.f[i].feat);
     free(sc.f[i].trgb), free(sc.f[i].tdepth);
   }
+  free(sc.srgb), free(sc.sfeat);
+  if (sc.streaming) vlff_dataset_close(&sc.ds);
   free(sc.f), free(gl), free(pl), free(p3), free(pred3), free(overlay_pred), free(emb_raw);
   vlff_points_free(&sc.pts);
   vlff_confusion_free(&r2_raw.c), vlff_confusion_free(&r2_field.c), vlff_confusion_free(&r3_fusion.c);

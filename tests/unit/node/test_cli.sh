@@ -45,6 +45,14 @@ check "100000-deep YAML refused at once" \
 mkfifo "$tmp/fifo.yaml"
 check "a FIFO as config refused, not waited on" \
   'timeout 20 "${node[@]}" --check-config "$tmp/fifo.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "fifo.yaml: is a FIFO, expected a regular file" "$tmp/err"'
+printf 'prompts:\n  embeddings: %s/none.txt\n' "$tmp" >"$tmp/emb.yaml"
+check "--check-config loads prompts.embeddings" \
+  '! "${node[@]}" --check-config "$tmp/emb.yaml" >/dev/null 2>"$tmp/err" && grep -q "emb.yaml: key .prompts.embeddings.: .*none.txt: cannot open" "$tmp/err"'
+printf 'shm:\n  group: vlff-no-such-group\n' >"$tmp/grp.yaml"
+check "--check-config checks that shm.group exists" \
+  '! "${node[@]}" --check-config "$tmp/grp.yaml" >/dev/null 2>"$tmp/err" && grep -q "grp.yaml: key .shm.group.: no group .vlff-no-such-group." "$tmp/err"'
+printf 'shm:\n  group: "0"\n' >"$tmp/gid.yaml"
+check "--check-config takes a numeric shm.group" '"${node[@]}" --check-config "$tmp/gid.yaml" >/dev/null 2>&1'
 mkdir -p "$tmp/fstate"
 mkfifo "$tmp/fstate/field.1.ckpt"
 (exit 0) & dead=$!; wait $dead
@@ -69,7 +77,10 @@ else
   echo "note: $def exists here; the no-config refusal is not checked"
 fi
 VLFF_CONFIG="$tmp/ok.yaml" timeout 20 "${node[@]}" 2>"$tmp/env" & p=$!
-for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/env" && break; sleep 0.1; done
+for ((i = 0; i < 100; i++)); do grep -qs "waiting for ring" "$tmp/env" && break; sleep 0.1; done
+# The segments' group reads the map and posts prompts: map 0640, mailbox 0660.
+check "map segment is 0640" '[[ "$(stat -c %a /dev/shm/cli-$$-m)" == 640 ]]'
+check "prompt mailbox is 0660 (group posts prompts)" '[[ "$(stat -c %a /dev/shm/cli-$$-p)" == 660 ]]'
 kill -TERM $p; wait $p
 check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
 
@@ -78,7 +89,7 @@ check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
 mkdir -p "$tmp/state"
 sed "s|state_dir: $tmp|state_dir: $tmp/state\n  checkpoint_period_s: 0.2|" "$tmp/ok.yaml" >"$tmp/idle.yaml"
 "${node[@]}" --config "$tmp/idle.yaml" 2>"$tmp/idle" & p=$!
-for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/idle" && break; sleep 0.1; done
+for ((i = 0; i < 100; i++)); do grep -qs "waiting for ring" "$tmp/idle" && break; sleep 0.1; done
 sleep 1.5
 kill -TERM $p; wait $p
 check "idle node wrote no checkpoint" '[[ -z "$(ls -A "$tmp/state")" ]]'
@@ -100,7 +111,10 @@ while time.time() < end:
 ' "$tmp/notify.sock" "$tmp/notify.log" & listener=$!
   for ((i = 0; i < 50; i++)); do [[ -S "$tmp/notify.sock" ]] && break; sleep 0.1; done
   NOTIFY_SOCKET="$tmp/notify.sock" WATCHDOG_USEC=2000000 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/sd" & p=$!
-  sleep 3
+  # the main loop starts after the node is up (slow under sanitizers), then
+  # feeds the watchdog every quarter period
+  for ((i = 0; i < 300; i++)); do grep -qs "waiting for ring" "$tmp/sd" && break; sleep 0.1; done
+  sleep 1.5
   kill -TERM $p; wait $p
   wait $listener
   check "sd_notify READY=1" 'grep -qx "READY=1" "$tmp/notify.log"'
