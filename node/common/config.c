@@ -88,8 +88,9 @@ static const struct key schema[] = {
 
     ENUM("source.kind", source.kind, source_kinds, "ring"),
     STR("source.dataset", source.dataset, ""),
-    ENUM("source.features", source.features, feature_sources, "sim"),
+    ENUM("source.features", source.features, feature_sources, "ring"),
     DBL("source.pose_tolerance_s", source.pose_tolerance_s, 0, 10, 1.0 / 60),
+    BOOL("source.allow_sim_features", source.allow_sim_features, 0),
 
     INT("sim.seed", sim.seed, 0, 2147483647, 1),
     DBL("sim.rate_hz", sim.rate_hz, 0.1, 1000, 5),
@@ -523,6 +524,10 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
   if (cfg->field.finest_resolution < cfg->field.base_resolution)
     return fail_cross(p, "field.finest_resolution", "expected >= field.base_resolution (%d), got %d",
                 cfg->field.base_resolution, cfg->field.finest_resolution);
+  if (vlff_config_sim_features_misused(cfg))
+    return fail_cross(p, "source.features", "sim features describe only the simulator's scene, never a camera's: "
+                      "with source.kind: ring use ring (an extractor) or model, or set "
+                      "source.allow_sim_features: true to force it");
   if (!strstr(cfg->prompts.templ, "{}"))
     return fail_cross(p, "prompts.template", "expected a template containing {}, got '%s'", cfg->prompts.templ);
   return 0;
@@ -657,6 +662,11 @@ static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
   const unsigned char *b = p;
   for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 0x100000001b3ull;
   return h;
+}
+
+bool vlff_config_sim_features_misused(const struct vlff_config *cfg) {
+  return cfg->source.features == VLFF_FEAT_SIM && cfg->source.kind == VLFF_SOURCE_RING &&
+         !cfg->source.allow_sim_features;
 }
 
 uint64_t vlff_config_field_hash(const struct vlff_config *cfg) {

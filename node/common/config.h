@@ -77,6 +77,7 @@ struct vlff_config {
     char dataset[VLFF_CFG_PATH];     /* scene directory for kind=dataset */
     int features;                    /* enum vlff_feature_source */
     double pose_tolerance_s;         /* frame<->pose timestamp match */
+    bool allow_sim_features;         /* features: sim with kind: ring, forced (tests, demos) */
   } source;
 
   struct {
@@ -235,6 +236,12 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out);
 /* Number of scalar/array keys in the schema and the dotted path of key i. */
 size_t vlff_config_key_count(void);
 const char *vlff_config_key_path(size_t i);
+
+/* True when source.features is sim while frames come from a camera ring
+ * and source.allow_sim_features does not force it: the simulator's
+ * features would be paired with another scene's images. Loading refuses
+ * such a file; vlff_node_create() refuses such a struct. */
+bool vlff_config_sim_features_misused(const struct vlff_config *cfg);
 
 /* Stable 64-bit hash of the fields that shape learned state (field.*),
  * stored in checkpoints so a mismatched model is refused. */

@@ -14,6 +14,7 @@
 #include <errno.h>
 #include <math.h>
 #include <pthread.h>
+#include <stdarg.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -308,9 +309,150 @@ static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uin
   return NULL;
 }
 
-static void frame_invalid(struct vlff_node *n, long long id, const char *why) {
-  STAT_ADD(n, frames_invalid, 1);
-  VLFF_DEBUG(TAG, "frame %lld dropped: %s", id, why);
+/* ---- refused frames ----------------------------------------------------- */
+
+static const char *const refusal_names[VLFF_REFUSED_COUNT] = {
+    [VLFF_REFUSED_NONE] = "none",
+    [VLFF_REFUSED_MALFORMED] = "malformed",
+    [VLFF_REFUSED_OVERSIZE] = "oversize",
+    [VLFF_REFUSED_PIXEL_FORMAT] = "pixel format",
+    [VLFF_REFUSED_NO_INTRINSICS] = "no intrinsics",
+    [VLFF_REFUSED_BAD_INTRINSICS] = "bad intrinsics",
+    [VLFF_REFUSED_NO_POSE] = "no pose",
+    [VLFF_REFUSED_BAD_POSE] = "bad pose",
+    [VLFF_REFUSED_POSE_RANGE] = "pose out of range",
+    [VLFF_REFUSED_NO_DEPTH] = "no depth",
+    [VLFF_REFUSED_EMPTY_DEPTH] = "empty depth",
+    [VLFF_REFUSED_TOO_SMALL] = "too small",
+    [VLFF_REFUSED_NO_FEATURES] = "no features",
+};
+
+const char *vlff_refusal_name(int reason) {
+  return reason > 0 && reason < VLFF_REFUSED_COUNT ? refusal_names[reason] : "unknown";
+}
+
+/* A camera that lacks something lacks it on every frame: the first refusal
+ * of each reason is logged at info with its detail, later ones only at
+ * debug, and a summary of the counts every REFUSAL_REPORT_S while refusals
+ * go on, so the log says why without a line per frame. */
+#define REFUSAL_REPORT_S 5.0
+
+struct refusal_log {
+  bool seen[VLFF_REFUSED_COUNT];
+  long long since[VLFF_REFUSED_COUNT]; /* since the last summary */
+  double last_report_s;
+};
+
+static void refuse(struct vlff_node *n, struct refusal_log *rl, int reason, long long id, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
+
+static void refuse(struct vlff_node *n, struct refusal_log *rl, int reason, long long id, const char *fmt, ...) {
+  long long total;
+  pthread_mutex_lock(&n->slock);
+  n->st.frames_invalid++;
+  total = ++n->st.refused[reason];
+  n->st.last_refusal = reason;
+  pthread_mutex_unlock(&n->slock);
+  char detail[384];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(detail, sizeof detail, fmt, ap);
+  va_end(ap);
+  rl->since[reason]++;
+  if (!rl->seen[reason]) {
+    rl->seen[reason] = true;
+    VLFF_INFO(TAG, "frame %lld refused, %s: %s (further frames refused for this reason are counted in --status "
+              "and summarised here every %.0f s)", id, refusal_names[reason], detail, REFUSAL_REPORT_S);
+  } else {
+    VLFF_DEBUG(TAG, "frame %lld refused, %s: %s (%lld so far)", id, refusal_names[reason], detail, total);
+  }
+}
+
+static void refusal_summary(struct vlff_node *n, struct refusal_log *rl, double now) {
+  if (now - rl->last_report_s < REFUSAL_REPORT_S) return;
+  char line[768];
+  size_t len = 0;
+  line[0] = 0;
+  long long totals[VLFF_REFUSED_COUNT];
+  pthread_mutex_lock(&n->slock);
+  memcpy(totals, n->st.refused, sizeof totals);
+  pthread_mutex_unlock(&n->slock);
+  for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
+    if (!rl->since[r] || len >= sizeof line) continue;
+    len += (size_t)snprintf(line + len, sizeof line - len, "%s%s %lld (%lld in all)", len ? ", " : "",
+                            refusal_names[r], rl->since[r], totals[r]);
+    rl->since[r] = 0;
+  }
+  if (line[0]) VLFF_INFO(TAG, "frames refused in the last %.0f s: %s", now - rl->last_report_s, line);
+  rl->last_report_s = now;
+}
+
+/* Plausible pinhole intrinsics for a w x h image: a field of view between a
+ * long telephoto's and a fisheye's (beyond, the pinhole model does not hold
+ * or the values are in other units), square-ish pixels, and the principal
+ * point on the image or near it (a crop moves it off centre, not far off). */
+static bool intrinsics_plausible(const struct vlff_frame_hdr *h, uint32_t w, uint32_t ht, char *why, size_t len) {
+  const double fmin = 0.1, fmax = 100, aspect = 4, margin = 0.25;
+  if (!(h->fx >= fmin * w && h->fx <= fmax * w) || !(h->fy >= fmin * ht && h->fy <= fmax * ht)) {
+    snprintf(why, len, "focal lengths fx %g fy %g px implausible for a %ux%u image (expected %g..%g x the width "
+             "and height)", h->fx, h->fy, w, ht, fmin, fmax);
+    return false;
+  }
+  if (h->fx > aspect * h->fy || h->fy > aspect * h->fx) {
+    snprintf(why, len, "fx %g and fy %g px differ by more than %gx: not one camera's pixels", h->fx, h->fy, aspect);
+    return false;
+  }
+  if (!(h->cx >= -margin * w && h->cx <= (1 + margin) * w) || !(h->cy >= -margin * ht && h->cy <= (1 + margin) * ht)) {
+    snprintf(why, len, "principal point (%g, %g) px far outside the %ux%u image", h->cx, h->cy, w, ht);
+    return false;
+  }
+  return true;
+}
+
+/* The camera must be where it could see into the scene box: within the box
+ * grown by its largest extent on every side. A pose beyond that is in
+ * other units (millimetres) or another frame (a GPS origin), and training on
+ * it would write nothing useful into the field. */
+static bool pose_in_range(const struct vlff_config *cfg, const double pose[16], char *why, size_t len) {
+  double ext = 0;
+  for (int i = 0; i < 3; i++) ext = fmax(ext, cfg->field.scene_max[i] - cfg->field.scene_min[i]);
+  for (int i = 0; i < 3; i++) {
+    double t = pose[i * 4 + 3];
+    if (t < cfg->field.scene_min[i] - ext || t > cfg->field.scene_max[i] + ext) {
+      snprintf(why, len, "camera at (%.3f, %.3f, %.3f) m, beyond the scene box (field.scene_min/max) grown by %g m: "
+               "poses in millimetres or in another world frame?", pose[3], pose[7], pose[11], ext);
+      return false;
+    }
+  }
+  return true;
+}
+
+/* Why the pose ring gave no pose for a frame stamped t_ns: says what a user
+ * can act on (nothing writes poses, clocks apart, the source lags). */
+static void no_pose_detail(const struct vlff_config *cfg, struct vlff_ring *poses, int lookup_errno, uint64_t t_ns,
+                           bool untrusted, char *why, size_t len) {
+  if (!poses) {
+    snprintf(why, len, "the frame carries no pose and the pose ring %s does not exist (start vlff-pose or the SLAM "
+             "adapter that writes it)", cfg->shm.pose_ring);
+    return;
+  }
+  if (untrusted) {
+    snprintf(why, len, "the pose source flagged the pose at this time untrusted (tracking lost)");
+    return;
+  }
+  struct vlff_pose_rec last;
+  if (vlff_ring_read_latest(poses, &last, sizeof last, NULL) != (ssize_t)sizeof last) {
+    snprintf(why, len, "the pose ring %s holds no pose yet", cfg->shm.pose_ring);
+    return;
+  }
+  double dt = ((double)last.t_ns - (double)t_ns) * 1e-9;
+  if (lookup_errno == EAGAIN)
+    snprintf(why, len, "frame stamped %.6f s is newer than the newest pose in %s (%.3f s older): the pose source "
+             "lags or stopped", (double)t_ns * 1e-9, cfg->shm.pose_ring, -dt);
+  else
+    snprintf(why, len, "no two poses in %s bracket the frame's stamp %.6f s within source.pose_tolerance_s %g s "
+             "(newest pose %+.3f s from it): clocks apart, or poses sparser than the tolerance",
+             cfg->shm.pose_ring, (double)t_ns * 1e-9, cfg->source.pose_tolerance_s, dt);
 }
 
 static void *ingest_main(void *arg) {
@@ -338,6 +480,7 @@ static void *ingest_main(void *arg) {
   vlff_kf_selector_init(&sel, cfg->keyframes.rate_hz, cfg->keyframes.min_translation_m,
                         cfg->keyframes.min_rotation_deg);
   uint64_t lost_seen = 0;
+  struct refusal_log rl = {.last_report_s = mono_s()};
   double fps_t0 = mono_s();
   long long fps_count = 0;
   while (ring && buf && fbuf && !atomic_load(&n->stop)) {
@@ -383,6 +526,7 @@ static void *ingest_main(void *arg) {
         i--;
       }
 
+    refusal_summary(n, &rl, mono_s());
     struct vlff_ring_view info;
     ssize_t len = vlff_ring_read_copy(ring, buf, cap, &info, 50 * 1000 * 1000ull);
     uint64_t lost = vlff_ring_lost(ring);
@@ -405,7 +549,7 @@ static void *ingest_main(void *arg) {
           buf = nb;
         }
       } else if (errno == EMSGSIZE) {
-        frame_invalid(n, -1, "record larger than the read buffer");
+        refuse(n, &rl, VLFF_REFUSED_MALFORMED, -1, "record larger than the ring's slot size %zu", cap);
       }
       continue;
     }
@@ -426,39 +570,62 @@ static void *ingest_main(void *arg) {
     const struct vlff_frame_hdr *h = buf;
     long long id = (long long)h->frame_id;
     if (vlff_frame_validate(buf, (size_t)len) != 0) {
-      frame_invalid(n, id, "malformed frame record");
+      refuse(n, &rl, VLFF_REFUSED_MALFORMED, id, "record of %zd bytes is not a well-formed frame (sizes, formats, "
+             "planes, non-finite intrinsics or pose)", len);
       continue;
     }
     const struct vlff_plane *cp = &h->plane[VLFF_PLANE_COLOR];
     const struct vlff_plane *dp = h->nplanes > 1 ? &h->plane[VLFF_PLANE_DEPTH] : NULL;
     if ((int)cp->width > cfg->shm.max_width || (int)cp->height > cfg->shm.max_height) {
-      frame_invalid(n, id, "larger than shm.max_width x shm.max_height");
+      refuse(n, &rl, VLFF_REFUSED_OVERSIZE, id, "%ux%u is larger than shm.max_width x shm.max_height (%dx%d)",
+             cp->width, cp->height, cfg->shm.max_width, cfg->shm.max_height);
       continue;
     }
     if (cp->format != VLFF_PIX_RGB8 && cp->format != VLFF_PIX_MONO8) {
-      frame_invalid(n, id, "colour plane is not RGB8 or Mono8");
+      refuse(n, &rl, VLFF_REFUSED_PIXEL_FORMAT, id, "colour plane is %s, expected RGB8 or Mono8",
+             vlff_pixfmt_name(cp->format));
       continue;
     }
-    if (!(h->flags & VLFF_FRAME_INTRINSICS_VALID) || !(h->fx > 0) || !(h->fy > 0) ||
-        !isfinite(h->cx) || !isfinite(h->cy)) {
-      frame_invalid(n, id, "no valid intrinsics");
+    char why[384];
+    if (!(h->flags & VLFF_FRAME_INTRINSICS_VALID) || !isfinite(h->fx) || !isfinite(h->fy) || !isfinite(h->cx) ||
+        !isfinite(h->cy)) {
+      refuse(n, &rl, VLFF_REFUSED_NO_INTRINSICS, id, "%s (set camera.intrinsics or camera.calibration)",
+             (h->flags & VLFF_FRAME_INTRINSICS_VALID) ? "intrinsics not finite" : "the frame is not flagged with intrinsics");
+      continue;
+    }
+    if (!intrinsics_plausible(h, cp->width, cp->height, why, sizeof why)) {
+      refuse(n, &rl, VLFF_REFUSED_BAD_INTRINSICS, id, "%s", why);
       continue;
     }
     double pose[16];
-    bool have_pose = false;
+    bool have_pose = false, untrusted = false;
+    int lookup_errno = 0;
     if ((h->flags & VLFF_FRAME_POSE_VALID) && !(h->flags & VLFF_FRAME_POSE_UNTRUSTED)) {
       memcpy(pose, h->pose, sizeof pose);
       have_pose = true;
     } else if (poses) {
       struct vlff_pose_rec pr;
-      if (vlff_pose_lookup(poses, h->t_host_ns, (uint64_t)(cfg->source.pose_tolerance_s * 1e9), &pr) == 0 &&
-          !(pr.flags & VLFF_FRAME_POSE_UNTRUSTED)) {
-        memcpy(pose, pr.pose, sizeof pose);
-        have_pose = true;
+      if (vlff_pose_lookup(poses, h->t_host_ns, (uint64_t)(cfg->source.pose_tolerance_s * 1e9), &pr) == 0) {
+        untrusted = (pr.flags & VLFF_FRAME_POSE_UNTRUSTED) != 0;
+        if (!untrusted) {
+          memcpy(pose, pr.pose, sizeof pose);
+          have_pose = true;
+        }
+      } else {
+        lookup_errno = errno;
       }
     }
-    if (!have_pose || !vlff_pose_valid(pose)) {
-      frame_invalid(n, id, have_pose ? "pose not a rigid transform (NaN or not orthonormal)" : "no pose");
+    if (!have_pose) {
+      no_pose_detail(cfg, poses, lookup_errno, h->t_host_ns, untrusted, why, sizeof why);
+      refuse(n, &rl, VLFF_REFUSED_NO_POSE, id, "%s", why);
+      continue;
+    }
+    if (!vlff_pose_valid(pose)) {
+      refuse(n, &rl, VLFF_REFUSED_BAD_POSE, id, "pose is not a rigid transform (NaN, or rotation not orthonormal)");
+      continue;
+    }
+    if (!pose_in_range(cfg, pose, why, sizeof why)) {
+      refuse(n, &rl, VLFF_REFUSED_POSE_RANGE, id, "%s", why);
       continue;
     }
     pthread_mutex_lock(&n->slock);
@@ -466,14 +633,20 @@ static void *ingest_main(void *arg) {
     pthread_mutex_unlock(&n->slock);
     if (!dp || (dp->format != VLFF_PIX_DEPTH_U16_MM && dp->format != VLFF_PIX_DEPTH_F32_M) ||
         dp->width != cp->width || dp->height != cp->height) {
-      frame_invalid(n, id, "no depth plane of the colour plane's size");
+      if (!dp)
+        refuse(n, &rl, VLFF_REFUSED_NO_DEPTH, id, "the frame has no depth plane (camera.depth: none?)");
+      else
+        refuse(n, &rl, VLFF_REFUSED_NO_DEPTH, id, "depth plane is %s %ux%u, expected DEPTH_U16_MM or DEPTH_F32_M "
+               "of the colour plane's %ux%u", vlff_pixfmt_name(dp->format), dp->width, dp->height, cp->width,
+               cp->height);
       continue;
     }
     if (!vlff_kf_selector_offer(&sel, (long long)h->t_host_ns, pose)) continue;
 
     int dw = (int)lround(cp->width * cfg->train.image_scale), dh = (int)lround(cp->height * cfg->train.image_scale);
     if (dw < 4 || dh < 4) {
-      frame_invalid(n, id, "too small at train.image_scale");
+      refuse(n, &rl, VLFF_REFUSED_TOO_SMALL, id, "%ux%u is %dx%d at train.image_scale %g, under 4x4", cp->width,
+             cp->height, dw, dh, cfg->train.image_scale);
       continue;
     }
     struct candidate *c = calloc(1, sizeof *c);
@@ -492,7 +665,7 @@ static void *ingest_main(void *arg) {
                                   (int)dp->height, dp->stride, c->depth, dw, dh);
     if (valid == 0) {
       candidate_free(c);
-      frame_invalid(n, id, "depth plane has no valid pixel");
+      refuse(n, &rl, VLFF_REFUSED_EMPTY_DEPTH, id, "the depth plane has no valid pixel (all 0 or NaN)");
       continue;
     }
     double sx = (double)dw / cp->width, sy = (double)dh / cp->height;
@@ -512,7 +685,7 @@ static void *ingest_main(void *arg) {
       /* vlff-sim loops its trajectory: scene frame = frame id mod sim.frames. */
       if (!sf || vlff_sim_render(n->sim, id % cfg->sim.frames, VLFF_SIM_FEATURES, sf, err, sizeof err)) {
         candidate_free(c);
-        frame_invalid(n, id, "simulated features unavailable");
+        refuse(n, &rl, VLFF_REFUSED_NO_FEATURES, id, "simulated features unavailable: %s", sf ? err : "no memory");
         continue;
       }
       size_t fb = (size_t)sf->feat_width * sf->feat_height * sf->feat_dim * sizeof(uint16_t);
@@ -966,6 +1139,11 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     return NULL;
   }
 #endif
+  if (vlff_config_sim_features_misused(cfg)) {
+    snprintf(err, errlen, "source.features: sim with source.kind: ring pairs the simulator's features with a "
+             "camera's images; use ring or model, or set source.allow_sim_features: true to force it");
+    return NULL;
+  }
   if (cfg->source.features == VLFF_FEAT_SIM && cfg->sim.feature_dim != cfg->field.feature_dim) {
     snprintf(err, errlen, "sim.feature_dim (%d) must equal field.feature_dim (%d)", cfg->sim.feature_dim,
              cfg->field.feature_dim);
