@@ -28,12 +28,36 @@ const char *vlff_tum_result_name(int result) {
   return result >= 0 && result < VLFF_TUM_RESULTS ? result_names[result] : "unknown";
 }
 
+/* A plain decimal stamp "123.456789012" to nanoseconds without going
+ * through a double: at a monotonic clock's uptime a double's nanoseconds
+ * are off by a few, and the node matches a frame's stamp exactly when
+ * there is no second pose near it to interpolate with. 0, or -1 when the
+ * text is not a plain non-negative decimal (exponents, signs, hex). */
+static int decimal_ns(const char *s, const char *end, int64_t *out) {
+  int64_t sec = 0, frac = 0;
+  int digits = 0, fd = 0;
+  const char *p = s;
+  for (; p < end && *p >= '0' && *p <= '9'; p++, digits++) {
+    if (sec > (INT64_MAX / 1000000000 - 9) / 10) return -1;
+    sec = sec * 10 + (*p - '0');
+  }
+  if (p < end && *p == '.') {
+    for (p++; p < end && *p >= '0' && *p <= '9'; p++, digits++)
+      if (fd < 9) frac = frac * 10 + (*p - '0'), fd++;
+  }
+  if (p != end || digits == 0) return -1;
+  for (; fd < 9; fd++) frac *= 10;
+  *out = sec * 1000000000 + frac;
+  return 0;
+}
+
 int vlff_tum_parse(const char *line, struct vlff_tum_sample *out, char *why, size_t whylen) {
   const char *s = line;
   while (isspace((unsigned char)*s)) s++;
   if (!*s || *s == '#') return VLFF_TUM_SKIP;
   double v[8];
-  int n = 0;
+  int64_t t_ns = 0;
+  int exact = 0, n = 0;
   while (*s) {
     if (n == 8) {
       snprintf(why, whylen, "more than 8 fields (expected t tx ty tz qx qy qz qw)");
@@ -48,6 +72,7 @@ int vlff_tum_parse(const char *line, struct vlff_tum_sample *out, char *why, siz
       snprintf(why, whylen, "field %d '%.*s' is not a number (expected t tx ty tz qx qy qz qw)", n + 1, w, s);
       return VLFF_TUM_MALFORMED;
     }
+    if (n == 0) exact = decimal_ns(s, end, &t_ns) == 0;
     n++;
     s = end;
     while (isspace((unsigned char)*s)) s++;
@@ -62,7 +87,15 @@ int vlff_tum_parse(const char *line, struct vlff_tum_sample *out, char *why, siz
       snprintf(why, whylen, "%s is %g", names[i], v[i]);
       return VLFF_TUM_NOT_FINITE;
     }
+  if (!exact) {
+    if (!(fabs(v[0]) < 9.2e9)) {
+      snprintf(why, whylen, "stamp %g s is beyond the clock's range", v[0]);
+      return VLFF_TUM_MALFORMED;
+    }
+    t_ns = llround(v[0] * 1e9);
+  }
   out->t = v[0];
+  out->t_ns = t_ns;
   memcpy(out->p, v + 1, sizeof out->p);
   memcpy(out->q, v + 4, sizeof out->q);
   return VLFF_TUM_OK;
@@ -138,12 +171,13 @@ int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_n
              s.q[3], norm, f->p.quat_tolerance);
     return refuse(f, VLFF_TUM_BAD_QUATERNION);
   }
-  if (f->have_last && s.t == f->last_t) {
+  if (f->have_last && s.t_ns == f->last_t_ns) {
     snprintf(why, whylen, "stamp %.9f repeats the previous line's", s.t);
     return refuse(f, VLFF_TUM_DUPLICATE);
   }
-  if (f->have_last && s.t < f->last_t) {
-    snprintf(why, whylen, "stamp %.9f is %.6f s before the previous line's %.9f", s.t, f->last_t - s.t, f->last_t);
+  if (f->have_last && s.t_ns < f->last_t_ns) {
+    snprintf(why, whylen, "stamp %.9f is %.9f s before the previous line's %.9f", s.t,
+             (double)(f->last_t_ns - s.t_ns) * 1e-9, (double)f->last_t_ns * 1e-9);
     return refuse(f, VLFF_TUM_OUT_OF_ORDER);
   }
   uint64_t t_ns;
@@ -157,13 +191,13 @@ int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_n
     /* Two lines in the same tick still need increasing records. */
     if (f->have_last && t_ns <= f->last_ns) t_ns = f->last_ns + 1;
   } else {
-    double t = s.t * 1e9 + (double)f->p.clock_offset_ns;
-    if (!(t > 0 && t < 9.2e18)) {
+    int64_t t;
+    if (__builtin_add_overflow(s.t_ns, f->p.clock_offset_ns, &t) || t <= 0) {
       snprintf(why, whylen, "stamp %.9f s with the clock offset %.9f s is outside the monotonic clock's range", s.t,
                (double)f->p.clock_offset_ns * 1e-9);
       return refuse(f, VLFF_TUM_BAD_STAMP);
     }
-    t_ns = (uint64_t)llround(t);
+    t_ns = (uint64_t)t;
   }
   double q[4];
   for (int i = 0; i < 4; i++) q[i] = s.q[i] / norm;
@@ -174,7 +208,7 @@ int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_n
   out->source_id = f->p.source_id;
   mul44(body, f->p.body_to_camera, out->pose);
   f->have_last = 1;
-  f->last_t = s.t;
+  f->last_t_ns = s.t_ns;
   f->last_ns = t_ns;
   f->accepted++;
   return VLFF_TUM_OK;

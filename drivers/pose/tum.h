@@ -49,13 +49,15 @@ const char *vlff_tum_result_name(int result);
 /* One parsed line. */
 struct vlff_tum_sample {
   double t;          /* seconds, as written */
+  int64_t t_ns;      /* the same in nanoseconds, exact for plain decimals ("1305031102.175304") */
   double p[3];       /* metres */
   double q[4];       /* x y z w, as written */
 };
 
 /* Parses one line (NUL-terminated, a trailing newline allowed) without any
  * check beyond the syntax and finiteness. Returns VLFF_TUM_OK, SKIP,
- * MALFORMED or NOT_FINITE, with why filled for the last two. */
+ * MALFORMED or NOT_FINITE, with why filled for the last two. A stamp
+ * beyond the range of int64 nanoseconds is MALFORMED. */
 int vlff_tum_parse(const char *line, struct vlff_tum_sample *out, char *why, size_t whylen);
 
 /* Row-major 4x4 rigid transform of a position and a unit quaternion (x y z w). */
@@ -75,7 +77,7 @@ struct vlff_tum_feed_params {
 struct vlff_tum_feed {
   struct vlff_tum_feed_params p;
   int have_last;
-  double last_t;              /* stamp of the last accepted line, as written */
+  int64_t last_t_ns;          /* stamp of the last accepted line, as written */
   uint64_t last_ns;           /* its record's stamp */
   uint64_t accepted;
   uint64_t refused[VLFF_TUM_RESULTS]; /* per result; [OK] and [SKIP] unused */

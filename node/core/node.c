@@ -432,8 +432,8 @@ static bool pose_in_range(const struct vlff_config *cfg, const double pose[16], 
 static void no_pose_detail(const struct vlff_config *cfg, struct vlff_ring *poses, int lookup_errno, uint64_t t_ns,
                            bool untrusted, char *why, size_t len) {
   if (!poses) {
-    snprintf(why, len, "the frame carries no pose and the pose ring %s does not exist (start vlff-pose or the SLAM "
-             "adapter that writes it)", cfg->shm.pose_ring);
+    snprintf(why, len, "the frame carries no pose and the pose ring cannot be attached: %s (start vlff-pose or the "
+             "SLAM adapter that writes it)", vlff_shm_last_message());
     return;
   }
   if (untrusted) {
@@ -481,10 +481,11 @@ static void *ingest_main(void *arg) {
                         cfg->keyframes.min_rotation_deg);
   uint64_t lost_seen = 0;
   struct refusal_log rl = {.last_report_s = mono_s()};
+  double pose_reattach_s = 0;
+  bool pose_miss = false;
   double fps_t0 = mono_s();
   long long fps_count = 0;
   while (ring && buf && fbuf && !atomic_load(&n->stop)) {
-    if (!poses) poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
     if (join && !feats) feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
     /* Features that arrived (external extractor or in-node model) complete
      * their waiting keyframes; keyframes whose features never come expire. */
@@ -603,7 +604,21 @@ static void *ingest_main(void *arg) {
     if ((h->flags & VLFF_FRAME_POSE_VALID) && !(h->flags & VLFF_FRAME_POSE_UNTRUSTED)) {
       memcpy(pose, h->pose, sizeof pose);
       have_pose = true;
-    } else if (poses) {
+    } else {
+      /* Attached when a frame needs it, not before waiting for the frame:
+       * a pose source that starts meanwhile poses that frame already. A
+       * failed lookup re-attaches (at most once a second), so a pose
+       * source restarted with another ring geometry, which abandons the
+       * old segment, is followed. */
+      double t_now = mono_s();
+      if (!poses || (pose_miss && t_now - pose_reattach_s >= 1.0)) {
+        vlff_ring_close(poses);
+        poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
+        pose_reattach_s = t_now;
+        pose_miss = false;
+      }
+    }
+    if (!have_pose && poses) {
       struct vlff_pose_rec pr;
       if (vlff_pose_lookup(poses, h->t_host_ns, (uint64_t)(cfg->source.pose_tolerance_s * 1e9), &pr) == 0) {
         untrusted = (pr.flags & VLFF_FRAME_POSE_UNTRUSTED) != 0;
@@ -613,6 +628,7 @@ static void *ingest_main(void *arg) {
         }
       } else {
         lookup_errno = errno;
+        pose_miss = true;
       }
     }
     if (!have_pose) {

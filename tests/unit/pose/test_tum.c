@@ -33,9 +33,19 @@ static void test_parse(void **state) {
   assert_true(s.t == 1305031102.175304);
   assert_true(s.p[0] == 1.2334 && s.p[2] == 1.6941);
   assert_true(s.q[0] == 0.7907 && s.q[3] == -0.3879);
+  assert_true(s.t_ns == 1305031102175304000ll);
+  /* Nanoseconds exact where a double is not. */
+  assert_int_equal(vlff_tum_parse("9876543.123456789 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_true(s.t_ns == 9876543123456789ll);
+  assert_int_equal(vlff_tum_parse("7 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_true(s.t_ns == 7000000000ll);
+  assert_int_equal(vlff_tum_parse(".5 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_true(s.t_ns == 500000000ll);
+  assert_int_equal(vlff_tum_parse("1e30 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   /* Tabs, leading blanks, exponent notation. */
   assert_int_equal(vlff_tum_parse("\t 2e0\t0 0 0  0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
   assert_true(s.t == 2.0 && s.q[3] == 1);
+  assert_true(s.t_ns == 2000000000ll);
   assert_int_equal(vlff_tum_parse("# timestamp tx ty tz qx qy qz qw\n", &s, why, sizeof why), VLFF_TUM_SKIP);
   assert_int_equal(vlff_tum_parse("   \n", &s, why, sizeof why), VLFF_TUM_SKIP);
   assert_int_equal(vlff_tum_parse("", &s, why, sizeof why), VLFF_TUM_SKIP);
@@ -96,6 +106,15 @@ static void test_feed_checks(void **state) {
   assert_int_equal(f.refused[VLFF_TUM_MALFORMED], 1);
   assert_int_equal(vlff_tum_feed_refused(&f), 7);
   assert_string_equal(vlff_tum_result_name(VLFF_TUM_OUT_OF_ORDER), "out of order");
+
+  /* One nanosecond apart at a long uptime: in order, not duplicates. */
+  feed_init(&f, VLFF_TUM_STAMP_SOURCE, 0);
+  assert_int_equal(vlff_tum_feed_line(&f, "9876543.123456789 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_true(r.t_ns == 9876543123456789ull);
+  assert_int_equal(vlff_tum_feed_line(&f, "9876543.123456790 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_true(r.t_ns == 9876543123456790ull);
+  assert_int_equal(vlff_tum_feed_line(&f, "9876543.12345679 0 0 0 0 0 0 1", 0, &r, why, sizeof why),
+                   VLFF_TUM_DUPLICATE);
 
   /* A stamp that lands before the clock's zero after the offset. */
   feed_init(&f, VLFF_TUM_STAMP_SOURCE, -20000000000);
