@@ -51,16 +51,16 @@ static int decimal_ns(const char *s, const char *end, int64_t *out) {
   return 0;
 }
 
-int vlff_tum_parse(const char *line, struct vlff_tum_sample *out, char *why, size_t whylen) {
+int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *out, char *why, size_t whylen) {
   const char *s = line;
   while (isspace((unsigned char)*s)) s++;
   if (!*s || *s == '#') return VLFF_TUM_SKIP;
-  double v[8];
+  double v[9];
   int64_t t_ns = 0;
   int exact = 0, n = 0;
   while (*s) {
-    if (n == 8) {
-      snprintf(why, whylen, "more than 8 fields (expected t tx ty tz qx qy qz qw)");
+    if (n == 8 && !extra_fields) {
+      snprintf(why, whylen, "more than 8 fields (expected t tx ty tz qx qy qz qw; --extra-fields ignores the rest)");
       return VLFF_TUM_MALFORMED;
     }
     char *end;
@@ -73,7 +73,7 @@ int vlff_tum_parse(const char *line, struct vlff_tum_sample *out, char *why, siz
       return VLFF_TUM_MALFORMED;
     }
     if (n == 0) exact = decimal_ns(s, end, &t_ns) == 0;
-    n++;
+    if (n < 8) n++; /* extra fields land in v[8] and are dropped */
     s = end;
     while (isspace((unsigned char)*s)) s++;
   }
@@ -162,7 +162,7 @@ static int refuse(struct vlff_tum_feed *f, int result) {
 int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_ns, struct vlff_pose_rec *out,
                        char *why, size_t whylen) {
   struct vlff_tum_sample s;
-  int r = vlff_tum_parse(line, &s, why, whylen);
+  int r = vlff_tum_parse(line, f->p.extra_fields, &s, why, whylen);
   if (r == VLFF_TUM_SKIP) return r;
   if (r != VLFF_TUM_OK) return refuse(f, r);
   double norm = sqrt(s.q[0] * s.q[0] + s.q[1] * s.q[1] + s.q[2] * s.q[2] + s.q[3] * s.q[3]);

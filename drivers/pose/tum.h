@@ -55,10 +55,12 @@ struct vlff_tum_sample {
 };
 
 /* Parses one line (NUL-terminated, a trailing newline allowed) without any
- * check beyond the syntax and finiteness. Returns VLFF_TUM_OK, SKIP,
+ * check beyond the syntax and finiteness. With extra_fields, numbers after
+ * the eighth (covariances, as OpenVINS' recorder appends) are allowed and
+ * ignored; without, they are MALFORMED. Returns VLFF_TUM_OK, SKIP,
  * MALFORMED or NOT_FINITE, with why filled for the last two. A stamp
  * beyond the range of int64 nanoseconds is MALFORMED. */
-int vlff_tum_parse(const char *line, struct vlff_tum_sample *out, char *why, size_t whylen);
+int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *out, char *why, size_t whylen);
 
 /* Row-major 4x4 rigid transform of a position and a unit quaternion (x y z w). */
 void vlff_tum_matrix(const double p[3], const double q[4], double out[16]);
@@ -72,6 +74,7 @@ struct vlff_tum_feed_params {
   double quat_tolerance;      /* largest |norm - 1| that is normalised, not refused */
   double body_to_camera[16];  /* camera pose in the body frame; identity = the line is the camera's */
   uint32_t source_id;         /* written into every record */
+  int extra_fields;           /* numbers after the eighth are ignored, not refused */
 };
 
 struct vlff_tum_feed {

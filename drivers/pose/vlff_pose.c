@@ -54,6 +54,7 @@ static void usage(FILE *out) {
         "                           the camera's pose in the tracker's body (IMU) frame; default identity\n"
         "                           (the lines are already the camera's poses)\n"
         "      --quat-tolerance X   quaternions with |norm - 1| <= X are normalised, others refused (0.01)\n"
+        "      --extra-fields       ignore numbers after the eighth (covariances), instead of refusing the line\n"
         "      --source-id N        written into every record (0)\n"
         "  -q, --quiet              print only errors and refusals\n"
         "  -V, --version            print the version and exit\n"
@@ -196,7 +197,7 @@ static int parse_double(const char *s, double lo, double hi, double *out) {
 }
 
 int main(int argc, char **argv) {
-  enum { OPT_CLOCK = 256, OPT_OFFSET, OPT_HOST, OPT_LATENCY, OPT_EXTRINSIC, OPT_QTOL, OPT_SOURCE };
+  enum { OPT_CLOCK = 256, OPT_OFFSET, OPT_HOST, OPT_LATENCY, OPT_EXTRINSIC, OPT_QTOL, OPT_SOURCE, OPT_EXTRA };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
       {"ring", required_argument, NULL, 'r'},
@@ -208,6 +209,7 @@ int main(int argc, char **argv) {
       {"extrinsic", required_argument, NULL, OPT_EXTRINSIC},
       {"quat-tolerance", required_argument, NULL, OPT_QTOL},
       {"source-id", required_argument, NULL, OPT_SOURCE},
+      {"extra-fields", no_argument, NULL, OPT_EXTRA},
       {"quiet", no_argument, NULL, 'q'},
       {"version", no_argument, NULL, 'V'},
       {"help", no_argument, NULL, 'h'},
@@ -225,6 +227,7 @@ int main(int argc, char **argv) {
     case 'u': udp = optarg; break;
     case 'q': quiet = 1; break;
     case OPT_HOST: fp.stamp = VLFF_TUM_STAMP_HOST; break;
+    case OPT_EXTRA: fp.extra_fields = 1; break;
     case OPT_CLOCK:
       if (!strcmp(optarg, "monotonic")) realtime = 0;
       else if (!strcmp(optarg, "realtime")) realtime = 1;
@@ -258,7 +261,7 @@ int main(int argc, char **argv) {
       char line[512], why[256];
       snprintf(line, sizeof line, "0 %s", optarg);
       double n = 0;
-      if (vlff_tum_parse(line, &s, why, sizeof why) == VLFF_TUM_OK)
+      if (vlff_tum_parse(line, 0, &s, why, sizeof why) == VLFF_TUM_OK)
         n = sqrt(s.q[0] * s.q[0] + s.q[1] * s.q[1] + s.q[2] * s.q[2] + s.q[3] * s.q[3]);
       if (!(fabs(n - 1) <= 0.01)) {
         fprintf(stderr, "vlff-pose: --extrinsic '%s': expected \"tx ty tz qx qy qz qw\" with a unit quaternion\n",

@@ -13,6 +13,11 @@
 
 static char why[256];
 
+/* Strict TUM: exactly eight fields. */
+static int parse8(const char *line, struct vlff_tum_sample *s, char *w, size_t wl) {
+  return vlff_tum_parse(line, 0, s, w, wl);
+}
+
 static void identity(double m[16]) {
   memset(m, 0, 16 * sizeof m[0]);
   m[0] = m[5] = m[10] = m[15] = 1;
@@ -27,7 +32,7 @@ static void feed_init(struct vlff_tum_feed *f, int stamp, int64_t offset_ns) {
 static void test_parse(void **state) {
   (void)state;
   struct vlff_tum_sample s;
-  assert_int_equal(vlff_tum_parse("1305031102.175304 1.2334 -0.0113 1.6941 0.7907 0.4393 -0.1770 -0.3879\n", &s, why,
+  assert_int_equal(parse8("1305031102.175304 1.2334 -0.0113 1.6941 0.7907 0.4393 -0.1770 -0.3879\n", &s, why,
                                   sizeof why),
                    VLFF_TUM_OK);
   assert_true(s.t == 1305031102.175304);
@@ -35,32 +40,38 @@ static void test_parse(void **state) {
   assert_true(s.q[0] == 0.7907 && s.q[3] == -0.3879);
   assert_true(s.t_ns == 1305031102175304000ll);
   /* Nanoseconds exact where a double is not. */
-  assert_int_equal(vlff_tum_parse("9876543.123456789 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(parse8("9876543.123456789 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
   assert_true(s.t_ns == 9876543123456789ll);
-  assert_int_equal(vlff_tum_parse("7 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(parse8("7 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
   assert_true(s.t_ns == 7000000000ll);
-  assert_int_equal(vlff_tum_parse(".5 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(parse8(".5 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
   assert_true(s.t_ns == 500000000ll);
-  assert_int_equal(vlff_tum_parse("1e30 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1e30 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   /* Tabs, leading blanks, exponent notation. */
-  assert_int_equal(vlff_tum_parse("\t 2e0\t0 0 0  0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(parse8("\t 2e0\t0 0 0  0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
   assert_true(s.t == 2.0 && s.q[3] == 1);
   assert_true(s.t_ns == 2000000000ll);
-  assert_int_equal(vlff_tum_parse("# timestamp tx ty tz qx qy qz qw\n", &s, why, sizeof why), VLFF_TUM_SKIP);
-  assert_int_equal(vlff_tum_parse("   \n", &s, why, sizeof why), VLFF_TUM_SKIP);
-  assert_int_equal(vlff_tum_parse("", &s, why, sizeof why), VLFF_TUM_SKIP);
-  assert_int_equal(vlff_tum_parse("1 2 3 4 5 6 7", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("# timestamp tx ty tz qx qy qz qw\n", &s, why, sizeof why), VLFF_TUM_SKIP);
+  assert_int_equal(parse8("   \n", &s, why, sizeof why), VLFF_TUM_SKIP);
+  assert_int_equal(parse8("", &s, why, sizeof why), VLFF_TUM_SKIP);
+  assert_int_equal(parse8("1 2 3 4 5 6 7", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   assert_non_null(strstr(why, "7 fields, expected 8"));
-  assert_int_equal(vlff_tum_parse("1 2 3 4 5 6 7 8 9", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1 2 3 4 5 6 7 8 9", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   assert_non_null(strstr(why, "more than 8"));
-  assert_int_equal(vlff_tum_parse("1 2 3 x 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  /* OpenVINS' recorder appends covariances: ignored when asked. */
+  assert_int_equal(vlff_tum_parse("1 2 3 4 0 0 0 1 0.1 0.2 0.3 0.4 0.5 0.6 0.7 0.8 0.9 1.0 1.1 1.2", 1, &s, why,
+                                  sizeof why),
+                   VLFF_TUM_OK);
+  assert_true(s.p[2] == 4 && s.q[3] == 1);
+  assert_int_equal(vlff_tum_parse("1 2 3 4 0 0 0 1 x", 1, &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1 2 3 x 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   assert_non_null(strstr(why, "field 4 'x'"));
-  assert_int_equal(vlff_tum_parse("1,2,3,4,0,0,0,1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
-  assert_int_equal(vlff_tum_parse("1 2 3 4m 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
-  assert_int_equal(vlff_tum_parse("1 nan 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
+  assert_int_equal(parse8("1,2,3,4,0,0,0,1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1 2 3 4m 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1 nan 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
   assert_non_null(strstr(why, "tx is nan"));
-  assert_int_equal(vlff_tum_parse("1 0 0 0 0 0 0 inf", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
-  assert_int_equal(vlff_tum_parse("1 0 0 0 0 0 0 1e999", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
+  assert_int_equal(parse8("1 0 0 0 0 0 0 inf", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
+  assert_int_equal(parse8("1 0 0 0 0 0 0 1e999", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
 }
 
 /* The matrix of a quaternion rotates as the quaternion does. */
