@@ -78,6 +78,7 @@ struct vlff_config {
     int features;                    /* enum vlff_feature_source */
     double pose_tolerance_s;         /* frame<->pose timestamp match */
     bool allow_sim_features;         /* features: sim with kind: ring, forced (tests, demos) */
+    double pose_wait_s;              /* a keyframe candidate newer than every pose waits this long */
   } source;
 
   struct {

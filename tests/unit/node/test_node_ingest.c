@@ -54,7 +54,7 @@ static void write_config(struct vlff_config *cfg) {
   assert_non_null(f);
   fprintf(f,
           "node:\n  state_dir: %s/state\n  checkpoint_period_s: 0\n  log_level: info\n"
-          "source:\n  kind: ring\n  features: sim\n  allow_sim_features: true\n"
+          "source:\n  kind: ring\n  features: sim\n  allow_sim_features: true\n  pose_wait_s: 0.5\n"
           "sim:\n  seed: 3\n  width: 160\n  height: 120\n  frames: 150\n"
           "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
           "  max_width: 320\n  max_height: 240\n"
@@ -260,7 +260,8 @@ static void wait_keyframes(struct vlff_node *n, int want, struct vlff_node_statu
 
 /* Frames without poses are refused "no pose"; once vlff-pose has written
  * their trajectory into the pose ring (from a file, then over UDP), the
- * same kind of frames become keyframes. */
+ * same kind of frames become keyframes, also when each pose comes after
+ * its frame (live), within source.pose_wait_s. */
 static void test_pose_adapter_feeds_node(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -311,7 +312,11 @@ static void test_pose_adapter_feeds_node(void **state) {
   assert_non_null(strstr(ptext, "CameraTrajectory.txt:9: refused, malformed: 3 fields, expected 8"));
   assert_non_null(strstr(ptext, "6 poses written to /"));
   assert_non_null(strstr(ptext, "2 lines refused (malformed 1, duplicate stamp 1)"));
-  for (int i = 0; i < nfile; i++, id++, t += step) put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+  /* Paced like a camera: the trainer takes a few candidates at a time. */
+  for (int i = 0; i < nfile; i++, id++, t += step) {
+    put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+    sleep_s(0.1);
+  }
   wait_keyframes(n, nfile, &st);
   printf("file: %d keyframes, %lld refused for no pose\n", st.keyframes, st.refused[VLFF_REFUSED_NO_POSE]);
   assert_int_equal(st.keyframes, nfile);
@@ -347,17 +352,49 @@ static void test_pose_adapter_feeds_node(void **state) {
   while (vlff_ring_head(pr) < head0 + nudp && mono_s() - t0 < 10 * scale) sleep_s(0.05);
   assert_true(vlff_ring_head(pr) == head0 + nudp);
   vlff_ring_close(pr);
-  for (int i = 0; i < nudp; i++, id++, t += step) put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+  for (int i = 0; i < nudp; i++, id++, t += step) {
+    put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+    sleep_s(0.1);
+  }
   wait_keyframes(n, nfile + nudp, &st);
-  printf("udp: %d keyframes, %lld refused for no pose\n", st.keyframes, st.refused[VLFF_REFUSED_NO_POSE]);
+  printf("udp: %d keyframes (%lld candidates dropped), %lld refused for no pose\n", st.keyframes,
+         st.candidates_dropped, st.refused[VLFF_REFUSED_NO_POSE]);
   assert_int_equal(st.keyframes, nfile + nudp);
   assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
   assert_int_equal(st.frames_invalid, 4);
+
+  /* Live: a tracker posing the node's own frames sends each pose after its
+   * frame reached the ring; the candidate waits for it (source.pose_wait_s). */
+  us = socket(AF_INET, SOCK_DGRAM, 0);
+  assert_true(us >= 0);
+  const int nlive = 3;
+  for (int i = 0; i < nlive; i++, id++, t += step) {
+    put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+    sleep_s(0.15);
+    tum_line(s, f, id, t, line, sizeof line);
+    assert_true(sendto(us, line, strlen(line), 0, (struct sockaddr *)&sa, sizeof sa) == (ssize_t)strlen(line));
+    sleep_s(0.1);
+  }
+  close(us);
+  wait_keyframes(n, nfile + nudp + nlive, &st);
+  printf("live: %d keyframes, %lld refused for no pose\n", st.keyframes, st.refused[VLFF_REFUSED_NO_POSE]);
+  assert_int_equal(st.keyframes, nfile + nudp + nlive);
+  assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
+  /* A pose that never comes: refused once the wait is over. */
+  put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+  t0 = mono_s();
+  do {
+    sleep_s(0.1);
+    vlff_node_status(n, &st);
+  } while (st.refused[VLFF_REFUSED_NO_POSE] < 5 && mono_s() - t0 < 5 * scale);
+  assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 5);
+  assert_true(mono_s() - t0 >= 0.4); /* not before source.pose_wait_s */
+  assert_int_equal(st.keyframes, nfile + nudp + nlive);
   kill(pu, SIGTERM);
   assert_int_equal(wait_child(pu), 0);
   ptext = slurp(plog);
   assert_non_null(strstr(ptext, "udp datagram 4 line 1: refused, not finite: tz is nan"));
-  assert_non_null(strstr(ptext, "6 poses written to /"));
+  assert_non_null(strstr(ptext, "9 poses written to /"));
   vlff_node_destroy(n, false);
   vlff_ring_close(ring);
   vlff_sim_frame_free(f);
