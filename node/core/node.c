@@ -1257,6 +1257,14 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     return NULL;
   }
 #endif
+  if (!cfg->prompts.embeddings[0] && !cfg->vlm.text_model[0] && cfg->source.features != VLFF_FEAT_SIM &&
+      cfg->source.kind != VLFF_SOURCE_SIM) {
+    /* Checked before any segment is made: without a text encoder no prompt
+     * can be embedded, and the node would stop at the first one. */
+    snprintf(err, errlen, "no text encoder for the prompts: set prompts.embeddings (a precomputed file) or "
+             "vlm.text_model (the CLIP text encoder, ONNX)");
+    return NULL;
+  }
   if (vlff_config_sim_features_misused(cfg)) {
     snprintf(err, errlen, "source.features: sim with source.kind: ring pairs the simulator's features with a "
              "camera's images; use ring or model, or set source.allow_sim_features: true to force it");
