@@ -54,19 +54,14 @@ vlff_optional(CAN HAVE_LINUX_CAN_RAW_H "linux/can/raw.h missing: apt install lin
 find_package(OpenCV QUIET COMPONENTS core imgproc calib3d imgcodecs dnn)
 vlff_optional(OPENCV OpenCV_FOUND "OpenCV core/imgproc/calib3d/imgcodecs/dnn not found: apt install libopencv-dnn-dev libopencv-calib3d-dev libopencv-imgcodecs-dev")
 
+pkg_check_modules(SYSTEMD QUIET IMPORTED_TARGET libsystemd)
+vlff_optional(SYSTEMD SYSTEMD_FOUND "pkg-config libsystemd not found: apt install libsystemd-dev")
+
+# vlff-eval's JSON report (strings escaped by the library, not by hand).
+pkg_check_modules(JSONC REQUIRED IMPORTED_TARGET json-c)
+
 find_package(HDF5 QUIET COMPONENTS C)
 vlff_optional(HDF5 HDF5_FOUND "HDF5 C library not found: apt install libhdf5-dev")
-
-check_language(CUDA)
-if(CMAKE_CUDA_COMPILER)
-  set(_cuda_found TRUE)
-else()
-  set(_cuda_found FALSE)
-endif()
-vlff_optional(CUDA _cuda_found "no CUDA compiler (nvcc) found")
-if(VLFF_WITH_CUDA)
-  enable_language(CUDA)
-endif()
 
 if(VLFF_FUZZ AND NOT CMAKE_C_COMPILER_ID STREQUAL "Clang")
   message(FATAL_ERROR "VLFF_FUZZ=ON needs clang (configure with CC=clang)")
@@ -74,4 +69,7 @@ endif()
 
 string(REPLACE ";" " " _on "${_vlff_on}")
 string(REPLACE ";" ", " _off "${_vlff_off}")
+if(NOT _off)
+  set(_off "none")
+endif()
 message(STATUS "vlff parts on: ${_on}; off: ${_off}")

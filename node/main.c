@@ -12,6 +12,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "cli.h"
 #include "config.h"
 #include "log.h"
 #include "node.h"
@@ -19,32 +20,36 @@
 #ifdef VLFF_HAVE_CAN
 #include "vlff_can.h"
 #endif
+#ifdef VLFF_HAVE_SYSTEMD
+#include <systemd/sd-daemon.h>
+#endif
 
-#ifndef VLFF_VERSION
-#define VLFF_VERSION "unknown"
+#ifndef VLFF_SYSCONFDIR
+#error "VLFF_SYSCONFDIR must come from the install's sysconfdir (CMake)"
 #endif
 
 static volatile sig_atomic_t stop_requested;
 
 static void on_signal(int sig) { stop_requested = sig; }
 
-static void usage(FILE *out) {
-  fputs("Usage: vlff-node [OPTIONS]\n"
-        "Learn a vision-language feature field online and publish segmented maps.\n"
-        "\n"
-        "  -c, --config FILE        run with this YAML config (default: built-in defaults)\n"
-        "      --check-config FILE  validate FILE, print the effective config, exit 0/1\n"
-        "      --status             print a live progress line on the terminal\n"
-        "      --snapshot DIR       on exit, write DIR/strip.png (image | segmentation | truth)\n"
-        "                           and DIR/map.ply (the labelled map)\n"
-        "  -V, --version            print the version and exit\n"
-        "  -h, --help               print this help and exit\n"
-        "\n"
-        "Examples:\n"
-        "  vlff-node --config /etc/vlff/demo-sim.yaml\n"
-        "  vlff-node --check-config configs/aravis-gige.yaml\n",
-        out);
-}
+static const struct vlff_cli cli = {
+    "vlff-node",
+    "Usage: vlff-node [OPTIONS]\n"
+    "Learn a vision-language feature field online and publish segmented maps.\n"
+    "\n"
+    "  -c, --config FILE        run with this YAML config; without it $VLFF_CONFIG,\n"
+    "                           then " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
+    "      --check-config FILE  validate FILE, print the effective config, exit 0/1\n"
+    "      --status             print a live progress line on the terminal\n"
+    "      --snapshot DIR       on exit, write DIR/strip.png (image | segmentation | truth)\n"
+    "                           and DIR/map.ply (the labelled map)\n"
+    "  -V, --version            print the version and exit\n"
+    "  -h, --help               print this help and exit\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-node --config " VLFF_SYSCONFDIR "/vlff/demo-sim.yaml\n"
+    "  vlff-node --check-config configs/aravis-gige.yaml\n",
+};
 
 #ifdef VLFF_HAVE_CAN
 /* Runs on the CAN thread: commands only queue work for the trainer, so the
@@ -101,28 +106,21 @@ int main(int argc, char **argv) {
       {"check-config", required_argument, NULL, OPT_CHECK},
       {"status", no_argument, NULL, OPT_STATUS},
       {"snapshot", required_argument, NULL, OPT_SNAPSHOT},
-      {"version", no_argument, NULL, 'V'},
-      {"help", no_argument, NULL, 'h'},
-      {NULL, 0, NULL, 0},
+      VLFF_CLI_COMMON_OPTIONS,
   };
   const char *config_path = NULL, *check_path = NULL, *snapshot_dir = NULL;
-  int status_view = 0, c;
-  while ((c = getopt_long(argc, argv, "c:Vh", opts, NULL)) != -1) {
+  int status_view = 0, c, exit_status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:", opts, &exit_status)) != -1) {
     switch (c) {
+    case VLFF_CLI_EXIT: return exit_status;
     case 'c': config_path = optarg; break;
     case OPT_CHECK: check_path = optarg; break;
     case OPT_STATUS: status_view = 1; break;
     case OPT_SNAPSHOT: snapshot_dir = optarg; break;
-    case 'V': printf("vlff-node %s\n", VLFF_VERSION); return 0;
-    case 'h': usage(stdout); return 0;
-    default: usage(stderr); return 2;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
-  if (optind < argc) {
-    fprintf(stderr, "vlff-node: unexpected argument '%s'\n", argv[optind]);
-    usage(stderr);
-    return 2;
-  }
+  if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
 
   struct vlff_config cfg;
   char err[512];
@@ -141,13 +139,13 @@ int main(int argc, char **argv) {
     fprintf(stderr, "%s: OK\n", check_path);
     return 0;
   }
-  if (config_path) {
-    if (vlff_config_load(config_path, &cfg, err, sizeof err)) {
-      fprintf(stderr, "%s\n", err);
-      return 1;
-    }
-  } else {
-    vlff_config_defaults(&cfg);
+  /* Never the built-in defaults: a node started by mistake would create
+   * segments and write checkpoints nobody asked for. */
+  config_path = vlff_config_find(config_path, err, sizeof err);
+  if (!config_path) return vlff_cli_error(&cli, "%s", err);
+  if (vlff_config_load(config_path, &cfg, err, sizeof err)) {
+    fprintf(stderr, "%s\n", err);
+    return 1;
   }
   vlff_log_set_level(cfg.node.log_level);
 
@@ -159,8 +157,7 @@ int main(int argc, char **argv) {
   sigaction(SIGTERM, &sa, NULL);
   signal(SIGPIPE, SIG_IGN);
 
-  VLFF_INFO("node", "vlff-node %s starting, config %s", VLFF_VERSION,
-            config_path ? config_path : "(defaults)");
+  VLFF_INFO("node", "vlff-node %s starting, config %s", vlff_version(), config_path);
   struct vlff_node *node = vlff_node_create(&cfg, err, sizeof err);
   if (!node) {
     VLFF_ERROR("node", "%s", err);
@@ -182,11 +179,32 @@ int main(int argc, char **argv) {
 #else
   if (cfg.can.enabled) VLFF_WARN("node", "can.enabled, but this vlff-node was built without SocketCAN");
 #endif
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Under systemd (Type=notify) the node is ready once its threads run; with
+   * WatchdogSec the watchdog is fed only while both the trainer and the
+   * ingest thread pass their loops, so a hung thread gets the node restarted
+   * even though this main loop still runs. Outside systemd these are no-ops. */
+  uint64_t wd_usec = 0;
+  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
+  sd_notify(0, "READY=1");
+  double last_wd = 0;
+#endif
   double t0 = mono_s(), last_line = 0;
   while (!stop_requested && !vlff_node_finished(node)) {
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
     double now = mono_s();
+#ifdef VLFF_HAVE_SYSTEMD
+    if (wd_usec && now - last_wd >= (double)wd_usec * 0.25e-6) {
+      struct vlff_node_status st;
+      vlff_node_status(node, &st);
+      uint64_t t = vlff_shm_now_ns(), stale = wd_usec * 500; /* half the period, in ns */
+      if (t - st.trainer_beat_ns < stale && t - st.ingest_beat_ns < stale) sd_notify(0, "WATCHDOG=1");
+      else VLFF_WARN("node", "watchdog not fed: trainer %.1f s, ingest %.1f s since their last loop",
+                     (double)(t - st.trainer_beat_ns) * 1e-9, (double)(t - st.ingest_beat_ns) * 1e-9);
+      last_wd = now;
+    }
+#endif
 #ifdef VLFF_HAVE_CAN
     if (can && now - last_can >= 0.1) {
       struct vlff_node_status st;
@@ -213,6 +231,9 @@ int main(int argc, char **argv) {
     }
   }
   if (status_view) fputc('\n', stderr);
+#ifdef VLFF_HAVE_SYSTEMD
+  sd_notify(0, "STOPPING=1");
+#endif
   VLFF_INFO("node", "stopping (%s)", stop_requested == SIGTERM ? "SIGTERM"
                                      : stop_requested == SIGINT ? "SIGINT"
                                                                 : "run_seconds reached");

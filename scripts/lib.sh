@@ -9,6 +9,8 @@ vlff_build() {
   cmake -S "$VLFF_ROOT" -B "$dir" -DCMAKE_BUILD_TYPE="$type" "$@" >"$dir.configure.log" 2>&1 \
     || { cat "$dir.configure.log"; return 1; }
   grep -m1 'vlff parts' "$dir.configure.log" || true
-  cmake --build "$dir" -j "$VLFF_JOBS" 2>&1 | grep -vE '^\[ *[0-9]+%\]|^Consolidate|^-- ' || true
-  cmake --build "$dir" -j "$VLFF_JOBS" >/dev/null 2>&1   # status of the build itself
+  local rc=0
+  cmake --build "$dir" -j "$VLFF_JOBS" >"$dir.build.log" 2>&1 || rc=$?
+  grep -vE '^\[ *[0-9]+%\]|^Consolidate|^-- ' "$dir.build.log" || true   # warnings and errors only
+  return $rc
 }

@@ -20,6 +20,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "cli.h"
 #include "config.h"
 #include "log.h"
 #include "pipe.h"
@@ -110,19 +111,24 @@ static void on_edge(void *ctx, uint64_t t, uint64_t n) {
 }
 #endif
 
-static void usage(FILE *f) {
-  fputs("usage: vlff-camd --config FILE [--frames N] [--seconds S]\n"
-        "       vlff-camd --check-config FILE\n"
-        "Streams one camera (camera.* keys) into the frame ring (shm.ring).\n"
-        "  --frames N     exit after N frames were committed\n"
-        "  --seconds S    exit after S seconds\n"
-        "  SIGUSR1        one software trigger (camera.trigger: software)\n"
-        "  SIGINT/SIGTERM stop; a statistics line is printed on exit\n"
-        "examples:\n"
-        "  vlff-camd --config /etc/vlff/aravis-gige.yaml\n"
-        "  vlff-camd --check-config my-camera.yaml\n",
-        f);
-}
+static const struct vlff_cli cli = {
+    "vlff-camd",
+    "Usage: vlff-camd [--config FILE] [--frames N] [--seconds S]\n"
+    "       vlff-camd --check-config FILE\n"
+    "Streams one camera (camera.* keys) into the frame ring (shm.ring).\n"
+    "  -c, --config FILE  the config; without it $VLFF_CONFIG, then the installed\n"
+    "                     vlff.yaml (vlff-node --help names it); none found is an error\n"
+    "  --check-config FILE  check FILE's camera keys and exit 0/1\n"
+    "  --frames N     exit after N frames were committed\n"
+    "  --seconds S    exit after S seconds\n"
+    "  -V, --version  print the version and exit\n"
+    "  -h, --help     print this help and exit\n"
+    "  SIGUSR1        one software trigger (camera.trigger: software)\n"
+    "  SIGINT/SIGTERM stop; a statistics line is printed on exit\n"
+    "Examples:\n"
+    "  vlff-camd --config /etc/vlff/aravis-gige.yaml\n"
+    "  vlff-camd --check-config my-camera.yaml\n",
+};
 
 int main(int argc, char **argv) {
   const char *path = NULL;
@@ -133,30 +139,29 @@ int main(int argc, char **argv) {
                                        {"check-config", required_argument, 0, 'k'},
                                        {"frames", required_argument, 0, 'n'},
                                        {"seconds", required_argument, 0, 's'},
-                                       {"help", no_argument, 0, 'h'},
-                                       {0, 0, 0, 0}};
-  int o;
-  while ((o = getopt_long(argc, argv, "c:k:n:s:h", opts, NULL)) != -1) {
+                                       VLFF_CLI_COMMON_OPTIONS};
+  int o, exit_status;
+  while ((o = vlff_cli_next(&cli, argc, argv, "c:", opts, &exit_status)) != -1) {
     char *end;
     switch (o) {
+    case VLFF_CLI_EXIT: return exit_status;
     case 'c': path = optarg; break;
     case 'k': path = optarg, check_only = true; break;
     case 'n':
       max_frames = strtol(optarg, &end, 10);
-      if (*end || max_frames < 1) return fprintf(stderr, "vlff-camd: --frames expects a positive integer\n"), 2;
+      if (*end || max_frames < 1) return vlff_cli_usage_error(&cli, "--frames expects a positive integer");
       break;
     case 's':
       max_seconds = strtod(optarg, &end);
-      if (*end || !(max_seconds > 0)) return fprintf(stderr, "vlff-camd: --seconds expects a positive number\n"), 2;
+      if (*end || !(max_seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds expects a positive number");
       break;
-    case 'h': usage(stdout); return 0;
-    default: usage(stderr); return 2;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
-  if (!path || optind != argc) {
-    usage(stderr);
-    return 2;
-  }
+  if (optind != argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
+  char ferr[512];
+  path = vlff_config_find(path, ferr, sizeof ferr);
+  if (!path) return vlff_cli_error(&cli, "%s", ferr);
 
   static struct vlff_config cfg;
   char err[1024];

@@ -6,7 +6,7 @@
  * 0x700 + node id, one NMT state byte, boot-up 0x00 first), the status
  * frames (status_base_id + 0..3 and + 5, or one CAN FD frame at status_base_id + 4)
  * and acknowledgements, receives commands on command_id and decodes error
- * frames. configs/vlff.dbc describes every frame; README.md "CAN messages"
+ * frames. configs/vlff.dbc describes every frame; docs/can.md
  * has the table.
  *
  * Contract

@@ -18,41 +18,47 @@
 #include <unistd.h>
 
 #include "can_proto.h"
+#include "cli.h"
 #include "config.h"
 
-static void usage(FILE *out) {
-  fprintf(out,
-          "usage: vlff-can [options] IFACE dump\n"
-          "       vlff-can [options] IFACE send start|stop|reset|save|publish|prompt-set N\n"
-          "\n"
-          "  dump   decode heartbeat, status, command and ack frames of a vlff node\n"
-          "  send   send one command and wait for its ack (exit 0 ok, 1 nak, 2 no ack)\n"
-          "\n"
-          "options (defaults: configs/default.yaml, or the file given with -f):\n"
-          "  -f FILE    read can.* ids from a vlff config file\n"
-          "  -n ID      node id (can.node_id)\n"
-          "  -b ID      status base id (can.status_base_id)\n"
-          "  -c ID      command id (can.command_id)\n"
-          "  -a ID      ack id (can.ack_id)\n"
-          "  -t SEC     dump: stop after SEC seconds; send: ack timeout (default 1)\n"
-          "  -N COUNT   dump: stop after COUNT frames\n"
-          "  -s SEQ     send: sequence number echoed in the ack (default: pid)\n"
-          "\n"
-          "examples:\n"
-          "  vlff-can can0 dump\n"
-          "    0.100213 72A heartbeat node=42 state=operational\n"
-          "    0.200118 180 TRAIN iteration=1532 keyframes=41 prompt_set=0 state=operational\n"
-          "  vlff-can -n 42 can0 send prompt-set 2\n"
-          "    580 ACK node=42 cmd=prompt-set seq=17 result=ok\n");
-}
+static const struct vlff_cli cli = {
+    "vlff-can",
+    "Usage: vlff-can [OPTIONS] IFACE dump\n"
+    "       vlff-can [OPTIONS] IFACE send start|stop|reset|save|publish|prompt-set N\n"
+    "       vlff-can [OPTIONS] dbc\n"
+    "\n"
+    "  dump   decode heartbeat, status, command and ack frames of a vlff node\n"
+    "  send   send one command and wait for its ack (exit 0 ok, 1 nak, 2 no ack)\n"
+    "  dbc    write the DBC of the configured node (ids, cycle times) to stdout\n"
+    "\n"
+    "Options (the can.* ids come from the config: --config, else $VLFF_CONFIG, else\n"
+    "the installed vlff.yaml; dump and send fall back to the default ids, saying so):\n"
+    "  -f, --config FILE        read can.* from a vlff config file\n"
+    "  -n, --node-id ID         node id (can.node_id)\n"
+    "  -b, --status-base-id ID  status base id (can.status_base_id)\n"
+    "  -c, --command-id ID      command id (can.command_id)\n"
+    "  -a, --ack-id ID          ack id (can.ack_id)\n"
+    "  -t, --seconds SEC        dump: stop after SEC seconds; send: ack timeout (default 1)\n"
+    "  -N, --count COUNT        dump: stop after COUNT frames\n"
+    "  -s, --seq SEQ            send: sequence number echoed in the ack (default: pid)\n"
+    "  -V, --version            print the version and exit\n"
+    "  -h, --help               print this help and exit\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-can can0 dump\n"
+    "    0.100213 72A heartbeat node=42 state=operational\n"
+    "    0.200118 180 TRAIN iteration=1532 keyframes=41 prompt_set=0 state=operational\n"
+    "  vlff-can -n 42 can0 send prompt-set 2\n"
+    "    580 ACK node=42 cmd=prompt-set seq=17 result=ok\n"
+    "  vlff-can dbc --config /etc/vlff/vlff.yaml > vlff.dbc\n",
+};
 
 static long num(const char *s, const char *what) {
   char *end;
   errno = 0;
   long v = strtol(s, &end, 0);
   if (errno || *end || end == s) {
-    fprintf(stderr, "vlff-can: %s: not a number: '%s'\n", what, s);
-    exit(2);
+    exit(vlff_cli_usage_error(&cli, "%s: not a number: '%s'", what, s));
   }
   return v;
 }
@@ -212,10 +218,7 @@ static int send_cmd(const struct vlff_config *c, const char *iface, int argc, ch
   static const struct { const char *name; int code; } cmds[] = {
       {"start", VLFF_CAN_CMD_START}, {"stop", VLFF_CAN_CMD_STOP},       {"reset", VLFF_CAN_CMD_RESET},
       {"save", VLFF_CAN_CMD_SAVE},   {"prompt-set", VLFF_CAN_CMD_PROMPT_SET}, {"publish", VLFF_CAN_CMD_PUBLISH}};
-  if (argc < 1) {
-    usage(stderr);
-    return 2;
-  }
+  if (argc < 1) return vlff_cli_usage_error(&cli, "send needs a command");
   struct vlff_can_command cmd = {.seq = (uint8_t)seq};
   int code = -1;
   for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; i++)
@@ -269,46 +272,75 @@ static int send_cmd(const struct vlff_config *c, const char *iface, int argc, ch
 }
 
 int main(int argc, char **argv) {
-  struct vlff_config cfg;
-  vlff_config_defaults(&cfg);
+  static const struct option opts[] = {
+      {"config", required_argument, NULL, 'f'},  {"node-id", required_argument, NULL, 'n'},
+      {"status-base-id", required_argument, NULL, 'b'}, {"command-id", required_argument, NULL, 'c'},
+      {"ack-id", required_argument, NULL, 'a'},  {"seconds", required_argument, NULL, 't'},
+      {"count", required_argument, NULL, 'N'},   {"seq", required_argument, NULL, 's'},
+      VLFF_CLI_COMMON_OPTIONS,
+  };
+  /* Ids given on the command line override the config's, whatever their order. */
+  const char *config = NULL, *ids[4] = {NULL, NULL, NULL, NULL};
   double seconds = 0;
   long count = 0;
   int seq = getpid() & 0xff;
-  int opt;
-  while ((opt = getopt(argc, argv, "f:n:b:c:a:t:N:s:h")) != -1) {
+  int opt, status;
+  while ((opt = vlff_cli_next(&cli, argc, argv, "f:n:b:c:a:t:N:s:", opts, &status)) != -1) {
+    char *end;
     switch (opt) {
-      case 'f': {
-        char err[512];
-        if (vlff_config_load(optarg, &cfg, err, sizeof err) < 0) {
-          fprintf(stderr, "vlff-can: %s\n", err);
-          return 2;
-        }
+      case VLFF_CLI_EXIT: return status;
+      case 'f': config = optarg; break;
+      case 'n': ids[0] = optarg; break;
+      case 'b': ids[1] = optarg; break;
+      case 'c': ids[2] = optarg; break;
+      case 'a': ids[3] = optarg; break;
+      case 't':
+        seconds = strtod(optarg, &end);
+        if (*end || !(seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds: expected a positive number, got '%s'", optarg);
         break;
-      }
-      case 'n': cfg.can.node_id = (int)num(optarg, "-n"); break;
-      case 'b': cfg.can.status_base_id = (int)num(optarg, "-b"); break;
-      case 'c': cfg.can.command_id = (int)num(optarg, "-c"); break;
-      case 'a': cfg.can.ack_id = (int)num(optarg, "-a"); break;
-      case 't': seconds = strtod(optarg, NULL); break;
-      case 'N': count = num(optarg, "-N"); break;
-      case 's': seq = (int)num(optarg, "-s") & 0xff; break;
-      case 'h': usage(stdout); return 0;
-      default: usage(stderr); return 2;
+      case 'N': count = num(optarg, "--count"); break;
+      case 's': seq = (int)num(optarg, "--seq") & 0xff; break;
+      default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
-  if (argc - optind < 2) {
-    usage(stderr);
-    return 2;
+  int nargs = argc - optind;
+  bool dbc = nargs >= 1 && !strcmp(argv[optind], "dbc");
+  if (dbc && nargs != 1) return vlff_cli_usage_error(&cli, "dbc takes no arguments");
+  if (!dbc && nargs < 2) return vlff_cli_usage_error(&cli, "expected IFACE dump, IFACE send CMD, or dbc");
+
+  struct vlff_config cfg;
+  char err[512];
+  const char *path = vlff_config_find(config, err, sizeof err);
+  if (path) {
+    if (vlff_config_load(path, &cfg, err, sizeof err) < 0) {
+      fprintf(stderr, "%s\n", err);
+      return 1;
+    }
+  } else if (dbc) {
+    /* A DBC for the wrong node decodes nothing: no guessing here. */
+    return vlff_cli_error(&cli, "%s", err);
+  } else {
+    fprintf(stderr, "vlff-can: %s; using the default ids\n", err);
+    vlff_config_defaults(&cfg);
+  }
+  int *fields[4] = {&cfg.can.node_id, &cfg.can.status_base_id, &cfg.can.command_id, &cfg.can.ack_id};
+  static const char *const names[4] = {"--node-id", "--status-base-id", "--command-id", "--ack-id"};
+  for (int i = 0; i < 4; i++)
+    if (ids[i]) *fields[i] = (int)num(ids[i], names[i]);
+  if (dbc) {
+    if (vlff_can_write_dbc(&cfg, stdout, err, sizeof err)) {
+      if (path) fprintf(stderr, "%s: %s\n", path, err);
+      else fprintf(stderr, "vlff-can: %s\n", err);
+      return 1;
+    }
+    return 0;
   }
   const char *iface = argv[optind];
   const char *verb = argv[optind + 1];
-  if (cfg.can.node_id < 1 || cfg.can.node_id > 127) {
-    fprintf(stderr, "vlff-can: node id %d outside 1..127\n", cfg.can.node_id);
-    return 2;
-  }
+  if (cfg.can.node_id < 1 || cfg.can.node_id > 127)
+    return vlff_cli_usage_error(&cli, "node id %d outside 1..127", cfg.can.node_id);
   if (!strcmp(verb, "dump")) return dump(&cfg, iface, seconds, count);
   if (!strcmp(verb, "send"))
     return send_cmd(&cfg, iface, argc - optind - 2, argv + optind + 2, seq, seconds > 0 ? seconds : 1.0);
-  fprintf(stderr, "vlff-can: unknown verb '%s' (dump or send)\n", verb);
-  return 2;
+  return vlff_cli_usage_error(&cli, "unknown verb '%s' (dump, send or dbc)", verb);
 }

@@ -16,7 +16,10 @@
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <unistd.h>
 #include <yaml.h>
+
+#include "files.h"
 
 enum ktype { T_INT, T_DOUBLE, T_BOOL, T_STRING, T_ENUM, T_DVEC };
 
@@ -512,7 +515,40 @@ static int fail_cross(struct parse *p, const char *key, const char *fmt, ...) {
   return -1;
 }
 
+/* The same rule as the shm library's (shm/seg.c): POSIX leaves a name
+ * with a second '/' implementation-defined and glibc refuses it; "." and
+ * ".." would name /dev/shm itself or its parent. */
+static const char *shm_name_problem(const char *s) {
+  size_t l = strlen(s);
+  if (s[0] != '/') return "a name starting with '/'";
+  if (l < 2 || l >= 250) return "'/' followed by 1 to 248 characters";
+  if (strchr(s + 1, '/')) return "no '/' after the leading one";
+  if (!strcmp(s, "/.") || !strcmp(s, "/..")) return "a name other than '.' or '..'";
+  for (const unsigned char *c = (const unsigned char *)s; *c; c++)
+    if (*c < 0x20 || *c == 0x7f) return "printable characters";
+  return NULL;
+}
+
+static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
+  static const char *const keys[] = {"shm.ring", "shm.pose_ring", "shm.map", "shm.prompts", "shm.feature_ring"};
+  const char *vals[] = {cfg->shm.ring, cfg->shm.pose_ring, cfg->shm.map, cfg->shm.prompts, cfg->shm.feature_ring};
+  for (int i = 0; i < 5; i++) {
+    const char *why = shm_name_problem(vals[i]);
+    if (why)
+      return fail_cross(p, keys[i], "expected a POSIX shared-memory name (%s), got '%.60s'", why, vals[i]);
+  }
+  /* Two segments of one name would replace each other (the prompt mailbox
+   * overwriting the map). The later key is the one blamed. */
+  for (int i = 1; i < 5; i++)
+    for (int j = 0; j < i; j++)
+      if (!strcmp(vals[i], vals[j]))
+        return fail_cross(p, keys[i], "expected a segment name distinct from %s, got the same '%s'", keys[j],
+                          vals[i]);
+  return 0;
+}
+
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
+  if (check_shm_names(p, cfg)) return -1;
   for (int i = 0; i < 3; i++)
     if (!(cfg->field.scene_min[i] < cfg->field.scene_max[i]))
       return fail_cross(p, "field.scene_max", "expected scene_max > scene_min on every axis, got axis %d with %g <= %g", i,
@@ -534,12 +570,55 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
   return 0;
 }
 
+/* A config is a few levels deep and a few hundred events long. libyaml's
+ * scanner rechecks every open flow level on each token, so a file of deep
+ * brackets costs the square of its depth to load: the limits are checked
+ * on the event stream first, which stops at the first level too deep
+ * before any of that cost is paid. */
+static int check_limits(const char *buf, size_t len, const char *name, char *err, size_t errlen) {
+  yaml_parser_t parser;
+  if (!yaml_parser_initialize(&parser)) return snprintf(err, errlen, "%s: out of memory", name), -1;
+  yaml_parser_set_input_string(&parser, (const unsigned char *)buf, len);
+  int depth = 0, rc = 0;
+  long events = 0;
+  for (;;) {
+    yaml_event_t ev;
+    if (!yaml_parser_parse(&parser, &ev)) {
+      snprintf(err, errlen, "%s:%u:%u: YAML syntax error: %s", name, (unsigned)parser.problem_mark.line + 1,
+               (unsigned)parser.problem_mark.column + 1, parser.problem ? parser.problem : "unknown");
+      rc = -1;
+      break;
+    }
+    yaml_event_type_t t = ev.type;
+    unsigned line = (unsigned)ev.start_mark.line + 1, col = (unsigned)ev.start_mark.column + 1;
+    yaml_event_delete(&ev);
+    if (t == YAML_STREAM_END_EVENT) break;
+    if (t == YAML_SEQUENCE_START_EVENT || t == YAML_MAPPING_START_EVENT) depth++;
+    if (t == YAML_SEQUENCE_END_EVENT || t == YAML_MAPPING_END_EVENT) depth--;
+    if (depth > VLFF_CONFIG_MAX_DEPTH) {
+      snprintf(err, errlen, "%s:%u:%u: nesting deeper than %d levels, not a vlff config", name, line, col,
+               VLFF_CONFIG_MAX_DEPTH);
+      rc = -1;
+      break;
+    }
+    if (++events > VLFF_CONFIG_MAX_EVENTS) {
+      snprintf(err, errlen, "%s:%u:%u: more than %d YAML nodes, not a vlff config", name, line, col,
+               VLFF_CONFIG_MAX_EVENTS);
+      rc = -1;
+      break;
+    }
+  }
+  yaml_parser_delete(&parser);
+  return rc;
+}
+
 int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct vlff_config *cfg,
                          char *err, size_t errlen) {
   struct parse p = {.name = name, .err = err, .errlen = errlen};
   struct vlff_config tmp;
   vlff_config_defaults(&tmp);
   vlff_config_defaults(cfg);
+  if (check_limits(buf, len, name, err, errlen)) return -1;
   yaml_parser_t parser;
   if (!yaml_parser_initialize(&parser)) return fail(&p, NULL, NULL, "out of memory");
   yaml_parser_set_input_string(&parser, (const unsigned char *)buf, len);
@@ -582,11 +661,30 @@ int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct v
   return rc;
 }
 
+#ifndef VLFF_SYSCONFDIR
+#error "VLFF_SYSCONFDIR must come from the install's sysconfdir (CMake)"
+#endif
+
+const char *vlff_config_default_path(void) { return VLFF_SYSCONFDIR "/vlff/vlff.yaml"; }
+
+const char *vlff_config_find(const char *path, char *err, size_t errlen) {
+  if (path) return path;
+  const char *env = getenv("VLFF_CONFIG");
+  if (env && *env) return env;
+  const char *def = vlff_config_default_path();
+  if (access(def, F_OK) == 0) return def;
+  snprintf(err, errlen, "no config: no --config given, $VLFF_CONFIG not set, %s: %s", def, strerror(errno));
+  return NULL;
+}
+
 int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_t errlen) {
   vlff_config_defaults(cfg);
-  FILE *f = fopen(path, "rb");
+  int fd = vlff_open_regular(path, err, errlen);
+  if (fd < 0) return -1;
+  FILE *f = fdopen(fd, "rb");
   if (!f) {
     snprintf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+    close(fd);
     return -1;
   }
   char *buf = NULL;

@@ -12,6 +12,15 @@
  *  - Strings are stored NUL-terminated in fixed arrays; over-long values are
  *    errors, never truncated.
  *  - The struct is plain data: copy it freely; it owns no memory.
+ *  - A file nested deeper than VLFF_CONFIG_MAX_DEPTH levels, or with more
+ *    than VLFF_CONFIG_MAX_EVENTS YAML events, is refused before it is
+ *    loaded ("file:line:col: nesting deeper than ..."), so a hostile file
+ *    costs time in proportion to its size.
+ *  - Shared-memory names (shm.ring, pose_ring, map, prompts, feature_ring)
+ *    must be valid POSIX names ('/' then 1..248 characters, no other '/')
+ *    and distinct from each other.
+ *  - Files are opened as regular files only (files.h): a FIFO or device at
+ *    the config's path is refused, never waited on.
  *  - Thread-safe: no global state.
  */
 #ifndef VLFF_CONFIG_H
@@ -27,6 +36,8 @@
 #define VLFF_PROMPT_LEN 64
 #define VLFF_MAX_PROMPTS 32
 #define VLFF_MAX_PROMPT_SETS 8
+#define VLFF_CONFIG_MAX_DEPTH 32
+#define VLFF_CONFIG_MAX_EVENTS 100000
 
 enum vlff_log_level { VLFF_LOG_ERROR, VLFF_LOG_WARN, VLFF_LOG_INFO, VLFF_LOG_DEBUG };
 enum vlff_source_kind { VLFF_SOURCE_SIM, VLFF_SOURCE_RING, VLFF_SOURCE_DATASET };
@@ -223,6 +234,19 @@ struct vlff_config {
 };
 
 void vlff_config_defaults(struct vlff_config *cfg);
+
+/* The config a program runs with, by the search path every vlff program
+ * follows: path (its --config) when given, else $VLFF_CONFIG when set and not
+ * empty, else vlff_config_default_path() when that file exists. Returns the
+ * chosen path (path itself, the environment's string, or a static string);
+ * a path chosen from --config or $VLFF_CONFIG is returned even when it does
+ * not exist (loading it then says so). NULL when nothing was found, with err
+ * naming every place looked at. */
+const char *vlff_config_find(const char *path, char *err, size_t errlen);
+
+/* The installed config: <sysconfdir>/vlff/vlff.yaml of this build's install
+ * prefix (/etc/vlff/vlff.yaml for prefix /usr). */
+const char *vlff_config_default_path(void);
 
 /* Load a YAML file. Returns 0, or -1 with err filled ("file:line:col: ..."). */
 int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_t errlen);

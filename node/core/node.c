@@ -23,9 +23,11 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bounds.h"
 #include "embeddings.h"
 #include "feature_join.h"
 #include "field.h"
+#include "files.h"
 #include "keyframes.h"
 #include "log.h"
 #include "metrics.h"
@@ -98,6 +100,10 @@ struct vlff_node {
   char prompt_text[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
   bool mapping;
   bool resumed;                /* the field came from a checkpoint: no batch warm-up */
+  long long ckpt_steps;        /* field steps in the newest checkpoint (or at start) */
+  /* Monotonic ns of each thread's last loop pass: the service watchdog is
+   * fed only while both move (vlff_node_status). */
+  _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
   double lat_ms[LAT_CAP];
   int lat_n;
@@ -295,6 +301,7 @@ static void pending_complete(struct vlff_node *n, struct candidate **pending, in
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
   bool warned = false;
   while (!atomic_load(&n->stop)) {
+    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     struct vlff_ring *r = vlff_ring_attach(name, kind);
     if (r) {
       VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
@@ -387,46 +394,6 @@ static void refusal_summary(struct vlff_node *n, struct refusal_log *rl, double 
   rl->last_report_s = now;
 }
 
-/* Plausible pinhole intrinsics for a w x h image: a field of view between a
- * long telephoto's and a fisheye's (beyond, the pinhole model does not hold
- * or the values are in other units), square-ish pixels, and the principal
- * point on the image or near it (a crop moves it off centre, not far off). */
-static bool intrinsics_plausible(const struct vlff_frame_hdr *h, uint32_t w, uint32_t ht, char *why, size_t len) {
-  const double fmin = 0.1, fmax = 100, aspect = 4, margin = 0.25;
-  if (!(h->fx >= fmin * w && h->fx <= fmax * w) || !(h->fy >= fmin * ht && h->fy <= fmax * ht)) {
-    snprintf(why, len, "focal lengths fx %g fy %g px implausible for a %ux%u image (expected %g..%g x the width "
-             "and height)", h->fx, h->fy, w, ht, fmin, fmax);
-    return false;
-  }
-  if (h->fx > aspect * h->fy || h->fy > aspect * h->fx) {
-    snprintf(why, len, "fx %g and fy %g px differ by more than %gx: not one camera's pixels", h->fx, h->fy, aspect);
-    return false;
-  }
-  if (!(h->cx >= -margin * w && h->cx <= (1 + margin) * w) || !(h->cy >= -margin * ht && h->cy <= (1 + margin) * ht)) {
-    snprintf(why, len, "principal point (%g, %g) px far outside the %ux%u image", h->cx, h->cy, w, ht);
-    return false;
-  }
-  return true;
-}
-
-/* The camera must be where it could see into the scene box: within the box
- * grown by its largest extent on every side. A pose beyond that is in
- * other units (millimetres) or another frame (a GPS origin), and training on
- * it would write nothing useful into the field. */
-static bool pose_in_range(const struct vlff_config *cfg, const double pose[16], char *why, size_t len) {
-  double ext = 0;
-  for (int i = 0; i < 3; i++) ext = fmax(ext, cfg->field.scene_max[i] - cfg->field.scene_min[i]);
-  for (int i = 0; i < 3; i++) {
-    double t = pose[i * 4 + 3];
-    if (t < cfg->field.scene_min[i] - ext || t > cfg->field.scene_max[i] + ext) {
-      snprintf(why, len, "camera at (%.3f, %.3f, %.3f) m, beyond the scene box (field.scene_min/max) grown by %g m: "
-               "poses in millimetres or in another world frame?", pose[3], pose[7], pose[11], ext);
-      return false;
-    }
-  }
-  return true;
-}
-
 /* Why the pose ring gave no pose for a frame stamped t_ns: says what a user
  * can act on (nothing writes poses, clocks apart, the source lags). */
 static void no_pose_detail(const struct vlff_config *cfg, struct vlff_ring *poses, int lookup_errno, uint64_t t_ns,
@@ -506,8 +473,9 @@ static bool frame_checks(struct ingest *ig, const void *buf, ssize_t len) {
            (h->flags & VLFF_FRAME_INTRINSICS_VALID) ? "intrinsics not finite" : "the frame is not flagged with intrinsics");
     return false;
   }
-  if (!intrinsics_plausible(h, cp->width, cp->height, why, sizeof why)) {
-    refuse(n, &ig->rl, VLFF_REFUSED_BAD_INTRINSICS, id, "%s", why);
+  /* The physical bounds every camera in vlff is held to (bounds.h). */
+  if (vlff_intrinsics_plausible((int)cp->width, (int)cp->height, h->fx, h->fy, h->cx, h->cy, why, sizeof why)) {
+    refuse(n, &ig->rl, VLFF_REFUSED_BAD_INTRINSICS, id, "%s (millimetres, or another image size's values?)", why);
     return false;
   }
   return true;
@@ -570,8 +538,8 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
     refuse(n, &ig->rl, VLFF_REFUSED_BAD_POSE, id, "pose is not a rigid transform (NaN, or rotation not orthonormal)");
     return POSE_REFUSED;
   }
-  if (!pose_in_range(cfg, pose, why, sizeof why)) {
-    refuse(n, &ig->rl, VLFF_REFUSED_POSE_RANGE, id, "%s", why);
+  if (vlff_pose_plausible(pose, cfg->field.scene_min, cfg->field.scene_max, why, sizeof why)) {
+    refuse(n, &ig->rl, VLFF_REFUSED_POSE_RANGE, id, "%s: poses in millimetres or in another world frame?", why);
     return POSE_REFUSED;
   }
   pthread_mutex_lock(&n->slock);
@@ -787,6 +755,7 @@ static void *ingest_main(void *arg) {
   double fps_t0 = mono_s();
   long long fps_count = 0;
   while (ring && buf && ig.held && fbuf && !atomic_load(&n->stop)) {
+    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     ingest_features(&ig, &feats, fbuf, model_h, model_w);
     ingest_held(&ig, mono_s());
     refusal_summary(n, &ig.rl, mono_s());
@@ -859,6 +828,14 @@ static void obs_path(const struct vlff_node *n, int slot, char *out, size_t len)
 static int save_checkpoint(struct vlff_node *n) {
   char path[VLFF_CFG_PATH + 32], err[256];
   int slot = n->ckpt_slot;
+  /* Only learning changes what a checkpoint holds, and every change is a
+   * step: an idle node (no frames, stopped, a camera unplugged) writes
+   * nothing, sparing the robot's flash. */
+  long long steps = vlff_field_steps(n->field);
+  if (steps == n->ckpt_steps) {
+    VLFF_DEBUG(TAG, "checkpoint skipped: nothing learned since step %lld", steps);
+    return 0;
+  }
   /* The observation grid first: a field checkpoint is only ever newer than
    * (or as new as) the grid beside it. */
   obs_path(n, slot, path, sizeof path);
@@ -878,11 +855,17 @@ static int save_checkpoint(struct vlff_node *n) {
   n->st.checkpoints++;
   n->st.error_flags &= ~(unsigned)VLFF_NODE_ERR_CHECKPOINT;
   pthread_mutex_unlock(&n->slock);
-  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, vlff_field_steps(n->field));
+  n->ckpt_steps = steps;
+  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, steps);
   return 0;
 }
 
 static void restore_checkpoint(struct vlff_node *n) {
+  /* A node killed while writing a checkpoint leaves its temporary behind,
+   * as large as a checkpoint: nothing else would ever remove it. */
+  static const char *const temps[] = {"field.", "map.", NULL};
+  int stale = vlff_remove_dead_temps(n->cfg.node.state_dir, temps);
+  if (stale) VLFF_INFO(TAG, "removed %d temporary file(s) of a dead writer in %s", stale, n->cfg.node.state_dir);
   char path[2][VLFF_CFG_PATH + 32];
   struct stat sb[2];
   bool have[2];
@@ -903,6 +886,7 @@ static void restore_checkpoint(struct vlff_node *n) {
     if (vlff_field_load(n->field, path[i], err, sizeof err) == 0) {
       VLFF_INFO(TAG, "resumed from %s at step %lld", path[i], vlff_field_steps(n->field));
       n->resumed = true;
+      n->ckpt_steps = vlff_field_steps(n->field);
       n->ckpt_slot = i ^ 1;
       char op[VLFF_CFG_PATH + 32];
       obs_path(n, i, op, sizeof op);
@@ -1000,15 +984,32 @@ static void take_candidates(struct vlff_node *n, bool wait) {
   pthread_mutex_unlock(&n->qlock);
   for (int i = 0; i < nb; i++) {
     struct candidate *c = batch[i];
-    if (n->mapping) {
+    char verr[256];
+    if (n->mapping && vlff_publisher_check_view(n->pub, &c->view, verr, sizeof verr)) {
+      /* Implausible intrinsics or pose would make every ray of this view
+       * wrong (and, unbounded, endless): never train on or map it. */
+      VLFF_WARN(TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s", c->id, verr);
+      /* Counted under its reason like the ingest's refusals, which hold
+       * frames to the same bounds at full size. */
+      const struct vlff_view *v = &c->view;
+      int reason = vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, NULL, 0)
+                       ? VLFF_REFUSED_BAD_INTRINSICS
+                       : VLFF_REFUSED_POSE_RANGE;
+      pthread_mutex_lock(&n->slock);
+      n->st.frames_invalid++;
+      n->st.refused[reason]++;
+      n->st.last_refusal = reason;
+      pthread_mutex_unlock(&n->slock);
+    } else if (n->mapping) {
       if (!pose_check(n, c)) {
         STAT_ADD(n, poses_rejected, 1);
       } else {
         struct vlff_keyframe_in kin = {.id = c->id, .t_ns = (long long)c->t_host_ns, .view = c->view,
                                        .feature_dim = n->cfg.field.feature_dim};
         if (vlff_kfstore_add(n->store, &kin) == 0) {
-          vlff_publisher_observe(n->pub, &c->view);
-          vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames);
+          /* The view passed the same check just above: these cannot refuse it. */
+          if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
+            vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames, verr, sizeof verr);
           if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
         } else {
           VLFF_WARN(TAG, "keyframe %lld does not fit the keyframe store: %s", c->id, strerror(errno));
@@ -1078,6 +1079,7 @@ static void reset_mapping(struct vlff_node *n) {
   vlff_kfstore_destroy(n->store);
   n->field = f;
   n->resumed = false;
+  n->ckpt_steps = -1; /* the saved map is no longer the learned one */
   n->store = s;
   vlff_publisher_reset(n->pub);
   if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);
@@ -1184,6 +1186,7 @@ static void *trainer_main(void *arg) {
   bool first = n->resumed;
   if (first) apply_warmup(n);
   while (!atomic_load(&n->stop)) {
+    atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
     bool publish_now = first;
     first = false;
     run_commands(n, &publish_now);
@@ -1330,7 +1333,11 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     goto fail;
   n->pub = vlff_publisher_create(cfg, n->sim, n->gt_points.n ? &n->gt_points : NULL, err, errlen);
   if (!n->pub) goto fail;
-  struct vlff_shm_perm perm = {.mode = (mode_t)cfg->shm.mode, .group = cfg->shm.group};
+  /* Controllers of the segments' group post prompts: the mailbox alone is
+   * group-writable whenever the group may read. */
+  mode_t mode = (mode_t)cfg->shm.mode;
+  if (mode & S_IRGRP) mode |= S_IWGRP;
+  struct vlff_shm_perm perm = {.mode = mode, .group = cfg->shm.group};
   n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);
   if (!n->mailbox) {
     snprintf(err, errlen, "prompt mailbox %s: %s", cfg->shm.prompts, vlff_shm_last_message());
@@ -1338,6 +1345,8 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
   }
   restore_checkpoint(n);
   if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
+  atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
+  atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
   if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
     snprintf(err, errlen, "cannot start the trainer thread");
     goto fail;
@@ -1407,6 +1416,8 @@ void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out) {
   pthread_mutex_lock(&n->slock);
   *out = n->st;
   pthread_mutex_unlock(&n->slock);
+  out->trainer_beat_ns = atomic_load(&n->trainer_beat_ns);
+  out->ingest_beat_ns = atomic_load(&n->ingest_beat_ns);
 }
 
 int vlff_node_command(struct vlff_node *n, int cmd, int arg) {

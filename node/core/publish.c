@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bounds.h"
 #include "dataset.h"
 #include "log.h"
 #include "metrics.h"
@@ -23,6 +24,8 @@ struct vlff_publisher {
   const struct vlff_sim *sim;
   const struct vlff_sim_points *gt;
   double origin[3], voxel;
+  double scene_lo[3], scene_hi[3]; /* field.scene_min / max: bounds for poses */
+  long long refused;               /* views refused as physically implausible */
   uint32_t dims[3];
   size_t nvox;
   uint8_t *observed;   /* rays passed through */
@@ -112,7 +115,10 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
   if (p->voxel > cfg->publish.voxel_size_m)
     VLFF_WARN(TAG, "publish.voxel_size_m %.3f m needs more than shm.map_max_voxels; using %.3f m",
               cfg->publish.voxel_size_m, p->voxel);
-  for (int i = 0; i < 3; i++) p->origin[i] = cfg->field.scene_min[i];
+  for (int i = 0; i < 3; i++) {
+    p->origin[i] = p->scene_lo[i] = cfg->field.scene_min[i];
+    p->scene_hi[i] = cfg->field.scene_max[i];
+  }
   p->lw = cfg->publish.label_width;
   p->lh = cfg->publish.label_height;
   if (p->lw > cfg->shm.label_max_width || p->lh > cfg->shm.label_max_height) {
@@ -258,26 +264,70 @@ bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x
   return vi >= 0 && p->hits[vi] >= 2;
 }
 
-void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v) {
-  if (!v->depth) return;
+int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
+  char why[200];
+  if (vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, why, sizeof why) ||
+      vlff_pose_plausible(v->c2w, p->scene_lo, p->scene_hi, why, sizeof why)) {
+    p->refused++;
+    snprintf(err, errlen, "view refused: %s", why);
+    return -1;
+  }
+  return 0;
+}
+
+long long vlff_publisher_refused(const struct vlff_publisher *p) { return p->refused; }
+
+/* The part of the segment o + t w, t in [t0, t1], inside the map's box
+ * (slab clipping). False when the segment misses the box. */
+static bool clip_to_map(const struct vlff_publisher *p, const double o[3], const double w[3], double *t0,
+                        double *t1) {
+  for (int i = 0; i < 3; i++) {
+    double lo = p->origin[i], hi = p->origin[i] + p->dims[i] * p->voxel;
+    if (fabs(w[i]) < 1e-300) {
+      if (o[i] < lo || o[i] >= hi) return false;
+      continue;
+    }
+    double a = (lo - o[i]) / w[i], b = (hi - o[i]) / w[i];
+    *t0 = fmax(*t0, fmin(a, b));
+    *t1 = fmin(*t1, fmax(a, b));
+  }
+  return *t0 <= *t1;
+}
+
+int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
+  if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
+  if (!v->depth) return 0;
   const double *m = v->c2w;
   double o[3] = {m[3], m[7], m[11]};
+  const double h = p->voxel * 0.5;
+  /* No ray crosses more of the map than its diagonal: this bounds every
+   * ray's march whatever the depth or pose claim. */
+  double diag = 0;
+  for (int i = 0; i < 3; i++) diag += pow(p->dims[i] * p->voxel, 2);
+  const double max_steps = sqrt(diag) / h + 2;
   int stride = v->width >= 160 ? 2 : 1;
   for (int y = 0; y < v->height; y += stride)
     for (int x = 0; x < v->width; x += stride) {
       float d = v->depth[(size_t)y * v->width + x];
-      if (!(d > 0)) continue;
+      if (!(d > 0) || !isfinite(d)) continue;
       double hp[3], w[3];
       vlff_unproject(m, v->fx, v->fy, v->cx, v->cy, x + 0.5, y + 0.5, d, hp);
       for (int i = 0; i < 3; i++) w[i] = hp[i] - o[i];
       double len = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-      /* March to just before the surface: the surface voxel is a hit, not free. */
-      int steps = (int)((len - p->voxel * 0.5) / (p->voxel * 0.5));
-      for (int s = 0; s < steps; s++) {
-        double t = (double)s / (len / (p->voxel * 0.5));
-        double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
-        long vi = voxel_of(p, q);
-        if (vi >= 0) p->observed[vi] = 1;
+      if (!isfinite(len) || len <= 0) continue;
+      /* March at steps of half a voxel to just before the surface (the
+       * surface voxel is a hit, not free), only where the ray is inside
+       * the map: samples outside it would mark nothing. */
+      double steps = floor((len - h) / h), t0 = 0, t1 = 1;
+      if (steps > 0 && clip_to_map(p, o, w, &t0, &t1)) {
+        double s0 = fmax(0, ceil(t0 * len / h)), s1 = fmin(steps, floor(t1 * len / h) + 1);
+        if (s1 - s0 > max_steps) s1 = s0 + max_steps;
+        for (double s = s0; s < s1; s++) {
+          double t = s / (len / h);
+          double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
+          long vi = voxel_of(p, q);
+          if (vi >= 0) p->observed[vi] = 1;
+        }
       }
       long vi = voxel_of(p, hp);
       if (vi >= 0) {
@@ -288,9 +338,12 @@ void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v)
         }
       }
     }
+  return 0;
 }
 
-void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id) {
+int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id,
+                              char *err, size_t errlen) {
+  if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
   p->cam = *v;
   p->nsel = p->nhole = 0;
   for (int y = 0; y < p->lh; y++)
@@ -314,6 +367,7 @@ void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view 
   p->have_cam = true;
   p->cam_t_ns = t_ns;
   p->cam_frame = frame_id;
+  return 0;
 }
 
 static uint8_t conf_of(float margin) {

@@ -42,11 +42,21 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
                                              const struct vlff_sim_points *gt, char *err, size_t errlen);
 void vlff_publisher_destroy(struct vlff_publisher *p);
 
-/* Account an admitted keyframe's measured depth (observed / hit voxels). */
-void vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v);
+/* A view's intrinsics and pose within physical bounds (bounds.h; the pose
+ * against field.scene_min / max)? 0, or -1 with err saying which value
+ * broke which bound; each refusal is counted. */
+int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen);
+/* Views refused by check_view (and so by observe / set_camera) so far. */
+long long vlff_publisher_refused(const struct vlff_publisher *p);
+/* Account an admitted keyframe's measured depth (observed / hit voxels).
+ * The view is checked first (-1 with err, nothing accounted); every ray's
+ * march is bounded by the map's size whatever its depth claims. */
+int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen);
 /* The view the next 2D label image is made for (the latest keyframe); its
- * depth, if any, is read now, not kept. */
-void vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id);
+ * depth, if any, is read now, not kept. Checked as observe; a refused view
+ * leaves the previous camera in place. */
+int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id,
+                              char *err, size_t errlen);
 /* True when measured depth of admitted keyframes already ended in the voxel
  * holding world point x (at least twice): a surface the map has seen. */
 bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]);

@@ -19,7 +19,9 @@
 #include <hdf5.h>
 #endif
 
+#include "bounds.h"
 #include "dataset_internal.h"
+#include "files.h"
 
 #define seterr vlff_errf
 #define PATHMAX 4352
@@ -32,6 +34,15 @@ static int is_dir(const char *p) {
 static int is_file(const char *p) {
   struct stat st;
   return stat(p, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* An optional file: 1 when present (and regular), 0 when absent, -1 with
+ * err when something else sits at its name (a FIFO would block a reader,
+ * a directory is a mistake worth naming). */
+static int optional_file(const char *p, char *err, size_t errlen) {
+  struct stat st;
+  if (stat(p, &st) < 0) return 0;
+  return vlff_check_regular(p, err, errlen) < 0 ? -1 : 1;
 }
 
 /* a/b into out[PATHMAX], truncated (callers cap a at 4000 bytes, b is short) */
@@ -162,6 +173,11 @@ static herr_t h5_first_dataset(hid_t g, const char *name, const H5L_info_t *info
 }
 
 static int features_probe(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
+  struct stat fst;
+  if (stat(path, &fst) < 0) {
+    seterr(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
+    return -1;
+  }
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) {
@@ -204,6 +220,30 @@ static int features_probe(struct vlff_dataset *ds, const char *path, char *err, 
            (unsigned long long)dims[2], (unsigned long long)dims[3], ds->n);
     goto out;
   }
+  /* The reader allocates one frame's features: a header may claim any
+   * shape, so the frame is capped, and the data the file really stores must
+   * account for the shape (deflate cannot shrink data below about 1/1032
+   * of its size, and unfiltered data is stored whole). */
+  unsigned long long frame_bytes = (unsigned long long)dims[1] * dims[2] * dims[3] * sizeof(uint16_t);
+  if (frame_bytes > VLFF_DS_MAX_FEATURE_FRAME_BYTES) {
+    seterr(err, errlen, "%s: features/%s claims %llu bytes per frame ([%llu,%llu,%llu] float16), more than the %llu allowed",
+           path, fd.name, frame_bytes, (unsigned long long)dims[1], (unsigned long long)dims[2],
+           (unsigned long long)dims[3], (unsigned long long)VLFF_DS_MAX_FEATURE_FRAME_BYTES);
+    goto out;
+  }
+  {
+    unsigned long long raw = frame_bytes * dims[0], stored = (unsigned long long)H5Dget_storage_size(d);
+    hid_t pl = H5Dget_create_plist(d);
+    int nfilters = pl >= 0 ? H5Pget_nfilters(pl) : -1;
+    if (pl >= 0) H5Pclose(pl);
+    unsigned long long need = nfilters == 0 ? raw : raw / 1032;
+    if (nfilters < 0 || stored < need || (unsigned long long)fst.st_size < need) {
+      seterr(err, errlen, "%s: features/%s claims shape [%llu,%llu,%llu,%llu] (%llu bytes) but the file stores %llu bytes of it",
+             path, fd.name, (unsigned long long)dims[0], (unsigned long long)dims[1], (unsigned long long)dims[2],
+             (unsigned long long)dims[3], raw, stored);
+      goto out;
+    }
+  }
   snprintf(ds->feat_name, sizeof ds->feat_name, "%s", fd.name);
   ds->feat_height = (int)dims[1], ds->feat_width = (int)dims[2], ds->feat_dim = (int)dims[3];
   ds->has_features = 1;
@@ -224,6 +264,8 @@ void vlff_dataset_close(struct vlff_dataset *ds) {
   if (!ds) return;
   free(ds->c2w);
   free(ds->stem);
+  free(ds->label_map);
+  vlff_sens_close(ds->sens);
   memset(ds, 0, sizeof *ds);
 }
 
@@ -243,30 +285,159 @@ static int check_intrinsics(struct vlff_dataset *ds, const double K[16], const c
     seterr(err, errlen, "%s: not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1])", path);
     return -1;
   }
+  char why[200];
+  if (vlff_intrinsics_plausible(ds->width, ds->height, ds->fx, ds->fy, ds->cx, ds->cy, why, sizeof why)) {
+    seterr(err, errlen, "%s: not a physical camera for the %dx%d images: %s", path, ds->width, ds->height, why);
+    return -1;
+  }
   return 0;
 }
 
 int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char *err, size_t errlen) {
+  struct vlff_dataset_options o = {.layout = layout, .label_set = VLFF_LABELS_SCANNET20};
+  return vlff_dataset_open_opts(ds, dir, &o, err, errlen);
+}
+
+/* The .sens file a path names: the path itself, or the one *.sens in a
+ * directory; 0 when there is none. */
+static int find_sens(const char *dir, char *out, char *err, size_t errlen) {
+  size_t l = strlen(dir);
+  if (is_file(dir) && l > 5 && !strcmp(dir + l - 5, ".sens")) {
+    snprintf(out, PATHMAX, "%s", dir);
+    return 1;
+  }
+  struct stems st;
+  if (!is_dir(dir) || list_stems(dir, ".sens", &st, err, errlen) < 0) return 0;
+  int n = st.n;
+  if (n == 1) {
+    char name[VLFF_DS_NAME + 8];
+    snprintf(name, sizeof name, "%s.sens", st.s[0]);
+    join(out, dir, name);
+  }
+  free(st.s);
+  if (n > 1) {
+    seterr(err, errlen, "%s: %d .sens files; name the one to read", dir, n);
+    return -1;
+  }
+  return n;
+}
+
+/* ScanNet export with a depth camera of its own: intrinsic_depth.txt. */
+static int scannet_export_cameras(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
+  char p[PATHMAX];
+  join(p, dir, "intrinsic/intrinsic_depth.txt");
+  if (!is_file(p)) return 0;
+  const char *names[4] = {"intrinsic/intrinsic_color.txt", "intrinsic/intrinsic_depth.txt",
+                          "intrinsic/extrinsic_color.txt", "intrinsic/extrinsic_depth.txt"};
+  double m[4][16];
+  for (int k = 0; k < 4; k++) {
+    join(p, dir, names[k]);
+    if (k >= 2 && !is_file(p)) { /* extrinsics absent: the cameras coincide */
+      for (int e = 0; e < 16; e++) m[k][e] = e % 5 == 0;
+      continue;
+    }
+    char *buf;
+    size_t len;
+    if (read_text(p, &buf, &len, err, errlen) < 0) return -1;
+    int rc = vlff_parse_matrix(buf, len, p, m[k], err, errlen);
+    free(buf);
+    if (rc < 0) return -1;
+  }
+  char name[VLFF_DS_NAME + 16];
+  snprintf(name, sizeof name, "depth/%s.png", ds->stem[0]);
+  join(p, dir, name);
+  struct vlff_image im;
+  if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
+  int dw = im.width, dh = im.height;
+  vlff_image_free(&im);
+  join(p, dir, "intrinsic");
+  return vlff_scannet_geometry(ds, m[0], ds->width, ds->height, m[1], dw, dh, m[2], m[3], p, err, errlen);
+}
+
+/* Ground-truth label images: gt_semantic/ (class ids), or ScanNet's
+ * label-filt/ (label ids, mapped through the TSV). */
+static int open_labels(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *o, char *err,
+                       size_t errlen) {
+  char p[PATHMAX], q[PATHMAX];
+  snprintf(ds->label_dir, sizeof ds->label_dir, "gt_semantic");
+  join(p, dir, "gt_semantic");
+  if (!is_dir(p)) {
+    join(p, dir, "label-filt");
+    if (ds->layout == VLFF_DS_REFERENCE || !is_dir(p)) return 0;
+    snprintf(ds->label_dir, sizeof ds->label_dir, "label-filt");
+    char tsv[PATHMAX] = "";
+    if (o->label_tsv) snprintf(tsv, sizeof tsv, "%s", o->label_tsv);
+    const char *up[3] = {"scannetv2-labels.combined.tsv", "../scannetv2-labels.combined.tsv",
+                         "../../scannetv2-labels.combined.tsv"};
+    for (int k = 0; k < 3 && !tsv[0]; k++) {
+      join(q, dir, up[k]);
+      if (is_file(q)) snprintf(tsv, sizeof tsv, "%s", q);
+    }
+    if (!tsv[0]) {
+      seterr(err, errlen, "%s: label-filt/ holds ScanNet label ids, but scannetv2-labels.combined.tsv is neither "
+                          "given nor in the scene directory or its two parents", dir);
+      return -1;
+    }
+    if (vlff_scannet_labels_load(ds, tsv, o->label_set, err, errlen) < 0) return -1;
+  }
+  for (int i = 0; i < ds->n; i++) {
+    char name[VLFF_DS_NAME + 24];
+    snprintf(name, sizeof name, "%s/%s.png", ds->label_dir, ds->stem[i]);
+    join(q, dir, name);
+    if (!is_file(q)) {
+      seterr(err, errlen, "%s: missing (%s/ must label every frame)", q, ds->label_dir);
+      return -1;
+    }
+  }
+  ds->has_labels = 1;
+  return 0;
+}
+
+int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *opts,
+                           char *err, size_t errlen) {
+  static const struct vlff_dataset_options defaults = {.layout = VLFF_DS_AUTO, .label_set = VLFF_LABELS_SCANNET20};
+  if (!opts) opts = &defaults;
+  int layout = opts->layout;
   memset(ds, 0, sizeof *ds);
   if (strlen(dir) >= sizeof ds->dir - 64) {
     seterr(err, errlen, "%s: path too long", dir);
     return -1;
   }
+  if (opts->label_set != VLFF_LABELS_SCANNET20 && opts->label_set != VLFF_LABELS_NYU40) {
+    seterr(err, errlen, "%s: unknown label set %d", dir, opts->label_set);
+    return -1;
+  }
   snprintf(ds->dir, sizeof ds->dir, "%s", dir);
-  char p[PATHMAX], q[PATHMAX];
+  char p[PATHMAX], q[PATHMAX], sens[PATHMAX] = "";
+  join(p, dir, "rgb");
+  join(q, dir, "color");
+  if (layout == VLFF_DS_SENS || (layout == VLFF_DS_AUTO && !is_dir(p) && !is_dir(q))) {
+    int found = find_sens(dir, sens, err, errlen);
+    if (found < 0) return -1;
+    if (found) layout = VLFF_DS_SENS;
+    else if (layout == VLFF_DS_SENS) {
+      seterr(err, errlen, "%s: no .sens file", dir);
+      return -1;
+    }
+  }
   if (layout == VLFF_DS_AUTO) {
-    join(p, dir, "rgb");
-    join(q, dir, "color");
     if (is_dir(p)) layout = VLFF_DS_REFERENCE;
     else if (is_dir(q)) layout = VLFF_DS_SCANNET;
     else {
-      seterr(err, errlen, "%s: neither rgb/ (reference layout) nor color/ (ScanNet export) found", dir);
+      seterr(err, errlen, "%s: neither rgb/ (reference layout), color/ (ScanNet export) nor a .sens file found", dir);
       return -1;
     }
   }
   ds->layout = layout;
   const int ref = layout == VLFF_DS_REFERENCE;
   struct stems rgb = {0};
+  if (layout == VLFF_DS_SENS) {
+    /* the scene directory (labels, features, mesh) is the file's */
+    char *slash = strrchr(sens, '/');
+    if (is_file(dir)) snprintf(ds->dir, sizeof ds->dir, "%.*s", slash ? (int)(slash - sens) : 1, slash ? sens : ".");
+    if (vlff_sens_open(ds, sens, err, errlen) < 0) goto fail;
+    goto cameras_done;
+  }
   join(p, dir, ref ? "rgb" : "color");
   if (list_stems(p, ".png,.jpg,.jpeg", &rgb, err, errlen) < 0) return -1;
   if (rgb.n == 0) {
@@ -360,8 +531,14 @@ int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char
     free(buf);
     if (rc < 0 || check_intrinsics(ds, K, p, err, errlen) < 0) goto fail;
   }
+  ds->color_width = ds->width, ds->color_height = ds->height;
+  if (!ref && scannet_export_cameras(ds, dir, err, errlen) < 0) goto fail;
+cameras_done:
+  dir = ds->dir;
   join(p, dir, "bbox.txt");
-  if (is_file(p)) {
+  int have = optional_file(p, err, errlen);
+  if (have < 0) goto fail;
+  if (have) {
     char *buf;
     size_t len;
     if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
@@ -370,21 +547,28 @@ int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char
     if (rc < 0) goto fail;
     ds->has_bbox = 1;
   }
-  join(p, dir, "gt_semantic");
-  if (is_dir(p)) {
-    for (int i = 0; i < ds->n; i++) {
-      char name[VLFF_DS_NAME + 24];
-      snprintf(name, sizeof name, "gt_semantic/%s.png", ds->stem[i]);
-      join(q, dir, name);
-      if (!is_file(q)) {
-        seterr(err, errlen, "%s: missing (gt_semantic/ must label every frame)", q);
-        goto fail;
+  /* Camera positions against the scene box (or an absolute bound without
+   * one): a translation of 1e300 would wreck every result silently. */
+  for (int i = 0; i < ds->n; i++) {
+    char why[200];
+    if (vlff_pose_plausible(ds->c2w + (size_t)i * 16, ds->has_bbox ? ds->bbox_lo : NULL,
+                            ds->has_bbox ? ds->bbox_hi : NULL, why, sizeof why)) {
+      if (ds->layout == VLFF_DS_SENS) {
+        seterr(err, errlen, "%s: frame %s: %s", sens, ds->stem[i], why);
+      } else {
+        char name[VLFF_DS_NAME + 8];
+        snprintf(name, sizeof name, "pose/%s.txt", ds->stem[i]);
+        join(p, dir, name);
+        seterr(err, errlen, "%s: %s", p, why);
       }
+      goto fail;
     }
-    ds->has_labels = 1;
   }
+  if (open_labels(ds, dir, opts, err, errlen) < 0) goto fail;
   join(p, dir, "features.hdf");
-  if (is_file(p)) {
+  have = optional_file(p, err, errlen);
+  if (have < 0) goto fail;
+  if (have) {
 #ifdef VLFF_HAVE_HDF5
     if (features_probe(ds, p, err, errlen) < 0) goto fail;
 #endif
@@ -399,12 +583,76 @@ fail:
 
 /* ---- frames ------------------------------------------------------------- */
 
+/* Frame i's label image resampled to the output size and mapped (ScanNet). */
+static int read_label(const struct vlff_dataset *ds, int i, uint8_t *label, char *err, size_t errlen) {
+  char name[VLFF_DS_NAME + 24], p[PATHMAX];
+  snprintf(name, sizeof name, "%s/%s.png", ds->label_dir, ds->stem[i]);
+  join(p, ds->dir, name);
+  struct vlff_image im;
+  if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
+  int rc = vlff_scannet_map_labels(ds, &im, p, label, err, errlen);
+  vlff_image_free(&im);
+  return rc;
+}
+
+/* ScanNet with its own depth camera: colour, depth and labels brought into
+ * the output camera (see dataset.h). */
+static int read_registered(const struct vlff_dataset *ds, int i, uint8_t *rgb, float *depth, uint8_t *label,
+                           char *err, size_t errlen) {
+  uint8_t *crgb = NULL;
+  uint16_t *dmm = NULL;
+  double scale = 0.001;
+  char name[VLFF_DS_NAME + 24], p[PATHMAX];
+  struct vlff_image im = {0}, dim = {0};
+  int rc = -1;
+  if (ds->sens) {
+    if (vlff_sens_read(ds, i, rgb ? &crgb : NULL, depth ? &dmm : NULL, err, errlen) < 0) return -1;
+    scale = vlff_sens_depth_scale(ds);
+  } else {
+    if (rgb) {
+      snprintf(name, sizeof name, "color/%s%s", ds->stem[i], ds->rgb_ext);
+      join(p, ds->dir, name);
+      if (vlff_image_read(p, &im, err, errlen) < 0) goto out;
+      if (im.width != ds->color_width || im.height != ds->color_height || im.channels != 3 || im.depth16) {
+        seterr(err, errlen, "%s: %dx%d %d-channel; expected %dx%d RGB8 like the first frame", p, im.width,
+               im.height, im.channels, ds->color_width, ds->color_height);
+        goto out;
+      }
+      crgb = im.data;
+    }
+    if (depth) {
+      snprintf(name, sizeof name, "depth/%s.png", ds->stem[i]);
+      join(p, ds->dir, name);
+      if (vlff_image_read(p, &dim, err, errlen) < 0) goto out;
+      if (dim.width != ds->depth_width || dim.height != ds->depth_height || dim.channels != 1 || !dim.depth16) {
+        seterr(err, errlen, "%s: expected a %dx%d 16-bit single-channel PNG (millimetres)", p, ds->depth_width,
+               ds->depth_height);
+        goto out;
+      }
+      dmm = dim.data;
+    }
+  }
+  if (rgb) vlff_scannet_resample_rgb(ds, crgb, rgb);
+  if (depth) vlff_scannet_register_depth(ds, dmm, scale, depth);
+  if (label && !ds->has_labels) {
+    seterr(err, errlen, "%s: no gt_semantic/ or label-filt/ labels", ds->dir);
+    goto out;
+  }
+  rc = label ? read_label(ds, i, label, err, errlen) : 0;
+out:
+  if (ds->sens) free(crgb), free(dmm);
+  vlff_image_free(&im);
+  vlff_image_free(&dim);
+  return rc;
+}
+
 int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, float *depth,
                             uint8_t *label, char *err, size_t errlen) {
   if (i < 0 || i >= ds->n) {
     seterr(err, errlen, "%s: frame %d out of range 0..%d", ds->dir, i, ds->n - 1);
     return -1;
   }
+  if (ds->registered) return read_registered(ds, i, rgb, depth, label, err, errlen);
   const int ref = ds->layout == VLFF_DS_REFERENCE;
   const int W = ds->width, H = ds->height;
   char name[VLFF_DS_NAME + 24], p[PATHMAX];
@@ -451,6 +699,7 @@ int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, 
       seterr(err, errlen, "%s: no gt_semantic/ labels", ds->dir);
       return -1;
     }
+    if (ds->label_map) return read_label(ds, i, label, err, errlen);
     snprintf(name, sizeof name, "gt_semantic/%s.png", ds->stem[i]);
     join(p, ds->dir, name);
     if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
@@ -483,6 +732,7 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   char p[PATHMAX], dname[VLFF_DS_NAME + 16];
   join(p, ds->dir, "features.hdf");
   snprintf(dname, sizeof dname, "features/%s", ds->feat_name);
+  if (vlff_check_regular(p, err, errlen) < 0) return -1;
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   hid_t f = H5Fopen(p, H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) {

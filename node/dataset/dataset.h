@@ -17,13 +17,34 @@
  *                              vlff_embeddings_load, written with
  *                              vlff_embeddings_save); ground-truth id k is
  *                              record k
- *  ScanNet export layout (read only): color/<i>.jpg, depth/<i>.png (uint16
- *  mm), pose/<i>.txt CAMERA-TO-WORLD, intrinsic/intrinsic_color.txt; frames
- *  whose pose is non-finite (ScanNet marks lost tracking with -inf) are
- *  skipped and counted, as ScanNet's own tools do.
+ *  ScanNet export layout (read only), as ScanNet's SensReader writes it:
+ *  color/<i>.jpg, depth/<i>.png (uint16 mm), pose/<i>.txt CAMERA-TO-WORLD,
+ *  intrinsic/intrinsic_color.txt and, when present, intrinsic_depth.txt,
+ *  extrinsic_color.txt, extrinsic_depth.txt (sensor-to-rig, identity when
+ *  absent); label-filt/<i>.png holds ScanNet label ids (16-bit), mapped
+ *  through scannetv2-labels.combined.tsv (options.label_tsv, else looked for
+ *  in the scene directory and its two parents) to the 20 benchmark classes
+ *  or to NYU40 (options.label_set); a gt_semantic/ directory, when present
+ *  instead, holds class ids directly.
+ *  ScanNet .sens (read only): the raw stream file (a path to it, or a
+ *  directory holding one *.sens and no color/): JPEG/PNG/raw colour,
+ *  zlib/raw depth with its depth shift, poses, both cameras' intrinsics
+ *  and extrinsics. Frame i's stem is "i"; label-filt/, the TSV,
+ *  features.hdf and the labelled mesh are looked for beside the file.
+ *  In both ScanNet layouts, when a depth intrinsic is given, frames are
+ *  returned in the colour camera's geometry at the depth camera's size
+ *  (width, height, fx..cy describe that camera): colour box-filtered down,
+ *  labels sampled nearest, depth registered (back-projected with the depth
+ *  intrinsics, moved by the extrinsic, projected, nearest surface wins,
+ *  unreached pixels 0 = invalid). The 3D ground truth is
+ *  <scene>_vh_clean_2.labels.ply (vertex 'label' = NYU40 id) mapped to the
+ *  same classes (vlff_dataset_read_points).
+ *  Frames whose pose is non-finite (ScanNet marks lost tracking with -inf)
+ *  are skipped and counted, as ScanNet's own tools do.
  *  Frames are matched by file stem; stems sort numerically when all are
- *  integers, otherwise by name. Depth of a different size than rgb is
- *  resampled (nearest) to the rgb size, so one set of intrinsics serves both.
+ *  integers, otherwise by name. Without a depth intrinsic, depth of a
+ *  different size than rgb must share its aspect and is resampled (nearest)
+ *  to the rgb size, so one set of intrinsics serves both.
  *
  * Contract
  *  - Functions returning int give 0 on success, -1 on error with one line in
@@ -31,7 +52,14 @@
  *  - Every value read is validated: sizes against each other, counts, finite
  *    numbers, orthonormal right-handed rotations (|R^T R - I| < 1e-3,
  *    det > 0), a [0 0 0 1] last row, positive focal lengths, principal points
- *    inside the image, bbox min < max.
+ *    inside the image, bbox min < max; intrinsics and camera positions
+ *    within physical bounds (bounds.h: field of view, pixel aspect, the
+ *    camera no further outside bbox.txt than the box is big, or within an
+ *    absolute bound without one); features.hdf's shape at most
+ *    VLFF_DS_MAX_FEATURE_FRAME_BYTES per frame and backed by the data the
+ *    file really stores, checked before anything is allocated for it.
+ *  - Only regular files are read (files.h): a FIFO or device at a dataset
+ *    file's name is refused, never waited on.
  *  - Files are written atomically: temp file, fsync, rename.
  *  - A vlff_dataset is used by one thread at a time; the caller owns every
  *    buffer it passes. The parse functions take memory buffers (the fuzz
@@ -44,8 +72,22 @@
 #include <stdint.h>
 
 #define VLFF_DS_NAME 64
+/* One frame's features may claim at most this much memory. */
+#define VLFF_DS_MAX_FEATURE_FRAME_BYTES (256ull << 20)
 
-enum vlff_dataset_layout { VLFF_DS_AUTO, VLFF_DS_REFERENCE, VLFF_DS_SCANNET };
+enum vlff_dataset_layout { VLFF_DS_AUTO, VLFF_DS_REFERENCE, VLFF_DS_SCANNET, VLFF_DS_SENS };
+/* ScanNet label sets: the 20 benchmark classes (NYU40 ids 1 2 3 4 5 6 7 8 9
+ * 10 11 12 14 16 24 28 33 34 36 39, in that order) or all 40 NYU40 classes
+ * (class k = NYU40 id k + 1). */
+enum vlff_label_set { VLFF_LABELS_SCANNET20, VLFF_LABELS_NYU40 };
+
+struct vlff_dataset_options {
+  int layout;             /* enum vlff_dataset_layout */
+  int label_set;          /* enum vlff_label_set (ScanNet) */
+  const char *label_tsv;  /* scannetv2-labels.combined.tsv; NULL = look for it */
+};
+struct vlff_sens;
+struct vlff_points;
 
 struct vlff_dataset {
   char dir[4096];
@@ -63,11 +105,29 @@ struct vlff_dataset {
   char feat_name[VLFF_DS_NAME];
   int feat_height, feat_width, feat_dim;
   char rgb_ext[8];
+  /* ScanNet with a depth camera of its own (see the layouts) */
+  int registered;
+  int color_width, color_height, depth_width, depth_height; /* as stored */
+  double dfx, dfy, dcx, dcy;   /* depth camera */
+  double d2c[16];              /* depth camera to colour camera */
+  int label_set;               /* enum vlff_label_set */
+  uint8_t *label_map;          /* ScanNet label id -> class (255 none); NULL: ids are classes */
+  char label_dir[16];          /* "gt_semantic" or "label-filt" */
+  struct vlff_sens *sens;      /* the open .sens file (layout VLFF_DS_SENS) */
 };
 
 /* Open a scene directory: list and validate every frame's pose, the
  * intrinsics, bbox and the features' shape; images are read per frame. */
 int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char *err, size_t errlen);
+/* The same with every option (opts NULL = defaults: auto layout, 20 classes). */
+int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *opts,
+                           char *err, size_t errlen);
+/* The labelled 3D ground truth: points.ply or mesh.ply (reference), or
+ * *_vh_clean_2.labels.ply mapped to the label set (ScanNet). */
+int vlff_dataset_read_points(const struct vlff_dataset *ds, struct vlff_points *p, char *err, size_t errlen);
+/* Classes of a label set, and class k's name (NULL when out of range). */
+int vlff_label_set_classes(int set);
+const char *vlff_label_set_name(int set, int k);
 void vlff_dataset_close(struct vlff_dataset *ds);
 
 /* Frame i's images: rgb [h][w][3], depth metres [h][w], label [h][w] (255 =

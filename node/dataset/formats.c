@@ -19,6 +19,7 @@
 
 #include "dataset.h"
 #include "dataset_internal.h"
+#include "files.h"
 
 #define MAX_IMAGE_SIDE 16384
 #define MAX_IMAGE_BYTES (256 << 20)
@@ -29,15 +30,18 @@
 
 int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen) {
   *buf = NULL, *len = 0;
-  FILE *f = fopen(path, "rb");
+  int fd = vlff_open_regular(path, err, errlen);
+  if (fd < 0) return -1;
+  FILE *f = fdopen(fd, "rb");
   if (!f) {
+    close(fd);
     seterr(err, errlen, "%s: cannot open: %s", path, strerror(errno));
     return -1;
   }
   struct stat st;
-  if (fstat(fileno(f), &st) < 0 || !S_ISREG(st.st_mode)) {
+  if (fstat(fileno(f), &st) < 0) {
     fclose(f);
-    seterr(err, errlen, "%s: not a regular file", path);
+    seterr(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
     return -1;
   }
   if ((size_t)st.st_size > max) {

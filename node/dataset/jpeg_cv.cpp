@@ -3,6 +3,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <vector>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -37,6 +38,32 @@ extern "C" int vlff_cv_decode_jpeg(const uint8_t *buf, size_t len, int max_side,
     }
     for (int y = 0; y < out.rows; y++) std::memcpy(p + (size_t)y * out.cols * 3, out.ptr(y), (size_t)out.cols * 3);
     *w = out.cols, *h = out.rows, *rgb = p;
+    return 0;
+  } catch (const std::exception &e) {
+    vlff_errf(err, errlen, "%s", e.what());
+  } catch (...) {
+    vlff_errf(err, errlen, "unknown error");
+  }
+  return -1;
+}
+
+extern "C" int vlff_cv_encode_jpeg(const uint8_t *rgb, int w, int h, int quality, uint8_t **out, size_t *len,
+                                   char *err, size_t errlen) {
+  try {
+    cv::Mat src(h, w, CV_8UC3, const_cast<uint8_t *>(rgb)), bgr;
+    cv::cvtColor(src, bgr, cv::COLOR_RGB2BGR);
+    std::vector<uchar> buf;
+    if (!cv::imencode(".jpg", bgr, buf, {cv::IMWRITE_JPEG_QUALITY, quality})) {
+      vlff_errf(err, errlen, "JPEG encoding failed");
+      return -1;
+    }
+    uint8_t *p = (uint8_t *)std::malloc(buf.size());
+    if (!p) {
+      vlff_errf(err, errlen, "out of memory");
+      return -1;
+    }
+    std::memcpy(p, buf.data(), buf.size());
+    *out = p, *len = buf.size();
     return 0;
   } catch (const std::exception &e) {
     vlff_errf(err, errlen, "%s", e.what());

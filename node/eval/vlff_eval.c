@@ -27,6 +27,9 @@
 #include "config.h"
 #include "dataset.h"
 #include "embeddings.h"
+#include <json-c/json.h>
+
+#include "cli.h"
 #include "field.h"
 #include "metrics.h"
 #include "sim.h"
@@ -34,8 +37,9 @@
 #define TAG "eval"
 #define MAXK VLFF_MAX_PROMPTS
 
-static const char usage[] =
-    "usage: vlff-eval [options]\n"
+static const struct vlff_cli cli = {
+    "vlff-eval",
+    "Usage: vlff-eval [OPTIONS]\n"
     "Fit a feature field to a scene, then evaluate 2D (held-out frames) and 3D\n"
     "(labelled points) segmentation against ground truth and two baselines.\n"
     "\n"
@@ -52,10 +56,13 @@ static const char usage[] =
     "  --out DIR           report directory (default eval-out)\n"
     "  --overlays N        overlay images to write (default 3)\n"
     "  --quiet             no progress bar\n"
+    "  -V, --version       print the version and exit\n"
+    "  -h, --help          print this help and exit\n"
     "\n"
     "examples:\n"
     "  vlff-eval --seed 3 --iters 2000 --out /tmp/eval3\n"
-    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n";
+    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n",
+};
 
 struct opts {
   const char *config, *dataset, *out;
@@ -109,51 +116,61 @@ static void *xcalloc(size_t n, size_t s) {
   return p;
 }
 
+/* A bad value is a usage error like an unknown option: one line, the usage, 2. */
 static int parse_int(const char *s, const char *opt, int lo, int hi) {
   char *e;
   errno = 0;
   long v = strtol(s, &e, 10);
-  if (!*s || *e || errno || v < lo || v > hi) die("%s: expected an integer in %d..%d, got '%s'", opt, lo, hi, s);
+  if (!*s || *e || errno || v < lo || v > hi)
+    exit(vlff_cli_usage_error(&cli, "%s: expected an integer in %d..%d, got '%s'", opt, lo, hi, s));
   return (int)v;
 }
 
 static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
   char *e;
   double v = strtod(s, &e);
-  if (!*s || *e || !(v >= lo && v <= hi)) die("%s: expected a number in %g..%g, got '%s'", opt, lo, hi, s);
+  if (!*s || *e || !(v >= lo && v <= hi))
+    exit(vlff_cli_usage_error(&cli, "%s: expected a number in %g..%g, got '%s'", opt, lo, hi, s));
   return v;
 }
 
 static void parse_args(int argc, char **argv, struct opts *o) {
+  enum { O_CONFIG = 256, O_DATASET, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
+         O_DIFFICULTY, O_QUIET };
+  static const struct option longopts[] = {
+      {"config", required_argument, NULL, O_CONFIG},     {"dataset", required_argument, NULL, O_DATASET},
+      {"out", required_argument, NULL, O_OUT},           {"seed", required_argument, NULL, O_SEED},
+      {"frames", required_argument, NULL, O_FRAMES},     {"feature-dim", required_argument, NULL, O_DIM},
+      {"iters", required_argument, NULL, O_ITERS},       {"holdout", required_argument, NULL, O_HOLDOUT},
+      {"threads", required_argument, NULL, O_THREADS},   {"overlays", required_argument, NULL, O_OVERLAYS},
+      {"difficulty", required_argument, NULL, O_DIFFICULTY}, {"quiet", no_argument, NULL, O_QUIET},
+      VLFF_CLI_COMMON_OPTIONS,
+  };
   memset(o, 0, sizeof *o);
   o->seed = o->frames = o->dim = o->threads = -1;
   o->difficulty = -1;
   o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out";
-  for (int i = 1; i < argc; i++) {
-    const char *a = argv[i];
-    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
-      fputs(usage, stdout);
-      exit(0);
+  int c, status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "", longopts, &status)) != -1) {
+    const char *a = argv[optind - 1], *v = optarg;
+    switch (c) {
+    case VLFF_CLI_EXIT: exit(status);
+    case O_QUIET: o->quiet = 1; break;
+    case O_CONFIG: o->config = v; break;
+    case O_DATASET: o->dataset = v; break;
+    case O_OUT: o->out = v; break;
+    case O_SEED: o->seed = parse_int(v, a, 0, 2147483647); break;
+    case O_FRAMES: o->frames = parse_int(v, a, 2, 100000); break;
+    case O_DIM: o->dim = parse_int(v, a, 8, 1024); break;
+    case O_ITERS: o->iters = parse_int(v, a, 0, 100000000); break;
+    case O_HOLDOUT: o->holdout = parse_int(v, a, 2, 1000); break;
+    case O_THREADS: o->threads = parse_int(v, a, 0, 256); break;
+    case O_OVERLAYS: o->overlays = parse_int(v, a, 0, 1000); break;
+    case O_DIFFICULTY: o->difficulty = parse_dbl(v, a, 0, 1); break;
+    default: exit(vlff_cli_usage_error(&cli, "option '%s' not handled", a));
     }
-    if (!strcmp(a, "--quiet")) {
-      o->quiet = 1;
-      continue;
-    }
-    if (i + 1 >= argc) die("%s needs a value\n%s", a, usage);
-    const char *v = argv[++i];
-    if (!strcmp(a, "--config")) o->config = v;
-    else if (!strcmp(a, "--dataset")) o->dataset = v;
-    else if (!strcmp(a, "--out")) o->out = v;
-    else if (!strcmp(a, "--seed")) o->seed = parse_int(v, a, 0, 2147483647);
-    else if (!strcmp(a, "--frames")) o->frames = parse_int(v, a, 2, 100000);
-    else if (!strcmp(a, "--feature-dim")) o->dim = parse_int(v, a, 8, 1024);
-    else if (!strcmp(a, "--iters")) o->iters = parse_int(v, a, 0, 100000000);
-    else if (!strcmp(a, "--holdout")) o->holdout = parse_int(v, a, 2, 1000);
-    else if (!strcmp(a, "--threads")) o->threads = parse_int(v, a, 0, 256);
-    else if (!strcmp(a, "--overlays")) o->overlays = parse_int(v, a, 0, 1000);
-    else if (!strcmp(a, "--difficulty")) o->difficulty = parse_dbl(v, a, 0, 1);
-    else die("unknown option %s\n%s", a, usage);
   }
+  if (optind < argc) exit(vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]));
 }
 
 /* ---- scene loading ------------------------------------------------------ */
@@ -203,7 +220,7 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
   struct vlff_dataset ds;
   if (vlff_dataset_open(&ds, dir, VLFF_DS_AUTO, err, sizeof err) < 0) die("%s", err);
   if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
-  if (!ds.has_labels) die("%s: no gt_semantic/ (needed for 2D evaluation)", dir);
+  if (!ds.has_labels) die("%s: no gt_semantic/ or label-filt/ (needed for 2D evaluation)", dir);
   if (ds.feat_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feat_dim);
   sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feat_dim;
   sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;
@@ -220,9 +237,7 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
         vlff_dataset_read_features(&ds, i, f->feat, err, sizeof err) < 0)
       die("%s", err);
   }
-  snprintf(p, sizeof p, "%s/points.ply", dir);
-  if (access(p, R_OK) != 0) snprintf(p, sizeof p, "%s/mesh.ply", dir);
-  if (vlff_ply_read(p, &sc->pts, err, sizeof err) < 0) die("%s", err);
+  if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
   if (cfg->prompts.embeddings[0]) snprintf(p, sizeof p, "%s", cfg->prompts.embeddings);
   else snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
   struct vlff_embeddings *pe = vlff_embeddings_load(p, sc->D, err, sizeof err);
@@ -235,6 +250,24 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
     memcpy(sc->emb + (size_t)k * sc->D, vlff_embeddings_vector(pe, k), (size_t)sc->D * sizeof(float));
   }
   vlff_embeddings_free(pe);
+  /* A ground-truth class without a record would silently count as
+   * unlabelled and drop out of every score: refuse, naming the first file
+   * that uses one. */
+  for (int i = 0; i < sc->n; i++)
+    for (size_t j = 0; j < npx; j++)
+      if (sc->f[i].label[j] != 255 && sc->f[i].label[j] >= sc->K)
+        die("%s: %d records, but %s/gt_semantic/%s.png uses class id %d: ground-truth id k is record k, so "
+            "every class needs one",
+            p, sc->K, dir, ds.stem[i], sc->f[i].label[j]);
+  for (size_t j = 0; j < sc->pts.n; j++)
+    if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K) {
+      char pp[4200];
+      snprintf(pp, sizeof pp, "%s/points.ply", dir);
+      if (access(pp, R_OK) != 0) snprintf(pp, sizeof pp, "%s/mesh.ply", dir);
+      die("%s: %d records, but %s uses class id %d (vertex %zu): ground-truth id k is record k, so every class "
+          "needs one",
+          p, sc->K, pp, sc->pts.label[j], j);
+    }
   if (ds.has_bbox) {
     memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
     memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);
@@ -328,32 +361,28 @@ static void summarize(struct result *r) {
   r->valid = 1;
 }
 
-static void json_summary(FILE *o, const char *name, const struct result *r, int last) {
-  if (!r->valid) {
-    fprintf(o, "    \"%s\": null%s\n", name, last ? "" : ",");
-    return;
-  }
-  fprintf(o, "    \"%s\": {\"miou\": %.6f, \"macc\": %.6f, \"mprec\": %.6f, \"pixel_acc\": %.6f, \"present\": %d, \"classes\": [",
-          name, r->s.miou, r->s.macc, r->s.mprec, r->s.pixel_acc, r->s.present);
+/* A result as JSON (null when it was not computed). json-c escapes every
+ * string: scene paths and prompt texts come from users. */
+static struct json_object *json_result(const struct result *r) {
+  if (!r->valid) return NULL;
+  struct json_object *o = json_object_new_object();
+  json_object_object_add(o, "miou", json_object_new_double(r->s.miou));
+  json_object_object_add(o, "macc", json_object_new_double(r->s.macc));
+  json_object_object_add(o, "mprec", json_object_new_double(r->s.mprec));
+  json_object_object_add(o, "pixel_acc", json_object_new_double(r->s.pixel_acc));
+  json_object_object_add(o, "present", json_object_new_int(r->s.present));
+  struct json_object *cl = json_object_new_array();
   for (int k = 0; k < r->c.k; k++) {
     struct vlff_class_score cs;
     vlff_confusion_class(&r->c, k, &cs);
-    fprintf(o, "%s{\"tp\": %llu, \"fp\": %llu, \"fn\": %llu}", k ? ", " : "", (unsigned long long)cs.tp,
-            (unsigned long long)cs.fp, (unsigned long long)cs.fn);
+    struct json_object *c = json_object_new_object();
+    json_object_object_add(c, "tp", json_object_new_uint64(cs.tp));
+    json_object_object_add(c, "fp", json_object_new_uint64(cs.fp));
+    json_object_object_add(c, "fn", json_object_new_uint64(cs.fn));
+    json_object_array_add(cl, c);
   }
-  fprintf(o, "]}%s\n", last ? "" : ",");
-}
-
-/* JSON string body: prompt texts come from user files */
-static void json_str(FILE *o, const char *s) {
-  fputc('"', o);
-  for (; *s; s++) {
-    unsigned char c = (unsigned char)*s;
-    if (c == '"' || c == '\\') fprintf(o, "\\%c", c);
-    else if (c < 0x20) fprintf(o, "\\u%04x", c);
-    else fputc(c, o);
-  }
-  fputc('"', o);
+  json_object_object_add(o, "classes", cl);
+  return o;
 }
 
 static const char *pct(const struct result *r, double v, char *buf) {
@@ -548,12 +577,15 @@ int main(int argc, char **argv) {
   snprintf(path, sizeof path, "%s/report.md", o.out);
   FILE *md = fopen(path, "w");
   if (!md) die("%s: %s", path, strerror(errno));
-  fprintf(md, "# vlff-eval report\n\nScene: %s (seed %d, difficulty %.2f), %d frames: %d train, %d held out "
-              "(every %d-th); %dx%d images, features %dx%dx%d; %zu labelled points; %d prompts.\n"
-              "Field: %s.\n\n",
-          o.dataset ? o.dataset : "synthetic room", cfg.sim.seed, cfg.sim.difficulty, sc.n, ntrain, ntest, o.holdout,
-          sc.W, sc.H, fw, fh, D, np, K,
-          fitted ? "fitted" : "not fitted (--iters 0)");
+  if (o.dataset)
+    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %d to %d", o.dataset, sc.f[0].index,
+            sc.f[sc.n - 1].index);
+  else
+    fprintf(md, "# vlff-eval report\n\nScene: synthetic room (seed %d, difficulty %.2f)", cfg.sim.seed,
+            cfg.sim.difficulty);
+  fprintf(md, ", %d frames: %d train, %d held out (every %d-th); %dx%d images, features %dx%dx%d; "
+              "%zu labelled points; %d prompts.\nField: %s.\n\n",
+          sc.n, ntrain, ntest, o.holdout, sc.W, sc.H, fw, fh, D, np, K, fitted ? "fitted" : "not fitted (--iters 0)");
   if (fitted)
     fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", o.iters, fit_s,
             o.iters / fit_s, st.loss, st.psnr);
@@ -586,27 +618,45 @@ int main(int argc, char **argv) {
   }
   fclose(md);
   snprintf(path, sizeof path, "%s/report.json", o.out);
-  FILE *js = fopen(path, "w");
-  if (!js) die("%s: %s", path, strerror(errno));
-  fprintf(js, "{\n  \"scene\": \"%s\",\n  \"seed\": %d,\n  \"difficulty\": %.4f,\n  \"frames\": %d,\n  \"train_frames\": %d,\n"
-              "  \"test_frames\": %d,\n  \"points\": %zu,\n  \"iters\": %d,\n  \"fit_seconds\": %.3f,\n  \"classes\": [",
-          o.dataset ? "dataset" : "synthetic", cfg.sim.seed, cfg.sim.difficulty, sc.n, ntrain, ntest, np,
-          fitted ? o.iters : 0, fit_s);
-  for (int k = 0; k < K; k++) {
-    if (k) fputs(", ", js);
-    json_str(js, sc.names[k]);
+  struct json_object *root = json_object_new_object(), *src = json_object_new_object();
+  /* The source is named by what it is: a dataset's path and frames, or the
+   * simulator's parameters; never the simulator's for a dataset run. */
+  if (o.dataset) {
+    json_object_object_add(src, "kind", json_object_new_string("dataset"));
+    json_object_object_add(src, "path", json_object_new_string(o.dataset));
+  } else {
+    json_object_object_add(src, "kind", json_object_new_string("synthetic"));
+    json_object_object_add(src, "seed", json_object_new_int(cfg.sim.seed));
+    json_object_object_add(src, "difficulty", json_object_new_double(cfg.sim.difficulty));
   }
-  fprintf(js, "],\n  \"results\": {\n");
-  json_summary(js, "raw_2d", &r2_raw, 0);
-  json_summary(js, "field_2d", &r2_field, 0);
-  json_summary(js, "fusion_3d", &r3_fusion, 0);
-  json_summary(js, "field_3d", &r3_field, 0);
-  json_summary(js, "field_3d_reference", &r3_field_ref, 1);
-  fprintf(js, "  }\n}\n");
-  fclose(js);
+  struct json_object *trf = json_object_new_array(), *tef = json_object_new_array();
+  for (int i = 0; i < sc.n; i++)
+    json_object_array_add(i % o.holdout == o.holdout / 2 ? tef : trf, json_object_new_int(sc.f[i].index));
+  json_object_object_add(src, "train_frames", trf);
+  json_object_object_add(src, "test_frames", tef);
+  json_object_object_add(root, "source", src);
+  json_object_object_add(root, "frames", json_object_new_int(sc.n));
+  json_object_object_add(root, "holdout", json_object_new_int(o.holdout));
+  json_object_object_add(root, "points", json_object_new_int64((int64_t)np));
+  json_object_object_add(root, "iters", json_object_new_int(fitted ? o.iters : 0));
+  json_object_object_add(root, "fit_seconds", json_object_new_double(fit_s));
+  struct json_object *names = json_object_new_array();
+  for (int k = 0; k < K; k++) json_object_array_add(names, json_object_new_string(sc.names[k]));
+  json_object_object_add(root, "classes", names);
+  struct json_object *res = json_object_new_object();
+  json_object_object_add(res, "raw_2d", json_result(&r2_raw));
+  json_object_object_add(res, "field_2d", json_result(&r2_field));
+  json_object_object_add(res, "fusion_3d", json_result(&r3_fusion));
+  json_object_object_add(res, "field_3d", json_result(&r3_field));
+  json_object_object_add(res, "field_3d_reference", json_result(&r3_field_ref));
+  json_object_object_add(root, "results", res);
+  if (json_object_to_file_ext(path, root, JSON_C_TO_STRING_PRETTY | JSON_C_TO_STRING_NOSLASHESCAPE) < 0)
+    die("%s: %s", path, json_util_get_last_err());
+  json_object_put(root);
 
-  printf("scene: %s seed %d, %d train / %d held-out frames, %zu points\n", o.dataset ? o.dataset : "synthetic",
-         cfg.sim.seed, ntrain, ntest, np);
+  if (o.dataset) printf("scene: dataset %s, frames %d to %d", o.dataset, sc.f[0].index, sc.f[sc.n - 1].index);
+  else printf("scene: synthetic room, seed %d, difficulty %.2f", cfg.sim.seed, cfg.sim.difficulty);
+  printf(", %d train / %d held-out frames, %zu points\n", ntrain, ntest, np);
   printf("%-34s %8s %8s %8s %8s\n", "standard protocol", "2D mIoU", "2D mAcc", "3D mIoU", "3D mAcc");
   printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.macc, b), "-", "-");
   printf("%-34s %8s %8s %8s %8s\n", "multi-view fusion", "-", "-", pct(&r3_fusion, r3_fusion.s.miou, a), pct(&r3_fusion, r3_fusion.s.macc, b));

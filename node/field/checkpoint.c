@@ -20,6 +20,7 @@
 #include <unistd.h>
 
 #include "field_internal.h"
+#include "files.h"
 
 #define CKPT_MAGIC "VLFFCKPT"
 #define CKPT_VERSION 1u
@@ -177,9 +178,10 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     if (err && errlen) snprintf(err, errlen, "checkpoint: no field or path");
     return -1;
   }
-  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  char oerr[384];
+  int fd = vlff_open_regular(path, oerr, sizeof oerr);
   if (fd < 0) {
-    if (err && errlen) snprintf(err, errlen, "checkpoint %s: cannot open: %s", path, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "checkpoint %s", oerr);
     return -1;
   }
   struct ckpt_header h;

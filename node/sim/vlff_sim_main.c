@@ -27,6 +27,7 @@
 #include "config.h"
 #include "dataset.h"
 #include "embeddings.h"
+#include "cli.h"
 #include "log.h"
 #include "sim.h"
 #include "transpose.h"
@@ -34,19 +35,34 @@
 
 #define TAG "sim"
 
-static const char usage[] =
-    "usage: vlff-sim [--config FILE] [--seed N] [--frames N] [--rate HZ] [--count N]\n"
+static const struct vlff_cli cli = {
+    "vlff-sim",
+    "Usage: vlff-sim [--config FILE] [--seed N] [--frames N] [--rate HZ] [--count N]\n"
     "                [--no-features] [--write-dataset DIR] [--quiet]\n"
     "Publish the synthetic room into the frame ring (and its features into the\n"
     "feature ring) at sim.rate_hz, or write it as a scene directory.\n"
     "\n"
+    "  --config FILE        vlff YAML config (default: built-in defaults)\n"
+    "  --seed N             sim.seed\n"
+    "  --frames N           sim.frames\n"
+    "  --rate HZ            sim.rate_hz\n"
     "  --count N            stop after N frames (default: until SIGINT/SIGTERM)\n"
     "  --no-features        do not publish features (consumers regenerate them)\n"
     "  --write-dataset DIR  write sim.frames frames to DIR and exit\n"
+    "  --quiet              no progress output\n"
+    "  -V, --version        print the version and exit\n"
+    "  -h, --help           print this help and exit\n"
     "\n"
-    "examples:\n"
+    "Examples:\n"
     "  vlff-sim --config configs/default.yaml --rate 10\n"
-    "  vlff-sim --seed 3 --frames 200 --write-dataset /tmp/room3\n";
+    "  vlff-sim --seed 3 --frames 200 --write-dataset /tmp/room3\n",
+};
+
+static int parse_num(const char *s, double *x) {
+  char *end;
+  *x = strtod(s, &end);
+  return *s && !*end;
+}
 
 static volatile sig_atomic_t stop;
 static void on_signal(int sig) {
@@ -235,46 +251,50 @@ int main(int argc, char **argv) {
   long long count = 0;
   int features = 1, quiet = 0;
   char err[1024];
-  for (int i = 1; i < argc; i++) {
-    const char *a = argv[i];
-    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
-      fputs(usage, stdout);
-      return 0;
-    }
-    if (!strcmp(a, "--no-features")) {
-      features = 0;
-      continue;
-    }
-    if (!strcmp(a, "--quiet")) {
-      quiet = 1;
-      continue;
-    }
-    if (!strcmp(a, "--config") && i + 1 < argc) {
-      config = argv[++i];
-      if (vlff_config_load(config, &cfg, err, sizeof err) < 0) {
-        fprintf(stderr, "vlff-sim: %s\n", err);
-        return 2;
-      }
-      continue;
-    }
-    if (i + 1 >= argc) {
-      fprintf(stderr, "vlff-sim: %s needs a value\n%s", a, usage);
-      return 2;
-    }
-    const char *v = argv[++i];
-    char *end;
-    double x = strtod(v, &end);
-    int bad = !*v || *end;
-    if (!strcmp(a, "--write-dataset")) dataset = v, bad = 0;
-    else if (!strcmp(a, "--seed") && !bad && x >= 0 && x <= 2147483647 && x == (int)x) cfg.sim.seed = (int)x;
-    else if (!strcmp(a, "--frames") && !bad && x >= 1 && x <= 1000000 && x == (int)x) cfg.sim.frames = (int)x;
-    else if (!strcmp(a, "--rate") && !bad && x >= 0.1 && x <= 1000) cfg.sim.rate_hz = x;
-    else if (!strcmp(a, "--count") && !bad && x >= 1 && x == (long long)x) count = (long long)x;
-    else {
-      fprintf(stderr, "vlff-sim: bad option or value: %s %s\n%s", a, v, usage);
-      return 2;
+  enum { O_CONFIG = 256, O_SEED, O_FRAMES, O_RATE, O_COUNT, O_NOFEAT, O_DATASET, O_QUIET };
+  static const struct option longopts[] = {
+      {"config", required_argument, NULL, O_CONFIG}, {"seed", required_argument, NULL, O_SEED},
+      {"frames", required_argument, NULL, O_FRAMES}, {"rate", required_argument, NULL, O_RATE},
+      {"count", required_argument, NULL, O_COUNT},   {"no-features", no_argument, NULL, O_NOFEAT},
+      {"write-dataset", required_argument, NULL, O_DATASET}, {"quiet", no_argument, NULL, O_QUIET},
+      VLFF_CLI_COMMON_OPTIONS,
+  };
+  /* Values are applied after the options end, so that --seed before --config
+   * is not overwritten by the file. */
+  const char *seed = NULL, *frames = NULL, *rate = NULL, *cnt = NULL;
+  int c, status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "", longopts, &status)) != -1) {
+    switch (c) {
+    case VLFF_CLI_EXIT: return status;
+    case O_CONFIG: config = optarg; break;
+    case O_SEED: seed = optarg; break;
+    case O_FRAMES: frames = optarg; break;
+    case O_RATE: rate = optarg; break;
+    case O_COUNT: cnt = optarg; break;
+    case O_NOFEAT: features = 0; break;
+    case O_DATASET: dataset = optarg; break;
+    case O_QUIET: quiet = 1; break;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
+  if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
+  if (config && vlff_config_load(config, &cfg, err, sizeof err) < 0) {
+    fprintf(stderr, "%s\n", err);
+    return 1;
+  }
+  double x;
+  if (seed && (!parse_num(seed, &x) || x < 0 || x > 2147483647 || x != (int)x))
+    return vlff_cli_usage_error(&cli, "--seed: expected an integer in 0..2147483647, got '%s'", seed);
+  if (seed) cfg.sim.seed = (int)x;
+  if (frames && (!parse_num(frames, &x) || x < 1 || x > 1000000 || x != (int)x))
+    return vlff_cli_usage_error(&cli, "--frames: expected an integer in 1..1000000, got '%s'", frames);
+  if (frames) cfg.sim.frames = (int)x;
+  if (rate && (!parse_num(rate, &x) || x < 0.1 || x > 1000))
+    return vlff_cli_usage_error(&cli, "--rate: expected a number in 0.1..1000, got '%s'", rate);
+  if (rate) cfg.sim.rate_hz = x;
+  if (cnt && (!parse_num(cnt, &x) || x < 1 || x > 1e15 || x != (long long)x))
+    return vlff_cli_usage_error(&cli, "--count: expected a positive integer, got '%s'", cnt);
+  if (cnt) count = (long long)x;
   vlff_log_set_level((enum vlff_log_level)cfg.node.log_level);
   struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
   if (!s) {

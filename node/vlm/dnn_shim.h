@@ -4,7 +4,7 @@
  * Loads an ONNX model with OpenCV 4.6's importer, runs it on a float
  * input blob and hands back the outputs as plain float arrays + shapes.
  * Layer fusion is always off: with it on, OpenCV 4.6 computes scaled
- * dot-product attention wrongly (see README "Vision-language models").
+ * dot-product attention wrongly (see docs/vlm.md).
  *
  * Contract
  *  - Functions returning int give 0 (or a count) on success, -1 on error

@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include "files.h"
 #include "log.h"
 
 #define PROMPT_MAX 63
@@ -188,9 +189,12 @@ fail:
 }
 
 struct vlff_embeddings *vlff_embeddings_load(const char *path, int expected_dim, char *err, size_t errlen) {
-  FILE *f = fopen(path, "rb");
+  char why[384];
+  int fd = vlff_open_regular(path, why, sizeof why);
+  FILE *f = fd >= 0 ? fdopen(fd, "rb") : NULL;
   if (!f) {
-    vlff_errf(err, errlen, "%s: cannot open embeddings file: %s", path, strerror(errno));
+    if (fd >= 0) close(fd);
+    vlff_errf(err, errlen, "cannot open embeddings file %s", fd >= 0 ? strerror(errno) : why);
     return NULL;
   }
   size_t cap = 1u << 16, n = 0;

@@ -15,9 +15,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "dnn_shim.h"
 #include "f16.h"
+#include "files.h"
 #include "log.h"
 
 struct vlff_image_encoder {
@@ -88,6 +90,7 @@ struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg
     vlff_errf(err, errlen, "%s: out of memory", path);
     goto fail;
   }
+  if (vlff_check_regular(path, err, errlen)) goto fail;
   e->net = vlff_dnn_open(path, cfg->vlm.cuda, &e->cuda, err, errlen);
   if (!e->net) goto fail;
   if (cfg->vlm.cuda && !e->cuda) VLFF_WARN("vlm", "%s: vlm.cuda set but OpenCV has no CUDA device; running on the CPU", path);

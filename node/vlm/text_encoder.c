@@ -14,8 +14,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "dnn_shim.h"
+#include "files.h"
 #include "log.h"
 #include "tokenizer.h"
 
@@ -41,9 +43,12 @@ struct vlff_text_encoder {
 
 
 static int load_table(struct vlff_text_encoder *e, const char *path, char *err, size_t errlen) {
-  FILE *f = fopen(path, "rb");
+  char why[384];
+  int fd = vlff_open_regular(path, why, sizeof why);
+  FILE *f = fd >= 0 ? fdopen(fd, "rb") : NULL;
   if (!f) {
-    vlff_errf(err, errlen, "%s: cannot open token-embedding table: %s", path, strerror(errno));
+    if (fd >= 0) close(fd);
+    vlff_errf(err, errlen, "cannot open token-embedding table %s", fd >= 0 ? strerror(errno) : why);
     return -1;
   }
   uint8_t hdr[16];
@@ -125,6 +130,7 @@ struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, 
     goto fail;
   }
   bool cuda = false;
+  if (vlff_check_regular(path, err, errlen)) goto fail;
   if (!(e->net = vlff_dnn_open(path, cfg->vlm.cuda, &cuda, err, errlen))) goto fail;
   int32_t ids[VLFF_CLIP_CONTEXT];
   char why[384];

@@ -15,9 +15,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include "unicode_tables.h"
+#include "files.h"
 #include "log.h"
 
 #define NUM_MERGES (49152 - 256 - 2)  /* the reference's merges[1:49152-256-2+1] */
@@ -223,7 +225,7 @@ struct entity {
 };
 
 /* Entities a prompt plausibly holds; html.unescape knows ~2200, the rest of
- * which are left as literal text here (documented in the README). */
+ * which are left as literal text here (documented in docs/vlm.md). */
 static const struct entity entities[] = {
     {"amp", '&', true},      {"lt", '<', true},        {"gt", '>', true},         {"quot", '"', true},
     {"apos", '\'', false},   {"nbsp", 0xA0, true},     {"copy", 0xA9, true},      {"reg", 0xAE, true},
@@ -522,8 +524,11 @@ int vlff_tokenizer_context(const struct vlff_tokenizer *t, const char *text, int
 /* ---- Loading ------------------------------------------------------------ */
 
 static char *read_gz(const char *path, size_t *len, char *err, size_t errlen) {
-  gzFile f = gzopen(path, "rb");
+  int fd = vlff_open_regular(path, err, errlen);
+  if (fd < 0) return NULL;
+  gzFile f = gzdopen(fd, "rb");
   if (!f) {
+    close(fd);
     vlff_errf(err, errlen, "%s: cannot open BPE merges file: %s", path, errno ? strerror(errno) : "out of memory");
     return NULL;
   }

@@ -4,7 +4,7 @@
  * Turns a prompt into the token ids CLIP's text transformer (and LSeg's)
  * was trained on, reproducing openai/CLIP's SimpleTokenizer: text cleaned
  * (the parts of ftfy.fix_text and html.unescape that plain prompts meet,
- * see README "Vision-language models"), whitespace collapsed, lower-cased
+ * see docs/vlm.md), whitespace collapsed, lower-cased
  * as Python's str.lower(), split by CLIP's regex, UTF-8 bytes mapped to
  * CLIP's byte symbols, merges applied by rank, "</w>" ending each word.
  *

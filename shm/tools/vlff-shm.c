@@ -5,6 +5,8 @@
  * message and a non-zero exit status. */
 #include "vlff/shm.h"
 
+#include "cli.h"
+
 #include <dirent.h>
 #include <errno.h>
 #include <inttypes.h>
@@ -14,8 +16,9 @@
 #include <string.h>
 #include <time.h>
 
-static const char usage_text[] =
-  "Usage: vlff-shm <command> [arguments]\n"
+static const struct vlff_cli cli = {
+  "vlff-shm",
+  "Usage: vlff-shm [-h|--help] [-V|--version] <command> [arguments]\n"
   "\n"
   "Commands:\n"
   "  list                      vlff segments under /dev/shm, one per line\n"
@@ -34,12 +37,8 @@ static const char usage_text[] =
   "  vlff-shm set-prompts /vlff-prompts \"chair\" \"table\" \"door\"\n"
   "  vlff-shm watch /vlff-frames 100\n"
   "\n"
-  "Exit status: 0 ok, 1 error (message on stderr), 2 usage.\n";
-
-static int usage(void) {
-  fputs(usage_text, stderr);
-  return 2;
-}
+  "Exit status: 0 ok, 1 error (message on stderr), 2 usage.\n",
+};
 
 static int fail(const char *what) {
   fprintf(stderr, "vlff-shm: %s: %s (%s)\n", what, vlff_shm_last_message(), strerror(errno));
@@ -340,13 +339,19 @@ static int cmd_watch(const char *name, long count) {
 }
 
 int main(int argc, char **argv) {
-  if (argc < 2)
-    return usage();
-  const char *c = argv[1];
-  if (!strcmp(c, "-h") || !strcmp(c, "--help")) {
-    fputs(usage_text, stdout);
-    return 0;
+  static const struct option opts[] = {VLFF_CLI_COMMON_OPTIONS};
+  int o, status;
+  /* '+': options end at the command, whose arguments (set-prompts -i) are its own. */
+  while ((o = vlff_cli_next(&cli, argc, argv, "+", opts, &status)) != -1) {
+    if (o == VLFF_CLI_EXIT)
+      return status;
+    return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
   }
+  argc -= optind - 1;
+  argv += optind - 1;
+  if (argc < 2)
+    return vlff_cli_usage_error(&cli, "no command given");
+  const char *c = argv[1];
   if (!strcmp(c, "list") && argc == 2)
     return cmd_list();
   if (!strcmp(c, "stat") && argc == 3)
@@ -359,5 +364,5 @@ int main(int argc, char **argv) {
     return cmd_set_prompts(argv[2], argc - 3, argv + 3);
   if (!strcmp(c, "watch") && (argc == 3 || argc == 4))
     return cmd_watch(argv[2], argc == 4 ? strtol(argv[3], NULL, 10) : 0);
-  return usage();
+  return vlff_cli_usage_error(&cli, "unknown command or wrong arguments: '%s'", c);
 }

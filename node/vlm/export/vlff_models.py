@@ -1,7 +1,7 @@
 """PyTorch definitions of the two models vlff runs through OpenCV 4.6 DNN.
 
 Both are written with plain ops so the ONNX graph holds only what OpenCV
-4.6's importer runs correctly (see README "Vision-language models"):
+4.6's importer runs correctly (see docs/vlm.md):
   * LayerNorm is decomposed ((x - mean) / sqrt(var + eps), no
     LayerNormalization op), and its gamma/beta are folded into the Linear
     that always follows it: OpenCV 4.6 fails on a per-channel Mul of a

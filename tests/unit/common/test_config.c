@@ -7,7 +7,15 @@
 #include <string.h>
 #include <cmocka.h>
 
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include "config.h"
+#include "files.h"
 
 static char err[512];
 
@@ -135,6 +143,147 @@ static void test_sim_features(void **state) {
   assert_true(vlff_config_sim_features_misused(&cfg));
 }
 
+/* Deep brackets cost libyaml the square of their depth to load; the limit
+ * refuses them at the first level too deep, naming where. Before the limit
+ * this test ran for minutes (ctest's timeout failed it). */
+static void test_deep_yaml(void **state) {
+  (void)state;
+  const int depth = 100000;
+  char *y = malloc(6 + 2 * (size_t)depth + 1);
+  assert_non_null(y);
+  memcpy(y, "node: ", 6);
+  memset(y + 6, '[', (size_t)depth);
+  memset(y + 6 + depth, ']', (size_t)depth);
+  y[6 + 2 * depth] = 0;
+  struct vlff_config cfg;
+  assert_int_equal(load(y, &cfg), -1);
+  /* The mapping is level 1, so the 32nd bracket (column 38) is level 33. */
+  assert_string_equal(err, "t.yaml:1:38: nesting deeper than 32 levels, not a vlff config");
+  free(y);
+  /* Block mappings count the same. */
+  char deep[4096] = "";
+  size_t n = 0;
+  for (int i = 0; i < 40; i++) n += (size_t)snprintf(deep + n, sizeof deep - n, "%*sk%d:\n", 2 * i, "", i);
+  snprintf(deep + n, sizeof deep - n, "%*sx: 1\n", 80, "");
+  assert_int_equal(load(deep, &cfg), -1);
+  assert_non_null(strstr(err, "nesting deeper than 32 levels"));
+  assert_int_equal(strncmp(err, "t.yaml:33:", 10), 0);
+  /* A flat list of more events than any config has. */
+  const int items = 200000;
+  char *flat = malloc(16 + 3 * (size_t)items);
+  assert_non_null(flat);
+  n = (size_t)sprintf(flat, "node: [");
+  for (int i = 0; i < items; i++) n += (size_t)sprintf(flat + n, "1,");
+  sprintf(flat + n, "1]\n");
+  assert_int_equal(load(flat, &cfg), -1);
+  assert_non_null(strstr(err, "more than 100000 YAML nodes"));
+  assert_int_equal(strncmp(err, "t.yaml:1:", 9), 0);
+  free(flat);
+  /* The limit leaves room for real nesting: prompt sets are four deep. */
+  assert_int_equal(load("prompts:\n  sets:\n    - name: a\n      prompts: [[x]]\n", &cfg), -1);
+  assert_non_null(strstr(err, "at index 0, got a sequence"));
+}
+
+/* Segment names: valid POSIX names, distinct, refused with file:line. */
+static void test_shm_names(void **state) {
+  (void)state;
+  expect_error("shm:\n  ring: no-slash\n", "t.yaml:2:9: key 'shm.ring': ", "starting with '/'");
+  expect_error("shm:\n  map: /a/b\n", "t.yaml:2:8: key 'shm.map': ", "no '/' after the leading one");
+  expect_error("shm:\n  prompts: /\n", "t.yaml:2:12: key 'shm.prompts': ", "1 to 248 characters");
+  expect_error("shm:\n  pose_ring: /..\n", "t.yaml:2:14: key 'shm.pose_ring': ", "other than '.' or '..'");
+  expect_error("shm:\n  feature_ring: \"/a\\tb\"\n", "t.yaml:2:17: key 'shm.feature_ring': ",
+               "printable characters");
+  /* The same name twice: the mailbox would replace the map. */
+  expect_error("shm:\n  map: /x\n  prompts: /x\n", "t.yaml:3:12: key 'shm.prompts': ",
+               "distinct from shm.map, got the same '/x'");
+  /* A name equal to another key's default is blamed where the file set it. */
+  expect_error("shm:\n  feature_ring: /vlff-frames\n", "t.yaml:2:17: key 'shm.feature_ring': ",
+               "distinct from shm.ring");
+  expect_error("shm:\n  ring: /vlff-map\n", "t.yaml: key 'shm.map': ", "distinct from shm.ring");
+  struct vlff_config cfg;
+  assert_int_equal(load("shm:\n  ring: /r\n  map: /m\n  prompts: /p\n  pose_ring: /q\n  feature_ring: /f\n", &cfg),
+                   0);
+  assert_string_equal(cfg.shm.prompts, "/p");
+}
+
+/* A FIFO where the config should be is refused at once, not waited on. The
+ * load runs in a child so that a regression blocks the child, which the
+ * parent then sees still running after the child's own alarm. */
+static void test_fifo_config(void **state) {
+  (void)state;
+  char dir[] = "/tmp/vlff-cfgfifo-XXXXXX";
+  assert_non_null(mkdtemp(dir));
+  char path[256];
+  snprintf(path, sizeof path, "%s/c.yaml", dir);
+  assert_int_equal(mkfifo(path, 0600), 0);
+  pid_t pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    alarm(20);
+    struct vlff_config cfg;
+    char e[512];
+    int rc = vlff_config_load(path, &cfg, e, sizeof e);
+    _exit(rc == -1 && strstr(e, "is a FIFO, expected a regular file") ? 0 : 1);
+  }
+  int st;
+  assert_int_equal(waitpid(pid, &st, 0), pid);
+  assert_true(WIFEXITED(st));
+  assert_int_equal(WEXITSTATUS(st), 0);
+  struct vlff_config cfg;
+  assert_int_equal(vlff_config_load(dir, &cfg, err, sizeof err), -1);
+  assert_non_null(strstr(err, "is a directory"));
+  unlink(path);
+  rmdir(dir);
+}
+
+/* Temporaries of a dead writer go; a live writer's, other names and
+ * non-regular files stay. */
+static void test_dead_temps(void **state) {
+  (void)state;
+  char dir[] = "/tmp/vlff-temps-XXXXXX";
+  assert_non_null(mkdtemp(dir));
+  pid_t dead = fork();
+  if (dead == 0) _exit(0);
+  waitpid(dead, NULL, 0);
+  char p[512];
+  const char *keep[] = {"field.0.ckpt", "field.0.ckpt.tmp.x1", "other.tmp.%d", "field.1.ckpt.tmp.%d"};
+  const char *gone[] = {"field.0.ckpt.tmp.%d", "map.1.obs.tmp.%d"};
+  for (int i = 0; i < 4; i++) {
+    char name[64];
+    snprintf(name, sizeof name, keep[i], i == 3 ? (int)getppid() : (int)dead);
+    snprintf(p, sizeof p, "%s/%s", dir, name);
+    int fd = open(p, O_CREAT | O_WRONLY, 0600);
+    assert_true(fd >= 0);
+    close(fd);
+  }
+  for (int i = 0; i < 2; i++) {
+    char name[64];
+    snprintf(name, sizeof name, gone[i], (int)dead);
+    snprintf(p, sizeof p, "%s/%s", dir, name);
+    int fd = open(p, O_CREAT | O_WRONLY, 0600);
+    assert_true(fd >= 0);
+    close(fd);
+  }
+  snprintf(p, sizeof p, "%s/map.0.obs.tmp.%d", dir, (int)dead);
+  assert_int_equal(mkfifo(p, 0600), 0);
+  const char *prefixes[] = {"field.", "map.", NULL};
+  assert_int_equal(vlff_remove_dead_temps(dir, prefixes), 2);
+  for (int i = 0; i < 2; i++) {
+    char name[64];
+    snprintf(name, sizeof name, gone[i], (int)dead);
+    snprintf(p, sizeof p, "%s/%s", dir, name);
+    assert_int_equal(access(p, F_OK), -1);
+  }
+  long pid;
+  assert_true(vlff_temp_name_pid("a.tmp.b.tmp.42", &pid) && pid == 42);
+  assert_false(vlff_temp_name_pid("a.tmp.", &pid));
+  assert_false(vlff_temp_name_pid("a.tmp.0", &pid));
+  assert_false(vlff_temp_name_pid("a.tmp.12x", &pid));
+  char cmd[300];
+  snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+  assert_int_equal(system(cmd), 0);
+}
+
 static void test_missing_file(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -202,6 +351,8 @@ int main(void) {
       cmocka_unit_test(test_errors),         cmocka_unit_test(test_missing_file),
       cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_field_hash),
       cmocka_unit_test(test_sim_features),
+      cmocka_unit_test(test_deep_yaml),      cmocka_unit_test(test_shm_names),
+      cmocka_unit_test(test_fifo_config),    cmocka_unit_test(test_dead_temps),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

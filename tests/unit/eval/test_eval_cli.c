@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include <cmocka.h>
+#include <json-c/json.h>
 
 static char tmp[256];
 
@@ -83,6 +84,60 @@ static void test_dataset_matches_synthetic(void **state) {
     assert_int_equal(stat(p, &st), 0);
     assert_true(st.st_size > 100);
   }
+  /* Fewer embeddings records than ground-truth classes (issue 29 S4): the
+   * missing classes would silently become unlabelled and lift every score. */
+  snprintf(cmd, sizeof cmd,
+           "cp -r %s/ds %s/dpe && cd %s/dpe && awk 'NR <= 2 || (!/^#/ && NF && n++ < 3)' prompt_embeddings.txt > pe && "
+           "mv pe prompt_embeddings.txt",
+           tmp, tmp, tmp);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/dpe --iters 0 --quiet --out %s/d 2>&1", eval, cfg, tmp, tmp);
+  FILE *pe = popen(cmd, "r");
+  char peout[2048] = "";
+  size_t pn = fread(peout, 1, sizeof peout - 1, pe);
+  peout[pn] = 0;
+  assert_int_not_equal(pclose(pe), 0);
+  print_message("%s", peout);
+  assert_non_null(strstr(peout, "prompt_embeddings.txt: 3 records, but "));
+  assert_non_null(strstr(peout, "uses class id"));
+  assert_null(strstr(peout, "RESULT"));
+  /* The JSON report names the dataset and its frames, and a path with a
+   * quote and a backslash survives: parsed back with json-c. */
+  snprintf(cmd, sizeof cmd, "mv %s/ds '%s/d\"s\\x' && %s --config %s --dataset '%s/d\"s\\x' --iters 0 --quiet "
+           "--holdout 4 --out %s/q >/dev/null 2>&1", tmp, tmp, eval, cfg, tmp, tmp);
+  assert_int_equal(system(cmd), 0);
+  char jpath[512], want[600];
+  snprintf(jpath, sizeof jpath, "%s/q/report.json", tmp);
+  snprintf(want, sizeof want, "%s/d\"s\\x", tmp);
+  struct json_object *root = json_object_from_file(jpath);
+  assert_non_null(root);
+  struct json_object *src, *v;
+  assert_true(json_object_object_get_ex(root, "source", &src));
+  assert_true(json_object_object_get_ex(src, "kind", &v));
+  assert_string_equal(json_object_get_string(v), "dataset");
+  assert_true(json_object_object_get_ex(src, "path", &v));
+  assert_string_equal(json_object_get_string(v), want);
+  assert_false(json_object_object_get_ex(src, "seed", &v));
+  assert_true(json_object_object_get_ex(src, "train_frames", &v));
+  size_t ntrain = json_object_array_length(v);
+  assert_true(json_object_object_get_ex(src, "test_frames", &v));
+  assert_int_equal(json_object_array_length(v), 4); /* 16 frames, every 4th held out */
+  assert_int_equal(json_object_get_int(json_object_array_get_idx(v, 0)), 2);
+  assert_int_equal(ntrain, 12);
+  assert_true(json_object_object_get_ex(root, "results", &v));
+  assert_true(json_object_object_get_ex(v, "raw_2d", &v));
+  assert_true(json_object_is_type(v, json_type_object));
+  json_object_put(root);
+  snprintf(jpath, sizeof jpath, "%s/q/report.md", tmp);
+  f = fopen(jpath, "r");
+  assert_non_null(f);
+  char md[512] = "";
+  assert_non_null(fgets(md, sizeof md, f) && fgets(md, sizeof md, f) && fgets(md, sizeof md, f) ? md : NULL);
+  fclose(f);
+  assert_non_null(strstr(md, "Scene: dataset"));
+  assert_null(strstr(md, "seed"));
+  snprintf(cmd, sizeof cmd, "mv '%s/d\"s\\x' %s/ds", tmp, tmp);
+  assert_int_equal(system(cmd), 0);
   /* a malformed dataset fails naming the file */
   snprintf(cmd, sizeof cmd, "echo '1 2 3' > %s/ds/pose/00003.txt", tmp);
   assert_int_equal(system(cmd), 0);

@@ -40,6 +40,83 @@ JOURNAL_STREAM=1:2 timeout 20 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/j" & 
 for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/j" && break; sleep 0.1; done
 kill -TERM $p; wait $p
 check "journald lines start with <6>" 'head -1 "$tmp/j" | grep -q "^<6>node: "'
+# Hostile configs and state (issue 29): refused with file:line, never waited on.
+printf 'shm:\n  map: /x\n  prompts: /x\n' >"$tmp/same.yaml"
+check "shm.map == shm.prompts refused with file:line" \
+  '! "${node[@]}" --check-config "$tmp/same.yaml" >/dev/null 2>"$tmp/err" && grep -q "same.yaml:3:12: key .shm.prompts.: expected a segment name distinct from shm.map" "$tmp/err"'
+printf 'shm:\n  ring: no-slash\n' >"$tmp/slash.yaml"
+check "ring without a slash refused with file:line" \
+  '! "${node[@]}" --check-config "$tmp/slash.yaml" >/dev/null 2>"$tmp/err" && grep -q "slash.yaml:2:9: key .shm.ring.: expected a POSIX shared-memory name" "$tmp/err"'
+python3 -c "print('node: '+'['*100000+']'*100000)" >"$tmp/deep.yaml"
+check "100000-deep YAML refused at once" \
+  'timeout 20 "${node[@]}" --check-config "$tmp/deep.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "deep.yaml:1:38: nesting deeper than 32 levels" "$tmp/err"'
+mkfifo "$tmp/fifo.yaml"
+check "a FIFO as config refused, not waited on" \
+  'timeout 20 "${node[@]}" --check-config "$tmp/fifo.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "fifo.yaml: is a FIFO, expected a regular file" "$tmp/err"'
+mkdir -p "$tmp/fstate"
+mkfifo "$tmp/fstate/field.1.ckpt"
+(exit 0) & dead=$!; wait $dead
+: >"$tmp/fstate/field.0.ckpt.tmp.$dead"
+: >"$tmp/fstate/map.1.obs.tmp.$dead"
+printf 'node:\n  state_dir: %s/fstate\nsource:\n  kind: sim\nsim:\n  frames: 20\nshm:\n  ring: /cli-%s-r\n  map: /cli-%s-m\n  prompts: /cli-%s-p\n' "$tmp" $$ $$ $$ >"$tmp/fifo-state.yaml"
+timeout 60 "${node[@]}" --config "$tmp/fifo-state.yaml" 2>"$tmp/log.fifo" & pid=$!
+for ((i = 0; i < 200; i++)); do grep -q "waiting for ring" "$tmp/log.fifo" && break; sleep 0.1; done
+check "a FIFO checkpoint does not block start-up" 'grep -q "waiting for ring" "$tmp/log.fifo"'
+check "the FIFO checkpoint is refused and named" 'grep -q "field.1.ckpt: is a FIFO, expected a regular file" "$tmp/log.fifo"'
+check "a dead writer's checkpoint temporaries are removed" \
+  '[[ ! -e "$tmp/fstate/field.0.ckpt.tmp.$dead" && ! -e "$tmp/fstate/map.1.obs.tmp.$dead" ]]'
+kill -TERM $pid; wait $pid; rc=$?
+check "and it stops on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
+# No silent defaults: without --config, $VLFF_CONFIG is used, and with neither
+# (and no installed vlff.yaml) the node refuses to start.
+def=$("${node[@]}" --help | sed -n 's/.*then \(.*vlff\.yaml\); none found.*/\1/p')
+if [[ -n "$def" && ! -e "$def" ]]; then
+  check "no config: exits 1 naming the search path" \
+    'env -u VLFF_CONFIG "${node[@]}" >/dev/null 2>"$tmp/nocfg"; [[ $? == 1 ]] && grep -q "no config: .*VLFF_CONFIG.*$def" "$tmp/nocfg"'
+else
+  echo "note: $def exists here; the no-config refusal is not checked"
+fi
+VLFF_CONFIG="$tmp/ok.yaml" timeout 20 "${node[@]}" 2>"$tmp/env" & p=$!
+for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/env" && break; sleep 0.1; done
+kill -TERM $p; wait $p
+check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
+
+# An idle node (no frames, nothing learned) writes no checkpoint, however
+# often its period comes round, nor on exit.
+mkdir -p "$tmp/state"
+sed "s|state_dir: $tmp|state_dir: $tmp/state\n  checkpoint_period_s: 0.2|" "$tmp/ok.yaml" >"$tmp/idle.yaml"
+"${node[@]}" --config "$tmp/idle.yaml" 2>"$tmp/idle" & p=$!
+for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/idle" && break; sleep 0.1; done
+sleep 1.5
+kill -TERM $p; wait $p
+check "idle node wrote no checkpoint" '[[ -z "$(ls -A "$tmp/state")" ]]'
+
+# Under systemd (Type=notify): READY=1, WATCHDOG=1 while both threads loop,
+# STOPPING=1; received on a notify socket of our own.
+if "${node[@]}" --help >/dev/null && [[ -z "${VLFF_EMULATOR:-}" ]] && command -v /usr/bin/python3 >/dev/null &&
+   grep -q "sd_notify" "$(command -v "${node[-1]}")" 2>/dev/null; then
+  /usr/bin/python3 -c '
+import socket, sys, time
+s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+s.bind(sys.argv[1]); s.settimeout(0.5)
+out = open(sys.argv[2], "w"); end = time.time() + 15
+while time.time() < end:
+    try: msg = s.recv(4096).decode()
+    except socket.timeout: continue
+    out.write(msg + "\n"); out.flush()
+    if "STOPPING=1" in msg: break
+' "$tmp/notify.sock" "$tmp/notify.log" & listener=$!
+  for ((i = 0; i < 50; i++)); do [[ -S "$tmp/notify.sock" ]] && break; sleep 0.1; done
+  NOTIFY_SOCKET="$tmp/notify.sock" WATCHDOG_USEC=2000000 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/sd" & p=$!
+  sleep 3
+  kill -TERM $p; wait $p
+  wait $listener
+  check "sd_notify READY=1" 'grep -qx "READY=1" "$tmp/notify.log"'
+  check "sd_notify WATCHDOG=1 while the threads loop" 'grep -qx "WATCHDOG=1" "$tmp/notify.log"'
+  check "sd_notify STOPPING=1" 'grep -qx "STOPPING=1" "$tmp/notify.log"'
+else
+  echo "note: this vlff-node has no sd_notify (built without libsystemd) or runs emulated; notify not checked"
+fi
 echo "$passes passed, $fails failed"
 rm -f /dev/shm/cli-$$-*
 (( fails == 0 ))

@@ -15,6 +15,10 @@
 
 #include <cmocka.h>
 
+#ifdef VLFF_HAVE_HDF5
+#include <hdf5.h>
+#endif
+
 #include "config.h"
 #include "dataset.h"
 #include "embeddings.h"
@@ -247,6 +251,79 @@ static void test_malformed(void **state) {
   expect_open_error(path, "features.hdf", "N=3");
 }
 
+#ifdef VLFF_HAVE_HDF5
+/* A features.hdf whose one dataset claims shape dims but stores nothing
+ * (its chunks never written): a small file. */
+static void write_claiming_hdf(const char *path, const hsize_t dims[4]) {
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  hid_t f = H5Fcreate(path, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  assert_true(f >= 0);
+  hid_t g = H5Gcreate2(f, "features", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  hsize_t chunk[4] = {1, 16, 16, 16};
+  hid_t sp = H5Screate_simple(4, dims, NULL), pl = H5Pcreate(H5P_DATASET_CREATE);
+  H5Pset_chunk(pl, 4, chunk);
+  hid_t t = H5Tcopy(H5T_IEEE_F32LE);
+  H5Tset_fields(t, 15, 10, 5, 0, 10);
+  H5Tset_size(t, 2);
+  H5Tset_ebias(t, 15);
+  hid_t d = H5Dcreate2(g, "sim", t, sp, H5P_DEFAULT, pl, H5P_DEFAULT);
+  assert_true(d >= 0);
+  H5Dclose(d), H5Tclose(t), H5Pclose(pl), H5Sclose(sp), H5Gclose(g), H5Fclose(f);
+}
+#endif
+
+/* Physically absurd values (issue 29 S5) and non-regular files: refused at
+ * open, naming the file and the bound. */
+static void test_physical_bounds(void **state) {
+  struct fixture *x = *state;
+  char path[400], p[512];
+  write_dataset(x, "phys", path);
+  /* Reference layout poses are world-to-camera: a camera at 1e300. */
+  write_file(path, "pose/00002.txt", "1 0 0 1e300\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "pose/00002.txt", "camera x = -1e+300 m outside");
+  /* Without bbox.txt, only the absolute bound applies. */
+  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 2e4\n0 0 0 1\n");
+  snprintf(p, sizeof p, "%s/bbox.txt", path);
+  assert_int_equal(remove(p), 0);
+  expect_open_error(path, "pose/00002.txt", "no scene box");
+  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  write_file(path, "intrinsics.txt", "1e-30 0 32 0\n0 1e-30 24 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "intrinsics.txt", "fx 1e-30 outside");
+  write_file(path, "intrinsics.txt", "1e30 0 32 0\n0 1e30 24 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "intrinsics.txt", "not a physical camera for the 64x48 images: fx 1e+30 outside");
+  write_file(path, "intrinsics.txt", "50 0 32 0\n0 5 24 0\n0 0 1 0\n0 0 0 1\n");
+  expect_open_error(path, "intrinsics.txt", "pixel aspect");
+  write_file(path, "intrinsics.txt", "50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
+  struct vlff_dataset ds;
+  char err[1024] = "";
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), 0);
+  vlff_dataset_close(&ds);
+  /* A FIFO in place of an optional file: refused, not waited on. */
+  snprintf(p, sizeof p, "%s/bbox.txt", path);
+  assert_int_equal(mkfifo(p, 0600), 0);
+  expect_open_error(path, "bbox.txt", "is a FIFO, expected a regular file");
+  assert_int_equal(remove(p), 0);
+  if (!FEATURES) return;
+#ifdef VLFF_HAVE_HDF5
+  snprintf(p, sizeof p, "%s/features.hdf", path);
+  assert_int_equal(remove(p), 0);
+  assert_int_equal(mkfifo(p, 0600), 0);
+  expect_open_error(path, "features.hdf", "is a FIFO");
+  assert_int_equal(remove(p), 0);
+  /* A small file claiming 8 GiB per frame: refused before any buffer. */
+  hsize_t huge[4] = {NF, 8192, 8192, 64};
+  write_claiming_hdf(p, huge);
+  struct stat st;
+  assert_int_equal(stat(p, &st), 0);
+  assert_true(st.st_size < 65536);
+  expect_open_error(path, "features.hdf", "claims 8589934592 bytes per frame");
+  /* Within the per-frame cap, but the file holds none of the data. */
+  hsize_t empty[4] = {NF, 64, 64, 16};
+  write_claiming_hdf(p, empty);
+  expect_open_error(path, "features.hdf", "(524288 bytes) but the file stores 0 bytes");
+#endif
+}
+
 static void test_scannet_layout(void **state) {
   struct fixture *x = *state;
   char path[400], p[512], err[512];
@@ -317,6 +394,7 @@ int main(void) {
       cmocka_unit_test(test_round_trip_exact),
       cmocka_unit_test(test_malformed),
       cmocka_unit_test(test_scannet_layout),
+      cmocka_unit_test(test_physical_bounds),
       cmocka_unit_test(test_ply_formats),
   };
   return cmocka_run_group_tests(tests, setup, teardown);

@@ -1,0 +1,47 @@
+/*
+ * Physical bounds of a camera: what intrinsics and poses can be, whatever
+ * file, ring or dataset they came from.
+ *
+ * One place decides what is plausible, so the frame ingest, the map
+ * publisher and the dataset reader refuse the same values for the same
+ * reason. The bounds are wide (any real lens and any room- to
+ * building-sized scene passes); they exist so that a corrupt or hostile
+ * value is refused with a message instead of making a loop over pixels or
+ * rays run for ever or a result silently wrong.
+ *
+ * Intrinsics (pinhole, at the image size they are given for):
+ *  - width and height in [1, VLFF_MAX_IMAGE_SIDE];
+ *  - fx, fy finite, with the field of view on each axis between
+ *    VLFF_MIN_FOV_DEG and VLFF_MAX_FOV_DEG (fx in about [0.044, 57] x width);
+ *  - fx / fy within [1 / VLFF_MAX_PIXEL_ASPECT, VLFF_MAX_PIXEL_ASPECT];
+ *  - the principal point inside the image grown by half its size on every
+ *    side (cx in [-width/2, 3 width/2], likewise cy).
+ * Poses (camera-to-world, row-major 4x4, metres):
+ *  - the translation finite, and the camera centre no further outside the
+ *    scene box than the box's largest extent (a camera may look into the
+ *    scene from as far away as the scene is big); with no box known, every
+ *    coordinate within VLFF_MAX_POSE_ABS_M.
+ *  (Orthonormality of the rotation is vlff_pose_valid's / vlff_check_pose's.)
+ *
+ * Contract: pure functions, no allocation, thread-safe. Each returns 0 when
+ * plausible, or -1 with one line in why (when why is not NULL) naming the
+ * value and the bound it broke.
+ */
+#ifndef VLFF_BOUNDS_H
+#define VLFF_BOUNDS_H
+
+#include <stddef.h>
+
+#define VLFF_MAX_IMAGE_SIDE 65536
+#define VLFF_MIN_FOV_DEG 1.0
+#define VLFF_MAX_FOV_DEG 170.0
+#define VLFF_MAX_PIXEL_ASPECT 4.0
+#define VLFF_MAX_POSE_ABS_M 1e4
+
+int vlff_intrinsics_plausible(int width, int height, double fx, double fy, double cx, double cy, char *why,
+                              size_t whylen);
+
+/* lo and hi: the scene box (lo < hi on every axis), or both NULL. */
+int vlff_pose_plausible(const double c2w[16], const double lo[3], const double hi[3], char *why, size_t whylen);
+
+#endif

@@ -1,0 +1,43 @@
+/*
+ * Files the node reads: only regular files, and what a dead writer left.
+ *
+ * Every file vlff reads (configs, checkpoints, observation grids, dataset
+ * files, embeddings, models, vocabularies) is opened through
+ * vlff_open_regular(): a FIFO, device, socket or directory at that name is
+ * refused at once instead of blocking start-up on open() or read().
+ *
+ * Atomic writers in vlff write "<path>.tmp.<pid>" and rename it over path.
+ * A writer killed before the rename leaves that temporary behind;
+ * vlff_remove_dead_temps() removes such files whose writer is gone.
+ *
+ * Contract
+ *  - Functions returning int give 0 (or a descriptor), or -1 with one line
+ *    in err (when err is not NULL) naming the path and what was wrong.
+ *  - No global state; thread-safe.
+ */
+#ifndef VLFF_FILES_H
+#define VLFF_FILES_H
+
+#include <stdbool.h>
+#include <stddef.h>
+
+/* Open path read-only (O_CLOEXEC) without blocking on a FIFO or device,
+ * and refuse anything but a regular file. Returns the descriptor in
+ * blocking mode (the caller closes it), or -1. */
+int vlff_open_regular(const char *path, char *err, size_t errlen);
+
+/* The same check without keeping the file open, for readers that take a
+ * path (libhdf5, OpenCV): 0 when path is a readable regular file. */
+int vlff_check_regular(const char *path, char *err, size_t errlen);
+
+/* Remove the regular files in dir named "<prefix>...tmp.<pid>" for one of
+ * the NULL-terminated prefixes, whose writer pid is no longer alive (or is
+ * this very process, which has not written yet when this is called at
+ * start). Returns how many were removed; names of other shapes, live
+ * writers' files and non-regular files are left alone. */
+int vlff_remove_dead_temps(const char *dir, const char *const *prefixes);
+
+/* True when "<anything>.tmp.<pid>" names pid's temporary (pid > 0). */
+bool vlff_temp_name_pid(const char *name, long *pid);
+
+#endif

@@ -1,0 +1,512 @@
+/*
+ * ScanNet as users have it: the exporter's layout with its separate depth
+ * camera, ScanNet's label ids mapped through scannetv2-labels.combined.tsv,
+ * the *_vh_clean_2.labels.ply ground truth, and the raw .sens stream read
+ * directly (no Python export step).
+ *
+ * ScanNet's colour (1296x968) and depth (640x480) cameras differ in size,
+ * aspect and intrinsics, so no single set of intrinsics serves both images.
+ * Frames are returned in the colour camera's geometry at the depth camera's
+ * resolution: the colour image is box-filtered down to it, the labels are
+ * sampled nearest, and the depth is registered into it -- each depth pixel
+ * back-projected with the depth intrinsics, moved by the depth-to-colour
+ * extrinsic and projected with the scaled colour intrinsics, the nearest
+ * surface winning where several land on one pixel and pixels that none
+ * reaches left invalid (0). Features computed on the colour image stay
+ * aligned, since the output covers the colour camera's whole field of view.
+ */
+#include <errno.h>
+#include <dirent.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include <zlib.h>
+
+#include "bounds.h"
+#include "dataset.h"
+#include "dataset_internal.h"
+
+#define seterr vlff_errf
+
+/* ScanNet v2's 20 benchmark classes, by NYU40 id, in the benchmark's order. */
+static const int bench20_nyu40[20] = {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 14, 16, 24, 28, 33, 34, 36, 39};
+static const char *const bench20_name[20] = {
+    "wall",    "floor",   "cabinet", "bed",          "chair",          "sofa",   "table",
+    "door",    "window",  "bookshelf", "picture",    "counter",        "desk",   "curtain",
+    "refrigerator", "shower curtain", "toilet", "sink", "bathtub", "otherfurniture"};
+static const char *const nyu40_name[40] = {
+    "wall",        "floor",       "cabinet",      "bed",           "chair",       "sofa",
+    "table",       "door",        "window",       "bookshelf",     "picture",     "counter",
+    "blinds",      "desk",        "shelves",      "curtain",       "dresser",     "pillow",
+    "mirror",      "floor mat",   "clothes",      "ceiling",       "books",       "refrigerator",
+    "television",  "paper",       "towel",        "shower curtain", "box",        "whiteboard",
+    "person",      "night stand", "toilet",       "sink",          "lamp",        "bathtub",
+    "bag",         "otherstructure", "otherfurniture", "otherprop"};
+
+int vlff_label_set_classes(int set) { return set == VLFF_LABELS_NYU40 ? 40 : 20; }
+
+const char *vlff_label_set_name(int set, int k) {
+  if (k < 0 || k >= vlff_label_set_classes(set)) return NULL;
+  return set == VLFF_LABELS_NYU40 ? nyu40_name[k] : bench20_name[k];
+}
+
+/* NYU40 id -> class index of the set, 255 = not one of its classes. */
+static uint8_t nyu40_class(int set, long nyu) {
+  if (set == VLFF_LABELS_NYU40) return nyu >= 1 && nyu <= 40 ? (uint8_t)(nyu - 1) : 255;
+  for (int k = 0; k < 20; k++)
+    if (bench20_nyu40[k] == nyu) return (uint8_t)k;
+  return 255;
+}
+
+/* ---- label TSV ---------------------------------------------------------- */
+
+#define TSV_MAX_ID 65535
+
+/* Column index of name in a tab-separated header, or -1. */
+static int tsv_column(const char *hdr, const char *name) {
+  int col = 0;
+  const char *s = hdr;
+  for (;;) {
+    size_t n = strcspn(s, "\t\r\n");
+    if (n == strlen(name) && !strncmp(s, name, n)) return col;
+    if (s[n] != '\t') return -1;
+    s += n + 1, col++;
+  }
+}
+
+/* Field col of a line as an integer in [lo, hi]; -1 when absent or bad. */
+static int tsv_int(const char *line, int col, long lo, long hi, long *out) {
+  const char *s = line;
+  for (int c = 0; c < col; c++) {
+    s = strchr(s, '\t');
+    if (!s) return -1;
+    s++;
+  }
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 10);
+  if (end == s || errno || (*end && *end != '\t' && *end != '\r' && *end != '\n') || v < lo || v > hi)
+    return -1;
+  *out = v;
+  return 0;
+}
+
+int vlff_scannet_labels_load(struct vlff_dataset *ds, const char *path, int set, char *err, size_t errlen) {
+  uint8_t *buf;
+  size_t len;
+  if (vlff_read_file(path, (size_t)16 << 20, &buf, &len, err, errlen) < 0) return -1;
+  char *text = (char *)buf;
+  char *save = NULL, *line = strtok_r(text, "\n", &save);
+  int cid = line ? tsv_column(line, "id") : -1, cnyu = line ? tsv_column(line, "nyu40id") : -1;
+  if (cid < 0 || cnyu < 0) {
+    seterr(err, errlen, "%s:1: header lacks the columns 'id' and 'nyu40id' (scannetv2-labels.combined.tsv)", path);
+    free(buf);
+    return -1;
+  }
+  uint8_t *map = malloc(TSV_MAX_ID + 1);
+  if (!map) {
+    free(buf);
+    seterr(err, errlen, "%s: out of memory", path);
+    return -1;
+  }
+  memset(map, 255, TSV_MAX_ID + 1);
+  int lineno = 1, rows = 0;
+  while ((line = strtok_r(NULL, "\n", &save))) {
+    lineno++;
+    if (!line[strspn(line, " \t\r")]) continue;
+    long id, nyu;
+    if (tsv_int(line, cid, 1, TSV_MAX_ID, &id) < 0 || tsv_int(line, cnyu, 0, 40, &nyu) < 0) {
+      seterr(err, errlen, "%s:%d: 'id' must be an integer in [1, %d] and 'nyu40id' one in [0, 40]", path, lineno,
+             TSV_MAX_ID);
+      goto fail;
+    }
+    if (map[id] != 255 && map[id] != nyu40_class(set, nyu)) {
+      seterr(err, errlen, "%s:%d: id %ld is listed twice with different classes", path, lineno, id);
+      goto fail;
+    }
+    map[id] = nyu40_class(set, nyu);
+    rows++;
+  }
+  if (rows == 0) {
+    seterr(err, errlen, "%s: no label rows", path);
+    goto fail;
+  }
+  free(buf);
+  free(ds->label_map);
+  ds->label_map = map;
+  ds->label_set = set;
+  return 0;
+fail:
+  free(map);
+  free(buf);
+  return -1;
+}
+
+/* ---- geometry ----------------------------------------------------------- */
+
+static int check_camera(const double K[16], int w, int h, const char *path, char *err, size_t errlen) {
+  double fx = K[0], fy = K[5], cx = K[2], cy = K[6];
+  /* the physical bounds every camera in vlff is held to (bounds.h) */
+  char why[200];
+  if (vlff_intrinsics_plausible(w, h, fx, fy, cx, cy, why, sizeof why)) {
+    seterr(err, errlen, "%s: implausible camera for a %dx%d image: %s", path, w, h, why);
+    return -1;
+  }
+  if (!(cx > 0 && cx < w) || !(cy > 0 && cy < h)) {
+    seterr(err, errlen, "%s: principal point (%g, %g) lies outside the %dx%d image", path, cx, cy, w, h);
+    return -1;
+  }
+  return 0;
+}
+
+int vlff_scannet_geometry(struct vlff_dataset *ds, const double Kc[16], int cw, int ch, const double Kd[16],
+                          int dw, int dh, const double Ec[16], const double Ed[16], const char *where, char *err,
+                          size_t errlen) {
+  if (cw < 1 || ch < 1 || dw < 1 || dh < 1 || cw > 16384 || ch > 16384 || dw > 16384 || dh > 16384) {
+    seterr(err, errlen, "%s: image sizes colour %dx%d, depth %dx%d out of range", where, cw, ch, dw, dh);
+    return -1;
+  }
+  if (check_camera(Kc, cw, ch, where, err, errlen) < 0 || check_camera(Kd, dw, dh, where, err, errlen) < 0)
+    return -1;
+  if (vlff_check_pose(Ec, where, err, errlen) < 0 || vlff_check_pose(Ed, where, err, errlen) < 0) return -1;
+  /* depth camera -> rig -> colour camera: extrinsics are sensor-to-rig */
+  double ci[16];
+  vlff_pose_invert(Ec, ci);
+  for (int r = 0; r < 4; r++)
+    for (int c = 0; c < 4; c++) {
+      double s = 0;
+      for (int k = 0; k < 4; k++) s += ci[4 * r + k] * Ed[4 * k + c];
+      ds->d2c[4 * r + c] = s;
+    }
+  if (fabs(ds->d2c[3]) > 1 || fabs(ds->d2c[7]) > 1 || fabs(ds->d2c[11]) > 1) {
+    seterr(err, errlen, "%s: depth and colour cameras are more than 1 m apart", where);
+    return -1;
+  }
+  ds->registered = 1;
+  ds->color_width = cw, ds->color_height = ch;
+  ds->depth_width = dw, ds->depth_height = dh;
+  ds->dfx = Kd[0], ds->dfy = Kd[5], ds->dcx = Kd[2], ds->dcy = Kd[6];
+  /* output: the colour camera scaled to the depth camera's pixel count */
+  ds->width = dw, ds->height = dh;
+  double sx = (double)dw / cw, sy = (double)dh / ch;
+  ds->fx = Kc[0] * sx, ds->fy = Kc[5] * sy;
+  ds->cx = (Kc[2] + 0.5) * sx - 0.5, ds->cy = (Kc[6] + 0.5) * sy - 0.5;
+  return 0;
+}
+
+void vlff_scannet_resample_rgb(const struct vlff_dataset *ds, const uint8_t *src, uint8_t *dst) {
+  const int cw = ds->color_width, ch = ds->color_height, W = ds->width, H = ds->height;
+  for (int v = 0; v < H; v++) {
+    int y0 = (int)((double)v * ch / H), y1 = (int)((double)(v + 1) * ch / H);
+    if (y1 <= y0) y1 = y0 + 1;
+    if (y1 > ch) y1 = ch;
+    for (int u = 0; u < W; u++) {
+      int x0 = (int)((double)u * cw / W), x1 = (int)((double)(u + 1) * cw / W);
+      if (x1 <= x0) x1 = x0 + 1;
+      if (x1 > cw) x1 = cw;
+      unsigned s[3] = {0, 0, 0}, n = 0;
+      for (int y = y0; y < y1; y++)
+        for (int x = x0; x < x1; x++, n++)
+          for (int c = 0; c < 3; c++) s[c] += src[((size_t)y * cw + x) * 3 + c];
+      for (int c = 0; c < 3; c++) dst[((size_t)v * W + u) * 3 + c] = (uint8_t)((s[c] + n / 2) / n);
+    }
+  }
+}
+
+void vlff_scannet_register_depth(const struct vlff_dataset *ds, const uint16_t *dmm, double scale, float *out) {
+  const int dw = ds->depth_width, dh = ds->depth_height, W = ds->width, H = ds->height;
+  const double *T = ds->d2c;
+  for (size_t k = 0; k < (size_t)W * H; k++) out[k] = 0;
+  for (int v = 0; v < dh; v++)
+    for (int u = 0; u < dw; u++) {
+      uint16_t raw = dmm[(size_t)v * dw + u];
+      if (!raw) continue;
+      double z = raw * scale;
+      double x = (u - ds->dcx) / ds->dfx * z, y = (v - ds->dcy) / ds->dfy * z;
+      double X = T[0] * x + T[1] * y + T[2] * z + T[3];
+      double Y = T[4] * x + T[5] * y + T[6] * z + T[7];
+      double Z = T[8] * x + T[9] * y + T[10] * z + T[11];
+      if (!(Z > 1e-6)) continue;
+      /* round to the pixel whose centre is nearest (integer centres) */
+      double pu = ds->fx * X / Z + ds->cx, pv = ds->fy * Y / Z + ds->cy;
+      if (!(pu > -0.5 && pu < W - 0.5 && pv > -0.5 && pv < H - 0.5)) continue;
+      size_t o = (size_t)(int)(pv + 0.5) * W + (size_t)(int)(pu + 0.5);
+      if (out[o] == 0 || Z < out[o]) out[o] = (float)Z;
+    }
+}
+
+int vlff_scannet_map_labels(const struct vlff_dataset *ds, const struct vlff_image *im, const char *path,
+                            uint8_t *label, char *err, size_t errlen) {
+  if (im->channels != 1) {
+    seterr(err, errlen, "%s: labels must be a single-channel image", path);
+    return -1;
+  }
+  if ((long long)im->width * ds->height != (long long)im->height * ds->width &&
+      (long long)im->width * ds->color_height != (long long)im->height * ds->color_width) {
+    seterr(err, errlen, "%s: %dx%d has neither the colour nor the output images' aspect", path, im->width,
+           im->height);
+    return -1;
+  }
+  const int W = ds->width, H = ds->height;
+  for (int v = 0; v < H; v++)
+    for (int u = 0; u < W; u++) {
+      int su = (int)((u + 0.5) * im->width / W), sv = (int)((v + 0.5) * im->height / H);
+      size_t s = (size_t)sv * im->width + su;
+      unsigned id = im->depth16 ? ((const uint16_t *)im->data)[s] : ((const uint8_t *)im->data)[s];
+      label[(size_t)v * W + u] = ds->label_map ? ds->label_map[id] : (uint8_t)(id < 255 ? id : 255);
+    }
+  return 0;
+}
+
+/* ---- .sens -------------------------------------------------------------- */
+
+enum { SENS_COLOR_RAW = 0, SENS_COLOR_PNG = 1, SENS_COLOR_JPEG = 2 };
+enum { SENS_DEPTH_RAW = 0, SENS_DEPTH_ZLIB = 1 };
+#define SENS_MAX_BLOB ((uint64_t)64 << 20)
+
+struct vlff_sens {
+  int fd;
+  char path[4096];
+  int color_type, depth_type;
+  float depth_shift;
+  uint64_t *off; /* [n][4]: colour offset, colour bytes, depth offset, depth bytes */
+};
+
+static int rd(int fd, void *p, size_t n, off_t *at) {
+  ssize_t r = pread(fd, p, n, *at);
+  if (r != (ssize_t)n) return -1;
+  *at += (off_t)n;
+  return 0;
+}
+
+static void mat_from_f32(const float f[16], double m[16]) {
+  for (int i = 0; i < 16; i++) m[i] = f[i];
+}
+
+void vlff_sens_close(struct vlff_sens *s) {
+  if (!s) return;
+  if (s->fd >= 0) close(s->fd);
+  free(s->off);
+  free(s);
+}
+
+int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
+  struct vlff_sens *s = calloc(1, sizeof *s);
+  if (!s) {
+    seterr(err, errlen, "%s: out of memory", path);
+    return -1;
+  }
+  snprintf(s->path, sizeof s->path, "%s", path);
+  s->fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  struct stat st;
+  if (s->fd < 0 || fstat(s->fd, &st) < 0 || !S_ISREG(st.st_mode)) {
+    seterr(err, errlen, "%s: %s", path, s->fd < 0 ? strerror(errno) : "not a regular file");
+    vlff_sens_close(s);
+    return -1;
+  }
+  const uint64_t size = (uint64_t)st.st_size;
+  off_t at = 0;
+  uint32_t version;
+  uint64_t namelen;
+  if (rd(s->fd, &version, 4, &at) < 0 || version != 4) {
+    seterr(err, errlen, "%s: not a ScanNet .sens file of version 4", path);
+    goto fail;
+  }
+  if (rd(s->fd, &namelen, 8, &at) < 0 || namelen > 4096) {
+    seterr(err, errlen, "%s: sensor name length is implausible", path);
+    goto fail;
+  }
+  at += (off_t)namelen;
+  float kf[4][16];
+  int32_t ctype, dtype;
+  uint32_t dims[4];
+  uint64_t nframes;
+  if (rd(s->fd, kf, sizeof kf, &at) < 0 || rd(s->fd, &ctype, 4, &at) < 0 || rd(s->fd, &dtype, 4, &at) < 0 ||
+      rd(s->fd, dims, sizeof dims, &at) < 0 || rd(s->fd, &s->depth_shift, 4, &at) < 0 ||
+      rd(s->fd, &nframes, 8, &at) < 0) {
+    seterr(err, errlen, "%s: truncated header", path);
+    goto fail;
+  }
+  if (ctype < SENS_COLOR_RAW || ctype > SENS_COLOR_JPEG) {
+    seterr(err, errlen, "%s: colour compression type %d is not raw, PNG or JPEG", path, ctype);
+    goto fail;
+  }
+  if (dtype != SENS_DEPTH_RAW && dtype != SENS_DEPTH_ZLIB) {
+    seterr(err, errlen, "%s: depth compression type %d is not raw or zlib (occi is not supported)", path, dtype);
+    goto fail;
+  }
+  /* depth_shift converts metres to stored units: 1000 for millimetres */
+  if (!(s->depth_shift >= 1 && s->depth_shift <= 100000)) {
+    seterr(err, errlen, "%s: depth shift %g is outside [1, 100000] units per metre", path, s->depth_shift);
+    goto fail;
+  }
+  /* a frame record is at least its pose, stamps and sizes */
+  if (nframes == 0 || nframes > (size - (uint64_t)at) / (64 + 32)) {
+    seterr(err, errlen, "%s: %llu frames do not fit in %llu bytes", path, (unsigned long long)nframes,
+           (unsigned long long)size);
+    goto fail;
+  }
+  s->color_type = ctype, s->depth_type = dtype;
+  double Kc[16], Ec[16], Kd[16], Ed[16];
+  mat_from_f32(kf[0], Kc), mat_from_f32(kf[1], Ec), mat_from_f32(kf[2], Kd), mat_from_f32(kf[3], Ed);
+  if (vlff_scannet_geometry(ds, Kc, (int)dims[0], (int)dims[1], Kd, (int)dims[2], (int)dims[3], Ec, Ed, path,
+                            err, errlen) < 0)
+    goto fail;
+  const uint64_t raw_color = (uint64_t)dims[0] * dims[1] * 3, raw_depth = (uint64_t)dims[2] * dims[3] * 2;
+  s->off = malloc(nframes * 4 * sizeof *s->off);
+  ds->c2w = malloc(nframes * 16 * sizeof(double));
+  ds->stem = malloc(nframes * sizeof *ds->stem);
+  if (!s->off || !ds->c2w || !ds->stem) {
+    seterr(err, errlen, "%s: out of memory for %llu frames", path, (unsigned long long)nframes);
+    goto fail;
+  }
+  ds->n = 0;
+  for (uint64_t i = 0; i < nframes; i++) {
+    float pose[16];
+    uint64_t stamps[2], sz[2];
+    if (rd(s->fd, pose, sizeof pose, &at) < 0 || rd(s->fd, stamps, sizeof stamps, &at) < 0 ||
+        rd(s->fd, sz, sizeof sz, &at) < 0) {
+      seterr(err, errlen, "%s: frame %llu: truncated record", path, (unsigned long long)i);
+      goto fail;
+    }
+    if (sz[0] == 0 || sz[0] > SENS_MAX_BLOB || sz[1] == 0 || sz[1] > SENS_MAX_BLOB ||
+        sz[0] + sz[1] > size - (uint64_t)at || (ctype == SENS_COLOR_RAW && sz[0] != raw_color) ||
+        (dtype == SENS_DEPTH_RAW && sz[1] != raw_depth)) {
+      seterr(err, errlen, "%s: frame %llu: colour %llu and depth %llu bytes do not fit the file or the format",
+             path, (unsigned long long)i, (unsigned long long)sz[0], (unsigned long long)sz[1]);
+      goto fail;
+    }
+    uint64_t *o = s->off + (size_t)ds->n * 4;
+    o[0] = (uint64_t)at, o[1] = sz[0], o[2] = (uint64_t)at + sz[0], o[3] = sz[1];
+    at += (off_t)(sz[0] + sz[1]);
+    double m[16];
+    int finite = 1;
+    for (int k = 0; k < 16; k++) {
+      m[k] = pose[k];
+      if (!isfinite(pose[k])) finite = 0;
+    }
+    if (!finite) { /* ScanNet marks lost tracking with -inf */
+      ds->skipped++;
+      continue;
+    }
+    char name[48];
+    snprintf(name, sizeof name, "%s frame %llu pose", path, (unsigned long long)i);
+    if (vlff_check_pose(m, name, err, errlen) < 0) goto fail;
+    memcpy(ds->c2w + (size_t)ds->n * 16, m, sizeof m);
+    snprintf(ds->stem[ds->n], VLFF_DS_NAME, "%llu", (unsigned long long)i);
+    ds->n++;
+  }
+  if (ds->n == 0) {
+    seterr(err, errlen, "%s: every frame's pose is invalid", path);
+    goto fail;
+  }
+  ds->sens = s;
+  return 0;
+fail:
+  vlff_sens_close(s);
+  return -1;
+}
+
+int vlff_sens_read(const struct vlff_dataset *ds, int i, uint8_t **rgb, uint16_t **depth, char *err,
+                   size_t errlen) {
+  const struct vlff_sens *s = ds->sens;
+  const uint64_t *o = s->off + (size_t)i * 4;
+  const size_t draw = (size_t)ds->depth_width * ds->depth_height * 2;
+  uint8_t *blob = NULL;
+  if (rgb) *rgb = NULL;
+  if (depth) *depth = NULL;
+  if (rgb) {
+    blob = malloc(o[1] + 1);
+    off_t at = (off_t)o[0];
+    if (!blob || rd(s->fd, blob, o[1], &at) < 0) {
+      seterr(err, errlen, "%s: frame %s: cannot read the colour image", s->path, ds->stem[i]);
+      goto fail;
+    }
+    if (s->color_type == SENS_COLOR_RAW) {
+      *rgb = blob, blob = NULL;
+    } else {
+      struct vlff_image im;
+      char name[4200];
+      snprintf(name, sizeof name, "%s frame %s colour", s->path, ds->stem[i]);
+      if (vlff_image_decode(blob, o[1], name, &im, err, errlen) < 0) goto fail;
+      if (im.width != ds->color_width || im.height != ds->color_height || im.channels != 3 || im.depth16) {
+        seterr(err, errlen, "%s: %dx%d, %d channels; the header says %dx%d RGB", name, im.width, im.height,
+               im.channels, ds->color_width, ds->color_height);
+        vlff_image_free(&im);
+        goto fail;
+      }
+      *rgb = im.data;
+      free(blob), blob = NULL;
+    }
+  }
+  if (depth) {
+    blob = malloc(o[3]);
+    *depth = malloc(draw);
+    off_t at = (off_t)o[2];
+    if (!blob || !*depth || rd(s->fd, blob, o[3], &at) < 0) {
+      seterr(err, errlen, "%s: frame %s: cannot read the depth image", s->path, ds->stem[i]);
+      goto fail;
+    }
+    if (s->depth_type == SENS_DEPTH_RAW) {
+      memcpy(*depth, blob, draw);
+    } else {
+      uLongf n = (uLongf)draw;
+      if (uncompress((Bytef *)*depth, &n, blob, (uLong)o[3]) != Z_OK || n != draw) {
+        seterr(err, errlen, "%s: frame %s: depth is not %zu bytes of zlib-compressed uint16", s->path,
+               ds->stem[i], draw);
+        goto fail;
+      }
+    }
+    free(blob), blob = NULL;
+  }
+  return 0;
+fail:
+  free(blob);
+  if (rgb) free(*rgb), *rgb = NULL;
+  if (depth) free(*depth), *depth = NULL;
+  return -1;
+}
+
+float vlff_sens_depth_scale(const struct vlff_dataset *ds) { return 1.0f / ds->sens->depth_shift; }
+
+/* ---- 3D ground truth ---------------------------------------------------- */
+
+/* The one *_vh_clean_2.labels.ply in dir, 1 when found. */
+static int find_labels_ply(const char *dir, char *out, size_t cap) {
+  static const char suffix[] = "_vh_clean_2.labels.ply";
+  DIR *d = opendir(dir);
+  if (!d) return 0;
+  int found = 0;
+  struct dirent *e;
+  while ((e = readdir(d))) {
+    size_t l = strlen(e->d_name), sl = sizeof suffix - 1;
+    if (l > sl && !strcmp(e->d_name + l - sl, suffix)) {
+      snprintf(out, cap, "%s/%s", dir, e->d_name);
+      found++;
+    }
+  }
+  closedir(d);
+  return found == 1;
+}
+
+int vlff_dataset_read_points(const struct vlff_dataset *ds, struct vlff_points *p, char *err, size_t errlen) {
+  char path[4400];
+  int scannet = ds->layout != VLFF_DS_REFERENCE;
+  if (scannet) {
+    char up[4200];
+    snprintf(up, sizeof up, "%s/..", ds->dir);
+    scannet = find_labels_ply(ds->dir, path, sizeof path) || find_labels_ply(up, path, sizeof path);
+  }
+  if (!scannet) {
+    snprintf(path, sizeof path, "%s/points.ply", ds->dir);
+    if (access(path, F_OK) != 0) snprintf(path, sizeof path, "%s/mesh.ply", ds->dir);
+  }
+  if (vlff_ply_read(path, p, err, errlen) < 0) return -1;
+  if (scannet) /* vertex labels are NYU40 ids */
+    for (size_t k = 0; k < p->n; k++) p->label[k] = nyu40_class(ds->label_set, p->label[k]);
+  return 0;
+}

@@ -1,0 +1,75 @@
+"""The DBC that `vlff-can dbc` writes for a node with non-default ids, read by
+an outside parser (Debian's python3-canmatrix), decodes frames encoded by the
+project's CAN code (can_dbc_frames) to the values that were encoded.
+Usage: test_dbc_canmatrix.py VLFF_CAN CAN_DBC_FRAMES TMPDIR"""
+import subprocess
+import sys
+import warnings
+
+warnings.simplefilter("ignore")
+try:
+    import canmatrix
+    import canmatrix.formats
+except ImportError:
+    print("SKIP: python3-canmatrix not installed (apt install python3-canmatrix)")
+    sys.exit(77)
+
+vlff_can, frames_prog, tmp = sys.argv[1:4]
+cfg = f"{tmp}/node17.yaml"
+with open(cfg, "w") as f:
+    f.write("can:\n  node_id: 17\n  status_base_id: 0x200\n  command_id: 0x611\n  ack_id: 0x591\n"
+            "  heartbeat_ms: 50\n  status_ms: 100\n")
+dbc = f"{tmp}/node17.dbc"
+with open(dbc, "w") as f:
+    subprocess.run([vlff_can, "dbc", "--config", cfg], stdout=f, check=True)
+db = canmatrix.formats.loadp_flat(dbc)
+
+expect = {
+    "VLFF_TRAIN": {"Iteration": 123456, "Keyframes": 41, "PromptSet": 2, "NmtState": 5},
+    "VLFF_LOSS": {"LossTotal": 1.234, "LossColor": 0.0123, "LossDepth": 0.0456, "LossFeature": 0.789},
+    "VLFF_MAP": {"MapVersion": 77, "MapAge": 1500, "FpsIn": 29.97},
+    "VLFF_HEALTH": {"ErrCameraLost": 1, "ErrPoseStale": 0, "ErrCmdRejected": 1, "FpsDropped": 1.5,
+                    "CmdRejected": 3, "TxDropped": 4, "BusOff": 1, "BusPassive": 0},
+    "VLFF_INGEST": {"FramesRefused": 193, "LastRefusal": 6, "RefusedNoPose": 1, "RefusedNoDepth": 0,
+                    "RefusedPeriod": 15},
+    "VLFF_HEARTBEAT": {"NmtState": 5},
+    "VLFF_COMMAND": {"Target": 17, "Command": 5, "Argument": 2, "Sequence": 17},
+    "VLFF_ACK": {"Node": 17, "Command": 5, "Result": 2, "Sequence": 17},
+}
+expect["VLFF_STATUS_FD"] = {k: v for m in ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST")
+                            for k, v in expect[m].items()}
+ids = {"VLFF_HEARTBEAT": 0x700 + 17, "VLFF_TRAIN": 0x200, "VLFF_HEALTH": 0x203, "VLFF_STATUS_FD": 0x204,
+       "VLFF_INGEST": 0x205,
+       "VLFF_COMMAND": 0x611, "VLFF_ACK": 0x591}
+
+fails = 0
+out = subprocess.run([frames_prog, cfg], capture_output=True, text=True, check=True).stdout
+seen = set()
+for line in out.splitlines():
+    name, fid, hexdata = line.split()
+    frame = db.frame_by_id(canmatrix.ArbitrationId(int(fid)))
+    if frame is None or frame.name != name:
+        print(f"FAIL: id {int(fid):#x}: the DBC has {frame.name if frame else 'nothing'}, expected {name}")
+        fails += 1
+        continue
+    seen.add(name)
+    decoded = frame.decode(bytes.fromhex(hexdata))
+    for sig, want in expect[name].items():
+        got = float(decoded[sig].phys_value)
+        if abs(got - want) > 1e-9 + 1e-6 * abs(want):
+            print(f"FAIL: {name}.{sig}: decoded {got}, encoded {want}")
+            fails += 1
+for name, fid in ids.items():
+    frame = db.frame_by_id(canmatrix.ArbitrationId(fid))
+    if frame is None or frame.name != name:
+        print(f"FAIL: {name} not at {fid:#x} in the DBC")
+        fails += 1
+if seen != set(expect):
+    print(f"FAIL: decoded {sorted(seen)}, expected {sorted(expect)}")
+    fails += 1
+cycle = {f.name: f.cycle_time for f in db.frames}
+if cycle.get("VLFF_HEARTBEAT") != 50 or cycle.get("VLFF_TRAIN") != 100:
+    print(f"FAIL: cycle times {cycle}")
+    fails += 1
+print(f"{len(seen)} messages decoded, {fails} failures")
+sys.exit(1 if fails else 0)

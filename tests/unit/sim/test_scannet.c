@@ -1,0 +1,392 @@
+/* ScanNet as users have it, from files this test writes in ScanNet's own
+ * formats: the exporter's layout with its own depth camera, label-filt/ ids
+ * mapped through scannetv2-labels.combined.tsv, *_vh_clean_2.labels.ply, and
+ * the raw .sens stream (header, JPEG colour, zlib depth, -inf poses).
+ *
+ * The scene, in the colour camera's frame: a plate at Z = 1 m over a wall
+ * at Z = 2 m; the depth camera sits 10 cm to the right. Registered depth
+ * must put the plate where the colour camera sees it (sub-pixel), keep the
+ * plate where the wall behind it, seen only by the depth camera, lands on
+ * the same pixels (z-buffer), and leave unseen pixels invalid. */
+#define _XOPEN_SOURCE 700
+#include <ftw.h>
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include <zlib.h>
+
+#include <cmocka.h>
+
+#include "dataset.h"
+#include "dataset_internal.h"
+
+#define CW 162
+#define CH 121
+#define DW 80
+#define DH 60
+#define BASE 0.10 /* depth camera's offset along x, metres */
+static const double Kc[4] = {150, 150, 80.5, 60.2}; /* fx fy cx cy */
+static const double Kd[4] = {74, 74, 39.6, 29.7};
+static const double plate[4] = {-0.25, 0.15, -0.2, 0.2}; /* x0 x1 y0 y1 at Z = 1 */
+
+static char root[256];
+
+static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
+  (void)st, (void)flag, (void)ftw;
+  return remove(p);
+}
+
+static void put(const char *path, const void *data, size_t n) {
+  FILE *f = fopen(path, "wb");
+  assert_non_null(f);
+  assert_int_equal(fwrite(data, 1, n, f), n);
+  fclose(f);
+}
+
+static void putf(const char *path, const char *fmt, ...) {
+  char b[4096];
+  va_list ap;
+  va_start(ap, fmt);
+  int n = vsnprintf(b, sizeof b, fmt, ap);
+  va_end(ap);
+  put(path, b, (size_t)n);
+}
+
+/* Z of the first surface along the ray o + t d (d has z = 1). */
+static double cast(double ox, double dx, double dy) {
+  double x = ox + dx, y = dy;
+  if (x >= plate[0] && x <= plate[1] && y >= plate[2] && y <= plate[3]) return 1.0;
+  return 2.0;
+}
+
+static void depth_image(uint16_t *d) {
+  for (int v = 0; v < DH; v++)
+    for (int u = 0; u < DW; u++)
+      d[v * DW + u] = (uint16_t)lround(1000 * cast(BASE, (u - Kd[2]) / Kd[0], (v - Kd[3]) / Kd[1]));
+}
+
+/* Colour: red left of x = 81, green bands split at y = 60. Labels: ScanNet
+ * ids 1 (wall) left, 2 (chair) top right, 7 (blinds) bottom right, rows 0-3
+ * unannotated. */
+static void colour_image(uint8_t *rgb, uint16_t *ids) {
+  for (int y = 0; y < CH; y++)
+    for (int x = 0; x < CW; x++) {
+      uint8_t *p = rgb + (y * CW + x) * 3;
+      p[0] = x < 81 ? 230 : 20, p[1] = y < 60 ? 200 : 40, p[2] = 100;
+      ids[y * CW + x] = y < 4 ? 0 : x < 81 ? 1 : y < 60 ? 2 : 7;
+    }
+}
+
+static const char tsv[] =
+    "id\traw_category\tcategory\tcount\tnyu40id\teigen13id\tnyuClass\tnyu40class\teigen13class\n"
+    "1\twall\twall\t8277\t1\t12\twall\twall\tWall\n"
+    "2\tchair\tchair\t4646\t5\t4\tchair\tchair\tChair\n"
+    "7\tblinds\tblinds\t170\t13\t13\tblinds\tblinds\tWindow\n";
+
+static void write_tsv_and_ply(const char *scene) {
+  char p[1024];
+  snprintf(p, sizeof p, "%s/scannetv2-labels.combined.tsv", root);
+  put(p, tsv, sizeof tsv - 1);
+  /* binary little-endian, as ScanNet ships it: labels are NYU40 ids */
+  snprintf(p, sizeof p, "%s/scene_vh_clean_2.labels.ply", scene);
+  FILE *f = fopen(p, "wb");
+  assert_non_null(f);
+  fputs("ply\nformat binary_little_endian 1.0\ncomment MLIB generated\nelement vertex 4\n"
+        "property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\n"
+        "property uchar blue\nproperty uchar alpha\nproperty ushort label\nelement face 1\n"
+        "property list uchar int vertex_indices\nend_header\n",
+        f);
+  const uint16_t nyu[4] = {5, 13, 50, 39};
+  for (int k = 0; k < 4; k++) {
+    float xyz[3] = {(float)k, 0.5f, 1.0f};
+    uint8_t c[4] = {1, 2, 3, 255};
+    fwrite(xyz, 4, 3, f), fwrite(c, 1, 4, f), fwrite(&nyu[k], 2, 1, f);
+  }
+  uint8_t three = 3;
+  int32_t idx[3] = {0, 1, 2};
+  fwrite(&three, 1, 1, f), fwrite(idx, 4, 3, f);
+  fclose(f);
+}
+
+static void mat_text(char *b, size_t n, const double K[4]) {
+  snprintf(b, n, "%f 0 %f 0\n0 %f %f 0\n0 0 1 0\n0 0 0 1\n", K[0], K[2], K[1], K[3]);
+}
+
+static void write_png16(const char *path, const uint16_t *d, int w, int h) {
+  char err[256];
+  if (vlff_png_write(path, d, w, h, 1, 1, err, sizeof err) < 0) fail_msg("%s", err);
+}
+
+/* Colour as the format wants it: JPEG with OpenCV, else PNG. */
+static uint8_t *colour_blob(const uint8_t *rgb, size_t *len) {
+  char err[256];
+  uint8_t *b = NULL;
+#ifdef VLFF_HAVE_OPENCV
+  if (vlff_cv_encode_jpeg(rgb, CW, CH, 95, &b, len, err, sizeof err) < 0) fail_msg("%s", err);
+#else
+  char p[1024];
+  snprintf(p, sizeof p, "%s/tmp.png", root);
+  if (vlff_png_write(p, rgb, CW, CH, 3, 0, err, sizeof err) < 0) fail_msg("%s", err);
+  if (vlff_read_file(p, 1 << 24, &b, len, err, sizeof err) < 0) fail_msg("%s", err);
+  unlink(p);
+#endif
+  return b;
+}
+
+static void write_export(const char *scene) {
+  char p[1024], b[512];
+  const char *subs[] = {"", "/color", "/depth", "/pose", "/intrinsic", "/label-filt"};
+  for (int k = 0; k < 6; k++) {
+    snprintf(p, sizeof p, "%s%s", scene, subs[k]);
+    assert_int_equal(mkdir(p, 0755), 0);
+  }
+  uint8_t *rgb = malloc(CW * CH * 3);
+  uint16_t *ids = malloc(CW * CH * 2), *d = malloc(DW * DH * 2);
+  colour_image(rgb, ids);
+  depth_image(d);
+  size_t n;
+  uint8_t *jpg = colour_blob(rgb, &n);
+  for (int i = 0; i < 2; i++) {
+    snprintf(p, sizeof p, "%s/color/%d.jpg", scene, i);
+    put(p, jpg, n);
+    snprintf(p, sizeof p, "%s/depth/%d.png", scene, i);
+    write_png16(p, d, DW, DH);
+    snprintf(p, sizeof p, "%s/label-filt/%d.png", scene, i);
+    write_png16(p, ids, CW, CH);
+    snprintf(p, sizeof p, "%s/pose/%d.txt", scene, i);
+    putf(p, "1 0 0 %d\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", i);
+  }
+  mat_text(b, sizeof b, Kc);
+  snprintf(p, sizeof p, "%s/intrinsic/intrinsic_color.txt", scene);
+  putf(p, "%s", b);
+  mat_text(b, sizeof b, Kd);
+  snprintf(p, sizeof p, "%s/intrinsic/intrinsic_depth.txt", scene);
+  putf(p, "%s", b);
+  snprintf(p, sizeof p, "%s/intrinsic/extrinsic_depth.txt", scene);
+  putf(p, "1 0 0 %f\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", BASE);
+  write_tsv_and_ply(scene);
+  free(jpg), free(rgb), free(ids), free(d);
+}
+
+struct sens_opts {
+  uint32_t version;
+  int32_t dtype;
+  uint64_t nframes_claimed;
+  long truncate_to; /* < 0: bytes cut from the end */
+};
+
+static void write_sens(const char *path, const struct sens_opts *o) {
+  FILE *f = fopen(path, "wb");
+  assert_non_null(f);
+  uint64_t namelen = 6;
+  fwrite(&o->version, 4, 1, f), fwrite(&namelen, 8, 1, f), fwrite("struct", 1, 6, f);
+  float m[4][16] = {{0}};
+  const double *K[2] = {Kc, Kd};
+  for (int c = 0; c < 2; c++) {
+    float *k = m[2 * c], *e = m[2 * c + 1];
+    k[0] = (float)K[c][0], k[2] = (float)K[c][2], k[5] = (float)K[c][1], k[6] = (float)K[c][3], k[10] = k[15] = 1;
+    e[0] = e[5] = e[10] = e[15] = 1;
+  }
+  m[3][3] = (float)BASE;
+  fwrite(m, 4, 64, f);
+  int32_t ctype = 2;
+#ifndef VLFF_HAVE_OPENCV
+  ctype = 1; /* PNG */
+#endif
+  uint32_t dims[4] = {CW, CH, DW, DH};
+  float shift = 1000;
+  fwrite(&ctype, 4, 1, f), fwrite(&o->dtype, 4, 1, f), fwrite(dims, 4, 4, f), fwrite(&shift, 4, 1, f);
+  fwrite(&o->nframes_claimed, 8, 1, f);
+  uint8_t *rgb = malloc(CW * CH * 3);
+  uint16_t *ids = malloc(CW * CH * 2), *d = malloc(DW * DH * 2);
+  colour_image(rgb, ids);
+  depth_image(d);
+  size_t cn;
+  uint8_t *col = colour_blob(rgb, &cn);
+  uLongf zn = compressBound(DW * DH * 2);
+  uint8_t *z = malloc(zn);
+  assert_int_equal(compress2(z, &zn, (const Bytef *)d, DW * DH * 2, 6), Z_OK);
+  for (int i = 0; i < 3; i++) {
+    float pose[16] = {1, 0, 0, 0.1f * i, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    if (i == 1) pose[0] = -INFINITY; /* lost tracking */
+    uint64_t st[2] = {1000u * i, 1000u * i}, sz[2] = {cn, zn};
+    fwrite(pose, 4, 16, f), fwrite(st, 8, 2, f), fwrite(sz, 8, 2, f), fwrite(col, 1, cn, f), fwrite(z, 1, zn, f);
+  }
+  long size = ftell(f);
+  fclose(f);
+  if (o->truncate_to) assert_int_equal(truncate(path, size + o->truncate_to), 0); /* cut the last frame */
+  free(col), free(z), free(rgb), free(ids), free(d);
+}
+
+/* Registered depth against the geometry, colour and labels resampled. */
+static void check_frame(const struct vlff_dataset *ds, int set) {
+  assert_true(ds->registered);
+  assert_int_equal(ds->width, DW);
+  assert_int_equal(ds->height, DH);
+  uint8_t *rgb = malloc(DW * DH * 3), *lab = malloc(DW * DH);
+  float *z = malloc(DW * DH * sizeof *z);
+  char err[512];
+  if (vlff_dataset_read_frame(ds, 0, rgb, z, lab, err, sizeof err) < 0) fail_msg("%s", err);
+  double su = 0, sv = 0, eu = 0, ev = 0;
+  int got = 0, want = 0, wrong = 0, interior = 0, interior_valid = 0;
+  for (int v = 0; v < DH; v++)
+    for (int u = 0; u < DW; u++) {
+      double dx = (u - ds->cx) / ds->fx, dy = (v - ds->cy) / ds->fy;
+      double expect = cast(0, dx, dy), Z = z[v * DW + u];
+      /* 2 px from the plate's outline, the surface is unambiguous */
+      int near_edge = 0;
+      for (int a = -2; a <= 2; a++)
+        for (int b = -2; b <= 2; b++)
+          if (cast(0, (u + a - ds->cx) / ds->fx, (v + b - ds->cy) / ds->fy) != expect) near_edge = 1;
+      if (expect == 1.0) eu += u, ev += v, want++;
+      if (Z > 0 && fabs(Z - 1.0) < 1e-3) su += u, sv += v, got++;
+      if (!near_edge) {
+        interior++;
+        if (Z > 0) {
+          interior_valid++;
+          if (fabs(Z - expect) > 1e-3) wrong++;
+        }
+      }
+    }
+  assert_int_equal(wrong, 0);
+  assert_true(interior_valid >= 0.9 * interior);
+  assert_true(got > 0 && want > 0);
+  assert_true(fabs(su / got - eu / want) < 0.5);
+  assert_true(fabs(sv / got - ev / want) < 0.5);
+  /* colour: box-filtered, JPEG's ringing stays at the edges */
+  const uint8_t *p = rgb + (10 * DW + 10) * 3, *q = rgb + (50 * DW + 70) * 3;
+  assert_true(abs(p[0] - 230) < 12 && abs(p[1] - 200) < 12 && abs(p[2] - 100) < 12);
+  assert_true(abs(q[0] - 20) < 12 && abs(q[1] - 40) < 12);
+  /* labels: id 1 -> wall, 2 -> chair, 7 -> blinds, 0 -> none */
+  assert_int_equal(lab[0], 255);
+  assert_int_equal(lab[10 * DW + 10], 0);
+  assert_int_equal(lab[10 * DW + 70], 4);
+  assert_int_equal(lab[50 * DW + 70], set == VLFF_LABELS_NYU40 ? 12 : 255);
+  free(rgb), free(lab), free(z);
+}
+
+static void check_points(const struct vlff_dataset *ds, int set) {
+  struct vlff_points pts;
+  char err[512];
+  if (vlff_dataset_read_points(ds, &pts, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_int_equal(pts.n, 4);
+  /* NYU40 5 chair, 13 blinds, 50 (invalid, as in scene0270_00), 39 otherfurniture */
+  const uint8_t want20[4] = {4, 255, 255, 19}, want40[4] = {4, 12, 255, 38};
+  for (int k = 0; k < 4; k++) assert_int_equal(pts.label[k], set == VLFF_LABELS_NYU40 ? want40[k] : want20[k]);
+  vlff_points_free(&pts);
+}
+
+static void test_export_layout(void **state) {
+  (void)state;
+  char scene[400], err[512];
+  snprintf(scene, sizeof scene, "%s/scans", root);
+  mkdir(scene, 0755);
+  snprintf(scene, sizeof scene, "%s/scans/scene0000_00", root);
+  write_export(scene);
+  for (int set = VLFF_LABELS_SCANNET20; set <= VLFF_LABELS_NYU40; set++) {
+    struct vlff_dataset ds;
+    struct vlff_dataset_options o = {.layout = VLFF_DS_AUTO, .label_set = set};
+    if (vlff_dataset_open_opts(&ds, scene, &o, err, sizeof err) < 0) fail_msg("%s", err);
+    assert_int_equal(ds.layout, VLFF_DS_SCANNET);
+    assert_int_equal(ds.n, 2);
+    assert_true(ds.has_labels);
+    check_frame(&ds, set);
+    check_points(&ds, set);
+    vlff_dataset_close(&ds);
+  }
+  assert_string_equal(vlff_label_set_name(VLFF_LABELS_SCANNET20, 19), "otherfurniture");
+  assert_null(vlff_label_set_name(VLFF_LABELS_SCANNET20, 20));
+  /* without the TSV, label ids cannot be classes: say where it looked */
+  char p[600];
+  snprintf(p, sizeof p, "%s/scannetv2-labels.combined.tsv", root);
+  unlink(p);
+  struct vlff_dataset ds;
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  assert_non_null(strstr(err, "scannetv2-labels.combined.tsv"));
+  /* a TSV without ScanNet's columns, or with a bad row, names file and line */
+  put(p, "id\tname\n1\twall\n", 16);
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  assert_non_null(strstr(err, ":1: header lacks"));
+  putf(p, "%s9\tx\tx\t1\t41\n", tsv);
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  assert_non_null(strstr(err, "combined.tsv:5:"));
+}
+
+static void test_sens(void **state) {
+  (void)state;
+  char dir[400], path[600], err[512];
+  snprintf(dir, sizeof dir, "%s/scene0001_00", root);
+  assert_int_equal(mkdir(dir, 0755), 0);
+  snprintf(path, sizeof path, "%s/scene0001_00.sens", dir);
+  struct sens_opts good = {.version = 4, .dtype = 1, .nframes_claimed = 3};
+  write_sens(path, &good);
+  write_tsv_and_ply(dir);
+  char p[600];
+  snprintf(p, sizeof p, "%s/label-filt", dir);
+  assert_int_equal(mkdir(p, 0755), 0);
+  uint8_t *rgb = malloc(CW * CH * 3);
+  uint16_t *ids = malloc(CW * CH * 2);
+  colour_image(rgb, ids);
+  for (int i = 0; i < 3; i += 2) {
+    snprintf(p, sizeof p, "%s/label-filt/%d.png", dir, i);
+    write_png16(p, ids, CW, CH);
+  }
+  free(rgb), free(ids);
+  /* the directory and the file itself both open it */
+  const char *names[2] = {dir, path};
+  for (int k = 0; k < 2; k++) {
+    struct vlff_dataset ds;
+    if (vlff_dataset_open(&ds, names[k], VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+    assert_int_equal(ds.layout, VLFF_DS_SENS);
+    assert_int_equal(ds.n, 2);
+    assert_int_equal(ds.skipped, 1);
+    assert_string_equal(ds.stem[1], "2");
+    assert_true(fabs(ds.c2w[16 + 3] - 0.2) < 1e-6);
+    check_frame(&ds, VLFF_LABELS_SCANNET20);
+    check_points(&ds, VLFF_LABELS_SCANNET20);
+    vlff_dataset_close(&ds);
+  }
+  /* hostile files: each refused naming the file and what is wrong */
+  struct {
+    struct sens_opts o;
+    const char *says;
+  } bad[] = {
+      {{.version = 3, .dtype = 1, .nframes_claimed = 3}, "version 4"},
+      {{.version = 4, .dtype = 2, .nframes_claimed = 3}, "occi"},
+      {{.version = 4, .dtype = 1, .nframes_claimed = 1ull << 40}, "do not fit"},
+      {{.version = 4, .dtype = 1, .nframes_claimed = 3, .truncate_to = -10}, "frame 2"},
+  };
+  for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
+    write_sens(path, &bad[k].o);
+    struct vlff_dataset ds;
+    assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
+    if (!strstr(err, bad[k].says) || !strstr(err, "scene0001_00.sens")) fail_msg("case %zu: %s", k, err);
+  }
+}
+
+static int setup(void **state) {
+  (void)state;
+  snprintf(root, sizeof root, "/tmp/vlff-test-scannet-%ld-XXXXXX", (long)getpid());
+  return mkdtemp(root) ? 0 : -1;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  nftw(root, rm_one, 16, FTW_DEPTH | FTW_PHYS);
+  return 0;
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_export_layout),
+      cmocka_unit_test(test_sens),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
