@@ -20,14 +20,11 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "cli.h"
 #include "config.h"
 #include "log.h"
 #include "tum.h"
 #include "vlff/shm.h"
-
-#ifndef VLFF_VERSION
-#define VLFF_VERSION "unknown"
-#endif
 
 #define TAG "pose"
 #define REPORT_EACH 5 /* refusals of one reason printed one by one, the rest summarised */
@@ -36,38 +33,41 @@ static volatile sig_atomic_t stop_requested;
 
 static void on_signal(int sig) { stop_requested = sig; }
 
-static void usage(FILE *out) {
-  fputs("Usage: vlff-pose [OPTIONS] [FILE]\n"
-        "Write camera poses into the pose ring (shm.pose_ring) from TUM RGB-D trajectory lines\n"
-        "\"t tx ty tz qx qy qz qw\" read from FILE, standard input (no FILE or \"-\") or UDP.\n"
-        "\n"
-        "  -c, --config FILE        take shm.pose_ring, shm.pose_slots, shm.mode, shm.group from FILE\n"
-        "  -r, --ring NAME          pose ring segment name (default: shm.pose_ring, /vlff-poses)\n"
-        "  -u, --udp ADDR:PORT      read datagrams of lines on this address (127.0.0.1:5600, [::]:5600)\n"
-        "      --clock monotonic|realtime\n"
-        "                           clock of the line's stamps: the node's CLOCK_MONOTONIC (default),\n"
-        "                           or UNIX time, converted to it\n"
-        "      --clock-offset S     seconds added to every line's stamp\n"
-        "      --stamp-host         stamp each pose with the host's receipt time instead of its own\n"
-        "      --latency S          with --stamp-host: seconds from the frame to its pose's receipt\n"
-        "      --extrinsic \"tx ty tz qx qy qz qw\"\n"
-        "                           the camera's pose in the tracker's body (IMU) frame; default identity\n"
-        "                           (the lines are already the camera's poses)\n"
-        "      --quat-tolerance X   quaternions with |norm - 1| <= X are normalised, others refused (0.01)\n"
-        "      --extra-fields       ignore numbers after the eighth (covariances), instead of refusing the line\n"
-        "      --source-id N        written into every record (0)\n"
-        "  -q, --quiet              print only errors and refusals\n"
-        "  -V, --version            print the version and exit\n"
-        "  -h, --help               print this help and exit\n"
-        "\n"
-        "Examples:\n"
-        "  vlff-pose -c /etc/vlff/default.yaml CameraTrajectory.txt\n"
-        "  my_slam | vlff-pose -c /etc/vlff/default.yaml --clock realtime\n"
-        "  vlff-pose -c /etc/vlff/default.yaml --udp 127.0.0.1:5600 --extrinsic \"0.05 0 0 -0.5 0.5 -0.5 0.5\"\n"
-        "Exit status: 0 at the end of the input or on SIGINT/SIGTERM (refused lines are counted and\n"
-        "reported, not fatal), 1 when the ring, the file or the socket cannot be opened, 2 on usage errors.\n",
-        out);
-}
+static const struct vlff_cli cli = {
+    "vlff-pose",
+    "Usage: vlff-pose [OPTIONS] [FILE]\n"
+    "Write camera poses into the pose ring (shm.pose_ring) from TUM RGB-D trajectory lines\n"
+    "\"t tx ty tz qx qy qz qw\" read from FILE, standard input (no FILE or \"-\") or UDP.\n"
+    "The config's pose.* keys set the defaults of the options below (docs/pose.md).\n"
+    "\n"
+    "  -c, --config FILE        the config; without it $VLFF_CONFIG, then\n"
+    "                           " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
+    "  -r, --ring NAME          pose ring segment name (default: shm.pose_ring)\n"
+    "  -u, --udp ADDR:PORT      read datagrams of lines on this address (127.0.0.1:5600, [::]:5600)\n"
+    "      --clock monotonic|realtime\n"
+    "                           clock of the lines' stamps: the node's CLOCK_MONOTONIC, or UNIX\n"
+    "                           time, converted to it (pose.clock)\n"
+    "      --clock-offset S     seconds added to every line's stamp (pose.clock_offset_s)\n"
+    "      --stamp-host         stamp each pose with its receipt time instead of its own\n"
+    "      --latency S          with --stamp-host: seconds from the frame to its pose's receipt\n"
+    "      --extrinsic \"tx ty tz qx qy qz qw\"\n"
+    "                           the camera's pose in the tracker's body (IMU) frame (pose.extrinsic;\n"
+    "                           identity: the lines are already the camera's poses)\n"
+    "      --quat-tolerance X   quaternions with |norm - 1| <= X are normalised, others refused\n"
+    "      --extra-fields       ignore numbers after the eighth (covariances), instead of refusing the line\n"
+    "      --source-id N        written into every record\n"
+    "  -q, --quiet              print only errors and refusals\n"
+    "  -V, --version            print the version and exit\n"
+    "  -h, --help               print this help and exit\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-pose -c /etc/vlff/vlff.yaml CameraTrajectory.txt\n"
+    "  my_slam | vlff-pose -c /etc/vlff/vlff.yaml --clock realtime\n"
+    "  vlff-pose -c /etc/vlff/vlff.yaml --udp 127.0.0.1:5600 --extrinsic \"0.05 0 0 -0.5 0.5 -0.5 0.5\"\n"
+    "Exit status: 0 at the end of the input or on SIGINT/SIGTERM (refused lines are counted and\n"
+    "reported, not fatal), 1 when the config, the ring, the file or the socket cannot be opened,\n"
+    "2 on usage errors.\n",
+};
 
 struct reporter {
   const char *name; /* file name, "stdin" or "udp" */
@@ -136,9 +136,9 @@ static int read_stream(FILE *in, struct vlff_tum_feed *f, struct vlff_ring *ring
 static int open_udp(const char *spec, char *err, size_t errlen) {
   char host[256];
   const char *colon = strrchr(spec, ':');
-  if (!colon || !colon[1]) return snprintf(err, errlen, "--udp '%s': expected ADDR:PORT", spec), -1;
+  if (!colon || !colon[1]) return snprintf(err, errlen, "udp '%.200s': expected ADDR:PORT", spec), -1;
   size_t hl = (size_t)(colon - spec);
-  if (hl >= sizeof host) return snprintf(err, errlen, "--udp '%s': address too long", spec), -1;
+  if (hl >= sizeof host) return snprintf(err, errlen, "udp '%.200s': address too long", spec), -1;
   memcpy(host, spec, hl);
   host[hl] = 0;
   if (hl >= 2 && host[0] == '[' && host[hl - 1] == ']') {
@@ -147,13 +147,13 @@ static int open_udp(const char *spec, char *err, size_t errlen) {
   }
   struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_DGRAM, .ai_flags = AI_PASSIVE}, *res;
   int rc = getaddrinfo(host[0] ? host : NULL, colon + 1, &hints, &res);
-  if (rc) return snprintf(err, errlen, "--udp '%s': %s", spec, gai_strerror(rc)), -1;
+  if (rc) return snprintf(err, errlen, "udp '%.200s': %s", spec, gai_strerror(rc)), -1;
   int s = -1;
   for (struct addrinfo *a = res; a; a = a->ai_next) {
     s = socket(a->ai_family, a->ai_socktype | SOCK_CLOEXEC, a->ai_protocol);
     if (s < 0) continue;
     if (bind(s, a->ai_addr, a->ai_addrlen) == 0) break;
-    snprintf(err, errlen, "--udp '%s': bind: %s", spec, strerror(errno));
+    snprintf(err, errlen, "udp '%.200s': bind: %s", spec, strerror(errno));
     close(s);
     s = -1;
   }
@@ -196,7 +196,16 @@ static int parse_double(const char *s, double lo, double hi, double *out) {
   return 0;
 }
 
-int main(int argc, char **argv) {
+/* Command-line values; each one set overrides its pose.* key. */
+struct overrides {
+  const char *ring, *udp;
+  int clock, stamp, extra_fields, quiet; /* -1 = from the config */
+  double clock_offset_s, latency_s, quat_tolerance, source_id; /* NAN = from the config */
+  int have_extrinsic;
+  double extrinsic[7];
+};
+
+static int parse_options(int argc, char **argv, struct overrides *o, const char **config_path, int *status) {
   enum { OPT_CLOCK = 256, OPT_OFFSET, OPT_HOST, OPT_LATENCY, OPT_EXTRINSIC, OPT_QTOL, OPT_SOURCE, OPT_EXTRA };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
@@ -211,51 +220,41 @@ int main(int argc, char **argv) {
       {"source-id", required_argument, NULL, OPT_SOURCE},
       {"extra-fields", no_argument, NULL, OPT_EXTRA},
       {"quiet", no_argument, NULL, 'q'},
-      {"version", no_argument, NULL, 'V'},
-      {"help", no_argument, NULL, 'h'},
-      {NULL, 0, NULL, 0},
+      VLFF_CLI_COMMON_OPTIONS,
   };
-  const char *config_path = NULL, *ring_name = NULL, *udp = NULL;
-  int realtime = 0, quiet = 0, c;
-  double offset_s = 0, latency_s = 0, v;
-  struct vlff_tum_feed_params fp = {.stamp = VLFF_TUM_STAMP_SOURCE, .quat_tolerance = 0.01};
-  double ext_p[3] = {0, 0, 0}, ext_q[4] = {0, 0, 0, 1};
-  while ((c = getopt_long(argc, argv, "c:r:u:qVh", opts, NULL)) != -1) {
+  int c;
+  double v;
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:r:u:q", opts, status)) != -1) {
     switch (c) {
-    case 'c': config_path = optarg; break;
-    case 'r': ring_name = optarg; break;
-    case 'u': udp = optarg; break;
-    case 'q': quiet = 1; break;
-    case OPT_HOST: fp.stamp = VLFF_TUM_STAMP_HOST; break;
-    case OPT_EXTRA: fp.extra_fields = 1; break;
+    case VLFF_CLI_EXIT: return -1;
+    case 'c': *config_path = optarg; break;
+    case 'r': o->ring = optarg; break;
+    case 'u': o->udp = optarg; break;
+    case 'q': o->quiet = 1; break;
+    case OPT_HOST: o->stamp = VLFF_POSE_STAMP_HOST; break;
+    case OPT_EXTRA: o->extra_fields = 1; break;
     case OPT_CLOCK:
-      if (!strcmp(optarg, "monotonic")) realtime = 0;
-      else if (!strcmp(optarg, "realtime")) realtime = 1;
-      else {
-        fprintf(stderr, "vlff-pose: --clock '%s': expected monotonic or realtime\n", optarg);
-        usage(stderr);
-        return 2;
-      }
+      if (!strcmp(optarg, "monotonic")) o->clock = VLFF_POSE_CLOCK_MONOTONIC;
+      else if (!strcmp(optarg, "realtime")) o->clock = VLFF_POSE_CLOCK_REALTIME;
+      else return *status = vlff_cli_usage_error(&cli, "--clock '%s': expected monotonic or realtime", optarg), -1;
       break;
     case OPT_OFFSET:
-    case OPT_LATENCY:
-    case OPT_QTOL:
-    case OPT_SOURCE: {
-      const char *name = c == OPT_OFFSET ? "--clock-offset" : c == OPT_LATENCY ? "--latency"
-                         : c == OPT_QTOL ? "--quat-tolerance" : "--source-id";
-      double lo = c == OPT_OFFSET ? -1e10 : 0, hi = c == OPT_OFFSET ? 1e10 : c == OPT_LATENCY ? 60
-                                                : c == OPT_QTOL ? 0.5 : 4294967295.0;
-      if (parse_double(optarg, lo, hi, &v) || (c == OPT_SOURCE && v != floor(v))) {
-        fprintf(stderr, "vlff-pose: %s '%s': expected a number in [%g, %g]\n", name, optarg, lo, hi);
-        usage(stderr);
-        return 2;
-      }
-      if (c == OPT_OFFSET) offset_s = v;
-      else if (c == OPT_LATENCY) latency_s = v;
-      else if (c == OPT_QTOL) fp.quat_tolerance = v;
-      else fp.source_id = (uint32_t)v;
+      if (parse_double(optarg, -1e10, 1e10, &o->clock_offset_s))
+        return *status = vlff_cli_usage_error(&cli, "--clock-offset '%s': expected seconds", optarg), -1;
       break;
-    }
+    case OPT_LATENCY:
+      if (parse_double(optarg, 0, 60, &o->latency_s))
+        return *status = vlff_cli_usage_error(&cli, "--latency '%s': expected seconds in [0, 60]", optarg), -1;
+      break;
+    case OPT_QTOL:
+      if (parse_double(optarg, 0, 0.5, &o->quat_tolerance))
+        return *status = vlff_cli_usage_error(&cli, "--quat-tolerance '%s': expected a number in [0, 0.5]", optarg), -1;
+      break;
+    case OPT_SOURCE:
+      if (parse_double(optarg, 0, 2147483647, &v) || v != floor(v))
+        return *status = vlff_cli_usage_error(&cli, "--source-id '%s': expected a non-negative integer", optarg), -1;
+      o->source_id = v;
+      break;
     case OPT_EXTRINSIC: {
       struct vlff_tum_sample s;
       char line[512], why[256];
@@ -263,43 +262,57 @@ int main(int argc, char **argv) {
       double n = 0;
       if (vlff_tum_parse(line, 0, &s, why, sizeof why) == VLFF_TUM_OK)
         n = sqrt(s.q[0] * s.q[0] + s.q[1] * s.q[1] + s.q[2] * s.q[2] + s.q[3] * s.q[3]);
-      if (!(fabs(n - 1) <= 0.01)) {
-        fprintf(stderr, "vlff-pose: --extrinsic '%s': expected \"tx ty tz qx qy qz qw\" with a unit quaternion\n",
-                optarg);
-        usage(stderr);
-        return 2;
-      }
-      memcpy(ext_p, s.p, sizeof ext_p);
-      for (int i = 0; i < 4; i++) ext_q[i] = s.q[i] / n;
+      if (!(fabs(n - 1) <= 0.01))
+        return *status = vlff_cli_usage_error(&cli, "--extrinsic '%s': expected \"tx ty tz qx qy qz qw\" with a unit "
+                                              "quaternion", optarg), -1;
+      memcpy(o->extrinsic, s.p, 3 * sizeof(double));
+      memcpy(o->extrinsic + 3, s.q, 4 * sizeof(double));
+      o->have_extrinsic = 1;
       break;
     }
-    case 'V': printf("vlff-pose %s\n", VLFF_VERSION); return 0;
-    case 'h': usage(stdout); return 0;
-    default: usage(stderr); return 2;
+    default: return *status = vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]), -1;
     }
   }
-  if (optind + 1 < argc || (udp && optind < argc)) {
-    fprintf(stderr, "vlff-pose: unexpected argument '%s'\n", argv[udp ? optind : optind + 1]);
-    usage(stderr);
-    return 2;
-  }
+  if (optind + 1 < argc || (o->udp && optind < argc))
+    return *status = vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[o->udp ? optind : optind + 1]), -1;
+  return 0;
+}
+
+int main(int argc, char **argv) {
+  struct overrides o = {.clock = -1, .stamp = -1, .extra_fields = -1, .clock_offset_s = NAN, .latency_s = NAN,
+                        .quat_tolerance = NAN, .source_id = NAN};
+  const char *config_path = NULL;
+  int status = 0;
+  if (parse_options(argc, argv, &o, &config_path, &status)) return status;
   const char *file = optind < argc ? argv[optind] : NULL;
 
-  struct vlff_config cfg;
-  char err[512];
-  if (config_path) {
-    if (vlff_config_load(config_path, &cfg, err, sizeof err)) {
-      fprintf(stderr, "vlff-pose: %s\n", err);
-      return 1;
-    }
-  } else {
-    vlff_config_defaults(&cfg);
+  static struct vlff_config cfg;
+  char err[1024];
+  config_path = vlff_config_find(config_path, err, sizeof err);
+  if (!config_path) return vlff_cli_error(&cli, "%s", err);
+  if (vlff_config_load(config_path, &cfg, err, sizeof err)) {
+    fprintf(stderr, "%s\n", err);
+    return 1;
   }
-  vlff_log_set_level(quiet ? VLFF_LOG_WARN : (enum vlff_log_level)cfg.node.log_level);
-  if (!ring_name) ring_name = cfg.shm.pose_ring;
-
-  fp.latency_ns = (int64_t)llround(latency_s * 1e9);
-  fp.clock_offset_ns = (int64_t)llround(offset_s * 1e9);
+  /* The options override the config's pose.* keys. */
+  const struct vlff_config *k = &cfg;
+  const char *ring_name = o.ring ? o.ring : k->shm.pose_ring;
+  const char *udp = o.udp ? o.udp : k->pose.udp[0] ? k->pose.udp : NULL;
+  if (udp && file) return vlff_cli_usage_error(&cli, "a FILE and pose.udp / --udp '%s' exclude each other", udp);
+  int realtime = (o.clock >= 0 ? o.clock : k->pose.clock) == VLFF_POSE_CLOCK_REALTIME;
+  double offset_s = isnan(o.clock_offset_s) ? k->pose.clock_offset_s : o.clock_offset_s;
+  double latency_s = isnan(o.latency_s) ? k->pose.latency_s : o.latency_s;
+  const double *ext = o.have_extrinsic ? o.extrinsic : k->pose.extrinsic;
+  struct vlff_tum_feed_params fp = {
+      .stamp = (o.stamp >= 0 ? o.stamp : k->pose.stamp) == VLFF_POSE_STAMP_HOST ? VLFF_TUM_STAMP_HOST
+                                                                                : VLFF_TUM_STAMP_SOURCE,
+      .quat_tolerance = isnan(o.quat_tolerance) ? k->pose.quat_tolerance : o.quat_tolerance,
+      .source_id = (uint32_t)(isnan(o.source_id) ? k->pose.source_id : o.source_id),
+      .extra_fields = o.extra_fields >= 0 ? o.extra_fields : k->pose.extra_fields,
+      .latency_ns = (int64_t)llround(latency_s * 1e9),
+      .clock_offset_ns = (int64_t)llround(offset_s * 1e9),
+  };
+  vlff_log_set_level(o.quiet > 0 ? VLFF_LOG_WARN : (enum vlff_log_level)cfg.node.log_level);
   if (realtime) {
     /* UNIX-time stamps onto the node's clock: both clocks read back to back. */
     struct timespec rt, mt;
@@ -307,21 +320,21 @@ int main(int argc, char **argv) {
     clock_gettime(CLOCK_MONOTONIC, &mt);
     fp.clock_offset_ns += ((int64_t)mt.tv_sec - rt.tv_sec) * 1000000000 + (mt.tv_nsec - rt.tv_nsec);
   }
-  vlff_tum_matrix(ext_p, ext_q, fp.body_to_camera);
+  /* Both ways in checked it: the option above, the config's cross-check. */
+  double qn = sqrt(ext[3] * ext[3] + ext[4] * ext[4] + ext[5] * ext[5] + ext[6] * ext[6]);
+  double q[4] = {ext[3] / qn, ext[4] / qn, ext[5] / qn, ext[6] / qn};
+  vlff_tum_matrix(ext, q, fp.body_to_camera);
   struct vlff_tum_feed f;
-  if (vlff_tum_feed_init(&f, &fp, err, sizeof err)) {
-    fprintf(stderr, "vlff-pose: %s\n", err);
-    return 2;
-  }
+  if (vlff_tum_feed_init(&f, &fp, err, sizeof err)) return vlff_cli_error(&cli, "%s", err);
 
   FILE *in = NULL;
   int sock = -1;
   if (udp) {
     sock = open_udp(udp, err, sizeof err);
-    if (sock < 0) return VLFF_ERROR(TAG, "%s", err), 1;
+    if (sock < 0) return vlff_cli_error(&cli, "%s", err);
   } else if (file && strcmp(file, "-")) {
     in = fopen(file, "r");
-    if (!in) return VLFF_ERROR(TAG, "%s: cannot open: %s", file, strerror(errno)), 1;
+    if (!in) return vlff_cli_error(&cli, "%s: cannot open: %s", file, strerror(errno));
   } else {
     in = stdin;
   }
@@ -330,10 +343,10 @@ int main(int argc, char **argv) {
                                 .perm = {.mode = (mode_t)cfg.shm.mode, .group = cfg.shm.group}};
   struct vlff_ring *ring = vlff_ring_create(ring_name, &rp);
   if (!ring) {
-    VLFF_ERROR(TAG, "pose ring %s: %s", ring_name, vlff_shm_last_message());
+    int rc = vlff_cli_error(&cli, "pose ring %s: %s", ring_name, vlff_shm_last_message());
     if (in && in != stdin) fclose(in);
     if (sock >= 0) close(sock);
-    return 1;
+    return rc;
   }
 
   struct sigaction sa;
@@ -344,8 +357,8 @@ int main(int argc, char **argv) {
   sigaction(SIGTERM, &sa, NULL);
 
   struct reporter rep = {.name = udp ? "udp" : in == stdin ? "stdin" : file};
-  VLFF_INFO(TAG, "vlff-pose %s: %s -> pose ring %s (%d slots), stamps %s%s", VLFF_VERSION,
-            udp ? udp : rep.name, ring_name, cfg.shm.pose_slots,
+  VLFF_INFO(TAG, "vlff-pose %s: %s -> pose ring %s (%d slots), stamps %s%s", vlff_version(), udp ? udp : rep.name,
+            ring_name, cfg.shm.pose_slots,
             fp.stamp == VLFF_TUM_STAMP_HOST ? "at receipt" : realtime ? "UNIX time" : "CLOCK_MONOTONIC",
             fp.stamp == VLFF_TUM_STAMP_HOST || offset_s == 0 ? "" : " plus the clock offset");
   int rc = udp ? read_udp(sock, &f, ring, &rep) : read_stream(in, &f, ring, &rep);

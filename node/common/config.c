@@ -62,6 +62,9 @@ static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
 static const double zero4[4] = {0, 0, 0, 0};
 static const double zero5[5] = {0, 0, 0, 0, 0};
+static const double identity7[7] = {0, 0, 0, 0, 0, 0, 1};
+static const char *const pose_clocks[] = {"monotonic", "realtime", NULL};
+static const char *const pose_stamps[] = {"source", "host", NULL};
 /* CLIP's image normalisation, which LSeg inherits. */
 static const double clip_mean[3] = {0.48145466, 0.4578275, 0.40821073};
 static const double clip_std[3] = {0.26862954, 0.26130258, 0.27577711};
@@ -213,6 +216,16 @@ static const struct key schema[] = {
     DBL("gpio.pulse_us", gpio.pulse_us, 1, 1e6, 1000),
     BOOL("gpio.active_low", gpio.active_low, 0),
     DBL("gpio.debounce_us", gpio.debounce_us, 0, 1e6, 0),
+
+    STR("pose.udp", pose.udp, ""),
+    ENUM("pose.clock", pose.clock, pose_clocks, "monotonic"),
+    DBL("pose.clock_offset_s", pose.clock_offset_s, -1e10, 1e10, 0),
+    ENUM("pose.stamp", pose.stamp, pose_stamps, "source"),
+    DBL("pose.latency_s", pose.latency_s, 0, 60, 0),
+    DVEC("pose.extrinsic", pose.extrinsic, -1e4, 1e4, identity7),
+    DBL("pose.quat_tolerance", pose.quat_tolerance, 0, 0.5, 0.01),
+    BOOL("pose.extra_fields", pose.extra_fields, 0),
+    INT("pose.source_id", pose.source_id, 0, 2147483647, 0),
 
     STR("vlm.image_model", vlm.image_model, ""),
     STR("vlm.text_model", vlm.text_model, ""),
@@ -548,6 +561,10 @@ static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
 }
 
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
+  const double *q = cfg->pose.extrinsic + 3;
+  double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  if (!(fabs(qn - 1) <= 0.01))
+    return fail_cross(p, "pose.extrinsic", "expected tx ty tz qx qy qz qw with a unit quaternion, got norm %g", qn);
   if (check_shm_names(p, cfg)) return -1;
   for (int i = 0; i < 3; i++)
     if (!(cfg->field.scene_min[i] < cfg->field.scene_max[i]))

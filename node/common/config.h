@@ -51,6 +51,8 @@ enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWA
 enum vlff_gpio_mode { VLFF_GPIO_OFF, VLFF_GPIO_OUTPUT, VLFF_GPIO_INPUT };
 enum vlff_depth_kind { VLFF_DEPTH_NONE, VLFF_DEPTH_STREAM, VLFF_DEPTH_STEREO };
 enum vlff_depth_unit { VLFF_DEPTH_UNIT_MM, VLFF_DEPTH_UNIT_M };
+enum vlff_pose_clock { VLFF_POSE_CLOCK_MONOTONIC, VLFF_POSE_CLOCK_REALTIME };
+enum vlff_pose_stamp { VLFF_POSE_STAMP_SOURCE, VLFF_POSE_STAMP_HOST };
 
 struct vlff_prompt_set {
   char name[VLFF_PROMPT_LEN];
@@ -219,6 +221,18 @@ struct vlff_config {
     bool active_low;
     double debounce_us;
   } gpio;
+
+  struct {                           /* vlff-pose: TUM lines into the pose ring */
+    char udp[VLFF_CFG_STR];          /* listen address "host:port"; "" = a file or standard input */
+    int clock;                       /* enum vlff_pose_clock of the lines' stamps */
+    double clock_offset_s;           /* added to every stamp */
+    int stamp;                       /* enum vlff_pose_stamp */
+    double latency_s;                /* stamp host: receipt minus this */
+    double extrinsic[7];             /* camera in the body frame: tx ty tz qx qy qz qw */
+    double quat_tolerance;           /* |norm - 1| normalised; beyond, refused */
+    bool extra_fields;               /* numbers after the eighth ignored, not refused */
+    int source_id;                   /* written into every record */
+  } pose;
 
   struct {
     char image_model[VLFF_CFG_PATH];
