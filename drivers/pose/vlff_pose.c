@@ -37,7 +37,8 @@ static const struct vlff_cli cli = {
     "vlff-pose",
     "Usage: vlff-pose [OPTIONS] [FILE]\n"
     "Write camera poses into the pose ring (shm.pose_ring) from TUM RGB-D trajectory lines\n"
-    "\"t tx ty tz qx qy qz qw\" read from FILE, standard input (no FILE or \"-\") or UDP.\n"
+    "\"t tx ty tz qx qy qz qw\" read from FILE (\"-\": standard input), else UDP on pose.udp or\n"
+    "--udp, else standard input.\n"
     "The config's pose.* keys set the defaults of the options below (docs/pose.md).\n"
     "\n"
     "  -c, --config FILE        the config; without it $VLFF_CONFIG, then\n"
@@ -62,7 +63,7 @@ static const struct vlff_cli cli = {
     "\n"
     "Examples:\n"
     "  vlff-pose -c /etc/vlff/vlff.yaml CameraTrajectory.txt\n"
-    "  my_slam | vlff-pose -c /etc/vlff/vlff.yaml --clock realtime\n"
+    "  my_slam | vlff-pose -c /etc/vlff/vlff.yaml --clock realtime -\n"
     "  vlff-pose -c /etc/vlff/vlff.yaml --udp 127.0.0.1:5600 --extrinsic \"0.05 0 0 -0.5 0.5 -0.5 0.5\"\n"
     "Exit status: 0 at the end of the input or on SIGINT/SIGTERM (refused lines are counted and\n"
     "reported, not fatal), 1 when the config, the ring, the file or the socket cannot be opened,\n"
@@ -297,8 +298,8 @@ int main(int argc, char **argv) {
   /* The options override the config's pose.* keys. */
   const struct vlff_config *k = &cfg;
   const char *ring_name = o.ring ? o.ring : k->shm.pose_ring;
-  const char *udp = o.udp ? o.udp : k->pose.udp[0] ? k->pose.udp : NULL;
-  if (udp && file) return vlff_cli_usage_error(&cli, "a FILE and pose.udp / --udp '%s' exclude each other", udp);
+  /* A FILE operand ("-": standard input) wins over the config's pose.udp. */
+  const char *udp = o.udp ? o.udp : !file && k->pose.udp[0] ? k->pose.udp : NULL;
   int realtime = (o.clock >= 0 ? o.clock : k->pose.clock) == VLFF_POSE_CLOCK_REALTIME;
   double offset_s = isnan(o.clock_offset_s) ? k->pose.clock_offset_s : o.clock_offset_s;
   double latency_s = isnan(o.latency_s) ? k->pose.latency_s : o.latency_s;

@@ -42,6 +42,8 @@ check "pose.udp: listening, two records" '"${shm[@]}" stat "$ring-s" | grep -qx 
 kill -TERM $spid; wait $spid; rc=$?
 check "SIGTERM ends it with 0 (rc=$rc)" '[[ $rc == 0 ]]'
 check "pose.udp: the summary" 'grep -q "2 poses written to $ring-s, 0 lines refused" "$tmp/slog"'
+check "a FILE wins over pose.udp" \
+  'printf "5 0 0 0 0 0 0 1\n" | "${pose[@]}" --config "$tmp/s.yaml" - 2>"$tmp/flog" && grep -q "stdin -> pose ring" "$tmp/flog"'
 check "a config error names file:line:col" \
   'printf "pose:\n  extrinsic: [0, 0, 0, 0, 0, 0, 2]\n" >"$tmp/e.yaml"; ! "${pose[@]}" -c "$tmp/e.yaml" </dev/null 2>"$tmp/ee" >/dev/null && grep -q "e.yaml:2:14: key .pose.extrinsic.: expected tx ty tz qx qy qz qw with a unit quaternion" "$tmp/ee"'
 echo "$passes passed, $fails failed"
