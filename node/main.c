@@ -5,6 +5,7 @@
  */
 #include <errno.h>
 #include <getopt.h>
+#include <grp.h>
 #include <signal.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -14,6 +15,7 @@
 
 #include "cli.h"
 #include "config.h"
+#include "embeddings.h"
 #include "log.h"
 #include "node.h"
 #include "vlff/shm.h"
@@ -135,6 +137,24 @@ int main(int argc, char **argv) {
       return 1;
     }
 #endif
+    /* What start-up would refuse, --check-config refuses too: the prompt
+     * embeddings file and the segments' group. */
+    if (cfg.prompts.embeddings[0]) {
+      struct vlff_embeddings *e = vlff_embeddings_load(cfg.prompts.embeddings, cfg.field.feature_dim, err, sizeof err);
+      if (!e) {
+        fprintf(stderr, "%s: key 'prompts.embeddings': %s\n", check_path, err);
+        return 1;
+      }
+      vlff_embeddings_free(e);
+    }
+    if (cfg.shm.group[0]) {
+      char *end;
+      long gid = strtol(cfg.shm.group, &end, 10);
+      if (!(*end == 0 && gid >= 0) && !getgrnam(cfg.shm.group)) {
+        fprintf(stderr, "%s: key 'shm.group': no group '%s' on this machine\n", check_path, cfg.shm.group);
+        return 1;
+      }
+    }
     vlff_config_dump(&cfg, stdout);
     fprintf(stderr, "%s: OK\n", check_path);
     return 0;

@@ -292,12 +292,32 @@ struct parse {
   size_t errlen;
 };
 
+/* Bytes of the file quoted in a message, with everything but printable
+ * ASCII as \xNN: binary garbage in a config must not reach the terminal
+ * raw (escape sequences, a NUL cutting the message short). At most max
+ * input bytes are quoted. */
+static void escape(const char *s, size_t n, size_t max, char *out, size_t outlen) {
+  size_t o = 0;
+  for (size_t i = 0; i < n && i < max && o + 5 < outlen; i++) {
+    unsigned char c = (unsigned char)s[i];
+    if (c >= 0x20 && c < 0x7f)
+      out[o++] = (char)c;
+    else
+      o += (size_t)snprintf(out + o, outlen - o, "\\x%02x", c);
+  }
+  out[o] = 0;
+}
+
 static int fail(struct parse *p, const yaml_node_t *n, const char *key, const char *fmt, ...) {
-  char what[256];
+  char what[512], ekey[512];
   va_list ap;
   va_start(ap, fmt);
   vsnprintf(what, sizeof what, fmt, ap);
   va_end(ap);
+  if (key) {
+    escape(key, strlen(key), 120, ekey, sizeof ekey);
+    key = ekey;
+  }
   unsigned line = n ? (unsigned)n->start_mark.line + 1 : 0;
   unsigned col = n ? (unsigned)n->start_mark.column + 1 : 0;
   if (key)
@@ -320,10 +340,19 @@ static const char *scalar(const yaml_node_t *n) { return (const char *)n->data.s
 
 /* "got" text for messages: the scalar quoted, or the node kind. */
 static void got(const yaml_node_t *n, char *buf, size_t len) {
-  if (n->type == YAML_SCALAR_NODE)
-    snprintf(buf, len, "'%.60s'", scalar(n));
-  else
+  if (n->type == YAML_SCALAR_NODE) {
+    char e[256];
+    escape(scalar(n), n->data.scalar.length, 60, e, sizeof e);
+    snprintf(buf, len, "'%s'", e);
+  } else {
     snprintf(buf, len, "%s", node_kind(n));
+  }
+}
+
+/* A scalar holding a NUL ("a\0b") would be cut short silently by every C
+ * string use after it. */
+static bool has_nul(const yaml_node_t *n) {
+  return n->type == YAML_SCALAR_NODE && strlen(scalar(n)) != n->data.scalar.length;
 }
 
 static int parse_number(const yaml_node_t *n, bool integer, double *out) {
@@ -372,6 +401,7 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
   case T_STRING:
     if (n->type != YAML_SCALAR_NODE)
       return fail(p, n, k->path, "expected string, got %s", g);
+    if (has_nul(n)) return fail(p, n, k->path, "expected a string without NUL bytes, got %s", g);
     if (strlen(scalar(n)) >= k->size)
       return fail(p, n, k->path, "expected string of at most %zu bytes, got %zu bytes", k->size - 1,
                   strlen(scalar(n)));
@@ -434,7 +464,7 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
       snprintf(sub, sizeof sub, "%s.%s", path, kname);
       got(vn, g, sizeof g);
       if (!strcmp(kname, "name")) {
-        if (vn->type != YAML_SCALAR_NODE || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
+        if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
           return fail(p, vn, sub, "expected string of at most %d bytes, got %s",
                       VLFF_PROMPT_LEN - 1, g);
         snprintf(set->name, sizeof set->name, "%s", scalar(vn));
@@ -448,7 +478,7 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
         for (long j = 0; j < m; j++) {
           yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
           got(e, g, sizeof g);
-          if (e->type != YAML_SCALAR_NODE || !*scalar(e) ||
+          if (e->type != YAML_SCALAR_NODE || !*scalar(e) || has_nul(e) ||
               strlen(scalar(e)) >= VLFF_PROMPT_LEN)
             return fail(p, e, sub, "expected non-empty prompt of at most %d bytes at index %ld, got %s",
                         VLFF_PROMPT_LEN - 1, j, g);
@@ -547,8 +577,9 @@ static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
   const char *vals[] = {cfg->shm.ring, cfg->shm.pose_ring, cfg->shm.map, cfg->shm.prompts, cfg->shm.feature_ring};
   for (int i = 0; i < 5; i++) {
     const char *why = shm_name_problem(vals[i]);
-    if (why)
-      return fail_cross(p, keys[i], "expected a POSIX shared-memory name (%s), got '%.60s'", why, vals[i]);
+    char e[256];
+    escape(vals[i], strlen(vals[i]), 60, e, sizeof e);
+    if (why) return fail_cross(p, keys[i], "expected a POSIX shared-memory name (%s), got '%s'", why, e);
   }
   /* Two segments of one name would replace each other (the prompt mailbox
    * overwriting the map). The later key is the one blamed. */

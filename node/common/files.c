@@ -58,6 +58,16 @@ int vlff_check_regular(const char *path, char *err, size_t errlen) {
   return 0;
 }
 
+int vlff_create_temp(const char *tmp, unsigned mode, char *err, size_t errlen) {
+  if (unlink(tmp) < 0 && errno != ENOENT) {
+    if (err && errlen) snprintf(err, errlen, "%s: cannot remove the old temporary: %s", tmp, strerror(errno));
+    return -1;
+  }
+  int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, (mode_t)mode);
+  if (fd < 0 && err && errlen) snprintf(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));
+  return fd;
+}
+
 bool vlff_temp_name_pid(const char *name, long *pid) {
   const char *t = strstr(name, ".tmp.");
   if (!t) return false;

@@ -37,6 +37,13 @@ int vlff_check_regular(const char *path, char *err, size_t errlen);
  * writers' files and non-regular files are left alone. */
 int vlff_remove_dead_temps(const char *dir, const char *const *prefixes);
 
+/* Create an atomic writer's temporary "tmp" for writing (mode before the
+ * umask): whatever sat at that name is removed first and the file is
+ * created exclusively without following links, so a FIFO or a symbolic
+ * link planted at the name can neither block the writer nor redirect what
+ * it writes. Returns the descriptor, or -1 with err. */
+int vlff_create_temp(const char *tmp, unsigned mode, char *err, size_t errlen);
+
 /* True when "<anything>.tmp.<pid>" names pid's temporary (pid > 0). */
 bool vlff_temp_name_pid(const char *name, long *pid);
 

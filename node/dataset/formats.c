@@ -75,11 +75,8 @@ int vlff_write_file_atomic(const char *path, const void *data, size_t len, char 
     seterr(err, errlen, "%s: path too long", path);
     return -1;
   }
-  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) {
-    seterr(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));
-    return -1;
-  }
+  int fd = vlff_create_temp(tmp, 0644, err, errlen);
+  if (fd < 0) return -1;
   const uint8_t *p = data;
   size_t left = len;
   while (left) {

@@ -240,8 +240,14 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
   if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
   if (cfg->prompts.embeddings[0]) snprintf(p, sizeof p, "%s", cfg->prompts.embeddings);
   else snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
-  struct vlff_embeddings *pe = vlff_embeddings_load(p, sc->D, err, sizeof err);
+  /* Loaded with any dimension, then compared: a mismatch is between two
+   * files, and either may be the wrong one. */
+  struct vlff_embeddings *pe = vlff_embeddings_load(p, 0, err, sizeof err);
   if (!pe) die("%s", err);
+  if (vlff_embeddings_dim(pe) != sc->D)
+    die("%s: vectors have dim %d, but the features in %s/features.hdf have D=%d: one of the two files is from "
+        "another model",
+        p, vlff_embeddings_dim(pe), dir, sc->D);
   if (vlff_embeddings_count(pe) > MAXK) die("%s: %d prompts, at most %d", p, vlff_embeddings_count(pe), MAXK);
   /* ground-truth id k is record k of the embeddings file */
   sc->K = vlff_embeddings_count(pe);

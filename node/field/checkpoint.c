@@ -124,9 +124,10 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
     return -1;
   }
   snprintf(tmp, plen + 32, "%s.tmp.%ld", path, (long)getpid());
-  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  char cerr[384];
+  int fd = vlff_create_temp(tmp, 0644, cerr, sizeof cerr);
   if (fd < 0) {
-    if (err && errlen) snprintf(err, errlen, "checkpoint %s: cannot create: %s", tmp, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "checkpoint %s", cerr);
     free(tmp);
     return -1;
   }

@@ -7,6 +7,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdbool.h>
@@ -81,6 +82,12 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
       vlff_errf(err, errlen, "%s:%d: NUL byte", name, lineno);
       goto fail;
     }
+    /* Said plainly: otherwise the invisible '\r' makes every later check
+     * quote a line that looks right. */
+    if (ll && line[ll - 1] == '\r') {
+      vlff_errf(err, errlen, "%s:%d: CRLF line end (the format uses '\\n' alone)", name, lineno);
+      goto fail;
+    }
     if (!have_magic) {
       if (strcmp(line, "vlff-embeddings 1")) {
         vlff_errf(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%.40s'", name, lineno, line);
@@ -151,7 +158,9 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
       char *end;
       errno = 0;
       float f = strtof(p, &end);
-      if (end == p || (*end && *end != ' ') || !isfinite(f) || errno == ERANGE) {
+      /* ERANGE with a finite result is underflow (1e-45 is a subnormal
+       * float, 1e-50 rounds to zero): a valid, tiny number. */
+      if (end == p || (*end && *end != ' ') || !isfinite(f) || (errno == ERANGE && fabsf(f) > FLT_MIN)) {
         vlff_errf(err, errlen, "%s:%d: number %d is not a finite float", name, lineno, k + 1);
         goto fail;
       }
@@ -260,7 +269,7 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
   }
   char tmp[4096];
   snprintf(tmp, sizeof tmp, "%s.tmp.%d", path, (int)getpid());
-  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  int fd = vlff_create_temp(tmp, 0644, NULL, 0);
   FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
   if (!f) {
     vlff_errf(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));

@@ -184,6 +184,26 @@ static void test_deep_yaml(void **state) {
   assert_non_null(strstr(err, "at index 0, got a sequence"));
 }
 
+/* What the file says is quoted in messages without control bytes, and a
+ * NUL inside a string is refused rather than cutting it short. */
+static void test_hostile_strings(void **state) {
+  (void)state;
+  expect_error("node:\n  name: \"a\\0b\"\n", "t.yaml:2:9: key 'node.name': ",
+               "expected a string without NUL bytes, got 'a\\x00b'");
+  expect_error("prompts:\n  sets:\n    - name: \"x\\0y\"\n      prompts: [a]\n",
+               "t.yaml:3:13: key 'prompts.sets[0].name': ", "got 'x\\x00y'");
+  expect_error("prompts:\n  sets:\n    - prompts: [\"a\\0b\"]\n", "t.yaml:3:17: key 'prompts.sets[0].prompts': ",
+               "at index 0, got 'a\\x00b'");
+  expect_error("node:\n  log_level: \"\\e[31mred\\e[0m\"\n", "t.yaml:2:14: key 'node.log_level': ",
+               "got '\\x1b[31mred\\x1b[0m'");
+  expect_error("node:\n  \"\\e[2J\": 1\n", "t.yaml:2:3: key 'node.\\x1b[2J': ", "unknown key");
+  expect_error("node:\n  log_level: \"caf\\u00e9\"\n", "t.yaml:2:14: key 'node.log_level': ", "got 'caf\\xc3\\xa9'");
+  struct vlff_config cfg;
+  assert_int_equal(load("shm:\n  ring: \"/a\\e\"\n", &cfg), -1);
+  assert_non_null(strstr(err, "got '/a\\x1b'"));
+  for (const char *c = err; *c; c++) assert_true(*c >= 0x20 && *c < 0x7f);
+}
+
 /* Segment names: valid POSIX names, distinct, refused with file:line. */
 static void test_shm_names(void **state) {
   (void)state;
@@ -274,6 +294,31 @@ static void test_dead_temps(void **state) {
     snprintf(p, sizeof p, "%s/%s", dir, name);
     assert_int_equal(access(p, F_OK), -1);
   }
+  /* A writer's temporary: a FIFO or a link planted at its name is
+   * replaced, never opened (the link's target stays untouched). */
+  snprintf(p, sizeof p, "%s/w.tmp.%d", dir, (int)getpid());
+  assert_int_equal(mkfifo(p, 0600), 0);
+  int wfd = vlff_create_temp(p, 0600, err, sizeof err);
+  assert_true(wfd >= 0);
+  struct stat wst;
+  assert_int_equal(fstat(wfd, &wst), 0);
+  assert_true(S_ISREG(wst.st_mode));
+  close(wfd);
+  char target[600];
+  snprintf(target, sizeof target, "%s/target", dir);
+  int tfd = open(target, O_CREAT | O_WRONLY, 0600);
+  assert_true(tfd >= 0);
+  close(tfd);
+  unlink(p);
+  assert_int_equal(symlink(target, p), 0);
+  wfd = vlff_create_temp(p, 0600, err, sizeof err);
+  assert_true(wfd >= 0);
+  assert_int_equal(write(wfd, "x", 1), 1);
+  close(wfd);
+  assert_int_equal(lstat(p, &wst), 0);
+  assert_true(S_ISREG(wst.st_mode));
+  assert_int_equal(stat(target, &wst), 0);
+  assert_int_equal(wst.st_size, 0);
   long pid;
   assert_true(vlff_temp_name_pid("a.tmp.b.tmp.42", &pid) && pid == 42);
   assert_false(vlff_temp_name_pid("a.tmp.", &pid));
@@ -353,6 +398,7 @@ int main(void) {
       cmocka_unit_test(test_sim_features),
       cmocka_unit_test(test_deep_yaml),      cmocka_unit_test(test_shm_names),
       cmocka_unit_test(test_fifo_config),    cmocka_unit_test(test_dead_temps),
+      cmocka_unit_test(test_hostile_strings),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -101,6 +101,16 @@ static void test_dataset_matches_synthetic(void **state) {
   assert_non_null(strstr(peout, "prompt_embeddings.txt: 3 records, but "));
   assert_non_null(strstr(peout, "uses class id"));
   assert_null(strstr(peout, "RESULT"));
+  /* Embeddings of another width than the features: both files named. */
+  snprintf(cmd, sizeof cmd, "printf 'vlff-embeddings 1\\ndim 2\\nwall\\t1 0\\n' > %s/dpe/prompt_embeddings.txt", tmp);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/dpe --iters 0 --quiet --out %s/d 2>&1", eval, cfg, tmp, tmp);
+  pe = popen(cmd, "r");
+  pn = fread(peout, 1, sizeof peout - 1, pe);
+  peout[pn] = 0;
+  assert_int_not_equal(pclose(pe), 0);
+  assert_non_null(strstr(peout, "prompt_embeddings.txt: vectors have dim 2, but the features in "));
+  assert_non_null(strstr(peout, "features.hdf have D=16"));
   /* The JSON report names the dataset and its frames, and a path with a
    * quote and a backslash survives: parsed back with json-c. */
   snprintf(cmd, sizeof cmd, "mv %s/ds '%s/d\"s\\x' && %s --config %s --dataset '%s/d\"s\\x' --iters 0 --quiet "

@@ -12,6 +12,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -254,7 +255,16 @@ static void test_checkpoint(void **state) {
   struct vlff_field *a = trained(&cfg, 10);
   char path[512], err[512];
   tmp_path(path, sizeof(path), "rt");
+  /* A FIFO planted at the writer's temporary name neither blocks the save
+   * nor receives it; a FIFO at the checkpoint's name is refused on load. */
+  char planted[600];
+  snprintf(planted, sizeof planted, "%s.tmp.%ld", path, (long)getpid());
+  assert_int_equal(mkfifo(planted, 0600), 0);
+  assert_int_equal(mkfifo(path, 0600), 0);
+  assert_int_equal(vlff_field_load(a, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "is a FIFO, expected a regular file"));
   assert_int_equal(vlff_field_save(a, path, err, sizeof(err)), 0);
+  assert_int_equal(access(planted, F_OK), -1);
   struct vlff_field *b = trained(&cfg, 3);  /* different state, same model */
   assert_false(same_queries(a, b));
   assert_int_equal(vlff_field_load(b, path, err, sizeof(err)), 0);

@@ -53,6 +53,14 @@ check "100000-deep YAML refused at once" \
 mkfifo "$tmp/fifo.yaml"
 check "a FIFO as config refused, not waited on" \
   'timeout 20 "${node[@]}" --check-config "$tmp/fifo.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "fifo.yaml: is a FIFO, expected a regular file" "$tmp/err"'
+printf 'prompts:\n  embeddings: %s/none.txt\n' "$tmp" >"$tmp/emb.yaml"
+check "--check-config loads prompts.embeddings" \
+  '! "${node[@]}" --check-config "$tmp/emb.yaml" >/dev/null 2>"$tmp/err" && grep -q "emb.yaml: key .prompts.embeddings.: .*none.txt: cannot open" "$tmp/err"'
+printf 'shm:\n  group: vlff-no-such-group\n' >"$tmp/grp.yaml"
+check "--check-config checks that shm.group exists" \
+  '! "${node[@]}" --check-config "$tmp/grp.yaml" >/dev/null 2>"$tmp/err" && grep -q "grp.yaml: key .shm.group.: no group .vlff-no-such-group." "$tmp/err"'
+printf 'shm:\n  group: "0"\n' >"$tmp/gid.yaml"
+check "--check-config takes a numeric shm.group" '"${node[@]}" --check-config "$tmp/gid.yaml" >/dev/null 2>&1'
 mkdir -p "$tmp/fstate"
 mkfifo "$tmp/fstate/field.1.ckpt"
 (exit 0) & dead=$!; wait $dead

@@ -6,6 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -34,6 +35,11 @@ static void test_round_trip(void **state) {
   unlink(path);
   assert_null(vlff_embeddings_load(path, 8, err, sizeof err));
   assert_non_null(strstr(err, "cannot open"));
+  /* A FIFO at the file's name: refused at once, not waited on. */
+  assert_int_equal(mkfifo(path, 0600), 0);
+  assert_null(vlff_embeddings_load(path, 8, err, sizeof err));
+  assert_non_null(strstr(err, "is a FIFO, expected a regular file"));
+  unlink(path);
   /* Saving refuses what loading would refuse. */
   v[3] = 1.0f / 0.0f;
   assert_int_equal(vlff_embeddings_save(path, 8, 3, prompts, v, err, sizeof err), -1);
@@ -72,6 +78,15 @@ static void test_validation(void **state) {
   refused("vlff-embeddings 1\ndim 2\nchair\t1 nan\n", ":3: number 2 is not a finite float");
   refused("vlff-embeddings 1\ndim 2\nchair\t1 1e99\n", "not a finite float");
   refused("vlff-embeddings 1\ndim 2\nchair\t1 x\n", "not a finite float");
+  refused("vlff-embeddings 1\r\ndim 2\r\nchair\t1 0\r\n", "t.emb:1: CRLF line end");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1 0\r\n", "t.emb:3: CRLF line end");
+  /* Underflow is a tiny finite number, not an error. */
+  const char *tiny = "vlff-embeddings 1\ndim 2\nchair\t1 1e-45\ntable\t1 -1e-50\n";
+  e = vlff_embeddings_parse(tiny, strlen(tiny), "t.emb", 2, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  assert_true(vlff_embeddings_lookup(e, "chair")[1] > 0);
+  assert_true(vlff_embeddings_lookup(e, "table")[1] == 0);
+  vlff_embeddings_free(e);
   refused("vlff-embeddings 1\ndim 2\nchair\t0 0\n", "zero vector");
   refused("vlff-embeddings 1\ndim 2\nchair\t1 0\nchair\t0 1\n", ":4: duplicate prompt 'chair'");
   refused("vlff-embeddings 1\ndim 2\n\t1 0\n", ":3: prompt must be");

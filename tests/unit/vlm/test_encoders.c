@@ -11,6 +11,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include <sys/stat.h>
 #include <cmocka.h>
 
 #include "config.h"
@@ -176,6 +177,13 @@ static void test_image_bad_models(void **state) {
   fclose(f);
   expect_image_refused(&cfg, "garbage.onnx");
   free(model);
+  /* A FIFO or a directory at the model's name: refused, never waited on. */
+  snprintf(cfg.vlm.image_model, sizeof cfg.vlm.image_model, "%s/fifo.onnx", dir);
+  assert_int_equal(mkfifo(cfg.vlm.image_model, 0600), 0);
+  expect_image_refused(&cfg, "fifo.onnx: is a FIFO, expected a regular file");
+  unlink(cfg.vlm.image_model);
+  snprintf(cfg.vlm.image_model, sizeof cfg.vlm.image_model, "%s", dir);
+  expect_image_refused(&cfg, "is a directory, expected a regular file");
   /* The text model is a valid ONNX file with the wrong contract. */
   image_config(&cfg);
   snprintf(cfg.vlm.image_model, sizeof cfg.vlm.image_model, "%s/text.onnx", dir);
@@ -299,6 +307,17 @@ static void test_text_bad_models(void **state) {
   snprintf(cmd, sizeof cmd, "rm %s/t2.onnx.tokemb", dir);
   fixture_run(cmd);
   expect_text_refused(&cfg, "cannot open token-embedding table");
+  /* A FIFO in place of the token table and of the BPE merges. */
+  char fifo[700];
+  snprintf(fifo, sizeof fifo, "%s/t2.onnx.tokemb", dir);
+  assert_int_equal(mkfifo(fifo, 0600), 0);
+  expect_text_refused(&cfg, "t2.onnx.tokemb: is a FIFO, expected a regular file");
+  unlink(fifo);
+  text_config(&cfg);
+  snprintf(cfg.vlm.bpe_vocab, sizeof cfg.vlm.bpe_vocab, "%s/fifo.gz", dir);
+  assert_int_equal(mkfifo(cfg.vlm.bpe_vocab, 0600), 0);
+  expect_text_refused(&cfg, "fifo.gz: is a FIFO, expected a regular file");
+  unlink(cfg.vlm.bpe_vocab);
 }
 
 int main(void) {
