@@ -357,7 +357,8 @@ static void got(const yaml_node_t *n, char *buf, size_t len) {
   if (n->type == YAML_SCALAR_NODE) {
     char e[256];
     escape(scalar(n), n->data.scalar.length, 60, e, sizeof e);
-    snprintf(buf, len, "'%s'", e);
+    /* the caller's buffer bounds the quote; an escaped value may be cut */
+    snprintf(buf, len, "'%.*s'", (int)(len > 3 ? len - 3 : 0), e);
   } else {
     snprintf(buf, len, "%s", node_kind(n));
   }
