@@ -134,7 +134,13 @@ static pid_t spawn(const char *out, char *const argv[]) {
 }
 
 int rig_start(struct rig *r, char *err, size_t errlen) {
-  if (!r->cameras) return 0;
+  if (!r->cameras) {
+    /* The simulator source: vlff-sim writes the frame ring, poses in the
+     * records; the node renders the features itself (test_node_e2e). */
+    char *sim[] = {VLFF_SIM, "--config", r->cfg_path, "--quiet", NULL};
+    r->scenecam = spawn(r->scenecam_out, sim);
+    return r->scenecam < 0 ? fail(err, errlen, "fork failed") : 0;
+  }
   char udp[64];
   snprintf(udp, sizeof udp, "127.0.0.1:%d", 20000 + (int)(getpid() % 20000));
   char *sc[] = {VLFF_SCENECAM, "--config", r->cfg_path, "--poses", udp, NULL};

@@ -1,7 +1,7 @@
 /*
  * The end-to-end rig shared by test_rig_e2e and bench_e2e: the simulator's
  * room (the e2e tests' seed, size and rate) either as the node's built-in
- * source, or served by vlff-scenecam through two Aravis fake GigE cameras
+ * source (vlff-sim into the frame ring, as test_node_e2e), or served by vlff-scenecam through two Aravis fake GigE cameras
  * (colour 127.0.0.1, range 127.0.0.2), paired by the real vlff-camd, posed
  * by the real vlff-pose from TUM lines over UDP, with the sim's features
  * published into the feature ring.
@@ -35,7 +35,7 @@ struct rig {
   int cameras; /* 1: the camera rig, 0: the node's sim source */
   struct vlff_config cfg;
   struct vlff_sim_points gt;
-  pid_t scenecam, camd, pose;
+  pid_t scenecam, camd, pose; /* scenecam: vlff-sim for the sim source */
   double camd_cpu_s; /* vlff-camd's user + system CPU time, after rig_stop */
 };
 
@@ -46,7 +46,7 @@ struct rig {
 int rig_netns_enter(int argc, char **argv);
 
 int rig_init(struct rig *r, int cameras, char *err, size_t errlen);
-/* Starts vlff-scenecam, vlff-camd and vlff-pose (cameras only). */
+/* Starts vlff-scenecam, vlff-camd and vlff-pose (cameras), or vlff-sim. */
 int rig_start(struct rig *r, char *err, size_t errlen);
 void rig_stop(struct rig *r);
 void rig_free(struct rig *r);
