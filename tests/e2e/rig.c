@@ -100,7 +100,7 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
           "camera:\n  kind: aravis\n  device: 127.0.0.1\n  pixel_format: RGB8\n  width: %d\n  height: %d\n"
           "  frame_rate: 5\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n  reconnect_max_s: 0.5\n"
           "depth_camera:\n  kind: aravis\n  device: 127.0.0.2\n  pixel_format: Mono16\n  width: %d\n  height: %d\n"
-          "  frame_rate: 5\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.05\n",
+          "  frame_rate: 5\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.09\n",
           r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", W, H, RIG_FRAMES, r->tag, r->tag, r->tag, r->tag,
           r->tag, cameras ? "  embeddings: " : "", cameras ? emb_path : "", cameras ? "\n" : "", W, H, W, H,
           r->calib_path);
