@@ -45,6 +45,8 @@ struct vlff_map {
   struct map_ctl *ctl;
   uint64_t max_voxels, lw_max, lh_max, stride;
   bool writer;
+  bool broken;           /* writer: the segment could not be replaced */
+  uint64_t last_version; /* writer: carried over into a replacing segment */
 };
 
 struct vlff_map_snapshot {
@@ -127,8 +129,29 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
   m->writer = true;
   if (fresh)
     shm_seg_ready(&m->seg);
+  m->last_version = atomic_load(&m->ctl->version);
   atomic_store(&m->seg.h->last_ns, shm_now());
   return m;
+}
+
+/* Writer: the file shrank under us (another process with write access truncated it).
+ * The map is replaced by a new segment whose version goes on from the last one
+ * published, so that readers re-attaching never see the version go back; the publish
+ * that found it is refused with the reason. */
+static int writer_replace(struct vlff_map *m, const char *what) {
+  char msg[320];
+  snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
+  if (shm_seg_replace(&m->seg) < 0) {
+    m->broken = true;
+    return -1;
+  }
+  bind(m);
+  if (atomic_load(&m->ctl->version) < m->last_version)
+    atomic_store(&m->ctl->version, m->last_version);
+  shm_seg_ready(&m->seg);
+  atomic_store(&m->seg.h->last_ns, shm_now());
+  shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s%s", msg, what);
+  return -1;
 }
 
 API struct vlff_map *vlff_map_attach(const char *name) {
@@ -138,7 +161,7 @@ API struct vlff_map *vlff_map_attach(const char *name) {
     return NULL;
   }
   struct seg_spec spec = {.kind = VLFF_SHM_KIND_MAP};
-  if (shm_seg_attach(&m->seg, name, &spec, false) < 0) {
+  if (shm_seg_attach(&m->seg, name, &spec, false, NULL) < 0) {
     free(m);
     return NULL;
   }
@@ -191,8 +214,14 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_publish: not a writer handle or no update");
     return -1;
   }
+  if (m->broken) {
+    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: could not be replaced after a truncation; create it again", m->seg.name);
+    return -1;
+  }
   if (check_update(m, u) < 0)
     return -1;
+  if (shm_seg_check(&m->seg, true) < 0)
+    return writer_replace(m, "; this update was not published");
   uint32_t cur = atomic_load_explicit(&m->ctl->current, memory_order_relaxed) & 1, nb = cur ^ 1;
   struct map_buf *b = buf(m, nb);
   struct map_meta meta;
@@ -252,26 +281,38 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), bufp(m, cur, off_lconf(mv, lpx)), n);
   }
   uint64_t now = shm_now();
-  meta.version = atomic_load_explicit(&m->ctl->version, memory_order_relaxed) + 1;
+  /* A writer killed between flipping `current` and storing the version left a
+   * published buffer one version ahead of ctl->version: number on from the higher,
+   * so that no version number ever names two different maps. */
+  uint64_t base = atomic_load_explicit(&m->ctl->version, memory_order_relaxed);
+  meta.version = (meta.version > base ? meta.version : base) + 1;
   meta.publish_ns = now;
   shm_racy_copy(&b->meta, &meta, sizeof meta);
   atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
   atomic_store_explicit(&m->ctl->current, nb, memory_order_release);
   atomic_store_explicit(&m->ctl->version, meta.version, memory_order_release);
   atomic_store_explicit(&m->seg.h->last_ns, now, memory_order_release);
+  /* Shrunk while we wrote (the guard fired): that version reached nobody. */
+  if (shm_seg_check(&m->seg, false) < 0)
+    return writer_replace(m, "; this update was not published");
+  m->last_version = meta.version;
   return 0;
 }
 
 API int vlff_map_heartbeat(struct vlff_map *m) {
-  if (!m || !m->writer) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_heartbeat: not a writer handle");
+  if (!m || !m->writer || m->broken) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_heartbeat: not a (working) writer handle");
     return -1;
   }
+  if (shm_seg_check(&m->seg, true) < 0)
+    return writer_replace(m, "");
   atomic_store_explicit(&m->seg.h->last_ns, shm_now(), memory_order_release);
   return 0;
 }
 
-static int abandoned(const struct vlff_map *m) {
+static int abandoned(struct vlff_map *m) {
+  if (m->broken || shm_seg_check(&m->seg, false) < 0)
+    return 1;
   if (atomic_load_explicit(&m->seg.h->state, memory_order_acquire) == SEG_ABANDONED) {
     shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its writer; attach again", m->seg.name);
     return 1;
@@ -297,7 +338,7 @@ static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm) {
 /* Reads `fn` consistently from the current buffer: the seqlock retry loop. */
 typedef bool (*reader_fn)(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx);
 
-static int read_consistent(const struct vlff_map *m, struct map_meta *mm, reader_fn fn, void *ctx) {
+static int read_consistent(struct vlff_map *m, struct map_meta *mm, reader_fn fn, void *ctx) {
   for (int i = 0; i < READ_RETRIES; i++) {
     if (abandoned(m))
       return -1;
@@ -309,6 +350,8 @@ static int read_consistent(const struct vlff_map *m, struct map_meta *mm, reader
     shm_racy_copy(mm, &b->meta, sizeof *mm);
     bool ok = meta_sane(m, mm) && (!fn || fn(m, c, mm, ctx));
     atomic_thread_fence(memory_order_acquire);
+    if (abandoned(m))
+      return -1;
     if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)
       continue;
     if (!ok) {
@@ -388,6 +431,8 @@ API int vlff_map_prompt(struct vlff_map *m, uint16_t label, char *out, size_t le
 }
 
 API uint64_t vlff_map_version(struct vlff_map *m) {
+  if (m->writer)
+    return m->last_version;
   return atomic_load_explicit(&m->ctl->version, memory_order_acquire);
 }
 
@@ -408,7 +453,9 @@ API int vlff_map_writer_alive(struct vlff_map *m, uint64_t max_silence_ns) {
   return shm_pid_alive(atomic_load(&m->seg.h->creator_pid));
 }
 
-API uint32_t vlff_map_generation(struct vlff_map *m) { return atomic_load(&m->seg.h->generation); }
+API uint32_t vlff_map_generation(struct vlff_map *m) {
+  return m->broken ? 0 : atomic_load(&m->seg.h->generation);
+}
 
 API struct vlff_map_snapshot *vlff_map_snapshot_new(struct vlff_map *m) {
   if (!m) {

@@ -16,6 +16,7 @@
 
 #include <errno.h>
 #include <limits.h>
+#include <stdio.h>
 #include <linux/futex.h>
 #include <stdlib.h>
 #include <sys/syscall.h>
@@ -24,6 +25,7 @@
 
 #define RING_SLOTS_OFFSET 4096u
 #define SLOT_HDR 64u
+#define WAIT_STEP_NS 100000000ull
 
 struct ring_ctl {
   _Atomic uint64_t head;      /* records committed */
@@ -119,14 +121,14 @@ API struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_
   return r;
 }
 
-API struct vlff_ring *vlff_ring_attach(const char *name, uint32_t record_kind) {
+static struct vlff_ring *attach(const char *name, uint32_t record_kind, const struct seg_trust *trust) {
   struct vlff_ring *r = calloc(1, sizeof *r);
   if (!r) {
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
     return NULL;
   }
   struct seg_spec spec = ring_spec(record_kind);
-  if (shm_seg_attach(&r->seg, name, &spec, false) < 0) {
+  if (shm_seg_attach(&r->seg, name, &spec, false, trust) < 0) {
     free(r);
     return NULL;
   }
@@ -134,6 +136,50 @@ API struct vlff_ring *vlff_ring_attach(const char *name, uint32_t record_kind) {
   r->next = atomic_load_explicit(&r->ctl->head, memory_order_acquire);
   r->last_gen = atomic_load(&r->seg.h->generation);
   return r;
+}
+
+API struct vlff_ring *vlff_ring_attach(const char *name, uint32_t record_kind) {
+  return attach(name, record_kind, NULL);
+}
+
+API struct vlff_ring *vlff_ring_attach_owned(const char *name, uint32_t record_kind, uid_t uid, mode_t mode) {
+  struct seg_trust t = {.check_owner = true, .uid = uid, .mode = mode};
+  return attach(name, record_kind, &t);
+}
+
+/* Producer: the file shrank under us. The ring is replaced by a new one that goes on
+ * numbering records where this one stopped, and the caller is told (EPIPE). */
+static int producer_replace(struct vlff_ring *r) {
+  char msg[320];
+  shm_seg_check(&r->seg, false);
+  snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
+  r->reserved = false;
+  if (shm_seg_replace(&r->seg) < 0) {
+    r->ctl = NULL;
+    return -1;
+  }
+  bind(r);
+  if (atomic_load(&r->ctl->head) < r->wseq) {
+    atomic_store(&r->ctl->head, r->wseq);
+    atomic_store(&r->ctl->futex, (uint32_t)r->wseq);
+  }
+  r->wseq = atomic_load(&r->ctl->head);
+  shm_seg_ready(&r->seg);
+  shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s; the record was lost", msg);
+  return -1;
+}
+
+static bool producer_ok(struct vlff_ring *r, const char *fn) {
+  if (!r || !r->producer) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: not a producer handle", fn);
+    return false;
+  }
+  if (!r->ctl) {
+    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: the ring could not be replaced after a truncation; create it again",
+            r->seg.name);
+    return false;
+  }
+  return true;
 }
 
 API void vlff_ring_close(struct vlff_ring *r) {
@@ -145,16 +191,22 @@ API void vlff_ring_close(struct vlff_ring *r) {
 
 API uint32_t vlff_ring_slots(const struct vlff_ring *r) { return r->nslots; }
 API uint64_t vlff_ring_slot_size(const struct vlff_ring *r) { return r->slot_size; }
-API uint32_t vlff_ring_generation(const struct vlff_ring *r) { return atomic_load(&r->seg.h->generation); }
-API uint64_t vlff_ring_head(const struct vlff_ring *r) { return atomic_load(&r->ctl->head); }
+API uint32_t vlff_ring_generation(const struct vlff_ring *r) {
+  return r->ctl ? atomic_load(&r->seg.h->generation) : 0;
+}
+API uint64_t vlff_ring_head(const struct vlff_ring *r) { return r->ctl ? atomic_load(&r->ctl->head) : r->wseq; }
 API uint64_t vlff_ring_lost(const struct vlff_ring *r) { return r->lost; }
 
 API void *vlff_ring_reserve(struct vlff_ring *r, uint64_t *seq) {
-  if (!r || !r->producer) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_ring_reserve: not a producer handle");
+  if (!producer_ok(r, "vlff_ring_reserve"))
     return NULL;
-  }
   if (!r->reserved) {
+    /* Checked once per record: a slot handed out of a shrunk file would be written
+     * into nothing. */
+    if (shm_seg_check(&r->seg, true) < 0) {
+      producer_replace(r);
+      return NULL;
+    }
     struct slot_hdr *s = slot(r, r->wseq);
     atomic_store_explicit(&s->seq, 2 * r->wseq + 1, memory_order_relaxed);
     /* Orders the odd mark before every store into the slot's data. */
@@ -171,7 +223,9 @@ static long futex(_Atomic uint32_t *w, int op, uint32_t val, const struct timesp
 }
 
 API int vlff_ring_commit(struct vlff_ring *r, size_t len) {
-  if (!r || !r->producer || !r->reserved) {
+  if (!producer_ok(r, "vlff_ring_commit"))
+    return -1;
+  if (!r->reserved) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_ring_commit: nothing reserved");
     return -1;
   }
@@ -180,6 +234,10 @@ API int vlff_ring_commit(struct vlff_ring *r, size_t len) {
             (unsigned long long)r->slot_size);
     return -1;
   }
+  /* The record was written through the caller's pointer: if the guard fired on it,
+   * it went nowhere. */
+  if (shm_seg_check(&r->seg, false) < 0)
+    return producer_replace(r);
   struct slot_hdr *s = slot(r, r->wseq);
   atomic_store_explicit(&s->len, len, memory_order_relaxed);
   atomic_store_explicit(&s->gen, atomic_load_explicit(&r->seg.h->generation, memory_order_relaxed),
@@ -209,11 +267,13 @@ API int vlff_ring_write(struct vlff_ring *r, const void *data, size_t len) {
   return vlff_ring_commit(r, len);
 }
 
-static int check_consumer(const struct vlff_ring *r, const char *fn) {
+static int check_consumer(struct vlff_ring *r, const char *fn) {
   if (!r || r->producer) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: not a consumer handle", fn);
     return -1;
   }
+  if (shm_seg_check(&r->seg, false) < 0)
+    return -1;
   if (atomic_load_explicit(&r->seg.h->state, memory_order_acquire) == SEG_ABANDONED) {
     shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its creator; attach again", r->seg.name);
     return -1;
@@ -223,19 +283,22 @@ static int check_consumer(const struct vlff_ring *r, const char *fn) {
 
 /* Sleeps until the futex word moves off `seen` or the deadline passes. */
 static int wait_for(struct vlff_ring *r, uint32_t seen, uint64_t deadline) {
-  struct timespec ts, *tsp = NULL;
-  if (deadline != UINT64_MAX) {
-    uint64_t now = shm_now();
-    if (now >= deadline) {
-      shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no record within the timeout", r->seg.name);
-      return -1;
-    }
-    uint64_t d = deadline - now;
-    ts.tv_sec = (time_t)(d / 1000000000u);
-    ts.tv_nsec = (long)(d % 1000000000u);
-    tsp = &ts;
+  struct timespec ts;
+  uint64_t now = shm_now();
+  if (now >= deadline) {
+    shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no record within the timeout", r->seg.name);
+    return -1;
   }
-  if (futex(&r->ctl->futex, FUTEX_WAIT, seen, tsp) < 0 && errno == EINTR) {
+  /* A sleeper on a truncated file is never woken (the producer's wake goes to the
+   * new segment), so it sleeps in bounded steps and looks at the file in between. */
+  if (shm_seg_check(&r->seg, true) < 0)
+    return -1;
+  uint64_t d = deadline - now;
+  if (d > WAIT_STEP_NS)
+    d = WAIT_STEP_NS;
+  ts.tv_sec = (time_t)(d / 1000000000u);
+  ts.tv_nsec = (long)(d % 1000000000u);
+  if (futex(&r->ctl->futex, FUTEX_WAIT, seen, &ts) < 0 && errno == EINTR) {
     shm_err(VLFF_SHM_OK, EINTR, "%s: wait interrupted", r->seg.name);
     return -1;
   }
@@ -317,6 +380,10 @@ API int vlff_ring_read_end(struct vlff_ring *r, const struct vlff_ring_view *v) 
   uint64_t s2 = atomic_load_explicit(&slot(r, v->seq)->seq, memory_order_relaxed);
   r->reading = false;
   r->next = v->seq + 1;
+  if (shm_seg_check(&r->seg, false) < 0) {
+    r->lost++;
+    return -1;
+  }
   if (s2 != r->read_s1) {
     r->lost++;
     shm_err(VLFF_SHM_OK, ESTALE, "%s: record %llu overwritten while read", r->seg.name,
@@ -373,6 +440,8 @@ API ssize_t vlff_ring_read_latest(struct vlff_ring *r, void *buf, size_t cap, st
     }
     shm_racy_copy(buf, slot_data(r, n), len);
     atomic_thread_fence(memory_order_acquire);
+    if (shm_seg_check(&r->seg, false) < 0)
+      return -1;
     if (atomic_load_explicit(&s->seq, memory_order_relaxed) != s1)
       continue;
     if (info)
@@ -403,4 +472,24 @@ int shm_ring_peek(struct vlff_ring *r, uint64_t n, void *out, size_t want) {
   shm_racy_copy(out, slot_data(r, n), want);
   atomic_thread_fence(memory_order_acquire);
   return atomic_load_explicit(&s->seq, memory_order_relaxed) == s1;
+}
+
+/* A consumer with nothing left to read sleeps on the futex word, so a FUTEX_WAKE of
+ * one waiter that finds somebody proves a consumer is caught up. Nothing else tells
+ * the producer: consumers map the segment read-only and leave no cursor in it. The
+ * woken consumer re-reads head, finds it unchanged and waits again. */
+API int vlff_ring_wait_reader(struct vlff_ring *r, uint64_t timeout_ns) {
+  if (!producer_ok(r, "vlff_ring_wait_reader"))
+    return -1;
+  uint64_t t0 = shm_now();
+  for (;;) {
+    if (futex(&r->ctl->futex, FUTEX_WAKE, 1, NULL) > 0)
+      return 0;
+    if (shm_now() - t0 >= timeout_ns) {
+      shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no consumer caught up within the timeout", r->seg.name);
+      return -1;
+    }
+    struct timespec ts = {0, 200 * 1000};
+    nanosleep(&ts, NULL);
+  }
 }

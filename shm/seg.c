@@ -5,8 +5,10 @@
  * the geometry matches (attached readers keep their mapping and see the generation
  * change) and otherwise marks it abandoned and replaces it (readers get EPIPE and
  * re-attach). Attach never trusts the file: every header field is checked before the
- * body is mapped, and the file must be as large as the header claims, because a
- * reader touching a page past EOF would die of SIGBUS. */
+ * body is mapped, and the file must be as large as the header claims; a file that
+ * shrinks later is the SIGBUS guard's business (guard.c). Only files of this
+ * process's uid are ever taken over or removed: another user's file at our name
+ * could be truncated or rewritten by its owner under us. */
 #include "shm_internal.h"
 
 #include <errno.h>
@@ -198,10 +200,36 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
   return 0;
 }
 
-static int map_checked(struct seg *s, const char *name, int fd, bool writable, const struct seg_spec *spec) {
+/* What every attacher demands of the file itself, before reading a byte of it: a
+ * regular file, not writable by everyone (anyone could then forge or truncate it),
+ * and whatever the caller's trust adds (an owner, a narrower mode). */
+static int trust_check(const char *name, const struct stat *st, const struct seg_trust *t) {
+  if (!S_ISREG(st->st_mode)) {
+    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: not a regular file", name);
+    return -1;
+  }
+  if (t && t->check_owner && st->st_uid != t->uid) {
+    shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: owned by uid %u, expected uid %u; refusing it", name,
+            (unsigned)st->st_uid, (unsigned)t->uid);
+    return -1;
+  }
+  mode_t bits = st->st_mode & 07777, allowed = t && t->mode ? t->mode : (0777 & ~(mode_t)0002);
+  if (bits & ~allowed) {
+    shm_err(VLFF_SHM_ERR_PERM, EACCES,
+            "%s: mode %04o has bits beyond %04o (whoever they let in could forge or truncate it); refusing it",
+            name, (unsigned)bits, (unsigned)allowed);
+    return -1;
+  }
+  return 0;
+}
+
+static int map_checked(struct seg *s, const char *name, int fd, bool writable, const struct seg_spec *spec,
+                       const struct seg_trust *trust) {
   struct stat st;
   if (fstat(fd, &st) < 0)
     return open_error(name, "fstat");
+  if (trust_check(name, &st, trust) < 0)
+    return -1;
   if ((uint64_t)st.st_size < sizeof(struct seg_hdr)) {
     uint64_t magic = 0;
     if (pread(fd, &magic, sizeof magic, 0) == (ssize_t)sizeof magic && magic != 0 && magic != SEG_MAGIC)
@@ -214,24 +242,33 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
               (long long)st.st_size);
     return -1;
   }
-  int prot = PROT_READ | (writable ? PROT_WRITE : 0);
-  void *hp = mmap(NULL, sizeof(struct seg_hdr), PROT_READ, MAP_SHARED, fd, 0);
-  if (hp == MAP_FAILED)
-    return open_error(name, "mmap");
+  /* The header is read with pread, not through a mapping: the file may shrink at
+   * any moment, and pread then fails where a mapped read would fault. */
   struct seg_hdr copy;
-  memcpy(&copy, hp, sizeof copy);
-  munmap(hp, sizeof(struct seg_hdr));
+  if (pread(fd, &copy, sizeof copy, 0) != (ssize_t)sizeof copy) {
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: shrank below a segment header while attaching", name);
+    return -1;
+  }
   if (validate(name, &copy, (uint64_t)st.st_size, spec) < 0)
     return -1;
+  int prot = PROT_READ | (writable ? PROT_WRITE : 0);
   void *p = mmap(NULL, copy.total_size, prot, MAP_SHARED, fd, 0);
   if (p == MAP_FAILED)
     return open_error(name, "mmap");
+  snprintf(s->name, sizeof s->name, "%s", name);
   s->base = p;
   s->size = copy.total_size;
   s->h = p;
+  atomic_store(&s->fault, 0);
+  if (shm_guard_register(s, prot) < 0) {
+    munmap(p, copy.total_size);
+    s->base = NULL;
+    return -1;
+  }
   /* The mapped header must still say what the copy said (a creator replacing it in
-   * between would change it). */
-  if (memcmp(s->h, &copy, offsetof(struct seg_hdr, state)) != 0) {
+   * between would change it, and so would a truncation, through the guard). */
+  if (memcmp(s->h, &copy, offsetof(struct seg_hdr, state)) != 0 || atomic_load(&s->fault)) {
+    shm_guard_unregister(s);
     munmap(p, copy.total_size);
     s->base = NULL;
     shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header changed while attaching", name);
@@ -240,7 +277,8 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
   return 0;
 }
 
-int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable) {
+int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable,
+                   const struct seg_trust *trust) {
   memset(s, 0, sizeof *s);
   s->fd = -1;
   if (check_name(name) < 0)
@@ -249,7 +287,7 @@ int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec,
   int fd = shm_open(name, writable ? O_RDWR : O_RDONLY, 0);
   if (fd < 0)
     return open_error(name, writable ? "open read-write" : "open read-only");
-  if (map_checked(s, name, fd, writable, spec) < 0) {
+  if (map_checked(s, name, fd, writable, spec, trust) < 0) {
     int e = errno;
     close(fd);
     errno = e;
@@ -261,12 +299,26 @@ int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec,
 }
 
 void shm_seg_close(struct seg *s) {
+  shm_guard_unregister(s);
   if (s->base)
     munmap(s->base, s->size);
   if (s->fd >= 0)
     close(s->fd);
   s->base = NULL;
   s->fd = -1;
+}
+
+int shm_seg_check(struct seg *s, bool stat_it) {
+  bool bad = atomic_load_explicit(&s->fault, memory_order_acquire) != 0;
+  struct stat st;
+  if (!bad && stat_it && s->fd >= 0 && fstat(s->fd, &st) == 0 && (uint64_t)st.st_size < s->size)
+    bad = true;
+  if (!bad)
+    return 0;
+  shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE,
+          "%s: the segment shrank under this process (truncated by a process with write access to it); %s",
+          s->name, s->creator ? "replacing it by a new one" : "attach again");
+  return -1;
 }
 
 static int resolve_group(const char *name, const char *group, gid_t *gid) {
@@ -306,7 +358,10 @@ static int apply_perm(const char *name, int fd, mode_t mode, const char *group) 
 }
 
 /* Looks at an existing segment: 0 = taken over in place, 1 = stale (unlinked, create
- * again), -1 = error (live creator, foreign, ...). */
+ * again), -1 = error (live creator, foreign, another owner, ...). A segment is only
+ * ever taken over, or removed, when this process's uid owns it: another user's file
+ * at our name is refused, never adopted (its owner could truncate it under us) and
+ * never deleted. */
 static int try_take_over(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
                          uint64_t total, mode_t mode, const char *group) {
   int fd = shm_open(name, O_RDWR, 0);
@@ -320,65 +375,105 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
     close(fd);
     return open_error(name, "fstat");
   }
+  if (!S_ISREG(st.st_mode)) {
+    close(fd);
+    shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a regular file; not touching it", name);
+    return -1;
+  }
+  if (st.st_uid != geteuid()) {
+    close(fd);
+    shm_err(VLFF_SHM_ERR_PERM, EACCES,
+            "%s: exists and belongs to uid %u, not to this process's uid %u; refusing to take it over or "
+            "remove it (remove /dev/shm%s by hand if it is stale)",
+            name, (unsigned)st.st_uid, (unsigned)geteuid(), name);
+    return -1;
+  }
   if ((uint64_t)st.st_size < sizeof(struct seg_hdr)) {
-    uint64_t magic = 0;
-    if (pread(fd, &magic, sizeof magic, 0) == (ssize_t)sizeof magic && magic != 0 && magic != SEG_MAGIC) {
-      close(fd);
-      shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a vlff segment; not touching it", name);
+    close(fd);
+    if (st.st_size != 0) {
+      shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists with %lld bytes, which no vlff segment has; not touching it",
+              name, (long long)st.st_size);
       return -1;
     }
-    /* A creator died before writing a header. */
-    close(fd);
+    /* A creator died between creating and sizing it. */
     shm_unlink(name);
     return 1;
   }
-  struct seg_hdr *h = mmap(NULL, sizeof *h, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
-  if (h == MAP_FAILED) {
+  struct seg_hdr h;
+  if (pread(fd, &h, sizeof h, 0) != (ssize_t)sizeof h) {
     close(fd);
-    return open_error(name, "mmap");
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: shrank while being looked at", name);
+    return -1;
   }
-  int rc = 1;
-  if (h->magic != SEG_MAGIC && h->magic != 0) {
+  if (h.magic != SEG_MAGIC && h.magic != 0) {
+    close(fd);
     shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a vlff segment; not touching it", name);
-    rc = -1;
-    goto out;
+    return -1;
   }
-  int32_t pid = atomic_load(&h->creator_pid);
-  uint32_t state = atomic_load(&h->state);
+  int32_t pid = h.creator_pid;
+  uint32_t state = h.state;
   if (state != SEG_ABANDONED && pid != getpid() && shm_pid_alive(pid)) {
+    close(fd);
     shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: owned by live process %d", name, (int)pid);
-    rc = -1;
-    goto out;
+    return -1;
   }
-  bool same = h->magic == SEG_MAGIC && h->abi_version == VLFF_SHM_ABI_VERSION && h->kind == spec->kind &&
-              h->record_kind == spec->record_kind && h->total_size == total &&
-              !memcmp(h->geom, geom, sizeof h->geom) && h->geom_check == shm_geom_check(h) &&
-              (uint64_t)st.st_size >= total && state == SEG_READY;
-  if (same && atomic_compare_exchange_strong(&h->creator_pid, &pid, (int32_t)getpid())) {
-    if (apply_perm(name, fd, mode, group) < 0) {
-      atomic_store(&h->creator_pid, pid);
-      rc = -1;
-      goto out;
+  /* In place only when nobody beyond what the configuration allows could have opened
+   * it for writing: a wider mode or another group may have let someone in who keeps
+   * an open descriptor. Such a segment is replaced instead. */
+  gid_t gid = st.st_gid;
+  bool perm_ok = (st.st_mode & 07777 & ~mode) == 0;
+  if (perm_ok && group && group[0]) {
+    int g = resolve_group(name, group, &gid);
+    if (g < 0) {
+      close(fd);
+      return -1;
     }
-    munmap(h, sizeof *h);
+    perm_ok = gid == st.st_gid;
+  }
+  bool same = perm_ok && h.magic == SEG_MAGIC && h.abi_version == VLFF_SHM_ABI_VERSION && h.kind == spec->kind &&
+              h.record_kind == spec->record_kind && h.total_size == total && !memcmp(h.geom, geom, sizeof h.geom) &&
+              h.geom_check == shm_geom_check(&h) && (uint64_t)st.st_size >= total && state == SEG_READY;
+  if (same) {
     memset(s, 0, sizeof *s);
-    snprintf(s->name, sizeof s->name, "%s", name);
-    if (map_checked(s, name, fd, true, spec) < 0) {
+    s->fd = -1;
+    if (map_checked(s, name, fd, true, spec, NULL) < 0) {
       close(fd);
       return -1;
     }
     s->fd = fd;
     s->writable = true;
+    if (!atomic_compare_exchange_strong(&s->h->creator_pid, &pid, (int32_t)getpid())) {
+      shm_seg_close(s);
+      shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: taken over by process %d meanwhile", name, (int)pid);
+      return -1;
+    }
+    if (apply_perm(name, fd, mode, group) < 0 || shm_seg_check(s, true) < 0) {
+      atomic_compare_exchange_strong(&s->h->creator_pid, &(int32_t){(int32_t)getpid()}, pid);
+      shm_seg_close(s);
+      return -1;
+    }
     atomic_fetch_add(&s->h->generation, 1);
     return 0;
   }
-  if (h->magic == SEG_MAGIC)
-    atomic_store(&h->state, SEG_ABANDONED); /* tell attached readers to re-attach */
+  if (h.magic == SEG_MAGIC) {
+    /* Tell attached readers to re-attach; pwrite, since the file may be short. */
+    uint32_t a = SEG_ABANDONED;
+    if (pwrite(fd, &a, sizeof a, offsetof(struct seg_hdr, state)) != (ssize_t)sizeof a) {
+      /* Readers then find out from the guard or the next attach. */
+    }
+  }
   shm_unlink(name);
-out:
-  munmap(h, sizeof *h);
   close(fd);
-  return rc;
+  return 1;
+}
+
+static void remember(struct seg *s, const struct seg_spec *spec, const uint64_t geom[6], mode_t mode,
+                     const char *group) {
+  s->creator = true;
+  s->spec = *spec;
+  memcpy(s->geom, geom, sizeof s->geom);
+  s->mode = mode;
+  snprintf(s->group, sizeof s->group, "%s", group ? group : "");
 }
 
 int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
@@ -405,6 +500,8 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
       if (errno != EEXIST)
         return open_error(name, "create");
       int r = try_take_over(s, name, spec, geom, total, mode, group);
+      if (r == 0)
+        remember(s, spec, geom, mode, group);
       if (r <= 0)
         return r;
       continue;
@@ -436,6 +533,13 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     s->base = p;
     s->size = total;
     s->h = p;
+    if (shm_guard_register(s, PROT_READ | PROT_WRITE) < 0) {
+      int e = errno;
+      shm_seg_close(s);
+      shm_unlink(name);
+      errno = e;
+      return -1;
+    }
     struct seg_hdr *h = s->h;
     h->abi_version = VLFF_SHM_ABI_VERSION;
     h->kind = spec->kind;
@@ -447,10 +551,40 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     atomic_store(&h->state, SEG_INIT);
     h->magic = SEG_MAGIC;
     h->geom_check = shm_geom_check(h);
+    remember(s, spec, geom, mode, group);
     return 1;
   }
   shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: kept reappearing while being replaced", name);
   return -1;
+}
+
+int shm_seg_replace(struct seg *s) {
+  char name[256];
+  struct seg_spec spec = s->spec;
+  uint64_t geom[6];
+  char group[64];
+  mode_t mode = s->mode;
+  snprintf(name, sizeof name, "%s", s->name);
+  memcpy(geom, s->geom, sizeof geom);
+  snprintf(group, sizeof group, "%s", s->group);
+  struct stat mine, named;
+  bool have = s->fd >= 0 && fstat(s->fd, &mine) == 0;
+  if (have && (uint64_t)mine.st_size >= sizeof(struct seg_hdr)) {
+    uint32_t a = SEG_ABANDONED;
+    if (pwrite(s->fd, &a, sizeof a, offsetof(struct seg_hdr, state)) != (ssize_t)sizeof a) {
+      /* Readers then learn it from their own guard or their next attach. */
+    }
+  }
+  /* Only our own file is removed: the name may already be someone else's. */
+  int fd = shm_open(name, O_RDONLY, 0);
+  if (fd >= 0) {
+    if (have && fstat(fd, &named) == 0 && named.st_ino == mine.st_ino && named.st_dev == mine.st_dev)
+      shm_unlink(name);
+    close(fd);
+  }
+  shm_seg_close(s);
+  struct vlff_shm_perm perm = {.mode = mode, .group = group[0] ? group : NULL};
+  return shm_seg_create(s, name, &spec, geom, &perm);
 }
 
 void shm_seg_ready(struct seg *s) { atomic_store_explicit(&s->h->state, SEG_READY, memory_order_release); }
@@ -469,7 +603,7 @@ API int vlff_shm_stat(const char *name, struct vlff_shm_info *info) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_shm_stat: info is NULL");
     return -1;
   }
-  if (shm_seg_attach(&s, name, NULL, false) < 0)
+  if (shm_seg_attach(&s, name, NULL, false, NULL) < 0)
     return -1;
   memset(info, 0, sizeof *info);
   info->kind = s.h->kind;

@@ -9,6 +9,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 #include <string.h>
+#include <sys/types.h>
 
 #define API __attribute__((visibility("default")))
 
@@ -37,6 +38,21 @@ struct seg_hdr {
 };
 _Static_assert(sizeof(struct seg_hdr) == 128, "segment header is 128 bytes");
 
+/* Kind-specific description used to validate and create. compute_total returns the
+ * expected total size from the geometry, or 0 if the geometry is not sane. */
+struct seg_spec {
+  uint32_t kind;
+  uint32_t record_kind; /* 0 = any on attach */
+  uint64_t (*compute_total)(const uint64_t geom[6]);
+};
+
+/* What an attacher demands of the segment's file (struct stat) before reading it. */
+struct seg_trust {
+  bool check_owner;
+  uid_t uid;
+  mode_t mode; /* allowed permission bits; 0 = any but world-writable */
+};
+
 /* One mapped segment. */
 struct seg {
   char name[256];
@@ -45,14 +61,15 @@ struct seg {
   uint8_t *base;
   uint64_t size;
   struct seg_hdr *h;
-};
-
-/* Kind-specific description used to validate and create. compute_total returns the
- * expected total size from the geometry, or 0 if the geometry is not sane. */
-struct seg_spec {
-  uint32_t kind;
-  uint32_t record_kind; /* 0 = any on attach */
-  uint64_t (*compute_total)(const uint64_t geom[6]);
+  /* Set by the SIGBUS guard when the file shrank under the mapping (guard.c). */
+  _Atomic uint32_t fault;
+  int guard_slot; /* registry entry + 1, 0 = none */
+  /* A creator keeps what it needs to replace a damaged segment by a new one. */
+  bool creator;
+  struct seg_spec spec;
+  uint64_t geom[6];
+  mode_t mode;
+  char group[64];
 };
 
 void shm_err(int code, int errnum, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
@@ -62,7 +79,8 @@ uint64_t shm_now(void);
 
 /* Attach: maps the whole segment after validating it against spec (spec->kind 0 =
  * any kind, then compute_total is looked up by kind). */
-int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable);
+int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable,
+                   const struct seg_trust *trust);
 /* Create: returns 1 if a fresh segment was created (header written, state INIT: the
  * caller initialises its body then calls shm_seg_ready), 0 if a dead creator's
  * segment of identical geometry was taken over (generation bumped, state READY). */
@@ -70,6 +88,19 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
                    const struct vlff_shm_perm *perm);
 void shm_seg_ready(struct seg *s);
 void shm_seg_close(struct seg *s);
+/* 0 if the mapping is still backed by the whole file; -1 (VLFF_SHM_ERR_TRUNCATED,
+ * EPIPE) if the SIGBUS guard fired on it or, with stat_it, if the file is now smaller
+ * than the mapping. */
+int shm_seg_check(struct seg *s, bool stat_it);
+/* Creator: abandons a damaged segment (its name is unlinked if it still names it) and
+ * creates a new one of the same geometry and permissions. Returns as shm_seg_create;
+ * on failure the handle is closed. */
+int shm_seg_replace(struct seg *s);
+
+/* The SIGBUS guard (guard.c): registers a mapping so that a fault inside it is
+ * survived and flags s->fault. */
+int shm_guard_register(struct seg *s, int prot);
+void shm_guard_unregister(struct seg *s);
 
 /* Copies that may race with a writer in another thread by design (seqlock: the reader
  * validates afterwards and discards torn data). Kept out of ThreadSanitizer's view;

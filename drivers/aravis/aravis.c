@@ -297,7 +297,8 @@ int vlff_arv_software_trigger(struct vlff_arv *a, char *err, size_t errlen) {
 static vlff_pix_t from_arv(ArvPixelFormat f) {
   switch (f) {
   case ARV_PIXEL_FORMAT_MONO_8: return VLFF_PIX_MONO8;
-  case ARV_PIXEL_FORMAT_MONO_16: return VLFF_PIX_MONO16;
+  case ARV_PIXEL_FORMAT_MONO_16:
+  case ARV_PIXEL_FORMAT_COORD3D_C_16: return VLFF_PIX_MONO16;
   case ARV_PIXEL_FORMAT_RGB_8_PACKED: return VLFF_PIX_RGB8;
   case ARV_PIXEL_FORMAT_BGR_8_PACKED: return VLFF_PIX_BGR8;
   case ARV_PIXEL_FORMAT_BAYER_RG_8: return VLFF_PIX_BAYER_RG8;

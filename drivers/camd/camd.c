@@ -10,6 +10,11 @@
  * Software triggers come from SIGUSR1 (one per signal, for tests and simple
  * integrations) or from GPIO input edges; they are sent from this loop so
  * that the camera object is only ever touched by one thread.
+ *
+ * With camera.depth: stream the process drives two cameras, the colour
+ * camera and a range camera (depth_camera.*), each with its own pipeline
+ * and reconnect state; their frames meet in the pairing (pair.h), which
+ * writes one record per matched pair.
  */
 #include <errno.h>
 #include <getopt.h>
@@ -23,9 +28,13 @@
 #include "cli.h"
 #include "config.h"
 #include "log.h"
+#include "pair.h"
 #include "pipe.h"
 #include "ringsink.h"
 #include "stamps.h"
+#ifdef VLFF_HAVE_SYSTEMD
+#include <systemd/sd-daemon.h>
+#endif
 #ifdef VLFF_HAVE_ARAVIS
 #include "aravis.h"
 #endif
@@ -40,7 +49,7 @@
 
 static volatile sig_atomic_t stop_req;
 static atomic_uint_fast64_t trigger_req; /* signal handler and GPIO thread add, loop consumes */
-static struct vlff_stamps stamps;
+static struct vlff_stamps stamps, depth_stamps; /* one consumer each: the two pipelines */
 
 static void on_stop(int sig) {
   (void)sig;
@@ -103,19 +112,102 @@ static int trigger_on_edge;
 static void on_pulse(void *ctx, uint64_t t, uint64_t n) {
   (void)ctx, (void)n;
   vlff_stamps_push(&stamps, t);
+  vlff_stamps_push(&depth_stamps, t);
 }
 static void on_edge(void *ctx, uint64_t t, uint64_t n) {
   (void)ctx, (void)n;
   vlff_stamps_push(&stamps, t);
+  vlff_stamps_push(&depth_stamps, t);
   if (trigger_on_edge) atomic_fetch_add(&trigger_req, 1);
 }
 #endif
+
+/* One camera of the process, its pipeline and its reconnect state. */
+struct slot {
+  const char *what; /* "camera" or "depth camera", for messages */
+  const struct backend *be;
+  struct vlff_config cfg; /* camera.* describes this camera */
+  struct vlff_pipe *pipe;
+  struct vlff_sink *sink;
+  const struct vlff_pose_source *poses;
+  void *cam;
+  uint64_t next_try, lost_at;
+  double backoff;
+  uint64_t lost, reconnects, open_failures, incomplete, timeouts, triggers, trig_fail;
+  bool ever_open;
+};
+
+/* Opens the camera when it is due; 1 open, 0 not (yet), -1 the camera
+ * refuses its configuration (retrying will not help). */
+static int slot_open(struct slot *s, const char *path) {
+  if (s->cam) return 1;
+  char err[1024];
+  uint64_t now = mono_ns();
+  if (now < s->next_try) return 0;
+  s->cam = s->be->open(&s->cfg, err, sizeof err);
+  if (!s->cam) {
+    if (errno != ENODEV) {
+      fprintf(stderr, "vlff-camd: %s: %s%s\n", path, strcmp(s->what, "camera") ? "depth camera: " : "", err);
+      return -1;
+    }
+    s->open_failures++;
+    if (s->open_failures == 1 || s->open_failures % 10 == 0)
+      VLFF_WARN(TAG, "%s: %s (attempt %llu, next in %.1f s)", s->what, err, (unsigned long long)s->open_failures,
+                s->backoff);
+    s->next_try = now + (uint64_t)(s->backoff * 1e9);
+    s->backoff = s->backoff * 2 < s->cfg.camera.reconnect_max_s ? s->backoff * 2 : s->cfg.camera.reconnect_max_s;
+    return 0;
+  }
+  if (s->ever_open) {
+    s->reconnects++;
+    VLFF_INFO(TAG, "%s back after %.1f s (reconnect %llu)", s->what, (double)(mono_ns() - s->lost_at) * 1e-9,
+              (unsigned long long)s->reconnects);
+  }
+  s->ever_open = true;
+  s->open_failures = 0;
+  s->backoff = 0.1;
+  return 1;
+}
+
+static void slot_close(struct slot *s) {
+  if (!s->cam) return;
+  uint64_t inc, to;
+  s->be->counters(s->cam, &inc, &to);
+  s->incomplete += inc, s->timeouts += to;
+  s->be->close(s->cam);
+  s->cam = NULL;
+}
+
+static void slot_trigger(struct slot *s, uint64_t n) {
+  char err[512];
+  for (; n > 0 && s->cam && s->be->trigger && s->cfg.camera.trigger == VLFF_TRIG_SOFTWARE; n--) {
+    if (s->be->trigger(s->cam, err, sizeof err)) {
+      s->trig_fail++;
+      VLFF_WARN(TAG, "%s: %s", s->what, err);
+    } else {
+      s->triggers++;
+    }
+  }
+}
+
+static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
+  if (!s->cam) return;
+  if (s->be->grab(s->cam, timeout_ms, s->pipe, s->sink, s->poses) >= 0) return;
+  s->lost++;
+  s->lost_at = mono_ns();
+  slot_close(s);
+  VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, s->cfg.camera.device,
+             (unsigned long long)s->lost, ring);
+  s->next_try = mono_ns() + (uint64_t)(s->backoff * 1e9);
+}
 
 static const struct vlff_cli cli = {
     "vlff-camd",
     "Usage: vlff-camd [--config FILE] [--frames N] [--seconds S]\n"
     "       vlff-camd --check-config FILE\n"
-    "Streams one camera (camera.* keys) into the frame ring (shm.ring).\n"
+    "Streams one camera (camera.* keys) into the frame ring (shm.ring), or with\n"
+    "camera.depth: stream a colour camera and a range camera (depth_camera.*) as\n"
+    "one record per pair, the range image registered into the colour camera.\n"
     "  -c, --config FILE  the config; without it $VLFF_CONFIG, then the installed\n"
     "                     vlff.yaml (vlff-node --help names it); none found is an error\n"
     "  --check-config FILE  check FILE's camera keys and exit 0/1\n"
@@ -182,15 +274,42 @@ int main(int argc, char **argv) {
             cfg.camera.kind == VLFF_CAM_ARAVIS ? "Aravis" : "libcamera");
     return 2;
   }
-  struct vlff_pipe *pipe = vlff_pipe_new(&cfg, err, sizeof err);
-  if (!pipe) {
+  const bool paired = cfg.camera.depth == VLFF_DEPTH_STREAM;
+  static struct slot slots[2];
+  int nslots = paired ? 2 : 1, status = 0;
+  struct slot *color = &slots[0], *range = paired ? &slots[1] : NULL;
+  color->what = "camera", color->be = be, color->cfg = cfg, color->backoff = 0.1;
+  color->pipe = vlff_pipe_new(&cfg, err, sizeof err);
+  if (!color->pipe) {
     fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
     return 2;
   }
+  if (range) {
+#ifdef VLFF_HAVE_ARAVIS
+    range->what = "depth camera", range->be = &aravis_backend, range->backoff = 0.1;
+    vlff_depth_camera_config(&cfg, &range->cfg);
+    range->pipe = vlff_pipe_new_depth(&cfg, err, sizeof err);
+#else
+    snprintf(err, sizeof err, "key 'depth_camera.kind': this build has no Aravis support");
+#endif
+    if (!range->pipe) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
+      vlff_pipe_free(color->pipe);
+      return 2;
+    }
+  }
+  struct vlff_ringsink *ring = NULL;
+  struct vlff_pair *pair = NULL;
   if (check_only) {
-    printf("%s: ok (%s camera '%s', %s)\n", path, be->name, cfg.camera.device, cfg.camera.pixel_format);
-    vlff_pipe_free(pipe);
-    return 0;
+    /* the calibration is read by the pairing: check it here too */
+    if (paired && !(pair = vlff_pair_new(&cfg, NULL, err, sizeof err))) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
+      status = 2;
+    } else {
+      printf("%s: ok (%s camera '%s', %s%s%s)\n", path, be->name, cfg.camera.device, cfg.camera.pixel_format,
+             paired ? ", range camera " : "", paired ? cfg.depth_camera.device : "");
+    }
+    goto out;
   }
 
   struct sigaction sa = {0};
@@ -201,13 +320,25 @@ int main(int argc, char **argv) {
   sa.sa_flags = SA_RESTART;
   sigaction(SIGUSR1, &sa, NULL);
   vlff_stamps_init(&stamps);
+  vlff_stamps_init(&depth_stamps);
 
-  int status = 0;
-  struct vlff_ringsink *ring = vlff_ringsink_new(&cfg, err, sizeof err);
+  ring = vlff_ringsink_new(&cfg, err, sizeof err);
   if (!ring) {
     fprintf(stderr, "vlff-camd: %s\n", err);
-    vlff_pipe_free(pipe);
-    return 1;
+    status = 1;
+    goto out;
+  }
+  color->poses = vlff_ringsink_poses(ring);
+  color->sink = vlff_ringsink_sink(ring);
+  if (range) {
+    pair = vlff_pair_new(&cfg, vlff_ringsink_sink(ring), err, sizeof err);
+    if (!pair) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
+      status = 2;
+      goto out;
+    }
+    color->sink = vlff_pair_color_sink(pair);
+    range->sink = vlff_pair_depth_sink(pair);
   }
 
 #ifdef VLFF_HAVE_GPIOD
@@ -217,103 +348,87 @@ int main(int argc, char **argv) {
     gout = vlff_gpio_out_start(cfg.gpio.chip, cfg.gpio.line, cfg.gpio.rate_hz, cfg.gpio.pulse_us, cfg.gpio.active_low,
                                on_pulse, NULL, err, sizeof err);
     if (!gout) goto gpio_fail;
-    /* A hardware-triggered frame belongs to the newest pulse before it. */
+    /* A hardware-triggered frame belongs to the newest pulse before it; a
+     * pair fired by one pulse carries that pulse's stamp on both sides. */
     if (cfg.camera.trigger == VLFF_TRIG_HARDWARE)
-      vlff_pipe_set_stamps(pipe, &stamps, (uint64_t)(1e9 / cfg.gpio.rate_hz));
+      vlff_pipe_set_stamps(color->pipe, &stamps, (uint64_t)(1e9 / cfg.gpio.rate_hz));
+    if (range && cfg.depth_camera.trigger == VLFF_TRIG_HARDWARE)
+      vlff_pipe_set_stamps(range->pipe, &depth_stamps, (uint64_t)(1e9 / cfg.gpio.rate_hz));
   } else if (cfg.gpio.mode == VLFF_GPIO_INPUT) {
-    trigger_on_edge = cfg.camera.trigger == VLFF_TRIG_SOFTWARE;
+    trigger_on_edge = cfg.camera.trigger == VLFF_TRIG_SOFTWARE ||
+                      (range && cfg.depth_camera.trigger == VLFF_TRIG_SOFTWARE);
     gin = vlff_gpio_in_start(cfg.gpio.chip, cfg.gpio.line, cfg.gpio.debounce_us, cfg.gpio.active_low, on_edge, NULL,
                              err, sizeof err);
     if (!gin) goto gpio_fail;
     /* A frame the edge triggered arrives after trigger latency, exposure,
      * readout and transfer, easily more than a frame period; it is still the
      * edge's frame. Stamping-only edges must fall within one period. */
-    uint64_t period = (uint64_t)(1e9 / cfg.camera.frame_rate);
-    vlff_pipe_set_stamps(pipe, &stamps, trigger_on_edge && period < 1000000000u ? 1000000000u : period);
+    for (int i = 0; i < nslots; i++) {
+      uint64_t period = (uint64_t)(1e9 / slots[i].cfg.camera.frame_rate);
+      vlff_pipe_set_stamps(slots[i].pipe, i ? &depth_stamps : &stamps,
+                           trigger_on_edge && period < 1000000000u ? 1000000000u : period);
+    }
   }
   if (0) {
   gpio_fail:
     fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-    vlff_ringsink_free(ring);
-    vlff_pipe_free(pipe);
-    return 1;
+    status = 1;
+    goto out;
   }
 #else
   if (cfg.gpio.mode != VLFF_GPIO_OFF) {
     fprintf(stderr, "vlff-camd: %s: key 'gpio.mode': this build has no libgpiod support\n", path);
-    vlff_ringsink_free(ring);
-    vlff_pipe_free(pipe);
-    return 2;
+    status = 2;
+    goto out;
   }
 #endif
 
-  void *cam = NULL;
-  uint64_t t0 = mono_ns(), next_try = t0, lost_at = 0;
-  double backoff = 0.1;
-  uint64_t lost = 0, reconnects = 0, open_failures = 0, incomplete = 0, timeouts = 0, triggers = 0, trig_fail = 0;
-  bool ever_open = false;
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Type=notify: ready once the ring exists (consumers may attach; the camera
+   * may come later). The watchdog is fed from this loop, which passes every
+   * grab timeout whether a camera is there or not: only a hang stops it. */
+  uint64_t wd_usec = 0, last_wd = 0;
+  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
+  sd_notify(0, "READY=1");
+#endif
+  uint64_t t0 = mono_ns();
   while (!stop_req) {
+#ifdef VLFF_HAVE_SYSTEMD
+    if (wd_usec && mono_ns() - last_wd >= wd_usec * 250) {
+      sd_notify(0, "WATCHDOG=1");
+      last_wd = mono_ns();
+    }
+#endif
     if (max_seconds > 0 && (double)(mono_ns() - t0) * 1e-9 >= max_seconds) break;
-    if (max_frames > 0 && vlff_pipe_get_stats(pipe)->committed >= (uint64_t)max_frames) break;
-    if (!cam) {
-      uint64_t now = mono_ns();
-      if (now < next_try) {
-        sleep_ms(20);
-        continue;
-      }
-      cam = be->open(&cfg, err, sizeof err);
-      if (!cam) {
-        if (errno != ENODEV) { /* the camera refuses our configuration: retrying will not help */
-          fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-          status = 2;
-          break;
-        }
-        open_failures++;
-        if (open_failures == 1 || open_failures % 10 == 0)
-          VLFF_WARN(TAG, "%s (attempt %llu, next in %.1f s)", err, (unsigned long long)open_failures, backoff);
-        next_try = now + (uint64_t)(backoff * 1e9);
-        backoff = backoff * 2 < cfg.camera.reconnect_max_s ? backoff * 2 : cfg.camera.reconnect_max_s;
-        continue;
-      }
-      if (ever_open) {
-        reconnects++;
-        VLFF_INFO(TAG, "camera back after %.1f s (reconnect %llu)", (double)(mono_ns() - lost_at) * 1e-9,
-                  (unsigned long long)reconnects);
-      }
-      ever_open = true;
-      open_failures = 0;
-      backoff = 0.1;
-      atomic_store(&trigger_req, 0); /* triggers asked for while no camera was there are void */
+    uint64_t committed = pair ? vlff_pair_get_stats(pair)->pairs : vlff_pipe_get_stats(color->pipe)->committed;
+    if (max_frames > 0 && committed >= (uint64_t)max_frames) break;
+    int open = 0, refused = 0;
+    for (int i = 0; i < nslots; i++) {
+      bool was = slots[i].cam != NULL;
+      int r = slot_open(&slots[i], path);
+      refused |= r < 0;
+      open += r > 0;
+      /* triggers asked for while no camera was there are void */
+      if (r > 0 && !was && nslots == 1) atomic_store(&trigger_req, 0);
+    }
+    if (refused) {
+      status = 2;
+      break;
+    }
+    if (!open) {
+      sleep_ms(20);
+      continue;
     }
     uint64_t pend = atomic_exchange(&trigger_req, 0);
-    for (; pend > 0 && be->trigger && cfg.camera.trigger == VLFF_TRIG_SOFTWARE; pend--) {
-      if (be->trigger(cam, err, sizeof err)) {
-        trig_fail++;
-        VLFF_WARN(TAG, "%s", err);
-      } else {
-        triggers++;
-      }
-    }
-    int rc = be->grab(cam, 20, pipe, vlff_ringsink_sink(ring), vlff_ringsink_poses(ring));
-    if (rc < 0) {
-      lost++;
-      lost_at = mono_ns();
-      uint64_t inc, to;
-      be->counters(cam, &inc, &to);
-      incomplete += inc, timeouts += to;
-      be->close(cam);
-      cam = NULL;
-      VLFF_ERROR(TAG, "camera '%s' lost (%llu so far); ring %s stays up, reconnecting", cfg.camera.device,
-                 (unsigned long long)lost, cfg.shm.ring);
-      next_try = mono_ns() + (uint64_t)(backoff * 1e9);
-    }
+    for (int i = 0; i < nslots; i++) slot_trigger(&slots[i], pend);
+    /* Each camera's stream fills its buffers in the background: a short
+     * wait per camera keeps both drained. */
+    for (int i = 0; i < nslots; i++) slot_grab(&slots[i], 20 / nslots, cfg.shm.ring);
   }
-  if (cam) {
-    uint64_t inc, to;
-    be->counters(cam, &inc, &to);
-    incomplete += inc, timeouts += to;
-    be->close(cam);
-  }
+#ifdef VLFF_HAVE_SYSTEMD
+  sd_notify(0, "STOPPING=1");
+#endif
+  for (int i = 0; i < nslots; i++) slot_close(&slots[i]);
   uint64_t pulses = 0, edges = 0;
 #ifdef VLFF_HAVE_GPIOD
   if (gout) pulses = vlff_gpio_out_stats(gout).pulses;
@@ -321,19 +436,34 @@ int main(int argc, char **argv) {
   vlff_gpio_out_stop(gout);
   vlff_gpio_in_stop(gin);
 #endif
-  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(pipe);
+  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(color->pipe);
+  uint64_t dropped = 0, incomplete = 0, timeouts = 0, lost = 0, reconnects = 0, triggers = 0, trig_fail = 0;
+  for (int i = 0; i < nslots; i++) {
+    const struct vlff_pipe_stats *ps = vlff_pipe_get_stats(slots[i].pipe);
+    dropped += ps->dropped_format + ps->dropped_short + ps->dropped_convert + ps->dropped_sink;
+    incomplete += slots[i].incomplete, timeouts += slots[i].timeouts, lost += slots[i].lost;
+    reconnects += slots[i].reconnects, triggers += slots[i].triggers, trig_fail += slots[i].trig_fail;
+  }
+  const struct vlff_pair_stats *ps = pair ? vlff_pair_get_stats(pair) : NULL;
   printf("vlff-camd: committed=%llu incomplete=%llu dropped=%llu timeouts=%llu lost=%llu reconnects=%llu "
-         "triggers=%llu trigger_failures=%llu no_pose=%llu trigger_stamped=%llu pulses=%llu edges=%llu\n",
-         (unsigned long long)st->committed, (unsigned long long)incomplete,
-         (unsigned long long)(st->dropped_format + st->dropped_short + st->dropped_convert + st->dropped_sink),
-         (unsigned long long)timeouts, (unsigned long long)lost, (unsigned long long)reconnects,
-         (unsigned long long)triggers, (unsigned long long)trig_fail, (unsigned long long)st->no_pose,
-         (unsigned long long)st->trigger_stamped, (unsigned long long)pulses, (unsigned long long)edges);
+         "triggers=%llu trigger_failures=%llu no_pose=%llu trigger_stamped=%llu pulses=%llu edges=%llu",
+         (unsigned long long)(ps ? ps->pairs : st->committed), (unsigned long long)incomplete,
+         (unsigned long long)(dropped + (ps ? ps->dropped : 0)), (unsigned long long)timeouts,
+         (unsigned long long)lost, (unsigned long long)reconnects, (unsigned long long)triggers,
+         (unsigned long long)trig_fail, (unsigned long long)st->no_pose, (unsigned long long)st->trigger_stamped,
+         (unsigned long long)pulses, (unsigned long long)edges);
+  if (ps)
+    printf(" color_frames=%llu depth_frames=%llu unmatched_color=%llu unmatched_depth=%llu",
+           (unsigned long long)st->committed, (unsigned long long)vlff_pipe_get_stats(range->pipe)->committed,
+           (unsigned long long)ps->unmatched_color, (unsigned long long)ps->unmatched_depth);
+  printf("\n");
   fflush(stdout);
+out:
+  vlff_pair_free(pair);
   vlff_ringsink_free(ring);
-  vlff_pipe_free(pipe);
+  for (int i = 0; i < nslots; i++) vlff_pipe_free(slots[i].pipe);
 #ifdef VLFF_HAVE_ARAVIS
-  vlff_arv_shutdown();
+  if (!check_only) vlff_arv_shutdown();
 #endif
   return status;
 }

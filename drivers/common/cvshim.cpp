@@ -2,12 +2,14 @@
 // try/catch wall: OpenCV reports bad input by throwing cv::Exception, and an
 // exception unwinding into C frames is undefined behaviour.
 #include "cvshim.h"
+#include "depthreg.h"
 
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <initializer_list>
 #include <new>
 
 #include <opencv2/calib3d.hpp>
@@ -278,3 +280,110 @@ extern "C" int vlff_cv_stereo_compute(struct vlff_cv_stereo *s, const uint8_t *l
 }
 
 extern "C" void vlff_cv_stereo_free(struct vlff_cv_stereo *s) { delete s; }
+
+// The first of several accepted names present in the file, or nullptr.
+static const char *first_key(const cv::FileStorage &fs, std::initializer_list<const char *> names) {
+  for (const char *n : names)
+    if (!fs[n].empty()) return n;
+  return nullptr;
+}
+
+// A matrix of one of the accepted element counts into out; -1 with err naming
+// the file and key otherwise. Returns the element count.
+static int read_doubles(const cv::FileStorage &fs, const char *path, std::initializer_list<const char *> names,
+                        std::initializer_list<int> counts, double *out, char *err, size_t errlen) {
+  const char *key = first_key(fs, names);
+  char what[200];
+  if (!key) {
+    std::snprintf(what, sizeof what, "key '%s' missing", *names.begin());
+    set_err(err, errlen, path, what);
+    return -1;
+  }
+  cv::Mat m;
+  fs[key] >> m;
+  int n = m.empty() ? 0 : (int)m.total() * m.channels();
+  bool ok = false;
+  for (int c : counts) ok = ok || n == c;
+  if (!ok || (m.rows != 1 && m.cols != 1 && n != 9)) {
+    std::snprintf(what, sizeof what, "key '%s': %dx%d matrix has an unexpected shape", key, m.rows, m.cols);
+    set_err(err, errlen, path, what);
+    return -1;
+  }
+  m.convertTo(m, CV_64F);
+  m = m.reshape(1, 1);
+  for (int i = 0; i < n; i++) {
+    out[i] = m.at<double>(0, i);
+    if (!std::isfinite(out[i])) {
+      std::snprintf(what, sizeof what, "key '%s': element %d is not finite", key, i);
+      set_err(err, errlen, path, what);
+      return -1;
+    }
+  }
+  return n;
+}
+
+extern "C" int vlff_cv_rgbd_calib_read(const char *path, struct vlff_rgbd_calib *out, double *t_unit_m,
+                                       char *err, size_t errlen) {
+  std::memset(out, 0, sizeof *out);
+  *t_unit_m = 1;
+  return guarded(path, err, errlen, [&]() -> int {
+    // Checked first: OpenCV would also print its own error line to stderr.
+    if (FILE *f = std::fopen(path, "r")) {
+      std::fclose(f);
+    } else {
+      set_err(err, errlen, path, std::strerror(errno));
+      return -1;
+    }
+    cv::FileStorage fs(path, cv::FileStorage::READ);
+    if (!fs.isOpened()) {
+      set_err(err, errlen, path, "cannot open as an OpenCV FileStorage YAML or XML file");
+      return -1;
+    }
+    if (read_doubles(fs, path, {"K1", "M1", "cameraMatrix1"}, {9}, out->kd, err, errlen) < 0 ||
+        read_doubles(fs, path, {"K2", "M2", "cameraMatrix2"}, {9}, out->kc, err, errlen) < 0 ||
+        read_doubles(fs, path, {"T"}, {3}, out->t, err, errlen) < 0)
+      return -1;
+    out->nd = read_doubles(fs, path, {"D1", "distCoeffs1"}, {4, 5, 8, 12, 14}, out->dd, err, errlen);
+    if (out->nd < 0) return -1;
+    out->nc = read_doubles(fs, path, {"D2", "distCoeffs2"}, {4, 5, 8, 12, 14}, out->dc, err, errlen);
+    if (out->nc < 0) return -1;
+    for (int n : {out->nd, out->nc})
+      if (n > VLFF_DIST_MAX) {
+        set_err(err, errlen, path,
+                "distortion with thin-prism or tilt terms (12 or 14 coefficients) is not supported: "
+                "calibrate with 4, 5 or 8");
+        return -1;
+      }
+    double r[9];
+    int nr = read_doubles(fs, path, {"R"}, {3, 9}, r, err, errlen);
+    if (nr < 0) return -1;
+    if (nr == 3) {
+      cv::Mat rv(3, 1, CV_64F, r), rm;
+      cv::Rodrigues(rv, rm);
+      for (int i = 0; i < 9; i++) out->r[i] = rm.at<double>(i / 3, i % 3);
+    } else {
+      std::memcpy(out->r, r, sizeof r);
+    }
+    if (!fs["translation_unit_m"].empty()) {
+      if (!fs["translation_unit_m"].isReal() && !fs["translation_unit_m"].isInt()) {
+        set_err(err, errlen, path, "key 'translation_unit_m': expected a number");
+        return -1;
+      }
+      fs["translation_unit_m"] >> *t_unit_m;
+    }
+    const char *size_keys[4] = {"depth_width", "depth_height", "color_width", "color_height"};
+    int *sizes[4] = {&out->depth_w, &out->depth_h, &out->color_w, &out->color_h};
+    for (int i = 0; i < 4; i++) {
+      cv::FileNode n = fs[size_keys[i]];
+      if (n.empty()) continue;
+      if (!n.isInt()) {
+        char what[120];
+        std::snprintf(what, sizeof what, "key '%s': expected an integer", size_keys[i]);
+        set_err(err, errlen, path, what);
+        return -1;
+      }
+      n >> *sizes[i];
+    }
+    return 0;
+  });
+}

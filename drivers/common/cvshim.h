@@ -54,6 +54,14 @@ struct vlff_cv_calib {
 };
 int vlff_cv_calib_load(const char *path, struct vlff_cv_calib *out, char *err, size_t errlen);
 
+/* The raw contents of a depth-to-colour calibration file (depthreg.h lists
+ * the keys): matrices as written, T in the file's units, *t_unit_m the
+ * file's translation_unit_m (1 when absent). No bounds are checked here
+ * beyond shapes and finiteness: vlff_rgbd_calib_load does that. */
+struct vlff_rgbd_calib;
+int vlff_cv_rgbd_calib_read(const char *path, struct vlff_rgbd_calib *out, double *t_unit_m, char *err,
+                            size_t errlen);
+
 /* Stereo depth from a rectifiable pair: rectification from the calibration,
  * then semi-global block matching. Each eye is w x h. */
 struct vlff_cv_stereo;

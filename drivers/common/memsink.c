@@ -23,7 +23,7 @@ static int reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *err, si
   }
   int i = (int)(m->committed % (uint64_t)m->slots);
   f->slot = (void *)(intptr_t)i;
-  f->color = m->color[i];
+  f->color = f->color_format != VLFF_PIX_NONE ? m->color[i] : NULL; /* a range camera's frame: depth only */
   f->color_stride = (size_t)m->max_w * (f->color_format == VLFF_PIX_MONO16 ? 2 : 3);
   f->depth = f->depth_format ? (void *)m->depth[i] : NULL;
   f->depth_stride = f->depth_format == VLFF_DEPTH_FMT_U16_MM ? (size_t)m->max_w * 2 : (size_t)m->max_w * 4;

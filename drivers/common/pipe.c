@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "cvshim.h"
+#include "depthreg.h"
 #include "stamps.h"
 #include "log.h"
 
@@ -26,13 +27,13 @@ struct vlff_pipe {
   bool undistort;
   struct vlff_cv_calib calib;
   bool have_calib;
+  bool range;                   /* the range camera of a pair: depth plane only */
   /* built for the first frame's size, rebuilt if it changes */
   int w, h;
   struct vlff_cv_undistort *und;
   struct vlff_cv_stereo *stereo;
   uint8_t *scratch;             /* RGB8 of the whole raw image */
   float *depth_scratch;
-  uint16_t *u16_scratch;
   size_t scratch_size;
   struct vlff_pipe_stats st;
   struct vlff_stamps *stamps;
@@ -54,6 +55,35 @@ static bool any_nonzero(const double *v, int n) {
     return -1;                                                         \
   } while (0)
 
+/* camera.depth: stream: a range camera (depth_camera.*) paired with the
+ * colour camera by time, its depth registered into it. */
+static int check_depth_camera(const struct vlff_config *cfg, const char *file, char *err, size_t errlen) {
+  const __typeof__(cfg->depth_camera) *d = &cfg->depth_camera;
+  if (d->kind == VLFF_DCAM_NONE)
+    BAD("camera.depth", "'stream' pairs the colour camera with a range camera: set depth_camera.kind "
+                        "(aravis) and depth_camera.device");
+  if (vlff_pix_from_name(d->pixel_format) != VLFF_PIX_MONO16)
+    BAD("depth_camera.pixel_format", "expected a 16-bit range format (Mono16 or Coord3D_C16), got '%s'",
+        d->pixel_format);
+  if (!d->calibration[0])
+    BAD("depth_camera.calibration",
+        "expected the depth-to-colour calibration (OpenCV FileStorage: K1 D1 K2 D2 R T), got none");
+  if (cfg->camera.calibration[0] || any_nonzero(cfg->camera.intrinsics, 4) || any_nonzero(cfg->camera.distortion, 5))
+    BAD(cfg->camera.calibration[0] ? "camera.calibration" : "camera.intrinsics",
+        "with camera.depth: stream the colour camera's intrinsics come from depth_camera.calibration (K2, D2): "
+        "expected none here");
+  if (cfg->camera.depth_unit != VLFF_DEPTH_UNIT_MM)
+    BAD("camera.depth_unit", "registered depth is uint16 millimetres: expected mm");
+  /* Two frames of one camera within the tolerance of a frame of the other
+   * would make the pairing ambiguous: under half a period, none can be. */
+  double half = 0.5 / fmax(cfg->camera.frame_rate, d->frame_rate);
+  if (!(d->pair_tolerance_s < half))
+    BAD("depth_camera.pair_tolerance_s",
+        "expected less than half the faster camera's frame period (%.4f s), so that no frame has two "
+        "candidates, got %g", half, d->pair_tolerance_s);
+  return 0;
+}
+
 int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err, size_t errlen) {
   const __typeof__(cfg->camera) *c = &cfg->camera;
   if (c->kind != VLFF_CAM_ARAVIS && c->kind != VLFF_CAM_LIBCAMERA)
@@ -61,11 +91,13 @@ int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err
   vlff_pix_t pix = vlff_pix_from_name(c->pixel_format);
   if (pix == VLFF_PIX_INVALID)
     BAD("camera.pixel_format", "expected one of %s, got '%s'", vlff_pix_names(), c->pixel_format);
-  if (c->depth == VLFF_DEPTH_STREAM && pix != VLFF_PIX_MONO16)
-    BAD("camera.depth", "'stream' needs camera.pixel_format Mono16 (a range image), got '%s'",
-        c->pixel_format);
-  if (pix == VLFF_PIX_MONO16 && c->depth != VLFF_DEPTH_STREAM)
-    BAD("camera.pixel_format", "Mono16 is read as a range image: expected camera.depth: stream");
+  if (pix == VLFF_PIX_MONO16)
+    BAD("camera.pixel_format",
+        "%s is a range image, not colour: a range camera goes in depth_camera.* beside a colour camera, "
+        "with camera.depth: stream", c->pixel_format);
+  if (c->depth == VLFF_DEPTH_STREAM && check_depth_camera(cfg, file, err, errlen)) return -1;
+  if (cfg->depth_camera.kind != VLFF_DCAM_NONE && c->depth != VLFF_DEPTH_STREAM)
+    BAD("depth_camera.kind", "a range camera is paired with the colour camera only with camera.depth: stream");
   if (c->depth == VLFF_DEPTH_STEREO) {
     if (!c->calibration[0])
       BAD("camera.calibration",
@@ -105,17 +137,56 @@ int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err
   return 0;
 }
 
-struct vlff_pipe *vlff_pipe_new(const struct vlff_config *cfg, char *err, size_t errlen) {
-  if (vlff_camcfg_check(cfg, "config", err, errlen)) return NULL;
+void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_config *out) {
+  const __typeof__(cfg->depth_camera) *d = &cfg->depth_camera;
+  *out = *cfg;
+  __typeof__(out->camera) *c = &out->camera;
+  c->kind = VLFF_CAM_ARAVIS;
+  snprintf(c->device, sizeof c->device, "%s", d->device);
+  snprintf(c->pixel_format, sizeof c->pixel_format, "%s", d->pixel_format);
+  c->width = d->width, c->height = d->height, c->offset_x = c->offset_y = 0;
+  c->exposure_us = d->exposure_us, c->gain_db = 0, c->frame_rate = d->frame_rate;
+  c->packet_size = d->packet_size, c->trigger = d->trigger;
+  snprintf(c->trigger_line, sizeof c->trigger_line, "%s", d->trigger_line);
+  memset(c->intrinsics, 0, sizeof c->intrinsics);
+  memset(c->distortion, 0, sizeof c->distortion);
+  c->calibration[0] = 0;
+  c->depth = VLFF_DEPTH_STREAM, c->depth_unit = VLFF_DEPTH_UNIT_MM, c->depth_scale_m = d->scale_m;
+  out->depth_camera.kind = VLFF_DCAM_NONE;
+}
+
+static struct vlff_pipe *pipe_create(const struct vlff_config *cfg, bool range, char *err, size_t errlen) {
   struct vlff_pipe *p = calloc(1, sizeof *p);
   if (!p) {
     snprintf(err, errlen, "out of memory");
     return NULL;
   }
   p->cfg = *cfg;
+  p->range = range;
   p->pix = vlff_pix_from_name(cfg->camera.pixel_format);
   memcpy(p->k, cfg->camera.intrinsics, sizeof p->k);
   memcpy(p->dist, cfg->camera.distortion, sizeof p->dist);
+  if (!range && cfg->camera.depth == VLFF_DEPTH_STREAM) {
+    /* The registration projects into the colour camera of the calibration:
+     * the colour image must be undistorted with that camera's own model. */
+    struct vlff_rgbd_calib rc;
+    char e[512];
+    if (vlff_rgbd_calib_load(cfg->depth_camera.calibration, &rc, e, sizeof e)) {
+      snprintf(err, errlen, "key 'depth_camera.calibration': %s", e);
+      free(p);
+      return NULL;
+    }
+    if (rc.nc > 5 && any_nonzero(rc.dc + 5, rc.nc - 5)) {
+      snprintf(err, errlen, "key 'depth_camera.calibration': %s: the colour camera's rational distortion (D2 "
+               "k4..k6) is not supported by the colour pipeline; calibrate it with 5 coefficients",
+               cfg->depth_camera.calibration);
+      free(p);
+      return NULL;
+    }
+    p->k[0] = rc.kc[0], p->k[1] = rc.kc[4], p->k[2] = rc.kc[2], p->k[3] = rc.kc[5];
+    memset(p->dist, 0, sizeof p->dist);
+    memcpy(p->dist, rc.dc, sizeof(double) * (size_t)(rc.nc < 5 ? rc.nc : 5));
+  }
   if (cfg->camera.calibration[0]) {
     char e[512];
     if (vlff_cv_calib_load(cfg->camera.calibration, &p->calib, e, sizeof e)) {
@@ -137,8 +208,24 @@ struct vlff_pipe *vlff_pipe_new(const struct vlff_config *cfg, char *err, size_t
       if (!any_nonzero(p->dist, 5)) memcpy(p->dist, p->calib.dist, sizeof p->dist);
     }
   }
-  p->undistort = cfg->camera.depth != VLFF_DEPTH_STEREO && any_nonzero(p->dist, 5);
+  p->undistort = !range && cfg->camera.depth != VLFF_DEPTH_STEREO && any_nonzero(p->dist, 5);
   return p;
+}
+
+struct vlff_pipe *vlff_pipe_new(const struct vlff_config *cfg, char *err, size_t errlen) {
+  if (vlff_camcfg_check(cfg, "config", err, errlen)) return NULL;
+  return pipe_create(cfg, false, err, errlen);
+}
+
+struct vlff_pipe *vlff_pipe_new_depth(const struct vlff_config *cfg, char *err, size_t errlen) {
+  if (vlff_camcfg_check(cfg, "config", err, errlen)) return NULL;
+  if (cfg->camera.depth != VLFF_DEPTH_STREAM) {
+    snprintf(err, errlen, "key 'camera.depth': a range camera's pipeline needs camera.depth: stream");
+    return NULL;
+  }
+  struct vlff_config d;
+  vlff_depth_camera_config(cfg, &d);
+  return pipe_create(&d, true, err, errlen);
 }
 
 void vlff_pipe_free(struct vlff_pipe *p) {
@@ -147,7 +234,6 @@ void vlff_pipe_free(struct vlff_pipe *p) {
   vlff_cv_stereo_free(p->stereo);
   free(p->scratch);
   free(p->depth_scratch);
-  free(p->u16_scratch);
   free(p);
 }
 
@@ -184,13 +270,11 @@ static int prepare(struct vlff_pipe *p, int raw_w, int w, int h, char *err, size
   p->stereo = NULL;
   free(p->scratch);
   free(p->depth_scratch);
-  free(p->u16_scratch);
   p->w = p->h = 0;
   size_t n = (size_t)raw_w * h;
   p->scratch = malloc(n * 3);
   p->depth_scratch = malloc((size_t)w * h * sizeof(float));
-  p->u16_scratch = malloc((size_t)w * h * sizeof(uint16_t));
-  if (!p->scratch || !p->depth_scratch || !p->u16_scratch) {
+  if (!p->scratch || !p->depth_scratch) {
     snprintf(err, errlen, "out of memory for %dx%d scratch images", raw_w, h);
     return -1;
   }
@@ -269,9 +353,12 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
     return -1;
   }
 
+  /* A range camera's frame is depth only; the colour camera of a pair
+   * sends colour only (the pairing adds the registered depth); a stereo
+   * pair computes both. */
   struct vlff_sink_frame f = {.width = w, .height = h};
-  f.color_format = p->cfg.camera.depth == VLFF_DEPTH_STREAM ? VLFF_PIX_MONO16 : VLFF_PIX_RGB8;
-  if (p->cfg.camera.depth != VLFF_DEPTH_NONE)
+  f.color_format = p->range ? VLFF_PIX_NONE : VLFF_PIX_RGB8;
+  if (p->range || p->cfg.camera.depth == VLFF_DEPTH_STEREO)
     f.depth_format = p->cfg.camera.depth_unit == VLFF_DEPTH_UNIT_MM ? VLFF_DEPTH_FMT_U16_MM : VLFF_DEPTH_FMT_F32_M;
   if (sink->reserve(sink, &f, err, sizeof err)) {
     drop(p, &p->st.dropped_sink, "%s", err);
@@ -279,16 +366,8 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
   }
 
   int rc = 0;
-  if (p->cfg.camera.depth == VLFF_DEPTH_STREAM) {
-    for (int y = 0; y < h; y++)
-      memcpy(f.color + (size_t)y * f.color_stride, (const char *)raw->data + (size_t)y * raw->stride, (size_t)w * 2);
-    if (p->und) {
-      rc = vlff_cv_undistort_apply(p->und, raw->data, raw->stride, p->u16_scratch, (size_t)w * 2, 1, 2, err,
-                                   sizeof err);
-      if (!rc) range_to_depth(p, p->u16_scratch, (size_t)w * 2, f.depth, f.depth_stride, w, h);
-    } else {
-      range_to_depth(p, raw->data, raw->stride, f.depth, f.depth_stride, w, h);
-    }
+  if (p->range) {
+    range_to_depth(p, raw->data, raw->stride, f.depth, f.depth_stride, w, h);
   } else if (stereo) {
     size_t ss = (size_t)raw->width * 3;
     rc = vlff_cv_to_rgb(raw->data, raw->stride, raw->width, h, raw->pix, p->scratch, ss, err, sizeof err);

@@ -8,7 +8,8 @@
  *    driver needs (pixel format known, depth mode consistent with it,
  *    calibration present for stereo, ...). Returns 0 or -1 with err naming
  *    the file and the key: "FILE: key 'camera.x': expected ..., got ...".
- *  - vlff_pipe_new() loads the calibration (camera.calibration) and returns
+ *  - vlff_pipe_new() loads the calibration (camera.calibration, or with
+ *    camera.depth: stream depth_camera.calibration) and returns
  *    a pipeline, or NULL with err filled. Free with vlff_pipe_free().
  *  - vlff_pipe_push() validates the raw image (format, size, buffer length),
  *    converts it straight into a reserved sink slot and commits. Returns 0
@@ -53,8 +54,19 @@ struct vlff_pipe_stats {
 
 int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err, size_t errlen);
 
+/* The camera.* view of the range camera (depth_camera.*), for opening it
+ * with a camera backend. */
+void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_config *out);
+
 struct vlff_pipe;
+/* The colour camera's pipeline. With camera.depth: stream its frames carry
+ * colour only (the pairing adds the depth plane) and its intrinsics and
+ * distortion come from the depth-to-colour calibration's colour camera. */
 struct vlff_pipe *vlff_pipe_new(const struct vlff_config *cfg, char *err, size_t errlen);
+/* The range camera's pipeline (camera.depth: stream): 16-bit counts times
+ * depth_camera.scale_m into a uint16 millimetre depth plane, no colour
+ * plane; undistortion is left to the registration. */
+struct vlff_pipe *vlff_pipe_new_depth(const struct vlff_config *cfg, char *err, size_t errlen);
 void vlff_pipe_free(struct vlff_pipe *p);
 /* poses may be NULL: frames are then committed without a pose. */
 int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct vlff_sink *sink,

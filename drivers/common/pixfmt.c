@@ -12,6 +12,8 @@ static const struct {
     {VLFF_PIX_RGB8, "RGB8", 3},           {VLFF_PIX_BGR8, "BGR8", 3},
     {VLFF_PIX_BAYER_RG8, "BayerRG8", 1},  {VLFF_PIX_BAYER_BG8, "BayerBG8", 1},
     {VLFF_PIX_BAYER_GR8, "BayerGR8", 1},  {VLFF_PIX_BAYER_GB8, "BayerGB8", 1},
+    /* GenICam's 3D range component: 16-bit unsigned, laid out as Mono16. */
+    {VLFF_PIX_MONO16, "Coord3D_C16", 2},
 };
 
 #define N (sizeof table / sizeof table[0])
@@ -40,5 +42,5 @@ int vlff_pix_is_bayer(vlff_pix_t pix) {
 }
 
 const char *vlff_pix_names(void) {
-  return "Mono8, Mono16, RGB8, BGR8, BayerRG8, BayerBG8, BayerGR8, BayerGB8";
+  return "Mono8, Mono16, RGB8, BGR8, BayerRG8, BayerBG8, BayerGR8, BayerGB8, Coord3D_C16";
 }

@@ -11,9 +11,10 @@
  *  - reserve() returns 0, or -1 with err filled (frame larger than a slot,
  *    sink closed); the producer drops and counts that frame. A sink never
  *    blocks the producer.
- *  - Plane formats: colour is packed RGB8 (a range camera's raw Mono16 image
- *    for depth: stream); depth is uint16 millimetres or
- *    float32 metres, 0 meaning "no valid depth" (the validity mask).
+ *  - Plane formats: colour is packed RGB8, or absent (VLFF_PIX_NONE: a
+ *    range camera's frame, depth only, on its way to be paired with a
+ *    colour camera's); depth is uint16 millimetres or float32 metres, 0
+ *    meaning "no valid depth" (the validity mask).
  *  - Timestamps are nanoseconds: device_ns on the camera's clock, host_ns on
  *    this host's CLOCK_MONOTONIC.
  *  - A sink is used from one producer thread; vlff_memsink_* readers may run
@@ -31,7 +32,7 @@ enum vlff_depth_fmt { VLFF_DEPTH_FMT_NONE = 0, VLFF_DEPTH_FMT_U16_MM, VLFF_DEPTH
 struct vlff_sink_frame {
   /* In to reserve(): */
   int width, height;
-  int color_format;               /* VLFF_PIX_RGB8, or VLFF_PIX_MONO16 for a raw range image */
+  int color_format;               /* VLFF_PIX_RGB8, or VLFF_PIX_NONE for a range camera's frame */
   int depth_format;               /* enum vlff_depth_fmt */
   /* Out of reserve(): */
   uint8_t *color;

@@ -57,6 +57,7 @@ static const char *const trigger_modes[] = {"freerun", "software", "hardware", N
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
 static const char *const depth_kinds[] = {"none", "stream", "stereo", NULL};
 static const char *const depth_units[] = {"mm", "m", NULL};
+static const char *const depth_camera_kinds[] = {"none", "aravis", NULL};
 
 static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
@@ -204,10 +205,23 @@ static const struct key schema[] = {
     STR("camera.calibration", camera.calibration, ""),
     ENUM("camera.depth", camera.depth, depth_kinds, "none"),
     ENUM("camera.depth_unit", camera.depth_unit, depth_units, "mm"),
-    DBL("camera.depth_scale_m", camera.depth_scale_m, 1e-6, 1, 0.001),
     DBL("camera.stereo_baseline_m", camera.stereo_baseline_m, 0, 10, 0),
     INT("camera.stereo_disparities", camera.stereo_disparities, 16, 1024, 64),
     DBL("camera.reconnect_max_s", camera.reconnect_max_s, 0.1, 3600, 5),
+
+    ENUM("depth_camera.kind", depth_camera.kind, depth_camera_kinds, "none"),
+    STR("depth_camera.device", depth_camera.device, ""),
+    STR("depth_camera.pixel_format", depth_camera.pixel_format, "Mono16"),
+    INT("depth_camera.width", depth_camera.width, 0, 16384, 0),
+    INT("depth_camera.height", depth_camera.height, 0, 16384, 0),
+    DBL("depth_camera.exposure_us", depth_camera.exposure_us, 1, 1e7, 10000),
+    DBL("depth_camera.frame_rate", depth_camera.frame_rate, 0.1, 1000, 30),
+    INT("depth_camera.packet_size", depth_camera.packet_size, 0, 16384, 0),
+    ENUM("depth_camera.trigger", depth_camera.trigger, trigger_modes, "freerun"),
+    STR("depth_camera.trigger_line", depth_camera.trigger_line, "Line1"),
+    DBL("depth_camera.scale_m", depth_camera.scale_m, 1e-6, 1, 0.001),
+    STR("depth_camera.calibration", depth_camera.calibration, ""),
+    DBL("depth_camera.pair_tolerance_s", depth_camera.pair_tolerance_s, 1e-6, 1, 0.005),
 
     ENUM("gpio.mode", gpio.mode, gpio_modes, "off"),
     STR("gpio.chip", gpio.chip, "gpiochip0"),
@@ -343,7 +357,8 @@ static void got(const yaml_node_t *n, char *buf, size_t len) {
   if (n->type == YAML_SCALAR_NODE) {
     char e[256];
     escape(scalar(n), n->data.scalar.length, 60, e, sizeof e);
-    snprintf(buf, len, "'%s'", e);
+    /* the caller's buffer bounds the quote; an escaped value may be cut */
+    snprintf(buf, len, "'%.*s'", (int)(len > 3 ? len - 3 : 0), e);
   } else {
     snprintf(buf, len, "%s", node_kind(n));
   }

@@ -47,6 +47,7 @@ enum vlff_sampling { VLFF_SAMPLING_DEPTH, VLFF_SAMPLING_UNIFORM };
 enum vlff_label_image { VLFF_LABEL_IMAGE_SURFACE, VLFF_LABEL_IMAGE_RENDER };
 enum vlff_trajectory { VLFF_TRAJ_WALK, VLFF_TRAJ_ORBIT };
 enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA, VLFF_CAM_SIM };
+enum vlff_depth_camera_kind { VLFF_DCAM_NONE, VLFF_DCAM_ARAVIS };
 enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
 enum vlff_gpio_mode { VLFF_GPIO_OFF, VLFF_GPIO_OUTPUT, VLFF_GPIO_INPUT };
 enum vlff_depth_kind { VLFF_DEPTH_NONE, VLFF_DEPTH_STREAM, VLFF_DEPTH_STEREO };
@@ -206,11 +207,29 @@ struct vlff_config {
     char calibration[VLFF_CFG_PATH]; /* OpenCV calibration YAML */
     int depth;                       /* enum vlff_depth_kind */
     int depth_unit;                  /* enum vlff_depth_unit of the depth plane */
-    double depth_scale_m;            /* metres per count of a Mono16 range stream */
+    double depth_scale_m;            /* metres per count: a range camera's (set from depth_camera.scale_m) */
     double stereo_baseline_m;
     int stereo_disparities;
     double reconnect_max_s;
   } camera;
+
+  /* A range camera beside the colour camera (camera.depth: stream): its
+   * frames are paired with the colour camera's by time and registered into
+   * it, one frame record per pair. */
+  struct {
+    int kind;                        /* enum vlff_depth_camera_kind */
+    char device[VLFF_CFG_STR];
+    char pixel_format[32];           /* Mono16 or Coord3D_C16 */
+    int width, height;               /* 0 = sensor maximum */
+    double exposure_us;
+    double frame_rate;
+    int packet_size;
+    int trigger;                     /* enum vlff_trigger_mode */
+    char trigger_line[32];
+    double scale_m;                  /* metres per count */
+    char calibration[VLFF_CFG_PATH]; /* depth-to-colour OpenCV FileStorage file */
+    double pair_tolerance_s;         /* largest colour-depth time difference paired */
+  } depth_camera;
 
   struct {
     int mode;                        /* enum vlff_gpio_mode */

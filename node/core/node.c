@@ -298,11 +298,17 @@ static void pending_complete(struct vlff_node *n, struct candidate **pending, in
   queue_push(n, c);
 }
 
+static mode_t shm_mode(const struct vlff_node *n) {
+  return n->cfg.shm.mode ? (mode_t)n->cfg.shm.mode : 0640;
+}
+
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
   bool warned = false;
   while (!atomic_load(&n->stop)) {
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
-    struct vlff_ring *r = vlff_ring_attach(name, kind);
+    /* Only rings of this node's uid, within the configured mode: anyone else able
+     * to write one could forge its records. */
+    struct vlff_ring *r = vlff_ring_attach_owned(name, kind, geteuid(), shm_mode(n));
     if (r) {
       VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
                 (unsigned long long)vlff_ring_slot_size(r));
@@ -507,7 +513,7 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
     double t_now = mono_s();
     if (!ig->poses || (ig->pose_miss && t_now - ig->pose_reattach_s >= 1.0)) {
       vlff_ring_close(ig->poses);
-      ig->poses = vlff_ring_attach(cfg->shm.pose_ring, VLFF_RECORD_POSE);
+      ig->poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
       ig->pose_reattach_s = t_now;
       ig->pose_miss = false;
     }
@@ -685,7 +691,8 @@ static void ingest_frame(struct ingest *ig, const void *buf, ssize_t len, double
 static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_t *fbuf, int model_h, int model_w) {
   struct vlff_node *n = ig->n;
   const struct vlff_config *cfg = ig->cfg;
-  if (ig->join && !*feats) *feats = vlff_ring_attach(cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
+  if (ig->join && !*feats)
+    *feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
   if (ig->join) {
     if (*feats) vlff_feature_join_pump(ig->join, *feats);
     uint64_t fid;
@@ -1111,9 +1118,18 @@ static void run_commands(struct vlff_node *n, bool *publish_now) {
   }
 }
 
+/* Every request gets an answer in the mailbox, so that the poster learns whether its
+ * prompts were taken; a malformed or half-written one is answered by the library and
+ * only logged here. */
 static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) {
   struct vlff_prompt_request req;
-  if (!n->mailbox || vlff_prompts_poll(n->mailbox, seq, &req) != 1) return;
+  if (!n->mailbox) return;
+  int got = vlff_prompts_poll(n->mailbox, seq, &req);
+  if (got < 0) {
+    VLFF_ERROR(TAG, "prompt mailbox: %s", vlff_shm_last_message());
+    return;
+  }
+  if (got != 1) return;
   char err[256];
   int rc;
   if (req.set_index >= 0) {
@@ -1129,6 +1145,9 @@ static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) 
                req.poster_pid, err);
   else
     *publish_now = true;
+  if (vlff_prompts_answer(n->mailbox, req.seq, rc == 0, rc ? err : NULL))
+    VLFF_ERROR(TAG, "prompt mailbox: cannot answer request %llu: %s", (unsigned long long)req.seq,
+               vlff_shm_last_message());
 }
 
 static void update_state(struct vlff_node *n) {
@@ -1335,7 +1354,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
   if (!n->pub) goto fail;
   /* Controllers of the segments' group post prompts: the mailbox alone is
    * group-writable whenever the group may read. */
-  mode_t mode = (mode_t)cfg->shm.mode;
+  mode_t mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;
   if (mode & S_IRGRP) mode |= S_IWGRP;
   struct vlff_shm_perm perm = {.mode = mode, .group = cfg->shm.group};
   n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);

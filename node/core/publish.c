@@ -524,7 +524,8 @@ void vlff_publisher_heartbeat(struct vlff_publisher *p) {
   double now = mono_s();
   if (now - p->last_heartbeat_s < 0.1) return;
   p->last_heartbeat_s = now;
-  vlff_map_heartbeat(p->map);
+  /* A map truncated under the node is replaced by the library; say so. */
+  if (vlff_map_heartbeat(p->map)) VLFF_ERROR(TAG, "map heartbeat: %s", vlff_shm_last_message());
 }
 
 double vlff_publisher_age_s(const struct vlff_publisher *p) {

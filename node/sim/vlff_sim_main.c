@@ -180,6 +180,11 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
     }
     uint64_t seq;
     struct vlff_frame_hdr *h = vlff_ring_reserve(ring, &seq);
+    if (!h && errno == EPIPE) {
+      /* The ring's file was truncated under us; the library has replaced it. */
+      VLFF_ERROR(TAG, "frame ring: %s", vlff_shm_last_message());
+      continue;
+    }
     uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), (uint32_t)W, (uint32_t)H, VLFF_PIX_RGB8,
                                      VLFF_PIX_DEPTH_U16_MM);
     if (!len) {
@@ -202,12 +207,19 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       memcpy(dep + (size_t)v * h->plane[VLFF_PLANE_DEPTH].stride, f->depth_mm + (size_t)v * W, (size_t)W * 2);
     }
     if (vlff_ring_commit(ring, len) < 0) {
-      fprintf(stderr, "vlff-sim: commit: %s\n", strerror(errno));
-      status = 1;
-      break;
+      if (errno != EPIPE) {
+        fprintf(stderr, "vlff-sim: commit: %s\n", strerror(errno));
+        status = 1;
+        break;
+      }
+      VLFF_ERROR(TAG, "frame ring: %s", vlff_shm_last_message());
     }
     if (fring) {
       struct vlff_feature_hdr *fhd = vlff_ring_reserve(fring, NULL);
+      if (!fhd && errno == EPIPE) {
+        VLFF_ERROR(TAG, "feature ring: %s", vlff_shm_last_message());
+        continue;
+      }
       uint64_t flen = vlff_feature_layout(fhd, vlff_ring_slot_size(fring), (uint32_t)D, (uint32_t)fh, (uint32_t)fw);
       if (!flen) {
         fprintf(stderr, "vlff-sim: features do not fit the ring slot\n");
@@ -219,9 +231,12 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       uint16_t *out = (uint16_t *)((uint8_t *)fhd + fhd->data_offset);
       vlff_transpose_u16(f->features, (size_t)fw * fh, (size_t)D, out);
       if (vlff_ring_commit(fring, flen) < 0) {
-        fprintf(stderr, "vlff-sim: feature commit: %s\n", strerror(errno));
-        status = 1;
-        break;
+        if (errno != EPIPE) {
+          fprintf(stderr, "vlff-sim: feature commit: %s\n", strerror(errno));
+          status = 1;
+          break;
+        }
+        VLFF_ERROR(TAG, "feature ring: %s", vlff_shm_last_message());
       }
     }
     if (!quiet && id % 50 == 0) VLFF_INFO(TAG, "frame %lld (scene frame %lld) published, %lld late", id, idx, late);

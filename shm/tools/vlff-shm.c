@@ -10,6 +10,7 @@
 #include <dirent.h>
 #include <errno.h>
 #include <inttypes.h>
+#include <math.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -25,8 +26,11 @@ static const struct vlff_cli cli = {
   "  stat NAME                 header of a segment (kind, generation, creator, sizes)\n"
   "  dump-frame NAME FILE      newest frame of a frame ring to FILE (.ppm color, .pgm mono/depth)\n"
   "  label NAME X Y Z          label, confidence and prompt of the map voxel at world point X Y Z (m)\n"
-  "  set-prompts NAME TEXT...  post a prompt set to a prompt mailbox\n"
-  "  set-prompts NAME -i N     post \"switch to configured prompt set N\"\n"
+  "  set-prompts [-t SECONDS] NAME TEXT...\n"
+  "                            post a prompt set to a prompt mailbox and wait (default 5 s)\n"
+  "                            for the learner's answer: prints 'accepted N' or 'refused N: why'\n"
+  "  set-prompts [-t SECONDS] NAME -i N\n"
+  "                            post \"switch to configured prompt set N\", same answer\n"
   "  watch NAME [COUNT]        print records of a ring / versions of a map as they come\n"
   "\n"
   "Examples:\n"
@@ -37,7 +41,7 @@ static const struct vlff_cli cli = {
   "  vlff-shm set-prompts /vlff-prompts \"chair\" \"table\" \"door\"\n"
   "  vlff-shm watch /vlff-frames 100\n"
   "\n"
-  "Exit status: 0 ok, 1 error (message on stderr), 2 usage.\n",
+  "Exit status: 0 ok, 1 error, refusal or no answer in time (message on stderr), 2 usage.\n",
 };
 
 static int fail(const char *what) {
@@ -216,14 +220,15 @@ static int parse_double(const char *s, double *v) {
   char *end;
   errno = 0;
   *v = strtod(s, &end);
-  return errno || end == s || *end ? -1 : 0;
+  /* A NaN or infinite coordinate names no point of the world. */
+  return errno || end == s || *end || !isfinite(*v) ? -1 : 0;
 }
 
 static int cmd_label(const char *name, char **xyz) {
   double p[3];
   for (int i = 0; i < 3; i++)
     if (parse_double(xyz[i], &p[i]) < 0) {
-      fprintf(stderr, "vlff-shm: '%s' is not a number\n", xyz[i]);
+      fprintf(stderr, "vlff-shm: '%s' is not a finite number\n", xyz[i]);
       return 2;
     }
   struct vlff_map *m = vlff_map_attach(name);
@@ -248,29 +253,55 @@ static int cmd_label(const char *name, char **xyz) {
   return rc;
 }
 
-static int cmd_set_prompts(const char *name, int n, char **texts) {
-  struct vlff_prompts *p = vlff_prompts_attach(name);
-  if (!p)
-    return fail(name);
-  int rc;
+static int cmd_set_prompts(int argc, char **argv) {
+  double timeout_s = 5.0;
+  if (argc >= 2 && !strcmp(argv[0], "-t")) {
+    char *end;
+    timeout_s = strtod(argv[1], &end);
+    if (*end || !(timeout_s > 0 && timeout_s <= 3600)) {
+      fprintf(stderr, "vlff-shm: -t '%s' is not a number of seconds in (0, 3600]\n", argv[1]);
+      return 2;
+    }
+    argc -= 2;
+    argv += 2;
+  }
+  if (argc < 2)
+    return vlff_cli_usage_error(&cli, "set-prompts needs a mailbox and prompts");
+  const char *name = argv[0];
+  int n = argc - 1;
+  char **texts = argv + 1;
+  long idx = -1;
   if (n == 2 && !strcmp(texts[0], "-i")) {
     char *end;
-    long idx = strtol(texts[1], &end, 10);
+    idx = strtol(texts[1], &end, 10);
     if (*end || idx < 0 || idx > INT32_MAX) {
-      vlff_prompts_close(p);
       fprintf(stderr, "vlff-shm: '%s' is not a prompt set index\n", texts[1]);
       return 2;
     }
-    rc = vlff_prompts_post_index(p, (int)idx);
-  } else {
-    rc = vlff_prompts_post(p, (const char *const *)texts, n);
+  } else if (vlff_prompt_check((const char *const *)texts, n) < 0) {
+    fprintf(stderr, "vlff-shm: %s: %s\n", name, vlff_shm_last_message());
+    return 1;
   }
+  struct vlff_prompts *p = vlff_prompts_attach(name);
+  if (!p)
+    return fail(name);
+  int rc = idx >= 0 ? vlff_prompts_post_index(p, (int)idx) : vlff_prompts_post(p, (const char *const *)texts, n);
   if (rc < 0) {
     rc = fail(name);
+    vlff_prompts_close(p);
+    return rc;
+  }
+  uint64_t seq = vlff_prompts_last_post(p);
+  char why[128];
+  int a = vlff_prompts_wait_answer(p, seq, (uint64_t)(timeout_s * 1e9), why, sizeof why);
+  if (a == VLFF_PROMPT_ACCEPTED) {
+    printf("accepted %" PRIu64 "\n", seq);
+    rc = 0;
+  } else if (a == VLFF_PROMPT_REFUSED) {
+    printf("refused %" PRIu64 ": %s\n", seq, why);
+    rc = 1;
   } else {
-    struct vlff_shm_info in;
-    if (vlff_shm_stat(name, &in) == 0)
-      printf("posted %" PRIu64 "\n", in.head);
+    rc = fail(name);
   }
   vlff_prompts_close(p);
   return rc;
@@ -361,7 +392,7 @@ int main(int argc, char **argv) {
   if (!strcmp(c, "label") && argc == 6)
     return cmd_label(argv[2], argv + 3);
   if (!strcmp(c, "set-prompts") && argc >= 4)
-    return cmd_set_prompts(argv[2], argc - 3, argv + 3);
+    return cmd_set_prompts(argc - 2, argv + 2);
   if (!strcmp(c, "watch") && (argc == 3 || argc == 4))
     return cmd_watch(argv[2], argc == 4 ? strtol(argv[3], NULL, 10) : 0);
   return vlff_cli_usage_error(&cli, "unknown command or wrong arguments: '%s'", c);

@@ -24,7 +24,8 @@
  *   (truncated or corrupt header), EMSGSIZE (record does not fit a slot), EINVAL (bad
  *   argument), EAGAIN (nothing new / try again), ETIMEDOUT (wait timed out), ESTALE
  *   (the record was overwritten while being read), EPIPE (the segment was abandoned:
- *   its creator replaced it with a new one; detach and attach again).
+ *   its creator replaced it with a new one, or its file was truncated under this
+ *   handle; detach and attach again), EBUSY (the prompt mailbox is busy).
  *
  * Ownership: every object returned by a *_create, *_attach or *_new function is owned
  *   by the caller and released with the matching *_close / *_detach / *_free function
@@ -37,8 +38,34 @@
  *   objects (including several handles to the same segment, in one or many processes)
  *   may be used concurrently without locks. Exactly one producer per ring and one
  *   writer per map (the creator); vlff_*_create refuses a second live creator.
- *   Nothing in this library ever makes a producer or map writer wait for a reader:
- *   readers detect that data changed underneath them and retry or count it as lost.
+ *   Nothing in this library ever makes a producer or map writer wait for a reader
+ *   (a replay tool may choose to, with vlff_ring_wait_reader): readers detect that
+ *   data changed underneath them and retry or count it as lost.
+ *
+ * Hostile files (docs/shm.md says why each choice was made):
+ *   - A segment's file may be truncated at any moment by anyone with write access to
+ *     it. No user of this library dies of it: attach checks the size against the
+ *     header (read with pread, never through a mapping), and every mapping is
+ *     registered with a SIGBUS guard that, on a fault inside it, replaces the whole
+ *     mapping with private zero-filled memory and flags the handle. This covers
+ *     accesses through pointers handed out (reserved slots, views) as well as the
+ *     library's own, in any thread. The next call on the handle fails with EPIPE
+ *     and VLFF_SHM_ERR_TRUNCATED: readers attach again; creators (map writer, ring
+ *     producer, the learner's mailbox) have by then replaced the segment by a new one
+ *     whose numbering (map version, record numbers, request numbers) goes on, and
+ *     the next call works. Until then whatever was read through the handle is zeros
+ *     that no seqlock check accepts.
+ *   - The guard is a process-wide SIGBUS handler, installed when a segment is mapped
+ *     (again if something replaced it since). Faults outside every segment go to the
+ *     handler installed before it, or to the default action. An application that
+ *     installs its own SIGBUS handler after attaching must chain to the previous one
+ *     for faults it does not recognise.
+ *   - A creator never takes over or removes a file its uid does not own (EACCES,
+ *     VLFF_SHM_ERR_PERM, naming the owner), never touches a non-vlff or non-regular
+ *     file (EEXIST, VLFF_SHM_ERR_FOREIGN), and replaces rather than takes over in place
+ *     a stale segment of its own whose mode or group is wider than configured. Every
+ *     attacher refuses world-writable and non-regular files; vlff_ring_attach_owned()
+ *     also demands an owner and a mode.
  *
  * Clocks: every timestamp is CLOCK_MONOTONIC in nanoseconds (vlff_shm_now_ns()).
  *
@@ -59,7 +86,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 1
+#define VLFF_SHM_ABI_VERSION 2
 
 /* ------------------------------------------------------------------ errors */
 
@@ -140,15 +167,22 @@ struct vlff_ring_params {
 
 /* Creates the ring and becomes its producer. The segment is created O_EXCL. If a
  * segment of that name exists whose creator is dead, it is taken over: with the same
- * geometry in place (generation + 1, record numbering continues, attached consumers
- * see the new generation and carry on), otherwise it is marked abandoned (consumers
- * get EPIPE) and replaced. A live creator gives EEXIST. */
+ * geometry and permissions in place (generation + 1, record numbering continues,
+ * attached consumers see the new generation and carry on), otherwise it is marked
+ * abandoned (consumers get EPIPE) and replaced. A live creator gives EEXIST, a file
+ * of another uid EACCES. If the file is truncated later, vlff_ring_reserve (before
+ * handing out a slot) or vlff_ring_commit (for a record written into the shrunk
+ * mapping, which is lost) fail once with EPIPE after replacing the ring. */
 struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_params *params);
 
 /* Attaches as a consumer, read-only: validates magic, ABI version, kind, sizes and
  * that the file is as large as the header says. The read cursor starts after the newest
  * committed record (live data, not history); see vlff_ring_seek_oldest(). */
 struct vlff_ring *vlff_ring_attach(const char *name, uint32_t record_kind);
+/* Same, and the segment's file must belong to uid and have no permission bit outside
+ * mode (0 = any but world-writable); otherwise -1/EACCES (VLFF_SHM_ERR_PERM) naming
+ * the owner or the mode found. A learner attaches its input rings this way. */
+struct vlff_ring *vlff_ring_attach_owned(const char *name, uint32_t record_kind, uid_t uid, mode_t mode);
 
 /* Releases the handle (unmaps). Never removes the segment. */
 void vlff_ring_close(struct vlff_ring *ring);
@@ -169,6 +203,15 @@ void *vlff_ring_reserve(struct vlff_ring *ring, uint64_t *seq);
 int vlff_ring_commit(struct vlff_ring *ring, size_t len);
 /* Producer: copy-in convenience = reserve + memcpy + commit. */
 int vlff_ring_write(struct vlff_ring *ring, const void *data, size_t len);
+
+/* Producer: waits until a consumer sleeps in vlff_ring_read_begin for a record newer
+ * than the newest committed one, i.e. until some consumer has read everything. For
+ * tools that replay recorded data as fast as their reader takes it; live producers
+ * never wait. Consumers that poll with timeout 0 are never seen; with several
+ * consumers the first one that catches up ends the wait. Finding a sleeping consumer
+ * wakes it once; it finds nothing new and sleeps again. Returns 0, or -1 with
+ * ETIMEDOUT, EINVAL (not a producer handle). */
+int vlff_ring_wait_reader(struct vlff_ring *ring, uint64_t timeout_ns);
 
 /* A record being read in place by a consumer. */
 struct vlff_ring_view {
@@ -364,8 +407,10 @@ struct vlff_map_update {
   const struct vlff_map_label_image *label_image;
 };
 
-/* Writer: creates the map segment (same O_EXCL / stale-creator rules as rings; a
- * taken-over segment keeps its last map and bumps the generation). */
+/* Writer: creates the map segment (same O_EXCL / stale-creator / owner rules as
+ * rings; a taken-over segment keeps its last map and bumps the generation). A publish
+ * or heartbeat that finds the file truncated fails once with EPIPE after replacing
+ * the segment (version numbering on, the previous map is gone: publish it again). */
 struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *params);
 /* Writer: publishes a new consistent version (version + 1, publish time and heartbeat
  * = now). Never waits for readers. -1/EMSGSIZE if the grid, image or a prompt is
@@ -387,7 +432,8 @@ int vlff_map_label_at(struct vlff_map *map, double x, double y, double z, uint16
 /* Reader: copies the prompt text of a label (NUL-terminated, truncated to len) into buf.
  * Returns 0, or -1/ENOENT for a label without a prompt (FREE, UNKNOWN, >= count). */
 int vlff_map_prompt(struct vlff_map *map, uint16_t label, char *buf, size_t len);
-/* Reader: the current map version (0 = nothing published yet). */
+/* The current map version (0 = nothing published yet); for the writer, the last
+ * version it published. */
 uint64_t vlff_map_version(struct vlff_map *map);
 /* ns since the current version was published; UINT64_MAX if never. */
 uint64_t vlff_map_age_ns(struct vlff_map *map);
@@ -434,23 +480,55 @@ struct vlff_prompt_request {
   char text[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
 };
 
-/* The learner creates the mailbox (same O_EXCL / stale-creator rules; use mode 0660
- * with a group so that controllers may post). */
+/* The prompt mailbox: posts are serialised by flock() on the segment's file, a lock
+ * the kernel drops with its holder, so a poster killed mid-post never blocks the next
+ * one; the learner's poll never waits for a poster; every request gets an answer that
+ * the poster can wait for (the answers to the last 8 requests are kept).
+ *
+ * The learner creates the mailbox (same O_EXCL / stale-creator / owner rules; use
+ * mode 0660 with a group so that controllers may post). */
 struct vlff_prompts *vlff_prompts_create(const char *name, const struct vlff_shm_perm *perm);
 /* A controller attaches read-write to post. */
 struct vlff_prompts *vlff_prompts_attach(const char *name);
 void vlff_prompts_close(struct vlff_prompts *p);
-/* Posts texts (1..VLFF_SHM_MAX_PROMPTS, each non-empty and shorter than
- * VLFF_SHM_PROMPT_LEN). Several posters may race: posts are serialised, none is torn.
- * Returns 0 (the new sequence number is in vlff_prompts_poll's req->seq), -1/EINVAL,
- * EAGAIN if another poster kept the mailbox busy for too long. */
+
+/* Checks a prompt set as the learner will, and as the embeddings file format checks
+ * prompts: 1..VLFF_SHM_MAX_PROMPTS texts, each 1..VLFF_SHM_PROMPT_LEN-1 bytes of valid
+ * UTF-8 without control characters (tabs and newlines included), none repeated.
+ * 0, or -1/EINVAL with the reason in vlff_shm_last_message(). */
+int vlff_prompt_check(const char *const *texts, int count);
+
+/* Posts texts (checked with vlff_prompt_check). Posts are serialised by a lock that
+ * dies with its holder, none is torn, and a post waits until the learner has answered
+ * the previous request, so no request is ever overwritten unread. Returns 0 (the
+ * request's number is vlff_prompts_last_post()), or -1: EINVAL (texts refused),
+ * EBUSY (the previous request still had no answer, or another poster held the lock,
+ * after a bounded wait; the message says which and whether the learner runs), EPIPE
+ * (mailbox abandoned or truncated: attach again). */
 int vlff_prompts_post(struct vlff_prompts *p, const char *const *texts, int count);
-/* Posts "switch to configured set index". */
+/* Posts "switch to configured set index". Same rules. */
 int vlff_prompts_post_index(struct vlff_prompts *p, int set_index);
-/* Copies the newest request if its seq differs from *last_seq, then updates *last_seq.
- * Returns 1 (new request in *req), 0 (nothing new), -1 (EAGAIN while a post is in
- * progress for too long, EPIPE). */
+/* The number of this handle's last successful post, 0 if none. */
+uint64_t vlff_prompts_last_post(const struct vlff_prompts *p);
+
+enum vlff_prompt_answer { VLFF_PROMPT_PENDING = 0, VLFF_PROMPT_ACCEPTED = 1, VLFF_PROMPT_REFUSED = 2 };
+/* Poster: waits up to timeout_ns (UINT64_MAX = forever) for the learner's answer to
+ * request seq. Returns VLFF_PROMPT_ACCEPTED or VLFF_PROMPT_REFUSED (the reason, NUL
+ * terminated, in reason[len]), or -1: ETIMEDOUT (the message says whether the learner
+ * runs), ENOENT (never answered: a later request was answered instead), EPIPE. */
+int vlff_prompts_wait_answer(struct vlff_prompts *p, uint64_t seq, uint64_t timeout_ns, char *reason, size_t len);
+
+/* Learner: copies the newest request if its seq differs from *last_seq, then updates
+ * *last_seq. Never waits for a poster. Returns 1 (new request in *req: apply it, then
+ * vlff_prompts_answer it), 0 (nothing new, or a post is being written: poll again
+ * later), -1 with a message worth logging: EBADMSG (a malformed request, or one left
+ * half-written by a poster that died; it has been answered "refused" with the reason
+ * and *last_seq moved past it), EPIPE (the mailbox file was truncated; it has been
+ * replaced by a new one, numbering on). */
 int vlff_prompts_poll(struct vlff_prompts *p, uint64_t *last_seq, struct vlff_prompt_request *req);
+/* Learner: answers request seq: accepted, or refused with a reason (truncated to a
+ * line of text) that the poster's vlff_prompts_wait_answer returns. 0 or -1. */
+int vlff_prompts_answer(struct vlff_prompts *p, uint64_t seq, int accepted, const char *reason);
 
 #ifdef __cplusplus
 }

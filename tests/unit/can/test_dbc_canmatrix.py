@@ -1,7 +1,13 @@
 """The DBC that `vlff-can dbc` writes for a node with non-default ids, read by
 an outside parser (Debian's python3-canmatrix), decodes frames encoded by the
 project's CAN code (can_dbc_frames) to the values that were encoded.
-Usage: test_dbc_canmatrix.py VLFF_CAN CAN_DBC_FRAMES TMPDIR"""
+Usage: test_dbc_canmatrix.py VLFF_CAN CAN_DBC_FRAMES TMPDIR
+       test_dbc_canmatrix.py --candump CONSOLE_OUTPUT
+The second form is the host check of tests/vm/cases/can_candump.sh: the DBC
+that case's `vlff-can dbc` wrote and the frames candump captured from the
+node's CAN code on vcan (can_vm_test --serve: frozen status), both cut from
+the case's console output; the newest frame of each message must decode to
+the served values."""
 import subprocess
 import sys
 import warnings
@@ -13,6 +19,56 @@ try:
 except ImportError:
     print("SKIP: python3-canmatrix not installed (apt install python3-canmatrix)")
     sys.exit(77)
+
+def section(lines, name):
+    a, b = lines.index(name + "-BEGIN"), lines.index(name + "-END")
+    return lines[a + 1:b]
+
+
+def candump_check(path):
+    import os
+    import tempfile
+    lines = open(path, errors="replace").read().splitlines()
+    dbc_text, frames = section(lines, "DBC"), section(lines, "CANDUMP")
+    with tempfile.TemporaryDirectory() as d:
+        with open(os.path.join(d, "node.dbc"), "w") as f:
+            f.write("\n".join(dbc_text) + "\n")
+        db = canmatrix.formats.loadp_flat(os.path.join(d, "node.dbc"))
+    served = {  # can_vm_test's fixed_status(), node 42, operational
+        "VLFF_HEARTBEAT": {"NmtState": 5},
+        "VLFF_TRAIN": {"Iteration": 123456789, "Keyframes": 77, "PromptSet": 1, "NmtState": 5},
+        "VLFF_LOSS": {"LossTotal": 2.5, "LossColor": 0.0421, "LossDepth": 0.137, "LossFeature": 0.9},
+        "VLFF_MAP": {"MapVersion": 31, "MapAge": 65535, "FpsIn": 29.97},
+        "VLFF_HEALTH": {"ErrPoseStale": 1, "ErrCameraLost": 0, "FpsDropped": 0.5},
+    }
+    newest = {}
+    for line in frames:
+        # candump -L: "(1700000000.123456) vdump0 180#0123456789ABCDEF"
+        parts = line.split()
+        if len(parts) != 3 or "#" not in parts[2]:
+            continue
+        fid, data = parts[2].split("#", 1)
+        frame = db.frame_by_id(canmatrix.ArbitrationId(int(fid, 16)))
+        if frame is not None:
+            newest[frame.name] = bytes.fromhex(data)
+    fails = 0
+    for name, want in served.items():
+        if name not in newest:
+            print(f"FAIL: no {name} frame captured")
+            fails += 1
+            continue
+        decoded = db.frame_by_name(name).decode(newest[name])
+        for sig, v in want.items():
+            got = float(decoded[sig].phys_value)
+            if abs(got - v) > 1e-9 + 1e-6 * abs(v):
+                print(f"FAIL: {name}.{sig}: decoded {got}, served {v}")
+                fails += 1
+    print(f"{len(frames)} captured frames, {len(newest)} messages decoded, {fails} failures")
+    sys.exit(1 if fails else 0)
+
+
+if sys.argv[1] == "--candump":
+    candump_check(sys.argv[2])
 
 vlff_can, frames_prog, tmp = sys.argv[1:4]
 cfg = f"{tmp}/node17.yaml"

@@ -372,8 +372,8 @@ static void test_shipped_configs(void **state) {
     snprintf(needle, sizeof needle, "\n  %s:", k);
     if (!strstr(text, needle)) fail_msg("default.yaml lacks key %s", vlff_config_key_path(i));
   }
-  const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "libcamera.yaml"};
-  for (size_t i = 0; i < 3; i++) {
+  const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "aravis-rgbd.yaml", "libcamera.yaml", "vlff.yaml"};
+  for (size_t i = 0; i < sizeof examples / sizeof examples[0]; i++) {
     snprintf(path, sizeof path, "%s/configs/%s", src, examples[i]);
     if (vlff_config_load(path, &cfg, err, sizeof err)) fail_msg("%s", err);
   }
@@ -390,6 +390,31 @@ static void test_field_hash(void **state) {
   assert_true(vlff_config_field_hash(&a) != vlff_config_field_hash(&b));
 }
 
+/* The search path: --config, then $VLFF_CONFIG, then the installed file;
+ * nothing found is an error naming each place, never the defaults. */
+static void test_config_find(void **state) {
+  (void)state;
+  char msg[512] = "";
+  setenv("VLFF_CONFIG", "/from/env.yaml", 1);
+  assert_string_equal(vlff_config_find("/given.yaml", msg, sizeof msg), "/given.yaml");
+  assert_string_equal(vlff_config_find(NULL, msg, sizeof msg), "/from/env.yaml");
+  setenv("VLFF_CONFIG", "", 1); /* empty is unset */
+  const char *def = vlff_config_default_path();
+  assert_non_null(strstr(def, "/vlff/vlff.yaml"));
+  const char *got = vlff_config_find(NULL, msg, sizeof msg);
+  FILE *f = fopen(def, "r");
+  if (f) {
+    fclose(f);
+    assert_string_equal(got, def);
+  } else {
+    assert_null(got);
+    assert_non_null(strstr(msg, "no config"));
+    assert_non_null(strstr(msg, "VLFF_CONFIG"));
+    assert_non_null(strstr(msg, def));
+  }
+  unsetenv("VLFF_CONFIG");
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
@@ -398,6 +423,7 @@ int main(void) {
       cmocka_unit_test(test_sim_features),
       cmocka_unit_test(test_deep_yaml),      cmocka_unit_test(test_shm_names),
       cmocka_unit_test(test_fifo_config),    cmocka_unit_test(test_dead_temps),
+      cmocka_unit_test(test_config_find),
       cmocka_unit_test(test_hostile_strings),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);

@@ -15,6 +15,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <sys/socket.h>
+#include <sys/un.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -129,10 +131,49 @@ static void check_frame(const void *rec, size_t len, int w, int h) {
     }
 }
 
+#ifdef VLFF_HAVE_SYSTEMD
+/* A notify socket of our own, as systemd gives a Type=notify service. */
+static int notify_listen(char *path, size_t len) {
+  snprintf(path, len, "/tmp/vlff-test-camd-notify-%ld", (long)getpid());
+  unlink(path);
+  int fd = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  assert_true(fd >= 0);
+  struct sockaddr_un a = {.sun_family = AF_UNIX};
+  snprintf(a.sun_path, sizeof a.sun_path, "%s", path);
+  assert_int_equal(bind(fd, (struct sockaddr *)&a, sizeof a), 0);
+  setenv("NOTIFY_SOCKET", path, 1);
+  setenv("WATCHDOG_USEC", "2000000", 1); /* a few messages a second: the queue never fills */
+  return fd;
+}
+
+/* Appends every datagram received so far, one per line. Called while camd
+ * runs: a unix datagram socket's queue is short and a full one blocks the
+ * sender, as it would under a systemd that stopped reading. */
+static void notify_collect(int fd, char *out, size_t cap) {
+  size_t n = strlen(out);
+  char msg[256];
+  ssize_t got;
+  while ((got = recv(fd, msg, sizeof msg - 1, MSG_DONTWAIT)) > 0 && n + (size_t)got + 2 < cap) {
+    memcpy(out + n, msg, (size_t)got);
+    n += (size_t)got;
+    out[n++] = '\n';
+    out[n] = 0;
+  }
+}
+#endif
+
 static void test_streams_n_frames(void **state) {
   (void)state;
   write_cfg("Mono8", 320, 240, NULL);
+#ifdef VLFF_HAVE_SYSTEMD
+  char npath[108], notes[8192] = "";
+  int nfd = notify_listen(npath, sizeof npath);
+#endif
   pid_t pid = spawn_camd("30");
+#ifdef VLFF_HAVE_SYSTEMD
+  unsetenv("NOTIFY_SOCKET");
+  unsetenv("WATCHDOG_USEC");
+#endif
   struct vlff_ring *r = attach();
   vlff_ring_seek_oldest(r);
   size_t cap = vlff_ring_slot_size(r);
@@ -152,12 +193,23 @@ static void test_streams_n_frames(void **state) {
     }
     last_host = hd->t_host_ns, last_dev = hd->t_device_ns, last_id = hd->frame_id;
     n++;
+#ifdef VLFF_HAVE_SYSTEMD
+    notify_collect(nfd, notes, sizeof notes);
+#endif
   }
   assert_int_equal(wait_exit(pid, 10), 0);
   assert_int_equal(vlff_ring_head(r), 30);
   assert_int_equal(vlff_ring_lost(r), 0);
   assert_int_equal(stat_of("committed"), 30);
   assert_int_equal(stat_of("dropped"), 0);
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Type=notify: ready, watchdog fed while streaming, stopping. */
+  notify_collect(nfd, notes, sizeof notes);
+  close(nfd);
+  unlink(npath);
+  if (!strstr(notes, "READY=1\n") || !strstr(notes, "WATCHDOG=1\n") || !strstr(notes, "STOPPING=1\n"))
+    fail_msg("notify messages: %s", notes);
+#endif
   free(buf);
   vlff_ring_close(r);
   cleanup();
@@ -219,6 +271,121 @@ static void test_reconnects_after_camera_restart(void **state) {
   cleanup();
 }
 
+/* Two cameras, one record: the fake GigE camera streams colour (RGB8), the
+ * in-process fake camera a Mono16 range image, both free-running at 40 Hz.
+ * Pairs within the tolerance become records with the colour plane and the
+ * range image registered into it; through an identity rig (one camera
+ * matrix, no offset) the depth plane is the range image itself, in mm.
+ * The record's ids and intrinsics are the colour camera's. */
+static char rig_path[256];
+
+/* The pair's config: the fake GigE camera as colour, the in-process fake
+ * camera as range, an identity rig. */
+static void write_pair_cfg(void) {
+  snprintf(rig_path, sizeof rig_path, "/tmp/vlff-test-camd-%d-rig.yaml", (int)getpid());
+  FILE *f = fopen(rig_path, "w");
+  assert_non_null(f);
+  fputs("%YAML:1.0\n---\n"
+        "K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 300., 0., 159.5, 0., 300., 119.5, 0., 0., 1. ]\n"
+        "D1: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+        "K2: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 300., 0., 159.5, 0., 300., 119.5, 0., 0., 1. ]\n"
+        "D2: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+        "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
+        "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n",
+        f);
+  fclose(f);
+  char extra[1024];
+  snprintf(extra, sizeof extra,
+           "  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
+           "depth_camera:\n  kind: aravis\n  device: Fake\n  pixel_format: Mono16\n  width: 320\n  height: 240\n"
+           "  frame_rate: 40\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.012\n",
+           rig_path);
+  write_cfg("Mono8", 320, 240, extra);
+}
+
+static void test_pairs_colour_and_range(void **state) {
+  (void)state;
+  write_pair_cfg();
+  pid_t pid = spawn_camd("12");
+  struct vlff_ring *r = attach();
+  vlff_ring_seek_oldest(r);
+  assert_int_equal(wait_exit(pid, 60), 0);
+  assert_int_equal(vlff_ring_head(r), 12);
+  assert_int_equal(stat_of("committed"), 12);
+  assert_true(stat_of("unmatched_color") != UINT64_MAX && stat_of("unmatched_depth") != UINT64_MAX);
+  assert_true(stat_of("color_frames") >= 12 && stat_of("depth_frames") >= 12);
+  void *buf = malloc(vlff_ring_slot_size(r));
+  for (int n = 0; n < 12; n++) {
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(r, buf, vlff_ring_slot_size(r), &v, 0);
+    assert_true(len > 0);
+    assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
+    const struct vlff_frame_hdr *hd = buf;
+    assert_int_equal(hd->nplanes, 2);
+    assert_int_equal(hd->plane[VLFF_PLANE_COLOR].format, VLFF_PIX_RGB8);
+    assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].format, VLFF_PIX_DEPTH_U16_MM);
+    assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].width, 320);
+    assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].height, 240);
+    assert_true(hd->fx == 300 && hd->fy == 300 && hd->cx == 159.5 && hd->cy == 119.5);
+    /* colour: the GigE camera's grey ramp of this frame */
+    const uint8_t *px = vlff_frame_plane(buf, VLFF_PLANE_COLOR);
+    for (int y = 0; y < 240; y += 7)
+      for (int x = 0; x < 320; x += 5)
+        assert_int_equal(px[(size_t)y * hd->plane[0].stride + (size_t)x * 3], (x + y + hd->frame_id) % 255);
+    /* depth: the fake range camera's image at one millimetre per count,
+     * a ramp along x + y (constant along anti-diagonals, +256 counts per
+     * pixel in x until it wraps), landing pixel for pixel: a shifted or
+     * resampled image would break the ramp or leave a border empty. */
+    const uint8_t *dp = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+    const size_t ds = hd->plane[VLFF_PLANE_DEPTH].stride;
+#define D(x, y) (((const uint16_t *)(dp + (size_t)(y) * ds))[x])
+    int border = 0;
+    for (int y = 0; y < 240; y++) {
+      border += D(0, y) != 0 && D(319, y) != 0;
+      for (int x = 0; x < 319; x++) {
+        uint16_t a = D(x, y), b = D(x + 1, y);
+        if (a && b && b != a + 256 && b > a) fail_msg("record %d depth (%d,%d): %u then %u", n, x, y, a, b);
+        if (y && D(x, y) != D(x + 1, y - 1))
+          fail_msg("record %d depth (%d,%d) = %u, (%d,%d) = %u", n, x, y, D(x, y), x + 1, y - 1, D(x + 1, y - 1));
+      }
+    }
+#undef D
+    assert_true(border >= 230);
+  }
+  free(buf);
+  vlff_ring_close(r);
+  unlink(rig_path);
+  cleanup();
+}
+
+/* The colour camera of a pair loses power and comes back: the range
+ * camera's frames meanwhile find no partner and are counted, the ring stays,
+ * and pairs flow again after the reconnection. */
+static void test_pair_survives_camera_restart(void **state) {
+  (void)state;
+  write_pair_cfg();
+  pid_t pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach();
+  for (int k = 0; k < 200 && vlff_ring_head(r) < 5; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= 5);
+  fakecam_kill(cam_pid);
+  sleep_ms(1500);
+  uint64_t during = vlff_ring_head(r);
+  cam_pid = fakecam_start(0);
+  assert_true(cam_pid > 0);
+  for (int k = 0; k < 400 && vlff_ring_head(r) < during + 5; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= during + 5);
+  kill(pid, SIGTERM);
+  assert_int_equal(wait_exit(pid, 15), 0);
+  assert_int_equal(stat_of("lost"), 1);
+  assert_int_equal(stat_of("reconnects"), 1);
+  assert_true(stat_of("unmatched_depth") > 0);
+  assert_int_equal(stat_of("committed"), vlff_ring_head(r));
+  vlff_ring_close(r);
+  unlink(rig_path);
+  cleanup();
+}
+
 /* Bad configurations are refused before any camera is touched, naming the key. */
 static void test_bad_configs(void **state) {
   (void)state;
@@ -264,6 +431,8 @@ int main(void) {
       cmocka_unit_test(test_software_trigger_one_frame_each),
       cmocka_unit_test(test_bad_configs),
       cmocka_unit_test(test_reconnects_after_camera_restart),
+      cmocka_unit_test(test_pairs_colour_and_range),
+      cmocka_unit_test(test_pair_survives_camera_restart),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -54,21 +54,29 @@ static void test_bayer_phase(void **state) {
   }
 }
 
+/* A range camera beside a colour camera: its pipeline turns counts into a
+ * millimetre depth plane and writes no colour plane (the pairing puts the
+ * colour camera's there). */
 static void test_range_stream_to_depth(void **state) {
   (void)state;
   struct vlff_config c;
-  cfg_for(&c, "Mono16");
+  cfg_for(&c, "RGB8");
   c.camera.depth = VLFF_DEPTH_STREAM;
-  c.camera.depth_scale_m = 0.0005; /* 0.5 mm per count */
+  c.depth_camera.kind = VLFF_DCAM_ARAVIS;
+  snprintf(c.depth_camera.calibration, sizeof c.depth_camera.calibration, "rig.yaml");
+  c.depth_camera.scale_m = 0.0005; /* 0.5 mm per count */
   char err[256];
-  struct vlff_pipe *p = vlff_pipe_new(&c, err, sizeof err);
-  assert_non_null(p);
+  struct vlff_pipe *p = vlff_pipe_new_depth(&c, err, sizeof err);
+  if (!p) fail_msg("%s", err);
+  assert_int_equal(vlff_pipe_pix(p), VLFF_PIX_MONO16);
   uint16_t img[8 * 4];
   for (int i = 0; i < 32; i++) img[i] = (uint16_t)(i * 1000);
   struct vlff_memsink *m = vlff_memsink_new(2, 8, 4);
   struct vlff_raw_frame raw = {img, sizeof img, 16, 8, 4, VLFF_PIX_MONO16, 7, 100, 200};
   assert_int_equal(vlff_pipe_push(p, &raw, vlff_memsink_sink(m), NULL), 0);
   const struct vlff_sink_frame *f = vlff_memsink_get(m, 0);
+  assert_int_equal(f->color_format, VLFF_PIX_NONE);
+  assert_null(f->color);
   assert_int_equal(f->depth_format, VLFF_DEPTH_FMT_U16_MM);
   const uint16_t *d = f->depth;
   assert_int_equal(d[0], 0);        /* 0 counts: invalid stays invalid */
@@ -244,6 +252,16 @@ static void test_config_combinations(void **state) {
       {"camera: {kind: aravis, depth: stereo}\n", "camera.calibration"},
       {"camera: {kind: aravis, pixel_format: Mono16}\n", "camera.pixel_format"},
       {"camera: {kind: aravis, depth: stream}\n", "camera.depth"},
+      {"camera: {kind: aravis, depth: stream}\ndepth_camera: {kind: aravis}\n", "depth_camera.calibration"},
+      {"camera: {kind: aravis, depth: stream}\ndepth_camera: {kind: aravis, pixel_format: Mono8, calibration: r.yaml}\n",
+       "depth_camera.pixel_format"},
+      {"camera: {kind: aravis, depth: stream, frame_rate: 30}\n"
+       "depth_camera: {kind: aravis, calibration: r.yaml, pair_tolerance_s: 0.02}\n",
+       "depth_camera.pair_tolerance_s"},
+      {"camera: {kind: aravis, depth: stream, intrinsics: [500, 500, 320, 240]}\n"
+       "depth_camera: {kind: aravis, calibration: r.yaml}\n",
+       "camera.intrinsics"},
+      {"camera: {kind: aravis}\ndepth_camera: {kind: aravis, calibration: r.yaml}\n", "depth_camera.kind"},
       {"camera: {kind: sim}\n", "camera.kind"},
       {"camera: {kind: aravis, intrinsics: [500, 0, 320, 240]}\n", "camera.intrinsics"},
       {"camera: {kind: aravis, distortion: [0.1, 0, 0, 0, 0]}\n", "camera.distortion"},
@@ -264,6 +282,14 @@ static void test_config_combinations(void **state) {
   const char *ok = "camera: {kind: aravis, pixel_format: BayerRG8, width: 640, height: 480}\n";
   assert_int_equal(vlff_config_load_mem(ok, strlen(ok), "t.yaml", &c, err, sizeof err), 0);
   assert_int_equal(vlff_camcfg_check(&c, "t.yaml", err, sizeof err), 0);
+  const char *pair = "camera: {kind: aravis, depth: stream}\n"
+                     "depth_camera: {kind: aravis, device: Fake, pixel_format: Coord3D_C16, calibration: r.yaml}\n";
+  assert_int_equal(vlff_config_load_mem(pair, strlen(pair), "t.yaml", &c, err, sizeof err), 0);
+  if (vlff_camcfg_check(&c, "t.yaml", err, sizeof err)) fail_msg("%s", err);
+  /* the shipped RGB-D example passes the camera checks */
+  char path[1024];
+  snprintf(path, sizeof path, "%s/configs/aravis-rgbd.yaml", getenv("VLFF_SOURCE_DIR"));
+  if (vlff_config_load(path, &c, err, sizeof err) || vlff_camcfg_check(&c, path, err, sizeof err)) fail_msg("%s", err);
 }
 
 int main(void) {

@@ -85,7 +85,10 @@ else
   echo "note: $def exists here; the no-config refusal is not checked"
 fi
 VLFF_CONFIG="$tmp/ok.yaml" timeout 20 "${node[@]}" 2>"$tmp/env" & p=$!
-for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/env" && break; sleep 0.1; done
+for ((i = 0; i < 100; i++)); do grep -qs "waiting for ring" "$tmp/env" && break; sleep 0.1; done
+# The segments' group reads the map and posts prompts: map 0640, mailbox 0660.
+check "map segment is 0640" '[[ "$(stat -c %a /dev/shm/cli-$$-m)" == 640 ]]'
+check "prompt mailbox is 0660 (group posts prompts)" '[[ "$(stat -c %a /dev/shm/cli-$$-p)" == 660 ]]'
 kill -TERM $p; wait $p
 check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
 
@@ -94,7 +97,7 @@ check "\$VLFF_CONFIG is the config" 'grep -q "config $tmp/ok.yaml" "$tmp/env"'
 mkdir -p "$tmp/state"
 sed "s|state_dir: $tmp|state_dir: $tmp/state\n  checkpoint_period_s: 0.2|" "$tmp/ok.yaml" >"$tmp/idle.yaml"
 "${node[@]}" --config "$tmp/idle.yaml" 2>"$tmp/idle" & p=$!
-for ((i = 0; i < 100; i++)); do grep -q "waiting for ring" "$tmp/idle" && break; sleep 0.1; done
+for ((i = 0; i < 100; i++)); do grep -qs "waiting for ring" "$tmp/idle" && break; sleep 0.1; done
 sleep 1.5
 kill -TERM $p; wait $p
 check "idle node wrote no checkpoint" '[[ -z "$(ls -A "$tmp/state")" ]]'
@@ -116,7 +119,10 @@ while time.time() < end:
 ' "$tmp/notify.sock" "$tmp/notify.log" & listener=$!
   for ((i = 0; i < 50; i++)); do [[ -S "$tmp/notify.sock" ]] && break; sleep 0.1; done
   NOTIFY_SOCKET="$tmp/notify.sock" WATCHDOG_USEC=2000000 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/sd" & p=$!
-  sleep 3
+  # the main loop starts after the node is up (slow under sanitizers), then
+  # feeds the watchdog every quarter period
+  for ((i = 0; i < 300; i++)); do grep -qs "waiting for ring" "$tmp/sd" && break; sleep 0.1; done
+  sleep 1.5
   kill -TERM $p; wait $p
   wait $listener
   check "sd_notify READY=1" 'grep -qx "READY=1" "$tmp/notify.log"'

@@ -533,6 +533,7 @@ static void prompt_mailbox(void **state) {
   assert_string_equal(req->text[1], "laptop");
   assert_int_equal(req->poster_pid, getpid());
   assert_int_equal(vlff_prompts_poll(learner, &last, req), 0);
+  assert_int_equal(vlff_prompts_answer(learner, 1, 1, NULL), 0);
   assert_int_equal(vlff_prompts_post_index(ctl, 3), 0);
   assert_int_equal(vlff_prompts_poll(learner, &last, req), 1);
   assert_int_equal(req->set_index, 3);

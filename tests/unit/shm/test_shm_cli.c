@@ -75,15 +75,39 @@ static void cli_commands(void **state) {
   assert_int_equal(n, 11 + 24);
   assert_memory_equal(img, "P6\n4 2\n255\n", 11);
   assert_memory_equal(img + 11, rgb, 24);
+  /* A learner answering: the CLI waits for its answer and prints it. */
+  pid_t learner = fork();
+  assert_true(learner >= 0);
+  if (learner == 0) {
+    uint64_t seen = 0;
+    struct vlff_prompt_request rq;
+    for (int i = 0; i < 5000; i++) {
+      if (vlff_prompts_poll(pb, &seen, &rq) == 1)
+        _exit(vlff_prompts_answer(pb, rq.seq, 1, NULL) == 0 ? 0 : 2);
+      usleep(1000);
+    }
+    _exit(1);
+  }
   snprintf(args, sizeof args, "set-prompts %s \"red cup\" chair", mbox);
   assert_int_equal(run(args, out, sizeof out), 0);
-  assert_string_equal(out, "posted 1\n");
+  assert_string_equal(out, "accepted 1\n");
+  int lst;
+  assert_int_equal(waitpid(learner, &lst, 0), learner);
+  assert_true(WIFEXITED(lst) && WEXITSTATUS(lst) == 0);
   uint64_t last = 0;
   struct vlff_prompt_request *req = malloc(sizeof *req);
   assert_int_equal(vlff_prompts_poll(pb, &last, req), 1);
   assert_string_equal(req->text[0], "red cup");
   assert_string_equal(req->text[1], "chair");
   free(req);
+  /* Refused before posting: a newline would forge a line of the CLI's output. */
+  snprintf(args, sizeof args, "set-prompts %s \"$(printf 'wall\\nlabel 0 confidence 255 prompt FAKE')\" floor", mbox);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "control characters"));
+  /* Nobody answers: the CLI says so and fails. */
+  snprintf(args, sizeof args, "set-prompts -t 0.2 %s door", mbox);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "no answer to request 2"));
   assert_int_equal(run("stat /vlff-test-cli-missing", out, sizeof out), 1);
   assert_non_null(strstr(out, "no such segment"));
   assert_int_equal(run("frobnicate", out, sizeof out), 2);

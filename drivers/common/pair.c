@@ -1,0 +1,244 @@
+/*
+ * Colour + range pairing (see pair.h). Each stream has a small FIFO of
+ * frames whose pixels the pipelines convert straight into; a commit on
+ * either side runs the matcher over the two oldest frames.
+ */
+#include "pair.h"
+
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "depthreg.h"
+#include "log.h"
+#include "pixfmt.h"
+
+#define TAG "pair"
+#define HOLD 4 /* frames kept per stream: covers the arrival skew of two devices */
+
+struct held {
+  struct vlff_sink_frame meta;
+  void *px;
+  size_t cap;
+};
+
+struct fifo {
+  struct held f[HOLD];
+  int head, n;
+  bool reserved;
+};
+
+struct vlff_pair {
+  struct vlff_sink color_sink, depth_sink, *out;
+  struct fifo color, depth;
+  struct vlff_rgbd_calib calib;
+  struct vlff_depthreg *reg;
+  int reg_dw, reg_dh, reg_cw, reg_ch;
+  uint64_t tol_ns;
+  struct vlff_pair_stats st;
+  uint64_t logged;
+};
+
+static void warn_drop(struct vlff_pair *p, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void warn_drop(struct vlff_pair *p, const char *fmt, ...) {
+  /* log the first few, then every 1000th: the counters tell the rest */
+  if (p->logged++ < 5 || p->logged % 1000 == 0) {
+    char msg[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    VLFF_WARN(TAG, "%s", msg);
+  }
+}
+
+static struct held *oldest(struct fifo *q) { return q->n ? &q->f[q->head] : NULL; }
+static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
+
+/* The slot a new frame goes into; a full queue gives up its oldest frame,
+ * which no frame of the other stream has claimed in time. */
+static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, uint64_t *unmatched, size_t bytes, char *err,
+                                 size_t errlen) {
+  if (q->n == HOLD) {
+    pop(q);
+    (*unmatched)++;
+  }
+  struct held *h = &q->f[(q->head + q->n) % HOLD];
+  if (h->cap < bytes) {
+    void *np = realloc(h->px, bytes);
+    if (!np) {
+      snprintf(err, errlen, "pairing: out of memory for a %zu-byte frame", bytes);
+      return NULL;
+    }
+    h->px = np, h->cap = bytes;
+  }
+  (void)p;
+  q->reserved = true;
+  return h;
+}
+
+static void emit(struct vlff_pair *p, const struct held *c, const struct held *d) {
+  const struct vlff_sink_frame *cm = &c->meta, *dm = &d->meta;
+  char err[512];
+  if (!p->reg || p->reg_dw != dm->width || p->reg_dh != dm->height || p->reg_cw != cm->width ||
+      p->reg_ch != cm->height) {
+    vlff_depthreg_free(p->reg);
+    p->reg = vlff_depthreg_new(&p->calib, dm->width, dm->height, cm->width, cm->height, 0, 0, err, sizeof err);
+    p->reg_dw = dm->width, p->reg_dh = dm->height, p->reg_cw = cm->width, p->reg_ch = cm->height;
+    if (!p->reg) {
+      p->st.dropped++;
+      warn_drop(p, "pair dropped: %s", err);
+      return;
+    }
+  }
+  struct vlff_sink_frame f = {.width = cm->width, .height = cm->height, .color_format = VLFF_PIX_RGB8,
+                              .depth_format = VLFF_DEPTH_FMT_U16_MM};
+  if (p->out->reserve(p->out, &f, err, sizeof err)) {
+    p->st.dropped++;
+    warn_drop(p, "pair dropped: %s", err);
+    return;
+  }
+  for (int y = 0; y < cm->height; y++)
+    memcpy(f.color + (size_t)y * f.color_stride, (const uint8_t *)c->px + (size_t)y * cm->width * 3,
+           (size_t)cm->width * 3);
+  if (vlff_depthreg_apply(p->reg, d->px, (size_t)dm->width * 2, 0.001, f.depth, f.depth_stride, err, sizeof err) <
+      0) {
+    p->out->abort(p->out, &f);
+    p->st.dropped++;
+    warn_drop(p, "pair dropped: %s", err);
+    return;
+  }
+  f.device_frame_id = cm->device_frame_id;
+  f.device_ns = cm->device_ns;
+  f.host_ns = cm->host_ns;
+  f.sensor_id = cm->sensor_id;
+  vlff_depthreg_intrinsics(p->reg, f.intrinsics, NULL, NULL);
+  f.pose_valid = cm->pose_valid;
+  f.pose_untrusted = cm->pose_untrusted;
+  memcpy(f.pose, cm->pose, sizeof f.pose);
+  f.pose_ns = cm->pose_ns;
+  if (p->out->commit(p->out, &f)) {
+    p->st.dropped++;
+    warn_drop(p, "pair dropped: the output refused the commit");
+    return;
+  }
+  p->st.pairs++;
+}
+
+static uint64_t dist(uint64_t a, uint64_t b) { return a > b ? a - b : b - a; }
+
+/* Frames arrive in time order per stream, so an oldest frame more than the
+ * tolerance before the other stream's oldest can never be paired. Within the
+ * tolerance the pair must also be mutually nearest among the frames held: a
+ * camera running faster than configured can put two frames near one of the
+ * other's, and only the nearer is its partner. */
+static void match(struct vlff_pair *p) {
+  struct held *c, *d;
+  while ((c = oldest(&p->color)) && (d = oldest(&p->depth))) {
+    uint64_t tc = c->meta.host_ns, td = d->meta.host_ns;
+    if (dist(tc, td) <= p->tol_ns) {
+      const struct held *c2 = p->color.n > 1 ? &p->color.f[(p->color.head + 1) % HOLD] : NULL;
+      const struct held *d2 = p->depth.n > 1 ? &p->depth.f[(p->depth.head + 1) % HOLD] : NULL;
+      if (c2 && dist(c2->meta.host_ns, td) < dist(tc, td)) {
+        pop(&p->color), p->st.unmatched_color++;
+      } else if (d2 && dist(tc, d2->meta.host_ns) < dist(tc, td)) {
+        pop(&p->depth), p->st.unmatched_depth++;
+      } else {
+        emit(p, c, d);
+        pop(&p->color), pop(&p->depth);
+      }
+    } else if (tc < td) {
+      pop(&p->color), p->st.unmatched_color++;
+    } else {
+      pop(&p->depth), p->st.unmatched_depth++;
+    }
+  }
+}
+
+static int color_reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *err, size_t errlen) {
+  struct vlff_pair *p = s->ctx;
+  if (f->color_format != VLFF_PIX_RGB8 || f->depth_format != VLFF_DEPTH_FMT_NONE || f->width <= 0 ||
+      f->height <= 0) {
+    snprintf(err, errlen, "pairing: the colour camera must deliver RGB8 without depth");
+    return -1;
+  }
+  struct held *h = reserve_slot(p, &p->color, &p->st.unmatched_color, (size_t)f->width * f->height * 3, err, errlen);
+  if (!h) return -1;
+  f->color = h->px, f->color_stride = (size_t)f->width * 3;
+  f->depth = NULL, f->depth_stride = 0;
+  f->slot = h;
+  return 0;
+}
+
+static int depth_reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *err, size_t errlen) {
+  struct vlff_pair *p = s->ctx;
+  if (f->color_format != VLFF_PIX_NONE || f->depth_format != VLFF_DEPTH_FMT_U16_MM || f->width <= 0 ||
+      f->height <= 0) {
+    snprintf(err, errlen, "pairing: the range camera must deliver uint16 millimetres without colour");
+    return -1;
+  }
+  struct held *h = reserve_slot(p, &p->depth, &p->st.unmatched_depth, (size_t)f->width * f->height * 2, err, errlen);
+  if (!h) return -1;
+  f->color = NULL, f->color_stride = 0;
+  f->depth = h->px, f->depth_stride = (size_t)f->width * 2;
+  f->slot = h;
+  return 0;
+}
+
+static int commit_to(struct vlff_pair *p, struct fifo *q, struct vlff_sink_frame *f) {
+  if (!q->reserved) return -1;
+  struct held *h = f->slot;
+  h->meta = *f;
+  q->reserved = false;
+  q->n++;
+  match(p);
+  return 0;
+}
+
+static int color_commit(struct vlff_sink *s, struct vlff_sink_frame *f) {
+  struct vlff_pair *p = s->ctx;
+  return commit_to(p, &p->color, f);
+}
+static int depth_commit(struct vlff_sink *s, struct vlff_sink_frame *f) {
+  struct vlff_pair *p = s->ctx;
+  return commit_to(p, &p->depth, f);
+}
+static void color_abort(struct vlff_sink *s, struct vlff_sink_frame *f) {
+  (void)f;
+  ((struct vlff_pair *)s->ctx)->color.reserved = false;
+}
+static void depth_abort(struct vlff_sink *s, struct vlff_sink_frame *f) {
+  (void)f;
+  ((struct vlff_pair *)s->ctx)->depth.reserved = false;
+}
+
+struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink *out, char *err, size_t errlen) {
+  struct vlff_pair *p = calloc(1, sizeof *p);
+  if (!p) {
+    snprintf(err, errlen, "pairing: out of memory");
+    return NULL;
+  }
+  char e[512];
+  if (vlff_rgbd_calib_load(cfg->depth_camera.calibration, &p->calib, e, sizeof e)) {
+    snprintf(err, errlen, "key 'depth_camera.calibration': %s", e);
+    free(p);
+    return NULL;
+  }
+  p->out = out;
+  p->tol_ns = (uint64_t)(cfg->depth_camera.pair_tolerance_s * 1e9);
+  p->color_sink = (struct vlff_sink){color_reserve, color_commit, color_abort, p};
+  p->depth_sink = (struct vlff_sink){depth_reserve, depth_commit, depth_abort, p};
+  return p;
+}
+
+void vlff_pair_free(struct vlff_pair *p) {
+  if (!p) return;
+  for (int i = 0; i < HOLD; i++) free(p->color.f[i].px), free(p->depth.f[i].px);
+  vlff_depthreg_free(p->reg);
+  free(p);
+}
+
+struct vlff_sink *vlff_pair_color_sink(struct vlff_pair *p) { return &p->color_sink; }
+struct vlff_sink *vlff_pair_depth_sink(struct vlff_pair *p) { return &p->depth_sink; }
+const struct vlff_pair_stats *vlff_pair_get_stats(const struct vlff_pair *p) { return &p->st; }

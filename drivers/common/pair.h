@@ -1,0 +1,54 @@
+/*
+ * Colour + range camera pairing: frames of two devices into ONE frame
+ * record (colour plane + the range image registered into it).
+ *
+ * The colour camera's pipeline delivers into vlff_pair_color_sink, the range
+ * camera's into vlff_pair_depth_sink; each keeps a few frames. A colour and
+ * a range frame are paired when their host timestamps (the trigger stamp
+ * when the pipelines stamp frames from a GPIO trigger, else the arrival
+ * time) lie within depth_camera.pair_tolerance_s of each other and each is
+ * the other's nearest among the frames held. The config check keeps that
+ * tolerance under half of either camera's frame period, so at most one frame
+ * of each stream can qualify: frames are never paired wrongly (and a camera
+ * running faster than configured still gets its nearer frame paired), and
+ * the oldest frame of either queue that can no longer find a
+ * partner (the other stream is already past it by more than the tolerance,
+ * or its queue overflowed) is dropped and counted.
+ *
+ * A pair is written into the output sink: the colour frame's pixels,
+ * timestamps, ids and pose, the range image registered into the colour
+ * camera (depthreg.h, from depth_camera.calibration) as the depth plane,
+ * and the registration's output camera as the intrinsics.
+ *
+ * Contract
+ *  - vlff_pair_new() loads and checks the calibration; NULL with err (naming
+ *    the file and key) on failure. The output sink is borrowed.
+ *  - The two sinks and the stats are used from one thread (camd's loop);
+ *    frames of each stream must arrive in time order.
+ *  - A pair the output sink refuses, or whose sizes the calibration does not
+ *    fit, is dropped and counted (and logged, rate-limited).
+ */
+#ifndef VLFF_PAIR_H
+#define VLFF_PAIR_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "config.h"
+#include "sink.h"
+
+struct vlff_pair_stats {
+  uint64_t pairs;            /* records committed to the output sink */
+  uint64_t unmatched_color;  /* colour frames dropped without a range frame */
+  uint64_t unmatched_depth;  /* range frames dropped without a colour frame */
+  uint64_t dropped;          /* pairs lost: output sink full, registration impossible */
+};
+
+struct vlff_pair;
+struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink *out, char *err, size_t errlen);
+void vlff_pair_free(struct vlff_pair *p);
+struct vlff_sink *vlff_pair_color_sink(struct vlff_pair *p);
+struct vlff_sink *vlff_pair_depth_sink(struct vlff_pair *p);
+const struct vlff_pair_stats *vlff_pair_get_stats(const struct vlff_pair *p);
+
+#endif

@@ -1,0 +1,349 @@
+/*
+ * vlff-replay: a recorded scene directory played into the node's rings, the
+ * way a camera, a pose source and a feature extractor would feed it live.
+ *
+ * Each frame becomes three records, in the order the live processes produce
+ * them: the pose (pose ring, stamped with the frame's host time, so the
+ * node's lookup finds it exactly), the frame (frame ring: RGB8 colour,
+ * uint16 millimetre depth, intrinsics, no pose in the record), then its
+ * features (feature ring, [D][h][w] float16, the frame's id and host time),
+ * as an extractor publishes them after reading the frame. With --pose-in-frame
+ * the pose travels in the frame record instead, as a camera with its own
+ * tracker delivers it.
+ *
+ * Scene directories carry no timestamps (dataset.h), so the recording's rate
+ * is given (--fps); frames go out on that schedule times --rate, never
+ * catching up after a late frame (a replay behind schedule would otherwise
+ * burst). --backpressure instead waits before each frame until the frame
+ * ring's reader has read everything, so a slow consumer loses nothing.
+ * frame_id counts up across loops; t_device_ns is the frame's place in the
+ * recording (loop * n + i) / fps.
+ */
+#include <errno.h>
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "cli.h"
+#include "config.h"
+#include "dataset.h"
+#include "transpose.h"
+#include "vlff/shm.h"
+
+#define POSE_SLOTS 256
+
+static const struct vlff_cli cli = {
+    "vlff-replay",
+    "Usage: vlff-replay [OPTIONS] SCENE\n"
+    "Play a recorded scene (a directory, or a ScanNet .sens file) into the frame,\n"
+    "pose and feature rings, as live cameras, a pose source and a feature extractor\n"
+    "would.\n"
+    "\n"
+    "  -c, --config FILE      ring names, slots and permissions from FILE's shm section\n"
+    "                         (else $VLFF_CONFIG, else the installed vlff.yaml, else\n"
+    "                         built-in defaults)\n"
+    "      --layout NAME      auto (default), reference, scannet or sens\n"
+    "      --fps HZ           the recording's frame rate (default 30)\n"
+    "  -r, --rate X           play at X times the recorded rate (default 1)\n"
+    "  -b, --backpressure     as fast as the frame ring's reader takes the frames:\n"
+    "                         wait before each frame until it has read everything\n"
+    "  -l, --loop             start over after the last frame, until SIGINT/SIGTERM\n"
+    "  -n, --count N          stop after N frames\n"
+    "      --start I          begin at frame I of the scene\n"
+    "      --pose-in-frame    put the pose into the frame record, not the pose ring\n"
+    "      --no-features      do not publish the scene's features\n"
+    "  -q, --quiet            no progress lines\n"
+    "  -V, --version          print the version and exit\n"
+    "  -h, --help             print this help and exit\n"
+    "\n"
+    "Exit status: 0 when every frame was published, 1 when a frame could not be\n"
+    "read (it is skipped, named and counted) or a ring failed, 2 for a bad command line.\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-replay --config /etc/vlff/vlff.yaml /data/scannet/scene0000_00\n"
+    "  vlff-replay -c node.yaml --rate 2 --loop /data/room3\n"
+    "  vlff-replay -c node.yaml --backpressure --count 500 /data/room3\n",
+};
+
+static volatile sig_atomic_t stop;
+static void on_signal(int sig) {
+  (void)sig;
+  stop = 1;
+}
+
+struct replay {
+  struct vlff_dataset ds;
+  struct vlff_ring *frames, *poses, *feats;
+  uint8_t *rgb;
+  float *depth;
+  uint16_t *hwc; /* features as stored, [h][w][D] */
+  int pose_in_frame, backpressure, quiet;
+  int skipped_before; /* the previous frame was unreadable: flag the next one */
+  long long published, unreadable, late;
+};
+
+static int ring_error(const char *what, const char *name) {
+  fprintf(stderr, "vlff-replay: %s ring %s: %s\n", what, name, vlff_shm_last_message());
+  return -1;
+}
+
+static int open_rings(struct replay *r, const struct vlff_config *cfg, int features) {
+  const struct vlff_dataset *ds = &r->ds;
+  struct vlff_shm_perm perm = {(mode_t)cfg->shm.mode, cfg->shm.group};
+  struct vlff_ring_params fp = {VLFF_RECORD_FRAME, (uint32_t)cfg->shm.ring_slots,
+                                vlff_frame_slot_size((uint32_t)ds->width, (uint32_t)ds->height, VLFF_PIX_RGB8,
+                                                     VLFF_PIX_DEPTH_U16_MM),
+                                perm};
+  r->frames = vlff_ring_create(cfg->shm.ring, &fp);
+  if (!r->frames) return ring_error("frame", cfg->shm.ring);
+  if (!r->pose_in_frame) {
+    struct vlff_ring_params pp = {VLFF_RECORD_POSE, POSE_SLOTS, sizeof(struct vlff_pose_rec), perm};
+    r->poses = vlff_ring_create(cfg->shm.pose_ring, &pp);
+    if (!r->poses) return ring_error("pose", cfg->shm.pose_ring);
+  }
+  if (features) {
+    struct vlff_ring_params xp = {VLFF_RECORD_FEATURE, (uint32_t)cfg->shm.ring_slots,
+                                  vlff_feature_slot_size((uint32_t)ds->feat_dim, (uint32_t)ds->feat_height,
+                                                         (uint32_t)ds->feat_width),
+                                  perm};
+    r->feats = vlff_ring_create(cfg->shm.feature_ring, &xp);
+    if (!r->feats) return ring_error("feature", cfg->shm.feature_ring);
+  }
+  return 0;
+}
+
+/* Frame i of the scene as record number id. 0 published, 1 skipped (the
+ * files could not be read: named on stderr), -1 a ring failed. */
+static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) {
+  const struct vlff_dataset *ds = &r->ds;
+  const int W = ds->width, H = ds->height;
+  char err[1024];
+  if (vlff_dataset_read_frame(ds, i, r->rgb, r->depth, NULL, err, sizeof err) < 0 ||
+      (r->feats && vlff_dataset_read_features(ds, i, r->hwc, err, sizeof err) < 0)) {
+    fprintf(stderr, "vlff-replay: frame %d (%s) skipped: %s\n", i, ds->stem[i], err);
+    r->unreadable++;
+    r->skipped_before = 1;
+    return 1;
+  }
+  if (r->backpressure) {
+    /* No reader yet (or a node restarting) holds the replay: frames nobody
+     * reads would be lost, which is what this mode exists to prevent. */
+    int said = 0;
+    while (!stop && vlff_ring_wait_reader(r->frames, 1000ull * 1000 * 1000) < 0) {
+      if (!said && !r->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
+      said = 1;
+    }
+    if (stop) return 0;
+  }
+  const double *c2w = ds->c2w + (size_t)i * 16;
+  uint64_t now = vlff_shm_now_ns();
+  if (r->poses) {
+    struct vlff_pose_rec pr = {.t_ns = now, .flags = 0, .source_id = 0};
+    memcpy(pr.pose, c2w, sizeof pr.pose);
+    if (vlff_ring_write(r->poses, &pr, sizeof pr) < 0) return ring_error("pose", "commit");
+  }
+  struct vlff_frame_hdr *h = vlff_ring_reserve(r->frames, NULL);
+  uint64_t len = h ? vlff_frame_layout(h, vlff_ring_slot_size(r->frames), (uint32_t)W, (uint32_t)H, VLFF_PIX_RGB8,
+                                       VLFF_PIX_DEPTH_U16_MM)
+                   : 0;
+  if (!len) return ring_error("frame", "layout");
+  h->frame_id = (uint64_t)id;
+  h->t_host_ns = now;
+  h->t_device_ns = t_device_ns;
+  h->flags = VLFF_FRAME_INTRINSICS_VALID | (r->skipped_before ? VLFF_FRAME_DROPPED_BEFORE : 0u);
+  r->skipped_before = 0;
+  h->fx = ds->fx, h->fy = ds->fy, h->cx = ds->cx, h->cy = ds->cy;
+  if (r->pose_in_frame) {
+    h->flags |= VLFF_FRAME_POSE_VALID;
+    memcpy(h->pose, c2w, sizeof h->pose);
+    h->pose_t_ns = now;
+  }
+  uint8_t *rgb = (uint8_t *)h + h->plane[VLFF_PLANE_COLOR].offset;
+  uint8_t *dep = (uint8_t *)h + h->plane[VLFF_PLANE_DEPTH].offset;
+  for (int v = 0; v < H; v++) {
+    memcpy(rgb + (size_t)v * h->plane[VLFF_PLANE_COLOR].stride, r->rgb + (size_t)v * W * 3, (size_t)W * 3);
+    uint16_t *row = (uint16_t *)(dep + (size_t)v * h->plane[VLFF_PLANE_DEPTH].stride);
+    for (int u = 0; u < W; u++) {
+      /* The reader gives metres from millimetre PNGs: the round trip is exact. */
+      float d = r->depth[(size_t)v * W + u];
+      row[u] = isfinite(d) && d > 0 ? (uint16_t)fminf(lrintf(d * 1000.0f), 65535.0f) : 0;
+    }
+  }
+  if (vlff_ring_commit(r->frames, len) < 0) return ring_error("frame", "commit");
+  if (r->feats) {
+    struct vlff_feature_hdr *f = vlff_ring_reserve(r->feats, NULL);
+    uint64_t flen = f ? vlff_feature_layout(f, vlff_ring_slot_size(r->feats), (uint32_t)ds->feat_dim,
+                                            (uint32_t)ds->feat_height, (uint32_t)ds->feat_width)
+                      : 0;
+    if (!flen) return ring_error("feature", "layout");
+    f->frame_id = (uint64_t)id;
+    f->t_host_ns = now;
+    /* the scene stores [h][w][D]; the ring carries [D][h][w] */
+    vlff_transpose_u16(r->hwc, (size_t)ds->feat_height * ds->feat_width, (size_t)ds->feat_dim,
+                       (uint16_t *)((uint8_t *)f + f->data_offset));
+    if (vlff_ring_commit(r->feats, flen) < 0) return ring_error("feature", "commit");
+  }
+  r->published++;
+  return 0;
+}
+
+static void add_ns(struct timespec *t, uint64_t ns) {
+  t->tv_sec += (time_t)(ns / 1000000000ull);
+  t->tv_nsec += (long)(ns % 1000000000ull);
+  if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
+}
+
+static int run(struct replay *r, double fps, double rate, int loop, long long count, int start) {
+  const int n = r->ds.n;
+  const uint64_t period = (uint64_t)(1e9 / (fps * rate));
+  struct timespec next;
+  clock_gettime(CLOCK_MONOTONIC, &next);
+  long long id = 0;
+  for (long long pass = 0; !stop; pass++) {
+    for (int i = pass ? 0 : start; i < n && !stop && (count <= 0 || id < count); i++, id++) {
+      if (!r->backpressure) {
+        struct timespec t;
+        clock_gettime(CLOCK_MONOTONIC, &t);
+        if (t.tv_sec > next.tv_sec || (t.tv_sec == next.tv_sec && t.tv_nsec > next.tv_nsec + 1000000L)) {
+          r->late++; /* reading the scene is slower than the schedule: restart it from now */
+          next = t;
+        } else {
+          while (!stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
+          }
+        }
+        add_ns(&next, period);
+      }
+      uint64_t t_dev = (uint64_t)(((double)pass * n + i) / fps * 1e9);
+      if (publish(r, i, id, t_dev) < 0) return -1;
+      if (!r->quiet && r->published % 100 == 0)
+        fprintf(stderr, "vlff-replay: %lld frames published (scene frame %d of %d, pass %lld)\n", r->published,
+                i, n, pass + 1);
+    }
+    if (!loop || (count > 0 && id >= count)) break;
+  }
+  return 0;
+}
+
+static int parse_num(const char *opt, const char *v, double lo, double hi, double *out) {
+  char *end;
+  errno = 0;
+  double x = strtod(v, &end);
+  if (!*v || *end || errno || !(x >= lo && x <= hi))
+    return vlff_cli_usage_error(&cli, "%s: expected a number in [%g, %g], got '%s'", opt, lo, hi, v);
+  *out = x;
+  return 0;
+}
+
+int main(int argc, char **argv) {
+  enum { OPT_LAYOUT = 256, OPT_FPS, OPT_START, OPT_POSE_IN_FRAME, OPT_NO_FEATURES };
+  static const struct option opts[] = {
+      {"config", required_argument, NULL, 'c'},
+      {"layout", required_argument, NULL, OPT_LAYOUT},
+      {"fps", required_argument, NULL, OPT_FPS},
+      {"rate", required_argument, NULL, 'r'},
+      {"backpressure", no_argument, NULL, 'b'},
+      {"loop", no_argument, NULL, 'l'},
+      {"count", required_argument, NULL, 'n'},
+      {"start", required_argument, NULL, OPT_START},
+      {"pose-in-frame", no_argument, NULL, OPT_POSE_IN_FRAME},
+      {"no-features", no_argument, NULL, OPT_NO_FEATURES},
+      {"quiet", no_argument, NULL, 'q'},
+      VLFF_CLI_COMMON_OPTIONS,
+  };
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  struct replay r;
+  memset(&r, 0, sizeof r);
+  int layout = VLFF_DS_AUTO, loop = 0, features = 1, c;
+  double fps = 30, rate = 1, x;
+  long long count = 0;
+  int start = 0;
+  char err[1024];
+  const char *config = NULL;
+  int cli_status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:r:bln:q", opts, &cli_status)) != -1) {
+    switch (c) {
+    case VLFF_CLI_EXIT: return cli_status;
+    case 'c': config = optarg; break;
+    case OPT_LAYOUT:
+      if (!strcmp(optarg, "auto")) layout = VLFF_DS_AUTO;
+      else if (!strcmp(optarg, "reference")) layout = VLFF_DS_REFERENCE;
+      else if (!strcmp(optarg, "scannet")) layout = VLFF_DS_SCANNET;
+      else if (!strcmp(optarg, "sens")) layout = VLFF_DS_SENS;
+      else return vlff_cli_usage_error(&cli, "--layout: expected auto, reference, scannet or sens, got '%s'", optarg);
+      break;
+    case OPT_FPS:
+      if (parse_num("--fps", optarg, 0.01, 10000, &fps)) return 2;
+      break;
+    case 'r':
+      if (parse_num("--rate", optarg, 0.001, 1000, &rate)) return 2;
+      break;
+    case 'b': r.backpressure = 1; break;
+    case 'l': loop = 1; break;
+    case 'n':
+      if (parse_num("--count", optarg, 1, 1e15, &x)) return 2;
+      if (x != floor(x)) return vlff_cli_usage_error(&cli, "--count: expected an integer, got '%s'", optarg);
+      count = (long long)x;
+      break;
+    case OPT_START:
+      if (parse_num("--start", optarg, 0, 1e9, &x)) return 2;
+      if (x != floor(x)) return vlff_cli_usage_error(&cli, "--start: expected an integer, got '%s'", optarg);
+      start = (int)x;
+      break;
+    case OPT_POSE_IN_FRAME: r.pose_in_frame = 1; break;
+    case OPT_NO_FEATURES: features = 0; break;
+    case 'q': r.quiet = 1; break;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
+    }
+  }
+  if (optind >= argc) return vlff_cli_usage_error(&cli, "no SCENE given");
+  if (optind < argc - 1) return vlff_cli_usage_error(&cli, "one SCENE only, got also '%s'", argv[optind + 1]);
+  /* The node's config names the rings; without one anywhere on the search
+   * path the built-in names are the node's defaults too. */
+  char ferr[512];
+  const char *path = vlff_config_find(config, ferr, sizeof ferr);
+  if (path && vlff_config_load(path, &cfg, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
+  if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
+  int status = 1;
+  if (start >= r.ds.n) {
+    fprintf(stderr, "vlff-replay: --start %d: the scene has %d frames\n", start, r.ds.n);
+    goto out;
+  }
+  if (features && !r.ds.has_features) {
+    if (!r.quiet) fprintf(stderr, "vlff-replay: %s has no features.hdf: no feature ring\n", r.ds.dir);
+    features = 0;
+  }
+  const size_t px = (size_t)r.ds.width * r.ds.height;
+  r.rgb = malloc(px * 3);
+  r.depth = malloc(px * sizeof(float));
+  r.hwc = features ? malloc((size_t)r.ds.feat_height * r.ds.feat_width * r.ds.feat_dim * sizeof(uint16_t)) : NULL;
+  if (!r.rgb || !r.depth || (features && !r.hwc)) {
+    fprintf(stderr, "vlff-replay: out of memory for %dx%d frames\n", r.ds.width, r.ds.height);
+    goto out;
+  }
+  if (open_rings(&r, &cfg, features) < 0) goto out;
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_signal;
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+  if (!r.quiet)
+    fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", r.ds.dir, r.ds.n, r.ds.width, r.ds.height,
+            features ? " with features" : "", r.backpressure ? "paced by the reader" : "on schedule");
+  if (run(&r, fps, rate, loop, count, start) == 0) status = r.unreadable ? 1 : 0;
+  if (!r.quiet || status)
+    fprintf(stderr, "vlff-replay: %lld frames published, %lld unreadable skipped, %lld late\n", r.published,
+            r.unreadable, r.late);
+out:
+  vlff_ring_close(r.frames);
+  vlff_ring_close(r.poses);
+  vlff_ring_close(r.feats);
+  free(r.rgb);
+  free(r.depth);
+  free(r.hwc);
+  vlff_dataset_close(&r.ds);
+  return status;
+}

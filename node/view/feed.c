@@ -1,0 +1,689 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * feed.c - from the map segment and the frame ring to Foxglove messages.
+ *
+ * The feed keeps a copy of the last map version it sent (labels, confidence,
+ * prompts, grid geometry). A new version is compared with that copy brick by brick:
+ * the voxel channel gets the voxels whose label or confidence changed, the scene
+ * channel the bricks that hold such a voxel (Foxglove replaces an entity by id, so a
+ * brick is the smallest unit it can update). A change of prompts or geometry
+ * recolours or moves everything, so it is sent whole. A new subscriber gets the whole
+ * copy, built once per version and shared.
+ */
+#include "json.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define NS 1000000000ull
+
+struct feed_map {
+  struct vlff_map *map;
+  struct vlff_map_snapshot *snap;
+  uint64_t next_attach_ns;
+  int reported; /* an attach failure was reported; say it once */
+  /* the state last sent */
+  uint64_t version, publish_ns;
+  uint32_t generation;
+  double origin[3], vs;
+  uint32_t dims[3];
+  size_t n;
+  uint16_t *labels;
+  uint8_t *conf;
+  int prompt_count;
+  char prompts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+  uint8_t *brick_sent; /* 1 if the scene holds a non-empty entity for the brick */
+  uint64_t occupied, free_, unknown;
+  uint64_t label_counts[VLFF_SHM_MAX_PROMPTS];
+  uint64_t label_image_t_ns;
+};
+
+struct vlff_feed {
+  struct vlff_feed_params p;
+  uint64_t mono_to_real;
+  struct feed_map m;
+  /* frame ring */
+  struct vlff_ring *ring;
+  uint64_t ring_next_attach_ns, ring_head, last_image_ns;
+  int ring_reported;
+  void *rec;
+  size_t rec_cap;
+  uint32_t *changed; /* indices of the voxels a delta carries */
+  size_t changed_cap;
+  uint64_t fps_head, fps_t_ns;
+  double fps;
+  uint64_t last_status_ns;
+  /* the latest message of each channel; the map ones are built on demand */
+  struct vlff_view_msg *current[VLFF_VIEW_CH_COUNT + 1];
+};
+
+static uint64_t real_now_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  return (uint64_t)ts.tv_sec * NS + (uint64_t)ts.tv_nsec;
+}
+
+/* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
+static uint64_t to_real(const struct vlff_feed *f, uint64_t mono_ns) { return mono_ns + f->mono_to_real; }
+
+/* A prompt's colour: hues spaced by the golden angle, so that neighbouring labels
+ * differ and the colour of a label never depends on how many prompts there are. */
+static void label_rgb(unsigned label, uint8_t rgb[3]) {
+  double h = fmod(label * 0.618033988749895 + 0.05, 1.0) * 6.0, s = 0.7, v = 0.95;
+  int i = (int)h;
+  double fr = h - i, p = v * (1 - s), q = v * (1 - s * fr), t = v * (1 - s * (1 - fr));
+  double r, g, b;
+  switch (i) {
+  case 0: r = v, g = t, b = p; break;
+  case 1: r = q, g = v, b = p; break;
+  case 2: r = p, g = v, b = t; break;
+  case 3: r = p, g = q, b = v; break;
+  case 4: r = t, g = p, b = v; break;
+  default: r = v, g = p, b = q; break;
+  }
+  rgb[0] = (uint8_t)lround(r * 255);
+  rgb[1] = (uint8_t)lround(g * 255);
+  rgb[2] = (uint8_t)lround(b * 255);
+}
+
+static void set_current(struct vlff_feed *f, int ch, struct vlff_view_msg *m) {
+  vlff_view_msg_unref(f->current[ch]);
+  f->current[ch] = vlff_view_msg_ref(m);
+}
+
+struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
+  struct vlff_feed *f = calloc(1, sizeof *f);
+  if (!f) {
+    fprintf(stderr, "vlff-view: out of memory\n");
+    return NULL;
+  }
+  f->p = *p;
+  if (f->p.brick < 1) f->p.brick = 8;
+  f->mono_to_real = real_now_ns() - vlff_shm_now_ns();
+  return f;
+}
+
+static void map_forget(struct feed_map *m) {
+  vlff_map_snapshot_free(m->snap);
+  vlff_map_detach(m->map);
+  free(m->labels);
+  free(m->conf);
+  free(m->brick_sent);
+  memset(m, 0, sizeof *m);
+}
+
+void vlff_feed_free(struct vlff_feed *f) {
+  if (!f) return;
+  map_forget(&f->m);
+  vlff_ring_close(f->ring);
+  free(f->rec);
+  free(f->changed);
+  for (int c = 0; c <= VLFF_VIEW_CH_COUNT; c++) vlff_view_msg_unref(f->current[c]);
+  free(f);
+}
+
+uint64_t vlff_feed_version(const struct vlff_feed *f) { return f->m.version; }
+
+/* ------------------------------------------------------------ map messages */
+
+static int is_occupied(uint16_t l) { return l <= VLFF_LABEL_MAX; }
+
+static void brick_range(const struct feed_map *m, uint32_t b, uint32_t lo[3], uint32_t hi[3], uint32_t edge) {
+  uint32_t nb[3];
+  for (int a = 0; a < 3; a++) nb[a] = (m->dims[a] + edge - 1) / edge;
+  uint32_t c[3] = {b % nb[0], (b / nb[0]) % nb[1], b / (nb[0] * nb[1])};
+  for (int a = 0; a < 3; a++) {
+    lo[a] = c[a] * edge;
+    hi[a] = lo[a] + edge < m->dims[a] ? lo[a] + edge : m->dims[a];
+  }
+}
+
+static uint32_t brick_count(const struct feed_map *m, uint32_t edge) {
+  uint64_t n = 1;
+  for (int a = 0; a < 3; a++) n *= (m->dims[a] + edge - 1) / edge;
+  return (uint32_t)n;
+}
+
+static void write_brick_entity(struct jw *w, const struct feed_map *m, uint32_t b, uint32_t edge, uint64_t t,
+                               const uint8_t (*rgb)[3], int *first) {
+  uint32_t lo[3], hi[3];
+  brick_range(m, b, lo, hi, edge);
+  jw_s(w, *first ? "{" : ",{");
+  *first = 0;
+  jw_s(w, "\"timestamp\":");
+  jw_time(w, t);
+  jw_f(w, ",\"frame_id\":\"world\",\"id\":\"brick-%u\",\"lifetime\":{\"sec\":0,\"nsec\":0},\"frame_locked\":true,"
+          "\"metadata\":[],\"arrows\":[],\"cubes\":[",
+       b);
+  int n = 0;
+  double s = m->vs * 0.96; /* a hair smaller, so that neighbouring cubes read as voxels */
+  for (uint32_t k = lo[2]; k < hi[2]; k++)
+    for (uint32_t j = lo[1]; j < hi[1]; j++)
+      for (uint32_t i = lo[0]; i < hi[0]; i++) {
+        size_t idx = i + (size_t)m->dims[0] * (j + (size_t)m->dims[1] * k);
+        uint16_t l = m->labels[idx];
+        if (!is_occupied(l)) continue;
+        const uint8_t *c = l < VLFF_SHM_MAX_PROMPTS ? rgb[l] : rgb[VLFF_SHM_MAX_PROMPTS];
+        jw_f(w,
+             "%s{\"pose\":{\"position\":{\"x\":%.4f,\"y\":%.4f,\"z\":%.4f},\"orientation\":{\"x\":0,\"y\":0,\"z\":0,"
+             "\"w\":1}},\"size\":{\"x\":%.4f,\"y\":%.4f,\"z\":%.4f},\"color\":{\"r\":%.3f,\"g\":%.3f,\"b\":%.3f,\"a\":1}}",
+             n++ ? "," : "", m->origin[0] + (i + 0.5) * m->vs, m->origin[1] + (j + 0.5) * m->vs,
+             m->origin[2] + (k + 0.5) * m->vs, s, s, s, c[0] / 255.0, c[1] / 255.0, c[2] / 255.0);
+      }
+  jw_s(w, "],\"spheres\":[],\"cylinders\":[],\"lines\":[],\"triangles\":[],\"texts\":[],\"models\":[]}");
+}
+
+static int brick_has_voxels(const struct feed_map *m, uint32_t b, uint32_t edge) {
+  uint32_t lo[3], hi[3];
+  brick_range(m, b, lo, hi, edge);
+  for (uint32_t k = lo[2]; k < hi[2]; k++)
+    for (uint32_t j = lo[1]; j < hi[1]; j++)
+      for (uint32_t i = lo[0]; i < hi[0]; i++)
+        if (is_occupied(m->labels[i + (size_t)m->dims[0] * (j + (size_t)m->dims[1] * k)])) return 1;
+  return 0;
+}
+
+static void palette(uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3]) {
+  for (unsigned l = 0; l < VLFF_SHM_MAX_PROMPTS; l++) label_rgb(l, rgb[l]);
+  /* a label without a prompt (the map names more labels than prompts) is grey */
+  rgb[VLFF_SHM_MAX_PROMPTS][0] = rgb[VLFF_SHM_MAX_PROMPTS][1] = rgb[VLFF_SHM_MAX_PROMPTS][2] = 128;
+}
+
+/* The scene message: the listed bricks (dirty == NULL: every brick; full also
+ * deletes every entity the client may hold from an earlier map). Updates
+ * brick_sent. */
+static struct vlff_view_msg *scene_msg(struct feed_map *m, const uint8_t *dirty, uint32_t edge, uint64_t t,
+                                       int update_sent) {
+  uint32_t nb = brick_count(m, edge);
+  uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
+  palette(rgb);
+  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_SCENE, 4096), 0};
+  if (!w.m) return NULL;
+  w.m->t_ns = t;
+  w.m->version = m->version;
+  jw_s(&w, "{\"deletions\":[");
+  int first = 1;
+  if (!dirty) {
+    jw_s(&w, "{\"timestamp\":");
+    jw_time(&w, t);
+    jw_s(&w, ",\"type\":1,\"id\":\"\"}");
+    first = 0;
+  } else {
+    for (uint32_t b = 0; b < nb; b++) {
+      if (!dirty[b] || !m->brick_sent[b] || brick_has_voxels(m, b, edge)) continue;
+      jw_s(&w, first ? "{\"timestamp\":" : ",{\"timestamp\":");
+      jw_time(&w, t);
+      jw_f(&w, ",\"type\":0,\"id\":\"brick-%u\"}", b);
+      first = 0;
+      if (update_sent) m->brick_sent[b] = 0;
+    }
+  }
+  jw_s(&w, "],\"entities\":[");
+  first = 1;
+  for (uint32_t b = 0; b < nb; b++) {
+    if (dirty && !dirty[b]) continue;
+    int has = brick_has_voxels(m, b, edge);
+    if (update_sent) m->brick_sent[b] = (uint8_t)has;
+    if (has) write_brick_entity(&w, m, b, edge, t, (const uint8_t(*)[3])rgb, &first);
+  }
+  jw_s(&w, "]}");
+  return jw_finish(&w);
+}
+
+static void write_map_header(struct jw *w, const struct feed_map *m, int full) {
+  jw_f(w, "{\"version\":%llu,\"full\":%s,\"publish_mono_ns\":%llu,\"origin\":[%.6f,%.6f,%.6f],\"voxel_size\":%.6f,",
+       (unsigned long long)m->version, full ? "true" : "false", (unsigned long long)m->publish_ns, m->origin[0],
+       m->origin[1], m->origin[2], m->vs);
+  jw_f(w, "\"dims\":[%u,%u,%u],\"prompts\":[", m->dims[0], m->dims[1], m->dims[2]);
+  for (int i = 0; i < m->prompt_count; i++) {
+    if (i) jw_s(w, ",");
+    jw_str(w, m->prompts[i]);
+  }
+  jw_s(w, "],\"colors\":[");
+  for (int i = 0; i < m->prompt_count; i++) {
+    uint8_t c[3];
+    label_rgb((unsigned)i, c);
+    jw_f(w, "%s\"#%02x%02x%02x\"", i ? "," : "", c[0], c[1], c[2]);
+  }
+  jw_f(w, "],\"occupied\":%llu,\"voxels\":[", (unsigned long long)m->occupied);
+}
+
+static struct vlff_view_msg *voxels_full_msg(const struct feed_map *m, uint64_t t) {
+  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_VOXELS, 4096), 0};
+  if (!w.m) return NULL;
+  w.m->t_ns = t;
+  w.m->version = m->version;
+  write_map_header(&w, m, 1);
+  int n = 0;
+  for (size_t i = 0; i < m->n; i++)
+    if (is_occupied(m->labels[i]))
+      jw_f(&w, "%s%zu,%u,%u", n++ ? "," : "", i, m->labels[i], m->conf ? m->conf[i] : 255u);
+  jw_s(&w, "]}");
+  return jw_finish(&w);
+}
+
+static void count_labels(struct feed_map *m) {
+  m->occupied = m->free_ = m->unknown = 0;
+  memset(m->label_counts, 0, sizeof m->label_counts);
+  for (size_t i = 0; i < m->n; i++) {
+    uint16_t l = m->labels[i];
+    if (l == VLFF_LABEL_FREE) m->free_++;
+    else if (l == VLFF_LABEL_UNKNOWN) m->unknown++;
+    else {
+      m->occupied++;
+      if (l < VLFF_SHM_MAX_PROMPTS) m->label_counts[l]++;
+    }
+  }
+}
+
+static struct vlff_view_msg *label_image_msg(const struct vlff_feed *f, const struct vlff_map_label_image *li) {
+  size_t px = (size_t)li->width * li->height;
+  uint8_t *rgb = malloc(px * 3 + 1);
+  if (!rgb) return NULL;
+  uint8_t pal[VLFF_SHM_MAX_PROMPTS][3];
+  for (unsigned l = 0; l < VLFF_SHM_MAX_PROMPTS; l++) label_rgb(l, pal[l]);
+  for (size_t i = 0; i < px; i++) {
+    uint16_t l = li->labels[i];
+    uint8_t *o = rgb + 3 * i;
+    if (l < VLFF_SHM_MAX_PROMPTS) memcpy(o, pal[l], 3);
+    else if (l == VLFF_LABEL_FREE) o[0] = o[1] = o[2] = 40;
+    else if (l == VLFF_LABEL_UNKNOWN) o[0] = o[1] = o[2] = 0;
+    else o[0] = o[1] = o[2] = 128;
+  }
+  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_LABELS, px * 4 + 512), 0};
+  if (w.m) {
+    w.m->t_ns = to_real(f, li->t_ns);
+    jw_s(&w, "{\"timestamp\":");
+    jw_time(&w, w.m->t_ns);
+    jw_f(&w, ",\"frame_id\":\"camera\",\"width\":%u,\"height\":%u,\"encoding\":\"rgb8\",\"step\":%u,\"data\":",
+         li->width, li->height, li->width * 3);
+    jw_b64(&w, rgb, px * 3);
+    jw_s(&w, "}");
+  }
+  free(rgb);
+  return w.m ? jw_finish(&w) : NULL;
+}
+
+/* Row-major camera-to-world matrix to a FrameTransform world -> camera. */
+static struct vlff_view_msg *pose_msg(uint64_t t, const double P[16]) {
+  double r00 = P[0], r01 = P[1], r02 = P[2], r10 = P[4], r11 = P[5], r12 = P[6], r20 = P[8], r21 = P[9],
+         r22 = P[10];
+  double qw, qx, qy, qz, tr = r00 + r11 + r22;
+  if (tr > 0) {
+    double s = sqrt(tr + 1.0) * 2;
+    qw = 0.25 * s, qx = (r21 - r12) / s, qy = (r02 - r20) / s, qz = (r10 - r01) / s;
+  } else if (r00 > r11 && r00 > r22) {
+    double s = sqrt(1.0 + r00 - r11 - r22) * 2;
+    qw = (r21 - r12) / s, qx = 0.25 * s, qy = (r01 + r10) / s, qz = (r02 + r20) / s;
+  } else if (r11 > r22) {
+    double s = sqrt(1.0 + r11 - r00 - r22) * 2;
+    qw = (r02 - r20) / s, qx = (r01 + r10) / s, qy = 0.25 * s, qz = (r12 + r21) / s;
+  } else {
+    double s = sqrt(1.0 + r22 - r00 - r11) * 2;
+    qw = (r10 - r01) / s, qx = (r02 + r20) / s, qy = (r12 + r21) / s, qz = 0.25 * s;
+  }
+  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_POSE, 512), 0};
+  if (!w.m) return NULL;
+  w.m->t_ns = t;
+  jw_s(&w, "{\"timestamp\":");
+  jw_time(&w, t);
+  jw_f(&w,
+       ",\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\",\"translation\":{\"x\":%.6f,\"y\":%.6f,\"z\":%.6f},"
+       "\"rotation\":{\"x\":%.9f,\"y\":%.9f,\"z\":%.9f,\"w\":%.9f}}",
+       P[3], P[7], P[11], qx, qy, qz, qw);
+  return jw_finish(&w);
+}
+
+static int valid_pose(const double P[16]) {
+  for (int i = 0; i < 16; i++)
+    if (!isfinite(P[i])) return 0;
+  return 1;
+}
+
+static void map_attach(struct vlff_feed *f, uint64_t now) {
+  struct feed_map *m = &f->m;
+  if (m->map || now < m->next_attach_ns) return;
+  m->next_attach_ns = now + NS;
+  m->map = vlff_map_attach(f->p.map_name);
+  if (!m->map) {
+    if (!m->reported)
+      fprintf(stderr, "vlff-view: map %s: %s; retrying every second\n", f->p.map_name, vlff_shm_last_message());
+    m->reported = 1;
+    return;
+  }
+  m->snap = vlff_map_snapshot_new(m->map);
+  if (!m->snap) {
+    fprintf(stderr, "vlff-view: map %s: no memory for a snapshot\n", f->p.map_name);
+    vlff_map_detach(m->map);
+    m->map = NULL;
+    return;
+  }
+  fprintf(stderr, "vlff-view: attached to map %s\n", f->p.map_name);
+  m->reported = 0;
+}
+
+/* Reads a new map version, if any, and appends its delta messages. */
+static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
+  struct feed_map *m = &f->m;
+  uint64_t now = vlff_shm_now_ns();
+  map_attach(f, now);
+  if (!m->map) return 0;
+  uint64_t v = vlff_map_version(m->map);
+  if (v == 0 || (v == m->version && vlff_map_generation(m->map) == m->generation)) return 0;
+  if (vlff_map_snapshot_take(m->map, m->snap) != 0) {
+    if (errno == EPIPE) {
+      fprintf(stderr, "vlff-view: map %s was replaced by a new one; attaching again\n", f->p.map_name);
+      uint64_t keep = m->version;
+      map_forget(m);
+      m->version = keep; /* clients keep their map until the new segment publishes */
+    }
+    return 0;
+  }
+  struct vlff_map_info info;
+  if (vlff_map_snapshot_info(m->snap, &info) != 0) return 0;
+  const struct vlff_map_grid *g = &info.grid;
+  size_t n = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
+  int full = !m->labels || n != m->n || memcmp(g->dims, m->dims, sizeof m->dims) ||
+             memcmp(g->origin, m->origin, sizeof m->origin) || g->voxel_size != m->vs ||
+             info.prompt_count != m->prompt_count;
+  for (int i = 0; !full && i < info.prompt_count && i < VLFF_SHM_MAX_PROMPTS; i++) {
+    const char *p = vlff_map_snapshot_prompt(m->snap, (uint16_t)i);
+    full = strcmp(p ? p : "", m->prompts[i]) != 0;
+  }
+  uint64_t t = to_real(f, info.publish_ns);
+  int nout = 0;
+  uint32_t edge = f->p.brick;
+
+  if (full) {
+    free(m->labels);
+    free(m->conf);
+    free(m->brick_sent);
+    m->n = n;
+    memcpy(m->dims, g->dims, sizeof m->dims);
+    memcpy(m->origin, g->origin, sizeof m->origin);
+    m->vs = g->voxel_size;
+    m->labels = malloc(n * sizeof *m->labels + 1);
+    m->conf = malloc(n + 1);
+    m->brick_sent = calloc(brick_count(m, edge) + 1, 1);
+    if (!m->labels || !m->conf || !m->brick_sent) {
+      fprintf(stderr, "vlff-view: out of memory for a %zu-voxel map\n", n);
+      map_forget(m);
+      return 0;
+    }
+    memcpy(m->labels, g->labels, n * sizeof *m->labels);
+    if (g->confidence) memcpy(m->conf, g->confidence, n);
+    else memset(m->conf, 255, n);
+  }
+  m->prompt_count = info.prompt_count > VLFF_SHM_MAX_PROMPTS ? VLFF_SHM_MAX_PROMPTS : info.prompt_count;
+  for (int i = 0; i < m->prompt_count; i++) {
+    const char *p = vlff_map_snapshot_prompt(m->snap, (uint16_t)i);
+    snprintf(m->prompts[i], sizeof m->prompts[i], "%s", p ? p : "");
+  }
+  m->version = info.version;
+  m->publish_ns = info.publish_ns;
+  m->generation = info.generation;
+
+  if (full) {
+    count_labels(m);
+    struct vlff_view_msg *s = wanted & 1u << VLFF_VIEW_CH_SCENE ? scene_msg(m, NULL, edge, t, 1) : NULL;
+    struct vlff_view_msg *vx = voxels_full_msg(m, t);
+    set_current(f, VLFF_VIEW_CH_SCENE, s);
+    set_current(f, VLFF_VIEW_CH_VOXELS, vx);
+    /* the small voxel message first: it is not queued behind the scene */
+    if (vx && nout < cap) out[nout++] = vx;
+    else vlff_view_msg_unref(vx);
+    if (s && nout < cap) out[nout++] = s;
+    else vlff_view_msg_unref(s);
+  } else {
+    /* the delta: changed voxels, in index order, and the bricks holding them */
+    uint32_t nb = brick_count(m, edge);
+    uint8_t *dirty = calloc(nb, 1);
+    if (!dirty) return 0;
+    const uint8_t *gc = g->confidence;
+    size_t changed = 0;
+    uint32_t nb0 = (m->dims[0] + edge - 1) / edge, nb1 = (m->dims[1] + edge - 1) / edge;
+    for (uint32_t k = 0; k < m->dims[2]; k++)
+      for (uint32_t j = 0; j < m->dims[1]; j++) {
+        size_t row = (size_t)m->dims[0] * (j + (size_t)m->dims[1] * k);
+        /* most rows are unchanged: compare them whole first */
+        if (!memcmp(m->labels + row, g->labels + row, m->dims[0] * sizeof *m->labels) &&
+            (gc ? !memcmp(m->conf + row, gc + row, m->dims[0]) : 1))
+          continue;
+        for (uint32_t i = 0; i < m->dims[0]; i++) {
+          size_t idx = row + i;
+          uint8_t c = gc ? gc[idx] : 255;
+          if (g->labels[idx] == m->labels[idx] && c == m->conf[idx]) continue;
+          if (changed == f->changed_cap) {
+            size_t nc = f->changed_cap ? f->changed_cap * 2 : 4096;
+            uint32_t *p = realloc(f->changed, nc * sizeof *p);
+            if (!p) {
+              free(dirty);
+              fprintf(stderr, "vlff-view: out of memory for a map delta\n");
+              map_forget(m);
+              return 0;
+            }
+            f->changed = p;
+            f->changed_cap = nc;
+          }
+          f->changed[changed++] = (uint32_t)idx;
+          m->labels[idx] = g->labels[idx];
+          m->conf[idx] = c;
+          dirty[i / edge + nb0 * (j / edge + nb1 * (k / edge))] = 1;
+        }
+      }
+    count_labels(m);
+    struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_VOXELS, 64 + changed * 16), 0};
+    struct vlff_view_msg *vx = NULL, *s = NULL;
+    if (w.m) {
+      w.m->t_ns = t;
+      w.m->version = m->version;
+      write_map_header(&w, m, 0);
+      for (size_t c = 0; c < changed; c++) {
+        uint32_t idx = f->changed[c];
+        jw_f(&w, "%s%u,%u,%u", c ? "," : "", idx, m->labels[idx], m->conf[idx]);
+      }
+      jw_s(&w, "]}");
+      vx = jw_finish(&w);
+    }
+    /* a version that changed no voxel still reaches the voxel channel (clients
+     * learn the version); the scene has nothing to replace then */
+    if (changed && (wanted & 1u << VLFF_VIEW_CH_SCENE)) s = scene_msg(m, dirty, edge, t, 1);
+    free(dirty);
+    if (vx && nout < cap) out[nout++] = vx;
+    else vlff_view_msg_unref(vx);
+    if (s && nout < cap) out[nout++] = s;
+    else vlff_view_msg_unref(s);
+    /* the whole map for new subscribers is rebuilt when first asked for */
+    set_current(f, VLFF_VIEW_CH_SCENE, NULL);
+    set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
+  }
+
+  if (info.has_label_image && info.label_image.t_ns != m->label_image_t_ns && (wanted & 1u << VLFF_VIEW_CH_LABELS) &&
+      nout < cap) {
+    m->label_image_t_ns = info.label_image.t_ns;
+    struct vlff_view_msg *li = label_image_msg(f, &info.label_image);
+    if (li) {
+      out[nout++] = li;
+      set_current(f, VLFF_VIEW_CH_LABELS, li);
+    }
+    if ((!f->ring || !f->current[VLFF_VIEW_CH_IMAGE]) && valid_pose(info.label_image.pose) && nout < cap) {
+      struct vlff_view_msg *pm = pose_msg(to_real(f, info.label_image.t_ns), info.label_image.pose);
+      if (pm) {
+        out[nout++] = pm;
+        set_current(f, VLFF_VIEW_CH_POSE, pm);
+      }
+    }
+  }
+  return nout;
+}
+
+/* ----------------------------------------------------------- camera frames */
+
+static const char *image_encoding(uint32_t fmt) {
+  switch (fmt) {
+  case VLFF_PIX_RGB8: return "rgb8";
+  case VLFF_PIX_BGR8: return "bgr8";
+  case VLFF_PIX_MONO8: return "mono8";
+  case VLFF_PIX_MONO16: return "mono16";
+  case VLFF_PIX_BAYER_RG8: return "bayer_rggb8";
+  case VLFF_PIX_BAYER_BG8: return "bayer_bggr8";
+  case VLFF_PIX_BAYER_GR8: return "bayer_grbg8";
+  case VLFF_PIX_BAYER_GB8: return "bayer_gbrg8";
+  default: return NULL;
+  }
+}
+
+static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
+  if (!f->p.frames_name || !*f->p.frames_name || cap < 1) return 0;
+  uint64_t now = vlff_shm_now_ns();
+  if (!f->ring) {
+    if (now < f->ring_next_attach_ns) return 0;
+    f->ring_next_attach_ns = now + NS;
+    f->ring = vlff_ring_attach(f->p.frames_name, VLFF_RECORD_FRAME);
+    if (!f->ring) {
+      if (!f->ring_reported)
+        fprintf(stderr, "vlff-view: frame ring %s: %s; retrying every second\n", f->p.frames_name,
+                vlff_shm_last_message());
+      f->ring_reported = 1;
+      return 0;
+    }
+    f->ring_reported = 0;
+    free(f->rec);
+    f->rec_cap = vlff_ring_slot_size(f->ring);
+    f->rec = malloc(f->rec_cap);
+    if (!f->rec) {
+      fprintf(stderr, "vlff-view: no memory for a %zu-byte frame\n", f->rec_cap);
+      vlff_ring_close(f->ring);
+      f->ring = NULL;
+      return 0;
+    }
+    f->ring_head = 0;
+    fprintf(stderr, "vlff-view: attached to frame ring %s\n", f->p.frames_name);
+  }
+  uint64_t head = vlff_ring_head(f->ring);
+  if (now - f->fps_t_ns >= NS) {
+    if (f->fps_t_ns) f->fps = (double)(head - f->fps_head) * 1e9 / (double)(now - f->fps_t_ns);
+    f->fps_head = head;
+    f->fps_t_ns = now;
+  }
+  /* the ring is watched for the status either way; frames are read for subscribers */
+  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE))) return 0;
+  if (head == f->ring_head || (f->p.image_hz > 0 && now - f->last_image_ns < (uint64_t)(1e9 / f->p.image_hz)))
+    return 0;
+  struct vlff_ring_view info;
+  ssize_t len = vlff_ring_read_latest(f->ring, f->rec, f->rec_cap, &info);
+  if (len < 0) {
+    if (errno == EPIPE) {
+      fprintf(stderr, "vlff-view: frame ring %s was replaced; attaching again\n", f->p.frames_name);
+      vlff_ring_close(f->ring);
+      f->ring = NULL;
+    }
+    return 0;
+  }
+  f->ring_head = head;
+  f->last_image_ns = now;
+  if (vlff_frame_validate(f->rec, (size_t)len) != 0) return 0;
+  const struct vlff_frame_hdr *h = f->rec;
+  const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
+  const char *enc = image_encoding(pl->format);
+  const uint8_t *px = vlff_frame_plane(f->rec, VLFF_PLANE_COLOR);
+  int nout = 0;
+  if (enc && px) {
+    struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_IMAGE, pl->size / 3 * 4 + 512), 0};
+    if (w.m) {
+      w.m->t_ns = to_real(f, h->t_host_ns);
+      jw_s(&w, "{\"timestamp\":");
+      jw_time(&w, w.m->t_ns);
+      jw_f(&w, ",\"frame_id\":\"camera\",\"width\":%u,\"height\":%u,\"encoding\":\"%s\",\"step\":%u,\"data\":",
+           pl->width, pl->height, enc, pl->stride);
+      jw_b64(&w, px, pl->size);
+      jw_s(&w, "}");
+      struct vlff_view_msg *im = jw_finish(&w);
+      if (im) {
+        out[nout++] = im;
+        set_current(f, VLFF_VIEW_CH_IMAGE, im);
+      }
+    }
+  }
+  if ((h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose) && nout < cap) {
+    struct vlff_view_msg *pm = pose_msg(to_real(f, h->pose_t_ns ? h->pose_t_ns : h->t_host_ns), h->pose);
+    if (pm) {
+      out[nout++] = pm;
+      set_current(f, VLFF_VIEW_CH_POSE, pm);
+    }
+  }
+  return nout;
+}
+
+/* ------------------------------------------------------------------ status */
+
+static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_view_counters *c) {
+  struct feed_map *m = &f->m;
+  uint64_t t = real_now_ns();
+  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_STATUS, 2048), 0};
+  if (!w.m) return NULL;
+  w.m->t_ns = t;
+  jw_s(&w, "{\"map\":{\"segment\":");
+  jw_str(&w, f->p.map_name);
+  jw_f(&w, ",\"attached\":%s,\"version\":%llu,\"generation\":%u,\"age_s\":", m->map ? "true" : "false",
+       (unsigned long long)m->version, m->generation);
+  uint64_t age = m->map ? vlff_map_age_ns(m->map) : UINT64_MAX;
+  if (age == UINT64_MAX) jw_s(&w, "null");
+  else jw_f(&w, "%.3f", (double)age / 1e9);
+  jw_f(&w, ",\"writer_alive\":%s,\"prompts\":[",
+       m->map && vlff_map_writer_alive(m->map, 2 * NS) ? "true" : "false");
+  for (int i = 0; i < m->prompt_count; i++) {
+    if (i) jw_s(&w, ",");
+    jw_str(&w, m->prompts[i]);
+  }
+  jw_f(&w, "],\"dims\":[%u,%u,%u],\"voxel_size\":%.6f,\"origin\":[%.6f,%.6f,%.6f],", m->dims[0], m->dims[1],
+       m->dims[2], m->vs, m->origin[0], m->origin[1], m->origin[2]);
+  jw_f(&w, "\"occupied\":%llu,\"free\":%llu,\"unknown\":%llu,\"label_counts\":[", (unsigned long long)m->occupied,
+       (unsigned long long)m->free_, (unsigned long long)m->unknown);
+  for (int i = 0; i < m->prompt_count; i++) jw_f(&w, "%s%llu", i ? "," : "", (unsigned long long)m->label_counts[i]);
+  jw_s(&w, "]},\"frames\":{\"segment\":");
+  jw_str(&w, f->p.frames_name ? f->p.frames_name : "");
+  jw_f(&w, ",\"attached\":%s,\"head\":%llu,\"generation\":%u,\"fps\":%.2f},", f->ring ? "true" : "false",
+       (unsigned long long)(f->ring ? vlff_ring_head(f->ring) : 0), f->ring ? vlff_ring_generation(f->ring) : 0,
+       f->fps);
+  jw_f(&w,
+       "\"viewer\":{\"clients\":%d,\"connections\":%llu,\"dropped_slow\":%llu,\"refused\":%llu,\"bad_requests\":%llu,"
+       "\"prompts_posted\":%llu,\"messages_sent\":%llu,\"bytes_sent\":%llu}}",
+       c->clients, (unsigned long long)c->connections, (unsigned long long)c->dropped_slow,
+       (unsigned long long)c->refused, (unsigned long long)c->bad_requests, (unsigned long long)c->prompts_posted,
+       (unsigned long long)c->messages_sent, (unsigned long long)c->bytes_sent);
+  return jw_finish(&w);
+}
+
+int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsigned wanted, struct vlff_view_msg **out,
+                   int out_cap) {
+  uint64_t before = f->m.version;
+  int n = map_poll(f, wanted, out, out_cap);
+  n += frames_poll(f, wanted, out + n, out_cap - n);
+  uint64_t now = vlff_shm_now_ns();
+  if (n < out_cap && (f->m.version != before || now - f->last_status_ns >= NS)) {
+    struct vlff_view_msg *s = status_msg(f, c);
+    if (s) {
+      out[n++] = s;
+      set_current(f, VLFF_VIEW_CH_STATUS, s);
+    }
+    f->last_status_ns = now;
+  }
+  return n;
+}
+
+struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch) {
+  if (ch < 1 || ch > VLFF_VIEW_CH_COUNT) return NULL;
+  if (!f->current[ch] && f->m.labels && f->m.version) {
+    uint64_t t = to_real(f, f->m.publish_ns);
+    /* deltas are not built while nobody subscribes to the scene: the whole scene
+     * sent now is what its clients hold from here on */
+    if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(&f->m, NULL, f->p.brick, t, 1);
+    else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(&f->m, t);
+  }
+  return vlff_view_msg_ref(f->current[ch]);
+}

@@ -1,0 +1,196 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * vlff-view: the live viewer. Reads the map segment and the frame ring like any
+ * controller and serves them to Foxglove (foxglove.websocket.v1) and to its own page
+ * on one port, until SIGINT/SIGTERM.
+ */
+#include "cli.h"
+#include "view.h"
+
+#include <errno.h>
+#include <getopt.h>
+#include <limits.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+static struct vlff_view *running;
+
+static void on_signal(int sig) {
+  (void)sig;
+  if (running) vlff_view_stop(running);
+}
+
+static const struct vlff_cli cli = {
+    "vlff-view",
+    "Usage: vlff-view [OPTIONS]\n"
+    "Serve the node's live map, camera and status to Foxglove (foxglove.websocket.v1)\n"
+    "and to a built-in web page, on one port.\n"
+    "\n"
+    "  -l, --listen ADDR       IP address or interface to listen on (default 127.0.0.1; 0.0.0.0 = all)\n"
+    "  -p, --port N            port (default 8765; 0 = any free port, printed on start)\n"
+    "  -m, --map NAME          map segment (default /vlff-map)\n"
+    "  -f, --frames NAME       frame ring for the camera image (default /vlff-frames; \"\" = none)\n"
+    "      --prompts NAME      prompt mailbox (default /vlff-prompts)\n"
+    "      --token-file FILE   enable posting prompt sets; clients must send the token in FILE\n"
+    "      --image-hz HZ       most camera images per second (default 2, 0.1..60)\n"
+    "      --poll-hz HZ        segment checks per second (default 50, 1..1000)\n"
+    "      --max-clients N     clients at once (default 10, 1..1000)\n"
+    "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32)\n"
+    "      --max-request-kb KB largest client message (default 64)\n"
+    "      --www DIR           the page's files (default: installed with the program)\n"
+    "  -v, --verbose           log connections (twice: libwebsockets' notices too)\n"
+    "  -V, --version           print the version and exit\n"
+    "  -h, --help              print this help and exit\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-view --map /vlff-demo-map --frames /vlff-demo-frames --prompts /vlff-demo-prompts\n"
+    "  vlff-view --listen 0.0.0.0 --token-file /etc/vlff/view.token\n"
+    "Then open http://127.0.0.1:8765/ or connect Foxglove to ws://127.0.0.1:8765.\n",
+};
+
+static int parse_num(const char *opt, const char *s, double lo, double hi, double *out) {
+  char *end;
+  errno = 0;
+  double x = strtod(s, &end);
+  if (errno || end == s || *end || !(x >= lo && x <= hi)) {
+    vlff_cli_usage_error(&cli, "--%s '%s' is not a number in %g..%g", opt, s, lo, hi);
+    return -1;
+  }
+  *out = x;
+  return 0;
+}
+
+/* The token: the first line of a file, at least 8 and at most 256 characters. */
+static char *read_token(const char *path) {
+  FILE *f = fopen(path, "r");
+  if (!f) {
+    vlff_cli_error(&cli, "--token-file %s: %s", path, strerror(errno));
+    return NULL;
+  }
+  char buf[512];
+  char *line = fgets(buf, sizeof buf, f);
+  fclose(f);
+  if (line) buf[strcspn(buf, "\r\n")] = 0;
+  size_t n = line ? strlen(buf) : 0;
+  if (n < 8 || n > 256) {
+    fprintf(stderr, "vlff-view: %s:1: the token must be 8..256 characters on the first line (found %zu)\n", path, n);
+    return NULL;
+  }
+  return strdup(buf);
+}
+
+static int is_dir_with_index(const char *dir) {
+  char p[PATH_MAX];
+  struct stat st;
+  return snprintf(p, sizeof p, "%s/index.html", dir) < (int)sizeof p && stat(p, &st) == 0;
+}
+
+/* The page's files: beside a build-tree program (www/), else where the install puts
+ * them (bin/../share/vlff/view). */
+static int default_www(char *out, size_t cap) {
+  char exe[PATH_MAX];
+  ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+  if (n <= 0) return -1;
+  exe[n] = 0;
+  char *slash = strrchr(exe, '/');
+  if (!slash) return -1;
+  *slash = 0;
+  if (snprintf(out, cap, "%.*s/www", PATH_MAX - 64, exe) < (int)cap && is_dir_with_index(out)) return 0;
+  if (snprintf(out, cap, "%.*s/../share/vlff/view", PATH_MAX - 64, exe) < (int)cap && is_dir_with_index(out)) return 0;
+  return -1;
+}
+
+int main(int argc, char **argv) {
+  enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW };
+  static const struct option opts[] = {
+      {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
+      {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
+      {"prompts", required_argument, NULL, OPT_PROMPTS}, {"token-file", required_argument, NULL, OPT_TOKEN},
+      {"image-hz", required_argument, NULL, OPT_IMAGE_HZ}, {"poll-hz", required_argument, NULL, OPT_POLL_HZ},
+      {"max-clients", required_argument, NULL, OPT_MAX_CLIENTS}, {"max-queue-mb", required_argument, NULL, OPT_QUEUE},
+      {"max-request-kb", required_argument, NULL, OPT_REQUEST}, {"www", required_argument, NULL, OPT_WWW},
+      {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
+  struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
+                                .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
+                                .max_request_bytes = 64u << 10};
+  struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
+  const char *token_file = NULL, *www = NULL;
+  double x;
+  int c, status;
+  while ((c = vlff_cli_next(&cli, argc, argv, "l:p:m:f:v", opts, &status)) != -1) {
+    switch (c) {
+    case VLFF_CLI_EXIT: return status;
+    case 'l': vp.address = optarg; break;
+    case 'p':
+      if (parse_num("port", optarg, 0, 65535, &x) || x != (int)x) return 2;
+      vp.port = (int)x;
+      break;
+    case 'm': fp.map_name = optarg; break;
+    case 'f': fp.frames_name = optarg; break;
+    case OPT_PROMPTS: vp.prompts_name = optarg; break;
+    case OPT_TOKEN: token_file = optarg; break;
+    case OPT_IMAGE_HZ:
+      if (parse_num("image-hz", optarg, 0.1, 60, &fp.image_hz)) return 2;
+      break;
+    case OPT_POLL_HZ:
+      if (parse_num("poll-hz", optarg, 1, 1000, &vp.poll_hz)) return 2;
+      break;
+    case OPT_MAX_CLIENTS:
+      if (parse_num("max-clients", optarg, 1, 1000, &x)) return 2;
+      vp.max_clients = (int)x;
+      break;
+    case OPT_QUEUE:
+      if (parse_num("max-queue-mb", optarg, 1, 4096, &x)) return 2;
+      vp.max_queue_bytes = (size_t)(x * (1 << 20));
+      break;
+    case OPT_REQUEST:
+      if (parse_num("max-request-kb", optarg, 1, 16384, &x)) return 2;
+      vp.max_request_bytes = (size_t)(x * 1024);
+      break;
+    case OPT_WWW: www = optarg; break;
+    case 'v': vp.verbose++; break;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
+    }
+  }
+  if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
+  if (fp.map_name[0] != '/') return vlff_cli_usage_error(&cli, "--map '%s' must start with '/'", fp.map_name);
+  char wwwbuf[PATH_MAX];
+  if (www) {
+    if (!is_dir_with_index(www)) return vlff_cli_usage_error(&cli, "--www %s: no index.html there", www);
+    vp.www_dir = www;
+  } else if (default_www(wwwbuf, sizeof wwwbuf) == 0) {
+    vp.www_dir = wwwbuf;
+  } else {
+    return vlff_cli_error(&cli, "the page's files are not installed beside the program; pass --www DIR");
+  }
+  char *token = NULL;
+  if (token_file && !(token = read_token(token_file))) return 1;
+  vp.token = token;
+
+  struct vlff_feed *feed = vlff_feed_new(&fp);
+  struct vlff_view *v = feed ? vlff_view_new(&vp, feed) : NULL;
+  if (!v) {
+    vlff_feed_free(feed);
+    free(token);
+    return 1;
+  }
+  struct sigaction sa = {.sa_handler = on_signal};
+  sigemptyset(&sa.sa_mask);
+  running = v;
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+  signal(SIGPIPE, SIG_IGN);
+  printf("vlff-view: serving http://%s:%d/ (Foxglove: ws://%s:%d) map %s%s\n", vp.address, vlff_view_port(v),
+         vp.address, vlff_view_port(v), fp.map_name, token ? ", prompt posting enabled" : "");
+  fflush(stdout);
+  int rc = vlff_view_run(v);
+  running = NULL;
+  vlff_view_free(v);
+  vlff_feed_free(feed);
+  free(token);
+  return rc ? 1 : 0;
+}

@@ -1,0 +1,90 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * schemas.c - the channels' topics and JSON Schemas, as advertised to clients.
+ *
+ * The foxglove.* schemas follow the published Foxglove message definitions
+ * (field names and types); Foxglove picks its panels by schema name and decodes
+ * JSON messages with these schemas, so a field misspelt here is a blank panel there.
+ * Byte arrays are base64 strings, as Foxglove expects of JSON-encoded bytes.
+ */
+#include "view.h"
+
+#define TIME_S "{\"type\":\"object\",\"properties\":{\"sec\":{\"type\":\"integer\",\"minimum\":0},\"nsec\":{\"type\":\"integer\",\"minimum\":0,\"maximum\":999999999}},\"required\":[\"sec\",\"nsec\"]}"
+#define VEC3_S "{\"type\":\"object\",\"properties\":{\"x\":{\"type\":\"number\"},\"y\":{\"type\":\"number\"},\"z\":{\"type\":\"number\"}},\"required\":[\"x\",\"y\",\"z\"]}"
+#define QUAT_S "{\"type\":\"object\",\"properties\":{\"x\":{\"type\":\"number\"},\"y\":{\"type\":\"number\"},\"z\":{\"type\":\"number\"},\"w\":{\"type\":\"number\"}},\"required\":[\"x\",\"y\",\"z\",\"w\"]}"
+#define COLOR_S "{\"type\":\"object\",\"properties\":{\"r\":{\"type\":\"number\"},\"g\":{\"type\":\"number\"},\"b\":{\"type\":\"number\"},\"a\":{\"type\":\"number\"}},\"required\":[\"r\",\"g\",\"b\",\"a\"]}"
+#define POSE_S "{\"type\":\"object\",\"properties\":{\"position\":" VEC3_S ",\"orientation\":" QUAT_S "},\"required\":[\"position\",\"orientation\"]}"
+#define ARR_S "{\"type\":\"array\"}"
+
+static const char scene_schema[] =
+    "{\"title\":\"foxglove.SceneUpdate\",\"type\":\"object\",\"properties\":{"
+    "\"deletions\":{\"type\":\"array\",\"items\":{\"type\":\"object\",\"properties\":{"
+    "\"timestamp\":" TIME_S ",\"type\":{\"type\":\"integer\",\"enum\":[0,1]},\"id\":{\"type\":\"string\"}},"
+    "\"required\":[\"timestamp\",\"type\",\"id\"]}},"
+    "\"entities\":{\"type\":\"array\",\"items\":{\"type\":\"object\",\"properties\":{"
+    "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},\"id\":{\"type\":\"string\"},"
+    "\"lifetime\":" TIME_S ",\"frame_locked\":{\"type\":\"boolean\"},\"metadata\":" ARR_S ","
+    "\"arrows\":" ARR_S ",\"cubes\":{\"type\":\"array\",\"items\":{\"type\":\"object\",\"properties\":{"
+    "\"pose\":" POSE_S ",\"size\":" VEC3_S ",\"color\":" COLOR_S "},\"required\":[\"pose\",\"size\",\"color\"]}},"
+    "\"spheres\":" ARR_S ",\"cylinders\":" ARR_S ",\"lines\":" ARR_S ",\"triangles\":" ARR_S ","
+    "\"texts\":" ARR_S ",\"models\":" ARR_S "},"
+    "\"required\":[\"timestamp\",\"frame_id\",\"id\",\"lifetime\",\"frame_locked\",\"cubes\"]}}},"
+    "\"required\":[\"deletions\",\"entities\"]}";
+
+static const char voxels_schema[] =
+    "{\"title\":\"vlff.VoxelDelta\",\"description\":\"Voxels of the labelled map that changed since the "
+    "previous message (all occupied voxels when full is true). voxels holds triples (index, label, "
+    "confidence); index = i + dims[0]*(j + dims[1]*k); label 65534 = free, 65535 = unknown.\","
+    "\"type\":\"object\",\"properties\":{"
+    "\"version\":{\"type\":\"integer\"},\"full\":{\"type\":\"boolean\"},"
+    "\"publish_mono_ns\":{\"type\":\"integer\"},"
+    "\"origin\":{\"type\":\"array\",\"items\":{\"type\":\"number\"},\"minItems\":3,\"maxItems\":3},"
+    "\"voxel_size\":{\"type\":\"number\"},"
+    "\"dims\":{\"type\":\"array\",\"items\":{\"type\":\"integer\"},\"minItems\":3,\"maxItems\":3},"
+    "\"prompts\":{\"type\":\"array\",\"items\":{\"type\":\"string\"}},"
+    "\"colors\":{\"type\":\"array\",\"items\":{\"type\":\"string\"}},"
+    "\"occupied\":{\"type\":\"integer\"},"
+    "\"voxels\":{\"type\":\"array\",\"items\":{\"type\":\"integer\"}}},"
+    "\"required\":[\"version\",\"full\",\"origin\",\"voxel_size\",\"dims\",\"prompts\",\"colors\",\"occupied\",\"voxels\"]}";
+
+static const char image_schema[] =
+    "{\"title\":\"foxglove.RawImage\",\"type\":\"object\",\"properties\":{"
+    "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},\"width\":{\"type\":\"integer\"},"
+    "\"height\":{\"type\":\"integer\"},\"encoding\":{\"type\":\"string\"},\"step\":{\"type\":\"integer\"},"
+    "\"data\":{\"type\":\"string\",\"contentEncoding\":\"base64\"}},"
+    "\"required\":[\"timestamp\",\"frame_id\",\"width\",\"height\",\"encoding\",\"step\",\"data\"]}";
+
+static const char tf_schema[] =
+    "{\"title\":\"foxglove.FrameTransform\",\"type\":\"object\",\"properties\":{"
+    "\"timestamp\":" TIME_S ",\"parent_frame_id\":{\"type\":\"string\"},\"child_frame_id\":{\"type\":\"string\"},"
+    "\"translation\":" VEC3_S ",\"rotation\":" QUAT_S "},"
+    "\"required\":[\"timestamp\",\"parent_frame_id\",\"child_frame_id\",\"translation\",\"rotation\"]}";
+
+static const char status_schema[] =
+    "{\"title\":\"vlff.Status\",\"description\":\"What the map segment, the frame ring and the viewer "
+    "report.\",\"type\":\"object\",\"properties\":{"
+    "\"map\":{\"type\":\"object\",\"properties\":{\"segment\":{\"type\":\"string\"},\"attached\":{\"type\":\"boolean\"},"
+    "\"version\":{\"type\":\"integer\"},\"generation\":{\"type\":\"integer\"},\"age_s\":{\"type\":[\"number\",\"null\"]},"
+    "\"writer_alive\":{\"type\":\"boolean\"},\"prompts\":{\"type\":\"array\",\"items\":{\"type\":\"string\"}},"
+    "\"dims\":{\"type\":\"array\"},\"voxel_size\":{\"type\":\"number\"},\"origin\":{\"type\":\"array\"},"
+    "\"occupied\":{\"type\":\"integer\"},\"free\":{\"type\":\"integer\"},\"unknown\":{\"type\":\"integer\"},"
+    "\"label_counts\":{\"type\":\"array\",\"items\":{\"type\":\"integer\"}}},\"required\":[\"segment\",\"attached\",\"version\"]},"
+    "\"frames\":{\"type\":\"object\",\"properties\":{\"segment\":{\"type\":\"string\"},\"attached\":{\"type\":\"boolean\"},"
+    "\"head\":{\"type\":\"integer\"},\"generation\":{\"type\":\"integer\"},\"fps\":{\"type\":\"number\"}}},"
+    "\"viewer\":{\"type\":\"object\",\"properties\":{\"clients\":{\"type\":\"integer\"},\"connections\":{\"type\":\"integer\"},"
+    "\"dropped_slow\":{\"type\":\"integer\"},\"refused\":{\"type\":\"integer\"},\"bad_requests\":{\"type\":\"integer\"},"
+    "\"prompts_posted\":{\"type\":\"integer\"},\"messages_sent\":{\"type\":\"integer\"},\"bytes_sent\":{\"type\":\"integer\"}}}},"
+    "\"required\":[\"map\",\"frames\",\"viewer\"]}";
+
+static const struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
+    {"/map", "foxglove.SceneUpdate", scene_schema},
+    {"/map/voxels", "vlff.VoxelDelta", voxels_schema},
+    {"/camera/image", "foxglove.RawImage", image_schema},
+    {"/camera/labels", "foxglove.RawImage", image_schema},
+    {"/tf", "foxglove.FrameTransform", tf_schema},
+    {"/vlff/status", "vlff.Status", status_schema},
+};
+
+const struct vlff_view_channel_def *vlff_view_channel(int ch) {
+  return ch >= 1 && ch <= VLFF_VIEW_CH_COUNT ? &defs[ch - 1] : NULL;
+}

@@ -1,0 +1,628 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * server.c - the foxglove.websocket.v1 server and the page's HTTP files, one port.
+ *
+ * libwebsockets runs one event loop; a timer on it polls the feed and fans each new
+ * message out to the clients subscribed to its channel. A client owns a queue of
+ * references to shared messages; the loop writes one message per writable event, so
+ * a client that reads slowly only grows its own queue, and once that queue holds more
+ * than max_queue_bytes the client is dropped: the node's map reaches every other
+ * client on time and the viewer's memory stays bounded.
+ *
+ * Client requests are JSON texts (subscribe, unsubscribe, advertise, unadvertise) and
+ * binary messages on a channel the client advertised (clientPublish, offered only
+ * when a token is configured: a prompt set for the mailbox). A malformed request gets
+ * a Foxglove status message naming what is wrong and is counted; the connection
+ * stays. An oversized message, too many clients or a foreign subprotocol close the
+ * connection with a WebSocket close reason or an HTTP error saying so.
+ */
+#include "view.h"
+
+#include <errno.h>
+#include <json-c/json.h>
+#include <libwebsockets.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define FOX_PROTOCOL "foxglove.websocket.v1"
+#define PROMPT_TOPIC "/vlff/prompts"
+#define MAX_CLIENT_CHANNELS 8
+
+struct qitem {
+  struct vlff_view_msg *m;
+  uint32_t sub_id;
+  int text;
+  struct qitem *next;
+};
+
+struct client {
+  struct vlff_view *v;
+  struct lws *wsi;
+  struct client *next;
+  char peer[64];
+  int subscribed[VLFF_VIEW_CH_COUNT + 1];
+  uint32_t sub_id[VLFF_VIEW_CH_COUNT + 1];
+  uint32_t adv_id[MAX_CLIENT_CHANNELS]; /* client channels advertised for the prompt topic */
+  int nadv;
+  struct qitem *head, *tail;
+  size_t queued;
+  unsigned char *rx;
+  size_t rx_len;
+  int dropping;
+};
+
+struct vlff_view {
+  struct vlff_view_params p;
+  struct vlff_feed *feed;
+  struct lws_context *ctx;
+  struct lws_vhost *vh;
+  struct lws_http_mount mount;
+  struct lws_protocols protocols[3];
+  lws_sorted_usec_list_t sul;
+  struct client *clients;
+  struct vlff_view_counters c;
+  struct vlff_prompts *mailbox;
+  volatile int stop;
+};
+
+/* ----------------------------------------------------------------- queues */
+
+static void drop_client(struct client *cl, const char *why) {
+  if (cl->dropping) return;
+  cl->dropping = 1;
+  lwsl_user("vlff-view: client %s dropped: %s\n", cl->peer, why);
+  fprintf(stderr, "vlff-view: client %s dropped: %s\n", cl->peer, why);
+  lws_close_reason(cl->wsi, LWS_CLOSE_STATUS_POLICY_VIOLATION, (unsigned char *)why, strlen(why));
+  /* a slow client may never become writable again: close it from the loop */
+  lws_set_timeout(cl->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
+}
+
+static void enqueue(struct client *cl, struct vlff_view_msg *m, uint32_t sub_id, int text) {
+  if (cl->dropping) return;
+  struct qitem *q = malloc(sizeof *q);
+  if (!q) {
+    drop_client(cl, "out of memory for its queue");
+    return;
+  }
+  q->m = vlff_view_msg_ref(m);
+  q->sub_id = sub_id;
+  q->text = text;
+  q->next = NULL;
+  if (cl->tail) cl->tail->next = q;
+  else cl->head = q;
+  cl->tail = q;
+  cl->queued += m->len;
+  if (cl->queued > cl->v->p.max_queue_bytes) {
+    char why[120];
+    snprintf(why, sizeof why, "too slow: %zu bytes unsent, the limit is %zu", cl->queued, cl->v->p.max_queue_bytes);
+    cl->v->c.dropped_slow++;
+    drop_client(cl, why);
+    return;
+  }
+  lws_callback_on_writable(cl->wsi);
+}
+
+static void free_queue(struct client *cl) {
+  while (cl->head) {
+    struct qitem *q = cl->head;
+    cl->head = q->next;
+    vlff_view_msg_unref(q->m);
+    free(q);
+  }
+  cl->tail = NULL;
+  cl->queued = 0;
+}
+
+/* A control message (JSON text) for one client, from a json-c object it consumes. */
+static void send_json(struct client *cl, json_object *o) {
+  size_t n;
+  const char *s = json_object_to_json_string_length(o, JSON_C_TO_STRING_PLAIN, &n);
+  struct vlff_view_msg *m = vlff_view_msg_new(0, n);
+  if (m) {
+    memcpy(vlff_view_msg_payload(m), s, n);
+    m->len = n;
+    enqueue(cl, m, 0, 1);
+    vlff_view_msg_unref(m);
+  }
+  json_object_put(o);
+}
+
+/* Foxglove status op: 0 info, 1 warning, 2 error. */
+static void send_status(struct client *cl, int level, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static void send_status(struct client *cl, int level, const char *fmt, ...) {
+  char text[512];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(text, sizeof text, fmt, ap);
+  va_end(ap);
+  if (level == 2) {
+    cl->v->c.bad_requests++;
+    fprintf(stderr, "vlff-view: client %s: %s\n", cl->peer, text);
+  }
+  json_object *o = json_object_new_object();
+  json_object_object_add(o, "op", json_object_new_string("status"));
+  json_object_object_add(o, "level", json_object_new_int(level));
+  json_object_object_add(o, "message", json_object_new_string(text));
+  send_json(cl, o);
+}
+
+static void send_hello(struct client *cl) {
+  struct vlff_view *v = cl->v;
+  json_object *o = json_object_new_object();
+  json_object_object_add(o, "op", json_object_new_string("serverInfo"));
+  json_object_object_add(o, "name", json_object_new_string("vlff-view " VLFF_VERSION));
+  json_object *caps = json_object_new_array();
+  if (v->p.token) json_object_array_add(caps, json_object_new_string("clientPublish"));
+  json_object_object_add(o, "capabilities", caps);
+  json_object *enc = json_object_new_array();
+  if (v->p.token) json_object_array_add(enc, json_object_new_string("json"));
+  json_object_object_add(o, "supportedEncodings", enc);
+  json_object *md = json_object_new_object();
+  json_object_object_add(md, "prompt_topic", json_object_new_string(PROMPT_TOPIC));
+  json_object_object_add(o, "metadata", md);
+  char sid[32];
+  snprintf(sid, sizeof sid, "%llu", (unsigned long long)vlff_shm_now_ns());
+  json_object_object_add(o, "sessionId", json_object_new_string(sid));
+  send_json(cl, o);
+
+  o = json_object_new_object();
+  json_object_object_add(o, "op", json_object_new_string("advertise"));
+  json_object *chans = json_object_new_array();
+  for (int ch = 1; ch <= VLFF_VIEW_CH_COUNT; ch++) {
+    const struct vlff_view_channel_def *d = vlff_view_channel(ch);
+    json_object *c = json_object_new_object();
+    json_object_object_add(c, "id", json_object_new_int(ch));
+    json_object_object_add(c, "topic", json_object_new_string(d->topic));
+    json_object_object_add(c, "encoding", json_object_new_string("json"));
+    json_object_object_add(c, "schemaName", json_object_new_string(d->schema_name));
+    json_object_object_add(c, "schema", json_object_new_string(d->schema));
+    json_object_object_add(c, "schemaEncoding", json_object_new_string("jsonschema"));
+    json_object_array_add(chans, c);
+  }
+  json_object_object_add(o, "channels", chans);
+  send_json(cl, o);
+}
+
+/* --------------------------------------------------------------- requests */
+
+/* An unsigned 32-bit integer member, or -1 with a status sent. */
+static int64_t get_u32(struct client *cl, json_object *o, const char *key, const char *where) {
+  json_object *x;
+  if (!json_object_object_get_ex(o, key, &x) || !json_object_is_type(x, json_type_int)) {
+    send_status(cl, 2, "%s: \"%s\" must be an integer", where, key);
+    return -1;
+  }
+  int64_t n = json_object_get_int64(x);
+  if (n < 0 || n > UINT32_MAX) {
+    send_status(cl, 2, "%s: \"%s\" %lld is outside 0..4294967295", where, key, (long long)n);
+    return -1;
+  }
+  return n;
+}
+
+static json_object *get_array(struct client *cl, json_object *o, const char *key, const char *where) {
+  json_object *a;
+  if (!json_object_object_get_ex(o, key, &a) || !json_object_is_type(a, json_type_array)) {
+    send_status(cl, 2, "%s: \"%s\" must be an array", where, key);
+    return NULL;
+  }
+  return a;
+}
+
+static void do_subscribe(struct client *cl, json_object *req) {
+  json_object *subs = get_array(cl, req, "subscriptions", "subscribe");
+  if (!subs) return;
+  size_t n = json_object_array_length(subs);
+  for (size_t i = 0; i < n; i++) {
+    json_object *s = json_object_array_get_idx(subs, i);
+    if (!json_object_is_type(s, json_type_object)) {
+      send_status(cl, 2, "subscribe: subscriptions[%zu] is not an object", i);
+      continue;
+    }
+    int64_t id = get_u32(cl, s, "id", "subscribe"), ch = get_u32(cl, s, "channelId", "subscribe");
+    if (id < 0 || ch < 0) continue;
+    if (!vlff_view_channel((int)ch)) {
+      send_status(cl, 2, "subscribe: no channel %lld (channels are 1..%d)", (long long)ch, VLFF_VIEW_CH_COUNT);
+      continue;
+    }
+    int dup = 0;
+    for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++) dup |= cl->subscribed[c] && cl->sub_id[c] == (uint32_t)id;
+    if (dup || cl->subscribed[ch]) {
+      send_status(cl, 2, "subscribe: %s", dup ? "subscription id already in use" : "already subscribed to that channel");
+      continue;
+    }
+    cl->subscribed[ch] = 1;
+    cl->sub_id[ch] = (uint32_t)id;
+    struct vlff_view_msg *m = vlff_feed_current(cl->v->feed, (int)ch);
+    if (m) {
+      enqueue(cl, m, (uint32_t)id, 0);
+      vlff_view_msg_unref(m);
+    }
+  }
+}
+
+static void do_unsubscribe(struct client *cl, json_object *req) {
+  json_object *ids = get_array(cl, req, "subscriptionIds", "unsubscribe");
+  if (!ids) return;
+  for (size_t i = 0; i < json_object_array_length(ids); i++) {
+    json_object *x = json_object_array_get_idx(ids, i);
+    int found = 0;
+    if (json_object_is_type(x, json_type_int))
+      for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++)
+        if (cl->subscribed[c] && cl->sub_id[c] == json_object_get_int64(x)) {
+          cl->subscribed[c] = 0;
+          found = 1;
+        }
+    if (!found) send_status(cl, 2, "unsubscribe: subscriptionIds[%zu] is not a subscription of this client", i);
+  }
+}
+
+static void do_advertise(struct client *cl, json_object *req) {
+  if (!cl->v->p.token) {
+    send_status(cl, 2, "advertise: this viewer does not accept client messages (no token configured)");
+    return;
+  }
+  json_object *chans = get_array(cl, req, "channels", "advertise");
+  if (!chans) return;
+  for (size_t i = 0; i < json_object_array_length(chans); i++) {
+    json_object *c = json_object_array_get_idx(chans, i), *topic, *enc;
+    int64_t id = json_object_is_type(c, json_type_object) ? get_u32(cl, c, "id", "advertise") : -1;
+    if (id < 0) continue;
+    if (!json_object_object_get_ex(c, "topic", &topic) || !json_object_object_get_ex(c, "encoding", &enc) ||
+        strcmp(json_object_get_string(topic), PROMPT_TOPIC) || strcmp(json_object_get_string(enc), "json")) {
+      send_status(cl, 2, "advertise: channels[%zu]: only topic \"" PROMPT_TOPIC "\" with encoding \"json\" is accepted",
+                  i);
+      continue;
+    }
+    if (cl->nadv == MAX_CLIENT_CHANNELS) {
+      send_status(cl, 2, "advertise: at most %d client channels", MAX_CLIENT_CHANNELS);
+      return;
+    }
+    cl->adv_id[cl->nadv++] = (uint32_t)id;
+  }
+}
+
+static void do_unadvertise(struct client *cl, json_object *req) {
+  json_object *ids = get_array(cl, req, "channelIds", "unadvertise");
+  if (!ids) return;
+  for (size_t i = 0; i < json_object_array_length(ids); i++) {
+    int64_t id = json_object_get_int64(json_object_array_get_idx(ids, i));
+    for (int k = 0; k < cl->nadv; k++)
+      if (cl->adv_id[k] == id) cl->adv_id[k--] = cl->adv_id[--cl->nadv];
+  }
+}
+
+static int token_ok(const char *want, const char *got) {
+  size_t a = strlen(want), b = strlen(got);
+  unsigned diff = (unsigned)(a ^ b);
+  /* compare every byte whatever the first mismatch, so timing says nothing */
+  for (size_t i = 0; i < a; i++) diff |= (unsigned char)want[i] ^ (unsigned char)(i < b ? got[i] : 0);
+  return diff == 0;
+}
+
+/* A client message on an advertised channel: {"token": "...", "prompts": [...]} or
+ * {"token": "...", "set_index": n}, posted to the prompt mailbox. */
+static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
+  struct vlff_view *v = cl->v;
+  if (n < 5) {
+    send_status(cl, 2, "binary message of %zu bytes is shorter than its 5-byte header", n);
+    return;
+  }
+  if (d[0] != 1) {
+    send_status(cl, 2, "binary opcode %u is not supported (1 = message data)", d[0]);
+    return;
+  }
+  uint32_t id = (uint32_t)d[1] | (uint32_t)d[2] << 8 | (uint32_t)d[3] << 16 | (uint32_t)d[4] << 24;
+  int known = 0;
+  for (int k = 0; k < cl->nadv; k++) known |= cl->adv_id[k] == id;
+  if (!known) {
+    send_status(cl, 2, "message data on channel %u, which this client has not advertised", id);
+    return;
+  }
+  struct json_tokener *tok = json_tokener_new();
+  json_object *o = tok ? json_tokener_parse_ex(tok, (const char *)d + 5, (int)(n - 5)) : NULL;
+  json_tokener_free(tok);
+  json_object *t, *p, *si;
+  if (!o || !json_object_is_type(o, json_type_object)) {
+    send_status(cl, 2, PROMPT_TOPIC ": the message is not a JSON object");
+  } else if (!json_object_object_get_ex(o, "token", &t) || !json_object_is_type(t, json_type_string) ||
+             !token_ok(v->p.token, json_object_get_string(t))) {
+    send_status(cl, 2, PROMPT_TOPIC ": wrong or missing token");
+  } else {
+    /* validate the request whole before touching the mailbox */
+    const char *texts[VLFF_SHM_MAX_PROMPTS];
+    int np = -1;
+    int64_t set = -1;
+    if (json_object_object_get_ex(o, "set_index", &si)) {
+      set = json_object_is_type(si, json_type_int) ? json_object_get_int64(si) : -1;
+      if (set < 0 || set > 1000) {
+        send_status(cl, 2, PROMPT_TOPIC ": set_index must be an integer 0..1000");
+        goto out;
+      }
+    } else if (!json_object_object_get_ex(o, "prompts", &p) || !json_object_is_type(p, json_type_array)) {
+      send_status(cl, 2, PROMPT_TOPIC ": \"prompts\" must be an array of strings");
+      goto out;
+    } else {
+      size_t len = json_object_array_length(p);
+      int ok = len >= 1 && len <= VLFF_SHM_MAX_PROMPTS;
+      for (size_t i = 0; ok && i < len; i++) {
+        json_object *x = json_object_array_get_idx(p, i);
+        texts[i] = json_object_is_type(x, json_type_string) ? json_object_get_string(x) : NULL;
+        ok = texts[i] && *texts[i] && strlen(texts[i]) < VLFF_SHM_PROMPT_LEN;
+      }
+      if (!ok) {
+        send_status(cl, 2, PROMPT_TOPIC ": 1..%d prompts, each a non-empty string shorter than %d bytes",
+                    VLFF_SHM_MAX_PROMPTS, VLFF_SHM_PROMPT_LEN);
+        goto out;
+      }
+      np = (int)len;
+    }
+    if (!v->mailbox) v->mailbox = vlff_prompts_attach(v->p.prompts_name);
+    if (!v->mailbox) {
+      send_status(cl, 2, PROMPT_TOPIC ": mailbox %s: %s", v->p.prompts_name, vlff_shm_last_message());
+    } else if ((np > 0 ? vlff_prompts_post(v->mailbox, texts, np) : vlff_prompts_post_index(v->mailbox, (int)set)) != 0) {
+      send_status(cl, 2, PROMPT_TOPIC ": posting to %s: %s", v->p.prompts_name, vlff_shm_last_message());
+      if (errno == EPIPE) {
+        vlff_prompts_close(v->mailbox); /* replaced by a restarted node: attach again next time */
+        v->mailbox = NULL;
+      }
+    } else {
+      v->c.prompts_posted++;
+      send_status(cl, 0, "prompt set posted to %s", v->p.prompts_name);
+      fprintf(stderr, "vlff-view: client %s posted a prompt set to %s\n", cl->peer, v->p.prompts_name);
+    }
+  }
+out:
+  json_object_put(o);
+}
+
+static void handle_text(struct client *cl, const char *s, size_t n) {
+  struct json_tokener *tok = json_tokener_new();
+  json_object *o = tok ? json_tokener_parse_ex(tok, s, (int)n) : NULL;
+  enum json_tokener_error err = tok ? json_tokener_get_error(tok) : json_tokener_continue;
+  const char *why = tok ? json_tokener_error_desc(err) : "out of memory";
+  json_tokener_free(tok);
+  json_object *op;
+  if (!o || err != json_tokener_success) {
+    send_status(cl, 2, "request is not JSON: %s", why);
+  } else if (!json_object_is_type(o, json_type_object) || !json_object_object_get_ex(o, "op", &op) ||
+             !json_object_is_type(op, json_type_string)) {
+    send_status(cl, 2, "request has no \"op\" string");
+  } else {
+    const char *name = json_object_get_string(op);
+    if (!strcmp(name, "subscribe")) do_subscribe(cl, o);
+    else if (!strcmp(name, "unsubscribe")) do_unsubscribe(cl, o);
+    else if (!strcmp(name, "advertise")) do_advertise(cl, o);
+    else if (!strcmp(name, "unadvertise")) do_unadvertise(cl, o);
+    else send_status(cl, 2, "op \"%.40s\" is not supported by this server", name);
+  }
+  json_object_put(o);
+}
+
+/* ---------------------------------------------------------------- the loop */
+
+static int write_one(struct client *cl) {
+  struct qitem *q = cl->head;
+  if (!q) return 0;
+  unsigned char *p = vlff_view_msg_payload(q->m);
+  size_t n = q->m->len;
+  enum lws_write_protocol kind = LWS_WRITE_TEXT;
+  if (!q->text) {
+    p -= VLFF_VIEW_FOX_HDR;
+    p[0] = 1; /* message data */
+    for (int i = 0; i < 4; i++) p[1 + i] = (unsigned char)(q->sub_id >> (8 * i));
+    for (int i = 0; i < 8; i++) p[5 + i] = (unsigned char)(q->m->t_ns >> (8 * i));
+    n += VLFF_VIEW_FOX_HDR;
+    kind = LWS_WRITE_BINARY;
+  }
+  int w = lws_write(cl->wsi, p, n, kind);
+  cl->head = q->next;
+  if (!cl->head) cl->tail = NULL;
+  cl->queued -= q->m->len;
+  vlff_view_msg_unref(q->m);
+  free(q);
+  if (w < (int)n) return -1;
+  cl->v->c.messages_sent++;
+  cl->v->c.bytes_sent += n;
+  if (cl->head) lws_callback_on_writable(cl->wsi);
+  return 0;
+}
+
+static void tick(lws_sorted_usec_list_t *sul) {
+  struct vlff_view *v = lws_container_of(sul, struct vlff_view, sul);
+  struct vlff_view_msg *out[16];
+  unsigned wanted = 0;
+  for (struct client *cl = v->clients; cl; cl = cl->next)
+    for (int ch = 1; ch <= VLFF_VIEW_CH_COUNT; ch++)
+      if (cl->subscribed[ch]) wanted |= 1u << ch;
+  int n = vlff_feed_poll(v->feed, &v->c, wanted, out, 16);
+  for (int i = 0; i < n; i++) {
+    for (struct client *cl = v->clients; cl; cl = cl->next)
+      if (cl->subscribed[out[i]->channel]) enqueue(cl, out[i], cl->sub_id[out[i]->channel], 0);
+    vlff_view_msg_unref(out[i]);
+  }
+  lws_sul_schedule(v->ctx, 0, &v->sul, tick, (lws_usec_t)(1e6 / v->p.poll_hz));
+}
+
+static int refuse(struct vlff_view *v, struct lws *wsi, enum lws_close_status code, const char *why) {
+  char peer[64] = "?";
+  lws_get_peer_simple(wsi, peer, sizeof peer);
+  v->c.refused++;
+  fprintf(stderr, "vlff-view: refused %s: %s\n", peer, why);
+  lws_close_reason(wsi, code, (unsigned char *)why, strlen(why));
+  return -1;
+}
+
+static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len) {
+  struct vlff_view *v = lws_context_user(lws_get_context(wsi));
+  struct client *cl = user;
+  switch (reason) {
+  case LWS_CALLBACK_ESTABLISHED: {
+    if (v->c.clients >= v->p.max_clients) {
+      char why[64];
+      snprintf(why, sizeof why, "too many clients (%d)", v->p.max_clients);
+      return refuse(v, wsi, (enum lws_close_status)1013 /* try again later */, why);
+    }
+    memset(cl, 0, sizeof *cl);
+    cl->v = v;
+    cl->wsi = wsi;
+    lws_get_peer_simple(wsi, cl->peer, sizeof cl->peer);
+    size_t pl = strlen(cl->peer);
+    snprintf(cl->peer + pl, sizeof cl->peer - pl, "#%llu", (unsigned long long)v->c.connections + 1);
+    cl->next = v->clients;
+    v->clients = cl;
+    v->c.clients++;
+    v->c.connections++;
+    if (v->p.verbose) fprintf(stderr, "vlff-view: client %s connected\n", cl->peer);
+    send_hello(cl);
+    return 0;
+  }
+  case LWS_CALLBACK_RECEIVE: {
+    if (!cl->v || cl->dropping) return 0;
+    if (cl->rx_len + len > v->p.max_request_bytes) {
+      char why[96];
+      snprintf(why, sizeof why, "message larger than %zu bytes", v->p.max_request_bytes);
+      v->c.bad_requests++;
+      return refuse(v, wsi, LWS_CLOSE_STATUS_MESSAGE_TOO_LARGE, why);
+    }
+    unsigned char *b = realloc(cl->rx, cl->rx_len + len + 1);
+    if (!b) return refuse(v, wsi, LWS_CLOSE_STATUS_UNEXPECTED_CONDITION, "out of memory");
+    cl->rx = b;
+    memcpy(cl->rx + cl->rx_len, in, len);
+    cl->rx_len += len;
+    if (!lws_is_final_fragment(wsi) || lws_remaining_packet_payload(wsi)) return 0;
+    cl->rx[cl->rx_len] = 0;
+    if (lws_frame_is_binary(wsi)) do_publish(cl, cl->rx, cl->rx_len);
+    else handle_text(cl, (const char *)cl->rx, cl->rx_len);
+    cl->rx_len = 0;
+    return 0;
+  }
+  case LWS_CALLBACK_SERVER_WRITEABLE:
+    if (!cl->v) return -1;
+    if (cl->dropping) return -1;
+    return write_one(cl);
+  case LWS_CALLBACK_CLOSED:
+    if (!cl->v) return 0;
+    for (struct client **pp = &v->clients; *pp; pp = &(*pp)->next)
+      if (*pp == cl) {
+        *pp = cl->next;
+        break;
+      }
+    v->c.clients--;
+    if (v->p.verbose) fprintf(stderr, "vlff-view: client %s left\n", cl->peer);
+    free_queue(cl);
+    free(cl->rx);
+    cl->v = NULL;
+    return 0;
+  default:
+    return 0;
+  }
+}
+
+/* Lists the Foxglove subprotocol among the comma-separated ones offered. */
+static int offers_foxglove(const char *list) {
+  size_t n = strlen(FOX_PROTOCOL);
+  for (const char *p = list; p && *p;) {
+    p += strspn(p, " ,");
+    size_t len = strcspn(p, " ,");
+    if (len == n && !strncmp(p, FOX_PROTOCOL, n)) return 1;
+    p += len;
+  }
+  return 0;
+}
+
+/* The HTTP side serves the mount, and refuses WebSocket upgrades it will not take
+ * with an HTTP status and a sentence, before any WebSocket exists. */
+static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len) {
+  struct vlff_view *v = lws_context_user(lws_get_context(wsi));
+  if (reason == LWS_CALLBACK_HTTP_CONFIRM_UPGRADE && in && !strcmp(in, "websocket")) {
+    char offered[256] = "";
+    lws_hdr_copy(wsi, offered, sizeof offered, WSI_TOKEN_PROTOCOL);
+    char why[160];
+    int code = 0;
+    if (!offers_foxglove(offered)) {
+      snprintf(why, sizeof why, "unknown or missing WebSocket subprotocol \"%.60s\"; this server speaks " FOX_PROTOCOL,
+               offered);
+      code = HTTP_STATUS_BAD_REQUEST;
+    } else if (v->c.clients >= v->p.max_clients) {
+      snprintf(why, sizeof why, "too many clients (%d); try again later", v->p.max_clients);
+      code = HTTP_STATUS_SERVICE_UNAVAILABLE;
+    }
+    if (!code) return 0;
+    char peer[64] = "?";
+    lws_get_peer_simple(wsi, peer, sizeof peer);
+    v->c.refused++;
+    fprintf(stderr, "vlff-view: refused %s: %s\n", peer, why);
+    lws_return_http_status(wsi, (unsigned)code, why);
+    return 1;
+  }
+  return lws_callback_http_dummy(wsi, reason, user, in, len);
+}
+
+static void log_to_stderr(int level, const char *line) {
+  if (level & (LLL_ERR | LLL_WARN)) fprintf(stderr, "vlff-view: libwebsockets: %s", line);
+}
+
+struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_feed *feed) {
+  struct vlff_view *v = calloc(1, sizeof *v);
+  if (!v) return NULL;
+  v->p = *p;
+  v->feed = feed;
+  lws_set_log_level(LLL_ERR | LLL_WARN | (p->verbose > 1 ? LLL_NOTICE | LLL_INFO : 0), log_to_stderr);
+
+  v->mount.mountpoint = "/";
+  v->mount.mountpoint_len = 1;
+  v->mount.origin = p->www_dir;
+  v->mount.def = "index.html";
+  v->mount.origin_protocol = LWSMPRO_FILE;
+
+  v->protocols[0] = (struct lws_protocols){"http", http_cb, 0, 0, 0, NULL, 0};
+  v->protocols[1] = (struct lws_protocols){FOX_PROTOCOL, fox_cb, sizeof(struct client), 65536, 0, NULL, 0};
+
+  struct lws_context_creation_info info;
+  memset(&info, 0, sizeof info);
+  info.port = p->port;
+  info.iface = p->address;
+  info.protocols = v->protocols;
+  info.mounts = &v->mount;
+  info.user = v;
+  info.options = LWS_SERVER_OPTION_VALIDATE_UTF8 | LWS_SERVER_OPTION_DISABLE_IPV6;
+  info.vhost_name = "vlff-view";
+  v->ctx = lws_create_context(&info);
+  if (!v->ctx) {
+    fprintf(stderr, "vlff-view: cannot listen on %s:%d (address in use or not local?)\n", p->address, p->port);
+    free(v);
+    return NULL;
+  }
+  v->vh = lws_get_vhost_by_name(v->ctx, "vlff-view");
+  if (!v->vh || lws_get_vhost_listen_port(v->vh) <= 0) {
+    fprintf(stderr, "vlff-view: cannot listen on %s:%d\n", p->address, p->port);
+    lws_context_destroy(v->ctx);
+    free(v);
+    return NULL;
+  }
+  lws_sul_schedule(v->ctx, 0, &v->sul, tick, 1);
+  return v;
+}
+
+int vlff_view_port(const struct vlff_view *v) { return lws_get_vhost_listen_port(v->vh); }
+
+int vlff_view_run(struct vlff_view *v) {
+  while (!v->stop)
+    if (lws_service(v->ctx, 0) < 0) return -1;
+  return 0;
+}
+
+void vlff_view_stop(struct vlff_view *v) {
+  v->stop = 1;
+  lws_cancel_service(v->ctx);
+}
+
+void vlff_view_free(struct vlff_view *v) {
+  if (!v) return;
+  lws_sul_cancel(&v->sul);
+  lws_context_destroy(v->ctx);
+  vlff_prompts_close(v->mailbox);
+  free(v);
+}

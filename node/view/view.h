@@ -1,0 +1,131 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * view.h - vlff-view, the live viewer: a Foxglove WebSocket server and its own page.
+ *
+ * The viewer is a controller like any other: it attaches read-only to the map segment
+ * and the frame ring through libvlff-shm (vlff/shm.h) and never makes the node wait.
+ * Two parts:
+ *   - the feed (feed.c) turns what the segments hold into Foxglove messages: it keeps
+ *     the last map version it sent and, for a new version, encodes only the voxels
+ *     and bricks (4x4x4 voxels by default) that changed;
+ *   - the server (server.c) speaks the foxglove.websocket.v1 subprotocol through
+ *     libwebsockets on one port, serves the page's files on the same port, fans each
+ *     message out to the clients subscribed to its channel and drops a client whose
+ *     queue grows past a bound instead of waiting for it.
+ *
+ * CONTRACT
+ * Errors: functions returning a pointer return NULL, functions returning int return
+ *   -1, and write one line naming what failed to stderr (the viewer is a program, its
+ *   errors are for the operator).
+ * Ownership: messages are reference counted: vlff_view_msg_new returns one reference,
+ *   vlff_view_msg_ref adds one, vlff_view_msg_unref drops one and frees the last.
+ *   Everything else is owned by the object that created it.
+ * Threads: single-threaded; everything runs on the server's event loop.
+ */
+#ifndef VLFF_VIEW_H
+#define VLFF_VIEW_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <vlff/shm.h>
+
+/* The channels the server advertises; the id is also the Foxglove channel id. */
+enum vlff_view_channel {
+  VLFF_VIEW_CH_SCENE = 1,  /* /map: foxglove.SceneUpdate, one entity of cubes per brick */
+  VLFF_VIEW_CH_VOXELS,     /* /map/voxels: vlff.VoxelDelta, changed voxels with labels */
+  VLFF_VIEW_CH_IMAGE,      /* /camera/image: foxglove.RawImage, the latest camera frame */
+  VLFF_VIEW_CH_LABELS,     /* /camera/labels: foxglove.RawImage, the label image in prompt colours */
+  VLFF_VIEW_CH_POSE,       /* /tf: foxglove.FrameTransform, world -> camera */
+  VLFF_VIEW_CH_STATUS,     /* /vlff/status: vlff.Status JSON */
+  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_STATUS
+};
+
+struct vlff_view_channel_def {
+  const char *topic;
+  const char *schema_name;
+  const char *schema; /* JSON Schema text */
+};
+/* The definition of channel id ch (1..VLFF_VIEW_CH_COUNT). */
+const struct vlff_view_channel_def *vlff_view_channel(int ch);
+
+/* Bytes before a message's payload: libwebsockets' frame header room plus the
+ * Foxglove binary header (opcode, subscription id, timestamp), which the server
+ * fills per client in place. */
+#define VLFF_VIEW_FOX_HDR 13
+size_t vlff_view_headroom(void);
+
+/* A message payload (JSON text) with headroom, shared between clients. */
+struct vlff_view_msg {
+  int refs;
+  int channel;       /* enum vlff_view_channel */
+  uint64_t t_ns;     /* Foxglove log time, ns since the epoch */
+  uint64_t version;  /* map version it describes (map channels), else 0 */
+  size_t len, cap;   /* payload bytes, capacity */
+  unsigned char *buf; /* headroom + cap bytes */
+};
+struct vlff_view_msg *vlff_view_msg_new(int channel, size_t cap);
+unsigned char *vlff_view_msg_payload(struct vlff_view_msg *m);
+struct vlff_view_msg *vlff_view_msg_ref(struct vlff_view_msg *m);
+void vlff_view_msg_unref(struct vlff_view_msg *m);
+
+/* ------------------------------------------------------------------ feed */
+
+struct vlff_feed_params {
+  const char *map_name;     /* map segment */
+  const char *frames_name;  /* frame ring, NULL or "" = no camera image */
+  double image_hz;          /* most camera images per second sent */
+  uint32_t brick;           /* brick edge in voxels for the scene channel */
+};
+
+/* What the server counts, reported in the status channel. */
+struct vlff_view_counters {
+  int clients;
+  uint64_t connections, dropped_slow, refused, bad_requests, prompts_posted;
+  uint64_t messages_sent, bytes_sent;
+};
+
+struct vlff_feed;
+struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p);
+void vlff_feed_free(struct vlff_feed *f);
+
+/* Checks the segments (attaching when they appear, re-attaching when a creator
+ * replaced them) and appends the new messages to out (at most out_cap): a map delta
+ * on the scene and voxel channels for a new map version, the label image and pose,
+ * a camera image when the frame ring has a new frame and the rate allows, a status
+ * message at least once a second. Channels whose bit (1u << channel) is clear in
+ * wanted have no subscriber and are not encoded. Returns the number of messages
+ * appended; the caller owns them. */
+int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsigned wanted, struct vlff_view_msg **out,
+                   int out_cap);
+/* A new subscriber's first message on channel ch: the whole map (scene, voxels) or
+ * the latest image/pose/status. NULL when there is nothing yet. One new reference. */
+struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch);
+/* The map version the feed last sent (0 = none). */
+uint64_t vlff_feed_version(const struct vlff_feed *f);
+
+/* ---------------------------------------------------------------- server */
+
+struct vlff_view_params {
+  const char *address;      /* listening address, "127.0.0.1" */
+  int port;                 /* 0 = any free port (see vlff_view_port) */
+  const char *www_dir;      /* the page's files */
+  const char *prompts_name; /* prompt mailbox */
+  const char *token;        /* NULL = posting prompts disabled */
+  double poll_hz;           /* segment checks per second */
+  int max_clients;
+  size_t max_queue_bytes;   /* a client with more unsent bytes is dropped */
+  size_t max_request_bytes; /* largest client message accepted */
+  int verbose;
+};
+
+struct vlff_view;
+struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_feed *feed);
+/* The port it listens on (the chosen one when params asked for 0). */
+int vlff_view_port(const struct vlff_view *v);
+/* Serves until vlff_view_stop (async-signal-safe) is called. 0, or -1. */
+int vlff_view_run(struct vlff_view *v);
+void vlff_view_stop(struct vlff_view *v);
+void vlff_view_free(struct vlff_view *v);
+
+#endif /* VLFF_VIEW_H */

@@ -1,0 +1,183 @@
+// vlff's own page: a foxglove.websocket.v1 client of vlff-view that draws the
+// labelled voxels with three.js, the camera and label images, the legend and the
+// node's status, and posts prompt sets when the server offers clientPublish.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/OrbitControls.js';
+
+const $ = (id) => document.getElementById(id);
+const FREE = 65534;
+const ws = new WebSocket(`ws://${location.host}/`, 'foxglove.websocket.v1');
+ws.binaryType = 'arraybuffer';
+const topics = {};            // subscription id (= channel id) -> topic
+const map = { vox: new Map(), prompts: [], colors: [], version: 0 };
+let mesh = null, order = [], promptChannel = 0;
+
+// --- the 3D view
+const host = $('scene');
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+host.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x111111);
+scene.add(new THREE.HemisphereLight(0xffffff, 0x444444, 2.5));
+const camera = new THREE.PerspectiveCamera(50, 1, 0.05, 200);
+camera.up.set(0, 0, 1);       // the map's z is up
+camera.position.set(-4, -6, 7);
+const controls = new OrbitControls(camera, renderer.domElement);
+const cameraMark = new THREE.AxesHelper(0.4);
+cameraMark.visible = false;
+scene.add(cameraMark);
+function resize() {
+  renderer.setSize(host.clientWidth, host.clientHeight);
+  camera.aspect = host.clientWidth / Math.max(1, host.clientHeight);
+  camera.updateProjectionMatrix();
+  redraw();
+}
+window.addEventListener('resize', resize);
+// draw only when something changed: a software-rendered browser stays responsive
+let dirty = true;
+const redraw = () => { dirty = true; };
+controls.addEventListener('change', redraw);
+renderer.setAnimationLoop(() => { if (dirty) { dirty = false; renderer.render(scene, camera); } });
+resize();
+
+function rebuild(centre) {
+  if (mesh) { scene.remove(mesh); mesh.geometry.dispose(); mesh.material.dispose(); }
+  const s = map.voxel_size, [nx, ny] = map.dims;
+  mesh = new THREE.InstancedMesh(new THREE.BoxGeometry(s * 0.96, s * 0.96, s * 0.96),
+    new THREE.MeshLambertMaterial(), Math.max(1, map.vox.size));
+  order = [...map.vox.keys()];
+  const m = new THREE.Matrix4(), c = new THREE.Color();
+  order.forEach((idx, n) => {
+    const i = idx % nx, j = Math.floor(idx / nx) % ny, k = Math.floor(idx / (nx * ny));
+    m.makeTranslation(...voxelCentre(i, j, k));
+    mesh.setMatrixAt(n, m);
+    mesh.setColorAt(n, c.set(map.colors[map.vox.get(idx)[0]] || '#808080'));
+  });
+  mesh.count = order.length;
+  scene.add(mesh);
+  if (centre) {
+    controls.target.set(...voxelCentre(map.dims[0] / 2, map.dims[1] / 2, 0));
+    camera.position.copy(controls.target).add(new THREE.Vector3(-0.3, -0.7, 1.25).multiplyScalar(nx * s));
+    controls.update();
+  }
+  redraw();
+}
+const voxelCentre = (i, j, k) => [0, 1, 2].map((a) => map.origin[a] + ([i, j, k][a] + 0.5) * map.voxel_size);
+
+// --- picking: the voxel under a point of the window
+const ray = new THREE.Raycaster(), ndc = new THREE.Vector2();
+function pickAt(x, y) {
+  const r = renderer.domElement.getBoundingClientRect();
+  ndc.set(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
+  ray.setFromCamera(ndc, camera);
+  const hit = mesh && ray.intersectObject(mesh)[0];
+  if (!hit) return null;
+  const idx = order[hit.instanceId], [label, conf] = map.vox.get(idx);
+  return { idx, label, conf, prompt: map.prompts[label] ?? '(none)', point: hit.point };
+}
+renderer.domElement.addEventListener('pointermove', (e) => {
+  const h = pickAt(e.clientX, e.clientY), p = h && h.point;
+  $('pick').textContent = h ? `label ${h.label} prompt ${h.prompt} confidence ${h.conf} ` +
+    `at (${p.x.toFixed(2)}, ${p.y.toFixed(2)}, ${p.z.toFixed(2)})` : 'point at a voxel';
+});
+// where a voxel's centre is on the screen (for scripts and the browser console)
+function screenOf(idx) {
+  const [nx, ny] = map.dims, v = new THREE.Vector3(...voxelCentre(idx % nx, Math.floor(idx / nx) % ny,
+    Math.floor(idx / (nx * ny)))).project(camera), r = renderer.domElement.getBoundingClientRect();
+  return { x: r.left + (v.x + 1) / 2 * r.width, y: r.top + (1 - v.y) / 2 * r.height };
+}
+window.vlff = { map, pickAt, screenOf, render: () => renderer.render(scene, camera) };
+
+// --- messages
+function onVoxels(d) {
+  const fresh = d.full || !map.dims || d.dims.join() !== map.dims.join();
+  if (d.full) map.vox.clear();
+  Object.assign(map, { version: d.version, origin: d.origin, voxel_size: d.voxel_size, dims: d.dims,
+    prompts: d.prompts, colors: d.colors });
+  const v = d.voxels;
+  for (let n = 0; n < v.length; n += 3) {
+    if (v[n + 1] >= FREE) map.vox.delete(v[n]); else map.vox.set(v[n], [v[n + 1], v[n + 2]]);
+  }
+  rebuild(fresh && !mesh);
+  document.body.dataset.version = d.version;
+  $('legend').replaceChildren(...d.prompts.map((p, i) => {
+    const li = document.createElement('li');
+    li.innerHTML = `<span style="background:${d.colors[i]}"></span>`;
+    li.append(p);
+    return li;
+  }));
+}
+function onImage(canvas, d) {
+  const bytes = Uint8Array.from(atob(d.data), (ch) => ch.charCodeAt(0));
+  canvas.width = d.width; canvas.height = d.height;
+  const ctx = canvas.getContext('2d'), img = ctx.createImageData(d.width, d.height), o = img.data;
+  const ch = { rgb8: 3, bgr8: 3, mono8: 1 }[d.encoding] || 1;
+  for (let y = 0; y < d.height; y++) {
+    for (let x = 0; x < d.width; x++) {
+      const s = y * d.step + x * ch, t = 4 * (y * d.width + x);
+      const r = bytes[s], g = ch === 3 ? bytes[s + 1] : r, b = ch === 3 ? bytes[s + 2] : r;
+      [o[t], o[t + 1], o[t + 2], o[t + 3]] = d.encoding === 'bgr8' ? [b, g, r, 255] : [r, g, b, 255];
+    }
+  }
+  ctx.putImageData(img, 0, 0);
+}
+function onStatus(d) {
+  const set = (id, v) => { $(id).textContent = v; };
+  set('s-version', d.map.version);
+  set('s-age', d.map.age_s === null ? '-' : d.map.age_s.toFixed(1));
+  set('s-alive', d.map.writer_alive ? 'yes' : 'no');
+  set('s-generation', d.map.generation);
+  set('s-dims', d.map.dims.join(' x '));
+  set('s-occupied', d.map.occupied);
+  set('s-frames', d.frames.attached ? d.frames.head : '-');
+  set('s-fps', d.frames.fps.toFixed(1));
+  set('s-clients', d.viewer.clients);
+}
+function onPose(d) {
+  cameraMark.visible = true;
+  cameraMark.position.set(d.translation.x, d.translation.y, d.translation.z);
+  cameraMark.quaternion.set(d.rotation.x, d.rotation.y, d.rotation.z, d.rotation.w);
+  redraw();
+}
+const handlers = { '/map/voxels': onVoxels, '/camera/image': (d) => onImage($('image'), d),
+  '/camera/labels': (d) => onImage($('labels'), d), '/tf': onPose, '/vlff/status': onStatus };
+
+ws.onopen = () => { $('conn').textContent = 'live'; };
+ws.onclose = (e) => {
+  $('conn').textContent = `closed ${e.code} ${e.reason}; reconnecting`;
+  $('conn').style.color = '#c66';
+  setTimeout(() => location.reload(), 3000);
+};
+ws.onmessage = (ev) => {
+  if (typeof ev.data === 'string') {
+    const m = JSON.parse(ev.data);
+    if (m.op === 'serverInfo') $('editor').hidden = !m.capabilities.includes('clientPublish');
+    if (m.op === 'status') $('msg').textContent = m.message;
+    if (m.op === 'advertise') {
+      const subs = m.channels.filter((c) => handlers[c.topic]).map((c) => ({ id: c.id, channelId: c.id }));
+      m.channels.forEach((c) => { topics[c.id] = c.topic; });
+      ws.send(JSON.stringify({ op: 'subscribe', subscriptions: subs }));
+    }
+    return;
+  }
+  const dv = new DataView(ev.data);
+  if (dv.getUint8(0) !== 1) return;
+  const topic = topics[dv.getUint32(1, true)];
+  handlers[topic](JSON.parse(new TextDecoder().decode(new Uint8Array(ev.data, 13))));
+};
+
+$('editor').addEventListener('submit', (e) => {
+  e.preventDefault();
+  const prompts = $('prompts').value.split('\n').map((s) => s.trim()).filter(Boolean);
+  if (!promptChannel) {
+    promptChannel = 1;
+    ws.send(JSON.stringify({ op: 'advertise', channels: [{ id: promptChannel, topic: '/vlff/prompts',
+      encoding: 'json', schemaName: 'vlff.PromptSet' }] }));
+  }
+  const body = new TextEncoder().encode(JSON.stringify({ token: $('token').value, prompts }));
+  const msg = new Uint8Array(5 + body.length);
+  msg[0] = 1;
+  new DataView(msg.buffer).setUint32(1, promptChannel, true);
+  msg.set(body, 5);
+  ws.send(msg);
+});

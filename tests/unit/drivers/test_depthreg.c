@@ -1,0 +1,446 @@
+/*
+ * Depth registration against geometry: a slanted plane and a rotated box at
+ * known poses are ray-cast into a distorted depth camera; its image,
+ * registered into a colour camera 5 cm away, must land where ray-casting
+ * the same scene from the colour camera says: the right range on every
+ * surface both cameras see, object edges within a pixel on average, the box
+ * in front wherever it hides the plane from the colour camera (z-buffer),
+ * and nothing where the colour camera sees what the depth camera could not
+ * (holes stay invalid). Also: calibration files as OpenCV writes them (YAML
+ * and XML) and the bounds that refuse bad ones.
+ */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include <cmocka.h>
+
+#include "depthreg.h"
+
+#define DW 320
+#define DH 240
+#define CW 640
+#define CH 480
+#define UNIT 0.00025 /* a time-of-flight camera's quarter millimetre */
+#define SPLIT 1.65   /* every box range is nearer than this, every plane range farther */
+
+enum { NONE = 0, PLANE = 1, BOX = 2 };
+
+/* ---- the scene, in the depth camera's frame ---------------------------- */
+
+static const double plane_n[3] = {0.19518, -0.09759, 0.97590}; /* unit (0.2, -0.1, 1) */
+static const double plane_d = 2.0;
+static const double box_c[3] = {0.05, 0.02, 1.3}, box_h[3] = {0.18, 0.14, 0.12};
+static double box_r[9]; /* box axes in the world: columns */
+
+static void rot(double ax, double ay, double az, double out[9]) {
+  double cx = cos(ax), sx = sin(ax), cy = cos(ay), sy = sin(ay), cz = cos(az), sz = sin(az);
+  double X[9] = {1, 0, 0, 0, cx, -sx, 0, sx, cx}, Y[9] = {cy, 0, sy, 0, 1, 0, -sy, 0, cy},
+         Z[9] = {cz, -sz, 0, sz, cz, 0, 0, 0, 1}, t[9];
+  for (int i = 0; i < 9; i++) t[i] = Y[i / 3 * 3] * X[i % 3] + Y[i / 3 * 3 + 1] * X[3 + i % 3] + Y[i / 3 * 3 + 2] * X[6 + i % 3];
+  for (int i = 0; i < 9; i++) out[i] = Z[i / 3 * 3] * t[i % 3] + Z[i / 3 * 3 + 1] * t[3 + i % 3] + Z[i / 3 * 3 + 2] * t[6 + i % 3];
+}
+
+/* Nearest hit along o + t d (t > 0): returns the object, *t its parameter
+ * and *face which surface (0 the plane, 1..6 the box's faces). */
+static int raycast_face(const double o[3], const double d[3], double *t, int *face) {
+  int hit = NONE, lo_axis = 0;
+  *face = 0;
+  *t = INFINITY;
+  double nd = plane_n[0] * d[0] + plane_n[1] * d[1] + plane_n[2] * d[2];
+  double no = plane_n[0] * o[0] + plane_n[1] * o[1] + plane_n[2] * o[2];
+  if (fabs(nd) > 1e-12) {
+    double tp = (plane_d - no) / nd;
+    if (tp > 1e-9) *t = tp, hit = PLANE;
+  }
+  double lo = -INFINITY, hi = INFINITY;
+  for (int a = 0; a < 3; a++) {
+    double oa = 0, da = 0;
+    for (int k = 0; k < 3; k++) oa += box_r[k * 3 + a] * (o[k] - box_c[k]), da += box_r[k * 3 + a] * d[k];
+    if (fabs(da) < 1e-15) {
+      if (fabs(oa) > box_h[a]) lo = INFINITY;
+      continue;
+    }
+    double t1 = (-box_h[a] - oa) / da, t2 = (box_h[a] - oa) / da;
+    if (fmin(t1, t2) > lo) lo = fmin(t1, t2), lo_axis = 1 + a + 3 * (t1 > t2);
+    hi = fmin(hi, fmax(t1, t2));
+  }
+  if (lo <= hi && lo > 1e-9 && lo < *t) *t = lo, hit = BOX, *face = lo_axis;
+  return hit;
+}
+
+static int raycast(const double o[3], const double d[3], double *t) {
+  int face;
+  return raycast_face(o, d, t, &face);
+}
+
+/* ---- the rig ----------------------------------------------------------- */
+
+static struct vlff_rgbd_calib rig(void) {
+  struct vlff_rgbd_calib c;
+  memset(&c, 0, sizeof c);
+  double kd[9] = {260, 0, 159.3, 0, 261, 119.6, 0, 0, 1}, kc[9] = {525, 0, 319.2, 0, 523, 241.1, 0, 0, 1};
+  double dd[5] = {-0.12, 0.06, 0.0008, -0.0005, -0.01}, dc[5] = {0.05, -0.1, 0.001, 0, 0.02};
+  memcpy(c.kd, kd, sizeof kd), memcpy(c.kc, kc, sizeof kc);
+  memcpy(c.dd, dd, sizeof dd), memcpy(c.dc, dc, sizeof dc);
+  c.nd = c.nc = 5;
+  rot(-1 * M_PI / 180, 2 * M_PI / 180, 0.5 * M_PI / 180, c.r);
+  c.t[0] = -0.052, c.t[1] = 0.004, c.t[2] = 0.008;
+  return c;
+}
+
+/* The depth camera's image of the scene, in UNIT counts. */
+static void render_depth(const struct vlff_rgbd_calib *c, uint16_t *img) {
+  const double o[3] = {0, 0, 0};
+  for (int j = 0; j < DH; j++)
+    for (int i = 0; i < DW; i++) {
+      double x, y, t;
+      assert_int_equal(vlff_undistort_point(c->dd, c->nd, (i - c->kd[2]) / c->kd[0], (j - c->kd[5]) / c->kd[4], &x, &y),
+                       0);
+      double d[3] = {x, y, 1};
+      int hit = raycast(o, d, &t);
+      img[j * DW + i] = hit ? (uint16_t)lround(t / UNIT) : 0; /* d[2] = 1: t is the range along z */
+    }
+}
+
+/* What the colour camera (output intrinsics k, size w x h) sees at each
+ * pixel: the object, its range along the colour axis, and whether the
+ * depth camera sees that point too (in its field of view, unoccluded). */
+struct truth {
+  uint8_t obj, face, seen;
+  float z;
+};
+
+static void colour_truth(const struct vlff_rgbd_calib *c, const double k[4], int w, int h, struct truth *gt) {
+  const double *R = c->r, *T = c->t;
+  double C[3];
+  for (int a = 0; a < 3; a++) C[a] = -(R[a] * T[0] + R[3 + a] * T[1] + R[6 + a] * T[2]);
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      double dc[3] = {(x - k[2]) / k[0], (y - k[3]) / k[1], 1}, d[3], t;
+      for (int a = 0; a < 3; a++) d[a] = R[a] * dc[0] + R[3 + a] * dc[1] + R[6 + a] * dc[2];
+      struct truth *g = &gt[y * w + x];
+      int face;
+      g->obj = (uint8_t)raycast_face(C, d, &t, &face);
+      g->face = (uint8_t)face;
+      g->z = (float)t;
+      g->seen = 0;
+      if (!g->obj) continue;
+      double P[3] = {C[0] + t * d[0], C[1] + t * d[1], C[2] + t * d[2]}, o[3] = {0, 0, 0}, td;
+      raycast(o, P, &td);
+      double xd, yd;
+      vlff_distort_point(c->dd, c->nd, P[0] / P[2], P[1] / P[2], &xd, &yd);
+      double u = c->kd[0] * xd + c->kd[2], v = c->kd[4] * yd + c->kd[5];
+      g->seen = fabs(td - 1) < 1e-7 && u > -0.5 && u < DW - 0.5 && v > -0.5 && v < DH - 0.5;
+    }
+}
+
+/* 1 when every pixel within rad of (x,y) has its object and visibility
+ * (and, with faces set, its surface): the pixel is away from every edge. */
+static int interior(const struct truth *gt, int w, int h, int x, int y, int rad, int faces) {
+  if (x < rad || y < rad || x >= w - rad || y >= h - rad) return 0;
+  const struct truth *c = &gt[y * w + x];
+  for (int b = -rad; b <= rad; b++)
+    for (int a = -rad; a <= rad; a++) {
+      const struct truth *n = &gt[(y + b) * w + x + a];
+      if (n->obj != c->obj || n->seen != c->seen || (faces && n->face != c->face)) return 0;
+    }
+  return 1;
+}
+
+static void check_registration(int ow, int oh) {
+  struct vlff_rgbd_calib c = rig();
+  char err[512];
+  struct vlff_depthreg *r = vlff_depthreg_new(&c, DW, DH, CW, CH, ow == CW ? 0 : ow, ow == CW ? 0 : oh, err, sizeof err);
+  if (!r) fail_msg("%s", err);
+  double k[4];
+  int w, h;
+  vlff_depthreg_intrinsics(r, k, &w, &h);
+  assert_int_equal(w, ow);
+  assert_int_equal(h, oh);
+  double s = (double)ow / CW;
+  assert_true(fabs(k[0] - 525 * s) < 1e-9 && fabs(k[1] - 523 * s) < 1e-9);
+  assert_true(fabs(k[2] - ((319.2 + 0.5) * s - 0.5)) < 1e-9 && fabs(k[3] - ((241.1 + 0.5) * s - 0.5)) < 1e-9);
+
+  const int os = ow + 8; /* output rows padded: strides need not be the row length */
+  uint16_t *depth = malloc(DW * DH * 2), *out = malloc((size_t)os * oh * 2);
+  struct truth *gt = malloc((size_t)ow * oh * sizeof *gt);
+  assert_true(depth && out && gt);
+  render_depth(&c, depth);
+  colour_truth(&c, k, ow, oh, gt);
+  long valid = vlff_depthreg_apply(r, depth, DW * 2, UNIT, out, (size_t)os * 2, err, sizeof err);
+  if (valid < 0) fail_msg("%s", err);
+
+  long inner = 0, covered = 0, zbuf_bad = 0, box_inner = 0, holes = 0, hole_bad = 0, outside = 0, outside_bad = 0;
+  long mism = 0, edge = 0, zout = 0;
+  const int ratio = ow >= CW ? 2 : 1; /* colour pixels per depth pixel, about */
+  double zerr = 0, zmax = 0;
+  for (int y = 0; y < oh; y++)
+    for (int x = 0; x < ow; x++) {
+      const struct truth *g = &gt[y * ow + x];
+      uint16_t v = out[y * os + x];
+      if (g->obj == BOX) assert_true(g->z < SPLIT);
+      if (g->obj == PLANE) assert_true(g->z > SPLIT);
+      if (v && g->obj && (v * 0.001 < SPLIT) != (g->obj == BOX)) mism++;
+      if (g->obj == BOX && x > 0 && y > 0 && x < ow - 1 && y < oh - 1 &&
+          (gt[y * ow + x - 1].obj != BOX || gt[y * ow + x + 1].obj != BOX || gt[(y - 1) * ow + x].obj != BOX ||
+           gt[(y + 1) * ow + x].obj != BOX))
+        edge++;
+      /* Ranges and coverage on each surface away from its edges and creases
+       * (by more than a depth pixel: there the depth camera's samples stop).
+       * A colour pixel takes the range of the depth pixel whose footprint
+       * holds it, at most a depth pixel (ratio colour pixels) away: on a
+       * sloped surface its error is bounded by that slope. */
+      if (g->obj && g->seen && interior(gt, ow, oh, x, y, ratio, 1)) {
+        inner++;
+        if (v) {
+          covered++;
+          double e = fabs(v * 0.001 - g->z), slope = 0;
+          for (int n = 0; n < 4; n++) {
+            int nx = x + (n == 0) - (n == 1), ny = y + (n == 2) - (n == 3);
+            slope = fmax(slope, fabs(gt[ny * ow + nx].z - g->z));
+          }
+          zerr += e, zmax = fmax(zmax, e);
+          zout += e > ratio * slope + 0.001;
+        }
+      }
+      if (!interior(gt, ow, oh, x, y, 1, 0)) continue;
+      if (g->obj == BOX) box_inner++, zbuf_bad += v && v * 0.001 > SPLIT;
+      if (g->obj == PLANE && !g->seen) {
+        /* in view of the colour camera only: the box hid it from the depth
+         * camera, or it lies outside the depth camera's field */
+        holes++;
+        hole_bad += v != 0;
+      }
+      if (!g->obj) outside++, outside_bad += v != 0;
+    }
+  printf("%dx%d: %ld valid; interior %ld, covered %.2f %%, |dz| mean %.2f mm max %.2f mm; edge %ld px, "
+         "%ld mismatched (%.2f px); box %ld px, %ld behind it; unseen %ld px, %ld filled; %ld ranges off\n",
+         ow, oh, valid, inner, 100.0 * covered / inner, 1e3 * zerr / covered, 1e3 * zmax, edge, mism,
+         (double)mism / edge, box_inner, zbuf_bad, holes, hole_bad, zout);
+  /* The scene exercises each case. */
+  assert_true(inner > ow * oh / 2);
+  assert_true(box_inner > ow * oh / 50);
+  assert_true(holes > ow * oh / 400);
+  /* Every surface both cameras see gets a range, and the right one: on a
+   * slanted surface a depth pixel's range differs from its neighbour's by
+   * a few millimetres, the bound on the error. */
+  assert_true(covered >= inner * 999 / 1000);
+  assert_true(zerr / covered < 0.002);
+  assert_int_equal(zout, 0);
+  /* Edges land within a pixel on average (mismatched pixels per edge pixel). */
+  assert_true((double)mism / edge < 1.0);
+  /* Nearest wins: nothing seen behind the box. */
+  assert_int_equal(zbuf_bad, 0);
+  /* What only the colour camera sees stays invalid. */
+  assert_int_equal(hole_bad, 0);
+  assert_int_equal(outside_bad, 0);
+  (void)outside;
+  free(depth), free(out), free(gt);
+  vlff_depthreg_free(r);
+}
+
+static void test_registers_at_colour_resolution(void **state) {
+  (void)state;
+  check_registration(CW, CH);
+}
+
+static void test_registers_at_configured_resolution(void **state) {
+  (void)state;
+  check_registration(320, 240);
+}
+
+/* The plane hides behind the box from the colour camera only where the
+ * depth camera saw it: those depth pixels land inside the box's image,
+ * where the z-buffer must keep the box. Count that they exist. */
+static void test_scene_has_occlusion(void **state) {
+  (void)state;
+  struct vlff_rgbd_calib c = rig();
+  char err[256];
+  struct vlff_depthreg *r = vlff_depthreg_new(&c, DW, DH, CW, CH, 0, 0, err, sizeof err);
+  assert_non_null(r);
+  double k[4];
+  vlff_depthreg_intrinsics(r, k, NULL, NULL);
+  struct truth *gt = malloc(CW * CH * sizeof *gt);
+  colour_truth(&c, k, CW, CH, gt);
+  long hidden = 0;
+  for (int j = 0; j < DH; j++)
+    for (int i = 0; i < DW; i++) {
+      double x, y, t, o[3] = {0, 0, 0};
+      assert_int_equal(vlff_undistort_point(c.dd, c.nd, (i - c.kd[2]) / c.kd[0], (j - c.kd[5]) / c.kd[4], &x, &y), 0);
+      double d[3] = {x, y, 1};
+      if (raycast(o, d, &t) != PLANE) continue;
+      double P[3] = {x * t, y * t, t}, X[3];
+      for (int a = 0; a < 3; a++) X[a] = c.r[a * 3] * P[0] + c.r[a * 3 + 1] * P[1] + c.r[a * 3 + 2] * P[2] + c.t[a];
+      long u = lround(k[0] * X[0] / X[2] + k[2]), v = lround(k[1] * X[1] / X[2] + k[3]);
+      if (u >= 0 && u < CW && v >= 0 && v < CH && gt[v * CW + u].obj == BOX) hidden++;
+    }
+  printf("%ld depth pixels see plane the colour camera sees box at\n", hidden);
+  assert_true(hidden > 200);
+  free(gt);
+  vlff_depthreg_free(r);
+}
+
+static void test_distortion_inverts(void **state) {
+  (void)state;
+  const double d8[8] = {-0.28, 0.09, 0.001, -0.0007, -0.012, 0.02, 0.003, 0.001};
+  srand(7);
+  for (int i = 0; i < 10000; i++) {
+    double x = (rand() / (double)RAND_MAX - 0.5) * 1.2, y = (rand() / (double)RAND_MAX - 0.5) * 0.9, xd, yd, u, v;
+    for (int n = 4; n <= 8; n += n == 5 ? 3 : 1) {
+      vlff_distort_point(d8, n, x, y, &xd, &yd);
+      assert_int_equal(vlff_undistort_point(d8, n, xd, yd, &u, &v), 0);
+      assert_true(fabs(u - x) < 1e-9 && fabs(v - y) < 1e-9);
+    }
+  }
+  /* A model that folds over has no inverse there: refused, not guessed. */
+  const double fold[5] = {-1.5, 0, 0, 0, 0};
+  double u, v;
+  assert_int_equal(vlff_undistort_point(fold, 5, 0.9, 0.7, &u, &v), -1);
+  struct vlff_rgbd_calib c = rig();
+  c.dd[0] = -1.5;
+  char err[256];
+  assert_null(vlff_depthreg_new(&c, DW, DH, CW, CH, 0, 0, err, sizeof err));
+  assert_non_null(strstr(err, "D1"));
+}
+
+/* ---- calibration files ------------------------------------------------- */
+
+static char dir[128];
+
+static const char *write_file(const char *name, const char *text) {
+  static char p[256];
+  snprintf(p, sizeof p, "%s/%s", dir, name);
+  FILE *f = fopen(p, "w");
+  assert_non_null(f);
+  fputs(text, f);
+  fclose(f);
+  return p;
+}
+
+#define YMAT(name, r, c, data) name ": !!opencv-matrix\n   rows: " #r "\n   cols: " #c "\n   dt: d\n   data: [ " data " ]\n"
+#define K1 YMAT("K1", 3, 3, "260., 0., 159.3, 0., 261., 119.6, 0., 0., 1.")
+#define D1 YMAT("D1", 1, 5, "-0.12, 0.06, 8.0e-04, -5.0e-04, -0.01")
+#define K2 YMAT("K2", 3, 3, "525., 0., 319.2, 0., 523., 241.1, 0., 0., 1.")
+#define D2 YMAT("D2", 1, 5, "0.05, -0.1, 1.0e-03, 0., 0.02")
+#define RI YMAT("R", 3, 3, "1., 0., 0., 0., 1., 0., 0., 0., 1.")
+#define TM YMAT("T", 3, 1, "-0.052, 0.004, 0.008")
+
+static void expect_refused(const char *name, const char *text, const char *what) {
+  struct vlff_rgbd_calib c;
+  char err[512];
+  const char *p = write_file(name, text);
+  assert_int_equal(vlff_rgbd_calib_load(p, &c, err, sizeof err), -1);
+  if (!strstr(err, what) || !strstr(err, name)) fail_msg("%s: expected '%s' in: %s", name, what, err);
+}
+
+static void test_calibration_files(void **state) {
+  (void)state;
+  snprintf(dir, sizeof dir, "/tmp/vlff-test-depthreg-%d", (int)getpid());
+  char cmd[200];
+  snprintf(cmd, sizeof cmd, "mkdir -p %s", dir);
+  assert_int_equal(system(cmd), 0);
+  struct vlff_rgbd_calib c;
+  char err[512];
+  /* YAML as cv::FileStorage writes stereoCalibrate's outputs. */
+  const char *p = write_file("rig.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI TM "depth_width: 320\ndepth_height: 240\n");
+  if (vlff_rgbd_calib_load(p, &c, err, sizeof err)) fail_msg("%s", err);
+  assert_true(c.kd[0] == 260 && c.kd[5] == 119.6 && c.kc[2] == 319.2 && c.nd == 5 && c.nc == 5);
+  assert_true(c.dd[2] == 8e-4 && c.t[0] == -0.052 && c.r[4] == 1 && c.depth_w == 320 && c.color_w == 0);
+  /* XML, the sample's names (M1, M2), a rotation vector, 4 coefficients,
+   * T in millimetres with its unit. */
+  p = write_file("rig.xml",
+                 "<?xml version=\"1.0\"?>\n<opencv_storage>\n"
+                 "<M1 type_id=\"opencv-matrix\"><rows>3</rows><cols>3</cols><dt>d</dt>\n"
+                 "  <data>260. 0. 159.3 0. 261. 119.6 0. 0. 1.</data></M1>\n"
+                 "<D1 type_id=\"opencv-matrix\"><rows>1</rows><cols>4</cols><dt>d</dt>\n"
+                 "  <data>-0.12 0.06 0. 0.</data></D1>\n"
+                 "<M2 type_id=\"opencv-matrix\"><rows>3</rows><cols>3</cols><dt>d</dt>\n"
+                 "  <data>525. 0. 319.2 0. 523. 241.1 0. 0. 1.</data></M2>\n"
+                 "<D2 type_id=\"opencv-matrix\"><rows>5</rows><cols>1</cols><dt>d</dt>\n"
+                 "  <data>0.05 -0.1 0. 0. 0.02</data></D2>\n"
+                 "<R type_id=\"opencv-matrix\"><rows>3</rows><cols>1</cols><dt>d</dt>\n"
+                 "  <data>0. 0.1 0.</data></R>\n"
+                 "<T type_id=\"opencv-matrix\"><rows>3</rows><cols>1</cols><dt>d</dt>\n"
+                 "  <data>-52. 4. 8.</data></T>\n"
+                 "<translation_unit_m>1.0e-03</translation_unit_m>\n"
+                 "</opencv_storage>\n");
+  if (vlff_rgbd_calib_load(p, &c, err, sizeof err)) fail_msg("%s", err);
+  assert_int_equal(c.nd, 4);
+  assert_true(fabs(c.t[0] + 0.052) < 1e-12 && fabs(c.t[2] - 0.008) < 1e-12);
+  assert_true(fabs(c.r[0] - cos(0.1)) < 1e-12 && fabs(c.r[2] - sin(0.1)) < 1e-12 && fabs(c.r[6] + sin(0.1)) < 1e-12);
+
+  /* Refusals name the file and what is wrong. */
+  expect_refused("mm.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI YMAT("T", 3, 1, "-52., 4., 8."), "translation_unit_m");
+  expect_refused("noK2.yaml", "%YAML:1.0\n---\n" K1 D1 D2 RI TM, "K2");
+  expect_refused("R.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 YMAT("R", 3, 3, "1.1, 0., 0., 0., 1., 0., 0., 0., 1.") TM,
+                 "R is not a rotation");
+  expect_refused("mirror.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 YMAT("R", 3, 3, "-1., 0., 0., 0., 1., 0., 0., 0., 1.") TM,
+                 "R is not a rotation");
+  expect_refused("fx.yaml",
+                 "%YAML:1.0\n---\n" YMAT("K1", 3, 3, "-260., 0., 159.3, 0., 261., 119.6, 0., 0., 1.") D1 K2 D2 RI TM,
+                 "focal lengths");
+  expect_refused("skew.yaml",
+                 "%YAML:1.0\n---\n" K1 D1 YMAT("K2", 3, 3, "525., 3., 319.2, 0., 523., 241.1, 0., 0., 1.") D2 RI TM,
+                 "skew");
+  expect_refused("d14.yaml",
+                 "%YAML:1.0\n---\n" K1 YMAT("D1", 1, 14, "0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0.") K2 D2 RI
+                     TM,
+                 "not supported");
+  expect_refused("pp.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI TM "color_width: 300\ncolor_height: 240\n",
+                 "principal point");
+  expect_refused("fov.yaml",
+                 "%YAML:1.0\n---\n" YMAT("K1", 3, 3, "30000., 0., 159.3, 0., 30000., 119.6, 0., 0., 1.") D1 K2 D2 RI TM
+                 "depth_width: 320\ndepth_height: 240\n",
+                 "field of view");
+  expect_refused("nan.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI YMAT("T", 3, 1, "-0.05, .nan, 0."), "not finite");
+  expect_refused("unit.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI TM "translation_unit_m: 5\n", "translation_unit_m");
+  expect_refused("garbage.yaml", "this is not a calibration: [\n", "garbage.yaml");
+  snprintf(cmd, sizeof cmd, "%s/missing.yaml", dir);
+  assert_int_equal(vlff_rgbd_calib_load(cmd, &c, err, sizeof err), -1);
+  assert_non_null(strstr(err, "missing.yaml"));
+
+  /* The shipped example loads and fits the cameras it names. */
+  const char *src = getenv("VLFF_SOURCE_DIR");
+  assert_non_null(src);
+  char ex[1024];
+  snprintf(ex, sizeof ex, "%s/configs/rgbd-calibration.yaml", src);
+  if (vlff_rgbd_calib_load(ex, &c, err, sizeof err)) fail_msg("%s", err);
+  assert_true(fabs(c.t[0] + 0.02512) < 1e-12);
+  struct vlff_depthreg *ex_reg = vlff_depthreg_new(&c, 640, 480, 1280, 960, 0, 0, err, sizeof err);
+  if (!ex_reg) fail_msg("%s", err);
+  vlff_depthreg_free(ex_reg);
+
+    /* Sizes the file states must be the cameras'. */
+  p = write_file("sized.yaml", "%YAML:1.0\n---\n" K1 D1 K2 D2 RI TM "depth_width: 320\ndepth_height: 240\n");
+  assert_int_equal(vlff_rgbd_calib_load(p, &c, err, sizeof err), 0);
+  assert_null(vlff_depthreg_new(&c, 640, 480, CW, CH, 0, 0, err, sizeof err));
+  assert_non_null(strstr(err, "calibrated for"));
+  assert_null(vlff_depthreg_new(&c, DW, DH, CW, CH, 400, 240, err, sizeof err));
+  assert_non_null(strstr(err, "aspect"));
+  struct vlff_depthreg *r = vlff_depthreg_new(&c, DW, DH, CW, CH, 0, 0, err, sizeof err);
+  assert_non_null(r);
+  uint16_t d[DW * DH] = {0}, o[4];
+  assert_int_equal(vlff_depthreg_apply(r, d, DW * 2, 0, o, CW * 2, err, sizeof err), -1);
+  assert_int_equal(vlff_depthreg_apply(r, d, DW, 0.001, o, CW * 2, err, sizeof err), -1);
+  vlff_depthreg_free(r);
+  snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+  assert_int_equal(system(cmd), 0);
+}
+
+int main(void) {
+  rot(10 * M_PI / 180, 25 * M_PI / 180, 0, box_r);
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_distortion_inverts),
+      cmocka_unit_test(test_scene_has_occlusion),
+      cmocka_unit_test(test_registers_at_colour_resolution),
+      cmocka_unit_test(test_registers_at_configured_resolution),
+      cmocka_unit_test(test_calibration_files),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

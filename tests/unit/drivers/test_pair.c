@@ -1,0 +1,207 @@
+/*
+ * Colour + range pairing without cameras: frames of both streams pushed
+ * through the pairing's sinks with chosen timestamps (jitter, a stream
+ * arriving late, frames missing on either side, a stalled stream). Every
+ * record must hold a colour frame and the range frame of the same moment,
+ * never a neighbour's; frames without a partner are counted. The rig is
+ * the identity (same camera, no offset), so the registered depth must be
+ * the range image itself.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "log.h"
+#include "pair.h"
+#include "pixfmt.h"
+#include "sink.h"
+
+#define W 16
+#define H 12
+#define MS 1000000ull
+
+static char calib[128];
+static struct vlff_memsink *out;
+static struct vlff_pair *pair;
+
+/* Colour frame k: every red byte k. */
+static void push_color(int k, uint64_t t) {
+  struct vlff_sink *s = vlff_pair_color_sink(pair);
+  struct vlff_sink_frame f = {.width = W, .height = H, .color_format = VLFF_PIX_RGB8};
+  char err[256];
+  assert_int_equal(s->reserve(s, &f, err, sizeof err), 0);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) {
+      uint8_t *p = f.color + y * f.color_stride + x * 3;
+      p[0] = (uint8_t)k, p[1] = (uint8_t)x, p[2] = (uint8_t)y;
+    }
+  f.host_ns = t, f.device_frame_id = (uint64_t)k;
+  assert_int_equal(s->commit(s, &f), 0);
+}
+
+/* Range frame k: 1000 + 10 k millimetres, plus x and y. */
+static void push_depth(int k, uint64_t t) {
+  struct vlff_sink *s = vlff_pair_depth_sink(pair);
+  struct vlff_sink_frame f = {.width = W, .height = H, .color_format = VLFF_PIX_NONE,
+                              .depth_format = VLFF_DEPTH_FMT_U16_MM};
+  char err[256];
+  assert_int_equal(s->reserve(s, &f, err, sizeof err), 0);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) ((uint16_t *)((char *)f.depth + y * f.depth_stride))[x] = (uint16_t)(1000 + 10 * k + x + y);
+  f.host_ns = t;
+  assert_int_equal(s->commit(s, &f), 0);
+}
+
+/* Every record so far: colour k with depth k, in order, the depth image
+ * registered unchanged, the colour camera's intrinsics. Returns the count. */
+static int check_records(int *first_k) {
+  int n = (int)vlff_memsink_committed(out);
+  int prev = -1;
+  for (int i = n - 1; i >= 0; i--) {
+    const struct vlff_sink_frame *f = vlff_memsink_get(out, i);
+    assert_non_null(f);
+    int k = f->color[0];
+    const uint16_t *d = f->depth;
+    assert_int_equal(f->device_frame_id, (uint64_t)k);
+    for (int y = 0; y < H; y++)
+      for (int x = 0; x < W; x++) {
+        assert_int_equal(f->color[y * f->color_stride + x * 3 + 1], x);
+        uint16_t v = ((const uint16_t *)((const char *)d + y * f->depth_stride))[x];
+        if (v != 1000 + 10 * k + x + y) fail_msg("record %d: colour %d holds depth %d at (%d,%d)", i, k, (v - 1000 - x - y) / 10, x, y);
+      }
+    assert_true(f->intrinsics[0] == 20 && f->intrinsics[2] == 7.5 && f->intrinsics[3] == 5.5);
+    assert_true(k > prev);
+    if (prev < 0 && first_k) *first_k = k;
+    prev = k;
+  }
+  return n;
+}
+
+static int setup(void **state) {
+  (void)state;
+  snprintf(calib, sizeof calib, "/tmp/vlff-test-pair-%d.yaml", (int)getpid());
+  FILE *f = fopen(calib, "w");
+  if (!f) return -1;
+  fputs("%YAML:1.0\n---\n"
+        "K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 20., 0., 7.5, 0., 20., 5.5, 0., 0., 1. ]\n"
+        "D1: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+        "K2: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 20., 0., 7.5, 0., 20., 5.5, 0., 0., 1. ]\n"
+        "D2: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+        "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
+        "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n",
+        f);
+  fclose(f);
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  snprintf(cfg.depth_camera.calibration, sizeof cfg.depth_camera.calibration, "%s", calib);
+  cfg.depth_camera.pair_tolerance_s = 0.005;
+  out = vlff_memsink_new(64, W, H);
+  char err[512];
+  pair = vlff_pair_new(&cfg, vlff_memsink_sink(out), err, sizeof err);
+  if (!pair) fail_msg("%s", err);
+  return 0;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  vlff_pair_free(pair);
+  vlff_memsink_free(out);
+  unlink(calib);
+  return 0;
+}
+
+/* Both streams at 30 Hz, range frames 0..3 ms after colour (jitter). */
+static void test_pairs_in_step(void **state) {
+  (void)state;
+  for (int k = 0; k < 20; k++) {
+    uint64_t t = 1000 * MS + (uint64_t)k * 33 * MS;
+    push_color(k, t);
+    push_depth(k, t + (uint64_t)(k % 4) * MS);
+  }
+  assert_int_equal(check_records(NULL), 20);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->pairs, 20);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth + st->dropped, 0);
+}
+
+/* The range camera's frames arrive three frames late; frames go missing on
+ * either side; a range frame 6 ms off its colour frame is beyond the 5 ms
+ * tolerance. Only true partners pair. */
+static void test_skew_and_gaps(void **state) {
+  (void)state;
+  const uint64_t t0 = 5000 * MS;
+  int expected = 0;
+  for (int k = 0; k < 30; k++) {
+    uint64_t t = t0 + (uint64_t)k * 33 * MS;
+    if (k != 7) push_color(k, t); /* colour 7 lost */
+    int j = k - 3;                /* range frames lag three frames behind */
+    if (j >= 0 && j != 12 && j != 13) {
+      uint64_t tj = t0 + (uint64_t)j * 33 * MS + (j == 20 ? 6 * MS : 0);
+      push_depth(j, tj);
+    }
+  }
+  for (int j = 27; j < 30; j++) push_depth(j, t0 + (uint64_t)j * 33 * MS);
+  for (int k = 0; k < 30; k++) expected += k != 7 && k != 12 && k != 13 && k != 20;
+  assert_int_equal(check_records(NULL), expected);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->pairs, expected);
+  /* colours 12, 13 and 20 and the range frames 7 and 20 found no partner;
+   * the queues hold four frames, so a three-frame lag loses nothing */
+  assert_int_equal(st->unmatched_color, 3);
+  assert_int_equal(st->unmatched_depth, 2);
+}
+
+/* The colour camera runs faster than configured (4 ms apart, two of its
+ * frames within the tolerance of one range frame): only the nearer pairs. */
+static void test_faster_than_configured(void **state) {
+  (void)state;
+  const uint64_t t0 = 7000 * MS;
+  /* range frames 3 ms after colours 1, 5, 9, arriving after colour 2 (1 ms
+   * from them, so nearer than colour 1) */
+  for (int k = 0; k < 12; k++) {
+    push_color(k, t0 + (uint64_t)k * 4 * MS);
+    if (k % 4 == 2) push_depth(k, t0 + (uint64_t)(k - 1) * 4 * MS + 3 * MS);
+  }
+  int first = -1;
+  assert_int_equal(check_records(&first), 3);
+  assert_int_equal(first, 2);
+}
+
+/* The range camera stops: colour frames overflow the queue and are
+ * counted; when it comes back, pairing resumes with the right partners. */
+static void test_stalled_stream(void **state) {
+  (void)state;
+  const uint64_t t0 = 9000 * MS;
+  for (int k = 0; k < 10; k++) push_color(k, t0 + (uint64_t)k * 33 * MS);
+  assert_int_equal(vlff_pair_get_stats(pair)->pairs, 0);
+  assert_int_equal(vlff_pair_get_stats(pair)->unmatched_color, 6);
+  for (int k = 10; k < 15; k++) {
+    uint64_t t = t0 + (uint64_t)k * 33 * MS;
+    push_depth(k, t + MS);
+    push_color(k, t);
+  }
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 10);
+  /* the four colour frames still held when depth resumed are older than
+   * every range frame: dropped, never paired */
+  assert_int_equal(vlff_pair_get_stats(pair)->unmatched_color, 10);
+}
+
+int main(void) {
+  vlff_log_set_level(VLFF_LOG_ERROR);
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test_setup_teardown(test_pairs_in_step, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_skew_and_gaps, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_stalled_stream, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_faster_than_configured, setup, teardown),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

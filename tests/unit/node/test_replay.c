@@ -1,0 +1,434 @@
+/*
+ * vlff-replay end to end: a scene directory written to disk (the synthetic
+ * room, in the reference layout with features.hdf) is played by the
+ * vlff-replay program into the frame, pose and feature rings; the node,
+ * reading them as it reads live cameras, must train and publish a map whose
+ * labels, read through libvlff-shm at the scene's labelled points, are right.
+ * Also: a ScanNet export played into the rings arrives exactly (pixels,
+ * depth, poses at the frames' times), the back-pressure mode loses nothing
+ * through a small ring, and the command line behaves.
+ *
+ * Timings scale with VLFF_E2E_SCALE; the quality thresholds do not.
+ */
+#define _XOPEN_SOURCE 700
+#include <errno.h>
+#include <ftw.h>
+#include <math.h>
+#include <setjmp.h>
+#include <signal.h>
+#include <spawn.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+#include <cmocka.h>
+
+#include "config.h"
+#include "dataset.h"
+#include "embeddings.h"
+#include "metrics.h"
+#include "node.h"
+#include "sim.h"
+#include "vlff/shm.h"
+
+extern char **environ;
+
+#define FRAMES 150
+
+static char dir[256], scene[300], cfg_path[300], tag[64], replay[512];
+static double scale = 1.0;
+static pid_t child;
+
+static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
+
+static void sleep_s(double s) {
+  struct timespec ts = {(time_t)s, (long)((s - (time_t)s) * 1e9)};
+  nanosleep(&ts, NULL);
+}
+
+static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
+  (void)st, (void)flag, (void)ftw;
+  return remove(p);
+}
+
+/* The e2e test's room and node settings, fed from rings instead of the sim. */
+static void write_config(struct vlff_config *cfg, int ring_slots) {
+  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", dir);
+  FILE *f = fopen(cfg_path, "w");
+  assert_non_null(f);
+  fprintf(f,
+          "node:\n  state_dir: %s/state\n"
+          "source:\n  kind: ring\n  features: ring\n"
+          "sim:\n  seed: 3\n  rate_hz: 5\n  width: 160\n  height: 120\n  frames: %d\n"
+          "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
+          "  max_width: 320\n  max_height: 240\n  ring_slots: %d\n"
+          "train:\n  image_scale: 1.0\n"
+          "keyframes:\n  start_after: 3\n  posecheck_min_steps: 30\n"
+          "publish:\n  rate_hz: 1\n  voxel_size_m: 0.1\n  label_width: 80\n  label_height: 60\n"
+          "prompts:\n  embeddings: %s/prompt_embeddings.txt\n  sets:\n"
+          "    - name: scannet20\n      prompts: [wall, floor, cabinet, bed, chair, sofa, table, door, window,\n"
+          "        bookshelf, picture, counter, desk, curtain, refrigerator, shower curtain, toilet, sink,\n"
+          "        bathtub, other furniture]\n",
+          dir, FRAMES, tag, tag, tag, tag, tag, ring_slots, scene);
+  fclose(f);
+  char err[512];
+  if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
+}
+
+/* The room as a recorded scene: frames, poses, features, prompt vectors. */
+static void write_scene(const struct vlff_config *cfg, struct vlff_sim_points *gt) {
+  char err[1024];
+  struct vlff_sim *s = vlff_sim_create(cfg, err, sizeof err);
+  if (!s) fail_msg("%s", err);
+  int W, H, fw, fh, D;
+  double fx, fy, cx, cy;
+  vlff_sim_size(s, &W, &H, &fw, &fh, &D);
+  vlff_sim_intrinsics(s, &fx, &fy, &cx, &cy);
+  struct vlff_dataset_writer *w = vlff_dataset_writer_open(scene, FRAMES, W, H, fx, fy, cx, cy, cfg->field.scene_min,
+                                                           cfg->field.scene_max, "sim", fw, fh, D, err, sizeof err);
+  if (!w) fail_msg("%s", err);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  assert_non_null(f);
+  for (int i = 0; i < FRAMES; i++) {
+    if (vlff_sim_render(s, i, VLFF_SIM_ALL, f, err, sizeof err) ||
+        vlff_dataset_writer_add(w, i, f->rgb, f->depth_mm, f->label, f->c2w, f->features, err, sizeof err))
+      fail_msg("%s", err);
+  }
+  vlff_sim_frame_free(f);
+  if (vlff_dataset_writer_close(w, err, sizeof err)) fail_msg("%s", err);
+  const struct vlff_prompt_set *set = &cfg->prompts.sets[cfg->prompts.active];
+  float *emb = calloc((size_t)set->count * D, sizeof(float));
+  const char *names[VLFF_MAX_PROMPTS];
+  assert_non_null(emb);
+  for (int k = 0; k < set->count; k++) {
+    names[k] = set->text[k];
+    vlff_sim_text_embedding(s, set->text[k], emb + (size_t)k * D);
+  }
+  char p[400];
+  snprintf(p, sizeof p, "%s/prompt_embeddings.txt", scene);
+  if (vlff_embeddings_save(p, D, set->count, names, emb, err, sizeof err)) fail_msg("%s", err);
+  free(emb);
+  if (gt && vlff_sim_points(s, FRAMES, 5, 0.05, gt, err, sizeof err)) fail_msg("%s", err);
+  vlff_sim_destroy(s);
+}
+
+static pid_t spawn_replay(const char *const *args) {
+  char *argv[20];
+  int n = 0;
+  argv[n++] = replay;
+  for (; args[n - 1] && n < 19; n++) argv[n] = (char *)args[n - 1];
+  argv[n] = NULL;
+  pid_t pid;
+  assert_int_equal(posix_spawn(&pid, replay, NULL, NULL, argv, environ), 0);
+  child = pid;
+  return pid;
+}
+
+static int wait_child(pid_t pid) {
+  int st;
+  assert_int_equal(waitpid(pid, &st, 0), pid);
+  child = 0;
+  return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
+
+/* 3D mIoU of the published map at the scene's labelled points, read
+ * through the controller library; -1 before the first publish. */
+static double map_miou3d(const struct vlff_config *cfg, const struct vlff_sim_points *gt, uint64_t *version) {
+  char err[256];
+  struct vlff_map *m = vlff_map_attach(cfg->shm.map);
+  if (!m) return -1;
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
+  double miou = -1;
+  struct vlff_map_info info;
+  if (snap && vlff_map_snapshot_take(m, snap) == 0 && vlff_map_snapshot_info(snap, &info) == 0 &&
+      info.version > 0) {
+    *version = info.version;
+    struct vlff_confusion c;
+    assert_int_equal(vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err), 0);
+    for (size_t i = 0; i < gt->n; i++) {
+      const float *x = gt->xyz + i * 3;
+      uint16_t lab = vlff_map_snapshot_label_at(snap, x[0], x[1], x[2], NULL);
+      const char *text = vlff_map_snapshot_prompt(snap, lab);
+      vlff_confusion_add_one(&c, gt->label[i], text ? vlff_sim_class_of(text) : -1);
+    }
+    struct vlff_summary sum;
+    vlff_confusion_summary(&c, &sum);
+    miou = sum.miou * 100;
+    vlff_confusion_free(&c);
+  }
+  vlff_map_snapshot_free(snap);
+  vlff_map_detach(m);
+  return miou;
+}
+
+static int setup(void **state) {
+  (void)state;
+  const char *sc = getenv("VLFF_E2E_SCALE");
+  if (sc && atof(sc) > 0) scale = atof(sc);
+  snprintf(tag, sizeof tag, "replay%d", (int)getpid());
+  snprintf(dir, sizeof dir, "/tmp/vlff-%s", tag);
+  snprintf(scene, sizeof scene, "%s/scene", dir);
+  snprintf(replay, sizeof replay, "%s/node/dataset/vlff-replay", getenv("VLFF_BINARY_DIR"));
+  mkdir(dir, 0755);
+  return 0;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  if (child > 0) {
+    kill(child, SIGKILL);
+    waitpid(child, NULL, 0);
+    child = 0;
+  }
+  nftw(dir, rm_one, 16, FTW_DEPTH | FTW_PHYS);
+  const char *suffix[] = {"f", "m", "p", "q", "x"};
+  for (int i = 0; i < 5; i++) {
+    char name[96];
+    snprintf(name, sizeof name, "/%s-%s", tag, suffix[i]);
+    vlff_shm_unlink(name);
+  }
+  return 0;
+}
+
+/* The node trains from the replayed scene as from live sensors: every frame
+ * paired with its pose (none invalid), keyframes taken, a map published
+ * whose labels at the scene's points are right. */
+static void test_node_trains_from_replay(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg, 8);
+  struct vlff_sim_points gt = {0};
+  write_scene(&cfg, &gt);
+  char err[512];
+  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  if (!n) fail_msg("%s", err);
+  /* The recording's 5 Hz, looped: the node sees the room as vlff-sim shows it. */
+  const char *args[] = {"--config", cfg_path, "--fps", "5", "--loop", "--quiet", scene, NULL};
+  pid_t pid = spawn_replay(args);
+  double best = -1, t0 = mono_s();
+  uint64_t version = 0;
+  while (mono_s() - t0 < 90 * scale) {
+    sleep_s(2);
+    best = fmax(best, map_miou3d(&cfg, &gt, &version));
+    if (best >= 35) break;
+  }
+  struct vlff_node_status st;
+  vlff_node_status(n, &st);
+  printf("after %.0f s: 3D mIoU %.1f, %lld frames in, %lld invalid, %lld lost, %d keyframes, "
+         "%lld feature timeouts, map v%llu\n",
+         mono_s() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
+         (unsigned long long)version);
+  assert_true(st.frames_in > 0);
+  assert_int_equal(st.frames_invalid, 0);
+  assert_true(st.keyframes > 0);
+  assert_true(version > 0);
+  assert_true(best >= 35);
+  /* Known points: observed floor points read "floor", walls "wall". */
+  struct vlff_map *m = vlff_map_attach(cfg.shm.map);
+  assert_non_null(m);
+  int floor_ok = 0, floor_n = 0, wall_ok = 0, wall_n = 0;
+  for (size_t i = 0; i < gt.n; i++) {
+    uint16_t lab;
+    char text[64];
+    const float *x = gt.xyz + i * 3;
+    if (gt.label[i] > 1 || vlff_map_label_at(m, x[0], x[1], x[2], &lab, NULL) != 0 || lab == VLFF_LABEL_UNKNOWN ||
+        lab == VLFF_LABEL_FREE)
+      continue;
+    int ok = vlff_map_prompt(m, lab, text, sizeof text) == 0 && !strcmp(text, gt.label[i] ? "floor" : "wall");
+    if (gt.label[i] == 1) floor_n++, floor_ok += ok;
+    else wall_n++, wall_ok += ok;
+  }
+  vlff_map_detach(m);
+  printf("floor %d/%d, wall %d/%d labelled right\n", floor_ok, floor_n, wall_ok, wall_n);
+  assert_true(floor_n >= 300 && wall_n >= 300);
+  assert_true(floor_ok > floor_n * 0.7 && wall_ok > wall_n * 0.7);
+  kill(pid, SIGTERM);
+  assert_int_equal(wait_child(pid), 0);
+  vlff_node_destroy(n, false);
+  vlff_sim_points_free(&gt);
+}
+
+/* Paced by its reader, a burst far larger than the ring loses nothing, not
+ * even the frames before the node attached (on schedule at this rate it
+ * loses both), and poses carried in the frame record serve as well as the
+ * pose ring. */
+static void test_backpressure_loses_nothing(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg, 2);
+  assert_int_equal(cfg.shm.ring_slots, 2);
+  write_scene(&cfg, NULL);
+  char err[512];
+  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  if (!n) fail_msg("%s", err);
+  const char *args[] = {"-c", cfg_path, "--backpressure", "--pose-in-frame", "--rate", "1000", "--loop", "--count", "240",
+                        "--quiet", scene, NULL};
+  pid_t pid = spawn_replay(args);
+  assert_int_equal(wait_child(pid), 0);
+  struct vlff_node_status st;
+  double t0 = mono_s();
+  do {
+    sleep_s(0.2);
+    vlff_node_status(n, &st);
+  } while (st.frames_in < 240 && mono_s() - t0 < 20 * scale);
+  printf("%lld frames in, %lld lost, %lld invalid, %d keyframes\n", st.frames_in, st.frames_lost,
+         st.frames_invalid, st.keyframes);
+  assert_int_equal(st.frames_in, 240);
+  assert_int_equal(st.frames_lost, 0);
+  assert_int_equal(st.frames_invalid, 0);
+  vlff_node_destroy(n, false);
+}
+
+/* A ScanNet export (color/, depth/, pose/ camera-to-world, intrinsic/),
+ * played paced by a reader that is this test: every frame arrives with the
+ * scene's pixels and millimetre depth, its pose waits in the pose ring at the
+ * frame's host time (the lookup finds it exactly), and nothing is lost. */
+static void test_scannet_layout_into_rings(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg, 2);
+  char err[1024], p[512];
+  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  if (!s) fail_msg("%s", err);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  const char *subs[] = {"", "/color", "/depth", "/pose", "/intrinsic"};
+  for (int k = 0; k < 5; k++) {
+    snprintf(p, sizeof p, "%s%s", scene, subs[k]);
+    assert_int_equal(mkdir(p, 0755), 0);
+  }
+  enum { N = 6 };
+  double c2w[N][16];
+  for (int i = 0; i < N; i++) {
+    assert_int_equal(vlff_sim_render(s, i * 7, VLFF_SIM_RGBD, f, err, sizeof err), 0);
+    snprintf(p, sizeof p, "%s/color/%d.png", scene, i);
+    if (vlff_png_write(p, f->rgb, f->width, f->height, 3, 0, err, sizeof err)) fail_msg("%s", err);
+    snprintf(p, sizeof p, "%s/depth/%d.png", scene, i);
+    if (vlff_png_write(p, f->depth_mm, f->width, f->height, 1, 1, err, sizeof err)) fail_msg("%s", err);
+    snprintf(p, sizeof p, "%s/pose/%d.txt", scene, i);
+    FILE *pf = fopen(p, "w");
+    assert_non_null(pf);
+    for (int e = 0; e < 16; e++) fprintf(pf, "%.17g%c", f->c2w[e], e % 4 == 3 ? '\n' : ' ');
+    fclose(pf);
+    memcpy(c2w[i], f->c2w, sizeof c2w[i]);
+  }
+  snprintf(p, sizeof p, "%s/intrinsic/intrinsic_color.txt", scene);
+  FILE *kf = fopen(p, "w");
+  assert_non_null(kf);
+  fprintf(kf, "%.17g 0 %.17g 0\n0 %.17g %.17g 0\n0 0 1 0\n0 0 0 1\n", f->fx, f->cx, f->fy, f->cy);
+  fclose(kf);
+  const int W = f->width, H = f->height;
+  uint8_t *rgb0 = malloc((size_t)W * H * 3);
+  uint16_t *dep0 = malloc((size_t)W * H * 2);
+  const char *args[] = {"-c", cfg_path, "--layout", "scannet", "--backpressure", "--quiet", scene, NULL};
+  pid_t pid = spawn_replay(args);
+  struct vlff_ring *fr = NULL, *pr = NULL;
+  for (int k = 0; k < 200 && !(fr && pr); k++) {
+    if (!fr) fr = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
+    if (!pr) pr = vlff_ring_attach(cfg.shm.pose_ring, VLFF_RECORD_POSE);
+    if (!(fr && pr)) sleep_s(0.02);
+  }
+  assert_non_null(fr);
+  assert_non_null(pr);
+  void *buf = malloc(vlff_ring_slot_size(fr));
+  for (int i = 0; i < N; i++) {
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(fr, buf, vlff_ring_slot_size(fr), &v, 10ull * 1000 * 1000 * 1000);
+    if (len < 0) fail_msg("frame %d: %s", i, vlff_shm_last_message());
+    assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
+    const struct vlff_frame_hdr *h = buf;
+    assert_int_equal(h->frame_id, (uint64_t)i);
+    assert_false(h->flags & VLFF_FRAME_POSE_VALID);
+    assert_true(h->flags & VLFF_FRAME_INTRINSICS_VALID);
+    assert_true(fabs(h->fx - f->fx) < 1e-9 && fabs(h->cy - f->cy) < 1e-9);
+    struct vlff_pose_rec pose;
+    assert_int_equal(vlff_pose_lookup(pr, h->t_host_ns, 0, &pose), 0);
+    for (int e = 0; e < 16; e++) assert_true(fabs(pose.pose[e] - c2w[i][e]) < 1e-9);
+    assert_int_equal(vlff_sim_render(s, i * 7, VLFF_SIM_RGBD, f, err, sizeof err), 0);
+    const uint8_t *rgb = vlff_frame_plane(buf, VLFF_PLANE_COLOR);
+    const uint8_t *dep = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+    for (int y = 0; y < H; y++) {
+      memcpy(rgb0 + (size_t)y * W * 3, rgb + (size_t)y * h->plane[0].stride, (size_t)W * 3);
+      memcpy(dep0 + (size_t)y * W, dep + (size_t)y * h->plane[1].stride, (size_t)W * 2);
+    }
+    assert_memory_equal(rgb0, f->rgb, (size_t)W * H * 3);
+    assert_memory_equal(dep0, f->depth_mm, (size_t)W * H * 2);
+  }
+  assert_int_equal(vlff_ring_lost(fr), 0);
+  assert_int_equal(wait_child(pid), 0);
+  free(buf), free(rgb0), free(dep0);
+  vlff_ring_close(fr);
+  vlff_ring_close(pr);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+}
+
+/* Runs the program with output into a file; returns its exit status and
+ * the output in out. */
+static int run_cli(const char *args, char *out, size_t cap) {
+  char cmd[2000], path[300];
+  snprintf(path, sizeof path, "%s/cli.out", dir);
+  snprintf(cmd, sizeof cmd, "%s %s >%s 2>&1", replay, args, path);
+  int st = system(cmd);
+  FILE *f = fopen(path, "r");
+  assert_non_null(f);
+  size_t len = fread(out, 1, cap - 1, f);
+  out[len] = 0;
+  fclose(f);
+  return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+static void test_cli(void **state) {
+  (void)state;
+  char out[8192], args[1000];
+  assert_int_equal(run_cli("--help", out, sizeof out), 0);
+  assert_non_null(strstr(out, "Usage: vlff-replay"));
+  assert_non_null(strstr(out, "--backpressure"));
+  assert_int_equal(run_cli("-V", out, sizeof out), 0);
+  assert_non_null(strstr(out, "vlff-replay "));
+  assert_int_equal(run_cli("", out, sizeof out), 2);
+  assert_non_null(strstr(out, "no SCENE given"));
+  assert_int_equal(run_cli("--rate 0 /tmp", out, sizeof out), 2);
+  assert_non_null(strstr(out, "--rate"));
+  assert_int_equal(run_cli("--layout tum /tmp", out, sizeof out), 2);
+  assert_non_null(strstr(out, "--layout"));
+  snprintf(args, sizeof args, "%s/nowhere", dir);
+  assert_int_equal(run_cli(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "nowhere"));
+  /* A frame whose image is damaged is named, skipped and counted; the rest
+   * are published and the exit status says something was wrong. */
+  struct vlff_config cfg;
+  write_config(&cfg, 8);
+  write_scene(&cfg, NULL);
+  char p[400];
+  snprintf(p, sizeof p, "%s/rgb/00003.png", scene);
+  FILE *f = fopen(p, "w");
+  assert_non_null(f);
+  fputs("not a png", f);
+  fclose(f);
+  snprintf(args, sizeof args, "-c %s --rate 100 --count 6 %s", cfg_path, scene);
+  assert_int_equal(run_cli(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "rgb/00003.png"));
+  assert_non_null(strstr(out, "5 frames published, 1 unreadable"));
+  struct vlff_ring *r = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
+  assert_non_null(r);
+  assert_int_equal(vlff_ring_head(r), 5);
+  vlff_ring_close(r);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test_setup_teardown(test_cli, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_scannet_layout_into_rings, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_backpressure_loses_nothing, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_node_trains_from_replay, setup, teardown),
+  };
+  if (getenv("VLFF_TEST_FILTER")) cmocka_set_test_filter(getenv("VLFF_TEST_FILTER"));
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

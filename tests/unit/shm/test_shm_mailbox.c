@@ -1,0 +1,366 @@
+/* The prompt mailbox against dead, slow, hostile and hurried posters (issue 29: S2,
+ * S3): a pid in the lock word proves nothing, a poster killed mid-post costs one
+ * refused request and a log line, never a blocked mailbox; prompts are checked as
+ * the embeddings file format checks them, by the poster and again by the learner;
+ * every request is answered and a burst of posts is serialised, none dropped. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <cmocka.h>
+
+#include "shm_test_util.h"
+#include "embeddings.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stdlib.h>
+#include <sys/file.h>
+#include <sys/mman.h>
+#include <sys/wait.h>
+
+/* The mailbox layout as a hostile poster sees it (shm/prompts.c). */
+#define CTL_OFF 128
+#define BODY_OFF 256
+struct raw_ctl {
+  uint64_t seq;
+  int32_t lock_pid;
+};
+
+struct raw {
+  int fd;
+  uint8_t *base;
+  size_t size;
+};
+
+static struct raw raw_open(const char *name) {
+  struct raw r = {.fd = shm_open(name, O_RDWR, 0)};
+  assert_true(r.fd >= 0);
+  r.size = 4096;
+  r.base = mmap(NULL, r.size, PROT_READ | PROT_WRITE, MAP_SHARED, r.fd, 0);
+  assert_true(r.base != MAP_FAILED);
+  return r;
+}
+static void raw_close(struct raw *r) {
+  munmap(r->base, r->size);
+  close(r->fd);
+}
+static volatile struct raw_ctl *ctl_of(struct raw *r) { return (volatile struct raw_ctl *)(r->base + CTL_OFF); }
+
+/* Writes a request with the library's protocol but without its checks. */
+static void raw_post(struct raw *r, const struct vlff_prompt_request *req) {
+  assert_int_equal(flock(r->fd, LOCK_EX), 0);
+  volatile struct raw_ctl *c = ctl_of(r);
+  uint64_t odd = c->seq | 1;
+  __atomic_store_n(&c->seq, odd, __ATOMIC_RELEASE);
+  struct vlff_prompt_request q = *req;
+  q.seq = (odd + 1) / 2;
+  q.poster_pid = getpid();
+  memcpy(r->base + BODY_OFF, &q, sizeof q);
+  __atomic_store_n(&c->seq, odd + 1, __ATOMIC_RELEASE);
+  flock(r->fd, LOCK_UN);
+}
+
+static void test_prompt_check_matches_embeddings_format(void **state) {
+  (void)state;
+  static const char *cases[] = {
+    "red cup", "café", "椅子", "a b", "x",
+    "wall\nlabel 0 confidence 255 prompt FAKE", "a\tb", "cr\r", "\x7f", "bad \xff utf8", "over\xc0\xaflong",
+    "c1 \xc2\x85", "surrogate \xed\xa0\x80", "truncated \xe6\xa4",
+    "0123456789012345678901234567890123456789012345678901234567890123", /* 64 bytes */
+    "012345678901234567890123456789012345678901234567890123456789012",  /* 63 bytes */
+  };
+  char path[] = "/tmp/vlff-emb-XXXXXX";
+  int fd = mkstemp(path);
+  assert_true(fd >= 0);
+  close(fd);
+  float vec[4] = {1, 0, 0, 0};
+  for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
+    const char *t[] = {cases[i]};
+    char err[256];
+    int file_ok = vlff_embeddings_save(path, 4, 1, t, vec, err, sizeof err) == 0;
+    int mbox_ok = vlff_prompt_check(t, 1) == 0;
+    if (file_ok != mbox_ok)
+      fail_msg("case %zu: the embeddings format says %d, the mailbox %d", i, file_ok, mbox_ok);
+  }
+  unlink(path);
+  const char *dup[] = {"chair", "table", "chair"};
+  assert_int_equal(vlff_prompt_check(dup, 3), -1);
+  assert_non_null(strstr(vlff_shm_last_message(), "prompt 3 repeats prompt 1"));
+  const char *ok[] = {"chair", "table"};
+  assert_int_equal(vlff_prompt_check(ok, 2), 0);
+  assert_int_equal(vlff_prompt_check(ok, 0), -1);
+}
+
+/* A live unrelated pid in the lock word (pid 1) does not block posting. */
+static void test_live_pid_in_lock_word(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "pid1");
+  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
+  struct vlff_prompts *poster = vlff_prompts_attach(name);
+  assert_non_null(learner);
+  assert_non_null(poster);
+  struct raw r = raw_open(name);
+  ctl_of(&r)->lock_pid = 1;
+  const char *t[] = {"door"};
+  assert_int_equal(vlff_prompts_post(poster, t, 1), 0);
+  uint64_t last = 0;
+  struct vlff_prompt_request req;
+  assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
+  assert_string_equal(req.text[0], "door");
+  raw_close(&r);
+  vlff_prompts_close(poster);
+  vlff_prompts_close(learner);
+  vlff_shm_unlink(name);
+}
+
+/* A poster killed with the word odd: the learner's next poll discards the half-written
+ * request with a message and answers it; posting goes on. */
+static void test_poster_killed_mid_post(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "dead");
+  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
+  struct vlff_prompts *poster = vlff_prompts_attach(name);
+  assert_non_null(learner);
+  assert_non_null(poster);
+  pid_t c = fork();
+  assert_true(c >= 0);
+  if (c == 0) {
+    struct raw r = raw_open(name);
+    flock(r.fd, LOCK_EX);
+    ctl_of(&r)->lock_pid = getpid();
+    __atomic_store_n(&ctl_of(&r)->seq, 1, __ATOMIC_RELEASE);
+    memset(r.base + BODY_OFF, 'x', 100);
+    raise(SIGKILL);
+  }
+  int st;
+  assert_int_equal(waitpid(c, &st, 0), c);
+  assert_true(WIFSIGNALED(st));
+  uint64_t last = 0;
+  struct vlff_prompt_request req;
+  assert_int_equal(vlff_prompts_poll(learner, &last, &req), -1);
+  assert_int_equal(errno, EBADMSG);
+  char want[96];
+  snprintf(want, sizeof want, "left half-written by poster pid %d, which died", (int)c);
+  assert_non_null(strstr(vlff_shm_last_message(), want));
+  assert_int_equal(last, 1);
+  char why[128];
+  assert_int_equal(vlff_prompts_wait_answer(poster, 1, 0, why, sizeof why), VLFF_PROMPT_REFUSED);
+  assert_non_null(strstr(why, "died"));
+  assert_int_equal(vlff_prompts_poll(learner, &last, &req), 0);
+  const char *t[] = {"sofa", "lamp"};
+  assert_int_equal(vlff_prompts_post(poster, t, 2), 0);
+  assert_int_equal(vlff_prompts_last_post(poster), 2);
+  assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
+  assert_string_equal(req.text[1], "lamp");
+  vlff_prompts_close(poster);
+  vlff_prompts_close(learner);
+  vlff_shm_unlink(name);
+}
+
+/* While a live poster writes, the learner does not wait for it: poll says "nothing
+ * new" at once and picks the request up once it is complete. */
+static void test_live_poster_never_waited_for(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "slow");
+  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
+  assert_non_null(learner);
+  struct raw r = raw_open(name);
+  assert_int_equal(flock(r.fd, LOCK_EX), 0);
+  __atomic_store_n(&ctl_of(&r)->seq, 1, __ATOMIC_RELEASE);
+  uint64_t last = 0;
+  struct vlff_prompt_request req;
+  for (int i = 0; i < 100; i++)
+    assert_int_equal(vlff_prompts_poll(learner, &last, &req), 0);
+  struct vlff_prompt_request q = {.seq = 1, .set_index = -1, .count = 1, .poster_pid = getpid()};
+  strcpy(q.text[0], "shelf");
+  memcpy(r.base + BODY_OFF, &q, sizeof q);
+  __atomic_store_n(&ctl_of(&r)->seq, 2, __ATOMIC_RELEASE);
+  flock(r.fd, LOCK_UN);
+  assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
+  assert_string_equal(req.text[0], "shelf");
+  raw_close(&r);
+  vlff_prompts_close(learner);
+  vlff_shm_unlink(name);
+}
+
+/* A request that bypassed the poster's checks is refused by the learner's poll, and
+ * the poster reads why. */
+static void test_forged_request_refused_with_reason(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "forged");
+  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
+  struct vlff_prompts *poster = vlff_prompts_attach(name);
+  assert_non_null(learner);
+  assert_non_null(poster);
+  struct raw r = raw_open(name);
+  static const char *forged[][2] = {
+    {"wall\nlabel 0 confidence 255 prompt FAKE", "floor"},
+    {"tab\there", "floor"},
+    {"bad \xff", "floor"},
+    {"floor", "floor"},
+  };
+  uint64_t last = 0;
+  for (int i = 0; i < 4; i++) {
+    struct vlff_prompt_request q = {.set_index = -1, .count = 2};
+    strcpy(q.text[0], forged[i][0]);
+    strcpy(q.text[1], forged[i][1]);
+    raw_post(&r, &q);
+    struct vlff_prompt_request req;
+    assert_int_equal(vlff_prompts_poll(learner, &last, &req), -1);
+    assert_int_equal(errno, EBADMSG);
+    assert_non_null(strstr(vlff_shm_last_message(), "refused"));
+    char why[128];
+    assert_int_equal(vlff_prompts_wait_answer(poster, last, 0, why, sizeof why), VLFF_PROMPT_REFUSED);
+    assert_non_null(strstr(why, i < 3 ? "UTF-8 text without control characters" : "repeats"));
+  }
+  /* The library refuses the same texts before posting. */
+  const char *t[] = {forged[0][0], forged[0][1]};
+  assert_int_equal(vlff_prompts_post(poster, t, 2), -1);
+  assert_int_equal(errno, EINVAL);
+  raw_close(&r);
+  vlff_prompts_close(poster);
+  vlff_prompts_close(learner);
+  vlff_shm_unlink(name);
+}
+
+/* A post while the previous request has no answer waits, then says so. */
+static void test_post_over_unanswered_refused(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "pending");
+  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
+  struct vlff_prompts *poster = vlff_prompts_attach(name);
+  assert_non_null(learner);
+  assert_non_null(poster);
+  assert_int_equal(vlff_prompts_post_index(poster, 1), 0);
+  assert_int_equal(vlff_prompts_post_index(poster, 2), -1);
+  assert_int_equal(errno, EBUSY);
+  assert_non_null(strstr(vlff_shm_last_message(), "request 1 is still waiting for the learner's answer"));
+  assert_int_equal(vlff_prompts_wait_answer(poster, 1, 1000000, NULL, 0), -1);
+  assert_int_equal(errno, ETIMEDOUT);
+  uint64_t last = 0;
+  struct vlff_prompt_request req;
+  assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
+  assert_int_equal(vlff_prompts_answer(learner, req.seq, 0, "prompt set 1 does not exist"), 0);
+  char why[128];
+  assert_int_equal(vlff_prompts_wait_answer(poster, 1, 0, why, sizeof why), VLFF_PROMPT_REFUSED);
+  assert_string_equal(why, "prompt set 1 does not exist");
+  assert_int_equal(vlff_prompts_post_index(poster, 2), 0);
+  vlff_prompts_close(poster);
+  vlff_prompts_close(learner);
+  vlff_shm_unlink(name);
+}
+
+/* Several posters in a burst against a learner polling at its own pace: every post
+ * either succeeds and is seen and answered, or fails with a message; none vanishes. */
+#define POSTERS 3
+#define POSTS 20
+struct burst {
+  const char *name;
+  atomic_bool stop;
+  atomic_int seen[POSTERS * POSTS + 1];
+  int posted_ok[POSTERS];
+  int answered_ok[POSTERS];
+  int poster;
+};
+
+static void *learner_main(void *arg) {
+  struct burst *b = arg;
+  struct vlff_prompts *l = vlff_prompts_create(b->name, NULL);
+  if (!l)
+    return NULL;
+  uint64_t last = 0;
+  while (!atomic_load(&b->stop)) {
+    struct vlff_prompt_request req;
+    if (vlff_prompts_poll(l, &last, &req) == 1) {
+      if (req.seq <= POSTERS * POSTS)
+        atomic_fetch_add(&b->seen[req.seq], 1);
+      vlff_prompts_answer(l, req.seq, 1, NULL);
+    }
+    nanosleep(&(struct timespec){0, 2000000}, NULL); /* a training step */
+  }
+  vlff_prompts_close(l);
+  return NULL;
+}
+
+static atomic_int next_poster;
+static struct burst *the_burst;
+static void *poster_main(void *arg) {
+  (void)arg;
+  struct burst *b = the_burst;
+  int me = atomic_fetch_add(&next_poster, 1);
+  struct vlff_prompts *p = NULL;
+  for (int i = 0; i < 1000 && !p; i++) {
+    p = vlff_prompts_attach(b->name);
+    if (!p)
+      nanosleep(&(struct timespec){0, 1000000}, NULL);
+  }
+  if (!p)
+    return NULL;
+  for (int i = 0; i < POSTS; i++) {
+    char text[32];
+    snprintf(text, sizeof text, "poster %d post %d", me, i);
+    const char *t[] = {text};
+    int rc = -1;
+    for (int tries = 0; tries < 20 && rc < 0; tries++)
+      rc = vlff_prompts_post(p, t, 1);
+    if (rc < 0)
+      continue;
+    b->posted_ok[me]++;
+    if (vlff_prompts_wait_answer(p, vlff_prompts_last_post(p), 10000000000ull, NULL, 0) == VLFF_PROMPT_ACCEPTED)
+      b->answered_ok[me]++;
+  }
+  vlff_prompts_close(p);
+  return NULL;
+}
+
+static void test_burst_never_dropped(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "burst");
+  struct burst *b = calloc(1, sizeof *b);
+  b->name = name;
+  the_burst = b;
+  atomic_store(&next_poster, 0);
+  pthread_t lt, pt[POSTERS];
+  assert_int_equal(pthread_create(&lt, NULL, learner_main, b), 0);
+  for (int i = 0; i < POSTERS; i++)
+    assert_int_equal(pthread_create(&pt[i], NULL, poster_main, NULL), 0);
+  for (int i = 0; i < POSTERS; i++)
+    pthread_join(pt[i], NULL);
+  atomic_store(&b->stop, true);
+  pthread_join(lt, NULL);
+  int posted = 0, answered = 0;
+  for (int i = 0; i < POSTERS; i++) {
+    posted += b->posted_ok[i];
+    answered += b->answered_ok[i];
+  }
+  assert_true(posted > 0);
+  assert_int_equal(answered, posted);
+  for (int s = 1; s <= posted; s++)
+    if (atomic_load(&b->seen[s]) != 1)
+      fail_msg("request %d seen %d times by the learner", s, atomic_load(&b->seen[s]));
+  free(b);
+  vlff_shm_unlink(name);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test(test_prompt_check_matches_embeddings_format),
+    cmocka_unit_test(test_live_pid_in_lock_word),
+    cmocka_unit_test(test_poster_killed_mid_post),
+    cmocka_unit_test(test_live_poster_never_waited_for),
+    cmocka_unit_test(test_forged_request_refused_with_reason),
+    cmocka_unit_test(test_post_over_unanswered_refused),
+    cmocka_unit_test(test_burst_never_dropped),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,198 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * The viewer's feed against a map segment published in this process: the first
+ * version goes out whole, later ones as exactly the changed voxels and the bricks
+ * holding them (an emptied brick deleted), a version without changes as an empty
+ * delta, a prompt change whole again; channels nobody wants are not encoded, and a
+ * new subscriber gets the whole current map.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <json-c/json.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "view.h"
+
+enum { NX = 10, NY = 9, NZ = 8, N = NX * NY * NZ, ALL = 0x7e };
+static char name[64];
+static uint16_t labels[N];
+static uint8_t conf[N];
+static uint16_t limg[12];
+static const char *prompts[3] = {"wall", "floor", "chair"};
+static const char *prompts2[2] = {"door", "floor"};
+
+static size_t at(int i, int j, int k) { return (size_t)i + NX * ((size_t)j + NY * (size_t)k); }
+
+static int publish(struct vlff_map *m, const char *const *p, int np) {
+  struct vlff_map_grid g = {{-1, 0, 0.5}, 0.25, {NX, NY, NZ}, labels, conf};
+  struct vlff_map_label_image li = {4, 3, limg, NULL, 100, 100, 2, 1.5,
+                                    {1, 0, 0, 1, 0, 1, 0, 2, 0, 0, 1, 3, 0, 0, 0, 1}, vlff_shm_now_ns()};
+  struct vlff_map_update up = {&g, p, np, &li};
+  return vlff_map_publish(m, &up);
+}
+
+/* A message's payload is exactly len bytes of one JSON text, not NUL-terminated. */
+static json_object *parse(struct vlff_view_msg *m) {
+  char *copy = strndup((const char *)vlff_view_msg_payload(m), m->len);
+  json_object *o = json_tokener_parse(copy);
+  free(copy);
+  assert_non_null(o);
+  return o;
+}
+
+struct polled {
+  json_object *msg[VLFF_VIEW_CH_COUNT + 1];
+  int count[VLFF_VIEW_CH_COUNT + 1];
+};
+
+static void poll_feed(struct vlff_feed *f, unsigned wanted, struct polled *out) {
+  struct vlff_view_counters c = {0};
+  struct vlff_view_msg *m[16];
+  memset(out, 0, sizeof *out);
+  int n = vlff_feed_poll(f, &c, wanted, m, 16);
+  for (int i = 0; i < n; i++) {
+    int ch = m[i]->channel;
+    assert_true(ch >= 1 && ch <= VLFF_VIEW_CH_COUNT);
+    json_object *o = parse(m[i]);
+    json_object_put(out->msg[ch]);
+    out->msg[ch] = o;
+    out->count[ch]++;
+    vlff_view_msg_unref(m[i]);
+  }
+}
+
+static void free_polled(struct polled *p) {
+  for (int c = 0; c <= VLFF_VIEW_CH_COUNT; c++) json_object_put(p->msg[c]);
+}
+
+static json_object *get(json_object *o, const char *k) {
+  json_object *v = NULL;
+  assert_true(json_object_object_get_ex(o, k, &v));
+  return v;
+}
+
+static int cube_count(json_object *scene) {
+  json_object *ents = get(scene, "entities");
+  int n = 0;
+  for (size_t i = 0; i < json_object_array_length(ents); i++)
+    n += (int)json_object_array_length(get(json_object_array_get_idx(ents, i), "cubes"));
+  return n;
+}
+
+static int setup(void **state) {
+  snprintf(name, sizeof name, "/vlff-test-view-%d", getpid());
+  for (size_t i = 0; i < N; i++) labels[i] = VLFF_LABEL_FREE, conf[i] = 200;
+  for (int i = 0; i < NX; i++)
+    for (int j = 0; j < NY; j++) labels[at(i, j, 0)] = 1; /* a floor */
+  labels[at(5, 5, 1)] = 2;                                /* a chair voxel */
+  labels[at(9, 8, 7)] = 0;                                /* alone in its brick */
+  return 0;
+}
+
+static int teardown(void **state) {
+  vlff_shm_unlink(name);
+  return 0;
+}
+
+static void test_feed(void **state) {
+  struct vlff_feed_params fp = {name, "", 2, 4};
+  struct vlff_feed *f = vlff_feed_new(&fp);
+  struct polled p;
+  assert_non_null(f);
+
+  poll_feed(f, ALL, &p); /* no map yet: status only, saying so */
+  assert_int_equal(p.count[VLFF_VIEW_CH_STATUS], 1);
+  assert_int_equal(p.count[VLFF_VIEW_CH_VOXELS], 0);
+  assert_false(json_object_get_boolean(get(get(p.msg[VLFF_VIEW_CH_STATUS], "map"), "attached")));
+  free_polled(&p);
+
+  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(m);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  usleep(1100000); /* the feed tries to attach once a second */
+  poll_feed(f, ALL, &p);
+  json_object *vx = p.msg[VLFF_VIEW_CH_VOXELS], *sc = p.msg[VLFF_VIEW_CH_SCENE];
+  assert_non_null(vx);
+  assert_non_null(sc);
+  assert_true(json_object_get_boolean(get(vx, "full")));
+  assert_int_equal(json_object_get_int(get(vx, "occupied")), NX * NY + 2);
+  assert_int_equal(json_object_array_length(get(vx, "voxels")), 3 * (NX * NY + 2));
+  assert_int_equal(cube_count(sc), NX * NY + 2);
+  assert_int_equal(json_object_get_int(get(json_object_array_get_idx(get(sc, "deletions"), 0), "type")), 1);
+  assert_string_equal(json_object_get_string(json_object_array_get_idx(get(vx, "prompts"), 2)), "chair");
+  assert_int_equal(p.count[VLFF_VIEW_CH_LABELS], 1);
+  assert_int_equal(p.count[VLFF_VIEW_CH_POSE], 1); /* from the label image: no frame ring */
+  json_object *tr = get(p.msg[VLFF_VIEW_CH_POSE], "translation");
+  assert_true(json_object_get_double(get(tr, "z")) == 3.0);
+  free_polled(&p);
+
+  /* three changes: a relabel, a voxel freed (emptying its brick), a confidence */
+  labels[at(5, 5, 1)] = 0;
+  labels[at(9, 8, 7)] = VLFF_LABEL_FREE;
+  conf[at(0, 0, 0)] = 17;
+  assert_int_equal(publish(m, prompts, 3), 0);
+  poll_feed(f, ALL, &p);
+  vx = p.msg[VLFF_VIEW_CH_VOXELS];
+  sc = p.msg[VLFF_VIEW_CH_SCENE];
+  assert_false(json_object_get_boolean(get(vx, "full")));
+  json_object *v = get(vx, "voxels");
+  assert_int_equal(json_object_array_length(v), 9);
+  size_t want[3][3] = {{at(0, 0, 0), 1, 17}, {at(5, 5, 1), 0, 200}, {at(9, 8, 7), VLFF_LABEL_FREE, 200}};
+  for (int t = 0; t < 3; t++)
+    for (int c = 0; c < 3; c++) assert_int_equal(json_object_get_int(json_object_array_get_idx(v, 3 * t + c)), want[t][c]);
+  assert_int_equal(json_object_get_int(get(vx, "occupied")), NX * NY + 1);
+  /* the bricks of (0,0,0) and (5,5,1) come again whole; (9,8,7)'s is deleted */
+  json_object *ents = get(sc, "entities"), *dels = get(sc, "deletions");
+  assert_int_equal(json_object_array_length(ents), 2);
+  assert_int_equal(cube_count(sc), 16 + 16 + 1);
+  assert_int_equal(json_object_array_length(dels), 1);
+  assert_int_equal(json_object_get_int(get(json_object_array_get_idx(dels, 0), "type")), 0);
+  free_polled(&p);
+
+  /* a version without changes: an empty delta, nothing for the scene */
+  assert_int_equal(publish(m, prompts, 3), 0);
+  poll_feed(f, ALL, &p);
+  assert_int_equal(json_object_array_length(get(p.msg[VLFF_VIEW_CH_VOXELS], "voxels")), 0);
+  assert_int_equal(p.count[VLFF_VIEW_CH_SCENE], 0);
+  free_polled(&p);
+
+  /* nobody on the scene: it is not encoded; a new subscriber gets it whole */
+  labels[at(1, 1, 1)] = 2;
+  assert_int_equal(publish(m, prompts, 3), 0);
+  poll_feed(f, 1u << VLFF_VIEW_CH_VOXELS, &p);
+  assert_int_equal(p.count[VLFF_VIEW_CH_SCENE], 0);
+  assert_int_equal(p.count[VLFF_VIEW_CH_LABELS], 0);
+  assert_int_equal(json_object_array_length(get(p.msg[VLFF_VIEW_CH_VOXELS], "voxels")), 3);
+  free_polled(&p);
+  struct vlff_view_msg *cur = vlff_feed_current(f, VLFF_VIEW_CH_SCENE);
+  assert_non_null(cur);
+  json_object *whole = parse(cur);
+  assert_int_equal(cube_count(whole), NX * NY + 2);
+  json_object_put(whole);
+  vlff_view_msg_unref(cur);
+
+  /* new prompts recolour everything: whole again */
+  assert_int_equal(publish(m, prompts2, 2), 0);
+  poll_feed(f, ALL, &p);
+  assert_true(json_object_get_boolean(get(p.msg[VLFF_VIEW_CH_VOXELS], "full")));
+  assert_string_equal(json_object_get_string(json_object_array_get_idx(get(p.msg[VLFF_VIEW_CH_VOXELS], "prompts"), 0)),
+                      "door");
+  assert_int_equal(vlff_feed_version(f), 5);
+  free_polled(&p);
+
+  vlff_feed_free(f);
+  vlff_map_detach(m);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test_setup_teardown(test_feed, setup, teardown)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,185 @@
+// vlff-view as Foxglove sees it: the @foxglove/ws-protocol client connects to a
+// running demo (vlff-sim + vlff-node + vlff-view), subscribes to every channel,
+// checks every message against the schema its channel advertised, and checks the
+// voxels it was sent (a whole map, then deltas) against `vlff-shm label` at the
+// same points and the same map version.
+'use strict';
+const assert = require('assert');
+const { FoxgloveClient } = require('@foxglove/ws-protocol');
+const WebSocket = require('ws');
+const { start, shm, shmAsync, sleep, waitVersion } = require('./demo');
+const { validate } = require('./schema');
+
+const FREE = 65534;
+let passed = 0;
+const ok = (what) => { passed++; console.log(`ok ${passed} - ${what}`); };
+
+async function main() {
+  const demo = await start();
+  try {
+    await waitVersion(demo, 2, 240000);
+    const client = new FoxgloveClient({ ws: new WebSocket(demo.ws, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]) });
+    const chans = {}, bySub = {}, got = {};
+    const voxels = new Map();
+    const scene = new Map();
+    let grid = null, voxelVersion = 0, voxelT = 0n, sceneT = 0n, fullSeen = 0, deltaSeen = 0, bad = [];
+    let serverInfo = null, waiters = [];
+    const td = new TextDecoder();
+    client.on('serverInfo', (i) => { serverInfo = i; });
+    client.on('advertise', (cs) => {
+      for (const c of cs) {
+        chans[c.topic] = c;
+        bySub[client.subscribe(c.id)] = c;
+      }
+    });
+    client.on('message', ({ subscriptionId, timestamp, data }) => {
+      const c = bySub[subscriptionId], msg = JSON.parse(td.decode(data));
+      const errs = validate(JSON.parse(c.schema), msg);
+      if (errs.length) bad.push(`${c.topic}: ${errs.slice(0, 3).join('; ')}`);
+      (got[c.topic] = got[c.topic] || []).push(msg);
+      if (c.topic === '/map/voxels') {
+        if (msg.full) { voxels.clear(); fullSeen++; } else deltaSeen++;
+        grid = msg;
+        for (let n = 0; n < msg.voxels.length; n += 3) {
+          if (msg.voxels[n + 1] >= FREE) voxels.delete(msg.voxels[n]);
+          else voxels.set(msg.voxels[n], [msg.voxels[n + 1], msg.voxels[n + 2]]);
+        }
+        assert.strictEqual(voxels.size, msg.occupied, `v${msg.version}: client holds as many voxels as the map`);
+        voxelVersion = msg.version;
+        voxelT = timestamp;
+      } else if (c.topic === '/map') {
+        for (const d of msg.deletions) { if (d.type === 1) scene.clear(); else scene.delete(d.id); }
+        for (const e of msg.entities) scene.set(e.id, e);
+        sceneT = timestamp;
+      }
+      waiters = waiters.filter((w) => !w());
+    });
+    const until = (cond, ms, what) => new Promise((resolve, reject) => {
+      if (cond()) return resolve();
+      const t = setTimeout(() => reject(new Error(`timed out: ${what}`)), ms);
+      waiters.push(() => { if (cond()) { clearTimeout(t); resolve(); return true; } return false; });
+    });
+
+    await until(() => serverInfo && Object.keys(chans).length === 6, 10000, 'serverInfo and advertise');
+    assert.deepStrictEqual(Object.keys(chans).sort(),
+      ['/camera/image', '/camera/labels', '/map', '/map/voxels', '/tf', '/vlff/status']);
+    for (const c of Object.values(chans)) {
+      assert.strictEqual(c.encoding, 'json');
+      assert.strictEqual(c.schemaEncoding, 'jsonschema');
+      assert.strictEqual(JSON.parse(c.schema).title, c.schemaName);
+    }
+    assert.strictEqual(chans['/map'].schemaName, 'foxglove.SceneUpdate');
+    assert.strictEqual(chans['/camera/image'].schemaName, 'foxglove.RawImage');
+    assert.strictEqual(chans['/tf'].schemaName, 'foxglove.FrameTransform');
+    assert.deepStrictEqual(serverInfo.capabilities, [], 'no clientPublish without a token');
+    ok('serverInfo and six channels advertised with JSON schemas');
+
+    await until(() => fullSeen >= 1 && deltaSeen >= 2 && ['/camera/image', '/camera/labels', '/tf', '/vlff/status']
+      .every((t) => got[t]), 120000, 'a whole map, two deltas and every channel');
+    assert.deepStrictEqual(bad, [], 'every message matches its advertised schema');
+    ok(`every channel delivered, ${Object.values(got).reduce((a, l) => a + l.length, 0)} messages match their schemas`);
+
+    // The voxels the client holds against vlff-shm label at the same version. The
+    // learner is paused meanwhile (a loaded machine may need longer than its publish
+    // period for the comparison); the viewer goes on serving.
+    demo.pause();
+    await sleep(1500);
+    let checked = 0;
+    for (let attempt = 0; attempt < 20 && !checked; attempt++) {
+      const v = voxelVersion, [nx, ny] = grid.dims, s = grid.voxel_size;
+      const occupied = [...voxels.keys()];
+      const picks = [];
+      for (let n = 0; n < 40; n++) picks.push(occupied[Math.floor(Math.random() * occupied.length)]);
+      for (let n = 0; n < 20; n++) picks.push(Math.floor(Math.random() * nx * ny * grid.dims[2]));
+      const rows = [];
+      for (const idx of picks) {
+        const ijk = [idx % nx, Math.floor(idx / nx) % ny, Math.floor(idx / (nx * ny))];
+        const p = ijk.map((c, a) => (grid.origin[a] + (c + 0.5) * s).toFixed(4));
+        const out = await shmAsync('label', demo.names.map, ...p);
+        const m = /^label (\d+) confidence (\d+) prompt (.*) version (\d+)$/m.exec(out);
+        rows.push({ idx, label: Number(m[1]), conf: Number(m[2]), prompt: m[3], version: Number(m[4]) });
+        if (Number(m[4]) !== v) break;
+      }
+      // the node published meanwhile: compare again at the next version
+      if (rows.some((r) => r.version !== v) || voxelVersion !== v) {
+        await until(() => voxelVersion > v, 10000, 'the next version');
+        continue;
+      }
+      for (const r of rows) {
+        const mine = voxels.get(r.idx);
+        if (r.label >= FREE) assert.strictEqual(mine, undefined, `voxel ${r.idx}: free/unknown in the map`);
+        else {
+          assert.deepStrictEqual(mine, [r.label, r.conf], `voxel ${r.idx} at version ${v}`);
+          assert.strictEqual(grid.prompts[r.label], r.prompt);
+        }
+        checked++;
+      }
+    }
+    assert.ok(checked >= 60, 'a version stayed long enough to compare');
+    ok(`${checked} voxels (label, confidence, prompt) equal vlff-shm label's at the same version`);
+
+    // The scene (Foxglove's cubes) holds the same voxels in the prompts' colours.
+    await until(() => sceneT === voxelT, 10000, 'scene and voxels of one version');
+    const centres = new Map();
+    for (const [idx, [label]] of voxels) {
+      const [nx, ny] = grid.dims, ijk = [idx % nx, Math.floor(idx / nx) % ny, Math.floor(idx / (nx * ny))];
+      centres.set(ijk.map((c, a) => (grid.origin[a] + (c + 0.5) * grid.voxel_size).toFixed(3)).join(), label);
+    }
+    let cubes = 0;
+    for (const e of scene.values()) {
+      for (const c of e.cubes) {
+        const key = [c.pose.position.x, c.pose.position.y, c.pose.position.z].map((x) => x.toFixed(3)).join();
+        assert.ok(centres.has(key), `cube at ${key} is an occupied voxel`);
+        const hex = '#' + [c.color.r, c.color.g, c.color.b].map((x) => Math.round(x * 255).toString(16).padStart(2, '0')).join('');
+        assert.strictEqual(hex, grid.colors[centres.get(key)], `cube at ${key} in its prompt's colour`);
+        cubes++;
+      }
+    }
+    assert.strictEqual(cubes, voxels.size);
+    ok(`the scene's ${scene.size} brick entities hold ${cubes} cubes, one per occupied voxel, in prompt colours`);
+    demo.resume();
+    const resumed = voxelVersion;
+    await until(() => voxelVersion > resumed && got['/vlff/status'].at(-1).map.writer_alive, 30000, 'the learner again');
+
+    const st = got['/vlff/status'].at(-1), stat = shm('stat', demo.names.map);
+    const prompts = [...stat.matchAll(/^prompt \d+ (.*)$/gm)].map((m) => m[1]);
+    assert.deepStrictEqual(st.map.prompts, prompts);
+    assert.deepStrictEqual(grid.prompts, prompts);
+    assert.strictEqual(st.map.dims.join(' '), /^grid_dims (.*)$/m.exec(stat)[1]);
+    assert.strictEqual(st.map.generation, Number(/^generation (\d+)$/m.exec(stat)[1]));
+    assert.ok(st.frames.attached && st.frames.head > 0 && st.map.writer_alive);
+    ok('status: prompts, grid, generation as vlff-shm stat says; frames arriving');
+
+    const im = got['/camera/image'].at(-1), li = got['/camera/labels'].at(-1);
+    assert.strictEqual(`${im.width}x${im.height} ${im.encoding}`, '320x240 rgb8');
+    assert.strictEqual(Buffer.from(im.data, 'base64').length, im.step * im.height);
+    const lb = Buffer.from(li.data, 'base64');
+    assert.strictEqual(lb.length, li.width * li.height * 3);
+    const palette = new Set(grid.colors.concat(['#000000', '#282828', '#808080']));
+    for (let p = 0; p < lb.length; p += 3 * 97) {
+      const hex = '#' + [lb[p], lb[p + 1], lb[p + 2]].map((x) => x.toString(16).padStart(2, '0')).join('');
+      assert.ok(palette.has(hex), `label image pixel ${hex} is a prompt colour`);
+    }
+    const q = got['/tf'].at(-1).rotation;
+    assert.ok(Math.abs(Math.hypot(q.x, q.y, q.z, q.w) - 1) < 1e-6, 'unit quaternion');
+    ok('camera image, label image in prompt colours and a unit-quaternion camera pose');
+
+    const imageSub = Object.keys(bySub).find((k) => bySub[k].topic === '/camera/image');
+    client.unsubscribe(Number(imageSub));
+    await sleep(500);
+    const n = got['/camera/image'].length;
+    await sleep(2000);
+    assert.strictEqual(got['/camera/image'].length, n, 'no images after unsubscribing');
+    ok('unsubscribe stops a channel');
+    client.close();
+  } catch (e) {
+    console.log(`not ok - ${e.stack}`);
+    console.log(demo.log('view'));
+    await demo.stop(true);
+    console.log(`logs kept in ${demo.dir}`);
+    process.exit(1);
+  }
+  await demo.stop();
+  console.log(`1..${passed}`);
+}
+main();

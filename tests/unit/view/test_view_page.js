@@ -1,0 +1,176 @@
+// vlff-view's own page in headless Chromium against a running demo: the voxels
+// drawn where the map has them, in their prompts' colours (screenshot pixels); the
+// voxel under the cursor as vlff-shm label names it; the status numbers as
+// vlff-shm stat prints them; the camera and label images; and a prompt set posted
+// from the page's editor changing the node's prompts.
+'use strict';
+const assert = require('assert');
+const fs = require('fs');
+const { chromium } = require('playwright-core');
+const { start, shm, sleep, waitVersion } = require('./demo');
+const png = require('./png');
+
+let passed = 0;
+const ok = (what) => { passed++; console.log(`ok ${passed} - ${what}`); };
+const TOKEN = 'page-test-token';
+
+// Hue (degrees) of an sRGB colour after linearising: white light scales the linear
+// channels alike, so shading keeps this hue while it changes the brightness.
+function hue([r, g, b]) {
+  const lin = (c) => { c /= 255; return c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4; };
+  [r, g, b] = [lin(r), lin(g), lin(b)];
+  const mx = Math.max(r, g, b), mn = Math.min(r, g, b), d = mx - mn;
+  if (d <= 1e-6) return NaN;
+  const h = mx === r ? ((g - b) / d) % 6 : mx === g ? (b - r) / d + 2 : (r - g) / d + 4;
+  return (h * 60 + 360) % 360;
+}
+const hexRgb = (hex) => [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16));
+const hueDist = (a, b) => Math.min(Math.abs(a - b), 360 - Math.abs(a - b));
+const statOf = (demo) => {
+  const s = shm('stat', demo.names.map);
+  return { version: /^version (\d+)$/m.exec(s)[1], generation: /^generation (\d+)$/m.exec(s)[1],
+    dims: /^grid_dims (.*)$/m.exec(s)[1].split(' ').join(' x '), alive: /^writer_alive (.*)$/m.exec(s)[1],
+    prompts: [...s.matchAll(/^prompt \d+ (.*)$/gm)].map((m) => m[1]) };
+};
+
+async function main() {
+  const demo = await start({ token: TOKEN });
+  const browser = await chromium.launch({ executablePath: process.env.VLFF_CHROMIUM || 'chromium',
+    args: ['--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'] });
+  try {
+    await waitVersion(demo, 2, 240000);
+    const page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
+    const errors = [];
+    page.on('pageerror', (e) => errors.push(e.message));
+    page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
+    await page.goto(demo.url);
+    await page.waitForFunction(() => document.body.dataset.version && document.querySelectorAll('#legend li').length,
+      null, { timeout: 60000 });
+    await page.waitForFunction(() => document.getElementById('s-frames').textContent !== '-', null, { timeout: 30000 });
+    ok('the page loads three.js from the viewer, connects and draws a map version');
+
+    // The voxels under their own screen points, drawn in their prompts' colours.
+    // The learner is paused meanwhile: a software-rendered screenshot may take
+    // longer than the map's publish period.
+    demo.pause();
+    await sleep(1500);
+    let checked = 0, shot = null;
+    for (let attempt = 0; attempt < 10; attempt++) {
+      checked = 0;
+      await page.mouse.move(0, 0);
+      const probe = await page.evaluate(() => {
+        window.vlff.render(); // the drawing buffer holds this version's mesh
+        const out = [], keys = [...window.vlff.map.vox.keys()];
+        for (let n = 0; n < 400 && out.length < 25; n++) {
+          const idx = keys[Math.floor(Math.random() * keys.length)], s = window.vlff.screenOf(idx);
+          const hit = window.vlff.pickAt(s.x, s.y);
+          if (hit && hit.idx === idx && s.x > 5 && s.y > 40 && s.x < 930 && s.y < 795)
+            out.push({ idx, x: Math.round(s.x), y: Math.round(s.y), label: hit.label, conf: hit.conf,
+              prompt: hit.prompt, color: window.vlff.map.colors[hit.label] });
+        }
+        return { version: document.body.dataset.version, out };
+      });
+      shot = await page.screenshot();
+      const now = await page.evaluate(() => document.body.dataset.version);
+      if (now !== probe.version) continue; // a new version was drawn meanwhile
+      const img = png.decode(shot);
+      // Most probes must match: an edge pixel or the camera marker may cover a few.
+      const misses = [];
+      for (const v of probe.out) {
+        const h = hue(img.pixel(v.x, v.y)), want = hue(hexRgb(v.color));
+        if (hueDist(h, want) < 8) checked++;
+        else misses.push(`(${v.x},${v.y}) voxel ${v.idx} hue ${h.toFixed(1)}, prompt ${v.prompt} ${v.color} hue ${want.toFixed(1)}`);
+      }
+      if (misses.length) console.log(`# ${misses.length} of ${probe.out.length} probes missed: ${misses.join("; ")}`);
+      assert.ok(checked >= 0.8 * probe.out.length, `pixels not in their prompt's colour: ${misses.join('; ')}`);
+      break;
+    }
+    demo.resume();
+    assert.ok(checked >= 15, `enough visible voxels to check (${checked})`);
+    if (process.env.VLFF_VIEW_SCREENSHOT) fs.writeFileSync(process.env.VLFF_VIEW_SCREENSHOT, shot);
+    ok(`${checked} voxels drawn at their screen points in their prompts' colours (screenshot pixels)`);
+
+    // Hover: the page names the voxel vlff-shm label finds there.
+    let hovered = false;
+    for (let attempt = 0; attempt < 10 && !hovered; attempt++) {
+      const t = await page.evaluate(() => {
+        const keys = [...window.vlff.map.vox.keys()];
+        for (let n = 0; n < 400; n++) {
+          const idx = keys[Math.floor(Math.random() * keys.length)], s = window.vlff.screenOf(idx);
+          const h = window.vlff.pickAt(s.x, s.y);
+          if (h && h.idx === idx && s.y > 40 && s.x < 930) {
+            const m = window.vlff.map, [nx, ny] = m.dims;
+            const c = [idx % nx, Math.floor(idx / nx) % ny, Math.floor(idx / (nx * ny))]
+              .map((q, a) => (m.origin[a] + (q + 0.5) * m.voxel_size).toFixed(4));
+            return { x: s.x, y: s.y, c, version: document.body.dataset.version };
+          }
+        }
+        return null;
+      });
+      if (!t) continue;
+      await page.mouse.move(t.x, t.y);
+      const text = await page.textContent('#pick');
+      const line = shm('label', demo.names.map, ...t.c);
+      const m = /^label (\d+) confidence (\d+) prompt (.*) version (\d+)$/m.exec(line);
+      if (m[4] !== t.version || (await page.evaluate(() => document.body.dataset.version)) !== t.version) continue;
+      assert.ok(text.startsWith(`label ${m[1]} prompt ${m[3]} confidence ${m[2]} `), `page "${text}", vlff-shm "${line}"`);
+      hovered = true;
+    }
+    assert.ok(hovered, 'a hover at a stable version');
+    ok('the voxel under the cursor: label, prompt and confidence as vlff-shm label gives them');
+
+    let same = false, last = '';
+    for (let attempt = 0; attempt < 20 && !same; attempt++) {
+      const pageStat = await page.evaluate(() => ({
+        version: document.getElementById('s-version').textContent, generation: document.getElementById('s-generation').textContent,
+        dims: document.getElementById('s-dims').textContent, alive: document.getElementById('s-alive').textContent,
+        prompts: [...document.querySelectorAll('#legend li')].map((li) => li.textContent) }));
+      const st = statOf(demo);
+      // the two are read a moment apart: compare again until they agree
+      same = JSON.stringify(pageStat) === JSON.stringify(st);
+      last = `page ${JSON.stringify(pageStat)}, vlff-shm stat ${JSON.stringify(st)}`;
+      if (!same) await sleep(150);
+    }
+    assert.ok(same, `the page's status and vlff-shm stat: ${last}`);
+    ok('status numbers and legend equal vlff-shm stat (version, generation, grid, writer alive, prompts)');
+
+    const imgs = await page.evaluate(() => ['image', 'labels'].map((id) => {
+      const c = document.getElementById(id), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+      let lit = 0;
+      for (let i = 0; i < d.length; i += 4) lit += d[i] + d[i + 1] + d[i + 2] > 30;
+      return { w: c.width, h: c.height, lit: lit / (d.length / 4) };
+    }));
+    assert.deepStrictEqual(imgs.map((i) => `${i.w}x${i.h}`), ['320x240', '160x120']);
+    assert.ok(imgs[0].lit > 0.5 && imgs[1].lit > 0.2, JSON.stringify(imgs));
+    ok('camera image and label image drawn beside each other');
+
+    assert.ok(await page.isVisible('#editor'), 'the editor shows when a token is configured');
+    await page.fill('#prompts', 'chair\ntable\nwall');
+    await page.fill('#token', 'not-the-token');
+    await page.click('#editor button');
+    await page.waitForFunction(() => /wrong or missing token/.test(document.getElementById('msg').textContent));
+    await page.fill('#token', TOKEN);
+    await page.click('#editor button');
+    await page.waitForFunction(() => /prompt set posted/.test(document.getElementById('msg').textContent));
+    const t0 = Date.now();
+    while (statOf(demo).prompts.join() !== 'chair,table,wall') {
+      assert.ok(Date.now() - t0 < 60000, `the node took the posted prompts: ${statOf(demo).prompts}`);
+      await sleep(200);
+    }
+    await page.waitForFunction(() => [...document.querySelectorAll('#legend li')].map((li) => li.textContent).join() ===
+      'chair,table,wall', null, { timeout: 30000 });
+    ok('a prompt set posted from the page (wrong token refused first) becomes the map\'s prompts and legend');
+    assert.deepStrictEqual(errors, [], 'no errors in the page');
+  } catch (e) {
+    console.log(`not ok - ${e.stack}`);
+    console.log(demo.log('view'));
+    await browser.close();
+    await demo.stop(true);
+    console.log(`logs kept in ${demo.dir}`);
+    process.exit(1);
+  }
+  await browser.close();
+  await demo.stop();
+  console.log(`1..${passed}`);
+}
+main();
