@@ -25,6 +25,7 @@
 #include <unistd.h>
 
 #include "config.h"
+#include "clock.h"
 #include "dataset.h"
 #include "embeddings.h"
 #include <json-c/json.h>
@@ -104,12 +105,6 @@ struct scene {
   uint16_t *sfeat;
 };
 
-
-static double now_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 static void die(const char *fmt, ...) {
   va_list ap;
@@ -373,7 +368,7 @@ static void make_training_images(struct scene *sc, double scale) {
 /* ---- progress ----------------------------------------------------------- */
 
 static void progress(int it, int total, const struct vlff_train_stats *st, double t0, int tty) {
-  double el = now_s() - t0, rate = it / (el > 1e-9 ? el : 1e-9);
+  double el = vlff_seconds() - t0, rate = it / (el > 1e-9 ? el : 1e-9);
   double eta = rate > 0 ? (total - it) / rate : 0;
   int bar = total ? 30 * it / total : 30;
   char b[31];
@@ -476,7 +471,7 @@ int main(int argc, char **argv) {
 
   struct scene sc;
   memset(&sc, 0, sizeof sc);
-  double t_load = now_s();
+  double t_load = vlff_seconds();
   sc.holdout = o.holdout;
   if (o.dataset) load_dataset(&sc, &o, &cfg);
   else load_sim(&sc, &cfg);
@@ -493,7 +488,7 @@ int main(int argc, char **argv) {
   if (ntest == 0 || ntrain == 0) die("%d frames with --holdout %d leave no training or no test frames", sc.n, o.holdout);
   fprintf(stderr, "vlff-eval: scene %s: %d frames (%d train, %d held out) %dx%d, features %dx%dx%d, %zu labelled points, %d prompts (%.1f s)\n",
           o.dataset ? o.dataset : "synthetic", sc.n, ntrain, ntest, sc.W, sc.H, sc.fw, sc.fh, sc.D, sc.pts.n, sc.K,
-          now_s() - t_load);
+          vlff_seconds() - t_load);
 
   const int K = sc.K, D = sc.D, fw = sc.fw, fh = sc.fh;
   struct result r2_raw = {0}, r2_field = {0}, r3_fusion = {0}, r3_field = {0}, r3_field_ref = {0};
@@ -516,7 +511,7 @@ int main(int argc, char **argv) {
   size_t np = sc.pts.n;
   int *p3 = xcalloc(np, sizeof(int));
   {
-    double t = now_s();
+    double t = vlff_seconds();
     struct vlff_fusion_view *fv = xcalloc((size_t)ntrain, sizeof *fv);
     int nv = 0;
     for (int i = 0; i < sc.n; i++) {
@@ -539,7 +534,7 @@ int main(int argc, char **argv) {
     vlff_confusion_add(&r3_fusion.c, sc.pts.label, p3, np);
     summarize(&r3_fusion);
     fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f (%.1f s)\n", 100 * r2_raw.s.miou,
-            100 * r3_fusion.s.miou, now_s() - t);
+            100 * r3_fusion.s.miou, vlff_seconds() - t);
   }
 
   /* ---- field ---- */
@@ -564,17 +559,17 @@ int main(int argc, char **argv) {
       v->feat_width = fw, v->feat_height = fh, v->feat_dim = D, v->features = sc.f[i].feat;
     }
     int tty = isatty(2) && !o.quiet;
-    double t0 = now_s(), last = 0;
+    double t0 = vlff_seconds(), last = 0;
     for (int it = 1; it <= o.iters; it++) {
       if (vlff_field_step(fld, views, nv, NULL, &st, err, sizeof err) < 0) die("training step %d: %s", it, err);
-      double t = now_s();
+      double t = vlff_seconds();
       if (!o.quiet && (it == o.iters || (tty ? t - last > 0.25 : it % (o.iters / 10 > 0 ? o.iters / 10 : 1) == 0))) {
         progress(it, o.iters, &st, t0, tty);
         last = t;
       }
     }
     if (tty) fputc('\n', stderr);
-    fit_s = now_s() - t0;
+    fit_s = vlff_seconds() - t0;
     if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
     /* 2D on held-out frames at the feature-map resolution */
     struct vlff_view cam = {0};
