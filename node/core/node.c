@@ -513,13 +513,7 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
     double t_now = mono_s();
     if (!ig->poses || (ig->pose_miss && t_now - ig->pose_reattach_s >= 1.0)) {
       vlff_ring_close(ig->poses);
-<<<<<<< HEAD
-      /* Only rings of this node's uid, within the configured mode: anyone
-       * else able to write one could forge its records. */
-      ig->poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(ig->n));
-=======
       ig->poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
->>>>>>> sensors-why
       ig->pose_reattach_s = t_now;
       ig->pose_miss = false;
     }
