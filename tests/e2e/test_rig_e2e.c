@@ -27,6 +27,7 @@
 #include "vlff/shm.h"
 
 static int in_netns;
+static struct rig r; /* static: teardown frees it after a failed assertion too */
 
 static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 
@@ -50,7 +51,6 @@ static void test_camera_rig_trains_map(void **state) {
   if (!in_netns) skip();
   double scale = getenv("VLFF_E2E_SCALE") ? atof(getenv("VLFF_E2E_SCALE")) : 1;
   if (!(scale > 0)) scale = 1;
-  struct rig r;
   char err[1024];
   if (rig_init(&r, 1, err, sizeof err)) fail_msg("%s", err);
   struct vlff_node *n = vlff_node_create(&r.cfg, err, sizeof err);
@@ -90,13 +90,18 @@ static void test_camera_rig_trains_map(void **state) {
   assert_true(st.keyframes > 0);
   assert_true(version > 0);
   assert_true(best >= 35);
-  rig_free(&r);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  if (r.tag[0]) rig_free(&r);
+  return 0;
 }
 
 int main(int argc, char **argv) {
   in_netns = rig_netns_enter(argc, argv);
   const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_camera_rig_trains_map),
+      cmocka_unit_test_teardown(test_camera_rig_trains_map, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
