@@ -68,7 +68,9 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   vlff_sim_intrinsics(s, &fx, &fy, &cx, &cy);
   int W, H, fw, fh, D;
   vlff_sim_size(s, &W, &H, &fw, &fh, &D);
-  /* An identity rig: both cameras the sim's camera, no offset between them. */
+  /* An identity rig: both cameras the sim's camera, no offset between them.
+   * Calibration files count pixels as OpenCV does (centre of pixel 0 at 0),
+   * the sim as the field does (at 0.5). */
   FILE *f = fopen(r->calib_path, "w");
   if (!f) return vlff_sim_destroy(s), fail(err, errlen, "cannot write the calibration");
   fprintf(f, "%%YAML:1.0\n---\n");
@@ -76,7 +78,7 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
     fprintf(f,
             "K%d: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ %.17g, 0., %.17g, 0., %.17g, %.17g, 0., 0., 1. ]\n"
             "D%d: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n",
-            k, fx, cx, fy, cy, k);
+            k, fx, cx - 0.5, fy, cy - 0.5, k);
   fprintf(f, "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
              "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n");
   fclose(f);

@@ -228,7 +228,7 @@ static int run_libcamera(int nframes) {
           pl->height, w, h);
     CHECK(pl->format == VLFF_PIX_RGB8 && hd->nplanes == 1, "frame %d format %s, %u planes", n,
           vlff_pixfmt_name(pl->format), hd->nplanes);
-    CHECK((hd->flags & VLFF_FRAME_INTRINSICS_VALID) && hd->fx == 500 && hd->cx == w / 2, "frame %d intrinsics", n);
+    CHECK((hd->flags & VLFF_FRAME_INTRINSICS_VALID) && hd->fx == 500 && hd->cx == w / 2 + 0.5, "frame %d intrinsics", n);
     /* Sensor timestamps: CLOCK_MONOTONIC (V4L2), inside this run, increasing. */
     uint64_t now = now_ns();
     CHECK(hd->t_device_ns > t_start && hd->t_device_ns <= now, "frame %d sensor time %llu outside [%llu, %llu]", n,
