@@ -87,8 +87,8 @@ static inline uint64_t marks_word(const uint8_t *t, uint8_t stamp, size_t ne) {
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #define ADAM_BW 1
 #include <immintrin.h>
-/* One compare per 64 marks. The fine levels' marks (512 KB each) are read
- * whole every step; portably that took 65 against 17 us per level. */
+/* One compare per 64 marks. The fine levels' marks are read whole every
+ * step, so a byte-at-a-time portable scan is a visible share of it. */
 __attribute__((target("avx512f,avx512bw"))) static void marks_words_bw(const uint8_t *t, uint8_t stamp, size_t nw,
                                                                       uint64_t *words) {
   const __m512i s = _mm512_set1_epi8((char)stamp);
@@ -108,13 +108,11 @@ __attribute__((target("avx2"))) static void marks_words_avx2(const uint8_t *t, u
 
 /* One 64-entry word at width 2, a vector (eight entries: one line of each
  * array) per nonzero byte of its marks, untouched lanes kept by mask;
- * adam_one's arithmetic in the same order. Measured on a default-config
- * step's marks, two threads: a vector whenever any of a line's entries was
- * touched took 15 % less time than the portable policy below (scalar
- * updates for words with fewer than 16 bits, a whole-block vector pass
- * otherwise), whose loops GCC compiles with scalar mask building. The sqrt
- * and division are not what bounds it: replaced by products, the time
- * stayed the same; the lines' misses are. */
+ * adam_one's arithmetic in the same order. A vector whenever any of a
+ * line's entries was touched beats the portable policy below (scalar updates
+ * for sparse words, a whole-block vector pass otherwise), whose loops GCC
+ * compiles with scalar mask building. The sqrt and division are not what
+ * bounds it (replaced by products, the time stayed); the lines' misses are. */
 __attribute__((target("avx512f,avx512dq,fma"))) static void adam_word_v4(float b1, float b2, float c1, float c2,
                                                                         float eps, float lr, float *p, float *g,
                                                                         float *m, float *v, uint64_t word) {
@@ -146,9 +144,8 @@ __attribute__((target("avx512f,avx512dq,fma"))) static void adam_word_v4(float b
  * the same arithmetic. AVX2 has no cheap masked store (vmaskmovps is slow
  * on AMD), so the new values are blended into the loaded ones and the half
  * line is stored whole: the same bits land in untouched lanes, and the
- * level's arrays belong to this thread while it updates them. The portable
- * policy this replaces cost 3.3x as much per step (x86-64-v3 build, AVX2
- * kernels forced on the Zen 5: 8.5 against 2.6 ms). */
+ * level's arrays belong to this thread while it updates them. AVX2-only
+ * CPUs otherwise fall back to the portable policy, several times slower. */
 __attribute__((target("avx2,fma"))) static void adam_word_v3(float b1, float b2, float c1, float c2, float eps,
                                                             float lr, float *p, float *g, float *m, float *v,
                                                             uint64_t word) {
@@ -247,10 +244,8 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
        * a line per nonzero byte of its marks, so that their misses overlap
        * with the updates in between. Dense words too: four arrays read and
        * written, with sparse words between, are streams the hardware
-       * prefetcher does not keep up with. Measured on a default-config step's
-       * table phase, two threads: 6.6 ms with dense words left to it, 5.0 ms
-       * with them prefetched (distances 8 to 32 words: 4.9-5.1 ms); sparse
-       * words alone, unprefetched, had cost 1.31x the GEMMs' time. */
+       * prefetcher does not keep up with; the distance matters little
+       * between 8 and 32 words. */
       uint64_t ahead = k + PF_AHEAD < npack ? words[k + PF_AHEAD] : 0;
       if (ahead)
         for (int by = 0; by < 8; by++)

@@ -15,8 +15,8 @@
  * (fewer, shallower or L2-only prefetches were slower). On CPUs with
  * AVX-512 it runs 16 points per vector and fetches each
  * corner's two features as one 64-bit lane (scalar loads and inserts, which
- * beat the gather instruction on Zen 5), about 2x less time per point and
- * level than the scalar loop; its arithmetic is the scalar loop's, in
+ * beat the gather instruction), well under the scalar loop's time per point
+ * and level; its arithmetic is the scalar loop's, in
  * the same order with fused multiply-adds, so the outputs are bit-identical
  * to the scalar loop's AVX-512 clone (the default GCC build) and equal to
  * float rounding otherwise (tested). CPUs with AVX2 but not AVX-512 run the
@@ -136,9 +136,8 @@ static inline __attribute__((always_inline)) void corners(const struct vlff_enco
 
 #if VLFF_ENC_V4
 /* Points per coordinate block (arrays on the stack), vectors per prefetch
- * group: 8 (128 points' corners requested before the first is loaded) gave
- * 9 % more density queries per second than 4 and the same as 16; 2 was
- * slower. */
+ * group: 8 (128 points' corners requested before the first is loaded) is
+ * as fast as 16 and faster than 4 or 2 (docs/field.md). */
 enum { VLFF_ENC_V4_BLOCK = 256, V4_GROUP = 8 };
 #define V4_TARGET __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")))
 
@@ -206,9 +205,9 @@ V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const floa
 }
 
 /* Eight 64-bit table entries (a corner's feature pair each) into one
- * vector by scalar loads and inserts. On the Zen 5 this was measured on, an
- * 8-lane vpgatherqq cost 18 cycles even from L1, the loads and inserts
- * replacing it about a third of that: the encoding took 19 % less time. */
+ * vector by scalar loads and inserts: an 8-lane vpgatherqq is slow even
+ * from L1 on the CPUs measured, and the loads and inserts cost a fraction
+ * of it. */
 static inline __attribute__((always_inline)) long long pair_bits(const float *t, uint32_t i) {
   long long v;
   memcpy(&v, t + (size_t)i * 2, sizeof(v)); /* one 8-byte load; no aliasing of float as integer */
@@ -294,10 +293,8 @@ V4_TARGET static void level_v4(const struct vlff_encoding *e, int l, const float
 
 /* The same for CPUs with AVX2 but not AVX-512 (most x86 robot computers),
  * 8 points per vector, the same arithmetic in the same order: outputs and
- * gradients are the AVX-512 kernels' bit for bit. Measured as such a CPU
- * runs it (x86-64-v3 build, VLFF_GEMM=avx2, on the Zen 5), the portable
- * loops it replaces cost the encoding 1.8x (forward) and 1.7x (gradient)
- * the AVX-512 kernels' time. */
+ * gradients are the AVX-512 kernels' bit for bit. Without them such a CPU
+ * runs the portable loops, much slower (bench field_isa measures it). */
 #define V3_TARGET __attribute__((target("avx2,fma")))
 V3_TARGET static int corners_v3(const struct vlff_encoding *e, int l, const float *px, const float *py,
                                 const float *pz, int g0, int n, uint32_t *ib, float *wb) {

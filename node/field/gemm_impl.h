@@ -121,7 +121,7 @@ static inline __attribute__((always_inline)) void rows(const int nv, const int m
          accumulate, relu, mask ? mask + (ptrdiff_t)i * ldc : NULL);
   /* The last m % MR rows as one tile of that height: row by row, a tile
    * has NV accumulator chains, too few to hide the FMA latency (the weight
-   * gradients' m = 15, 31, 44 ran at 40-70 % of the full tiles' rate). */
+   * gradients' m = 15, 31, 44 ran well below the full tiles' rate). */
 #define TAIL(R)                                                                                                 \
   case R:                                                                                                       \
     tile(R, nv, masked, tail, k, a + (ptrdiff_t)i * ars, ars, acs, b, ldb, c + (ptrdiff_t)i * ldc, ldc, bias,   \
@@ -146,9 +146,9 @@ static inline __attribute__((always_inline)) void rows(const int nv, const int m
 #define KB 256
 
 /* ---- outputs at most NARROW wide (the colour layer's 3) ----------------
- * The tile above spends a whole vector (or a masked one) per row on them:
- * 3 of 16 lanes, 25-27 GFLOP/s for the colour layer's forward and weight
- * gradient. These put the vector along the other dimension instead. */
+ * The tile above spends a whole vector (or a masked one) per row on them,
+ * 3 of 16 lanes for the colour layer's forward and weight gradient. These
+ * put the vector along the other dimension instead. */
 enum { NARROW = 4, NARROW_KMAX = 512, NARROW_RB = 4, NARROW_MV = 4 };
 
 static inline __attribute__((always_inline)) float vsum(vf x) {
@@ -187,8 +187,7 @@ static void narrow_dot(int m, int n, int k, const float *a, ptrdiff_t ars, const
   for (; i < m; i += NARROW_RB) {
     const int rb = m - i < NARROW_RB ? m - i : NARROW_RB;
     vf acc[NARROW_RB][NARROW];
-    /* Zeroed by loops: an initializer left them in memory (4.4 -> 7.0 us
-     * for the colour layer's forward). */
+    /* Zeroed by loops: an initializer left them in memory. */
 #pragma GCC unroll 4
     for (int r = 0; r < NARROW_RB; r++)
 #pragma GCC unroll 4
@@ -266,7 +265,7 @@ void GEMM_FN(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, 
          mask ? mask + j : NULL);
 #if MASKED_TAIL
   /* 1 to 2 * VW - 1 columns left: one or two vectors, the last masked (a
-   * padded copy cost 30-50 % on top of the tile at n = 15, 31, 44). */
+   * padded copy cost a large share on top of the tile at n = 15, 31, 44). */
   if (j + VW == n)
     rows(1, 0, 0, m, k, a, ars, acs, b + j, ldb, c + j, ldc, bias ? bias + j : NULL, accumulate, relu,
          mask ? mask + j : NULL);

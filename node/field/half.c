@@ -93,8 +93,8 @@ void vlff_f16_to_f32_generic(const uint16_t *src, float *dst, size_t n) {
 
 #if VLFF_HALF_X86
 /* GCC 12 converts a _Float16 loop, and even a _Float16 vector, one value per
- * instruction: 2.6 % of a default training step went to turning each ray's
- * D = 512 target feature to floats. These take 16 (8) per instruction. */
+ * instruction, and every ray's D-wide target feature is converted each
+ * step. These take 16 (8) per instruction. */
 __attribute__((target("avx512f"))) void vlff_f16_to_f32_v4(const uint16_t *src, float *dst, size_t n) {
   size_t i = 0;
   for (; i + 16 <= n; i += 16)

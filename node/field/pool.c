@@ -6,11 +6,10 @@
  * Hand-offs spin before they sleep. A worker that finds no new run keeps
  * polling the generation counter for up to VLFF_POOL_SPIN_US before it waits
  * on the condition variable, and the caller polls the pending count the same
- * way before waiting for the last worker. Sleeping at once cost a futex
- * wake-up's scheduling latency per hand-off on this VM: a run of two tasks
- * of 12.8 us each took 53 us, against 13 us with the spin (a step makes
- * three runs; a 3D query or a render one). The spin caps what an idle pool
- * burns at that many microseconds per run.
+ * way before waiting for the last worker. Sleeping at once costs a futex
+ * wake-up's scheduling latency per hand-off, several times a short task's
+ * own length (a step makes three runs; a 3D query or a render one). The
+ * spin caps what an idle pool burns at that many microseconds per run.
  *
  * Two ways to hand out tasks. vlff_pool_run assigns them statically
  * (t % threads == worker), which keeps per-thread accumulations bit-identical

@@ -41,8 +41,8 @@ static int imax(int a, int b) { return a > b ? a : b; }
 
 /* Chunks of a step of nrays rays: as few as hold chunk_rays rays each, then
  * rounded up to a multiple of the threads, whose static shares would
- * otherwise differ by a chunk (25 chunks of the default 1024 rays: one
- * thread idled 4 % of the rays phase). Rays are spread evenly over them. */
+ * otherwise differ by a chunk and leave one thread idle at the end of the
+ * rays phase. Rays are spread evenly over them. */
 static int step_chunks(const struct vlff_field *f, int nrays) {
   int n = (nrays + f->chunk_rays - 1) / f->chunk_rays;
   n = (n + f->threads - 1) / f->threads * f->threads;
@@ -364,8 +364,7 @@ void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *
  * per-ray loops over the D feature values, as helpers with restrict
  * pointers and fixed-width inner loops: inline, the compiler could not rule
  * out aliasing (nor use AVX-512: vlff_field_chunk is not cloned) and ran them
- * a float at a time (9.7 % of a default step was the chunk; the per-ray
- * ones alone were 2.3 % until they moved here too). The dot product keeps 16 partial
+ * a float at a time. The dot product keeps 16 partial
  * sums in a fixed order, so results do not vary from run to run. */
 enum { CHUNK_VW = 16 };
 
@@ -392,7 +391,7 @@ static float dot_h(int n, const float *restrict x, const float *restrict y) {
 /* dst[l][n][F] from src[n][ld] (level l's F values at column l*F), row by
  * row: each row is read once, and at the default F = 2 each value pair
  * moves as one 64-bit word. The column-by-column loop this replaced read
- * every row once per level and moved single floats: 1.5 % of a step. */
+ * every row once per level and moved single floats. */
 VLFF_HOT
 static void level_major(int n, int levels, int F, const float *restrict src, int ld, float *restrict dst) {
   const size_t plane = (size_t)n * F;
@@ -413,7 +412,7 @@ static void level_major(int n, int levels, int F, const float *restrict src, int
 /* d = a g where the ReLU's output h is positive, else 0. The product is
  * taken for every lane and then selected: a multiply only where h > 0 may not
  * be made unconditional (it could raise an FP exception the source would
- * not), so that form stayed scalar, 2.8 % of a training step. */
+ * not), so that form stayed scalar. */
 VLFF_HOT
 static void relu_scale_h(int n, float a, const float *restrict h, const float *restrict g, float *restrict d) {
   int j = 0;
@@ -563,10 +562,10 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
   }
   for (int r = 0; r < nr; r++) {
     const struct vlff_ray *ray = &rays[r];
-    /* A ray's target feature (1 KB at D = 512, a random pixel of a keyframe)
-     * is requested two rays ahead of its loss. Measured: its conversion,
-     * stalled on those misses, went from 1.9 to 0.1 % of a step (requested
-     * all at the chunk's start, the requests stalled on each other: 0.9 %). */
+    /* A ray's target feature (D halves at a random pixel of a keyframe: a
+     * cache miss) is requested two rays ahead of its loss, so its conversion
+     * does not stall on it; requested all at the chunk's start, the requests
+     * stalled on each other. */
     if (need_feat && r + 2 < nr && rays[r + 2].feat_index >= 0) {
       const uint16_t *src = f->views[rays[r + 2].view].features + (size_t)rays[r + 2].feat_index * D;
       for (int k = 0; k < D; k += 32) __builtin_prefetch(src + k, 0, 2);
@@ -690,9 +689,9 @@ static void chunk_task(void *ctx, int c, int thread) {
 /* A level's update does not depend on the thread that runs it (each
  * thread's gradient and marks are zero and stale wherever it starts), so
  * levels go to whichever thread is free: with static shares one thread held
- * one hashed level more and the other idled 5-8 % of the table phase.
- * Coarse to fine: finest first (longest tasks first) took 10 % more thread
- * time, both threads streaming fine levels' moments at once. */
+ * one hashed level more and the other idled. Coarse to fine: finest first
+ * (longest tasks first) took more thread time, both threads streaming fine
+ * levels' moments at once. */
 static void hash_task(void *ctx, int level, int thread) {
   struct step_ctx *sc = ctx;
   struct vlff_field *f = sc->f;
