@@ -74,7 +74,11 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
       .fps_dropped = (float)dropped_per_s,
       .prompt_set = st->prompt_set < 0 ? 0xff : (uint32_t)st->prompt_set,
       .error_flags = st->error_flags & 0x0f, /* the node's bits 0..3 are CAN's */
+      .frames_refused = (uint32_t)st->frames_invalid,
+      .last_refusal = (uint32_t)st->last_refusal,
   };
+  _Static_assert(VLFF_REFUSED_COUNT <= VLFF_CAN_REFUSAL_CODES, "every refusal reason has a bit in INGEST");
+  for (int r = 1; r < VLFF_REFUSED_COUNT; r++) cs.refused[r] = (uint32_t)st->refused[r];
   vlff_can_set_status(can, &cs);
   int nmt = st->state == VLFF_NODE_OPERATIONAL ? VLFF_NMT_OPERATIONAL
             : st->state == VLFF_NODE_STOPPED   ? VLFF_NMT_STOPPED
@@ -85,6 +89,17 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
 #endif
 
 static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
+
+/* " (no pose 193, no depth 2)": the reasons behind the refused count, for
+ * the status line; empty when nothing was refused. */
+static void refusals_text(const struct vlff_node_status *st, char *out, size_t len) {
+  size_t k = 0;
+  out[0] = 0;
+  for (int r = 1; r < VLFF_REFUSED_COUNT && k < len; r++)
+    if (st->refused[r])
+      k += (size_t)snprintf(out + k, len - k, "%s%s %lld", k ? ", " : " (", vlff_refusal_name(r), st->refused[r]);
+  if (k && k < len) snprintf(out + k, len - k, ")");
+}
 
 int main(int argc, char **argv) {
   enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT };
@@ -224,14 +239,15 @@ int main(int argc, char **argv) {
       last_line = now;
       struct vlff_node_status st;
       vlff_node_status(node, &st);
-      char m2[16] = "  -  ", m3[16] = "  -  ";
+      char m2[16] = "  -  ", m3[16] = "  -  ", why[256];
       if (st.miou2d >= 0) snprintf(m2, sizeof m2, "%5.1f", st.miou2d);
       if (st.miou3d >= 0) snprintf(m3, sizeof m3, "%5.1f", st.miou3d);
+      refusals_text(&st, why, sizeof why);
       fprintf(stderr,
-              "\r[%6.1f s] frames %lld (%.1f/s) kf %d rej %lld | it %lld (%.1f/s) loss %.4f psnr %.1f | "
-              "map v%llu mIoU 2D %s 3D %s   ",
-              now - t0, st.frames_in, st.fps_in, st.keyframes, st.poses_rejected, st.iteration, st.it_per_s,
-              st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
+              "\r[%6.1f s] frames %lld (%.1f/s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
+              "psnr %.1f | map v%llu mIoU 2D %s 3D %s   ",
+              now - t0, st.frames_in, st.fps_in, st.frames_invalid, why, st.keyframes, st.poses_rejected,
+              st.iteration, st.it_per_s, st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
     }
   }
   if (status_view) fputc('\n', stderr);
@@ -256,9 +272,11 @@ int main(int argc, char **argv) {
     }
   }
   vlff_node_destroy(node, true);
-  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld invalid, "
+  char why[256];
+  refusals_text(&st, why, sizeof why);
+  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "
             "%lld lost, %lld poses rejected, map version %llu",
-            st.iteration, st.keyframes, st.keyframes_evicted, st.frames_in, st.frames_invalid, st.frames_lost,
+            st.iteration, st.keyframes, st.keyframes_evicted, st.frames_in, st.frames_invalid, why, st.frames_lost,
             st.poses_rejected, (unsigned long long)st.map_version);
   return rc;
 }

@@ -14,7 +14,8 @@
 #include "config.h"
 
 /* {NAME} marks a value taken from the config. Lines naming {S4} (the CAN FD
- * status frame) are left out with their message when that id is taken. */
+ * status frame) or {S5} (the classic INGEST frame) are left out with their
+ * message when that id is taken by another frame the node uses. */
 static const char dbc_template[] =
     "VERSION \"vlff 1\"\n"
     "\n"
@@ -69,7 +70,24 @@ static const char dbc_template[] =
     " SG_ BusNoAck : 62|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
     " SG_ BusRestarted : 63|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
     "\n"
-    "BO_ {S4} VLFF_STATUS_FD: 32 VLFF\n"
+    "BO_ {S5} VLFF_INGEST: 8 VLFF\n"
+    " SG_ FramesRefused : 0|32@1+ (1,0) [0|4294967295] \"\" CONTROLLER\n"
+    " SG_ LastRefusal : 32|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
+    " SG_ RefusedMalformed : 40|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedOversize : 41|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedPixelFormat : 42|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoIntrinsics : 43|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedBadIntrinsics : 44|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoPose : 45|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedBadPose : 46|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedPoseRange : 47|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoDepth : 48|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedEmptyDepth : 49|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedTooSmall : 50|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoFeatures : 51|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedPeriod : 56|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
+    "\n"
+    "BO_ {S4} VLFF_STATUS_FD: 48 VLFF\n"
     " SG_ Iteration : 0|32@1+ (1,0) [0|4294967295] \"\" CONTROLLER\n"
     " SG_ Keyframes : 32|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
     " SG_ PromptSet : 48|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
@@ -99,6 +117,21 @@ static const char dbc_template[] =
     " SG_ BusProtocol : 253|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
     " SG_ BusNoAck : 254|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
     " SG_ BusRestarted : 255|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ FramesRefused : 256|32@1+ (1,0) [0|4294967295] \"\" CONTROLLER\n"
+    " SG_ LastRefusal : 288|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
+    " SG_ RefusedMalformed : 296|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedOversize : 297|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedPixelFormat : 298|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoIntrinsics : 299|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedBadIntrinsics : 300|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoPose : 301|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedBadPose : 302|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedPoseRange : 303|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoDepth : 304|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedEmptyDepth : 305|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedTooSmall : 306|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedNoFeatures : 307|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
+    " SG_ RefusedPeriod : 312|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
     "\n"
     "BO_ {CMD} VLFF_COMMAND: 4 CONTROLLER\n"
     " SG_ Target : 0|8@1+ (1,0) [0|255] \"\" VLFF\n"
@@ -117,12 +150,16 @@ static const char dbc_template[] =
     "CM_ BO_ {S1} \"Latest loss terms at can.status_base_id + 1; raw 0xFFFF = invalid (NaN/inf) or above range.\";\n"
     "CM_ BO_ {S2} \"Published map at can.status_base_id + 2.\";\n"
     "CM_ BO_ {S3} \"Health at can.status_base_id + 3; counters saturate at 65535; Err*/Bus* bits 4..6 and 56..63 cover the status period just ended.\";\n"
-    "CM_ BO_ {S4} \"With can.fd: the four status payloads in one CAN FD frame at can.status_base_id + 4 instead of four classic frames.\";\n"
+    "CM_ BO_ {S5} \"Frames the node refused, at can.status_base_id + 5 (+ 4 is the FD frame's id): total since start, the latest reason, one bit per reason that refused a frame in the status period just ended, and how many were refused in it. vlff-node --status and its log give the per-reason counts.\";\n"
+    "CM_ BO_ {S4} \"With can.fd: the five status payloads (TRAIN, LOSS, MAP, HEALTH, INGEST, 8 bytes each, in that order; bytes 40..47 zero) in one CAN FD frame at can.status_base_id + 4 instead of five classic frames.\";\n"
     "CM_ BO_ {CMD} \"Command from a controller at can.command_id. Exactly 4 bytes; Target 0 = every node. Other lengths are dropped and counted.\";\n"
     "CM_ BO_ {ACK} \"Acknowledgement at can.ack_id for every well-formed command addressed to this node.\";\n"
     "CM_ SG_ {S2} MapAge \"Age of the published map; 65535 = never published or older than 65.534 s.\";\n"
     "CM_ SG_ {S3} CmdRejected \"Malformed, unknown and out-of-range commands since start.\";\n"
     "CM_ SG_ {S3} TxDropped \"Frames dropped since start (tx queue full, link down).\";\n"
+    "CM_ SG_ {S5} LastRefusal \"Reason of the latest refused frame; 0 = none refused since start.\";\n"
+    "CM_ SG_ {S5} RefusedPeriod \"Frames refused in the status period just ended, saturating at 255.\";\n"
+    "CM_ SG_ {S5} RefusedNoPose \"No pose in the frame and none in the pose ring within source.pose_tolerance_s: is vlff-pose (or the SLAM adapter) running, on the same clock?\";\n"
     "CM_ SG_ {CMD} Argument \"prompt-set: index into prompts.sets; other commands: 0.\";\n"
     "BA_DEF_ BO_ \"VFrameFormat\" ENUM \"StandardCAN\",\"ExtendedCAN\",\"reserved\",\"J1939PG\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"StandardCAN_FD\",\"ExtendedCAN_FD\";\n"
     "BA_DEF_ BO_ \"GenMsgCycleTime\" INT 0 65535;\n"
@@ -135,8 +172,11 @@ static const char dbc_template[] =
     "BA_ \"GenMsgCycleTime\" BO_ {S2} {STMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S3} {STMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S4} {STMS};\n"
+    "BA_ \"GenMsgCycleTime\" BO_ {S5} {STMS};\n"
     "VAL_ {HB} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
     "VAL_ {S0} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
+    "VAL_ {S5} LastRefusal 0 \"none\" 1 \"malformed\" 2 \"oversize\" 3 \"pixel format\" 4 \"no intrinsics\" 5 \"bad intrinsics\" 6 \"no pose\" 7 \"bad pose\" 8 \"pose out of range\" 9 \"no depth\" 10 \"empty depth\" 11 \"too small\" 12 \"no features\" ;\n"
+    "VAL_ {S4} LastRefusal 0 \"none\" 1 \"malformed\" 2 \"oversize\" 3 \"pixel format\" 4 \"no intrinsics\" 5 \"bad intrinsics\" 6 \"no pose\" 7 \"bad pose\" 8 \"pose out of range\" 9 \"no depth\" 10 \"empty depth\" 11 \"too small\" 12 \"no features\" ;\n"
     "VAL_ {CMD} Command 1 \"Start\" 2 \"Stop\" 3 \"Reset\" 4 \"Save\" 5 \"PromptSet\" 6 \"Publish\" ;\n"
     "VAL_ {ACK} Command 1 \"Start\" 2 \"Stop\" 3 \"Reset\" 4 \"Save\" 5 \"PromptSet\" 6 \"Publish\" ;\n"
     "VAL_ {ACK} Result 0 \"Ok\" 1 \"UnknownCommand\" 2 \"OutOfRange\" 3 \"Refused\" 4 \"Failed\" 5 \"Busy\" ;\n";
@@ -174,6 +214,10 @@ int vlff_can_write_dbc(const struct vlff_config *cfg, FILE *out, char *err, size
    * the file (a controller may switch) unless its id belongs to another. */
   const bool with_fd = cfg->can.fd || (fd_id <= 0x7ff && fd_id != hb && fd_id != cfg->can.command_id &&
                                        fd_id != cfg->can.ack_id);
+  /* Likewise INGEST's classic id, free in classic mode, with can.fd not sent. */
+  const int ingest_id = base + vlff_canp_status_offset(VLFF_CANP_INGEST);
+  const bool with_ingest = !cfg->can.fd || (ingest_id <= 0x7ff && ingest_id != hb &&
+                                            ingest_id != cfg->can.command_id && ingest_id != cfg->can.ack_id);
   const struct subst s[] = {
       {"HB", hb},
       {"S0", base + VLFF_CANP_TRAIN},
@@ -181,6 +225,7 @@ int vlff_can_write_dbc(const struct vlff_config *cfg, FILE *out, char *err, size
       {"S2", base + VLFF_CANP_MAP},
       {"S3", base + VLFF_CANP_HEALTH},
       {"S4", fd_id},
+      {"S5", ingest_id},
       {"CMD", cfg->can.command_id},
       {"ACK", cfg->can.ack_id},
       {"NODE", cfg->can.node_id},
@@ -191,9 +236,9 @@ int vlff_can_write_dbc(const struct vlff_config *cfg, FILE *out, char *err, size
   for (const char *p = dbc_template; *p;) {
     const char *nl = strchr(p, '\n');
     size_t len = (size_t)(nl - p) + 1;
-    bool fd_line = memmem(p, len, "{S4}", 4) != NULL;
-    if (!with_fd && fd_line && !strncmp(p, "BO_ ", 4)) skipping = true;
-    bool drop = skipping || (!with_fd && fd_line);
+    bool gone = (!with_fd && memmem(p, len, "{S4}", 4)) || (!with_ingest && memmem(p, len, "{S5}", 4));
+    if (gone && !strncmp(p, "BO_ ", 4)) skipping = true;
+    bool drop = skipping || gone;
     if (skipping && len == 1) skipping = false; /* the blank line ends the message */
     if (!drop && put_line(out, p, len, s, sizeof s / sizeof s[0])) {
       snprintf(err, errlen, "writing the DBC: %s", strerror(errno));

@@ -38,6 +38,10 @@ uint16_t vlff_canp_u16(double value, double scale) {
 /* A u16 scaled value back; 0xFFFF is "invalid or above range". */
 static double unscale(uint16_t raw, double scale) { return raw == 0xffff ? -1.0 : raw * scale; }
 
+int vlff_canp_status_offset(int index) {
+  return index == VLFF_CANP_INGEST ? VLFF_CANP_STATUS_FD_OFFSET + 1 : index;
+}
+
 void vlff_canp_encode_status(int index, const struct vlff_can_status *st, const struct vlff_canp_link *link,
                              uint8_t out[8]) {
   memset(out, 0, 8);
@@ -65,6 +69,12 @@ void vlff_canp_encode_status(int index, const struct vlff_can_status *st, const 
       put16(out + 3, sat16(link->cmd_rejected));
       put16(out + 5, sat16(link->tx_dropped));
       out[7] = link->can_errors;
+      break;
+    case VLFF_CANP_INGEST:
+      put32(out, st->frames_refused);
+      out[4] = st->last_refusal > 0xff ? 0xff : (uint8_t)st->last_refusal;
+      put16(out + 5, link->refused_active);
+      out[7] = link->refused_period > 0xff ? 0xff : (uint8_t)link->refused_period;
       break;
     default:
       break;
@@ -97,6 +107,12 @@ int vlff_canp_decode_status(int index, const uint8_t *d, int len, struct vlff_ca
       v->cmd_rejected = get16(d + 3);
       v->tx_dropped = get16(d + 5);
       v->can_errors = d[7];
+      return 0;
+    case VLFF_CANP_INGEST:
+      v->frames_refused = get32(d);
+      v->last_refusal = d[4];
+      v->refused_active = get16(d + 5);
+      v->refused_period = d[7];
       return 0;
     default:
       return -1;

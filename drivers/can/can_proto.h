@@ -17,12 +17,22 @@
 #include "vlff_can.h"
 
 #define VLFF_CANP_HEARTBEAT_BASE 0x700
-#define VLFF_CANP_STATUS_FRAMES 4 /* TRAIN, LOSS, MAP, HEALTH */
-#define VLFF_CANP_STATUS_FD_OFFSET 4 /* FD: one 32-byte frame at base + 4 */
+#define VLFF_CANP_STATUS_FRAMES 5 /* TRAIN, LOSS, MAP, HEALTH, INGEST */
+#define VLFF_CANP_STATUS_FD_OFFSET 4 /* FD: one frame at base + 4 holding all five payloads */
+#define VLFF_CANP_STATUS_FD_LEN 48   /* five 8-byte payloads, padded to a CAN FD length */
 #define VLFF_CANP_CMD_LEN 4
 #define VLFF_CANP_ACK_LEN 4
 
-enum vlff_canp_status_index { VLFF_CANP_TRAIN = 0, VLFF_CANP_LOSS = 1, VLFF_CANP_MAP = 2, VLFF_CANP_HEALTH = 3 };
+enum vlff_canp_status_index {
+  VLFF_CANP_TRAIN = 0,
+  VLFF_CANP_LOSS = 1,
+  VLFF_CANP_MAP = 2,
+  VLFF_CANP_HEALTH = 3,
+  VLFF_CANP_INGEST = 4 /* classic id base + 5: base + 4 is the FD frame's */
+};
+
+/* Classic frame id offset of status frame index (from status_base_id). */
+int vlff_canp_status_offset(int index);
 
 /* What vlff_can adds to the node's snapshot in the HEALTH frame. */
 struct vlff_canp_link {
@@ -32,9 +42,11 @@ struct vlff_canp_link {
   uint64_t cmd_rejected;   /* malformed + unknown + out of range, cumulative */
   uint64_t tx_dropped;     /* cumulative */
   int64_t map_age_ms;      /* -1 = never published */
+  uint16_t refused_active; /* bit r-1: reason r refused a frame this period */
+  uint32_t refused_period; /* frames refused this period */
 };
 
-/* The decoded (physical) values of the four status frames. */
+/* The decoded (physical) values of the five status frames. */
 struct vlff_canp_status_view {
   uint32_t iteration;
   uint16_t keyframes;
@@ -48,6 +60,10 @@ struct vlff_canp_status_view {
   uint16_t cmd_rejected;   /* saturating */
   uint16_t tx_dropped;     /* saturating */
   uint8_t can_errors;
+  uint32_t frames_refused;
+  uint8_t last_refusal;
+  uint16_t refused_active;
+  uint8_t refused_period;  /* saturating */
 };
 
 enum vlff_canp_cmd_check {

@@ -91,6 +91,7 @@ struct vlff_can {
   bool ever_opened;
   uint8_t period_errors;     /* VLFF_CAN_BUS_* since the last HEALTH frame */
   uint64_t period_drops_at, period_rejects_at;
+  uint32_t period_refused_at[VLFF_CAN_REFUSAL_CODES], period_refused_total_at;
   int64_t last_log_ns;
 };
 
@@ -150,7 +151,7 @@ const char *vlff_can_result_name(int r) {
 int vlff_can_check_config(const struct vlff_config *cfg, char *err, size_t errlen) {
   const int node = cfg->can.node_id, base = cfg->can.status_base_id;
   const int hb = VLFF_CANP_HEARTBEAT_BASE + node;
-  const int last = base + (cfg->can.fd ? VLFF_CANP_STATUS_FD_OFFSET : VLFF_CANP_STATUS_FRAMES - 1);
+  const int last = base + (cfg->can.fd ? VLFF_CANP_STATUS_FD_OFFSET : vlff_canp_status_offset(VLFF_CANP_INGEST));
   if (cfg->can.interface[0] == 0 || strlen(cfg->can.interface) >= IFNAMSIZ) {
     snprintf(err, errlen, "key 'can.interface': expected an interface name of 1..%d characters, got '%s'",
              IFNAMSIZ - 1, cfg->can.interface);
@@ -352,11 +353,19 @@ static void send_status(struct vlff_can *can) {
     link.extra_flags |= VLFF_CAN_ERRF_BUS_ERROR;
   if (drops != can->period_drops_at) link.extra_flags |= VLFF_CAN_ERRF_TX_DROPPED;
   if (rejects != can->period_rejects_at) link.extra_flags |= VLFF_CAN_ERRF_CMD_REJECTED;
+  /* Refusals are cumulative from the node; the frame says which reasons
+   * and how many in the period just ended. */
+  for (int r = 1; r < VLFF_CAN_REFUSAL_CODES; r++)
+    if (st.refused[r] != can->period_refused_at[r]) link.refused_active |= (uint16_t)(1u << (r - 1));
+  link.refused_period = st.frames_refused - can->period_refused_total_at;
+  memcpy(can->period_refused_at, st.refused, sizeof can->period_refused_at);
+  can->period_refused_total_at = st.frames_refused;
   can->period_errors = 0;
   can->period_drops_at = drops;
   can->period_rejects_at = rejects;
 
-  uint8_t frames[VLFF_CANP_STATUS_FRAMES][8];
+  uint8_t frames[VLFF_CANP_STATUS_FD_LEN / 8][8];
+  memset(frames, 0, sizeof frames);
   for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) vlff_canp_encode_status(i, &st, &link, frames[i]);
   if (can->fd_frames) {
     if (send_frame(can, can->status_base + VLFF_CANP_STATUS_FD_OFFSET, &frames[0][0], sizeof frames, true) == 0)
@@ -364,7 +373,8 @@ static void send_status(struct vlff_can *can) {
     return;
   }
   for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++)
-    if (send_frame(can, can->status_base + (uint32_t)i, frames[i], 8, false) == 0) inc(&can->status_sent);
+    if (send_frame(can, can->status_base + (uint32_t)vlff_canp_status_offset(i), frames[i], 8, false) == 0)
+      inc(&can->status_sent);
 }
 
 static void handle_error_frame(struct vlff_can *can, const struct canfd_frame *f) {

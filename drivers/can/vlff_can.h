@@ -4,7 +4,7 @@
  * A struct vlff_can owns one raw SocketCAN socket bound to a named interface
  * and one thread. The thread sends a CANopen-style heartbeat (COB-ID
  * 0x700 + node id, one NMT state byte, boot-up 0x00 first), the status
- * frames (status_base_id + 0..3, or one CAN FD frame at status_base_id + 4)
+ * frames (status_base_id + 0..3 and + 5, or one CAN FD frame at status_base_id + 4)
  * and acknowledgements, receives commands on command_id and decodes error
  * frames. configs/vlff.dbc describes every frame; docs/can.md
  * has the table.
@@ -93,6 +93,9 @@ enum vlff_can_result {
 #define VLFF_CAN_BUS_NO_ACK 0x40u
 #define VLFF_CAN_BUS_RESTARTED 0x80u
 
+/* Refusal reason codes the INGEST frame has room for (one bit each). */
+#define VLFF_CAN_REFUSAL_CODES 16
+
 /* What the node reports; a plain struct copied in by vlff_can_set_status(). */
 struct vlff_can_status {
   uint32_t iteration;        /* training steps so far */
@@ -107,6 +110,11 @@ struct vlff_can_status {
   float fps_dropped;         /* frames/s dropped (ring lapped, bad pose, ...) */
   uint32_t prompt_set;       /* active prompt set index */
   uint32_t error_flags;      /* VLFF_CAN_ERRF_* bits 0..3 */
+  /* Frames the learner refused (INGEST frame). Reason codes are the
+   * node's (enum vlff_refusal, named in configs/vlff.dbc), 1..15. */
+  uint32_t frames_refused;   /* all reasons, cumulative */
+  uint32_t last_refusal;     /* reason of the latest refused frame, 0 = none yet */
+  uint32_t refused[VLFF_CAN_REFUSAL_CODES]; /* per reason code, cumulative; [0] unused */
 };
 
 struct vlff_can_command {

@@ -141,6 +141,10 @@ static void print_status(int index, const uint8_t *d) {
              v.error_flags, a, v.fps_dropped < 0 ? -1.0 : v.fps_dropped, v.cmd_rejected, v.tx_dropped,
              v.can_errors, b);
       break;
+    case VLFF_CANP_INGEST:
+      printf("INGEST refused=%u last_reason=%u refused_period=%u active=0x%04x", v.frames_refused, v.last_refusal,
+             v.refused_period, v.refused_active);
+      break;
   }
 }
 
@@ -156,11 +160,13 @@ static void print_frame(const struct vlff_config *c, const struct canfd_frame *f
   uint32_t base = (uint32_t)c->can.status_base_id;
   if (id == VLFF_CANP_HEARTBEAT_BASE + (uint32_t)c->can.node_id && f->len == 1) {
     printf("%.6f %03X heartbeat node=%d state=%s\n", t, id, c->can.node_id, vlff_can_nmt_name(f->data[0]));
-  } else if (id >= base && id < base + VLFF_CANP_STATUS_FRAMES && f->len == 8) {
+  } else if (id >= base && id <= base + (uint32_t)vlff_canp_status_offset(VLFF_CANP_INGEST) &&
+             id != base + VLFF_CANP_STATUS_FD_OFFSET && f->len == 8) {
     printf("%.6f %03X ", t, id);
-    print_status((int)(id - base), f->data);
+    print_status(id == base + (uint32_t)vlff_canp_status_offset(VLFF_CANP_INGEST) ? VLFF_CANP_INGEST : (int)(id - base),
+                 f->data);
     printf("\n");
-  } else if (id == base + VLFF_CANP_STATUS_FD_OFFSET && f->len == 32) {
+  } else if (id == base + VLFF_CANP_STATUS_FD_OFFSET && f->len == VLFF_CANP_STATUS_FD_LEN) {
     for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {
       printf("%.6f %03X FD ", t, id);
       print_status(i, f->data + 8 * i);

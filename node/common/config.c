@@ -63,6 +63,9 @@ static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
 static const double zero4[4] = {0, 0, 0, 0};
 static const double zero5[5] = {0, 0, 0, 0, 0};
+static const double identity7[7] = {0, 0, 0, 0, 0, 0, 1};
+static const char *const pose_clocks[] = {"monotonic", "realtime", NULL};
+static const char *const pose_stamps[] = {"source", "host", NULL};
 /* CLIP's image normalisation, which LSeg inherits. */
 static const double clip_mean[3] = {0.48145466, 0.4578275, 0.40821073};
 static const double clip_std[3] = {0.26862954, 0.26130258, 0.27577711};
@@ -92,8 +95,10 @@ static const struct key schema[] = {
 
     ENUM("source.kind", source.kind, source_kinds, "ring"),
     STR("source.dataset", source.dataset, ""),
-    ENUM("source.features", source.features, feature_sources, "sim"),
+    ENUM("source.features", source.features, feature_sources, "ring"),
     DBL("source.pose_tolerance_s", source.pose_tolerance_s, 0, 10, 1.0 / 60),
+    DBL("source.pose_wait_s", source.pose_wait_s, 0, 10, 0),
+    BOOL("source.allow_sim_features", source.allow_sim_features, 0),
 
     INT("sim.seed", sim.seed, 0, 2147483647, 1),
     DBL("sim.rate_hz", sim.rate_hz, 0.1, 1000, 5),
@@ -225,6 +230,16 @@ static const struct key schema[] = {
     DBL("gpio.pulse_us", gpio.pulse_us, 1, 1e6, 1000),
     BOOL("gpio.active_low", gpio.active_low, 0),
     DBL("gpio.debounce_us", gpio.debounce_us, 0, 1e6, 0),
+
+    STR("pose.udp", pose.udp, ""),
+    ENUM("pose.clock", pose.clock, pose_clocks, "monotonic"),
+    DBL("pose.clock_offset_s", pose.clock_offset_s, -1e10, 1e10, 0),
+    ENUM("pose.stamp", pose.stamp, pose_stamps, "source"),
+    DBL("pose.latency_s", pose.latency_s, 0, 60, 0),
+    DVEC("pose.extrinsic", pose.extrinsic, -1e4, 1e4, identity7),
+    DBL("pose.quat_tolerance", pose.quat_tolerance, 0, 0.5, 0.01),
+    BOOL("pose.extra_fields", pose.extra_fields, 0),
+    INT("pose.source_id", pose.source_id, 0, 2147483647, 0),
 
     STR("vlm.image_model", vlm.image_model, ""),
     STR("vlm.text_model", vlm.text_model, ""),
@@ -592,6 +607,10 @@ static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
 }
 
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
+  const double *q = cfg->pose.extrinsic + 3;
+  double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  if (!(fabs(qn - 1) <= 0.01))
+    return fail_cross(p, "pose.extrinsic", "expected tx ty tz qx qy qz qw with a unit quaternion, got norm %g", qn);
   if (check_shm_names(p, cfg)) return -1;
   for (int i = 0; i < 3; i++)
     if (!(cfg->field.scene_min[i] < cfg->field.scene_max[i]))
@@ -605,6 +624,10 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
   if (cfg->field.finest_resolution < cfg->field.base_resolution)
     return fail_cross(p, "field.finest_resolution", "expected >= field.base_resolution (%d), got %d",
                 cfg->field.base_resolution, cfg->field.finest_resolution);
+  if (vlff_config_sim_features_misused(cfg))
+    return fail_cross(p, "source.features", "sim features describe only the simulator's scene, never a camera's: "
+                      "with source.kind: ring use ring (an extractor) or model, or set "
+                      "source.allow_sim_features: true to force it");
   if (!strstr(cfg->prompts.templ, "{}"))
     return fail_cross(p, "prompts.template", "expected a template containing {}, got '%s'", cfg->prompts.templ);
   return 0;
@@ -801,6 +824,11 @@ static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
   const unsigned char *b = p;
   for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 0x100000001b3ull;
   return h;
+}
+
+bool vlff_config_sim_features_misused(const struct vlff_config *cfg) {
+  return cfg->source.features == VLFF_FEAT_SIM && cfg->source.kind == VLFF_SOURCE_RING &&
+         !cfg->source.allow_sim_features;
 }
 
 uint64_t vlff_config_field_hash(const struct vlff_config *cfg) {

@@ -52,6 +52,8 @@ enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWA
 enum vlff_gpio_mode { VLFF_GPIO_OFF, VLFF_GPIO_OUTPUT, VLFF_GPIO_INPUT };
 enum vlff_depth_kind { VLFF_DEPTH_NONE, VLFF_DEPTH_STREAM, VLFF_DEPTH_STEREO };
 enum vlff_depth_unit { VLFF_DEPTH_UNIT_MM, VLFF_DEPTH_UNIT_M };
+enum vlff_pose_clock { VLFF_POSE_CLOCK_MONOTONIC, VLFF_POSE_CLOCK_REALTIME };
+enum vlff_pose_stamp { VLFF_POSE_STAMP_SOURCE, VLFF_POSE_STAMP_HOST };
 
 struct vlff_prompt_set {
   char name[VLFF_PROMPT_LEN];
@@ -89,6 +91,8 @@ struct vlff_config {
     char dataset[VLFF_CFG_PATH];     /* scene directory for kind=dataset */
     int features;                    /* enum vlff_feature_source */
     double pose_tolerance_s;         /* frame<->pose timestamp match */
+    bool allow_sim_features;         /* features: sim with kind: ring, forced (tests, demos) */
+    double pose_wait_s;              /* a keyframe candidate newer than every pose waits this long */
   } source;
 
   struct {
@@ -237,6 +241,18 @@ struct vlff_config {
     double debounce_us;
   } gpio;
 
+  struct {                           /* vlff-pose: TUM lines into the pose ring */
+    char udp[VLFF_CFG_STR];          /* listen address "host:port"; "" = a file or standard input */
+    int clock;                       /* enum vlff_pose_clock of the lines' stamps */
+    double clock_offset_s;           /* added to every stamp */
+    int stamp;                       /* enum vlff_pose_stamp */
+    double latency_s;                /* stamp host: receipt minus this */
+    double extrinsic[7];             /* camera in the body frame: tx ty tz qx qy qz qw */
+    double quat_tolerance;           /* |norm - 1| normalised; beyond, refused */
+    bool extra_fields;               /* numbers after the eighth ignored, not refused */
+    int source_id;                   /* written into every record */
+  } pose;
+
   struct {
     char image_model[VLFF_CFG_PATH];
     char text_model[VLFF_CFG_PATH];
@@ -278,6 +294,12 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out);
 /* Number of scalar/array keys in the schema and the dotted path of key i. */
 size_t vlff_config_key_count(void);
 const char *vlff_config_key_path(size_t i);
+
+/* True when source.features is sim while frames come from a camera ring
+ * and source.allow_sim_features does not force it: the simulator's
+ * features would be paired with another scene's images. Loading refuses
+ * such a file; vlff_node_create() refuses such a struct. */
+bool vlff_config_sim_features_misused(const struct vlff_config *cfg);
 
 /* Stable 64-bit hash of the fields that shape learned state (field.*),
  * stored in checkpoints so a mismatched model is refused. */

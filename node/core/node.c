@@ -14,6 +14,7 @@
 #include <errno.h>
 #include <math.h>
 #include <pthread.h>
+#include <stdarg.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -22,6 +23,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bounds.h"
 #include "embeddings.h"
 #include "feature_join.h"
 #include "field.h"
@@ -320,85 +322,454 @@ static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uin
   return NULL;
 }
 
-static void frame_invalid(struct vlff_node *n, long long id, const char *why) {
-  STAT_ADD(n, frames_invalid, 1);
-  VLFF_DEBUG(TAG, "frame %lld dropped: %s", id, why);
+/* ---- refused frames ----------------------------------------------------- */
+
+static const char *const refusal_names[VLFF_REFUSED_COUNT] = {
+    [VLFF_REFUSED_NONE] = "none",
+    [VLFF_REFUSED_MALFORMED] = "malformed",
+    [VLFF_REFUSED_OVERSIZE] = "oversize",
+    [VLFF_REFUSED_PIXEL_FORMAT] = "pixel format",
+    [VLFF_REFUSED_NO_INTRINSICS] = "no intrinsics",
+    [VLFF_REFUSED_BAD_INTRINSICS] = "bad intrinsics",
+    [VLFF_REFUSED_NO_POSE] = "no pose",
+    [VLFF_REFUSED_BAD_POSE] = "bad pose",
+    [VLFF_REFUSED_POSE_RANGE] = "pose out of range",
+    [VLFF_REFUSED_NO_DEPTH] = "no depth",
+    [VLFF_REFUSED_EMPTY_DEPTH] = "empty depth",
+    [VLFF_REFUSED_TOO_SMALL] = "too small",
+    [VLFF_REFUSED_NO_FEATURES] = "no features",
+};
+
+const char *vlff_refusal_name(int reason) {
+  return reason > 0 && reason < VLFF_REFUSED_COUNT ? refusal_names[reason] : "unknown";
+}
+
+/* A camera that lacks something lacks it on every frame: the first refusal
+ * of each reason is logged at info with its detail, later ones only at
+ * debug, and a summary of the counts every REFUSAL_REPORT_S while refusals
+ * go on, so the log says why without a line per frame. */
+#define REFUSAL_REPORT_S 5.0
+
+struct refusal_log {
+  bool seen[VLFF_REFUSED_COUNT];
+  long long since[VLFF_REFUSED_COUNT]; /* since the last summary */
+  double last_report_s;
+};
+
+static void refuse(struct vlff_node *n, struct refusal_log *rl, int reason, long long id, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
+
+static void refuse(struct vlff_node *n, struct refusal_log *rl, int reason, long long id, const char *fmt, ...) {
+  long long total;
+  pthread_mutex_lock(&n->slock);
+  n->st.frames_invalid++;
+  total = ++n->st.refused[reason];
+  n->st.last_refusal = reason;
+  pthread_mutex_unlock(&n->slock);
+  char detail[384];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(detail, sizeof detail, fmt, ap);
+  va_end(ap);
+  rl->since[reason]++;
+  if (!rl->seen[reason]) {
+    rl->seen[reason] = true;
+    VLFF_INFO(TAG, "frame %lld refused, %s: %s (further frames refused for this reason are counted in --status "
+              "and summarised here every %.0f s)", id, refusal_names[reason], detail, REFUSAL_REPORT_S);
+  } else {
+    VLFF_DEBUG(TAG, "frame %lld refused, %s: %s (%lld so far)", id, refusal_names[reason], detail, total);
+  }
+}
+
+static void refusal_summary(struct vlff_node *n, struct refusal_log *rl, double now) {
+  if (now - rl->last_report_s < REFUSAL_REPORT_S) return;
+  char line[768];
+  size_t len = 0;
+  line[0] = 0;
+  long long totals[VLFF_REFUSED_COUNT];
+  pthread_mutex_lock(&n->slock);
+  memcpy(totals, n->st.refused, sizeof totals);
+  pthread_mutex_unlock(&n->slock);
+  for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
+    if (!rl->since[r] || len >= sizeof line) continue;
+    len += (size_t)snprintf(line + len, sizeof line - len, "%s%s %lld (%lld in all)", len ? ", " : "",
+                            refusal_names[r], rl->since[r], totals[r]);
+    rl->since[r] = 0;
+  }
+  if (line[0]) VLFF_INFO(TAG, "frames refused in the last %.0f s: %s", now - rl->last_report_s, line);
+  rl->last_report_s = now;
+}
+
+/* Why the pose ring gave no pose for a frame stamped t_ns: says what a user
+ * can act on (nothing writes poses, clocks apart, the source lags). */
+static void no_pose_detail(const struct vlff_config *cfg, struct vlff_ring *poses, int lookup_errno, uint64_t t_ns,
+                           bool untrusted, char *why, size_t len) {
+  if (!poses) {
+    snprintf(why, len, "the frame carries no pose and the pose ring cannot be attached: %s (start vlff-pose or the "
+             "SLAM adapter that writes it)", vlff_shm_last_message());
+    return;
+  }
+  if (untrusted) {
+    snprintf(why, len, "the pose source flagged the pose at this time untrusted (tracking lost)");
+    return;
+  }
+  struct vlff_pose_rec last;
+  if (vlff_ring_read_latest(poses, &last, sizeof last, NULL) != (ssize_t)sizeof last) {
+    snprintf(why, len, "the pose ring %s holds no pose yet", cfg->shm.pose_ring);
+    return;
+  }
+  double dt = ((double)last.t_ns - (double)t_ns) * 1e-9;
+  if (lookup_errno == EAGAIN)
+    snprintf(why, len, "frame stamped %.6f s is newer than the newest pose in %s (%.3f s older): the pose source "
+             "lags or stopped", (double)t_ns * 1e-9, cfg->shm.pose_ring, -dt);
+  else
+    snprintf(why, len, "no two poses in %s bracket the frame's stamp %.6f s within source.pose_tolerance_s %g s "
+             "(newest pose %+.3f s from it): clocks apart, or poses sparser than the tolerance",
+             cfg->shm.pose_ring, (double)t_ns * 1e-9, cfg->source.pose_tolerance_s, dt);
+}
+
+/* The ingest thread's state, shared by a frame's stages. */
+struct ingest {
+  struct vlff_node *n;
+  const struct vlff_config *cfg;
+  struct refusal_log rl;
+  struct vlff_kf_selector sel;
+  struct candidate *pending[PENDING_CAP]; /* keyframes waiting for their features */
+  int npend;
+  struct vlff_sim_frame *sf;
+  struct vlff_feature_join *join;
+  struct vlff_ring *poses;
+  double pose_reattach_s;
+  bool pose_miss;
+  /* One keyframe candidate waiting for its pose (source.pose_wait_s): a
+   * tracker that poses the node's own frames publishes each pose after its
+   * frame reached the ring. */
+  void *held;
+  size_t held_len;
+  double held_since_s;
+  bool holding;
+};
+
+/* Stage 1: the record, its size, its colour format, its intrinsics. */
+static bool frame_checks(struct ingest *ig, const void *buf, ssize_t len) {
+  struct vlff_node *n = ig->n;
+  const struct vlff_config *cfg = ig->cfg;
+  const struct vlff_frame_hdr *h = buf;
+  long long id = (long long)h->frame_id;
+  if (vlff_frame_validate(buf, (size_t)len) != 0) {
+    refuse(n, &ig->rl, VLFF_REFUSED_MALFORMED, id, "record of %zd bytes is not a well-formed frame (sizes, formats, "
+           "planes, non-finite intrinsics or pose)", len);
+    return false;
+  }
+  const struct vlff_plane *cp = &h->plane[VLFF_PLANE_COLOR];
+  if ((int)cp->width > cfg->shm.max_width || (int)cp->height > cfg->shm.max_height) {
+    refuse(n, &ig->rl, VLFF_REFUSED_OVERSIZE, id, "%ux%u is larger than shm.max_width x shm.max_height (%dx%d)",
+           cp->width, cp->height, cfg->shm.max_width, cfg->shm.max_height);
+    return false;
+  }
+  if (cp->format != VLFF_PIX_RGB8 && cp->format != VLFF_PIX_MONO8) {
+    refuse(n, &ig->rl, VLFF_REFUSED_PIXEL_FORMAT, id, "colour plane is %s, expected RGB8 or Mono8",
+           vlff_pixfmt_name(cp->format));
+    return false;
+  }
+  char why[384];
+  if (!(h->flags & VLFF_FRAME_INTRINSICS_VALID) || !isfinite(h->fx) || !isfinite(h->fy) || !isfinite(h->cx) ||
+      !isfinite(h->cy)) {
+    refuse(n, &ig->rl, VLFF_REFUSED_NO_INTRINSICS, id, "%s (set camera.intrinsics or camera.calibration)",
+           (h->flags & VLFF_FRAME_INTRINSICS_VALID) ? "intrinsics not finite" : "the frame is not flagged with intrinsics");
+    return false;
+  }
+  /* The physical bounds every camera in vlff is held to (bounds.h). */
+  if (vlff_intrinsics_plausible((int)cp->width, (int)cp->height, h->fx, h->fy, h->cx, h->cy, why, sizeof why)) {
+    refuse(n, &ig->rl, VLFF_REFUSED_BAD_INTRINSICS, id, "%s (millimetres, or another image size's values?)", why);
+    return false;
+  }
+  return true;
+}
+
+enum pose_result { POSE_FOUND, POSE_REFUSED, POSE_LATER };
+
+/* Stage 2: the frame's pose, from the frame or the pose ring, checked.
+ * POSE_LATER (nothing refused) when may_wait and the frame is newer than
+ * every pose: its pose may still come. waited_s > 0 says how long a held
+ * frame waited, for the refusal's detail. */
+static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool may_wait, double waited_s,
+                      double pose[16]) {
+  struct vlff_node *n = ig->n;
+  const struct vlff_config *cfg = ig->cfg;
+  long long id = (long long)h->frame_id;
+  bool have_pose = false, untrusted = false;
+  int lookup_errno = 0;
+  char why[384];
+  if ((h->flags & VLFF_FRAME_POSE_VALID) && !(h->flags & VLFF_FRAME_POSE_UNTRUSTED)) {
+    memcpy(pose, h->pose, 16 * sizeof pose[0]);
+    have_pose = true;
+  } else {
+    /* Attached when a frame needs it, not before waiting for the frame:
+     * a pose source that starts meanwhile poses that frame already. A
+     * failed lookup re-attaches (at most once a second), so a pose
+     * source restarted with another ring geometry, which abandons the
+     * old segment, is followed. */
+    double t_now = mono_s();
+    if (!ig->poses || (ig->pose_miss && t_now - ig->pose_reattach_s >= 1.0)) {
+      vlff_ring_close(ig->poses);
+      ig->poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
+      ig->pose_reattach_s = t_now;
+      ig->pose_miss = false;
+    }
+    if (ig->poses) {
+      struct vlff_pose_rec pr;
+      if (vlff_pose_lookup(ig->poses, h->t_host_ns, (uint64_t)(cfg->source.pose_tolerance_s * 1e9), &pr) == 0) {
+        untrusted = (pr.flags & VLFF_FRAME_POSE_UNTRUSTED) != 0;
+        if (!untrusted) {
+          memcpy(pose, pr.pose, 16 * sizeof pose[0]);
+          have_pose = true;
+        }
+      } else {
+        lookup_errno = errno;
+        ig->pose_miss = true;
+      }
+    }
+  }
+  if (!have_pose) {
+    if (may_wait && lookup_errno == EAGAIN) return POSE_LATER;
+    no_pose_detail(cfg, ig->poses, lookup_errno, h->t_host_ns, untrusted, why, sizeof why);
+    if (waited_s > 0)
+      refuse(n, &ig->rl, VLFF_REFUSED_NO_POSE, id, "after waiting %.3f s (source.pose_wait_s): %s", waited_s, why);
+    else
+      refuse(n, &ig->rl, VLFF_REFUSED_NO_POSE, id, "%s", why);
+    return POSE_REFUSED;
+  }
+  if (!vlff_pose_valid(pose)) {
+    refuse(n, &ig->rl, VLFF_REFUSED_BAD_POSE, id, "pose is not a rigid transform (NaN, or rotation not orthonormal)");
+    return POSE_REFUSED;
+  }
+  if (vlff_pose_plausible(pose, cfg->field.scene_min, cfg->field.scene_max, why, sizeof why)) {
+    refuse(n, &ig->rl, VLFF_REFUSED_POSE_RANGE, id, "%s: poses in millimetres or in another world frame?", why);
+    return POSE_REFUSED;
+  }
+  pthread_mutex_lock(&n->slock);
+  n->last_pose_ok_s = mono_s();
+  pthread_mutex_unlock(&n->slock);
+  return POSE_FOUND;
+}
+
+/* Stage 3: depth, keyframe selection, the candidate and its features. */
+static void frame_admit(struct ingest *ig, const void *buf, const double pose[16], double now) {
+  struct vlff_node *n = ig->n;
+  const struct vlff_config *cfg = ig->cfg;
+  const struct vlff_frame_hdr *h = buf;
+  long long id = (long long)h->frame_id;
+  const struct vlff_plane *cp = &h->plane[VLFF_PLANE_COLOR];
+  const struct vlff_plane *dp = h->nplanes > 1 ? &h->plane[VLFF_PLANE_DEPTH] : NULL;
+  if (!dp || (dp->format != VLFF_PIX_DEPTH_U16_MM && dp->format != VLFF_PIX_DEPTH_F32_M) ||
+      dp->width != cp->width || dp->height != cp->height) {
+    if (!dp)
+      refuse(n, &ig->rl, VLFF_REFUSED_NO_DEPTH, id, "the frame has no depth plane (camera.depth: none?)");
+    else
+      refuse(n, &ig->rl, VLFF_REFUSED_NO_DEPTH, id, "depth plane is %s %ux%u, expected DEPTH_U16_MM or DEPTH_F32_M "
+             "of the colour plane's %ux%u", vlff_pixfmt_name(dp->format), dp->width, dp->height, cp->width,
+             cp->height);
+    return;
+  }
+  if (!vlff_kf_selector_offer(&ig->sel, (long long)h->t_host_ns, pose)) return;
+
+  int dw = (int)lround(cp->width * cfg->train.image_scale), dh = (int)lround(cp->height * cfg->train.image_scale);
+  if (dw < 4 || dh < 4) {
+    refuse(n, &ig->rl, VLFF_REFUSED_TOO_SMALL, id, "%ux%u is %dx%d at train.image_scale %g, under 4x4", cp->width,
+           cp->height, dw, dh, cfg->train.image_scale);
+    return;
+  }
+  struct candidate *c = calloc(1, sizeof *c);
+  if (!c) return;
+  c->id = id;
+  c->t_host_ns = h->t_host_ns;
+  c->rgb = malloc((size_t)dw * dh * 3);
+  c->depth = malloc((size_t)dw * dh * sizeof(float));
+  if (!c->rgb || !c->depth) {
+    candidate_free(c);
+    return;
+  }
+  resample_rgb(vlff_frame_plane(buf, VLFF_PLANE_COLOR), (int)cp->width, (int)cp->height, cp->stride,
+               cp->format == VLFF_PIX_RGB8 ? 3 : 1, c->rgb, dw, dh);
+  size_t valid = resample_depth(vlff_frame_plane(buf, VLFF_PLANE_DEPTH), dp->format, (int)dp->width,
+                                (int)dp->height, dp->stride, c->depth, dw, dh);
+  if (valid == 0) {
+    candidate_free(c);
+    refuse(n, &ig->rl, VLFF_REFUSED_EMPTY_DEPTH, id, "the depth plane has no valid pixel (all 0 or NaN)");
+    return;
+  }
+  double sx = (double)dw / cp->width, sy = (double)dh / cp->height;
+  struct vlff_view *v = &c->view;
+  v->width = dw;
+  v->height = dh;
+  v->rgb = c->rgb;
+  v->depth = c->depth;
+  v->fx = h->fx * sx;
+  v->fy = h->fy * sy;
+  v->cx = h->cx * sx;
+  v->cy = h->cy * sy;
+  memcpy(v->c2w, pose, sizeof v->c2w);
+
+  if (cfg->source.features == VLFF_FEAT_SIM) {
+    struct vlff_sim_frame *sf = ig->sf;
+    char err[256];
+    /* vlff-sim loops its trajectory: scene frame = frame id mod sim.frames. */
+    if (!sf || vlff_sim_render(n->sim, id % cfg->sim.frames, VLFF_SIM_FEATURES, sf, err, sizeof err)) {
+      candidate_free(c);
+      refuse(n, &ig->rl, VLFF_REFUSED_NO_FEATURES, id, "simulated features unavailable: %s", sf ? err : "no memory");
+      return;
+    }
+    size_t fb = (size_t)sf->feat_width * sf->feat_height * sf->feat_dim * sizeof(uint16_t);
+    c->features = malloc(fb);
+    if (!c->features) {
+      candidate_free(c);
+      return;
+    }
+    memcpy(c->features, sf->features, fb);
+    v->features = c->features;
+    v->feat_width = sf->feat_width;
+    v->feat_height = sf->feat_height;
+    v->feat_dim = sf->feat_dim;
+    queue_push(n, c);
+  } else {
+    c->deadline_s = now + cfg->vlm.feature_timeout_s;
+    if (ig->npend == PENDING_CAP) {
+      STAT_ADD(n, features_timeout, 1);
+      candidate_free(ig->pending[0]);
+      pending_remove(ig->pending, &ig->npend, 0);
+    }
+    char jerr[256];
+    if (ig->join) vlff_feature_join_add_frame(ig->join, (uint64_t)id, vlff_shm_now_ns(), jerr, sizeof jerr);
+#ifdef VLFF_HAVE_VLM
+    if (n->image_worker)
+      vlff_image_worker_submit(n->image_worker, (uint64_t)id, vlff_frame_plane(buf, VLFF_PLANE_COLOR),
+                               (int)cp->width, (int)cp->height, cp->stride);
+#endif
+    ig->pending[ig->npend++] = c;
+  }
+}
+
+/* The held frame goes on once its pose is there, or is refused when
+ * source.pose_wait_s has passed. */
+static void ingest_held(struct ingest *ig, double now) {
+  if (!ig->holding) return;
+  double waited = now - ig->held_since_s;
+  double pose[16];
+  int r = frame_pose(ig, ig->held, waited < ig->cfg->source.pose_wait_s, waited, pose);
+  if (r == POSE_LATER) return;
+  ig->holding = false;
+  if (r == POSE_FOUND) frame_admit(ig, ig->held, pose, now);
+}
+
+/* One record from the ring through the stages. A frame whose pose may
+ * still come is held when it would be a keyframe by time and none is held
+ * yet; other such frames are not needed as keyframes and pass unrefused. */
+static void ingest_frame(struct ingest *ig, const void *buf, ssize_t len, double now) {
+  ingest_held(ig, now); /* an older frame's pose may have come with this one's */
+  if (!frame_checks(ig, buf, len)) return;
+  const struct vlff_frame_hdr *h = buf;
+  double pose[16];
+  int r = frame_pose(ig, h, ig->cfg->source.pose_wait_s > 0, 0, pose);
+  if (r == POSE_LATER) {
+    if (!ig->holding && vlff_kf_selector_due(&ig->sel, (long long)h->t_host_ns)) {
+      memcpy(ig->held, buf, (size_t)len);
+      ig->held_len = (size_t)len;
+      ig->held_since_s = now;
+      ig->holding = true;
+    } else {
+      VLFF_DEBUG(TAG, "frame %llu skipped: its pose is not there yet and %s", (unsigned long long)h->frame_id,
+                 ig->holding ? "an earlier keyframe candidate waits for its own" : "it is no keyframe by time");
+    }
+    return;
+  }
+  if (r == POSE_FOUND) frame_admit(ig, buf, pose, now);
+}
+
+/* Features that arrived (external extractor or in-node model) complete
+ * their waiting keyframes; keyframes whose features never come expire. */
+static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_t *fbuf, int model_h, int model_w) {
+  struct vlff_node *n = ig->n;
+  const struct vlff_config *cfg = ig->cfg;
+  if (ig->join && !*feats)
+    *feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
+  if (ig->join) {
+    if (*feats) vlff_feature_join_pump(ig->join, *feats);
+    uint64_t fid;
+    int fh, fw, ev;
+    while ((ev = vlff_feature_join_poll(ig->join, vlff_shm_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {
+      if (ev == VLFF_JOIN_READY) pending_complete(n, ig->pending, &ig->npend, fid, fbuf, fh, fw);
+    }
+  }
+#ifdef VLFF_HAVE_VLM
+  if (n->image_worker) {
+    uint64_t fid;
+    char werr[256];
+    int r;
+    while ((r = vlff_image_worker_poll(n->image_worker, &fid, fbuf, werr, sizeof werr)) != 0) {
+      if (r > 0) {
+        pending_complete(n, ig->pending, &ig->npend, fid, fbuf, model_h, model_w);
+      } else {
+        VLFF_WARN(TAG, "frame %llu: image encoder failed: %s", (unsigned long long)fid, werr);
+        int i = pending_find(ig->pending, ig->npend, fid);
+        if (i >= 0) {
+          STAT_ADD(n, features_timeout, 1);
+          candidate_free(ig->pending[i]);
+          pending_remove(ig->pending, &ig->npend, i);
+        }
+      }
+    }
+  }
+#else
+  (void)model_h;
+  (void)model_w;
+#endif
+  for (int i = 0; i < ig->npend; i++)
+    if (mono_s() > ig->pending[i]->deadline_s) {
+      STAT_ADD(n, features_timeout, 1);
+      VLFF_WARN(TAG, "frame %lld: features did not arrive within %.1f s", ig->pending[i]->id,
+                cfg->vlm.feature_timeout_s);
+      candidate_free(ig->pending[i]);
+      pending_remove(ig->pending, &ig->npend, i);
+      i--;
+    }
 }
 
 static void *ingest_main(void *arg) {
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
+  struct ingest ig = {.n = n, .cfg = cfg, .rl = {.last_report_s = mono_s()}};
   struct vlff_ring *ring = attach_retry(n, cfg->shm.ring, VLFF_RECORD_FRAME);
-  struct vlff_ring *poses = NULL, *feats = NULL;
-  struct vlff_sim_frame *sf = n->sim ? vlff_sim_frame_new(n->sim) : NULL;
-  struct candidate *pending[PENDING_CAP];
-  int npend = 0;
+  struct vlff_ring *feats = NULL;
+  ig.sf = n->sim ? vlff_sim_frame_new(n->sim) : NULL;
   size_t cap = ring ? vlff_ring_slot_size(ring) : 0;
   void *buf = cap ? malloc(cap) : NULL;
+  ig.held = cap ? malloc(cap) : NULL;
   int dim = cfg->field.feature_dim;
   /* Feature maps are at most the model input's size (the extractor's
    * contract); the join and the image worker hand results out through fbuf. */
   int model_h = n->model_h, model_w = n->model_w;
   uint16_t *fbuf = malloc((size_t)model_h * model_w * dim * sizeof(uint16_t));
-  struct vlff_feature_join *join = NULL;
   if (cfg->source.features == VLFF_FEAT_RING) {
     char jerr[256];
-    join = vlff_feature_join_create(PENDING_CAP, cfg->vlm.feature_timeout_s, dim, model_h, model_w, jerr, sizeof jerr);
-    if (!join) VLFF_ERROR(TAG, "feature join: %s", jerr);
+    ig.join = vlff_feature_join_create(PENDING_CAP, cfg->vlm.feature_timeout_s, dim, model_h, model_w, jerr,
+                                       sizeof jerr);
+    if (!ig.join) VLFF_ERROR(TAG, "feature join: %s", jerr);
   }
-  struct vlff_kf_selector sel;
-  vlff_kf_selector_init(&sel, cfg->keyframes.rate_hz, cfg->keyframes.min_translation_m,
+  vlff_kf_selector_init(&ig.sel, cfg->keyframes.rate_hz, cfg->keyframes.min_translation_m,
                         cfg->keyframes.min_rotation_deg);
   uint64_t lost_seen = 0;
   double fps_t0 = mono_s();
   long long fps_count = 0;
-  while (ring && buf && fbuf && !atomic_load(&n->stop)) {
+  while (ring && buf && ig.held && fbuf && !atomic_load(&n->stop)) {
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
-    if (!poses) poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
-    if (join && !feats)
-      feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
-    /* Features that arrived (external extractor or in-node model) complete
-     * their waiting keyframes; keyframes whose features never come expire. */
-    if (join) {
-      if (feats) vlff_feature_join_pump(join, feats);
-      uint64_t fid;
-      int fh, fw, ev;
-      while ((ev = vlff_feature_join_poll(join, vlff_shm_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {
-        if (ev == VLFF_JOIN_READY) pending_complete(n, pending, &npend, fid, fbuf, fh, fw);
-      }
-    }
-#ifdef VLFF_HAVE_VLM
-    if (n->image_worker) {
-      uint64_t fid;
-      char werr[256];
-      int r;
-      while ((r = vlff_image_worker_poll(n->image_worker, &fid, fbuf, werr, sizeof werr)) != 0) {
-        if (r > 0) {
-          pending_complete(n, pending, &npend, fid, fbuf, model_h, model_w);
-        } else {
-          VLFF_WARN(TAG, "frame %llu: image encoder failed: %s", (unsigned long long)fid, werr);
-          int i = pending_find(pending, npend, fid);
-          if (i >= 0) {
-            STAT_ADD(n, features_timeout, 1);
-            candidate_free(pending[i]);
-            pending_remove(pending, &npend, i);
-          }
-        }
-      }
-    }
-#endif
-    for (int i = 0; i < npend; i++)
-      if (mono_s() > pending[i]->deadline_s) {
-        STAT_ADD(n, features_timeout, 1);
-        VLFF_WARN(TAG, "frame %lld: features did not arrive within %.1f s", pending[i]->id,
-                  cfg->vlm.feature_timeout_s);
-        candidate_free(pending[i]);
-        pending_remove(pending, &npend, i);
-        i--;
-      }
-
+    ingest_features(&ig, &feats, fbuf, model_h, model_w);
+    ingest_held(&ig, mono_s());
+    refusal_summary(n, &ig.rl, mono_s());
     struct vlff_ring_view info;
-    ssize_t len = vlff_ring_read_copy(ring, buf, cap, &info, 50 * 1000 * 1000ull);
+    /* A held frame is looked at again soon after each short wait. */
+    uint64_t wait_ns = ig.holding ? 5 * 1000 * 1000ull : 50 * 1000 * 1000ull;
+    ssize_t len = vlff_ring_read_copy(ring, buf, cap, &info, wait_ns);
     uint64_t lost = vlff_ring_lost(ring);
     if (lost != lost_seen) {
       pthread_mutex_lock(&n->slock);
@@ -414,12 +785,13 @@ static void *ingest_main(void *arg) {
         lost_seen = 0;
         if (ring && vlff_ring_slot_size(ring) > cap) {
           cap = vlff_ring_slot_size(ring);
-          void *nb = realloc(buf, cap);
-          if (!nb) break;
-          buf = nb;
+          void *nb = realloc(buf, cap), *nh = nb ? realloc(ig.held, cap) : NULL;
+          if (nb) buf = nb;
+          if (nh) ig.held = nh;
+          if (!nb || !nh) break;
         }
       } else if (errno == EMSGSIZE) {
-        frame_invalid(n, -1, "record larger than the read buffer");
+        refuse(n, &ig.rl, VLFF_REFUSED_MALFORMED, -1, "record larger than the ring's slot size %zu", cap);
       }
       continue;
     }
@@ -436,135 +808,16 @@ static void *ingest_main(void *arg) {
       fps_t0 = now;
       fps_count = 0;
     }
-
-    const struct vlff_frame_hdr *h = buf;
-    long long id = (long long)h->frame_id;
-    if (vlff_frame_validate(buf, (size_t)len) != 0) {
-      frame_invalid(n, id, "malformed frame record");
-      continue;
-    }
-    const struct vlff_plane *cp = &h->plane[VLFF_PLANE_COLOR];
-    const struct vlff_plane *dp = h->nplanes > 1 ? &h->plane[VLFF_PLANE_DEPTH] : NULL;
-    if ((int)cp->width > cfg->shm.max_width || (int)cp->height > cfg->shm.max_height) {
-      frame_invalid(n, id, "larger than shm.max_width x shm.max_height");
-      continue;
-    }
-    if (cp->format != VLFF_PIX_RGB8 && cp->format != VLFF_PIX_MONO8) {
-      frame_invalid(n, id, "colour plane is not RGB8 or Mono8");
-      continue;
-    }
-    if (!(h->flags & VLFF_FRAME_INTRINSICS_VALID) || !(h->fx > 0) || !(h->fy > 0) ||
-        !isfinite(h->cx) || !isfinite(h->cy)) {
-      frame_invalid(n, id, "no valid intrinsics");
-      continue;
-    }
-    double pose[16];
-    bool have_pose = false;
-    if ((h->flags & VLFF_FRAME_POSE_VALID) && !(h->flags & VLFF_FRAME_POSE_UNTRUSTED)) {
-      memcpy(pose, h->pose, sizeof pose);
-      have_pose = true;
-    } else if (poses) {
-      struct vlff_pose_rec pr;
-      if (vlff_pose_lookup(poses, h->t_host_ns, (uint64_t)(cfg->source.pose_tolerance_s * 1e9), &pr) == 0 &&
-          !(pr.flags & VLFF_FRAME_POSE_UNTRUSTED)) {
-        memcpy(pose, pr.pose, sizeof pose);
-        have_pose = true;
-      }
-    }
-    if (!have_pose || !vlff_pose_valid(pose)) {
-      frame_invalid(n, id, have_pose ? "pose not a rigid transform (NaN or not orthonormal)" : "no pose");
-      continue;
-    }
-    pthread_mutex_lock(&n->slock);
-    n->last_pose_ok_s = now;
-    pthread_mutex_unlock(&n->slock);
-    if (!dp || (dp->format != VLFF_PIX_DEPTH_U16_MM && dp->format != VLFF_PIX_DEPTH_F32_M) ||
-        dp->width != cp->width || dp->height != cp->height) {
-      frame_invalid(n, id, "no depth plane of the colour plane's size");
-      continue;
-    }
-    if (!vlff_kf_selector_offer(&sel, (long long)h->t_host_ns, pose)) continue;
-
-    int dw = (int)lround(cp->width * cfg->train.image_scale), dh = (int)lround(cp->height * cfg->train.image_scale);
-    if (dw < 4 || dh < 4) {
-      frame_invalid(n, id, "too small at train.image_scale");
-      continue;
-    }
-    struct candidate *c = calloc(1, sizeof *c);
-    if (!c) continue;
-    c->id = id;
-    c->t_host_ns = h->t_host_ns;
-    c->rgb = malloc((size_t)dw * dh * 3);
-    c->depth = malloc((size_t)dw * dh * sizeof(float));
-    if (!c->rgb || !c->depth) {
-      candidate_free(c);
-      continue;
-    }
-    resample_rgb(vlff_frame_plane(buf, VLFF_PLANE_COLOR), (int)cp->width, (int)cp->height, cp->stride,
-                 cp->format == VLFF_PIX_RGB8 ? 3 : 1, c->rgb, dw, dh);
-    size_t valid = resample_depth(vlff_frame_plane(buf, VLFF_PLANE_DEPTH), dp->format, (int)dp->width,
-                                  (int)dp->height, dp->stride, c->depth, dw, dh);
-    if (valid == 0) {
-      candidate_free(c);
-      frame_invalid(n, id, "depth plane has no valid pixel");
-      continue;
-    }
-    double sx = (double)dw / cp->width, sy = (double)dh / cp->height;
-    struct vlff_view *v = &c->view;
-    v->width = dw;
-    v->height = dh;
-    v->rgb = c->rgb;
-    v->depth = c->depth;
-    v->fx = h->fx * sx;
-    v->fy = h->fy * sy;
-    v->cx = h->cx * sx;
-    v->cy = h->cy * sy;
-    memcpy(v->c2w, pose, sizeof pose);
-
-    if (cfg->source.features == VLFF_FEAT_SIM) {
-      char err[256];
-      /* vlff-sim loops its trajectory: scene frame = frame id mod sim.frames. */
-      if (!sf || vlff_sim_render(n->sim, id % cfg->sim.frames, VLFF_SIM_FEATURES, sf, err, sizeof err)) {
-        candidate_free(c);
-        frame_invalid(n, id, "simulated features unavailable");
-        continue;
-      }
-      size_t fb = (size_t)sf->feat_width * sf->feat_height * sf->feat_dim * sizeof(uint16_t);
-      c->features = malloc(fb);
-      if (!c->features) {
-        candidate_free(c);
-        continue;
-      }
-      memcpy(c->features, sf->features, fb);
-      v->features = c->features;
-      v->feat_width = sf->feat_width;
-      v->feat_height = sf->feat_height;
-      v->feat_dim = sf->feat_dim;
-      queue_push(n, c);
-    } else {
-      c->deadline_s = now + cfg->vlm.feature_timeout_s;
-      if (npend == PENDING_CAP) {
-        STAT_ADD(n, features_timeout, 1);
-        candidate_free(pending[0]);
-        pending_remove(pending, &npend, 0);
-      }
-      char jerr[256];
-      if (join) vlff_feature_join_add_frame(join, (uint64_t)id, vlff_shm_now_ns(), jerr, sizeof jerr);
-#ifdef VLFF_HAVE_VLM
-      if (n->image_worker)
-        vlff_image_worker_submit(n->image_worker, (uint64_t)id, vlff_frame_plane(buf, VLFF_PLANE_COLOR),
-                                 (int)cp->width, (int)cp->height, cp->stride);
-#endif
-      pending[npend++] = c;
-    }
+    ingest_frame(&ig, buf, len, now);
   }
-  for (int i = 0; i < npend; i++) candidate_free(pending[i]);
+  for (int i = 0; i < ig.npend; i++) candidate_free(ig.pending[i]);
   free(buf);
+  free(ig.held);
   free(fbuf);
-  vlff_feature_join_destroy(join);
-  vlff_sim_frame_free(sf);
+  vlff_feature_join_destroy(ig.join);
+  vlff_sim_frame_free(ig.sf);
   vlff_ring_close(ring);
-  vlff_ring_close(poses);
+  vlff_ring_close(ig.poses);
   vlff_ring_close(feats);
   return NULL;
 }
@@ -743,7 +996,17 @@ static void take_candidates(struct vlff_node *n, bool wait) {
       /* Implausible intrinsics or pose would make every ray of this view
        * wrong (and, unbounded, endless): never train on or map it. */
       VLFF_WARN(TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s", c->id, verr);
-      STAT_ADD(n, frames_invalid, 1);
+      /* Counted under its reason like the ingest's refusals, which hold
+       * frames to the same bounds at full size. */
+      const struct vlff_view *v = &c->view;
+      int reason = vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, NULL, 0)
+                       ? VLFF_REFUSED_BAD_INTRINSICS
+                       : VLFF_REFUSED_POSE_RANGE;
+      pthread_mutex_lock(&n->slock);
+      n->st.frames_invalid++;
+      n->st.refused[reason]++;
+      n->st.last_refusal = reason;
+      pthread_mutex_unlock(&n->slock);
     } else if (n->mapping) {
       if (!pose_check(n, c)) {
         STAT_ADD(n, poses_rejected, 1);
@@ -1016,6 +1279,19 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     return NULL;
   }
 #endif
+  if (!cfg->prompts.embeddings[0] && !cfg->vlm.text_model[0] && cfg->source.features != VLFF_FEAT_SIM &&
+      cfg->source.kind != VLFF_SOURCE_SIM) {
+    /* Checked before any segment is made: without a text encoder no prompt
+     * can be embedded, and the node would stop at the first one. */
+    snprintf(err, errlen, "no text encoder for the prompts: set prompts.embeddings (a precomputed file) or "
+             "vlm.text_model (the CLIP text encoder, ONNX)");
+    return NULL;
+  }
+  if (vlff_config_sim_features_misused(cfg)) {
+    snprintf(err, errlen, "source.features: sim with source.kind: ring pairs the simulator's features with a "
+             "camera's images; use ring or model, or set source.allow_sim_features: true to force it");
+    return NULL;
+  }
   if (cfg->source.features == VLFF_FEAT_SIM && cfg->sim.feature_dim != cfg->field.feature_dim) {
     snprintf(err, errlen, "sim.feature_dim (%d) must equal field.feature_dim (%d)", cfg->sim.feature_dim,
              cfg->field.feature_dim);

@@ -44,6 +44,30 @@ enum vlff_node_error_flags {
   VLFF_NODE_ERR_CHECKPOINT = 1u << 3   /* the last checkpoint failed */
 };
 
+/* Why the ingest thread refused a frame from the ring. Each reason is
+ * counted in vlff_node_status.refused[], logged at info (the first with
+ * its detail, then counts every few seconds while they go on) and carried
+ * on CAN (VLFF_INGEST, configs/vlff.dbc); the values are the DBC's. */
+enum vlff_refusal {
+  VLFF_REFUSED_NONE = 0,
+  VLFF_REFUSED_MALFORMED = 1,      /* not a well-formed frame record, or larger than a slot */
+  VLFF_REFUSED_OVERSIZE = 2,       /* larger than shm.max_width x shm.max_height */
+  VLFF_REFUSED_PIXEL_FORMAT = 3,   /* colour plane neither RGB8 nor Mono8 */
+  VLFF_REFUSED_NO_INTRINSICS = 4,  /* intrinsics not flagged valid, or not finite */
+  VLFF_REFUSED_BAD_INTRINSICS = 5, /* focal lengths or principal point implausible for the image size */
+  VLFF_REFUSED_NO_POSE = 6,        /* none in the frame, none in the pose ring within pose_tolerance_s */
+  VLFF_REFUSED_BAD_POSE = 7,       /* not a rigid transform (NaN, rotation not orthonormal) */
+  VLFF_REFUSED_POSE_RANGE = 8,     /* camera far outside the scene box: wrong units or frame */
+  VLFF_REFUSED_NO_DEPTH = 9,       /* no depth plane of the colour plane's size in a depth format */
+  VLFF_REFUSED_EMPTY_DEPTH = 10,   /* depth plane without one valid pixel */
+  VLFF_REFUSED_TOO_SMALL = 11,     /* under 4x4 pixels at train.image_scale */
+  VLFF_REFUSED_NO_FEATURES = 12,   /* simulated features could not be rendered */
+  VLFF_REFUSED_COUNT
+};
+
+/* Short fixed name of a reason ("no pose"); "unknown" out of range. */
+const char *vlff_refusal_name(int reason);
+
 struct vlff_node_status {
   int state;                    /* enum vlff_node_state */
   unsigned error_flags;         /* enum vlff_node_error_flags */
@@ -54,7 +78,9 @@ struct vlff_node_status {
   long long keyframes_evicted;
   long long frames_in;          /* frames read from the ring */
   long long frames_lost;        /* lapped or torn in the ring */
-  long long frames_invalid;     /* malformed, oversize, no usable pose, no valid depth */
+  long long frames_invalid;     /* refused, all reasons: the sum of refused[] */
+  long long refused[VLFF_REFUSED_COUNT]; /* per enum vlff_refusal; [0] unused */
+  int last_refusal;             /* reason of the latest refused frame, 0 = none yet */
   long long poses_rejected;     /* keyframes refused by the depth-residual pose check */
   long long features_timeout;   /* keyframes whose features never arrived */
   long long candidates_dropped; /* keyframes the trainer could not take in time */

@@ -31,9 +31,13 @@ void vlff_unproject(const double m[16], double fx, double fy, double cx, double 
   for (int a = 0; a < 3; a++) out[a] = m[a * 4] * q[0] + m[a * 4 + 1] * q[1] + m[a * 4 + 2] * q[2] + m[a * 4 + 3];
 }
 
+bool vlff_kf_selector_due(const struct vlff_kf_selector *s, long long t_ns) {
+  return !s->have_last || (double)(t_ns - s->last_t_ns) * 1e-9 >= s->min_interval_s;
+}
+
 bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const double c2w[16]) {
   if (s->have_last) {
-    if ((double)(t_ns - s->last_t_ns) * 1e-9 < s->min_interval_s) return false;
+    if (!vlff_kf_selector_due(s, t_ns)) return false;
     if (s->min_translation_m > 0 || s->min_rotation_deg > 0) {
       double dt = 0;
       for (int i = 0; i < 3; i++) dt += pow(c2w[i * 4 + 3] - s->last_c2w[i * 4 + 3], 2);

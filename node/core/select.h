@@ -23,6 +23,10 @@ struct vlff_kf_selector {
 void vlff_kf_selector_init(struct vlff_kf_selector *s, double rate_hz, double min_translation_m,
                            double min_rotation_deg);
 
+/* True when a frame at t_ns is far enough in time from the last keyframe
+ * to become one (motion is judged by vlff_kf_selector_offer). */
+bool vlff_kf_selector_due(const struct vlff_kf_selector *s, long long t_ns);
+
 /* True when the frame should become a keyframe; then it is remembered as the
  * last one. */
 bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const double c2w[16]);

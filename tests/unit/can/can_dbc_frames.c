@@ -23,16 +23,19 @@ int main(int argc, char **argv) {
   const struct vlff_can_status st = {.iteration = 123456, .loss_total = 1.234f, .loss_color = 0.0123f,
                                      .loss_depth = 0.0456f, .loss_feature = 0.789f, .keyframes = 41,
                                      .map_version = 77, .fps_in = 29.97f, .fps_dropped = 1.5f, .prompt_set = 2,
-                                     .error_flags = VLFF_CAN_ERRF_CAMERA_LOST};
+                                     .error_flags = VLFF_CAN_ERRF_CAMERA_LOST, .frames_refused = 193,
+                                     .last_refusal = 6};
   const struct vlff_canp_link link = {.nmt_state = VLFF_NMT_OPERATIONAL, .extra_flags = 0x40, .can_errors = 0x01,
-                                      .cmd_rejected = 3, .tx_dropped = 4, .map_age_ms = 1500};
-  static const char *const names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH"};
-  unsigned char fd[32];
+                                      .cmd_rejected = 3, .tx_dropped = 4, .map_age_ms = 1500,
+                                      .refused_active = 1u << (6 - 1), .refused_period = 15};
+  static const char *const names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST"};
+  _Static_assert(sizeof names / sizeof names[0] == VLFF_CANP_STATUS_FRAMES, "a name per status frame");
+  unsigned char fd[VLFF_CANP_STATUS_FD_LEN] = {0};
   for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {
     vlff_canp_encode_status(i, &st, &link, fd + 8 * i);
-    put(names[i], cfg.can.status_base_id + i, fd + 8 * i, 8);
+    put(names[i], cfg.can.status_base_id + vlff_canp_status_offset(i), fd + 8 * i, 8);
   }
-  put("VLFF_STATUS_FD", cfg.can.status_base_id + VLFF_CANP_STATUS_FD_OFFSET, fd, 32);
+  put("VLFF_STATUS_FD", cfg.can.status_base_id + VLFF_CANP_STATUS_FD_OFFSET, fd, VLFF_CANP_STATUS_FD_LEN);
   unsigned char hb = VLFF_NMT_OPERATIONAL, d[4];
   put("VLFF_HEARTBEAT", VLFF_CANP_HEARTBEAT_BASE + cfg.can.node_id, &hb, 1);
   struct vlff_can_command cmd = {.code = VLFF_CAN_CMD_PROMPT_SET, .arg = 2, .seq = 17};

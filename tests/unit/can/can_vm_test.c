@@ -191,7 +191,8 @@ static struct vlff_can_status fixed_status(void) {
   struct vlff_can_status st = {.iteration = 123456789, .loss_total = 2.5f, .loss_color = 0.0421f,
                                .loss_depth = 0.137f, .loss_feature = 0.9f, .keyframes = 77, .map_version = 31,
                                .fps_in = 29.97f, .fps_dropped = 0.5f, .prompt_set = 1,
-                               .error_flags = VLFF_CAN_ERRF_POSE_STALE};
+                               .error_flags = VLFF_CAN_ERRF_POSE_STALE, .frames_refused = 193, .last_refusal = 6};
+  st.refused[6] = 193;
   return st;
 }
 
@@ -573,7 +574,7 @@ static void check_dbc_frames(bool fd) {
       counts[7]++;
     } else if (!strcmp(m->name, "VLFF_STATUS_FD")) {
       assert_true(fd);
-      for (int p = 0; p < 4; p++)
+      for (int p = 0; p < VLFF_CANP_STATUS_FRAMES; p++)
         if (dbc_check_status(m, p, f.data, f.len, &st, VLFF_NMT_OPERATIONAL, why, sizeof why) < 0)
           fail_msg("%s", why);
       counts[4]++;
@@ -590,11 +591,11 @@ static void check_dbc_frames(bool fd) {
     }
     checked++;
   }
-  printf("dbc%s: %d frames decoded and checked (hb %d, status %d/%d/%d/%d, fd %d)\n", fd ? " (FD)" : "", checked,
-         counts[7], counts[0], counts[1], counts[2], counts[3], counts[4]);
+  printf("dbc%s: %d frames decoded and checked (hb %d, status %d/%d/%d/%d/%d, fd %d)\n", fd ? " (FD)" : "", checked,
+         counts[7], counts[0], counts[1], counts[2], counts[3], counts[5], counts[4]);
   assert_true(counts[7] >= 20);
   if (fd) assert_true(counts[4] >= 10);
-  else for (int i = 0; i < 4; i++) assert_true(counts[i] >= 10);
+  else for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) assert_true(counts[vlff_canp_status_offset(i)] >= 10);
   node_stop(n);
   close(bus);
   sh("ip link del %s", ifn);

@@ -34,10 +34,10 @@ static int near(const char *sig, double got, double want, double tol, char *why,
 
 int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data, int len,
                      const struct vlff_can_status *st, int nmt_state, char *why, size_t n) {
-  const char *prefix_names[4] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH"};
+  const char *prefix_names[5] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST"};
   const char *kind = m->name;
   if (!strcmp(m->name, "VLFF_STATUS_FD")) {
-    if (part < 0 || part > 3) { snprintf(why, n, "bad FD part %d", part); return -1; }
+    if (part < 0 || part > 4) { snprintf(why, n, "bad FD part %d", part); return -1; }
     kind = prefix_names[part];
   }
   if (len != m->dlc) {
@@ -65,6 +65,9 @@ int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data,
     c[k++] = (struct want){"ErrShmLapped", (st->error_flags & VLFF_CAN_ERRF_SHM_LAPPED) ? 1 : 0, 0};
     c[k++] = (struct want){"ErrCheckpointFailed", (st->error_flags & VLFF_CAN_ERRF_CHECKPOINT_FAILED) ? 1 : 0, 0};
     c[k++] = (struct want){"FpsDropped", expect_scaled(st->fps_dropped, 0.01), 1e-9};
+  } else if (!strcmp(kind, "VLFF_INGEST")) {
+    c[k++] = (struct want){"FramesRefused", st->frames_refused, 0};
+    c[k++] = (struct want){"LastRefusal", st->last_refusal > 255 ? 255 : st->last_refusal, 0};
   } else {
     snprintf(why, n, "%s is not a status message", m->name);
     return -1;

@@ -15,6 +15,7 @@
 #include "can_proto.h"
 #include "config.h"
 #include "dbc_check.h"
+#include "node.h"
 
 static struct dbc db;
 
@@ -23,12 +24,16 @@ static int setup(void **state) {
   return dbc_load_vlff(&db);
 }
 
-/* Every bit of each 8-byte status payload belongs to at most one signal, and
- * all bits but HEALTH bit 7 are described. */
+/* Every bit of each status payload belongs to at most one signal, and all
+ * bits but HEALTH bit 7, the INGEST reason bits without a reason yet and the
+ * FD frame's padding are described. */
 static void test_layout_covers_payload(void **state) {
   (void)state;
-  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_STATUS_FD",
+  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_STATUS_FD",
                          "VLFF_COMMAND", "VLFF_ACK", "VLFF_HEARTBEAT"};
+  /* Reason codes 1..VLFF_CAN_REFUSAL_CODES-1 fit the INGEST bits; those
+   * the node does not define yet are unused. */
+  const int reason_bits_unused = 16 - (VLFF_REFUSED_COUNT - 1);
   for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
     const struct dbc_message *m = dbc_find_name(&db, names[i]);
     assert_non_null(m);
@@ -44,7 +49,10 @@ static void test_layout_covers_payload(void **state) {
     }
     int unused = 0;
     for (int b = 0; b < m->dlc * 8; b++) unused += owner[b] < 0;
-    int expect_unused = !strcmp(names[i], "VLFF_HEALTH") ? 1 : !strcmp(names[i], "VLFF_STATUS_FD") ? 1 : 0;
+    int expect_unused = !strcmp(names[i], "VLFF_HEALTH")      ? 1
+                        : !strcmp(names[i], "VLFF_INGEST")    ? reason_bits_unused
+                        : !strcmp(names[i], "VLFF_STATUS_FD") ? 1 + reason_bits_unused + 64
+                                                              : 0;
     assert_int_equal(unused, expect_unused);
   }
   /* Default ids (configs/default.yaml) are the DBC's ids. */
@@ -54,6 +62,21 @@ static void test_layout_covers_payload(void **state) {
   assert_int_equal(dbc_find_name(&db, "VLFF_TRAIN")->id, cfg.can.status_base_id);
   assert_int_equal(dbc_find_name(&db, "VLFF_HEALTH")->id, cfg.can.status_base_id + 3);
   assert_int_equal(dbc_find_name(&db, "VLFF_STATUS_FD")->id, cfg.can.status_base_id + 4);
+  assert_int_equal(dbc_find_name(&db, "VLFF_STATUS_FD")->dlc, VLFF_CANP_STATUS_FD_LEN);
+  assert_int_equal(dbc_find_name(&db, "VLFF_INGEST")->id,
+                   cfg.can.status_base_id + vlff_canp_status_offset(VLFF_CANP_INGEST));
+  /* One bit per reason the node defines, in code order, in both frames. */
+  for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
+    int found = 0;
+    const struct dbc_message *ms[2] = {dbc_find_name(&db, "VLFF_INGEST"), dbc_find_name(&db, "VLFF_STATUS_FD")};
+    for (int k = 0; k < 2; k++)
+      for (int s = 0; s < ms[k]->nsig; s++)
+        if (!strncmp(ms[k]->sig[s].name, "Refused", 7) && ms[k]->sig[s].length == 1 &&
+            ms[k]->sig[s].start == (k ? 256 : 0) + 40 + r - 1)
+          found++;
+    if (found != 2) fail_msg("reason %d (%s) has no bit %d in VLFF_INGEST and VLFF_STATUS_FD", r, vlff_refusal_name(r),
+                             40 + r - 1);
+  }
   assert_int_equal(dbc_find_name(&db, "VLFF_COMMAND")->id, cfg.can.command_id);
   assert_int_equal(dbc_find_name(&db, "VLFF_ACK")->id, cfg.can.ack_id);
 }
@@ -62,7 +85,7 @@ static float rnd(double hi) { return (float)(hi * rand() / RAND_MAX); }
 
 static void test_random_status_decodes(void **state) {
   (void)state;
-  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH"};
+  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST"};
   const struct dbc_message *fd = dbc_find_name(&db, "VLFF_STATUS_FD");
   srand(7);
   for (int it = 0; it < 2000; it++) {
@@ -70,19 +93,25 @@ static void test_random_status_decodes(void **state) {
         .iteration = (uint32_t)rand() * 2u, .loss_total = rnd(80), .loss_color = rnd(8), .loss_depth = rnd(3),
         .loss_feature = rnd(1), .keyframes = (uint32_t)(rand() % 70000), .map_version = (uint32_t)rand(),
         .fps_in = rnd(700), .fps_dropped = rnd(50), .prompt_set = (uint32_t)(rand() % 300),
-        .error_flags = (uint32_t)(rand() & 0x0f)};
+        .error_flags = (uint32_t)(rand() & 0x0f), .frames_refused = (uint32_t)rand() * 2u,
+        .last_refusal = (uint32_t)(rand() % VLFF_REFUSED_COUNT)};
     if (it % 10 == 0) st.loss_total = NAN;
     if (it % 13 == 0) st.loss_depth = -1;
     struct vlff_canp_link link = {.nmt_state = (uint8_t)(it % 2 ? VLFF_NMT_OPERATIONAL : VLFF_NMT_ERROR),
                                   .cmd_rejected = (uint64_t)(it * 40), .tx_dropped = (uint64_t)it,
-                                  .can_errors = (uint8_t)it, .map_age_ms = it * 50};
-    uint8_t all[32];
-    for (int i = 0; i < 4; i++) {
+                                  .can_errors = (uint8_t)it, .map_age_ms = it * 50,
+                                  .refused_active = (uint16_t)(rand() & 0x0fff), .refused_period = (uint32_t)(it % 300)};
+    uint8_t all[VLFF_CANP_STATUS_FD_LEN] = {0};
+    for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {
       vlff_canp_encode_status(i, &st, &link, all + 8 * i);
       const struct dbc_message *m = dbc_find_name(&db, names[i]);
       char why[256] = "";
       if (dbc_check_status(m, 0, all + 8 * i, 8, &st, link.nmt_state, why, sizeof why) < 0) fail_msg("%s", why);
-      if (dbc_check_status(fd, i, all, 32, &st, link.nmt_state, why, sizeof why) < 0) fail_msg("FD %s", why);
+    }
+    for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {
+      char why[256] = "";
+      if (dbc_check_status(fd, i, all, VLFF_CANP_STATUS_FD_LEN, &st, link.nmt_state, why, sizeof why) < 0)
+        fail_msg("FD %s", why);
     }
     /* Link-derived signals. */
     const struct dbc_message *h = dbc_find_name(&db, "VLFF_HEALTH");
@@ -98,6 +127,13 @@ static void test_random_status_decodes(void **state) {
     assert_true(v == (double)((it >> 7) & 1));
     assert_int_equal(dbc_decode(mp, "MapAge", all + 16, 8, &v), 0);
     assert_true(v == (link.map_age_ms > 65535 ? 65535 : (double)link.map_age_ms));
+    const struct dbc_message *ig = dbc_find_name(&db, "VLFF_INGEST");
+    assert_int_equal(dbc_decode(ig, "RefusedPeriod", all + 32, 8, &v), 0);
+    assert_true(v == (link.refused_period > 255 ? 255 : (double)link.refused_period));
+    assert_int_equal(dbc_decode(ig, "RefusedNoPose", all + 32, 8, &v), 0);
+    assert_true(v == (double)((link.refused_active >> (VLFF_REFUSED_NO_POSE - 1)) & 1));
+    assert_int_equal(dbc_decode(ig, "RefusedNoDepth", all + 32, 8, &v), 0);
+    assert_true(v == (double)((link.refused_active >> (VLFF_REFUSED_NO_DEPTH - 1)) & 1));
   }
 }
 

@@ -18,14 +18,15 @@ static void test_status_roundtrip(void **state) {
   struct vlff_can_status st = {.iteration = 0xdeadbeef, .loss_total = 1.234f, .loss_color = 0.0123f,
                                .loss_depth = 0.5f, .loss_feature = 0.25f, .keyframes = 41, .map_version = 7,
                                .fps_in = 29.97f, .fps_dropped = 1.5f, .prompt_set = 3,
-                               .error_flags = VLFF_CAN_ERRF_POSE_STALE | 0xf0u};
+                               .error_flags = VLFF_CAN_ERRF_POSE_STALE | 0xf0u, .frames_refused = 0x01020304,
+                               .last_refusal = 6};
   struct vlff_canp_link link = {.nmt_state = VLFF_NMT_OPERATIONAL, .extra_flags = VLFF_CAN_ERRF_TX_DROPPED,
                                 .can_errors = VLFF_CAN_BUS_OFF, .cmd_rejected = 70000, .tx_dropped = 12,
-                                .map_age_ms = 250};
-  uint8_t f[4][8];
+                                .map_age_ms = 250, .refused_active = 0x0120, .refused_period = 300};
+  uint8_t f[VLFF_CANP_STATUS_FRAMES][8];
   struct vlff_canp_status_view v;
   memset(&v, 0, sizeof v);
-  for (int i = 0; i < 4; i++) {
+  for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {
     vlff_canp_encode_status(i, &st, &link, f[i]);
     assert_int_equal(vlff_canp_decode_status(i, f[i], 8, &v), 0);
   }
@@ -47,8 +48,16 @@ static void test_status_roundtrip(void **state) {
   assert_int_equal(v.cmd_rejected, 0xffff); /* saturates */
   assert_int_equal(v.tx_dropped, 12);
   assert_int_equal(v.can_errors, VLFF_CAN_BUS_OFF);
+  assert_int_equal(v.frames_refused, 0x01020304);
+  assert_int_equal(f[4][0], 0x04);
+  assert_int_equal(v.last_refusal, 6);
+  assert_int_equal(v.refused_active, 0x0120);
+  assert_int_equal(v.refused_period, 255); /* saturates */
   assert_int_equal(vlff_canp_decode_status(0, f[0], 7, &v), -1);
-  assert_int_equal(vlff_canp_decode_status(4, f[0], 8, &v), -1);
+  assert_int_equal(vlff_canp_decode_status(5, f[0], 8, &v), -1);
+  /* INGEST's classic id skips base + 4, the FD frame's. */
+  assert_int_equal(vlff_canp_status_offset(VLFF_CANP_HEALTH), 3);
+  assert_int_equal(vlff_canp_status_offset(VLFF_CANP_INGEST), 5);
 }
 
 static void test_scaling_saturates(void **state) {
@@ -165,6 +174,16 @@ static void test_config_check(void **state) {
   cfg.can.fd = true;
   cfg.can.command_id = cfg.can.status_base_id + 4; /* the FD frame's id */
   assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  /* Classic frames end at base + 5 (INGEST). */
+  vlff_config_defaults(&cfg);
+  cfg.can.command_id = cfg.can.status_base_id + 5;
+  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_non_null(strstr(err, "can.command_id"));
+  vlff_config_defaults(&cfg);
+  cfg.can.status_base_id = 0x7fb;
+  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  cfg.can.fd = true; /* one frame at base + 4 fits */
+  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), 0);
   vlff_config_defaults(&cfg);
   snprintf(cfg.can.interface, sizeof cfg.can.interface, "an-interface-name-too-long");
   assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);

@@ -86,13 +86,16 @@ expect = {
     "VLFF_MAP": {"MapVersion": 77, "MapAge": 1500, "FpsIn": 29.97},
     "VLFF_HEALTH": {"ErrCameraLost": 1, "ErrPoseStale": 0, "ErrCmdRejected": 1, "FpsDropped": 1.5,
                     "CmdRejected": 3, "TxDropped": 4, "BusOff": 1, "BusPassive": 0},
+    "VLFF_INGEST": {"FramesRefused": 193, "LastRefusal": 6, "RefusedNoPose": 1, "RefusedNoDepth": 0,
+                    "RefusedPeriod": 15},
     "VLFF_HEARTBEAT": {"NmtState": 5},
     "VLFF_COMMAND": {"Target": 17, "Command": 5, "Argument": 2, "Sequence": 17},
     "VLFF_ACK": {"Node": 17, "Command": 5, "Result": 2, "Sequence": 17},
 }
-expect["VLFF_STATUS_FD"] = {k: v for m in ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH")
+expect["VLFF_STATUS_FD"] = {k: v for m in ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST")
                             for k, v in expect[m].items()}
 ids = {"VLFF_HEARTBEAT": 0x700 + 17, "VLFF_TRAIN": 0x200, "VLFF_HEALTH": 0x203, "VLFF_STATUS_FD": 0x204,
+       "VLFF_INGEST": 0x205,
        "VLFF_COMMAND": 0x611, "VLFF_ACK": 0x591}
 
 fails = 0

@@ -122,6 +122,25 @@ static void test_errors(void **state) {
                ">= field.base_resolution");
   expect_error("field:\n  base_resolution: 4096\n", "t.yaml: key 'field.finest_resolution': ", "got 2048");
   expect_error("prompts:\n  template: a photo\n", "t.yaml:2:13: key 'prompts.template': ", "containing {}");
+  /* The simulator's features with a camera's frames: refused unless forced. */
+  expect_error("source:\n  kind: ring\n  features: sim\n", "t.yaml:3:13: key 'source.features': ",
+               "source.allow_sim_features: true");
+  expect_error("source:\n  features: sim\n", "t.yaml:2:13: key 'source.features': ", "never a camera's");
+}
+
+static void test_sim_features(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  assert_int_equal(load("source:\n  kind: ring\n  features: sim\n  allow_sim_features: true\n", &cfg), 0);
+  assert_true(cfg.source.allow_sim_features);
+  assert_false(vlff_config_sim_features_misused(&cfg));
+  assert_int_equal(load("source:\n  kind: sim\n  features: sim\n", &cfg), 0);
+  /* The defaults describe a rig: camera ring, pose ring, feature ring. */
+  assert_int_equal(load("", &cfg), 0);
+  assert_int_equal(cfg.source.kind, VLFF_SOURCE_RING);
+  assert_int_equal(cfg.source.features, VLFF_FEAT_RING);
+  cfg.source.features = VLFF_FEAT_SIM;
+  assert_true(vlff_config_sim_features_misused(&cfg));
 }
 
 /* Deep brackets cost libyaml the square of their depth to load; the limit
@@ -401,6 +420,7 @@ int main(void) {
       cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
       cmocka_unit_test(test_errors),         cmocka_unit_test(test_missing_file),
       cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_field_hash),
+      cmocka_unit_test(test_sim_features),
       cmocka_unit_test(test_deep_yaml),      cmocka_unit_test(test_shm_names),
       cmocka_unit_test(test_fifo_config),    cmocka_unit_test(test_dead_temps),
       cmocka_unit_test(test_config_find),

@@ -13,6 +13,14 @@ check "--version" '"${node[@]}" --version | grep -qE "^vlff-node [0-9]+\.[0-9]+\
 check "--help lists --check-config" '"${node[@]}" --help | grep -q -- "--check-config"'
 check "bad option exits 2" '"${node[@]}" --bogus >/dev/null 2>&1; [[ $? == 2 ]]'
 check "default.yaml checks" '"${node[@]}" --check-config "$src/configs/default.yaml" >/dev/null 2>&1'
+# The defaults describe a rig: without a text encoder for the prompts the
+# node refuses to start, saying so, before it makes any segment.
+sed -e "s#\"/var/lib/vlff\"#\"$tmp/state\"#; s#\"/vlff-#\"/cli-$$-#" "$src/configs/default.yaml" >"$tmp/rig.yaml"
+check "the rig defaults need a text encoder" \
+  '! timeout 20 "${node[@]}" --config "$tmp/rig.yaml" >/dev/null 2>"$tmp/rig.err" && grep -q "no text encoder for the prompts" "$tmp/rig.err" && ! ls /dev/shm/cli-$$-* >/dev/null 2>&1'
+printf 'source:\n  kind: ring\n  features: sim\n' >"$tmp/simfeat.yaml"
+check "sim features with a camera ring are a config error" \
+  '! "${node[@]}" --check-config "$tmp/simfeat.yaml" >/dev/null 2>"$tmp/sf.err" && grep -q "simfeat.yaml:3:13: key .source.features.: sim features" "$tmp/sf.err"'
 printf 'node:\n  name: x\ntrain:\n  lr: fast\n' >"$tmp/bad.yaml"
 check "bad config exits 1 with file:line:col" \
   '! "${node[@]}" --check-config "$tmp/bad.yaml" >/dev/null 2>"$tmp/err" && grep -q "bad.yaml:4:7: key .train.lr.: expected number" "$tmp/err"'

@@ -1,0 +1,102 @@
+/*
+ * TUM RGB-D trajectory lines -> pose ring records: the parser and checks
+ * behind vlff-pose, as a library so that the unit tests drive exactly what
+ * the program runs.
+ *
+ * A line is "t tx ty tz qx qy qz qw": a stamp in seconds, the position in
+ * metres and the orientation as a unit quaternion (Hamilton, scalar last),
+ * the pose of the tracked frame in the tracker's world (ORB-SLAM3's
+ * CameraTrajectory.txt, RTAB-Map's and OpenVINS' TUM exports). Blank lines
+ * and lines starting with '#' are skipped.
+ *
+ * A feed turns lines into camera-to-world records for the node:
+ *   - stamp: t * 1e9 + clock offset (VLFF_TUM_STAMP_SOURCE), or the host's
+ *     CLOCK_MONOTONIC at receipt minus a latency (VLFF_TUM_STAMP_HOST);
+ *   - pose: the line's pose times the body-to-camera extrinsic, so a
+ *     tracker that reports its IMU's (body's) pose gives the camera's.
+ * Refused (counted per reason, never written): malformed lines, NaN or
+ * infinite values, quaternions whose norm is off 1 by more than the
+ * tolerance (smaller deviations are normalised), stamps equal to the
+ * previous accepted one (duplicate) or older (out of order).
+ *
+ * Contract: no allocation, no global state; a feed is used by one thread.
+ * Errors are returned as enum vlff_tum_result with a one-line reason in
+ * the caller's buffer.
+ */
+#ifndef VLFF_TUM_H
+#define VLFF_TUM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vlff/shm.h"
+
+enum vlff_tum_result {
+  VLFF_TUM_OK = 0,         /* a record was produced */
+  VLFF_TUM_SKIP,           /* blank line or comment */
+  VLFF_TUM_MALFORMED,      /* not eight numbers */
+  VLFF_TUM_NOT_FINITE,     /* NaN or infinity */
+  VLFF_TUM_BAD_QUATERNION, /* norm off 1 by more than the tolerance */
+  VLFF_TUM_DUPLICATE,      /* same stamp as the previous accepted line */
+  VLFF_TUM_OUT_OF_ORDER,   /* older than the previous accepted line */
+  VLFF_TUM_BAD_STAMP,      /* negative, or beyond the clock's range after the offset */
+  VLFF_TUM_RESULTS
+};
+
+/* Short fixed name of a result ("out of order"). */
+const char *vlff_tum_result_name(int result);
+
+/* One parsed line. */
+struct vlff_tum_sample {
+  double t;          /* seconds, as written */
+  int64_t t_ns;      /* the same in nanoseconds, exact for plain decimals ("1305031102.175304") */
+  double p[3];       /* metres */
+  double q[4];       /* x y z w, as written */
+};
+
+/* Parses one line (NUL-terminated, a trailing newline allowed) without any
+ * check beyond the syntax and finiteness. With extra_fields, numbers after
+ * the eighth (covariances, as OpenVINS' recorder appends) are allowed and
+ * ignored; without, they are MALFORMED. Returns VLFF_TUM_OK, SKIP,
+ * MALFORMED or NOT_FINITE, with why filled for the last two. A stamp
+ * beyond the range of int64 nanoseconds is MALFORMED. */
+int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *out, char *why, size_t whylen);
+
+/* Row-major 4x4 rigid transform of a position and a unit quaternion (x y z w). */
+void vlff_tum_matrix(const double p[3], const double q[4], double out[16]);
+
+enum vlff_tum_stamp { VLFF_TUM_STAMP_SOURCE = 0, VLFF_TUM_STAMP_HOST = 1 };
+
+struct vlff_tum_feed_params {
+  int stamp;                  /* enum vlff_tum_stamp */
+  int64_t clock_offset_ns;    /* SOURCE: added to t * 1e9 */
+  int64_t latency_ns;         /* HOST: subtracted from the receipt time */
+  double quat_tolerance;      /* largest |norm - 1| that is normalised, not refused */
+  double body_to_camera[16];  /* camera pose in the body frame; identity = the line is the camera's */
+  uint32_t source_id;         /* written into every record */
+  int extra_fields;           /* numbers after the eighth are ignored, not refused */
+};
+
+struct vlff_tum_feed {
+  struct vlff_tum_feed_params p;
+  int have_last;
+  int64_t last_t_ns;          /* stamp of the last accepted line, as written */
+  uint64_t last_ns;           /* its record's stamp */
+  uint64_t accepted;
+  uint64_t refused[VLFF_TUM_RESULTS]; /* per result; [OK] and [SKIP] unused */
+};
+
+/* params->body_to_camera must be a rigid transform: -1 with why otherwise. */
+int vlff_tum_feed_init(struct vlff_tum_feed *f, const struct vlff_tum_feed_params *params, char *why,
+                       size_t whylen);
+
+/* Feeds one line received at host time now_ns (CLOCK_MONOTONIC). On
+ * VLFF_TUM_OK *out holds the record to write; on a refusal the feed's
+ * counter for it is incremented and why says what is wrong. */
+int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_ns, struct vlff_pose_rec *out,
+                       char *why, size_t whylen);
+
+/* Total of refused lines. */
+uint64_t vlff_tum_feed_refused(const struct vlff_tum_feed *f);
+
+#endif

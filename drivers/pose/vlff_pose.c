@@ -1,0 +1,371 @@
+/*
+ * vlff-pose: the pose ring's producer for trackers that print TUM RGB-D
+ * trajectory lines (ORB-SLAM3, OpenVINS, RTAB-Map, VIO SDK samples). It
+ * reads lines from a file, a pipe or UDP datagrams, checks and converts
+ * them (tum.h) and writes one pose record per accepted line. Refused lines
+ * are counted per reason and reported with their line (or datagram)
+ * number; the first few of each reason are printed, then a summary.
+ */
+#include <arpa/inet.h>
+#include <errno.h>
+#include <getopt.h>
+#include <math.h>
+#include <netdb.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "cli.h"
+#include "config.h"
+#include "log.h"
+#include "tum.h"
+#include "vlff/shm.h"
+
+#define TAG "pose"
+#define REPORT_EACH 5 /* refusals of one reason printed one by one, the rest summarised */
+
+static volatile sig_atomic_t stop_requested;
+
+static void on_signal(int sig) { stop_requested = sig; }
+
+static const struct vlff_cli cli = {
+    "vlff-pose",
+    "Usage: vlff-pose [OPTIONS] [FILE]\n"
+    "Write camera poses into the pose ring (shm.pose_ring) from TUM RGB-D trajectory lines\n"
+    "\"t tx ty tz qx qy qz qw\" read from FILE (\"-\": standard input), else UDP on pose.udp or\n"
+    "--udp, else standard input.\n"
+    "The config's pose.* keys set the defaults of the options below (docs/pose.md).\n"
+    "\n"
+    "  -c, --config FILE        the config; without it $VLFF_CONFIG, then\n"
+    "                           " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
+    "  -r, --ring NAME          pose ring segment name (default: shm.pose_ring)\n"
+    "  -u, --udp ADDR:PORT      read datagrams of lines on this address (127.0.0.1:5600, [::]:5600)\n"
+    "      --clock monotonic|realtime\n"
+    "                           clock of the lines' stamps: the node's CLOCK_MONOTONIC, or UNIX\n"
+    "                           time, converted to it (pose.clock)\n"
+    "      --clock-offset S     seconds added to every line's stamp (pose.clock_offset_s)\n"
+    "      --stamp-host         stamp each pose with its receipt time instead of its own\n"
+    "      --latency S          with --stamp-host: seconds from the frame to its pose's receipt\n"
+    "      --extrinsic \"tx ty tz qx qy qz qw\"\n"
+    "                           the camera's pose in the tracker's body (IMU) frame (pose.extrinsic;\n"
+    "                           identity: the lines are already the camera's poses)\n"
+    "      --quat-tolerance X   quaternions with |norm - 1| <= X are normalised, others refused\n"
+    "      --extra-fields       ignore numbers after the eighth (covariances), instead of refusing the line\n"
+    "      --source-id N        written into every record\n"
+    "  -q, --quiet              print only errors and refusals\n"
+    "  -V, --version            print the version and exit\n"
+    "  -h, --help               print this help and exit\n"
+    "\n"
+    "Examples:\n"
+    "  vlff-pose -c /etc/vlff/vlff.yaml CameraTrajectory.txt\n"
+    "  my_slam | vlff-pose -c /etc/vlff/vlff.yaml --clock realtime -\n"
+    "  vlff-pose -c /etc/vlff/vlff.yaml --udp 127.0.0.1:5600 --extrinsic \"0.05 0 0 -0.5 0.5 -0.5 0.5\"\n"
+    "Exit status: 0 at the end of the input or on SIGINT/SIGTERM (refused lines are counted and\n"
+    "reported, not fatal), 1 when the config, the ring, the file or the socket cannot be opened,\n"
+    "2 on usage errors.\n",
+};
+
+struct reporter {
+  const char *name; /* file name, "stdin" or "udp" */
+  unsigned long printed[VLFF_TUM_RESULTS];
+};
+
+static void report_refusal(struct reporter *rp, const char *where, int result, const char *why) {
+  if (rp->printed[result]++ < REPORT_EACH) {
+    VLFF_WARN(TAG, "%s: refused, %s: %s%s", where, vlff_tum_result_name(result), why,
+              rp->printed[result] == REPORT_EACH ? " (further lines refused for this reason are only counted)" : "");
+  }
+}
+
+static void summary(const struct vlff_tum_feed *f, const char *ring) {
+  char line[512];
+  size_t k = 0;
+  line[0] = 0;
+  for (int r = VLFF_TUM_MALFORMED; r < VLFF_TUM_RESULTS && k < sizeof line; r++)
+    if (f->refused[r])
+      k += (size_t)snprintf(line + k, sizeof line - k, "%s%s %llu", k ? ", " : " (", vlff_tum_result_name(r),
+                            (unsigned long long)f->refused[r]);
+  if (k && k < sizeof line) snprintf(line + k, sizeof line - k, ")");
+  vlff_log(vlff_tum_feed_refused(f) ? VLFF_LOG_WARN : VLFF_LOG_INFO, TAG, "%llu poses written to %s, %llu lines refused%s",
+           (unsigned long long)f->accepted, ring, (unsigned long long)vlff_tum_feed_refused(f), line);
+}
+
+/* One line in; writes its record when accepted. */
+static void feed(struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp, const char *where,
+                 const char *line) {
+  struct vlff_pose_rec rec;
+  char why[256];
+  int r = vlff_tum_feed_line(f, line, vlff_shm_now_ns(), &rec, why, sizeof why);
+  if (r == VLFF_TUM_OK) {
+    if (vlff_ring_write(ring, &rec, sizeof rec) != 0) VLFF_ERROR(TAG, "%s: pose ring write: %s", where, strerror(errno));
+  } else if (r != VLFF_TUM_SKIP) {
+    report_refusal(rp, where, r, why);
+  }
+}
+
+static int read_stream(FILE *in, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp) {
+  char *line = NULL;
+  size_t cap = 0;
+  unsigned long lineno = 0;
+  while (!stop_requested) {
+    errno = 0;
+    ssize_t n = getline(&line, &cap, in);
+    if (n < 0) {
+      if (errno == EINTR && !stop_requested) {
+        clearerr(in);
+        continue;
+      }
+      break;
+    }
+    lineno++;
+    char where[300];
+    snprintf(where, sizeof where, "%s:%lu", rp->name, lineno);
+    feed(f, ring, rp, where, line);
+  }
+  int bad = ferror(in) && !stop_requested;
+  if (bad) VLFF_ERROR(TAG, "%s: read error: %s", rp->name, strerror(errno));
+  free(line);
+  return bad ? 1 : 0;
+}
+
+/* "host:port", "[v6]:port" or ":port" (every address). */
+static int open_udp(const char *spec, char *err, size_t errlen) {
+  char host[256];
+  const char *colon = strrchr(spec, ':');
+  if (!colon || !colon[1]) return snprintf(err, errlen, "udp '%.200s': expected ADDR:PORT", spec), -1;
+  size_t hl = (size_t)(colon - spec);
+  if (hl >= sizeof host) return snprintf(err, errlen, "udp '%.200s': address too long", spec), -1;
+  memcpy(host, spec, hl);
+  host[hl] = 0;
+  if (hl >= 2 && host[0] == '[' && host[hl - 1] == ']') {
+    memmove(host, host + 1, hl - 2);
+    host[hl - 2] = 0;
+  }
+  struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_DGRAM, .ai_flags = AI_PASSIVE}, *res;
+  int rc = getaddrinfo(host[0] ? host : NULL, colon + 1, &hints, &res);
+  if (rc) return snprintf(err, errlen, "udp '%.200s': %s", spec, gai_strerror(rc)), -1;
+  int s = -1;
+  for (struct addrinfo *a = res; a; a = a->ai_next) {
+    s = socket(a->ai_family, a->ai_socktype | SOCK_CLOEXEC, a->ai_protocol);
+    if (s < 0) continue;
+    if (bind(s, a->ai_addr, a->ai_addrlen) == 0) break;
+    snprintf(err, errlen, "udp '%.200s': bind: %s", spec, strerror(errno));
+    close(s);
+    s = -1;
+  }
+  freeaddrinfo(res);
+  return s;
+}
+
+static int read_udp(int sock, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp) {
+  static char buf[65536];
+  unsigned long dgram = 0;
+  while (!stop_requested) {
+    struct pollfd pfd = {.fd = sock, .events = POLLIN};
+    int pr = poll(&pfd, 1, 200);
+    if (pr < 0 && errno != EINTR) return VLFF_ERROR(TAG, "udp: poll: %s", strerror(errno)), 1;
+    if (pr <= 0) continue;
+    ssize_t n = recv(sock, buf, sizeof buf - 1, 0);
+    if (n < 0) {
+      if (errno == EINTR || errno == EAGAIN) continue;
+      return VLFF_ERROR(TAG, "udp: recv: %s", strerror(errno)), 1;
+    }
+    buf[n] = 0;
+    dgram++;
+    /* A datagram holds one line or several. */
+    unsigned long lineno = 0;
+    for (char *save = NULL, *l = strtok_r(buf, "\n", &save); l; l = strtok_r(NULL, "\n", &save)) {
+      char where[96];
+      snprintf(where, sizeof where, "udp datagram %lu line %lu", dgram, ++lineno);
+      feed(f, ring, rp, where, l);
+    }
+  }
+  return 0;
+}
+
+static int parse_double(const char *s, double lo, double hi, double *out) {
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  if (end == s || *end || errno || !isfinite(v) || v < lo || v > hi) return -1;
+  *out = v;
+  return 0;
+}
+
+/* Command-line values; each one set overrides its pose.* key. */
+struct overrides {
+  const char *ring, *udp;
+  int clock, stamp, extra_fields, quiet; /* -1 = from the config */
+  double clock_offset_s, latency_s, quat_tolerance, source_id; /* NAN = from the config */
+  int have_extrinsic;
+  double extrinsic[7];
+};
+
+static int parse_options(int argc, char **argv, struct overrides *o, const char **config_path, int *status) {
+  enum { OPT_CLOCK = 256, OPT_OFFSET, OPT_HOST, OPT_LATENCY, OPT_EXTRINSIC, OPT_QTOL, OPT_SOURCE, OPT_EXTRA };
+  static const struct option opts[] = {
+      {"config", required_argument, NULL, 'c'},
+      {"ring", required_argument, NULL, 'r'},
+      {"udp", required_argument, NULL, 'u'},
+      {"clock", required_argument, NULL, OPT_CLOCK},
+      {"clock-offset", required_argument, NULL, OPT_OFFSET},
+      {"stamp-host", no_argument, NULL, OPT_HOST},
+      {"latency", required_argument, NULL, OPT_LATENCY},
+      {"extrinsic", required_argument, NULL, OPT_EXTRINSIC},
+      {"quat-tolerance", required_argument, NULL, OPT_QTOL},
+      {"source-id", required_argument, NULL, OPT_SOURCE},
+      {"extra-fields", no_argument, NULL, OPT_EXTRA},
+      {"quiet", no_argument, NULL, 'q'},
+      VLFF_CLI_COMMON_OPTIONS,
+  };
+  int c;
+  double v;
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:r:u:q", opts, status)) != -1) {
+    switch (c) {
+    case VLFF_CLI_EXIT: return -1;
+    case 'c': *config_path = optarg; break;
+    case 'r': o->ring = optarg; break;
+    case 'u': o->udp = optarg; break;
+    case 'q': o->quiet = 1; break;
+    case OPT_HOST: o->stamp = VLFF_POSE_STAMP_HOST; break;
+    case OPT_EXTRA: o->extra_fields = 1; break;
+    case OPT_CLOCK:
+      if (!strcmp(optarg, "monotonic")) o->clock = VLFF_POSE_CLOCK_MONOTONIC;
+      else if (!strcmp(optarg, "realtime")) o->clock = VLFF_POSE_CLOCK_REALTIME;
+      else return *status = vlff_cli_usage_error(&cli, "--clock '%s': expected monotonic or realtime", optarg), -1;
+      break;
+    case OPT_OFFSET:
+      if (parse_double(optarg, -1e10, 1e10, &o->clock_offset_s))
+        return *status = vlff_cli_usage_error(&cli, "--clock-offset '%s': expected seconds", optarg), -1;
+      break;
+    case OPT_LATENCY:
+      if (parse_double(optarg, 0, 60, &o->latency_s))
+        return *status = vlff_cli_usage_error(&cli, "--latency '%s': expected seconds in [0, 60]", optarg), -1;
+      break;
+    case OPT_QTOL:
+      if (parse_double(optarg, 0, 0.5, &o->quat_tolerance))
+        return *status = vlff_cli_usage_error(&cli, "--quat-tolerance '%s': expected a number in [0, 0.5]", optarg), -1;
+      break;
+    case OPT_SOURCE:
+      if (parse_double(optarg, 0, 2147483647, &v) || v != floor(v))
+        return *status = vlff_cli_usage_error(&cli, "--source-id '%s': expected a non-negative integer", optarg), -1;
+      o->source_id = v;
+      break;
+    case OPT_EXTRINSIC: {
+      struct vlff_tum_sample s;
+      char line[512], why[256];
+      snprintf(line, sizeof line, "0 %s", optarg);
+      double n = 0;
+      if (vlff_tum_parse(line, 0, &s, why, sizeof why) == VLFF_TUM_OK)
+        n = sqrt(s.q[0] * s.q[0] + s.q[1] * s.q[1] + s.q[2] * s.q[2] + s.q[3] * s.q[3]);
+      if (!(fabs(n - 1) <= 0.01))
+        return *status = vlff_cli_usage_error(&cli, "--extrinsic '%s': expected \"tx ty tz qx qy qz qw\" with a unit "
+                                              "quaternion", optarg), -1;
+      memcpy(o->extrinsic, s.p, 3 * sizeof(double));
+      memcpy(o->extrinsic + 3, s.q, 4 * sizeof(double));
+      o->have_extrinsic = 1;
+      break;
+    }
+    default: return *status = vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]), -1;
+    }
+  }
+  if (optind + 1 < argc || (o->udp && optind < argc))
+    return *status = vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[o->udp ? optind : optind + 1]), -1;
+  return 0;
+}
+
+int main(int argc, char **argv) {
+  struct overrides o = {.clock = -1, .stamp = -1, .extra_fields = -1, .clock_offset_s = NAN, .latency_s = NAN,
+                        .quat_tolerance = NAN, .source_id = NAN};
+  const char *config_path = NULL;
+  int status = 0;
+  if (parse_options(argc, argv, &o, &config_path, &status)) return status;
+  const char *file = optind < argc ? argv[optind] : NULL;
+
+  static struct vlff_config cfg;
+  char err[1024];
+  config_path = vlff_config_find(config_path, err, sizeof err);
+  if (!config_path) return vlff_cli_error(&cli, "%s", err);
+  if (vlff_config_load(config_path, &cfg, err, sizeof err)) {
+    fprintf(stderr, "%s\n", err);
+    return 1;
+  }
+  /* The options override the config's pose.* keys. */
+  const struct vlff_config *k = &cfg;
+  const char *ring_name = o.ring ? o.ring : k->shm.pose_ring;
+  /* A FILE operand ("-": standard input) wins over the config's pose.udp. */
+  const char *udp = o.udp ? o.udp : !file && k->pose.udp[0] ? k->pose.udp : NULL;
+  int realtime = (o.clock >= 0 ? o.clock : k->pose.clock) == VLFF_POSE_CLOCK_REALTIME;
+  double offset_s = isnan(o.clock_offset_s) ? k->pose.clock_offset_s : o.clock_offset_s;
+  double latency_s = isnan(o.latency_s) ? k->pose.latency_s : o.latency_s;
+  const double *ext = o.have_extrinsic ? o.extrinsic : k->pose.extrinsic;
+  struct vlff_tum_feed_params fp = {
+      .stamp = (o.stamp >= 0 ? o.stamp : k->pose.stamp) == VLFF_POSE_STAMP_HOST ? VLFF_TUM_STAMP_HOST
+                                                                                : VLFF_TUM_STAMP_SOURCE,
+      .quat_tolerance = isnan(o.quat_tolerance) ? k->pose.quat_tolerance : o.quat_tolerance,
+      .source_id = (uint32_t)(isnan(o.source_id) ? k->pose.source_id : o.source_id),
+      .extra_fields = o.extra_fields >= 0 ? o.extra_fields : k->pose.extra_fields,
+      .latency_ns = (int64_t)llround(latency_s * 1e9),
+      .clock_offset_ns = (int64_t)llround(offset_s * 1e9),
+  };
+  vlff_log_set_level(o.quiet > 0 ? VLFF_LOG_WARN : (enum vlff_log_level)cfg.node.log_level);
+  if (realtime) {
+    /* UNIX-time stamps onto the node's clock: both clocks read back to back. */
+    struct timespec rt, mt;
+    clock_gettime(CLOCK_REALTIME, &rt);
+    clock_gettime(CLOCK_MONOTONIC, &mt);
+    fp.clock_offset_ns += ((int64_t)mt.tv_sec - rt.tv_sec) * 1000000000 + (mt.tv_nsec - rt.tv_nsec);
+  }
+  /* Both ways in checked it: the option above, the config's cross-check. */
+  double qn = sqrt(ext[3] * ext[3] + ext[4] * ext[4] + ext[5] * ext[5] + ext[6] * ext[6]);
+  double q[4] = {ext[3] / qn, ext[4] / qn, ext[5] / qn, ext[6] / qn};
+  vlff_tum_matrix(ext, q, fp.body_to_camera);
+  struct vlff_tum_feed f;
+  if (vlff_tum_feed_init(&f, &fp, err, sizeof err)) return vlff_cli_error(&cli, "%s", err);
+
+  FILE *in = NULL;
+  int sock = -1;
+  if (udp) {
+    sock = open_udp(udp, err, sizeof err);
+    if (sock < 0) return vlff_cli_error(&cli, "%s", err);
+  } else if (file && strcmp(file, "-")) {
+    in = fopen(file, "r");
+    if (!in) return vlff_cli_error(&cli, "%s: cannot open: %s", file, strerror(errno));
+  } else {
+    in = stdin;
+  }
+  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_POSE, .slots = (uint32_t)cfg.shm.pose_slots,
+                                .slot_size = sizeof(struct vlff_pose_rec),
+                                .perm = {.mode = (mode_t)cfg.shm.mode, .group = cfg.shm.group}};
+  struct vlff_ring *ring = vlff_ring_create(ring_name, &rp);
+  if (!ring) {
+    int rc = vlff_cli_error(&cli, "pose ring %s: %s", ring_name, vlff_shm_last_message());
+    if (in && in != stdin) fclose(in);
+    if (sock >= 0) close(sock);
+    return rc;
+  }
+
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_signal; /* no SA_RESTART: a blocked read returns */
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+
+  struct reporter rep = {.name = udp ? "udp" : in == stdin ? "stdin" : file};
+  VLFF_INFO(TAG, "vlff-pose %s: %s -> pose ring %s (%d slots), stamps %s%s", vlff_version(), udp ? udp : rep.name,
+            ring_name, cfg.shm.pose_slots,
+            fp.stamp == VLFF_TUM_STAMP_HOST ? "at receipt" : realtime ? "UNIX time" : "CLOCK_MONOTONIC",
+            fp.stamp == VLFF_TUM_STAMP_HOST || offset_s == 0 ? "" : " plus the clock offset");
+  int rc = udp ? read_udp(sock, &f, ring, &rep) : read_stream(in, &f, ring, &rep);
+  summary(&f, ring_name);
+  if (in && in != stdin) fclose(in);
+  if (sock >= 0) close(sock);
+  vlff_ring_close(ring);
+  return rc;
+}

@@ -1,0 +1,413 @@
+/*
+ * The node's frame ingest against the real programs: vlff-node says why it
+ * refuses frames (per reason, on --status and in its log), and frames
+ * without a pose are refused until vlff-pose feeds the matching trajectory
+ * into the pose ring, from a file and over UDP; then they become keyframes.
+ * Frames come from the synthetic scene, written into a frame ring as a
+ * camera driver would.
+ */
+#include <errno.h>
+#include <math.h>
+#include <setjmp.h>
+#include <signal.h>
+#include <spawn.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <netinet/in.h>
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <time.h>
+#include <unistd.h>
+#include <cmocka.h>
+#include <stdbool.h>
+
+#include "config.h"
+#include "log.h"
+#include "node.h"
+#include "sim.h"
+#include "vlff/shm.h"
+
+extern char **environ;
+
+static char dir[256], cfg_path[300], tag[64];
+static double scale = 1.0;
+static pid_t children[8];
+static int nchildren;
+
+static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
+
+static void sleep_s(double s) {
+  struct timespec ts = {(time_t)s, (long)((s - (time_t)s) * 1e9)};
+  nanosleep(&ts, NULL);
+}
+
+/* The ring carries the simulator's frames, so its features are forced on. */
+static void write_config(struct vlff_config *cfg) {
+  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", dir);
+  FILE *f = fopen(cfg_path, "w");
+  assert_non_null(f);
+  fprintf(f,
+          "node:\n  state_dir: %s/state\n  checkpoint_period_s: 0\n  log_level: info\n"
+          "source:\n  kind: ring\n  features: sim\n  allow_sim_features: true\n  pose_wait_s: 1\n"
+          "sim:\n  seed: 3\n  width: 160\n  height: 120\n  frames: 150\n"
+          "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
+          "  max_width: 320\n  max_height: 240\n"
+          "train:\n  image_scale: 0.5\n"
+          "keyframes:\n  start_after: 3\n"
+          "publish:\n  rate_hz: 1\n  label_width: 40\n  label_height: 30\n",
+          dir, tag, tag, tag, tag, tag);
+  fclose(f);
+  char err[512];
+  if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
+}
+
+/* Starts a program of the build with stdout/stderr into out (NULL: inherit). */
+static pid_t spawn(const char *prog, const char *const *args, const char *out) {
+  char path[512];
+  snprintf(path, sizeof path, "%s/%s", getenv("VLFF_BINARY_DIR"), prog);
+  char *argv[24];
+  int n = 0;
+  argv[n++] = path;
+  for (; args[n - 1] && n < 23; n++) argv[n] = (char *)args[n - 1];
+  argv[n] = NULL;
+  posix_spawn_file_actions_t fa;
+  posix_spawn_file_actions_init(&fa);
+  if (out) {
+    posix_spawn_file_actions_addopen(&fa, 1, out, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_adddup2(&fa, 1, 2);
+  }
+  pid_t pid;
+  assert_int_equal(posix_spawn(&pid, path, &fa, NULL, argv, environ), 0);
+  posix_spawn_file_actions_destroy(&fa);
+  if (nchildren < 8) children[nchildren++] = pid;
+  return pid;
+}
+
+static int wait_child(pid_t pid) {
+  int st;
+  assert_int_equal(waitpid(pid, &st, 0), pid);
+  for (int i = 0; i < nchildren; i++)
+    if (children[i] == pid) children[i] = 0;
+  return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
+
+static char *slurp(const char *path) {
+  static char buf[1 << 20];
+  FILE *f = fopen(path, "r");
+  if (!f) return strcpy(buf, "");
+  size_t n = fread(buf, 1, sizeof buf - 1, f);
+  buf[n] = 0;
+  fclose(f);
+  return buf;
+}
+
+static bool wait_for_text(const char *path, const char *text, double timeout_s) {
+  double t0 = mono_s();
+  while (mono_s() - t0 < timeout_s) {
+    if (strstr(slurp(path), text)) return true;
+    sleep_s(0.1);
+  }
+  return false;
+}
+
+static int setup(void **state) {
+  (void)state;
+  const char *sc = getenv("VLFF_E2E_SCALE");
+  if (sc) scale = atof(sc) > 0 ? atof(sc) : 1;
+  snprintf(tag, sizeof tag, "ing%d", (int)getpid());
+  snprintf(dir, sizeof dir, "/tmp/vlff-%s", tag);
+  mkdir(dir, 0755);
+  return 0;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  for (int i = 0; i < nchildren; i++)
+    if (children[i] > 0) {
+      kill(children[i], SIGKILL);
+      waitpid(children[i], NULL, 0);
+    }
+  nchildren = 0;
+  char cmd[600];
+  snprintf(cmd, sizeof cmd, "rm -rf %s /dev/shm/%s-*", dir, tag);
+  return system(cmd) == 0 ? 0 : -1;
+}
+
+enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS };
+
+/* Writes simulator frame `index` into the ring, stamped t_ns. The pose
+ * travels in the frame except for NO_POSE_FLAG (the pose ring must give
+ * it). */
+static void put_frame(struct vlff_ring *ring, struct vlff_sim *s, struct vlff_sim_frame *f, long long index,
+                      uint64_t t_ns, enum frame_kind kind) {
+  char err[256];
+  assert_int_equal(vlff_sim_render(s, index, VLFF_SIM_RGBD, f, err, sizeof err), 0);
+  struct vlff_frame_hdr *h = vlff_ring_reserve(ring, NULL);
+  uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), (uint32_t)f->width, (uint32_t)f->height,
+                                   VLFF_PIX_RGB8, kind == NO_DEPTH ? VLFF_PIX_NONE : VLFF_PIX_DEPTH_U16_MM);
+  assert_true(len > 0);
+  h->frame_id = (uint64_t)index;
+  h->t_host_ns = t_ns;
+  h->flags = VLFF_FRAME_INTRINSICS_VALID | (kind == NO_POSE_FLAG ? 0 : VLFF_FRAME_POSE_VALID);
+  h->fx = f->fx, h->fy = f->fy, h->cx = f->cx, h->cy = f->cy;
+  /* A focal length in millimetres where pixels belong. */
+  if (kind == BAD_INTRINSICS) h->fx = h->fy = 3.6;
+  if (kind != NO_POSE_FLAG) memcpy(h->pose, f->c2w, sizeof h->pose);
+  memcpy((uint8_t *)h + h->plane[0].offset, f->rgb, (size_t)f->width * f->height * 3);
+  if (kind != NO_DEPTH) memcpy((uint8_t *)h + h->plane[1].offset, f->depth_mm, (size_t)f->width * f->height * 2);
+  assert_int_equal(vlff_ring_commit(ring, len), 0);
+}
+
+static struct vlff_ring *frame_ring(const struct vlff_config *cfg) {
+  struct vlff_ring_params rp = {VLFF_RECORD_FRAME, 16,
+                                vlff_frame_slot_size(320, 240, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), {0640, NULL}};
+  struct vlff_ring *ring = vlff_ring_create(cfg->shm.ring, &rp);
+  assert_non_null(ring);
+  return ring;
+}
+
+/* A node fed frames lacking a pose, lacking depth and with millimetre focal
+ * lengths counts each reason on its --status line and says why in its log
+ * at info, once per reason with the detail, then as counts. */
+static void test_status_says_why(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg);
+  char err[512], log[400];
+  snprintf(log, sizeof log, "%s/node.log", dir);
+  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  assert_non_null(s);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  struct vlff_ring *ring = frame_ring(&cfg);
+  const char *args[] = {"--config", cfg_path, "--status", NULL};
+  pid_t node = spawn("node/vlff-node", args, log);
+  assert_true(wait_for_text(log, "attached to ring", 30 * scale));
+  const enum frame_kind kinds[] = {NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, NO_POSE_FLAG, NO_DEPTH, NO_POSE_FLAG};
+  const int nk = sizeof kinds / sizeof kinds[0];
+  long long id = 0;
+  /* Two rounds a summary period apart, so the counts line comes too. */
+  for (int round = 0; round < 2; round++) {
+    for (int i = 0; i < nk; i++, id++) {
+      put_frame(ring, s, f, id, vlff_shm_now_ns(), kinds[i]);
+      sleep_s(0.05);
+    }
+    if (round == 0) sleep_s(5.5);
+  }
+  /* 6 no pose, 4 no depth, 2 bad intrinsics. */
+  bool seen = wait_for_text(log, "refused 12 (bad intrinsics 2, no pose 6, no depth 4)", 20 * scale);
+  kill(node, SIGTERM);
+  assert_int_equal(wait_child(node), 0);
+  const char *text = slurp(log);
+  if (!seen) fail_msg("no status line with the per-reason counts in:\n%s", text);
+  /* The first of each reason at info, with what is wrong and what to do. */
+  assert_non_null(strstr(text, " I node: frame 0 refused, no pose: the frame carries no pose and the pose ring "
+                               "cannot be attached: "));
+  assert_non_null(strstr(text, "(start vlff-pose"));
+  assert_non_null(strstr(text, " I node: frame 1 refused, no depth: the frame has no depth plane"));
+  assert_non_null(strstr(text, " I node: frame 2 refused, bad intrinsics: fx 3.6 outside ["));
+  assert_non_null(strstr(text, "(millimetres, or another image size's values?)"));
+  /* Then counts, not a line per frame. */
+  assert_non_null(strstr(text, " I node: frames refused in the last"));
+  assert_null(strstr(text, "frame 3 refused"));
+  assert_non_null(strstr(text, "refused 12 (bad intrinsics 2, no pose 6, no depth 4)"));
+  vlff_ring_close(ring);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+}
+
+/* Rotation matrix (row-major 4x4's block) to a unit quaternion x y z w. */
+static void quat_of(const double m[16], double q[4]) {
+  double r00 = m[0], r11 = m[5], r22 = m[10], tr = r00 + r11 + r22;
+  if (tr > 0) {
+    double S = sqrt(tr + 1.0) * 2;
+    q[3] = 0.25 * S, q[0] = (m[9] - m[6]) / S, q[1] = (m[2] - m[8]) / S, q[2] = (m[4] - m[1]) / S;
+  } else if (r00 > r11 && r00 > r22) {
+    double S = sqrt(1.0 + r00 - r11 - r22) * 2;
+    q[3] = (m[9] - m[6]) / S, q[0] = 0.25 * S, q[1] = (m[1] + m[4]) / S, q[2] = (m[2] + m[8]) / S;
+  } else if (r11 > r22) {
+    double S = sqrt(1.0 + r11 - r00 - r22) * 2;
+    q[3] = (m[2] - m[8]) / S, q[0] = (m[1] + m[4]) / S, q[1] = 0.25 * S, q[2] = (m[6] + m[9]) / S;
+  } else {
+    double S = sqrt(1.0 + r22 - r00 - r11) * 2;
+    q[3] = (m[4] - m[1]) / S, q[0] = (m[2] + m[8]) / S, q[1] = (m[6] + m[9]) / S, q[2] = 0.25 * S;
+  }
+}
+
+/* The TUM line of simulator frame index at stamp t_ns (CLOCK_MONOTONIC). */
+static void tum_line(struct vlff_sim *s, struct vlff_sim_frame *f, long long index, uint64_t t_ns, char *out,
+                     size_t len) {
+  char err[256];
+  assert_int_equal(vlff_sim_render(s, index, 0, f, err, sizeof err), 0);
+  double q[4];
+  quat_of(f->c2w, q);
+  snprintf(out, len, "%llu.%09llu %.9f %.9f %.9f %.12f %.12f %.12f %.12f\n", (unsigned long long)(t_ns / 1000000000),
+           (unsigned long long)(t_ns % 1000000000), f->c2w[3], f->c2w[7], f->c2w[11], q[0], q[1], q[2], q[3]);
+}
+
+static void wait_keyframes(struct vlff_node *n, int want, struct vlff_node_status *st) {
+  double t0 = mono_s();
+  do {
+    sleep_s(0.1);
+    vlff_node_status(n, st);
+  } while (st->keyframes < want && mono_s() - t0 < 20 * scale);
+}
+
+/* Frames without poses are refused "no pose"; once vlff-pose has written
+ * their trajectory into the pose ring (from a file, then over UDP), the
+ * same kind of frames become keyframes, also when each pose comes after
+ * its frame (live), within source.pose_wait_s. */
+static void test_pose_adapter_feeds_node(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg);
+  char err[512];
+  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  assert_non_null(s);
+  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
+  struct vlff_ring *ring = frame_ring(&cfg);
+  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  if (!n) fail_msg("%s", err);
+  sleep_s(0.5); /* the ingest thread attaches to the ring */
+  const uint64_t step = 200000000; /* the keyframe rate: every posed frame is a candidate */
+  uint64_t t = vlff_shm_now_ns();
+  long long id = 0;
+  for (int i = 0; i < 4; i++, id++, t += step) put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+  struct vlff_node_status st;
+  double t0 = mono_s();
+  do {
+    sleep_s(0.1);
+    vlff_node_status(n, &st);
+  } while (st.refused[VLFF_REFUSED_NO_POSE] < 4 && mono_s() - t0 < 10 * scale);
+  assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
+  assert_int_equal(st.last_refusal, VLFF_REFUSED_NO_POSE);
+  assert_int_equal(st.keyframes, 0);
+
+  /* From a file: a TUM trajectory of the next frames, with a header, a
+   * duplicate line and a malformed one that vlff-pose refuses and counts. */
+  char traj[400], plog[400], line[256];
+  snprintf(traj, sizeof traj, "%s/CameraTrajectory.txt", dir);
+  snprintf(plog, sizeof plog, "%s/pose-file.log", dir);
+  FILE *tf = fopen(traj, "w");
+  assert_non_null(tf);
+  fputs("# timestamp tx ty tz qx qy qz qw\n", tf);
+  const int nfile = 6;
+  uint64_t t_file = t;
+  for (int i = 0; i < nfile; i++) {
+    tum_line(s, f, id + i, t_file + (uint64_t)i * step, line, sizeof line);
+    fputs(line, tf);
+    if (i == 2) fputs(line, tf);
+  }
+  fputs("1 2 3\n", tf);
+  fclose(tf);
+  const char *fargs[] = {"--config", cfg_path, traj, NULL};
+  assert_int_equal(wait_child(spawn("drivers/pose/vlff-pose", fargs, plog)), 0);
+  const char *ptext = slurp(plog);
+  assert_non_null(strstr(ptext, "CameraTrajectory.txt:5: refused, duplicate stamp"));
+  assert_non_null(strstr(ptext, "CameraTrajectory.txt:9: refused, malformed: 3 fields, expected 8"));
+  assert_non_null(strstr(ptext, "6 poses written to /"));
+  assert_non_null(strstr(ptext, "2 lines refused (malformed 1, duplicate stamp 1)"));
+  /* Paced like a camera: the trainer takes a few candidates at a time. */
+  for (int i = 0; i < nfile; i++, id++, t += step) {
+    put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+    sleep_s(0.1);
+  }
+  wait_keyframes(n, nfile, &st);
+  printf("file: %d keyframes, %lld refused for no pose\n", st.keyframes, st.refused[VLFF_REFUSED_NO_POSE]);
+  assert_int_equal(st.keyframes, nfile);
+  assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
+
+  /* Over UDP: a tracker streaming lines, some datagrams with two. */
+  int port = 20000 + (int)(getpid() % 20000);
+  char addr[64];
+  snprintf(addr, sizeof addr, "127.0.0.1:%d", port);
+  snprintf(plog, sizeof plog, "%s/pose-udp.log", dir);
+  const char *uargs[] = {"--config", cfg_path, "--udp", addr, NULL};
+  pid_t pu = spawn("drivers/pose/vlff-pose", uargs, plog);
+  assert_true(wait_for_text(plog, "-> pose ring", 10 * scale));
+  int us = socket(AF_INET, SOCK_DGRAM, 0);
+  assert_true(us >= 0);
+  struct sockaddr_in sa = {.sin_family = AF_INET, .sin_port = htons((uint16_t)port)};
+  inet_pton(AF_INET, "127.0.0.1", &sa.sin_addr);
+  const int nudp = 6;
+  struct vlff_ring *pr = vlff_ring_attach(cfg.shm.pose_ring, VLFF_RECORD_POSE);
+  assert_non_null(pr);
+  uint64_t head0 = vlff_ring_head(pr);
+  for (int i = 0; i < nudp; i += 2) {
+    char two[512];
+    tum_line(s, f, id + i, t + (uint64_t)i * step, two, sizeof two);
+    tum_line(s, f, id + i + 1, t + (uint64_t)(i + 1) * step, line, sizeof line);
+    strncat(two, line, sizeof two - strlen(two) - 1);
+    assert_true(sendto(us, two, strlen(two), 0, (struct sockaddr *)&sa, sizeof sa) == (ssize_t)strlen(two));
+  }
+  const char *nan_line = "12.5 0 0 nan 0 0 0 1\n";
+  assert_true(sendto(us, nan_line, strlen(nan_line), 0, (struct sockaddr *)&sa, sizeof sa) > 0);
+  close(us);
+  t0 = mono_s();
+  while (vlff_ring_head(pr) < head0 + nudp && mono_s() - t0 < 10 * scale) sleep_s(0.05);
+  assert_true(vlff_ring_head(pr) == head0 + nudp);
+  vlff_ring_close(pr);
+  for (int i = 0; i < nudp; i++, id++, t += step) {
+    put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+    sleep_s(0.1);
+  }
+  wait_keyframes(n, nfile + nudp, &st);
+  printf("udp: %d keyframes (%lld candidates dropped), %lld refused for no pose\n", st.keyframes,
+         st.candidates_dropped, st.refused[VLFF_REFUSED_NO_POSE]);
+  assert_int_equal(st.keyframes, nfile + nudp);
+  assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
+  assert_int_equal(st.frames_invalid, 4);
+
+  /* Live: a tracker posing the node's own frames sends each pose after its
+   * frame reached the ring; the candidate waits for it (source.pose_wait_s). */
+  us = socket(AF_INET, SOCK_DGRAM, 0);
+  assert_true(us >= 0);
+  const int nlive = 3;
+  for (int i = 0; i < nlive; i++, id++, t += step) {
+    tum_line(s, f, id, t, line, sizeof line); /* before the frame: rendering is slow under the sanitizers */
+    put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+    sleep_s(0.15);
+    assert_true(sendto(us, line, strlen(line), 0, (struct sockaddr *)&sa, sizeof sa) == (ssize_t)strlen(line));
+    sleep_s(0.1);
+  }
+  close(us);
+  wait_keyframes(n, nfile + nudp + nlive, &st);
+  printf("live: %d keyframes, %lld refused for no pose\n", st.keyframes, st.refused[VLFF_REFUSED_NO_POSE]);
+  assert_int_equal(st.keyframes, nfile + nudp + nlive);
+  assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
+  /* A pose that never comes: refused once the wait is over. */
+  put_frame(ring, s, f, id, t, NO_POSE_FLAG);
+  t0 = mono_s();
+  do {
+    sleep_s(0.1);
+    vlff_node_status(n, &st);
+  } while (st.refused[VLFF_REFUSED_NO_POSE] < 5 && mono_s() - t0 < 5 * scale);
+  assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 5);
+  assert_true(mono_s() - t0 >= 0.9); /* not before source.pose_wait_s */
+  assert_int_equal(st.keyframes, nfile + nudp + nlive);
+  kill(pu, SIGTERM);
+  assert_int_equal(wait_child(pu), 0);
+  ptext = slurp(plog);
+  assert_non_null(strstr(ptext, "udp datagram 4 line 1: refused, not finite: tz is nan"));
+  assert_non_null(strstr(ptext, "9 poses written to /"));
+  vlff_node_destroy(n, false);
+  vlff_ring_close(ring);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test_setup_teardown(test_status_says_why, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_pose_adapter_feeds_node, setup, teardown),
+  };
+  if (getenv("VLFF_TEST_FILTER")) cmocka_set_test_filter(getenv("VLFF_TEST_FILTER"));
+  if (getenv("VLFF_TEST_DEBUG")) vlff_log_set_level(VLFF_LOG_DEBUG); /* every refusal's detail */
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
