@@ -694,7 +694,13 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
   if (ig->join && !*feats)
     *feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
   if (ig->join) {
-    if (*feats) vlff_feature_join_pump(ig->join, *feats);
+    /* A producer that replaced its ring (restarted with another geometry, or
+     * after the file was truncated) is followed on the next pass. */
+    if (*feats && vlff_feature_join_pump(ig->join, *feats) < 0 && errno == EPIPE) {
+      VLFF_WARN(TAG, "feature ring: %s; attaching again", vlff_shm_last_message());
+      vlff_ring_close(*feats);
+      *feats = NULL;
+    }
     uint64_t fid;
     int fh, fw, ev;
     while ((ev = vlff_feature_join_poll(ig->join, vlff_shm_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {
