@@ -7,7 +7,8 @@
  *     Frames (drivers -> learner), features (external extractor -> learner) and poses
  *     (external SLAM -> learner) are records in such rings.
  *   - the map (vlff_map_*): the learner's latest segmented voxel map, prompt list and
- *     2D label image, read by controllers.
+ *     2D label image, and the learner's status (vlff_map_get_status), read by
+ *     controllers.
  *   - the prompt mailbox (vlff_prompts_*): controllers post a new prompt set, the learner
  *     picks it up.
  *
