@@ -93,7 +93,7 @@ static uint64_t off_llabels(uint64_t mv) { return off_conf(mv) + align64(mv); }
 static uint64_t off_lconf(uint64_t mv, uint64_t lpx) { return off_llabels(mv) + align64(2 * lpx); }
 static uint64_t buf_stride(uint64_t mv, uint64_t lpx) { return align64(off_lconf(mv, lpx) + lpx); }
 
-uint64_t shm_map_total(const uint64_t g[6]) {
+static uint64_t map_total(const uint64_t g[6]) {
   uint64_t mv = g[0], lw = g[1], lh = g[2];
   if (!mv || mv > (1ull << 32) || lw > 65536 || lh > 65536 || (!lw) != (!lh))
     return 0;
@@ -107,11 +107,13 @@ static struct map_buf *buf(const struct vlff_map *m, uint32_t i) {
 }
 static uint8_t *bufp(const struct vlff_map *m, uint32_t i, uint64_t off) { return (uint8_t *)buf(m, i) + off; }
 
-void shm_map_stat(const struct seg *s, struct vlff_shm_info *info) {
+static void map_stat(const struct seg *s, struct vlff_shm_info *info) {
   const struct map_ctl *c = (const struct map_ctl *)(s->base + sizeof(struct seg_hdr));
   info->head = atomic_load((_Atomic uint64_t *)&c->version);
   info->slot_size = s->h->geom[0]; /* voxel capacity */
 }
+
+const struct seg_spec shm_map_spec = {.kind = VLFF_SHM_KIND_MAP, .compute_total = map_total, .stat = map_stat};
 
 static void bind(struct vlff_map *m) {
   m->ctl = (struct map_ctl *)(m->seg.base + sizeof(struct seg_hdr));
@@ -135,8 +137,7 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
   uint64_t lpx = (uint64_t)p->label_max_width * p->label_max_height;
   uint64_t geom[6] = {p->max_voxels, p->label_max_width, p->label_max_height, buf_stride(p->max_voxels, lpx),
                       MAP_BUF_OFFSET, 0};
-  struct seg_spec spec = {.kind = VLFF_SHM_KIND_MAP};
-  int fresh = shm_seg_create(&m->seg, name, &spec, geom, &p->perm);
+  int fresh = shm_seg_create(&m->seg, name, &shm_map_spec, geom, &p->perm);
   if (fresh < 0) {
     free(m);
     return NULL;
@@ -176,8 +177,7 @@ API struct vlff_map *vlff_map_attach(const char *name) {
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
     return NULL;
   }
-  struct seg_spec spec = {.kind = VLFF_SHM_KIND_MAP};
-  if (shm_seg_attach(&m->seg, name, &spec, false, NULL) < 0) {
+  if (shm_seg_attach(&m->seg, name, &shm_map_spec, false, NULL) < 0) {
     free(m);
     return NULL;
   }

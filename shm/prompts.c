@@ -56,14 +56,14 @@ struct vlff_prompts {
   bool broken;     /* learner: the mailbox could not be replaced */
 };
 
-uint64_t shm_prompts_total(const uint64_t g[6]) {
+static uint64_t prompts_total(const uint64_t g[6]) {
   if (g[0] != sizeof(struct vlff_prompt_request) || g[1] != BODY_OFFSET || g[2] != ANSWER_SLOTS ||
       g[3] != ANSWERS_OFFSET || g[4] || g[5])
     return 0;
   return ANSWERS_OFFSET + ANSWER_SLOTS * sizeof(struct answer);
 }
 
-void shm_prompts_stat(const struct seg *s, struct vlff_shm_info *info) {
+static void prompts_stat(const struct seg *s, struct vlff_shm_info *info) {
   const struct mbox_ctl *c = (const struct mbox_ctl *)(s->base + sizeof(struct seg_hdr));
   info->head = atomic_load((_Atomic uint64_t *)&c->seq) / 2;
 }
@@ -74,7 +74,7 @@ static void bind(struct vlff_prompts *p) {
   p->answers = (struct answer *)(p->seg.base + ANSWERS_OFFSET);
 }
 
-static const struct seg_spec spec = {.kind = VLFF_SHM_KIND_PROMPTS};
+const struct seg_spec shm_prompts_spec = {.kind = VLFF_SHM_KIND_PROMPTS, .compute_total = prompts_total, .stat = prompts_stat};
 
 API struct vlff_prompts *vlff_prompts_create(const char *name, const struct vlff_shm_perm *perm) {
   struct vlff_prompts *p = calloc(1, sizeof *p);
@@ -83,7 +83,7 @@ API struct vlff_prompts *vlff_prompts_create(const char *name, const struct vlff
     return NULL;
   }
   uint64_t geom[6] = {sizeof(struct vlff_prompt_request), BODY_OFFSET, ANSWER_SLOTS, ANSWERS_OFFSET, 0, 0};
-  int fresh = shm_seg_create(&p->seg, name, &spec, geom, perm);
+  int fresh = shm_seg_create(&p->seg, name, &shm_prompts_spec, geom, perm);
   if (fresh < 0) {
     free(p);
     return NULL;
@@ -100,7 +100,7 @@ API struct vlff_prompts *vlff_prompts_attach(const char *name) {
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
     return NULL;
   }
-  if (shm_seg_attach(&p->seg, name, &spec, true, NULL) < 0) {
+  if (shm_seg_attach(&p->seg, name, &shm_prompts_spec, true, NULL) < 0) {
     free(p);
     return NULL;
   }

@@ -57,7 +57,7 @@ struct vlff_ring {
   uint64_t read_s1;
 };
 
-uint64_t shm_ring_total(const uint64_t g[6]) {
+static uint64_t ring_total(const uint64_t g[6]) {
   uint64_t slots = g[0], size = g[1], stride = g[2], off = g[3];
   if (slots < 2 || slots > (1u << 24) || size == 0 || size > (1ull << 36))
     return 0;
@@ -68,7 +68,7 @@ uint64_t shm_ring_total(const uint64_t g[6]) {
   return off + slots * stride;
 }
 
-void shm_ring_stat(const struct seg *s, struct vlff_shm_info *info) {
+static void ring_stat(const struct seg *s, struct vlff_shm_info *info) {
   const struct ring_ctl *c = (const struct ring_ctl *)(s->base + sizeof(struct seg_hdr));
   info->slots = (uint32_t)s->h->geom[0];
   info->slot_size = s->h->geom[1];
@@ -88,8 +88,8 @@ static void bind(struct vlff_ring *r) {
   r->slots = r->seg.base + r->seg.h->geom[3];
 }
 
-static struct seg_spec ring_spec(uint32_t rk) {
-  return (struct seg_spec){.kind = VLFF_SHM_KIND_RING, .record_kind = rk};
+struct seg_spec shm_ring_spec(uint32_t rk) {
+  return (struct seg_spec){.kind = VLFF_SHM_KIND_RING, .record_kind = rk, .compute_total = ring_total, .stat = ring_stat};
 }
 
 API struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_params *p) {
@@ -105,7 +105,7 @@ API struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_
     return NULL;
   }
   uint64_t geom[6] = {p->slots, p->slot_size, align64(SLOT_HDR + p->slot_size), RING_SLOTS_OFFSET, 0, 0};
-  struct seg_spec spec = ring_spec(p->record_kind);
+  struct seg_spec spec = shm_ring_spec(p->record_kind);
   int fresh = shm_seg_create(&r->seg, name, &spec, geom, &p->perm);
   if (fresh < 0) {
     free(r);
@@ -127,7 +127,7 @@ static struct vlff_ring *attach(const char *name, uint32_t record_kind, const st
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
     return NULL;
   }
-  struct seg_spec spec = ring_spec(record_kind);
+  struct seg_spec spec = shm_ring_spec(record_kind);
   if (shm_seg_attach(&r->seg, name, &spec, false, trust) < 0) {
     free(r);
     return NULL;

@@ -133,15 +133,6 @@ static int open_error(const char *name, const char *what) {
 }
 
 
-static uint64_t total_for(uint32_t kind, const uint64_t g[6]) {
-  switch (kind) {
-  case VLFF_SHM_KIND_RING: return shm_ring_total(g);
-  case VLFF_SHM_KIND_MAP: return shm_map_total(g);
-  case VLFF_SHM_KIND_PROMPTS: return shm_prompts_total(g);
-  default: return 0;
-  }
-}
-
 /* Validates a header copy against the file size. Returns 0 or -1 with the error set. */
 static int validate(const char *name, const struct seg_hdr *h, uint64_t file_size, const struct seg_spec *spec) {
   if (h->magic == 0) {
@@ -163,17 +154,17 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
             h->geom_check, shm_geom_check(h));
     return -1;
   }
-  uint64_t want = total_for(h->kind, h->geom);
+  if (h->kind != spec->kind) {
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u", name, h->kind, spec->kind);
+    return -1;
+  }
+  uint64_t want = spec->compute_total(h->geom);
   if (want == 0 || want != h->total_size) {
     shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: kind %u geometry inconsistent with total size %llu", name, h->kind,
             (unsigned long long)h->total_size);
     return -1;
   }
-  if (spec && spec->kind && h->kind != spec->kind) {
-    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u", name, h->kind, spec->kind);
-    return -1;
-  }
-  if (spec && spec->record_kind && h->record_kind != spec->record_kind) {
+  if (spec->record_kind && h->record_kind != spec->record_kind) {
     shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u", name, h->record_kind,
             spec->record_kind);
     return -1;
@@ -272,6 +263,27 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
     munmap(p, copy.total_size);
     s->base = NULL;
     shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header changed while attaching", name);
+    return -1;
+  }
+  return 0;
+}
+
+int shm_seg_peek(const char *name, struct seg_hdr *out) {
+  if (check_name(name) < 0)
+    return -1;
+  int fd = shm_open(name, O_RDONLY, 0);
+  if (fd < 0)
+    return open_error(name, "open read-only");
+  struct stat st;
+  ssize_t n = fstat(fd, &st) == 0 && S_ISREG(st.st_mode) ? pread(fd, out, sizeof *out, 0) : -1;
+  close(fd);
+  if (n != (ssize_t)sizeof *out) {
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: no complete segment header", name);
+    return -1;
+  }
+  if (out->magic != SEG_MAGIC) {
+    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", name,
+            (unsigned long long)out->magic);
     return -1;
   }
   return 0;
@@ -489,7 +501,7 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
             (unsigned)mode);
     return -1;
   }
-  uint64_t total = total_for(spec->kind, geom);
+  uint64_t total = spec->compute_total(geom);
   if (total == 0) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: invalid geometry", name);
     return -1;
@@ -594,32 +606,5 @@ API int vlff_shm_unlink(const char *name) {
     return -1;
   if (shm_unlink(name) < 0)
     return open_error(name, "unlink");
-  return 0;
-}
-
-API int vlff_shm_stat(const char *name, struct vlff_shm_info *info) {
-  struct seg s;
-  if (!info) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_shm_stat: info is NULL");
-    return -1;
-  }
-  if (shm_seg_attach(&s, name, NULL, false, NULL) < 0)
-    return -1;
-  memset(info, 0, sizeof *info);
-  info->kind = s.h->kind;
-  info->abi_version = s.h->abi_version;
-  info->record_kind = s.h->record_kind;
-  info->generation = atomic_load(&s.h->generation);
-  info->creator_pid = atomic_load(&s.h->creator_pid);
-  info->creator_alive = shm_pid_alive(info->creator_pid);
-  info->total_size = s.h->total_size;
-  info->last_ns = atomic_load(&s.h->last_ns);
-  if (s.h->kind == VLFF_SHM_KIND_RING)
-    shm_ring_stat(&s, info);
-  else if (s.h->kind == VLFF_SHM_KIND_MAP)
-    shm_map_stat(&s, info);
-  else
-    shm_prompts_stat(&s, info);
-  shm_seg_close(&s);
   return 0;
 }

@@ -40,10 +40,15 @@ _Static_assert(sizeof(struct seg_hdr) == 128, "segment header is 128 bytes");
 
 /* Kind-specific description used to validate and create. compute_total returns the
  * expected total size from the geometry, or 0 if the geometry is not sane. */
+/* What one kind of segment is: the module that owns the kind (ring.c, map.c,
+ * prompts.c) fills it, so seg.c never needs to know the kinds. */
+struct seg;
+struct vlff_shm_info;
 struct seg_spec {
   uint32_t kind;
   uint32_t record_kind; /* 0 = any on attach */
-  uint64_t (*compute_total)(const uint64_t geom[6]);
+  uint64_t (*compute_total)(const uint64_t geom[6]); /* the size its geometry implies */
+  void (*stat)(const struct seg *s, struct vlff_shm_info *info); /* its part of vlff_shm_stat */
 };
 
 /* What an attacher demands of the segment's file (struct stat) before reading it. */
@@ -77,8 +82,7 @@ uint32_t shm_geom_check(const struct seg_hdr *h);
 int shm_pid_alive(int32_t pid);
 uint64_t shm_now(void);
 
-/* Attach: maps the whole segment after validating it against spec (spec->kind 0 =
- * any kind, then compute_total is looked up by kind). */
+/* Attach: maps the whole segment after validating it against spec. */
 int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable,
                    const struct seg_trust *trust);
 /* Create: returns 1 if a fresh segment was created (header written, state INIT: the
@@ -108,12 +112,13 @@ void shm_guard_unregister(struct seg *s);
 void shm_racy_copy(void *dst, const void *src, size_t n);
 void shm_racy_fill(void *dst, int c, size_t n);
 
-uint64_t shm_ring_total(const uint64_t g[6]);
-uint64_t shm_map_total(const uint64_t g[6]);
-uint64_t shm_prompts_total(const uint64_t g[6]);
-void shm_ring_stat(const struct seg *s, struct vlff_shm_info *info);
-void shm_map_stat(const struct seg *s, struct vlff_shm_info *info);
-void shm_prompts_stat(const struct seg *s, struct vlff_shm_info *info);
+/* The header of a named segment, read with pread and checked for the magic
+ * only: which kind to attach it as (stat.c). */
+int shm_seg_peek(const char *name, struct seg_hdr *out);
+
+/* Each kind's spec (record_kind 0: any ring). */
+struct seg_spec shm_ring_spec(uint32_t record_kind);
+extern const struct seg_spec shm_map_spec, shm_prompts_spec;
 
 int shm_ring_peek(struct vlff_ring *r, uint64_t n, void *out, size_t want);
 

@@ -11,6 +11,7 @@
  * wait indefinitely for triggers, so for them silence alone is not loss.
  */
 #include "aravis.h"
+#include "clock.h"
 
 #include <arv.h>
 #include <errno.h>
@@ -39,12 +40,6 @@ struct vlff_arv {
   uint64_t silent_since_ns;
   struct vlff_arv_stats st;
 };
-
-static uint64_t mono_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 static uint64_t real_ns(void) {
   struct timespec ts;
@@ -247,7 +242,7 @@ struct vlff_arv *vlff_arv_open(const struct vlff_config *cfg, char *err, size_t 
     gfail(&e, err, errlen, "camera.device", "cannot start acquisition");
     goto fail;
   }
-  a->silent_since_ns = mono_ns();
+  a->silent_since_ns = vlff_now_ns();
   VLFF_INFO(TAG, "'%s' (%s %s) streaming %dx%d %s, trigger %s, payload %zu bytes", a->name,
             arv_camera_get_vendor_name(a->cam, NULL), arv_camera_get_model_name(a->cam, NULL), a->w, a->h,
             cfg->camera.pixel_format,
@@ -276,11 +271,6 @@ void vlff_arv_close(struct vlff_arv *a) {
 void vlff_arv_shutdown(void) { arv_shutdown(); }
 
 const struct vlff_arv_stats *vlff_arv_stats(const struct vlff_arv *a) { return &a->st; }
-
-void vlff_arv_region(const struct vlff_arv *a, int *w, int *h) {
-  *w = a->w;
-  *h = a->h;
-}
 
 int vlff_arv_software_trigger(struct vlff_arv *a, char *err, size_t errlen) {
   GError *e = NULL;
@@ -343,7 +333,7 @@ int vlff_arv_grab(struct vlff_arv *a, int timeout_ms, struct vlff_pipe *pipe, st
     return -1;
   }
   ArvBuffer *b = arv_stream_timeout_pop_buffer(a->stream, (guint64)timeout_ms * 1000);
-  uint64_t now = mono_ns();
+  uint64_t now = vlff_now_ns();
   if (!b) {
     a->st.timeouts++;
     if (atomic_load(&a->lost)) return -1;

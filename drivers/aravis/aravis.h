@@ -44,8 +44,6 @@ int vlff_arv_grab(struct vlff_arv *a, int timeout_ms, struct vlff_pipe *pipe, st
                   const struct vlff_pose_source *poses);
 int vlff_arv_software_trigger(struct vlff_arv *a, char *err, size_t errlen);
 const struct vlff_arv_stats *vlff_arv_stats(const struct vlff_arv *a);
-/* Region actually configured (after sensor-maximum defaults). */
-void vlff_arv_region(const struct vlff_arv *a, int *w, int *h);
 /* Releases Aravis' global state; call once at process exit. */
 void vlff_arv_shutdown(void);
 

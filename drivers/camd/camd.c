@@ -26,6 +26,7 @@
 #include <time.h>
 
 #include "cli.h"
+#include "clock.h"
 #include "config.h"
 #include "log.h"
 #include "pair.h"
@@ -58,12 +59,6 @@ static void on_stop(int sig) {
 static void on_usr1(int sig) {
   (void)sig;
   atomic_fetch_add(&trigger_req, 1);
-}
-
-static uint64_t mono_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
 static void sleep_ms(int ms) {
@@ -142,7 +137,7 @@ struct slot {
 static int slot_open(struct slot *s, const char *path) {
   if (s->cam) return 1;
   char err[1024];
-  uint64_t now = mono_ns();
+  uint64_t now = vlff_now_ns();
   if (now < s->next_try) return 0;
   s->cam = s->be->open(&s->cfg, err, sizeof err);
   if (!s->cam) {
@@ -160,7 +155,7 @@ static int slot_open(struct slot *s, const char *path) {
   }
   if (s->ever_open) {
     s->reconnects++;
-    VLFF_INFO(TAG, "%s back after %.1f s (reconnect %llu)", s->what, (double)(mono_ns() - s->lost_at) * 1e-9,
+    VLFF_INFO(TAG, "%s back after %.1f s (reconnect %llu)", s->what, (double)(vlff_now_ns() - s->lost_at) * 1e-9,
               (unsigned long long)s->reconnects);
   }
   s->ever_open = true;
@@ -194,11 +189,11 @@ static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
   if (!s->cam) return;
   if (s->be->grab(s->cam, timeout_ms, s->pipe, s->sink, s->poses) >= 0) return;
   s->lost++;
-  s->lost_at = mono_ns();
+  s->lost_at = vlff_now_ns();
   slot_close(s);
   VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, s->cfg.camera.device,
              (unsigned long long)s->lost, ring);
-  s->next_try = mono_ns() + (uint64_t)(s->backoff * 1e9);
+  s->next_try = vlff_now_ns() + (uint64_t)(s->backoff * 1e9);
 }
 
 static const struct vlff_cli cli = {
@@ -222,11 +217,25 @@ static const struct vlff_cli cli = {
     "  vlff-camd --check-config my-camera.yaml\n",
 };
 
-int main(int argc, char **argv) {
-  const char *path = NULL;
-  long max_frames = 0;
-  double max_seconds = 0;
-  bool check_only = false;
+/* The process: its options, its cameras and where their frames go. */
+struct camd {
+  const char *path;
+  long max_frames;
+  double max_seconds;
+  bool check_only;
+  struct vlff_config cfg;
+  struct slot slots[2];
+  int nslots;
+  struct vlff_ringsink *ring;
+  struct vlff_pair *pair;
+#ifdef VLFF_HAVE_GPIOD
+  struct vlff_gpio_out *gout;
+  struct vlff_gpio_in *gin;
+#endif
+};
+
+/* -1 to go on, else the exit status. */
+static int parse_args(struct camd *d, int argc, char **argv) {
   static const struct option opts[] = {{"config", required_argument, 0, 'c'},
                                        {"check-config", required_argument, 0, 'k'},
                                        {"frames", required_argument, 0, 'n'},
@@ -237,152 +246,157 @@ int main(int argc, char **argv) {
     char *end;
     switch (o) {
     case VLFF_CLI_EXIT: return exit_status;
-    case 'c': path = optarg; break;
-    case 'k': path = optarg, check_only = true; break;
+    case 'c': d->path = optarg; break;
+    case 'k': d->path = optarg, d->check_only = true; break;
     case 'n':
-      max_frames = strtol(optarg, &end, 10);
-      if (*end || max_frames < 1) return vlff_cli_usage_error(&cli, "--frames expects a positive integer");
+      d->max_frames = strtol(optarg, &end, 10);
+      if (*end || d->max_frames < 1) return vlff_cli_usage_error(&cli, "--frames expects a positive integer");
       break;
     case 's':
-      max_seconds = strtod(optarg, &end);
-      if (*end || !(max_seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds expects a positive number");
+      d->max_seconds = strtod(optarg, &end);
+      if (*end || !(d->max_seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds expects a positive number");
       break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
   if (optind != argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
   char ferr[512];
-  path = vlff_config_find(path, ferr, sizeof ferr);
-  if (!path) return vlff_cli_error(&cli, "%s", ferr);
+  d->path = vlff_config_find(d->path, ferr, sizeof ferr);
+  if (!d->path) return vlff_cli_error(&cli, "%s", ferr);
+  return -1;
+}
 
-  static struct vlff_config cfg;
+/* The config, the backend and each camera's pipeline: 0, or 2 (the
+ * configuration cannot run), said on stderr. */
+static int setup_cameras(struct camd *d) {
   char err[1024];
-  if (vlff_config_load(path, &cfg, err, sizeof err) || vlff_camcfg_check(&cfg, path, err, sizeof err)) {
+  struct vlff_config *cfg = &d->cfg;
+  if (vlff_config_load(d->path, cfg, err, sizeof err) || vlff_camcfg_check(cfg, d->path, err, sizeof err)) {
     fprintf(stderr, "vlff-camd: %s\n", err);
     return 2;
   }
-  vlff_log_set_level((enum vlff_log_level)cfg.node.log_level);
+  vlff_log_set_level((enum vlff_log_level)cfg->node.log_level);
   const struct backend *be = NULL;
 #ifdef VLFF_HAVE_ARAVIS
-  if (cfg.camera.kind == VLFF_CAM_ARAVIS) be = &aravis_backend;
+  if (cfg->camera.kind == VLFF_CAM_ARAVIS) be = &aravis_backend;
 #endif
 #ifdef VLFF_HAVE_LIBCAMERA
-  if (cfg.camera.kind == VLFF_CAM_LIBCAMERA) be = &libcamera_backend;
+  if (cfg->camera.kind == VLFF_CAM_LIBCAMERA) be = &libcamera_backend;
 #endif
   if (!be) {
-    fprintf(stderr, "vlff-camd: %s: key 'camera.kind': this build has no %s support\n", path,
-            cfg.camera.kind == VLFF_CAM_ARAVIS ? "Aravis" : "libcamera");
+    fprintf(stderr, "vlff-camd: %s: key 'camera.kind': this build has no %s support\n", d->path,
+            cfg->camera.kind == VLFF_CAM_ARAVIS ? "Aravis" : "libcamera");
     return 2;
   }
-  const bool paired = cfg.camera.depth == VLFF_DEPTH_STREAM;
-  static struct slot slots[2];
-  int nslots = paired ? 2 : 1, status = 0;
-  struct slot *color = &slots[0], *range = paired ? &slots[1] : NULL;
-  color->what = "camera", color->be = be, color->cfg = cfg, color->backoff = 0.1;
-  color->pipe = vlff_pipe_new(&cfg, err, sizeof err);
+  const bool paired = cfg->camera.depth == VLFF_DEPTH_STREAM;
+  d->nslots = paired ? 2 : 1;
+  struct slot *color = &d->slots[0], *range = paired ? &d->slots[1] : NULL;
+  color->what = "camera", color->be = be, color->cfg = *cfg, color->backoff = 0.1;
+  color->pipe = vlff_pipe_new(cfg, err, sizeof err);
   if (!color->pipe) {
-    fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
+    fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
     return 2;
   }
   if (range) {
 #ifdef VLFF_HAVE_ARAVIS
     range->what = "depth camera", range->be = &aravis_backend, range->backoff = 0.1;
-    vlff_depth_camera_config(&cfg, &range->cfg);
-    range->pipe = vlff_pipe_new_depth(&cfg, err, sizeof err);
+    vlff_depth_camera_config(cfg, &range->cfg);
+    range->pipe = vlff_pipe_new_depth(cfg, err, sizeof err);
 #else
     snprintf(err, sizeof err, "key 'depth_camera.kind': this build has no Aravis support");
 #endif
     if (!range->pipe) {
-      fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-      vlff_pipe_free(color->pipe);
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
       return 2;
     }
   }
-  struct vlff_ringsink *ring = NULL;
-  struct vlff_pair *pair = NULL;
-  if (check_only) {
+  if (d->check_only) {
     /* the calibration is read by the pairing: check it here too */
-    if (paired && !(pair = vlff_pair_new(&cfg, NULL, err, sizeof err))) {
-      fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-      status = 2;
-    } else {
-      printf("%s: ok (%s camera '%s', %s%s%s)\n", path, be->name, cfg.camera.device, cfg.camera.pixel_format,
-             paired ? ", range camera " : "", paired ? cfg.depth_camera.device : "");
+    if (paired && !(d->pair = vlff_pair_new(cfg, NULL, err, sizeof err))) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 2;
     }
-    goto out;
+    printf("%s: ok (%s camera '%s', %s%s%s)\n", d->path, be->name, cfg->camera.device, cfg->camera.pixel_format,
+           paired ? ", range camera " : "", paired ? cfg->depth_camera.device : "");
   }
+  return 0;
+}
 
-  struct sigaction sa = {0};
-  sa.sa_handler = on_stop;
-  sigaction(SIGINT, &sa, NULL);
-  sigaction(SIGTERM, &sa, NULL);
-  sa.sa_handler = on_usr1;
-  sa.sa_flags = SA_RESTART;
-  sigaction(SIGUSR1, &sa, NULL);
-  vlff_stamps_init(&stamps);
-  vlff_stamps_init(&depth_stamps);
-
-  ring = vlff_ringsink_new(&cfg, err, sizeof err);
-  if (!ring) {
+/* The frame ring, and the pairing between the cameras and it: 0, 1 (the
+ * ring) or 2 (the pairing's calibration). */
+static int setup_ring(struct camd *d) {
+  char err[1024];
+  d->ring = vlff_ringsink_new(&d->cfg, err, sizeof err);
+  if (!d->ring) {
     fprintf(stderr, "vlff-camd: %s\n", err);
-    status = 1;
-    goto out;
+    return 1;
   }
-  color->poses = vlff_ringsink_poses(ring);
-  color->sink = vlff_ringsink_sink(ring);
-  if (range) {
-    pair = vlff_pair_new(&cfg, vlff_ringsink_sink(ring), err, sizeof err);
-    if (!pair) {
-      fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-      status = 2;
-      goto out;
+  struct slot *color = &d->slots[0];
+  color->poses = vlff_ringsink_poses(d->ring);
+  color->sink = vlff_ringsink_sink(d->ring);
+  if (d->nslots == 2) {
+    d->pair = vlff_pair_new(&d->cfg, vlff_ringsink_sink(d->ring), err, sizeof err);
+    if (!d->pair) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 2;
     }
-    color->sink = vlff_pair_color_sink(pair);
-    range->sink = vlff_pair_depth_sink(pair);
+    color->sink = vlff_pair_color_sink(d->pair);
+    d->slots[1].sink = vlff_pair_depth_sink(d->pair);
   }
+  return 0;
+}
 
+/* The GPIO line, driving the trigger or stamping its edges: 0, 1 (the line
+ * failed) or 2 (no libgpiod in this build). */
+static int setup_gpio(struct camd *d) {
+  const struct vlff_config *cfg = &d->cfg;
 #ifdef VLFF_HAVE_GPIOD
-  struct vlff_gpio_out *gout = NULL;
-  struct vlff_gpio_in *gin = NULL;
-  if (cfg.gpio.mode == VLFF_GPIO_OUTPUT) {
-    gout = vlff_gpio_out_start(cfg.gpio.chip, cfg.gpio.line, cfg.gpio.rate_hz, cfg.gpio.pulse_us, cfg.gpio.active_low,
-                               on_pulse, NULL, err, sizeof err);
-    if (!gout) goto gpio_fail;
+  char err[1024];
+  struct slot *color = &d->slots[0], *range = d->nslots == 2 ? &d->slots[1] : NULL;
+  if (cfg->gpio.mode == VLFF_GPIO_OUTPUT) {
+    d->gout = vlff_gpio_out_start(cfg->gpio.chip, cfg->gpio.line, cfg->gpio.rate_hz, cfg->gpio.pulse_us,
+                                  cfg->gpio.active_low, on_pulse, NULL, err, sizeof err);
+    if (!d->gout) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 1;
+    }
     /* A hardware-triggered frame belongs to the newest pulse before it; a
      * pair fired by one pulse carries that pulse's stamp on both sides. */
-    if (cfg.camera.trigger == VLFF_TRIG_HARDWARE)
-      vlff_pipe_set_stamps(color->pipe, &stamps, (uint64_t)(1e9 / cfg.gpio.rate_hz));
-    if (range && cfg.depth_camera.trigger == VLFF_TRIG_HARDWARE)
-      vlff_pipe_set_stamps(range->pipe, &depth_stamps, (uint64_t)(1e9 / cfg.gpio.rate_hz));
-  } else if (cfg.gpio.mode == VLFF_GPIO_INPUT) {
-    trigger_on_edge = cfg.camera.trigger == VLFF_TRIG_SOFTWARE ||
-                      (range && cfg.depth_camera.trigger == VLFF_TRIG_SOFTWARE);
-    gin = vlff_gpio_in_start(cfg.gpio.chip, cfg.gpio.line, cfg.gpio.debounce_us, cfg.gpio.active_low, on_edge, NULL,
-                             err, sizeof err);
-    if (!gin) goto gpio_fail;
+    if (cfg->camera.trigger == VLFF_TRIG_HARDWARE)
+      vlff_pipe_set_stamps(color->pipe, &stamps, (uint64_t)(1e9 / cfg->gpio.rate_hz));
+    if (range && cfg->depth_camera.trigger == VLFF_TRIG_HARDWARE)
+      vlff_pipe_set_stamps(range->pipe, &depth_stamps, (uint64_t)(1e9 / cfg->gpio.rate_hz));
+  } else if (cfg->gpio.mode == VLFF_GPIO_INPUT) {
+    trigger_on_edge = cfg->camera.trigger == VLFF_TRIG_SOFTWARE ||
+                      (range && cfg->depth_camera.trigger == VLFF_TRIG_SOFTWARE);
+    d->gin = vlff_gpio_in_start(cfg->gpio.chip, cfg->gpio.line, cfg->gpio.debounce_us, cfg->gpio.active_low,
+                                on_edge, NULL, err, sizeof err);
+    if (!d->gin) {
+      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
+      return 1;
+    }
     /* A frame the edge triggered arrives after trigger latency, exposure,
      * readout and transfer, easily more than a frame period; it is still the
      * edge's frame. Stamping-only edges must fall within one period. */
-    for (int i = 0; i < nslots; i++) {
-      uint64_t period = (uint64_t)(1e9 / slots[i].cfg.camera.frame_rate);
-      vlff_pipe_set_stamps(slots[i].pipe, i ? &depth_stamps : &stamps,
+    for (int i = 0; i < d->nslots; i++) {
+      uint64_t period = (uint64_t)(1e9 / d->slots[i].cfg.camera.frame_rate);
+      vlff_pipe_set_stamps(d->slots[i].pipe, i ? &depth_stamps : &stamps,
                            trigger_on_edge && period < 1000000000u ? 1000000000u : period);
     }
   }
-  if (0) {
-  gpio_fail:
-    fprintf(stderr, "vlff-camd: %s: %s\n", path, err);
-    status = 1;
-    goto out;
-  }
 #else
-  if (cfg.gpio.mode != VLFF_GPIO_OFF) {
-    fprintf(stderr, "vlff-camd: %s: key 'gpio.mode': this build has no libgpiod support\n", path);
-    status = 2;
-    goto out;
+  if (cfg->gpio.mode != VLFF_GPIO_OFF) {
+    fprintf(stderr, "vlff-camd: %s: key 'gpio.mode': this build has no libgpiod support\n", d->path);
+    return 2;
   }
 #endif
+  return 0;
+}
 
+/* Grabs until a signal, --frames or --seconds: 0, or 2 when a camera
+ * refuses its configuration. */
+static int run(struct camd *d) {
+  int status = 0;
 #ifdef VLFF_HAVE_SYSTEMD
   /* Type=notify: ready once the ring exists (consumers may attach; the camera
    * may come later). The watchdog is fed from this loop, which passes every
@@ -391,25 +405,26 @@ int main(int argc, char **argv) {
   if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
   sd_notify(0, "READY=1");
 #endif
-  uint64_t t0 = mono_ns();
+  uint64_t t0 = vlff_now_ns();
   while (!stop_req) {
 #ifdef VLFF_HAVE_SYSTEMD
-    if (wd_usec && mono_ns() - last_wd >= wd_usec * 250) {
+    if (wd_usec && vlff_now_ns() - last_wd >= wd_usec * 250) {
       sd_notify(0, "WATCHDOG=1");
-      last_wd = mono_ns();
+      last_wd = vlff_now_ns();
     }
 #endif
-    if (max_seconds > 0 && (double)(mono_ns() - t0) * 1e-9 >= max_seconds) break;
-    uint64_t committed = pair ? vlff_pair_get_stats(pair)->pairs : vlff_pipe_get_stats(color->pipe)->committed;
-    if (max_frames > 0 && committed >= (uint64_t)max_frames) break;
+    if (d->max_seconds > 0 && (double)(vlff_now_ns() - t0) * 1e-9 >= d->max_seconds) break;
+    uint64_t committed =
+        d->pair ? vlff_pair_get_stats(d->pair)->pairs : vlff_pipe_get_stats(d->slots[0].pipe)->committed;
+    if (d->max_frames > 0 && committed >= (uint64_t)d->max_frames) break;
     int open = 0, refused = 0;
-    for (int i = 0; i < nslots; i++) {
-      bool was = slots[i].cam != NULL;
-      int r = slot_open(&slots[i], path);
+    for (int i = 0; i < d->nslots; i++) {
+      bool was = d->slots[i].cam != NULL;
+      int r = slot_open(&d->slots[i], d->path);
       refused |= r < 0;
       open += r > 0;
       /* triggers asked for while no camera was there are void */
-      if (r > 0 && !was && nslots == 1) atomic_store(&trigger_req, 0);
+      if (r > 0 && !was && d->nslots == 1) atomic_store(&trigger_req, 0);
     }
     if (refused) {
       status = 2;
@@ -420,31 +435,35 @@ int main(int argc, char **argv) {
       continue;
     }
     uint64_t pend = atomic_exchange(&trigger_req, 0);
-    for (int i = 0; i < nslots; i++) slot_trigger(&slots[i], pend);
+    for (int i = 0; i < d->nslots; i++) slot_trigger(&d->slots[i], pend);
     /* Each camera's stream fills its buffers in the background: a short
      * wait per camera keeps both drained. */
-    for (int i = 0; i < nslots; i++) slot_grab(&slots[i], 20 / nslots, cfg.shm.ring);
+    for (int i = 0; i < d->nslots; i++) slot_grab(&d->slots[i], 20 / d->nslots, d->cfg.shm.ring);
   }
 #ifdef VLFF_HAVE_SYSTEMD
   sd_notify(0, "STOPPING=1");
 #endif
-  for (int i = 0; i < nslots; i++) slot_close(&slots[i]);
+  for (int i = 0; i < d->nslots; i++) slot_close(&d->slots[i]);
+  return status;
+}
+
+/* The one statistics line at exit (scripts parse it). */
+static void print_stats(const struct camd *d) {
   uint64_t pulses = 0, edges = 0;
 #ifdef VLFF_HAVE_GPIOD
-  if (gout) pulses = vlff_gpio_out_stats(gout).pulses;
-  if (gin) edges = vlff_gpio_in_stats(gin).edges;
-  vlff_gpio_out_stop(gout);
-  vlff_gpio_in_stop(gin);
+  if (d->gout) pulses = vlff_gpio_out_stats(d->gout).pulses;
+  if (d->gin) edges = vlff_gpio_in_stats(d->gin).edges;
 #endif
-  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(color->pipe);
+  const struct vlff_pipe_stats *st = vlff_pipe_get_stats(d->slots[0].pipe);
   uint64_t dropped = 0, incomplete = 0, timeouts = 0, lost = 0, reconnects = 0, triggers = 0, trig_fail = 0;
-  for (int i = 0; i < nslots; i++) {
-    const struct vlff_pipe_stats *ps = vlff_pipe_get_stats(slots[i].pipe);
+  for (int i = 0; i < d->nslots; i++) {
+    const struct slot *s = &d->slots[i];
+    const struct vlff_pipe_stats *ps = vlff_pipe_get_stats(s->pipe);
     dropped += ps->dropped_format + ps->dropped_short + ps->dropped_convert + ps->dropped_sink;
-    incomplete += slots[i].incomplete, timeouts += slots[i].timeouts, lost += slots[i].lost;
-    reconnects += slots[i].reconnects, triggers += slots[i].triggers, trig_fail += slots[i].trig_fail;
+    incomplete += s->incomplete, timeouts += s->timeouts, lost += s->lost;
+    reconnects += s->reconnects, triggers += s->triggers, trig_fail += s->trig_fail;
   }
-  const struct vlff_pair_stats *ps = pair ? vlff_pair_get_stats(pair) : NULL;
+  const struct vlff_pair_stats *ps = d->pair ? vlff_pair_get_stats(d->pair) : NULL;
   printf("vlff-camd: committed=%llu incomplete=%llu dropped=%llu timeouts=%llu lost=%llu reconnects=%llu "
          "triggers=%llu trigger_failures=%llu no_pose=%llu trigger_stamped=%llu pulses=%llu edges=%llu",
          (unsigned long long)(ps ? ps->pairs : st->committed), (unsigned long long)incomplete,
@@ -454,16 +473,43 @@ int main(int argc, char **argv) {
          (unsigned long long)pulses, (unsigned long long)edges);
   if (ps)
     printf(" color_frames=%llu depth_frames=%llu unmatched_color=%llu unmatched_depth=%llu",
-           (unsigned long long)st->committed, (unsigned long long)vlff_pipe_get_stats(range->pipe)->committed,
+           (unsigned long long)st->committed, (unsigned long long)vlff_pipe_get_stats(d->slots[1].pipe)->committed,
            (unsigned long long)ps->unmatched_color, (unsigned long long)ps->unmatched_depth);
   printf("\n");
   fflush(stdout);
-out:
-  vlff_pair_free(pair);
-  vlff_ringsink_free(ring);
-  for (int i = 0; i < nslots; i++) vlff_pipe_free(slots[i].pipe);
+}
+
+int main(int argc, char **argv) {
+  static struct camd d; /* large (two configs): not on the stack */
+  int status = parse_args(&d, argc, argv);
+  if (status >= 0) return status;
+  status = setup_cameras(&d);
+  if (status == 0 && !d.check_only) {
+    struct sigaction sa = {0};
+    sa.sa_handler = on_stop;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    sa.sa_handler = on_usr1;
+    sa.sa_flags = SA_RESTART;
+    sigaction(SIGUSR1, &sa, NULL);
+    vlff_stamps_init(&stamps);
+    vlff_stamps_init(&depth_stamps);
+    status = setup_ring(&d);
+    if (status == 0) status = setup_gpio(&d);
+    if (status == 0) {
+      status = run(&d);
+      print_stats(&d);
+    }
+  }
+#ifdef VLFF_HAVE_GPIOD
+  vlff_gpio_out_stop(d.gout);
+  vlff_gpio_in_stop(d.gin);
+#endif
+  vlff_pair_free(d.pair);
+  vlff_ringsink_free(d.ring);
+  for (int i = 0; i < d.nslots; i++) vlff_pipe_free(d.slots[i].pipe);
 #ifdef VLFF_HAVE_ARAVIS
-  if (!check_only) vlff_arv_shutdown();
+  if (!d.check_only) vlff_arv_shutdown();
 #endif
   return status;
 }

@@ -18,6 +18,7 @@
 #include <unistd.h>
 
 #include "can_proto.h"
+#include "clock.h"
 #include "cli.h"
 #include "config.h"
 
@@ -61,12 +62,6 @@ static long num(const char *s, const char *what) {
     exit(vlff_cli_usage_error(&cli, "%s: not a number: '%s'", what, s));
   }
   return v;
-}
-
-static double now_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
 static int open_iface(const char *iface, bool fd) {
@@ -190,10 +185,10 @@ static void print_frame(const struct vlff_config *c, const struct canfd_frame *f
 static int dump(const struct vlff_config *c, const char *iface, double seconds, long count) {
   int s = open_iface(iface, true);
   if (s < 0) return 2;
-  double t0 = now_s();
+  double t0 = vlff_seconds();
   long n = 0;
   for (;;) {
-    double left = seconds > 0 ? seconds - (now_s() - t0) : 1e9;
+    double left = seconds > 0 ? seconds - (vlff_seconds() - t0) : 1e9;
     if (left <= 0 || (count > 0 && n >= count)) break;
     struct pollfd p = {.fd = s, .events = POLLIN};
     int r = poll(&p, 1, left > 1e6 ? -1 : (int)(left * 1000) + 1);
@@ -207,7 +202,7 @@ static int dump(const struct vlff_config *c, const char *iface, double seconds, 
       break;
     }
     if (got != CAN_MTU && got != CANFD_MTU) continue;
-    print_frame(c, &f, now_s() - t0);
+    print_frame(c, &f, vlff_seconds() - t0);
     n++;
   }
   close(s);
@@ -251,9 +246,9 @@ static int send_cmd(const struct vlff_config *c, const char *iface, int argc, ch
     close(s);
     return 2;
   }
-  double t0 = now_s();
+  double t0 = vlff_seconds();
   for (;;) {
-    double left = timeout - (now_s() - t0);
+    double left = timeout - (vlff_seconds() - t0);
     if (left <= 0) break;
     struct pollfd p = {.fd = s, .events = POLLIN};
     if (poll(&p, 1, (int)(left * 1000) + 1) <= 0) continue;

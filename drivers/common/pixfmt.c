@@ -36,11 +36,6 @@ size_t vlff_pix_bytes(vlff_pix_t pix) {
   return 0;
 }
 
-int vlff_pix_is_bayer(vlff_pix_t pix) {
-  return pix == VLFF_PIX_BAYER_RG8 || pix == VLFF_PIX_BAYER_BG8 || pix == VLFF_PIX_BAYER_GR8 ||
-         pix == VLFF_PIX_BAYER_GB8;
-}
-
 const char *vlff_pix_names(void) {
   return "Mono8, Mono16, RGB8, BGR8, BayerRG8, BayerBG8, BayerGR8, BayerGB8, Coord3D_C16";
 }

@@ -22,7 +22,6 @@ vlff_pix_t vlff_pix_from_name(const char *name);
 const char *vlff_pix_name(vlff_pix_t pix);
 /* Bytes per pixel of the packed format (Bayer: one sample). 0 for INVALID. */
 size_t vlff_pix_bytes(vlff_pix_t pix);
-int vlff_pix_is_bayer(vlff_pix_t pix);
 /* Comma-separated list of accepted names, for error messages. */
 const char *vlff_pix_names(void);
 

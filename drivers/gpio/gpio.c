@@ -9,6 +9,7 @@
  * edge; a bounce inside that window cancels the pending edge.
  */
 #include "gpio.h"
+#include "clock.h"
 
 #include <errno.h>
 #include <gpiod.h>
@@ -20,12 +21,6 @@
 #include <time.h>
 
 #define CONSUMER "vlff-camd"
-
-static uint64_t mono_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 static struct timespec to_ts(uint64_t ns) {
   return (struct timespec){(time_t)(ns / 1000000000u), (long)(ns % 1000000000u)};
@@ -99,13 +94,13 @@ struct vlff_gpio_out {
 
 static void *out_main(void *arg) {
   struct vlff_gpio_out *g = arg;
-  uint64_t start = mono_ns() + g->period_ns, k = 0;
+  uint64_t start = vlff_now_ns() + g->period_ns, k = 0;
   while (!atomic_load(&g->stop)) {
     uint64_t due = start + k * g->period_ns;
     sleep_until(due);
     if (atomic_load(&g->stop)) break;
     gpiod_line_set_value(g->line, 1);
-    uint64_t t = mono_ns();
+    uint64_t t = vlff_now_ns();
     uint64_t n = atomic_fetch_add(&g->pulses, 1) + 1;
     if (g->on_pulse) g->on_pulse(g->ctx, t, n);
     sleep_until(t + g->width_ns);
@@ -113,7 +108,7 @@ static void *out_main(void *arg) {
     k++;
     /* Asleep for more than a period (suspend, overload): skip the missed
      * slots rather than firing a burst of catch-up pulses. */
-    uint64_t now = mono_ns();
+    uint64_t now = vlff_now_ns();
     if (now > start + k * g->period_ns + g->period_ns) {
       uint64_t missed = (now - (start + k * g->period_ns)) / g->period_ns;
       atomic_fetch_add(&g->late, missed);
@@ -193,7 +188,7 @@ static void *in_main(void *arg) {
   while (!atomic_load(&g->stop)) {
     uint64_t wait_ns = 100000000u; /* poll the stop flag every 100 ms */
     if (pending) {
-      uint64_t now = mono_ns(), due = pending_t + g->debounce_ns;
+      uint64_t now = vlff_now_ns(), due = pending_t + g->debounce_ns;
       wait_ns = due > now ? due - now : 0;
     }
     struct timespec ts = to_ts(wait_ns);
@@ -203,7 +198,7 @@ static void *in_main(void *arg) {
       break;
     }
     if (rc == 0) {
-      if (pending && mono_ns() >= pending_t + g->debounce_ns) {
+      if (pending && vlff_now_ns() >= pending_t + g->debounce_ns) {
         pending = false;
         uint64_t n = atomic_fetch_add(&g->edges, 1) + 1;
         if (g->on_edge) g->on_edge(g->ctx, pending_t, n);

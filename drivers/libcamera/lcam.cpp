@@ -3,6 +3,7 @@
 // the caller's thread does all the work in vlff_lcam_grab(), so the frame
 // pipeline and the sink stay single-threaded as their contracts require.
 #include "lcam.h"
+#include "clock.h"
 
 #include <cerrno>
 #include <chrono>
@@ -48,12 +49,6 @@ const FormatName kFormats[] = {
 };
 
 std::unique_ptr<CameraManager> g_cm;
-
-uint64_t mono_ns() {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 }  // namespace
 
@@ -112,6 +107,140 @@ static void teardown(vlff_lcam *c) {
   }
 }
 
+// The stages of vlff_lcam_open: each returns false with err (and errno)
+// set; the caller tears down what was built.
+
+// The camera camera.device names (an index or an id), acquired.
+static bool pick_camera(vlff_lcam *c, const std::string &want, char *err, size_t errlen) {
+  // The list holds a reference to every camera: it must be gone before
+  // teardown() stops the manager, or the cameras outlive it.
+  bool none = false;
+  std::string list;
+  {
+    auto cams = g_cm->cameras();
+    none = cams.empty();
+    char *end = nullptr;
+    long idx = want.empty() ? 0 : std::strtol(want.c_str(), &end, 10);
+    bool by_index = want.empty() || (end && !*end);
+    for (size_t i = 0; i < cams.size(); i++) {
+      if ((by_index && (long)i == idx) || (!by_index && cams[i]->id() == want)) c->cam = cams[i];
+      list += (i ? ", " : "") + std::to_string(i) + "=" + cams[i]->id();
+    }
+  }
+  if (none) {
+    fail(err, errlen, ENODEV,
+         "key 'camera.device': libcamera found no cameras at all (no sensor driver bound, or no /dev/media*; "
+         "looking for '%s')",
+         want);
+    return false;
+  }
+  if (!c->cam) {
+    fail(err, errlen, ENODEV, "key 'camera.device': no libcamera camera '%s' (have: %s)", want, list);
+    return false;
+  }
+  if (c->cam->acquire()) {
+    fail(err, errlen, ENODEV, "key 'camera.device': camera '%s' is in use by another process", c->cam->id());
+    return false;
+  }
+  c->acquired = true;
+  return true;
+}
+
+// One video stream in the configured format and size, exactly.
+static bool configure_stream(vlff_lcam *c, const struct vlff_config *cfg, const FormatName *fn, char *err,
+                             size_t errlen) {
+  c->config = c->cam->generateConfiguration({StreamRole::VideoRecording});
+  if (!c->config || c->config->size() != 1) {
+    fail(err, errlen, EINVAL, "key 'camera.device': camera '%s' offers no video stream", c->cam->id());
+    return false;
+  }
+  StreamConfiguration &sc = c->config->at(0);
+  sc.pixelFormat = fn->fmt;
+  if (cfg->camera.width && cfg->camera.height) sc.size = Size(cfg->camera.width, cfg->camera.height);
+  sc.bufferCount = 4;
+  if (c->config->validate() == CameraConfiguration::Invalid) {
+    fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera '%s' cannot be configured for %s", c->cam->id(),
+         cfg->camera.pixel_format);
+    return false;
+  }
+  if (sc.pixelFormat != fn->fmt) {
+    fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera offers %s instead of %s", sc.pixelFormat.toString(),
+         cfg->camera.pixel_format);
+    return false;
+  }
+  if (cfg->camera.width && cfg->camera.height &&
+      (sc.size.width != (unsigned)cfg->camera.width || sc.size.height != (unsigned)cfg->camera.height)) {
+    fail(err, errlen, EINVAL, "key 'camera.width': camera offers %s instead of the configured %s",
+         sc.size.toString(), std::to_string(cfg->camera.width) + "x" + std::to_string(cfg->camera.height));
+    return false;
+  }
+  if (c->cam->configure(c->config.get())) {
+    fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera '%s' refused configuration %s", c->cam->id(),
+         sc.toString());
+    return false;
+  }
+  c->stream = sc.stream();
+  c->pix = fn->pix;
+  return true;
+}
+
+// Frame buffers allocated and mapped, one request per buffer.
+static bool map_buffers(vlff_lcam *c, char *err, size_t errlen) {
+  c->alloc = std::make_unique<FrameBufferAllocator>(c->cam);
+  if (c->alloc->allocate(c->stream) <= 0) {
+    fail(err, errlen, ENODEV, "libcamera: cannot allocate buffers for '%s'", c->cam->id());
+    return false;
+  }
+  const auto &bufs = c->alloc->buffers(c->stream);
+  c->maps.resize(bufs.size());
+  for (size_t i = 0; i < bufs.size(); i++) {
+    const FrameBuffer::Plane &pl = bufs[i]->planes()[0];
+    Mapping &m = c->maps[i];
+    m.offset = pl.offset;
+    m.len = pl.offset + pl.length;
+    m.addr = mmap(nullptr, m.len, PROT_READ, MAP_SHARED, pl.fd.get(), 0);
+    if (m.addr == MAP_FAILED) {
+      fail(err, errlen, ENODEV, "libcamera: cannot map a frame buffer: %s", std::strerror(errno));
+      return false;
+    }
+    std::unique_ptr<Request> r = c->cam->createRequest(i);
+    if (!r || r->addBuffer(c->stream, bufs[i].get())) {
+      fail(err, errlen, ENODEV, "libcamera: cannot create a request");
+      return false;
+    }
+    c->requests.push_back(std::move(r));
+  }
+  return true;
+}
+
+// Exposure, gain and frame rate fixed as configured; streaming with every
+// request queued.
+static bool start_camera(vlff_lcam *c, const struct vlff_config *cfg, char *err, size_t errlen) {
+  c->cam->requestCompleted.connect(c, &vlff_lcam::onCompleted);
+  c->cam->disconnected.connect(c, &vlff_lcam::onDisconnected);
+  ControlList ctrls(controls::controls);
+  const ControlInfoMap &info = c->cam->controls();
+  if (info.count(&controls::AeEnable)) ctrls.set(controls::AeEnable, false);
+  if (info.count(&controls::ExposureTime)) ctrls.set(controls::ExposureTime, (int32_t)cfg->camera.exposure_us);
+  if (info.count(&controls::AnalogueGain))
+    ctrls.set(controls::AnalogueGain, (float)std::pow(10.0, cfg->camera.gain_db / 20.0));
+  if (info.count(&controls::FrameDurationLimits)) {
+    int64_t d = (int64_t)std::llround(1e6 / cfg->camera.frame_rate);
+    ctrls.set(controls::FrameDurationLimits, Span<const int64_t, 2>({d, d}));
+  }
+  if (c->cam->start(&ctrls)) {
+    fail(err, errlen, ENODEV, "libcamera: camera '%s' failed to start", c->cam->id());
+    return false;
+  }
+  c->started = true;
+  for (auto &r : c->requests)
+    if (c->cam->queueRequest(r.get())) {
+      fail(err, errlen, ENODEV, "libcamera: cannot queue a request");
+      return false;
+    }
+  return true;
+}
+
 extern "C" struct vlff_lcam *vlff_lcam_open(const struct vlff_config *cfg, char *err, size_t errlen) {
   vlff_lcam *c = nullptr;
   try {
@@ -132,131 +261,12 @@ extern "C" struct vlff_lcam *vlff_lcam_open(const struct vlff_config *cfg, char 
       }
     }
     c = new vlff_lcam();
-    // The list holds a reference to every camera: it must be gone before
-    // teardown() stops the manager, or the cameras outlive it.
-    bool none = false;
-    std::string want = cfg->camera.device, list;
-    {
-      auto cams = g_cm->cameras();
-      none = cams.empty();
-      char *end = nullptr;
-      long idx = want.empty() ? 0 : std::strtol(want.c_str(), &end, 10);
-      bool by_index = want.empty() || (end && !*end);
-      for (size_t i = 0; i < cams.size(); i++) {
-        if ((by_index && (long)i == idx) || (!by_index && cams[i]->id() == want)) c->cam = cams[i];
-        list += (i ? ", " : "") + std::to_string(i) + "=" + cams[i]->id();
-      }
+    if (pick_camera(c, cfg->camera.device, err, errlen) && configure_stream(c, cfg, fn, err, errlen) &&
+        map_buffers(c, err, errlen) && start_camera(c, cfg, err, errlen)) {
+      std::fprintf(stderr, "libcamera: '%s' streaming %s\n", c->cam->id().c_str(),
+                   c->config->at(0).toString().c_str());
+      return c;
     }
-    if (none) {
-      fail(err, errlen, ENODEV,
-           "key 'camera.device': libcamera found no cameras at all (no sensor driver bound, or no /dev/media*; "
-           "looking for '%s')",
-           want);
-      teardown(c);
-      return nullptr;
-    }
-    if (!c->cam) {
-      fail(err, errlen, ENODEV, "key 'camera.device': no libcamera camera '%s' (have: %s)", want, list);
-      teardown(c);
-      return nullptr;
-    }
-    if (c->cam->acquire()) {
-      fail(err, errlen, ENODEV, "key 'camera.device': camera '%s' is in use by another process", c->cam->id());
-      teardown(c);
-      return nullptr;
-    }
-    c->acquired = true;
-    c->config = c->cam->generateConfiguration({StreamRole::VideoRecording});
-    if (!c->config || c->config->size() != 1) {
-      fail(err, errlen, EINVAL, "key 'camera.device': camera '%s' offers no video stream", c->cam->id());
-      teardown(c);
-      return nullptr;
-    }
-    StreamConfiguration &sc = c->config->at(0);
-    sc.pixelFormat = fn->fmt;
-    if (cfg->camera.width && cfg->camera.height) sc.size = Size(cfg->camera.width, cfg->camera.height);
-    sc.bufferCount = 4;
-    if (c->config->validate() == CameraConfiguration::Invalid) {
-      fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera '%s' cannot be configured for %s", c->cam->id(),
-           cfg->camera.pixel_format);
-      teardown(c);
-      return nullptr;
-    }
-    if (sc.pixelFormat != fn->fmt) {
-      fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera offers %s instead of %s", sc.pixelFormat.toString(),
-           cfg->camera.pixel_format);
-      teardown(c);
-      return nullptr;
-    }
-    if (cfg->camera.width && cfg->camera.height &&
-        (sc.size.width != (unsigned)cfg->camera.width || sc.size.height != (unsigned)cfg->camera.height)) {
-      fail(err, errlen, EINVAL, "key 'camera.width': camera offers %s instead of the configured %s",
-           sc.size.toString(), std::to_string(cfg->camera.width) + "x" + std::to_string(cfg->camera.height));
-      teardown(c);
-      return nullptr;
-    }
-    if (c->cam->configure(c->config.get())) {
-      fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera '%s' refused configuration %s", c->cam->id(),
-           sc.toString());
-      teardown(c);
-      return nullptr;
-    }
-    c->stream = sc.stream();
-    c->pix = fn->pix;
-    c->alloc = std::make_unique<FrameBufferAllocator>(c->cam);
-    if (c->alloc->allocate(c->stream) <= 0) {
-      fail(err, errlen, ENODEV, "libcamera: cannot allocate buffers for '%s'", c->cam->id());
-      teardown(c);
-      return nullptr;
-    }
-    const auto &bufs = c->alloc->buffers(c->stream);
-    c->maps.resize(bufs.size());
-    for (size_t i = 0; i < bufs.size(); i++) {
-      const FrameBuffer::Plane &pl = bufs[i]->planes()[0];
-      Mapping &m = c->maps[i];
-      m.offset = pl.offset;
-      m.len = pl.offset + pl.length;
-      m.addr = mmap(nullptr, m.len, PROT_READ, MAP_SHARED, pl.fd.get(), 0);
-      if (m.addr == MAP_FAILED) {
-        fail(err, errlen, ENODEV, "libcamera: cannot map a frame buffer: %s", std::strerror(errno));
-        teardown(c);
-        return nullptr;
-      }
-      std::unique_ptr<Request> r = c->cam->createRequest(i);
-      if (!r || r->addBuffer(c->stream, bufs[i].get())) {
-        fail(err, errlen, ENODEV, "libcamera: cannot create a request");
-        teardown(c);
-        return nullptr;
-      }
-      c->requests.push_back(std::move(r));
-    }
-    c->cam->requestCompleted.connect(c, &vlff_lcam::onCompleted);
-    c->cam->disconnected.connect(c, &vlff_lcam::onDisconnected);
-
-    ControlList ctrls(controls::controls);
-    const ControlInfoMap &info = c->cam->controls();
-    if (info.count(&controls::AeEnable)) ctrls.set(controls::AeEnable, false);
-    if (info.count(&controls::ExposureTime)) ctrls.set(controls::ExposureTime, (int32_t)cfg->camera.exposure_us);
-    if (info.count(&controls::AnalogueGain))
-      ctrls.set(controls::AnalogueGain, (float)std::pow(10.0, cfg->camera.gain_db / 20.0));
-    if (info.count(&controls::FrameDurationLimits)) {
-      int64_t d = (int64_t)std::llround(1e6 / cfg->camera.frame_rate);
-      ctrls.set(controls::FrameDurationLimits, Span<const int64_t, 2>({d, d}));
-    }
-    if (c->cam->start(&ctrls)) {
-      fail(err, errlen, ENODEV, "libcamera: camera '%s' failed to start", c->cam->id());
-      teardown(c);
-      return nullptr;
-    }
-    c->started = true;
-    for (auto &r : c->requests)
-      if (c->cam->queueRequest(r.get())) {
-        fail(err, errlen, ENODEV, "libcamera: cannot queue a request");
-        teardown(c);
-        return nullptr;
-      }
-    std::fprintf(stderr, "libcamera: '%s' streaming %s\n", c->cam->id().c_str(), sc.toString().c_str());
-    return c;
   } catch (const std::exception &e) {
     fail(err, errlen, ENODEV, "libcamera: %s", e.what());
   } catch (...) {
@@ -300,7 +310,7 @@ extern "C" int vlff_lcam_grab(struct vlff_lcam *c, int timeout_ms, struct vlff_p
       auto ts = r->metadata().get(controls::SensorTimestamp);
       raw.device_ns = ts ? (uint64_t)*ts : fb->metadata().timestamp;
       // V4L2 stamps buffers on CLOCK_MONOTONIC, the host clock we report.
-      uint64_t now = mono_ns();
+      uint64_t now = vlff_now_ns();
       raw.host_ns = raw.device_ns && raw.device_ns <= now && now - raw.device_ns < 1000000000u ? raw.device_ns : now;
       rc = vlff_pipe_push(pipe, &raw, sink, poses) == 0 ? 1 : 0;
     }

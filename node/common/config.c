@@ -9,6 +9,7 @@
  * (line:column) of every key and value for error messages.
  */
 #include "config.h"
+#include "hash.h"
 
 #include <errno.h>
 #include <math.h>
@@ -820,25 +821,19 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
   }
 }
 
-static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
-  const unsigned char *b = p;
-  for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 0x100000001b3ull;
-  return h;
-}
-
 bool vlff_config_sim_features_misused(const struct vlff_config *cfg) {
   return cfg->source.features == VLFF_FEAT_SIM && cfg->source.kind == VLFF_SOURCE_RING &&
          !cfg->source.allow_sim_features;
 }
 
 uint64_t vlff_config_field_hash(const struct vlff_config *cfg) {
-  uint64_t h = 0xcbf29ce484222325ull;
+  uint64_t h = VLFF_FNV1A64_INIT;
   for (size_t i = 0; i < NKEYS; i++) {
     const struct key *k = &schema[i];
     if (strncmp(k->path, "field.", 6)) continue;
-    h = fnv1a(h, k->path, strlen(k->path));
+    h = vlff_fnv1a64(h, k->path, strlen(k->path));
     size_t n = k->type == T_DVEC ? k->size * sizeof(double) : k->type == T_INT ? sizeof(int) : sizeof(double);
-    h = fnv1a(h, cat(cfg, k), n);
+    h = vlff_fnv1a64(h, cat(cfg, k), n);
   }
   return h;
 }

@@ -68,6 +68,74 @@ int vlff_create_temp(const char *tmp, unsigned mode, char *err, size_t errlen) {
   return fd;
 }
 
+int vlff_atomic_begin(struct vlff_atomic *a, const char *path, unsigned mode, char *err, size_t errlen) {
+  size_t n = strlen(path) + 32;
+  a->path = path, a->fd = -1, a->tmp = malloc(n);
+  if (!a->tmp) {
+    if (err && errlen) snprintf(err, errlen, "%s: out of memory", path);
+    return -1;
+  }
+  snprintf(a->tmp, n, "%s.tmp.%ld", path, (long)getpid());
+  a->fd = vlff_create_temp(a->tmp, mode, err, errlen);
+  if (a->fd < 0) {
+    free(a->tmp), a->tmp = NULL;
+    return -1;
+  }
+  return 0;
+}
+
+void vlff_atomic_abort(struct vlff_atomic *a) {
+  if (a->fd >= 0) close(a->fd);
+  if (a->tmp) unlink(a->tmp);
+  free(a->tmp);
+  a->fd = -1, a->tmp = NULL;
+}
+
+int vlff_atomic_commit(struct vlff_atomic *a, char *err, size_t errlen) {
+  int rc = fsync(a->fd);
+  if (close(a->fd) < 0) rc = -1;
+  a->fd = -1;
+  if (rc == 0) rc = rename(a->tmp, a->path);
+  if (rc < 0) {
+    if (err && errlen) snprintf(err, errlen, "%s: write failed: %s", a->path, strerror(errno));
+    vlff_atomic_abort(a);
+    return -1;
+  }
+  free(a->tmp), a->tmp = NULL;
+  /* the rename itself made durable */
+  char *dir = strdup(a->path);
+  if (dir) {
+    char *slash = strrchr(dir, '/');
+    const char *d = slash ? (slash == dir ? "/" : (*slash = 0, dir)) : ".";
+    int dfd = open(d, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dfd >= 0) fsync(dfd), close(dfd);
+    free(dir);
+  }
+  return 0;
+}
+
+int vlff_write_all(int fd, const void *p, size_t n) {
+  const unsigned char *b = p;
+  while (n) {
+    ssize_t w = write(fd, b, n);
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) return -1;
+    b += w, n -= (size_t)w;
+  }
+  return 0;
+}
+
+int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen) {
+  struct vlff_atomic a;
+  if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return -1;
+  if (vlff_write_all(a.fd, data, len) < 0) {
+    if (err && errlen) snprintf(err, errlen, "%s: write failed: %s", a.tmp, strerror(errno));
+    vlff_atomic_abort(&a);
+    return -1;
+  }
+  return vlff_atomic_commit(&a, err, errlen);
+}
+
 bool vlff_temp_name_pid(const char *name, long *pid) {
   const char *t = strstr(name, ".tmp.");
   if (!t) return false;

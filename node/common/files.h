@@ -44,6 +44,24 @@ int vlff_remove_dead_temps(const char *dir, const char *const *prefixes);
  * it writes. Returns the descriptor, or -1 with err. */
 int vlff_create_temp(const char *tmp, unsigned mode, char *err, size_t errlen);
 
+/* Atomic replacement of a file: begin creates "<path>.tmp.<pid>"
+ * (vlff_create_temp) and gives its descriptor in a->fd; commit fsyncs and
+ * closes it, renames it over path and fsyncs the directory, so after a
+ * crash path holds the old or the new content, never a mix; abort closes
+ * and removes the temporary. Commit and abort free what begin took. */
+struct vlff_atomic {
+  int fd;
+  char *tmp;
+  const char *path;
+};
+int vlff_atomic_begin(struct vlff_atomic *a, const char *path, unsigned mode, char *err, size_t errlen);
+int vlff_atomic_commit(struct vlff_atomic *a, char *err, size_t errlen);
+void vlff_atomic_abort(struct vlff_atomic *a);
+/* write(2) of all n bytes, retried on EINTR and short writes: 0 or -1. */
+int vlff_write_all(int fd, const void *p, size_t n);
+/* The whole of data as path's new content, atomically (0644). */
+int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen);
+
 /* True when "<anything>.tmp.<pid>" names pid's temporary (pid > 0). */
 bool vlff_temp_name_pid(const char *name, long *pid);
 

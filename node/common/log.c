@@ -3,6 +3,7 @@
  * signal) without a lock on the logging path.
  */
 #include "log.h"
+#include "clock.h"
 
 #include <stdatomic.h>
 #include <stdio.h>
@@ -14,13 +15,6 @@ static _Atomic int log_level = VLFF_LOG_INFO;
 static _Atomic long long log_t0_ns;
 
 void vlff_log_set_level(enum vlff_log_level level) { atomic_store(&log_level, (int)level); }
-enum vlff_log_level vlff_log_get_level(void) { return (enum vlff_log_level)atomic_load(&log_level); }
-
-static long long now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (long long)ts.tv_sec * 1000000000ll + ts.tv_nsec;
-}
 
 void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_list ap) {
   if ((int)level > atomic_load(&log_level)) return;
@@ -32,7 +26,7 @@ void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_l
   if (getenv("JOURNAL_STREAM")) {
     n = snprintf(line, sizeof line, "<%d>%s: ", prio[level], tag);
   } else {
-    long long t = now_ns(), zero = 0;
+    long long t = (long long)vlff_now_ns(), zero = 0;
     atomic_compare_exchange_strong(&log_t0_ns, &zero, t);
     long long rel = t - atomic_load(&log_t0_ns);
     n = snprintf(line, sizeof line, "[%5lld.%06lld] %c %s: ", rel / 1000000000ll,

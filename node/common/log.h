@@ -23,7 +23,6 @@ extern "C" {
 #endif
 
 void vlff_log_set_level(enum vlff_log_level level);
-enum vlff_log_level vlff_log_get_level(void);
 
 void vlff_log(enum vlff_log_level level, const char *tag, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));

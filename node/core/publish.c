@@ -5,6 +5,8 @@
  * know the voxel holds one, and the field only supplies its meaning.
  */
 #include "publish.h"
+#include "files.h" /* vlff_write_file_atomic */
+#include "hash.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -177,12 +179,6 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
  * hit_sum f32[3n]; FNV-1a 64 of everything before it. */
 #define OBS_MAGIC "VLFFOBS1"
 
-static uint64_t fnv1a64(const uint8_t *b, size_t n) {
-  uint64_t h = 0xcbf29ce484222325ull;
-  for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 0x100000001b3ull;
-  return h;
-}
-
 struct obs_header {
   char magic[8];
   uint32_t dims[3];
@@ -203,7 +199,7 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
   memcpy(q, p->observed, n), q += n;
   memcpy(q, p->hits, n * 2), q += n * 2;
   memcpy(q, p->hit_sum, n * 12), q += n * 12;
-  uint64_t sum = fnv1a64(buf, (size_t)(q - buf));
+  uint64_t sum = vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, (size_t)(q - buf));
   memcpy(q, &sum, 8);
   int rc = vlff_write_file_atomic(path, buf, len, err, errlen);
   free(buf);
@@ -229,7 +225,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     snprintf(err, errlen, "%s: not an observation grid of this map's geometry", path);
     goto out;
   }
-  if (fnv1a64(buf, want - 8) != sum) {
+  if (vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, want - 8) != sum) {
     snprintf(err, errlen, "%s: checksum mismatch (corrupt file)", path);
     goto out;
   }

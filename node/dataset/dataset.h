@@ -200,7 +200,6 @@ int vlff_ply_write(const char *path, const float *xyz, const uint8_t *rgb, const
 
 /* Whole-file read with a size cap; *buf is NUL-terminated, caller frees. */
 int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);
-/* Atomic write: path.tmp.<pid>, fsync, rename. */
-int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen);
+/* Atomic writes: vlff_write_file_atomic in node/common/files.h. */
 
 #endif

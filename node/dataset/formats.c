@@ -69,40 +69,6 @@ int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, cha
   return 0;
 }
 
-int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen) {
-  char tmp[4200];
-  if (snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid()) >= (int)sizeof tmp) {
-    seterr(err, errlen, "%s: path too long", path);
-    return -1;
-  }
-  int fd = vlff_create_temp(tmp, 0644, err, errlen);
-  if (fd < 0) return -1;
-  const uint8_t *p = data;
-  size_t left = len;
-  while (left) {
-    ssize_t w = write(fd, p, left);
-    if (w < 0 && errno == EINTR) continue;
-    if (w <= 0) {
-      seterr(err, errlen, "%s: write failed: %s", tmp, strerror(errno));
-      close(fd);
-      unlink(tmp);
-      return -1;
-    }
-    p += w, left -= (size_t)w;
-  }
-  if (fsync(fd) < 0 || close(fd) < 0) {
-    seterr(err, errlen, "%s: fsync/close failed: %s", tmp, strerror(errno));
-    unlink(tmp);
-    return -1;
-  }
-  if (rename(tmp, path) < 0) {
-    seterr(err, errlen, "%s: rename failed: %s", path, strerror(errno));
-    unlink(tmp);
-    return -1;
-  }
-  return 0;
-}
-
 /* ---- PNG ---------------------------------------------------------------- */
 
 struct membuf {
@@ -489,19 +455,48 @@ void vlff_points_free(struct vlff_points *p) {
 #define PLY_MAX_PROPS 32
 #define PLY_MAX_POINTS (64u << 20)
 
-int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff_points *p,
-                   char *err, size_t errlen) {
-  memset(p, 0, sizeof *p);
+/* What the header says about the vertex element. */
+struct ply_header {
+  int format; /* 0 ascii, 1 binary_little_endian */
+  size_t nvert, pos; /* pos: the first byte after end_header */
+  int nprop, ptype[PLY_MAX_PROPS];
+  int ix, iy, iz, il; /* property indices of x, y, z, label */
+};
+
+/* One "property" line of the vertex element. */
+static int ply_property(struct ply_header *h, const char *b, const char *c, int nt, const char *name, int line,
+                        char *err, size_t errlen) {
+  if (!strcmp(b, "list")) {
+    seterr(err, errlen, "%s:%d: list property in the vertex element is not supported", name, line);
+    return -1;
+  }
+  int t = ply_type_of(b);
+  if (t == PT_NONE || nt < 3) {
+    seterr(err, errlen, "%s:%d: unknown property type '%s'", name, line, b);
+    return -1;
+  }
+  if (h->nprop == PLY_MAX_PROPS) {
+    seterr(err, errlen, "%s:%d: more than %d vertex properties", name, line, PLY_MAX_PROPS);
+    return -1;
+  }
+  if (!strcmp(c, "x")) h->ix = h->nprop;
+  else if (!strcmp(c, "y")) h->iy = h->nprop;
+  else if (!strcmp(c, "z")) h->iz = h->nprop;
+  else if (!strcmp(c, "label")) h->il = h->nprop;
+  h->ptype[h->nprop++] = t;
+  return 0;
+}
+
+static int ply_header(const uint8_t *buf, size_t len, const char *name, struct ply_header *h, char *err,
+                      size_t errlen) {
   if (len < 4 || memcmp(buf, "ply\n", 4)) {
     seterr(err, errlen, "%s: not a PLY file (no 'ply' magic line)", name);
     return -1;
   }
+  *h = (struct ply_header){.format = -1, .ix = -1, .iy = -1, .iz = -1, .il = -1};
   size_t pos = 4;
-  int format = -1; /* 0 ascii, 1 binary_little_endian */
   long long nvert = -1;
-  int in_vertex = 0, seen_other_before = 0, nprop = 0, line = 1;
-  int ptype[PLY_MAX_PROPS];
-  int ix = -1, iy = -1, iz = -1, il = -1;
+  int in_vertex = 0, seen_other_before = 0, line = 1;
   for (;;) {
     line++;
     size_t e = pos;
@@ -526,8 +521,8 @@ int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff
     if (!strcmp(a, "end_header")) break;
     if (!strcmp(a, "comment") || !strcmp(a, "obj_info")) continue;
     if (!strcmp(a, "format")) {
-      if (!strcmp(b, "ascii")) format = 0;
-      else if (!strcmp(b, "binary_little_endian")) format = 1;
+      if (!strcmp(b, "ascii")) h->format = 0;
+      else if (!strcmp(b, "binary_little_endian")) h->format = 1;
       else {
         seterr(err, errlen, "%s:%d: format '%s' not supported (ascii, binary_little_endian)", name, line, b);
         return -1;
@@ -549,31 +544,13 @@ int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff
         seen_other_before = 1;
       }
     } else if (!strcmp(a, "property")) {
-      if (!in_vertex) continue;
-      if (!strcmp(b, "list")) {
-        seterr(err, errlen, "%s:%d: list property in the vertex element is not supported", name, line);
-        return -1;
-      }
-      int t = ply_type_of(b);
-      if (t == PT_NONE || nt < 3) {
-        seterr(err, errlen, "%s:%d: unknown property type '%s'", name, line, b);
-        return -1;
-      }
-      if (nprop == PLY_MAX_PROPS) {
-        seterr(err, errlen, "%s:%d: more than %d vertex properties", name, line, PLY_MAX_PROPS);
-        return -1;
-      }
-      if (!strcmp(c, "x")) ix = nprop;
-      else if (!strcmp(c, "y")) iy = nprop;
-      else if (!strcmp(c, "z")) iz = nprop;
-      else if (!strcmp(c, "label")) il = nprop;
-      ptype[nprop++] = t;
+      if (in_vertex && ply_property(h, b, c, nt, name, line, err, errlen) < 0) return -1;
     } else {
       seterr(err, errlen, "%s:%d: unexpected header keyword '%s'", name, line, a);
       return -1;
     }
   }
-  if (format < 0) {
+  if (h->format < 0) {
     seterr(err, errlen, "%s: no format line", name);
     return -1;
   }
@@ -581,11 +558,70 @@ int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff
     seterr(err, errlen, "%s: the vertex element must come first", name);
     return -1;
   }
-  if (nvert < 0 || ix < 0 || iy < 0 || iz < 0 || il < 0) {
+  if (nvert < 0 || h->ix < 0 || h->iy < 0 || h->iz < 0 || h->il < 0) {
     seterr(err, errlen, "%s: needs a vertex element with properties x, y, z and label", name);
     return -1;
   }
-  size_t n = (size_t)nvert;
+  h->nvert = (size_t)nvert, h->pos = pos;
+  return 0;
+}
+
+/* Vertex k from its property values v. */
+static void ply_store(const struct ply_header *h, const double *v, size_t k, struct vlff_points *p) {
+  p->xyz[3 * k] = (float)v[h->ix], p->xyz[3 * k + 1] = (float)v[h->iy], p->xyz[3 * k + 2] = (float)v[h->iz];
+  p->label[k] = v[h->il] >= 0 && v[h->il] < 255 ? (uint8_t)v[h->il] : 255;
+}
+
+static int ply_body_binary(const struct ply_header *h, const uint8_t *buf, size_t len, const char *name,
+                           struct vlff_points *p, char *err, size_t errlen) {
+  size_t stride = 0, n = h->nvert;
+  for (int i = 0; i < h->nprop; i++) stride += (size_t)ply_size[h->ptype[i]];
+  if ((len - h->pos) / stride < n) {
+    seterr(err, errlen, "%s: truncated: %zu vertices of %zu bytes need %zu bytes, %zu present", name, n, stride,
+           n * stride, len - h->pos);
+    return -1;
+  }
+  double v[PLY_MAX_PROPS];
+  for (size_t k = 0; k < n; k++) {
+    size_t o = h->pos + k * stride;
+    for (int i = 0; i < h->nprop; i++) {
+      v[i] = ply_get(buf + o, h->ptype[i]);
+      o += (size_t)ply_size[h->ptype[i]];
+    }
+    ply_store(h, v, k, p);
+  }
+  return 0;
+}
+
+static int ply_body_ascii(const struct ply_header *h, const uint8_t *buf, size_t len, const char *name,
+                          struct vlff_points *p, char *err, size_t errlen) {
+  const char *s = (const char *)buf + h->pos, *end = (const char *)buf + len;
+  double v[PLY_MAX_PROPS];
+  for (size_t k = 0; k < h->nvert; k++) {
+    for (int i = 0; i < h->nprop; i++) {
+      while (s < end && (*s == ' ' || *s == '\t' || *s == '\n' || *s == '\r')) s++;
+      char tok[64];
+      size_t tl = 0;
+      while (s < end && *s != ' ' && *s != '\t' && *s != '\n' && *s != '\r' && tl < sizeof tok - 1) tok[tl++] = *s++;
+      tok[tl] = 0;
+      char *e2;
+      v[i] = strtod(tok, &e2);
+      if (!tl || *e2) {
+        seterr(err, errlen, "%s: vertex %zu property %d: '%s' is not a number", name, k, i, tok);
+        return -1;
+      }
+    }
+    ply_store(h, v, k, p);
+  }
+  return 0;
+}
+
+int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff_points *p,
+                   char *err, size_t errlen) {
+  memset(p, 0, sizeof *p);
+  struct ply_header h;
+  if (ply_header(buf, len, name, &h, err, errlen) < 0) return -1;
+  size_t n = h.nvert;
   p->xyz = malloc((n ? n : 1) * 3 * sizeof(float));
   p->label = malloc(n ? n : 1);
   if (!p->xyz || !p->label) {
@@ -593,53 +629,17 @@ int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff
     seterr(err, errlen, "%s: out of memory for %zu points", name, n);
     return -1;
   }
-  double v[PLY_MAX_PROPS];
-  if (format == 1) {
-    size_t stride = 0;
-    for (int i = 0; i < nprop; i++) stride += (size_t)ply_size[ptype[i]];
-    if ((len - pos) / stride < n) {
-      vlff_points_free(p);
-      seterr(err, errlen, "%s: truncated: %zu vertices of %zu bytes need %zu bytes, %zu present", name, n,
-             stride, n * stride, len - pos);
-      return -1;
-    }
-    for (size_t k = 0; k < n; k++) {
-      size_t o = pos + k * stride;
-      for (int i = 0; i < nprop; i++) {
-        v[i] = ply_get(buf + o, ptype[i]);
-        o += (size_t)ply_size[ptype[i]];
-      }
-      p->xyz[3 * k] = (float)v[ix], p->xyz[3 * k + 1] = (float)v[iy], p->xyz[3 * k + 2] = (float)v[iz];
-      p->label[k] = v[il] >= 0 && v[il] < 255 ? (uint8_t)v[il] : 255;
-    }
-  } else {
-    const char *s = (const char *)buf + pos, *end = (const char *)buf + len;
-    for (size_t k = 0; k < n; k++) {
-      for (int i = 0; i < nprop; i++) {
-        while (s < end && (*s == ' ' || *s == '\t' || *s == '\n' || *s == '\r')) s++;
-        char tok[64];
-        size_t tl = 0;
-        while (s < end && *s != ' ' && *s != '\t' && *s != '\n' && *s != '\r' && tl < sizeof tok - 1)
-          tok[tl++] = *s++;
-        tok[tl] = 0;
-        char *e2;
-        v[i] = strtod(tok, &e2);
-        if (!tl || *e2) {
-          vlff_points_free(p);
-          seterr(err, errlen, "%s: vertex %zu property %d: '%s' is not a number", name, k, i, tok);
-          return -1;
-        }
-      }
-      p->xyz[3 * k] = (float)v[ix], p->xyz[3 * k + 1] = (float)v[iy], p->xyz[3 * k + 2] = (float)v[iz];
-      p->label[k] = v[il] >= 0 && v[il] < 255 ? (uint8_t)v[il] : 255;
-    }
-  }
-  for (size_t k = 0; k < n; k++)
+  int rc = h.format == 1 ? ply_body_binary(&h, buf, len, name, p, err, errlen)
+                         : ply_body_ascii(&h, buf, len, name, p, err, errlen);
+  for (size_t k = 0; rc == 0 && k < n; k++)
     if (!isfinite(p->xyz[3 * k]) || !isfinite(p->xyz[3 * k + 1]) || !isfinite(p->xyz[3 * k + 2])) {
-      vlff_points_free(p);
       seterr(err, errlen, "%s: vertex %zu has a non-finite coordinate", name, k);
-      return -1;
+      rc = -1;
     }
+  if (rc < 0) {
+    vlff_points_free(p);
+    return -1;
+  }
   p->n = n;
   return 0;
 }

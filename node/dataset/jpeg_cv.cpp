@@ -1,5 +1,5 @@
-// JPEG decoding through OpenCV imgcodecs, behind a C interface: no C++ type
-// or exception crosses it.
+// JPEG decoding (and, for the tests, encoding) through OpenCV imgcodecs,
+// behind a C interface: no C++ type or exception crosses it.
 #include <cstdlib>
 #include <cstring>
 #include <exception>
@@ -11,9 +11,33 @@ extern "C" {
 #include "dataset_internal.h"
 }
 
+// Runs f, turning any exception into err and -1.
+template <class F> static int guarded(char *err, size_t errlen, F f) {
+  try {
+    return f();
+  } catch (const std::exception &e) {
+    vlff_errf(err, errlen, "%s", e.what());
+  } catch (...) {
+    vlff_errf(err, errlen, "unknown error");
+  }
+  return -1;
+}
+
+// A malloc'd copy the C side frees.
+static int copy_out(const uint8_t *src, size_t n, uint8_t **out, char *err, size_t errlen) {
+  uint8_t *p = (uint8_t *)std::malloc(n);
+  if (!p) {
+    vlff_errf(err, errlen, "out of memory");
+    return -1;
+  }
+  std::memcpy(p, src, n);
+  *out = p;
+  return 0;
+}
+
 extern "C" int vlff_cv_decode_jpeg(const uint8_t *buf, size_t len, int max_side, int *w, int *h,
                                    uint8_t **rgb, char *err, size_t errlen) {
-  try {
+  return guarded(err, errlen, [&] {
     if (len > (size_t)INT32_MAX) {
       vlff_errf(err, errlen, "file too large");
       return -1;
@@ -29,27 +53,16 @@ extern "C" int vlff_cv_decode_jpeg(const uint8_t *buf, size_t len, int max_side,
       return -1;
     }
     cv::Mat out;
-    cv::cvtColor(bgr, out, cv::COLOR_BGR2RGB);
-    size_t n = (size_t)out.cols * out.rows * 3;
-    uint8_t *p = (uint8_t *)std::malloc(n);
-    if (!p) {
-      vlff_errf(err, errlen, "out of memory");
-      return -1;
-    }
-    for (int y = 0; y < out.rows; y++) std::memcpy(p + (size_t)y * out.cols * 3, out.ptr(y), (size_t)out.cols * 3);
-    *w = out.cols, *h = out.rows, *rgb = p;
+    cv::cvtColor(bgr, out, cv::COLOR_BGR2RGB); // a fresh, continuous matrix
+    if (copy_out(out.ptr(0), (size_t)out.cols * out.rows * 3, rgb, err, errlen) < 0) return -1;
+    *w = out.cols, *h = out.rows;
     return 0;
-  } catch (const std::exception &e) {
-    vlff_errf(err, errlen, "%s", e.what());
-  } catch (...) {
-    vlff_errf(err, errlen, "unknown error");
-  }
-  return -1;
+  });
 }
 
 extern "C" int vlff_cv_encode_jpeg(const uint8_t *rgb, int w, int h, int quality, uint8_t **out, size_t *len,
                                    char *err, size_t errlen) {
-  try {
+  return guarded(err, errlen, [&] {
     cv::Mat src(h, w, CV_8UC3, const_cast<uint8_t *>(rgb)), bgr;
     cv::cvtColor(src, bgr, cv::COLOR_RGB2BGR);
     std::vector<uchar> buf;
@@ -57,18 +70,8 @@ extern "C" int vlff_cv_encode_jpeg(const uint8_t *rgb, int w, int h, int quality
       vlff_errf(err, errlen, "JPEG encoding failed");
       return -1;
     }
-    uint8_t *p = (uint8_t *)std::malloc(buf.size());
-    if (!p) {
-      vlff_errf(err, errlen, "out of memory");
-      return -1;
-    }
-    std::memcpy(p, buf.data(), buf.size());
-    *out = p, *len = buf.size();
+    if (copy_out(buf.data(), buf.size(), out, err, errlen) < 0) return -1;
+    *len = buf.size();
     return 0;
-  } catch (const std::exception &e) {
-    vlff_errf(err, errlen, "%s", e.what());
-  } catch (...) {
-    vlff_errf(err, errlen, "unknown error");
-  }
-  return -1;
+  });
 }

@@ -10,7 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "half.h"
+#include "field.h" /* float16 conversions */
 #include "log.h"
 
 
@@ -141,7 +141,7 @@ void vlff_classify_f16(const uint16_t *feat, size_t n, int d, const float *emb_u
     return;
   }
   for (size_t i = 0; i < n; i++) {
-    for (int j = 0; j < d; j++) tmp[j] = vlff_half_to_f32(feat[i * d + j]);
+    for (int j = 0; j < d; j++) tmp[j] = vlff_f16_to_f32(feat[i * d + j]);
     classify_one(tmp, d, emb_unit, k, &label[i], score ? &score[i] : NULL);
   }
   free(tmp);
@@ -183,7 +183,7 @@ int vlff_fusion(const float *xyz, size_t n, const struct vlff_fusion_view *views
       if (fj >= w->feat_height) fj = w->feat_height - 1;
       const uint16_t *f = w->features + ((size_t)fj * w->feat_width + fi) * d;
       float *o = out + i * d;
-      for (int j = 0; j < d; j++) o[j] += vlff_half_to_f32(f[j]);
+      for (int j = 0; j < d; j++) o[j] += vlff_f16_to_f32(f[j]);
       if (count) count[i]++;
     }
   }

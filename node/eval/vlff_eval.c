@@ -25,6 +25,7 @@
 #include <unistd.h>
 
 #include "config.h"
+#include "clock.h"
 #include "dataset.h"
 #include "embeddings.h"
 #include <json-c/json.h>
@@ -52,6 +53,10 @@ static const struct vlff_cli cli = {
     "  --feature-dim D     sim.feature_dim and field.feature_dim\n"
     "  --iters N           training steps (default 1500; 0 = baselines only)\n"
     "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
+    "  --stride N          dataset: use every N-th frame (default 1)\n"
+    "  --label-set SET     ScanNet labels as scannet20 (default) or nyu40 classes\n"
+    "  --label-tsv FILE    ScanNet's scannetv2-labels.combined.tsv (default: looked\n"
+    "                      for in the scene directory and its two parents)\n"
     "  --threads N         node.threads\n"
     "  --out DIR           report directory (default eval-out)\n"
     "  --overlays N        overlay images to write (default 3)\n"
@@ -61,12 +66,13 @@ static const struct vlff_cli cli = {
     "\n"
     "examples:\n"
     "  vlff-eval --seed 3 --iters 2000 --out /tmp/eval3\n"
-    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n",
+    "  vlff-eval --dataset scans/scene0000_00 --config my.yaml --iters 20000\n"
+    "  vlff-eval --dataset scans/scene0000_00/scene0000_00.sens --stride 10 --label-set nyu40\n",
 };
 
 struct opts {
-  const char *config, *dataset, *out;
-  int seed, frames, dim, iters, holdout, threads, overlays, quiet;
+  const char *config, *dataset, *out, *label_tsv;
+  int seed, frames, dim, iters, holdout, threads, overlays, quiet, stride, label_set;
   double difficulty;
 };
 
@@ -91,14 +97,14 @@ struct scene {
   float emb[MAXK * 1024];  /* unit rows, K x D (D <= 1024) */
   struct vlff_points pts;
   int tw, th;              /* training image size */
+  int holdout;             /* frame i is held out when i % holdout == holdout / 2 */
+  /* dataset: held-out frames' images and features are read when scored */
+  struct vlff_dataset ds;
+  int streaming;
+  uint8_t *srgb;
+  uint16_t *sfeat;
 };
 
-
-static double now_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 static void die(const char *fmt, ...) {
   va_list ap;
@@ -136,7 +142,7 @@ static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
 
 static void parse_args(int argc, char **argv, struct opts *o) {
   enum { O_CONFIG = 256, O_DATASET, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
-         O_DIFFICULTY, O_QUIET };
+         O_DIFFICULTY, O_QUIET, O_STRIDE, O_LABEL_SET, O_LABEL_TSV };
   static const struct option longopts[] = {
       {"config", required_argument, NULL, O_CONFIG},     {"dataset", required_argument, NULL, O_DATASET},
       {"out", required_argument, NULL, O_OUT},           {"seed", required_argument, NULL, O_SEED},
@@ -144,12 +150,15 @@ static void parse_args(int argc, char **argv, struct opts *o) {
       {"iters", required_argument, NULL, O_ITERS},       {"holdout", required_argument, NULL, O_HOLDOUT},
       {"threads", required_argument, NULL, O_THREADS},   {"overlays", required_argument, NULL, O_OVERLAYS},
       {"difficulty", required_argument, NULL, O_DIFFICULTY}, {"quiet", no_argument, NULL, O_QUIET},
+      {"stride", required_argument, NULL, O_STRIDE},     {"label-set", required_argument, NULL, O_LABEL_SET},
+      {"label-tsv", required_argument, NULL, O_LABEL_TSV},
       VLFF_CLI_COMMON_OPTIONS,
   };
   memset(o, 0, sizeof *o);
   o->seed = o->frames = o->dim = o->threads = -1;
   o->difficulty = -1;
-  o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out";
+  o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out", o->stride = 1;
+  o->label_set = VLFF_LABELS_SCANNET20;
   int c, status;
   while ((c = vlff_cli_next(&cli, argc, argv, "", longopts, &status)) != -1) {
     const char *a = argv[optind - 1], *v = optarg;
@@ -167,6 +176,13 @@ static void parse_args(int argc, char **argv, struct opts *o) {
     case O_THREADS: o->threads = parse_int(v, a, 0, 256); break;
     case O_OVERLAYS: o->overlays = parse_int(v, a, 0, 1000); break;
     case O_DIFFICULTY: o->difficulty = parse_dbl(v, a, 0, 1); break;
+    case O_STRIDE: o->stride = parse_int(v, a, 1, 100000); break;
+    case O_LABEL_TSV: o->label_tsv = v; break;
+    case O_LABEL_SET:
+      if (!strcmp(v, "scannet20")) o->label_set = VLFF_LABELS_SCANNET20;
+      else if (!strcmp(v, "nyu40")) o->label_set = VLFF_LABELS_NYU40;
+      else exit(vlff_cli_usage_error(&cli, "%s: expected scannet20 or nyu40, got '%s'", a, v));
+      break;
     default: exit(vlff_cli_usage_error(&cli, "option '%s' not handled", a));
     }
   }
@@ -215,26 +231,63 @@ static void load_sim(struct scene *sc, const struct vlff_config *cfg) {
   vlff_sim_destroy(s);
 }
 
-static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *cfg) {
+static int held_out(int i, int holdout) { return i % holdout == holdout / 2; }
+
+/* Frame i's images and features in memory: training frames hold theirs,
+ * a held-out frame of a dataset is read into scratch buffers until the
+ * next call (the field's training set stays resident, as the node's
+ * keyframe store does; the frames it is scored on need not). */
+static struct frame *frame_data(struct scene *sc, int i) {
+  struct frame *f = &sc->f[i];
+  if (!sc->streaming || !held_out(i, sc->holdout)) return f;
+  char err[1024];
+  f->rgb = sc->srgb, f->feat = sc->sfeat;
+  if (vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, NULL, NULL, err, sizeof err) < 0 ||
+      vlff_dataset_read_features(&sc->ds, f->index, f->feat, err, sizeof err) < 0)
+    die("%s", err);
+  return f;
+}
+
+static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_config *cfg) {
+  const char *dir = o->dataset;
   char err[1024], p[4200];
+  struct vlff_dataset_options dopt = {.layout = VLFF_DS_AUTO, .label_set = o->label_set, .label_tsv = o->label_tsv};
   struct vlff_dataset ds;
-  if (vlff_dataset_open(&ds, dir, VLFF_DS_AUTO, err, sizeof err) < 0) die("%s", err);
+  if (vlff_dataset_open_opts(&ds, dir, &dopt, err, sizeof err) < 0) die("%s", err);
   if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
   if (!ds.has_labels) die("%s: no gt_semantic/ or label-filt/ (needed for 2D evaluation)", dir);
   if (ds.feat_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feat_dim);
   sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feat_dim;
   sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;
-  sc->n = ds.n;
+  sc->n = (ds.n + o->stride - 1) / o->stride;
+  sc->holdout = o->holdout;
   sc->f = xcalloc((size_t)sc->n, sizeof *sc->f);
   size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
+  /* The training frames' images and features stay in memory: bound them by
+   * the keyframe store's budget, as the node is bound. */
+  int ntrain = 0;
+  for (int i = 0; i < sc->n; i++) ntrain += !held_out(i, o->holdout);
+  double need_mb = (double)ntrain * (npx * (3 + sizeof(float)) + nf * sizeof(uint16_t)) / (1 << 20);
+  if (need_mb > cfg->keyframes.memory_mb) {
+    int stride = (int)ceil(o->stride * need_mb / cfg->keyframes.memory_mb);
+    die("%s: %d training frames need %.0f MiB of images and features, more than keyframes.memory_mb (%d): "
+        "use --stride %d or raise keyframes.memory_mb",
+        dir, ntrain, need_mb, cfg->keyframes.memory_mb, stride);
+  }
+  sc->srgb = xcalloc(npx, 3), sc->sfeat = xcalloc(nf, sizeof(uint16_t));
   for (int i = 0; i < sc->n; i++) {
     struct frame *f = &sc->f[i];
-    f->index = i;
-    memcpy(f->c2w, ds.c2w + 16 * (size_t)i, sizeof f->c2w);
-    f->rgb = xcalloc(npx, 3), f->label = xcalloc(npx, 1), f->depth = xcalloc(npx, sizeof(float));
+    f->index = i * o->stride;
+    memcpy(f->c2w, ds.c2w + 16 * (size_t)f->index, sizeof f->c2w);
+    f->label = xcalloc(npx, 1);
+    if (held_out(i, o->holdout)) { /* labels only; images and features when scored */
+      if (vlff_dataset_read_frame(&ds, f->index, NULL, NULL, f->label, err, sizeof err) < 0) die("%s", err);
+      continue;
+    }
+    f->rgb = xcalloc(npx, 3), f->depth = xcalloc(npx, sizeof(float));
     f->feat = xcalloc(nf, sizeof(uint16_t));
-    if (vlff_dataset_read_frame(&ds, i, f->rgb, f->depth, f->label, err, sizeof err) < 0 ||
-        vlff_dataset_read_features(&ds, i, f->feat, err, sizeof err) < 0)
+    if (vlff_dataset_read_frame(&ds, f->index, f->rgb, f->depth, f->label, err, sizeof err) < 0 ||
+        vlff_dataset_read_features(&ds, f->index, f->feat, err, sizeof err) < 0)
       die("%s", err);
   }
   if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
@@ -262,9 +315,9 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
   for (int i = 0; i < sc->n; i++)
     for (size_t j = 0; j < npx; j++)
       if (sc->f[i].label[j] != 255 && sc->f[i].label[j] >= sc->K)
-        die("%s: %d records, but %s/gt_semantic/%s.png uses class id %d: ground-truth id k is record k, so "
+        die("%s: %d records, but %s/%s/%s.png uses class id %d: ground-truth id k is record k, so "
             "every class needs one",
-            p, sc->K, dir, ds.stem[i], sc->f[i].label[j]);
+            p, sc->K, dir, ds.label_dir, ds.stem[sc->f[i].index], sc->f[i].label[j]);
   for (size_t j = 0; j < sc->pts.n; j++)
     if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K) {
       char pp[4200];
@@ -278,7 +331,8 @@ static void load_dataset(struct scene *sc, const char *dir, struct vlff_config *
     memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
     memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);
   }
-  vlff_dataset_close(&ds);
+  sc->ds = ds; /* kept open: held-out frames are read when scored */
+  sc->streaming = 1;
 }
 
 /* Training copies at train.image_scale: colour box-filtered, depth the
@@ -289,6 +343,7 @@ static void make_training_images(struct scene *sc, double scale) {
   if (sc->th < 8) sc->th = 8;
   for (int i = 0; i < sc->n; i++) {
     struct frame *f = &sc->f[i];
+    if (held_out(i, sc->holdout)) continue; /* they train nothing */
     f->trgb = xcalloc((size_t)sc->tw * sc->th, 3);
     f->tdepth = xcalloc((size_t)sc->tw * sc->th, sizeof(float));
     for (int v = 0; v < sc->th; v++)
@@ -313,7 +368,7 @@ static void make_training_images(struct scene *sc, double scale) {
 /* ---- progress ----------------------------------------------------------- */
 
 static void progress(int it, int total, const struct vlff_train_stats *st, double t0, int tty) {
-  double el = now_s() - t0, rate = it / (el > 1e-9 ? el : 1e-9);
+  double el = vlff_seconds() - t0, rate = it / (el > 1e-9 ? el : 1e-9);
   double eta = rate > 0 ? (total - it) / rate : 0;
   int bar = total ? 30 * it / total : 30;
   char b[31];
@@ -416,8 +471,9 @@ int main(int argc, char **argv) {
 
   struct scene sc;
   memset(&sc, 0, sizeof sc);
-  double t_load = now_s();
-  if (o.dataset) load_dataset(&sc, o.dataset, &cfg);
+  double t_load = vlff_seconds();
+  sc.holdout = o.holdout;
+  if (o.dataset) load_dataset(&sc, &o, &cfg);
   else load_sim(&sc, &cfg);
   if (sc.D != cfg.field.feature_dim) {
     if (o.dataset) cfg.field.feature_dim = sc.D;
@@ -432,7 +488,7 @@ int main(int argc, char **argv) {
   if (ntest == 0 || ntrain == 0) die("%d frames with --holdout %d leave no training or no test frames", sc.n, o.holdout);
   fprintf(stderr, "vlff-eval: scene %s: %d frames (%d train, %d held out) %dx%d, features %dx%dx%d, %zu labelled points, %d prompts (%.1f s)\n",
           o.dataset ? o.dataset : "synthetic", sc.n, ntrain, ntest, sc.W, sc.H, sc.fw, sc.fh, sc.D, sc.pts.n, sc.K,
-          now_s() - t_load);
+          vlff_seconds() - t_load);
 
   const int K = sc.K, D = sc.D, fw = sc.fw, fh = sc.fh;
   struct result r2_raw = {0}, r2_field = {0}, r3_fusion = {0}, r3_field = {0}, r3_field_ref = {0};
@@ -446,15 +502,16 @@ int main(int argc, char **argv) {
   int *pl = xcalloc((size_t)fw * fh, sizeof(int));
   for (int i = 0; i < sc.n; i++) {
     if (i % o.holdout != o.holdout / 2) continue;
-    vlff_downsample_labels(sc.f[i].label, sc.W, sc.H, gl, fw, fh);
-    vlff_classify_f16(sc.f[i].feat, (size_t)fw * fh, D, sc.emb, K, pl, NULL);
+    const struct frame *f = frame_data(&sc, i);
+    vlff_downsample_labels(f->label, sc.W, sc.H, gl, fw, fh);
+    vlff_classify_f16(f->feat, (size_t)fw * fh, D, sc.emb, K, pl, NULL);
     vlff_confusion_add(&r2_raw.c, gl, pl, (size_t)fw * fh);
   }
   summarize(&r2_raw);
   size_t np = sc.pts.n;
   int *p3 = xcalloc(np, sizeof(int));
   {
-    double t = now_s();
+    double t = vlff_seconds();
     struct vlff_fusion_view *fv = xcalloc((size_t)ntrain, sizeof *fv);
     int nv = 0;
     for (int i = 0; i < sc.n; i++) {
@@ -477,7 +534,7 @@ int main(int argc, char **argv) {
     vlff_confusion_add(&r3_fusion.c, sc.pts.label, p3, np);
     summarize(&r3_fusion);
     fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f (%.1f s)\n", 100 * r2_raw.s.miou,
-            100 * r3_fusion.s.miou, now_s() - t);
+            100 * r3_fusion.s.miou, vlff_seconds() - t);
   }
 
   /* ---- field ---- */
@@ -502,17 +559,17 @@ int main(int argc, char **argv) {
       v->feat_width = fw, v->feat_height = fh, v->feat_dim = D, v->features = sc.f[i].feat;
     }
     int tty = isatty(2) && !o.quiet;
-    double t0 = now_s(), last = 0;
+    double t0 = vlff_seconds(), last = 0;
     for (int it = 1; it <= o.iters; it++) {
       if (vlff_field_step(fld, views, nv, NULL, &st, err, sizeof err) < 0) die("training step %d: %s", it, err);
-      double t = now_s();
+      double t = vlff_seconds();
       if (!o.quiet && (it == o.iters || (tty ? t - last > 0.25 : it % (o.iters / 10 > 0 ? o.iters / 10 : 1) == 0))) {
         progress(it, o.iters, &st, t0, tty);
         last = t;
       }
     }
     if (tty) fputc('\n', stderr);
-    fit_s = now_s() - t0;
+    fit_s = vlff_seconds() - t0;
     if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
     /* 2D on held-out frames at the feature-map resolution */
     struct vlff_view cam = {0};
@@ -527,7 +584,7 @@ int main(int argc, char **argv) {
       vlff_downsample_labels(sc.f[i].label, sc.W, sc.H, gl, fw, fh);
       vlff_confusion_add(&r2_field.c, gl, pl, (size_t)fw * fh);
       if (nover < o.overlays) {
-        write_overlay(o.out, &sc, &sc.f[i], pl, fw, fh);
+        write_overlay(o.out, &sc, frame_data(&sc, i), pl, fw, fh);
         nover++;
       }
     }
@@ -679,9 +736,12 @@ int main(int argc, char **argv) {
          pct(&r3_field, r3_field.s.macc, path));
 
   for (int i = 0; i < sc.n; i++) {
+    if (sc.streaming && held_out(i, sc.holdout)) sc.f[i].rgb = NULL, sc.f[i].feat = NULL; /* scratch */
     free(sc.f[i].rgb), free(sc.f[i].label), free(sc.f[i].depth), free(sc.f[i].feat);
     free(sc.f[i].trgb), free(sc.f[i].tdepth);
   }
+  free(sc.srgb), free(sc.sfeat);
+  if (sc.streaming) vlff_dataset_close(&sc.ds);
   free(sc.f), free(gl), free(pl), free(p3), free(pred3), free(overlay_pred), free(emb_raw);
   vlff_points_free(&sc.pts);
   vlff_confusion_free(&r2_raw.c), vlff_confusion_free(&r2_field.c), vlff_confusion_free(&r3_fusion.c);

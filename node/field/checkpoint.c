@@ -13,7 +13,6 @@
  */
 #include <errno.h>
 #include <fcntl.h>
-#include <libgen.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -79,18 +78,8 @@ static uint64_t sum_final(struct sum *s) {
 }
 
 static int write_all(int fd, const void *p, size_t n, struct sum *s) {
-  const char *c = p;
   if (s) sum_add(s, p, n);
-  while (n) {
-    ssize_t k = write(fd, c, n > (1u << 24) ? (1u << 24) : n);
-    if (k < 0) {
-      if (errno == EINTR) continue;
-      return -1;
-    }
-    c += k;
-    n -= (size_t)k;
-  }
-  return 0;
+  return vlff_write_all(fd, p, n);
 }
 
 static int read_all(int fd, void *p, size_t n, struct sum *s) {
@@ -117,20 +106,13 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
     if (err && errlen) snprintf(err, errlen, "checkpoint: no field or path");
     return -1;
   }
-  size_t plen = strlen(path);
-  char *tmp = malloc(plen + 32);
-  if (!tmp) {
-    if (err && errlen) snprintf(err, errlen, "checkpoint %s: out of memory", path);
-    return -1;
-  }
-  snprintf(tmp, plen + 32, "%s.tmp.%ld", path, (long)getpid());
   char cerr[384];
-  int fd = vlff_create_temp(tmp, 0644, cerr, sizeof cerr);
-  if (fd < 0) {
+  struct vlff_atomic a;
+  if (vlff_atomic_begin(&a, path, 0644, cerr, sizeof cerr) < 0) {
     if (err && errlen) snprintf(err, errlen, "checkpoint %s", cerr);
-    free(tmp);
     return -1;
   }
+  const int fd = a.fd;
   struct ckpt_header h;
   memset(&h, 0, sizeof(h));
   memcpy(h.magic, CKPT_MAGIC, 8);
@@ -154,23 +136,15 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
     uint64_t cs = sum_final(&s);
     rc = write_all(fd, &cs, sizeof(cs), NULL);
   }
-  if (!rc) rc = fsync(fd);
-  if (close(fd)) rc = -1;
-  if (!rc) rc = rename(tmp, path);
   if (rc) {
     if (err && errlen) snprintf(err, errlen, "checkpoint %s: write failed: %s", path, strerror(errno));
-    unlink(tmp);
-    free(tmp);
+    vlff_atomic_abort(&a);
     return -1;
   }
-  /* Make the rename itself durable. */
-  snprintf(tmp, plen + 32, "%s", path);
-  int dfd = open(dirname(tmp), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    fsync(dfd);
-    close(dfd);
+  if (vlff_atomic_commit(&a, cerr, sizeof cerr) < 0) {
+    if (err && errlen) snprintf(err, errlen, "checkpoint %s", cerr);
+    return -1;
   }
-  free(tmp);
   return 0;
 }
 

@@ -13,6 +13,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "clock.h" /* vlff_seconds for the step timers */
 #include "field.h"
 #include "hot.h"
 
@@ -32,7 +33,6 @@ void vlff_pool_run(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
 void vlff_pool_run_dynamic(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
 /* CLOCK_MONOTONIC in seconds: the pool's spin, the step's phases and the
  * GEMM's per-thread time share it. */
-double vlff_seconds(void);
 
 /* ---- encoding (encoding.c) --------------------------------------------- */
 struct vlff_encoding {

@@ -56,12 +56,6 @@ static void cpu_relax(void) {
 #endif
 }
 
-double vlff_seconds(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
-
 /* Polls until done(p, arg) holds or VLFF_POOL_SPIN_US pass; returns whether
  * it holds. The clock is read every 64 polls: a read costs about as much as
  * the pause it would replace. */

@@ -23,7 +23,7 @@
 #include <string.h>
 #include <strings.h>
 
-#include "half.h"
+#include "field.h" /* float16 conversions */
 #include "hot.h"
 #include "log.h"
 

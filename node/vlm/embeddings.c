@@ -267,13 +267,14 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
         return -1;
       }
   }
-  char tmp[4096];
-  snprintf(tmp, sizeof tmp, "%s.tmp.%d", path, (int)getpid());
-  int fd = vlff_create_temp(tmp, 0644, NULL, 0);
+  struct vlff_atomic a;
+  if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return -1;
+  int fd = dup(a.fd); /* the stream's own; the commit syncs the file through a.fd */
   FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
   if (!f) {
-    vlff_errf(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));
+    vlff_errf(err, errlen, "%s: cannot create: %s", a.tmp, strerror(errno));
     if (fd >= 0) close(fd);
+    vlff_atomic_abort(&a);
     return -1;
   }
   fprintf(f, "vlff-embeddings 1\ndim %d\n", dim);
@@ -282,12 +283,12 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
     for (int k = 0; k < dim; k++) fprintf(f, k ? " %.9g" : "%.9g", (double)vectors[(size_t)i * dim + k]);
     fputc('\n', f);
   }
-  bool ok = fflush(f) == 0 && fsync(fileno(f)) == 0;
+  bool ok = fflush(f) == 0;
   ok &= fclose(f) == 0;
-  if (!ok || rename(tmp, path)) {
+  if (!ok) {
     vlff_errf(err, errlen, "%s: write failed: %s", path, strerror(errno));
-    unlink(tmp);
+    vlff_atomic_abort(&a);
     return -1;
   }
-  return 0;
+  return vlff_atomic_commit(&a, err, errlen);
 }

@@ -18,7 +18,7 @@
 #include <unistd.h>
 
 #include "dnn_shim.h"
-#include "f16.h"
+#include "field.h"
 #include "files.h"
 #include "log.h"
 
@@ -145,8 +145,6 @@ void vlff_image_encoder_shape(const struct vlff_image_encoder *e, int *dim, int 
   if (width) *width = e->out_w;
 }
 
-bool vlff_image_encoder_uses_cuda(const struct vlff_image_encoder *e) { return e->cuda; }
-
 int vlff_image_encoder_run(struct vlff_image_encoder *e, const uint8_t *rgb, int width, int height, size_t stride,
                            uint16_t *out, char *err, size_t errlen) {
   if (!e || !rgb || !out || width < 1 || height < 1 || width > 16384 || height > 16384 || stride < (size_t)width * 3) {
@@ -173,7 +171,7 @@ int vlff_image_encoder_run(struct vlff_image_encoder *e, const uint8_t *rgb, int
     }
     float s = (e->normalize && ss > 0) ? (float)(1.0 / sqrt(ss)) : 1.0f;
     uint16_t *o = out + p * (size_t)e->dim;
-    for (int d = 0; d < e->dim; d++) o[d] = vlm_f32_to_f16(f[(size_t)d * hw + p] * s);
+    for (int d = 0; d < e->dim; d++) o[d] = vlff_f32_to_f16(f[(size_t)d * hw + p] * s);
   }
   return 0;
 }

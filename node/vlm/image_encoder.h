@@ -37,7 +37,6 @@ void vlff_image_encoder_close(struct vlff_image_encoder *enc);
 
 /* Output geometry: D, h, w. */
 void vlff_image_encoder_shape(const struct vlff_image_encoder *enc, int *dim, int *height, int *width);
-bool vlff_image_encoder_uses_cuda(const struct vlff_image_encoder *enc);
 
 /* Encode one RGB8 frame (rows stride bytes apart) into out, which holds
  * h * w * D float16 values. A frame with non-finite output is an error. */

@@ -8,6 +8,7 @@
  * with repeated strings tokenizes identically.
  */
 #include "tokenizer.h"
+#include "hash.h"
 
 #include <errno.h>
 #include <stdarg.h>
@@ -42,14 +43,9 @@ struct vlff_tokenizer {
 };
 
 
-static uint64_t fnv1a(const char *s, size_t n) {
-  uint64_t h = 1469598103934665603ull;
-  for (size_t i = 0; i < n; i++) h = (h ^ (uint8_t)s[i]) * 1099511628211ull;
-  return h;
-}
 
 static int32_t str_lookup(const struct vlff_tokenizer *t, const char *s, size_t n) {
-  for (uint64_t h = fnv1a(s, n);; h++) {
+  for (uint64_t h = vlff_fnv1a64(VLFF_FNV1A64_INIT, s, n);; h++) {
     int32_t v = t->str_slot[h & (STR_SLOTS - 1)];
     if (!v) return -1;
     const char *c = t->strings[v - 1];
@@ -61,7 +57,7 @@ static int32_t str_lookup(const struct vlff_tokenizer *t, const char *s, size_t 
 static void str_insert(struct vlff_tokenizer *t, int32_t id) {
   const char *s = t->strings[id];
   size_t n = strlen(s);
-  for (uint64_t h = fnv1a(s, n);; h++) {
+  for (uint64_t h = vlff_fnv1a64(VLFF_FNV1A64_INIT, s, n);; h++) {
     int32_t *slot = &t->str_slot[h & (STR_SLOTS - 1)];
     if (!*slot || !strcmp(t->strings[*slot - 1], s)) {
       *slot = id + 1;

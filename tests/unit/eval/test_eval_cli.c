@@ -148,6 +148,42 @@ static void test_dataset_matches_synthetic(void **state) {
   assert_null(strstr(md, "seed"));
   snprintf(cmd, sizeof cmd, "mv '%s/d\"s\\x' %s/ds", tmp, tmp);
   assert_int_equal(system(cmd), 0);
+  /* --stride 2 keeps frames 0, 2, ..., 14; of those every 4th is held out:
+   * dataset frames 4 and 12, read when scored, with the same raw figure as
+   * they give read all at once */
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/ds --iters 0 --quiet --holdout 4 --stride 2 --out %s/s",
+           eval, cfg, tmp, tmp);
+  run(cmd, b, sizeof b);
+  snprintf(jpath, sizeof jpath, "%s/s/report.json", tmp);
+  root = json_object_from_file(jpath);
+  assert_non_null(root);
+  assert_true(json_object_object_get_ex(root, "source", &src));
+  assert_true(json_object_object_get_ex(src, "test_frames", &v));
+  assert_int_equal(json_object_array_length(v), 2);
+  assert_int_equal(json_object_get_int(json_object_array_get_idx(v, 0)), 4);
+  assert_int_equal(json_object_get_int(json_object_array_get_idx(v, 1)), 12);
+  assert_true(json_object_object_get_ex(src, "train_frames", &v));
+  assert_int_equal(json_object_array_length(v), 6);
+  json_object_put(root);
+  /* training frames that do not fit the keyframe budget are refused, with
+   * the stride that fits (8 frames of 320x240 need about 5 MiB) */
+  snprintf(cmd, sizeof cmd, "%s/big.yaml", tmp);
+  f = fopen(cmd, "w");
+  assert_non_null(f);
+  fputs("sim:\n  width: 320\n  height: 240\n  feature_dim: 16\n  frames: 8\nfield:\n  feature_dim: 16\n"
+        "keyframes:\n  memory_mb: 1\n", f);
+  fclose(f);
+  snprintf(cmd, sizeof cmd, "%s --config %s/big.yaml --quiet --write-dataset %s/big", sim, tmp, tmp);
+  assert_int_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "%s --config %s/big.yaml --dataset %s/big --iters 0 --quiet --out %s/t 2>&1", eval, tmp,
+           tmp, tmp);
+  FILE *tp = popen(cmd, "r");
+  char tout[2048] = "";
+  size_t tn = fread(tout, 1, sizeof tout - 1, tp);
+  tout[tn] = 0;
+  assert_int_not_equal(pclose(tp), 0);
+  print_message("%s", tout);
+  assert_non_null(strstr(tout, "more than keyframes.memory_mb (1): use --stride "));
   /* a malformed dataset fails naming the file */
   snprintf(cmd, sizeof cmd, "echo '1 2 3' > %s/ds/pose/00003.txt", tmp);
   assert_int_equal(system(cmd), 0);

@@ -15,7 +15,7 @@
 #include <cmocka.h>
 
 #include "config.h"
-#include "f16.h"
+#include "field.h"
 #include "image_encoder.h"
 #include "text_encoder.h"
 #include "tokenizer.h"
@@ -66,7 +66,7 @@ static void compare_image(const uint16_t *got, const float *ref, int d, int h, i
     for (int c = 0; c < d; c++) ss += (double)ref[c * h * w + p] * ref[c * h * w + p];
     double s = normalize ? 1.0 / sqrt(ss) : 1.0;
     for (int c = 0; c < d; c++) {
-      double want = ref[c * h * w + p] * s, have = vlm_f16_to_f32(got[p * d + c]);
+      double want = ref[c * h * w + p] * s, have = vlff_f16_to_f32(got[p * d + c]);
       double err = fabs(want - have) / (1e-3 + 1e-3 * fabs(want)); /* float16 keeps ~4.9e-4 relative */
       if (err > worst) worst = err;
     }

@@ -20,7 +20,7 @@
 #include <cmocka.h>
 #include <vlff/shm.h>
 
-#include "f16.h"
+#include "field.h"
 #include "feature_join.h"
 #include "vlm_fixture.h"
 
@@ -124,7 +124,7 @@ static void test_python_extractor_round_trip(void **state) {
     for (int y = 0; y < HH; y++)
       for (int x = 0; x < WW; x++)
         for (int d = 0; d < D; d++) {
-          double e = fabs(vlm_f16_to_f32(out[((size_t)y * WW + x) * D + d]) - expected(id, d, y, x));
+          double e = fabs(vlff_f16_to_f32(out[((size_t)y * WW + x) * D + d]) - expected(id, d, y, x));
           if (e > worst) worst = e;
         }
     if (worst > 1e-3) fail_msg("frame %llu: features differ by %g", (unsigned long long)id, worst);
@@ -156,7 +156,7 @@ static size_t make_record(uint8_t *buf, size_t cap, uint64_t id, uint32_t dim, u
   assert_true(len > 0);
   hdr->frame_id = id;
   uint16_t *data = (uint16_t *)(buf + hdr->data_offset);
-  for (size_t i = 0; i < (size_t)dim * h * w; i++) data[i] = vlm_f32_to_f16(v + (float)i * 1e-3f);
+  for (size_t i = 0; i < (size_t)dim * h * w; i++) data[i] = vlff_f32_to_f16(v + (float)i * 1e-3f);
   return (size_t)(hdr->data_offset + hdr->data_size);
 }
 
@@ -216,7 +216,7 @@ static void test_join_rules(void **state) {
   assert_int_equal(h, 2);
   assert_int_equal(w, 3);
   /* element (y=1, x=2, d=5) came from [d][y][x] index 5*6 + 1*3 + 2 = 35 */
-  assert_true(fabsf(vlm_f16_to_f32(out[(1 * 3 + 2) * 8 + 5]) - (0.5f + 35e-3f)) < 1e-3f);
+  assert_true(fabsf(vlff_f16_to_f32(out[(1 * 3 + 2) * 8 + 5]) - (0.5f + 35e-3f)) < 1e-3f);
 
   /* Expiry exactly after the timeout, once. */
   assert_int_equal(vlff_feature_join_add_frame(j, 8, 20 * s, err, sizeof err), 0);
