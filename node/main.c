@@ -14,6 +14,7 @@
 #include <time.h>
 
 #include "cli.h"
+#include "clock.h"
 #include "config.h"
 #include "embeddings.h"
 #include "log.h"
@@ -88,7 +89,6 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
 }
 #endif
 
-static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 
 /* " (no pose 193, no depth 2)": the reasons behind the refused count, for
  * the status line; empty when nothing was refused. */
@@ -209,11 +209,11 @@ int main(int argc, char **argv) {
   sd_notify(0, "READY=1");
   double last_wd = 0;
 #endif
-  double t0 = mono_s(), last_line = 0;
+  double t0 = vlff_seconds(), last_line = 0;
   while (!stop_requested && !vlff_node_finished(node)) {
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
-    double now = mono_s();
+    double now = vlff_seconds();
 #ifdef VLFF_HAVE_SYSTEMD
     if (wd_usec && now - last_wd >= (double)wd_usec * 0.25e-6) {
       struct vlff_node_status st;

@@ -42,6 +42,7 @@
 #include <unistd.h>
 
 #include "can_proto.h"
+#include "clock.h"
 #include "config.h"
 #include "log.h"
 
@@ -94,12 +95,6 @@ struct vlff_can {
   uint32_t period_refused_at[VLFF_CAN_REFUSAL_CODES], period_refused_total_at;
   int64_t last_log_ns;
 };
-
-static int64_t mono_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (int64_t)ts.tv_sec * NS + ts.tv_nsec;
-}
 
 static struct timespec to_ts(int64_t ns) {
   struct timespec ts = {.tv_sec = ns / NS, .tv_nsec = ns % NS};
@@ -248,7 +243,7 @@ void vlff_can_get_stats(const struct vlff_can *can, struct vlff_can_stats *st) {
 
 /* Rate limit for repeated warnings: one a second. */
 static bool may_log(struct vlff_can *can) {
-  int64_t now = mono_ns();
+  int64_t now = (int64_t)vlff_now_ns();
   if (now - can->last_log_ns < NS) return false;
   can->last_log_ns = now;
   return true;
@@ -346,7 +341,7 @@ static void send_status(struct vlff_can *can) {
       .can_errors = can->period_errors,
       .cmd_rejected = rejects,
       .tx_dropped = drops,
-      .map_age_ms = st.map_published_ns > 0 ? (mono_ns() - st.map_published_ns) / 1000000 : -1,
+      .map_age_ms = st.map_published_ns > 0 ? ((int64_t)vlff_now_ns() - st.map_published_ns) / 1000000 : -1,
   };
   if (link.map_age_ms < -1) link.map_age_ms = 0;
   if (can->period_errors & (VLFF_CAN_BUS_OFF | VLFF_CAN_BUS_PASSIVE | VLFF_CAN_BUS_CONTROLLER))
@@ -466,13 +461,13 @@ static void *can_thread(void *arg) {
                 "or set can.rt_priority: 0)", can->iface, can->rt_priority, strerror(e));
   }
   bool bootup_pending = true;
-  int64_t now = mono_ns();
+  int64_t now = (int64_t)vlff_now_ns();
   int64_t next_hb = now, next_status = now + can->status_ns, next_retry = now;
   int64_t backoff = BACKOFF_MIN_NS;
   int64_t peak = 0, margin = SPIN_MIN_NS < can->spin_max_ns ? SPIN_MIN_NS : can->spin_max_ns;
 
   while (!atomic_load_explicit(&can->stop, memory_order_relaxed)) {
-    now = mono_ns();
+    now = (int64_t)vlff_now_ns();
     if (can->sock < 0 && now >= next_retry) {
       if (open_sock(can) == 0) {
         atomic_store_explicit(&can->connected, true, memory_order_relaxed);
@@ -481,7 +476,7 @@ static void *can_thread(void *arg) {
           VLFF_INFO(TAG, "%s: reopened", can->iface);
         } else {
           /* The grid starts with the boot-up message, not with the thread. */
-          next_hb = mono_ns();
+          next_hb = (int64_t)vlff_now_ns();
           next_status = next_hb + can->status_ns;
         }
         can->ever_opened = true;
@@ -517,7 +512,7 @@ static void *can_thread(void *arg) {
     struct timespec ts = to_ts(wake);
     int slept = wake > now;
     while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {}
-    now = mono_ns();
+    now = (int64_t)vlff_now_ns();
     if (spin) {
       if (slept) {
         int64_t late = now - wake;
@@ -527,7 +522,7 @@ static void *can_thread(void *arg) {
       if (margin > can->spin_max_ns) margin = can->spin_max_ns;
       if (now > due) inc(&can->hb_timer_late);
       int64_t s0 = now;
-      while (now < due) now = mono_ns();
+      while (now < due) now = (int64_t)vlff_now_ns();
       atomic_fetch_add_explicit(&can->hb_spin_ns, (uint64_t)(now - s0), memory_order_relaxed);
     }
     if (now >= next_hb) {

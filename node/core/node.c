@@ -24,6 +24,7 @@
 #include <unistd.h>
 
 #include "bounds.h"
+#include "clock.h"
 #include "embeddings.h"
 #include "feature_join.h"
 #include "field.h"
@@ -114,7 +115,6 @@ struct vlff_node {
   int n_accepted;
 };
 
-static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 
 static void candidate_free(struct candidate *c) {
   if (!c) return;
@@ -510,7 +510,7 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
      * failed lookup re-attaches (at most once a second), so a pose
      * source restarted with another ring geometry, which abandons the
      * old segment, is followed. */
-    double t_now = mono_s();
+    double t_now = vlff_seconds();
     if (!ig->poses || (ig->pose_miss && t_now - ig->pose_reattach_s >= 1.0)) {
       vlff_ring_close(ig->poses);
       ig->poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
@@ -549,7 +549,7 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
     return POSE_REFUSED;
   }
   pthread_mutex_lock(&n->slock);
-  n->last_pose_ok_s = mono_s();
+  n->last_pose_ok_s = vlff_seconds();
   pthread_mutex_unlock(&n->slock);
   return POSE_FOUND;
 }
@@ -731,7 +731,7 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
   (void)model_w;
 #endif
   for (int i = 0; i < ig->npend; i++)
-    if (mono_s() > ig->pending[i]->deadline_s) {
+    if (vlff_seconds() > ig->pending[i]->deadline_s) {
       STAT_ADD(n, features_timeout, 1);
       VLFF_WARN(TAG, "frame %lld: features did not arrive within %.1f s", ig->pending[i]->id,
                 cfg->vlm.feature_timeout_s);
@@ -744,7 +744,7 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
 static void *ingest_main(void *arg) {
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
-  struct ingest ig = {.n = n, .cfg = cfg, .rl = {.last_report_s = mono_s()}};
+  struct ingest ig = {.n = n, .cfg = cfg, .rl = {.last_report_s = vlff_seconds()}};
   struct vlff_ring *ring = attach_retry(n, cfg->shm.ring, VLFF_RECORD_FRAME);
   struct vlff_ring *feats = NULL;
   ig.sf = n->sim ? vlff_sim_frame_new(n->sim) : NULL;
@@ -765,13 +765,13 @@ static void *ingest_main(void *arg) {
   vlff_kf_selector_init(&ig.sel, cfg->keyframes.rate_hz, cfg->keyframes.min_translation_m,
                         cfg->keyframes.min_rotation_deg);
   uint64_t lost_seen = 0;
-  double fps_t0 = mono_s();
+  double fps_t0 = vlff_seconds();
   long long fps_count = 0;
   while (ring && buf && ig.held && fbuf && !atomic_load(&n->stop)) {
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     ingest_features(&ig, &feats, fbuf, model_h, model_w);
-    ingest_held(&ig, mono_s());
-    refusal_summary(n, &ig.rl, mono_s());
+    ingest_held(&ig, vlff_seconds());
+    refusal_summary(n, &ig.rl, vlff_seconds());
     struct vlff_ring_view info;
     /* A held frame is looked at again soon after each short wait. */
     uint64_t wait_ns = ig.holding ? 5 * 1000 * 1000ull : 50 * 1000 * 1000ull;
@@ -780,7 +780,7 @@ static void *ingest_main(void *arg) {
     if (lost != lost_seen) {
       pthread_mutex_lock(&n->slock);
       n->st.frames_lost += (long long)(lost - lost_seen);
-      n->last_lapped_s = mono_s();
+      n->last_lapped_s = vlff_seconds();
       pthread_mutex_unlock(&n->slock);
       lost_seen = lost;
     }
@@ -801,7 +801,7 @@ static void *ingest_main(void *arg) {
       }
       continue;
     }
-    double now = mono_s();
+    double now = vlff_seconds();
     pthread_mutex_lock(&n->slock);
     n->st.frames_in++;
     n->last_frame_s = now;
@@ -1038,13 +1038,13 @@ static void do_publish(struct vlff_node *n) {
   struct vlff_publish_result r;
   const char *texts[VLFF_MAX_PROMPTS];
   for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
-  double t0 = mono_s();
+  double t0 = vlff_seconds();
   if (vlff_publisher_publish(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
     VLFF_ERROR(TAG, "publish failed: %s", err);
     return;
   }
   VLFF_DEBUG(TAG, "published map v%llu in %.0f ms: %zu labelled, %zu free, %zu unknown voxels",
-             (unsigned long long)r.version, (mono_s() - t0) * 1e3, r.labelled, r.free_voxels, r.unknown);
+             (unsigned long long)r.version, (vlff_seconds() - t0) * 1e3, r.labelled, r.free_voxels, r.unknown);
   uint64_t now = vlff_shm_now_ns();
   for (int i = 0; i < n->pending_lat; i++) {
     double ms = (double)(now - n->pending_t_host[i]) * 1e-6;
@@ -1157,7 +1157,7 @@ static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) 
 }
 
 static void update_state(struct vlff_node *n) {
-  double now = mono_s();
+  double now = vlff_seconds();
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
   if (n->last_frame_s > 0 ? now - n->last_frame_s > 2.0 : now - n->t_start > 5.0) f |= VLFF_NODE_ERR_CAMERA_LOST;
@@ -1247,10 +1247,10 @@ static void apply_warmup(struct vlff_node *n) {
 static void *trainer_main(void *arg) {
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
-  double next_publish = mono_s() + 1.0 / cfg->publish.rate_hz;
-  double next_ckpt = cfg->node.checkpoint_period_s > 0 ? mono_s() + cfg->node.checkpoint_period_s : INFINITY;
+  double next_publish = vlff_seconds() + 1.0 / cfg->publish.rate_hz;
+  double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
   uint64_t mailbox_seq = 0;
-  double rate_t0 = mono_s();
+  double rate_t0 = vlff_seconds();
   long long rate_steps = 0;
   double status_s = -INFINITY;
   /* A resumed map is published before it trains on anything new, so
@@ -1286,7 +1286,7 @@ static void *trainer_main(void *arg) {
         VLFF_ERROR(TAG, "training step failed: %s", err);
       }
     }
-    double now = mono_s();
+    double now = vlff_seconds();
     if (now - rate_t0 >= 1.0) {
       pthread_mutex_lock(&n->slock);
       n->st.it_per_s = rate_steps / (now - rate_t0);
@@ -1302,7 +1302,7 @@ static void *trainer_main(void *arg) {
       published = true;
       /* publish.rate_hz is an upper bound: publishing never takes more than
        * a fifth of the trainer's time, or learning would stall behind it. */
-      double spent = mono_s() - now;
+      double spent = vlff_seconds() - now;
       next_publish = now + fmax(1.0 / cfg->publish.rate_hz, 5.0 * spent);
     } else {
       vlff_publisher_heartbeat(n->pub);
@@ -1362,7 +1362,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
   if (!n) return snprintf(err, errlen, "out of memory"), NULL;
   n->cfg = *cfg;
   n->mapping = true;
-  n->t_start = mono_s();
+  n->t_start = vlff_seconds();
   n->st.prompt_set = cfg->prompts.active;
   n->st.map_age_s = -1;
   n->st.miou2d = n->st.miou3d = -1;

@@ -5,6 +5,7 @@
  * know the voxel holds one, and the field only supplies its meaning.
  */
 #include "publish.h"
+#include "clock.h"
 #include "files.h" /* vlff_write_file_atomic */
 #include "hash.h"
 
@@ -62,7 +63,6 @@ struct vlff_publisher {
   double last_publish_s, last_heartbeat_s;
 };
 
-static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 
 void vlff_publisher_destroy(struct vlff_publisher *p) {
   if (!p) return;
@@ -482,7 +482,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     return -1;
   }
   r->version = vlff_map_version(p->map);
-  p->last_publish_s = p->last_heartbeat_s = mono_s();
+  p->last_publish_s = p->last_heartbeat_s = vlff_seconds();
 
   /* Quality against the synthetic ground truth, what the demo shows live. */
   if (p->sim) {
@@ -517,7 +517,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
 }
 
 void vlff_publisher_heartbeat(struct vlff_publisher *p) {
-  double now = mono_s();
+  double now = vlff_seconds();
   if (now - p->last_heartbeat_s < 0.1) return;
   p->last_heartbeat_s = now;
   /* A map truncated under the node is replaced by the library; say so. */
@@ -531,7 +531,7 @@ int vlff_publisher_set_status(struct vlff_publisher *p, const struct vlff_map_st
 }
 
 double vlff_publisher_age_s(const struct vlff_publisher *p) {
-  return p->last_publish_s < 0 ? -1 : mono_s() - p->last_publish_s;
+  return p->last_publish_s < 0 ? -1 : vlff_seconds() - p->last_publish_s;
 }
 
 /* Map a label of the prompt set to the synthetic class colours when the
