@@ -90,7 +90,11 @@ async function main() {
     if (process.env.VLFF_VIEW_SCREENSHOT) fs.writeFileSync(process.env.VLFF_VIEW_SCREENSHOT, shot);
     ok(`${checked} voxels drawn at their screen points in their prompts' colours (screenshot pixels)`);
 
-    // Hover: the page names the voxel vlff-shm label finds there.
+    // Hover: the page names the voxel vlff-shm label finds there. The learner is
+    // paused again: on a loaded machine each try (pick, move, vlff-shm label) can
+    // outlast a publish period, and ten tries all met a new version.
+    demo.pause();
+    await sleep(1500);
     let hovered = false;
     for (let attempt = 0; attempt < 10 && !hovered; attempt++) {
       const t = await page.evaluate(() => {
@@ -116,6 +120,7 @@ async function main() {
       assert.ok(text.startsWith(`label ${m[1]} prompt ${m[3]} confidence ${m[2]} `), `page "${text}", vlff-shm "${line}"`);
       hovered = true;
     }
+    demo.resume();
     assert.ok(hovered, 'a hover at a stable version');
     ok('the voxel under the cursor: label, prompt and confidence as vlff-shm label gives them');
 
