@@ -60,7 +60,11 @@ static int commit(struct vlff_sink *s, struct vlff_sink_frame *f) {
   h->sensor_id = f->sensor_id;
   h->flags = 0;
   if (f->intrinsics[0] > 0 && f->intrinsics[1] > 0) {
-    h->fx = f->intrinsics[0], h->fy = f->intrinsics[1], h->cx = f->intrinsics[2], h->cy = f->intrinsics[3];
+    /* The drivers, camera.intrinsics and calibration files count pixels as
+     * OpenCV does (pixel (0,0) centred at (0,0)); the record, like the
+     * field, centres it at (0.5,0.5). */
+    h->fx = f->intrinsics[0], h->fy = f->intrinsics[1];
+    h->cx = f->intrinsics[2] + 0.5, h->cy = f->intrinsics[3] + 0.5;
     h->flags |= VLFF_FRAME_INTRINSICS_VALID;
   }
   if (f->pose_valid) {

@@ -49,10 +49,11 @@ struct key {
 static const char *const log_levels[] = {"error", "warn", "info", "debug", NULL};
 static const char *const source_kinds[] = {"sim", "ring", "dataset", NULL};
 static const char *const feature_sources[] = {"sim", "model", "ring", NULL};
-static const char *const feat_losses[] = {"l2", "l1", NULL};
+static const char *const feat_losses[] = {"l2", "l1", "cos", NULL};
 static const char *const samplings[] = {"depth", "uniform", NULL};
 static const char *const label_images[] = {"surface", "render", NULL};
 static const char *const trajectories[] = {"walk", "orbit", NULL};
+static const char *const sim_layouts[] = {"room", "flat", NULL};
 static const char *const camera_kinds[] = {"aravis", "libcamera", "sim", NULL};
 static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
@@ -108,6 +109,8 @@ static const struct key schema[] = {
     INT("sim.feature_dim", sim.feature_dim, 8, 1024, 512),
     DBL("sim.difficulty", sim.difficulty, 0, 1, 0.5),
     ENUM("sim.trajectory", sim.trajectory, trajectories, "walk"),
+    ENUM("sim.layout", sim.layout, sim_layouts, "room"),
+    DBL("sim.object_bias", sim.object_bias, 0, 1, 0),
     DBL("sim.speed_mps", sim.speed_mps, 0.01, 10, 0.4),
     DBL("sim.depth_noise_m", sim.depth_noise_m, 0, 1, 0.01),
     DBL("sim.depth_hole_frac", sim.depth_hole_frac, 0, 1, 0.02),
@@ -149,6 +152,7 @@ static const struct key schema[] = {
     DBL("train.depth_weight", train.depth_weight, 0, 100, 0.1),
     DBL("train.feature_weight", train.feature_weight, 0, 100, 0.5),
     ENUM("train.feature_loss", train.feature_loss, feat_losses, "l1"),
+    DBL("train.class_balance", train.class_balance, 0, 1, 0),
     DBL("train.near_m", train.near_m, 0, 100, 0.05),
     INT("train.occupancy_resolution", train.occupancy_resolution, 8, 512, 64),
     INT("train.occupancy_update_steps", train.occupancy_update_steps, 1, 1 << 20, 16),

@@ -42,10 +42,11 @@
 enum vlff_log_level { VLFF_LOG_ERROR, VLFF_LOG_WARN, VLFF_LOG_INFO, VLFF_LOG_DEBUG };
 enum vlff_source_kind { VLFF_SOURCE_SIM, VLFF_SOURCE_RING, VLFF_SOURCE_DATASET };
 enum vlff_feature_source { VLFF_FEAT_SIM, VLFF_FEAT_MODEL, VLFF_FEAT_RING };
-enum vlff_feat_loss { VLFF_FEAT_LOSS_L2, VLFF_FEAT_LOSS_L1 };
+enum vlff_feat_loss { VLFF_FEAT_LOSS_L2, VLFF_FEAT_LOSS_L1, VLFF_FEAT_LOSS_COS };
 enum vlff_sampling { VLFF_SAMPLING_DEPTH, VLFF_SAMPLING_UNIFORM };
 enum vlff_label_image { VLFF_LABEL_IMAGE_SURFACE, VLFF_LABEL_IMAGE_RENDER };
 enum vlff_trajectory { VLFF_TRAJ_WALK, VLFF_TRAJ_ORBIT };
+enum vlff_sim_layout { VLFF_LAYOUT_ROOM, VLFF_LAYOUT_FLAT };
 enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA, VLFF_CAM_SIM };
 enum vlff_depth_camera_kind { VLFF_DCAM_NONE, VLFF_DCAM_ARAVIS };
 enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
@@ -101,7 +102,9 @@ struct vlff_config {
     int width, height;
     int feature_dim;
     double difficulty;               /* 0 = clean features, 1 = very noisy */
-    int trajectory;                  /* enum vlff_trajectory */
+    int trajectory;                  /* enum vlff_trajectory (room layout) */
+    int layout;                      /* enum vlff_sim_layout */
+    double object_bias;              /* 0..1: per-object feature bias every view shares */
     double speed_mps;
     double depth_noise_m;
     double depth_hole_frac;
@@ -141,6 +144,7 @@ struct vlff_config {
     double depth_weight;
     double feature_weight;
     int feature_loss;                /* enum vlff_feat_loss */
+    double class_balance;            /* 0..1: ray drawing evens out the raw features' prompt classes */
     double near_m;
     int occupancy_resolution;
     int occupancy_update_steps;

@@ -533,6 +533,7 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
   }
   ds->color_width = ds->width, ds->color_height = ds->height;
   if (!ref && scannet_export_cameras(ds, dir, err, errlen) < 0) goto fail;
+  if (!ref && !ds->registered) ds->cx += 0.5, ds->cy += 0.5; /* OpenCV's pixel centres to the field's */
 cameras_done:
   dir = ds->dir;
   join(p, dir, "bbox.txt");

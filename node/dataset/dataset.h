@@ -31,6 +31,9 @@
  *  zlib/raw depth with its depth shift, poses, both cameras' intrinsics
  *  and extrinsics. Frame i's stem is "i"; label-filt/, the TSV,
  *  features.hdf and the labelled mesh are looked for beside the file.
+ *  Intrinsics are returned in the field's convention, pixel (u,v) centred
+ *  at (u+0.5, v+0.5): ScanNet's (OpenCV's, centred at (u,v)) are shifted by
+ *  half a pixel on read; the reference layout's are taken as written.
  *  In both ScanNet layouts, when a depth intrinsic is given, frames are
  *  returned in the colour camera's geometry at the depth camera's size
  *  (width, height, fx..cy describe that camera): colour box-filtered down,

@@ -190,11 +190,13 @@ int vlff_scannet_geometry(struct vlff_dataset *ds, const double Kc[16], int cw, 
   ds->color_width = cw, ds->color_height = ch;
   ds->depth_width = dw, ds->depth_height = dh;
   ds->dfx = Kd[0], ds->dfy = Kd[5], ds->dcx = Kd[2], ds->dcy = Kd[6];
-  /* output: the colour camera scaled to the depth camera's pixel count */
+  /* output: the colour camera scaled to the depth camera's pixel count, its
+   * principal point in the field's convention (pixel u centred at u + 0.5;
+   * ScanNet's, OpenCV's, at u) */
   ds->width = dw, ds->height = dh;
   double sx = (double)dw / cw, sy = (double)dh / ch;
   ds->fx = Kc[0] * sx, ds->fy = Kc[5] * sy;
-  ds->cx = (Kc[2] + 0.5) * sx - 0.5, ds->cy = (Kc[6] + 0.5) * sy - 0.5;
+  ds->cx = (Kc[2] + 0.5) * sx, ds->cy = (Kc[6] + 0.5) * sy;
   return 0;
 }
 
@@ -231,10 +233,10 @@ void vlff_scannet_register_depth(const struct vlff_dataset *ds, const uint16_t *
       double Y = T[4] * x + T[5] * y + T[6] * z + T[7];
       double Z = T[8] * x + T[9] * y + T[10] * z + T[11];
       if (!(Z > 1e-6)) continue;
-      /* round to the pixel whose centre is nearest (integer centres) */
+      /* the output pixel the point falls in (pixel u spans [u, u+1)) */
       double pu = ds->fx * X / Z + ds->cx, pv = ds->fy * Y / Z + ds->cy;
-      if (!(pu > -0.5 && pu < W - 0.5 && pv > -0.5 && pv < H - 0.5)) continue;
-      size_t o = (size_t)(int)(pv + 0.5) * W + (size_t)(int)(pu + 0.5);
+      if (!(pu >= 0 && pu < W && pv >= 0 && pv < H)) continue;
+      size_t o = (size_t)(int)pv * W + (size_t)(int)pu;
       if (out[o] == 0 || Z < out[o]) out[o] = (float)Z;
     }
 }

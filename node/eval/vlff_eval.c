@@ -10,9 +10,11 @@
  *   3D: the labelled points are queried; OpenScene-style multi-view fusion of
  *       the training frames' features is the baseline.
  * Both protocols (metrics.h) are reported. Output: report.md, report.json,
- * overlay_<frame>.png (image | prediction | ground truth), prediction.ply and
- * a last line "RESULT miou2d=... miou2d_raw=... miou3d=... miou3d_fusion=...
- * macc2d=... macc3d=..." (standard protocol, percent).
+ * overlay_<frame>.png (image | prediction | ground truth), prediction.ply, a
+ * per-class table (3D IoU of the field beside fusion's, 2D beside the raw
+ * features') and a last line "RESULT miou3d=... miou3d_fusion=... miou2d=...
+ * miou2d_raw=... macc2d=... macc2d_raw=... worst_class_vs_fusion=...
+ * fit_seconds=... steps=..." (standard protocol, percent).
  */
 #include <errno.h>
 #include <math.h>
@@ -52,6 +54,7 @@ static const struct vlff_cli cli = {
     "  --difficulty X      sim.difficulty\n"
     "  --feature-dim D     sim.feature_dim and field.feature_dim\n"
     "  --iters N           training steps (default 1500; 0 = baselines only)\n"
+    "  --fit-seconds S     fit for S seconds of wall clock instead of --iters steps\n"
     "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
     "  --stride N          dataset: use every N-th frame (default 1)\n"
     "  --label-set SET     ScanNet labels as scannet20 (default) or nyu40 classes\n"
@@ -73,7 +76,7 @@ static const struct vlff_cli cli = {
 struct opts {
   const char *config, *dataset, *out, *label_tsv;
   int seed, frames, dim, iters, holdout, threads, overlays, quiet, stride, label_set;
-  double difficulty;
+  double difficulty, fit_seconds;
 };
 
 /* One scene frame in memory. */
@@ -142,7 +145,7 @@ static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
 
 static void parse_args(int argc, char **argv, struct opts *o) {
   enum { O_CONFIG = 256, O_DATASET, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
-         O_DIFFICULTY, O_QUIET, O_STRIDE, O_LABEL_SET, O_LABEL_TSV };
+         O_DIFFICULTY, O_QUIET, O_STRIDE, O_LABEL_SET, O_LABEL_TSV, O_FIT_SECONDS };
   static const struct option longopts[] = {
       {"config", required_argument, NULL, O_CONFIG},     {"dataset", required_argument, NULL, O_DATASET},
       {"out", required_argument, NULL, O_OUT},           {"seed", required_argument, NULL, O_SEED},
@@ -152,6 +155,7 @@ static void parse_args(int argc, char **argv, struct opts *o) {
       {"difficulty", required_argument, NULL, O_DIFFICULTY}, {"quiet", no_argument, NULL, O_QUIET},
       {"stride", required_argument, NULL, O_STRIDE},     {"label-set", required_argument, NULL, O_LABEL_SET},
       {"label-tsv", required_argument, NULL, O_LABEL_TSV},
+      {"fit-seconds", required_argument, NULL, O_FIT_SECONDS},
       VLFF_CLI_COMMON_OPTIONS,
   };
   memset(o, 0, sizeof *o);
@@ -176,6 +180,7 @@ static void parse_args(int argc, char **argv, struct opts *o) {
     case O_THREADS: o->threads = parse_int(v, a, 0, 256); break;
     case O_OVERLAYS: o->overlays = parse_int(v, a, 0, 1000); break;
     case O_DIFFICULTY: o->difficulty = parse_dbl(v, a, 0, 1); break;
+    case O_FIT_SECONDS: o->fit_seconds = parse_dbl(v, a, 0.001, 1e7); break;
     case O_STRIDE: o->stride = parse_int(v, a, 1, 100000); break;
     case O_LABEL_TSV: o->label_tsv = v; break;
     case O_LABEL_SET:
@@ -524,29 +529,35 @@ int main(int argc, char **argv) {
     /* in chunks: [n][D] floats of a whole scene can be large */
     const size_t chunk = 8192;
     float *acc = xcalloc(chunk * D, sizeof(float));
+    int *seen = xcalloc(chunk, sizeof(int));
+    size_t unseen = 0;
     for (size_t s0 = 0; s0 < np; s0 += chunk) {
       size_t m = np - s0 < chunk ? np - s0 : chunk;
-      if (vlff_fusion(sc.pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, NULL, err, sizeof err) < 0) die("%s", err);
+      if (vlff_fusion(sc.pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, seen, err, sizeof err) < 0) die("%s", err);
       vlff_classify_f32(acc, m, D, sc.emb, K, p3 + s0, NULL);
+      for (size_t k = 0; k < m; k++) unseen += seen[k] == 0 && sc.pts.label[s0 + k] < K;
     }
-    free(acc);
+    free(acc), free(seen);
     free(fv);
     vlff_confusion_add(&r3_fusion.c, sc.pts.label, p3, np);
     summarize(&r3_fusion);
-    fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f (%.1f s)\n", 100 * r2_raw.s.miou,
-            100 * r3_fusion.s.miou, vlff_seconds() - t);
+    fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f, %zu labelled points no training view saw (%.1f s)\n",
+            100 * r2_raw.s.miou, 100 * r3_fusion.s.miou, unseen, vlff_seconds() - t);
   }
 
   /* ---- field ---- */
   int *pred3 = xcalloc(np, sizeof(int));
   memcpy(pred3, p3, np * sizeof(int));
-  int fitted = 0;
+  int fitted = 0, steps = 0;
   double fit_s = 0;
   struct vlff_train_stats st = {0};
   int *overlay_pred = NULL;
-  if (o.iters > 0) {
+  if (o.iters > 0 || o.fit_seconds > 0) {
     struct vlff_field *fld = vlff_field_create(&cfg, err, sizeof err);
     if (!fld) die("%s", err);
+    /* the prompts are known before fitting, as in the node (class-balanced
+     * ray drawing reads them) */
+    if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
     struct vlff_view *views = xcalloc((size_t)ntrain, sizeof *views);
     int nv = 0;
     double s = (double)sc.tw / sc.W, sy = (double)sc.th / sc.H;
@@ -559,12 +570,19 @@ int main(int argc, char **argv) {
       v->feat_width = fw, v->feat_height = fh, v->feat_dim = D, v->features = sc.f[i].feat;
     }
     int tty = isatty(2) && !o.quiet;
-    double t0 = vlff_seconds(), last = 0;
-    for (int it = 1; it <= o.iters; it++) {
+    double t0 = vlff_seconds(), last = t0;
+    /* --fit-seconds: steps until the budget is spent (the clock is read
+     * after each step, so the last step may end a little past it) */
+    for (int it = 1; o.fit_seconds > 0 ? vlff_seconds() - t0 < o.fit_seconds : it <= o.iters; it++) {
       if (vlff_field_step(fld, views, nv, NULL, &st, err, sizeof err) < 0) die("training step %d: %s", it, err);
+      steps = it;
       double t = vlff_seconds();
-      if (!o.quiet && (it == o.iters || (tty ? t - last > 0.25 : it % (o.iters / 10 > 0 ? o.iters / 10 : 1) == 0))) {
-        progress(it, o.iters, &st, t0, tty);
+      int total = o.iters;
+      if (o.fit_seconds > 0) total = (int)(it * o.fit_seconds / fmax(t - t0, 1e-9));
+      int every = o.fit_seconds > 0 ? 0 : (o.iters / 10 > 0 ? o.iters / 10 : 1);
+      if (!o.quiet && (it == o.iters || (tty ? t - last > 0.25
+                                             : every ? it % every == 0 : t - last > o.fit_seconds / 10))) {
+        progress(it, total > it ? total : it, &st, t0, tty);
         last = t;
       }
     }
@@ -650,8 +668,8 @@ int main(int argc, char **argv) {
               "%zu labelled points; %d prompts.\nField: %s.\n\n",
           sc.n, ntrain, ntest, o.holdout, sc.W, sc.H, fw, fh, D, np, K, fitted ? "fitted" : "not fitted (--iters 0)");
   if (fitted)
-    fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", o.iters, fit_s,
-            o.iters / fit_s, st.loss, st.psnr);
+    fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", steps, fit_s,
+            steps / fit_s, st.loss, st.psnr);
   fprintf(md, "## Standard protocol\n\nPer-class IoU from TP/FP/FN summed over the scene; mIoU and mAcc "
               "(per-class recall) averaged over classes present in the ground truth. Percent.\n\n"
               "| method | 2D mIoU | 2D mAcc | 3D mIoU | 3D mAcc |\n|---|---|---|---|---|\n");
@@ -701,7 +719,7 @@ int main(int argc, char **argv) {
   json_object_object_add(root, "frames", json_object_new_int(sc.n));
   json_object_object_add(root, "holdout", json_object_new_int(o.holdout));
   json_object_object_add(root, "points", json_object_new_int64((int64_t)np));
-  json_object_object_add(root, "iters", json_object_new_int(fitted ? o.iters : 0));
+  json_object_object_add(root, "iters", json_object_new_int(fitted ? steps : 0));
   json_object_object_add(root, "fit_seconds", json_object_new_double(fit_s));
   struct json_object *names = json_object_new_array();
   for (int k = 0; k < K; k++) json_object_array_add(names, json_object_new_string(sc.names[k]));
@@ -729,11 +747,42 @@ int main(int argc, char **argv) {
   printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.mprec, b), "-", "-");
   printf("%-34s %8s %8s %8s %8s\n", "vlff field (3D: 10 jittered)", pct(&r2_field, r2_field.s.miou, a),
          pct(&r2_field, r2_field.s.mprec, b), pct(&r3_field_ref, r3_field_ref.s.miou, c), pct(&r3_field_ref, r3_field_ref.s.macc, d));
+  /* Per class: the field's 3D IoU beside fusion's (the map controllers
+   * read) and 2D beside the raw features'. The worst ratio counts classes
+   * with at least 500 labelled points that fusion finds at all: fewer
+   * points make the ratio noise. */
+  printf("%-18s %8s %10s %10s %7s %8s %9s\n", "per class (IoU %)", "points", "3D fusion", "3D field", "ratio",
+         "2D raw", "2D field");
+  double worst = INFINITY;
+  int worst_k = -1;
+  for (int k = 0; k < K; k++) {
+    struct vlff_class_score s1, s2, s3, s4;
+    vlff_confusion_class(&r2_raw.c, k, &s1);
+    vlff_confusion_class(&r2_field.c, k, &s2);
+    vlff_confusion_class(&r3_fusion.c, k, &s3);
+    vlff_confusion_class(&r3_field.c, k, &s4);
+    unsigned long long npts = (unsigned long long)(s3.tp + s3.fn);
+    if (!s1.present && !s3.present) continue;
+    char ratio[16] = "-";
+    if (r3_field.valid && s3.present && s3.iou > 0) {
+      double q = s4.iou / s3.iou;
+      snprintf(ratio, sizeof ratio, "%.2f", q);
+      if (npts >= 500 && q < worst) worst = q, worst_k = k;
+    }
+    printf("%-18.18s %8llu %10s %10s %7s %8s %9s\n", sc.names[k], npts, CELL(r3_fusion, s3, a), CELL(r3_field, s4, b),
+           ratio, CELL(r2_raw, s1, c), CELL(r2_field, s2, d));
+  }
+  char wbuf[64] = "n/a";
+  if (worst_k >= 0) {
+    snprintf(wbuf, sizeof wbuf, "%.2f", worst);
+    printf("worst class vs fusion: %s %.2f\n", sc.names[worst_k], worst);
+  }
   printf("report: %s/report.md\n", o.out);
-  printf("RESULT miou2d=%s miou2d_raw=%s miou3d=%s miou3d_fusion=%s macc2d=%s macc3d=%s\n",
-         pct(&r2_field, r2_field.s.miou, a), pct(&r2_raw, r2_raw.s.miou, b), pct(&r3_field, r3_field.s.miou, c),
-         pct(&r3_fusion, r3_fusion.s.miou, d), pct(&r2_field, r2_field.s.macc, e),
-         pct(&r3_field, r3_field.s.macc, path));
+  printf("RESULT miou3d=%s miou3d_fusion=%s miou2d=%s miou2d_raw=%s macc2d=%s macc2d_raw=%s "
+         "worst_class_vs_fusion=%s fit_seconds=%.1f steps=%d\n",
+         pct(&r3_field, r3_field.s.miou, a), pct(&r3_fusion, r3_fusion.s.miou, b), pct(&r2_field, r2_field.s.miou, c),
+         pct(&r2_raw, r2_raw.s.miou, d), pct(&r2_field, r2_field.s.macc, e), pct(&r2_raw, r2_raw.s.macc, path), wbuf,
+         fit_s, steps);
 
   for (int i = 0; i < sc.n; i++) {
     if (sc.streaming && held_out(i, sc.holdout)) sc.f[i].rgb = NULL, sc.f[i].feat = NULL; /* scratch */

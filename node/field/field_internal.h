@@ -155,7 +155,7 @@ void vlff_render_backward(const float *w, const float *trans, const float *sigma
  * scale). */
 float vlff_loss_rgb(const float *pred, const float *target, float scale, float *grad);
 float vlff_loss_depth(float pred, float target, float scale, float *grad);
-float vlff_loss_feat(const float *pred, const float *target, int d, int l1, float scale, float *grad);
+float vlff_loss_feat(const float *pred, const float *target, int d, int mode, float scale, float *grad);
 
 /* ---- Adam (adam.c) ----------------------------------------------------- */
 struct vlff_adam {
@@ -281,7 +281,12 @@ struct vlff_field {
   /* step context */
   const struct vlff_view *views;
   float scale_rgb, scale_depth, scale_feat;
-  int feat_l1;
+  int feat_loss;                 /* enum vlff_feat_loss */
+  /* class-balanced ray drawing (train.class_balance): running frequency of
+   * each prompt's pseudo-class among candidate pixels, and a scratch
+   * feature */
+  double bal_freq[VLFF_MAX_PROMPTS];
+  float *bal_feat;
   int render_feat;         /* rendering needs MLP3 */
 };
 

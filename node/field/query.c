@@ -50,6 +50,7 @@ int vlff_field_set_prompts(struct vlff_field *f, const float *emb, int k, char *
     for (int j = 0; j < D; j++) f->E_[(size_t)i * D + j] = emb[(size_t)i * D + j] * inv;
   }
   f->K = k;
+  f->bal_freq[0] = 0; /* class-balanced drawing restarts its counts */
   vlff_field_refresh(f);
   return 0;
 }

@@ -138,6 +138,7 @@ void vlff_field_destroy(struct vlff_field *f) {
   free(f->step_denc);
   free(f->chunk_n);
   free(f->E_);
+  free(f->bal_feat);
   free(f->EW);
   free(f->EWt);
   free(f->Eb);
@@ -185,7 +186,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->adam.eps = (float)cfg->train.eps;
   f->adam.wd = (float)cfg->train.weight_decay;
   f->adam.simd = vlff_gemm_isa_level(); /* as the encoding: VLFF_GEMM=generic is all portable */
-  f->feat_l1 = cfg->train.feature_loss == VLFF_FEAT_LOSS_L1;
+  f->feat_loss = cfg->train.feature_loss;
 
   f->pool = vlff_pool_create(cfg->node.threads);
   if (!f->pool) {
@@ -224,6 +225,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->step_denc = xalloc((size_t)nchunks * slot * levels * f->enc.feats * fs, &ok);
   f->chunk_n = xalloc((size_t)nchunks * sizeof(int), &ok);
   f->E_ = xalloc((size_t)VLFF_MAX_PROMPTS * f->D * fs, &ok);
+  f->bal_feat = xalloc((size_t)f->D * fs, &ok);
   f->EW = xalloc((size_t)VLFF_MAX_PROMPTS * f->H * fs, &ok);
   f->EWt = xalloc((size_t)VLFF_MAX_PROMPTS * f->H * fs, &ok);
   f->Eb = xalloc((size_t)VLFF_MAX_PROMPTS * fs, &ok);
@@ -584,7 +586,7 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
         const struct vlff_view *v = &f->views[ray->view];
         const uint16_t *src = v->features + (size_t)ray->feat_index * D;
         vlff_f16_to_f32_n(src, w->tfeat, (size_t)D);
-        w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_l1, f->scale_feat, gfr) *
+        w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_loss, f->scale_feat, gfr) *
                         f->scale_feat;
         gfb[r] = dot_h(D, gfr, b3);
         axpy_h(D, w->wsum[r], gfr, g + m3->boff[last]);
@@ -786,25 +788,72 @@ void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, f
   }
 }
 
+/* The prompt whose embedding is closest to a view's raw feature at (u, v):
+ * the pixel's pseudo-class. */
+static int pseudo_class(struct vlff_field *f, const struct vlff_view *v, double u, double vv) {
+  int fx = (int)(u * v->feat_width / v->width), fy = (int)(vv * v->feat_height / v->height);
+  if (fx >= v->feat_width) fx = v->feat_width - 1;
+  if (fy >= v->feat_height) fy = v->feat_height - 1;
+  const int D = f->D;
+  vlff_f16_to_f32_n(v->features + ((size_t)fy * v->feat_width + fx) * D, f->bal_feat, (size_t)D);
+  int best = 0;
+  float bs = -INFINITY;
+  const float *x = f->bal_feat;
+  for (int k = 0; k < f->K; k++) {
+    const float *e = f->E_ + (size_t)k * D;
+    /* sixteen partial sums, so the dot product vectorises */
+    float part[16] = {0}, s = 0;
+    int j = 0;
+    for (; j + 16 <= D; j += 16)
+      for (int q = 0; q < 16; q++) part[q] += e[j + q] * x[j + q];
+    for (; j < D; j++) part[0] += e[j] * x[j];
+    for (int q = 0; q < 16; q++) s += part[q];
+    if (s > bs) bs = s, best = k;
+  }
+  return best;
+}
+
+/* Candidates drawn per ray at most when balancing classes. */
+#define BALANCE_TRIES 8
+
 void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
                           int *counts) {
-  /* Draw the rays: view by weight, pixel uniformly with sub-pixel jitter. */
+  /* Draw the rays: view by weight, pixel uniformly with sub-pixel jitter.
+   * With train.class_balance b and prompts set, a candidate pixel whose
+   * raw-feature pseudo-class c has running frequency q_c among candidates
+   * is kept with probability min(1, (1/(K q_c))^b): walls and floors give
+   * up rays to the classes that fill few pixels, which otherwise get too
+   * few feature gradients to survive in the shared grid and MLP. */
   double wtot = 0;
   for (int i = 0; i < nviews; i++) wtot += weights ? weights[i] : 1.0;
+  const double bal = f->K > 1 ? f->cfg.train.class_balance : 0;
+  if (bal > 0 && !(f->bal_freq[0] > 0))
+    for (int k = 0; k < f->K; k++) f->bal_freq[k] = 1.0 / f->K;
   int n_rgb = 0, n_depth = 0, n_feat = 0;
   for (int i = 0; i < f->nrays; i++) {
     struct vlff_ray *r = &f->rays[i];
-    double pick = vlff_rng_uniform(&f->rng) * wtot, acc = 0;
+    const struct vlff_view *v = NULL;
+    double u = 0, vv = 0;
     int vi = nviews - 1;
-    for (int k = 0; k < nviews; k++) {
-      acc += weights ? weights[k] : 1.0;
-      if (pick < acc) {
-        vi = k;
-        break;
+    for (int tries = 0; tries < BALANCE_TRIES; tries++) {
+      double pick = vlff_rng_uniform(&f->rng) * wtot, acc = 0;
+      vi = nviews - 1;
+      for (int k = 0; k < nviews; k++) {
+        acc += weights ? weights[k] : 1.0;
+        if (pick < acc) {
+          vi = k;
+          break;
+        }
       }
+      v = &views[vi];
+      u = vlff_rng_uniform(&f->rng) * v->width, vv = vlff_rng_uniform(&f->rng) * v->height;
+      if (!(bal > 0) || !v->features) break;
+      int c = pseudo_class(f, v, u, vv);
+      for (int k = 0; k < f->K; k++) f->bal_freq[k] *= 0.999;
+      f->bal_freq[c] += 0.001;
+      double keep = pow(1.0 / (f->K * f->bal_freq[c]), bal);
+      if (keep >= 1 || vlff_rng_uniform(&f->rng) < keep) break;
     }
-    const struct vlff_view *v = &views[vi];
-    double u = vlff_rng_uniform(&f->rng) * v->width, vv = vlff_rng_uniform(&f->rng) * v->height;
     int px = (int)u, py = (int)vv;
     if (px >= v->width) px = v->width - 1;
     if (py >= v->height) py = v->height - 1;

@@ -46,6 +46,9 @@ enum { C_WALL, C_FLOOR, C_CABINET, C_BED, C_CHAIR, C_SOFA, C_TABLE, C_DOOR, C_WI
 
 enum { PRIM_BOX, PRIM_CYL };
 
+#define FLAT_ROOMS 4
+#define FLAT_WAY 64
+
 struct prim {
   int kind;
   int label;               /* class id or 255 */
@@ -55,6 +58,7 @@ struct prim {
   int pattern;             /* 0 noise, 1 stripes, 2 checker, 3 grain */
   double tex_scale;
   uint32_t tex_seed;
+  int obj;                 /* the object it belongs to (its feature bias) */
 };
 
 struct bvh_node {
@@ -81,6 +85,19 @@ struct vlff_sim {
   int partner[NPROTO];     /* the class each is most often confused with */
   float view_strength[NPROTO], view_phase[NPROTO];
   int class_counts[VLFF_SIM_CLASSES];
+  /* Objects: every primitive carries the id current when it was added. */
+  int cur_obj, nobj;
+  float *obj_vec;          /* [nobj][D] view-consistent additive bias */
+  float *obj_mix;          /* [nobj] weight moved toward obj_to */
+  int *obj_to;             /* [nobj] the class an object's features lean to */
+  /* Flat layout: rooms (inside faces of their walls) and doorways. */
+  int nrooms;
+  double rooms[FLAT_ROOMS][4];     /* x0 y0 x1 y1 */
+  int ndoors;
+  double doors[FLAT_ROOMS][2];     /* doorway centres in xy */
+  int nway;
+  double way[FLAT_WAY][2];         /* closed walk through the rooms, xy */
+  double way_len[FLAT_WAY + 1];    /* cumulative length at each waypoint */
 };
 
 /* ---- deterministic randomness ------------------------------------------ */
@@ -162,6 +179,7 @@ static struct prim *add_prim(struct vlff_sim *s, int kind, int label) {
   memset(p, 0, sizeof *p);
   p->kind = kind;
   p->label = label;
+  p->obj = s->cur_obj;
   return p;
 }
 
@@ -216,11 +234,18 @@ struct spot {
   int wall;
 };
 
+struct top {
+  double x0, y0, x1, y1, z;
+};
+
 struct layout {
+  const double *lo, *hi;      /* the room being furnished (inside faces) */
   struct spot used[64];
   int nused;
   struct spot wall_used[32];  /* wall-mounted items, as spans on the walls */
   int nwall;
+  struct top tops[16];
+  int ntops;
 };
 
 static int overlaps(const struct spot *a, const struct spot *b, double gap) {
@@ -232,7 +257,7 @@ static int overlaps(const struct spot *a, const struct spot *b, double gap) {
  * when no free place was found in a bounded number of tries. */
 static int place(struct vlff_sim *s, struct layout *L, struct rng *r, double w, double d,
                  int against_wall, double gap, struct spot *out) {
-  const double *lo = s->room_lo, *hi = s->room_hi;
+  const double *lo = L->lo, *hi = L->hi;
   for (int tries = 0; tries < 300; tries++) {
     struct spot sp;
     /* crowded rooms: shrink the item a little after every 100 failures */
@@ -263,6 +288,7 @@ static int place(struct vlff_sim *s, struct layout *L, struct rng *r, double w, 
     if (!ok) continue;
     if (L->nused < (int)(sizeof L->used / sizeof L->used[0])) L->used[L->nused++] = sp;
     *out = sp;
+    s->cur_obj++; /* every placed item is a new object */
     return 1;
   }
   return 0;
@@ -274,7 +300,7 @@ static int place_on_wall(struct vlff_sim *s, struct layout *L, struct rng *r, do
                          struct spot *out) {
   for (int tries = 0; tries < 200; tries++) {
     struct spot sp;
-    if (!place(s, &(struct layout){.nused = 0}, r, w, 0.02, 1, 0, &sp)) return 0;
+    if (!place(s, &(struct layout){.lo = L->lo, .hi = L->hi, .nused = 0}, r, w, 0.02, 1, 0, &sp)) return 0;
     int ok = 1;
     for (int i = 0; i < L->nwall && ok; i++)
       if (overlaps(&sp, &L->wall_used[i], 0.15)) ok = 0;
@@ -307,39 +333,84 @@ static void legs(struct vlff_sim *s, struct rng *r, int label, const struct spot
     for (int j = 0; j < 2; j++) box(s, r, label, xs[i], ys[j], z0, xs[i] + t, ys[j] + t, z1);
 }
 
-static void build_room(struct vlff_sim *s, int attempt) {
-  struct rng r = rng_make(s->seed, 1, (uint64_t)attempt);
-  s->nprims = 0;
-  const double *lo = s->room_lo, *hi = s->room_hi;
-  const double t = 0.1;
+/* Shell: walls, floor, ceiling as thin boxes outside lo..hi, each its own
+ * object. */
+static void shell(struct vlff_sim *s, struct rng *r, const double *lo, const double *hi) {
+  const double t = 0.1, fz = lo[2];
+  int first = s->nprims;
+  s->cur_obj++;
+  box(s, r, C_WALL, lo[0] - t, lo[1] - t, fz - t, hi[0] + t, lo[1], hi[2] + t);
+  s->cur_obj++;
+  box(s, r, C_WALL, lo[0] - t, hi[1], fz - t, hi[0] + t, hi[1] + t, hi[2] + t);
+  s->cur_obj++;
+  box(s, r, C_WALL, lo[0] - t, lo[1], fz - t, lo[0], hi[1], hi[2] + t);
+  s->cur_obj++;
+  box(s, r, C_WALL, hi[0], lo[1], fz - t, hi[0] + t, hi[1], hi[2] + t);
+  s->cur_obj++;
+  box(s, r, C_FLOOR, lo[0], lo[1], fz - t, hi[0], hi[1], fz);
+  s->cur_obj++;
+  box(s, r, VLFF_SIM_UNLABELLED, lo[0], lo[1], hi[2], hi[0], hi[1], hi[2] + t);
+  for (int i = first; i < first + 6 && i < s->nprims; i++)
+    s->prims[i].pattern = i < first + 4 ? 0 : s->prims[i].pattern;
+}
+
+/* What furnish() puts in a room. F_ROOM is today's single room; the rest
+ * furnish the flat's rooms (small, thin and hand-sized things). */
+enum {
+  F_DOOR = 1 << 0, F_DESK = 1 << 1, F_DINING = 1 << 2, F_BED = 1 << 3, F_SOFA = 1 << 4, F_BATH = 1 << 5,
+  F_COUNTER = 1 << 6, F_FRIDGE = 1 << 7, F_SHELF = 1 << 8, F_CABINET = 1 << 9, F_TOILET = 1 << 10,
+  F_OTHER = 1 << 11, F_WINDOW = 1 << 12, F_PICTURES = 1 << 13, F_ROOM = (1 << 14) - 1,
+  F_LAMPS = 1 << 14, F_SMALL = 1 << 15, F_VANITY = 1 << 16, F_MORE_CHAIRS = 1 << 17
+};
+
+/* A horizontal top small objects can stand on. */
+static void add_top(struct layout *L, double x0, double y0, double x1, double y1, double z) {
+  if (L->ntops < (int)(sizeof L->tops / sizeof L->tops[0]))
+    L->tops[L->ntops++] = (struct top){fmin(x0, x1), fmin(y0, y1), fmax(x0, x1), fmax(y0, y1), z};
+}
+
+/* A chair with four legs, its back on the side back_dir names (0: +x,
+ * 1: -x, 2: +y, 3: -y). */
+static void chair(struct vlff_sim *s, struct rng *r, double cx, double cy, double half, double fz,
+                  int back_dir) {
+  s->cur_obj++;
+  struct spot c = {cx - half, cy - half, cx + half, cy + half, -1};
+  double zs = fz + 0.43;
+  box(s, r, C_CHAIR, c.x0, c.y0, zs, c.x1, c.y1, zs + 0.05);
+  legs(s, r, C_CHAIR, &c, fz, zs, 0.04);
+  struct spot b = c;
+  switch (back_dir) {
+  case 0: b.x0 = b.x1 - 0.05; break;
+  case 1: b.x1 = b.x0 + 0.05; break;
+  case 2: b.y0 = b.y1 - 0.05; break;
+  default: b.y1 = b.y0 + 0.05; break;
+  }
+  box(s, r, C_CHAIR, b.x0, b.y0, zs + 0.05, b.x1, b.y1, zs + 0.47);
+}
+
+static void furnish(struct vlff_sim *s, struct rng *rr, struct layout *L, unsigned what) {
+  struct rng r = *rr;
+  const double *lo = L->lo, *hi = L->hi;
   double fz = lo[2];
-  struct layout L = {.nused = 0};
   struct spot sp;
 
-  /* Shell: walls, floor, ceiling as thin boxes outside the room. */
-  box(s, &r, C_WALL, lo[0] - t, lo[1] - t, fz - t, hi[0] + t, lo[1], hi[2] + t);
-  box(s, &r, C_WALL, lo[0] - t, hi[1], fz - t, hi[0] + t, hi[1] + t, hi[2] + t);
-  box(s, &r, C_WALL, lo[0] - t, lo[1], fz - t, lo[0], hi[1], hi[2] + t);
-  box(s, &r, C_WALL, hi[0], lo[1], fz - t, hi[0] + t, hi[1], hi[2] + t);
-  box(s, &r, C_FLOOR, lo[0], lo[1], fz - t, hi[0], hi[1], fz);
-  box(s, &r, VLFF_SIM_UNLABELLED, lo[0], lo[1], hi[2], hi[0], hi[1], hi[2] + t);
-  for (int i = 0; i < 6 && i < s->nprims; i++) s->prims[i].pattern = i < 4 ? 0 : s->prims[i].pattern;
-
   /* Bigger items first so they find room; door keeps a clearance zone. */
-  if (place(s, &L, &r, rng_range(&r, 0.8, 1.0), 0.7, 1, 0.1, &sp)) {
+  if ((what & F_DOOR) && place(s, L, &r, rng_range(&r, 0.8, 1.0), 0.7, 1, 0.1, &sp)) {
     struct spot d = wall_slab(&sp, -0.005, 0.045);
     box(s, &r, C_DOOR, d.x0, d.y0, fz, d.x1, d.y1, fz + rng_range(&r, 1.95, 2.1));
-    if (L.nwall < 32) L.wall_used[L.nwall++] = sp;
+    if (L->nwall < 32) L->wall_used[L->nwall++] = sp;
   }
-  if (place(s, &L, &r, rng_range(&r, 1.1, 1.4), 0.65, 1, 0.5, &sp)) {
+  if ((what & F_DESK) && place(s, L, &r, rng_range(&r, 1.1, 1.4), 0.65, 1, 0.5, &sp)) {
     double zt = fz + 0.74;
     box(s, &r, C_DESK, sp.x0, sp.y0, zt - 0.04, sp.x1, sp.y1, zt);
+    add_top(L, sp.x0, sp.y0, sp.x1, sp.y1, zt);
     legs(s, &r, C_DESK, &sp, fz, zt - 0.04, 0.05);
     /* a chair in front of the desk */
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
     double dx = sp.wall == 2 ? 0.65 : sp.wall == 3 ? -0.65 : 0;
     double dy = sp.wall == 0 ? 0.65 : sp.wall == 1 ? -0.65 : 0;
     struct spot c = {cx + dx - 0.22, cy + dy - 0.22, cx + dx + 0.22, cy + dy + 0.22, -1};
+    s->cur_obj++;
     box(s, &r, C_CHAIR, c.x0, c.y0, fz + 0.42, c.x1, c.y1, fz + 0.47);
     legs(s, &r, C_CHAIR, &c, fz, fz + 0.42, 0.04);
     struct spot back = c;
@@ -348,12 +419,13 @@ static void build_room(struct vlff_sim *s, int attempt) {
     else if (dy > 0) back.y0 = back.y1 - 0.05;
     else back.y1 = back.y0 + 0.05;
     box(s, &r, C_CHAIR, back.x0, back.y0, fz + 0.47, back.x1, back.y1, fz + 0.9);
-    if (L.nused < 64) L.used[L.nused++] = c;
+    if (L->nused < 64) L->used[L->nused++] = c;
   }
   /* Dining table with chairs, free-standing. */
-  if (place(s, &L, &r, rng_range(&r, 1.0, 1.4), rng_range(&r, 0.7, 0.9), 0, 0.7, &sp)) {
+  if ((what & F_DINING) && place(s, L, &r, rng_range(&r, 1.0, 1.4), rng_range(&r, 0.7, 0.9), 0, 0.7, &sp)) {
     double zt = fz + 0.75;
     box(s, &r, C_TABLE, sp.x0, sp.y0, zt - 0.05, sp.x1, sp.y1, zt);
+    add_top(L, sp.x0, sp.y0, sp.x1, sp.y1, zt);
     legs(s, &r, C_TABLE, &sp, fz, zt - 0.05, 0.06);
     int along_x = sp.x1 - sp.x0 > sp.y1 - sp.y0;
     for (int side = 0; side < 2; side++) {
@@ -362,6 +434,7 @@ static void build_room(struct vlff_sim *s, int attempt) {
       if (along_x) cy += o * (0.5 * (sp.y1 - sp.y0) + 0.3);
       else cx += o * (0.5 * (sp.x1 - sp.x0) + 0.3);
       struct spot c = {cx - 0.21, cy - 0.21, cx + 0.21, cy + 0.21, -1};
+      s->cur_obj++;
       box(s, &r, C_CHAIR, c.x0, c.y0, fz + 0.43, c.x1, c.y1, fz + 0.48);
       legs(s, &r, C_CHAIR, &c, fz, fz + 0.43, 0.04);
       struct spot back = c;
@@ -372,16 +445,25 @@ static void build_room(struct vlff_sim *s, int attempt) {
       }
       box(s, &r, C_CHAIR, back.x0, back.y0, fz + 0.48, back.x1, back.y1, fz + 0.92);
     }
+    /* and one at each end */
+    if (what & F_MORE_CHAIRS)
+      for (int side = 0; side < 2; side++) {
+        double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
+        double o = side ? 1 : -1;
+        if (along_x) cx += o * (0.5 * (sp.x1 - sp.x0) + 0.28);
+        else cy += o * (0.5 * (sp.y1 - sp.y0) + 0.28);
+        chair(s, &r, cx, cy, 0.2, fz, along_x ? (o > 0 ? 0 : 1) : (o > 0 ? 2 : 3));
+      }
   }
   /* A bed with its long side against the wall and a headboard at one end. */
-  if (place(s, &L, &r, rng_range(&r, 1.9, 2.1), rng_range(&r, 1.0, 1.4), 1, 0.2, &sp)) {
+  if ((what & F_BED) && place(s, L, &r, rng_range(&r, 1.9, 2.1), rng_range(&r, 1.0, 1.4), 1, 0.2, &sp)) {
     box(s, &r, C_BED, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(&r, 0.45, 0.6));
     struct spot h = sp;
     if (sp.wall < 2) h.x1 = h.x0 + 0.08;
     else h.y1 = h.y0 + 0.08;
     box(s, &r, C_BED, h.x0, h.y0, fz, h.x1, h.y1, fz + rng_range(&r, 0.9, 1.1));
   }
-  if (place(s, &L, &r, rng_range(&r, 1.6, 2.0), rng_range(&r, 0.8, 0.9), 1, 0.2, &sp)) {
+  if ((what & F_SOFA) && place(s, L, &r, rng_range(&r, 1.6, 2.0), rng_range(&r, 0.8, 0.9), 1, 0.2, &sp)) {
     double zs = fz + 0.42, zb = fz + rng_range(&r, 0.8, 0.95);
     box(s, &r, C_SOFA, sp.x0, sp.y0, fz, sp.x1, sp.y1, zs);
     struct spot b = wall_slab(&sp, 0, 0.22);
@@ -397,58 +479,202 @@ static void build_room(struct vlff_sim *s, int attempt) {
       box(s, &r, C_SOFA, sp.x0, sp.y1 - a, zs, sp.x1, sp.y1, zs + 0.2);
     }
   }
-  if (place(s, &L, &r, rng_range(&r, 1.5, 1.7), rng_range(&r, 0.7, 0.8), 1, 0.1, &sp)) {
+  if ((what & F_BATH) && place(s, L, &r, rng_range(&r, 1.5, 1.7), rng_range(&r, 0.7, 0.8), 1, 0.1, &sp)) {
     double zt = fz + rng_range(&r, 0.5, 0.6);
     box(s, &r, C_BATHTUB, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
     /* shower curtain hanging along the tub's open side */
     struct spot c = wall_slab(&sp, (sp.wall < 2 ? sp.y1 - sp.y0 : sp.x1 - sp.x0) - 0.03, 0.02);
     box(s, &r, C_SHOWER, c.x0, c.y0, zt + 0.15, c.x1, c.y1, fz + 2.0);
   }
-  if (place(s, &L, &r, rng_range(&r, 1.4, 2.0), 0.6, 1, 0.1, &sp)) {
+  if ((what & F_COUNTER) && place(s, L, &r, rng_range(&r, 1.4, 2.0), 0.6, 1, 0.1, &sp)) {
     double zc = fz + rng_range(&r, 0.88, 0.95);
     box(s, &r, C_COUNTER, sp.x0, sp.y0, fz, sp.x1, sp.y1, zc);
     /* a sink basin set into the counter top */
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
+    s->cur_obj++;
     box(s, &r, C_SINK, cx - 0.25, cy - 0.2, zc, cx + 0.25, cy + 0.2, zc + 0.12);
   }
-  if (place(s, &L, &r, rng_range(&r, 0.7, 0.8), 0.7, 1, 0.1, &sp))
+  if ((what & F_FRIDGE) && place(s, L, &r, rng_range(&r, 0.7, 0.8), 0.7, 1, 0.1, &sp))
     box(s, &r, C_FRIDGE, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(&r, 1.7, 1.9));
-  if (place(s, &L, &r, rng_range(&r, 0.8, 1.2), 0.35, 1, 0.1, &sp)) {
+  if ((what & F_SHELF) && place(s, L, &r, rng_range(&r, 0.8, 1.2), 0.35, 1, 0.1, &sp)) {
     double zt = fz + rng_range(&r, 1.6, 2.0);
     box(s, &r, C_BOOKSHELF, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
   }
-  for (int i = 0, n = 1 + (int)(rng_u64(&r) % 2); i < n; i++)
-    if (place(s, &L, &r, rng_range(&r, 0.6, 1.0), 0.5, 1, 0.1, &sp))
-      box(s, &r, C_CABINET, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(&r, 0.7, 1.0));
-  if (place(s, &L, &r, 0.45, 0.7, 1, 0.15, &sp)) {
+  for (int i = 0, n = (what & F_CABINET) ? 1 + (int)(rng_u64(&r) % 2) : 0; i < n; i++)
+    if (place(s, L, &r, rng_range(&r, 0.6, 1.0), 0.5, 1, 0.1, &sp)) {
+      double zt = fz + rng_range(&r, 0.7, 1.0);
+      box(s, &r, C_CABINET, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
+      add_top(L, sp.x0, sp.y0, sp.x1, sp.y1, zt);
+    }
+  if ((what & F_TOILET) && place(s, L, &r, 0.45, 0.7, 1, 0.15, &sp)) {
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
     cyl(s, &r, C_TOILET, cx, cy, 0.2, fz, fz + 0.42);
     struct spot tank = wall_slab(&sp, 0, 0.2);
     box(s, &r, C_TOILET, tank.x0, tank.y0, fz + 0.3, tank.x1, tank.y1, fz + 0.8);
   }
   /* Other furniture: a round side table and an ottoman or nightstand. */
-  for (int i = 0, n = 1 + (int)(rng_u64(&r) % 2); i < n; i++) {
-    if (!place(s, &L, &r, 0.5, 0.5, i & 1, 0.3, &sp)) continue;
+  for (int i = 0, n = (what & F_OTHER) ? 1 + (int)(rng_u64(&r) % 2) : 0; i < n; i++) {
+    if (!place(s, L, &r, 0.5, 0.5, i & 1, 0.3, &sp)) continue;
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
     if (rng_uniform(&r) < 0.5) cyl(s, &r, C_OTHER, cx, cy, 0.24, fz, fz + rng_range(&r, 0.4, 0.6));
     else box(s, &r, C_OTHER, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(&r, 0.4, 0.6));
   }
   /* Wall-mounted: window with a curtain beside it, pictures. */
-  if (place_on_wall(s, &L, &r, rng_range(&r, 0.9, 1.3), &sp)) {
+  if ((what & F_WINDOW) && place_on_wall(s, L, &r, rng_range(&r, 0.9, 1.3), &sp)) {
     struct spot w = wall_slab(&sp, -0.01, 0.03);
     double z0 = fz + rng_range(&r, 0.9, 1.1), z1 = fmin(z0 + rng_range(&r, 1.0, 1.3), hi[2] - 0.15);
     box(s, &r, C_WINDOW, w.x0, w.y0, z0, w.x1, w.y1, z1);
     struct spot c = wall_slab(&sp, 0.05, 0.04);
     double cw = 0.35;
     if (sp.wall < 2) c.x1 = c.x0, c.x0 -= cw; else c.y1 = c.y0, c.y0 -= cw;
+    s->cur_obj++;
     if (c.x0 > lo[0] && c.y0 > lo[1]) box(s, &r, C_CURTAIN, c.x0, c.y0, fz + 0.3, c.x1, c.y1, z1 + 0.1);
   }
-  for (int i = 0, n = 2 + (int)(rng_u64(&r) % 2); i < n; i++)
-    if (place_on_wall(s, &L, &r, rng_range(&r, 0.4, 0.8), &sp)) {
+  for (int i = 0, n = (what & F_PICTURES) ? 2 + (int)(rng_u64(&r) % 2) : 0; i < n; i++)
+    if (place_on_wall(s, L, &r, rng_range(&r, 0.4, 0.8), &sp)) {
       struct spot p = wall_slab(&sp, 0, 0.025);
       double z0 = fz + rng_range(&r, 1.3, 1.6);
       box(s, &r, C_PICTURE, p.x0, p.y0, z0, p.x1, p.y1, z0 + rng_range(&r, 0.3, 0.6));
     }
+  /* A bathroom vanity: a small cabinet with a basin on it. */
+  if ((what & F_VANITY) && place(s, L, &r, rng_range(&r, 0.55, 0.75), 0.45, 1, 0.1, &sp)) {
+    double zc = fz + rng_range(&r, 0.8, 0.86);
+    box(s, &r, C_CABINET, sp.x0, sp.y0, fz, sp.x1, sp.y1, zc);
+    double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
+    s->cur_obj++;
+    box(s, &r, C_SINK, cx - 0.2, cy - 0.16, zc, cx + 0.2, cy + 0.16, zc + 0.14);
+  }
+  /* Floor lamps: a thin pole on a disc under a shade, against a wall. */
+  for (int i = 0, n = (what & F_LAMPS) ? 1 + (int)(rng_u64(&r) % 2) : 0; i < n; i++)
+    if (place(s, L, &r, 0.36, 0.36, 1, 0.1, &sp)) {
+      double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1), h = rng_range(&r, 1.4, 1.7);
+      cyl(s, &r, C_OTHER, cx, cy, 0.14, fz, fz + 0.03);
+      cyl(s, &r, C_OTHER, cx, cy, 0.015, fz + 0.03, fz + h - 0.2);
+      cyl(s, &r, C_OTHER, cx, cy, rng_range(&r, 0.13, 0.18), fz + h - 0.22, fz + h);
+    }
+  /* Hand-sized things on tops: cups, books, boxes. */
+  for (int t = 0; (what & F_SMALL) && t < L->ntops; t++) {
+    const struct top *tp = &L->tops[t];
+    for (int i = 0, n = 1 + (int)(rng_u64(&r) % 3); i < n; i++) {
+      double hw = rng_range(&r, 0.03, 0.08), hd = rng_range(&r, 0.03, 0.08), h = rng_range(&r, 0.06, 0.25);
+      if (tp->x1 - tp->x0 < 2 * hw + 0.04 || tp->y1 - tp->y0 < 2 * hd + 0.04) continue;
+      double cx = rng_range(&r, tp->x0 + hw + 0.02, tp->x1 - hw - 0.02);
+      double cy = rng_range(&r, tp->y0 + hd + 0.02, tp->y1 - hd - 0.02);
+      s->cur_obj++;
+      if (rng_uniform(&r) < 0.4) cyl(s, &r, C_OTHER, cx, cy, fmin(hw, hd), tp->z, tp->z + h);
+      else box(s, &r, C_OTHER, cx - hw, cy - hd, tp->z, cx + hw, cy + hd, tp->z + h);
+    }
+  }
+  *rr = r;
+}
+
+static void build_room(struct vlff_sim *s, int attempt) {
+  struct rng r = rng_make(s->seed, 1, (uint64_t)attempt);
+  s->nprims = 0, s->cur_obj = 0;
+  shell(s, &r, s->room_lo, s->room_hi);
+  struct layout L = {.lo = s->room_lo, .hi = s->room_hi};
+  furnish(s, &r, &L, F_ROOM);
+}
+
+/* Keep a doorway free on one side of a wall: nothing stands in front of
+ * it and nothing hangs over it. wall: the room's wall the doorway is in
+ * (0: y=min, 1: y=max, 2: x=min, 3: x=max); c: its centre along the wall. */
+static void keep_clear(struct layout *L, int wall, double c, double half) {
+  const double *lo = L->lo, *hi = L->hi, deep = 1.1;
+  struct spot sp;
+  switch (wall) {
+  case 0: sp = (struct spot){c - half, lo[1], c + half, lo[1] + deep, 0}; break;
+  case 1: sp = (struct spot){c - half, hi[1] - deep, c + half, hi[1], 1}; break;
+  case 2: sp = (struct spot){lo[0], c - half, lo[0] + deep, c + half, 2}; break;
+  default: sp = (struct spot){hi[0] - deep, c - half, hi[0], c + half, 3}; break;
+  }
+  if (L->nused < (int)(sizeof L->used / sizeof L->used[0])) L->used[L->nused++] = sp;
+  if (L->nwall < (int)(sizeof L->wall_used / sizeof L->wall_used[0])) L->wall_used[L->nwall++] = sp;
+}
+
+/* The flat: the box split by interior walls into a living room (with a
+ * kitchen corner) on one side and a bedroom and a bathroom on the other,
+ * each opening onto the living room through a doorway with its door leaf
+ * standing open. Furniture keeps the doorways clear. */
+static void build_flat(struct vlff_sim *s, int attempt) {
+  struct rng r = rng_make(s->seed, 1, (uint64_t)attempt);
+  s->nprims = 0, s->cur_obj = 0;
+  const double *lo = s->room_lo, *hi = s->room_hi;
+  const double tw = 0.1, dw = 0.9, dh = 2.05, fz = lo[2], hz = hi[2];
+  shell(s, &r, lo, hi);
+  double xs = lo[0] + (hi[0] - lo[0]) * rng_range(&r, 0.5, 0.6);
+  double ys = lo[1] + (hi[1] - lo[1]) * rng_range(&r, 0.42, 0.58);
+  double yb = rng_range(&r, ys + tw / 2 + 0.7, hi[1] - 0.7);  /* bedroom doorway */
+  double yt = rng_range(&r, lo[1] + 0.7, ys - tw / 2 - 0.7);  /* bathroom doorway */
+  double wx0 = xs - tw / 2, wx1 = xs + tw / 2;
+  /* wall between the living room and the rest, with two openings */
+  s->cur_obj++;
+  box(s, &r, C_WALL, wx0, lo[1], fz, wx1, yt - dw / 2, hz);
+  s->cur_obj++;
+  box(s, &r, C_WALL, wx0, yt + dw / 2, fz, wx1, yb - dw / 2, hz);
+  s->cur_obj++;
+  box(s, &r, C_WALL, wx0, yb + dw / 2, fz, wx1, hi[1], hz);
+  s->cur_obj++;
+  box(s, &r, C_WALL, wx0, yt - dw / 2, fz + dh, wx1, yt + dw / 2, hz);
+  s->cur_obj++;
+  box(s, &r, C_WALL, wx0, yb - dw / 2, fz + dh, wx1, yb + dw / 2, hz);
+  /* wall between bedroom and bathroom */
+  s->cur_obj++;
+  box(s, &r, C_WALL, wx1, ys - tw / 2, fz, hi[0], ys + tw / 2, hz);
+  for (int i = s->nprims - 6; i < s->nprims; i++) s->prims[i].pattern = 0;
+  /* door leaves standing open into the bedroom and the bathroom */
+  s->cur_obj++;
+  box(s, &r, C_DOOR, wx1, yb + dw / 2, fz, wx1 + 0.85, yb + dw / 2 + 0.04, fz + dh - 0.02);
+  s->cur_obj++;
+  box(s, &r, C_DOOR, wx1, yt - dw / 2 - 0.04, fz, wx1 + 0.85, yt - dw / 2, fz + dh - 0.02);
+
+  double rl[3][3] = {{lo[0], lo[1], fz}, {wx1, ys + tw / 2, fz}, {wx1, lo[1], fz}};
+  double rh[3][3] = {{wx0, hi[1], hz}, {hi[0], hi[1], hz}, {hi[0], ys - tw / 2, hz}};
+  static const unsigned what[3] = {
+      F_DOOR | F_DINING | F_MORE_CHAIRS | F_SOFA | F_COUNTER | F_FRIDGE | F_SHELF | F_CABINET | F_OTHER | F_WINDOW |
+          F_PICTURES | F_LAMPS | F_SMALL,
+      F_BED | F_DESK | F_CABINET | F_OTHER | F_WINDOW | F_PICTURES | F_LAMPS | F_SMALL,
+      F_BATH | F_TOILET | F_VANITY | F_PICTURES | F_SMALL};
+  for (int k = 0; k < 3; k++) {
+    struct layout L = {.lo = rl[k], .hi = rh[k]};
+    if (k == 0) keep_clear(&L, 3, yb, 0.6), keep_clear(&L, 3, yt, 0.6);
+    else keep_clear(&L, 2, k == 1 ? yb : yt, 0.65);
+    furnish(s, &r, &L, what[k]);
+    s->rooms[k][0] = rl[k][0], s->rooms[k][1] = rl[k][1], s->rooms[k][2] = rh[k][0], s->rooms[k][3] = rh[k][1];
+  }
+  s->nrooms = 3;
+  s->ndoors = 2;
+  s->doors[0][0] = xs, s->doors[0][1] = yb;
+  s->doors[1][0] = xs, s->doors[1][1] = yt;
+
+  /* The walk: a loop in the living room, through the bedroom doorway, a
+   * loop there and back, the same for the bathroom, and home. */
+  int n = 0;
+  double(*w)[2] = s->way;
+#define WAY(X, Y) (w[n][0] = (X), w[n][1] = (Y), n++)
+  for (int room = 0; room < 3; room++) {
+    const double *rm = s->rooms[room];
+    double cx = 0.5 * (rm[0] + rm[2]), cy = 0.5 * (rm[1] + rm[3]);
+    double ax = 0.28 * (rm[2] - rm[0]), ay = 0.28 * (rm[3] - rm[1]);
+    double yd = room == 1 ? yb : yt;
+    if (room > 0) WAY(wx0 - 0.8, yd), WAY(wx1 + 0.8, yd);
+    int m = room == 0 ? 10 : 7;
+    /* start on the side facing the doorways (+x in the living room, -x
+     * in the others) and go round once */
+    double a0 = room == 0 ? 0 : M_PI;
+    for (int i = 0; i <= m; i++) {
+      double a = a0 + 2 * M_PI * i / m;
+      WAY(cx + ax * cos(a), cy + ay * sin(a));
+    }
+    if (room > 0) WAY(wx1 + 0.8, yd), WAY(wx0 - 0.8, yd);
+  }
+#undef WAY
+  s->nway = n;
+  s->way_len[0] = 0;
+  for (int i = 0; i < n; i++) {
+    const double *p = w[i], *q = w[(i + 1) % n];
+    s->way_len[i + 1] = s->way_len[i] + hypot(q[0] - p[0], q[1] - p[1]);
+  }
 }
 
 /* ---- BVH ---------------------------------------------------------------- */
@@ -646,6 +872,14 @@ static void shade(const struct vlff_sim *s, struct lattice_cache lc[2], const st
                   const double n[3], float rgb[3]) {
   double light[3] = {0.5 * (s->room_lo[0] + s->room_hi[0]), 0.5 * (s->room_lo[1] + s->room_hi[1]),
                      s->room_hi[2] - 0.2};
+  /* the flat: each room has its own ceiling light */
+  for (int k = 0; k < s->nrooms; k++) {
+    const double *rm = s->rooms[k];
+    if (x[0] >= rm[0] - 0.1 && x[0] <= rm[2] + 0.1 && x[1] >= rm[1] - 0.1 && x[1] <= rm[3] + 0.1) {
+      light[0] = 0.5 * (rm[0] + rm[2]), light[1] = 0.5 * (rm[1] + rm[3]);
+      break;
+    }
+  }
   double l[3] = {light[0] - x[0], light[1] - x[1], light[2] - x[2]};
   double dist2 = l[0] * l[0] + l[1] * l[1] + l[2] * l[2];
   norm3(l);
@@ -673,7 +907,46 @@ static void look_at(const double eye[3], const double target[3], double c2w[16])
   memcpy(c2w, m, sizeof m);
 }
 
+/* Position on the flat's closed walk at arc length d (any real). */
+static void way_at(const struct vlff_sim *s, double d, double p[2]) {
+  double L = s->way_len[s->nway];
+  d = fmod(d, L);
+  if (d < 0) d += L;
+  int i = 0;
+  while (i + 1 < s->nway && s->way_len[i + 1] <= d) i++;
+  const double *a = s->way[i], *b = s->way[(i + 1) % s->nway];
+  double seg = s->way_len[i + 1] - s->way_len[i], f = seg > 0 ? (d - s->way_len[i]) / seg : 0;
+  p[0] = a[0] + f * (b[0] - a[0]), p[1] = a[1] + f * (b[1] - a[1]);
+}
+
+/* The flat's walk: one loop through every room per sim.frames frames,
+ * heading along the path (smoothed over a metre) and sweeping from side to
+ * side so the walls and what stands against them are seen, straight
+ * through doorways. */
+static void flat_pose(const struct vlff_sim *s, long long index, double c2w[16]) {
+  double L = s->way_len[s->nway];
+  double d = L * (double)(index % s->cfg.sim.frames) / s->cfg.sim.frames;
+  double eye[3], tgt[3], a[2], b[2];
+  way_at(s, d, eye);
+  way_at(s, d - 0.5, a);
+  way_at(s, d + 0.5, b);
+  double head = atan2(b[1] - a[1], b[0] - a[0]);
+  double near = 1e9;
+  for (int k = 0; k < s->ndoors; k++) near = fmin(near, hypot(eye[0] - s->doors[k][0], eye[1] - s->doors[k][1]));
+  double sweep = fmin(1.0, fmax(0.0, (near - 0.4) / 1.2));
+  double yaw = head + sweep * 1.0 * sin(2 * M_PI * d / 4.5);
+  double fz = s->room_lo[2];
+  eye[2] = fz + 1.35 + 0.1 * sin(1.3 * d);
+  tgt[0] = eye[0] + 2.0 * cos(yaw), tgt[1] = eye[1] + 2.0 * sin(yaw);
+  tgt[2] = fz + 0.75 + 0.3 * sin(0.9 * d);
+  look_at(eye, tgt, c2w);
+}
+
 static void true_pose(const struct vlff_sim *s, long long index, double c2w[16]) {
+  if (s->nway > 1) {
+    flat_pose(s, index, c2w);
+    return;
+  }
   double cxr = 0.5 * (s->room_lo[0] + s->room_hi[0]), cyr = 0.5 * (s->room_lo[1] + s->room_hi[1]);
   double ax = 0.5 * (s->room_hi[0] - s->room_lo[0]), ay = 0.5 * (s->room_hi[1] - s->room_lo[1]);
   double fz = s->room_lo[2];
@@ -800,6 +1073,38 @@ static int build_features(struct vlff_sim *s) {
   return 0;
 }
 
+/* Per-object bias (sim.object_bias): every view of an object sees its
+ * features lean toward one other class by a fixed weight, plus a fixed
+ * offset of its own. Fusion averages views of the same object, so neither
+ * averages out; most objects lean a little, a few a lot, like a
+ * vision-language model that is sure of the wrong thing for some objects. */
+static int build_objects(struct vlff_sim *s) {
+  const int D = s->dim;
+  const double b = s->cfg.sim.object_bias;
+  s->nobj = s->cur_obj + 1;
+  s->obj_vec = calloc((size_t)s->nobj * D, sizeof(float));
+  s->obj_mix = calloc((size_t)s->nobj, sizeof(float));
+  s->obj_to = calloc((size_t)s->nobj, sizeof(int));
+  if (!s->obj_vec || !s->obj_mix || !s->obj_to) return -1;
+  int *cls = malloc((size_t)s->nobj * sizeof(int));
+  if (!cls) return -1;
+  for (int o = 0; o < s->nobj; o++) cls[o] = P_CEIL;
+  for (int i = s->nprims - 1; i >= 0; i--)
+    cls[s->prims[i].obj] = s->prims[i].label < VLFF_SIM_CLASSES ? s->prims[i].label : P_CEIL;
+  for (int o = 0; o < s->nobj; o++) {
+    struct rng r = rng_make(s->seed, 10, (uint64_t)o);
+    double u = rng_uniform(&r);
+    s->obj_mix[o] = (float)(b * 0.8 * u * u);
+    s->obj_to[o] = rng_uniform(&r) < 0.6 ? s->partner[cls[o]] : (int)(rng_u64(&r) % VLFF_SIM_CLASSES);
+    if (s->obj_to[o] == cls[o]) s->obj_to[o] = s->partner[cls[o]];
+    float *v = s->obj_vec + (size_t)o * D;
+    random_unit(&r, v, D);
+    for (int i = 0; i < D; i++) v[i] *= (float)(0.35 * b);
+  }
+  free(cls);
+  return 0;
+}
+
 void vlff_sim_prototype(const struct vlff_sim *s, int c, float *out) {
   if (c < 0 || c > VLFF_SIM_CLASSES) c = VLFF_SIM_CLASSES;
   memcpy(out, s->proto + (size_t)c * s->dim, (size_t)s->dim * sizeof(float));
@@ -863,7 +1168,7 @@ static void feature_mix(float w, const float *p, float *v, int D) {
 }
 
 static void render_features(const struct vlff_sim *s, long long index, struct vlff_sim_frame *f,
-                            const float *cosview, float *acc) {
+                            const float *cosview, const int *primbuf, float *acc) {
   const int D = s->dim, W = s->width, H = s->height, fw = s->fw, fh = s->fh;
   const double diff = s->cfg.sim.difficulty;
   struct rng fr = rng_make(s->seed, 3, (uint64_t)index);
@@ -919,6 +1224,12 @@ static void render_features(const struct vlff_sim *s, long long index, struct vl
       int pc = s->partner[cc];
       w[pc] += (float)m * w[cc];
       w[cc] *= (float)(1 - m);
+      int pi = primbuf[(size_t)vc * W + uc], obj = pi >= 0 && s->cfg.sim.object_bias > 0 ? s->prims[pi].obj : -1;
+      if (obj >= 0) {
+        float om = s->obj_mix[obj];
+        w[s->obj_to[obj]] += om * w[cc];
+        w[cc] *= 1 - om;
+      }
       for (int k = 0; k < np; k++) {
         double dx = i + 0.5 - patches[k].x, dy = j + 0.5 - patches[k].y;
         double q = (dx * dx + dy * dy) / (patches[k].rad * patches[k].rad);
@@ -934,6 +1245,7 @@ static void render_features(const struct vlff_sim *s, long long index, struct vl
       feature_noise(pr.s, offset_scale, frame_offset, sigma, v, D);
       for (int c = 0; c < NPROTO; c++)
         if (w[c] != 0) feature_mix(w[c], s->proto + (size_t)c * D, v, D);
+      if (obj >= 0) feature_mix(1.0f, s->obj_vec + (size_t)obj * D, v, D);
       vlff_f32_to_f16_n(v, out, (size_t)D);
     }
   }
@@ -962,9 +1274,10 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
   const double *M = f->c2w_true;
   const double o[3] = {M[3], M[7], M[11]};
   float *cosview = malloc((size_t)W * H * sizeof(float));
+  int *primbuf = malloc((size_t)W * H * sizeof(int));
   float *scratch = malloc((size_t)(NPROTO + 2 * s->dim) * sizeof(float));
-  if (!cosview || !scratch) {
-    free(cosview), free(scratch);
+  if (!cosview || !scratch || !primbuf) {
+    free(cosview), free(scratch), free(primbuf);
     vlff_errf(err, errlen, "sim: out of memory rendering frame %lld", index);
     return -1;
   }
@@ -990,11 +1303,13 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
         f->depth_gt[k] = 0;
         f->rgb[3 * k] = f->rgb[3 * k + 1] = f->rgb[3 * k + 2] = 0;
         cosview[k] = 1;
+        primbuf[k] = -1;
         continue;
       }
       const struct prim *p = &s->prims[pi];
       double x[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
       f->label[k] = (uint8_t)p->label;
+      primbuf[k] = pi;
       f->depth_gt[k] = (float)t; /* d has unit z in the camera frame */
       double dl = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
       cosview[k] = (float)fabs((n[0] * d[0] + n[1] * d[1] + n[2] * d[2]) / dl);
@@ -1028,8 +1343,9 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
       f->depth_mm[k] = (uint16_t)(mm > 65535 ? 0 : mm);
     }
   }
-  if (what & VLFF_SIM_FEATURES) render_features(s, index, f, cosview, scratch);
+  if (what & VLFF_SIM_FEATURES) render_features(s, index, f, cosview, primbuf, scratch);
   free(cosview);
+  free(primbuf);
   free(scratch);
   return 0;
 }
@@ -1049,6 +1365,16 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
            cfg->sim.feature_dim, cfg->sim.rate_hz);
     return NULL;
   }
+  if (cfg->sim.layout == VLFF_LAYOUT_FLAT) {
+    double ax = bh[0] - bl[0] - 0.2, ay = bh[1] - bl[1] - 0.2;
+    if (ax < 6 || ay < 6 || ax * ay < 60) {
+      vlff_errf(err, errlen,
+                "sim: sim.layout flat fills field.scene_min/max: its floor is %.1f x %.1f m; it needs at least 6 m "
+                "each way and 60 m^2",
+                ax, ay);
+      return NULL;
+    }
+  }
   struct vlff_sim *s = calloc(1, sizeof *s);
   if (!s) {
     vlff_errf(err, errlen, "sim: out of memory");
@@ -1063,9 +1389,11 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
   s->fx = s->fy = 0.5 * s->width / tan(0.5 * 65.0 * M_PI / 180.0);
   s->cx = 0.5 * s->width, s->cy = 0.5 * s->height;
   struct rng r = rng_make(s->seed, 0, 0);
+  const int flat = cfg->sim.layout == VLFF_LAYOUT_FLAT;
   for (int k = 0; k < 2; k++) {
     double c = 0.5 * (bl[k] + bh[k]);
     double half = fmin(0.5 * (bh[k] - bl[k]) - 0.1, 4.0) * rng_range(&r, 0.8, 1.0);
+    if (flat) half = 0.5 * (bh[k] - bl[k]) - 0.1; /* the flat fills the box */
     s->room_lo[k] = c - half, s->room_hi[k] = c + half;
   }
   double cz = 0.5 * (bl[2] + bh[2]);
@@ -1075,14 +1403,14 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
    * fullest if none manages all twenty. */
   int best_attempt = 0, best_classes = -1;
   for (int attempt = 0; attempt < 16; attempt++) {
-    build_room(s, attempt);
+    (flat ? build_flat : build_room)(s, attempt);
     int have[VLFF_SIM_CLASSES] = {0}, nc = 0;
     for (int i = 0; i < s->nprims; i++)
       if (s->prims[i].label < VLFF_SIM_CLASSES && !have[s->prims[i].label]++) nc++;
     if (nc > best_classes) best_classes = nc, best_attempt = attempt;
     if (nc == VLFF_SIM_CLASSES) break;
   }
-  build_room(s, best_attempt);
+  (flat ? build_flat : build_room)(s, best_attempt);
   if (s->nprims < 6) {
     vlff_sim_destroy(s);
     vlff_errf(err, errlen, "sim: out of memory building the room");
@@ -1093,7 +1421,7 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
     if (s->prims[i].label < VLFF_SIM_CLASSES) s->class_counts[s->prims[i].label]++;
   s->order = malloc((size_t)s->nprims * sizeof(int));
   s->nodes = malloc((size_t)2 * s->nprims * sizeof *s->nodes);
-  if (!s->order || !s->nodes || build_features(s) < 0) {
+  if (!s->order || !s->nodes || build_features(s) < 0 || build_objects(s) < 0) {
     vlff_sim_destroy(s);
     vlff_errf(err, errlen, "sim: out of memory");
     return NULL;
@@ -1107,6 +1435,7 @@ void vlff_sim_destroy(struct vlff_sim *s) {
   if (!s) return;
   free(s->prims), free(s->nodes), free(s->order);
   free(s->proto), free(s->text), free(s->generic);
+  free(s->obj_vec), free(s->obj_mix), free(s->obj_to);
   free(s);
 }
 

@@ -88,7 +88,8 @@ int main(int argc, char **argv) {
   (void)argc;
   const char *src = getenv("VLFF_SOURCE_DIR") ? getenv("VLFF_SOURCE_DIR") : VLFF_SOURCE_DEFAULT;
   double seconds = getenv("VLFF_BENCH_SECONDS") ? atof(getenv("VLFF_BENCH_SECONDS")) : 120;
-  char path[1024], err[512], tmp[256], yaml[2048];
+  char path[1024], err[512], tmp[256];
+  static char yaml[16384];
   snprintf(tmp, sizeof tmp, "/tmp/vlff-bench-node-%d", (int)getpid());
   snprintf(path, sizeof path, "mkdir -p %s", tmp);
   if (system(path)) return 1;

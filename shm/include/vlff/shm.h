@@ -298,7 +298,8 @@ struct vlff_frame_hdr {
   uint32_t sensor_id;
   uint32_t nplanes;      /* planes in use, 1 or 2 */
   struct vlff_plane plane[VLFF_FRAME_MAX_PLANES];
-  double fx, fy, cx, cy; /* pinhole intrinsics in pixels of the color plane */
+  double fx, fy, cx, cy; /* pinhole intrinsics in pixels of the color plane; pixel (u,v)
+                            is centred at (u+0.5, v+0.5) (OpenCV's cx is this cx - 0.5) */
   double pose[16];       /* camera-to-world, row-major */
   uint64_t pose_t_ns;    /* timestamp of the pose source sample */
   uint8_t reserved[512 - 4 * 4 - 3 * 8 - VLFF_FRAME_MAX_PLANES * 32 - 4 * 8 - 16 * 8 - 8];

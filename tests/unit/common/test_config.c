@@ -51,6 +51,8 @@ static void test_defaults_valid(void **state) {
   assert_int_equal(cfg.prompts.sets[0].count, 20);
   assert_string_equal(cfg.prompts.sets[0].text[15], "shower curtain");
   assert_int_equal(cfg.shm.mode, 0640);
+  assert_int_equal(cfg.sim.layout, VLFF_LAYOUT_ROOM);
+  assert_true(cfg.sim.object_bias == 0);
 }
 
 static void test_good_file(void **state) {
@@ -60,6 +62,7 @@ static void test_good_file(void **state) {
                   "field:\n  feature_dim: 128\n  scene_min: [-1, -2, -3]\n  scene_max: [1, 2, 3.5]\n"
                   "can:\n  enabled: yes\n  node_id: 0x10\n"
                   "shm:\n  mode: 0660\n"
+                  "sim:\n  layout: flat\n  object_bias: 0.3\n"
                   "prompts:\n  active: 1\n  sets:\n    - name: a\n      prompts: [x, y]\n"
                   "    - name: b\n      prompts: [chair, \"shower curtain\", z]\n";
   assert_int_equal(load(y, &cfg), 0);
@@ -70,6 +73,8 @@ static void test_good_file(void **state) {
   assert_true(cfg.can.enabled);
   assert_int_equal(cfg.can.node_id, 16);
   assert_int_equal(cfg.shm.mode, 0660);
+  assert_int_equal(cfg.sim.layout, VLFF_LAYOUT_FLAT);
+  assert_true(cfg.sim.object_bias == 0.3);
   assert_int_equal(cfg.prompts.set_count, 2);
   assert_int_equal(cfg.prompts.active, 1);
   assert_int_equal(cfg.prompts.sets[1].count, 3);
@@ -92,6 +97,8 @@ static void test_errors(void **state) {
   expect_error("can:\n  enabled: maybe\n", "t.yaml:2:12: key 'can.enabled': ", "expected true or false, got 'maybe'");
   expect_error("train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ",
                "expected one of depth|uniform, got 'random'");
+  expect_error("sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat, got 'house'");
+  expect_error("sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'");
   expect_error("node:\n  name: [a, b]\n", "t.yaml:2:9: key 'node.name': ", "expected string, got a sequence");
   expect_error("can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n",
                "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes");

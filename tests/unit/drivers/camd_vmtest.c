@@ -16,6 +16,9 @@
  *     case on 127.0.0.1): each edge driven through the sim's pull attribute
  *     gives exactly one frame, stamped with the edge's kernel timestamp
  *     (which lies inside our pull write), and falling edges give none.
+ *   vlff-camd-vmtest gpio-pair CHIP SIMDIR
+ *     the same edges fire two fake GigE cameras (127.0.0.1 colour, 127.0.0.2
+ *     Mono16 range, started by the case): one paired record per edge.
  *
  * vlff-camd is run from PATH. Prints "ok: ..." lines; exits 1 on the first
  * failure with the reason.
@@ -225,7 +228,7 @@ static int run_libcamera(int nframes) {
           pl->height, w, h);
     CHECK(pl->format == VLFF_PIX_RGB8 && hd->nplanes == 1, "frame %d format %s, %u planes", n,
           vlff_pixfmt_name(pl->format), hd->nplanes);
-    CHECK((hd->flags & VLFF_FRAME_INTRINSICS_VALID) && hd->fx == 500 && hd->cx == w / 2, "frame %d intrinsics", n);
+    CHECK((hd->flags & VLFF_FRAME_INTRINSICS_VALID) && hd->fx == 500 && hd->cx == w / 2 + 0.5, "frame %d intrinsics", n);
     /* Sensor timestamps: CLOCK_MONOTONIC (V4L2), inside this run, increasing. */
     uint64_t now = now_ns();
     CHECK(hd->t_device_ns > t_start && hd->t_device_ns <= now, "frame %d sensor time %llu outside [%llu, %llu]", n,
@@ -363,9 +366,98 @@ static int run_gpio_trigger(const char *chip, const char *sim) {
   return 0;
 }
 
+/* The GPIO-triggered RGB-D pair: two fake GigE cameras (colour on
+ * 127.0.0.1, Mono16 range on 127.0.0.2, started by the case), both in
+ * software trigger mode and fired by the same gpio-sim edge. Each edge must
+ * give exactly one record holding both, stamped with the edge's kernel time
+ * (the stamp both frames carry pairs them), and nothing unmatched. */
+static int run_gpio_pair(const char *chip, const char *sim) {
+  const int edges = 6;
+  char pull[512], rig[160];
+  snprintf(pull, sizeof pull, "%s/sim_gpio1/pull", sim);
+  write_pull(pull, "pull-down");
+  names("gpair");
+  snprintf(rig, sizeof rig, "/tmp/vlff-vm-gpair-%d-rig.yaml", (int)getpid());
+  write_file(rig,
+             "%YAML:1.0\n---\n"
+             "K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 150., 0., 79.5, 0., 150., 59.5, 0., 0., 1. ]\n"
+             "D1: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+             "K2: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 150., 0., 79.5, 0., 150., 59.5, 0., 0., 1. ]\n"
+             "D2: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+             "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
+             "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n");
+  char cfg[2048];
+  snprintf(cfg, sizeof cfg,
+           "node:\n  log_level: info\n"
+           "shm:\n  ring: %s\n  pose_ring: %s-poses\n  ring_slots: 16\n  max_width: 160\n  max_height: 120\n"
+           "camera:\n  kind: aravis\n  device: 127.0.0.1\n  pixel_format: Mono8\n  width: 160\n  height: 120\n"
+           "  frame_rate: 25\n  trigger: software\n  reconnect_max_s: 0.5\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
+           "depth_camera:\n  kind: aravis\n  device: 127.0.0.2\n  pixel_format: Mono16\n  width: 160\n  height: 120\n"
+           "  frame_rate: 25\n  trigger: software\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.015\n"
+           "gpio:\n  mode: input\n  chip: %s\n  line: \"1\"\n  debounce_us: 0\n",
+           ring_name, ring_name, rig, chip);
+  write_file(cfg_path, cfg);
+  camd_pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach(30);
+  uint64_t t0 = now_ns();
+  while (!(file_has(err_path, "'127.0.0.1'") && file_has(err_path, "'127.0.0.2'") && file_has(err_path, "streaming")) &&
+         now_ns() - t0 < 30000000000ull)
+    sleep_ms(50);
+  sleep_ms(1000); /* both cameras streaming (the second may log after the first) */
+  CHECK(vlff_ring_head(r) == 0, "%llu records before any edge (software trigger mode)",
+        (unsigned long long)vlff_ring_head(r));
+  size_t cap = vlff_ring_slot_size(r);
+  uint8_t *buf = malloc(cap);
+  CHECK(buf, "out of memory");
+  for (int i = 1; i <= edges; i++) {
+    uint64_t before = now_ns();
+    write_pull(pull, "pull-up");
+    uint64_t after = now_ns();
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(r, buf, cap, &v, 5000000000ull);
+    CHECK(len >= 0, "edge %d: no record within 5 s: %s", i, strerror(errno));
+    CHECK(vlff_frame_validate(buf, (size_t)len) == 0, "edge %d: record does not validate", i);
+    const struct vlff_frame_hdr *hd = (const void *)buf;
+    CHECK(hd->nplanes == 2 && hd->plane[VLFF_PLANE_COLOR].format == VLFF_PIX_RGB8 &&
+              hd->plane[VLFF_PLANE_DEPTH].format == VLFF_PIX_DEPTH_U16_MM && hd->plane[VLFF_PLANE_DEPTH].width == 160,
+          "edge %d: record of %u planes, not colour + registered range", i, hd->nplanes);
+    CHECK(hd->t_host_ns >= before && hd->t_host_ns <= after,
+          "edge %d: record host time %lld us from the pull write [0, %lld us] (not the edge's timestamp)", i,
+          (long long)(hd->t_host_ns - before) / 1000, (long long)(after - before) / 1000);
+    /* The range plane is the fake range camera's image through the
+     * identity rig: mostly non-zero (its ramp wraps through 0 rarely). */
+    const uint16_t *dp = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+    int nz = 0;
+    for (int k = 0; k < 160; k++) nz += dp[60 * (hd->plane[VLFF_PLANE_DEPTH].stride / 2) + k] != 0;
+    CHECK(nz > 100, "edge %d: range plane row 60 has %d of 160 valid pixels", i, nz);
+    sleep_ms(250);
+    write_pull(pull, "pull-down");
+    sleep_ms(250);
+    CHECK(vlff_ring_head(r) == (uint64_t)i, "after %d edges the ring holds %llu records", i,
+          (unsigned long long)vlff_ring_head(r));
+  }
+  kill(camd_pid, SIGTERM);
+  int rc = wait_exit(camd_pid, 20);
+  CHECK(rc == 0, "vlff-camd exit status %d after SIGTERM", rc);
+  CHECK(stat_of("edges") == (uint64_t)edges && stat_of("triggers") == 2u * edges &&
+            stat_of("committed") == (uint64_t)edges && stat_of("color_frames") == (uint64_t)edges &&
+            stat_of("depth_frames") == (uint64_t)edges && stat_of("unmatched_color") == 0 &&
+            stat_of("unmatched_depth") == 0 && stat_of("trigger_failures") == 0,
+        "statistics line");
+  printf("ok: gpio-sim edges -> both cameras of an RGB-D pair: %d edges, %d paired records, each stamped with its "
+         "edge's kernel time\n",
+         edges, edges);
+  vlff_ring_close(r);
+  free(buf);
+  cleanup();
+  unlink(cfg_path), unlink(out_path), unlink(err_path), unlink(rig);
+  return 0;
+}
+
 int main(int argc, char **argv) {
   if (argc == 3 && !strcmp(argv[1], "libcamera")) return run_libcamera(atoi(argv[2]) > 0 ? atoi(argv[2]) : 10);
   if (argc == 4 && !strcmp(argv[1], "gpio-trigger")) return run_gpio_trigger(argv[2], argv[3]);
-  fprintf(stderr, "usage: vlff-camd-vmtest libcamera N | gpio-trigger CHIP SIMDIR\n");
+  if (argc == 4 && !strcmp(argv[1], "gpio-pair")) return run_gpio_pair(argv[2], argv[3]);
+  fprintf(stderr, "usage: vlff-camd-vmtest libcamera N | gpio-trigger CHIP SIMDIR | gpio-pair CHIP SIMDIR\n");
   return 2;
 }

@@ -119,7 +119,7 @@ static void check_frame(const void *rec, size_t len, int w, int h) {
   assert_int_equal(hd->nplanes, 1);
   assert_true(hd->flags & VLFF_FRAME_INTRINSICS_VALID);
   assert_false(hd->flags & VLFF_FRAME_POSE_VALID); /* no SLAM publishing poses */
-  assert_true(hd->fx == 500.0 && hd->cy == 120.0);
+  assert_true(hd->fx == 500.0 && hd->cy == 120.5); /* OpenCV's 120, centred at +0.5 */
   const uint8_t *px = vlff_frame_plane(rec, VLFF_PLANE_COLOR);
   uint32_t stride = hd->plane[VLFF_PLANE_COLOR].stride;
   for (int y = 0; y < h; y += 3)
@@ -326,7 +326,8 @@ static void test_pairs_colour_and_range(void **state) {
     assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].format, VLFF_PIX_DEPTH_U16_MM);
     assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].width, 320);
     assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].height, 240);
-    assert_true(hd->fx == 300 && hd->fy == 300 && hd->cx == 159.5 && hd->cy == 119.5);
+    /* camera.intrinsics are OpenCV's; the record centres pixels at +0.5 */
+    assert_true(hd->fx == 300 && hd->fy == 300 && hd->cx == 160 && hd->cy == 120);
     /* colour: the GigE camera's grey ramp of this frame */
     const uint8_t *px = vlff_frame_plane(buf, VLFF_PLANE_COLOR);
     for (int y = 0; y < 240; y += 7)

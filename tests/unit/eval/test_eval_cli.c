@@ -232,8 +232,57 @@ static void test_small_fit_beats_raw(void **state) {
   assert_int_equal(system(cmd), 0);
 }
 
+/* --fit-seconds fits for a wall-clock budget: at least one step, the
+ * budget spent (the clock is read after each step), and the per-class table
+ * with the field's 3D IoU beside fusion's is printed. */
+static void test_fit_seconds_and_per_class(void **state) {
+  (void)state;
+  char eval[1024];
+  prog(eval, sizeof eval, "node/eval/vlff-eval");
+  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-secs-%ld-XXXXXX", (long)getpid());
+  assert_non_null(mkdtemp(tmp));
+  char cfg[512], cmd[4096];
+  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
+  FILE *f = fopen(cfg, "w");
+  assert_non_null(f);
+  fputs("node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  feature_dim: 16\n  frames: 8\n"
+        "field:\n  feature_dim: 16\n  hash_log2_size: 12\n  finest_resolution: 64\n  feature_width: 16\n"
+        "train:\n  rays_per_step: 64\n  samples_per_ray: 8\n",
+        f);
+  fclose(f);
+  snprintf(cmd, sizeof cmd, "%s --config %s --fit-seconds 0.5 --holdout 4 --quiet --overlays 0 --out %s/o 2>/dev/null",
+           eval, cfg, tmp);
+  FILE *p = popen(cmd, "r");
+  assert_non_null(p);
+  char line[1024], res[1024] = "";
+  int header = 0, wall = 0;
+  while (fgets(line, sizeof line, p)) {
+    if (!strncmp(line, "RESULT ", 7)) snprintf(res, sizeof res, "%s", line);
+    if (strstr(line, "per class") && strstr(line, "3D fusion") && strstr(line, "3D field")) header = 1;
+    if (header && !strncmp(line, "wall ", 5)) wall = 1;
+  }
+  assert_int_equal(pclose(p), 0);
+  print_message("%s", res);
+  assert_true(header && wall);
+  assert_true(field(res, "steps") >= 1);
+  assert_true(field(res, "fit_seconds") >= 0.5);
+  const char *keys[] = {"miou3d", "miou3d_fusion", "miou2d", "miou2d_raw", "macc2d", "macc2d_raw",
+                        "worst_class_vs_fusion"};
+  for (int i = 0; i < 7; i++) {
+    char k[64];
+    snprintf(k, sizeof k, " %s=", keys[i]);
+    if (!strstr(res, k)) fail_msg("no %s in '%s'", keys[i], res);
+  }
+  /* a budget that is not a positive number is a usage error */
+  snprintf(cmd, sizeof cmd, "%s --config %s --fit-seconds -1 --quiet --out %s/o >/dev/null 2>&1", eval, cfg, tmp);
+  assert_int_not_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+  assert_int_equal(system(cmd), 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {cmocka_unit_test(test_dataset_matches_synthetic),
-                                     cmocka_unit_test(test_small_fit_beats_raw)};
+                                     cmocka_unit_test(test_small_fit_beats_raw),
+                                     cmocka_unit_test(test_fit_seconds_and_per_class)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

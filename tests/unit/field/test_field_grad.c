@@ -572,6 +572,25 @@ static void test_losses(void **state) {
       assert_true(fabs(2.0 * fd / 8 - g[i]) < 1e-4);
     }
   }
+  /* cosine: 1 - cos, finite differences of the gradient, and no NaN on a
+   * zero prediction */
+  float loss = vlff_loss_feat(pred, tgt, 8, VLFF_FEAT_LOSS_COS, 2.0f, g);
+  double pt = 0, pp = 0, tt = 0;
+  for (int i = 0; i < 8; i++) pt += (double)pred[i] * tgt[i], pp += (double)pred[i] * pred[i], tt += (double)tgt[i] * tgt[i];
+  assert_true(fabs(loss - (1 - pt / sqrt(pp * tt))) < 1e-5);
+  for (int i = 0; i < 8; i++) {
+    double h = 1e-3, lp, lm;
+    float q[8], gq[8];
+    memcpy(q, pred, sizeof q);
+    q[i] = pred[i] + (float)h;
+    lp = vlff_loss_feat(q, tgt, 8, VLFF_FEAT_LOSS_COS, 1.0f, gq);
+    q[i] = pred[i] - (float)h;
+    lm = vlff_loss_feat(q, tgt, 8, VLFF_FEAT_LOSS_COS, 1.0f, gq);
+    assert_true(fabs(2.0 * (lp - lm) / (2 * h) - g[i]) < 1e-3);
+  }
+  float zero[8] = {0};
+  assert_true(vlff_loss_feat(zero, tgt, 8, VLFF_FEAT_LOSS_COS, 1.0f, g) == 0.0f);
+  for (int i = 0; i < 8; i++) assert_true(g[i] == 0.0f);
 }
 
 static void test_adam(void **state) {

@@ -390,6 +390,54 @@ static void test_marks_wrap(void **state) {
   vlff_field_destroy(f);
 }
 
+/* train.class_balance: a view whose raw features say "class 1" on a tenth of
+ * it (the left column of feature pixels) and "class 0" elsewhere. Without
+ * balancing a tenth of the rays land there; with it the dominant class is
+ * capped at the mean frequency, so the rare class gets 1/6 of the rays
+ * (0.1 / (0.1 + 0.5)). Without prompts nothing changes. */
+static double rare_share(double balance, int prompts) {
+  struct vlff_config cfg;
+  scene_cfg(&cfg, 8);
+  cfg.node.threads = 1;
+  cfg.train.rays_per_step = 2000;
+  cfg.train.class_balance = balance;
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof err);
+  assert_non_null(f);
+  float emb[2 * 8] = {0};
+  emb[0] = 1, emb[8 + 1] = 1;
+  if (prompts) assert_int_equal(vlff_field_set_prompts(f, emb, 2, err, sizeof err), 0);
+  enum { FW = 10, FH = 10 };
+  uint16_t feat[FW * FH * 8];
+  for (int i = 0; i < FW * FH; i++) {
+    float v[8] = {0};
+    v[i % FW == 0 ? 1 : 0] = 1;
+    vlff_f32_to_f16_n(v, feat + (size_t)i * 8, 8);
+  }
+  struct vlff_view v = {0};
+  v.width = 40, v.height = 30, v.fx = v.fy = 30, v.cx = 20, v.cy = 15;
+  const double c2w[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  memcpy(v.c2w, c2w, sizeof c2w);
+  v.feat_width = FW, v.feat_height = FH, v.feat_dim = 8, v.features = feat;
+  long rare = 0, total = 0;
+  for (int draw = 0; draw < 8; draw++) {
+    vlff_field_draw_rays(f, &v, 1, NULL, NULL);
+    if (draw < 3) continue; /* the running frequencies settle */
+    for (int r = 0; r < f->nrays; r++, total++) rare += f->rays[r].feat_index % FW == 0;
+  }
+  vlff_field_destroy(f);
+  return (double)rare / total;
+}
+
+static void test_class_balance(void **state) {
+  (void)state;
+  double plain = rare_share(0, 1), off = rare_share(1, 0), bal = rare_share(1, 1);
+  print_message("rare class share of rays: plain %.3f, balance without prompts %.3f, balanced %.3f\n", plain, off, bal);
+  assert_true(fabs(plain - 0.1) < 0.015);
+  assert_true(fabs(off - 0.1) < 0.015);
+  assert_true(fabs(bal - 1.0 / 6) < 0.02);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_ray_budget),
@@ -397,6 +445,7 @@ int main(void) {
       cmocka_unit_test(test_marks_wrap),
       cmocka_unit_test(test_slab),
       cmocka_unit_test(test_chunk_gradient),
+      cmocka_unit_test(test_class_balance),
       cmocka_unit_test(test_convergence),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);

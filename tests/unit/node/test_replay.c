@@ -321,7 +321,8 @@ static void test_scannet_layout_into_rings(void **state) {
   snprintf(p, sizeof p, "%s/intrinsic/intrinsic_color.txt", scene);
   FILE *kf = fopen(p, "w");
   assert_non_null(kf);
-  fprintf(kf, "%.17g 0 %.17g 0\n0 %.17g %.17g 0\n0 0 1 0\n0 0 0 1\n", f->fx, f->cx, f->fy, f->cy);
+  /* ScanNet's intrinsics count pixels as OpenCV does (centre of pixel 0 at 0) */
+  fprintf(kf, "%.17g 0 %.17g 0\n0 %.17g %.17g 0\n0 0 1 0\n0 0 0 1\n", f->fx, f->cx - 0.5, f->fy, f->cy - 0.5);
   fclose(kf);
   const int W = f->width, H = f->height;
   uint8_t *rgb0 = malloc((size_t)W * H * 3);

@@ -238,13 +238,14 @@ static void check_frame(const struct vlff_dataset *ds, int set) {
   int got = 0, want = 0, wrong = 0, interior = 0, interior_valid = 0;
   for (int v = 0; v < DH; v++)
     for (int u = 0; u < DW; u++) {
-      double dx = (u - ds->cx) / ds->fx, dy = (v - ds->cy) / ds->fy;
+      /* the field's pixel centres: u + 0.5 */
+      double dx = (u + 0.5 - ds->cx) / ds->fx, dy = (v + 0.5 - ds->cy) / ds->fy;
       double expect = cast(0, dx, dy), Z = z[v * DW + u];
       /* 2 px from the plate's outline, the surface is unambiguous */
       int near_edge = 0;
       for (int a = -2; a <= 2; a++)
         for (int b = -2; b <= 2; b++)
-          if (cast(0, (u + a - ds->cx) / ds->fx, (v + b - ds->cy) / ds->fy) != expect) near_edge = 1;
+          if (cast(0, (u + a + 0.5 - ds->cx) / ds->fx, (v + b + 0.5 - ds->cy) / ds->fy) != expect) near_edge = 1;
       if (expect == 1.0) eu += u, ev += v, want++;
       if (Z > 0 && fabs(Z - 1.0) < 1e-3) su += u, sv += v, got++;
       if (!near_edge) {

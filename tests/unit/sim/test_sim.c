@@ -309,6 +309,111 @@ static void test_points(void **state) {
   vlff_sim_destroy(s);
 }
 
+/* The flat: rooms over a 10 x 8 m box joined by doorways. The walk between
+ * two consecutive frames never passes through a wall (it goes through the
+ * doorways), it covers the whole flat and comes back where it started;
+ * every class is furnished, with more chairs and small things than a room;
+ * a box too small for 60 m^2 is refused. */
+static void flat_cfg(struct vlff_config *c, int seed) {
+  small_cfg(c, seed);
+  c->sim.layout = VLFF_LAYOUT_FLAT;
+  c->sim.frames = 200;
+  double lo[3] = {-5, -4, -1.5}, hi[3] = {5, 4, 1.5};
+  memcpy(c->field.scene_min, lo, sizeof lo);
+  memcpy(c->field.scene_max, hi, sizeof hi);
+}
+
+static void test_flat_walk_through_doorways(void **state) {
+  (void)state;
+  for (int seed = 1; seed <= 3; seed++) {
+    struct vlff_config c;
+    flat_cfg(&c, seed);
+    struct vlff_sim *s = make(&c);
+    double lo[3], hi[3];
+    vlff_sim_bounds(s, lo, hi);
+    assert_true((hi[0] - lo[0]) * (hi[1] - lo[1]) >= 60);
+    int counts[VLFF_SIM_CLASSES];
+    vlff_sim_class_counts(s, counts);
+    for (int k = 0; k < VLFF_SIM_CLASSES; k++)
+      if (counts[k] == 0) fail_msg("seed %d: no %s in the flat", seed, vlff_sim_class_name(k));
+    assert_true(counts[vlff_sim_class_of("chair")] >= 5 * 4); /* seat, back, legs: >= 4 prims a chair */
+    assert_true(counts[vlff_sim_class_of("other furniture")] >= 8);
+    double xmin = 1e9, xmax = -1e9, ymin = 1e9, ymax = -1e9, prev[16] = {0}, first[16] = {0};
+    int crossings = 0;
+    for (int i = 0; i <= c.sim.frames; i++) {
+      double m[16];
+      vlff_sim_pose(s, i, m);
+      if (i == 0) memcpy(first, m, sizeof m);
+      xmin = fmin(xmin, m[3]), xmax = fmax(xmax, m[3]), ymin = fmin(ymin, m[7]), ymax = fmax(ymax, m[7]);
+      assert_true(m[3] > lo[0] && m[3] < hi[0] && m[7] > lo[1] && m[7] < hi[1]);
+      if (i > 0) {
+        double d[3] = {m[3] - prev[3], m[7] - prev[7], m[11] - prev[11]};
+        double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        double o[3] = {prev[3], prev[7], prev[11]};
+        double t = vlff_sim_raycast(s, o, d, NULL, NULL);
+        if (t >= 0 && t < 1) crossings++;
+        assert_true(len < 1.0);
+      }
+      memcpy(prev, m, sizeof m);
+    }
+    assert_int_equal(crossings, 0);
+    assert_true(xmax - xmin > 4.5 && ymax - ymin > 3.5);
+    /* one loop per sim.frames frames: frame `frames` is frame 0 again */
+    assert_true(fabs(prev[3] - first[3]) < 1e-9 && fabs(prev[7] - first[7]) < 1e-9);
+    vlff_sim_destroy(s);
+  }
+  struct vlff_config c;
+  flat_cfg(&c, 1);
+  c.field.scene_max[0] = 2;
+  char err[256] = "";
+  assert_null(vlff_sim_create(&c, err, sizeof err));
+  assert_non_null(strstr(err, "60 m^2"));
+}
+
+/* sim.object_bias: geometry, labels and depth stay the same; features
+ * change, and the change is shared by every view of an object, so the mean
+ * feature of one object over many views moves away from its class. */
+static void test_object_bias_view_consistent(void **state) {
+  (void)state;
+  struct vlff_config c0, c1;
+  flat_cfg(&c0, 2);
+  c1 = c0;
+  c1.sim.object_bias = 1;
+  struct vlff_sim *a = make(&c0), *b = make(&c1);
+  struct vlff_sim_frame *fa = vlff_sim_frame_new(a), *fb = vlff_sim_frame_new(b);
+  size_t n = (size_t)fa->width * fa->height, nf = (size_t)fa->feat_width * fa->feat_height * fa->feat_dim;
+  int D = fa->feat_dim, K = VLFF_SIM_CLASSES;
+  float *emb = malloc((size_t)K * D * sizeof(float)), *unit = malloc((size_t)K * D * sizeof(float));
+  for (int k = 0; k < K; k++) vlff_sim_text_embedding(a, vlff_sim_class_name(k), emb + (size_t)k * D);
+  vlff_normalize_rows(emb, unit, K, D);
+  size_t np = (size_t)fa->feat_width * fa->feat_height;
+  int *la = malloc(np * sizeof(int)), *lb = malloc(np * sizeof(int));
+  long agree_a = 0, agree_b = 0, total = 0;
+  for (int i = 0; i < 40; i += 4) {
+    render(a, i, fa);
+    render(b, i, fb);
+    assert_memory_equal(fa->label, fb->label, n);
+    assert_memory_equal(fa->depth, fb->depth, n * sizeof(float));
+    assert_true(memcmp(fa->features, fb->features, nf * sizeof(uint16_t)) != 0);
+    vlff_classify_f16(fa->features, np, D, unit, K, la, NULL);
+    vlff_classify_f16(fb->features, np, D, unit, K, lb, NULL);
+    for (int y = 0; y < fa->feat_height; y++)
+      for (int x = 0; x < fa->feat_width; x++) {
+        int g = fa->label[(size_t)(4 * y + 2) * fa->width + 4 * x + 2];
+        if (g >= K) continue;
+        total++;
+        agree_a += la[(size_t)y * fa->feat_width + x] == g;
+        agree_b += lb[(size_t)y * fa->feat_width + x] == g;
+      }
+  }
+  print_message("pixel accuracy without / with object bias: %.3f / %.3f\n", (double)agree_a / total,
+                (double)agree_b / total);
+  assert_true(agree_b < agree_a);
+  free(emb), free(unit), free(la), free(lb);
+  vlff_sim_frame_free(fa), vlff_sim_frame_free(fb);
+  vlff_sim_destroy(a), vlff_sim_destroy(b);
+}
+
 static void test_bad_config(void **state) {
   (void)state;
   struct vlff_config c;
@@ -325,6 +430,7 @@ int main(void) {
       cmocka_unit_test(test_labels_cover_classes),   cmocka_unit_test(test_poses_opencv_and_speed),
       cmocka_unit_test(test_embeddings_structure),   cmocka_unit_test(test_features_imperfect_but_informative),
       cmocka_unit_test(test_points),                 cmocka_unit_test(test_bad_config),
+      cmocka_unit_test(test_flat_walk_through_doorways), cmocka_unit_test(test_object_bias_view_consistent),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -1,0 +1,239 @@
+#include "rig.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <ftw.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/prctl.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "embeddings.h"
+#include "metrics.h"
+#include "vlff/shm.h"
+
+int rig_netns_enter(int argc, char **argv) {
+  if (getenv("VLFF_RIG_NETNS")) return 1;
+  if (system("unshare -rn sh -c 'ip link set lo up && ip addr add 127.0.0.2/8 dev lo' >/dev/null 2>&1") != 0) {
+    fprintf(stderr, "rig: no private network namespace here (unshare -rn, ip): the camera rig cannot run\n");
+    return 0;
+  }
+  setenv("VLFF_RIG_NETNS", "1", 1);
+  char **av = calloc((size_t)argc + 8, sizeof *av);
+  if (!av) return 0;
+  int n = 0;
+  av[n++] = "unshare";
+  av[n++] = "-rn";
+  av[n++] = "sh";
+  av[n++] = "-c";
+  av[n++] = "ip link set lo up && ip addr add 127.0.0.2/8 dev lo && exec \"$0\" \"$@\"";
+  for (int i = 0; i < argc; i++) av[n++] = argv[i];
+  av[n] = NULL;
+  execvp("unshare", av);
+  fprintf(stderr, "rig: unshare: %s\n", strerror(errno));
+  free(av);
+  return 0;
+}
+
+static int fail(char *err, size_t len, const char *what) {
+  snprintf(err, len, "%s", what);
+  return -1;
+}
+
+int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
+  memset(r, 0, sizeof *r);
+  r->cameras = cameras;
+  snprintf(r->tag, sizeof r->tag, "rig%d-%d", (int)getpid(), cameras);
+  snprintf(r->dir, sizeof r->dir, "/tmp/vlff-%s", r->tag);
+  mkdir(r->dir, 0755);
+  snprintf(r->cfg_path, sizeof r->cfg_path, "%s/node.yaml", r->dir);
+  snprintf(r->calib_path, sizeof r->calib_path, "%s/rig.yaml", r->dir);
+  snprintf(r->camd_out, sizeof r->camd_out, "%s/camd.out", r->dir);
+  snprintf(r->scenecam_out, sizeof r->scenecam_out, "%s/scenecam.out", r->dir);
+  snprintf(r->pose_out, sizeof r->pose_out, "%s/pose.out", r->dir);
+  /* The sim first (its intrinsics go into the calibration), from the same
+   * room settings the config below gives every process. */
+  struct vlff_config c0;
+  vlff_config_defaults(&c0);
+  c0.sim.seed = 3, c0.sim.rate_hz = 5, c0.sim.width = 160, c0.sim.height = 120, c0.sim.frames = RIG_FRAMES;
+  struct vlff_sim *s = vlff_sim_create(&c0, err, errlen);
+  if (!s) return -1;
+  double fx, fy, cx, cy;
+  vlff_sim_intrinsics(s, &fx, &fy, &cx, &cy);
+  int W, H, fw, fh, D;
+  vlff_sim_size(s, &W, &H, &fw, &fh, &D);
+  /* An identity rig: both cameras the sim's camera, no offset between them.
+   * Calibration files count pixels as OpenCV does (centre of pixel 0 at 0),
+   * the sim as the field does (at 0.5). */
+  FILE *f = fopen(r->calib_path, "w");
+  if (!f) return vlff_sim_destroy(s), fail(err, errlen, "cannot write the calibration");
+  fprintf(f, "%%YAML:1.0\n---\n");
+  for (int k = 1; k <= 2; k++)
+    fprintf(f,
+            "K%d: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ %.17g, 0., %.17g, 0., %.17g, %.17g, 0., 0., 1. ]\n"
+            "D%d: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n",
+            k, fx, cx - 0.5, fy, cy - 0.5, k);
+  fprintf(f, "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
+             "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n");
+  fclose(f);
+  char emb_path[400];
+  snprintf(emb_path, sizeof emb_path, "%s/prompt_embeddings.txt", r->dir);
+  f = fopen(r->cfg_path, "w");
+  if (!f) return vlff_sim_destroy(s), fail(err, errlen, "cannot write the config");
+  fprintf(f,
+          "node:\n  state_dir: %s/state\n  log_level: warn\n"
+          "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: 0.25\n  pose_wait_s: 0.5\n"
+          "sim:\n  seed: 3\n  rate_hz: 5\n  width: %d\n  height: %d\n  frames: %d\n"
+          "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
+          "  max_width: 320\n  max_height: 240\n  ring_slots: 8\n"
+          "train:\n  image_scale: 1.0\n"
+          "keyframes:\n  start_after: 3\n  posecheck_min_steps: 30\n"
+          "publish:\n  rate_hz: 1\n  voxel_size_m: 0.1\n  label_width: 80\n  label_height: 60\n"
+          "prompts:\n%s%s%s  sets:\n"
+          "    - name: scannet20\n      prompts: [wall, floor, cabinet, bed, chair, sofa, table, door, window,\n"
+          "        bookshelf, picture, counter, desk, curtain, refrigerator, shower curtain, toilet, sink,\n"
+          "        bathtub, other furniture]\n"
+          "camera:\n  kind: aravis\n  device: 127.0.0.1\n  pixel_format: RGB8\n  width: %d\n  height: %d\n"
+          "  frame_rate: 5\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n  reconnect_max_s: 0.5\n"
+          "depth_camera:\n  kind: aravis\n  device: 127.0.0.2\n  pixel_format: Mono16\n  width: %d\n  height: %d\n"
+          "  frame_rate: 5\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.09\n",
+          r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", W, H, RIG_FRAMES, r->tag, r->tag, r->tag, r->tag,
+          r->tag, cameras ? "  embeddings: " : "", cameras ? emb_path : "", cameras ? "\n" : "", W, H, W, H,
+          r->calib_path);
+  fclose(f);
+  if (vlff_config_load(r->cfg_path, &r->cfg, err, errlen)) return vlff_sim_destroy(s), -1;
+  const struct vlff_prompt_set *set = &r->cfg.prompts.sets[r->cfg.prompts.active];
+  float *emb = calloc((size_t)set->count * D, sizeof(float));
+  const char *names[VLFF_MAX_PROMPTS];
+  if (!emb) return vlff_sim_destroy(s), fail(err, errlen, "out of memory");
+  for (int k = 0; k < set->count; k++) {
+    names[k] = set->text[k];
+    vlff_sim_text_embedding(s, set->text[k], emb + (size_t)k * D);
+  }
+  int rc = vlff_embeddings_save(emb_path, D, set->count, names, emb, err, errlen);
+  free(emb);
+  if (!rc) rc = vlff_sim_points(s, RIG_FRAMES, 5, 0.05, &r->gt, err, errlen);
+  vlff_sim_destroy(s);
+  return rc;
+}
+
+/* A child with stdout and stderr into out, killed when this process dies. */
+static pid_t spawn(const char *out, char *const argv[]) {
+  pid_t parent = getpid(), pid = fork();
+  if (pid != 0) return pid;
+  prctl(PR_SET_PDEATHSIG, SIGKILL);
+  if (getppid() != parent) _exit(1);
+  int fd = open(out, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  if (fd >= 0) dup2(fd, 1), dup2(fd, 2);
+  execv(argv[0], argv);
+  _exit(127);
+}
+
+int rig_start(struct rig *r, char *err, size_t errlen) {
+  if (!r->cameras) {
+    /* The simulator source: vlff-sim writes the frame ring, poses in the
+     * records; the node renders the features itself (test_node_e2e). */
+    char *sim[] = {VLFF_SIM, "--config", r->cfg_path, "--quiet", NULL};
+    r->scenecam = spawn(r->scenecam_out, sim);
+    return r->scenecam < 0 ? fail(err, errlen, "fork failed") : 0;
+  }
+  char udp[64];
+  snprintf(udp, sizeof udp, "127.0.0.1:%d", 20000 + (int)(getpid() % 20000));
+  char *sc[] = {VLFF_SCENECAM, "--config", r->cfg_path, "--poses", udp, NULL};
+  char *pose[] = {VLFF_POSE, "--config", r->cfg_path, "--udp", udp, "--clock", "realtime", NULL};
+  char *camd[] = {VLFF_CAMD, "--config", r->cfg_path, NULL};
+  r->pose = spawn(r->pose_out, pose);
+  r->scenecam = spawn(r->scenecam_out, sc);
+  r->camd = spawn(r->camd_out, camd);
+  if (r->pose < 0 || r->scenecam < 0 || r->camd < 0) return fail(err, errlen, "fork failed");
+  return 0;
+}
+
+static void end(pid_t *pid, double *cpu_s) {
+  if (*pid <= 0) return;
+  kill(*pid, SIGTERM);
+  int st;
+  struct rusage ru;
+  for (int i = 0; i < 200; i++) {
+    if (wait4(*pid, &st, WNOHANG, &ru) == *pid) goto reaped;
+    struct timespec ts = {0, 50 * 1000 * 1000};
+    nanosleep(&ts, NULL);
+  }
+  kill(*pid, SIGKILL);
+  wait4(*pid, &st, 0, &ru);
+reaped:
+  if (cpu_s)
+    *cpu_s = (double)ru.ru_utime.tv_sec + ru.ru_utime.tv_usec * 1e-6 + (double)ru.ru_stime.tv_sec +
+             ru.ru_stime.tv_usec * 1e-6;
+  *pid = 0;
+}
+
+void rig_stop(struct rig *r) {
+  end(&r->camd, &r->camd_cpu_s);
+  end(&r->scenecam, NULL);
+  end(&r->pose, NULL);
+}
+
+static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
+  (void)st, (void)flag, (void)ftw;
+  return remove(p);
+}
+
+void rig_free(struct rig *r) {
+  rig_stop(r);
+  vlff_sim_points_free(&r->gt);
+  if (!getenv("VLFF_RIG_KEEP")) nftw(r->dir, rm_one, 16, FTW_DEPTH | FTW_PHYS);
+  const char *suffix[] = {"f", "m", "p", "q", "x"};
+  for (int i = 0; i < 5; i++) {
+    char name[96];
+    snprintf(name, sizeof name, "/%s-%s", r->tag, suffix[i]);
+    vlff_shm_unlink(name);
+  }
+}
+
+double rig_miou3d(const struct rig *r, uint64_t *version) {
+  char err[256];
+  struct vlff_map *m = vlff_map_attach(r->cfg.shm.map);
+  if (!m) return -1;
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
+  double miou = -1;
+  struct vlff_map_info info;
+  struct vlff_confusion c;
+  if (snap && vlff_map_snapshot_take(m, snap) == 0 && vlff_map_snapshot_info(snap, &info) == 0 && info.version > 0 &&
+      vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err) == 0) {
+    if (version) *version = info.version;
+    for (size_t i = 0; i < r->gt.n; i++) {
+      const float *x = r->gt.xyz + i * 3;
+      uint16_t lab = vlff_map_snapshot_label_at(snap, x[0], x[1], x[2], NULL);
+      const char *text = vlff_map_snapshot_prompt(snap, lab);
+      vlff_confusion_add_one(&c, r->gt.label[i], text ? vlff_sim_class_of(text) : -1);
+    }
+    struct vlff_summary sum;
+    vlff_confusion_summary(&c, &sum);
+    miou = sum.miou * 100;
+    vlff_confusion_free(&c);
+  }
+  vlff_map_snapshot_free(snap);
+  vlff_map_detach(m);
+  return miou;
+}
+
+long long rig_camd_stat(const struct rig *r, const char *key) {
+  FILE *f = fopen(r->camd_out, "r");
+  if (!f) return -1;
+  char line[2048], pat[64];
+  long long v = -1;
+  snprintf(pat, sizeof pat, " %s=", key);
+  while (fgets(line, sizeof line, f)) {
+    const char *p = strncmp(line, "vlff-camd:", 10) ? NULL : strstr(line, pat);
+    if (p) v = strtoll(p + strlen(pat), NULL, 10);
+  }
+  fclose(f);
+  return v;
+}

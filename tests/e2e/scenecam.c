@@ -1,0 +1,362 @@
+/*
+ * vlff-scenecam: test infrastructure for the end-to-end rig test and bench.
+ *
+ * Serves the simulator's room as a real RGB-D rig would show it, through the
+ * real stacks: two Aravis fake GigE Vision cameras on loopback (colour RGB8
+ * on one address, 16-bit range in millimetres on the other) whose images
+ * are the sim frame of the current tick, TUM trajectory lines of that frame
+ * sent over UDP (for vlff-pose), and, for every frame record vlff-camd
+ * writes into the frame ring, the sim's features of the frame it shows,
+ * published into the feature ring under that record's frame id (what an
+ * external feature extractor does).
+ *
+ * Which sim frame is shown: Aravis' fake camera exposes a frame at every
+ * multiple of its frame period on the wall clock, so both cameras, set to
+ * the same rate, fill at the same ticks; each fill renders sim frame
+ * (tick - first tick) mod sim.frames. The trajectory is held during a tick:
+ * every tick's pose is sent stamped at the tick and again late in the tick,
+ * so a frame stamped anywhere inside its tick (vlff-camd stamps arrival)
+ * finds the pose its image was rendered from. The feature publisher maps a
+ * record to its tick by the record's host stamp: the newest colour fill
+ * at or before it.
+ *
+ * Contract: runs until SIGINT/SIGTERM or --seconds; prints one summary line
+ * on stderr at the end; exit 0, 1 on a setup error (a camera that cannot be
+ * created, a config or socket error), 2 on a usage error.
+ */
+#include <arpa/inet.h>
+#include <arv.h>
+#include <errno.h>
+#include <math.h>
+#include <netinet/in.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "cli.h"
+#include "config.h"
+#include "sim.h"
+#include "transpose.h"
+#include "vlff/shm.h"
+
+static const struct vlff_cli cli = {
+    "vlff-scenecam",
+    "Usage: vlff-scenecam --config FILE [OPTIONS]\n"
+    "Serves the config's simulated room (sim.*) through two Aravis fake GigE\n"
+    "cameras, TUM pose lines over UDP and the feature ring (test infrastructure).\n"
+    "  -c, --config FILE     the config: sim.*, shm.ring, shm.feature_ring\n"
+    "      --color ADDR      address of the colour camera (RGB8; 127.0.0.1)\n"
+    "      --depth ADDR      address of the range camera (Mono16 mm; 127.0.0.2)\n"
+    "      --poses ADDR:PORT send each tick's pose as TUM lines (realtime stamps)\n"
+    "      --no-features     do not publish features\n"
+    "      --seconds S       stop after S seconds (default: at SIGINT/SIGTERM)\n"
+    "  -h, --help            this text\n"
+    "  -V, --version         the version\n"};
+
+static volatile sig_atomic_t stop;
+static void on_signal(int sig) { (void)sig, stop = 1; }
+
+#define TICKS 256 /* colour fills remembered for the feature publisher */
+
+struct scene {
+  const struct vlff_config *cfg;
+  struct vlff_sim *sim;
+  uint64_t period_us;
+  atomic_llong first_tick; /* -1 until the first fill */
+  int udp;
+  struct sockaddr_in to;
+  pthread_mutex_t lock;
+  uint64_t fill_mono[TICKS]; /* monotonic ns of colour fill i % TICKS */
+  long long fill_idx[TICKS]; /* its sim frame */
+  long long nfills;
+  atomic_llong color_fills, depth_fills, bad_buffers, poses_sent;
+};
+
+struct cam {
+  struct scene *sc;
+  int depth;
+  struct vlff_sim_frame *f;
+  ArvFakeCamera *fake;
+};
+
+static uint64_t mono_ns(void) { return vlff_shm_now_ns(); }
+
+/* The sim frame of the tick now in progress on the fake cameras' clock. */
+static long long tick_of_now(struct scene *sc, long long *tick) {
+  long long t = (long long)((uint64_t)g_get_real_time() / sc->period_us);
+  long long expected = -1;
+  atomic_compare_exchange_strong(&sc->first_tick, &expected, t);
+  *tick = t;
+  long long idx = (t - atomic_load(&sc->first_tick)) % sc->cfg->sim.frames;
+  return idx < 0 ? idx + sc->cfg->sim.frames : idx;
+}
+
+/* Rotation matrix (row-major 3x3 inside a 4x4) to a unit quaternion. */
+static void quat_of(const double m[16], double q[4]) {
+  double r00 = m[0], r01 = m[1], r02 = m[2], r10 = m[4], r11 = m[5], r12 = m[6], r20 = m[8], r21 = m[9], r22 = m[10];
+  double tr = r00 + r11 + r22, x, y, z, w;
+  if (tr > 0) {
+    double s = sqrt(tr + 1.0) * 2;
+    w = 0.25 * s, x = (r21 - r12) / s, y = (r02 - r20) / s, z = (r10 - r01) / s;
+  } else if (r00 > r11 && r00 > r22) {
+    double s = sqrt(1.0 + r00 - r11 - r22) * 2;
+    w = (r21 - r12) / s, x = 0.25 * s, y = (r01 + r10) / s, z = (r02 + r20) / s;
+  } else if (r11 > r22) {
+    double s = sqrt(1.0 + r11 - r00 - r22) * 2;
+    w = (r02 - r20) / s, x = (r01 + r10) / s, y = 0.25 * s, z = (r12 + r21) / s;
+  } else {
+    double s = sqrt(1.0 + r22 - r00 - r11) * 2;
+    w = (r10 - r01) / s, x = (r02 + r20) / s, y = (r12 + r21) / s, z = 0.25 * s;
+  }
+  double n = sqrt(x * x + y * y + z * z + w * w);
+  q[0] = x / n, q[1] = y / n, q[2] = z / n, q[3] = w / n;
+}
+
+/* The tick's pose, held through the tick: stamped at its start and late in it. */
+static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
+  if (sc->udp < 0) return;
+  double q[4], t0 = (double)tick * (double)sc->period_us * 1e-6, t1 = t0 + 0.95 * (double)sc->period_us * 1e-6;
+  quat_of(c2w, q);
+  char msg[512];
+  int len = snprintf(msg, sizeof msg, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
+                     t0, c2w[3], c2w[7], c2w[11], q[0], q[1], q[2], q[3], t1, c2w[3], c2w[7], c2w[11], q[0], q[1],
+                     q[2], q[3]);
+  if (sendto(sc->udp, msg, (size_t)len, 0, (struct sockaddr *)&sc->to, sizeof sc->to) == len)
+    atomic_fetch_add(&sc->poses_sent, 2);
+}
+
+static void fill(ArvBuffer *buffer, void *data, guint32 exposure_us, guint32 gain, ArvPixelFormat fmt) {
+  (void)exposure_us, (void)gain;
+  struct cam *c = data;
+  struct scene *sc = c->sc;
+  /* The buffer is being filled: its received size is not set yet, its
+   * allocation is the camera's payload for the current registers. */
+  uint8_t *px = (uint8_t *)arv_buffer_get_data(buffer, NULL);
+  size_t size = c->fake ? arv_fake_camera_get_payload(c->fake) : 0;
+  const int W = c->f->width, H = c->f->height;
+  const ArvPixelFormat want = c->depth ? ARV_PIXEL_FORMAT_MONO_16 : ARV_PIXEL_FORMAT_RGB_8_PACKED;
+  const size_t need = (size_t)W * H * (c->depth ? 2 : 3);
+  if (!px || fmt != want || size != need) {
+    /* A camera set to another format or size: left as the fake made it. */
+    if (atomic_fetch_add(&sc->bad_buffers, 1) == 0)
+      fprintf(stderr, "vlff-scenecam: %s camera: %zu bytes of format 0x%08x, expected %zu of 0x%08x (%dx%d)\n",
+              c->depth ? "range" : "colour", size, (unsigned)fmt, need, (unsigned)want, W, H);
+    return;
+  }
+  long long tick, idx = tick_of_now(sc, &tick);
+  char err[256];
+  if (vlff_sim_render(sc->sim, idx, VLFF_SIM_RGBD, c->f, err, sizeof err)) {
+    fprintf(stderr, "vlff-scenecam: frame %lld: %s\n", idx, err);
+    atomic_fetch_add(&sc->bad_buffers, 1);
+    return;
+  }
+  if (c->depth) {
+    memcpy(px, c->f->depth_mm, need);
+    atomic_fetch_add(&sc->depth_fills, 1);
+    return;
+  }
+  memcpy(px, c->f->rgb, need);
+  pthread_mutex_lock(&sc->lock);
+  sc->fill_mono[sc->nfills % TICKS] = mono_ns();
+  sc->fill_idx[sc->nfills % TICKS] = idx;
+  sc->nfills++;
+  pthread_mutex_unlock(&sc->lock);
+  send_pose(sc, tick, c->f->c2w);
+  atomic_fetch_add(&sc->color_fills, 1);
+}
+
+/* The sim frame the colour camera showed for a record stamped t (its
+ * arrival): the newest fill at or before t; -1 when none is remembered. */
+static long long frame_at(struct scene *sc, uint64_t t) {
+  long long idx = -1;
+  pthread_mutex_lock(&sc->lock);
+  for (long long i = sc->nfills - 1; i >= 0 && i >= sc->nfills - TICKS; i--)
+    if (sc->fill_mono[i % TICKS] <= t) {
+      idx = sc->fill_idx[i % TICKS];
+      break;
+    }
+  pthread_mutex_unlock(&sc->lock);
+  return idx;
+}
+
+static ArvGvFakeCamera *camera_new(const char *addr, const char *serial, struct cam *c) {
+  ArvGvFakeCamera *g = arv_gv_fake_camera_new(addr, serial);
+  if (!g) return NULL;
+  for (int i = 0; i < 100 && !arv_gv_fake_camera_is_running(g); i++) g_usleep(10000);
+  if (!arv_gv_fake_camera_is_running(g)) {
+    g_object_unref(g);
+    return NULL;
+  }
+  c->fake = arv_gv_fake_camera_get_fake_camera(g);
+  arv_fake_camera_set_fill_pattern(c->fake, fill, c);
+  return g;
+}
+
+/* Features for every record of the frame ring, until stopped. */
+static int publish_features(struct scene *sc, long long *published, long long *unknown) {
+  const struct vlff_config *cfg = sc->cfg;
+  int W, H, fw, fh, D;
+  vlff_sim_size(sc->sim, &W, &H, &fw, &fh, &D);
+  struct vlff_ring_params fp = {VLFF_RECORD_FEATURE, (uint32_t)cfg->shm.ring_slots,
+                                vlff_feature_slot_size((uint32_t)D, (uint32_t)fh, (uint32_t)fw),
+                                {(mode_t)cfg->shm.mode, cfg->shm.group}};
+  struct vlff_ring *fring = vlff_ring_create(cfg->shm.feature_ring, &fp);
+  if (!fring) {
+    fprintf(stderr, "vlff-scenecam: feature ring %s: %s\n", cfg->shm.feature_ring, vlff_shm_last_message());
+    return 1;
+  }
+  struct vlff_sim_frame *f = vlff_sim_frame_new(sc->sim);
+  struct vlff_ring *ring = NULL;
+  void *buf = NULL;
+  size_t cap = 0;
+  int status = 0;
+  while (!stop && f) {
+    if (!ring) {
+      ring = vlff_ring_attach(cfg->shm.ring, VLFF_RECORD_FRAME);
+      if (!ring) {
+        g_usleep(20000);
+        continue;
+      }
+      cap = vlff_ring_slot_size(ring);
+      buf = malloc(cap);
+      if (!buf) break;
+    }
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(ring, buf, cap, &v, 200ull * 1000 * 1000);
+    if (len < 0) continue; /* timeout, or overrun (the cursor moved on) */
+    if (vlff_frame_validate(buf, (size_t)len)) continue;
+    const struct vlff_frame_hdr *h = buf;
+    long long idx = frame_at(sc, h->t_host_ns);
+    if (idx < 0) {
+      (*unknown)++;
+      continue;
+    }
+    char err[256];
+    if (vlff_sim_render(sc->sim, idx, VLFF_SIM_FEATURES, f, err, sizeof err)) {
+      fprintf(stderr, "vlff-scenecam: features of frame %lld: %s\n", idx, err);
+      status = 1;
+      break;
+    }
+    struct vlff_feature_hdr *fhd = vlff_ring_reserve(fring, NULL);
+    uint64_t flen = vlff_feature_layout(fhd, vlff_ring_slot_size(fring), (uint32_t)D, (uint32_t)fh, (uint32_t)fw);
+    if (!flen) {
+      fprintf(stderr, "vlff-scenecam: features do not fit the ring slot\n");
+      status = 1;
+      break;
+    }
+    fhd->frame_id = h->frame_id, fhd->t_host_ns = h->t_host_ns, fhd->sensor_id = h->sensor_id;
+    vlff_transpose_u16(f->features, (size_t)fw * fh, (size_t)D, (uint16_t *)((uint8_t *)fhd + fhd->data_offset));
+    if (vlff_ring_commit(fring, flen) < 0) {
+      fprintf(stderr, "vlff-scenecam: feature commit: %s\n", strerror(errno));
+      status = 1;
+      break;
+    }
+    (*published)++;
+  }
+  free(buf);
+  vlff_sim_frame_free(f);
+  vlff_ring_close(ring);
+  vlff_ring_close(fring);
+  return status;
+}
+
+static int parse_addr(const char *s, struct sockaddr_in *a) {
+  char host[64];
+  const char *colon = strrchr(s, ':');
+  if (!colon || colon == s || (size_t)(colon - s) >= sizeof host) return -1;
+  memcpy(host, s, (size_t)(colon - s));
+  host[colon - s] = 0;
+  char *end;
+  long port = strtol(colon + 1, &end, 10);
+  if (*end || port < 1 || port > 65535) return -1;
+  memset(a, 0, sizeof *a);
+  a->sin_family = AF_INET;
+  a->sin_port = htons((uint16_t)port);
+  return inet_pton(AF_INET, host, &a->sin_addr) == 1 ? 0 : -1;
+}
+
+int main(int argc, char **argv) {
+  const char *config = NULL, *color = "127.0.0.1", *depth = "127.0.0.2", *poses = NULL;
+  double seconds = 0;
+  int features = 1;
+  enum { O_COLOR = 256, O_DEPTH, O_POSES, O_NOFEAT, O_SECONDS };
+  static const struct option longopts[] = {
+      {"config", required_argument, NULL, 'c'},  {"color", required_argument, NULL, O_COLOR},
+      {"depth", required_argument, NULL, O_DEPTH}, {"poses", required_argument, NULL, O_POSES},
+      {"no-features", no_argument, NULL, O_NOFEAT}, {"seconds", required_argument, NULL, O_SECONDS},
+      VLFF_CLI_COMMON_OPTIONS,
+  };
+  int c, status;
+  char *end;
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:", longopts, &status)) != -1) {
+    switch (c) {
+    case VLFF_CLI_EXIT: return status;
+    case 'c': config = optarg; break;
+    case O_COLOR: color = optarg; break;
+    case O_DEPTH: depth = optarg; break;
+    case O_POSES: poses = optarg; break;
+    case O_NOFEAT: features = 0; break;
+    case O_SECONDS:
+      seconds = strtod(optarg, &end);
+      if (*end || !(seconds > 0 && seconds < 1e6))
+        return vlff_cli_usage_error(&cli, "--seconds: expected a number in (0, 1e6), got '%s'", optarg);
+      break;
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
+    }
+  }
+  if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
+  if (!config) return vlff_cli_usage_error(&cli, "no --config given");
+  struct vlff_config cfg;
+  char err[1024];
+  if (vlff_config_load(config, &cfg, err, sizeof err) < 0) {
+    fprintf(stderr, "%s\n", err);
+    return 1;
+  }
+  struct scene sc = {.cfg = &cfg, .udp = -1, .lock = PTHREAD_MUTEX_INITIALIZER};
+  atomic_init(&sc.first_tick, -1);
+  sc.period_us = (uint64_t)llround(1e6 / cfg.sim.rate_hz);
+  if (poses) {
+    if (parse_addr(poses, &sc.to)) return vlff_cli_usage_error(&cli, "--poses: expected IPv4:PORT, got '%s'", poses);
+    sc.udp = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+    if (sc.udp < 0) return vlff_cli_error(&cli, "socket: %s", strerror(errno));
+  }
+  sc.sim = vlff_sim_create(&cfg, err, sizeof err);
+  if (!sc.sim) return vlff_cli_error(&cli, "%s", err);
+  struct cam cc = {&sc, 0, vlff_sim_frame_new(sc.sim), NULL}, cd = {&sc, 1, vlff_sim_frame_new(sc.sim), NULL};
+  ArvGvFakeCamera *gc = cc.f && cd.f ? camera_new(color, "SCENE-RGB", &cc) : NULL;
+  ArvGvFakeCamera *gd = gc ? camera_new(depth, "SCENE-DEPTH", &cd) : NULL;
+  int rc = 0;
+  if (!gc || !gd) {
+    rc = vlff_cli_error(&cli, "cannot start the fake GigE camera on %s", gc ? depth : color);
+  } else {
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    if (seconds > 0) alarm((unsigned)ceil(seconds)), sigaction(SIGALRM, &sa, NULL);
+    long long published = 0, unknown = 0;
+    if (features)
+      rc = publish_features(&sc, &published, &unknown);
+    else
+      while (!stop) g_usleep(50000);
+    fprintf(stderr,
+            "vlff-scenecam: %lld colour fills, %lld range fills, %lld wrong buffers, %lld poses sent, "
+            "%lld feature records, %lld records of no known fill\n",
+            (long long)atomic_load(&sc.color_fills), (long long)atomic_load(&sc.depth_fills),
+            (long long)atomic_load(&sc.bad_buffers), (long long)atomic_load(&sc.poses_sent), published, unknown);
+  }
+  if (gd) g_object_unref(gd);
+  if (gc) g_object_unref(gc);
+  vlff_sim_frame_free(cc.f);
+  vlff_sim_frame_free(cd.f);
+  vlff_sim_destroy(sc.sim);
+  if (sc.udp >= 0) close(sc.udp);
+  return rc;
+}
