@@ -5,7 +5,11 @@
  * reader copies the current buffer between two reads of its sequence word and retries
  * if it moved, so it never takes a lock and the writer never waits: a reader only
  * loses a race when it is slower than a whole publish period. Partial updates copy
- * the untouched parts from the current buffer, which only the writer ever writes. */
+ * the untouched parts from the current buffer, which only the writer ever writes.
+ *
+ * The writer's status lives in the first page, between the control words and the
+ * buffers, in one block under its own sequence word: it is small and replaced whole,
+ * so a reader that finds the word odd or moved simply copies it again. */
 #include "shm_internal.h"
 
 #include <errno.h>
@@ -39,6 +43,18 @@ struct map_ctl {
   uint32_t pad;
   _Atomic uint64_t version;
 };
+
+#define STATUS_OFFSET 1024u
+
+struct status_block {
+  _Atomic uint64_t seq;
+  uint8_t pad[56];
+  struct vlff_map_status st;
+};
+_Static_assert(sizeof(struct vlff_map_status) == 664, "struct vlff_map_status is the segment's layout");
+_Static_assert(STATUS_OFFSET >= sizeof(struct seg_hdr) + sizeof(struct map_ctl) &&
+                   STATUS_OFFSET + sizeof(struct status_block) <= MAP_BUF_OFFSET,
+               "the status block lies between the control words and the buffers");
 
 struct vlff_map {
   struct seg seg;
@@ -569,4 +585,97 @@ API const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *s, uint
   if (!s || label >= s->meta.prompt_count)
     return NULL;
   return s->meta.prompts[label];
+}
+
+/* ------------------------------------------------------- the writer's status */
+
+static struct status_block *status_block(const struct vlff_map *m) {
+  return (struct status_block *)(m->seg.base + STATUS_OFFSET);
+}
+
+static bool text_fits(const char *s, size_t cap) { return memchr(s, 0, cap) != NULL; }
+
+API int vlff_map_set_status(struct vlff_map *m, const struct vlff_map_status *st) {
+  if (!m || !m->writer || !st) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_set_status: not a writer handle or no status");
+    return -1;
+  }
+  if (m->broken) {
+    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: could not be replaced after a truncation; create it again", m->seg.name);
+    return -1;
+  }
+  if (st->reason_count > VLFF_SHM_MAX_REASONS) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: %u reasons, at most %d", m->seg.name, st->reason_count,
+            VLFF_SHM_MAX_REASONS);
+    return -1;
+  }
+  if (!text_fits(st->state_name, sizeof st->state_name)) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: state name longer than %d bytes", m->seg.name,
+            VLFF_SHM_STATE_LEN - 1);
+    return -1;
+  }
+  for (uint32_t i = 0; i < st->reason_count; i++)
+    if (!text_fits(st->reason[i].name, sizeof st->reason[i].name) || !st->reason[i].name[0]) {
+      shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: reason %u is unnamed or its name is longer than %d bytes",
+              m->seg.name, i, VLFF_SHM_REASON_LEN - 1);
+      return -1;
+    }
+  if (shm_seg_check(&m->seg, true) < 0)
+    return writer_replace(m, "; this status was not set");
+  struct status_block *b = status_block(m);
+  struct vlff_map_status out;
+  memcpy(&out, st, sizeof out);
+  /* Unused entries and string tails are zeroed: readers see nothing stale. */
+  memset(&out.reason[out.reason_count], 0, (VLFF_SHM_MAX_REASONS - out.reason_count) * sizeof out.reason[0]);
+  out.pad = 0;
+  uint64_t prev;
+  shm_racy_copy(&prev, &b->st.updates, sizeof prev);
+  out.updates = prev + 1;
+  out.t_ns = shm_now();
+  /* A writer that died mid-write left the word odd; continue from there. */
+  uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
+  atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
+  atomic_thread_fence(memory_order_release);
+  shm_racy_copy(&b->st, &out, sizeof out);
+  atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
+  if (shm_seg_check(&m->seg, false) < 0)
+    return writer_replace(m, "; this status was not set");
+  return 0;
+}
+
+API int vlff_map_get_status(struct vlff_map *m, struct vlff_map_status *out) {
+  if (!m || !out) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_get_status: NULL argument");
+    return -1;
+  }
+  struct status_block *b = status_block(m);
+  for (int i = 0; i < READ_RETRIES; i++) {
+    if (abandoned(m))
+      return -1;
+    uint64_t s1 = atomic_load_explicit(&b->seq, memory_order_acquire);
+    if (s1 & 1)
+      continue;
+    shm_racy_copy(out, &b->st, sizeof *out);
+    atomic_thread_fence(memory_order_acquire);
+    if (abandoned(m))
+      return -1;
+    if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)
+      continue;
+    if (s1 == 0 || out->t_ns == 0) {
+      memset(out, 0, sizeof *out);
+      shm_err(VLFF_SHM_OK, ENOENT, "%s: the writer has set no status yet", m->seg.name);
+      return -1;
+    }
+    if (out->reason_count > VLFF_SHM_MAX_REASONS) {
+      shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: status block holds %u reasons, at most %d", m->seg.name,
+              out->reason_count, VLFF_SHM_MAX_REASONS);
+      return -1;
+    }
+    out->state_name[VLFF_SHM_STATE_LEN - 1] = 0;
+    for (uint32_t r = 0; r < VLFF_SHM_MAX_REASONS; r++)
+      out->reason[r].name[VLFF_SHM_REASON_LEN - 1] = 0;
+    return 0;
+  }
+  shm_err(VLFF_SHM_OK, EAGAIN, "%s: writer kept overwriting its status for %d reads", m->seg.name, READ_RETRIES);
+  return -1;
 }

@@ -694,7 +694,13 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
   if (ig->join && !*feats)
     *feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
   if (ig->join) {
-    if (*feats) vlff_feature_join_pump(ig->join, *feats);
+    /* A producer that replaced its ring (restarted with another geometry, or
+     * after the file was truncated) is followed on the next pass. */
+    if (*feats && vlff_feature_join_pump(ig->join, *feats) < 0 && errno == EPIPE) {
+      VLFF_WARN(TAG, "feature ring: %s; attaching again", vlff_shm_last_message());
+      vlff_ring_close(*feats);
+      *feats = NULL;
+    }
     uint64_t fid;
     int fh, fw, ev;
     while ((ev = vlff_feature_join_poll(ig->join, vlff_shm_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {
@@ -1167,6 +1173,52 @@ static void update_state(struct vlff_node *n) {
   pthread_mutex_unlock(&n->slock);
 }
 
+static const char *state_name(int state) {
+  switch (state) {
+  case VLFF_NODE_BOOT: return "boot";
+  case VLFF_NODE_PREOP: return "preoperational";
+  case VLFF_NODE_OPERATIONAL: return "operational";
+  case VLFF_NODE_STOPPED: return "stopped";
+  case VLFF_NODE_ERROR: return "error";
+  default: return "unknown";
+  }
+}
+
+/* The status, as --status and CAN have it, into the map segment for any
+ * controller (vlff-shm stat, vlff-view). Every reason is listed, counted or
+ * not, with its name, so that readers learn the list from the segment. */
+static void share_status(struct vlff_node *n) {
+  _Static_assert(VLFF_REFUSED_COUNT - 1 <= VLFF_SHM_MAX_REASONS, "every refusal reason fits the map's status");
+  struct vlff_node_status st;
+  vlff_node_status(n, &st);
+  struct vlff_map_status ms = {
+      .state = st.state,
+      .error_flags = st.error_flags,
+      .frames_in = (uint64_t)st.frames_in,
+      .frames_lost = (uint64_t)st.frames_lost,
+      .frames_refused = (uint64_t)st.frames_invalid,
+      .keyframes = (uint64_t)st.keyframes,
+      .keyframes_evicted = (uint64_t)st.keyframes_evicted,
+      .iterations = (uint64_t)st.iteration,
+      .iterations_per_s = st.it_per_s,
+      .fps_in = st.fps_in,
+      .loss = st.loss,
+      .loss_rgb = st.loss_rgb,
+      .loss_depth = st.loss_depth,
+      .loss_feat = st.loss_feat,
+      .psnr = st.psnr,
+  };
+  snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st.state));
+  for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
+    struct vlff_map_reason *e = &ms.reason[ms.reason_count++];
+    snprintf(e->name, sizeof e->name, "%s", vlff_refusal_name(r));
+    e->count = (uint64_t)st.refused[r];
+  }
+  char err[320];
+  /* A map truncated under the node is replaced by the library; say so. */
+  if (vlff_publisher_set_status(n->pub, &ms, err, sizeof err)) VLFF_ERROR(TAG, "map status: %s", err);
+}
+
 /* The young-field schedules, both keyed on the field's step count. */
 static void apply_warmup(struct vlff_node *n) {
   /* A young field learns faster from more, cheaper steps: a quarter
@@ -1200,6 +1252,7 @@ static void *trainer_main(void *arg) {
   uint64_t mailbox_seq = 0;
   double rate_t0 = vlff_seconds();
   long long rate_steps = 0;
+  double status_s = -INFINITY;
   /* A resumed map is published before it trains on anything new, so
    * controllers have it back at once. */
   bool first = n->resumed;
@@ -1243,8 +1296,10 @@ static void *trainer_main(void *arg) {
     }
     /* An untrained field has nothing to say: readers see version 0 until
      * the first step, and the heartbeat says the writer is alive. */
+    bool published = false;
     if ((publish_now || now >= next_publish) && vlff_field_steps(n->field) > 0) {
       do_publish(n);
+      published = true;
       /* publish.rate_hz is an upper bound: publishing never takes more than
        * a fifth of the trainer's time, or learning would stall behind it. */
       double spent = vlff_seconds() - now;
@@ -1257,11 +1312,17 @@ static void *trainer_main(void *arg) {
       next_ckpt = now + cfg->node.checkpoint_period_s;
     }
     update_state(n);
+    /* Controllers see the status as often as the heartbeat says "alive". */
+    if (published || now - status_s >= 0.1) {
+      share_status(n);
+      status_s = now;
+    }
     if (cfg->node.run_seconds > 0 && now - n->t_start >= cfg->node.run_seconds) {
       atomic_store(&n->finished, true);
       break;
     }
   }
+  share_status(n); /* the counts the node stopped with */
   return NULL;
 }
 

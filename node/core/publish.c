@@ -524,6 +524,12 @@ void vlff_publisher_heartbeat(struct vlff_publisher *p) {
   if (vlff_map_heartbeat(p->map)) VLFF_ERROR(TAG, "map heartbeat: %s", vlff_shm_last_message());
 }
 
+int vlff_publisher_set_status(struct vlff_publisher *p, const struct vlff_map_status *st, char *err, size_t errlen) {
+  if (vlff_map_set_status(p->map, st) == 0) return 0;
+  snprintf(err, errlen, "%s", vlff_shm_last_message());
+  return -1;
+}
+
 double vlff_publisher_age_s(const struct vlff_publisher *p) {
   return p->last_publish_s < 0 ? -1 : vlff_seconds() - p->last_publish_s;
 }

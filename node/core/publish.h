@@ -28,6 +28,7 @@
 #include "config.h"
 #include "field.h"
 #include "sim.h"
+#include "vlff/shm.h"
 
 struct vlff_publisher;
 
@@ -78,6 +79,9 @@ int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, cons
                             const char *dir, char *err, size_t errlen);
 /* Tell readers the writer is alive (rate-limited to 10 Hz). */
 void vlff_publisher_heartbeat(struct vlff_publisher *p);
+/* Replaces the node's status in the map segment (vlff_map_set_status), for
+ * controllers. 0, or -1 with the library's message in err. */
+int vlff_publisher_set_status(struct vlff_publisher *p, const struct vlff_map_status *st, char *err, size_t errlen);
 /* Seconds since the last publish, -1 before the first. */
 double vlff_publisher_age_s(const struct vlff_publisher *p);
 

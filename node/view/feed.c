@@ -621,6 +621,49 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
 
 /* ------------------------------------------------------------------ status */
 
+/* A number as JSON, printed as vlff-shm stat prints it; null when not finite. */
+static void jw_num(struct jw *w, const char *fmt, double v) {
+  if (isfinite(v)) jw_f(w, fmt, v);
+  else jw_s(w, "null");
+}
+
+/* The learner's own status from the map segment (vlff_map_get_status); null
+ * before its writer set one (or for a segment without a writer yet). */
+static void write_learner(struct jw *w, struct vlff_map *map) {
+  struct vlff_map_status st;
+  if (!map || vlff_map_get_status(map, &st) < 0) {
+    jw_s(w, "null");
+    return;
+  }
+  uint64_t now = vlff_shm_now_ns();
+  jw_s(w, "{\"state\":");
+  jw_str(w, st.state_name);
+  jw_f(w, ",\"state_code\":%d,\"error_flags\":%u,\"age_s\":%.3f,\"updates\":%llu,\"frames_in\":%llu,"
+          "\"frames_lost\":%llu,\"frames_refused\":%llu,\"refused\":[",
+       (int)st.state, (unsigned)st.error_flags, now > st.t_ns ? (double)(now - st.t_ns) / 1e9 : 0.0,
+       (unsigned long long)st.updates, (unsigned long long)st.frames_in, (unsigned long long)st.frames_lost,
+       (unsigned long long)st.frames_refused);
+  for (uint32_t i = 0; i < st.reason_count; i++) {
+    jw_s(w, i ? ",{\"reason\":" : "{\"reason\":");
+    jw_str(w, st.reason[i].name);
+    jw_f(w, ",\"count\":%llu}", (unsigned long long)st.reason[i].count);
+  }
+  jw_f(w, "],\"keyframes\":%llu,\"keyframes_evicted\":%llu,\"iterations\":%llu,\"iterations_per_s\":",
+       (unsigned long long)st.keyframes, (unsigned long long)st.keyframes_evicted, (unsigned long long)st.iterations);
+  jw_num(w, "%.3f", st.iterations_per_s);
+  jw_s(w, ",\"fps_in\":");
+  jw_num(w, "%.3f", st.fps_in);
+  const char *keys[4] = {"loss", "loss_rgb", "loss_depth", "loss_feat"};
+  const double vals[4] = {st.loss, st.loss_rgb, st.loss_depth, st.loss_feat};
+  for (int i = 0; i < 4; i++) {
+    jw_f(w, ",\"%s\":", keys[i]);
+    jw_num(w, "%.6g", vals[i]);
+  }
+  jw_s(w, ",\"psnr\":");
+  jw_num(w, "%.3f", st.psnr);
+  jw_s(w, "}");
+}
+
 static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_view_counters *c) {
   struct feed_map *m = &f->m;
   uint64_t t = real_now_ns();
@@ -645,7 +688,9 @@ static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_v
   jw_f(&w, "\"occupied\":%llu,\"free\":%llu,\"unknown\":%llu,\"label_counts\":[", (unsigned long long)m->occupied,
        (unsigned long long)m->free_, (unsigned long long)m->unknown);
   for (int i = 0; i < m->prompt_count; i++) jw_f(&w, "%s%llu", i ? "," : "", (unsigned long long)m->label_counts[i]);
-  jw_s(&w, "]},\"frames\":{\"segment\":");
+  jw_s(&w, "]},\"learner\":");
+  write_learner(&w, m->map);
+  jw_s(&w, ",\"frames\":{\"segment\":");
   jw_str(&w, f->p.frames_name ? f->p.frames_name : "");
   jw_f(&w, ",\"attached\":%s,\"head\":%llu,\"generation\":%u,\"fps\":%.2f},", f->ring ? "true" : "false",
        (unsigned long long)(f->ring ? vlff_ring_head(f->ring) : 0), f->ring ? vlff_ring_generation(f->ring) : 0,

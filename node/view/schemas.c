@@ -61,20 +61,31 @@ static const char tf_schema[] =
     "\"required\":[\"timestamp\",\"parent_frame_id\",\"child_frame_id\",\"translation\",\"rotation\"]}";
 
 static const char status_schema[] =
-    "{\"title\":\"vlff.Status\",\"description\":\"What the map segment, the frame ring and the viewer "
-    "report.\",\"type\":\"object\",\"properties\":{"
+    "{\"title\":\"vlff.Status\",\"description\":\"What the map segment, its writer, the frame ring and the "
+    "viewer report.\",\"type\":\"object\",\"properties\":{"
     "\"map\":{\"type\":\"object\",\"properties\":{\"segment\":{\"type\":\"string\"},\"attached\":{\"type\":\"boolean\"},"
     "\"version\":{\"type\":\"integer\"},\"generation\":{\"type\":\"integer\"},\"age_s\":{\"type\":[\"number\",\"null\"]},"
     "\"writer_alive\":{\"type\":\"boolean\"},\"prompts\":{\"type\":\"array\",\"items\":{\"type\":\"string\"}},"
     "\"dims\":{\"type\":\"array\"},\"voxel_size\":{\"type\":\"number\"},\"origin\":{\"type\":\"array\"},"
     "\"occupied\":{\"type\":\"integer\"},\"free\":{\"type\":\"integer\"},\"unknown\":{\"type\":\"integer\"},"
     "\"label_counts\":{\"type\":\"array\",\"items\":{\"type\":\"integer\"}}},\"required\":[\"segment\",\"attached\",\"version\"]},"
+    "\"learner\":{\"type\":[\"object\",\"null\"],\"description\":\"the map writer's own status (vlff_map_get_status), "
+    "null before it set one\",\"properties\":{\"state\":{\"type\":\"string\"},\"state_code\":{\"type\":\"integer\"},"
+    "\"error_flags\":{\"type\":\"integer\"},\"age_s\":{\"type\":\"number\"},\"updates\":{\"type\":\"integer\"},"
+    "\"frames_in\":{\"type\":\"integer\"},\"frames_lost\":{\"type\":\"integer\"},"
+    "\"frames_refused\":{\"type\":\"integer\"},\"refused\":{\"type\":\"array\",\"items\":{\"type\":\"object\","
+    "\"properties\":{\"reason\":{\"type\":\"string\"},\"count\":{\"type\":\"integer\"}}}},"
+    "\"keyframes\":{\"type\":\"integer\"},\"keyframes_evicted\":{\"type\":\"integer\"},"
+    "\"iterations\":{\"type\":\"integer\"},\"iterations_per_s\":{\"type\":[\"number\",\"null\"]},"
+    "\"fps_in\":{\"type\":[\"number\",\"null\"]},\"loss\":{\"type\":[\"number\",\"null\"]},"
+    "\"loss_rgb\":{\"type\":[\"number\",\"null\"]},\"loss_depth\":{\"type\":[\"number\",\"null\"]},"
+    "\"loss_feat\":{\"type\":[\"number\",\"null\"]},\"psnr\":{\"type\":[\"number\",\"null\"]}}},"
     "\"frames\":{\"type\":\"object\",\"properties\":{\"segment\":{\"type\":\"string\"},\"attached\":{\"type\":\"boolean\"},"
     "\"head\":{\"type\":\"integer\"},\"generation\":{\"type\":\"integer\"},\"fps\":{\"type\":\"number\"}}},"
     "\"viewer\":{\"type\":\"object\",\"properties\":{\"clients\":{\"type\":\"integer\"},\"connections\":{\"type\":\"integer\"},"
     "\"dropped_slow\":{\"type\":\"integer\"},\"refused\":{\"type\":\"integer\"},\"bad_requests\":{\"type\":\"integer\"},"
     "\"prompts_posted\":{\"type\":\"integer\"},\"messages_sent\":{\"type\":\"integer\"},\"bytes_sent\":{\"type\":\"integer\"}}}},"
-    "\"required\":[\"map\",\"frames\",\"viewer\"]}";
+    "\"required\":[\"map\",\"learner\",\"frames\",\"viewer\"]}";
 
 static const struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
     {"/map", "foxglove.SceneUpdate", scene_schema},

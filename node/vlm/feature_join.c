@@ -158,6 +158,7 @@ int vlff_feature_join_pump(struct vlff_feature_join *j, struct vlff_ring *ring) 
         j->st.bad_records++;
         continue;
       }
+      if (errno == EPIPE) return -1;
       return accepted;
     }
     if (vlff_feature_join_add_record(j, j->record, (size_t)n, NULL, 0) == 0) accepted++;

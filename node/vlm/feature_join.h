@@ -47,7 +47,9 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
                                  size_t errlen);
 
 /* Read every record waiting in the feature ring (never blocks). Returns the
- * number accepted; bad records are counted and skipped. */
+ * number accepted; bad records are counted and skipped. -1 with EPIPE when
+ * the ring was replaced or truncated under the handle (what it held before is
+ * taken): close it and attach again. */
 int vlff_feature_join_pump(struct vlff_feature_join *j, struct vlff_ring *ring);
 
 enum vlff_join_result { VLFF_JOIN_NONE = 0, VLFF_JOIN_READY = 1, VLFF_JOIN_EXPIRED = 2 };

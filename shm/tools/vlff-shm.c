@@ -99,6 +99,32 @@ static int cmd_list(void) {
   return 0;
 }
 
+/* The writer's status block, one "key value" line each; a refusal reason's line
+ * gives its count before its name, which may hold spaces. */
+static int print_status(struct vlff_map *m, const char *name) {
+  struct vlff_map_status st;
+  if (vlff_map_get_status(m, &st) < 0) {
+    if (errno == ENOENT) {
+      printf("status none\n");
+      return 0;
+    }
+    return fail(name);
+  }
+  printf("status_age ");
+  print_age(st.t_ns);
+  printf("\nstatus_updates %" PRIu64 "\nstate %s\nstate_code %" PRId32 "\nerror_flags 0x%" PRIx32 "\n"
+         "frames_in %" PRIu64 "\nframes_lost %" PRIu64 "\nframes_refused %" PRIu64 "\n",
+         st.updates, st.state_name, st.state, st.error_flags, st.frames_in, st.frames_lost, st.frames_refused);
+  for (uint32_t i = 0; i < st.reason_count; i++)
+    printf("refused %" PRIu64 " %s\n", st.reason[i].count, st.reason[i].name);
+  printf("keyframes %" PRIu64 "\nkeyframes_evicted %" PRIu64 "\niterations %" PRIu64 "\n"
+         "iterations_per_s %.3f\nfps_in %.3f\nloss %.6g\nloss_rgb %.6g\nloss_depth %.6g\nloss_feat %.6g\n"
+         "psnr %.3f\n",
+         st.keyframes, st.keyframes_evicted, st.iterations, st.iterations_per_s, st.fps_in, st.loss, st.loss_rgb,
+         st.loss_depth, st.loss_feat, st.psnr);
+  return 0;
+}
+
 static int cmd_stat(const char *name) {
   struct vlff_shm_info in;
   if (vlff_shm_stat(name, &in) < 0)
@@ -136,8 +162,10 @@ static int cmd_stat(const char *name) {
     if (mi.has_label_image)
       printf("label_image %" PRIu32 "x%" PRIu32 "\n", mi.label_image.width, mi.label_image.height);
     printf("writer_alive %s\n", vlff_map_writer_alive(m, 2000000000ull) ? "yes" : "no");
+    int rc = print_status(m, name);
     vlff_map_snapshot_free(s);
     vlff_map_detach(m);
+    return rc;
   }
   return 0;
 }

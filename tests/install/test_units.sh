@@ -24,9 +24,9 @@ printf '[Service]\nType=oneshot\nExecStart=/bin/true\n' >"$tmp/probe.service"
 if ! systemd-analyze verify "$tmp/probe.service" >"$tmp/probe.log" 2>&1; then
   echo "SKIP: systemd-analyze verify cannot run here:"; cat "$tmp/probe.log"; exit 77
 fi
-for u in vlff-node vlff-camd vlff-pose; do
-  if [[ $u == vlff-pose && ! -x "$tmp/p/bin/vlff-pose" ]]; then
-    echo "note: vlff-pose is not built in this tree; its unit is checked without its binary"
+for u in vlff-node vlff-camd vlff-pose vlff-view; do
+  if [[ ($u == vlff-pose || $u == vlff-view) && ! -x "$tmp/p/bin/$u" ]]; then
+    echo "note: $u is not built in this tree; its unit is checked without its binary"
     sed "s|^ExecStart=[^ ]*|ExecStart=/bin/true|" "$units/$u.service" >"$tmp/$u.service"
     check "$u.service verifies" 'quiet_verify "$tmp/$u.service"'
     continue
@@ -34,6 +34,10 @@ for u in vlff-node vlff-camd vlff-pose; do
   check "$u.service verifies" 'quiet_verify "$units/$u.service"'
   check "$u.service runs as vlff" 'grep -qx "User=vlff" "$units/$u.service" && grep -qx "Group=vlff" "$units/$u.service"'
 done
+check "vlff-view.service listens on loopback only (no --listen without a drop-in)" \
+  '! grep -q "^ExecStart=.*--listen" "$units/vlff-view.service"'
+check "vlff-view.service comes after the node and wants it" \
+  'grep -qx "Wants=vlff-node.service" "$units/vlff-view.service" && grep -qx "After=vlff-node.service" "$units/vlff-view.service"'
 check "vlff-node.service is Type=notify with a watchdog" \
   'grep -qx "Type=notify" "$units/vlff-node.service" && grep -q "^WatchdogSec=" "$units/vlff-node.service"'
 check "vlff-node.service has its StateDirectory" 'grep -qx "StateDirectory=vlff" "$units/vlff-node.service"'

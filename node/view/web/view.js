@@ -132,6 +132,25 @@ function onStatus(d) {
   set('s-frames', d.frames.attached ? d.frames.head : '-');
   set('s-fps', d.frames.fps.toFixed(1));
   set('s-clients', d.viewer.clients);
+  onLearner(d.learner);
+}
+// The learner's own numbers, as the map segment carries them (null before the
+// learner set any); shown as received, so they read as vlff-shm stat prints them.
+function onLearner(l) {
+  const set = (id, v) => { $(id).textContent = v === null || v === undefined ? '-' : String(v); };
+  document.body.dataset.learnerUpdates = l ? l.updates : '';
+  for (const k of ['frames_in', 'frames_lost', 'frames_refused', 'keyframes', 'iterations', 'iterations_per_s',
+    'loss', 'psnr']) set(`l-${k}`, l && l[k]);
+  set('l-state', l && l.state);
+  set('l-terms', l && [l.loss_rgb, l.loss_depth, l.loss_feat].map((v) => (v === null ? '-' : v)).join(' | '));
+  const ul = $('refusals');
+  ul.replaceChildren();
+  for (const r of l ? l.refused : []) {
+    if (!r.count) continue;
+    const li = document.createElement('li');
+    li.textContent = `${r.reason}: ${r.count}`;
+    ul.append(li);
+  }
 }
 function onPose(d) {
   cameraMark.visible = true;

@@ -7,7 +7,8 @@
  *     Frames (drivers -> learner), features (external extractor -> learner) and poses
  *     (external SLAM -> learner) are records in such rings.
  *   - the map (vlff_map_*): the learner's latest segmented voxel map, prompt list and
- *     2D label image, read by controllers.
+ *     2D label image, and the learner's status (vlff_map_get_status), read by
+ *     controllers.
  *   - the prompt mailbox (vlff_prompts_*): controllers post a new prompt set, the learner
  *     picks it up.
  *
@@ -86,7 +87,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 2
+#define VLFF_SHM_ABI_VERSION 3
 
 /* ------------------------------------------------------------------ errors */
 
@@ -465,6 +466,57 @@ uint16_t vlff_map_snapshot_label_at(const struct vlff_map_snapshot *snap, double
                                     uint8_t *conf);
 /* Prompt text of a label, NULL if none. */
 const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *snap, uint16_t label);
+
+/* ------------------------------------------------------- the writer's status */
+
+/* Besides the map, the map segment carries its writer's status: what the learner
+ * took in, refused and learned, so that any controller reads it without asking the
+ * learner. The writer replaces it whole, as often as it likes (the node: at each
+ * heartbeat and publish); readers copy it under its own sequence word and retry
+ * while it moves, so neither ever waits for the other. The reasons for refused
+ * frames travel with their names, so that readers need not know the writer's list.
+ * This struct is also the segment's layout (fixed, no implicit padding): changing
+ * it changes VLFF_SHM_ABI_VERSION. */
+#define VLFF_SHM_MAX_REASONS 16
+#define VLFF_SHM_REASON_LEN 24 /* bytes including the terminating NUL */
+#define VLFF_SHM_STATE_LEN 16
+
+struct vlff_map_reason {
+  char name[VLFF_SHM_REASON_LEN]; /* short text ("no pose"); never empty in a used entry */
+  uint64_t count;
+};
+
+struct vlff_map_status {
+  uint64_t t_ns;           /* when it was set (set by vlff_map_set_status); 0 = never */
+  uint64_t updates;        /* 1, 2, ... per vlff_map_set_status on this segment */
+  int32_t state;           /* writer-defined code (vlff-node: enum vlff_node_state) */
+  uint32_t error_flags;    /* writer-defined bits (vlff-node: enum vlff_node_error_flags) */
+  char state_name[VLFF_SHM_STATE_LEN]; /* the state as text ("operational") */
+  uint64_t frames_in;      /* frames read from the input */
+  uint64_t frames_lost;    /* frames lost before they could be read */
+  uint64_t frames_refused; /* frames refused, all reasons */
+  uint64_t keyframes;      /* keyframes held now */
+  uint64_t keyframes_evicted;
+  uint64_t iterations;     /* training steps so far */
+  double iterations_per_s;
+  double fps_in;           /* frames read per second */
+  double loss, loss_rgb, loss_depth, loss_feat; /* latest training loss and its terms */
+  double psnr;             /* dB of the colour term; NaN when unknown */
+  uint32_t reason_count;   /* used entries of reason[] */
+  uint32_t pad;
+  struct vlff_map_reason reason[VLFF_SHM_MAX_REASONS]; /* refused frames per reason */
+};
+
+/* Writer: replaces the status (t_ns and updates are set here, the rest is taken as
+ * given). Never waits for readers. 0, or -1: EINVAL (not a writer handle, more than
+ * VLFF_SHM_MAX_REASONS reasons, a used reason without a name, a name or state that
+ * does not fit), EPIPE (as vlff_map_heartbeat after a truncation: set it again). */
+int vlff_map_set_status(struct vlff_map *map, const struct vlff_map_status *status);
+/* Reader (or writer): copies the latest status into *out, consistently; strings are
+ * NUL-terminated and reason_count is at most VLFF_SHM_MAX_REASONS. 0, or -1: ENOENT
+ * (no status set yet: *out is zeroed), EAGAIN (the writer kept changing it for too
+ * long), EBADMSG (inconsistent block), EPIPE. */
+int vlff_map_get_status(struct vlff_map *map, struct vlff_map_status *out);
 
 /* -------------------------------------------------------- prompt mailbox */
 

@@ -105,4 +105,23 @@ async function waitVersion(demo, v, timeoutMs) {
   }
 }
 
-module.exports = { start, shm, shmAsync, sleep, waitVersion, prog };
+// The learner's status block as `vlff-shm stat` prints it, in the shape of the
+// status channel's "learner" object (without its age); null when none was set.
+function learnerOfStat(stat) {
+  if (/^status none$/m.test(stat)) return null;
+  const line = (k) => {
+    const m = new RegExp(`^${k} (.*)$`, 'm').exec(stat);
+    if (!m) throw new Error(`vlff-shm stat prints no ${k}: ${stat}`);
+    return m[1];
+  };
+  const num = (k) => { const v = line(k); return /nan/i.test(v) ? null : Number(v); };
+  const out = { state: line('state'), state_code: num('state_code'), error_flags: parseInt(line('error_flags'), 16),
+    updates: num('status_updates'), frames_in: num('frames_in'), frames_lost: num('frames_lost'),
+    frames_refused: num('frames_refused'),
+    refused: [...stat.matchAll(/^refused (\d+) (.*)$/gm)].map((m) => ({ reason: m[2], count: Number(m[1]) })) };
+  for (const k of ['keyframes', 'keyframes_evicted', 'iterations', 'iterations_per_s', 'fps_in', 'loss', 'loss_rgb',
+    'loss_depth', 'loss_feat', 'psnr']) out[k] = num(k);
+  return out;
+}
+
+module.exports = { start, shm, shmAsync, sleep, waitVersion, learnerOfStat, prog };

@@ -7,7 +7,7 @@
 const assert = require('assert');
 const { FoxgloveClient } = require('@foxglove/ws-protocol');
 const WebSocket = require('ws');
-const { start, shm, shmAsync, sleep, waitVersion } = require('./demo');
+const { start, shm, shmAsync, sleep, waitVersion, learnerOfStat } = require('./demo');
 const { validate } = require('./schema');
 
 const FREE = 65534;
@@ -137,6 +137,20 @@ async function main() {
     }
     assert.strictEqual(cubes, voxels.size);
     ok(`the scene's ${scene.size} brick entities hold ${cubes} cubes, one per occupied voxel, in prompt colours`);
+    // The learner's own status, still paused: the status channel carries the block
+    // vlff-shm stat reads (the same update), every number equal.
+    const before = got['/vlff/status'].length;
+    await until(() => got['/vlff/status'].length > before, 10000, 'a status message during the pause');
+    const learner = { ...got['/vlff/status'].at(-1).learner }, fromStat = learnerOfStat(shm('stat', demo.names.map));
+    assert.ok(learner.age_s >= 0);
+    delete learner.age_s;
+    assert.deepStrictEqual(learner, fromStat, 'the status channel\'s learner and vlff-shm stat');
+    assert.ok(learner.frames_in > 0 && learner.keyframes > 0 && learner.iterations > 0 && learner.iterations_per_s > 0,
+      `a learning node: ${JSON.stringify(learner)}`);
+    assert.strictEqual(learner.frames_refused, learner.refused.reduce((a, r) => a + r.count, 0));
+    assert.ok(learner.refused.some((r) => r.reason === 'no pose'), 'the reasons travel with their names');
+    ok(`learner status (${learner.frames_in} frames in, ${learner.keyframes} keyframes, ${learner.iterations} ` +
+      `iterations, loss ${learner.loss}, PSNR ${learner.psnr}) equals vlff-shm stat's`);
     demo.resume();
     const resumed = voxelVersion;
     await until(() => voxelVersion > resumed && got['/vlff/status'].at(-1).map.writer_alive, 30000, 'the learner again');

@@ -7,7 +7,7 @@
 const assert = require('assert');
 const fs = require('fs');
 const { chromium } = require('playwright-core');
-const { start, shm, sleep, waitVersion } = require('./demo');
+const { start, shm, sleep, waitVersion, learnerOfStat } = require('./demo');
 const png = require('./png');
 
 let passed = 0;
@@ -90,7 +90,11 @@ async function main() {
     if (process.env.VLFF_VIEW_SCREENSHOT) fs.writeFileSync(process.env.VLFF_VIEW_SCREENSHOT, shot);
     ok(`${checked} voxels drawn at their screen points in their prompts' colours (screenshot pixels)`);
 
-    // Hover: the page names the voxel vlff-shm label finds there.
+    // Hover: the page names the voxel vlff-shm label finds there. The learner is
+    // paused again: on a loaded machine each try (pick, move, vlff-shm label) can
+    // outlast a publish period, and ten tries all met a new version.
+    demo.pause();
+    await sleep(1500);
     let hovered = false;
     for (let attempt = 0; attempt < 10 && !hovered; attempt++) {
       const t = await page.evaluate(() => {
@@ -116,6 +120,7 @@ async function main() {
       assert.ok(text.startsWith(`label ${m[1]} prompt ${m[3]} confidence ${m[2]} `), `page "${text}", vlff-shm "${line}"`);
       hovered = true;
     }
+    demo.resume();
     assert.ok(hovered, 'a hover at a stable version');
     ok('the voxel under the cursor: label, prompt and confidence as vlff-shm label gives them');
 
@@ -133,6 +138,39 @@ async function main() {
     }
     assert.ok(same, `the page's status and vlff-shm stat: ${last}`);
     ok('status numbers and legend equal vlff-shm stat (version, generation, grid, writer alive, prompts)');
+
+    // The learner's numbers in the panel, the learner paused so that the page and
+    // vlff-shm stat show one status update.
+    demo.pause();
+    let learnerSame = false;
+    last = '';
+    for (let attempt = 0; attempt < 40 && !learnerSame; attempt++) {
+      await sleep(250);
+      const l = learnerOfStat(shm('stat', demo.names.map));
+      const shown = await page.evaluate(() => {
+        const t = (id) => document.getElementById(id).textContent;
+        return { updates: document.body.dataset.learnerUpdates, state: t('l-state'), frames_in: t('l-frames_in'),
+          frames_lost: t('l-frames_lost'), frames_refused: t('l-frames_refused'), keyframes: t('l-keyframes'),
+          iterations: t('l-iterations'), iterations_per_s: t('l-iterations_per_s'), loss: t('l-loss'),
+          terms: t('l-terms'), psnr: t('l-psnr'),
+          refused: [...document.querySelectorAll('#refusals li')].map((li) => li.textContent) };
+      });
+      const show = (v) => (v === null ? '-' : String(v));
+      const want = { updates: String(l.updates), state: l.state, frames_in: show(l.frames_in),
+        frames_lost: show(l.frames_lost), frames_refused: show(l.frames_refused), keyframes: show(l.keyframes),
+        iterations: show(l.iterations), iterations_per_s: show(l.iterations_per_s), loss: show(l.loss),
+        terms: [l.loss_rgb, l.loss_depth, l.loss_feat].map(show).join(' | '), psnr: show(l.psnr),
+        refused: l.refused.filter((r) => r.count).map((r) => `${r.reason}: ${r.count}`) };
+      learnerSame = JSON.stringify(shown) === JSON.stringify(want);
+      last = `page ${JSON.stringify(shown)}, vlff-shm stat ${JSON.stringify(want)}`;
+      if (learnerSame) {
+        assert.ok(l.frames_in > 0 && l.keyframes > 0 && l.iterations > 0, `a learning node: ${last}`);
+        ok(`learner numbers equal vlff-shm stat (${l.frames_in} frames in, ${l.keyframes} keyframes, ` +
+          `${l.iterations} iterations, ${l.iterations_per_s}/s, loss ${l.loss}, PSNR ${l.psnr})`);
+      }
+    }
+    demo.resume();
+    assert.ok(learnerSame, `the page's learner numbers and vlff-shm stat: ${last}`);
 
     const imgs = await page.evaluate(() => ['image', 'labels'].map((id) => {
       const c = document.getElementById(id), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;

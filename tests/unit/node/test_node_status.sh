@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# The node's status in its map segment, read as any controller reads it: with
+# vlff-sim streaming, `vlff-shm stat` shows the frames, keyframes and iterations
+# of a learning node, every refusal reason by name, and after the node stopped,
+# the counts it stopped with.
+set -u
+node=$1 shm=$2 sim=$3
+fails=0 passes=0
+check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
+tmp=$(mktemp -d)
+p=/nst-$$
+cleanup() {
+  [[ -n ${simpid:-} ]] && kill "$simpid" 2>/dev/null
+  [[ -n ${nodepid:-} ]] && kill -9 "$nodepid" 2>/dev/null
+  rm -rf "$tmp"
+  rm -f /dev/shm$p-*
+}
+trap cleanup EXIT
+printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
+  "$tmp" $p $p $p $p >"$tmp/n.yaml"
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
+nodepid=$!
+val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
+for ((i = 0; i < 200; i++)); do "$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val frames_in) ]] && break; sleep 0.1; done
+check "a waiting node's status: no frames yet, every reason listed at 0" \
+  '[[ $(val frames_in) == 0 && $(val iterations) == 0 && $(grep -c "^refused 0 " "$tmp/stat") -ge 12 ]]'
+check "the reasons carry their names" 'grep -q "^refused 0 no pose$" "$tmp/stat" && grep -q "^refused 0 bad intrinsics$" "$tmp/stat"'
+
+"$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
+simpid=$!
+for ((i = 0; i < 1200; i++)); do
+  "$shm" stat $p-m >"$tmp/stat" 2>/dev/null
+  [[ $(val iterations) -gt 0 && $(val keyframes) -gt 0 ]] 2>/dev/null && break
+  sleep 0.1
+done
+check "vlff-shm stat: frames in ($(val frames_in))" '[[ $(val frames_in) -gt 0 ]]'
+check "vlff-shm stat: keyframes ($(val keyframes))" '[[ $(val keyframes) -gt 0 ]]'
+check "vlff-shm stat: iterations ($(val iterations))" '[[ $(val iterations) -gt 0 ]]'
+check "vlff-shm stat: a state, a loss and a recent status ($(val state), loss $(val loss), age $(val status_age))" \
+  '[[ $(val state) =~ ^(preoperational|operational)$ && $(val loss) != 0 && $(val status_age) =~ ^[0-9]+\.[0-9]+s$ ]]'
+check "frames refused is the sum of the reasons" \
+  '[[ $(val frames_refused) == $(awk '"'"'$1 == "refused" { s += $2 } END { print s + 0 }'"'"' "$tmp/stat") ]]'
+
+kill "$simpid"; wait "$simpid"; simpid=
+sleep 0.5
+"$shm" stat $p-m >"$tmp/last"
+kill -TERM "$nodepid"; wait "$nodepid"; rc=$?; nodepid=
+check "node exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
+"$shm" stat $p-m >"$tmp/stat"
+check "after the stop the segment keeps the node's last counts" \
+  '[[ $(val frames_in) == $(awk '"'"'$1 == "frames_in" { print $2 }'"'"' "$tmp/last") && $(val iterations) -ge $(awk '"'"'$1 == "iterations" { print $2 }'"'"' "$tmp/last") && $(val writer_alive) == no ]]'
+echo "$passes passed, $fails failed"
+(( fails == 0 )) || { echo "--- stat"; cat "$tmp/stat"; echo "--- node log"; tail -30 "$tmp/log"; }
+(( fails == 0 ))
