@@ -133,8 +133,9 @@ static int open_error(const char *name, const char *what) {
 }
 
 
-/* Validates a header copy against the file size. Returns 0 or -1 with the error set. */
-static int validate(const char *name, const struct seg_hdr *h, uint64_t file_size, const struct seg_spec *spec) {
+/* The magic word: a new segment is zeros until its creator writes the
+ * header, so 0 means not yet. */
+static int check_magic(const char *name, const struct seg_hdr *h) {
   if (h->magic == 0) {
     shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header not written yet (creator starting or died)", name);
     return -1;
@@ -144,6 +145,13 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
             (unsigned long long)h->magic);
     return -1;
   }
+  return 0;
+}
+
+/* Validates a header copy against the file size. Returns 0 or -1 with the error set. */
+static int validate(const char *name, const struct seg_hdr *h, uint64_t file_size, const struct seg_spec *spec) {
+  if (check_magic(name, h) < 0)
+    return -1;
   if (h->abi_version != VLFF_SHM_ABI_VERSION) {
     shm_err(VLFF_SHM_ERR_VERSION, EPROTONOSUPPORT, "%s: ABI version %u, this library speaks %u", name,
             h->abi_version, VLFF_SHM_ABI_VERSION);
@@ -281,12 +289,7 @@ int shm_seg_peek(const char *name, struct seg_hdr *out) {
     shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: no complete segment header", name);
     return -1;
   }
-  if (out->magic != SEG_MAGIC) {
-    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", name,
-            (unsigned long long)out->magic);
-    return -1;
-  }
-  return 0;
+  return check_magic(name, out);
 }
 
 int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec, bool writable,
