@@ -91,6 +91,7 @@ int main(void) {
     for (int k = 0; k < W * H; k++) metres[k] = depth[k] * 0.001f;
     double t3 = now_ms();
     sink += out[i % (W * H)] + (uint32_t)metres[i % (W * H)];
+    (void)sink;
     t_reg[i] = t1 - t0, t_copy[i] = t2 - t1, t_conv[i] = t3 - t2;
   }
   if (valid < 0) return fprintf(stderr, "bench_register: %s\n", err), 1;
