@@ -28,9 +28,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     if (memcmp(again, buf, 4) != 0) __builtin_trap();
   }
   struct vlff_canp_status_view v;
-  for (int i = 0; i < 5; i++) {
+  for (int i = 0; i <= VLFF_CANP_STATUS_FRAMES; i++) {
     int rc = vlff_canp_decode_status(i, buf, len, &v);
-    if (rc == 0 && (len != 8 || i > 3)) __builtin_trap();
+    if (rc == 0 && (len != 8 || i >= VLFF_CANP_STATUS_FRAMES)) __builtin_trap();
   }
   char desc[64];
   vlff_canp_decode_error(id | CAN_ERR_FLAG, buf, desc, sizeof desc);
