@@ -172,6 +172,12 @@ async function main() {
     demo.resume();
     assert.ok(learnerSame, `the page's learner numbers and vlff-shm stat: ${last}`);
 
+    // The label image is published when the node renders one, which on a loaded
+    // host can come after the learner checks above: wait for both to be drawn.
+    await page.waitForFunction(() => ['image', 'labels'].every((id) => {
+      const c = document.getElementById(id);
+      return c.width !== 300 || c.height !== 150; // a canvas's size before its first image
+    }), null, { timeout: 60000 });
     const imgs = await page.evaluate(() => ['image', 'labels'].map((id) => {
       const c = document.getElementById(id), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
       let lit = 0;
