@@ -107,7 +107,19 @@ function onVoxels(d) {
     return li;
   }));
 }
+// Images are drawn at the display's pace, the latest one per canvas: a page
+// on a busy machine skips the frames it could not draw instead of falling
+// behind on every message, prompt replies included.
+const latestImage = new Map();
 function onImage(canvas, d) {
+  if (!latestImage.size) requestAnimationFrame(drawImages);
+  latestImage.set(canvas, d);
+}
+function drawImages() {
+  latestImage.forEach((d, canvas) => drawImage(canvas, d));
+  latestImage.clear();
+}
+function drawImage(canvas, d) {
   const bytes = Uint8Array.from(atob(d.data), (ch) => ch.charCodeAt(0));
   canvas.width = d.width; canvas.height = d.height;
   const ctx = canvas.getContext('2d'), img = ctx.createImageData(d.width, d.height), o = img.data;
