@@ -11,14 +11,17 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 
 #include "cli.h"
 #include "clock.h"
 #include "config.h"
+#include "dataset.h"
 #include "embeddings.h"
 #include "log.h"
 #include "node.h"
+#include "sim_source.h"
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_CAN
 #include "vlff_can.h"
@@ -101,6 +104,20 @@ static void refusals_text(const struct vlff_node_status *st, char *out, size_t l
   if (k && k < len) snprintf(out + k, len - k, ")");
 }
 
+/* --snapshot: the final map for people, dir/strip.png and dir/map.ply. */
+static int write_snapshot(struct vlff_node *node, const char *dir, char *err, size_t errlen) {
+  if (mkdir(dir, 0755) != 0 && errno != EEXIST) return snprintf(err, errlen, "%s: %s", dir, strerror(errno)), -1;
+  struct vlff_snapshot snap;
+  if (vlff_node_snapshot(node, &snap, err, errlen)) return -1;
+  char path[4096];
+  snprintf(path, sizeof path, "%s/strip.png", dir);
+  int rc = vlff_png_write(path, snap.strip, snap.width, snap.height, 3, 0, err, errlen);
+  snprintf(path, sizeof path, "%s/map.ply", dir);
+  if (rc == 0) rc = vlff_ply_write(path, snap.xyz, snap.rgb, snap.label, snap.n, err, errlen);
+  vlff_snapshot_free(&snap);
+  return rc < 0 ? -1 : 0;
+}
+
 int main(int argc, char **argv) {
   enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT };
   static const struct option opts[] = {
@@ -178,9 +195,13 @@ int main(int argc, char **argv) {
   signal(SIGPIPE, SIG_IGN);
 
   VLFF_INFO("node", "vlff-node %s starting, config %s", vlff_version(), config_path);
-  struct vlff_node *node = vlff_node_create(&cfg, err, sizeof err);
+  /* The simulator's features and ground truth, when the config uses them. */
+  struct vlff_source_hooks hooks;
+  struct vlff_sim_source *sim = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  struct vlff_node *node = sim ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
   if (!node) {
     VLFF_ERROR("node", "%s", err);
+    vlff_sim_source_destroy(sim);
     return 1;
   }
 #ifdef VLFF_HAVE_CAN
@@ -189,6 +210,7 @@ int main(int argc, char **argv) {
     if (vlff_can_check_config(&cfg, err, sizeof err)) {
       VLFF_ERROR("node", "%s", err);
       vlff_node_destroy(node, false);
+      vlff_sim_source_destroy(sim);
       return 1;
     }
     can = vlff_can_open(&cfg, on_can_command, node);
@@ -264,7 +286,7 @@ int main(int argc, char **argv) {
 #endif
   int rc = 0;
   if (snapshot_dir) {
-    if (vlff_node_snapshot(node, snapshot_dir, err, sizeof err)) {
+    if (write_snapshot(node, snapshot_dir, err, sizeof err)) {
       VLFF_ERROR("node", "snapshot: %s", err);
       rc = 1;
     } else {
@@ -272,6 +294,7 @@ int main(int argc, char **argv) {
     }
   }
   vlff_node_destroy(node, true);
+  vlff_sim_source_destroy(sim);
   char why[256];
   refusals_text(&st, why, sizeof why);
   VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "

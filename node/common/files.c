@@ -5,6 +5,7 @@
  * descriptor then judges exactly the file that was opened.
  */
 #include "files.h"
+#include "log.h" /* vlff_errf */
 
 #include <dirent.h>
 #include <errno.h>
@@ -175,4 +176,45 @@ int vlff_remove_dead_temps(const char *dir, const char *const *prefixes) {
   }
   closedir(d);
   return removed;
+}
+
+int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen) {
+  *buf = NULL, *len = 0;
+  int fd = vlff_open_regular(path, err, errlen);
+  if (fd < 0) return -1;
+  FILE *f = fdopen(fd, "rb");
+  if (!f) {
+    close(fd);
+    vlff_errf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+    return -1;
+  }
+  struct stat st;
+  if (fstat(fileno(f), &st) < 0) {
+    fclose(f);
+    vlff_errf(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
+    return -1;
+  }
+  if ((size_t)st.st_size > max) {
+    fclose(f);
+    vlff_errf(err, errlen, "%s: %lld bytes, more than the %zu this file may have", path,
+           (long long)st.st_size, max);
+    return -1;
+  }
+  uint8_t *b = malloc((size_t)st.st_size + 1);
+  if (!b) {
+    fclose(f);
+    vlff_errf(err, errlen, "%s: out of memory", path);
+    return -1;
+  }
+  size_t n = fread(b, 1, (size_t)st.st_size, f);
+  int bad = ferror(f);
+  fclose(f);
+  if (bad || n != (size_t)st.st_size) {
+    free(b);
+    vlff_errf(err, errlen, "%s: read error", path);
+    return -1;
+  }
+  b[n] = 0;
+  *buf = b, *len = n;
+  return 0;
 }

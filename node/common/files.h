@@ -20,6 +20,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
 
 /* Open path read-only (O_CLOEXEC) without blocking on a FIFO or device,
  * and refuse anything but a regular file. Returns the descriptor in
@@ -60,6 +61,9 @@ void vlff_atomic_abort(struct vlff_atomic *a);
 /* write(2) of all n bytes, retried on EINTR and short writes: 0 or -1. */
 int vlff_write_all(int fd, const void *p, size_t n);
 /* The whole of data as path's new content, atomically (0644). */
+/* A whole regular file of at most max bytes; *buf is NUL-terminated (not
+ * counted in *len), the caller frees it. */
+int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);
 int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen);
 
 /* True when "<anything>.tmp.<pid>" names pid's temporary (pid > 0). */

@@ -31,10 +31,9 @@
 #include "files.h"
 #include "keyframes.h"
 #include "log.h"
-#include "metrics.h"
 #include "publish.h"
 #include "select.h"
-#include "sim.h"
+#include "source.h"
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_VLM
 #include "image_encoder.h"
@@ -62,7 +61,7 @@ struct vlff_node {
   struct vlff_config cfg;
   struct vlff_field *field;
   struct vlff_kfstore *store;
-  struct vlff_sim *sim;               /* sim features, text embeddings, ground truth */
+  struct vlff_source_hooks hooks;     /* what the source gives beyond the ring (source.h) */
   struct vlff_embeddings *emb_file;   /* prompts.embeddings */
 #ifdef VLFF_HAVE_VLM
   struct vlff_text_encoder *text_enc; /* vlm.text_model */
@@ -71,7 +70,6 @@ struct vlff_node {
   int model_h, model_w;               /* largest feature map accepted */
   struct vlff_publisher *pub;
   struct vlff_prompts *mailbox;
-  struct vlff_sim_points gt_points;
 
   pthread_t ingest_thread, trainer_thread;
   bool ingest_started, trainer_started, joined;
@@ -133,10 +131,9 @@ static void candidate_free(struct candidate *c) {
 
 /* ---- prompts ------------------------------------------------------------ */
 
-/* Embeddings for texts: the embeddings file when configured, else the
- * simulated text encoder when features are simulated. */
 /* Embeddings for prompt texts, from the first source configured: the
- * precomputed file, the in-node text encoder, or the simulated encoder. */
+ * precomputed file, the in-node text encoder, or the source's own encoder
+ * (the simulator's, source.h). */
 static int embed_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN], int k,
                          float *out, char *err, size_t errlen) {
   int d = n->cfg.field.feature_dim;
@@ -153,9 +150,8 @@ static int embed_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN
     } else if (n->text_enc) {
       if (vlff_text_encoder_encode(n->text_enc, texts[i], o, err, errlen)) return -1;
 #endif
-    } else if (n->sim) {
-      /* The simulated encoder knows class names, not templated sentences. */
-      vlff_sim_text_embedding(n->sim, texts[i], o);
+    } else if (n->hooks.embed) {
+      if (n->hooks.embed(n->hooks.ctx, texts[i], o, err, errlen)) return -1;
     } else {
       snprintf(err, errlen, "prompt '%s': no text encoder (set prompts.embeddings or vlm.text_model)", texts[i]);
       return -1;
@@ -436,7 +432,6 @@ struct ingest {
   struct vlff_kf_selector sel;
   struct candidate *pending[PENDING_CAP]; /* keyframes waiting for their features */
   int npend;
-  struct vlff_sim_frame *sf;
   struct vlff_feature_join *join;
   struct vlff_ring *poses;
   double pose_reattach_s;
@@ -611,26 +606,20 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
   v->cy = h->cy * sy;
   memcpy(v->c2w, pose, sizeof v->c2w);
 
-  if (cfg->source.features == VLFF_FEAT_SIM) {
-    struct vlff_sim_frame *sf = ig->sf;
+  if (n->hooks.features) {
+    const struct vlff_source_hooks *src = &n->hooks;
     char err[256];
-    /* vlff-sim loops its trajectory: scene frame = frame id mod sim.frames. */
-    if (!sf || vlff_sim_render(n->sim, id % cfg->sim.frames, VLFF_SIM_FEATURES, sf, err, sizeof err)) {
+    c->features = malloc((size_t)src->feat_width * src->feat_height * cfg->field.feature_dim * sizeof(uint16_t));
+    if (!c->features || src->features(src->ctx, id, c->features, err, sizeof err)) {
       candidate_free(c);
-      refuse(n, &ig->rl, VLFF_REFUSED_NO_FEATURES, id, "simulated features unavailable: %s", sf ? err : "no memory");
+      refuse(n, &ig->rl, VLFF_REFUSED_NO_FEATURES, id, "the source's features unavailable: %s",
+             c->features ? err : "no memory");
       return;
     }
-    size_t fb = (size_t)sf->feat_width * sf->feat_height * sf->feat_dim * sizeof(uint16_t);
-    c->features = malloc(fb);
-    if (!c->features) {
-      candidate_free(c);
-      return;
-    }
-    memcpy(c->features, sf->features, fb);
     v->features = c->features;
-    v->feat_width = sf->feat_width;
-    v->feat_height = sf->feat_height;
-    v->feat_dim = sf->feat_dim;
+    v->feat_width = src->feat_width;
+    v->feat_height = src->feat_height;
+    v->feat_dim = cfg->field.feature_dim;
     queue_push(n, c);
   } else {
     c->deadline_s = now + cfg->vlm.feature_timeout_s;
@@ -747,7 +736,6 @@ static void *ingest_main(void *arg) {
   struct ingest ig = {.n = n, .cfg = cfg, .rl = {.last_report_s = vlff_seconds()}};
   struct vlff_ring *ring = attach_retry(n, cfg->shm.ring, VLFF_RECORD_FRAME);
   struct vlff_ring *feats = NULL;
-  ig.sf = n->sim ? vlff_sim_frame_new(n->sim) : NULL;
   size_t cap = ring ? vlff_ring_slot_size(ring) : 0;
   void *buf = cap ? malloc(cap) : NULL;
   ig.held = cap ? malloc(cap) : NULL;
@@ -821,7 +809,6 @@ static void *ingest_main(void *arg) {
   free(ig.held);
   free(fbuf);
   vlff_feature_join_destroy(ig.join);
-  vlff_sim_frame_free(ig.sf);
   vlff_ring_close(ring);
   vlff_ring_close(ig.poses);
   vlff_ring_close(feats);
@@ -1022,7 +1009,7 @@ static void take_candidates(struct vlff_node *n, bool wait) {
         if (vlff_kfstore_add(n->store, &kin) == 0) {
           /* The view passed the same check just above: these cannot refuse it. */
           if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
-            vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id % n->cfg.sim.frames, verr, sizeof verr);
+            vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id, verr, sizeof verr);
           if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
         } else {
           VLFF_WARN(TAG, "keyframe %lld does not fit the keyframe store: %s", c->id, strerror(errno));
@@ -1328,7 +1315,10 @@ static void *trainer_main(void *arg) {
 
 /* ---- lifecycle ---------------------------------------------------------- */
 
-struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, size_t errlen) {
+struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, char *err,
+                                   size_t errlen) {
+  static const struct vlff_source_hooks none;
+  if (!hooks) hooks = &none;
   if (cfg->source.kind == VLFF_SOURCE_DATASET) {
     snprintf(err, errlen, "source.kind: dataset is for vlff-eval; vlff-node reads the frame ring (sim or ring)");
     return NULL;
@@ -1340,8 +1330,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     return NULL;
   }
 #endif
-  if (!cfg->prompts.embeddings[0] && !cfg->vlm.text_model[0] && cfg->source.features != VLFF_FEAT_SIM &&
-      cfg->source.kind != VLFF_SOURCE_SIM) {
+  if (!cfg->prompts.embeddings[0] && !cfg->vlm.text_model[0] && !hooks->embed) {
     /* Checked before any segment is made: without a text encoder no prompt
      * can be embedded, and the node would stop at the first one. */
     snprintf(err, errlen, "no text encoder for the prompts: set prompts.embeddings (a precomputed file) or "
@@ -1353,14 +1342,15 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
              "camera's images; use ring or model, or set source.allow_sim_features: true to force it");
     return NULL;
   }
-  if (cfg->source.features == VLFF_FEAT_SIM && cfg->sim.feature_dim != cfg->field.feature_dim) {
-    snprintf(err, errlen, "sim.feature_dim (%d) must equal field.feature_dim (%d)", cfg->sim.feature_dim,
-             cfg->field.feature_dim);
+  if (cfg->source.features == VLFF_FEAT_SIM && !hooks->features) {
+    snprintf(err, errlen, "source.features: sim, but the source gives no features (vlff-node makes the simulator's "
+             "hooks; a program embedding the node passes them to vlff_node_create)");
     return NULL;
   }
   struct vlff_node *n = calloc(1, sizeof *n);
   if (!n) return snprintf(err, errlen, "out of memory"), NULL;
   n->cfg = *cfg;
+  n->hooks = *hooks;
   n->mapping = true;
   n->t_start = vlff_seconds();
   n->st.prompt_set = cfg->prompts.active;
@@ -1384,10 +1374,6 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     snprintf(err, errlen, "keyframe store: %s", strerror(errno));
     goto fail;
   }
-  if (cfg->source.features == VLFF_FEAT_SIM || cfg->source.kind == VLFF_SOURCE_SIM) {
-    n->sim = vlff_sim_create(cfg, err, errlen);
-    if (!n->sim) goto fail;
-  }
   n->model_h = cfg->vlm.input_height;
   n->model_w = cfg->vlm.input_width;
   if (cfg->prompts.embeddings[0]) {
@@ -1408,10 +1394,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, siz
     if (!n->image_worker) goto fail;
   }
 #endif
-  if (n->sim && cfg->source.kind == VLFF_SOURCE_SIM &&
-      vlff_sim_points(n->sim, cfg->sim.frames, 5, 0.05, &n->gt_points, err, errlen))
-    goto fail;
-  n->pub = vlff_publisher_create(cfg, n->sim, n->gt_points.n ? &n->gt_points : NULL, err, errlen);
+  n->pub = vlff_publisher_create(cfg, &n->hooks, err, errlen);
   if (!n->pub) goto fail;
   /* Controllers of the segments' group post prompts: the mailbox alone is
    * group-writable whenever the group may read. */
@@ -1467,8 +1450,6 @@ void vlff_node_destroy(struct vlff_node *n, bool save_on_exit) {
   vlff_prompts_close(n->mailbox);
   vlff_field_destroy(n->field);
   vlff_kfstore_destroy(n->store);
-  vlff_sim_points_free(&n->gt_points);
-  vlff_sim_destroy(n->sim);
   vlff_embeddings_free(n->emb_file);
 #ifdef VLFF_HAVE_VLM
   vlff_text_encoder_close(n->text_enc);
@@ -1482,14 +1463,14 @@ void vlff_node_destroy(struct vlff_node *n, bool save_on_exit) {
   free(n);
 }
 
-int vlff_node_snapshot(struct vlff_node *n, const char *dir, char *err, size_t errlen) {
+int vlff_node_snapshot(struct vlff_node *n, struct vlff_snapshot *out, char *err, size_t errlen) {
   join_threads(n);
-  if (mkdir(dir, 0755) != 0 && errno != EEXIST) return snprintf(err, errlen, "%s: %s", dir, strerror(errno)), -1;
+  memset(out, 0, sizeof *out);
   if (vlff_field_steps(n->field) == 0) return snprintf(err, errlen, "the field was never trained"), -1;
   const char *texts[VLFF_MAX_PROMPTS];
   for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
   do_publish(n); /* the snapshot shows the final map */
-  return vlff_publisher_snapshot(n->pub, n->field, texts, n->prompt_k, dir, err, errlen);
+  return vlff_publisher_snapshot(n->pub, n->field, texts, n->prompt_k, out, err, errlen);
 }
 
 void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out) {

@@ -26,6 +26,8 @@
 #include <stdint.h>
 
 #include "config.h"
+#include "publish.h"
+#include "source.h"
 
 struct vlff_node;
 
@@ -109,15 +111,20 @@ enum vlff_node_command {
   VLFF_CMD_PUBLISH = 6   /* publish the map now */
 };
 
-struct vlff_node *vlff_node_create(const struct vlff_config *cfg, char *err, size_t errlen);
+/* hooks: what the source gives beyond the frame ring (source.h; the
+ * simulator's from vlff_sim_source_create), NULL for none; copied, their ctx
+ * must outlive the node. */
+struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, char *err,
+                                   size_t errlen);
 void vlff_node_stop(struct vlff_node *n);
 /* True once the node stopped by itself (node.run_seconds) or was asked to. */
 bool vlff_node_finished(struct vlff_node *n);
 void vlff_node_destroy(struct vlff_node *n, bool save_on_exit);
 
-/* Stop the threads (as vlff_node_stop, and wait for them), then write the
- * publisher's snapshot (strip.png, map.ply) into dir. 0, or -1 with err. */
-int vlff_node_snapshot(struct vlff_node *n, const char *dir, char *err, size_t errlen);
+/* Stop the threads (as vlff_node_stop, and wait for them), publish once
+ * more, then take the publisher's snapshot (publish.h) into out, which the
+ * caller frees with vlff_snapshot_free. 0, or -1 with err. */
+int vlff_node_snapshot(struct vlff_node *n, struct vlff_snapshot *out, char *err, size_t errlen);
 
 void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out);
 

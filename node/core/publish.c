@@ -14,9 +14,8 @@
 #include <string.h>
 
 #include "bounds.h"
-#include "dataset.h"
 #include "log.h"
-#include "metrics.h"
+#include "palette.h"
 #include "select.h"
 #include "vlff/shm.h"
 
@@ -24,8 +23,7 @@
 
 struct vlff_publisher {
   struct vlff_map *map;
-  const struct vlff_sim *sim;
-  const struct vlff_sim_points *gt;
+  const struct vlff_source_hooks *hooks; /* NULL: none */
   double origin[3], voxel;
   double scene_lo[3], scene_hi[3]; /* field.scene_min / max: bounds for poses */
   long long refused;               /* views refused as physically implausible */
@@ -58,7 +56,6 @@ struct vlff_publisher {
   bool have_cam;
   uint64_t cam_t_ns;
   long long cam_frame;
-  struct vlff_sim_frame *gt_frame;
   double free_density;
   double last_publish_s, last_heartbeat_s;
 };
@@ -86,16 +83,14 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   free(p->sel_xyz);
   free(p->sel_score);
   free(p->sel_lab);
-  vlff_sim_frame_free(p->gt_frame);
   free(p);
 }
 
-struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_sim *sim,
-                                             const struct vlff_sim_points *gt, char *err, size_t errlen) {
+struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks,
+                                             char *err, size_t errlen) {
   struct vlff_publisher *p = calloc(1, sizeof *p);
   if (!p) return snprintf(err, errlen, "out of memory"), NULL;
-  p->sim = sim;
-  p->gt = gt;
+  p->hooks = hooks;
   p->free_density = cfg->publish.free_density;
   p->voxel = cfg->publish.voxel_size_m;
   double ext[3];
@@ -150,11 +145,10 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
   p->sel_xyz = malloc(li * 3 * sizeof *p->sel_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
-  p->gt_frame = sim ? vlff_sim_frame_new(sim) : NULL;
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->sel_score ||
-      !p->sel_lab || (sim && !p->gt_frame)) {
+      !p->sel_lab) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
     return NULL;
@@ -373,19 +367,6 @@ static uint8_t conf_of(float margin) {
   return (uint8_t)(c < 0 ? 0 : c > 255 ? 255 : c);
 }
 
-/* Prompt index -> synthetic class id, so a prompt set in any order (or with
- * texts the sim does not know) is scored against the ground truth. */
-static int class_of_prompt(const char *const *prompts, int k, int label) {
-  if (label < 0 || label >= k) return -1;
-  return vlff_sim_class_of(prompts[label]);
-}
-
-static double miou_of(struct vlff_confusion *c) {
-  struct vlff_summary s;
-  vlff_confusion_summary(c, &s);
-  return s.present ? s.miou * 100.0 : -1;
-}
-
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen) {
   memset(r, 0, sizeof *r);
@@ -484,34 +465,11 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
   r->version = vlff_map_version(p->map);
   p->last_publish_s = p->last_heartbeat_s = vlff_seconds();
 
-  /* Quality against the synthetic ground truth, what the demo shows live. */
-  if (p->sim) {
-    struct vlff_confusion c;
-    char e2[128];
-    if (vlff_confusion_init(&c, VLFF_SIM_CLASSES, e2, sizeof e2) == 0) {
-      if (have_img && vlff_sim_render(p->sim, p->cam_frame, 0, p->gt_frame, e2, sizeof e2) == 0) {
-        const struct vlff_sim_frame *g = p->gt_frame;
-        for (int y = 0; y < p->lh; y++)
-          for (int x = 0; x < p->lw; x++) {
-            int gy = y * g->height / p->lh, gx = x * g->width / p->lw;
-            vlff_confusion_add_one(&c, g->label[(size_t)gy * g->width + gx],
-                                   class_of_prompt(prompts, k, p->img_lab[(size_t)y * p->lw + x]));
-          }
-        r->miou2d = miou_of(&c);
-      }
-      if (p->gt && p->gt->n) {
-        vlff_confusion_reset(&c);
-        for (size_t i = 0; i < p->gt->n; i++) {
-          const float *x = p->gt->xyz + i * 3;
-          double xd[3] = {x[0], x[1], x[2]};
-          long vi = voxel_of(p, xd);
-          int lab = vi >= 0 && p->labels[vi] <= VLFF_LABEL_MAX ? p->labels[vi] : -1;
-          vlff_confusion_add_one(&c, p->gt->label[i], class_of_prompt(prompts, k, lab));
-        }
-        r->miou3d = miou_of(&c);
-      }
-      vlff_confusion_free(&c);
-    }
+  /* Quality against the source's ground truth, what the demo shows live. */
+  if (p->hooks && p->hooks->observe) {
+    struct vlff_map_seen seen = {.grid = &grid, .image_labels = have_img ? p->img_lab : NULL, .width = p->lw,
+                                 .height = p->lh, .frame_id = p->cam_frame, .prompts = prompts, .prompt_count = k};
+    p->hooks->observe(p->hooks->ctx, &seen, &r->miou2d, &r->miou3d);
   }
   return 0;
 }
@@ -534,26 +492,34 @@ double vlff_publisher_age_s(const struct vlff_publisher *p) {
   return p->last_publish_s < 0 ? -1 : vlff_seconds() - p->last_publish_s;
 }
 
-/* Map a label of the prompt set to the synthetic class colours when the
- * prompt is a known class, so segmentation and ground truth compare by eye. */
-static const uint8_t *prompt_color(const char *const *prompts, int k, int label) {
-  int c = class_of_prompt(prompts, k, label);
-  return vlff_label_color(c >= 0 ? c : label < 0 ? -1 : label);
+/* A prompt's colour in the source's ground-truth palette when it names one
+ * of its classes, so segmentation and ground truth compare by eye. */
+static const uint8_t *prompt_color(const struct vlff_publisher *p, const char *const *prompts, int k, int label) {
+  const uint8_t *c = label >= 0 && label < k && p->hooks && p->hooks->color ? p->hooks->color(p->hooks->ctx, prompts[label])
+                                                                           : NULL;
+  return c ? c : vlff_label_color(label);
+}
+
+void vlff_snapshot_free(struct vlff_snapshot *s) {
+  free(s->strip);
+  free(s->xyz);
+  free(s->rgb);
+  free(s->label);
+  memset(s, 0, sizeof *s);
 }
 
 int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                            const char *dir, char *err, size_t errlen) {
+                            struct vlff_snapshot *out, char *err, size_t errlen) {
+  memset(out, 0, sizeof *out);
   if (!p->have_cam) return snprintf(err, errlen, "no keyframe yet: nothing to show"), -1;
   struct vlff_view cam = p->cam;
-  int w = cam.width, h = cam.height, panels = p->sim ? 3 : 2;
+  int w = cam.width, h = cam.height;
   size_t px = (size_t)w * h;
   float *rgbf = malloc(px * 3 * sizeof(float));
   int *lab = malloc(px * sizeof(int));
-  uint8_t *strip = calloc(px * 3 * panels, 1);
-  uint8_t *pcol = NULL, *plab = NULL;
-  float *pxyz = NULL;
+  uint8_t *image = malloc(px * 3), *truth = malloc(px * 3);
   int rc = -1;
-  if (!rgbf || !lab || !strip) {
+  if (!rgbf || !lab || !image || !truth) {
     snprintf(err, errlen, "out of memory");
     goto out;
   }
@@ -561,36 +527,31 @@ int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, cons
     snprintf(err, errlen, "render failed");
     goto out;
   }
-  const struct vlff_sim_frame *g = NULL;
-  char e2[128];
-  if (p->sim && vlff_sim_render(p->sim, p->cam_frame, VLFF_SIM_RGBD, p->gt_frame, e2, sizeof e2) == 0)
-    g = p->gt_frame;
-  for (int y = 0; y < h; y++)
-    for (int x = 0; x < w; x++) {
-      size_t i = (size_t)y * w + x;
-      uint8_t *row = strip + ((size_t)y * w * panels) * 3;
-      const uint8_t *seg = prompt_color(prompts, k, lab[i]);
-      for (int c = 0; c < 3; c++) {
-        /* Left: the camera image (the field's own rendering without a sim). */
-        int gy = g ? y * g->height / h : 0, gx = g ? x * g->width / w : 0;
-        row[x * 3 + c] = g ? g->rgb[((size_t)gy * g->width + gx) * 3 + c]
-                           : (uint8_t)fminf(255.f, fmaxf(0.f, rgbf[i * 3 + c] * 255.f + 0.5f));
-        row[(w + x) * 3 + c] = seg[c];
-        if (g) {
-          int gl = g->label[(size_t)gy * g->width + gx];
-          row[(2 * w + x) * 3 + c] = vlff_label_color(gl < VLFF_SIM_CLASSES ? gl : -1)[c];
-        }
-      }
-    }
-  char path[1024];
-  snprintf(path, sizeof path, "%s/strip.png", dir);
-  if (vlff_png_write(path, strip, w * panels, h, 3, 0, err, errlen)) goto out;
+  /* Left: the scene's camera image, or the field's own rendering of it. */
+  bool sourced = p->hooks && p->hooks->panels && p->hooks->panels(p->hooks->ctx, p->cam_frame, w, h, image, truth) == 0;
+  if (!sourced)
+    for (size_t i = 0; i < px * 3; i++) image[i] = (uint8_t)fminf(255.f, fmaxf(0.f, rgbf[i] * 255.f + 0.5f));
+  int panels = sourced ? 3 : 2;
+  out->width = w * panels;
+  out->height = h;
+  out->strip = malloc(px * 3 * panels);
+  if (!out->strip) {
+    snprintf(err, errlen, "out of memory");
+    goto out;
+  }
+  for (int y = 0; y < h; y++) {
+    uint8_t *row = out->strip + (size_t)y * out->width * 3;
+    memcpy(row, image + (size_t)y * w * 3, (size_t)w * 3);
+    for (int x = 0; x < w; x++) memcpy(row + (w + x) * 3, prompt_color(p, prompts, k, lab[(size_t)y * w + x]), 3);
+    if (sourced) memcpy(row + 2 * w * 3, truth + (size_t)y * w * 3, (size_t)w * 3);
+  }
   size_t n = 0;
   for (size_t i = 0; i < p->nvox; i++) n += p->labels[i] <= VLFF_LABEL_MAX;
-  pxyz = malloc((n ? n : 1) * 3 * sizeof(float));
-  pcol = malloc((n ? n : 1) * 3);
-  plab = malloc(n ? n : 1);
-  if (!pxyz || !pcol || !plab) {
+  out->n = n;
+  out->xyz = malloc((n ? n : 1) * 3 * sizeof(float));
+  out->rgb = malloc((n ? n : 1) * 3);
+  out->label = malloc(n ? n : 1);
+  if (!out->xyz || !out->rgb || !out->label) {
     snprintf(err, errlen, "out of memory");
     goto out;
   }
@@ -598,22 +559,19 @@ int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, cons
   for (size_t i = 0; i < p->nvox; i++) {
     if (p->labels[i] > VLFF_LABEL_MAX) continue;
     size_t ix = i % p->dims[0], iy = (i / p->dims[0]) % p->dims[1], iz = i / ((size_t)p->dims[0] * p->dims[1]);
-    pxyz[j * 3] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
-    pxyz[j * 3 + 1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
-    pxyz[j * 3 + 2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
-    memcpy(pcol + j * 3, prompt_color(prompts, k, p->labels[i]), 3);
-    plab[j] = (uint8_t)(p->labels[i] < 255 ? p->labels[i] : 255);
+    out->xyz[j * 3] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
+    out->xyz[j * 3 + 1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
+    out->xyz[j * 3 + 2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
+    memcpy(out->rgb + j * 3, prompt_color(p, prompts, k, p->labels[i]), 3);
+    out->label[j] = (uint8_t)(p->labels[i] < 255 ? p->labels[i] : 255);
     j++;
   }
-  snprintf(path, sizeof path, "%s/map.ply", dir);
-  if (vlff_ply_write(path, pxyz, pcol, plab, n, err, errlen)) goto out;
   rc = 0;
 out:
+  if (rc) vlff_snapshot_free(out);
   free(rgbf);
   free(lab);
-  free(strip);
-  free(pxyz);
-  free(pcol);
-  free(plab);
+  free(image);
+  free(truth);
   return rc;
 }

@@ -27,20 +27,21 @@
 
 #include "config.h"
 #include "field.h"
-#include "sim.h"
+#include "source.h"
 #include "vlff/shm.h"
 
 struct vlff_publisher;
 
 struct vlff_publish_result {
   uint64_t version;
-  double miou2d, miou3d; /* vs synthetic ground truth, -1 when not available */
+  double miou2d, miou3d; /* the source's observer's scores (source.h), -1 when not available */
   size_t labelled, free_voxels, unknown;
 };
 
-/* sim and gt may be NULL (no ground truth). Creates the map segment. */
-struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_sim *sim,
-                                             const struct vlff_sim_points *gt, char *err, size_t errlen);
+/* hooks (source.h) may be NULL or have no observer: no ground truth. Kept,
+ * not copied. Creates the map segment. */
+struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks,
+                                             char *err, size_t errlen);
 void vlff_publisher_destroy(struct vlff_publisher *p);
 
 /* A view's intrinsics and pose within physical bounds (bounds.h; the pose
@@ -72,11 +73,19 @@ void vlff_publisher_reset(struct vlff_publisher *p);
 
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen);
-/* For people: dir/strip.png (camera image | segmentation | ground truth
- * when the source is synthetic) at the latest keyframe's view, and
- * dir/map.ply (the labelled voxels, coloured by label). */
+/* For people: the strip (camera image | segmentation | the source's ground
+ * truth when it has one) at the latest keyframe's view, and the labelled
+ * voxels coloured by label. The caller writes them (strip.png, map.ply). */
+struct vlff_snapshot {
+  uint8_t *strip;      /* RGB8 [height][width] */
+  int width, height;
+  size_t n;            /* labelled voxels: centres, colours, labels (255 = 255 or more) */
+  float *xyz;
+  uint8_t *rgb, *label;
+};
 int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                            const char *dir, char *err, size_t errlen);
+                            struct vlff_snapshot *out, char *err, size_t errlen);
+void vlff_snapshot_free(struct vlff_snapshot *s);
 /* Tell readers the writer is alive (rate-limited to 10 Hz). */
 void vlff_publisher_heartbeat(struct vlff_publisher *p);
 /* Replaces the node's status in the map segment (vlff_map_set_status), for

@@ -201,8 +201,6 @@ int vlff_ply_read(const char *path, struct vlff_points *p, char *err, size_t err
 int vlff_ply_write(const char *path, const float *xyz, const uint8_t *rgb, const uint8_t *label,
                    size_t n, char *err, size_t errlen);
 
-/* Whole-file read with a size cap; *buf is NUL-terminated, caller frees. */
-int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);
-/* Atomic writes: vlff_write_file_atomic in node/common/files.h. */
+/* Whole-file reads and atomic writes: node/common/files.h. */
 
 #endif

@@ -26,49 +26,6 @@
 
 #define seterr vlff_errf
 
-/* ---- files -------------------------------------------------------------- */
-
-int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen) {
-  *buf = NULL, *len = 0;
-  int fd = vlff_open_regular(path, err, errlen);
-  if (fd < 0) return -1;
-  FILE *f = fdopen(fd, "rb");
-  if (!f) {
-    close(fd);
-    seterr(err, errlen, "%s: cannot open: %s", path, strerror(errno));
-    return -1;
-  }
-  struct stat st;
-  if (fstat(fileno(f), &st) < 0) {
-    fclose(f);
-    seterr(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
-    return -1;
-  }
-  if ((size_t)st.st_size > max) {
-    fclose(f);
-    seterr(err, errlen, "%s: %lld bytes, more than the %zu this file may have", path,
-           (long long)st.st_size, max);
-    return -1;
-  }
-  uint8_t *b = malloc((size_t)st.st_size + 1);
-  if (!b) {
-    fclose(f);
-    seterr(err, errlen, "%s: out of memory", path);
-    return -1;
-  }
-  size_t n = fread(b, 1, (size_t)st.st_size, f);
-  int bad = ferror(f);
-  fclose(f);
-  if (bad || n != (size_t)st.st_size) {
-    free(b);
-    seterr(err, errlen, "%s: read error", path);
-    return -1;
-  }
-  b[n] = 0;
-  *buf = b, *len = n;
-  return 0;
-}
-
 /* ---- PNG ---------------------------------------------------------------- */
 
 struct membuf {

@@ -28,6 +28,7 @@
 
 #include "bounds.h"
 #include "dataset.h"
+#include "files.h"
 #include "dataset_internal.h"
 
 #define seterr vlff_errf

@@ -98,8 +98,4 @@ int vlff_fusion(const float *xyz, size_t n, const struct vlff_fusion_view *views
  * labelled [h][w]: the label image nearest-sampled to the evaluation grid. */
 void vlff_downsample_labels(const uint8_t *label, int w, int h, uint8_t *out, int ow, int oh);
 
-/* The colour vlff draws label k in (ScanNet's benchmark palette for the 20
- * classes, cycling beyond); black for k < 0 (no label). Pointer to 3 bytes. */
-const uint8_t *vlff_label_color(int k);
-
 #endif

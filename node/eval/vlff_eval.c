@@ -35,6 +35,7 @@
 #include "cli.h"
 #include "field.h"
 #include "metrics.h"
+#include "palette.h"
 #include "sim.h"
 
 #define TAG "eval"

@@ -23,6 +23,7 @@
 #include <cmocka.h>
 
 #include "node.h"
+#include "sim_source.h"
 #include "rig.h"
 #include "vlff/shm.h"
 
@@ -53,7 +54,9 @@ static void test_camera_rig_trains_map(void **state) {
   if (!(scale > 0)) scale = 1;
   char err[1024];
   if (rig_init(&r, 1, err, sizeof err)) fail_msg("%s", err);
-  struct vlff_node *n = vlff_node_create(&r.cfg, err, sizeof err);
+  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
+  struct vlff_sim_source *src = vlff_sim_source_create(&r.cfg, &hooks, err, sizeof err);
+  struct vlff_node *n = src ? vlff_node_create(&r.cfg, &hooks, err, sizeof err) : NULL;
   if (!n) fail_msg("%s", err);
   if (rig_start(&r, err, sizeof err)) fail_msg("%s", err);
   double best = -1, t0 = mono_s();
@@ -70,6 +73,7 @@ static void test_camera_rig_trains_map(void **state) {
          mono_s() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
          (unsigned long long)version);
   vlff_node_destroy(n, false);
+  vlff_sim_source_destroy(src);
   rig_stop(&r);
   long long pairs = rig_camd_stat(&r, "committed"), colour = rig_camd_stat(&r, "color_frames"),
             um_c = rig_camd_stat(&r, "unmatched_color"), um_d = rig_camd_stat(&r, "unmatched_depth"),

@@ -27,6 +27,7 @@
 #include "config.h"
 #include "metrics.h"
 #include "node.h"
+#include "sim_source.h"
 #include "sim.h"
 #include "vlff/shm.h"
 
@@ -166,7 +167,9 @@ static void test_learns_and_reprompts(void **state) {
   const char *args[] = {"--config", cfg_path, "--quiet", NULL};
   pid_t sim = spawn("node/sim/vlff-sim", args);
   char err[512];
-  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
+  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
   if (!n) fail_msg("%s", err);
   double best = -1, t0 = mono_s();
   uint64_t version = 0;
@@ -254,6 +257,7 @@ static void test_learns_and_reprompts(void **state) {
   vlff_node_status(n, &st);
   assert_int_equal(st.prompt_set, 1);
   vlff_node_destroy(n, false);
+  vlff_sim_source_destroy(src);
   stop_child(sim, SIGTERM);
 }
 
@@ -340,7 +344,9 @@ static void test_bad_frames(void **state) {
                                 vlff_frame_slot_size(400, 300, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), {0640, NULL}};
   struct vlff_ring *ring = vlff_ring_create(cfg.shm.ring, &rp);
   assert_non_null(ring);
-  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
+  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
   if (!n) fail_msg("%s", err);
   sleep_s(0.5); /* the ingest thread attaches to the ring */
   /* Under the sanitizers the field trains too slowly to judge poses within
@@ -407,6 +413,7 @@ static void test_bad_frames(void **state) {
   assert_true(st.poses_rejected <= lies_sent + 1);
   assert_true(st.iteration > (it_at_lies < 0 ? 0 : it_at_lies));
   vlff_node_destroy(n, false);
+  vlff_sim_source_destroy(src);
   vlff_ring_close(ring);
   vlff_sim_frame_free(f);
   vlff_sim_destroy(s);

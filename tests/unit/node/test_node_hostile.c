@@ -22,6 +22,7 @@
 
 #include "config.h"
 #include "node.h"
+#include "sim_source.h"
 #include "sim.h"
 #include "vlff/shm.h"
 
@@ -88,7 +89,9 @@ static void test_absurd_intrinsics(void **state) {
                                 {0640, NULL}};
   struct vlff_ring *ring = vlff_ring_create(cfg.shm.ring, &rp);
   assert_non_null(ring);
-  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
+  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
   if (!n) fail_msg("%s", err);
   sleep_s(0.5); /* the ingest thread attaches to the ring */
   int bad = 0, good = 0;
@@ -115,6 +118,7 @@ static void test_absurd_intrinsics(void **state) {
   /* What SIGTERM does: stop and join the threads. */
   vlff_node_stop(n);
   vlff_node_destroy(n, false);
+  vlff_sim_source_destroy(src);
   vlff_ring_close(ring);
   vlff_sim_frame_free(f);
   vlff_sim_destroy(s);

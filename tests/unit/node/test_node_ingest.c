@@ -31,6 +31,7 @@
 #include "config.h"
 #include "log.h"
 #include "node.h"
+#include "sim_source.h"
 #include "sim.h"
 #include "vlff/shm.h"
 
@@ -272,7 +273,9 @@ static void test_pose_adapter_feeds_node(void **state) {
   assert_non_null(s);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   struct vlff_ring *ring = frame_ring(&cfg);
-  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
+  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
   if (!n) fail_msg("%s", err);
   sleep_s(0.5); /* the ingest thread attaches to the ring */
   const uint64_t step = 200000000; /* the keyframe rate: every posed frame is a candidate */
@@ -397,6 +400,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   assert_non_null(strstr(ptext, "udp datagram 4 line 1: refused, not finite: tz is nan"));
   assert_non_null(strstr(ptext, "9 poses written to /"));
   vlff_node_destroy(n, false);
+  vlff_sim_source_destroy(src);
   vlff_ring_close(ring);
   vlff_sim_frame_free(f);
   vlff_sim_destroy(s);

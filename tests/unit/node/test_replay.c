@@ -35,6 +35,7 @@
 #include "embeddings.h"
 #include "metrics.h"
 #include "node.h"
+#include "sim_source.h"
 #include "sim.h"
 #include "vlff/shm.h"
 
@@ -207,7 +208,9 @@ static void test_node_trains_from_replay(void **state) {
   struct vlff_sim_points gt = {0};
   write_scene(&cfg, &gt);
   char err[512];
-  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
+  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
   if (!n) fail_msg("%s", err);
   /* The recording's 5 Hz, looped: the node sees the room as vlff-sim shows it. */
   const char *args[] = {"--config", cfg_path, "--fps", "5", "--loop", "--quiet", scene, NULL};
@@ -252,6 +255,7 @@ static void test_node_trains_from_replay(void **state) {
   kill(pid, SIGTERM);
   assert_int_equal(wait_child(pid), 0);
   vlff_node_destroy(n, false);
+  vlff_sim_source_destroy(src);
   vlff_sim_points_free(&gt);
 }
 
@@ -266,7 +270,9 @@ static void test_backpressure_loses_nothing(void **state) {
   assert_int_equal(cfg.shm.ring_slots, 2);
   write_scene(&cfg, NULL);
   char err[512];
-  struct vlff_node *n = vlff_node_create(&cfg, err, sizeof err);
+  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
+  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
   if (!n) fail_msg("%s", err);
   const char *args[] = {"-c", cfg_path, "--backpressure", "--pose-in-frame", "--rate", "1000", "--loop", "--count", "240",
                         "--quiet", scene, NULL};
@@ -284,6 +290,7 @@ static void test_backpressure_loses_nothing(void **state) {
   assert_int_equal(st.frames_lost, 0);
   assert_int_equal(st.frames_invalid, 0);
   vlff_node_destroy(n, false);
+  vlff_sim_source_destroy(src);
 }
 
 /* A ScanNet export (color/, depth/, pose/ camera-to-world, intrinsic/),

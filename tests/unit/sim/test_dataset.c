@@ -21,6 +21,7 @@
 
 #include "config.h"
 #include "dataset.h"
+#include "files.h"
 #include "embeddings.h"
 #include "sim.h"
 

@@ -25,6 +25,7 @@
 #include <cmocka.h>
 
 #include "dataset.h"
+#include "files.h"
 #include "dataset_internal.h"
 
 #define CW 162
