@@ -149,7 +149,7 @@ int main(int argc, char **argv) {
       return 1;
     }
 #ifdef VLFF_HAVE_CAN
-    if (vlff_can_check_config(&cfg, err, sizeof err)) {
+    if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
       fprintf(stderr, "%s: %s\n", check_path, err);
       return 1;
     }
@@ -207,13 +207,13 @@ int main(int argc, char **argv) {
 #ifdef VLFF_HAVE_CAN
   struct vlff_can *can = NULL;
   if (cfg.can.enabled) {
-    if (vlff_can_check_config(&cfg, err, sizeof err)) {
+    if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
       VLFF_ERROR("node", "%s", err);
       vlff_node_destroy(node, false);
       vlff_sim_source_destroy(sim);
       return 1;
     }
-    can = vlff_can_open(&cfg, on_can_command, node);
+    can = vlff_can_open(&cfg.can, cfg.prompts.set_count, on_can_command, node);
     if (!can) VLFF_ERROR("node", "CAN on %s could not start; running without it", cfg.can.interface);
   }
   long long last_dropped = 0;

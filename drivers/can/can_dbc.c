@@ -206,18 +206,18 @@ static int put_line(FILE *out, const char *line, size_t len, const struct subst 
   return 0;
 }
 
-int vlff_can_write_dbc(const struct vlff_config *cfg, FILE *out, char *err, size_t errlen) {
+int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, size_t errlen) {
   if (vlff_can_check_config(cfg, err, errlen)) return -1;
-  const int base = cfg->can.status_base_id, hb = VLFF_CANP_HEARTBEAT_BASE + cfg->can.node_id;
+  const int base = cfg->status_base_id, hb = VLFF_CANP_HEARTBEAT_BASE + cfg->node_id;
   const int fd_id = base + VLFF_CANP_STATUS_FD_OFFSET;
   /* Without can.fd the node never sends the FD frame; its message stays in
    * the file (a controller may switch) unless its id belongs to another. */
-  const bool with_fd = cfg->can.fd || (fd_id <= 0x7ff && fd_id != hb && fd_id != cfg->can.command_id &&
-                                       fd_id != cfg->can.ack_id);
+  const bool with_fd = cfg->fd || (fd_id <= 0x7ff && fd_id != hb && fd_id != cfg->command_id &&
+                                       fd_id != cfg->ack_id);
   /* Likewise INGEST's classic id, free in classic mode, with can.fd not sent. */
   const int ingest_id = base + vlff_canp_status_offset(VLFF_CANP_INGEST);
-  const bool with_ingest = !cfg->can.fd || (ingest_id <= 0x7ff && ingest_id != hb &&
-                                            ingest_id != cfg->can.command_id && ingest_id != cfg->can.ack_id);
+  const bool with_ingest = !cfg->fd || (ingest_id <= 0x7ff && ingest_id != hb &&
+                                            ingest_id != cfg->command_id && ingest_id != cfg->ack_id);
   const struct subst s[] = {
       {"HB", hb},
       {"S0", base + VLFF_CANP_TRAIN},
@@ -226,11 +226,11 @@ int vlff_can_write_dbc(const struct vlff_config *cfg, FILE *out, char *err, size
       {"S3", base + VLFF_CANP_HEALTH},
       {"S4", fd_id},
       {"S5", ingest_id},
-      {"CMD", cfg->can.command_id},
-      {"ACK", cfg->can.ack_id},
-      {"NODE", cfg->can.node_id},
-      {"HBMS", cfg->can.heartbeat_ms},
-      {"STMS", cfg->can.status_ms},
+      {"CMD", cfg->command_id},
+      {"ACK", cfg->ack_id},
+      {"NODE", cfg->node_id},
+      {"HBMS", cfg->heartbeat_ms},
+      {"STMS", cfg->status_ms},
   };
   bool skipping = false;
   for (const char *p = dbc_template; *p;) {

@@ -94,11 +94,11 @@ void vlff_canp_encode_ack(int node_id, const struct vlff_can_command *cmd, int r
  * desc receives a readable summary ("bus-off, tx error-passive"). */
 uint32_t vlff_canp_decode_error(uint32_t can_id, const uint8_t data[8], char *desc, int desclen);
 
-/* The DBC (Vector's CAN database text) of the node cfg->can describes: the
+/* The DBC (Vector's CAN database text) of the node the can section describes: the
  * heartbeat, status, command and ack messages at the configured ids and
  * cycle times. Returns 0, or -1 with err naming the can.* key at fault
  * (vlff_can_check_config's checks) or the write error. */
-int vlff_can_write_dbc(const struct vlff_config *cfg, FILE *out, char *err, size_t errlen);
+int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, size_t errlen);
 
 /* Scaled u16: value/scale rounded, saturating; NaN/inf -> 0xFFFF. */
 uint16_t vlff_canp_u16(double value, double scale);

@@ -143,13 +143,13 @@ const char *vlff_can_result_name(int r) {
 
 /* ------------------------------------------------------------ config */
 
-int vlff_can_check_config(const struct vlff_config *cfg, char *err, size_t errlen) {
-  const int node = cfg->can.node_id, base = cfg->can.status_base_id;
+int vlff_can_check_config(const struct vlff_cfg_can *cfg, char *err, size_t errlen) {
+  const int node = cfg->node_id, base = cfg->status_base_id;
   const int hb = VLFF_CANP_HEARTBEAT_BASE + node;
-  const int last = base + (cfg->can.fd ? VLFF_CANP_STATUS_FD_OFFSET : vlff_canp_status_offset(VLFF_CANP_INGEST));
-  if (cfg->can.interface[0] == 0 || strlen(cfg->can.interface) >= IFNAMSIZ) {
+  const int last = base + (cfg->fd ? VLFF_CANP_STATUS_FD_OFFSET : vlff_canp_status_offset(VLFF_CANP_INGEST));
+  if (cfg->interface[0] == 0 || strlen(cfg->interface) >= IFNAMSIZ) {
     snprintf(err, errlen, "key 'can.interface': expected an interface name of 1..%d characters, got '%s'",
-             IFNAMSIZ - 1, cfg->can.interface);
+             IFNAMSIZ - 1, cfg->interface);
     return -1;
   }
   if (node < 1 || node > 127) {
@@ -161,7 +161,7 @@ int vlff_can_check_config(const struct vlff_config *cfg, char *err, size_t errle
     return -1;
   }
   const struct { const char *key; int id; } one[] = {
-      {"can.command_id", cfg->can.command_id}, {"can.ack_id", cfg->can.ack_id}};
+      {"can.command_id", cfg->command_id}, {"can.ack_id", cfg->ack_id}};
   for (int i = 0; i < 2; i++) {
     if (one[i].id == hb) {
       snprintf(err, errlen, "key '%s': 0x%x is the heartbeat id (0x700 + can.node_id)", one[i].key, one[i].id);
@@ -178,8 +178,8 @@ int vlff_can_check_config(const struct vlff_config *cfg, char *err, size_t errle
              last, hb);
     return -1;
   }
-  if (cfg->can.command_id == cfg->can.ack_id) {
-    snprintf(err, errlen, "key 'can.ack_id': same id as can.command_id (0x%x)", cfg->can.ack_id);
+  if (cfg->command_id == cfg->ack_id) {
+    snprintf(err, errlen, "key 'can.ack_id': same id as can.command_id (0x%x)", cfg->ack_id);
     return -1;
   }
   return 0;
@@ -547,7 +547,7 @@ static void *can_thread(void *arg) {
   return NULL;
 }
 
-struct vlff_can *vlff_can_open(const struct vlff_config *cfg, vlff_can_command_fn fn, void *ctx) {
+struct vlff_can *vlff_can_open(const struct vlff_cfg_can *cfg, int prompt_sets, vlff_can_command_fn fn, void *ctx) {
   char err[256];
   if (vlff_can_check_config(cfg, err, sizeof err) < 0) {
     VLFF_ERROR(TAG, "%s", err);
@@ -556,17 +556,17 @@ struct vlff_can *vlff_can_open(const struct vlff_config *cfg, vlff_can_command_f
   }
   struct vlff_can *can = calloc(1, sizeof *can);
   if (!can) return NULL;
-  memcpy(can->iface, cfg->can.interface, strlen(cfg->can.interface) + 1); /* length checked above */
-  can->node_id = cfg->can.node_id;
-  can->hb_ns = (int64_t)cfg->can.heartbeat_ms * 1000000;
-  can->status_ns = (int64_t)cfg->can.status_ms * 1000000;
-  can->status_base = (uint32_t)cfg->can.status_base_id;
-  can->cmd_id = (uint32_t)cfg->can.command_id;
-  can->ack_id = (uint32_t)cfg->can.ack_id;
-  can->want_fd = cfg->can.fd;
-  can->prompt_sets = cfg->prompts.set_count;
-  can->rt_priority = cfg->can.rt_priority;
-  can->spin_max_ns = (int64_t)cfg->can.heartbeat_spin_max_us * 1000;
+  memcpy(can->iface, cfg->interface, strlen(cfg->interface) + 1); /* length checked above */
+  can->node_id = cfg->node_id;
+  can->hb_ns = (int64_t)cfg->heartbeat_ms * 1000000;
+  can->status_ns = (int64_t)cfg->status_ms * 1000000;
+  can->status_base = (uint32_t)cfg->status_base_id;
+  can->cmd_id = (uint32_t)cfg->command_id;
+  can->ack_id = (uint32_t)cfg->ack_id;
+  can->want_fd = cfg->fd;
+  can->prompt_sets = prompt_sets;
+  can->rt_priority = cfg->rt_priority;
+  can->spin_max_ns = (int64_t)cfg->heartbeat_spin_max_us * 1000;
   can->fn = fn;
   can->ctx = ctx;
   can->sock = -1;

@@ -44,7 +44,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-struct vlff_config;
+struct vlff_cfg_can;
 
 /* NMT-like states carried by the heartbeat (CANopen values; ERROR is ours). */
 enum vlff_can_nmt {
@@ -148,12 +148,12 @@ struct vlff_can_stats {
 
 /* Check the can.* keys together (ranges, id overlaps). Returns 0, or -1
  * with err naming the key. */
-int vlff_can_check_config(const struct vlff_config *cfg, char *err, size_t errlen);
+int vlff_can_check_config(const struct vlff_cfg_can *cfg, char *err, size_t errlen);
 
-/* Start the CAN thread for cfg->can on the interface cfg->can.interface.
- * prompt_set commands are range-checked against cfg->prompts.set_count.
+/* Start the CAN thread for the can section, on its interface. prompt_set
+ * commands are range-checked against prompt_sets (prompts.set_count).
  * fn may be NULL (every valid command is then acked REFUSED). */
-struct vlff_can *vlff_can_open(const struct vlff_config *cfg, vlff_can_command_fn fn, void *ctx);
+struct vlff_can *vlff_can_open(const struct vlff_cfg_can *cfg, int prompt_sets, vlff_can_command_fn fn, void *ctx);
 
 /* Stop the thread, close the socket, free. NULL is a no-op. */
 void vlff_can_close(struct vlff_can *can);

@@ -323,7 +323,7 @@ int main(int argc, char **argv) {
   for (int i = 0; i < 4; i++)
     if (ids[i]) *fields[i] = (int)num(ids[i], names[i]);
   if (dbc) {
-    if (vlff_can_write_dbc(&cfg, stdout, err, sizeof err)) {
+    if (vlff_can_write_dbc(&cfg.can, stdout, err, sizeof err)) {
       if (path) fprintf(stderr, "%s: %s\n", path, err);
       else fprintf(stderr, "vlff-can: %s\n", err);
       return 1;

@@ -106,7 +106,6 @@ static const struct key schema[] = {
     DBL("sim.rate_hz", sim.rate_hz, 0.1, 1000, 5),
     INT("sim.width", sim.width, 16, 4096, 320),
     INT("sim.height", sim.height, 16, 4096, 240),
-    INT("sim.feature_dim", sim.feature_dim, 8, 1024, 512),
     DBL("sim.difficulty", sim.difficulty, 0, 1, 0.5),
     ENUM("sim.trajectory", sim.trajectory, trajectories, "walk"),
     ENUM("sim.layout", sim.layout, sim_layouts, "room"),
@@ -551,6 +550,8 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
       got(vn, g, sizeof g);
       if (vn->type != YAML_MAPPING_NODE) return fail(p, vn, path, "expected a mapping, got %s", g);
       if (walk(p, vn, path, cfg)) return -1;
+    } else if (!strcmp(path, "sim.feature_dim")) {
+      return fail(p, kn, path, "no longer a key: the simulator renders features of field.feature_dim dimensions");
     } else {
       return fail(p, kn, path, "unknown key");
     }
@@ -830,14 +831,15 @@ bool vlff_config_sim_features_misused(const struct vlff_config *cfg) {
          !cfg->source.allow_sim_features;
 }
 
-uint64_t vlff_config_field_hash(const struct vlff_config *cfg) {
+uint64_t vlff_config_field_hash(const struct vlff_cfg_field *field) {
   uint64_t h = VLFF_FNV1A64_INIT;
   for (size_t i = 0; i < NKEYS; i++) {
     const struct key *k = &schema[i];
     if (strncmp(k->path, "field.", 6)) continue;
     h = vlff_fnv1a64(h, k->path, strlen(k->path));
     size_t n = k->type == T_DVEC ? k->size * sizeof(double) : k->type == T_INT ? sizeof(int) : sizeof(double);
-    h = vlff_fnv1a64(h, cat(cfg, k), n);
+    /* The schema's offsets are into the whole config; this is its field section. */
+    h = vlff_fnv1a64(h, (const char *)field + (k->off - offsetof(struct vlff_config, field)), n);
   }
   return h;
 }

@@ -62,212 +62,230 @@ struct vlff_prompt_set {
   char text[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
 };
 
+struct vlff_cfg_node {
+  char name[VLFF_CFG_STR];         /* instance name, used in shm names */
+  int log_level;                   /* enum vlff_log_level */
+  char state_dir[VLFF_CFG_PATH];   /* checkpoints live here */
+  double checkpoint_period_s;      /* 0 = only on SIGTERM / command */
+  double run_seconds;              /* 0 = run until signalled */
+  int threads;                     /* 0 = one per core */
+};
+
+struct vlff_cfg_shm {
+  char ring[VLFF_CFG_STR];         /* frame ring segment name ("/vlff-frames") */
+  int ring_slots;
+  int max_width, max_height;       /* slot size: largest frame accepted */
+  char pose_ring[VLFF_CFG_STR];
+  int pose_slots;
+  char map[VLFF_CFG_STR];
+  int map_max_voxels;              /* map segment capacity */
+  int label_max_width, label_max_height;
+  char prompts[VLFF_CFG_STR];      /* prompt mailbox segment */
+  char feature_ring[VLFF_CFG_STR];
+  char group[VLFF_CFG_STR];        /* owning group, "" = creator's */
+  int mode;                        /* permission bits, 0640 or 0660 */
+};
+
+struct vlff_cfg_source {
+  int kind;                        /* enum vlff_source_kind */
+  char dataset[VLFF_CFG_PATH];     /* scene directory for kind=dataset */
+  int features;                    /* enum vlff_feature_source */
+  double pose_tolerance_s;         /* frame<->pose timestamp match */
+  bool allow_sim_features;         /* features: sim with kind: ring, forced (tests, demos) */
+  double pose_wait_s;              /* a keyframe candidate newer than every pose waits this long */
+};
+
+struct vlff_cfg_sim {
+  int seed;
+  double rate_hz;
+  int width, height;               /* its features have field.feature_dim dimensions */
+  double difficulty;               /* 0 = clean features, 1 = very noisy */
+  int trajectory;                  /* enum vlff_trajectory (room layout) */
+  int layout;                      /* enum vlff_sim_layout */
+  double object_bias;              /* 0..1: per-object feature bias every view shares */
+  double speed_mps;
+  double depth_noise_m;
+  double depth_hole_frac;
+  double depth_max_m;
+  int frames;                      /* frames per trajectory loop */
+  double bad_pose_frac;            /* fraction of frames with corrupted poses */
+};
+
+struct vlff_cfg_field {
+  int feature_dim;                 /* D */
+  int hash_levels;
+  int hash_features;
+  int hash_log2_size;
+  int base_resolution;
+  int finest_resolution;
+  int freq_bands;                  /* L of the frequency encoding */
+  int geo_dim;                     /* geometric code */
+  int density_width, density_layers;
+  int color_width, color_layers;
+  int feature_width, feature_layers;
+  int sh_degree;
+  double scene_min[3], scene_max[3];
+};
+
+struct vlff_cfg_train {
+  double lr;
+  double beta1, beta2, eps;
+  double weight_decay;
+  double lr_decay;                 /* multiplier applied every lr_decay_steps */
+  int lr_decay_steps;
+  int rays_per_step;
+  int warmup_steps;                /* node: a young field's steps grow from rays_per_step / 4 over these */
+  int warmup_levels;               /* node: a young field starts on this many hash levels (0 = all) */
+  int warmup_level_steps;          /* node: ... and adds the finer ones over these steps */
+  int samples_per_ray;
+  int sampling;                    /* enum vlff_sampling */
+  double depth_weight;
+  double feature_weight;
+  int feature_loss;                /* enum vlff_feat_loss */
+  double class_balance;            /* 0..1: ray drawing evens out the raw features' prompt classes */
+  double near_m;
+  int occupancy_resolution;
+  int occupancy_update_steps;
+  double image_scale;              /* training images scaled by this */
+};
+
+struct vlff_cfg_keyframes {
+  double rate_hz;                  /* keyframe selection upper bound */
+  double min_translation_m;
+  double min_rotation_deg;
+  int memory_mb;                   /* keyframe store budget */
+  int max_keyframes;
+  int start_after;                 /* train once this many are held */
+  int recent;                      /* the newest this many share half the rays */
+  double bad_pose_threshold_m;     /* median depth residual that rejects */
+  int posecheck_min_steps;         /* the map judges poses only after this much training */
+};
+
+struct vlff_cfg_publish {
+  double rate_hz;
+  double voxel_size_m;
+  int label_width, label_height;
+  int label_image;                 /* enum vlff_label_image */
+  double free_density;             /* below: free; unobserved stays unknown */
+};
+
+struct vlff_cfg_prompts {
+  int active;                      /* index into sets */
+  char templ[VLFF_CFG_STR];        /* prompt template, "{}" = the class */
+  char embeddings[VLFF_CFG_PATH];  /* precomputed prompt->vector file */
+  int set_count;
+  struct vlff_prompt_set sets[VLFF_MAX_PROMPT_SETS];
+};
+
+struct vlff_cfg_can {
+  bool enabled;
+  char interface[32];
+  int node_id;                     /* 1..127, CANopen */
+  int heartbeat_ms;
+  int status_ms;
+  int status_base_id;
+  int command_id;
+  int ack_id;
+  bool fd;
+  int rt_priority;                 /* SCHED_FIFO priority of the CAN thread, 0 = normal */
+  int heartbeat_spin_max_us;       /* cap on the early wake + spin before a heartbeat, 0 = sleep only */
+};
+
+struct vlff_cfg_camera {
+  int kind;                        /* enum vlff_camera_kind */
+  char device[VLFF_CFG_STR];       /* IP, serial, "Fake", libcamera id or index */
+  char pixel_format[32];
+  int width, height;               /* 0 = sensor maximum */
+  int offset_x, offset_y;
+  double exposure_us;
+  double gain_db;
+  double frame_rate;
+  int packet_size;
+  int trigger;                     /* enum vlff_trigger_mode */
+  char trigger_line[32];
+  int sensor_id;
+  double intrinsics[4];            /* fx fy cx cy; 0 = unknown */
+  double distortion[5];            /* k1 k2 p1 p2 k3 */
+  char calibration[VLFF_CFG_PATH]; /* OpenCV calibration YAML */
+  int depth;                       /* enum vlff_depth_kind */
+  int depth_unit;                  /* enum vlff_depth_unit of the depth plane */
+  double depth_scale_m;            /* metres per count: a range camera's (set from depth_camera.scale_m) */
+  double stereo_baseline_m;
+  int stereo_disparities;
+  double reconnect_max_s;
+};
+
+/* A range camera beside the colour camera (camera.depth: stream): its
+ * frames are paired with the colour camera's by time and registered into
+ * it, one frame record per pair. */
+struct vlff_cfg_depth_camera {
+  int kind;                        /* enum vlff_depth_camera_kind */
+  char device[VLFF_CFG_STR];
+  char pixel_format[32];           /* Mono16 or Coord3D_C16 */
+  int width, height;               /* 0 = sensor maximum */
+  double exposure_us;
+  double frame_rate;
+  int packet_size;
+  int trigger;                     /* enum vlff_trigger_mode */
+  char trigger_line[32];
+  double scale_m;                  /* metres per count */
+  char calibration[VLFF_CFG_PATH]; /* depth-to-colour OpenCV FileStorage file */
+  double pair_tolerance_s;         /* largest colour-depth time difference paired */
+};
+
+struct vlff_cfg_gpio {
+  int mode;                        /* enum vlff_gpio_mode */
+  char chip[VLFF_CFG_STR];
+  char line[VLFF_CFG_STR];         /* name or number */
+  double rate_hz;
+  double pulse_us;
+  bool active_low;
+  double debounce_us;
+};
+
+/* vlff-pose: TUM lines into the pose ring. */
+struct vlff_cfg_pose {
+  char udp[VLFF_CFG_STR];          /* listen address "host:port"; "" = a file or standard input */
+  int clock;                       /* enum vlff_pose_clock of the lines' stamps */
+  double clock_offset_s;           /* added to every stamp */
+  int stamp;                       /* enum vlff_pose_stamp */
+  double latency_s;                /* stamp host: receipt minus this */
+  double extrinsic[7];             /* camera in the body frame: tx ty tz qx qy qz qw */
+  double quat_tolerance;           /* |norm - 1| normalised; beyond, refused */
+  bool extra_fields;               /* numbers after the eighth ignored, not refused */
+  int source_id;                   /* written into every record */
+};
+
+struct vlff_cfg_vlm {
+  char image_model[VLFF_CFG_PATH];
+  char text_model[VLFF_CFG_PATH];
+  char bpe_vocab[VLFF_CFG_PATH];
+  int input_width, input_height;
+  double mean[3], std[3];
+  bool bgr;
+  bool normalize;
+  bool cuda;
+  double feature_timeout_s;
+};
+
+/* The whole file: one section per module, each module given only its own
+ * section (and what it names of another, passed as values). */
 struct vlff_config {
-  struct {
-    char name[VLFF_CFG_STR];         /* instance name, used in shm names */
-    int log_level;                   /* enum vlff_log_level */
-    char state_dir[VLFF_CFG_PATH];   /* checkpoints live here */
-    double checkpoint_period_s;      /* 0 = only on SIGTERM / command */
-    double run_seconds;              /* 0 = run until signalled */
-    int threads;                     /* 0 = one per core */
-  } node;
-
-  struct {
-    char ring[VLFF_CFG_STR];         /* frame ring segment name ("/vlff-frames") */
-    int ring_slots;
-    int max_width, max_height;       /* slot size: largest frame accepted */
-    char pose_ring[VLFF_CFG_STR];
-    int pose_slots;
-    char map[VLFF_CFG_STR];
-    int map_max_voxels;              /* map segment capacity */
-    int label_max_width, label_max_height;
-    char prompts[VLFF_CFG_STR];      /* prompt mailbox segment */
-    char feature_ring[VLFF_CFG_STR];
-    char group[VLFF_CFG_STR];        /* owning group, "" = creator's */
-    int mode;                        /* permission bits, 0640 or 0660 */
-  } shm;
-
-  struct {
-    int kind;                        /* enum vlff_source_kind */
-    char dataset[VLFF_CFG_PATH];     /* scene directory for kind=dataset */
-    int features;                    /* enum vlff_feature_source */
-    double pose_tolerance_s;         /* frame<->pose timestamp match */
-    bool allow_sim_features;         /* features: sim with kind: ring, forced (tests, demos) */
-    double pose_wait_s;              /* a keyframe candidate newer than every pose waits this long */
-  } source;
-
-  struct {
-    int seed;
-    double rate_hz;
-    int width, height;
-    int feature_dim;
-    double difficulty;               /* 0 = clean features, 1 = very noisy */
-    int trajectory;                  /* enum vlff_trajectory (room layout) */
-    int layout;                      /* enum vlff_sim_layout */
-    double object_bias;              /* 0..1: per-object feature bias every view shares */
-    double speed_mps;
-    double depth_noise_m;
-    double depth_hole_frac;
-    double depth_max_m;
-    int frames;                      /* frames per trajectory loop */
-    double bad_pose_frac;            /* fraction of frames with corrupted poses */
-  } sim;
-
-  struct {
-    int feature_dim;                 /* D */
-    int hash_levels;
-    int hash_features;
-    int hash_log2_size;
-    int base_resolution;
-    int finest_resolution;
-    int freq_bands;                  /* L of the frequency encoding */
-    int geo_dim;                     /* geometric code */
-    int density_width, density_layers;
-    int color_width, color_layers;
-    int feature_width, feature_layers;
-    int sh_degree;
-    double scene_min[3], scene_max[3];
-  } field;
-
-  struct {
-    double lr;
-    double beta1, beta2, eps;
-    double weight_decay;
-    double lr_decay;                 /* multiplier applied every lr_decay_steps */
-    int lr_decay_steps;
-    int rays_per_step;
-    int warmup_steps;                /* node: a young field's steps grow from rays_per_step / 4 over these */
-    int warmup_levels;               /* node: a young field starts on this many hash levels (0 = all) */
-    int warmup_level_steps;          /* node: ... and adds the finer ones over these steps */
-    int samples_per_ray;
-    int sampling;                    /* enum vlff_sampling */
-    double depth_weight;
-    double feature_weight;
-    int feature_loss;                /* enum vlff_feat_loss */
-    double class_balance;            /* 0..1: ray drawing evens out the raw features' prompt classes */
-    double near_m;
-    int occupancy_resolution;
-    int occupancy_update_steps;
-    double image_scale;              /* training images scaled by this */
-  } train;
-
-  struct {
-    double rate_hz;                  /* keyframe selection upper bound */
-    double min_translation_m;
-    double min_rotation_deg;
-    int memory_mb;                   /* keyframe store budget */
-    int max_keyframes;
-    int start_after;                 /* train once this many are held */
-    int recent;                      /* the newest this many share half the rays */
-    double bad_pose_threshold_m;     /* median depth residual that rejects */
-    int posecheck_min_steps;         /* the map judges poses only after this much training */
-  } keyframes;
-
-  struct {
-    double rate_hz;
-    double voxel_size_m;
-    int label_width, label_height;
-    int label_image;                 /* enum vlff_label_image */
-    double free_density;             /* below: free; unobserved stays unknown */
-  } publish;
-
-  struct {
-    int active;                      /* index into sets */
-    char templ[VLFF_CFG_STR];        /* prompt template, "{}" = the class */
-    char embeddings[VLFF_CFG_PATH];  /* precomputed prompt->vector file */
-    int set_count;
-    struct vlff_prompt_set sets[VLFF_MAX_PROMPT_SETS];
-  } prompts;
-
-  struct {
-    bool enabled;
-    char interface[32];
-    int node_id;                     /* 1..127, CANopen */
-    int heartbeat_ms;
-    int status_ms;
-    int status_base_id;
-    int command_id;
-    int ack_id;
-    bool fd;
-    int rt_priority;                 /* SCHED_FIFO priority of the CAN thread, 0 = normal */
-    int heartbeat_spin_max_us;       /* cap on the early wake + spin before a heartbeat, 0 = sleep only */
-  } can;
-
-  struct {
-    int kind;                        /* enum vlff_camera_kind */
-    char device[VLFF_CFG_STR];       /* IP, serial, "Fake", libcamera id or index */
-    char pixel_format[32];
-    int width, height;               /* 0 = sensor maximum */
-    int offset_x, offset_y;
-    double exposure_us;
-    double gain_db;
-    double frame_rate;
-    int packet_size;
-    int trigger;                     /* enum vlff_trigger_mode */
-    char trigger_line[32];
-    int sensor_id;
-    double intrinsics[4];            /* fx fy cx cy; 0 = unknown */
-    double distortion[5];            /* k1 k2 p1 p2 k3 */
-    char calibration[VLFF_CFG_PATH]; /* OpenCV calibration YAML */
-    int depth;                       /* enum vlff_depth_kind */
-    int depth_unit;                  /* enum vlff_depth_unit of the depth plane */
-    double depth_scale_m;            /* metres per count: a range camera's (set from depth_camera.scale_m) */
-    double stereo_baseline_m;
-    int stereo_disparities;
-    double reconnect_max_s;
-  } camera;
-
-  /* A range camera beside the colour camera (camera.depth: stream): its
-   * frames are paired with the colour camera's by time and registered into
-   * it, one frame record per pair. */
-  struct {
-    int kind;                        /* enum vlff_depth_camera_kind */
-    char device[VLFF_CFG_STR];
-    char pixel_format[32];           /* Mono16 or Coord3D_C16 */
-    int width, height;               /* 0 = sensor maximum */
-    double exposure_us;
-    double frame_rate;
-    int packet_size;
-    int trigger;                     /* enum vlff_trigger_mode */
-    char trigger_line[32];
-    double scale_m;                  /* metres per count */
-    char calibration[VLFF_CFG_PATH]; /* depth-to-colour OpenCV FileStorage file */
-    double pair_tolerance_s;         /* largest colour-depth time difference paired */
-  } depth_camera;
-
-  struct {
-    int mode;                        /* enum vlff_gpio_mode */
-    char chip[VLFF_CFG_STR];
-    char line[VLFF_CFG_STR];         /* name or number */
-    double rate_hz;
-    double pulse_us;
-    bool active_low;
-    double debounce_us;
-  } gpio;
-
-  struct {                           /* vlff-pose: TUM lines into the pose ring */
-    char udp[VLFF_CFG_STR];          /* listen address "host:port"; "" = a file or standard input */
-    int clock;                       /* enum vlff_pose_clock of the lines' stamps */
-    double clock_offset_s;           /* added to every stamp */
-    int stamp;                       /* enum vlff_pose_stamp */
-    double latency_s;                /* stamp host: receipt minus this */
-    double extrinsic[7];             /* camera in the body frame: tx ty tz qx qy qz qw */
-    double quat_tolerance;           /* |norm - 1| normalised; beyond, refused */
-    bool extra_fields;               /* numbers after the eighth ignored, not refused */
-    int source_id;                   /* written into every record */
-  } pose;
-
-  struct {
-    char image_model[VLFF_CFG_PATH];
-    char text_model[VLFF_CFG_PATH];
-    char bpe_vocab[VLFF_CFG_PATH];
-    int input_width, input_height;
-    double mean[3], std[3];
-    bool bgr;
-    bool normalize;
-    bool cuda;
-    double feature_timeout_s;
-  } vlm;
+  struct vlff_cfg_node node;
+  struct vlff_cfg_shm shm;
+  struct vlff_cfg_source source;
+  struct vlff_cfg_sim sim;
+  struct vlff_cfg_field field;
+  struct vlff_cfg_train train;
+  struct vlff_cfg_keyframes keyframes;
+  struct vlff_cfg_publish publish;
+  struct vlff_cfg_prompts prompts;
+  struct vlff_cfg_can can;
+  struct vlff_cfg_camera camera;
+  struct vlff_cfg_depth_camera depth_camera;
+  struct vlff_cfg_gpio gpio;
+  struct vlff_cfg_pose pose;
+  struct vlff_cfg_vlm vlm;
 };
 
 void vlff_config_defaults(struct vlff_config *cfg);
@@ -307,6 +325,6 @@ bool vlff_config_sim_features_misused(const struct vlff_config *cfg);
 
 /* Stable 64-bit hash of the fields that shape learned state (field.*),
  * stored in checkpoints so a mismatched model is refused. */
-uint64_t vlff_config_field_hash(const struct vlff_config *cfg);
+uint64_t vlff_config_field_hash(const struct vlff_cfg_field *field);
 
 #endif

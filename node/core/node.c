@@ -290,7 +290,7 @@ static void pending_complete(struct vlff_node *n, struct candidate **pending, in
   c->view.features = c->features;
   c->view.feat_width = fw;
   c->view.feat_height = fh;
-  c->view.feat_dim = d;
+  c->view.feature_dim = d;
   queue_push(n, c);
 }
 
@@ -619,7 +619,7 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
     v->features = c->features;
     v->feat_width = src->feat_width;
     v->feat_height = src->feat_height;
-    v->feat_dim = cfg->field.feature_dim;
+    v->feature_dim = cfg->field.feature_dim;
     queue_push(n, c);
   } else {
     c->deadline_s = now + cfg->vlm.feature_timeout_s;
@@ -1066,7 +1066,7 @@ static void do_publish(struct vlff_node *n) {
 
 static void reset_mapping(struct vlff_node *n) {
   char err[256];
-  struct vlff_field *f = vlff_field_create(&n->cfg, err, sizeof err);
+  struct vlff_field *f = vlff_field_create(&n->cfg.field, &n->cfg.train, n->cfg.node.threads, err, sizeof err);
   struct vlff_kfstore *s =
       vlff_kfstore_create((size_t)n->cfg.keyframes.memory_mb << 20, n->cfg.keyframes.max_keyframes, KF_PROTECT);
   if (!f || !s) {
@@ -1367,7 +1367,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
     snprintf(err, errlen, "node.state_dir '%s': %s", cfg->node.state_dir, strerror(errno));
     goto fail;
   }
-  n->field = vlff_field_create(cfg, err, errlen);
+  n->field = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, errlen);
   if (!n->field) goto fail;
   n->store = vlff_kfstore_create((size_t)cfg->keyframes.memory_mb << 20, cfg->keyframes.max_keyframes, KF_PROTECT);
   if (!n->store) {
@@ -1382,11 +1382,11 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   }
 #ifdef VLFF_HAVE_VLM
   if (!n->emb_file && cfg->vlm.text_model[0]) {
-    n->text_enc = vlff_text_encoder_open(cfg, err, errlen);
+    n->text_enc = vlff_text_encoder_open(&cfg->vlm, cfg->prompts.templ, cfg->field.feature_dim, err, errlen);
     if (!n->text_enc) goto fail;
   }
   if (cfg->source.features == VLFF_FEAT_MODEL) {
-    struct vlff_image_encoder *enc = vlff_image_encoder_open(cfg, err, errlen);
+    struct vlff_image_encoder *enc = vlff_image_encoder_open(&cfg->vlm, cfg->field.feature_dim, err, errlen);
     if (!enc) goto fail;
     int dd;
     vlff_image_encoder_shape(enc, &dd, &n->model_h, &n->model_w);

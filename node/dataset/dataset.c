@@ -245,7 +245,7 @@ static int features_probe(struct vlff_dataset *ds, const char *path, char *err, 
     }
   }
   snprintf(ds->feat_name, sizeof ds->feat_name, "%s", fd.name);
-  ds->feat_height = (int)dims[1], ds->feat_width = (int)dims[2], ds->feat_dim = (int)dims[3];
+  ds->feat_height = (int)dims[1], ds->feat_width = (int)dims[2], ds->feature_dim = (int)dims[3];
   ds->has_features = 1;
   rc = 0;
 out:
@@ -744,7 +744,7 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   hid_t fs = d >= 0 ? H5Dget_space(d) : -1;
   hid_t ht = h5_half();
   hsize_t start[4] = {(hsize_t)i, 0, 0, 0};
-  hsize_t cnt[4] = {1, (hsize_t)ds->feat_height, (hsize_t)ds->feat_width, (hsize_t)ds->feat_dim};
+  hsize_t cnt[4] = {1, (hsize_t)ds->feat_height, (hsize_t)ds->feat_width, (hsize_t)ds->feature_dim};
   hid_t ms = H5Screate_simple(4, cnt, NULL);
   int rc = -1;
   if (d >= 0 && fs >= 0 && H5Sselect_hyperslab(fs, H5S_SELECT_SET, start, NULL, cnt, NULL) >= 0 &&
@@ -760,7 +760,7 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   H5Fclose(f);
   if (rc == 0) {
     /* non-finite features would poison training and evaluation */
-    size_t n = (size_t)ds->feat_height * ds->feat_width * ds->feat_dim;
+    size_t n = (size_t)ds->feat_height * ds->feat_width * ds->feature_dim;
     for (size_t k = 0; k < n; k++)
       if ((out[k] & 0x7c00u) == 0x7c00u) {
         seterr(err, errlen, "%s: %s frame %d has a non-finite value at element %zu", p, dname, i, k);
@@ -825,10 +825,10 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
                                                      int height, double fx, double fy, double cx,
                                                      double cy, const double bbox_lo[3],
                                                      const double bbox_hi[3], const char *feat_name,
-                                                     int feat_width, int feat_height, int feat_dim,
+                                                     int feat_width, int feat_height, int feature_dim,
                                                      char *err, size_t errlen) {
-  if (nframes < 1 || width < 1 || height < 1 || !(fx > 0) || !(fy > 0) || feat_dim < 0 ||
-      (feat_dim > 0 && (feat_width < 1 || feat_height < 1 || !feat_name || !feat_name[0] ||
+  if (nframes < 1 || width < 1 || height < 1 || !(fx > 0) || !(fy > 0) || feature_dim < 0 ||
+      (feature_dim > 0 && (feat_width < 1 || feat_height < 1 || !feat_name || !feat_name[0] ||
                         strlen(feat_name) >= VLFF_DS_NAME || strchr(feat_name, '/')))) {
     seterr(err, errlen, "%s: invalid dataset shape", dir);
     return NULL;
@@ -844,7 +844,7 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
 #endif
   snprintf(w->dir, sizeof w->dir, "%s", dir);
   w->n = nframes, w->width = width, w->height = height;
-  w->fw = feat_width, w->fh = feat_height, w->dim = feat_dim;
+  w->fw = feat_width, w->fh = feat_height, w->dim = feature_dim;
   w->added = calloc((size_t)nframes, 1);
   char p[PATHMAX];
   if (!w->added || mkdir_p1(dir, err, errlen) < 0) goto fail;
@@ -863,7 +863,7 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
     join(p, dir, "bbox.txt");
     if (vlff_write_file_atomic(p, b, (size_t)n, err, errlen) < 0) goto fail;
   }
-  if (feat_dim > 0) {
+  if (feature_dim > 0) {
 #ifdef VLFF_HAVE_HDF5
     H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
     snprintf(w->h5tmp, sizeof w->h5tmp, "%s/features.hdf.tmp.%ld", dir, (long)getpid());
@@ -873,8 +873,8 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
       goto fail;
     }
     hid_t g = H5Gcreate2(w->file, "features", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    hsize_t dims[4] = {(hsize_t)nframes, (hsize_t)feat_height, (hsize_t)feat_width, (hsize_t)feat_dim};
-    hsize_t chunk[4] = {1, (hsize_t)feat_height, (hsize_t)feat_width, (hsize_t)feat_dim};
+    hsize_t dims[4] = {(hsize_t)nframes, (hsize_t)feat_height, (hsize_t)feat_width, (hsize_t)feature_dim};
+    hsize_t chunk[4] = {1, (hsize_t)feat_height, (hsize_t)feat_width, (hsize_t)feature_dim};
     hid_t sp = H5Screate_simple(4, dims, NULL);
     hid_t pl = H5Pcreate(H5P_DATASET_CREATE);
     H5Pset_chunk(pl, 4, chunk);

@@ -106,7 +106,7 @@ struct vlff_dataset {
   int has_labels;              /* gt_semantic/ present for every frame */
   int has_features;
   char feat_name[VLFF_DS_NAME];
-  int feat_height, feat_width, feat_dim;
+  int feat_height, feat_width, feature_dim;
   char rgb_ext[8];
   /* ScanNet with a depth camera of its own (see the layouts) */
   int registered;
@@ -137,18 +137,18 @@ void vlff_dataset_close(struct vlff_dataset *ds);
  * unlabelled; only when has_labels). Any output may be NULL. */
 int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, float *depth,
                             uint8_t *label, char *err, size_t errlen);
-/* Frame i's features, float16 [feat_height][feat_width][feat_dim]. */
+/* Frame i's features, float16 [feat_height][feat_width][feature_dim]. */
 int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *out, char *err,
                                size_t errlen);
 
 /* Writer for the reference layout. nframes and the feature shape are fixed
- * at open (feat_dim 0 = no features.hdf). */
+ * at open (feature_dim 0 = no features.hdf). */
 struct vlff_dataset_writer;
 struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframes, int width,
                                                      int height, double fx, double fy, double cx,
                                                      double cy, const double bbox_lo[3],
                                                      const double bbox_hi[3], const char *feat_name,
-                                                     int feat_width, int feat_height, int feat_dim,
+                                                     int feat_width, int feat_height, int feature_dim,
                                                      char *err, size_t errlen);
 /* Frame i (0..nframes-1): rgb required; depth_mm, label, features may be NULL. */
 int vlff_dataset_writer_add(struct vlff_dataset_writer *w, int i, const uint8_t *rgb,

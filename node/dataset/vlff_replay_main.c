@@ -106,7 +106,7 @@ static int open_rings(struct replay *r, const struct vlff_config *cfg, int featu
   }
   if (features) {
     struct vlff_ring_params xp = {VLFF_RECORD_FEATURE, (uint32_t)cfg->shm.ring_slots,
-                                  vlff_feature_slot_size((uint32_t)ds->feat_dim, (uint32_t)ds->feat_height,
+                                  vlff_feature_slot_size((uint32_t)ds->feature_dim, (uint32_t)ds->feat_height,
                                                          (uint32_t)ds->feat_width),
                                   perm};
     r->feats = vlff_ring_create(cfg->shm.feature_ring, &xp);
@@ -175,14 +175,14 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
   if (vlff_ring_commit(r->frames, len) < 0) return ring_error("frame", "commit");
   if (r->feats) {
     struct vlff_feature_hdr *f = vlff_ring_reserve(r->feats, NULL);
-    uint64_t flen = f ? vlff_feature_layout(f, vlff_ring_slot_size(r->feats), (uint32_t)ds->feat_dim,
+    uint64_t flen = f ? vlff_feature_layout(f, vlff_ring_slot_size(r->feats), (uint32_t)ds->feature_dim,
                                             (uint32_t)ds->feat_height, (uint32_t)ds->feat_width)
                       : 0;
     if (!flen) return ring_error("feature", "layout");
     f->frame_id = (uint64_t)id;
     f->t_host_ns = now;
     /* the scene stores [h][w][D]; the ring carries [D][h][w] */
-    vlff_transpose_u16(r->hwc, (size_t)ds->feat_height * ds->feat_width, (size_t)ds->feat_dim,
+    vlff_transpose_u16(r->hwc, (size_t)ds->feat_height * ds->feat_width, (size_t)ds->feature_dim,
                        (uint16_t *)((uint8_t *)f + f->data_offset));
     if (vlff_ring_commit(r->feats, flen) < 0) return ring_error("feature", "commit");
   }
@@ -319,7 +319,7 @@ int main(int argc, char **argv) {
   const size_t px = (size_t)r.ds.width * r.ds.height;
   r.rgb = malloc(px * 3);
   r.depth = malloc(px * sizeof(float));
-  r.hwc = features ? malloc((size_t)r.ds.feat_height * r.ds.feat_width * r.ds.feat_dim * sizeof(uint16_t)) : NULL;
+  r.hwc = features ? malloc((size_t)r.ds.feat_height * r.ds.feat_width * r.ds.feature_dim * sizeof(uint16_t)) : NULL;
   if (!r.rgb || !r.depth || (features && !r.hwc)) {
     fprintf(stderr, "vlff-replay: out of memory for %dx%d frames\n", r.ds.width, r.ds.height);
     goto out;

@@ -53,7 +53,7 @@ static const struct vlff_cli cli = {
     "  --seed N            sim.seed\n"
     "  --frames N          frames of the synthetic trajectory (sim.frames)\n"
     "  --difficulty X      sim.difficulty\n"
-    "  --feature-dim D     sim.feature_dim and field.feature_dim\n"
+    "  --feature-dim D     field.feature_dim (the simulator renders that many)\n"
     "  --iters N           training steps (default 1500; 0 = baselines only)\n"
     "  --fit-seconds S     fit for S seconds of wall clock instead of --iters steps\n"
     "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
@@ -199,7 +199,7 @@ static void parse_args(int argc, char **argv, struct opts *o) {
 
 static void load_sim(struct scene *sc, const struct vlff_config *cfg) {
   char err[512];
-  struct vlff_sim *s = vlff_sim_create(cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
   if (!s) die("%s", err);
   vlff_sim_size(s, &sc->W, &sc->H, &sc->fw, &sc->fh, &sc->D);
   vlff_sim_intrinsics(s, &sc->fx, &sc->fy, &sc->cx, &sc->cy);
@@ -262,8 +262,8 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
   if (vlff_dataset_open_opts(&ds, dir, &dopt, err, sizeof err) < 0) die("%s", err);
   if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
   if (!ds.has_labels) die("%s: no gt_semantic/ or label-filt/ (needed for 2D evaluation)", dir);
-  if (ds.feat_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feat_dim);
-  sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feat_dim;
+  if (ds.feature_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feature_dim);
+  sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feature_dim;
   sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;
   sc->n = (ds.n + o->stride - 1) / o->stride;
   sc->holdout = o->holdout;
@@ -470,9 +470,8 @@ int main(int argc, char **argv) {
   if (o.seed >= 0) cfg.sim.seed = o.seed;
   if (o.frames > 0) cfg.sim.frames = o.frames;
   if (o.difficulty >= 0) cfg.sim.difficulty = o.difficulty;
-  if (o.dim > 0) cfg.sim.feature_dim = cfg.field.feature_dim = o.dim;
+  if (o.dim > 0) cfg.field.feature_dim = o.dim;
   if (o.threads >= 0) cfg.node.threads = o.threads;
-  if (!o.dataset) cfg.field.feature_dim = cfg.sim.feature_dim;
   if (mkdir(o.out, 0755) < 0 && errno != EEXIST) die("%s: cannot create: %s", o.out, strerror(errno));
 
   struct scene sc;
@@ -554,7 +553,7 @@ int main(int argc, char **argv) {
   struct vlff_train_stats st = {0};
   int *overlay_pred = NULL;
   if (o.iters > 0 || o.fit_seconds > 0) {
-    struct vlff_field *fld = vlff_field_create(&cfg, err, sizeof err);
+    struct vlff_field *fld = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof err);
     if (!fld) die("%s", err);
     /* the prompts are known before fitting, as in the node (class-balanced
      * ray drawing reads them) */
@@ -568,7 +567,7 @@ int main(int argc, char **argv) {
       v->width = sc.tw, v->height = sc.th, v->rgb = sc.f[i].trgb, v->depth = sc.f[i].tdepth;
       v->fx = sc.fx * s, v->fy = sc.fy * sy, v->cx = sc.cx * s, v->cy = sc.cy * sy;
       memcpy(v->c2w, sc.f[i].c2w, sizeof v->c2w);
-      v->feat_width = fw, v->feat_height = fh, v->feat_dim = D, v->features = sc.f[i].feat;
+      v->feat_width = fw, v->feat_height = fh, v->feature_dim = D, v->features = sc.f[i].feat;
     }
     int tty = isatty(2) && !o.quiet;
     double t0 = vlff_seconds(), last = t0;

@@ -118,7 +118,7 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   memcpy(h.magic, CKPT_MAGIC, 8);
   h.version = CKPT_VERSION;
   h.bom = CKPT_BOM;
-  h.config_hash = vlff_config_field_hash(&f->cfg);
+  h.config_hash = vlff_config_field_hash(&f->cfg.field);
   h.nparams = f->nparams;
   h.ntable = f->ntable;
   h.ncells = ncells(f);
@@ -175,7 +175,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     why = "unsupported version";
   else if (h.bom != CKPT_BOM)
     why = "written on a machine of other byte order";
-  else if (h.config_hash != vlff_config_field_hash(&f->cfg))
+  else if (h.config_hash != vlff_config_field_hash(&f->cfg.field))
     why = "model configuration (field.*) differs from this node's";
   else if (h.nparams != np || h.ntable != f->ntable || h.ncells != nc || h.feature_dim != f->D)
     why = "array sizes differ from this model";

@@ -35,19 +35,19 @@
 #define VLFF_ENC_V4 0
 #endif
 
-void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_config *cfg) {
-  e->levels = cfg->field.hash_levels;
+void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cfg) {
+  e->levels = cfg->hash_levels;
   e->active = e->levels;
-  e->feats = cfg->field.hash_features;
-  e->log2_size = cfg->field.hash_log2_size;
-  e->freq_bands = cfg->field.freq_bands;
+  e->feats = cfg->hash_features;
+  e->log2_size = cfg->hash_log2_size;
+  e->freq_bands = cfg->freq_bands;
   e->size = 1u << e->log2_size;
   e->dim = e->levels * e->feats + 6 * e->freq_bands;
   for (int i = 0; i < 3; i++) {
-    e->box_min[i] = (float)cfg->field.scene_min[i];
-    e->box_scale[i] = (float)(1.0 / (cfg->field.scene_max[i] - cfg->field.scene_min[i]));
+    e->box_min[i] = (float)cfg->scene_min[i];
+    e->box_scale[i] = (float)(1.0 / (cfg->scene_max[i] - cfg->scene_min[i]));
   }
-  double base = cfg->field.base_resolution, fine = cfg->field.finest_resolution;
+  double base = cfg->base_resolution, fine = cfg->finest_resolution;
   double growth = e->levels > 1 ? exp((log(fine) - log(base)) / (e->levels - 1)) : 1.0;
   for (int l = 0; l < e->levels; l++) {
     double r = floor(base * pow(growth, l) + 1e-6);

@@ -43,7 +43,7 @@ struct vlff_view {
   double fx, fy, cx, cy;     /* intrinsics at width x height */
   double c2w[16];            /* camera-to-world, row-major */
   int feat_width, feat_height;
-  int feat_dim;              /* D of features; must equal field.feature_dim when features != NULL */
+  int feature_dim;              /* D of features; must equal field.feature_dim when features != NULL */
   const uint16_t *features;  /* float16 [feat_height][feat_width][D]; may be NULL */
 };
 
@@ -61,8 +61,10 @@ struct vlff_train_stats {
   double time_rays, time_table, time_dense;
 };
 
-/* Create from cfg's field.*, train.* and node.threads sections. */
-struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, size_t errlen);
+/* Create from the field and train sections, on threads worker threads
+ * (node.threads: 0 = one per core). */
+struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, int threads,
+                                     char *err, size_t errlen);
 void vlff_field_destroy(struct vlff_field *f);
 
 /* One optimisation step on train.rays_per_step rays drawn from views.

@@ -45,7 +45,7 @@ struct vlff_encoding {
   int dense[32];           /* level indexed densely (no hashing) */
   int simd;                /* VLFF_ISA_*: the vector kernels (the portable loops' results to float rounding) */
 };
-void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_config *cfg);
+void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cfg);
 /* Normalised position of world point x, clamped to [0,1]; returns 0 when x
  * was outside the box. */
 int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float *p);
@@ -244,8 +244,14 @@ struct vlff_work {
   uint64_t rng;
 };
 
+/* The sections a field is made from (field.h). */
+struct vlff_field_cfg {
+  struct vlff_cfg_field field;
+  struct vlff_cfg_train train;
+};
+
 struct vlff_field {
-  struct vlff_config cfg;
+  struct vlff_field_cfg cfg;
   struct vlff_pool *pool;
   int threads;
   struct vlff_encoding enc;

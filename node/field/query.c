@@ -253,7 +253,7 @@ struct render_ctx {
  * samples that carry weight. */
 static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int want_rgb,
                          int want_feat) {
-  const struct vlff_config *cfg = &f->cfg;
+  const struct vlff_field_cfg *cfg = &f->cfg;
   const int S = f->spr, geo = f->geo, shd = f->shdim, H = f->H;
   const int in2w = geo + shd, ld1 = f->m1.nout;
   const int round = S >= 64 ? S / 8 : S >= 4 ? 4 : S;

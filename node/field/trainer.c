@@ -149,12 +149,13 @@ void vlff_field_destroy(struct vlff_field *f) {
   free(f);
 }
 
-struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, size_t errlen) {
-  if (!cfg) {
+struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, int threads,
+                                     char *err, size_t errlen) {
+  if (!field || !train) {
     seterr(err, errlen, "field: %s", "no config");
     return NULL;
   }
-  const int levels = cfg->field.hash_levels;
+  const int levels = field->hash_levels;
   if (levels > 32) {
     seterr(err, errlen, "field: %s", "field.hash_levels must be <= 32");
     return NULL;
@@ -164,8 +165,10 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
     seterr(err, errlen, "field: %s", "out of memory");
     return NULL;
   }
-  f->cfg = *cfg;
-  vlff_encoding_init(&f->enc, cfg);
+  f->cfg.field = *field;
+  f->cfg.train = *train;
+  const struct vlff_field_cfg *cfg = &f->cfg;
+  vlff_encoding_init(&f->enc, &cfg->field);
   f->D = cfg->field.feature_dim;
   f->H = cfg->field.feature_width;
   f->geo = cfg->field.geo_dim;
@@ -188,7 +191,7 @@ struct vlff_field *vlff_field_create(const struct vlff_config *cfg, char *err, s
   f->adam.simd = vlff_gemm_isa_level(); /* as the encoding: VLFF_GEMM=generic is all portable */
   f->feat_loss = cfg->train.feature_loss;
 
-  f->pool = vlff_pool_create(cfg->node.threads);
+  f->pool = vlff_pool_create(threads);
   if (!f->pool) {
     seterr(err, errlen, "field: %s", "cannot start worker threads");
     vlff_field_destroy(f);
@@ -430,7 +433,7 @@ static void relu_scale_h(int n, float a, const float *restrict h, const float *r
 /* The chunk pipeline shared by training and rendering. */
 void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
                       float *pslot, float *dencslot, int *nsamples) {
-  const struct vlff_config *cfg = &f->cfg;
+  const struct vlff_field_cfg *cfg = &f->cfg;
   const int S = f->spr, geo = f->geo, shd = f->shdim, H = f->H, D = f->D;
   const int in2w = geo + shd;
   const int ld1 = f->m1.nout;
@@ -760,7 +763,7 @@ static int check_views(const struct vlff_field *f, const struct vlff_view *views
       bad = "has no rgb, depth or features";
     else if (v->features && (v->feat_width <= 0 || v->feat_height <= 0))
       bad = "features need feat_width/feat_height > 0";
-    else if (v->features && v->feat_dim != f->D)
+    else if (v->features && v->feature_dim != f->D)
       bad = "feature dimension differs from field.feature_dim";
     for (int k = 0; !bad && k < 16; k++)
       if (!isfinite(v->c2w[k])) bad = "pose has a non-finite entry";

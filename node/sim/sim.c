@@ -68,7 +68,7 @@ struct bvh_node {
 };
 
 struct vlff_sim {
-  struct vlff_config cfg;
+  struct vlff_cfg_sim cfg;
   uint32_t seed;
   int width, height, fw, fh, dim;
   double fx, fy, cx, cy;
@@ -925,7 +925,7 @@ static void way_at(const struct vlff_sim *s, double d, double p[2]) {
  * through doorways. */
 static void flat_pose(const struct vlff_sim *s, long long index, double c2w[16]) {
   double L = s->way_len[s->nway];
-  double d = L * (double)(index % s->cfg.sim.frames) / s->cfg.sim.frames;
+  double d = L * (double)(index % s->cfg.frames) / s->cfg.frames;
   double eye[3], tgt[3], a[2], b[2];
   way_at(s, d, eye);
   way_at(s, d - 0.5, a);
@@ -950,10 +950,10 @@ static void true_pose(const struct vlff_sim *s, long long index, double c2w[16])
   double cxr = 0.5 * (s->room_lo[0] + s->room_hi[0]), cyr = 0.5 * (s->room_lo[1] + s->room_hi[1]);
   double ax = 0.5 * (s->room_hi[0] - s->room_lo[0]), ay = 0.5 * (s->room_hi[1] - s->room_lo[1]);
   double fz = s->room_lo[2];
-  double t = (double)index / s->cfg.sim.rate_hz;
-  double dist = t * s->cfg.sim.speed_mps;
+  double t = (double)index / s->cfg.rate_hz;
+  double dist = t * s->cfg.speed_mps;
   double eye[3], tgt[3];
-  if (s->cfg.sim.trajectory == VLFF_TRAJ_ORBIT) {
+  if (s->cfg.trajectory == VLFF_TRAJ_ORBIT) {
     double rad = 0.55 * fmin(ax, ay);
     double th = dist / rad;
     eye[0] = cxr + rad * cos(th), eye[1] = cyr + rad * sin(th), eye[2] = fz + 1.6;
@@ -976,9 +976,9 @@ static void true_pose(const struct vlff_sim *s, long long index, double c2w[16])
 }
 
 static int is_bad_pose(const struct vlff_sim *s, long long index) {
-  if (s->cfg.sim.bad_pose_frac <= 0) return 0;
+  if (s->cfg.bad_pose_frac <= 0) return 0;
   struct rng r = rng_make(s->seed, 7, (uint64_t)index);
-  return rng_uniform(&r) < s->cfg.sim.bad_pose_frac;
+  return rng_uniform(&r) < s->cfg.bad_pose_frac;
 }
 
 /* A corrupted pose: 0.2-0.5 m off and rotated 5-15 degrees about z, like a
@@ -1080,7 +1080,7 @@ static int build_features(struct vlff_sim *s) {
  * vision-language model that is sure of the wrong thing for some objects. */
 static int build_objects(struct vlff_sim *s) {
   const int D = s->dim;
-  const double b = s->cfg.sim.object_bias;
+  const double b = s->cfg.object_bias;
   s->nobj = s->cur_obj + 1;
   s->obj_vec = calloc((size_t)s->nobj * D, sizeof(float));
   s->obj_mix = calloc((size_t)s->nobj, sizeof(float));
@@ -1170,7 +1170,7 @@ static void feature_mix(float w, const float *p, float *v, int D) {
 static void render_features(const struct vlff_sim *s, long long index, struct vlff_sim_frame *f,
                             const float *cosview, const int *primbuf, float *acc) {
   const int D = s->dim, W = s->width, H = s->height, fw = s->fw, fh = s->fh;
-  const double diff = s->cfg.sim.difficulty;
+  const double diff = s->cfg.difficulty;
   struct rng fr = rng_make(s->seed, 3, (uint64_t)index);
   struct patch patches[16];
   int np = (int)floor(diff * 8 + rng_uniform(&fr));
@@ -1224,7 +1224,7 @@ static void render_features(const struct vlff_sim *s, long long index, struct vl
       int pc = s->partner[cc];
       w[pc] += (float)m * w[cc];
       w[cc] *= (float)(1 - m);
-      int pi = primbuf[(size_t)vc * W + uc], obj = pi >= 0 && s->cfg.sim.object_bias > 0 ? s->prims[pi].obj : -1;
+      int pi = primbuf[(size_t)vc * W + uc], obj = pi >= 0 && s->cfg.object_bias > 0 ? s->prims[pi].obj : -1;
       if (obj >= 0) {
         float om = s->obj_mix[obj];
         w[s->obj_to[obj]] += om * w[cc];
@@ -1259,13 +1259,13 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
     vlff_errf(err, errlen, "sim: frame index %lld is negative", index);
     return -1;
   }
-  if (!f || f->width != s->width || f->height != s->height || f->feat_dim != s->dim) {
+  if (!f || f->width != s->width || f->height != s->height || f->feature_dim != s->dim) {
     vlff_errf(err, errlen, "sim: frame buffer does not match this sim's sizes");
     return -1;
   }
   const int W = s->width, H = s->height;
   f->index = index;
-  f->time_s = (double)index / s->cfg.sim.rate_hz;
+  f->time_s = (double)index / s->cfg.rate_hz;
   f->fx = s->fx, f->fy = s->fy, f->cx = s->cx, f->cy = s->cy;
   true_pose(s, index, f->c2w_true);
   memcpy(f->c2w, f->c2w_true, sizeof f->c2w);
@@ -1282,8 +1282,8 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
     return -1;
   }
   struct rng nr = rng_make(s->seed, 2, (uint64_t)index);
-  const double dn = s->cfg.sim.depth_noise_m, holes = s->cfg.sim.depth_hole_frac,
-               dmax = s->cfg.sim.depth_max_m;
+  const double dn = s->cfg.depth_noise_m, holes = s->cfg.depth_hole_frac,
+               dmax = s->cfg.depth_max_m;
   /* Holes come in small blobs, like stereo matching failures: seed blob
    * centres so the expected invalid fraction is depth_hole_frac. */
   int nblob = (int)(holes * W * H / 18.0 + 0.5);
@@ -1352,20 +1352,21 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
 
 /* ---- lifetime ----------------------------------------------------------- */
 
-struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_t errlen) {
-  const double *bl = cfg->field.scene_min, *bh = cfg->field.scene_max;
+struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vlff_cfg_field *field, char *err,
+                                 size_t errlen) {
+  const double *bl = field->scene_min, *bh = field->scene_max;
   for (int k = 0; k < 3; k++)
     if (!(bh[k] - bl[k] >= 2.6)) {
       vlff_errf(err, errlen, "sim: field.scene_min/max axis %d spans %.2f m; the room needs at least 2.6 m", k,
              bh[k] - bl[k]);
       return NULL;
     }
-  if (cfg->sim.width < 16 || cfg->sim.height < 16 || cfg->sim.feature_dim < 1 || cfg->sim.rate_hz <= 0) {
-    vlff_errf(err, errlen, "sim: invalid sizes (%dx%d, D=%d) or rate %.3f", cfg->sim.width, cfg->sim.height,
-           cfg->sim.feature_dim, cfg->sim.rate_hz);
+  if (sim->width < 16 || sim->height < 16 || field->feature_dim < 1 || sim->rate_hz <= 0) {
+    vlff_errf(err, errlen, "sim: invalid sizes (%dx%d, D=%d) or rate %.3f", sim->width, sim->height,
+           field->feature_dim, sim->rate_hz);
     return NULL;
   }
-  if (cfg->sim.layout == VLFF_LAYOUT_FLAT) {
+  if (sim->layout == VLFF_LAYOUT_FLAT) {
     double ax = bh[0] - bl[0] - 0.2, ay = bh[1] - bl[1] - 0.2;
     if (ax < 6 || ay < 6 || ax * ay < 60) {
       vlff_errf(err, errlen,
@@ -1380,16 +1381,16 @@ struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_
     vlff_errf(err, errlen, "sim: out of memory");
     return NULL;
   }
-  s->cfg = *cfg;
-  s->seed = (uint32_t)cfg->sim.seed;
-  s->width = cfg->sim.width, s->height = cfg->sim.height, s->dim = cfg->sim.feature_dim;
+  s->cfg = *sim;
+  s->seed = (uint32_t)sim->seed;
+  s->width = sim->width, s->height = sim->height, s->dim = field->feature_dim;
   s->fw = s->width / 4 > 0 ? s->width / 4 : 1;
   s->fh = s->height / 4 > 0 ? s->height / 4 : 1;
   /* ~65 degrees horizontal field of view, square pixels, centred. */
   s->fx = s->fy = 0.5 * s->width / tan(0.5 * 65.0 * M_PI / 180.0);
   s->cx = 0.5 * s->width, s->cy = 0.5 * s->height;
   struct rng r = rng_make(s->seed, 0, 0);
-  const int flat = cfg->sim.layout == VLFF_LAYOUT_FLAT;
+  const int flat = sim->layout == VLFF_LAYOUT_FLAT;
   for (int k = 0; k < 2; k++) {
     double c = 0.5 * (bl[k] + bh[k]);
     double half = fmin(0.5 * (bh[k] - bl[k]) - 0.1, 4.0) * rng_range(&r, 0.8, 1.0);
@@ -1444,7 +1445,7 @@ struct vlff_sim_frame *vlff_sim_frame_new(const struct vlff_sim *s) {
   if (!f) return NULL;
   size_t n = (size_t)s->width * s->height;
   f->width = s->width, f->height = s->height;
-  f->feat_width = s->fw, f->feat_height = s->fh, f->feat_dim = s->dim;
+  f->feat_width = s->fw, f->feat_height = s->fh, f->feature_dim = s->dim;
   f->rgb = calloc(n * 3, 1);
   f->depth = calloc(n, sizeof(float));
   f->depth_gt = calloc(n, sizeof(float));
@@ -1469,12 +1470,12 @@ void vlff_sim_intrinsics(const struct vlff_sim *s, double *fx, double *fy, doubl
 }
 
 void vlff_sim_size(const struct vlff_sim *s, int *width, int *height, int *feat_width,
-                   int *feat_height, int *feat_dim) {
+                   int *feat_height, int *feature_dim) {
   if (width) *width = s->width;
   if (height) *height = s->height;
   if (feat_width) *feat_width = s->fw;
   if (feat_height) *feat_height = s->fh;
-  if (feat_dim) *feat_dim = s->dim;
+  if (feature_dim) *feature_dim = s->dim;
 }
 
 void vlff_sim_bounds(const struct vlff_sim *s, double lo[3], double hi[3]) {
@@ -1519,7 +1520,7 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
                        M[8] * dc[0] + M[9] * dc[1] + M[10] * dc[2]};
         int pi;
         double t = cast(s, o, d, &pi, NULL);
-        if (t < 0 || t > s->cfg.sim.depth_max_m) continue;
+        if (t < 0 || t > s->cfg.depth_max_m) continue;
         double x[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
         int64_t ix = (int64_t)floor(x[0] / voxel), iy = (int64_t)floor(x[1] / voxel),
                 iz = (int64_t)floor(x[2] / voxel);

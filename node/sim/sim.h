@@ -21,7 +21,7 @@
  *  - Depth is metres along the camera z axis; 0 = invalid.
  *  - Class ids 0..19 follow the default prompt set (wall, floor, ..., other
  *    furniture); VLFF_SIM_UNLABELLED (255) marks the ceiling and misses.
- *  - Features are IEEE float16 bits, HWC, D = sim.feature_dim, not
+ *  - Features are IEEE float16 bits, HWC, D = field.feature_dim, not
  *    normalised (like LSeg's raw output).
  *
  * Contract
@@ -61,15 +61,17 @@ struct vlff_sim_frame {
   float *depth_gt;            /* [h][w] exact metres to the first surface */
   uint16_t *depth_mm;         /* [h][w] measured depth in millimetres (0 = invalid) */
   uint8_t *label;             /* [h][w] class id, 255 = unlabelled */
-  int feat_width, feat_height, feat_dim;
+  int feat_width, feat_height, feature_dim;
   uint16_t *features;         /* float16 [fh][fw][D] */
 };
 
 /* Render flags (0 renders the labels, exact depth and pose alone). */
 enum { VLFF_SIM_RGBD = 1, VLFF_SIM_FEATURES = 2, VLFF_SIM_ALL = 3 };
 
-/* Create from cfg->sim.* and cfg->field.scene_min/max. */
-struct vlff_sim *vlff_sim_create(const struct vlff_config *cfg, char *err, size_t errlen);
+/* Create from the sim section, in the field section's scene box
+ * (scene_min/max) with its feature dimension (feature_dim). */
+struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vlff_cfg_field *field, char *err,
+                                 size_t errlen);
 void vlff_sim_destroy(struct vlff_sim *s);
 
 struct vlff_sim_frame *vlff_sim_frame_new(const struct vlff_sim *s);
@@ -84,7 +86,7 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
 void vlff_sim_pose(const struct vlff_sim *s, long long index, double c2w[16]);
 void vlff_sim_intrinsics(const struct vlff_sim *s, double *fx, double *fy, double *cx, double *cy);
 void vlff_sim_size(const struct vlff_sim *s, int *width, int *height, int *feat_width,
-                   int *feat_height, int *feat_dim);
+                   int *feat_height, int *feature_dim);
 /* Room bounds (inside of the walls) and the scene box of all geometry. */
 void vlff_sim_bounds(const struct vlff_sim *s, double lo[3], double hi[3]);
 /* Number of primitives of each class present (counts[VLFF_SIM_CLASSES]). */

@@ -29,7 +29,7 @@ static int features(void *ctx, long long frame_id, uint16_t *out, char *err, siz
   struct vlff_sim_source *s = ctx;
   if (vlff_sim_render(s->sim, scene_frame(s, frame_id), VLFF_SIM_FEATURES, s->feat, err, errlen)) return -1;
   const struct vlff_sim_frame *f = s->feat;
-  memcpy(out, f->features, (size_t)f->feat_width * f->feat_height * f->feat_dim * sizeof *out);
+  memcpy(out, f->features, (size_t)f->feat_width * f->feat_height * f->feature_dim * sizeof *out);
   return 0;
 }
 
@@ -125,13 +125,8 @@ struct vlff_sim_source *vlff_sim_source_create(const struct vlff_config *cfg, st
   if (!s) return snprintf(err, errlen, "out of memory"), NULL;
   bool feats = cfg->source.features == VLFF_FEAT_SIM, truth = cfg->source.kind == VLFF_SOURCE_SIM;
   if (!feats && !truth) return s;
-  if (feats && cfg->sim.feature_dim != cfg->field.feature_dim) {
-    snprintf(err, errlen, "sim.feature_dim (%d) must equal field.feature_dim (%d)", cfg->sim.feature_dim,
-             cfg->field.feature_dim);
-    goto fail;
-  }
   s->frames = cfg->sim.frames;
-  s->sim = vlff_sim_create(cfg, err, errlen);
+  s->sim = vlff_sim_create(&cfg->sim, &cfg->field, err, errlen);
   if (!s->sim) goto fail;
   s->feat = vlff_sim_frame_new(s->sim);
   s->truth = vlff_sim_frame_new(s->sim);

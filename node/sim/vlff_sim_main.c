@@ -311,7 +311,7 @@ int main(int argc, char **argv) {
     return vlff_cli_usage_error(&cli, "--count: expected a positive integer, got '%s'", cnt);
   if (cnt) count = (long long)x;
   vlff_log_set_level((enum vlff_log_level)cfg.node.log_level);
-  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   if (!s) {
     fprintf(stderr, "vlff-sim: %s\n", err);
     return 1;

@@ -64,8 +64,9 @@ static int infer(struct vlff_image_encoder *e, const uint8_t *rgb, int width, in
   return n == 1 ? 0 : -1;
 }
 
-struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg, char *err, size_t errlen) {
-  const char *path = cfg->vlm.image_model;
+struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_cfg_vlm *vlm, int feature_dim, char *err,
+                                                   size_t errlen) {
+  const char *path = vlm->image_model;
   if (!path[0]) {
     vlff_errf(err, errlen, "vlm.image_model: no image model configured");
     return NULL;
@@ -76,14 +77,14 @@ struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg
     return NULL;
   }
   snprintf(e->path, sizeof e->path, "%s", path);
-  e->in_w = cfg->vlm.input_width;
-  e->in_h = cfg->vlm.input_height;
+  e->in_w = vlm->input_width;
+  e->in_h = vlm->input_height;
   for (int c = 0; c < 3; c++) {
-    e->mean[c] = (float)cfg->vlm.mean[c];
-    e->inv_std[c] = (float)(1.0 / cfg->vlm.std[c]);
+    e->mean[c] = (float)vlm->mean[c];
+    e->inv_std[c] = (float)(1.0 / vlm->std[c]);
   }
-  e->bgr = cfg->vlm.bgr;
-  e->normalize = cfg->vlm.normalize;
+  e->bgr = vlm->bgr;
+  e->normalize = vlm->normalize;
   e->resized = malloc((size_t)e->in_w * e->in_h * 3);
   e->blob = malloc((size_t)e->in_w * e->in_h * 3 * sizeof *e->blob);
   if (!e->resized || !e->blob) {
@@ -91,9 +92,9 @@ struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg
     goto fail;
   }
   if (vlff_check_regular(path, err, errlen)) goto fail;
-  e->net = vlff_dnn_open(path, cfg->vlm.cuda, &e->cuda, err, errlen);
+  e->net = vlff_dnn_open(path, vlm->cuda, &e->cuda, err, errlen);
   if (!e->net) goto fail;
-  if (cfg->vlm.cuda && !e->cuda) VLFF_WARN("vlm", "%s: vlm.cuda set but OpenCV has no CUDA device; running on the CPU", path);
+  if (vlm->cuda && !e->cuda) VLFF_WARN("vlm", "%s: vlm.cuda set but OpenCV has no CUDA device; running on the CPU", path);
 
   /* Probe: a mid-grey frame must give [1, D, h, w] finite features. */
   memset(e->resized, 128, (size_t)e->in_w * e->in_h * 3);
@@ -110,9 +111,9 @@ struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg
     vlff_errf(err, errlen, "%s: output shape [%s], expected [1,D,h,w] dense features", path, s);
     goto fail;
   }
-  if (t.shape[1] != cfg->field.feature_dim) {
+  if (t.shape[1] != feature_dim) {
     vlff_errf(err, errlen, "%s: features have D=%d, but field.feature_dim is %d", path, t.shape[1],
-            cfg->field.feature_dim);
+            feature_dim);
     goto fail;
   }
   for (size_t i = 0; i < t.count; i++)

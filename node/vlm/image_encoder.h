@@ -32,7 +32,9 @@
 
 struct vlff_image_encoder;
 
-struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_config *cfg, char *err, size_t errlen);
+/* From the vlm section; feature_dim is the D the model must give. */
+struct vlff_image_encoder *vlff_image_encoder_open(const struct vlff_cfg_vlm *vlm, int feature_dim, char *err,
+                                                   size_t errlen);
 void vlff_image_encoder_close(struct vlff_image_encoder *enc);
 
 /* Output geometry: D, h, w. */

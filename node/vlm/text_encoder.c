@@ -107,8 +107,9 @@ static int run_ids(struct vlff_text_encoder *e, const int32_t *ids, int eot, flo
   return 0;
 }
 
-struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, char *err, size_t errlen) {
-  const char *path = cfg->vlm.text_model;
+struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_cfg_vlm *vlm, const char *templ, int feature_dim,
+                                                 char *err, size_t errlen) {
+  const char *path = vlm->text_model;
   if (!path[0]) {
     vlff_errf(err, errlen, "vlm.text_model: no text model configured");
     return NULL;
@@ -119,10 +120,10 @@ struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, 
     return NULL;
   }
   snprintf(e->path, sizeof e->path, "%s", path);
-  snprintf(e->templ, sizeof e->templ, "%s", cfg->prompts.templ);
+  snprintf(e->templ, sizeof e->templ, "%s", templ);
   char tpath[VLFF_CFG_PATH + 16];
   snprintf(tpath, sizeof tpath, "%s.tokemb", path);
-  if (!(e->tok = vlff_tokenizer_open(cfg->vlm.bpe_vocab, err, errlen))) goto fail;
+  if (!(e->tok = vlff_tokenizer_open(vlm->bpe_vocab, err, errlen))) goto fail;
   if (load_table(e, tpath, err, errlen)) goto fail;
   e->x = malloc((size_t)VLFF_CLIP_CONTEXT * e->width * sizeof *e->x);
   if (!e->x) {
@@ -131,7 +132,7 @@ struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, 
   }
   bool cuda = false;
   if (vlff_check_regular(path, err, errlen)) goto fail;
-  if (!(e->net = vlff_dnn_open(path, cfg->vlm.cuda, &cuda, err, errlen))) goto fail;
+  if (!(e->net = vlff_dnn_open(path, vlm->cuda, &cuda, err, errlen))) goto fail;
   int32_t ids[VLFF_CLIP_CONTEXT];
   char why[384];
   int eot = vlff_tokenizer_context(e->tok, "a photo of a chair.", ids, why, sizeof why);
@@ -141,8 +142,8 @@ struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, 
             e->width, why);
     goto fail;
   }
-  if (d != cfg->field.feature_dim) {
-    vlff_errf(err, errlen, "%s: embeddings have D=%d, but field.feature_dim is %d", path, d, cfg->field.feature_dim);
+  if (d != feature_dim) {
+    vlff_errf(err, errlen, "%s: embeddings have D=%d, but field.feature_dim is %d", path, d, feature_dim);
     goto fail;
   }
   e->dim = d;

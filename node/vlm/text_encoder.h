@@ -26,7 +26,10 @@
 
 struct vlff_text_encoder;
 
-struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_config *cfg, char *err, size_t errlen);
+/* From the vlm section (text_model, bpe_vocab, cuda); templ is the prompt
+ * template (prompts.templ), feature_dim the D the model must give. */
+struct vlff_text_encoder *vlff_text_encoder_open(const struct vlff_cfg_vlm *vlm, const char *templ, int feature_dim,
+                                                 char *err, size_t errlen);
 void vlff_text_encoder_close(struct vlff_text_encoder *enc);
 
 int vlff_text_encoder_dim(const struct vlff_text_encoder *enc);

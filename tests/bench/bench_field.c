@@ -202,7 +202,7 @@ static struct rate train(struct vlff_field *f, struct scene *s, int steps, int t
 
 static struct vlff_field *field_or_exit(const struct vlff_config *c) {
   char err[256];
-  struct vlff_field *f = vlff_field_create(c, err, sizeof(err));
+  struct vlff_field *f = vlff_field_create(&c->field, &c->train, c->node.threads, err, sizeof(err));
   if (!f) {
     fprintf(stderr, "bench: %s\n", err);
     exit(1);
@@ -469,7 +469,7 @@ int main(int argc, char **argv) {
   cu.train.sampling = VLFF_SAMPLING_UNIFORM;
   cu.train.samples_per_ray = 256;
   cu.train.rays_per_step = 256;
-  struct vlff_field *fu = vlff_field_create(&cu, err, sizeof(err));
+  struct vlff_field *fu = vlff_field_create(&cu.field, &cu.train, cu.node.threads, err, sizeof(err));
   if (!fu || vlff_field_load(fu, path, err, sizeof(err)) || vlff_field_set_prompts(fu, e, K, err, sizeof(err))) {
     fprintf(stderr, "bench: %s\n", err);
     return 1;

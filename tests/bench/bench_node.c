@@ -50,12 +50,12 @@ static long peak_rss_kb(void) {
  * resolution, against the ground truth sampled at the same pixels. */
 static double raw_miou2d(const struct vlff_config *cfg, int frames) {
   char err[256];
-  struct vlff_sim *s = vlff_sim_create(cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
   struct vlff_sim_frame *f = s ? vlff_sim_frame_new(s) : NULL;
   struct vlff_confusion c;
   if (!f || vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err)) return -1;
   const struct vlff_prompt_set *ps = &cfg->prompts.sets[cfg->prompts.active];
-  int d = cfg->sim.feature_dim, k = ps->count;
+  int d = cfg->field.feature_dim, k = ps->count;
   float *emb = malloc((size_t)k * d * sizeof(float)), *unit = malloc((size_t)k * d * sizeof(float));
   int *cls = malloc((size_t)k * sizeof(int));
   for (int i = 0; i < k; i++) {

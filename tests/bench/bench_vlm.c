@@ -43,7 +43,7 @@ static int bench_image(const char *model, int w, int h, int dim, int reps, doubl
   cfg.vlm.input_width = w, cfg.vlm.input_height = h;
   cfg.field.feature_dim = dim;
   char err[512];
-  struct vlff_image_encoder *e = vlff_image_encoder_open(&cfg, err, sizeof err);
+  struct vlff_image_encoder *e = vlff_image_encoder_open(&cfg.vlm, cfg.field.feature_dim, err, sizeof err);
   if (!e) {
     fprintf(stderr, "bench_vlm: %s\n", err);
     return -1;
@@ -93,7 +93,7 @@ static int bench_text(const char *model, const char *bpe, int dim, int width, do
   snprintf(cfg.prompts.templ, sizeof cfg.prompts.templ, "a photo of a {}.");
   cfg.field.feature_dim = dim;
   char err[512];
-  struct vlff_text_encoder *e = vlff_text_encoder_open(&cfg, err, sizeof err);
+  struct vlff_text_encoder *e = vlff_text_encoder_open(&cfg.vlm, cfg.prompts.templ, cfg.field.feature_dim, err, sizeof err);
   if (!e) {
     fprintf(stderr, "bench_vlm: %s\n", err);
     return -1;

@@ -62,7 +62,7 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   struct vlff_config c0;
   vlff_config_defaults(&c0);
   c0.sim.seed = 3, c0.sim.rate_hz = 5, c0.sim.width = 160, c0.sim.height = 120, c0.sim.frames = RIG_FRAMES;
-  struct vlff_sim *s = vlff_sim_create(&c0, err, errlen);
+  struct vlff_sim *s = vlff_sim_create(&c0.sim, &c0.field, err, errlen);
   if (!s) return -1;
   double fx, fy, cx, cy;
   vlff_sim_intrinsics(s, &fx, &fy, &cx, &cy);

@@ -326,7 +326,7 @@ int main(int argc, char **argv) {
     sc.udp = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
     if (sc.udp < 0) return vlff_cli_error(&cli, "socket: %s", strerror(errno));
   }
-  sc.sim = vlff_sim_create(&cfg, err, sizeof err);
+  sc.sim = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   if (!sc.sim) return vlff_cli_error(&cli, "%s", err);
   struct cam cc = {&sc, 0, vlff_sim_frame_new(sc.sim), NULL}, cd = {&sc, 1, vlff_sim_frame_new(sc.sim), NULL};
   ArvGvFakeCamera *gc = cc.f && cd.f ? camera_new(color, "SCENE-RGB", &cc) : NULL;

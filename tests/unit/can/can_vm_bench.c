@@ -79,7 +79,7 @@ static struct hb_grid heartbeat(const char *iface, int period_ms, int n, int loa
   pthread_t th[8];
   atomic_store(&quit, false);
   for (int i = 0; i < load; i++) pthread_create(&th[i], NULL, burn, NULL);
-  struct vlff_can *can = vlff_can_open(&cfg, NULL, NULL);
+  struct vlff_can *can = vlff_can_open(&cfg.can, cfg.prompts.set_count, NULL, NULL);
   double *t = calloc((size_t)n, sizeof *t), *lat = calloc((size_t)n, sizeof *lat), anchor = -1;
   int k = 0;
   const uint32_t hb = 0x700 + (uint32_t)cfg.can.node_id;

@@ -240,7 +240,7 @@ static struct node *node_start(const char *iface, int hb_ms, int status_ms, bool
   n->cfg.can.status_ms = status_ms;
   n->cfg.can.fd = fd;
   n->cfg.prompts.set_count = 3;
-  n->can = vlff_can_open(&n->cfg, on_command, n);
+  n->can = vlff_can_open(&n->cfg.can, n->cfg.prompts.set_count, on_command, n);
   assert_non_null(n->can);
   struct vlff_can_status st = node_status(n);
   vlff_can_set_status(n->can, &st);

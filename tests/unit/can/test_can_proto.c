@@ -154,42 +154,42 @@ static void test_config_check(void **state) {
   struct vlff_config cfg;
   char err[256];
   vlff_config_defaults(&cfg);
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), 0);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), 0);
   cfg.can.command_id = cfg.can.status_base_id + 2;
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   assert_non_null(strstr(err, "can.command_id"));
   vlff_config_defaults(&cfg);
   cfg.can.ack_id = 0x700 + cfg.can.node_id;
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   assert_non_null(strstr(err, "heartbeat"));
   vlff_config_defaults(&cfg);
   cfg.can.ack_id = cfg.can.command_id;
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   assert_non_null(strstr(err, "can.ack_id"));
   vlff_config_defaults(&cfg);
   cfg.can.status_base_id = 0x7fd;
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   assert_non_null(strstr(err, "can.status_base_id"));
   vlff_config_defaults(&cfg);
   cfg.can.fd = true;
   cfg.can.command_id = cfg.can.status_base_id + 4; /* the FD frame's id */
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   /* Classic frames end at base + 5 (INGEST). */
   vlff_config_defaults(&cfg);
   cfg.can.command_id = cfg.can.status_base_id + 5;
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   assert_non_null(strstr(err, "can.command_id"));
   vlff_config_defaults(&cfg);
   cfg.can.status_base_id = 0x7fb;
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   cfg.can.fd = true; /* one frame at base + 4 fits */
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), 0);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), 0);
   vlff_config_defaults(&cfg);
   snprintf(cfg.can.interface, sizeof cfg.can.interface, "an-interface-name-too-long");
-  assert_int_equal(vlff_can_check_config(&cfg, err, sizeof err), -1);
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   assert_non_null(strstr(err, "can.interface"));
   /* open refuses a bad config without starting anything */
-  assert_null(vlff_can_open(&cfg, NULL, NULL));
+  assert_null(vlff_can_open(&cfg.can, cfg.prompts.set_count, NULL, NULL));
 }
 
 int main(void) {

@@ -87,6 +87,8 @@ static void test_errors(void **state) {
   (void)state;
   expect_error("node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key");
   expect_error("nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key");
+  /* One name for the feature dimension: the simulator's old key says where it went. */
+  expect_error("sim:\n  feature_dim: 16\n", "t.yaml:2:3: key 'sim.feature_dim': ", "field.feature_dim");
   expect_error("field:\n  feature_dim: abc\n", "t.yaml:2:16: key 'field.feature_dim': ",
                "expected integer in [8, 1024], got 'abc'");
   expect_error("field:\n  feature_dim: 2000\n", "t.yaml:2:16: key 'field.feature_dim': ", "got '2000'");
@@ -392,9 +394,14 @@ static void test_field_hash(void **state) {
   vlff_config_defaults(&a);
   b = a;
   b.train.lr = 0.5; /* training knobs do not change the model's shape */
-  assert_true(vlff_config_field_hash(&a) == vlff_config_field_hash(&b));
+  assert_true(vlff_config_field_hash(&a.field) == vlff_config_field_hash(&b.field));
   b.field.feature_dim = 128;
-  assert_true(vlff_config_field_hash(&a) != vlff_config_field_hash(&b));
+  assert_true(vlff_config_field_hash(&a.field) != vlff_config_field_hash(&b.field));
+  /* The section alone, as the field keeps it, hashes as it does in the config. */
+  struct vlff_cfg_field alone = b.field;
+  assert_true(vlff_config_field_hash(&alone) == vlff_config_field_hash(&b.field));
+  alone.scene_max[2] += 1;
+  assert_true(vlff_config_field_hash(&alone) != vlff_config_field_hash(&b.field));
 }
 
 /* The search path: --config, then $VLFF_CONFIG, then the installed file;

@@ -60,7 +60,7 @@ static void test_dataset_matches_synthetic(void **state) {
   snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
   FILE *f = fopen(cfg, "w");
   assert_non_null(f);
-  fputs("sim:\n  width: 96\n  height: 72\n  feature_dim: 16\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n", f);
+  fputs("sim:\n  width: 96\n  height: 72\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n", f);
   fclose(f);
   snprintf(cmd, sizeof cmd, "%s --config %s --quiet --write-dataset %s/ds", sim, cfg, tmp);
   assert_int_equal(system(cmd), 0);
@@ -170,7 +170,7 @@ static void test_dataset_matches_synthetic(void **state) {
   snprintf(cmd, sizeof cmd, "%s/big.yaml", tmp);
   f = fopen(cmd, "w");
   assert_non_null(f);
-  fputs("sim:\n  width: 320\n  height: 240\n  feature_dim: 16\n  frames: 8\nfield:\n  feature_dim: 16\n"
+  fputs("sim:\n  width: 320\n  height: 240\n  frames: 8\nfield:\n  feature_dim: 16\n"
         "keyframes:\n  memory_mb: 1\n", f);
   fclose(f);
   snprintf(cmd, sizeof cmd, "%s --config %s/big.yaml --quiet --write-dataset %s/big", sim, tmp, tmp);
@@ -212,7 +212,7 @@ static void test_small_fit_beats_raw(void **state) {
   snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
   FILE *f = fopen(cfg, "w");
   assert_non_null(f);
-  fputs("node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  feature_dim: 16\n  frames: 32\n"
+  fputs("node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  frames: 32\n"
         "field:\n  feature_dim: 16\n  hash_log2_size: 15\n  finest_resolution: 256\n  feature_width: 32\n"
         "train:\n  rays_per_step: 512\n  samples_per_ray: 24\n  feature_loss: l1\n",
         f);
@@ -245,7 +245,7 @@ static void test_fit_seconds_and_per_class(void **state) {
   snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
   FILE *f = fopen(cfg, "w");
   assert_non_null(f);
-  fputs("node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  feature_dim: 16\n  frames: 8\n"
+  fputs("node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  frames: 8\n"
         "field:\n  feature_dim: 16\n  hash_log2_size: 12\n  finest_resolution: 64\n  feature_width: 16\n"
         "train:\n  rays_per_step: 64\n  samples_per_ray: 8\n",
         f);

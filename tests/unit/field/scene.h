@@ -184,7 +184,7 @@ static void scene_render(struct scene_view *sv, int w, int h, int d, const doubl
   v->features = sv->feat;
   v->feat_width = w;
   v->feat_height = h;
-  v->feat_dim = d;
+  v->feature_dim = d;
 }
 
 static void scene_view_free(struct scene_view *sv) {

@@ -336,7 +336,7 @@ static void test_encoding(void **state) {
   struct vlff_config cfg;
   small_cfg(&cfg);
   struct vlff_encoding e;
-  vlff_encoding_init(&e, &cfg);
+  vlff_encoding_init(&e, &cfg.field);
   size_t nt = (size_t)e.levels * e.size * e.feats;
   float *table = falloc(nt), *grad = falloc(nt);
   for (size_t i = 0; i < nt; i++) table[i] = frand();
@@ -419,7 +419,7 @@ static void check_encoding_simd(int isa, uint64_t *bits) {
   cfg.field.hash_log2_size = 14;
   cfg.field.finest_resolution = 512;
   struct vlff_encoding e;
-  vlff_encoding_init(&e, &cfg);
+  vlff_encoding_init(&e, &cfg.field);
   int dense = 0, hashed = 0;
   for (int l = 0; l < e.levels; l++) dense += e.dense[l], hashed += !e.dense[l];
   assert_true(dense > 0 && hashed > 0);

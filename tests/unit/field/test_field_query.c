@@ -46,7 +46,7 @@ static void cfg_small(struct vlff_config *cfg) {
 
 static struct vlff_field *trained(const struct vlff_config *cfg, int steps) {
   char err[256];
-  struct vlff_field *f = vlff_field_create(cfg, err, sizeof(err));
+  struct vlff_field *f = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, sizeof(err));
   assert_non_null(f);
   for (int i = 0; i < steps; i++) assert_int_equal(vlff_field_step(f, views, NV, NULL, NULL, err, sizeof(err)), 0);
   return f;
@@ -326,7 +326,7 @@ static void test_checkpoint(void **state) {
   struct vlff_config cfg2 = cfg;
   cfg2.field.geo_dim = 14;
   char e2[256];
-  struct vlff_field *m = vlff_field_create(&cfg2, e2, sizeof(e2));
+  struct vlff_field *m = vlff_field_create(&cfg2.field, &cfg2.train, cfg2.node.threads, e2, sizeof(e2));
   assert_non_null(m);
   assert_int_equal(vlff_field_load(m, path, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "configuration"));
@@ -356,10 +356,10 @@ static void test_bad_inputs(void **state) {
   struct vlff_config cfg;
   cfg_small(&cfg);
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
   assert_non_null(f);
   struct vlff_view v = views[0];
-  v.feat_dim = D + 1;
+  v.feature_dim = D + 1;
   assert_int_equal(vlff_field_step(f, &v, 1, NULL, NULL, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "feature dimension"));
   v = views[0];
@@ -388,7 +388,7 @@ static void test_bad_inputs(void **state) {
   /* Weighted views: a zero weight view never supplies rays. */
   float w2[2] = {1, 0};
   struct vlff_view two[2] = {views[0], views[1]};
-  two[1].feat_dim = D + 3; /* would be an error if it were validated lazily */
+  two[1].feature_dim = D + 3; /* would be an error if it were validated lazily */
   assert_int_equal(vlff_field_step(f, two, 2, w2, NULL, err, sizeof(err)), -1);
   vlff_field_destroy(f);
 }

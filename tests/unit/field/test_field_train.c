@@ -66,7 +66,7 @@ static void test_chunk_gradient(void **state) {
   cfg.train.feature_loss = VLFF_FEAT_LOSS_L2;
   cfg.train.feature_weight = 5.0;
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
   assert_non_null(f);
   struct scene_view sv[4];
   struct vlff_view v[4];
@@ -215,7 +215,7 @@ static void test_convergence(void **state) {
   cfg.train.feature_loss = VLFF_FEAT_LOSS_L1;
   const int steps = CONV_STEPS;
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof(err));
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
   assert_non_null(f);
   struct scene_view sv[16];
   struct vlff_view v[16];
@@ -254,7 +254,7 @@ static void test_convergence(void **state) {
 /* A field for cfg and one 40 x 30 view of the scene (pose 0 of 16). */
 static struct vlff_field *one_view_field(const struct vlff_config *cfg, int d, struct scene_view *sv) {
   char err[256];
-  struct vlff_field *f = vlff_field_create(cfg, err, sizeof(err));
+  struct vlff_field *f = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, sizeof(err));
   assert_non_null(f);
   double c2w[16];
   scene_pose(0, 16, c2w);
@@ -402,7 +402,7 @@ static double rare_share(double balance, int prompts) {
   cfg.train.rays_per_step = 2000;
   cfg.train.class_balance = balance;
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg, err, sizeof err);
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof err);
   assert_non_null(f);
   float emb[2 * 8] = {0};
   emb[0] = 1, emb[8 + 1] = 1;
@@ -418,7 +418,7 @@ static double rare_share(double balance, int prompts) {
   v.width = 40, v.height = 30, v.fx = v.fy = 30, v.cx = 20, v.cy = 15;
   const double c2w[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
   memcpy(v.c2w, c2w, sizeof c2w);
-  v.feat_width = FW, v.feat_height = FH, v.feat_dim = 8, v.features = feat;
+  v.feat_width = FW, v.feat_height = FH, v.feature_dim = 8, v.features = feat;
   long rare = 0, total = 0;
   for (int draw = 0; draw < 8; draw++) {
     vlff_field_draw_rays(f, &v, 1, NULL, NULL);

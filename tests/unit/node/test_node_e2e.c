@@ -113,7 +113,7 @@ static double map_miou3d(const struct vlff_config *cfg, uint64_t *version, int *
     if (version) *version = info.version;
     if (prompt_count) *prompt_count = info.prompt_count;
     if (!gt.n) {
-      struct vlff_sim *s = vlff_sim_create(cfg, err, sizeof err);
+      struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
       assert_non_null(s);
       assert_int_equal(vlff_sim_points(s, cfg->sim.frames, 5, 0.05, &gt, err, sizeof err), 0);
       vlff_sim_destroy(s);
@@ -336,7 +336,7 @@ static void test_bad_frames(void **state) {
   struct vlff_config cfg;
   write_config(&cfg, NULL);
   char err[512];
-  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   assert_non_null(s);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   /* Slots big enough for frames beyond the node's shm.max_width/height. */

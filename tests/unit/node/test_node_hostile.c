@@ -73,7 +73,7 @@ static void test_absurd_intrinsics(void **state) {
   snprintf(yaml, sizeof yaml,
            "node:\n  state_dir: %s\n  checkpoint_period_s: 0\n  threads: 2\n"
            "source:\n  kind: sim\n  features: sim\n"
-           "sim:\n  seed: 3\n  width: 64\n  height: 48\n  frames: 100\n  feature_dim: 16\n"
+           "sim:\n  seed: 3\n  width: 64\n  height: 48\n  frames: 100\n"
            "field:\n  feature_dim: 16\n  hash_log2_size: 14\n"
            "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
            "  max_width: 64\n  max_height: 48\n  map_max_voxels: 100000\n"
@@ -81,7 +81,7 @@ static void test_absurd_intrinsics(void **state) {
            dir, tag, tag, tag, tag, tag);
   struct vlff_config cfg;
   if (vlff_config_load_mem(yaml, strlen(yaml), "hostile.yaml", &cfg, err, sizeof err)) fail_msg("%s", err);
-  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   if (!s) fail_msg("%s", err);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   assert_non_null(f);

@@ -183,7 +183,7 @@ static void test_status_says_why(void **state) {
   write_config(&cfg);
   char err[512], log[400];
   snprintf(log, sizeof log, "%s/node.log", dir);
-  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   assert_non_null(s);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   struct vlff_ring *ring = frame_ring(&cfg);
@@ -269,7 +269,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   struct vlff_config cfg;
   write_config(&cfg);
   char err[512];
-  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   assert_non_null(s);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   struct vlff_ring *ring = frame_ring(&cfg);

@@ -86,7 +86,7 @@ static void write_config(struct vlff_config *cfg, int ring_slots) {
 /* The room as a recorded scene: frames, poses, features, prompt vectors. */
 static void write_scene(const struct vlff_config *cfg, struct vlff_sim_points *gt) {
   char err[1024];
-  struct vlff_sim *s = vlff_sim_create(cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
   if (!s) fail_msg("%s", err);
   int W, H, fw, fh, D;
   double fx, fy, cx, cy;
@@ -302,7 +302,7 @@ static void test_scannet_layout_into_rings(void **state) {
   struct vlff_config cfg;
   write_config(&cfg, 2);
   char err[1024], p[512];
-  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   if (!s) fail_msg("%s", err);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   const char *subs[] = {"", "/color", "/depth", "/pose", "/intrinsic"};

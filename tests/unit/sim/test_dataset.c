@@ -64,9 +64,9 @@ static int setup(void **state) {
   if (!mkdtemp(x->dir)) return -1;
   struct vlff_config c;
   vlff_config_defaults(&c);
-  c.sim.width = 64, c.sim.height = 48, c.sim.feature_dim = 16, c.sim.seed = 11;
+  c.sim.width = 64, c.sim.height = 48, c.field.feature_dim = 16, c.sim.seed = 11;
   char err[512];
-  x->sim = vlff_sim_create(&c, err, sizeof err);
+  x->sim = vlff_sim_create(&c.sim, &c.field, err, sizeof err);
   if (!x->sim) return -1;
   for (int i = 0; i < NF; i++) {
     x->f[i] = vlff_sim_frame_new(x->sim);
@@ -97,12 +97,12 @@ static void write_dataset(struct fixture *x, const char *name, char *path) {
   vlff_sim_bounds(x->sim, lo, hi);
   if (!FEATURES) {
     assert_null(vlff_dataset_writer_open(path, NF, f0->width, f0->height, f0->fx, f0->fy, f0->cx, f0->cy, lo, hi,
-                                         "sim", f0->feat_width, f0->feat_height, f0->feat_dim, err, sizeof err));
+                                         "sim", f0->feat_width, f0->feat_height, f0->feature_dim, err, sizeof err));
     if (!strstr(err, "HDF5")) fail_msg("error '%s' does not name HDF5", err);
   }
   struct vlff_dataset_writer *w = vlff_dataset_writer_open(path, NF, f0->width, f0->height, f0->fx, f0->fy, f0->cx,
                                                            f0->cy, lo, hi, "sim", f0->feat_width, f0->feat_height,
-                                                           FEATURES ? f0->feat_dim : 0, err, sizeof err);
+                                                           FEATURES ? f0->feature_dim : 0, err, sizeof err);
   if (!w) fail_msg("%s", err);
   for (int i = 0; i < NF; i++)
     if (vlff_dataset_writer_add(w, i, x->f[i]->rgb, x->f[i]->depth_mm, x->f[i]->label, x->f[i]->c2w,
@@ -133,7 +133,7 @@ static void test_round_trip_exact(void **state) {
   assert_true(ds.has_bbox && ds.has_labels);
   assert_int_equal(ds.has_features, FEATURES);
   if (FEATURES) {
-    assert_int_equal(ds.feat_dim, 16);
+    assert_int_equal(ds.feature_dim, 16);
     assert_int_equal(ds.feat_width, f0->feat_width);
   }
   size_t n = (size_t)f0->width * f0->height, nf = (size_t)f0->feat_width * f0->feat_height * 16;

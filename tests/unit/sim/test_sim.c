@@ -17,12 +17,12 @@
 static void small_cfg(struct vlff_config *c, int seed) {
   vlff_config_defaults(c);
   c->sim.seed = seed;
-  c->sim.width = 160, c->sim.height = 120, c->sim.feature_dim = 32;
+  c->sim.width = 160, c->sim.height = 120, c->field.feature_dim = 32;
 }
 
 static struct vlff_sim *make(const struct vlff_config *c) {
   char err[256] = "";
-  struct vlff_sim *s = vlff_sim_create(c, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&c->sim, &c->field, err, sizeof err);
   if (!s) fail_msg("%s", err);
   return s;
 }
@@ -45,12 +45,12 @@ static void test_deterministic_per_seed(void **state) {
   assert_memory_equal(fa->depth, fb->depth, n * sizeof(float));
   assert_memory_equal(fa->label, fb->label, n);
   assert_memory_equal(fa->features, fb->features,
-                      (size_t)fa->feat_width * fa->feat_height * fa->feat_dim * sizeof(uint16_t));
+                      (size_t)fa->feat_width * fa->feat_height * fa->feature_dim * sizeof(uint16_t));
   /* rendering out of order gives the same frame */
   render(b, 2, fb);
   render(b, 13, fb);
   assert_memory_equal(fa->features, fb->features,
-                      (size_t)fa->feat_width * fa->feat_height * fa->feat_dim * sizeof(uint16_t));
+                      (size_t)fa->feat_width * fa->feat_height * fa->feature_dim * sizeof(uint16_t));
   /* another seed: another room */
   struct vlff_config c2;
   small_cfg(&c2, 8);
@@ -205,7 +205,7 @@ static void test_embeddings_structure(void **state) {
   (void)state;
   struct vlff_config c;
   small_cfg(&c, 1);
-  c.sim.feature_dim = 512;
+  c.field.feature_dim = 512;
   struct vlff_sim *s = make(&c);
   const int D = 512;
   float t[VLFF_SIM_CLASSES][512], p[512], u1[512], u2[512];
@@ -237,7 +237,7 @@ static double raw_miou(double difficulty) {
   struct vlff_config c;
   small_cfg(&c, 4);
   c.sim.difficulty = difficulty;
-  c.sim.feature_dim = 64;
+  c.field.feature_dim = 64;
   struct vlff_sim *s = make(&c);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   int K = VLFF_SIM_CLASSES, D = 64, n = f->feat_width * f->feat_height;
@@ -366,7 +366,7 @@ static void test_flat_walk_through_doorways(void **state) {
   flat_cfg(&c, 1);
   c.field.scene_max[0] = 2;
   char err[256] = "";
-  assert_null(vlff_sim_create(&c, err, sizeof err));
+  assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
   assert_non_null(strstr(err, "60 m^2"));
 }
 
@@ -381,8 +381,8 @@ static void test_object_bias_view_consistent(void **state) {
   c1.sim.object_bias = 1;
   struct vlff_sim *a = make(&c0), *b = make(&c1);
   struct vlff_sim_frame *fa = vlff_sim_frame_new(a), *fb = vlff_sim_frame_new(b);
-  size_t n = (size_t)fa->width * fa->height, nf = (size_t)fa->feat_width * fa->feat_height * fa->feat_dim;
-  int D = fa->feat_dim, K = VLFF_SIM_CLASSES;
+  size_t n = (size_t)fa->width * fa->height, nf = (size_t)fa->feat_width * fa->feat_height * fa->feature_dim;
+  int D = fa->feature_dim, K = VLFF_SIM_CLASSES;
   float *emb = malloc((size_t)K * D * sizeof(float)), *unit = malloc((size_t)K * D * sizeof(float));
   for (int k = 0; k < K; k++) vlff_sim_text_embedding(a, vlff_sim_class_name(k), emb + (size_t)k * D);
   vlff_normalize_rows(emb, unit, K, D);
@@ -420,7 +420,7 @@ static void test_bad_config(void **state) {
   small_cfg(&c, 1);
   c.field.scene_min[2] = -1, c.field.scene_max[2] = 1;
   char err[256] = "";
-  assert_null(vlff_sim_create(&c, err, sizeof err));
+  assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
   assert_non_null(strstr(err, "scene_min/max"));
 }
 

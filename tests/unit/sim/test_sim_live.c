@@ -32,7 +32,7 @@ static void test_live_frames_match(void **state) {
   FILE *f = fopen(cfgpath, "w");
   assert_non_null(f);
   fprintf(f, "shm:\n  ring: \"%s\"\n  feature_ring: \"%s\"\n  ring_slots: 16\nsim:\n  width: 64\n  height: 48\n"
-             "  feature_dim: 16\n  seed: 9\n  frames: 4\n  rate_hz: 20\n",
+             "  seed: 9\n  frames: 4\n  rate_hz: 20\nfield:\n  feature_dim: 16\n",
           ring, fring);
   fclose(f);
   struct vlff_config cfg;
@@ -55,7 +55,7 @@ static void test_live_frames_match(void **state) {
   if (!r || !fr) fail_msg("attach: %s", vlff_shm_last_message());
   vlff_ring_seek_oldest(r);
   vlff_ring_seek_oldest(fr);
-  struct vlff_sim *s = vlff_sim_create(&cfg, err, sizeof err);
+  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   assert_non_null(s);
   struct vlff_sim_frame *sf = vlff_sim_frame_new(s);
   size_t cap = vlff_ring_slot_size(r), fcap = vlff_ring_slot_size(fr);

@@ -93,7 +93,7 @@ static void test_image_matches_pytorch(void **state) {
   uint16_t *out = malloc(32 * 32 * 32 * sizeof *out), *out2 = malloc(32 * 32 * 32 * sizeof *out);
   for (int norm = 0; norm < 2; norm++) {
     cfg.vlm.normalize = norm;
-    struct vlff_image_encoder *e = vlff_image_encoder_open(&cfg, err, sizeof err);
+    struct vlff_image_encoder *e = vlff_image_encoder_open(&cfg.vlm, cfg.field.feature_dim, err, sizeof err);
     if (!e) fail_msg("%s", err);
     int d, h, w;
     vlff_image_encoder_shape(e, &d, &h, &w);
@@ -120,7 +120,7 @@ static void test_image_matches_pytorch(void **state) {
   cfg.vlm.bgr = true;
   cfg.vlm.mean[0] = 0.25;
   cfg.vlm.std[0] = 0.7;
-  struct vlff_image_encoder *e = vlff_image_encoder_open(&cfg, err, sizeof err);
+  struct vlff_image_encoder *e = vlff_image_encoder_open(&cfg.vlm, cfg.field.feature_dim, err, sizeof err);
   assert_non_null(e);
   uint8_t *swapped = malloc(64 * 64 * 3);
   for (int i = 0; i < 64 * 64; i++)
@@ -130,7 +130,7 @@ static void test_image_matches_pytorch(void **state) {
   cfg.vlm.bgr = false;
   cfg.vlm.mean[0] = 0.5, cfg.vlm.std[0] = 0.5;
   cfg.vlm.mean[2] = 0.25, cfg.vlm.std[2] = 0.7;
-  e = vlff_image_encoder_open(&cfg, err, sizeof err);
+  e = vlff_image_encoder_open(&cfg.vlm, cfg.field.feature_dim, err, sizeof err);
   assert_non_null(e);
   assert_int_equal(vlff_image_encoder_run(e, img, 64, 64, 192, out, err, sizeof err), 0);
   vlff_image_encoder_close(e);
@@ -144,7 +144,7 @@ static void test_image_matches_pytorch(void **state) {
 
 static void expect_image_refused(struct vlff_config *cfg, const char *what) {
   char err[512] = "";
-  struct vlff_image_encoder *e = vlff_image_encoder_open(cfg, err, sizeof err);
+  struct vlff_image_encoder *e = vlff_image_encoder_open(&cfg->vlm, cfg->field.feature_dim, err, sizeof err);
   if (e) fail_msg("accepted a bad image model (expected: %s)", what);
   if (!strstr(err, what)) fail_msg("error '%s' lacks '%s'", err, what);
   print_message("refused as expected: %s\n", err);
@@ -230,7 +230,7 @@ static void test_text_matches_pytorch(void **state) {
   float *ref = (float *)fixture_read(path, &n);
   assert_int_equal(n, NPROMPTS * 32 * sizeof(float));
 
-  struct vlff_text_encoder *e = vlff_text_encoder_open(&cfg, err, sizeof err);
+  struct vlff_text_encoder *e = vlff_text_encoder_open(&cfg.vlm, cfg.prompts.templ, cfg.field.feature_dim, err, sizeof err);
   if (!e) fail_msg("%s", err);
   assert_int_equal(vlff_text_encoder_dim(e), 32);
   float emb[32];
@@ -264,7 +264,7 @@ static void test_text_matches_pytorch(void **state) {
 
   /* Template: "a photo of a {}." + "chair" is the second reference prompt. */
   snprintf(cfg.prompts.templ, sizeof cfg.prompts.templ, "a photo of a {}.");
-  e = vlff_text_encoder_open(&cfg, err, sizeof err);
+  e = vlff_text_encoder_open(&cfg.vlm, cfg.prompts.templ, cfg.field.feature_dim, err, sizeof err);
   assert_non_null(e);
   assert_int_equal(vlff_text_encoder_encode(e, "chair", emb, err, sizeof err), 0);
   double ss = 0;
@@ -276,7 +276,7 @@ static void test_text_matches_pytorch(void **state) {
 
 static void expect_text_refused(struct vlff_config *cfg, const char *what) {
   char err[512] = "";
-  struct vlff_text_encoder *e = vlff_text_encoder_open(cfg, err, sizeof err);
+  struct vlff_text_encoder *e = vlff_text_encoder_open(&cfg->vlm, cfg->prompts.templ, cfg->field.feature_dim, err, sizeof err);
   if (e) fail_msg("accepted a bad text model (expected: %s)", what);
   if (!strstr(err, what)) fail_msg("error '%s' lacks '%s'", err, what);
   print_message("refused as expected: %s\n", err);

@@ -35,7 +35,7 @@ static void test_worker(void **state) {
   cfg.vlm.input_width = cfg.vlm.input_height = 64;
   cfg.field.feature_dim = 32;
   char err[512];
-  struct vlff_image_encoder *direct = vlff_image_encoder_open(&cfg, err, sizeof err);
+  struct vlff_image_encoder *direct = vlff_image_encoder_open(&cfg.vlm, cfg.field.feature_dim, err, sizeof err);
   if (!direct) fail_msg("%s", err);
   const size_t n = 32 * 32 * 32;
   enum { FRAMES = 6 };
@@ -49,7 +49,7 @@ static void test_worker(void **state) {
   }
   vlff_image_encoder_close(direct);
 
-  struct vlff_image_encoder *enc = vlff_image_encoder_open(&cfg, err, sizeof err);
+  struct vlff_image_encoder *enc = vlff_image_encoder_open(&cfg.vlm, cfg.field.feature_dim, err, sizeof err);
   assert_non_null(enc);
   struct vlff_image_worker *w = vlff_image_worker_start(enc, 2, err, sizeof err);
   assert_non_null(w);
