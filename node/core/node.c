@@ -1394,7 +1394,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
     if (!n->image_worker) goto fail;
   }
 #endif
-  n->pub = vlff_publisher_create(cfg, &n->hooks, err, errlen);
+  n->pub = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, &n->hooks, err, errlen);
   if (!n->pub) goto fail;
   /* Controllers of the segments' group post prompts: the mailbox alone is
    * group-writable whenever the group may read. */

@@ -86,15 +86,16 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   free(p);
 }
 
-struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks,
+struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub, const struct vlff_cfg_shm *shm,
+                                             const struct vlff_cfg_field *field, const struct vlff_source_hooks *hooks,
                                              char *err, size_t errlen) {
   struct vlff_publisher *p = calloc(1, sizeof *p);
   if (!p) return snprintf(err, errlen, "out of memory"), NULL;
   p->hooks = hooks;
-  p->free_density = cfg->publish.free_density;
-  p->voxel = cfg->publish.voxel_size_m;
+  p->free_density = pub->free_density;
+  p->voxel = pub->voxel_size_m;
   double ext[3];
-  for (int i = 0; i < 3; i++) ext[i] = cfg->field.scene_max[i] - cfg->field.scene_min[i];
+  for (int i = 0; i < 3; i++) ext[i] = field->scene_max[i] - field->scene_min[i];
   /* Coarsen the voxels until the grid fits the segment's capacity. */
   for (;;) {
     size_t n = 1;
@@ -103,24 +104,24 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
       if (p->dims[i] < 1) p->dims[i] = 1;
       n *= p->dims[i];
     }
-    if (n <= (size_t)cfg->shm.map_max_voxels) {
+    if (n <= (size_t)shm->map_max_voxels) {
       p->nvox = n;
       break;
     }
     p->voxel *= 1.1;
   }
-  if (p->voxel > cfg->publish.voxel_size_m)
+  if (p->voxel > pub->voxel_size_m)
     VLFF_WARN(TAG, "publish.voxel_size_m %.3f m needs more than shm.map_max_voxels; using %.3f m",
-              cfg->publish.voxel_size_m, p->voxel);
+              pub->voxel_size_m, p->voxel);
   for (int i = 0; i < 3; i++) {
-    p->origin[i] = p->scene_lo[i] = cfg->field.scene_min[i];
-    p->scene_hi[i] = cfg->field.scene_max[i];
+    p->origin[i] = p->scene_lo[i] = field->scene_min[i];
+    p->scene_hi[i] = field->scene_max[i];
   }
-  p->lw = cfg->publish.label_width;
-  p->lh = cfg->publish.label_height;
-  if (p->lw > cfg->shm.label_max_width || p->lh > cfg->shm.label_max_height) {
+  p->lw = pub->label_width;
+  p->lh = pub->label_height;
+  if (p->lw > shm->label_max_width || p->lh > shm->label_max_height) {
     snprintf(err, errlen, "publish.label_width x label_height (%dx%d) exceeds shm.label_max_width x height (%dx%d)",
-             p->lw, p->lh, cfg->shm.label_max_width, cfg->shm.label_max_height);
+             p->lw, p->lh, shm->label_max_width, shm->label_max_height);
     vlff_publisher_destroy(p);
     return NULL;
   }
@@ -139,7 +140,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
   p->img_conf = malloc(li);
   p->img_lab = malloc(li * sizeof *p->img_lab);
   p->img_score = malloc(li * sizeof *p->img_score);
-  p->surface = cfg->publish.label_image == VLFF_LABEL_IMAGE_SURFACE;
+  p->surface = pub->label_image == VLFF_LABEL_IMAGE_SURFACE;
   p->sel_pix = malloc(li * sizeof *p->sel_pix);
   p->hole_pix = malloc(li * sizeof *p->hole_pix);
   p->sel_xyz = malloc(li * 3 * sizeof *p->sel_xyz);
@@ -153,18 +154,18 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, cons
     vlff_publisher_destroy(p);
     return NULL;
   }
-  struct vlff_map_params mp = {.max_voxels = (uint32_t)cfg->shm.map_max_voxels,
-                               .label_max_width = (uint32_t)cfg->shm.label_max_width,
-                               .label_max_height = (uint32_t)cfg->shm.label_max_height,
-                               .perm = {.mode = (mode_t)cfg->shm.mode, .group = cfg->shm.group}};
-  p->map = vlff_map_create(cfg->shm.map, &mp);
+  struct vlff_map_params mp = {.max_voxels = (uint32_t)shm->map_max_voxels,
+                               .label_max_width = (uint32_t)shm->label_max_width,
+                               .label_max_height = (uint32_t)shm->label_max_height,
+                               .perm = {.mode = (mode_t)shm->mode, .group = shm->group}};
+  p->map = vlff_map_create(shm->map, &mp);
   if (!p->map) {
-    snprintf(err, errlen, "map segment %s: %s", cfg->shm.map, vlff_shm_last_message());
+    snprintf(err, errlen, "map segment %s: %s", shm->map, vlff_shm_last_message());
     vlff_publisher_destroy(p);
     return NULL;
   }
   p->last_publish_s = -1;
-  VLFF_INFO(TAG, "map %s: %u x %u x %u voxels of %.3f m", cfg->shm.map, p->dims[0], p->dims[1], p->dims[2],
+  VLFF_INFO(TAG, "map %s: %u x %u x %u voxels of %.3f m", shm->map, p->dims[0], p->dims[1], p->dims[2],
             p->voxel);
   return p;
 }

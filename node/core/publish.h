@@ -38,9 +38,11 @@ struct vlff_publish_result {
   size_t labelled, free_voxels, unknown;
 };
 
-/* hooks (source.h) may be NULL or have no observer: no ground truth. Kept,
- * not copied. Creates the map segment. */
-struct vlff_publisher *vlff_publisher_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks,
+/* From the publish section, the map segment's shm keys and the field's
+ * scene box (field.scene_min/max). hooks (source.h) may be NULL or have no
+ * observer: no ground truth; kept, not copied. Creates the map segment. */
+struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub, const struct vlff_cfg_shm *shm,
+                                             const struct vlff_cfg_field *field, const struct vlff_source_hooks *hooks,
                                              char *err, size_t errlen);
 void vlff_publisher_destroy(struct vlff_publisher *p);
 

@@ -26,7 +26,7 @@ static struct vlff_publisher *make(struct vlff_config *cfg) {
   snprintf(cfg->shm.map, sizeof cfg->shm.map, "/vlff-test-publish-%d", (int)getpid());
   cfg->shm.map_max_voxels = 1 << 18; /* 64^3 voxels of 8 cm over the default 5 m box */
   cfg->publish.voxel_size_m = 0.08;
-  struct vlff_publisher *p = vlff_publisher_create(cfg, NULL, err, sizeof err);
+  struct vlff_publisher *p = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, NULL, err, sizeof err);
   if (!p) fail_msg("%s", err);
   return p;
 }
