@@ -25,7 +25,7 @@
 #include "config.h"
 #include "metrics.h"
 #include "node.h"
-#include "sim_source.h"
+#include "testkit.h"
 #include "sim.h"
 
 extern char **environ;
@@ -123,9 +123,8 @@ int main(int argc, char **argv) {
   char *sargv[] = {simpath, "--config", cfg_path, "--quiet", NULL};
   pid_t sim;
   if (posix_spawn(&sim, simpath, NULL, NULL, sargv, environ)) return fprintf(stderr, "cannot start %s\n", simpath), 1;
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *sim_src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = sim_src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *sim_src;
+  struct vlff_node *n = tk_node_create(&cfg, &sim_src, err, sizeof err);
   if (!n) {
     kill(sim, SIGKILL);
     return fprintf(stderr, "%s\n", err), 1;
@@ -147,8 +146,7 @@ int main(int argc, char **argv) {
              st.miou2d, st.miou3d);
   }
   vlff_node_status(n, &st);
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(sim_src);
+  tk_node_destroy(n, sim_src);
   kill(sim, SIGTERM);
   waitpid(sim, NULL, 0);
   snprintf(path, sizeof path, "rm -rf %s /dev/shm/bn%d-*", tmp, (int)getpid());

@@ -14,7 +14,7 @@
 #include <time.h>
 
 #include "node.h"
-#include "sim_source.h"
+#include "testkit.h"
 #include "rig.h"
 #include "vlff/shm.h"
 
@@ -30,9 +30,8 @@ static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
 /* Seconds from the node's start to a useful map, or -1. */
 static double time_to_useful(struct rig *r, long long *frames_in) {
   char err[1024];
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&r->cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&r->cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&r->cfg, &src, err, sizeof err);
   if (!n) {
     fprintf(stderr, "bench_e2e: %s\n", err);
     return -1;
@@ -52,8 +51,7 @@ static double time_to_useful(struct rig *r, long long *frames_in) {
   printf("%s: %s %.1f s (ran %.0f s), 3D mIoU %.1f, %lld frames in, %lld refused, %d keyframes\n",
          r->cameras ? "camera rig" : "sim source", t >= 0 ? "useful after" : "not useful within", t >= 0 ? t : mono_s() - t0,
          mono_s() - t0, best, st.frames_in, st.frames_invalid, st.keyframes);
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
+  tk_node_destroy(n, src);
   rig_stop(r);
   return t;
 }

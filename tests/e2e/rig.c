@@ -1,4 +1,5 @@
 #include "rig.h"
+#include "testkit.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -198,30 +199,7 @@ void rig_free(struct rig *r) {
 }
 
 double rig_miou3d(const struct rig *r, uint64_t *version) {
-  char err[256];
-  struct vlff_map *m = vlff_map_attach(r->cfg.shm.map);
-  if (!m) return -1;
-  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
-  double miou = -1;
-  struct vlff_map_info info;
-  struct vlff_confusion c;
-  if (snap && vlff_map_snapshot_take(m, snap) == 0 && vlff_map_snapshot_info(snap, &info) == 0 && info.version > 0 &&
-      vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err) == 0) {
-    if (version) *version = info.version;
-    for (size_t i = 0; i < r->gt.n; i++) {
-      const float *x = r->gt.xyz + i * 3;
-      uint16_t lab = vlff_map_snapshot_label_at(snap, x[0], x[1], x[2], NULL);
-      const char *text = vlff_map_snapshot_prompt(snap, lab);
-      vlff_confusion_add_one(&c, r->gt.label[i], text ? vlff_sim_class_of(text) : -1);
-    }
-    struct vlff_summary sum;
-    vlff_confusion_summary(&c, &sum);
-    miou = sum.miou * 100;
-    vlff_confusion_free(&c);
-  }
-  vlff_map_snapshot_free(snap);
-  vlff_map_detach(m);
-  return miou;
+  return tk_map_miou3d(r->cfg.shm.map, &r->gt, version, NULL);
 }
 
 long long rig_camd_stat(const struct rig *r, const char *key) {

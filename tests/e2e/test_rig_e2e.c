@@ -25,27 +25,12 @@
 #include "node.h"
 #include "sim_source.h"
 #include "rig.h"
+#include "testkit.h"
+#include "clock.h"
 #include "vlff/shm.h"
 
 static int in_netns;
 static struct rig r; /* static: teardown frees it after a failed assertion too */
-
-static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
-
-static void sleep_s(double s) {
-  struct timespec ts = {(time_t)s, (long)((s - (time_t)s) * 1e9)};
-  nanosleep(&ts, NULL);
-}
-
-static int file_has(const char *path, const char *text) {
-  FILE *f = fopen(path, "r");
-  if (!f) return 0;
-  char buf[8192];
-  size_t n = fread(buf, 1, sizeof buf - 1, f);
-  buf[n] = 0;
-  fclose(f);
-  return strstr(buf, text) != NULL;
-}
 
 static void test_camera_rig_trains_map(void **state) {
   (void)state;
@@ -54,15 +39,14 @@ static void test_camera_rig_trains_map(void **state) {
   if (!(scale > 0)) scale = 1;
   char err[1024];
   if (rig_init(&r, 1, err, sizeof err)) fail_msg("%s", err);
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&r.cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&r.cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&r.cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
   if (rig_start(&r, err, sizeof err)) fail_msg("%s", err);
-  double best = -1, t0 = mono_s();
+  double best = -1, t0 = vlff_seconds();
   uint64_t version = 0;
-  while (mono_s() - t0 < 150 * scale) {
-    sleep_s(2);
+  while (vlff_seconds() - t0 < 150 * scale) {
+    tk_sleep_s(2);
     best = fmax(best, rig_miou3d(&r, &version));
     if (best >= 35) break;
   }
@@ -70,10 +54,9 @@ static void test_camera_rig_trains_map(void **state) {
   vlff_node_status(n, &st);
   printf("after %.0f s: 3D mIoU %.1f, %lld frames in, %lld invalid, %lld lost, %d keyframes, "
          "%lld feature timeouts, map v%llu\n",
-         mono_s() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
+         vlff_seconds() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
          (unsigned long long)version);
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
+  tk_node_destroy(n, src);
   rig_stop(&r);
   long long pairs = rig_camd_stat(&r, "committed"), colour = rig_camd_stat(&r, "color_frames"),
             um_c = rig_camd_stat(&r, "unmatched_color"), um_d = rig_camd_stat(&r, "unmatched_depth"),
@@ -83,8 +66,8 @@ static void test_camera_rig_trains_map(void **state) {
   /* The rig delivered: pairs of both cameras, the scene server's images of
    * the right size and format, every pose line accepted. */
   assert_true(pairs > 10);
-  assert_true(file_has(r.scenecam_out, " 0 wrong buffers"));
-  assert_false(file_has(r.pose_out, ": refused, ")); /* vlff-pose's line for each refusal */
+  assert_true(strstr(tk_slurp(r.scenecam_out), " 0 wrong buffers"));
+  assert_false(strstr(tk_slurp(r.pose_out), ": refused, ")); /* vlff-pose's line for each refusal */
   /* The node learned from them: keyframes, a map, and frames refused at
    * most rarely (a frame whose pose reached the ring later than
    * source.pose_wait_s on a loaded host; a systematic fault, a missing depth

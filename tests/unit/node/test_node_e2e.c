@@ -29,30 +29,18 @@
 #include "node.h"
 #include "sim_source.h"
 #include "sim.h"
+#include "testkit.h"
+#include "clock.h"
 #include "vlff/shm.h"
 
-extern char **environ;
-
-static char dir[256], cfg_path[300], tag[64];
+static struct tk tk;
+static char cfg_path[300];
 static double scale = 1.0;
 static struct vlff_sim_points gt; /* the scene's labelled points, made once */
-static pid_t children[8];         /* killed in teardown, also after a failed assertion */
-static int nchildren;
-
-static double mono_s(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
-static void sleep_s(double s) {
-  struct timespec ts = {(time_t)s, (long)((s - (time_t)s) * 1e9)};
-  nanosleep(&ts, NULL);
-}
 
 /* A config with this test's own segment names and state directory. */
 static void write_config(struct vlff_config *cfg, const char *extra) {
-  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", dir);
+  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", tk.dir);
   FILE *f = fopen(cfg_path, "w");
   assert_non_null(f);
   fprintf(f,
@@ -70,92 +58,38 @@ static void write_config(struct vlff_config *cfg, const char *extra) {
           "        bathtub, other furniture]\n"
           "    - name: coarse\n      prompts: [wall, floor, bed]\n"
           "%s",
-          dir, tag, tag, tag, tag, tag, extra ? extra : "");
+          tk.dir, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag, extra ? extra : "");
   fclose(f);
   char err[512];
   if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
 }
 
-static pid_t spawn(const char *prog, const char *const *args) {
-  char path[512];
-  snprintf(path, sizeof path, "%s/%s", getenv("VLFF_BINARY_DIR"), prog);
-  char *argv[16];
-  int n = 0;
-  argv[n++] = path;
-  for (; args[n - 1] && n < 15; n++) argv[n] = (char *)args[n - 1];
-  argv[n] = NULL;
-  pid_t pid;
-  assert_int_equal(posix_spawn(&pid, path, NULL, NULL, argv, environ), 0);
-  if (nchildren < 8) children[nchildren++] = pid;
-  return pid;
-}
-
-static void stop_child(pid_t pid, int sig) {
-  if (pid <= 0) return;
-  kill(pid, sig);
-  int st;
-  waitpid(pid, &st, 0);
-  for (int i = 0; i < nchildren; i++)
-    if (children[i] == pid) children[i] = 0;
-}
-
 /* 3D mIoU of the published map at the scene's labelled points, through the
  * controller library; -1 before the first publish. */
 static double map_miou3d(const struct vlff_config *cfg, uint64_t *version, int *prompt_count) {
-  char err[256];
-  struct vlff_map *m = vlff_map_attach(cfg->shm.map);
-  if (!m) return -1;
-  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
-  double miou = -1;
-  struct vlff_map_info info;
-  if (snap && vlff_map_snapshot_take(m, snap) == 0 && vlff_map_snapshot_info(snap, &info) == 0 &&
-      info.version > 0) {
-    if (version) *version = info.version;
-    if (prompt_count) *prompt_count = info.prompt_count;
-    if (!gt.n) {
-      struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
-      assert_non_null(s);
-      assert_int_equal(vlff_sim_points(s, cfg->sim.frames, 5, 0.05, &gt, err, sizeof err), 0);
-      vlff_sim_destroy(s);
-    }
-    const struct vlff_sim_points pts = gt;
-    struct vlff_confusion c;
-    assert_int_equal(vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err), 0);
-    for (size_t i = 0; i < pts.n; i++) {
-      const float *x = pts.xyz + i * 3;
-      uint16_t lab = vlff_map_snapshot_label_at(snap, x[0], x[1], x[2], NULL);
-      const char *text = vlff_map_snapshot_prompt(snap, lab);
-      vlff_confusion_add_one(&c, pts.label[i], text ? vlff_sim_class_of(text) : -1);
-    }
-    struct vlff_summary sum;
-    vlff_confusion_summary(&c, &sum);
-    miou = sum.miou * 100;
-    vlff_confusion_free(&c);
+  if (!gt.n) {
+    char err[256];
+    struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
+    assert_non_null(s);
+    assert_int_equal(vlff_sim_points(s, cfg->sim.frames, 5, 0.05, &gt, err, sizeof err), 0);
+    vlff_sim_destroy(s);
   }
-  vlff_map_snapshot_free(snap);
-  vlff_map_detach(m);
-  return miou;
+  return tk_map_miou3d(cfg->shm.map, &gt, version, prompt_count);
 }
 
 static int setup(void **state) {
   (void)state;
   const char *sc = getenv("VLFF_E2E_SCALE");
   if (sc) scale = atof(sc) > 0 ? atof(sc) : 1;
-  snprintf(tag, sizeof tag, "e2e%d", (int)getpid());
-  snprintf(dir, sizeof dir, "/tmp/vlff-%s", tag);
-  mkdir(dir, 0755);
+  tk_setup(&tk, "e2e");
   return 0;
 }
 
 static int teardown(void **state) {
   (void)state;
-  for (int i = 0; i < nchildren; i++) stop_child(children[i], SIGKILL);
-  nchildren = 0;
   vlff_sim_points_free(&gt);
   memset(&gt, 0, sizeof gt);
-  char cmd[600];
-  snprintf(cmd, sizeof cmd, "rm -rf %s /dev/shm/%s-*", dir, tag);
-  return system(cmd) == 0 ? 0 : -1;
+  return tk_teardown(&tk);
 }
 
 /* Learns a useful map from the live stream; run-time prompts re-segment it
@@ -165,22 +99,21 @@ static void test_learns_and_reprompts(void **state) {
   struct vlff_config cfg;
   write_config(&cfg, NULL);
   const char *args[] = {"--config", cfg_path, "--quiet", NULL};
-  pid_t sim = spawn("node/sim/vlff-sim", args);
+  pid_t sim = tk_spawn(&tk, "node/sim/vlff-sim", args, NULL);
   char err[512];
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
-  double best = -1, t0 = mono_s();
+  double best = -1, t0 = vlff_seconds();
   uint64_t version = 0;
-  while (mono_s() - t0 < 90 * scale) {
-    sleep_s(2);
+  while (vlff_seconds() - t0 < 90 * scale) {
+    tk_sleep_s(2);
     best = fmax(best, map_miou3d(&cfg, &version, NULL));
     if (best >= 35) break;
   }
   struct vlff_node_status st;
   vlff_node_status(n, &st);
-  printf("after %.0f s: 3D mIoU %.1f, %lld iterations, %d keyframes, map v%llu\n", mono_s() - t0, best,
+  printf("after %.0f s: 3D mIoU %.1f, %lld iterations, %d keyframes, map v%llu\n", vlff_seconds() - t0, best,
          st.iteration, st.keyframes, (unsigned long long)version);
   assert_true(best >= 35);
   assert_int_equal(st.frames_invalid, 0);
@@ -211,9 +144,9 @@ static void test_learns_and_reprompts(void **state) {
   assert_int_equal(vlff_prompts_post(pb, texts, 2), 0);
   vlff_prompts_close(pb);
   int count = 0;
-  t0 = mono_s();
-  while (mono_s() - t0 < 20 * scale && count != 2) {
-    sleep_s(0.5);
+  t0 = vlff_seconds();
+  while (vlff_seconds() - t0 < 20 * scale && count != 2) {
+    tk_sleep_s(0.5);
     map_miou3d(&cfg, NULL, &count);
   }
   assert_int_equal(count, 2);
@@ -248,17 +181,16 @@ static void test_learns_and_reprompts(void **state) {
   /* A CAN-style command selects a configured set by index. */
   assert_int_equal(vlff_node_command(n, VLFF_CMD_PROMPT_SET, 1), 0);
   assert_int_equal(vlff_node_command(n, VLFF_CMD_PROMPT_SET, 7), -1);
-  t0 = mono_s();
-  while (mono_s() - t0 < 20 * scale && count != 3) {
-    sleep_s(0.5);
+  t0 = vlff_seconds();
+  while (vlff_seconds() - t0 < 20 * scale && count != 3) {
+    tk_sleep_s(0.5);
     map_miou3d(&cfg, NULL, &count);
   }
   assert_int_equal(count, 3);
   vlff_node_status(n, &st);
   assert_int_equal(st.prompt_set, 1);
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
-  stop_child(sim, SIGTERM);
+  tk_node_destroy(n, src);
+  tk_stop_child(&tk, sim, SIGTERM);
 }
 
 
@@ -281,15 +213,15 @@ static void test_kill9_resumes(void **state) {
   write_config(&cfg, NULL);
   const char *sargs[] = {"--config", cfg_path, "--quiet", NULL};
   const char *nargs[] = {"--config", cfg_path, NULL};
-  pid_t sim = spawn("node/sim/vlff-sim", sargs);
-  pid_t node = spawn("node/vlff-node", nargs);
+  pid_t sim = tk_spawn(&tk, "node/sim/vlff-sim", sargs, NULL);
+  pid_t node = tk_spawn(&tk, "node/vlff-node", nargs, NULL);
   char ck0[400], ck1[400];
-  snprintf(ck0, sizeof ck0, "%s/state/field.0.ckpt", dir);
-  snprintf(ck1, sizeof ck1, "%s/state/field.1.ckpt", dir);
-  double before = -1, t0 = mono_s();
+  snprintf(ck0, sizeof ck0, "%s/state/field.0.ckpt", tk.dir);
+  snprintf(ck1, sizeof ck1, "%s/state/field.1.ckpt", tk.dir);
+  double before = -1, t0 = vlff_seconds();
   uint64_t v_before = 0;
-  while (mono_s() - t0 < 90 * scale) {
-    sleep_s(2);
+  while (vlff_seconds() - t0 < 90 * scale) {
+    tk_sleep_s(2);
     before = map_miou3d(&cfg, &v_before, NULL);
     if (before >= 20 && newest_mtime(ck0, ck1) > 0) break;
   }
@@ -297,35 +229,35 @@ static void test_kill9_resumes(void **state) {
    * the one it saved, give or take a publish: a young map gains several
    * points a second, and the restart is judged against this. */
   double m0 = newest_mtime(ck0, ck1);
-  t0 = mono_s();
-  while (newest_mtime(ck0, ck1) == m0 && mono_s() - t0 < 4.0 * cfg.node.checkpoint_period_s * scale) sleep_s(0.1);
+  t0 = vlff_seconds();
+  while (newest_mtime(ck0, ck1) == m0 && vlff_seconds() - t0 < 4.0 * cfg.node.checkpoint_period_s * scale) tk_sleep_s(0.1);
   before = map_miou3d(&cfg, &v_before, NULL);
   printf("before kill: 3D mIoU %.1f at map v%llu\n", before, (unsigned long long)v_before);
   assert_true(before >= 20);
-  stop_child(node, SIGKILL);
+  tk_stop_child(&tk, node, SIGKILL);
 
   /* The producer is unaffected: alive and still committing frames. */
   struct vlff_ring *r = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
   assert_non_null(r);
   uint64_t h0 = vlff_ring_head(r);
-  sleep_s(1.5);
+  tk_sleep_s(1.5);
   assert_true(vlff_ring_head(r) > h0);
   assert_int_equal(kill(sim, 0), 0);
   vlff_ring_close(r);
 
-  node = spawn("node/vlff-node", nargs);
+  node = tk_spawn(&tk, "node/vlff-node", nargs, NULL);
   uint64_t v_after = 0;
   double after = -1;
-  t0 = mono_s();
-  while (mono_s() - t0 < 60 * scale && v_after <= v_before) {
-    sleep_s(0.5);
+  t0 = vlff_seconds();
+  while (vlff_seconds() - t0 < 60 * scale && v_after <= v_before) {
+    tk_sleep_s(0.5);
     after = map_miou3d(&cfg, &v_after, NULL);
   }
   printf("after restart: 3D mIoU %.1f at map v%llu\n", after, (unsigned long long)v_after);
   assert_true(v_after > v_before);   /* the version continues, not reset to 1 */
   assert_true(after >= 0.6 * before); /* the first new map is not a fresh field's */
-  stop_child(node, SIGTERM);
-  stop_child(sim, SIGTERM);
+  tk_stop_child(&tk, node, SIGTERM);
+  tk_stop_child(&tk, sim, SIGTERM);
 }
 
 /* A hostile camera: NaN poses, all-invalid depth, frames larger than the
@@ -344,19 +276,18 @@ static void test_bad_frames(void **state) {
                                 vlff_frame_slot_size(400, 300, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), {0640, NULL}};
   struct vlff_ring *ring = vlff_ring_create(cfg.shm.ring, &rp);
   assert_non_null(ring);
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
-  sleep_s(0.5); /* the ingest thread attaches to the ring */
+  tk_sleep_s(0.5); /* the ingest thread attaches to the ring */
   /* Under the sanitizers the field trains too slowly to judge poses within
    * the test's time: there only the drop accounting and the threads run. */
   const int lies_wanted = getenv("VLFF_E2E_QUICK") ? 0 : 6;
   int invalid_sent = 0, lies_sent = 0;
   long long it_at_lies = -1;
-  double t0 = mono_s();
+  double t0 = vlff_seconds();
   struct vlff_node_status st;
-  for (long long id = 0; mono_s() - t0 < 150 * scale; id++) {
+  for (long long id = 0; vlff_seconds() - t0 < 150 * scale; id++) {
     vlff_node_status(n, &st);
     bool warm = st.iteration >= cfg.keyframes.posecheck_min_steps + 10;
     int kind = (int)(id % 10);
@@ -399,9 +330,9 @@ static void test_bad_frames(void **state) {
     }
     assert_int_equal(vlff_ring_commit(ring, len), 0);
     if (lies_sent >= lies_wanted && invalid_sent >= 6 && st.iteration > 0) break;
-    sleep_s(0.2); /* 5 Hz, the keyframe rate: every frame is a candidate */
+    tk_sleep_s(0.2); /* 5 Hz, the keyframe rate: every frame is a candidate */
   }
-  sleep_s(2);
+  tk_sleep_s(2);
   vlff_node_status(n, &st);
   printf("invalid sent %d, counted %lld (lost %lld); lies sent %d, rejected %lld; iteration %lld (at first lie %lld)\n",
          invalid_sent, st.frames_invalid, st.frames_lost, lies_sent, st.poses_rejected, st.iteration, it_at_lies);
@@ -412,8 +343,7 @@ static void test_bad_frames(void **state) {
   assert_true(st.poses_rejected >= lies_sent - 1);
   assert_true(st.poses_rejected <= lies_sent + 1);
   assert_true(st.iteration > (it_at_lies < 0 ? 0 : it_at_lies));
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
+  tk_node_destroy(n, src);
   vlff_ring_close(ring);
   vlff_sim_frame_free(f);
   vlff_sim_destroy(s);

@@ -24,20 +24,14 @@
 #include "node.h"
 #include "sim_source.h"
 #include "sim.h"
+#include "testkit.h"
 #include "vlff/shm.h"
 
-static char tag[64], dir[128];
-
-static void sleep_s(double s) {
-  struct timespec ts = {(time_t)s, (long)((s - (time_t)s) * 1e9)};
-  nanosleep(&ts, NULL);
-}
+static struct tk tk;
 
 static int teardown(void **state) {
   (void)state;
-  char cmd[400];
-  snprintf(cmd, sizeof cmd, "rm -rf %s /dev/shm/%s-*", dir, tag);
-  return system(cmd) == 0 ? 0 : -1;
+  return tk_teardown(&tk);
 }
 
 enum hostile { GOOD, CXCY, FX_TINY, FY_HUGE, FAR_AWAY, NKINDS };
@@ -67,8 +61,7 @@ static void send(struct vlff_ring *ring, const struct vlff_sim_frame *f, long lo
 
 static void test_absurd_intrinsics(void **state) {
   (void)state;
-  snprintf(tag, sizeof tag, "hostile%d", (int)getpid());
-  snprintf(dir, sizeof dir, "/tmp/vlff-%s", tag);
+  tk_setup(&tk, "hostile");
   char yaml[1024], err[512];
   snprintf(yaml, sizeof yaml,
            "node:\n  state_dir: %s\n  checkpoint_period_s: 0\n  threads: 2\n"
@@ -78,7 +71,7 @@ static void test_absurd_intrinsics(void **state) {
            "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
            "  max_width: 64\n  max_height: 48\n  map_max_voxels: 100000\n"
            "keyframes:\n  rate_hz: 100\n  start_after: 100\n",
-           dir, tag, tag, tag, tag, tag);
+           tk.dir, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag);
   struct vlff_config cfg;
   if (vlff_config_load_mem(yaml, strlen(yaml), "hostile.yaml", &cfg, err, sizeof err)) fail_msg("%s", err);
   struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
@@ -89,11 +82,10 @@ static void test_absurd_intrinsics(void **state) {
                                 {0640, NULL}};
   struct vlff_ring *ring = vlff_ring_create(cfg.shm.ring, &rp);
   assert_non_null(ring);
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
-  sleep_s(0.5); /* the ingest thread attaches to the ring */
+  tk_sleep_s(0.5); /* the ingest thread attaches to the ring */
   int bad = 0, good = 0;
   for (long long id = 0; id < 3 * NKINDS; id++) {
     enum hostile kind = (enum hostile)(id % NKINDS);
@@ -101,13 +93,13 @@ static void test_absurd_intrinsics(void **state) {
     send(ring, f, id, kind);
     kind == GOOD ? good++ : bad++;
     /* Slower than the trainer takes candidates: none is dropped. */
-    sleep_s(0.3);
+    tk_sleep_s(0.3);
   }
   struct vlff_node_status st;
   for (int i = 0; i < 600; i++) {
     vlff_node_status(n, &st);
     if (st.frames_invalid + st.keyframes >= bad + good) break;
-    sleep_s(0.1);
+    tk_sleep_s(0.1);
   }
   printf("sent %d absurd and %d good frames: invalid %lld, keyframes %d, dropped %lld, lost %lld\n", bad, good,
          st.frames_invalid, st.keyframes, st.candidates_dropped, st.frames_lost);
@@ -117,8 +109,7 @@ static void test_absurd_intrinsics(void **state) {
   assert_int_equal(st.keyframes, good);
   /* What SIGTERM does: stop and join the threads. */
   vlff_node_stop(n);
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
+  tk_node_destroy(n, src);
   vlff_ring_close(ring);
   vlff_sim_frame_free(f);
   vlff_sim_destroy(s);

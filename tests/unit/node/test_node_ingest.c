@@ -33,25 +33,18 @@
 #include "node.h"
 #include "sim_source.h"
 #include "sim.h"
+#include "testkit.h"
+#include "clock.h"
 #include "vlff/shm.h"
 
-extern char **environ;
-
-static char dir[256], cfg_path[300], tag[64];
+static struct tk tk;
+static char cfg_path[300];
 static double scale = 1.0;
-static pid_t children[8];
-static int nchildren;
 
-static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
-
-static void sleep_s(double s) {
-  struct timespec ts = {(time_t)s, (long)((s - (time_t)s) * 1e9)};
-  nanosleep(&ts, NULL);
-}
 
 /* The ring carries the simulator's frames, so its features are forced on. */
 static void write_config(struct vlff_config *cfg) {
-  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", dir);
+  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", tk.dir);
   FILE *f = fopen(cfg_path, "w");
   assert_non_null(f);
   fprintf(f,
@@ -63,82 +56,23 @@ static void write_config(struct vlff_config *cfg) {
           "train:\n  image_scale: 0.5\n"
           "keyframes:\n  start_after: 3\n"
           "publish:\n  rate_hz: 1\n  label_width: 40\n  label_height: 30\n",
-          dir, tag, tag, tag, tag, tag);
+          tk.dir, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag);
   fclose(f);
   char err[512];
   if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
-}
-
-/* Starts a program of the build with stdout/stderr into out (NULL: inherit). */
-static pid_t spawn(const char *prog, const char *const *args, const char *out) {
-  char path[512];
-  snprintf(path, sizeof path, "%s/%s", getenv("VLFF_BINARY_DIR"), prog);
-  char *argv[24];
-  int n = 0;
-  argv[n++] = path;
-  for (; args[n - 1] && n < 23; n++) argv[n] = (char *)args[n - 1];
-  argv[n] = NULL;
-  posix_spawn_file_actions_t fa;
-  posix_spawn_file_actions_init(&fa);
-  if (out) {
-    posix_spawn_file_actions_addopen(&fa, 1, out, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_adddup2(&fa, 1, 2);
-  }
-  pid_t pid;
-  assert_int_equal(posix_spawn(&pid, path, &fa, NULL, argv, environ), 0);
-  posix_spawn_file_actions_destroy(&fa);
-  if (nchildren < 8) children[nchildren++] = pid;
-  return pid;
-}
-
-static int wait_child(pid_t pid) {
-  int st;
-  assert_int_equal(waitpid(pid, &st, 0), pid);
-  for (int i = 0; i < nchildren; i++)
-    if (children[i] == pid) children[i] = 0;
-  return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-}
-
-static char *slurp(const char *path) {
-  static char buf[1 << 20];
-  FILE *f = fopen(path, "r");
-  if (!f) return strcpy(buf, "");
-  size_t n = fread(buf, 1, sizeof buf - 1, f);
-  buf[n] = 0;
-  fclose(f);
-  return buf;
-}
-
-static bool wait_for_text(const char *path, const char *text, double timeout_s) {
-  double t0 = mono_s();
-  while (mono_s() - t0 < timeout_s) {
-    if (strstr(slurp(path), text)) return true;
-    sleep_s(0.1);
-  }
-  return false;
 }
 
 static int setup(void **state) {
   (void)state;
   const char *sc = getenv("VLFF_E2E_SCALE");
   if (sc) scale = atof(sc) > 0 ? atof(sc) : 1;
-  snprintf(tag, sizeof tag, "ing%d", (int)getpid());
-  snprintf(dir, sizeof dir, "/tmp/vlff-%s", tag);
-  mkdir(dir, 0755);
+  tk_setup(&tk, "ing");
   return 0;
 }
 
 static int teardown(void **state) {
   (void)state;
-  for (int i = 0; i < nchildren; i++)
-    if (children[i] > 0) {
-      kill(children[i], SIGKILL);
-      waitpid(children[i], NULL, 0);
-    }
-  nchildren = 0;
-  char cmd[600];
-  snprintf(cmd, sizeof cmd, "rm -rf %s /dev/shm/%s-*", dir, tag);
-  return system(cmd) == 0 ? 0 : -1;
+  return tk_teardown(&tk);
 }
 
 enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS };
@@ -182,14 +116,14 @@ static void test_status_says_why(void **state) {
   struct vlff_config cfg;
   write_config(&cfg);
   char err[512], log[400];
-  snprintf(log, sizeof log, "%s/node.log", dir);
+  snprintf(log, sizeof log, "%s/node.log", tk.dir);
   struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   assert_non_null(s);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   struct vlff_ring *ring = frame_ring(&cfg);
   const char *args[] = {"--config", cfg_path, "--status", NULL};
-  pid_t node = spawn("node/vlff-node", args, log);
-  assert_true(wait_for_text(log, "attached to ring", 30 * scale));
+  pid_t node = tk_spawn(&tk, "node/vlff-node", args, log);
+  assert_true(tk_wait_for_text(log, "attached to ring", 30 * scale));
   const enum frame_kind kinds[] = {NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, NO_POSE_FLAG, NO_DEPTH, NO_POSE_FLAG};
   const int nk = sizeof kinds / sizeof kinds[0];
   long long id = 0;
@@ -197,15 +131,15 @@ static void test_status_says_why(void **state) {
   for (int round = 0; round < 2; round++) {
     for (int i = 0; i < nk; i++, id++) {
       put_frame(ring, s, f, id, vlff_shm_now_ns(), kinds[i]);
-      sleep_s(0.05);
+      tk_sleep_s(0.05);
     }
-    if (round == 0) sleep_s(5.5);
+    if (round == 0) tk_sleep_s(5.5);
   }
   /* 6 no pose, 4 no depth, 2 bad intrinsics. */
-  bool seen = wait_for_text(log, "refused 12 (bad intrinsics 2, no pose 6, no depth 4)", 20 * scale);
+  bool seen = tk_wait_for_text(log, "refused 12 (bad intrinsics 2, no pose 6, no depth 4)", 20 * scale);
   kill(node, SIGTERM);
-  assert_int_equal(wait_child(node), 0);
-  const char *text = slurp(log);
+  assert_int_equal(tk_wait_child(&tk, node), 0);
+  const char *text = tk_slurp(log);
   if (!seen) fail_msg("no status line with the per-reason counts in:\n%s", text);
   /* The first of each reason at info, with what is wrong and what to do. */
   assert_non_null(strstr(text, " I node: frame 0 refused, no pose: the frame carries no pose and the pose ring "
@@ -253,11 +187,11 @@ static void tum_line(struct vlff_sim *s, struct vlff_sim_frame *f, long long ind
 }
 
 static void wait_keyframes(struct vlff_node *n, int want, struct vlff_node_status *st) {
-  double t0 = mono_s();
+  double t0 = vlff_seconds();
   do {
-    sleep_s(0.1);
+    tk_sleep_s(0.1);
     vlff_node_status(n, st);
-  } while (st->keyframes < want && mono_s() - t0 < 20 * scale);
+  } while (st->keyframes < want && vlff_seconds() - t0 < 20 * scale);
 }
 
 /* Frames without poses are refused "no pose"; once vlff-pose has written
@@ -273,21 +207,20 @@ static void test_pose_adapter_feeds_node(void **state) {
   assert_non_null(s);
   struct vlff_sim_frame *f = vlff_sim_frame_new(s);
   struct vlff_ring *ring = frame_ring(&cfg);
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
-  sleep_s(0.5); /* the ingest thread attaches to the ring */
+  tk_sleep_s(0.5); /* the ingest thread attaches to the ring */
   const uint64_t step = 200000000; /* the keyframe rate: every posed frame is a candidate */
   uint64_t t = vlff_shm_now_ns();
   long long id = 0;
   for (int i = 0; i < 4; i++, id++, t += step) put_frame(ring, s, f, id, t, NO_POSE_FLAG);
   struct vlff_node_status st;
-  double t0 = mono_s();
+  double t0 = vlff_seconds();
   do {
-    sleep_s(0.1);
+    tk_sleep_s(0.1);
     vlff_node_status(n, &st);
-  } while (st.refused[VLFF_REFUSED_NO_POSE] < 4 && mono_s() - t0 < 10 * scale);
+  } while (st.refused[VLFF_REFUSED_NO_POSE] < 4 && vlff_seconds() - t0 < 10 * scale);
   assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
   assert_int_equal(st.last_refusal, VLFF_REFUSED_NO_POSE);
   assert_int_equal(st.keyframes, 0);
@@ -295,8 +228,8 @@ static void test_pose_adapter_feeds_node(void **state) {
   /* From a file: a TUM trajectory of the next frames, with a header, a
    * duplicate line and a malformed one that vlff-pose refuses and counts. */
   char traj[400], plog[400], line[256];
-  snprintf(traj, sizeof traj, "%s/CameraTrajectory.txt", dir);
-  snprintf(plog, sizeof plog, "%s/pose-file.log", dir);
+  snprintf(traj, sizeof traj, "%s/CameraTrajectory.txt", tk.dir);
+  snprintf(plog, sizeof plog, "%s/pose-file.log", tk.dir);
   FILE *tf = fopen(traj, "w");
   assert_non_null(tf);
   fputs("# timestamp tx ty tz qx qy qz qw\n", tf);
@@ -310,8 +243,8 @@ static void test_pose_adapter_feeds_node(void **state) {
   fputs("1 2 3\n", tf);
   fclose(tf);
   const char *fargs[] = {"--config", cfg_path, traj, NULL};
-  assert_int_equal(wait_child(spawn("drivers/pose/vlff-pose", fargs, plog)), 0);
-  const char *ptext = slurp(plog);
+  assert_int_equal(tk_wait_child(&tk, tk_spawn(&tk, "drivers/pose/vlff-pose", fargs, plog)), 0);
+  const char *ptext = tk_slurp(plog);
   assert_non_null(strstr(ptext, "CameraTrajectory.txt:5: refused, duplicate stamp"));
   assert_non_null(strstr(ptext, "CameraTrajectory.txt:9: refused, malformed: 3 fields, expected 8"));
   assert_non_null(strstr(ptext, "6 poses written to /"));
@@ -319,7 +252,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   /* Paced like a camera: the trainer takes a few candidates at a time. */
   for (int i = 0; i < nfile; i++, id++, t += step) {
     put_frame(ring, s, f, id, t, NO_POSE_FLAG);
-    sleep_s(0.1);
+    tk_sleep_s(0.1);
   }
   wait_keyframes(n, nfile, &st);
   printf("file: %d keyframes, %lld refused for no pose\n", st.keyframes, st.refused[VLFF_REFUSED_NO_POSE]);
@@ -330,10 +263,10 @@ static void test_pose_adapter_feeds_node(void **state) {
   int port = 20000 + (int)(getpid() % 20000);
   char addr[64];
   snprintf(addr, sizeof addr, "127.0.0.1:%d", port);
-  snprintf(plog, sizeof plog, "%s/pose-udp.log", dir);
+  snprintf(plog, sizeof plog, "%s/pose-udp.log", tk.dir);
   const char *uargs[] = {"--config", cfg_path, "--udp", addr, NULL};
-  pid_t pu = spawn("drivers/pose/vlff-pose", uargs, plog);
-  assert_true(wait_for_text(plog, "-> pose ring", 10 * scale));
+  pid_t pu = tk_spawn(&tk, "drivers/pose/vlff-pose", uargs, plog);
+  assert_true(tk_wait_for_text(plog, "-> pose ring", 10 * scale));
   int us = socket(AF_INET, SOCK_DGRAM, 0);
   assert_true(us >= 0);
   struct sockaddr_in sa = {.sin_family = AF_INET, .sin_port = htons((uint16_t)port)};
@@ -352,13 +285,13 @@ static void test_pose_adapter_feeds_node(void **state) {
   const char *nan_line = "12.5 0 0 nan 0 0 0 1\n";
   assert_true(sendto(us, nan_line, strlen(nan_line), 0, (struct sockaddr *)&sa, sizeof sa) > 0);
   close(us);
-  t0 = mono_s();
-  while (vlff_ring_head(pr) < head0 + nudp && mono_s() - t0 < 10 * scale) sleep_s(0.05);
+  t0 = vlff_seconds();
+  while (vlff_ring_head(pr) < head0 + nudp && vlff_seconds() - t0 < 10 * scale) tk_sleep_s(0.05);
   assert_true(vlff_ring_head(pr) == head0 + nudp);
   vlff_ring_close(pr);
   for (int i = 0; i < nudp; i++, id++, t += step) {
     put_frame(ring, s, f, id, t, NO_POSE_FLAG);
-    sleep_s(0.1);
+    tk_sleep_s(0.1);
   }
   wait_keyframes(n, nfile + nudp, &st);
   printf("udp: %d keyframes (%lld candidates dropped), %lld refused for no pose\n", st.keyframes,
@@ -375,9 +308,9 @@ static void test_pose_adapter_feeds_node(void **state) {
   for (int i = 0; i < nlive; i++, id++, t += step) {
     tum_line(s, f, id, t, line, sizeof line); /* before the frame: rendering is slow under the sanitizers */
     put_frame(ring, s, f, id, t, NO_POSE_FLAG);
-    sleep_s(0.15);
+    tk_sleep_s(0.15);
     assert_true(sendto(us, line, strlen(line), 0, (struct sockaddr *)&sa, sizeof sa) == (ssize_t)strlen(line));
-    sleep_s(0.1);
+    tk_sleep_s(0.1);
   }
   close(us);
   wait_keyframes(n, nfile + nudp + nlive, &st);
@@ -386,21 +319,20 @@ static void test_pose_adapter_feeds_node(void **state) {
   assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
   /* A pose that never comes: refused once the wait is over. */
   put_frame(ring, s, f, id, t, NO_POSE_FLAG);
-  t0 = mono_s();
+  t0 = vlff_seconds();
   do {
-    sleep_s(0.1);
+    tk_sleep_s(0.1);
     vlff_node_status(n, &st);
-  } while (st.refused[VLFF_REFUSED_NO_POSE] < 5 && mono_s() - t0 < 5 * scale);
+  } while (st.refused[VLFF_REFUSED_NO_POSE] < 5 && vlff_seconds() - t0 < 5 * scale);
   assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 5);
-  assert_true(mono_s() - t0 >= 0.9); /* not before source.pose_wait_s */
+  assert_true(vlff_seconds() - t0 >= 0.9); /* not before source.pose_wait_s */
   assert_int_equal(st.keyframes, nfile + nudp + nlive);
   kill(pu, SIGTERM);
-  assert_int_equal(wait_child(pu), 0);
-  ptext = slurp(plog);
+  assert_int_equal(tk_wait_child(&tk, pu), 0);
+  ptext = tk_slurp(plog);
   assert_non_null(strstr(ptext, "udp datagram 4 line 1: refused, not finite: tz is nan"));
   assert_non_null(strstr(ptext, "9 poses written to /"));
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
+  tk_node_destroy(n, src);
   vlff_ring_close(ring);
   vlff_sim_frame_free(f);
   vlff_sim_destroy(s);

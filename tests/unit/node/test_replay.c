@@ -37,31 +37,20 @@
 #include "node.h"
 #include "sim_source.h"
 #include "sim.h"
+#include "testkit.h"
+#include "clock.h"
 #include "vlff/shm.h"
-
-extern char **environ;
 
 #define FRAMES 150
 
-static char dir[256], scene[300], cfg_path[300], tag[64], replay[512];
+static struct tk tk;
+static char scene[300], cfg_path[300], replay[512];
 static double scale = 1.0;
-static pid_t child;
 
-static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
-
-static void sleep_s(double s) {
-  struct timespec ts = {(time_t)s, (long)((s - (time_t)s) * 1e9)};
-  nanosleep(&ts, NULL);
-}
-
-static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
-  (void)st, (void)flag, (void)ftw;
-  return remove(p);
-}
 
 /* The e2e test's room and node settings, fed from rings instead of the sim. */
 static void write_config(struct vlff_config *cfg, int ring_slots) {
-  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", dir);
+  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", tk.dir);
   FILE *f = fopen(cfg_path, "w");
   assert_non_null(f);
   fprintf(f,
@@ -77,7 +66,7 @@ static void write_config(struct vlff_config *cfg, int ring_slots) {
           "    - name: scannet20\n      prompts: [wall, floor, cabinet, bed, chair, sofa, table, door, window,\n"
           "        bookshelf, picture, counter, desk, curtain, refrigerator, shower curtain, toilet, sink,\n"
           "        bathtub, other furniture]\n",
-          dir, FRAMES, tag, tag, tag, tag, tag, ring_slots, scene);
+          tk.dir, FRAMES, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag, ring_slots, scene);
   fclose(f);
   char err[512];
   if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
@@ -120,82 +109,19 @@ static void write_scene(const struct vlff_config *cfg, struct vlff_sim_points *g
   vlff_sim_destroy(s);
 }
 
-static pid_t spawn_replay(const char *const *args) {
-  char *argv[20];
-  int n = 0;
-  argv[n++] = replay;
-  for (; args[n - 1] && n < 19; n++) argv[n] = (char *)args[n - 1];
-  argv[n] = NULL;
-  pid_t pid;
-  assert_int_equal(posix_spawn(&pid, replay, NULL, NULL, argv, environ), 0);
-  child = pid;
-  return pid;
-}
-
-static int wait_child(pid_t pid) {
-  int st;
-  assert_int_equal(waitpid(pid, &st, 0), pid);
-  child = 0;
-  return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-}
-
-/* 3D mIoU of the published map at the scene's labelled points, read
- * through the controller library; -1 before the first publish. */
-static double map_miou3d(const struct vlff_config *cfg, const struct vlff_sim_points *gt, uint64_t *version) {
-  char err[256];
-  struct vlff_map *m = vlff_map_attach(cfg->shm.map);
-  if (!m) return -1;
-  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
-  double miou = -1;
-  struct vlff_map_info info;
-  if (snap && vlff_map_snapshot_take(m, snap) == 0 && vlff_map_snapshot_info(snap, &info) == 0 &&
-      info.version > 0) {
-    *version = info.version;
-    struct vlff_confusion c;
-    assert_int_equal(vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err), 0);
-    for (size_t i = 0; i < gt->n; i++) {
-      const float *x = gt->xyz + i * 3;
-      uint16_t lab = vlff_map_snapshot_label_at(snap, x[0], x[1], x[2], NULL);
-      const char *text = vlff_map_snapshot_prompt(snap, lab);
-      vlff_confusion_add_one(&c, gt->label[i], text ? vlff_sim_class_of(text) : -1);
-    }
-    struct vlff_summary sum;
-    vlff_confusion_summary(&c, &sum);
-    miou = sum.miou * 100;
-    vlff_confusion_free(&c);
-  }
-  vlff_map_snapshot_free(snap);
-  vlff_map_detach(m);
-  return miou;
-}
-
 static int setup(void **state) {
   (void)state;
   const char *sc = getenv("VLFF_E2E_SCALE");
   if (sc && atof(sc) > 0) scale = atof(sc);
-  snprintf(tag, sizeof tag, "replay%d", (int)getpid());
-  snprintf(dir, sizeof dir, "/tmp/vlff-%s", tag);
-  snprintf(scene, sizeof scene, "%s/scene", dir);
+  tk_setup(&tk, "replay");
+  snprintf(scene, sizeof scene, "%s/scene", tk.dir);
   snprintf(replay, sizeof replay, "%s/node/dataset/vlff-replay", getenv("VLFF_BINARY_DIR"));
-  mkdir(dir, 0755);
   return 0;
 }
 
 static int teardown(void **state) {
   (void)state;
-  if (child > 0) {
-    kill(child, SIGKILL);
-    waitpid(child, NULL, 0);
-    child = 0;
-  }
-  nftw(dir, rm_one, 16, FTW_DEPTH | FTW_PHYS);
-  const char *suffix[] = {"f", "m", "p", "q", "x"};
-  for (int i = 0; i < 5; i++) {
-    char name[96];
-    snprintf(name, sizeof name, "/%s-%s", tag, suffix[i]);
-    vlff_shm_unlink(name);
-  }
-  return 0;
+  return tk_teardown(&tk);
 }
 
 /* The node trains from the replayed scene as from live sensors: every frame
@@ -208,25 +134,24 @@ static void test_node_trains_from_replay(void **state) {
   struct vlff_sim_points gt = {0};
   write_scene(&cfg, &gt);
   char err[512];
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
   /* The recording's 5 Hz, looped: the node sees the room as vlff-sim shows it. */
   const char *args[] = {"--config", cfg_path, "--fps", "5", "--loop", "--quiet", scene, NULL};
-  pid_t pid = spawn_replay(args);
-  double best = -1, t0 = mono_s();
+  pid_t pid = tk_spawn(&tk, "node/dataset/vlff-replay", args, NULL);
+  double best = -1, t0 = vlff_seconds();
   uint64_t version = 0;
-  while (mono_s() - t0 < 90 * scale) {
-    sleep_s(2);
-    best = fmax(best, map_miou3d(&cfg, &gt, &version));
+  while (vlff_seconds() - t0 < 90 * scale) {
+    tk_sleep_s(2);
+    best = fmax(best, tk_map_miou3d(cfg.shm.map, &gt, &version, NULL));
     if (best >= 35) break;
   }
   struct vlff_node_status st;
   vlff_node_status(n, &st);
   printf("after %.0f s: 3D mIoU %.1f, %lld frames in, %lld invalid, %lld lost, %d keyframes, "
          "%lld feature timeouts, map v%llu\n",
-         mono_s() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
+         vlff_seconds() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
          (unsigned long long)version);
   assert_true(st.frames_in > 0);
   assert_int_equal(st.frames_invalid, 0);
@@ -253,9 +178,8 @@ static void test_node_trains_from_replay(void **state) {
   assert_true(floor_n >= 300 && wall_n >= 300);
   assert_true(floor_ok > floor_n * 0.7 && wall_ok > wall_n * 0.7);
   kill(pid, SIGTERM);
-  assert_int_equal(wait_child(pid), 0);
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
+  assert_int_equal(tk_wait_child(&tk, pid), 0);
+  tk_node_destroy(n, src);
   vlff_sim_points_free(&gt);
 }
 
@@ -270,27 +194,25 @@ static void test_backpressure_loses_nothing(void **state) {
   assert_int_equal(cfg.shm.ring_slots, 2);
   write_scene(&cfg, NULL);
   char err[512];
-  struct vlff_source_hooks hooks; /* the simulator's features and ground truth, when used */
-  struct vlff_sim_source *src = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *n = src ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
   const char *args[] = {"-c", cfg_path, "--backpressure", "--pose-in-frame", "--rate", "1000", "--loop", "--count", "240",
                         "--quiet", scene, NULL};
-  pid_t pid = spawn_replay(args);
-  assert_int_equal(wait_child(pid), 0);
+  pid_t pid = tk_spawn(&tk, "node/dataset/vlff-replay", args, NULL);
+  assert_int_equal(tk_wait_child(&tk, pid), 0);
   struct vlff_node_status st;
-  double t0 = mono_s();
+  double t0 = vlff_seconds();
   do {
-    sleep_s(0.2);
+    tk_sleep_s(0.2);
     vlff_node_status(n, &st);
-  } while (st.frames_in < 240 && mono_s() - t0 < 20 * scale);
+  } while (st.frames_in < 240 && vlff_seconds() - t0 < 20 * scale);
   printf("%lld frames in, %lld lost, %lld invalid, %d keyframes\n", st.frames_in, st.frames_lost,
          st.frames_invalid, st.keyframes);
   assert_int_equal(st.frames_in, 240);
   assert_int_equal(st.frames_lost, 0);
   assert_int_equal(st.frames_invalid, 0);
-  vlff_node_destroy(n, false);
-  vlff_sim_source_destroy(src);
+  tk_node_destroy(n, src);
 }
 
 /* A ScanNet export (color/, depth/, pose/ camera-to-world, intrinsic/),
@@ -335,12 +257,12 @@ static void test_scannet_layout_into_rings(void **state) {
   uint8_t *rgb0 = malloc((size_t)W * H * 3);
   uint16_t *dep0 = malloc((size_t)W * H * 2);
   const char *args[] = {"-c", cfg_path, "--layout", "scannet", "--backpressure", "--quiet", scene, NULL};
-  pid_t pid = spawn_replay(args);
+  pid_t pid = tk_spawn(&tk, "node/dataset/vlff-replay", args, NULL);
   struct vlff_ring *fr = NULL, *pr = NULL;
   for (int k = 0; k < 200 && !(fr && pr); k++) {
     if (!fr) fr = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
     if (!pr) pr = vlff_ring_attach(cfg.shm.pose_ring, VLFF_RECORD_POSE);
-    if (!(fr && pr)) sleep_s(0.02);
+    if (!(fr && pr)) tk_sleep_s(0.02);
   }
   assert_non_null(fr);
   assert_non_null(pr);
@@ -369,7 +291,7 @@ static void test_scannet_layout_into_rings(void **state) {
     assert_memory_equal(dep0, f->depth_mm, (size_t)W * H * 2);
   }
   assert_int_equal(vlff_ring_lost(fr), 0);
-  assert_int_equal(wait_child(pid), 0);
+  assert_int_equal(tk_wait_child(&tk, pid), 0);
   free(buf), free(rgb0), free(dep0);
   vlff_ring_close(fr);
   vlff_ring_close(pr);
@@ -381,7 +303,7 @@ static void test_scannet_layout_into_rings(void **state) {
  * the output in out. */
 static int run_cli(const char *args, char *out, size_t cap) {
   char cmd[2000], path[300];
-  snprintf(path, sizeof path, "%s/cli.out", dir);
+  snprintf(path, sizeof path, "%s/cli.out", tk.dir);
   snprintf(cmd, sizeof cmd, "%s %s >%s 2>&1", replay, args, path);
   int st = system(cmd);
   FILE *f = fopen(path, "r");
@@ -406,7 +328,7 @@ static void test_cli(void **state) {
   assert_non_null(strstr(out, "--rate"));
   assert_int_equal(run_cli("--layout tum /tmp", out, sizeof out), 2);
   assert_non_null(strstr(out, "--layout"));
-  snprintf(args, sizeof args, "%s/nowhere", dir);
+  snprintf(args, sizeof args, "%s/nowhere", tk.dir);
   assert_int_equal(run_cli(args, out, sizeof out), 1);
   assert_non_null(strstr(out, "nowhere"));
   /* A frame whose image is damaged is named, skipped and counted; the rest

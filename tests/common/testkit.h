@@ -1,0 +1,65 @@
+/*
+ * What the process-level tests of the node share: a scratch directory and a
+ * segment-name tag per test process, the build's programs as children
+ * (killed at teardown, also after a failed assertion), waits on text in a
+ * log, the published map's 3D mIoU read as a controller reads it, and a node
+ * created with the simulator's source hooks.
+ *
+ * Contract: one struct tk per test program, set up before its tests and torn
+ * down after; not thread-safe (cmocka runs tests one at a time).
+ */
+#ifndef VLFF_TESTKIT_H
+#define VLFF_TESTKIT_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <sys/types.h>
+
+#include "config.h"
+#include "node.h"
+#include "sim.h"
+#include "sim_source.h"
+
+#define TK_CHILDREN 8
+
+struct tk {
+  char tag[48];  /* "<prefix><pid>": every segment of the test is "/<tag>-..." */
+  char dir[128]; /* /tmp/vlff-<tag> */
+  pid_t children[TK_CHILDREN];
+  int nchildren;
+};
+
+/* Names the test's tag and creates its directory. */
+void tk_setup(struct tk *t, const char *prefix);
+/* Kills the children left, removes the directory and every /dev/shm/<tag>-*
+ * segment. 0, or -1 when something could not be removed. */
+int tk_teardown(struct tk *t);
+
+/* Starts a program of the build (relative to $VLFF_BINARY_DIR) with args
+ * (NULL-terminated), stdout and stderr into out (NULL: inherited). */
+pid_t tk_spawn(struct tk *t, const char *prog, const char *const *args, const char *out);
+/* Waits for the child: its exit status, or 128 + the signal that ended it. */
+int tk_wait_child(struct tk *t, pid_t pid);
+/* Sends sig and reaps the child. */
+void tk_stop_child(struct tk *t, pid_t pid, int sig);
+
+void tk_sleep_s(double s);
+/* The file's first MiB as text ("" when it cannot be read); the buffer is
+ * reused by the next call. */
+const char *tk_slurp(const char *path);
+/* Polls path every 0.1 s until it holds text; false at the timeout. */
+bool tk_wait_for_text(const char *path, const char *text, double timeout_s);
+
+/* 3D mIoU (percent) of the published map at the scene's labelled points,
+ * read through libvlff-shm as a controller would; -1 before the first
+ * publish. version and prompt_count may be NULL. */
+double tk_map_miou3d(const char *map, const struct vlff_sim_points *gt, uint64_t *version, int *prompt_count);
+
+/* vlff_node_create with the simulator's hooks when cfg uses them; *src is
+ * destroyed by the caller after the node (tk_node_destroy does both). */
+struct vlff_node *tk_node_create(const struct vlff_config *cfg, struct vlff_sim_source **src, char *err,
+                                 size_t errlen);
+void tk_node_destroy(struct vlff_node *n, struct vlff_sim_source *src);
+
+#endif
