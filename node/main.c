@@ -34,10 +34,6 @@
 #error "VLFF_SYSCONFDIR must come from the install's sysconfdir (CMake)"
 #endif
 
-static volatile sig_atomic_t stop_requested;
-
-static void on_signal(int sig) { stop_requested = sig; }
-
 static const struct vlff_cli cli = {
     "vlff-node",
     "Usage: vlff-node [OPTIONS]\n"
@@ -186,13 +182,7 @@ int main(int argc, char **argv) {
   }
   vlff_log_set_level(cfg.node.log_level);
 
-  struct sigaction sa;
-  memset(&sa, 0, sizeof sa);
-  sa.sa_handler = on_signal;
-  sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, NULL);
-  sigaction(SIGTERM, &sa, NULL);
-  signal(SIGPIPE, SIG_IGN);
+  vlff_cli_catch_stop();
 
   VLFF_INFO("node", "vlff-node %s starting, config %s", vlff_version(), config_path);
   /* The simulator's features and ground truth, when the config uses them. */
@@ -232,7 +222,7 @@ int main(int argc, char **argv) {
   double last_wd = 0;
 #endif
   double t0 = vlff_seconds(), last_line = 0;
-  while (!stop_requested && !vlff_node_finished(node)) {
+  while (!vlff_cli_stop && !vlff_node_finished(node)) {
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
     double now = vlff_seconds();
@@ -276,8 +266,8 @@ int main(int argc, char **argv) {
 #ifdef VLFF_HAVE_SYSTEMD
   sd_notify(0, "STOPPING=1");
 #endif
-  VLFF_INFO("node", "stopping (%s)", stop_requested == SIGTERM ? "SIGTERM"
-                                     : stop_requested == SIGINT ? "SIGINT"
+  VLFF_INFO("node", "stopping (%s)", vlff_cli_stop == SIGTERM ? "SIGTERM"
+                                     : vlff_cli_stop == SIGINT ? "SIGINT"
                                                                 : "run_seconds reached");
   struct vlff_node_status st;
   vlff_node_status(node, &st);

@@ -29,10 +29,6 @@
 #define TAG "pose"
 #define REPORT_EACH 5 /* refusals of one reason printed one by one, the rest summarised */
 
-static volatile sig_atomic_t stop_requested;
-
-static void on_signal(int sig) { stop_requested = sig; }
-
 static const struct vlff_cli cli = {
     "vlff-pose",
     "Usage: vlff-pose [OPTIONS] [FILE]\n"
@@ -112,11 +108,11 @@ static int read_stream(FILE *in, struct vlff_tum_feed *f, struct vlff_ring *ring
   char *line = NULL;
   size_t cap = 0;
   unsigned long lineno = 0;
-  while (!stop_requested) {
+  while (!vlff_cli_stop) {
     errno = 0;
     ssize_t n = getline(&line, &cap, in);
     if (n < 0) {
-      if (errno == EINTR && !stop_requested) {
+      if (errno == EINTR && !vlff_cli_stop) {
         clearerr(in);
         continue;
       }
@@ -127,7 +123,7 @@ static int read_stream(FILE *in, struct vlff_tum_feed *f, struct vlff_ring *ring
     snprintf(where, sizeof where, "%s:%lu", rp->name, lineno);
     feed(f, ring, rp, where, line);
   }
-  int bad = ferror(in) && !stop_requested;
+  int bad = ferror(in) && !vlff_cli_stop;
   if (bad) VLFF_ERROR(TAG, "%s: read error: %s", rp->name, strerror(errno));
   free(line);
   return bad ? 1 : 0;
@@ -165,7 +161,7 @@ static int open_udp(const char *spec, char *err, size_t errlen) {
 static int read_udp(int sock, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp) {
   static char buf[65536];
   unsigned long dgram = 0;
-  while (!stop_requested) {
+  while (!vlff_cli_stop) {
     struct pollfd pfd = {.fd = sock, .events = POLLIN};
     int pr = poll(&pfd, 1, 200);
     if (pr < 0 && errno != EINTR) return VLFF_ERROR(TAG, "udp: poll: %s", strerror(errno)), 1;
@@ -350,12 +346,7 @@ int main(int argc, char **argv) {
     return rc;
   }
 
-  struct sigaction sa;
-  memset(&sa, 0, sizeof sa);
-  sa.sa_handler = on_signal; /* no SA_RESTART: a blocked read returns */
-  sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, NULL);
-  sigaction(SIGTERM, &sa, NULL);
+  vlff_cli_catch_stop();
 
   struct reporter rep = {.name = udp ? "udp" : in == stdin ? "stdin" : file};
   VLFF_INFO(TAG, "vlff-pose %s: %s -> pose ring %s (%d slots), stamps %s%s", vlff_version(), udp ? udp : rep.name,

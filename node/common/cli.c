@@ -78,3 +78,17 @@ int vlff_cli_next(const struct vlff_cli *cli, int argc, char *const argv[], cons
   default: return c;
   }
 }
+
+volatile sig_atomic_t vlff_cli_stop;
+
+static void on_stop(int sig) { vlff_cli_stop = sig; }
+
+void vlff_cli_catch_stop(void) {
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_stop;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+  signal(SIGPIPE, SIG_IGN);
+}

@@ -17,6 +17,7 @@
 #define VLFF_CLI_H
 
 #include <getopt.h>
+#include <signal.h>
 #include <stdio.h>
 
 #ifdef __cplusplus
@@ -49,6 +50,14 @@ int vlff_cli_next(const struct vlff_cli *cli, int argc, char *const argv[], cons
 
 /* A usage error found by the program itself (bad operands, a value out of
  * range): "<prog>: <message>" and the usage on stderr. Returns 2. */
+/* The signal (SIGINT or SIGTERM) that asked the program to stop, 0 while
+ * none has: set by the handlers vlff_cli_catch_stop installs. */
+extern volatile sig_atomic_t vlff_cli_stop;
+/* SIGINT and SIGTERM set vlff_cli_stop; without SA_RESTART, so a blocked
+ * read or sleep returns EINTR and the loop around it sees the request.
+ * SIGPIPE is ignored: a reader that went away is an EPIPE, not a death. */
+void vlff_cli_catch_stop(void);
+
 int vlff_cli_usage_error(const struct vlff_cli *cli, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 
 /* Any other error: "<prog>: <message>" on stderr. Returns 1. */

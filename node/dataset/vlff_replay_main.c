@@ -68,11 +68,6 @@ static const struct vlff_cli cli = {
     "  vlff-replay -c node.yaml --backpressure --count 500 /data/room3\n",
 };
 
-static volatile sig_atomic_t stop;
-static void on_signal(int sig) {
-  (void)sig;
-  stop = 1;
-}
 
 struct replay {
   struct vlff_dataset ds;
@@ -132,11 +127,11 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
     /* No reader yet (or a node restarting) holds the replay: frames nobody
      * reads would be lost, which is what this mode exists to prevent. */
     int said = 0;
-    while (!stop && vlff_ring_wait_reader(r->frames, 1000ull * 1000 * 1000) < 0) {
+    while (!vlff_cli_stop && vlff_ring_wait_reader(r->frames, 1000ull * 1000 * 1000) < 0) {
       if (!said && !r->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
       said = 1;
     }
-    if (stop) return 0;
+    if (vlff_cli_stop) return 0;
   }
   const double *c2w = ds->c2w + (size_t)i * 16;
   uint64_t now = vlff_shm_now_ns();
@@ -202,8 +197,8 @@ static int run(struct replay *r, double fps, double rate, int loop, long long co
   struct timespec next;
   clock_gettime(CLOCK_MONOTONIC, &next);
   long long id = 0;
-  for (long long pass = 0; !stop; pass++) {
-    for (int i = pass ? 0 : start; i < n && !stop && (count <= 0 || id < count); i++, id++) {
+  for (long long pass = 0; !vlff_cli_stop; pass++) {
+    for (int i = pass ? 0 : start; i < n && !vlff_cli_stop && (count <= 0 || id < count); i++, id++) {
       if (!r->backpressure) {
         struct timespec t;
         clock_gettime(CLOCK_MONOTONIC, &t);
@@ -211,7 +206,7 @@ static int run(struct replay *r, double fps, double rate, int loop, long long co
           r->late++; /* reading the scene is slower than the schedule: restart it from now */
           next = t;
         } else {
-          while (!stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
+          while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
           }
         }
         add_ns(&next, period);
@@ -325,11 +320,7 @@ int main(int argc, char **argv) {
     goto out;
   }
   if (open_rings(&r, &cfg, features) < 0) goto out;
-  struct sigaction sa;
-  memset(&sa, 0, sizeof sa);
-  sa.sa_handler = on_signal;
-  sigaction(SIGINT, &sa, NULL);
-  sigaction(SIGTERM, &sa, NULL);
+  vlff_cli_catch_stop();
   if (!r.quiet)
     fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", r.ds.dir, r.ds.n, r.ds.width, r.ds.height,
             features ? " with features" : "", r.backpressure ? "paced by the reader" : "on schedule");

@@ -64,11 +64,6 @@ static int parse_num(const char *s, double *x) {
   return *s && !*end;
 }
 
-static volatile sig_atomic_t stop;
-static void on_signal(int sig) {
-  (void)sig;
-  stop = 1;
-}
 
 static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, const char *dir, int quiet) {
   char err[1024];
@@ -171,7 +166,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
   clock_gettime(CLOCK_MONOTONIC, &next);
   long long late = 0;
   int status = 0;
-  for (long long id = 0; !stop && (count <= 0 || id < count); id++) {
+  for (long long id = 0; !vlff_cli_stop && (count <= 0 || id < count); id++) {
     long long idx = id % cfg->sim.frames;
     if (vlff_sim_render(s, idx, features ? VLFF_SIM_ALL : VLFF_SIM_RGBD, f, err, sizeof err) < 0) {
       fprintf(stderr, "vlff-sim: %s\n", err);
@@ -249,7 +244,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       late++; /* rendering slower than the rate: do not try to catch up */
       next = t;
     } else {
-      while (!stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
+      while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
       }
     }
   }
@@ -320,11 +315,7 @@ int main(int argc, char **argv) {
   if (dataset) {
     rc = write_dataset(&cfg, s, dataset, quiet);
   } else {
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
+    vlff_cli_catch_stop();
     if (cfg.node.run_seconds > 0 && count == 0) count = (long long)(cfg.node.run_seconds * cfg.sim.rate_hz + 0.5);
     rc = live(&cfg, s, count, features, quiet);
   }
