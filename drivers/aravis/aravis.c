@@ -348,11 +348,9 @@ int vlff_arv_grab(struct vlff_arv *a, int timeout_ms, struct vlff_pipe *pipe, st
   int rc = 0;
   ArvBufferStatus s = arv_buffer_get_status(b);
   if (s != ARV_BUFFER_STATUS_SUCCESS) {
-    a->st.incomplete++;
-    if (a->st.incomplete <= 5 || a->st.incomplete % 1000 == 0)
-      VLFF_WARN(TAG, "'%s': dropped buffer %llu (%s); %llu incomplete so far", a->name,
-                (unsigned long long)arv_buffer_get_frame_id(b), status_name(s),
-                (unsigned long long)a->st.incomplete);
+    vlff_warn_limited(&a->st.incomplete, TAG, "'%s': dropped buffer %llu (%s); %llu incomplete so far", a->name,
+                      (unsigned long long)arv_buffer_get_frame_id(b), status_name(s),
+                      (unsigned long long)a->st.incomplete + 1);
   } else if (arv_buffer_get_payload_type(b) != ARV_BUFFER_PAYLOAD_TYPE_IMAGE &&
              arv_buffer_get_payload_type(b) != ARV_BUFFER_PAYLOAD_TYPE_EXTENDED_CHUNK_DATA) {
     a->st.incomplete++;

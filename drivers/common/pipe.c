@@ -245,20 +245,17 @@ void vlff_pipe_set_stamps(struct vlff_pipe *p, struct vlff_stamps *q, uint64_t w
 }
 vlff_pix_t vlff_pipe_pix(const struct vlff_pipe *p) { return p->pix; }
 
-static void drop(struct vlff_pipe *p, uint64_t *counter, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
+/* A frame dropped: counted, and logged so that a broken camera failing
+ * every frame still leaves the log readable (vlff_warn_limited). */
+static void drop(struct vlff_pipe *p, uint64_t *counter, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 static void drop(struct vlff_pipe *p, uint64_t *counter, const char *fmt, ...) {
   (*counter)++;
-  /* A broken camera can fail every frame: log the first few, then every
-   * 1000th, so the log stays readable and the counters tell the rest. */
-  if (p->drops_logged++ < 5 || p->drops_logged % 1000 == 0) {
-    char msg[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    VLFF_WARN(TAG, "frame dropped: %s", msg);
-  }
+  char msg[512];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof msg, fmt, ap);
+  va_end(ap);
+  vlff_warn_limited(&p->drops_logged, TAG, "frame dropped: %s", msg);
 }
 
 /* (Re)build size-dependent state; w,h is the output (per-eye) size. */

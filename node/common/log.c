@@ -57,3 +57,12 @@ void vlff_errf(char *err, size_t errlen, const char *fmt, ...) {
   vsnprintf(err, errlen, fmt, ap);
   va_end(ap);
 }
+
+void vlff_warn_limited(uint64_t *count, const char *tag, const char *fmt, ...) {
+  uint64_t n = ++*count;
+  if (n > 5 && n % 1000 != 0) return;
+  va_list ap;
+  va_start(ap, fmt);
+  vlff_logv(VLFF_LOG_WARN, tag, fmt, ap);
+  va_end(ap);
+}

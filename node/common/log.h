@@ -14,6 +14,7 @@
 #define VLFF_LOG_H
 
 #include <stdarg.h>
+#include <stdint.h>
 #include <stddef.h>
 
 #include "config.h"
@@ -31,6 +32,11 @@ void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_l
 /* Format an error message into a caller's buffer (err may be NULL): the
  * "-1 with err filled" convention every vlff module follows. */
 void vlff_errf(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
+/* A warning that can come with every frame, rate-limited so the log stays
+ * readable: logged for the first five events, then every 1000th; *count is
+ * the caller's count of them (incremented here), its counters tell the rest. */
+void vlff_warn_limited(uint64_t *count, const char *tag, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
 #define VLFF_ERROR(tag, ...) vlff_log(VLFF_LOG_ERROR, tag, __VA_ARGS__)
 #define VLFF_WARN(tag, ...) vlff_log(VLFF_LOG_WARN, tag, __VA_ARGS__)

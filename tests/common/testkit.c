@@ -1,6 +1,10 @@
 #include "testkit.h"
 
 #include <fcntl.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <cmocka.h>
 #include <ftw.h>
 #include <glob.h>
 #include <signal.h>
@@ -24,6 +28,12 @@ void tk_setup(struct tk *t, const char *prefix) {
   snprintf(t->tag, sizeof t->tag, "%s%d", prefix, (int)getpid());
   snprintf(t->dir, sizeof t->dir, "/tmp/vlff-%s", t->tag);
   mkdir(t->dir, 0755);
+  t->scale = tk_time_scale();
+}
+
+double tk_time_scale(void) {
+  const char *sc = getenv("VLFF_E2E_SCALE");
+  return sc && atof(sc) > 0 ? atof(sc) : 1;
 }
 
 static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
@@ -155,4 +165,44 @@ struct vlff_node *tk_node_create(const struct vlff_config *cfg, struct vlff_sim_
 void tk_node_destroy(struct vlff_node *n, struct vlff_sim_source *src) {
   vlff_node_destroy(n, false);
   vlff_sim_source_destroy(src);
+}
+
+double tk_wait_miou3d(const char *map, const struct vlff_sim_points *gt, double want, double timeout_s,
+                      uint64_t *version) {
+  double best = -1, t0 = vlff_seconds();
+  while (vlff_seconds() - t0 < timeout_s) {
+    tk_sleep_s(2);
+    double m = tk_map_miou3d(map, gt, version, NULL);
+    if (m > best) best = m;
+    if (best >= want) break;
+  }
+  return best;
+}
+
+void tk_report(struct vlff_node *n, double t, double best, uint64_t version, struct vlff_node_status *st) {
+  vlff_node_status(n, st);
+  printf("after %.0f s: 3D mIoU %.1f, %lld iterations, %lld frames in, %lld invalid, %lld lost, %d keyframes, "
+         "%lld feature timeouts, map v%llu\n",
+         t, best, st->iteration, st->frames_in, st->frames_invalid, st->frames_lost, st->keyframes,
+         st->features_timeout, (unsigned long long)version);
+}
+
+void tk_scene_open(struct tk_scene *sc, const struct vlff_config *cfg, int slots, int w, int h) {
+  char err[512];
+  sc->sim = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
+  if (!sc->sim) fail_msg("%s", err);
+  sc->frame = vlff_sim_frame_new(sc->sim);
+  assert_non_null(sc->frame);
+  struct vlff_ring_params rp = {VLFF_RECORD_FRAME, (uint32_t)slots,
+                                vlff_frame_slot_size((uint32_t)w, (uint32_t)h, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM),
+                                {0640, NULL}};
+  sc->ring = vlff_ring_create(cfg->shm.ring, &rp);
+  assert_non_null(sc->ring);
+}
+
+void tk_scene_close(struct tk_scene *sc) {
+  vlff_ring_close(sc->ring);
+  vlff_sim_frame_free(sc->frame);
+  vlff_sim_destroy(sc->sim);
+  memset(sc, 0, sizeof *sc);
 }

@@ -28,9 +28,12 @@ struct tk {
   char dir[128]; /* /tmp/vlff-<tag> */
   pid_t children[TK_CHILDREN];
   int nchildren;
+  double scale;  /* $VLFF_E2E_SCALE (sanitizer builds run slower): timeouts, never thresholds */
 };
 
-/* Names the test's tag and creates its directory. */
+/* $VLFF_E2E_SCALE, 1 when unset or not positive. */
+double tk_time_scale(void);
+/* Names the test's tag, creates its directory, reads the time scale. */
 void tk_setup(struct tk *t, const char *prefix);
 /* Kills the children left, removes the directory and every /dev/shm/<tag>-*
  * segment. 0, or -1 when something could not be removed. */
@@ -55,6 +58,24 @@ bool tk_wait_for_text(const char *path, const char *text, double timeout_s);
  * read through libvlff-shm as a controller would; -1 before the first
  * publish. version and prompt_count may be NULL. */
 double tk_map_miou3d(const char *map, const struct vlff_sim_points *gt, uint64_t *version, int *prompt_count);
+
+/* Polls the map's 3D mIoU every 2 s until it reaches want or timeout_s
+ * passed; the best seen, -1 when no map was published. */
+double tk_wait_miou3d(const char *map, const struct vlff_sim_points *gt, double want, double timeout_s,
+                      uint64_t *version);
+/* Prints the node's status beside the map's quality after t seconds. */
+void tk_report(struct vlff_node *n, double t, double best, uint64_t version, struct vlff_node_status *st);
+
+/* The synthetic scene and a frame ring of slots records of up to w x h
+ * (RGB8 + 16-bit depth) on cfg's shm.ring, written as a camera driver
+ * would. */
+struct tk_scene {
+  struct vlff_sim *sim;
+  struct vlff_sim_frame *frame;
+  struct vlff_ring *ring;
+};
+void tk_scene_open(struct tk_scene *sc, const struct vlff_config *cfg, int slots, int w, int h);
+void tk_scene_close(struct tk_scene *sc);
 
 /* vlff_node_create with the simulator's hooks when cfg uses them; *src is
  * destroyed by the caller after the node (tk_node_destroy does both). */

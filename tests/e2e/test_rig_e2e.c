@@ -35,27 +35,18 @@ static struct rig r; /* static: teardown frees it after a failed assertion too *
 static void test_camera_rig_trains_map(void **state) {
   (void)state;
   if (!in_netns) skip();
-  double scale = getenv("VLFF_E2E_SCALE") ? atof(getenv("VLFF_E2E_SCALE")) : 1;
-  if (!(scale > 0)) scale = 1;
+  const double scale = tk_time_scale();
   char err[1024];
   if (rig_init(&r, 1, err, sizeof err)) fail_msg("%s", err);
   struct vlff_sim_source *src;
   struct vlff_node *n = tk_node_create(&r.cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
   if (rig_start(&r, err, sizeof err)) fail_msg("%s", err);
-  double best = -1, t0 = vlff_seconds();
+  double t0 = vlff_seconds();
   uint64_t version = 0;
-  while (vlff_seconds() - t0 < 150 * scale) {
-    tk_sleep_s(2);
-    best = fmax(best, rig_miou3d(&r, &version));
-    if (best >= 35) break;
-  }
+  double best = tk_wait_miou3d(r.cfg.shm.map, &r.gt, 35, 150 * scale, &version);
   struct vlff_node_status st;
-  vlff_node_status(n, &st);
-  printf("after %.0f s: 3D mIoU %.1f, %lld frames in, %lld invalid, %lld lost, %d keyframes, "
-         "%lld feature timeouts, map v%llu\n",
-         vlff_seconds() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
-         (unsigned long long)version);
+  tk_report(n, vlff_seconds() - t0, best, version, &st);
   tk_node_destroy(n, src);
   rig_stop(&r);
   long long pairs = rig_camd_stat(&r, "committed"), colour = rig_camd_stat(&r, "color_frames"),

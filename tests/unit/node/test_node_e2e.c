@@ -35,7 +35,6 @@
 
 static struct tk tk;
 static char cfg_path[300];
-static double scale = 1.0;
 static struct vlff_sim_points gt; /* the scene's labelled points, made once */
 
 /* A config with this test's own segment names and state directory. */
@@ -64,9 +63,8 @@ static void write_config(struct vlff_config *cfg, const char *extra) {
   if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
 }
 
-/* 3D mIoU of the published map at the scene's labelled points, through the
- * controller library; -1 before the first publish. */
-static double map_miou3d(const struct vlff_config *cfg, uint64_t *version, int *prompt_count) {
+/* The scene's labelled points, made once. */
+static const struct vlff_sim_points *truth(const struct vlff_config *cfg) {
   if (!gt.n) {
     char err[256];
     struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
@@ -74,13 +72,17 @@ static double map_miou3d(const struct vlff_config *cfg, uint64_t *version, int *
     assert_int_equal(vlff_sim_points(s, cfg->sim.frames, 5, 0.05, &gt, err, sizeof err), 0);
     vlff_sim_destroy(s);
   }
-  return tk_map_miou3d(cfg->shm.map, &gt, version, prompt_count);
+  return &gt;
+}
+
+/* 3D mIoU of the published map at the scene's labelled points, through the
+ * controller library; -1 before the first publish. */
+static double map_miou3d(const struct vlff_config *cfg, uint64_t *version, int *prompt_count) {
+  return tk_map_miou3d(cfg->shm.map, truth(cfg), version, prompt_count);
 }
 
 static int setup(void **state) {
   (void)state;
-  const char *sc = getenv("VLFF_E2E_SCALE");
-  if (sc) scale = atof(sc) > 0 ? atof(sc) : 1;
   tk_setup(&tk, "e2e");
   return 0;
 }
@@ -104,17 +106,11 @@ static void test_learns_and_reprompts(void **state) {
   struct vlff_sim_source *src;
   struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
-  double best = -1, t0 = vlff_seconds();
+  double t0 = vlff_seconds();
   uint64_t version = 0;
-  while (vlff_seconds() - t0 < 90 * scale) {
-    tk_sleep_s(2);
-    best = fmax(best, map_miou3d(&cfg, &version, NULL));
-    if (best >= 35) break;
-  }
+  double best = tk_wait_miou3d(cfg.shm.map, truth(&cfg), 35, 90 * tk.scale, &version);
   struct vlff_node_status st;
-  vlff_node_status(n, &st);
-  printf("after %.0f s: 3D mIoU %.1f, %lld iterations, %d keyframes, map v%llu\n", vlff_seconds() - t0, best,
-         st.iteration, st.keyframes, (unsigned long long)version);
+  tk_report(n, vlff_seconds() - t0, best, version, &st);
   assert_true(best >= 35);
   assert_int_equal(st.frames_invalid, 0);
   /* The 2D label image at the latest keyframe: the camera sees the room's
@@ -145,7 +141,7 @@ static void test_learns_and_reprompts(void **state) {
   vlff_prompts_close(pb);
   int count = 0;
   t0 = vlff_seconds();
-  while (vlff_seconds() - t0 < 20 * scale && count != 2) {
+  while (vlff_seconds() - t0 < 20 * tk.scale && count != 2) {
     tk_sleep_s(0.5);
     map_miou3d(&cfg, NULL, &count);
   }
@@ -182,7 +178,7 @@ static void test_learns_and_reprompts(void **state) {
   assert_int_equal(vlff_node_command(n, VLFF_CMD_PROMPT_SET, 1), 0);
   assert_int_equal(vlff_node_command(n, VLFF_CMD_PROMPT_SET, 7), -1);
   t0 = vlff_seconds();
-  while (vlff_seconds() - t0 < 20 * scale && count != 3) {
+  while (vlff_seconds() - t0 < 20 * tk.scale && count != 3) {
     tk_sleep_s(0.5);
     map_miou3d(&cfg, NULL, &count);
   }
@@ -220,7 +216,7 @@ static void test_kill9_resumes(void **state) {
   snprintf(ck1, sizeof ck1, "%s/state/field.1.ckpt", tk.dir);
   double before = -1, t0 = vlff_seconds();
   uint64_t v_before = 0;
-  while (vlff_seconds() - t0 < 90 * scale) {
+  while (vlff_seconds() - t0 < 90 * tk.scale) {
     tk_sleep_s(2);
     before = map_miou3d(&cfg, &v_before, NULL);
     if (before >= 20 && newest_mtime(ck0, ck1) > 0) break;
@@ -230,7 +226,7 @@ static void test_kill9_resumes(void **state) {
    * points a second, and the restart is judged against this. */
   double m0 = newest_mtime(ck0, ck1);
   t0 = vlff_seconds();
-  while (newest_mtime(ck0, ck1) == m0 && vlff_seconds() - t0 < 4.0 * cfg.node.checkpoint_period_s * scale) tk_sleep_s(0.1);
+  while (newest_mtime(ck0, ck1) == m0 && vlff_seconds() - t0 < 4.0 * cfg.node.checkpoint_period_s * tk.scale) tk_sleep_s(0.1);
   before = map_miou3d(&cfg, &v_before, NULL);
   printf("before kill: 3D mIoU %.1f at map v%llu\n", before, (unsigned long long)v_before);
   assert_true(before >= 20);
@@ -249,7 +245,7 @@ static void test_kill9_resumes(void **state) {
   uint64_t v_after = 0;
   double after = -1;
   t0 = vlff_seconds();
-  while (vlff_seconds() - t0 < 60 * scale && v_after <= v_before) {
+  while (vlff_seconds() - t0 < 60 * tk.scale && v_after <= v_before) {
     tk_sleep_s(0.5);
     after = map_miou3d(&cfg, &v_after, NULL);
   }
@@ -268,14 +264,11 @@ static void test_bad_frames(void **state) {
   struct vlff_config cfg;
   write_config(&cfg, NULL);
   char err[512];
-  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
-  assert_non_null(s);
-  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
-  /* Slots big enough for frames beyond the node's shm.max_width/height. */
-  struct vlff_ring_params rp = {VLFF_RECORD_FRAME, 8,
-                                vlff_frame_slot_size(400, 300, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), {0640, NULL}};
-  struct vlff_ring *ring = vlff_ring_create(cfg.shm.ring, &rp);
-  assert_non_null(ring);
+  struct tk_scene sc; /* slots big enough for frames beyond the node's shm.max_width/height */
+  tk_scene_open(&sc, &cfg, 8, 400, 300);
+  struct vlff_sim *s = sc.sim;
+  struct vlff_sim_frame *f = sc.frame;
+  struct vlff_ring *ring = sc.ring;
   struct vlff_sim_source *src;
   struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
@@ -287,7 +280,7 @@ static void test_bad_frames(void **state) {
   long long it_at_lies = -1;
   double t0 = vlff_seconds();
   struct vlff_node_status st;
-  for (long long id = 0; vlff_seconds() - t0 < 150 * scale; id++) {
+  for (long long id = 0; vlff_seconds() - t0 < 150 * tk.scale; id++) {
     vlff_node_status(n, &st);
     bool warm = st.iteration >= cfg.keyframes.posecheck_min_steps + 10;
     int kind = (int)(id % 10);
@@ -344,9 +337,7 @@ static void test_bad_frames(void **state) {
   assert_true(st.poses_rejected <= lies_sent + 1);
   assert_true(st.iteration > (it_at_lies < 0 ? 0 : it_at_lies));
   tk_node_destroy(n, src);
-  vlff_ring_close(ring);
-  vlff_sim_frame_free(f);
-  vlff_sim_destroy(s);
+  tk_scene_close(&sc);
 }
 
 int main(void) {

@@ -74,14 +74,11 @@ static void test_absurd_intrinsics(void **state) {
            tk.dir, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag);
   struct vlff_config cfg;
   if (vlff_config_load_mem(yaml, strlen(yaml), "hostile.yaml", &cfg, err, sizeof err)) fail_msg("%s", err);
-  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
-  if (!s) fail_msg("%s", err);
-  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
-  assert_non_null(f);
-  struct vlff_ring_params rp = {VLFF_RECORD_FRAME, 16, vlff_frame_slot_size(64, 48, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM),
-                                {0640, NULL}};
-  struct vlff_ring *ring = vlff_ring_create(cfg.shm.ring, &rp);
-  assert_non_null(ring);
+  struct tk_scene sc;
+  tk_scene_open(&sc, &cfg, 16, 64, 48);
+  struct vlff_sim *s = sc.sim;
+  struct vlff_sim_frame *f = sc.frame;
+  struct vlff_ring *ring = sc.ring;
   struct vlff_sim_source *src;
   struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
@@ -110,9 +107,7 @@ static void test_absurd_intrinsics(void **state) {
   /* What SIGTERM does: stop and join the threads. */
   vlff_node_stop(n);
   tk_node_destroy(n, src);
-  vlff_ring_close(ring);
-  vlff_sim_frame_free(f);
-  vlff_sim_destroy(s);
+  tk_scene_close(&sc);
 }
 
 int main(void) {

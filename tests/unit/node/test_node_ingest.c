@@ -39,7 +39,6 @@
 
 static struct tk tk;
 static char cfg_path[300];
-static double scale = 1.0;
 
 
 /* The ring carries the simulator's frames, so its features are forced on. */
@@ -64,8 +63,6 @@ static void write_config(struct vlff_config *cfg) {
 
 static int setup(void **state) {
   (void)state;
-  const char *sc = getenv("VLFF_E2E_SCALE");
-  if (sc) scale = atof(sc) > 0 ? atof(sc) : 1;
   tk_setup(&tk, "ing");
   return 0;
 }
@@ -100,14 +97,6 @@ static void put_frame(struct vlff_ring *ring, struct vlff_sim *s, struct vlff_si
   assert_int_equal(vlff_ring_commit(ring, len), 0);
 }
 
-static struct vlff_ring *frame_ring(const struct vlff_config *cfg) {
-  struct vlff_ring_params rp = {VLFF_RECORD_FRAME, 16,
-                                vlff_frame_slot_size(320, 240, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM), {0640, NULL}};
-  struct vlff_ring *ring = vlff_ring_create(cfg->shm.ring, &rp);
-  assert_non_null(ring);
-  return ring;
-}
-
 /* A node fed frames lacking a pose, lacking depth and with millimetre focal
  * lengths counts each reason on its --status line and says why in its log
  * at info, once per reason with the detail, then as counts. */
@@ -115,15 +104,16 @@ static void test_status_says_why(void **state) {
   (void)state;
   struct vlff_config cfg;
   write_config(&cfg);
-  char err[512], log[400];
+  char log[400];
   snprintf(log, sizeof log, "%s/node.log", tk.dir);
-  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
-  assert_non_null(s);
-  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
-  struct vlff_ring *ring = frame_ring(&cfg);
+  struct tk_scene sc;
+  tk_scene_open(&sc, &cfg, 16, 320, 240);
+  struct vlff_sim *s = sc.sim;
+  struct vlff_sim_frame *f = sc.frame;
+  struct vlff_ring *ring = sc.ring;
   const char *args[] = {"--config", cfg_path, "--status", NULL};
   pid_t node = tk_spawn(&tk, "node/vlff-node", args, log);
-  assert_true(tk_wait_for_text(log, "attached to ring", 30 * scale));
+  assert_true(tk_wait_for_text(log, "attached to ring", 30 * tk.scale));
   const enum frame_kind kinds[] = {NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, NO_POSE_FLAG, NO_DEPTH, NO_POSE_FLAG};
   const int nk = sizeof kinds / sizeof kinds[0];
   long long id = 0;
@@ -136,7 +126,7 @@ static void test_status_says_why(void **state) {
     if (round == 0) tk_sleep_s(5.5);
   }
   /* 6 no pose, 4 no depth, 2 bad intrinsics. */
-  bool seen = tk_wait_for_text(log, "refused 12 (bad intrinsics 2, no pose 6, no depth 4)", 20 * scale);
+  bool seen = tk_wait_for_text(log, "refused 12 (bad intrinsics 2, no pose 6, no depth 4)", 20 * tk.scale);
   kill(node, SIGTERM);
   assert_int_equal(tk_wait_child(&tk, node), 0);
   const char *text = tk_slurp(log);
@@ -152,9 +142,7 @@ static void test_status_says_why(void **state) {
   assert_non_null(strstr(text, " I node: frames refused in the last"));
   assert_null(strstr(text, "frame 3 refused"));
   assert_non_null(strstr(text, "refused 12 (bad intrinsics 2, no pose 6, no depth 4)"));
-  vlff_ring_close(ring);
-  vlff_sim_frame_free(f);
-  vlff_sim_destroy(s);
+  tk_scene_close(&sc);
 }
 
 /* Rotation matrix (row-major 4x4's block) to a unit quaternion x y z w. */
@@ -191,7 +179,7 @@ static void wait_keyframes(struct vlff_node *n, int want, struct vlff_node_statu
   do {
     tk_sleep_s(0.1);
     vlff_node_status(n, st);
-  } while (st->keyframes < want && vlff_seconds() - t0 < 20 * scale);
+  } while (st->keyframes < want && vlff_seconds() - t0 < 20 * tk.scale);
 }
 
 /* Frames without poses are refused "no pose"; once vlff-pose has written
@@ -203,10 +191,11 @@ static void test_pose_adapter_feeds_node(void **state) {
   struct vlff_config cfg;
   write_config(&cfg);
   char err[512];
-  struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
-  assert_non_null(s);
-  struct vlff_sim_frame *f = vlff_sim_frame_new(s);
-  struct vlff_ring *ring = frame_ring(&cfg);
+  struct tk_scene sc;
+  tk_scene_open(&sc, &cfg, 16, 320, 240);
+  struct vlff_sim *s = sc.sim;
+  struct vlff_sim_frame *f = sc.frame;
+  struct vlff_ring *ring = sc.ring;
   struct vlff_sim_source *src;
   struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
   if (!n) fail_msg("%s", err);
@@ -220,7 +209,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   do {
     tk_sleep_s(0.1);
     vlff_node_status(n, &st);
-  } while (st.refused[VLFF_REFUSED_NO_POSE] < 4 && vlff_seconds() - t0 < 10 * scale);
+  } while (st.refused[VLFF_REFUSED_NO_POSE] < 4 && vlff_seconds() - t0 < 10 * tk.scale);
   assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 4);
   assert_int_equal(st.last_refusal, VLFF_REFUSED_NO_POSE);
   assert_int_equal(st.keyframes, 0);
@@ -266,7 +255,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   snprintf(plog, sizeof plog, "%s/pose-udp.log", tk.dir);
   const char *uargs[] = {"--config", cfg_path, "--udp", addr, NULL};
   pid_t pu = tk_spawn(&tk, "drivers/pose/vlff-pose", uargs, plog);
-  assert_true(tk_wait_for_text(plog, "-> pose ring", 10 * scale));
+  assert_true(tk_wait_for_text(plog, "-> pose ring", 10 * tk.scale));
   int us = socket(AF_INET, SOCK_DGRAM, 0);
   assert_true(us >= 0);
   struct sockaddr_in sa = {.sin_family = AF_INET, .sin_port = htons((uint16_t)port)};
@@ -286,7 +275,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   assert_true(sendto(us, nan_line, strlen(nan_line), 0, (struct sockaddr *)&sa, sizeof sa) > 0);
   close(us);
   t0 = vlff_seconds();
-  while (vlff_ring_head(pr) < head0 + nudp && vlff_seconds() - t0 < 10 * scale) tk_sleep_s(0.05);
+  while (vlff_ring_head(pr) < head0 + nudp && vlff_seconds() - t0 < 10 * tk.scale) tk_sleep_s(0.05);
   assert_true(vlff_ring_head(pr) == head0 + nudp);
   vlff_ring_close(pr);
   for (int i = 0; i < nudp; i++, id++, t += step) {
@@ -323,7 +312,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   do {
     tk_sleep_s(0.1);
     vlff_node_status(n, &st);
-  } while (st.refused[VLFF_REFUSED_NO_POSE] < 5 && vlff_seconds() - t0 < 5 * scale);
+  } while (st.refused[VLFF_REFUSED_NO_POSE] < 5 && vlff_seconds() - t0 < 5 * tk.scale);
   assert_int_equal(st.refused[VLFF_REFUSED_NO_POSE], 5);
   assert_true(vlff_seconds() - t0 >= 0.9); /* not before source.pose_wait_s */
   assert_int_equal(st.keyframes, nfile + nudp + nlive);
@@ -333,9 +322,7 @@ static void test_pose_adapter_feeds_node(void **state) {
   assert_non_null(strstr(ptext, "udp datagram 4 line 1: refused, not finite: tz is nan"));
   assert_non_null(strstr(ptext, "9 poses written to /"));
   tk_node_destroy(n, src);
-  vlff_ring_close(ring);
-  vlff_sim_frame_free(f);
-  vlff_sim_destroy(s);
+  tk_scene_close(&sc);
 }
 
 int main(void) {

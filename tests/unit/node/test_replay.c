@@ -45,7 +45,6 @@
 
 static struct tk tk;
 static char scene[300], cfg_path[300], replay[512];
-static double scale = 1.0;
 
 
 /* The e2e test's room and node settings, fed from rings instead of the sim. */
@@ -111,8 +110,6 @@ static void write_scene(const struct vlff_config *cfg, struct vlff_sim_points *g
 
 static int setup(void **state) {
   (void)state;
-  const char *sc = getenv("VLFF_E2E_SCALE");
-  if (sc && atof(sc) > 0) scale = atof(sc);
   tk_setup(&tk, "replay");
   snprintf(scene, sizeof scene, "%s/scene", tk.dir);
   snprintf(replay, sizeof replay, "%s/node/dataset/vlff-replay", getenv("VLFF_BINARY_DIR"));
@@ -140,19 +137,11 @@ static void test_node_trains_from_replay(void **state) {
   /* The recording's 5 Hz, looped: the node sees the room as vlff-sim shows it. */
   const char *args[] = {"--config", cfg_path, "--fps", "5", "--loop", "--quiet", scene, NULL};
   pid_t pid = tk_spawn(&tk, "node/dataset/vlff-replay", args, NULL);
-  double best = -1, t0 = vlff_seconds();
+  double t0 = vlff_seconds();
   uint64_t version = 0;
-  while (vlff_seconds() - t0 < 90 * scale) {
-    tk_sleep_s(2);
-    best = fmax(best, tk_map_miou3d(cfg.shm.map, &gt, &version, NULL));
-    if (best >= 35) break;
-  }
+  double best = tk_wait_miou3d(cfg.shm.map, &gt, 35, 90 * tk.scale, &version);
   struct vlff_node_status st;
-  vlff_node_status(n, &st);
-  printf("after %.0f s: 3D mIoU %.1f, %lld frames in, %lld invalid, %lld lost, %d keyframes, "
-         "%lld feature timeouts, map v%llu\n",
-         vlff_seconds() - t0, best, st.frames_in, st.frames_invalid, st.frames_lost, st.keyframes, st.features_timeout,
-         (unsigned long long)version);
+  tk_report(n, vlff_seconds() - t0, best, version, &st);
   assert_true(st.frames_in > 0);
   assert_int_equal(st.frames_invalid, 0);
   assert_true(st.keyframes > 0);
@@ -206,7 +195,7 @@ static void test_backpressure_loses_nothing(void **state) {
   do {
     tk_sleep_s(0.2);
     vlff_node_status(n, &st);
-  } while (st.frames_in < 240 && vlff_seconds() - t0 < 20 * scale);
+  } while (st.frames_in < 240 && vlff_seconds() - t0 < 20 * tk.scale);
   printf("%lld frames in, %lld lost, %lld invalid, %d keyframes\n", st.frames_in, st.frames_lost,
          st.frames_invalid, st.keyframes);
   assert_int_equal(st.frames_in, 240);
