@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "cvshim.h"
 #include "depthreg.h"
 #include "log.h"
 #include "pixfmt.h"
@@ -35,6 +36,7 @@ struct vlff_pair {
   struct vlff_rgbd_calib calib;
   struct vlff_depthreg *reg;
   int reg_dw, reg_dh, reg_cw, reg_ch;
+  int out_w, out_h; /* the record's size, 0 x 0 = the colour frames' */
   uint64_t tol_ns;
   struct vlff_pair_stats st;
   uint64_t logged;
@@ -84,7 +86,8 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   if (!p->reg || p->reg_dw != dm->width || p->reg_dh != dm->height || p->reg_cw != cm->width ||
       p->reg_ch != cm->height) {
     vlff_depthreg_free(p->reg);
-    p->reg = vlff_depthreg_new(&p->calib, dm->width, dm->height, cm->width, cm->height, 0, 0, err, sizeof err);
+    p->reg = vlff_depthreg_new(&p->calib, dm->width, dm->height, cm->width, cm->height, p->out_w, p->out_h, err,
+                               sizeof err);
     p->reg_dw = dm->width, p->reg_dh = dm->height, p->reg_cw = cm->width, p->reg_ch = cm->height;
     if (!p->reg) {
       p->st.dropped++;
@@ -92,16 +95,29 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
       return;
     }
   }
-  struct vlff_sink_frame f = {.width = cm->width, .height = cm->height, .color_format = VLFF_PIX_RGB8,
+  int ow, oh;
+  double k[4];
+  vlff_depthreg_intrinsics(p->reg, k, &ow, &oh);
+  struct vlff_sink_frame f = {.width = ow, .height = oh, .color_format = VLFF_PIX_RGB8,
                               .depth_format = VLFF_DEPTH_FMT_U16_MM};
   if (p->out->reserve(p->out, &f, err, sizeof err)) {
     p->st.dropped++;
     warn_drop(p, "pair dropped: %s", err);
     return;
   }
-  for (int y = 0; y < cm->height; y++)
-    memcpy(f.color + (size_t)y * f.color_stride, (const uint8_t *)c->px + (size_t)y * cm->width * 3,
-           (size_t)cm->width * 3);
+  /* At another size the colour plane is resampled to the registration's
+   * output camera: the same scaling about pixel centres as its intrinsics. */
+  if (ow == cm->width && oh == cm->height) {
+    for (int y = 0; y < oh; y++)
+      memcpy(f.color + (size_t)y * f.color_stride, (const uint8_t *)c->px + (size_t)y * cm->width * 3,
+             (size_t)cm->width * 3);
+  } else if (vlff_cv_resize_rgb(c->px, (size_t)cm->width * 3, cm->width, cm->height, f.color, f.color_stride, ow,
+                                oh, err, sizeof err)) {
+    p->out->abort(p->out, &f);
+    p->st.dropped++;
+    warn_drop(p, "pair dropped: %s", err);
+    return;
+  }
   if (vlff_depthreg_apply(p->reg, d->px, (size_t)dm->width * 2, 0.001, f.depth, f.depth_stride, err, sizeof err) <
       0) {
     p->out->abort(p->out, &f);
@@ -113,7 +129,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   f.device_ns = cm->device_ns;
   f.host_ns = cm->host_ns;
   f.sensor_id = cm->sensor_id;
-  vlff_depthreg_intrinsics(p->reg, f.intrinsics, NULL, NULL);
+  memcpy(f.intrinsics, k, sizeof f.intrinsics);
   f.pose_valid = cm->pose_valid;
   f.pose_untrusted = cm->pose_untrusted;
   memcpy(f.pose, cm->pose, sizeof f.pose);
@@ -225,6 +241,21 @@ struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink 
     free(p);
     return NULL;
   }
+  /* A record size whose aspect cannot be the colour camera's is refused
+   * here when the calibration or the config names the camera's size; else
+   * the first pair finds out (and every pair is dropped, said in the log). */
+  const __typeof__(cfg->depth_camera) *d = &cfg->depth_camera;
+  int cw = p->calib.color_w ? p->calib.color_w : cfg->camera.width;
+  int ch = p->calib.color_w ? p->calib.color_h : cfg->camera.height;
+  if (d->register_width && cw && ch && !vlff_depthreg_aspect_ok(d->register_width, d->register_height, cw, ch)) {
+    snprintf(err, errlen,
+             "key 'depth_camera.register_width': %dx%d is not the colour camera's aspect (%dx%d, within %g %%): "
+             "another aspect would stretch the image; crop the colour camera with its ROI instead",
+             d->register_width, d->register_height, cw, ch, 100 * VLFF_DEPTHREG_ASPECT_TOL);
+    free(p);
+    return NULL;
+  }
+  p->out_w = d->register_width, p->out_h = d->register_height;
   p->out = out;
   p->tol_ns = (uint64_t)(cfg->depth_camera.pair_tolerance_s * 1e9);
   p->color_sink = (struct vlff_sink){color_reserve, color_commit, color_abort, p};

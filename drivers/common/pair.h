@@ -18,11 +18,17 @@
  * A pair is written into the output sink: the colour frame's pixels,
  * timestamps, ids and pose, the range image registered into the colour
  * camera (depthreg.h, from depth_camera.calibration) as the depth plane,
- * and the registration's output camera as the intrinsics.
+ * and the registration's output camera as the intrinsics. The record has
+ * the colour frame's size, or depth_camera.register_width x register_height
+ * when set: then the colour plane is resampled to it (pixel centres kept on
+ * pixel centres, as the intrinsics are scaled) and the range image is
+ * registered directly at it.
  *
  * Contract
- *  - vlff_pair_new() loads and checks the calibration; NULL with err (naming
- *    the file and key) on failure. The output sink is borrowed.
+ *  - vlff_pair_new() loads and checks the calibration, and the record size
+ *    against the colour camera's aspect when the calibration or the config
+ *    gives that camera's size; NULL with err (naming the file and key) on
+ *    failure. The output sink is borrowed.
  *  - The two sinks and the stats are used from one thread (camd's loop);
  *    frames of each stream must arrive in time order.
  *  - A pair the output sink refuses, or whose sizes the calibration does not

@@ -233,6 +233,7 @@ struct vlff_config {
     double scale_m;                  /* metres per count */
     char calibration[VLFF_CFG_PATH]; /* depth-to-colour OpenCV FileStorage file */
     double pair_tolerance_s;         /* largest colour-depth time difference paired */
+    int register_width, register_height; /* the record's size; 0 = the colour camera's */
   } depth_camera;
 
   struct {
