@@ -28,6 +28,8 @@ struct fifo {
   struct held f[HOLD];
   int head, n;
   bool reserved;
+  bool started;      /* a frame of this stream was committed */
+  uint64_t first_ns; /* the first one's time */
 };
 
 struct vlff_pair {
@@ -58,14 +60,26 @@ static void warn_drop(struct vlff_pair *p, const char *fmt, ...) {
 static struct held *oldest(struct fifo *q) { return q->n ? &q->f[q->head] : NULL; }
 static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
 
+/* Drops q's oldest frame, which found no partner in the other stream. It
+ * is counted as a start-up frame when the other stream had not begun
+ * (nothing from it yet, or its first frame came more than the tolerance
+ * after this one: no frame of it could have been this one's partner), as
+ * unmatched otherwise. */
+static void drop_oldest(struct vlff_pair *p, struct fifo *q) {
+  const bool color = q == &p->color;
+  const struct fifo *other = color ? &p->depth : &p->color;
+  const uint64_t t = oldest(q)->meta.host_ns;
+  if (!other->started || t + p->tol_ns < other->first_ns)
+    (*(color ? &p->st.startup_color : &p->st.startup_depth))++;
+  else
+    (*(color ? &p->st.unmatched_color : &p->st.unmatched_depth))++;
+  pop(q);
+}
+
 /* The slot a new frame goes into; a full queue gives up its oldest frame,
  * which no frame of the other stream has claimed in time. */
-static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, uint64_t *unmatched, size_t bytes, char *err,
-                                 size_t errlen) {
-  if (q->n == HOLD) {
-    pop(q);
-    (*unmatched)++;
-  }
+static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, size_t bytes, char *err, size_t errlen) {
+  if (q->n == HOLD) drop_oldest(p, q);
   struct held *h = &q->f[(q->head + q->n) % HOLD];
   if (h->cap < bytes) {
     void *np = realloc(h->px, bytes);
@@ -75,7 +89,6 @@ static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, uint64_t *
     }
     h->px = np, h->cap = bytes;
   }
-  (void)p;
   q->reserved = true;
   return h;
 }
@@ -157,17 +170,17 @@ static void match(struct vlff_pair *p) {
       const struct held *c2 = p->color.n > 1 ? &p->color.f[(p->color.head + 1) % HOLD] : NULL;
       const struct held *d2 = p->depth.n > 1 ? &p->depth.f[(p->depth.head + 1) % HOLD] : NULL;
       if (c2 && dist(c2->meta.host_ns, td) < dist(tc, td)) {
-        pop(&p->color), p->st.unmatched_color++;
+        drop_oldest(p, &p->color);
       } else if (d2 && dist(tc, d2->meta.host_ns) < dist(tc, td)) {
-        pop(&p->depth), p->st.unmatched_depth++;
+        drop_oldest(p, &p->depth);
       } else {
         emit(p, c, d);
         pop(&p->color), pop(&p->depth);
       }
     } else if (tc < td) {
-      pop(&p->color), p->st.unmatched_color++;
+      drop_oldest(p, &p->color);
     } else {
-      pop(&p->depth), p->st.unmatched_depth++;
+      drop_oldest(p, &p->depth);
     }
   }
 }
@@ -179,7 +192,7 @@ static int color_reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *e
     snprintf(err, errlen, "pairing: the colour camera must deliver RGB8 without depth");
     return -1;
   }
-  struct held *h = reserve_slot(p, &p->color, &p->st.unmatched_color, (size_t)f->width * f->height * 3, err, errlen);
+  struct held *h = reserve_slot(p, &p->color, (size_t)f->width * f->height * 3, err, errlen);
   if (!h) return -1;
   f->color = h->px, f->color_stride = (size_t)f->width * 3;
   f->depth = NULL, f->depth_stride = 0;
@@ -194,7 +207,7 @@ static int depth_reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *e
     snprintf(err, errlen, "pairing: the range camera must deliver uint16 millimetres without colour");
     return -1;
   }
-  struct held *h = reserve_slot(p, &p->depth, &p->st.unmatched_depth, (size_t)f->width * f->height * 2, err, errlen);
+  struct held *h = reserve_slot(p, &p->depth, (size_t)f->width * f->height * 2, err, errlen);
   if (!h) return -1;
   f->color = NULL, f->color_stride = 0;
   f->depth = h->px, f->depth_stride = (size_t)f->width * 2;
@@ -207,6 +220,7 @@ static int commit_to(struct vlff_pair *p, struct fifo *q, struct vlff_sink_frame
   struct held *h = f->slot;
   h->meta = *f;
   q->reserved = false;
+  if (!q->started) q->started = true, q->first_ns = f->host_ns;
   q->n++;
   match(p);
   return 0;

@@ -43,10 +43,19 @@
 #include "config.h"
 #include "sink.h"
 
+/* A frame dropped without a partner is counted once, as a start-up frame
+ * when the other stream had not begun yet (no frame of it so far, or its
+ * first frame more than the tolerance after this one: one camera opens and
+ * streams before the other), else as unmatched: both were streaming and
+ * this frame's partner never came (a frame lost or late on the other side,
+ * the other camera lost and reconnecting, a free-running colour camera
+ * beside a triggered range camera). */
 struct vlff_pair_stats {
   uint64_t pairs;            /* records committed to the output sink */
-  uint64_t unmatched_color;  /* colour frames dropped without a range frame */
-  uint64_t unmatched_depth;  /* range frames dropped without a colour frame */
+  uint64_t unmatched_color;  /* colour frames dropped without a range frame, both streaming */
+  uint64_t unmatched_depth;  /* range frames dropped without a colour frame, both streaming */
+  uint64_t startup_color;    /* colour frames dropped before the range camera's first frame */
+  uint64_t startup_depth;    /* range frames dropped before the colour camera's first frame */
   uint64_t dropped;          /* pairs lost: output sink full, registration impossible */
 };
 
