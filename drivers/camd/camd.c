@@ -472,9 +472,11 @@ static void print_stats(const struct camd *d) {
          (unsigned long long)trig_fail, (unsigned long long)st->no_pose, (unsigned long long)st->trigger_stamped,
          (unsigned long long)pulses, (unsigned long long)edges);
   if (ps)
-    printf(" color_frames=%llu depth_frames=%llu unmatched_color=%llu unmatched_depth=%llu",
+    printf(" color_frames=%llu depth_frames=%llu unmatched_color=%llu unmatched_depth=%llu startup_color=%llu "
+           "startup_depth=%llu",
            (unsigned long long)st->committed, (unsigned long long)vlff_pipe_get_stats(d->slots[1].pipe)->committed,
-           (unsigned long long)ps->unmatched_color, (unsigned long long)ps->unmatched_depth);
+           (unsigned long long)ps->unmatched_color, (unsigned long long)ps->unmatched_depth,
+           (unsigned long long)ps->startup_color, (unsigned long long)ps->startup_depth);
   printf("\n");
   fflush(stdout);
 }

@@ -95,6 +95,23 @@ extern "C" int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlf
   });
 }
 
+extern "C" int vlff_cv_resize_rgb(const uint8_t *src, size_t sstride, int sw, int sh, uint8_t *dst,
+                                  size_t dstride, int dw, int dh, char *err, size_t errlen) {
+  return guarded("resample RGB8", err, errlen, [&]() -> int {
+    cv::Mat in(sh, sw, CV_8UC3, const_cast<uint8_t *>(src), sstride);
+    cv::Mat out(dh, dw, CV_8UC3, dst, dstride);
+    int interp = dw <= sw && dh <= sh ? cv::INTER_AREA : cv::INTER_LINEAR;
+    cv::resize(in, out, cv::Size(dw, dh), 0, 0, interp);
+    // resize reallocates instead of failing when the sizes disagree; that
+    // would silently leave the slot unwritten.
+    if (out.data != dst) {
+      set_err(err, errlen, "resample RGB8", "output was reallocated");
+      return -1;
+    }
+    return 0;
+  });
+}
+
 extern "C" struct vlff_cv_undistort *vlff_cv_undistort_new(int w, int h, const double k[4],
                                                            const double dist[5], char *err,
                                                            size_t errlen) {

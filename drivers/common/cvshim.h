@@ -31,6 +31,13 @@ extern "C" {
 int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlff_pix_t fmt, uint8_t *dst,
                    size_t dstride, char *err, size_t errlen);
 
+/* Resample a packed RGB8 image from sw x sh to dw x dh, pixel centres on
+ * pixel centres (output pixel (u, v) samples input (u + 0.5) * sw / dw - 0.5,
+ * likewise in v): area averaging when both sides shrink (no aliasing of fine
+ * texture), bilinear otherwise. */
+int vlff_cv_resize_rgb(const uint8_t *src, size_t sstride, int sw, int sh, uint8_t *dst, size_t dstride, int dw,
+                       int dh, char *err, size_t errlen);
+
 /* A pinhole + Brown-Conrady (k1 k2 p1 p2 k3) undistortion for a fixed image
  * size. The output keeps the input's camera matrix. */
 struct vlff_cv_undistort;

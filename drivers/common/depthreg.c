@@ -157,6 +157,11 @@ int vlff_rgbd_calib_load(const char *path, struct vlff_rgbd_calib *c, char *err,
   return vlff_rgbd_calib_check(c, path, err, errlen);
 }
 
+bool vlff_depthreg_aspect_ok(int out_w, int out_h, int color_w, int color_h) {
+  double a = (double)out_w * color_h, b = (double)out_h * color_w;
+  return out_w > 0 && out_h > 0 && color_w > 0 && color_h > 0 && fabs(a - b) <= VLFF_DEPTHREG_ASPECT_TOL * b;
+}
+
 struct vlff_depthreg *vlff_depthreg_new(const struct vlff_rgbd_calib *c, int dw, int dh, int cw, int ch, int ow,
                                         int oh, char *err, size_t errlen) {
   if (!ow && !oh) ow = cw, oh = ch;
@@ -166,9 +171,12 @@ struct vlff_depthreg *vlff_depthreg_new(const struct vlff_rgbd_calib *c, int dw,
         cw, ch, ow, oh, MAX_SIDE);
     return NULL;
   }
-  if ((long long)ow * ch != (long long)oh * cw) {
-    bad(err, errlen, "depth registration: output %dx%d does not have the colour images' %dx%d aspect", ow, oh, cw,
-        ch);
+  if (!vlff_depthreg_aspect_ok(ow, oh, cw, ch)) {
+    bad(err, errlen,
+        "depth registration: output %dx%d does not have the colour images' %dx%d aspect (within %g %%): a "
+        "different aspect would stretch the image; crop the colour camera (camera.width, camera.height, "
+        "camera.offset_x, camera.offset_y) instead",
+        ow, oh, cw, ch, 100 * VLFF_DEPTHREG_ASPECT_TOL);
     return NULL;
   }
   if ((c->depth_w && (c->depth_w != dw || c->depth_h != dh)) || (c->color_w && (c->color_w != cw || c->color_h != ch))) {
@@ -187,7 +195,8 @@ struct vlff_depthreg *vlff_depthreg_new(const struct vlff_rgbd_calib *c, int dw,
     return NULL;
   }
   r->dw = dw, r->dh = dh, r->ow = ow, r->oh = oh;
-  /* Scaling keeps pixel centres on pixel centres (OpenCV's convention). */
+  /* Scaling keeps pixel centres on pixel centres (OpenCV's convention),
+   * each axis by its own ratio. */
   double sx = (double)ow / cw, sy = (double)oh / ch;
   r->k[0] = c->kc[0] * sx, r->k[1] = c->kc[4] * sy;
   r->k[2] = (c->kc[2] + 0.5) * sx - 0.5, r->k[3] = (c->kc[5] + 0.5) * sy - 0.5;

@@ -16,10 +16,15 @@
  *    camera 2 = colour: X_colour = R X_depth + T. Pixel coordinates are
  *    OpenCV's (the centre of pixel (0,0) is at (0,0)); distortion is
  *    OpenCV's Brown-Conrady model k1 k2 p1 p2 [k3 [k4 k5 k6]].
- *  - The output is at the colour camera's resolution or any other of the
- *    same aspect, for the UNDISTORTED colour camera: the colour plane must
- *    be undistorted with the colour camera matrix kept (vlff_cv_undistort
- *    does that). vlff_depthreg_intrinsics gives the output camera.
+ *  - The output is at the colour camera's resolution or any other of about
+ *    the same aspect (within VLFF_DEPTHREG_ASPECT_TOL), for the UNDISTORTED
+ *    colour camera: the colour plane must be undistorted with the colour
+ *    camera matrix kept (vlff_cv_undistort does that) and, at another size,
+ *    resampled with pixel centres kept on pixel centres (vlff_cv_resize_rgb).
+ *    Each axis scales by its own ratio (fx by out_w / colour_w, fy by
+ *    out_h / colour_h, the principal point as (c + 0.5) * s - 0.5): exact
+ *    for any size, the pixels non-square by the aspects' difference.
+ *    vlff_depthreg_intrinsics gives the output camera.
  *  - Depth in is uint16 counts times unit_m metres (0 = invalid); depth out
  *    is uint16 millimetres along the colour camera's optical axis, 0 =
  *    invalid (VLFF_PIX_DEPTH_U16_MM).
@@ -49,6 +54,7 @@
 #ifndef VLFF_DEPTHREG_H
 #define VLFF_DEPTHREG_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -57,6 +63,11 @@ extern "C" {
 #endif
 
 #define VLFF_DIST_MAX 8
+/* The largest relative difference between the output's aspect and the
+ * colour images' that registration accepts: enough for a size rounded to
+ * whole pixels (1280x720 -> 426x240), too little to hide a stretched image
+ * (640x480 -> 640x360 is a crop, which the camera's ROI does). */
+#define VLFF_DEPTHREG_ASPECT_TOL 0.01
 
 struct vlff_rgbd_calib {
   double kd[9], dd[VLFF_DIST_MAX]; /* depth camera matrix (row-major) and distortion */
@@ -80,13 +91,16 @@ int vlff_rgbd_calib_check(const struct vlff_rgbd_calib *c, const char *name, cha
 
 struct vlff_depthreg;
 /* For depth images of depth_w x depth_h and colour images of color_w x
- * color_h; out_w x out_h = 0 x 0 means the colour size, otherwise it must
- * have the colour images' aspect. Fails when a size disagrees with the
+ * color_h; out_w x out_h = 0 x 0 means the colour size, otherwise its
+ * aspect must be the colour images' within VLFF_DEPTHREG_ASPECT_TOL. Fails when a size disagrees with the
  * calibration's, a principal point lies outside its image, or a distortion
  * does not invert over the image. */
 struct vlff_depthreg *vlff_depthreg_new(const struct vlff_rgbd_calib *c, int depth_w, int depth_h, int color_w,
                                         int color_h, int out_w, int out_h, char *err, size_t errlen);
 void vlff_depthreg_free(struct vlff_depthreg *r);
+/* Whether an output of out_w x out_h has the aspect of color_w x color_h
+ * images within VLFF_DEPTHREG_ASPECT_TOL (all sizes positive). */
+bool vlff_depthreg_aspect_ok(int out_w, int out_h, int color_w, int color_h);
 /* The output camera: fx fy cx cy (OpenCV pixel convention) and its size. */
 void vlff_depthreg_intrinsics(const struct vlff_depthreg *r, double k[4], int *out_w, int *out_h);
 /* Registers one depth image (depth_w x depth_h uint16, rows stride bytes

@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "cvshim.h"
 #include "depthreg.h"
 #include "log.h"
 #include "pixfmt.h"
@@ -27,6 +28,8 @@ struct fifo {
   struct held f[HOLD];
   int head, n;
   bool reserved;
+  bool started;      /* a frame of this stream was committed */
+  uint64_t first_ns; /* the first one's time */
 };
 
 struct vlff_pair {
@@ -35,6 +38,7 @@ struct vlff_pair {
   struct vlff_rgbd_calib calib;
   struct vlff_depthreg *reg;
   int reg_dw, reg_dh, reg_cw, reg_ch;
+  int out_w, out_h; /* the record's size, 0 x 0 = the colour frames' */
   uint64_t tol_ns;
   struct vlff_pair_stats st;
   uint64_t logged;
@@ -56,14 +60,26 @@ static void warn_drop(struct vlff_pair *p, const char *fmt, ...) {
 static struct held *oldest(struct fifo *q) { return q->n ? &q->f[q->head] : NULL; }
 static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
 
+/* Drops q's oldest frame, which found no partner in the other stream. It
+ * is counted as a start-up frame when the other stream had not begun
+ * (nothing from it yet, or its first frame came more than the tolerance
+ * after this one: no frame of it could have been this one's partner), as
+ * unmatched otherwise. */
+static void drop_oldest(struct vlff_pair *p, struct fifo *q) {
+  const bool color = q == &p->color;
+  const struct fifo *other = color ? &p->depth : &p->color;
+  const uint64_t t = oldest(q)->meta.host_ns;
+  if (!other->started || t + p->tol_ns < other->first_ns)
+    (*(color ? &p->st.startup_color : &p->st.startup_depth))++;
+  else
+    (*(color ? &p->st.unmatched_color : &p->st.unmatched_depth))++;
+  pop(q);
+}
+
 /* The slot a new frame goes into; a full queue gives up its oldest frame,
  * which no frame of the other stream has claimed in time. */
-static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, uint64_t *unmatched, size_t bytes, char *err,
-                                 size_t errlen) {
-  if (q->n == HOLD) {
-    pop(q);
-    (*unmatched)++;
-  }
+static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, size_t bytes, char *err, size_t errlen) {
+  if (q->n == HOLD) drop_oldest(p, q);
   struct held *h = &q->f[(q->head + q->n) % HOLD];
   if (h->cap < bytes) {
     void *np = realloc(h->px, bytes);
@@ -73,7 +89,6 @@ static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, uint64_t *
     }
     h->px = np, h->cap = bytes;
   }
-  (void)p;
   q->reserved = true;
   return h;
 }
@@ -84,7 +99,8 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   if (!p->reg || p->reg_dw != dm->width || p->reg_dh != dm->height || p->reg_cw != cm->width ||
       p->reg_ch != cm->height) {
     vlff_depthreg_free(p->reg);
-    p->reg = vlff_depthreg_new(&p->calib, dm->width, dm->height, cm->width, cm->height, 0, 0, err, sizeof err);
+    p->reg = vlff_depthreg_new(&p->calib, dm->width, dm->height, cm->width, cm->height, p->out_w, p->out_h, err,
+                               sizeof err);
     p->reg_dw = dm->width, p->reg_dh = dm->height, p->reg_cw = cm->width, p->reg_ch = cm->height;
     if (!p->reg) {
       p->st.dropped++;
@@ -92,16 +108,29 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
       return;
     }
   }
-  struct vlff_sink_frame f = {.width = cm->width, .height = cm->height, .color_format = VLFF_PIX_RGB8,
+  int ow, oh;
+  double k[4];
+  vlff_depthreg_intrinsics(p->reg, k, &ow, &oh);
+  struct vlff_sink_frame f = {.width = ow, .height = oh, .color_format = VLFF_PIX_RGB8,
                               .depth_format = VLFF_DEPTH_FMT_U16_MM};
   if (p->out->reserve(p->out, &f, err, sizeof err)) {
     p->st.dropped++;
     warn_drop(p, "pair dropped: %s", err);
     return;
   }
-  for (int y = 0; y < cm->height; y++)
-    memcpy(f.color + (size_t)y * f.color_stride, (const uint8_t *)c->px + (size_t)y * cm->width * 3,
-           (size_t)cm->width * 3);
+  /* At another size the colour plane is resampled to the registration's
+   * output camera: the same scaling about pixel centres as its intrinsics. */
+  if (ow == cm->width && oh == cm->height) {
+    for (int y = 0; y < oh; y++)
+      memcpy(f.color + (size_t)y * f.color_stride, (const uint8_t *)c->px + (size_t)y * cm->width * 3,
+             (size_t)cm->width * 3);
+  } else if (vlff_cv_resize_rgb(c->px, (size_t)cm->width * 3, cm->width, cm->height, f.color, f.color_stride, ow,
+                                oh, err, sizeof err)) {
+    p->out->abort(p->out, &f);
+    p->st.dropped++;
+    warn_drop(p, "pair dropped: %s", err);
+    return;
+  }
   if (vlff_depthreg_apply(p->reg, d->px, (size_t)dm->width * 2, 0.001, f.depth, f.depth_stride, err, sizeof err) <
       0) {
     p->out->abort(p->out, &f);
@@ -113,7 +142,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   f.device_ns = cm->device_ns;
   f.host_ns = cm->host_ns;
   f.sensor_id = cm->sensor_id;
-  vlff_depthreg_intrinsics(p->reg, f.intrinsics, NULL, NULL);
+  memcpy(f.intrinsics, k, sizeof f.intrinsics);
   f.pose_valid = cm->pose_valid;
   f.pose_untrusted = cm->pose_untrusted;
   memcpy(f.pose, cm->pose, sizeof f.pose);
@@ -141,17 +170,17 @@ static void match(struct vlff_pair *p) {
       const struct held *c2 = p->color.n > 1 ? &p->color.f[(p->color.head + 1) % HOLD] : NULL;
       const struct held *d2 = p->depth.n > 1 ? &p->depth.f[(p->depth.head + 1) % HOLD] : NULL;
       if (c2 && dist(c2->meta.host_ns, td) < dist(tc, td)) {
-        pop(&p->color), p->st.unmatched_color++;
+        drop_oldest(p, &p->color);
       } else if (d2 && dist(tc, d2->meta.host_ns) < dist(tc, td)) {
-        pop(&p->depth), p->st.unmatched_depth++;
+        drop_oldest(p, &p->depth);
       } else {
         emit(p, c, d);
         pop(&p->color), pop(&p->depth);
       }
     } else if (tc < td) {
-      pop(&p->color), p->st.unmatched_color++;
+      drop_oldest(p, &p->color);
     } else {
-      pop(&p->depth), p->st.unmatched_depth++;
+      drop_oldest(p, &p->depth);
     }
   }
 }
@@ -163,7 +192,7 @@ static int color_reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *e
     snprintf(err, errlen, "pairing: the colour camera must deliver RGB8 without depth");
     return -1;
   }
-  struct held *h = reserve_slot(p, &p->color, &p->st.unmatched_color, (size_t)f->width * f->height * 3, err, errlen);
+  struct held *h = reserve_slot(p, &p->color, (size_t)f->width * f->height * 3, err, errlen);
   if (!h) return -1;
   f->color = h->px, f->color_stride = (size_t)f->width * 3;
   f->depth = NULL, f->depth_stride = 0;
@@ -178,7 +207,7 @@ static int depth_reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *e
     snprintf(err, errlen, "pairing: the range camera must deliver uint16 millimetres without colour");
     return -1;
   }
-  struct held *h = reserve_slot(p, &p->depth, &p->st.unmatched_depth, (size_t)f->width * f->height * 2, err, errlen);
+  struct held *h = reserve_slot(p, &p->depth, (size_t)f->width * f->height * 2, err, errlen);
   if (!h) return -1;
   f->color = NULL, f->color_stride = 0;
   f->depth = h->px, f->depth_stride = (size_t)f->width * 2;
@@ -191,6 +220,7 @@ static int commit_to(struct vlff_pair *p, struct fifo *q, struct vlff_sink_frame
   struct held *h = f->slot;
   h->meta = *f;
   q->reserved = false;
+  if (!q->started) q->started = true, q->first_ns = f->host_ns;
   q->n++;
   match(p);
   return 0;
@@ -225,6 +255,21 @@ struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink 
     free(p);
     return NULL;
   }
+  /* A record size whose aspect cannot be the colour camera's is refused
+   * here when the calibration or the config names the camera's size; else
+   * the first pair finds out (and every pair is dropped, said in the log). */
+  const __typeof__(cfg->depth_camera) *d = &cfg->depth_camera;
+  int cw = p->calib.color_w ? p->calib.color_w : cfg->camera.width;
+  int ch = p->calib.color_w ? p->calib.color_h : cfg->camera.height;
+  if (d->register_width && cw && ch && !vlff_depthreg_aspect_ok(d->register_width, d->register_height, cw, ch)) {
+    snprintf(err, errlen,
+             "key 'depth_camera.register_width': %dx%d is not the colour camera's aspect (%dx%d, within %g %%): "
+             "another aspect would stretch the image; crop the colour camera with its ROI instead",
+             d->register_width, d->register_height, cw, ch, 100 * VLFF_DEPTHREG_ASPECT_TOL);
+    free(p);
+    return NULL;
+  }
+  p->out_w = d->register_width, p->out_h = d->register_height;
   p->out = out;
   p->tol_ns = (uint64_t)(cfg->depth_camera.pair_tolerance_s * 1e9);
   p->color_sink = (struct vlff_sink){color_reserve, color_commit, color_abort, p};

@@ -18,11 +18,17 @@
  * A pair is written into the output sink: the colour frame's pixels,
  * timestamps, ids and pose, the range image registered into the colour
  * camera (depthreg.h, from depth_camera.calibration) as the depth plane,
- * and the registration's output camera as the intrinsics.
+ * and the registration's output camera as the intrinsics. The record has
+ * the colour frame's size, or depth_camera.register_width x register_height
+ * when set: then the colour plane is resampled to it (pixel centres kept on
+ * pixel centres, as the intrinsics are scaled) and the range image is
+ * registered directly at it.
  *
  * Contract
- *  - vlff_pair_new() loads and checks the calibration; NULL with err (naming
- *    the file and key) on failure. The output sink is borrowed.
+ *  - vlff_pair_new() loads and checks the calibration, and the record size
+ *    against the colour camera's aspect when the calibration or the config
+ *    gives that camera's size; NULL with err (naming the file and key) on
+ *    failure. The output sink is borrowed.
  *  - The two sinks and the stats are used from one thread (camd's loop);
  *    frames of each stream must arrive in time order.
  *  - A pair the output sink refuses, or whose sizes the calibration does not
@@ -37,10 +43,19 @@
 #include "config.h"
 #include "sink.h"
 
+/* A frame dropped without a partner is counted once, as a start-up frame
+ * when the other stream had not begun yet (no frame of it so far, or its
+ * first frame more than the tolerance after this one: one camera opens and
+ * streams before the other), else as unmatched: both were streaming and
+ * this frame's partner never came (a frame lost or late on the other side,
+ * the other camera lost and reconnecting, a free-running colour camera
+ * beside a triggered range camera). */
 struct vlff_pair_stats {
   uint64_t pairs;            /* records committed to the output sink */
-  uint64_t unmatched_color;  /* colour frames dropped without a range frame */
-  uint64_t unmatched_depth;  /* range frames dropped without a colour frame */
+  uint64_t unmatched_color;  /* colour frames dropped without a range frame, both streaming */
+  uint64_t unmatched_depth;  /* range frames dropped without a colour frame, both streaming */
+  uint64_t startup_color;    /* colour frames dropped before the range camera's first frame */
+  uint64_t startup_depth;    /* range frames dropped before the colour camera's first frame */
   uint64_t dropped;          /* pairs lost: output sink full, registration impossible */
 };
 

@@ -81,6 +81,24 @@ static int check_depth_camera(const struct vlff_config *cfg, const char *file, c
     BAD("depth_camera.pair_tolerance_s",
         "expected less than half the faster camera's frame period (%.4f s), so that no frame has two "
         "candidates, got %g", half, d->pair_tolerance_s);
+  /* The record's size: the colour camera's, or one both planes are
+   * resampled/registered at. The ring holds it, so the ring's bounds apply
+   * to it rather than to the colour camera. */
+  const int rw = d->register_width, rh = d->register_height;
+  if (!rw != !rh)
+    BAD(rw ? "depth_camera.register_height" : "depth_camera.register_width",
+        "expected both register_width and register_height (or both 0: the colour camera's size), got %dx%d", rw,
+        rh);
+  if (rw && (rw < 16 || rw > cfg->shm.max_width))
+    BAD("depth_camera.register_width", "expected 16..shm.max_width (%d), got %d", cfg->shm.max_width, rw);
+  if (rh && (rh < 16 || rh > cfg->shm.max_height))
+    BAD("depth_camera.register_height", "expected 16..shm.max_height (%d), got %d", cfg->shm.max_height, rh);
+  if (rw && cfg->camera.width && cfg->camera.height &&
+      !vlff_depthreg_aspect_ok(rw, rh, cfg->camera.width, cfg->camera.height))
+    BAD("depth_camera.register_width",
+        "expected the colour camera's aspect (camera.width x camera.height = %dx%d, within %g %%), got %dx%d: "
+        "another aspect would stretch the image; crop the colour camera with its ROI instead",
+        cfg->camera.width, cfg->camera.height, 100 * VLFF_DEPTHREG_ASPECT_TOL, rw, rh);
   return 0;
 }
 
@@ -105,11 +123,14 @@ int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err
     if (c->width % 2)
       BAD("camera.width", "a side-by-side stereo pair needs an even width, got %d", c->width);
   }
-  if (c->width && c->width > 2 * cfg->shm.max_width)
+  /* The ring holds the camera's image, except a pair's registered to its
+   * own size (checked above). */
+  bool ring_sized = !(c->depth == VLFF_DEPTH_STREAM && cfg->depth_camera.register_width);
+  if (ring_sized && c->width && c->width > 2 * cfg->shm.max_width)
     BAD("camera.width", "expected at most shm.max_width (%d), got %d", cfg->shm.max_width, c->width);
-  if (c->depth != VLFF_DEPTH_STEREO && c->width > cfg->shm.max_width)
+  if (ring_sized && c->depth != VLFF_DEPTH_STEREO && c->width > cfg->shm.max_width)
     BAD("camera.width", "expected at most shm.max_width (%d), got %d", cfg->shm.max_width, c->width);
-  if (c->height > cfg->shm.max_height)
+  if (ring_sized && c->height > cfg->shm.max_height)
     BAD("camera.height", "expected at most shm.max_height (%d), got %d", cfg->shm.max_height, c->height);
   if ((c->offset_x || c->offset_y) && (!c->width || !c->height))
     BAD(c->offset_x ? "camera.offset_x" : "camera.offset_y",

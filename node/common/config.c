@@ -226,6 +226,8 @@ static const struct key schema[] = {
     DBL("depth_camera.scale_m", depth_camera.scale_m, 1e-6, 1, 0.001),
     STR("depth_camera.calibration", depth_camera.calibration, ""),
     DBL("depth_camera.pair_tolerance_s", depth_camera.pair_tolerance_s, 1e-6, 1, 0.005),
+    INT("depth_camera.register_width", depth_camera.register_width, 0, 16384, 0),
+    INT("depth_camera.register_height", depth_camera.register_height, 0, 16384, 0),
 
     ENUM("gpio.mode", gpio.mode, gpio_modes, "off"),
     STR("gpio.chip", gpio.chip, "gpiochip0"),

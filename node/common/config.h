@@ -231,6 +231,9 @@ struct vlff_cfg_depth_camera {
   double scale_m;                  /* metres per count */
   char calibration[VLFF_CFG_PATH]; /* depth-to-colour OpenCV FileStorage file */
   double pair_tolerance_s;         /* largest colour-depth time difference paired */
+  /* Size of the records (colour resampled, depth registered directly at
+   * it): 0 x 0 = the colour camera's, else of its aspect ratio within 1 %. */
+  int register_width, register_height;
 };
 
 struct vlff_cfg_gpio {

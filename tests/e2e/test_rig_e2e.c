@@ -51,9 +51,11 @@ static void test_camera_rig_trains_map(void **state) {
   rig_stop(&r);
   long long pairs = rig_camd_stat(&r, "committed"), colour = rig_camd_stat(&r, "color_frames"),
             um_c = rig_camd_stat(&r, "unmatched_color"), um_d = rig_camd_stat(&r, "unmatched_depth"),
+            su_c = rig_camd_stat(&r, "startup_color"), su_d = rig_camd_stat(&r, "startup_depth"),
             no_pose = rig_camd_stat(&r, "no_pose");
-  printf("vlff-camd: %lld pairs of %lld colour frames, unmatched %lld colour %lld range, %lld without pose\n", pairs,
-         colour, um_c, um_d, no_pose);
+  printf("vlff-camd: %lld pairs of %lld colour frames, unmatched %lld colour %lld range, before the other camera's "
+         "first frame %lld colour %lld range, %lld without pose\n",
+         pairs, colour, um_c, um_d, su_c, su_d, no_pose);
   /* The rig delivered: pairs of both cameras, the scene server's images of
    * the right size and format, every pose line accepted. */
   assert_true(pairs > 10);

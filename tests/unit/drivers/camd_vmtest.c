@@ -19,6 +19,11 @@
  *   vlff-camd-vmtest gpio-pair CHIP SIMDIR
  *     the same edges fire two fake GigE cameras (127.0.0.1 colour, 127.0.0.2
  *     Mono16 range, started by the case): one paired record per edge.
+ *   vlff-camd-vmtest lcam-pair CHIP SIMDIR
+ *     a libcamera colour camera (vimc, free-running) paired with an Aravis
+ *     range camera (the fake GigE camera on 127.0.0.1, started by the case):
+ *     each edge stamps the next vimc frame and fires the range camera, one
+ *     record per edge at a configured size.
  *
  * vlff-camd is run from PATH. Prints "ok: ..." lines; exits 1 on the first
  * failure with the reason.
@@ -454,10 +459,151 @@ static int run_gpio_pair(const char *chip, const char *sim) {
   return 0;
 }
 
+/* A libcamera colour camera and an Aravis range camera in one record: the
+ * vimc virtual camera free-runs (libcamera cameras cannot be triggered),
+ * the fake GigE camera on 127.0.0.1 streams Mono16 in software trigger
+ * mode. Each gpio-sim edge (gpio.mode input) fires the range camera and
+ * stamps the first vimc frame after it, as a colour camera's strobe output
+ * wired to the GPIO line would on a rig: both frames carry the edge's
+ * kernel time and pair on it. The record is registered at 240x180
+ * (depth_camera.register_*): colour 480x360 averaged 2x2, range 160x120
+ * registered 1.5x up through an identity rig (K1 = K2 / 3, its principal
+ * point a tenth of a range pixel off, so that no output pixel centre falls
+ * exactly on a boundary between two range pixels' footprints, where either
+ * would be right). Each edge must
+ * give one record, stamped with the edge's time, holding vimc's colour bars
+ * and the range image; no range frame may go unmatched. vimc's frames
+ * between edges find no partner and are counted. */
+static int run_lcam_pair(const char *chip, const char *sim) {
+  const int edges = 5;
+  char pull[512], rig[160];
+  snprintf(pull, sizeof pull, "%s/sim_gpio1/pull", sim);
+  write_pull(pull, "pull-down");
+  names("lpair");
+  snprintf(rig, sizeof rig, "/tmp/vlff-vm-lpair-%d-rig.yaml", (int)getpid());
+  write_file(rig,
+             "%YAML:1.0\n---\n"
+             "K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 150., 0., 79.6, 0., 150., 59.4, 0., 0., 1. ]\n"
+             "D1: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+             "K2: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 450., 0., 239.5, 0., 450., 179.5, 0., 0., 1. ]\n"
+             "D2: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n"
+             "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
+             "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n"
+             "depth_width: 160\ndepth_height: 120\ncolor_width: 480\ncolor_height: 360\n");
+  /* The range camera ticks at 100 Hz so that a triggered frame follows its
+   * edge within a few vimc frames (the pairing holds four of each). */
+  char cfg[2048];
+  snprintf(cfg, sizeof cfg,
+           "node:\n  log_level: info\n"
+           "shm:\n  ring: %s\n  pose_ring: %s-poses\n  ring_slots: 16\n  max_width: 240\n  max_height: 180\n"
+           "camera:\n  kind: libcamera\n  device: \"0\"\n  pixel_format: RGB8\n  width: 480\n  height: 360\n"
+           "  frame_rate: 30\n  reconnect_max_s: 1\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
+           "depth_camera:\n  kind: aravis\n  device: 127.0.0.1\n  pixel_format: Mono16\n  width: 160\n  height: 120\n"
+           "  frame_rate: 100\n  trigger: software\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.004\n"
+           "  register_width: 240\n  register_height: 180\n"
+           "gpio:\n  mode: input\n  chip: %s\n  line: \"1\"\n  debounce_us: 0\n",
+           ring_name, ring_name, rig, chip);
+  write_file(cfg_path, cfg);
+  camd_pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach(30);
+  /* libcamera, the IPA and vimc start slowly under TCG */
+  uint64_t t0 = now_ns();
+  while (!(file_has(err_path, "libcamera: '") && file_has(err_path, "'127.0.0.1' (")) && now_ns() - t0 < 60000000000ull)
+    sleep_ms(50);
+  CHECK(file_has(err_path, "libcamera: '") && file_has(err_path, "'127.0.0.1' ("),
+        "the two cameras are not both streaming after 60 s");
+  sleep_ms(1000);
+  CHECK(vlff_ring_head(r) == 0, "%llu records before any edge (the range camera waits for triggers)",
+        (unsigned long long)vlff_ring_head(r));
+  size_t cap = vlff_ring_slot_size(r);
+  uint8_t *buf = malloc(cap);
+  CHECK(buf, "out of memory");
+  for (int i = 1; i <= edges; i++) {
+    uint64_t before = now_ns();
+    write_pull(pull, "pull-up");
+    uint64_t after = now_ns();
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(r, buf, cap, &v, 10000000000ull);
+    CHECK(len >= 0, "edge %d: no record within 10 s: %s", i, strerror(errno));
+    CHECK(vlff_frame_validate(buf, (size_t)len) == 0, "edge %d: record does not validate", i);
+    const struct vlff_frame_hdr *hd = (const void *)buf;
+    const struct vlff_plane *cp = &hd->plane[VLFF_PLANE_COLOR], *dpl = &hd->plane[VLFF_PLANE_DEPTH];
+    CHECK(hd->nplanes == 2 && cp->format == VLFF_PIX_RGB8 && dpl->format == VLFF_PIX_DEPTH_U16_MM,
+          "edge %d: record of %u planes, not colour + registered range", i, hd->nplanes);
+    CHECK(cp->width == 240 && cp->height == 180 && dpl->width == 240 && dpl->height == 180,
+          "edge %d: planes %ux%u and %ux%u, want both 240x180", i, cp->width, cp->height, dpl->width, dpl->height);
+    /* K2 halved, in the record's pixel-centre convention */
+    CHECK(hd->fx == 225 && hd->fy == 225 && hd->cx == 120 && hd->cy == 90, "edge %d: intrinsics %g %g %g %g", i,
+          hd->fx, hd->fy, hd->cx, hd->cy);
+    CHECK(hd->t_host_ns >= before && hd->t_host_ns <= after,
+          "edge %d: record host time %lld us from the pull write [0, %lld us] (not the edge's timestamp)", i,
+          (long long)(hd->t_host_ns - before) / 1000, (long long)(after - before) / 1000);
+    /* the colour frame is vimc's, taken after the edge */
+    CHECK(hd->t_device_ns >= hd->t_host_ns, "edge %d: vimc frame taken %lld us before its edge", i,
+          (long long)(hd->t_host_ns - hd->t_device_ns) / 1000);
+    check_bars(hd, vlff_frame_plane(buf, VLFF_PLANE_COLOR));
+    /* The range image through the identity rig, 1.5x up: mostly valid, and
+     * still the fake camera's ramp (+256 mm per range pixel in x and in y,
+     * wrapping): each output pixel holds its nearest range pixel's value, so
+     * neighbours differ by 0 or 256, and by 256 about every 1.5 pixels. */
+    const uint8_t *dp = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+#define DV(x, y) (((const uint16_t *)(dp + (size_t)(y) * dpl->stride))[x])
+    long nz = 0, steps = 0, rises = 0, bad = 0;
+    char first_bad[96] = "";
+    for (int y = 0; y < 180; y++)
+      for (int x = 0; x < 240; x++) {
+        nz += DV(x, y) != 0;
+        for (int k = 0; k < 2; k++) {
+          int nx = x + !k, ny = y + k;
+          if (nx >= 240 || ny >= 180) continue;
+          unsigned a = DV(x, y), b = DV(nx, ny);
+          if (!a || !b || b < a) continue; /* invalid, or the ramp wrapped */
+          steps++, rises += b == a + 256;
+          if (b != a && b != a + 256 && !bad++)
+            snprintf(first_bad, sizeof first_bad, "(%d,%d) %u -> (%d,%d) %u", x, y, a, nx, ny, b);
+        }
+      }
+#undef DV
+    CHECK(nz > 240 * 180 * 9 / 10, "edge %d: %ld of %d range pixels valid", i, nz, 240 * 180);
+    CHECK(bad == 0 && rises > steps / 2 && rises < steps * 3 / 4,
+          "edge %d: range neighbours: %ld of %ld steps neither 0 nor 256 mm (first %s), %ld rises (want about 2/3)", i,
+          bad, steps, first_bad, rises);
+    sleep_ms(300);
+    write_pull(pull, "pull-down");
+    sleep_ms(300);
+    CHECK(vlff_ring_head(r) == (uint64_t)i, "after %d edges the ring holds %llu records", i,
+          (unsigned long long)vlff_ring_head(r));
+  }
+  kill(camd_pid, SIGTERM);
+  int rc = wait_exit(camd_pid, 20);
+  CHECK(rc == 0, "vlff-camd exit status %d after SIGTERM", rc);
+  /* vimc's frames before the first edge are start-up frames (the range
+   * camera had sent none), those between edges unmatched */
+  uint64_t colour = stat_of("color_frames"), unmatched = stat_of("unmatched_color"),
+           startup = stat_of("startup_color");
+  CHECK(stat_of("edges") == (uint64_t)edges && stat_of("triggers") == (uint64_t)edges &&
+            stat_of("committed") == (uint64_t)edges && stat_of("depth_frames") == (uint64_t)edges &&
+            stat_of("unmatched_depth") == 0 && stat_of("startup_depth") == 0 && stat_of("trigger_failures") == 0 &&
+            colour > (uint64_t)edges && startup > 0 && unmatched > 0 && unmatched + startup <= colour - edges,
+        "statistics line");
+  printf("ok: vimc (libcamera) colour + fake GigE range camera, one GPIO edge each: %d edges, %d records at "
+         "240x180 stamped with the edge's kernel time; %llu vimc frames, %llu before the first edge, %llu between "
+         "edges without a partner\n",
+         edges, edges, (unsigned long long)colour, (unsigned long long)startup, (unsigned long long)unmatched);
+  vlff_ring_close(r);
+  free(buf);
+  cleanup();
+  unlink(cfg_path), unlink(out_path), unlink(err_path), unlink(rig);
+  return 0;
+}
+
 int main(int argc, char **argv) {
   if (argc == 3 && !strcmp(argv[1], "libcamera")) return run_libcamera(atoi(argv[2]) > 0 ? atoi(argv[2]) : 10);
   if (argc == 4 && !strcmp(argv[1], "gpio-trigger")) return run_gpio_trigger(argv[2], argv[3]);
   if (argc == 4 && !strcmp(argv[1], "gpio-pair")) return run_gpio_pair(argv[2], argv[3]);
-  fprintf(stderr, "usage: vlff-camd-vmtest libcamera N | gpio-trigger CHIP SIMDIR | gpio-pair CHIP SIMDIR\n");
+  if (argc == 4 && !strcmp(argv[1], "lcam-pair")) return run_lcam_pair(argv[2], argv[3]);
+  fprintf(stderr,
+          "usage: vlff-camd-vmtest libcamera N | gpio-trigger CHIP SIMDIR | gpio-pair CHIP SIMDIR | "
+          "lcam-pair CHIP SIMDIR\n");
   return 2;
 }

@@ -281,7 +281,7 @@ static char rig_path[256];
 
 /* The pair's config: the fake GigE camera as colour, the in-process fake
  * camera as range, an identity rig. */
-static void write_pair_cfg(void) {
+static void write_pair_cfg(const char *depth_extra) {
   snprintf(rig_path, sizeof rig_path, "/tmp/vlff-test-camd-%d-rig.yaml", (int)getpid());
   FILE *f = fopen(rig_path, "w");
   assert_non_null(f);
@@ -298,14 +298,14 @@ static void write_pair_cfg(void) {
   snprintf(extra, sizeof extra,
            "  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
            "depth_camera:\n  kind: aravis\n  device: Fake\n  pixel_format: Mono16\n  width: 320\n  height: 240\n"
-           "  frame_rate: 40\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.012\n",
-           rig_path);
+           "  frame_rate: 40\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.012\n%s",
+           rig_path, depth_extra ? depth_extra : "");
   write_cfg("Mono8", 320, 240, extra);
 }
 
 static void test_pairs_colour_and_range(void **state) {
   (void)state;
-  write_pair_cfg();
+  write_pair_cfg(NULL);
   pid_t pid = spawn_camd("12");
   struct vlff_ring *r = attach();
   vlff_ring_seek_oldest(r);
@@ -359,12 +359,66 @@ static void test_pairs_colour_and_range(void **state) {
   cleanup();
 }
 
+/* The same pair registered at half the colour camera's size
+ * (depth_camera.register_width/height): both planes of every record are
+ * 160x120, the intrinsics those of the halved camera, the colour plane the
+ * ramp averaged over 2x2 blocks, the depth plane the range ramp registered
+ * at that size (still constant along anti-diagonals, edge to edge). */
+static void test_pairs_at_register_size(void **state) {
+  (void)state;
+  write_pair_cfg("  register_width: 160\n  register_height: 120\n");
+  pid_t pid = spawn_camd("6");
+  struct vlff_ring *r = attach();
+  vlff_ring_seek_oldest(r);
+  assert_int_equal(wait_exit(pid, 60), 0);
+  assert_int_equal(vlff_ring_head(r), 6);
+  void *buf = malloc(vlff_ring_slot_size(r));
+  for (int n = 0; n < 6; n++) {
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(r, buf, vlff_ring_slot_size(r), &v, 0);
+    assert_true(len > 0);
+    assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
+    const struct vlff_frame_hdr *hd = buf;
+    assert_int_equal(hd->nplanes, 2);
+    for (int pl = 0; pl < 2; pl++) {
+      assert_int_equal(hd->plane[pl].width, 160);
+      assert_int_equal(hd->plane[pl].height, 120);
+    }
+    /* OpenCV's cx 159.5 of 320 pixels is 79.5 of 160, 80 in the record's
+     * pixel-centre convention */
+    assert_true(hd->fx == 150 && hd->fy == 150 && hd->cx == 80 && hd->cy == 60);
+    const uint8_t *px = vlff_frame_plane(buf, VLFF_PLANE_COLOR);
+    for (int y = 0; y < 120; y += 3)
+      for (int x = 0; x < 160; x += 5) {
+        unsigned a = (unsigned)(2 * x + 2 * y + hd->frame_id) % 255;
+        if (a > 252) continue; /* the ramp wraps inside this block */
+        assert_int_equal(px[(size_t)y * hd->plane[0].stride + (size_t)x * 3], a + 1);
+      }
+    const uint8_t *dp = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+    const size_t ds = hd->plane[VLFF_PLANE_DEPTH].stride;
+#define D(x, y) (((const uint16_t *)(dp + (size_t)(y) * ds))[x])
+    int border = 0;
+    for (int y = 0; y < 120; y++) {
+      border += D(0, y) != 0 && D(159, y) != 0;
+      for (int x = 0; x < 159; x++)
+        if (y && D(x, y) != D(x + 1, y - 1))
+          fail_msg("record %d depth (%d,%d) = %u, (%d,%d) = %u", n, x, y, D(x, y), x + 1, y - 1, D(x + 1, y - 1));
+    }
+#undef D
+    assert_true(border >= 115);
+  }
+  free(buf);
+  vlff_ring_close(r);
+  unlink(rig_path);
+  cleanup();
+}
+
 /* The colour camera of a pair loses power and comes back: the range
  * camera's frames meanwhile find no partner and are counted, the ring stays,
  * and pairs flow again after the reconnection. */
 static void test_pair_survives_camera_restart(void **state) {
   (void)state;
-  write_pair_cfg();
+  write_pair_cfg(NULL);
   pid_t pid = spawn_camd(NULL);
   struct vlff_ring *r = attach();
   for (int k = 0; k < 200 && vlff_ring_head(r) < 5; k++) sleep_ms(50);
@@ -433,6 +487,7 @@ int main(void) {
       cmocka_unit_test(test_bad_configs),
       cmocka_unit_test(test_reconnects_after_camera_restart),
       cmocka_unit_test(test_pairs_colour_and_range),
+      cmocka_unit_test(test_pairs_at_register_size),
       cmocka_unit_test(test_pair_survives_camera_restart),
   };
   return cmocka_run_group_tests(tests, setup, teardown);

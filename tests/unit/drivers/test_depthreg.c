@@ -6,11 +6,15 @@
  * surface both cameras see, object edges within a pixel on average, the box
  * in front wherever it hides the plane from the colour camera (z-buffer),
  * and nothing where the colour camera sees what the depth camera could not
- * (holes stay invalid). Also: calibration files as OpenCV writes them (YAML
- * and XML) and the bounds that refuse bad ones.
+ * (holes stay invalid); at the colour camera's resolution and at coarser
+ * and finer ones. The same through the pairing into a record of a
+ * configured size, its colour plane resampled to match. Also: calibration
+ * files as OpenCV writes them (YAML and XML) and the bounds that refuse bad
+ * ones.
  */
 #include <math.h>
 #include <setjmp.h>
+#include <stdbool.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -20,7 +24,11 @@
 #include <unistd.h>
 #include <cmocka.h>
 
+#include "config.h"
 #include "depthreg.h"
+#include "pair.h"
+#include "pixfmt.h"
+#include "sink.h"
 
 #define DW 320
 #define DH 240
@@ -153,32 +161,26 @@ static int interior(const struct truth *gt, int w, int h, int x, int y, int rad,
   return 1;
 }
 
-static void check_registration(int ow, int oh) {
-  struct vlff_rgbd_calib c = rig();
-  char err[512];
-  struct vlff_depthreg *r = vlff_depthreg_new(&c, DW, DH, CW, CH, ow == CW ? 0 : ow, ow == CW ? 0 : oh, err, sizeof err);
-  if (!r) fail_msg("%s", err);
-  double k[4];
-  int w, h;
-  vlff_depthreg_intrinsics(r, k, &w, &h);
-  assert_int_equal(w, ow);
-  assert_int_equal(h, oh);
-  double s = (double)ow / CW;
-  assert_true(fabs(k[0] - 525 * s) < 1e-9 && fabs(k[1] - 523 * s) < 1e-9);
-  assert_true(fabs(k[2] - ((319.2 + 0.5) * s - 0.5)) < 1e-9 && fabs(k[3] - ((241.1 + 0.5) * s - 0.5)) < 1e-9);
+/* The output camera for ow x oh: each axis scaled about pixel centres. */
+static void check_intrinsics(const double k[4], int ow, int oh) {
+  double sx = (double)ow / CW, sy = (double)oh / CH;
+  assert_true(fabs(k[0] - 525 * sx) < 1e-9 && fabs(k[1] - 523 * sy) < 1e-9);
+  assert_true(fabs(k[2] - ((319.2 + 0.5) * sx - 0.5)) < 1e-9 && fabs(k[3] - ((241.1 + 0.5) * sy - 0.5)) < 1e-9);
+}
 
-  const int os = ow + 8; /* output rows padded: strides need not be the row length */
-  uint16_t *depth = malloc(DW * DH * 2), *out = malloc((size_t)os * oh * 2);
+/* A registered depth image (ow x oh, rows os pixels apart, output camera k)
+ * against the colour camera's view of the scene. zq: the range error the
+ * quantisation of input and output allows, metres. */
+static void check_registered(const struct vlff_rgbd_calib *c, const double k[4], int ow, int oh, const uint16_t *out,
+                             int os, long valid, double zq) {
   struct truth *gt = malloc((size_t)ow * oh * sizeof *gt);
-  assert_true(depth && out && gt);
-  render_depth(&c, depth);
-  colour_truth(&c, k, ow, oh, gt);
-  long valid = vlff_depthreg_apply(r, depth, DW * 2, UNIT, out, (size_t)os * 2, err, sizeof err);
-  if (valid < 0) fail_msg("%s", err);
-
+  assert_non_null(gt);
+  colour_truth(c, k, ow, oh, gt);
   long inner = 0, covered = 0, zbuf_bad = 0, box_inner = 0, holes = 0, hole_bad = 0, outside = 0, outside_bad = 0;
   long mism = 0, edge = 0, zout = 0;
-  const int ratio = ow >= CW ? 2 : 1; /* colour pixels per depth pixel, about */
+  /* Output pixels per depth pixel, rounded up; an edge lands within half
+   * of that (the footprint of the depth pixel beside it), rounded up. */
+  const int ratio = (int)ceil((double)ow / DW - 1e-9), half = (int)ceil(0.5 * ow / DW - 1e-9);
   double zerr = 0, zmax = 0;
   for (int y = 0; y < oh; y++)
     for (int x = 0; x < ow; x++) {
@@ -206,10 +208,10 @@ static void check_registration(int ow, int oh) {
             slope = fmax(slope, fabs(gt[ny * ow + nx].z - g->z));
           }
           zerr += e, zmax = fmax(zmax, e);
-          zout += e > ratio * slope + 0.001;
+          zout += e > ratio * slope + zq;
         }
       }
-      if (!interior(gt, ow, oh, x, y, 1, 0)) continue;
+      if (!interior(gt, ow, oh, x, y, half, 0)) continue;
       if (g->obj == BOX) box_inner++, zbuf_bad += v && v * 0.001 > SPLIT;
       if (g->obj == PLANE && !g->seen) {
         /* in view of the colour camera only: the box hid it from the depth
@@ -241,7 +243,30 @@ static void check_registration(int ow, int oh) {
   assert_int_equal(hole_bad, 0);
   assert_int_equal(outside_bad, 0);
   (void)outside;
-  free(depth), free(out), free(gt);
+  free(gt);
+}
+
+static void check_registration(int ow, int oh) {
+  struct vlff_rgbd_calib c = rig();
+  char err[512];
+  struct vlff_depthreg *r = vlff_depthreg_new(&c, DW, DH, CW, CH, ow == CW ? 0 : ow, ow == CW ? 0 : oh, err, sizeof err);
+  if (!r) fail_msg("%s", err);
+  double k[4];
+  int w, h;
+  vlff_depthreg_intrinsics(r, k, &w, &h);
+  assert_int_equal(w, ow);
+  assert_int_equal(h, oh);
+  check_intrinsics(k, ow, oh);
+
+  const int os = ow + 8; /* output rows padded: strides need not be the row length */
+  uint16_t *depth = malloc(DW * DH * 2), *out = malloc((size_t)os * oh * 2);
+  assert_true(depth && out);
+  render_depth(&c, depth);
+  long valid = vlff_depthreg_apply(r, depth, DW * 2, UNIT, out, (size_t)os * 2, err, sizeof err);
+  if (valid < 0) fail_msg("%s", err);
+  /* quarter-millimetre input, millimetre output */
+  check_registered(&c, k, ow, oh, out, os, valid, 0.001);
+  free(depth), free(out);
   vlff_depthreg_free(r);
 }
 
@@ -253,6 +278,185 @@ static void test_registers_at_colour_resolution(void **state) {
 static void test_registers_at_configured_resolution(void **state) {
   (void)state;
   check_registration(320, 240);
+  check_registration(800, 600);
+}
+
+/* ---- the record camd writes: colour and depth at a configured size ----- */
+
+static char dir[128];
+static const char *write_file(const char *name, const char *text);
+
+/* The rig as stereoCalibrate would write it. */
+static const char *write_rig(const struct vlff_rgbd_calib *c) {
+  char text[4096], *t = text;
+  size_t left = sizeof text;
+  const char *names[5] = {"K1", "D1", "K2", "D2", "R"};
+  const double *vals[5] = {c->kd, c->dd, c->kc, c->dc, c->r};
+  const int rows[5] = {3, 1, 3, 1, 3}, cols[5] = {3, 5, 3, 5, 3};
+  int n = snprintf(t, left, "%%YAML:1.0\n---\n");
+  t += n, left -= (size_t)n;
+  for (int m = 0; m < 6; m++) {
+    const double *v = m < 5 ? vals[m] : c->t;
+    int r = m < 5 ? rows[m] : 3, cl = m < 5 ? cols[m] : 1;
+    n = snprintf(t, left, "%s: !!opencv-matrix\n   rows: %d\n   cols: %d\n   dt: d\n   data: [", m < 5 ? names[m] : "T",
+                 r, cl);
+    t += n, left -= (size_t)n;
+    for (int i = 0; i < r * cl; i++) {
+      n = snprintf(t, left, "%s %.17g", i ? "," : "", v[i]);
+      t += n, left -= (size_t)n;
+    }
+    n = snprintf(t, left, " ]\n");
+    t += n, left -= (size_t)n;
+  }
+  return write_file("pair-rig.yaml", text);
+}
+
+/* The colour camera's image (undistorted, as the colour pipeline delivers
+ * it): each pixel's share of box, plane and background from 4 x 4 samples,
+ * in its red, green and blue. *bx, *by: the box's centroid in pixels. */
+static void render_colour(const struct vlff_rgbd_calib *c, uint8_t *img, double *bx, double *by) {
+  const double k[4] = {c->kc[0], c->kc[4], c->kc[2], c->kc[5]};
+  struct truth *gt = malloc((size_t)CW * 4 * CH * 4 * sizeof *gt);
+  assert_non_null(gt);
+  /* the samples at (x + (i + 0.5) / 4 - 0.5) of pixel x: a camera 4x as fine */
+  const double k4[4] = {k[0] * 4, k[1] * 4, (k[2] + 0.5) * 4 - 0.5, (k[3] + 0.5) * 4 - 0.5};
+  colour_truth(c, k4, CW * 4, CH * 4, gt);
+  double sx = 0, sy = 0, sw = 0;
+  for (int y = 0; y < CH; y++)
+    for (int x = 0; x < CW; x++) {
+      int cnt[3] = {0, 0, 0};
+      for (int j = 0; j < 4; j++)
+        for (int i = 0; i < 4; i++) {
+          int o = gt[(size_t)(y * 4 + j) * CW * 4 + x * 4 + i].obj;
+          cnt[o == BOX ? 0 : o == PLANE ? 1 : 2]++;
+        }
+      for (int a = 0; a < 3; a++) img[(y * CW + x) * 3 + a] = (uint8_t)((cnt[a] * 255 + 8) / 16);
+      sx += x * cnt[0], sy += y * cnt[0], sw += cnt[0];
+    }
+  *bx = sx / sw, *by = sy / sw;
+  free(gt);
+}
+
+/* One colour and one range frame through the pairing into a record of
+ * ow x oh: both planes at that size, the intrinsics of the output camera;
+ * the depth lands on the geometry (check_registered), the resampled colour
+ * keeps the box where it was (its centroid maps through the same scaling
+ * as the intrinsics), and colour and depth agree on the box's outline. */
+static void check_pair_record(int ow, int oh) {
+  struct vlff_rgbd_calib c = rig();
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  snprintf(cfg.depth_camera.calibration, sizeof cfg.depth_camera.calibration, "%s", write_rig(&c));
+  cfg.depth_camera.register_width = ow, cfg.depth_camera.register_height = oh;
+  struct vlff_memsink *ms = vlff_memsink_new(2, ow, oh);
+  char err[512];
+  struct vlff_pair *p = vlff_pair_new(&cfg, vlff_memsink_sink(ms), err, sizeof err);
+  if (!p) fail_msg("%s", err);
+
+  struct vlff_sink *cs = vlff_pair_color_sink(p), *ds = vlff_pair_depth_sink(p);
+  struct vlff_sink_frame fc = {.width = CW, .height = CH, .color_format = VLFF_PIX_RGB8};
+  assert_int_equal(cs->reserve(cs, &fc, err, sizeof err), 0);
+  uint8_t *rgb = malloc(CW * CH * 3);
+  uint16_t *counts = malloc(DW * DH * 2);
+  assert_true(rgb && counts);
+  double bx, by;
+  render_colour(&c, rgb, &bx, &by);
+  for (int y = 0; y < CH; y++) memcpy(fc.color + y * fc.color_stride, rgb + y * CW * 3, CW * 3);
+  fc.host_ns = 1000000000;
+  assert_int_equal(cs->commit(cs, &fc), 0);
+  /* the range pipeline delivers millimetres */
+  render_depth(&c, counts);
+  struct vlff_sink_frame fd = {.width = DW, .height = DH, .depth_format = VLFF_DEPTH_FMT_U16_MM};
+  assert_int_equal(ds->reserve(ds, &fd, err, sizeof err), 0);
+  for (int y = 0; y < DH; y++)
+    for (int x = 0; x < DW; x++)
+      ((uint16_t *)((char *)fd.depth + y * fd.depth_stride))[x] = (uint16_t)lround(counts[y * DW + x] * UNIT * 1000);
+  fd.host_ns = 1000000000;
+  assert_int_equal(ds->commit(ds, &fd), 0);
+  assert_int_equal(vlff_pair_get_stats(p)->pairs, 1);
+
+  const struct vlff_sink_frame *f = vlff_memsink_get(ms, 0);
+  assert_non_null(f);
+  assert_int_equal(f->width, ow);
+  assert_int_equal(f->height, oh);
+  check_intrinsics(f->intrinsics, ow, oh);
+  assert_int_equal(f->depth_stride % 2, 0);
+  const uint16_t *dep = f->depth;
+  const int os = (int)(f->depth_stride / 2);
+  long valid = 0;
+  for (int y = 0; y < oh; y++)
+    for (int x = 0; x < ow; x++) valid += dep[y * os + x] != 0;
+  /* millimetre input and output: a millimetre of rounding on each side */
+  check_registered(&c, f->intrinsics, ow, oh, dep, os, valid, 0.0015);
+
+  /* The colour plane: the box's centroid where the scaling puts it. */
+  double sx = 0, sy = 0, sw = 0, ex = (bx + 0.5) * ow / CW - 0.5, ey = (by + 0.5) * oh / CH - 0.5;
+  long disagree = 0, outline = 0;
+  for (int y = 0; y < oh; y++)
+    for (int x = 0; x < ow; x++) {
+      const uint8_t *px = f->color + y * f->color_stride + x * 3;
+      sx += x * px[0], sy += y * px[0], sw += px[0];
+      /* the box by colour (more box than anything else) and by depth */
+      bool cbox = px[0] > px[1] && px[0] > px[2];
+      uint16_t v = dep[y * os + x];
+      if (v) disagree += cbox != (v * 0.001 < SPLIT);
+      if (x > 0 && y > 0 && x < ow - 1 && y < oh - 1) {
+        const uint8_t *l = px - 3, *r = px + 3, *u = px - f->color_stride, *d = px + f->color_stride;
+        bool n[4] = {l[0] > l[1] && l[0] > l[2], r[0] > r[1] && r[0] > r[2], u[0] > u[1] && u[0] > u[2],
+                     d[0] > d[1] && d[0] > d[2]};
+        outline += cbox && !(n[0] && n[1] && n[2] && n[3]);
+      }
+    }
+  sx /= sw, sy /= sw;
+  printf("%dx%d record: box centroid in colour (%.3f, %.3f), expected (%.3f, %.3f); colour and depth disagree "
+         "on %ld px along a %ld px outline (%.2f px)\n",
+         ow, oh, sx, sy, ex, ey, disagree, outline, (double)disagree / outline);
+  /* A resampling off by the half-pixel convention moves it by
+   * |0.5 s - 0.5| (an eighth of a pixel at these scales). */
+  assert_true(fabs(sx - ex) < 0.02 && fabs(sy - ey) < 0.02);
+  /* Colour and depth show the box's outline at the same place, within a
+   * pixel on average. */
+  assert_true(outline > 100);
+  assert_true((double)disagree / outline < 1.0);
+  free(rgb), free(counts);
+  vlff_pair_free(p);
+  vlff_memsink_free(ms);
+}
+
+/* Smaller than the colour camera, by a ratio that is no whole number and
+ * differs between the axes (481/640 against 360/480: the aspect 0.2 %
+ * off, within the tolerance). */
+static void test_pair_record_smaller(void **state) {
+  (void)state;
+  check_pair_record(481, 360);
+}
+
+/* Larger than the colour camera: the colour plane is interpolated, the
+ * depth registered directly at the finer size. */
+static void test_pair_record_larger(void **state) {
+  (void)state;
+  check_pair_record(800, 600);
+}
+
+/* An aspect beyond the tolerance is refused when the calibration names the
+ * colour camera's size, and by the registration when only the frames do. */
+static void test_pair_record_aspect(void **state) {
+  (void)state;
+  struct vlff_rgbd_calib c = rig();
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  snprintf(cfg.depth_camera.calibration, sizeof cfg.depth_camera.calibration, "%s", write_rig(&c));
+  cfg.depth_camera.register_width = 640, cfg.depth_camera.register_height = 360;
+  char err[512];
+  cfg.camera.width = CW, cfg.camera.height = CH;
+  assert_null(vlff_pair_new(&cfg, NULL, err, sizeof err));
+  assert_non_null(strstr(err, "depth_camera.register_width"));
+  assert_non_null(strstr(err, "aspect"));
+  assert_null(vlff_depthreg_new(&c, DW, DH, CW, CH, 640, 360, err, sizeof err));
+  assert_non_null(strstr(err, "aspect"));
+  assert_false(vlff_depthreg_aspect_ok(640, 360, CW, CH));
+  assert_true(vlff_depthreg_aspect_ok(481, 360, CW, CH));
+  assert_true(vlff_depthreg_aspect_ok(426, 240, 1280, 720));
 }
 
 /* The plane hides behind the box from the colour camera only where the
@@ -311,8 +515,6 @@ static void test_distortion_inverts(void **state) {
 
 /* ---- calibration files ------------------------------------------------- */
 
-static char dir[128];
-
 static const char *write_file(const char *name, const char *text) {
   static char p[256];
   snprintf(p, sizeof p, "%s/%s", dir, name);
@@ -341,10 +543,7 @@ static void expect_refused(const char *name, const char *text, const char *what)
 
 static void test_calibration_files(void **state) {
   (void)state;
-  snprintf(dir, sizeof dir, "/tmp/vlff-test-depthreg-%d", (int)getpid());
   char cmd[200];
-  snprintf(cmd, sizeof cmd, "mkdir -p %s", dir);
-  assert_int_equal(system(cmd), 0);
   struct vlff_rgbd_calib c;
   char err[512];
   /* YAML as cv::FileStorage writes stereoCalibrate's outputs. */
@@ -429,8 +628,21 @@ static void test_calibration_files(void **state) {
   assert_int_equal(vlff_depthreg_apply(r, d, DW * 2, 0, o, CW * 2, err, sizeof err), -1);
   assert_int_equal(vlff_depthreg_apply(r, d, DW, 0.001, o, CW * 2, err, sizeof err), -1);
   vlff_depthreg_free(r);
+}
+
+static int make_dir(void **state) {
+  (void)state;
+  snprintf(dir, sizeof dir, "/tmp/vlff-test-depthreg-%d", (int)getpid());
+  char cmd[200];
+  snprintf(cmd, sizeof cmd, "mkdir -p %s", dir);
+  return system(cmd) ? -1 : 0;
+}
+
+static int remove_dir(void **state) {
+  (void)state;
+  char cmd[200];
   snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
-  assert_int_equal(system(cmd), 0);
+  return system(cmd) ? -1 : 0;
 }
 
 int main(void) {
@@ -441,6 +653,9 @@ int main(void) {
       cmocka_unit_test(test_registers_at_colour_resolution),
       cmocka_unit_test(test_registers_at_configured_resolution),
       cmocka_unit_test(test_calibration_files),
+      cmocka_unit_test(test_pair_record_smaller),
+      cmocka_unit_test(test_pair_record_larger),
+      cmocka_unit_test(test_pair_record_aspect),
   };
-  return cmocka_run_group_tests(tests, NULL, NULL);
+  return cmocka_run_group_tests(tests, make_dir, remove_dir);
 }

@@ -3,7 +3,8 @@
  * through the pairing's sinks with chosen timestamps (jitter, a stream
  * arriving late, frames missing on either side, a stalled stream). Every
  * record must hold a colour frame and the range frame of the same moment,
- * never a neighbour's; frames without a partner are counted. The rig is
+ * never a neighbour's; frames without a partner are counted, apart from
+ * those a camera sends before the other's first frame. The rig is
  * the identity (same camera, no offset), so the registered depth must be
  * the range image itself.
  */
@@ -174,25 +175,76 @@ static void test_faster_than_configured(void **state) {
   assert_int_equal(first, 2);
 }
 
-/* The range camera stops: colour frames overflow the queue and are
- * counted; when it comes back, pairing resumes with the right partners. */
+/* The range camera stops after a few pairs: colour frames overflow the
+ * queue and are counted unmatched (both had been streaming); when it comes
+ * back, pairing resumes with the right partners. */
 static void test_stalled_stream(void **state) {
   (void)state;
   const uint64_t t0 = 9000 * MS;
-  for (int k = 0; k < 10; k++) push_color(k, t0 + (uint64_t)k * 33 * MS);
-  assert_int_equal(vlff_pair_get_stats(pair)->pairs, 0);
+  for (int k = 0; k < 3; k++) {
+    push_color(k, t0 + (uint64_t)k * 33 * MS);
+    push_depth(k, t0 + (uint64_t)k * 33 * MS + MS);
+  }
+  for (int k = 3; k < 13; k++) push_color(k, t0 + (uint64_t)k * 33 * MS);
+  assert_int_equal(vlff_pair_get_stats(pair)->pairs, 3);
   assert_int_equal(vlff_pair_get_stats(pair)->unmatched_color, 6);
-  for (int k = 10; k < 15; k++) {
+  for (int k = 13; k < 18; k++) {
     uint64_t t = t0 + (uint64_t)k * 33 * MS;
     push_depth(k, t + MS);
     push_color(k, t);
   }
   int first = -1;
-  assert_int_equal(check_records(&first), 5);
-  assert_int_equal(first, 10);
+  assert_int_equal(check_records(&first), 8);
+  assert_int_equal(first, 0);
   /* the four colour frames still held when depth resumed are older than
    * every range frame: dropped, never paired */
-  assert_int_equal(vlff_pair_get_stats(pair)->unmatched_color, 10);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->unmatched_color, 10);
+  assert_int_equal(st->startup_color + st->startup_depth + st->unmatched_depth, 0);
+}
+
+/* One camera streams before the other is open: its frames before the
+ * other's first frame are start-up frames, not unmatched ones, whether they
+ * overflow the queue or meet the other's first frame too late. Frames just
+ * within the tolerance of that first frame still pair. */
+static void test_startup(void **state) {
+  (void)state;
+  const uint64_t t0 = 11000 * MS;
+  /* colour first: frames 0..6 alone, the range camera's first frame 3 ms
+   * after colour 7 */
+  for (int k = 0; k < 7; k++) push_color(k, t0 + (uint64_t)k * 33 * MS);
+  for (int k = 7; k < 12; k++) {
+    uint64_t t = t0 + (uint64_t)k * 33 * MS;
+    push_color(k, t);
+    push_depth(k, t + 3 * MS);
+  }
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 7);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->startup_color, 7);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth + st->startup_depth, 0);
+  /* then a colour frame is lost: that one is unmatched on the range side */
+  push_depth(12, t0 + 12 * 33 * MS);
+  push_color(13, t0 + 13 * 33 * MS);
+  push_depth(13, t0 + 13 * 33 * MS);
+  assert_int_equal(st->unmatched_depth, 1);
+  assert_int_equal(st->startup_depth, 0);
+}
+
+static void test_startup_range_first(void **state) {
+  (void)state;
+  const uint64_t t0 = 13000 * MS;
+  for (int k = 0; k < 3; k++) push_depth(k, t0 + (uint64_t)k * 33 * MS);
+  for (int k = 3; k < 6; k++) {
+    uint64_t t = t0 + (uint64_t)k * 33 * MS;
+    push_color(k, t);
+    push_depth(k, t + 2 * MS);
+  }
+  assert_int_equal(check_records(NULL), 3);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->startup_depth, 3);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth + st->startup_color, 0);
 }
 
 int main(void) {
@@ -202,6 +254,8 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_skew_and_gaps, setup, teardown),
       cmocka_unit_test_setup_teardown(test_stalled_stream, setup, teardown),
       cmocka_unit_test_setup_teardown(test_faster_than_configured, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_startup, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_startup_range_first, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -262,6 +262,17 @@ static void test_config_combinations(void **state) {
        "depth_camera: {kind: aravis, calibration: r.yaml}\n",
        "camera.intrinsics"},
       {"camera: {kind: aravis}\ndepth_camera: {kind: aravis, calibration: r.yaml}\n", "depth_camera.kind"},
+      {"camera: {kind: aravis, depth: stream}\ndepth_camera: {kind: aravis, calibration: r.yaml, register_width: 320}\n",
+       "depth_camera.register_height"},
+      {"camera: {kind: aravis, depth: stream}\nshm: {max_width: 640}\n"
+       "depth_camera: {kind: aravis, calibration: r.yaml, register_width: 1280, register_height: 960}\n",
+       "depth_camera.register_width"},
+      {"camera: {kind: aravis, depth: stream}\n"
+       "depth_camera: {kind: aravis, calibration: r.yaml, register_width: 8, register_height: 6}\n",
+       "depth_camera.register_width"},
+      {"camera: {kind: aravis, depth: stream, width: 640, height: 480}\n"
+       "depth_camera: {kind: aravis, calibration: r.yaml, register_width: 640, register_height: 360}\n",
+       "depth_camera.register_width"},
       {"camera: {kind: sim}\n", "camera.kind"},
       {"camera: {kind: aravis, intrinsics: [500, 0, 320, 240]}\n", "camera.intrinsics"},
       {"camera: {kind: aravis, distortion: [0.1, 0, 0, 0, 0]}\n", "camera.distortion"},
@@ -285,6 +296,12 @@ static void test_config_combinations(void **state) {
   const char *pair = "camera: {kind: aravis, depth: stream}\n"
                      "depth_camera: {kind: aravis, device: Fake, pixel_format: Coord3D_C16, calibration: r.yaml}\n";
   assert_int_equal(vlff_config_load_mem(pair, strlen(pair), "t.yaml", &c, err, sizeof err), 0);
+  if (vlff_camcfg_check(&c, "t.yaml", err, sizeof err)) fail_msg("%s", err);
+  /* A colour camera larger than the ring, registered down to a size the
+   * ring holds: the record's size is what the ring bounds. */
+  const char *big = "camera: {kind: aravis, depth: stream, width: 2560, height: 1920}\nshm: {max_width: 640}\n"
+                    "depth_camera: {kind: aravis, calibration: r.yaml, register_width: 640, register_height: 480}\n";
+  assert_int_equal(vlff_config_load_mem(big, strlen(big), "t.yaml", &c, err, sizeof err), 0);
   if (vlff_camcfg_check(&c, "t.yaml", err, sizeof err)) fail_msg("%s", err);
   /* the shipped RGB-D example passes the camera checks */
   char path[1024];
