@@ -41,21 +41,8 @@ struct vlff_pair {
   int out_w, out_h; /* the record's size, 0 x 0 = the colour frames' */
   uint64_t tol_ns;
   struct vlff_pair_stats st;
-  uint64_t logged;
+  uint64_t logged; /* drops warned of (vlff_warn_limited) */
 };
-
-static void warn_drop(struct vlff_pair *p, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void warn_drop(struct vlff_pair *p, const char *fmt, ...) {
-  /* log the first few, then every 1000th: the counters tell the rest */
-  if (p->logged++ < 5 || p->logged % 1000 == 0) {
-    char msg[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    VLFF_WARN(TAG, "%s", msg);
-  }
-}
 
 static struct held *oldest(struct fifo *q) { return q->n ? &q->f[q->head] : NULL; }
 static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
@@ -104,7 +91,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
     p->reg_dw = dm->width, p->reg_dh = dm->height, p->reg_cw = cm->width, p->reg_ch = cm->height;
     if (!p->reg) {
       p->st.dropped++;
-      warn_drop(p, "pair dropped: %s", err);
+      vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
       return;
     }
   }
@@ -115,7 +102,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
                               .depth_format = VLFF_DEPTH_FMT_U16_MM};
   if (p->out->reserve(p->out, &f, err, sizeof err)) {
     p->st.dropped++;
-    warn_drop(p, "pair dropped: %s", err);
+    vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
     return;
   }
   /* At another size the colour plane is resampled to the registration's
@@ -128,14 +115,14 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
                                 oh, err, sizeof err)) {
     p->out->abort(p->out, &f);
     p->st.dropped++;
-    warn_drop(p, "pair dropped: %s", err);
+    vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
     return;
   }
   if (vlff_depthreg_apply(p->reg, d->px, (size_t)dm->width * 2, 0.001, f.depth, f.depth_stride, err, sizeof err) <
       0) {
     p->out->abort(p->out, &f);
     p->st.dropped++;
-    warn_drop(p, "pair dropped: %s", err);
+    vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
     return;
   }
   f.device_frame_id = cm->device_frame_id;
@@ -149,7 +136,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   f.pose_ns = cm->pose_ns;
   if (p->out->commit(p->out, &f)) {
     p->st.dropped++;
-    warn_drop(p, "pair dropped: the output refused the commit");
+    vlff_warn_limited(&p->logged, TAG, "pair dropped: the output refused the commit");
     return;
   }
   p->st.pairs++;
