@@ -4,22 +4,7 @@
 # a burst of posters is answered one by one, and truncating the map, the mailbox or
 # the frame ring under the node and the simulator kills neither.
 set -u
-node=$1 shm=$2 sim=$3
-fails=0 passes=0
-check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
-tmp=$(mktemp -d)
-p=/mbx-$$
-cleanup() {
-  [[ -n ${simpid:-} ]] && kill "$simpid" 2>/dev/null
-  [[ -n ${nodepid:-} ]] && kill -9 "$nodepid" 2>/dev/null
-  rm -rf "$tmp"
-  rm -f /dev/shm$p-*
-}
-trap cleanup EXIT
-printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
-  "$tmp" $p $p $p $p >"$tmp/n.yaml"
-"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
-nodepid=$!
+. "$(dirname "$0")/node_sh.sh" mbx "$@"
 for ((i = 0; i < 200; i++)); do grep -q "waiting for ring" "$tmp/log" && break; sleep 0.1; done
 
 check "mailbox is group-writable (0660)" '[[ $(stat -c %a /dev/shm$p-p) == 660 ]]'

@@ -4,22 +4,7 @@
 # of a learning node, every refusal reason by name, and after the node stopped,
 # the counts it stopped with.
 set -u
-node=$1 shm=$2 sim=$3
-fails=0 passes=0
-check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
-tmp=$(mktemp -d)
-p=/nst-$$
-cleanup() {
-  [[ -n ${simpid:-} ]] && kill "$simpid" 2>/dev/null
-  [[ -n ${nodepid:-} ]] && kill -9 "$nodepid" 2>/dev/null
-  rm -rf "$tmp"
-  rm -f /dev/shm$p-*
-}
-trap cleanup EXIT
-printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
-  "$tmp" $p $p $p $p >"$tmp/n.yaml"
-"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
-nodepid=$!
+. "$(dirname "$0")/node_sh.sh" nst "$@"
 val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
 for ((i = 0; i < 200; i++)); do "$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val frames_in) ]] && break; sleep 0.1; done
 check "a waiting node's status: no frames yet, every reason listed at 0" \

@@ -1,0 +1,20 @@
+# Sourced by the node's shell tests (test_node_mailbox.sh, test_node_status.sh):
+# the check counter, a scratch directory, segments named /<prefix>-$$-*, and a
+# vlff-node started on the simulator source in the background ($nodepid), all
+# removed on exit. Usage: . node_sh.sh PREFIX NODE SHM SIM
+node=$2 shm=$3 sim=$4
+fails=0 passes=0
+check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
+tmp=$(mktemp -d)
+p=/$1-$$
+cleanup() {
+  [[ -n ${simpid:-} ]] && kill "$simpid" 2>/dev/null
+  [[ -n ${nodepid:-} ]] && kill -9 "$nodepid" 2>/dev/null
+  rm -rf "$tmp"
+  rm -f /dev/shm$p-*
+}
+trap cleanup EXIT
+printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
+  "$tmp" $p $p $p $p >"$tmp/n.yaml"
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
+nodepid=$!
