@@ -33,7 +33,7 @@ struct vlff_arv {
   ArvStream *stream;
   gulong lost_handler;
   atomic_bool lost;
-  struct vlff_config cfg;
+  struct vlff_cfg_camera cfg;
   char name[VLFF_CFG_STR];
   int w, h;
   size_t payload;
@@ -111,7 +111,7 @@ static ArvCamera *connect(const char *device, char *err, size_t errlen) {
 }
 
 static int configure(struct vlff_arv *a, char *err, size_t errlen) {
-  const __typeof__(a->cfg.camera) *c = &a->cfg.camera;
+  const struct vlff_cfg_camera *c = &a->cfg;
   ArvCamera *cam = a->cam;
   GError *e = NULL;
 
@@ -207,18 +207,18 @@ static int configure(struct vlff_arv *a, char *err, size_t errlen) {
   return 0;
 }
 
-struct vlff_arv *vlff_arv_open(const struct vlff_config *cfg, char *err, size_t errlen) {
+struct vlff_arv *vlff_arv_open(const struct vlff_cfg_camera *cfg, char *err, size_t errlen) {
   struct vlff_arv *a = calloc(1, sizeof *a);
   if (!a) {
     snprintf(err, errlen, "out of memory");
     return NULL;
   }
   a->cfg = *cfg;
-  snprintf(a->name, sizeof a->name, "%s", cfg->camera.device[0] ? cfg->camera.device : "(first found)");
+  snprintf(a->name, sizeof a->name, "%s", cfg->device[0] ? cfg->device : "(first found)");
   atomic_init(&a->lost, false);
   GError *e = NULL;
   open_errno = EINVAL;
-  a->cam = connect(cfg->camera.device, err, errlen);
+  a->cam = connect(cfg->device, err, errlen);
   if (!a->cam) {
     open_errno = ENODEV;
     goto fail;
@@ -245,10 +245,10 @@ struct vlff_arv *vlff_arv_open(const struct vlff_config *cfg, char *err, size_t 
   a->silent_since_ns = vlff_now_ns();
   VLFF_INFO(TAG, "'%s' (%s %s) streaming %dx%d %s, trigger %s, payload %zu bytes", a->name,
             arv_camera_get_vendor_name(a->cam, NULL), arv_camera_get_model_name(a->cam, NULL), a->w, a->h,
-            cfg->camera.pixel_format,
-            cfg->camera.trigger == VLFF_TRIG_FREERUN    ? "freerun"
-            : cfg->camera.trigger == VLFF_TRIG_SOFTWARE ? "software"
-                                                        : cfg->camera.trigger_line,
+            cfg->pixel_format,
+            cfg->trigger == VLFF_TRIG_FREERUN    ? "freerun"
+            : cfg->trigger == VLFF_TRIG_SOFTWARE ? "software"
+                                                        : cfg->trigger_line,
             a->payload);
   return a;
 fail:

@@ -38,7 +38,7 @@ struct vlff_arv_stats {
 };
 
 struct vlff_arv;
-struct vlff_arv *vlff_arv_open(const struct vlff_config *cfg, char *err, size_t errlen);
+struct vlff_arv *vlff_arv_open(const struct vlff_cfg_camera *cfg, char *err, size_t errlen);
 void vlff_arv_close(struct vlff_arv *a);
 int vlff_arv_grab(struct vlff_arv *a, int timeout_ms, struct vlff_pipe *pipe, struct vlff_sink *sink,
                   const struct vlff_pose_source *poses);

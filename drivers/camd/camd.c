@@ -69,7 +69,7 @@ static void sleep_ms(int ms) {
 /* The camera backends behind one shape. */
 struct backend {
   const char *name;
-  void *(*open)(const struct vlff_config *cfg, char *err, size_t errlen);
+  void *(*open)(const struct vlff_cfg_camera *cfg, char *err, size_t errlen);
   int (*grab)(void *cam, int timeout_ms, struct vlff_pipe *pipe, struct vlff_sink *sink,
               const struct vlff_pose_source *poses);
   int (*trigger)(void *cam, char *err, size_t errlen);
@@ -78,7 +78,7 @@ struct backend {
 };
 
 #ifdef VLFF_HAVE_ARAVIS
-static void *arv_open(const struct vlff_config *c, char *e, size_t l) { return vlff_arv_open(c, e, l); }
+static void *arv_open(const struct vlff_cfg_camera *c, char *e, size_t l) { return vlff_arv_open(c, e, l); }
 static int arv_grab(void *cam, int t, struct vlff_pipe *p, struct vlff_sink *s, const struct vlff_pose_source *ps) {
   return vlff_arv_grab(cam, t, p, s, ps);
 }
@@ -93,7 +93,7 @@ static const struct backend aravis_backend = {"aravis", arv_open, arv_grab, arv_
 #endif
 
 #ifdef VLFF_HAVE_LIBCAMERA
-static void *lc_open(const struct vlff_config *c, char *e, size_t l) { return vlff_lcam_open(c, e, l); }
+static void *lc_open(const struct vlff_cfg_camera *c, char *e, size_t l) { return vlff_lcam_open(c, e, l); }
 static int lc_grab(void *cam, int t, struct vlff_pipe *p, struct vlff_sink *s, const struct vlff_pose_source *ps) {
   return vlff_lcam_grab(cam, t, p, s, ps);
 }
@@ -139,7 +139,7 @@ static int slot_open(struct slot *s, const char *path) {
   char err[1024];
   uint64_t now = vlff_now_ns();
   if (now < s->next_try) return 0;
-  s->cam = s->be->open(&s->cfg, err, sizeof err);
+  s->cam = s->be->open(&s->cfg.camera, err, sizeof err);
   if (!s->cam) {
     if (errno != ENODEV) {
       fprintf(stderr, "vlff-camd: %s: %s%s\n", path, strcmp(s->what, "camera") ? "depth camera: " : "", err);
@@ -312,7 +312,7 @@ static int setup_cameras(struct camd *d) {
   }
   if (d->check_only) {
     /* the calibration is read by the pairing: check it here too */
-    if (paired && !(d->pair = vlff_pair_new(cfg, NULL, err, sizeof err))) {
+    if (paired && !(d->pair = vlff_pair_new(&cfg->depth_camera, &cfg->camera, NULL, err, sizeof err))) {
       fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
       return 2;
     }
@@ -335,7 +335,7 @@ static int setup_ring(struct camd *d) {
   color->poses = vlff_ringsink_poses(d->ring);
   color->sink = vlff_ringsink_sink(d->ring);
   if (d->nslots == 2) {
-    d->pair = vlff_pair_new(&d->cfg, vlff_ringsink_sink(d->ring), err, sizeof err);
+    d->pair = vlff_pair_new(&d->cfg.depth_camera, &d->cfg.camera, vlff_ringsink_sink(d->ring), err, sizeof err);
     if (!d->pair) {
       fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
       return 2;

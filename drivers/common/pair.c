@@ -230,14 +230,15 @@ static void depth_abort(struct vlff_sink *s, struct vlff_sink_frame *f) {
   ((struct vlff_pair *)s->ctx)->depth.reserved = false;
 }
 
-struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink *out, char *err, size_t errlen) {
+struct vlff_pair *vlff_pair_new(const struct vlff_cfg_depth_camera *dcam, const struct vlff_cfg_camera *cam,
+                               struct vlff_sink *out, char *err, size_t errlen) {
   struct vlff_pair *p = calloc(1, sizeof *p);
   if (!p) {
     snprintf(err, errlen, "pairing: out of memory");
     return NULL;
   }
   char e[512];
-  if (vlff_rgbd_calib_load(cfg->depth_camera.calibration, &p->calib, e, sizeof e)) {
+  if (vlff_rgbd_calib_load(dcam->calibration, &p->calib, e, sizeof e)) {
     snprintf(err, errlen, "key 'depth_camera.calibration': %s", e);
     free(p);
     return NULL;
@@ -245,9 +246,9 @@ struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink 
   /* A record size whose aspect cannot be the colour camera's is refused
    * here when the calibration or the config names the camera's size; else
    * the first pair finds out (and every pair is dropped, said in the log). */
-  const __typeof__(cfg->depth_camera) *d = &cfg->depth_camera;
-  int cw = p->calib.color_w ? p->calib.color_w : cfg->camera.width;
-  int ch = p->calib.color_w ? p->calib.color_h : cfg->camera.height;
+  const struct vlff_cfg_depth_camera *d = dcam;
+  int cw = p->calib.color_w ? p->calib.color_w : cam->width;
+  int ch = p->calib.color_w ? p->calib.color_h : cam->height;
   if (d->register_width && cw && ch && !vlff_depthreg_aspect_ok(d->register_width, d->register_height, cw, ch)) {
     snprintf(err, errlen,
              "key 'depth_camera.register_width': %dx%d is not the colour camera's aspect (%dx%d, within %g %%): "
@@ -258,7 +259,7 @@ struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink 
   }
   p->out_w = d->register_width, p->out_h = d->register_height;
   p->out = out;
-  p->tol_ns = (uint64_t)(cfg->depth_camera.pair_tolerance_s * 1e9);
+  p->tol_ns = (uint64_t)(dcam->pair_tolerance_s * 1e9);
   p->color_sink = (struct vlff_sink){color_reserve, color_commit, color_abort, p};
   p->depth_sink = (struct vlff_sink){depth_reserve, depth_commit, depth_abort, p};
   return p;

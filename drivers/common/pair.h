@@ -60,7 +60,10 @@ struct vlff_pair_stats {
 };
 
 struct vlff_pair;
-struct vlff_pair *vlff_pair_new(const struct vlff_config *cfg, struct vlff_sink *out, char *err, size_t errlen);
+/* From the depth_camera section; the camera section gives the colour
+ * camera's size when the calibration file does not. */
+struct vlff_pair *vlff_pair_new(const struct vlff_cfg_depth_camera *dcam, const struct vlff_cfg_camera *cam,
+                               struct vlff_sink *out, char *err, size_t errlen);
 void vlff_pair_free(struct vlff_pair *p);
 struct vlff_sink *vlff_pair_color_sink(struct vlff_pair *p);
 struct vlff_sink *vlff_pair_depth_sink(struct vlff_pair *p);

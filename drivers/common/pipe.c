@@ -58,7 +58,7 @@ static bool any_nonzero(const double *v, int n) {
 /* camera.depth: stream: a range camera (depth_camera.*) paired with the
  * colour camera by time, its depth registered into it. */
 static int check_depth_camera(const struct vlff_config *cfg, const char *file, char *err, size_t errlen) {
-  const __typeof__(cfg->depth_camera) *d = &cfg->depth_camera;
+  const struct vlff_cfg_depth_camera *d = &cfg->depth_camera;
   if (d->kind == VLFF_DCAM_NONE)
     BAD("camera.depth", "'stream' pairs the colour camera with a range camera: set depth_camera.kind "
                         "(aravis) and depth_camera.device");
@@ -103,7 +103,7 @@ static int check_depth_camera(const struct vlff_config *cfg, const char *file, c
 }
 
 int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err, size_t errlen) {
-  const __typeof__(cfg->camera) *c = &cfg->camera;
+  const struct vlff_cfg_camera *c = &cfg->camera;
   if (c->kind != VLFF_CAM_ARAVIS && c->kind != VLFF_CAM_LIBCAMERA)
     BAD("camera.kind", "expected aravis or libcamera (vlff-camd drives real cameras), got sim");
   vlff_pix_t pix = vlff_pix_from_name(c->pixel_format);
@@ -159,9 +159,9 @@ int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err
 }
 
 void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_config *out) {
-  const __typeof__(cfg->depth_camera) *d = &cfg->depth_camera;
+  const struct vlff_cfg_depth_camera *d = &cfg->depth_camera;
   *out = *cfg;
-  __typeof__(out->camera) *c = &out->camera;
+  struct vlff_cfg_camera *c = &out->camera;
   c->kind = VLFF_CAM_ARAVIS;
   snprintf(c->device, sizeof c->device, "%s", d->device);
   snprintf(c->pixel_format, sizeof c->pixel_format, "%s", d->pixel_format);

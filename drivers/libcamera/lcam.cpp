@@ -147,7 +147,7 @@ static bool pick_camera(vlff_lcam *c, const std::string &want, char *err, size_t
 }
 
 // One video stream in the configured format and size, exactly.
-static bool configure_stream(vlff_lcam *c, const struct vlff_config *cfg, const FormatName *fn, char *err,
+static bool configure_stream(vlff_lcam *c, const struct vlff_cfg_camera *cfg, const FormatName *fn, char *err,
                              size_t errlen) {
   c->config = c->cam->generateConfiguration({StreamRole::VideoRecording});
   if (!c->config || c->config->size() != 1) {
@@ -156,22 +156,22 @@ static bool configure_stream(vlff_lcam *c, const struct vlff_config *cfg, const 
   }
   StreamConfiguration &sc = c->config->at(0);
   sc.pixelFormat = fn->fmt;
-  if (cfg->camera.width && cfg->camera.height) sc.size = Size(cfg->camera.width, cfg->camera.height);
+  if (cfg->width && cfg->height) sc.size = Size(cfg->width, cfg->height);
   sc.bufferCount = 4;
   if (c->config->validate() == CameraConfiguration::Invalid) {
     fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera '%s' cannot be configured for %s", c->cam->id(),
-         cfg->camera.pixel_format);
+         cfg->pixel_format);
     return false;
   }
   if (sc.pixelFormat != fn->fmt) {
     fail(err, errlen, EINVAL, "key 'camera.pixel_format': camera offers %s instead of %s", sc.pixelFormat.toString(),
-         cfg->camera.pixel_format);
+         cfg->pixel_format);
     return false;
   }
-  if (cfg->camera.width && cfg->camera.height &&
-      (sc.size.width != (unsigned)cfg->camera.width || sc.size.height != (unsigned)cfg->camera.height)) {
+  if (cfg->width && cfg->height &&
+      (sc.size.width != (unsigned)cfg->width || sc.size.height != (unsigned)cfg->height)) {
     fail(err, errlen, EINVAL, "key 'camera.width': camera offers %s instead of the configured %s",
-         sc.size.toString(), std::to_string(cfg->camera.width) + "x" + std::to_string(cfg->camera.height));
+         sc.size.toString(), std::to_string(cfg->width) + "x" + std::to_string(cfg->height));
     return false;
   }
   if (c->cam->configure(c->config.get())) {
@@ -215,17 +215,17 @@ static bool map_buffers(vlff_lcam *c, char *err, size_t errlen) {
 
 // Exposure, gain and frame rate fixed as configured; streaming with every
 // request queued.
-static bool start_camera(vlff_lcam *c, const struct vlff_config *cfg, char *err, size_t errlen) {
+static bool start_camera(vlff_lcam *c, const struct vlff_cfg_camera *cfg, char *err, size_t errlen) {
   c->cam->requestCompleted.connect(c, &vlff_lcam::onCompleted);
   c->cam->disconnected.connect(c, &vlff_lcam::onDisconnected);
   ControlList ctrls(controls::controls);
   const ControlInfoMap &info = c->cam->controls();
   if (info.count(&controls::AeEnable)) ctrls.set(controls::AeEnable, false);
-  if (info.count(&controls::ExposureTime)) ctrls.set(controls::ExposureTime, (int32_t)cfg->camera.exposure_us);
+  if (info.count(&controls::ExposureTime)) ctrls.set(controls::ExposureTime, (int32_t)cfg->exposure_us);
   if (info.count(&controls::AnalogueGain))
-    ctrls.set(controls::AnalogueGain, (float)std::pow(10.0, cfg->camera.gain_db / 20.0));
+    ctrls.set(controls::AnalogueGain, (float)std::pow(10.0, cfg->gain_db / 20.0));
   if (info.count(&controls::FrameDurationLimits)) {
-    int64_t d = (int64_t)std::llround(1e6 / cfg->camera.frame_rate);
+    int64_t d = (int64_t)std::llround(1e6 / cfg->frame_rate);
     ctrls.set(controls::FrameDurationLimits, Span<const int64_t, 2>({d, d}));
   }
   if (c->cam->start(&ctrls)) {
@@ -241,15 +241,15 @@ static bool start_camera(vlff_lcam *c, const struct vlff_config *cfg, char *err,
   return true;
 }
 
-extern "C" struct vlff_lcam *vlff_lcam_open(const struct vlff_config *cfg, char *err, size_t errlen) {
+extern "C" struct vlff_lcam *vlff_lcam_open(const struct vlff_cfg_camera *cfg, char *err, size_t errlen) {
   vlff_lcam *c = nullptr;
   try {
     const FormatName *fn = nullptr;
     for (const auto &f : kFormats)
-      if (!std::strcmp(f.genicam, cfg->camera.pixel_format)) fn = &f;
+      if (!std::strcmp(f.genicam, cfg->pixel_format)) fn = &f;
     if (!fn) {
       fail(err, errlen, EINVAL, "key 'camera.pixel_format': libcamera backend takes RGB8, BGR8, Mono8 or Bayer*8, got '%s'",
-           cfg->camera.pixel_format);
+           cfg->pixel_format);
       return nullptr;
     }
     if (!g_cm) {
@@ -261,7 +261,7 @@ extern "C" struct vlff_lcam *vlff_lcam_open(const struct vlff_config *cfg, char 
       }
     }
     c = new vlff_lcam();
-    if (pick_camera(c, cfg->camera.device, err, errlen) && configure_stream(c, cfg, fn, err, errlen) &&
+    if (pick_camera(c, cfg->device, err, errlen) && configure_stream(c, cfg, fn, err, errlen) &&
         map_buffers(c, err, errlen) && start_camera(c, cfg, err, errlen)) {
       std::fprintf(stderr, "libcamera: '%s' streaming %s\n", c->cam->id().c_str(),
                    c->config->at(0).toString().c_str());

@@ -34,7 +34,7 @@ extern "C" {
 #endif
 
 struct vlff_lcam;
-struct vlff_lcam *vlff_lcam_open(const struct vlff_config *cfg, char *err, size_t errlen);
+struct vlff_lcam *vlff_lcam_open(const struct vlff_cfg_camera *cfg, char *err, size_t errlen);
 int vlff_lcam_grab(struct vlff_lcam *c, int timeout_ms, struct vlff_pipe *pipe, struct vlff_sink *sink,
                    const struct vlff_pose_source *poses);
 void vlff_lcam_close(struct vlff_lcam *c);

@@ -69,7 +69,7 @@ static void test_mono8_pattern_and_timestamps(void **state) {
   char err[512] = "";
   struct vlff_pipe *p = vlff_pipe_new(&cfg, err, sizeof err);
   assert_non_null(p);
-  struct vlff_arv *a = vlff_arv_open(&cfg, err, sizeof err);
+  struct vlff_arv *a = vlff_arv_open(&cfg.camera, err, sizeof err);
   if (!a) fail_msg("%s", err);
   struct vlff_memsink *m = vlff_memsink_new(8, 640, 480);
   uint64_t t0 = now_ns();
@@ -115,7 +115,7 @@ static void test_bayer_frames(void **state) {
   base_cfg(&cfg, "BayerRG8", 256, 64);
   char err[512] = "";
   struct vlff_pipe *p = vlff_pipe_new(&cfg, err, sizeof err);
-  struct vlff_arv *a = vlff_arv_open(&cfg, err, sizeof err);
+  struct vlff_arv *a = vlff_arv_open(&cfg.camera, err, sizeof err);
   if (!a) fail_msg("%s", err);
   struct vlff_memsink *m = vlff_memsink_new(2, 256, 64);
   int got = grab_n(a, p, m, 2, 5.0);
@@ -146,7 +146,7 @@ static void test_software_trigger(void **state) {
   cfg.camera.trigger = VLFF_TRIG_SOFTWARE;
   char err[512] = "";
   struct vlff_pipe *p = vlff_pipe_new(&cfg, err, sizeof err);
-  struct vlff_arv *a = vlff_arv_open(&cfg, err, sizeof err);
+  struct vlff_arv *a = vlff_arv_open(&cfg.camera, err, sizeof err);
   if (!a) fail_msg("%s", err);
   struct vlff_memsink *m = vlff_memsink_new(8, 160, 120);
   /* No triggers: nothing for well over the fake camera's 25 Hz tick. */
@@ -170,7 +170,7 @@ static void test_loss_and_reconnect(void **state) {
   base_cfg(&cfg, "Mono8", 160, 120);
   char err[512] = "";
   struct vlff_pipe *p = vlff_pipe_new(&cfg, err, sizeof err);
-  struct vlff_arv *a = vlff_arv_open(&cfg, err, sizeof err);
+  struct vlff_arv *a = vlff_arv_open(&cfg.camera, err, sizeof err);
   if (!a) fail_msg("%s", err);
   struct vlff_memsink *m = vlff_memsink_new(8, 160, 120);
   assert_int_equal(grab_n(a, p, m, 3, 5.0), 3);
@@ -181,12 +181,12 @@ static void test_loss_and_reconnect(void **state) {
   assert_int_equal(rc, -1);
   vlff_arv_close(a);
   /* While the camera is away, opening fails with a clear error. */
-  a = vlff_arv_open(&cfg, err, sizeof err);
+  a = vlff_arv_open(&cfg.camera, err, sizeof err);
   assert_null(a);
   assert_non_null(strstr(err, "camera.device"));
   cam_pid = fakecam_start(0);
   assert_true(cam_pid > 0);
-  a = vlff_arv_open(&cfg, err, sizeof err);
+  a = vlff_arv_open(&cfg.camera, err, sizeof err);
   if (!a) fail_msg("%s", err);
   assert_int_equal(grab_n(a, p, m, 3, 5.0), 3);
   vlff_memsink_free(m);
@@ -200,18 +200,18 @@ static void test_bad_values_name_the_key(void **state) {
   char err[512] = "";
   base_cfg(&cfg, "Mono8", 1024, 1024);
   cfg.camera.offset_x = 1500; /* sensor is 2048 wide */
-  struct vlff_arv *a = vlff_arv_open(&cfg, err, sizeof err);
+  struct vlff_arv *a = vlff_arv_open(&cfg.camera, err, sizeof err);
   assert_null(a);
   assert_non_null(strstr(err, "camera.offset_x"));
   assert_non_null(strstr(err, "2048"));
   base_cfg(&cfg, "Mono8", 64, 64);
   cfg.camera.exposure_us = 5; /* fake camera: 10 us minimum */
-  a = vlff_arv_open(&cfg, err, sizeof err);
+  a = vlff_arv_open(&cfg.camera, err, sizeof err);
   assert_null(a);
   assert_non_null(strstr(err, "camera.exposure_us"));
   base_cfg(&cfg, "Mono8", 64, 64);
   snprintf(cfg.camera.device, sizeof cfg.camera.device, "no-such-camera-%d", (int)getpid());
-  a = vlff_arv_open(&cfg, err, sizeof err);
+  a = vlff_arv_open(&cfg.camera, err, sizeof err);
   assert_null(a);
   assert_non_null(strstr(err, "camera.device"));
 }
@@ -228,7 +228,7 @@ static void test_lossy_link_counts_incomplete(void **state) {
   cfg.camera.packet_size = 1500;
   char err[512] = "";
   struct vlff_pipe *p = vlff_pipe_new(&cfg, err, sizeof err);
-  struct vlff_arv *a = vlff_arv_open(&cfg, err, sizeof err);
+  struct vlff_arv *a = vlff_arv_open(&cfg.camera, err, sizeof err);
   if (!a) fail_msg("%s", err);
   struct vlff_memsink *m = vlff_memsink_new(4, 640, 480);
   uint64_t end = now_ns() + 3000000000u;

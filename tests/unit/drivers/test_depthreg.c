@@ -350,7 +350,7 @@ static void check_pair_record(int ow, int oh) {
   cfg.depth_camera.register_width = ow, cfg.depth_camera.register_height = oh;
   struct vlff_memsink *ms = vlff_memsink_new(2, ow, oh);
   char err[512];
-  struct vlff_pair *p = vlff_pair_new(&cfg, vlff_memsink_sink(ms), err, sizeof err);
+  struct vlff_pair *p = vlff_pair_new(&cfg.depth_camera, &cfg.camera, vlff_memsink_sink(ms), err, sizeof err);
   if (!p) fail_msg("%s", err);
 
   struct vlff_sink *cs = vlff_pair_color_sink(p), *ds = vlff_pair_depth_sink(p);
@@ -449,7 +449,7 @@ static void test_pair_record_aspect(void **state) {
   cfg.depth_camera.register_width = 640, cfg.depth_camera.register_height = 360;
   char err[512];
   cfg.camera.width = CW, cfg.camera.height = CH;
-  assert_null(vlff_pair_new(&cfg, NULL, err, sizeof err));
+  assert_null(vlff_pair_new(&cfg.depth_camera, &cfg.camera, NULL, err, sizeof err));
   assert_non_null(strstr(err, "depth_camera.register_width"));
   assert_non_null(strstr(err, "aspect"));
   assert_null(vlff_depthreg_new(&c, DW, DH, CW, CH, 640, 360, err, sizeof err));

@@ -28,13 +28,13 @@ static void test_zero_cameras_is_a_clear_error(void **state) {
   snprintf(cfg.camera.device, sizeof cfg.camera.device, "0");
   char err[512] = "";
   errno = 0;
-  struct vlff_lcam *c = vlff_lcam_open(&cfg, err, sizeof err);
+  struct vlff_lcam *c = vlff_lcam_open(&cfg.camera, err, sizeof err);
   assert_null(c);
   assert_int_equal(errno, ENODEV);
   assert_non_null(strstr(err, "camera.device"));
   assert_non_null(strstr(err, "no cameras"));
   /* And again: the manager is restartable (vlff-camd retries). */
-  c = vlff_lcam_open(&cfg, err, sizeof err);
+  c = vlff_lcam_open(&cfg.camera, err, sizeof err);
   assert_null(c);
   assert_int_equal(errno, ENODEV);
 }
@@ -46,7 +46,7 @@ static void test_unknown_format_names_the_key(void **state) {
   cfg.camera.kind = VLFF_CAM_LIBCAMERA;
   snprintf(cfg.camera.pixel_format, sizeof cfg.camera.pixel_format, "Mono16");
   char err[512] = "";
-  assert_null(vlff_lcam_open(&cfg, err, sizeof err));
+  assert_null(vlff_lcam_open(&cfg.camera, err, sizeof err));
   assert_int_equal(errno, EINVAL);
   assert_non_null(strstr(err, "camera.pixel_format"));
 }

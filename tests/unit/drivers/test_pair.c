@@ -105,7 +105,7 @@ static int setup(void **state) {
   cfg.depth_camera.pair_tolerance_s = 0.005;
   out = vlff_memsink_new(64, W, H);
   char err[512];
-  pair = vlff_pair_new(&cfg, vlff_memsink_sink(out), err, sizeof err);
+  pair = vlff_pair_new(&cfg.depth_camera, &cfg.camera, vlff_memsink_sink(out), err, sizeof err);
   if (!pair) fail_msg("%s", err);
   return 0;
 }
