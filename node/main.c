@@ -114,6 +114,171 @@ static int write_snapshot(struct vlff_node *node, const char *dir, char *err, si
   return rc < 0 ? -1 : 0;
 }
 
+/* --check-config: what start-up would refuse is refused here too (the CAN
+ * keys together, the prompt embeddings file, the segments' group). */
+static int check_config(const char *path) {
+  struct vlff_config cfg;
+  char err[512];
+  if (vlff_config_load(path, &cfg, err, sizeof err)) {
+    fprintf(stderr, "%s\n", err);
+    return 1;
+  }
+#ifdef VLFF_HAVE_CAN
+  if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
+    fprintf(stderr, "%s: %s\n", path, err);
+    return 1;
+  }
+#endif
+  if (cfg.prompts.embeddings[0]) {
+    struct vlff_embeddings *e = vlff_embeddings_load(cfg.prompts.embeddings, cfg.field.feature_dim, err, sizeof err);
+    if (!e) {
+      fprintf(stderr, "%s: key 'prompts.embeddings': %s\n", path, err);
+      return 1;
+    }
+    vlff_embeddings_free(e);
+  }
+  if (cfg.shm.group[0]) {
+    char *end;
+    long gid = strtol(cfg.shm.group, &end, 10);
+    if (!(*end == 0 && gid >= 0) && !getgrnam(cfg.shm.group)) {
+      fprintf(stderr, "%s: key 'shm.group': no group '%s' on this machine\n", path, cfg.shm.group);
+      return 1;
+    }
+  }
+  vlff_config_dump(&cfg, stdout);
+  fprintf(stderr, "%s: OK\n", path);
+  return 0;
+}
+
+/* The running node and what main's loop feeds from it. */
+struct run {
+  struct vlff_config cfg;
+  struct vlff_sim_source *sim;
+  struct vlff_node *node;
+#ifdef VLFF_HAVE_CAN
+  struct vlff_can *can;
+  long long last_dropped;
+  double last_can;
+#endif
+#ifdef VLFF_HAVE_SYSTEMD
+  uint64_t wd_usec;
+  double last_wd;
+#endif
+  bool status_view;
+  double t0, last_line;
+};
+
+/* The node (with the simulator's hooks when the config uses them) and its
+ * CAN side. 0, or 1 with the reason logged. */
+static int start(struct run *r) {
+  char err[512];
+  struct vlff_source_hooks hooks;
+  r->sim = vlff_sim_source_create(&r->cfg, &hooks, err, sizeof err);
+  r->node = r->sim ? vlff_node_create(&r->cfg, &hooks, err, sizeof err) : NULL;
+  if (!r->node) {
+    VLFF_ERROR("node", "%s", err);
+    vlff_sim_source_destroy(r->sim);
+    return 1;
+  }
+#ifdef VLFF_HAVE_CAN
+  if (r->cfg.can.enabled) {
+    if (vlff_can_check_config(&r->cfg.can, err, sizeof err)) {
+      VLFF_ERROR("node", "%s", err);
+      vlff_node_destroy(r->node, false);
+      vlff_sim_source_destroy(r->sim);
+      return 1;
+    }
+    r->can = vlff_can_open(&r->cfg.can, r->cfg.prompts.set_count, on_can_command, r->node);
+    if (!r->can) VLFF_ERROR("node", "CAN on %s could not start; running without it", r->cfg.can.interface);
+  }
+#else
+  if (r->cfg.can.enabled) VLFF_WARN("node", "can.enabled, but this vlff-node was built without SocketCAN");
+#endif
+#ifdef VLFF_HAVE_SYSTEMD
+  /* Under systemd (Type=notify) the node is ready once its threads run; with
+   * WatchdogSec the watchdog is fed only while both the trainer and the
+   * ingest thread pass their loops, so a hung thread gets the node restarted
+   * even though this main loop still runs. Outside systemd these are no-ops. */
+  if (sd_watchdog_enabled(0, &r->wd_usec) <= 0) r->wd_usec = 0;
+  sd_notify(0, "READY=1");
+#endif
+  r->t0 = vlff_seconds();
+  return 0;
+}
+
+/* One pass of main's loop: the watchdog, CAN status, the --status line. */
+static void tick(struct run *r, double now) {
+  struct vlff_node_status st;
+#ifdef VLFF_HAVE_SYSTEMD
+  if (r->wd_usec && now - r->last_wd >= (double)r->wd_usec * 0.25e-6) {
+    vlff_node_status(r->node, &st);
+    uint64_t t = vlff_shm_now_ns(), stale = r->wd_usec * 500; /* half the period, in ns */
+    if (t - st.trainer_beat_ns < stale && t - st.ingest_beat_ns < stale) sd_notify(0, "WATCHDOG=1");
+    else VLFF_WARN("node", "watchdog not fed: trainer %.1f s, ingest %.1f s since their last loop",
+                   (double)(t - st.trainer_beat_ns) * 1e-9, (double)(t - st.ingest_beat_ns) * 1e-9);
+    r->last_wd = now;
+  }
+#endif
+#ifdef VLFF_HAVE_CAN
+  if (r->can && now - r->last_can >= 0.1) {
+    vlff_node_status(r->node, &st);
+    long long dropped = st.frames_lost + st.frames_invalid + st.poses_rejected;
+    can_publish_status(r->can, &st, (double)(dropped - r->last_dropped) / (now - r->last_can));
+    r->last_dropped = dropped;
+    r->last_can = now;
+  }
+#endif
+  if (r->status_view && now - r->last_line >= 0.5) {
+    r->last_line = now;
+    vlff_node_status(r->node, &st);
+    char m2[16] = "  -  ", m3[16] = "  -  ", why[256];
+    if (st.miou2d >= 0) snprintf(m2, sizeof m2, "%5.1f", st.miou2d);
+    if (st.miou3d >= 0) snprintf(m3, sizeof m3, "%5.1f", st.miou3d);
+    refusals_text(&st, why, sizeof why);
+    fprintf(stderr,
+            "\r[%6.1f s] frames %lld (%.1f/s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
+            "psnr %.1f | map v%llu mIoU 2D %s 3D %s   ",
+            now - r->t0, st.frames_in, st.fps_in, st.frames_invalid, why, st.keyframes, st.poses_rejected,
+            st.iteration, st.it_per_s, st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
+  }
+}
+
+/* Stops CAN first (its command callback points at the node), writes the
+ * snapshot, and the node's final checkpoint. The exit status. */
+static int finish(struct run *r, const char *snapshot_dir) {
+  if (r->status_view) fputc('\n', stderr);
+#ifdef VLFF_HAVE_SYSTEMD
+  sd_notify(0, "STOPPING=1");
+#endif
+  VLFF_INFO("node", "stopping (%s)", vlff_cli_stop == SIGTERM ? "SIGTERM"
+                                     : vlff_cli_stop == SIGINT ? "SIGINT"
+                                                                : "run_seconds reached");
+  struct vlff_node_status st;
+  vlff_node_status(r->node, &st);
+#ifdef VLFF_HAVE_CAN
+  vlff_can_close(r->can);
+#endif
+  int rc = 0;
+  char err[512];
+  if (snapshot_dir) {
+    if (write_snapshot(r->node, snapshot_dir, err, sizeof err)) {
+      VLFF_ERROR("node", "snapshot: %s", err);
+      rc = 1;
+    } else {
+      VLFF_INFO("node", "snapshot written to %s/strip.png and %s/map.ply", snapshot_dir, snapshot_dir);
+    }
+  }
+  vlff_node_destroy(r->node, true);
+  vlff_sim_source_destroy(r->sim);
+  char why[256];
+  refusals_text(&st, why, sizeof why);
+  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "
+            "%lld lost, %lld poses rejected, map version %llu",
+            st.iteration, st.keyframes, st.keyframes_evicted, st.frames_in, st.frames_invalid, why, st.frames_lost,
+            st.poses_rejected, (unsigned long long)st.map_version);
+  return rc;
+}
+
 int main(int argc, char **argv) {
   enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT };
   static const struct option opts[] = {
@@ -123,173 +288,38 @@ int main(int argc, char **argv) {
       {"snapshot", required_argument, NULL, OPT_SNAPSHOT},
       VLFF_CLI_COMMON_OPTIONS,
   };
+  static struct run r;
   const char *config_path = NULL, *check_path = NULL, *snapshot_dir = NULL;
-  int status_view = 0, c, exit_status;
+  int c, exit_status;
   while ((c = vlff_cli_next(&cli, argc, argv, "c:", opts, &exit_status)) != -1) {
     switch (c) {
     case VLFF_CLI_EXIT: return exit_status;
     case 'c': config_path = optarg; break;
     case OPT_CHECK: check_path = optarg; break;
-    case OPT_STATUS: status_view = 1; break;
+    case OPT_STATUS: r.status_view = true; break;
     case OPT_SNAPSHOT: snapshot_dir = optarg; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
   if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
-
-  struct vlff_config cfg;
-  char err[512];
-  if (check_path) {
-    if (vlff_config_load(check_path, &cfg, err, sizeof err)) {
-      fprintf(stderr, "%s\n", err);
-      return 1;
-    }
-#ifdef VLFF_HAVE_CAN
-    if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
-      fprintf(stderr, "%s: %s\n", check_path, err);
-      return 1;
-    }
-#endif
-    /* What start-up would refuse, --check-config refuses too: the prompt
-     * embeddings file and the segments' group. */
-    if (cfg.prompts.embeddings[0]) {
-      struct vlff_embeddings *e = vlff_embeddings_load(cfg.prompts.embeddings, cfg.field.feature_dim, err, sizeof err);
-      if (!e) {
-        fprintf(stderr, "%s: key 'prompts.embeddings': %s\n", check_path, err);
-        return 1;
-      }
-      vlff_embeddings_free(e);
-    }
-    if (cfg.shm.group[0]) {
-      char *end;
-      long gid = strtol(cfg.shm.group, &end, 10);
-      if (!(*end == 0 && gid >= 0) && !getgrnam(cfg.shm.group)) {
-        fprintf(stderr, "%s: key 'shm.group': no group '%s' on this machine\n", check_path, cfg.shm.group);
-        return 1;
-      }
-    }
-    vlff_config_dump(&cfg, stdout);
-    fprintf(stderr, "%s: OK\n", check_path);
-    return 0;
-  }
+  if (check_path) return check_config(check_path);
   /* Never the built-in defaults: a node started by mistake would create
    * segments and write checkpoints nobody asked for. */
+  char err[512];
   config_path = vlff_config_find(config_path, err, sizeof err);
   if (!config_path) return vlff_cli_error(&cli, "%s", err);
-  if (vlff_config_load(config_path, &cfg, err, sizeof err)) {
+  if (vlff_config_load(config_path, &r.cfg, err, sizeof err)) {
     fprintf(stderr, "%s\n", err);
     return 1;
   }
-  vlff_log_set_level(cfg.node.log_level);
-
+  vlff_log_set_level(r.cfg.node.log_level);
   vlff_cli_catch_stop();
-
   VLFF_INFO("node", "vlff-node %s starting, config %s", vlff_version(), config_path);
-  /* The simulator's features and ground truth, when the config uses them. */
-  struct vlff_source_hooks hooks;
-  struct vlff_sim_source *sim = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  struct vlff_node *node = sim ? vlff_node_create(&cfg, &hooks, err, sizeof err) : NULL;
-  if (!node) {
-    VLFF_ERROR("node", "%s", err);
-    vlff_sim_source_destroy(sim);
-    return 1;
-  }
-#ifdef VLFF_HAVE_CAN
-  struct vlff_can *can = NULL;
-  if (cfg.can.enabled) {
-    if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
-      VLFF_ERROR("node", "%s", err);
-      vlff_node_destroy(node, false);
-      vlff_sim_source_destroy(sim);
-      return 1;
-    }
-    can = vlff_can_open(&cfg.can, cfg.prompts.set_count, on_can_command, node);
-    if (!can) VLFF_ERROR("node", "CAN on %s could not start; running without it", cfg.can.interface);
-  }
-  long long last_dropped = 0;
-  double last_can = 0;
-#else
-  if (cfg.can.enabled) VLFF_WARN("node", "can.enabled, but this vlff-node was built without SocketCAN");
-#endif
-#ifdef VLFF_HAVE_SYSTEMD
-  /* Under systemd (Type=notify) the node is ready once its threads run; with
-   * WatchdogSec the watchdog is fed only while both the trainer and the
-   * ingest thread pass their loops, so a hung thread gets the node restarted
-   * even though this main loop still runs. Outside systemd these are no-ops. */
-  uint64_t wd_usec = 0;
-  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
-  sd_notify(0, "READY=1");
-  double last_wd = 0;
-#endif
-  double t0 = vlff_seconds(), last_line = 0;
-  while (!vlff_cli_stop && !vlff_node_finished(node)) {
+  if (start(&r)) return 1;
+  while (!vlff_cli_stop && !vlff_node_finished(r.node)) {
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
-    double now = vlff_seconds();
-#ifdef VLFF_HAVE_SYSTEMD
-    if (wd_usec && now - last_wd >= (double)wd_usec * 0.25e-6) {
-      struct vlff_node_status st;
-      vlff_node_status(node, &st);
-      uint64_t t = vlff_shm_now_ns(), stale = wd_usec * 500; /* half the period, in ns */
-      if (t - st.trainer_beat_ns < stale && t - st.ingest_beat_ns < stale) sd_notify(0, "WATCHDOG=1");
-      else VLFF_WARN("node", "watchdog not fed: trainer %.1f s, ingest %.1f s since their last loop",
-                     (double)(t - st.trainer_beat_ns) * 1e-9, (double)(t - st.ingest_beat_ns) * 1e-9);
-      last_wd = now;
-    }
-#endif
-#ifdef VLFF_HAVE_CAN
-    if (can && now - last_can >= 0.1) {
-      struct vlff_node_status st;
-      vlff_node_status(node, &st);
-      long long dropped = st.frames_lost + st.frames_invalid + st.poses_rejected;
-      can_publish_status(can, &st, (double)(dropped - last_dropped) / (now - last_can));
-      last_dropped = dropped;
-      last_can = now;
-    }
-#endif
-    if (status_view && now - last_line >= 0.5) {
-      last_line = now;
-      struct vlff_node_status st;
-      vlff_node_status(node, &st);
-      char m2[16] = "  -  ", m3[16] = "  -  ", why[256];
-      if (st.miou2d >= 0) snprintf(m2, sizeof m2, "%5.1f", st.miou2d);
-      if (st.miou3d >= 0) snprintf(m3, sizeof m3, "%5.1f", st.miou3d);
-      refusals_text(&st, why, sizeof why);
-      fprintf(stderr,
-              "\r[%6.1f s] frames %lld (%.1f/s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
-              "psnr %.1f | map v%llu mIoU 2D %s 3D %s   ",
-              now - t0, st.frames_in, st.fps_in, st.frames_invalid, why, st.keyframes, st.poses_rejected,
-              st.iteration, st.it_per_s, st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
-    }
+    tick(&r, vlff_seconds());
   }
-  if (status_view) fputc('\n', stderr);
-#ifdef VLFF_HAVE_SYSTEMD
-  sd_notify(0, "STOPPING=1");
-#endif
-  VLFF_INFO("node", "stopping (%s)", vlff_cli_stop == SIGTERM ? "SIGTERM"
-                                     : vlff_cli_stop == SIGINT ? "SIGINT"
-                                                                : "run_seconds reached");
-  struct vlff_node_status st;
-  vlff_node_status(node, &st);
-#ifdef VLFF_HAVE_CAN
-  vlff_can_close(can); /* first: its command callback points at the node */
-#endif
-  int rc = 0;
-  if (snapshot_dir) {
-    if (write_snapshot(node, snapshot_dir, err, sizeof err)) {
-      VLFF_ERROR("node", "snapshot: %s", err);
-      rc = 1;
-    } else {
-      VLFF_INFO("node", "snapshot written to %s/strip.png and %s/map.ply", snapshot_dir, snapshot_dir);
-    }
-  }
-  vlff_node_destroy(node, true);
-  vlff_sim_source_destroy(sim);
-  char why[256];
-  refusals_text(&st, why, sizeof why);
-  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "
-            "%lld lost, %lld poses rejected, map version %llu",
-            st.iteration, st.keyframes, st.keyframes_evicted, st.frames_in, st.frames_invalid, why, st.frames_lost,
-            st.poses_rejected, (unsigned long long)st.map_version);
-  return rc;
+  return finish(&r, snapshot_dir);
 }
