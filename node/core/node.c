@@ -608,12 +608,11 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
 
   if (n->hooks.features) {
     const struct vlff_source_hooks *src = &n->hooks;
-    char err[256];
+    char err[256] = "no memory";
     c->features = malloc((size_t)src->feat_width * src->feat_height * cfg->field.feature_dim * sizeof(uint16_t));
     if (!c->features || src->features(src->ctx, id, c->features, err, sizeof err)) {
       candidate_free(c);
-      refuse(n, &ig->rl, VLFF_REFUSED_NO_FEATURES, id, "the source's features unavailable: %s",
-             c->features ? err : "no memory");
+      refuse(n, &ig->rl, VLFF_REFUSED_NO_FEATURES, id, "the source's features unavailable: %s", err);
       return;
     }
     v->features = c->features;
