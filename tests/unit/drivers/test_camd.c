@@ -238,22 +238,27 @@ static void test_software_trigger_one_frame_each(void **state) {
   cleanup();
 }
 
-static void test_reconnects_after_camera_restart(void **state) {
-  (void)state;
-  write_cfg("Mono8", 160, 120, NULL);
-  pid_t pid = spawn_camd(NULL);
-  struct vlff_ring *r = attach();
-  for (int k = 0; k < 100 && vlff_ring_head(r) < 10; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= 10);
+/* Once `want` entries are in the ring (within wait_tries polls), the fake
+ * camera loses power for 1.5 s and comes back; `want` more entries follow. */
+static void restart_camera(struct vlff_ring *r, uint64_t want, int wait_tries) {
+  for (int k = 0; k < wait_tries && vlff_ring_head(r) < want; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= want);
   fakecam_kill(cam_pid);
   sleep_ms(1500);
   uint64_t during = vlff_ring_head(r);
   cam_pid = fakecam_start(0);
   assert_true(cam_pid > 0);
-  /* The ring stayed, the driver kept running, frames flow again. */
-  int k;
-  for (k = 0; k < 400 && vlff_ring_head(r) < during + 10; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= during + 10);
+  for (int k = 0; k < 400 && vlff_ring_head(r) < during + want; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= during + want);
+}
+
+static void test_reconnects_after_camera_restart(void **state) {
+  (void)state;
+  write_cfg("Mono8", 160, 120, NULL);
+  pid_t pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach();
+  /* The ring stays, the driver keeps running, frames flow again. */
+  restart_camera(r, 10, 100);
   assert_int_equal(kill(pid, 0), 0);
   uint32_t gen = vlff_ring_generation(r);
   kill(pid, SIGTERM);
@@ -426,15 +431,7 @@ static void test_pair_survives_camera_restart(void **state) {
   write_pair_cfg(NULL);
   pid_t pid = spawn_camd(NULL);
   struct vlff_ring *r = attach();
-  for (int k = 0; k < 200 && vlff_ring_head(r) < 5; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= 5);
-  fakecam_kill(cam_pid);
-  sleep_ms(1500);
-  uint64_t during = vlff_ring_head(r);
-  cam_pid = fakecam_start(0);
-  assert_true(cam_pid > 0);
-  for (int k = 0; k < 400 && vlff_ring_head(r) < during + 5; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= during + 5);
+  restart_camera(r, 5, 200);
   kill(pid, SIGTERM);
   assert_int_equal(wait_exit(pid, 15), 0);
   assert_int_equal(stat_of("lost"), 1);
