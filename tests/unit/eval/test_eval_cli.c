@@ -15,7 +15,7 @@
 #include <cmocka.h>
 #include <json-c/json.h>
 
-static char tmp[256];
+static char tmp[256], cfg[300];
 
 static void run(const char *cmd, char *last, size_t cap) {
   FILE *p = popen(cmd, "r");
@@ -45,10 +45,11 @@ static double field(const char *res, const char *key) {
   return atof(p + strlen(k));
 }
 
-/* A fresh scratch directory in tmp, named after the test. */
-static void tmp_make(const char *what) {
-  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-%s-%ld-XXXXXX", what, (long)getpid());
-  assert_non_null(mkdtemp(tmp));
+static void write_text(const char *path, const char *text) {
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  fputs(text, f);
+  fclose(f);
 }
 
 static void tmp_remove(void) {
@@ -57,16 +58,12 @@ static void tmp_remove(void) {
   assert_int_equal(system(cmd), 0);
 }
 
-static void write_text(const char *path, const char *text) {
-  FILE *f = fopen(path, "w");
-  assert_non_null(f);
-  fputs(text, f);
-  fclose(f);
-}
-
-/* The configuration `text` as tmp/c.yaml, its path in cfg. */
-static void write_cfg(char *cfg, size_t cap, const char *text) {
-  snprintf(cfg, cap, "%s/c.yaml", tmp);
+/* A fresh scratch directory in tmp, named after the test, holding the
+ * configuration `text` at cfg (tmp/c.yaml). */
+static void start(const char *what, const char *text) {
+  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-%s-%ld-XXXXXX", what, (long)getpid());
+  assert_non_null(mkdtemp(tmp));
+  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
   write_text(cfg, text);
 }
 
@@ -89,9 +86,8 @@ static void test_dataset_matches_synthetic(void **state) {
   char sim[1024], eval[1024];
   prog(sim, sizeof sim, "node/sim/vlff-sim");
   prog(eval, sizeof eval, "node/eval/vlff-eval");
-  tmp_make("cli");
-  char cfg[512], cmd[4096], a[1024], b[1024];
-  write_cfg(cfg, sizeof cfg, "sim:\n  width: 96\n  height: 72\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n");
+  start("cli", "sim:\n  width: 96\n  height: 72\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n");
+  char cmd[4096], a[1024], b[1024];
   snprintf(cmd, sizeof cmd, "%s --config %s --quiet --write-dataset %s/ds", sim, cfg, tmp);
   assert_int_equal(system(cmd), 0);
   snprintf(cmd, sizeof cmd, "%s --config %s --iters 0 --quiet --holdout 4 --out %s/a 2>/dev/null", eval, cfg, tmp);
@@ -220,12 +216,11 @@ static void test_small_fit_beats_raw(void **state) {
   (void)state;
   char eval[1024];
   prog(eval, sizeof eval, "node/eval/vlff-eval");
-  tmp_make("fit");
-  char cfg[512], cmd[4096], r[1024];
-  write_cfg(cfg, sizeof cfg,
-            "node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  frames: 32\n"
-            "field:\n  feature_dim: 16\n  hash_log2_size: 15\n  finest_resolution: 256\n  feature_width: 32\n"
-            "train:\n  rays_per_step: 512\n  samples_per_ray: 24\n  feature_loss: l1\n");
+  start("fit",
+        "node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  frames: 32\n"
+        "field:\n  feature_dim: 16\n  hash_log2_size: 15\n  finest_resolution: 256\n  feature_width: 32\n"
+        "train:\n  rays_per_step: 512\n  samples_per_ray: 24\n  feature_loss: l1\n");
+  char cmd[4096], r[1024];
   snprintf(cmd, sizeof cmd, "%s --config %s --iters 300 --holdout 4 --quiet --overlays 1 --out %s/o 2>/dev/null", eval,
            cfg, tmp);
   run(cmd, r, sizeof r);
@@ -247,12 +242,11 @@ static void test_fit_seconds_and_per_class(void **state) {
   (void)state;
   char eval[1024];
   prog(eval, sizeof eval, "node/eval/vlff-eval");
-  tmp_make("secs");
-  char cfg[512], cmd[4096];
-  write_cfg(cfg, sizeof cfg,
-            "node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  frames: 8\n"
-            "field:\n  feature_dim: 16\n  hash_log2_size: 12\n  finest_resolution: 64\n  feature_width: 16\n"
-            "train:\n  rays_per_step: 64\n  samples_per_ray: 8\n");
+  start("secs",
+        "node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  frames: 8\n"
+        "field:\n  feature_dim: 16\n  hash_log2_size: 12\n  finest_resolution: 64\n  feature_width: 16\n"
+        "train:\n  rays_per_step: 64\n  samples_per_ray: 8\n");
+  char cmd[4096];
   snprintf(cmd, sizeof cmd, "%s --config %s --fit-seconds 0.5 --holdout 4 --quiet --overlays 0 --out %s/o 2>/dev/null",
            eval, cfg, tmp);
   FILE *p = popen(cmd, "r");
