@@ -11,6 +11,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <signal.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -237,22 +238,27 @@ static void test_software_trigger_one_frame_each(void **state) {
   cleanup();
 }
 
-static void test_reconnects_after_camera_restart(void **state) {
-  (void)state;
-  write_cfg("Mono8", 160, 120, NULL);
-  pid_t pid = spawn_camd(NULL);
-  struct vlff_ring *r = attach();
-  for (int k = 0; k < 100 && vlff_ring_head(r) < 10; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= 10);
+/* Once `want` entries are in the ring (within wait_tries polls), the fake
+ * camera loses power for 1.5 s and comes back; `want` more entries follow. */
+static void restart_camera(struct vlff_ring *r, uint64_t want, int wait_tries) {
+  for (int k = 0; k < wait_tries && vlff_ring_head(r) < want; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= want);
   fakecam_kill(cam_pid);
   sleep_ms(1500);
   uint64_t during = vlff_ring_head(r);
   cam_pid = fakecam_start(0);
   assert_true(cam_pid > 0);
-  /* The ring stayed, the driver kept running, frames flow again. */
-  int k;
-  for (k = 0; k < 400 && vlff_ring_head(r) < during + 10; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= during + 10);
+  for (int k = 0; k < 400 && vlff_ring_head(r) < during + want; k++) sleep_ms(50);
+  assert_true(vlff_ring_head(r) >= during + want);
+}
+
+static void test_reconnects_after_camera_restart(void **state) {
+  (void)state;
+  write_cfg("Mono8", 160, 120, NULL);
+  pid_t pid = spawn_camd(NULL);
+  struct vlff_ring *r = attach();
+  /* The ring stays, the driver keeps running, frames flow again. */
+  restart_camera(r, 10, 100);
   assert_int_equal(kill(pid, 0), 0);
   uint32_t gen = vlff_ring_generation(r);
   kill(pid, SIGTERM);
@@ -303,25 +309,72 @@ static void write_pair_cfg(const char *depth_extra) {
   write_cfg("Mono8", 320, 240, extra);
 }
 
-static void test_pairs_colour_and_range(void **state) {
-  (void)state;
-  write_pair_cfg(NULL);
-  pid_t pid = spawn_camd("12");
+/* vlff-camd run on the pair for `frames` records, all committed; the ring
+ * is returned read from its oldest record, *buf sized for one of them. */
+static struct vlff_ring *run_pair(const char *depth_extra, const char *frames, void **buf) {
+  write_pair_cfg(depth_extra);
+  pid_t pid = spawn_camd(frames);
   struct vlff_ring *r = attach();
   vlff_ring_seek_oldest(r);
   assert_int_equal(wait_exit(pid, 60), 0);
-  assert_int_equal(vlff_ring_head(r), 12);
+  assert_int_equal(vlff_ring_head(r), atoi(frames));
+  *buf = malloc(vlff_ring_slot_size(r));
+  assert_non_null(*buf);
+  return r;
+}
+
+/* The next record, valid and holding two planes: colour and range. */
+static const struct vlff_frame_hdr *next_pair(struct vlff_ring *r, void *buf) {
+  struct vlff_ring_view v;
+  ssize_t len = vlff_ring_read_copy(r, buf, vlff_ring_slot_size(r), &v, 0);
+  assert_true(len > 0);
+  assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
+  const struct vlff_frame_hdr *hd = buf;
+  assert_int_equal(hd->nplanes, 2);
+  return hd;
+}
+
+/* Record n's depth plane holds the fake range camera's ramp along x + y,
+ * landed edge to edge: constant along anti-diagonals, and valid at both
+ * side edges in at least border_min rows. With step_256 (at the range
+ * camera's own size) it also rises by 256 counts a pixel in x until it
+ * wraps. A shifted or resampled image breaks the ramp or leaves a border
+ * empty. */
+static void check_range_ramp(int n, const struct vlff_frame_hdr *hd, const void *buf, bool step_256, int border_min) {
+  const uint8_t *dp = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+  const size_t ds = hd->plane[VLFF_PLANE_DEPTH].stride;
+  const int w = (int)hd->plane[VLFF_PLANE_DEPTH].width, h = (int)hd->plane[VLFF_PLANE_DEPTH].height;
+#define D(x, y) (((const uint16_t *)(dp + (size_t)(y) * ds))[x])
+  int border = 0;
+  for (int y = 0; y < h; y++) {
+    border += D(0, y) != 0 && D(w - 1, y) != 0;
+    for (int x = 0; x < w - 1; x++) {
+      uint16_t a = D(x, y), b = D(x + 1, y);
+      if (step_256 && a && b && b != a + 256 && b > a) fail_msg("record %d depth (%d,%d): %u then %u", n, x, y, a, b);
+      if (y && D(x, y) != D(x + 1, y - 1))
+        fail_msg("record %d depth (%d,%d) = %u, (%d,%d) = %u", n, x, y, D(x, y), x + 1, y - 1, D(x + 1, y - 1));
+    }
+  }
+#undef D
+  assert_true(border >= border_min);
+}
+
+static void pair_done(struct vlff_ring *r, void *buf) {
+  free(buf);
+  vlff_ring_close(r);
+  unlink(rig_path);
+  cleanup();
+}
+
+static void test_pairs_colour_and_range(void **state) {
+  (void)state;
+  void *buf;
+  struct vlff_ring *r = run_pair(NULL, "12", &buf);
   assert_int_equal(stat_of("committed"), 12);
   assert_true(stat_of("unmatched_color") != UINT64_MAX && stat_of("unmatched_depth") != UINT64_MAX);
   assert_true(stat_of("color_frames") >= 12 && stat_of("depth_frames") >= 12);
-  void *buf = malloc(vlff_ring_slot_size(r));
   for (int n = 0; n < 12; n++) {
-    struct vlff_ring_view v;
-    ssize_t len = vlff_ring_read_copy(r, buf, vlff_ring_slot_size(r), &v, 0);
-    assert_true(len > 0);
-    assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
-    const struct vlff_frame_hdr *hd = buf;
-    assert_int_equal(hd->nplanes, 2);
+    const struct vlff_frame_hdr *hd = next_pair(r, buf);
     assert_int_equal(hd->plane[VLFF_PLANE_COLOR].format, VLFF_PIX_RGB8);
     assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].format, VLFF_PIX_DEPTH_U16_MM);
     assert_int_equal(hd->plane[VLFF_PLANE_DEPTH].width, 320);
@@ -334,29 +387,10 @@ static void test_pairs_colour_and_range(void **state) {
       for (int x = 0; x < 320; x += 5)
         assert_int_equal(px[(size_t)y * hd->plane[0].stride + (size_t)x * 3], (x + y + hd->frame_id) % 255);
     /* depth: the fake range camera's image at one millimetre per count,
-     * a ramp along x + y (constant along anti-diagonals, +256 counts per
-     * pixel in x until it wraps), landing pixel for pixel: a shifted or
-     * resampled image would break the ramp or leave a border empty. */
-    const uint8_t *dp = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
-    const size_t ds = hd->plane[VLFF_PLANE_DEPTH].stride;
-#define D(x, y) (((const uint16_t *)(dp + (size_t)(y) * ds))[x])
-    int border = 0;
-    for (int y = 0; y < 240; y++) {
-      border += D(0, y) != 0 && D(319, y) != 0;
-      for (int x = 0; x < 319; x++) {
-        uint16_t a = D(x, y), b = D(x + 1, y);
-        if (a && b && b != a + 256 && b > a) fail_msg("record %d depth (%d,%d): %u then %u", n, x, y, a, b);
-        if (y && D(x, y) != D(x + 1, y - 1))
-          fail_msg("record %d depth (%d,%d) = %u, (%d,%d) = %u", n, x, y, D(x, y), x + 1, y - 1, D(x + 1, y - 1));
-      }
-    }
-#undef D
-    assert_true(border >= 230);
+     * landing pixel for pixel */
+    check_range_ramp(n, hd, buf, true, 230);
   }
-  free(buf);
-  vlff_ring_close(r);
-  unlink(rig_path);
-  cleanup();
+  pair_done(r, buf);
 }
 
 /* The same pair registered at half the colour camera's size
@@ -366,20 +400,10 @@ static void test_pairs_colour_and_range(void **state) {
  * at that size (still constant along anti-diagonals, edge to edge). */
 static void test_pairs_at_register_size(void **state) {
   (void)state;
-  write_pair_cfg("  register_width: 160\n  register_height: 120\n");
-  pid_t pid = spawn_camd("6");
-  struct vlff_ring *r = attach();
-  vlff_ring_seek_oldest(r);
-  assert_int_equal(wait_exit(pid, 60), 0);
-  assert_int_equal(vlff_ring_head(r), 6);
-  void *buf = malloc(vlff_ring_slot_size(r));
+  void *buf;
+  struct vlff_ring *r = run_pair("  register_width: 160\n  register_height: 120\n", "6", &buf);
   for (int n = 0; n < 6; n++) {
-    struct vlff_ring_view v;
-    ssize_t len = vlff_ring_read_copy(r, buf, vlff_ring_slot_size(r), &v, 0);
-    assert_true(len > 0);
-    assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
-    const struct vlff_frame_hdr *hd = buf;
-    assert_int_equal(hd->nplanes, 2);
+    const struct vlff_frame_hdr *hd = next_pair(r, buf);
     for (int pl = 0; pl < 2; pl++) {
       assert_int_equal(hd->plane[pl].width, 160);
       assert_int_equal(hd->plane[pl].height, 120);
@@ -394,23 +418,9 @@ static void test_pairs_at_register_size(void **state) {
         if (a > 252) continue; /* the ramp wraps inside this block */
         assert_int_equal(px[(size_t)y * hd->plane[0].stride + (size_t)x * 3], a + 1);
       }
-    const uint8_t *dp = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
-    const size_t ds = hd->plane[VLFF_PLANE_DEPTH].stride;
-#define D(x, y) (((const uint16_t *)(dp + (size_t)(y) * ds))[x])
-    int border = 0;
-    for (int y = 0; y < 120; y++) {
-      border += D(0, y) != 0 && D(159, y) != 0;
-      for (int x = 0; x < 159; x++)
-        if (y && D(x, y) != D(x + 1, y - 1))
-          fail_msg("record %d depth (%d,%d) = %u, (%d,%d) = %u", n, x, y, D(x, y), x + 1, y - 1, D(x + 1, y - 1));
-    }
-#undef D
-    assert_true(border >= 115);
+    check_range_ramp(n, hd, buf, false, 115);
   }
-  free(buf);
-  vlff_ring_close(r);
-  unlink(rig_path);
-  cleanup();
+  pair_done(r, buf);
 }
 
 /* The colour camera of a pair loses power and comes back: the range
@@ -421,24 +431,14 @@ static void test_pair_survives_camera_restart(void **state) {
   write_pair_cfg(NULL);
   pid_t pid = spawn_camd(NULL);
   struct vlff_ring *r = attach();
-  for (int k = 0; k < 200 && vlff_ring_head(r) < 5; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= 5);
-  fakecam_kill(cam_pid);
-  sleep_ms(1500);
-  uint64_t during = vlff_ring_head(r);
-  cam_pid = fakecam_start(0);
-  assert_true(cam_pid > 0);
-  for (int k = 0; k < 400 && vlff_ring_head(r) < during + 5; k++) sleep_ms(50);
-  assert_true(vlff_ring_head(r) >= during + 5);
+  restart_camera(r, 5, 200);
   kill(pid, SIGTERM);
   assert_int_equal(wait_exit(pid, 15), 0);
   assert_int_equal(stat_of("lost"), 1);
   assert_int_equal(stat_of("reconnects"), 1);
   assert_true(stat_of("unmatched_depth") > 0);
   assert_int_equal(stat_of("committed"), vlff_ring_head(r));
-  vlff_ring_close(r);
-  unlink(rig_path);
-  cleanup();
+  pair_done(r, NULL);
 }
 
 /* Bad configurations are refused before any camera is touched, naming the key. */

@@ -15,7 +15,7 @@
 #include <cmocka.h>
 #include <json-c/json.h>
 
-static char tmp[256];
+static char tmp[256], cfg[300];
 
 static void run(const char *cmd, char *last, size_t cap) {
   FILE *p = popen(cmd, "r");
@@ -45,6 +45,38 @@ static double field(const char *res, const char *key) {
   return atof(p + strlen(k));
 }
 
+static void write_text(const char *path, const char *text) {
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  fputs(text, f);
+  fclose(f);
+}
+
+static void tmp_remove(void) {
+  char cmd[300];
+  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+  assert_int_equal(system(cmd), 0);
+}
+
+/* A fresh scratch directory in tmp, named after the test, holding the
+ * configuration `text` at cfg (tmp/c.yaml). */
+static void start(const char *what, const char *text) {
+  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-%s-%ld-XXXXXX", what, (long)getpid());
+  assert_non_null(mkdtemp(tmp));
+  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
+  write_text(cfg, text);
+}
+
+/* Runs cmd, which must fail; what it prints (2>&1 in cmd for the errors)
+ * is in out. */
+static void run_failing(const char *cmd, char *out, size_t cap) {
+  FILE *p = popen(cmd, "r");
+  assert_non_null(p);
+  size_t n = fread(out, 1, cap - 1, p);
+  out[n] = 0;
+  assert_int_not_equal(pclose(p), 0);
+}
+
 static void test_dataset_matches_synthetic(void **state) {
   (void)state;
 #ifndef VLFF_HAVE_HDF5
@@ -54,14 +86,8 @@ static void test_dataset_matches_synthetic(void **state) {
   char sim[1024], eval[1024];
   prog(sim, sizeof sim, "node/sim/vlff-sim");
   prog(eval, sizeof eval, "node/eval/vlff-eval");
-  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-cli-%ld-XXXXXX", (long)getpid());
-  assert_non_null(mkdtemp(tmp));
-  char cfg[512], cmd[4096], a[1024], b[1024];
-  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
-  FILE *f = fopen(cfg, "w");
-  assert_non_null(f);
-  fputs("sim:\n  width: 96\n  height: 72\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n", f);
-  fclose(f);
+  start("cli", "sim:\n  width: 96\n  height: 72\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n");
+  char cmd[4096], a[1024], b[1024];
   snprintf(cmd, sizeof cmd, "%s --config %s --quiet --write-dataset %s/ds", sim, cfg, tmp);
   assert_int_equal(system(cmd), 0);
   snprintf(cmd, sizeof cmd, "%s --config %s --iters 0 --quiet --holdout 4 --out %s/a 2>/dev/null", eval, cfg, tmp);
@@ -92,11 +118,8 @@ static void test_dataset_matches_synthetic(void **state) {
            tmp, tmp, tmp);
   assert_int_equal(system(cmd), 0);
   snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/dpe --iters 0 --quiet --out %s/d 2>&1", eval, cfg, tmp, tmp);
-  FILE *pe = popen(cmd, "r");
-  char peout[2048] = "";
-  size_t pn = fread(peout, 1, sizeof peout - 1, pe);
-  peout[pn] = 0;
-  assert_int_not_equal(pclose(pe), 0);
+  char peout[2048];
+  run_failing(cmd, peout, sizeof peout);
   print_message("%s", peout);
   assert_non_null(strstr(peout, "prompt_embeddings.txt: 3 records, but "));
   assert_non_null(strstr(peout, "uses class id"));
@@ -105,10 +128,7 @@ static void test_dataset_matches_synthetic(void **state) {
   snprintf(cmd, sizeof cmd, "printf 'vlff-embeddings 1\\ndim 2\\nwall\\t1 0\\n' > %s/dpe/prompt_embeddings.txt", tmp);
   assert_int_equal(system(cmd), 0);
   snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/dpe --iters 0 --quiet --out %s/d 2>&1", eval, cfg, tmp, tmp);
-  pe = popen(cmd, "r");
-  pn = fread(peout, 1, sizeof peout - 1, pe);
-  peout[pn] = 0;
-  assert_int_not_equal(pclose(pe), 0);
+  run_failing(cmd, peout, sizeof peout);
   assert_non_null(strstr(peout, "prompt_embeddings.txt: vectors have dim 2, but the features in "));
   assert_non_null(strstr(peout, "features.hdf have D=16"));
   /* The JSON report names the dataset and its frames, and a path with a
@@ -139,7 +159,7 @@ static void test_dataset_matches_synthetic(void **state) {
   assert_true(json_object_is_type(v, json_type_object));
   json_object_put(root);
   snprintf(jpath, sizeof jpath, "%s/q/report.md", tmp);
-  f = fopen(jpath, "r");
+  FILE *f = fopen(jpath, "r");
   assert_non_null(f);
   char md[512] = "";
   assert_non_null(fgets(md, sizeof md, f) && fgets(md, sizeof md, f) && fgets(md, sizeof md, f) ? md : NULL);
@@ -168,34 +188,24 @@ static void test_dataset_matches_synthetic(void **state) {
   /* training frames that do not fit the keyframe budget are refused, with
    * the stride that fits (8 frames of 320x240 need about 5 MiB) */
   snprintf(cmd, sizeof cmd, "%s/big.yaml", tmp);
-  f = fopen(cmd, "w");
-  assert_non_null(f);
-  fputs("sim:\n  width: 320\n  height: 240\n  frames: 8\nfield:\n  feature_dim: 16\n"
-        "keyframes:\n  memory_mb: 1\n", f);
-  fclose(f);
+  write_text(cmd, "sim:\n  width: 320\n  height: 240\n  frames: 8\nfield:\n  feature_dim: 16\n"
+                  "keyframes:\n  memory_mb: 1\n");
   snprintf(cmd, sizeof cmd, "%s --config %s/big.yaml --quiet --write-dataset %s/big", sim, tmp, tmp);
   assert_int_equal(system(cmd), 0);
   snprintf(cmd, sizeof cmd, "%s --config %s/big.yaml --dataset %s/big --iters 0 --quiet --out %s/t 2>&1", eval, tmp,
            tmp, tmp);
-  FILE *tp = popen(cmd, "r");
-  char tout[2048] = "";
-  size_t tn = fread(tout, 1, sizeof tout - 1, tp);
-  tout[tn] = 0;
-  assert_int_not_equal(pclose(tp), 0);
+  char tout[2048];
+  run_failing(cmd, tout, sizeof tout);
   print_message("%s", tout);
   assert_non_null(strstr(tout, "more than keyframes.memory_mb (1): use --stride "));
   /* a malformed dataset fails naming the file */
   snprintf(cmd, sizeof cmd, "echo '1 2 3' > %s/ds/pose/00003.txt", tmp);
   assert_int_equal(system(cmd), 0);
   snprintf(cmd, sizeof cmd, "%s --dataset %s/ds --iters 0 --quiet --out %s/c 2>&1", eval, tmp, tmp);
-  FILE *p = popen(cmd, "r");
-  char out[2048] = "";
-  size_t n = fread(out, 1, sizeof out - 1, p);
-  out[n] = 0;
-  assert_int_not_equal(pclose(p), 0);
+  char out[2048];
+  run_failing(cmd, out, sizeof out);
   assert_non_null(strstr(out, "pose/00003.txt"));
-  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
-  assert_int_equal(system(cmd), 0);
+  tmp_remove();
 }
 
 /* A small fit on a tiny synthetic scene beats the raw per-frame features in
@@ -206,17 +216,11 @@ static void test_small_fit_beats_raw(void **state) {
   (void)state;
   char eval[1024];
   prog(eval, sizeof eval, "node/eval/vlff-eval");
-  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-fit-%ld-XXXXXX", (long)getpid());
-  assert_non_null(mkdtemp(tmp));
-  char cfg[512], cmd[4096], r[1024];
-  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
-  FILE *f = fopen(cfg, "w");
-  assert_non_null(f);
-  fputs("node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  frames: 32\n"
+  start("fit",
+        "node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  frames: 32\n"
         "field:\n  feature_dim: 16\n  hash_log2_size: 15\n  finest_resolution: 256\n  feature_width: 32\n"
-        "train:\n  rays_per_step: 512\n  samples_per_ray: 24\n  feature_loss: l1\n",
-        f);
-  fclose(f);
+        "train:\n  rays_per_step: 512\n  samples_per_ray: 24\n  feature_loss: l1\n");
+  char cmd[4096], r[1024];
   snprintf(cmd, sizeof cmd, "%s --config %s --iters 300 --holdout 4 --quiet --overlays 1 --out %s/o 2>/dev/null", eval,
            cfg, tmp);
   run(cmd, r, sizeof r);
@@ -228,8 +232,7 @@ static void test_small_fit_beats_raw(void **state) {
   struct stat st;
   snprintf(p, sizeof p, "%s/o/overlay_00002.png", tmp);
   assert_int_equal(stat(p, &st), 0);
-  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
-  assert_int_equal(system(cmd), 0);
+  tmp_remove();
 }
 
 /* --fit-seconds fits for a wall-clock budget: at least one step, the
@@ -239,17 +242,11 @@ static void test_fit_seconds_and_per_class(void **state) {
   (void)state;
   char eval[1024];
   prog(eval, sizeof eval, "node/eval/vlff-eval");
-  snprintf(tmp, sizeof tmp, "/tmp/vlff-test-eval-secs-%ld-XXXXXX", (long)getpid());
-  assert_non_null(mkdtemp(tmp));
-  char cfg[512], cmd[4096];
-  snprintf(cfg, sizeof cfg, "%s/c.yaml", tmp);
-  FILE *f = fopen(cfg, "w");
-  assert_non_null(f);
-  fputs("node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  frames: 8\n"
+  start("secs",
+        "node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  frames: 8\n"
         "field:\n  feature_dim: 16\n  hash_log2_size: 12\n  finest_resolution: 64\n  feature_width: 16\n"
-        "train:\n  rays_per_step: 64\n  samples_per_ray: 8\n",
-        f);
-  fclose(f);
+        "train:\n  rays_per_step: 64\n  samples_per_ray: 8\n");
+  char cmd[4096];
   snprintf(cmd, sizeof cmd, "%s --config %s --fit-seconds 0.5 --holdout 4 --quiet --overlays 0 --out %s/o 2>/dev/null",
            eval, cfg, tmp);
   FILE *p = popen(cmd, "r");
@@ -276,8 +273,7 @@ static void test_fit_seconds_and_per_class(void **state) {
   /* a budget that is not a positive number is a usage error */
   snprintf(cmd, sizeof cmd, "%s --config %s --fit-seconds -1 --quiet --out %s/o >/dev/null 2>&1", eval, cfg, tmp);
   assert_int_not_equal(system(cmd), 0);
-  snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
-  assert_int_equal(system(cmd), 0);
+  tmp_remove();
 }
 
 int main(void) {

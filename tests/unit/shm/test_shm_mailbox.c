@@ -64,6 +64,30 @@ static void raw_post(struct raw *r, const struct vlff_prompt_request *req) {
   flock(r->fd, LOCK_UN);
 }
 
+/* A mailbox created by its learner, with one poster attached or none. */
+struct mbox {
+  char name[64];
+  struct vlff_prompts *learner, *poster;
+};
+
+static void mbox_open(struct mbox *m, const char *what, bool with_poster) {
+  test_name(m->name, sizeof m->name, what);
+  m->learner = vlff_prompts_create(m->name, NULL);
+  assert_non_null(m->learner);
+  m->poster = NULL;
+  if (with_poster) {
+    m->poster = vlff_prompts_attach(m->name);
+    assert_non_null(m->poster);
+  }
+}
+
+static void mbox_close(struct mbox *m) {
+  if (m->poster)
+    vlff_prompts_close(m->poster);
+  vlff_prompts_close(m->learner);
+  vlff_shm_unlink(m->name);
+}
+
 static void test_prompt_check_matches_embeddings_format(void **state) {
   (void)state;
   static const char *cases[] = {
@@ -98,13 +122,10 @@ static void test_prompt_check_matches_embeddings_format(void **state) {
 /* A live unrelated pid in the lock word (pid 1) does not block posting. */
 static void test_live_pid_in_lock_word(void **state) {
   (void)state;
-  char name[64];
-  test_name(name, sizeof name, "pid1");
-  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
-  struct vlff_prompts *poster = vlff_prompts_attach(name);
-  assert_non_null(learner);
-  assert_non_null(poster);
-  struct raw r = raw_open(name);
+  struct mbox m;
+  mbox_open(&m, "pid1", true);
+  struct vlff_prompts *learner = m.learner, *poster = m.poster;
+  struct raw r = raw_open(m.name);
   ctl_of(&r)->lock_pid = 1;
   const char *t[] = {"door"};
   assert_int_equal(vlff_prompts_post(poster, t, 1), 0);
@@ -113,25 +134,20 @@ static void test_live_pid_in_lock_word(void **state) {
   assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
   assert_string_equal(req.text[0], "door");
   raw_close(&r);
-  vlff_prompts_close(poster);
-  vlff_prompts_close(learner);
-  vlff_shm_unlink(name);
+  mbox_close(&m);
 }
 
 /* A poster killed with the word odd: the learner's next poll discards the half-written
  * request with a message and answers it; posting goes on. */
 static void test_poster_killed_mid_post(void **state) {
   (void)state;
-  char name[64];
-  test_name(name, sizeof name, "dead");
-  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
-  struct vlff_prompts *poster = vlff_prompts_attach(name);
-  assert_non_null(learner);
-  assert_non_null(poster);
+  struct mbox m;
+  mbox_open(&m, "dead", true);
+  struct vlff_prompts *learner = m.learner, *poster = m.poster;
   pid_t c = fork();
   assert_true(c >= 0);
   if (c == 0) {
-    struct raw r = raw_open(name);
+    struct raw r = raw_open(m.name);
     flock(r.fd, LOCK_EX);
     ctl_of(&r)->lock_pid = getpid();
     __atomic_store_n(&ctl_of(&r)->seq, 1, __ATOMIC_RELEASE);
@@ -158,20 +174,17 @@ static void test_poster_killed_mid_post(void **state) {
   assert_int_equal(vlff_prompts_last_post(poster), 2);
   assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
   assert_string_equal(req.text[1], "lamp");
-  vlff_prompts_close(poster);
-  vlff_prompts_close(learner);
-  vlff_shm_unlink(name);
+  mbox_close(&m);
 }
 
 /* While a live poster writes, the learner does not wait for it: poll says "nothing
  * new" at once and picks the request up once it is complete. */
 static void test_live_poster_never_waited_for(void **state) {
   (void)state;
-  char name[64];
-  test_name(name, sizeof name, "slow");
-  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
-  assert_non_null(learner);
-  struct raw r = raw_open(name);
+  struct mbox m;
+  mbox_open(&m, "slow", false);
+  struct vlff_prompts *learner = m.learner;
+  struct raw r = raw_open(m.name);
   assert_int_equal(flock(r.fd, LOCK_EX), 0);
   __atomic_store_n(&ctl_of(&r)->seq, 1, __ATOMIC_RELEASE);
   uint64_t last = 0;
@@ -186,21 +199,17 @@ static void test_live_poster_never_waited_for(void **state) {
   assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
   assert_string_equal(req.text[0], "shelf");
   raw_close(&r);
-  vlff_prompts_close(learner);
-  vlff_shm_unlink(name);
+  mbox_close(&m);
 }
 
 /* A request that bypassed the poster's checks is refused by the learner's poll, and
  * the poster reads why. */
 static void test_forged_request_refused_with_reason(void **state) {
   (void)state;
-  char name[64];
-  test_name(name, sizeof name, "forged");
-  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
-  struct vlff_prompts *poster = vlff_prompts_attach(name);
-  assert_non_null(learner);
-  assert_non_null(poster);
-  struct raw r = raw_open(name);
+  struct mbox m;
+  mbox_open(&m, "forged", true);
+  struct vlff_prompts *learner = m.learner, *poster = m.poster;
+  struct raw r = raw_open(m.name);
   static const char *forged[][2] = {
     {"wall\nlabel 0 confidence 255 prompt FAKE", "floor"},
     {"tab\there", "floor"},
@@ -226,20 +235,15 @@ static void test_forged_request_refused_with_reason(void **state) {
   assert_int_equal(vlff_prompts_post(poster, t, 2), -1);
   assert_int_equal(errno, EINVAL);
   raw_close(&r);
-  vlff_prompts_close(poster);
-  vlff_prompts_close(learner);
-  vlff_shm_unlink(name);
+  mbox_close(&m);
 }
 
 /* A post while the previous request has no answer waits, then says so. */
 static void test_post_over_unanswered_refused(void **state) {
   (void)state;
-  char name[64];
-  test_name(name, sizeof name, "pending");
-  struct vlff_prompts *learner = vlff_prompts_create(name, NULL);
-  struct vlff_prompts *poster = vlff_prompts_attach(name);
-  assert_non_null(learner);
-  assert_non_null(poster);
+  struct mbox m;
+  mbox_open(&m, "pending", true);
+  struct vlff_prompts *learner = m.learner, *poster = m.poster;
   assert_int_equal(vlff_prompts_post_index(poster, 1), 0);
   assert_int_equal(vlff_prompts_post_index(poster, 2), -1);
   assert_int_equal(errno, EBUSY);
@@ -254,9 +258,7 @@ static void test_post_over_unanswered_refused(void **state) {
   assert_int_equal(vlff_prompts_wait_answer(poster, 1, 0, why, sizeof why), VLFF_PROMPT_REFUSED);
   assert_string_equal(why, "prompt set 1 does not exist");
   assert_int_equal(vlff_prompts_post_index(poster, 2), 0);
-  vlff_prompts_close(poster);
-  vlff_prompts_close(learner);
-  vlff_shm_unlink(name);
+  mbox_close(&m);
 }
 
 /* Several posters in a burst against a learner polling at its own pace: every post

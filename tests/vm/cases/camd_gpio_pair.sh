@@ -5,24 +5,10 @@
 # stamped with the edge's kernel timestamp, and nothing unmatched.
 # vm-bins: vlff-camd vlff-camd-vmtest
 # vm-tools: arv-fake-gv-camera-0.8
+# vm-files: tests/vm/cases/camd.inc
 # vm-timeout: 120
 set -e
+. "$VLFF_SRC/tests/vm/cases/camd.inc"
 ip link set lo up
 ip addr add 127.0.0.2/8 dev lo 2>/dev/null || true
-g=/sys/kernel/config/gpio-sim/vlff-camd-pair
-mkdir "$g" "$g/bank0"
-echo 2 >"$g/bank0/num_lines"
-echo 1 >"$g/live"
-chip=$(cat "$g/bank0/chip_name")
-dev=$(ls -d /sys/devices/platform/gpio-sim.*/"$chip")
-arv-fake-gv-camera-0.8 -i 127.0.0.1 >/tmp/fakecam1.log 2>&1 &
-c1=$!
-arv-fake-gv-camera-0.8 -i 127.0.0.2 >/tmp/fakecam2.log 2>&1 &
-c2=$!
-rc=0
-vlff-camd-vmtest gpio-pair "$chip" "$dev" || rc=$?
-kill "$c1" "$c2"
-wait "$c1" "$c2" 2>/dev/null || true
-echo 0 >"$g/live"
-rmdir "$g/bank0" "$g"
-exit $rc
+camd_gpio_run vlff-camd-pair gpio-pair 127.0.0.1 127.0.0.2
