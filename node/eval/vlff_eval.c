@@ -458,342 +458,467 @@ static const char *pct(const struct result *r, double v, char *buf) {
   return buf;
 }
 
-/* ---- main --------------------------------------------------------------- */
+/* A class's cell in the per-class tables: "-" where the result was not
+ * computed or the class is absent from its ground truth. */
+#define CELL(r, s, buf) ((r).valid && (s).present ? pct(&(r), (s).iou, buf) : "-")
 
-int main(int argc, char **argv) {
+/* ---- the run, stage by stage --------------------------------------------- */
+
+/* What one run carries from stage to stage. */
+struct eval {
   struct opts o;
-  parse_args(argc, argv, &o);
   struct vlff_config cfg;
-  char err[1024];
-  vlff_config_defaults(&cfg);
-  if (o.config && vlff_config_load(o.config, &cfg, err, sizeof err) < 0) die("%s", err);
-  if (o.seed >= 0) cfg.sim.seed = o.seed;
-  if (o.frames > 0) cfg.sim.frames = o.frames;
-  if (o.difficulty >= 0) cfg.sim.difficulty = o.difficulty;
-  if (o.dim > 0) cfg.field.feature_dim = o.dim;
-  if (o.threads >= 0) cfg.node.threads = o.threads;
-  if (mkdir(o.out, 0755) < 0 && errno != EEXIST) die("%s: cannot create: %s", o.out, strerror(errno));
-
   struct scene sc;
-  memset(&sc, 0, sizeof sc);
+  float *emb_raw;  /* the prompts' vectors as loaded; sc.emb holds them normalised */
+  int ntrain, ntest;
+  /* standard protocol: raw 2D and fusion 3D are the baselines; the
+   * field's 3D also under the reference protocol */
+  struct result r2_raw, r2_field, r3_fusion, r3_field, r3_field_ref;
+  uint8_t *gl;     /* a held-out frame's labels at the feature-map resolution */
+  int *pl;         /* and a prediction at that resolution */
+  int *p3;         /* fusion's label per point */
+  int *pred3;      /* the field's label per point; NULL until it is queried */
+  int fitted, steps;
+  double fit_s;
+  struct vlff_train_stats st;
+};
+
+/* Options, the config file and the options that override it, the report
+ * directory. */
+static void configure(struct eval *e, int argc, char **argv) {
+  struct opts *o = &e->o;
+  struct vlff_config *cfg = &e->cfg;
+  char err[1024];
+  parse_args(argc, argv, o);
+  vlff_config_defaults(cfg);
+  if (o->config && vlff_config_load(o->config, cfg, err, sizeof err) < 0) die("%s", err);
+  if (o->seed >= 0) cfg->sim.seed = o->seed;
+  if (o->frames > 0) cfg->sim.frames = o->frames;
+  if (o->difficulty >= 0) cfg->sim.difficulty = o->difficulty;
+  if (o->dim > 0) cfg->field.feature_dim = o->dim;
+  if (o->threads >= 0) cfg->node.threads = o->threads;
+  if (mkdir(o->out, 0755) < 0 && errno != EEXIST) die("%s: cannot create: %s", o->out, strerror(errno));
+}
+
+/* The scene (a dataset or the synthetic room), its training images, the
+ * train/held-out split and the results' confusion matrices. */
+static void load_scene(struct eval *e) {
+  const struct opts *o = &e->o;
+  struct scene *sc = &e->sc;
+  char err[1024];
   double t_load = vlff_seconds();
-  sc.holdout = o.holdout;
-  if (o.dataset) load_dataset(&sc, &o, &cfg);
-  else load_sim(&sc, &cfg);
-  if (sc.D != cfg.field.feature_dim) {
-    if (o.dataset) cfg.field.feature_dim = sc.D;
-    else die("feature dims differ: scene %d, field %d", sc.D, cfg.field.feature_dim);
+  sc->holdout = o->holdout;
+  if (o->dataset) load_dataset(sc, o, &e->cfg);
+  else load_sim(sc, &e->cfg);
+  if (sc->D != e->cfg.field.feature_dim) {
+    if (o->dataset) e->cfg.field.feature_dim = sc->D;
+    else die("feature dims differ: scene %d, field %d", sc->D, e->cfg.field.feature_dim);
   }
-  float *emb_raw = xcalloc((size_t)sc.K * sc.D, sizeof(float));
-  memcpy(emb_raw, sc.emb, (size_t)sc.K * sc.D * sizeof(float));
-  vlff_normalize_rows(emb_raw, sc.emb, sc.K, sc.D);
-  make_training_images(&sc, cfg.train.image_scale);
-  int ntrain = 0, ntest = 0;
-  for (int i = 0; i < sc.n; i++) (i % o.holdout == o.holdout / 2) ? ntest++ : ntrain++;
-  if (ntest == 0 || ntrain == 0) die("%d frames with --holdout %d leave no training or no test frames", sc.n, o.holdout);
+  e->emb_raw = xcalloc((size_t)sc->K * sc->D, sizeof(float));
+  memcpy(e->emb_raw, sc->emb, (size_t)sc->K * sc->D * sizeof(float));
+  vlff_normalize_rows(e->emb_raw, sc->emb, sc->K, sc->D);
+  make_training_images(sc, e->cfg.train.image_scale);
+  for (int i = 0; i < sc->n; i++) held_out(i, o->holdout) ? e->ntest++ : e->ntrain++;
+  if (e->ntest == 0 || e->ntrain == 0)
+    die("%d frames with --holdout %d leave no training or no test frames", sc->n, o->holdout);
   fprintf(stderr, "vlff-eval: scene %s: %d frames (%d train, %d held out) %dx%d, features %dx%dx%d, %zu labelled points, %d prompts (%.1f s)\n",
-          o.dataset ? o.dataset : "synthetic", sc.n, ntrain, ntest, sc.W, sc.H, sc.fw, sc.fh, sc.D, sc.pts.n, sc.K,
-          vlff_seconds() - t_load);
-
-  const int K = sc.K, D = sc.D, fw = sc.fw, fh = sc.fh;
-  struct result r2_raw = {0}, r2_field = {0}, r3_fusion = {0}, r3_field = {0}, r3_field_ref = {0};
-  if (vlff_confusion_init(&r2_raw.c, K, err, sizeof err) < 0 || vlff_confusion_init(&r2_field.c, K, err, sizeof err) < 0 ||
-      vlff_confusion_init(&r3_fusion.c, K, err, sizeof err) < 0 || vlff_confusion_init(&r3_field.c, K, err, sizeof err) < 0 ||
-      vlff_confusion_init(&r3_field_ref.c, K, err, sizeof err) < 0)
+          o->dataset ? o->dataset : "synthetic", sc->n, e->ntrain, e->ntest, sc->W, sc->H, sc->fw, sc->fh, sc->D,
+          sc->pts.n, sc->K, vlff_seconds() - t_load);
+  const int K = sc->K;
+  if (vlff_confusion_init(&e->r2_raw.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&e->r2_field.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&e->r3_fusion.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&e->r3_field.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&e->r3_field_ref.c, K, err, sizeof err) < 0)
     die("%s", err);
+}
 
-  /* ---- baselines ---- */
-  uint8_t *gl = xcalloc((size_t)fw * fh, 1);
-  int *pl = xcalloc((size_t)fw * fh, sizeof(int));
-  for (int i = 0; i < sc.n; i++) {
-    if (i % o.holdout != o.holdout / 2) continue;
-    const struct frame *f = frame_data(&sc, i);
-    vlff_downsample_labels(f->label, sc.W, sc.H, gl, fw, fh);
-    vlff_classify_f16(f->feat, (size_t)fw * fh, D, sc.emb, K, pl, NULL);
-    vlff_confusion_add(&r2_raw.c, gl, pl, (size_t)fw * fh);
+/* 2D baseline: the held-out frames' raw features, segmented with the
+ * prompts at the feature-map resolution. */
+static void baseline_raw_2d(struct eval *e) {
+  struct scene *sc = &e->sc;
+  const int fw = sc->fw, fh = sc->fh;
+  e->gl = xcalloc((size_t)fw * fh, 1);
+  e->pl = xcalloc((size_t)fw * fh, sizeof(int));
+  for (int i = 0; i < sc->n; i++) {
+    if (!held_out(i, e->o.holdout)) continue;
+    const struct frame *f = frame_data(sc, i);
+    vlff_downsample_labels(f->label, sc->W, sc->H, e->gl, fw, fh);
+    vlff_classify_f16(f->feat, (size_t)fw * fh, sc->D, sc->emb, sc->K, e->pl, NULL);
+    vlff_confusion_add(&e->r2_raw.c, e->gl, e->pl, (size_t)fw * fh);
   }
-  summarize(&r2_raw);
-  size_t np = sc.pts.n;
-  int *p3 = xcalloc(np, sizeof(int));
-  {
+  summarize(&e->r2_raw);
+}
+
+/* 3D baseline: OpenScene-style multi-view fusion of the training frames'
+ * features at the labelled points. Returns the points no training view saw. */
+static size_t baseline_fusion_3d(struct eval *e) {
+  const struct scene *sc = &e->sc;
+  const int K = sc->K, D = sc->D;
+  const size_t np = sc->pts.n;
+  char err[1024];
+  e->p3 = xcalloc(np, sizeof(int));
+  struct vlff_fusion_view *fv = xcalloc((size_t)e->ntrain, sizeof *fv);
+  int nv = 0;
+  for (int i = 0; i < sc->n; i++) {
+    if (held_out(i, e->o.holdout)) continue;
+    struct vlff_fusion_view *v = &fv[nv++];
+    v->width = sc->W, v->height = sc->H, v->fx = sc->fx, v->fy = sc->fy, v->cx = sc->cx, v->cy = sc->cy;
+    memcpy(v->c2w, sc->f[i].c2w, sizeof v->c2w);
+    v->depth = sc->f[i].depth, v->feat_width = sc->fw, v->feat_height = sc->fh, v->features = sc->f[i].feat;
+  }
+  /* in chunks: [n][D] floats of a whole scene can be large */
+  const size_t chunk = 8192;
+  float *acc = xcalloc(chunk * D, sizeof(float));
+  int *seen = xcalloc(chunk, sizeof(int));
+  size_t unseen = 0;
+  for (size_t s0 = 0; s0 < np; s0 += chunk) {
+    size_t m = np - s0 < chunk ? np - s0 : chunk;
+    if (vlff_fusion(sc->pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, seen, err, sizeof err) < 0) die("%s", err);
+    vlff_classify_f32(acc, m, D, sc->emb, K, e->p3 + s0, NULL);
+    for (size_t k = 0; k < m; k++) unseen += seen[k] == 0 && sc->pts.label[s0 + k] < K;
+  }
+  free(acc), free(seen);
+  free(fv);
+  vlff_confusion_add(&e->r3_fusion.c, sc->pts.label, e->p3, np);
+  summarize(&e->r3_fusion);
+  return unseen;
+}
+
+static void baselines(struct eval *e) {
+  baseline_raw_2d(e);
+  double t = vlff_seconds();
+  size_t unseen = baseline_fusion_3d(e);
+  fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f, %zu labelled points no training view saw (%.1f s)\n",
+          100 * e->r2_raw.s.miou, 100 * e->r3_fusion.s.miou, unseen, vlff_seconds() - t);
+}
+
+/* The field, fitted on the training frames for --iters steps or
+ * --fit-seconds of wall clock, with progress on stderr. */
+static struct vlff_field *fit_field(struct eval *e) {
+  const struct opts *o = &e->o;
+  const struct scene *sc = &e->sc;
+  char err[1024];
+  struct vlff_field *fld = vlff_field_create(&e->cfg.field, &e->cfg.train, e->cfg.node.threads, err, sizeof err);
+  if (!fld) die("%s", err);
+  /* the prompts are known before fitting, as in the node (class-balanced
+   * ray drawing reads them) */
+  if (vlff_field_set_prompts(fld, e->emb_raw, sc->K, err, sizeof err) < 0) die("%s", err);
+  struct vlff_view *views = xcalloc((size_t)e->ntrain, sizeof *views);
+  int nv = 0;
+  double s = (double)sc->tw / sc->W, sy = (double)sc->th / sc->H;
+  for (int i = 0; i < sc->n; i++) {
+    if (held_out(i, o->holdout)) continue;
+    struct vlff_view *v = &views[nv++];
+    v->width = sc->tw, v->height = sc->th, v->rgb = sc->f[i].trgb, v->depth = sc->f[i].tdepth;
+    v->fx = sc->fx * s, v->fy = sc->fy * sy, v->cx = sc->cx * s, v->cy = sc->cy * sy;
+    memcpy(v->c2w, sc->f[i].c2w, sizeof v->c2w);
+    v->feat_width = sc->fw, v->feat_height = sc->fh, v->feature_dim = sc->D, v->features = sc->f[i].feat;
+  }
+  int tty = isatty(2) && !o->quiet;
+  double t0 = vlff_seconds(), last = t0;
+  /* --fit-seconds: steps until the budget is spent (the clock is read
+   * after each step, so the last step may end a little past it) */
+  for (int it = 1; o->fit_seconds > 0 ? vlff_seconds() - t0 < o->fit_seconds : it <= o->iters; it++) {
+    if (vlff_field_step(fld, views, nv, NULL, &e->st, err, sizeof err) < 0) die("training step %d: %s", it, err);
+    e->steps = it;
     double t = vlff_seconds();
-    struct vlff_fusion_view *fv = xcalloc((size_t)ntrain, sizeof *fv);
-    int nv = 0;
-    for (int i = 0; i < sc.n; i++) {
-      if (i % o.holdout == o.holdout / 2) continue;
-      struct vlff_fusion_view *v = &fv[nv++];
-      v->width = sc.W, v->height = sc.H, v->fx = sc.fx, v->fy = sc.fy, v->cx = sc.cx, v->cy = sc.cy;
-      memcpy(v->c2w, sc.f[i].c2w, sizeof v->c2w);
-      v->depth = sc.f[i].depth, v->feat_width = fw, v->feat_height = fh, v->features = sc.f[i].feat;
+    int total = o->iters;
+    if (o->fit_seconds > 0) total = (int)(it * o->fit_seconds / fmax(t - t0, 1e-9));
+    int every = o->fit_seconds > 0 ? 0 : (o->iters / 10 > 0 ? o->iters / 10 : 1);
+    if (!o->quiet && (it == o->iters || (tty ? t - last > 0.25
+                                             : every ? it % every == 0 : t - last > o->fit_seconds / 10))) {
+      progress(it, total > it ? total : it, &e->st, t0, tty);
+      last = t;
     }
-    /* in chunks: [n][D] floats of a whole scene can be large */
-    const size_t chunk = 8192;
-    float *acc = xcalloc(chunk * D, sizeof(float));
-    int *seen = xcalloc(chunk, sizeof(int));
-    size_t unseen = 0;
-    for (size_t s0 = 0; s0 < np; s0 += chunk) {
-      size_t m = np - s0 < chunk ? np - s0 : chunk;
-      if (vlff_fusion(sc.pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, seen, err, sizeof err) < 0) die("%s", err);
-      vlff_classify_f32(acc, m, D, sc.emb, K, p3 + s0, NULL);
-      for (size_t k = 0; k < m; k++) unseen += seen[k] == 0 && sc.pts.label[s0 + k] < K;
-    }
-    free(acc), free(seen);
-    free(fv);
-    vlff_confusion_add(&r3_fusion.c, sc.pts.label, p3, np);
-    summarize(&r3_fusion);
-    fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f, %zu labelled points no training view saw (%.1f s)\n",
-            100 * r2_raw.s.miou, 100 * r3_fusion.s.miou, unseen, vlff_seconds() - t);
   }
+  if (tty) fputc('\n', stderr);
+  e->fit_s = vlff_seconds() - t0;
+  free(views);
+  return fld;
+}
 
-  /* ---- field ---- */
-  int *pred3 = xcalloc(np, sizeof(int));
-  memcpy(pred3, p3, np * sizeof(int));
-  int fitted = 0, steps = 0;
-  double fit_s = 0;
-  struct vlff_train_stats st = {0};
-  int *overlay_pred = NULL;
-  if (o.iters > 0 || o.fit_seconds > 0) {
-    struct vlff_field *fld = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof err);
-    if (!fld) die("%s", err);
-    /* the prompts are known before fitting, as in the node (class-balanced
-     * ray drawing reads them) */
-    if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
-    struct vlff_view *views = xcalloc((size_t)ntrain, sizeof *views);
-    int nv = 0;
-    double s = (double)sc.tw / sc.W, sy = (double)sc.th / sc.H;
-    for (int i = 0; i < sc.n; i++) {
-      if (i % o.holdout == o.holdout / 2) continue;
-      struct vlff_view *v = &views[nv++];
-      v->width = sc.tw, v->height = sc.th, v->rgb = sc.f[i].trgb, v->depth = sc.f[i].tdepth;
-      v->fx = sc.fx * s, v->fy = sc.fy * sy, v->cx = sc.cx * s, v->cy = sc.cy * sy;
-      memcpy(v->c2w, sc.f[i].c2w, sizeof v->c2w);
-      v->feat_width = fw, v->feat_height = fh, v->feature_dim = D, v->features = sc.f[i].feat;
+/* 2D: the held-out frames rendered at the feature-map resolution and
+ * segmented; the first --overlays of them drawn beside their truth. */
+static void score_field_2d(struct eval *e, struct vlff_field *fld) {
+  struct scene *sc = &e->sc;
+  const int fw = sc->fw, fh = sc->fh;
+  struct vlff_view cam = {0};
+  cam.width = fw, cam.height = fh;
+  cam.fx = sc->fx * fw / sc->W, cam.fy = sc->fy * fh / sc->H, cam.cx = sc->cx * fw / sc->W, cam.cy = sc->cy * fh / sc->H;
+  int nover = 0;
+  for (int i = 0; i < sc->n; i++) {
+    if (!held_out(i, e->o.holdout)) continue;
+    memcpy(cam.c2w, sc->f[i].c2w, sizeof cam.c2w);
+    if (vlff_field_render(fld, &cam, NULL, NULL, NULL, e->pl, NULL) < 0) die("render of frame %d failed", i);
+    vlff_downsample_labels(sc->f[i].label, sc->W, sc->H, e->gl, fw, fh);
+    vlff_confusion_add(&e->r2_field.c, e->gl, e->pl, (size_t)fw * fh);
+    if (nover < e->o.overlays) {
+      write_overlay(e->o.out, sc, frame_data(sc, i), e->pl, fw, fh);
+      nover++;
     }
-    int tty = isatty(2) && !o.quiet;
-    double t0 = vlff_seconds(), last = t0;
-    /* --fit-seconds: steps until the budget is spent (the clock is read
-     * after each step, so the last step may end a little past it) */
-    for (int it = 1; o.fit_seconds > 0 ? vlff_seconds() - t0 < o.fit_seconds : it <= o.iters; it++) {
-      if (vlff_field_step(fld, views, nv, NULL, &st, err, sizeof err) < 0) die("training step %d: %s", it, err);
-      steps = it;
-      double t = vlff_seconds();
-      int total = o.iters;
-      if (o.fit_seconds > 0) total = (int)(it * o.fit_seconds / fmax(t - t0, 1e-9));
-      int every = o.fit_seconds > 0 ? 0 : (o.iters / 10 > 0 ? o.iters / 10 : 1);
-      if (!o.quiet && (it == o.iters || (tty ? t - last > 0.25
-                                             : every ? it % every == 0 : t - last > o.fit_seconds / 10))) {
-        progress(it, total > it ? total : it, &st, t0, tty);
-        last = t;
-      }
-    }
-    if (tty) fputc('\n', stderr);
-    fit_s = vlff_seconds() - t0;
-    if (vlff_field_set_prompts(fld, emb_raw, K, err, sizeof err) < 0) die("%s", err);
-    /* 2D on held-out frames at the feature-map resolution */
-    struct vlff_view cam = {0};
-    cam.width = fw, cam.height = fh;
-    cam.fx = sc.fx * fw / sc.W, cam.fy = sc.fy * fh / sc.H, cam.cx = sc.cx * fw / sc.W, cam.cy = sc.cy * fh / sc.H;
-    overlay_pred = xcalloc((size_t)o.overlays * fw * fh + 1, sizeof(int));
-    int nover = 0;
-    for (int i = 0; i < sc.n; i++) {
-      if (i % o.holdout != o.holdout / 2) continue;
-      memcpy(cam.c2w, sc.f[i].c2w, sizeof cam.c2w);
-      if (vlff_field_render(fld, &cam, NULL, NULL, NULL, pl, NULL) < 0) die("render of frame %d failed", i);
-      vlff_downsample_labels(sc.f[i].label, sc.W, sc.H, gl, fw, fh);
-      vlff_confusion_add(&r2_field.c, gl, pl, (size_t)fw * fh);
-      if (nover < o.overlays) {
-        write_overlay(o.out, &sc, frame_data(&sc, i), pl, fw, fh);
-        nover++;
-      }
-    }
-    summarize(&r2_field);
-    /* 3D standard: one query per point */
-    if (vlff_field_query(fld, sc.pts.xyz, np, NULL, NULL, pred3, NULL, NULL) < 0) die("3D query failed");
-    vlff_confusion_add(&r3_field.c, sc.pts.label, pred3, np);
-    summarize(&r3_field);
-    /* 3D reference protocol: features averaged over 10 queries jittered
-     * uniformly within +-2 cm per axis */
-    const size_t chunk = 4096;
-    float *acc = xcalloc(chunk * D, sizeof(float)), *fb = xcalloc(chunk * D, sizeof(float));
-    float *jx = xcalloc(chunk * 3, sizeof(float));
-    int *pr = xcalloc(chunk, sizeof(int));
-    uint64_t rs = 0x9e3779b97f4a7c15ull;
-    for (size_t s0 = 0; s0 < np; s0 += chunk) {
-      size_t m = np - s0 < chunk ? np - s0 : chunk;
-      memset(acc, 0, m * D * sizeof(float));
-      for (int q = 0; q < 10; q++) {
-        for (size_t k = 0; k < 3 * m; k++) {
-          rs = rs * 6364136223846793005ull + 1442695040888963407ull;
-          jx[k] = sc.pts.xyz[3 * s0 + k] + (float)(((rs >> 11) * 0x1.0p-53) * 0.04 - 0.02);
-        }
-        if (vlff_field_query(fld, jx, m, NULL, fb, NULL, NULL, NULL) < 0) die("3D query failed");
-        for (size_t k = 0; k < m * D; k++) acc[k] += fb[k];
-      }
-      vlff_classify_f32(acc, m, D, sc.emb, K, pr, NULL);
-      vlff_confusion_add(&r3_field_ref.c, sc.pts.label + s0, pr, m);
-    }
-    free(acc), free(fb), free(jx), free(pr);
-    summarize(&r3_field_ref);
-    free(views);
-    vlff_field_destroy(fld);
-    fitted = 1;
   }
+  summarize(&e->r2_field);
+}
 
-  /* ---- prediction point cloud ---- */
-  {
-    uint8_t *col = xcalloc(np, 3), *lab = xcalloc(np, 1);
-    for (size_t k = 0; k < np; k++) {
-      colour_of(pred3[k], col + 3 * k);
-      lab[k] = pred3[k] >= 0 && pred3[k] < 255 ? (uint8_t)pred3[k] : 255;
+/* 3D standard protocol: one query per labelled point. */
+static void score_field_3d(struct eval *e, struct vlff_field *fld) {
+  const struct scene *sc = &e->sc;
+  const size_t np = sc->pts.n;
+  e->pred3 = xcalloc(np, sizeof(int));
+  if (vlff_field_query(fld, sc->pts.xyz, np, NULL, NULL, e->pred3, NULL, NULL) < 0) die("3D query failed");
+  vlff_confusion_add(&e->r3_field.c, sc->pts.label, e->pred3, np);
+  summarize(&e->r3_field);
+}
+
+/* 3D reference protocol: features averaged over 10 queries jittered
+ * uniformly within +-2 cm per axis */
+static void score_field_3d_reference(struct eval *e, struct vlff_field *fld) {
+  const struct scene *sc = &e->sc;
+  const size_t np = sc->pts.n;
+  const int D = sc->D;
+  const size_t chunk = 4096;
+  float *acc = xcalloc(chunk * D, sizeof(float)), *fb = xcalloc(chunk * D, sizeof(float));
+  float *jx = xcalloc(chunk * 3, sizeof(float));
+  int *pr = xcalloc(chunk, sizeof(int));
+  uint64_t rs = 0x9e3779b97f4a7c15ull;
+  for (size_t s0 = 0; s0 < np; s0 += chunk) {
+    size_t m = np - s0 < chunk ? np - s0 : chunk;
+    memset(acc, 0, m * D * sizeof(float));
+    for (int q = 0; q < 10; q++) {
+      for (size_t k = 0; k < 3 * m; k++) {
+        rs = rs * 6364136223846793005ull + 1442695040888963407ull;
+        jx[k] = sc->pts.xyz[3 * s0 + k] + (float)(((rs >> 11) * 0x1.0p-53) * 0.04 - 0.02);
+      }
+      if (vlff_field_query(fld, jx, m, NULL, fb, NULL, NULL, NULL) < 0) die("3D query failed");
+      for (size_t k = 0; k < m * D; k++) acc[k] += fb[k];
     }
-    char p[4200];
-    snprintf(p, sizeof p, "%s/prediction.ply", o.out);
-    if (vlff_ply_write(p, sc.pts.xyz, col, lab, np, err, sizeof err) < 0) fprintf(stderr, "vlff-eval: %s\n", err);
-    free(col), free(lab);
+    vlff_classify_f32(acc, m, D, sc->emb, sc->K, pr, NULL);
+    vlff_confusion_add(&e->r3_field_ref.c, sc->pts.label + s0, pr, m);
   }
+  free(acc), free(fb), free(jx), free(pr);
+  summarize(&e->r3_field_ref);
+}
 
-  /* ---- reports ---- */
-  char a[16], b[16], c[16], d[16], e[16];
+static void score_field(struct eval *e, struct vlff_field *fld) {
+  char err[1024];
+  if (vlff_field_set_prompts(fld, e->emb_raw, e->sc.K, err, sizeof err) < 0) die("%s", err);
+  score_field_2d(e, fld);
+  score_field_3d(e, fld);
+  score_field_3d_reference(e, fld);
+  e->fitted = 1;
+}
+
+/* prediction.ply: the labelled points coloured by the field's labels, or
+ * by fusion's when the field was not fitted. */
+static void write_prediction_ply(const struct eval *e) {
+  const size_t np = e->sc.pts.n;
+  const int *pred = e->pred3 ? e->pred3 : e->p3;
+  char err[1024];
+  uint8_t *col = xcalloc(np, 3), *lab = xcalloc(np, 1);
+  for (size_t k = 0; k < np; k++) {
+    colour_of(pred[k], col + 3 * k);
+    lab[k] = pred[k] >= 0 && pred[k] < 255 ? (uint8_t)pred[k] : 255;
+  }
+  char p[4200];
+  snprintf(p, sizeof p, "%s/prediction.ply", e->o.out);
+  if (vlff_ply_write(p, e->sc.pts.xyz, col, lab, np, err, sizeof err) < 0) fprintf(stderr, "vlff-eval: %s\n", err);
+  free(col), free(lab);
+}
+
+static void write_report_md(const struct eval *e) {
+  const struct opts *o = &e->o;
+  const struct scene *sc = &e->sc;
+  const struct result *r2_raw = &e->r2_raw, *r2_field = &e->r2_field, *r3_fusion = &e->r3_fusion;
+  const struct result *r3_field = &e->r3_field, *r3_field_ref = &e->r3_field_ref;
+  char a[16], b[16], c[16], d[16], x[16];
   char path[4200];
-  snprintf(path, sizeof path, "%s/report.md", o.out);
+  snprintf(path, sizeof path, "%s/report.md", o->out);
   FILE *md = fopen(path, "w");
   if (!md) die("%s: %s", path, strerror(errno));
-  if (o.dataset)
-    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %d to %d", o.dataset, sc.f[0].index,
-            sc.f[sc.n - 1].index);
+  if (o->dataset)
+    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %d to %d", o->dataset, sc->f[0].index,
+            sc->f[sc->n - 1].index);
   else
-    fprintf(md, "# vlff-eval report\n\nScene: synthetic room (seed %d, difficulty %.2f)", cfg.sim.seed,
-            cfg.sim.difficulty);
+    fprintf(md, "# vlff-eval report\n\nScene: synthetic room (seed %d, difficulty %.2f)", e->cfg.sim.seed,
+            e->cfg.sim.difficulty);
   fprintf(md, ", %d frames: %d train, %d held out (every %d-th); %dx%d images, features %dx%dx%d; "
               "%zu labelled points; %d prompts.\nField: %s.\n\n",
-          sc.n, ntrain, ntest, o.holdout, sc.W, sc.H, fw, fh, D, np, K, fitted ? "fitted" : "not fitted (--iters 0)");
-  if (fitted)
-    fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", steps, fit_s,
-            steps / fit_s, st.loss, st.psnr);
+          sc->n, e->ntrain, e->ntest, o->holdout, sc->W, sc->H, sc->fw, sc->fh, sc->D, sc->pts.n, sc->K,
+          e->fitted ? "fitted" : "not fitted (--iters 0)");
+  if (e->fitted)
+    fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", e->steps, e->fit_s,
+            e->steps / e->fit_s, e->st.loss, e->st.psnr);
   fprintf(md, "## Standard protocol\n\nPer-class IoU from TP/FP/FN summed over the scene; mIoU and mAcc "
               "(per-class recall) averaged over classes present in the ground truth. Percent.\n\n"
               "| method | 2D mIoU | 2D mAcc | 3D mIoU | 3D mAcc |\n|---|---|---|---|---|\n");
-  fprintf(md, "| raw per-frame features (2D) | %s | %s | - | - |\n", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.macc, b));
-  fprintf(md, "| multi-view fusion (3D) | - | - | %s | %s |\n", pct(&r3_fusion, r3_fusion.s.miou, a), pct(&r3_fusion, r3_fusion.s.macc, b));
-  fprintf(md, "| vlff field | %s | %s | %s | %s |\n\n", pct(&r2_field, r2_field.s.miou, a), pct(&r2_field, r2_field.s.macc, b),
-          pct(&r3_field, r3_field.s.miou, c), pct(&r3_field, r3_field.s.macc, d));
+  fprintf(md, "| raw per-frame features (2D) | %s | %s | - | - |\n", pct(r2_raw, r2_raw->s.miou, a), pct(r2_raw, r2_raw->s.macc, b));
+  fprintf(md, "| multi-view fusion (3D) | - | - | %s | %s |\n", pct(r3_fusion, r3_fusion->s.miou, a), pct(r3_fusion, r3_fusion->s.macc, b));
+  fprintf(md, "| vlff field | %s | %s | %s | %s |\n\n", pct(r2_field, r2_field->s.miou, a), pct(r2_field, r2_field->s.macc, b),
+          pct(r3_field, r3_field->s.miou, c), pct(r3_field, r3_field->s.macc, d));
   fprintf(md, "## Reference-code protocol\n\n2D: summed IoU, \"accuracy\" = mean per-class precision. 3D: "
               "features averaged over 10 queries jittered within +-2 cm, \"accuracy\" = mean recall. Per scene "
               "(average scenes yourself).\n\n| method | 2D mIoU | 2D acc (precision) | 3D mIoU | 3D acc (recall) |\n|---|---|---|---|---|\n");
-  fprintf(md, "| raw per-frame features (2D) | %s | %s | - | - |\n", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.mprec, b));
-  fprintf(md, "| multi-view fusion (3D, unjittered) | - | - | %s | %s |\n", pct(&r3_fusion, r3_fusion.s.miou, a),
-          pct(&r3_fusion, r3_fusion.s.macc, b));
-  fprintf(md, "| vlff field | %s | %s | %s | %s |\n\n", pct(&r2_field, r2_field.s.miou, a), pct(&r2_field, r2_field.s.mprec, b),
-          pct(&r3_field_ref, r3_field_ref.s.miou, c), pct(&r3_field_ref, r3_field_ref.s.macc, d));
+  fprintf(md, "| raw per-frame features (2D) | %s | %s | - | - |\n", pct(r2_raw, r2_raw->s.miou, a), pct(r2_raw, r2_raw->s.mprec, b));
+  fprintf(md, "| multi-view fusion (3D, unjittered) | - | - | %s | %s |\n", pct(r3_fusion, r3_fusion->s.miou, a),
+          pct(r3_fusion, r3_fusion->s.macc, b));
+  fprintf(md, "| vlff field | %s | %s | %s | %s |\n\n", pct(r2_field, r2_field->s.miou, a), pct(r2_field, r2_field->s.mprec, b),
+          pct(r3_field_ref, r3_field_ref->s.miou, c), pct(r3_field_ref, r3_field_ref->s.macc, d));
   fprintf(md, "## Per class (standard protocol, IoU %%)\n\n| class | 2D raw | 2D field | 3D fusion | 3D field | 3D field (ref) |\n|---|---|---|---|---|---|\n");
-  for (int k = 0; k < K; k++) {
+  for (int k = 0; k < sc->K; k++) {
     struct vlff_class_score s1, s2, s3, s4, s5;
-    vlff_confusion_class(&r2_raw.c, k, &s1);
-    vlff_confusion_class(&r2_field.c, k, &s2);
-    vlff_confusion_class(&r3_fusion.c, k, &s3);
-    vlff_confusion_class(&r3_field.c, k, &s4);
-    vlff_confusion_class(&r3_field_ref.c, k, &s5);
-#define CELL(r, s, buf) ((r).valid && (s).present ? pct(&(r), (s).iou, buf) : "-")
-    fprintf(md, "| %s | %s | %s | %s | %s | %s |\n", sc.names[k], CELL(r2_raw, s1, a), CELL(r2_field, s2, b),
-            CELL(r3_fusion, s3, c), CELL(r3_field, s4, d), CELL(r3_field_ref, s5, e));
+    vlff_confusion_class(&r2_raw->c, k, &s1);
+    vlff_confusion_class(&r2_field->c, k, &s2);
+    vlff_confusion_class(&r3_fusion->c, k, &s3);
+    vlff_confusion_class(&r3_field->c, k, &s4);
+    vlff_confusion_class(&r3_field_ref->c, k, &s5);
+    fprintf(md, "| %s | %s | %s | %s | %s | %s |\n", sc->names[k], CELL(*r2_raw, s1, a), CELL(*r2_field, s2, b),
+            CELL(*r3_fusion, s3, c), CELL(*r3_field, s4, d), CELL(*r3_field_ref, s5, x));
   }
   fclose(md);
-  snprintf(path, sizeof path, "%s/report.json", o.out);
+}
+
+static void write_report_json(const struct eval *e) {
+  const struct opts *o = &e->o;
+  const struct scene *sc = &e->sc;
+  char path[4200];
+  snprintf(path, sizeof path, "%s/report.json", o->out);
   struct json_object *root = json_object_new_object(), *src = json_object_new_object();
   /* The source is named by what it is: a dataset's path and frames, or the
    * simulator's parameters; never the simulator's for a dataset run. */
-  if (o.dataset) {
+  if (o->dataset) {
     json_object_object_add(src, "kind", json_object_new_string("dataset"));
-    json_object_object_add(src, "path", json_object_new_string(o.dataset));
+    json_object_object_add(src, "path", json_object_new_string(o->dataset));
   } else {
     json_object_object_add(src, "kind", json_object_new_string("synthetic"));
-    json_object_object_add(src, "seed", json_object_new_int(cfg.sim.seed));
-    json_object_object_add(src, "difficulty", json_object_new_double(cfg.sim.difficulty));
+    json_object_object_add(src, "seed", json_object_new_int(e->cfg.sim.seed));
+    json_object_object_add(src, "difficulty", json_object_new_double(e->cfg.sim.difficulty));
   }
   struct json_object *trf = json_object_new_array(), *tef = json_object_new_array();
-  for (int i = 0; i < sc.n; i++)
-    json_object_array_add(i % o.holdout == o.holdout / 2 ? tef : trf, json_object_new_int(sc.f[i].index));
+  for (int i = 0; i < sc->n; i++)
+    json_object_array_add(held_out(i, o->holdout) ? tef : trf, json_object_new_int(sc->f[i].index));
   json_object_object_add(src, "train_frames", trf);
   json_object_object_add(src, "test_frames", tef);
   json_object_object_add(root, "source", src);
-  json_object_object_add(root, "frames", json_object_new_int(sc.n));
-  json_object_object_add(root, "holdout", json_object_new_int(o.holdout));
-  json_object_object_add(root, "points", json_object_new_int64((int64_t)np));
-  json_object_object_add(root, "iters", json_object_new_int(fitted ? steps : 0));
-  json_object_object_add(root, "fit_seconds", json_object_new_double(fit_s));
+  json_object_object_add(root, "frames", json_object_new_int(sc->n));
+  json_object_object_add(root, "holdout", json_object_new_int(o->holdout));
+  json_object_object_add(root, "points", json_object_new_int64((int64_t)sc->pts.n));
+  json_object_object_add(root, "iters", json_object_new_int(e->fitted ? e->steps : 0));
+  json_object_object_add(root, "fit_seconds", json_object_new_double(e->fit_s));
   struct json_object *names = json_object_new_array();
-  for (int k = 0; k < K; k++) json_object_array_add(names, json_object_new_string(sc.names[k]));
+  for (int k = 0; k < sc->K; k++) json_object_array_add(names, json_object_new_string(sc->names[k]));
   json_object_object_add(root, "classes", names);
   struct json_object *res = json_object_new_object();
-  json_object_object_add(res, "raw_2d", json_result(&r2_raw));
-  json_object_object_add(res, "field_2d", json_result(&r2_field));
-  json_object_object_add(res, "fusion_3d", json_result(&r3_fusion));
-  json_object_object_add(res, "field_3d", json_result(&r3_field));
-  json_object_object_add(res, "field_3d_reference", json_result(&r3_field_ref));
+  json_object_object_add(res, "raw_2d", json_result(&e->r2_raw));
+  json_object_object_add(res, "field_2d", json_result(&e->r2_field));
+  json_object_object_add(res, "fusion_3d", json_result(&e->r3_fusion));
+  json_object_object_add(res, "field_3d", json_result(&e->r3_field));
+  json_object_object_add(res, "field_3d_reference", json_result(&e->r3_field_ref));
   json_object_object_add(root, "results", res);
   if (json_object_to_file_ext(path, root, JSON_C_TO_STRING_PRETTY | JSON_C_TO_STRING_NOSLASHESCAPE) < 0)
     die("%s: %s", path, json_util_get_last_err());
   json_object_put(root);
+}
 
-  if (o.dataset) printf("scene: dataset %s, frames %d to %d", o.dataset, sc.f[0].index, sc.f[sc.n - 1].index);
-  else printf("scene: synthetic room, seed %d, difficulty %.2f", cfg.sim.seed, cfg.sim.difficulty);
-  printf(", %d train / %d held-out frames, %zu points\n", ntrain, ntest, np);
-  printf("%-34s %8s %8s %8s %8s\n", "standard protocol", "2D mIoU", "2D mAcc", "3D mIoU", "3D mAcc");
-  printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.macc, b), "-", "-");
-  printf("%-34s %8s %8s %8s %8s\n", "multi-view fusion", "-", "-", pct(&r3_fusion, r3_fusion.s.miou, a), pct(&r3_fusion, r3_fusion.s.macc, b));
-  printf("%-34s %8s %8s %8s %8s\n", "vlff field", pct(&r2_field, r2_field.s.miou, a), pct(&r2_field, r2_field.s.macc, b),
-         pct(&r3_field, r3_field.s.miou, c), pct(&r3_field, r3_field.s.macc, d));
-  printf("%-34s %8s %8s %8s %8s\n", "reference protocol", "2D mIoU", "2D prec", "3D mIoU", "3D rec");
-  printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(&r2_raw, r2_raw.s.miou, a), pct(&r2_raw, r2_raw.s.mprec, b), "-", "-");
-  printf("%-34s %8s %8s %8s %8s\n", "vlff field (3D: 10 jittered)", pct(&r2_field, r2_field.s.miou, a),
-         pct(&r2_field, r2_field.s.mprec, b), pct(&r3_field_ref, r3_field_ref.s.miou, c), pct(&r3_field_ref, r3_field_ref.s.macc, d));
-  /* Per class: the field's 3D IoU beside fusion's (the map controllers
-   * read) and 2D beside the raw features'. The worst ratio counts classes
-   * with at least 500 labelled points that fusion finds at all: fewer
-   * points make the ratio noise. */
+/* Per class: the field's 3D IoU beside fusion's (the map controllers
+ * read) and 2D beside the raw features'. The worst ratio counts classes
+ * with at least 500 labelled points that fusion finds at all: fewer
+ * points make the ratio noise. Returns the worst ratio's class (-1: none)
+ * and sets *worst to it. */
+static int print_per_class(const struct eval *e, double *worst) {
+  const struct result *r2_raw = &e->r2_raw, *r2_field = &e->r2_field, *r3_fusion = &e->r3_fusion;
+  const struct result *r3_field = &e->r3_field;
+  char a[16], b[16], c[16], d[16];
   printf("%-18s %8s %10s %10s %7s %8s %9s\n", "per class (IoU %)", "points", "3D fusion", "3D field", "ratio",
          "2D raw", "2D field");
-  double worst = INFINITY;
+  *worst = INFINITY;
   int worst_k = -1;
-  for (int k = 0; k < K; k++) {
+  for (int k = 0; k < e->sc.K; k++) {
     struct vlff_class_score s1, s2, s3, s4;
-    vlff_confusion_class(&r2_raw.c, k, &s1);
-    vlff_confusion_class(&r2_field.c, k, &s2);
-    vlff_confusion_class(&r3_fusion.c, k, &s3);
-    vlff_confusion_class(&r3_field.c, k, &s4);
+    vlff_confusion_class(&r2_raw->c, k, &s1);
+    vlff_confusion_class(&r2_field->c, k, &s2);
+    vlff_confusion_class(&r3_fusion->c, k, &s3);
+    vlff_confusion_class(&r3_field->c, k, &s4);
     unsigned long long npts = (unsigned long long)(s3.tp + s3.fn);
     if (!s1.present && !s3.present) continue;
     char ratio[16] = "-";
-    if (r3_field.valid && s3.present && s3.iou > 0) {
+    if (r3_field->valid && s3.present && s3.iou > 0) {
       double q = s4.iou / s3.iou;
       snprintf(ratio, sizeof ratio, "%.2f", q);
-      if (npts >= 500 && q < worst) worst = q, worst_k = k;
+      if (npts >= 500 && q < *worst) *worst = q, worst_k = k;
     }
-    printf("%-18.18s %8llu %10s %10s %7s %8s %9s\n", sc.names[k], npts, CELL(r3_fusion, s3, a), CELL(r3_field, s4, b),
-           ratio, CELL(r2_raw, s1, c), CELL(r2_field, s2, d));
+    printf("%-18.18s %8llu %10s %10s %7s %8s %9s\n", e->sc.names[k], npts, CELL(*r3_fusion, s3, a),
+           CELL(*r3_field, s4, b), ratio, CELL(*r2_raw, s1, c), CELL(*r2_field, s2, d));
   }
+  return worst_k;
+}
+
+/* The console: both protocols' tables, the per-class table, the worst
+ * class and the RESULT line. */
+static void print_summary(const struct eval *e) {
+  const struct opts *o = &e->o;
+  const struct scene *sc = &e->sc;
+  const struct result *r2_raw = &e->r2_raw, *r2_field = &e->r2_field, *r3_fusion = &e->r3_fusion;
+  const struct result *r3_field = &e->r3_field, *r3_field_ref = &e->r3_field_ref;
+  char a[16], b[16], c[16], d[16], x[16], y[16];
+  if (o->dataset) printf("scene: dataset %s, frames %d to %d", o->dataset, sc->f[0].index, sc->f[sc->n - 1].index);
+  else printf("scene: synthetic room, seed %d, difficulty %.2f", e->cfg.sim.seed, e->cfg.sim.difficulty);
+  printf(", %d train / %d held-out frames, %zu points\n", e->ntrain, e->ntest, sc->pts.n);
+  printf("%-34s %8s %8s %8s %8s\n", "standard protocol", "2D mIoU", "2D mAcc", "3D mIoU", "3D mAcc");
+  printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(r2_raw, r2_raw->s.miou, a), pct(r2_raw, r2_raw->s.macc, b), "-", "-");
+  printf("%-34s %8s %8s %8s %8s\n", "multi-view fusion", "-", "-", pct(r3_fusion, r3_fusion->s.miou, a), pct(r3_fusion, r3_fusion->s.macc, b));
+  printf("%-34s %8s %8s %8s %8s\n", "vlff field", pct(r2_field, r2_field->s.miou, a), pct(r2_field, r2_field->s.macc, b),
+         pct(r3_field, r3_field->s.miou, c), pct(r3_field, r3_field->s.macc, d));
+  printf("%-34s %8s %8s %8s %8s\n", "reference protocol", "2D mIoU", "2D prec", "3D mIoU", "3D rec");
+  printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(r2_raw, r2_raw->s.miou, a), pct(r2_raw, r2_raw->s.mprec, b), "-", "-");
+  printf("%-34s %8s %8s %8s %8s\n", "vlff field (3D: 10 jittered)", pct(r2_field, r2_field->s.miou, a),
+         pct(r2_field, r2_field->s.mprec, b), pct(r3_field_ref, r3_field_ref->s.miou, c), pct(r3_field_ref, r3_field_ref->s.macc, d));
+  double worst;
+  int worst_k = print_per_class(e, &worst);
   char wbuf[64] = "n/a";
   if (worst_k >= 0) {
     snprintf(wbuf, sizeof wbuf, "%.2f", worst);
-    printf("worst class vs fusion: %s %.2f\n", sc.names[worst_k], worst);
+    printf("worst class vs fusion: %s %.2f\n", sc->names[worst_k], worst);
   }
-  printf("report: %s/report.md\n", o.out);
+  printf("report: %s/report.md\n", o->out);
   printf("RESULT miou3d=%s miou3d_fusion=%s miou2d=%s miou2d_raw=%s macc2d=%s macc2d_raw=%s "
          "worst_class_vs_fusion=%s fit_seconds=%.1f steps=%d\n",
-         pct(&r3_field, r3_field.s.miou, a), pct(&r3_fusion, r3_fusion.s.miou, b), pct(&r2_field, r2_field.s.miou, c),
-         pct(&r2_raw, r2_raw.s.miou, d), pct(&r2_field, r2_field.s.macc, e), pct(&r2_raw, r2_raw.s.macc, path), wbuf,
-         fit_s, steps);
+         pct(r3_field, r3_field->s.miou, a), pct(r3_fusion, r3_fusion->s.miou, b), pct(r2_field, r2_field->s.miou, c),
+         pct(r2_raw, r2_raw->s.miou, d), pct(r2_field, r2_field->s.macc, x), pct(r2_raw, r2_raw->s.macc, y), wbuf,
+         e->fit_s, e->steps);
+}
 
-  for (int i = 0; i < sc.n; i++) {
-    if (sc.streaming && held_out(i, sc.holdout)) sc.f[i].rgb = NULL, sc.f[i].feat = NULL; /* scratch */
-    free(sc.f[i].rgb), free(sc.f[i].label), free(sc.f[i].depth), free(sc.f[i].feat);
-    free(sc.f[i].trgb), free(sc.f[i].tdepth);
+static void scene_free(struct eval *e) {
+  struct scene *sc = &e->sc;
+  for (int i = 0; i < sc->n; i++) {
+    if (sc->streaming && held_out(i, sc->holdout)) sc->f[i].rgb = NULL, sc->f[i].feat = NULL; /* scratch */
+    free(sc->f[i].rgb), free(sc->f[i].label), free(sc->f[i].depth), free(sc->f[i].feat);
+    free(sc->f[i].trgb), free(sc->f[i].tdepth);
   }
-  free(sc.srgb), free(sc.sfeat);
-  if (sc.streaming) vlff_dataset_close(&sc.ds);
-  free(sc.f), free(gl), free(pl), free(p3), free(pred3), free(overlay_pred), free(emb_raw);
-  vlff_points_free(&sc.pts);
-  vlff_confusion_free(&r2_raw.c), vlff_confusion_free(&r2_field.c), vlff_confusion_free(&r3_fusion.c);
-  vlff_confusion_free(&r3_field.c), vlff_confusion_free(&r3_field_ref.c);
+  free(sc->srgb), free(sc->sfeat);
+  if (sc->streaming) vlff_dataset_close(&sc->ds);
+  free(sc->f), free(e->gl), free(e->pl), free(e->p3), free(e->pred3), free(e->emb_raw);
+  vlff_points_free(&sc->pts);
+  vlff_confusion_free(&e->r2_raw.c), vlff_confusion_free(&e->r2_field.c), vlff_confusion_free(&e->r3_fusion.c);
+  vlff_confusion_free(&e->r3_field.c), vlff_confusion_free(&e->r3_field_ref.c);
+}
+
+/* ---- main --------------------------------------------------------------- */
+
+int main(int argc, char **argv) {
+  static struct eval e; /* zeroed; large (the scene's prompt vectors) */
+  configure(&e, argc, argv);
+  load_scene(&e);
+  baselines(&e);
+  if (e.o.iters > 0 || e.o.fit_seconds > 0) {
+    struct vlff_field *fld = fit_field(&e);
+    score_field(&e, fld);
+    vlff_field_destroy(fld);
+  }
+  write_prediction_ply(&e);
+  write_report_md(&e);
+  write_report_json(&e);
+  print_summary(&e);
+  scene_free(&e);
   return 0;
 }
