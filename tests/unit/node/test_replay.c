@@ -121,9 +121,43 @@ static int teardown(void **state) {
   return tk_teardown(&tk);
 }
 
+struct floor_wall {
+  int floor_ok, floor_n, wall_ok, wall_n;
+};
+
+/* Reads the published map at the scene's floor and wall points: how many
+ * are observed (labelled, not unknown or free) and how many of those carry
+ * the right prompt. */
+static struct floor_wall floor_wall_read(const char *map, const struct vlff_sim_points *gt) {
+  struct floor_wall fw = {0};
+  struct vlff_map *m = vlff_map_attach(map);
+  assert_non_null(m);
+  for (size_t i = 0; i < gt->n; i++) {
+    uint16_t lab;
+    char text[64];
+    const float *x = gt->xyz + i * 3;
+    if (gt->label[i] > 1 || vlff_map_label_at(m, x[0], x[1], x[2], &lab, NULL) != 0 || lab == VLFF_LABEL_UNKNOWN ||
+        lab == VLFF_LABEL_FREE)
+      continue;
+    int ok = vlff_map_prompt(m, lab, text, sizeof text) == 0 && !strcmp(text, gt->label[i] ? "floor" : "wall");
+    if (gt->label[i] == 1) fw.floor_n++, fw.floor_ok += ok;
+    else fw.wall_n++, fw.wall_ok += ok;
+  }
+  vlff_map_detach(m);
+  return fw;
+}
+
+static bool floor_wall_right(const struct floor_wall *fw) {
+  return fw->floor_n >= 300 && fw->wall_n >= 300 && fw->floor_ok > fw->floor_n * 0.7 &&
+         fw->wall_ok > fw->wall_n * 0.7;
+}
+
 /* The node trains from the replayed scene as from live sensors: every frame
  * paired with its pose (none invalid), keyframes taken, a map published
- * whose labels at the scene's points are right. */
+ * whose labels at the scene's points are right. The map keeps improving
+ * while the node trains, so the label check is polled until the deadline
+ * rather than read once at the first good mIoU: how far the field has got
+ * at a given moment depends on how loaded the host is. */
 static void test_node_trains_from_replay(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -137,35 +171,24 @@ static void test_node_trains_from_replay(void **state) {
   /* The recording's 5 Hz, looped: the node sees the room as vlff-sim shows it. */
   const char *args[] = {"--config", cfg_path, "--fps", "5", "--loop", "--quiet", scene, NULL};
   pid_t pid = tk_spawn(&tk, "node/dataset/vlff-replay", args, NULL);
-  double t0 = vlff_seconds();
+  double t0 = vlff_seconds(), deadline = 90 * tk.scale;
   uint64_t version = 0;
-  double best = tk_wait_miou3d(cfg.shm.map, &gt, 35, 90 * tk.scale, &version);
+  double best = tk_wait_miou3d(cfg.shm.map, &gt, 35, deadline, &version);
+  struct floor_wall fw = floor_wall_read(cfg.shm.map, &gt);
+  while (!floor_wall_right(&fw) && vlff_seconds() - t0 < deadline) {
+    tk_sleep_s(0.5);
+    fw = floor_wall_read(cfg.shm.map, &gt);
+  }
   struct vlff_node_status st;
   tk_report(n, vlff_seconds() - t0, best, version, &st);
+  printf("floor %d/%d, wall %d/%d labelled right\n", fw.floor_ok, fw.floor_n, fw.wall_ok, fw.wall_n);
   assert_true(st.frames_in > 0);
   assert_int_equal(st.frames_invalid, 0);
   assert_true(st.keyframes > 0);
   assert_true(version > 0);
   assert_true(best >= 35);
   /* Known points: observed floor points read "floor", walls "wall". */
-  struct vlff_map *m = vlff_map_attach(cfg.shm.map);
-  assert_non_null(m);
-  int floor_ok = 0, floor_n = 0, wall_ok = 0, wall_n = 0;
-  for (size_t i = 0; i < gt.n; i++) {
-    uint16_t lab;
-    char text[64];
-    const float *x = gt.xyz + i * 3;
-    if (gt.label[i] > 1 || vlff_map_label_at(m, x[0], x[1], x[2], &lab, NULL) != 0 || lab == VLFF_LABEL_UNKNOWN ||
-        lab == VLFF_LABEL_FREE)
-      continue;
-    int ok = vlff_map_prompt(m, lab, text, sizeof text) == 0 && !strcmp(text, gt.label[i] ? "floor" : "wall");
-    if (gt.label[i] == 1) floor_n++, floor_ok += ok;
-    else wall_n++, wall_ok += ok;
-  }
-  vlff_map_detach(m);
-  printf("floor %d/%d, wall %d/%d labelled right\n", floor_ok, floor_n, wall_ok, wall_n);
-  assert_true(floor_n >= 300 && wall_n >= 300);
-  assert_true(floor_ok > floor_n * 0.7 && wall_ok > wall_n * 0.7);
+  assert_true(floor_wall_right(&fw));
   kill(pid, SIGTERM);
   assert_int_equal(tk_wait_child(&tk, pid), 0);
   tk_node_destroy(n, src);
