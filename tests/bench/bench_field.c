@@ -28,6 +28,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_stats.h"
 #include "field_internal.h"
 #include "../unit/field/scene.h"
 
@@ -143,11 +144,6 @@ static void scene_free(struct scene *s) {
   for (int k = 0; k < s->nv; k++) scene_view_free(&s->sv[k]);
 }
 
-static int cmp_double(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-
 /* Medians over the timed steps: samples/s, dense-layer FLOP/s, the same
  * FLOP/s over the rays phase alone (what a free table update would leave),
  * each phase's share of the step, and per step: the FLOPs, their products'
@@ -193,7 +189,7 @@ static struct rate train(struct vlff_field *f, struct scene *s, int steps, int t
   }
   double med[9];
   for (int c = 0; c < 9; c++) {
-    qsort(col[c], k, sizeof(double), cmp_double);
+    qsort(col[c], k, sizeof(double), bench_cmp_double);
     med[c] = col[c][k / 2];
   }
   *psnr = st.psnr;

@@ -8,6 +8,7 @@
  * ring frames/s over memcpy frames/s (1.0 = the ring is free).
  * Wake latency: commit -> consumer returns from its futex wait, against the same
  * hand-off through an eventfd, both paced so that the consumer is asleep each time. */
+#include "bench_stats.h"
 #include "vlff/shm.h"
 
 #include <errno.h>
@@ -25,15 +26,6 @@
 
 static char name[64];
 static _Atomic int stop;
-
-static int cmp_double(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-static double median(double *v, int n) {
-  qsort(v, (size_t)n, sizeof *v, cmp_double);
-  return v[n / 2];
-}
 
 static void *inplace_consumer(void *arg) {
   struct vlff_ring *r = arg;
@@ -90,8 +82,8 @@ static void throughput(uint32_t w, uint32_t h, int frames, double *ring_fps, dou
   }
   atomic_store(&stop, 1);
   pthread_join(t, NULL);
-  *ring_fps = median(rs, REPS);
-  *copy_fps = median(cs, REPS);
+  *ring_fps = bench_median(rs, REPS);
+  *copy_fps = bench_median(cs, REPS);
   vlff_ring_close(rd);
   vlff_ring_close(wr);
   vlff_shm_unlink(name);
@@ -169,8 +161,8 @@ static void wake_latency(double *rp50, double *rp99, double *ep50, double *ep99)
   }
   pthread_join(t, NULL);
   close(efd);
-  qsort(lat_ring, WAKES, sizeof(double), cmp_double);
-  qsort(lat_efd, WAKES, sizeof(double), cmp_double);
+  qsort(lat_ring, WAKES, sizeof(double), bench_cmp_double);
+  qsort(lat_efd, WAKES, sizeof(double), bench_cmp_double);
   *rp50 = lat_ring[WAKES / 2];
   *rp99 = lat_ring[WAKES * 99 / 100];
   *ep50 = lat_efd[WAKES / 2];

@@ -57,6 +57,27 @@ int tk_teardown(struct tk *t) {
   return rc;
 }
 
+const char *tk_shm_names(struct tk *t) {
+  snprintf(t->shm_names, sizeof t->shm_names,
+           "  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n", t->tag,
+           t->tag, t->tag, t->tag, t->tag);
+  return t->shm_names;
+}
+
+const char *tk_config(struct tk *t, struct vlff_config *cfg, const char *fmt, ...) {
+  snprintf(t->cfg_path, sizeof t->cfg_path, "%s/node.yaml", t->dir);
+  FILE *f = fopen(t->cfg_path, "w");
+  assert_non_null(f);
+  va_list ap;
+  va_start(ap, fmt);
+  vfprintf(f, fmt, ap);
+  va_end(ap);
+  assert_int_equal(fclose(f), 0);
+  char err[512];
+  if (vlff_config_load(t->cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
+  return t->cfg_path;
+}
+
 pid_t tk_spawn(struct tk *t, const char *prog, const char *const *args, const char *out) {
   char path[512];
   const char *bin = getenv("VLFF_BINARY_DIR");
@@ -198,6 +219,31 @@ void tk_scene_open(struct tk_scene *sc, const struct vlff_config *cfg, int slots
                                 {0640, NULL}};
   sc->ring = vlff_ring_create(cfg->shm.ring, &rp);
   assert_non_null(sc->ring);
+}
+
+struct vlff_node *tk_scene_node(struct tk_scene *sc, const struct vlff_config *cfg, int slots, int w, int h,
+                                struct vlff_sim_source **src) {
+  tk_scene_open(sc, cfg, slots, w, h);
+  char err[512];
+  struct vlff_node *n = tk_node_create(cfg, src, err, sizeof err);
+  if (!n) fail_msg("%s", err);
+  tk_sleep_s(0.5);
+  return n;
+}
+
+struct vlff_frame_hdr *tk_frame_reserve(struct vlff_ring *ring, const struct vlff_sim_frame *f, long long id,
+                                        uint64_t t_ns, int w, int h, int depth_format, uint64_t *len) {
+  struct vlff_frame_hdr *hd = vlff_ring_reserve(ring, NULL);
+  assert_non_null(hd);
+  *len = vlff_frame_layout(hd, vlff_ring_slot_size(ring), (uint32_t)w, (uint32_t)h, VLFF_PIX_RGB8,
+                           (uint32_t)depth_format);
+  assert_true(*len > 0);
+  hd->frame_id = (uint64_t)id;
+  hd->t_host_ns = t_ns;
+  hd->flags = VLFF_FRAME_POSE_VALID | VLFF_FRAME_INTRINSICS_VALID;
+  hd->fx = f->fx, hd->fy = f->fy, hd->cx = f->cx, hd->cy = f->cy;
+  memcpy(hd->pose, f->c2w, sizeof hd->pose);
+  return hd;
 }
 
 void tk_scene_close(struct tk_scene *sc) {

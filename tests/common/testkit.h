@@ -29,6 +29,8 @@ struct tk {
   pid_t children[TK_CHILDREN];
   int nchildren;
   double scale;  /* $VLFF_E2E_SCALE (sanitizer builds run slower): timeouts, never thresholds */
+  char shm_names[384];
+  char cfg_path[160];
 };
 
 /* $VLFF_E2E_SCALE, 1 when unset or not positive. */
@@ -38,6 +40,15 @@ void tk_setup(struct tk *t, const char *prefix);
 /* Kills the children left, removes the directory and every /dev/shm/<tag>-*
  * segment. 0, or -1 when something could not be removed. */
 int tk_teardown(struct tk *t);
+
+/* The five keys of a shm: section that name the test's segments, each an
+ * indented line: ring /<tag>-f, map -m, prompts -p, pose_ring -q and
+ * feature_ring -x. The text lives in t. */
+const char *tk_shm_names(struct tk *t);
+/* Writes the config fmt (printf-style) as <dir>/node.yaml and loads it into
+ * cfg; a load error fails the test. Returns the file's path (in t). */
+const char *tk_config(struct tk *t, struct vlff_config *cfg, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 
 /* Starts a program of the build (relative to $VLFF_BINARY_DIR) with args
  * (NULL-terminated), stdout and stderr into out (NULL: inherited). */
@@ -76,11 +87,22 @@ struct tk_scene {
 };
 void tk_scene_open(struct tk_scene *sc, const struct vlff_config *cfg, int slots, int w, int h);
 void tk_scene_close(struct tk_scene *sc);
+/* The ring's next slot laid out as a w x h frame of RGB8 and depth_format
+ * (VLFF_PIX_DEPTH_U16_MM or VLFF_PIX_NONE), frame id stamped t_ns with f's
+ * intrinsics and pose, both flagged valid; the pixels are left to the
+ * caller. *len is what vlff_ring_commit takes. */
+struct vlff_frame_hdr *tk_frame_reserve(struct vlff_ring *ring, const struct vlff_sim_frame *f, long long id,
+                                        uint64_t t_ns, int w, int h, int depth_format, uint64_t *len);
 
 /* vlff_node_create with the simulator's hooks when cfg uses them; *src is
  * destroyed by the caller after the node (tk_node_destroy does both). */
 struct vlff_node *tk_node_create(const struct vlff_config *cfg, struct vlff_sim_source **src, char *err,
                                  size_t errlen);
 void tk_node_destroy(struct vlff_node *n, struct vlff_sim_source *src);
+
+/* tk_scene_open, then a node on cfg (tk_node_create: an error fails the
+ * test), given half a second for its ingest thread to attach to the ring. */
+struct vlff_node *tk_scene_node(struct tk_scene *sc, const struct vlff_config *cfg, int slots, int w, int h,
+                                struct vlff_sim_source **src);
 
 #endif

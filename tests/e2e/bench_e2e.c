@@ -16,6 +16,7 @@
 #include <stdlib.h>
 #include <time.h>
 
+#include "bench_stats.h"
 #include "node.h"
 #include "testkit.h"
 #include "rig.h"
@@ -69,11 +70,6 @@ static double time_to_useful(struct rig *r, long long *frames_in, double *first)
   return t;
 }
 
-static int cmp(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-
 int main(int argc, char **argv) {
   if (!rig_netns_enter(argc, argv)) return 1;
   char err[1024];
@@ -106,10 +102,10 @@ int main(int argc, char **argv) {
     }
     colour += c - s0, startup += s0, pairs += p, unmatched += u, dropped += d, cpu += cam.camd_cpu_s;
   }
-  qsort(t_sim, REPS, sizeof *t_sim, cmp);
-  qsort(t_cam, REPS, sizeof *t_cam, cmp);
-  qsort(f_sim, REPS, sizeof *f_sim, cmp);
-  qsort(f_cam, REPS, sizeof *f_cam, cmp);
+  qsort(t_sim, REPS, sizeof *t_sim, bench_cmp_double);
+  qsort(t_cam, REPS, sizeof *t_cam, bench_cmp_double);
+  qsort(f_sim, REPS, sizeof *f_sim, bench_cmp_double);
+  qsort(f_cam, REPS, sizeof *f_cam, bench_cmp_double);
   /* camd opens the cameras one after the other, and scenecam creates them
    * as camd starts: the colour camera may stream a few frames before the
    * range camera's first. Those are start-up frames, not lost pairs. */

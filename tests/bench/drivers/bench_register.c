@@ -16,6 +16,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "bench_stats.h"
 #include "depthreg.h"
 
 #define W 640
@@ -28,16 +29,6 @@ static double now_ms(void) {
   struct timespec ts;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
   return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
-
-static int cmp(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-
-static double median(double *v, int n) {
-  qsort(v, (size_t)n, sizeof *v, cmp);
-  return v[n / 2];
 }
 
 static void cpu_model(char *out, size_t len) {
@@ -95,7 +86,8 @@ int main(void) {
     t_reg[i] = t1 - t0, t_copy[i] = t2 - t1, t_conv[i] = t3 - t2;
   }
   if (valid < 0) return fprintf(stderr, "bench_register: %s\n", err), 1;
-  double reg_ms = median(t_reg, RUNS), copy_ms = median(t_copy, RUNS), conv_ms = median(t_conv, RUNS);
+  double reg_ms = bench_median(t_reg, RUNS), copy_ms = bench_median(t_copy, RUNS),
+         conv_ms = bench_median(t_conv, RUNS);
   char cpu[128];
   cpu_model(cpu, sizeof cpu);
   printf("cpu: %s\n", cpu);

@@ -38,6 +38,72 @@ static void expect_error(const char *yaml, const char *prefix, const char *fragm
   assert_memory_equal(&cfg, &def, sizeof cfg);
 }
 
+/* Every rejected configuration: the file, the start of its message
+ * ("t.yaml:LINE:COL: key 'KEY': ") and a fragment the message holds. */
+static const struct {
+  const char *yaml, *prefix, *fragment;
+} bad[] = {
+  {"node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key"},
+  {"nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key"},
+  /* One name for the feature dimension: the simulator's old key says where it went. */
+  {"sim:\n  feature_dim: 16\n", "t.yaml:2:3: key 'sim.feature_dim': ", "field.feature_dim"},
+  {"field:\n  feature_dim: abc\n", "t.yaml:2:16: key 'field.feature_dim': ", "expected integer in [8, 1024], got 'abc'"},
+  {"field:\n  feature_dim: 2000\n", "t.yaml:2:16: key 'field.feature_dim': ", "got '2000'"},
+  {"field:\n  feature_dim: 1.5\n", "t.yaml:2:16: key 'field.feature_dim': ", "expected integer"},
+  {"train:\n  lr: fast\n", "t.yaml:2:7: key 'train.lr': ", "expected number in [0, 10], got 'fast'"},
+  {"train:\n  lr: nan\n", "t.yaml:2:7: key 'train.lr': ", "expected number"},
+  {"train:\n  lr: -1\n", "t.yaml:2:7: key 'train.lr': ", "got '-1'"},
+  {"can:\n  enabled: maybe\n", "t.yaml:2:12: key 'can.enabled': ", "expected true or false, got 'maybe'"},
+  {"train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ", "expected one of depth|uniform, got 'random'"},
+  {"sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat, got 'house'"},
+  {"sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'"},
+  {"node:\n  name: [a, b]\n", "t.yaml:2:9: key 'node.name': ", "expected string, got a sequence"},
+  {"can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n", "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes"},
+  {"field:\n  scene_min: [1, 2]\n", "t.yaml:2:14: key 'field.scene_min': ", "expected sequence of 3 numbers, got a sequence"},
+  {"field:\n  scene_min: [1, x, 2]\n", "t.yaml:2:18: key 'field.scene_min': ", "at index 1, got 'x'"},
+  {"field: 3\n", "t.yaml:1:8: key 'field': ", "expected a mapping, got '3'"},
+  {"- a\n- b\n", "t.yaml:1:1: ", "expected a mapping at top level, got a sequence"},
+  {"node:\n  name: a\n  name: b\n", "t.yaml:3:3: key 'node.name': ", "duplicate key (first at line 2)"},
+  {"node:\n  name: [a\n", "t.yaml:", "YAML syntax error"},
+  {"node:\n  name: a\n---\nnode:\n  name: b\n", "t.yaml:", "expected one YAML document"},
+  {"prompts:\n  sets: x\n", "t.yaml:2:9: key 'prompts.sets': ", "expected sequence of {name, prompts}"},
+  {"prompts:\n  sets: []\n", "t.yaml:2:9: key 'prompts.sets': ", "expected 1 to 8 prompt sets, got 0"},
+  {"prompts:\n  sets:\n    - name: a\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected a 'prompts' list"},
+  {"prompts:\n  sets:\n    - name: a\n      promts: [x]\n", "t.yaml:4:7: key 'prompts.sets[0].promts': ", "unknown key"},
+  {"prompts:\n  sets:\n    - prompts: [x, \"\"]\n", "t.yaml:3:20: key 'prompts.sets[0].prompts': ", "at index 1, got ''"},
+  {"prompts:\n  sets:\n    - prompts: []\n", "t.yaml:3:16: key 'prompts.sets[0].prompts': ", "expected sequence of 1 to 32 prompts"},
+  {"prompts:\n  sets:\n    - 5\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected mapping"},
+  /* Cross-key checks name the key; they have no single source position. */
+  {"field:\n  scene_min: [0, 0, 0]\n  scene_max: [1, 0, 1]\n", "t.yaml:3:14: key 'field.scene_max': ", "axis 1"},
+  {"prompts:\n  active: 1\n", "t.yaml:2:11: key 'prompts.active': ", "below 1"},
+  {"shm:\n  mode: 0666\n", "t.yaml:2:9: key 'shm.mode': ", "world-writable"},
+  {"field:\n  base_resolution: 64\n  finest_resolution: 32\n", "t.yaml:3:22: key 'field.finest_resolution': ", ">= field.base_resolution"},
+  {"field:\n  base_resolution: 4096\n", "t.yaml: key 'field.finest_resolution': ", "got 2048"},
+  {"prompts:\n  template: a photo\n", "t.yaml:2:13: key 'prompts.template': ", "containing {}"},
+  /* The simulator's features with a camera's frames: refused unless forced. */
+  {"source:\n  kind: ring\n  features: sim\n", "t.yaml:3:13: key 'source.features': ", "source.allow_sim_features: true"},
+  {"source:\n  features: sim\n", "t.yaml:2:13: key 'source.features': ", "never a camera's"},
+  /* What the file says is quoted in messages without control bytes, and a
+   * NUL inside a string is refused rather than cutting it short. */
+  {"node:\n  name: \"a\\0b\"\n", "t.yaml:2:9: key 'node.name': ", "expected a string without NUL bytes, got 'a\\x00b'"},
+  {"prompts:\n  sets:\n    - name: \"x\\0y\"\n      prompts: [a]\n", "t.yaml:3:13: key 'prompts.sets[0].name': ", "got 'x\\x00y'"},
+  {"prompts:\n  sets:\n    - prompts: [\"a\\0b\"]\n", "t.yaml:3:17: key 'prompts.sets[0].prompts': ", "at index 0, got 'a\\x00b'"},
+  {"node:\n  log_level: \"\\e[31mred\\e[0m\"\n", "t.yaml:2:14: key 'node.log_level': ", "got '\\x1b[31mred\\x1b[0m'"},
+  {"node:\n  \"\\e[2J\": 1\n", "t.yaml:2:3: key 'node.\\x1b[2J': ", "unknown key"},
+  {"node:\n  log_level: \"caf\\u00e9\"\n", "t.yaml:2:14: key 'node.log_level': ", "got 'caf\\xc3\\xa9'"},
+  /* Segment names: valid POSIX names, distinct, refused with file:line. */
+  {"shm:\n  ring: no-slash\n", "t.yaml:2:9: key 'shm.ring': ", "starting with '/'"},
+  {"shm:\n  map: /a/b\n", "t.yaml:2:8: key 'shm.map': ", "no '/' after the leading one"},
+  {"shm:\n  prompts: /\n", "t.yaml:2:12: key 'shm.prompts': ", "1 to 248 characters"},
+  {"shm:\n  pose_ring: /..\n", "t.yaml:2:14: key 'shm.pose_ring': ", "other than '.' or '..'"},
+  {"shm:\n  feature_ring: \"/a\\tb\"\n", "t.yaml:2:17: key 'shm.feature_ring': ", "printable characters"},
+  /* The same name twice: the mailbox would replace the map. */
+  {"shm:\n  map: /x\n  prompts: /x\n", "t.yaml:3:12: key 'shm.prompts': ", "distinct from shm.map, got the same '/x'"},
+  /* A name equal to another key's default is blamed where the file set it. */
+  {"shm:\n  feature_ring: /vlff-frames\n", "t.yaml:2:17: key 'shm.feature_ring': ", "distinct from shm.ring"},
+  {"shm:\n  ring: /vlff-map\n", "t.yaml: key 'shm.map': ", "distinct from shm.ring"},
+};
+
 static void test_defaults_valid(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -85,56 +151,7 @@ static void test_good_file(void **state) {
 
 static void test_errors(void **state) {
   (void)state;
-  expect_error("node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key");
-  expect_error("nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key");
-  /* One name for the feature dimension: the simulator's old key says where it went. */
-  expect_error("sim:\n  feature_dim: 16\n", "t.yaml:2:3: key 'sim.feature_dim': ", "field.feature_dim");
-  expect_error("field:\n  feature_dim: abc\n", "t.yaml:2:16: key 'field.feature_dim': ",
-               "expected integer in [8, 1024], got 'abc'");
-  expect_error("field:\n  feature_dim: 2000\n", "t.yaml:2:16: key 'field.feature_dim': ", "got '2000'");
-  expect_error("field:\n  feature_dim: 1.5\n", "t.yaml:2:16: key 'field.feature_dim': ", "expected integer");
-  expect_error("train:\n  lr: fast\n", "t.yaml:2:7: key 'train.lr': ", "expected number in [0, 10], got 'fast'");
-  expect_error("train:\n  lr: nan\n", "t.yaml:2:7: key 'train.lr': ", "expected number");
-  expect_error("train:\n  lr: -1\n", "t.yaml:2:7: key 'train.lr': ", "got '-1'");
-  expect_error("can:\n  enabled: maybe\n", "t.yaml:2:12: key 'can.enabled': ", "expected true or false, got 'maybe'");
-  expect_error("train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ",
-               "expected one of depth|uniform, got 'random'");
-  expect_error("sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat, got 'house'");
-  expect_error("sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'");
-  expect_error("node:\n  name: [a, b]\n", "t.yaml:2:9: key 'node.name': ", "expected string, got a sequence");
-  expect_error("can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n",
-               "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes");
-  expect_error("field:\n  scene_min: [1, 2]\n", "t.yaml:2:14: key 'field.scene_min': ",
-               "expected sequence of 3 numbers, got a sequence");
-  expect_error("field:\n  scene_min: [1, x, 2]\n", "t.yaml:2:18: key 'field.scene_min': ", "at index 1, got 'x'");
-  expect_error("field: 3\n", "t.yaml:1:8: key 'field': ", "expected a mapping, got '3'");
-  expect_error("- a\n- b\n", "t.yaml:1:1: ", "expected a mapping at top level, got a sequence");
-  expect_error("node:\n  name: a\n  name: b\n", "t.yaml:3:3: key 'node.name': ", "duplicate key (first at line 2)");
-  expect_error("node:\n  name: [a\n", "t.yaml:", "YAML syntax error");
-  expect_error("node:\n  name: a\n---\nnode:\n  name: b\n", "t.yaml:", "expected one YAML document");
-  expect_error("prompts:\n  sets: x\n", "t.yaml:2:9: key 'prompts.sets': ", "expected sequence of {name, prompts}");
-  expect_error("prompts:\n  sets: []\n", "t.yaml:2:9: key 'prompts.sets': ", "expected 1 to 8 prompt sets, got 0");
-  expect_error("prompts:\n  sets:\n    - name: a\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected a 'prompts' list");
-  expect_error("prompts:\n  sets:\n    - name: a\n      promts: [x]\n", "t.yaml:4:7: key 'prompts.sets[0].promts': ",
-               "unknown key");
-  expect_error("prompts:\n  sets:\n    - prompts: [x, \"\"]\n", "t.yaml:3:20: key 'prompts.sets[0].prompts': ",
-               "at index 1, got ''");
-  expect_error("prompts:\n  sets:\n    - prompts: []\n", "t.yaml:3:16: key 'prompts.sets[0].prompts': ",
-               "expected sequence of 1 to 32 prompts");
-  expect_error("prompts:\n  sets:\n    - 5\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected mapping");
-  /* Cross-key checks name the key; they have no single source position. */
-  expect_error("field:\n  scene_min: [0, 0, 0]\n  scene_max: [1, 0, 1]\n", "t.yaml:3:14: key 'field.scene_max': ",
-               "axis 1");
-  expect_error("prompts:\n  active: 1\n", "t.yaml:2:11: key 'prompts.active': ", "below 1");
-  expect_error("shm:\n  mode: 0666\n", "t.yaml:2:9: key 'shm.mode': ", "world-writable");
-  expect_error("field:\n  base_resolution: 64\n  finest_resolution: 32\n", "t.yaml:3:22: key 'field.finest_resolution': ",
-               ">= field.base_resolution");
-  expect_error("field:\n  base_resolution: 4096\n", "t.yaml: key 'field.finest_resolution': ", "got 2048");
-  expect_error("prompts:\n  template: a photo\n", "t.yaml:2:13: key 'prompts.template': ", "containing {}");
-  /* The simulator's features with a camera's frames: refused unless forced. */
-  expect_error("source:\n  kind: ring\n  features: sim\n", "t.yaml:3:13: key 'source.features': ",
-               "source.allow_sim_features: true");
-  expect_error("source:\n  features: sim\n", "t.yaml:2:13: key 'source.features': ", "never a camera's");
+  for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) expect_error(bad[i].yaml, bad[i].prefix, bad[i].fragment);
 }
 
 static void test_sim_features(void **state) {
@@ -193,42 +210,20 @@ static void test_deep_yaml(void **state) {
   assert_non_null(strstr(err, "at index 0, got a sequence"));
 }
 
-/* What the file says is quoted in messages without control bytes, and a
- * NUL inside a string is refused rather than cutting it short. */
+/* What the file says is quoted in messages without control bytes (more
+ * cases in bad[]): not one byte of the message is a control byte. */
 static void test_hostile_strings(void **state) {
   (void)state;
-  expect_error("node:\n  name: \"a\\0b\"\n", "t.yaml:2:9: key 'node.name': ",
-               "expected a string without NUL bytes, got 'a\\x00b'");
-  expect_error("prompts:\n  sets:\n    - name: \"x\\0y\"\n      prompts: [a]\n",
-               "t.yaml:3:13: key 'prompts.sets[0].name': ", "got 'x\\x00y'");
-  expect_error("prompts:\n  sets:\n    - prompts: [\"a\\0b\"]\n", "t.yaml:3:17: key 'prompts.sets[0].prompts': ",
-               "at index 0, got 'a\\x00b'");
-  expect_error("node:\n  log_level: \"\\e[31mred\\e[0m\"\n", "t.yaml:2:14: key 'node.log_level': ",
-               "got '\\x1b[31mred\\x1b[0m'");
-  expect_error("node:\n  \"\\e[2J\": 1\n", "t.yaml:2:3: key 'node.\\x1b[2J': ", "unknown key");
-  expect_error("node:\n  log_level: \"caf\\u00e9\"\n", "t.yaml:2:14: key 'node.log_level': ", "got 'caf\\xc3\\xa9'");
   struct vlff_config cfg;
   assert_int_equal(load("shm:\n  ring: \"/a\\e\"\n", &cfg), -1);
   assert_non_null(strstr(err, "got '/a\\x1b'"));
   for (const char *c = err; *c; c++) assert_true(*c >= 0x20 && *c < 0x7f);
 }
 
-/* Segment names: valid POSIX names, distinct, refused with file:line. */
+/* Segment names that are valid and distinct are taken (those refused are
+ * in bad[]). */
 static void test_shm_names(void **state) {
   (void)state;
-  expect_error("shm:\n  ring: no-slash\n", "t.yaml:2:9: key 'shm.ring': ", "starting with '/'");
-  expect_error("shm:\n  map: /a/b\n", "t.yaml:2:8: key 'shm.map': ", "no '/' after the leading one");
-  expect_error("shm:\n  prompts: /\n", "t.yaml:2:12: key 'shm.prompts': ", "1 to 248 characters");
-  expect_error("shm:\n  pose_ring: /..\n", "t.yaml:2:14: key 'shm.pose_ring': ", "other than '.' or '..'");
-  expect_error("shm:\n  feature_ring: \"/a\\tb\"\n", "t.yaml:2:17: key 'shm.feature_ring': ",
-               "printable characters");
-  /* The same name twice: the mailbox would replace the map. */
-  expect_error("shm:\n  map: /x\n  prompts: /x\n", "t.yaml:3:12: key 'shm.prompts': ",
-               "distinct from shm.map, got the same '/x'");
-  /* A name equal to another key's default is blamed where the file set it. */
-  expect_error("shm:\n  feature_ring: /vlff-frames\n", "t.yaml:2:17: key 'shm.feature_ring': ",
-               "distinct from shm.ring");
-  expect_error("shm:\n  ring: /vlff-map\n", "t.yaml: key 'shm.map': ", "distinct from shm.ring");
   struct vlff_config cfg;
   assert_int_equal(load("shm:\n  ring: /r\n  map: /m\n  prompts: /p\n  pose_ring: /q\n  feature_ring: /f\n", &cfg),
                    0);

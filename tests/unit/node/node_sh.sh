@@ -1,10 +1,12 @@
 # Sourced by the node's shell tests (test_node_mailbox.sh, test_node_status.sh):
-# the check counter, a scratch directory, segments named /<prefix>-$$-*, and a
-# vlff-node started on the simulator source in the background ($nodepid), all
-# removed on exit. Usage: . node_sh.sh PREFIX NODE SHM SIM
+# the check counter, a poll (wait_until), a scratch directory, segments named
+# /<prefix>-$$-*, and a vlff-node started on the simulator source in the
+# background ($nodepid), all removed on exit. Usage: . node_sh.sh PREFIX NODE SHM SIM
 node=$2 shm=$3 sim=$4
 fails=0 passes=0
 check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
+# wait_until N COND: evaluates COND every 0.1 s, N times at most, until it holds.
+wait_until() { local k; for ((k = 0; k < $1; k++)); do eval "$2" && return 0; sleep 0.1; done; return 1; }
 tmp=$(mktemp -d)
 p=/$1-$$
 cleanup() {

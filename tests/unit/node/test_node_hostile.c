@@ -37,16 +37,9 @@ static int teardown(void **state) {
 enum hostile { GOOD, CXCY, FX_TINY, FY_HUGE, FAR_AWAY, NKINDS };
 
 static void send(struct vlff_ring *ring, const struct vlff_sim_frame *f, long long id, enum hostile kind) {
-  struct vlff_frame_hdr *hd = vlff_ring_reserve(ring, NULL);
-  assert_non_null(hd);
-  uint64_t len = vlff_frame_layout(hd, vlff_ring_slot_size(ring), (uint32_t)f->width, (uint32_t)f->height,
-                                   VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
-  assert_true(len > 0);
-  hd->frame_id = (uint64_t)id;
-  hd->t_host_ns = vlff_shm_now_ns();
-  hd->flags = VLFF_FRAME_POSE_VALID | VLFF_FRAME_INTRINSICS_VALID;
-  hd->fx = f->fx, hd->fy = f->fy, hd->cx = f->cx, hd->cy = f->cy;
-  memcpy(hd->pose, f->c2w, sizeof hd->pose);
+  uint64_t len;
+  struct vlff_frame_hdr *hd =
+      tk_frame_reserve(ring, f, id, vlff_shm_now_ns(), f->width, f->height, VLFF_PIX_DEPTH_U16_MM, &len);
   memcpy((uint8_t *)hd + hd->plane[0].offset, f->rgb, (size_t)f->width * f->height * 3);
   memcpy((uint8_t *)hd + hd->plane[1].offset, f->depth_mm, (size_t)f->width * f->height * 2);
   switch (kind) {
@@ -62,32 +55,25 @@ static void send(struct vlff_ring *ring, const struct vlff_sim_frame *f, long lo
 static void test_absurd_intrinsics(void **state) {
   (void)state;
   tk_setup(&tk, "hostile");
-  char yaml[1024], err[512];
-  snprintf(yaml, sizeof yaml,
-           "node:\n  state_dir: %s\n  checkpoint_period_s: 0\n  threads: 2\n"
-           "source:\n  kind: sim\n  features: sim\n"
-           "sim:\n  seed: 3\n  width: 64\n  height: 48\n  frames: 100\n"
-           "field:\n  feature_dim: 16\n  hash_log2_size: 14\n"
-           "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
-           "  max_width: 64\n  max_height: 48\n  map_max_voxels: 100000\n"
-           "keyframes:\n  rate_hz: 100\n  start_after: 100\n",
-           tk.dir, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag);
   struct vlff_config cfg;
-  if (vlff_config_load_mem(yaml, strlen(yaml), "hostile.yaml", &cfg, err, sizeof err)) fail_msg("%s", err);
+  tk_config(&tk, &cfg,
+            "node:\n  state_dir: %s\n  checkpoint_period_s: 0\n  threads: 2\n"
+            "source:\n  kind: sim\n  features: sim\n"
+            "sim:\n  seed: 3\n  width: 64\n  height: 48\n  frames: 100\n"
+            "field:\n  feature_dim: 16\n  hash_log2_size: 14\n"
+            "shm:\n%s"
+            "  max_width: 64\n  max_height: 48\n  map_max_voxels: 100000\n"
+            "keyframes:\n  rate_hz: 100\n  start_after: 100\n",
+            tk.dir, tk_shm_names(&tk));
+  char err[512];
   struct tk_scene sc;
-  tk_scene_open(&sc, &cfg, 16, 64, 48);
-  struct vlff_sim *s = sc.sim;
-  struct vlff_sim_frame *f = sc.frame;
-  struct vlff_ring *ring = sc.ring;
   struct vlff_sim_source *src;
-  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
-  if (!n) fail_msg("%s", err);
-  tk_sleep_s(0.5); /* the ingest thread attaches to the ring */
+  struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 64, 48, &src);
   int bad = 0, good = 0;
   for (long long id = 0; id < 3 * NKINDS; id++) {
     enum hostile kind = (enum hostile)(id % NKINDS);
-    assert_int_equal(vlff_sim_render(s, id, VLFF_SIM_RGBD, f, err, sizeof err), 0);
-    send(ring, f, id, kind);
+    assert_int_equal(vlff_sim_render(sc.sim, id, VLFF_SIM_RGBD, sc.frame, err, sizeof err), 0);
+    send(sc.ring, sc.frame, id, kind);
     kind == GOOD ? good++ : bad++;
     /* Slower than the trainer takes candidates: none is dropped. */
     tk_sleep_s(0.3);

@@ -38,27 +38,20 @@
 #include "vlff/shm.h"
 
 static struct tk tk;
-static char cfg_path[300];
-
+static const char *cfg_path;
 
 /* The ring carries the simulator's frames, so its features are forced on. */
 static void write_config(struct vlff_config *cfg) {
-  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", tk.dir);
-  FILE *f = fopen(cfg_path, "w");
-  assert_non_null(f);
-  fprintf(f,
-          "node:\n  state_dir: %s/state\n  checkpoint_period_s: 0\n  log_level: info\n"
-          "source:\n  kind: ring\n  features: sim\n  allow_sim_features: true\n  pose_wait_s: 1\n"
-          "sim:\n  seed: 3\n  width: 160\n  height: 120\n  frames: 150\n"
-          "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
-          "  max_width: 320\n  max_height: 240\n"
-          "train:\n  image_scale: 0.5\n"
-          "keyframes:\n  start_after: 3\n"
-          "publish:\n  rate_hz: 1\n  label_width: 40\n  label_height: 30\n",
-          tk.dir, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag);
-  fclose(f);
-  char err[512];
-  if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
+  cfg_path = tk_config(&tk, cfg,
+                       "node:\n  state_dir: %s/state\n  checkpoint_period_s: 0\n  log_level: info\n"
+                       "source:\n  kind: ring\n  features: sim\n  allow_sim_features: true\n  pose_wait_s: 1\n"
+                       "sim:\n  seed: 3\n  width: 160\n  height: 120\n  frames: 150\n"
+                       "shm:\n%s"
+                       "  max_width: 320\n  max_height: 240\n"
+                       "train:\n  image_scale: 0.5\n"
+                       "keyframes:\n  start_after: 3\n"
+                       "publish:\n  rate_hz: 1\n  label_width: 40\n  label_height: 30\n",
+                       tk.dir, tk_shm_names(&tk));
 }
 
 static int setup(void **state) {
@@ -81,17 +74,15 @@ static void put_frame(struct vlff_ring *ring, struct vlff_sim *s, struct vlff_si
                       uint64_t t_ns, enum frame_kind kind) {
   char err[256];
   assert_int_equal(vlff_sim_render(s, index, VLFF_SIM_RGBD, f, err, sizeof err), 0);
-  struct vlff_frame_hdr *h = vlff_ring_reserve(ring, NULL);
-  uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), (uint32_t)f->width, (uint32_t)f->height,
-                                   VLFF_PIX_RGB8, kind == NO_DEPTH ? VLFF_PIX_NONE : VLFF_PIX_DEPTH_U16_MM);
-  assert_true(len > 0);
-  h->frame_id = (uint64_t)index;
-  h->t_host_ns = t_ns;
-  h->flags = VLFF_FRAME_INTRINSICS_VALID | (kind == NO_POSE_FLAG ? 0 : VLFF_FRAME_POSE_VALID);
-  h->fx = f->fx, h->fy = f->fy, h->cx = f->cx, h->cy = f->cy;
+  uint64_t len;
+  struct vlff_frame_hdr *h = tk_frame_reserve(ring, f, index, t_ns, f->width, f->height,
+                                              kind == NO_DEPTH ? VLFF_PIX_NONE : VLFF_PIX_DEPTH_U16_MM, &len);
   /* A focal length in millimetres where pixels belong. */
   if (kind == BAD_INTRINSICS) h->fx = h->fy = 3.6;
-  if (kind != NO_POSE_FLAG) memcpy(h->pose, f->c2w, sizeof h->pose);
+  if (kind == NO_POSE_FLAG) { /* no pose at all in the frame, as layout left it */
+    h->flags &= ~(uint32_t)VLFF_FRAME_POSE_VALID;
+    memset(h->pose, 0, sizeof h->pose);
+  }
   memcpy((uint8_t *)h + h->plane[0].offset, f->rgb, (size_t)f->width * f->height * 3);
   if (kind != NO_DEPTH) memcpy((uint8_t *)h + h->plane[1].offset, f->depth_mm, (size_t)f->width * f->height * 2);
   assert_int_equal(vlff_ring_commit(ring, len), 0);
@@ -190,16 +181,12 @@ static void test_pose_adapter_feeds_node(void **state) {
   (void)state;
   struct vlff_config cfg;
   write_config(&cfg);
-  char err[512];
   struct tk_scene sc;
-  tk_scene_open(&sc, &cfg, 16, 320, 240);
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 320, 240, &src);
   struct vlff_sim *s = sc.sim;
   struct vlff_sim_frame *f = sc.frame;
   struct vlff_ring *ring = sc.ring;
-  struct vlff_sim_source *src;
-  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
-  if (!n) fail_msg("%s", err);
-  tk_sleep_s(0.5); /* the ingest thread attaches to the ring */
   const uint64_t step = 200000000; /* the keyframe rate: every posed frame is a candidate */
   uint64_t t = vlff_shm_now_ns();
   long long id = 0;

@@ -5,7 +5,7 @@
 # the frame ring under the node and the simulator kills neither.
 set -u
 . "$(dirname "$0")/node_sh.sh" mbx "$@"
-for ((i = 0; i < 200; i++)); do grep -q "waiting for ring" "$tmp/log" && break; sleep 0.1; done
+wait_until 200 'grep -q "waiting for ring" "$tmp/log"'
 
 check "mailbox is group-writable (0660)" '[[ $(stat -c %a /dev/shm$p-p) == 660 ]]'
 check "set -i 0 accepted" '[[ $("$shm" set-prompts $p-p -i 0) == "accepted 1" ]]'
@@ -35,7 +35,7 @@ check "the map segment is whole again" '[[ $(stat -c %s /dev/shm$p-m) -gt 4096 ]
 # frame ring under the node (reader).
 "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
 simpid=$!
-for ((i = 0; i < 300; i++)); do grep -q "attached to ring" "$tmp/log" && break; sleep 0.1; done
+wait_until 300 'grep -q "attached to ring" "$tmp/log"'
 check "node attached to the simulator's ring" 'grep -q "attached to ring" "$tmp/log"'
 truncate -s 4096 /dev/shm$p-r
 truncate -s 4096 /dev/shm$p-f
@@ -48,7 +48,7 @@ check "node re-attached to the replaced ring" '[[ $(grep -c "attached to ring" "
 # the node keeps training and publishing meanwhile, then discards the half-written
 # request with a log line, and posting works again.
 mapv() { "$shm" stat $p-m | awk '$1 == "version" { print $2 }'; }
-for ((i = 0; i < 600; i++)); do [[ $(mapv) -ge 1 ]] && break; sleep 0.1; done
+wait_until 600 '[[ $(mapv) -ge 1 ]]'
 # One process holding the lock, as a poster would (flock(1) would leave its child
 # holding it after the kill).
 python3 -c 'import fcntl, os, sys, time
@@ -59,10 +59,10 @@ sleep 0.2
 b=$(od -An -tu1 -j128 -N1 /dev/shm$p-p | tr -d ' ')
 printf "\\x$(printf %02x $((b + 1)))" | dd of=/dev/shm$p-p bs=1 seek=128 count=1 conv=notrunc status=none
 v0=$(mapv)
-for ((i = 0; i < 600; i++)); do (( $(mapv) >= v0 + 2 )) && break; sleep 0.1; done
+wait_until 600 '(( $(mapv) >= v0 + 2 ))'
 check "node publishes while a poster holds the mailbox mid-post (v$v0 -> v$(mapv))" '(( $(mapv) >= v0 + 2 ))'
 kill -9 $holder; wait $holder 2>/dev/null
-for ((i = 0; i < 100; i++)); do grep -q "left half-written" "$tmp/log" && break; sleep 0.1; done
+wait_until 100 'grep -q "left half-written" "$tmp/log"'
 check "the dead poster's half-written request is logged" 'grep -q "left half-written by poster pid" "$tmp/log"'
 check "posting works after the dead poster" '"$shm" set-prompts $p-p -i 0 | grep -q "^accepted"'
 kill "$simpid"; wait "$simpid"; simpid=

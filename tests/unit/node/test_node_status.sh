@@ -6,18 +6,14 @@
 set -u
 . "$(dirname "$0")/node_sh.sh" nst "$@"
 val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
-for ((i = 0; i < 200; i++)); do "$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val frames_in) ]] && break; sleep 0.1; done
+wait_until 200 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val frames_in) ]]'
 check "a waiting node's status: no frames yet, every reason listed at 0" \
   '[[ $(val frames_in) == 0 && $(val iterations) == 0 && $(grep -c "^refused 0 " "$tmp/stat") -ge 12 ]]'
 check "the reasons carry their names" 'grep -q "^refused 0 no pose$" "$tmp/stat" && grep -q "^refused 0 bad intrinsics$" "$tmp/stat"'
 
 "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
 simpid=$!
-for ((i = 0; i < 1200; i++)); do
-  "$shm" stat $p-m >"$tmp/stat" 2>/dev/null
-  [[ $(val iterations) -gt 0 && $(val keyframes) -gt 0 ]] 2>/dev/null && break
-  sleep 0.1
-done
+wait_until 1200 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null; [[ $(val iterations) -gt 0 && $(val keyframes) -gt 0 ]] 2>/dev/null'
 check "vlff-shm stat: frames in ($(val frames_in))" '[[ $(val frames_in) -gt 0 ]]'
 check "vlff-shm stat: keyframes ($(val keyframes))" '[[ $(val keyframes) -gt 0 ]]'
 check "vlff-shm stat: iterations ($(val iterations))" '[[ $(val iterations) -gt 0 ]]'

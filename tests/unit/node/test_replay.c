@@ -44,31 +44,25 @@
 #define FRAMES 150
 
 static struct tk tk;
-static char scene[300], cfg_path[300], replay[512];
-
+static char scene[300], replay[512];
+static const char *cfg_path;
 
 /* The e2e test's room and node settings, fed from rings instead of the sim. */
 static void write_config(struct vlff_config *cfg, int ring_slots) {
-  snprintf(cfg_path, sizeof cfg_path, "%s/node.yaml", tk.dir);
-  FILE *f = fopen(cfg_path, "w");
-  assert_non_null(f);
-  fprintf(f,
-          "node:\n  state_dir: %s/state\n"
-          "source:\n  kind: ring\n  features: ring\n"
-          "sim:\n  seed: 3\n  rate_hz: 5\n  width: 160\n  height: 120\n  frames: %d\n"
-          "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
-          "  max_width: 320\n  max_height: 240\n  ring_slots: %d\n"
-          "train:\n  image_scale: 1.0\n"
-          "keyframes:\n  start_after: 3\n  posecheck_min_steps: 30\n"
-          "publish:\n  rate_hz: 1\n  voxel_size_m: 0.1\n  label_width: 80\n  label_height: 60\n"
-          "prompts:\n  embeddings: %s/prompt_embeddings.txt\n  sets:\n"
-          "    - name: scannet20\n      prompts: [wall, floor, cabinet, bed, chair, sofa, table, door, window,\n"
-          "        bookshelf, picture, counter, desk, curtain, refrigerator, shower curtain, toilet, sink,\n"
-          "        bathtub, other furniture]\n",
-          tk.dir, FRAMES, tk.tag, tk.tag, tk.tag, tk.tag, tk.tag, ring_slots, scene);
-  fclose(f);
-  char err[512];
-  if (vlff_config_load(cfg_path, cfg, err, sizeof err)) fail_msg("%s", err);
+  cfg_path = tk_config(&tk, cfg,
+                       "node:\n  state_dir: %s/state\n"
+                       "source:\n  kind: ring\n  features: ring\n"
+                       "sim:\n  seed: 3\n  rate_hz: 5\n  width: 160\n  height: 120\n  frames: %d\n"
+                       "shm:\n%s"
+                       "  max_width: 320\n  max_height: 240\n  ring_slots: %d\n"
+                       "train:\n  image_scale: 1.0\n"
+                       "keyframes:\n  start_after: 3\n  posecheck_min_steps: 30\n"
+                       "publish:\n  rate_hz: 1\n  voxel_size_m: 0.1\n  label_width: 80\n  label_height: 60\n"
+                       "prompts:\n  embeddings: %s/prompt_embeddings.txt\n  sets:\n"
+                       "    - name: scannet20\n      prompts: [wall, floor, cabinet, bed, chair, sofa, table, door, window,\n"
+                       "        bookshelf, picture, counter, desk, curtain, refrigerator, shower curtain, toilet, sink,\n"
+                       "        bathtub, other furniture]\n",
+                       tk.dir, FRAMES, tk_shm_names(&tk), ring_slots, scene);
 }
 
 /* The room as a recorded scene: frames, poses, features, prompt vectors. */

@@ -196,27 +196,39 @@ static void expect_open_error(const char *path, const char *what1, const char *w
   if (!strstr(err, what1) || (what2 && !strstr(err, what2))) fail_msg("error '%s' lacks '%s'/'%s'", err, what1, what2 ? what2 : "");
 }
 
+/* An edit of one file of a dataset: `text` written as `file`, after which
+ * opening the dataset fails naming the file and saying `what`, or with
+ * `what` NULL, the file is good again. */
+struct edit {
+  const char *file, *text, *what;
+};
+#define GOOD_POSE "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n"
+#define GOOD_INTRINSICS "50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n"
+
+static void expect_edits(const char *path, const struct edit *e, size_t n) {
+  for (size_t i = 0; i < n; i++) {
+    write_file(path, e[i].file, e[i].text);
+    if (e[i].what) expect_open_error(path, e[i].file, e[i].what);
+  }
+}
+
 static void test_malformed(void **state) {
   struct fixture *x = *state;
   char path[400], p[512];
   write_dataset(x, "bad1", path);
-  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0.5 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "pose/00002.txt", "orthonormal");
-  write_file(path, "pose/00002.txt", "1 0 0 nan\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "pose/00002.txt", "not finite");
-  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n");
-  expect_open_error(path, "pose/00002.txt", "9");
-  write_file(path, "pose/00002.txt", "-1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "pose/00002.txt", "reflection");
-  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
-  write_file(path, "intrinsics.txt", "-50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "intrinsics.txt", "positive");
-  write_file(path, "intrinsics.txt", "50 0 320 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "intrinsics.txt", "outside");
-  write_file(path, "intrinsics.txt", "50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
-  write_file(path, "bbox.txt", "1 1 1 0 2 2\n");
-  expect_open_error(path, "bbox.txt", "min");
-  write_file(path, "bbox.txt", "0 0 0 2 2 2\n");
+  static const struct edit edits[] = {
+      {"pose/00002.txt", "1 0 0 0\n0 1 0.5 0\n0 0 1 0\n0 0 0 1\n", "orthonormal"},
+      {"pose/00002.txt", "1 0 0 nan\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", "not finite"},
+      {"pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n", "9"},
+      {"pose/00002.txt", "-1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", "reflection"},
+      {"pose/00002.txt", GOOD_POSE, NULL},
+      {"intrinsics.txt", "-50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n", "positive"},
+      {"intrinsics.txt", "50 0 320 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n", "outside"},
+      {"intrinsics.txt", GOOD_INTRINSICS, NULL},
+      {"bbox.txt", "1 1 1 0 2 2\n", "min"},
+      {"bbox.txt", "0 0 0 2 2 2\n", NULL},
+  };
+  expect_edits(path, edits, sizeof edits / sizeof *edits);
   snprintf(p, sizeof p, "%s/depth/00003.png", path);
   assert_int_equal(remove(p), 0);
   expect_open_error(path, "depth/00003.png", "missing");
@@ -287,14 +299,15 @@ static void test_physical_bounds(void **state) {
   snprintf(p, sizeof p, "%s/bbox.txt", path);
   assert_int_equal(remove(p), 0);
   expect_open_error(path, "pose/00002.txt", "no scene box");
-  write_file(path, "pose/00002.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
-  write_file(path, "intrinsics.txt", "1e-30 0 32 0\n0 1e-30 24 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "intrinsics.txt", "fx 1e-30 outside");
-  write_file(path, "intrinsics.txt", "1e30 0 32 0\n0 1e30 24 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "intrinsics.txt", "not a physical camera for the 64x48 images: fx 1e+30 outside");
-  write_file(path, "intrinsics.txt", "50 0 32 0\n0 5 24 0\n0 0 1 0\n0 0 0 1\n");
-  expect_open_error(path, "intrinsics.txt", "pixel aspect");
-  write_file(path, "intrinsics.txt", "50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n");
+  static const struct edit edits[] = {
+      {"pose/00002.txt", GOOD_POSE, NULL},
+      {"intrinsics.txt", "1e-30 0 32 0\n0 1e-30 24 0\n0 0 1 0\n0 0 0 1\n", "fx 1e-30 outside"},
+      {"intrinsics.txt", "1e30 0 32 0\n0 1e30 24 0\n0 0 1 0\n0 0 0 1\n",
+       "not a physical camera for the 64x48 images: fx 1e+30 outside"},
+      {"intrinsics.txt", "50 0 32 0\n0 5 24 0\n0 0 1 0\n0 0 0 1\n", "pixel aspect"},
+      {"intrinsics.txt", GOOD_INTRINSICS, NULL},
+  };
+  expect_edits(path, edits, sizeof edits / sizeof *edits);
   struct vlff_dataset ds;
   char err[1024] = "";
   assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), 0);

@@ -141,6 +141,25 @@ static uint8_t *colour_blob(const uint8_t *rgb, size_t *len) {
   return b;
 }
 
+/* The scene's images as an export stores them: colour (and encoded as the
+ * export's colour files), label ids at colour resolution, and depth. */
+struct images {
+  uint8_t *rgb, *blob;
+  uint16_t *ids, *depth;
+  size_t blob_len;
+};
+
+static void images_make(struct images *im) {
+  im->rgb = malloc(CW * CH * 3);
+  im->ids = malloc(CW * CH * 2), im->depth = malloc(DW * DH * 2);
+  assert_true(im->rgb && im->ids && im->depth);
+  colour_image(im->rgb, im->ids);
+  depth_image(im->depth);
+  im->blob = colour_blob(im->rgb, &im->blob_len);
+}
+
+static void images_free(struct images *im) { free(im->blob), free(im->rgb), free(im->ids), free(im->depth); }
+
 static void write_export(const char *scene) {
   char p[1024], b[512];
   const char *subs[] = {"", "/color", "/depth", "/pose", "/intrinsic", "/label-filt"};
@@ -148,19 +167,15 @@ static void write_export(const char *scene) {
     snprintf(p, sizeof p, "%s%s", scene, subs[k]);
     assert_int_equal(mkdir(p, 0755), 0);
   }
-  uint8_t *rgb = malloc(CW * CH * 3);
-  uint16_t *ids = malloc(CW * CH * 2), *d = malloc(DW * DH * 2);
-  colour_image(rgb, ids);
-  depth_image(d);
-  size_t n;
-  uint8_t *jpg = colour_blob(rgb, &n);
+  struct images im;
+  images_make(&im);
   for (int i = 0; i < 2; i++) {
     snprintf(p, sizeof p, "%s/color/%d.jpg", scene, i);
-    put(p, jpg, n);
+    put(p, im.blob, im.blob_len);
     snprintf(p, sizeof p, "%s/depth/%d.png", scene, i);
-    write_png16(p, d, DW, DH);
+    write_png16(p, im.depth, DW, DH);
     snprintf(p, sizeof p, "%s/label-filt/%d.png", scene, i);
-    write_png16(p, ids, CW, CH);
+    write_png16(p, im.ids, CW, CH);
     snprintf(p, sizeof p, "%s/pose/%d.txt", scene, i);
     putf(p, "1 0 0 %d\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", i);
   }
@@ -173,7 +188,7 @@ static void write_export(const char *scene) {
   snprintf(p, sizeof p, "%s/intrinsic/extrinsic_depth.txt", scene);
   putf(p, "1 0 0 %f\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", BASE);
   write_tsv_and_ply(scene);
-  free(jpg), free(rgb), free(ids), free(d);
+  images_free(&im);
 }
 
 struct sens_opts {
@@ -205,25 +220,23 @@ static void write_sens(const char *path, const struct sens_opts *o) {
   float shift = 1000;
   fwrite(&ctype, 4, 1, f), fwrite(&o->dtype, 4, 1, f), fwrite(dims, 4, 4, f), fwrite(&shift, 4, 1, f);
   fwrite(&o->nframes_claimed, 8, 1, f);
-  uint8_t *rgb = malloc(CW * CH * 3);
-  uint16_t *ids = malloc(CW * CH * 2), *d = malloc(DW * DH * 2);
-  colour_image(rgb, ids);
-  depth_image(d);
-  size_t cn;
-  uint8_t *col = colour_blob(rgb, &cn);
+  struct images im;
+  images_make(&im);
   uLongf zn = compressBound(DW * DH * 2);
   uint8_t *z = malloc(zn);
-  assert_int_equal(compress2(z, &zn, (const Bytef *)d, DW * DH * 2, 6), Z_OK);
+  assert_int_equal(compress2(z, &zn, (const Bytef *)im.depth, DW * DH * 2, 6), Z_OK);
   for (int i = 0; i < 3; i++) {
     float pose[16] = {1, 0, 0, 0.1f * i, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
     if (i == 1) pose[0] = -INFINITY; /* lost tracking */
-    uint64_t st[2] = {1000u * i, 1000u * i}, sz[2] = {cn, zn};
-    fwrite(pose, 4, 16, f), fwrite(st, 8, 2, f), fwrite(sz, 8, 2, f), fwrite(col, 1, cn, f), fwrite(z, 1, zn, f);
+    uint64_t st[2] = {1000u * i, 1000u * i}, sz[2] = {im.blob_len, zn};
+    fwrite(pose, 4, 16, f), fwrite(st, 8, 2, f), fwrite(sz, 8, 2, f), fwrite(im.blob, 1, im.blob_len, f);
+    fwrite(z, 1, zn, f);
   }
   long size = ftell(f);
   fclose(f);
   if (o->truncate_to) assert_int_equal(truncate(path, size + o->truncate_to), 0); /* cut the last frame */
-  free(col), free(z), free(rgb), free(ids), free(d);
+  free(z);
+  images_free(&im);
 }
 
 /* Registered depth against the geometry, colour and labels resampled. */

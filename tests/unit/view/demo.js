@@ -124,4 +124,30 @@ function learnerOfStat(stat) {
   return out;
 }
 
-module.exports = { start, shm, shmAsync, sleep, waitVersion, learnerOfStat, prog };
+// TAP lines: ok() numbers and prints each check passed, plan() the count at the end.
+let passed = 0;
+const ok = (what) => { passed++; console.log(`ok ${passed} - ${what}`); };
+const plan = () => console.log(`1..${passed}`);
+
+// Runs the async checks against demo. A failure prints TAP's "not ok" with the
+// viewer's log, runs close(), stops the demo keeping its logs and exits 1;
+// otherwise close() runs and the demo is stopped. Returns the viewer's log as it
+// was before the stop.
+async function check(demo, checks, close = async () => {}) {
+  try {
+    await checks();
+  } catch (e) {
+    console.log(`not ok - ${e.stack}`);
+    console.log(demo.log('view'));
+    await close();
+    await demo.stop(true);
+    console.log(`logs kept in ${demo.dir}`);
+    process.exit(1);
+  }
+  await close();
+  const log = demo.log('view');
+  await demo.stop();
+  return log;
+}
+
+module.exports = { start, shm, shmAsync, sleep, waitVersion, learnerOfStat, prog, ok, plan, check };

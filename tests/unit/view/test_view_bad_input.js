@@ -9,10 +9,8 @@ const http = require('http');
 const net = require('net');
 const { spawnSync } = require('child_process');
 const WebSocket = require('ws');
-const { start, sleep, prog } = require('./demo');
+const { start, sleep, prog, ok, plan, check } = require('./demo');
 
-let passed = 0;
-const ok = (what) => { passed++; console.log(`ok ${passed} - ${what}`); };
 const PROTO = 'foxglove.websocket.v1';
 
 // A client that records its text and binary messages and how it closed.
@@ -69,7 +67,7 @@ async function main() {
   cli();
   const demo = await start({ withNode: false, token: 'secret-token-1', viewArgs: ['--max-queue-mb', '1',
     '--image-hz', '20'] });
-  try {
+  const log = await check(demo, async () => {
     const good = await connect(demo.ws);
     await until(() => good.adv, 5000, 'advertise');
     subscribeAll(good);
@@ -182,17 +180,9 @@ async function main() {
     });
     assert.ok(/refused 127\.0\.0\.1: unknown or missing WebSocket subprotocol/.test(status));
     good.ws.close();
-  } catch (e) {
-    console.log(`not ok - ${e.stack}`);
-    console.log(demo.log('view'));
-    await demo.stop(true);
-    console.log(`logs kept in ${demo.dir}`);
-    process.exit(1);
-  }
-  const log = demo.log('view');
-  await demo.stop();
+  });
   assert.strictEqual(demo.viewExit, 0, `vlff-view exits 0 on SIGINT: ${log.slice(-2000)}`);
   ok('vlff-view stops cleanly on SIGINT after all that');
-  console.log(`1..${passed}`);
+  plan();
 }
 main();

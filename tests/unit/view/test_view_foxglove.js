@@ -7,16 +7,14 @@
 const assert = require('assert');
 const { FoxgloveClient } = require('@foxglove/ws-protocol');
 const WebSocket = require('ws');
-const { start, shm, shmAsync, sleep, waitVersion, learnerOfStat } = require('./demo');
+const { start, shm, shmAsync, sleep, waitVersion, learnerOfStat, ok, plan, check } = require('./demo');
 const { validate } = require('./schema');
 
 const FREE = 65534;
-let passed = 0;
-const ok = (what) => { passed++; console.log(`ok ${passed} - ${what}`); };
 
 async function main() {
   const demo = await start();
-  try {
+  await check(demo, async () => {
     await waitVersion(demo, 2, 240000);
     const client = new FoxgloveClient({ ws: new WebSocket(demo.ws, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]) });
     const chans = {}, bySub = {}, got = {};
@@ -186,14 +184,7 @@ async function main() {
     assert.strictEqual(got['/camera/image'].length, n, 'no images after unsubscribing');
     ok('unsubscribe stops a channel');
     client.close();
-  } catch (e) {
-    console.log(`not ok - ${e.stack}`);
-    console.log(demo.log('view'));
-    await demo.stop(true);
-    console.log(`logs kept in ${demo.dir}`);
-    process.exit(1);
-  }
-  await demo.stop();
-  console.log(`1..${passed}`);
+  });
+  plan();
 }
 main();

@@ -7,11 +7,9 @@
 const assert = require('assert');
 const fs = require('fs');
 const { chromium } = require('playwright-core');
-const { start, shm, sleep, waitVersion, learnerOfStat } = require('./demo');
+const { start, shm, sleep, waitVersion, learnerOfStat, ok, plan, check } = require('./demo');
 const png = require('./png');
 
-let passed = 0;
-const ok = (what) => { passed++; console.log(`ok ${passed} - ${what}`); };
 const TOKEN = 'page-test-token';
 
 // Hue (degrees) of an sRGB colour after linearising: white light scales the linear
@@ -37,7 +35,7 @@ async function main() {
   const demo = await start({ token: TOKEN });
   const browser = await chromium.launch({ executablePath: process.env.VLFF_CHROMIUM || 'chromium',
     args: ['--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'] });
-  try {
+  await check(demo, async () => {
     await waitVersion(demo, 2, 240000);
     const page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
     const errors = [];
@@ -210,16 +208,7 @@ async function main() {
       'chair,table,wall', null, { timeout: 30000 });
     ok('a prompt set posted from the page (wrong token refused first) becomes the map\'s prompts and legend');
     assert.deepStrictEqual(errors, [], 'no errors in the page');
-  } catch (e) {
-    console.log(`not ok - ${e.stack}`);
-    console.log(demo.log('view'));
-    await browser.close();
-    await demo.stop(true);
-    console.log(`logs kept in ${demo.dir}`);
-    process.exit(1);
-  }
-  await browser.close();
-  await demo.stop();
-  console.log(`1..${passed}`);
+  }, () => browser.close());
+  plan();
 }
 main();
