@@ -95,6 +95,10 @@ int main(int argc, char **argv) {
     printf("vlff-camd: %lld pairs of %lld colour frames, %lld before the range camera's first, %lld colour unmatched, "
            "%lld dropped, %.2f s CPU\n",
            p, c, s0, u, d, cam.camd_cpu_s);
+    /* A lost pair is the bench's finding, its reason vlff-camd's log. */
+    if (u + d > 0) {
+      fputs(tk_slurp(cam.camd_out), stdout);
+    }
     rig_free(&cam);
     if (t_sim[k] < 0 || t_cam[k] < 0 || c <= 0 || p <= 0 || s0 < 0 || s0 >= c) {
       fprintf(stderr, "bench_e2e: a run did not reach a useful map or the rig delivered nothing\n");
