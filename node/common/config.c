@@ -173,6 +173,9 @@ static const struct key schema[] = {
     INT("publish.label_height", publish.label_height, 8, 8192, 120),
     ENUM("publish.label_image", publish.label_image, label_images, "surface"),
     DBL("publish.free_density", publish.free_density, 0, 1e6, 1.0),
+    DBL("publish.evidence_weight", publish.evidence_weight, 0, 100, 1.0),
+    DBL("publish.evidence_voxel_m", publish.evidence_voxel_m, 0.01, 10, 0.1),
+    INT("publish.evidence_max_mb", publish.evidence_max_mb, 1, 1 << 16, 64),
 
     INT("prompts.active", prompts.active, 0, VLFF_MAX_PROMPT_SETS - 1, 0),
     STR("prompts.template", prompts.templ, "{}"),

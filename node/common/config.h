@@ -167,6 +167,9 @@ struct vlff_cfg_publish {
   int label_width, label_height;
   int label_image;                 /* enum vlff_label_image */
   double free_density;             /* below: free; unobserved stays unknown */
+  double evidence_weight;          /* w of the fused features beside the field's (0: field alone; evidence.h) */
+  double evidence_voxel_m;         /* their voxel edge */
+  int evidence_max_mb;             /* memory for those features */
 };
 
 struct vlff_cfg_prompts {

@@ -14,12 +14,14 @@
 #include <string.h>
 
 #include "bounds.h"
+#include "evidence.h"
 #include "log.h"
 #include "palette.h"
 #include "select.h"
 #include "vlff/shm.h"
 
 #define TAG "publish"
+#define QBLOCK 4096 /* points per block of the evidence's cosine queries */
 
 struct vlff_publisher {
   struct vlff_map *map;
@@ -57,6 +59,12 @@ struct vlff_publisher {
   uint64_t cam_t_ns;
   long long cam_frame;
   double free_density;
+  /* Evidence (evidence.h): NULL when publish.evidence_weight is 0. */
+  struct vlff_evidence *ev;
+  float ev_weight;
+  int D;
+  size_t ev_budget; /* bytes: publish.evidence_max_mb */
+  float *qcos; /* [QBLOCK][VLFF_MAX_PROMPTS] the field's cosines of a block of points */
   double last_publish_s, last_heartbeat_s;
 };
 
@@ -83,6 +91,8 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   free(p->sel_xyz);
   free(p->sel_score);
   free(p->sel_lab);
+  vlff_evidence_destroy(p->ev);
+  free(p->qcos);
   free(p);
 }
 
@@ -93,23 +103,9 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   if (!p) return snprintf(err, errlen, "out of memory"), NULL;
   p->hooks = hooks;
   p->free_density = pub->free_density;
-  p->voxel = pub->voxel_size_m;
-  double ext[3];
-  for (int i = 0; i < 3; i++) ext[i] = field->scene_max[i] - field->scene_min[i];
-  /* Coarsen the voxels until the grid fits the segment's capacity. */
-  for (;;) {
-    size_t n = 1;
-    for (int i = 0; i < 3; i++) {
-      p->dims[i] = (uint32_t)ceil(ext[i] / p->voxel - 1e-9);
-      if (p->dims[i] < 1) p->dims[i] = 1;
-      n *= p->dims[i];
-    }
-    if (n <= (size_t)shm->map_max_voxels) {
-      p->nvox = n;
-      break;
-    }
-    p->voxel *= 1.1;
-  }
+  p->voxel = vlff_map_grid_plan(field->scene_min, field->scene_max, pub->voxel_size_m, (size_t)shm->map_max_voxels,
+                                p->dims);
+  p->nvox = (size_t)p->dims[0] * p->dims[1] * p->dims[2];
   if (p->voxel > pub->voxel_size_m)
     VLFF_WARN(TAG, "publish.voxel_size_m %.3f m needs more than shm.map_max_voxels; using %.3f m",
               pub->voxel_size_m, p->voxel);
@@ -146,6 +142,18 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->sel_xyz = malloc(li * 3 * sizeof *p->sel_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
+  if (pub->evidence_weight > 0) {
+    p->ev = vlff_evidence_for(pub, field, err, errlen);
+    p->ev_weight = (float)pub->evidence_weight;
+    p->D = field->feature_dim;
+    p->ev_budget = (size_t)pub->evidence_max_mb << 20;
+    p->qcos = malloc(QBLOCK * VLFF_MAX_PROMPTS * sizeof *p->qcos);
+    if (!p->ev || !p->qcos) {
+      if (p->ev) snprintf(err, errlen, "out of memory");
+      vlff_publisher_destroy(p);
+      return NULL;
+    }
+  }
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->sel_score ||
@@ -170,9 +178,12 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   return p;
 }
 
-/* File: magic, version, dims, voxel, origin; observed u8[n], hits u16[n],
- * hit_sum f32[3n]; FNV-1a 64 of everything before it. */
-#define OBS_MAGIC "VLFFOBS1"
+/* File: magic, dims, voxel, origin; observed u8[n], hits u16[n],
+ * hit_sum f32[3n]; the evidence's length (u64) and bytes (evidence.h; 0
+ * without evidence); FNV-1a 64 of everything before it. VLFFOBS1 files,
+ * without the evidence, still load. */
+#define OBS_MAGIC "VLFFOBS2"
+#define OBS_MAGIC_V1 "VLFFOBS1"
 
 struct obs_header {
   char magic[8];
@@ -182,7 +193,8 @@ struct obs_header {
 };
 
 int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
-  size_t n = p->nvox, len = sizeof(struct obs_header) + n + n * 2 + n * 12 + 8;
+  size_t n = p->nvox, evn = p->ev ? vlff_evidence_save_size(p->ev) : 0;
+  size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + 8 + evn + 8;
   uint8_t *buf = malloc(len);
   if (!buf) return snprintf(err, errlen, "%s: out of memory", path), -1;
   struct obs_header h = {.voxel = p->voxel};
@@ -194,6 +206,9 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
   memcpy(q, p->observed, n), q += n;
   memcpy(q, p->hits, n * 2), q += n * 2;
   memcpy(q, p->hit_sum, n * 12), q += n * 12;
+  uint64_t ev64 = evn;
+  memcpy(q, &ev64, 8), q += 8;
+  if (evn) vlff_evidence_save(p->ev, q), q += evn;
   uint64_t sum = vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, (size_t)(q - buf));
   memcpy(q, &sum, 8);
   int rc = vlff_write_file_atomic(path, buf, len, err, errlen);
@@ -202,20 +217,29 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
 }
 
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
-  size_t n = p->nvox, want = sizeof(struct obs_header) + n + n * 2 + n * 12 + 8, len;
+  size_t n = p->nvox, grids = sizeof(struct obs_header) + n + n * 2 + n * 12, len;
+  /* The evidence is bounded by its budget: a longer file is refused unread. */
+  size_t most = grids + 8 + 4096 + p->ev_budget + 8;
   uint8_t *buf;
-  if (vlff_read_file(path, want + 1, &buf, &len, err, errlen)) return -1;
+  if (vlff_read_file(path, most, &buf, &len, err, errlen)) return -1;
   int rc = -1;
   struct obs_header h;
-  uint64_t sum;
-  if (len != want) {
+  uint64_t sum, evn = 0;
+  if (len < sizeof h) {
+    snprintf(err, errlen, "%s: %zu bytes, too short for an observation grid", path, len);
+    goto out;
+  }
+  memcpy(&h, buf, sizeof h);
+  int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8);
+  if (!v1 && len >= grids + 16) memcpy(&evn, buf + grids, 8);
+  size_t want = v1 ? grids + 8 : grids + 8 + evn + 8;
+  if (evn > len || len != want) {
     snprintf(err, errlen, "%s: %zu bytes, expected %zu for a %ux%ux%u grid", path, len, want, p->dims[0],
              p->dims[1], p->dims[2]);
     goto out;
   }
-  memcpy(&h, buf, sizeof h);
   memcpy(&sum, buf + want - 8, 8);
-  if (memcmp(h.magic, OBS_MAGIC, 8) || memcmp(h.dims, p->dims, sizeof h.dims) || h.voxel != p->voxel ||
+  if ((!v1 && memcmp(h.magic, OBS_MAGIC, 8)) || memcmp(h.dims, p->dims, sizeof h.dims) || h.voxel != p->voxel ||
       memcmp(h.origin, p->origin, sizeof h.origin)) {
     snprintf(err, errlen, "%s: not an observation grid of this map's geometry", path);
     goto out;
@@ -223,6 +247,18 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   if (vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, want - 8) != sum) {
     snprintf(err, errlen, "%s: checksum mismatch (corrupt file)", path);
     goto out;
+  }
+  /* The evidence first: it is checked whole before anything changes. A file
+   * without evidence leaves the node's empty; evidence the node no longer
+   * keeps (publish.evidence_weight 0) is ignored. */
+  if (p->ev && evn) {
+    char eerr[256];
+    if (vlff_evidence_load(p->ev, buf + grids + 8, evn, eerr, sizeof eerr)) {
+      snprintf(err, errlen, "%s: %s", path, eerr);
+      goto out;
+    }
+  } else if (p->ev) {
+    vlff_evidence_reset(p->ev);
   }
   const uint8_t *q = buf + sizeof h;
   memcpy(p->observed, q, n), q += n;
@@ -235,6 +271,7 @@ out:
 }
 
 void vlff_publisher_reset(struct vlff_publisher *p) {
+  if (p->ev) vlff_evidence_reset(p->ev);
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
   memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
@@ -329,6 +366,23 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
         }
       }
     }
+  return p->ev ? vlff_evidence_add(p->ev, v, err, errlen) : 0;
+}
+
+/* Labels (and score, margin: either may be NULL) of n points: the field's,
+ * or with evidence the field's cosines combined with the voxels' evidence
+ * (evidence.h). stamp: a hash of the prompt embeddings. */
+static int label_points(struct vlff_publisher *p, struct vlff_field *f, const float *xyz, size_t n, uint64_t stamp,
+                        int *lab, float *score, float *margin) {
+  if (!p->ev) return vlff_field_query(f, xyz, n, NULL, NULL, lab, score, margin);
+  int K;
+  const float *E = vlff_field_prompt_embeddings(f, &K);
+  for (size_t a = 0; a < n; a += QBLOCK) {
+    size_t m = n - a < QBLOCK ? n - a : QBLOCK;
+    if (vlff_field_query_cosines(f, xyz + 3 * a, m, p->qcos)) return -1;
+    vlff_evidence_label(p->ev, xyz + 3 * a, m, p->qcos, E, K, stamp, p->ev_weight, lab + a, score ? score + a : NULL,
+                        margin ? margin + a : NULL);
+  }
   return 0;
 }
 
@@ -407,7 +461,13 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
       r->free_voxels++;
     }
   }
-  if (nocc && vlff_field_query(f, p->qxyz, nocc, NULL, NULL, p->qlabel, NULL, p->qmargin)) {
+  uint64_t stamp = 0;
+  if (p->ev) {
+    int K;
+    const float *E = vlff_field_prompt_embeddings(f, &K);
+    stamp = vlff_fnv1a64(VLFF_FNV1A64_INIT, E, (size_t)K * p->D * sizeof *E);
+  }
+  if (nocc && label_points(p, f, p->qxyz, nocc, stamp, p->qlabel, NULL, p->qmargin)) {
     snprintf(err, errlen, "field query of %zu occupied voxels failed", nocc);
     return -1;
   }
@@ -438,7 +498,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     cam.fx *= sx, cam.cx *= sx, cam.fy *= sy, cam.cy *= sy;
     if ((!p->nhole ||
          vlff_field_render_pixels(f, &cam, p->hole_pix, p->nhole, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) &&
-        (!p->nsel || vlff_field_query(f, p->sel_xyz, p->nsel, NULL, NULL, p->sel_lab, p->sel_score, NULL) == 0)) {
+        (!p->nsel || label_points(p, f, p->sel_xyz, p->nsel, stamp, p->sel_lab, p->sel_score, NULL) == 0)) {
       for (size_t j = 0; j < p->nsel; j++) {
         p->img_lab[p->sel_pix[j]] = p->sel_lab[j];
         p->img_score[p->sel_pix[j]] = p->sel_score[j];

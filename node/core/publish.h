@@ -4,16 +4,18 @@
  *
  * Voxel states: a voxel where measured depth ended ("hit") or where the
  * field's density is at least publish.free_density gets the label of the
- * field's feature there; a voxel only passed through by measured rays is
- * FREE; a voxel no ray reached is UNKNOWN. Hit voxels are queried at the
- * mean of the measured points inside them, so the feature is read on the
- * surface rather than in the air at the voxel centre.
+ * field's feature there, combined with the evidence of observe()d
+ * keyframes (evidence.h) when publish.evidence_weight > 0; a voxel only
+ * passed through by measured rays is FREE; a voxel no ray reached is
+ * UNKNOWN. Hit voxels are queried at the mean of the measured points inside
+ * them, so the feature is read on the surface rather than in the air at the
+ * voxel centre.
  *
  * The 2D label image is made at the latest keyframe's pose. With
  * publish.label_image: surface, a pixel with measured depth gets the label
- * of the field's feature at that measured surface point, for the same
- * reason; the rest are volume-rendered (label -1, UNKNOWN, where the
- * rendered opacity stays under one half).
+ * of the field's feature (and evidence) at that measured surface point,
+ * for the same reason; the rest are volume-rendered (label -1, UNKNOWN,
+ * where the rendered opacity stays under one half).
  *
  * Contract: one owner thread (the trainer). Functions returning int give 0,
  * or -1 with err filled.
@@ -52,7 +54,8 @@ void vlff_publisher_destroy(struct vlff_publisher *p);
 int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen);
 /* Views refused by check_view (and so by observe / set_camera) so far. */
 long long vlff_publisher_refused(const struct vlff_publisher *p);
-/* Account an admitted keyframe's measured depth (observed / hit voxels).
+/* Account an admitted keyframe's measured depth (observed / hit voxels)
+ * and average its features into the evidence.
  * The view is checked first (-1 with err, nothing accounted); every ray's
  * march is bounded by the map's size whatever its depth claims. */
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen);
@@ -70,7 +73,7 @@ bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x
  * a truncated or corrupt one, and then leaves the grids untouched. */
 int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen);
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
-/* Forget observations (mapping reset). */
+/* Forget observations and evidence (mapping reset). */
 void vlff_publisher_reset(struct vlff_publisher *p);
 
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,

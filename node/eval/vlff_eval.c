@@ -30,6 +30,7 @@
 #include "clock.h"
 #include "dataset.h"
 #include "embeddings.h"
+#include "evidence.h"
 #include <json-c/json.h>
 
 #include "cli.h"
@@ -473,7 +474,7 @@ struct eval {
   int ntrain, ntest;
   /* standard protocol: raw 2D and fusion 3D are the baselines; the
    * field's 3D also under the reference protocol */
-  struct result r2_raw, r2_field, r3_fusion, r3_field, r3_field_ref;
+  struct result r2_raw, r2_field, r3_fusion, r3_field, r3_field_ref, r3_alone;
   uint8_t *gl;     /* a held-out frame's labels at the feature-map resolution */
   int *pl;         /* and a prediction at that resolution */
   int *p3;         /* fusion's label per point */
@@ -529,7 +530,8 @@ static void load_scene(struct eval *e) {
       vlff_confusion_init(&e->r2_field.c, K, err, sizeof err) < 0 ||
       vlff_confusion_init(&e->r3_fusion.c, K, err, sizeof err) < 0 ||
       vlff_confusion_init(&e->r3_field.c, K, err, sizeof err) < 0 ||
-      vlff_confusion_init(&e->r3_field_ref.c, K, err, sizeof err) < 0)
+      vlff_confusion_init(&e->r3_field_ref.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&e->r3_alone.c, K, err, sizeof err) < 0)
     die("%s", err);
 }
 
@@ -661,12 +663,48 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
   summarize(&e->r2_field);
 }
 
+/* The map as the node publishes it (publish.evidence_weight > 0): the
+ * training views' features averaged per voxel of the node's map grid
+ * (evidence.h), and each point labelled by its field feature combined with
+ * its voxel's evidence. Points in voxels without evidence keep the field's
+ * label. */
+static void evidence_labels(struct eval *e, struct vlff_field *fld) {
+  const struct scene *sc = &e->sc;
+  const struct vlff_config *cfg = &e->cfg;
+  const int D = sc->D;
+  char err[1024];
+  struct vlff_evidence *ev = vlff_evidence_for(&cfg->publish, &cfg->field, err, sizeof err);
+  if (!ev) die("%s", err);
+  for (int i = 0; i < sc->n; i++) {
+    if (held_out(i, e->o.holdout)) continue;
+    struct vlff_view v = {.width = sc->W, .height = sc->H, .fx = sc->fx, .fy = sc->fy, .cx = sc->cx, .cy = sc->cy,
+                          .depth = sc->f[i].depth, .features = sc->f[i].feat, .feat_width = sc->fw,
+                          .feat_height = sc->fh, .feature_dim = D};
+    memcpy(v.c2w, sc->f[i].c2w, sizeof v.c2w);
+    if (vlff_evidence_add(ev, &v, err, sizeof err) < 0) die("frame %d: %s", sc->f[i].index, err);
+  }
+  int K;
+  const float *E = vlff_field_prompt_embeddings(fld, &K);
+  const size_t np = sc->pts.n;
+  float *cs = xcalloc(np * (size_t)K, sizeof(float));
+  if (vlff_field_query_cosines(fld, sc->pts.xyz, np, cs) < 0) die("3D query failed");
+  vlff_evidence_label(ev, sc->pts.xyz, np, cs, E, K, 1, (float)cfg->publish.evidence_weight, e->pred3, NULL, NULL);
+  if (vlff_evidence_overflow(ev))
+    fprintf(stderr, "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld samples lost)\n",
+            vlff_evidence_voxels(ev), vlff_evidence_overflow(ev));
+  free(cs);
+  vlff_evidence_destroy(ev);
+}
+
 /* 3D standard protocol: one query per labelled point. */
 static void score_field_3d(struct eval *e, struct vlff_field *fld) {
   const struct scene *sc = &e->sc;
   const size_t np = sc->pts.n;
   e->pred3 = xcalloc(np, sizeof(int));
   if (vlff_field_query(fld, sc->pts.xyz, np, NULL, NULL, e->pred3, NULL, NULL) < 0) die("3D query failed");
+  vlff_confusion_add(&e->r3_alone.c, sc->pts.label, e->pred3, np);
+  summarize(&e->r3_alone);
+  if (e->cfg.publish.evidence_weight > 0) evidence_labels(e, fld);
   vlff_confusion_add(&e->r3_field.c, sc->pts.label, e->pred3, np);
   summarize(&e->r3_field);
 }
@@ -860,7 +898,7 @@ static void print_summary(const struct eval *e) {
   const struct scene *sc = &e->sc;
   const struct result *r2_raw = &e->r2_raw, *r2_field = &e->r2_field, *r3_fusion = &e->r3_fusion;
   const struct result *r3_field = &e->r3_field, *r3_field_ref = &e->r3_field_ref;
-  char a[16], b[16], c[16], d[16], x[16], y[16];
+  char a[16], b[16], c[16], d[16], x[16], y[16], z[16];
   if (o->dataset) printf("scene: dataset %s, frames %d to %d", o->dataset, sc->f[0].index, sc->f[sc->n - 1].index);
   else printf("scene: synthetic room, seed %d, difficulty %.2f", e->cfg.sim.seed, e->cfg.sim.difficulty);
   printf(", %d train / %d held-out frames, %zu points\n", e->ntrain, e->ntest, sc->pts.n);
@@ -869,6 +907,9 @@ static void print_summary(const struct eval *e) {
   printf("%-34s %8s %8s %8s %8s\n", "multi-view fusion", "-", "-", pct(r3_fusion, r3_fusion->s.miou, a), pct(r3_fusion, r3_fusion->s.macc, b));
   printf("%-34s %8s %8s %8s %8s\n", "vlff field", pct(r2_field, r2_field->s.miou, a), pct(r2_field, r2_field->s.macc, b),
          pct(r3_field, r3_field->s.miou, c), pct(r3_field, r3_field->s.macc, d));
+  if (e->cfg.publish.evidence_weight > 0)
+    printf("%-34s %8s %8s %8s %8s\n", "  3D: field alone, no evidence", "-", "-", pct(&e->r3_alone, e->r3_alone.s.miou, c),
+           pct(&e->r3_alone, e->r3_alone.s.macc, d));
   printf("%-34s %8s %8s %8s %8s\n", "reference protocol", "2D mIoU", "2D prec", "3D mIoU", "3D rec");
   printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(r2_raw, r2_raw->s.miou, a), pct(r2_raw, r2_raw->s.mprec, b), "-", "-");
   printf("%-34s %8s %8s %8s %8s\n", "vlff field (3D: 10 jittered)", pct(r2_field, r2_field->s.miou, a),
@@ -882,10 +923,10 @@ static void print_summary(const struct eval *e) {
   }
   printf("report: %s/report.md\n", o->out);
   printf("RESULT miou3d=%s miou3d_fusion=%s miou2d=%s miou2d_raw=%s macc2d=%s macc2d_raw=%s "
-         "worst_class_vs_fusion=%s fit_seconds=%.1f steps=%d\n",
+         "worst_class_vs_fusion=%s fit_seconds=%.1f steps=%d miou3d_field_alone=%s\n",
          pct(r3_field, r3_field->s.miou, a), pct(r3_fusion, r3_fusion->s.miou, b), pct(r2_field, r2_field->s.miou, c),
          pct(r2_raw, r2_raw->s.miou, d), pct(r2_field, r2_field->s.macc, x), pct(r2_raw, r2_raw->s.macc, y), wbuf,
-         e->fit_s, e->steps);
+         e->fit_s, e->steps, pct(&e->r3_alone, e->r3_alone.s.miou, z));
 }
 
 static void scene_free(struct eval *e) {
@@ -901,6 +942,7 @@ static void scene_free(struct eval *e) {
   vlff_points_free(&sc->pts);
   vlff_confusion_free(&e->r2_raw.c), vlff_confusion_free(&e->r2_field.c), vlff_confusion_free(&e->r3_fusion.c);
   vlff_confusion_free(&e->r3_field.c), vlff_confusion_free(&e->r3_field_ref.c);
+  vlff_confusion_free(&e->r3_alone.c);
 }
 
 /* ---- main --------------------------------------------------------------- */

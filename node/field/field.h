@@ -98,6 +98,14 @@ int vlff_field_set_prompts(struct vlff_field *f, const float *emb, int k, char *
 int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *density,
                      float *feature, int *label, float *score, float *margin);
 
+/* Per-prompt cosine similarities at n points: cosine[n][K] = E_k . f(x) /
+ * |f(x)| (0 outside the box or where the feature is zero). -1 without
+ * prompts. Costs the unfolded D-wide layer, as a feature query. */
+int vlff_field_query_cosines(struct vlff_field *f, const float *xyz, size_t n, float *cosine);
+/* The prompt set's unit embeddings [K][D], valid until the next
+ * vlff_field_set_prompts; *k = K (0: none). */
+const float *vlff_field_prompt_embeddings(const struct vlff_field *f, int *k);
+
 /* Render a view at cam's pose and intrinsics (cam->rgb/depth/features are
  * ignored). Outputs may be NULL: rgb[h][w][3] in [0,1], depth[h][w] metres,
  * feature[h][w][D], label[h][w] (prompt index, -1 where nothing was hit),

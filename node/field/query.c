@@ -135,6 +135,7 @@ struct query_ctx {
   float *density, *feature, *score, *margin;
   int *label;
   int ntasks;
+  float *cosine; /* [n][K], vlff_field_query_cosines */
 };
 
 static void query_task(void *ctx, int task, int thread) {
@@ -154,7 +155,7 @@ static void query_task(void *ctx, int task, int thread) {
   vlff_field_density(f, w, w->p, n);
   if (q->density)
     for (int i = 0; i < n; i++) q->density[idx[i]] = inside[i] ? w->sigma[i] : 0.0f;
-  int need_h = q->feature || q->label || q->score || q->margin;
+  int need_h = q->feature || q->label || q->score || q->margin || q->cosine;
   if (!need_h) return;
   /* MLP3's hidden layers feature-major (points along rows), the layout the
    * scoring kernel wants: xT = the geometric codes transposed, columns past
@@ -182,6 +183,20 @@ static void query_task(void *ctx, int task, int thread) {
     hT = o;
   }
   int last = m3->nl - 1;
+  if (q->cosine) {
+    /* Logits through the fold, E (W h + b) = (E W) h + E b, divided by |f|
+     * from the unfolded feature. */
+    float *cs = q->cosine + a * (size_t)K;
+    vlff_gemm(n, K, H, hT, 1, ldh, f->EWt, K, cs, K, f->Eb, 0, 0);
+    vlff_gemm(n, D, H, hT, 1, ldh, pm + m3->woff[last], D, w->fray, D, pm + m3->boff[last], 0, 0);
+    for (int i = 0; i < n; i++) {
+      const float *fi = w->fray + (size_t)i * D;
+      double nn = 0;
+      for (int j = 0; j < D; j++) nn += (double)fi[j] * fi[j];
+      float inv = inside[i] && nn > 0 ? (float)(1.0 / sqrt(nn)) : 0.0f;
+      for (int k = 0; k < K; k++) cs[(size_t)i * K + k] *= inv;
+    }
+  }
   if (q->feature) {
     vlff_gemm(n, D, H, hT, 1, ldh, pm + m3->woff[last], D, w->fray, D, pm + m3->boff[last], 0, 0);
     for (int i = 0; i < n; i++) {
@@ -222,12 +237,30 @@ int vlff_field_query(struct vlff_field *f, const float *xyz, size_t n, float *de
     size_t m = n - a > (size_t)1 << 24 ? (size_t)1 << 24 : n - a;
     struct query_ctx sub = {f, xyz + 3 * a, m, density ? density + a : NULL,
                             feature ? feature + a * (size_t)f->D : NULL, score ? score + a : NULL,
-                            margin ? margin + a : NULL, label ? label + a : NULL, 0};
+                            margin ? margin + a : NULL, label ? label + a : NULL, 0, NULL};
     sub.ntasks = (int)((m + VLFF_QUERY_BLOCK - 1) / VLFF_QUERY_BLOCK);
     vlff_pool_run(f->pool, sub.ntasks, query_task, &sub);
     a += m;
   }
   return 0;
+}
+
+int vlff_field_query_cosines(struct vlff_field *f, const float *xyz, size_t n, float *cosine) {
+  if (!f || (n && (!xyz || !cosine)) || f->K == 0 || n > UINT32_MAX) return -1;
+  vlff_field_fold(f);
+  for (size_t a = 0; a < n;) {
+    size_t m = n - a > (size_t)1 << 24 ? (size_t)1 << 24 : n - a;
+    struct query_ctx sub = {.f = f, .xyz = xyz + 3 * a, .n = m, .cosine = cosine + a * (size_t)f->K};
+    sub.ntasks = (int)((m + VLFF_QUERY_BLOCK - 1) / VLFF_QUERY_BLOCK);
+    vlff_pool_run(f->pool, sub.ntasks, query_task, &sub);
+    a += m;
+  }
+  return 0;
+}
+
+const float *vlff_field_prompt_embeddings(const struct vlff_field *f, int *k) {
+  *k = f->K;
+  return f->E_;
 }
 
 /* ---- 2D rendering --------------------------------------------------------- */

@@ -185,6 +185,24 @@ static void test_folded_equals_unfolded(void **state) {
   assert_true(inside > n / 2);
   assert_int_equal(agree + close, inside);
   assert_true(close * 100 < inside);
+  /* Per-prompt cosines (the publisher's evidence path) equal E_k . f / |f|
+   * from the unfolded features, and 0 outside the box. */
+  float *cs = malloc(n * K * 4);
+  assert_int_equal(vlff_field_query_cosines(f, xyz, n, cs), 0);
+  int k_out;
+  const float *eu = vlff_field_prompt_embeddings(f, &k_out);
+  assert_int_equal(k_out, K);
+  for (size_t i = 0; i < n; i++) {
+    double nf = 0;
+    for (int j = 0; j < D; j++) nf += (double)feat[i * D + j] * feat[i * D + j];
+    for (int k = 0; k < K; k++) {
+      double dot = 0;
+      for (int j = 0; j < D; j++) dot += (double)feat[i * D + j] * eu[k * D + j];
+      double want = label[i] < 0 || !(nf > 0) ? 0 : dot / sqrt(nf);
+      assert_true(fabs(cs[i * K + k] - want) < 1e-3);
+    }
+  }
+  free(cs);
   /* 2D: rendered labels equal the argmax over rendered features. */
   const int w = 24, h = 18; /* the size of views[1] */
   float *rf = malloc((size_t)w * h * D * 4), *rs = malloc((size_t)w * h * 4);

@@ -1,0 +1,298 @@
+/*
+ * Per-voxel evidence (evidence.h).
+ */
+#include "evidence.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "select.h"
+
+#define MAX_VIEWS 255
+
+struct vlff_evidence {
+  double origin[3], voxel;
+  uint32_t dims[3];
+  size_t nvox;
+  int D;
+  int32_t *slot;    /* [nvox]: -1 none */
+  uint16_t *mean;   /* [cap][D] float16 */
+  uint8_t *views;   /* [cap] views averaged, saturating at MAX_VIEWS */
+  float *cos;       /* [cap][VLFF_MAX_PROMPTS] cosines with the prompts ... */
+  uint8_t *dirty;   /* [cap] ... stale since the slot's evidence changed */
+  uint64_t stamp;   /* ... or since the prompts did */
+  int stamp_k;
+  size_t used, cap;
+  long long overflow;
+  float *tmp;       /* [D] */
+};
+
+double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, size_t max_voxels, uint32_t dims[3]) {
+  for (;;) {
+    size_t n = 1;
+    for (int i = 0; i < 3; i++) {
+      double c = ceil((hi[i] - lo[i]) / voxel - 1e-9);
+      dims[i] = c < 1 ? 1 : c > UINT32_MAX ? UINT32_MAX : (uint32_t)c;
+      n = n > SIZE_MAX / dims[i] ? SIZE_MAX : n * dims[i];
+    }
+    if (n <= max_voxels) return voxel;
+    voxel *= 1.1;
+  }
+}
+
+static int fail(char *err, size_t errlen, const char *msg) {
+  if (err && errlen) snprintf(err, errlen, "evidence: %s", msg);
+  return -1;
+}
+
+void vlff_evidence_destroy(struct vlff_evidence *e) {
+  if (!e) return;
+  free(e->slot);
+  free(e->mean);
+  free(e->views);
+  free(e->cos);
+  free(e->dirty);
+  free(e->tmp);
+  free(e);
+}
+
+struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_t dims[3], double voxel, int D,
+                                           size_t max_bytes, char *err, size_t errlen) {
+  if (D < 1 || !(voxel > 0) || !isfinite(voxel) || !dims[0] || !dims[1] || !dims[2]) {
+    fail(err, errlen, "bad grid or feature size");
+    return NULL;
+  }
+  struct vlff_evidence *e = calloc(1, sizeof *e);
+  if (!e) {
+    fail(err, errlen, "out of memory");
+    return NULL;
+  }
+  memcpy(e->origin, origin, sizeof e->origin);
+  memcpy(e->dims, dims, sizeof e->dims);
+  e->voxel = voxel;
+  e->D = D;
+  e->nvox = (size_t)dims[0] * dims[1] * dims[2];
+  size_t per = (size_t)D * sizeof(uint16_t) + VLFF_MAX_PROMPTS * sizeof(float) + 2;
+  e->cap = max_bytes / per;
+  if (e->cap < 1) e->cap = 1;
+  if (e->cap > e->nvox) e->cap = e->nvox;
+  if (e->cap > INT32_MAX) e->cap = INT32_MAX;
+  e->slot = malloc(e->nvox * sizeof *e->slot);
+  e->mean = malloc(e->cap * (size_t)D * sizeof *e->mean);
+  e->views = calloc(e->cap, 1);
+  e->cos = malloc(e->cap * VLFF_MAX_PROMPTS * sizeof *e->cos);
+  e->dirty = calloc(e->cap, 1);
+  e->tmp = malloc((size_t)D * sizeof *e->tmp);
+  if (!e->slot || !e->mean || !e->views || !e->cos || !e->dirty || !e->tmp) {
+    snprintf(err, errlen, "evidence: out of memory for %zu voxels of %d features", e->cap, D);
+    vlff_evidence_destroy(e);
+    return NULL;
+  }
+  vlff_evidence_reset(e);
+  return e;
+}
+
+struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, const struct vlff_cfg_field *field,
+                                        char *err, size_t errlen) {
+  size_t budget = (size_t)pub->evidence_max_mb << 20;
+  uint32_t dims[3];
+  double voxel = vlff_map_grid_plan(field->scene_min, field->scene_max, pub->evidence_voxel_m,
+                                    budget / 4 / sizeof(int32_t), dims);
+  return vlff_evidence_create(field->scene_min, dims, voxel, field->feature_dim,
+                              budget - (size_t)dims[0] * dims[1] * dims[2] * sizeof(int32_t), err, errlen);
+}
+
+void vlff_evidence_reset(struct vlff_evidence *e) {
+  memset(e->slot, 0xff, e->nvox * sizeof *e->slot);
+  e->used = 0;
+  e->overflow = 0;
+}
+
+long vlff_evidence_voxel(const struct vlff_evidence *e, const double x[3]) {
+  long idx[3];
+  for (int i = 0; i < 3; i++) {
+    double f = (x[i] - e->origin[i]) / e->voxel;
+    if (!(f >= 0) || f >= e->dims[i]) return -1;
+    idx[i] = (long)f;
+  }
+  return idx[0] + (long)e->dims[0] * (idx[1] + (long)e->dims[1] * idx[2]);
+}
+
+/* The running mean of one voxel takes feature f (D finite floats). */
+static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
+  int32_t s = e->slot[vi];
+  if (s < 0) {
+    if (e->used >= e->cap) {
+      e->overflow++;
+      return;
+    }
+    s = (int32_t)e->used++;
+    e->slot[vi] = s;
+    e->views[s] = 0;
+  }
+  e->dirty[s] = 1;
+  uint16_t *m = e->mean + (size_t)s * e->D;
+  int n = e->views[s] < MAX_VIEWS ? ++e->views[s] : MAX_VIEWS;
+  float a = 1.0f / (float)n;
+  for (int j = 0; j < e->D; j++) {
+    float old = n == 1 ? 0.0f : vlff_f16_to_f32(m[j]);
+    m[j] = vlff_f32_to_f16(old + (f[j] - old) * a);
+  }
+}
+
+int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *err, size_t errlen) {
+  if (!v->depth || !v->features) return 0;
+  if (v->feature_dim != e->D) return fail(err, errlen, "view features have another D than the map's");
+  if (v->width < 1 || v->height < 1 || v->feat_width < 1 || v->feat_height < 1)
+    return fail(err, errlen, "view has no pixels");
+  const int D = e->D;
+  float *f = e->tmp;
+  for (int fj = 0; fj < v->feat_height; fj++)
+    for (int fi = 0; fi < v->feat_width; fi++) {
+      /* The depth pixel under the feature pixel's centre. */
+      double u = (fi + 0.5) * v->width / v->feat_width, w = (fj + 0.5) * v->height / v->feat_height;
+      int iu = (int)u, iv = (int)w;
+      if (iu >= v->width) iu = v->width - 1;
+      if (iv >= v->height) iv = v->height - 1;
+      float d = v->depth[(size_t)iv * v->width + iu];
+      if (!(d > 0) || !isfinite(d)) continue;
+      double x[3];
+      vlff_unproject(v->c2w, v->fx, v->fy, v->cx, v->cy, u, w, d, x);
+      long vi = vlff_evidence_voxel(e, x);
+      if (vi < 0) continue;
+      const uint16_t *src = v->features + ((size_t)fj * v->feat_width + fi) * D;
+      int ok = 1;
+      for (int j = 0; j < D; j++) {
+        f[j] = vlff_f16_to_f32(src[j]);
+        ok &= isfinite(f[j]);
+      }
+      if (ok) accumulate(e, vi, f);
+    }
+  return 0;
+}
+
+int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out) {
+  if (vi < 0 || (size_t)vi >= e->nvox || e->slot[vi] < 0) return 0;
+  const uint16_t *m = e->mean + (size_t)e->slot[vi] * e->D;
+  for (int j = 0; j < e->D; j++) out[j] = vlff_f16_to_f32(m[j]);
+  return e->views[e->slot[vi]];
+}
+
+/* Slot s's cosines with E, recomputed when its evidence changed. */
+static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float *E, int K) {
+  float *c = e->cos + (size_t)s * VLFF_MAX_PROMPTS;
+  if (!e->dirty[s]) return c;
+  const int D = e->D;
+  const uint16_t *m = e->mean + (size_t)s * D;
+  float *x = e->tmp;
+  double nn = 0;
+  for (int j = 0; j < D; j++) {
+    x[j] = vlff_f16_to_f32(m[j]);
+    nn += (double)x[j] * x[j];
+  }
+  double inv = nn > 0 ? 1.0 / sqrt(nn) : 0;
+  for (int k = 0; k < K; k++) {
+    double dot = 0;
+    for (int j = 0; j < D; j++) dot += (double)x[j] * E[(size_t)k * D + j];
+    c[k] = (float)(dot * inv);
+  }
+  e->dirty[s] = 0;
+  return c;
+}
+
+void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos, const float *E, int K,
+                         uint64_t stamp, float w, int *label, float *score, float *margin) {
+  if (K > VLFF_MAX_PROMPTS) K = VLFF_MAX_PROMPTS;
+  if (stamp != e->stamp || K != e->stamp_k) {
+    memset(e->dirty, 1, e->used);
+    e->stamp = stamp, e->stamp_k = K;
+  }
+  for (size_t i = 0; i < n; i++) {
+    const float *fc = fcos + i * (size_t)K, *ec = NULL;
+    double x[3] = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
+    long vi = vlff_evidence_voxel(e, x);
+    if (vi >= 0 && e->slot[vi] >= 0) ec = slot_cosines(e, e->slot[vi], E, K);
+    int best = -1, any = 0;
+    float b1 = -INFINITY, b2 = -INFINITY;
+    for (int k = 0; k < K; k++) {
+      any |= fc[k] != 0;
+      float v = fc[k] + (ec ? w * ec[k] : 0.0f);
+      if (v > b1) b2 = b1, b1 = v, best = k;
+      else if (v > b2) b2 = v;
+    }
+    float scale = ec ? 1.0f / (1.0f + w) : 1.0f;
+    label[i] = any ? best : -1;
+    if (score) score[i] = any ? b1 * scale : 0.0f;
+    if (margin) margin[i] = any && K > 1 ? (b1 - b2) * scale : 0.0f;
+  }
+}
+
+struct ev_header {
+  uint32_t dims[3];
+  int32_t D;
+  double voxel, origin[3];
+  uint64_t used;
+};
+
+/* Per voxel: its index (u32), its count (u8), its mean (D float16). */
+static size_t record_size(int D) { return 4 + 1 + (size_t)D * 2; }
+
+size_t vlff_evidence_save_size(const struct vlff_evidence *e) {
+  return sizeof(struct ev_header) + e->used * record_size(e->D);
+}
+
+void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out) {
+  struct ev_header h = {.D = e->D, .voxel = e->voxel, .used = e->used};
+  memcpy(h.dims, e->dims, sizeof h.dims);
+  memcpy(h.origin, e->origin, sizeof h.origin);
+  memcpy(out, &h, sizeof h);
+  out += sizeof h;
+  for (size_t vi = 0; vi < e->nvox; vi++) {
+    int32_t s = e->slot[vi];
+    if (s < 0) continue;
+    uint32_t idx = (uint32_t)vi;
+    memcpy(out, &idx, 4);
+    out[4] = e->views[s];
+    memcpy(out + 5, e->mean + (size_t)s * e->D, (size_t)e->D * 2);
+    out += record_size(e->D);
+  }
+}
+
+int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen) {
+  struct ev_header h;
+  if (len < sizeof h) return fail(err, errlen, "saved evidence truncated");
+  memcpy(&h, in, sizeof h);
+  if (memcmp(h.dims, e->dims, sizeof h.dims) || h.D != e->D || h.voxel != e->voxel ||
+      memcmp(h.origin, e->origin, sizeof h.origin))
+    return fail(err, errlen, "saved evidence is of another grid or feature size");
+  if (h.used > e->cap) return fail(err, errlen, "saved evidence holds more voxels than publish.evidence_max_mb");
+  if (len != sizeof h + h.used * record_size(e->D)) return fail(err, errlen, "saved evidence has the wrong length");
+  const uint8_t *r = in + sizeof h;
+  /* Every index in the grid and none twice, before anything changes. */
+  uint32_t prev = 0;
+  for (uint64_t i = 0; i < h.used; i++, r += record_size(e->D)) {
+    uint32_t idx;
+    memcpy(&idx, r, 4);
+    if (idx >= e->nvox || (i > 0 && idx <= prev) || r[4] == 0)
+      return fail(err, errlen, "saved evidence has a bad voxel record");
+    prev = idx;
+  }
+  vlff_evidence_reset(e);
+  r = in + sizeof h;
+  for (uint64_t i = 0; i < h.used; i++, r += record_size(e->D)) {
+    uint32_t idx;
+    memcpy(&idx, r, 4);
+    int32_t s = (int32_t)e->used++;
+    e->slot[idx] = s;
+    e->views[s] = r[4];
+    e->dirty[s] = 1;
+    memcpy(e->mean + (size_t)s * e->D, r + 5, (size_t)e->D * 2);
+  }
+  return 0;
+}
+
+size_t vlff_evidence_voxels(const struct vlff_evidence *e) { return e->used; }
+
+long long vlff_evidence_overflow(const struct vlff_evidence *e) { return e->overflow; }

@@ -1,0 +1,94 @@
+/*
+ * Per-voxel evidence: the raw vision-language features of admitted
+ * keyframes, averaged in the voxels where their measured depth ends
+ * (OpenScene-style multi-view fusion, kept online beside the field).
+ *
+ * Why: the field is a smooth, shared decoder. Over a large scene it can
+ * give a small or rare object's feature away to a larger look-alike, and a
+ * constant learning rate lets an object near a decision boundary flip
+ * between classes from one minute to the next. Features averaged where
+ * they were measured keep every object that the raw features find, but
+ * carry the raw features' noise. The published map labels a voxel by both:
+ * the prompt maximising E_k . (f/|f| + w e/|e|), f the field's feature at the
+ * voxel, e the voxel's evidence, w publish.evidence_weight (docs/field.md,
+ * "Evidence").
+ *
+ * Storage: a dense voxel -> slot index over the grid, and slots of D
+ * float16 values (the running mean) allocated on first use, up to a budget
+ * (publish.evidence_max_mb). A full budget leaves further voxels without
+ * evidence (field only) and is counted. The mean gives each view equal
+ * weight up to 255 views per voxel, then new views weigh 1/255 (the map
+ * follows a changing scene rather than freezing).
+ *
+ * Contract: one owner thread. Functions returning int give 0, or -1 with
+ * err filled; a refused view leaves the evidence untouched.
+ */
+#ifndef VLFF_EVIDENCE_H
+#define VLFF_EVIDENCE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "config.h"
+#include "field.h"
+
+struct vlff_evidence;
+
+/* The published map's grid over the box lo..hi: voxels of edge voxel,
+ * coarsened in 10 % steps until there are at most max_voxels; returns the
+ * edge used and sets dims. The publisher's grid and the evaluation's
+ * evidence use it alike. */
+double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, size_t max_voxels, uint32_t dims[3]);
+
+/* A grid of dims voxels of edge voxel from origin; D feature channels;
+ * at most max_bytes of slots (at least one slot). */
+struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_t dims[3], double voxel, int D,
+                                           size_t max_bytes, char *err, size_t errlen);
+/* The node's evidence for a field's box: voxels of publish.evidence_voxel_m
+ * (coarsened so that the voxel index takes at most a quarter of
+ * publish.evidence_max_mb), slots in the rest of that budget. */
+struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, const struct vlff_cfg_field *field,
+                                        char *err, size_t errlen);
+void vlff_evidence_destroy(struct vlff_evidence *e);
+void vlff_evidence_reset(struct vlff_evidence *e);
+
+/* Adds a view's features: each feature pixel's centre is looked up in the
+ * depth image (v->depth, metres along the camera axis, width x height; a
+ * view without depth or features adds nothing), unprojected with the view's
+ * intrinsics and pose, and its feature averaged into the voxel there.
+ * Non-finite features and depths are skipped. The caller has checked the
+ * view's intrinsics and pose (vlff_publisher_check_view); D must match. */
+int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *err, size_t errlen);
+
+/* The voxel index of world point x (-1 outside the grid). */
+long vlff_evidence_voxel(const struct vlff_evidence *e, const double x[3]);
+/* Copies voxel vi's mean feature into out[D] and returns the views averaged
+ * (0, out untouched, when the voxel has none). */
+int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out);
+
+/* Labels n points (xyz interleaved) from the field's per-prompt cosines
+ * fcos[n][K] (vlff_field_query_cosines) and, where a point's voxel has
+ * evidence, w times the cosines of that evidence with the unit prompt
+ * embeddings E[K][D]: the argmax of cos_field + w cos_evidence, which is
+ * the argmax of E_k . (f/|f| + w e/|e|). score (the winning sum) and
+ * margin (best minus second) are divided by 1 + w where evidence counted,
+ * so both stay cosines. Outputs may be NULL except label. A voxel's
+ * evidence cosines are cached until its evidence or the prompts (stamp: a
+ * hash of E) change. Points the field scores all 0 (outside the box) get
+ * label -1. */
+void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos, const float *E, int K,
+                         uint64_t stamp, float w, int *label, float *score, float *margin);
+
+/* Learned state, saved beside the field (vlff_publisher_save): the bytes
+ * of the grid's geometry and every voxel's mean and count. load checks the
+ * geometry, D, the slot count against the budget and every voxel index,
+ * and only then replaces the evidence (-1 with err and the evidence
+ * untouched otherwise). */
+size_t vlff_evidence_save_size(const struct vlff_evidence *e);
+void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out);
+int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen);
+
+size_t vlff_evidence_voxels(const struct vlff_evidence *e);   /* voxels with evidence */
+long long vlff_evidence_overflow(const struct vlff_evidence *e); /* additions lost to a full budget */
+
+#endif

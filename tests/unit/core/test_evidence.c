@@ -1,0 +1,208 @@
+/* Per-voxel evidence: features land in the voxel where measured depth puts
+ * them, average over views, combine with the field's cosines into labels,
+ * follow new evidence and new prompts, and stay within their budget. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "evidence.h"
+
+enum { W = 8, H = 8, FW = 4, FH = 4, D = 4 };
+
+static const double origin[3] = {-2, -2, 0};
+static const uint32_t dims[3] = {8, 8, 8}; /* 0.5 m voxels over [-2,2] x [-2,2] x [0,4] */
+
+/* A camera at the origin looking along +z at a wall depth_m away; every
+ * feature pixel carries feature f. */
+struct wall {
+  float depth[W * H];
+  uint16_t feat[FW * FH * D];
+  struct vlff_view v;
+};
+
+static void wall_make(struct wall *w, float depth_m, const float f[D]) {
+  for (int i = 0; i < W * H; i++) w->depth[i] = depth_m;
+  for (int i = 0; i < FW * FH; i++)
+    for (int j = 0; j < D; j++) w->feat[i * D + j] = vlff_f32_to_f16(f[j]);
+  memset(&w->v, 0, sizeof w->v);
+  w->v.width = W, w->v.height = H, w->v.fx = w->v.fy = 40, w->v.cx = w->v.cy = 4;
+  w->v.c2w[0] = w->v.c2w[5] = w->v.c2w[10] = w->v.c2w[15] = 1;
+  w->v.depth = w->depth, w->v.features = w->feat;
+  w->v.feat_width = FW, w->v.feat_height = FH, w->v.feature_dim = D;
+}
+
+static struct vlff_evidence *make(size_t bytes) {
+  char err[256];
+  struct vlff_evidence *e = vlff_evidence_create(origin, dims, 0.5, D, bytes, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  return e;
+}
+
+static void test_views_average_where_depth_ends(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  struct wall a, b;
+  wall_make(&a, 2.2f, (const float[D]){1, 0, 0, 0});
+  wall_make(&b, 2.2f, (const float[D]){0, 1, 0, 0});
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+  /* fx = 40 over 8 pixels: the wall spans +-0.22 m around the axis at
+   * 2.2 m, all within the voxels around x, y = 0 at z in [2, 2.5). */
+  float out[D];
+  int n = vlff_evidence_get(e, vlff_evidence_voxel(e, (const double[3]){0.1, 0.1, 2.2}), out);
+  assert_true(n >= 2);
+  assert_float_equal(out[0], 0.5f, 2e-3);
+  assert_float_equal(out[1], 0.5f, 2e-3);
+  assert_float_equal(out[2], 0.0f, 1e-6);
+  /* In front of the wall, behind it and outside the grid: nothing. */
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, (const double[3]){0.1, 0.1, 1.2}), out), 0);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, (const double[3]){0.1, 0.1, 3.2}), out), 0);
+  assert_int_equal(vlff_evidence_voxel(e, (const double[3]){0.1, 0.1, 9}), -1);
+  assert_int_equal(vlff_evidence_voxels(e), 4); /* the four voxels at x, y in [-0.5, 0.5) */
+  assert_int_equal(vlff_evidence_overflow(e), 0);
+  vlff_evidence_reset(e);
+  assert_int_equal(vlff_evidence_voxels(e), 0);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, (const double[3]){0.1, 0.1, 2.2}), out), 0);
+  vlff_evidence_destroy(e);
+}
+
+static void test_labels_combine_field_and_evidence(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  const float E[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
+  /* The field leans to prompt 0 at both points; the second lies outside
+   * the grid, the third is a point the field does not score. */
+  const float xyz[9] = {0.1f, 0.1f, 2.2f, 0.1f, 0.1f, 9.0f, 0.1f, 0.1f, 2.2f};
+  const float fcos[6] = {0.6f, 0.5f, 0.6f, 0.5f, 0, 0};
+  int lab[3];
+  float score[3], margin[3];
+  /* No evidence yet: the field's labels and cosines. */
+  vlff_evidence_label(e, xyz, 3, fcos, E, 2, 1, 1.0f, lab, score, margin);
+  assert_int_equal(lab[0], 0);
+  assert_float_equal(score[0], 0.6f, 1e-6);
+  assert_int_equal(lab[2], -1);
+  struct wall a, b;
+  wall_make(&a, 2.2f, (const float[D]){1, 0, 0, 0});
+  wall_make(&b, 2.2f, (const float[D]){0, 2, 0, 0});
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  vlff_evidence_label(e, xyz, 3, fcos, E, 2, 1, 1.0f, lab, score, margin);
+  assert_int_equal(lab[0], 0);
+  assert_float_equal(score[0], (0.6f + 1.0f) / 2, 1e-3); /* evidence cosine 1 with prompt 0 */
+  assert_float_equal(margin[0], (1.6f - 0.5f) / 2, 1e-3);
+  /* Twice as many views of prompt 1's feature: the mean (1/3, 4/3) has
+   * cosines 0.24 and 0.97, and the cached cosines follow the new evidence. */
+  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+  vlff_evidence_label(e, xyz, 3, fcos, E, 2, 1, 1.0f, lab, score, margin);
+  assert_int_equal(lab[0], 1);
+  assert_int_equal(lab[1], 0); /* outside the grid: the field alone */
+  assert_float_equal(score[1], 0.6f, 1e-6);
+  /* A small weight leaves the field's decision standing. */
+  vlff_evidence_label(e, xyz, 1, fcos, E, 2, 1, 0.1f, lab, NULL, NULL);
+  assert_int_equal(lab[0], 0);
+  /* New prompts (the order swapped, another stamp): cosines recomputed. */
+  const float E2[2 * D] = {0, 1, 0, 0, 1, 0, 0, 0};
+  const float fcos2[2] = {0.5f, 0.6f};
+  vlff_evidence_label(e, xyz, 1, fcos2, E2, 2, 2, 1.0f, lab, NULL, NULL);
+  assert_int_equal(lab[0], 0);
+  vlff_evidence_destroy(e);
+}
+
+/* A full budget leaves further voxels to the field, counted; bad values in
+ * a view are skipped; a view of another D is refused. */
+static void test_budget_and_bad_values(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1); /* room for one voxel */
+  struct wall a;
+  wall_make(&a, 2.2f, (const float[D]){1, 0, 0, 0});
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(e), 1);
+  assert_true(vlff_evidence_overflow(e) > 0);
+  vlff_evidence_destroy(e);
+
+  e = make(1 << 20);
+  for (int i = 0; i < W * H; i++) a.depth[i] = i % 2 ? NAN : INFINITY;
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(e), 0);
+  wall_make(&a, 2.2f, (const float[D]){NAN, 0, 0, 0});
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(e), 0);
+  a.v.feature_dim = D + 1;
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), -1);
+  assert_non_null(strstr(err, "D"));
+  vlff_evidence_destroy(e);
+}
+
+/* Saved evidence loads back as it was; a record that points outside the
+ * grid, a file of another feature size and one larger than the budget are
+ * refused and leave the evidence as it was. */
+static void test_save_load(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20), *g = make(1 << 20);
+  struct wall a;
+  wall_make(&a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  size_t n = vlff_evidence_save_size(e);
+  uint8_t *buf = malloc(n);
+  vlff_evidence_save(e, buf);
+  assert_int_equal(vlff_evidence_load(g, buf, n, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(g), 4);
+  float x[D], y[D];
+  long vi = vlff_evidence_voxel(e, (const double[3]){-0.1, 0.1, 2.2});
+  assert_int_equal(vlff_evidence_get(e, vi, x), vlff_evidence_get(g, vi, y));
+  assert_memory_equal(x, y, sizeof x);
+  /* The last record's voxel index past the grid. */
+  uint32_t bad = 8 * 8 * 8;
+  memcpy(buf + n - (4 + 1 + 2 * D), &bad, 4);
+  assert_int_equal(vlff_evidence_load(g, buf, n, err, sizeof err), -1);
+  assert_non_null(strstr(err, "bad voxel record"));
+  assert_int_equal(vlff_evidence_get(g, vi, y), 4); /* four feature pixels of one view */
+  assert_int_equal(vlff_evidence_load(g, buf, n - 1, err, sizeof err), -1);
+  char err2[256];
+  struct vlff_evidence *other = vlff_evidence_create(origin, dims, 0.5, D + 1, 1 << 20, err2, sizeof err2);
+  vlff_evidence_save(e, buf);
+  assert_int_equal(vlff_evidence_load(other, buf, n, err, sizeof err), -1);
+  assert_non_null(strstr(err, "another grid"));
+  vlff_evidence_destroy(other);
+  struct vlff_evidence *small = make(1);
+  assert_int_equal(vlff_evidence_load(small, buf, n, err, sizeof err), -1);
+  assert_non_null(strstr(err, "evidence_max_mb"));
+  vlff_evidence_destroy(small);
+  free(buf);
+  vlff_evidence_destroy(e);
+  vlff_evidence_destroy(g);
+}
+
+/* The grid plan coarsens until the box fits the voxel budget. */
+static void test_grid_plan(void **state) {
+  (void)state;
+  const double lo[3] = {-5, -4, -1.5}, hi[3] = {5, 4, 1.5};
+  uint32_t d[3];
+  assert_float_equal(vlff_map_grid_plan(lo, hi, 0.1, 1u << 20, d), 0.1, 1e-12);
+  assert_int_equal(d[0], 100);
+  assert_int_equal(d[1], 80);
+  assert_int_equal(d[2], 30);
+  double v = vlff_map_grid_plan(lo, hi, 0.1, 10000, d);
+  assert_true(v > 0.1);
+  assert_true((size_t)d[0] * d[1] * d[2] <= 10000);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_views_average_where_depth_ends),
+      cmocka_unit_test(test_labels_combine_field_and_evidence),
+      cmocka_unit_test(test_budget_and_bad_values),
+      cmocka_unit_test(test_save_load),
+      cmocka_unit_test(test_grid_plan),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
