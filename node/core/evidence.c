@@ -4,10 +4,10 @@
 #include "evidence.h"
 
 #include <math.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "log.h"
 #include "select.h"
 
 #define MAX_VIEWS 255
@@ -42,11 +42,6 @@ double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, 
   }
 }
 
-static int fail(char *err, size_t errlen, const char *msg) {
-  if (err && errlen) snprintf(err, errlen, "evidence: %s", msg);
-  return -1;
-}
-
 void vlff_evidence_destroy(struct vlff_evidence *e) {
   if (!e) return;
   free(e->slot);
@@ -61,12 +56,12 @@ void vlff_evidence_destroy(struct vlff_evidence *e) {
 struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_t dims[3], double voxel, int D,
                                            size_t max_bytes, char *err, size_t errlen) {
   if (D < 1 || !(voxel > 0) || !isfinite(voxel) || !dims[0] || !dims[1] || !dims[2]) {
-    fail(err, errlen, "bad grid or feature size");
+    vlff_errf(err, errlen, "evidence: bad grid or feature size");
     return NULL;
   }
   struct vlff_evidence *e = calloc(1, sizeof *e);
   if (!e) {
-    fail(err, errlen, "out of memory");
+    vlff_errf(err, errlen, "evidence: out of memory");
     return NULL;
   }
   memcpy(e->origin, origin, sizeof e->origin);
@@ -86,7 +81,7 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   e->dirty = calloc(e->cap, 1);
   e->tmp = malloc((size_t)D * sizeof *e->tmp);
   if (!e->slot || !e->mean || !e->views || !e->cos || !e->dirty || !e->tmp) {
-    snprintf(err, errlen, "evidence: out of memory for %zu voxels of %d features", e->cap, D);
+    vlff_errf(err, errlen, "evidence: out of memory for %zu voxels of %d features", e->cap, D);
     vlff_evidence_destroy(e);
     return NULL;
   }
@@ -110,14 +105,18 @@ void vlff_evidence_reset(struct vlff_evidence *e) {
   e->overflow = 0;
 }
 
-long vlff_evidence_voxel(const struct vlff_evidence *e, const double x[3]) {
+long vlff_grid_voxel(const double origin[3], double voxel, const uint32_t dims[3], const double x[3]) {
   long idx[3];
   for (int i = 0; i < 3; i++) {
-    double f = (x[i] - e->origin[i]) / e->voxel;
-    if (!(f >= 0) || f >= e->dims[i]) return -1;
+    double f = (x[i] - origin[i]) / voxel;
+    if (!(f >= 0) || f >= dims[i]) return -1;
     idx[i] = (long)f;
   }
-  return idx[0] + (long)e->dims[0] * (idx[1] + (long)e->dims[1] * idx[2]);
+  return idx[0] + (long)dims[0] * (idx[1] + (long)dims[1] * idx[2]);
+}
+
+long vlff_evidence_voxel(const struct vlff_evidence *e, const double x[3]) {
+  return vlff_grid_voxel(e->origin, e->voxel, e->dims, x);
 }
 
 /* The running mean of one voxel takes feature f (D finite floats). */
@@ -144,9 +143,10 @@ static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
 
 int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *err, size_t errlen) {
   if (!v->depth || !v->features) return 0;
-  if (v->feature_dim != e->D) return fail(err, errlen, "view features have another D than the map's");
+  if (v->feature_dim != e->D)
+    return vlff_errf(err, errlen, "evidence: view features have another D than the map's"), -1;
   if (v->width < 1 || v->height < 1 || v->feat_width < 1 || v->feat_height < 1)
-    return fail(err, errlen, "view has no pixels");
+    return vlff_errf(err, errlen, "evidence: view has no pixels"), -1;
   const int D = e->D;
   float *f = e->tmp;
   for (int fj = 0; fj < v->feat_height; fj++)
@@ -262,13 +262,15 @@ void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out) {
 
 int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen) {
   struct ev_header h;
-  if (len < sizeof h) return fail(err, errlen, "saved evidence truncated");
+  if (len < sizeof h) return vlff_errf(err, errlen, "evidence: saved evidence truncated"), -1;
   memcpy(&h, in, sizeof h);
   if (memcmp(h.dims, e->dims, sizeof h.dims) || h.D != e->D || h.voxel != e->voxel ||
       memcmp(h.origin, e->origin, sizeof h.origin))
-    return fail(err, errlen, "saved evidence is of another grid or feature size");
-  if (h.used > e->cap) return fail(err, errlen, "saved evidence holds more voxels than publish.evidence_max_mb");
-  if (len != sizeof h + h.used * record_size(e->D)) return fail(err, errlen, "saved evidence has the wrong length");
+    return vlff_errf(err, errlen, "evidence: saved evidence is of another grid or feature size"), -1;
+  if (h.used > e->cap)
+    return vlff_errf(err, errlen, "evidence: saved evidence holds more voxels than publish.evidence_max_mb"), -1;
+  if (len != sizeof h + h.used * record_size(e->D))
+    return vlff_errf(err, errlen, "evidence: saved evidence has the wrong length"), -1;
   const uint8_t *r = in + sizeof h;
   /* Every index in the grid and none twice, before anything changes. */
   uint32_t prev = 0;
@@ -276,7 +278,7 @@ int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, c
     uint32_t idx;
     memcpy(&idx, r, 4);
     if (idx >= e->nvox || (i > 0 && idx <= prev) || r[4] == 0)
-      return fail(err, errlen, "saved evidence has a bad voxel record");
+      return vlff_errf(err, errlen, "evidence: saved evidence has a bad voxel record"), -1;
     prev = idx;
   }
   vlff_evidence_reset(e);

@@ -39,6 +39,9 @@ struct vlff_evidence;
  * edge used and sets dims. The publisher's grid and the evaluation's
  * evidence use it alike. */
 double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, size_t max_voxels, uint32_t dims[3]);
+/* The index (x fastest) of the voxel holding world point x in such a grid
+ * from origin, -1 outside it or for a non-finite x. */
+long vlff_grid_voxel(const double origin[3], double voxel, const uint32_t dims[3], const double x[3]);
 
 /* A grid of dims voxels of edge voxel from origin; D feature channels;
  * at most max_bytes of slots (at least one slot). */

@@ -278,13 +278,7 @@ void vlff_publisher_reset(struct vlff_publisher *p) {
 }
 
 static long voxel_of(const struct vlff_publisher *p, const double x[3]) {
-  long idx[3];
-  for (int i = 0; i < 3; i++) {
-    double f = (x[i] - p->origin[i]) / p->voxel;
-    if (!(f >= 0) || f >= p->dims[i]) return -1;
-    idx[i] = (long)f;
-  }
-  return idx[0] + (long)p->dims[0] * (idx[1] + (long)p->dims[1] * idx[2]);
+  return vlff_grid_voxel(p->origin, p->voxel, p->dims, x);
 }
 
 bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]) {
