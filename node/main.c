@@ -21,13 +21,11 @@
 #include "embeddings.h"
 #include "log.h"
 #include "node.h"
+#include "service.h"
 #include "sim_source.h"
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_CAN
 #include "vlff_can.h"
-#endif
-#ifdef VLFF_HAVE_SYSTEMD
-#include <systemd/sd-daemon.h>
 #endif
 
 #ifndef VLFF_SYSCONFDIR
@@ -119,10 +117,7 @@ static int write_snapshot(struct vlff_node *node, const char *dir, char *err, si
 static int check_config(const char *path) {
   struct vlff_config cfg;
   char err[512];
-  if (vlff_config_load(path, &cfg, err, sizeof err)) {
-    fprintf(stderr, "%s\n", err);
-    return 1;
-  }
+  if (vlff_config_load(path, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
 #ifdef VLFF_HAVE_CAN
   if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
     fprintf(stderr, "%s: %s\n", path, err);
@@ -160,10 +155,7 @@ struct run {
   long long last_dropped;
   double last_can;
 #endif
-#ifdef VLFF_HAVE_SYSTEMD
-  uint64_t wd_usec;
-  double last_wd;
-#endif
+  struct vlff_service svc;
   bool status_view;
   double t0, last_line;
 };
@@ -194,14 +186,11 @@ static int start(struct run *r) {
 #else
   if (r->cfg.can.enabled) VLFF_WARN("node", "can.enabled, but this vlff-node was built without SocketCAN");
 #endif
-#ifdef VLFF_HAVE_SYSTEMD
   /* Under systemd (Type=notify) the node is ready once its threads run; with
    * WatchdogSec the watchdog is fed only while both the trainer and the
    * ingest thread pass their loops, so a hung thread gets the node restarted
-   * even though this main loop still runs. Outside systemd these are no-ops. */
-  if (sd_watchdog_enabled(0, &r->wd_usec) <= 0) r->wd_usec = 0;
-  sd_notify(0, "READY=1");
-#endif
+   * even though this main loop still runs. */
+  vlff_service_ready(&r->svc);
   r->t0 = vlff_seconds();
   return 0;
 }
@@ -209,16 +198,14 @@ static int start(struct run *r) {
 /* One pass of main's loop: the watchdog, CAN status, the --status line. */
 static void tick(struct run *r, double now) {
   struct vlff_node_status st;
-#ifdef VLFF_HAVE_SYSTEMD
-  if (r->wd_usec && now - r->last_wd >= (double)r->wd_usec * 0.25e-6) {
+  uint64_t t = vlff_shm_now_ns();
+  if (vlff_service_watchdog_due(&r->svc, t)) {
     vlff_node_status(r->node, &st);
-    uint64_t t = vlff_shm_now_ns(), stale = r->wd_usec * 500; /* half the period, in ns */
-    if (t - st.trainer_beat_ns < stale && t - st.ingest_beat_ns < stale) sd_notify(0, "WATCHDOG=1");
+    uint64_t stale = r->svc.watchdog_ns / 2;
+    if (t - st.trainer_beat_ns < stale && t - st.ingest_beat_ns < stale) vlff_service_watchdog();
     else VLFF_WARN("node", "watchdog not fed: trainer %.1f s, ingest %.1f s since their last loop",
                    (double)(t - st.trainer_beat_ns) * 1e-9, (double)(t - st.ingest_beat_ns) * 1e-9);
-    r->last_wd = now;
   }
-#endif
 #ifdef VLFF_HAVE_CAN
   if (r->can && now - r->last_can >= 0.1) {
     vlff_node_status(r->node, &st);
@@ -247,9 +234,7 @@ static void tick(struct run *r, double now) {
  * snapshot, and the node's final checkpoint. The exit status. */
 static int finish(struct run *r, const char *snapshot_dir) {
   if (r->status_view) fputc('\n', stderr);
-#ifdef VLFF_HAVE_SYSTEMD
-  sd_notify(0, "STOPPING=1");
-#endif
+  vlff_service_stopping();
   VLFF_INFO("node", "stopping (%s)", vlff_cli_stop == SIGTERM ? "SIGTERM"
                                      : vlff_cli_stop == SIGINT ? "SIGINT"
                                                                 : "run_seconds reached");
@@ -308,10 +293,7 @@ int main(int argc, char **argv) {
   char err[512];
   config_path = vlff_config_find(config_path, err, sizeof err);
   if (!config_path) return vlff_cli_error(&cli, "%s", err);
-  if (vlff_config_load(config_path, &r.cfg, err, sizeof err)) {
-    fprintf(stderr, "%s\n", err);
-    return 1;
-  }
+  if (vlff_config_load(config_path, &r.cfg, err, sizeof err)) return vlff_cli_config_error(err);
   vlff_log_set_level(r.cfg.node.log_level);
   vlff_cli_catch_stop();
   VLFF_INFO("node", "vlff-node %s starting, config %s", vlff_version(), config_path);

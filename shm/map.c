@@ -418,6 +418,12 @@ API int vlff_map_label_at(struct vlff_map *m, double x, double y, double z, uint
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_label_at: NULL argument");
     return -1;
   }
+  /* A NaN or infinite coordinate names no point of the world: answering "unknown"
+   * would hide a caller's broken arithmetic behind a valid-looking label. */
+  if (!isfinite(x) || !isfinite(y) || !isfinite(z)) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: point (%g, %g, %g) is not finite", m->seg.name, x, y, z);
+    return -1;
+  }
   struct map_meta mm;
   struct at_ctx c = {.x = x, .y = y, .z = z};
   if (read_consistent(m, &mm, read_voxel, &c) < 0)

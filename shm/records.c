@@ -187,7 +187,7 @@ API int vlff_feature_validate(const void *record, size_t len) {
 
 /* ---- poses */
 
-static void mat_to_quat(const double m[16], double q[4]) {
+API void vlff_pose_quaternion(const double m[16], double q[4]) {
   /* Shepperd: pick the largest diagonal term to keep the square root well away from 0. */
   double r00 = m[0], r11 = m[5], r22 = m[10], tr = r00 + r11 + r22;
   if (tr > 0) {
@@ -243,8 +243,8 @@ API int vlff_pose_interpolate(const struct vlff_pose_rec *a, const struct vlff_p
   }
   double u = b->t_ns == a->t_ns ? 0.0 : (double)(t - a->t_ns) / (double)(b->t_ns - a->t_ns);
   double qa[4], qb[4], q[4];
-  mat_to_quat(a->pose, qa);
-  mat_to_quat(b->pose, qb);
+  vlff_pose_quaternion(a->pose, qa);
+  vlff_pose_quaternion(b->pose, qb);
   double d = qa[0] * qb[0] + qa[1] * qb[1] + qa[2] * qb[2] + qa[3] * qb[3];
   if (d < 0) { /* take the short way round */
     d = -d;

@@ -329,6 +329,9 @@ API int vlff_ring_read_begin(struct vlff_ring *r, struct vlff_ring_view *v, uint
     }
     if (r->next == h) {
       if (timeout_ns == 0) {
+        /* A poller is told, as a waiter is, when its file is gone from /dev/shm. */
+        if (shm_seg_check(&r->seg, true) < 0)
+          return -1;
         shm_err(VLFF_SHM_OK, EAGAIN, "%s: nothing new", r->seg.name);
         return -1;
       }

@@ -326,8 +326,17 @@ void shm_seg_close(struct seg *s) {
 int shm_seg_check(struct seg *s, bool stat_it) {
   bool bad = atomic_load_explicit(&s->fault, memory_order_acquire) != 0;
   struct stat st;
-  if (!bad && stat_it && s->fd >= 0 && fstat(s->fd, &st) == 0 && (uint64_t)st.st_size < s->size)
-    bad = true;
+  if (!bad && stat_it && s->fd >= 0 && fstat(s->fd, &st) == 0) {
+    bad = (uint64_t)st.st_size < s->size;
+    /* A reader's file that no name leads to any more (removed from /dev/shm by
+     * hand, its creator dead, so nobody marked it abandoned) will never see
+     * another record; a creator started since has made a new one under the
+     * name. The reader is told to attach again instead of waiting for ever. */
+    if (!bad && !s->creator && st.st_nlink == 0) {
+      shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: removed from /dev/shm while attached; attach again", s->name);
+      return -1;
+    }
+  }
   if (!bad)
     return 0;
   shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE,

@@ -94,7 +94,8 @@ void shm_seg_ready(struct seg *s);
 void shm_seg_close(struct seg *s);
 /* 0 if the mapping is still backed by the whole file; -1 (VLFF_SHM_ERR_TRUNCATED,
  * EPIPE) if the SIGBUS guard fired on it or, with stat_it, if the file is now smaller
- * than the mapping. */
+ * than the mapping; with stat_it, -1 (VLFF_SHM_ERR_ABANDONED, EPIPE) for a reader
+ * whose file was removed from /dev/shm. */
 int shm_seg_check(struct seg *s, bool stat_it);
 /* Creator: abandons a damaged segment (its name is unlinked if it still names it) and
  * creates a new one of the same geometry and permissions. Returns as shm_seg_create;

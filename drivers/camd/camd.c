@@ -32,10 +32,8 @@
 #include "pair.h"
 #include "pipe.h"
 #include "ringsink.h"
+#include "service.h"
 #include "stamps.h"
-#ifdef VLFF_HAVE_SYSTEMD
-#include <systemd/sd-daemon.h>
-#endif
 #ifdef VLFF_HAVE_ARAVIS
 #include "aravis.h"
 #endif
@@ -142,7 +140,7 @@ static int slot_open(struct slot *s, const char *path) {
   s->cam = s->be->open(&s->cfg.camera, err, sizeof err);
   if (!s->cam) {
     if (errno != ENODEV) {
-      fprintf(stderr, "vlff-camd: %s: %s%s\n", path, strcmp(s->what, "camera") ? "depth camera: " : "", err);
+      fprintf(stderr, "%s: %s%s\n", path, strcmp(s->what, "camera") ? "depth camera: " : "", err);
       return -1;
     }
     s->open_failures++;
@@ -266,15 +264,13 @@ static int parse_args(struct camd *d, int argc, char **argv) {
   return -1;
 }
 
-/* The config, the backend and each camera's pipeline: 0, or 2 (the
+/* The config, the backend and each camera's pipeline: 0, or 1 (the
  * configuration cannot run), said on stderr. */
 static int setup_cameras(struct camd *d) {
   char err[1024];
   struct vlff_config *cfg = &d->cfg;
-  if (vlff_config_load(d->path, cfg, err, sizeof err) || vlff_camcfg_check(cfg, d->path, err, sizeof err)) {
-    fprintf(stderr, "vlff-camd: %s\n", err);
-    return 2;
-  }
+  if (vlff_config_load(d->path, cfg, err, sizeof err) || vlff_camcfg_check(cfg, d->path, err, sizeof err))
+    return vlff_cli_config_error(err);
   vlff_log_set_level((enum vlff_log_level)cfg->node.log_level);
   const struct backend *be = NULL;
 #ifdef VLFF_HAVE_ARAVIS
@@ -284,9 +280,9 @@ static int setup_cameras(struct camd *d) {
   if (cfg->camera.kind == VLFF_CAM_LIBCAMERA) be = &libcamera_backend;
 #endif
   if (!be) {
-    fprintf(stderr, "vlff-camd: %s: key 'camera.kind': this build has no %s support\n", d->path,
+    fprintf(stderr, "%s: key 'camera.kind': this build has no %s support\n", d->path,
             cfg->camera.kind == VLFF_CAM_ARAVIS ? "Aravis" : "libcamera");
-    return 2;
+    return 1;
   }
   const bool paired = cfg->camera.depth == VLFF_DEPTH_STREAM;
   d->nslots = paired ? 2 : 1;
@@ -294,8 +290,8 @@ static int setup_cameras(struct camd *d) {
   color->what = "camera", color->be = be, color->cfg = *cfg, color->backoff = 0.1;
   color->pipe = vlff_pipe_new(cfg, err, sizeof err);
   if (!color->pipe) {
-    fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
-    return 2;
+    fprintf(stderr, "%s: %s\n", d->path, err);
+    return 1;
   }
   if (range) {
 #ifdef VLFF_HAVE_ARAVIS
@@ -306,15 +302,15 @@ static int setup_cameras(struct camd *d) {
     snprintf(err, sizeof err, "key 'depth_camera.kind': this build has no Aravis support");
 #endif
     if (!range->pipe) {
-      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
-      return 2;
+      fprintf(stderr, "%s: %s\n", d->path, err);
+      return 1;
     }
   }
   if (d->check_only) {
     /* the calibration is read by the pairing: check it here too */
     if (paired && !(d->pair = vlff_pair_new(&cfg->depth_camera, &cfg->camera, NULL, err, sizeof err))) {
-      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
-      return 2;
+      fprintf(stderr, "%s: %s\n", d->path, err);
+      return 1;
     }
     printf("%s: ok (%s camera '%s', %s%s%s)\n", d->path, be->name, cfg->camera.device, cfg->camera.pixel_format,
            paired ? ", range camera " : "", paired ? cfg->depth_camera.device : "");
@@ -323,7 +319,7 @@ static int setup_cameras(struct camd *d) {
 }
 
 /* The frame ring, and the pairing between the cameras and it: 0, 1 (the
- * ring) or 2 (the pairing's calibration). */
+ * ring, or the pairing's calibration). */
 static int setup_ring(struct camd *d) {
   char err[1024];
   d->ring = vlff_ringsink_new(&d->cfg, err, sizeof err);
@@ -337,8 +333,8 @@ static int setup_ring(struct camd *d) {
   if (d->nslots == 2) {
     d->pair = vlff_pair_new(&d->cfg.depth_camera, &d->cfg.camera, vlff_ringsink_sink(d->ring), err, sizeof err);
     if (!d->pair) {
-      fprintf(stderr, "vlff-camd: %s: %s\n", d->path, err);
-      return 2;
+      fprintf(stderr, "%s: %s\n", d->path, err);
+      return 1;
     }
     color->sink = vlff_pair_color_sink(d->pair);
     d->slots[1].sink = vlff_pair_depth_sink(d->pair);
@@ -347,7 +343,7 @@ static int setup_ring(struct camd *d) {
 }
 
 /* The GPIO line, driving the trigger or stamping its edges: 0, 1 (the line
- * failed) or 2 (no libgpiod in this build). */
+ * failed, or no libgpiod in this build). */
 static int setup_gpio(struct camd *d) {
   const struct vlff_config *cfg = &d->cfg;
 #ifdef VLFF_HAVE_GPIOD
@@ -386,33 +382,25 @@ static int setup_gpio(struct camd *d) {
   }
 #else
   if (cfg->gpio.mode != VLFF_GPIO_OFF) {
-    fprintf(stderr, "vlff-camd: %s: key 'gpio.mode': this build has no libgpiod support\n", d->path);
-    return 2;
+    fprintf(stderr, "%s: key 'gpio.mode': this build has no libgpiod support\n", d->path);
+    return 1;
   }
 #endif
   return 0;
 }
 
-/* Grabs until a signal, --frames or --seconds: 0, or 2 when a camera
+/* Grabs until a signal, --frames or --seconds: 0, or 1 when a camera
  * refuses its configuration. */
 static int run(struct camd *d) {
   int status = 0;
-#ifdef VLFF_HAVE_SYSTEMD
   /* Type=notify: ready once the ring exists (consumers may attach; the camera
    * may come later). The watchdog is fed from this loop, which passes every
    * grab timeout whether a camera is there or not: only a hang stops it. */
-  uint64_t wd_usec = 0, last_wd = 0;
-  if (sd_watchdog_enabled(0, &wd_usec) <= 0) wd_usec = 0;
-  sd_notify(0, "READY=1");
-#endif
+  struct vlff_service svc;
+  vlff_service_ready(&svc);
   uint64_t t0 = vlff_now_ns();
   while (!stop_req) {
-#ifdef VLFF_HAVE_SYSTEMD
-    if (wd_usec && vlff_now_ns() - last_wd >= wd_usec * 250) {
-      sd_notify(0, "WATCHDOG=1");
-      last_wd = vlff_now_ns();
-    }
-#endif
+    if (vlff_service_watchdog_due(&svc, vlff_now_ns())) vlff_service_watchdog();
     if (d->max_seconds > 0 && (double)(vlff_now_ns() - t0) * 1e-9 >= d->max_seconds) break;
     uint64_t committed =
         d->pair ? vlff_pair_get_stats(d->pair)->pairs : vlff_pipe_get_stats(d->slots[0].pipe)->committed;
@@ -427,7 +415,7 @@ static int run(struct camd *d) {
       if (r > 0 && !was && d->nslots == 1) atomic_store(&trigger_req, 0);
     }
     if (refused) {
-      status = 2;
+      status = 1;
       break;
     }
     if (!open) {
@@ -440,9 +428,7 @@ static int run(struct camd *d) {
      * wait per camera keeps both drained. */
     for (int i = 0; i < d->nslots; i++) slot_grab(&d->slots[i], 20 / d->nslots, d->cfg.shm.ring);
   }
-#ifdef VLFF_HAVE_SYSTEMD
-  sd_notify(0, "STOPPING=1");
-#endif
+  vlff_service_stopping();
   for (int i = 0; i < d->nslots; i++) slot_close(&d->slots[i]);
   return status;
 }

@@ -457,8 +457,8 @@ static void *can_thread(void *arg) {
     struct sched_param sp = {.sched_priority = can->rt_priority};
     int e = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
     if (e)
-      VLFF_WARN(TAG, "%s: SCHED_FIFO %d refused (%s): heartbeat jitter follows the load (grant CAP_SYS_NICE "
-                "or set can.rt_priority: 0)", can->iface, can->rt_priority, strerror(e));
+      VLFF_WARN(TAG, "%s: SCHED_FIFO %d refused (%s): heartbeat jitter follows the load (raise "
+                "RLIMIT_RTPRIO, the unit's LimitRTPRIO=, grant CAP_SYS_NICE, or set can.rt_priority: 0)", can->iface, can->rt_priority, strerror(e));
   }
   bool bootup_pending = true;
   int64_t now = (int64_t)vlff_now_ns();

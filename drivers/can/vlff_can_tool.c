@@ -4,6 +4,7 @@
  * enough to grep, and a usage text with real examples.
  */
 #include <errno.h>
+#include <limits.h>
 #include <getopt.h>
 #include <linux/can.h>
 #include <linux/can/raw.h>
@@ -29,19 +30,20 @@ static const struct vlff_cli cli = {
     "       vlff-can [OPTIONS] dbc\n"
     "\n"
     "  dump   decode heartbeat, status, command and ack frames of a vlff node\n"
-    "  send   send one command and wait for its ack (exit 0 ok, 1 nak, 2 no ack)\n"
+    "  send   send one command and wait for its ack (exit 0 ok ack, 1 nak or no ack)\n"
     "  dbc    write the DBC of the configured node (ids, cycle times) to stdout\n"
     "\n"
-    "Options (the can.* ids come from the config: --config, else $VLFF_CONFIG, else\n"
-    "the installed vlff.yaml; dump and send fall back to the default ids, saying so):\n"
-    "  -f, --config FILE        read can.* from a vlff config file\n"
-    "  -n, --node-id ID         node id (can.node_id)\n"
-    "  -b, --status-base-id ID  status base id (can.status_base_id)\n"
-    "  -c, --command-id ID      command id (can.command_id)\n"
-    "  -a, --ack-id ID          ack id (can.ack_id)\n"
+    "Options, before or after the command (the can.* ids come from the config:\n"
+    "--config, else $VLFF_CONFIG, else the installed vlff.yaml; dump and send fall\n"
+    "back to the default ids, saying so):\n"
+    "  -c, --config FILE        read can.* from a vlff config file (-f as well)\n"
+    "  -n, --node-id ID         node id, 1..127 (can.node_id)\n"
+    "  -b, --status-base-id ID  status base id, 0..0x7FF (can.status_base_id)\n"
+    "  -C, --command-id ID      command id, 0..0x7FF (can.command_id)\n"
+    "  -a, --ack-id ID          ack id, 0..0x7FF (can.ack_id)\n"
     "  -t, --seconds SEC        dump: stop after SEC seconds; send: ack timeout (default 1)\n"
     "  -N, --count COUNT        dump: stop after COUNT frames\n"
-    "  -s, --seq SEQ            send: sequence number echoed in the ack (default: pid)\n"
+    "  -s, --seq SEQ            send: sequence number 0..255 echoed in the ack (default: pid)\n"
     "  -V, --version            print the version and exit\n"
     "  -h, --help               print this help and exit\n"
     "\n"
@@ -51,16 +53,18 @@ static const struct vlff_cli cli = {
     "    0.200118 180 TRAIN iteration=1532 keyframes=41 prompt_set=0 state=operational\n"
     "  vlff-can -n 42 can0 send prompt-set 2\n"
     "    580 ACK node=42 cmd=prompt-set seq=17 result=ok\n"
-    "  vlff-can dbc --config /etc/vlff/vlff.yaml > vlff.dbc\n",
+    "  vlff-can dbc --config /etc/vlff/vlff.yaml > vlff.dbc\n"
+    "Exit status: 0 ok, 1 error (no interface, a nak, no ack in time; message on stderr),\n"
+    "2 usage.\n",
 };
 
-static long num(const char *s, const char *what) {
+/* An integer in [lo, hi] (decimal, 0x hex or 0 octal), else a usage error. */
+static long num(const char *s, const char *what, long lo, long hi) {
   char *end;
   errno = 0;
   long v = strtol(s, &end, 0);
-  if (errno || *end || end == s) {
-    exit(vlff_cli_usage_error(&cli, "%s: not a number: '%s'", what, s));
-  }
+  if (errno || *end || end == s || v < lo || v > hi)
+    exit(vlff_cli_usage_error(&cli, "%s: expected an integer in %ld..%ld (0x for hex), got '%s'", what, lo, hi, s));
   return v;
 }
 
@@ -184,7 +188,7 @@ static void print_frame(const struct vlff_config *c, const struct canfd_frame *f
 
 static int dump(const struct vlff_config *c, const char *iface, double seconds, long count) {
   int s = open_iface(iface, true);
-  if (s < 0) return 2;
+  if (s < 0) return 1;
   double t0 = vlff_seconds();
   long n = 0;
   for (;;) {
@@ -209,34 +213,29 @@ static int dump(const struct vlff_config *c, const char *iface, double seconds, 
   return 0;
 }
 
-static int send_cmd(const struct vlff_config *c, const char *iface, int argc, char **argv, int seq, double timeout) {
+/* send's operands into cmd: 0, or the usage error's exit status (2). */
+static int send_parse(int argc, char **argv, struct vlff_can_command *cmd) {
   static const struct { const char *name; int code; } cmds[] = {
       {"start", VLFF_CAN_CMD_START}, {"stop", VLFF_CAN_CMD_STOP},       {"reset", VLFF_CAN_CMD_RESET},
       {"save", VLFF_CAN_CMD_SAVE},   {"prompt-set", VLFF_CAN_CMD_PROMPT_SET}, {"publish", VLFF_CAN_CMD_PUBLISH}};
-  if (argc < 1) return vlff_cli_usage_error(&cli, "send needs a command");
-  struct vlff_can_command cmd = {.seq = (uint8_t)seq};
+  if (argc < 1) return vlff_cli_usage_error(&cli, "send needs a command (start|stop|reset|save|publish|prompt-set N)");
   int code = -1;
   for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; i++)
     if (!strcmp(argv[0], cmds[i].name)) code = cmds[i].code;
-  if (code < 0) {
-    fprintf(stderr, "vlff-can: unknown command '%s'\n", argv[0]);
-    return 2;
-  }
-  cmd.code = (uint8_t)code;
-  if (code == VLFF_CAN_CMD_PROMPT_SET) {
-    if (argc < 2) {
-      fprintf(stderr, "vlff-can: prompt-set needs an index\n");
-      return 2;
-    }
-    long v = num(argv[1], "prompt set index");
-    if (v < 0 || v > 255) {
-      fprintf(stderr, "vlff-can: prompt set index %ld outside 0..255\n", v);
-      return 2;
-    }
-    cmd.arg = (uint8_t)v;
-  }
+  if (code < 0)
+    return vlff_cli_usage_error(&cli, "send: unknown command '%s' (start|stop|reset|save|publish|prompt-set N)",
+                                argv[0]);
+  cmd->code = (uint8_t)code;
+  int nargs = code == VLFF_CAN_CMD_PROMPT_SET ? 2 : 1;
+  if (argc < nargs) return vlff_cli_usage_error(&cli, "send prompt-set needs an index");
+  if (argc > nargs) return vlff_cli_usage_error(&cli, "send %s: unexpected argument '%s'", argv[0], argv[nargs]);
+  if (code == VLFF_CAN_CMD_PROMPT_SET) cmd->arg = (uint8_t)num(argv[1], "prompt set index", 0, 255);
+  return 0;
+}
+
+static int send_cmd(const struct vlff_config *c, const char *iface, struct vlff_can_command cmd, double timeout) {
   int s = open_iface(iface, false);
-  if (s < 0) return 2;
+  if (s < 0) return 1;
   struct can_filter flt = {.can_id = (canid_t)c->can.ack_id, .can_mask = CAN_SFF_MASK | CAN_EFF_FLAG};
   setsockopt(s, SOL_CAN_RAW, CAN_RAW_FILTER, &flt, sizeof flt);
   struct can_frame f = {.can_id = (canid_t)c->can.command_id, .len = VLFF_CANP_CMD_LEN};
@@ -244,7 +243,7 @@ static int send_cmd(const struct vlff_config *c, const char *iface, int argc, ch
   if (write(s, &f, sizeof f) != (ssize_t)sizeof f) {
     fprintf(stderr, "vlff-can: send on %s: %s\n", iface, strerror(errno));
     close(s);
-    return 2;
+    return 1;
   }
   double t0 = vlff_seconds();
   for (;;) {
@@ -263,13 +262,13 @@ static int send_cmd(const struct vlff_config *c, const char *iface, int argc, ch
   }
   fprintf(stderr, "vlff-can: no ack from node %d within %.1f s\n", c->can.node_id, timeout);
   close(s);
-  return 2;
+  return 1;
 }
 
 int main(int argc, char **argv) {
   static const struct option opts[] = {
-      {"config", required_argument, NULL, 'f'},  {"node-id", required_argument, NULL, 'n'},
-      {"status-base-id", required_argument, NULL, 'b'}, {"command-id", required_argument, NULL, 'c'},
+      {"config", required_argument, NULL, 'c'},  {"node-id", required_argument, NULL, 'n'},
+      {"status-base-id", required_argument, NULL, 'b'}, {"command-id", required_argument, NULL, 'C'},
       {"ack-id", required_argument, NULL, 'a'},  {"seconds", required_argument, NULL, 't'},
       {"count", required_argument, NULL, 'N'},   {"seq", required_argument, NULL, 's'},
       VLFF_CLI_COMMON_OPTIONS,
@@ -280,21 +279,25 @@ int main(int argc, char **argv) {
   long count = 0;
   int seq = getpid() & 0xff;
   int opt, status;
-  while ((opt = vlff_cli_next(&cli, argc, argv, "f:n:b:c:a:t:N:s:", opts, &status)) != -1) {
+  /* -f: --config's short option before -c was the convention (docs name it). */
+  while ((opt = vlff_cli_next(&cli, argc, argv, "c:f:n:b:C:a:t:N:s:", opts, &status)) != -1) {
     char *end;
     switch (opt) {
       case VLFF_CLI_EXIT: return status;
+      case 'c':
       case 'f': config = optarg; break;
       case 'n': ids[0] = optarg; break;
       case 'b': ids[1] = optarg; break;
-      case 'c': ids[2] = optarg; break;
+      case 'C': ids[2] = optarg; break;
       case 'a': ids[3] = optarg; break;
       case 't':
+        errno = 0;
         seconds = strtod(optarg, &end);
-        if (*end || !(seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds: expected a positive number, got '%s'", optarg);
+        if (errno || end == optarg || *end || !(seconds > 0 && seconds <= 1e6))
+          return vlff_cli_usage_error(&cli, "--seconds: expected a number of seconds in (0, 1e6], got '%s'", optarg);
         break;
-      case 'N': count = num(optarg, "--count"); break;
-      case 's': seq = (int)num(optarg, "--seq") & 0xff; break;
+      case 'N': count = num(optarg, "--count", 1, LONG_MAX); break;
+      case 's': seq = (int)num(optarg, "--seq", 0, 255); break;
       default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
@@ -302,15 +305,24 @@ int main(int argc, char **argv) {
   bool dbc = nargs >= 1 && !strcmp(argv[optind], "dbc");
   if (dbc && nargs != 1) return vlff_cli_usage_error(&cli, "dbc takes no arguments");
   if (!dbc && nargs < 2) return vlff_cli_usage_error(&cli, "expected IFACE dump, IFACE send CMD, or dbc");
+  const char *verb = dbc ? "dbc" : argv[optind + 1];
+  if (!dbc && strcmp(verb, "dump") && strcmp(verb, "send"))
+    return vlff_cli_usage_error(&cli, "unknown command '%s' (dump, send or dbc)", verb);
+  if (!strcmp(verb, "dump") && nargs != 2)
+    return vlff_cli_usage_error(&cli, "dump: unexpected argument '%s'", argv[optind + 2]);
+  struct vlff_can_command cmd = {.seq = (uint8_t)seq};
+  if (!strcmp(verb, "send") && send_parse(argc - optind - 2, argv + optind + 2, &cmd)) return 2;
+  static const char *const names[4] = {"--node-id", "--status-base-id", "--command-id", "--ack-id"};
+  static const long id_lo[4] = {1, 0, 0, 0}, id_hi[4] = {127, 0x7FF, 0x7FF, 0x7FF};
+  long id_val[4];
+  for (int i = 0; i < 4; i++)
+    if (ids[i]) id_val[i] = num(ids[i], names[i], id_lo[i], id_hi[i]);
 
   struct vlff_config cfg;
   char err[512];
   const char *path = vlff_config_find(config, err, sizeof err);
   if (path) {
-    if (vlff_config_load(path, &cfg, err, sizeof err) < 0) {
-      fprintf(stderr, "%s\n", err);
-      return 1;
-    }
+    if (vlff_config_load(path, &cfg, err, sizeof err) < 0) return vlff_cli_config_error(err);
   } else if (dbc) {
     /* A DBC for the wrong node decodes nothing: no guessing here. */
     return vlff_cli_error(&cli, "%s", err);
@@ -319,9 +331,8 @@ int main(int argc, char **argv) {
     vlff_config_defaults(&cfg);
   }
   int *fields[4] = {&cfg.can.node_id, &cfg.can.status_base_id, &cfg.can.command_id, &cfg.can.ack_id};
-  static const char *const names[4] = {"--node-id", "--status-base-id", "--command-id", "--ack-id"};
   for (int i = 0; i < 4; i++)
-    if (ids[i]) *fields[i] = (int)num(ids[i], names[i]);
+    if (ids[i]) *fields[i] = (int)id_val[i];
   if (dbc) {
     if (vlff_can_write_dbc(&cfg.can, stdout, err, sizeof err)) {
       if (path) fprintf(stderr, "%s: %s\n", path, err);
@@ -331,11 +342,6 @@ int main(int argc, char **argv) {
     return 0;
   }
   const char *iface = argv[optind];
-  const char *verb = argv[optind + 1];
-  if (cfg.can.node_id < 1 || cfg.can.node_id > 127)
-    return vlff_cli_usage_error(&cli, "node id %d outside 1..127", cfg.can.node_id);
   if (!strcmp(verb, "dump")) return dump(&cfg, iface, seconds, count);
-  if (!strcmp(verb, "send"))
-    return send_cmd(&cfg, iface, argc - optind - 2, argv + optind + 2, seq, seconds > 0 ? seconds : 1.0);
-  return vlff_cli_usage_error(&cli, "unknown verb '%s' (dump, send or dbc)", verb);
+  return send_cmd(&cfg, iface, cmd, seconds > 0 ? seconds : 1.0);
 }

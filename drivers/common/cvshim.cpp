@@ -3,14 +3,18 @@
 // exception unwinding into C frames is undefined behaviour.
 #include "cvshim.h"
 #include "depthreg.h"
+#include "files.h"
 
-#include <cerrno>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <initializer_list>
+#include <memory>
 #include <new>
+#include <string>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
@@ -34,6 +38,29 @@ int guarded(const char *where, char *err, size_t errlen, F &&f) {
     set_err(err, errlen, where, "unknown C++ exception");
   }
   return -1;
+}
+
+// Calibration files are a few kilobytes; the cap keeps a wrong path (a disk
+// image, a log) from being read whole.
+constexpr size_t kCalibMaxBytes = 16u << 20;
+
+// Opens a calibration file as OpenCV FileStorage (format: FORMAT_AUTO or a
+// forced one). The file is read whole through vlff_read_file, which takes
+// only regular files: OpenCV's own open would block for ever on a FIFO and
+// read a device without end. Parsed from memory, so OpenCV never opens the
+// path itself (nor prints its own error line for it).
+int open_storage(cv::FileStorage &fs, const char *path, int format, const char *what, char *err, size_t errlen) {
+  uint8_t *bytes = nullptr;
+  size_t len = 0;
+  if (vlff_read_file(path, kCalibMaxBytes, &bytes, &len, err, errlen) < 0) return -1;
+  std::unique_ptr<uint8_t, decltype(&std::free)> owned(bytes, &std::free);
+  fs.open(std::string(reinterpret_cast<const char *>(bytes), len),
+          cv::FileStorage::READ | cv::FileStorage::MEMORY | format);
+  if (!fs.isOpened()) {
+    set_err(err, errlen, path, what);
+    return -1;
+  }
+  return 0;
 }
 
 // GenICam names a Bayer pattern by the first row's first two pixels; OpenCV
@@ -177,18 +204,10 @@ extern "C" int vlff_cv_calib_load(const char *path, struct vlff_cv_calib *out, c
                                   size_t errlen) {
   std::memset(out, 0, sizeof *out);
   return guarded(path, err, errlen, [&]() -> int {
-    // Check first: OpenCV would also print its own error line to stderr.
-    if (FILE *f = std::fopen(path, "r")) {
-      std::fclose(f);
-    } else {
-      set_err(err, errlen, path, std::strerror(errno));
+    cv::FileStorage fs;
+    if (open_storage(fs, path, cv::FileStorage::FORMAT_YAML, "cannot open as OpenCV calibration YAML", err,
+                     errlen) < 0)
       return -1;
-    }
-    cv::FileStorage fs(path, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
-    if (!fs.isOpened()) {
-      set_err(err, errlen, path, "cannot open as OpenCV calibration YAML");
-      return -1;
-    }
     if (!fs["image_width"].empty()) fs["image_width"] >> out->width;
     if (!fs["image_height"].empty()) fs["image_height"] >> out->height;
     int a = read_mat(fs, "camera_matrix", out->k, 3, 3, false, err, errlen, path);
@@ -344,18 +363,10 @@ extern "C" int vlff_cv_rgbd_calib_read(const char *path, struct vlff_rgbd_calib 
   std::memset(out, 0, sizeof *out);
   *t_unit_m = 1;
   return guarded(path, err, errlen, [&]() -> int {
-    // Checked first: OpenCV would also print its own error line to stderr.
-    if (FILE *f = std::fopen(path, "r")) {
-      std::fclose(f);
-    } else {
-      set_err(err, errlen, path, std::strerror(errno));
+    cv::FileStorage fs;
+    if (open_storage(fs, path, cv::FileStorage::FORMAT_AUTO,
+                     "cannot open as an OpenCV FileStorage YAML or XML file", err, errlen) < 0)
       return -1;
-    }
-    cv::FileStorage fs(path, cv::FileStorage::READ);
-    if (!fs.isOpened()) {
-      set_err(err, errlen, path, "cannot open as an OpenCV FileStorage YAML or XML file");
-      return -1;
-    }
     if (read_doubles(fs, path, {"K1", "M1", "cameraMatrix1"}, {9}, out->kd, err, errlen) < 0 ||
         read_doubles(fs, path, {"K2", "M2", "cameraMatrix2"}, {9}, out->kc, err, errlen) < 0 ||
         read_doubles(fs, path, {"T"}, {3}, out->t, err, errlen) < 0)

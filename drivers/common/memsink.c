@@ -1,5 +1,6 @@
 /* In-memory sink: a plain array of slots standing in for the shm ring. */
 #include "sink.h"
+#include "mem.h"
 
 #include <vlff/shm.h>
 
@@ -67,10 +68,7 @@ void vlff_memsink_free(struct vlff_memsink *m) {
     if (m->color) free(m->color[i]);
     if (m->depth) free(m->depth[i]);
   }
-  free(m->color);
-  free(m->depth);
-  free(m->frames);
-  free(m);
+  VLFF_FREE_ALL(m->color, m->depth, m->frames, m);
 }
 
 struct vlff_sink *vlff_memsink_sink(struct vlff_memsink *m) { return &m->sink; }

@@ -21,13 +21,19 @@
 #include <unistd.h>
 
 #include "cli.h"
+#include "clock.h"
 #include "config.h"
 #include "log.h"
+#include "service.h"
 #include "tum.h"
 #include "vlff/shm.h"
 
 #define TAG "pose"
 #define REPORT_EACH 5 /* refusals of one reason printed one by one, the rest summarised */
+#define LINE_MAX_BYTES 65536 /* a UDP datagram's size; TUM lines are far shorter */
+/* How long the input loops wait for input before they pass their loop again:
+ * they feed the service watchdog (Type=notify) while the tracker is quiet. */
+#define WAIT_MS 200
 
 static const struct vlff_cli cli = {
     "vlff-pose",
@@ -104,29 +110,68 @@ static void feed(struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporte
   }
 }
 
-static int read_stream(FILE *in, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp) {
-  char *line = NULL;
-  size_t cap = 0;
+/* Lines from a file or a pipe. poll(2) and read(2) rather than stdio's
+ * blocking getline, so that the loop comes round while no input arrives and
+ * feeds the watchdog; a line longer than LINE_MAX_BYTES is refused as a whole
+ * (it is no TUM line, and holding it would let a stream without newlines take
+ * all memory). */
+static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp,
+                       struct vlff_service *svc) {
+  static char buf[LINE_MAX_BYTES + 1];
+  size_t len = 0;
   unsigned long lineno = 0;
-  while (!vlff_cli_stop) {
-    errno = 0;
-    ssize_t n = getline(&line, &cap, in);
-    if (n < 0) {
-      if (errno == EINTR && !vlff_cli_stop) {
-        clearerr(in);
-        continue;
-      }
+  bool eof = false, skipping = false;
+  int bad = 0;
+  while (!vlff_cli_stop && !eof) {
+    if (vlff_service_watchdog_due(svc, vlff_now_ns())) vlff_service_watchdog();
+    struct pollfd pfd = {.fd = fd, .events = POLLIN};
+    int pr = poll(&pfd, 1, WAIT_MS);
+    if (pr < 0 && errno != EINTR) {
+      VLFF_ERROR(TAG, "%s: poll: %s", rp->name, strerror(errno));
+      bad = 1;
       break;
     }
-    lineno++;
-    char where[300];
-    snprintf(where, sizeof where, "%s:%lu", rp->name, lineno);
-    feed(f, ring, rp, where, line);
+    if (pr <= 0) continue;
+    ssize_t n = read(fd, buf + len, LINE_MAX_BYTES - len);
+    if (n < 0) {
+      if (errno == EINTR || errno == EAGAIN) continue;
+      VLFF_ERROR(TAG, "%s: read error: %s", rp->name, strerror(errno));
+      bad = 1;
+      break;
+    }
+    if (n == 0) eof = true;
+    len += (size_t)n;
+    size_t start = 0;
+    char *nl;
+    while ((nl = memchr(buf + start, '\n', len - start))) {
+      *nl = 0;
+      lineno++;
+      if (!skipping) {
+        char where[300];
+        snprintf(where, sizeof where, "%s:%lu", rp->name, lineno);
+        feed(f, ring, rp, where, buf + start);
+      }
+      skipping = false;
+      start = (size_t)(nl - buf) + 1;
+    }
+    if (eof && start < len && !skipping) { /* a last line without its newline */
+      buf[len] = 0;
+      char where[300];
+      snprintf(where, sizeof where, "%s:%lu", rp->name, ++lineno);
+      feed(f, ring, rp, where, buf + start);
+      start = len;
+    }
+    memmove(buf, buf + start, len - start);
+    len -= start;
+    if (len == LINE_MAX_BYTES) {
+      if (!skipping)
+        VLFF_ERROR(TAG, "%s:%lu: refused, a line longer than %d bytes (not a TUM line)", rp->name, lineno + 1,
+                   LINE_MAX_BYTES);
+      skipping = true;
+      len = 0;
+    }
   }
-  int bad = ferror(in) && !vlff_cli_stop;
-  if (bad) VLFF_ERROR(TAG, "%s: read error: %s", rp->name, strerror(errno));
-  free(line);
-  return bad ? 1 : 0;
+  return bad;
 }
 
 /* "host:port", "[v6]:port" or ":port" (every address). */
@@ -158,12 +203,14 @@ static int open_udp(const char *spec, char *err, size_t errlen) {
   return s;
 }
 
-static int read_udp(int sock, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp) {
-  static char buf[65536];
+static int read_udp(int sock, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp,
+                    struct vlff_service *svc) {
+  static char buf[LINE_MAX_BYTES];
   unsigned long dgram = 0;
   while (!vlff_cli_stop) {
+    if (vlff_service_watchdog_due(svc, vlff_now_ns())) vlff_service_watchdog();
     struct pollfd pfd = {.fd = sock, .events = POLLIN};
-    int pr = poll(&pfd, 1, 200);
+    int pr = poll(&pfd, 1, WAIT_MS);
     if (pr < 0 && errno != EINTR) return VLFF_ERROR(TAG, "udp: poll: %s", strerror(errno)), 1;
     if (pr <= 0) continue;
     ssize_t n = recv(sock, buf, sizeof buf - 1, 0);
@@ -287,10 +334,7 @@ int main(int argc, char **argv) {
   char err[1024];
   config_path = vlff_config_find(config_path, err, sizeof err);
   if (!config_path) return vlff_cli_error(&cli, "%s", err);
-  if (vlff_config_load(config_path, &cfg, err, sizeof err)) {
-    fprintf(stderr, "%s\n", err);
-    return 1;
-  }
+  if (vlff_config_load(config_path, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
   /* The options override the config's pose.* keys. */
   const struct vlff_config *k = &cfg;
   const char *ring_name = o.ring ? o.ring : k->shm.pose_ring;
@@ -353,7 +397,14 @@ int main(int argc, char **argv) {
             ring_name, cfg.shm.pose_slots,
             fp.stamp == VLFF_TUM_STAMP_HOST ? "at receipt" : realtime ? "UNIX time" : "CLOCK_MONOTONIC",
             fp.stamp == VLFF_TUM_STAMP_HOST || offset_s == 0 ? "" : " plus the clock offset");
-  int rc = udp ? read_udp(sock, &f, ring, &rep) : read_stream(in, &f, ring, &rep);
+  /* Type=notify: ready once the ring exists (the node may attach; poses come
+   * when the tracker sends them). The watchdog is fed from the input loop,
+   * which comes round every WAIT_MS with or without input: only a hang stops
+   * it. */
+  struct vlff_service svc;
+  vlff_service_ready(&svc);
+  int rc = udp ? read_udp(sock, &f, ring, &rep, &svc) : read_stream(fileno(in), &f, ring, &rep, &svc);
+  vlff_service_stopping();
   summary(&f, ring_name);
   if (in && in != stdin) fclose(in);
   if (sock >= 0) close(sock);

@@ -37,6 +37,15 @@ int vlff_cli_error(const struct vlff_cli *cli, const char *fmt, ...) {
   return 1;
 }
 
+int vlff_cli_config_error(const char *msg) {
+  fprintf(stderr, "%s\n", msg);
+  return 1;
+}
+
+/* glibc: optind 0 reinitialises getopt, its permutation state included
+ * (optind 1 would keep state from the previous argv). */
+void vlff_cli_restart(void) { optind = 0; }
+
 int vlff_cli_next(const struct vlff_cli *cli, int argc, char *const argv[], const char *shortopts,
                   const struct option *longopts, int *status) {
   /* ':' first makes getopt report a missing value as ':' and print nothing

@@ -11,7 +11,10 @@
  *    <where> is the program, or file:line:col when a file is at fault) and
  *    exit 1.
  *  - vlff_cli_next() keeps getopt's global state (optind, optarg): one
- *    parse per process, on the main thread. Nothing here allocates.
+ *    parse per process, on the main thread, except that a program with
+ *    subcommands parses once more for the subcommand (vlff_cli_restart),
+ *    which follows the same rules with its own usage. Nothing here
+ *    allocates.
  */
 #ifndef VLFF_CLI_H
 #define VLFF_CLI_H
@@ -48,6 +51,10 @@ const char *vlff_version(void);
 int vlff_cli_next(const struct vlff_cli *cli, int argc, char *const argv[], const char *shortopts,
                   const struct option *longopts, int *status);
 
+/* Starts a new parse: the next vlff_cli_next() reads a subcommand's argv
+ * (argv[0] the subcommand's name) from its start, with its own options. */
+void vlff_cli_restart(void);
+
 /* A usage error found by the program itself (bad operands, a value out of
  * range): "<prog>: <message>" and the usage on stderr. Returns 2. */
 /* The signal (SIGINT or SIGTERM) that asked the program to stop, 0 while
@@ -62,6 +69,11 @@ int vlff_cli_usage_error(const struct vlff_cli *cli, const char *fmt, ...) __att
 
 /* Any other error: "<prog>: <message>" on stderr. Returns 1. */
 int vlff_cli_error(const struct vlff_cli *cli, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+/* A config file the program cannot run: the config parser's message, which
+ * starts with "file:line:col:" (the file is where the fault is, so no program
+ * name goes before it), on stderr. Returns 1, as every program exits then. */
+int vlff_cli_config_error(const char *msg);
 
 #ifdef __cplusplus
 }

@@ -21,6 +21,10 @@
 #include <yaml.h>
 
 #include "files.h"
+#include "vlff/shm.h" /* vlff_prompt_check: the mailbox's and the embeddings format's rule */
+
+_Static_assert(VLFF_PROMPT_LEN == VLFF_SHM_PROMPT_LEN && VLFF_MAX_PROMPTS == VLFF_SHM_MAX_PROMPTS,
+               "a configured prompt set fits the map's prompt table and the mailbox");
 
 enum ktype { T_INT, T_DOUBLE, T_BOOL, T_STRING, T_ENUM, T_DVEC };
 
@@ -42,6 +46,10 @@ struct key {
 #define DBL(p, f, lo, hi, d) {p, T_DOUBLE, F(f), 0, lo, hi, d, NULL, NULL, NULL}
 #define BOOL(p, f, d) {p, T_BOOL, F(f), 0, 0, 1, d, NULL, NULL, NULL}
 #define STR(p, f, d) {p, T_STRING, F(f), SZ(f), 0, 0, 0, d, NULL, NULL}
+/* A file the install puts under its datadir: the default follows the build's
+ * install prefix, and "" in a config file means that default, so a config
+ * copied from default.yaml names no prefix (lo = 1 marks it). */
+#define STR_INSTALLED(p, f, d) {p, T_STRING, F(f), SZ(f), 1, 0, 0, d, NULL, NULL}
 #define ENUM(p, f, names, d) {p, T_ENUM, F(f), 0, 0, 0, 0, d, names, NULL}
 #define DVEC(p, f, lo, hi, d) \
   {p, T_DVEC, F(f), SZ(f) / sizeof(double), lo, hi, 0, NULL, NULL, d}
@@ -71,6 +79,12 @@ static const char *const pose_stamps[] = {"source", "host", NULL};
 /* CLIP's image normalisation, which LSeg inherits. */
 static const double clip_mean[3] = {0.48145466, 0.4578275, 0.40821073};
 static const double clip_std[3] = {0.26862954, 0.26130258, 0.27577711};
+
+#ifndef VLFF_DATADIR
+#error "VLFF_DATADIR must come from the install's datadir (CMake)"
+#endif
+#define BPE_VOCAB_DEFAULT VLFF_DATADIR "/vlff/bpe_simple_vocab_16e6.txt.gz"
+_Static_assert(sizeof BPE_VOCAB_DEFAULT <= VLFF_CFG_PATH, "the install's datadir is too long for vlm.bpe_vocab");
 
 static const struct key schema[] = {
     STR("node.name", node.name, "vlff"),
@@ -252,7 +266,7 @@ static const struct key schema[] = {
 
     STR("vlm.image_model", vlm.image_model, ""),
     STR("vlm.text_model", vlm.text_model, ""),
-    STR("vlm.bpe_vocab", vlm.bpe_vocab, "/usr/share/vlff/bpe_simple_vocab_16e6.txt.gz"),
+    STR_INSTALLED("vlm.bpe_vocab", vlm.bpe_vocab, BPE_VOCAB_DEFAULT),
     INT("vlm.input_width", vlm.input_width, 16, 4096, 320),
     INT("vlm.input_height", vlm.input_height, 16, 4096, 240),
     DVEC("vlm.mean", vlm.mean, -10, 10, clip_mean),
@@ -379,6 +393,18 @@ static bool has_nul(const yaml_node_t *n) {
   return n->type == YAML_SCALAR_NODE && strlen(scalar(n)) != n->data.scalar.length;
 }
 
+/* A control character (C0, tabs and newlines included, or DEL) in a string
+ * value: no name, path or text of a config has one, and one written out again
+ * (--print-config, a log line, a terminal) could pass for an escape sequence
+ * or another line. libyaml keeps them out of plain scalars, but a quoted
+ * scalar's escapes ("\t", "\e", "\x1b") make them. */
+static bool has_control(const yaml_node_t *n) {
+  const unsigned char *c = (const unsigned char *)scalar(n);
+  for (size_t i = 0; i < n->data.scalar.length; i++)
+    if (c[i] < 0x20 || c[i] == 0x7f) return true;
+  return false;
+}
+
 static int parse_number(const yaml_node_t *n, bool integer, double *out) {
   if (n->type != YAML_SCALAR_NODE || !*scalar(n)) return -1;
   const char *s = scalar(n);
@@ -426,10 +452,11 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
     if (n->type != YAML_SCALAR_NODE)
       return fail(p, n, k->path, "expected string, got %s", g);
     if (has_nul(n)) return fail(p, n, k->path, "expected a string without NUL bytes, got %s", g);
+    if (has_control(n)) return fail(p, n, k->path, "expected a string without control characters, got %s", g);
     if (strlen(scalar(n)) >= k->size)
       return fail(p, n, k->path, "expected string of at most %zu bytes, got %zu bytes", k->size - 1,
                   strlen(scalar(n)));
-    snprintf(at(cfg, k), k->size, "%s", scalar(n));
+    snprintf(at(cfg, k), k->size, "%s", k->lo && !*scalar(n) ? k->sdef : scalar(n));
     return 0;
   case T_ENUM: {
     char opts[160] = "";
@@ -488,8 +515,8 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
       snprintf(sub, sizeof sub, "%s.%s", path, kname);
       got(vn, g, sizeof g);
       if (!strcmp(kname, "name")) {
-        if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
-          return fail(p, vn, sub, "expected string of at most %d bytes, got %s",
+        if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
+          return fail(p, vn, sub, "expected string of at most %d bytes without control characters, got %s",
                       VLFF_PROMPT_LEN - 1, g);
         snprintf(set->name, sizeof set->name, "%s", scalar(vn));
       } else if (!strcmp(kname, "prompts")) {
@@ -499,13 +526,20 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
         if (m < 1 || m > VLFF_MAX_PROMPTS)
           return fail(p, vn, sub, "expected sequence of 1 to %d prompts, got %s", VLFF_MAX_PROMPTS,
                       g);
+        const char *texts[VLFF_MAX_PROMPTS];
         for (long j = 0; j < m; j++) {
           yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
           got(e, g, sizeof g);
-          if (e->type != YAML_SCALAR_NODE || !*scalar(e) || has_nul(e) ||
-              strlen(scalar(e)) >= VLFF_PROMPT_LEN)
-            return fail(p, e, sub, "expected non-empty prompt of at most %d bytes at index %ld, got %s",
-                        VLFF_PROMPT_LEN - 1, j, g);
+          if (e->type != YAML_SCALAR_NODE || has_nul(e))
+            return fail(p, e, sub, "expected a prompt (a string without NUL bytes) at index %ld, got %s", j, g);
+          /* The set is checked as the prompt mailbox and the embeddings
+           * format check theirs (UTF-8 text without control characters,
+           * 1..63 bytes, none repeated), one prompt more each time: the
+           * first prompt that breaks the rule is the one named. */
+          texts[j] = scalar(e);
+          if (vlff_prompt_check(texts, (int)j + 1) < 0)
+            return fail(p, e, sub, "expected a prompt as the mailbox and embeddings files take it (%s) at index %ld, got %s",
+                        vlff_shm_last_message(), j, g);
           snprintf(set->text[j], VLFF_PROMPT_LEN, "%s", scalar(e));
         }
         set->count = (int)m;
@@ -593,8 +627,6 @@ static const char *shm_name_problem(const char *s) {
   if (l < 2 || l >= 250) return "'/' followed by 1 to 248 characters";
   if (strchr(s + 1, '/')) return "no '/' after the leading one";
   if (!strcmp(s, "/.") || !strcmp(s, "/..")) return "a name other than '.' or '..'";
-  for (const unsigned char *c = (const unsigned char *)s; *c; c++)
-    if (*c < 0x20 || *c == 0x7f) return "printable characters";
   return NULL;
 }
 

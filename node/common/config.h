@@ -10,7 +10,11 @@
  *    err receives one line "file:line:column: key 'a.b': expected <what>,
  *    got <what>". Unknown keys are errors so that typos never pass silently.
  *  - Strings are stored NUL-terminated in fixed arrays; over-long values are
- *    errors, never truncated.
+ *    errors, never truncated. A string value holding a NUL or a control
+ *    character (C0, tab and newline included, or DEL) is an error.
+ *  - Every prompt of prompts.sets passes vlff_prompt_check() (vlff/shm.h),
+ *    the rule of the prompt mailbox and the embeddings file format: a set
+ *    the node is configured with is one the mailbox would accept.
  *  - The struct is plain data: copy it freely; it owns no memory.
  *  - A file nested deeper than VLFF_CONFIG_MAX_DEPTH levels, or with more
  *    than VLFF_CONFIG_MAX_EVENTS YAML events, is refused before it is
@@ -34,7 +38,12 @@
 #define VLFF_CFG_STR 128
 #define VLFF_CFG_PATH 256
 #define VLFF_PROMPT_LEN 64
+/* A prompt set of the node: at most what the map's prompt table and the
+ * mailbox carry (VLFF_SHM_MAX_PROMPTS in vlff/shm.h). */
 #define VLFF_MAX_PROMPTS 32
+/* Prompts the field and the evidence score at once: vlff-eval scores
+ * ScanNet's NYU40 label set (40 classes) in one pass. */
+#define VLFF_FIELD_MAX_PROMPTS 64
 #define VLFF_MAX_PROMPT_SETS 8
 #define VLFF_CONFIG_MAX_DEPTH 32
 #define VLFF_CONFIG_MAX_EVENTS 100000

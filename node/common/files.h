@@ -22,6 +22,10 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#ifdef __cplusplus
+extern "C" {
+#endif
+
 /* Open path read-only (O_CLOEXEC) without blocking on a FIFO or device,
  * and refuse anything but a regular file. Returns the descriptor in
  * blocking mode (the caller closes it), or -1. */
@@ -60,13 +64,17 @@ int vlff_atomic_commit(struct vlff_atomic *a, char *err, size_t errlen);
 void vlff_atomic_abort(struct vlff_atomic *a);
 /* write(2) of all n bytes, retried on EINTR and short writes: 0 or -1. */
 int vlff_write_all(int fd, const void *p, size_t n);
-/* The whole of data as path's new content, atomically (0644). */
-/* A whole regular file of at most max bytes; *buf is NUL-terminated (not
- * counted in *len), the caller frees it. */
+/* A whole regular file of at most max bytes (opened with vlff_open_regular);
+ * *buf is NUL-terminated (not counted in *len), the caller frees it. */
 int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);
+/* The whole of data as path's new content, atomically (0644). */
 int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen);
 
 /* True when "<anything>.tmp.<pid>" names pid's temporary (pid > 0). */
 bool vlff_temp_name_pid(const char *name, long *pid);
+
+#ifdef __cplusplus
+}
+#endif
 
 #endif

@@ -9,6 +9,7 @@
 
 #include "log.h"
 #include "select.h"
+#include "mem.h"
 
 #define MAX_VIEWS 255
 
@@ -20,10 +21,11 @@ struct vlff_evidence {
   int32_t *slot;    /* [nvox]: -1 none */
   uint16_t *mean;   /* [cap][D] float16 */
   uint8_t *views;   /* [cap] views averaged, saturating at MAX_VIEWS */
-  float *cos;       /* [cap][VLFF_MAX_PROMPTS] cosines with the prompts ... */
+  float *cos;       /* [cap][max_k] cosines with the prompts ... */
   uint8_t *dirty;   /* [cap] ... stale since the slot's evidence changed */
   uint64_t stamp;   /* ... or since the prompts did */
   int stamp_k;
+  int max_k;        /* prompts a slot caches cosines for */
   size_t used, cap;
   long long overflow;
   float *tmp;       /* [D] */
@@ -44,19 +46,14 @@ double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, 
 
 void vlff_evidence_destroy(struct vlff_evidence *e) {
   if (!e) return;
-  free(e->slot);
-  free(e->mean);
-  free(e->views);
-  free(e->cos);
-  free(e->dirty);
-  free(e->tmp);
-  free(e);
+  VLFF_FREE_ALL(e->slot, e->mean, e->views, e->cos, e->dirty, e->tmp, e);
 }
 
 struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_t dims[3], double voxel, int D,
-                                           size_t max_bytes, char *err, size_t errlen) {
-  if (D < 1 || !(voxel > 0) || !isfinite(voxel) || !dims[0] || !dims[1] || !dims[2]) {
-    vlff_errf(err, errlen, "evidence: bad grid or feature size");
+                                           int max_k, size_t max_bytes, char *err, size_t errlen) {
+  if (D < 1 || max_k < 1 || max_k > VLFF_FIELD_MAX_PROMPTS || !(voxel > 0) || !isfinite(voxel) || !dims[0] ||
+      !dims[1] || !dims[2]) {
+    vlff_errf(err, errlen, "evidence: bad grid, feature size or prompt count");
     return NULL;
   }
   struct vlff_evidence *e = calloc(1, sizeof *e);
@@ -69,7 +66,8 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   e->voxel = voxel;
   e->D = D;
   e->nvox = (size_t)dims[0] * dims[1] * dims[2];
-  size_t per = (size_t)D * sizeof(uint16_t) + VLFF_MAX_PROMPTS * sizeof(float) + 2;
+  e->max_k = max_k;
+  size_t per = (size_t)D * sizeof(uint16_t) + (size_t)max_k * sizeof(float) + 2;
   e->cap = max_bytes / per;
   if (e->cap < 1) e->cap = 1;
   if (e->cap > e->nvox) e->cap = e->nvox;
@@ -77,7 +75,7 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   e->slot = malloc(e->nvox * sizeof *e->slot);
   e->mean = malloc(e->cap * (size_t)D * sizeof *e->mean);
   e->views = calloc(e->cap, 1);
-  e->cos = malloc(e->cap * VLFF_MAX_PROMPTS * sizeof *e->cos);
+  e->cos = malloc(e->cap * (size_t)max_k * sizeof *e->cos);
   e->dirty = calloc(e->cap, 1);
   e->tmp = malloc((size_t)D * sizeof *e->tmp);
   if (!e->slot || !e->mean || !e->views || !e->cos || !e->dirty || !e->tmp) {
@@ -90,12 +88,12 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
 }
 
 struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, const struct vlff_cfg_field *field,
-                                        char *err, size_t errlen) {
+                                        int max_k, char *err, size_t errlen) {
   size_t budget = (size_t)pub->evidence_max_mb << 20;
   uint32_t dims[3];
   double voxel = vlff_map_grid_plan(field->scene_min, field->scene_max, pub->evidence_voxel_m,
                                     budget / 4 / sizeof(int32_t), dims);
-  return vlff_evidence_create(field->scene_min, dims, voxel, field->feature_dim,
+  return vlff_evidence_create(field->scene_min, dims, voxel, field->feature_dim, max_k,
                               budget - (size_t)dims[0] * dims[1] * dims[2] * sizeof(int32_t), err, errlen);
 }
 
@@ -182,7 +180,7 @@ int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out) {
 
 /* Slot s's cosines with E, recomputed when its evidence changed. */
 static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float *E, int K) {
-  float *c = e->cos + (size_t)s * VLFF_MAX_PROMPTS;
+  float *c = e->cos + (size_t)s * e->max_k;
   if (!e->dirty[s]) return c;
   const int D = e->D;
   const uint16_t *m = e->mean + (size_t)s * D;
@@ -204,7 +202,7 @@ static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float
 
 void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos, const float *E, int K,
                          uint64_t stamp, float w, int *label, float *score, float *margin) {
-  if (K > VLFF_MAX_PROMPTS) K = VLFF_MAX_PROMPTS;
+  if (K > e->max_k) K = e->max_k;
   if (stamp != e->stamp || K != e->stamp_k) {
     memset(e->dirty, 1, e->used);
     e->stamp = stamp, e->stamp_k = K;

@@ -44,14 +44,15 @@ double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, 
 long vlff_grid_voxel(const double origin[3], double voxel, const uint32_t dims[3], const double x[3]);
 
 /* A grid of dims voxels of edge voxel from origin; D feature channels;
- * at most max_bytes of slots (at least one slot). */
+ * labelled with at most max_k prompts (1..VLFF_FIELD_MAX_PROMPTS: each slot
+ * caches that many cosines); at most max_bytes of slots (at least one). */
 struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_t dims[3], double voxel, int D,
-                                           size_t max_bytes, char *err, size_t errlen);
+                                           int max_k, size_t max_bytes, char *err, size_t errlen);
 /* The node's evidence for a field's box: voxels of publish.evidence_voxel_m
  * (coarsened so that the voxel index takes at most a quarter of
  * publish.evidence_max_mb), slots in the rest of that budget. */
 struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, const struct vlff_cfg_field *field,
-                                        char *err, size_t errlen);
+                                        int max_k, char *err, size_t errlen);
 void vlff_evidence_destroy(struct vlff_evidence *e);
 void vlff_evidence_reset(struct vlff_evidence *e);
 

@@ -6,6 +6,7 @@
 #include "keyframes.h"
 
 #include "select.h"
+#include "mem.h"
 
 #include <errno.h>
 #include <math.h>
@@ -57,10 +58,7 @@ struct vlff_kfstore *vlff_kfstore_create(size_t budget_bytes, int max_count, int
 void vlff_kfstore_destroy(struct vlff_kfstore *s) {
   if (!s) return;
   for (int i = 0; i < s->count; i++) free(s->kfs[i].mem);
-  free(s->kfs);
-  free(s->views);
-  free(s->weights);
-  free(s);
+  VLFF_FREE_ALL(s->kfs, s->views, s->weights, s);
 }
 
 double vlff_pose_distance(const double a[16], const double b[16]) {

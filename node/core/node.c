@@ -31,6 +31,7 @@
 #include "files.h"
 #include "keyframes.h"
 #include "log.h"
+#include "mem.h"
 #include "publish.h"
 #include "select.h"
 #include "source.h"
@@ -116,10 +117,7 @@ struct vlff_node {
 
 static void candidate_free(struct candidate *c) {
   if (!c) return;
-  free(c->rgb);
-  free(c->depth);
-  free(c->features);
-  free(c);
+  VLFF_FREE_ALL(c->rgb, c->depth, c->features, c);
 }
 
 #define STAT_ADD(n, field, v)          \
@@ -298,20 +296,35 @@ static mode_t shm_mode(const struct vlff_node *n) {
   return n->cfg.shm.mode ? (mode_t)n->cfg.shm.mode : 0640;
 }
 
+/* Why an input ring cannot be attached, logged once per reason as it changes
+ * (missing, another owner or a wider mode, another kind, truncated, not a vlff
+ * segment: libvlff-shm's error code), so that a user sees why the node waits,
+ * and sees it again when the reason moves on, without a line per retry.
+ * *last holds the code logged last (0: none since the last attach). */
+static void attach_refused(int *last, const char *what, const char *name) {
+  int code = vlff_shm_last_error();
+  if (code == *last) return;
+  *last = code;
+  VLFF_WARN(TAG, "waiting for %s %s: %s", what, name, vlff_shm_last_message());
+}
+
+/* Only rings of this node's uid, within the configured mode: anyone else able
+ * to write one could forge its records. */
+static struct vlff_ring *attach_input(struct vlff_node *n, const char *name, uint32_t kind) {
+  return vlff_ring_attach_owned(name, kind, geteuid(), shm_mode(n));
+}
+
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
-  bool warned = false;
+  int refused = 0;
   while (!atomic_load(&n->stop)) {
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
-    /* Only rings of this node's uid, within the configured mode: anyone else able
-     * to write one could forge its records. */
-    struct vlff_ring *r = vlff_ring_attach_owned(name, kind, geteuid(), shm_mode(n));
+    struct vlff_ring *r = attach_input(n, name, kind);
     if (r) {
       VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
                 (unsigned long long)vlff_ring_slot_size(r));
       return r;
     }
-    if (!warned) VLFF_WARN(TAG, "waiting for ring %s: %s", name, vlff_shm_last_message());
-    warned = true;
+    attach_refused(&refused, "ring", name);
     struct timespec ts = {0, 100 * 1000 * 1000};
     nanosleep(&ts, NULL);
   }
@@ -433,6 +446,7 @@ struct ingest {
   struct candidate *pending[PENDING_CAP]; /* keyframes waiting for their features */
   int npend;
   struct vlff_feature_join *join;
+  int feats_refused; /* attach_refused's last code for the feature ring */
   struct vlff_ring *poses;
   double pose_reattach_s;
   bool pose_miss;
@@ -508,7 +522,7 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
     double t_now = vlff_seconds();
     if (!ig->poses || (ig->pose_miss && t_now - ig->pose_reattach_s >= 1.0)) {
       vlff_ring_close(ig->poses);
-      ig->poses = vlff_ring_attach_owned(cfg->shm.pose_ring, VLFF_RECORD_POSE, geteuid(), shm_mode(n));
+      ig->poses = attach_input(n, cfg->shm.pose_ring, VLFF_RECORD_POSE);
       ig->pose_reattach_s = t_now;
       ig->pose_miss = false;
     }
@@ -653,6 +667,23 @@ static void ingest_held(struct ingest *ig, double now) {
 /* One record from the ring through the stages. A frame whose pose may
  * still come is held when it would be a keyframe by time and none is held
  * yet; other such frames are not needed as keyframes and pass unrefused. */
+/* Events per second over windows of at least a second (frames in, training
+ * steps): once a window is over, its rate goes into *out under the status
+ * lock and a new window starts. */
+struct rate_meter {
+  double t0;
+  long long count;
+};
+
+static void rate_publish(struct rate_meter *r, double now, struct vlff_node *n, double *out) {
+  if (now - r->t0 < 1.0) return;
+  pthread_mutex_lock(&n->slock);
+  *out = r->count / (now - r->t0);
+  pthread_mutex_unlock(&n->slock);
+  r->t0 = now;
+  r->count = 0;
+}
+
 static void ingest_frame(struct ingest *ig, const void *buf, ssize_t len, double now) {
   ingest_held(ig, now); /* an older frame's pose may have come with this one's */
   if (!frame_checks(ig, buf, len)) return;
@@ -679,8 +710,15 @@ static void ingest_frame(struct ingest *ig, const void *buf, ssize_t len, double
 static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_t *fbuf, int model_h, int model_w) {
   struct vlff_node *n = ig->n;
   const struct vlff_config *cfg = ig->cfg;
-  if (ig->join && !*feats)
-    *feats = vlff_ring_attach_owned(cfg->shm.feature_ring, VLFF_RECORD_FEATURE, geteuid(), shm_mode(n));
+  if (ig->join && !*feats) {
+    *feats = attach_input(n, cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
+    if (*feats && ig->feats_refused)
+      VLFF_INFO(TAG, "attached to feature ring %s", cfg->shm.feature_ring);
+    if (*feats)
+      ig->feats_refused = 0;
+    else
+      attach_refused(&ig->feats_refused, "feature ring", cfg->shm.feature_ring);
+  }
   if (ig->join) {
     /* A producer that replaced its ring (restarted with another geometry, or
      * after the file was truncated) is followed on the next pass. */
@@ -688,6 +726,7 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
       VLFF_WARN(TAG, "feature ring: %s; attaching again", vlff_shm_last_message());
       vlff_ring_close(*feats);
       *feats = NULL;
+      ig->feats_refused = -1; /* no refusal code: the next attach is logged either way */
     }
     uint64_t fid;
     int fh, fw, ev;
@@ -730,6 +769,9 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
 }
 
 static void *ingest_main(void *arg) {
+  /* Named so that ps -L, top -H and a debugger tell the threads apart, and a
+   * test can freeze this one alone (the watchdog must then go unfed). */
+  pthread_setname_np(pthread_self(), "vlff-ingest");
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
   struct ingest ig = {.n = n, .cfg = cfg, .rl = {.last_report_s = vlff_seconds()}};
@@ -752,8 +794,7 @@ static void *ingest_main(void *arg) {
   vlff_kf_selector_init(&ig.sel, cfg->keyframes.rate_hz, cfg->keyframes.min_translation_m,
                         cfg->keyframes.min_rotation_deg);
   uint64_t lost_seen = 0;
-  double fps_t0 = vlff_seconds();
-  long long fps_count = 0;
+  struct rate_meter fps = {vlff_seconds(), 0};
   while (ring && buf && ig.held && fbuf && !atomic_load(&n->stop)) {
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     ingest_features(&ig, &feats, fbuf, model_h, model_w);
@@ -793,14 +834,8 @@ static void *ingest_main(void *arg) {
     n->st.frames_in++;
     n->last_frame_s = now;
     pthread_mutex_unlock(&n->slock);
-    fps_count++;
-    if (now - fps_t0 >= 1.0) {
-      pthread_mutex_lock(&n->slock);
-      n->st.fps_in = fps_count / (now - fps_t0);
-      pthread_mutex_unlock(&n->slock);
-      fps_t0 = now;
-      fps_count = 0;
-    }
+    fps.count++;
+    rate_publish(&fps, now, n, &n->st.fps_in);
     ingest_frame(&ig, buf, len, now);
   }
   for (int i = 0; i < ig.npend; i++) candidate_free(ig.pending[i]);
@@ -959,10 +994,7 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
       }
     }
   }
-  free(rd);
-  free(md);
-  free(lab);
-  free(hit);
+  VLFF_FREE_ALL(rd, md, lab, hit);
   return ok;
 }
 
@@ -1231,13 +1263,13 @@ static void apply_warmup(struct vlff_node *n) {
 }
 
 static void *trainer_main(void *arg) {
+  pthread_setname_np(pthread_self(), "vlff-trainer"); /* as ingest_main's */
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
   double next_publish = vlff_seconds() + 1.0 / cfg->publish.rate_hz;
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
   uint64_t mailbox_seq = 0;
-  double rate_t0 = vlff_seconds();
-  long long rate_steps = 0;
+  struct rate_meter steps = {vlff_seconds(), 0};
   double status_s = -INFINITY;
   /* A resumed map is published before it trains on anything new, so
    * controllers have it back at once. */
@@ -1259,7 +1291,7 @@ static void *trainer_main(void *arg) {
       struct vlff_train_stats ts;
       char err[256];
       if (vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err) == 0) {
-        rate_steps++;
+        steps.count++;
         pthread_mutex_lock(&n->slock);
         n->st.iteration = ts.step;
         n->st.loss = ts.loss;
@@ -1273,13 +1305,7 @@ static void *trainer_main(void *arg) {
       }
     }
     double now = vlff_seconds();
-    if (now - rate_t0 >= 1.0) {
-      pthread_mutex_lock(&n->slock);
-      n->st.it_per_s = rate_steps / (now - rate_t0);
-      pthread_mutex_unlock(&n->slock);
-      rate_t0 = now;
-      rate_steps = 0;
-    }
+    rate_publish(&steps, now, n, &n->st.it_per_s);
     /* An untrained field has nothing to say: readers see version 0 until
      * the first step, and the heartbeat says the writer is alive. */
     bool published = false;

@@ -18,9 +18,12 @@
 #include "log.h"
 #include "palette.h"
 #include "select.h"
+#include "mem.h"
 #include "vlff/shm.h"
 
 #define TAG "publish"
+
+_Static_assert(VLFF_MAX_PROMPTS <= VLFF_FIELD_MAX_PROMPTS, "the node's prompts must fit the field");
 #define QBLOCK 4096 /* points per block of the evidence's cosine queries */
 
 struct vlff_publisher {
@@ -64,7 +67,7 @@ struct vlff_publisher {
   float ev_weight;
   int D;
   size_t ev_budget; /* bytes: publish.evidence_max_mb */
-  float *qcos; /* [QBLOCK][VLFF_MAX_PROMPTS] the field's cosines of a block of points */
+  float *qcos; /* [QBLOCK][VLFF_FIELD_MAX_PROMPTS] the field's cosines of a block of points */
   double last_publish_s, last_heartbeat_s;
 };
 
@@ -72,28 +75,10 @@ struct vlff_publisher {
 void vlff_publisher_destroy(struct vlff_publisher *p) {
   if (!p) return;
   vlff_map_detach(p->map);
-  free(p->observed);
-  free(p->hits);
-  free(p->hit_sum);
-  free(p->labels);
-  free(p->conf);
-  free(p->qidx);
-  free(p->qxyz);
-  free(p->qdens);
-  free(p->qmargin);
-  free(p->qlabel);
-  free(p->img_labels);
-  free(p->img_conf);
-  free(p->img_lab);
-  free(p->img_score);
-  free(p->sel_pix);
-  free(p->hole_pix);
-  free(p->sel_xyz);
-  free(p->sel_score);
-  free(p->sel_lab);
   vlff_evidence_destroy(p->ev);
-  free(p->qcos);
-  free(p);
+  VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
+                p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
+                p->sel_pix, p->hole_pix, p->sel_xyz, p->sel_score, p->sel_lab, p->qcos, p);
 }
 
 struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub, const struct vlff_cfg_shm *shm,
@@ -143,11 +128,11 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
   if (pub->evidence_weight > 0) {
-    p->ev = vlff_evidence_for(pub, field, err, errlen);
+    p->ev = vlff_evidence_for(pub, field, VLFF_MAX_PROMPTS, err, errlen);
     p->ev_weight = (float)pub->evidence_weight;
     p->D = field->feature_dim;
     p->ev_budget = (size_t)pub->evidence_max_mb << 20;
-    p->qcos = malloc(QBLOCK * VLFF_MAX_PROMPTS * sizeof *p->qcos);
+    p->qcos = malloc(QBLOCK * VLFF_FIELD_MAX_PROMPTS * sizeof *p->qcos);
     if (!p->ev || !p->qcos) {
       if (p->ev) snprintf(err, errlen, "out of memory");
       vlff_publisher_destroy(p);
@@ -556,10 +541,7 @@ static const uint8_t *prompt_color(const struct vlff_publisher *p, const char *c
 }
 
 void vlff_snapshot_free(struct vlff_snapshot *s) {
-  free(s->strip);
-  free(s->xyz);
-  free(s->rgb);
-  free(s->label);
+  VLFF_FREE_ALL(s->strip, s->xyz, s->rgb, s->label);
   memset(s, 0, sizeof *s);
 }
 
@@ -624,9 +606,6 @@ int vlff_publisher_snapshot(struct vlff_publisher *p, struct vlff_field *f, cons
   rc = 0;
 out:
   if (rc) vlff_snapshot_free(out);
-  free(rgbf);
-  free(lab);
-  free(image);
-  free(truth);
+  VLFF_FREE_ALL(rgbf, lab, image, truth);
   return rc;
 }

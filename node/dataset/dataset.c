@@ -22,6 +22,7 @@
 #include "bounds.h"
 #include "dataset_internal.h"
 #include "files.h"
+#include "mem.h"
 
 #define seterr vlff_errf
 #define PATHMAX 4352
@@ -36,15 +37,6 @@ static int is_file(const char *p) {
   return stat(p, &st) == 0 && S_ISREG(st.st_mode);
 }
 
-/* An optional file: 1 when present (and regular), 0 when absent, -1 with
- * err when something else sits at its name (a FIFO would block a reader,
- * a directory is a mistake worth naming). */
-static int optional_file(const char *p, char *err, size_t errlen) {
-  struct stat st;
-  if (stat(p, &st) < 0) return 0;
-  return vlff_check_regular(p, err, errlen) < 0 ? -1 : 1;
-}
-
 /* a/b into out[PATHMAX], truncated (callers cap a at 4000 bytes, b is short) */
 static void join(char *out, const char *a, const char *b) {
   size_t la = strnlen(a, PATHMAX - 2), lb = strnlen(b, PATHMAX - 2 - la);
@@ -52,6 +44,16 @@ static void join(char *out, const char *a, const char *b) {
   out[la] = '/';
   memcpy(out + la + 1, b, lb);
   out[la + 1 + lb] = 0;
+}
+
+/* An optional file dir/name, its path left in p[PATHMAX]: 1 when present
+ * (and regular), 0 when absent, -1 with err when something else sits at its
+ * name (a FIFO would block a reader, a directory is a mistake worth naming). */
+static int optional_file(char *p, const char *dir, const char *name, char *err, size_t errlen) {
+  struct stat st;
+  join(p, dir, name);
+  if (stat(p, &st) < 0) return 0;
+  return vlff_check_regular(p, err, errlen) < 0 ? -1 : 1;
 }
 
 /* ---- listing ------------------------------------------------------------ */
@@ -213,11 +215,19 @@ static int features_probe(struct vlff_dataset *ds, const char *path, char *err, 
     seterr(err, errlen, "%s: features/%s is not floating point", path, fd.name);
     goto out;
   }
-  if (dims[0] != (hsize_t)ds->n || dims[1] < 1 || dims[2] < 1 || dims[3] < 1 || dims[1] > 8192 ||
-      dims[2] > 8192 || dims[3] > 8192) {
-    seterr(err, errlen, "%s: features/%s has shape [%llu,%llu,%llu,%llu]; expected N=%d frames and sane sizes",
+  /* One map per usable frame, or one per frame the scene lists (a feature
+   * extractor run over every exported image includes ScanNet's lost-tracking
+   * frames, whose rows are then passed over). */
+  ds->feat_per_listed = ds->skipped > 0 && dims[0] == (hsize_t)ds->n_listed;
+  if ((dims[0] != (hsize_t)ds->n && !ds->feat_per_listed) || dims[1] < 1 || dims[2] < 1 || dims[3] < 1 ||
+      dims[1] > 8192 || dims[2] > 8192 || dims[3] > 8192) {
+    char also[96] = "";
+    if (ds->skipped > 0)
+      snprintf(also, sizeof also, " (or %d, every frame listed, %d of them skipped for lost tracking)",
+               ds->n_listed, ds->skipped);
+    seterr(err, errlen, "%s: features/%s has shape [%llu,%llu,%llu,%llu]; expected N=%d frames%s and sane sizes",
            path, fd.name, (unsigned long long)dims[0], (unsigned long long)dims[1],
-           (unsigned long long)dims[2], (unsigned long long)dims[3], ds->n);
+           (unsigned long long)dims[2], (unsigned long long)dims[3], ds->n, also);
     goto out;
   }
   /* The reader allocates one frame's features: a header may claim any
@@ -262,9 +272,7 @@ out:
 
 void vlff_dataset_close(struct vlff_dataset *ds) {
   if (!ds) return;
-  free(ds->c2w);
-  free(ds->stem);
-  free(ds->label_map);
+  VLFF_FREE_ALL(ds->c2w, ds->stem, ds->listed, ds->label_map);
   vlff_sens_close(ds->sens);
   memset(ds, 0, sizeof *ds);
 }
@@ -393,22 +401,12 @@ static int open_labels(struct vlff_dataset *ds, const char *dir, const struct vl
   return 0;
 }
 
-int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *opts,
-                           char *err, size_t errlen) {
-  static const struct vlff_dataset_options defaults = {.layout = VLFF_DS_AUTO, .label_set = VLFF_LABELS_SCANNET20};
-  if (!opts) opts = &defaults;
-  int layout = opts->layout;
-  memset(ds, 0, sizeof *ds);
-  if (strlen(dir) >= sizeof ds->dir - 64) {
-    seterr(err, errlen, "%s: path too long", dir);
-    return -1;
-  }
-  if (opts->label_set != VLFF_LABELS_SCANNET20 && opts->label_set != VLFF_LABELS_NYU40) {
-    seterr(err, errlen, "%s: unknown label set %d", dir, opts->label_set);
-    return -1;
-  }
-  snprintf(ds->dir, sizeof ds->dir, "%s", dir);
-  char p[PATHMAX], q[PATHMAX], sens[PATHMAX] = "";
+/* The layout a scene path is read as: the one asked for, or (auto) a .sens
+ * file where neither rgb/ nor color/ is found, else rgb/ (reference) or
+ * color/ (ScanNet export). Fills sens with the .sens file's path for that
+ * layout; -1 with err set when none fits. */
+static int choose_layout(const char *dir, int layout, char sens[PATHMAX], char *err, size_t errlen) {
+  char p[PATHMAX], q[PATHMAX];
   join(p, dir, "rgb");
   join(q, dir, "color");
   if (layout == VLFF_DS_SENS || (layout == VLFF_DS_AUTO && !is_dir(p) && !is_dir(q))) {
@@ -428,63 +426,72 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
       return -1;
     }
   }
-  ds->layout = layout;
-  const int ref = layout == VLFF_DS_REFERENCE;
-  struct stems rgb = {0};
-  if (layout == VLFF_DS_SENS) {
-    /* the scene directory (labels, features, mesh) is the file's */
-    char *slash = strrchr(sens, '/');
-    if (is_file(dir)) snprintf(ds->dir, sizeof ds->dir, "%.*s", slash ? (int)(slash - sens) : 1, slash ? sens : ".");
-    if (vlff_sens_open(ds, sens, err, errlen) < 0) goto fail;
-    goto cameras_done;
-  }
-  join(p, dir, ref ? "rgb" : "color");
-  if (list_stems(p, ".png,.jpg,.jpeg", &rgb, err, errlen) < 0) return -1;
-  if (rgb.n == 0) {
+  return layout;
+}
+
+/* The image directory's stems (rgb/ or color/), each with its depth image
+ * and pose: depth/ and pose/ must hold exactly one file per image. On
+ * success rgb holds the stems (the caller frees rgb->s); on failure nothing
+ * is held. */
+static int list_frames(struct vlff_dataset *ds, const char *dir, struct stems *rgb, char *err, size_t errlen) {
+  char p[PATHMAX];
+  join(p, dir, ds->layout == VLFF_DS_REFERENCE ? "rgb" : "color");
+  if (list_stems(p, ".png,.jpg,.jpeg", rgb, err, errlen) < 0) return -1;
+  if (rgb->n == 0) {
     seterr(err, errlen, "%s: no .png or .jpg images", p);
-    free(rgb.s);
+    free(rgb->s);
     return -1;
   }
-  snprintf(ds->rgb_ext, sizeof ds->rgb_ext, "%s", rgb.ext);
-  /* depth/ and pose/ must hold exactly one file per image */
+  snprintf(ds->rgb_ext, sizeof ds->rgb_ext, "%s", rgb->ext);
   const char *sub[2] = {"depth", "pose"};
   const char *ext[2] = {".png", ".txt"};
   for (int k = 0; k < 2; k++) {
     struct stems o;
     join(p, dir, sub[k]);
     if (list_stems(p, ext[k], &o, err, errlen) < 0) {
-      free(rgb.s);
+      free(rgb->s);
       return -1;
     }
     int bad = -1;
-    for (int i = 0; i < rgb.n && bad < 0; i++)
-      if (i >= o.n || strcmp(rgb.s[i], o.s[i])) bad = i;
-    if (bad < 0 && o.n != rgb.n) bad = rgb.n;
+    for (int i = 0; i < rgb->n && bad < 0; i++)
+      if (i >= o.n || strcmp(rgb->s[i], o.s[i])) bad = i;
+    if (bad < 0 && o.n != rgb->n) bad = rgb->n;
     if (bad >= 0) {
-      if (bad < rgb.n)
-        seterr(err, errlen, "%s/%s%s: missing (there is an image %s%s)", p, rgb.s[bad], ext[k], rgb.s[bad], rgb.ext);
+      if (bad < rgb->n)
+        seterr(err, errlen, "%s/%s%s: missing (there is an image %s%s)", p, rgb->s[bad], ext[k], rgb->s[bad],
+               rgb->ext);
       else
         seterr(err, errlen, "%s/%s%s: no matching image", p, o.s[bad], ext[k]);
-      free(o.s), free(rgb.s);
+      free(o.s), free(rgb->s);
       return -1;
     }
     free(o.s);
   }
-  ds->stem = calloc((size_t)rgb.n, sizeof *ds->stem);
-  ds->c2w = calloc((size_t)rgb.n, 16 * sizeof(double));
-  if (!ds->stem || !ds->c2w) {
-    free(rgb.s);
-    vlff_dataset_close(ds);
+  return 0;
+}
+
+/* Every listed frame's pose (camera-to-world; the reference layout stores
+ * world-to-camera) into ds->c2w, its stem into ds->stem. A ScanNet pose of
+ * inf or nan (tracking lost) skips its frame; any other bad pose fails. */
+static int read_poses(struct vlff_dataset *ds, const char *dir, const struct stems *rgb, char *err,
+                      size_t errlen) {
+  const int ref = ds->layout == VLFF_DS_REFERENCE;
+  char p[PATHMAX];
+  ds->stem = calloc((size_t)rgb->n, sizeof *ds->stem);
+  ds->c2w = calloc((size_t)rgb->n, 16 * sizeof(double));
+  ds->listed = calloc((size_t)rgb->n, sizeof *ds->listed);
+  ds->n_listed = rgb->n;
+  if (!ds->stem || !ds->c2w || !ds->listed) {
     seterr(err, errlen, "%s: out of memory", dir);
     return -1;
   }
-  for (int i = 0; i < rgb.n; i++) {
+  for (int i = 0; i < rgb->n; i++) {
     char name[VLFF_DS_NAME + 8];
-    snprintf(name, sizeof name, "pose/%s.txt", rgb.s[i]);
+    snprintf(name, sizeof name, "pose/%s.txt", rgb->s[i]);
     join(p, dir, name);
     char *buf;
     size_t len;
-    if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
+    if (read_text(p, &buf, &len, err, errlen) < 0) return -1;
     double m[16];
     int rc = vlff_parse_matrix(buf, len, p, m, err, errlen);
     int nonfinite = rc < 0 && (strstr(buf, "inf") || strstr(buf, "nan") || strstr(buf, "INF") || strstr(buf, "NaN"));
@@ -493,32 +500,37 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
       ds->skipped++; /* ScanNet: lost tracking */
       continue;
     }
-    if (rc < 0 || vlff_check_pose(m, p, err, errlen) < 0) goto fail;
+    if (rc < 0 || vlff_check_pose(m, p, err, errlen) < 0) return -1;
     double *out = ds->c2w + (size_t)ds->n * 16;
     if (ref) vlff_pose_invert(m, out); /* stored world-to-camera */
     else memcpy(out, m, sizeof m);
-    snprintf(ds->stem[ds->n], VLFF_DS_NAME, "%s", rgb.s[i]);
-    ds->n++;
+    snprintf(ds->stem[ds->n], VLFF_DS_NAME, "%s", rgb->s[i]);
+    ds->listed[ds->n++] = i;
   }
-  free(rgb.s);
-  rgb.s = NULL;
   if (ds->n == 0) {
     seterr(err, errlen, "%s: every frame's pose is invalid", dir);
-    goto fail;
+    return -1;
   }
-  /* image size from the first frame */
+  return 0;
+}
+
+/* The image size (the first frame's, which must be 8-bit RGB), the colour
+ * camera's intrinsics and, for a ScanNet export, its depth camera. */
+static int read_cameras(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
+  const int ref = ds->layout == VLFF_DS_REFERENCE;
+  char p[PATHMAX];
   {
     char name[VLFF_DS_NAME + 16];
     snprintf(name, sizeof name, "%s/%s%s", ref ? "rgb" : "color", ds->stem[0], ds->rgb_ext);
     join(p, dir, name);
     struct vlff_image im;
-    if (vlff_image_read(p, &im, err, errlen) < 0) goto fail;
+    if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
     ds->width = im.width, ds->height = im.height;
     int ok = im.channels == 3 && !im.depth16;
     vlff_image_free(&im);
     if (!ok) {
       seterr(err, errlen, "%s: expected an 8-bit RGB image", p);
-      goto fail;
+      return -1;
     }
   }
   {
@@ -526,30 +538,37 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
     char *buf;
     size_t len;
     double K[16];
-    if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
+    if (read_text(p, &buf, &len, err, errlen) < 0) return -1;
     int rc = vlff_parse_matrix(buf, len, p, K, err, errlen);
     free(buf);
-    if (rc < 0 || check_intrinsics(ds, K, p, err, errlen) < 0) goto fail;
+    if (rc < 0 || check_intrinsics(ds, K, p, err, errlen) < 0) return -1;
   }
   ds->color_width = ds->width, ds->color_height = ds->height;
-  if (!ref && scannet_export_cameras(ds, dir, err, errlen) < 0) goto fail;
+  if (!ref && scannet_export_cameras(ds, dir, err, errlen) < 0) return -1;
   if (!ref && !ds->registered) ds->cx += 0.5, ds->cy += 0.5; /* OpenCV's pixel centres to the field's */
-cameras_done:
-  dir = ds->dir;
-  join(p, dir, "bbox.txt");
-  int have = optional_file(p, err, errlen);
-  if (have < 0) goto fail;
-  if (have) {
-    char *buf;
-    size_t len;
-    if (read_text(p, &buf, &len, err, errlen) < 0) goto fail;
-    int rc = vlff_parse_bbox(buf, len, p, ds->bbox_lo, ds->bbox_hi, err, errlen);
-    free(buf);
-    if (rc < 0) goto fail;
-    ds->has_bbox = 1;
-  }
-  /* Camera positions against the scene box (or an absolute bound without
-   * one): a translation of 1e300 would wreck every result silently. */
+  return 0;
+}
+
+/* bbox.txt, when there is one. */
+static int read_bbox(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
+  char p[PATHMAX];
+  int have = optional_file(p, dir, "bbox.txt", err, errlen);
+  if (have <= 0) return have;
+  char *buf;
+  size_t len;
+  if (read_text(p, &buf, &len, err, errlen) < 0) return -1;
+  int rc = vlff_parse_bbox(buf, len, p, ds->bbox_lo, ds->bbox_hi, err, errlen);
+  free(buf);
+  if (rc < 0) return -1;
+  ds->has_bbox = 1;
+  return 0;
+}
+
+/* Camera positions against the scene box (or an absolute bound without
+ * one): a translation of 1e300 would wreck every result silently. The error
+ * names the pose's file, or the .sens file and the frame. */
+static int check_positions(const struct vlff_dataset *ds, const char *dir, const char *sens, char *err,
+                           size_t errlen) {
   for (int i = 0; i < ds->n; i++) {
     char why[200];
     if (vlff_pose_plausible(ds->c2w + (size_t)i * 16, ds->has_bbox ? ds->bbox_lo : NULL,
@@ -557,27 +576,65 @@ cameras_done:
       if (ds->layout == VLFF_DS_SENS) {
         seterr(err, errlen, "%s: frame %s: %s", sens, ds->stem[i], why);
       } else {
-        char name[VLFF_DS_NAME + 8];
+        char name[VLFF_DS_NAME + 8], p[PATHMAX];
         snprintf(name, sizeof name, "pose/%s.txt", ds->stem[i]);
         join(p, dir, name);
         seterr(err, errlen, "%s: %s", p, why);
       }
-      goto fail;
+      return -1;
     }
   }
-  if (open_labels(ds, dir, opts, err, errlen) < 0) goto fail;
-  join(p, dir, "features.hdf");
-  have = optional_file(p, err, errlen);
-  if (have < 0) goto fail;
-  if (have) {
+  return 0;
+}
+
+/* features.hdf's shape, when there is one (without HDF5 the features are
+ * simply not offered: has_features stays 0). */
+static int open_features(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
+  char p[PATHMAX];
+  int have = optional_file(p, dir, "features.hdf", err, errlen);
+  if (have <= 0) return have;
 #ifdef VLFF_HAVE_HDF5
-    if (features_probe(ds, p, err, errlen) < 0) goto fail;
+  if (features_probe(ds, p, err, errlen) < 0) return -1;
 #endif
-    /* without HDF5 the features are simply not offered (has_features = 0) */
+  return 0;
+}
+
+int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *opts,
+                           char *err, size_t errlen) {
+  static const struct vlff_dataset_options defaults = {.layout = VLFF_DS_AUTO, .label_set = VLFF_LABELS_SCANNET20};
+  if (!opts) opts = &defaults;
+  memset(ds, 0, sizeof *ds);
+  if (strlen(dir) >= sizeof ds->dir - 64) {
+    seterr(err, errlen, "%s: path too long", dir);
+    return -1;
   }
+  if (opts->label_set != VLFF_LABELS_SCANNET20 && opts->label_set != VLFF_LABELS_NYU40) {
+    seterr(err, errlen, "%s: unknown label set %d", dir, opts->label_set);
+    return -1;
+  }
+  snprintf(ds->dir, sizeof ds->dir, "%s", dir);
+  char sens[PATHMAX] = "";
+  int layout = choose_layout(dir, opts->layout, sens, err, errlen);
+  if (layout < 0) return -1;
+  ds->layout = layout;
+  if (layout == VLFF_DS_SENS) {
+    /* the scene directory (labels, features, mesh) is the file's */
+    char *slash = strrchr(sens, '/');
+    if (is_file(dir)) snprintf(ds->dir, sizeof ds->dir, "%.*s", slash ? (int)(slash - sens) : 1, slash ? sens : ".");
+    if (vlff_sens_open(ds, sens, err, errlen) < 0) goto fail;
+  } else { /* a reference or ScanNet-export directory */
+    struct stems rgb;
+    if (list_frames(ds, dir, &rgb, err, errlen) < 0) return -1; /* nothing held yet */
+    int rc = read_poses(ds, dir, &rgb, err, errlen);
+    free(rgb.s);
+    if (rc < 0 || read_cameras(ds, dir, err, errlen) < 0) goto fail;
+  }
+  dir = ds->dir;
+  if (read_bbox(ds, dir, err, errlen) < 0 || check_positions(ds, dir, sens, err, errlen) < 0 ||
+      open_labels(ds, dir, opts, err, errlen) < 0 || open_features(ds, dir, err, errlen) < 0)
+    goto fail;
   return 0;
 fail:
-  free(rgb.s);
   vlff_dataset_close(ds);
   return -1;
 }
@@ -743,7 +800,7 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   hid_t d = H5Dopen2(f, dname, H5P_DEFAULT);
   hid_t fs = d >= 0 ? H5Dget_space(d) : -1;
   hid_t ht = h5_half();
-  hsize_t start[4] = {(hsize_t)i, 0, 0, 0};
+  hsize_t start[4] = {(hsize_t)(ds->feat_per_listed ? ds->listed[i] : i), 0, 0, 0};
   hsize_t cnt[4] = {1, (hsize_t)ds->feat_height, (hsize_t)ds->feat_width, (hsize_t)ds->feature_dim};
   hid_t ms = H5Screate_simple(4, cnt, NULL);
   int rc = -1;

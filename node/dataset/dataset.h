@@ -43,7 +43,9 @@
  *  <scene>_vh_clean_2.labels.ply (vertex 'label' = NYU40 id) mapped to the
  *  same classes (vlff_dataset_read_points).
  *  Frames whose pose is non-finite (ScanNet marks lost tracking with -inf)
- *  are skipped and counted, as ScanNet's own tools do.
+ *  are skipped and counted, as ScanNet's own tools do; the others keep their
+ *  stems (ScanNet frame numbers). features.hdf holds a map per usable frame,
+ *  or one per listed frame (lost ones included, their rows passed over).
  *  Frames are matched by file stem; stems sort numerically when all are
  *  integers, otherwise by name. Without a depth intrinsic, depth of a
  *  different size than rgb must share its aspect and is resampled (nearest)
@@ -97,6 +99,9 @@ struct vlff_dataset {
   int layout;                  /* enum vlff_dataset_layout actually found */
   int n;                       /* usable frames */
   int skipped;                 /* ScanNet frames dropped for invalid poses */
+  int n_listed;                /* frames the scene lists: n + skipped */
+  int *listed;                 /* [n] frame i's position among those listed */
+  int feat_per_listed;         /* features.hdf holds a map per listed frame */
   int width, height;           /* rgb size (depth and labels are returned at it) */
   double fx, fy, cx, cy;
   int has_bbox;

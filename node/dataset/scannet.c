@@ -348,7 +348,7 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
     goto fail;
   }
   /* a frame record is at least its pose, stamps and sizes */
-  if (nframes == 0 || nframes > (size - (uint64_t)at) / (64 + 32)) {
+  if (nframes == 0 || nframes > (uint64_t)INT_MAX || nframes > (size - (uint64_t)at) / (64 + 32)) {
     seterr(err, errlen, "%s: %llu frames do not fit in %llu bytes", path, (unsigned long long)nframes,
            (unsigned long long)size);
     goto fail;
@@ -363,7 +363,9 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
   s->off = malloc(nframes * 4 * sizeof *s->off);
   ds->c2w = malloc(nframes * 16 * sizeof(double));
   ds->stem = malloc(nframes * sizeof *ds->stem);
-  if (!s->off || !ds->c2w || !ds->stem) {
+  ds->listed = malloc(nframes * sizeof *ds->listed);
+  ds->n_listed = (int)nframes;
+  if (!s->off || !ds->c2w || !ds->stem || !ds->listed) {
     seterr(err, errlen, "%s: out of memory for %llu frames", path, (unsigned long long)nframes);
     goto fail;
   }
@@ -401,7 +403,7 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
     if (vlff_check_pose(m, name, err, errlen) < 0) goto fail;
     memcpy(ds->c2w + (size_t)ds->n * 16, m, sizeof m);
     snprintf(ds->stem[ds->n], VLFF_DS_NAME, "%llu", (unsigned long long)i);
-    ds->n++;
+    ds->listed[ds->n++] = (int)i;
   }
   if (ds->n == 0) {
     seterr(err, errlen, "%s: every frame's pose is invalid", path);

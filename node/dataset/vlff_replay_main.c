@@ -44,7 +44,7 @@ static const struct vlff_cli cli = {
     "\n"
     "  -c, --config FILE      ring names, slots and permissions from FILE's shm section\n"
     "                         (else $VLFF_CONFIG, else the installed vlff.yaml, else\n"
-    "                         built-in defaults)\n"
+    "                         built-in defaults, saying so on stderr)\n"
     "      --layout NAME      auto (default), reference, scannet or sens\n"
     "      --fps HZ           the recording's frame rate (default 30)\n"
     "  -r, --rate X           play at X times the recorded rate (default 1)\n"
@@ -297,10 +297,14 @@ int main(int argc, char **argv) {
   if (optind >= argc) return vlff_cli_usage_error(&cli, "no SCENE given");
   if (optind < argc - 1) return vlff_cli_usage_error(&cli, "one SCENE only, got also '%s'", argv[optind + 1]);
   /* The node's config names the rings; without one anywhere on the search
-   * path the built-in names are the node's defaults too. */
+   * path the built-in names are the node's defaults too, but a node run with
+   * other names would wait on rings nobody fills: say which were taken. */
   char ferr[512];
   const char *path = vlff_config_find(config, ferr, sizeof ferr);
-  if (path && vlff_config_load(path, &cfg, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
+  if (path && vlff_config_load(path, &cfg, err, sizeof err) < 0) return vlff_cli_config_error(err);
+  if (!path)
+    fprintf(stderr, "vlff-replay: %s; using the default ring names (%s, %s, %s)\n", ferr, cfg.shm.ring,
+            cfg.shm.pose_ring, cfg.shm.feature_ring);
   if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
   int status = 1;
   if (start >= r.ds.n) {

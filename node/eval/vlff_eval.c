@@ -40,7 +40,7 @@
 #include "sim.h"
 
 #define TAG "eval"
-#define MAXK VLFF_MAX_PROMPTS
+#define MAXK VLFF_FIELD_MAX_PROMPTS
 
 static const struct vlff_cli cli = {
     "vlff-eval",
@@ -48,7 +48,7 @@ static const struct vlff_cli cli = {
     "Fit a feature field to a scene, then evaluate 2D (held-out frames) and 3D\n"
     "(labelled points) segmentation against ground truth and two baselines.\n"
     "\n"
-    "  --config FILE       vlff YAML config (default: built-in defaults)\n"
+    "  -c, --config FILE   vlff YAML config (default: built-in defaults)\n"
     "  --dataset DIR       scene directory (reference or ScanNet layout);\n"
     "                      default: the synthetic room of sim.*\n"
     "  --seed N            sim.seed\n"
@@ -146,10 +146,10 @@ static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
 }
 
 static void parse_args(int argc, char **argv, struct opts *o) {
-  enum { O_CONFIG = 256, O_DATASET, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
+  enum { O_DATASET = 256, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
          O_DIFFICULTY, O_QUIET, O_STRIDE, O_LABEL_SET, O_LABEL_TSV, O_FIT_SECONDS };
   static const struct option longopts[] = {
-      {"config", required_argument, NULL, O_CONFIG},     {"dataset", required_argument, NULL, O_DATASET},
+      {"config", required_argument, NULL, 'c'},          {"dataset", required_argument, NULL, O_DATASET},
       {"out", required_argument, NULL, O_OUT},           {"seed", required_argument, NULL, O_SEED},
       {"frames", required_argument, NULL, O_FRAMES},     {"feature-dim", required_argument, NULL, O_DIM},
       {"iters", required_argument, NULL, O_ITERS},       {"holdout", required_argument, NULL, O_HOLDOUT},
@@ -166,12 +166,12 @@ static void parse_args(int argc, char **argv, struct opts *o) {
   o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out", o->stride = 1;
   o->label_set = VLFF_LABELS_SCANNET20;
   int c, status;
-  while ((c = vlff_cli_next(&cli, argc, argv, "", longopts, &status)) != -1) {
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:", longopts, &status)) != -1) {
     const char *a = argv[optind - 1], *v = optarg;
     switch (c) {
     case VLFF_CLI_EXIT: exit(status);
     case O_QUIET: o->quiet = 1; break;
-    case O_CONFIG: o->config = v; break;
+    case 'c': o->config = v; break;
     case O_DATASET: o->dataset = v; break;
     case O_OUT: o->out = v; break;
     case O_SEED: o->seed = parse_int(v, a, 0, 2147483647); break;
@@ -256,11 +256,12 @@ static struct frame *frame_data(struct scene *sc, int i) {
 }
 
 static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_config *cfg) {
-  const char *dir = o->dataset;
   char err[1024], p[4200];
   struct vlff_dataset_options dopt = {.layout = VLFF_DS_AUTO, .label_set = o->label_set, .label_tsv = o->label_tsv};
   struct vlff_dataset ds;
-  if (vlff_dataset_open_opts(&ds, dir, &dopt, err, sizeof err) < 0) die("%s", err);
+  if (vlff_dataset_open_opts(&ds, o->dataset, &dopt, err, sizeof err) < 0) die("%s", err);
+  /* the scene's directory, also when --dataset names its .sens file */
+  const char *dir = ds.dir;
   if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
   if (!ds.has_labels) die("%s: no gt_semantic/ or label-filt/ (needed for 2D evaluation)", dir);
   if (ds.feature_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feature_dim);
@@ -492,7 +493,7 @@ static void configure(struct eval *e, int argc, char **argv) {
   char err[1024];
   parse_args(argc, argv, o);
   vlff_config_defaults(cfg);
-  if (o->config && vlff_config_load(o->config, cfg, err, sizeof err) < 0) die("%s", err);
+  if (o->config && vlff_config_load(o->config, cfg, err, sizeof err) < 0) exit(vlff_cli_config_error(err));
   if (o->seed >= 0) cfg->sim.seed = o->seed;
   if (o->frames > 0) cfg->sim.frames = o->frames;
   if (o->difficulty >= 0) cfg->sim.difficulty = o->difficulty;
@@ -673,7 +674,7 @@ static void evidence_labels(struct eval *e, struct vlff_field *fld) {
   const struct vlff_config *cfg = &e->cfg;
   const int D = sc->D;
   char err[1024];
-  struct vlff_evidence *ev = vlff_evidence_for(&cfg->publish, &cfg->field, err, sizeof err);
+  struct vlff_evidence *ev = vlff_evidence_for(&cfg->publish, &cfg->field, MAXK, err, sizeof err);
   if (!ev) die("%s", err);
   for (int i = 0; i < sc->n; i++) {
     if (held_out(i, e->o.holdout)) continue;
@@ -764,6 +765,23 @@ static void write_prediction_ply(const struct eval *e) {
   free(col), free(lab);
 }
 
+/* A dataset frame by its own name (its file stem: the frame number of a
+ * ScanNet scene, which lost-tracking frames leave with gaps), not by its
+ * position among the usable frames. */
+static const char *frame_name(const struct scene *sc, int i) { return sc->ds.stem[sc->f[i].index]; }
+
+/* The frame's name in report.json: a number when the stem is one (the
+ * simulator's frames are their numbers). */
+static struct json_object *frame_json(const struct scene *sc, int i) {
+  if (!sc->ds.stem) return json_object_new_int(sc->f[i].index);
+  const char *s = frame_name(sc, i);
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 10);
+  if (s[0] && !*end && !errno && v >= 0 && v <= INT32_MAX) return json_object_new_int((int32_t)v);
+  return json_object_new_string(s);
+}
+
 static void write_report_md(const struct eval *e) {
   const struct opts *o = &e->o;
   const struct scene *sc = &e->sc;
@@ -775,8 +793,8 @@ static void write_report_md(const struct eval *e) {
   FILE *md = fopen(path, "w");
   if (!md) die("%s: %s", path, strerror(errno));
   if (o->dataset)
-    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %d to %d", o->dataset, sc->f[0].index,
-            sc->f[sc->n - 1].index);
+    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %s to %s", o->dataset, frame_name(sc, 0),
+            frame_name(sc, sc->n - 1));
   else
     fprintf(md, "# vlff-eval report\n\nScene: synthetic room (seed %d, difficulty %.2f)", e->cfg.sim.seed,
             e->cfg.sim.difficulty);
@@ -834,7 +852,7 @@ static void write_report_json(const struct eval *e) {
   }
   struct json_object *trf = json_object_new_array(), *tef = json_object_new_array();
   for (int i = 0; i < sc->n; i++)
-    json_object_array_add(held_out(i, o->holdout) ? tef : trf, json_object_new_int(sc->f[i].index));
+    json_object_array_add(held_out(i, o->holdout) ? tef : trf, frame_json(sc, i));
   json_object_object_add(src, "train_frames", trf);
   json_object_object_add(src, "test_frames", tef);
   json_object_object_add(root, "source", src);
@@ -899,7 +917,7 @@ static void print_summary(const struct eval *e) {
   const struct result *r2_raw = &e->r2_raw, *r2_field = &e->r2_field, *r3_fusion = &e->r3_fusion;
   const struct result *r3_field = &e->r3_field, *r3_field_ref = &e->r3_field_ref;
   char a[16], b[16], c[16], d[16], x[16], y[16], z[16];
-  if (o->dataset) printf("scene: dataset %s, frames %d to %d", o->dataset, sc->f[0].index, sc->f[sc->n - 1].index);
+  if (o->dataset) printf("scene: dataset %s, frames %s to %s", o->dataset, frame_name(sc, 0), frame_name(sc, sc->n - 1));
   else printf("scene: synthetic room, seed %d, difficulty %.2f", e->cfg.sim.seed, e->cfg.sim.difficulty);
   printf(", %d train / %d held-out frames, %zu points\n", e->ntrain, e->ntest, sc->pts.n);
   printf("%-34s %8s %8s %8s %8s\n", "standard protocol", "2D mIoU", "2D mAcc", "3D mIoU", "3D mAcc");

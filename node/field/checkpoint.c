@@ -20,6 +20,7 @@
 
 #include "field_internal.h"
 #include "files.h"
+#include "mem.h"
 
 #define CKPT_MAGIC "VLFFCKPT"
 #define CKPT_VERSION 1u
@@ -206,18 +207,10 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   close(fd);
   if (why) {
     if (err && errlen) snprintf(err, errlen, "checkpoint %s: refused: %s", path, why);
-    free(p);
-    free(m);
-    free(v);
-    free(dens);
-    free(occ);
+    VLFF_FREE_ALL(p, m, v, dens, occ);
     return -1;
   }
-  free(f->params);
-  free(f->adam_m);
-  free(f->adam_v);
-  free(f->occ.density);
-  free(f->occ.occ);
+  VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ);
   f->params = p;
   f->adam_m = m;
   f->adam_v = v;

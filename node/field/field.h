@@ -86,7 +86,7 @@ int vlff_field_set_rays(struct vlff_field *f, int n);
  * Not saved in checkpoints. */
 int vlff_field_set_levels(struct vlff_field *f, int n);
 
-/* Set the prompt set: K embeddings of dimension D (K <= VLFF_MAX_PROMPTS).
+/* Set the prompt set: K embeddings of dimension D (K <= VLFF_FIELD_MAX_PROMPTS).
  * The prompts are folded into MLP3's last layer; queries then cost K, not D,
  * output dot products. */
 int vlff_field_set_prompts(struct vlff_field *f, const float *emb, int k, char *err, size_t errlen);

@@ -104,7 +104,7 @@ double vlff_gemm_thread_seconds(void);
  * feature-major: hT[H][ldh], point i in column i; ldh and the columns read
  * are m rounded up to the kernel's panel (at most 32), so hT holds finite
  * values (zeros) there. Logits l = E W h + E b from ewt = (E W)ᵀ [H][K] and
- * eb [K] (K <= VLFF_MAX_PROMPTS); label = first argmax, score = l_best/|f|,
+ * eb [K] (K <= VLFF_FIELD_MAX_PROMPTS); label = first argmax, score = l_best/|f|,
  * margin = (l_best - l_second)/|f|. |f|^2 = |R h + rv|^2 + r22^2 with rt =
  * Rᵀ [H][H], R upper triangular; or, with gram set, hᵀ G h + 2 rv.h + r22^2
  * with rt = G. rt NULL: no norm (score and margin unscaled). label, score,
@@ -291,7 +291,7 @@ struct vlff_field {
   /* class-balanced ray drawing (train.class_balance): running frequency of
    * each prompt's pseudo-class among candidate pixels, and a scratch
    * feature */
-  double bal_freq[VLFF_MAX_PROMPTS];
+  double bal_freq[VLFF_FIELD_MAX_PROMPTS];
   float *bal_feat;
   int render_feat;         /* rendering needs MLP3 */
 };

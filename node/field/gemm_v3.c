@@ -1,12 +1,3 @@
-/* GEMM and scoring kernel build for v3 (see gemm_impl.h, score_impl.h). */
-#include <stddef.h>
-void vlff_gemm_v3(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb, float *c,
-                  int ldc, const float *bias, int accumulate, int relu, const float *mask);
-#define GEMM_FN vlff_gemm_v3
-#define GEMM_PEAK_FN vlff_fma_peak_v3
-float vlff_fma_peak_v3(long iters);
-#include "gemm_impl.h"
-void vlff_score_v3(int m, int H, int K, const float *hT, int ldh, const float *ewt, const float *eb, const float *rt,
-              const float *rv, float r22, int gram, int *label, float *score, float *margin);
-#define SCORE_FN vlff_score_v3
-#include "score_impl.h"
+/* The GEMM and scoring kernels built for x86-64-v3 (AVX2, FMA); see kernels.h. */
+#define KERNEL_ISA v3
+#include "kernel_build.h"

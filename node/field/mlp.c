@@ -15,31 +15,15 @@
 #include <string.h>
 
 #include "field_internal.h"
+#include "kernels.h"
 
 typedef void (*gemm_fn)(int, int, int, const float *, ptrdiff_t, ptrdiff_t, const float *, int, float *, int,
                         const float *, int, int, const float *);
-void vlff_gemm_generic(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
-                       float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
 typedef void (*score_fn)(int, int, int, const float *, int, const float *, const float *, const float *,
                          const float *, float, int, int *, float *, float *);
 #define SCORE_ARGS                                                                                                   \
   int m, int H, int K, const float *hT, int ldh, const float *ewt, const float *eb, const float *rt, const float *rv, \
       float r22, int gram, int *label, float *score, float *margin
-void vlff_score_generic(SCORE_ARGS);
-#if VLFF_GEMM_X86
-void vlff_score_v4(SCORE_ARGS);
-void vlff_score_v3(SCORE_ARGS);
-void vlff_gemm_v4(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
-                  float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
-void vlff_gemm_v3(int m, int n, int k, const float *a, ptrdiff_t ars, ptrdiff_t acs, const float *b, int ldb,
-                  float *c, int ldc, const float *bias, int accumulate, int relu, const float *mask);
-#endif
-
-float vlff_fma_peak_generic(long iters);
-#if VLFF_GEMM_X86
-float vlff_fma_peak_v4(long iters);
-float vlff_fma_peak_v3(long iters);
-#endif
 
 float vlff_fma_probe(long iters, int *flops_per_iter) {
   const int isa = vlff_gemm_isa_level();

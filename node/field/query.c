@@ -23,8 +23,8 @@
 #include "field_internal.h"
 
 int vlff_field_set_prompts(struct vlff_field *f, const float *emb, int k, char *err, size_t errlen) {
-  if (k < 0 || k > VLFF_MAX_PROMPTS || (k > 0 && !emb)) {
-    if (err && errlen) snprintf(err, errlen, "field prompts: expected 0..%d embeddings, got %d", VLFF_MAX_PROMPTS, k);
+  if (k < 0 || k > VLFF_FIELD_MAX_PROMPTS || (k > 0 && !emb)) {
+    if (err && errlen) snprintf(err, errlen, "field prompts: expected 0..%d embeddings, got %d", VLFF_FIELD_MAX_PROMPTS, k);
     return -1;
   }
   const int D = f->D;

@@ -19,7 +19,7 @@
  */
 #include <math.h>
 
-#include "config.h" /* VLFF_MAX_PROMPTS */
+#include "config.h" /* VLFF_FIELD_MAX_PROMPTS */
 
 static inline __attribute__((always_inline)) vf vsel(vi m, vf x, vf y) { return (vf)(((vi)x & m) | ((vi)y & ~m)); }
 
@@ -82,7 +82,7 @@ static inline __attribute__((always_inline)) void score_rows(const int mr, int t
 void SCORE_FN(int m, int H, int K, const float *hT, int ldh, const float *ewt, const float *eb, const float *rt,
               const float *rv, float r22, int gram, int *label, float *score, float *margin) {
   const int P = VW * NV;
-  vf lg[VLFF_MAX_PROMPTS][NV], acc[MR][NV];
+  vf lg[VLFF_FIELD_MAX_PROMPTS][NV], acc[MR][NV];
   for (int p0 = 0; p0 < m; p0 += P) {
     const float *hp = hT + p0;
     for (int k0 = 0; k0 < K; k0 += MR) {

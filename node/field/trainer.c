@@ -20,6 +20,7 @@
 #include <stdio.h>
 
 #include "field_internal.h"
+#include "mem.h"
 
 static void seterr(char *err, size_t n, const char *fmt, const char *what) {
   if (err && n) snprintf(err, n, fmt, what);
@@ -101,7 +102,7 @@ static int work_alloc(struct vlff_field *f, struct vlff_work *w) {
   w->din2 = xalloc(N * (f->geo + f->shdim) * fs, &ok);
   w->din3 = xalloc(N * f->geo * fs, &ok);
   w->denc = xalloc(N * f->E * fs, &ok);
-  size_t RD = R * (size_t)imax(f->D, imax(f->H, VLFF_MAX_PROMPTS));
+  size_t RD = R * (size_t)imax(f->D, imax(f->H, VLFF_FIELD_MAX_PROMPTS));
   w->hray = xalloc(R * f->H * fs, &ok);
   w->fray = xalloc(RD * fs, &ok);
   w->gf = xalloc(RD * fs, &ok);
@@ -125,28 +126,9 @@ void vlff_field_destroy(struct vlff_field *f) {
   if (f->pool) vlff_pool_destroy(f->pool);
   if (f->work)
     for (int i = 0; i < f->threads; i++) work_free(&f->work[i]);
-  free(f->work);
-  free(f->params);
-  free(f->adam_m);
-  free(f->adam_v);
-  free(f->grad);
-  free(f->wT);
-  free(f->occ.density);
-  free(f->occ.occ);
-  free(f->rays);
-  free(f->step_p);
-  free(f->step_denc);
-  free(f->chunk_n);
-  free(f->E_);
-  free(f->bal_feat);
-  free(f->EW);
-  free(f->EWt);
-  free(f->Eb);
-  free(f->G);
-  free(f->u);
-  free(f->Rt);
-  free(f->r12);
-  free(f);
+  VLFF_FREE_ALL(f->work, f->params, f->adam_m, f->adam_v, f->grad, f->wT, f->occ.density,
+                f->occ.occ, f->rays, f->step_p, f->step_denc, f->chunk_n, f->E_, f->bal_feat,
+                f->EW, f->EWt, f->Eb, f->G, f->u, f->Rt, f->r12, f);
 }
 
 struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, int threads,
@@ -227,11 +209,11 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   f->step_p = xalloc((size_t)nchunks * slot * 3 * fs, &ok);
   f->step_denc = xalloc((size_t)nchunks * slot * levels * f->enc.feats * fs, &ok);
   f->chunk_n = xalloc((size_t)nchunks * sizeof(int), &ok);
-  f->E_ = xalloc((size_t)VLFF_MAX_PROMPTS * f->D * fs, &ok);
+  f->E_ = xalloc((size_t)VLFF_FIELD_MAX_PROMPTS * f->D * fs, &ok);
   f->bal_feat = xalloc((size_t)f->D * fs, &ok);
-  f->EW = xalloc((size_t)VLFF_MAX_PROMPTS * f->H * fs, &ok);
-  f->EWt = xalloc((size_t)VLFF_MAX_PROMPTS * f->H * fs, &ok);
-  f->Eb = xalloc((size_t)VLFF_MAX_PROMPTS * fs, &ok);
+  f->EW = xalloc((size_t)VLFF_FIELD_MAX_PROMPTS * f->H * fs, &ok);
+  f->EWt = xalloc((size_t)VLFF_FIELD_MAX_PROMPTS * f->H * fs, &ok);
+  f->Eb = xalloc((size_t)VLFF_FIELD_MAX_PROMPTS * fs, &ok);
   f->G = xalloc((size_t)f->H * f->H * fs, &ok);
   f->u = xalloc((size_t)f->H * fs, &ok);
   f->Rt = xalloc((size_t)f->H * f->H * fs, &ok);
@@ -430,20 +412,47 @@ static void relu_scale_h(int n, float a, const float *restrict h, const float *r
   }
 }
 
-/* The chunk pipeline shared by training and rendering. */
-void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
-                      float *pslot, float *dencslot, int *nsamples) {
+/* ---- the chunk pipeline, stage by stage ----------------------------------
+ * Each stage runs once per chunk (its loops over rays and samples inside),
+ * so a call costs nothing beside its work, and the compiler inlines them all
+ * into vlff_field_chunk, which lists them in order. A stage copies what it
+ * reads of the chunk into locals: its loops call out (the clones above, the
+ * samplers), and a field read through a pointer could be reloaded after
+ * every call. */
+
+/* One chunk's state from stage to stage. */
+struct chunk {
+  const struct vlff_ray *rays;
+  int nr, train;
+  int need_feat;    /* MLP3 runs: a ray has a target feature, or rendering asks */
+  int N;            /* samples */
+  int n2, n3;       /* samples through MLP2 (live) and through MLP3 (with weight) */
+  const float *pm;  /* the MLPs' parameters */
+  float *c2;        /* MLP2's colours, n2 x 3, sigmoid applied */
+  const float *h3;  /* MLP3's last hidden layer, n3 x H */
+};
+
+/* Per-ray loss gradients: colour, depth, and the feature gradient's dot
+ * product with MLP3's output bias. */
+struct chunk_grads {
+  float rgb[VLFF_CHUNK_SAMPLES][3];
+  float depth[VLFF_CHUNK_SAMPLES], fb[VLFF_CHUNK_SAMPLES];
+};
+
+/* Each ray's samples between the scene box's entry (no nearer than
+ * train.near_m) and exit: uniform, around the ray's depth (training) or in
+ * occupied cells; their positions normalised into p, their spacing scaled to
+ * metres. Sets c->N. */
+static void chunk_sample(struct vlff_field *f, struct vlff_work *w, struct chunk *c, float *p) {
   const struct vlff_field_cfg *cfg = &f->cfg;
-  const int S = f->spr, geo = f->geo, shd = f->shdim, H = f->H, D = f->D;
-  const int in2w = geo + shd;
-  const int ld1 = f->m1.nout;
+  const struct vlff_ray *rays = c->rays;
+  const int nr = c->nr, train = c->train, S = f->spr;
   float bmin[3], bmax[3];
   for (int a = 0; a < 3; a++) {
     bmin[a] = (float)cfg->field.scene_min[a];
     bmax[a] = (float)cfg->field.scene_max[a];
   }
   const int uniform = cfg->train.sampling == VLFF_SAMPLING_UNIFORM;
-  float *p = pslot ? pslot : w->p;
   int N = 0;
   for (int r = 0; r < nr; r++) {
     const struct vlff_ray *ray = &rays[r];
@@ -475,22 +484,23 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
     w->ray_cnt[r] = cnt;
     N += cnt;
   }
-  *nsamples = N;
-  w->samples += N;
-  if (N > 0) vlff_field_density(f, w, p, N);
+  c->N = N;
+}
 
-  /* Weights; live samples (before termination) go to MLP2, those with weight
-   * to MLP3. */
-  int n2 = 0, n3 = 0;
+/* Each ray's weights from MLP1's densities; its live samples (before
+ * termination) become MLP2's inputs (geometry code and the view direction's
+ * SH), those with weight MLP3's (the code alone) when features are needed.
+ * Sets c->n2, c->n3. */
+static void chunk_select(struct vlff_field *f, struct vlff_work *w, struct chunk *c) {
+  const struct vlff_field_cfg *cfg = &f->cfg;
+  const struct vlff_ray *rays = c->rays;
+  const int nr = c->nr, need_feat = c->need_feat;
+  const int geo = f->geo, shd = f->shdim, in2w = geo + shd, ld1 = f->m1.nout;
   const float *out1 = w->a1[f->m1.nl - 1];
-  int need_feat = 0;
-  if (train)
-    for (int r = 0; r < nr; r++) need_feat |= rays[r].feat_index >= 0;
-  else
-    need_feat = f->render_feat;
+  int n2 = 0, n3 = 0;
   for (int r = 0; r < nr; r++) {
-    int o = w->ray_off[r], c = w->ray_cnt[r];
-    int used = c ? vlff_render_weights(w->sigma + o, w->delta + o, c, w->w + o, w->trans + o) : 0;
+    int o = w->ray_off[r], cnt = w->ray_cnt[r];
+    int used = cnt ? vlff_render_weights(w->sigma + o, w->delta + o, cnt, w->w + o, w->trans + o) : 0;
     w->ray_used[r] = used;
     float sh[16];
     float dn = sqrtf(rays[r].d[0] * rays[r].d[0] + rays[r].d[1] * rays[r].d[1] + rays[r].d[2] * rays[r].d[2]);
@@ -507,7 +517,16 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
       }
     }
   }
-  const float *pm = vlff_mlp_params(f);
+  c->n2 = n2, c->n3 = n3;
+}
+
+/* MLP2 (colour, through a sigmoid) on the live samples and MLP3's hidden
+ * layers on the weighted ones; the chunk's dense-layer FLOPs counted. Sets
+ * c->c2 and c->h3. */
+static void chunk_heads(struct vlff_field *f, struct vlff_work *w, struct chunk *c) {
+  const int N = c->N, n2 = c->n2, n3 = c->n3, nr = c->nr, train = c->train;
+  const int geo = f->geo, in2w = geo + f->shdim, H = f->H, D = f->D;
+  const float *pm = c->pm;
   float *c2 = NULL;
   if (n2) {
     vlff_mlp_forward(&f->m2, pm, w->in2, in2w, n2, f->m2.nl, w->a2);
@@ -517,52 +536,66 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
   w->flops += (double)N * vlff_mlp_flops(&f->m1, f->m1.nl, train) +
               (double)n2 * vlff_mlp_flops(&f->m2, f->m2.nl, train) +
               (double)n3 * vlff_mlp_flops(&f->m3, f->m3.nl - 1, train);
-  if (need_feat) w->flops += (train ? 6.0 : 2.0) * nr * H * D;
+  if (c->need_feat) w->flops += (train ? 6.0 : 2.0) * nr * H * D;
   const float *h3 = NULL;
   if (n3) {
     vlff_mlp_forward(&f->m3, pm, w->in3, geo, n3, f->m3.nl - 1, w->a3);
     h3 = w->a3[f->m3.nl - 2];
   }
-  /* Ray outputs. */
-  memset(w->hray, 0, (size_t)nr * H * sizeof(float));
-  {
-    int k2 = 0, k3 = 0;
-    for (int r = 0; r < nr; r++) {
-      int o = w->ray_off[r], used = w->ray_used[r];
-      float cr[3] = {0, 0, 0}, dep = 0, ws = 0, op = 0;
-      float *hr = w->hray + (size_t)r * H;
-      for (int s = o; s < o + used; s++, k2++) {
-        float ww = w->w[s];
-        for (int ch = 0; ch < 3; ch++) cr[ch] += ww * c2[(size_t)k2 * 3 + ch];
-        dep += ww * w->t[s];
-        op += ww;
-        if (k3 < n3 && w->sel3[k3] == s) {
-          const float *hs = h3 + (size_t)k3 * H;
-          axpy_h(H, ww, hs, hr);
-          ws += ww;
-          k3++;
-        }
-      }
-      memcpy(w->rgb + 3 * r, cr, sizeof(cr));
-      w->depth[r] = dep;
-      w->wsum[r] = ws;
-      w->opac[r] = op;
-    }
-  }
-  if (!train) return;
+  c->c2 = c2, c->h3 = h3;
+}
 
-  /* ---- loss and backward ---- */
-  const struct vlff_mlp *m3 = &f->m3;
-  const int last = m3->nl - 1;
-  const float *b3 = pm + m3->boff[last];
-  float *g = w->grad;
-  float grgb[VLFF_CHUNK_SAMPLES][3];
-  float gdep[VLFF_CHUNK_SAMPLES], gfb[VLFF_CHUNK_SAMPLES];
-  if (need_feat) {
-    vlff_gemm(nr, D, H, w->hray, H, 1, pm + m3->woff[last], D, w->fray, D, NULL, 0, 0);
-    for (int r = 0; r < nr; r++)
-      axpy_h(D, w->wsum[r], b3, w->fray + (size_t)r * D);
+/* Ray outputs: colour, depth and opacity composited from the samples, and
+ * MLP3's hidden layer rendered per ray (hray) with its weight sum. */
+static void chunk_composite(const struct vlff_field *f, struct vlff_work *w, const struct chunk *c) {
+  const int nr = c->nr, n3 = c->n3, H = f->H;
+  const float *c2 = c->c2, *h3 = c->h3;
+  memset(w->hray, 0, (size_t)nr * H * sizeof(float));
+  int k2 = 0, k3 = 0;
+  for (int r = 0; r < nr; r++) {
+    int o = w->ray_off[r], used = w->ray_used[r];
+    float cr[3] = {0, 0, 0}, dep = 0, ws = 0, op = 0;
+    float *hr = w->hray + (size_t)r * H;
+    for (int s = o; s < o + used; s++, k2++) {
+      float ww = w->w[s];
+      for (int ch = 0; ch < 3; ch++) cr[ch] += ww * c2[(size_t)k2 * 3 + ch];
+      dep += ww * w->t[s];
+      op += ww;
+      if (k3 < n3 && w->sel3[k3] == s) {
+        const float *hs = h3 + (size_t)k3 * H;
+        axpy_h(H, ww, hs, hr);
+        ws += ww;
+        k3++;
+      }
+    }
+    memcpy(w->rgb + 3 * r, cr, sizeof(cr));
+    w->depth[r] = dep;
+    w->wsum[r] = ws;
+    w->opac[r] = op;
   }
+}
+
+/* Each ray's feature: MLP3's output layer applied once to the rendered
+ * hidden layer, fray = hray W + wsum b (the layer is linear, so it commutes
+ * with rendering). */
+static void chunk_ray_features(const struct vlff_field *f, struct vlff_work *w, const struct chunk *c) {
+  const struct vlff_mlp *m3 = &f->m3;
+  const int last = m3->nl - 1, nr = c->nr, H = f->H, D = f->D;
+  const float *pm = c->pm, *b3 = pm + m3->boff[last];
+  vlff_gemm(nr, D, H, w->hray, H, 1, pm + m3->woff[last], D, w->fray, D, NULL, 0, 0);
+  for (int r = 0; r < nr; r++)
+    axpy_h(D, w->wsum[r], b3, w->fray + (size_t)r * D);
+}
+
+/* Each ray's losses against its targets (colour, depth, feature) into w's
+ * sums, their gradients into g (colour, depth), w->gf (feature, by ray) and
+ * MLP3's output bias gradient. */
+static void chunk_losses(struct vlff_field *f, struct vlff_work *w, const struct chunk *c, struct chunk_grads *g) {
+  const struct vlff_mlp *m3 = &f->m3;
+  const struct vlff_ray *rays = c->rays;
+  const int last = m3->nl - 1, nr = c->nr, need_feat = c->need_feat, D = f->D;
+  const float *b3 = c->pm + m3->boff[last];
+  float *grad = w->grad;
   for (int r = 0; r < nr; r++) {
     const struct vlff_ray *ray = &rays[r];
     /* A ray's target feature (D halves at a random pixel of a keyframe: a
@@ -573,15 +606,16 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
       const uint16_t *src = f->views[rays[r + 2].view].features + (size_t)rays[r + 2].feat_index * D;
       for (int k = 0; k < D; k += 32) __builtin_prefetch(src + k, 0, 2);
     }
-    grgb[r][0] = grgb[r][1] = grgb[r][2] = 0;
-    gdep[r] = 0;
-    gfb[r] = 0;
+    g->rgb[r][0] = g->rgb[r][1] = g->rgb[r][2] = 0;
+    g->depth[r] = 0;
+    g->fb[r] = 0;
     if (ray->has_rgb) {
-      float l = vlff_loss_rgb(w->rgb + 3 * r, ray->rgb, f->scale_rgb, grgb[r]);
+      float l = vlff_loss_rgb(w->rgb + 3 * r, ray->rgb, f->scale_rgb, g->rgb[r]);
       w->loss_rgb += l * f->scale_rgb;
       w->sq_rgb += l;
     }
-    if (ray->depth > 0) w->loss_depth += vlff_loss_depth(w->depth[r], ray->depth, f->scale_depth, &gdep[r]) * f->scale_depth;
+    if (ray->depth > 0)
+      w->loss_depth += vlff_loss_depth(w->depth[r], ray->depth, f->scale_depth, &g->depth[r]) * f->scale_depth;
     float *gfr = w->gf + (size_t)r * D;
     if (need_feat) {
       if (ray->feat_index >= 0) {
@@ -590,42 +624,58 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
         vlff_f16_to_f32_n(src, w->tfeat, (size_t)D);
         w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_loss, f->scale_feat, gfr) *
                         f->scale_feat;
-        gfb[r] = dot_h(D, gfr, b3);
-        axpy_h(D, w->wsum[r], gfr, g + m3->boff[last]);
+        g->fb[r] = dot_h(D, gfr, b3);
+        axpy_h(D, w->wsum[r], gfr, grad + m3->boff[last]);
       } else {
         memset(gfr, 0, (size_t)D * sizeof(float));
       }
     }
   }
-  if (need_feat) {
-    vlff_gemm(H, D, nr, w->hray, 1, H, w->gf, D, g + m3->woff[last], D, NULL, 1, 0);
-    vlff_gemm(nr, H, D, w->gf, D, 1, f->wT + m3->woff[last], H, w->dh, H, NULL, 0, 0);
-  }
-  /* Per-sample scalars e_s and the gradients into MLP2/MLP3 outputs. */
-  float *dout1 = w->dout1;
-  memset(dout1, 0, (size_t)N * ld1 * sizeof(float));
+}
+
+/* Backward through MLP3's output layer: its weight gradient, and dH = Wᵀ dF
+ * per ray (w->dh). */
+static void chunk_ray_features_backward(const struct vlff_field *f, struct vlff_work *w, const struct chunk *c) {
+  const struct vlff_mlp *m3 = &f->m3;
+  const int last = m3->nl - 1, nr = c->nr, H = f->H, D = f->D;
+  vlff_gemm(H, D, nr, w->hray, 1, H, w->gf, D, w->grad + m3->woff[last], D, NULL, 1, 0);
+  vlff_gemm(nr, H, D, w->gf, D, 1, f->wT + m3->woff[last], H, w->dh, H, NULL, 0, 0);
+}
+
+/* Per-sample scalars e_s (the loss's derivative by the sample's weight) and
+ * the gradients into MLP2's outputs (w->dy_a). */
+static void chunk_sample_grads(const struct vlff_field *f, struct vlff_work *w, const struct chunk *c,
+                               const struct chunk_grads *g) {
+  const int nr = c->nr, n3 = c->n3, H = f->H;
+  const float *c2 = c->c2, *h3 = c->h3;
   float *dy2 = w->dy_a;
-  float *dy3 = w->dy_b;  /* used after MLP2's backward is done with dy_b */
-  {
-    int k2 = 0;
-    for (int r = 0; r < nr; r++) {
-      int o = w->ray_off[r], used = w->ray_used[r];
-      for (int s = o; s < o + used; s++, k2++) {
-        const float *c = c2 + (size_t)k2 * 3;
-        float e = grgb[r][0] * c[0] + grgb[r][1] * c[1] + grgb[r][2] * c[2] + gdep[r] * w->t[s];
-        float ww = w->w[s];
-        for (int ch = 0; ch < 3; ch++) dy2[(size_t)k2 * 3 + ch] = ww * grgb[r][ch] * c[ch] * (1.0f - c[ch]);
-        w->e[s] = e;
-      }
+  int k2 = 0;
+  for (int r = 0; r < nr; r++) {
+    int o = w->ray_off[r], used = w->ray_used[r];
+    for (int s = o; s < o + used; s++, k2++) {
+      const float *cs = c2 + (size_t)k2 * 3;
+      float e = g->rgb[r][0] * cs[0] + g->rgb[r][1] * cs[1] + g->rgb[r][2] * cs[2] + g->depth[r] * w->t[s];
+      float ww = w->w[s];
+      for (int ch = 0; ch < 3; ch++) dy2[(size_t)k2 * 3 + ch] = ww * g->rgb[r][ch] * cs[ch] * (1.0f - cs[ch]);
+      w->e[s] = e;
     }
   }
   if (n3) {
     for (int k3 = 0; k3 < n3; k3++) {
       int s = w->sel3[k3], r = w->ray_of[s];
       const float *hs = h3 + (size_t)k3 * H, *dhr = w->dh + (size_t)r * H;
-      w->e[s] += gfb[r] + dot_h(H, dhr, hs);
+      w->e[s] += g->fb[r] + dot_h(H, dhr, hs);
     }
   }
+}
+
+/* Backward through rendering: each sample's density gradient, into MLP1's
+ * density output (w->dout1, whose code columns the heads add to). */
+static void chunk_density_grads(const struct vlff_field *f, struct vlff_work *w, const struct chunk *c) {
+  const int nr = c->nr, ld1 = f->m1.nout;
+  const float *out1 = w->a1[f->m1.nl - 1];
+  float *dout1 = w->dout1;
+  memset(dout1, 0, (size_t)c->N * ld1 * sizeof(float));
   for (int r = 0; r < nr; r++) {
     int o = w->ray_off[r], used = w->ray_used[r];
     if (!used) continue;
@@ -635,34 +685,84 @@ void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vl
       dout1[(size_t)s * ld1] = raw < 15.0f ? w->dsig[s] * w->sigma[s] : 0.0f;
     }
   }
-  if (n2) {
-    vlff_mlp_backward(&f->m2, f->wT, w->in2, in2w, n2, f->m2.nl, w->a2, dy2, g, w->din2, w->dy_b);
-    for (int k = 0; k < n2; k++) {
-      float *d1 = dout1 + (size_t)w->sel2[k] * ld1 + 1;
-      const float *d2 = w->din2 + (size_t)k * in2w;
-      for (int j = 0; j < geo; j++) d1[j] += d2[j];
-    }
+}
+
+/* Backward through MLP2; its input gradient's code part added to MLP1's
+ * output gradient. */
+static void chunk_colour_backward(struct vlff_field *f, struct vlff_work *w, const struct chunk *c) {
+  const int n2 = c->n2, geo = f->geo, in2w = geo + f->shdim, ld1 = f->m1.nout;
+  float *dout1 = w->dout1;
+  if (!n2) return;
+  vlff_mlp_backward(&f->m2, f->wT, w->in2, in2w, n2, f->m2.nl, w->a2, w->dy_a, w->grad, w->din2, w->dy_b);
+  for (int k = 0; k < n2; k++) {
+    float *d1 = dout1 + (size_t)w->sel2[k] * ld1 + 1;
+    const float *d2 = w->din2 + (size_t)k * in2w;
+    for (int j = 0; j < geo; j++) d1[j] += d2[j];
   }
-  if (n3) {
-    for (int k3 = 0; k3 < n3; k3++) {
-      int s = w->sel3[k3], r = w->ray_of[s];
-      float ww = w->w[s];
-      const float *hs = h3 + (size_t)k3 * H, *dhr = w->dh + (size_t)r * H;
-      float *d = dy3 + (size_t)k3 * H;
-      relu_scale_h(H, ww, hs, dhr, d);
-    }
-    vlff_mlp_backward(m3, f->wT, w->in3, geo, n3, m3->nl - 1, w->a3, dy3, g, w->din3, w->dy_a);
-    for (int k = 0; k < n3; k++) {
-      float *d1 = dout1 + (size_t)w->sel3[k] * ld1 + 1;
-      const float *d3 = w->din3 + (size_t)k * geo;
-      for (int j = 0; j < geo; j++) d1[j] += d3[j];
-    }
+}
+
+/* Backward through MLP3's hidden layers (dh_s = w_s dH through the ReLU;
+ * w->dy_b is free again once MLP2's backward is done); its input gradient
+ * added to MLP1's output gradient. */
+static void chunk_feature_backward(struct vlff_field *f, struct vlff_work *w, const struct chunk *c) {
+  const struct vlff_mlp *m3 = &f->m3;
+  const int n3 = c->n3, geo = f->geo, H = f->H, ld1 = f->m1.nout;
+  const float *h3 = c->h3;
+  float *dout1 = w->dout1, *dy3 = w->dy_b;
+  if (!n3) return;
+  for (int k3 = 0; k3 < n3; k3++) {
+    int s = w->sel3[k3], r = w->ray_of[s];
+    float ww = w->w[s];
+    const float *hs = h3 + (size_t)k3 * H, *dhr = w->dh + (size_t)r * H;
+    float *d = dy3 + (size_t)k3 * H;
+    relu_scale_h(H, ww, hs, dhr, d);
   }
-  if (N) vlff_mlp_backward(&f->m1, f->wT, w->enc, f->E, N, f->m1.nl, w->a1, dout1, g, w->denc, w->dy_b);
-  /* Level-major copy while it is in cache: each level's scatter (one thread
-   * per level) then streams its own contiguous gradients. Levels masked by
-   * vlff_field_set_levels get no scatter, so need no copy. */
+  vlff_mlp_backward(m3, f->wT, w->in3, geo, n3, m3->nl - 1, w->a3, dy3, w->grad, w->din3, w->dy_a);
+  for (int k = 0; k < n3; k++) {
+    float *d1 = dout1 + (size_t)w->sel3[k] * ld1 + 1;
+    const float *d3 = w->din3 + (size_t)k * geo;
+    for (int j = 0; j < geo; j++) d1[j] += d3[j];
+  }
+}
+
+/* Backward through MLP1 to the encoding, then a level-major copy while it
+ * is in cache: each level's scatter (one thread per level) then streams its
+ * own contiguous gradients. Levels masked by vlff_field_set_levels get no
+ * scatter, so need no copy. */
+static void chunk_encoding_backward(struct vlff_field *f, struct vlff_work *w, const struct chunk *c,
+                                    float *dencslot) {
+  const int N = c->N;
+  if (N) vlff_mlp_backward(&f->m1, f->wT, w->enc, f->E, N, f->m1.nl, w->a1, w->dout1, w->grad, w->denc, w->dy_b);
   level_major(N, f->enc.active, f->enc.feats, w->denc, f->E, dencslot);
+}
+
+/* The chunk pipeline shared by training and rendering. */
+void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
+                      float *pslot, float *dencslot, int *nsamples) {
+  struct chunk c = {.rays = rays, .nr = nr, .train = train, .pm = vlff_mlp_params(f)};
+  float *p = pslot ? pslot : w->p;
+  chunk_sample(f, w, &c, p);
+  *nsamples = c.N;
+  w->samples += c.N;
+  if (c.N > 0) vlff_field_density(f, w, p, c.N);
+  if (train)
+    for (int r = 0; r < nr; r++) c.need_feat |= rays[r].feat_index >= 0;
+  else
+    c.need_feat = f->render_feat;
+  chunk_select(f, w, &c);
+  chunk_heads(f, w, &c);
+  chunk_composite(f, w, &c);
+  if (!train) return;
+
+  struct chunk_grads g;
+  if (c.need_feat) chunk_ray_features(f, w, &c);
+  chunk_losses(f, w, &c, &g);
+  if (c.need_feat) chunk_ray_features_backward(f, w, &c);
+  chunk_sample_grads(f, w, &c, &g);
+  chunk_density_grads(f, w, &c);
+  chunk_colour_backward(f, w, &c);
+  chunk_feature_backward(f, w, &c);
+  chunk_encoding_backward(f, w, &c, dencslot);
 }
 
 /* ---- one optimisation step ---------------------------------------------- */

@@ -26,6 +26,7 @@
 #include "field.h" /* float16 conversions */
 #include "hot.h"
 #include "log.h"
+#include "mem.h"
 
 static const char *const class_names[VLFF_SIM_CLASSES] = {
     "wall",    "floor",       "cabinet", "bed",          "chair",          "sofa",   "table",
@@ -1434,10 +1435,8 @@ struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vl
 
 void vlff_sim_destroy(struct vlff_sim *s) {
   if (!s) return;
-  free(s->prims), free(s->nodes), free(s->order);
-  free(s->proto), free(s->text), free(s->generic);
-  free(s->obj_vec), free(s->obj_mix), free(s->obj_to);
-  free(s);
+  VLFF_FREE_ALL(s->prims, s->nodes, s->order, s->proto, s->text, s->generic, s->obj_vec, s->obj_mix,
+                s->obj_to, s);
 }
 
 struct vlff_sim_frame *vlff_sim_frame_new(const struct vlff_sim *s) {

@@ -37,12 +37,12 @@
 
 static const struct vlff_cli cli = {
     "vlff-sim",
-    "Usage: vlff-sim [--config FILE] [--seed N] [--frames N] [--rate HZ] [--count N]\n"
+    "Usage: vlff-sim [-c FILE] [--seed N] [--frames N] [--rate HZ] [--count N]\n"
     "                [--no-features] [--write-dataset DIR] [--quiet]\n"
     "Publish the synthetic room into the frame ring (and its features into the\n"
     "feature ring) at sim.rate_hz, or write it as a scene directory.\n"
     "\n"
-    "  --config FILE        vlff YAML config (default: built-in defaults)\n"
+    "  -c, --config FILE    vlff YAML config (default: built-in defaults)\n"
     "  --seed N             sim.seed\n"
     "  --frames N           sim.frames\n"
     "  --rate HZ            sim.rate_hz\n"
@@ -132,6 +132,19 @@ static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, cons
   return 0;
 }
 
+/* Commits a record of len bytes to ring; what names the ring. A truncated
+ * ring (EPIPE) is logged and the stream goes on (the library replaces the
+ * segment); any other failure ends it: -1. */
+static int commit(struct vlff_ring *ring, uint64_t len, const char *what) {
+  if (vlff_ring_commit(ring, len) == 0) return 0;
+  if (errno != EPIPE) {
+    fprintf(stderr, "vlff-sim: %s commit: %s\n", what, strerror(errno));
+    return -1;
+  }
+  VLFF_ERROR(TAG, "%s ring: %s", what, vlff_shm_last_message());
+  return 0;
+}
+
 static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long count, int features, int quiet) {
   char err[512];
   int W, H, fw, fh, D;
@@ -201,13 +214,9 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       memcpy(rgb + (size_t)v * h->plane[VLFF_PLANE_COLOR].stride, f->rgb + (size_t)v * W * 3, (size_t)W * 3);
       memcpy(dep + (size_t)v * h->plane[VLFF_PLANE_DEPTH].stride, f->depth_mm + (size_t)v * W, (size_t)W * 2);
     }
-    if (vlff_ring_commit(ring, len) < 0) {
-      if (errno != EPIPE) {
-        fprintf(stderr, "vlff-sim: commit: %s\n", strerror(errno));
-        status = 1;
-        break;
-      }
-      VLFF_ERROR(TAG, "frame ring: %s", vlff_shm_last_message());
+    if (commit(ring, len, "frame") < 0) {
+      status = 1;
+      break;
     }
     if (fring) {
       struct vlff_feature_hdr *fhd = vlff_ring_reserve(fring, NULL);
@@ -225,13 +234,9 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       /* the ring carries [D][h][w]; the sim makes [h][w][D] */
       uint16_t *out = (uint16_t *)((uint8_t *)fhd + fhd->data_offset);
       vlff_transpose_u16(f->features, (size_t)fw * fh, (size_t)D, out);
-      if (vlff_ring_commit(fring, flen) < 0) {
-        if (errno != EPIPE) {
-          fprintf(stderr, "vlff-sim: feature commit: %s\n", strerror(errno));
-          status = 1;
-          break;
-        }
-        VLFF_ERROR(TAG, "feature ring: %s", vlff_shm_last_message());
+      if (commit(fring, flen, "feature") < 0) {
+        status = 1;
+        break;
       }
     }
     if (!quiet && id % 50 == 0) VLFF_INFO(TAG, "frame %lld (scene frame %lld) published, %lld late", id, idx, late);
@@ -261,9 +266,9 @@ int main(int argc, char **argv) {
   long long count = 0;
   int features = 1, quiet = 0;
   char err[1024];
-  enum { O_CONFIG = 256, O_SEED, O_FRAMES, O_RATE, O_COUNT, O_NOFEAT, O_DATASET, O_QUIET };
+  enum { O_SEED = 256, O_FRAMES, O_RATE, O_COUNT, O_NOFEAT, O_DATASET, O_QUIET };
   static const struct option longopts[] = {
-      {"config", required_argument, NULL, O_CONFIG}, {"seed", required_argument, NULL, O_SEED},
+      {"config", required_argument, NULL, 'c'}, {"seed", required_argument, NULL, O_SEED},
       {"frames", required_argument, NULL, O_FRAMES}, {"rate", required_argument, NULL, O_RATE},
       {"count", required_argument, NULL, O_COUNT},   {"no-features", no_argument, NULL, O_NOFEAT},
       {"write-dataset", required_argument, NULL, O_DATASET}, {"quiet", no_argument, NULL, O_QUIET},
@@ -273,10 +278,10 @@ int main(int argc, char **argv) {
    * is not overwritten by the file. */
   const char *seed = NULL, *frames = NULL, *rate = NULL, *cnt = NULL;
   int c, status;
-  while ((c = vlff_cli_next(&cli, argc, argv, "", longopts, &status)) != -1) {
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:", longopts, &status)) != -1) {
     switch (c) {
     case VLFF_CLI_EXIT: return status;
-    case O_CONFIG: config = optarg; break;
+    case 'c': config = optarg; break;
     case O_SEED: seed = optarg; break;
     case O_FRAMES: frames = optarg; break;
     case O_RATE: rate = optarg; break;
@@ -288,10 +293,7 @@ int main(int argc, char **argv) {
     }
   }
   if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
-  if (config && vlff_config_load(config, &cfg, err, sizeof err) < 0) {
-    fprintf(stderr, "%s\n", err);
-    return 1;
-  }
+  if (config && vlff_config_load(config, &cfg, err, sizeof err) < 0) return vlff_cli_config_error(err);
   double x;
   if (seed && (!parse_num(seed, &x) || x < 0 || x > 2147483647 || x != (int)x))
     return vlff_cli_usage_error(&cli, "--seed: expected an integer in 0..2147483647, got '%s'", seed);

@@ -56,9 +56,11 @@ struct vlff_feed {
   size_t changed_cap;
   uint64_t fps_head, fps_t_ns;
   double fps;
+  uint64_t ring_pose_ns; /* when a frame last carried a pose (0 = never) */
   uint64_t last_status_ns;
   /* the latest message of each channel; the map ones are built on demand */
   struct vlff_view_msg *current[VLFF_VIEW_CH_COUNT + 1];
+  uint64_t encoded[VLFF_VIEW_CH_COUNT + 1]; /* messages built, per channel */
 };
 
 static uint64_t real_now_ns(void) {
@@ -89,6 +91,14 @@ static void label_rgb(unsigned label, uint8_t rgb[3]) {
   rgb[1] = (uint8_t)lround(g * 255);
   rgb[2] = (uint8_t)lround(b * 255);
 }
+
+/* Every message the feed builds starts here, so that encoded[] counts them all. */
+static struct vlff_view_msg *feed_msg(struct vlff_feed *f, int ch, size_t cap) {
+  f->encoded[ch]++;
+  return vlff_view_msg_new(ch, cap);
+}
+
+static int wants(unsigned wanted, int ch) { return (wanted >> ch) & 1u; }
 
 static void set_current(struct vlff_feed *f, int ch, struct vlff_view_msg *m) {
   vlff_view_msg_unref(f->current[ch]);
@@ -127,6 +137,10 @@ void vlff_feed_free(struct vlff_feed *f) {
 }
 
 uint64_t vlff_feed_version(const struct vlff_feed *f) { return f->m.version; }
+
+uint64_t vlff_feed_encoded(const struct vlff_feed *f, int ch) {
+  return ch >= 1 && ch <= VLFF_VIEW_CH_COUNT ? f->encoded[ch] : 0;
+}
 
 /* ------------------------------------------------------------ map messages */
 
@@ -196,12 +210,13 @@ static void palette(uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3]) {
 /* The scene message: the listed bricks (dirty == NULL: every brick; full also
  * deletes every entity the client may hold from an earlier map). Updates
  * brick_sent. */
-static struct vlff_view_msg *scene_msg(struct feed_map *m, const uint8_t *dirty, uint32_t edge, uint64_t t,
+static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty, uint32_t edge, uint64_t t,
                                        int update_sent) {
+  struct feed_map *m = &f->m;
   uint32_t nb = brick_count(m, edge);
   uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
   palette(rgb);
-  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_SCENE, 4096), 0};
+  struct jw w = {feed_msg(f, VLFF_VIEW_CH_SCENE, 4096), 0};
   if (!w.m) return NULL;
   w.m->t_ns = t;
   w.m->version = m->version;
@@ -252,8 +267,9 @@ static void write_map_header(struct jw *w, const struct feed_map *m, int full) {
   jw_f(w, "],\"occupied\":%llu,\"voxels\":[", (unsigned long long)m->occupied);
 }
 
-static struct vlff_view_msg *voxels_full_msg(const struct feed_map *m, uint64_t t) {
-  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_VOXELS, 4096), 0};
+static struct vlff_view_msg *voxels_full_msg(struct vlff_feed *f, uint64_t t) {
+  const struct feed_map *m = &f->m;
+  struct jw w = {feed_msg(f, VLFF_VIEW_CH_VOXELS, 4096), 0};
   if (!w.m) return NULL;
   w.m->t_ns = t;
   w.m->version = m->version;
@@ -280,7 +296,7 @@ static void count_labels(struct feed_map *m) {
   }
 }
 
-static struct vlff_view_msg *label_image_msg(const struct vlff_feed *f, const struct vlff_map_label_image *li) {
+static struct vlff_view_msg *label_image_msg(struct vlff_feed *f, const struct vlff_map_label_image *li) {
   size_t px = (size_t)li->width * li->height;
   uint8_t *rgb = malloc(px * 3 + 1);
   if (!rgb) return NULL;
@@ -294,7 +310,7 @@ static struct vlff_view_msg *label_image_msg(const struct vlff_feed *f, const st
     else if (l == VLFF_LABEL_UNKNOWN) o[0] = o[1] = o[2] = 0;
     else o[0] = o[1] = o[2] = 128;
   }
-  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_LABELS, px * 4 + 512), 0};
+  struct jw w = {feed_msg(f, VLFF_VIEW_CH_LABELS, px * 4 + 512), 0};
   if (w.m) {
     w.m->t_ns = to_real(f, li->t_ns);
     jw_s(&w, "{\"timestamp\":");
@@ -309,24 +325,11 @@ static struct vlff_view_msg *label_image_msg(const struct vlff_feed *f, const st
 }
 
 /* Row-major camera-to-world matrix to a FrameTransform world -> camera. */
-static struct vlff_view_msg *pose_msg(uint64_t t, const double P[16]) {
-  double r00 = P[0], r01 = P[1], r02 = P[2], r10 = P[4], r11 = P[5], r12 = P[6], r20 = P[8], r21 = P[9],
-         r22 = P[10];
-  double qw, qx, qy, qz, tr = r00 + r11 + r22;
-  if (tr > 0) {
-    double s = sqrt(tr + 1.0) * 2;
-    qw = 0.25 * s, qx = (r21 - r12) / s, qy = (r02 - r20) / s, qz = (r10 - r01) / s;
-  } else if (r00 > r11 && r00 > r22) {
-    double s = sqrt(1.0 + r00 - r11 - r22) * 2;
-    qw = (r21 - r12) / s, qx = 0.25 * s, qy = (r01 + r10) / s, qz = (r02 + r20) / s;
-  } else if (r11 > r22) {
-    double s = sqrt(1.0 + r11 - r00 - r22) * 2;
-    qw = (r02 - r20) / s, qx = (r01 + r10) / s, qy = 0.25 * s, qz = (r12 + r21) / s;
-  } else {
-    double s = sqrt(1.0 + r22 - r00 - r11) * 2;
-    qw = (r10 - r01) / s, qx = (r02 + r20) / s, qy = (r12 + r21) / s, qz = 0.25 * s;
-  }
-  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_POSE, 512), 0};
+static struct vlff_view_msg *pose_msg(struct vlff_feed *f, uint64_t t, const double P[16]) {
+  double q[4]; /* w x y z */
+  vlff_pose_quaternion(P, q);
+  double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+  struct jw w = {feed_msg(f, VLFF_VIEW_CH_POSE, 512), 0};
   if (!w.m) return NULL;
   w.m->t_ns = t;
   jw_s(&w, "{\"timestamp\":");
@@ -429,8 +432,10 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
 
   if (full) {
     count_labels(m);
-    struct vlff_view_msg *s = wanted & 1u << VLFF_VIEW_CH_SCENE ? scene_msg(m, NULL, edge, t, 1) : NULL;
-    struct vlff_view_msg *vx = voxels_full_msg(m, t);
+    /* a channel nobody subscribes to is not encoded: vlff_feed_current builds it
+     * for its first subscriber */
+    struct vlff_view_msg *s = wants(wanted, VLFF_VIEW_CH_SCENE) ? scene_msg(f, NULL, edge, t, 1) : NULL;
+    struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_full_msg(f, t) : NULL;
     set_current(f, VLFF_VIEW_CH_SCENE, s);
     set_current(f, VLFF_VIEW_CH_VOXELS, vx);
     /* the small voxel message first: it is not queued behind the scene */
@@ -476,7 +481,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
         }
       }
     count_labels(m);
-    struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_VOXELS, 64 + changed * 16), 0};
+    struct jw w = {wants(wanted, VLFF_VIEW_CH_VOXELS) ? feed_msg(f, VLFF_VIEW_CH_VOXELS, 64 + changed * 16) : NULL, 0};
     struct vlff_view_msg *vx = NULL, *s = NULL;
     if (w.m) {
       w.m->t_ns = t;
@@ -491,7 +496,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
     }
     /* a version that changed no voxel still reaches the voxel channel (clients
      * learn the version); the scene has nothing to replace then */
-    if (changed && (wanted & 1u << VLFF_VIEW_CH_SCENE)) s = scene_msg(m, dirty, edge, t, 1);
+    if (changed && wants(wanted, VLFF_VIEW_CH_SCENE)) s = scene_msg(f, dirty, edge, t, 1);
     free(dirty);
     if (vx && nout < cap) out[nout++] = vx;
     else vlff_view_msg_unref(vx);
@@ -502,16 +507,21 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
     set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
   }
 
-  if (info.has_label_image && info.label_image.t_ns != m->label_image_t_ns && (wanted & 1u << VLFF_VIEW_CH_LABELS) &&
-      nout < cap) {
+  if (info.has_label_image && info.label_image.t_ns != m->label_image_t_ns) {
     m->label_image_t_ns = info.label_image.t_ns;
-    struct vlff_view_msg *li = label_image_msg(f, &info.label_image);
-    if (li) {
-      out[nout++] = li;
-      set_current(f, VLFF_VIEW_CH_LABELS, li);
+    /* a newer image than the one kept: a later subscriber waits for the next */
+    set_current(f, VLFF_VIEW_CH_LABELS, NULL);
+    if (wants(wanted, VLFF_VIEW_CH_LABELS) && nout < cap) {
+      struct vlff_view_msg *li = label_image_msg(f, &info.label_image);
+      if (li) {
+        out[nout++] = li;
+        set_current(f, VLFF_VIEW_CH_LABELS, li);
+      }
     }
-    if ((!f->ring || !f->current[VLFF_VIEW_CH_IMAGE]) && valid_pose(info.label_image.pose) && nout < cap) {
-      struct vlff_view_msg *pm = pose_msg(to_real(f, info.label_image.t_ns), info.label_image.pose);
+    /* the camera pose comes from the frames when they carry one, else from here */
+    if ((!f->ring || !f->ring_pose_ns) && wants(wanted, VLFF_VIEW_CH_POSE) && valid_pose(info.label_image.pose) &&
+        nout < cap) {
+      struct vlff_view_msg *pm = pose_msg(f, to_real(f, info.label_image.t_ns), info.label_image.pose);
       if (pm) {
         out[nout++] = pm;
         set_current(f, VLFF_VIEW_CH_POSE, pm);
@@ -592,8 +602,8 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
   const char *enc = image_encoding(pl->format);
   const uint8_t *px = vlff_frame_plane(f->rec, VLFF_PLANE_COLOR);
   int nout = 0;
-  if (enc && px) {
-    struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_IMAGE, pl->size / 3 * 4 + 512), 0};
+  if (enc && px && wants(wanted, VLFF_VIEW_CH_IMAGE)) {
+    struct jw w = {feed_msg(f, VLFF_VIEW_CH_IMAGE, pl->size / 3 * 4 + 512), 0};
     if (w.m) {
       w.m->t_ns = to_real(f, h->t_host_ns);
       jw_s(&w, "{\"timestamp\":");
@@ -609,8 +619,9 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
       }
     }
   }
-  if ((h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose) && nout < cap) {
-    struct vlff_view_msg *pm = pose_msg(to_real(f, h->pose_t_ns ? h->pose_t_ns : h->t_host_ns), h->pose);
+  if ((h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose)) f->ring_pose_ns = now;
+  if ((h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose) && wants(wanted, VLFF_VIEW_CH_POSE) && nout < cap) {
+    struct vlff_view_msg *pm = pose_msg(f, to_real(f, h->pose_t_ns ? h->pose_t_ns : h->t_host_ns), h->pose);
     if (pm) {
       out[nout++] = pm;
       set_current(f, VLFF_VIEW_CH_POSE, pm);
@@ -667,7 +678,7 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
 static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_view_counters *c) {
   struct feed_map *m = &f->m;
   uint64_t t = real_now_ns();
-  struct jw w = {vlff_view_msg_new(VLFF_VIEW_CH_STATUS, 2048), 0};
+  struct jw w = {feed_msg(f, VLFF_VIEW_CH_STATUS, 2048), 0};
   if (!w.m) return NULL;
   w.m->t_ns = t;
   jw_s(&w, "{\"map\":{\"segment\":");
@@ -697,10 +708,13 @@ static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_v
        f->fps);
   jw_f(&w,
        "\"viewer\":{\"clients\":%d,\"connections\":%llu,\"dropped_slow\":%llu,\"refused\":%llu,\"bad_requests\":%llu,"
-       "\"prompts_posted\":%llu,\"messages_sent\":%llu,\"bytes_sent\":%llu}}",
+       "\"prompts_posted\":%llu,\"messages_sent\":%llu,\"bytes_sent\":%llu,\"http_refused\":{",
        c->clients, (unsigned long long)c->connections, (unsigned long long)c->dropped_slow,
        (unsigned long long)c->refused, (unsigned long long)c->bad_requests, (unsigned long long)c->prompts_posted,
        (unsigned long long)c->messages_sent, (unsigned long long)c->bytes_sent);
+  for (int i = 0; i < VLFF_VIEW_HTTP_N; i++)
+    jw_f(&w, "%s\"%d\":%llu", i ? "," : "", vlff_view_http_status(i), (unsigned long long)c->http_refused[i]);
+  jw_s(&w, "}}}");
   return jw_finish(&w);
 }
 
@@ -710,7 +724,7 @@ int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsi
   int n = map_poll(f, wanted, out, out_cap);
   n += frames_poll(f, wanted, out + n, out_cap - n);
   uint64_t now = vlff_shm_now_ns();
-  if (n < out_cap && (f->m.version != before || now - f->last_status_ns >= NS)) {
+  if (n < out_cap && wants(wanted, VLFF_VIEW_CH_STATUS) && (f->m.version != before || now - f->last_status_ns >= NS)) {
     struct vlff_view_msg *s = status_msg(f, c);
     if (s) {
       out[n++] = s;
@@ -727,8 +741,8 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch) {
     uint64_t t = to_real(f, f->m.publish_ns);
     /* deltas are not built while nobody subscribes to the scene: the whole scene
      * sent now is what its clients hold from here on */
-    if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(&f->m, NULL, f->p.brick, t, 1);
-    else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(&f->m, t);
+    if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(f, NULL, f->p.brick, t, 1);
+    else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(f, t);
   }
   return vlff_view_msg_ref(f->current[ch]);
 }

@@ -5,6 +5,7 @@
  * on one port, until SIGINT/SIGTERM.
  */
 #include "cli.h"
+#include "files.h"
 #include "view.h"
 
 #include <errno.h>
@@ -64,23 +65,26 @@ static int parse_num(const char *opt, const char *s, double lo, double hi, doubl
   return 0;
 }
 
-/* The token: the first line of a file, at least 8 and at most 256 characters. */
+/* The token: the first line of a regular file of at most 4 KiB, 8..256 characters.
+ * Read through vlff_read_file so that a FIFO, device or directory named there is
+ * refused at once instead of blocking start-up on open() or read(). */
 static char *read_token(const char *path) {
-  FILE *f = fopen(path, "r");
-  if (!f) {
-    vlff_cli_error(&cli, "--token-file %s: %s", path, strerror(errno));
+  uint8_t *buf;
+  size_t len;
+  char err[512];
+  if (vlff_read_file(path, 4096, &buf, &len, err, sizeof err) != 0) {
+    vlff_cli_error(&cli, "--token-file %s", err);
     return NULL;
   }
-  char buf[512];
-  char *line = fgets(buf, sizeof buf, f);
-  fclose(f);
-  if (line) buf[strcspn(buf, "\r\n")] = 0;
-  size_t n = line ? strlen(buf) : 0;
+  char *line = (char *)buf;
+  line[strcspn(line, "\r\n")] = 0;
+  size_t n = strlen(line);
   if (n < 8 || n > 256) {
     fprintf(stderr, "vlff-view: %s:1: the token must be 8..256 characters on the first line (found %zu)\n", path, n);
+    free(buf);
     return NULL;
   }
-  return strdup(buf);
+  return line;
 }
 
 static int is_dir_with_index(const char *dir) {

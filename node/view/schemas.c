@@ -3,8 +3,10 @@
  * schemas.c - the channels' topics and JSON Schemas, as advertised to clients.
  *
  * The foxglove.* schemas follow the published Foxglove message definitions
- * (field names and types); Foxglove picks its panels by schema name and decodes
- * JSON messages with these schemas, so a field misspelt here is a blank panel there.
+ * (field names, types and required fields; test_view_foxglove compares them with
+ * the npm package @foxglove/schemas); Foxglove picks its panels by schema name and
+ * decodes JSON messages with these schemas, so a field misspelt here is a blank
+ * panel there.
  * Byte arrays are base64 strings, as Foxglove expects of JSON-encoded bytes.
  */
 #include "view.h"
@@ -28,7 +30,8 @@ static const char scene_schema[] =
     "\"pose\":" POSE_S ",\"size\":" VEC3_S ",\"color\":" COLOR_S "},\"required\":[\"pose\",\"size\",\"color\"]}},"
     "\"spheres\":" ARR_S ",\"cylinders\":" ARR_S ",\"lines\":" ARR_S ",\"triangles\":" ARR_S ","
     "\"texts\":" ARR_S ",\"models\":" ARR_S "},"
-    "\"required\":[\"timestamp\",\"frame_id\",\"id\",\"lifetime\",\"frame_locked\",\"cubes\"]}}},"
+    "\"required\":[\"timestamp\",\"frame_id\",\"id\",\"lifetime\",\"frame_locked\",\"metadata\",\"arrows\",\"cubes\","
+    "\"spheres\",\"cylinders\",\"lines\",\"triangles\",\"texts\",\"models\"]}}},"
     "\"required\":[\"deletions\",\"entities\"]}";
 
 static const char voxels_schema[] =
@@ -84,7 +87,12 @@ static const char status_schema[] =
     "\"head\":{\"type\":\"integer\"},\"generation\":{\"type\":\"integer\"},\"fps\":{\"type\":\"number\"}}},"
     "\"viewer\":{\"type\":\"object\",\"properties\":{\"clients\":{\"type\":\"integer\"},\"connections\":{\"type\":\"integer\"},"
     "\"dropped_slow\":{\"type\":\"integer\"},\"refused\":{\"type\":\"integer\"},\"bad_requests\":{\"type\":\"integer\"},"
-    "\"prompts_posted\":{\"type\":\"integer\"},\"messages_sent\":{\"type\":\"integer\"},\"bytes_sent\":{\"type\":\"integer\"}}}},"
+    "\"prompts_posted\":{\"type\":\"integer\"},\"messages_sent\":{\"type\":\"integer\"},\"bytes_sent\":{\"type\":\"integer\"},"
+    "\"http_refused\":{\"type\":\"object\",\"description\":\"HTTP requests refused, by status: 400 malformed, 404 no such "
+    "file, 405 not GET or HEAD, 408 no whole head in time, 414 target too long, 431 head too large, 503 too many "
+    "connections, 505 not HTTP/1.x\",\"properties\":{\"400\":{\"type\":\"integer\"},\"404\":{\"type\":\"integer\"},"
+    "\"405\":{\"type\":\"integer\"},\"408\":{\"type\":\"integer\"},\"414\":{\"type\":\"integer\"},"
+    "\"431\":{\"type\":\"integer\"},\"503\":{\"type\":\"integer\"},\"505\":{\"type\":\"integer\"}}}}}},"
     "\"required\":[\"map\",\"learner\",\"frames\",\"viewer\"]}";
 
 static const struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {

@@ -15,19 +15,68 @@
  * a Foxglove status message naming what is wrong and is counted; the connection
  * stays. An oversized message, too many clients or a foreign subprotocol close the
  * connection with a WebSocket close reason or an HTTP error saying so.
+ *
+ * Two vhosts: the listening one accepts every connection as a raw socket into the
+ * gate, which reads the request head and checks it (page.h) before libwebsockets'
+ * HTTP parser sees a byte; a refused head gets its HTTP status and sentence from
+ * the gate, a passed one is handed with its bytes to the second vhost, which serves
+ * the page's files from memory (with the Content-Security-Policy) or upgrades to the
+ * Foxglove WebSocket. A page response closes its connection, so that every request
+ * passes the gate. Refusals are counted per status (the status channel's viewer
+ * object); their log lines are rate-limited, so that a flood cannot fill the journal.
  */
 #include "view.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <json-c/json.h>
 #include <libwebsockets.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include "log.h"
+#include "page.h"
 
 #define FOX_PROTOCOL "foxglove.websocket.v1"
 #define PROMPT_TOPIC "/vlff/prompts"
 #define MAX_CLIENT_CHANNELS 8
+#define GATE_PROTOCOL "vlff-gate"
+#define GATE_TIMEOUT_S 10      /* for a whole request head */
+#define GATE_LINGER_S 2        /* reading what a refused client still sends */
+#define GATE_DRAIN_MAX (1u << 20)
+#define GATE_PENDING_MAX 64    /* connections that have not finished their head */
+#define PAGE_CHUNK 16384
+
+/* A connection whose request head is being read and checked. */
+struct gate {
+  struct vlff_view *v;
+  struct lws *wsi;
+  lws_sorted_usec_list_t sul; /* the head's deadline */
+  enum { GATE_READING, GATE_ANSWERING, GATE_FLUSHING, GATE_DRAINING, GATE_PASSED } state;
+  char peer[64];
+  size_t len, drained, resp_len;
+  char resp[LWS_PRE + 768];
+  char buf[VLFF_HTTP_HEAD_MAX + 1];
+};
+
+/* A passed head on its way to the HTTP vhost (outside the gate's callback). */
+struct handoff {
+  struct handoff *next;
+  int fd;
+  size_t len;
+  char head[];
+};
+
+/* A page file being sent. */
+struct http_session {
+  const struct vlff_page_file *f;
+  size_t off;
+  int head_only;
+};
 
 struct qitem {
   struct vlff_view_msg *m;
@@ -56,15 +105,28 @@ struct vlff_view {
   struct vlff_view_params p;
   struct vlff_feed *feed;
   struct lws_context *ctx;
-  struct lws_vhost *vh;
-  struct lws_http_mount mount;
-  struct lws_protocols protocols[3];
-  lws_sorted_usec_list_t sul;
+  struct lws_vhost *vh, *http_vh; /* the listening gate, the HTTP and WebSocket side */
+  struct lws_protocols gate_protocols[2], protocols[3];
+  struct vlff_page page;
+  lws_sorted_usec_list_t sul, handoff_sul;
+  struct handoff *handoffs;
+  int gate_pending;
+  uint64_t ws_refusals; /* WebSocket-level refusals, for their log's rate limit */
   struct client *clients;
   struct vlff_view_counters c;
   struct vlff_prompts *mailbox;
   volatile int stop;
 };
+
+/* Counts a refusal with HTTP status (its own counter in the status channel) and
+ * logs it: the first five of each status and every 1000th. */
+static void count_refusal(struct vlff_view *v, const char *peer, int status, const char *why) {
+  v->c.refused++;
+  int i = 0;
+  while (i < VLFF_VIEW_HTTP_N - 1 && vlff_view_http_status(i) != status) i++;
+  vlff_warn_limited(&v->c.http_refused[i], "vlff-view", "refused %s: %s [HTTP %d %s, %llu so far]", peer, why, status,
+                    vlff_http_reason(status), (unsigned long long)v->c.http_refused[i] + 1);
+}
 
 /* ----------------------------------------------------------------- queues */
 
@@ -136,10 +198,7 @@ static void send_status(struct client *cl, int level, const char *fmt, ...) {
   va_start(ap, fmt);
   vsnprintf(text, sizeof text, fmt, ap);
   va_end(ap);
-  if (level == 2) {
-    cl->v->c.bad_requests++;
-    fprintf(stderr, "vlff-view: client %s: %s\n", cl->peer, text);
-  }
+  if (level == 2) vlff_warn_limited(&cl->v->c.bad_requests, "vlff-view", "client %s: %s", cl->peer, text);
   json_object *o = json_object_new_object();
   json_object_object_add(o, "op", json_object_new_string("status"));
   json_object_object_add(o, "level", json_object_new_int(level));
@@ -449,7 +508,7 @@ static int refuse(struct vlff_view *v, struct lws *wsi, enum lws_close_status co
   char peer[64] = "?";
   lws_get_peer_simple(wsi, peer, sizeof peer);
   v->c.refused++;
-  fprintf(stderr, "vlff-view: refused %s: %s\n", peer, why);
+  vlff_warn_limited(&v->ws_refusals, "vlff-view", "refused %s: %s", peer, why);
   lws_close_reason(wsi, code, (unsigned char *)why, strlen(why));
   return -1;
 }
@@ -532,14 +591,147 @@ static int offers_foxglove(const char *list) {
   return 0;
 }
 
-/* The HTTP side serves the mount, and refuses WebSocket upgrades it will not take
- * with an HTTP status and a sentence, before any WebSocket exists. */
+/* ------------------------------------------------------------------ gate */
+
+static void gate_answer(struct gate *g, int status, const char *why, int is_head) {
+  count_refusal(g->v, g->peer, status, why);
+  g->resp_len = vlff_http_refusal(g->resp + LWS_PRE, sizeof g->resp - LWS_PRE, status, why, is_head);
+  g->state = GATE_ANSWERING;
+  lws_sul_cancel(&g->sul);
+  lws_callback_on_writable(g->wsi);
+}
+
+static void gate_deadline(lws_sorted_usec_list_t *sul) {
+  struct gate *g = lws_container_of(sul, struct gate, sul);
+  if (g->state != GATE_READING) return;
+  if (g->len) {
+    char why[96];
+    snprintf(why, sizeof why, "no complete request head within %d s", GATE_TIMEOUT_S);
+    gate_answer(g, 408, why, 0);
+  } else {
+    /* a connection that never sent a byte (a browser's spare one) just closes */
+    lws_set_timeout(g->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
+  }
+}
+
+static void run_handoffs(lws_sorted_usec_list_t *sul) {
+  struct vlff_view *v = lws_container_of(sul, struct vlff_view, handoff_sul);
+  while (v->handoffs) {
+    struct handoff *h = v->handoffs;
+    v->handoffs = h->next;
+    /* on failure libwebsockets closes the descriptor itself */
+    if (!lws_adopt_socket_vhost_readbuf(v->http_vh, h->fd, h->head, h->len))
+      fprintf(stderr, "vlff-view: a checked request could not be handed to the HTTP side\n");
+    free(h);
+  }
+}
+
+/* Hands the connection on: a copy of its descriptor, with the head it sent, goes to
+ * the HTTP vhost from the loop (not from inside this connection's callback); this
+ * raw connection then closes its own descriptor only (a raw socket is not shut
+ * down on close). Returns the callback's answer. */
+static int gate_pass(struct gate *g, size_t head_len) {
+  struct vlff_view *v = g->v;
+  int fd = fcntl(lws_get_socket_fd(g->wsi), F_DUPFD_CLOEXEC, 0);
+  struct handoff *h = fd >= 0 ? malloc(sizeof *h + head_len) : NULL;
+  if (!h) {
+    if (fd >= 0) close(fd);
+    gate_answer(g, 503, "out of descriptors or memory", 0);
+    return 0;
+  }
+  h->fd = fd;
+  h->len = head_len;
+  memcpy(h->head, g->buf, head_len);
+  h->next = v->handoffs;
+  v->handoffs = h;
+  lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
+  g->state = GATE_PASSED;
+  lws_sul_cancel(&g->sul);
+  return -1;
+}
+
+static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len) {
+  struct vlff_view *v = lws_context_user(lws_get_context(wsi));
+  struct gate *g = user;
+  switch (reason) {
+  case LWS_CALLBACK_RAW_ADOPT:
+    memset(g, 0, offsetof(struct gate, resp));
+    g->v = v;
+    g->wsi = wsi;
+    lws_get_peer_simple(wsi, g->peer, sizeof g->peer);
+    v->gate_pending++;
+    /* the last word on how long a connection may stay here, whatever happens */
+    lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, GATE_TIMEOUT_S + 2 * GATE_LINGER_S);
+    if (v->gate_pending > GATE_PENDING_MAX) {
+      char why[96];
+      snprintf(why, sizeof why, "more than %d connections are sending a request", GATE_PENDING_MAX);
+      gate_answer(g, 503, why, 0);
+    } else {
+      lws_sul_schedule(lws_get_context(wsi), 0, &g->sul, gate_deadline, (lws_usec_t)GATE_TIMEOUT_S * LWS_US_PER_SEC);
+    }
+    return 0;
+  case LWS_CALLBACK_RAW_RX: {
+    if (!g->v) return -1;
+    if (g->state != GATE_READING) {
+      g->drained += len; /* a refused client still sending: read and drop, up to a bound */
+      return g->drained > GATE_DRAIN_MAX ? -1 : 0;
+    }
+    size_t take = len < sizeof g->buf - g->len ? len : sizeof g->buf - g->len;
+    memcpy(g->buf + g->len, in, take);
+    g->len += take;
+    struct vlff_head h;
+    switch (vlff_head_check(g->buf, g->len, &v->page, &h)) {
+    case VLFF_HEAD_MORE: return 0;
+    case VLFF_HEAD_REFUSE: gate_answer(g, h.status, h.why, h.is_head); return 0;
+    case VLFF_HEAD_PASS: return gate_pass(g, h.head_len);
+    }
+    return -1;
+  }
+  case LWS_CALLBACK_RAW_WRITEABLE:
+    if (!g->v) return -1;
+    if (g->state == GATE_ANSWERING) {
+      if (lws_write(wsi, (unsigned char *)g->resp + LWS_PRE, g->resp_len, LWS_WRITE_RAW) < 0) return -1;
+      g->state = GATE_FLUSHING; /* called again once libwebsockets has sent it all */
+      lws_callback_on_writable(wsi);
+    } else if (g->state == GATE_FLUSHING) {
+      /* the client may still be sending: a close with its bytes unread would reset
+       * the connection, and the reset can destroy the answer before the client
+       * reads it. End our side and read until it closes or the linger ends. */
+      shutdown(lws_get_socket_fd(wsi), SHUT_WR);
+      g->state = GATE_DRAINING;
+      lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, GATE_LINGER_S);
+    }
+    return 0;
+  case LWS_CALLBACK_RAW_CLOSE:
+    if (g->v) {
+      lws_sul_cancel(&g->sul);
+      v->gate_pending--;
+      g->v = NULL;
+    }
+    return 0;
+  default:
+    return 0;
+  }
+}
+
+/* ------------------------------------------------------------- HTTP side */
+
+static int add_header(struct lws *wsi, const char *name, const char *value, unsigned char **p, unsigned char *end) {
+  return lws_add_http_header_by_name(wsi, (const unsigned char *)name, (const unsigned char *)value,
+                                     (int)strlen(value), p, end);
+}
+
+/* A passed head: a page file (GET or HEAD) or an upgrade. A refusal here closes
+ * the connection, so that no further request on it skips the gate. */
 static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len) {
   struct vlff_view *v = lws_context_user(lws_get_context(wsi));
-  if (reason == LWS_CALLBACK_HTTP_CONFIRM_UPGRADE && in && !strcmp(in, "websocket")) {
+  struct http_session *s = user;
+  char peer[64] = "?", why[160];
+  switch (reason) {
+  case LWS_CALLBACK_HTTP_CONFIRM_UPGRADE: {
+    if (!in || strcmp(in, "websocket")) break;
     char offered[256] = "";
     lws_hdr_copy(wsi, offered, sizeof offered, WSI_TOKEN_PROTOCOL);
-    char why[160];
     int code = 0;
     if (!offers_foxglove(offered)) {
       snprintf(why, sizeof why, "unknown or missing WebSocket subprotocol \"%.60s\"; this server speaks " FOX_PROTOCOL,
@@ -550,17 +742,59 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
       code = HTTP_STATUS_SERVICE_UNAVAILABLE;
     }
     if (!code) return 0;
-    char peer[64] = "?";
     lws_get_peer_simple(wsi, peer, sizeof peer);
-    v->c.refused++;
-    fprintf(stderr, "vlff-view: refused %s: %s\n", peer, why);
+    count_refusal(v, peer, code, why);
     lws_return_http_status(wsi, (unsigned)code, why);
-    return 1;
+    return -1;
+  }
+  case LWS_CALLBACK_HTTP: {
+    const char *uri = in ? in : "";
+    const struct vlff_page_file *f = vlff_page_find(&v->page, uri, strlen(uri));
+    if (!f) { /* the gate passes listed files only; this is the second line */
+      lws_get_peer_simple(wsi, peer, sizeof peer);
+      snprintf(why, sizeof why, "%.60s is not a file of this page", uri);
+      count_refusal(v, peer, HTTP_STATUS_NOT_FOUND, why);
+      lws_return_http_status(wsi, HTTP_STATUS_NOT_FOUND, why);
+      return -1;
+    }
+    s->f = f;
+    s->off = 0;
+    s->head_only = lws_hdr_total_length(wsi, WSI_TOKEN_HEAD_URI) > 0;
+    unsigned char hdr[LWS_PRE + 1024], *start = hdr + LWS_PRE, *p = start, *end = hdr + sizeof hdr - 1;
+    if (lws_add_http_common_headers(wsi, HTTP_STATUS_OK, f->mime, f->len, &p, end) ||
+        add_header(wsi, "content-security-policy:", VLFF_PAGE_CSP, &p, end) ||
+        add_header(wsi, "x-content-type-options:", "nosniff", &p, end) ||
+        add_header(wsi, "referrer-policy:", "no-referrer", &p, end) ||
+        add_header(wsi, "cache-control:", "no-cache", &p, end) ||
+        lws_add_http_header_by_token(wsi, WSI_TOKEN_CONNECTION, (const unsigned char *)"close", 5, &p, end) ||
+        lws_finalize_write_http_header(wsi, start, &p, end))
+      return -1;
+    lws_callback_on_writable(wsi);
+    return 0;
+  }
+  case LWS_CALLBACK_HTTP_WRITEABLE: {
+    /* called again only once everything written before has gone out: with the
+     * whole file sent, the connection closes (one request per connection) */
+    if (!s->f || s->head_only || s->off == s->f->len) return -1;
+    size_t n = s->f->len - s->off < PAGE_CHUNK ? s->f->len - s->off : PAGE_CHUNK;
+    unsigned char buf[LWS_PRE + PAGE_CHUNK];
+    memcpy(buf + LWS_PRE, s->f->data + s->off, n);
+    int last = s->off + n == s->f->len;
+    if (lws_write(wsi, buf + LWS_PRE, n, last ? LWS_WRITE_HTTP_FINAL : LWS_WRITE_HTTP) < (int)n) return -1;
+    s->off += n;
+    lws_callback_on_writable(wsi);
+    return 0;
+  }
+  default:
+    break;
   }
   return lws_callback_http_dummy(wsi, reason, user, in, len);
 }
 
 static void log_to_stderr(int level, const char *line) {
+  /* lws_adopt_socket_vhost_readbuf reports its ordinary path at error level: every
+   * passed request would log it */
+  if (strstr(line, "adopt_socket_readbuf")) return;
   if (level & (LLL_ERR | LLL_WARN)) fprintf(stderr, "vlff-view: libwebsockets: %s", line);
 }
 
@@ -569,37 +803,53 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   if (!v) return NULL;
   v->p = *p;
   v->feed = feed;
+  if (vlff_page_load(&v->page, p->www_dir) != 0) {
+    free(v);
+    return NULL;
+  }
   lws_set_log_level(LLL_ERR | LLL_WARN | (p->verbose > 1 ? LLL_NOTICE | LLL_INFO : 0), log_to_stderr);
 
-  v->mount.mountpoint = "/";
-  v->mount.mountpoint_len = 1;
-  v->mount.origin = p->www_dir;
-  v->mount.def = "index.html";
-  v->mount.origin_protocol = LWSMPRO_FILE;
-
-  v->protocols[0] = (struct lws_protocols){"http", http_cb, 0, 0, 0, NULL, 0};
+  v->gate_protocols[0] = (struct lws_protocols){GATE_PROTOCOL, gate_cb, sizeof(struct gate), 4096, 0, NULL, 0};
+  v->protocols[0] = (struct lws_protocols){"http", http_cb, sizeof(struct http_session), 0, 0, NULL, 0};
   v->protocols[1] = (struct lws_protocols){FOX_PROTOCOL, fox_cb, sizeof(struct client), 65536, 0, NULL, 0};
 
   struct lws_context_creation_info info;
   memset(&info, 0, sizeof info);
-  info.port = p->port;
-  info.iface = p->address;
-  info.protocols = v->protocols;
-  info.mounts = &v->mount;
+  info.options = LWS_SERVER_OPTION_EXPLICIT_VHOSTS;
   info.user = v;
-  info.options = LWS_SERVER_OPTION_VALIDATE_UTF8 | LWS_SERVER_OPTION_DISABLE_IPV6;
-  info.vhost_name = "vlff-view";
+  /* room for any head the gate passes */
+  info.max_http_header_data = VLFF_HTTP_HEAD_MAX + 1024;
   v->ctx = lws_create_context(&info);
   if (!v->ctx) {
-    fprintf(stderr, "vlff-view: cannot listen on %s:%d (address in use or not local?)\n", p->address, p->port);
+    fprintf(stderr, "vlff-view: cannot start libwebsockets\n");
+    vlff_page_free(&v->page);
     free(v);
     return NULL;
   }
-  v->vh = lws_get_vhost_by_name(v->ctx, "vlff-view");
+  /* the listening vhost: every connection a raw socket of the gate */
+  info.port = p->port;
+  info.iface = p->address;
+  info.protocols = v->gate_protocols;
+  info.options = LWS_SERVER_OPTION_ADOPT_APPLY_LISTEN_ACCEPT_CONFIG | LWS_SERVER_OPTION_DISABLE_IPV6;
+  info.listen_accept_role = "raw-skt";
+  info.listen_accept_protocol = GATE_PROTOCOL;
+  info.vhost_name = "vlff-view";
+  v->vh = lws_create_vhost(v->ctx, &info);
   if (!v->vh || lws_get_vhost_listen_port(v->vh) <= 0) {
-    fprintf(stderr, "vlff-view: cannot listen on %s:%d\n", p->address, p->port);
-    lws_context_destroy(v->ctx);
-    free(v);
+    fprintf(stderr, "vlff-view: cannot listen on %s:%d (address in use or not local?)\n", p->address, p->port);
+    vlff_view_free(v);
+    return NULL;
+  }
+  /* the HTTP and WebSocket side: no socket of its own, it takes passed heads */
+  memset(&info, 0, sizeof info);
+  info.port = CONTEXT_PORT_NO_LISTEN_SERVER;
+  info.protocols = v->protocols;
+  info.options = LWS_SERVER_OPTION_VALIDATE_UTF8 | LWS_SERVER_OPTION_DISABLE_IPV6;
+  info.vhost_name = "vlff-view-http";
+  v->http_vh = lws_create_vhost(v->ctx, &info);
+  if (!v->http_vh) {
+    fprintf(stderr, "vlff-view: cannot create the HTTP side\n");
+    vlff_view_free(v);
     return NULL;
   }
   lws_sul_schedule(v->ctx, 0, &v->sul, tick, 1);
@@ -622,7 +872,15 @@ void vlff_view_stop(struct vlff_view *v) {
 void vlff_view_free(struct vlff_view *v) {
   if (!v) return;
   lws_sul_cancel(&v->sul);
+  lws_sul_cancel(&v->handoff_sul);
+  while (v->handoffs) {
+    struct handoff *h = v->handoffs;
+    v->handoffs = h->next;
+    close(h->fd);
+    free(h);
+  }
   lws_context_destroy(v->ctx);
   vlff_prompts_close(v->mailbox);
+  vlff_page_free(&v->page);
   free(v);
 }

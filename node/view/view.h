@@ -11,7 +11,11 @@
  *   - the server (server.c) speaks the foxglove.websocket.v1 subprotocol through
  *     libwebsockets on one port, serves the page's files on the same port, fans each
  *     message out to the clients subscribed to its channel and drops a client whose
- *     queue grows past a bound instead of waiting for it.
+ *     queue grows past a bound instead of waiting for it;
+ *   - the page (page.c, page.h) holds the files under the www directory, read once
+ *     at start, and checks every HTTP request head before libwebsockets parses it:
+ *     a request that is not a GET or HEAD of one of those files or a WebSocket
+ *     upgrade gets an HTTP status and a sentence, and is counted.
  *
  * CONTRACT
  * Errors: functions returning a pointer return NULL, functions returning int return
@@ -78,11 +82,21 @@ struct vlff_feed_params {
   uint32_t brick;           /* brick edge in voxels for the scene channel */
 };
 
-/* What the server counts, reported in the status channel. */
+/* The HTTP statuses requests are refused with: 400 malformed, 404 no such file,
+ * 405 not GET or HEAD, 408 no whole head in time, 414 target too long, 431 head too
+ * large, 503 too many clients or waiting connections, 505 not HTTP/1.x. */
+#define VLFF_VIEW_HTTP_N 8
+/* The status of counter i (0..VLFF_VIEW_HTTP_N-1). */
+int vlff_view_http_status(int i);
+
+/* What the server counts, reported in the status channel. refused counts every
+ * refusal, HTTP and WebSocket; http_refused[i] those answered with status
+ * vlff_view_http_status(i). */
 struct vlff_view_counters {
   int clients;
   uint64_t connections, dropped_slow, refused, bad_requests, prompts_posted;
   uint64_t messages_sent, bytes_sent;
+  uint64_t http_refused[VLFF_VIEW_HTTP_N];
 };
 
 struct vlff_feed;
@@ -94,8 +108,9 @@ void vlff_feed_free(struct vlff_feed *f);
  * on the scene and voxel channels for a new map version, the label image and pose,
  * a camera image when the frame ring has a new frame and the rate allows, a status
  * message at least once a second. Channels whose bit (1u << channel) is clear in
- * wanted have no subscriber and are not encoded. Returns the number of messages
- * appended; the caller owns them. */
+ * wanted have no subscriber and are not encoded at all (the map copy is still kept
+ * current, so that vlff_feed_current can build the whole map for a first
+ * subscriber). Returns the number of messages appended; the caller owns them. */
 int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsigned wanted, struct vlff_view_msg **out,
                    int out_cap);
 /* A new subscriber's first message on channel ch: the whole map (scene, voxels) or
@@ -103,13 +118,15 @@ int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsi
 struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch);
 /* The map version the feed last sent (0 = none). */
 uint64_t vlff_feed_version(const struct vlff_feed *f);
+/* How many messages the feed has encoded for channel ch since it was made. */
+uint64_t vlff_feed_encoded(const struct vlff_feed *f, int ch);
 
 /* ---------------------------------------------------------------- server */
 
 struct vlff_view_params {
   const char *address;      /* listening address, "127.0.0.1" */
   int port;                 /* 0 = any free port (see vlff_view_port) */
-  const char *www_dir;      /* the page's files */
+  const char *www_dir;      /* the page's files, read at start (page.h) */
   const char *prompts_name; /* prompt mailbox */
   const char *token;        /* NULL = posting prompts disabled */
   double poll_hz;           /* segment checks per second */

@@ -16,6 +16,7 @@
 #include <vlff/shm.h>
 #include "log.h"
 #include "transpose.h"
+#include "mem.h"
 
 struct waiting {
   bool used;
@@ -69,10 +70,7 @@ oom:
 void vlff_feature_join_destroy(struct vlff_feature_join *j) {
   if (!j) return;
   for (int i = 0; j->feats && i < j->cap; i++) free(j->feats[i].hwc);
-  free(j->feats);
-  free(j->frames);
-  free(j->record);
-  free(j);
+  VLFF_FREE_ALL(j->feats, j->frames, j->record, j);
 }
 
 int vlff_feature_join_add_frame(struct vlff_feature_join *j, uint64_t frame_id, uint64_t now_ns, char *err,

@@ -21,6 +21,7 @@
 #include "field.h"
 #include "files.h"
 #include "log.h"
+#include "mem.h"
 
 struct vlff_image_encoder {
   struct vlff_dnn *net;
@@ -283,10 +284,7 @@ oom:
   }
 free_all:
   for (int i = 0; w->results && i < depth; i++) free(w->results[i].feat);
-  free(w->results);
-  free(w->frames);
-  free(w->work_feat);
-  free(w);
+  VLFF_FREE_ALL(w->results, w->frames, w->work_feat, w);
   vlff_image_encoder_close(enc);
   return NULL;
 }
@@ -304,10 +302,7 @@ void vlff_image_worker_stop(struct vlff_image_worker *w) {
     free(w->frames[i].rgb);
     free(w->results[i].feat);
   }
-  free(w->work.rgb);
-  free(w->work_feat);
-  free(w->frames);
-  free(w->results);
+  VLFF_FREE_ALL(w->work.rgb, w->work_feat, w->frames, w->results);
   vlff_image_encoder_close(w->enc);
   free(w);
 }

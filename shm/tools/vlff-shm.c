@@ -33,6 +33,8 @@ static const struct vlff_cli cli = {
   "                            post \"switch to configured prompt set N\", same answer\n"
   "  watch NAME [COUNT]        print records of a ring / versions of a map as they come\n"
   "\n"
+  "vlff-shm COMMAND --help describes a command.\n"
+  "\n"
   "Examples:\n"
   "  vlff-shm list\n"
   "  vlff-shm stat /vlff-map\n"
@@ -252,13 +254,7 @@ static int parse_double(const char *s, double *v) {
   return errno || end == s || *end || !isfinite(*v) ? -1 : 0;
 }
 
-static int cmd_label(const char *name, char **xyz) {
-  double p[3];
-  for (int i = 0; i < 3; i++)
-    if (parse_double(xyz[i], &p[i]) < 0) {
-      fprintf(stderr, "vlff-shm: '%s' is not a finite number\n", xyz[i]);
-      return 2;
-    }
+static int cmd_label(const char *name, const double p[3]) {
   struct vlff_map *m = vlff_map_attach(name);
   if (!m)
     return fail(name);
@@ -281,32 +277,9 @@ static int cmd_label(const char *name, char **xyz) {
   return rc;
 }
 
-static int cmd_set_prompts(int argc, char **argv) {
-  double timeout_s = 5.0;
-  if (argc >= 2 && !strcmp(argv[0], "-t")) {
-    char *end;
-    timeout_s = strtod(argv[1], &end);
-    if (*end || !(timeout_s > 0 && timeout_s <= 3600)) {
-      fprintf(stderr, "vlff-shm: -t '%s' is not a number of seconds in (0, 3600]\n", argv[1]);
-      return 2;
-    }
-    argc -= 2;
-    argv += 2;
-  }
-  if (argc < 2)
-    return vlff_cli_usage_error(&cli, "set-prompts needs a mailbox and prompts");
-  const char *name = argv[0];
-  int n = argc - 1;
-  char **texts = argv + 1;
-  long idx = -1;
-  if (n == 2 && !strcmp(texts[0], "-i")) {
-    char *end;
-    idx = strtol(texts[1], &end, 10);
-    if (*end || idx < 0 || idx > INT32_MAX) {
-      fprintf(stderr, "vlff-shm: '%s' is not a prompt set index\n", texts[1]);
-      return 2;
-    }
-  } else if (vlff_prompt_check((const char *const *)texts, n) < 0) {
+/* texts[n] (n > 0), or the configured set idx (>= 0). */
+static int cmd_set_prompts(const char *name, char **texts, int n, long idx, double timeout_s) {
+  if (idx < 0 && vlff_prompt_check((const char *const *)texts, n) < 0) {
     fprintf(stderr, "vlff-shm: %s: %s\n", name, vlff_shm_last_message());
     return 1;
   }
@@ -397,31 +370,175 @@ static int cmd_watch(const char *name, long count) {
   return 1;
 }
 
+/* ---- the subcommands' command lines ------------------------------------ */
+
+#define SUB_HELP "  -h, --help                print this help and exit\n"
+
+static const struct vlff_cli cli_list = {
+  "vlff-shm",
+  "Usage: vlff-shm list\n"
+  "The vlff segments under /dev/shm, one line each: name, kind, records, generation,\n"
+  "creator pid and whether it lives, bytes, head, age of the last update. Segments\n"
+  "that are vlff's but broken are listed with the reason.\n"
+  "\n" SUB_HELP,
+};
+static const struct vlff_cli cli_stat = {
+  "vlff-shm",
+  "Usage: vlff-shm stat NAME\n"
+  "The header of segment NAME (/vlff-map), one \"key value\" line each; for a map also\n"
+  "its grid, prompts and the writer's status block.\n"
+  "\n" SUB_HELP,
+};
+static const struct vlff_cli cli_dump = {
+  "vlff-shm",
+  "Usage: vlff-shm dump-frame NAME FILE\n"
+  "The newest frame of frame ring NAME to FILE: .ppm for colour, .pgm for mono or depth\n"
+  "(16-bit, millimetres; a colour+depth frame gives its depth to a .pgm).\n"
+  "\n" SUB_HELP,
+};
+static const struct vlff_cli cli_label = {
+  "vlff-shm",
+  "Usage: vlff-shm label NAME X Y Z\n"
+  "Label, confidence and prompt of the voxel of map NAME at the world point X Y Z\n"
+  "(metres, finite; negative coordinates need no \"--\": options end at NAME).\n"
+  "\n" SUB_HELP,
+};
+static const struct vlff_cli cli_prompts = {
+  "vlff-shm",
+  "Usage: vlff-shm set-prompts [-t SECONDS] NAME TEXT...\n"
+  "       vlff-shm set-prompts [-t SECONDS] NAME -i N\n"
+  "Post a prompt set (or \"switch to configured set N\") to prompt mailbox NAME and wait\n"
+  "for the learner's answer: prints 'accepted SEQ' (exit 0) or 'refused SEQ: why' (exit 1).\n"
+  "A prompt that starts with '-' goes after \"--\".\n"
+  "\n"
+  "  -t, --timeout SECONDS     wait this long for the answer, (0, 3600] (default 5)\n"
+  "  -i, --index N             the configured prompt set N (0..2147483647) instead of TEXTs\n" SUB_HELP,
+};
+static const struct vlff_cli cli_watch = {
+  "vlff-shm",
+  "Usage: vlff-shm watch NAME [COUNT]\n"
+  "Print the records of ring NAME, or the versions of map NAME, as they come; stop after\n"
+  "COUNT of them (a non-negative integer; 0 or none: until SIGINT/SIGTERM).\n"
+  "\n" SUB_HELP,
+};
+
+/* A subcommand's own getopt pass when it has no options of its own: --help,
+ * --version, usage errors. Returns the number of operands (at argv + optind),
+ * or -1 with *status set when the program should exit. order: "+" for
+ * operands that may look like options (negative numbers). */
+static int sub_operands(const struct vlff_cli *sc, int argc, char **argv, const char *order, int min, int max,
+                        int *status) {
+  static const struct option opts[] = {VLFF_CLI_COMMON_OPTIONS};
+  int o;
+  vlff_cli_restart();
+  while ((o = vlff_cli_next(sc, argc, argv, order, opts, status)) != -1) {
+    if (o == VLFF_CLI_EXIT)
+      return -1;
+    return *status = vlff_cli_usage_error(sc, "option '%s' not handled", argv[optind - 1]), -1;
+  }
+  int n = argc - optind;
+  if (n < min || n > max) {
+    if (n > max)
+      *status = vlff_cli_usage_error(sc, "%s: unexpected argument '%s'", argv[0], argv[optind + max]);
+    else
+      *status = vlff_cli_usage_error(sc, "%s: expected %d argument%s, got %d", argv[0], min, min == 1 ? "" : "s", n);
+    return -1;
+  }
+  return n;
+}
+
+static int sub_label(int argc, char **argv) {
+  int status;
+  if (sub_operands(&cli_label, argc, argv, "+", 4, 4, &status) < 0)
+    return status;
+  double p[3];
+  for (int i = 0; i < 3; i++)
+    if (parse_double(argv[optind + 1 + i], &p[i]) < 0)
+      return vlff_cli_usage_error(&cli_label, "label: %c '%s': expected a finite number of metres", "XYZ"[i],
+                                  argv[optind + 1 + i]);
+  return cmd_label(argv[optind], p);
+}
+
+static int sub_set_prompts(int argc, char **argv) {
+  static const struct option opts[] = {
+      {"timeout", required_argument, NULL, 't'}, {"index", required_argument, NULL, 'i'}, VLFF_CLI_COMMON_OPTIONS};
+  double timeout_s = 5.0;
+  long idx = -1;
+  int o, status;
+  char *end;
+  vlff_cli_restart();
+  while ((o = vlff_cli_next(&cli_prompts, argc, argv, "t:i:", opts, &status)) != -1) {
+    switch (o) {
+    case VLFF_CLI_EXIT: return status;
+    case 't':
+      errno = 0;
+      timeout_s = strtod(optarg, &end);
+      if (errno || end == optarg || *end || !(timeout_s > 0 && timeout_s <= 3600))
+        return vlff_cli_usage_error(&cli_prompts, "set-prompts: --timeout '%s': expected seconds in (0, 3600]", optarg);
+      break;
+    case 'i':
+      errno = 0;
+      idx = strtol(optarg, &end, 10);
+      if (errno || end == optarg || *end || idx < 0 || idx > INT32_MAX)
+        return vlff_cli_usage_error(&cli_prompts, "set-prompts: --index '%s': expected a prompt set index in "
+                                    "0..2147483647", optarg);
+      break;
+    default: return vlff_cli_usage_error(&cli_prompts, "option '%s' not handled", argv[optind - 1]);
+    }
+  }
+  int n = argc - optind;
+  if (n < 1)
+    return vlff_cli_usage_error(&cli_prompts, "set-prompts: no mailbox NAME given");
+  if (idx >= 0 && n > 1)
+    return vlff_cli_usage_error(&cli_prompts, "set-prompts: --index and prompts '%s'... both given", argv[optind + 1]);
+  if (idx < 0 && n < 2)
+    return vlff_cli_usage_error(&cli_prompts, "set-prompts: no prompts given (TEXT... or -i N)");
+  return cmd_set_prompts(argv[optind], argv + optind + 1, n - 1, idx, timeout_s);
+}
+
+static int sub_watch(int argc, char **argv) {
+  int status, n = sub_operands(&cli_watch, argc, argv, "", 1, 2, &status);
+  if (n < 0)
+    return status;
+  long count = 0;
+  if (n == 2) {
+    const char *c = argv[optind + 1];
+    char *end;
+    errno = 0;
+    count = strtol(c, &end, 10);
+    if (errno || end == c || *end || count < 0)
+      return vlff_cli_usage_error(&cli_watch, "watch: COUNT '%s': expected a non-negative integer", c);
+  }
+  return cmd_watch(argv[optind], count);
+}
+
 int main(int argc, char **argv) {
   static const struct option opts[] = {VLFF_CLI_COMMON_OPTIONS};
   int o, status;
-  /* '+': options end at the command, whose arguments (set-prompts -i) are its own. */
+  /* '+': options end at the command, whose arguments and options are its own. */
   while ((o = vlff_cli_next(&cli, argc, argv, "+", opts, &status)) != -1) {
     if (o == VLFF_CLI_EXIT)
       return status;
     return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
   }
-  argc -= optind - 1;
-  argv += optind - 1;
-  if (argc < 2)
+  if (optind >= argc)
     return vlff_cli_usage_error(&cli, "no command given");
-  const char *c = argv[1];
-  if (!strcmp(c, "list") && argc == 2)
-    return cmd_list();
-  if (!strcmp(c, "stat") && argc == 3)
-    return cmd_stat(argv[2]);
-  if (!strcmp(c, "dump-frame") && argc == 4)
-    return cmd_dump_frame(argv[2], argv[3]);
-  if (!strcmp(c, "label") && argc == 6)
-    return cmd_label(argv[2], argv + 3);
-  if (!strcmp(c, "set-prompts") && argc >= 4)
-    return cmd_set_prompts(argc - 2, argv + 2);
-  if (!strcmp(c, "watch") && (argc == 3 || argc == 4))
-    return cmd_watch(argv[2], argc == 4 ? strtol(argv[3], NULL, 10) : 0);
-  return vlff_cli_usage_error(&cli, "unknown command or wrong arguments: '%s'", c);
+  /* The subcommand's argv: argv[0] its name, as getopt expects a program's. */
+  argc -= optind;
+  argv += optind;
+  const char *c = argv[0];
+  if (!strcmp(c, "list"))
+    return sub_operands(&cli_list, argc, argv, "", 0, 0, &status) < 0 ? status : cmd_list();
+  if (!strcmp(c, "stat"))
+    return sub_operands(&cli_stat, argc, argv, "", 1, 1, &status) < 0 ? status : cmd_stat(argv[optind]);
+  if (!strcmp(c, "dump-frame"))
+    return sub_operands(&cli_dump, argc, argv, "", 2, 2, &status) < 0 ? status
+                                                                     : cmd_dump_frame(argv[optind], argv[optind + 1]);
+  if (!strcmp(c, "label"))
+    return sub_label(argc, argv);
+  if (!strcmp(c, "set-prompts"))
+    return sub_set_prompts(argc, argv);
+  if (!strcmp(c, "watch"))
+    return sub_watch(argc, argv);
+  return vlff_cli_usage_error(&cli, "unknown command '%s'", c);
 }

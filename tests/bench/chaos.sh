@@ -3,7 +3,10 @@
 # producer), the node (ring consumer, map writer, mailbox owner), a controller
 # reading the map (tests/bench/chaos_reader.c) and a prompt poster (vlff-shm
 # set-prompts), restarting each at once, until VLFF_CHAOS_KILLS kills are done.
-# The node is not killed again before it has published a new map version.
+# The node is not killed again before it has published a new map version, and
+# at least 2 of the kills (all, for a target below 2) are the node's, the last
+# ones if chance did not pick it before: a short run then still has restarts
+# whose quality can be compared.
 #
 # Counted (issue 29):
 #   kills           kill -9 delivered
@@ -14,8 +17,13 @@
 #   recovery_p99_s  node restart -> its first new map version, 99th percentile
 #   quality_drops   restarts whose first 3D mIoU after resuming is more than 5
 #                   points below the mIoU when the killed node last checkpointed
+#   quality_checked restarts whose quality was compared so (left out: those
+#                   before any killed node had checkpointed with a 3D mIoU, and
+#                   those whose node logged none after resuming); 0 fails the
+#                   run, which would otherwise pass having compared nothing
 # Baseline in the same run: the node's cold start (start -> first map version),
-# recovery_vs_cold_start. Exits non-zero if anything but kills and times is not 0.
+# recovery_vs_cold_start. Exits non-zero if anything but kills, quality_checked
+# and times is not 0, or if quality_checked is 0.
 # Env: VLFF_BUILD (build dir, set by scripts/bench), VLFF_CHAOS_KILLS (default
 # 100), VLFF_CHAOS_GAP_S (mean seconds between kills, default 1.2),
 # VLFF_CHAOS_SEED (random seed, default the pid).
@@ -28,6 +36,7 @@ shm=$build/shm/vlff-shm
 reader=$build/bench/chaos_reader
 for x in "$node" "$sim" "$shm" "$reader"; do [[ -x $x ]] || { echo "chaos.sh: $x not built" >&2; exit 1; }; done
 target=${VLFF_CHAOS_KILLS:-100}
+min_node_kills=$((target < 2 ? target : 2))
 gap=${VLFF_CHAOS_GAP_S:-1.2}
 RANDOM=${VLFF_CHAOS_SEED:-$$}
 
@@ -119,6 +128,11 @@ while ((kills < target)); do
   before "$(now)" "$next_kill" && continue
   victims=(sim reader poster)
   ((pending)) || victims+=(node)
+  owed=$((min_node_kills - killed[node]))
+  if ((owed > 0 && target - kills <= owed)); then
+    ((pending)) && continue # the node's kill waits for its recovery
+    victims=(node)
+  fi
   victim=${victims[RANDOM % ${#victims[@]}]}
   case $victim in
     sim) pid=$simpid ;;
@@ -166,7 +180,7 @@ lost=$(grep -c '^backwards' "$out/reader.state.events" 2>/dev/null); lost=${lost
 # Quality: for each restart, the killed node's 3D mIoU at its last checkpoint
 # (inherited from its own resume if it never checkpointed) against the restarted
 # node's first 3D mIoU on a map newer than v_before.
-quality_drops=0
+quality_drops=0 quality_checked=0
 prev_q=
 for ((k = 1; k <= inc; k++)); do
   log=$out/node.$k.log
@@ -178,6 +192,7 @@ for ((k = 1; k <= inc; k++)); do
             for (i = 1; i <= NF; i++) if ($i ~ /^v[0-9]+$/) v = substr($i, 2) + 0
             for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") { if (v > vb) { print $(i + 1); exit } }
           }')
+      [[ -n $q ]] && quality_checked=$((quality_checked + 1))
       if [[ -n $q ]] && awk -v a="$q" -v b="$prev_q" 'BEGIN { exit !(a < b - 5) }'; then
         quality_drops=$((quality_drops + 1))
         echo "chaos: node.$k resumed at 3D mIoU $q, its checkpoint held $prev_q"
@@ -197,6 +212,7 @@ echo "chaos: last post after the chaos: $final_post"
 [[ -n $leaked_tmp ]] && echo "chaos: leaked temporary files: $leaked_tmp"
 [[ -s $out/reader.state.events ]] && head -5 "$out/reader.state.events"
 ratio=$(awk -v a="$p99" -v b="$cold" 'BEGIN { if (a == "nan" || b <= 0) print "nan"; else printf "%.2f", a / b }')
-echo "RESULT kills=$kills torn_reads=$torn lost_versions=$lost leaked_files=$leaked recovery_p99_s=$p99 quality_drops=$quality_drops cold_start_s=$cold recovery_vs_cold_start=$ratio"
+echo "RESULT kills=$kills torn_reads=$torn lost_versions=$lost leaked_files=$leaked recovery_p99_s=$p99 quality_drops=$quality_drops quality_checked=$quality_checked cold_start_s=$cold recovery_vs_cold_start=$ratio"
 [[ $final_post == accepted* ]] || { echo "chaos.sh: the mailbox did not answer after the chaos" >&2; exit 1; }
+((quality_checked > 0)) || { echo "chaos.sh: no restart's quality was compared with its checkpoint's" >&2; exit 1; }
 ((torn == 0 && lost == 0 && leaked == 0 && quality_drops == 0 && unrecovered == 0 && kills >= target))

@@ -97,32 +97,12 @@ static long long tick_of_now(struct scene *sc, long long *tick) {
   return idx < 0 ? idx + sc->cfg->sim.frames : idx;
 }
 
-/* Rotation matrix (row-major 3x3 inside a 4x4) to a unit quaternion. */
-static void quat_of(const double m[16], double q[4]) {
-  double r00 = m[0], r01 = m[1], r02 = m[2], r10 = m[4], r11 = m[5], r12 = m[6], r20 = m[8], r21 = m[9], r22 = m[10];
-  double tr = r00 + r11 + r22, x, y, z, w;
-  if (tr > 0) {
-    double s = sqrt(tr + 1.0) * 2;
-    w = 0.25 * s, x = (r21 - r12) / s, y = (r02 - r20) / s, z = (r10 - r01) / s;
-  } else if (r00 > r11 && r00 > r22) {
-    double s = sqrt(1.0 + r00 - r11 - r22) * 2;
-    w = (r21 - r12) / s, x = 0.25 * s, y = (r01 + r10) / s, z = (r02 + r20) / s;
-  } else if (r11 > r22) {
-    double s = sqrt(1.0 + r11 - r00 - r22) * 2;
-    w = (r02 - r20) / s, x = (r01 + r10) / s, y = 0.25 * s, z = (r12 + r21) / s;
-  } else {
-    double s = sqrt(1.0 + r22 - r00 - r11) * 2;
-    w = (r10 - r01) / s, x = (r02 + r20) / s, y = (r12 + r21) / s, z = 0.25 * s;
-  }
-  double n = sqrt(x * x + y * y + z * z + w * w);
-  q[0] = x / n, q[1] = y / n, q[2] = z / n, q[3] = w / n;
-}
-
 /* The tick's pose, held through the tick: stamped at its start and late in it. */
 static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
   if (sc->udp < 0) return;
-  double q[4], t0 = (double)tick * (double)sc->period_us * 1e-6, t1 = t0 + 0.95 * (double)sc->period_us * 1e-6;
-  quat_of(c2w, q);
+  double wxyz[4], t0 = (double)tick * (double)sc->period_us * 1e-6, t1 = t0 + 0.95 * (double)sc->period_us * 1e-6;
+  vlff_pose_quaternion(c2w, wxyz);
+  const double q[4] = {wxyz[1], wxyz[2], wxyz[3], wxyz[0]}; /* TUM order: x y z w */
   char msg[512];
   int len = snprintf(msg, sizeof msg, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
                      t0, c2w[3], c2w[7], c2w[11], q[0], q[1], q[2], q[3], t1, c2w[3], c2w[7], c2w[11], q[0], q[1],

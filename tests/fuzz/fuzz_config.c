@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "config.h"
+#include "vlff/shm.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   struct vlff_config cfg;
@@ -13,5 +14,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   /* A rejection must always say why; an acceptance must be self-consistent. */
   if (rc != 0 && strncmp(err, "fuzz:", 5) != 0) __builtin_trap();
   if (rc == 0 && cfg.prompts.active >= cfg.prompts.set_count) __builtin_trap();
+  /* Every prompt set taken is one the mailbox would take. */
+  for (int s = 0; rc == 0 && s < cfg.prompts.set_count; s++) {
+    const char *texts[VLFF_MAX_PROMPTS];
+    for (int i = 0; i < cfg.prompts.sets[s].count; i++) texts[i] = cfg.prompts.sets[s].text[i];
+    if (vlff_prompt_check(texts, cfg.prompts.sets[s].count) != 0) __builtin_trap();
+  }
   return 0;
 }

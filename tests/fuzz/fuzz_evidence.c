@@ -11,7 +11,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   static const double origin[3] = {-1, -1, 0};
   static const uint32_t dims[3] = {4, 4, 4};
   char err[256];
-  if (!e) e = vlff_evidence_create(origin, dims, 0.5, 4, 4096, err, sizeof err);
+  if (!e) e = vlff_evidence_create(origin, dims, 0.5, 4, VLFF_MAX_PROMPTS, 4096, err, sizeof err);
   if (!e) return 0;
   if (vlff_evidence_load(e, data, size, err, sizeof err) == 0) {
     float f[4];

@@ -4,7 +4,9 @@
  * bounds; failures must come with an error code. */
 #include "vlff/shm.h"
 
+#include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -50,6 +52,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     uint8_t c;
     char text[64];
     (void)vlff_map_label_at(m, 0.5, 0.5, 0.5, &l, &c);
+    /* A non-finite point is refused whatever the segment holds. */
+    if (vlff_map_label_at(m, 0.5, NAN, 0.5, &l, &c) != -1 || errno != EINVAL)
+      abort();
     (void)vlff_map_prompt(m, 0, text, sizeof text);
     struct vlff_map_snapshot *s = vlff_map_snapshot_new(m);
     if (s && vlff_map_snapshot_take(m, s) == 0)

@@ -2,8 +2,10 @@
 # Install the build tree into a temporary prefix and use it as a user would:
 # a controller built with pkg-config alone (PKG_CONFIG_PATH into the prefix),
 # in C and C++, run against a segment; the installed programs answer
-# --version; a /usr install (DESTDIR) puts configs in /etc/vlff, the library
-# in the multiarch directory and the units' paths under /usr.
+# --version; the installed vlff-view serves the installed page (index.html and
+# three.js over HTTP); the default config's vlm.bpe_vocab is installed; a /usr install
+# (DESTDIR) puts configs in /etc/vlff, the library in the multiarch directory
+# and the units' paths under /usr.
 # Usage: test_install.sh BUILD_DIR SOURCE_DIR LIBDIR
 set -u
 build=$1 src=$2 libdir=$3
@@ -38,10 +40,49 @@ check "moved prefix: pkg-config follows" \
 for prog in "$tmp"/p/bin/vlff-*; do
   check "$(basename "$prog") --version" '"$prog" --version | grep -qE "^$(basename "$prog") [0-9]+\.[0-9]+\.[0-9]+$"'
 done
+# The installed viewer finds the installed page (share/vlff/view) by itself and
+# serves its files over HTTP, byte for byte, with the page's security policy.
+if [[ -x "$tmp/p/bin/vlff-view" ]]; then
+  "$tmp/p/bin/vlff-view" --port 0 --map /vlff-install-view-$$ --frames "" >"$tmp/view.out" 2>"$tmp/view.err" &
+  view_pid=$! port=""
+  for _ in $(seq 100); do
+    port=$(sed -n 's|^vlff-view: serving http://127\.0\.0\.1:\([0-9]*\)/.*|\1|p' "$tmp/view.out")
+    [[ -n "$port" ]] && break
+    sleep 0.1
+  done
+  # fetch PATH OUT: the whole answer to GET PATH (the viewer closes after it)
+  fetch() {
+    exec 3<>"/dev/tcp/127.0.0.1/$port" || return 1
+    printf 'GET %s HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n' "$1" >&3
+    timeout 10 cat <&3 >"$2"
+    local rc=$?
+    exec 3<&-
+    return $rc
+  }
+  for f in index.html three/three.module.js three/addons/OrbitControls.js; do
+    file="$tmp/p/share/vlff/view/$f"
+    check "installed vlff-view serves the installed $f" \
+      '[[ -n "$port" && -f "$file" ]] && fetch "/$f" "$tmp/answer" && head -1 "$tmp/answer" | grep -q "^HTTP/1.1 200" &&
+       grep -qi "^content-security-policy: default-src" "$tmp/answer" &&
+       tail -c "$(stat -c %s "$file")" "$tmp/answer" | cmp -s - "$file"'
+  done
+  kill -INT "$view_pid"
+  wait "$view_pid"
+  view_rc=$?
+  check "installed vlff-view exits 0 on SIGINT" '(( view_rc == 0 )) || { cat "$tmp/view.err"; false; }'
+fi
 check "configs under the prefix" '[[ -f "$tmp/p/etc/vlff/vlff.yaml" && -f "$tmp/p/etc/vlff/vlff.dbc" ]]'
 check "unit follows the prefix" \
   'grep -qx "ExecStart=$tmp/p/bin/vlff-node --config $tmp/p/etc/vlff/vlff.yaml" "$tmp/p/lib/systemd/system/vlff-node.service"'
 check "installed vlff.yaml is a valid config" '"$tmp/p/bin/vlff-node" --check-config "$tmp/p/etc/vlff/vlff.yaml" >/dev/null 2>&1'
+# The programs' defaults come from the configured prefix (the config search
+# path, vlm.bpe_vocab): an install with that prefix, staged with DESTDIR, must
+# put CLIP's vocabulary where the installed configs' vlm.bpe_vocab looks.
+DESTDIR="$tmp/conf" cmake --install "$build" >"$tmp/install3.log" 2>&1 || { cat "$tmp/install3.log"; exit 1; }
+for c in vlff.yaml default.yaml; do
+  vocab=$("$tmp/p/bin/vlff-node" --check-config "$tmp/p/etc/vlff/$c" 2>/dev/null | sed -n 's/^vlm\.bpe_vocab: "\(.*\)"$/\1/p')
+  check "$c: vlm.bpe_vocab ($vocab) is installed there" '[[ "$vocab" == /* && -f "$tmp/conf$vocab" ]] && gzip -t "$tmp/conf$vocab"'
+done
 
 # prefix /usr, staged with DESTDIR as a packager does
 DESTDIR="$tmp/stage" cmake --install "$build" --prefix /usr >"$tmp/install2.log" 2>&1 || { cat "$tmp/install2.log"; exit 1; }

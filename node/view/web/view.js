@@ -1,8 +1,10 @@
 // vlff's own page: a foxglove.websocket.v1 client of vlff-view that draws the
 // labelled voxels with three.js, the camera and label images, the legend and the
 // node's status, and posts prompt sets when the server offers clientPublish.
-import * as THREE from 'three';
-import { OrbitControls } from 'three/addons/OrbitControls.js';
+// Relative imports, no import map: the page's Content-Security-Policy allows no
+// inline script (node/view/CMakeLists.txt points OrbitControls at three.module.js).
+import * as THREE from './three/three.module.js';
+import { OrbitControls } from './three/addons/OrbitControls.js';
 
 const $ = (id) => document.getElementById(id);
 const FREE = 65534;
@@ -101,9 +103,10 @@ function onVoxels(d) {
   rebuild(fresh && !mesh);
   document.body.dataset.version = d.version;
   $('legend').replaceChildren(...d.prompts.map((p, i) => {
-    const li = document.createElement('li');
-    li.innerHTML = `<span style="background:${d.colors[i]}"></span>`;
-    li.append(p);
+    // the swatch's colour set through the DOM: the CSP refuses style attributes in markup
+    const li = document.createElement('li'), sw = document.createElement('span');
+    sw.style.background = d.colors[i];
+    li.append(sw, p);
     return li;
   }));
 }
@@ -182,7 +185,12 @@ ws.onclose = (e) => {
 ws.onmessage = (ev) => {
   if (typeof ev.data === 'string') {
     const m = JSON.parse(ev.data);
-    if (m.op === 'serverInfo') $('editor').hidden = !m.capabilities.includes('clientPublish');
+    if (m.op === 'serverInfo') {
+      // the editor only where the server takes prompt sets (vlff-view --token-file)
+      const publish = m.capabilities.includes('clientPublish');
+      $('editor').hidden = !publish;
+      $('editor-fields').disabled = !publish;
+    }
     if (m.op === 'status') $('msg').textContent = m.message;
     if (m.op === 'advertise') {
       const subs = m.channels.filter((c) => handlers[c.topic]).map((c) => ({ id: c.id, channelId: c.id }));

@@ -25,8 +25,9 @@
  *   (truncated or corrupt header), EMSGSIZE (record does not fit a slot), EINVAL (bad
  *   argument), EAGAIN (nothing new / try again), ETIMEDOUT (wait timed out), ESTALE
  *   (the record was overwritten while being read), EPIPE (the segment was abandoned:
- *   its creator replaced it with a new one, or its file was truncated under this
- *   handle; detach and attach again), EBUSY (the prompt mailbox is busy).
+ *   its creator replaced it with a new one, its file was truncated under this
+ *   handle, or, seen by a reader while it waits, removed from /dev/shm; detach
+ *   and attach again), EBUSY (the prompt mailbox is busy).
  *
  * Ownership: every object returned by a *_create, *_attach or *_new function is owned
  *   by the caller and released with the matching *_close / *_detach / *_free function
@@ -351,6 +352,9 @@ struct vlff_pose_rec {
   double pose[16];      /* camera-to-world, row-major; rotation block orthonormal */
 };
 
+/* Pure helper: the unit quaternion (w, x, y, z; Hamilton) of a pose's
+ * rotation block, by Shepperd's method (well conditioned for any rotation). */
+void vlff_pose_quaternion(const double pose[16], double q_wxyz[4]);
 /* Pure helper: the pose at time t between a (t_a <= t) and b (t >= t), translation
  * linear, rotation slerp. 0, or -1/EINVAL if t is outside [a.t_ns, b.t_ns]. */
 int vlff_pose_interpolate(const struct vlff_pose_rec *a, const struct vlff_pose_rec *b, uint64_t t_ns,
@@ -428,8 +432,9 @@ void vlff_map_detach(struct vlff_map *map);
 
 /* Reader: the label and confidence of the voxel holding world point (x,y,z) in the
  * current version, read consistently. 0 and the label (VLFF_LABEL_UNKNOWN outside
- * the grid or before the first publish), or -1 (EPIPE, EAGAIN if the writer kept
- * changing it for too long). conf may be NULL. */
+ * the grid or before the first publish), or -1 (EINVAL: a NaN or infinite
+ * coordinate; EPIPE; EAGAIN if the writer kept changing it for too long; EBADMSG:
+ * inconsistent map metadata). conf may be NULL. */
 int vlff_map_label_at(struct vlff_map *map, double x, double y, double z, uint16_t *label, uint8_t *conf);
 /* Reader: copies the prompt text of a label (NUL-terminated, truncated to len) into buf.
  * Returns 0, or -1/ENOENT for a label without a prompt (FREE, UNKNOWN, >= count). */

@@ -16,6 +16,7 @@
 #include "config.h"
 #include "dbc_check.h"
 #include "node.h"
+#include "unit.h"
 
 static struct dbc db;
 
@@ -163,11 +164,6 @@ static void test_command_ack_heartbeat(void **state) {
   assert_int_equal(dbc_decode(hb, "NmtState", &s, 0, &v), -1); /* too short */
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_layout_covers_payload),
-      cmocka_unit_test(test_random_status_decodes),
-      cmocka_unit_test(test_command_ack_heartbeat),
-  };
-  return cmocka_run_group_tests(tests, setup, NULL);
-}
+VLFF_UNIT_MAIN(setup, NULL,
+    cmocka_unit_test(test_layout_covers_payload), cmocka_unit_test(test_random_status_decodes),
+    cmocka_unit_test(test_command_ack_heartbeat))

@@ -12,6 +12,7 @@
 
 #include "can_proto.h"
 #include "config.h"
+#include "unit.h"
 
 static void test_status_roundtrip(void **state) {
   (void)state;
@@ -192,11 +193,7 @@ static void test_config_check(void **state) {
   assert_null(vlff_can_open(&cfg.can, cfg.prompts.set_count, NULL, NULL));
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_status_roundtrip), cmocka_unit_test(test_scaling_saturates),
-      cmocka_unit_test(test_command_validation), cmocka_unit_test(test_error_frames),
-      cmocka_unit_test(test_config_check),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_status_roundtrip), cmocka_unit_test(test_scaling_saturates),
+    cmocka_unit_test(test_command_validation), cmocka_unit_test(test_error_frames),
+    cmocka_unit_test(test_config_check))

@@ -3,11 +3,14 @@ an outside parser (Debian's python3-canmatrix), decodes frames encoded by the
 project's CAN code (can_dbc_frames) to the values that were encoded.
 Usage: test_dbc_canmatrix.py VLFF_CAN CAN_DBC_FRAMES TMPDIR
        test_dbc_canmatrix.py --candump CONSOLE_OUTPUT
+       test_dbc_canmatrix.py --node CONSOLE_OUTPUT
 The second form is the host check of tests/vm/cases/can_candump.sh: the DBC
 that case's `vlff-can dbc` wrote and the frames candump captured from the
 node's CAN code on vcan (can_vm_test --serve: frozen status), both cut from
 the case's console output; the newest frame of each message must decode to
-the served values."""
+the served values. The third is the host check of tests/vm/cases/can_node.sh:
+frames of a live vlff-node, stopped over CAN; its last status frames must
+decode to the status `vlff-shm stat` read from its map segment."""
 import subprocess
 import sys
 import warnings
@@ -25,15 +28,83 @@ def section(lines, name):
     return lines[a + 1:b]
 
 
-def candump_check(path):
+def load_capture(path):
+    """The case's DBC, read by canmatrix, and its candump -L frames as
+    (id, payload) in capture order (FD frames are written "ID##<flags><data>")."""
     import os
     import tempfile
     lines = open(path, errors="replace").read().splitlines()
-    dbc_text, frames = section(lines, "DBC"), section(lines, "CANDUMP")
+    dbc_text, dump = section(lines, "DBC"), section(lines, "CANDUMP")
     with tempfile.TemporaryDirectory() as d:
         with open(os.path.join(d, "node.dbc"), "w") as f:
             f.write("\n".join(dbc_text) + "\n")
         db = canmatrix.formats.loadp_flat(os.path.join(d, "node.dbc"))
+    frames = []
+    for line in dump:
+        # candump -L: "(1700000000.123456) vdump0 180#0123456789ABCDEF"
+        parts = line.split()
+        if len(parts) != 3 or "#" not in parts[2]:
+            continue
+        fid, data = parts[2].split("#", 1)
+        if data.startswith("#"):
+            data = data[2:]
+        frames.append((int(fid, 16), bytes.fromhex(data)))
+    return lines, db, frames
+
+
+def node_check(path):
+    lines, db, frames = load_capture(path)
+    stat = {}
+    for line in section(lines, "STAT"):
+        k, _, v = line.partition(" ")
+        stat.setdefault(k, v)
+    fails = []
+    decoded = []
+    for fid, data in frames:
+        frame = db.frame_by_id(canmatrix.ArbitrationId(fid))
+        if frame is not None:
+            decoded.append((frame.name, {k: float(v.phys_value) for k, v in frame.decode(data).items()}))
+    names = {n for n, _ in decoded}
+    # With can.fd (the case's config) one STATUS_FD frame carries what the
+    # classic TRAIN, LOSS, MAP, HEALTH and INGEST frames would.
+    fd = "VLFF_STATUS_FD" in names
+    train, mapm, ingest = ("VLFF_STATUS_FD",) * 3 if fd else ("VLFF_TRAIN", "VLFF_MAP", "VLFF_INGEST")
+    for want in ("VLFF_HEARTBEAT", "VLFF_ACK", train, mapm, ingest):
+        if want not in names:
+            fails.append(f"no {want} frame captured")
+    states = [d["NmtState"] for n, d in decoded if n == "VLFF_HEARTBEAT"]
+    if 5 not in states or states[-1] != 4:
+        fails.append(f"heartbeat states {sorted(set(states))}, last {states[-1] if states else None}: "
+                     "want operational, then stopped last")
+    its = [d["Iteration"] for n, d in decoded if n == train]
+    if its != sorted(its):
+        fails.append(f"{train} iterations went backwards")
+    acks = [d for n, d in decoded if n == "VLFF_ACK"]
+    if acks and acks[-1]["Result"] != 0:
+        fails.append(f"stop command acked with {acks[-1]}")
+    newest = {}
+    for n, d in decoded:
+        newest[n] = d
+    want = {"Iteration": int(stat["iterations"]), "Keyframes": int(stat["keyframes"]),
+            "NmtState": int(stat["state_code"])}
+    for sig, v in want.items():
+        got = newest.get(train, {}).get(sig)
+        if got != v:
+            fails.append(f"{train}.{sig}: last frame {got}, vlff-shm stat {v}")
+    got = newest.get(ingest, {}).get("FramesRefused")
+    if got != int(stat["frames_refused"]):
+        fails.append(f"{ingest}.FramesRefused: {got}, vlff-shm stat {stat['frames_refused']}")
+    if not any(d["FpsIn"] > 0 for n, d in decoded if n == mapm):
+        fails.append(f"no {mapm} frame with frames coming in")
+    for f in fails:
+        print("FAIL:", f)
+    print(f"{len(frames)} captured frames, {len(decoded)} decoded, iterations {want['Iteration']}, "
+          f"{len(fails)} failures")
+    sys.exit(1 if fails else 0)
+
+
+def candump_check(path):
+    lines, db, frames = load_capture(path)
     served = {  # can_vm_test's fixed_status(), node 42, operational
         "VLFF_HEARTBEAT": {"NmtState": 5},
         "VLFF_TRAIN": {"Iteration": 123456789, "Keyframes": 77, "PromptSet": 1, "NmtState": 5},
@@ -42,15 +113,10 @@ def candump_check(path):
         "VLFF_HEALTH": {"ErrPoseStale": 1, "ErrCameraLost": 0, "FpsDropped": 0.5},
     }
     newest = {}
-    for line in frames:
-        # candump -L: "(1700000000.123456) vdump0 180#0123456789ABCDEF"
-        parts = line.split()
-        if len(parts) != 3 or "#" not in parts[2]:
-            continue
-        fid, data = parts[2].split("#", 1)
-        frame = db.frame_by_id(canmatrix.ArbitrationId(int(fid, 16)))
+    for fid, data in frames:
+        frame = db.frame_by_id(canmatrix.ArbitrationId(fid))
         if frame is not None:
-            newest[frame.name] = bytes.fromhex(data)
+            newest[frame.name] = data
     fails = 0
     for name, want in served.items():
         if name not in newest:
@@ -69,6 +135,8 @@ def candump_check(path):
 
 if sys.argv[1] == "--candump":
     candump_check(sys.argv[2])
+if sys.argv[1] == "--node":
+    node_check(sys.argv[2])
 
 vlff_can, frames_prog, tmp = sys.argv[1:4]
 cfg = f"{tmp}/node17.yaml"

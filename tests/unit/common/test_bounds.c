@@ -8,6 +8,7 @@
 #include <cmocka.h>
 
 #include "bounds.h"
+#include "unit.h"
 
 static char why[256];
 
@@ -67,11 +68,6 @@ static void test_pose_bounds(void **state) {
   assert_int_equal(vlff_pose_plausible(m, NULL, NULL, why, sizeof why), -1);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_real_cameras_pass),
-      cmocka_unit_test(test_corrupt_intrinsics_refused),
-      cmocka_unit_test(test_pose_bounds),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_real_cameras_pass), cmocka_unit_test(test_corrupt_intrinsics_refused),
+    cmocka_unit_test(test_pose_bounds))

@@ -16,6 +16,8 @@
 
 #include "config.h"
 #include "files.h"
+#include "unit.h"
+#include "vlff/shm.h"
 
 static char err[512];
 
@@ -88,6 +90,22 @@ static const struct {
   {"node:\n  name: \"a\\0b\"\n", "t.yaml:2:9: key 'node.name': ", "expected a string without NUL bytes, got 'a\\x00b'"},
   {"prompts:\n  sets:\n    - name: \"x\\0y\"\n      prompts: [a]\n", "t.yaml:3:13: key 'prompts.sets[0].name': ", "got 'x\\x00y'"},
   {"prompts:\n  sets:\n    - prompts: [\"a\\0b\"]\n", "t.yaml:3:17: key 'prompts.sets[0].prompts': ", "at index 0, got 'a\\x00b'"},
+  /* Control characters in any string value (issue 29): a quoted scalar's
+   * escapes make them. */
+  {"node:\n  state_dir: \"/var/lib/a\\nb\"\n", "t.yaml:2:14: key 'node.state_dir': ", "without control characters, got '/var/lib/a\\x0ab'"},
+  {"vlm:\n  text_model: \"m\\e]0;x\\a.onnx\"\n", "t.yaml:2:15: key 'vlm.text_model': ", "got 'm\\x1b]0;x\\x07.onnx'"},
+  {"prompts:\n  template: \"a photo of a {}\\x7f\"\n", "t.yaml:2:13: key 'prompts.template': ", "without control characters"},
+  {"prompts:\n  sets:\n    - name: \"a\\tb\"\n      prompts: [a]\n", "t.yaml:3:13: key 'prompts.sets[0].name': ", "without control characters, got 'a\\x09b'"},
+  /* Prompt sets are checked as the mailbox and the embeddings format check
+   * theirs (vlff_prompt_check), naming the prompt that breaks the rule. */
+  {"prompts:\n  sets:\n    - prompts: [wall, \"door\\nlabel 0 prompt FAKE\"]\n", "t.yaml:3:23: key 'prompts.sets[0].prompts': ",
+   "(prompts refused: prompt 2 is not UTF-8 text without control characters (tabs and newlines included)) at index 1, got 'door\\x0alabel 0 prompt FAKE'"},
+  {"prompts:\n  sets:\n    - prompts: [\"a\\tb\"]\n", "t.yaml:3:17: key 'prompts.sets[0].prompts': ", "not UTF-8 text without control characters"},
+  {"prompts:\n  sets:\n    - prompts: [\"c1 \\x85\"]\n", "t.yaml:3:17: key 'prompts.sets[0].prompts': ", "at index 0, got 'c1 \\xc2\\x85'"},
+  {"prompts:\n  sets:\n    - prompts: [chair, table, chair]\n", "t.yaml:3:31: key 'prompts.sets[0].prompts': ",
+   "(prompts refused: prompt 3 repeats prompt 1 ('chair')) at index 2, got 'chair'"},
+  {"prompts:\n  sets:\n    - prompts: [a]\n    - prompts: [x, 0123456789012345678901234567890123456789012345678901234567890123]\n",
+   "t.yaml:4:20: key 'prompts.sets[1].prompts': ", "prompt 2 is empty or longer than 63 bytes) at index 1"},
   {"node:\n  log_level: \"\\e[31mred\\e[0m\"\n", "t.yaml:2:14: key 'node.log_level': ", "got '\\x1b[31mred\\x1b[0m'"},
   {"node:\n  \"\\e[2J\": 1\n", "t.yaml:2:3: key 'node.\\x1b[2J': ", "unknown key"},
   {"node:\n  log_level: \"caf\\u00e9\"\n", "t.yaml:2:14: key 'node.log_level': ", "got 'caf\\xc3\\xa9'"},
@@ -96,7 +114,7 @@ static const struct {
   {"shm:\n  map: /a/b\n", "t.yaml:2:8: key 'shm.map': ", "no '/' after the leading one"},
   {"shm:\n  prompts: /\n", "t.yaml:2:12: key 'shm.prompts': ", "1 to 248 characters"},
   {"shm:\n  pose_ring: /..\n", "t.yaml:2:14: key 'shm.pose_ring': ", "other than '.' or '..'"},
-  {"shm:\n  feature_ring: \"/a\\tb\"\n", "t.yaml:2:17: key 'shm.feature_ring': ", "printable characters"},
+  {"shm:\n  feature_ring: \"/a\\tb\"\n", "t.yaml:2:17: key 'shm.feature_ring': ", "without control characters, got '/a\\x09b'"},
   /* The same name twice: the mailbox would replace the map. */
   {"shm:\n  map: /x\n  prompts: /x\n", "t.yaml:3:12: key 'shm.prompts': ", "distinct from shm.map, got the same '/x'"},
   /* A name equal to another key's default is blamed where the file set it. */
@@ -116,6 +134,10 @@ static void test_defaults_valid(void **state) {
   assert_int_equal(cfg.prompts.set_count, 1);
   assert_int_equal(cfg.prompts.sets[0].count, 20);
   assert_string_equal(cfg.prompts.sets[0].text[15], "shower curtain");
+  /* The default set passes the rule a configured one must pass. */
+  const char *texts[VLFF_MAX_PROMPTS];
+  for (int i = 0; i < cfg.prompts.sets[0].count; i++) texts[i] = cfg.prompts.sets[0].text[i];
+  assert_int_equal(vlff_prompt_check(texts, cfg.prompts.sets[0].count), 0);
   assert_int_equal(cfg.shm.mode, 0640);
   assert_int_equal(cfg.sim.layout, VLFF_LAYOUT_ROOM);
   assert_true(cfg.sim.object_bias == 0);
@@ -218,6 +240,13 @@ static void test_hostile_strings(void **state) {
   assert_int_equal(load("shm:\n  ring: \"/a\\e\"\n", &cfg), -1);
   assert_non_null(strstr(err, "got '/a\\x1b'"));
   for (const char *c = err; *c; c++) assert_true(*c >= 0x20 && *c < 0x7f);
+  /* What the prompt rule takes (UTF-8 text, spaces, 63 bytes) is taken. */
+  assert_int_equal(load("prompts:\n  sets:\n    - name: möbel\n      prompts: [\"café\", 椅子, \"a b\", "
+                        "012345678901234567890123456789012345678901234567890123456789012]\n",
+                        &cfg), 0);
+  assert_int_equal(cfg.prompts.sets[0].count, 4);
+  assert_string_equal(cfg.prompts.sets[0].text[1], "椅子");
+  assert_string_equal(cfg.prompts.sets[0].name, "möbel");
 }
 
 /* Segment names that are valid and distinct are taken (those refused are
@@ -230,9 +259,16 @@ static void test_shm_names(void **state) {
   assert_string_equal(cfg.shm.prompts, "/p");
 }
 
+static int load_fifo(void *path) {
+  struct vlff_config cfg;
+  char e[512];
+  int rc = vlff_config_load(path, &cfg, e, sizeof e);
+  return rc == -1 && strstr(e, "is a FIFO, expected a regular file") ? 0 : 1;
+}
+
 /* A FIFO where the config should be is refused at once, not waited on. The
- * load runs in a child so that a regression blocks the child, which the
- * parent then sees still running after the child's own alarm. */
+ * load runs in a child so that a regression blocks the child, which its own
+ * alarm then ends. */
 static void test_fifo_config(void **state) {
   (void)state;
   char dir[] = "/tmp/vlff-cfgfifo-XXXXXX";
@@ -240,19 +276,7 @@ static void test_fifo_config(void **state) {
   char path[256];
   snprintf(path, sizeof path, "%s/c.yaml", dir);
   assert_int_equal(mkfifo(path, 0600), 0);
-  pid_t pid = fork();
-  assert_true(pid >= 0);
-  if (pid == 0) {
-    alarm(20);
-    struct vlff_config cfg;
-    char e[512];
-    int rc = vlff_config_load(path, &cfg, e, sizeof e);
-    _exit(rc == -1 && strstr(e, "is a FIFO, expected a regular file") ? 0 : 1);
-  }
-  int st;
-  assert_int_equal(waitpid(pid, &st, 0), pid);
-  assert_true(WIFEXITED(st));
-  assert_int_equal(WEXITSTATUS(st), 0);
+  assert_int_equal(vlff_test_in_child(load_fifo, path, 20), 0);
   struct vlff_config cfg;
   assert_int_equal(vlff_config_load(dir, &cfg, err, sizeof err), -1);
   assert_non_null(strstr(err, "is a directory"));
@@ -424,16 +448,11 @@ static void test_config_find(void **state) {
   unsetenv("VLFF_CONFIG");
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
-      cmocka_unit_test(test_errors),         cmocka_unit_test(test_missing_file),
-      cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_field_hash),
-      cmocka_unit_test(test_sim_features),
-      cmocka_unit_test(test_deep_yaml),      cmocka_unit_test(test_shm_names),
-      cmocka_unit_test(test_fifo_config),    cmocka_unit_test(test_dead_temps),
-      cmocka_unit_test(test_config_find),
-      cmocka_unit_test(test_hostile_strings),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
+    cmocka_unit_test(test_errors), cmocka_unit_test(test_missing_file),
+    cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_field_hash),
+    cmocka_unit_test(test_sim_features), cmocka_unit_test(test_deep_yaml),
+    cmocka_unit_test(test_shm_names), cmocka_unit_test(test_fifo_config),
+    cmocka_unit_test(test_dead_temps), cmocka_unit_test(test_config_find),
+    cmocka_unit_test(test_hostile_strings))

@@ -11,6 +11,7 @@
 #include <cmocka.h>
 
 #include "evidence.h"
+#include "unit.h"
 
 enum { W = 8, H = 8, FW = 4, FH = 4, D = 4 };
 
@@ -38,7 +39,7 @@ static void wall_make(struct wall *w, float depth_m, const float f[D]) {
 
 static struct vlff_evidence *make(size_t bytes) {
   char err[256];
-  struct vlff_evidence *e = vlff_evidence_create(origin, dims, 0.5, D, bytes, err, sizeof err);
+  struct vlff_evidence *e = vlff_evidence_create(origin, dims, 0.5, D, VLFF_MAX_PROMPTS, bytes, err, sizeof err);
   if (!e) fail_msg("%s", err);
   return e;
 }
@@ -168,7 +169,7 @@ static void test_save_load(void **state) {
   assert_int_equal(vlff_evidence_get(g, vi, y), 4); /* four feature pixels of one view */
   assert_int_equal(vlff_evidence_load(g, buf, n - 1, err, sizeof err), -1);
   char err2[256];
-  struct vlff_evidence *other = vlff_evidence_create(origin, dims, 0.5, D + 1, 1 << 20, err2, sizeof err2);
+  struct vlff_evidence *other = vlff_evidence_create(origin, dims, 0.5, D + 1, VLFF_MAX_PROMPTS, 1 << 20, err2, sizeof err2);
   vlff_evidence_save(e, buf);
   assert_int_equal(vlff_evidence_load(other, buf, n, err, sizeof err), -1);
   assert_non_null(strstr(err, "another grid"));
@@ -196,13 +197,8 @@ static void test_grid_plan(void **state) {
   assert_true((size_t)d[0] * d[1] * d[2] <= 10000);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_views_average_where_depth_ends),
-      cmocka_unit_test(test_labels_combine_field_and_evidence),
-      cmocka_unit_test(test_budget_and_bad_values),
-      cmocka_unit_test(test_save_load),
-      cmocka_unit_test(test_grid_plan),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_views_average_where_depth_ends),
+    cmocka_unit_test(test_labels_combine_field_and_evidence),
+    cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_save_load),
+    cmocka_unit_test(test_grid_plan))

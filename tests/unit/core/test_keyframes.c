@@ -8,6 +8,7 @@
 #include <cmocka.h>
 
 #include "keyframes.h"
+#include "unit.h"
 
 enum { W = 8, H = 6, FW = 2, FH = 2, D = 4 };
 static uint8_t rgb[W * H * 3];
@@ -117,12 +118,6 @@ static void test_pose_distance(void **st) {
   assert_float_equal(vlff_pose_distance(a, b), 5 + 0.5 * 1.5707963267948966, 1e-9);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_budget_and_copy),
-      cmocka_unit_test(test_redundant_view_goes),
-      cmocka_unit_test(test_newest_protected_and_weights),
-      cmocka_unit_test(test_pose_distance),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_budget_and_copy), cmocka_unit_test(test_redundant_view_goes),
+    cmocka_unit_test(test_newest_protected_and_weights), cmocka_unit_test(test_pose_distance))

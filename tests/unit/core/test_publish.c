@@ -15,6 +15,7 @@
 #include <cmocka.h>
 
 #include "publish.h"
+#include "unit.h"
 #include "vlff/shm.h"
 
 enum { W = 64, H = 48 };
@@ -101,10 +102,5 @@ static void test_far_depth_bounded(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_absurd_intrinsics_refused),
-      cmocka_unit_test(test_far_depth_bounded),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded))

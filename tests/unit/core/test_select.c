@@ -7,6 +7,7 @@
 #include <cmocka.h>
 
 #include "select.h"
+#include "unit.h"
 
 static void ident(double m[16], double x) {
   memset(m, 0, 16 * sizeof m[0]);
@@ -14,39 +15,46 @@ static void ident(double m[16], double x) {
   m[3] = x;
 }
 
+/* A selector at 5 Hz keyframes with the given motion thresholds, and p the
+ * identity pose. */
+struct sel {
+  struct vlff_kf_selector s;
+  double p[16];
+};
+
+static struct sel start(double min_m, double min_deg) {
+  struct sel x;
+  vlff_kf_selector_init(&x.s, 5, min_m, min_deg);
+  ident(x.p, 0);
+  return x;
+}
+
 static void test_time_only(void **st) {
   (void)st;
-  struct vlff_kf_selector s;
-  vlff_kf_selector_init(&s, 5, 0, 0);
-  double p[16];
-  ident(p, 0);
+  struct sel x = start(0, 0);
   int n = 0;
   /* 30 Hz for 2 s at 5 Hz keyframes: 10 keyframes. */
-  for (int i = 0; i < 60; i++) n += vlff_kf_selector_offer(&s, (long long)i * 1000000000ll / 30, p);
+  for (int i = 0; i < 60; i++) n += vlff_kf_selector_offer(&x.s, (long long)i * 1000000000ll / 30, x.p);
   assert_int_equal(n, 10);
 }
 
 static void test_motion_required(void **st) {
   (void)st;
-  struct vlff_kf_selector s;
-  vlff_kf_selector_init(&s, 5, 0.1, 0);
-  double p[16];
-  ident(p, 0);
-  assert_true(vlff_kf_selector_offer(&s, 0, p));
-  assert_false(vlff_kf_selector_offer(&s, 1000000000ll, p)); /* time ok, no motion */
-  ident(p, 0.05);
-  assert_false(vlff_kf_selector_offer(&s, 2000000000ll, p));
-  ident(p, 0.2);
-  assert_true(vlff_kf_selector_offer(&s, 3000000000ll, p));
+  struct sel x = start(0.1, 0);
+  assert_true(vlff_kf_selector_offer(&x.s, 0, x.p));
+  assert_false(vlff_kf_selector_offer(&x.s, 1000000000ll, x.p)); /* time ok, no motion */
+  ident(x.p, 0.05);
+  assert_false(vlff_kf_selector_offer(&x.s, 2000000000ll, x.p));
+  ident(x.p, 0.2);
+  assert_true(vlff_kf_selector_offer(&x.s, 3000000000ll, x.p));
   /* Rotation alone counts when min_rotation_deg is set. */
-  vlff_kf_selector_init(&s, 5, 0, 10);
-  ident(p, 0);
-  assert_true(vlff_kf_selector_offer(&s, 0, p));
+  x = start(0, 10);
+  assert_true(vlff_kf_selector_offer(&x.s, 0, x.p));
   double r[16];
   ident(r, 0);
   double a = 15 * M_PI / 180;
   r[0] = cos(a), r[1] = -sin(a), r[4] = sin(a), r[5] = cos(a);
-  assert_true(vlff_kf_selector_offer(&s, 1000000000ll, r));
+  assert_true(vlff_kf_selector_offer(&x.s, 1000000000ll, r));
 }
 
 static void test_pose_valid(void **st) {
@@ -102,9 +110,6 @@ static void test_posecheck(void **st) {
   assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_UNKNOWN);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_time_only), cmocka_unit_test(test_motion_required),
-      cmocka_unit_test(test_pose_valid), cmocka_unit_test(test_posecheck)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_time_only), cmocka_unit_test(test_motion_required),
+    cmocka_unit_test(test_pose_valid), cmocka_unit_test(test_posecheck))

@@ -22,6 +22,7 @@
 #include "pipe.h"
 #include "sink.h"
 #include "drvtest.h"
+#include "unit.h"
 
 static pid_t cam_pid = -1;
 
@@ -254,14 +255,7 @@ static void test_lossy_link_counts_incomplete(void **state) {
   cam_pid = fakecam_start(0);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_mono8_pattern_and_timestamps),
-      cmocka_unit_test(test_bayer_frames),
-      cmocka_unit_test(test_software_trigger),
-      cmocka_unit_test(test_bad_values_name_the_key),
-      cmocka_unit_test(test_lossy_link_counts_incomplete),
-      cmocka_unit_test(test_loss_and_reconnect),
-  };
-  return cmocka_run_group_tests(tests, setup, teardown);
-}
+VLFF_UNIT_MAIN(setup, teardown,
+    cmocka_unit_test(test_mono8_pattern_and_timestamps), cmocka_unit_test(test_bayer_frames),
+    cmocka_unit_test(test_software_trigger), cmocka_unit_test(test_bad_values_name_the_key),
+    cmocka_unit_test(test_lossy_link_counts_incomplete), cmocka_unit_test(test_loss_and_reconnect))

@@ -21,6 +21,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <cmocka.h>
 
@@ -29,6 +30,7 @@
 #include "pair.h"
 #include "pixfmt.h"
 #include "sink.h"
+#include "unit.h"
 
 #define DW 320
 #define DH 240
@@ -541,6 +543,13 @@ static void expect_refused(const char *name, const char *text, const char *what)
   if (!strstr(err, what) || !strstr(err, name)) fail_msg("%s: expected '%s' in: %s", name, what, err);
 }
 
+static int load_nonregular(void *fifo) {
+  struct vlff_rgbd_calib c;
+  char err[512];
+  int ok = vlff_rgbd_calib_load(fifo, &c, err, sizeof err) == -1 && strstr(err, "fifo.yaml: is a FIFO, expected a regular file");
+  return ok && vlff_rgbd_calib_load(dir, &c, err, sizeof err) == -1 && strstr(err, "is a directory") ? 0 : 1;
+}
+
 static void test_calibration_files(void **state) {
   (void)state;
   char cmd[200];
@@ -603,6 +612,12 @@ static void test_calibration_files(void **state) {
   snprintf(cmd, sizeof cmd, "%s/missing.yaml", dir);
   assert_int_equal(vlff_rgbd_calib_load(cmd, &c, err, sizeof err), -1);
   assert_non_null(strstr(err, "missing.yaml"));
+  /* A FIFO or a directory is refused at once, never waited on (issue 29): the
+   * loads run in a child, whose alarm ends it if one blocks. */
+  snprintf(cmd, sizeof cmd, "%s/fifo.yaml", dir);
+  assert_int_equal(mkfifo(cmd, 0600), 0);
+  int rc = vlff_test_in_child(load_nonregular, cmd, 10);
+  if (rc) fail_msg("a FIFO or directory as calibration file: %s", rc < 0 ? "blocked" : "not refused");
 
   /* The shipped example loads and fits the cameras it names. */
   const char *src = getenv("VLFF_SOURCE_DIR");

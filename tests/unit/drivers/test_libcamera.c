@@ -17,6 +17,7 @@
 #include <unistd.h>
 
 #include "lcam.h"
+#include "unit.h"
 
 static void test_zero_cameras_is_a_clear_error(void **state) {
   (void)state;
@@ -51,10 +52,6 @@ static void test_unknown_format_names_the_key(void **state) {
   assert_non_null(strstr(err, "camera.pixel_format"));
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_zero_cameras_is_a_clear_error),
-      cmocka_unit_test(test_unknown_format_names_the_key),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_zero_cameras_is_a_clear_error),
+    cmocka_unit_test(test_unknown_format_names_the_key))

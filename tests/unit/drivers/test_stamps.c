@@ -16,6 +16,7 @@
 #include <time.h>
 
 #include "stamps.h"
+#include "unit.h"
 
 static struct vlff_stamps q;
 
@@ -100,11 +101,6 @@ static void test_two_threads(void **state) {
   assert_true(matched > 10);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_newest_before_arrival_within_window),
-      cmocka_unit_test(test_overflow_keeps_the_newest),
-      cmocka_unit_test(test_two_threads),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_newest_before_arrival_within_window),
+    cmocka_unit_test(test_overflow_keeps_the_newest), cmocka_unit_test(test_two_threads))

@@ -13,6 +13,8 @@
 #include <unistd.h>
 
 #include <cmocka.h>
+
+#include "unit.h"
 #include <json-c/json.h>
 
 static char tmp[256], cfg[300];
@@ -26,15 +28,6 @@ static void run(const char *cmd, char *last, size_t cap) {
     if (!strncmp(line, "RESULT ", 7)) snprintf(last, cap, "%s", line);
   int rc = pclose(p);
   if (rc != 0) fail_msg("'%s' exited with %d", cmd, rc);
-}
-
-/* A program of the build as a command word: after $VLFF_EMULATOR (qemu-user
- * in a cross-built tree, empty otherwise). */
-static const char *prog(char *buf, size_t cap, const char *rel) {
-  const char *bin = getenv("VLFF_BINARY_DIR"), *emu = getenv("VLFF_EMULATOR");
-  assert_non_null(bin);
-  snprintf(buf, cap, "%s %s/%s", emu ? emu : "", bin, rel);
-  return buf;
 }
 
 static double field(const char *res, const char *key) {
@@ -84,8 +77,8 @@ static void test_dataset_matches_synthetic(void **state) {
   skip();
 #endif
   char sim[1024], eval[1024];
-  prog(sim, sizeof sim, "node/sim/vlff-sim");
-  prog(eval, sizeof eval, "node/eval/vlff-eval");
+  vlff_test_prog(sim, sizeof sim, "node/sim/vlff-sim");
+  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
   start("cli", "sim:\n  width: 96\n  height: 72\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n");
   char cmd[4096], a[1024], b[1024];
   snprintf(cmd, sizeof cmd, "%s --config %s --quiet --write-dataset %s/ds", sim, cfg, tmp);
@@ -215,7 +208,7 @@ static void test_dataset_matches_synthetic(void **state) {
 static void test_small_fit_beats_raw(void **state) {
   (void)state;
   char eval[1024];
-  prog(eval, sizeof eval, "node/eval/vlff-eval");
+  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
   start("fit",
         "node:\n  threads: 2\nsim:\n  width: 128\n  height: 96\n  frames: 32\n"
         "field:\n  feature_dim: 16\n  hash_log2_size: 15\n  finest_resolution: 256\n  feature_width: 32\n"
@@ -241,7 +234,7 @@ static void test_small_fit_beats_raw(void **state) {
 static void test_fit_seconds_and_per_class(void **state) {
   (void)state;
   char eval[1024];
-  prog(eval, sizeof eval, "node/eval/vlff-eval");
+  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
   start("secs",
         "node:\n  threads: 1\nsim:\n  width: 64\n  height: 48\n  frames: 8\n"
         "field:\n  feature_dim: 16\n  hash_log2_size: 12\n  finest_resolution: 64\n  feature_width: 16\n"
@@ -276,9 +269,6 @@ static void test_fit_seconds_and_per_class(void **state) {
   tmp_remove();
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_dataset_matches_synthetic),
-                                     cmocka_unit_test(test_small_fit_beats_raw),
-                                     cmocka_unit_test(test_fit_seconds_and_per_class)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_dataset_matches_synthetic), cmocka_unit_test(test_small_fit_beats_raw),
+    cmocka_unit_test(test_fit_seconds_and_per_class))

@@ -11,6 +11,7 @@
 
 #include "field.h"
 #include "metrics.h"
+#include "unit.h"
 
 #define NEAR(a, b) assert_true(fabs((a) - (b)) < 1e-12)
 
@@ -163,10 +164,7 @@ static void test_downsample_labels(void **state) {
   assert_int_equal(out[3], 15);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_hand_computed), cmocka_unit_test(test_absent_classes), cmocka_unit_test(test_classify),
-      cmocka_unit_test(test_fusion), cmocka_unit_test(test_downsample_labels),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_hand_computed), cmocka_unit_test(test_absent_classes),
+    cmocka_unit_test(test_classify), cmocka_unit_test(test_fusion),
+    cmocka_unit_test(test_downsample_labels))

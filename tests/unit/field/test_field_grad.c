@@ -15,6 +15,7 @@
 #include <cmocka.h>
 
 #include "field_internal.h"
+#include "unit.h"
 
 static uint64_t rng = 42;
 static float frand(void) { return 2.0f * vlff_rng_uniform(&rng) - 1.0f; }
@@ -792,12 +793,8 @@ static void test_f16(void **state) {
   }
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_gemm),   cmocka_unit_test(test_score),  cmocka_unit_test(test_mlp),    cmocka_unit_test(test_encoding),
-      cmocka_unit_test(test_encoding_simd),
-      cmocka_unit_test(test_render), cmocka_unit_test(test_losses), cmocka_unit_test(test_adam),
-      cmocka_unit_test(test_f16),    cmocka_unit_test(test_f16_bulk),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_gemm), cmocka_unit_test(test_score), cmocka_unit_test(test_mlp),
+    cmocka_unit_test(test_encoding), cmocka_unit_test(test_encoding_simd),
+    cmocka_unit_test(test_render), cmocka_unit_test(test_losses), cmocka_unit_test(test_adam),
+    cmocka_unit_test(test_f16), cmocka_unit_test(test_f16_bulk))

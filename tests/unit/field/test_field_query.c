@@ -19,6 +19,7 @@
 
 #include "field_internal.h"
 #include "scene.h"
+#include "unit.h"
 
 #define D 24
 #define NV 4
@@ -74,6 +75,15 @@ static void random_prompts(float *e, int k) {
   for (int i = 0; i < k * D; i++) e[i] = 2.0f * vlff_rng_uniform(&r) - 1.0f;
 }
 
+/* A field trained for a few steps with K random prompts e[K*D] set. */
+static struct vlff_field *trained_with_prompts(const struct vlff_config *cfg, float *e, int K) {
+  struct vlff_field *f = trained(cfg, 20);
+  random_prompts(e, K);
+  char err[256];
+  assert_int_equal(vlff_field_set_prompts(f, e, K, err, sizeof(err)), 0);
+  return f;
+}
+
 /* Best and second-best cos(E_k, f) in double; returns the best k. */
 static int best_cosines(const float *feat, const float *e, int K, double *best, double *second) {
   double fn = 0;
@@ -126,12 +136,9 @@ static void test_norm_paths(void **state) {
   struct vlff_config cfg;
   cfg_small(&cfg);
   cfg.field.feature_width = 16; /* H < D: W can have full column rank */
-  struct vlff_field *f = trained(&cfg, 20);
   const int K = 6;
   float e[K * D];
-  random_prompts(e, K);
-  char err[256];
-  assert_int_equal(vlff_field_set_prompts(f, e, K, err, sizeof(err)), 0);
+  struct vlff_field *f = trained_with_prompts(&cfg, e, K);
   assert_int_equal(f->chol_ok, 1);
   assert_true(score_error(f, e, K, 400) < 1e-3);
   /* Two hidden units with the same output weights: WᵀW is singular. */
@@ -150,12 +157,9 @@ static void test_folded_equals_unfolded(void **state) {
   (void)state;
   struct vlff_config cfg;
   cfg_small(&cfg);
-  struct vlff_field *f = trained(&cfg, 20);
   const int K = 20;
   float e[K * D];
-  random_prompts(e, K);
-  char err[256];
-  assert_int_equal(vlff_field_set_prompts(f, e, K, err, sizeof(err)), 0);
+  struct vlff_field *f = trained_with_prompts(&cfg, e, K);
   const size_t n = 3000;
   float *xyz = malloc(n * 12), *feat = malloc(n * D * 4), *dens = malloc(n * 4), *score = malloc(n * 4),
         *margin = malloc(n * 4);
@@ -411,12 +415,7 @@ static void test_bad_inputs(void **state) {
   vlff_field_destroy(f);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_folded_equals_unfolded), cmocka_unit_test(test_norm_paths),
-      cmocka_unit_test(test_checkpoint),
-      cmocka_unit_test(test_determinism),
-      cmocka_unit_test(test_bad_inputs),
-  };
-  return cmocka_run_group_tests(tests, setup, teardown);
-}
+VLFF_UNIT_MAIN(setup, teardown,
+    cmocka_unit_test(test_folded_equals_unfolded), cmocka_unit_test(test_norm_paths),
+    cmocka_unit_test(test_checkpoint), cmocka_unit_test(test_determinism),
+    cmocka_unit_test(test_bad_inputs))

@@ -16,6 +16,7 @@
 
 #include "field_internal.h"
 #include "scene.h"
+#include "unit.h"
 
 /* Sanitizer builds run fewer steps (ThreadSanitizer fewest) against looser
  * thresholds; the assertions stay the same. */
@@ -438,15 +439,8 @@ static void test_class_balance(void **state) {
   assert_true(fabs(bal - 1.0 / 6) < 0.02);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_ray_budget),
-      cmocka_unit_test(test_level_mask),
-      cmocka_unit_test(test_marks_wrap),
-      cmocka_unit_test(test_slab),
-      cmocka_unit_test(test_chunk_gradient),
-      cmocka_unit_test(test_class_balance),
-      cmocka_unit_test(test_convergence),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_ray_budget), cmocka_unit_test(test_level_mask),
+    cmocka_unit_test(test_marks_wrap), cmocka_unit_test(test_slab),
+    cmocka_unit_test(test_chunk_gradient), cmocka_unit_test(test_class_balance),
+    cmocka_unit_test(test_convergence))

@@ -18,6 +18,7 @@
 #include <cmocka.h>
 
 #include "field_internal.h"
+#include "unit.h"
 
 enum { MAXT = 200 };
 
@@ -144,11 +145,7 @@ static void test_dynamic_balances(void **state) {
   vlff_pool_destroy(p);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_every_task_once), cmocka_unit_test(test_back_to_back),
-      cmocka_unit_test(test_after_sleep),     cmocka_unit_test(test_long_tasks),
-      cmocka_unit_test(test_dynamic_balances),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_every_task_once), cmocka_unit_test(test_back_to_back),
+    cmocka_unit_test(test_after_sleep), cmocka_unit_test(test_long_tasks),
+    cmocka_unit_test(test_dynamic_balances))

@@ -106,17 +106,7 @@ check "idle node wrote no checkpoint" '[[ -z "$(ls -A "$tmp/state")" ]]'
 # STOPPING=1; received on a notify socket of our own.
 if "${node[@]}" --help >/dev/null && [[ -z "${VLFF_EMULATOR:-}" ]] && command -v /usr/bin/python3 >/dev/null &&
    grep -q "sd_notify" "$(command -v "${node[-1]}")" 2>/dev/null; then
-  /usr/bin/python3 -c '
-import socket, sys, time
-s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-s.bind(sys.argv[1]); s.settimeout(0.5)
-out = open(sys.argv[2], "w"); end = time.time() + 15
-while time.time() < end:
-    try: msg = s.recv(4096).decode()
-    except socket.timeout: continue
-    out.write(msg + "\n"); out.flush()
-    if "STOPPING=1" in msg: break
-' "$tmp/notify.sock" "$tmp/notify.log" & listener=$!
+  /usr/bin/python3 "$src/tests/common/notify_listen.py" "$tmp/notify.sock" "$tmp/notify.log" 15 & listener=$!
   for ((i = 0; i < 50; i++)); do [[ -S "$tmp/notify.sock" ]] && break; sleep 0.1; done
   NOTIFY_SOCKET="$tmp/notify.sock" WATCHDOG_USEC=2000000 "${node[@]}" --config "$tmp/ok.yaml" 2>"$tmp/sd" & p=$!
   # the main loop starts after the node is up (slow under sanitizers), then
@@ -128,6 +118,20 @@ while time.time() < end:
   check "sd_notify READY=1" 'grep -qx "READY=1" "$tmp/notify.log"'
   check "sd_notify WATCHDOG=1 while the threads loop" 'grep -qx "WATCHDOG=1" "$tmp/notify.log"'
   check "sd_notify STOPPING=1" 'grep -qx "STOPPING=1" "$tmp/notify.log"'
+  # A thread that makes no progress stops the feeding while the main loop
+  # goes on: each thread in turn is frozen alone with ptrace, as a deadlock or
+  # a driver call that never returns would leave it (watchdog_stall.py). The
+  # node has no blocking wait to stall it with: every wait it makes has a
+  # timeout, FIFOs are refused, the mailbox lock is never waited for.
+  for t in vlff-trainer vlff-ingest; do
+    /usr/bin/python3 "$src/tests/unit/node/watchdog_stall.py" "${node[-1]}" "$tmp/ok.yaml" $t "$tmp" >"$tmp/stall.$t" 2>&1
+    rc=$?
+    if [[ $rc == 77 ]]; then
+      cat "$tmp/stall.$t"
+    else
+      check "watchdog not fed while $t is frozen, fed again after" '[[ $rc == 0 ]] || { cat "$tmp/stall.$t"; false; }'
+    fi
+  done
 else
   echo "note: this vlff-node has no sd_notify (built without libsystemd) or runs emulated; notify not checked"
 fi

@@ -25,6 +25,7 @@
 #include "sim_source.h"
 #include "sim.h"
 #include "testkit.h"
+#include "unit.h"
 #include "vlff/shm.h"
 
 static struct tk tk;
@@ -96,9 +97,5 @@ static void test_absurd_intrinsics(void **state) {
   tk_scene_close(&sc);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test_teardown(test_absurd_intrinsics, teardown),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test_teardown(test_absurd_intrinsics, teardown))

@@ -66,8 +66,5 @@ wait_until 100 'grep -q "left half-written" "$tmp/log"'
 check "the dead poster's half-written request is logged" 'grep -q "left half-written by poster pid" "$tmp/log"'
 check "posting works after the dead poster" '"$shm" set-prompts $p-p -i 0 | grep -q "^accepted"'
 kill "$simpid"; wait "$simpid"; simpid=
-kill -TERM "$nodepid"; wait "$nodepid"; rc=$?; nodepid=
-check "node exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
-echo "$passes passed, $fails failed"
-(( fails == 0 )) || { echo "--- node log"; tail -30 "$tmp/log"; }
-(( fails == 0 ))
+stop_node
+verdict

@@ -25,8 +25,7 @@ check "frames refused is the sum of the reasons" \
 kill "$simpid"; wait "$simpid"; simpid=
 sleep 0.5
 "$shm" stat $p-m >"$tmp/last"
-kill -TERM "$nodepid"; wait "$nodepid"; rc=$?; nodepid=
-check "node exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
+stop_node
 "$shm" stat $p-m >"$tmp/stat"
 check "after the stop the segment keeps the node's last counts" \
   '[[ $(val frames_in) == $(awk '"'"'$1 == "frames_in" { print $2 }'"'"' "$tmp/last") && $(val iterations) -ge $(awk '"'"'$1 == "iterations" { print $2 }'"'"' "$tmp/last") && $(val writer_alive) == no ]]'

@@ -337,10 +337,25 @@ static void test_cli(void **state) {
   snprintf(args, sizeof args, "%s/nowhere", tk.dir);
   assert_int_equal(run_cli(args, out, sizeof out), 1);
   assert_non_null(strstr(out, "nowhere"));
+  /* No config anywhere on the search path: the default ring names, said so
+   * (unless this host has the installed config). */
+  if (access(vlff_config_default_path(), F_OK) != 0) {
+    snprintf(args, sizeof args, "%s/nowhere", tk.dir);
+    char *saved = getenv("VLFF_CONFIG") ? strdup(getenv("VLFF_CONFIG")) : NULL;
+    unsetenv("VLFF_CONFIG");
+    assert_int_equal(run_cli(args, out, sizeof out), 1);
+    if (saved) setenv("VLFF_CONFIG", saved, 1), free(saved);
+    assert_non_null(strstr(out, "no config: no --config given, $VLFF_CONFIG not set"));
+    assert_non_null(strstr(out, "using the default ring names (/vlff-frames, "));
+  }
   /* A frame whose image is damaged is named, skipped and counted; the rest
    * are published and the exit status says something was wrong. */
   struct vlff_config cfg;
   write_config(&cfg, 8);
+  /* With a config, no word about default names. */
+  snprintf(args, sizeof args, "-c %s %s/nowhere", cfg_path, tk.dir);
+  assert_int_equal(run_cli(args, out, sizeof out), 1);
+  assert_null(strstr(out, "default ring names"));
   write_scene(&cfg, NULL);
   char p[400];
   snprintf(p, sizeof p, "%s/rgb/00003.png", scene);

@@ -46,5 +46,32 @@ check "a FILE wins over pose.udp" \
   'printf "5 0 0 0 0 0 0 1\n" | "${pose[@]}" --config "$tmp/s.yaml" - 2>"$tmp/flog" && grep -q "stdin -> pose ring" "$tmp/flog"'
 check "a config error names file:line:col" \
   'printf "pose:\n  extrinsic: [0, 0, 0, 0, 0, 0, 2]\n" >"$tmp/e.yaml"; ! "${pose[@]}" -c "$tmp/e.yaml" </dev/null 2>"$tmp/ee" >/dev/null && grep -q "e.yaml:2:14: key .pose.extrinsic.: expected tx ty tz qx qy qz qw with a unit quaternion" "$tmp/ee"'
+# Type=notify (built with libsystemd), on a notify socket of our own as systemd
+# gives one: READY=1 once the pose ring exists, WATCHDOG=1 from the input loop
+# while a tracker's pipe stays quiet, STOPPING=1 at the end of the input.
+if [[ -z "${VLFF_EMULATOR:-}" ]] && grep -q "sd_notify" "$1" && command -v /usr/bin/python3 >/dev/null; then
+  /usr/bin/python3 "$(dirname "$0")/../../common/notify_listen.py" "$tmp/notify.sock" "$tmp/notify.log" 20 "/dev/shm$ring-n" &
+  listener=$!
+  for ((i = 0; i < 50; i++)); do [[ -S "$tmp/notify.sock" ]] && break; sleep 0.1; done
+  printf 'shm:\n  pose_ring: %s-n\n' "$ring" >"$tmp/n.yaml"
+  # A tracker that says nothing for 1.5 s (a quarter period is 0.1 s), then
+  # one line, then ends.
+  { sleep 1.5; printf '1.0 0 0 0 0 0 0 1\n'; } |
+    NOTIFY_SOCKET="$tmp/notify.sock" WATCHDOG_USEC=400000 "${pose[@]}" --config "$tmp/n.yaml" - 2>"$tmp/nlog"; rc=$?
+  wait $listener
+  check "notify: exit 0 at the end of the input (rc=$rc)" '[[ $rc == 0 ]] && grep -q "1 poses written to $ring-n" "$tmp/nlog"'
+  check "notify: READY=1 once the pose ring exists" 'grep -qx "READY=1 (exists)" "$tmp/notify.log"'
+  check "notify: WATCHDOG=1 while the pipe is quiet ($(grep -cx "WATCHDOG=1" "$tmp/notify.log") of them)" \
+    '(( $(grep -cx "WATCHDOG=1" "$tmp/notify.log") >= 5 ))'
+  check "notify: STOPPING=1 last" '[[ "$(tail -1 "$tmp/notify.log")" == "STOPPING=1" ]]'
+else
+  echo "note: this vlff-pose has no sd_notify (built without libsystemd) or runs emulated; notify not checked"
+fi
+# A stream without newlines is refused as one overlong line, not held in memory.
+head -c 200000 /dev/zero | tr '\0' 'x' >"$tmp/long.txt"
+printf '\n2.0 0 0 0 0 0 0 1\n' >>"$tmp/long.txt"
+"${pose[@]}" --config "$tmp/c.yaml" --ring "$ring-l" "$tmp/long.txt" >/dev/null 2>"$tmp/llog"; rc=$?
+check "an overlong line is refused once and the next line taken (rc=$rc)" \
+  '[[ $rc == 0 ]] && [[ $(grep -c "longer than 65536 bytes" "$tmp/llog") == 1 ]] && grep -q "long.txt:1: refused, a line longer" "$tmp/llog" && grep -q "1 poses written" "$tmp/llog"'
 echo "$passes passed, $fails failed"
 (( fails == 0 ))

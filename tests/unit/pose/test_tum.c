@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "tum.h"
+#include "unit.h"
 
 static char why[256];
 
@@ -172,13 +173,7 @@ static void test_feed_extrinsic(void **state) {
   assert_non_null(strstr(why, "not a rigid transform"));
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_parse),
-      cmocka_unit_test(test_matrix),
-      cmocka_unit_test(test_feed_checks),
-      cmocka_unit_test(test_feed_host_stamps),
-      cmocka_unit_test(test_feed_extrinsic),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_parse), cmocka_unit_test(test_matrix),
+    cmocka_unit_test(test_feed_checks), cmocka_unit_test(test_feed_host_stamps),
+    cmocka_unit_test(test_feed_extrinsic))

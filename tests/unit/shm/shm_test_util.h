@@ -5,9 +5,13 @@
 
 #include "vlff/shm.h"
 
+#include <fcntl.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/file.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 static inline void test_name(char *buf, size_t len, const char *what) {
@@ -67,6 +71,62 @@ static inline int test_rec_check(const uint8_t *p, size_t len, uint64_t id) {
   sum ^= id;
   memcpy(&v, p + len - 8, 8);
   return v == sum ? 0 : -1;
+}
+
+/* A segment's whole file mapped read-write, as a process with write access to it
+ * (a hostile one, or a test playing one) sees it. */
+struct shm_raw {
+  int fd;
+  uint8_t *base;
+  size_t size;
+};
+
+/* 0, or -1 with errno. */
+static inline int shm_raw_open(const char *name, struct shm_raw *r) {
+  struct stat st;
+  r->fd = shm_open(name, O_RDWR, 0);
+  if (r->fd < 0)
+    return -1;
+  if (fstat(r->fd, &st) < 0 ||
+      (r->size = (size_t)st.st_size,
+       (r->base = mmap(NULL, r->size, PROT_READ | PROT_WRITE, MAP_SHARED, r->fd, 0)) == MAP_FAILED)) {
+    close(r->fd);
+    return -1;
+  }
+  return 0;
+}
+
+static inline void shm_raw_close(struct shm_raw *r) {
+  munmap(r->base, r->size);
+  close(r->fd);
+}
+
+/* The prompt mailbox's layout as a hostile poster sees it (shm/prompts.c): the
+ * control block (sequence word, odd while a post is written, and the poster's pid)
+ * and the request body. */
+#define MBOX_CTL_OFF 128
+#define MBOX_BODY_OFF 256
+struct mbox_raw_ctl {
+  uint64_t seq;
+  int32_t lock_pid;
+};
+
+/* Writes req into the mailbox mapped at base (descriptor fd) with the library's
+ * protocol (lock, odd word, body, even word) but without its checks: what a poster
+ * that bypasses libvlff-shm can leave for the learner. 0, or -1 if the lock fails. */
+static inline int mbox_raw_post(int fd, uint8_t *base, const struct vlff_prompt_request *req) {
+  if (flock(fd, LOCK_EX) < 0)
+    return -1;
+  volatile struct mbox_raw_ctl *c = (volatile struct mbox_raw_ctl *)(base + MBOX_CTL_OFF);
+  uint64_t odd = c->seq | 1;
+  __atomic_store_n(&c->seq, odd, __ATOMIC_RELEASE);
+  struct vlff_prompt_request q = *req;
+  q.seq = (odd + 1) / 2;
+  q.poster_pid = getpid();
+  memcpy(base + MBOX_BODY_OFF, &q, sizeof q);
+  __atomic_store_n(&c->seq, odd + 1, __ATOMIC_RELEASE);
+  flock(fd, LOCK_UN);
+  return 0;
 }
 
 #endif

@@ -7,6 +7,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -402,6 +403,33 @@ static void pose_interpolation_and_tolerance(void **state) {
   vlff_shm_unlink(name);
 }
 
+/* Rotation by angle a about the unit axis u, as a pose with no translation. */
+static void axis_angle(double a, const double u[3], double m[16]) {
+  double c = cos(a), s = sin(a), C = 1 - c, x = u[0], y = u[1], z = u[2];
+  double r[16] = {c + x * x * C,     x * y * C - z * s, x * z * C + y * s, 0, y * x * C + z * s, c + y * y * C,
+                  y * z * C - x * s, 0,                 z * x * C - y * s, z * y * C + x * s, c + z * z * C, 0,
+                  0,                 0,                 0,                 1};
+  memcpy(m, r, sizeof r);
+}
+
+/* Each of Shepperd's four branches (trace positive; x, y or z the largest
+ * diagonal term at half turns) gives cos(a/2), sin(a/2) u up to sign. */
+static void pose_quaternion_every_branch(void **state) {
+  (void)state;
+  const double axes[][3] = {{0, 0, 1}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0.48, -0.6, 0.64}};
+  const double angles[] = {0.7, M_PI, M_PI, M_PI, 2.9};
+  for (int i = 0; i < 5; i++) {
+    double m[16], q[4];
+    axis_angle(angles[i], axes[i], m);
+    vlff_pose_quaternion(m, q);
+    double want[4] = {cos(angles[i] / 2), sin(angles[i] / 2) * axes[i][0], sin(angles[i] / 2) * axes[i][1],
+                      sin(angles[i] / 2) * axes[i][2]};
+    double dot = 0;
+    for (int k = 0; k < 4; k++) dot += q[k] * want[k];
+    assert_true(fabs(fabs(dot) - 1) < 1e-12);
+  }
+}
+
 static void map_publish_and_read(void **state) {
   (void)state;
   char name[64];
@@ -439,6 +467,19 @@ static void map_publish_and_read(void **state) {
   assert_int_equal(conf, 5);
   assert_int_equal(vlff_map_label_at(r, 5, 0, 0, &label, NULL), 0);
   assert_int_equal(label, VLFF_LABEL_UNKNOWN);
+  /* A NaN or infinite coordinate is no point: refused, not "unknown". */
+  const double bad[] = {NAN, INFINITY, -INFINITY};
+  for (int i = 0; i < 3; i++)
+    for (int axis = 0; axis < 3; axis++) {
+      double p[3] = {0.05, -0.95, 0.1};
+      p[axis] = bad[i];
+      label = 7;
+      assert_int_equal(vlff_map_label_at(r, p[0], p[1], p[2], &label, &conf), -1);
+      assert_int_equal(errno, EINVAL);
+      assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_INVAL);
+      assert_non_null(strstr(vlff_shm_last_message(), "is not finite"));
+      assert_int_equal(label, 7);
+    }
   char text[64];
   assert_int_equal(vlff_map_prompt(r, 2, text, sizeof text), 0);
   assert_string_equal(text, "door");
@@ -552,15 +593,9 @@ static void prompt_mailbox(void **state) {
   vlff_shm_unlink(name);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
+VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(ring_roundtrip_and_exact_lapping),
-    cmocka_unit_test(ring_takeover_of_dead_creator),
-    cmocka_unit_test(attach_rejects_bad_segments),
-    cmocka_unit_test(frame_records),
-    cmocka_unit_test(pose_interpolation_and_tolerance),
-    cmocka_unit_test(map_publish_and_read),
-    cmocka_unit_test(prompt_mailbox),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+    cmocka_unit_test(ring_takeover_of_dead_creator), cmocka_unit_test(attach_rejects_bad_segments),
+    cmocka_unit_test(frame_records), cmocka_unit_test(pose_interpolation_and_tolerance),
+    cmocka_unit_test(pose_quaternion_every_branch),
+    cmocka_unit_test(map_publish_and_read), cmocka_unit_test(prompt_mailbox))

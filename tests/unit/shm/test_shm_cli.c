@@ -6,6 +6,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <stdlib.h>
 #include <sys/wait.h>
@@ -61,6 +62,14 @@ static void cli_commands(void **state) {
   snprintf(args, sizeof args, "label %s 1.5 0.5 0.5", map);
   assert_int_equal(run(args, out, sizeof out), 0);
   assert_string_equal(out, "label 1 confidence 255 prompt door version 1\n");
+  /* A coordinate that is no number of metres is a usage error naming it. */
+  static const char *const not_metres[][2] = {{"1.5 nan 0.5", "Y 'nan'"}, {"1.5 0.5 -inf", "Z '-inf'"}};
+  for (int i = 0; i < 2; i++) {
+    snprintf(args, sizeof args, "label %s %s", map, not_metres[i][0]);
+    assert_int_equal(run(args, out, sizeof out), 2);
+    assert_non_null(strstr(out, not_metres[i][1]));
+    assert_non_null(strstr(out, "expected a finite number of metres"));
+  }
   char ppm[128];
   snprintf(ppm, sizeof ppm, "/tmp/vlff-cli-%d.ppm", (int)getpid());
   snprintf(args, sizeof args, "dump-frame %s %s", ring, ppm);
@@ -120,7 +129,5 @@ static void cli_commands(void **state) {
   vlff_shm_unlink(mbox);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(cli_commands)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(cli_commands))

@@ -8,6 +8,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <errno.h>
 #include <signal.h>
@@ -203,10 +204,6 @@ static void kill_consumer_producer_unaffected(void **state) {
   close(rfd[1]);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
+VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(kill_producer_mid_write_100_times),
-    cmocka_unit_test(kill_consumer_producer_unaffected),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+    cmocka_unit_test(kill_consumer_producer_unaffected))

@@ -9,6 +9,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -31,9 +32,20 @@ static void truncate_seg(const char *name, off_t size) {
   close(fd);
 }
 
-static struct vlff_map *make_map(const char *name) {
+/* A map for the tests' 64 x 64 x 16 grid, named after tag. */
+static struct vlff_map *make_map(char name[64], const char *tag) {
+  test_name(name, 64, tag);
   struct vlff_map_params mp = {.max_voxels = 64 * 64 * 16, .label_max_width = 64, .label_max_height = 48};
   struct vlff_map *w = vlff_map_create(name, &mp);
+  assert_non_null(w);
+  return w;
+}
+
+/* A raw ring of four 64 KiB slots, named after tag. */
+static struct vlff_ring *make_raw_ring(char name[64], const char *tag) {
+  test_name(name, 64, tag);
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_RAW, .slots = 4, .slot_size = 64 * 1024};
+  struct vlff_ring *w = vlff_ring_create(name, &p);
   assert_non_null(w);
   return w;
 }
@@ -52,8 +64,7 @@ static int publish(struct vlff_map *w, uint16_t label) {
 static void test_truncate_under_map_reader(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "trmr");
-  struct vlff_map *w = make_map(name);
+  struct vlff_map *w = make_map(name, "trmr");
   assert_int_equal(publish(w, 1), 0);
   struct vlff_map *r = vlff_map_attach(name);
   assert_non_null(r);
@@ -84,8 +95,7 @@ static void test_truncate_under_map_reader(void **state) {
 static void test_truncate_under_map_writer(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "trmw");
-  struct vlff_map *w = make_map(name);
+  struct vlff_map *w = make_map(name, "trmw");
   for (int i = 0; i < 3; i++)
     assert_int_equal(publish(w, 2), 0);
   struct vlff_map *old = vlff_map_attach(name);
@@ -123,10 +133,7 @@ static void test_truncate_under_map_writer(void **state) {
 static void test_truncate_under_ring_writer(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "trrw");
-  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_RAW, .slots = 4, .slot_size = 64 * 1024};
-  struct vlff_ring *w = vlff_ring_create(name, &p);
-  assert_non_null(w);
+  struct vlff_ring *w = make_raw_ring(name, "trrw");
   for (int i = 0; i < 5; i++) {
     uint8_t b[128] = {(uint8_t)i};
     assert_int_equal(vlff_ring_write(w, b, sizeof b), 0);
@@ -165,10 +172,7 @@ static void test_truncate_under_ring_writer(void **state) {
 static void test_truncate_under_ring_reader(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "trrr");
-  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_RAW, .slots = 4, .slot_size = 64 * 1024};
-  struct vlff_ring *w = vlff_ring_create(name, &p);
-  assert_non_null(w);
+  struct vlff_ring *w = make_raw_ring(name, "trrr");
   struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_RAW);
   assert_non_null(r);
   static uint8_t rec[64 * 1024];
@@ -191,8 +195,7 @@ static void test_truncate_under_ring_reader(void **state) {
   /* A consumer asleep waiting for the next record is not left asleep forever. */
   vlff_ring_close(w);
   vlff_shm_unlink(name);
-  w = vlff_ring_create(name, &p);
-  assert_non_null(w);
+  w = make_raw_ring(name, "trrr2");
   r = vlff_ring_attach(name, VLFF_RECORD_RAW);
   assert_non_null(r);
   truncate_seg(name, 8192);
@@ -201,6 +204,44 @@ static void test_truncate_under_ring_reader(void **state) {
   assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_TRUNCATED);
   vlff_ring_close(r);
   vlff_ring_close(w);
+  vlff_shm_unlink(name);
+}
+
+/* A ring removed from /dev/shm by hand while its creator is gone and a reader
+ * waits (rm after a crash, then a restart): the new creator makes a new file
+ * under the name, nobody marks the old one abandoned, and the reader used to
+ * wait on it for ever. It is told to attach again, and then reads the new
+ * creator's records. */
+static void test_removed_under_ring_reader(void **state) {
+  (void)state;
+  char name[64];
+  struct vlff_ring *old = make_raw_ring(name, "rmrr");
+  struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_RAW);
+  assert_non_null(r);
+  static uint8_t buf[64 * 1024];
+  assert_int_equal(vlff_ring_read_copy(r, buf, sizeof buf, NULL, 0), -1);
+  assert_int_equal(errno, EAGAIN); /* attached, nothing yet */
+  assert_int_equal(shm_unlink(name), 0);
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_RAW, .slots = 4, .slot_size = 64 * 1024};
+  struct vlff_ring *w = vlff_ring_create(name, &p);
+  assert_non_null(w);
+  uint8_t rec[128] = {9};
+  assert_int_equal(vlff_ring_write(w, rec, sizeof rec), 0);
+  assert_int_equal(vlff_ring_read_copy(r, buf, sizeof buf, NULL, 2000ull * 1000 * 1000), -1);
+  assert_int_equal(errno, EPIPE);
+  assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_ABANDONED);
+  assert_non_null(strstr(vlff_shm_last_message(), "removed"));
+  assert_int_equal(vlff_ring_read_copy(r, buf, sizeof buf, NULL, 0), -1); /* a poller too */
+  assert_int_equal(errno, EPIPE);
+  vlff_ring_close(r);
+  r = vlff_ring_attach(name, VLFF_RECORD_RAW);
+  assert_non_null(r);
+  vlff_ring_seek_oldest(r);
+  assert_int_equal(vlff_ring_read_copy(r, buf, sizeof buf, NULL, 0), 128);
+  assert_int_equal(buf[0], 9);
+  vlff_ring_close(r);
+  vlff_ring_close(w);
+  vlff_ring_close(old);
   vlff_shm_unlink(name);
 }
 
@@ -272,9 +313,7 @@ static void *reader_thread(void *v) {
 static void test_truncate_with_threads(void **state) {
   (void)state;
   char n1[64], n2[64];
-  test_name(n1, sizeof n1, "thr1");
-  test_name(n2, sizeof n2, "thr2");
-  struct vlff_map *w1 = make_map(n1), *w2 = make_map(n2);
+  struct vlff_map *w1 = make_map(n1, "thr1"), *w2 = make_map(n2, "thr2");
   assert_int_equal(publish(w1, 1), 0);
   assert_int_equal(publish(w2, 2), 0);
   struct reader_arg a1 = {.name = n1}, a2 = {.name = n2};
@@ -329,8 +368,7 @@ static void test_application_sigbus_handler_kept(void **state) {
   sigemptyset(&sa.sa_mask);
   sigaction(SIGBUS, &sa, &old);
   char name[64];
-  test_name(name, sizeof name, "apph");
-  struct vlff_map *w = make_map(name); /* installs the library's guard over ours */
+  struct vlff_map *w = make_map(name, "apph"); /* installs the library's guard over ours */
   app_hits = 0;
   if (sigsetjmp(app_jump, 1) == 0)
     fault_outside_segments();
@@ -459,8 +497,7 @@ static void test_attach_owned_refuses(void **state) {
 static void test_own_stale_wider_mode_replaced(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "c2wide");
-  struct vlff_map *w = make_map(name);
+  struct vlff_map *w = make_map(name, "c2wide");
   assert_int_equal(publish(w, 1), 0);
   vlff_map_detach(w); /* stale: its creator (us) is alive, so mark it dead below */
   int fd = shm_open(name, O_RDWR, 0);
@@ -497,8 +534,7 @@ static void test_own_stale_wider_mode_replaced(void **state) {
 static void test_version_never_reused(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "vreuse");
-  struct vlff_map *w = make_map(name);
+  struct vlff_map *w = make_map(name, "vreuse");
   assert_int_equal(publish(w, 1), 0);
   assert_int_equal(publish(w, 2), 0);
   struct vlff_map *r = vlff_map_attach(name);
@@ -544,21 +580,16 @@ static void test_small_foreign_file_untouched(void **state) {
   vlff_shm_unlink(name);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
+VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_truncate_under_map_reader),
     cmocka_unit_test(test_truncate_under_map_writer),
     cmocka_unit_test(test_truncate_under_ring_writer),
-    cmocka_unit_test(test_truncate_under_ring_reader),
-    cmocka_unit_test(test_truncate_under_mailbox),
-    cmocka_unit_test(test_truncate_with_threads),
+    cmocka_unit_test(test_truncate_under_ring_reader), cmocka_unit_test(test_removed_under_ring_reader),
+    cmocka_unit_test(test_truncate_under_mailbox), cmocka_unit_test(test_truncate_with_threads),
     cmocka_unit_test(test_application_sigbus_handler_kept),
     cmocka_unit_test(test_foreign_fault_still_fatal),
     cmocka_unit_test(test_other_users_stale_segment_refused),
     cmocka_unit_test(test_attach_owned_refuses),
     cmocka_unit_test(test_own_stale_wider_mode_replaced),
     cmocka_unit_test(test_small_foreign_file_untouched),
-    cmocka_unit_test(test_version_never_reused),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+    cmocka_unit_test(test_version_never_reused))

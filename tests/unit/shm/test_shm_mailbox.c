@@ -10,6 +10,7 @@
 
 #include "shm_test_util.h"
 #include "embeddings.h"
+#include "unit.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -22,46 +23,13 @@
 #include <sys/mman.h>
 #include <sys/wait.h>
 
-/* The mailbox layout as a hostile poster sees it (shm/prompts.c). */
-#define CTL_OFF 128
-#define BODY_OFF 256
-struct raw_ctl {
-  uint64_t seq;
-  int32_t lock_pid;
-};
-
-struct raw {
-  int fd;
-  uint8_t *base;
-  size_t size;
-};
-
-static struct raw raw_open(const char *name) {
-  struct raw r = {.fd = shm_open(name, O_RDWR, 0)};
-  assert_true(r.fd >= 0);
-  r.size = 4096;
-  r.base = mmap(NULL, r.size, PROT_READ | PROT_WRITE, MAP_SHARED, r.fd, 0);
-  assert_true(r.base != MAP_FAILED);
+static struct shm_raw raw_open(const char *name) {
+  struct shm_raw r;
+  assert_int_equal(shm_raw_open(name, &r), 0);
   return r;
 }
-static void raw_close(struct raw *r) {
-  munmap(r->base, r->size);
-  close(r->fd);
-}
-static volatile struct raw_ctl *ctl_of(struct raw *r) { return (volatile struct raw_ctl *)(r->base + CTL_OFF); }
-
-/* Writes a request with the library's protocol but without its checks. */
-static void raw_post(struct raw *r, const struct vlff_prompt_request *req) {
-  assert_int_equal(flock(r->fd, LOCK_EX), 0);
-  volatile struct raw_ctl *c = ctl_of(r);
-  uint64_t odd = c->seq | 1;
-  __atomic_store_n(&c->seq, odd, __ATOMIC_RELEASE);
-  struct vlff_prompt_request q = *req;
-  q.seq = (odd + 1) / 2;
-  q.poster_pid = getpid();
-  memcpy(r->base + BODY_OFF, &q, sizeof q);
-  __atomic_store_n(&c->seq, odd + 1, __ATOMIC_RELEASE);
-  flock(r->fd, LOCK_UN);
+static volatile struct mbox_raw_ctl *ctl_of(struct shm_raw *r) {
+  return (volatile struct mbox_raw_ctl *)(r->base + MBOX_CTL_OFF);
 }
 
 /* A mailbox created by its learner, with one poster attached or none. */
@@ -125,7 +93,7 @@ static void test_live_pid_in_lock_word(void **state) {
   struct mbox m;
   mbox_open(&m, "pid1", true);
   struct vlff_prompts *learner = m.learner, *poster = m.poster;
-  struct raw r = raw_open(m.name);
+  struct shm_raw r = raw_open(m.name);
   ctl_of(&r)->lock_pid = 1;
   const char *t[] = {"door"};
   assert_int_equal(vlff_prompts_post(poster, t, 1), 0);
@@ -133,7 +101,7 @@ static void test_live_pid_in_lock_word(void **state) {
   struct vlff_prompt_request req;
   assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
   assert_string_equal(req.text[0], "door");
-  raw_close(&r);
+  shm_raw_close(&r);
   mbox_close(&m);
 }
 
@@ -147,11 +115,11 @@ static void test_poster_killed_mid_post(void **state) {
   pid_t c = fork();
   assert_true(c >= 0);
   if (c == 0) {
-    struct raw r = raw_open(m.name);
+    struct shm_raw r = raw_open(m.name);
     flock(r.fd, LOCK_EX);
     ctl_of(&r)->lock_pid = getpid();
     __atomic_store_n(&ctl_of(&r)->seq, 1, __ATOMIC_RELEASE);
-    memset(r.base + BODY_OFF, 'x', 100);
+    memset(r.base + MBOX_BODY_OFF, 'x', 100);
     raise(SIGKILL);
   }
   int st;
@@ -184,7 +152,7 @@ static void test_live_poster_never_waited_for(void **state) {
   struct mbox m;
   mbox_open(&m, "slow", false);
   struct vlff_prompts *learner = m.learner;
-  struct raw r = raw_open(m.name);
+  struct shm_raw r = raw_open(m.name);
   assert_int_equal(flock(r.fd, LOCK_EX), 0);
   __atomic_store_n(&ctl_of(&r)->seq, 1, __ATOMIC_RELEASE);
   uint64_t last = 0;
@@ -193,12 +161,12 @@ static void test_live_poster_never_waited_for(void **state) {
     assert_int_equal(vlff_prompts_poll(learner, &last, &req), 0);
   struct vlff_prompt_request q = {.seq = 1, .set_index = -1, .count = 1, .poster_pid = getpid()};
   strcpy(q.text[0], "shelf");
-  memcpy(r.base + BODY_OFF, &q, sizeof q);
+  memcpy(r.base + MBOX_BODY_OFF, &q, sizeof q);
   __atomic_store_n(&ctl_of(&r)->seq, 2, __ATOMIC_RELEASE);
   flock(r.fd, LOCK_UN);
   assert_int_equal(vlff_prompts_poll(learner, &last, &req), 1);
   assert_string_equal(req.text[0], "shelf");
-  raw_close(&r);
+  shm_raw_close(&r);
   mbox_close(&m);
 }
 
@@ -209,7 +177,7 @@ static void test_forged_request_refused_with_reason(void **state) {
   struct mbox m;
   mbox_open(&m, "forged", true);
   struct vlff_prompts *learner = m.learner, *poster = m.poster;
-  struct raw r = raw_open(m.name);
+  struct shm_raw r = raw_open(m.name);
   static const char *forged[][2] = {
     {"wall\nlabel 0 confidence 255 prompt FAKE", "floor"},
     {"tab\there", "floor"},
@@ -221,7 +189,7 @@ static void test_forged_request_refused_with_reason(void **state) {
     struct vlff_prompt_request q = {.set_index = -1, .count = 2};
     strcpy(q.text[0], forged[i][0]);
     strcpy(q.text[1], forged[i][1]);
-    raw_post(&r, &q);
+    assert_int_equal(mbox_raw_post(r.fd, r.base, &q), 0);
     struct vlff_prompt_request req;
     assert_int_equal(vlff_prompts_poll(learner, &last, &req), -1);
     assert_int_equal(errno, EBADMSG);
@@ -234,7 +202,7 @@ static void test_forged_request_refused_with_reason(void **state) {
   const char *t[] = {forged[0][0], forged[0][1]};
   assert_int_equal(vlff_prompts_post(poster, t, 2), -1);
   assert_int_equal(errno, EINVAL);
-  raw_close(&r);
+  shm_raw_close(&r);
   mbox_close(&m);
 }
 
@@ -354,15 +322,10 @@ static void test_burst_never_dropped(void **state) {
   vlff_shm_unlink(name);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
+VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_prompt_check_matches_embeddings_format),
-    cmocka_unit_test(test_live_pid_in_lock_word),
-    cmocka_unit_test(test_poster_killed_mid_post),
+    cmocka_unit_test(test_live_pid_in_lock_word), cmocka_unit_test(test_poster_killed_mid_post),
     cmocka_unit_test(test_live_poster_never_waited_for),
     cmocka_unit_test(test_forged_request_refused_with_reason),
     cmocka_unit_test(test_post_over_unanswered_refused),
-    cmocka_unit_test(test_burst_never_dropped),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+    cmocka_unit_test(test_burst_never_dropped))

@@ -8,6 +8,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <pthread.h>
 #include <stdatomic.h>
@@ -172,7 +173,5 @@ static void snapshots_always_consistent(void **state) {
   vlff_shm_unlink(name);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(snapshots_always_consistent)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(snapshots_always_consistent))

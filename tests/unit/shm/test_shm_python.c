@@ -5,6 +5,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <stdlib.h>
 
@@ -58,7 +59,5 @@ static void python_example_reads_label(void **state) {
   vlff_shm_unlink(name);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(python_example_reads_label)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(python_example_reads_label))

@@ -10,6 +10,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -304,12 +305,6 @@ static void reads_never_torn(void **state) {
   vlff_shm_unlink(name);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(set_and_read_back),
-      cmocka_unit_test(malformed_status_refused),
-      cmocka_unit_test(forged_blocks_not_trusted),
-      cmocka_unit_test(reads_never_torn),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(set_and_read_back), cmocka_unit_test(malformed_status_refused),
+    cmocka_unit_test(forged_blocks_not_trusted), cmocka_unit_test(reads_never_torn))

@@ -10,6 +10,7 @@
 #include <cmocka.h>
 
 #include "shm_test_util.h"
+#include "unit.h"
 
 #include <errno.h>
 #include <signal.h>
@@ -141,7 +142,5 @@ static void stress_1_producer_3_consumers(void **state) {
   vlff_shm_unlink(name);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(stress_1_producer_3_consumers)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(stress_1_producer_3_consumers))

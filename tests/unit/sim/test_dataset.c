@@ -24,6 +24,7 @@
 #include "files.h"
 #include "embeddings.h"
 #include "sim.h"
+#include "unit.h"
 
 #define NF 4
 /* Feature maps are HDF5 files: a build without HDF5 writes and reads
@@ -403,13 +404,7 @@ static void test_ply_formats(void **state) {
   assert_non_null(strstr(err, "truncated"));
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_round_trip_exact),
-      cmocka_unit_test(test_malformed),
-      cmocka_unit_test(test_scannet_layout),
-      cmocka_unit_test(test_physical_bounds),
-      cmocka_unit_test(test_ply_formats),
-  };
-  return cmocka_run_group_tests(tests, setup, teardown);
-}
+VLFF_UNIT_MAIN(setup, teardown,
+    cmocka_unit_test(test_round_trip_exact), cmocka_unit_test(test_malformed),
+    cmocka_unit_test(test_scannet_layout), cmocka_unit_test(test_physical_bounds),
+    cmocka_unit_test(test_ply_formats))

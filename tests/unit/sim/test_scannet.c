@@ -18,15 +18,23 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <signal.h>
+#include <spawn.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 #include <zlib.h>
+#ifdef VLFF_HAVE_HDF5
+#include <hdf5.h>
+#endif
 
 #include <cmocka.h>
 
 #include "dataset.h"
 #include "files.h"
 #include "dataset_internal.h"
+#include "unit.h"
+#include "vlff/shm.h"
 
 #define CW 162
 #define CH 121
@@ -160,7 +168,9 @@ static void images_make(struct images *im) {
 
 static void images_free(struct images *im) { free(im->blob), free(im->rgb), free(im->ids), free(im->depth); }
 
-static void write_export(const char *scene) {
+/* A ScanNet export of n frames; frame `lost` (if in range) has ScanNet's
+ * lost-tracking pose, all -inf. */
+static void write_export(const char *scene, int n, int lost) {
   char p[1024], b[512];
   const char *subs[] = {"", "/color", "/depth", "/pose", "/intrinsic", "/label-filt"};
   for (int k = 0; k < 6; k++) {
@@ -169,7 +179,7 @@ static void write_export(const char *scene) {
   }
   struct images im;
   images_make(&im);
-  for (int i = 0; i < 2; i++) {
+  for (int i = 0; i < n; i++) {
     snprintf(p, sizeof p, "%s/color/%d.jpg", scene, i);
     put(p, im.blob, im.blob_len);
     snprintf(p, sizeof p, "%s/depth/%d.png", scene, i);
@@ -177,7 +187,10 @@ static void write_export(const char *scene) {
     snprintf(p, sizeof p, "%s/label-filt/%d.png", scene, i);
     write_png16(p, im.ids, CW, CH);
     snprintf(p, sizeof p, "%s/pose/%d.txt", scene, i);
-    putf(p, "1 0 0 %d\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", i);
+    if (i == lost)
+      putf(p, "-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n");
+    else
+      putf(p, "1 0 0 %d\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", i);
   }
   mat_text(b, sizeof b, Kc);
   snprintf(p, sizeof p, "%s/intrinsic/intrinsic_color.txt", scene);
@@ -239,6 +252,17 @@ static void write_sens(const char *path, const struct sens_opts *o) {
   images_free(&im);
 }
 
+/* root/<name>/<name>.sens (three frames, the second lost) with the label
+ * TSV and the labelled mesh; dir and path filled. */
+static void sens_scene(char *dir, size_t dcap, char *path, size_t pcap, const char *name) {
+  snprintf(dir, dcap, "%s/%s", root, name);
+  assert_int_equal(mkdir(dir, 0755), 0);
+  snprintf(path, pcap, "%s/%s.sens", dir, name);
+  struct sens_opts good = {.version = 4, .dtype = 1, .nframes_claimed = 3};
+  write_sens(path, &good);
+  write_tsv_and_ply(dir);
+}
+
 /* Registered depth against the geometry, colour and labels resampled. */
 static void check_frame(const struct vlff_dataset *ds, int set) {
   assert_true(ds->registered);
@@ -298,13 +322,19 @@ static void check_points(const struct vlff_dataset *ds, int set) {
   vlff_points_free(&pts);
 }
 
+/* root/scans/<name>, its parent created: a scene directory as ScanNet's
+ * download script lays them out. */
+static void scene_path(char *scene, size_t cap, const char *name) {
+  snprintf(scene, cap, "%s/scans", root);
+  mkdir(scene, 0755);
+  snprintf(scene, cap, "%s/scans/%s", root, name);
+}
+
 static void test_export_layout(void **state) {
   (void)state;
   char scene[400], err[512];
-  snprintf(scene, sizeof scene, "%s/scans", root);
-  mkdir(scene, 0755);
-  snprintf(scene, sizeof scene, "%s/scans/scene0000_00", root);
-  write_export(scene);
+  scene_path(scene, sizeof scene, "scene0000_00");
+  write_export(scene, 2, -1);
   for (int set = VLFF_LABELS_SCANNET20; set <= VLFF_LABELS_NYU40; set++) {
     struct vlff_dataset ds;
     struct vlff_dataset_options o = {.layout = VLFF_DS_AUTO, .label_set = set};
@@ -337,12 +367,7 @@ static void test_export_layout(void **state) {
 static void test_sens(void **state) {
   (void)state;
   char dir[400], path[600], err[512];
-  snprintf(dir, sizeof dir, "%s/scene0001_00", root);
-  assert_int_equal(mkdir(dir, 0755), 0);
-  snprintf(path, sizeof path, "%s/scene0001_00.sens", dir);
-  struct sens_opts good = {.version = 4, .dtype = 1, .nframes_claimed = 3};
-  write_sens(path, &good);
-  write_tsv_and_ply(dir);
+  sens_scene(dir, sizeof dir, path, sizeof path, "scene0001_00");
   char p[600];
   snprintf(p, sizeof p, "%s/label-filt", dir);
   assert_int_equal(mkdir(p, 0755), 0);
@@ -386,6 +411,254 @@ static void test_sens(void **state) {
   }
 }
 
+#ifdef VLFF_HAVE_HDF5
+/* features.hdf with rows maps of 2x2x4 floats, every value of row r = r + 1. */
+static void write_features(const char *scene, int rows) {
+  char p[600];
+  snprintf(p, sizeof p, "%s/features.hdf", scene);
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  hid_t f = H5Fcreate(p, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  assert_true(f >= 0);
+  hid_t g = H5Gcreate2(f, "features", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  hsize_t dims[4] = {(hsize_t)rows, 2, 2, 4};
+  float v[8 * 16];
+  for (int r = 0; r < rows; r++)
+    for (int k = 0; k < 16; k++) v[r * 16 + k] = (float)(r + 1);
+  hid_t sp = H5Screate_simple(4, dims, NULL);
+  hid_t d = H5Dcreate2(g, "lseg", H5T_IEEE_F32LE, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  assert_true(d >= 0);
+  assert_true(H5Dwrite(d, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, v) >= 0);
+  H5Dclose(d), H5Sclose(sp), H5Gclose(g), H5Fclose(f);
+}
+
+/* Frame i's first feature as half-float bits. */
+static uint16_t first_feature(const struct vlff_dataset *ds, int i) {
+  uint16_t out[16];
+  char err[512];
+  if (vlff_dataset_read_features(ds, i, out, err, sizeof err) < 0) fail_msg("%s", err);
+  return out[0];
+}
+#endif
+
+/* A scene with a lost-tracking frame: the frame is skipped, the others keep
+ * their ScanNet frame numbers, and features.hdf may hold a map per usable
+ * frame or one per frame the scene lists (an extractor run over every
+ * exported image); any other count is refused naming both. */
+static void test_lost_tracking(void **state) {
+  (void)state;
+  char scene[400], err[512];
+  scene_path(scene, sizeof scene, "scene0002_00");
+  write_export(scene, 3, 1);
+  char p[600];
+  snprintf(p, sizeof p, "%s/scannetv2-labels.combined.tsv", root);
+  put(p, tsv, sizeof tsv - 1);
+  struct vlff_dataset ds;
+  if (vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_int_equal(ds.n, 2);
+  assert_int_equal(ds.skipped, 1);
+  assert_int_equal(ds.n_listed, 3);
+  assert_string_equal(ds.stem[1], "2");
+  assert_int_equal(ds.listed[1], 2);
+  vlff_dataset_close(&ds);
+#ifdef VLFF_HAVE_HDF5
+  /* 1, 2 and 3 as half floats: the value of row 0, 1 and 2 */
+  const int rows[3] = {3, 2, 4};
+  const uint16_t one = 0x3c00, want_frame1[3] = {0x4200, 0x4000, 0};
+  for (int k = 0; k < 3; k++) {
+    write_features(scene, rows[k]);
+    int rc = vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err);
+    if (!want_frame1[k]) {
+      assert_int_equal(rc, -1);
+      if (!strstr(err, "expected N=2 frames (or 3, every frame listed, 1 of them skipped"))
+        fail_msg("refusal does not name both counts: %s", err);
+      continue;
+    }
+    if (rc < 0) fail_msg("%d rows: %s", rows[k], err);
+    assert_int_equal(first_feature(&ds, 0), one);
+    assert_int_equal(first_feature(&ds, 1), want_frame1[k]); /* ScanNet frame 2 */
+    vlff_dataset_close(&ds);
+  }
+#endif
+}
+
+#if defined(VLFF_HAVE_HDF5) && defined(VLFF_EVAL_BUILT)
+/* prompt_embeddings.txt in dir naming every class of the label set, D = 4. */
+static void write_embeddings(const char *dir, int set) {
+  char p[600], line[128];
+  snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
+  FILE *f = fopen(p, "w");
+  assert_non_null(f);
+  fputs("vlff-embeddings 1\ndim 4\n", f);
+  for (int k = 0; vlff_label_set_name(set, k); k++) {
+    snprintf(line, sizeof line, "%s\t%d %d %d 1\n", vlff_label_set_name(set, k), k % 3, k / 3 % 3, k / 9);
+    fputs(line, f);
+  }
+  fclose(f);
+}
+
+/* report.json's source frames as "n n ...": train_frames, then test_frames. */
+static void report_frames(const char *out, char *train, char *test, size_t cap) {
+  char cmd[900];
+  snprintf(cmd, sizeof cmd,
+           "python3 -c 'import json,sys; s=json.load(open(sys.argv[1]))[\"source\"]; "
+           "print(*s[\"train_frames\"]); print(*s[\"test_frames\"])' %s/report.json",
+           out);
+  FILE *p = popen(cmd, "r");
+  assert_non_null(p);
+  assert_non_null(fgets(train, (int)cap, p));
+  assert_non_null(fgets(test, (int)cap, p));
+  assert_int_equal(pclose(p), 0);
+}
+
+#define EVAL_TEST , cmocka_unit_test(test_eval_reads_scannet)
+
+/* vlff-eval on ScanNet as users have it: an export with a lost-tracking
+ * frame and features.hdf holding a map per listed frame, its NYU40 labels
+ * through a TSV given by --label-tsv; and the raw .sens file. The report
+ * names frames by their ScanNet numbers and scores every label set. */
+static void test_eval_reads_scannet(void **state) {
+  (void)state;
+  char scene[400], eval[600], cmd[3000], train[64], test[64];
+  scene_path(scene, sizeof scene, "scene0003_00");
+  write_export(scene, 4, 1);
+  write_features(scene, 4);
+  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
+  char tsvp[600], moved[600];
+  snprintf(tsvp, sizeof tsvp, "%s/scannetv2-labels.combined.tsv", root);
+  snprintf(moved, sizeof moved, "%s/labels.tsv", root);
+  put(moved, tsv, sizeof tsv - 1);
+  unlink(tsvp);
+  const char *sets[2] = {"scannet20", "nyu40"};
+  for (int set = VLFF_LABELS_SCANNET20; set <= VLFF_LABELS_NYU40; set++) {
+    write_embeddings(scene, set);
+    snprintf(cmd, sizeof cmd,
+             "%s --dataset %s --iters 0 --quiet --holdout 2 --label-set %s --label-tsv %s --out %s/out-%s "
+             ">%s/eval-%s.log 2>&1",
+             eval, scene, sets[set], moved, root, sets[set], root, sets[set]);
+    if (system(cmd) != 0) {
+      snprintf(cmd, sizeof cmd, "cat %s/eval-%s.log >&2", root, sets[set]);
+      (void)!system(cmd);
+      fail_msg("vlff-eval --label-set %s failed", sets[set]);
+    }
+    snprintf(cmd, sizeof cmd, "%s/out-%s", root, sets[set]);
+    report_frames(cmd, train, test, sizeof train);
+    assert_string_equal(train, "0 3\n"); /* usable frames 0, 2, 3: the 2nd held out */
+    assert_string_equal(test, "2\n");
+  }
+  /* without --label-tsv the labels cannot be mapped: the refusal says where it looked */
+  snprintf(cmd, sizeof cmd, "%s --dataset %s --iters 0 --quiet --out %s/out-none >%s/none.log 2>&1", eval, scene,
+           root, root);
+  assert_int_not_equal(system(cmd), 0);
+  snprintf(cmd, sizeof cmd, "grep -q 'scannetv2-labels.combined.tsv' %s/none.log", root);
+  assert_int_equal(system(cmd), 0);
+  /* the raw .sens beside the same labels and features: frames 0 and 2 (1 is lost) */
+  char dir[400], path[600];
+  sens_scene(dir, sizeof dir, path, sizeof path, "scene0004_00");
+  snprintf(cmd, sizeof cmd, "mkdir %s/label-filt && cp %s/label-filt/0.png %s/label-filt/2.png %s/label-filt/", dir,
+           scene, scene, dir);
+  assert_int_equal(system(cmd), 0);
+  write_features(dir, 3);
+  write_embeddings(dir, VLFF_LABELS_SCANNET20);
+  snprintf(cmd, sizeof cmd, "%s --dataset %s --iters 0 --quiet --holdout 2 --label-tsv %s --out %s/out-sens >%s/sens.log 2>&1",
+           eval, path, moved, root, root);
+  if (system(cmd) != 0) {
+    snprintf(cmd, sizeof cmd, "cat %s/sens.log >&2", root);
+    (void)!system(cmd);
+    fail_msg("vlff-eval on the .sens file failed");
+  }
+  snprintf(cmd, sizeof cmd, "%s/out-sens", root);
+  report_frames(cmd, train, test, sizeof train);
+  assert_string_equal(train, "0\n");
+  assert_string_equal(test, "2\n");
+}
+#else
+#define EVAL_TEST
+#endif
+
+/* A program a test started and the segments it made: stopped and removed by
+ * teardown when the test failed before it got to that. */
+static pid_t child;
+static char replay_shm[3][64];
+
+#ifdef VLFF_REPLAY_BUILT
+/* vlff-replay plays the raw .sens into the rings a live node reads: each
+ * usable frame (the lost one passed over) arrives as the dataset reader
+ * gives it, colour and depth at the colour camera's size, with the reader's
+ * intrinsics, and its pose waits in the pose ring at the frame's host time. */
+static void test_replay_sens(void **state) {
+  (void)state;
+  char dir[400], path[600], cfg[700], err[512];
+  sens_scene(dir, sizeof dir, path, sizeof path, "scene0005_00");
+  const char *what[3] = {"r", "p", "f"};
+  for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-tscn-%d-%s", (int)getpid(), what[k]);
+  snprintf(cfg, sizeof cfg, "%s/replay.yaml", root);
+  putf(cfg, "shm:\n  ring: %s\n  pose_ring: %s\n  feature_ring: %s\n  ring_slots: 4\n", replay_shm[0], replay_shm[1], replay_shm[2]);
+  struct vlff_dataset ds;
+  if (vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  /* through sh, so that a cross-built tree's emulator goes before the program */
+  char prog[700], cmd[2400];
+  vlff_test_prog(prog, sizeof prog, "node/dataset/vlff-replay");
+  snprintf(cmd, sizeof cmd, "exec %s -c %s --layout sens --no-features --backpressure --quiet %s", prog, cfg, path);
+  char *argv[] = {"/bin/sh", "-c", cmd, NULL};
+  assert_int_equal(posix_spawn(&child, "/bin/sh", NULL, NULL, argv, environ), 0);
+  struct vlff_ring *fr = NULL, *pr = NULL;
+  for (int k = 0; k < 500 && !(fr && pr); k++) {
+    if (!fr) fr = vlff_ring_attach(replay_shm[0], VLFF_RECORD_FRAME);
+    if (!pr) pr = vlff_ring_attach(replay_shm[1], VLFF_RECORD_POSE);
+    if (!(fr && pr)) usleep(20000);
+  }
+  assert_non_null(fr);
+  assert_non_null(pr);
+  const int W = ds.width, H = ds.height;
+  uint8_t *rgb = malloc((size_t)W * H * 3), *buf = malloc(vlff_ring_slot_size(fr));
+  float *depth = malloc((size_t)W * H * sizeof *depth);
+  long with_depth = 0;
+  for (int i = 0; i < ds.n; i++) {
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(fr, buf, vlff_ring_slot_size(fr), &v, 10ull * 1000 * 1000 * 1000);
+    if (len < 0) fail_msg("frame %d: %s", i, vlff_shm_last_message());
+    assert_int_equal(vlff_frame_validate(buf, (size_t)len), 0);
+    const struct vlff_frame_hdr *h = (const void *)buf;
+    assert_int_equal(h->frame_id, (uint64_t)i);
+    assert_int_equal((int)h->plane[VLFF_PLANE_COLOR].width, W);
+    assert_int_equal((int)h->plane[VLFF_PLANE_DEPTH].width, W);
+    assert_true(fabs(h->fx - ds.fx) < 1e-9 && fabs(h->cx - ds.cx) < 1e-9 && fabs(h->cy - ds.cy) < 1e-9);
+    if (vlff_dataset_read_frame(&ds, i, rgb, depth, NULL, err, sizeof err) < 0) fail_msg("%s", err);
+    const uint8_t *c = vlff_frame_plane(buf, VLFF_PLANE_COLOR), *d = vlff_frame_plane(buf, VLFF_PLANE_DEPTH);
+    for (int y = 0; y < H; y++) {
+      assert_memory_equal(c + (size_t)y * h->plane[VLFF_PLANE_COLOR].stride, rgb + (size_t)y * W * 3, (size_t)W * 3);
+      const uint16_t *mm = (const void *)(d + (size_t)y * h->plane[VLFF_PLANE_DEPTH].stride);
+      for (int x = 0; x < W; x++) {
+        float m = depth[(size_t)y * W + x];
+        if (!(isfinite(m) && m > 0)) {
+          assert_int_equal(mm[x], 0);
+          continue;
+        }
+        if (fabsf(mm[x] - m * 1000.0f) > 0.5f) fail_msg("frame %d (%d,%d): %u mm, the reader says %g m", i, x, y, mm[x], m);
+        with_depth++;
+      }
+    }
+    struct vlff_pose_rec pose;
+    assert_int_equal(vlff_pose_lookup(pr, h->t_host_ns, 0, &pose), 0);
+    for (int e = 0; e < 16; e++) assert_true(fabs(pose.pose[e] - ds.c2w[16 * i + e]) < 1e-9);
+  }
+  assert_true(fabs(ds.c2w[16 + 3] - 0.2) < 1e-6); /* the second usable frame is the .sens's third */
+  assert_true(with_depth > (long)W * H / 4);       /* the plate registered into the colour camera */
+  int st;
+  assert_int_equal(waitpid(child, &st, 0), child);
+  child = 0;
+  assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
+  assert_int_equal(vlff_ring_lost(fr), 0);
+  free(rgb), free(buf), free(depth);
+  vlff_ring_close(fr);
+  vlff_ring_close(pr);
+  vlff_dataset_close(&ds);
+}
+#define REPLAY_TEST , cmocka_unit_test(test_replay_sens)
+#else
+#define REPLAY_TEST
+#endif
+
 static int setup(void **state) {
   (void)state;
   snprintf(root, sizeof root, "/tmp/vlff-test-scannet-%ld-XXXXXX", (long)getpid());
@@ -394,14 +667,18 @@ static int setup(void **state) {
 
 static int teardown(void **state) {
   (void)state;
+  if (child > 0) { /* a replay waiting for a reader that failed would wait for ever */
+    kill(child, SIGKILL);
+    waitpid(child, NULL, 0);
+    child = 0;
+  }
+#ifdef VLFF_REPLAY_BUILT
+  for (int k = 0; k < 3; k++)
+    if (replay_shm[k][0]) vlff_shm_unlink(replay_shm[k]), replay_shm[k][0] = 0;
+#endif
   nftw(root, rm_one, 16, FTW_DEPTH | FTW_PHYS);
   return 0;
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_export_layout),
-      cmocka_unit_test(test_sens),
-  };
-  return cmocka_run_group_tests(tests, setup, teardown);
-}
+VLFF_UNIT_MAIN(setup, teardown,
+    cmocka_unit_test(test_export_layout), cmocka_unit_test(test_sens), cmocka_unit_test(test_lost_tracking) EVAL_TEST REPLAY_TEST)

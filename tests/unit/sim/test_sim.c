@@ -13,6 +13,7 @@
 #include "field.h"
 #include "metrics.h"
 #include "sim.h"
+#include "unit.h"
 
 static void small_cfg(struct vlff_config *c, int seed) {
   vlff_config_defaults(c);
@@ -424,13 +425,10 @@ static void test_bad_config(void **state) {
   assert_non_null(strstr(err, "scene_min/max"));
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_deterministic_per_seed), cmocka_unit_test(test_depth_matches_geometry),
-      cmocka_unit_test(test_labels_cover_classes),   cmocka_unit_test(test_poses_opencv_and_speed),
-      cmocka_unit_test(test_embeddings_structure),   cmocka_unit_test(test_features_imperfect_but_informative),
-      cmocka_unit_test(test_points),                 cmocka_unit_test(test_bad_config),
-      cmocka_unit_test(test_flat_walk_through_doorways), cmocka_unit_test(test_object_bias_view_consistent),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_deterministic_per_seed), cmocka_unit_test(test_depth_matches_geometry),
+    cmocka_unit_test(test_labels_cover_classes), cmocka_unit_test(test_poses_opencv_and_speed),
+    cmocka_unit_test(test_embeddings_structure),
+    cmocka_unit_test(test_features_imperfect_but_informative), cmocka_unit_test(test_points),
+    cmocka_unit_test(test_bad_config), cmocka_unit_test(test_flat_walk_through_doorways),
+    cmocka_unit_test(test_object_bias_view_consistent))

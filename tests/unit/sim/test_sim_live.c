@@ -18,6 +18,7 @@
 
 #include "config.h"
 #include "sim.h"
+#include "unit.h"
 #include "vlff/shm.h"
 
 static void test_live_frames_match(void **state) {
@@ -97,7 +98,5 @@ static void test_live_frames_match(void **state) {
   unlink(cfgpath);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_live_frames_match)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_live_frames_match))

@@ -15,6 +15,7 @@
 #include "palette.h"
 #include "sim.h"
 #include "sim_source.h"
+#include "unit.h"
 
 static void small_cfg(struct vlff_config *c) {
   vlff_config_defaults(c);
@@ -163,11 +164,6 @@ static void test_observer_scores_against_truth(void **state) {
   vlff_sim_source_destroy(s);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_hooks_follow_the_config),
-      cmocka_unit_test(test_features_by_ring_id),
-      cmocka_unit_test(test_observer_scores_against_truth),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_hooks_follow_the_config), cmocka_unit_test(test_features_by_ring_id),
+    cmocka_unit_test(test_observer_scores_against_truth))

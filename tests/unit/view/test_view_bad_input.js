@@ -1,11 +1,17 @@
 // vlff-view against bad clients: foreign or missing subprotocols, non-JSON and
 // malformed requests, oversized messages, an eleventh client, a client that stops
-// reading, wrong tokens, path tricks and garbage over HTTP. Each is refused with a
-// reason and counted, and a well-behaved client beside them keeps its stream.
-// Also the command line's refusals. Runs vlff-sim (camera frames) and vlff-view.
+// reading, wrong tokens, and HTTP requests it does not serve (other methods,
+// malformed heads, unknown paths and path escapes, long targets, large heads, a head
+// never finished, a flood). Each is refused with a reason and counted (HTTP ones by
+// status in the status channel, their log lines rate-limited), and a well-behaved
+// client beside them keeps its stream. The page's files come with a self-only
+// Content-Security-Policy. Also the command line's refusals. Runs vlff-sim (camera
+// frames) and vlff-view.
 'use strict';
 const assert = require('assert');
-const http = require('http');
+const fs = require('fs');
+const os = require('os');
+const path = require('path');
 const net = require('net');
 const { spawnSync } = require('child_process');
 const WebSocket = require('ws');
@@ -17,9 +23,14 @@ const PROTO = 'foxglove.websocket.v1';
 function connect(url, proto = PROTO) {
   return new Promise((resolve, reject) => {
     const ws = new WebSocket(url, proto === null ? [] : [proto]);
-    const c = { ws, texts: [], bins: 0, closed: null, adv: null };
+    const c = { ws, texts: [], bins: 0, closed: null, adv: null, status: null, statuses: 0 };
     ws.on('message', (d, bin) => {
-      if (bin) { c.bins++; return; }
+      if (bin) {
+        c.bins++;
+        const ch = c.adv && c.adv.find((a) => a.id === d.readUInt32LE(1));
+        if (ch && ch.topic === '/vlff/status') { c.status = JSON.parse(d.subarray(13).toString()); c.statuses++; }
+        return;
+      }
       const m = JSON.parse(d.toString());
       c.texts.push(m);
       if (m.op === 'advertise') c.adv = m.channels;
@@ -34,6 +45,29 @@ function connect(url, proto = PROTO) {
     ws.on('open', () => resolve(c));
   });
 }
+// One HTTP exchange over a raw socket: what the server answers to exactly these
+// bytes, up to its close.
+function raw(bytes) {
+  return new Promise((resolve, reject) => {
+    const s = net.connect(demo_port, '127.0.0.1', () => s.write(Buffer.from(bytes, 'latin1')));
+    const got = [];
+    s.on('data', (d) => got.push(d));
+    s.on('error', reject);
+    s.on('close', () => {
+      const text = Buffer.concat(got).toString('latin1'), cut = text.indexOf('\r\n\r\n');
+      const head = cut < 0 ? text : text.slice(0, cut), m = /^HTTP\/1\.1 (\d{3}) (.*)/.exec(head);
+      const headers = {};
+      for (const l of head.split('\r\n').slice(1)) {
+        const i = l.indexOf(':');
+        headers[l.slice(0, i).toLowerCase()] = l.slice(i + 1).trim();
+      }
+      resolve({ text, head, headers, status: m ? Number(m[1]) : null, reason: m ? m[2] : '',
+        body: cut < 0 ? '' : text.slice(cut + 4) });
+    });
+  });
+}
+let demo_port = 0;
+const www = `${process.env.VLFF_BINARY_DIR}/node/view/www`;
 const lastStatus = (c) => c.texts.filter((m) => m.op === 'status').at(-1);
 async function until(cond, ms, what) {
   const t0 = Date.now();
@@ -61,12 +95,26 @@ function cli() {
     assert.ok(r.stderr.includes(msg), `${args.join(' ')}: ${r.stderr}`);
   }
   ok('command line: --version, --help; six bad arguments exit 2, an unreadable token file 1, each with a reason');
+
+  // A FIFO or a directory named as the token file: refused at once (a plain open of
+  // a FIFO would wait for a writer forever), naming the file and what it is.
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'vlff-view-token-'));
+  const fifo = path.join(dir, 'token.fifo');
+  assert.strictEqual(spawnSync('mkfifo', [fifo]).status, 0, 'mkfifo');
+  for (const [file, what] of [[fifo, 'is a FIFO'], [dir, 'is a directory']]) {
+    r = spawnSync(prog.view, ['--port', '0', '--token-file', file], { encoding: 'utf8', timeout: 10000 });
+    assert.strictEqual(r.status, 1, `--token-file ${what}: status ${r.status} signal ${r.signal}`);
+    assert.ok(r.stderr.includes(`--token-file ${file}: ${what}, expected a regular file`), r.stderr);
+  }
+  fs.rmSync(dir, { recursive: true, force: true });
+  ok('a FIFO or a directory as --token-file is refused at once with exit 1, naming what it is');
 }
 
 async function main() {
   cli();
   const demo = await start({ withNode: false, token: 'secret-token-1', viewArgs: ['--max-queue-mb', '1',
     '--image-hz', '20'] });
+  demo_port = demo.port;
   const log = await check(demo, async () => {
     const good = await connect(demo.ws);
     await until(() => good.adv, 5000, 'advertise');
@@ -155,23 +203,94 @@ async function main() {
     await until(() => good.bins > before + 20, 20000, 'the good client still receives');
     ok('a client that stops reading is dropped as too slow; the others keep receiving');
 
-    for (const p of ['/../../../../etc/passwd', '/%2e%2e/%2e%2e/etc/passwd', '/nope.html']) {
-      const st = await new Promise((resolve) => http.get({ host: '127.0.0.1', port: demo.port, path: p },
-        (res) => { res.resume(); resolve(res.statusCode); }).on('error', () => resolve('error')));
-      assert.notStrictEqual(st, 200, `${p} must not be served`);
+    // HTTP requests the viewer does not serve: each gets its status and a sentence
+    // from the viewer, is counted by status in the status channel, and the good
+    // client's stream goes on meanwhile.
+    const counts = () => ({ ...good.status.viewer.http_refused });
+    const freshStatus = async () => {
+      const n = good.statuses;
+      await until(() => good.statuses > n, 5000, 'a status message');
+      return good.status;
+    };
+    const base = (await freshStatus()).viewer.http_refused;
+    const slowHead = raw('GET / HTTP/1.1\r\nHost: x\r\n'); // never finished: 408 after 10 s
+    const long = 'a'.repeat(3000);
+    const cases = [
+      ['POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n\r\n', 405, 'method POST is not allowed'],
+      ['DELETE /index.html HTTP/1.1\r\n\r\n', 405, 'GET and HEAD'],
+      ['BREW /index.html HTTP/1.1\r\n\r\n', 405, 'method BREW'],
+      ['\x00\xff garbage \r\n\r\n\r\n', 400, 'does not start with a method'],
+      ['GET / HTTP/1.1\r\nno colon here\r\n\r\n', 400, 'is not "Name: value"'],
+      ['GET / HTTP/1.1\nHost: x\n\n', 400, 'CRLF'],
+      ['GET / HTTP/1.1\r\nUpgrade: h2c\r\n\r\n', 400, 'only an upgrade to WebSocket'],
+      ['GET / HTTP/1.1\r\nContent-Length: 5\r\n\r\nhello', 400, 'carries no body'],
+      ['GET / HTTP/2.0\r\n\r\n', 505, 'HTTP/2.0 is not supported'],
+      ['GET /nope.html HTTP/1.1\r\n\r\n', 404, '/nope.html is not a file of this page'],
+      ['GET /../../../../etc/passwd HTTP/1.1\r\n\r\n', 404, 'not a file of this page'],
+      ['GET /%2e%2e/%2e%2e/etc/passwd HTTP/1.1\r\n\r\n', 404, 'not a file of this page'],
+      ['GET /three HTTP/1.1\r\n\r\n', 404, 'not a file of this page'],
+      ['GET /nope HTTP/1.1\r\nUpgrade: websocket\r\n\r\n', 404, 'served at /'],
+      ['HEAD /nope.html HTTP/1.1\r\n\r\n', 404, ''],
+      [`GET /${long} HTTP/1.1\r\n\r\n`, 414, 'the request target is 3001 bytes, the limit is 2048'],
+      [`GET /${long.repeat(40)}`, 414, 'request line is longer than'],
+      [`GET / HTTP/1.1\r\nX-Pad: ${long.repeat(4)}\r\n\r\n`, 431, 'longer than 8192 bytes'],
+      [`GET / HTTP/1.1\r\n${'X-A: b\r\n'.repeat(100)}\r\n`, 431, 'more than 64 header lines'],
+    ];
+    const tally = {};
+    for (const [req, status, why] of cases) {
+      const r = await raw(req);
+      assert.strictEqual(r.status, status, `${JSON.stringify(req.slice(0, 60))}: ${r.text.slice(0, 200)}`);
+      assert.ok(r.reason.length > 0 && r.head.includes('Connection: close'), r.head);
+      if (status === 405) assert.ok(r.head.includes('Allow: GET, HEAD'), r.head);
+      if (req.startsWith('HEAD')) assert.strictEqual(r.body, '', 'a HEAD answer has no body');
+      else assert.ok(r.body.includes(why), `${JSON.stringify(req.slice(0, 60))}: body ${r.body}`);
+      tally[status] = (tally[status] || 0) + 1;
     }
-    const page = await new Promise((resolve) => http.get(demo.url, (res) => {
-      let b = ''; res.on('data', (d) => { b += d; }); res.on('end', () => resolve([res.statusCode, b]));
-    }));
-    assert.ok(page[0] === 200 && page[1].includes('three/three.module.js'));
-    await new Promise((resolve) => {
-      const s = net.connect(demo.port, '127.0.0.1', () => s.end('\x00\xff garbage \r\n\r\n\r\n'));
-      s.on('close', resolve); s.on('error', resolve); s.resume();
-    });
-    const after = good.bins;
-    await until(() => good.bins > after + 2 && good.closed === null, 10000, 'good client after garbage');
-    ok('path escapes and unknown files are not served, garbage over TCP is dropped, the page is');
+    const before408 = good.bins;
+    const t408 = await slowHead;
+    assert.strictEqual(t408.status, 408, t408.text);
+    assert.ok(t408.body.includes('no complete request head within 10 s'));
+    tally[408] = 1;
+    assert.ok(good.bins > before408 + 5 && good.closed === null, 'the good client received all along');
+    ok(`${cases.length + 1} bad HTTP requests answered 400, 404, 405, 408, 414, 431, 505 with a reason each`);
 
+    // A flood of malformed requests: all answered and counted, the log keeps five lines
+    // of them, the good client keeps its stream.
+    const flood = 300, floodBins = good.bins;
+    for (let i = 0; i < flood; i += 30) {
+      const batch = [];
+      for (let k = 0; k < 30; k++) batch.push(raw('GET / HTTP/1.1\r\nbad header line\r\n\r\n'));
+      for (const r of await Promise.all(batch)) assert.strictEqual(r.status, 400);
+    }
+    tally[400] += flood;
+    await until(() => good.bins > floodBins + 5 && good.closed === null, 10000, 'the good client after the flood');
+    let now = null;
+    await until(() => {
+      now = counts();
+      return Object.keys(tally).every((k) => now[k] - base[k] === tally[k]);
+    }, 10000, `the status counts ${JSON.stringify(tally)} more refusals than ${JSON.stringify(base)}`);
+    for (const k of Object.keys(now)) if (!tally[k]) assert.strictEqual(now[k], base[k], `HTTP ${k} counted`);
+    const logged = (demo.log('view').match(/is not "Name: value" \[HTTP 400/g) || []).length;
+    assert.ok(logged <= 5, `${logged} log lines for ${flood + 1} malformed header lines`);
+    ok(`a flood of ${flood} malformed requests: each answered 400 and counted (status: ${JSON.stringify(now)}), ` +
+      `${logged} logged, the good client's stream uninterrupted`);
+
+    // The page's files: GET and HEAD with the Content-Security-Policy.
+    for (const [method, path, type] of [['GET', '/', 'text/html'], ['GET', '/view.js', 'text/javascript'],
+      ['GET', '/three/three.module.js', 'text/javascript'], ['HEAD', '/view.css', 'text/css']]) {
+      const r = await raw(`${method} ${path} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n`);
+      assert.strictEqual(r.status, 200, `${method} ${path}: ${r.head}`);
+      assert.ok(r.headers['content-type'].startsWith(type), r.head);
+      const csp = r.headers['content-security-policy'] || '';
+      assert.ok(/(^|; )default-src 'self'/.test(csp) && /script-src 'self'(;|$)/.test(csp) && !csp.includes('unsafe'),
+        `${path}: CSP "${csp}"`);
+      assert.strictEqual(r.headers['x-content-type-options'], 'nosniff');
+      assert.strictEqual(Number(r.headers['content-length']), method === 'HEAD' ? fs.statSync(`${www}${path}`).size
+        : Buffer.byteLength(r.body, 'latin1'));
+      if (method === 'HEAD') assert.strictEqual(r.body, '');
+      if (path === '/') assert.ok(r.body.includes('src="view.js"'));
+    }
+    ok('the page\'s files are served (GET and HEAD) with a self-only Content-Security-Policy');
     const status = await new Promise((resolve) => {
       const t = setInterval(() => {
         const s = demo.log('view');

@@ -3,8 +3,9 @@
  * The viewer's feed against a map segment published in this process: the first
  * version goes out whole, later ones as exactly the changed voxels and the bricks
  * holding them (an emptied brick deleted), a version without changes as an empty
- * delta, a prompt change whole again; channels nobody wants are not encoded, and a
- * new subscriber gets the whole current map.
+ * delta, a prompt change whole again; channels nobody wants are not encoded (the
+ * feed's count of encoded messages stays put), and a new subscriber gets the whole
+ * current map.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -18,6 +19,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "unit.h"
 #include "view.h"
 
 enum { NX = 10, NY = 9, NZ = 8, N = NX * NY * NZ, ALL = 0x7e };
@@ -188,11 +190,43 @@ static void test_feed(void **state) {
   assert_int_equal(vlff_feed_version(f), 5);
   free_polled(&p);
 
+  /* nobody subscribes: a version with changes, a new label image and a status due
+   * cost no encoding on any channel, while the feed's copy follows the map */
+  uint64_t before[VLFF_VIEW_CH_COUNT + 1];
+  for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++) before[c] = vlff_feed_encoded(f, c);
+  labels[at(2, 2, 2)] = 1;
+  assert_int_equal(publish(m, prompts2, 2), 0);
+  poll_feed(f, 0, &p);
+  for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++) {
+    assert_int_equal(p.count[c], 0);
+    assert_int_equal(vlff_feed_encoded(f, c), before[c]);
+  }
+  assert_int_equal(vlff_feed_version(f), 6);
+  free_polled(&p);
+
+  /* one subscriber, on the status: only the status is encoded */
+  labels[at(3, 3, 3)] = 1;
+  assert_int_equal(publish(m, prompts2, 2), 0);
+  poll_feed(f, 1u << VLFF_VIEW_CH_STATUS, &p);
+  assert_int_equal(p.count[VLFF_VIEW_CH_STATUS], 1);
+  for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++)
+    assert_int_equal(vlff_feed_encoded(f, c), before[c] + (c == VLFF_VIEW_CH_STATUS));
+  free_polled(&p);
+
+  /* a first voxel subscriber gets the whole map, the changes made unseen included */
+  cur = vlff_feed_current(f, VLFF_VIEW_CH_VOXELS);
+  assert_non_null(cur);
+  whole = parse(cur);
+  assert_true(json_object_get_boolean(get(whole, "full")));
+  assert_int_equal(json_object_get_int(get(whole, "version")), 7);
+  assert_int_equal(json_object_get_int(get(whole, "occupied")), NX * NY + 4);
+  assert_int_equal(vlff_feed_encoded(f, VLFF_VIEW_CH_VOXELS), before[VLFF_VIEW_CH_VOXELS] + 1);
+  json_object_put(whole);
+  vlff_view_msg_unref(cur);
+
   vlff_feed_free(f);
   vlff_map_detach(m);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test_setup_teardown(test_feed, setup, teardown)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test_setup_teardown(test_feed, setup, teardown))

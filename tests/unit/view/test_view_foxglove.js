@@ -1,14 +1,20 @@
 // vlff-view as Foxglove sees it: the @foxglove/ws-protocol client connects to a
 // running demo (vlff-sim + vlff-node + vlff-view), subscribes to every channel,
-// checks every message against the schema its channel advertised, and checks the
-// voxels it was sent (a whole map, then deltas) against `vlff-shm label` at the
-// same points and the same map version.
+// checks every message against the schema its channel advertised and, for the
+// foxglove.* channels, the advertised schema and every message against Foxglove's
+// published one (the npm package @foxglove/schemas: field names, types, required
+// fields, no field it does not name), and checks the voxels it was sent (a whole
+// map, then deltas) against `vlff-shm label` at the same points and map version.
 'use strict';
 const assert = require('assert');
 const { FoxgloveClient } = require('@foxglove/ws-protocol');
+const published = require('@foxglove/schemas/jsonschema');
 const WebSocket = require('ws');
 const { start, shm, shmAsync, sleep, waitVersion, learnerOfStat, ok, plan, check } = require('./demo');
-const { validate } = require('./schema');
+const { validate, sameFields } = require('./schema');
+
+// Foxglove's published JSON Schema for a schema name "foxglove.X", or undefined.
+const publishedOf = (name) => (name.startsWith('foxglove.') ? published[name.slice(9)] : undefined);
 
 const FREE = 65534;
 
@@ -18,7 +24,7 @@ async function main() {
     await waitVersion(demo, 2, 240000);
     const client = new FoxgloveClient({ ws: new WebSocket(demo.ws, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]) });
     const chans = {}, bySub = {}, got = {};
-    const voxels = new Map();
+    const voxels = new Map(), checkedPublished = {};
     const scene = new Map();
     let grid = null, voxelVersion = 0, voxelT = 0n, sceneT = 0n, fullSeen = 0, deltaSeen = 0, bad = [];
     let serverInfo = null, waiters = [];
@@ -34,6 +40,12 @@ async function main() {
       const c = bySub[subscriptionId], msg = JSON.parse(td.decode(data));
       const errs = validate(JSON.parse(c.schema), msg);
       if (errs.length) bad.push(`${c.topic}: ${errs.slice(0, 3).join('; ')}`);
+      const pub = publishedOf(c.schemaName);
+      if (pub) {
+        const perrs = validate(pub, msg, '$', [], true);
+        if (perrs.length) bad.push(`${c.topic} against @foxglove/schemas: ${perrs.slice(0, 3).join('; ')}`);
+        checkedPublished[c.schemaName] = (checkedPublished[c.schemaName] || 0) + 1;
+      }
       (got[c.topic] = got[c.topic] || []).push(msg);
       if (c.topic === '/map/voxels') {
         if (msg.full) { voxels.clear(); fullSeen++; } else deltaSeen++;
@@ -71,11 +83,23 @@ async function main() {
     assert.strictEqual(chans['/tf'].schemaName, 'foxglove.FrameTransform');
     assert.deepStrictEqual(serverInfo.capabilities, [], 'no clientPublish without a token');
     ok('serverInfo and six channels advertised with JSON schemas');
+    const foxgloveChannels = Object.values(chans).filter((c) => c.schemaName.startsWith('foxglove.'));
+    for (const c of foxgloveChannels) {
+      const pub = publishedOf(c.schemaName);
+      assert.ok(pub && pub.title === c.schemaName, `${c.schemaName} is a schema of @foxglove/schemas`);
+      assert.deepStrictEqual(sameFields(JSON.parse(c.schema), pub), [],
+        `${c.topic}: the advertised ${c.schemaName} against @foxglove/schemas`);
+    }
+    ok(`${foxgloveChannels.map((c) => `${c.topic} (${c.schemaName})`).join(', ')}: advertised schemas have the ` +
+      'field names, types and required fields of @foxglove/schemas');
 
     await until(() => fullSeen >= 1 && deltaSeen >= 2 && ['/camera/image', '/camera/labels', '/tf', '/vlff/status']
       .every((t) => got[t]), 120000, 'a whole map, two deltas and every channel');
-    assert.deepStrictEqual(bad, [], 'every message matches its advertised schema');
-    ok(`every channel delivered, ${Object.values(got).reduce((a, l) => a + l.length, 0)} messages match their schemas`);
+    assert.deepStrictEqual(bad, [], 'every message matches its advertised schema and the published one');
+    for (const n of ['foxglove.SceneUpdate', 'foxglove.RawImage', 'foxglove.FrameTransform'])
+      assert.ok(checkedPublished[n] > 0, `messages checked against ${n}`);
+    ok(`every channel delivered, ${Object.values(got).reduce((a, l) => a + l.length, 0)} messages match their schemas; ` +
+      `against @foxglove/schemas: ${JSON.stringify(checkedPublished)}`);
 
     // The voxels the client holds against vlff-shm label at the same version. The
     // learner is paused meanwhile (a loaded machine may need longer than its publish

@@ -1,13 +1,16 @@
-// vlff-view's own page in headless Chromium against a running demo: the voxels
-// drawn where the map has them, in their prompts' colours (screenshot pixels); the
-// voxel under the cursor as vlff-shm label names it; the status numbers as
-// vlff-shm stat prints them; the camera and label images; and a prompt set posted
-// from the page's editor changing the node's prompts.
+// vlff-view's own page in headless Chromium against a running demo: served with a
+// self-only Content-Security-Policy that it never violates, loading nothing from
+// another origin; the voxels drawn where the map has them, in their prompts' colours
+// (screenshot pixels); the voxel under the cursor as vlff-shm label names it; the
+// status numbers as vlff-shm stat prints them; the camera and label images; a
+// prompt set posted from the page's editor changing the node's prompts; and, from a
+// second vlff-view without a token, the editor hidden and disabled.
 'use strict';
 const assert = require('assert');
 const fs = require('fs');
+const { spawn } = require('child_process');
 const { chromium } = require('playwright-core');
-const { start, shm, sleep, waitVersion, learnerOfStat, ok, plan, check } = require('./demo');
+const { start, shm, sleep, waitVersion, learnerOfStat, prog, ok, plan, check } = require('./demo');
 const png = require('./png');
 
 const TOKEN = 'page-test-token';
@@ -31,6 +34,19 @@ const statOf = (demo) => {
     prompts: [...s.matchAll(/^prompt \d+ (.*)$/gm)].map((m) => m[1]) };
 };
 
+let plain = null; // the viewer without a token
+
+// Polls fn in the page until it returns something true. Playwright's waitForFunction
+// polls with new Function inside the page, which the page's Content-Security-Policy
+// (no 'unsafe-eval') rightly refuses; evaluate() is no eval.
+async function pageUntil(page, fn, ms = 30000) {
+  const t0 = Date.now();
+  while (!(await page.evaluate(fn))) {
+    if (Date.now() - t0 > ms) throw new Error(`timed out after ${ms} ms: ${fn}`);
+    await sleep(100);
+  }
+}
+
 async function main() {
   const demo = await start({ token: TOKEN });
   const browser = await chromium.launch({ executablePath: process.env.VLFF_CHROMIUM || 'chromium',
@@ -41,11 +57,34 @@ async function main() {
     const errors = [];
     page.on('pageerror', (e) => errors.push(e.message));
     page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
-    await page.goto(demo.url);
-    await page.waitForFunction(() => document.body.dataset.version && document.querySelectorAll('#legend li').length,
-      null, { timeout: 60000 });
-    await page.waitForFunction(() => document.getElementById('s-frames').textContent !== '-', null, { timeout: 30000 });
-    ok('the page loads three.js from the viewer, connects and draws a map version');
+    // every request the page makes, its WebSocket included, and every CSP violation
+    const host = new URL(demo.url).host, requested = [], foreign = [];
+    page.on('request', (r) => {
+      const u = new URL(r.url());
+      requested.push(u.pathname);
+      if (u.protocol !== 'http:' || u.host !== host) foreign.push(r.url());
+    });
+    page.on('websocket', (w) => {
+      const u = new URL(w.url());
+      if (u.protocol !== 'ws:' || u.host !== host) foreign.push(w.url());
+    });
+    await page.addInitScript(() => {
+      window.cspViolations = [];
+      document.addEventListener('securitypolicyviolation',
+        (e) => window.cspViolations.push(`${e.violatedDirective} ${e.blockedURI}`));
+    });
+    const resp = await page.goto(demo.url);
+    const csp = resp.headers()['content-security-policy'] || '';
+    assert.ok(/(^|; )default-src 'self'/.test(csp) && /script-src 'self'(;|$)/.test(csp) &&
+      /connect-src 'self'/.test(csp) && !/unsafe|data:|\*/.test(csp), `the page's CSP: "${csp}"`);
+    await pageUntil(page, () => document.body.dataset.version && document.querySelectorAll('#legend li').length, 60000);
+    await pageUntil(page, () => document.getElementById('s-frames').textContent !== '-', 30000);
+    for (const f of ['/', '/view.js', '/view.css', '/three/three.module.js', '/three/addons/OrbitControls.js'])
+      assert.ok(requested.includes(f), `the page loaded ${f}: ${requested}`);
+    assert.deepStrictEqual(foreign, [], 'requests to other origins');
+    assert.deepStrictEqual(await page.evaluate(() => window.cspViolations), [], 'CSP violations');
+    ok(`the page, served with a self-only CSP ("${csp.split(';')[0]}; ..."), loads three.js from the viewer ` +
+      `(${requested.length} requests, all same-origin, no violation), connects and draws a map version`);
 
     // The voxels under their own screen points, drawn in their prompts' colours.
     // The learner is paused meanwhile: a software-rendered screenshot may take
@@ -176,10 +215,10 @@ async function main() {
 
     // The label image is published when the node renders one, which on a loaded
     // host can come after the learner checks above: wait for both to be drawn.
-    await page.waitForFunction(() => ['image', 'labels'].every((id) => {
+    await pageUntil(page, () => ['image', 'labels'].every((id) => {
       const c = document.getElementById(id);
       return c.width !== 300 || c.height !== 150; // a canvas's size before its first image
-    }), null, { timeout: 60000 });
+    }), 60000);
     const imgs = await page.evaluate(() => ['image', 'labels'].map((id) => {
       const c = document.getElementById(id), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
       let lit = 0;
@@ -191,24 +230,48 @@ async function main() {
     ok('camera image and label image drawn beside each other');
 
     assert.ok(await page.isVisible('#editor'), 'the editor shows when a token is configured');
+    assert.ok(await page.isEnabled('#editor button'), 'and can be used');
     await page.fill('#prompts', 'chair\ntable\nwall');
     await page.fill('#token', 'not-the-token');
     await page.click('#editor button');
-    await page.waitForFunction(() => /wrong or missing token/.test(document.getElementById('msg').textContent));
+    await pageUntil(page, () => /wrong or missing token/.test(document.getElementById('msg').textContent));
     await page.fill('#token', TOKEN);
     await page.click('#editor button');
-    await page.waitForFunction(() => /prompt set posted/.test(document.getElementById('msg').textContent), null,
-      { timeout: 60000 });
+    await pageUntil(page, () => /prompt set posted/.test(document.getElementById('msg').textContent), 60000);
     const t0 = Date.now();
     while (statOf(demo).prompts.join() !== 'chair,table,wall') {
       assert.ok(Date.now() - t0 < 60000, `the node took the posted prompts: ${statOf(demo).prompts}`);
       await sleep(200);
     }
-    await page.waitForFunction(() => [...document.querySelectorAll('#legend li')].map((li) => li.textContent).join() ===
-      'chair,table,wall', null, { timeout: 30000 });
+    await pageUntil(page, () => [...document.querySelectorAll('#legend li')].map((li) => li.textContent).join() ===
+      'chair,table,wall', 30000);
     ok('a prompt set posted from the page (wrong token refused first) becomes the map\'s prompts and legend');
+    assert.deepStrictEqual(foreign, [], 'requests to other origins');
+    assert.deepStrictEqual(await page.evaluate(() => window.cspViolations), [], 'CSP violations');
     assert.deepStrictEqual(errors, [], 'no errors in the page');
-  }, () => browser.close());
+
+    // A second viewer on the same map without --token-file: no editor to use.
+    const port = await new Promise((resolve, reject) => {
+      plain = spawn(prog.view, ['--port', '0', '--map', demo.names.map, '--frames', demo.names.frames],
+        { stdio: ['ignore', 'pipe', 'ignore'] });
+      let text = '';
+      plain.stdout.on('data', (d) => {
+        text += d;
+        const m = /serving http:\/\/127\.0\.0\.1:(\d+)\//.exec(text);
+        if (m) resolve(Number(m[1]));
+      });
+      plain.on('exit', (code) => reject(new Error(`vlff-view without a token exited ${code}`)));
+    });
+    const page2 = await browser.newPage();
+    await page2.goto(`http://127.0.0.1:${port}/`);
+    await pageUntil(page2, () => document.body.dataset.version, 60000);
+    assert.ok(!(await page2.isVisible('#editor')), 'no editor without a token');
+    assert.ok(await page2.isDisabled('#editor button') && await page2.isDisabled('#prompts'), 'its fields disabled');
+    ok('from a viewer without a token the prompt editor is hidden and disabled');
+  }, async () => {
+    await browser.close();
+    if (plain && plain.exitCode === null) plain.kill('SIGINT');
+  });
   plan();
 }
 main();

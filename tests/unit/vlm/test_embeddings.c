@@ -12,6 +12,7 @@
 #include <cmocka.h>
 
 #include "embeddings.h"
+#include "unit.h"
 
 static void test_round_trip(void **state) {
   char path[128], err[256];
@@ -98,7 +99,5 @@ static void test_validation(void **state) {
   assert_non_null(strstr(err, ":3: NUL byte"));
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_round_trip), cmocka_unit_test(test_validation)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_round_trip), cmocka_unit_test(test_validation))

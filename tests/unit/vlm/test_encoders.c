@@ -19,6 +19,7 @@
 #include "image_encoder.h"
 #include "text_encoder.h"
 #include "tokenizer.h"
+#include "unit.h"
 #include "vlm_fixture.h"
 
 static bool have_torch;
@@ -320,12 +321,6 @@ static void test_text_bad_models(void **state) {
   unlink(cfg.vlm.bpe_vocab);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_image_matches_pytorch),
-      cmocka_unit_test(test_text_matches_pytorch),
-      cmocka_unit_test(test_image_bad_models),
-      cmocka_unit_test(test_text_bad_models),
-  };
-  return cmocka_run_group_tests(tests, setup, teardown);
-}
+VLFF_UNIT_MAIN(setup, teardown,
+    cmocka_unit_test(test_image_matches_pytorch), cmocka_unit_test(test_text_matches_pytorch),
+    cmocka_unit_test(test_image_bad_models), cmocka_unit_test(test_text_bad_models))

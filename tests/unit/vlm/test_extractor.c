@@ -22,6 +22,7 @@
 
 #include "field.h"
 #include "feature_join.h"
+#include "unit.h"
 #include "vlm_fixture.h"
 
 extern char **environ;
@@ -263,11 +264,6 @@ static void test_join_rules(void **state) {
   vlff_feature_join_destroy(j);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_join_rules),
-      cmocka_unit_test(test_join_transpose),
-      cmocka_unit_test(test_python_extractor_round_trip),
-  };
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_join_rules), cmocka_unit_test(test_join_transpose),
+    cmocka_unit_test(test_python_extractor_round_trip))

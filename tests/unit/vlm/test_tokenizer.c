@@ -12,6 +12,7 @@
 #include <cmocka.h>
 
 #include "tokenizer.h"
+#include "unit.h"
 
 static char merges_path[512];
 static struct vlff_tokenizer *tok;
@@ -218,10 +219,7 @@ static void test_bad_merges_files(void **state) {
   unlink(path);
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_reference_vectors), cmocka_unit_test(test_context), cmocka_unit_test(test_cleaning),
-      cmocka_unit_test(test_bad_prompts),       cmocka_unit_test(test_bad_merges_files),
-  };
-  return cmocka_run_group_tests(tests, setup, teardown);
-}
+VLFF_UNIT_MAIN(setup, teardown,
+    cmocka_unit_test(test_reference_vectors), cmocka_unit_test(test_context),
+    cmocka_unit_test(test_cleaning), cmocka_unit_test(test_bad_prompts),
+    cmocka_unit_test(test_bad_merges_files))

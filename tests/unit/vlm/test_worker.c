@@ -15,6 +15,7 @@
 #include "config.h"
 #include "dnn_shim.h"
 #include "image_encoder.h"
+#include "unit.h"
 #include "vlm_fixture.h"
 
 static void test_worker(void **state) {
@@ -88,7 +89,5 @@ static void test_worker(void **state) {
   fixture_cleanup();
 }
 
-int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_worker)};
-  return cmocka_run_group_tests(tests, NULL, NULL);
-}
+VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_worker))

@@ -22,9 +22,9 @@ vlff-can vtool0 send prompt-set 2
 rc=0; vlff-can vtool0 send prompt-set 9 || rc=$?
 [ "$rc" = 1 ]   # out-of-range: a NAK
 rc=0; vlff-can -n 5 -t 0.3 vtool0 send save || rc=$?
-[ "$rc" = 2 ]   # nobody at node 5: no ack
+[ "$rc" = 1 ]   # nobody at node 5: no ack (a runtime failure)
 rc=0; vlff-can vtool0 send launch 2>/dev/null || rc=$?
-[ "$rc" = 2 ]
+[ "$rc" = 2 ]   # not a command: a usage error
 wait
 cat /tmp/serve.log
 grep -q 'served: 1 saves, 2 prompt set' /tmp/serve.log

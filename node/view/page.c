@@ -1,0 +1,278 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * page.c - the page's files, read once, and the check of HTTP request heads.
+ *
+ * Why a check of our own in front of libwebsockets: its parser answers a request it
+ * cannot take by closing the connection without a word (a head past its buffer, too
+ * many headers) or with 403 (an unknown method, a path climbing out of the mount),
+ * and it keeps a connection alive for more requests it alone parses. Every request
+ * reaching the viewer is a head this check passed, on a connection that closes after
+ * its one response, and every refusal is an HTTP status with a sentence.
+ */
+#include "page.h"
+
+#include <errno.h>
+#include <stdarg.h>
+#include <fts.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <sys/stat.h>
+
+#include "files.h"
+#include "view.h"
+
+#define PAGE_FILES_MAX 256
+#define PAGE_FILE_MAX ((size_t)16 << 20)
+#define PAGE_TOTAL_MAX ((size_t)64 << 20)
+
+/* ------------------------------------------------------------------ files */
+
+static const char *mime_of(const char *path) {
+  static const char *const types[][2] = {
+      {".html", "text/html; charset=utf-8"}, {".js", "text/javascript; charset=utf-8"},
+      {".css", "text/css; charset=utf-8"},   {".json", "application/json"},
+      {".png", "image/png"},                 {".svg", "image/svg+xml"},
+  };
+  const char *dot = strrchr(path, '.'), *slash = strrchr(path, '/');
+  if (!dot || dot < slash) return "text/plain; charset=utf-8"; /* LICENSE and the like */
+  for (size_t i = 0; i < sizeof types / sizeof types[0]; i++)
+    if (!strcmp(dot, types[i][0])) return types[i][1];
+  return "application/octet-stream";
+}
+
+/* A name a request can spell without escapes, and not hidden. */
+static int plain_name(const char *s) {
+  if (!*s || *s == '.') return 0;
+  for (; *s; s++)
+    if (!((*s >= 'a' && *s <= 'z') || (*s >= 'A' && *s <= 'Z') || (*s >= '0' && *s <= '9') || strchr("._-", *s)))
+      return 0;
+  return 1;
+}
+
+void vlff_page_free(struct vlff_page *pg) {
+  for (int i = 0; i < pg->n; i++) {
+    free(pg->files[i].path);
+    free(pg->files[i].data);
+  }
+  free(pg->files);
+  pg->files = NULL;
+  pg->n = 0;
+}
+
+int vlff_page_load(struct vlff_page *pg, const char *dir) {
+  memset(pg, 0, sizeof *pg);
+  char *roots[] = {(char *)dir, NULL};
+  /* physical: a symbolic link is listed as one and never followed */
+  FTS *fts = fts_open(roots, FTS_PHYSICAL | FTS_NOCHDIR, NULL);
+  if (!fts) {
+    fprintf(stderr, "vlff-view: --www %s: %s\n", dir, strerror(errno));
+    return -1;
+  }
+  size_t total = 0, rootlen = strlen(dir);
+  int rc = 0;
+  FTSENT *e;
+  while (rc == 0 && (e = fts_read(fts))) {
+    if (e->fts_level == 0) continue;
+    if (e->fts_info == FTS_D && !plain_name(e->fts_name)) fts_set(fts, e, FTS_SKIP);
+    if (e->fts_info == FTS_DNR || e->fts_info == FTS_ERR) {
+      fprintf(stderr, "vlff-view: --www %s: %s\n", e->fts_path, strerror(e->fts_errno));
+      rc = -1;
+    }
+    if (e->fts_info != FTS_F || !plain_name(e->fts_name)) continue;
+    if (pg->n == PAGE_FILES_MAX) {
+      fprintf(stderr, "vlff-view: --www %s: more than %d files\n", dir, PAGE_FILES_MAX);
+      rc = -1;
+      break;
+    }
+    struct vlff_page_file f = {0};
+    char err[512];
+    if (vlff_read_file(e->fts_path, PAGE_FILE_MAX, &f.data, &f.len, err, sizeof err) != 0) {
+      fprintf(stderr, "vlff-view: --www: %s\n", err);
+      rc = -1;
+      break;
+    }
+    total += f.len;
+    f.path = strdup(e->fts_path + rootlen);
+    struct vlff_page_file *grown = realloc(pg->files, (size_t)(pg->n + 1) * sizeof *grown);
+    if (!f.path || !grown || total > PAGE_TOTAL_MAX) {
+      fprintf(stderr, "vlff-view: --www %s: %s\n", dir,
+              total > PAGE_TOTAL_MAX ? "the files add up to more than 64 MiB" : "out of memory");
+      free(f.path);
+      free(f.data);
+      if (grown) pg->files = grown;
+      rc = -1;
+      break;
+    }
+    pg->files = grown;
+    /* fts gives "dir/x" or "dir//x" for a dir ending in '/': keep one leading '/' */
+    char *p = f.path;
+    while (p[0] == '/' && p[1] == '/') p++;
+    memmove(f.path, p, strlen(p) + 1);
+    f.mime = mime_of(f.path);
+    pg->files[pg->n++] = f;
+  }
+  fts_close(fts);
+  if (rc == 0 && !vlff_page_find(pg, "/", 1)) {
+    fprintf(stderr, "vlff-view: --www %s: no index.html there\n", dir);
+    rc = -1;
+  }
+  if (rc) vlff_page_free(pg);
+  return rc;
+}
+
+const struct vlff_page_file *vlff_page_find(const struct vlff_page *pg, const char *path, size_t len) {
+  if (len == 1 && path[0] == '/') path = "/index.html", len = strlen(path);
+  for (int i = 0; i < pg->n; i++)
+    if (strlen(pg->files[i].path) == len && !memcmp(pg->files[i].path, path, len)) return &pg->files[i];
+  return NULL;
+}
+
+/* ------------------------------------------------------------ request heads */
+
+const char *vlff_http_reason(int status) {
+  switch (status) {
+  case 400: return "Bad Request";
+  case 404: return "Not Found";
+  case 405: return "Method Not Allowed";
+  case 408: return "Request Timeout";
+  case 414: return "URI Too Long";
+  case 431: return "Request Header Fields Too Large";
+  case 503: return "Service Unavailable";
+  case 505: return "HTTP Version Not Supported";
+  default: return "Error";
+  }
+}
+
+int vlff_view_http_status(int i) {
+  static const int codes[VLFF_VIEW_HTTP_N] = {400, 404, 405, 408, 414, 431, 503, 505};
+  return i >= 0 && i < VLFF_VIEW_HTTP_N ? codes[i] : 0;
+}
+
+size_t vlff_http_refusal(char *out, size_t cap, int status, const char *why, int is_head) {
+  int n = snprintf(out, cap,
+                   "HTTP/1.1 %d %s\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: %zu\r\n%s"
+                   "Cache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\nConnection: close\r\n\r\n%s%s",
+                   status, vlff_http_reason(status), strlen(why) + 1, status == 405 ? "Allow: GET, HEAD\r\n" : "",
+                   is_head ? "" : why, is_head ? "" : "\n");
+  return n < 0 ? 0 : (size_t)n < cap ? (size_t)n : cap - 1;
+}
+
+static int is_tchar(unsigned char c) {
+  return (c >= '0' && c <= '9') || ((c | 0x20) >= 'a' && (c | 0x20) <= 'z') || (c && strchr("!#$%&'*+-.^_`|~", c));
+}
+
+static enum vlff_head_verdict refuse(struct vlff_head *h, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static enum vlff_head_verdict refuse(struct vlff_head *h, int status, const char *fmt, ...) {
+  h->status = status;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(h->why, sizeof h->why, fmt, ap);
+  va_end(ap);
+  return VLFF_HEAD_REFUSE;
+}
+
+/* A header value without the spaces around it equals want, ignoring case. */
+static int value_is(const char *v, const char *e, const char *want) {
+  while (v < e && (*v == ' ' || *v == '\t')) v++;
+  while (e > v && (e[-1] == ' ' || e[-1] == '\t')) e--;
+  return (size_t)(e - v) == strlen(want) && !strncasecmp(v, want, (size_t)(e - v));
+}
+
+/* The request line "METHOD SP target SP HTTP/x.y CRLF" in [b, nl]. */
+static enum vlff_head_verdict request_line(const char *b, const char *nl, struct vlff_head *h, const char **target,
+                                           size_t *tlen) {
+  const char *p = b;
+  while (p < nl && is_tchar((unsigned char)*p)) p++;
+  if (p == b || p == nl || *p != ' ') return refuse(h, 400, "the request does not start with a method and a space");
+  size_t mlen = (size_t)(p - b);
+  if (mlen > 32) return refuse(h, 400, "the request does not start with a method");
+  h->is_head = mlen == 4 && !memcmp(b, "HEAD", 4);
+  const char *t = ++p;
+  while (p < nl && *p > 0x20 && *p < 0x7f) p++;
+  *target = t, *tlen = (size_t)(p - t);
+  if (*tlen > VLFF_HTTP_URI_MAX)
+    return refuse(h, 414, "the request target is %zu bytes, the limit is %d", *tlen, VLFF_HTTP_URI_MAX);
+  if (!*tlen || *p != ' ') return refuse(h, 400, "the request line is not METHOD, a target and a version");
+  const char *v = p + 1, *cr = nl - 1;
+  if (cr < v || *cr != '\r') return refuse(h, 400, "the request line does not end in CRLF");
+  size_t vlen = (size_t)(cr - v);
+  if (vlen == 8 && (!memcmp(v, "HTTP/1.1", 8) || !memcmp(v, "HTTP/1.0", 8))) {
+    /* a version this server speaks */
+  } else if (vlen == 8 && !memcmp(v, "HTTP/", 5) && v[5] >= '0' && v[5] <= '9' && v[6] == '.' && v[7] >= '0' &&
+             v[7] <= '9') {
+    return refuse(h, 505, "HTTP/%c.%c is not supported; this server speaks HTTP/1.1", v[5], v[7]);
+  } else {
+    return refuse(h, 400, "the request line does not end in an HTTP version");
+  }
+  if (!(mlen == 3 && !memcmp(b, "GET", 3)) && !h->is_head)
+    return refuse(h, 405, "method %.*s is not allowed; this server answers GET and HEAD", (int)(mlen > 32 ? 32 : mlen),
+                  b);
+  if (*t != '/') return refuse(h, 400, "the request target must be a path starting with '/'");
+  return VLFF_HEAD_PASS;
+}
+
+enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct vlff_page *pg, struct vlff_head *h) {
+  memset(h, 0, sizeof *h);
+  const char *end = buf + len, *nl = memchr(buf, '\n', len);
+  if (!nl) {
+    /* judge what there is of the request line: garbage need not be waited for */
+    const char *p = buf;
+    while (p < end && is_tchar((unsigned char)*p)) p++;
+    if ((p < end && (*p != ' ' || p == buf)) || p - buf > 32)
+      return refuse(h, 400, "the request does not start with a method and a space");
+    for (const char *q = p; q < end; q++)
+      if ((unsigned char)*q < 0x20 && *q != '\r') return refuse(h, 400, "a control character in the request line");
+    if (len > VLFF_HTTP_URI_MAX + 48) {
+      h->is_head = !strncmp(buf, "HEAD ", 5);
+      return refuse(h, 414, "the request line is longer than %d bytes and not finished", VLFF_HTTP_URI_MAX + 48);
+    }
+    return VLFF_HEAD_MORE;
+  }
+  const char *target = NULL;
+  size_t tlen = 0;
+  if (request_line(buf, nl, h, &target, &tlen) != VLFF_HEAD_PASS) return VLFF_HEAD_REFUSE;
+
+  int lines = 0;
+  for (const char *q = nl + 1;;) {
+    const char *le = memchr(q, '\n', (size_t)(end - q));
+    if ((size_t)((le ? le + 1 : end) - buf) > VLFF_HTTP_HEAD_MAX)
+      return refuse(h, 431, "the request head is longer than %d bytes", VLFF_HTTP_HEAD_MAX);
+    if (!le) return VLFF_HEAD_MORE;
+    if (le == q || le[-1] != '\r') return refuse(h, 400, "header line %d does not end in CRLF", lines + 1);
+    if (le - q == 1) {
+      h->head_len = (size_t)(le + 1 - buf);
+      break;
+    }
+    if (++lines > VLFF_HTTP_HEADERS_MAX)
+      return refuse(h, 431, "more than %d header lines", VLFF_HTTP_HEADERS_MAX);
+    const char *c = q;
+    while (c < le && is_tchar((unsigned char)*c)) c++;
+    if (c == q || *c != ':') return refuse(h, 400, "header line %d is not \"Name: value\"", lines);
+    int nlen = (int)(c - q);
+    for (const char *x = c + 1; x < le - 1; x++)
+      if (((unsigned char)*x < 0x20 && *x != '\t') || *x == 0x7f)
+        return refuse(h, 400, "header %.*s holds a control character", nlen > 40 ? 40 : nlen, q);
+    if (nlen == 7 && !strncasecmp(q, "Upgrade", 7)) {
+      if (!value_is(c + 1, le - 1, "websocket")) return refuse(h, 400, "only an upgrade to WebSocket is served");
+      h->upgrade = 1;
+    } else if ((nlen == 14 && !strncasecmp(q, "Content-Length", 14) && !value_is(c + 1, le - 1, "0")) ||
+               (nlen == 17 && !strncasecmp(q, "Transfer-Encoding", 17))) {
+      return refuse(h, 400, "a GET or HEAD request carries no body");
+    }
+    q = le + 1;
+  }
+  if (len > h->head_len) return refuse(h, 400, "bytes after the request head before its answer (no pipelining)");
+  size_t plen = strcspn(target, "?# ");
+  if (plen > tlen) plen = tlen;
+  if (h->upgrade) {
+    if (h->is_head) return refuse(h, 400, "a WebSocket upgrade is a GET, not a HEAD");
+    if (plen != 1)
+      return refuse(h, 404, "WebSocket connections are served at /, not at %.*s", (int)(plen > 60 ? 60 : plen), target);
+  } else if (!vlff_page_find(pg, target, plen)) {
+    return refuse(h, 404, "%.*s is not a file of this page", (int)(plen > 60 ? 60 : plen), target);
+  }
+  return VLFF_HEAD_PASS;
+}

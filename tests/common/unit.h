@@ -1,0 +1,51 @@
+/*
+ * What every unit-test program shares: its main(), the cmocka tests run as
+ * one group, and the build's programs as command words.
+ *
+ * Contract: VLFF_UNIT_MAIN(setup, teardown, cmocka_unit_test(a), ...) defines
+ * main(void), runs the tests in the order given with the group's setup and
+ * teardown (NULL for none) and returns cmocka's count of failures. Include it
+ * after <cmocka.h>. vlff_test_in_child() runs a call that may block under an
+ * alarm, in a child process.
+ */
+#ifndef VLFF_UNIT_H
+#define VLFF_UNIT_H
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+/* A program of the build (rel: its path in the build tree) as a command
+ * word in buf: after $VLFF_EMULATOR (qemu-user in a cross-built tree, empty
+ * otherwise). ctest sets $VLFF_BINARY_DIR. */
+static inline const char *vlff_test_prog(char *buf, size_t cap, const char *rel) {
+  const char *bin = getenv("VLFF_BINARY_DIR"), *emu = getenv("VLFF_EMULATOR");
+  assert_non_null(bin);
+  snprintf(buf, cap, "%s %s/%s", emu ? emu : "", bin, rel);
+  return buf;
+}
+
+/* Runs fn(ctx) in a child process that an alarm ends after timeout_s, so
+ * that a call which blocks (an open(2) of a FIFO) fails the test instead of
+ * hanging it. Returns fn's value (the child's exit status, 0..255), or -1
+ * when the child was killed. */
+static inline int vlff_test_in_child(int (*fn)(void *ctx), void *ctx, unsigned timeout_s) {
+  pid_t pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    alarm(timeout_s);
+    _exit(fn(ctx));
+  }
+  int st;
+  assert_int_equal(waitpid(pid, &st, 0), pid);
+  return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+#define VLFF_UNIT_MAIN(setup, teardown, ...)                   \
+  int main(void) {                                             \
+    const struct CMUnitTest unit_tests_[] = {__VA_ARGS__};     \
+    return cmocka_run_group_tests(unit_tests_, setup, teardown); \
+  }
+
+#endif
