@@ -831,6 +831,17 @@ int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_
 
 /* ---- dump and hash ------------------------------------------------------ */
 
+/* The shortest form that reads back as the same double: 0.1, not
+ * 0.10000000000000001, so that a dump can be pasted into a config. */
+static void put_double(FILE *out, double x) {
+  char b[32];
+  for (int prec = 1; prec <= 17; prec++) {
+    snprintf(b, sizeof b, "%.*g", prec, x);
+    if (strtod(b, NULL) == x) break;
+  }
+  fputs(b, out);
+}
+
 void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
   for (size_t i = 0; i < NKEYS; i++) {
     const struct key *k = &schema[i];
@@ -842,14 +853,20 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
       else
         fprintf(out, "%d\n", *(const int *)cat(cfg, k));
       break;
-    case T_DOUBLE: fprintf(out, "%.17g\n", *(const double *)cat(cfg, k)); break;
+    case T_DOUBLE:
+      put_double(out, *(const double *)cat(cfg, k));
+      fputc('\n', out);
+      break;
     case T_BOOL: fprintf(out, "%s\n", *(const bool *)cat(cfg, k) ? "true" : "false"); break;
     case T_STRING: fprintf(out, "\"%s\"\n", (const char *)cat(cfg, k)); break;
     case T_ENUM: fprintf(out, "%s\n", k->names[*(const int *)cat(cfg, k)]); break;
     case T_DVEC: {
       const double *v = cat(cfg, k);
       fputc('[', out);
-      for (size_t j = 0; j < k->size; j++) fprintf(out, "%s%.17g", j ? ", " : "", v[j]);
+      for (size_t j = 0; j < k->size; j++) {
+        if (j) fputs(", ", out);
+        put_double(out, v[j]);
+      }
       fputs("]\n", out);
       break;
     }

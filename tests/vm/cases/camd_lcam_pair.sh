@@ -2,7 +2,9 @@
 # vimc free-runs, Aravis' fake GigE camera (127.0.0.1, Mono16) is fired by
 # gpio-sim edges (gpio.mode input) that also stamp vimc's next frame; every
 # edge must give one RGB-D record in the ring, at the configured 240x180,
-# stamped with the edge's kernel time, and no range frame unmatched.
+# stamped with the edge's kernel time (or with vimc's own time when its
+# frame began just before the edge, within the pair tolerance), and no range
+# frame unmatched.
 # vm-bins: vlff-camd vlff-camd-vmtest
 # vm-tools: arv-fake-gv-camera-0.8 media-ctl v4l2-ctl
 # vm-host-files: /usr/lib/x86_64-linux-gnu/libcamera/ipa_vimc.so /usr/lib/x86_64-linux-gnu/libcamera/ipa_vimc.so.sign
