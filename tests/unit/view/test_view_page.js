@@ -124,7 +124,12 @@ async function main() {
     }
     demo.resume();
     assert.ok(checked >= 15, `enough visible voxels to check (${checked})`);
-    if (process.env.VLFF_VIEW_SCREENSHOT) fs.writeFileSync(process.env.VLFF_VIEW_SCREENSHOT, shot);
+    if (process.env.VLFF_VIEW_SCREENSHOT) {
+      // For docs/viewer.png: the page live again (writer alive, a label image),
+      // not the frozen map the pixel checks need.
+      await sleep(6000);
+      fs.writeFileSync(process.env.VLFF_VIEW_SCREENSHOT, await page.screenshot());
+    }
     ok(`${checked} voxels drawn at their screen points in their prompts' colours (screenshot pixels)`);
 
     // Hover: the page names the voxel vlff-shm label finds there. The learner is

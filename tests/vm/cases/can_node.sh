@@ -23,24 +23,25 @@ vlff-node --config $cfg >/tmp/node.log 2>&1 &
 node=$!
 vlff-sim --config $cfg --quiet >/tmp/sim.log 2>&1 &
 sim=$!
+# Polls `vlff-shm stat` until grep ARGS match, at most TRIES times NAP s;
+# the node's log and a failure if they never do.
+stat_until() { # tries nap grep-args...
+  tries=$1 nap=$2 i=0
+  shift 2
+  until vlff-shm stat /vmcan-map 2>/dev/null | grep -q "$@"; do
+    i=$((i + 1))
+    if [ $i -gt "$tries" ]; then cat /tmp/node.log; exit 1; fi
+    sleep "$nap"
+  done
+}
 # Training under the VM's emulated CPU: wait for keyframes and steps.
-i=0
-until vlff-shm stat /vmcan-map 2>/dev/null | grep -q '^iterations [1-9]'; do
-  i=$((i + 1))
-  if [ $i -gt 200 ]; then cat /tmp/node.log; exit 1; fi
-  sleep 0.5
-done
+stat_until 200 0.5 '^iterations [1-9]'
 vlff-can -f $cfg vnode0 send stop -t 5
 # The ack says the command was queued; the trainer applies it after the step
 # it is in, which under the VM's emulated CPU on a loaded host can take a
 # while: wait until the node says it stopped, then for status frames of the
 # stopped node (can.status_ms).
-i=0
-until vlff-shm stat /vmcan-map 2>/dev/null | grep -qx 'state stopped'; do
-  i=$((i + 1))
-  if [ $i -gt 120 ]; then cat /tmp/node.log; exit 1; fi
-  sleep 0.25
-done
+stat_until 120 0.25 -x 'state stopped'
 sleep 1.5
 echo "STAT-BEGIN"; vlff-shm stat /vmcan-map; echo "STAT-END"
 sleep 0.5
