@@ -1089,6 +1089,7 @@ static void do_publish(struct vlff_node *n) {
   pthread_mutex_lock(&n->slock);
   n->st.map_version = r.version;
   n->st.miou2d = r.miou2d;
+  n->st.miou2d_frame = r.miou2d_frame;
   n->st.miou3d = r.miou3d;
   n->st.frame_to_map_ms_p50 = p50;
   n->st.frame_to_map_ms_p99 = p99;
@@ -1381,6 +1382,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->st.prompt_set = cfg->prompts.active;
   n->st.map_age_s = -1;
   n->st.miou2d = n->st.miou3d = -1;
+  n->st.miou2d_frame = -1;
   n->st.last_pose_residual_m = -1;
   n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = -1;
   pthread_mutex_init(&n->qlock, NULL);

@@ -94,6 +94,7 @@ struct vlff_node_status {
   long long checkpoints;
   long long checkpoint_failures;
   double miou2d, miou3d;        /* against synthetic ground truth; -1 when unknown */
+  long long miou2d_frame;       /* the frame id of the view miou2d scored; -1 when unknown */
   double last_pose_residual_m;
   double frame_to_map_ms_p50, frame_to_map_ms_p99;
   /* Monotonic ns (vlff_shm_now_ns) of the trainer's and the ingest thread's

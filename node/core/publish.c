@@ -405,6 +405,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
                            struct vlff_publish_result *r, char *err, size_t errlen) {
   memset(r, 0, sizeof *r);
   r->miou2d = r->miou3d = -1;
+  r->miou2d_frame = -1;
   size_t nq = 0;
   for (size_t i = 0; i < p->nvox; i++) {
     if (!p->observed[i]) continue;
@@ -510,6 +511,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     struct vlff_map_seen seen = {.grid = &grid, .image_labels = have_img ? p->img_lab : NULL, .width = p->lw,
                                  .height = p->lh, .frame_id = p->cam_frame, .prompts = prompts, .prompt_count = k};
     p->hooks->observe(p->hooks->ctx, &seen, &r->miou2d, &r->miou3d);
+    if (r->miou2d >= 0) r->miou2d_frame = p->cam_frame;
   }
   return 0;
 }

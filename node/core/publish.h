@@ -37,6 +37,7 @@ struct vlff_publisher;
 struct vlff_publish_result {
   uint64_t version;
   double miou2d, miou3d; /* the source's observer's scores (source.h), -1 when not available */
+  long long miou2d_frame; /* the frame id of the label image miou2d scored, -1 when none */
   size_t labelled, free_voxels, unknown;
 };
 
