@@ -8,8 +8,8 @@
  * lines. Each level is processed for the whole block of points before the
  * next, keeping one level's table (the working set) hot.
  *
- * One level on one thread is bound by instructions (measured: a level whose
- * table sits in L1 cost 7.4 ns per point and core, a hashed one 10); in a
+ * One level on one thread is bound by instructions (a level whose table
+ * sits in L1 costs nearly as much per point as a hashed one); in a
  * full two-thread query the finer hashed levels wait on cache misses, and
  * prefetching every corner of a group was the fastest variant measured
  * (fewer, shallower or L2-only prefetches were slower). On CPUs with
