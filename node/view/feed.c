@@ -14,6 +14,7 @@
 
 #include <errno.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -56,7 +57,7 @@ struct vlff_feed {
   size_t changed_cap;
   uint64_t fps_head, fps_t_ns;
   double fps;
-  uint64_t ring_pose_ns; /* when a frame last carried a pose (0 = never) */
+  bool ring_has_pose; /* a frame of the ring has carried a pose: poses come from the frames */
   uint64_t last_status_ns;
   /* the latest message of each channel; the map ones are built on demand */
   struct vlff_view_msg *current[VLFF_VIEW_CH_COUNT + 1];
@@ -519,7 +520,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
       }
     }
     /* the camera pose comes from the frames when they carry one, else from here */
-    if ((!f->ring || !f->ring_pose_ns) && wants(wanted, VLFF_VIEW_CH_POSE) && valid_pose(info.label_image.pose) &&
+    if ((!f->ring || !f->ring_has_pose) && wants(wanted, VLFF_VIEW_CH_POSE) && valid_pose(info.label_image.pose) &&
         nout < cap) {
       struct vlff_view_msg *pm = pose_msg(f, to_real(f, info.label_image.t_ns), info.label_image.pose);
       if (pm) {
@@ -619,8 +620,9 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
       }
     }
   }
-  if ((h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose)) f->ring_pose_ns = now;
-  if ((h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose) && wants(wanted, VLFF_VIEW_CH_POSE) && nout < cap) {
+  bool has_pose = (h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose);
+  if (has_pose) f->ring_has_pose = true;
+  if (has_pose && wants(wanted, VLFF_VIEW_CH_POSE) && nout < cap) {
     struct vlff_view_msg *pm = pose_msg(f, to_real(f, h->pose_t_ns ? h->pose_t_ns : h->t_host_ns), h->pose);
     if (pm) {
       out[nout++] = pm;

@@ -131,24 +131,30 @@ const struct vlff_page_file *vlff_page_find(const struct vlff_page *pg, const ch
 
 /* ------------------------------------------------------------ request heads */
 
-const char *vlff_http_reason(int status) {
-  switch (status) {
-  case 400: return "Bad Request";
-  case 404: return "Not Found";
-  case 405: return "Method Not Allowed";
-  case 408: return "Request Timeout";
-  case 414: return "URI Too Long";
-  case 431: return "Request Header Fields Too Large";
-  case 503: return "Service Unavailable";
-  case 505: return "HTTP Version Not Supported";
-  default: return "Error";
-  }
+/* Every status the viewer answers with, in the order of its counters
+ * (view.h: http_refused[i]). */
+static const struct {
+  int code;
+  const char *reason;
+} statuses[VLFF_VIEW_HTTP_N] = {
+    {400, "Bad Request"},          {404, "Not Found"},
+    {405, "Method Not Allowed"},   {408, "Request Timeout"},
+    {414, "URI Too Long"},         {431, "Request Header Fields Too Large"},
+    {503, "Service Unavailable"},  {505, "HTTP Version Not Supported"},
+};
+
+int vlff_view_http_index(int status) {
+  for (int i = 0; i < VLFF_VIEW_HTTP_N; i++)
+    if (statuses[i].code == status) return i;
+  return -1;
 }
 
-int vlff_view_http_status(int i) {
-  static const int codes[VLFF_VIEW_HTTP_N] = {400, 404, 405, 408, 414, 431, 503, 505};
-  return i >= 0 && i < VLFF_VIEW_HTTP_N ? codes[i] : 0;
+const char *vlff_http_reason(int status) {
+  int i = vlff_view_http_index(status);
+  return i < 0 ? "Error" : statuses[i].reason;
 }
+
+int vlff_view_http_status(int i) { return i >= 0 && i < VLFF_VIEW_HTTP_N ? statuses[i].code : 0; }
 
 size_t vlff_http_refusal(char *out, size_t cap, int status, const char *why, int is_head) {
   int n = snprintf(out, cap,

@@ -122,8 +122,10 @@ struct vlff_view {
  * logs it: the first five of each status and every 1000th. */
 static void count_refusal(struct vlff_view *v, const char *peer, int status, const char *why) {
   v->c.refused++;
-  int i = 0;
-  while (i < VLFF_VIEW_HTTP_N - 1 && vlff_view_http_status(i) != status) i++;
+  /* every status the gate answers with has a counter; were one added
+   * without, it is counted as a bad request rather than lost */
+  int i = vlff_view_http_index(status);
+  if (i < 0) i = 0;
   vlff_warn_limited(&v->c.http_refused[i], "vlff-view", "refused %s: %s [HTTP %d %s, %llu so far]", peer, why, status,
                     vlff_http_reason(status), (unsigned long long)v->c.http_refused[i] + 1);
 }

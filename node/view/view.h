@@ -88,6 +88,8 @@ struct vlff_feed_params {
 #define VLFF_VIEW_HTTP_N 8
 /* The status of counter i (0..VLFF_VIEW_HTTP_N-1). */
 int vlff_view_http_status(int i);
+/* The counter of a status (the inverse), -1 for a status not counted. */
+int vlff_view_http_index(int status);
 
 /* What the server counts, reported in the status channel. refused counts every
  * refusal, HTTP and WebSocket; http_refused[i] those answered with status

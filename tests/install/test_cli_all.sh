@@ -32,8 +32,12 @@ for path in "$@"; do
   check "$p -V is --version" 'diff "$tmp/v.out" "$tmp/v2.out" >/dev/null'
 done
 
-# -c is --config in every program that reads a config (vlff-shm and vlff-view
-# read none): a known option taking a value, so "-c FILE --help" is the help.
+# In every program that reads a config (vlff-shm and vlff-view read none):
+# -c is --config, a known option taking a value, so "-c FILE --help" is the
+# help; and a config that cannot run gives the parser's "file:line:col: key
+# ...: what" first on stderr, with no program name before the file, and exit
+# 1 (with the operands each program needs to get as far as reading it).
+printf 'node:\n  bogus_key: 1\n' >"$tmp/bad.yaml"
 for path in "$@"; do
   p=$(basename "$path")
   [[ $p == vlff-shm || $p == vlff-view ]] && continue
@@ -41,17 +45,6 @@ for path in "$@"; do
   prog=(${VLFF_EMULATOR:-} "$path")
   check "$p: -c is --config" \
     '"${prog[@]}" -c "$tmp/absent.yaml" --help >"$tmp/c.out" 2>&1 && grep -q -- "-c, --config" "$tmp/c.out"'
-done
-
-# A config that cannot run: the parser's "file:line:col: key ...: what" first
-# on stderr, with no program name before the file, and exit 1, in every
-# program (with the operands each needs to get as far as reading it).
-printf 'node:\n  bogus_key: 1\n' >"$tmp/bad.yaml"
-for path in "$@"; do
-  p=$(basename "$path")
-  [[ $p == vlff-shm || $p == vlff-view ]] && continue
-  # shellcheck disable=SC2206
-  prog=(${VLFF_EMULATOR:-} "$path")
   args=()
   [[ $p == vlff-can ]] && args=(dbc)
   [[ $p == vlff-replay ]] && args=("$tmp/no-scene")

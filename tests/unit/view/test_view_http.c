@@ -199,7 +199,12 @@ static void test_refusal(void **state) {
   assert_string_equal(strstr(out, "\r\n\r\n") + 4, ""); /* HEAD: no body, the length it would have */
   assert_non_null(strstr(out, "\r\nContent-Length: 30\r\n"));
   assert_null(strstr(out, "Allow:"));
-  for (int i = 0; i < VLFF_VIEW_HTTP_N; i++) assert_string_not_equal(vlff_http_reason(vlff_view_http_status(i)), "Error");
+  for (int i = 0; i < VLFF_VIEW_HTTP_N; i++) {
+    assert_string_not_equal(vlff_http_reason(vlff_view_http_status(i)), "Error");
+    assert_int_equal(vlff_view_http_index(vlff_view_http_status(i)), i); /* one counter per status */
+  }
+  assert_int_equal(vlff_view_http_index(200), -1);
+  assert_string_equal(vlff_http_reason(200), "Error");
 }
 
 VLFF_UNIT_MAIN(setup, teardown, cmocka_unit_test(test_files), cmocka_unit_test(test_heads),
