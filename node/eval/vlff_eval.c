@@ -37,6 +37,7 @@
 #include "field.h"
 #include "metrics.h"
 #include "palette.h"
+#include "select.h"
 #include "sim.h"
 
 #define TAG "eval"
@@ -108,6 +109,8 @@ struct scene {
   int streaming;
   uint8_t *srgb;
   uint16_t *sfeat;
+  const char *box_from;    /* where field.scene_min/max came from */
+  size_t pts_outside;      /* labelled points outside that box */
 };
 
 
@@ -255,6 +258,115 @@ static struct frame *frame_data(struct scene *sc, int i) {
   return f;
 }
 
+static int cmp_float(const void *a, const void *b) {
+  float x = *(const float *)a, y = *(const float *)b;
+  return (x > y) - (x < y);
+}
+
+/* The box the training frames measured: their depth's surface points
+ * (a pixel grid of about a million in all) and the cameras, each axis from
+ * its 0.2nd to its 99.8th percentile (a stereo sensor's noise at a far wall,
+ * or a few spikes through a window, must not stretch the box by metres),
+ * widened by 5 % of its extent and 10 cm each side (a box a little too
+ * large costs a little resolution; one too small loses what it cuts). Sets
+ * *inside to the share of those points within the config's box. 0, or -1
+ * when the frames measured too little to bound anything. */
+static int measured_box(const struct scene *sc, const struct vlff_cfg_field *fc, double lo[3], double hi[3],
+                        double *inside) {
+  size_t npx = 0;
+  for (int i = 0; i < sc->n; i++) npx += sc->f[i].depth ? (size_t)sc->W * sc->H : 0;
+  int step = 1;
+  while (npx / ((size_t)step * step) > (1u << 20)) step++;
+  size_t cap = npx / ((size_t)step * step) + (size_t)sc->n + 1, m = 0, in = 0;
+  float *ax[3];
+  for (int a = 0; a < 3; a++) ax[a] = xcalloc(cap, sizeof(float));
+  for (int i = 0; i < sc->n; i++) {
+    const struct frame *f = &sc->f[i];
+    if (!f->depth) continue;
+    double x[3];
+    for (int v = step / 2; v < sc->H; v += step)
+      for (int u = step / 2; u < sc->W && m + 1 < cap; u += step) {
+        float d = f->depth[(size_t)v * sc->W + u];
+        if (!(d > 0) || !isfinite(d)) continue;
+        vlff_unproject(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, u + 0.5, v + 0.5, d, x);
+        int ok = 1;
+        for (int a = 0; a < 3; a++) ax[a][m] = (float)x[a], ok &= x[a] >= fc->scene_min[a] && x[a] <= fc->scene_max[a];
+        in += ok, m++;
+      }
+    for (int a = 0; a < 3; a++) ax[a][m] = (float)f->c2w[4 * a + 3];
+    m++;
+  }
+  int rc = -1;
+  if (m >= 1000) {
+    rc = 0;
+    for (int a = 0; a < 3; a++) {
+      qsort(ax[a], m, sizeof(float), cmp_float);
+      double l = ax[a][(size_t)(0.002 * (double)(m - 1))], h = ax[a][(size_t)(0.998 * (double)(m - 1))];
+      double pad = 0.05 * (h - l) + 0.1;
+      lo[a] = l - pad, hi[a] = h + pad;
+      if (!(hi[a] - lo[a] < 2e4) || !(lo[a] >= -1e4) || !(hi[a] <= 1e4)) rc = -1;
+    }
+    *inside = (double)in / (double)m;
+  }
+  for (int a = 0; a < 3; a++) free(ax[a]);
+  return rc;
+}
+
+/* The field's box for a recorded scene: its bbox.txt when it has one; else
+ * the config's field.scene_min/max when they hold 90 % of what the frames
+ * measured (the rest: far depth's noise); else the measured box, said on
+ * stderr. A default box silently cutting a
+ * ScanNet room (whose coordinates run from 0 to several metres) in half
+ * would score every point outside it as a miss. */
+static void dataset_box(struct scene *sc, const struct vlff_dataset *ds, struct vlff_config *cfg) {
+  struct vlff_cfg_field *fc = &cfg->field;
+  if (ds->has_bbox) {
+    memcpy(fc->scene_min, ds->bbox_lo, sizeof ds->bbox_lo);
+    memcpy(fc->scene_max, ds->bbox_hi, sizeof ds->bbox_hi);
+    sc->box_from = "bbox.txt";
+  } else {
+    double lo[3], hi[3], inside = 0;
+    if (measured_box(sc, fc, lo, hi, &inside) < 0)
+      die("%s: no bbox.txt, and the training frames' depth is too sparse to bound the scene: add bbox.txt "
+          "(min xyz, max xyz) or set field.scene_min/max",
+          ds->dir);
+    if (inside >= 0.9) {
+      sc->box_from = "config";
+    } else {
+      fprintf(stderr,
+              "vlff-eval: %s has no bbox.txt and field.scene_min/max [%g %g %g]..[%g %g %g] hold %.0f %% of what "
+              "its frames measured: the scene box is the measured one, [%.2f %.2f %.2f]..[%.2f %.2f %.2f]\n",
+              ds->dir, fc->scene_min[0], fc->scene_min[1], fc->scene_min[2], fc->scene_max[0], fc->scene_max[1],
+              fc->scene_max[2], 100 * inside, lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
+      memcpy(fc->scene_min, lo, sizeof lo);
+      memcpy(fc->scene_max, hi, sizeof hi);
+      sc->box_from = "measured";
+    }
+  }
+}
+
+/* Labelled points outside the field's box are counted and said: the field
+ * cannot label them. */
+static void count_outside(struct scene *sc, const struct vlff_cfg_field *fc) {
+  size_t labelled = 0;
+  for (size_t j = 0; j < sc->pts.n; j++) {
+    if (sc->pts.label[j] == 255) continue;
+    labelled++;
+    const float *x = sc->pts.xyz + 3 * j;
+    for (int a = 0; a < 3; a++)
+      if (!(x[a] >= fc->scene_min[a] && x[a] <= fc->scene_max[a])) {
+        sc->pts_outside++;
+        break;
+      }
+  }
+  if (sc->pts_outside)
+    fprintf(stderr,
+            "vlff-eval: %zu of %zu labelled points (%.1f %%) lie outside the scene box (%s): the field cannot "
+            "label them, and they count as misses\n",
+            sc->pts_outside, labelled, 100.0 * (double)sc->pts_outside / (double)(labelled ? labelled : 1),
+            sc->box_from);
+}
+
 static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_config *cfg) {
   char err[1024], p[4200];
   struct vlff_dataset_options dopt = {.layout = VLFF_DS_AUTO, .label_set = o->label_set, .label_tsv = o->label_tsv};
@@ -335,10 +447,7 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
           "needs one",
           p, sc->K, pp, sc->pts.label[j], j);
     }
-  if (ds.has_bbox) {
-    memcpy(cfg->field.scene_min, ds.bbox_lo, sizeof ds.bbox_lo);
-    memcpy(cfg->field.scene_max, ds.bbox_hi, sizeof ds.bbox_hi);
-  }
+  dataset_box(sc, &ds, cfg);
   sc->ds = ds; /* kept open: held-out frames are read when scored */
   sc->streaming = 1;
 }
@@ -511,7 +620,8 @@ static void load_scene(struct eval *e) {
   double t_load = vlff_seconds();
   sc->holdout = o->holdout;
   if (o->dataset) load_dataset(sc, o, &e->cfg);
-  else load_sim(sc, &e->cfg);
+  else load_sim(sc, &e->cfg), sc->box_from = "config";
+  count_outside(sc, &e->cfg.field);
   if (sc->D != e->cfg.field.feature_dim) {
     if (o->dataset) e->cfg.field.feature_dim = sc->D;
     else die("feature dims differ: scene %d, field %d", sc->D, e->cfg.field.feature_dim);
@@ -859,6 +969,16 @@ static void write_report_json(const struct eval *e) {
   json_object_object_add(root, "frames", json_object_new_int(sc->n));
   json_object_object_add(root, "holdout", json_object_new_int(o->holdout));
   json_object_object_add(root, "points", json_object_new_int64((int64_t)sc->pts.n));
+  struct json_object *box = json_object_new_object(), *bmin = json_object_new_array(), *bmax = json_object_new_array();
+  for (int a = 0; a < 3; a++) {
+    json_object_array_add(bmin, json_object_new_double(e->cfg.field.scene_min[a]));
+    json_object_array_add(bmax, json_object_new_double(e->cfg.field.scene_max[a]));
+  }
+  json_object_object_add(box, "from", json_object_new_string(sc->box_from));
+  json_object_object_add(box, "min", bmin);
+  json_object_object_add(box, "max", bmax);
+  json_object_object_add(box, "labelled_points_outside", json_object_new_int64((int64_t)sc->pts_outside));
+  json_object_object_add(root, "scene_box", box);
   json_object_object_add(root, "iters", json_object_new_int(e->fitted ? e->steps : 0));
   json_object_object_add(root, "fit_seconds", json_object_new_double(e->fit_s));
   struct json_object *names = json_object_new_array();

@@ -60,15 +60,18 @@ static void start(const char *what, const char *text) {
   write_text(cfg, text);
 }
 
-/* Runs cmd, which must fail; what it prints (2>&1 in cmd for the errors)
- * is in out. */
-static void run_failing(const char *cmd, char *out, size_t cap) {
+/* Runs cmd; what it prints (2>&1 in cmd for the errors) is in out; returns
+ * its wait status. */
+static int capture(const char *cmd, char *out, size_t cap) {
   FILE *p = popen(cmd, "r");
   assert_non_null(p);
   size_t n = fread(out, 1, cap - 1, p);
   out[n] = 0;
-  assert_int_not_equal(pclose(p), 0);
+  return pclose(p);
 }
+
+/* cmd must fail. */
+static void run_failing(const char *cmd, char *out, size_t cap) { assert_int_not_equal(capture(cmd, out, cap), 0); }
 
 static void test_dataset_matches_synthetic(void **state) {
   (void)state;
@@ -269,6 +272,93 @@ static void test_fit_seconds_and_per_class(void **state) {
   tmp_remove();
 }
 
+/* The box from report.json's scene_box: where it came from, min, max and
+ * the labelled points outside it. */
+static long read_box(const char *report, char *from, size_t cap, double lo[3], double hi[3]) {
+  struct json_object *root = json_object_from_file(report), *box, *v;
+  if (!root) fail_msg("%s: not JSON", report);
+  assert_true(json_object_object_get_ex(root, "scene_box", &box));
+  assert_true(json_object_object_get_ex(box, "from", &v));
+  snprintf(from, cap, "%s", json_object_get_string(v));
+  struct json_object *mn, *mx;
+  assert_true(json_object_object_get_ex(box, "min", &mn) && json_object_object_get_ex(box, "max", &mx));
+  for (int a = 0; a < 3; a++)
+    lo[a] = json_object_get_double(json_object_array_get_idx(mn, a)),
+    hi[a] = json_object_get_double(json_object_array_get_idx(mx, a));
+  assert_true(json_object_object_get_ex(box, "labelled_points_outside", &v));
+  long outside = (long)json_object_get_int64(v);
+  json_object_put(root);
+  return outside;
+}
+
+/* A scene without bbox.txt larger than the config's box (a ScanNet room
+ * against the default +-2.5 m): the box is what the frames measured, said
+ * on stderr, and holds the labelled points; a config box that holds the
+ * scene is kept; bbox.txt wins when there is one. */
+static void test_dataset_box(void **state) {
+  (void)state;
+#ifndef VLFF_HAVE_HDF5
+  print_message("this build has no HDF5: vlff-sim writes no dataset to read\n");
+  skip();
+#endif
+  char sim[1024], eval[1024];
+  vlff_test_prog(sim, sizeof sim, "node/sim/vlff-sim");
+  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
+  const char *scene = "sim:\n  layout: flat\n  width: 96\n  height: 72\n  frames: 24\n  seed: 2\n";
+  char text[1024];
+  snprintf(text, sizeof text, "%sfield:\n  feature_dim: 16\n  scene_min: [-5, -4, -1.5]\n  scene_max: [5, 4, 1.5]\n",
+           scene);
+  start("box", text);
+  char cmd[4096], out[4096], from[32], c2[512];
+  double lo[3], hi[3];
+  const double blo[3] = {-5, -4, -1.5}, bhi[3] = {5, 4, 1.5};
+  snprintf(cmd, sizeof cmd, "%s --config %s --quiet --write-dataset %s/ds && rm %s/ds/bbox.txt", sim, cfg, tmp, tmp);
+  assert_int_equal(system(cmd), 0);
+  /* the default box: the flat (10 x 8 m) does not fit */
+  snprintf(c2, sizeof c2, "%s/small.yaml", tmp);
+  snprintf(text, sizeof text, "%sfield:\n  feature_dim: 16\n", scene);
+  write_text(c2, text);
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/ds --iters 0 --quiet --out %s/a 2>&1 >/dev/null", eval, c2,
+           tmp, tmp);
+  assert_int_equal(capture(cmd, out, sizeof out), 0);
+  print_message("%s", out);
+  assert_non_null(strstr(out, "has no bbox.txt and field.scene_min/max [-2.5 -2.5 -2.5]..[2.5 2.5 2.5] hold"));
+  assert_non_null(strstr(out, "the scene box is the measured one"));
+  snprintf(c2, sizeof c2, "%s/a/report.json", tmp);
+  /* it holds the labelled points (a rare top of a tall thing may stay out) */
+  assert_true(read_box(c2, from, sizeof from, lo, hi) <= 18554 / 1000);
+  assert_string_equal(from, "measured");
+  print_message("measured box [%.2f %.2f %.2f]..[%.2f %.2f %.2f]\n", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
+  for (int a = 0; a < 3; a++) {
+    /* the walls and floor bound it: the margin and what a low-resolution
+     * depth image sees past an edge beyond them, not metres */
+    assert_true(lo[a] > blo[a] - 1.0 && lo[a] < blo[a] + 1.0);
+    assert_true(hi[a] < bhi[a] + 1.0 && hi[a] > bhi[a] - 1.5);
+  }
+  /* a config box that holds the flat is kept, and nothing is said */
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/ds --iters 0 --quiet --out %s/b 2>&1 >/dev/null", eval, cfg,
+           tmp, tmp);
+  assert_int_equal(capture(cmd, out, sizeof out), 0);
+  assert_null(strstr(out, "bbox.txt"));
+  snprintf(c2, sizeof c2, "%s/b/report.json", tmp);
+  assert_int_equal(read_box(c2, from, sizeof from, lo, hi), 0);
+  assert_string_equal(from, "config");
+  assert_true(lo[0] == -5 && hi[1] == 4);
+  /* bbox.txt wins over both; one that cuts the flat says what it cuts */
+  snprintf(c2, sizeof c2, "%s/ds/bbox.txt", tmp);
+  write_text(c2, "-2 -2 -1.5 2 2 1.5\n");
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/ds --iters 0 --quiet --out %s/c 2>&1 >/dev/null", eval, cfg,
+           tmp, tmp);
+  assert_int_equal(capture(cmd, out, sizeof out), 0);
+  print_message("%s", out);
+  assert_non_null(strstr(out, "lie outside the scene box (bbox.txt): the field cannot label them"));
+  snprintf(c2, sizeof c2, "%s/c/report.json", tmp);
+  assert_true(read_box(c2, from, sizeof from, lo, hi) > 0);
+  assert_string_equal(from, "bbox.txt");
+  assert_true(lo[0] == -2 && hi[0] == 2);
+  tmp_remove();
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_dataset_matches_synthetic), cmocka_unit_test(test_small_fit_beats_raw),
-    cmocka_unit_test(test_fit_seconds_and_per_class))
+    cmocka_unit_test(test_fit_seconds_and_per_class), cmocka_unit_test(test_dataset_box))
