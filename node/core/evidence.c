@@ -28,7 +28,7 @@ struct vlff_evidence {
   int max_k;        /* prompts a slot caches cosines for */
   size_t used, cap;
   long long overflow;
-  float *tmp;       /* [D] */
+  float *tmp;       /* [2 D]: a feature, a mean */
 };
 
 double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, size_t max_voxels, uint32_t dims[3]) {
@@ -77,7 +77,7 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   e->views = calloc(e->cap, 1);
   e->cos = malloc(e->cap * (size_t)max_k * sizeof *e->cos);
   e->dirty = calloc(e->cap, 1);
-  e->tmp = malloc((size_t)D * sizeof *e->tmp);
+  e->tmp = malloc(2 * (size_t)D * sizeof *e->tmp);
   if (!e->slot || !e->mean || !e->views || !e->cos || !e->dirty || !e->tmp) {
     vlff_errf(err, errlen, "evidence: out of memory for %zu voxels of %d features", e->cap, D);
     vlff_evidence_destroy(e);
@@ -132,11 +132,16 @@ static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
   e->dirty[s] = 1;
   uint16_t *m = e->mean + (size_t)s * e->D;
   int n = e->views[s] < MAX_VIEWS ? ++e->views[s] : MAX_VIEWS;
-  float a = 1.0f / (float)n;
-  for (int j = 0; j < e->D; j++) {
-    float old = n == 1 ? 0.0f : vlff_f16_to_f32(m[j]);
-    m[j] = vlff_f32_to_f16(old + (f[j] - old) * a);
+  if (n == 1) {
+    vlff_f32_to_f16_n(f, m, (size_t)e->D);
+    return;
   }
+  /* whole rows through the vector conversions: a keyframe adds a few
+   * thousand features of D values, on the trainer's thread */
+  float *mean = e->tmp + e->D, a = 1.0f / (float)n;
+  vlff_f16_to_f32_n(m, mean, (size_t)e->D);
+  for (int j = 0; j < e->D; j++) mean[j] += (f[j] - mean[j]) * a;
+  vlff_f32_to_f16_n(mean, m, (size_t)e->D);
 }
 
 int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *err, size_t errlen) {
@@ -161,11 +166,9 @@ int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *
       long vi = vlff_evidence_voxel(e, x);
       if (vi < 0) continue;
       const uint16_t *src = v->features + ((size_t)fj * v->feat_width + fi) * D;
+      vlff_f16_to_f32_n(src, f, (size_t)D);
       int ok = 1;
-      for (int j = 0; j < D; j++) {
-        f[j] = vlff_f16_to_f32(src[j]);
-        ok &= isfinite(f[j]);
-      }
+      for (int j = 0; j < D; j++) ok &= isfinite(f[j]);
       if (ok) accumulate(e, vi, f);
     }
   return 0;
@@ -174,8 +177,22 @@ int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *
 int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out) {
   if (vi < 0 || (size_t)vi >= e->nvox || e->slot[vi] < 0) return 0;
   const uint16_t *m = e->mean + (size_t)e->slot[vi] * e->D;
-  for (int j = 0; j < e->D; j++) out[j] = vlff_f16_to_f32(m[j]);
+  vlff_f16_to_f32_n(m, out, (size_t)e->D);
   return e->views[e->slot[vi]];
+}
+
+/* a . b over n floats in 16 independent sums, which the compiler keeps in
+ * vector registers (a sum in one double is a serial chain: with D = 512
+ * and 20 prompts it was most of publishing's time). */
+static float dot16(const float *a, const float *b, int n) {
+  float acc[16] = {0};
+  int j = 0;
+  for (; j + 16 <= n; j += 16)
+    for (int t = 0; t < 16; t++) acc[t] += a[j + t] * b[j + t];
+  float s = 0;
+  for (; j < n; j++) s += a[j] * b[j];
+  for (int t = 0; t < 16; t++) s += acc[t];
+  return s;
 }
 
 /* Slot s's cosines with E, recomputed when its evidence changed. */
@@ -185,17 +202,10 @@ static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float
   const int D = e->D;
   const uint16_t *m = e->mean + (size_t)s * D;
   float *x = e->tmp;
-  double nn = 0;
-  for (int j = 0; j < D; j++) {
-    x[j] = vlff_f16_to_f32(m[j]);
-    nn += (double)x[j] * x[j];
-  }
-  double inv = nn > 0 ? 1.0 / sqrt(nn) : 0;
-  for (int k = 0; k < K; k++) {
-    double dot = 0;
-    for (int j = 0; j < D; j++) dot += (double)x[j] * E[(size_t)k * D + j];
-    c[k] = (float)(dot * inv);
-  }
+  vlff_f16_to_f32_n(m, x, (size_t)D);
+  float nn = dot16(x, x, D);
+  float inv = nn > 0 ? 1.0f / sqrtf(nn) : 0;
+  for (int k = 0; k < K; k++) c[k] = dot16(x, E + (size_t)k * D, D) * inv;
   e->dirty[s] = 0;
   return c;
 }
