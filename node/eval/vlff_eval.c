@@ -5,8 +5,9 @@
  * training frames and held-out frames (every --holdout'th). The field is fit
  * on the training frames for --iters steps; then
  *   2D: the held-out frames are rendered at the feature-map resolution and
- *       segmented with the prompts; the raw per-frame features of the same
- *       frames are the baseline;
+ *       segmented with the prompts, cells on measured surfaces as the node's
+ *       label image reads them (field and evidence); the raw per-frame
+ *       features of the same frames are the baseline;
  *   3D: the labelled points are queried; OpenScene-style multi-view fusion of
  *       the training frames' features is the baseline.
  * Both protocols (metrics.h) are reported. Output: report.md, report.json,
@@ -14,7 +15,8 @@
  * per-class table (3D IoU of the field beside fusion's, 2D beside the raw
  * features') and a last line "RESULT miou3d=... miou3d_fusion=... miou2d=...
  * miou2d_raw=... macc2d=... macc2d_raw=... worst_class_vs_fusion=...
- * fit_seconds=... steps=..." (standard protocol, percent).
+ * fit_seconds=... steps=... miou3d_field_alone=... miou2d_field_alone=...
+ * macc2d_field_alone=..." (standard protocol, percent).
  */
 #include <errno.h>
 #include <math.h>
@@ -109,6 +111,7 @@ struct scene {
   int streaming;
   uint8_t *srgb;
   uint16_t *sfeat;
+  float *sdepth;
   const char *box_from;    /* where field.scene_min/max came from */
   size_t pts_outside;      /* labelled points outside that box */
 };
@@ -251,8 +254,8 @@ static struct frame *frame_data(struct scene *sc, int i) {
   struct frame *f = &sc->f[i];
   if (!sc->streaming || !held_out(i, sc->holdout)) return f;
   char err[1024];
-  f->rgb = sc->srgb, f->feat = sc->sfeat;
-  if (vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, NULL, NULL, err, sizeof err) < 0 ||
+  f->rgb = sc->srgb, f->feat = sc->sfeat, f->depth = sc->sdepth;
+  if (vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, f->depth, NULL, err, sizeof err) < 0 ||
       vlff_dataset_read_features(&sc->ds, f->index, f->feat, err, sizeof err) < 0)
     die("%s", err);
   return f;
@@ -394,7 +397,7 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
         "use --stride %d or raise keyframes.memory_mb",
         dir, ntrain, need_mb, cfg->keyframes.memory_mb, stride);
   }
-  sc->srgb = xcalloc(npx, 3), sc->sfeat = xcalloc(nf, sizeof(uint16_t));
+  sc->srgb = xcalloc(npx, 3), sc->sfeat = xcalloc(nf, sizeof(uint16_t)), sc->sdepth = xcalloc(npx, sizeof(float));
   for (int i = 0; i < sc->n; i++) {
     struct frame *f = &sc->f[i];
     f->index = i * o->stride;
@@ -584,7 +587,8 @@ struct eval {
   int ntrain, ntest;
   /* standard protocol: raw 2D and fusion 3D are the baselines; the
    * field's 3D also under the reference protocol */
-  struct result r2_raw, r2_field, r3_fusion, r3_field, r3_field_ref, r3_alone;
+  struct result r2_raw, r2_field, r3_fusion, r3_field, r3_field_ref, r3_alone, r2_alone;
+  struct vlff_evidence *ev; /* the training frames' features per voxel, when publish.evidence_weight > 0 */
   uint8_t *gl;     /* a held-out frame's labels at the feature-map resolution */
   int *pl;         /* and a prediction at that resolution */
   int *p3;         /* fusion's label per point */
@@ -642,7 +646,8 @@ static void load_scene(struct eval *e) {
       vlff_confusion_init(&e->r3_fusion.c, K, err, sizeof err) < 0 ||
       vlff_confusion_init(&e->r3_field.c, K, err, sizeof err) < 0 ||
       vlff_confusion_init(&e->r3_field_ref.c, K, err, sizeof err) < 0 ||
-      vlff_confusion_init(&e->r3_alone.c, K, err, sizeof err) < 0)
+      vlff_confusion_init(&e->r3_alone.c, K, err, sizeof err) < 0 ||
+      vlff_confusion_init(&e->r2_alone.c, K, err, sizeof err) < 0)
     die("%s", err);
 }
 
@@ -751,60 +756,88 @@ static struct vlff_field *fit_field(struct eval *e) {
   return fld;
 }
 
+static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n, int *label);
+
 /* 2D: the held-out frames rendered at the feature-map resolution and
- * segmented; the first --overlays of them drawn beside their truth. */
+ * segmented: the field alone; and with evidence, the node's label image
+ * (publish.label_image: surface): a pixel whose measured depth ends on a
+ * surface is labelled there by the field's cosines and the evidence, the
+ * rest keep the rendered label. The first --overlays frames are drawn
+ * beside their truth. */
 static void score_field_2d(struct eval *e, struct vlff_field *fld) {
   struct scene *sc = &e->sc;
   const int fw = sc->fw, fh = sc->fh;
+  const size_t npx = (size_t)fw * fh;
   struct vlff_view cam = {0};
   cam.width = fw, cam.height = fh;
   cam.fx = sc->fx * fw / sc->W, cam.fy = sc->fy * fh / sc->H, cam.cx = sc->cx * fw / sc->W, cam.cy = sc->cy * fh / sc->H;
+  float *xyz = xcalloc(3 * npx, sizeof(float));
+  int *pix = xcalloc(npx, sizeof(int)), *lab = xcalloc(npx, sizeof(int));
   int nover = 0;
   for (int i = 0; i < sc->n; i++) {
     if (!held_out(i, e->o.holdout)) continue;
     memcpy(cam.c2w, sc->f[i].c2w, sizeof cam.c2w);
     if (vlff_field_render(fld, &cam, NULL, NULL, NULL, e->pl, NULL) < 0) die("render of frame %d failed", i);
     vlff_downsample_labels(sc->f[i].label, sc->W, sc->H, e->gl, fw, fh);
-    vlff_confusion_add(&e->r2_field.c, e->gl, e->pl, (size_t)fw * fh);
+    vlff_confusion_add(&e->r2_alone.c, e->gl, e->pl, npx);
+    const struct frame *f = e->ev || nover < e->o.overlays ? frame_data(sc, i) : NULL;
+    if (e->ev) {
+      size_t m = 0;
+      for (int y = 0; y < fh; y++)
+        for (int x = 0; x < fw; x++) {
+          /* the depth pixel under the label pixel's centre, as publish.c */
+          double u = (x + 0.5) * sc->W / fw, v = (y + 0.5) * sc->H / fh, p[3];
+          float d = f->depth[(size_t)(int)v * sc->W + (int)u];
+          if (!(d > 0) || !isfinite(d)) continue;
+          vlff_unproject(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, u, v, d, p);
+          for (int a = 0; a < 3; a++) xyz[3 * m + a] = (float)p[a];
+          pix[m++] = y * fw + x;
+        }
+      evidence_labels(e, fld, xyz, m, lab);
+      for (size_t j = 0; j < m; j++) e->pl[pix[j]] = lab[j];
+    }
+    vlff_confusion_add(&e->r2_field.c, e->gl, e->pl, npx);
     if (nover < e->o.overlays) {
-      write_overlay(e->o.out, sc, frame_data(sc, i), e->pl, fw, fh);
+      write_overlay(e->o.out, sc, f, e->pl, fw, fh);
       nover++;
     }
   }
+  free(xyz), free(pix), free(lab);
   summarize(&e->r2_field);
+  summarize(&e->r2_alone);
 }
 
-/* The map as the node publishes it (publish.evidence_weight > 0): the
- * training views' features averaged per voxel of the node's map grid
- * (evidence.h), and each point labelled by its field feature combined with
- * its voxel's evidence. Points in voxels without evidence keep the field's
- * label. */
-static void evidence_labels(struct eval *e, struct vlff_field *fld) {
+/* The evidence the node would hold after admitting the training frames:
+ * their features averaged per voxel of the node's map grid (evidence.h). */
+static void build_evidence(struct eval *e) {
   const struct scene *sc = &e->sc;
   const struct vlff_config *cfg = &e->cfg;
-  const int D = sc->D;
   char err[1024];
-  struct vlff_evidence *ev = vlff_evidence_for(&cfg->publish, &cfg->field, MAXK, err, sizeof err);
-  if (!ev) die("%s", err);
+  e->ev = vlff_evidence_for(&cfg->publish, &cfg->field, MAXK, err, sizeof err);
+  if (!e->ev) die("%s", err);
   for (int i = 0; i < sc->n; i++) {
     if (held_out(i, e->o.holdout)) continue;
     struct vlff_view v = {.width = sc->W, .height = sc->H, .fx = sc->fx, .fy = sc->fy, .cx = sc->cx, .cy = sc->cy,
                           .depth = sc->f[i].depth, .features = sc->f[i].feat, .feat_width = sc->fw,
-                          .feat_height = sc->fh, .feature_dim = D};
+                          .feat_height = sc->fh, .feature_dim = sc->D};
     memcpy(v.c2w, sc->f[i].c2w, sizeof v.c2w);
-    if (vlff_evidence_add(ev, &v, err, sizeof err) < 0) die("frame %d: %s", sc->f[i].index, err);
+    if (vlff_evidence_add(e->ev, &v, err, sizeof err) < 0) die("frame %d: %s", sc->f[i].index, err);
   }
+  if (vlff_evidence_overflow(e->ev))
+    fprintf(stderr, "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld samples lost)\n",
+            vlff_evidence_voxels(e->ev), vlff_evidence_overflow(e->ev));
+}
+
+/* n points labelled as the node labels its map: the field's cosines there
+ * combined with the voxels' evidence (points in voxels without evidence
+ * keep the field's label). */
+static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n, int *label) {
   int K;
   const float *E = vlff_field_prompt_embeddings(fld, &K);
-  const size_t np = sc->pts.n;
-  float *cs = xcalloc(np * (size_t)K, sizeof(float));
-  if (vlff_field_query_cosines(fld, sc->pts.xyz, np, cs) < 0) die("3D query failed");
-  vlff_evidence_label(ev, sc->pts.xyz, np, cs, E, K, 1, (float)cfg->publish.evidence_weight, e->pred3, NULL, NULL);
-  if (vlff_evidence_overflow(ev))
-    fprintf(stderr, "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld samples lost)\n",
-            vlff_evidence_voxels(ev), vlff_evidence_overflow(ev));
+  float *cs = xcalloc(n * (size_t)K, sizeof(float));
+  if (vlff_field_query_cosines(fld, xyz, n, cs) < 0) die("3D query failed");
+  vlff_evidence_label(e->ev, xyz, n, cs, E, K, 1, (float)e->cfg.publish.evidence_weight, label, NULL, NULL);
   free(cs);
-  vlff_evidence_destroy(ev);
 }
 
 /* 3D standard protocol: one query per labelled point. */
@@ -815,7 +848,7 @@ static void score_field_3d(struct eval *e, struct vlff_field *fld) {
   if (vlff_field_query(fld, sc->pts.xyz, np, NULL, NULL, e->pred3, NULL, NULL) < 0) die("3D query failed");
   vlff_confusion_add(&e->r3_alone.c, sc->pts.label, e->pred3, np);
   summarize(&e->r3_alone);
-  if (e->cfg.publish.evidence_weight > 0) evidence_labels(e, fld);
+  if (e->ev) evidence_labels(e, fld, sc->pts.xyz, np, e->pred3);
   vlff_confusion_add(&e->r3_field.c, sc->pts.label, e->pred3, np);
   summarize(&e->r3_field);
 }
@@ -852,9 +885,12 @@ static void score_field_3d_reference(struct eval *e, struct vlff_field *fld) {
 static void score_field(struct eval *e, struct vlff_field *fld) {
   char err[1024];
   if (vlff_field_set_prompts(fld, e->emb_raw, e->sc.K, err, sizeof err) < 0) die("%s", err);
+  if (e->cfg.publish.evidence_weight > 0) build_evidence(e);
   score_field_2d(e, fld);
   score_field_3d(e, fld);
   score_field_3d_reference(e, fld);
+  vlff_evidence_destroy(e->ev);
+  e->ev = NULL;
   e->fitted = 1;
 }
 
@@ -990,6 +1026,8 @@ static void write_report_json(const struct eval *e) {
   json_object_object_add(res, "fusion_3d", json_result(&e->r3_fusion));
   json_object_object_add(res, "field_3d", json_result(&e->r3_field));
   json_object_object_add(res, "field_3d_reference", json_result(&e->r3_field_ref));
+  json_object_object_add(res, "field_alone_2d", json_result(&e->r2_alone));
+  json_object_object_add(res, "field_alone_3d", json_result(&e->r3_alone));
   json_object_object_add(root, "results", res);
   if (json_object_to_file_ext(path, root, JSON_C_TO_STRING_PRETTY | JSON_C_TO_STRING_NOSLASHESCAPE) < 0)
     die("%s: %s", path, json_util_get_last_err());
@@ -1046,7 +1084,8 @@ static void print_summary(const struct eval *e) {
   printf("%-34s %8s %8s %8s %8s\n", "vlff field", pct(r2_field, r2_field->s.miou, a), pct(r2_field, r2_field->s.macc, b),
          pct(r3_field, r3_field->s.miou, c), pct(r3_field, r3_field->s.macc, d));
   if (e->cfg.publish.evidence_weight > 0)
-    printf("%-34s %8s %8s %8s %8s\n", "  3D: field alone, no evidence", "-", "-", pct(&e->r3_alone, e->r3_alone.s.miou, c),
+    printf("%-34s %8s %8s %8s %8s\n", "  field alone, no evidence", pct(&e->r2_alone, e->r2_alone.s.miou, a),
+           pct(&e->r2_alone, e->r2_alone.s.macc, b), pct(&e->r3_alone, e->r3_alone.s.miou, c),
            pct(&e->r3_alone, e->r3_alone.s.macc, d));
   printf("%-34s %8s %8s %8s %8s\n", "reference protocol", "2D mIoU", "2D prec", "3D mIoU", "3D rec");
   printf("%-34s %8s %8s %8s %8s\n", "raw per-frame features", pct(r2_raw, r2_raw->s.miou, a), pct(r2_raw, r2_raw->s.mprec, b), "-", "-");
@@ -1061,26 +1100,31 @@ static void print_summary(const struct eval *e) {
   }
   printf("report: %s/report.md\n", o->out);
   printf("RESULT miou3d=%s miou3d_fusion=%s miou2d=%s miou2d_raw=%s macc2d=%s macc2d_raw=%s "
-         "worst_class_vs_fusion=%s fit_seconds=%.1f steps=%d miou3d_field_alone=%s\n",
+         "worst_class_vs_fusion=%s fit_seconds=%.1f steps=%d miou3d_field_alone=%s ",
          pct(r3_field, r3_field->s.miou, a), pct(r3_fusion, r3_fusion->s.miou, b), pct(r2_field, r2_field->s.miou, c),
          pct(r2_raw, r2_raw->s.miou, d), pct(r2_field, r2_field->s.macc, x), pct(r2_raw, r2_raw->s.macc, y), wbuf,
          e->fit_s, e->steps, pct(&e->r3_alone, e->r3_alone.s.miou, z));
+  printf("miou2d_field_alone=%s macc2d_field_alone=%s\n", pct(&e->r2_alone, e->r2_alone.s.miou, a),
+         pct(&e->r2_alone, e->r2_alone.s.macc, b));
 }
 
 static void scene_free(struct eval *e) {
   struct scene *sc = &e->sc;
   for (int i = 0; i < sc->n; i++) {
-    if (sc->streaming && held_out(i, sc->holdout)) sc->f[i].rgb = NULL, sc->f[i].feat = NULL; /* scratch */
+    if (sc->streaming && held_out(i, sc->holdout))
+      sc->f[i].rgb = NULL, sc->f[i].feat = NULL, sc->f[i].depth = NULL; /* scratch */
     free(sc->f[i].rgb), free(sc->f[i].label), free(sc->f[i].depth), free(sc->f[i].feat);
     free(sc->f[i].trgb), free(sc->f[i].tdepth);
   }
-  free(sc->srgb), free(sc->sfeat);
+  free(sc->srgb), free(sc->sfeat), free(sc->sdepth);
   if (sc->streaming) vlff_dataset_close(&sc->ds);
   free(sc->f), free(e->gl), free(e->pl), free(e->p3), free(e->pred3), free(e->emb_raw);
   vlff_points_free(&sc->pts);
   vlff_confusion_free(&e->r2_raw.c), vlff_confusion_free(&e->r2_field.c), vlff_confusion_free(&e->r3_fusion.c);
   vlff_confusion_free(&e->r3_field.c), vlff_confusion_free(&e->r3_field_ref.c);
   vlff_confusion_free(&e->r3_alone.c);
+  vlff_confusion_free(&e->r2_alone.c);
+  vlff_evidence_destroy(e->ev);
 }
 
 /* ---- main --------------------------------------------------------------- */

@@ -36,7 +36,7 @@ echo
 printf '%s\n' "${rows[@]}" | awk '
   function val(k) { return (k in v) ? v[k] : "n/a" }
   BEGIN {
-    nk = split("miou3d miou3d_fusion miou2d miou2d_raw macc2d macc2d_raw worst_class_vs_fusion fit_seconds steps miou3d_field_alone", key, " ")
+    nk = split("miou3d miou3d_fusion miou2d miou2d_raw macc2d macc2d_raw worst_class_vs_fusion fit_seconds steps miou3d_field_alone miou2d_field_alone macc2d_field_alone", key, " ")
     hdr = sprintf("%-9s", "scene"); for (i = 1; i <= nk; i++) hdr = hdr sprintf(" %13s", key[i]); print hdr
     worst = ""
   }
