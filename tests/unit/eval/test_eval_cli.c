@@ -73,15 +73,23 @@ static int capture(const char *cmd, char *out, size_t cap) {
 /* cmd must fail. */
 static void run_failing(const char *cmd, char *out, size_t cap) { assert_int_not_equal(capture(cmd, out, cap), 0); }
 
+/* vlff-sim and vlff-eval for a test that writes a scene directory, which
+ * needs HDF5 (features.hdf): without it the test is skipped, saying why. */
+static void dataset_progs(char *sim, char *eval, size_t cap, const char *why) {
+#ifndef VLFF_HAVE_HDF5
+  print_message("this build has no HDF5: %s\n", why);
+  skip();
+#else
+  (void)why;
+#endif
+  vlff_test_prog(sim, cap, "node/sim/vlff-sim");
+  vlff_test_prog(eval, cap, "node/eval/vlff-eval");
+}
+
 static void test_dataset_matches_synthetic(void **state) {
   (void)state;
-#ifndef VLFF_HAVE_HDF5
-  print_message("this build has no HDF5: a dataset carries no features to compare\n");
-  skip();
-#endif
   char sim[1024], eval[1024];
-  vlff_test_prog(sim, sizeof sim, "node/sim/vlff-sim");
-  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
+  dataset_progs(sim, eval, sizeof sim, "a dataset carries no features to compare");
   start("cli", "sim:\n  width: 96\n  height: 72\n  frames: 16\n  seed: 5\nfield:\n  feature_dim: 16\n");
   char cmd[4096], a[1024], b[1024];
   snprintf(cmd, sizeof cmd, "%s --config %s --quiet --write-dataset %s/ds", sim, cfg, tmp);
@@ -314,13 +322,8 @@ static long read_box(const char *report, char *from, size_t cap, double lo[3], d
  * scene is kept; bbox.txt wins when there is one. */
 static void test_dataset_box(void **state) {
   (void)state;
-#ifndef VLFF_HAVE_HDF5
-  print_message("this build has no HDF5: vlff-sim writes no dataset to read\n");
-  skip();
-#endif
   char sim[1024], eval[1024];
-  vlff_test_prog(sim, sizeof sim, "node/sim/vlff-sim");
-  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
+  dataset_progs(sim, eval, sizeof sim, "vlff-sim writes no dataset to read");
   const char *scene = "sim:\n  layout: flat\n  width: 96\n  height: 72\n  frames: 24\n  seed: 2\n";
   char text[1024];
   snprintf(text, sizeof text, "%sfield:\n  feature_dim: 16\n  scene_min: [-5, -4, -1.5]\n  scene_max: [5, 4, 1.5]\n",
