@@ -369,22 +369,8 @@ int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *
                               char *err, size_t errlen) {
   if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
   p->cam = *v;
-  p->nsel = p->nhole = 0;
-  for (int y = 0; y < p->lh; y++)
-    for (int x = 0; x < p->lw; x++) {
-      /* The camera pixel under the label pixel's centre. */
-      double u = (x + 0.5) * v->width / p->lw, w = (y + 0.5) * v->height / p->lh;
-      float d = p->surface && v->depth ? v->depth[(size_t)(int)w * v->width + (int)u] : 0;
-      uint32_t pix = (uint32_t)(y * p->lw + x);
-      if (!(d > 0 && isfinite(d))) {
-        p->hole_pix[p->nhole++] = pix;
-        continue;
-      }
-      double hp[3];
-      vlff_unproject(v->c2w, v->fx, v->fy, v->cx, v->cy, u, w, d, hp);
-      for (int a = 0; a < 3; a++) p->sel_xyz[p->nsel * 3 + a] = (float)hp[a];
-      p->sel_pix[p->nsel++] = pix;
-    }
+  p->nsel = vlff_label_surface(v->c2w, v->fx, v->fy, v->cx, v->cy, v->width, v->height, p->surface ? v->depth : NULL,
+                               p->lw, p->lh, p->sel_xyz, p->sel_pix, p->hole_pix, &p->nhole);
   p->cam.rgb = NULL;
   p->cam.depth = NULL;
   p->cam.features = NULL;

@@ -31,6 +31,30 @@ void vlff_unproject(const double m[16], double fx, double fy, double cx, double 
   for (int a = 0; a < 3; a++) out[a] = m[a * 4] * q[0] + m[a * 4 + 1] * q[1] + m[a * 4 + 2] * q[2] + m[a * 4 + 3];
 }
 
+size_t vlff_label_surface(const double c2w[16], double fx, double fy, double cx, double cy, int width, int height,
+                          const float *depth, int lw, int lh, float *xyz, uint32_t *pix, uint32_t *holes,
+                          size_t *nholes) {
+  size_t n = 0, nh = 0;
+  for (int y = 0; y < lh; y++)
+    for (int x = 0; x < lw; x++) {
+      /* The camera pixel under the label pixel's centre. */
+      double u = (x + 0.5) * width / lw, w = (y + 0.5) * height / lh;
+      float d = depth ? depth[(size_t)(int)w * width + (int)u] : 0;
+      uint32_t cell = (uint32_t)(y * lw + x);
+      if (!(d > 0 && isfinite(d))) {
+        if (holes) holes[nh] = cell;
+        nh++;
+        continue;
+      }
+      double hp[3];
+      vlff_unproject(c2w, fx, fy, cx, cy, u, w, d, hp);
+      for (int a = 0; a < 3; a++) xyz[n * 3 + a] = (float)hp[a];
+      pix[n++] = cell;
+    }
+  if (nholes) *nholes = nh;
+  return n;
+}
+
 bool vlff_kf_selector_due(const struct vlff_kf_selector *s, long long t_ns) {
   return !s->have_last || (double)(t_ns - s->last_t_ns) * 1e-9 >= s->min_interval_s;
 }

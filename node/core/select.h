@@ -10,6 +10,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
 
 struct vlff_kf_selector {
   double min_interval_s;      /* 1 / keyframes.rate_hz */
@@ -39,6 +40,17 @@ double vlff_pose_angle(const double a[16], const double b[16]);
  * intrinsics and camera-to-world pose. */
 void vlff_unproject(const double c2w[16], double fx, double fy, double cx, double cy, double u, double v, double d,
                     double out[3]);
+
+/* The surface-mode split of a label grid of lw x lh cells over a width x
+ * height camera (depth in metres, [height][width], may be NULL): a cell
+ * whose depth pixel (the one under the cell's centre) holds a valid depth
+ * gets that measured surface point, world xyz[3 i], and its index pix[i];
+ * the other cells' indices go to holes (NULL: not wanted), *nholes of them
+ * (nholes may be NULL). Returns the surface cells. The publisher's label
+ * image and vlff-eval's 2D score read the same cells. */
+size_t vlff_label_surface(const double c2w[16], double fx, double fy, double cx, double cy, int width, int height,
+                          const float *depth, int lw, int lh, float *xyz, uint32_t *pix, uint32_t *holes,
+                          size_t *nholes);
 
 /* Median of n values (n > 0); reorders v. */
 float vlff_medianf(float *v, size_t n);

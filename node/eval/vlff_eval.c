@@ -211,6 +211,7 @@ static void load_sim(struct scene *sc, const struct vlff_config *cfg) {
   vlff_sim_size(s, &sc->W, &sc->H, &sc->fw, &sc->fh, &sc->D);
   vlff_sim_intrinsics(s, &sc->fx, &sc->fy, &sc->cx, &sc->cy);
   sc->n = cfg->sim.frames;
+  sc->box_from = "config"; /* the simulator renders inside the field's box */
   sc->f = xcalloc((size_t)sc->n, sizeof *sc->f);
   struct vlff_sim_frame *fr = vlff_sim_frame_new(s);
   if (!fr) die("out of memory");
@@ -246,17 +247,23 @@ static void load_sim(struct scene *sc, const struct vlff_config *cfg) {
 
 static int held_out(int i, int holdout) { return i % holdout == holdout / 2; }
 
+enum { FD_RGB = 1, FD_DEPTH = 2, FD_FEAT = 4 };
+
 /* Frame i's images and features in memory: training frames hold theirs,
- * a held-out frame of a dataset is read into scratch buffers until the
- * next call (the field's training set stays resident, as the node's
- * keyframe store does; the frames it is scored on need not). */
-static struct frame *frame_data(struct scene *sc, int i) {
+ * a held-out frame of a dataset has the parts asked for (FD_*) read into
+ * scratch buffers until the next call, the others NULL (the field's
+ * training set stays resident, as the node's keyframe store does; the
+ * frames it is scored on need not, nor more of them than a score reads). */
+static struct frame *frame_data(struct scene *sc, int i, unsigned parts) {
   struct frame *f = &sc->f[i];
   if (!sc->streaming || !held_out(i, sc->holdout)) return f;
   char err[1024];
-  f->rgb = sc->srgb, f->feat = sc->sfeat, f->depth = sc->sdepth;
-  if (vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, f->depth, NULL, err, sizeof err) < 0 ||
-      vlff_dataset_read_features(&sc->ds, f->index, f->feat, err, sizeof err) < 0)
+  f->rgb = parts & FD_RGB ? sc->srgb : NULL;
+  f->depth = parts & FD_DEPTH ? sc->sdepth : NULL;
+  f->feat = parts & FD_FEAT ? sc->sfeat : NULL;
+  if (((parts & (FD_RGB | FD_DEPTH)) &&
+       vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, f->depth, NULL, err, sizeof err) < 0) ||
+      (f->feat && vlff_dataset_read_features(&sc->ds, f->index, f->feat, err, sizeof err) < 0))
     die("%s", err);
   return f;
 }
@@ -276,11 +283,15 @@ static int cmp_float(const void *a, const void *b) {
  * when the frames measured too little to bound anything. */
 static int measured_box(const struct scene *sc, const struct vlff_cfg_field *fc, double lo[3], double hi[3],
                         double *inside) {
-  size_t npx = 0;
-  for (int i = 0; i < sc->n; i++) npx += sc->f[i].depth ? (size_t)sc->W * sc->H : 0;
+  size_t nd = 0; /* frames with depth */
+  for (int i = 0; i < sc->n; i++) nd += sc->f[i].depth != NULL;
   int step = 1;
-  while (npx / ((size_t)step * step) > (1u << 20)) step++;
-  size_t cap = npx / ((size_t)step * step) + (size_t)sc->n + 1, m = 0, in = 0;
+  while (nd * sc->W * sc->H / ((size_t)step * step) > (1u << 20)) step++;
+  /* pixels sampled per frame (from step / 2 on, every step-th), exactly:
+   * rounding up on both axes can exceed W H / step^2 */
+  const size_t nu = sc->W > step / 2 ? (size_t)((sc->W - 1 - step / 2) / step + 1) : 0;
+  const size_t nv = sc->H > step / 2 ? (size_t)((sc->H - 1 - step / 2) / step + 1) : 0;
+  size_t cap = nd * nu * nv + (size_t)sc->n, m = 0, in = 0;
   float *ax[3];
   for (int a = 0; a < 3; a++) ax[a] = xcalloc(cap, sizeof(float));
   for (int i = 0; i < sc->n; i++) {
@@ -288,7 +299,7 @@ static int measured_box(const struct scene *sc, const struct vlff_cfg_field *fc,
     if (!f->depth) continue;
     double x[3];
     for (int v = step / 2; v < sc->H; v += step)
-      for (int u = step / 2; u < sc->W && m + 1 < cap; u += step) {
+      for (int u = step / 2; u < sc->W; u += step) {
         float d = f->depth[(size_t)v * sc->W + u];
         if (!(d > 0) || !isfinite(d)) continue;
         vlff_unproject(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, u + 0.5, v + 0.5, d, x);
@@ -318,9 +329,9 @@ static int measured_box(const struct scene *sc, const struct vlff_cfg_field *fc,
 /* The field's box for a recorded scene: its bbox.txt when it has one; else
  * the config's field.scene_min/max when they hold 90 % of what the frames
  * measured (the rest: far depth's noise); else the measured box, said on
- * stderr. A default box silently cutting a
- * ScanNet room (whose coordinates run from 0 to several metres) in half
- * would score every point outside it as a miss. */
+ * stderr. A default box silently cutting a ScanNet room (whose coordinates
+ * run from 0 to several metres) in half would score every point outside it
+ * as a miss. */
 static void dataset_box(struct scene *sc, const struct vlff_dataset *ds, struct vlff_config *cfg) {
   struct vlff_cfg_field *fc = &cfg->field;
   if (ds->has_bbox) {
@@ -624,7 +635,7 @@ static void load_scene(struct eval *e) {
   double t_load = vlff_seconds();
   sc->holdout = o->holdout;
   if (o->dataset) load_dataset(sc, o, &e->cfg);
-  else load_sim(sc, &e->cfg), sc->box_from = "config";
+  else load_sim(sc, &e->cfg);
   count_outside(sc, &e->cfg.field);
   if (sc->D != e->cfg.field.feature_dim) {
     if (o->dataset) e->cfg.field.feature_dim = sc->D;
@@ -660,7 +671,7 @@ static void baseline_raw_2d(struct eval *e) {
   e->pl = xcalloc((size_t)fw * fh, sizeof(int));
   for (int i = 0; i < sc->n; i++) {
     if (!held_out(i, e->o.holdout)) continue;
-    const struct frame *f = frame_data(sc, i);
+    const struct frame *f = frame_data(sc, i, FD_FEAT);
     vlff_downsample_labels(f->label, sc->W, sc->H, e->gl, fw, fh);
     vlff_classify_f16(f->feat, (size_t)fw * fh, sc->D, sc->emb, sc->K, e->pl, NULL);
     vlff_confusion_add(&e->r2_raw.c, e->gl, e->pl, (size_t)fw * fh);
@@ -772,7 +783,8 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
   cam.width = fw, cam.height = fh;
   cam.fx = sc->fx * fw / sc->W, cam.fy = sc->fy * fh / sc->H, cam.cx = sc->cx * fw / sc->W, cam.cy = sc->cy * fh / sc->H;
   float *xyz = xcalloc(3 * npx, sizeof(float));
-  int *pix = xcalloc(npx, sizeof(int)), *lab = xcalloc(npx, sizeof(int));
+  uint32_t *pix = xcalloc(npx, sizeof(uint32_t));
+  int *lab = xcalloc(npx, sizeof(int));
   int nover = 0;
   for (int i = 0; i < sc->n; i++) {
     if (!held_out(i, e->o.holdout)) continue;
@@ -780,24 +792,18 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
     if (vlff_field_render(fld, &cam, NULL, NULL, NULL, e->pl, NULL) < 0) die("render of frame %d failed", i);
     vlff_downsample_labels(sc->f[i].label, sc->W, sc->H, e->gl, fw, fh);
     vlff_confusion_add(&e->r2_alone.c, e->gl, e->pl, npx);
-    const struct frame *f = e->ev || nover < e->o.overlays ? frame_data(sc, i) : NULL;
+    const int overlay = nover < e->o.overlays;
+    const struct frame *f =
+        e->ev || overlay ? frame_data(sc, i, (e->ev ? FD_DEPTH : 0) | (overlay ? FD_RGB : 0)) : NULL;
     if (e->ev) {
-      size_t m = 0;
-      for (int y = 0; y < fh; y++)
-        for (int x = 0; x < fw; x++) {
-          /* the depth pixel under the label pixel's centre, as publish.c */
-          double u = (x + 0.5) * sc->W / fw, v = (y + 0.5) * sc->H / fh, p[3];
-          float d = f->depth[(size_t)(int)v * sc->W + (int)u];
-          if (!(d > 0) || !isfinite(d)) continue;
-          vlff_unproject(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, u, v, d, p);
-          for (int a = 0; a < 3; a++) xyz[3 * m + a] = (float)p[a];
-          pix[m++] = y * fw + x;
-        }
+      /* the cells the node's label image reads on the measured surface */
+      size_t m = vlff_label_surface(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, sc->W, sc->H, f->depth, fw, fh, xyz, pix,
+                                    NULL, NULL);
       evidence_labels(e, fld, xyz, m, lab);
       for (size_t j = 0; j < m; j++) e->pl[pix[j]] = lab[j];
     }
     vlff_confusion_add(&e->r2_field.c, e->gl, e->pl, npx);
-    if (nover < e->o.overlays) {
+    if (overlay) {
       write_overlay(e->o.out, sc, f, e->pl, fw, fh);
       nover++;
     }
