@@ -303,6 +303,27 @@ static void do_subscribe(struct client *cl, json_object *req) {
   }
 }
 
+/* Drops the messages of subscription sub_id queued but not yet written: a
+ * client that unsubscribed gets none of them (a slow reader would
+ * otherwise keep receiving a channel it left for as long as its queue
+ * lasts). */
+static void forget_queued(struct client *cl, uint32_t sub_id) {
+  struct qitem **pp = &cl->head;
+  cl->tail = NULL;
+  while (*pp) {
+    struct qitem *q = *pp;
+    if (!q->text && q->sub_id == sub_id) {
+      *pp = q->next;
+      cl->queued -= q->m->len;
+      vlff_view_msg_unref(q->m);
+      free(q);
+    } else {
+      cl->tail = q;
+      pp = &q->next;
+    }
+  }
+}
+
 static void do_unsubscribe(struct client *cl, json_object *req) {
   json_object *ids = get_array(cl, req, "subscriptionIds", "unsubscribe");
   if (!ids) return;
@@ -313,6 +334,7 @@ static void do_unsubscribe(struct client *cl, json_object *req) {
       for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++)
         if (cl->subscribed[c] && cl->sub_id[c] == json_object_get_int64(x)) {
           cl->subscribed[c] = 0;
+          forget_queued(cl, cl->sub_id[c]);
           found = 1;
         }
     if (!found) send_status(cl, 2, "unsubscribe: subscriptionIds[%zu] is not a subscription of this client", i);

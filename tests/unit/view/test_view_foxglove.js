@@ -202,7 +202,15 @@ async function main() {
 
     const imageSub = Object.keys(bySub).find((k) => bySub[k].topic === '/camera/image');
     client.unsubscribe(Number(imageSub));
-    await sleep(500);
+    // A barrier rather than a guess at how long images stay in flight: the
+    // server answers requests in order and drops what it had queued for the
+    // subscription, so once it has answered a later request (an unknown
+    // id's error) every image of the subscription has arrived.
+    const statuses = [];
+    client.on('status', (st) => statuses.push(st));
+    client.unsubscribe(999999);
+    await until(() => statuses.some((st) => /is not a subscription/.test(st.message)), 10000,
+      'the answer to a later request');
     const n = got['/camera/image'].length;
     await sleep(2000);
     assert.strictEqual(got['/camera/image'].length, n, 'no images after unsubscribing');
