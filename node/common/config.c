@@ -159,7 +159,7 @@ static const struct key schema[] = {
     INT("train.rays_per_step", train.rays_per_step, 1, 1 << 20, 1024),
     INT("train.warmup_steps", train.warmup_steps, 0, 1 << 30, 800),
     INT("train.warmup_levels", train.warmup_levels, 0, 32, 4),
-    INT("train.warmup_level_steps", train.warmup_level_steps, 0, 1 << 30, 1200),
+    INT("train.warmup_level_steps", train.warmup_level_steps, 0, 1 << 30, 600),
     INT("train.samples_per_ray", train.samples_per_ray, 1, 4096, 24),
     ENUM("train.sampling", train.sampling, samplings, "depth"),
     DBL("train.depth_weight", train.depth_weight, 0, 100, 0.1),
