@@ -19,7 +19,7 @@
 #include "scene.h"
 #include "unit.h"
 
-/* Sanitizer builds run fewer steps (ThreadSanitizer fewest) against looser
+/* Sanitizer builds run fewer steps against looser
  * thresholds; the assertions stay the same. */
 #if defined(__SANITIZE_THREAD__) || defined(__SANITIZE_ADDRESS__)
 #define SANITIZED 1
