@@ -232,9 +232,10 @@ static void test_dataset_matches_synthetic(void **state) {
  * steps; the threshold keeps a margin of half that gain. */
 static void test_small_fit_beats_raw(void **state) {
   (void)state;
-  /* 300 steps take minutes under qemu-user (the aarch64 stage): there the
-   * portable learner's convergence is test_field_train's, on a smaller
-   * budget; this end-to-end fit runs in the native builds. */
+  /* Under qemu-user (the aarch64 stage) every float operation of 300
+   * steps is emulated: there the portable learner's convergence is
+   * test_field_train's, on a smaller budget; this end-to-end fit runs in
+   * the native builds. */
   const char *emu = getenv("VLFF_EMULATOR");
   if (emu && *emu) {
     print_message("under %s: the 300-step fit runs in the native builds\n", emu);

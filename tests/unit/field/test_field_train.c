@@ -28,10 +28,10 @@
 #endif
 
 /* Under qemu-user (VLFF_EMULATOR set: the aarch64 stage of scripts/test)
- * every vector float operation is a helper call, and a convergence step
- * takes over a second instead of ~15 ms: the convergence case runs the
- * sanitizers' budget and thresholds there too. The portable kernels'
- * arithmetic is checked in full by the gradient and query cases. */
+ * every vector float operation is a helper call, which makes a training
+ * step two orders of magnitude slower than native: the convergence case
+ * runs the sanitizers' budget and thresholds there too. The portable
+ * kernels' arithmetic is checked in full by the gradient and query cases. */
 static bool light(void) {
   const char *emu = getenv("VLFF_EMULATOR");
   return SANITIZED || (emu && *emu);
