@@ -142,6 +142,13 @@ static void drop_client(struct client *cl, const char *why) {
   lws_set_timeout(cl->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
 }
 
+/* Unlinked item q leaves cl's queue: its bytes no longer count. */
+static void qitem_free(struct client *cl, struct qitem *q) {
+  cl->queued -= q->m->len;
+  vlff_view_msg_unref(q->m);
+  free(q);
+}
+
 static void enqueue(struct client *cl, struct vlff_view_msg *m, uint32_t sub_id, int text) {
   if (cl->dropping) return;
   struct qitem *q = malloc(sizeof *q);
@@ -171,11 +178,9 @@ static void free_queue(struct client *cl) {
   while (cl->head) {
     struct qitem *q = cl->head;
     cl->head = q->next;
-    vlff_view_msg_unref(q->m);
-    free(q);
+    qitem_free(cl, q);
   }
   cl->tail = NULL;
-  cl->queued = 0;
 }
 
 /* A control message (JSON text) for one client, from a json-c object it consumes. */
@@ -314,9 +319,7 @@ static void forget_queued(struct client *cl, uint32_t sub_id) {
     struct qitem *q = *pp;
     if (!q->text && q->sub_id == sub_id) {
       *pp = q->next;
-      cl->queued -= q->m->len;
-      vlff_view_msg_unref(q->m);
-      free(q);
+      qitem_free(cl, q);
     } else {
       cl->tail = q;
       pp = &q->next;
@@ -502,9 +505,7 @@ static int write_one(struct client *cl) {
   int w = lws_write(cl->wsi, p, n, kind);
   cl->head = q->next;
   if (!cl->head) cl->tail = NULL;
-  cl->queued -= q->m->len;
-  vlff_view_msg_unref(q->m);
-  free(q);
+  qitem_free(cl, q);
   if (w < (int)n) return -1;
   cl->v->c.messages_sent++;
   cl->v->c.bytes_sent += n;

@@ -5,7 +5,8 @@
  * Contract: VLFF_UNIT_MAIN(setup, teardown, cmocka_unit_test(a), ...) defines
  * main(void), runs the tests in the order given with the group's setup and
  * teardown (NULL for none) and returns cmocka's count of failures. Include it
- * after <cmocka.h>. vlff_test_in_child() runs a call that may block under an
+ * after <cmocka.h>. vlff_test_emulator() names the emulator a cross-built
+ * test runs under; vlff_test_in_child() runs a call that may block under an
  * alarm, in a child process.
  */
 #ifndef VLFF_UNIT_H
@@ -24,6 +25,13 @@ static inline const char *vlff_test_prog(char *buf, size_t cap, const char *rel)
   assert_non_null(bin);
   snprintf(buf, cap, "%s %s/%s", emu ? emu : "", bin, rel);
   return buf;
+}
+
+/* The emulator this test runs under ($VLFF_EMULATOR: qemu-user in a
+ * cross-built tree), NULL when it runs natively. */
+static inline const char *vlff_test_emulator(void) {
+  const char *emu = getenv("VLFF_EMULATOR");
+  return emu && *emu ? emu : NULL;
 }
 
 /* Runs fn(ctx) in a child process that an alarm ends after timeout_s, so

@@ -236,8 +236,8 @@ static void test_small_fit_beats_raw(void **state) {
    * steps is emulated: there the portable learner's convergence is
    * test_field_train's, on a smaller budget; this end-to-end fit runs in
    * the native builds. */
-  const char *emu = getenv("VLFF_EMULATOR");
-  if (emu && *emu) {
+  const char *emu = vlff_test_emulator();
+  if (emu) {
     print_message("under %s: the 300-step fit runs in the native builds\n", emu);
     skip();
   }

@@ -32,10 +32,7 @@
  * step two orders of magnitude slower than native: the convergence case
  * runs the sanitizers' budget and thresholds there too. The portable
  * kernels' arithmetic is checked in full by the gradient and query cases. */
-static bool light(void) {
-  const char *emu = getenv("VLFF_EMULATOR");
-  return SANITIZED || (emu && *emu);
-}
+static bool light(void) { return SANITIZED || vlff_test_emulator(); }
 
 static void scene_cfg(struct vlff_config *cfg, int d) {
   vlff_config_defaults(cfg);
