@@ -16,9 +16,10 @@
  * Storage: a dense voxel -> slot index over the grid, and slots of D
  * float16 values (the running mean) allocated on first use, up to a budget
  * (publish.evidence_max_mb). A full budget leaves further voxels without
- * evidence (field only) and is counted. The mean gives each view equal
- * weight up to 255 views per voxel, then new views weigh 1/255 (the map
- * follows a changing scene rather than freezing).
+ * evidence (field only) and is counted. The mean gives each sample (a
+ * feature pixel of a view whose footprint reaches the voxel) equal weight
+ * up to 255 samples per voxel, then new ones weigh 1/255 (the map follows a
+ * changing scene rather than freezing).
  *
  * Contract: one owner thread. Functions returning int give 0, or -1 with
  * err filled; a refused view leaves the evidence untouched.
@@ -56,17 +57,18 @@ struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, cons
 void vlff_evidence_destroy(struct vlff_evidence *e);
 void vlff_evidence_reset(struct vlff_evidence *e);
 
-/* Adds a view's features: each feature pixel's centre is looked up in the
- * depth image (v->depth, metres along the camera axis, width x height; a
- * view without depth or features adds nothing), unprojected with the view's
- * intrinsics and pose, and its feature averaged into the voxel there.
- * Non-finite features and depths are skipped. The caller has checked the
- * view's intrinsics and pose (vlff_publisher_check_view); D must match. */
+/* Adds a view's features: each feature pixel's footprint is looked up in
+ * the depth image (v->depth, metres along the camera axis, width x height;
+ * a view without depth or features adds nothing) at its four quarter
+ * points, unprojected with the view's intrinsics and pose, and its feature
+ * averaged once into every voxel those points reach. Non-finite features
+ * and depths are skipped. The caller has checked the view's intrinsics and
+ * pose (vlff_publisher_check_view); D must match. */
 int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *err, size_t errlen);
 
 /* The voxel index of world point x (-1 outside the grid). */
 long vlff_evidence_voxel(const struct vlff_evidence *e, const double x[3]);
-/* Copies voxel vi's mean feature into out[D] and returns the views averaged
+/* Copies voxel vi's mean feature into out[D] and returns the samples averaged
  * (0, out untouched, when the voxel has none). */
 int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out);
 

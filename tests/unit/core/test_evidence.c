@@ -73,6 +73,33 @@ static void test_views_average_where_depth_ends(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* A feature pixel whose footprint straddles two voxels is averaged into
+ * both: with cx = 3, feature column 1 (depth columns 2 and 3) sees the wall
+ * at x = -0.03 and +0.03 m, either side of the voxel face at x = 0. The
+ * point under its centre lies on one side only, which left the other side's
+ * pixels of that column without its feature. */
+static void test_footprint_reaches_every_voxel(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  struct wall a;
+  wall_make(&a, 2.2f, (const float[D]){1, 0, 0, 0});
+  a.v.cx = 3;
+  for (int fj = 0; fj < FH; fj++) {
+    uint16_t *px = a.feat + (fj * FW + 1) * D;
+    px[0] = vlff_f32_to_f16(0), px[1] = vlff_f32_to_f16(1);
+  }
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  float left[D], right[D];
+  /* The voxels above y = 0 (feature rows 2 and 3): left of x = 0 columns 0
+   * and 1, right of it columns 1, 2 and 3. */
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, (const double[3]){-0.05, 0.1, 2.2}), left), 4);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, (const double[3]){0.05, 0.1, 2.2}), right), 6);
+  assert_float_equal(left[1], 0.5f, 2e-3);
+  assert_float_equal(right[1], 1.0f / 3, 2e-3);
+  vlff_evidence_destroy(e);
+}
+
 static void test_labels_combine_field_and_evidence(void **state) {
   (void)state;
   struct vlff_evidence *e = make(1 << 20);
@@ -199,6 +226,7 @@ static void test_grid_plan(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_views_average_where_depth_ends),
+    cmocka_unit_test(test_footprint_reaches_every_voxel),
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_save_load),
     cmocka_unit_test(test_grid_plan))
