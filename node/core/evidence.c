@@ -226,8 +226,9 @@ static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float
   return c;
 }
 
-void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos, const float *E, int K,
-                         uint64_t stamp, float w, int *label, float *score, float *margin) {
+void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
+                         const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
+                         int *label, float *score, float *margin) {
   if (K > e->max_k) K = e->max_k;
   if (stamp != e->stamp || K != e->stamp_k) {
     memset(e->dirty, 1, e->used);
@@ -237,16 +238,20 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
     const float *fc = fcos + i * (size_t)K, *ec = NULL;
     double x[3] = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
     long vi = vlff_evidence_voxel(e, x);
-    if (vi >= 0 && e->slot[vi] >= 0) ec = slot_cosines(e, e->slot[vi], E, K);
+    float a = 1.0f; /* the field's trust */
+    if (vi >= 0 && e->slot[vi] >= 0) {
+      ec = slot_cosines(e, e->slot[vi], E, K);
+      if (rays && trust_rays > 0 && rays[i] < trust_rays) a = (float)rays[i] / (float)trust_rays;
+    }
     int best = -1, any = 0;
     float b1 = -INFINITY, b2 = -INFINITY;
     for (int k = 0; k < K; k++) {
       any |= fc[k] != 0;
-      float v = fc[k] + (ec ? w * ec[k] : 0.0f);
+      float v = a * fc[k] + (ec ? w * ec[k] : 0.0f);
       if (v > b1) b2 = b1, b1 = v, best = k;
       else if (v > b2) b2 = v;
     }
-    float scale = ec ? 1.0f / (1.0f + w) : 1.0f;
+    float scale = ec && a + w > 0 ? 1.0f / (a + w) : 1.0f;
     label[i] = any ? best : -1;
     if (score) score[i] = any ? b1 * scale : 0.0f;
     if (margin) margin[i] = any && K > 1 ? (b1 - b2) * scale : 0.0f;

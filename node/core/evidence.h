@@ -75,15 +75,22 @@ int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out);
 /* Labels n points (xyz interleaved) from the field's per-prompt cosines
  * fcos[n][K] (vlff_field_query_cosines) and, where a point's voxel has
  * evidence, w times the cosines of that evidence with the unit prompt
- * embeddings E[K][D]: the argmax of cos_field + w cos_evidence, which is
- * the argmax of E_k . (f/|f| + w e/|e|). score (the winning sum) and
- * margin (best minus second) are divided by 1 + w where evidence counted,
+ * embeddings E[K][D]: the argmax of a cos_field + w cos_evidence, which is
+ * the argmax of E_k . (a f/|f| + w e/|e|). a is the field's trust at the
+ * point: min(1, rays[i] / trust_rays), rays being its exposure there
+ * (vlff_field_exposure); 1 where rays is NULL or trust_rays <= 0, and
+ * where the voxel has no evidence (the field alone decides there). Where
+ * the camera has only just looked, the field has not been fitted yet and
+ * its feature is what the shared decoder says of other places, while the
+ * evidence already holds what the camera saw. score (the winning sum) and
+ * margin (best minus second) are divided by a + w where evidence counted,
  * so both stay cosines. Outputs may be NULL except label. A voxel's
  * evidence cosines are cached until its evidence or the prompts (stamp: a
  * hash of E) change. Points the field scores all 0 (outside the box) get
  * label -1. */
-void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos, const float *E, int K,
-                         uint64_t stamp, float w, int *label, float *score, float *margin);
+void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
+                         const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
+                         int *label, float *score, float *margin);
 
 /* Learned state, saved beside the field (vlff_publisher_save): the bytes
  * of the grid's geometry and every voxel's mean and count. load checks the

@@ -68,6 +68,8 @@ struct vlff_publisher {
   int D;
   size_t ev_budget; /* bytes: publish.evidence_max_mb */
   float *qcos; /* [QBLOCK][VLFF_FIELD_MAX_PROMPTS] the field's cosines of a block of points */
+  uint16_t *qrays; /* [QBLOCK] the field's exposure there (vlff_field_exposure) */
+  int trust_rays;  /* publish.field_trust_rays */
   double last_publish_s, last_heartbeat_s;
 };
 
@@ -78,7 +80,7 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   vlff_evidence_destroy(p->ev);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
-                p->sel_pix, p->hole_pix, p->sel_xyz, p->sel_score, p->sel_lab, p->qcos, p);
+                p->sel_pix, p->hole_pix, p->sel_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
 }
 
 struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub, const struct vlff_cfg_shm *shm,
@@ -132,8 +134,10 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
     p->ev_weight = (float)pub->evidence_weight;
     p->D = field->feature_dim;
     p->ev_budget = (size_t)pub->evidence_max_mb << 20;
+    p->trust_rays = pub->field_trust_rays;
     p->qcos = malloc(QBLOCK * VLFF_FIELD_MAX_PROMPTS * sizeof *p->qcos);
-    if (!p->ev || !p->qcos) {
+    p->qrays = malloc(QBLOCK * sizeof *p->qrays);
+    if (!p->ev || !p->qcos || !p->qrays) {
       if (p->ev) snprintf(err, errlen, "out of memory");
       vlff_publisher_destroy(p);
       return NULL;
@@ -359,8 +363,9 @@ static int label_points(struct vlff_publisher *p, struct vlff_field *f, const fl
   for (size_t a = 0; a < n; a += QBLOCK) {
     size_t m = n - a < QBLOCK ? n - a : QBLOCK;
     if (vlff_field_query_cosines(f, xyz + 3 * a, m, p->qcos)) return -1;
-    vlff_evidence_label(p->ev, xyz + 3 * a, m, p->qcos, E, K, stamp, p->ev_weight, lab + a, score ? score + a : NULL,
-                        margin ? margin + a : NULL);
+    vlff_field_exposure(f, xyz + 3 * a, m, p->qrays);
+    vlff_evidence_label(p->ev, xyz + 3 * a, m, p->qcos, p->qrays, p->trust_rays, E, K, stamp, p->ev_weight, lab + a,
+                        score ? score + a : NULL, margin ? margin + a : NULL);
   }
   return 0;
 }

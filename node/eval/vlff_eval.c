@@ -834,16 +834,19 @@ static void build_evidence(struct eval *e) {
             vlff_evidence_voxels(e->ev), vlff_evidence_overflow(e->ev));
 }
 
-/* n points labelled as the node labels its map: the field's cosines there
- * combined with the voxels' evidence (points in voxels without evidence
- * keep the field's label). */
+/* n points labelled as the node labels its map: the field's cosines there,
+ * weighed by its exposure, combined with the voxels' evidence (points in
+ * voxels without evidence keep the field's label). */
 static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n, int *label) {
   int K;
   const float *E = vlff_field_prompt_embeddings(fld, &K);
   float *cs = xcalloc(n * (size_t)K, sizeof(float));
+  uint16_t *rays = xcalloc(n, sizeof *rays);
   if (vlff_field_query_cosines(fld, xyz, n, cs) < 0) die("3D query failed");
-  vlff_evidence_label(e->ev, xyz, n, cs, E, K, 1, (float)e->cfg.publish.evidence_weight, label, NULL, NULL);
-  free(cs);
+  vlff_field_exposure(fld, xyz, n, rays);
+  vlff_evidence_label(e->ev, xyz, n, cs, rays, e->cfg.publish.field_trust_rays, E, K, 1,
+                      (float)e->cfg.publish.evidence_weight, label, NULL, NULL);
+  free(cs), free(rays);
 }
 
 /* 3D standard protocol: one query per labelled point. */

@@ -219,6 +219,9 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   f->step = h.step;
   f->rng = h.rng;
   f->occ_cursor = (int)h.occ_cursor;
+  /* Where the loaded field was fitted is not saved: it counts as fitted
+   * everywhere (vlff_field_exposure), as before exposure was counted. */
+  for (size_t i = 0; i < nc; i++) f->exposure[i] = UINT16_MAX;
   vlff_field_refresh(f);
   return 0;
 }

@@ -106,6 +106,15 @@ int vlff_field_query_cosines(struct vlff_field *f, const float *xyz, size_t n, f
  * vlff_field_set_prompts; *k = K (0: none). */
 const float *vlff_field_prompt_embeddings(const struct vlff_field *f, int *k);
 
+/* How much the field has been fitted at n points: rays[n] = the training
+ * rays whose measured depth ended in the point's occupancy cell
+ * (train.occupancy_resolution^3 over the box), saturating at 65535; 0
+ * outside the box. A field loaded from a checkpoint counts 65535 in every
+ * cell (where it was fitted is not saved). Where the camera has only just
+ * looked, the field's feature is what the shared decoder says of other
+ * places: a map can trust its own fused evidence more there (evidence.h). */
+void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n, uint16_t *rays);
+
 /* Render a view at cam's pose and intrinsics (cam->rgb/depth/features are
  * ignored). Outputs may be NULL: rgb[h][w][3] in [0,1], depth[h][w] metres,
  * feature[h][w][D], label[h][w] (prompt index, -1 where nothing was hit),

@@ -265,6 +265,10 @@ struct vlff_field {
   float *wT;               /* transposed MLP weights, MLP-relative offsets */
   struct vlff_adam adam;
   struct vlff_occupancy occ;
+  /* Training rays whose measured depth ended in each occupancy cell (res^3,
+   * saturating): how much the field has been fitted there
+   * (vlff_field_exposure). */
+  uint16_t *exposure;
   long long step;
   uint64_t rng;
   int occ_cursor;

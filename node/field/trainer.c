@@ -127,7 +127,7 @@ void vlff_field_destroy(struct vlff_field *f) {
   if (f->work)
     for (int i = 0; i < f->threads; i++) work_free(&f->work[i]);
   VLFF_FREE_ALL(f->work, f->params, f->adam_m, f->adam_v, f->grad, f->wT, f->occ.density,
-                f->occ.occ, f->rays, f->step_p, f->step_denc, f->chunk_n, f->E_, f->bal_feat,
+                f->occ.occ, f->exposure, f->rays, f->step_p, f->step_denc, f->chunk_n, f->E_, f->bal_feat,
                 f->EW, f->EWt, f->Eb, f->G, f->u, f->Rt, f->r12, f);
 }
 
@@ -197,6 +197,7 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   }
   f->occ.density = xalloc(ncell * fs, &ok);
   f->occ.occ = xalloc(ncell, &ok);
+  f->exposure = xalloc(ncell * sizeof *f->exposure, &ok);
   {
     /* Occupied when a cell-long interval would stop >= 1 % of the light. */
     float cmin = fminf(f->occ.cell[0], fminf(f->occ.cell[1], f->occ.cell[2]));
@@ -918,6 +919,25 @@ static int pseudo_class(struct vlff_field *f, const struct vlff_view *v, double 
 /* Candidates drawn per ray at most when balancing classes. */
 #define BALANCE_TRIES 8
 
+/* The occupancy cell holding world point x, -1 outside the box. */
+static long occ_cell_of(const struct vlff_occupancy *g, const float x[3]) {
+  long c[3];
+  for (int a = 0; a < 3; a++) {
+    float q = (x[a] - g->box_min[a]) / g->cell[a];
+    if (!(q >= 0) || q >= (float)g->res) return -1;
+    c[a] = (long)q;
+    if (c[a] >= g->res) c[a] = g->res - 1;
+  }
+  return c[0] + (long)g->res * (c[1] + (long)g->res * c[2]);
+}
+
+void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n, uint16_t *rays) {
+  for (size_t i = 0; i < n; i++) {
+    long c = occ_cell_of(&f->occ, xyz + 3 * i);
+    rays[i] = c < 0 ? 0 : f->exposure[c];
+  }
+}
+
 void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
                           int *counts) {
   /* Draw the rays: view by weight, pixel uniformly with sub-pixel jitter.
@@ -973,6 +993,9 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
       if (isfinite(dv) && dv > 0.01f) {
         r->depth = dv;
         n_depth++;
+        const float end[3] = {r->o[0] + r->d[0] * dv, r->o[1] + r->d[1] * dv, r->o[2] + r->d[2] * dv};
+        long c = occ_cell_of(&f->occ, end);
+        if (c >= 0 && f->exposure[c] < UINT16_MAX) f->exposure[c]++;
       }
     }
     r->feat_index = -1;

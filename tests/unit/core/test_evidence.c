@@ -111,7 +111,7 @@ static void test_labels_combine_field_and_evidence(void **state) {
   int lab[3];
   float score[3], margin[3];
   /* No evidence yet: the field's labels and cosines. */
-  vlff_evidence_label(e, xyz, 3, fcos, E, 2, 1, 1.0f, lab, score, margin);
+  vlff_evidence_label(e, xyz, 3, fcos, NULL, 0, E, 2, 1, 1.0f, lab, score, margin);
   assert_int_equal(lab[0], 0);
   assert_float_equal(score[0], 0.6f, 1e-6);
   assert_int_equal(lab[2], -1);
@@ -120,7 +120,7 @@ static void test_labels_combine_field_and_evidence(void **state) {
   wall_make(&b, 2.2f, (const float[D]){0, 2, 0, 0});
   char err[256];
   assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
-  vlff_evidence_label(e, xyz, 3, fcos, E, 2, 1, 1.0f, lab, score, margin);
+  vlff_evidence_label(e, xyz, 3, fcos, NULL, 0, E, 2, 1, 1.0f, lab, score, margin);
   assert_int_equal(lab[0], 0);
   assert_float_equal(score[0], (0.6f + 1.0f) / 2, 1e-3); /* evidence cosine 1 with prompt 0 */
   assert_float_equal(margin[0], (1.6f - 0.5f) / 2, 1e-3);
@@ -128,18 +128,61 @@ static void test_labels_combine_field_and_evidence(void **state) {
    * cosines 0.24 and 0.97, and the cached cosines follow the new evidence. */
   assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
   assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
-  vlff_evidence_label(e, xyz, 3, fcos, E, 2, 1, 1.0f, lab, score, margin);
+  vlff_evidence_label(e, xyz, 3, fcos, NULL, 0, E, 2, 1, 1.0f, lab, score, margin);
   assert_int_equal(lab[0], 1);
   assert_int_equal(lab[1], 0); /* outside the grid: the field alone */
   assert_float_equal(score[1], 0.6f, 1e-6);
   /* A small weight leaves the field's decision standing. */
-  vlff_evidence_label(e, xyz, 1, fcos, E, 2, 1, 0.1f, lab, NULL, NULL);
+  vlff_evidence_label(e, xyz, 1, fcos, NULL, 0, E, 2, 1, 0.1f, lab, NULL, NULL);
   assert_int_equal(lab[0], 0);
   /* New prompts (the order swapped, another stamp): cosines recomputed. */
   const float E2[2 * D] = {0, 1, 0, 0, 1, 0, 0, 0};
   const float fcos2[2] = {0.5f, 0.6f};
-  vlff_evidence_label(e, xyz, 1, fcos2, E2, 2, 2, 1.0f, lab, NULL, NULL);
+  vlff_evidence_label(e, xyz, 1, fcos2, NULL, 0, E2, 2, 2, 1.0f, lab, NULL, NULL);
   assert_int_equal(lab[0], 0);
+  vlff_evidence_destroy(e);
+}
+
+/* The field counts in proportion to its exposure (training rays in the
+ * point's cell) up to trust_rays, then fully; without evidence it decides
+ * alone however little it was trained. */
+static void test_field_trust_follows_exposure(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  const float E[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
+  /* Two points in the wall's voxel, one outside the grid (no evidence). */
+  const float xyz[9] = {0.1f, 0.1f, 2.2f, 0.1f, 0.1f, 2.2f, 0.1f, 0.1f, 9.0f};
+  const float fcos[6] = {0.9f, 0.1f, 0.9f, 0.1f, 0.9f, 0.1f};
+  struct wall a;
+  wall_make(&a, 2.2f, (const float[D]){0.6f, 0.8f}); /* evidence cosines 0.6 and 0.8 */
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  int lab[3];
+  float score[3], margin[3];
+  /* Not fitted there yet (0 rays), and a tenth of the way (5 of 50). */
+  const uint16_t young[3] = {0, 5, 0};
+  vlff_evidence_label(e, xyz, 3, fcos, young, 50, E, 2, 1, 1.0f, lab, score, margin);
+  assert_int_equal(lab[0], 1); /* the evidence alone */
+  assert_float_equal(score[0], 0.8f, 1e-3);
+  assert_float_equal(margin[0], 0.2f, 1e-3);
+  assert_int_equal(lab[1], 1); /* 0.09 + 0.6 < 0.01 + 0.8 */
+  assert_float_equal(score[1], (0.01f + 0.8f) / 1.1f, 1e-3);
+  assert_int_equal(lab[2], 0); /* no evidence: the field */
+  assert_float_equal(score[2], 0.9f, 1e-6);
+  /* Half way (25) and beyond (50, 60000): 0.45 + 0.6 > 0.05 + 0.8, then
+   * the usual sum. */
+  const uint16_t older[3] = {25, 50, 60000};
+  vlff_evidence_label(e, xyz, 3, fcos, older, 50, E, 2, 1, 1.0f, lab, score, NULL);
+  assert_int_equal(lab[0], 0);
+  assert_float_equal(score[0], (0.45f + 0.6f) / 1.5f, 1e-3);
+  assert_int_equal(lab[1], 0);
+  assert_float_equal(score[1], (0.9f + 0.6f) / 2, 1e-3);
+  /* trust_rays 0, or no exposure given: the field counts fully. */
+  vlff_evidence_label(e, xyz, 1, fcos, young, 0, E, 2, 1, 1.0f, lab, score, NULL);
+  assert_int_equal(lab[0], 0);
+  vlff_evidence_label(e, xyz, 1, fcos, NULL, 50, E, 2, 1, 1.0f, lab, score, NULL);
+  assert_int_equal(lab[0], 0);
+  assert_float_equal(score[0], (0.9f + 0.6f) / 2, 1e-3);
   vlff_evidence_destroy(e);
 }
 
@@ -228,5 +271,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_views_average_where_depth_ends),
     cmocka_unit_test(test_footprint_reaches_every_voxel),
     cmocka_unit_test(test_labels_combine_field_and_evidence),
+    cmocka_unit_test(test_field_trust_follows_exposure),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_save_load),
     cmocka_unit_test(test_grid_plan))

@@ -363,6 +363,53 @@ static void test_checkpoint(void **state) {
   vlff_field_destroy(c_ref);
 }
 
+/* Exposure counts each training ray with depth once, in the occupancy cell
+ * where its depth ends: the surface the views see, never the free space in
+ * front of it; a loaded field counts as fitted everywhere. */
+static void test_exposure(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  cfg_small(&cfg);
+  char err[512];
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(f);
+  /* The centre pixel's surface point of view 0, its camera, and a point
+   * outside the box. */
+  const struct vlff_view *v = &views[0];
+  float o[3], d[3], pts[9];
+  vlff_camera_ray(v, v->width / 2 + 0.5, v->height / 2 + 0.5, o, d);
+  float dep = v->depth[(size_t)(v->height / 2) * v->width + v->width / 2];
+  assert_true(dep > 0);
+  for (int a = 0; a < 3; a++) pts[a] = o[a] + d[a] * dep, pts[3 + a] = o[a], pts[6 + a] = 9.0f;
+  uint16_t rays[3];
+  vlff_field_exposure(f, pts, 3, rays);
+  assert_int_equal(rays[0], 0);
+  const int steps = 20;
+  for (int i = 0; i < steps; i++) assert_int_equal(vlff_field_step(f, views, NV, NULL, NULL, err, sizeof(err)), 0);
+  vlff_field_exposure(f, pts, 3, rays);
+  assert_true(rays[0] > 0);
+  assert_int_equal(rays[1], 0);
+  assert_int_equal(rays[2], 0);
+  size_t nc = (size_t)f->occ.res * f->occ.res * f->occ.res;
+  long long total = 0;
+  for (size_t i = 0; i < nc; i++) total += f->exposure[i];
+  assert_true(total <= (long long)steps * cfg.train.rays_per_step);
+  assert_true(total >= (long long)steps * cfg.train.rays_per_step / 2); /* most pixels hold depth */
+  char path[512];
+  tmp_path(path, sizeof(path), "expo");
+  assert_int_equal(vlff_field_save(f, path, err, sizeof(err)), 0);
+  struct vlff_field *g = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(g);
+  assert_int_equal(vlff_field_load(g, path, err, sizeof(err)), 0);
+  vlff_field_exposure(g, pts, 3, rays);
+  assert_int_equal(rays[0], UINT16_MAX);
+  assert_int_equal(rays[1], UINT16_MAX);
+  assert_int_equal(rays[2], 0);
+  unlink(path);
+  vlff_field_destroy(f);
+  vlff_field_destroy(g);
+}
+
 static void test_determinism(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -417,5 +464,5 @@ static void test_bad_inputs(void **state) {
 
 VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_folded_equals_unfolded), cmocka_unit_test(test_norm_paths),
-    cmocka_unit_test(test_checkpoint), cmocka_unit_test(test_determinism),
+    cmocka_unit_test(test_checkpoint), cmocka_unit_test(test_exposure), cmocka_unit_test(test_determinism),
     cmocka_unit_test(test_bad_inputs))
