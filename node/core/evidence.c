@@ -159,8 +159,8 @@ int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *
    * keyframes have) places it, and it is averaged once into every voxel
    * those points reach. With the centre alone, a surface voxel that no
    * centre happened to land in had no evidence, and its pixels of the label
-   * image read the field alone: 5-15 % of a newly seen view, where the
-   * field has not trained yet. */
+   * image read the field alone, which in a newly seen view has not been
+   * trained there yet. */
   static const double quarter[4][2] = {{0.25, 0.25}, {0.75, 0.25}, {0.25, 0.75}, {0.75, 0.75}};
   for (int fj = 0; fj < v->feat_height; fj++)
     for (int fi = 0; fi < v->feat_width; fi++) {
