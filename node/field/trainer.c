@@ -926,7 +926,6 @@ static long occ_cell_of(const struct vlff_occupancy *g, const float x[3]) {
     float q = (x[a] - g->box_min[a]) / g->cell[a];
     if (!(q >= 0) || q >= (float)g->res) return -1;
     c[a] = (long)q;
-    if (c[a] >= g->res) c[a] = g->res - 1;
   }
   return c[0] + (long)g->res * (c[1] + (long)g->res * c[2]);
 }
