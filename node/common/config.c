@@ -167,6 +167,7 @@ static const struct key schema[] = {
     ENUM("train.feature_loss", train.feature_loss, feat_losses, "l1"),
     DBL("train.class_balance", train.class_balance, 0, 1, 0),
     DBL("train.near_m", train.near_m, 0, 100, 0.05),
+    DBL("train.depth_noise_m", train.depth_noise_m, 0, 1, 0.01),
     INT("train.occupancy_resolution", train.occupancy_resolution, 8, 512, 64),
     INT("train.occupancy_update_steps", train.occupancy_update_steps, 1, 1 << 20, 16),
     DBL("train.image_scale", train.image_scale, 0.05, 1, 0.5),
@@ -178,7 +179,7 @@ static const struct key schema[] = {
     INT("keyframes.max_keyframes", keyframes.max_keyframes, 1, 1 << 20, 325),
     INT("keyframes.start_after", keyframes.start_after, 1, 1 << 20, 5),
     INT("keyframes.recent", keyframes.recent, 1, 1 << 20, 8),
-    DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0, 100, 0.1),
+    DBL("keyframes.bad_pose_threshold_m", keyframes.bad_pose_threshold_m, 0.01, 100, 0.1),
     INT("keyframes.posecheck_min_steps", keyframes.posecheck_min_steps, 0, 1 << 30, 200),
 
     DBL("publish.rate_hz", publish.rate_hz, 0.01, 1000, 1),

@@ -153,6 +153,7 @@ struct vlff_cfg_train {
   int feature_loss;                /* enum vlff_feat_loss */
   double class_balance;            /* 0..1: ray drawing evens out the raw features' prompt classes */
   double near_m;
+  double depth_noise_m;            /* the depth sensor's noise sigma at 1 m, growing with range squared */
   int occupancy_resolution;
   int occupancy_update_steps;
   double image_scale;              /* training images scaled by this */
@@ -166,7 +167,7 @@ struct vlff_cfg_keyframes {
   int max_keyframes;
   int start_after;                 /* train once this many are held */
   int recent;                      /* the newest this many share half the rays */
-  double bad_pose_threshold_m;     /* median depth residual that rejects */
+  double bad_pose_threshold_m;     /* the map's depth error a good frame shows (select.h) */
   int posecheck_min_steps;         /* the map judges poses only after this much training */
 };
 

@@ -976,19 +976,22 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
         memcpy(ti, n->accepted_inl, (size_t)k * sizeof ti[0]);
         med_r = vlff_medianf(tr, (size_t)k), med_i = vlff_medianf(ti, (size_t)k);
       }
-      enum vlff_posecheck v = vlff_pose_evidence(rd, hit, md, px, 0.15, &ev);
-      if (v != VLFF_POSE_UNKNOWN) v = vlff_pose_verdict(&ev, cfg->keyframes.bad_pose_threshold_m, med_r, med_i);
+      enum vlff_posecheck v = vlff_pose_evidence(rd, hit, md, px, 0.15, cfg->keyframes.bad_pose_threshold_m,
+                                                 cfg->train.depth_noise_m, &ev);
+      if (v != VLFF_POSE_UNKNOWN) v = vlff_pose_verdict(&ev, med_r, med_i);
       pthread_mutex_lock(&n->slock);
       n->st.last_pose_residual_m = ev.residual_m;
       pthread_mutex_unlock(&n->slock);
       if (v == VLFF_POSE_BAD) {
-        VLFF_WARN(TAG, "keyframe %lld rejected: depth residual %.3f m with %.0f %% inliers (recent good: %.3f m, %.0f %%)",
-                  c->id, ev.residual_m, 100 * ev.inlier_frac, med_r, 100 * med_i);
+        VLFF_WARN(TAG,
+                  "keyframe %lld rejected: depth residual %.3f m, %.2f of what a good frame shows at its ranges, "
+                  "with %.0f %% inliers (recent good: %.2f, %.0f %%)",
+                  c->id, ev.residual_m, ev.residual, 100 * ev.inlier_frac, med_r, 100 * med_i);
         ok = false;
       } else if (v == VLFF_POSE_OK) {
-        VLFF_DEBUG(TAG, "keyframe %lld pose ok: depth residual %.3f m, %.0f %% inliers", c->id, ev.residual_m,
-                   100 * ev.inlier_frac);
-        n->accepted_res[n->n_accepted % KF_HISTORY] = (float)ev.residual_m;
+        VLFF_DEBUG(TAG, "keyframe %lld pose ok: depth residual %.3f m (%.2f scaled), %.0f %% inliers", c->id,
+                   ev.residual_m, ev.residual, 100 * ev.inlier_frac);
+        n->accepted_res[n->n_accepted % KF_HISTORY] = (float)ev.residual;
         n->accepted_inl[n->n_accepted % KF_HISTORY] = (float)ev.inlier_frac;
         n->n_accepted++;
       }

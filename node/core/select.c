@@ -103,35 +103,40 @@ float vlff_medianf(float *v, size_t n) {
 }
 
 enum vlff_posecheck vlff_pose_evidence(const float *rendered, const unsigned char *hit, const float *measured,
-                                       size_t n, double min_frac, struct vlff_pose_evidence *ev) {
-  ev->residual_m = ev->inlier_frac = -1;
+                                       size_t n, double min_frac, double floor_m, double noise_1m,
+                                       struct vlff_pose_evidence *ev) {
+  ev->residual_m = ev->residual = ev->inlier_frac = -1;
   ev->usable = 0;
   if (n == 0) return VLFF_POSE_UNKNOWN;
-  /* The residuals are sorted in a small stack buffer: callers render the
+  /* The residuals are sorted in small stack buffers: callers render the
    * check at low resolution, so n stays small. */
   enum { MAXN = 4096 };
-  float r[MAXN];
+  float r[MAXN], z[MAXN];
   size_t m = 0, inliers = 0, step = n > MAXN ? (n + MAXN - 1) / MAXN : 1, considered = 0;
+  double f2 = floor_m * floor_m;
   for (size_t i = 0; i < n; i += step) {
     considered++;
     float d = measured[i], e = rendered[i];
     if (!hit[i] || !(d > 0) || !isfinite(d) || !isfinite(e)) continue;
+    double sig = noise_1m * d * d;
     r[m] = fabsf(e - d);
-    inliers += r[m] < 0.1f + 0.05f * d;
+    z[m] = (float)(r[m] / sqrt(f2 + sig * sig));
+    inliers += z[m] < 2;
     m++;
   }
   ev->usable = m;
   if (m == 0 || (double)m < min_frac * (double)considered) return VLFF_POSE_UNKNOWN;
   ev->residual_m = vlff_medianf(r, m);
+  ev->residual = vlff_medianf(z, m);
   ev->inlier_frac = (double)inliers / (double)m;
   return VLFF_POSE_OK;
 }
 
-enum vlff_posecheck vlff_pose_verdict(const struct vlff_pose_evidence *ev, double floor_m, double recent_residual,
+enum vlff_posecheck vlff_pose_verdict(const struct vlff_pose_evidence *ev, double recent_residual,
                                       double recent_inliers) {
-  if (ev->residual_m < 0) return VLFF_POSE_UNKNOWN;
-  if (ev->residual_m <= floor_m) return VLFF_POSE_OK;
-  if (recent_residual <= 0 || recent_inliers <= 0) return ev->residual_m > 3 * floor_m ? VLFF_POSE_BAD : VLFF_POSE_OK;
-  bool far = ev->residual_m > 1.6 * recent_residual && ev->inlier_frac < 0.8 * recent_inliers;
+  if (ev->residual < 0) return VLFF_POSE_UNKNOWN;
+  if (ev->residual <= 1) return VLFF_POSE_OK;
+  if (recent_residual <= 0 || recent_inliers <= 0) return ev->residual > 3 ? VLFF_POSE_BAD : VLFF_POSE_OK;
+  bool far = ev->residual > 1.6 * recent_residual && ev->inlier_frac < 0.8 * recent_inliers;
   return far ? VLFF_POSE_BAD : VLFF_POSE_OK;
 }

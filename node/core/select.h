@@ -62,25 +62,32 @@ bool vlff_pose_valid(const double c2w[16]);
 enum vlff_posecheck { VLFF_POSE_UNKNOWN, VLFF_POSE_OK, VLFF_POSE_BAD };
 
 struct vlff_pose_evidence {
-  double residual_m;   /* median |rendered - measured| over usable pixels, -1 if none */
-  double inlier_frac;  /* usable pixels within 0.1 m + 5 % of the depth, -1 if none */
+  double residual_m;   /* median |rendered - measured| over usable pixels (m), -1 if none */
+  double residual;     /* median of each pixel's |rendered - measured| / s(d), -1 if none */
+  double inlier_frac;  /* usable pixels with a scaled residual under 2, -1 if none */
   size_t usable;
 };
 
 /* Compare depth rendered from the map at a frame's pose with the frame's
  * measured depth, over pixels where the map is confident (hit != 0) and the
- * measurement is valid. Fewer than min_frac of the pixels usable: UNKNOWN
- * (the map cannot judge yet). */
+ * measurement is valid. Each pixel's residual is scaled by what a good
+ * frame shows at its measured range d: s(d) = sqrt(floor_m^2 + sigma(d)^2),
+ * the map's own error (floor_m) and the sensor's noise sigma(d) = noise_1m
+ * d^2 (a stereo camera's grows with range squared) in quadrature, so a view
+ * down a long sight line is not judged by near views' residuals. Fewer than
+ * min_frac of the pixels usable: UNKNOWN (the map cannot judge yet). */
 enum vlff_posecheck vlff_pose_evidence(const float *rendered, const unsigned char *hit, const float *measured,
-                                       size_t n, double min_frac, struct vlff_pose_evidence *ev);
+                                       size_t n, double min_frac, double floor_m, double noise_1m,
+                                       struct vlff_pose_evidence *ev);
 
-/* The verdict, relative to recently admitted keyframes (recent_residual,
- * recent_inliers: their medians; <= 0 when there are too few). A frame is
- * BAD when its residual exceeds floor_m and disagrees with the map clearly
- * more than good frames do: residual > 1.6x theirs and inliers < 0.8x
- * theirs (a young map disagrees with every frame; a wrong pose with most of
- * it). Without history only a residual above 3 x floor_m is BAD. */
-enum vlff_posecheck vlff_pose_verdict(const struct vlff_pose_evidence *ev, double floor_m, double recent_residual,
+/* The verdict on the scaled residual, relative to recently admitted
+ * keyframes (recent_residual, recent_inliers: their medians; <= 0 when there
+ * are too few). A residual up to 1 (what a good frame shows) is OK. Above
+ * it a frame is BAD when it disagrees with the map clearly more than good
+ * frames do: residual > 1.6x theirs and inliers < 0.8x theirs (a young map
+ * disagrees with every frame; a wrong pose with most of it). Without history
+ * only a residual above 3 is BAD. */
+enum vlff_posecheck vlff_pose_verdict(const struct vlff_pose_evidence *ev, double recent_residual,
                                       double recent_inliers);
 
 #endif

@@ -190,7 +190,7 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
                          int ns, uint64_t *rng, float *t, float *dt);
 int vlff_sample_uniform(float t0, float t1, int ns, uint64_t *rng, float *t, float *dt);
 /* Depth-guided: a band around the measured depth plus free space before it. */
-int vlff_sample_depth(float depth, float t0, float t1, int ns, uint64_t *rng, float *t, float *dt);
+int vlff_sample_depth(float depth, float noise_1m, float t0, float t1, int ns, uint64_t *rng, float *t, float *dt);
 
 /* ---- small shared helpers ---------------------------------------------- */
 static inline uint64_t vlff_rng_next(uint64_t *s) {

@@ -468,7 +468,7 @@ static void chunk_sample(struct vlff_field *f, struct vlff_work *w, struct chunk
           cnt = vlff_sample_uniform(t0, t1, S, &w->rng, tt, &dt);
           for (int s = 0; s < cnt; s++) dd[s] = dt;
         } else if (train && ray->depth > 0) {
-          cnt = vlff_sample_depth(ray->depth, t0, t1, S, &w->rng, tt, dd);
+          cnt = vlff_sample_depth(ray->depth, (float)cfg->train.depth_noise_m, t0, t1, S, &w->rng, tt, dd);
         } else {
           cnt = vlff_sample_occupied(&f->occ, ray->o, ray->d, t0, t1, S, train ? &w->rng : NULL, tt, &dt);
           for (int s = 0; s < cnt; s++) dd[s] = dt;

@@ -3,6 +3,7 @@
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
+#include <stdint.h>
 #include <string.h>
 #include <cmocka.h>
 
@@ -81,35 +82,84 @@ static void test_posecheck(void **st) {
   float ren[N], meas[N];
   unsigned char hit[N];
   struct vlff_pose_evidence ev;
+  /* With no sensor noise a residual is scaled by the floor alone. */
   for (int i = 0; i < N; i++) ren[i] = 2.0f, meas[i] = 2.02f, hit[i] = 1;
   meas[3] = 9; /* an outlier does not move the median */
-  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_OK);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, 0.1, 0, &ev), VLFF_POSE_OK);
   assert_float_equal(ev.residual_m, 0.02, 1e-5);
+  assert_float_equal(ev.residual, 0.2, 1e-4);
   assert_float_equal(ev.inlier_frac, 0.99, 1e-9);
-  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0, 0), VLFF_POSE_OK);
+  assert_int_equal(vlff_pose_verdict(&ev, 0, 0), VLFF_POSE_OK);
   /* Half the view 0.6 m off: far from what good frames show. */
   for (int i = 0; i < N; i++) meas[i] = i % 2 ? 2.6f : 2.02f;
   meas[0] = 2.6f;
-  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_OK);
-  assert_true(ev.residual_m > 0.5 && ev.inlier_frac < 0.5);
-  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.1, 0.85), VLFF_POSE_BAD);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, 0.1, 0, &ev), VLFF_POSE_OK);
+  assert_true(ev.residual_m > 0.5 && ev.residual > 5 && ev.inlier_frac < 0.5);
+  assert_int_equal(vlff_pose_verdict(&ev, 1, 0.85), VLFF_POSE_BAD);
   /* The same evidence when good frames disagree as much: a young map. */
-  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.5, 0.5), VLFF_POSE_OK);
-  /* Without history only a gross residual is bad. */
-  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0, 0), VLFF_POSE_BAD);
-  assert_int_equal(vlff_pose_verdict(&ev, 0.3, 0, 0), VLFF_POSE_OK);
-  /* Below the floor is always fine. */
-  ev.residual_m = 0.05;
-  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.01, 0.99), VLFF_POSE_OK);
+  assert_int_equal(vlff_pose_verdict(&ev, 5, 0.5), VLFF_POSE_OK);
+  /* Without history only a gross residual is bad: 6 floors, not 2. */
+  assert_int_equal(vlff_pose_verdict(&ev, 0, 0), VLFF_POSE_BAD);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, 0.3, 0, &ev), VLFF_POSE_OK);
+  assert_int_equal(vlff_pose_verdict(&ev, 0, 0), VLFF_POSE_OK);
+  /* Within what a good frame shows is always fine. */
+  ev.residual = 0.9;
+  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.99), VLFF_POSE_OK);
   /* Too little of the view is known to the map: no verdict. */
   for (int i = 0; i < N; i++) hit[i] = i < 10;
-  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_UNKNOWN);
-  assert_int_equal(vlff_pose_verdict(&ev, 0.1, 0.1, 0.9), VLFF_POSE_UNKNOWN);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, 0.1, 0, &ev), VLFF_POSE_UNKNOWN);
+  assert_int_equal(vlff_pose_verdict(&ev, 1, 0.9), VLFF_POSE_UNKNOWN);
   /* Invalid measured depth is not evidence. */
   for (int i = 0; i < N; i++) hit[i] = 1, meas[i] = 0;
-  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, &ev), VLFF_POSE_UNKNOWN);
+  assert_int_equal(vlff_pose_evidence(ren, hit, meas, N, 0.2, 0.1, 0, &ev), VLFF_POSE_UNKNOWN);
+}
+
+/* A stereo camera's noise grows with range squared: a good frame looking
+ * down a 6 m sight line shows a median residual near 0.25 m, most of it the
+ * sensor's. Judged in metres against near frames it looked like a wrong
+ * pose; scaled by its range's noise it is a good frame, and a pose 1 m off
+ * along the sight line is still refused. */
+static void test_posecheck_far_view(void **st) {
+  (void)st;
+  enum { N = 2000 };
+  static float ren[N], near_m[N], far_m[N], far_bad[N];
+  static unsigned char hit[N];
+  uint64_t seed = 12345;
+  for (int i = 0; i < N; i++) {
+    /* Box-Muller from a small LCG: the sensor's and the map's errors. */
+    double u[4], g[2];
+    for (int k = 0; k < 4; k++) {
+      seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+      u[k] = ((double)(seed >> 11) + 0.5) / 9007199254740992.0;
+    }
+    for (int k = 0; k < 2; k++) g[k] = sqrt(-2 * log(u[2 * k])) * cos(2 * M_PI * u[2 * k + 1]);
+    hit[i] = 1;
+    near_m[i] = (float)(1.5 + 0.01 * 1.5 * 1.5 * g[0] + 0.05 * g[1]);
+    far_m[i] = (float)(6.0 + 0.01 * 36 * g[0] + 0.05 * g[1]);
+    far_bad[i] = far_m[i] + 1.0f;
+  }
+  struct vlff_pose_evidence ev;
+  /* The near frames a walk admitted before looking down the hall. */
+  for (int i = 0; i < N; i++) ren[i] = 1.5f;
+  assert_int_equal(vlff_pose_evidence(ren, hit, near_m, N, 0.2, 0.1, 0.01, &ev), VLFF_POSE_OK);
+  double near_z = ev.residual, near_in = ev.inlier_frac;
+  assert_true(near_z < 0.5 && near_in > 0.95);
+  for (int i = 0; i < N; i++) ren[i] = 6.0f;
+  /* Judged without the sensor's noise, the far good frame is refused. */
+  assert_int_equal(vlff_pose_evidence(ren, hit, far_m, N, 0.2, 0.1, 0, &ev), VLFF_POSE_OK);
+  assert_true(ev.residual_m > 0.2 && ev.residual_m < 0.3);
+  assert_int_equal(vlff_pose_verdict(&ev, near_z, near_in), VLFF_POSE_BAD);
+  /* With it, the same frame passes. */
+  assert_int_equal(vlff_pose_evidence(ren, hit, far_m, N, 0.2, 0.1, 0.01, &ev), VLFF_POSE_OK);
+  assert_true(ev.residual < 1 && ev.inlier_frac > 0.9);
+  assert_int_equal(vlff_pose_verdict(&ev, near_z, near_in), VLFF_POSE_OK);
+  /* A pose 1 m off along the sight line is still refused. */
+  assert_int_equal(vlff_pose_evidence(ren, hit, far_bad, N, 0.2, 0.1, 0.01, &ev), VLFF_POSE_OK);
+  assert_true(ev.residual > 1 && ev.inlier_frac < 0.8 * near_in);
+  assert_int_equal(vlff_pose_verdict(&ev, near_z, near_in), VLFF_POSE_BAD);
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_time_only), cmocka_unit_test(test_motion_required),
-    cmocka_unit_test(test_pose_valid), cmocka_unit_test(test_posecheck))
+    cmocka_unit_test(test_pose_valid), cmocka_unit_test(test_posecheck),
+    cmocka_unit_test(test_posecheck_far_view))
