@@ -324,10 +324,14 @@ static void test_noisy_depth_unbiased(void **state) {
   /* 0.02 m at 1 m: the noise 2-2.5 m from the room's walls is a 0.01
    * stereo camera's at 3-3.5 m. */
   const int steps = light() ? 80 : 200;
-  double fixed = noisy_depth_bias(0.02, 0, steps), follows = noisy_depth_bias(0.02, 0.02, steps);
-  print_message("median depth error beyond 1.5 m after %d steps: band fixed %.3f m, band following the noise %.3f m\n",
-                steps, fixed, follows);
+  double follows = noisy_depth_bias(0.02, 0.02, steps);
+  print_message("median depth error beyond 1.5 m after %d steps, band following the noise: %.3f m\n", steps, follows);
   assert_true(fabs(follows) < 0.05);
+  /* The fixed band's field shows the test can fail; under an emulator or
+   * the sanitizers the one field is the check (its cost is the binary's). */
+  if (light()) return;
+  double fixed = noisy_depth_bias(0.02, 0, steps);
+  print_message("with the band fixed: %.3f m\n", fixed);
   assert_true(fixed < -0.1);
 }
 
