@@ -7,11 +7,14 @@
  * teardown (NULL for none) and returns cmocka's count of failures. Include it
  * after <cmocka.h>. vlff_test_emulator() names the emulator a cross-built
  * test runs under; vlff_test_in_child() runs a call that may block under an
- * alarm, in a child process.
+ * alarm, in a child process. vlff_test_normal() draws a reproducible
+ * standard normal value from a 64-bit seed it advances.
  */
 #ifndef VLFF_UNIT_H
 #define VLFF_UNIT_H
 
+#include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <sys/wait.h>
@@ -32,6 +35,18 @@ static inline const char *vlff_test_prog(char *buf, size_t cap, const char *rel)
 static inline const char *vlff_test_emulator(void) {
   const char *emu = getenv("VLFF_EMULATOR");
   return emu && *emu ? emu : NULL;
+}
+
+/* A standard normal value, Box-Muller over two uniforms from a 64-bit LCG
+ * (Knuth's MMIX constants) advanced in *seed: sensor noise a test can
+ * reproduce exactly. */
+static inline double vlff_test_normal(uint64_t *seed) {
+  double u[2];
+  for (int k = 0; k < 2; k++) {
+    *seed = *seed * 6364136223846793005ull + 1442695040888963407ull;
+    u[k] = ((double)(*seed >> 11) + 0.5) / 9007199254740992.0;
+  }
+  return sqrt(-2 * log(u[0])) * cos(6.283185307179586 * u[1]);
 }
 
 /* Runs fn(ctx) in a child process that an alarm ends after timeout_s, so

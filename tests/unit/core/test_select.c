@@ -126,13 +126,8 @@ static void test_posecheck_far_view(void **st) {
   static unsigned char hit[N];
   uint64_t seed = 12345;
   for (int i = 0; i < N; i++) {
-    /* Box-Muller from a small LCG: the sensor's and the map's errors. */
-    double u[4], g[2];
-    for (int k = 0; k < 4; k++) {
-      seed = seed * 6364136223846793005ull + 1442695040888963407ull;
-      u[k] = ((double)(seed >> 11) + 0.5) / 9007199254740992.0;
-    }
-    for (int k = 0; k < 2; k++) g[k] = sqrt(-2 * log(u[2 * k])) * cos(2 * M_PI * u[2 * k + 1]);
+    /* The sensor's and the map's errors. */
+    double g[2] = {vlff_test_normal(&seed), vlff_test_normal(&seed)};
     hit[i] = 1;
     near_m[i] = (float)(1.5 + 0.01 * 1.5 * 1.5 * g[0] + 0.05 * g[1]);
     far_m[i] = (float)(6.0 + 0.01 * 36 * g[0] + 0.05 * g[1]);

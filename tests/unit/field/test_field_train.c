@@ -285,12 +285,8 @@ static double noisy_depth_bias(double noise, double band_noise, int steps) {
     truth[k] = malloc((size_t)W * H * sizeof(float));
     memcpy(truth[k], sv[k].depth, (size_t)W * H * sizeof(float));
     for (int i = 0; i < W * H; i++) {
-      double z = sv[k].depth[i], u[2];
-      for (int j = 0; j < 2; j++) {
-        s = s * 6364136223846793005ull + 1442695040888963407ull;
-        u[j] = ((double)(s >> 11) + 0.5) / 9007199254740992.0;
-      }
-      if (z > 0) sv[k].depth[i] = (float)(z + noise * z * z * sqrt(-2 * log(u[0])) * cos(2 * M_PI * u[1]));
+      double z = sv[k].depth[i], g = vlff_test_normal(&s);
+      if (z > 0) sv[k].depth[i] = (float)(z + noise * z * z * g);
     }
     v[k] = sv[k].v;
   }
