@@ -363,12 +363,9 @@ static void test_checkpoint(void **state) {
   vlff_field_destroy(c_ref);
 }
 
-/* Exposure counts each training ray with depth once, in the occupancy cell
- * where its depth ends: the surface the views see, never the free space in
- * front of it; a loaded field counts as fitted everywhere. */
 /* The checkpoint's checksum as docs/field.md states it, written out again
  * here so that the test can forge an older version's file: 64-bit words
- * (little-endian, the tail zero-padded and tagged with its length) mixed as
+ * (host order, the tail zero-padded and tagged with its length) mixed as
  * h ^= w, h *= FNV prime, h ^= h >> 29, from the FNV offset basis. */
 static uint64_t ckpt_sum(const unsigned char *p, size_t n) {
   uint64_t h = 0xcbf29ce484222325ull;
@@ -385,6 +382,10 @@ static uint64_t ckpt_sum(const unsigned char *p, size_t n) {
   }
 }
 
+/* Exposure counts each training ray with depth once, in the occupancy cell
+ * where its depth ends: the surface the views see, never the free space in
+ * front of it. A checkpoint keeps it; one of version 1, which lacks it,
+ * loads as fitted everywhere. */
 static void test_exposure(void **state) {
   (void)state;
   struct vlff_config cfg;
