@@ -1,7 +1,7 @@
 /*
  * Checkpoints: the whole learned state in one versioned binary file.
  *
- * Layout (little-endian host order, checked by a byte-order mark):
+ * Layout (host byte order, checked by a byte-order mark):
  *   header  : magic "VLFFCKPT", version, byte-order mark, config field hash,
  *             array sizes, step, rng, occupancy cursor
  *   arrays  : params, Adam m, Adam v (float32), occupancy density (float32),
@@ -26,7 +26,9 @@
 #define CKPT_MAGIC "VLFFCKPT"
 #define CKPT_VERSION 2u
 /* Version 1 lacks the exposure; it still loads, the field counting as fitted
- * everywhere, so a robot's learned map survives the upgrade. */
+ * everywhere, so a robot's learned map survives the upgrade. Its later
+ * checkpoints carry that on until a mapping reset: nothing tells where an
+ * old field was fitted. */
 #define CKPT_VERSION_NO_EXPOSURE 1u
 #define CKPT_BOM 0x01020304u
 

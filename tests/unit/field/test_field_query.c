@@ -382,6 +382,18 @@ static uint64_t ckpt_sum(const unsigned char *p, size_t n) {
   }
 }
 
+/* Writes the first len bytes of a checkpoint file b to path as the given
+ * version, its checksum recomputed into the last 8 of them. */
+static void forge(const char *path, unsigned char *b, size_t len, uint32_t version) {
+  memcpy(b + 8, &version, 4);
+  uint64_t sum = ckpt_sum(b, len - 8);
+  memcpy(b + len - 8, &sum, 8);
+  FILE *out = fopen(path, "wb");
+  assert_non_null(out);
+  assert_int_equal(fwrite(b, 1, len, out), len);
+  assert_int_equal(fclose(out), 0);
+}
+
 /* Exposure counts each training ray with depth once, in the occupancy cell
  * where its depth ends: the surface the views see, never the free space in
  * front of it. A checkpoint keeps it; one of version 1, which lacks it,
@@ -428,27 +440,33 @@ static void test_exposure(void **state) {
   assert_memory_equal(g->exposure, f->exposure, nc * sizeof *f->exposure);
 
   /* A version-1 checkpoint (written before exposure was saved: the same
-   * file without it) still loads, the field counting as fitted everywhere. */
+   * file without it) still loads, the field counting as fitted everywhere;
+   * a version that disagrees with the body's length is refused, the field
+   * untouched. */
   FILE *in = fopen(path, "rb");
   assert_non_null(in);
   assert_int_equal(fseek(in, 0, SEEK_END), 0);
   long size = ftell(in);
+  assert_true(size > 0);
   rewind(in);
   unsigned char *b = malloc((size_t)size);
+  assert_non_null(b);
   assert_int_equal(fread(b, 1, (size_t)size, in), (size_t)size);
   fclose(in);
-  size_t v1 = (size_t)size - 8 - nc * sizeof(uint16_t);
   uint32_t version;
   memcpy(&version, b + 8, 4);
   assert_int_equal(version, 2);
-  version = 1;
-  memcpy(b + 8, &version, 4);
-  uint64_t sum = ckpt_sum(b, v1);
-  memcpy(b + v1, &sum, 8);
-  FILE *out = fopen(path, "wb");
-  assert_non_null(out);
-  assert_int_equal(fwrite(b, 1, v1 + 8, out), v1 + 8);
-  fclose(out);
+  size_t v1 = (size_t)size - nc * sizeof(uint16_t); /* the same file without the exposure */
+  struct vlff_field *young = trained(&cfg, 2);
+  forge(path, b, (size_t)size, 1); /* version 1 with the exposure */
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  assert_int_equal(vlff_field_steps(young), 2);
+  forge(path, b, v1, 2);           /* version 2 without it */
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "truncated"));
+  assert_int_equal(vlff_field_steps(young), 2);
+  vlff_field_destroy(young);
+  forge(path, b, v1, 1);
   free(b);
   struct vlff_field *h = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
   assert_non_null(h);
