@@ -220,7 +220,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     VLFF_FREE_ALL(p, m, v, dens, occ, expo);
     return -1;
   }
-  VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ);
+  VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ, f->exposure);
   f->params = p;
   f->adam_m = m;
   f->adam_v = v;
@@ -236,8 +236,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
    * fitted everywhere, as before exposure was counted. */
   if (h.version == CKPT_VERSION_NO_EXPOSURE)
     for (size_t i = 0; i < nc; i++) expo[i] = UINT16_MAX;
-  memcpy(f->exposure, expo, nc * sizeof *expo);
-  free(expo);
+  f->exposure = expo;
   vlff_field_refresh(f);
   return 0;
 }
