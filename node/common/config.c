@@ -154,6 +154,7 @@ static const struct key schema[] = {
     DBL("train.beta2", train.beta2, 0, 0.9999999, 0.99),
     DBL("train.eps", train.eps, 0, 1, 1e-15),
     DBL("train.weight_decay", train.weight_decay, 0, 1, 1e-6),
+    DBL("train.weight_average", train.weight_average, 0, 0.9999, 0.99),
     DBL("train.lr_decay", train.lr_decay, 0, 1, 1),
     INT("train.lr_decay_steps", train.lr_decay_steps, 1, 1 << 30, 10000),
     INT("train.rays_per_step", train.rays_per_step, 1, 1 << 20, 1024),

@@ -140,6 +140,7 @@ struct vlff_cfg_train {
   double lr;
   double beta1, beta2, eps;
   double weight_decay;
+  double weight_average;           /* queries read an EMA of the MLP weights with this decay (0 = the latest) */
   double lr_decay;                 /* multiplier applied every lr_decay_steps */
   int lr_decay_steps;
   int rays_per_step;

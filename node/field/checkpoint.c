@@ -6,7 +6,8 @@
  *             array sizes, step, rng, occupancy cursor
  *   arrays  : params, Adam m, Adam v (float32), occupancy density (float32),
  *             occupancy bits (uint8), per-cell exposure (uint16; from
- *             version 2)
+ *             version 2), the averaged MLP weights queries read (float32,
+ *             the MLP's share of params; from version 3)
  *   trailer : 64-bit checksum of everything before it
  * Save writes "<path>.tmp.<pid>", fsyncs, renames over path and fsyncs the
  * directory. Load reads into fresh buffers and swaps them in only after the
@@ -24,12 +25,15 @@
 #include "mem.h"
 
 #define CKPT_MAGIC "VLFFCKPT"
-#define CKPT_VERSION 2u
+#define CKPT_VERSION 3u
 /* Version 1 lacks the exposure; it still loads, the field counting as fitted
  * everywhere, so a robot's learned map survives the upgrade. Its later
  * checkpoints carry that on until a mapping reset: nothing tells where an
  * old field was fitted. */
 #define CKPT_VERSION_NO_EXPOSURE 1u
+/* Versions 1 and 2 lack the averaged weights: the average restarts from
+ * the trained weights, which it follows within a few hundred steps. */
+#define CKPT_VERSION_NO_AVERAGE 2u
 #define CKPT_BOM 0x01020304u
 
 struct ckpt_header {
@@ -139,7 +143,7 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   int rc = write_all(fd, &h, sizeof(h), &s) || write_all(fd, f->params, np, &s) ||
            write_all(fd, f->adam_m, np, &s) || write_all(fd, f->adam_v, np, &s) ||
            write_all(fd, f->occ.density, nc * sizeof(float), &s) || write_all(fd, f->occ.occ, nc, &s) ||
-           write_all(fd, f->exposure, nc * sizeof(uint16_t), &s);
+           write_all(fd, f->exposure, nc * sizeof(uint16_t), &s) || write_all(fd, f->avg, f->nmlp * sizeof(float), &s);
   if (!rc) {
     uint64_t cs = sum_final(&s);
     rc = write_all(fd, &cs, sizeof(cs), NULL);
@@ -171,7 +175,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   struct sum s;
   sum_init(&s);
   const char *why = NULL;
-  float *p = NULL, *m = NULL, *v = NULL, *dens = NULL;
+  float *p = NULL, *m = NULL, *v = NULL, *dens = NULL, *avg = NULL;
   uint8_t *occ = NULL;
   uint16_t *expo = NULL;
   size_t np = f->nparams, nc = ncells(f);
@@ -180,7 +184,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     why = "truncated header";
   else if (memcmp(h.magic, CKPT_MAGIC, 8))
     why = "not a vlff checkpoint (bad magic)";
-  else if (h.version != CKPT_VERSION && h.version != CKPT_VERSION_NO_EXPOSURE)
+  else if (h.version < CKPT_VERSION_NO_EXPOSURE || h.version > CKPT_VERSION)
     why = "unsupported version";
   else if (h.bom != CKPT_BOM)
     why = "written on a machine of other byte order";
@@ -194,7 +198,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     if (posix_memalign((void **)&p, 64, np * sizeof(float)) || posix_memalign((void **)&m, 64, np * sizeof(float)) ||
         posix_memalign((void **)&v, 64, np * sizeof(float)) ||
         posix_memalign((void **)&dens, 64, nc * sizeof(float)) || !(occ = malloc(nc)) ||
-        !(expo = malloc(nc * sizeof *expo)))
+        !(expo = malloc(nc * sizeof *expo)) || posix_memalign((void **)&avg, 64, f->nmlp * sizeof(float)))
       why = "out of memory";
   }
   if (!why) {
@@ -203,7 +207,8 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     if (!r) r = read_all(fd, v, np * sizeof(float), &s);
     if (!r) r = read_all(fd, dens, nc * sizeof(float), &s);
     if (!r) r = read_all(fd, occ, nc, &s);
-    if (!r && h.version != CKPT_VERSION_NO_EXPOSURE) r = read_all(fd, expo, nc * sizeof *expo, &s);
+    if (!r && h.version > CKPT_VERSION_NO_EXPOSURE) r = read_all(fd, expo, nc * sizeof *expo, &s);
+    if (!r && h.version > CKPT_VERSION_NO_AVERAGE) r = read_all(fd, avg, f->nmlp * sizeof(float), &s);
     uint64_t cs = 0;
     if (!r) r = read_all(fd, &cs, sizeof(cs), NULL);
     char extra;
@@ -217,10 +222,10 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   close(fd);
   if (why) {
     if (err && errlen) snprintf(err, errlen, "checkpoint %s: refused: %s", path, why);
-    VLFF_FREE_ALL(p, m, v, dens, occ, expo);
+    VLFF_FREE_ALL(p, m, v, dens, occ, expo, avg);
     return -1;
   }
-  VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ, f->exposure);
+  VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ, f->exposure, f->avg);
   f->params = p;
   f->adam_m = m;
   f->adam_v = v;
@@ -237,6 +242,10 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   if (h.version == CKPT_VERSION_NO_EXPOSURE)
     for (size_t i = 0; i < nc; i++) expo[i] = UINT16_MAX;
   f->exposure = expo;
+  /* The average is what the map was read from: resumed from the trained
+   * weights instead, the map would move by the jitter the average removes. */
+  if (h.version <= CKPT_VERSION_NO_AVERAGE) memcpy(avg, p + f->ntable, f->nmlp * sizeof(float));
+  f->avg = avg;
   vlff_field_refresh(f);
   return 0;
 }

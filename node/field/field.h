@@ -69,7 +69,11 @@ void vlff_field_destroy(struct vlff_field *f);
 
 /* One optimisation step on train.rays_per_step rays drawn from views.
  * weights (may be NULL = uniform) gives each view's share of the rays.
- * Views with features of the wrong D are an error, checked up front. */
+ * Views with features of the wrong D are an error, checked up front.
+ * Queries and renders read a moving average of the MLP weights the steps
+ * train (train.weight_average; 0 = the latest weights): the hash table is
+ * the same, the decoders every point shares do not jitter from step to
+ * step. */
 int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews,
                     const float *weights, struct vlff_train_stats *stats, char *err, size_t errlen);
 
@@ -109,10 +113,11 @@ const float *vlff_field_prompt_embeddings(const struct vlff_field *f, int *k);
 /* How much the field has been fitted at n points: rays[n] = the training
  * rays whose measured depth ended in the point's occupancy cell
  * (train.occupancy_resolution^3 over the box), saturating at 65535; 0
- * outside the box. A field loaded from a checkpoint counts 65535 in every
- * cell (where it was fitted is not saved). Where the camera has only just
- * looked, the field's feature is what the shared decoder says of other
- * places: a map can trust its own fused evidence more there (evidence.h). */
+ * outside the box. Checkpoints keep it; a field loaded from a version-1
+ * checkpoint, which lacks it, counts 65535 in every cell. Where the camera
+ * has only just looked, the field's feature is what the shared decoder
+ * says of other places: a map can trust its own fused evidence more there
+ * (evidence.h). */
 void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n, uint16_t *rays);
 
 /* Render a view at cam's pose and intrinsics (cam->rgb/depth/features are

@@ -263,6 +263,11 @@ struct vlff_field {
   float *params, *adam_m, *adam_v;
   float *grad;             /* the MLP gradient, summed over threads (the table's is in vlff_work) */
   float *wT;               /* transposed MLP weights, MLP-relative offsets */
+  /* The MLP weights queries and renders read (and the prompt fold is made
+   * from): an exponential moving average of the trained ones with decay
+   * train.weight_average per step, and its transposes. Training reads and
+   * updates params; the average only follows. */
+  float *avg, *avgT;
   struct vlff_adam adam;
   struct vlff_occupancy occ;
   /* Training rays whose measured depth ended in each occupancy cell (res^3,
@@ -302,15 +307,19 @@ struct vlff_field {
 
 static inline float *vlff_mlp_params(struct vlff_field *f) { return f->params + f->ntable; }
 
-/* Forward through encoding and MLP1 for n normalised points of work w;
- * fills w->sigma and w->a1 (out layer = [density raw, code]). */
-void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *p, int n);
+/* Forward through encoding and MLP1 (MLP weights pm: vlff_mlp_params for
+ * training, f->avg for queries) for n normalised points of work w; fills
+ * w->sigma and w->a1 (out layer = [density raw, code]). */
+void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *pm, const float *p, int n);
 /* Work chunk of rays [r0, r0+nr) of the given rays: samples, forward,
  * optional loss + backward (train). */
 void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
                       float *pslot, float *dencslot, int *nsamples);
 /* Refresh derived data after parameters change (transposes, folded prompts). */
 void vlff_field_refresh(struct vlff_field *f);
+/* After f->params was set wholesale (init, a test): the average restarts
+ * from it, and everything derived is refreshed. */
+void vlff_field_reset_average(struct vlff_field *f);
 /* Refresh the prompt fold and Gram factor if a step made them stale. */
 void vlff_field_fold(struct vlff_field *f);
 void vlff_field_occupancy_update(struct vlff_field *f, int full);

@@ -143,7 +143,7 @@ static void query_task(void *ctx, int task, int thread) {
   struct vlff_field *f = q->f;
   struct vlff_work *w = &f->work[thread];
   const int H = f->H, D = f->D, K = f->K, geo = f->geo;
-  const float *pm = vlff_mlp_params(f);
+  const float *pm = f->avg;
   size_t a = (size_t)task * VLFF_QUERY_BLOCK;
   int n = (int)(q->n - a < VLFF_QUERY_BLOCK ? q->n - a : VLFF_QUERY_BLOCK);
   uint32_t idx[VLFF_QUERY_BLOCK];
@@ -152,7 +152,7 @@ static void query_task(void *ctx, int task, int thread) {
     idx[i] = (uint32_t)(a + i);
     inside[i] = (unsigned char)vlff_encoding_normalise(&f->enc, q->xyz + 3 * (size_t)idx[i], w->p + 3 * i);
   }
-  vlff_field_density(f, w, w->p, n);
+  vlff_field_density(f, w, f->avg, w->p, n);
   if (q->density)
     for (int i = 0; i < n; i++) q->density[idx[i]] = inside[i] ? w->sigma[i] : 0.0f;
   int need_h = q->feature || q->label || q->score || q->margin || q->cosine;
@@ -338,7 +338,7 @@ static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct
       }
     }
     if (!nb) break;
-    vlff_field_density(f, w, w->p, nb);
+    vlff_field_density(f, w, f->avg, w->p, nb);
     w->samples += nb;
     const float *out1 = w->a1[f->m1.nl - 1];
     for (int b = 0; b < nb; b++) {
@@ -365,7 +365,7 @@ static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct
       }
     }
   }
-  const float *pm = vlff_mlp_params(f);
+  const float *pm = f->avg;
   if (n2) {
     for (int k = 0; k < n2; k++) {
       int id = w->sel3[k], r = id / S;
@@ -422,7 +422,7 @@ static void render_task(void *ctx, int task, int thread) {
       for (int c = 0; c < 3; c++) rc->rgb[3 * pix + c] = w->rgb[3 * r + c];
     if (rc->depth) rc->depth[pix] = w->depth[r];
   }
-  const float *pm = vlff_mlp_params(f);
+  const float *pm = f->avg;
   const struct vlff_mlp *m3 = &f->m3;
   int last = m3->nl - 1;
   if (rc->feature) {

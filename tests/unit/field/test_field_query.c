@@ -143,7 +143,7 @@ static void test_norm_paths(void **state) {
   assert_true(score_error(f, e, K, 400) < 1e-3);
   /* Two hidden units with the same output weights: WᵀW is singular. */
   const struct vlff_mlp *m3 = &f->m3;
-  float *wt = vlff_mlp_params(f) + m3->woff[m3->nl - 1]; /* [H][D] */
+  float *wt = f->avg + m3->woff[m3->nl - 1]; /* [H][D], the weights queries read */
   memcpy(wt + D, wt, D * sizeof(float));
   vlff_field_refresh(f);
   assert_int_equal(f->chol_ok, 0);
@@ -396,8 +396,9 @@ static void forge(const char *path, unsigned char *b, size_t len, uint32_t versi
 
 /* Exposure counts each training ray with depth once, in the occupancy cell
  * where its depth ends: the surface the views see, never the free space in
- * front of it. A checkpoint keeps it; one of version 1, which lacks it,
- * loads as fitted everywhere. */
+ * front of it. A checkpoint keeps it, and the averaged weights; one of
+ * version 1, which lacks both, loads as fitted everywhere, one of version 2
+ * with the average restarted from the trained weights. */
 static void test_exposure(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -438,11 +439,15 @@ static void test_exposure(void **state) {
   vlff_field_exposure(g, pts, 3, back);
   assert_memory_equal(back, rays, sizeof rays);
   assert_memory_equal(g->exposure, f->exposure, nc * sizeof *f->exposure);
+  assert_memory_equal(g->avg, f->avg, f->nmlp * sizeof(float));
+  assert_memory_not_equal(g->avg, vlff_mlp_params(g), f->nmlp * sizeof(float));
+  assert_true(same_queries(f, g));
 
-  /* A version-1 checkpoint (written before exposure was saved: the same
-   * file without it) still loads, the field counting as fitted everywhere;
-   * a version that disagrees with the body's length is refused, the field
-   * untouched. */
+  /* Checkpoints of versions 1 (before exposure was saved) and 2 (before
+   * the average was) are the same file without those arrays. They still
+   * load: the field counting as fitted everywhere (version 1), the
+   * average restarted from the trained weights (both). A version that
+   * disagrees with the body's length is refused, the field untouched. */
   FILE *in = fopen(path, "rb");
   assert_non_null(in);
   assert_int_equal(fseek(in, 0, SEEK_END), 0);
@@ -455,13 +460,27 @@ static void test_exposure(void **state) {
   fclose(in);
   uint32_t version;
   memcpy(&version, b + 8, 4);
-  assert_int_equal(version, 2);
-  size_t v1 = (size_t)size - nc * sizeof(uint16_t); /* the same file without the exposure */
+  assert_int_equal(version, 3);
+  size_t v2 = (size_t)size - f->nmlp * sizeof(float); /* the same file without the average */
+  size_t v1 = v2 - nc * sizeof(uint16_t);              /* ... and without the exposure */
+  /* Each forgery writes its checksum into its last 8 bytes: the longer
+   * files first, so the shorter ones' bodies are still the original. */
   struct vlff_field *young = trained(&cfg, 2);
-  forge(path, b, (size_t)size, 1); /* version 1 with the exposure */
+  forge(path, b, (size_t)size, 2); /* version 2 with the average */
   assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
-  assert_int_equal(vlff_field_steps(young), 2);
-  forge(path, b, v1, 2);           /* version 2 without it */
+  forge(path, b, v2, 3);           /* version 3 without it */
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "truncated"));
+  forge(path, b, v2, 1);           /* version 1 with the exposure */
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  forge(path, b, v2, 2);
+  struct vlff_field *h2 = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(h2);
+  assert_int_equal(vlff_field_load(h2, path, err, sizeof(err)), 0);
+  assert_memory_equal(h2->exposure, f->exposure, nc * sizeof *f->exposure);
+  assert_memory_equal(h2->avg, vlff_mlp_params(f), f->nmlp * sizeof(float));
+  vlff_field_destroy(h2);
+  forge(path, b, v1, 2);           /* version 2 without the exposure */
   assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "truncated"));
   assert_int_equal(vlff_field_steps(young), 2);
@@ -471,7 +490,8 @@ static void test_exposure(void **state) {
   struct vlff_field *h = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
   assert_non_null(h);
   assert_int_equal(vlff_field_load(h, path, err, sizeof(err)), 0);
-  assert_true(same_queries(g, h));
+  assert_memory_equal(h->avg, vlff_mlp_params(f), f->nmlp * sizeof(float));
+  assert_memory_equal(h->params, f->params, f->nparams * sizeof(float));
   vlff_field_exposure(h, pts, 3, back);
   assert_int_equal(back[0], UINT16_MAX);
   assert_int_equal(back[1], UINT16_MAX);
@@ -480,6 +500,49 @@ static void test_exposure(void **state) {
   vlff_field_destroy(f);
   vlff_field_destroy(g);
   vlff_field_destroy(h);
+}
+
+/* Queries read a moving average of the MLP weights
+ * (train.weight_average): each step moves it by 1 - b toward the trained
+ * weights, b = min(decay, (1 + t) / (10 + t)) at step t; it never feeds
+ * back into training; with decay 0 it is the trained weights. */
+static void test_average(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  cfg_small(&cfg);
+  cfg.train.weight_average = 0.99;
+  const int steps = 30;
+  struct vlff_field *a = trained(&cfg, steps);
+  const size_t n = a->nmlp;
+  float *before = malloc(n * sizeof(float));
+  assert_non_null(before);
+  memcpy(before, a->avg, n * sizeof(float));
+  char err[256];
+  assert_int_equal(vlff_field_step(a, views, NV, NULL, NULL, err, sizeof(err)), 0);
+  const float b = fminf(0.99f, (1.0f + steps + 1) / (10.0f + steps + 1)), *p = vlff_mlp_params(a);
+  size_t moved = 0;
+  for (size_t i = 0; i < n; i++) {
+    float want = before[i] + (1.0f - b) * (p[i] - before[i]);
+    assert_true(fabsf(a->avg[i] - want) <= 1e-6f * (1.0f + fabsf(want)));
+    moved += a->avg[i] != before[i];
+  }
+  assert_true(moved > n / 2);
+  assert_memory_not_equal(a->avg, p, n * sizeof(float));
+  free(before);
+  /* The same fit without the average: the same trained weights, which its
+   * queries read; they differ from the averaged field's until it is given
+   * the average as its weights. */
+  struct vlff_config c0 = cfg;
+  c0.train.weight_average = 0;
+  struct vlff_field *z = trained(&c0, steps + 1);
+  assert_memory_equal(z->params, a->params, a->nparams * sizeof(float));
+  assert_memory_equal(z->avg, vlff_mlp_params(z), n * sizeof(float));
+  assert_false(same_queries(a, z));
+  memcpy(vlff_mlp_params(z), a->avg, n * sizeof(float));
+  vlff_field_reset_average(z);
+  assert_true(same_queries(a, z));
+  vlff_field_destroy(a);
+  vlff_field_destroy(z);
 }
 
 static void test_determinism(void **state) {
@@ -536,5 +599,6 @@ static void test_bad_inputs(void **state) {
 
 VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_folded_equals_unfolded), cmocka_unit_test(test_norm_paths),
-    cmocka_unit_test(test_checkpoint), cmocka_unit_test(test_exposure), cmocka_unit_test(test_determinism),
+    cmocka_unit_test(test_checkpoint), cmocka_unit_test(test_exposure), cmocka_unit_test(test_average),
+    cmocka_unit_test(test_determinism),
     cmocka_unit_test(test_bad_inputs))
