@@ -865,6 +865,10 @@ static void average_weights(struct vlff_field *f) {
   const float *p = vlff_mlp_params(f);
   float b = (float)f->cfg.train.weight_average, warm = (1.0f + (float)f->step) / (10.0f + (float)f->step);
   if (warm < b) b = warm;
+  if (b <= 0.0f) { /* exactly the latest: avg + (p - avg) need not round to p */
+    memcpy(f->avg, p, f->nmlp * sizeof(float));
+    return;
+  }
   const float a = 1.0f - b;
   for (size_t i = 0; i < f->nmlp; i++) f->avg[i] += a * (p[i] - f->avg[i]);
 }
