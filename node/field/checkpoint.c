@@ -244,8 +244,8 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   f->exposure = expo;
   /* The average is what the map was read from: resumed from the trained
    * weights instead, the map would move by the jitter the average removes. */
-  if (h.version <= CKPT_VERSION_NO_AVERAGE) memcpy(avg, p + f->ntable, f->nmlp * sizeof(float));
   f->avg = avg;
-  vlff_field_refresh(f);
+  if (h.version <= CKPT_VERSION_NO_AVERAGE) vlff_field_reset_average(f);
+  else vlff_field_refresh(f);
   return 0;
 }

@@ -302,18 +302,10 @@ static void refresh_weights(struct vlff_field *f) {
   f->fold_stale = 1;
 }
 
-void vlff_field_fold(struct vlff_field *f) {
-  if (f->fold_stale) vlff_field_refresh(f);
-}
-
-void vlff_field_reset_average(struct vlff_field *f) {
-  memcpy(f->avg, vlff_mlp_params(f), f->nmlp * sizeof(float));
-  vlff_field_refresh(f);
-}
-
-void vlff_field_refresh(struct vlff_field *f) {
+/* The prompt fold and the Gram factor, from the averaged weights queries
+ * read (the trained weights' transposes are the step's business). */
+static void fold_prompts(struct vlff_field *f) {
   const float *pm = f->avg;
-  refresh_weights(f);
   vlff_mlp_transpose(&f->m3, f->avg, f->avgT);
   f->fold_stale = 0;
   /* Folded prompts: EW = E W (K x H) and Eb = E b; Gram G = WᵀW, u = Wᵀb and
@@ -343,6 +335,20 @@ void vlff_field_refresh(struct vlff_field *f) {
     f->u[h] = s;
   }
   gram_factor(f);
+}
+
+void vlff_field_fold(struct vlff_field *f) {
+  if (f->fold_stale) fold_prompts(f);
+}
+
+void vlff_field_refresh(struct vlff_field *f) {
+  refresh_weights(f);
+  fold_prompts(f);
+}
+
+void vlff_field_reset_average(struct vlff_field *f) {
+  memcpy(f->avg, vlff_mlp_params(f), f->nmlp * sizeof(float));
+  vlff_field_refresh(f);
 }
 
 void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *pm, const float *p, int n) {
