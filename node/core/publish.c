@@ -51,11 +51,13 @@ struct vlff_publisher {
   float *img_score;
   /* The latest camera's label pixels, split by its measured depth: those
    * with a surface point (labelled by a 3D query there) and holes
-   * (rendered). Without depth, or with label_image: render, all are holes. */
+   * (rendered). Without depth, or with label_image: render, all are holes.
+   * snap_xyz: the surface points as labelled, moved onto the field's
+   * surface within the sensor's noise (vlff_field_snap_surface). */
   bool surface;
   uint32_t *sel_pix, *hole_pix;
   size_t nsel, nhole;
-  float *sel_xyz, *sel_score;
+  float *sel_xyz, *snap_xyz, *sel_score;
   int *sel_lab;
   struct vlff_view cam;
   bool have_cam;
@@ -80,7 +82,7 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   vlff_evidence_destroy(p->ev);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
-                p->sel_pix, p->hole_pix, p->sel_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
+                p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
 }
 
 struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub, const struct vlff_cfg_shm *shm,
@@ -127,6 +129,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->sel_pix = malloc(li * sizeof *p->sel_pix);
   p->hole_pix = malloc(li * sizeof *p->hole_pix);
   p->sel_xyz = malloc(li * 3 * sizeof *p->sel_xyz);
+  p->snap_xyz = malloc(li * 3 * sizeof *p->snap_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
   if (pub->evidence_weight > 0) {
@@ -145,7 +148,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   }
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
-      !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->sel_score ||
+      !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
       !p->sel_lab) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
@@ -467,9 +470,14 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     cam.width = p->lw;
     cam.height = p->lh;
     cam.fx *= sx, cam.cx *= sx, cam.fy *= sy, cam.cy *= sy;
+    /* A stereo sensor's single depth is off by a decimetre at a few metres,
+     * where a point query reads free space or the next object; the field
+     * has fitted that surface from every view. */
+    memcpy(p->snap_xyz, p->sel_xyz, p->nsel * 3 * sizeof *p->snap_xyz);
+    if (p->nsel) vlff_field_snap_surface(f, &cam, p->sel_pix, p->nsel, p->snap_xyz);
     if ((!p->nhole ||
          vlff_field_render_pixels(f, &cam, p->hole_pix, p->nhole, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) &&
-        (!p->nsel || label_points(p, f, p->sel_xyz, p->nsel, stamp, p->sel_lab, p->sel_score, NULL) == 0)) {
+        (!p->nsel || label_points(p, f, p->snap_xyz, p->nsel, stamp, p->sel_lab, p->sel_score, NULL) == 0)) {
       for (size_t j = 0; j < p->nsel; j++) {
         p->img_lab[p->sel_pix[j]] = p->sel_lab[j];
         p->img_score[p->sel_pix[j]] = p->sel_score[j];

@@ -772,8 +772,9 @@ static void evidence_labels(struct eval *e, struct vlff_field *fld, const float 
 /* 2D: the held-out frames rendered at the feature-map resolution and
  * segmented: the field alone; and with evidence, the node's label image
  * (publish.label_image: surface): a pixel whose measured depth ends on a
- * surface is labelled there by the field's cosines and the evidence, the
- * rest keep the rendered label. The first --overlays frames are drawn
+ * surface is labelled there (moved onto the field's surface within the
+ * sensor's noise) by the field's cosines and the evidence, the rest keep
+ * the rendered label. The first --overlays frames are drawn
  * beside their truth. */
 static void score_field_2d(struct eval *e, struct vlff_field *fld) {
   struct scene *sc = &e->sc;
@@ -799,6 +800,7 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
       /* the cells the node's label image reads on the measured surface */
       size_t m = vlff_label_surface(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, sc->W, sc->H, f->depth, fw, fh, xyz, pix,
                                     NULL, NULL);
+      vlff_field_snap_surface(fld, &cam, pix, m, xyz);
       evidence_labels(e, fld, xyz, m, lab);
       for (size_t j = 0; j < m; j++) e->pl[pix[j]] = lab[j];
     }

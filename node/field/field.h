@@ -133,6 +133,19 @@ int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *
 int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
                              float *rgb, float *depth, float *feature, int *label, float *score);
 
+/* Measured surface points, refined by the field's surface: xyz[n] (moved in
+ * place) are points a depth sensor measured along the rays of cam's pixels
+ * pix[n]. Each moves along its ray to the field's surface there (the
+ * opacity-weighted depth of the rendered ray, where it is at least half
+ * opaque) when that lies within the measurement's noise band (the band
+ * training samples: 4 cm + 3 % of the depth, at least 3 sigma of
+ * train.depth_noise_m d^2), and stays where it was otherwise. A stereo
+ * sensor's single measurement is off by 9-16 cm at 3-4 m; the field has
+ * fitted that surface from every view. Returns the points moved (0, nothing
+ * moved, for a bad camera or pixel). Costs a render of density alone. */
+size_t vlff_field_snap_surface(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
+                               float *xyz);
+
 /* Atomic checkpoint (temp file, fsync, rename) of the whole learned state;
  * load refuses truncated, corrupt or mismatched (config hash) files and then
  * leaves f untouched. */

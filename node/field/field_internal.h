@@ -191,6 +191,14 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
 int vlff_sample_uniform(float t0, float t1, int ns, uint64_t *rng, float *t, float *dt);
 /* Depth-guided: a band around the measured depth plus free space before it. */
 int vlff_sample_depth(float depth, float noise_1m, float t0, float t1, int ns, uint64_t *rng, float *t, float *dt);
+/* The half-width of the band around a measured depth where the surface
+ * lies: 4 cm + 3 % of the depth, and at least 3 sigma of the sensor's noise
+ * there (noise_1m d^2). Training samples it; the label image's surface
+ * points trust the field's surface within it (vlff_field_snap_surface). */
+static inline float vlff_depth_band(float depth, float noise_1m) {
+  float a = 0.04f + 0.03f * depth, b = 3.0f * noise_1m * depth * depth;
+  return a > b ? a : b;
+}
 
 /* ---- small shared helpers ---------------------------------------------- */
 static inline uint64_t vlff_rng_next(uint64_t *s) {

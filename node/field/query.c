@@ -393,6 +393,23 @@ static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct
   }
 }
 
+/* The camera rays through the centres of nr image pixels from the a-th of
+ * the list pix (NULL: the image's pixels in order); pixel[] gets their
+ * indices. */
+static void pixel_rays(struct vlff_work *w, const struct vlff_view *cam, const uint32_t *list, size_t a, int nr,
+                       size_t *pixel) {
+  for (int r = 0; r < nr; r++) {
+    size_t pix = pixel[r] = list ? list[a + r] : a + r;
+    double u = (double)(pix % cam->width) + 0.5, v = (double)(pix / cam->width) + 0.5;
+    struct vlff_ray *ray = &w->rbuf[r];
+    vlff_camera_ray(cam, u, v, ray->o, ray->d);
+    ray->depth = 0;
+    ray->has_rgb = 0;
+    ray->feat_index = -1;
+    ray->view = 0;
+  }
+}
+
 static void render_task(void *ctx, int task, int thread) {
   struct render_ctx *rc = ctx;
   struct vlff_field *f = rc->f;
@@ -404,17 +421,7 @@ static void render_task(void *ctx, int task, int thread) {
   int nr = (int)(rc->n - a < per ? rc->n - a : per);
   /* The chunk's image pixels: a slice of rc->pix, or a run of the image. */
   size_t pixel[VLFF_QUERY_BLOCK];
-  for (int r = 0; r < nr; r++) pixel[r] = rc->pix ? rc->pix[a + r] : a + r;
-  for (int r = 0; r < nr; r++) {
-    size_t pix = pixel[r];
-    double u = (double)(pix % cam->width) + 0.5, v = (double)(pix / cam->width) + 0.5;
-    struct vlff_ray *ray = &w->rbuf[r];
-    vlff_camera_ray(cam, u, v, ray->o, ray->d);
-    ray->depth = 0;
-    ray->has_rgb = 0;
-    ray->feat_index = -1;
-    ray->view = 0;
-  }
+  pixel_rays(w, cam, rc->pix, a, nr, pixel);
   render_chunk(f, w, w->rbuf, nr, rc->rgb != NULL, rc->feature || rc->label || rc->score);
   for (int r = 0; r < nr; r++) {
     size_t pix = pixel[r];
@@ -466,6 +473,62 @@ int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, 
   if (ntasks > (size_t)1 << 30) return -1;
   vlff_pool_run(f->pool, (int)ntasks, render_task, &rc);
   return 0;
+}
+
+struct snap_ctx {
+  struct vlff_field *f;
+  const struct vlff_view *cam;
+  const uint32_t *pix;
+  size_t n;
+  float *xyz;
+  size_t *moved; /* [tasks] */
+};
+
+/* Density alone along each point's ray (no colour, no feature head); the
+ * ray's surface is its opacity-weighted depth where it is at least half
+ * opaque. */
+static void snap_task(void *ctx, int task, int thread) {
+  struct snap_ctx *sc = ctx;
+  struct vlff_field *f = sc->f;
+  struct vlff_work *w = &f->work[thread];
+  const double *m = sc->cam->c2w;
+  const float noise = (float)f->cfg.train.depth_noise_m;
+  const size_t per = render_rays(f), a = (size_t)task * per;
+  int nr = (int)(sc->n - a < per ? sc->n - a : per);
+  size_t pixel[VLFF_QUERY_BLOCK], moved = 0;
+  pixel_rays(w, sc->cam, sc->pix, a, nr, pixel);
+  render_chunk(f, w, w->rbuf, nr, 0, 0);
+  for (int r = 0; r < nr; r++) {
+    float *q = sc->xyz + 3 * (a + r);
+    double rel[3] = {q[0] - m[3], q[1] - m[7], q[2] - m[11]};
+    double zm = rel[0] * m[2] + rel[1] * m[6] + rel[2] * m[10]; /* along the optical axis */
+    if (!(w->opac[r] >= 0.5f) || !(zm > 0) || !isfinite(zm)) continue;
+    double zr = w->depth[r] / w->opac[r];
+    if (!(fabs(zr - zm) <= vlff_depth_band((float)zm, noise))) continue;
+    for (int k = 0; k < 3; k++) q[k] = (float)(m[4 * k + 3] + rel[k] * (zr / zm));
+    moved++;
+  }
+  sc->moved[task] = moved;
+}
+
+size_t vlff_field_snap_surface(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
+                               float *xyz) {
+  if (!f || !cam || !pix || !xyz || !n || cam->width <= 0 || cam->height <= 0 || !(cam->fx > 0) || !(cam->fy > 0))
+    return 0;
+  size_t npx = (size_t)cam->width * cam->height;
+  for (int k = 0; k < 16; k++)
+    if (!isfinite(cam->c2w[k])) return 0;
+  for (size_t i = 0; i < n; i++)
+    if (pix[i] >= npx) return 0;
+  size_t ntasks = (n + render_rays(f) - 1) / render_rays(f);
+  if (ntasks > (size_t)1 << 30) return 0;
+  size_t *moved = calloc(ntasks, sizeof *moved), total = 0;
+  if (!moved) return 0;
+  struct snap_ctx sc = {f, cam, pix, n, xyz, moved};
+  vlff_pool_run(f->pool, (int)ntasks, snap_task, &sc);
+  for (size_t t = 0; t < ntasks; t++) total += moved[t];
+  free(moved);
+  return total;
 }
 
 int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *rgb, float *depth, float *feature,

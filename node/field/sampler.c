@@ -46,12 +46,11 @@ int vlff_sample_uniform(float t0, float t1, int ns, uint64_t *rng, float *t, flo
 }
 
 int vlff_sample_depth(float depth, float noise_1m, float t0, float t1, int ns, uint64_t *rng, float *t, float *dt) {
-  /* Band half-width: 4 cm + 3 % of the depth, and at least 3 sigma of
-   * the sensor's noise there (noise_1m d^2). Narrower than the noise, the
-   * band of a ray whose measurement fell in front of the surface holds
-   * nothing, and the depth loss grows density there: the surface drifted
-   * toward the camera by about the noise. */
-  float band = fmaxf(0.04f + 0.03f * depth, 3.0f * noise_1m * depth * depth);
+  /* The band (vlff_depth_band) is at least 3 sigma of the sensor's noise:
+   * narrower than the noise, the band of a ray whose measurement fell in
+   * front of the surface holds nothing, and the depth loss grows density
+   * there: the surface drifted toward the camera by about the noise. */
+  float band = vlff_depth_band(depth, noise_1m);
   float b0 = fmaxf(depth - band, t0), b1 = fminf(depth + band, t1);
   if (!(b1 > b0)) return vlff_sample_uniform(t0, t1, ns, rng, t, dt);
   int nfree = b0 - t0 > 1e-3f ? ns / 4 : 0;
