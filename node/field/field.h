@@ -138,11 +138,13 @@ int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, 
  * pix[n]. Each moves along its ray to the field's surface there (the
  * opacity-weighted depth of the rendered ray, where it is at least half
  * opaque) when that lies within the measurement's noise band (the band
- * training samples: 4 cm + 3 % of the depth, at least 3 sigma of
- * train.depth_noise_m d^2), and stays where it was otherwise. A stereo
+ * depth-guided training samples: 4 cm + 3 % of the depth, at least 3 sigma
+ * of train.depth_noise_m d^2), and stays where it was otherwise. A stereo
  * sensor's single measurement is off by 9-16 cm at 3-4 m; the field has
- * fitted that surface from every view. Returns the points moved (0, nothing
- * moved, for a bad camera or pixel). Costs a render of density alone. */
+ * fitted that surface from every view. Returns the points moved; 0, with
+ * nothing moved, also for n = 0, a NULL argument, a non-finite pose,
+ * non-positive focal lengths or any pixel outside the image. Costs a
+ * render of density alone. */
 size_t vlff_field_snap_surface(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
                                float *xyz);
 

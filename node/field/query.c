@@ -394,8 +394,7 @@ static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct
 }
 
 /* The camera rays through the centres of nr image pixels from the a-th of
- * the list pix (NULL: the image's pixels in order); pixel[] gets their
- * indices. */
+ * list (NULL: the image's pixels in order); pixel[] gets their indices. */
 static void pixel_rays(struct vlff_work *w, const struct vlff_view *cam, const uint32_t *list, size_t a, int nr,
                        size_t *pixel) {
   for (int r = 0; r < nr; r++) {

@@ -265,47 +265,69 @@ static double median(float *x, size_t n) {
   return x[n / 2];
 }
 
+/* The point at depth z on pixel i's ray of view v. */
+static void ray_point(const struct vlff_view *v, size_t i, float z, float *x) {
+  float o[3], d[3];
+  vlff_camera_ray(v, (double)(i % v->width) + 0.5, (double)(i / v->width) + 0.5, o, d);
+  for (int a = 0; a < 3; a++) x[a] = o[a] + d[a] * z;
+}
+
 /* The measured surface points of view sv beyond 1.5 m (truth: its true
  * depth), snapped onto field f's surface: returns the median |depth error|
- * after the snap over before it. Also checks what the snap must leave
- * alone: a point a metre behind the surface (outside any noise band), and
- * a list with a pixel outside the image. */
+ * after the snap over before it. Each moved point must stay on its own ray.
+ * Also checks what the snap must leave alone: the nearest point that moved
+ * (the narrowest band) put a metre behind the surface, outside any noise
+ * band; and that point as measured, listed with a pixel outside the image,
+ * which moves nothing. */
 static double snap_gain(struct vlff_field *f, const struct scene_view *sv, const float *truth) {
   const struct vlff_view *v = &sv->v;
   const size_t npx = (size_t)v->width * v->height;
-  float *xyz = malloc(npx * 3 * sizeof(float)), *before = malloc(npx * sizeof(float)),
-        *after = malloc(npx * sizeof(float));
+  float *xyz = malloc(npx * 3 * sizeof(float)), *meas = malloc(npx * 3 * sizeof(float)),
+        *before = malloc(npx * sizeof(float)), *after = malloc(npx * sizeof(float));
   uint32_t *pix = malloc(npx * sizeof(uint32_t));
-  float o[3], d[3];
-  size_t n = 0;
+  size_t n = 0, near = SIZE_MAX;
   for (size_t i = 0; i < npx; i++) {
     if (!(truth[i] > 1.5f) || !(v->depth[i] > 0)) continue;
-    vlff_camera_ray(v, (double)(i % v->width) + 0.5, (double)(i / v->width) + 0.5, o, d);
-    for (int a = 0; a < 3; a++) xyz[3 * n + a] = o[a] + d[a] * v->depth[i];
+    ray_point(v, i, v->depth[i], xyz + 3 * n);
     before[n] = fabsf(v->depth[i] - truth[i]);
     pix[n++] = (uint32_t)i;
   }
   assert_true(n > 200);
+  memcpy(meas, xyz, n * 3 * sizeof(float));
   size_t moved = vlff_field_snap_surface(f, v, pix, n, xyz);
   assert_true(moved > n / 2);
+  const double *m = v->c2w;
   for (size_t j = 0; j < n; j++) {
-    /* along its own ray: the camera-z of the moved point */
-    double z = 0;
-    for (int a = 0; a < 3; a++) z += (xyz[3 * j + a] - v->c2w[4 * a + 3]) * v->c2w[4 * a + 2];
+    /* the camera-z of the moved point, which is still on its pixel's ray:
+     * its offset from the camera is parallel to the measured one's */
+    double z = 0, q[3], r[3], c2 = 0;
+    for (int a = 0; a < 3; a++) {
+      q[a] = xyz[3 * j + a] - m[4 * a + 3], r[a] = meas[3 * j + a] - m[4 * a + 3];
+      z += q[a] * m[4 * a + 2];
+    }
+    for (int a = 0; a < 3; a++) c2 += pow(q[(a + 1) % 3] * r[(a + 2) % 3] - q[(a + 2) % 3] * r[(a + 1) % 3], 2);
+    assert_true(sqrt(c2) / sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) < 1e-3);
     after[j] = fabsf((float)z - truth[pix[j]]);
+    bool was_moved = memcmp(xyz + 3 * j, meas + 3 * j, 3 * sizeof(float)) != 0;
+    if (was_moved && (near == SIZE_MAX || truth[pix[j]] < truth[pix[near]])) near = j;
   }
   double gain = median(after, n) / median(before, n);
-  /* a metre behind the wall: no sensor puts it there, the field's surface is
-   * outside its band, it stays */
-  vlff_camera_ray(v, (double)(pix[0] % v->width) + 0.5, (double)(pix[0] / v->width) + 0.5, o, d);
-  float far[3];
-  for (int a = 0; a < 3; a++) far[a] = xyz[a] = o[a] + d[a] * (truth[pix[0]] + 1.0f);
-  assert_int_equal(vlff_field_snap_surface(f, v, pix, 1, xyz), 0);
-  assert_memory_equal(xyz, far, sizeof far);
-  uint32_t bad[2] = {pix[0], (uint32_t)npx};
-  assert_int_equal(vlff_field_snap_surface(f, v, bad, 2, xyz), 0);
-  assert_memory_equal(xyz, far, sizeof far);
-  free(xyz), free(before), free(after), free(pix);
+  /* the nearest point that moved, a metre behind the surface: no sensor
+   * would put it there, the field's surface is outside its band, it stays */
+  assert_true(near != SIZE_MAX);
+  float far[3], x[3];
+  ray_point(v, pix[near], truth[pix[near]] + 1.0f, far);
+  memcpy(x, far, sizeof x);
+  assert_int_equal(vlff_field_snap_surface(f, v, pix + near, 1, x), 0);
+  assert_memory_equal(x, far, sizeof far);
+  /* the measured point that moved, listed with a pixel outside the image */
+  uint32_t bad[2] = {pix[near], (uint32_t)npx};
+  float two[6];
+  memcpy(two, meas + 3 * near, 3 * sizeof(float));
+  memcpy(two + 3, two, 3 * sizeof(float));
+  assert_int_equal(vlff_field_snap_surface(f, v, bad, 2, two), 0);
+  assert_memory_equal(two, meas + 3 * near, 3 * sizeof(float));
+  free(xyz), free(meas), free(before), free(after), free(pix);
   return gain;
 }
 
