@@ -16,7 +16,12 @@
 #include "pixfmt.h"
 
 #define TAG "pair"
-#define HOLD 4 /* frames kept per stream: covers the arrival skew of two devices */
+/* Frames kept per stream: they cover the arrival skew of two devices. A
+ * triggered GigE range camera on a loaded host (the VM's camd_lcam_pair
+ * case under emulation) delivered its frame more than four of a 30 Hz
+ * colour camera's frames after the edge; with four held, the colour frame
+ * of that edge was gone by then and the edge gave no record (2 runs in 8). */
+#define HOLD 8
 
 struct held {
   struct vlff_sink_frame meta;

@@ -530,7 +530,7 @@ static int run_lcam_pair(const char *chip, const char *sim) {
   write_rig(rig, "150., 0., 79.6, 0., 150., 59.4, 0., 0., 1.", "450., 0., 239.5, 0., 450., 179.5, 0., 0., 1.",
             "depth_width: 160\ndepth_height: 120\ncolor_width: 480\ncolor_height: 360\n");
   /* The range camera ticks at 100 Hz so that a triggered frame follows its
-   * edge within a few vimc frames (the pairing holds four of each). */
+   * edge within a few vimc frames (the pairing holds eight of each). */
   snprintf(cameras, sizeof cameras,
            "camera:\n  kind: libcamera\n  device: \"0\"\n  pixel_format: RGB8\n  width: 480\n  height: 360\n"
            "  frame_rate: 30\n  reconnect_max_s: 1\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
