@@ -474,7 +474,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
      * where a point query reads free space or the next object; the field
      * has fitted that surface from every view. */
     memcpy(p->snap_xyz, p->sel_xyz, p->nsel * 3 * sizeof *p->snap_xyz);
-    if (p->nsel) vlff_field_snap_surface(f, &cam, p->sel_pix, p->nsel, p->snap_xyz);
+    vlff_field_snap_surface(f, &cam, p->sel_pix, p->nsel, p->snap_xyz);
     if ((!p->nhole ||
          vlff_field_render_pixels(f, &cam, p->hole_pix, p->nhole, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) &&
         (!p->nsel || label_points(p, f, p->snap_xyz, p->nsel, stamp, p->sel_lab, p->sel_score, NULL) == 0)) {

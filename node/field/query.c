@@ -456,8 +456,12 @@ static void render_task(void *ctx, int task, int thread) {
   }
 }
 
-int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
-                             float *rgb, float *depth, float *feature, int *label, float *score) {
+/* The pool tasks that march n pixels of cam (pix: their indices; NULL: the
+ * whole image, n its size): 0 with *ntasks set, or -1 for a bad camera
+ * (size, focal lengths, a non-finite pose), a pixel outside the image or
+ * too many pixels. */
+static int pixel_tasks(const struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
+                       int *ntasks) {
   if (!f || !cam || cam->width <= 0 || cam->height <= 0 || !(cam->fx > 0) || !(cam->fy > 0)) return -1;
   for (int k = 0; k < 16; k++)
     if (!isfinite(cam->c2w[k])) return -1;
@@ -465,12 +469,20 @@ int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, 
   if (!pix && n != npx) return -1;
   for (size_t i = 0; pix && i < n; i++)
     if (pix[i] >= npx) return -1;
+  size_t t = (n + render_rays(f) - 1) / render_rays(f);
+  if (t > (size_t)1 << 30) return -1;
+  *ntasks = (int)t;
+  return 0;
+}
+
+int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
+                             float *rgb, float *depth, float *feature, int *label, float *score) {
+  int ntasks;
+  if (pixel_tasks(f, cam, pix, n, &ntasks)) return -1;
   vlff_field_fold(f);
   if ((label || score) && f->K == 0) return -1;
   struct render_ctx rc = {f, cam, pix, n, rgb, depth, feature, score, label};
-  size_t ntasks = (n + render_rays(f) - 1) / render_rays(f);
-  if (ntasks > (size_t)1 << 30) return -1;
-  vlff_pool_run(f->pool, (int)ntasks, render_task, &rc);
+  vlff_pool_run(f->pool, ntasks, render_task, &rc);
   return 0;
 }
 
@@ -512,20 +524,13 @@ static void snap_task(void *ctx, int task, int thread) {
 
 size_t vlff_field_snap_surface(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
                                float *xyz) {
-  if (!f || !cam || !pix || !xyz || !n || cam->width <= 0 || cam->height <= 0 || !(cam->fx > 0) || !(cam->fy > 0))
-    return 0;
-  size_t npx = (size_t)cam->width * cam->height;
-  for (int k = 0; k < 16; k++)
-    if (!isfinite(cam->c2w[k])) return 0;
-  for (size_t i = 0; i < n; i++)
-    if (pix[i] >= npx) return 0;
-  size_t ntasks = (n + render_rays(f) - 1) / render_rays(f);
-  if (ntasks > (size_t)1 << 30) return 0;
-  size_t *moved = calloc(ntasks, sizeof *moved), total = 0;
+  int ntasks;
+  if (!pix || !xyz || !n || pixel_tasks(f, cam, pix, n, &ntasks)) return 0;
+  size_t *moved = calloc((size_t)ntasks, sizeof *moved), total = 0;
   if (!moved) return 0;
   struct snap_ctx sc = {f, cam, pix, n, xyz, moved};
-  vlff_pool_run(f->pool, (int)ntasks, snap_task, &sc);
-  for (size_t t = 0; t < ntasks; t++) total += moved[t];
+  vlff_pool_run(f->pool, ntasks, snap_task, &sc);
+  for (int t = 0; t < ntasks; t++) total += moved[t];
   free(moved);
   return total;
 }
