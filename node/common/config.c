@@ -167,6 +167,7 @@ static const struct key schema[] = {
     DBL("train.feature_weight", train.feature_weight, 0, 100, 0.5),
     ENUM("train.feature_loss", train.feature_loss, feat_losses, "l1"),
     DBL("train.class_balance", train.class_balance, 0, 1, 0),
+    DBL("train.error_sampling", train.error_sampling, 0, 4, 0.5),
     DBL("train.near_m", train.near_m, 0, 100, 0.05),
     DBL("train.depth_noise_m", train.depth_noise_m, 0, 1, 0.01),
     INT("train.occupancy_resolution", train.occupancy_resolution, 8, 512, 64),

@@ -153,6 +153,7 @@ struct vlff_cfg_train {
   double feature_weight;
   int feature_loss;                /* enum vlff_feat_loss */
   double class_balance;            /* 0..1: ray drawing evens out the raw features' prompt classes */
+  double error_sampling;           /* >= 0: ray drawing follows each occupancy cell's feature loss */
   double near_m;
   double depth_noise_m;            /* the depth sensor's noise sigma at 1 m, growing with range squared */
   int occupancy_resolution;

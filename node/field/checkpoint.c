@@ -7,13 +7,16 @@
  *   arrays  : params, Adam m, Adam v (float32), occupancy density (float32),
  *             occupancy bits (uint8), per-cell exposure (uint16; from
  *             version 2), the averaged MLP weights queries read (float32,
- *             the MLP's share of params; from version 3)
+ *             the MLP's share of params; from version 3), each cell's
+ *             running feature loss and the candidates' mean (float32 per
+ *             cell, one float64; train.error_sampling; from version 4)
  *   trailer : 64-bit checksum of everything before it
  * Save writes "<path>.tmp.<pid>", fsyncs, renames over path and fsyncs the
  * directory. Load reads into fresh buffers and swaps them in only after the
  * header, sizes and checksum all match, so a bad file leaves f untouched.
  */
 #include <errno.h>
+#include <math.h>
 #include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -25,7 +28,7 @@
 #include "mem.h"
 
 #define CKPT_MAGIC "VLFFCKPT"
-#define CKPT_VERSION 3u
+#define CKPT_VERSION 4u
 /* Version 1 lacks the exposure; it still loads, the field counting as fitted
  * everywhere, so a robot's learned map survives the upgrade. Its later
  * checkpoints carry that on until a mapping reset: nothing tells where an
@@ -34,6 +37,9 @@
 /* Versions 1 and 2 lack the averaged weights: the average restarts from
  * the trained weights, which it follows within a few hundred steps. */
 #define CKPT_VERSION_NO_AVERAGE 2u
+/* Versions 1-3 lack the cells' running losses: error sampling measures them
+ * anew (every cell is drawn as not yet trained until a ray ends there). */
+#define CKPT_VERSION_NO_ERRORS 3u
 #define CKPT_BOM 0x01020304u
 
 struct ckpt_header {
@@ -143,7 +149,8 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   int rc = write_all(fd, &h, sizeof(h), &s) || write_all(fd, f->params, np, &s) ||
            write_all(fd, f->adam_m, np, &s) || write_all(fd, f->adam_v, np, &s) ||
            write_all(fd, f->occ.density, nc * sizeof(float), &s) || write_all(fd, f->occ.occ, nc, &s) ||
-           write_all(fd, f->exposure, nc * sizeof(uint16_t), &s) || write_all(fd, f->avg, f->nmlp * sizeof(float), &s);
+           write_all(fd, f->exposure, nc * sizeof(uint16_t), &s) || write_all(fd, f->avg, f->nmlp * sizeof(float), &s) ||
+           write_all(fd, f->cell_err, nc * sizeof(float), &s) || write_all(fd, &f->err_mean, sizeof f->err_mean, &s);
   if (!rc) {
     uint64_t cs = sum_final(&s);
     rc = write_all(fd, &cs, sizeof(cs), NULL);
@@ -175,7 +182,8 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   struct sum s;
   sum_init(&s);
   const char *why = NULL;
-  float *p = NULL, *m = NULL, *v = NULL, *dens = NULL, *avg = NULL;
+  float *p = NULL, *m = NULL, *v = NULL, *dens = NULL, *avg = NULL, *cerr = NULL;
+  double err_mean = 0;
   uint8_t *occ = NULL;
   uint16_t *expo = NULL;
   size_t np = f->nparams, nc = ncells(f);
@@ -198,7 +206,8 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     if (posix_memalign((void **)&p, 64, np * sizeof(float)) || posix_memalign((void **)&m, 64, np * sizeof(float)) ||
         posix_memalign((void **)&v, 64, np * sizeof(float)) ||
         posix_memalign((void **)&dens, 64, nc * sizeof(float)) || !(occ = malloc(nc)) ||
-        !(expo = malloc(nc * sizeof *expo)) || posix_memalign((void **)&avg, 64, f->nmlp * sizeof(float)))
+        !(expo = malloc(nc * sizeof *expo)) || posix_memalign((void **)&avg, 64, f->nmlp * sizeof(float)) ||
+        !(cerr = malloc(nc * sizeof *cerr)))
       why = "out of memory";
   }
   if (!why) {
@@ -209,6 +218,8 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     if (!r) r = read_all(fd, occ, nc, &s);
     if (!r && h.version > CKPT_VERSION_NO_EXPOSURE) r = read_all(fd, expo, nc * sizeof *expo, &s);
     if (!r && h.version > CKPT_VERSION_NO_AVERAGE) r = read_all(fd, avg, f->nmlp * sizeof(float), &s);
+    if (!r && h.version > CKPT_VERSION_NO_ERRORS) r = read_all(fd, cerr, nc * sizeof *cerr, &s);
+    if (!r && h.version > CKPT_VERSION_NO_ERRORS) r = read_all(fd, &err_mean, sizeof err_mean, &s);
     uint64_t cs = 0;
     if (!r) r = read_all(fd, &cs, sizeof(cs), NULL);
     char extra;
@@ -219,13 +230,20 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     else if (read(fd, &extra, 1) != 0)
       why = "trailing bytes after the checksum";
   }
+  if (!why && h.version > CKPT_VERSION_NO_ERRORS) {
+    /* Each cell's loss is -1 (none yet) or a loss: a forged value would
+     * steer every ray. */
+    if (!(isfinite(err_mean) && err_mean >= 0)) why = "error sampling's mean loss out of range";
+    for (size_t i = 0; !why && i < nc; i++)
+      if (!(isfinite(cerr[i]) && (cerr[i] >= 0 || cerr[i] == -1.0f))) why = "a cell's running loss out of range";
+  }
   close(fd);
   if (why) {
     if (err && errlen) snprintf(err, errlen, "checkpoint %s: refused: %s", path, why);
-    VLFF_FREE_ALL(p, m, v, dens, occ, expo, avg);
+    VLFF_FREE_ALL(p, m, v, dens, occ, expo, avg, cerr);
     return -1;
   }
-  VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ, f->exposure, f->avg);
+  VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ, f->exposure, f->avg, f->cell_err);
   f->params = p;
   f->adam_m = m;
   f->adam_v = v;
@@ -242,6 +260,11 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   if (h.version == CKPT_VERSION_NO_EXPOSURE)
     for (size_t i = 0; i < nc; i++) expo[i] = UINT16_MAX;
   f->exposure = expo;
+  /* Where rays are drawn: resumed without it, the field trains on as if
+   * nothing were fitted (and a resumed run would not repeat the original). */
+  f->cell_err = cerr;
+  f->err_mean = err_mean;
+  if (h.version <= CKPT_VERSION_NO_ERRORS) vlff_field_forget_errors(f);
   /* The average is what the map was read from: resumed from the trained
    * weights instead, the map would move by the jitter the average removes. */
   f->avg = avg;

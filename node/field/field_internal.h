@@ -221,6 +221,7 @@ struct vlff_ray {
   float rgb[3], depth;     /* targets; depth <= 0: none */
   int has_rgb;
   int view, feat_index;    /* feat_index < 0: no feature target */
+  int cell;                /* occupancy cell where the measured depth ends, -1: none */
 };
 
 /* Per-thread scratch, planned at create for one chunk. */
@@ -282,6 +283,11 @@ struct vlff_field {
    * saturating): how much the field has been fitted there
    * (vlff_field_exposure). */
   uint16_t *exposure;
+  /* train.error_sampling: each occupancy cell's running feature loss of the
+   * rays that ended in it (-1: none trained yet), each drawn ray's loss this
+   * step (-1: none), and the running mean of the candidates' cell losses. */
+  float *cell_err, *ray_loss;
+  double err_mean;
   long long step;
   uint64_t rng;
   int occ_cursor;
@@ -320,7 +326,8 @@ static inline float *vlff_mlp_params(struct vlff_field *f) { return f->params + 
  * w->sigma and w->a1 (out layer = [density raw, code]). */
 void vlff_field_density(struct vlff_field *f, struct vlff_work *w, const float *pm, const float *p, int n);
 /* Work chunk of rays [r0, r0+nr) of the given rays: samples, forward,
- * optional loss + backward (train). */
+ * optional loss + backward (train: the rays are f->rays', and each one's
+ * feature loss goes to f->ray_loss). */
 void vlff_field_chunk(struct vlff_field *f, struct vlff_work *w, const struct vlff_ray *rays, int nr, int train,
                       float *pslot, float *dencslot, int *nsamples);
 /* Refresh derived data after parameters change (transposes, folded prompts). */
@@ -333,6 +340,9 @@ void vlff_field_fold(struct vlff_field *f);
 void vlff_field_occupancy_update(struct vlff_field *f, int full);
 /* Draw train.rays_per_step rays into f->rays and set the loss scales;
  * counts = rays with rgb, depth, features (may be NULL). */
+/* Forgets every cell's running loss (train.error_sampling): a new or
+ * reloaded field knows none. */
+void vlff_field_forget_errors(struct vlff_field *f);
 void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
                           int *counts);
 void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d);

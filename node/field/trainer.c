@@ -127,8 +127,8 @@ void vlff_field_destroy(struct vlff_field *f) {
   if (f->work)
     for (int i = 0; i < f->threads; i++) work_free(&f->work[i]);
   VLFF_FREE_ALL(f->work, f->params, f->adam_m, f->adam_v, f->grad, f->wT, f->avg, f->avgT, f->occ.density,
-                f->occ.occ, f->exposure, f->rays, f->step_p, f->step_denc, f->chunk_n, f->E_, f->bal_feat,
-                f->EW, f->EWt, f->Eb, f->G, f->u, f->Rt, f->r12, f);
+                f->occ.occ, f->exposure, f->cell_err, f->ray_loss, f->rays, f->step_p, f->step_denc, f->chunk_n,
+                f->E_, f->bal_feat, f->EW, f->EWt, f->Eb, f->G, f->u, f->Rt, f->r12, f);
 }
 
 struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, int threads,
@@ -200,6 +200,7 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   f->occ.density = xalloc(ncell * fs, &ok);
   f->occ.occ = xalloc(ncell, &ok);
   f->exposure = xalloc(ncell * sizeof *f->exposure, &ok);
+  f->cell_err = xalloc(ncell * sizeof *f->cell_err, &ok);
   {
     /* Occupied when a cell-long interval would stop >= 1 % of the light. */
     float cmin = fminf(f->occ.cell[0], fminf(f->occ.cell[1], f->occ.cell[2]));
@@ -207,6 +208,7 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   }
   f->nrays = f->nrays_max = cfg->train.rays_per_step;
   f->rays = xalloc((size_t)f->nrays * sizeof(struct vlff_ray), &ok);
+  f->ray_loss = xalloc((size_t)f->nrays * fs, &ok);
   int nchunks = step_chunks(f, f->nrays_max);
   size_t slot = (size_t)f->chunk_rays * f->spr;
   f->step_p = xalloc((size_t)nchunks * slot * 3 * fs, &ok);
@@ -243,6 +245,7 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   vlff_mlp_init_params(&f->m2, pm, &f->rng);
   vlff_mlp_init_params(&f->m3, pm, &f->rng);
   memset(f->occ.occ, 1, ncell);
+  vlff_field_forget_errors(f);
   vlff_field_reset_average(f);
   return f;
 }
@@ -636,8 +639,9 @@ static void chunk_losses(struct vlff_field *f, struct vlff_work *w, const struct
         const struct vlff_view *v = &f->views[ray->view];
         const uint16_t *src = v->features + (size_t)ray->feat_index * D;
         vlff_f16_to_f32_n(src, w->tfeat, (size_t)D);
-        w->loss_feat += vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_loss, f->scale_feat, gfr) *
-                        f->scale_feat;
+        float l = vlff_loss_feat(w->fray + (size_t)r * D, w->tfeat, D, f->feat_loss, f->scale_feat, gfr);
+        w->loss_feat += l * f->scale_feat;
+        if (c->train) f->ray_loss[ray - f->rays] = l;
         g->fb[r] = dot_h(D, gfr, b3);
         axpy_h(D, w->wsum[r], gfr, grad + m3->boff[last]);
       } else {
@@ -971,6 +975,37 @@ void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n,
   }
 }
 
+void vlff_field_forget_errors(struct vlff_field *f) {
+  size_t n = (size_t)f->occ.res * f->occ.res * f->occ.res;
+  for (size_t i = 0; i < n; i++) f->cell_err[i] = -1;
+  f->err_mean = 0;
+}
+
+/* The occupancy cell where view v's measured depth at (u, vv) ends: -1
+ * without a valid depth there or outside the box. */
+static long pixel_cell(const struct vlff_field *f, const struct vlff_view *v, double u, double vv) {
+  int px = (int)u, py = (int)vv;
+  if (px >= v->width) px = v->width - 1;
+  if (py >= v->height) py = v->height - 1;
+  float dv = v->depth ? v->depth[(size_t)py * v->width + px] : 0;
+  if (!(isfinite(dv) && dv > 0.01f)) return -1;
+  float o[3], d[3];
+  vlff_camera_ray(v, u, vv, o, d);
+  const float end[3] = {o[0] + d[0] * dv, o[1] + d[1] * dv, o[2] + d[2] * dv};
+  return occ_cell_of(&f->occ, end);
+}
+
+/* The probability of keeping a candidate pixel under train.error_sampling b:
+ * (e / mean)^b below the candidates' running mean cell loss, 1 at or above
+ * it and where its cell has not been trained yet (or it has no depth). */
+static double error_keep(struct vlff_field *f, const struct vlff_view *v, double u, double vv, double b) {
+  long c = pixel_cell(f, v, u, vv);
+  float e = c >= 0 ? f->cell_err[c] : -1;
+  if (!(e >= 0)) return 1;
+  f->err_mean = f->err_mean > 0 ? 0.999 * f->err_mean + 0.001 * e : e;
+  return e < f->err_mean ? pow(e / f->err_mean, b) : 1;
+}
+
 void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
                           int *counts) {
   /* Draw the rays: view by weight, pixel uniformly with sub-pixel jitter.
@@ -978,10 +1013,15 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
    * raw-feature pseudo-class c has running frequency q_c among candidates
    * is kept with probability min(1, (1/(K q_c))^b): walls and floors give
    * up rays to the classes that fill few pixels, which otherwise get too
-   * few feature gradients to survive in the shared grid and MLP. */
+   * few feature gradients to survive in the shared grid and MLP.
+   * With train.error_sampling b, a candidate is also kept with probability
+   * (e / ē)^b when e, the running feature loss of the occupancy cell where
+   * its measured depth ends, is below ē, the candidates' running mean:
+   * fitted surfaces give up rays to what the camera has just seen and to
+   * what the field still gets wrong. */
   double wtot = 0;
   for (int i = 0; i < nviews; i++) wtot += weights ? weights[i] : 1.0;
-  const double bal = f->K > 1 ? f->cfg.train.class_balance : 0;
+  const double bal = f->K > 1 ? f->cfg.train.class_balance : 0, errb = f->cfg.train.error_sampling;
   if (bal > 0 && !(f->bal_freq[0] > 0))
     for (int k = 0; k < f->K; k++) f->bal_freq[k] = 1.0 / f->K;
   int n_rgb = 0, n_depth = 0, n_feat = 0;
@@ -1002,11 +1042,13 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
       }
       v = &views[vi];
       u = vlff_rng_uniform(&f->rng) * v->width, vv = vlff_rng_uniform(&f->rng) * v->height;
-      if (!(bal > 0) || !v->features) break;
-      int c = pseudo_class(f, v, u, vv);
-      for (int k = 0; k < f->K; k++) f->bal_freq[k] *= 0.999;
-      f->bal_freq[c] += 0.001;
-      double keep = pow(1.0 / (f->K * f->bal_freq[c]), bal);
+      double keep = errb > 0 ? error_keep(f, v, u, vv, errb) : 1;
+      if (bal > 0 && v->features) {
+        int c = pseudo_class(f, v, u, vv);
+        for (int k = 0; k < f->K; k++) f->bal_freq[k] *= 0.999;
+        f->bal_freq[c] += 0.001;
+        keep *= pow(1.0 / (f->K * f->bal_freq[c]), bal);
+      }
       if (keep >= 1 || vlff_rng_uniform(&f->rng) < keep) break;
     }
     int px = (int)u, py = (int)vv;
@@ -1021,6 +1063,8 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
       n_rgb++;
     }
     r->depth = 0;
+    r->cell = -1;
+    f->ray_loss[i] = -1;
     if (v->depth) {
       float dv = v->depth[(size_t)py * v->width + px];
       if (isfinite(dv) && dv > 0.01f) {
@@ -1029,6 +1073,7 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
         const float end[3] = {r->o[0] + r->d[0] * dv, r->o[1] + r->d[1] * dv, r->o[2] + r->d[2] * dv};
         long c = occ_cell_of(&f->occ, end);
         if (c >= 0 && f->exposure[c] < UINT16_MAX) f->exposure[c]++;
+        r->cell = (int)c;
       }
     }
     r->feat_index = -1;
@@ -1088,6 +1133,14 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   refresh_weights(f);
   double t3 = vlff_seconds();
   f->views = NULL;
+  /* Each ray's feature loss into its cell's running loss (error_sampling). */
+  for (int i = 0; i < f->nrays; i++) {
+    const struct vlff_ray *r = &f->rays[i];
+    float l = f->ray_loss[i];
+    if (r->cell < 0 || !(l >= 0)) continue;
+    float *e = &f->cell_err[r->cell];
+    *e = *e < 0 ? l : 0.8f * *e + 0.2f * l;
+  }
   if (f->cfg.train.sampling != VLFF_SAMPLING_UNIFORM && f->step % f->cfg.train.occupancy_update_steps == 0)
     vlff_field_occupancy_update(f, 0);
 

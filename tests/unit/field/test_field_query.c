@@ -396,9 +396,10 @@ static void forge(const char *path, unsigned char *b, size_t len, uint32_t versi
 
 /* Exposure counts each training ray with depth once, in the occupancy cell
  * where its depth ends: the surface the views see, never the free space in
- * front of it. A checkpoint keeps it, and the averaged weights; one of
- * version 1, which lacks both, loads as fitted everywhere, one of version 2
- * with the average restarted from the trained weights. */
+ * front of it. A checkpoint keeps it, the averaged weights and each cell's
+ * running loss (train.error_sampling); one of version 1, which lacks all
+ * three, loads as fitted everywhere, one of version 2 with the average
+ * restarted from the trained weights, one of version 3 with no loss known. */
 static void test_exposure(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -442,6 +443,12 @@ static void test_exposure(void **state) {
   assert_memory_equal(g->avg, f->avg, f->nmlp * sizeof(float));
   assert_memory_not_equal(g->avg, vlff_mlp_params(g), f->nmlp * sizeof(float));
   assert_true(same_queries(f, g));
+  /* So do the cells' running losses, which decide where rays are drawn. */
+  size_t known = 0;
+  for (size_t i = 0; i < nc; i++) known += f->cell_err[i] >= 0;
+  assert_true(known > 0);
+  assert_memory_equal(g->cell_err, f->cell_err, nc * sizeof *f->cell_err);
+  assert_true(g->err_mean == f->err_mean);
 
   /* Checkpoints of versions 1 (before exposure was saved) and 2 (before
    * the average was) are the same file without those arrays. They still
@@ -460,12 +467,42 @@ static void test_exposure(void **state) {
   fclose(in);
   uint32_t version;
   memcpy(&version, b + 8, 4);
-  assert_int_equal(version, 3);
-  size_t v2 = (size_t)size - f->nmlp * sizeof(float); /* the same file without the average */
+  assert_int_equal(version, 4);
+  size_t v3 = (size_t)size - nc * sizeof(float) - sizeof(double); /* the same file without the losses */
+  size_t v2 = v3 - f->nmlp * sizeof(float); /* ... and without the average */
   size_t v1 = v2 - nc * sizeof(uint16_t);              /* ... and without the exposure */
   /* Each forgery writes its checksum into its last 8 bytes: the longer
    * files first, so the shorter ones' bodies are still the original. */
   struct vlff_field *young = trained(&cfg, 2);
+  /* A loss that is neither -1 nor a loss, or a negative mean, is refused
+   * by name. */
+  unsigned char *bad = malloc((size_t)size);
+  assert_non_null(bad);
+  const float forged_loss = -5.0f;
+  const double forged_mean = -1.0;
+  memcpy(bad, b, (size_t)size);
+  memcpy(bad + v3 - 8 + 7 * sizeof(float), &forged_loss, sizeof forged_loss);
+  forge(path, bad, (size_t)size, 4);
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "running loss out of range"));
+  memcpy(bad, b, (size_t)size);
+  memcpy(bad + size - 16, &forged_mean, sizeof forged_mean);
+  forge(path, bad, (size_t)size, 4);
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "mean loss out of range"));
+  free(bad);
+  forge(path, b, (size_t)size, 3); /* version 3 with the losses */
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  forge(path, b, v3, 4);           /* version 4 without them */
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "truncated"));
+  forge(path, b, v3, 3);
+  struct vlff_field *h3 = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(h3);
+  assert_int_equal(vlff_field_load(h3, path, err, sizeof(err)), 0);
+  assert_memory_equal(h3->avg, f->avg, f->nmlp * sizeof(float));
+  for (size_t i = 0; i < nc; i++) assert_true(h3->cell_err[i] == -1.0f);
+  vlff_field_destroy(h3);
   forge(path, b, (size_t)size, 2); /* version 2 with the average */
   assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
   forge(path, b, v2, 3);           /* version 3 without it */

@@ -596,8 +596,103 @@ static void test_class_balance(void **state) {
   assert_true(fabs(bal - 1.0 / 6) < 0.02);
 }
 
+/* train.error_sampling b: a camera at the origin facing a plane 2 m away;
+ * occupancy cells left of a cell edge near x = -1 m have a running feature
+ * loss of 1, the rest 0.1. A candidate in a cell below the candidates' mean
+ * loss m is kept with probability (e / m)^b, so the high-loss strip's share
+ * of the rays goes from its share of the pixels, p, to p / (p + (1 - p) 0.1
+ * / m), m = p + 0.1 (1 - p); with b = 0 it stays p. */
+static double high_loss_share(double b, double *pixel_share) {
+  struct vlff_config cfg;
+  scene_cfg(&cfg, 8);
+  cfg.node.threads = 1;
+  cfg.train.rays_per_step = 4000;
+  cfg.train.error_sampling = b;
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof err);
+  assert_non_null(f);
+  enum { W = 40, H = 30 };
+  static float depth[W * H];
+  for (int i = 0; i < W * H; i++) depth[i] = 2.0f;
+  struct vlff_view v = {0};
+  v.width = W, v.height = H, v.fx = v.fy = 30, v.cx = 20, v.cy = 15;
+  const double c2w[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  memcpy(v.c2w, c2w, sizeof c2w);
+  v.depth = depth;
+  const struct vlff_occupancy *g = &f->occ;
+  const int edge = (int)((-1.0f - g->box_min[0]) / g->cell[0]);
+  const double xb = g->box_min[0] + edge * g->cell[0];
+  *pixel_share = (v.cx + xb / 2.0 * v.fx) / W;
+  for (long c = 0; c < (long)g->res * g->res * g->res; c++) f->cell_err[c] = c % g->res < edge ? 1.0f : 0.1f;
+  long high = 0, total = 0;
+  for (int draw = 0; draw < 8; draw++) {
+    vlff_field_draw_rays(f, &v, 1, NULL, NULL);
+    if (draw < 3) continue; /* the running mean settles */
+    for (int r = 0; r < f->nrays; r++, total++) high += f->rays[r].cell % g->res < edge;
+  }
+  vlff_field_destroy(f);
+  return (double)high / total;
+}
+
+static void test_error_sampling_share(void **state) {
+  (void)state;
+  double p, plain = high_loss_share(0, &p), follow = high_loss_share(1, &p);
+  double m = p + 0.1 * (1 - p), want = p / (p + (1 - p) * 0.1 / m);
+  print_message("high-loss strip: %.3f of the pixels, %.3f of the rays plain, %.3f following the loss (expected %.3f)\n",
+                p, plain, follow, want);
+  assert_true(fabs(plain - p) < 0.015);
+  assert_true(fabs(follow - want) < 0.02);
+}
+
+/* With real losses: a field trained on four views from one side of the
+ * room, then drawing from those four and one from the opposite side. Error
+ * sampling keeps every candidate whose cell no ray has ended in yet (no
+ * loss known) and gives up the fitted cells' below-mean ones, so the rays
+ * that end on surfaces never trained on grow from their share of the
+ * pixels (by a fifth here: most fitted cells' losses sit near the mean). */
+static double untrained_share(double b) {
+  const int d = 16;
+  struct vlff_config cfg;
+  scene_cfg(&cfg, d);
+  cfg.train.rays_per_step = 512;
+  cfg.train.error_sampling = b;
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof err);
+  assert_non_null(f);
+  struct scene_view sv[5];
+  struct vlff_view v[5];
+  for (int k = 0; k < 5; k++) {
+    double c2w[16];
+    scene_pose(k < 4 ? k : 8, 16, c2w);
+    scene_render(&sv[k], 40, 30, d, c2w);
+    v[k] = sv[k].v;
+  }
+  for (int i = 0; i < (light() ? 20 : 60); i++) assert_int_equal(vlff_field_step(f, v, 4, NULL, NULL, err, sizeof err), 0);
+  long fresh = 0, total = 0;
+  for (int draw = 0; draw < 16; draw++) {
+    vlff_field_draw_rays(f, v, 5, NULL, NULL);
+    for (int r = 0; r < f->nrays; r++) {
+      int c = f->rays[r].cell;
+      total += c >= 0;
+      fresh += c >= 0 && f->cell_err[c] < 0;
+    }
+  }
+  for (int k = 0; k < 5; k++) scene_view_free(&sv[k]);
+  vlff_field_destroy(f);
+  return (double)fresh / total;
+}
+
+static void test_error_sampling_new_view(void **state) {
+  (void)state;
+  double plain = untrained_share(0), follow = untrained_share(1);
+  print_message("rays ending on surfaces never trained on: %.3f plain, %.3f following the loss\n", plain, follow);
+  assert_true(plain > 0.02);
+  assert_true(follow > 1.1 * plain);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_ray_budget), cmocka_unit_test(test_level_mask),
     cmocka_unit_test(test_marks_wrap), cmocka_unit_test(test_slab),
     cmocka_unit_test(test_chunk_gradient), cmocka_unit_test(test_class_balance),
+    cmocka_unit_test(test_error_sampling_share), cmocka_unit_test(test_error_sampling_new_view),
     cmocka_unit_test(test_convergence), cmocka_unit_test(test_noisy_depth_unbiased))
