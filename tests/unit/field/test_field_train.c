@@ -553,15 +553,24 @@ static void test_marks_wrap(void **state) {
  * balancing a tenth of the rays land there; with it the dominant class is
  * capped at the mean frequency, so the rare class gets 1/6 of the rays
  * (0.1 / (0.1 + 0.5)). Without prompts nothing changes. */
-static double rare_share(double balance, int prompts) {
+/* A one-thread field of D = 8 that draws rays rays per step under
+ * train.class_balance balance and train.error_sampling errb. */
+static struct vlff_field *drawing_field(int rays, double balance, double errb) {
   struct vlff_config cfg;
   scene_cfg(&cfg, 8);
   cfg.node.threads = 1;
-  cfg.train.rays_per_step = 2000;
+  cfg.train.rays_per_step = rays;
   cfg.train.class_balance = balance;
+  cfg.train.error_sampling = errb;
   char err[256];
   struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof err);
   assert_non_null(f);
+  return f;
+}
+
+static double rare_share(double balance, int prompts) {
+  struct vlff_field *f = drawing_field(2000, balance, 0);
+  char err[256];
   float emb[2 * 8] = {0};
   emb[0] = 1, emb[8 + 1] = 1;
   if (prompts) assert_int_equal(vlff_field_set_prompts(f, emb, 2, err, sizeof err), 0);
@@ -603,14 +612,7 @@ static void test_class_balance(void **state) {
  * of the rays goes from its share of the pixels, p, to p / (p + (1 - p) 0.1
  * / m), m = p + 0.1 (1 - p); with b = 0 it stays p. */
 static double high_loss_share(double b, double *pixel_share) {
-  struct vlff_config cfg;
-  scene_cfg(&cfg, 8);
-  cfg.node.threads = 1;
-  cfg.train.rays_per_step = 4000;
-  cfg.train.error_sampling = b;
-  char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof err);
-  assert_non_null(f);
+  struct vlff_field *f = drawing_field(4000, 0, b);
   enum { W = 40, H = 30 };
   static float depth[W * H];
   for (int i = 0; i < W * H; i++) depth[i] = 2.0f;
