@@ -16,8 +16,8 @@
  * header, sizes and checksum all match, so a bad file leaves f untouched.
  */
 #include <errno.h>
-#include <math.h>
 #include <fcntl.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>

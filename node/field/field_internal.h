@@ -338,11 +338,11 @@ void vlff_field_reset_average(struct vlff_field *f);
 /* Refresh the prompt fold and Gram factor if a step made them stale. */
 void vlff_field_fold(struct vlff_field *f);
 void vlff_field_occupancy_update(struct vlff_field *f, int full);
+/* Forgets every cell's running loss (train.error_sampling): a new field,
+ * or one loaded from a checkpoint without them, knows none. */
+void vlff_field_forget_errors(struct vlff_field *f);
 /* Draw train.rays_per_step rays into f->rays and set the loss scales;
  * counts = rays with rgb, depth, features (may be NULL). */
-/* Forgets every cell's running loss (train.error_sampling): a new or
- * reloaded field knows none. */
-void vlff_field_forget_errors(struct vlff_field *f);
 void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
                           int *counts);
 void vlff_camera_ray(const struct vlff_view *v, double u, double vv, float *o, float *d);

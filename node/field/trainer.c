@@ -1137,7 +1137,7 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   for (int i = 0; i < f->nrays; i++) {
     const struct vlff_ray *r = &f->rays[i];
     float l = f->ray_loss[i];
-    if (r->cell < 0 || !(l >= 0)) continue;
+    if (r->cell < 0 || !(l >= 0 && isfinite(l))) continue;
     float *e = &f->cell_err[r->cell];
     *e = *e < 0 ? l : 0.8f * *e + 0.2f * l;
   }
