@@ -343,6 +343,11 @@ static double noisy_depth_bias(double noise, double band_noise, int steps, doubl
   cfg.train.rays_per_step = 512;
   cfg.train.samples_per_ray = 16;
   cfg.train.depth_noise_m = band_noise;
+  /* Pixels drawn uniformly, as the thresholds were set: in the sanitizers'
+   * 80 steps, rays drawn by feature loss leave some surfaces too few to fit
+   * their depth yet (snap gain 0.79 against 0.56); at 200 steps both read
+   * 0.51-0.52. This measures the band and the snap, not the draw. */
+  cfg.train.error_sampling = 0;
   char err[256];
   struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
   assert_non_null(f);
@@ -548,11 +553,6 @@ static void test_marks_wrap(void **state) {
   vlff_field_destroy(f);
 }
 
-/* train.class_balance: a view whose raw features say "class 1" on a tenth of
- * it (the left column of feature pixels) and "class 0" elsewhere. Without
- * balancing a tenth of the rays land there; with it the dominant class is
- * capped at the mean frequency, so the rare class gets 1/6 of the rays
- * (0.1 / (0.1 + 0.5)). Without prompts nothing changes. */
 /* A one-thread field of D = 8 that draws rays rays per step under
  * train.class_balance balance and train.error_sampling errb. */
 static struct vlff_field *drawing_field(int rays, double balance, double errb) {
@@ -568,6 +568,11 @@ static struct vlff_field *drawing_field(int rays, double balance, double errb) {
   return f;
 }
 
+/* train.class_balance: a view whose raw features say "class 1" on a tenth of
+ * it (the left column of feature pixels) and "class 0" elsewhere. Without
+ * balancing a tenth of the rays land there; with it the dominant class is
+ * capped at the mean frequency, so the rare class gets 1/6 of the rays
+ * (0.1 / (0.1 + 0.5)). Without prompts nothing changes. */
 static double rare_share(double balance, int prompts) {
   struct vlff_field *f = drawing_field(2000, balance, 0);
   char err[256];
@@ -630,7 +635,11 @@ static double high_loss_share(double b, double *pixel_share) {
   for (int draw = 0; draw < 8; draw++) {
     vlff_field_draw_rays(f, &v, 1, NULL, NULL);
     if (draw < 3) continue; /* the running mean settles */
-    for (int r = 0; r < f->nrays; r++, total++) high += f->rays[r].cell % g->res < edge;
+    for (int r = 0; r < f->nrays; r++, total++) {
+      int c = f->rays[r].cell;
+      assert_true(c >= 0); /* every pixel's depth ends on the plane, inside the box */
+      high += c % g->res < edge;
+    }
   }
   vlff_field_destroy(f);
   return (double)high / total;
@@ -651,7 +660,8 @@ static void test_error_sampling_share(void **state) {
  * sampling keeps every candidate whose cell no ray has ended in yet (no
  * loss known) and gives up the fitted cells' below-mean ones, so the rays
  * that end on surfaces never trained on grow from their share of the
- * pixels (by a fifth here: most fitted cells' losses sit near the mean). */
+ * pixels. At b = 2 (by a third at 60 steps, a sixth at the sanitizers' 20):
+ * most fitted cells' losses sit near the mean, where b = 1 moves a fifth. */
 static double untrained_share(double b) {
   const int d = 16;
   struct vlff_config cfg;
@@ -686,7 +696,7 @@ static double untrained_share(double b) {
 
 static void test_error_sampling_new_view(void **state) {
   (void)state;
-  double plain = untrained_share(0), follow = untrained_share(1);
+  double plain = untrained_share(0), follow = untrained_share(2);
   print_message("rays ending on surfaces never trained on: %.3f plain, %.3f following the loss\n", plain, follow);
   assert_true(plain > 0.02);
   assert_true(follow > 1.1 * plain);
