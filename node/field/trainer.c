@@ -981,18 +981,32 @@ void vlff_field_forget_errors(struct vlff_field *f) {
   f->err_mean = 0;
 }
 
-/* The occupancy cell where view v's measured depth at (u, vv) ends: -1
- * without a valid depth there or outside the box. */
-static long pixel_cell(const struct vlff_field *f, const struct vlff_view *v, double u, double vv) {
+/* View v's measured depth in the pixel holding (u, vv): 0 where it has
+ * none, or none that is finite and beyond 1 cm. */
+static float pixel_depth(const struct vlff_view *v, double u, double vv) {
+  if (!v->depth) return 0;
   int px = (int)u, py = (int)vv;
   if (px >= v->width) px = v->width - 1;
   if (py >= v->height) py = v->height - 1;
-  float dv = v->depth ? v->depth[(size_t)py * v->width + px] : 0;
-  if (!(isfinite(dv) && dv > 0.01f)) return -1;
+  float dv = v->depth[(size_t)py * v->width + px];
+  return isfinite(dv) && dv > 0.01f ? dv : 0;
+}
+
+/* The occupancy cell where the ray o + t d ends at t = depth, -1 outside
+ * the box. */
+static long ray_end_cell(const struct vlff_field *f, const float o[3], const float d[3], float depth) {
+  const float end[3] = {o[0] + d[0] * depth, o[1] + d[1] * depth, o[2] + d[2] * depth};
+  return occ_cell_of(&f->occ, end);
+}
+
+/* The occupancy cell where view v's measured depth at (u, vv) ends: -1
+ * without a valid depth there or outside the box. */
+static long pixel_cell(const struct vlff_field *f, const struct vlff_view *v, double u, double vv) {
+  float dv = pixel_depth(v, u, vv);
+  if (!(dv > 0)) return -1;
   float o[3], d[3];
   vlff_camera_ray(v, u, vv, o, d);
-  const float end[3] = {o[0] + d[0] * dv, o[1] + d[1] * dv, o[2] + d[2] * dv};
-  return occ_cell_of(&f->occ, end);
+  return ray_end_cell(f, o, d, dv);
 }
 
 /* The probability of keeping a candidate pixel under train.error_sampling b:
@@ -1062,19 +1076,14 @@ void vlff_field_draw_rays(struct vlff_field *f, const struct vlff_view *views, i
       for (int ch = 0; ch < 3; ch++) r->rgb[ch] = c[ch] * (1.0f / 255.0f);
       n_rgb++;
     }
-    r->depth = 0;
+    r->depth = pixel_depth(v, u, vv);
     r->cell = -1;
     f->ray_loss[i] = -1;
-    if (v->depth) {
-      float dv = v->depth[(size_t)py * v->width + px];
-      if (isfinite(dv) && dv > 0.01f) {
-        r->depth = dv;
-        n_depth++;
-        const float end[3] = {r->o[0] + r->d[0] * dv, r->o[1] + r->d[1] * dv, r->o[2] + r->d[2] * dv};
-        long c = occ_cell_of(&f->occ, end);
-        if (c >= 0 && f->exposure[c] < UINT16_MAX) f->exposure[c]++;
-        r->cell = (int)c;
-      }
+    if (r->depth > 0) {
+      n_depth++;
+      long c = ray_end_cell(f, r->o, r->d, r->depth);
+      if (c >= 0 && f->exposure[c] < UINT16_MAX) f->exposure[c]++;
+      r->cell = (int)c;
     }
     r->feat_index = -1;
     if (v->features) {
