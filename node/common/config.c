@@ -192,6 +192,7 @@ static const struct key schema[] = {
     DBL("publish.free_density", publish.free_density, 0, 1e6, 1.0),
     DBL("publish.evidence_weight", publish.evidence_weight, 0, 100, 1.0),
     INT("publish.field_trust_rays", publish.field_trust_rays, 0, 65535, 50),
+    DBL("publish.lost_class_ratio", publish.lost_class_ratio, 0, 1, 0.25),
     DBL("publish.evidence_voxel_m", publish.evidence_voxel_m, 0.01, 10, 0.1),
     INT("publish.evidence_max_mb", publish.evidence_max_mb, 1, 1 << 16, 64),
 

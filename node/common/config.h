@@ -181,6 +181,7 @@ struct vlff_cfg_publish {
   double free_density;             /* below: free; unobserved stays unknown */
   double evidence_weight;          /* w of the fused features beside the field's (0: field alone; evidence.h) */
   int field_trust_rays;            /* training rays in a cell before the field counts fully beside evidence (0: always) */
+  double lost_class_ratio;         /* a class the fitted field keeps at under this share of evidence's is read from evidence (0: off) */
   double evidence_voxel_m;         /* their voxel edge */
   int evidence_max_mb;             /* memory for those features */
 };

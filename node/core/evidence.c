@@ -30,6 +30,15 @@ struct vlff_evidence {
   size_t used, cap;
   long long overflow;
   float *tmp;       /* [2 D]: a feature, a mean */
+  /* The census of lost classes (vlff_evidence_census_begin / _end): per
+   * prompt, points of the current pass the fitted field and the evidence
+   * each label so, and the classes the last complete pass found lost, valid
+   * for prompts of lost_stamp. */
+  bool census, census_stamped;
+  uint64_t census_stamp, lost_stamp;
+  unsigned long long n_field[VLFF_FIELD_MAX_PROMPTS], n_ev[VLFF_FIELD_MAX_PROMPTS];
+  bool lost[VLFF_FIELD_MAX_PROMPTS];
+  int nlost;
 };
 
 double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, size_t max_voxels, uint32_t dims[3]) {
@@ -102,6 +111,9 @@ void vlff_evidence_reset(struct vlff_evidence *e) {
   memset(e->slot, 0xff, e->nvox * sizeof *e->slot);
   e->used = 0;
   e->overflow = 0;
+  e->census = false;
+  memset(e->lost, 0, sizeof e->lost);
+  e->nlost = 0;
 }
 
 long vlff_grid_voxel(const double origin[3], double voxel, const uint32_t dims[3], const double x[3]) {
@@ -226,6 +238,42 @@ static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float
   return c;
 }
 
+void vlff_evidence_census_begin(struct vlff_evidence *e) {
+  e->census = true;
+  e->census_stamped = false;
+  memset(e->n_field, 0, sizeof e->n_field);
+  memset(e->n_ev, 0, sizeof e->n_ev);
+}
+
+int vlff_evidence_census_end(struct vlff_evidence *e, double ratio) {
+  if (!e->census) return e->nlost;
+  e->census = false;
+  memset(e->lost, 0, sizeof e->lost);
+  e->nlost = 0;
+  e->lost_stamp = e->census_stamp;
+  for (int k = 0; k < e->max_k && ratio > 0; k++)
+    if (e->n_ev[k] > 0 && (double)e->n_field[k] < ratio * (double)e->n_ev[k]) e->lost[k] = true, e->nlost++;
+  return e->nlost;
+}
+
+bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long *n_field, unsigned long long *n_ev) {
+  if (k < 0 || k >= e->max_k) return false;
+  if (n_field) *n_field = e->n_field[k];
+  if (n_ev) *n_ev = e->n_ev[k];
+  return e->lost[k];
+}
+
+/* The best of K values, and the gap to the second in *gap (may be NULL). */
+static int argmax(const float *v, int K, float *gap) {
+  int b = 0;
+  float s = -INFINITY;
+  for (int k = 1; k < K; k++)
+    if (v[k] > v[b]) s = v[b], b = k;
+    else if (v[k] > s) s = v[k];
+  if (gap) *gap = K > 1 ? v[b] - s : 0.0f;
+  return b;
+}
+
 void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
                          const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
                          int *label, float *score, float *margin) {
@@ -234,6 +282,8 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
     memset(e->dirty, 1, e->used);
     e->stamp = stamp, e->stamp_k = K;
   }
+  if (e->census && !e->census_stamped) e->census_stamp = stamp, e->census_stamped = true;
+  const bool count = e->census && e->census_stamp == stamp, restore = e->nlost && e->lost_stamp == stamp;
   for (size_t i = 0; i < n; i++) {
     const float *fc = fcos + i * (size_t)K, *ec = NULL;
     double x[3] = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
@@ -252,6 +302,19 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
       else if (v > b2) b2 = v;
     }
     float scale = ec && a + w > 0 ? 1.0f / (a + w) : 1.0f;
+    if (ec && any) {
+      float gap;
+      const int ke = argmax(ec, K, &gap);
+      /* Only a fitted field's label says what it keeps of a class. */
+      if (count && a >= 1.0f) e->n_field[argmax(fc, K, NULL)]++, e->n_ev[ke]++;
+      if (restore && e->lost[ke] && ke != best) {
+        /* A class the field has lost is read from the evidence wherever it
+         * finds it: that class's sum, and the evidence's own margin. */
+        best = ke;
+        b1 = a * fc[ke] + w * ec[ke];
+        b2 = b1 - w * gap;
+      }
+    }
     label[i] = any ? best : -1;
     if (score) score[i] = any ? b1 * scale : 0.0f;
     if (margin) margin[i] = any && K > 1 ? (b1 - b2) * scale : 0.0f;

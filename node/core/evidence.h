@@ -27,6 +27,7 @@
 #ifndef VLFF_EVIDENCE_H
 #define VLFF_EVIDENCE_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -91,6 +92,24 @@ int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out);
 void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
                          const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
                          int *label, float *score, float *margin);
+
+/* Lost classes. The field is a shared decoder: over a large scene it can
+ * give a whole object's class away to a look-alike (its every point labelled
+ * the look-alike), which no per-point weight w undoes without giving up the
+ * field's denoising everywhere else. A census counts, over the points
+ * labelled between census_begin and census_end (the publisher's whole 3D
+ * map) that have evidence and where the field is fully trusted, the points
+ * whose field cosines and whose evidence cosines each pick prompt k.
+ * census_end(ratio) marks lost every prompt the field picks at fewer than
+ * ratio times the points the evidence picks it at (ratio 0: none), and
+ * returns how many are; from then on vlff_evidence_label gives a point with
+ * evidence the evidence's own best prompt wherever that prompt is lost (its
+ * margin: w times the evidence's best minus second cosine), until the next census_end, a reset, or a change of prompts (stamp).
+ * lost() tells whether prompt k is lost and the last census's counts
+ * (either pointer may be NULL). */
+void vlff_evidence_census_begin(struct vlff_evidence *e);
+int vlff_evidence_census_end(struct vlff_evidence *e, double ratio);
+bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long *n_field, unsigned long long *n_ev);
 
 /* Learned state, saved beside the field (vlff_publisher_save): the bytes
  * of the grid's geometry and every voxel's mean and count. load checks the

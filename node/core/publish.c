@@ -72,6 +72,8 @@ struct vlff_publisher {
   float *qcos; /* [QBLOCK][VLFF_FIELD_MAX_PROMPTS] the field's cosines of a block of points */
   uint16_t *qrays; /* [QBLOCK] the field's exposure there (vlff_field_exposure) */
   int trust_rays;  /* publish.field_trust_rays */
+  double lost_ratio;  /* publish.lost_class_ratio */
+  uint64_t lost_mask; /* the prompts last reported lost (evidence.h, "Lost classes") */
   double last_publish_s, last_heartbeat_s;
 };
 
@@ -138,6 +140,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
     p->D = field->feature_dim;
     p->ev_budget = (size_t)pub->evidence_max_mb << 20;
     p->trust_rays = pub->field_trust_rays;
+    p->lost_ratio = pub->lost_class_ratio;
     p->qcos = malloc(QBLOCK * VLFF_FIELD_MAX_PROMPTS * sizeof *p->qcos);
     p->qrays = malloc(QBLOCK * sizeof *p->qrays);
     if (!p->ev || !p->qcos || !p->qrays) {
@@ -264,6 +267,7 @@ out:
 
 void vlff_publisher_reset(struct vlff_publisher *p) {
   if (p->ev) vlff_evidence_reset(p->ev);
+  p->lost_mask = 0;
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
   memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
@@ -373,6 +377,27 @@ static int label_points(struct vlff_publisher *p, struct vlff_field *f, const fl
   return 0;
 }
 
+/* Tells when the set of lost classes changes: which class, and the census
+ * that says so. */
+static void report_lost(struct vlff_publisher *p, const char *const *prompts, int k, int nlost) {
+  uint64_t mask = 0;
+  for (int c = 0; c < k && c < 64 && nlost; c++)
+    if (vlff_evidence_lost(p->ev, c, NULL, NULL)) mask |= 1ull << c;
+  for (int c = 0; c < k && c < 64; c++) {
+    if (!((mask ^ p->lost_mask) >> c & 1)) continue;
+    unsigned long long nf, ne;
+    vlff_evidence_lost(p->ev, c, &nf, &ne);
+    if (mask >> c & 1)
+      VLFF_INFO("publish",
+                "the field labels '%s' at %llu map points, the evidence at %llu: a class it has given away, read "
+                "from the evidence there",
+                prompts[c], nf, ne);
+    else
+      VLFF_INFO("publish", "the field keeps '%s' again (%llu map points, the evidence %llu)", prompts[c], nf, ne);
+  }
+  p->lost_mask = mask;
+}
+
 int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *v, uint64_t t_ns, long long frame_id,
                               char *err, size_t errlen) {
   if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
@@ -441,10 +466,14 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     const float *E = vlff_field_prompt_embeddings(f, &K);
     stamp = vlff_fnv1a64(VLFF_FNV1A64_INIT, E, (size_t)K * p->D * sizeof *E);
   }
+  /* The 3D map is the census of lost classes: this pass counts, the next
+   * publish (and this one's label image) reads what it found. */
+  if (p->ev) vlff_evidence_census_begin(p->ev);
   if (nocc && label_points(p, f, p->qxyz, nocc, stamp, p->qlabel, NULL, p->qmargin)) {
     snprintf(err, errlen, "field query of %zu occupied voxels failed", nocc);
     return -1;
   }
+  if (p->ev) report_lost(p, prompts, k, vlff_evidence_census_end(p->ev, p->lost_ratio));
   for (size_t j = 0; j < nocc; j++) {
     size_t i = p->qidx[j];
     if (p->qlabel[j] >= 0) {

@@ -893,10 +893,30 @@ static void score_field_3d_reference(struct eval *e, struct vlff_field *fld) {
   summarize(&e->r3_field_ref);
 }
 
+/* The census of lost classes over the labelled points, as the node's 3D
+ * map takes it (evidence.h, "Lost classes"), before anything is labelled. */
+static void census(struct eval *e, struct vlff_field *fld) {
+  const size_t np = e->sc.pts.n;
+  int *lab = xcalloc(np, sizeof(int));
+  vlff_evidence_census_begin(e->ev);
+  evidence_labels(e, fld, e->sc.pts.xyz, np, lab);
+  int nlost = vlff_evidence_census_end(e->ev, e->cfg.publish.lost_class_ratio);
+  for (int k = 0; k < e->sc.K && nlost; k++) {
+    unsigned long long nf, ne;
+    if (vlff_evidence_lost(e->ev, k, &nf, &ne))
+      fprintf(stderr, "vlff-eval: the field labels '%s' at %llu points, the evidence at %llu: read from the evidence\n",
+              e->sc.names[k], nf, ne);
+  }
+  free(lab);
+}
+
 static void score_field(struct eval *e, struct vlff_field *fld) {
   char err[1024];
   if (vlff_field_set_prompts(fld, e->emb_raw, e->sc.K, err, sizeof err) < 0) die("%s", err);
-  if (e->cfg.publish.evidence_weight > 0) build_evidence(e);
+  if (e->cfg.publish.evidence_weight > 0) {
+    build_evidence(e);
+    census(e, fld);
+  }
   score_field_2d(e, fld);
   score_field_3d(e, fld);
   score_field_3d_reference(e, fld);

@@ -186,6 +186,76 @@ static void test_field_trust_follows_exposure(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Lost classes: a census over the map finds the prompt the fitted field
+ * gave away (it labels none of the points the evidence labels so), and
+ * later labels read the evidence there; a class the field keeps, an
+ * unfitted field, ratio 0, new prompts and a reset restore nothing. */
+static void test_lost_class_read_from_evidence(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  const float E[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
+  struct wall a, b;
+  wall_make(&a, 2.2f, (const float[D]){0.6f, 0.8f}); /* prompt 1's object: cosines 0.6, 0.8 */
+  wall_make(&b, 3.2f, (const float[D]){0.8f, 0.6f}); /* prompt 0's wall behind it */
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+  /* Four points on each, in four voxels each; the field says prompt 0
+   * everywhere, sure enough that w = 1 keeps its word (0.9 + 0.6 > 0.5 +
+   * 0.8 on the object). */
+  float xyz[8 * 3], fcos[8 * 2];
+  for (int i = 0; i < 8; i++) {
+    xyz[3 * i] = i & 1 ? 0.1f : -0.1f, xyz[3 * i + 1] = i & 2 ? 0.1f : -0.1f, xyz[3 * i + 2] = i < 4 ? 2.2f : 3.2f;
+    fcos[2 * i] = 0.9f, fcos[2 * i + 1] = 0.5f;
+  }
+  const uint16_t fitted[8] = {60, 60, 60, 60, 60, 60, 60, 60}, young[8] = {10, 10, 10, 10, 10, 10, 10, 10};
+  int lab[8];
+  float margin[8];
+  unsigned long long nf, ne;
+  /* An unfitted field's labels count for nothing. */
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, 8, fcos, young, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 0);
+  assert_false(vlff_evidence_lost(e, 1, &nf, &ne));
+  assert_true(nf == 0 && ne == 0);
+  /* The census pass itself labels as before: prompt 1 is gone. */
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  for (int i = 0; i < 8; i++) assert_int_equal(lab[i], 0);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
+  assert_true(vlff_evidence_lost(e, 1, &nf, &ne));
+  assert_true(nf == 0 && ne == 4);
+  assert_false(vlff_evidence_lost(e, 0, &nf, &ne));
+  assert_true(nf == 8 && ne == 4);
+  /* From now on the object reads the evidence, with the evidence's margin
+   * (0.8 - 0.6, halved as every combined margin); the wall stays. */
+  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, margin);
+  for (int i = 0; i < 8; i++) assert_int_equal(lab[i], i < 4 ? 1 : 0);
+  assert_float_equal(margin[0], 0.1f, 1e-3);
+  /* Other prompts (another stamp): nothing is restored for them. */
+  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 7, 1.0f, lab, NULL, NULL);
+  assert_int_equal(lab[0], 0);
+  /* The field keeps one of the four: a quarter is not lost at 0.25. */
+  fcos[1] = 0.95f;
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 0);
+  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(lab[1], 0);
+  assert_int_equal(lab[0], 1); /* the field's own word there */
+  /* Ratio 0 marks nothing; a reset forgets what was lost. */
+  fcos[1] = 0.5f;
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0), 0);
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
+  vlff_evidence_reset(e);
+  assert_false(vlff_evidence_lost(e, 1, NULL, NULL));
+  vlff_evidence_destroy(e);
+}
+
 /* A full budget leaves further voxels to the field, counted; bad values in
  * a view are skipped; a view of another D is refused. */
 static void test_budget_and_bad_values(void **state) {
@@ -271,6 +341,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_views_average_where_depth_ends),
     cmocka_unit_test(test_footprint_reaches_every_voxel),
     cmocka_unit_test(test_labels_combine_field_and_evidence),
-    cmocka_unit_test(test_field_trust_follows_exposure),
+    cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_save_load),
     cmocka_unit_test(test_grid_plan))
