@@ -238,6 +238,11 @@ static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float
   return c;
 }
 
+/* A class the evidence finds at fewer points is one view's noise (a few
+ * feature pixels leaning the wrong way), not an object the field lost: in the
+ * node's first seconds such classes came and went at every publish. */
+enum { LOST_MIN_POINTS = 10 };
+
 void vlff_evidence_census_begin(struct vlff_evidence *e) {
   e->census = true;
   e->census_stamped = false;
@@ -252,7 +257,8 @@ int vlff_evidence_census_end(struct vlff_evidence *e, double ratio) {
   e->nlost = 0;
   e->lost_stamp = e->census_stamp;
   for (int k = 0; k < e->max_k && ratio > 0; k++)
-    if (e->n_ev[k] > 0 && (double)e->n_field[k] < ratio * (double)e->n_ev[k]) e->lost[k] = true, e->nlost++;
+    if (e->n_ev[k] >= LOST_MIN_POINTS && (double)e->n_field[k] < ratio * (double)e->n_ev[k])
+      e->lost[k] = true, e->nlost++;
   return e->nlost;
 }
 

@@ -101,11 +101,13 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
  * map) that have evidence and where the field is fully trusted, the points
  * whose field cosines and whose evidence cosines each pick prompt k.
  * census_end(ratio) marks lost every prompt the field picks at fewer than
- * ratio times the points the evidence picks it at (ratio 0: none), and
+ * ratio times the points the evidence picks it at, if those are at least 10
+ * (ratio 0: none), and
  * returns how many are; from then on vlff_evidence_label gives a point with
  * evidence the evidence's own best prompt wherever that prompt is lost (its
- * margin: w times the evidence's best minus second cosine), until the next census_end, a reset, or a change of prompts (stamp).
- * lost() tells whether prompt k is lost and the last census's counts
+ * margin: w times the evidence's best minus second cosine, scaled as every
+ * margin) until the next census_end, a reset, or a change of prompts
+ * (stamp). lost() tells whether prompt k is lost and the last census's counts
  * (either pointer may be NULL). */
 void vlff_evidence_census_begin(struct vlff_evidence *e);
 int vlff_evidence_census_end(struct vlff_evidence *e, double ratio);

@@ -200,56 +200,63 @@ static void test_lost_class_read_from_evidence(void **state) {
   char err[256];
   assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
   assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
-  /* Four points on each, in four voxels each; the field says prompt 0
-   * everywhere, sure enough that w = 1 keeps its word (0.9 + 0.6 > 0.5 +
+  /* 16 points on each, four in each of four voxels; the field says prompt
+   * 0 everywhere, sure enough that w = 1 keeps its word (0.9 + 0.6 > 0.5 +
    * 0.8 on the object). */
-  float xyz[8 * 3], fcos[8 * 2];
-  for (int i = 0; i < 8; i++) {
-    xyz[3 * i] = i & 1 ? 0.1f : -0.1f, xyz[3 * i + 1] = i & 2 ? 0.1f : -0.1f, xyz[3 * i + 2] = i < 4 ? 2.2f : 3.2f;
+  enum { N = 32 };
+  float xyz[N * 3], fcos[N * 2];
+  uint16_t fitted[N], young[N];
+  for (int i = 0; i < N; i++) {
+    xyz[3 * i] = i & 1 ? 0.1f : -0.1f, xyz[3 * i + 1] = i & 2 ? 0.1f : -0.1f;
+    xyz[3 * i + 2] = i < N / 2 ? 2.2f : 3.2f;
     fcos[2 * i] = 0.9f, fcos[2 * i + 1] = 0.5f;
+    fitted[i] = 60, young[i] = 10;
   }
-  const uint16_t fitted[8] = {60, 60, 60, 60, 60, 60, 60, 60}, young[8] = {10, 10, 10, 10, 10, 10, 10, 10};
-  int lab[8];
-  float margin[8];
+  int lab[N];
+  float margin[N];
   unsigned long long nf, ne;
   /* An unfitted field's labels count for nothing. */
   vlff_evidence_census_begin(e);
-  vlff_evidence_label(e, xyz, 8, fcos, young, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  vlff_evidence_label(e, xyz, N, fcos, young, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
   assert_int_equal(vlff_evidence_census_end(e, 0.25), 0);
   assert_false(vlff_evidence_lost(e, 1, &nf, &ne));
   assert_true(nf == 0 && ne == 0);
+  /* Evidence at fewer than 10 points is not a class to restore. */
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, 9, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 0);
   /* The census pass itself labels as before: prompt 1 is gone. */
   vlff_evidence_census_begin(e);
-  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
-  for (int i = 0; i < 8; i++) assert_int_equal(lab[i], 0);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  for (int i = 0; i < N; i++) assert_int_equal(lab[i], 0);
   assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
   assert_true(vlff_evidence_lost(e, 1, &nf, &ne));
-  assert_true(nf == 0 && ne == 4);
+  assert_true(nf == 0 && ne == N / 2);
   assert_false(vlff_evidence_lost(e, 0, &nf, &ne));
-  assert_true(nf == 8 && ne == 4);
+  assert_true(nf == N && ne == N / 2);
   /* From now on the object reads the evidence, with the evidence's margin
    * (0.8 - 0.6, halved as every combined margin); the wall stays. */
-  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, margin);
-  for (int i = 0; i < 8; i++) assert_int_equal(lab[i], i < 4 ? 1 : 0);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, margin);
+  for (int i = 0; i < N; i++) assert_int_equal(lab[i], i < N / 2 ? 1 : 0);
   assert_float_equal(margin[0], 0.1f, 1e-3);
   /* Other prompts (another stamp): nothing is restored for them. */
-  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 7, 1.0f, lab, NULL, NULL);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 7, 1.0f, lab, NULL, NULL);
   assert_int_equal(lab[0], 0);
-  /* The field keeps one of the four: a quarter is not lost at 0.25. */
-  fcos[1] = 0.95f;
+  /* The field keeps 4 of the 16: a quarter is not lost at 0.25. */
+  for (int i = 0; i < 4; i++) fcos[2 * i + 1] = 0.95f;
   vlff_evidence_census_begin(e);
-  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
   assert_int_equal(vlff_evidence_census_end(e, 0.25), 0);
-  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
-  assert_int_equal(lab[1], 0);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
   assert_int_equal(lab[0], 1); /* the field's own word there */
+  assert_int_equal(lab[4], 0);
   /* Ratio 0 marks nothing; a reset forgets what was lost. */
-  fcos[1] = 0.5f;
+  for (int i = 0; i < 4; i++) fcos[2 * i + 1] = 0.5f;
   vlff_evidence_census_begin(e);
-  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
   assert_int_equal(vlff_evidence_census_end(e, 0), 0);
   vlff_evidence_census_begin(e);
-  vlff_evidence_label(e, xyz, 8, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
   assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
   vlff_evidence_reset(e);
   assert_false(vlff_evidence_lost(e, 1, NULL, NULL));
