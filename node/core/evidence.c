@@ -36,6 +36,7 @@ struct vlff_evidence {
    * for prompts of lost_stamp. */
   bool census, census_stamped;
   uint64_t census_stamp, lost_stamp;
+  int census_k, lost_k; /* the prompt count of each */
   unsigned long long n_field[VLFF_FIELD_MAX_PROMPTS], n_ev[VLFF_FIELD_MAX_PROMPTS];
   bool lost[VLFF_FIELD_MAX_PROMPTS];
   int nlost;
@@ -113,6 +114,8 @@ void vlff_evidence_reset(struct vlff_evidence *e) {
   e->overflow = 0;
   e->census = false;
   memset(e->lost, 0, sizeof e->lost);
+  memset(e->n_field, 0, sizeof e->n_field);
+  memset(e->n_ev, 0, sizeof e->n_ev);
   e->nlost = 0;
 }
 
@@ -253,13 +256,19 @@ void vlff_evidence_census_begin(struct vlff_evidence *e) {
 int vlff_evidence_census_end(struct vlff_evidence *e, double ratio) {
   if (!e->census) return e->nlost;
   e->census = false;
-  memset(e->lost, 0, sizeof e->lost);
-  e->nlost = 0;
-  e->lost_stamp = e->census_stamp;
-  for (int k = 0; k < e->max_k && ratio > 0; k++)
-    if (e->n_ev[k] >= LOST_MIN_POINTS && (double)e->n_field[k] < ratio * (double)e->n_ev[k])
-      e->lost[k] = true, e->nlost++;
-  return e->nlost;
+  /* A class already lost (for the same prompts) is kept again only at twice
+   * the ratio: one near the bar would otherwise flip its map labels at
+   * every publish. */
+  const bool same = e->census_stamped && e->nlost && e->lost_stamp == e->census_stamp && e->lost_k == e->census_k;
+  int n = 0;
+  for (int k = 0; k < e->max_k; k++) {
+    const double bar = (same && e->lost[k] ? 2 : 1) * ratio;
+    e->lost[k] = ratio > 0 && e->n_ev[k] >= LOST_MIN_POINTS && (double)e->n_field[k] < bar * (double)e->n_ev[k];
+    n += e->lost[k];
+  }
+  e->nlost = n;
+  e->lost_stamp = e->census_stamp, e->lost_k = e->census_k;
+  return n;
 }
 
 bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long *n_field, unsigned long long *n_ev) {
@@ -288,8 +297,9 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
     memset(e->dirty, 1, e->used);
     e->stamp = stamp, e->stamp_k = K;
   }
-  if (e->census && !e->census_stamped) e->census_stamp = stamp, e->census_stamped = true;
-  const bool count = e->census && e->census_stamp == stamp, restore = e->nlost && e->lost_stamp == stamp;
+  if (e->census && !e->census_stamped) e->census_stamp = stamp, e->census_k = K, e->census_stamped = true;
+  const bool count = e->census && e->census_stamp == stamp && e->census_k == K;
+  const bool restore = e->nlost && e->lost_stamp == stamp && e->lost_k == K;
   for (size_t i = 0; i < n; i++) {
     const float *fc = fcos + i * (size_t)K, *ec = NULL;
     double x[3] = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
@@ -308,7 +318,7 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
       else if (v > b2) b2 = v;
     }
     float scale = ec && a + w > 0 ? 1.0f / (a + w) : 1.0f;
-    if (ec && any) {
+    if (ec && any && (count || restore)) {
       float gap;
       const int ke = argmax(ec, K, &gap);
       /* Only a fitted field's label says what it keeps of a class. */

@@ -98,17 +98,21 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
  * the look-alike), which no per-point weight w undoes without giving up the
  * field's denoising everywhere else. A census counts, over the points
  * labelled between census_begin and census_end (the publisher's whole 3D
- * map) that have evidence and where the field is fully trusted, the points
- * whose field cosines and whose evidence cosines each pick prompt k.
- * census_end(ratio) marks lost every prompt the field picks at fewer than
- * ratio times the points the evidence picks it at, if those are at least 10
- * (ratio 0: none), and
- * returns how many are; from then on vlff_evidence_label gives a point with
- * evidence the evidence's own best prompt wherever that prompt is lost (its
- * margin: w times the evidence's best minus second cosine, scaled as every
- * margin) until the next census_end, a reset, or a change of prompts
- * (stamp). lost() tells whether prompt k is lost and the last census's counts
- * (either pointer may be NULL). */
+ * map) with the prompts (stamp, K) of the first of those calls, that have
+ * evidence and where the field is fully trusted (a = 1; every point when
+ * trust_rays <= 0 or rays is NULL), the points whose field cosines and whose
+ * evidence cosines each pick prompt k. census_end(ratio) marks lost every
+ * prompt the field picks at fewer than ratio times the points the evidence
+ * picks it at, if those are at least 10 (ratio 0: none); a prompt the last
+ * census found lost stays so until the field picks it at twice the ratio.
+ * It returns how many are lost (census_end without census_begin: the count
+ * as it stands). Then vlff_evidence_label gives a point with evidence the
+ * evidence's own best prompt wherever that prompt is lost, with score that
+ * prompt's combined sum and margin w times the evidence's best minus second
+ * cosine (both scaled as always), for label calls with the census's
+ * prompts, until the next census_end, a reset or a load. lost() tells
+ * whether prompt k is lost and the last census's counts (either pointer may
+ * be NULL; untouched for k outside 0..max_k-1). */
 void vlff_evidence_census_begin(struct vlff_evidence *e);
 int vlff_evidence_census_end(struct vlff_evidence *e, double ratio);
 bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long *n_field, unsigned long long *n_ev);

@@ -73,7 +73,7 @@ struct vlff_publisher {
   uint16_t *qrays; /* [QBLOCK] the field's exposure there (vlff_field_exposure) */
   int trust_rays;  /* publish.field_trust_rays */
   double lost_ratio;  /* publish.lost_class_ratio */
-  uint64_t lost_mask; /* the prompts last reported lost (evidence.h, "Lost classes") */
+  uint64_t lost_mask, lost_mask_stamp; /* the prompts last reported lost (evidence.h, "Lost classes"), and of which prompts */
   double last_publish_s, last_heartbeat_s;
 };
 
@@ -379,7 +379,8 @@ static int label_points(struct vlff_publisher *p, struct vlff_field *f, const fl
 
 /* Tells when the set of lost classes changes: which class, and the census
  * that says so. */
-static void report_lost(struct vlff_publisher *p, const char *const *prompts, int k, int nlost) {
+static void report_lost(struct vlff_publisher *p, const char *const *prompts, int k, uint64_t stamp, int nlost) {
+  if (stamp != p->lost_mask_stamp) p->lost_mask = 0, p->lost_mask_stamp = stamp; /* other prompts: none reported */
   uint64_t mask = 0;
   for (int c = 0; c < k && c < 64 && nlost; c++)
     if (vlff_evidence_lost(p->ev, c, NULL, NULL)) mask |= 1ull << c;
@@ -473,7 +474,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     snprintf(err, errlen, "field query of %zu occupied voxels failed", nocc);
     return -1;
   }
-  if (p->ev) report_lost(p, prompts, k, vlff_evidence_census_end(p->ev, p->lost_ratio));
+  if (p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   for (size_t j = 0; j < nocc; j++) {
     size_t i = p->qidx[j];
     if (p->qlabel[j] >= 0) {

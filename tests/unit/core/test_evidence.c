@@ -236,14 +236,38 @@ static void test_lost_class_read_from_evidence(void **state) {
   assert_true(nf == N && ne == N / 2);
   /* From now on the object reads the evidence, with the evidence's margin
    * (0.8 - 0.6, halved as every combined margin); the wall stays. */
-  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, margin);
+  float score[N];
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, score, margin);
   for (int i = 0; i < N; i++) assert_int_equal(lab[i], i < N / 2 ? 1 : 0);
   assert_float_equal(margin[0], 0.1f, 1e-3);
+  assert_float_equal(score[0], (0.5f + 0.8f) / 2, 1e-3); /* prompt 1's own sum */
+  /* The next census counts what the field picks, not what was restored:
+   * still lost. */
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(lab[0], 1);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
+  assert_true(vlff_evidence_lost(e, 1, &nf, &ne));
+  assert_true(nf == 0 && ne == N / 2);
+  /* Restored where the field is not fully fitted too (a = 0.8: 0.72 + 0.6
+   * would beat 0.4 + 0.8). */
+  vlff_evidence_label(e, xyz, 1, fcos, (const uint16_t[1]){40}, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(lab[0], 1);
   /* Other prompts (another stamp): nothing is restored for them. */
   vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 7, 1.0f, lab, NULL, NULL);
   assert_int_equal(lab[0], 0);
-  /* The field keeps 4 of the 16: a quarter is not lost at 0.25. */
+  /* A lost class is kept again only at twice the ratio: the field picking
+   * 4 of the 16 leaves it lost, 8 of 16 does not; a class not lost before
+   * is lost only under the ratio (4 of 16 is a quarter: not lost). */
   for (int i = 0; i < 4; i++) fcos[2 * i + 1] = 0.95f;
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
+  for (int i = 0; i < 8; i++) fcos[2 * i + 1] = 0.95f;
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 0);
+  for (int i = 4; i < 8; i++) fcos[2 * i + 1] = 0.5f;
   vlff_evidence_census_begin(e);
   vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
   assert_int_equal(vlff_evidence_census_end(e, 0.25), 0);
@@ -259,7 +283,8 @@ static void test_lost_class_read_from_evidence(void **state) {
   vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
   assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
   vlff_evidence_reset(e);
-  assert_false(vlff_evidence_lost(e, 1, NULL, NULL));
+  assert_false(vlff_evidence_lost(e, 1, &nf, &ne));
+  assert_true(nf == 0 && ne == 0);
   vlff_evidence_destroy(e);
 }
 
