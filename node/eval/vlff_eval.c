@@ -767,7 +767,9 @@ static struct vlff_field *fit_field(struct eval *e) {
   return fld;
 }
 
-static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n, int *label);
+struct field_read;
+static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n,
+                            const struct field_read *fr, int *label);
 
 /* 2D: the held-out frames rendered at the feature-map resolution and
  * segmented: the field alone; and with evidence, the node's label image
@@ -801,7 +803,7 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
       size_t m = vlff_label_surface(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, sc->W, sc->H, f->depth, fw, fh, xyz, pix,
                                     NULL, NULL);
       vlff_field_snap_surface(fld, &cam, pix, m, xyz);
-      evidence_labels(e, fld, xyz, m, lab);
+      evidence_labels(e, fld, xyz, m, NULL, lab);
       for (size_t j = 0; j < m; j++) e->pl[pix[j]] = lab[j];
     }
     vlff_confusion_add(&e->r2_field.c, e->gl, e->pl, npx);
@@ -836,30 +838,47 @@ static void build_evidence(struct eval *e) {
             vlff_evidence_voxels(e->ev), vlff_evidence_overflow(e->ev));
 }
 
-/* n points labelled as the node labels its map: the field's cosines there,
- * weighed by its exposure, combined with the voxels' evidence (points in
- * voxels without evidence keep the field's label). */
-static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n, int *label) {
+/* What the field says at n points: its cosines with each prompt [n][K]
+ * and its exposure there. */
+struct field_read {
+  float *cs;
+  uint16_t *rays;
+};
+
+static struct field_read read_field(struct vlff_field *fld, const float *xyz, size_t n) {
   int K;
-  const float *E = vlff_field_prompt_embeddings(fld, &K);
-  float *cs = xcalloc(n * (size_t)K, sizeof(float));
-  uint16_t *rays = xcalloc(n, sizeof *rays);
-  if (vlff_field_query_cosines(fld, xyz, n, cs) < 0) die("3D query failed");
-  vlff_field_exposure(fld, xyz, n, rays);
-  vlff_evidence_label(e->ev, xyz, n, cs, rays, e->cfg.publish.field_trust_rays, E, K, 1,
-                      (float)e->cfg.publish.evidence_weight, label, NULL, NULL);
-  free(cs), free(rays);
+  vlff_field_prompt_embeddings(fld, &K);
+  struct field_read r = {xcalloc(n * (size_t)K, sizeof(float)), xcalloc(n, sizeof(uint16_t))};
+  if (vlff_field_query_cosines(fld, xyz, n, r.cs) < 0) die("3D query failed");
+  vlff_field_exposure(fld, xyz, n, r.rays);
+  return r;
 }
 
-/* 3D standard protocol: one query per labelled point. */
-static void score_field_3d(struct eval *e, struct vlff_field *fld) {
+/* n points labelled as the node labels its map: the field's cosines there,
+ * weighed by its exposure, combined with the voxels' evidence (points in
+ * voxels without evidence keep the field's label). fr: the field read at
+ * those points, or NULL to read it now. */
+static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n,
+                            const struct field_read *fr, int *label) {
+  int K;
+  const float *E = vlff_field_prompt_embeddings(fld, &K);
+  struct field_read own = {0};
+  if (!fr) own = read_field(fld, xyz, n), fr = &own;
+  vlff_evidence_label(e->ev, xyz, n, fr->cs, fr->rays, e->cfg.publish.field_trust_rays, E, K, 1,
+                      (float)e->cfg.publish.evidence_weight, label, NULL, NULL);
+  free(own.cs), free(own.rays);
+}
+
+/* 3D standard protocol: one query per labelled point (fr: the field read
+ * at them, for the evidence). */
+static void score_field_3d(struct eval *e, struct vlff_field *fld, const struct field_read *fr) {
   const struct scene *sc = &e->sc;
   const size_t np = sc->pts.n;
   e->pred3 = xcalloc(np, sizeof(int));
   if (vlff_field_query(fld, sc->pts.xyz, np, NULL, NULL, e->pred3, NULL, NULL) < 0) die("3D query failed");
   vlff_confusion_add(&e->r3_alone.c, sc->pts.label, e->pred3, np);
   summarize(&e->r3_alone);
-  if (e->ev) evidence_labels(e, fld, sc->pts.xyz, np, e->pred3);
+  if (e->ev) evidence_labels(e, fld, sc->pts.xyz, np, fr, e->pred3);
   vlff_confusion_add(&e->r3_field.c, sc->pts.label, e->pred3, np);
   summarize(&e->r3_field);
 }
@@ -895,11 +914,11 @@ static void score_field_3d_reference(struct eval *e, struct vlff_field *fld) {
 
 /* The census of lost classes over the labelled points, as the node's 3D
  * map takes it (evidence.h, "Lost classes"), before anything is labelled. */
-static void census(struct eval *e, struct vlff_field *fld) {
+static void census(struct eval *e, struct vlff_field *fld, const struct field_read *fr) {
   const size_t np = e->sc.pts.n;
   int *lab = xcalloc(np, sizeof(int));
   vlff_evidence_census_begin(e->ev);
-  evidence_labels(e, fld, e->sc.pts.xyz, np, lab);
+  evidence_labels(e, fld, e->sc.pts.xyz, np, fr, lab);
   int nlost = vlff_evidence_census_end(e->ev, e->cfg.publish.lost_class_ratio);
   for (int k = 0; k < e->sc.K && nlost; k++) {
     unsigned long long nf, ne;
@@ -913,12 +932,16 @@ static void census(struct eval *e, struct vlff_field *fld) {
 static void score_field(struct eval *e, struct vlff_field *fld) {
   char err[1024];
   if (vlff_field_set_prompts(fld, e->emb_raw, e->sc.K, err, sizeof err) < 0) die("%s", err);
+  /* The field read at the 3D points serves the census and the 3D score. */
+  struct field_read fr3 = {0};
   if (e->cfg.publish.evidence_weight > 0) {
     build_evidence(e);
-    census(e, fld);
+    fr3 = read_field(fld, e->sc.pts.xyz, e->sc.pts.n);
+    census(e, fld, &fr3);
   }
   score_field_2d(e, fld);
-  score_field_3d(e, fld);
+  score_field_3d(e, fld, &fr3);
+  free(fr3.cs), free(fr3.rays);
   score_field_3d_reference(e, fld);
   vlff_evidence_destroy(e->ev);
   e->ev = NULL;

@@ -116,7 +116,6 @@ static int read_all(int fd, void *p, size_t n, struct sum *s) {
   return 0;
 }
 
-static size_t ncells(const struct vlff_field *f) { return (size_t)f->occ.res * f->occ.res * f->occ.res; }
 
 int vlff_field_save(const struct vlff_field *f, const char *path, char *err, size_t errlen) {
   if (!f || !path) {
@@ -138,14 +137,14 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   h.config_hash = vlff_config_field_hash(&f->cfg.field);
   h.nparams = f->nparams;
   h.ntable = f->ntable;
-  h.ncells = ncells(f);
+  h.ncells = vlff_occ_cells(&f->occ);
   h.step = f->step;
   h.rng = f->rng;
   h.occ_cursor = f->occ_cursor;
   h.feature_dim = f->D;
   struct sum s;
   sum_init(&s);
-  size_t np = f->nparams * sizeof(float), nc = ncells(f);
+  size_t np = f->nparams * sizeof(float), nc = vlff_occ_cells(&f->occ);
   int rc = write_all(fd, &h, sizeof(h), &s) || write_all(fd, f->params, np, &s) ||
            write_all(fd, f->adam_m, np, &s) || write_all(fd, f->adam_v, np, &s) ||
            write_all(fd, f->occ.density, nc * sizeof(float), &s) || write_all(fd, f->occ.occ, nc, &s) ||
@@ -186,7 +185,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   double err_mean = 0;
   uint8_t *occ = NULL;
   uint16_t *expo = NULL;
-  size_t np = f->nparams, nc = ncells(f);
+  size_t np = f->nparams, nc = vlff_occ_cells(&f->occ);
   int r = read_all(fd, &h, sizeof(h), &s);
   if (r)
     why = "truncated header";

@@ -181,6 +181,8 @@ struct vlff_occupancy {
   uint8_t *occ;            /* res^3 */
   float threshold;         /* density above which a cell is occupied */
 };
+/* Cells in the grid: res^3. */
+static inline size_t vlff_occ_cells(const struct vlff_occupancy *g) { return (size_t)g->res * g->res * g->res; }
 /* Box entry/exit of a ray (t along dir); returns 0 when it misses. */
 int vlff_ray_box(const float *o, const float *d, const float *bmin, const float *bmax, float *t0, float *t1);
 /* Stratified samples in [t0,t1] restricted to occupied cells; returns the

@@ -191,8 +191,8 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   f->avg = xalloc(f->nmlp * fs, &ok);
   f->avgT = xalloc(f->nmlp * fs, &ok);
   int ores = cfg->train.occupancy_resolution;
-  size_t ncell = (size_t)ores * ores * ores;
   f->occ.res = ores;
+  size_t ncell = vlff_occ_cells(&f->occ);
   for (int a = 0; a < 3; a++) {
     f->occ.box_min[a] = (float)cfg->field.scene_min[a];
     f->occ.cell[a] = (float)((cfg->field.scene_max[a] - cfg->field.scene_min[a]) / ores);
@@ -976,7 +976,7 @@ void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n,
 }
 
 void vlff_field_forget_errors(struct vlff_field *f) {
-  size_t n = (size_t)f->occ.res * f->occ.res * f->occ.res;
+  size_t n = vlff_occ_cells(&f->occ);
   for (size_t i = 0; i < n; i++) f->cell_err[i] = -1;
   f->err_mean = 0;
 }
@@ -1192,7 +1192,7 @@ static void occ_task(void *ctx, int task, int thread) {
   struct vlff_field *f = oc->f;
   struct vlff_work *w = &f->work[thread];
   struct vlff_occupancy *g = &f->occ;
-  size_t total = (size_t)g->res * g->res * g->res;
+  size_t total = vlff_occ_cells(g);
   size_t a = oc->n * task / oc->ntasks, b = oc->n * (task + 1) / oc->ntasks;
   uint64_t rng = (uint64_t)f->step * 0x9e3779b97f4a7c15ull + (uint64_t)task * 0x632be59bd9b4e019ull + 1;
   for (size_t i = a; i < b;) {
@@ -1220,7 +1220,7 @@ static void occ_task(void *ctx, int task, int thread) {
 
 void vlff_field_occupancy_update(struct vlff_field *f, int full) {
   struct vlff_occupancy *g = &f->occ;
-  size_t total = (size_t)g->res * g->res * g->res;
+  size_t total = vlff_occ_cells(g);
   /* A quarter of the grid per update keeps the cost small; the grid is swept
    * completely every four updates. */
   size_t n = full ? total : (total + 3) / 4;

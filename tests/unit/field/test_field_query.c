@@ -394,6 +394,19 @@ static void forge(const char *path, unsigned char *b, size_t len, uint32_t versi
   assert_int_equal(fclose(out), 0);
 }
 
+/* A version must agree with the body's length: the body of `longer` bytes
+ * claiming version - 1 and the body of `shorter` bytes claiming version
+ * are both refused, the latter as truncated. */
+static void refuses_mismatched_version(struct vlff_field *g, const char *path, unsigned char *b, size_t longer,
+                                       size_t shorter, uint32_t version) {
+  char err[256];
+  forge(path, b, longer, version - 1);
+  assert_int_equal(vlff_field_load(g, path, err, sizeof(err)), -1);
+  forge(path, b, shorter, version);
+  assert_int_equal(vlff_field_load(g, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "truncated"));
+}
+
 /* Exposure counts each training ray with depth once, in the occupancy cell
  * where its depth ends: the surface the views see, never the free space in
  * front of it. A checkpoint keeps it, the averaged weights and each cell's
@@ -491,11 +504,7 @@ static void test_exposure(void **state) {
   assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "mean loss out of range"));
   free(bad);
-  forge(path, b, (size_t)size, 3); /* version 3 with the losses */
-  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
-  forge(path, b, v3, 4);           /* version 4 without them */
-  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
-  assert_non_null(strstr(err, "truncated"));
+  refuses_mismatched_version(young, path, b, (size_t)size, v3, 4); /* 3 with the losses, 4 without */
   forge(path, b, v3, 3);
   struct vlff_field *h3 = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
   assert_non_null(h3);
@@ -503,11 +512,7 @@ static void test_exposure(void **state) {
   assert_memory_equal(h3->avg, f->avg, f->nmlp * sizeof(float));
   for (size_t i = 0; i < nc; i++) assert_true(h3->cell_err[i] == -1.0f);
   vlff_field_destroy(h3);
-  forge(path, b, (size_t)size, 2); /* version 2 with the average */
-  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
-  forge(path, b, v2, 3);           /* version 3 without it */
-  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
-  assert_non_null(strstr(err, "truncated"));
+  refuses_mismatched_version(young, path, b, (size_t)size, v2, 3); /* 2 with the average, 3 without */
   forge(path, b, v2, 1);           /* version 1 with the exposure */
   assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
   forge(path, b, v2, 2);
