@@ -24,6 +24,12 @@ check "frames refused is the sum of the reasons" \
 
 kill "$simpid"; wait "$simpid"; simpid=
 sleep 0.5
+# The trainer shares the counts between its steps, and a sanitizer build's
+# step can take seconds: the last counts are those of a share made after
+# the sim stopped (two shares on from here).
+"$shm" stat $p-m >"$tmp/stat"
+u0=$(val status_updates)
+wait_until 600 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null && (( $(val status_updates) >= u0 + 2 ))'
 "$shm" stat $p-m >"$tmp/last"
 stop_node
 "$shm" stat $p-m >"$tmp/stat"
