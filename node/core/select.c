@@ -16,6 +16,7 @@ void vlff_kf_selector_init(struct vlff_kf_selector *s, double rate_hz, double mi
   s->min_rotation_deg = min_rotation_deg;
   s->have_last = false;
   s->last_t_ns = 0;
+  s->credit_s = 0;
 }
 
 double vlff_pose_angle(const double a[16], const double b[16]) {
@@ -55,11 +56,17 @@ size_t vlff_label_surface(const double c2w[16], double fx, double fy, double cx,
   return n;
 }
 
+/* The time credit a frame at t_ns would find. */
+static double credit_at(const struct vlff_kf_selector *s, long long t_ns) {
+  return fmin(1.5 * s->min_interval_s, s->credit_s + (double)(t_ns - s->last_t_ns) * 1e-9);
+}
+
 bool vlff_kf_selector_due(const struct vlff_kf_selector *s, long long t_ns) {
-  return !s->have_last || (double)(t_ns - s->last_t_ns) * 1e-9 >= s->min_interval_s;
+  return !s->have_last || (t_ns >= s->last_t_ns && credit_at(s, t_ns) >= s->min_interval_s);
 }
 
 bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const double c2w[16]) {
+  double credit = 0;
   if (s->have_last) {
     if (!vlff_kf_selector_due(s, t_ns)) return false;
     if (s->min_translation_m > 0 || s->min_rotation_deg > 0) {
@@ -69,9 +76,11 @@ bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const do
                    (s->min_rotation_deg > 0 && vlff_pose_angle(c2w, s->last_c2w) * 180.0 / M_PI >= s->min_rotation_deg);
       if (!moved) return false;
     }
+    credit = credit_at(s, t_ns) - s->min_interval_s;
   }
   s->have_last = true;
   s->last_t_ns = t_ns;
+  s->credit_s = credit;
   for (int i = 0; i < 16; i++) s->last_c2w[i] = c2w[i];
   return true;
 }

@@ -12,24 +12,34 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* Time admission is a credit, not a minimum gap: a camera at exactly
+ * keyframes.rate_hz delivers frames a few ms early or late, and a gap of
+ * one interval from the last keyframe refused every early one (a 5 Hz
+ * stream at rate_hz 5 kept 3 frames a second; a 30 Hz one at 5 kept 4.3).
+ * Credit accrues with time since the last keyframe, up to 1.5 intervals,
+ * and a keyframe spends one interval of it: the long-run rate never
+ * exceeds rate_hz, while a frame up to half an interval early once one was
+ * late (or skipped) is taken. */
 struct vlff_kf_selector {
   double min_interval_s;      /* 1 / keyframes.rate_hz */
   double min_translation_m;   /* 0 with min_rotation_deg 0: time alone decides */
   double min_rotation_deg;
   bool have_last;
   long long last_t_ns;
+  double credit_s;            /* credit left at last_t_ns */
   double last_c2w[16];
 };
 
 void vlff_kf_selector_init(struct vlff_kf_selector *s, double rate_hz, double min_translation_m,
                            double min_rotation_deg);
 
-/* True when a frame at t_ns is far enough in time from the last keyframe
- * to become one (motion is judged by vlff_kf_selector_offer). */
+/* True when a frame at t_ns has the time credit to become a keyframe
+ * (motion is judged by vlff_kf_selector_offer). */
 bool vlff_kf_selector_due(const struct vlff_kf_selector *s, long long t_ns);
 
-/* True when the frame should become a keyframe; then it is remembered as the
- * last one. */
+/* True when the frame should become a keyframe (time credit, then motion
+ * from the last keyframe); then it is remembered as the last one and spends
+ * one interval of credit. A frame older than the last keyframe is refused. */
 bool vlff_kf_selector_offer(struct vlff_kf_selector *s, long long t_ns, const double c2w[16]);
 
 /* Angle in radians between two poses' rotations (trace(Ra^T Rb) = 1 + 2 cos). */

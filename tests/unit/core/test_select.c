@@ -39,6 +39,37 @@ static void test_time_only(void **st) {
   assert_int_equal(n, 10);
 }
 
+/* A camera at the keyframe rate, each frame up to 30 ms early or late (a
+ * fixed pseudo-random pattern): every frame but at most the first late one's
+ * successor becomes a keyframe; frames at 100 Hz with the same jitter stay
+ * within the rate; a frame older than the last keyframe is refused. */
+static void test_time_jitter(void **st) {
+  (void)st;
+  struct sel x = start(0, 0);
+  unsigned r = 12345;
+  int n = 0;
+  for (int i = 0; i < 100; i++) {
+    r = r * 1103515245u + 12345u;
+    long long j = (long long)((r >> 16) % 61) - 30; /* ms */
+    n += vlff_kf_selector_offer(&x.s, (200ll * i + j) * 1000000ll, x.p);
+  }
+  assert_in_range(n, 99, 100);
+  x = start(0, 0);
+  n = 0;
+  long long last = 0;
+  for (int i = 0; i < 1000; i++) {
+    r = r * 1103515245u + 12345u;
+    long long t = (10ll * i + (long long)((r >> 16) % 7) - 3) * 1000000ll;
+    if (vlff_kf_selector_offer(&x.s, t, x.p)) {
+      assert_true(n == 0 || t - last >= 99000000ll); /* never under half an interval apart */
+      n++, last = t;
+    }
+  }
+  assert_in_range(n, 49, 51); /* 10 s at 5 Hz */
+  assert_false(vlff_kf_selector_offer(&x.s, last - 1000000000ll, x.p));
+  assert_false(vlff_kf_selector_due(&x.s, last - 1000000000ll));
+}
+
 static void test_motion_required(void **st) {
   (void)st;
   struct sel x = start(0.1, 0);
@@ -155,6 +186,6 @@ static void test_posecheck_far_view(void **st) {
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(test_time_only), cmocka_unit_test(test_motion_required),
+    cmocka_unit_test(test_time_only), cmocka_unit_test(test_time_jitter), cmocka_unit_test(test_motion_required),
     cmocka_unit_test(test_pose_valid), cmocka_unit_test(test_posecheck),
     cmocka_unit_test(test_posecheck_far_view))
