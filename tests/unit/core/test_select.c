@@ -40,9 +40,10 @@ static void test_time_only(void **st) {
 }
 
 /* A camera at the keyframe rate, each frame up to 30 ms early or late (a
- * fixed pseudo-random pattern): every frame but at most the first late one's
- * successor becomes a keyframe; frames at 100 Hz with the same jitter stay
- * within the rate; a frame older than the last keyframe is refused. */
+ * fixed pseudo-random pattern): every frame becomes a keyframe but at most
+ * one (an early frame before any credit has built up); frames at 100 Hz with
+ * the same jitter stay within the rate; a frame older than the last keyframe
+ * is refused. */
 static void test_time_jitter(void **st) {
   (void)st;
   struct sel x = start(0, 0);
