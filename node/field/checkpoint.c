@@ -116,7 +116,6 @@ static int read_all(int fd, void *p, size_t n, struct sum *s) {
   return 0;
 }
 
-
 int vlff_field_save(const struct vlff_field *f, const char *path, char *err, size_t errlen) {
   if (!f || !path) {
     if (err && errlen) snprintf(err, errlen, "checkpoint: no field or path");
