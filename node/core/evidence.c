@@ -13,6 +13,12 @@
 #include "mem.h"
 
 #define MAX_VIEWS 255
+/* A full budget gives up this share of its slots at a time ... */
+#define RECLAIM_DIV 8
+/* ... never a voxel that one of the last this many views touched: a newly
+ * seen surface has few samples yet and would be given up before the views
+ * that are looking at it could add theirs. */
+#define RECENT_VIEWS 8
 
 struct vlff_evidence {
   double origin[3], voxel;
@@ -22,13 +28,17 @@ struct vlff_evidence {
   int32_t *slot;    /* [nvox]: -1 none */
   uint16_t *mean;   /* [cap][D] float16 */
   uint8_t *views;   /* [cap] samples averaged, saturating at MAX_VIEWS */
+  uint32_t *owner;  /* [cap] the voxel a slot holds */
+  uint32_t *seen;   /* [cap] the add (view) that last touched it */
+  uint32_t nadd;    /* views added, modulo 2^32 */
+  bool reclaimed;   /* this add has already tried to free slots */
   float *cos;       /* [cap][max_k] cosines with the prompts ... */
   uint8_t *dirty;   /* [cap] ... stale since the slot's evidence changed */
   uint64_t stamp;   /* ... or since the prompts did */
   int stamp_k;
   int max_k;        /* prompts a slot caches cosines for */
   size_t used, cap;
-  long long overflow;
+  long long overflow, evicted;
   float *tmp;       /* [2 D]: a feature, a mean */
   /* The census of lost classes (vlff_evidence_census_begin / _end): per
    * prompt, points of the current pass the fitted field and the evidence
@@ -57,7 +67,7 @@ double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, 
 
 void vlff_evidence_destroy(struct vlff_evidence *e) {
   if (!e) return;
-  VLFF_FREE_ALL(e->slot, e->mean, e->views, e->cos, e->dirty, e->tmp, e);
+  VLFF_FREE_ALL(e->slot, e->mean, e->views, e->owner, e->seen, e->cos, e->dirty, e->tmp, e);
 }
 
 struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_t dims[3], double voxel, int D,
@@ -77,8 +87,13 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   e->voxel = voxel;
   e->D = D;
   e->nvox = (size_t)dims[0] * dims[1] * dims[2];
+  if (e->nvox > UINT32_MAX) {
+    vlff_errf(err, errlen, "evidence: a grid of %zu voxels is over 2^32", e->nvox);
+    free(e);
+    return NULL;
+  }
   e->max_k = max_k;
-  size_t per = (size_t)D * sizeof(uint16_t) + (size_t)max_k * sizeof(float) + 2;
+  size_t per = (size_t)D * sizeof(uint16_t) + (size_t)max_k * sizeof(float) + 2 + 2 * sizeof(uint32_t);
   e->cap = max_bytes / per;
   if (e->cap < 1) e->cap = 1;
   if (e->cap > e->nvox) e->cap = e->nvox;
@@ -86,10 +101,12 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   e->slot = malloc(e->nvox * sizeof *e->slot);
   e->mean = malloc(e->cap * (size_t)D * sizeof *e->mean);
   e->views = calloc(e->cap, 1);
+  e->owner = malloc(e->cap * sizeof *e->owner);
+  e->seen = malloc(e->cap * sizeof *e->seen);
   e->cos = malloc(e->cap * (size_t)max_k * sizeof *e->cos);
   e->dirty = calloc(e->cap, 1);
   e->tmp = malloc(2 * (size_t)D * sizeof *e->tmp);
-  if (!e->slot || !e->mean || !e->views || !e->cos || !e->dirty || !e->tmp) {
+  if (!e->slot || !e->mean || !e->views || !e->owner || !e->seen || !e->cos || !e->dirty || !e->tmp) {
     vlff_errf(err, errlen, "evidence: out of memory for %zu voxels of %d features", e->cap, D);
     vlff_evidence_destroy(e);
     return NULL;
@@ -111,7 +128,8 @@ struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, cons
 void vlff_evidence_reset(struct vlff_evidence *e) {
   memset(e->slot, 0xff, e->nvox * sizeof *e->slot);
   e->used = 0;
-  e->overflow = 0;
+  e->overflow = e->evicted = 0;
+  e->nadd = 0;
   e->census = false;
   memset(e->lost, 0, sizeof e->lost);
   memset(e->n_field, 0, sizeof e->n_field);
@@ -133,18 +151,66 @@ long vlff_evidence_voxel(const struct vlff_evidence *e, const double x[3]) {
   return vlff_grid_voxel(e->origin, e->voxel, e->dims, x);
 }
 
+/* Slot from takes slot to's place (its voxel's index follows). */
+static void move_slot(struct vlff_evidence *e, size_t from, size_t to) {
+  memcpy(e->mean + to * e->D, e->mean + from * e->D, (size_t)e->D * sizeof *e->mean);
+  memcpy(e->cos + to * e->max_k, e->cos + from * e->max_k, (size_t)e->max_k * sizeof *e->cos);
+  e->views[to] = e->views[from];
+  e->owner[to] = e->owner[from];
+  e->seen[to] = e->seen[from];
+  e->dirty[to] = e->dirty[from];
+  e->slot[e->owner[to]] = (int32_t)to;
+}
+
+/* A full budget: gives up the evidence of the cap / RECLAIM_DIV voxels with
+ * the fewest samples among those no recent view touched (at a count, the
+ * first slots), and packs the rest. The least-observed voxels are the depth
+ * noise's strays in front of and behind surfaces and surfaces seen once from
+ * afar; a voxel seen again starts over. Returns the slots freed. */
+static size_t reclaim(struct vlff_evidence *e) {
+  size_t hist[MAX_VIEWS + 1] = {0}, want = e->cap / RECLAIM_DIV ? e->cap / RECLAIM_DIV : 1;
+  for (size_t s = 0; s < e->used; s++)
+    if (e->nadd - e->seen[s] >= RECENT_VIEWS) hist[e->views[s]]++;
+  size_t below = 0;
+  int c = 1;
+  for (; c < MAX_VIEWS && below + hist[c] < want; c++) below += hist[c];
+  size_t atc = want > below ? want - below : 0, freed = 0; /* slots to take at count c */
+  for (size_t s = 0; s < e->used; s++) {
+    if (e->nadd - e->seen[s] < RECENT_VIEWS || e->views[s] > c || (e->views[s] == c && !atc)) continue;
+    if (e->views[s] == c) atc--;
+    e->slot[e->owner[s]] = -1;
+    e->views[s] = 0; /* a live slot holds at least one sample */
+    freed++;
+  }
+  size_t hi = e->used;
+  for (size_t s = 0; s < hi; s++) {
+    if (e->views[s]) continue;
+    while (hi > s + 1 && !e->views[hi - 1]) hi--;
+    if (hi == s + 1) {
+      hi = s;
+      break;
+    }
+    move_slot(e, --hi, s);
+  }
+  e->used = hi;
+  e->evicted += (long long)freed;
+  return freed;
+}
+
 /* The running mean of one voxel takes feature f (D finite floats). */
 static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
   int32_t s = e->slot[vi];
   if (s < 0) {
-    if (e->used >= e->cap) {
+    if (e->used >= e->cap && (e->reclaimed || (e->reclaimed = true, reclaim(e) == 0))) {
       e->overflow++;
       return;
     }
     s = (int32_t)e->used++;
     e->slot[vi] = s;
     e->views[s] = 0;
+    e->owner[s] = (uint32_t)vi;
   }
+  e->seen[s] = e->nadd;
   e->dirty[s] = 1;
   uint16_t *m = e->mean + (size_t)s * e->D;
   int n = e->views[s] < MAX_VIEWS ? ++e->views[s] : MAX_VIEWS;
@@ -177,6 +243,8 @@ int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *
    * image read the field alone, which in a newly seen view has not been
    * trained there yet. */
   static const double quarter[4][2] = {{0.25, 0.25}, {0.75, 0.25}, {0.25, 0.75}, {0.75, 0.75}};
+  e->nadd++;
+  e->reclaimed = false;
   for (int fj = 0; fj < v->feat_height; fj++)
     for (int fi = 0; fi < v->feat_width; fi++) {
       long vox[4];
@@ -397,6 +465,8 @@ int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, c
     int32_t s = (int32_t)e->used++;
     e->slot[idx] = s;
     e->views[s] = r[4];
+    e->owner[s] = idx;
+    e->seen[s] = e->nadd;
     e->dirty[s] = 1;
     memcpy(e->mean + (size_t)s * e->D, r + 5, (size_t)e->D * 2);
   }
@@ -405,4 +475,5 @@ int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, c
 
 size_t vlff_evidence_voxels(const struct vlff_evidence *e) { return e->used; }
 
+long long vlff_evidence_evicted(const struct vlff_evidence *e) { return e->evicted; }
 long long vlff_evidence_overflow(const struct vlff_evidence *e) { return e->overflow; }

@@ -69,6 +69,7 @@ struct vlff_publisher {
   float ev_weight;
   int D;
   size_t ev_budget; /* bytes: publish.evidence_max_mb */
+  bool ev_full_said, ev_overflow_said; /* logged once each */
   float *qcos; /* [QBLOCK][VLFF_FIELD_MAX_PROMPTS] the field's cosines of a block of points */
   uint16_t *qrays; /* [QBLOCK] the field's exposure there (vlff_field_exposure) */
   int trust_rays;  /* publish.field_trust_rays */
@@ -356,7 +357,19 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
         }
       }
     }
-  return p->ev ? vlff_evidence_add(p->ev, v, err, errlen) : 0;
+  if (!p->ev) return 0;
+  if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;
+  if (!p->ev_full_said && vlff_evidence_evicted(p->ev)) {
+    p->ev_full_said = true;
+    VLFF_INFO(TAG, "evidence: publish.evidence_max_mb (%zu MB) holds %zu voxels; from now on the least-observed give theirs up for newly seen ones",
+              p->ev_budget >> 20, vlff_evidence_voxels(p->ev));
+  }
+  if (!p->ev_overflow_said && vlff_evidence_overflow(p->ev)) {
+    p->ev_overflow_said = true;
+    VLFF_WARN(TAG, "evidence: publish.evidence_max_mb (%zu MB) is full of voxels the last views saw; newly seen ones read the field alone until it frees room (raise publish.evidence_max_mb)",
+              p->ev_budget >> 20);
+  }
+  return 0;
 }
 
 /* Labels (and score, margin: either may be NULL) of n points: the field's,

@@ -833,9 +833,11 @@ static void build_evidence(struct eval *e) {
     memcpy(v.c2w, sc->f[i].c2w, sizeof v.c2w);
     if (vlff_evidence_add(e->ev, &v, err, sizeof err) < 0) die("frame %d: %s", sc->f[i].index, err);
   }
-  if (vlff_evidence_overflow(e->ev))
-    fprintf(stderr, "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld samples lost)\n",
-            vlff_evidence_voxels(e->ev), vlff_evidence_overflow(e->ev));
+  if (vlff_evidence_overflow(e->ev) || vlff_evidence_evicted(e->ev))
+    fprintf(stderr,
+            "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld voxels given up, %lld "
+            "samples lost)\n",
+            vlff_evidence_voxels(e->ev), vlff_evidence_evicted(e->ev), vlff_evidence_overflow(e->ev));
 }
 
 /* What the field says at n points: its cosines with each prompt [n][K]

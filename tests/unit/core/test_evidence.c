@@ -288,8 +288,9 @@ static void test_lost_class_read_from_evidence(void **state) {
   vlff_evidence_destroy(e);
 }
 
-/* A full budget leaves further voxels to the field, counted; bad values in
- * a view are skipped; a view of another D is refused. */
+/* A budget full of what the view in hand saw leaves further voxels to the
+ * field, counted; bad values in a view are skipped; a view of another D is
+ * refused. */
 static void test_budget_and_bad_values(void **state) {
   (void)state;
   struct vlff_evidence *e = make(1); /* room for one voxel */
@@ -311,6 +312,76 @@ static void test_budget_and_bad_values(void **state) {
   a.v.feature_dim = D + 1;
   assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), -1);
   assert_non_null(strstr(err, "D"));
+  vlff_evidence_destroy(e);
+}
+
+/* One view of a wall filling voxel (i, j, k) of the grid alone: the camera
+ * at that column's centre, the wall at that layer's middle. */
+static void add_at(struct vlff_evidence *e, int i, int j, int k, const float f[D]) {
+  struct wall a;
+  wall_make(&a, 0.25f + 0.5f * (float)k, f);
+  a.v.c2w[3] = origin[0] + 0.25 + 0.5 * i;
+  a.v.c2w[7] = origin[1] + 0.25 + 0.5 * j;
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+}
+
+static long voxel_at(const struct vlff_evidence *e, int i, int j, int k) {
+  return vlff_evidence_voxel(e, (const double[3]){origin[0] + 0.25 + 0.5 * i, origin[1] + 0.25 + 0.5 * j,
+                                                   origin[2] + 0.25 + 0.5 * k});
+}
+
+/* A full budget gives up the least-observed voxels that no recent view
+ * touched, oldest first at equal counts, and goes on taking new ones: a
+ * voxel seen three times keeps its evidence, and so do those the last
+ * views saw; the rest stay intact and save and load as before. */
+static void test_full_budget_gives_up_least_observed(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 14);
+  const float well[D] = {0, 0, 1, 0}, stray[D] = {1, 0, 0, 0};
+  for (int r = 0; r < 3; r++) add_at(e, 0, 0, 0, well);
+  float out[D];
+  assert_int_equal(vlff_evidence_get(e, voxel_at(e, 0, 0, 0), out), 48); /* 16 feature pixels a view */
+  /* Strays, one view each, until the budget is full and one more. */
+  int n = 0, i = 1;
+  size_t cap = 0;
+  for (; vlff_evidence_evicted(e) == 0; i++, n++) {
+    assert_true(i < 8 * 8 * 8);
+    cap = vlff_evidence_voxels(e);
+    add_at(e, i % 8, i / 8 % 8, i / 64, stray);
+  }
+  assert_true(cap >= 16);
+  const long long gone = vlff_evidence_evicted(e);
+  assert_int_equal(gone, cap / 8);
+  assert_int_equal(vlff_evidence_overflow(e), 0);
+  assert_int_equal(vlff_evidence_voxels(e), cap - (size_t)gone + 1);
+  assert_int_equal(vlff_evidence_get(e, voxel_at(e, 0, 0, 0), out), 48);
+  assert_float_equal(out[2], 1.0f, 1e-3);
+  /* The oldest strays are gone, the rest and the last eight views' kept. */
+  for (int t = 1; t < i; t++) {
+    int got = vlff_evidence_get(e, voxel_at(e, t % 8, t / 8 % 8, t / 64), out);
+    assert_int_equal(got, t <= gone ? 0 : 16);
+    if (got) assert_float_equal(out[0], 1.0f, 1e-3);
+  }
+  /* A voxel given up starts over when seen again. */
+  add_at(e, 1, 0, 0, well);
+  assert_int_equal(vlff_evidence_get(e, voxel_at(e, 1, 0, 0), out), 16);
+  assert_float_equal(out[2], 1.0f, 1e-3);
+  /* Packed slots save and load as they hold. */
+  struct vlff_evidence *g = make(1 << 14);
+  size_t sz = vlff_evidence_save_size(e);
+  uint8_t *buf = malloc(sz);
+  vlff_evidence_save(e, buf);
+  char err[256];
+  assert_int_equal(vlff_evidence_load(g, buf, sz, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(g), vlff_evidence_voxels(e));
+  float x[D];
+  for (int t = 0; t < i; t++) {
+    long vi = voxel_at(e, t % 8, t / 8 % 8, t / 64);
+    assert_int_equal(vlff_evidence_get(e, vi, out), vlff_evidence_get(g, vi, x));
+  }
+  free(buf);
+  vlff_evidence_destroy(g);
   vlff_evidence_destroy(e);
 }
 
@@ -374,5 +445,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_footprint_reaches_every_voxel),
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
-    cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_save_load),
+    cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
+    cmocka_unit_test(test_save_load),
     cmocka_unit_test(test_grid_plan))
