@@ -474,6 +474,7 @@ int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, c
 }
 
 size_t vlff_evidence_voxels(const struct vlff_evidence *e) { return e->used; }
+size_t vlff_evidence_capacity(const struct vlff_evidence *e) { return e->cap; }
 
 long long vlff_evidence_evicted(const struct vlff_evidence *e) { return e->evicted; }
 long long vlff_evidence_overflow(const struct vlff_evidence *e) { return e->overflow; }

@@ -135,6 +135,7 @@ void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out);
 int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen);
 
 size_t vlff_evidence_voxels(const struct vlff_evidence *e);   /* voxels with evidence */
+size_t vlff_evidence_capacity(const struct vlff_evidence *e); /* voxels the budget holds */
 long long vlff_evidence_overflow(const struct vlff_evidence *e); /* additions lost to a full budget */
 long long vlff_evidence_evicted(const struct vlff_evidence *e);  /* voxels whose evidence was given up for room */
 

@@ -361,13 +361,17 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
   if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;
   if (!p->ev_full_said && vlff_evidence_evicted(p->ev)) {
     p->ev_full_said = true;
-    VLFF_INFO(TAG, "evidence: publish.evidence_max_mb (%zu MB) holds %zu voxels; from now on the least-observed give theirs up for newly seen ones",
-              p->ev_budget >> 20, vlff_evidence_voxels(p->ev));
+    VLFF_INFO(TAG,
+              "evidence: publish.evidence_max_mb (%zu MB, %zu voxels) is full; from now on the least-observed "
+              "voxels give theirs up to newly seen ones",
+              p->ev_budget >> 20, vlff_evidence_capacity(p->ev));
   }
   if (!p->ev_overflow_said && vlff_evidence_overflow(p->ev)) {
     p->ev_overflow_said = true;
-    VLFF_WARN(TAG, "evidence: publish.evidence_max_mb (%zu MB) is full of voxels the last views saw; newly seen ones read the field alone until it frees room (raise publish.evidence_max_mb)",
-              p->ev_budget >> 20);
+    VLFF_WARN(TAG,
+              "evidence: publish.evidence_max_mb (%zu MB, %zu voxels) is full of voxels the last 8 views saw; "
+              "newly seen ones read the field alone until it frees room (raise publish.evidence_max_mb)",
+              p->ev_budget >> 20, vlff_evidence_capacity(p->ev));
   }
   return 0;
 }

@@ -332,9 +332,10 @@ static long voxel_at(const struct vlff_evidence *e, int i, int j, int k) {
 }
 
 /* A full budget gives up the least-observed voxels that no recent view
- * touched, oldest first at equal counts, and goes on taking new ones: a
- * voxel seen three times keeps its evidence, and so do those the last
- * views saw; the rest stay intact and save and load as before. */
+ * touched (at equal counts the first in memory, here the oldest) and goes
+ * on taking new ones: a voxel seen three times keeps its evidence, and so
+ * do those the last views saw; the rest stay intact and save and load as
+ * before. */
 static void test_full_budget_gives_up_least_observed(void **state) {
   (void)state;
   struct vlff_evidence *e = make(1 << 14);
@@ -350,6 +351,7 @@ static void test_full_budget_gives_up_least_observed(void **state) {
     cap = vlff_evidence_voxels(e);
     add_at(e, i % 8, i / 8 % 8, i / 64, stray);
   }
+  assert_int_equal(cap, vlff_evidence_capacity(e));
   assert_true(cap >= 16);
   const long long gone = vlff_evidence_evicted(e);
   assert_int_equal(gone, cap / 8);
