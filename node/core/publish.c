@@ -69,7 +69,7 @@ struct vlff_publisher {
   float ev_weight;
   int D;
   size_t ev_budget; /* bytes: publish.evidence_max_mb */
-  bool ev_full_said, ev_overflow_said; /* logged once each */
+  bool ev_full_said, ev_overflow_said; /* logged once each per map (a mapping reset starts over) */
   float *qcos; /* [QBLOCK][VLFF_FIELD_MAX_PROMPTS] the field's cosines of a block of points */
   uint16_t *qrays; /* [QBLOCK] the field's exposure there (vlff_field_exposure) */
   int trust_rays;  /* publish.field_trust_rays */
@@ -268,6 +268,7 @@ out:
 
 void vlff_publisher_reset(struct vlff_publisher *p) {
   if (p->ev) vlff_evidence_reset(p->ev);
+  p->ev_full_said = p->ev_overflow_said = false;
   p->lost_mask = 0;
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
