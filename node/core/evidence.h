@@ -24,10 +24,10 @@
  * slots holding a single sample (noisy depth scatters samples in front of
  * and behind a surface; a surface seen once from afar gets few), and every
  * room entered later read the field alone, not fitted there yet
- * (docs/field.md, "A full evidence budget"). The mean gives each sample (a feature pixel of
- * a view whose footprint reaches the voxel) equal weight up to 255 samples
- * per voxel, then new ones weigh 1/255 (the map follows a changing scene
- * rather than freezing).
+ * (docs/field.md, "A full evidence budget"). The mean gives each sample
+ * (a feature pixel of a view whose footprint reaches the voxel) equal
+ * weight up to 255 samples per voxel, then new ones weigh 1/255 (the map
+ * follows a changing scene rather than freezing).
  *
  * Contract: one owner thread. Functions returning int give 0, or -1 with
  * err filled; a refused view leaves the evidence untouched.

@@ -344,9 +344,9 @@ static void test_full_budget_gives_up_least_observed(void **state) {
   float out[D];
   assert_int_equal(vlff_evidence_get(e, voxel_at(e, 0, 0, 0), out), 48); /* 16 feature pixels a view */
   /* Strays, one view each, until the budget is full and one more. */
-  int n = 0, i = 1;
+  int i = 1;
   size_t cap = 0;
-  for (; vlff_evidence_evicted(e) == 0; i++, n++) {
+  for (; vlff_evidence_evicted(e) == 0; i++) {
     assert_true(i < 8 * 8 * 8);
     cap = vlff_evidence_voxels(e);
     add_at(e, i % 8, i / 8 % 8, i / 64, stray);
