@@ -162,6 +162,9 @@ static void move_slot(struct vlff_evidence *e, size_t from, size_t to) {
   e->slot[e->owner[to]] = (int32_t)to;
 }
 
+/* Slot s was touched by one of the last RECENT_VIEWS views. */
+static bool recent(const struct vlff_evidence *e, size_t s) { return e->nadd - e->seen[s] < RECENT_VIEWS; }
+
 /* A full budget: gives up the evidence of the cap / RECLAIM_DIV voxels with
  * the fewest samples among those no recent view touched (at a count, the
  * first slots), and packs the rest. The least-observed voxels are the depth
@@ -170,13 +173,13 @@ static void move_slot(struct vlff_evidence *e, size_t from, size_t to) {
 static size_t reclaim(struct vlff_evidence *e) {
   size_t hist[MAX_VIEWS + 1] = {0}, want = e->cap / RECLAIM_DIV ? e->cap / RECLAIM_DIV : 1;
   for (size_t s = 0; s < e->used; s++)
-    if (e->nadd - e->seen[s] >= RECENT_VIEWS) hist[e->views[s]]++;
+    if (!recent(e, s)) hist[e->views[s]]++;
   size_t below = 0;
   int c = 1;
   for (; c < MAX_VIEWS && below + hist[c] < want; c++) below += hist[c];
   size_t atc = want > below ? want - below : 0, freed = 0; /* slots to take at count c */
   for (size_t s = 0; s < e->used; s++) {
-    if (e->nadd - e->seen[s] < RECENT_VIEWS || e->views[s] > c || (e->views[s] == c && !atc)) continue;
+    if (recent(e, s) || e->views[s] > c || (e->views[s] == c && !atc)) continue;
     if (e->views[s] == c) atc--;
     e->slot[e->owner[s]] = -1;
     e->views[s] = 0; /* a live slot holds at least one sample */

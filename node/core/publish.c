@@ -314,6 +314,16 @@ static bool clip_to_map(const struct vlff_publisher *p, const double o[3], const
   return *t0 <= *t1;
 }
 
+/* A state of the evidence budget (count > 0 since it began), said once per
+ * map at level. */
+static void say_budget(struct vlff_publisher *p, bool *said, long long count, enum vlff_log_level level,
+                       const char *what) {
+  if (*said || !count) return;
+  *said = true;
+  vlff_log(level, TAG, "evidence: publish.evidence_max_mb (%zu MB, %zu voxels) %s", p->ev_budget >> 20,
+           vlff_evidence_capacity(p->ev), what);
+}
+
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
   if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
   if (!v->depth) return 0;
@@ -360,20 +370,11 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
     }
   if (!p->ev) return 0;
   if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;
-  if (!p->ev_full_said && vlff_evidence_evicted(p->ev)) {
-    p->ev_full_said = true;
-    VLFF_INFO(TAG,
-              "evidence: publish.evidence_max_mb (%zu MB, %zu voxels) is full; from now on the least-observed "
-              "voxels give theirs up to newly seen ones",
-              p->ev_budget >> 20, vlff_evidence_capacity(p->ev));
-  }
-  if (!p->ev_overflow_said && vlff_evidence_overflow(p->ev)) {
-    p->ev_overflow_said = true;
-    VLFF_WARN(TAG,
-              "evidence: publish.evidence_max_mb (%zu MB, %zu voxels) is full of voxels the last 8 views saw; "
-              "newly seen ones read the field alone until it frees room (raise publish.evidence_max_mb)",
-              p->ev_budget >> 20, vlff_evidence_capacity(p->ev));
-  }
+  say_budget(p, &p->ev_full_said, vlff_evidence_evicted(p->ev), VLFF_LOG_INFO,
+             "is full; from now on the least-observed voxels give theirs up to newly seen ones");
+  say_budget(p, &p->ev_overflow_said, vlff_evidence_overflow(p->ev), VLFF_LOG_WARN,
+             "is full of voxels the last 8 views saw; newly seen ones read the field alone until it frees room "
+             "(raise publish.evidence_max_mb)");
   return 0;
 }
 
