@@ -126,6 +126,18 @@ int vlff_write_all(int fd, const void *p, size_t n) {
   return 0;
 }
 
+int vlff_read_at(int fd, uint64_t off, void *p, size_t n) {
+  unsigned char *b = p;
+  while (n) {
+    ssize_t r = pread(fd, b, n, (off_t)off);
+    if (r < 0 && errno == EINTR) continue;
+    if (r < 0) return -1;
+    if (r == 0) return errno = EIO, -1; /* the file ended early */
+    b += r, n -= (size_t)r, off += (uint64_t)r;
+  }
+  return 0;
+}
+
 int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen) {
   struct vlff_atomic a;
   if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return -1;

@@ -439,41 +439,86 @@ void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out) {
   }
 }
 
-int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen) {
+/* One record's index and count, checked: in the grid, after the last one
+ * (none twice), at least one sample. */
+static int read_record_head(const struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t i,
+                            uint32_t prev, uint32_t *idx, uint8_t *count, char *err, size_t errlen) {
+  uint8_t head[5];
+  if (rd(ctx, sizeof(struct ev_header) + i * record_size(e->D), head, sizeof head, err, errlen)) return -1;
+  memcpy(idx, head, 4);
+  *count = head[4];
+  if (*idx >= e->nvox || (i > 0 && *idx <= prev) || *count == 0)
+    return vlff_errf(err, errlen, "evidence: saved evidence has a bad voxel record (record %llu)",
+                     (unsigned long long)i),
+           -1;
+  return 0;
+}
+
+int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t len,
+                            char *err, size_t errlen) {
   struct ev_header h;
   if (len < sizeof h) return vlff_errf(err, errlen, "evidence: saved evidence truncated"), -1;
-  memcpy(&h, in, sizeof h);
+  if (rd(ctx, 0, &h, sizeof h, err, errlen)) return -1;
   if (memcmp(h.dims, e->dims, sizeof h.dims) || h.D != e->D || h.voxel != e->voxel ||
       memcmp(h.origin, e->origin, sizeof h.origin))
     return vlff_errf(err, errlen, "evidence: saved evidence is of another grid or feature size"), -1;
-  if (h.used > e->cap)
-    return vlff_errf(err, errlen, "evidence: saved evidence holds more voxels than publish.evidence_max_mb"), -1;
-  if (len != sizeof h + h.used * record_size(e->D))
+  const size_t rs = record_size(e->D);
+  if (h.used > e->nvox || len != sizeof h + h.used * rs)
     return vlff_errf(err, errlen, "evidence: saved evidence has the wrong length"), -1;
-  const uint8_t *r = in + sizeof h;
-  /* Every index in the grid and none twice, before anything changes. */
-  uint32_t prev = 0;
-  for (uint64_t i = 0; i < h.used; i++, r += record_size(e->D)) {
-    uint32_t idx;
-    memcpy(&idx, r, 4);
-    if (idx >= e->nvox || (i > 0 && idx <= prev) || r[4] == 0)
-      return vlff_errf(err, errlen, "evidence: saved evidence has a bad voxel record"), -1;
-    prev = idx;
+  /* Every record checked before anything changes, and the counts'
+   * histogram: more voxels than the budget holds keep the most-observed. */
+  size_t hist[MAX_VIEWS + 1] = {0};
+  uint32_t idx, prev = 0;
+  uint8_t count;
+  for (uint64_t i = 0; i < h.used; i++, prev = idx) {
+    if (read_record_head(e, rd, ctx, i, prev, &idx, &count, err, errlen)) return -1;
+    hist[count]++;
+  }
+  int c = 1;   /* the fewest samples a kept voxel has */
+  size_t atc = SIZE_MAX; /* voxels kept at exactly c (the first in the file) */
+  if (h.used > e->cap) {
+    size_t above = 0;
+    for (c = MAX_VIEWS; c > 1 && above + hist[c] < e->cap; c--) above += hist[c];
+    atc = e->cap - above;
   }
   vlff_evidence_reset(e);
-  r = in + sizeof h;
-  for (uint64_t i = 0; i < h.used; i++, r += record_size(e->D)) {
-    uint32_t idx;
-    memcpy(&idx, r, 4);
-    int32_t s = (int32_t)e->used++;
+  for (uint64_t i = 0; i < h.used; i++, prev = idx) {
+    /* Read again: a file changed under the reader leaves no evidence
+     * rather than a mix of two. */
+    if (read_record_head(e, rd, ctx, i, prev, &idx, &count, err, errlen)) goto changed;
+    if (count < c || (count == c && !atc)) continue;
+    if (count == c) atc--;
+    int32_t s = (int32_t)e->used;
+    if (rd(ctx, sizeof h + i * rs + 5, e->mean + (size_t)s * e->D, (size_t)e->D * 2, err, errlen)) goto changed;
+    e->used++;
     e->slot[idx] = s;
-    e->views[s] = r[4];
+    e->views[s] = count;
     e->owner[s] = idx;
     e->seen[s] = e->nadd;
     e->dirty[s] = 1;
-    memcpy(e->mean + (size_t)s * e->D, r + 5, (size_t)e->D * 2);
   }
+  e->evicted = (long long)(h.used - e->used);
   return 0;
+changed:
+  vlff_evidence_reset(e);
+  return -1;
+}
+
+struct buffer_reader {
+  const uint8_t *in;
+  size_t len;
+};
+
+static int buffer_read(void *ctx, uint64_t off, void *dst, size_t n, char *err, size_t errlen) {
+  const struct buffer_reader *b = ctx;
+  if (off > b->len || n > b->len - off) return vlff_errf(err, errlen, "evidence: saved evidence truncated"), -1;
+  memcpy(dst, b->in + off, n);
+  return 0;
+}
+
+int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen) {
+  struct buffer_reader b = {in, len};
+  return vlff_evidence_load_from(e, buffer_read, &b, len, err, errlen);
 }
 
 size_t vlff_evidence_voxels(const struct vlff_evidence *e) { return e->used; }

@@ -126,13 +126,24 @@ int vlff_evidence_census_end(struct vlff_evidence *e, double ratio);
 bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long *n_field, unsigned long long *n_ev);
 
 /* Learned state, saved beside the field (vlff_publisher_save): the bytes
- * of the grid's geometry and every voxel's mean and count. load checks the
- * geometry, D, the slot count against the budget and every voxel index,
+ * of the grid's geometry and every voxel's mean and count (voxels in index
+ * order). load checks the geometry, D, the length and every voxel record,
  * and only then replaces the evidence (-1 with err and the evidence
- * untouched otherwise). */
+ * untouched otherwise). Saved evidence of more voxels than the budget holds
+ * (publish.evidence_max_mb lowered since it was saved) keeps the
+ * most-observed, at equal counts the lowest voxel indices; the rest are
+ * counted as given up (vlff_evidence_evicted). */
 size_t vlff_evidence_save_size(const struct vlff_evidence *e);
 void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out);
 int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen);
+/* The same from a reader of the saved bytes (n bytes at offset off into
+ * dst: 0, or -1 with err filled), so that a file of a larger budget's
+ * evidence is read a record at a time, not held whole. Records are read
+ * twice (checked, then loaded): a record that changed in between leaves
+ * the evidence empty (-1). */
+typedef int (*vlff_evidence_read_fn)(void *ctx, uint64_t off, void *dst, size_t n, char *err, size_t errlen);
+int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t len,
+                            char *err, size_t errlen);
 
 size_t vlff_evidence_voxels(const struct vlff_evidence *e);   /* voxels with evidence */
 size_t vlff_evidence_capacity(const struct vlff_evidence *e); /* voxels the budget holds */

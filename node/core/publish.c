@@ -9,9 +9,12 @@
 #include "files.h" /* vlff_write_file_atomic */
 #include "hash.h"
 
+#include <errno.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "bounds.h"
 #include "evidence.h"
@@ -212,59 +215,135 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
   return rc;
 }
 
+/* A saved map is read a piece at a time, never held whole: its evidence
+ * may be a larger budget's (publish.evidence_max_mb lowered since), and
+ * only the part this budget holds is loaded. */
+enum { OBS_CHUNK = 1 << 20 };
+struct obs_reader {
+  int fd;
+  const char *path;
+  uint64_t size; /* the file's */
+  uint64_t base; /* where the offsets asked for count from */
+  uint8_t *buf;  /* OBS_CHUNK bytes of the file from start */
+  uint64_t start;
+  size_t have;
+};
+
+/* n bytes at offset off (from base) into dst; errors name the byte, not the
+ * file (the caller's message does). */
+static int obs_read(void *ctx, uint64_t off, void *dst, size_t n, char *err, size_t errlen) {
+  struct obs_reader *r = ctx;
+  off += r->base;
+  if (off > r->size || n > r->size - off) {
+    snprintf(err, errlen, "ends before byte %llu", (unsigned long long)(off + n));
+    return -1;
+  }
+  if (n > OBS_CHUNK || off < r->start || off + n > r->start + r->have) {
+    size_t want = r->size - off < OBS_CHUNK ? (size_t)(r->size - off) : OBS_CHUNK;
+    uint8_t *to = n > OBS_CHUNK ? dst : r->buf;
+    if (n > OBS_CHUNK) want = n;
+    if (vlff_read_at(r->fd, off, to, want)) {
+      snprintf(err, errlen, "read error at byte %llu: %s", (unsigned long long)off, strerror(errno));
+      return -1;
+    }
+    if (to == dst) return 0;
+    r->start = off, r->have = want;
+  }
+  memcpy(dst, r->buf + (off - r->start), n);
+  return 0;
+}
+
+/* obs_read with the file named in the error. */
+static int obs_get(struct obs_reader *r, uint64_t off, void *dst, size_t n, char *err, size_t errlen) {
+  char e[128];
+  if (!obs_read(r, off, dst, n, e, sizeof e)) return 0;
+  snprintf(err, errlen, "%s: %s", r->path, e);
+  return -1;
+}
+
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
-  size_t n = p->nvox, grids = sizeof(struct obs_header) + n + n * 2 + n * 12, len;
-  /* The evidence is bounded by its budget: a longer file is refused unread. */
-  size_t most = grids + 8 + 4096 + p->ev_budget + 8;
-  uint8_t *buf;
-  if (vlff_read_file(path, most, &buf, &len, err, errlen)) return -1;
+  size_t n = p->nvox, grids = sizeof(struct obs_header) + n + n * 2 + n * 12;
+  struct obs_reader r = {.fd = vlff_open_regular(path, err, errlen), .path = path};
+  if (r.fd < 0) return -1;
   int rc = -1;
+  uint8_t *g = NULL;
+  struct stat st;
+  if (fstat(r.fd, &st) < 0) {
+    snprintf(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
+    goto out;
+  }
+  r.size = (uint64_t)st.st_size;
+  r.buf = malloc(OBS_CHUNK);
+  g = malloc(grids - sizeof(struct obs_header));
+  if (!r.buf || !g) {
+    snprintf(err, errlen, "%s: out of memory", path);
+    goto out;
+  }
   struct obs_header h;
-  uint64_t sum, evn = 0;
+  uint64_t sum, evn = 0, len = r.size;
   if (len < sizeof h) {
-    snprintf(err, errlen, "%s: %zu bytes, too short for an observation grid", path, len);
+    snprintf(err, errlen, "%s: %llu bytes, too short for an observation grid", path, (unsigned long long)len);
     goto out;
   }
-  memcpy(&h, buf, sizeof h);
+  if (obs_get(&r, 0, &h, sizeof h, err, errlen)) goto out;
   int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8);
-  if (!v1 && len >= grids + 16) memcpy(&evn, buf + grids, 8);
-  size_t want = v1 ? grids + 8 : grids + 8 + evn + 8;
+  if (!v1 && len >= grids + 16 && obs_get(&r, grids, &evn, 8, err, errlen)) goto out;
+  uint64_t want = v1 ? grids + 8 : grids + 8 + evn + 8;
   if (evn > len || len != want) {
-    snprintf(err, errlen, "%s: %zu bytes, expected %zu for a %ux%ux%u grid", path, len, want, p->dims[0],
-             p->dims[1], p->dims[2]);
+    snprintf(err, errlen, "%s: %llu bytes, expected %llu for a %ux%ux%u grid", path, (unsigned long long)len,
+             (unsigned long long)want, p->dims[0], p->dims[1], p->dims[2]);
     goto out;
   }
-  memcpy(&sum, buf + want - 8, 8);
   if ((!v1 && memcmp(h.magic, OBS_MAGIC, 8)) || memcmp(h.dims, p->dims, sizeof h.dims) || h.voxel != p->voxel ||
       memcmp(h.origin, p->origin, sizeof h.origin)) {
     snprintf(err, errlen, "%s: not an observation grid of this map's geometry", path);
     goto out;
   }
-  if (vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, want - 8) != sum) {
+  uint64_t hash = VLFF_FNV1A64_INIT;
+  for (uint64_t off = 0; off < want - 8; off += OBS_CHUNK) {
+    size_t m = want - 8 - off < OBS_CHUNK ? (size_t)(want - 8 - off) : OBS_CHUNK;
+    if (vlff_read_at(r.fd, off, r.buf, m)) {
+      snprintf(err, errlen, "%s: read error at byte %llu: %s", path, (unsigned long long)off, strerror(errno));
+      goto out;
+    }
+    r.start = off, r.have = m;
+    hash = vlff_fnv1a64(hash, r.buf, m);
+  }
+  if (obs_get(&r, want - 8, &sum, 8, err, errlen)) goto out;
+  if (hash != sum) {
     snprintf(err, errlen, "%s: checksum mismatch (corrupt file)", path);
     goto out;
   }
+  if (obs_get(&r, sizeof h, g, grids - sizeof h, err, errlen)) goto out;
   /* The evidence first: it is checked whole before anything changes. A file
    * without evidence leaves the node's empty; evidence the node no longer
    * keeps (publish.evidence_weight 0) is ignored. */
   if (p->ev && evn) {
     char eerr[256];
-    if (vlff_evidence_load(p->ev, buf + grids + 8, evn, eerr, sizeof eerr)) {
+    r.base = grids + 8;
+    if (vlff_evidence_load_from(p->ev, obs_read, &r, evn, eerr, sizeof eerr)) {
       snprintf(err, errlen, "%s: %s", path, eerr);
       goto out;
     }
+    if (vlff_evidence_evicted(p->ev))
+      VLFF_WARN(TAG, "%s: its evidence holds more voxels than publish.evidence_max_mb (%zu MB, %zu voxels); the %lld "
+                     "least-observed were given up",
+                path, p->ev_budget >> 20, vlff_evidence_capacity(p->ev), vlff_evidence_evicted(p->ev));
   } else if (p->ev) {
     vlff_evidence_reset(p->ev);
   }
-  const uint8_t *q = buf + sizeof h;
-  memcpy(p->observed, q, n), q += n;
-  memcpy(p->hits, q, n * 2), q += n * 2;
-  memcpy(p->hit_sum, q, n * 12);
+  memcpy(p->observed, g, n);
+  memcpy(p->hits, g + n, n * 2);
+  memcpy(p->hit_sum, g + n * 3, n * 12);
   rc = 0;
 out:
-  free(buf);
+  free(g);
+  free(r.buf);
+  close(r.fd);
   return rc;
 }
+
+const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher *p) { return p->ev; }
 
 void vlff_publisher_reset(struct vlff_publisher *p) {
   if (p->ev) vlff_evidence_reset(p->ev);

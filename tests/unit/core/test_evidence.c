@@ -388,8 +388,8 @@ static void test_full_budget_gives_up_least_observed(void **state) {
 }
 
 /* Saved evidence loads back as it was; a record that points outside the
- * grid, a file of another feature size and one larger than the budget are
- * refused and leave the evidence as it was. */
+ * grid, a truncated file and one of another feature size are refused and
+ * leave the evidence as it was. */
 static void test_save_load(void **state) {
   (void)state;
   struct vlff_evidence *e = make(1 << 20), *g = make(1 << 20);
@@ -419,13 +419,59 @@ static void test_save_load(void **state) {
   assert_int_equal(vlff_evidence_load(other, buf, n, err, sizeof err), -1);
   assert_non_null(strstr(err, "another grid"));
   vlff_evidence_destroy(other);
-  struct vlff_evidence *small = make(1);
-  assert_int_equal(vlff_evidence_load(small, buf, n, err, sizeof err), -1);
-  assert_non_null(strstr(err, "evidence_max_mb"));
-  vlff_evidence_destroy(small);
   free(buf);
   vlff_evidence_destroy(e);
   vlff_evidence_destroy(g);
+}
+
+/* Saved evidence of more voxels than the budget holds (its budget lowered
+ * since) keeps the most-observed, at equal counts the lowest voxel indices,
+ * each as it was saved, and counts the rest as given up; a budget with room
+ * loads it all. */
+static void test_load_thins_to_budget(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  enum { N = 60 };
+  for (int t = 0; t < N; t++)
+    for (int r = 0; r <= t % 3; r++) add_at(e, t % 8, t / 8 % 8, t / 64, (const float[D]){(float)t, 1, 0, 0});
+  size_t n = vlff_evidence_save_size(e);
+  uint8_t *buf = malloc(n);
+  vlff_evidence_save(e, buf);
+  char err[256];
+  struct vlff_evidence *g = make(1 << 12);
+  const size_t cap = vlff_evidence_capacity(g);
+  assert_true(cap > N / 3 && cap < 2 * N / 3); /* all of the 48-sample voxels and some of the 32-sample ones */
+  assert_int_equal(vlff_evidence_load(g, buf, n, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(g), cap);
+  assert_int_equal(vlff_evidence_evicted(g), N - (long long)cap);
+  int kept[3] = {0}, last_kept32 = -1, first_gone32 = N;
+  for (int t = 0; t < N; t++) {
+    float x[D], y[D];
+    long vi = voxel_at(e, t % 8, t / 8 % 8, t / 64);
+    int got = vlff_evidence_get(g, vi, y);
+    assert_int_equal(vlff_evidence_get(e, vi, x), 16 * (t % 3 + 1));
+    if (!got) {
+      if (t % 3 == 1 && t < first_gone32) first_gone32 = t;
+      continue;
+    }
+    assert_int_equal(got, 16 * (t % 3 + 1));
+    assert_memory_equal(x, y, sizeof x);
+    kept[t % 3]++;
+    if (t % 3 == 1) last_kept32 = t;
+  }
+  assert_int_equal(kept[2], N / 3);
+  assert_int_equal(kept[1], (int)cap - N / 3);
+  assert_int_equal(kept[0], 0);
+  assert_true(last_kept32 < first_gone32);
+  /* Room for all: nothing given up. */
+  struct vlff_evidence *big = make(1 << 20);
+  assert_int_equal(vlff_evidence_load(big, buf, n, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(big), N);
+  assert_int_equal(vlff_evidence_evicted(big), 0);
+  vlff_evidence_destroy(big);
+  free(buf);
+  vlff_evidence_destroy(g);
+  vlff_evidence_destroy(e);
 }
 
 /* The grid plan coarsens until the box fits the voxel budget. */
@@ -448,5 +494,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
-    cmocka_unit_test(test_save_load),
+    cmocka_unit_test(test_save_load), cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan))

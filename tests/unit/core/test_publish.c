@@ -14,6 +14,7 @@
 #include <unistd.h>
 #include <cmocka.h>
 
+#include "evidence.h"
 #include "publish.h"
 #include "unit.h"
 #include "vlff/shm.h"
@@ -102,5 +103,82 @@ static void test_far_depth_bounded(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* A publisher with evidence of feature_dim features in a budget of mb MB,
+ * its map segment named by tag. */
+static struct vlff_publisher *make_ev(struct vlff_config *cfg, int mb, const char *tag) {
+  vlff_config_defaults(cfg);
+  snprintf(cfg->shm.map, sizeof cfg->shm.map, "/vlff-test-publish-%s-%d", tag, (int)getpid());
+  cfg->shm.map_max_voxels = 1 << 18;
+  cfg->publish.voxel_size_m = 0.08;
+  cfg->publish.evidence_max_mb = mb;
+  struct vlff_publisher *p = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, NULL, err, sizeof err);
+  if (!p) fail_msg("%s", err);
+  return p;
+}
+
+/* A saved map reloads as it was; a map saved under a larger evidence budget
+ * loads into a smaller one with the budget full and the rest given up,
+ * rather than losing all of it; a corrupt or truncated file is refused and
+ * leaves what was loaded. Features: 32 x 24 pixels of field.feature_dim,
+ * each pixel's depth random in 0.3-2.4 m, so every view reaches a few
+ * thousand 10-cm evidence voxels. */
+static void test_saved_map_loads_within_budget(void **state) {
+  (void)state;
+  struct vlff_config ca, cb, cc;
+  struct vlff_publisher *a = make_ev(&ca, 8, "a"), *b = make_ev(&cb, 2, "b"), *c = make_ev(&cc, 8, "c");
+  const int FW = 32, FH = 24, D = ca.field.feature_dim;
+  uint16_t *feat = malloc((size_t)FW * FH * D * sizeof *feat);
+  assert_non_null(feat);
+  unsigned seed = 7;
+  for (int r = 0; r < 2; r++) {
+    struct vlff_view v = view(1.0f);
+    for (int i = 0; i < W * H; i++) depth[i] = 0.3f + 2.1f * (float)rand_r(&seed) / (float)RAND_MAX;
+    for (size_t i = 0; i < (size_t)FW * FH * D; i++) feat[i] = vlff_f32_to_f16((float)rand_r(&seed) / (float)RAND_MAX);
+    v.features = feat, v.feat_width = FW, v.feat_height = FH, v.feature_dim = D;
+    assert_int_equal(vlff_publisher_observe(a, &v, err, sizeof err), 0);
+  }
+  const struct vlff_evidence *ea = vlff_publisher_evidence(a), *eb = vlff_publisher_evidence(b),
+                             *ec = vlff_publisher_evidence(c);
+  assert_true(vlff_evidence_voxels(ea) > vlff_evidence_capacity(eb));
+  assert_int_equal(vlff_evidence_evicted(ea), 0);
+  char path[] = "/tmp/vlff-test-publish-XXXXXX";
+  int fd = mkstemp(path);
+  assert_true(fd >= 0);
+  close(fd);
+  assert_int_equal(vlff_publisher_save(a, path, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_load(c, path, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(ec), vlff_evidence_voxels(ea));
+  assert_int_equal(vlff_publisher_load(b, path, err, sizeof err), 0);
+  const size_t cap = vlff_evidence_capacity(eb);
+  assert_int_equal(vlff_evidence_voxels(eb), cap);
+  assert_int_equal(vlff_evidence_evicted(eb), (long long)(vlff_evidence_voxels(ea) - cap));
+  double hit[3] = {0, 0, 1.0};
+  assert_int_equal(vlff_publisher_surface_known(b, hit), vlff_publisher_surface_known(a, hit));
+  /* One byte flipped in the evidence, then one byte short. */
+  FILE *f = fopen(path, "r+b");
+  assert_non_null(f);
+  assert_int_equal(fseek(f, -1000, SEEK_END), 0);
+  int ch = fgetc(f);
+  assert_int_equal(fseek(f, -1000, SEEK_END), 0);
+  fputc(ch ^ 1, f);
+  fclose(f);
+  assert_int_equal(vlff_publisher_load(b, path, err, sizeof err), -1);
+  assert_non_null(strstr(err, "checksum mismatch"));
+  assert_int_equal(vlff_evidence_voxels(eb), cap);
+  assert_int_equal(truncate(path, 1000), 0);
+  assert_int_equal(vlff_publisher_load(b, path, err, sizeof err), -1);
+  assert_non_null(strstr(err, "expected"));
+  assert_int_equal(vlff_evidence_voxels(eb), cap);
+  unlink(path);
+  free(feat);
+  vlff_publisher_destroy(a);
+  vlff_publisher_destroy(b);
+  vlff_publisher_destroy(c);
+  vlff_shm_unlink(ca.shm.map);
+  vlff_shm_unlink(cb.shm.map);
+  vlff_shm_unlink(cc.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded))
+    cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
+    cmocka_unit_test(test_saved_map_loads_within_budget))
