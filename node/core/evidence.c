@@ -494,7 +494,7 @@ int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, v
     e->slot[idx] = s;
     e->views[s] = count;
     e->owner[s] = idx;
-    e->seen[s] = e->nadd;
+    e->seen[s] = e->nadd - RECENT_VIEWS; /* no view since the load touched it: a full budget may give it up */
     e->dirty[s] = 1;
   }
   e->evicted = (long long)(h.used - e->used);

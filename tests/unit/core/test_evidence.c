@@ -463,6 +463,12 @@ static void test_load_thins_to_budget(void **state) {
   assert_int_equal(kept[1], (int)cap - N / 3);
   assert_int_equal(kept[0], 0);
   assert_true(last_kept32 < first_gone32);
+  /* The loaded budget is full, but no view has touched it since: a newly
+   * seen voxel takes the place of the least-observed. */
+  add_at(g, 7, 7, 0, (const float[D]){0, 0, 0, 1});
+  float z[D];
+  assert_int_equal(vlff_evidence_get(g, voxel_at(g, 7, 7, 0), z), 16);
+  assert_int_equal(vlff_evidence_overflow(g), 0);
   /* Room for all: nothing given up. */
   struct vlff_evidence *big = make(1 << 20);
   assert_int_equal(vlff_evidence_load(big, buf, n, err, sizeof err), 0);
