@@ -461,7 +461,10 @@ int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, v
   if (rd(ctx, 0, &h, sizeof h, err, errlen)) return -1;
   if (memcmp(h.dims, e->dims, sizeof h.dims) || h.D != e->D || h.voxel != e->voxel ||
       memcmp(h.origin, e->origin, sizeof h.origin))
-    return vlff_errf(err, errlen, "evidence: saved evidence is of another grid or feature size"), -1;
+    return vlff_errf(err, errlen,
+                     "evidence: saved evidence is of another grid or feature size (publish.evidence_voxel_m, "
+                     "publish.evidence_max_mb or field.feature_dim changed since)"),
+           1;
   const size_t rs = record_size(e->D);
   if (h.used > e->nvox || len != sizeof h + h.used * rs)
     return vlff_errf(err, errlen, "evidence: saved evidence has the wrong length"), -1;

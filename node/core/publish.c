@@ -321,11 +321,17 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   if (p->ev && evn) {
     char eerr[256];
     r.base = grids + 8;
-    if (vlff_evidence_load_from(p->ev, obs_read, &r, evn, eerr, sizeof eerr)) {
+    int erc = vlff_evidence_load_from(p->ev, obs_read, &r, evn, eerr, sizeof eerr);
+    if (erc < 0) {
       snprintf(err, errlen, "%s: %s", path, eerr);
       goto out;
     }
-    if (vlff_evidence_evicted(p->ev))
+    /* The map's observations hold without it, as in a file saved without
+     * evidence. */
+    if (erc > 0) {
+      VLFF_WARN(TAG, "%s: %s; the map goes on without it", path, eerr);
+      vlff_evidence_reset(p->ev);
+    } else if (vlff_evidence_evicted(p->ev))
       VLFF_WARN(TAG, "%s: its evidence holds more voxels than publish.evidence_max_mb (%zu MB, %zu voxels); the %lld "
                      "least-observed were given up",
                 path, p->ev_budget >> 20, vlff_evidence_capacity(p->ev), vlff_evidence_evicted(p->ev));

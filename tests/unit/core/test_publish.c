@@ -103,29 +103,39 @@ static void test_far_depth_bounded(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
-/* A publisher with evidence of feature_dim features in a budget of mb MB,
- * its map segment named by tag. */
-static struct vlff_publisher *make_ev(struct vlff_config *cfg, int mb, const char *tag) {
+/* A publisher with evidence of feature_dim features in voxels of ev_m
+ * metres and a budget of mb MB, its map segment named by tag. */
+static struct vlff_publisher *make_ev(struct vlff_config *cfg, int mb, double ev_m, const char *tag) {
   vlff_config_defaults(cfg);
   snprintf(cfg->shm.map, sizeof cfg->shm.map, "/vlff-test-publish-%s-%d", tag, (int)getpid());
   cfg->shm.map_max_voxels = 1 << 18;
   cfg->publish.voxel_size_m = 0.08;
   cfg->publish.evidence_max_mb = mb;
+  cfg->publish.evidence_voxel_m = ev_m;
   struct vlff_publisher *p = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, NULL, err, sizeof err);
   if (!p) fail_msg("%s", err);
   return p;
 }
 
+/* Surfaces the map has seen along the camera's axis, 8-cm steps. */
+static int count_known(const struct vlff_publisher *p) {
+  int n = 0;
+  for (double z = 0.3; z < 2.4; z += 0.08) n += vlff_publisher_surface_known(p, (const double[3]){0, 0, z});
+  return n;
+}
+
 /* A saved map reloads as it was; a map saved under a larger evidence budget
  * loads into a smaller one with the budget full and the rest given up,
- * rather than losing all of it; a corrupt or truncated file is refused and
- * leaves what was loaded. Features: 32 x 24 pixels of field.feature_dim,
+ * rather than losing all of it; one of another evidence voxel loads its
+ * observations without the evidence; a corrupt or truncated file is refused
+ * and leaves what was loaded. Features: 32 x 24 pixels of field.feature_dim,
  * each pixel's depth random in 0.3-2.4 m, so every view reaches a few
  * thousand 10-cm evidence voxels. */
 static void test_saved_map_loads_within_budget(void **state) {
   (void)state;
-  struct vlff_config ca, cb, cc;
-  struct vlff_publisher *a = make_ev(&ca, 8, "a"), *b = make_ev(&cb, 2, "b"), *c = make_ev(&cc, 8, "c");
+  struct vlff_config ca, cb, cc, cd;
+  struct vlff_publisher *a = make_ev(&ca, 8, 0.1, "a"), *b = make_ev(&cb, 2, 0.1, "b"), *c = make_ev(&cc, 8, 0.1, "c"),
+                        *d = make_ev(&cd, 8, 0.2, "d");
   const int FW = 32, FH = 24, D = ca.field.feature_dim;
   uint16_t *feat = malloc((size_t)FW * FH * D * sizeof *feat);
   assert_non_null(feat);
@@ -148,12 +158,19 @@ static void test_saved_map_loads_within_budget(void **state) {
   assert_int_equal(vlff_publisher_save(a, path, err, sizeof err), 0);
   assert_int_equal(vlff_publisher_load(c, path, err, sizeof err), 0);
   assert_int_equal(vlff_evidence_voxels(ec), vlff_evidence_voxels(ea));
+  assert_int_equal(count_known(c), count_known(a));
   assert_int_equal(vlff_publisher_load(b, path, err, sizeof err), 0);
   const size_t cap = vlff_evidence_capacity(eb);
   assert_int_equal(vlff_evidence_voxels(eb), cap);
   assert_int_equal(vlff_evidence_evicted(eb), (long long)(vlff_evidence_voxels(ea) - cap));
-  double hit[3] = {0, 0, 1.0};
-  assert_int_equal(vlff_publisher_surface_known(b, hit), vlff_publisher_surface_known(a, hit));
+  const int known = count_known(a);
+  assert_true(known > 0);
+  assert_int_equal(count_known(b), known);
+  /* Evidence of another voxel size (a config changed): the observations
+   * load, the evidence starts empty. */
+  assert_int_equal(vlff_publisher_load(d, path, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(vlff_publisher_evidence(d)), 0);
+  assert_int_equal(count_known(d), known);
   /* One byte flipped in the evidence, then one byte short. */
   FILE *f = fopen(path, "r+b");
   assert_non_null(f);
@@ -174,6 +191,8 @@ static void test_saved_map_loads_within_budget(void **state) {
   vlff_publisher_destroy(a);
   vlff_publisher_destroy(b);
   vlff_publisher_destroy(c);
+  vlff_publisher_destroy(d);
+  vlff_shm_unlink(cd.shm.map);
   vlff_shm_unlink(ca.shm.map);
   vlff_shm_unlink(cb.shm.map);
   vlff_shm_unlink(cc.shm.map);
