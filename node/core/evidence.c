@@ -439,15 +439,18 @@ void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out) {
   }
 }
 
-/* One record's index and count, checked: in the grid, after the last one
- * (none twice), at least one sample. */
-static int read_record_head(const struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t i,
-                            uint32_t prev, uint32_t *idx, uint8_t *count, char *err, size_t errlen) {
+/* Record i read and checked: its voxel in the grid and after the last one
+ * (none twice), at least one sample, a finite mean (into mean[D]). */
+static int read_record(const struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t i, uint32_t prev,
+                       uint32_t *idx, uint8_t *count, uint16_t *mean, char *err, size_t errlen) {
+  const uint64_t at = sizeof(struct ev_header) + i * record_size(e->D);
   uint8_t head[5];
-  if (rd(ctx, sizeof(struct ev_header) + i * record_size(e->D), head, sizeof head, err, errlen)) return -1;
+  if (rd(ctx, at, head, sizeof head, err, errlen) || rd(ctx, at + 5, mean, (size_t)e->D * 2, err, errlen)) return -1;
   memcpy(idx, head, 4);
   *count = head[4];
-  if (*idx >= e->nvox || (i > 0 && *idx <= prev) || *count == 0)
+  bool finite = true;
+  for (int j = 0; j < e->D; j++) finite &= (mean[j] & 0x7c00) != 0x7c00; /* float16 inf and NaN: all exponent bits */
+  if (*idx >= e->nvox || (i > 0 && *idx <= prev) || *count == 0 || !finite)
     return vlff_errf(err, errlen, "evidence: saved evidence has a bad voxel record (record %llu)",
                      (unsigned long long)i),
            -1;
@@ -473,8 +476,9 @@ int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, v
   size_t hist[MAX_VIEWS + 1] = {0};
   uint32_t idx, prev = 0;
   uint8_t count;
+  uint16_t *scratch = (uint16_t *)e->tmp; /* 2 D floats: room for D float16 */
   for (uint64_t i = 0; i < h.used; i++, prev = idx) {
-    if (read_record_head(e, rd, ctx, i, prev, &idx, &count, err, errlen)) return -1;
+    if (read_record(e, rd, ctx, i, prev, &idx, &count, scratch, err, errlen)) return -1;
     hist[count]++;
   }
   int c = 1;   /* the fewest samples a kept voxel has */
@@ -488,12 +492,11 @@ int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, v
   for (uint64_t i = 0; i < h.used; i++, prev = idx) {
     /* Read again: a file changed under the reader leaves no evidence
      * rather than a mix of two. */
-    if (read_record_head(e, rd, ctx, i, prev, &idx, &count, err, errlen)) goto changed;
+    if (read_record(e, rd, ctx, i, prev, &idx, &count, scratch, err, errlen)) goto changed;
     if (count < c || (count == c && !atc)) continue;
     if (count == c) atc--;
-    int32_t s = (int32_t)e->used;
-    if (rd(ctx, sizeof h + i * rs + 5, e->mean + (size_t)s * e->D, (size_t)e->D * 2, err, errlen)) goto changed;
-    e->used++;
+    int32_t s = (int32_t)e->used++;
+    memcpy(e->mean + (size_t)s * e->D, scratch, (size_t)e->D * 2);
     e->slot[idx] = s;
     e->views[s] = count;
     e->owner[s] = idx;

@@ -127,15 +127,16 @@ bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long
 
 /* Learned state, saved beside the field (vlff_publisher_save): the bytes
  * of the grid's geometry and every voxel's mean and count (voxels in index
- * order). load checks the geometry, D, the length and every voxel record,
- * and only then replaces the evidence: 0; 1 with err for evidence of another
- * grid or D (a config changed: nothing to load, not a corrupt file); -1
- * with err for a malformed one; the evidence untouched in both. Saved evidence of more voxels than the budget holds
- * (publish.evidence_max_mb lowered since it was saved) keeps the
- * most-observed, at equal counts the lowest voxel indices; the rest are
- * counted as given up (vlff_evidence_evicted). Loaded voxels count as
- * untouched by the last views, so a budget a load filled makes room for
- * the next view's new voxels. */
+ * order). load checks the geometry, D, the length and every voxel record
+ * (in the grid, in order, counted, a finite mean), and only then replaces
+ * the evidence: 0; 1 with err for evidence of another grid or D (a config
+ * changed: nothing to load, not a corrupt file); -1 with err for a
+ * malformed one; the evidence untouched in both. Saved evidence of more
+ * voxels than the budget holds (publish.evidence_max_mb lowered since it
+ * was saved) keeps the most-observed, at equal counts the lowest voxel
+ * indices; the rest are counted as given up (vlff_evidence_evicted).
+ * Loaded voxels count as untouched by the last views, so a budget a load
+ * filled makes room for the next view's new voxels. */
 size_t vlff_evidence_save_size(const struct vlff_evidence *e);
 void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out);
 int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen);

@@ -388,7 +388,7 @@ static void test_full_budget_gives_up_least_observed(void **state) {
 }
 
 /* Saved evidence loads back as it was; a record that points outside the
- * grid and a truncated file are refused, and one of another feature size is
+ * grid or holds a NaN and a truncated file are refused, and one of another feature size is
  * not loaded (1: a config changed), each leaving the evidence as it was. */
 static void test_save_load(void **state) {
   (void)state;
@@ -412,6 +412,13 @@ static void test_save_load(void **state) {
   assert_int_equal(vlff_evidence_load(g, buf, n, err, sizeof err), -1);
   assert_non_null(strstr(err, "bad voxel record"));
   assert_int_equal(vlff_evidence_get(g, vi, y), 4); /* four feature pixels of one view */
+  /* A NaN in the last record's mean (a float16 of all exponent bits). */
+  vlff_evidence_save(e, buf);
+  const uint16_t nan16 = 0x7e00;
+  memcpy(buf + n - 2 * D, &nan16, 2);
+  assert_int_equal(vlff_evidence_load(g, buf, n, err, sizeof err), -1);
+  assert_non_null(strstr(err, "bad voxel record"));
+  assert_int_equal(vlff_evidence_get(g, vi, y), 4);
   assert_int_equal(vlff_evidence_load(g, buf, n - 1, err, sizeof err), -1);
   char err2[256];
   struct vlff_evidence *other = vlff_evidence_create(origin, dims, 0.5, D + 1, VLFF_MAX_PROMPTS, 1 << 20, err2, sizeof err2);
