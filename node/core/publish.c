@@ -138,11 +138,11 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->snap_xyz = malloc(li * 3 * sizeof *p->snap_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
+  p->ev_budget = (size_t)pub->evidence_max_mb << 20; /* also bounds a saved map's evidence read without it */
   if (pub->evidence_weight > 0) {
     p->ev = vlff_evidence_for(pub, field, VLFF_MAX_PROMPTS, err, errlen);
     p->ev_weight = (float)pub->evidence_weight;
     p->D = field->feature_dim;
-    p->ev_budget = (size_t)pub->evidence_max_mb << 20;
     p->trust_rays = pub->field_trust_rays;
     p->lost_ratio = pub->lost_class_ratio;
     p->qcos = malloc(QBLOCK * VLFF_FIELD_MAX_PROMPTS * sizeof *p->qcos);
@@ -218,7 +218,7 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
 /* A saved map is read a piece at a time, never held whole: its evidence
  * may be a larger budget's (publish.evidence_max_mb lowered since), and
  * only the part this budget holds is loaded. */
-enum { OBS_CHUNK = 1 << 20 };
+enum { OBS_CHUNK = 1 << 20, EV_THIN_MAX = 16 };
 struct obs_reader {
   int fd;
   const char *path;
@@ -288,6 +288,17 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   if (obs_get(&r, 0, &h, sizeof h, err, errlen)) goto out;
   int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8);
   if (!v1 && len >= grids + 16 && obs_get(&r, grids, &evn, 8, err, errlen)) goto out;
+  /* The whole file is hashed before anything is read from it: evidence
+   * larger than any budget this one would thin it to is refused unread,
+   * so a file claiming gigabytes (sparse, or from a budget lowered a
+   * hundredfold) costs seconds at most, not minutes. */
+  const uint64_t ev_most = (uint64_t)EV_THIN_MAX * p->ev_budget;
+  if (evn > ev_most) {
+    snprintf(err, errlen,
+             "%s: its evidence claims %llu MB, more than %d times publish.evidence_max_mb (%zu MB): refused unread",
+             path, (unsigned long long)(evn >> 20), EV_THIN_MAX, p->ev_budget >> 20);
+    goto out;
+  }
   uint64_t want = v1 ? grids + 8 : grids + 8 + evn + 8;
   if (evn > len || len != want) {
     snprintf(err, errlen, "%s: %llu bytes, expected %llu for a %ux%ux%u grid", path, (unsigned long long)len,
@@ -458,8 +469,8 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
   say_budget(p, &p->ev_full_said, vlff_evidence_evicted(p->ev), VLFF_LOG_INFO,
              "is full; from now on the least-observed voxels give theirs up to newly seen ones");
   say_budget(p, &p->ev_overflow_said, vlff_evidence_overflow(p->ev), VLFF_LOG_WARN,
-             "is full of voxels the last 8 views saw; newly seen ones read the field alone until it frees room "
-             "(raise publish.evidence_max_mb)");
+             "had no room for some newly seen voxels (those the last 8 views saw are kept, and one view frees at most "
+             "an eighth); they read the field alone (raise publish.evidence_max_mb)");
   return 0;
 }
 

@@ -171,8 +171,43 @@ static void test_saved_map_loads_within_budget(void **state) {
   assert_int_equal(vlff_publisher_load(d, path, err, sizeof err), 0);
   assert_int_equal(vlff_evidence_voxels(vlff_publisher_evidence(d)), 0);
   assert_int_equal(count_known(d), known);
-  /* One byte flipped in the evidence, then one byte short. */
+  /* Without evidence (publish.evidence_weight 0) the observations load and
+   * the evidence is passed over. */
+  struct vlff_config ce;
+  vlff_config_defaults(&ce);
+  snprintf(ce.shm.map, sizeof ce.shm.map, "/vlff-test-publish-e-%d", (int)getpid());
+  ce.shm.map_max_voxels = 1 << 18;
+  ce.publish.voxel_size_m = 0.08;
+  ce.publish.evidence_weight = 0;
+  struct vlff_publisher *pe = vlff_publisher_create(&ce.publish, &ce.shm, &ce.field, NULL, err, sizeof err);
+  assert_non_null(pe);
+  assert_int_equal(vlff_publisher_load(pe, path, err, sizeof err), 0);
+  assert_null(vlff_publisher_evidence(pe));
+  assert_int_equal(count_known(pe), known);
+  vlff_publisher_destroy(pe);
+  vlff_shm_unlink(ce.shm.map);
+  /* An evidence length of 1 GB, more than 16 times b's 2 MB: refused
+   * before a byte of it is read or hashed. */
+  const long evn_at = -(long)vlff_evidence_save_size(ea) - 16;
   FILE *f = fopen(path, "r+b");
+  assert_non_null(f);
+  uint64_t evn, huge = 1ull << 30;
+  assert_int_equal(fseek(f, evn_at, SEEK_END), 0);
+  assert_int_equal(fread(&evn, 8, 1, f), 1);
+  assert_int_equal(evn, vlff_evidence_save_size(ea));
+  assert_int_equal(fseek(f, evn_at, SEEK_END), 0);
+  assert_int_equal(fwrite(&huge, 8, 1, f), 1);
+  fclose(f);
+  assert_int_equal(vlff_publisher_load(b, path, err, sizeof err), -1);
+  assert_non_null(strstr(err, "refused unread"));
+  assert_int_equal(vlff_evidence_voxels(eb), cap);
+  f = fopen(path, "r+b");
+  assert_non_null(f);
+  assert_int_equal(fseek(f, evn_at, SEEK_END), 0);
+  assert_int_equal(fwrite(&evn, 8, 1, f), 1);
+  fclose(f);
+  /* One byte flipped in the evidence, then one byte short. */
+  f = fopen(path, "r+b");
   assert_non_null(f);
   assert_int_equal(fseek(f, -1000, SEEK_END), 0);
   int ch = fgetc(f);
