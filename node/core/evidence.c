@@ -40,6 +40,7 @@ struct vlff_evidence {
   size_t used, cap;
   long long overflow, evicted;
   float *tmp;       /* [2 D]: a feature, a mean */
+  float blend[VLFF_FIELD_MAX_PROMPTS]; /* one point's blended cosines (label) */
   /* The census of lost classes (vlff_evidence_census_begin / _end): per
    * prompt, points of the current pass the fitted field and the evidence
    * each label so, and the classes the last complete pass found lost, valid
@@ -312,6 +313,40 @@ static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float
   return c;
 }
 
+/* The evidence's cosines at world point x, read as a grid is read between
+ * its samples: the trilinear blend of those of the (up to) eight voxels
+ * whose centres surround x, over the voxels with evidence, into out[K];
+ * false where none has any. Why: a surface point near a voxel's face is as
+ * much its neighbour's, and the nearest voxel alone quantised every point
+ * to 10 cm and averaged only that voxel's samples (docs/field.md, "Evidence
+ * read between voxel centres"). The point's own voxel always weighs at
+ * least 1/8, so a point whose voxel has evidence always reads some. */
+static bool blend_cosines(struct vlff_evidence *e, const double x[3], const float *E, int K, float *out) {
+  long i0[3];
+  float fr[3];
+  for (int d = 0; d < 3; d++) {
+    double g = (x[d] - e->origin[d]) / e->voxel - 0.5;
+    if (!(g > -2 && g < (double)e->dims[d] + 1)) return false; /* outside the grid (or not finite) */
+    i0[d] = (long)floor(g);
+    fr[d] = (float)(g - (double)i0[d]);
+  }
+  float wsum = 0;
+  for (int c = 0; c < 8; c++) {
+    long ix = i0[0] + (c & 1), iy = i0[1] + (c >> 1 & 1), iz = i0[2] + (c >> 2 & 1);
+    if (ix < 0 || iy < 0 || iz < 0 || ix >= (long)e->dims[0] || iy >= (long)e->dims[1] || iz >= (long)e->dims[2])
+      continue;
+    int32_t s = e->slot[ix + (long)e->dims[0] * (iy + (long)e->dims[1] * iz)];
+    float wt = (c & 1 ? fr[0] : 1 - fr[0]) * (c >> 1 & 1 ? fr[1] : 1 - fr[1]) * (c >> 2 & 1 ? fr[2] : 1 - fr[2]);
+    if (s < 0 || !(wt > 0)) continue;
+    const float *cs = slot_cosines(e, s, E, K);
+    for (int k = 0; k < K; k++) out[k] = (wsum > 0 ? out[k] : 0.0f) + wt * cs[k];
+    wsum += wt;
+  }
+  if (!(wsum > 0)) return false;
+  for (int k = 0; k < K; k++) out[k] /= wsum;
+  return true;
+}
+
 /* A class the evidence finds at fewer points is one view's noise (a few
  * feature pixels leaning the wrong way), not an object the field lost: in the
  * node's first seconds such classes came and went at every publish. */
@@ -374,10 +409,9 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
   for (size_t i = 0; i < n; i++) {
     const float *fc = fcos + i * (size_t)K, *ec = NULL;
     double x[3] = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
-    long vi = vlff_evidence_voxel(e, x);
     float a = 1.0f; /* the field's trust */
-    if (vi >= 0 && e->slot[vi] >= 0) {
-      ec = slot_cosines(e, e->slot[vi], E, K);
+    if (blend_cosines(e, x, E, K, e->blend)) {
+      ec = e->blend;
       if (rays && trust_rays > 0 && rays[i] < trust_rays) a = (float)rays[i] / (float)trust_rays;
     }
     int best = -1, any = 0;

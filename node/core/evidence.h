@@ -8,10 +8,12 @@
  * constant learning rate lets an object near a decision boundary flip
  * between classes from one minute to the next. Features averaged where
  * they were measured keep every object that the raw features find, but
- * carry the raw features' noise. The published map labels a voxel by both:
+ * carry the raw features' noise. The published map labels a point by both:
  * the prompt maximising E_k . (f/|f| + w e/|e|), f the field's feature at the
- * voxel, e the voxel's evidence, w publish.evidence_weight (docs/field.md,
- * "Evidence").
+ * point, E_k . e/|e| the evidence's cosines read trilinearly between the
+ * voxel centres around the point (over those with evidence), w
+ * publish.evidence_weight (docs/field.md, "Evidence", "Evidence read between
+ * voxel centres").
  *
  * Storage: a dense voxel -> slot index over the grid, and slots of D
  * float16 values (the running mean) allocated on first use, up to a budget
@@ -82,13 +84,17 @@ long vlff_evidence_voxel(const struct vlff_evidence *e, const double x[3]);
 int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out);
 
 /* Labels n points (xyz interleaved) from the field's per-prompt cosines
- * fcos[n][K] (vlff_field_query_cosines) and, where a point's voxel has
- * evidence, w times the cosines of that evidence with the unit prompt
- * embeddings E[K][D]: the argmax of a cos_field + w cos_evidence, which is
- * the argmax of E_k . (a f/|f| + w e/|e|). a is the field's trust at the
- * point: min(1, rays[i] / trust_rays), rays being its exposure there
+ * fcos[n][K] (vlff_field_query_cosines) and, where evidence reaches a point,
+ * w times the evidence's cosines with the unit prompt embeddings E[K][D]
+ * there: those of the voxels whose centres surround the point (up to
+ * eight), blended with trilinear weights over the voxels that have
+ * evidence (a point whose own voxel has evidence always reads some; one in
+ * an empty voxel may read a neighbour's). The label is the argmax of
+ * a cos_field + w cos_evidence, which is the argmax of E_k . (a f/|f| +
+ * w e/|e|) for a single voxel. a is the field's trust at the point:
+ * min(1, rays[i] / trust_rays), rays being its exposure there
  * (vlff_field_exposure); 1 where rays is NULL or trust_rays <= 0, and
- * where the voxel has no evidence (the field alone decides there). Where
+ * where no evidence reaches (the field alone decides there). Where
  * the camera has only just looked, the field has not been fitted yet and
  * its feature is what the shared decoder says of other places, while the
  * evidence already holds what the camera saw. score (the winning sum) and

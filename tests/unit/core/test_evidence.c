@@ -387,6 +387,39 @@ static void test_full_budget_gives_up_least_observed(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Evidence is read between voxel centres as a grid is: trilinearly, over the
+ * voxels that have some. Two voxels side by side, one of prompt 0's feature,
+ * one of prompt 1's: a point 0.3 of the way from the first's centre reads
+ * 0.7 of it, one 0.7 of the way the other way round; a point in an empty
+ * voxel beside the second reads the second's (the nearest voxel alone gave
+ * it none, the field's tie decided); one with no evidence within a voxel's
+ * reach reads the field alone. */
+static void test_labels_read_between_voxel_centres(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  add_at(e, 3, 3, 2, (const float[D]){1, 0, 0, 0});
+  add_at(e, 4, 3, 2, (const float[D]){0, 1, 0, 0});
+  const float E[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
+  const float y = (float)origin[1] + 1.75f, z = (float)origin[2] + 1.25f; /* voxel centres: row 3, layer 2 */
+  const float c3 = (float)origin[0] + 1.75f;                               /* voxel 3's centre in x */
+  const float xyz[12] = {c3 + 0.15f, y, z, c3 + 0.35f, y, z, c3 + 0.8f, y, z, c3 + 2.0f, y, z};
+  const float fcos[8] = {0.5f, 0.5f, 0.5f, 0.5f, 0.5f, 0.5f, 0.5f, 0.5f};
+  int lab[4];
+  float score[4], margin[4];
+  vlff_evidence_label(e, xyz, 4, fcos, NULL, 0, E, 2, 1, 1.0f, lab, score, margin);
+  assert_int_equal(lab[0], 0);
+  assert_float_equal(score[0], (0.5f + 0.7f) / 2, 2e-3);
+  assert_float_equal(margin[0], (0.7f - 0.3f) / 2, 2e-3);
+  assert_int_equal(lab[1], 1);
+  assert_float_equal(score[1], (0.5f + 0.7f) / 2, 2e-3);
+  assert_int_equal(lab[2], 1); /* voxel 5, empty: 0.4 of voxel 4's reach */
+  assert_float_equal(score[2], (0.5f + 1.0f) / 2, 2e-3);
+  assert_int_equal(lab[3], 0); /* voxel 7: the field's tie, its first prompt */
+  assert_float_equal(score[3], 0.5f, 1e-6);
+  assert_float_equal(margin[3], 0.0f, 1e-6);
+  vlff_evidence_destroy(e);
+}
+
 /* Saved evidence loads back as it was; a record that points outside the
  * grid or holds a NaN and a truncated file are refused, and one of another feature size is
  * not loaded (1: a config changed), each leaving the evidence as it was. */
@@ -508,5 +541,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
-    cmocka_unit_test(test_save_load), cmocka_unit_test(test_load_thins_to_budget),
+    cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load), cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan))
