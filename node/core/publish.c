@@ -288,10 +288,10 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   if (obs_get(&r, 0, &h, sizeof h, err, errlen)) goto out;
   int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8);
   if (!v1 && len >= grids + 16 && obs_get(&r, grids, &evn, 8, err, errlen)) goto out;
-  /* The whole file is hashed before anything is read from it: evidence
-   * larger than any budget this one would thin it to is refused unread,
-   * so a file claiming gigabytes (sparse, or from a budget lowered a
-   * hundredfold) costs seconds at most, not minutes. */
+  /* The whole file is hashed before anything is taken from it: evidence
+   * over EV_THIN_MAX times this budget is refused unread, so a file
+   * claiming gigabytes (sparse, or from a budget more than that much
+   * larger) costs seconds at most, not minutes. */
   const uint64_t ev_most = (uint64_t)EV_THIN_MAX * p->ev_budget;
   if (evn > ev_most) {
     snprintf(err, errlen,

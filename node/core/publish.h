@@ -75,7 +75,7 @@ bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x
 int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen);
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
 /* The evidence observe() averages into (evidence.h), NULL without it
- * (publish.evidence_weight 0): for status and tests to read. */
+ * (publish.evidence_weight 0): for tests and tools to read. */
 const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher *p);
 /* Forget observations and evidence (mapping reset). */
 void vlff_publisher_reset(struct vlff_publisher *p);
