@@ -126,9 +126,10 @@ static int count_known(const struct vlff_publisher *p) {
 
 /* A saved map reloads as it was; a map saved under a larger evidence budget
  * loads into a smaller one with the budget full and the rest given up,
- * rather than losing all of it; one of another evidence voxel loads its
- * observations without the evidence; a corrupt or truncated file is refused
- * and leaves what was loaded. Features: 32 x 24 pixels of field.feature_dim,
+ * rather than losing all of it; one of another evidence voxel, and a node
+ * without evidence, load its observations alone; an evidence length over
+ * 16 times the budget and a corrupt or truncated file are refused and leave
+ * what was loaded. Features: 32 x 24 pixels of field.feature_dim,
  * each pixel's depth random in 0.3-2.4 m, so every view reaches a few
  * thousand 10-cm evidence voxels. */
 static void test_saved_map_loads_within_budget(void **state) {
