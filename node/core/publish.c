@@ -238,17 +238,16 @@ static int obs_read(void *ctx, uint64_t off, void *dst, size_t n, char *err, siz
     snprintf(err, errlen, "ends before byte %llu", (unsigned long long)(off + n));
     return -1;
   }
-  if (n > OBS_CHUNK || off < r->start || off + n > r->start + r->have) {
-    size_t want = r->size - off < OBS_CHUNK ? (size_t)(r->size - off) : OBS_CHUNK;
-    uint8_t *to = n > OBS_CHUNK ? dst : r->buf;
-    if (n > OBS_CHUNK) want = n;
-    if (vlff_read_at(r->fd, off, to, want)) {
-      snprintf(err, errlen, "read error at byte %llu: %s", (unsigned long long)off, strerror(errno));
-      return -1;
-    }
-    if (to == dst) return 0;
-    r->start = off, r->have = want;
+  /* More than the window (the grids): straight into dst. Otherwise the
+   * window moves to off when n bytes there are not in it. */
+  const bool direct = n > OBS_CHUNK, refill = !direct && (off < r->start || off + n > r->start + r->have);
+  const size_t want = direct ? n : r->size - off < OBS_CHUNK ? (size_t)(r->size - off) : OBS_CHUNK;
+  if ((direct || refill) && vlff_read_at(r->fd, off, direct ? dst : r->buf, want)) {
+    snprintf(err, errlen, "read error at byte %llu: %s", (unsigned long long)off, strerror(errno));
+    return -1;
   }
+  if (direct) return 0;
+  if (refill) r->start = off, r->have = want;
   memcpy(dst, r->buf + (off - r->start), n);
   return 0;
 }
