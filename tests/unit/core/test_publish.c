@@ -23,14 +23,24 @@ enum { W = 64, H = 48 };
 static char err[512];
 static float depth[W * H];
 
-static struct vlff_publisher *make(struct vlff_config *cfg) {
+/* The tests' config: defaults, a map segment named by tag, 64^3 voxels of
+ * 8 cm over the default 5 m box. */
+static void config_for(struct vlff_config *cfg, const char *tag) {
   vlff_config_defaults(cfg);
-  snprintf(cfg->shm.map, sizeof cfg->shm.map, "/vlff-test-publish-%d", (int)getpid());
-  cfg->shm.map_max_voxels = 1 << 18; /* 64^3 voxels of 8 cm over the default 5 m box */
+  snprintf(cfg->shm.map, sizeof cfg->shm.map, "/vlff-test-publish-%s-%d", tag, (int)getpid());
+  cfg->shm.map_max_voxels = 1 << 18;
   cfg->publish.voxel_size_m = 0.08;
+}
+
+static struct vlff_publisher *create(struct vlff_config *cfg) {
   struct vlff_publisher *p = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, NULL, err, sizeof err);
   if (!p) fail_msg("%s", err);
   return p;
+}
+
+static struct vlff_publisher *make(struct vlff_config *cfg) {
+  config_for(cfg, "main");
+  return create(cfg);
 }
 
 /* A camera at the origin looking along +z, sim-like 65 degree field of view. */
@@ -106,15 +116,10 @@ static void test_far_depth_bounded(void **state) {
 /* A publisher with evidence of feature_dim features in voxels of ev_m
  * metres and a budget of mb MB, its map segment named by tag. */
 static struct vlff_publisher *make_ev(struct vlff_config *cfg, int mb, double ev_m, const char *tag) {
-  vlff_config_defaults(cfg);
-  snprintf(cfg->shm.map, sizeof cfg->shm.map, "/vlff-test-publish-%s-%d", tag, (int)getpid());
-  cfg->shm.map_max_voxels = 1 << 18;
-  cfg->publish.voxel_size_m = 0.08;
+  config_for(cfg, tag);
   cfg->publish.evidence_max_mb = mb;
   cfg->publish.evidence_voxel_m = ev_m;
-  struct vlff_publisher *p = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, NULL, err, sizeof err);
-  if (!p) fail_msg("%s", err);
-  return p;
+  return create(cfg);
 }
 
 /* Surfaces the map has seen along the camera's axis, 8-cm steps. */
@@ -175,13 +180,9 @@ static void test_saved_map_loads_within_budget(void **state) {
   /* Without evidence (publish.evidence_weight 0) the observations load and
    * the evidence is passed over. */
   struct vlff_config ce;
-  vlff_config_defaults(&ce);
-  snprintf(ce.shm.map, sizeof ce.shm.map, "/vlff-test-publish-e-%d", (int)getpid());
-  ce.shm.map_max_voxels = 1 << 18;
-  ce.publish.voxel_size_m = 0.08;
+  config_for(&ce, "e");
   ce.publish.evidence_weight = 0;
-  struct vlff_publisher *pe = vlff_publisher_create(&ce.publish, &ce.shm, &ce.field, NULL, err, sizeof err);
-  assert_non_null(pe);
+  struct vlff_publisher *pe = create(&ce);
   assert_int_equal(vlff_publisher_load(pe, path, err, sizeof err), 0);
   assert_null(vlff_publisher_evidence(pe));
   assert_int_equal(count_known(pe), known);
