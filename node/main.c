@@ -222,18 +222,17 @@ static void tick(struct run *r, double now) {
     if (st.miou2d >= 0) snprintf(m2, sizeof m2, "%5.1f", st.miou2d);
     if (st.miou3d >= 0) snprintf(m3, sizeof m3, "%5.1f", st.miou3d);
     refusals_text(&st, why, sizeof why);
-    fprintf(stderr,
-            "\r[%6.1f s] frames %lld (%.1f/s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
-            "psnr %.1f | map v%llu mIoU 2D %s 3D %s   ",
-            now - r->t0, st.frames_in, st.fps_in, st.frames_invalid, why, st.keyframes, st.poses_rejected,
-            st.iteration, st.it_per_s, st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
+    vlff_log_status("[%6.1f s] frames %lld (%.1f/s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
+                    "psnr %.1f | map v%llu mIoU 2D %s 3D %s   ",
+                    now - r->t0, st.frames_in, st.fps_in, st.frames_invalid, why, st.keyframes, st.poses_rejected,
+                    st.iteration, st.it_per_s, st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
   }
 }
 
 /* Stops CAN first (its command callback points at the node), writes the
  * snapshot, and the node's final checkpoint. The exit status. */
 static int finish(struct run *r, const char *snapshot_dir) {
-  if (r->status_view) fputc('\n', stderr);
+  vlff_log_status_end();
   vlff_service_stopping();
   VLFF_INFO("node", "stopping (%s)", vlff_cli_stop == SIGTERM ? "SIGTERM"
                                      : vlff_cli_stop == SIGINT ? "SIGINT"

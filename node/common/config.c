@@ -566,6 +566,39 @@ static bool has_prefix(const char *prefix) {
   return !strcmp(prefix, "prompts");
 }
 
+/* Edit distance (insertions, deletions, substitutions) of a and b[0..nb). */
+static size_t edit_distance(const char *a, const char *b, size_t nb) {
+  size_t row[64], na = strlen(a);
+  if (na >= 64 || nb >= 64) return SIZE_MAX;
+  for (size_t j = 0; j <= nb; j++) row[j] = j;
+  for (size_t i = 1; i <= na; i++) {
+    size_t diag = row[0];
+    row[0] = i;
+    for (size_t j = 1; j <= nb; j++) {
+      size_t up = row[j], best = diag + (a[i - 1] != b[j - 1]);
+      if (up + 1 < best) best = up + 1;
+      if (row[j - 1] + 1 < best) best = row[j - 1] + 1;
+      diag = up, row[j] = best;
+    }
+  }
+  return row[nb];
+}
+
+/* The key or section of the schema nearest an unknown path (a typo: at most
+ * two edits, and fewer than half its length), into out; false if none. */
+static bool nearest_key(const char *path, char *out, size_t cap) {
+  size_t best = 3, depth = 0;
+  for (const char *c = path; *c; c++) depth += *c == '.';
+  for (size_t i = 0; i < NKEYS; i++) {
+    /* The schema path cut to as many components as the unknown one has. */
+    const char *s = schema[i].path, *e = s;
+    for (size_t d = 0; *e && (*e != '.' || d++ < depth); e++) {}
+    size_t n = (size_t)(e - s), dist = edit_distance(path, s, n);
+    if (dist < best && 2 * dist < strlen(path)) best = dist, snprintf(out, cap, "%.*s", (int)n, s);
+  }
+  return best < 3;
+}
+
 static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vlff_config *cfg) {
   for (yaml_node_pair_t *pr = map->data.mapping.pairs.start; pr < map->data.mapping.pairs.top; pr++) {
     yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
@@ -597,6 +630,8 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
     } else if (!strcmp(path, "sim.feature_dim")) {
       return fail(p, kn, path, "no longer a key: the simulator renders features of field.feature_dim dimensions");
     } else {
+      char near[160];
+      if (nearest_key(path, near, sizeof near)) return fail(p, kn, path, "unknown key (did you mean '%s'?)", near);
       return fail(p, kn, path, "unknown key");
     }
   }
@@ -837,9 +872,14 @@ int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_
 /* ---- dump and hash ------------------------------------------------------ */
 
 /* The shortest form that reads back as the same double: 0.1, not
- * 0.10000000000000001, so that a dump can be pasted into a config. */
+ * 0.10000000000000001, so that a dump can be pasted into a config; a whole
+ * number as one (30, not the equally short 3e+01). */
 static void put_double(FILE *out, double x) {
   char b[32];
+  if (x == floor(x) && fabs(x) < 1e15) {
+    fprintf(out, "%.0f", x);
+    return;
+  }
   for (int prec = 1; prec <= 17; prec++) {
     snprintf(b, sizeof b, "%.*g", prec, x);
     if (strtod(b, NULL) == x) break;

@@ -9,6 +9,10 @@
  *  - Under systemd (JOURNAL_STREAM set) lines start with the syslog
  *    priority "<N>" and carry no timestamp: journald adds its own.
  *  - Thread-safe; callable from any thread. Not async-signal-safe.
+ *  - A live status line (vlff_log_status) is rewritten in place with '\r';
+ *    a log line that comes while one is shown starts on a line of its own
+ *    (a newline first), so it is neither glued to the status line nor
+ *    overwritten by the next one.
  */
 #ifndef VLFF_LOG_H
 #define VLFF_LOG_H
@@ -28,6 +32,12 @@ void vlff_log_set_level(enum vlff_log_level level);
 void vlff_log(enum vlff_log_level level, const char *tag, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_list ap);
+
+/* Shows a one-line status (no newline of its own) in place of the last
+ * one, with a single write(2). */
+void vlff_log_status(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+/* Ends a shown status line with a newline (nothing if none is shown). */
+void vlff_log_status_end(void);
 
 /* Format an error message into a caller's buffer (err may be NULL): the
  * "-1 with err filled" convention every vlff module follows. */

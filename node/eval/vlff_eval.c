@@ -37,6 +37,7 @@
 
 #include "cli.h"
 #include "field.h"
+#include "log.h"
 #include "metrics.h"
 #include "palette.h"
 #include "select.h"
@@ -505,10 +506,14 @@ static void progress(int it, int total, const struct vlff_train_stats *st, doubl
   char b[31];
   for (int i = 0; i < 30; i++) b[i] = i < bar ? '#' : '.';
   b[30] = 0;
-  fprintf(stderr, "%s[%s] it %d/%d  loss %.4f (rgb %.4f depth %.4f feat %.4f)  psnr %.1f  %.1f it/s  ETA %d:%02d%s",
-          tty ? "\r" : "", b, it, total, st->loss, st->loss_rgb, st->loss_depth, st->loss_feat, st->psnr, rate,
-          (int)eta / 60, (int)eta % 60, tty ? "  " : "\n");
-  fflush(stderr);
+  /* On a terminal the line is rewritten in place, and a warning logged
+   * meanwhile gets a line of its own (log.h). */
+  char line[256];
+  snprintf(line, sizeof line, "[%s] it %d/%d  loss %.4f (rgb %.4f depth %.4f feat %.4f)  psnr %.1f  %.1f it/s  ETA %d:%02d",
+           b, it, total, st->loss, st->loss_rgb, st->loss_depth, st->loss_feat, st->psnr, rate, (int)eta / 60,
+           (int)eta % 60);
+  if (tty) vlff_log_status("%s  ", line);
+  else fprintf(stderr, "%s\n", line);
 }
 
 /* ---- output helpers ----------------------------------------------------- */
@@ -761,7 +766,7 @@ static struct vlff_field *fit_field(struct eval *e) {
       last = t;
     }
   }
-  if (tty) fputc('\n', stderr);
+  if (tty) vlff_log_status_end();
   e->fit_s = vlff_seconds() - t0;
   free(views);
   return fld;

@@ -47,6 +47,11 @@ static const struct {
 } bad[] = {
   {"node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key"},
   {"nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key"},
+  /* A typo is answered with the key it is nearest (two edits at most). */
+  {"sim:\n  rate_hzz: 5\n", "t.yaml:2:3: key 'sim.rate_hzz': ", "unknown key (did you mean 'sim.rate_hz'?)"},
+  {"nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key (did you mean 'node'?)"},
+  {"node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key (did you mean 'node.name'?)"},
+
   /* One name for the feature dimension: the simulator's old key says where it went. */
   {"sim:\n  feature_dim: 16\n", "t.yaml:2:3: key 'sim.feature_dim': ", "field.feature_dim"},
   {"field:\n  feature_dim: abc\n", "t.yaml:2:16: key 'field.feature_dim': ", "expected integer in [8, 1024], got 'abc'"},
@@ -364,6 +369,15 @@ static void test_missing_file(void **state) {
   assert_non_null(strstr(err, "/nonexistent/x.yaml: cannot open"));
 }
 
+/* A key near none is not given a guess. */
+static void test_unknown_key_without_guess(void **state) {
+  (void)state;
+  expect_error("node:\n  xylophone: 1\n", "t.yaml:2:3: key 'node.xylophone': ", "unknown key");
+  assert_null(strstr(err, "did you mean"));
+  expect_error("x:\n  y: 1\n", "t.yaml:1:1: key 'x': ", "unknown key");
+  assert_null(strstr(err, "did you mean"));
+}
+
 static char *dump_to_string(const struct vlff_config *cfg) {
   char *buf = NULL;
   size_t len = 0;
@@ -386,6 +400,11 @@ static void test_shipped_configs(void **state) {
   assert_int_equal(vlff_config_load(path, &cfg, err, sizeof err), 0);
   char *a = dump_to_string(&cfg), *b = dump_to_string(&def);
   assert_string_equal(a, b);
+  /* Whole numbers read as written (30, not 3e+01); fractions as short as
+   * reads back (0.1). */
+  assert_non_null(strstr(a, "\ncamera.exposure_us: 10000\n"));
+  assert_non_null(strstr(a, "\nsim.rate_hz: 5\n"));
+  assert_null(strstr(a, "e+"));
   free(a);
   free(b);
   FILE *f = fopen(path, "r");
@@ -451,7 +470,7 @@ static void test_config_find(void **state) {
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
     cmocka_unit_test(test_errors), cmocka_unit_test(test_missing_file),
-    cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_field_hash),
+    cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_unknown_key_without_guess), cmocka_unit_test(test_field_hash),
     cmocka_unit_test(test_sim_features), cmocka_unit_test(test_deep_yaml),
     cmocka_unit_test(test_shm_names), cmocka_unit_test(test_fifo_config),
     cmocka_unit_test(test_dead_temps), cmocka_unit_test(test_config_find),
