@@ -472,7 +472,7 @@ API int vlff_map_writer_alive(struct vlff_map *m, uint64_t max_silence_ns) {
   uint64_t hb = atomic_load_explicit(&m->seg.h->last_ns, memory_order_acquire), now = shm_now();
   if (now > hb && now - hb > max_silence_ns)
     return 0;
-  return shm_pid_alive(atomic_load(&m->seg.h->creator_pid));
+  return shm_hdr_creator_alive(m->seg.h);
 }
 
 API uint32_t vlff_map_generation(struct vlff_map *m) {

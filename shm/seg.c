@@ -73,6 +73,40 @@ int shm_pid_alive(int32_t pid) {
   return kill(pid, 0) == 0 || errno != ESRCH;
 }
 
+uint64_t shm_proc_start(int32_t pid) {
+  char path[48], buf[1024];
+  snprintf(path, sizeof path, "/proc/%d/stat", (int)pid);
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  if (fd < 0)
+    return 0;
+  ssize_t n = read(fd, buf, sizeof buf - 1);
+  close(fd);
+  if (n <= 0)
+    return 0;
+  buf[n] = 0;
+  /* "pid (comm) state ppid ...": comm may hold spaces and ')', so count the
+   * fields after its last ')'; the start time is field 22, the 20th after. */
+  char *p = strrchr(buf, ')');
+  for (int field = 2; p && field < 22; field++)
+    p = strchr(p + 1, ' ');
+  if (!p)
+    return 0;
+  char *end;
+  unsigned long long t = strtoull(p + 1, &end, 10);
+  return end > p + 1 ? (uint64_t)t : 0;
+}
+
+int shm_creator_alive(int32_t pid, uint64_t start) {
+  if (!shm_pid_alive(pid))
+    return 0;
+  uint64_t now = start ? shm_proc_start(pid) : 0;
+  return !now || now == start;
+}
+
+int shm_hdr_creator_alive(const struct seg_hdr *h) {
+  return shm_creator_alive(atomic_load(&h->creator_pid), atomic_load(&h->creator_start));
+}
+
 uint32_t shm_geom_check(const struct seg_hdr *h) {
   /* FNV-1a over the immutable fields. */
   uint32_t x = 2166136261u;
@@ -435,8 +469,11 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
     return -1;
   }
   int32_t pid = h.creator_pid;
+  uint64_t start = h.creator_start;
   uint32_t state = h.state;
-  if (state != SEG_ABANDONED && pid != getpid() && shm_pid_alive(pid)) {
+  /* A PID reused by a later process (after a crash, on a busy host) is not
+   * its creator: the start times tell them apart. */
+  if (state != SEG_ABANDONED && pid != getpid() && shm_creator_alive(pid, start)) {
     close(fd);
     shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: owned by live process %d", name, (int)pid);
     return -1;
@@ -466,13 +503,21 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
     }
     s->fd = fd;
     s->writable = true;
-    if (!atomic_compare_exchange_strong(&s->h->creator_pid, &pid, (int32_t)getpid())) {
+    /* The start time is claimed first: of two processes taking the segment
+     * over at once, the one whose swap fails gives up, and a reader between
+     * the two swaps sees the dead creator's PID, which it reads as dead. */
+    uint64_t mine = shm_proc_start(getpid());
+    if (!atomic_compare_exchange_strong(&s->h->creator_start, &start, mine) ||
+        !atomic_compare_exchange_strong(&s->h->creator_pid, &pid, (int32_t)getpid())) {
+      atomic_compare_exchange_strong(&s->h->creator_start, &mine, start);
       shm_seg_close(s);
-      shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: taken over by process %d meanwhile", name, (int)pid);
+      shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: taken over by process %d meanwhile", name,
+              (int)atomic_load(&s->h->creator_pid));
       return -1;
     }
     if (apply_perm(name, fd, mode, group) < 0 || shm_seg_check(s, true) < 0) {
       atomic_compare_exchange_strong(&s->h->creator_pid, &(int32_t){(int32_t)getpid()}, pid);
+      atomic_compare_exchange_strong(&s->h->creator_start, &mine, start);
       shm_seg_close(s);
       return -1;
     }
@@ -570,6 +615,7 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     h->record_kind = spec->record_kind;
     h->total_size = total;
     memcpy(h->geom, geom, sizeof h->geom);
+    atomic_store(&h->creator_start, shm_proc_start(getpid()));
     atomic_store(&h->creator_pid, (int32_t)getpid());
     atomic_store(&h->generation, 1);
     atomic_store(&h->state, SEG_INIT);

@@ -34,7 +34,11 @@ struct seg_hdr {
   _Atomic uint32_t generation;
   uint32_t pad0;
   _Atomic uint64_t last_ns;
-  uint8_t pad1[128 - 32 - 48 - 24];
+  /* The creator's start time (/proc/PID/stat, clock ticks since boot; 0 =
+   * unknown, as written before this field): a creator PID that is alive but
+   * started at another time is a later process that reused the PID. */
+  _Atomic uint64_t creator_start;
+  uint8_t pad1[128 - 32 - 48 - 32];
 };
 _Static_assert(sizeof(struct seg_hdr) == 128, "segment header is 128 bytes");
 
@@ -80,6 +84,13 @@ struct seg {
 void shm_err(int code, int errnum, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 uint32_t shm_geom_check(const struct seg_hdr *h);
 int shm_pid_alive(int32_t pid);
+/* Start time of process pid (clock ticks since boot), 0 if unreadable. */
+uint64_t shm_proc_start(int32_t pid);
+/* Whether the creator pid started at start (0: unknown) is still running:
+ * its PID alive and, where both are known, its start time the same. */
+int shm_creator_alive(int32_t pid, uint64_t start);
+/* The same for a mapped header's creator. */
+int shm_hdr_creator_alive(const struct seg_hdr *h);
 uint64_t shm_now(void);
 
 /* Attach: maps the whole segment after validating it against spec. */

@@ -33,7 +33,7 @@ API int vlff_shm_stat(const char *name, struct vlff_shm_info *info) {
   info->record_kind = s.h->record_kind;
   info->generation = atomic_load(&s.h->generation);
   info->creator_pid = atomic_load(&s.h->creator_pid);
-  info->creator_alive = shm_pid_alive(info->creator_pid);
+  info->creator_alive = shm_creator_alive(info->creator_pid, atomic_load(&s.h->creator_start));
   info->total_size = s.h->total_size;
   info->last_ns = atomic_load(&s.h->last_ns);
   spec.stat(&s, info);

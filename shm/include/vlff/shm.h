@@ -136,7 +136,8 @@ struct vlff_shm_info {
   uint32_t record_kind;   /* rings: enum vlff_record_kind */
   uint32_t generation;    /* bumped each time a creator (re)starts on the segment */
   int32_t creator_pid;
-  int creator_alive;      /* 1 if creator_pid exists (or cannot be checked), else 0 */
+  int creator_alive;      /* 1 if creator_pid exists (or cannot be checked) and, where the header
+                           * keeps it, started when the creator did; else 0 */
   uint64_t total_size;    /* bytes */
   uint32_t slots;         /* rings */
   uint64_t slot_size;     /* rings: usable bytes per record */

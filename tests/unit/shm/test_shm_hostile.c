@@ -492,6 +492,70 @@ static void test_attach_owned_refuses(void **state) {
   vlff_shm_unlink(name);
 }
 
+/* Process pid's start time, field 22 of /proc/PID/stat (after the last ')'). */
+static uint64_t start_time_of(int pid) {
+  char path[64], buf[1024];
+  snprintf(path, sizeof path, "/proc/%d/stat", pid);
+  FILE *f = fopen(path, "r");
+  assert_non_null(f);
+  size_t n = fread(buf, 1, sizeof buf - 1, f);
+  fclose(f);
+  buf[n] = 0;
+  unsigned long long t = 0;
+  const char *p = strrchr(buf, ')');
+  assert_non_null(p);
+  assert_int_equal(sscanf(p + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %*u %*u %*d %*d %*d %*d %*d %*d %llu",
+                          &t), 1);
+  return t;
+}
+
+/* Writes a map segment's creator: its PID (header word at 84) and start
+ * time (at 104). */
+static void set_creator(const char *name, int32_t pid, uint64_t start) {
+  int fd = shm_open(name, O_RDWR, 0);
+  assert_true(fd >= 0);
+  assert_int_equal(pwrite(fd, &pid, 4, 84), 4);
+  assert_int_equal(pwrite(fd, &start, 8, 104), 8);
+  close(fd);
+}
+
+/* A stale segment whose creator's PID a later process reuses: alive, but
+ * started at another time. It is taken over; a creator that is the live
+ * process (the same start time), or of a header without a start time, is
+ * not. Before the start time was kept, a restarted simulator found its
+ * dead predecessor's PID reused and refused to start. */
+static void test_stale_creator_pid_reused(void **state) {
+  (void)state;
+  char name[64];
+  struct vlff_map *w = make_map(name, "reuse");
+  assert_int_equal(publish(w, 1), 0);
+  vlff_map_detach(w);
+  /* PID 1 is alive and started long before this test. */
+  const uint64_t init_start = start_time_of(1), mine = start_time_of(getpid());
+  assert_true(init_start != mine);
+  set_creator(name, 1, mine);
+  struct vlff_shm_info info;
+  assert_int_equal(vlff_shm_stat(name, &info), 0);
+  assert_int_equal(info.creator_pid, 1);
+  assert_false(info.creator_alive);
+  struct vlff_map_params mp = {.max_voxels = 64 * 64 * 16, .label_max_width = 64, .label_max_height = 48};
+  w = vlff_map_create(name, &mp);
+  assert_non_null(w);
+  assert_int_equal(vlff_map_generation(w), 2); /* taken over in place */
+  vlff_map_detach(w);
+  /* The live process itself, and a PID without a start time: refused. */
+  const uint64_t starts[] = {init_start, 0};
+  for (int i = 0; i < 2; i++) {
+    set_creator(name, 1, starts[i]);
+    assert_int_equal(vlff_shm_stat(name, &info), 0);
+    assert_true(info.creator_alive);
+    assert_null(vlff_map_create(name, &mp));
+    assert_int_equal(vlff_shm_last_error(), VLFF_SHM_ERR_EXISTS);
+    assert_non_null(strstr(vlff_shm_last_message(), "owned by live process 1"));
+  }
+  vlff_shm_unlink(name);
+}
+
 /* Our own stale segment with a wider mode than configured is replaced, not taken over
  * in place: someone may hold a descriptor the wider mode let them open. */
 static void test_own_stale_wider_mode_replaced(void **state) {
@@ -590,6 +654,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_foreign_fault_still_fatal),
     cmocka_unit_test(test_other_users_stale_segment_refused),
     cmocka_unit_test(test_attach_owned_refuses),
-    cmocka_unit_test(test_own_stale_wider_mode_replaced),
+    cmocka_unit_test(test_own_stale_wider_mode_replaced), cmocka_unit_test(test_stale_creator_pid_reused),
     cmocka_unit_test(test_small_foreign_file_untouched),
     cmocka_unit_test(test_version_never_reused))
