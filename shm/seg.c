@@ -74,8 +74,12 @@ int shm_pid_alive(int32_t pid) {
 }
 
 uint64_t shm_proc_start(int32_t pid) {
-  char path[48], buf[1024];
-  snprintf(path, sizeof path, "/proc/%d/stat", (int)pid);
+  char path[64], buf[1024];
+  /* The thread-group leader's task entry, which natively reads as
+   * /proc/PID/stat does. Why not that: qemu-user answers a process's own
+   * /proc/PID/stat itself, with its parent's start time after a fork, so a
+   * creator under emulation recorded a start time that others never read. */
+  snprintf(path, sizeof path, "/proc/%d/task/%d/stat", (int)pid, (int)pid);
   int fd = open(path, O_RDONLY | O_CLOEXEC);
   if (fd < 0)
     return 0;

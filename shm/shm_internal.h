@@ -34,7 +34,7 @@ struct seg_hdr {
   _Atomic uint32_t generation;
   uint32_t pad0;
   _Atomic uint64_t last_ns;
-  /* The creator's start time (/proc/PID/stat, clock ticks since boot; 0 =
+  /* The creator's start time (/proc/PID/task/PID/stat, clock ticks since boot; 0 =
    * unknown, as written before this field): a creator PID that is alive but
    * started at another time is a later process that reused the PID. */
   _Atomic uint64_t creator_start;
