@@ -492,10 +492,11 @@ static void test_attach_owned_refuses(void **state) {
   vlff_shm_unlink(name);
 }
 
-/* Process pid's start time, field 22 of /proc/PID/stat (after the last ')'). */
+/* Process pid's start time, field 22 of its stat (after the last ')'), read
+ * where the library reads it (qemu-user fakes a process's own /proc/PID/stat). */
 static uint64_t start_time_of(int pid) {
   char path[64], buf[1024];
-  snprintf(path, sizeof path, "/proc/%d/stat", pid);
+  snprintf(path, sizeof path, "/proc/%d/task/%d/stat", pid, pid);
   FILE *f = fopen(path, "r");
   assert_non_null(f);
   size_t n = fread(buf, 1, sizeof buf - 1, f);
