@@ -99,7 +99,19 @@ done
 cold=$(awk -v a="$t_cold" -v b="$(now)" 'BEGIN { printf "%.3f", b - a }')
 echo "chaos: node published map v$v after a cold start of ${cold} s; $target kills follow"
 
-kills=0 pending=0 v_before=0 t_restart=0
+# The 3D mIoU a node log shows at its last checkpoint (empty: none yet).
+ckpt_q() {
+  tr '\r' '\n' <"$1" | awk '/map v[0-9]+ mIoU/ { for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") last = $(i + 1) }
+                              / I node: checkpoint / { at = last } END { print at }'
+}
+# Whether a node log shows a 3D mIoU on a map newer than version $2.
+resumed_q() {
+  tr '\r' '\n' <"$1" | awk -v vb="$2" '/map v[0-9]+ mIoU/ {
+      for (i = 1; i <= NF; i++) if ($i ~ /^v[0-9]+$/) v = substr($i, 2) + 0
+      for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-" && v > vb) { found = 1; exit } }
+    END { exit !found }'
+}
+kills=0 pending=0 v_before=0 t_restart=0 t_recovered= comparable=0
 declare -A killed=([sim]=0 [node]=0 [reader]=0 [poster]=0)
 recoveries=()
 next_kill=$(later "$(now)")
@@ -115,10 +127,16 @@ tend() {
   if ((pending)); then
     local v
     v=$(map_version)
-    if [[ -n $v ]] && ((v > v_before)); then
-      recoveries+=("$(awk -v a="$t_restart" -v b="$(now)" 'BEGIN { printf "%.3f", b - a }')")
+    if [[ -z $t_recovered && -n $v ]] && ((v > v_before)); then
+      t_recovered=$(now)
+      recoveries+=("$(awk -v a="$t_restart" -v b="$t_recovered" 'BEGIN { printf "%.3f", b - a }')")
       echo "node.$inc v_before=$v_before" >>"$out/restarts"
-      pending=0
+    fi
+    # Recovered once its log shows the resumed map's 3D mIoU (what the
+    # quality check reads), or 5 s after the new map if it never does.
+    if [[ -n $t_recovered ]] && { resumed_q "$out/node.$inc.log" "$v_before" ||
+         before "$(awk -v t="$t_recovered" 'BEGIN { printf "%.3f", t + 5 }')" "$(now)"; }; then
+      pending=0 t_recovered=
     fi
   fi
 }
@@ -127,10 +145,13 @@ while ((kills < target)); do
   tend poster
   before "$(now)" "$next_kill" && continue
   victims=(sim reader poster)
-  ((pending)) || victims+=(node)
+  # Until one node has been killed after checkpointing with a 3D mIoU, the
+  # node waits for that, so that a quick run still compares one restart.
+  ((comparable)) || { [[ -n $(ckpt_q "$out/node.$inc.log") ]] && comparable=1; }
+  ((pending || !comparable)) || victims+=(node)
   owed=$((min_node_kills - killed[node]))
   if ((owed > 0 && target - kills <= owed)); then
-    ((pending)) && continue # the node's kill waits for its recovery
+    ((pending || !comparable)) && continue # the node's kill waits for its recovery
     victims=(node)
   fi
   victim=${victims[RANDOM % ${#victims[@]}]}
@@ -199,8 +220,7 @@ for ((k = 1; k <= inc; k++)); do
       fi
     fi
   fi
-  q=$(tr '\r' '\n' <"$log" | awk '/map v[0-9]+ mIoU/ { for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") last = $(i + 1) }
-                                   / I node: checkpoint / { at = last } END { print at }')
+  q=$(ckpt_q "$log")
   [[ -n $q ]] && prev_q=$q
 done
 
