@@ -20,7 +20,10 @@
 #   quality_checked restarts whose quality was compared so (left out: those
 #                   before any killed node had checkpointed with a 3D mIoU, and
 #                   those whose node logged none after resuming); 0 fails the
-#                   run, which would otherwise pass having compared nothing
+#                   run, which would otherwise pass having compared nothing.
+#                   So that a short run compares one, the node is spared until
+#                   a node has checkpointed with a 3D mIoU, and a restarted one
+#                   until it logs its resumed map's (5 s at most)
 # Baseline in the same run: the node's cold start (start -> first map version),
 # recovery_vs_cold_start. Exits non-zero if anything but kills, quality_checked
 # and times is not 0, or if quality_checked is 0.
