@@ -271,7 +271,7 @@ static int post(struct vlff_prompts *p, const struct vlff_prompt_request *req) {
         shm_err(VLFF_SHM_ERR_EXISTS, EBUSY,
                 "%s: request %llu is still waiting for the learner's answer (learner pid %d %s); not posting over it",
                 p->seg.name, (unsigned long long)waiting, (int)learner,
-                shm_hdr_creator_alive(p->seg.h) ? "running" : "not running");
+                shm_creator_alive(learner, atomic_load(&p->seg.h->creator_start)) ? "running" : "not running");
       else
         shm_err(VLFF_SHM_ERR_EXISTS, EBUSY, "%s: mailbox busy (pid %d posting)", p->seg.name, (int)holder);
       return -1;
@@ -474,7 +474,8 @@ API int vlff_prompts_wait_answer(struct vlff_prompts *p, uint64_t seq, uint64_t 
     if (timeout_ns != UINT64_MAX && shm_now() - t0 >= timeout_ns) {
       int32_t learner = atomic_load(&p->seg.h->creator_pid);
       shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no answer to request %llu yet (learner pid %d %s)", p->seg.name,
-              (unsigned long long)seq, (int)learner, shm_hdr_creator_alive(p->seg.h) ? "running" : "not running");
+              (unsigned long long)seq, (int)learner,
+              shm_creator_alive(learner, atomic_load(&p->seg.h->creator_start)) ? "running" : "not running");
       return -1;
     }
     nanosleep(&(struct timespec){0, 1000000}, NULL);

@@ -107,12 +107,12 @@ ckpt_q() {
   tr '\r' '\n' <"$1" | awk '/map v[0-9]+ mIoU/ { for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") last = $(i + 1) }
                               / I node: checkpoint / { at = last } END { print at }'
 }
-# Whether a node log shows a 3D mIoU on a map newer than version $2.
+# The first 3D mIoU a node log shows on a map newer than version $2 (empty: none yet).
 resumed_q() {
   tr '\r' '\n' <"$1" | awk -v vb="$2" '/map v[0-9]+ mIoU/ {
       for (i = 1; i <= NF; i++) if ($i ~ /^v[0-9]+$/) v = substr($i, 2) + 0
-      for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-" && v > vb) { found = 1; exit } }
-    END { exit !found }'
+      for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") { if (v > vb) { print $(i + 1); exit } }
+    }'
 }
 kills=0 pending=0 v_before=0 t_restart=0 t_recovered= comparable=0
 declare -A killed=([sim]=0 [node]=0 [reader]=0 [poster]=0)
@@ -137,7 +137,7 @@ tend() {
     fi
     # Recovered once its log shows the resumed map's 3D mIoU (what the
     # quality check reads), or 5 s after the new map if it never does.
-    if [[ -n $t_recovered ]] && { resumed_q "$out/node.$inc.log" "$v_before" ||
+    if [[ -n $t_recovered ]] && { [[ -n $(resumed_q "$out/node.$inc.log" "$v_before") ]] ||
          before "$(awk -v t="$t_recovered" 'BEGIN { printf "%.3f", t + 5 }')" "$(now)"; }; then
       pending=0 t_recovered=
     fi
@@ -212,10 +212,7 @@ for ((k = 1; k <= inc; k++)); do
   if ((k > 1)) && [[ -n $prev_q ]]; then
     vb=$(awk -v n="node.$k" '$1 == n { sub("v_before=", "", $2); print $2 }' "$out/restarts" 2>/dev/null)
     if [[ -n $vb ]]; then
-      q=$(tr '\r' '\n' <"$log" | awk -v vb="$vb" '/map v[0-9]+ mIoU/ {
-            for (i = 1; i <= NF; i++) if ($i ~ /^v[0-9]+$/) v = substr($i, 2) + 0
-            for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") { if (v > vb) { print $(i + 1); exit } }
-          }')
+      q=$(resumed_q "$log" "$vb")
       [[ -n $q ]] && quality_checked=$((quality_checked + 1))
       if [[ -n $q ]] && awk -v a="$q" -v b="$prev_q" 'BEGIN { exit !(a < b - 5) }'; then
         quality_drops=$((quality_drops + 1))

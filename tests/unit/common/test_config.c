@@ -45,13 +45,10 @@ static void expect_error(const char *yaml, const char *prefix, const char *fragm
 static const struct {
   const char *yaml, *prefix, *fragment;
 } bad[] = {
-  {"node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key"},
-  {"nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key"},
   /* A typo is answered with the key it is nearest (two edits at most). */
-  {"sim:\n  rate_hzz: 5\n", "t.yaml:2:3: key 'sim.rate_hzz': ", "unknown key (did you mean 'sim.rate_hz'?)"},
-  {"nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key (did you mean 'node'?)"},
   {"node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key (did you mean 'node.name'?)"},
-
+  {"nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key (did you mean 'node'?)"},
+  {"sim:\n  rate_hzz: 5\n", "t.yaml:2:3: key 'sim.rate_hzz': ", "unknown key (did you mean 'sim.rate_hz'?)"},
   /* One name for the feature dimension: the simulator's old key says where it went. */
   {"sim:\n  feature_dim: 16\n", "t.yaml:2:3: key 'sim.feature_dim': ", "field.feature_dim"},
   {"field:\n  feature_dim: abc\n", "t.yaml:2:16: key 'field.feature_dim': ", "expected integer in [8, 1024], got 'abc'"},
@@ -470,7 +467,8 @@ static void test_config_find(void **state) {
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
     cmocka_unit_test(test_errors), cmocka_unit_test(test_missing_file),
-    cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_unknown_key_without_guess), cmocka_unit_test(test_field_hash),
+    cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_unknown_key_without_guess),
+    cmocka_unit_test(test_field_hash),
     cmocka_unit_test(test_sim_features), cmocka_unit_test(test_deep_yaml),
     cmocka_unit_test(test_shm_names), cmocka_unit_test(test_fifo_config),
     cmocka_unit_test(test_dead_temps), cmocka_unit_test(test_config_find),
