@@ -474,7 +474,7 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
     size_t l = strlen(s);
     if (s[0] != '0' || l > 4 || strspn(s, "01234567") != l || (v = (double)strtol(s, NULL, 8)) < k->lo || v > k->hi)
       return fail(p, n, k->path, "expected a mode in octal with its leading 0 (like 0640), at most %04o, got %s",
-                  (int)k->hi, g);
+                  (unsigned)k->hi, g);
     *(int *)at(cfg, k) = (int)v;
     return 0;
   }
