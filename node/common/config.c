@@ -26,7 +26,7 @@
 _Static_assert(VLFF_PROMPT_LEN == VLFF_SHM_PROMPT_LEN && VLFF_MAX_PROMPTS == VLFF_SHM_MAX_PROMPTS,
                "a configured prompt set fits the map's prompt table and the mailbox");
 
-enum ktype { T_INT, T_DOUBLE, T_BOOL, T_STRING, T_ENUM, T_DVEC };
+enum ktype { T_INT, T_MODE, T_DOUBLE, T_BOOL, T_STRING, T_ENUM, T_DVEC };
 
 struct key {
   const char *path;
@@ -44,6 +44,8 @@ struct key {
 #define SZ(field) sizeof(((struct vlff_config *)0)->field)
 #define INT(p, f, lo, hi, d) {p, T_INT, F(f), 0, lo, hi, d, NULL, NULL, NULL}
 #define DBL(p, f, lo, hi, d) {p, T_DOUBLE, F(f), 0, lo, hi, d, NULL, NULL, NULL}
+/* A file mode: octal, written with its leading 0 as chmod takes it. */
+#define MODE(p, f, lo, hi, d) {p, T_MODE, F(f), 0, lo, hi, d, NULL, NULL, NULL}
 #define BOOL(p, f, d) {p, T_BOOL, F(f), 0, 0, 1, d, NULL, NULL, NULL}
 #define STR(p, f, d) {p, T_STRING, F(f), SZ(f), 0, 0, 0, d, NULL, NULL}
 /* A file the install puts under its datadir: the default follows the build's
@@ -107,7 +109,7 @@ static const struct key schema[] = {
     STR("shm.prompts", shm.prompts, "/vlff-prompts"),
     STR("shm.feature_ring", shm.feature_ring, "/vlff-features"),
     STR("shm.group", shm.group, ""),
-    INT("shm.mode", shm.mode, 0, 0777, 0640),
+    MODE("shm.mode", shm.mode, 0, 0777, 0640),
 
     ENUM("source.kind", source.kind, source_kinds, "ring"),
     STR("source.dataset", source.dataset, ""),
@@ -306,7 +308,8 @@ void vlff_config_defaults(struct vlff_config *cfg) {
   for (size_t i = 0; i < NKEYS; i++) {
     const struct key *k = &schema[i];
     switch (k->type) {
-    case T_INT: *(int *)at(cfg, k) = (int)k->def; break;
+    case T_INT:
+    case T_MODE: *(int *)at(cfg, k) = (int)k->def; break;
     case T_DOUBLE: *(double *)at(cfg, k) = k->def; break;
     case T_BOOL: *(bool *)at(cfg, k) = k->def != 0; break;
     case T_STRING: snprintf(at(cfg, k), k->size, "%s", k->sdef); break;
@@ -329,6 +332,8 @@ void vlff_config_defaults(struct vlff_config *cfg) {
 struct parse {
   yaml_document_t doc;
   const yaml_node_t *where[sizeof schema / sizeof schema[0]]; /* value node per key, if set */
+  const yaml_node_t *key_at[sizeof schema / sizeof schema[0]]; /* its key node, as written */
+  const yaml_node_t *sets_key;                                 /* prompts.sets' key, once set */
   const char *name;
   char *err;
   size_t errlen;
@@ -410,9 +415,34 @@ static bool has_control(const yaml_node_t *n) {
   return false;
 }
 
+/* A number written with a leading 0 before another digit ("010", "-07",
+ * "01.5"): YAML 1.1 reads 010 as octal 8, YAML 1.2 and a person as 10, and
+ * strtoll's base 0 took the octal. Refused, so that no reading is chosen
+ * silently; the message says what each would be. */
+static bool leading_zero(const char *s) {
+  if (*s == '-' || *s == '+') s++;
+  return s[0] == '0' && s[1] >= '0' && s[1] <= '9';
+}
+
+static int fail_leading_zero(struct parse *p, const yaml_node_t *n, const char *key, const char *g) {
+  const char *s = scalar(n), *d = s + (*s == '-' || *s == '+');
+  const char *sign = *s == '-' ? "-" : "";
+  size_t l = strlen(d);
+  /* Where the readings differ (010, not 07), say what each would be. */
+  if (l < 19 && strspn(d, "01234567") == l && strtoll(d, NULL, 8) != strtoll(d, NULL, 10))
+    return fail(p, n, key, "expected a number without a leading 0, got %s: YAML 1.1 reads it as octal (%s%lld), "
+                "YAML 1.2 as %s%lld; write the one you mean in decimal", g, sign, strtoll(d, NULL, 8), sign,
+                strtoll(d, NULL, 10));
+  return fail(p, n, key, "expected a number without a leading 0, got %s: write it in decimal", g);
+}
+
+/* Integers are decimal or hexadecimal ("0x2a": CAN ids are written so);
+ * other numbers decimal only (strtod's hex floats are not YAML). Leading
+ * whitespace (a quoted " 5") is refused as strtoll would skip it. */
 static int parse_number(const yaml_node_t *n, bool integer, double *out) {
-  if (n->type != YAML_SCALAR_NODE || !*scalar(n)) return -1;
+  if (n->type != YAML_SCALAR_NODE || !*scalar(n) || has_nul(n)) return -1;
   const char *s = scalar(n);
+  if (leading_zero(s) || !(*s == '-' || *s == '+' || *s == '.' || (*s >= '0' && *s <= '9'))) return -1;
   char *end;
   errno = 0;
   if (integer) {
@@ -420,6 +450,7 @@ static int parse_number(const yaml_node_t *n, bool integer, double *out) {
     if (errno || *end) return -1;
     *out = (double)v;
   } else {
+    if (strpbrk(s, "xX")) return -1;
     double v = strtod(s, &end);
     if (errno == ERANGE || *end || !isfinite(v)) return -1;
     *out = v;
@@ -430,8 +461,23 @@ static int parse_number(const yaml_node_t *n, bool integer, double *out) {
 static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct vlff_config *cfg) {
   char g[96];
   got(n, g, sizeof g);
+  /* A NUL ends the value for every C string function after it: "info\0x"
+   * would read as info, "5\0x" as 5. */
+  if (n->type == YAML_SCALAR_NODE && has_nul(n))
+    return fail(p, n, k->path, "expected a %s without NUL bytes, got %s", k->type == T_STRING ? "string" : "value", g);
+  if ((k->type == T_INT || k->type == T_DOUBLE) && n->type == YAML_SCALAR_NODE && leading_zero(scalar(n)))
+    return fail_leading_zero(p, n, k->path, g);
   double v;
   switch (k->type) {
+  case T_MODE: {
+    const char *s = n->type == YAML_SCALAR_NODE ? scalar(n) : "";
+    size_t l = strlen(s);
+    if (s[0] != '0' || l > 4 || strspn(s, "01234567") != l || (v = (double)strtol(s, NULL, 8)) < k->lo || v > k->hi)
+      return fail(p, n, k->path, "expected a mode in octal with its leading 0 (like 0640), at most %04o, got %s",
+                  (unsigned)k->hi, g);
+    *(int *)at(cfg, k) = (int)v;
+    return 0;
+  }
   case T_INT:
     if (parse_number(n, true, &v) || v < k->lo || v > k->hi)
       return fail(p, n, k->path, "expected integer in [%.0f, %.0f], got %s", k->lo, k->hi, g);
@@ -456,7 +502,6 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
   case T_STRING:
     if (n->type != YAML_SCALAR_NODE)
       return fail(p, n, k->path, "expected string, got %s", g);
-    if (has_nul(n)) return fail(p, n, k->path, "expected a string without NUL bytes, got %s", g);
     if (has_control(n)) return fail(p, n, k->path, "expected a string without control characters, got %s", g);
     if (strlen(scalar(n)) >= k->size)
       return fail(p, n, k->path, "expected string of at most %zu bytes, got %zu bytes", k->size - 1,
@@ -482,6 +527,8 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
       yaml_node_t *e = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
       char ge[96];
       got(e, ge, sizeof ge);
+      if (e->type == YAML_SCALAR_NODE && leading_zero(scalar(e)) && !has_nul(e))
+        return fail_leading_zero(p, e, k->path, ge);
       if (parse_number(e, false, &tmp[i]) || tmp[i] < k->lo || tmp[i] > k->hi)
         return fail(p, e, k->path, "expected number in [%g, %g] at index %zu, got %s", k->lo, k->hi,
                     i, ge);
@@ -491,6 +538,15 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
   }
   }
   return -1;
+}
+
+/* A key with a NUL ("node.name\0zzz", a quoted scalar's escape) would
+ * compare equal to the key before the NUL: refused, quoted whole. */
+static int fail_nul_key(struct parse *p, const yaml_node_t *kn, const char *prefix) {
+  char e[512], path[640];
+  escape(scalar(kn), kn->data.scalar.length, 120, e, sizeof e);
+  snprintf(path, sizeof path, "%s%s%s", prefix, prefix[0] ? "." : "", e);
+  return fail(p, kn, path, "expected a key without NUL bytes");
 }
 
 static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
@@ -511,14 +567,19 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
     got(s, g, sizeof g);
     if (s->type != YAML_MAPPING_NODE)
       return fail(p, s, path, "expected mapping with name and prompts, got %s", g);
-    bool have_prompts = false;
+    const yaml_node_t *name_at = NULL, *prompts_at = NULL;
     for (yaml_node_pair_t *pr = s->data.mapping.pairs.start; pr < s->data.mapping.pairs.top; pr++) {
       yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
       yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
+      if (has_nul(kn)) return fail_nul_key(p, kn, path);
       const char *kname = kn->type == YAML_SCALAR_NODE ? scalar(kn) : "";
       char sub[96];
       snprintf(sub, sizeof sub, "%s.%s", path, kname);
       got(vn, g, sizeof g);
+      /* A second name or prompts list in one set would replace the first. */
+      const yaml_node_t **seen = !strcmp(kname, "name") ? &name_at : !strcmp(kname, "prompts") ? &prompts_at : NULL;
+      if (seen && *seen) return fail(p, kn, sub, "duplicate key (first at line %u)", (unsigned)(*seen)->start_mark.line + 1);
+      if (seen) *seen = kn;
       if (!strcmp(kname, "name")) {
         if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
           return fail(p, vn, sub, "expected string of at most %d bytes without control characters, got %s",
@@ -548,12 +609,11 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
           snprintf(set->text[j], VLFF_PROMPT_LEN, "%s", scalar(e));
         }
         set->count = (int)m;
-        have_prompts = true;
       } else {
         return fail(p, kn, sub, "unknown key (expected name or prompts)");
       }
     }
-    if (!have_prompts) return fail(p, s, path, "expected a 'prompts' list, got none");
+    if (!prompts_at) return fail(p, s, path, "expected a 'prompts' list, got none");
   }
   cfg->prompts.set_count = (int)count;
   return 0;
@@ -604,6 +664,7 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
     yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
     yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
     if (kn->type != YAML_SCALAR_NODE) return fail(p, kn, prefix[0] ? prefix : NULL, "expected a plain key");
+    if (has_nul(kn)) return fail_nul_key(p, kn, prefix);
     char path[160];
     snprintf(path, sizeof path, "%s%s%s", prefix, prefix[0] ? "." : "", scalar(kn));
     /* Duplicate keys are almost always an edit mistake: refuse them. */
@@ -612,13 +673,24 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
       if (qk->type == YAML_SCALAR_NODE && !strcmp(scalar(qk), scalar(kn)))
         return fail(p, kn, path, "duplicate key (first at line %u)", (unsigned)qk->start_mark.line + 1);
     }
+    /* The same key spelt another way (shm.ring: beside shm: {ring:}) is a
+     * duplicate all the same: whichever came last would win. */
+    const yaml_node_t **first = NULL;
+    const struct key *k = NULL;
+    for (size_t i = 0; i < NKEYS && !k; i++)
+      if (!strcmp(schema[i].path, path)) k = &schema[i];
+    if (k) first = &p->key_at[k - schema];
+    if (!strcmp(path, PROMPT_SETS)) first = &p->sets_key;
+    if (first && *first) {
+      char e[256];
+      escape(scalar(*first), strlen(scalar(*first)), 120, e, sizeof e);
+      return fail(p, kn, path, "duplicate key (first at line %u, written '%s')", (unsigned)(*first)->start_mark.line + 1, e);
+    }
+    if (first) *first = kn;
     if (!strcmp(path, PROMPT_SETS)) {
       if (parse_prompt_sets(p, vn, cfg)) return -1;
       continue;
     }
-    const struct key *k = NULL;
-    for (size_t i = 0; i < NKEYS && !k; i++)
-      if (!strcmp(schema[i].path, path)) k = &schema[i];
     if (k) {
       if (set_key(p, k, vn, cfg)) return -1;
       p->where[k - schema] = vn;
@@ -720,13 +792,64 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
  * scanner rechecks every open flow level on each token, so a file of deep
  * brackets costs the square of its depth to load: the limits are checked
  * on the event stream first, which stops at the first level too deep
- * before any of that cost is paid. */
-static int check_limits(const char *buf, size_t len, const char *name, char *err, size_t errlen) {
+ * before any of that cost is paid. The loader (yaml_parser_load) compares
+ * each anchor with every earlier one, so anchors and aliases are counted
+ * here too: 99,990 anchors had cost 188 s of CPU. */
+static int limit_error(char *err, size_t errlen, const char *name, const yaml_mark_t *m, const char *what) {
+  snprintf(err, errlen, "%s:%u:%u: %s, not a vlff config", name, (unsigned)m->line + 1, (unsigned)m->column + 1,
+           what);
+  return -1;
+}
+
+/* libyaml's parser compares each %TAG directive with every earlier one
+ * before it hands out the document's first event, so directives are
+ * counted on the token stream, a step below. Nesting is bounded here as
+ * well (the scanner's cost per token grows with the flow depth); a scanner
+ * error is left to the event pass, which reports the first error of the
+ * file, scanner's or parser's. */
+static int check_tokens(const char *buf, size_t len, const char *name, char *err, size_t errlen) {
   yaml_parser_t parser;
   if (!yaml_parser_initialize(&parser)) return snprintf(err, errlen, "%s: out of memory", name), -1;
   yaml_parser_set_input_string(&parser, (const unsigned char *)buf, len);
-  int depth = 0, rc = 0;
+  int depth = 0, directives = 0, rc = 0;
+  char what[96];
+  for (;;) {
+    yaml_token_t t;
+    if (!yaml_parser_scan(&parser, &t)) break;
+    yaml_token_type_t type = t.type;
+    yaml_mark_t m = t.start_mark;
+    yaml_token_delete(&t);
+    if (type == YAML_STREAM_END_TOKEN) break;
+    if (type == YAML_TAG_DIRECTIVE_TOKEN || type == YAML_VERSION_DIRECTIVE_TOKEN) {
+      if (++directives > VLFF_CONFIG_MAX_DIRECTIVES) {
+        snprintf(what, sizeof what, "more than %d YAML directives (%%TAG, %%YAML)", VLFF_CONFIG_MAX_DIRECTIVES);
+        rc = limit_error(err, errlen, name, &m, what);
+        break;
+      }
+    }
+    if (type == YAML_BLOCK_SEQUENCE_START_TOKEN || type == YAML_BLOCK_MAPPING_START_TOKEN ||
+        type == YAML_FLOW_SEQUENCE_START_TOKEN || type == YAML_FLOW_MAPPING_START_TOKEN)
+      depth++;
+    if (type == YAML_BLOCK_END_TOKEN || type == YAML_FLOW_SEQUENCE_END_TOKEN || type == YAML_FLOW_MAPPING_END_TOKEN)
+      depth--;
+    if (depth > VLFF_CONFIG_MAX_DEPTH) {
+      snprintf(what, sizeof what, "nesting deeper than %d levels", VLFF_CONFIG_MAX_DEPTH);
+      rc = limit_error(err, errlen, name, &m, what);
+      break;
+    }
+  }
+  yaml_parser_delete(&parser);
+  return rc;
+}
+
+static int check_limits(const char *buf, size_t len, const char *name, char *err, size_t errlen) {
+  if (check_tokens(buf, len, name, err, errlen)) return -1;
+  yaml_parser_t parser;
+  if (!yaml_parser_initialize(&parser)) return snprintf(err, errlen, "%s: out of memory", name), -1;
+  yaml_parser_set_input_string(&parser, (const unsigned char *)buf, len);
+  int depth = 0, rc = 0, anchors = 0, aliases = 0;
   long events = 0;
+  char what[96];
   for (;;) {
     yaml_event_t ev;
     if (!yaml_parser_parse(&parser, &ev)) {
@@ -736,21 +859,32 @@ static int check_limits(const char *buf, size_t len, const char *name, char *err
       break;
     }
     yaml_event_type_t t = ev.type;
-    unsigned line = (unsigned)ev.start_mark.line + 1, col = (unsigned)ev.start_mark.column + 1;
+    yaml_mark_t m = ev.start_mark;
+    bool anchor = (t == YAML_SCALAR_EVENT && ev.data.scalar.anchor) ||
+                  (t == YAML_SEQUENCE_START_EVENT && ev.data.sequence_start.anchor) ||
+                  (t == YAML_MAPPING_START_EVENT && ev.data.mapping_start.anchor);
     yaml_event_delete(&ev);
     if (t == YAML_STREAM_END_EVENT) break;
     if (t == YAML_SEQUENCE_START_EVENT || t == YAML_MAPPING_START_EVENT) depth++;
     if (t == YAML_SEQUENCE_END_EVENT || t == YAML_MAPPING_END_EVENT) depth--;
     if (depth > VLFF_CONFIG_MAX_DEPTH) {
-      snprintf(err, errlen, "%s:%u:%u: nesting deeper than %d levels, not a vlff config", name, line, col,
-               VLFF_CONFIG_MAX_DEPTH);
-      rc = -1;
+      snprintf(what, sizeof what, "nesting deeper than %d levels", VLFF_CONFIG_MAX_DEPTH);
+      rc = limit_error(err, errlen, name, &m, what);
       break;
     }
     if (++events > VLFF_CONFIG_MAX_EVENTS) {
-      snprintf(err, errlen, "%s:%u:%u: more than %d YAML nodes, not a vlff config", name, line, col,
-               VLFF_CONFIG_MAX_EVENTS);
-      rc = -1;
+      snprintf(what, sizeof what, "more than %d YAML nodes", VLFF_CONFIG_MAX_EVENTS);
+      rc = limit_error(err, errlen, name, &m, what);
+      break;
+    }
+    if (anchor && ++anchors > VLFF_CONFIG_MAX_ANCHORS) {
+      snprintf(what, sizeof what, "more than %d YAML anchors (&name)", VLFF_CONFIG_MAX_ANCHORS);
+      rc = limit_error(err, errlen, name, &m, what);
+      break;
+    }
+    if (t == YAML_ALIAS_EVENT && ++aliases > VLFF_CONFIG_MAX_ALIASES) {
+      snprintf(what, sizeof what, "more than %d YAML aliases (*name)", VLFF_CONFIG_MAX_ALIASES);
+      rc = limit_error(err, errlen, name, &m, what);
       break;
     }
   }
@@ -892,12 +1026,8 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
     const struct key *k = &schema[i];
     fprintf(out, "%s: ", k->path);
     switch (k->type) {
-    case T_INT:
-      if (!strcmp(k->path, "shm.mode"))
-        fprintf(out, "0%o\n", *(const int *)cat(cfg, k));
-      else
-        fprintf(out, "%d\n", *(const int *)cat(cfg, k));
-      break;
+    case T_INT: fprintf(out, "%d\n", *(const int *)cat(cfg, k)); break;
+    case T_MODE: fprintf(out, "0%o\n", *(const int *)cat(cfg, k)); break;
     case T_DOUBLE:
       put_double(out, *(const double *)cat(cfg, k));
       fputc('\n', out);

@@ -17,9 +17,22 @@
  *    the node is configured with is one the mailbox would accept.
  *  - The struct is plain data: copy it freely; it owns no memory.
  *  - A file nested deeper than VLFF_CONFIG_MAX_DEPTH levels, or with more
- *    than VLFF_CONFIG_MAX_EVENTS YAML events, is refused before it is
- *    loaded ("file:line:col: nesting deeper than ..."), so a hostile file
- *    costs time in proportion to its size.
+ *    than VLFF_CONFIG_MAX_EVENTS YAML events, VLFF_CONFIG_MAX_ANCHORS
+ *    anchors (&a), VLFF_CONFIG_MAX_ALIASES aliases (*a) or
+ *    VLFF_CONFIG_MAX_DIRECTIVES directives (%TAG, %YAML), is refused before
+ *    it is loaded ("file:line:col: nesting deeper than ...", "more than 64
+ *    YAML anchors ..."), so a hostile file costs time in proportion to its
+ *    size.
+ *  - A key is set once: the same key twice in a mapping, or one key spelt
+ *    both dotted and nested (shm.ring: beside shm: {ring:}), is an error, in
+ *    every mapping (prompts.sets entries included). A key holding a NUL
+ *    byte is an error, and so is a NUL in any value (a number, a boolean or
+ *    an enum as well as a string), never cut short at the NUL.
+ *  - Integers are decimal or hexadecimal (0x2a); one written with a leading
+ *    0 (010) is an error asking for decimal, since YAML 1.1 readers take it
+ *    as octal and YAML 1.2 readers as decimal. shm.mode, a file mode, is
+ *    the exception: it is octal and must be written with its leading 0
+ *    (0640). Numbers that are not integers are decimal only.
  *  - Shared-memory names (shm.ring, pose_ring, map, prompts, feature_ring)
  *    must be valid POSIX names ('/' then 1..248 characters, no other '/')
  *    and distinct from each other.
@@ -47,6 +60,15 @@
 #define VLFF_MAX_PROMPT_SETS 8
 #define VLFF_CONFIG_MAX_DEPTH 32
 #define VLFF_CONFIG_MAX_EVENTS 100000
+/* No shipped config uses an anchor, alias or directive; a hand-written one
+ * may share a value (one intrinsics list for two cameras, a prompt list for
+ * two sets) through a few. libyaml's loader compares every new anchor with
+ * every earlier one and looks each alias up among them, so these bound its
+ * work to a few thousand string compares; its parser does the same for
+ * %TAG directives. 256 aliases outnumber the schema's keys (179). */
+#define VLFF_CONFIG_MAX_ANCHORS 64
+#define VLFF_CONFIG_MAX_ALIASES 256
+#define VLFF_CONFIG_MAX_DIRECTIVES 16
 
 enum vlff_log_level { VLFF_LOG_ERROR, VLFF_LOG_WARN, VLFF_LOG_INFO, VLFF_LOG_DEBUG };
 enum vlff_source_kind { VLFF_SOURCE_SIM, VLFF_SOURCE_RING, VLFF_SOURCE_DATASET };

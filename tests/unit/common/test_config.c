@@ -464,6 +464,164 @@ static void test_config_find(void **state) {
   unsetenv("VLFF_CONFIG");
 }
 
+/* Issue 51's silent acceptances. Each row is checked and reported on its
+ * own (the test fails once, after all rows), so every row is seen to fail
+ * on a loader without the fix. */
+struct refusal {
+  const char *yaml, *prefix, *fragment;
+};
+
+static void expect_refusals(const struct refusal *rows, size_t n) {
+  int wrong = 0;
+  for (size_t i = 0; i < n; i++) {
+    struct vlff_config cfg, def;
+    vlff_config_defaults(&def);
+    int rc = load(rows[i].yaml, &cfg);
+    if (rc != -1 || strncmp(err, rows[i].prefix, strlen(rows[i].prefix)) != 0 || !strstr(err, rows[i].fragment) ||
+        memcmp(&cfg, &def, sizeof cfg) != 0) {
+      print_message("row %zu: rc %d, message '%s'; expected '%s...%s'\n", i, rc, err, rows[i].prefix, rows[i].fragment);
+      wrong++;
+    }
+  }
+  assert_int_equal(wrong, 0);
+}
+
+/* One key set twice, however spelt, in every mapping: whichever came last
+ * used to win silently. */
+static const struct refusal duplicates[] = {
+  {"shm.ring: /b1\nshm: {ring: /a1}\n", "t.yaml:2:7: key 'shm.ring': ", "duplicate key (first at line 1, written 'shm.ring')"},
+  {"shm: {ring: /a1}\nshm.ring: /b1\n", "t.yaml:2:1: key 'shm.ring': ", "duplicate key (first at line 1, written 'ring')"},
+  {"sim:\n  seed: 3\nsim.seed: 4\n", "t.yaml:3:1: key 'sim.seed': ", "duplicate key (first at line 2, written 'seed')"},
+  {"prompts.sets: [{prompts: [a]}]\nprompts:\n  sets: [{prompts: [b]}]\n", "t.yaml:3:3: key 'prompts.sets': ",
+   "duplicate key (first at line 1, written 'prompts.sets')"},
+  {"prompts:\n  sets:\n    - name: a\n      prompts: [x]\n      name: b\n", "t.yaml:5:7: key 'prompts.sets[0].name': ",
+   "duplicate key (first at line 3)"},
+  {"prompts:\n  sets:\n    - prompts: [x]\n    - prompts: [y]\n      prompts: [z]\n",
+   "t.yaml:5:7: key 'prompts.sets[1].prompts': ", "duplicate key (first at line 4)"},
+  /* Quoting does not make another key. */
+  {"node:\n  name: a\n  \"name\": b\n", "t.yaml:3:3: key 'node.name': ", "duplicate key (first at line 2)"},
+};
+
+static void test_duplicate_spellings(void **state) {
+  (void)state;
+  expect_refusals(duplicates, sizeof duplicates / sizeof *duplicates);
+  /* Keys of one section spread over a dotted and a nested spelling are
+   * still taken when no key repeats. */
+  struct vlff_config cfg;
+  assert_int_equal(load("shm.ring: /b1\nshm: {map: /m1}\n", &cfg), 0);
+  assert_string_equal(cfg.shm.ring, "/b1");
+  assert_string_equal(cfg.shm.map, "/m1");
+}
+
+/* A NUL in a key made it compare equal to the key before the NUL; in a
+ * number, boolean or enum value it cut the value short. */
+static const struct refusal nuls[] = {
+  {"\"node.name\\0zzz\": x\n", "t.yaml:1:1: key 'node.name\\x00zzz': ", "expected a key without NUL bytes"},
+  {"node:\n  \"name\\0zzz\": x\n", "t.yaml:2:3: key 'node.name\\x00zzz': ", "expected a key without NUL bytes"},
+  {"\"shm\\0x\":\n  ring: /r\n", "t.yaml:1:1: key 'shm\\x00x': ", "expected a key without NUL bytes"},
+  {"prompts:\n  sets:\n    - \"name\\0x\": a\n      prompts: [x]\n", "t.yaml:3:7: key 'prompts.sets[0].name\\x00x': ",
+   "expected a key without NUL bytes"},
+  {"node:\n  log_level: \"debug\\0x\"\n", "t.yaml:2:14: key 'node.log_level': ", "expected a value without NUL bytes, got 'debug\\x00x'"},
+  {"can:\n  enabled: \"true\\0\"\n", "t.yaml:2:12: key 'can.enabled': ", "expected a value without NUL bytes, got 'true\\x00'"},
+  {"shm:\n  ring_slots: \"16\\0 9\"\n", "t.yaml:2:15: key 'shm.ring_slots': ", "expected a value without NUL bytes, got '16\\x00 9'"},
+  {"train:\n  lr: \"0.5\\0\"\n", "t.yaml:2:7: key 'train.lr': ", "expected a value without NUL bytes"},
+  {"field:\n  scene_min: [-1, \"-2\\0\", -3]\n", "t.yaml:2:19: key 'field.scene_min': ", "at index 1, got '-2\\x00'"},
+};
+
+static void test_nul_keys_values(void **state) {
+  (void)state;
+  expect_refusals(nuls, sizeof nuls / sizeof *nuls);
+}
+
+/* A leading 0 read as octal (010 became 8, 0123 83); numbers are decimal,
+ * integers may be hex, the mode is octal with its 0. */
+static const struct refusal numbers[] = {
+  {"shm:\n  ring_slots: 010\n", "t.yaml:2:15: key 'shm.ring_slots': ",
+   "expected a number without a leading 0, got '010': YAML 1.1 reads it as octal (8), YAML 1.2 as 10; write the one you mean in decimal"},
+  {"sim:\n  seed: 0123\n", "t.yaml:2:9: key 'sim.seed': ", "got '0123': YAML 1.1 reads it as octal (83), YAML 1.2 as 123"},
+  {"sim.seed: 0123\n", "t.yaml:1:11: key 'sim.seed': ", "without a leading 0"},
+  {"sim:\n  seed: 09\n", "t.yaml:2:9: key 'sim.seed': ", "expected a number without a leading 0, got '09': write it in decimal"},
+  {"can:\n  node_id: -010\n", "t.yaml:2:12: key 'can.node_id': ", "octal (-8), YAML 1.2 as -10"},
+  {"pose:\n  latency_s: 01.5\n", "t.yaml:2:14: key 'pose.latency_s': ", "got '01.5': write it in decimal"},
+  {"field:\n  scene_min: [-1, -02, -3]\n", "t.yaml:2:19: key 'field.scene_min': ", "got '-02': write it in decimal"},
+  /* strtoll skips leading blanks, which hid a leading 0 from the check. */
+  {"shm:\n  ring_slots: \" 010\"\n", "t.yaml:2:15: key 'shm.ring_slots': ", "expected integer in [2, 1024], got ' 010'"},
+  /* Hex is for integers; strtod's hex floats are not YAML. */
+  {"train:\n  lr: 0x1\n", "t.yaml:2:7: key 'train.lr': ", "expected number in [0, 10], got '0x1'"},
+  {"shm:\n  mode: 416\n", "t.yaml:2:9: key 'shm.mode': ", "expected a mode in octal with its leading 0 (like 0640), at most 0777, got '416'"},
+  {"shm:\n  mode: 0x1a0\n", "t.yaml:2:9: key 'shm.mode': ", "got '0x1a0'"},
+  {"shm:\n  mode: 0648\n", "t.yaml:2:9: key 'shm.mode': ", "in octal"},
+};
+
+static void test_leading_zero_numbers(void **state) {
+  (void)state;
+  expect_refusals(numbers, sizeof numbers / sizeof *numbers);
+  struct vlff_config cfg;
+  /* Hex integers are meant (CAN ids), as is a lone 0 and a decimal fraction. */
+  assert_int_equal(load("can:\n  status_base_id: 0x180\n  command_id: 0X600\nsim:\n  seed: 0\n"
+                        "pose:\n  latency_s: 0.25\nshm:\n  mode: 0600\n", &cfg), 0);
+  assert_int_equal(cfg.can.status_base_id, 0x180);
+  assert_int_equal(cfg.can.command_id, 0x600);
+  assert_int_equal(cfg.sim.seed, 0);
+  assert_true(cfg.pose.latency_s == 0.25);
+  assert_int_equal(cfg.shm.mode, 0600);
+  assert_int_equal(load("shm:\n  mode: 0\n", &cfg), 0);
+  assert_int_equal(cfg.shm.mode, 0);
+}
+
+/* libyaml's loader costs the square of the anchor count: the pre-pass
+ * refuses the 65th anchor, the 257th alias and the 17th directive. Every
+ * file here would be refused by the loader with another message (an
+ * unknown key), so the message proves the refusal came before the load. */
+static void test_yaml_anchors(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  /* The issue's count: 99,990 anchors, 99,999 events, within the event
+   * limit, so that only the anchor limit stands before the loader. */
+  const int n = 99990;
+  char *y = malloc(64 + 24 * (size_t)n);
+  assert_non_null(y);
+  size_t o = (size_t)sprintf(y, "x:\n");
+  for (int i = 0; i < n; i++) o += (size_t)sprintf(y + o, "  - &a%d %d\n", i, i);
+  assert_int_equal(load(y, &cfg), -1);
+  /* Anchor 65 (&a64) is on line 1 + 65. */
+  assert_string_equal(err, "t.yaml:66:5: more than 64 YAML anchors (&name), not a vlff config");
+  /* Aliases of one anchor. */
+  o = (size_t)sprintf(y, "node:\n  name: &n x\nx:\n");
+  for (int i = 0; i < 300; i++) o += (size_t)sprintf(y + o, "  - *n\n");
+  assert_int_equal(load(y, &cfg), -1);
+  assert_string_equal(err, "t.yaml:260:5: more than 256 YAML aliases (*name), not a vlff config");
+  /* %TAG directives: libyaml's parser compares each with every earlier one. */
+  o = 0;
+  for (int i = 0; i < 40000; i++) o += (size_t)sprintf(y + o, "%%TAG !t%d! tag:x,%d:\n", i, i);
+  sprintf(y + o, "---\nx: 1\n");
+  assert_int_equal(load(y, &cfg), -1);
+  assert_string_equal(err, "t.yaml:17:1: more than 16 YAML directives (%TAG, %YAML), not a vlff config");
+  free(y);
+  /* A config sharing values through a few anchors still loads. */
+  const char *ok = "camera:\n  width: &w 640\n  height: &h 480\n"
+                   "depth_camera:\n  width: *w\n  height: *h\n"
+                   "prompts:\n  active: 1\n  sets:\n    - name: a\n      prompts: &p [chair, table]\n"
+                   "    - name: b\n      prompts: *p\n";
+  assert_int_equal(load(ok, &cfg), 0);
+  assert_int_equal(cfg.depth_camera.width, 640);
+  assert_int_equal(cfg.depth_camera.height, 480);
+  assert_int_equal(cfg.prompts.set_count, 2);
+  assert_string_equal(cfg.prompts.sets[1].text[1], "table");
+  /* The limits themselves are taken. */
+  char *at = malloc(64 * 16 + 300 * 8 + 64);
+  assert_non_null(at);
+  o = (size_t)sprintf(at, "prompts:\n  sets:\n    - prompts: [");
+  for (int i = 0; i < VLFF_CONFIG_MAX_ANCHORS; i++) o += (size_t)sprintf(at + o, "%s&a%d p%d", i ? ", " : "", i, i);
+  o += (size_t)sprintf(at + o, "]\n    - prompts: [");
+  for (int i = 0; i < VLFF_CONFIG_MAX_ALIASES; i++) o += (size_t)sprintf(at + o, "%s*a%d", i ? ", " : "", i % 32);
+  sprintf(at + o, "]\n");
+  assert_int_equal(load(at, &cfg), -1);
+  /* ...and refused only for what the prompt rules say (64 prompts in a set). */
+  assert_non_null(strstr(err, "expected sequence of 1 to 32 prompts"));
+  free(at);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
     cmocka_unit_test(test_errors), cmocka_unit_test(test_missing_file),
@@ -472,4 +630,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_sim_features), cmocka_unit_test(test_deep_yaml),
     cmocka_unit_test(test_shm_names), cmocka_unit_test(test_fifo_config),
     cmocka_unit_test(test_dead_temps), cmocka_unit_test(test_config_find),
-    cmocka_unit_test(test_hostile_strings))
+    cmocka_unit_test(test_hostile_strings), cmocka_unit_test(test_duplicate_spellings),
+    cmocka_unit_test(test_nul_keys_values), cmocka_unit_test(test_leading_zero_numbers),
+    cmocka_unit_test(test_yaml_anchors))
