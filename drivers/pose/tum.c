@@ -12,6 +12,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 
 static const char *const result_names[VLFF_TUM_RESULTS] = {
     [VLFF_TUM_OK] = "ok",
@@ -22,6 +23,10 @@ static const char *const result_names[VLFF_TUM_RESULTS] = {
     [VLFF_TUM_DUPLICATE] = "duplicate stamp",
     [VLFF_TUM_OUT_OF_ORDER] = "out of order",
     [VLFF_TUM_BAD_STAMP] = "stamp out of range",
+    [VLFF_TUM_CLOCK] = "clock error",
+    [VLFF_TUM_NUL] = "NUL byte",
+    [VLFF_TUM_TOO_LONG] = "too long",
+    [VLFF_TUM_FOREIGN] = "foreign sender",
 };
 
 const char *vlff_tum_result_name(int result) {
@@ -51,6 +56,36 @@ static int decimal_ns(const char *s, const char *end, int64_t *out) {
   return 0;
 }
 
+/* Length of the plain decimal number s starts with: [+-] digits [. digits]
+ * [e|E [+-] digits], a digit in the mantissa; 0 when it starts with none. No
+ * hexadecimal, no "inf"/"nan": strtod(3) reads "0x10" as 16. */
+static size_t decimal_len(const char *s) {
+  size_t i = 0, digits = 0;
+  if (s[i] == '+' || s[i] == '-') i++;
+  for (; s[i] >= '0' && s[i] <= '9'; i++) digits++;
+  if (s[i] == '.')
+    for (i++; s[i] >= '0' && s[i] <= '9'; i++) digits++;
+  if (!digits) return 0;
+  if (s[i] == 'e' || s[i] == 'E') {
+    size_t j = i + 1, e = 0;
+    if (s[j] == '+' || s[j] == '-') j++;
+    for (; s[j] >= '0' && s[j] <= '9'; j++) e++;
+    if (e) i = j;
+  }
+  return i;
+}
+
+/* The words a tracker prints for non-finite values ("nan", "-nan", "inf",
+ * "-Infinity"): 2 for NaN, 1 for +infinity, -1 for -infinity, 0 for
+ * anything else. They are refused as not finite, not as malformed. */
+static int non_finite_word(const char *s, size_t w) {
+  int neg = 0;
+  if (w && (*s == '+' || *s == '-')) neg = *s == '-', s++, w--;
+  if (w == 3 && !strncasecmp(s, "nan", 3)) return 2;
+  if ((w == 3 && !strncasecmp(s, "inf", 3)) || (w == 8 && !strncasecmp(s, "infinity", 8))) return neg ? -1 : 1;
+  return 0;
+}
+
 int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *out, char *why, size_t whylen) {
   const char *s = line;
   while (isspace((unsigned char)*s)) s++;
@@ -63,13 +98,23 @@ int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *o
       snprintf(why, whylen, "more than 8 fields (expected t tx ty tz qx qy qz qw; --extra-fields ignores the rest)");
       return VLFF_TUM_MALFORMED;
     }
-    char *end;
-    errno = 0;
-    v[n] = strtod(s, &end);
-    if (end == s || (*end && !isspace((unsigned char)*end))) {
-      int w = 0;
-      while (s[w] && !isspace((unsigned char)s[w]) && w < 24) w++;
-      snprintf(why, whylen, "field %d '%.*s' is not a number (expected t tx ty tz qx qy qz qw)", n + 1, w, s);
+    size_t w = 0;
+    while (s[w] && !isspace((unsigned char)s[w])) w++;
+    const char *end = s + w;
+    int nf = non_finite_word(s, w);
+    if (nf) {
+      v[n] = nf > 0 ? (nf == 2 ? NAN : INFINITY) : -INFINITY;
+    } else if (decimal_len(s) == w) {
+      char *e;
+      v[n] = strtod(s, &e); /* on a plain decimal, only its size can go wrong: overflow is infinite */
+      if (e != end) {
+        snprintf(why, whylen, "field %d '%.*s' is not a number (expected t tx ty tz qx qy qz qw)", n + 1,
+                 (int)(w < 24 ? w : 24), s);
+        return VLFF_TUM_MALFORMED;
+      }
+    } else {
+      snprintf(why, whylen, "field %d '%.*s' is not a decimal number (expected t tx ty tz qx qy qz qw)", n + 1,
+               (int)(w < 24 ? w : 24), s);
       return VLFF_TUM_MALFORMED;
     }
     if (n == 0) exact = decimal_ns(s, end, &t_ns) == 0;
@@ -159,8 +204,23 @@ static int refuse(struct vlff_tum_feed *f, int result) {
   return result;
 }
 
-int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_ns, struct vlff_pose_rec *out,
-                       char *why, size_t whylen) {
+void vlff_tum_feed_count(struct vlff_tum_feed *f, int result) {
+  if (result >= VLFF_TUM_MALFORMED && result < VLFF_TUM_RESULTS) f->refused[result]++;
+}
+
+int vlff_tum_feed_buf(struct vlff_tum_feed *f, const char *line, size_t len, uint64_t now_ns,
+                      struct vlff_pose_rec *out, char *why, size_t whylen) {
+  if (len >= VLFF_TUM_LINE_MAX) {
+    snprintf(why, whylen, "a line of %d bytes or more (not a TUM line)", VLFF_TUM_LINE_MAX);
+    return refuse(f, VLFF_TUM_TOO_LONG);
+  }
+  const char *nul = memchr(line, 0, len);
+  if (nul) {
+    /* strtod and every reader after it would stop there: what follows
+     * would be lost without a word. */
+    snprintf(why, whylen, "a NUL byte at column %zu (not a text line)", (size_t)(nul - line) + 1);
+    return refuse(f, VLFF_TUM_NUL);
+  }
   struct vlff_tum_sample s;
   int r = vlff_tum_parse(line, f->p.extra_fields, &s, why, whylen);
   if (r == VLFF_TUM_SKIP) return r;
@@ -175,10 +235,18 @@ int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_n
     snprintf(why, whylen, "stamp %.9f repeats the previous line's", s.t);
     return refuse(f, VLFF_TUM_DUPLICATE);
   }
+  int restart = 0;
   if (f->have_last && s.t_ns < f->last_t_ns) {
-    snprintf(why, whylen, "stamp %.9f is %.9f s before the previous line's %.9f", s.t,
-             (double)(f->last_t_ns - s.t_ns) * 1e-9, (double)f->last_t_ns * 1e-9);
-    return refuse(f, VLFF_TUM_OUT_OF_ORDER);
+    /* One line ahead of the stream (forged, or a clock glitch) must not
+     * lock the tracker out: a run of older lines is a stream that restarted. */
+    if (f->p.out_of_order_reset && f->out_of_order_run + 1 >= f->p.out_of_order_reset) {
+      restart = 1;
+    } else {
+      f->out_of_order_run++;
+      snprintf(why, whylen, "stamp %.9f is %.9f s before the previous line's %.9f", s.t,
+               (double)(f->last_t_ns - s.t_ns) * 1e-9, (double)f->last_t_ns * 1e-9);
+      return refuse(f, VLFF_TUM_OUT_OF_ORDER);
+    }
   }
   uint64_t t_ns;
   if (f->p.stamp == VLFF_TUM_STAMP_HOST) {
@@ -197,6 +265,18 @@ int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_n
                (double)f->p.clock_offset_ns * 1e-9);
       return refuse(f, VLFF_TUM_BAD_STAMP);
     }
+    /* A pose is computed after its frame: a stamp ahead of the clock is
+     * the clocks' disagreement, and far ahead a wrong clock or a forgery,
+     * which would hold every later line out of order. */
+    if (f->p.future_tolerance_ns > 0 && (uint64_t)t > now_ns &&
+        (uint64_t)t - now_ns > (uint64_t)f->p.future_tolerance_ns) {
+      snprintf(why, whylen,
+               "stamp %.9f s is %.3f s ahead of the clock (CLOCK_MONOTONIC %.9f s; tolerance %.3f s): a wrong "
+               "clock or clock offset, or a forged line",
+               (double)t * 1e-9, (double)((uint64_t)t - now_ns) * 1e-9, (double)now_ns * 1e-9,
+               (double)f->p.future_tolerance_ns * 1e-9);
+      return refuse(f, VLFF_TUM_CLOCK);
+    }
     t_ns = (uint64_t)t;
   }
   double q[4];
@@ -207,11 +287,21 @@ int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_n
   out->t_ns = t_ns;
   out->source_id = f->p.source_id;
   mul44(body, f->p.body_to_camera, out->pose);
+  if (restart) {
+    f->resets++;
+    f->reset_from_t_ns = f->last_t_ns;
+  }
+  f->out_of_order_run = 0;
   f->have_last = 1;
   f->last_t_ns = s.t_ns;
   f->last_ns = t_ns;
   f->accepted++;
   return VLFF_TUM_OK;
+}
+
+int vlff_tum_feed_line(struct vlff_tum_feed *f, const char *line, uint64_t now_ns, struct vlff_pose_rec *out,
+                       char *why, size_t whylen) {
+  return vlff_tum_feed_buf(f, line, strlen(line), now_ns, out, why, whylen);
 }
 
 uint64_t vlff_tum_feed_refused(const struct vlff_tum_feed *f) {

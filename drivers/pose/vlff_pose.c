@@ -4,7 +4,13 @@
  * reads lines from a file, a pipe or UDP datagrams, checks and converts
  * them (tum.h) and writes one pose record per accepted line. Refused lines
  * are counted per reason and reported with their line (or datagram)
- * number; the first few of each reason are printed, then a summary.
+ * number through the log's rate limiter (vlff_warn_limited: the first five
+ * of each reason, then every 1000th), and in the summary at the end.
+ *
+ * UDP has no authentication: any process that can reach the address (on
+ * loopback, any local user) can send lines. pose.udp_peer binds the source
+ * to one sender address (and port); datagrams from others are refused and
+ * counted.
  */
 #include <arpa/inet.h>
 #include <errno.h>
@@ -16,6 +22,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <netinet/in.h>
 #include <sys/socket.h>
 #include <time.h>
 #include <unistd.h>
@@ -29,8 +36,7 @@
 #include "vlff/shm.h"
 
 #define TAG "pose"
-#define REPORT_EACH 5 /* refusals of one reason printed one by one, the rest summarised */
-#define LINE_MAX_BYTES 65536 /* a UDP datagram's size; TUM lines are far shorter */
+#define LINE_MAX_BYTES VLFF_TUM_LINE_MAX /* a UDP datagram's size; TUM lines are far shorter */
 /* How long the input loops wait for input before they pass their loop again:
  * they feed the service watchdog (Type=notify) while the tracker is quiet. */
 #define WAIT_MS 200
@@ -47,10 +53,18 @@ static const struct vlff_cli cli = {
     "                           " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
     "  -r, --ring NAME          pose ring segment name (default: shm.pose_ring)\n"
     "  -u, --udp ADDR:PORT      read datagrams of lines on this address (127.0.0.1:5600, [::]:5600)\n"
+    "      --udp-peer ADDR[:PORT]\n"
+    "                           take datagrams from this sender only (pose.udp_peer; UDP has no\n"
+    "                           authentication: without it any local process can send poses)\n"
     "      --clock monotonic|realtime\n"
     "                           clock of the lines' stamps: the node's CLOCK_MONOTONIC, or UNIX\n"
     "                           time, converted to it (pose.clock)\n"
     "      --clock-offset S     seconds added to every line's stamp (pose.clock_offset_s)\n"
+    "      --future-tolerance S refuse stamps more than S seconds ahead of the clock as a clock\n"
+    "                           error (pose.future_tolerance_s, 5; 0: no check)\n"
+    "      --out-of-order-reset N\n"
+    "                           the Nth line in a row older than the last accepted one restarts\n"
+    "                           the order (pose.out_of_order_reset, 10; 0: never)\n"
     "      --stamp-host         stamp each pose with its receipt time instead of its own\n"
     "      --latency S          with --stamp-host: seconds from the frame to its pose's receipt\n"
     "      --extrinsic \"tx ty tz qx qy qz qw\"\n"
@@ -74,14 +88,15 @@ static const struct vlff_cli cli = {
 
 struct reporter {
   const char *name; /* file name, "stdin" or "udp" */
-  unsigned long printed[VLFF_TUM_RESULTS];
+  uint64_t seen[VLFF_TUM_RESULTS]; /* vlff_warn_limited's count per reason */
+  uint64_t resets;                 /* the same for the order's restarts */
 };
 
 static void report_refusal(struct reporter *rp, const char *where, int result, const char *why) {
-  if (rp->printed[result]++ < REPORT_EACH) {
-    VLFF_WARN(TAG, "%s: refused, %s: %s%s", where, vlff_tum_result_name(result), why,
-              rp->printed[result] == REPORT_EACH ? " (further lines refused for this reason are only counted)" : "");
-  }
+  vlff_warn_limited(&rp->seen[result], TAG, "%s: refused, %s: %s%s", where, vlff_tum_result_name(result), why,
+                    rp->seen[result] == 4 ? " (from here on every 1000th refusal for this reason is printed, all "
+                                            "are counted)"
+                                          : "");
 }
 
 static void summary(const struct vlff_tum_feed *f, const char *ring) {
@@ -93,16 +108,27 @@ static void summary(const struct vlff_tum_feed *f, const char *ring) {
       k += (size_t)snprintf(line + k, sizeof line - k, "%s%s %llu", k ? ", " : " (", vlff_tum_result_name(r),
                             (unsigned long long)f->refused[r]);
   if (k && k < sizeof line) snprintf(line + k, sizeof line - k, ")");
-  vlff_log(vlff_tum_feed_refused(f) ? VLFF_LOG_WARN : VLFF_LOG_INFO, TAG, "%llu poses written to %s, %llu lines refused%s",
-           (unsigned long long)f->accepted, ring, (unsigned long long)vlff_tum_feed_refused(f), line);
+  char resets[64] = "";
+  if (f->resets) snprintf(resets, sizeof resets, ", order restarted %llu times", (unsigned long long)f->resets);
+  vlff_log(vlff_tum_feed_refused(f) ? VLFF_LOG_WARN : VLFF_LOG_INFO, TAG,
+           "%llu poses written to %s, %llu lines refused%s%s", (unsigned long long)f->accepted, ring,
+           (unsigned long long)vlff_tum_feed_refused(f), line, resets);
 }
 
-/* One line in; writes its record when accepted. */
+/* One line of len bytes in (line[len] is a NUL); writes its record when
+ * accepted. */
 static void feed(struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp, const char *where,
-                 const char *line) {
+                 const char *line, size_t len) {
   struct vlff_pose_rec rec;
-  char why[256];
-  int r = vlff_tum_feed_line(f, line, vlff_shm_now_ns(), &rec, why, sizeof why);
+  char why[512];
+  uint64_t resets = f->resets;
+  int r = vlff_tum_feed_buf(f, line, len, vlff_shm_now_ns(), &rec, why, sizeof why);
+  if (f->resets != resets)
+    vlff_warn_limited(&rp->resets, TAG,
+                      "%s: %u lines in a row were older than the last accepted stamp %.9f: the tracker restarted "
+                      "or a line got in ahead of it; the order restarts at this line's %.9f",
+                      where, f->p.out_of_order_reset, (double)f->reset_from_t_ns * 1e-9,
+                      (double)f->last_t_ns * 1e-9);
   if (r == VLFF_TUM_OK) {
     if (vlff_ring_write(ring, &rec, sizeof rec) != 0) VLFF_ERROR(TAG, "%s: pose ring write: %s", where, strerror(errno));
   } else if (r != VLFF_TUM_SKIP) {
@@ -112,9 +138,9 @@ static void feed(struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporte
 
 /* Lines from a file or a pipe. poll(2) and read(2) rather than stdio's
  * blocking getline, so that the loop comes round while no input arrives and
- * feeds the watchdog; a line longer than LINE_MAX_BYTES is refused as a whole
- * (it is no TUM line, and holding it would let a stream without newlines take
- * all memory). */
+ * feeds the watchdog; a line of LINE_MAX_BYTES or more is refused as a whole
+ * and counted (it is no TUM line, and holding it would let a stream without
+ * newlines take all memory). A line holding a NUL is refused (tum.h). */
 static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp,
                        struct vlff_service *svc) {
   static char buf[LINE_MAX_BYTES + 1];
@@ -149,7 +175,7 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
       if (!skipping) {
         char where[300];
         snprintf(where, sizeof where, "%s:%lu", rp->name, lineno);
-        feed(f, ring, rp, where, buf + start);
+        feed(f, ring, rp, where, buf + start, (size_t)(nl - (buf + start)));
       }
       skipping = false;
       start = (size_t)(nl - buf) + 1;
@@ -158,15 +184,18 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
       buf[len] = 0;
       char where[300];
       snprintf(where, sizeof where, "%s:%lu", rp->name, ++lineno);
-      feed(f, ring, rp, where, buf + start);
+      feed(f, ring, rp, where, buf + start, len - start);
       start = len;
     }
     memmove(buf, buf + start, len - start);
     len -= start;
     if (len == LINE_MAX_BYTES) {
-      if (!skipping)
-        VLFF_ERROR(TAG, "%s:%lu: refused, a line longer than %d bytes (not a TUM line)", rp->name, lineno + 1,
-                   LINE_MAX_BYTES);
+      if (!skipping) { /* refused and counted once; the rest of it, up to its newline, is dropped */
+        char where[300];
+        snprintf(where, sizeof where, "%s:%lu", rp->name, lineno + 1);
+        buf[len] = 0;
+        feed(f, ring, rp, where, buf, len);
+      }
       skipping = true;
       len = 0;
     }
@@ -203,9 +232,91 @@ static int open_udp(const char *spec, char *err, size_t errlen) {
   return s;
 }
 
-static int read_udp(int sock, struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporter *rp,
-                    struct vlff_service *svc) {
-  static char buf[LINE_MAX_BYTES];
+/* The one sender a UDP source takes datagrams from (pose.udp_peer). */
+struct peer {
+  int set;
+  int family;              /* AF_INET or AF_INET6 */
+  unsigned char addr[16];  /* 4 or 16 bytes */
+  int port;                /* 0: any port of that address */
+  char text[80];
+};
+
+/* A sender's address as AF_INET for IPv4 (also when a dual-stack socket
+ * reports it IPv4-mapped) or AF_INET6; its port; returns its family. */
+static int sender_of(const struct sockaddr_storage *ss, unsigned char addr[16], int *port) {
+  if (ss->ss_family == AF_INET) {
+    const struct sockaddr_in *a = (const struct sockaddr_in *)ss;
+    memcpy(addr, &a->sin_addr, 4);
+    *port = ntohs(a->sin_port);
+    return AF_INET;
+  }
+  if (ss->ss_family == AF_INET6) {
+    const struct sockaddr_in6 *a = (const struct sockaddr_in6 *)ss;
+    *port = ntohs(a->sin6_port);
+    if (IN6_IS_ADDR_V4MAPPED(&a->sin6_addr)) {
+      memcpy(addr, a->sin6_addr.s6_addr + 12, 4);
+      return AF_INET;
+    }
+    memcpy(addr, &a->sin6_addr, 16);
+    return AF_INET6;
+  }
+  return AF_UNSPEC;
+}
+
+/* "ADDR", "ADDR:PORT", "[V6]", "[V6]:PORT" or a bare IPv6 address, numeric
+ * only (a name would be resolved once, and could change under us). */
+static int parse_peer(const char *spec, struct peer *pr, char *err, size_t errlen) {
+  char host[128] = "", port[16] = "";
+  const char *colon = strchr(spec, ':');
+  size_t hl;
+  if (spec[0] == '[') {
+    const char *close = strchr(spec, ']');
+    if (!close || (close[1] && close[1] != ':')) return snprintf(err, errlen, "udp peer '%.200s': expected [ADDR]:PORT", spec), -1;
+    hl = (size_t)(close - spec - 1);
+    if (hl >= sizeof host) return snprintf(err, errlen, "udp peer '%.200s': address too long", spec), -1;
+    memcpy(host, spec + 1, hl);
+    if (close[1] == ':') snprintf(port, sizeof port, "%.15s", close + 2);
+    if (close[1] == ':' && !port[0]) return snprintf(err, errlen, "udp peer '%.200s': empty port", spec), -1;
+  } else if (colon && !strchr(colon + 1, ':')) { /* one colon: ADDR:PORT */
+    hl = (size_t)(colon - spec);
+    if (hl >= sizeof host || strlen(colon + 1) >= sizeof port)
+      return snprintf(err, errlen, "udp peer '%.200s': too long", spec), -1;
+    memcpy(host, spec, hl);
+    strcpy(port, colon + 1);
+    if (!port[0]) return snprintf(err, errlen, "udp peer '%.200s': empty port", spec), -1;
+  } else { /* no colon, or a bare IPv6 address */
+    if (strlen(spec) >= sizeof host) return snprintf(err, errlen, "udp peer '%.200s': address too long", spec), -1;
+    strcpy(host, spec);
+  }
+  struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_DGRAM,
+                           .ai_flags = AI_NUMERICHOST | AI_NUMERICSERV}, *res;
+  int rc = getaddrinfo(host, port[0] ? port : NULL, &hints, &res);
+  if (rc) return snprintf(err, errlen, "udp peer '%.200s': expected a numeric address, [:port]: %s", spec, gai_strerror(rc)), -1;
+  struct sockaddr_storage ss = {0};
+  memcpy(&ss, res->ai_addr, res->ai_addrlen < sizeof ss ? res->ai_addrlen : sizeof ss);
+  freeaddrinfo(res);
+  memset(pr, 0, sizeof *pr);
+  pr->family = sender_of(&ss, pr->addr, &pr->port);
+  if (pr->family == AF_UNSPEC) return snprintf(err, errlen, "udp peer '%.200s': not an IP address", spec), -1;
+  if (port[0] && pr->port == 0) return snprintf(err, errlen, "udp peer '%.200s': port 0", spec), -1;
+  pr->set = 1;
+  snprintf(pr->text, sizeof pr->text, "%.79s", spec);
+  return 0;
+}
+
+static int peer_matches(const struct peer *pr, const struct sockaddr_storage *ss, char *from, size_t fromlen) {
+  unsigned char addr[16] = {0};
+  int port = 0;
+  int fam = sender_of(ss, addr, &port);
+  char a[INET6_ADDRSTRLEN] = "?";
+  if (fam != AF_UNSPEC) inet_ntop(fam, addr, a, sizeof a);
+  snprintf(from, fromlen, fam == AF_INET6 ? "[%s]:%d" : "%s:%d", a, port);
+  return fam == pr->family && !memcmp(addr, pr->addr, fam == AF_INET ? 4 : 16) && (!pr->port || port == pr->port);
+}
+
+static int read_udp(int sock, const struct peer *peer, struct vlff_tum_feed *f, struct vlff_ring *ring,
+                    struct reporter *rp, struct vlff_service *svc) {
+  static char buf[LINE_MAX_BYTES + 1];
   unsigned long dgram = 0;
   while (!vlff_cli_stop) {
     if (vlff_service_watchdog_due(svc, vlff_now_ns())) vlff_service_watchdog();
@@ -213,19 +324,49 @@ static int read_udp(int sock, struct vlff_tum_feed *f, struct vlff_ring *ring, s
     int pr = poll(&pfd, 1, WAIT_MS);
     if (pr < 0 && errno != EINTR) return VLFF_ERROR(TAG, "udp: poll: %s", strerror(errno)), 1;
     if (pr <= 0) continue;
-    ssize_t n = recv(sock, buf, sizeof buf - 1, 0);
+    struct sockaddr_storage from;
+    socklen_t fromlen = sizeof from;
+    /* MSG_TRUNC: n is the datagram's whole size, so that one too big for
+     * the buffer is refused, not read in part. */
+    ssize_t n = recvfrom(sock, buf, LINE_MAX_BYTES, MSG_TRUNC, (struct sockaddr *)&from, &fromlen);
     if (n < 0) {
       if (errno == EINTR || errno == EAGAIN) continue;
       return VLFF_ERROR(TAG, "udp: recv: %s", strerror(errno)), 1;
     }
-    buf[n] = 0;
     dgram++;
+    char where[160], sender[80];
+    int ours = peer_matches(peer, &from, sender, sizeof sender);
+    if (peer->set && !ours) {
+      char why[160];
+      snprintf(why, sizeof why, "the source takes datagrams from %s only (pose.udp_peer)", peer->text);
+      snprintf(where, sizeof where, "udp datagram %lu from %s", dgram, sender);
+      vlff_tum_feed_count(f, VLFF_TUM_FOREIGN);
+      report_refusal(rp, where, VLFF_TUM_FOREIGN, why);
+      continue;
+    }
+    if ((size_t)n >= LINE_MAX_BYTES) {
+      snprintf(where, sizeof where, "udp datagram %lu", dgram);
+      buf[LINE_MAX_BYTES] = 0;
+      feed(f, ring, rp, where, buf, LINE_MAX_BYTES);
+      continue;
+    }
+    buf[n] = 0;
+    const char *nul = memchr(buf, 0, (size_t)n);
+    if (nul) {
+      /* Refused whole: the lines after the NUL would otherwise be lost
+       * without a word, and a datagram is one message. */
+      char why[96];
+      snprintf(why, sizeof why, "a NUL byte at offset %zu of its %zd bytes (not text)", (size_t)(nul - buf), n);
+      snprintf(where, sizeof where, "udp datagram %lu", dgram);
+      vlff_tum_feed_count(f, VLFF_TUM_NUL);
+      report_refusal(rp, where, VLFF_TUM_NUL, why);
+      continue;
+    }
     /* A datagram holds one line or several. */
     unsigned long lineno = 0;
     for (char *save = NULL, *l = strtok_r(buf, "\n", &save); l; l = strtok_r(NULL, "\n", &save)) {
-      char where[96];
       snprintf(where, sizeof where, "udp datagram %lu line %lu", dgram, ++lineno);
-      feed(f, ring, rp, where, l);
+      feed(f, ring, rp, where, l, strlen(l));
     }
   }
   return 0;
@@ -242,15 +383,17 @@ static int parse_double(const char *s, double lo, double hi, double *out) {
 
 /* Command-line values; each one set overrides its pose.* key. */
 struct overrides {
-  const char *ring, *udp;
+  const char *ring, *udp, *udp_peer;
   int clock, stamp, extra_fields, quiet; /* -1 = from the config */
   double clock_offset_s, latency_s, quat_tolerance, source_id; /* NAN = from the config */
+  double future_tolerance_s, out_of_order_reset;               /* NAN = from the config */
   int have_extrinsic;
   double extrinsic[7];
 };
 
 static int parse_options(int argc, char **argv, struct overrides *o, const char **config_path, int *status) {
-  enum { OPT_CLOCK = 256, OPT_OFFSET, OPT_HOST, OPT_LATENCY, OPT_EXTRINSIC, OPT_QTOL, OPT_SOURCE, OPT_EXTRA };
+  enum { OPT_CLOCK = 256, OPT_OFFSET, OPT_HOST, OPT_LATENCY, OPT_EXTRINSIC, OPT_QTOL, OPT_SOURCE, OPT_EXTRA,
+         OPT_PEER, OPT_FUTURE, OPT_RESET };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
       {"ring", required_argument, NULL, 'r'},
@@ -263,6 +406,9 @@ static int parse_options(int argc, char **argv, struct overrides *o, const char 
       {"quat-tolerance", required_argument, NULL, OPT_QTOL},
       {"source-id", required_argument, NULL, OPT_SOURCE},
       {"extra-fields", no_argument, NULL, OPT_EXTRA},
+      {"udp-peer", required_argument, NULL, OPT_PEER},
+      {"future-tolerance", required_argument, NULL, OPT_FUTURE},
+      {"out-of-order-reset", required_argument, NULL, OPT_RESET},
       {"quiet", no_argument, NULL, 'q'},
       VLFF_CLI_COMMON_OPTIONS,
   };
@@ -277,6 +423,18 @@ static int parse_options(int argc, char **argv, struct overrides *o, const char 
     case 'q': o->quiet = 1; break;
     case OPT_HOST: o->stamp = VLFF_POSE_STAMP_HOST; break;
     case OPT_EXTRA: o->extra_fields = 1; break;
+    case OPT_PEER: o->udp_peer = optarg; break;
+    case OPT_FUTURE:
+      if (parse_double(optarg, 0, 1e10, &o->future_tolerance_s))
+        return *status = vlff_cli_usage_error(&cli, "--future-tolerance '%s': expected seconds, 0 for no check",
+                                              optarg), -1;
+      break;
+    case OPT_RESET:
+      if (parse_double(optarg, 0, 1000000, &v) || v != floor(v))
+        return *status = vlff_cli_usage_error(&cli, "--out-of-order-reset '%s': expected lines in [0, 1000000]",
+                                              optarg), -1;
+      o->out_of_order_reset = v;
+      break;
     case OPT_CLOCK:
       if (!strcmp(optarg, "monotonic")) o->clock = VLFF_POSE_CLOCK_MONOTONIC;
       else if (!strcmp(optarg, "realtime")) o->clock = VLFF_POSE_CLOCK_REALTIME;
@@ -324,7 +482,8 @@ static int parse_options(int argc, char **argv, struct overrides *o, const char 
 
 int main(int argc, char **argv) {
   struct overrides o = {.clock = -1, .stamp = -1, .extra_fields = -1, .clock_offset_s = NAN, .latency_s = NAN,
-                        .quat_tolerance = NAN, .source_id = NAN};
+                        .quat_tolerance = NAN, .source_id = NAN, .future_tolerance_s = NAN,
+                        .out_of_order_reset = NAN};
   const char *config_path = NULL;
   int status = 0;
   if (parse_options(argc, argv, &o, &config_path, &status)) return status;
@@ -352,7 +511,14 @@ int main(int argc, char **argv) {
       .extra_fields = o.extra_fields >= 0 ? o.extra_fields : k->pose.extra_fields,
       .latency_ns = (int64_t)llround(latency_s * 1e9),
       .clock_offset_ns = (int64_t)llround(offset_s * 1e9),
+      .future_tolerance_ns =
+          (int64_t)llround((isnan(o.future_tolerance_s) ? k->pose.future_tolerance_s : o.future_tolerance_s) * 1e9),
+      .out_of_order_reset =
+          (uint32_t)(isnan(o.out_of_order_reset) ? k->pose.out_of_order_reset : o.out_of_order_reset),
   };
+  const char *peer_spec = o.udp_peer ? o.udp_peer : k->pose.udp_peer;
+  struct peer peer = {0};
+  if (udp && peer_spec[0] && parse_peer(peer_spec, &peer, err, sizeof err)) return vlff_cli_error(&cli, "%s", err);
   vlff_log_set_level(o.quiet > 0 ? VLFF_LOG_WARN : (enum vlff_log_level)cfg.node.log_level);
   if (realtime) {
     /* UNIX-time stamps onto the node's clock: both clocks read back to back. */
@@ -393,8 +559,13 @@ int main(int argc, char **argv) {
   vlff_cli_catch_stop();
 
   struct reporter rep = {.name = udp ? "udp" : in == stdin ? "stdin" : file};
-  VLFF_INFO(TAG, "vlff-pose %s: %s -> pose ring %s (%d slots), stamps %s%s", vlff_version(), udp ? udp : rep.name,
-            ring_name, cfg.shm.pose_slots,
+  char from[120] = "";
+  if (udp)
+    snprintf(from, sizeof from, peer.set ? " (from %s only)" : " (from any sender: UDP has no authentication, "
+                                                                "pose.udp_peer binds one)%s",
+             peer.set ? peer.text : "");
+  VLFF_INFO(TAG, "vlff-pose %s: %s%s -> pose ring %s (%d slots), stamps %s%s", vlff_version(), udp ? udp : rep.name,
+            from, ring_name, cfg.shm.pose_slots,
             fp.stamp == VLFF_TUM_STAMP_HOST ? "at receipt" : realtime ? "UNIX time" : "CLOCK_MONOTONIC",
             fp.stamp == VLFF_TUM_STAMP_HOST || offset_s == 0 ? "" : " plus the clock offset");
   /* Type=notify: ready once the ring exists (the node may attach; poses come
@@ -403,7 +574,7 @@ int main(int argc, char **argv) {
    * it. */
   struct vlff_service svc;
   vlff_service_ready(&svc);
-  int rc = udp ? read_udp(sock, &f, ring, &rep, &svc) : read_stream(fileno(in), &f, ring, &rep, &svc);
+  int rc = udp ? read_udp(sock, &peer, &f, ring, &rep, &svc) : read_stream(fileno(in), &f, ring, &rep, &svc);
   vlff_service_stopping();
   summary(&f, ring_name);
   if (in && in != stdin) fclose(in);

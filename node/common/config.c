@@ -270,6 +270,9 @@ static const struct key schema[] = {
     DBL("pose.quat_tolerance", pose.quat_tolerance, 0, 0.5, 0.01),
     BOOL("pose.extra_fields", pose.extra_fields, 0),
     INT("pose.source_id", pose.source_id, 0, 2147483647, 0),
+    STR("pose.udp_peer", pose.udp_peer, ""),
+    DBL("pose.future_tolerance_s", pose.future_tolerance_s, 0, 1e10, 5),
+    INT("pose.out_of_order_reset", pose.out_of_order_reset, 0, 1000000, 10),
 
     STR("vlm.image_model", vlm.image_model, ""),
     STR("vlm.text_model", vlm.text_model, ""),

@@ -296,6 +296,9 @@ struct vlff_cfg_pose {
   double quat_tolerance;           /* |norm - 1| normalised; beyond, refused */
   bool extra_fields;               /* numbers after the eighth ignored, not refused */
   int source_id;                   /* written into every record */
+  char udp_peer[VLFF_CFG_STR];     /* "addr[:port]": datagrams from other senders refused; "" = any sender */
+  double future_tolerance_s;       /* stamps further ahead of the clock refused (clock error); 0 = no check */
+  int out_of_order_reset;          /* this many out-of-order lines in a row restart the order; 0 = never */
 };
 
 struct vlff_cfg_vlm {

@@ -71,7 +71,7 @@ fi
 head -c 200000 /dev/zero | tr '\0' 'x' >"$tmp/long.txt"
 printf '\n2.0 0 0 0 0 0 0 1\n' >>"$tmp/long.txt"
 "${pose[@]}" --config "$tmp/c.yaml" --ring "$ring-l" "$tmp/long.txt" >/dev/null 2>"$tmp/llog"; rc=$?
-check "an overlong line is refused once and the next line taken (rc=$rc)" \
-  '[[ $rc == 0 ]] && [[ $(grep -c "longer than 65536 bytes" "$tmp/llog") == 1 ]] && grep -q "long.txt:1: refused, a line longer" "$tmp/llog" && grep -q "1 poses written" "$tmp/llog"'
+check "an overlong line is refused once, counted, and the next line taken (rc=$rc)" \
+  '[[ $rc == 0 ]] && [[ $(grep -c "a line of 65536 bytes or more" "$tmp/llog") == 1 ]] && grep -q "long.txt:1: refused, too long: a line of 65536 bytes or more" "$tmp/llog" && grep -q "1 poses written to $ring-l, 1 lines refused (too long 1)" "$tmp/llog"'
 echo "$passes passed, $fails failed"
 (( fails == 0 ))

@@ -173,7 +173,142 @@ static void test_feed_extrinsic(void **state) {
   assert_non_null(strstr(why, "not a rigid transform"));
 }
 
+/* Plain decimals only: strtod(3) would read "0x10" as 16 s and "0x1p-2" as
+ * 0.25; words for non-finite values are not finite, not malformed. */
+static void test_parse_decimal_only(void **state) {
+  (void)state;
+  struct vlff_tum_sample s;
+  assert_int_equal(parse8("0x10 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_non_null(strstr(why, "field 1 '0x10' is not a decimal number"));
+  assert_int_equal(parse8("0X10 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1 0x1p-2 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_non_null(strstr(why, "field 2 '0x1p-2'"));
+  assert_int_equal(parse8("1 0 0 0 0 0 0 0x1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1e 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("1.5e+ 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8(". 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("nan(1) 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("infinite 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(parse8("inf 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
+  assert_non_null(strstr(why, "t is inf"));
+  assert_int_equal(parse8("1 -Infinity 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
+  assert_non_null(strstr(why, "tx is -inf"));
+  assert_int_equal(parse8("1 0 0 0 0 0 0 -NaN", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
+  assert_int_equal(parse8("+1.25 -2 3. .5 0 0 0 1E0", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_true(s.t == 1.25 && s.p[0] == -2 && s.p[1] == 3 && s.p[2] == 0.5 && s.q[3] == 1);
+  assert_int_equal(parse8("1.5e-3 0 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK);
+  assert_true(s.t_ns == 1500000);
+}
+
+/* A NUL inside the line (the reader's length says where the line ends), and
+ * a line of 64 KiB or more: refused and counted, never parsed. */
+static void test_feed_nul_and_long(void **state) {
+  (void)state;
+  struct vlff_tum_feed f;
+  struct vlff_pose_rec r;
+  feed_init(&f, VLFF_TUM_STAMP_SOURCE, 0);
+  static const char nul[] = "1.0 0 0 0 0 0 0 1\0\n2.0 0 0 0 0 0 0 1";
+  assert_int_equal(vlff_tum_feed_buf(&f, nul, sizeof nul - 1, 0, &r, why, sizeof why), VLFF_TUM_NUL);
+  assert_non_null(strstr(why, "NUL byte at column 18"));
+  assert_int_equal(vlff_tum_feed_buf(&f, "\0", 1, 0, &r, why, sizeof why), VLFF_TUM_NUL);
+  static char big[70 * 1024 + 1];
+  memset(big, '7', sizeof big - 1);
+  assert_int_equal(vlff_tum_feed_buf(&f, big, sizeof big - 1, 0, &r, why, sizeof why), VLFF_TUM_TOO_LONG);
+  assert_non_null(strstr(why, "65536 bytes or more"));
+  /* One byte under the limit is parsed (and malformed: one long field). */
+  big[VLFF_TUM_LINE_MAX - 1] = 0;
+  assert_int_equal(vlff_tum_feed_buf(&f, big, VLFF_TUM_LINE_MAX - 1, 0, &r, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_int_equal(vlff_tum_feed_line(&f, "1.0 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(f.refused[VLFF_TUM_NUL], 2);
+  assert_int_equal(f.refused[VLFF_TUM_TOO_LONG], 1);
+  assert_int_equal(f.refused[VLFF_TUM_MALFORMED], 1);
+  vlff_tum_feed_count(&f, VLFF_TUM_FOREIGN);
+  vlff_tum_feed_count(&f, VLFF_TUM_OK); /* not a refusal: ignored */
+  assert_int_equal(f.refused[VLFF_TUM_FOREIGN], 1);
+  assert_int_equal(vlff_tum_feed_refused(&f), 5);
+  assert_string_equal(vlff_tum_result_name(VLFF_TUM_NUL), "NUL byte");
+  assert_string_equal(vlff_tum_result_name(VLFF_TUM_TOO_LONG), "too long");
+  assert_string_equal(vlff_tum_result_name(VLFF_TUM_FOREIGN), "foreign sender");
+  assert_string_equal(vlff_tum_result_name(VLFF_TUM_CLOCK), "clock error");
+}
+
+/* Stamps ahead of the clock by more than the tolerance are a clock error;
+ * a refused one does not move the order. */
+static void test_feed_future(void **state) {
+  (void)state;
+  struct vlff_tum_feed_params p = {.clock_offset_ns = 0, .quat_tolerance = 0.01, .future_tolerance_ns = 5000000000};
+  identity(p.body_to_camera);
+  struct vlff_tum_feed f;
+  assert_int_equal(vlff_tum_feed_init(&f, &p, why, sizeof why), 0);
+  struct vlff_pose_rec r;
+  const uint64_t now = 1000000000000ull; /* 1000 s */
+  assert_int_equal(vlff_tum_feed_line(&f, "999.5 0 0 0 0 0 0 1", now, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(vlff_tum_feed_line(&f, "2000000 0 0 0 0 0 0 1", now, &r, why, sizeof why), VLFF_TUM_CLOCK);
+  assert_non_null(strstr(why, "ahead of the clock"));
+  assert_int_equal(vlff_tum_feed_line(&f, "1005.000000001 0 0 0 0 0 0 1", now, &r, why, sizeof why),
+                   VLFF_TUM_CLOCK);
+  /* The tracker's next line follows its last accepted one, not the forgery. */
+  assert_int_equal(vlff_tum_feed_line(&f, "999.6 0 0 0 0 0 0 1", now, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(vlff_tum_feed_line(&f, "1005 0 0 0 0 0 0 1", now, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(f.refused[VLFF_TUM_CLOCK], 2);
+  /* The offset counts: the record's stamp is what is checked. */
+  p.clock_offset_ns = -1000000000000;
+  assert_int_equal(vlff_tum_feed_init(&f, &p, why, sizeof why), 0);
+  assert_int_equal(vlff_tum_feed_line(&f, "2004 0 0 0 0 0 0 1", now, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(vlff_tum_feed_line(&f, "2006 0 0 0 0 0 0 1", now, &r, why, sizeof why), VLFF_TUM_CLOCK);
+  /* Host stamps are the clock itself: the lines' stamps only order them. */
+  p.stamp = VLFF_TUM_STAMP_HOST;
+  assert_int_equal(vlff_tum_feed_init(&f, &p, why, sizeof why), 0);
+  assert_int_equal(vlff_tum_feed_line(&f, "1e9 0 0 0 0 0 0 1", now, &r, why, sizeof why), VLFF_TUM_OK);
+}
+
+/* A stream that stays older than its last accepted line restarts: the
+ * out_of_order_reset-th line in a row is taken, and the order goes on from
+ * it. Without the setting a line forged ahead locks every later one out. */
+static void test_feed_out_of_order_reset(void **state) {
+  (void)state;
+  struct vlff_tum_feed_params p = {.quat_tolerance = 0.01, .out_of_order_reset = 10};
+  identity(p.body_to_camera);
+  struct vlff_tum_feed f;
+  assert_int_equal(vlff_tum_feed_init(&f, &p, why, sizeof why), 0);
+  struct vlff_pose_rec r;
+  char line[64];
+  assert_int_equal(vlff_tum_feed_line(&f, "100 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(vlff_tum_feed_line(&f, "1000000 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  for (int i = 1; i <= 9; i++) {
+    snprintf(line, sizeof line, "%d.5 0 0 0 0 0 0 1", 100 + i);
+    assert_int_equal(vlff_tum_feed_line(&f, line, 0, &r, why, sizeof why), VLFF_TUM_OUT_OF_ORDER);
+    /* a duplicate or a malformed line neither extends nor ends the run */
+    assert_int_equal(vlff_tum_feed_line(&f, "1000000 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_DUPLICATE);
+    assert_int_equal(vlff_tum_feed_line(&f, "1 2 3", 0, &r, why, sizeof why), VLFF_TUM_MALFORMED);
+  }
+  assert_int_equal(f.resets, 0);
+  assert_int_equal(vlff_tum_feed_line(&f, "110.5 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_true(r.t_ns == 110500000000ull);
+  assert_int_equal(f.resets, 1);
+  assert_true(f.reset_from_t_ns == 1000000000000000ll);
+  assert_int_equal(vlff_tum_feed_line(&f, "110.6 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(vlff_tum_feed_line(&f, "110.55 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OUT_OF_ORDER);
+  assert_int_equal(f.out_of_order_run, 1);
+  assert_int_equal(vlff_tum_feed_line(&f, "110.7 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  assert_int_equal(f.out_of_order_run, 0);
+  assert_int_equal(f.refused[VLFF_TUM_OUT_OF_ORDER], 10);
+  assert_int_equal(f.accepted, 5);
+
+  /* 0: never (the order is the order). */
+  p.out_of_order_reset = 0;
+  assert_int_equal(vlff_tum_feed_init(&f, &p, why, sizeof why), 0);
+  assert_int_equal(vlff_tum_feed_line(&f, "1000000 0 0 0 0 0 0 1", 0, &r, why, sizeof why), VLFF_TUM_OK);
+  for (int i = 0; i < 50; i++) {
+    snprintf(line, sizeof line, "%d 0 0 0 0 0 0 1", 100 + i);
+    assert_int_equal(vlff_tum_feed_line(&f, line, 0, &r, why, sizeof why), VLFF_TUM_OUT_OF_ORDER);
+  }
+  assert_int_equal(f.resets, 0);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_parse), cmocka_unit_test(test_matrix),
     cmocka_unit_test(test_feed_checks), cmocka_unit_test(test_feed_host_stamps),
-    cmocka_unit_test(test_feed_extrinsic))
+    cmocka_unit_test(test_feed_extrinsic), cmocka_unit_test(test_parse_decimal_only),
+    cmocka_unit_test(test_feed_nul_and_long), cmocka_unit_test(test_feed_future),
+    cmocka_unit_test(test_feed_out_of_order_reset))
