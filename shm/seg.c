@@ -170,6 +170,18 @@ static int open_error(const char *name, const char *what) {
   return -1;
 }
 
+/* A segment's name that leads to something other than a regular file: a FIFO
+ * planted there (anyone may create one in /dev/shm) would block a plain open()
+ * until a writer comes, which is why every segment is opened O_NONBLOCK and
+ * looked at with fstat before a byte is read. */
+static int not_regular(const char *name, const struct stat *st) {
+  mode_t m = st->st_mode;
+  const char *what = S_ISFIFO(m) ? "a FIFO" : S_ISDIR(m) ? "a directory" : S_ISCHR(m) ? "a character device"
+                     : S_ISBLK(m) ? "a block device" : S_ISSOCK(m) ? "a socket" : "not a regular file";
+  shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: is %s, expected a regular file (/dev/shm%s, owner uid %u); refusing it",
+          name, what, name, (unsigned)st->st_uid);
+  return -1;
+}
 
 /* The magic word: a new segment is zeros until its creator writes the
  * header, so 0 means not yet. */
@@ -241,10 +253,8 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
  * regular file, not writable by everyone (anyone could then forge or truncate it),
  * and whatever the caller's trust adds (an owner, a narrower mode). */
 static int trust_check(const char *name, const struct stat *st, const struct seg_trust *t) {
-  if (!S_ISREG(st->st_mode)) {
-    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: not a regular file", name);
-    return -1;
-  }
+  if (!S_ISREG(st->st_mode))
+    return not_regular(name, st);
   if (t && t->check_owner && st->st_uid != t->uid) {
     shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: owned by uid %u, expected uid %u; refusing it", name,
             (unsigned)st->st_uid, (unsigned)t->uid);
@@ -317,11 +327,19 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
 int shm_seg_peek(const char *name, struct seg_hdr *out) {
   if (check_name(name) < 0)
     return -1;
-  int fd = shm_open(name, O_RDONLY, 0);
+  int fd = shm_open(name, O_RDONLY | O_NONBLOCK, 0);
   if (fd < 0)
     return open_error(name, "open read-only");
   struct stat st;
-  ssize_t n = fstat(fd, &st) == 0 && S_ISREG(st.st_mode) ? pread(fd, out, sizeof *out, 0) : -1;
+  if (fstat(fd, &st) < 0) {
+    close(fd);
+    return open_error(name, "fstat");
+  }
+  if (!S_ISREG(st.st_mode)) {
+    close(fd);
+    return not_regular(name, &st);
+  }
+  ssize_t n = pread(fd, out, sizeof *out, 0);
   close(fd);
   if (n != (ssize_t)sizeof *out) {
     shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: no complete segment header", name);
@@ -337,7 +355,7 @@ int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec,
   if (check_name(name) < 0)
     return -1;
   snprintf(s->name, sizeof s->name, "%s", name);
-  int fd = shm_open(name, writable ? O_RDWR : O_RDONLY, 0);
+  int fd = shm_open(name, (writable ? O_RDWR : O_RDONLY) | O_NONBLOCK, 0);
   if (fd < 0)
     return open_error(name, writable ? "open read-write" : "open read-only");
   if (map_checked(s, name, fd, writable, spec, trust) < 0) {
@@ -426,7 +444,7 @@ static int apply_perm(const char *name, int fd, mode_t mode, const char *group) 
  * never deleted. */
 static int try_take_over(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
                          uint64_t total, mode_t mode, const char *group) {
-  int fd = shm_open(name, O_RDWR, 0);
+  int fd = shm_open(name, O_RDWR | O_NONBLOCK, 0);
   if (fd < 0) {
     if (errno == ENOENT)
       return 1;
@@ -439,7 +457,8 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
   }
   if (!S_ISREG(st.st_mode)) {
     close(fd);
-    shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a regular file; not touching it", name);
+    not_regular(name, &st);
+    errno = EEXIST;
     return -1;
   }
   if (st.st_uid != geteuid()) {
@@ -568,7 +587,7 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     return -1;
   }
   for (int attempt = 0; attempt < 4; attempt++) {
-    int fd = shm_open(name, O_RDWR | O_CREAT | O_EXCL, mode & 0600);
+    int fd = shm_open(name, O_RDWR | O_CREAT | O_EXCL | O_NONBLOCK, mode & 0600);
     if (fd < 0) {
       if (errno != EEXIST)
         return open_error(name, "create");
@@ -650,7 +669,7 @@ int shm_seg_replace(struct seg *s) {
     }
   }
   /* Only our own file is removed: the name may already be someone else's. */
-  int fd = shm_open(name, O_RDONLY, 0);
+  int fd = shm_open(name, O_RDONLY | O_NONBLOCK, 0);
   if (fd >= 0) {
     if (have && fstat(fd, &named) == 0 && named.st_ino == mine.st_ino && named.st_dev == mine.st_dev)
       shm_unlink(name);

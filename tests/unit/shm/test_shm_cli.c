@@ -14,13 +14,37 @@
 static int run(const char *args, char *out, size_t cap) {
   char cmd[1024];
   const char *emu = getenv("VLFF_EMULATOR"); /* qemu-user in a cross-built tree */
-  snprintf(cmd, sizeof cmd, "%s %s %s 2>&1", emu ? emu : "", VLFF_SHM_CLI, args);
+  snprintf(cmd, sizeof cmd, "timeout 30 %s %s %s 2>&1", emu ? emu : "", VLFF_SHM_CLI, args);
   FILE *f = popen(cmd, "r");
   assert_non_null(f);
   size_t n = fread(out, 1, cap - 1, f);
   out[n] = 0;
   int st = pclose(f);
   return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+/* A FIFO at a name under /dev/shm (issue 51, item 1): list, stat and label
+ * opened it for reading and waited for a writer for ever. `timeout` turns a hang
+ * into status 124. */
+static void cli_fifo_refused(void **state) {
+  (void)state;
+  char name[64], path[128], args[512], out[8192];
+  test_name(name, sizeof name, "clififo");
+  snprintf(path, sizeof path, "/dev/shm%s", name);
+  assert_int_equal(mkfifo(path, 0644), 0);
+  assert_int_equal(run("list", out, sizeof out), 0);
+  assert_null(strstr(out, name)); /* not a vlff segment: not listed */
+  snprintf(args, sizeof args, "stat %s", name);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  if (!strstr(out, "is a FIFO, expected a regular file"))
+    fail_msg("stat: %s", out);
+  snprintf(args, sizeof args, "label %s 0 0 0", name);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "is a FIFO"));
+  snprintf(args, sizeof args, "watch %s 1", name);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "is a FIFO"));
+  unlink(path);
 }
 
 static void cli_commands(void **state) {
@@ -130,4 +154,4 @@ static void cli_commands(void **state) {
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(cli_commands))
+    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused))
