@@ -383,11 +383,16 @@ static bool request_sane(struct vlff_prompt_request *r, char *why, size_t len) {
  * number, so that posters' numbers never repeat. */
 static int learner_replace(struct vlff_prompts *p, uint64_t last_seq) {
   char msg[320];
-  snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
-  if (shm_seg_replace(&p->seg) < 0) {
+  if (p->broken)
+    snprintf(msg, sizeof msg, "%s: made again after its replacement had failed", p->seg.name);
+  else
+    snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
+  /* After a failed replacement (no space left in /dev/shm), again after a growing delay. */
+  if ((p->broken ? shm_seg_retry(&p->seg) : shm_seg_replace(&p->seg)) < 0) {
     p->broken = true;
     return -1;
   }
+  p->broken = false;
   bind(p);
   if (atomic_load(&p->ctl->seq) / 2 < last_seq) {
     atomic_store(&p->ctl->seq, 2 * last_seq);
@@ -477,7 +482,7 @@ API int vlff_prompts_poll(struct vlff_prompts *p, uint64_t *last_seq, struct vlf
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_prompts_poll: NULL argument");
     return -1;
   }
-  if (p->seg.creator && shm_seg_check(&p->seg, true) < 0)
+  if (p->seg.creator && (p->broken || shm_seg_check(&p->seg, true) < 0))
     return learner_replace(p, *last_seq);
   if (p->seg.creator && !p->broken) {
     int r = learner_repair(p, last_seq);

@@ -55,6 +55,7 @@ API const char *vlff_shm_strerror(int err) {
   case VLFF_SHM_ERR_NOTREADY: return "segment not initialised yet";
   case VLFF_SHM_ERR_ABANDONED: return "segment abandoned by its creator";
   case VLFF_SHM_ERR_SIZE: return "too large for the segment";
+  case VLFF_SHM_ERR_NOSPACE: return "no space left in /dev/shm";
   default: return "unknown error";
   }
 }
@@ -401,6 +402,27 @@ int shm_seg_check(struct seg *s, bool stat_it) {
   return -1;
 }
 
+/* Gives the segment's pages their memory now. On tmpfs a file's size is only a
+ * promise: with /dev/shm full, ftruncate still succeeds and the first write to a
+ * page that cannot be had faults (SIGBUS), which the guard took for a truncation,
+ * so creators replaced their segments again and again. posix_fallocate fails
+ * with ENOSPC instead, here, where it can be said. */
+static int reserve_pages(const char *name, int fd, uint64_t total) {
+  int e;
+  do
+    e = posix_fallocate(fd, 0, (off_t)total);
+  while (e == EINTR);
+  if (e == 0)
+    return 0;
+  if (e == ENOSPC || e == EFBIG)
+    shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", name,
+            (unsigned long long)total);
+  else
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot reserve %llu bytes for it: %s", name, (unsigned long long)total,
+            strerror(e));
+  return -1;
+}
+
 static int resolve_group(const char *name, const char *group, gid_t *gid) {
   if (!group || !group[0])
     return 0;
@@ -524,6 +546,12 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
       close(fd);
       return -1;
     }
+    /* A segment made before pages were reserved, or by a creator that died
+     * while /dev/shm filled, may still be a promise. */
+    if (reserve_pages(name, fd, total) < 0) {
+      shm_seg_close(s);
+      return -1;
+    }
     s->fd = fd;
     s->writable = true;
     /* The start time is claimed first: of two processes taking the segment
@@ -601,10 +629,16 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     snprintf(s->name, sizeof s->name, "%s", name);
     int bad = apply_perm(name, fd, mode, group);
     if (bad == 0 && ftruncate(fd, (off_t)total) < 0) {
-      shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", name, (unsigned long long)total,
-              strerror(errno));
+      if (errno == ENOSPC || errno == EFBIG)
+        shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", name,
+                (unsigned long long)total);
+      else
+        shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", name, (unsigned long long)total,
+                strerror(errno));
       bad = -1;
     }
+    if (bad == 0 && reserve_pages(name, fd, total) < 0)
+      bad = -1;
     if (bad < 0) {
       int e = errno;
       close(fd);
@@ -677,7 +711,35 @@ int shm_seg_replace(struct seg *s) {
   }
   shm_seg_close(s);
   struct vlff_shm_perm perm = {.mode = mode, .group = group[0] ? group : NULL};
-  return shm_seg_create(s, name, &spec, geom, &perm);
+  uint64_t delay = s->retry_delay_ns, retries = s->retries;
+  int r = shm_seg_create(s, name, &spec, geom, &perm);
+  if (r >= 0)
+    return r;
+  /* Kept as a creator that failed: shm_seg_retry tries again later. */
+  int code = vlff_shm_last_error();
+  char why[320];
+  snprintf(why, sizeof why, "%s", vlff_shm_last_message());
+  snprintf(s->name, sizeof s->name, "%s", name);
+  remember(s, &spec, geom, mode, group);
+  s->failed = true;
+  s->retries = retries + 1;
+  s->retry_delay_ns = !delay ? 100000000ull : delay >= 2500000000ull ? 5000000000ull : 2 * delay;
+  s->retry_ns = shm_now() + s->retry_delay_ns;
+  s->why_code = code;
+  snprintf(s->why, sizeof s->why, "%s", why);
+  shm_err(code, EPIPE, "%s; not replaced, next try in %.1f s (%llu tries so far)", why,
+          (double)s->retry_delay_ns / 1e9, (unsigned long long)s->retries);
+  return -1;
+}
+
+int shm_seg_retry(struct seg *s) {
+  uint64_t now = shm_now();
+  if (now < s->retry_ns) {
+    shm_err(s->why_code, EPIPE, "%s; not replaced, next try in %.1f s (%llu tries so far)", s->why,
+            (double)(s->retry_ns - now) / 1e9, (unsigned long long)s->retries);
+    return -1;
+  }
+  return shm_seg_replace(s);
 }
 
 void shm_seg_ready(struct seg *s) { atomic_store_explicit(&s->h->state, SEG_READY, memory_order_release); }

@@ -47,6 +47,32 @@ static void cli_fifo_refused(void **state) {
   unlink(path);
 }
 
+/* What the learner repaired in its mailbox (issue 51, items 3 and 15) is shown by
+ * vlff-shm stat, for the chaos bench and for whoever wonders about log lines. */
+static void cli_mailbox_repairs_shown(void **state) {
+  (void)state;
+  char mbox[64], args[256], out[8192];
+  test_name(mbox, sizeof mbox, "clirep");
+  struct vlff_prompts *pb = vlff_prompts_create(mbox, NULL);
+  assert_non_null(pb);
+  struct shm_raw r = {.fd = -1};
+  assert_int_equal(shm_raw_open(mbox, &r), 0);
+  __atomic_store_n((uint32_t *)(r.base + 80), 2u, __ATOMIC_RELEASE); /* the state word: "abandoned" */
+  struct vlff_prompt_request *req = malloc(sizeof *req);
+  uint64_t last = 0;
+  assert_int_equal(vlff_prompts_poll(pb, &last, req), -1);
+  __atomic_store_n((uint64_t *)(r.base + MBOX_CTL_OFF + 16), 5u, __ATOMIC_RELEASE); /* answered, nothing posted */
+  assert_int_equal(vlff_prompts_poll(pb, &last, req), -1);
+  free(req);
+  snprintf(args, sizeof args, "stat %s", mbox);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  if (!strstr(out, "posts 0\nstate_repairs 1\nresyncs 1\n"))
+    fail_msg("stat: %s", out);
+  shm_raw_close(&r);
+  vlff_prompts_close(pb);
+  vlff_shm_unlink(mbox);
+}
+
 static void cli_commands(void **state) {
   (void)state;
   char ring[64], map[64], mbox[64], args[512], out[8192];
@@ -154,4 +180,4 @@ static void cli_commands(void **state) {
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused))
+    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown))
