@@ -155,6 +155,15 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
  * The map is replaced by a new segment whose version goes on from the last one
  * published, so that readers re-attaching never see the version go back; the publish
  * that found it is refused with the reason. */
+static void writer_rebind(struct vlff_map *m) {
+  bind(m);
+  if (atomic_load(&m->ctl->version) < m->last_version)
+    atomic_store(&m->ctl->version, m->last_version);
+  shm_seg_ready(&m->seg);
+  atomic_store(&m->seg.h->last_ns, shm_now());
+  m->broken = false;
+}
+
 static int writer_replace(struct vlff_map *m, const char *what) {
   char msg[320];
   snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
@@ -162,13 +171,20 @@ static int writer_replace(struct vlff_map *m, const char *what) {
     m->broken = true;
     return -1;
   }
-  bind(m);
-  if (atomic_load(&m->ctl->version) < m->last_version)
-    atomic_store(&m->ctl->version, m->last_version);
-  shm_seg_ready(&m->seg);
-  atomic_store(&m->seg.h->last_ns, shm_now());
+  writer_rebind(m);
   shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s%s", msg, what);
   return -1;
+}
+
+/* Writer whose replacement failed (no space left in /dev/shm): tried again after
+ * a growing delay; -1 (EPIPE) until it works. */
+static int writer_retry(struct vlff_map *m) {
+  if (!m->broken)
+    return 0;
+  if (shm_seg_retry(&m->seg) < 0)
+    return -1;
+  writer_rebind(m);
+  return 0;
 }
 
 API struct vlff_map *vlff_map_attach(const char *name) {
@@ -230,10 +246,8 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_publish: not a writer handle or no update");
     return -1;
   }
-  if (m->broken) {
-    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: could not be replaced after a truncation; create it again", m->seg.name);
+  if (writer_retry(m) < 0)
     return -1;
-  }
   if (check_update(m, u) < 0)
     return -1;
   if (shm_seg_check(&m->seg, true) < 0)
@@ -316,10 +330,12 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
 }
 
 API int vlff_map_heartbeat(struct vlff_map *m) {
-  if (!m || !m->writer || m->broken) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_heartbeat: not a (working) writer handle");
+  if (!m || !m->writer) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_heartbeat: not a writer handle");
     return -1;
   }
+  if (writer_retry(m) < 0)
+    return -1;
   if (shm_seg_check(&m->seg, true) < 0)
     return writer_replace(m, "");
   atomic_store_explicit(&m->seg.h->last_ns, shm_now(), memory_order_release);
@@ -606,10 +622,8 @@ API int vlff_map_set_status(struct vlff_map *m, const struct vlff_map_status *st
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_set_status: not a writer handle or no status");
     return -1;
   }
-  if (m->broken) {
-    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: could not be replaced after a truncation; create it again", m->seg.name);
+  if (writer_retry(m) < 0)
     return -1;
-  }
   if (st->reason_count > VLFF_SHM_MAX_REASONS) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: %u reasons, at most %d", m->seg.name, st->reason_count,
             VLFF_SHM_MAX_REASONS);

@@ -35,6 +35,11 @@ struct mbox_ctl {
   _Atomic int32_t lock_pid;  /* the poster writing, for messages only (0 = none) */
   uint32_t pad;
   _Atomic uint64_t answered; /* the newest request answered */
+  /* Written by the learner only, for vlff_shm_stat (zeros in mailboxes made before
+   * them): how often it set its state word back to ready, and how often it put a
+   * request number that went backwards (or absurdly far) back where it was. */
+  _Atomic uint64_t repairs;
+  _Atomic uint64_t resyncs;
 };
 _Static_assert(sizeof(struct mbox_ctl) <= BODY_OFFSET - sizeof(struct seg_hdr), "mailbox control block fits");
 
@@ -54,7 +59,13 @@ struct vlff_prompts {
   struct answer *answers;
   uint64_t posted; /* this handle's last post */
   bool broken;     /* learner: the mailbox could not be replaced */
+  uint64_t repairs, resyncs; /* learner: its own counts, copied into the control block */
+  uint64_t answered;         /* learner: the newest request it answered */
 };
+
+/* Beyond any number posts reach (a thousand a second for nine thousand years), and
+ * far enough from 2^64 that 2 * number + 1 never wraps. */
+#define SEQ_LIMIT (1ull << 48)
 
 static uint64_t prompts_total(const uint64_t g[6]) {
   if (g[0] != sizeof(struct vlff_prompt_request) || g[1] != BODY_OFFSET || g[2] != ANSWER_SLOTS ||
@@ -66,6 +77,9 @@ static uint64_t prompts_total(const uint64_t g[6]) {
 static void prompts_stat(const struct seg *s, struct vlff_shm_info *info) {
   const struct mbox_ctl *c = (const struct mbox_ctl *)(s->base + sizeof(struct seg_hdr));
   info->head = atomic_load((_Atomic uint64_t *)&c->seq) / 2;
+  uint64_t resyncs = atomic_load((_Atomic uint64_t *)&c->resyncs);
+  info->slots = resyncs > UINT32_MAX ? UINT32_MAX : (uint32_t)resyncs;
+  info->slot_size = atomic_load((_Atomic uint64_t *)&c->repairs);
 }
 
 static void bind(struct vlff_prompts *p) {
@@ -223,6 +237,8 @@ static int write_answer(struct vlff_prompts *p, uint64_t seq, int status, const 
   atomic_store_explicit(&a->word, odd + 1, memory_order_release);
   if (atomic_load_explicit(&p->ctl->answered, memory_order_relaxed) < seq)
     atomic_store_explicit(&p->ctl->answered, seq, memory_order_release);
+  if (p->answered < seq)
+    p->answered = seq;
   return 0;
 }
 
@@ -367,11 +383,16 @@ static bool request_sane(struct vlff_prompt_request *r, char *why, size_t len) {
  * number, so that posters' numbers never repeat. */
 static int learner_replace(struct vlff_prompts *p, uint64_t last_seq) {
   char msg[320];
-  snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
-  if (shm_seg_replace(&p->seg) < 0) {
+  if (p->broken)
+    snprintf(msg, sizeof msg, "%s: made again after its replacement had failed", p->seg.name);
+  else
+    snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
+  /* After a failed replacement (no space left in /dev/shm), again after a growing delay. */
+  if ((p->broken ? shm_seg_retry(&p->seg) : shm_seg_replace(&p->seg)) < 0) {
     p->broken = true;
     return -1;
   }
+  p->broken = false;
   bind(p);
   if (atomic_load(&p->ctl->seq) / 2 < last_seq) {
     atomic_store(&p->ctl->seq, 2 * last_seq);
@@ -382,13 +403,92 @@ static int learner_replace(struct vlff_prompts *p, uint64_t last_seq) {
   return -1;
 }
 
+/* Posts only ever go up, by one per answered request, and an odd word belongs to a
+ * post in progress whose number is (s1 + 1) / 2: a number at or below the learner's
+ * last (floor), or beyond any real count, was written by something else. */
+static bool seq_bad(uint64_t s1, uint64_t floor) {
+  return s1 >= 2 * SEQ_LIMIT || (s1 & 1 ? (s1 + 1) / 2 <= floor : s1 / 2 < floor);
+}
+/* The answered word is the learner's alone: never beyond the newest request, never
+ * below what this learner answered. */
+static bool answered_bad(const struct vlff_prompts *p, uint64_t ans, uint64_t s1) {
+  return ans > s1 / 2 || ans < p->answered;
+}
+
+/* Learner: the mailbox is group-writable, so any poster's process can write any
+ * word of it, and two words can disable it for everyone: the state word (posters
+ * refuse an "abandoned" mailbox) and the request number (a number that goes back
+ * makes posters wait for answers that a later request's answer fills). The learner
+ * is alive and knows both: it sets them back, counts it, and says so once per
+ * repair. 0 if both were fine, -1 with the message (EBADMSG) if one was repaired,
+ * 1 if a poster holds the lock (look again at the next poll). */
+static int learner_repair(struct vlff_prompts *p, uint64_t *last_seq) {
+  uint32_t st = atomic_load(&p->seg.h->state);
+  if (st != SEG_READY) {
+    atomic_store(&p->seg.h->state, SEG_READY);
+    atomic_store(&p->ctl->repairs, ++p->repairs);
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG,
+            "%s: state word %u (%s) written by a process with write access to the mailbox (its group); the learner "
+            "is alive and set it back to ready (%llu repairs so far)",
+            p->seg.name, st, st == SEG_ABANDONED ? "abandoned" : st == SEG_INIT ? "not ready" : "no state",
+            (unsigned long long)p->repairs);
+    return -1;
+  }
+  uint64_t floor = *last_seq < SEQ_LIMIT ? *last_seq : 0;
+  uint64_t s1 = atomic_load_explicit(&p->ctl->seq, memory_order_acquire);
+  uint64_t ans = atomic_load_explicit(&p->ctl->answered, memory_order_acquire);
+  if (!seq_bad(s1, floor) && !answered_bad(p, ans, s1))
+    return 0;
+  if (flock(p->seg.fd, LOCK_EX | LOCK_NB) < 0)
+    return 1;
+  s1 = atomic_load_explicit(&p->ctl->seq, memory_order_acquire);
+  ans = atomic_load_explicit(&p->ctl->answered, memory_order_acquire);
+  bool bad_seq = seq_bad(s1, floor), bad_ans = answered_bad(p, ans, bad_seq ? 2 * floor : s1);
+  if (!bad_seq && !bad_ans) {
+    flock(p->seg.fd, LOCK_UN);
+    return 0;
+  }
+  if (bad_seq) {
+    atomic_store_explicit(&p->ctl->seq, 2 * floor, memory_order_release);
+    atomic_store_explicit(&p->ctl->lock_pid, 0, memory_order_relaxed);
+  }
+  uint64_t posted = bad_seq ? floor : s1 / 2, fixed = ans;
+  if (bad_ans) {
+    /* What the learner itself answered last, never beyond the newest request: a
+     * word beyond it lets a post overwrite an unread request, one below it makes
+     * every post wait for an answer that was given. */
+    fixed = p->answered < posted ? p->answered : posted;
+    atomic_store_explicit(&p->ctl->answered, fixed, memory_order_release);
+  }
+  atomic_store(&p->ctl->resyncs, ++p->resyncs);
+  flock(p->seg.fd, LOCK_UN);
+  *last_seq = floor;
+  char what[160];
+  if (bad_seq)
+    snprintf(what, sizeof what, "request number %llu%s after request %llu", (unsigned long long)(s1 / 2),
+             s1 & 1 ? " (being written)" : "", (unsigned long long)floor);
+  else
+    snprintf(what, sizeof what, "answered word %llu with requests up to %llu answered up to %llu",
+             (unsigned long long)ans, (unsigned long long)posted, (unsigned long long)fixed);
+  shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG,
+          "%s: %s, written by a process with write access to the mailbox, not by a post; set it back so that "
+          "the next post is %llu (%llu resyncs so far)",
+          p->seg.name, what, (unsigned long long)(posted + 1), (unsigned long long)p->resyncs);
+  return -1;
+}
+
 API int vlff_prompts_poll(struct vlff_prompts *p, uint64_t *last_seq, struct vlff_prompt_request *req) {
   if (!p || !last_seq || !req) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_prompts_poll: NULL argument");
     return -1;
   }
-  if (p->seg.creator && shm_seg_check(&p->seg, true) < 0)
+  if (p->seg.creator && (p->broken || shm_seg_check(&p->seg, true) < 0))
     return learner_replace(p, *last_seq);
+  if (p->seg.creator && !p->broken) {
+    int r = learner_repair(p, last_seq);
+    if (r)
+      return r < 0 ? -1 : 0;
+  }
   if (check_live(p, false) < 0)
     return -1;
   for (int i = 0; i < 16; i++) {

@@ -149,6 +149,17 @@ API struct vlff_ring *vlff_ring_attach_owned(const char *name, uint32_t record_k
 
 /* Producer: the file shrank under us. The ring is replaced by a new one that goes on
  * numbering records where this one stopped, and the caller is told (EPIPE). */
+/* The new segment goes on numbering from this handle's records. */
+static void producer_rebind(struct vlff_ring *r) {
+  bind(r);
+  if (atomic_load(&r->ctl->head) < r->wseq) {
+    atomic_store(&r->ctl->head, r->wseq);
+    atomic_store(&r->ctl->futex, (uint32_t)r->wseq);
+  }
+  r->wseq = atomic_load(&r->ctl->head);
+  shm_seg_ready(&r->seg);
+}
+
 static int producer_replace(struct vlff_ring *r) {
   char msg[320];
   shm_seg_check(&r->seg, false);
@@ -158,13 +169,7 @@ static int producer_replace(struct vlff_ring *r) {
     r->ctl = NULL;
     return -1;
   }
-  bind(r);
-  if (atomic_load(&r->ctl->head) < r->wseq) {
-    atomic_store(&r->ctl->head, r->wseq);
-    atomic_store(&r->ctl->futex, (uint32_t)r->wseq);
-  }
-  r->wseq = atomic_load(&r->ctl->head);
-  shm_seg_ready(&r->seg);
+  producer_rebind(r);
   shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s; the record was lost", msg);
   return -1;
 }
@@ -174,10 +179,13 @@ static bool producer_ok(struct vlff_ring *r, const char *fn) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: not a producer handle", fn);
     return false;
   }
+  /* Its replacement failed (no space left in /dev/shm): tried again after a
+   * growing delay, failing with EPIPE until then, so a producer that goes on
+   * producing neither spins on creation nor has to create the ring itself. */
   if (!r->ctl) {
-    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: the ring could not be replaced after a truncation; create it again",
-            r->seg.name);
-    return false;
+    if (shm_seg_retry(&r->seg) < 0)
+      return false;
+    producer_rebind(r);
   }
   return true;
 }

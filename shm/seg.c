@@ -55,6 +55,7 @@ API const char *vlff_shm_strerror(int err) {
   case VLFF_SHM_ERR_NOTREADY: return "segment not initialised yet";
   case VLFF_SHM_ERR_ABANDONED: return "segment abandoned by its creator";
   case VLFF_SHM_ERR_SIZE: return "too large for the segment";
+  case VLFF_SHM_ERR_NOSPACE: return "no space left in /dev/shm";
   default: return "unknown error";
   }
 }
@@ -170,6 +171,18 @@ static int open_error(const char *name, const char *what) {
   return -1;
 }
 
+/* A segment's name that leads to something other than a regular file: a FIFO
+ * planted there (anyone may create one in /dev/shm) would block a plain open()
+ * until a writer comes, which is why every segment is opened O_NONBLOCK and
+ * looked at with fstat before a byte is read. */
+static int not_regular(const char *name, const struct stat *st) {
+  mode_t m = st->st_mode;
+  const char *what = S_ISFIFO(m) ? "a FIFO" : S_ISDIR(m) ? "a directory" : S_ISCHR(m) ? "a character device"
+                     : S_ISBLK(m) ? "a block device" : S_ISSOCK(m) ? "a socket" : "not a regular file";
+  shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: is %s, expected a regular file (/dev/shm%s, owner uid %u); refusing it",
+          name, what, name, (unsigned)st->st_uid);
+  return -1;
+}
 
 /* The magic word: a new segment is zeros until its creator writes the
  * header, so 0 means not yet. */
@@ -241,10 +254,8 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
  * regular file, not writable by everyone (anyone could then forge or truncate it),
  * and whatever the caller's trust adds (an owner, a narrower mode). */
 static int trust_check(const char *name, const struct stat *st, const struct seg_trust *t) {
-  if (!S_ISREG(st->st_mode)) {
-    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: not a regular file", name);
-    return -1;
-  }
+  if (!S_ISREG(st->st_mode))
+    return not_regular(name, st);
   if (t && t->check_owner && st->st_uid != t->uid) {
     shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: owned by uid %u, expected uid %u; refusing it", name,
             (unsigned)st->st_uid, (unsigned)t->uid);
@@ -317,11 +328,19 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
 int shm_seg_peek(const char *name, struct seg_hdr *out) {
   if (check_name(name) < 0)
     return -1;
-  int fd = shm_open(name, O_RDONLY, 0);
+  int fd = shm_open(name, O_RDONLY | O_NONBLOCK, 0);
   if (fd < 0)
     return open_error(name, "open read-only");
   struct stat st;
-  ssize_t n = fstat(fd, &st) == 0 && S_ISREG(st.st_mode) ? pread(fd, out, sizeof *out, 0) : -1;
+  if (fstat(fd, &st) < 0) {
+    close(fd);
+    return open_error(name, "fstat");
+  }
+  if (!S_ISREG(st.st_mode)) {
+    close(fd);
+    return not_regular(name, &st);
+  }
+  ssize_t n = pread(fd, out, sizeof *out, 0);
   close(fd);
   if (n != (ssize_t)sizeof *out) {
     shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: no complete segment header", name);
@@ -337,7 +356,7 @@ int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec,
   if (check_name(name) < 0)
     return -1;
   snprintf(s->name, sizeof s->name, "%s", name);
-  int fd = shm_open(name, writable ? O_RDWR : O_RDONLY, 0);
+  int fd = shm_open(name, (writable ? O_RDWR : O_RDONLY) | O_NONBLOCK, 0);
   if (fd < 0)
     return open_error(name, writable ? "open read-write" : "open read-only");
   if (map_checked(s, name, fd, writable, spec, trust) < 0) {
@@ -380,6 +399,27 @@ int shm_seg_check(struct seg *s, bool stat_it) {
   shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE,
           "%s: the segment shrank under this process (truncated by a process with write access to it); %s",
           s->name, s->creator ? "replacing it by a new one" : "attach again");
+  return -1;
+}
+
+/* Gives the segment's pages their memory now. On tmpfs a file's size is only a
+ * promise: with /dev/shm full, ftruncate still succeeds and the first write to a
+ * page that cannot be had faults (SIGBUS), which the guard took for a truncation,
+ * so creators replaced their segments again and again. posix_fallocate fails
+ * with ENOSPC instead, here, where it can be said. */
+static int reserve_pages(const char *name, int fd, uint64_t total) {
+  int e;
+  do
+    e = posix_fallocate(fd, 0, (off_t)total);
+  while (e == EINTR);
+  if (e == 0)
+    return 0;
+  if (e == ENOSPC || e == EFBIG)
+    shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", name,
+            (unsigned long long)total);
+  else
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot reserve %llu bytes for it: %s", name, (unsigned long long)total,
+            strerror(e));
   return -1;
 }
 
@@ -426,7 +466,7 @@ static int apply_perm(const char *name, int fd, mode_t mode, const char *group) 
  * never deleted. */
 static int try_take_over(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
                          uint64_t total, mode_t mode, const char *group) {
-  int fd = shm_open(name, O_RDWR, 0);
+  int fd = shm_open(name, O_RDWR | O_NONBLOCK, 0);
   if (fd < 0) {
     if (errno == ENOENT)
       return 1;
@@ -439,7 +479,8 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
   }
   if (!S_ISREG(st.st_mode)) {
     close(fd);
-    shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a regular file; not touching it", name);
+    not_regular(name, &st);
+    errno = EEXIST;
     return -1;
   }
   if (st.st_uid != geteuid()) {
@@ -505,6 +546,12 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
       close(fd);
       return -1;
     }
+    /* A segment made before pages were reserved, or by a creator that died
+     * while /dev/shm filled, may still be a promise. */
+    if (reserve_pages(name, fd, total) < 0) {
+      shm_seg_close(s);
+      return -1;
+    }
     s->fd = fd;
     s->writable = true;
     /* The start time is claimed first: of two processes taking the segment
@@ -568,7 +615,7 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     return -1;
   }
   for (int attempt = 0; attempt < 4; attempt++) {
-    int fd = shm_open(name, O_RDWR | O_CREAT | O_EXCL, mode & 0600);
+    int fd = shm_open(name, O_RDWR | O_CREAT | O_EXCL | O_NONBLOCK, mode & 0600);
     if (fd < 0) {
       if (errno != EEXIST)
         return open_error(name, "create");
@@ -582,10 +629,16 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     snprintf(s->name, sizeof s->name, "%s", name);
     int bad = apply_perm(name, fd, mode, group);
     if (bad == 0 && ftruncate(fd, (off_t)total) < 0) {
-      shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", name, (unsigned long long)total,
-              strerror(errno));
+      if (errno == ENOSPC || errno == EFBIG)
+        shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", name,
+                (unsigned long long)total);
+      else
+        shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", name, (unsigned long long)total,
+                strerror(errno));
       bad = -1;
     }
+    if (bad == 0 && reserve_pages(name, fd, total) < 0)
+      bad = -1;
     if (bad < 0) {
       int e = errno;
       close(fd);
@@ -650,7 +703,7 @@ int shm_seg_replace(struct seg *s) {
     }
   }
   /* Only our own file is removed: the name may already be someone else's. */
-  int fd = shm_open(name, O_RDONLY, 0);
+  int fd = shm_open(name, O_RDONLY | O_NONBLOCK, 0);
   if (fd >= 0) {
     if (have && fstat(fd, &named) == 0 && named.st_ino == mine.st_ino && named.st_dev == mine.st_dev)
       shm_unlink(name);
@@ -658,7 +711,35 @@ int shm_seg_replace(struct seg *s) {
   }
   shm_seg_close(s);
   struct vlff_shm_perm perm = {.mode = mode, .group = group[0] ? group : NULL};
-  return shm_seg_create(s, name, &spec, geom, &perm);
+  uint64_t delay = s->retry_delay_ns, retries = s->retries;
+  int r = shm_seg_create(s, name, &spec, geom, &perm);
+  if (r >= 0)
+    return r;
+  /* Kept as a creator that failed: shm_seg_retry tries again later. */
+  int code = vlff_shm_last_error();
+  char why[320];
+  snprintf(why, sizeof why, "%s", vlff_shm_last_message());
+  snprintf(s->name, sizeof s->name, "%s", name);
+  remember(s, &spec, geom, mode, group);
+  s->failed = true;
+  s->retries = retries + 1;
+  s->retry_delay_ns = !delay ? 100000000ull : delay >= 2500000000ull ? 5000000000ull : 2 * delay;
+  s->retry_ns = shm_now() + s->retry_delay_ns;
+  s->why_code = code;
+  snprintf(s->why, sizeof s->why, "%s", why);
+  shm_err(code, EPIPE, "%s; not replaced, next try in %.1f s (%llu tries so far)", why,
+          (double)s->retry_delay_ns / 1e9, (unsigned long long)s->retries);
+  return -1;
+}
+
+int shm_seg_retry(struct seg *s) {
+  uint64_t now = shm_now();
+  if (now < s->retry_ns) {
+    shm_err(s->why_code, EPIPE, "%s; not replaced, next try in %.1f s (%llu tries so far)", s->why,
+            (double)(s->retry_ns - now) / 1e9, (unsigned long long)s->retries);
+    return -1;
+  }
+  return shm_seg_replace(s);
 }
 
 void shm_seg_ready(struct seg *s) { atomic_store_explicit(&s->h->state, SEG_READY, memory_order_release); }

@@ -79,6 +79,12 @@ struct seg {
   uint64_t geom[6];
   mode_t mode;
   char group[64];
+  /* A creator whose replacement failed (no space left in /dev/shm, ...): the handle
+   * keeps the above, and shm_seg_retry tries again after a growing delay. */
+  bool failed;
+  uint64_t retry_ns, retry_delay_ns, retries;
+  int why_code;
+  char why[320];
 };
 
 void shm_err(int code, int errnum, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
@@ -112,6 +118,10 @@ int shm_seg_check(struct seg *s, bool stat_it);
  * creates a new one of the same geometry and permissions. Returns as shm_seg_create;
  * on failure the handle is closed. */
 int shm_seg_replace(struct seg *s);
+/* Creator whose replacement failed (s->failed): before the retry delay has passed,
+ * -1 (EPIPE, the failure's code, its message with when the next try comes); after,
+ * shm_seg_replace again, the delay doubling (0.1 s up to 5 s) while it fails. */
+int shm_seg_retry(struct seg *s);
 
 /* The SIGBUS guard (guard.c): registers a mapping so that a fault inside it is
  * survived and flags s->fault. */

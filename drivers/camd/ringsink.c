@@ -22,6 +22,7 @@ struct vlff_ringsink {
   char pose_name[VLFF_CFG_STR];
   struct vlff_ring *pose_ring;
   uint64_t pose_retry_ns;
+  uint64_t pose_warned; /* vlff_warn_limited's */
 };
 
 static int reserve(struct vlff_sink *s, struct vlff_sink_frame *f, char *err, size_t errlen) {
@@ -94,7 +95,7 @@ static int pose_lookup(void *ctx, uint64_t t_ns, double tol_s, double pose[16], 
     r->pose_retry_ns = now_ns() + 1000000000u;
     r->pose_ring = vlff_ring_attach(r->pose_name, VLFF_RECORD_POSE);
     if (!r->pose_ring) {
-      if (errno != ENOENT) VLFF_WARN(TAG, "pose ring: %s", vlff_shm_last_message());
+      if (errno != ENOENT) vlff_warn_limited(&r->pose_warned, TAG, "pose ring: %s", vlff_shm_last_message());
       return -1;
     }
     VLFF_INFO(TAG, "poses from %s", r->pose_name);

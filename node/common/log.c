@@ -5,8 +5,10 @@
 #include "log.h"
 #include "clock.h"
 
+#include <pthread.h>
 #include <stdatomic.h>
 #include <stdbool.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <time.h>
@@ -83,11 +85,61 @@ void vlff_errf(char *err, size_t errlen, const char *fmt, ...) {
   va_end(ap);
 }
 
+/* Per call site, keyed by the caller's counter: when it last logged and the count
+ * then. A fixed table (a process has a few dozen such sites); a site that finds it
+ * full falls back to every 1000th. */
+#define WARN_SITES 128
+#define WARN_FIRST 5
+#define WARN_INTERVAL_NS 5000000000ll
+static struct warn_site {
+  const uint64_t *key;
+  long long last_ns;
+  uint64_t logged_n;
+} warn_sites[WARN_SITES];
+static pthread_mutex_t warn_lock = PTHREAD_MUTEX_INITIALIZER;
+
+/* 0: do not log; 1: log as is; 2: log with *suppressed lines left out since *since_ns. */
+static int warn_decide(const uint64_t *key, uint64_t n, uint64_t *suppressed, long long *since_ns) {
+  long long now = (long long)vlff_now_ns();
+  size_t h = ((uintptr_t)key >> 3) % WARN_SITES;
+  int rc = -1;
+  pthread_mutex_lock(&warn_lock);
+  for (size_t i = 0; i < WARN_SITES; i++) {
+    struct warn_site *w = &warn_sites[(h + i) % WARN_SITES];
+    if (w->key && w->key != key) continue;
+    /* A new site, or a counter started over (a new object at an old address). */
+    if (!w->key || w->logged_n >= n) *w = (struct warn_site){key, 0, 0};
+    if (n <= WARN_FIRST) {
+      rc = 1;
+    } else if (now - w->last_ns >= WARN_INTERVAL_NS) {
+      *suppressed = n - 1 - w->logged_n;
+      *since_ns = now - w->last_ns;
+      rc = *suppressed ? 2 : 1;
+    } else {
+      rc = 0;
+    }
+    if (rc) w->last_ns = now, w->logged_n = n;
+    break;
+  }
+  pthread_mutex_unlock(&warn_lock);
+  if (rc < 0) rc = n <= WARN_FIRST || n % 1000 == 0;
+  return rc;
+}
+
 void vlff_warn_limited(uint64_t *count, const char *tag, const char *fmt, ...) {
-  uint64_t n = ++*count;
-  if (n > 5 && n % 1000 != 0) return;
+  uint64_t n = ++*count, suppressed = 0;
+  long long since = 0;
+  int how = warn_decide(count, n, &suppressed, &since);
+  if (!how) return;
   va_list ap;
   va_start(ap, fmt);
-  vlff_logv(VLFF_LOG_WARN, tag, fmt, ap);
+  if (how == 1) {
+    vlff_logv(VLFF_LOG_WARN, tag, fmt, ap);
+  } else {
+    char msg[900];
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    vlff_log(VLFF_LOG_WARN, tag, "%s [%llu more like this in the last %.0f s not shown]", msg,
+             (unsigned long long)suppressed, (double)since / 1e9);
+  }
   va_end(ap);
 }

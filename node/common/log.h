@@ -43,9 +43,13 @@ void vlff_log_status_end(void);
  * "-1 with err filled" convention every vlff module follows. */
 void vlff_errf(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
-/* A warning that can come with every frame, rate-limited so the log stays
- * readable: logged for the first five events, then every 1000th; *count is
- * the caller's count of them (incremented here), its counters tell the rest. */
+/* A warning that can come with every frame, iteration or request, rate-limited
+ * so the log stays readable: the first five events of a call site are logged,
+ * then at most one line every 5 s, which says how many like it were not shown
+ * since the last. *count is the caller's count of them (incremented here; it
+ * also names the call site, so one counter per kind of line), its counters
+ * tell the rest. The caller serialises calls with the same counter. Any
+ * message that can repeat per frame, iteration or request goes through here. */
 void vlff_warn_limited(uint64_t *count, const char *tag, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
 #define VLFF_ERROR(tag, ...) vlff_log(VLFF_LOG_ERROR, tag, __VA_ARGS__)

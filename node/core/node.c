@@ -71,6 +71,12 @@ struct vlff_node {
   int model_h, model_w;               /* largest feature map accepted */
   struct vlff_publisher *pub;
   struct vlff_prompts *mailbox;
+  /* vlff_warn_limited's counters, one per line that can come with every frame,
+   * keyframe, iteration or request (each used by one thread). */
+  struct {
+    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder, features_late,
+        kf_rejected, kf_refused, kf_store;
+  } warned;
 
   pthread_t ingest_thread, trainer_thread;
   bool ingest_started, trainer_started, joined;
@@ -723,7 +729,7 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
     /* A producer that replaced its ring (restarted with another geometry, or
      * after the file was truncated) is followed on the next pass. */
     if (*feats && vlff_feature_join_pump(ig->join, *feats) < 0 && errno == EPIPE) {
-      VLFF_WARN(TAG, "feature ring: %s; attaching again", vlff_shm_last_message());
+      vlff_warn_limited(&n->warned.feature_ring, TAG, "feature ring: %s; attaching again", vlff_shm_last_message());
       vlff_ring_close(*feats);
       *feats = NULL;
       ig->feats_refused = -1; /* no refusal code: the next attach is logged either way */
@@ -743,7 +749,8 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
       if (r > 0) {
         pending_complete(n, ig->pending, &ig->npend, fid, fbuf, model_h, model_w);
       } else {
-        VLFF_WARN(TAG, "frame %llu: image encoder failed: %s", (unsigned long long)fid, werr);
+        vlff_warn_limited(&n->warned.encoder, TAG, "frame %llu: image encoder failed: %s", (unsigned long long)fid,
+                          werr);
         int i = pending_find(ig->pending, ig->npend, fid);
         if (i >= 0) {
           STAT_ADD(n, features_timeout, 1);
@@ -760,8 +767,8 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
   for (int i = 0; i < ig->npend; i++)
     if (vlff_seconds() > ig->pending[i]->deadline_s) {
       STAT_ADD(n, features_timeout, 1);
-      VLFF_WARN(TAG, "frame %lld: features did not arrive within %.1f s", ig->pending[i]->id,
-                cfg->vlm.feature_timeout_s);
+      vlff_warn_limited(&n->warned.features_late, TAG, "frame %lld: features did not arrive within %.1f s",
+                        ig->pending[i]->id, cfg->vlm.feature_timeout_s);
       candidate_free(ig->pending[i]);
       pending_remove(ig->pending, &ig->npend, i);
       i--;
@@ -983,7 +990,7 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
       n->st.last_pose_residual_m = ev.residual_m;
       pthread_mutex_unlock(&n->slock);
       if (v == VLFF_POSE_BAD) {
-        VLFF_WARN(TAG,
+        vlff_warn_limited(&n->warned.kf_rejected, TAG,
                   "keyframe %lld rejected: depth residual %.3f m, %.2f of what a good frame shows at its ranges, "
                   "with %.0f %% inliers (recent good: %.2f, %.0f %%)",
                   c->id, ev.residual_m, ev.residual, 100 * ev.inlier_frac, med_r, 100 * med_i);
@@ -1022,7 +1029,8 @@ static void take_candidates(struct vlff_node *n, bool wait) {
     if (n->mapping && vlff_publisher_check_view(n->pub, &c->view, verr, sizeof verr)) {
       /* Implausible intrinsics or pose would make every ray of this view
        * wrong (and, unbounded, endless): never train on or map it. */
-      VLFF_WARN(TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s", c->id, verr);
+      vlff_warn_limited(&n->warned.kf_refused, TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s",
+                        c->id, verr);
       /* Counted under its reason like the ingest's refusals, which hold
        * frames to the same bounds at full size. */
       const struct vlff_view *v = &c->view;
@@ -1046,7 +1054,8 @@ static void take_candidates(struct vlff_node *n, bool wait) {
             vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id, verr, sizeof verr);
           if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
         } else {
-          VLFF_WARN(TAG, "keyframe %lld does not fit the keyframe store: %s", c->id, strerror(errno));
+          vlff_warn_limited(&n->warned.kf_store, TAG, "keyframe %lld does not fit the keyframe store: %s", c->id,
+                            strerror(errno));
         }
       }
     }
@@ -1061,7 +1070,7 @@ static void do_publish(struct vlff_node *n) {
   for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
   double t0 = vlff_seconds();
   if (vlff_publisher_publish(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
-    VLFF_ERROR(TAG, "publish failed: %s", err);
+    vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
     return;
   }
   VLFF_DEBUG(TAG, "published map v%llu in %.0f ms: %zu labelled, %zu free, %zu unknown voxels",
@@ -1154,7 +1163,9 @@ static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) 
   if (!n->mailbox) return;
   int got = vlff_prompts_poll(n->mailbox, seq, &req);
   if (got < 0) {
-    VLFF_ERROR(TAG, "prompt mailbox: %s", vlff_shm_last_message());
+    /* Once per repair by the library (a forged state word or request number),
+     * but a group member can forge them at every iteration. */
+    vlff_warn_limited(&n->warned.mailbox, TAG, "prompt mailbox: %s", vlff_shm_last_message());
     return;
   }
   if (got != 1) return;
@@ -1169,13 +1180,13 @@ static void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) 
     rc = apply_prompts(n, (const char(*)[VLFF_PROMPT_LEN])texts, k, -1, err, sizeof err);
   }
   if (rc)
-    VLFF_ERROR(TAG, "prompt mailbox request %llu from pid %d refused: %s", (unsigned long long)req.seq,
-               req.poster_pid, err);
+    vlff_warn_limited(&n->warned.mailbox_refused, TAG, "prompt mailbox request %llu from pid %d refused: %s",
+                      (unsigned long long)req.seq, req.poster_pid, err);
   else
     *publish_now = true;
   if (vlff_prompts_answer(n->mailbox, req.seq, rc == 0, rc ? err : NULL))
-    VLFF_ERROR(TAG, "prompt mailbox: cannot answer request %llu: %s", (unsigned long long)req.seq,
-               vlff_shm_last_message());
+    vlff_warn_limited(&n->warned.mailbox_answer, TAG, "prompt mailbox: cannot answer request %llu: %s",
+                      (unsigned long long)req.seq, vlff_shm_last_message());
 }
 
 static void update_state(struct vlff_node *n) {
@@ -1238,7 +1249,8 @@ static void share_status(struct vlff_node *n) {
   }
   char err[320];
   /* A map truncated under the node is replaced by the library; say so. */
-  if (vlff_publisher_set_status(n->pub, &ms, err, sizeof err)) VLFF_ERROR(TAG, "map status: %s", err);
+  if (vlff_publisher_set_status(n->pub, &ms, err, sizeof err))
+    vlff_warn_limited(&n->warned.map_status, TAG, "map status: %s", err);
 }
 
 /* The young-field schedules, both keyed on the field's step count. */

@@ -35,6 +35,7 @@ struct vlff_publisher {
   double origin[3], voxel;
   double scene_lo[3], scene_hi[3]; /* field.scene_min / max: bounds for poses */
   long long refused;               /* views refused as physically implausible */
+  uint64_t heartbeat_warned;       /* vlff_warn_limited's */
   uint32_t dims[3];
   size_t nvox;
   uint8_t *observed;   /* rays passed through */
@@ -664,7 +665,10 @@ void vlff_publisher_heartbeat(struct vlff_publisher *p) {
   if (now - p->last_heartbeat_s < 0.1) return;
   p->last_heartbeat_s = now;
   /* A map truncated under the node is replaced by the library; say so. */
-  if (vlff_map_heartbeat(p->map)) VLFF_ERROR(TAG, "map heartbeat: %s", vlff_shm_last_message());
+  /* Replaced by the library, or (no space left in /dev/shm) tried again after a
+   * growing delay: said at most every few seconds. */
+  if (vlff_map_heartbeat(p->map))
+    vlff_warn_limited(&p->heartbeat_warned, TAG, "map heartbeat: %s", vlff_shm_last_message());
 }
 
 int vlff_publisher_set_status(struct vlff_publisher *p, const struct vlff_map_status *st, char *err, size_t errlen) {

@@ -135,13 +135,13 @@ static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, cons
 /* Commits a record of len bytes to ring; what names the ring. A truncated
  * ring (EPIPE) is logged and the stream goes on (the library replaces the
  * segment); any other failure ends it: -1. */
-static int commit(struct vlff_ring *ring, uint64_t len, const char *what) {
+static int commit(struct vlff_ring *ring, uint64_t len, const char *what, uint64_t *warned) {
   if (vlff_ring_commit(ring, len) == 0) return 0;
   if (errno != EPIPE) {
     fprintf(stderr, "vlff-sim: %s commit: %s\n", what, strerror(errno));
     return -1;
   }
-  VLFF_ERROR(TAG, "%s ring: %s", what, vlff_shm_last_message());
+  vlff_warn_limited(warned, TAG, "%s ring: %s", what, vlff_shm_last_message());
   return 0;
 }
 
@@ -179,6 +179,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
   clock_gettime(CLOCK_MONOTONIC, &next);
   long long late = 0;
   int status = 0;
+  uint64_t ring_warned = 0, fring_warned = 0; /* vlff_warn_limited's */
   for (long long id = 0; !vlff_cli_stop && (count <= 0 || id < count); id++) {
     long long idx = id % cfg->sim.frames;
     if (vlff_sim_render(s, idx, features ? VLFF_SIM_ALL : VLFF_SIM_RGBD, f, err, sizeof err) < 0) {
@@ -189,9 +190,16 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
     uint64_t seq;
     struct vlff_frame_hdr *h = vlff_ring_reserve(ring, &seq);
     if (!h && errno == EPIPE) {
-      /* The ring's file was truncated under us; the library has replaced it. */
-      VLFF_ERROR(TAG, "frame ring: %s", vlff_shm_last_message());
-      continue;
+      /* The ring's file was truncated under us; the library has replaced it, or
+       * could not (no space left in /dev/shm) and tries again after a growing
+       * delay. This frame is skipped, at the frame rate: no spinning. */
+      vlff_warn_limited(&ring_warned, TAG, "frame ring: %s", vlff_shm_last_message());
+      goto pace;
+    }
+    if (!h) {
+      fprintf(stderr, "vlff-sim: frame ring: %s\n", vlff_shm_last_message());
+      status = 1;
+      break;
     }
     uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), (uint32_t)W, (uint32_t)H, VLFF_PIX_RGB8,
                                      VLFF_PIX_DEPTH_U16_MM);
@@ -214,15 +222,20 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       memcpy(rgb + (size_t)v * h->plane[VLFF_PLANE_COLOR].stride, f->rgb + (size_t)v * W * 3, (size_t)W * 3);
       memcpy(dep + (size_t)v * h->plane[VLFF_PLANE_DEPTH].stride, f->depth_mm + (size_t)v * W, (size_t)W * 2);
     }
-    if (commit(ring, len, "frame") < 0) {
+    if (commit(ring, len, "frame", &ring_warned) < 0) {
       status = 1;
       break;
     }
     if (fring) {
       struct vlff_feature_hdr *fhd = vlff_ring_reserve(fring, NULL);
       if (!fhd && errno == EPIPE) {
-        VLFF_ERROR(TAG, "feature ring: %s", vlff_shm_last_message());
-        continue;
+        vlff_warn_limited(&fring_warned, TAG, "feature ring: %s", vlff_shm_last_message());
+        goto pace;
+      }
+      if (!fhd) {
+        fprintf(stderr, "vlff-sim: feature ring: %s\n", vlff_shm_last_message());
+        status = 1;
+        break;
       }
       uint64_t flen = vlff_feature_layout(fhd, vlff_ring_slot_size(fring), (uint32_t)D, (uint32_t)fh, (uint32_t)fw);
       if (!flen) {
@@ -234,12 +247,13 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       /* the ring carries [D][h][w]; the sim makes [h][w][D] */
       uint16_t *out = (uint16_t *)((uint8_t *)fhd + fhd->data_offset);
       vlff_transpose_u16(f->features, (size_t)fw * fh, (size_t)D, out);
-      if (commit(fring, flen, "feature") < 0) {
+      if (commit(fring, flen, "feature", &fring_warned) < 0) {
         status = 1;
         break;
       }
     }
     if (!quiet && id % 50 == 0) VLFF_INFO(TAG, "frame %lld (scene frame %lld) published, %lld late", id, idx, late);
+  pace:
     next.tv_nsec += (long)(period % 1000000000ull);
     next.tv_sec += (time_t)(period / 1000000000ull);
     if (next.tv_nsec >= 1000000000L) next.tv_nsec -= 1000000000L, next.tv_sec++;

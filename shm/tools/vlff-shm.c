@@ -141,7 +141,7 @@ static int cmd_stat(const char *name) {
   else if (in.kind == VLFF_SHM_KIND_MAP)
     printf("max_voxels %" PRIu64 "\nversion %" PRIu64 "\n", in.slot_size, in.head);
   else
-    printf("posts %" PRIu64 "\n", in.head);
+    printf("posts %" PRIu64 "\nstate_repairs %" PRIu64 "\nresyncs %" PRIu32 "\n", in.head, in.slot_size, in.slots);
   printf("last_update_age ");
   print_age(in.last_ns);
   printf("\n");

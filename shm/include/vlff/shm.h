@@ -106,7 +106,8 @@ enum vlff_shm_err {
   VLFF_SHM_ERR_CORRUPT,   /* header fields inconsistent or checksum wrong */
   VLFF_SHM_ERR_NOTREADY,  /* the creator has not finished initialising it */
   VLFF_SHM_ERR_ABANDONED, /* replaced by a new segment of the same name: re-attach */
-  VLFF_SHM_ERR_SIZE       /* a record or argument is larger than the segment allows */
+  VLFF_SHM_ERR_SIZE,      /* a record or argument is larger than the segment allows */
+  VLFF_SHM_ERR_NOSPACE    /* no space left in /dev/shm for the segment's pages */
 };
 
 /* The code and message of the last failure of this library in the calling thread.
@@ -139,8 +140,10 @@ struct vlff_shm_info {
   int creator_alive;      /* 1 if creator_pid exists (or cannot be checked) and, where the header
                            * keeps it, started when the creator did; else 0 */
   uint64_t total_size;    /* bytes */
-  uint32_t slots;         /* rings */
-  uint64_t slot_size;     /* rings: usable bytes per record */
+  uint32_t slots;         /* rings; prompts: times the learner put a forged request number or
+                           * answered word back (saturates) */
+  uint64_t slot_size;     /* rings: usable bytes per record; map: voxel capacity; prompts:
+                           * times the learner set its forged state word back to ready */
   uint64_t head;          /* rings: records committed so far; map: version; prompts: sequence */
   uint64_t last_ns;       /* rings: last commit; map: heartbeat; prompts: last post */
 };

@@ -10,6 +10,7 @@
 #include <unistd.h>
 #include <cmocka.h>
 
+#include "clock.h"
 #include "log.h"
 #include "unit.h"
 
@@ -85,5 +86,38 @@ static void test_long_lines_bounded(void **state) {
   assert_int_equal(count(out, '\n'), 2);
 }
 
+/* A line that comes with every trainer iteration (issue 51, item 3: 224 lines a
+ * second for ever): the first five, then at most one every 5 s saying how many it
+ * left out. Two call sites (two counters) are limited apart. */
+static uint64_t flood_a, flood_b;
+static void flood(void) {
+  for (int i = 0; i < 20000; i++) vlff_warn_limited(&flood_a, "t", "flood a %d", i);
+  for (int i = 0; i < 3; i++) vlff_warn_limited(&flood_b, "t", "flood b %d", i);
+}
+static void flood_later(void) { vlff_warn_limited(&flood_a, "t", "flood a again"); }
+
+static int count_lines(const char *s, const char *what) {
+  int n = 0;
+  for (const char *p = s; (p = strstr(p, what)); p++) n++;
+  return n;
+}
+
+static void test_warn_limited_by_time(void **state) {
+  (void)state;
+  static char out[1 << 16];
+  double t0 = (double)vlff_now_ns() / 1e9;
+  capture(flood, out, sizeof out);
+  double took = (double)vlff_now_ns() / 1e9 - t0;
+  int a = count_lines(out, "flood a"), limit = 5 + 1 + (int)(took / 5.0);
+  if (a > limit) fail_msg("%d lines of 20000 in %.1f s (at most %d):\n%s", a, took, limit, out);
+  assert_int_equal(count_lines(out, "flood b"), 3);
+  assert_int_equal(flood_a, 20000);
+  sleep(6); /* past the interval: the next one is shown with what was left out */
+  capture(flood_later, out, sizeof out);
+  if (!strstr(out, "flood a again [") || !strstr(out, "more like this in the last"))
+    fail_msg("after the interval: %s", out);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL, cmocka_unit_test(test_log_line_not_glued_to_status),
+               cmocka_unit_test(test_warn_limited_by_time),
                cmocka_unit_test(test_long_lines_bounded))

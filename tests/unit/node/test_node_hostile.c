@@ -9,6 +9,9 @@
  * this test hung until ctest's timeout.
  */
 #include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <sys/stat.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -97,5 +100,56 @@ static void test_absurd_intrinsics(void **state) {
   tk_scene_close(&sc);
 }
 
+
+/* A FIFO planted at the node's ring names (issue 51, item 1; anyone may mkfifo in
+ * /dev/shm): the ingest thread opened the frame ring for reading and waited for
+ * a writer for ever, so stopping the node (SIGTERM) hung in pthread_join. The
+ * node refuses it, says why it waits, and stops when asked. Stopping runs in a
+ * thread of its own so that a hang fails the test instead of stalling it. */
+struct stopper {
+  struct vlff_node *n;
+  struct vlff_sim_source *src;
+  atomic_int done;
+};
+
+static void *stop_node(void *arg) {
+  struct stopper *s = arg;
+  vlff_node_stop(s->n);
+  tk_node_destroy(s->n, s->src);
+  atomic_store(&s->done, 1);
+  return NULL;
+}
+
+static void test_fifo_at_ring_names(void **state) {
+  (void)state;
+  tk_setup(&tk, "hfifo");
+  struct vlff_config cfg;
+  tk_config(&tk, &cfg,
+            "node:\n  state_dir: %s\n  checkpoint_period_s: 0\n  threads: 2\n"
+            "source:\n  kind: sim\n  features: sim\n"
+            "sim:\n  seed: 3\n  width: 64\n  height: 48\n  frames: 100\n"
+            "field:\n  feature_dim: 16\n  hash_log2_size: 14\n"
+            "shm:\n%s"
+            "  max_width: 64\n  max_height: 48\n  map_max_voxels: 100000\n",
+            tk.dir, tk_shm_names(&tk));
+  const char *rings[] = {cfg.shm.ring, cfg.shm.pose_ring, cfg.shm.feature_ring};
+  for (int i = 0; i < 3; i++) {
+    char path[300];
+    snprintf(path, sizeof path, "/dev/shm%s", rings[i]);
+    assert_int_equal(mkfifo(path, 0644), 0);
+  }
+  char err[512];
+  struct stopper s = {0};
+  s.n = tk_node_create(&cfg, &s.src, err, sizeof err);
+  if (!s.n) fail_msg("%s", err);
+  tk_sleep_s(1.0); /* the ingest thread tries the frame ring several times */
+  pthread_t t;
+  assert_int_equal(pthread_create(&t, NULL, stop_node, &s), 0);
+  for (int i = 0; i < 300 && !atomic_load(&s.done); i++) tk_sleep_s(0.1);
+  if (!atomic_load(&s.done)) fail_msg("the node did not stop within 30 s with a FIFO at %s", cfg.shm.ring);
+  pthread_join(t, NULL);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test_teardown(test_absurd_intrinsics, teardown))
+    cmocka_unit_test_teardown(test_absurd_intrinsics, teardown),
+    cmocka_unit_test_teardown(test_fifo_at_ring_names, teardown))

@@ -14,13 +14,63 @@
 static int run(const char *args, char *out, size_t cap) {
   char cmd[1024];
   const char *emu = getenv("VLFF_EMULATOR"); /* qemu-user in a cross-built tree */
-  snprintf(cmd, sizeof cmd, "%s %s %s 2>&1", emu ? emu : "", VLFF_SHM_CLI, args);
+  snprintf(cmd, sizeof cmd, "timeout 30 %s %s %s 2>&1", emu ? emu : "", VLFF_SHM_CLI, args);
   FILE *f = popen(cmd, "r");
   assert_non_null(f);
   size_t n = fread(out, 1, cap - 1, f);
   out[n] = 0;
   int st = pclose(f);
   return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+/* A FIFO at a name under /dev/shm (issue 51, item 1): list, stat and label
+ * opened it for reading and waited for a writer for ever. `timeout` turns a hang
+ * into status 124. */
+static void cli_fifo_refused(void **state) {
+  (void)state;
+  char name[64], path[128], args[512], out[8192];
+  test_name(name, sizeof name, "clififo");
+  snprintf(path, sizeof path, "/dev/shm%s", name);
+  assert_int_equal(mkfifo(path, 0644), 0);
+  assert_int_equal(run("list", out, sizeof out), 0);
+  assert_null(strstr(out, name)); /* not a vlff segment: not listed */
+  snprintf(args, sizeof args, "stat %s", name);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  if (!strstr(out, "is a FIFO, expected a regular file"))
+    fail_msg("stat: %s", out);
+  snprintf(args, sizeof args, "label %s 0 0 0", name);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "is a FIFO"));
+  snprintf(args, sizeof args, "watch %s 1", name);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "is a FIFO"));
+  unlink(path);
+}
+
+/* What the learner repaired in its mailbox (issue 51, items 3 and 15) is shown by
+ * vlff-shm stat, for the chaos bench and for whoever wonders about log lines. */
+static void cli_mailbox_repairs_shown(void **state) {
+  (void)state;
+  char mbox[64], args[256], out[8192];
+  test_name(mbox, sizeof mbox, "clirep");
+  struct vlff_prompts *pb = vlff_prompts_create(mbox, NULL);
+  assert_non_null(pb);
+  struct shm_raw r = {.fd = -1};
+  assert_int_equal(shm_raw_open(mbox, &r), 0);
+  __atomic_store_n((uint32_t *)(r.base + 80), 2u, __ATOMIC_RELEASE); /* the state word: "abandoned" */
+  struct vlff_prompt_request *req = malloc(sizeof *req);
+  uint64_t last = 0;
+  assert_int_equal(vlff_prompts_poll(pb, &last, req), -1);
+  __atomic_store_n((uint64_t *)(r.base + MBOX_CTL_OFF + 16), 5u, __ATOMIC_RELEASE); /* answered, nothing posted */
+  assert_int_equal(vlff_prompts_poll(pb, &last, req), -1);
+  free(req);
+  snprintf(args, sizeof args, "stat %s", mbox);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  if (!strstr(out, "posts 0\nstate_repairs 1\nresyncs 1\n"))
+    fail_msg("stat: %s", out);
+  shm_raw_close(&r);
+  vlff_prompts_close(pb);
+  vlff_shm_unlink(mbox);
 }
 
 static void cli_commands(void **state) {
@@ -130,4 +180,4 @@ static void cli_commands(void **state) {
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(cli_commands))
+    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown))

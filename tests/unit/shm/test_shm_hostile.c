@@ -642,6 +642,60 @@ static void test_small_foreign_file_untouched(void **state) {
   vlff_shm_unlink(name);
 }
 
+
+/* Anyone may mkfifo /dev/shm/<name> (issue 51, item 1): a plain open() of a FIFO for
+ * reading waits for a writer, for ever, so every reader of that name hung (the
+ * node's ingest thread, then its SIGTERM in pthread_join; vlff-view; vlff-shm).
+ * Every attach, stat and create refuses it at once, naming the segment and what
+ * is there. An alarm without SA_RESTART turns a hang into EINTR: a failed check,
+ * not a test stuck until ctest's timeout. */
+static void on_alarm(int sig) { (void)sig; }
+
+static void expect_fifo_refused(const char *name, const char *what) {
+  int err = vlff_shm_last_error();
+  const char *msg = vlff_shm_last_message();
+  if (err != VLFF_SHM_ERR_FOREIGN || !strstr(msg, name) || !strstr(msg, "is a FIFO"))
+    fail_msg("%s: error %d (%s), errno %d", what, err, msg, errno);
+}
+
+static void test_fifo_at_segment_name(void **state) {
+  (void)state;
+  char name[64], path[128];
+  test_name(name, sizeof name, "fifo");
+  snprintf(path, sizeof path, "/dev/shm%s", name);
+  assert_int_equal(mkfifo(path, 0644), 0);
+  struct sigaction sa = {.sa_handler = on_alarm}, old;
+  sigemptyset(&sa.sa_mask);
+  assert_int_equal(sigaction(SIGALRM, &sa, &old), 0);
+  alarm(10);
+  assert_null(vlff_ring_attach(name, VLFF_RECORD_ANY));
+  expect_fifo_refused(name, "ring attach");
+  assert_null(vlff_ring_attach_owned(name, VLFF_RECORD_FRAME, geteuid(), 0));
+  expect_fifo_refused(name, "ring attach_owned");
+  assert_null(vlff_map_attach(name));
+  expect_fifo_refused(name, "map attach");
+  assert_null(vlff_prompts_attach(name));
+  expect_fifo_refused(name, "prompts attach");
+  struct vlff_shm_info in;
+  assert_int_equal(vlff_shm_stat(name, &in), -1);
+  expect_fifo_refused(name, "stat");
+  /* Creators neither open it for reading nor remove it. */
+  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_RAW, .slots = 2, .slot_size = 64};
+  assert_null(vlff_ring_create(name, &rp));
+  expect_fifo_refused(name, "ring create");
+  struct vlff_map_params mp = {.max_voxels = 64};
+  assert_null(vlff_map_create(name, &mp));
+  expect_fifo_refused(name, "map create");
+  assert_null(vlff_prompts_create(name, NULL));
+  expect_fifo_refused(name, "prompts create");
+  alarm(0);
+  sigaction(SIGALRM, &old, NULL);
+  struct stat st;
+  assert_int_equal(lstat(path, &st), 0);
+  assert_true(S_ISFIFO(st.st_mode));
+  unlink(path);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_truncate_under_map_reader),
     cmocka_unit_test(test_truncate_under_map_writer),
@@ -654,4 +708,4 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_attach_owned_refuses),
     cmocka_unit_test(test_own_stale_wider_mode_replaced), cmocka_unit_test(test_stale_creator_pid_reused),
     cmocka_unit_test(test_small_foreign_file_untouched),
-    cmocka_unit_test(test_version_never_reused))
+    cmocka_unit_test(test_version_never_reused), cmocka_unit_test(test_fifo_at_segment_name))

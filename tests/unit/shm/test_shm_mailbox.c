@@ -229,6 +229,118 @@ static void test_post_over_unanswered_refused(void **state) {
   mbox_close(&m);
 }
 
+
+/* The state word and the request number, as a process of the mailbox's group can
+ * write them (issue 51, items 3 and 15). */
+#define STATE_OFF 80 /* struct seg_hdr's state word (shm/shm_internal.h) */
+#define ANSWERED_OFF (MBOX_CTL_OFF + 16)
+
+static void post_and_answer(struct mbox *m, const char *text, uint64_t *last) {
+  const char *t[] = {text};
+  assert_int_equal(vlff_prompts_post(m->poster, t, 1), 0);
+  struct vlff_prompt_request *req = malloc(sizeof *req);
+  assert_int_equal(vlff_prompts_poll(m->learner, last, req), 1);
+  assert_int_equal(req->seq, vlff_prompts_last_post(m->poster));
+  assert_int_equal(vlff_prompts_answer(m->learner, req->seq, 1, NULL), 0);
+  free(req);
+  char why[128];
+  assert_int_equal(vlff_prompts_wait_answer(m->poster, vlff_prompts_last_post(m->poster), 2000000000ull, why, sizeof why),
+                   VLFF_PROMPT_ACCEPTED);
+}
+
+/* One 4-byte write set the state word to "abandoned": every post failed until the
+ * learner restarted, and the node logged it at every trainer iteration. The learner
+ * sets it back at its next poll, says so once per repair and counts it where
+ * vlff-shm stat shows it. */
+static void test_state_word_flip_repaired(void **state) {
+  (void)state;
+  struct mbox m;
+  mbox_open(&m, "flip", true);
+  struct shm_raw r = raw_open(m.name);
+  uint64_t last = 0;
+  struct vlff_prompt_request *req = malloc(sizeof *req);
+  for (uint32_t round = 1; round <= 3; round++) {
+    __atomic_store_n((uint32_t *)(r.base + STATE_OFF), round == 3 ? 7u : 2u, __ATOMIC_RELEASE);
+    if (round < 3) { /* posters refuse an abandoned mailbox; other values are the attachers' business */
+      const char *t[] = {"chair"};
+      assert_int_equal(vlff_prompts_post(m.poster, t, 1), -1);
+      assert_int_equal(errno, EPIPE);
+    }
+    assert_int_equal(vlff_prompts_poll(m.learner, &last, req), -1);
+    const char *msg = vlff_shm_last_message();
+    if (!strstr(msg, "set it back to ready") || !strstr(msg, round == 3 ? "state word 7" : "(abandoned)"))
+      fail_msg("round %u: %s", round, msg);
+    char want[32];
+    snprintf(want, sizeof want, "(%u repairs so far)", round);
+    assert_non_null(strstr(msg, want));
+    /* Repaired once: the next poll is quiet, and posts work again. */
+    assert_int_equal(vlff_prompts_poll(m.learner, &last, req), 0);
+    post_and_answer(&m, round == 1 ? "door" : round == 2 ? "table" : "lamp", &last);
+    struct vlff_shm_info in;
+    assert_int_equal(vlff_shm_stat(m.name, &in), 0);
+    assert_int_equal(in.slot_size, round); /* prompts: the learner's repairs */
+    assert_int_equal(in.slots, 0);         /* and no resync */
+  }
+  free(req);
+  shm_raw_close(&r);
+  mbox_close(&m);
+}
+
+/* A request number written backwards (forged: posts only go up) made the next post
+ * reuse an old number, whose answer slot held a later request's answer: "the answer
+ * to request 2 is gone". The learner puts the number back where it was; the next
+ * post gets the next number and its answer. So for a number absurdly far ahead
+ * (2 * n + 1 would wrap), and for an answered word beyond the requests (a post
+ * would overwrite an unread one) or below the learner's answers (posts would wait
+ * for an answer already given). */
+static void test_request_number_backwards_resynced(void **state) {
+  (void)state;
+  struct mbox m;
+  mbox_open(&m, "back", true);
+  struct shm_raw r = raw_open(m.name);
+  uint64_t last = 0;
+  for (int i = 0; i < 10; i++)
+    post_and_answer(&m, i % 2 ? "door" : "chair", &last);
+  assert_int_equal(last, 10);
+  struct vlff_prompt_request *req = malloc(sizeof *req);
+  static const struct {
+    uint64_t seq, answered;
+  } forged[] = {{2, 10}, {3, 10}, {UINT64_MAX - 1, 10}, {0, 10}, {UINT64_MAX, 1000}, {UINT64_MAX, 3}};
+  uint64_t next = 11;
+  for (size_t k = 0; k < sizeof forged / sizeof *forged; k++) {
+    if (forged[k].seq != UINT64_MAX) /* UINT64_MAX: the answered word alone */
+      __atomic_store_n(&ctl_of(&r)->seq, forged[k].seq, __ATOMIC_RELEASE);
+    __atomic_store_n((uint64_t *)(r.base + ANSWERED_OFF), forged[k].answered, __ATOMIC_RELEASE);
+    assert_int_equal(vlff_prompts_poll(m.learner, &last, req), -1);
+    const char *msg = vlff_shm_last_message();
+    char want[64];
+    snprintf(want, sizeof want, "the next post is %llu (%zu resyncs so far)", (unsigned long long)next, k + 1);
+    if (!strstr(msg, want))
+      fail_msg("forged seq word %llu, answered %llu: %s", (unsigned long long)forged[k].seq,
+               (unsigned long long)forged[k].answered, msg);
+    assert_int_equal(last, next - 1);
+    assert_int_equal(vlff_prompts_poll(m.learner, &last, req), 0);
+    const char *t[] = {"lamp"};
+    assert_int_equal(vlff_prompts_post(m.poster, t, 1), 0);
+    assert_int_equal(vlff_prompts_last_post(m.poster), next);
+    /* Not answered yet, and not "gone" either. */
+    char why[128];
+    assert_int_equal(vlff_prompts_wait_answer(m.poster, next, 1000000ull, why, sizeof why), -1);
+    assert_int_equal(errno, ETIMEDOUT);
+    assert_int_equal(vlff_prompts_poll(m.learner, &last, req), 1);
+    assert_int_equal(req->seq, next);
+    assert_int_equal(vlff_prompts_answer(m.learner, next, 1, NULL), 0);
+    assert_int_equal(vlff_prompts_wait_answer(m.poster, next, 2000000000ull, why, sizeof why), VLFF_PROMPT_ACCEPTED);
+    struct vlff_shm_info in;
+    assert_int_equal(vlff_shm_stat(m.name, &in), 0);
+    assert_int_equal(in.slots, k + 1); /* prompts: the learner's resyncs */
+    next++;
+  }
+  free(req);
+  shm_raw_close(&r);
+  mbox_close(&m);
+}
+
 /* Several posters in a burst against a learner polling at its own pace: every post
  * either succeeds and is seen and answered, or fails with a message; none vanishes. */
 #define POSTERS 3
@@ -328,4 +440,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_live_poster_never_waited_for),
     cmocka_unit_test(test_forged_request_refused_with_reason),
     cmocka_unit_test(test_post_over_unanswered_refused),
+    cmocka_unit_test(test_state_word_flip_repaired), cmocka_unit_test(test_request_number_backwards_resynced),
     cmocka_unit_test(test_burst_never_dropped))
