@@ -249,7 +249,8 @@ static int check_live(struct vlff_prompts *p, bool stat_it) {
   }
   if (shm_seg_check(&p->seg, stat_it) < 0)
     return -1;
-  if (atomic_load(&p->seg.h->state) == SEG_ABANDONED) {
+  /* A live learner repairs a forged state word at its next poll (shm_seg_validate). */
+  if (atomic_load(&p->seg.h->state) == SEG_ABANDONED && !shm_hdr_creator_alive(p->seg.h)) {
     shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by the learner; attach again", p->seg.name);
     return -1;
   }

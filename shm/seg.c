@@ -234,6 +234,11 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
     return -1;
   }
   uint32_t st = atomic_load_explicit(&((struct seg_hdr *)h)->state, memory_order_acquire);
+  /* Every poster can write a mailbox's state word (its group has write access), and
+   * its learner, while it runs, sets any other state back to ready at its next poll:
+   * a poster goes on instead of losing the mailbox to a 4-byte write. */
+  if (st != SEG_READY && spec->kind == VLFF_SHM_KIND_PROMPTS && shm_hdr_creator_alive(h))
+    return 0;
   if (st == SEG_INIT) {
     shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: creator pid %d has not finished initialising it", name,
             (int)h->creator_pid);
