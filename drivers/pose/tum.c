@@ -5,6 +5,7 @@
  * increasing in time and each one a rigid transform.
  */
 #include "tum.h"
+#include "vlff/escape.h" /* VLFF_QN: bytes of a line quoted in the reason */
 
 #include <ctype.h>
 #include <errno.h>
@@ -69,7 +70,8 @@ int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *o
     if (end == s || (*end && !isspace((unsigned char)*end))) {
       int w = 0;
       while (s[w] && !isspace((unsigned char)s[w]) && w < 24) w++;
-      snprintf(why, whylen, "field %d '%.*s' is not a number (expected t tx ty tz qx qy qz qw)", n + 1, w, s);
+      snprintf(why, whylen, "field %d '%s' is not a number (expected t tx ty tz qx qy qz qw)", n + 1,
+               VLFF_QN(s, (size_t)w));
       return VLFF_TUM_MALFORMED;
     }
     if (n == 0) exact = decimal_ns(s, end, &t_ns) == 0;

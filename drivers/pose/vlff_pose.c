@@ -27,6 +27,7 @@
 #include "service.h"
 #include "tum.h"
 #include "vlff/shm.h"
+#include "vlff/escape.h"
 
 #define TAG "pose"
 #define REPORT_EACH 5 /* refusals of one reason printed one by one, the rest summarised */
@@ -79,7 +80,7 @@ struct reporter {
 
 static void report_refusal(struct reporter *rp, const char *where, int result, const char *why) {
   if (rp->printed[result]++ < REPORT_EACH) {
-    VLFF_WARN(TAG, "%s: refused, %s: %s%s", where, vlff_tum_result_name(result), why,
+    VLFF_WARN(TAG, "%s: refused, %s: %s%s", VLFF_Q(where), vlff_tum_result_name(result), why,
               rp->printed[result] == REPORT_EACH ? " (further lines refused for this reason are only counted)" : "");
   }
 }
@@ -104,7 +105,8 @@ static void feed(struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporte
   char why[256];
   int r = vlff_tum_feed_line(f, line, vlff_shm_now_ns(), &rec, why, sizeof why);
   if (r == VLFF_TUM_OK) {
-    if (vlff_ring_write(ring, &rec, sizeof rec) != 0) VLFF_ERROR(TAG, "%s: pose ring write: %s", where, strerror(errno));
+    if (vlff_ring_write(ring, &rec, sizeof rec) != 0)
+      VLFF_ERROR(TAG, "%s: pose ring write: %s", VLFF_Q(where), strerror(errno));
   } else if (r != VLFF_TUM_SKIP) {
     report_refusal(rp, where, r, why);
   }
@@ -127,7 +129,7 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
     struct pollfd pfd = {.fd = fd, .events = POLLIN};
     int pr = poll(&pfd, 1, WAIT_MS);
     if (pr < 0 && errno != EINTR) {
-      VLFF_ERROR(TAG, "%s: poll: %s", rp->name, strerror(errno));
+      VLFF_ERROR(TAG, "%s: poll: %s", VLFF_Q(rp->name), strerror(errno));
       bad = 1;
       break;
     }
@@ -135,7 +137,7 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
     ssize_t n = read(fd, buf + len, LINE_MAX_BYTES - len);
     if (n < 0) {
       if (errno == EINTR || errno == EAGAIN) continue;
-      VLFF_ERROR(TAG, "%s: read error: %s", rp->name, strerror(errno));
+      VLFF_ERROR(TAG, "%s: read error: %s", VLFF_Q(rp->name), strerror(errno));
       bad = 1;
       break;
     }
@@ -165,7 +167,7 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
     len -= start;
     if (len == LINE_MAX_BYTES) {
       if (!skipping)
-        VLFF_ERROR(TAG, "%s:%lu: refused, a line longer than %d bytes (not a TUM line)", rp->name, lineno + 1,
+        VLFF_ERROR(TAG, "%s:%lu: refused, a line longer than %d bytes (not a TUM line)", VLFF_Q(rp->name), lineno + 1,
                    LINE_MAX_BYTES);
       skipping = true;
       len = 0;
