@@ -124,7 +124,7 @@ int shm_guard_register(struct seg *s, int prot) {
   if (install() < 0) {
     int e = errno;
     pthread_mutex_unlock(&table_lock);
-    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot install the SIGBUS guard: %s", s->name, strerror(e));
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot install the SIGBUS guard: %s", VLFF_Q(s->name), strerror(e));
     return -1;
   }
   for (int i = 0; i < GUARD_ENTRIES; i++) {
@@ -143,7 +143,7 @@ int shm_guard_register(struct seg *s, int prot) {
     return 0;
   }
   pthread_mutex_unlock(&table_lock);
-  shm_err(VLFF_SHM_ERR_SYS, EMFILE, "%s: more than %d segments mapped in this process", s->name, GUARD_ENTRIES);
+  shm_err(VLFF_SHM_ERR_SYS, EMFILE, "%s: more than %d segments mapped in this process", VLFF_Q(s->name), GUARD_ENTRIES);
   return -1;
 }
 

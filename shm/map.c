@@ -126,7 +126,7 @@ static void bind(struct vlff_map *m) {
 API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *p) {
   if (!p || !p->max_voxels || (!p->label_max_width) != (!p->label_max_height)) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: map needs a voxel capacity and both or neither label image sizes",
-            name ? name : "(null)");
+            VLFF_Q(name ? name : "(null)"));
     return NULL;
   }
   struct vlff_map *m = calloc(1, sizeof *m);
@@ -211,7 +211,7 @@ API void vlff_map_detach(struct vlff_map *m) {
 static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm);
 
 static int bad_update(const struct vlff_map *m, int code, int e, const char *why) {
-  shm_err(code, e, "%s: publish refused: %s", m->seg.name, why);
+  shm_err(code, e, "%s: publish refused: %s", VLFF_Q(m->seg.name), why);
   return -1;
 }
 
@@ -346,7 +346,7 @@ static int abandoned(struct vlff_map *m) {
   if (m->broken || shm_seg_check(&m->seg, false) < 0)
     return 1;
   if (atomic_load_explicit(&m->seg.h->state, memory_order_acquire) == SEG_ABANDONED) {
-    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its writer; attach again", m->seg.name);
+    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its writer; attach again", VLFF_Q(m->seg.name));
     return 1;
   }
   return 0;
@@ -387,12 +387,12 @@ static int read_consistent(struct vlff_map *m, struct map_meta *mm, reader_fn fn
     if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)
       continue;
     if (!ok) {
-      shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: published map metadata is inconsistent", m->seg.name);
+      shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: published map metadata is inconsistent", VLFF_Q(m->seg.name));
       return -1;
     }
     return 0;
   }
-  shm_err(VLFF_SHM_OK, EAGAIN, "%s: writer kept overwriting the map for %d reads", m->seg.name, READ_RETRIES);
+  shm_err(VLFF_SHM_OK, EAGAIN, "%s: writer kept overwriting the map for %d reads", VLFF_Q(m->seg.name), READ_RETRIES);
   return -1;
 }
 
@@ -437,7 +437,7 @@ API int vlff_map_label_at(struct vlff_map *m, double x, double y, double z, uint
   /* A NaN or infinite coordinate names no point of the world: answering "unknown"
    * would hide a caller's broken arithmetic behind a valid-looking label. */
   if (!isfinite(x) || !isfinite(y) || !isfinite(z)) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: point (%g, %g, %g) is not finite", m->seg.name, x, y, z);
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: point (%g, %g, %g) is not finite", VLFF_Q(m->seg.name), x, y, z);
     return -1;
   }
   struct map_meta mm;
@@ -459,7 +459,7 @@ API int vlff_map_prompt(struct vlff_map *m, uint16_t label, char *out, size_t le
   if (read_consistent(m, &mm, NULL, NULL) < 0)
     return -1;
   if (label >= mm.prompt_count) {
-    shm_err(VLFF_SHM_OK, ENOENT, "%s: label %u has no prompt (%d prompts)", m->seg.name, label,
+    shm_err(VLFF_SHM_OK, ENOENT, "%s: label %u has no prompt (%d prompts)", VLFF_Q(m->seg.name), label,
             mm.prompt_count);
     return -1;
   }
@@ -625,19 +625,20 @@ API int vlff_map_set_status(struct vlff_map *m, const struct vlff_map_status *st
   if (writer_retry(m) < 0)
     return -1;
   if (st->reason_count > VLFF_SHM_MAX_REASONS) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: %u reasons, at most %d", m->seg.name, st->reason_count,
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: %u reasons, at most %d", VLFF_Q(m->seg.name),
+            st->reason_count,
             VLFF_SHM_MAX_REASONS);
     return -1;
   }
   if (!text_fits(st->state_name, sizeof st->state_name)) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: state name longer than %d bytes", m->seg.name,
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: state name longer than %d bytes", VLFF_Q(m->seg.name),
             VLFF_SHM_STATE_LEN - 1);
     return -1;
   }
   for (uint32_t i = 0; i < st->reason_count; i++)
     if (!text_fits(st->reason[i].name, sizeof st->reason[i].name) || !st->reason[i].name[0]) {
       shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: status refused: reason %u is unnamed or its name is longer than %d bytes",
-              m->seg.name, i, VLFF_SHM_REASON_LEN - 1);
+              VLFF_Q(m->seg.name), i, VLFF_SHM_REASON_LEN - 1);
       return -1;
     }
   if (shm_seg_check(&m->seg, true) < 0)
@@ -683,11 +684,11 @@ API int vlff_map_get_status(struct vlff_map *m, struct vlff_map_status *out) {
       continue;
     if (s1 == 0 || out->t_ns == 0) {
       memset(out, 0, sizeof *out);
-      shm_err(VLFF_SHM_OK, ENOENT, "%s: the writer has set no status yet", m->seg.name);
+      shm_err(VLFF_SHM_OK, ENOENT, "%s: the writer has set no status yet", VLFF_Q(m->seg.name));
       return -1;
     }
     if (out->reason_count > VLFF_SHM_MAX_REASONS) {
-      shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: status block holds %u reasons, at most %d", m->seg.name,
+      shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: status block holds %u reasons, at most %d", VLFF_Q(m->seg.name),
               out->reason_count, VLFF_SHM_MAX_REASONS);
       return -1;
     }
@@ -696,6 +697,7 @@ API int vlff_map_get_status(struct vlff_map *m, struct vlff_map_status *out) {
       out->reason[r].name[VLFF_SHM_REASON_LEN - 1] = 0;
     return 0;
   }
-  shm_err(VLFF_SHM_OK, EAGAIN, "%s: writer kept overwriting its status for %d reads", m->seg.name, READ_RETRIES);
+  shm_err(VLFF_SHM_OK, EAGAIN, "%s: writer kept overwriting its status for %d reads", VLFF_Q(m->seg.name),
+          READ_RETRIES);
   return -1;
 }

@@ -177,7 +177,7 @@ static int check_texts(const char *const *texts, int count, size_t cap, char *wh
     }
     for (int j = 0; j < i; j++)
       if (!strcmp(texts[j], t)) {
-        snprintf(why, len, "prompt %d repeats prompt %d ('%s')", i + 1, j + 1, t);
+        snprintf(why, len, "prompt %d repeats prompt %d ('%s')", i + 1, j + 1, VLFF_Q(t));
         return -1;
       }
   }
@@ -244,14 +244,15 @@ static int write_answer(struct vlff_prompts *p, uint64_t seq, int status, const 
 
 static int check_live(struct vlff_prompts *p, bool stat_it) {
   if (p->broken) {
-    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: could not be replaced after a truncation; create it again", p->seg.name);
+    shm_err(VLFF_SHM_ERR_SYS, EPIPE, "%s: could not be replaced after a truncation; create it again",
+            VLFF_Q(p->seg.name));
     return -1;
   }
   if (shm_seg_check(&p->seg, stat_it) < 0)
     return -1;
   /* A live learner repairs a forged state word at its next poll (shm_seg_validate). */
   if (atomic_load(&p->seg.h->state) == SEG_ABANDONED && !shm_hdr_creator_alive(p->seg.h)) {
-    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by the learner; attach again", p->seg.name);
+    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by the learner; attach again", VLFF_Q(p->seg.name));
     return -1;
   }
   return 0;
@@ -265,7 +266,7 @@ static uint64_t unanswered(struct vlff_prompts *p) {
 
 static int post(struct vlff_prompts *p, const struct vlff_prompt_request *req) {
   if (!p->seg.writable) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: handle is not writable", p->seg.name);
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: handle is not writable", VLFF_Q(p->seg.name));
     return -1;
   }
   uint64_t t0 = shm_now();
@@ -287,10 +288,10 @@ static int post(struct vlff_prompts *p, const struct vlff_prompt_request *req) {
       if (waiting)
         shm_err(VLFF_SHM_ERR_EXISTS, EBUSY,
                 "%s: request %llu is still waiting for the learner's answer (learner pid %d %s); not posting over it",
-                p->seg.name, (unsigned long long)waiting, (int)learner,
+                VLFF_Q(p->seg.name), (unsigned long long)waiting, (int)learner,
                 shm_creator_alive(learner, atomic_load(&p->seg.h->creator_start)) ? "running" : "not running");
       else
-        shm_err(VLFF_SHM_ERR_EXISTS, EBUSY, "%s: mailbox busy (pid %d posting)", p->seg.name, (int)holder);
+        shm_err(VLFF_SHM_ERR_EXISTS, EBUSY, "%s: mailbox busy (pid %d posting)", VLFF_Q(p->seg.name), (int)holder);
       return -1;
     }
     nanosleep(&(struct timespec){0, 1000000}, NULL);
@@ -512,7 +513,8 @@ API int vlff_prompts_poll(struct vlff_prompts *p, uint64_t *last_seq, struct vlf
       flock(p->seg.fd, LOCK_UN);
       if (still) {
         shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG,
-                "%s: request %llu was left half-written by poster pid %d, which died; discarded it", p->seg.name,
+                "%s: request %llu was left half-written by poster pid %d, which died; discarded it",
+                  VLFF_Q(p->seg.name),
                 (unsigned long long)((s1 + 1) / 2), (int)dead);
         return -1;
       }
@@ -535,7 +537,7 @@ API int vlff_prompts_poll(struct vlff_prompts *p, uint64_t *last_seq, struct vlf
     }
     if (p->seg.creator)
       write_answer(p, s1 / 2, VLFF_PROMPT_REFUSED, why);
-    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: request %llu from pid %d refused: %s", p->seg.name,
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: request %llu from pid %d refused: %s", VLFF_Q(p->seg.name),
             (unsigned long long)(s1 / 2), (int)req->poster_pid, why);
     return -1;
   }
@@ -569,12 +571,12 @@ API int vlff_prompts_wait_answer(struct vlff_prompts *p, uint64_t seq, uint64_t 
       return st;
     if (got < 0) {
       shm_err(VLFF_SHM_OK, ENOENT, "%s: the answer to request %llu is gone (%u later requests were answered since)",
-              p->seg.name, (unsigned long long)seq, ANSWER_SLOTS);
+              VLFF_Q(p->seg.name), (unsigned long long)seq, ANSWER_SLOTS);
       return -1;
     }
     if (timeout_ns != UINT64_MAX && shm_now() - t0 >= timeout_ns) {
       int32_t learner = atomic_load(&p->seg.h->creator_pid);
-      shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no answer to request %llu yet (learner pid %d %s)", p->seg.name,
+      shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no answer to request %llu yet (learner pid %d %s)", VLFF_Q(p->seg.name),
               (unsigned long long)seq, (int)learner,
               shm_creator_alive(learner, atomic_load(&p->seg.h->creator_start)) ? "running" : "not running");
       return -1;

@@ -96,7 +96,7 @@ API struct vlff_ring *vlff_ring_create(const char *name, const struct vlff_ring_
   if (!p || p->record_kind == VLFF_RECORD_ANY || p->record_kind > VLFF_RECORD_POSE || p->slots < 2 ||
       p->slot_size == 0) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: ring needs a record kind, >= 2 slots and a slot size",
-            name ? name : "(null)");
+            VLFF_Q(name ? name : "(null)"));
     return NULL;
   }
   struct vlff_ring *r = calloc(1, sizeof *r);
@@ -238,7 +238,7 @@ API int vlff_ring_commit(struct vlff_ring *r, size_t len) {
     return -1;
   }
   if (len > r->slot_size) {
-    shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %zu bytes, slots hold %llu", r->seg.name, len,
+    shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %zu bytes, slots hold %llu", VLFF_Q(r->seg.name), len,
             (unsigned long long)r->slot_size);
     return -1;
   }
@@ -264,7 +264,7 @@ API int vlff_ring_commit(struct vlff_ring *r, size_t len) {
 
 API int vlff_ring_write(struct vlff_ring *r, const void *data, size_t len) {
   if (r && len > r->slot_size) {
-    shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %zu bytes, slots hold %llu", r->seg.name, len,
+    shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %zu bytes, slots hold %llu", VLFF_Q(r->seg.name), len,
             (unsigned long long)r->slot_size);
     return -1;
   }
@@ -283,7 +283,7 @@ static int check_consumer(struct vlff_ring *r, const char *fn) {
   if (shm_seg_check(&r->seg, false) < 0)
     return -1;
   if (atomic_load_explicit(&r->seg.h->state, memory_order_acquire) == SEG_ABANDONED) {
-    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its creator; attach again", r->seg.name);
+    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its creator; attach again", VLFF_Q(r->seg.name));
     return -1;
   }
   return 0;
@@ -294,7 +294,7 @@ static int wait_for(struct vlff_ring *r, uint32_t seen, uint64_t deadline) {
   struct timespec ts;
   uint64_t now = shm_now();
   if (now >= deadline) {
-    shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no record within the timeout", r->seg.name);
+    shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no record within the timeout", VLFF_Q(r->seg.name));
     return -1;
   }
   /* A sleeper on a truncated file is never woken (the producer's wake goes to the
@@ -307,7 +307,7 @@ static int wait_for(struct vlff_ring *r, uint32_t seen, uint64_t deadline) {
   ts.tv_sec = (time_t)(d / 1000000000u);
   ts.tv_nsec = (long)(d % 1000000000u);
   if (futex(&r->ctl->futex, FUTEX_WAIT, seen, &ts) < 0 && errno == EINTR) {
-    shm_err(VLFF_SHM_OK, EINTR, "%s: wait interrupted", r->seg.name);
+    shm_err(VLFF_SHM_OK, EINTR, "%s: wait interrupted", VLFF_Q(r->seg.name));
     return -1;
   }
   return 0;
@@ -340,7 +340,7 @@ API int vlff_ring_read_begin(struct vlff_ring *r, struct vlff_ring_view *v, uint
         /* A poller is told, as a waiter is, when its file is gone from /dev/shm. */
         if (shm_seg_check(&r->seg, true) < 0)
           return -1;
-        shm_err(VLFF_SHM_OK, EAGAIN, "%s: nothing new", r->seg.name);
+        shm_err(VLFF_SHM_OK, EAGAIN, "%s: nothing new", VLFF_Q(r->seg.name));
         return -1;
       }
       if (atomic_load_explicit(&r->seg.h->state, memory_order_acquire) == SEG_ABANDONED)
@@ -397,7 +397,7 @@ API int vlff_ring_read_end(struct vlff_ring *r, const struct vlff_ring_view *v) 
   }
   if (s2 != r->read_s1) {
     r->lost++;
-    shm_err(VLFF_SHM_OK, ESTALE, "%s: record %llu overwritten while read", r->seg.name,
+    shm_err(VLFF_SHM_OK, ESTALE, "%s: record %llu overwritten while read", VLFF_Q(r->seg.name),
             (unsigned long long)v->seq);
     return -1;
   }
@@ -414,7 +414,8 @@ API ssize_t vlff_ring_read_copy(struct vlff_ring *r, void *buf, size_t cap, stru
     if (v.len > cap) {
       if (vlff_ring_read_end(r, &v) == 0)
         r->lost++; /* intact but undeliverable: skipped, so counted (a torn one already was) */
-      shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %zu bytes, buffer holds %zu", r->seg.name, v.len, cap);
+      shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %zu bytes, buffer holds %zu", VLFF_Q(r->seg.name), v.len,
+              cap);
       return -1;
     }
     shm_racy_copy(buf, v.data, v.len);
@@ -432,7 +433,7 @@ API ssize_t vlff_ring_read_latest(struct vlff_ring *r, void *buf, size_t cap, st
   for (int tries = 0; tries < 64; tries++) {
     uint64_t h = atomic_load_explicit(&r->ctl->head, memory_order_acquire);
     if (h == 0) {
-      shm_err(VLFF_SHM_OK, EAGAIN, "%s: ring is empty", r->seg.name);
+      shm_err(VLFF_SHM_OK, EAGAIN, "%s: ring is empty", VLFF_Q(r->seg.name));
       return -1;
     }
     uint64_t n = h - 1;
@@ -445,7 +446,7 @@ API ssize_t vlff_ring_read_latest(struct vlff_ring *r, void *buf, size_t cap, st
     if (len > r->slot_size)
       continue;
     if (len > cap) {
-      shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %llu bytes, buffer holds %zu", r->seg.name,
+      shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: record of %llu bytes, buffer holds %zu", VLFF_Q(r->seg.name),
               (unsigned long long)len, cap);
       return -1;
     }
@@ -459,7 +460,7 @@ API ssize_t vlff_ring_read_latest(struct vlff_ring *r, void *buf, size_t cap, st
       *info = (struct vlff_ring_view){.data = buf, .len = len, .seq = n, .generation = gen};
     return (ssize_t)len;
   }
-  shm_err(VLFF_SHM_OK, EAGAIN, "%s: producer kept overwriting the newest record", r->seg.name);
+  shm_err(VLFF_SHM_OK, EAGAIN, "%s: producer kept overwriting the newest record", VLFF_Q(r->seg.name));
   return -1;
 }
 
@@ -497,7 +498,7 @@ API int vlff_ring_wait_reader(struct vlff_ring *r, uint64_t timeout_ns) {
     if (futex(&r->ctl->futex, FUTEX_WAKE, 1, NULL) > 0)
       return 0;
     if (shm_now() - t0 >= timeout_ns) {
-      shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no consumer caught up within the timeout", r->seg.name);
+      shm_err(VLFF_SHM_OK, ETIMEDOUT, "%s: no consumer caught up within the timeout", VLFF_Q(r->seg.name));
       return -1;
     }
     struct timespec ts = {0, 200 * 1000};

@@ -154,7 +154,7 @@ void shm_racy_fill(void *dst, int c, size_t n) { memset(dst, c, n); }
 static int check_name(const char *name) {
   if (!name || name[0] != '/' || strlen(name) < 2 || strlen(name) >= 250 || strchr(name + 1, '/')) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: a segment name is '/' followed by 1..248 characters without '/'",
-            name ? name : "(null)");
+            VLFF_Q(name ? name : "(null)"));
     return -1;
   }
   return 0;
@@ -163,11 +163,11 @@ static int check_name(const char *name) {
 static int open_error(const char *name, const char *what) {
   int e = errno;
   if (e == ENOENT)
-    shm_err(VLFF_SHM_ERR_MISSING, e, "%s: no such segment", name);
+    shm_err(VLFF_SHM_ERR_MISSING, e, "%s: no such segment", VLFF_Q(name));
   else if (e == EACCES || e == EPERM)
-    shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: permission denied (%s)", name, what);
+    shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: permission denied (%s)", VLFF_Q(name), what);
   else
-    shm_err(VLFF_SHM_ERR_SYS, e, "%s: %s: %s", name, what, strerror(e));
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: %s: %s", VLFF_Q(name), what, strerror(e));
   return -1;
 }
 
@@ -180,7 +180,7 @@ static int not_regular(const char *name, const struct stat *st) {
   const char *what = S_ISFIFO(m) ? "a FIFO" : S_ISDIR(m) ? "a directory" : S_ISCHR(m) ? "a character device"
                      : S_ISBLK(m) ? "a block device" : S_ISSOCK(m) ? "a socket" : "not a regular file";
   shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: is %s, expected a regular file (/dev/shm%s, owner uid %u); refusing it",
-          name, what, name, (unsigned)st->st_uid);
+          VLFF_Q(name), what, VLFF_Q(name), (unsigned)st->st_uid);
   return -1;
 }
 
@@ -188,11 +188,11 @@ static int not_regular(const char *name, const struct stat *st) {
  * header, so 0 means not yet. */
 static int check_magic(const char *name, const struct seg_hdr *h) {
   if (h->magic == 0) {
-    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header not written yet (creator starting or died)", name);
+    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header not written yet (creator starting or died)", VLFF_Q(name));
     return -1;
   }
   if (h->magic != SEG_MAGIC) {
-    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", name,
+    shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", VLFF_Q(name),
             (unsigned long long)h->magic);
     return -1;
   }
@@ -204,32 +204,33 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
   if (check_magic(name, h) < 0)
     return -1;
   if (h->abi_version != VLFF_SHM_ABI_VERSION) {
-    shm_err(VLFF_SHM_ERR_VERSION, EPROTONOSUPPORT, "%s: ABI version %u, this library speaks %u", name,
+    shm_err(VLFF_SHM_ERR_VERSION, EPROTONOSUPPORT, "%s: ABI version %u, this library speaks %u", VLFF_Q(name),
             h->abi_version, VLFF_SHM_ABI_VERSION);
     return -1;
   }
   if (h->geom_check != shm_geom_check(h)) {
-    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: header checksum %08x does not match its fields (%08x)", name,
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: header checksum %08x does not match its fields (%08x)", VLFF_Q(name),
             h->geom_check, shm_geom_check(h));
     return -1;
   }
   if (h->kind != spec->kind) {
-    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u", name, h->kind, spec->kind);
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u", VLFF_Q(name), h->kind, spec->kind);
     return -1;
   }
   uint64_t want = spec->compute_total(h->geom);
   if (want == 0 || want != h->total_size) {
-    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: kind %u geometry inconsistent with total size %llu", name, h->kind,
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: kind %u geometry inconsistent with total size %llu", VLFF_Q(name),
+            h->kind,
             (unsigned long long)h->total_size);
     return -1;
   }
   if (spec->record_kind && h->record_kind != spec->record_kind) {
-    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u", name, h->record_kind,
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u", VLFF_Q(name), h->record_kind,
             spec->record_kind);
     return -1;
   }
   if (file_size < h->total_size) {
-    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: %llu bytes, header says %llu", name,
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: %llu bytes, header says %llu", VLFF_Q(name),
             (unsigned long long)file_size, (unsigned long long)h->total_size);
     return -1;
   }
@@ -240,16 +241,16 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
   if (st != SEG_READY && spec->kind == VLFF_SHM_KIND_PROMPTS && shm_hdr_creator_alive(h))
     return 0;
   if (st == SEG_INIT) {
-    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: creator pid %d has not finished initialising it", name,
+    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: creator pid %d has not finished initialising it", VLFF_Q(name),
             (int)h->creator_pid);
     return -1;
   }
   if (st == SEG_ABANDONED) {
-    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its creator; attach again", name);
+    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its creator; attach again", VLFF_Q(name));
     return -1;
   }
   if (st != SEG_READY) {
-    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: state word %u is not a valid state", name, st);
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: state word %u is not a valid state", VLFF_Q(name), st);
     return -1;
   }
   return 0;
@@ -262,7 +263,7 @@ static int trust_check(const char *name, const struct stat *st, const struct seg
   if (!S_ISREG(st->st_mode))
     return not_regular(name, st);
   if (t && t->check_owner && st->st_uid != t->uid) {
-    shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: owned by uid %u, expected uid %u; refusing it", name,
+    shm_err(VLFF_SHM_ERR_PERM, EACCES, "%s: owned by uid %u, expected uid %u; refusing it", VLFF_Q(name),
             (unsigned)st->st_uid, (unsigned)t->uid);
     return -1;
   }
@@ -270,7 +271,7 @@ static int trust_check(const char *name, const struct stat *st, const struct seg
   if (bits & ~allowed) {
     shm_err(VLFF_SHM_ERR_PERM, EACCES,
             "%s: mode %04o has bits beyond %04o (whoever they let in could forge or truncate it); refusing it",
-            name, (unsigned)bits, (unsigned)allowed);
+            VLFF_Q(name), (unsigned)bits, (unsigned)allowed);
     return -1;
   }
   return 0;
@@ -286,12 +287,12 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
   if ((uint64_t)st.st_size < sizeof(struct seg_hdr)) {
     uint64_t magic = 0;
     if (pread(fd, &magic, sizeof magic, 0) == (ssize_t)sizeof magic && magic != 0 && magic != SEG_MAGIC)
-      shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", name,
+      shm_err(VLFF_SHM_ERR_FOREIGN, EPROTO, "%s: magic %016llx is not a vlff segment", VLFF_Q(name),
               (unsigned long long)magic);
     else if (st.st_size == 0)
-      shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: empty (creator starting or died)", name);
+      shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: empty (creator starting or died)", VLFF_Q(name));
     else
-      shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: %lld bytes, smaller than a segment header", name,
+      shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: %lld bytes, smaller than a segment header", VLFF_Q(name),
               (long long)st.st_size);
     return -1;
   }
@@ -299,7 +300,7 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
    * any moment, and pread then fails where a mapped read would fault. */
   struct seg_hdr copy;
   if (pread(fd, &copy, sizeof copy, 0) != (ssize_t)sizeof copy) {
-    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: shrank below a segment header while attaching", name);
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: shrank below a segment header while attaching", VLFF_Q(name));
     return -1;
   }
   if (validate(name, &copy, (uint64_t)st.st_size, spec) < 0)
@@ -324,7 +325,7 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
     shm_guard_unregister(s);
     munmap(p, copy.total_size);
     s->base = NULL;
-    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header changed while attaching", name);
+    shm_err(VLFF_SHM_ERR_NOTREADY, EAGAIN, "%s: header changed while attaching", VLFF_Q(name));
     return -1;
   }
   return 0;
@@ -348,7 +349,7 @@ int shm_seg_peek(const char *name, struct seg_hdr *out) {
   ssize_t n = pread(fd, out, sizeof *out, 0);
   close(fd);
   if (n != (ssize_t)sizeof *out) {
-    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: no complete segment header", name);
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: no complete segment header", VLFF_Q(name));
     return -1;
   }
   return check_magic(name, out);
@@ -395,7 +396,7 @@ int shm_seg_check(struct seg *s, bool stat_it) {
      * another record; a creator started since has made a new one under the
      * name. The reader is told to attach again instead of waiting for ever. */
     if (!bad && !s->creator && st.st_nlink == 0) {
-      shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: removed from /dev/shm while attached; attach again", s->name);
+      shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: removed from /dev/shm while attached; attach again", VLFF_Q(s->name));
       return -1;
     }
   }
@@ -403,7 +404,7 @@ int shm_seg_check(struct seg *s, bool stat_it) {
     return 0;
   shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE,
           "%s: the segment shrank under this process (truncated by a process with write access to it); %s",
-          s->name, s->creator ? "replacing it by a new one" : "attach again");
+          VLFF_Q(s->name), s->creator ? "replacing it by a new one" : "attach again");
   return -1;
 }
 
@@ -420,10 +421,10 @@ static int reserve_pages(const char *name, int fd, uint64_t total) {
   if (e == 0)
     return 0;
   if (e == ENOSPC || e == EFBIG)
-    shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", name,
+    shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", VLFF_Q(name),
             (unsigned long long)total);
   else
-    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot reserve %llu bytes for it: %s", name, (unsigned long long)total,
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot reserve %llu bytes for it: %s", VLFF_Q(name), (unsigned long long)total,
             strerror(e));
   return -1;
 }
@@ -440,7 +441,7 @@ static int resolve_group(const char *name, const char *group, gid_t *gid) {
   char buf[4096];
   struct group gr, *res = NULL;
   if (getgrnam_r(group, &gr, buf, sizeof buf, &res) != 0 || !res) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: unknown group '%s'", name, group);
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: unknown group '%s'", VLFF_Q(name), VLFF_Q(group));
     return -1;
   }
   *gid = res->gr_gid;
@@ -453,12 +454,13 @@ static int apply_perm(const char *name, int fd, mode_t mode, const char *group) 
   if (g < 0)
     return -1;
   if (g && fchown(fd, (uid_t)-1, gid) < 0) {
-    shm_err(VLFF_SHM_ERR_PERM, errno, "%s: cannot give it to group %s: %s", name, group, strerror(errno));
+    shm_err(VLFF_SHM_ERR_PERM, errno, "%s: cannot give it to group %s: %s", VLFF_Q(name), VLFF_Q(group),
+            strerror(errno));
     return -1;
   }
   /* Explicit chmod: the umask must not widen or narrow what the config asked for. */
   if (fchmod(fd, mode) < 0) {
-    shm_err(VLFF_SHM_ERR_SYS, errno, "%s: fchmod: %s", name, strerror(errno));
+    shm_err(VLFF_SHM_ERR_SYS, errno, "%s: fchmod: %s", VLFF_Q(name), strerror(errno));
     return -1;
   }
   return 0;
@@ -493,14 +495,14 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
     shm_err(VLFF_SHM_ERR_PERM, EACCES,
             "%s: exists and belongs to uid %u, not to this process's uid %u; refusing to take it over or "
             "remove it (remove /dev/shm%s by hand if it is stale)",
-            name, (unsigned)st.st_uid, (unsigned)geteuid(), name);
+            VLFF_Q(name), (unsigned)st.st_uid, (unsigned)geteuid(), VLFF_Q(name));
     return -1;
   }
   if ((uint64_t)st.st_size < sizeof(struct seg_hdr)) {
     close(fd);
     if (st.st_size != 0) {
       shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists with %lld bytes, which no vlff segment has; not touching it",
-              name, (long long)st.st_size);
+              VLFF_Q(name), (long long)st.st_size);
       return -1;
     }
     /* A creator died between creating and sizing it. */
@@ -510,12 +512,12 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
   struct seg_hdr h;
   if (pread(fd, &h, sizeof h, 0) != (ssize_t)sizeof h) {
     close(fd);
-    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: shrank while being looked at", name);
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EBADMSG, "%s: shrank while being looked at", VLFF_Q(name));
     return -1;
   }
   if (h.magic != SEG_MAGIC && h.magic != 0) {
     close(fd);
-    shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a vlff segment; not touching it", name);
+    shm_err(VLFF_SHM_ERR_FOREIGN, EEXIST, "%s: exists and is not a vlff segment; not touching it", VLFF_Q(name));
     return -1;
   }
   int32_t pid = h.creator_pid;
@@ -525,7 +527,7 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
    * its creator: the start times tell them apart. */
   if (state != SEG_ABANDONED && pid != getpid() && shm_creator_alive(pid, start)) {
     close(fd);
-    shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: owned by live process %d", name, (int)pid);
+    shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: owned by live process %d", VLFF_Q(name), (int)pid);
     return -1;
   }
   /* In place only when nobody beyond what the configuration allows could have opened
@@ -567,7 +569,7 @@ static int try_take_over(struct seg *s, const char *name, const struct seg_spec 
         !atomic_compare_exchange_strong(&s->h->creator_pid, &pid, (int32_t)getpid())) {
       atomic_compare_exchange_strong(&s->h->creator_start, &mine, start);
       shm_seg_close(s);
-      shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: taken over by process %d meanwhile", name,
+      shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: taken over by process %d meanwhile", VLFF_Q(name),
               (int)atomic_load(&s->h->creator_pid));
       return -1;
     }
@@ -610,13 +612,13 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
   mode_t mode = perm && perm->mode ? perm->mode : 0640;
   const char *group = perm ? perm->group : NULL;
   if (mode & 0002 || mode & ~(mode_t)0777) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: mode %04o refused: world-writable or not permission bits", name,
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: mode %04o refused: world-writable or not permission bits", VLFF_Q(name),
             (unsigned)mode);
     return -1;
   }
   uint64_t total = spec->compute_total(geom);
   if (total == 0) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: invalid geometry", name);
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: invalid geometry", VLFF_Q(name));
     return -1;
   }
   for (int attempt = 0; attempt < 4; attempt++) {
@@ -635,10 +637,10 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     int bad = apply_perm(name, fd, mode, group);
     if (bad == 0 && ftruncate(fd, (off_t)total) < 0) {
       if (errno == ENOSPC || errno == EFBIG)
-        shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", name,
+        shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", VLFF_Q(name),
                 (unsigned long long)total);
       else
-        shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", name, (unsigned long long)total,
+        shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", VLFF_Q(name), (unsigned long long)total,
                 strerror(errno));
       bad = -1;
     }
@@ -686,7 +688,7 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     remember(s, spec, geom, mode, group);
     return 1;
   }
-  shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: kept reappearing while being replaced", name);
+  shm_err(VLFF_SHM_ERR_EXISTS, EEXIST, "%s: kept reappearing while being replaced", VLFF_Q(name));
   return -1;
 }
 

@@ -4,6 +4,7 @@
 #define VLFF_SHM_INTERNAL_H
 
 #include "vlff/shm.h"
+#include "vlff/escape.h" /* VLFF_Q: names and texts quoted in messages */
 
 #include <stdatomic.h>
 #include <stdbool.h>

@@ -22,7 +22,7 @@ API int vlff_shm_stat(const char *name, struct vlff_shm_info *info) {
   case VLFF_SHM_KIND_RING: spec = shm_ring_spec(0); break;
   case VLFF_SHM_KIND_MAP: spec = shm_map_spec; break;
   case VLFF_SHM_KIND_PROMPTS: spec = shm_prompts_spec; break;
-  default: shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: unknown segment kind %u", name, h.kind); return -1;
+  default: shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: unknown segment kind %u", VLFF_Q(name), h.kind); return -1;
   }
   struct seg s;
   if (shm_seg_attach(&s, name, &spec, false, NULL) < 0)

@@ -42,6 +42,7 @@
 #endif
 #ifdef VLFF_HAVE_GPIOD
 #include "gpio.h"
+#include "vlff/escape.h"
 #endif
 
 #define TAG "camd"
@@ -189,7 +190,7 @@ static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
   s->lost++;
   s->lost_at = vlff_now_ns();
   slot_close(s);
-  VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, s->cfg.camera.device,
+  VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, VLFF_Q(s->cfg.camera.device),
              (unsigned long long)s->lost, ring);
   s->next_try = vlff_now_ns() + (uint64_t)(s->backoff * 1e9);
 }
@@ -254,10 +255,10 @@ static int parse_args(struct camd *d, int argc, char **argv) {
       d->max_seconds = strtod(optarg, &end);
       if (*end || !(d->max_seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds expects a positive number");
       break;
-    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }
   }
-  if (optind != argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
+  if (optind != argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", VLFF_Q(argv[optind]));
   char ferr[512];
   d->path = vlff_config_find(d->path, ferr, sizeof ferr);
   if (!d->path) return vlff_cli_error(&cli, "%s", ferr);
@@ -312,7 +313,8 @@ static int setup_cameras(struct camd *d) {
       fprintf(stderr, "%s: %s\n", d->path, err);
       return 1;
     }
-    printf("%s: ok (%s camera '%s', %s%s%s)\n", d->path, be->name, cfg->camera.device, cfg->camera.pixel_format,
+    printf("%s: ok (%s camera '%s', %s%s%s)\n", VLFF_Q(d->path), be->name, VLFF_Q(cfg->camera.device),
+                                                                                  cfg->camera.pixel_format,
            paired ? ", range camera " : "", paired ? cfg->depth_camera.device : "");
   }
   return 0;

@@ -9,6 +9,7 @@
 #include <vlff/shm.h>
 
 #include "log.h"
+#include "vlff/escape.h"
 
 #define TAG "ring"
 
@@ -98,7 +99,7 @@ static int pose_lookup(void *ctx, uint64_t t_ns, double tol_s, double pose[16], 
       if (errno != ENOENT) vlff_warn_limited(&r->pose_warned, TAG, "pose ring: %s", vlff_shm_last_message());
       return -1;
     }
-    VLFF_INFO(TAG, "poses from %s", r->pose_name);
+    VLFF_INFO(TAG, "poses from %s", VLFF_Q(r->pose_name));
   }
   struct vlff_pose_rec rec;
   if (vlff_pose_lookup(r->pose_ring, t_ns, (uint64_t)llround(tol_s * 1e9), &rec)) {

@@ -45,6 +45,7 @@
 #include "clock.h"
 #include "config.h"
 #include "log.h"
+#include "vlff/escape.h"
 
 #define TAG "can"
 #define NS 1000000000LL
@@ -149,7 +150,7 @@ int vlff_can_check_config(const struct vlff_cfg_can *cfg, char *err, size_t errl
   const int last = base + (cfg->fd ? VLFF_CANP_STATUS_FD_OFFSET : vlff_canp_status_offset(VLFF_CANP_INGEST));
   if (cfg->interface[0] == 0 || strlen(cfg->interface) >= IFNAMSIZ) {
     snprintf(err, errlen, "key 'can.interface': expected an interface name of 1..%d characters, got '%s'",
-             IFNAMSIZ - 1, cfg->interface);
+             IFNAMSIZ - 1, VLFF_Q(cfg->interface));
     return -1;
   }
   if (node < 1 || node > 127) {

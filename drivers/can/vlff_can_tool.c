@@ -22,6 +22,7 @@
 #include "clock.h"
 #include "cli.h"
 #include "config.h"
+#include "vlff/escape.h"
 
 static const struct vlff_cli cli = {
     "vlff-can",
@@ -64,7 +65,8 @@ static long num(const char *s, const char *what, long lo, long hi) {
   errno = 0;
   long v = strtol(s, &end, 0);
   if (errno || *end || end == s || v < lo || v > hi)
-    exit(vlff_cli_usage_error(&cli, "%s: expected an integer in %ld..%ld (0x for hex), got '%s'", what, lo, hi, s));
+    exit(vlff_cli_usage_error(&cli, "%s: expected an integer in %ld..%ld (0x for hex), got '%s'", what, lo, hi,
+                              VLFF_Q(s)));
   return v;
 }
 
@@ -224,11 +226,12 @@ static int send_parse(int argc, char **argv, struct vlff_can_command *cmd) {
     if (!strcmp(argv[0], cmds[i].name)) code = cmds[i].code;
   if (code < 0)
     return vlff_cli_usage_error(&cli, "send: unknown command '%s' (start|stop|reset|save|publish|prompt-set N)",
-                                argv[0]);
+                                VLFF_Q(argv[0]));
   cmd->code = (uint8_t)code;
   int nargs = code == VLFF_CAN_CMD_PROMPT_SET ? 2 : 1;
   if (argc < nargs) return vlff_cli_usage_error(&cli, "send prompt-set needs an index");
-  if (argc > nargs) return vlff_cli_usage_error(&cli, "send %s: unexpected argument '%s'", argv[0], argv[nargs]);
+  if (argc > nargs)
+    return vlff_cli_usage_error(&cli, "send %s: unexpected argument '%s'", VLFF_Q(argv[0]), VLFF_Q(argv[nargs]));
   if (code == VLFF_CAN_CMD_PROMPT_SET) cmd->arg = (uint8_t)num(argv[1], "prompt set index", 0, 255);
   return 0;
 }
@@ -294,11 +297,12 @@ int main(int argc, char **argv) {
         errno = 0;
         seconds = strtod(optarg, &end);
         if (errno || end == optarg || *end || !(seconds > 0 && seconds <= 1e6))
-          return vlff_cli_usage_error(&cli, "--seconds: expected a number of seconds in (0, 1e6], got '%s'", optarg);
+          return vlff_cli_usage_error(&cli, "--seconds: expected a number of seconds in (0, 1e6], got '%s'",
+                                      VLFF_Q(optarg));
         break;
       case 'N': count = num(optarg, "--count", 1, LONG_MAX); break;
       case 's': seq = (int)num(optarg, "--seq", 0, 255); break;
-      default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
+      default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }
   }
   int nargs = argc - optind;
@@ -307,9 +311,9 @@ int main(int argc, char **argv) {
   if (!dbc && nargs < 2) return vlff_cli_usage_error(&cli, "expected IFACE dump, IFACE send CMD, or dbc");
   const char *verb = dbc ? "dbc" : argv[optind + 1];
   if (!dbc && strcmp(verb, "dump") && strcmp(verb, "send"))
-    return vlff_cli_usage_error(&cli, "unknown command '%s' (dump, send or dbc)", verb);
+    return vlff_cli_usage_error(&cli, "unknown command '%s' (dump, send or dbc)", VLFF_Q(verb));
   if (!strcmp(verb, "dump") && nargs != 2)
-    return vlff_cli_usage_error(&cli, "dump: unexpected argument '%s'", argv[optind + 2]);
+    return vlff_cli_usage_error(&cli, "dump: unexpected argument '%s'", VLFF_Q(argv[optind + 2]));
   struct vlff_can_command cmd = {.seq = (uint8_t)seq};
   if (!strcmp(verb, "send") && send_parse(argc - optind - 2, argv + optind + 2, &cmd)) return 2;
   static const char *const names[4] = {"--node-id", "--status-base-id", "--command-id", "--ack-id"};

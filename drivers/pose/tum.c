@@ -5,6 +5,7 @@
  * increasing in time and each one a rigid transform.
  */
 #include "tum.h"
+#include "vlff/escape.h" /* VLFF_QN: bytes of a line quoted in the reason */
 
 #include <ctype.h>
 #include <errno.h>
@@ -108,13 +109,13 @@ int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *o
       char *e;
       v[n] = strtod(s, &e); /* on a plain decimal, only its size can go wrong: overflow is infinite */
       if (e != end) {
-        snprintf(why, whylen, "field %d '%.*s' is not a number (expected t tx ty tz qx qy qz qw)", n + 1,
-                 (int)(w < 24 ? w : 24), s);
+        snprintf(why, whylen, "field %d '%s' is not a number (expected t tx ty tz qx qy qz qw)", n + 1,
+                 VLFF_QN(s, w < 24 ? w : 24));
         return VLFF_TUM_MALFORMED;
       }
     } else {
-      snprintf(why, whylen, "field %d '%.*s' is not a decimal number (expected t tx ty tz qx qy qz qw)", n + 1,
-               (int)(w < 24 ? w : 24), s);
+      snprintf(why, whylen, "field %d '%s' is not a decimal number (expected t tx ty tz qx qy qz qw)", n + 1,
+               VLFF_QN(s, w < 24 ? w : 24));
       return VLFF_TUM_MALFORMED;
     }
     if (n == 0) exact = decimal_ns(s, end, &t_ns) == 0;

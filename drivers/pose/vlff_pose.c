@@ -34,6 +34,7 @@
 #include "service.h"
 #include "tum.h"
 #include "vlff/shm.h"
+#include "vlff/escape.h"
 
 #define TAG "pose"
 #define LINE_MAX_BYTES VLFF_TUM_LINE_MAX /* a UDP datagram's size; TUM lines are far shorter */
@@ -93,7 +94,7 @@ struct reporter {
 };
 
 static void report_refusal(struct reporter *rp, const char *where, int result, const char *why) {
-  vlff_warn_limited(&rp->seen[result], TAG, "%s: refused, %s: %s%s", where, vlff_tum_result_name(result), why,
+  vlff_warn_limited(&rp->seen[result], TAG, "%s: refused, %s: %s%s", VLFF_Q(where), vlff_tum_result_name(result), why,
                     rp->seen[result] == 4 ? " (from here on every 1000th refusal for this reason is printed, all "
                                             "are counted)"
                                           : "");
@@ -130,7 +131,8 @@ static void feed(struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporte
                       where, f->p.out_of_order_reset, (double)f->reset_from_t_ns * 1e-9,
                       (double)f->last_t_ns * 1e-9);
   if (r == VLFF_TUM_OK) {
-    if (vlff_ring_write(ring, &rec, sizeof rec) != 0) VLFF_ERROR(TAG, "%s: pose ring write: %s", where, strerror(errno));
+    if (vlff_ring_write(ring, &rec, sizeof rec) != 0)
+      VLFF_ERROR(TAG, "%s: pose ring write: %s", VLFF_Q(where), strerror(errno));
   } else if (r != VLFF_TUM_SKIP) {
     report_refusal(rp, where, r, why);
   }
@@ -153,7 +155,7 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
     struct pollfd pfd = {.fd = fd, .events = POLLIN};
     int pr = poll(&pfd, 1, WAIT_MS);
     if (pr < 0 && errno != EINTR) {
-      VLFF_ERROR(TAG, "%s: poll: %s", rp->name, strerror(errno));
+      VLFF_ERROR(TAG, "%s: poll: %s", VLFF_Q(rp->name), strerror(errno));
       bad = 1;
       break;
     }
@@ -161,7 +163,7 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
     ssize_t n = read(fd, buf + len, LINE_MAX_BYTES - len);
     if (n < 0) {
       if (errno == EINTR || errno == EAGAIN) continue;
-      VLFF_ERROR(TAG, "%s: read error: %s", rp->name, strerror(errno));
+      VLFF_ERROR(TAG, "%s: read error: %s", VLFF_Q(rp->name), strerror(errno));
       bad = 1;
       break;
     }

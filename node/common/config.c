@@ -22,6 +22,7 @@
 
 #include "files.h"
 #include "vlff/shm.h" /* vlff_prompt_check: the mailbox's and the embeddings format's rule */
+#include "vlff/escape.h" /* vlff_escape: outside data quoted in messages */
 
 _Static_assert(VLFF_PROMPT_LEN == VLFF_SHM_PROMPT_LEN && VLFF_MAX_PROMPTS == VLFF_SHM_MAX_PROMPTS,
                "a configured prompt set fits the map's prompt table and the mailbox");
@@ -342,22 +343,6 @@ struct parse {
   size_t errlen;
 };
 
-/* Bytes of the file quoted in a message, with everything but printable
- * ASCII as \xNN: binary garbage in a config must not reach the terminal
- * raw (escape sequences, a NUL cutting the message short). At most max
- * input bytes are quoted. */
-static void escape(const char *s, size_t n, size_t max, char *out, size_t outlen) {
-  size_t o = 0;
-  for (size_t i = 0; i < n && i < max && o + 5 < outlen; i++) {
-    unsigned char c = (unsigned char)s[i];
-    if (c >= 0x20 && c < 0x7f)
-      out[o++] = (char)c;
-    else
-      o += (size_t)snprintf(out + o, outlen - o, "\\x%02x", c);
-  }
-  out[o] = 0;
-}
-
 static int fail(struct parse *p, const yaml_node_t *n, const char *key, const char *fmt, ...) {
   char what[512], ekey[512];
   va_list ap;
@@ -365,7 +350,7 @@ static int fail(struct parse *p, const yaml_node_t *n, const char *key, const ch
   vsnprintf(what, sizeof what, fmt, ap);
   va_end(ap);
   if (key) {
-    escape(key, strlen(key), 120, ekey, sizeof ekey);
+    vlff_escape(ekey, sizeof ekey, key, strlen(key), 120);
     key = ekey;
   }
   unsigned line = n ? (unsigned)n->start_mark.line + 1 : 0;
@@ -392,7 +377,7 @@ static const char *scalar(const yaml_node_t *n) { return (const char *)n->data.s
 static void got(const yaml_node_t *n, char *buf, size_t len) {
   if (n->type == YAML_SCALAR_NODE) {
     char e[256];
-    escape(scalar(n), n->data.scalar.length, 60, e, sizeof e);
+    vlff_escape(e, sizeof e, scalar(n), n->data.scalar.length, 60);
     /* the caller's buffer bounds the quote; an escaped value may be cut */
     snprintf(buf, len, "'%.*s'", (int)(len > 3 ? len - 3 : 0), e);
   } else {
@@ -547,7 +532,7 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
  * compare equal to the key before the NUL: refused, quoted whole. */
 static int fail_nul_key(struct parse *p, const yaml_node_t *kn, const char *prefix) {
   char e[512], path[640];
-  escape(scalar(kn), kn->data.scalar.length, 120, e, sizeof e);
+  vlff_escape(e, sizeof e, scalar(kn), kn->data.scalar.length, 120);
   snprintf(path, sizeof path, "%s%s%s", prefix, prefix[0] ? "." : "", e);
   return fail(p, kn, path, "expected a key without NUL bytes");
 }
@@ -686,7 +671,7 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
     if (!strcmp(path, PROMPT_SETS)) first = &p->sets_key;
     if (first && *first) {
       char e[256];
-      escape(scalar(*first), strlen(scalar(*first)), 120, e, sizeof e);
+      vlff_escape(e, sizeof e, scalar(*first), strlen(scalar(*first)), 120);
       return fail(p, kn, path, "duplicate key (first at line %u, written '%s')", (unsigned)(*first)->start_mark.line + 1, e);
     }
     if (first) *first = kn;
@@ -751,7 +736,7 @@ static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
   for (int i = 0; i < 5; i++) {
     const char *why = shm_name_problem(vals[i]);
     char e[256];
-    escape(vals[i], strlen(vals[i]), 60, e, sizeof e);
+    vlff_escape(e, sizeof e, vals[i], strlen(vals[i]), 60);
     if (why) return fail_cross(p, keys[i], "expected a POSIX shared-memory name (%s), got '%s'", why, e);
   }
   /* Two segments of one name would replace each other (the prompt mailbox
@@ -760,7 +745,7 @@ static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
     for (int j = 0; j < i; j++)
       if (!strcmp(vals[i], vals[j]))
         return fail_cross(p, keys[i], "expected a segment name distinct from %s, got the same '%s'", keys[j],
-                          vals[i]);
+                          VLFF_Q(vals[i]));
   return 0;
 }
 
@@ -787,7 +772,7 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
                       "with source.kind: ring use ring (an extractor) or model, or set "
                       "source.allow_sim_features: true to force it");
   if (!strstr(cfg->prompts.templ, "{}"))
-    return fail_cross(p, "prompts.template", "expected a template containing {}, got '%s'", cfg->prompts.templ);
+    return fail_cross(p, "prompts.template", "expected a template containing {}, got '%s'", VLFF_Q(cfg->prompts.templ));
   return 0;
 }
 
@@ -897,6 +882,7 @@ static int check_limits(const char *buf, size_t len, const char *name, char *err
 
 int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct vlff_config *cfg,
                          char *err, size_t errlen) {
+  name = VLFF_Q(name); /* the file's name, only ever quoted in messages below */
   struct parse p = {.name = name, .err = err, .errlen = errlen};
   struct vlff_config tmp;
   vlff_config_defaults(&tmp);
@@ -966,7 +952,7 @@ int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_
   if (fd < 0) return -1;
   FILE *f = fdopen(fd, "rb");
   if (!f) {
-    snprintf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+    snprintf(err, errlen, "%s: cannot open: %s", VLFF_Q(path), strerror(errno));
     close(fd);
     return -1;
   }
@@ -977,7 +963,7 @@ int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_
       if (cap >= (size_t)16 << 20) {
         fclose(f);
         free(buf);
-        snprintf(err, errlen, "%s: larger than 16 MiB, not a config file", path);
+        snprintf(err, errlen, "%s: larger than 16 MiB, not a config file", VLFF_Q(path));
         return -1;
       }
       cap = cap ? cap * 2 : 8192;
@@ -985,7 +971,7 @@ int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_
       if (!nb) {
         fclose(f);
         free(buf);
-        snprintf(err, errlen, "%s: out of memory", path);
+        snprintf(err, errlen, "%s: out of memory", VLFF_Q(path));
         return -1;
       }
       buf = nb;
@@ -998,7 +984,7 @@ int vlff_config_load(const char *path, struct vlff_config *cfg, char *err, size_
   fclose(f);
   if (bad) {
     free(buf);
-    snprintf(err, errlen, "%s: read error", path);
+    snprintf(err, errlen, "%s: read error", VLFF_Q(path));
     return -1;
   }
   int rc = vlff_config_load_mem(buf, len, path, cfg, err, errlen);

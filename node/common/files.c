@@ -6,6 +6,7 @@
  */
 #include "files.h"
 #include "log.h" /* vlff_errf */
+#include "vlff/escape.h" /* VLFF_Q: paths quoted in messages */
 
 #include <dirent.h>
 #include <errno.h>
@@ -29,23 +30,23 @@ static const char *kind_of(mode_t m) {
 int vlff_open_regular(const char *path, char *err, size_t errlen) {
   int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
   if (fd < 0) {
-    if (err && errlen) snprintf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "%s: cannot open: %s", VLFF_Q(path), strerror(errno));
     return -1;
   }
   struct stat st;
   if (fstat(fd, &st) < 0) {
-    if (err && errlen) snprintf(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "%s: cannot stat: %s", VLFF_Q(path), strerror(errno));
     close(fd);
     return -1;
   }
   if (!S_ISREG(st.st_mode)) {
-    if (err && errlen) snprintf(err, errlen, "%s: is %s, expected a regular file", path, kind_of(st.st_mode));
+    if (err && errlen) snprintf(err, errlen, "%s: is %s, expected a regular file", VLFF_Q(path), kind_of(st.st_mode));
     close(fd);
     return -1;
   }
   int fl = fcntl(fd, F_GETFL);
   if (fl < 0 || fcntl(fd, F_SETFL, fl & ~O_NONBLOCK) < 0) {
-    if (err && errlen) snprintf(err, errlen, "%s: fcntl: %s", path, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "%s: fcntl: %s", VLFF_Q(path), strerror(errno));
     close(fd);
     return -1;
   }
@@ -61,11 +62,11 @@ int vlff_check_regular(const char *path, char *err, size_t errlen) {
 
 int vlff_create_temp(const char *tmp, unsigned mode, char *err, size_t errlen) {
   if (unlink(tmp) < 0 && errno != ENOENT) {
-    if (err && errlen) snprintf(err, errlen, "%s: cannot remove the old temporary: %s", tmp, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "%s: cannot remove the old temporary: %s", VLFF_Q(tmp), strerror(errno));
     return -1;
   }
   int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, (mode_t)mode);
-  if (fd < 0 && err && errlen) snprintf(err, errlen, "%s: cannot create: %s", tmp, strerror(errno));
+  if (fd < 0 && err && errlen) snprintf(err, errlen, "%s: cannot create: %s", VLFF_Q(tmp), strerror(errno));
   return fd;
 }
 
@@ -73,7 +74,7 @@ int vlff_atomic_begin(struct vlff_atomic *a, const char *path, unsigned mode, ch
   size_t n = strlen(path) + 32;
   a->path = path, a->fd = -1, a->tmp = malloc(n);
   if (!a->tmp) {
-    if (err && errlen) snprintf(err, errlen, "%s: out of memory", path);
+    if (err && errlen) snprintf(err, errlen, "%s: out of memory", VLFF_Q(path));
     return -1;
   }
   snprintf(a->tmp, n, "%s.tmp.%ld", path, (long)getpid());
@@ -98,7 +99,7 @@ int vlff_atomic_commit(struct vlff_atomic *a, char *err, size_t errlen) {
   a->fd = -1;
   if (rc == 0) rc = rename(a->tmp, a->path);
   if (rc < 0) {
-    if (err && errlen) snprintf(err, errlen, "%s: write failed: %s", a->path, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "%s: write failed: %s", VLFF_Q(a->path), strerror(errno));
     vlff_atomic_abort(a);
     return -1;
   }
@@ -142,7 +143,7 @@ int vlff_write_file_atomic(const char *path, const void *data, size_t len, char 
   struct vlff_atomic a;
   if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return -1;
   if (vlff_write_all(a.fd, data, len) < 0) {
-    if (err && errlen) snprintf(err, errlen, "%s: write failed: %s", a.tmp, strerror(errno));
+    if (err && errlen) snprintf(err, errlen, "%s: write failed: %s", VLFF_Q(a.tmp), strerror(errno));
     vlff_atomic_abort(&a);
     return -1;
   }
@@ -197,25 +198,25 @@ int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, cha
   FILE *f = fdopen(fd, "rb");
   if (!f) {
     close(fd);
-    vlff_errf(err, errlen, "%s: cannot open: %s", path, strerror(errno));
+    vlff_errf(err, errlen, "%s: cannot open: %s", VLFF_Q(path), strerror(errno));
     return -1;
   }
   struct stat st;
   if (fstat(fileno(f), &st) < 0) {
     fclose(f);
-    vlff_errf(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
+    vlff_errf(err, errlen, "%s: cannot stat: %s", VLFF_Q(path), strerror(errno));
     return -1;
   }
   if ((size_t)st.st_size > max) {
     fclose(f);
-    vlff_errf(err, errlen, "%s: %lld bytes, more than the %zu this file may have", path,
+    vlff_errf(err, errlen, "%s: %lld bytes, more than the %zu this file may have", VLFF_Q(path),
            (long long)st.st_size, max);
     return -1;
   }
   uint8_t *b = malloc((size_t)st.st_size + 1);
   if (!b) {
     fclose(f);
-    vlff_errf(err, errlen, "%s: out of memory", path);
+    vlff_errf(err, errlen, "%s: out of memory", VLFF_Q(path));
     return -1;
   }
   size_t n = fread(b, 1, (size_t)st.st_size, f);
@@ -223,7 +224,7 @@ int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, cha
   fclose(f);
   if (bad || n != (size_t)st.st_size) {
     free(b);
-    vlff_errf(err, errlen, "%s: read error", path);
+    vlff_errf(err, errlen, "%s: read error", VLFF_Q(path));
     return -1;
   }
   b[n] = 0;

@@ -39,6 +39,7 @@
 #ifdef VLFF_HAVE_VLM
 #include "image_encoder.h"
 #include "text_encoder.h"
+#include "vlff/escape.h"
 #endif
 
 #define TAG "node"
@@ -146,7 +147,8 @@ static int embed_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN
     if (n->emb_file) {
       const float *v = vlff_embeddings_lookup(n->emb_file, texts[i]);
       if (!v) {
-        snprintf(err, errlen, "prompt '%s': not in the embeddings file %s", texts[i], n->cfg.prompts.embeddings);
+        snprintf(err, errlen, "prompt '%s': not in the embeddings file %s", VLFF_Q(texts[i]),
+                 VLFF_Q(n->cfg.prompts.embeddings));
         return -1;
       }
       memcpy(o, v, (size_t)d * sizeof(float));
@@ -157,7 +159,8 @@ static int embed_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN
     } else if (n->hooks.embed) {
       if (n->hooks.embed(n->hooks.ctx, texts[i], o, err, errlen)) return -1;
     } else {
-      snprintf(err, errlen, "prompt '%s': no text encoder (set prompts.embeddings or vlm.text_model)", texts[i]);
+      snprintf(err, errlen, "prompt '%s': no text encoder (set prompts.embeddings or vlm.text_model)",
+               VLFF_Q(texts[i]));
       return -1;
     }
   }
@@ -311,7 +314,7 @@ static void attach_refused(int *last, const char *what, const char *name) {
   int code = vlff_shm_last_error();
   if (code == *last) return;
   *last = code;
-  VLFF_WARN(TAG, "waiting for %s %s: %s", what, name, vlff_shm_last_message());
+  VLFF_WARN(TAG, "waiting for %s %s: %s", what, VLFF_Q(name), vlff_shm_last_message());
 }
 
 /* Only rings of this node's uid, within the configured mode: anyone else able
@@ -326,7 +329,7 @@ static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uin
     atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
     struct vlff_ring *r = attach_input(n, name, kind);
     if (r) {
-      VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", name, vlff_ring_slots(r),
+      VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", VLFF_Q(name), vlff_ring_slots(r),
                 (unsigned long long)vlff_ring_slot_size(r));
       return r;
     }
@@ -897,7 +900,7 @@ static int save_checkpoint(struct vlff_node *n) {
   n->st.error_flags &= ~(unsigned)VLFF_NODE_ERR_CHECKPOINT;
   pthread_mutex_unlock(&n->slock);
   n->ckpt_steps = steps;
-  VLFF_INFO(TAG, "checkpoint %s at step %lld", path, steps);
+  VLFF_INFO(TAG, "checkpoint %s at step %lld", VLFF_Q(path), steps);
   return 0;
 }
 
@@ -925,7 +928,7 @@ static void restore_checkpoint(struct vlff_node *n) {
     if (!have[i]) continue;
     char err[256];
     if (vlff_field_load(n->field, path[i], err, sizeof err) == 0) {
-      VLFF_INFO(TAG, "resumed from %s at step %lld", path[i], vlff_field_steps(n->field));
+      VLFF_INFO(TAG, "resumed from %s at step %lld", VLFF_Q(path[i]), vlff_field_steps(n->field));
       n->resumed = true;
       n->ckpt_steps = vlff_field_steps(n->field);
       n->ckpt_slot = i ^ 1;
@@ -1406,7 +1409,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   pthread_mutex_init(&n->slock, NULL);
 
   if (mkdir(cfg->node.state_dir, 0750) != 0 && errno != EEXIST) {
-    snprintf(err, errlen, "node.state_dir '%s': %s", cfg->node.state_dir, strerror(errno));
+    snprintf(err, errlen, "node.state_dir '%s': %s", VLFF_Q(cfg->node.state_dir), strerror(errno));
     goto fail;
   }
   n->field = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, errlen);

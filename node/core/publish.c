@@ -23,6 +23,7 @@
 #include "select.h"
 #include "mem.h"
 #include "vlff/shm.h"
+#include "vlff/escape.h"
 
 #define TAG "publish"
 
@@ -340,12 +341,12 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     /* The map's observations hold without it, as in a file saved without
      * evidence. */
     if (erc > 0) {
-      VLFF_WARN(TAG, "%s: %s; the map goes on without it", path, eerr);
+      VLFF_WARN(TAG, "%s: %s; the map goes on without it", VLFF_Q(path), eerr);
       vlff_evidence_reset(p->ev);
     } else if (vlff_evidence_evicted(p->ev))
       VLFF_WARN(TAG, "%s: its evidence holds more voxels than publish.evidence_max_mb (%zu MB, %zu voxels); the %lld "
                      "least-observed were given up",
-                path, p->ev_budget >> 20, vlff_evidence_capacity(p->ev), vlff_evidence_evicted(p->ev));
+                VLFF_Q(path), p->ev_budget >> 20, vlff_evidence_capacity(p->ev), vlff_evidence_evicted(p->ev));
   } else if (p->ev) {
     vlff_evidence_reset(p->ev);
   }
@@ -507,9 +508,10 @@ static void report_lost(struct vlff_publisher *p, const char *const *prompts, in
       VLFF_INFO("publish",
                 "the field labels '%s' at %llu map points, the evidence at %llu: a class it has given away, read "
                 "from the evidence there",
-                prompts[c], nf, ne);
+                VLFF_Q(prompts[c]), nf, ne);
     else
-      VLFF_INFO("publish", "the field keeps '%s' again (%llu map points, the evidence %llu)", prompts[c], nf, ne);
+      VLFF_INFO("publish", "the field keeps '%s' again (%llu map points, the evidence %llu)", VLFF_Q(prompts[c]), nf,
+                ne);
   }
   p->lost_mask = mask;
 }

@@ -21,6 +21,7 @@
 
 #include "bounds.h"
 #include "dataset_internal.h"
+#include "vlff/escape.h"
 #include "files.h"
 #include "mem.h"
 
@@ -86,7 +87,7 @@ static int list_stems(const char *dir, const char *exts, struct stems *st, char 
   memset(st, 0, sizeof *st);
   DIR *d = opendir(dir);
   if (!d) {
-    seterr(err, errlen, "%s: cannot open directory: %s", dir, strerror(errno));
+    seterr(err, errlen, "%s: cannot open directory: %s", VLFF_Q(dir), strerror(errno));
     return -1;
   }
   struct dirent *e;
@@ -105,13 +106,13 @@ static int list_stems(const char *dir, const char *exts, struct stems *st, char 
     size_t sl = (size_t)(dot - e->d_name);
     if (sl >= VLFF_DS_NAME) {
       closedir(d);
-      seterr(err, errlen, "%s/%s: file name too long", dir, e->d_name);
+      seterr(err, errlen, "%s/%s: file name too long", VLFF_Q(dir), VLFF_Q(e->d_name));
       free(st->s);
       return -1;
     }
     if (st->ext[0] && strcmp(st->ext, ext)) {
       closedir(d);
-      seterr(err, errlen, "%s: mixes %s and %s files", dir, st->ext, ext);
+      seterr(err, errlen, "%s: mixes %s and %s files", VLFF_Q(dir), st->ext, ext);
       free(st->s);
       return -1;
     }
@@ -122,7 +123,7 @@ static int list_stems(const char *dir, const char *exts, struct stems *st, char 
       if (!p) {
         closedir(d);
         free(st->s);
-        seterr(err, errlen, "%s: out of memory", dir);
+        seterr(err, errlen, "%s: out of memory", VLFF_Q(dir));
         return -1;
       }
       st->s = p, st->cap = nc;
@@ -177,42 +178,42 @@ static herr_t h5_first_dataset(hid_t g, const char *name, const H5L_info_t *info
 static int features_probe(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
   struct stat fst;
   if (stat(path, &fst) < 0) {
-    seterr(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
+    seterr(err, errlen, "%s: cannot stat: %s", VLFF_Q(path), strerror(errno));
     return -1;
   }
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) {
-    seterr(err, errlen, "%s: not a readable HDF5 file", path);
+    seterr(err, errlen, "%s: not a readable HDF5 file", VLFF_Q(path));
     return -1;
   }
   int rc = -1;
   hid_t g = -1, d = -1, sp = -1, ty = -1;
   g = H5Gopen2(f, "features", H5P_DEFAULT);
   if (g < 0) {
-    seterr(err, errlen, "%s: no group 'features'", path);
+    seterr(err, errlen, "%s: no group 'features'", VLFF_Q(path));
     goto out;
   }
   struct h5find fd = {.found = 0};
   H5Literate(g, H5_INDEX_NAME, H5_ITER_INC, NULL, h5_first_dataset, &fd);
   if (!fd.found) {
-    seterr(err, errlen, "%s: group 'features' holds no dataset", path);
+    seterr(err, errlen, "%s: group 'features' holds no dataset", VLFF_Q(path));
     goto out;
   }
   d = H5Dopen2(g, fd.name, H5P_DEFAULT);
   sp = d >= 0 ? H5Dget_space(d) : -1;
   ty = d >= 0 ? H5Dget_type(d) : -1;
   if (d < 0 || sp < 0 || ty < 0) {
-    seterr(err, errlen, "%s: features/%s cannot be opened", path, fd.name);
+    seterr(err, errlen, "%s: features/%s cannot be opened", VLFF_Q(path), VLFF_Q(fd.name));
     goto out;
   }
   hsize_t dims[4];
   if (H5Sget_simple_extent_ndims(sp) != 4 || H5Sget_simple_extent_dims(sp, dims, NULL) != 4) {
-    seterr(err, errlen, "%s: features/%s must be 4-D [N,H,W,C]", path, fd.name);
+    seterr(err, errlen, "%s: features/%s must be 4-D [N,H,W,C]", VLFF_Q(path), VLFF_Q(fd.name));
     goto out;
   }
   if (H5Tget_class(ty) != H5T_FLOAT) {
-    seterr(err, errlen, "%s: features/%s is not floating point", path, fd.name);
+    seterr(err, errlen, "%s: features/%s is not floating point", VLFF_Q(path), VLFF_Q(fd.name));
     goto out;
   }
   /* One map per usable frame, or one per frame the scene lists (a feature
@@ -226,7 +227,7 @@ static int features_probe(struct vlff_dataset *ds, const char *path, char *err, 
       snprintf(also, sizeof also, " (or %d, every frame listed, %d of them skipped for lost tracking)",
                ds->n_listed, ds->skipped);
     seterr(err, errlen, "%s: features/%s has shape [%llu,%llu,%llu,%llu]; expected N=%d frames%s and sane sizes",
-           path, fd.name, (unsigned long long)dims[0], (unsigned long long)dims[1],
+           VLFF_Q(path), VLFF_Q(fd.name), (unsigned long long)dims[0], (unsigned long long)dims[1],
            (unsigned long long)dims[2], (unsigned long long)dims[3], ds->n, also);
     goto out;
   }
@@ -237,7 +238,7 @@ static int features_probe(struct vlff_dataset *ds, const char *path, char *err, 
   unsigned long long frame_bytes = (unsigned long long)dims[1] * dims[2] * dims[3] * sizeof(uint16_t);
   if (frame_bytes > VLFF_DS_MAX_FEATURE_FRAME_BYTES) {
     seterr(err, errlen, "%s: features/%s claims %llu bytes per frame ([%llu,%llu,%llu] float16), more than the %llu allowed",
-           path, fd.name, frame_bytes, (unsigned long long)dims[1], (unsigned long long)dims[2],
+           VLFF_Q(path), VLFF_Q(fd.name), frame_bytes, (unsigned long long)dims[1], (unsigned long long)dims[2],
            (unsigned long long)dims[3], (unsigned long long)VLFF_DS_MAX_FEATURE_FRAME_BYTES);
     goto out;
   }
@@ -249,7 +250,8 @@ static int features_probe(struct vlff_dataset *ds, const char *path, char *err, 
     unsigned long long need = nfilters == 0 ? raw : raw / 1032;
     if (nfilters < 0 || stored < need || (unsigned long long)fst.st_size < need) {
       seterr(err, errlen, "%s: features/%s claims shape [%llu,%llu,%llu,%llu] (%llu bytes) but the file stores %llu bytes of it",
-             path, fd.name, (unsigned long long)dims[0], (unsigned long long)dims[1], (unsigned long long)dims[2],
+             VLFF_Q(path), VLFF_Q(fd.name), (unsigned long long)dims[0], (unsigned long long)dims[1],
+               (unsigned long long)dims[2],
              (unsigned long long)dims[3], raw, stored);
       goto out;
     }
@@ -281,21 +283,21 @@ static int check_intrinsics(struct vlff_dataset *ds, const double K[16], const c
                             size_t errlen) {
   ds->fx = K[0], ds->fy = K[5], ds->cx = K[2], ds->cy = K[6];
   if (!(ds->fx > 0) || !(ds->fy > 0)) {
-    seterr(err, errlen, "%s: focal lengths fx=%g fy=%g must be positive", path, ds->fx, ds->fy);
+    seterr(err, errlen, "%s: focal lengths fx=%g fy=%g must be positive", VLFF_Q(path), ds->fx, ds->fy);
     return -1;
   }
   if (!(ds->cx > 0 && ds->cx < ds->width) || !(ds->cy > 0 && ds->cy < ds->height)) {
-    seterr(err, errlen, "%s: principal point (%g, %g) lies outside the %dx%d image", path, ds->cx, ds->cy,
+    seterr(err, errlen, "%s: principal point (%g, %g) lies outside the %dx%d image", VLFF_Q(path), ds->cx, ds->cy,
            ds->width, ds->height);
     return -1;
   }
   if (fabs(K[8]) > 1e-9 || fabs(K[9]) > 1e-9 || fabs(K[10] - 1) > 1e-9 || fabs(K[4]) > 1e-9) {
-    seterr(err, errlen, "%s: not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1])", path);
+    seterr(err, errlen, "%s: not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1])", VLFF_Q(path));
     return -1;
   }
   char why[200];
   if (vlff_intrinsics_plausible(ds->width, ds->height, ds->fx, ds->fy, ds->cx, ds->cy, why, sizeof why)) {
-    seterr(err, errlen, "%s: not a physical camera for the %dx%d images: %s", path, ds->width, ds->height, why);
+    seterr(err, errlen, "%s: not a physical camera for the %dx%d images: %s", VLFF_Q(path), ds->width, ds->height, why);
     return -1;
   }
   return 0;
@@ -324,7 +326,7 @@ static int find_sens(const char *dir, char *out, char *err, size_t errlen) {
   }
   free(st.s);
   if (n > 1) {
-    seterr(err, errlen, "%s: %d .sens files; name the one to read", dir, n);
+    seterr(err, errlen, "%s: %d .sens files; name the one to read", VLFF_Q(dir), n);
     return -1;
   }
   return n;
@@ -383,7 +385,7 @@ static int open_labels(struct vlff_dataset *ds, const char *dir, const struct vl
     }
     if (!tsv[0]) {
       seterr(err, errlen, "%s: label-filt/ holds ScanNet label ids, but scannetv2-labels.combined.tsv is neither "
-                          "given nor in the scene directory or its two parents", dir);
+                          "given nor in the scene directory or its two parents", VLFF_Q(dir));
       return -1;
     }
     if (vlff_scannet_labels_load(ds, tsv, o->label_set, err, errlen) < 0) return -1;
@@ -393,7 +395,7 @@ static int open_labels(struct vlff_dataset *ds, const char *dir, const struct vl
     snprintf(name, sizeof name, "%s/%s.png", ds->label_dir, ds->stem[i]);
     join(q, dir, name);
     if (!is_file(q)) {
-      seterr(err, errlen, "%s: missing (%s/ must label every frame)", q, ds->label_dir);
+      seterr(err, errlen, "%s: missing (%s/ must label every frame)", VLFF_Q(q), ds->label_dir);
       return -1;
     }
   }
@@ -414,7 +416,7 @@ static int choose_layout(const char *dir, int layout, char sens[PATHMAX], char *
     if (found < 0) return -1;
     if (found) layout = VLFF_DS_SENS;
     else if (layout == VLFF_DS_SENS) {
-      seterr(err, errlen, "%s: no .sens file", dir);
+      seterr(err, errlen, "%s: no .sens file", VLFF_Q(dir));
       return -1;
     }
   }
@@ -422,7 +424,8 @@ static int choose_layout(const char *dir, int layout, char sens[PATHMAX], char *
     if (is_dir(p)) layout = VLFF_DS_REFERENCE;
     else if (is_dir(q)) layout = VLFF_DS_SCANNET;
     else {
-      seterr(err, errlen, "%s: neither rgb/ (reference layout), color/ (ScanNet export) nor a .sens file found", dir);
+      seterr(err, errlen, "%s: neither rgb/ (reference layout), color/ (ScanNet export) nor a .sens file found",
+             VLFF_Q(dir));
       return -1;
     }
   }
@@ -438,7 +441,7 @@ static int list_frames(struct vlff_dataset *ds, const char *dir, struct stems *r
   join(p, dir, ds->layout == VLFF_DS_REFERENCE ? "rgb" : "color");
   if (list_stems(p, ".png,.jpg,.jpeg", rgb, err, errlen) < 0) return -1;
   if (rgb->n == 0) {
-    seterr(err, errlen, "%s: no .png or .jpg images", p);
+    seterr(err, errlen, "%s: no .png or .jpg images", VLFF_Q(p));
     free(rgb->s);
     return -1;
   }
@@ -458,10 +461,10 @@ static int list_frames(struct vlff_dataset *ds, const char *dir, struct stems *r
     if (bad < 0 && o.n != rgb->n) bad = rgb->n;
     if (bad >= 0) {
       if (bad < rgb->n)
-        seterr(err, errlen, "%s/%s%s: missing (there is an image %s%s)", p, rgb->s[bad], ext[k], rgb->s[bad],
-               rgb->ext);
+        seterr(err, errlen, "%s/%s%s: missing (there is an image %s%s)", VLFF_Q(p), VLFF_Q(rgb->s[bad]), ext[k],
+               VLFF_Q(rgb->s[bad]), rgb->ext);
       else
-        seterr(err, errlen, "%s/%s%s: no matching image", p, o.s[bad], ext[k]);
+        seterr(err, errlen, "%s/%s%s: no matching image", VLFF_Q(p), VLFF_Q(o.s[bad]), ext[k]);
       free(o.s), free(rgb->s);
       return -1;
     }
@@ -482,7 +485,7 @@ static int read_poses(struct vlff_dataset *ds, const char *dir, const struct ste
   ds->listed = calloc((size_t)rgb->n, sizeof *ds->listed);
   ds->n_listed = rgb->n;
   if (!ds->stem || !ds->c2w || !ds->listed) {
-    seterr(err, errlen, "%s: out of memory", dir);
+    seterr(err, errlen, "%s: out of memory", VLFF_Q(dir));
     return -1;
   }
   for (int i = 0; i < rgb->n; i++) {
@@ -508,7 +511,7 @@ static int read_poses(struct vlff_dataset *ds, const char *dir, const struct ste
     ds->listed[ds->n++] = i;
   }
   if (ds->n == 0) {
-    seterr(err, errlen, "%s: every frame's pose is invalid", dir);
+    seterr(err, errlen, "%s: every frame's pose is invalid", VLFF_Q(dir));
     return -1;
   }
   return 0;
@@ -529,7 +532,7 @@ static int read_cameras(struct vlff_dataset *ds, const char *dir, char *err, siz
     int ok = im.channels == 3 && !im.depth16;
     vlff_image_free(&im);
     if (!ok) {
-      seterr(err, errlen, "%s: expected an 8-bit RGB image", p);
+      seterr(err, errlen, "%s: expected an 8-bit RGB image", VLFF_Q(p));
       return -1;
     }
   }
@@ -574,12 +577,12 @@ static int check_positions(const struct vlff_dataset *ds, const char *dir, const
     if (vlff_pose_plausible(ds->c2w + (size_t)i * 16, ds->has_bbox ? ds->bbox_lo : NULL,
                             ds->has_bbox ? ds->bbox_hi : NULL, why, sizeof why)) {
       if (ds->layout == VLFF_DS_SENS) {
-        seterr(err, errlen, "%s: frame %s: %s", sens, ds->stem[i], why);
+        seterr(err, errlen, "%s: frame %s: %s", VLFF_Q(sens), VLFF_Q(ds->stem[i]), why);
       } else {
         char name[VLFF_DS_NAME + 8], p[PATHMAX];
         snprintf(name, sizeof name, "pose/%s.txt", ds->stem[i]);
         join(p, dir, name);
-        seterr(err, errlen, "%s: %s", p, why);
+        seterr(err, errlen, "%s: %s", VLFF_Q(p), why);
       }
       return -1;
     }
@@ -605,11 +608,11 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
   if (!opts) opts = &defaults;
   memset(ds, 0, sizeof *ds);
   if (strlen(dir) >= sizeof ds->dir - 64) {
-    seterr(err, errlen, "%s: path too long", dir);
+    seterr(err, errlen, "%s: path too long", VLFF_Q(dir));
     return -1;
   }
   if (opts->label_set != VLFF_LABELS_SCANNET20 && opts->label_set != VLFF_LABELS_NYU40) {
-    seterr(err, errlen, "%s: unknown label set %d", dir, opts->label_set);
+    seterr(err, errlen, "%s: unknown label set %d", VLFF_Q(dir), opts->label_set);
     return -1;
   }
   snprintf(ds->dir, sizeof ds->dir, "%s", dir);
@@ -672,7 +675,7 @@ static int read_registered(const struct vlff_dataset *ds, int i, uint8_t *rgb, f
       join(p, ds->dir, name);
       if (vlff_image_read(p, &im, err, errlen) < 0) goto out;
       if (im.width != ds->color_width || im.height != ds->color_height || im.channels != 3 || im.depth16) {
-        seterr(err, errlen, "%s: %dx%d %d-channel; expected %dx%d RGB8 like the first frame", p, im.width,
+        seterr(err, errlen, "%s: %dx%d %d-channel; expected %dx%d RGB8 like the first frame", VLFF_Q(p), im.width,
                im.height, im.channels, ds->color_width, ds->color_height);
         goto out;
       }
@@ -683,7 +686,7 @@ static int read_registered(const struct vlff_dataset *ds, int i, uint8_t *rgb, f
       join(p, ds->dir, name);
       if (vlff_image_read(p, &dim, err, errlen) < 0) goto out;
       if (dim.width != ds->depth_width || dim.height != ds->depth_height || dim.channels != 1 || !dim.depth16) {
-        seterr(err, errlen, "%s: expected a %dx%d 16-bit single-channel PNG (millimetres)", p, ds->depth_width,
+        seterr(err, errlen, "%s: expected a %dx%d 16-bit single-channel PNG (millimetres)", VLFF_Q(p), ds->depth_width,
                ds->depth_height);
         goto out;
       }
@@ -693,7 +696,7 @@ static int read_registered(const struct vlff_dataset *ds, int i, uint8_t *rgb, f
   if (rgb) vlff_scannet_resample_rgb(ds, crgb, rgb);
   if (depth) vlff_scannet_register_depth(ds, dmm, scale, depth);
   if (label && !ds->has_labels) {
-    seterr(err, errlen, "%s: no gt_semantic/ or label-filt/ labels", ds->dir);
+    seterr(err, errlen, "%s: no gt_semantic/ or label-filt/ labels", VLFF_Q(ds->dir));
     goto out;
   }
   rc = label ? read_label(ds, i, label, err, errlen) : 0;
@@ -707,7 +710,7 @@ out:
 int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, float *depth,
                             uint8_t *label, char *err, size_t errlen) {
   if (i < 0 || i >= ds->n) {
-    seterr(err, errlen, "%s: frame %d out of range 0..%d", ds->dir, i, ds->n - 1);
+    seterr(err, errlen, "%s: frame %d out of range 0..%d", VLFF_Q(ds->dir), i, ds->n - 1);
     return -1;
   }
   if (ds->registered) return read_registered(ds, i, rgb, depth, label, err, errlen);
@@ -720,7 +723,7 @@ int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, 
     join(p, ds->dir, name);
     if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
     if (im.width != W || im.height != H || im.channels != 3 || im.depth16) {
-      seterr(err, errlen, "%s: %dx%d %d-channel %d-bit; expected %dx%d RGB8 like the first frame", p,
+      seterr(err, errlen, "%s: %dx%d %d-channel %d-bit; expected %dx%d RGB8 like the first frame", VLFF_Q(p),
              im.width, im.height, im.channels, im.depth16 ? 16 : 8, W, H);
       vlff_image_free(&im);
       return -1;
@@ -733,13 +736,13 @@ int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, 
     join(p, ds->dir, name);
     if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
     if (im.channels != 1 || !im.depth16) {
-      seterr(err, errlen, "%s: depth must be a 16-bit single-channel PNG (millimetres)", p);
+      seterr(err, errlen, "%s: depth must be a 16-bit single-channel PNG (millimetres)", VLFF_Q(p));
       vlff_image_free(&im);
       return -1;
     }
     if ((long long)im.width * H != (long long)im.height * W) {
       /* a different aspect ratio cannot share the colour intrinsics */
-      seterr(err, errlen, "%s: %dx%d does not have the colour images' %dx%d aspect", p, im.width,
+      seterr(err, errlen, "%s: %dx%d does not have the colour images' %dx%d aspect", VLFF_Q(p), im.width,
              im.height, W, H);
       vlff_image_free(&im);
       return -1;
@@ -754,7 +757,7 @@ int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, 
   }
   if (label) {
     if (!ds->has_labels) {
-      seterr(err, errlen, "%s: no gt_semantic/ labels", ds->dir);
+      seterr(err, errlen, "%s: no gt_semantic/ labels", VLFF_Q(ds->dir));
       return -1;
     }
     if (ds->label_map) return read_label(ds, i, label, err, errlen);
@@ -762,7 +765,7 @@ int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, 
     join(p, ds->dir, name);
     if (vlff_image_read(p, &im, err, errlen) < 0) return -1;
     if (im.channels != 1 || im.width != W || im.height != H) {
-      seterr(err, errlen, "%s: labels must be single-channel %dx%d, got %dx%d with %d channels", p, W, H,
+      seterr(err, errlen, "%s: labels must be single-channel %dx%d, got %dx%d with %d channels", VLFF_Q(p), W, H,
              im.width, im.height, im.channels);
       vlff_image_free(&im);
       return -1;
@@ -779,11 +782,11 @@ int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, 
 int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *out, char *err,
                                size_t errlen) {
   if (!ds->has_features) {
-    seterr(err, errlen, "%s: no features.hdf", ds->dir);
+    seterr(err, errlen, "%s: no features.hdf", VLFF_Q(ds->dir));
     return -1;
   }
   if (i < 0 || i >= ds->n) {
-    seterr(err, errlen, "%s: frame %d out of range", ds->dir, i);
+    seterr(err, errlen, "%s: frame %d out of range", VLFF_Q(ds->dir), i);
     return -1;
   }
 #ifdef VLFF_HAVE_HDF5
@@ -794,7 +797,7 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   hid_t f = H5Fopen(p, H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) {
-    seterr(err, errlen, "%s: cannot open", p);
+    seterr(err, errlen, "%s: cannot open", VLFF_Q(p));
     return -1;
   }
   hid_t d = H5Dopen2(f, dname, H5P_DEFAULT);
@@ -808,8 +811,9 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
       H5Dread(d, ht, ms, fs, H5P_DEFAULT, out) >= 0)
     rc = 0;
   else
-    seterr(err, errlen, "%s: reading %s frame %d failed (compressed with a filter this libhdf5 lacks, e.g. lzf?)", p,
-           dname, i);
+    seterr(err, errlen, "%s: reading %s frame %d failed (compressed with a filter this libhdf5 lacks, e.g. lzf?)",
+           VLFF_Q(p),
+           VLFF_Q(dname), i);
   H5Sclose(ms);
   H5Tclose(ht);
   if (fs >= 0) H5Sclose(fs);
@@ -820,13 +824,13 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
     size_t n = (size_t)ds->feat_height * ds->feat_width * ds->feature_dim;
     for (size_t k = 0; k < n; k++)
       if ((out[k] & 0x7c00u) == 0x7c00u) {
-        seterr(err, errlen, "%s: %s frame %d has a non-finite value at element %zu", p, dname, i, k);
+        seterr(err, errlen, "%s: %s frame %d has a non-finite value at element %zu", VLFF_Q(p), VLFF_Q(dname), i, k);
         return -1;
       }
   }
   return rc;
 #else
-  seterr(err, errlen, "%s: this build has no HDF5 support", ds->dir);
+  seterr(err, errlen, "%s: this build has no HDF5 support", VLFF_Q(ds->dir));
   return -1;
 #endif
 }
@@ -845,11 +849,11 @@ struct vlff_dataset_writer {
 
 static int mkdir_p1(const char *p, char *err, size_t errlen) {
   if (mkdir(p, 0755) < 0 && errno != EEXIST) {
-    seterr(err, errlen, "%s: cannot create directory: %s", p, strerror(errno));
+    seterr(err, errlen, "%s: cannot create directory: %s", VLFF_Q(p), strerror(errno));
     return -1;
   }
   if (!is_dir(p)) {
-    seterr(err, errlen, "%s: exists and is not a directory", p);
+    seterr(err, errlen, "%s: exists and is not a directory", VLFF_Q(p));
     return -1;
   }
   return 0;
@@ -887,11 +891,11 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
   if (nframes < 1 || width < 1 || height < 1 || !(fx > 0) || !(fy > 0) || feature_dim < 0 ||
       (feature_dim > 0 && (feat_width < 1 || feat_height < 1 || !feat_name || !feat_name[0] ||
                         strlen(feat_name) >= VLFF_DS_NAME || strchr(feat_name, '/')))) {
-    seterr(err, errlen, "%s: invalid dataset shape", dir);
+    seterr(err, errlen, "%s: invalid dataset shape", VLFF_Q(dir));
     return NULL;
   }
   if (strlen(dir) > 4000) {
-    seterr(err, errlen, "%s: path too long", dir);
+    seterr(err, errlen, "%s: path too long", VLFF_Q(dir));
     return NULL;
   }
   struct vlff_dataset_writer *w = calloc(1, sizeof *w);
@@ -926,7 +930,7 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
     snprintf(w->h5tmp, sizeof w->h5tmp, "%s/features.hdf.tmp.%ld", dir, (long)getpid());
     w->file = H5Fcreate(w->h5tmp, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
     if (w->file < 0) {
-      seterr(err, errlen, "%s: cannot create HDF5 file", w->h5tmp);
+      seterr(err, errlen, "%s: cannot create HDF5 file", VLFF_Q(w->h5tmp));
       goto fail;
     }
     hid_t g = H5Gcreate2(w->file, "features", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
@@ -941,11 +945,11 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
     H5Sclose(sp);
     if (g >= 0) H5Gclose(g);
     if (w->dset < 0) {
-      seterr(err, errlen, "%s: cannot create dataset features/%s", w->h5tmp, feat_name);
+      seterr(err, errlen, "%s: cannot create dataset features/%s", VLFF_Q(w->h5tmp), VLFF_Q(feat_name));
       goto fail;
     }
 #else
-    seterr(err, errlen, "%s: features need HDF5, which this build was configured without", dir);
+    seterr(err, errlen, "%s: features need HDF5, which this build was configured without", VLFF_Q(dir));
     goto fail;
 #endif
   }
@@ -959,7 +963,7 @@ int vlff_dataset_writer_add(struct vlff_dataset_writer *w, int i, const uint8_t 
                             const uint16_t *depth_mm, const uint8_t *label, const double c2w[16],
                             const uint16_t *features, char *err, size_t errlen) {
   if (i < 0 || i >= w->n || !rgb) {
-    seterr(err, errlen, "%s: frame %d out of range 0..%d or without rgb", w->dir, i, w->n - 1);
+    seterr(err, errlen, "%s: frame %d out of range 0..%d or without rgb", VLFF_Q(w->dir), i, w->n - 1);
     return -1;
   }
   char name[64], p[PATHMAX];
@@ -984,7 +988,7 @@ int vlff_dataset_writer_add(struct vlff_dataset_writer *w, int i, const uint8_t 
   if (write_text_matrix(p, tcw, err, errlen) < 0) return -1;
   if (w->dim > 0) {
     if (!features) {
-      seterr(err, errlen, "%s: frame %d needs features", w->dir, i);
+      seterr(err, errlen, "%s: frame %d needs features", VLFF_Q(w->dir), i);
       return -1;
     }
 #ifdef VLFF_HAVE_HDF5
@@ -997,7 +1001,7 @@ int vlff_dataset_writer_add(struct vlff_dataset_writer *w, int i, const uint8_t 
     H5Sclose(ms);
     H5Sclose(fs);
     if (!ok) {
-      seterr(err, errlen, "%s: writing features of frame %d failed", w->h5tmp, i);
+      seterr(err, errlen, "%s: writing features of frame %d failed", VLFF_Q(w->h5tmp), i);
       return -1;
     }
 #endif
@@ -1009,7 +1013,7 @@ int vlff_dataset_writer_add(struct vlff_dataset_writer *w, int i, const uint8_t 
 int vlff_dataset_writer_close(struct vlff_dataset_writer *w, char *err, size_t errlen) {
   for (int i = 0; i < w->n; i++)
     if (!w->added[i]) {
-      seterr(err, errlen, "%s: frame %d was never written", w->dir, i);
+      seterr(err, errlen, "%s: frame %d was never written", VLFF_Q(w->dir), i);
       vlff_dataset_writer_abort(w);
       return -1;
     }
@@ -1026,7 +1030,7 @@ int vlff_dataset_writer_close(struct vlff_dataset_writer *w, char *err, size_t e
     int ok = fd >= 0 && fsync(fd) == 0;
     if (fd >= 0) close(fd);
     if (!ok || rename(w->h5tmp, p) < 0) {
-      seterr(err, errlen, "%s: finishing features.hdf failed: %s", w->h5tmp, strerror(errno));
+      seterr(err, errlen, "%s: finishing features.hdf failed: %s", VLFF_Q(w->h5tmp), strerror(errno));
       unlink(w->h5tmp);
       vlff_dataset_writer_abort(w);
       return -1;

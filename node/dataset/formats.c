@@ -20,6 +20,7 @@
 #include "dataset.h"
 #include "dataset_internal.h"
 #include "files.h"
+#include "vlff/escape.h"
 
 #define MAX_IMAGE_SIDE 16384
 #define MAX_IMAGE_BYTES (256 << 20)
@@ -72,7 +73,7 @@ static int png_decode(const uint8_t *buf, size_t len, const char *name, struct v
   struct png_err pe = {.msg = ""};
   png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &pe, png_on_error, png_on_warning);
   if (!png) {
-    seterr(err, errlen, "%s: out of memory", name);
+    seterr(err, errlen, "%s: out of memory", VLFF_Q(name));
     return -1;
   }
   png_infop info = png_create_info_struct(png);
@@ -83,7 +84,7 @@ static int png_decode(const uint8_t *buf, size_t len, const char *name, struct v
     free(data);
     free(rows);
     png_destroy_read_struct(&png, info ? &info : NULL, NULL);
-    seterr(err, errlen, "%s: bad PNG: %s", name, pe.msg[0] ? pe.msg : "out of memory");
+    seterr(err, errlen, "%s: bad PNG: %s", VLFF_Q(name), VLFF_Q(pe.msg[0] ? pe.msg : "out of memory"));
     return -1;
   }
   png_set_read_fn(png, &m, png_mem_read);
@@ -142,17 +143,17 @@ int vlff_image_decode(const uint8_t *buf, size_t len, const char *name, struct v
     uint8_t *rgb;
     char e2[160];
     if (vlff_cv_decode_jpeg(buf, len, MAX_IMAGE_SIDE, &w, &h, &rgb, e2, sizeof e2) < 0) {
-      seterr(err, errlen, "%s: bad JPEG: %s", name, e2);
+      seterr(err, errlen, "%s: bad JPEG: %s", VLFF_Q(name), VLFF_Q(e2));
       return -1;
     }
     im->width = w, im->height = h, im->channels = 3, im->depth16 = 0, im->data = rgb;
     return 0;
 #else
-    seterr(err, errlen, "%s: JPEG needs OpenCV, which this build was configured without", name);
+    seterr(err, errlen, "%s: JPEG needs OpenCV, which this build was configured without", VLFF_Q(name));
     return -1;
 #endif
   }
-  seterr(err, errlen, "%s: neither PNG nor JPEG", name);
+  seterr(err, errlen, "%s: neither PNG nor JPEG", VLFF_Q(name));
   return -1;
 }
 
@@ -194,7 +195,7 @@ int vlff_png_write(const char *path, const void *data, int width, int height, in
                    int depth16, char *err, size_t errlen) {
   if (width < 1 || height < 1 || width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE ||
       (channels != 1 && channels != 3)) {
-    seterr(err, errlen, "%s: cannot write a %dx%d %d-channel PNG", path, width, height, channels);
+    seterr(err, errlen, "%s: cannot write a %dx%d %d-channel PNG", VLFF_Q(path), width, height, channels);
     return -1;
   }
   struct growbuf g = {0};
@@ -206,7 +207,7 @@ int vlff_png_write(const char *path, const void *data, int width, int height, in
     free(rows);
     free(g.p);
     png_destroy_write_struct(png ? &png : NULL, info ? &info : NULL);
-    seterr(err, errlen, "%s: PNG encoding failed: %s", path, pe.msg[0] ? pe.msg : "out of memory");
+    seterr(err, errlen, "%s: PNG encoding failed: %s", VLFF_Q(path), pe.msg[0] ? pe.msg : "out of memory");
     return -1;
   }
   png_set_write_fn(png, &g, png_mem_write, png_mem_flush);
@@ -253,7 +254,7 @@ static int parse_numbers(const char *buf, size_t len, const char *name, double *
     while (j < len && buf[j] != ' ' && buf[j] != '\t' && buf[j] != '\n' && buf[j] != '\r' && buf[j] != ',')
       j++;
     if (j - i >= sizeof tok) {
-      seterr(err, errlen, "%s:%d: token too long to be a number", name, line);
+      seterr(err, errlen, "%s:%d: token too long to be a number", VLFF_Q(name), line);
       return -1;
     }
     memcpy(tok, buf + i, j - i);
@@ -262,11 +263,11 @@ static int parse_numbers(const char *buf, size_t len, const char *name, double *
     errno = 0;
     double v = strtod(tok, &end);
     if (end == tok || *end) {
-      seterr(err, errlen, "%s:%d: '%s' is not a number", name, line, tok);
+      seterr(err, errlen, "%s:%d: '%s' is not a number", VLFF_Q(name), line, VLFF_Q(tok));
       return -1;
     }
     if (n == max) {
-      seterr(err, errlen, "%s:%d: more than %d numbers", name, line, max);
+      seterr(err, errlen, "%s:%d: more than %d numbers", VLFF_Q(name), line, max);
       return -1;
     }
     out[n++] = v;
@@ -286,12 +287,12 @@ int vlff_parse_matrix(const char *buf, size_t len, const char *name, double m[16
   } else if (n == 16) {
     memcpy(m, v, sizeof v);
   } else {
-    seterr(err, errlen, "%s: expected a 4x4 (16 numbers) or 3x3 (9) matrix, got %d numbers", name, n);
+    seterr(err, errlen, "%s: expected a 4x4 (16 numbers) or 3x3 (9) matrix, got %d numbers", VLFF_Q(name), n);
     return -1;
   }
   for (int i = 0; i < 16; i++)
     if (!isfinite(m[i])) {
-      seterr(err, errlen, "%s: element (%d,%d) is not finite", name, i / 4, i % 4);
+      seterr(err, errlen, "%s: element (%d,%d) is not finite", VLFF_Q(name), i / 4, i % 4);
       return -1;
     }
   return 0;
@@ -300,11 +301,11 @@ int vlff_parse_matrix(const char *buf, size_t len, const char *name, double m[16
 int vlff_check_pose(const double m[16], const char *name, char *err, size_t errlen) {
   for (int i = 0; i < 16; i++)
     if (!isfinite(m[i])) {
-      seterr(err, errlen, "%s: pose element (%d,%d) is not finite", name, i / 4, i % 4);
+      seterr(err, errlen, "%s: pose element (%d,%d) is not finite", VLFF_Q(name), i / 4, i % 4);
       return -1;
     }
   if (fabs(m[12]) > 1e-6 || fabs(m[13]) > 1e-6 || fabs(m[14]) > 1e-6 || fabs(m[15] - 1) > 1e-6) {
-    seterr(err, errlen, "%s: last row is [%g %g %g %g], not [0 0 0 1]", name, m[12], m[13], m[14], m[15]);
+    seterr(err, errlen, "%s: last row is [%g %g %g %g], not [0 0 0 1]", VLFF_Q(name), m[12], m[13], m[14], m[15]);
     return -1;
   }
   double worst = 0;
@@ -315,13 +316,13 @@ int vlff_check_pose(const double m[16], const char *name, char *err, size_t errl
       worst = fmax(worst, fabs(d - (a == b)));
     }
   if (worst > 1e-3) {
-    seterr(err, errlen, "%s: rotation is not orthonormal (|R^T R - I| = %.3g)", name, worst);
+    seterr(err, errlen, "%s: rotation is not orthonormal (|R^T R - I| = %.3g)", VLFF_Q(name), worst);
     return -1;
   }
   double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
                m[2] * (m[4] * m[9] - m[5] * m[8]);
   if (det < 0) {
-    seterr(err, errlen, "%s: rotation is a reflection (det %.3f)", name, det);
+    seterr(err, errlen, "%s: rotation is a reflection (det %.3f)", VLFF_Q(name), det);
     return -1;
   }
   return 0;
@@ -341,16 +342,16 @@ int vlff_parse_bbox(const char *buf, size_t len, const char *name, double lo[3],
   int n = parse_numbers(buf, len, name, v, 6, err, errlen);
   if (n < 0) return -1;
   if (n != 6) {
-    seterr(err, errlen, "%s: expected 6 numbers (min xyz, max xyz), got %d", name, n);
+    seterr(err, errlen, "%s: expected 6 numbers (min xyz, max xyz), got %d", VLFF_Q(name), n);
     return -1;
   }
   for (int k = 0; k < 3; k++) {
     if (!isfinite(v[k]) || !isfinite(v[k + 3]) || fabs(v[k]) > 1e5 || fabs(v[k + 3]) > 1e5) {
-      seterr(err, errlen, "%s: axis %d bounds are not finite numbers of sane size", name, k);
+      seterr(err, errlen, "%s: axis %d bounds are not finite numbers of sane size", VLFF_Q(name), k);
       return -1;
     }
     if (!(v[k] < v[k + 3])) {
-      seterr(err, errlen, "%s: axis %d has min %g >= max %g", name, k, v[k], v[k + 3]);
+      seterr(err, errlen, "%s: axis %d has min %g >= max %g", VLFF_Q(name), k, v[k], v[k + 3]);
       return -1;
     }
     lo[k] = v[k], hi[k] = v[k + 3];
@@ -424,16 +425,16 @@ struct ply_header {
 static int ply_property(struct ply_header *h, const char *b, const char *c, int nt, const char *name, int line,
                         char *err, size_t errlen) {
   if (!strcmp(b, "list")) {
-    seterr(err, errlen, "%s:%d: list property in the vertex element is not supported", name, line);
+    seterr(err, errlen, "%s:%d: list property in the vertex element is not supported", VLFF_Q(name), line);
     return -1;
   }
   int t = ply_type_of(b);
   if (t == PT_NONE || nt < 3) {
-    seterr(err, errlen, "%s:%d: unknown property type '%s'", name, line, b);
+    seterr(err, errlen, "%s:%d: unknown property type '%s'", VLFF_Q(name), line, VLFF_Q(b));
     return -1;
   }
   if (h->nprop == PLY_MAX_PROPS) {
-    seterr(err, errlen, "%s:%d: more than %d vertex properties", name, line, PLY_MAX_PROPS);
+    seterr(err, errlen, "%s:%d: more than %d vertex properties", VLFF_Q(name), line, PLY_MAX_PROPS);
     return -1;
   }
   if (!strcmp(c, "x")) h->ix = h->nprop;
@@ -447,7 +448,7 @@ static int ply_property(struct ply_header *h, const char *b, const char *c, int 
 static int ply_header(const uint8_t *buf, size_t len, const char *name, struct ply_header *h, char *err,
                       size_t errlen) {
   if (len < 4 || memcmp(buf, "ply\n", 4)) {
-    seterr(err, errlen, "%s: not a PLY file (no 'ply' magic line)", name);
+    seterr(err, errlen, "%s: not a PLY file (no 'ply' magic line)", VLFF_Q(name));
     return -1;
   }
   *h = (struct ply_header){.format = -1, .ix = -1, .iy = -1, .iz = -1, .il = -1};
@@ -459,13 +460,13 @@ static int ply_header(const uint8_t *buf, size_t len, const char *name, struct p
     size_t e = pos;
     while (e < len && buf[e] != '\n') e++;
     if (e >= len) {
-      seterr(err, errlen, "%s:%d: header not terminated by end_header", name, line);
+      seterr(err, errlen, "%s:%d: header not terminated by end_header", VLFF_Q(name), line);
       return -1;
     }
     char l[256];
     size_t ll = e - pos;
     if (ll >= sizeof l) {
-      seterr(err, errlen, "%s:%d: header line too long", name, line);
+      seterr(err, errlen, "%s:%d: header line too long", VLFF_Q(name), line);
       return -1;
     }
     memcpy(l, buf + pos, ll);
@@ -481,7 +482,8 @@ static int ply_header(const uint8_t *buf, size_t len, const char *name, struct p
       if (!strcmp(b, "ascii")) h->format = 0;
       else if (!strcmp(b, "binary_little_endian")) h->format = 1;
       else {
-        seterr(err, errlen, "%s:%d: format '%s' not supported (ascii, binary_little_endian)", name, line, b);
+        seterr(err, errlen, "%s:%d: format '%s' not supported (ascii, binary_little_endian)", VLFF_Q(name), line,
+               VLFF_Q(b));
         return -1;
       }
     } else if (!strcmp(a, "element")) {
@@ -493,7 +495,7 @@ static int ply_header(const uint8_t *buf, size_t len, const char *name, struct p
         char *end;
         long long v = strtoll(c, &end, 10);
         if (nt < 3 || *end || v < 0 || v > PLY_MAX_POINTS) {
-          seterr(err, errlen, "%s:%d: bad vertex count '%s' (0..%u)", name, line, c, PLY_MAX_POINTS);
+          seterr(err, errlen, "%s:%d: bad vertex count '%s' (0..%u)", VLFF_Q(name), line, VLFF_Q(c), PLY_MAX_POINTS);
           return -1;
         }
         nvert = v, in_vertex = 1;
@@ -503,20 +505,20 @@ static int ply_header(const uint8_t *buf, size_t len, const char *name, struct p
     } else if (!strcmp(a, "property")) {
       if (in_vertex && ply_property(h, b, c, nt, name, line, err, errlen) < 0) return -1;
     } else {
-      seterr(err, errlen, "%s:%d: unexpected header keyword '%s'", name, line, a);
+      seterr(err, errlen, "%s:%d: unexpected header keyword '%s'", VLFF_Q(name), line, VLFF_Q(a));
       return -1;
     }
   }
   if (h->format < 0) {
-    seterr(err, errlen, "%s: no format line", name);
+    seterr(err, errlen, "%s: no format line", VLFF_Q(name));
     return -1;
   }
   if (seen_other_before) {
-    seterr(err, errlen, "%s: the vertex element must come first", name);
+    seterr(err, errlen, "%s: the vertex element must come first", VLFF_Q(name));
     return -1;
   }
   if (nvert < 0 || h->ix < 0 || h->iy < 0 || h->iz < 0 || h->il < 0) {
-    seterr(err, errlen, "%s: needs a vertex element with properties x, y, z and label", name);
+    seterr(err, errlen, "%s: needs a vertex element with properties x, y, z and label", VLFF_Q(name));
     return -1;
   }
   h->nvert = (size_t)nvert, h->pos = pos;
@@ -534,7 +536,7 @@ static int ply_body_binary(const struct ply_header *h, const uint8_t *buf, size_
   size_t stride = 0, n = h->nvert;
   for (int i = 0; i < h->nprop; i++) stride += (size_t)ply_size[h->ptype[i]];
   if ((len - h->pos) / stride < n) {
-    seterr(err, errlen, "%s: truncated: %zu vertices of %zu bytes need %zu bytes, %zu present", name, n, stride,
+    seterr(err, errlen, "%s: truncated: %zu vertices of %zu bytes need %zu bytes, %zu present", VLFF_Q(name), n, stride,
            n * stride, len - h->pos);
     return -1;
   }
@@ -564,7 +566,7 @@ static int ply_body_ascii(const struct ply_header *h, const uint8_t *buf, size_t
       char *e2;
       v[i] = strtod(tok, &e2);
       if (!tl || *e2) {
-        seterr(err, errlen, "%s: vertex %zu property %d: '%s' is not a number", name, k, i, tok);
+        seterr(err, errlen, "%s: vertex %zu property %d: '%s' is not a number", VLFF_Q(name), k, i, VLFF_Q(tok));
         return -1;
       }
     }
@@ -583,14 +585,14 @@ int vlff_ply_parse(const uint8_t *buf, size_t len, const char *name, struct vlff
   p->label = malloc(n ? n : 1);
   if (!p->xyz || !p->label) {
     vlff_points_free(p);
-    seterr(err, errlen, "%s: out of memory for %zu points", name, n);
+    seterr(err, errlen, "%s: out of memory for %zu points", VLFF_Q(name), n);
     return -1;
   }
   int rc = h.format == 1 ? ply_body_binary(&h, buf, len, name, p, err, errlen)
                          : ply_body_ascii(&h, buf, len, name, p, err, errlen);
   for (size_t k = 0; rc == 0 && k < n; k++)
     if (!isfinite(p->xyz[3 * k]) || !isfinite(p->xyz[3 * k + 1]) || !isfinite(p->xyz[3 * k + 2])) {
-      seterr(err, errlen, "%s: vertex %zu has a non-finite coordinate", name, k);
+      seterr(err, errlen, "%s: vertex %zu has a non-finite coordinate", VLFF_Q(name), k);
       rc = -1;
     }
   if (rc < 0) {
@@ -623,7 +625,7 @@ int vlff_ply_write(const char *path, const float *xyz, const uint8_t *rgb, const
   size_t total = (size_t)hl + n * stride;
   uint8_t *b = malloc(total);
   if (!b) {
-    seterr(err, errlen, "%s: out of memory", path);
+    seterr(err, errlen, "%s: out of memory", VLFF_Q(path));
     return -1;
   }
   memcpy(b, hdr, (size_t)hl);

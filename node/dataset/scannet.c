@@ -29,6 +29,7 @@
 #include "bounds.h"
 #include "dataset.h"
 #include "files.h"
+#include "vlff/escape.h"
 #include "dataset_internal.h"
 
 #define seterr vlff_errf
@@ -104,14 +105,15 @@ int vlff_scannet_labels_load(struct vlff_dataset *ds, const char *path, int set,
   char *save = NULL, *line = strtok_r(text, "\n", &save);
   int cid = line ? tsv_column(line, "id") : -1, cnyu = line ? tsv_column(line, "nyu40id") : -1;
   if (cid < 0 || cnyu < 0) {
-    seterr(err, errlen, "%s:1: header lacks the columns 'id' and 'nyu40id' (scannetv2-labels.combined.tsv)", path);
+    seterr(err, errlen, "%s:1: header lacks the columns 'id' and 'nyu40id' (scannetv2-labels.combined.tsv)",
+           VLFF_Q(path));
     free(buf);
     return -1;
   }
   uint8_t *map = malloc(TSV_MAX_ID + 1);
   if (!map) {
     free(buf);
-    seterr(err, errlen, "%s: out of memory", path);
+    seterr(err, errlen, "%s: out of memory", VLFF_Q(path));
     return -1;
   }
   memset(map, 255, TSV_MAX_ID + 1);
@@ -121,19 +123,20 @@ int vlff_scannet_labels_load(struct vlff_dataset *ds, const char *path, int set,
     if (!line[strspn(line, " \t\r")]) continue;
     long id, nyu;
     if (tsv_int(line, cid, 1, TSV_MAX_ID, &id) < 0 || tsv_int(line, cnyu, 0, 40, &nyu) < 0) {
-      seterr(err, errlen, "%s:%d: 'id' must be an integer in [1, %d] and 'nyu40id' one in [0, 40]", path, lineno,
+      seterr(err, errlen, "%s:%d: 'id' must be an integer in [1, %d] and 'nyu40id' one in [0, 40]", VLFF_Q(path),
+             lineno,
              TSV_MAX_ID);
       goto fail;
     }
     if (map[id] != 255 && map[id] != nyu40_class(set, nyu)) {
-      seterr(err, errlen, "%s:%d: id %ld is listed twice with different classes", path, lineno, id);
+      seterr(err, errlen, "%s:%d: id %ld is listed twice with different classes", VLFF_Q(path), lineno, id);
       goto fail;
     }
     map[id] = nyu40_class(set, nyu);
     rows++;
   }
   if (rows == 0) {
-    seterr(err, errlen, "%s: no label rows", path);
+    seterr(err, errlen, "%s: no label rows", VLFF_Q(path));
     goto fail;
   }
   free(buf);
@@ -154,11 +157,11 @@ static int check_camera(const double K[16], int w, int h, const char *path, char
   /* the physical bounds every camera in vlff is held to (bounds.h) */
   char why[200];
   if (vlff_intrinsics_plausible(w, h, fx, fy, cx, cy, why, sizeof why)) {
-    seterr(err, errlen, "%s: implausible camera for a %dx%d image: %s", path, w, h, why);
+    seterr(err, errlen, "%s: implausible camera for a %dx%d image: %s", VLFF_Q(path), w, h, why);
     return -1;
   }
   if (!(cx > 0 && cx < w) || !(cy > 0 && cy < h)) {
-    seterr(err, errlen, "%s: principal point (%g, %g) lies outside the %dx%d image", path, cx, cy, w, h);
+    seterr(err, errlen, "%s: principal point (%g, %g) lies outside the %dx%d image", VLFF_Q(path), cx, cy, w, h);
     return -1;
   }
   return 0;
@@ -168,7 +171,7 @@ int vlff_scannet_geometry(struct vlff_dataset *ds, const double Kc[16], int cw, 
                           int dw, int dh, const double Ec[16], const double Ed[16], const char *where, char *err,
                           size_t errlen) {
   if (cw < 1 || ch < 1 || dw < 1 || dh < 1 || cw > 16384 || ch > 16384 || dw > 16384 || dh > 16384) {
-    seterr(err, errlen, "%s: image sizes colour %dx%d, depth %dx%d out of range", where, cw, ch, dw, dh);
+    seterr(err, errlen, "%s: image sizes colour %dx%d, depth %dx%d out of range", VLFF_Q(where), cw, ch, dw, dh);
     return -1;
   }
   if (check_camera(Kc, cw, ch, where, err, errlen) < 0 || check_camera(Kd, dw, dh, where, err, errlen) < 0)
@@ -184,7 +187,7 @@ int vlff_scannet_geometry(struct vlff_dataset *ds, const double Kc[16], int cw, 
       ds->d2c[4 * r + c] = s;
     }
   if (fabs(ds->d2c[3]) > 1 || fabs(ds->d2c[7]) > 1 || fabs(ds->d2c[11]) > 1) {
-    seterr(err, errlen, "%s: depth and colour cameras are more than 1 m apart", where);
+    seterr(err, errlen, "%s: depth and colour cameras are more than 1 m apart", VLFF_Q(where));
     return -1;
   }
   ds->registered = 1;
@@ -245,12 +248,12 @@ void vlff_scannet_register_depth(const struct vlff_dataset *ds, const uint16_t *
 int vlff_scannet_map_labels(const struct vlff_dataset *ds, const struct vlff_image *im, const char *path,
                             uint8_t *label, char *err, size_t errlen) {
   if (im->channels != 1) {
-    seterr(err, errlen, "%s: labels must be a single-channel image", path);
+    seterr(err, errlen, "%s: labels must be a single-channel image", VLFF_Q(path));
     return -1;
   }
   if ((long long)im->width * ds->height != (long long)im->height * ds->width &&
       (long long)im->width * ds->color_height != (long long)im->height * ds->color_width) {
-    seterr(err, errlen, "%s: %dx%d has neither the colour nor the output images' aspect", path, im->width,
+    seterr(err, errlen, "%s: %dx%d has neither the colour nor the output images' aspect", VLFF_Q(path), im->width,
            im->height);
     return -1;
   }
@@ -300,14 +303,14 @@ void vlff_sens_close(struct vlff_sens *s) {
 int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
   struct vlff_sens *s = calloc(1, sizeof *s);
   if (!s) {
-    seterr(err, errlen, "%s: out of memory", path);
+    seterr(err, errlen, "%s: out of memory", VLFF_Q(path));
     return -1;
   }
   snprintf(s->path, sizeof s->path, "%s", path);
   s->fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
   struct stat st;
   if (s->fd < 0 || fstat(s->fd, &st) < 0 || !S_ISREG(st.st_mode)) {
-    seterr(err, errlen, "%s: %s", path, s->fd < 0 ? strerror(errno) : "not a regular file");
+    seterr(err, errlen, "%s: %s", VLFF_Q(path), s->fd < 0 ? strerror(errno) : "not a regular file");
     vlff_sens_close(s);
     return -1;
   }
@@ -316,11 +319,11 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
   uint32_t version;
   uint64_t namelen;
   if (rd(s->fd, &version, 4, &at) < 0 || version != 4) {
-    seterr(err, errlen, "%s: not a ScanNet .sens file of version 4", path);
+    seterr(err, errlen, "%s: not a ScanNet .sens file of version 4", VLFF_Q(path));
     goto fail;
   }
   if (rd(s->fd, &namelen, 8, &at) < 0 || namelen > 4096) {
-    seterr(err, errlen, "%s: sensor name length is implausible", path);
+    seterr(err, errlen, "%s: sensor name length is implausible", VLFF_Q(path));
     goto fail;
   }
   at += (off_t)namelen;
@@ -331,25 +334,26 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
   if (rd(s->fd, kf, sizeof kf, &at) < 0 || rd(s->fd, &ctype, 4, &at) < 0 || rd(s->fd, &dtype, 4, &at) < 0 ||
       rd(s->fd, dims, sizeof dims, &at) < 0 || rd(s->fd, &s->depth_shift, 4, &at) < 0 ||
       rd(s->fd, &nframes, 8, &at) < 0) {
-    seterr(err, errlen, "%s: truncated header", path);
+    seterr(err, errlen, "%s: truncated header", VLFF_Q(path));
     goto fail;
   }
   if (ctype < SENS_COLOR_RAW || ctype > SENS_COLOR_JPEG) {
-    seterr(err, errlen, "%s: colour compression type %d is not raw, PNG or JPEG", path, ctype);
+    seterr(err, errlen, "%s: colour compression type %d is not raw, PNG or JPEG", VLFF_Q(path), ctype);
     goto fail;
   }
   if (dtype != SENS_DEPTH_RAW && dtype != SENS_DEPTH_ZLIB) {
-    seterr(err, errlen, "%s: depth compression type %d is not raw or zlib (occi is not supported)", path, dtype);
+    seterr(err, errlen, "%s: depth compression type %d is not raw or zlib (occi is not supported)", VLFF_Q(path),
+           dtype);
     goto fail;
   }
   /* depth_shift converts metres to stored units: 1000 for millimetres */
   if (!(s->depth_shift >= 1 && s->depth_shift <= 100000)) {
-    seterr(err, errlen, "%s: depth shift %g is outside [1, 100000] units per metre", path, s->depth_shift);
+    seterr(err, errlen, "%s: depth shift %g is outside [1, 100000] units per metre", VLFF_Q(path), s->depth_shift);
     goto fail;
   }
   /* a frame record is at least its pose, stamps and sizes */
   if (nframes == 0 || nframes > (uint64_t)INT_MAX || nframes > (size - (uint64_t)at) / (64 + 32)) {
-    seterr(err, errlen, "%s: %llu frames do not fit in %llu bytes", path, (unsigned long long)nframes,
+    seterr(err, errlen, "%s: %llu frames do not fit in %llu bytes", VLFF_Q(path), (unsigned long long)nframes,
            (unsigned long long)size);
     goto fail;
   }
@@ -366,7 +370,7 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
   ds->listed = malloc(nframes * sizeof *ds->listed);
   ds->n_listed = (int)nframes;
   if (!s->off || !ds->c2w || !ds->stem || !ds->listed) {
-    seterr(err, errlen, "%s: out of memory for %llu frames", path, (unsigned long long)nframes);
+    seterr(err, errlen, "%s: out of memory for %llu frames", VLFF_Q(path), (unsigned long long)nframes);
     goto fail;
   }
   ds->n = 0;
@@ -375,14 +379,14 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
     uint64_t stamps[2], sz[2];
     if (rd(s->fd, pose, sizeof pose, &at) < 0 || rd(s->fd, stamps, sizeof stamps, &at) < 0 ||
         rd(s->fd, sz, sizeof sz, &at) < 0) {
-      seterr(err, errlen, "%s: frame %llu: truncated record", path, (unsigned long long)i);
+      seterr(err, errlen, "%s: frame %llu: truncated record", VLFF_Q(path), (unsigned long long)i);
       goto fail;
     }
     if (sz[0] == 0 || sz[0] > SENS_MAX_BLOB || sz[1] == 0 || sz[1] > SENS_MAX_BLOB ||
         sz[0] + sz[1] > size - (uint64_t)at || (ctype == SENS_COLOR_RAW && sz[0] != raw_color) ||
         (dtype == SENS_DEPTH_RAW && sz[1] != raw_depth)) {
       seterr(err, errlen, "%s: frame %llu: colour %llu and depth %llu bytes do not fit the file or the format",
-             path, (unsigned long long)i, (unsigned long long)sz[0], (unsigned long long)sz[1]);
+             VLFF_Q(path), (unsigned long long)i, (unsigned long long)sz[0], (unsigned long long)sz[1]);
       goto fail;
     }
     uint64_t *o = s->off + (size_t)ds->n * 4;
@@ -406,7 +410,7 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
     ds->listed[ds->n++] = (int)i;
   }
   if (ds->n == 0) {
-    seterr(err, errlen, "%s: every frame's pose is invalid", path);
+    seterr(err, errlen, "%s: every frame's pose is invalid", VLFF_Q(path));
     goto fail;
   }
   ds->sens = s;
@@ -428,7 +432,7 @@ int vlff_sens_read(const struct vlff_dataset *ds, int i, uint8_t **rgb, uint16_t
     blob = malloc(o[1] + 1);
     off_t at = (off_t)o[0];
     if (!blob || rd(s->fd, blob, o[1], &at) < 0) {
-      seterr(err, errlen, "%s: frame %s: cannot read the colour image", s->path, ds->stem[i]);
+      seterr(err, errlen, "%s: frame %s: cannot read the colour image", VLFF_Q(s->path), VLFF_Q(ds->stem[i]));
       goto fail;
     }
     if (s->color_type == SENS_COLOR_RAW) {
@@ -439,7 +443,7 @@ int vlff_sens_read(const struct vlff_dataset *ds, int i, uint8_t **rgb, uint16_t
       snprintf(name, sizeof name, "%s frame %s colour", s->path, ds->stem[i]);
       if (vlff_image_decode(blob, o[1], name, &im, err, errlen) < 0) goto fail;
       if (im.width != ds->color_width || im.height != ds->color_height || im.channels != 3 || im.depth16) {
-        seterr(err, errlen, "%s: %dx%d, %d channels; the header says %dx%d RGB", name, im.width, im.height,
+        seterr(err, errlen, "%s: %dx%d, %d channels; the header says %dx%d RGB", VLFF_Q(name), im.width, im.height,
                im.channels, ds->color_width, ds->color_height);
         vlff_image_free(&im);
         goto fail;
@@ -453,7 +457,7 @@ int vlff_sens_read(const struct vlff_dataset *ds, int i, uint8_t **rgb, uint16_t
     *depth = malloc(draw);
     off_t at = (off_t)o[2];
     if (!blob || !*depth || rd(s->fd, blob, o[3], &at) < 0) {
-      seterr(err, errlen, "%s: frame %s: cannot read the depth image", s->path, ds->stem[i]);
+      seterr(err, errlen, "%s: frame %s: cannot read the depth image", VLFF_Q(s->path), VLFF_Q(ds->stem[i]));
       goto fail;
     }
     if (s->depth_type == SENS_DEPTH_RAW) {
@@ -461,8 +465,8 @@ int vlff_sens_read(const struct vlff_dataset *ds, int i, uint8_t **rgb, uint16_t
     } else {
       uLongf n = (uLongf)draw;
       if (uncompress((Bytef *)*depth, &n, blob, (uLong)o[3]) != Z_OK || n != draw) {
-        seterr(err, errlen, "%s: frame %s: depth is not %zu bytes of zlib-compressed uint16", s->path,
-               ds->stem[i], draw);
+        seterr(err, errlen, "%s: frame %s: depth is not %zu bytes of zlib-compressed uint16", VLFF_Q(s->path),
+               VLFF_Q(ds->stem[i]), draw);
         goto fail;
       }
     }

@@ -32,6 +32,7 @@
 #include "dataset.h"
 #include "transpose.h"
 #include "vlff/shm.h"
+#include "vlff/escape.h"
 
 #define POSE_SLOTS 256
 
@@ -81,7 +82,7 @@ struct replay {
 };
 
 static int ring_error(const char *what, const char *name) {
-  fprintf(stderr, "vlff-replay: %s ring %s: %s\n", what, name, vlff_shm_last_message());
+  fprintf(stderr, "vlff-replay: %s ring %s: %s\n", what, VLFF_Q(name), vlff_shm_last_message());
   return -1;
 }
 
@@ -118,7 +119,7 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
   char err[1024];
   if (vlff_dataset_read_frame(ds, i, r->rgb, r->depth, NULL, err, sizeof err) < 0 ||
       (r->feats && vlff_dataset_read_features(ds, i, r->hwc, err, sizeof err) < 0)) {
-    fprintf(stderr, "vlff-replay: frame %d (%s) skipped: %s\n", i, ds->stem[i], err);
+    fprintf(stderr, "vlff-replay: frame %d (%s) skipped: %s\n", i, VLFF_Q(ds->stem[i]), err);
     r->unreadable++;
     r->skipped_before = 1;
     return 1;
@@ -303,8 +304,8 @@ int main(int argc, char **argv) {
   const char *path = vlff_config_find(config, ferr, sizeof ferr);
   if (path && vlff_config_load(path, &cfg, err, sizeof err) < 0) return vlff_cli_config_error(err);
   if (!path)
-    fprintf(stderr, "vlff-replay: %s; using the default ring names (%s, %s, %s)\n", ferr, cfg.shm.ring,
-            cfg.shm.pose_ring, cfg.shm.feature_ring);
+    fprintf(stderr, "vlff-replay: %s; using the default ring names (%s, %s, %s)\n", ferr, VLFF_Q(cfg.shm.ring),
+            VLFF_Q(cfg.shm.pose_ring), VLFF_Q(cfg.shm.feature_ring));
   if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
   int status = 1;
   if (start >= r.ds.n) {
@@ -312,7 +313,7 @@ int main(int argc, char **argv) {
     goto out;
   }
   if (features && !r.ds.has_features) {
-    if (!r.quiet) fprintf(stderr, "vlff-replay: %s has no features.hdf: no feature ring\n", r.ds.dir);
+    if (!r.quiet) fprintf(stderr, "vlff-replay: %s has no features.hdf: no feature ring\n", VLFF_Q(r.ds.dir));
     features = 0;
   }
   const size_t px = (size_t)r.ds.width * r.ds.height;
@@ -326,7 +327,7 @@ int main(int argc, char **argv) {
   if (open_rings(&r, &cfg, features) < 0) goto out;
   vlff_cli_catch_stop();
   if (!r.quiet)
-    fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", r.ds.dir, r.ds.n, r.ds.width, r.ds.height,
+    fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", VLFF_Q(r.ds.dir), r.ds.n, r.ds.width, r.ds.height,
             features ? " with features" : "", r.backpressure ? "paced by the reader" : "on schedule");
   if (run(&r, fps, rate, loop, count, start) == 0) status = r.unreadable ? 1 : 0;
   if (!r.quiet || status)

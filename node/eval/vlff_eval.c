@@ -42,6 +42,7 @@
 #include "palette.h"
 #include "select.h"
 #include "sim.h"
+#include "vlff/escape.h"
 
 #define TAG "eval"
 #define MAXK VLFF_FIELD_MAX_PROMPTS
@@ -931,7 +932,7 @@ static void census(struct eval *e, struct vlff_field *fld, const struct field_re
     unsigned long long nf, ne;
     if (vlff_evidence_lost(e->ev, k, &nf, &ne))
       fprintf(stderr, "vlff-eval: the field labels '%s' at %llu points, the evidence at %llu: read from the evidence\n",
-              e->sc.names[k], nf, ne);
+              VLFF_Q(e->sc.names[k]), nf, ne);
   }
   free(lab);
 }

@@ -32,6 +32,7 @@
 #include "sim.h"
 #include "transpose.h"
 #include "vlff/shm.h"
+#include "vlff/escape.h"
 
 #define TAG "sim"
 
@@ -128,7 +129,7 @@ static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, cons
     fprintf(stderr, "vlff-sim: %s\n", err);
     return 1;
   }
-  if (!quiet) fprintf(stderr, "vlff-sim: wrote %d frames to %s\n", n, dir);
+  if (!quiet) fprintf(stderr, "vlff-sim: wrote %d frames to %s\n", n, VLFF_Q(dir));
   return 0;
 }
 
@@ -154,7 +155,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
                                 {(mode_t)cfg->shm.mode, cfg->shm.group}};
   struct vlff_ring *ring = vlff_ring_create(cfg->shm.ring, &rp);
   if (!ring) {
-    fprintf(stderr, "vlff-sim: frame ring %s: %s\n", cfg->shm.ring, vlff_shm_last_message());
+    fprintf(stderr, "vlff-sim: frame ring %s: %s\n", VLFF_Q(cfg->shm.ring), vlff_shm_last_message());
     return 1;
   }
   struct vlff_ring *fring = NULL;
@@ -164,7 +165,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
                                   {(mode_t)cfg->shm.mode, cfg->shm.group}};
     fring = vlff_ring_create(cfg->shm.feature_ring, &fp);
     if (!fring) {
-      fprintf(stderr, "vlff-sim: feature ring %s: %s\n", cfg->shm.feature_ring, vlff_shm_last_message());
+      fprintf(stderr, "vlff-sim: feature ring %s: %s\n", VLFF_Q(cfg->shm.feature_ring), vlff_shm_last_message());
       vlff_ring_close(ring);
       return 1;
     }

@@ -7,6 +7,7 @@
 #include "cli.h"
 #include "files.h"
 #include "view.h"
+#include "vlff/escape.h"
 
 #include <errno.h>
 #include <getopt.h>
@@ -58,7 +59,7 @@ static int parse_num(const char *opt, const char *s, double lo, double hi, doubl
   errno = 0;
   double x = strtod(s, &end);
   if (errno || end == s || *end || !(x >= lo && x <= hi)) {
-    vlff_cli_usage_error(&cli, "--%s '%s' is not a number in %g..%g", opt, s, lo, hi);
+    vlff_cli_usage_error(&cli, "--%s '%s' is not a number in %g..%g", opt, VLFF_Q(s), lo, hi);
     return -1;
   }
   *out = x;
@@ -157,11 +158,11 @@ int main(int argc, char **argv) {
       break;
     case OPT_WWW: www = optarg; break;
     case 'v': vp.verbose++; break;
-    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
+    default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }
   }
-  if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
-  if (fp.map_name[0] != '/') return vlff_cli_usage_error(&cli, "--map '%s' must start with '/'", fp.map_name);
+  if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", VLFF_Q(argv[optind]));
+  if (fp.map_name[0] != '/') return vlff_cli_usage_error(&cli, "--map '%s' must start with '/'", VLFF_Q(fp.map_name));
   char wwwbuf[PATH_MAX];
   if (www) {
     if (!is_dir_with_index(www)) return vlff_cli_usage_error(&cli, "--www %s: no index.html there", www);

@@ -22,6 +22,7 @@
 
 #include "files.h"
 #include "view.h"
+#include "vlff/escape.h"
 
 #define PAGE_FILES_MAX 256
 #define PAGE_FILE_MAX ((size_t)16 << 20)
@@ -214,8 +215,8 @@ static enum vlff_head_verdict request_line(const char *b, const char *nl, struct
     return refuse(h, 400, "the request line does not end in an HTTP version");
   }
   if (!(mlen == 3 && !memcmp(b, "GET", 3)) && !h->is_head)
-    return refuse(h, 405, "method %.*s is not allowed; this server answers GET and HEAD", (int)(mlen > 32 ? 32 : mlen),
-                  b);
+    return refuse(h, 405, "method %s is not allowed; this server answers GET and HEAD",
+                  vlff_escape((char[VLFF_ESC_LEN]){0}, VLFF_ESC_LEN, b, mlen, 32));
   if (*t != '/') return refuse(h, 400, "the request target must be a path starting with '/'");
   return VLFF_HEAD_PASS;
 }
@@ -260,7 +261,8 @@ enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct
     int nlen = (int)(c - q);
     for (const char *x = c + 1; x < le - 1; x++)
       if (((unsigned char)*x < 0x20 && *x != '\t') || *x == 0x7f)
-        return refuse(h, 400, "header %.*s holds a control character", nlen > 40 ? 40 : nlen, q);
+        return refuse(h, 400, "header %s holds a control character",
+                      vlff_escape((char[VLFF_ESC_LEN]){0}, VLFF_ESC_LEN, q, (size_t)nlen, 40));
     if (nlen == 7 && !strncasecmp(q, "Upgrade", 7)) {
       if (!value_is(c + 1, le - 1, "websocket")) return refuse(h, 400, "only an upgrade to WebSocket is served");
       h->upgrade = 1;
@@ -276,9 +278,11 @@ enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct
   if (h->upgrade) {
     if (h->is_head) return refuse(h, 400, "a WebSocket upgrade is a GET, not a HEAD");
     if (plen != 1)
-      return refuse(h, 404, "WebSocket connections are served at /, not at %.*s", (int)(plen > 60 ? 60 : plen), target);
+      return refuse(h, 404, "WebSocket connections are served at /, not at %s",
+                    vlff_escape((char[VLFF_ESC_LEN]){0}, VLFF_ESC_LEN, target, plen, 60));
   } else if (!vlff_page_find(pg, target, plen)) {
-    return refuse(h, 404, "%.*s is not a file of this page", (int)(plen > 60 ? 60 : plen), target);
+    return refuse(h, 404, "%s is not a file of this page",
+                  vlff_escape((char[VLFF_ESC_LEN]){0}, VLFF_ESC_LEN, target, plen, 60));
   }
   return VLFF_HEAD_PASS;
 }

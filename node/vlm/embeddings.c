@@ -19,6 +19,7 @@
 #include <unistd.h>
 #include "files.h"
 #include "log.h"
+#include "vlff/escape.h"
 
 #define PROMPT_MAX 63
 
@@ -60,6 +61,7 @@ void vlff_embeddings_free(struct vlff_embeddings *e) {
 struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const char *name, int expected_dim,
                                               char *err, size_t errlen) {
   if (!name) name = "embeddings";
+  name = VLFF_Q(name); /* the file's name, only ever quoted in messages below */
   if (!buf || len > VLFF_EMBEDDINGS_MAX_BYTES) {
     vlff_errf(err, errlen, "%s: larger than %u MiB", name, VLFF_EMBEDDINGS_MAX_BYTES >> 20);
     return NULL;
@@ -90,7 +92,7 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
     }
     if (!have_magic) {
       if (strcmp(line, "vlff-embeddings 1")) {
-        vlff_errf(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%.40s'", name, lineno, line);
+        vlff_errf(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%s'", name, lineno, VLFF_QMAX(line, 40));
         goto fail;
       }
       have_magic = true;
@@ -100,7 +102,8 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
       char *end;
       long d = strncmp(line, "dim ", 4) ? 0 : strtol(line + 4, &end, 10);
       if (d < 1 || d > 4096 || *end) {
-        vlff_errf(err, errlen, "%s:%d: expected 'dim N' with N in 1..4096, got '%.40s'", name, lineno, line);
+        vlff_errf(err, errlen, "%s:%d: expected 'dim N' with N in 1..4096, got '%s'", name, lineno, VLFF_QMAX(line,
+                  40));
         goto fail;
       }
       if (expected_dim && d != expected_dim) {
@@ -125,7 +128,7 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
     *tab = 0;
     for (int i = 0; i < e->count; i++)
       if (!strcmp(e->prompts[i], line)) {
-        vlff_errf(err, errlen, "%s:%d: duplicate prompt '%s'", name, lineno, line);
+        vlff_errf(err, errlen, "%s:%d: duplicate prompt '%s'", name, lineno, VLFF_Q(line));
         goto fail;
       }
     if (e->count == VLFF_EMBEDDINGS_MAX) {
@@ -173,7 +176,7 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
       goto fail;
     }
     if (!(ss > 0)) {
-      vlff_errf(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, line);
+      vlff_errf(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, VLFF_Q(line));
       goto fail;
     }
     memcpy(e->prompts[e->count], line, pl + 1);
@@ -226,7 +229,7 @@ struct vlff_embeddings *vlff_embeddings_load(const char *path, int expected_dim,
   bool io = ferror(f);
   fclose(f);
   if (!buf || io) {
-    vlff_errf(err, errlen, "%s: %s", path, buf ? "read error" : "out of memory");
+    vlff_errf(err, errlen, "%s: %s", VLFF_Q(path), buf ? "read error" : "out of memory");
     free(buf);
     return NULL;
   }
@@ -253,17 +256,19 @@ const float *vlff_embeddings_lookup(const struct vlff_embeddings *e, const char 
 int vlff_embeddings_save(const char *path, int dim, int count, const char *const *prompts, const float *vectors,
                          char *err, size_t errlen) {
   if (!path || dim < 1 || dim > 4096 || count < 1 || count > VLFF_EMBEDDINGS_MAX || !prompts || !vectors) {
-    vlff_errf(err, errlen, "%s: bad arguments (dim %d, count %d)", path ? path : "embeddings", dim, count);
+    vlff_errf(err, errlen, "%s: bad arguments (dim %d, count %d)", VLFF_Q(path ? path : "embeddings"), dim,
+             count);
     return -1;
   }
   for (int i = 0; i < count; i++) {
     if (!prompts[i] || strlen(prompts[i]) > PROMPT_MAX || !prompt_ok(prompts[i], strlen(prompts[i]))) {
-      vlff_errf(err, errlen, "%s: prompt %d is not 1..%d bytes of UTF-8 without control characters", path, i, PROMPT_MAX);
+      vlff_errf(err, errlen, "%s: prompt %d is not 1..%d bytes of UTF-8 without control characters", VLFF_Q(path), i,
+                PROMPT_MAX);
       return -1;
     }
     for (int k = 0; k < dim; k++)
       if (!isfinite(vectors[(size_t)i * dim + k])) {
-        vlff_errf(err, errlen, "%s: non-finite value in the vector of '%s'", path, prompts[i]);
+        vlff_errf(err, errlen, "%s: non-finite value in the vector of '%s'", VLFF_Q(path), VLFF_Q(prompts[i]));
         return -1;
       }
   }
@@ -272,7 +277,7 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
   int fd = dup(a.fd); /* the stream's own; the commit syncs the file through a.fd */
   FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
   if (!f) {
-    vlff_errf(err, errlen, "%s: cannot create: %s", a.tmp, strerror(errno));
+    vlff_errf(err, errlen, "%s: cannot create: %s", VLFF_Q(a.tmp), strerror(errno));
     if (fd >= 0) close(fd);
     vlff_atomic_abort(&a);
     return -1;
@@ -286,7 +291,7 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
   bool ok = fflush(f) == 0;
   ok &= fclose(f) == 0;
   if (!ok) {
-    vlff_errf(err, errlen, "%s: write failed: %s", path, strerror(errno));
+    vlff_errf(err, errlen, "%s: write failed: %s", VLFF_Q(path), strerror(errno));
     vlff_atomic_abort(&a);
     return -1;
   }

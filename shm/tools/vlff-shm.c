@@ -4,6 +4,7 @@
  * into a bug report or scripted against; errors go to stderr with the library's
  * message and a non-zero exit status. */
 #include "vlff/shm.h"
+#include "vlff/escape.h"
 
 #include "cli.h"
 
@@ -47,7 +48,7 @@ static const struct vlff_cli cli = {
 };
 
 static int fail(const char *what) {
-  fprintf(stderr, "vlff-shm: %s: %s (%s)\n", what, vlff_shm_last_message(), strerror(errno));
+  fprintf(stderr, "vlff-shm: %s: %s (%s)\n", VLFF_Q(what), vlff_shm_last_message(), strerror(errno));
   return 1;
 }
 
@@ -88,10 +89,10 @@ static int cmd_list(void) {
       /* Other programs' segments are not ours to list; broken vlff ones are. */
       if (err == VLFF_SHM_ERR_VERSION || err == VLFF_SHM_ERR_CORRUPT || err == VLFF_SHM_ERR_TRUNCATED ||
           err == VLFF_SHM_ERR_ABANDONED)
-        printf("%-32s error: %s\n", name, vlff_shm_last_message());
+        printf("%-32s error: %s\n", VLFF_Q(name), vlff_shm_last_message());
       continue;
     }
-    printf("%-32s %-8s %-8s %4" PRIu32 " %8d %5s %12" PRIu64 " %10" PRIu64 " ", name, kind_name(in.kind),
+    printf("%-32s %-8s %-8s %4" PRIu32 " %8d %5s %12" PRIu64 " %10" PRIu64 " ", VLFF_Q(name), kind_name(in.kind),
            in.kind == VLFF_SHM_KIND_RING ? record_name(in.record_kind) : "-", in.generation, (int)in.creator_pid,
            in.creator_alive ? "yes" : "no", in.total_size, in.head);
     print_age(in.last_ns);
@@ -116,9 +117,9 @@ static int print_status(struct vlff_map *m, const char *name) {
   print_age(st.t_ns);
   printf("\nstatus_updates %" PRIu64 "\nstate %s\nstate_code %" PRId32 "\nerror_flags 0x%" PRIx32 "\n"
          "frames_in %" PRIu64 "\nframes_lost %" PRIu64 "\nframes_refused %" PRIu64 "\n",
-         st.updates, st.state_name, st.state, st.error_flags, st.frames_in, st.frames_lost, st.frames_refused);
+         st.updates, VLFF_Q(st.state_name), st.state, st.error_flags, st.frames_in, st.frames_lost, st.frames_refused);
   for (uint32_t i = 0; i < st.reason_count; i++)
-    printf("refused %" PRIu64 " %s\n", st.reason[i].count, st.reason[i].name);
+    printf("refused %" PRIu64 " %s\n", st.reason[i].count, VLFF_Q(st.reason[i].name));
   printf("keyframes %" PRIu64 "\nkeyframes_evicted %" PRIu64 "\niterations %" PRIu64 "\n"
          "iterations_per_s %.3f\nfps_in %.3f\nloss %.6g\nloss_rgb %.6g\nloss_depth %.6g\nloss_feat %.6g\n"
          "psnr %.3f\n",
@@ -133,7 +134,7 @@ static int cmd_stat(const char *name) {
     return fail(name);
   printf("name %s\nkind %s\nabi_version %" PRIu32 "\ngeneration %" PRIu32 "\ncreator_pid %d\ncreator_alive %s\n"
          "bytes %" PRIu64 "\n",
-         name, kind_name(in.kind), in.abi_version, in.generation, (int)in.creator_pid,
+         VLFF_Q(name), kind_name(in.kind), in.abi_version, in.generation, (int)in.creator_pid,
          in.creator_alive ? "yes" : "no", in.total_size);
   if (in.kind == VLFF_SHM_KIND_RING)
     printf("records %s\nslots %" PRIu32 "\nslot_size %" PRIu64 "\nhead %" PRIu64 "\n", record_name(in.record_kind),
@@ -160,7 +161,7 @@ static int cmd_stat(const char *name) {
            mi.grid.origin[0], mi.grid.origin[1], mi.grid.origin[2], mi.grid.voxel_size, mi.grid.dims[0],
            mi.grid.dims[1], mi.grid.dims[2]);
     for (int i = 0; i < mi.prompt_count; i++)
-      printf("prompt %d %s\n", i, vlff_map_snapshot_prompt(s, (uint16_t)i));
+      printf("prompt %d %s\n", i, VLFF_Q(vlff_map_snapshot_prompt(s, (uint16_t)i)));
     if (mi.has_label_image)
       printf("label_image %" PRIu32 "x%" PRIu32 "\n", mi.label_image.width, mi.label_image.height);
     printf("writer_alive %s\n", vlff_map_writer_alive(m, 2000000000ull) ? "yes" : "no");
@@ -178,7 +179,7 @@ static int write_image(const char *path, const struct vlff_plane *p, const uint8
   int wide = bpp >= 2 && !color;
   FILE *f = fopen(path, "wb");
   if (!f) {
-    fprintf(stderr, "vlff-shm: %s: %s\n", path, strerror(errno));
+    fprintf(stderr, "vlff-shm: %s: %s\n", VLFF_Q(path), strerror(errno));
     return 1;
   }
   fprintf(f, "P%c\n%" PRIu32 " %" PRIu32 "\n%d\n", color ? '6' : '5', p->width, p->height, wide ? 65535 : 255);
@@ -207,7 +208,7 @@ static int write_image(const char *path, const struct vlff_plane *p, const uint8
     }
   }
   if (fclose(f) != 0) {
-    fprintf(stderr, "vlff-shm: %s: %s\n", path, strerror(errno));
+    fprintf(stderr, "vlff-shm: %s: %s\n", VLFF_Q(path), strerror(errno));
     return 1;
   }
   return 0;
@@ -239,7 +240,7 @@ static int cmd_dump_frame(const char *name, const char *path) {
       printf("seq %" PRIu64 " frame_id %" PRIu64 " sensor %" PRIu32 " t_host_ns %" PRIu64 " %" PRIu32 "x%" PRIu32
              " %s -> %s\n",
              v.seq, h->frame_id, h->sensor_id, h->t_host_ns, h->plane[plane].width, h->plane[plane].height,
-             vlff_pixfmt_name(h->plane[plane].format), path);
+             vlff_pixfmt_name(h->plane[plane].format), VLFF_Q(path));
   }
   free(buf);
   vlff_ring_close(r);
@@ -271,7 +272,7 @@ static int cmd_label(const char *name, const double p[3]) {
       snprintf(text, sizeof text, "(unknown)");
     else if (vlff_map_prompt(m, label, text, sizeof text) < 0)
       snprintf(text, sizeof text, "(no prompt)");
-    printf("label %u confidence %u prompt %s version %" PRIu64 "\n", label, conf, text, vlff_map_version(m));
+    printf("label %u confidence %u prompt %s version %" PRIu64 "\n", label, conf, VLFF_Q(text), vlff_map_version(m));
   }
   vlff_map_detach(m);
   return rc;
@@ -280,7 +281,7 @@ static int cmd_label(const char *name, const double p[3]) {
 /* texts[n] (n > 0), or the configured set idx (>= 0). */
 static int cmd_set_prompts(const char *name, char **texts, int n, long idx, double timeout_s) {
   if (idx < 0 && vlff_prompt_check((const char *const *)texts, n) < 0) {
-    fprintf(stderr, "vlff-shm: %s: %s\n", name, vlff_shm_last_message());
+    fprintf(stderr, "vlff-shm: %s: %s\n", VLFF_Q(name), vlff_shm_last_message());
     return 1;
   }
   struct vlff_prompts *p = vlff_prompts_attach(name);
@@ -299,7 +300,7 @@ static int cmd_set_prompts(const char *name, char **texts, int n, long idx, doub
     printf("accepted %" PRIu64 "\n", seq);
     rc = 0;
   } else if (a == VLFF_PROMPT_REFUSED) {
-    printf("refused %" PRIu64 ": %s\n", seq, why);
+    printf("refused %" PRIu64 ": %s\n", seq, VLFF_Q(why));
     rc = 1;
   } else {
     rc = fail(name);
@@ -366,7 +367,7 @@ static int cmd_watch(const char *name, long count) {
     vlff_map_detach(m);
     return 0;
   }
-  fprintf(stderr, "vlff-shm: %s: watch works on rings and maps\n", name);
+  fprintf(stderr, "vlff-shm: %s: watch works on rings and maps\n", VLFF_Q(name));
   return 1;
 }
 

@@ -110,7 +110,9 @@ static const struct {
    "t.yaml:4:20: key 'prompts.sets[1].prompts': ", "prompt 2 is empty or longer than 63 bytes) at index 1"},
   {"node:\n  log_level: \"\\e[31mred\\e[0m\"\n", "t.yaml:2:14: key 'node.log_level': ", "got '\\x1b[31mred\\x1b[0m'"},
   {"node:\n  \"\\e[2J\": 1\n", "t.yaml:2:3: key 'node.\\x1b[2J': ", "unknown key"},
-  {"node:\n  log_level: \"caf\\u00e9\"\n", "t.yaml:2:14: key 'node.log_level': ", "got 'caf\\xc3\\xa9'"},
+  /* valid UTF-8 is quoted as is (vlff/escape.h): names in other scripts are legitimate */
+  {"node:\n  log_level: \"caf\\u00e9\"\n", "t.yaml:2:14: key 'node.log_level': ", "got 'caf\xc3\xa9'"},
+  {"node:\n  log_level: \"it's \\\\x1b\"\n", "t.yaml:2:14: key 'node.log_level': ", "got 'it\\'s \\\\x1b'"},
   /* Segment names: valid POSIX names, distinct, refused with file:line. */
   {"shm:\n  ring: no-slash\n", "t.yaml:2:9: key 'shm.ring': ", "starting with '/'"},
   {"shm:\n  map: /a/b\n", "t.yaml:2:8: key 'shm.map': ", "no '/' after the leading one"},

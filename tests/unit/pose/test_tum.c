@@ -67,6 +67,9 @@ static void test_parse(void **state) {
   assert_int_equal(vlff_tum_parse("1 2 3 4 0 0 0 1 x", 1, &s, why, sizeof why), VLFF_TUM_MALFORMED);
   assert_int_equal(parse8("1 2 3 x 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   assert_non_null(strstr(why, "field 4 'x'"));
+  /* bytes of the line are quoted escaped (vlff/escape.h): no raw ESC or quote */
+  assert_int_equal(parse8("1 2 3 \x1b]0;t\x07'\xff 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
+  assert_non_null(strstr(why, "field 4 '\\x1b]0;t\\x07\\'\\xff'"));
   assert_int_equal(parse8("1,2,3,4,0,0,0,1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   assert_int_equal(parse8("1 2 3 4m 0 0 0 1", &s, why, sizeof why), VLFF_TUM_MALFORMED);
   assert_int_equal(parse8("1 nan 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);

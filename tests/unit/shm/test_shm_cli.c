@@ -179,5 +179,38 @@ static void cli_commands(void **state) {
   vlff_shm_unlink(mbox);
 }
 
+/* Segment names are outside data: a name holding ESC and a newline, given on
+ * the command line or found in /dev/shm, reaches the terminal escaped
+ * (vlff/escape.h), in the library's messages and in `list`. */
+static void assert_no_raw_control(const char *out) {
+  for (const unsigned char *c = (const unsigned char *)out; *c; c++)
+    if ((*c < 0x20 && *c != '\n') || *c == 0x7f) fail_msg("raw byte 0x%02x in output '%s'", *c, out);
+}
+
+static void cli_escapes_names(void **state) {
+  (void)state;
+  char args[512], out[8192], want[256];
+  snprintf(args, sizeof args, "stat \"/vlff-test-cli-esc-%d$(printf '\\033[2J\\nx')\"", (int)getpid());
+  assert_int_equal(run(args, out, sizeof out), 1);
+  print_message("  %s", out);
+  assert_no_raw_control(out);
+  snprintf(want, sizeof want, "/vlff-test-cli-esc-%d\\x1b[2J\\x0ax: no such segment", (int)getpid());
+  if (!strstr(out, want)) fail_msg("output '%s' lacks '%s'", out, want);
+  /* a broken vlff segment (the magic, then nothing) is listed with its error */
+  char path[256];
+  snprintf(path, sizeof path, "/dev/shm/vlff-test-cli-esc-%d\x1b]0;owned\x07\n", (int)getpid());
+  FILE *f = fopen(path, "wb");
+  assert_non_null(f);
+  assert_int_equal(fwrite("VLFFSHM\0", 1, 8, f), 8);
+  fclose(f);
+  int rc = run("list", out, sizeof out);
+  unlink(path);
+  assert_int_equal(rc, 0);
+  assert_no_raw_control(out);
+  snprintf(want, sizeof want, "/vlff-test-cli-esc-%d\\x1b]0;owned\\x07\\x0a", (int)getpid());
+  if (!strstr(out, want)) fail_msg("list '%s' lacks '%s'", out, want);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown))
+    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown),
+    cmocka_unit_test(cli_escapes_names))

@@ -265,6 +265,53 @@ static void test_malformed(void **state) {
   expect_open_error(path, "features.hdf", "N=3");
 }
 
+/* Bytes of the dataset reach the error escaped (vlff/escape.h): a binary
+ * intrinsics.txt (OSC title, CSI clear, invalid UTF-8) and an image whose
+ * file name holds ESC and a newline must not reach a terminal raw. */
+static void assert_no_raw_control(const char *err) {
+  for (const unsigned char *c = (const unsigned char *)err; *c; c++)
+    if (*c < 0x20 || *c == 0x7f) fail_msg("raw byte 0x%02x in error '%s'", *c, err);
+}
+
+static void test_outside_bytes_escaped(void **state) {
+  struct fixture *x = *state;
+  char path[400], p[512];
+  write_dataset(x, "esc", path);
+  struct vlff_dataset ds;
+  char err[1024] = "";
+  snprintf(p, sizeof p, "%s/intrinsics.txt", path);
+  static const char binary[] = "\x1b]0;pwned\x07\x1b[2J\xff\xfe\x01 0 32 0\n";
+  FILE *f = fopen(p, "wb");
+  assert_non_null(f);
+  assert_int_equal(fwrite(binary, 1, sizeof binary - 1, f), sizeof binary - 1);
+  fclose(f);
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
+  print_message("  error: %s\n", err);
+  assert_no_raw_control(err);
+  if (!strstr(err, "intrinsics.txt:1: '\\x1b]0;pwned\\x07\\x1b[2J\\xff\\xfe\\x01' is not a number"))
+    fail_msg("error '%s' does not quote the token escaped", err);
+  write_file(path, "intrinsics.txt", GOOD_INTRINSICS);
+  /* an image named "00009<ESC>[2J<LF>x.png" without its depth and pose */
+  char from[512], to[512];
+  snprintf(from, sizeof from, "%s/rgb/00000.png", path);
+  snprintf(to, sizeof to, "%s/rgb/00009\x1b[2J\nx.png", path);
+  FILE *a = fopen(from, "rb"), *b = fopen(to, "wb");
+  assert_non_null(a);
+  assert_non_null(b);
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, a))) assert_int_equal(fwrite(buf, 1, n, b), n);
+  fclose(a), fclose(b);
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
+  print_message("  error: %s\n", err);
+  assert_no_raw_control(err);
+  if (!strstr(err, "00009\\x1b[2J\\x0ax"))
+    fail_msg("error '%s' does not name the file escaped", err);
+  assert_int_equal(remove(to), 0);
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), 0);
+  vlff_dataset_close(&ds);
+}
+
 #ifdef VLFF_HAVE_HDF5
 /* A features.hdf whose one dataset claims shape dims but stores nothing
  * (its chunks never written): a small file. */
@@ -407,4 +454,4 @@ static void test_ply_formats(void **state) {
 VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_round_trip_exact), cmocka_unit_test(test_malformed),
     cmocka_unit_test(test_scannet_layout), cmocka_unit_test(test_physical_bounds),
-    cmocka_unit_test(test_ply_formats))
+    cmocka_unit_test(test_ply_formats), cmocka_unit_test(test_outside_bytes_escaped))

@@ -133,6 +133,8 @@ static void test_heads(void **state) {
       {"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n", VLFF_HEAD_REFUSE, 505, "HTTP/2.0"},
       {"GET / HTTP/1.1x\r\n\r\n", VLFF_HEAD_REFUSE, 400, "HTTP version"},
       {"GET /nope.html HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 404, "/nope.html is not a file of this page"},
+      /* the target quoted through vlff/escape.h (only printable ASCII gets this far) */
+      {"GET /a'b\\c\" HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 404, "/a\\'b\\\\c\\\" is not a file"},
       {"GET /../etc/passwd HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 404, "not a file"},
       {"GET /%69ndex.html HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 404, "not a file"},
       {"GET /passwd.js HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 404, "not a file"},

@@ -99,5 +99,52 @@ static void test_validation(void **state) {
   assert_non_null(strstr(err, ":3: NUL byte"));
 }
 
+/* A prompt_embeddings.txt whose first line is an OSC title and a CSI clear:
+ * the error quotes it escaped (vlff/escape.h), as config errors do, and the
+ * file's own name too (ESC and newline in it). */
+static void expect_escaped(const char *err, const char *want) {
+  for (const unsigned char *c = (const unsigned char *)err; *c; c++)
+    if (*c < 0x20 || *c == 0x7f) fail_msg("raw byte 0x%02x in error '%s'", *c, err);
+  if (!strstr(err, want)) fail_msg("error '%s' lacks '%s'", err, want);
+}
+
+static void test_outside_bytes_escaped(void **state) {
+  (void)state;
+  char dir[128], path[256], err[512];
+  snprintf(dir, sizeof dir, "/tmp/vlff-test-emb-esc-%d", (int)getpid());
+  assert_int_equal(mkdir(dir, 0700), 0);
+  snprintf(path, sizeof path, "%s/prompt_embeddings.txt", dir);
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  fputs("\x1b]0;owned\x07\x1b[2J\x1b[31m'\\\xff\nvlff-embeddings 1\ndim 2\nwall\t1 0\n", f);
+  fclose(f);
+  assert_null(vlff_embeddings_load(path, 2, err, sizeof err));
+  print_message("  error: %s\n", err);
+  expect_escaped(err, "prompt_embeddings.txt:1: expected 'vlff-embeddings 1', got "
+                      "'\\x1b]0;owned\\x07\\x1b[2J\\x1b[31m\\'\\\\\\xff'");
+  /* the dim line, cut at 40 bytes with an ellipsis */
+  f = fopen(path, "w");
+  assert_non_null(f);
+  fputs("vlff-embeddings 1\ndim \x1b[2J\x1b[2J\x1b[2J\x1b[2J\x1b[2J\x1b[2J\x1b[2J\x1b[2J\x1b[2J\x1b[2J\nwall\t1 0\n", f);
+  fclose(f);
+  assert_null(vlff_embeddings_load(path, 2, err, sizeof err));
+  print_message("  error: %s\n", err);
+  expect_escaped(err, "got 'dim \\x1b[2J\\x1b[2J");
+  expect_escaped(err, "...'");
+  /* a file name with ESC and a newline in it */
+  char odd[300];
+  snprintf(odd, sizeof odd, "%s/e\x1b[2J\nx.txt", dir);
+  assert_int_equal(rename(path, odd), 0);
+  assert_null(vlff_embeddings_load(odd, 2, err, sizeof err));
+  print_message("  error: %s\n", err);
+  expect_escaped(err, "/e\\x1b[2J\\x0ax.txt:2: expected 'dim N'");
+  assert_int_equal(unlink(odd), 0);
+  assert_null(vlff_embeddings_load(odd, 2, err, sizeof err));
+  print_message("  error: %s\n", err);
+  expect_escaped(err, "/e\\x1b[2J\\x0ax.txt");
+  assert_int_equal(rmdir(dir), 0);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(test_round_trip), cmocka_unit_test(test_validation))
+    cmocka_unit_test(test_round_trip), cmocka_unit_test(test_validation),
+    cmocka_unit_test(test_outside_bytes_escaped))
