@@ -114,16 +114,17 @@ static size_t first_outside(const float *x, size_t n, float lo, float hi) {
 
 /* Checks one tensor against [lo, hi]; on the first value outside, writes
  * "name[i] (part) = value, not finite | outside [lo, hi]" to why and
- * returns -1. split: where the MLP part of a params-shaped array begins. */
+ * returns -1. split: where the MLP part of a params-shaped array begins
+ * (SIZE_MAX: the tensor has no parts). */
 static int check_tensor(const char *name, const float *x, size_t n, size_t split, float lo, float hi, char *why,
                         size_t len) {
   size_t i = first_outside(x, n, lo, hi);
   if (i == n) return 0;
-  const char *part = i < split ? "hash table" : "MLP weights";
+  const char *part = split == SIZE_MAX ? "" : i < split ? " (hash table)" : " (MLP weights)";
   if (isfinite(x[i]))
-    snprintf(why, len, "%s[%zu] (%s) = %g, outside [%g, %g]", name, i, part, (double)x[i], (double)lo, (double)hi);
+    snprintf(why, len, "%s[%zu]%s = %g, outside [%g, %g]", name, i, part, (double)x[i], (double)lo, (double)hi);
   else
-    snprintf(why, len, "%s[%zu] (%s) = %g, not finite", name, i, part, (double)x[i]);
+    snprintf(why, len, "%s[%zu]%s = %g, not finite", name, i, part, (double)x[i]);
   return -1;
 }
 
@@ -136,7 +137,7 @@ static int check_state(size_t ntable, size_t nparams, size_t nmlp, size_t ncells
          check_tensor("adam_m", m, nparams, ntable, -M, M, why, len) ||
          check_tensor("adam_v", v, nparams, ntable, 0.0f, V, why, len) ||
          check_tensor("avg", avg, nmlp, 0, -P, P, why, len) ||
-         check_tensor("occupancy density", dens, ncells, ncells, 0.0f, VLFF_FIELD_MAX_DENSITY, why, len);
+         check_tensor("occupancy density", dens, ncells, SIZE_MAX, 0.0f, VLFF_FIELD_MAX_DENSITY, why, len);
 }
 
 int vlff_field_check(const struct vlff_field *f, char *err, size_t errlen) {
