@@ -112,6 +112,7 @@ struct vlff_node {
    * fed only while both move (vlff_node_status). */
   _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
+  uint64_t nonfinite_logged, rollback_logged; /* vlff_warn_limited's counts */
   double lat_ms[LAT_CAP];
   int lat_n;
   uint64_t pending_t_host[64];
@@ -869,6 +870,45 @@ static void obs_path(const struct vlff_node *n, int slot, char *out, size_t len)
   snprintf(out, len, "%s/map.%d.obs", n->cfg.node.state_dir, slot);
 }
 
+/* The field's own state went non-finite (why names where): back to the
+ * newest checkpoint that loads, or to a new field when none does. The
+ * keyframes stay, so it learns again from what it has. */
+static void roll_back(struct vlff_node *n, const char *why) {
+  char path[2][VLFF_CFG_PATH + 32], err[640];
+  const char *paths[2];
+  for (int i = 0; i < 2; i++) {
+    ckpt_path(n, i, path[i], sizeof path[i]);
+    paths[i] = path[i];
+  }
+  int i = vlff_field_rollback(n->field, paths, 2, err, sizeof err);
+  STAT_ADD(n, field_rollbacks, 1);
+  if (i >= 0) {
+    /* The next checkpoint goes to the other slot: the good one stays. */
+    n->ckpt_steps = vlff_field_steps(n->field);
+    n->ckpt_slot = i ^ 1;
+    vlff_warn_limited(&n->rollback_logged, TAG, "the field diverged (%s): rolled back to %s at step %lld%s%s", why,
+                      path[i], n->ckpt_steps, err[0] ? "; refused: " : "", err);
+  } else {
+    n->ckpt_steps = 0;
+    n->resumed = false;
+    vlff_warn_limited(&n->rollback_logged, TAG, "the field diverged (%s): re-initialised, no checkpoint loads%s%s", why,
+                      err[0] ? ": " : "", err);
+  }
+}
+
+/* A step whose loss was not finite applied nothing; if the field itself is
+ * what went non-finite, roll it back. The scan costs a pass over the
+ * parameters and moments, only after such a step. */
+static void step_not_finite(struct vlff_node *n, const char *step_err) {
+  STAT_ADD(n, steps_nonfinite, 1);
+  char why[256];
+  if (vlff_field_check(n->field, why, sizeof why) == 0) {
+    vlff_warn_limited(&n->nonfinite_logged, TAG, "%s (the field itself is finite)", step_err);
+    return;
+  }
+  roll_back(n, why);
+}
+
 static int save_checkpoint(struct vlff_node *n) {
   char path[VLFF_CFG_PATH + 32], err[256];
   int slot = n->ckpt_slot;
@@ -879,6 +919,13 @@ static int save_checkpoint(struct vlff_node *n) {
   if (steps == n->ckpt_steps) {
     VLFF_DEBUG(TAG, "checkpoint skipped: nothing learned since step %lld", steps);
     return 0;
+  }
+  /* A field gone non-finite where no step's loss showed it (a table entry
+   * no ray reached since) is rolled back, never written over the last good
+   * checkpoint. */
+  if (vlff_field_check(n->field, err, sizeof err)) {
+    roll_back(n, err);
+    return -1;
   }
   /* The observation grid first: a field checkpoint is only ever newer than
    * (or as new as) the grid beside it. */
@@ -1309,7 +1356,8 @@ static void *trainer_main(void *arg) {
       apply_warmup(n);
       struct vlff_train_stats ts;
       char err[256];
-      if (vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err) == 0) {
+      int rc = vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err);
+      if (rc == 0) {
         steps.count++;
         pthread_mutex_lock(&n->slock);
         n->st.iteration = ts.step;
@@ -1319,6 +1367,8 @@ static void *trainer_main(void *arg) {
         n->st.loss_feat = ts.loss_feat;
         n->st.psnr = ts.psnr;
         pthread_mutex_unlock(&n->slock);
+      } else if (rc == -2) {
+        step_not_finite(n, err);
       } else {
         VLFF_ERROR(TAG, "training step failed: %s", err);
       }

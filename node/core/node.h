@@ -92,7 +92,13 @@ struct vlff_node_status {
   int prompt_set;               /* index of the active configured set, -1 = posted texts */
   int prompt_count;
   long long checkpoints;
-  long long checkpoint_failures;
+  long long checkpoint_failures; /* saves that failed, and checkpoints refused on load */
+  /* Steps whose loss came out non-finite (no update applied), and times the
+   * field's own state was found non-finite (after such a step, or at
+   * checkpoint time) and rolled back to the newest checkpoint that loads,
+   * or re-initialised when none does. */
+  long long steps_nonfinite;
+  long long field_rollbacks;
   double miou2d, miou3d;        /* against synthetic ground truth; -1 when unknown */
   long long miou2d_frame;       /* the frame id of the view miou2d scored; -1 when unknown */
   double last_pose_residual_m;

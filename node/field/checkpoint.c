@@ -12,8 +12,11 @@
  *             cell, one float64; train.error_sampling; from version 4)
  *   trailer : 64-bit checksum of everything before it
  * Save writes "<path>.tmp.<pid>", fsyncs, renames over path and fsyncs the
- * directory. Load reads into fresh buffers and swaps them in only after the
- * header, sizes and checksum all match, so a bad file leaves f untouched.
+ * directory, and refuses to write a state that vlff_field_check refuses.
+ * Load reads into fresh buffers and swaps them in only after the header,
+ * sizes and checksum all match and every value is within the bounds of
+ * field.h (the checksum guards against corruption, not forgery: anyone who
+ * can write the file can recompute it), so a bad file leaves f untouched.
  */
 #include <errno.h>
 #include <fcntl.h>
@@ -21,6 +24,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "field_internal.h"
@@ -94,6 +98,57 @@ static uint64_t sum_final(struct sum *s) {
   return s->h;
 }
 
+/* The first of x[0, n) outside [lo, hi] (or NaN): its index, n when none.
+ * Blocks of 1024 without a branch per value, then the block that has one. */
+static size_t first_outside(const float *x, size_t n, float lo, float hi) {
+  for (size_t b = 0; b < n; b += 1024) {
+    size_t e = n - b < 1024 ? n : b + 1024;
+    int bad = 0;
+    for (size_t i = b; i < e; i++) bad |= !(x[i] >= lo && x[i] <= hi);
+    if (bad)
+      for (size_t i = b; i < e; i++)
+        if (!(x[i] >= lo && x[i] <= hi)) return i;
+  }
+  return n;
+}
+
+/* Checks one tensor against [lo, hi]; on the first value outside, writes
+ * "name[i] (part) = value, not finite | outside [lo, hi]" to why and
+ * returns -1. split: where the MLP part of a params-shaped array begins
+ * (SIZE_MAX: the tensor has no parts). */
+static int check_tensor(const char *name, const float *x, size_t n, size_t split, float lo, float hi, char *why,
+                        size_t len) {
+  size_t i = first_outside(x, n, lo, hi);
+  if (i == n) return 0;
+  const char *part = split == SIZE_MAX ? "" : i < split ? " (hash table)" : " (MLP weights)";
+  if (isfinite(x[i]))
+    snprintf(why, len, "%s[%zu]%s = %g, outside [%g, %g]", name, i, part, (double)x[i], (double)lo, (double)hi);
+  else
+    snprintf(why, len, "%s[%zu]%s = %g, not finite", name, i, part, (double)x[i]);
+  return -1;
+}
+
+/* The learned state's bounds (field.h), tensor by tensor; the first value
+ * outside is named in why. */
+static int check_state(size_t ntable, size_t nparams, size_t nmlp, size_t ncells, const float *p, const float *m,
+                       const float *v, const float *avg, const float *dens, char *why, size_t len) {
+  const float P = VLFF_FIELD_MAX_PARAM, M = VLFF_FIELD_MAX_MOMENT1, V = VLFF_FIELD_MAX_MOMENT2;
+  return check_tensor("params", p, nparams, ntable, -P, P, why, len) ||
+         check_tensor("adam_m", m, nparams, ntable, -M, M, why, len) ||
+         check_tensor("adam_v", v, nparams, ntable, 0.0f, V, why, len) ||
+         check_tensor("avg", avg, nmlp, 0, -P, P, why, len) ||
+         check_tensor("occupancy density", dens, ncells, SIZE_MAX, 0.0f, VLFF_FIELD_MAX_DENSITY, why, len);
+}
+
+int vlff_field_check(const struct vlff_field *f, char *err, size_t errlen) {
+  char why[160];
+  if (!check_state(f->ntable, f->nparams, f->nmlp, vlff_occ_cells(&f->occ), f->params, f->adam_m, f->adam_v, f->avg,
+                   f->occ.density, why, sizeof why))
+    return 0;
+  if (err && errlen) snprintf(err, errlen, "field at step %lld: %s", f->step, why);
+  return -1;
+}
+
 static int write_all(int fd, const void *p, size_t n, struct sum *s) {
   if (s) sum_add(s, p, n);
   return vlff_write_all(fd, p, n);
@@ -122,6 +177,12 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
     return -1;
   }
   char cerr[384];
+  /* A diverged field is never written: it would replace the last good
+   * checkpoint, the one a rollback goes back to. */
+  if (vlff_field_check(f, cerr, sizeof cerr)) {
+    if (err && errlen) snprintf(err, errlen, "checkpoint %s: not written: %s", path, cerr);
+    return -1;
+  }
   struct vlff_atomic a;
   if (vlff_atomic_begin(&a, path, 0644, cerr, sizeof cerr) < 0) {
     if (err && errlen) snprintf(err, errlen, "checkpoint %s", cerr);
@@ -180,6 +241,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   struct sum s;
   sum_init(&s);
   const char *why = NULL;
+  char whybuf[160];
   float *p = NULL, *m = NULL, *v = NULL, *dens = NULL, *avg = NULL, *cerr = NULL;
   double err_mean = 0;
   uint8_t *occ = NULL;
@@ -198,7 +260,10 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     why = "model configuration (field.*) differs from this node's";
   else if (h.nparams != np || h.ntable != f->ntable || h.ncells != nc || h.feature_dim != f->D)
     why = "array sizes differ from this model";
-  else if (h.step < 0 || h.occ_cursor < 0 || (uint64_t)h.occ_cursor >= nc)
+  else if (h.step < 0 || h.step > VLFF_FIELD_MAX_STEP) {
+    snprintf(whybuf, sizeof whybuf, "step %lld outside [0, %lld]", (long long)h.step, (long long)VLFF_FIELD_MAX_STEP);
+    why = whybuf;
+  } else if (h.occ_cursor < 0 || (uint64_t)h.occ_cursor >= nc)
     why = "header values out of range";
   if (!why) {
     if (posix_memalign((void **)&p, 64, np * sizeof(float)) || posix_memalign((void **)&m, 64, np * sizeof(float)) ||
@@ -228,6 +293,12 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     else if (read(fd, &extra, 1) != 0)
       why = "trailing bytes after the checksum";
   }
+  /* A forged file (its checksum recomputed) with NaN parameters, negative
+   * second moments or 3e38 values would resume and train on as NaN. Before
+   * version 3 the average is not in the file: it restarts from params. */
+  if (!why && check_state(f->ntable, np, f->nmlp, nc, p, m, v, h.version > CKPT_VERSION_NO_AVERAGE ? avg : p + f->ntable,
+                          dens, whybuf, sizeof whybuf))
+    why = whybuf;
   if (!why && h.version > CKPT_VERSION_NO_ERRORS) {
     /* Each cell's loss is -1 (none yet) or a loss: a forged value would
      * steer every ray. */
@@ -269,4 +340,33 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   if (h.version <= CKPT_VERSION_NO_AVERAGE) vlff_field_reset_average(f);
   else vlff_field_refresh(f);
   return 0;
+}
+
+int vlff_field_rollback(struct vlff_field *f, const char *const *paths, int npaths, char *err, size_t errlen) {
+  if (err && errlen) err[0] = 0;
+  size_t used = 0;
+  /* Newest first: each round takes the newest file not yet tried. */
+  unsigned char tried[64] = {0};
+  if (npaths > 64) npaths = 64;
+  for (;;) {
+    int best = -1;
+    struct timespec bt = {0, 0};
+    for (int i = 0; i < npaths; i++) {
+      struct stat sb;
+      if (tried[i] || !paths[i] || stat(paths[i], &sb)) continue;
+      if (best < 0 || sb.st_mtim.tv_sec > bt.tv_sec ||
+          (sb.st_mtim.tv_sec == bt.tv_sec && sb.st_mtim.tv_nsec > bt.tv_nsec))
+        best = i, bt = sb.st_mtim;
+    }
+    if (best < 0) break;
+    tried[best] = 1;
+    char lerr[512];
+    if (vlff_field_load(f, paths[best], lerr, sizeof lerr) == 0) return best;
+    if (err && errlen > used) {
+      int k = snprintf(err + used, errlen - used, "%s%s", used ? "; " : "", lerr);
+      used = k < 0 ? used : used + (size_t)k < errlen ? used + (size_t)k : errlen - 1;
+    }
+  }
+  vlff_field_reinit(f);
+  return -1;
 }

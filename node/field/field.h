@@ -74,6 +74,13 @@ void vlff_field_destroy(struct vlff_field *f);
  * train (train.weight_average; 0 = the latest weights): the hash table is
  * the same, the decoders every point shares do not jitter from step to
  * step. */
+/* Returns 0; -1 for bad views (checked up front, nothing changed); -2
+ * when the step's loss came out non-finite: no update is applied (the step
+ * count does not advance; the rays drawn, their exposure and the rng do),
+ * stats (when given) carry the non-finite loss with psnr NaN, and err says
+ * so. A non-finite loss comes from the field's own state gone non-finite
+ * (then vlff_field_check names it, and the caller rolls back) or from an
+ * input that slipped past validation. */
 int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews,
                     const float *weights, struct vlff_train_stats *stats, char *err, size_t errlen);
 
@@ -148,11 +155,46 @@ int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, 
 size_t vlff_field_snap_surface(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
                                float *xyz);
 
+/* Bounds of the learned state, far beyond what training produces (the
+ * analytic scene's field after 3,000 steps: |params| <= 5, |Adam m| <=
+ * 0.009, Adam v <= 7e-4) and far below float overflow in Adam's arithmetic
+ * (v times its bias correction, m over the root of v). params and the
+ * averaged MLP weights within +-MAX_PARAM, Adam's first moment within
+ * +-MAX_MOMENT1, the second in [0, MAX_MOMENT2] (a mean of squares), the
+ * occupancy density in [0, e^15] (the density activation's clamp), the
+ * step in [0, 2^40] (35 years at 1,000 steps/s: no count near overflow).
+ * Each also excludes NaN and infinities. */
+#define VLFF_FIELD_MAX_PARAM 1e4f
+#define VLFF_FIELD_MAX_MOMENT1 1e4f
+#define VLFF_FIELD_MAX_MOMENT2 1e8f
+#define VLFF_FIELD_MAX_DENSITY 3.3e6f
+#define VLFF_FIELD_MAX_STEP (1LL << 40)
+
+/* 0 when the learned state is within those bounds; -1 with err naming the
+ * first value outside ("params[17] (MLP weights) = nan, not finite"). A scan
+ * of the whole state (parameters and moments): for checkpoint time and after
+ * a non-finite loss, not every step. */
+int vlff_field_check(const struct vlff_field *f, char *err, size_t errlen);
+
 /* Atomic checkpoint (temp file, fsync, rename) of the whole learned state;
- * load refuses truncated, corrupt or mismatched (config hash) files and then
- * leaves f untouched. */
+ * save refuses a state vlff_field_check refuses (a diverged field never
+ * replaces a good checkpoint). Load refuses truncated, corrupt or
+ * mismatched (config hash) files, and files whose values or step are
+ * outside the bounds above (the checksum detects corruption, not forgery),
+ * naming the file and the tensor and index; it then leaves f untouched. */
 int vlff_field_save(const struct vlff_field *f, const char *path, char *err, size_t errlen);
 int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t errlen);
+
+/* Back to a field that learns, for one whose state went non-finite
+ * (vlff_field_check): loads the newest (by modification time) of the npaths
+ * checkpoints that loads (at most 64; missing ones are skipped), else
+ * re-initialises f in place. Returns the index of the file loaded, or -1
+ * when re-initialised, with err listing the files refused ("" when none
+ * was). The prompt set, rays and levels are kept either way. */
+int vlff_field_rollback(struct vlff_field *f, const char *const *paths, int npaths, char *err, size_t errlen);
+/* The state vlff_field_create gives (from its fixed seed: step 0, no
+ * moments, every cell occupied, nothing fitted), in place. */
+void vlff_field_reinit(struct vlff_field *f);
 
 /* float16 helpers shared by every module that handles features. */
 uint16_t vlff_f32_to_f16(float x);

@@ -121,6 +121,29 @@ static int work_alloc(struct vlff_field *f, struct vlff_work *w) {
   return ok ? 0 : -1;
 }
 
+/* The learned state of a new field, from a fixed seed: two fields built
+ * from one config start identical, and a field re-initialised is the one
+ * it was created as. */
+static void init_state(struct vlff_field *f) {
+  const size_t ncell = vlff_occ_cells(&f->occ), fs = sizeof(float);
+  f->rng = 0x5eed0f1e1dull;
+  for (size_t i = 0; i < f->ntable; i++) f->params[i] = (2.0f * vlff_rng_uniform(&f->rng) - 1.0f) * 1e-4f;
+  float *pm = vlff_mlp_params(f);
+  vlff_mlp_init_params(&f->m1, pm, &f->rng);
+  vlff_mlp_init_params(&f->m2, pm, &f->rng);
+  vlff_mlp_init_params(&f->m3, pm, &f->rng);
+  memset(f->adam_m, 0, f->nparams * fs);
+  memset(f->adam_v, 0, f->nparams * fs);
+  memset(f->occ.density, 0, ncell * fs);
+  memset(f->occ.occ, 1, ncell);
+  memset(f->exposure, 0, ncell * sizeof *f->exposure);
+  memset(f->bal_freq, 0, sizeof f->bal_freq);
+  f->step = 0;
+  f->occ_cursor = 0;
+  vlff_field_forget_errors(f);
+  vlff_field_reset_average(f);
+}
+
 void vlff_field_destroy(struct vlff_field *f) {
   if (!f) return;
   if (f->pool) vlff_pool_destroy(f->pool);
@@ -236,19 +259,11 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
     vlff_field_destroy(f);
     return NULL;
   }
-  /* Deterministic init from a fixed seed: two fields built from one config
-   * start identical. */
-  f->rng = 0x5eed0f1e1dull;
-  for (size_t i = 0; i < f->ntable; i++) f->params[i] = (2.0f * vlff_rng_uniform(&f->rng) - 1.0f) * 1e-4f;
-  float *pm = vlff_mlp_params(f);
-  vlff_mlp_init_params(&f->m1, pm, &f->rng);
-  vlff_mlp_init_params(&f->m2, pm, &f->rng);
-  vlff_mlp_init_params(&f->m3, pm, &f->rng);
-  memset(f->occ.occ, 1, ncell);
-  vlff_field_forget_errors(f);
-  vlff_field_reset_average(f);
+  init_state(f);
   return f;
 }
+
+void vlff_field_reinit(struct vlff_field *f) { init_state(f); }
 
 long long vlff_field_steps(const struct vlff_field *f) { return f->step; }
 
@@ -1115,6 +1130,35 @@ int vlff_field_set_rays(struct vlff_field *f, int n) {
   return f->nrays;
 }
 
+/* The step's statistics (field.h) from the threads' sums and the phases'
+ * times. */
+static void step_stats(const struct vlff_field *f, struct vlff_train_stats *stats, int n_rgb, double t0, double t1,
+                       double t2, double t3) {
+  if (!stats) return;
+  memset(stats, 0, sizeof(*stats));
+  double sq = 0;
+  for (int t = 0; t < f->threads; t++) {
+    struct vlff_work *w = &f->work[t];
+    stats->loss_rgb += w->loss_rgb;
+    stats->loss_depth += w->loss_depth;
+    stats->loss_feat += w->loss_feat;
+    stats->samples += w->samples;
+    stats->flops += w->flops;
+    stats->time_gemm += w->gemm_s;
+    /* Each line of p, m and v read once and written once. */
+    stats->table_bytes += 6.0 * 64.0 * (double)w->table_lines;
+    sq += w->sq_rgb;
+  }
+  stats->step = f->step;
+  stats->loss = stats->loss_rgb + stats->loss_depth + stats->loss_feat;
+  stats->time_rays = t1 - t0;
+  stats->time_table = t2 - t1;
+  stats->time_dense = t3 - t2;
+  double mse = n_rgb ? sq / n_rgb : 0;
+  /* NaN, not the 100 dB of the floor, when the colour error is not finite. */
+  stats->psnr = !n_rgb ? 0 : !isfinite(mse) ? NAN : -10.0 * log10(mse > 1e-10 ? mse : 1e-10);
+}
+
 int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nviews, const float *weights,
                     struct vlff_train_stats *stats, char *err, size_t errlen) {
   if (check_views(f, views, nviews, weights, err, errlen)) return -1;
@@ -1135,6 +1179,20 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   double t0 = vlff_seconds();
   vlff_pool_run(f->pool, sc.nchunks, chunk_task, &sc);
   double t1 = vlff_seconds();
+  /* A non-finite loss (the field's own state gone non-finite, or an input
+   * past validation) would carry NaN into every parameter and moment the
+   * gradients reach: no update, and the caller is told (field.h). */
+  double total = 0;
+  for (int t = 0; t < f->threads; t++) total += f->work[t].loss_rgb + f->work[t].loss_depth + f->work[t].loss_feat;
+  if (!isfinite(total)) {
+    f->views = NULL;
+    f->step--;
+    step_stats(f, stats, n_rgb, t0, t1, t1, t1);
+    if (err && errlen)
+      snprintf(err, errlen, "field step: the loss is not finite (%g) at step %lld: no update applied", total,
+               f->step + 1);
+    return -2;
+  }
   vlff_pool_run_dynamic(f->pool, f->enc.levels, hash_task, &sc);
   double t2 = vlff_seconds();
   vlff_pool_run(f->pool, MLP_SPLIT, mlp_task, &sc);
@@ -1153,29 +1211,7 @@ int vlff_field_step(struct vlff_field *f, const struct vlff_view *views, int nvi
   if (f->cfg.train.sampling != VLFF_SAMPLING_UNIFORM && f->step % f->cfg.train.occupancy_update_steps == 0)
     vlff_field_occupancy_update(f, 0);
 
-  if (stats) {
-    memset(stats, 0, sizeof(*stats));
-    double sq = 0;
-    for (int t = 0; t < f->threads; t++) {
-      struct vlff_work *w = &f->work[t];
-      stats->loss_rgb += w->loss_rgb;
-      stats->loss_depth += w->loss_depth;
-      stats->loss_feat += w->loss_feat;
-      stats->samples += w->samples;
-      stats->flops += w->flops;
-      stats->time_gemm += w->gemm_s;
-      /* Each line of p, m and v read once and written once. */
-      stats->table_bytes += 6.0 * 64.0 * (double)w->table_lines;
-      sq += w->sq_rgb;
-    }
-    stats->step = f->step;
-    stats->loss = stats->loss_rgb + stats->loss_depth + stats->loss_feat;
-    stats->time_rays = t1 - t0;
-    stats->time_table = t2 - t1;
-    stats->time_dense = t3 - t2;
-    double mse = n_rgb ? sq / n_rgb : 0;
-    stats->psnr = n_rgb ? -10.0 * log10(mse > 1e-10 ? mse : 1e-10) : 0;
-  }
+  step_stats(f, stats, n_rgb, t0, t1, t2, t3);
   return 0;
 }
 
