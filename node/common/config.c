@@ -534,7 +534,10 @@ static int fail_nul_key(struct parse *p, const yaml_node_t *kn, const char *pref
   char e[512], path[640];
   vlff_escape(e, sizeof e, scalar(kn), kn->data.scalar.length, 120);
   snprintf(path, sizeof path, "%s%s%s", prefix, prefix[0] ? "." : "", e);
-  return fail(p, kn, path, "expected a key without NUL bytes");
+  /* Written here, not through fail(): it would escape the escapes again. */
+  snprintf(p->err, p->errlen, "%s:%u:%u: key '%s': expected a key without NUL bytes", p->name,
+           (unsigned)kn->start_mark.line + 1, (unsigned)kn->start_mark.column + 1, path);
+  return -1;
 }
 
 static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {

@@ -76,7 +76,7 @@ struct vlff_node {
    * keyframe, iteration or request (each used by one thread). */
   struct {
     uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder, features_late,
-        kf_rejected, kf_refused, kf_store;
+        kf_rejected, kf_refused, kf_store, step_failed;
   } warned;
 
   pthread_t ingest_thread, trainer_thread;
@@ -1370,7 +1370,7 @@ static void *trainer_main(void *arg) {
       } else if (rc == -2) {
         step_not_finite(n, err);
       } else {
-        VLFF_ERROR(TAG, "training step failed: %s", err);
+        vlff_warn_limited(&n->warned.step_failed, TAG, "training step failed: %s", err);
       }
     }
     double now = vlff_seconds();
