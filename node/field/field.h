@@ -157,16 +157,20 @@ size_t vlff_field_snap_surface(struct vlff_field *f, const struct vlff_view *cam
 
 /* Bounds of the learned state, far beyond what training produces (the
  * analytic scene's field after 3,000 steps: |params| <= 5, |Adam m| <=
- * 0.009, Adam v <= 7e-4) and far below float overflow in Adam's arithmetic
- * (v times its bias correction, m over the root of v). params and the
- * averaged MLP weights within +-MAX_PARAM, Adam's first moment within
- * +-MAX_MOMENT1, the second in [0, MAX_MOMENT2] (a mean of squares), the
- * occupancy density in [0, e^15] (the density activation's clamp), the
- * step in [0, 2^40] (35 years at 1,000 steps/s: no count near overflow).
- * Each also excludes NaN and infinities. */
-#define VLFF_FIELD_MAX_PARAM 1e4f
-#define VLFF_FIELD_MAX_MOMENT1 1e4f
-#define VLFF_FIELD_MAX_MOMENT2 1e8f
+ * 0.009, Adam v <= 7e-4; even the demo trained at train.lr 10, the
+ * config's ceiling, held |m| of 1.2e4 after 1,200 steps, and its field
+ * must still save and resume) and where float arithmetic stays finite:
+ * three layers of 64 products of values up to 1e6 stay below 1e30, and
+ * v up to 1e16 times Adam's bias correction (at most 1000) and m over its
+ * root stay far from overflow. params and the averaged MLP weights within
+ * +-MAX_PARAM, Adam's first moment within +-MAX_MOMENT1, the second in
+ * [0, MAX_MOMENT2] (a mean of squares), the occupancy density in [0, e^15]
+ * (the density activation's clamp), the step in [0, 2^40] (35 years at
+ * 1,000 steps/s: no count near overflow). Each also excludes NaN and
+ * infinities. */
+#define VLFF_FIELD_MAX_PARAM 1e6f
+#define VLFF_FIELD_MAX_MOMENT1 1e8f
+#define VLFF_FIELD_MAX_MOMENT2 1e16f
 #define VLFF_FIELD_MAX_DENSITY 3.3e6f
 #define VLFF_FIELD_MAX_STEP (1LL << 40)
 
