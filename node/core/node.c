@@ -42,6 +42,11 @@
 #include "vlff/escape.h"
 #endif
 
+/* Steps in a row with a non-finite loss on a finite field before it is
+ * rolled back all the same (step_not_finite). */
+#define NONFINITE_RUN_MAX 20
+/* Steps between two scans of the whole learned state (vlff_field_check). */
+#define FIELD_SCAN_STEPS 200
 #define TAG "node"
 #define QUEUE_CAP 4
 #define PENDING_CAP 16
@@ -113,6 +118,9 @@ struct vlff_node {
   _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
   uint64_t nonfinite_logged, rollback_logged; /* vlff_warn_limited's counts */
+  int nonfinite_run;          /* trainer: steps in a row whose loss was not finite */
+  long long scanned_step;     /* trainer: the step of the last vlff_field_check */
+  unsigned rollback_tried;    /* trainer: slots the field was loaded from since its last save */
   double lat_ms[LAT_CAP];
   int lat_n;
   uint64_t pending_t_host[64];
@@ -876,13 +884,22 @@ static void obs_path(const struct vlff_node *n, int slot, char *out, size_t len)
 static void roll_back(struct vlff_node *n, const char *why) {
   char path[2][VLFF_CFG_PATH + 32], err[640];
   const char *paths[2];
+  int slot_of[2], np = 0;
+  /* A checkpoint that loads but diverged again before anything new was
+   * saved (values within the bounds that overflow together) is not taken
+   * twice: then the other slot, then a new field. */
   for (int i = 0; i < 2; i++) {
-    ckpt_path(n, i, path[i], sizeof path[i]);
-    paths[i] = path[i];
+    if (n->rollback_tried & (1u << i)) continue;
+    ckpt_path(n, i, path[np], sizeof path[np]);
+    paths[np] = path[np];
+    slot_of[np++] = i;
   }
-  int i = vlff_field_rollback(n->field, paths, 2, err, sizeof err);
+  err[0] = 0;
+  int i = vlff_field_rollback(n->field, paths, np, err, sizeof err);
   STAT_ADD(n, field_rollbacks, 1);
   if (i >= 0) {
+    n->rollback_tried |= 1u << slot_of[i];
+    i = slot_of[i];
     /* The next checkpoint goes to the other slot: the good one stays. */
     n->ckpt_steps = vlff_field_steps(n->field);
     n->ckpt_slot = i ^ 1;
@@ -901,11 +918,19 @@ static void roll_back(struct vlff_node *n, const char *why) {
  * parameters and moments, only after such a step. */
 static void step_not_finite(struct vlff_node *n, const char *step_err) {
   STAT_ADD(n, steps_nonfinite, 1);
-  char why[256];
+  char why[320];
   if (vlff_field_check(n->field, why, sizeof why) == 0) {
-    vlff_warn_limited(&n->nonfinite_logged, TAG, "%s (the field itself is finite)", step_err);
-    return;
+    /* Values within the bounds can still overflow together (weights of 1e6
+     * through three layers): a field whose every step is non-finite learns
+     * nothing and is rolled back as well. Keyframes are checked on entry,
+     * so a run this long is the field's. */
+    if (++n->nonfinite_run < NONFINITE_RUN_MAX) {
+      vlff_warn_limited(&n->nonfinite_logged, TAG, "%s (the field itself is finite)", step_err);
+      return;
+    }
+    snprintf(why, sizeof why, "%d steps in a row with a non-finite loss, the last: %s", NONFINITE_RUN_MAX, step_err);
   }
+  n->nonfinite_run = 0;
   roll_back(n, why);
 }
 
@@ -942,6 +967,7 @@ static int save_checkpoint(struct vlff_node *n) {
   }
   /* Two alternating files: a crash while writing one leaves the other. */
   n->ckpt_slot ^= 1;
+  n->rollback_tried = 0; /* a field that learned on since is worth going back to */
   pthread_mutex_lock(&n->slock);
   n->st.checkpoints++;
   n->st.error_flags &= ~(unsigned)VLFF_NODE_ERR_CHECKPOINT;
@@ -979,6 +1005,7 @@ static void restore_checkpoint(struct vlff_node *n) {
       n->resumed = true;
       n->ckpt_steps = vlff_field_steps(n->field);
       n->ckpt_slot = i ^ 1;
+      n->rollback_tried = 1u << i; /* diverging before the next save goes to the other slot */
       char op[VLFF_CFG_PATH + 32];
       obs_path(n, i, op, sizeof op);
       if (vlff_publisher_load(n->pub, op, err, sizeof err))
@@ -1358,6 +1385,20 @@ static void *trainer_main(void *arg) {
       char err[256];
       int rc = vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err);
       if (rc == 0) {
+        n->nonfinite_run = 0;
+        /* Values can run out of bounds while every loss stays finite (a forged
+         * checkpoint's weights of 1e6 drove Adam's m to 2e10 with a loss of
+         * 1e29): the field is scanned every FIELD_SCAN_STEPS steps, a pass
+         * over its parameters and moments, not only before a checkpoint. */
+        if (ts.step - n->scanned_step >= FIELD_SCAN_STEPS) {
+          char why[256];
+          n->scanned_step = ts.step;
+          if (vlff_field_check(n->field, why, sizeof why)) {
+            roll_back(n, why);
+            n->scanned_step = vlff_field_steps(n->field);
+            continue;
+          }
+        }
         steps.count++;
         pthread_mutex_lock(&n->slock);
         n->st.iteration = ts.step;

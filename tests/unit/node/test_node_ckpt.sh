@@ -4,6 +4,7 @@
 # parameter and its checksum recomputed as the format does (docs/field.md).
 # The restarted node refuses it by file, tensor and index, counts it, and
 # starts a new field instead of resuming NaN (it used to log "resumed").
+# Then a file whose values are within the bounds but overflow together.
 set -u
 . "$(dirname "$0")/node_sh.sh" nck "$@"
 val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
@@ -14,11 +15,20 @@ kill "$simpid"; wait "$simpid"; simpid=
 stop_node
 ckpt=$(ls "$tmp"/field.*.ckpt 2>/dev/null | head -1)
 check "the node checkpointed on SIGTERM ($ckpt)" '[[ -f $ckpt ]]'
-python3 - "$ckpt" <<'PY'
+# forge FILE nan|mlp: a NaN in params[0], or every MLP weight (params after the
+# hash table) set to 1e6, within the load bounds; then the checksum recomputed
+# as the format does (docs/field.md).
+forge() {
+python3 - "$1" "$2" <<'PY'
 import struct, sys
-path = sys.argv[1]
+path, mode = sys.argv[1], sys.argv[2]
 b = bytearray(open(path, "rb").read())
-b[80:84] = struct.pack("<f", float("nan"))  # params[0], right after the 80-byte header
+nparams, ntable = struct.unpack_from("<QQ", b, 24)  # after magic, version, BOM, config hash
+if mode == "nan":
+    b[80:84] = struct.pack("<f", float("nan"))  # params[0], right after the 80-byte header
+else:
+    for i in range(ntable, nparams):
+        struct.pack_into("<f", b, 80 + 4 * i, 1e6)
 M = (1 << 64) - 1
 h, body = 0xcbf29ce484222325, bytes(b[:-8])
 for i in range(0, len(body) + 1, 8):
@@ -33,11 +43,39 @@ for i in range(0, len(body) + 1, 8):
 b[-8:] = h.to_bytes(8, "little")
 open(path, "wb").write(b)
 PY
+}
+forge "$ckpt" nan
 "$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
 nodepid=$!
 wait_until 300 'grep -q "waiting for ring\|resumed from" "$tmp/log"'
 check "the forged checkpoint is refused by file, tensor and index" \
   'grep -q "checkpoint refused, skipped: checkpoint $ckpt: refused: params\[0\] (hash table) = nan, not finite" "$tmp/log"'
 check "the node does not resume from it" '! grep -q "resumed from" "$tmp/log"'
+
+# Values within the bounds that overflow together: weights of 1e6 through the
+# MLPs drove Adam's m to 2e10 with every loss finite (1e29), and the node
+# trained on that for good. It resumes from the file, its periodic scan finds
+# the field out of bounds, and with no other checkpoint it starts anew, learns
+# and checkpoints finite values.
+"$sim" --config "$tmp/n.yaml" --quiet 2>>"$tmp/simlog" &
+simpid=$!
+wait_until 1200 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null; [[ $(val iterations) -gt 0 ]] 2>/dev/null'
 stop_node
+kill "$simpid"; wait "$simpid"; simpid=
+ckpt=$(ls -t "$tmp"/field.*.ckpt 2>/dev/null | head -1)
+rm -f $(ls -t "$tmp"/field.*.ckpt | tail -n +2)  # the newest alone: nothing good to go back to
+forge "$ckpt" mlp
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
+nodepid=$!
+"$sim" --config "$tmp/n.yaml" --quiet 2>>"$tmp/simlog" &
+simpid=$!
+check "the node resumes from the file, whose values are within the bounds" \
+  'wait_until 300 "grep -q \"resumed from $ckpt\" \"$tmp/log\""'
+check "the diverging field is found and re-initialised" \
+  'wait_until 600 "grep -q \"the field diverged (.*): re-initialised\" \"$tmp/log\""'
+wait_until 1200 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null; (( $(val iterations) > 0 )) 2>/dev/null && grep -q "diverged" "$tmp/log"'
+kill "$simpid"; wait "$simpid"; simpid=
+stop_node
+check "the new field checkpoints on SIGTERM" 'grep -q "I node: checkpoint .* at step" "$tmp/log"'
+check "it diverged once, not again" '[[ $(grep -c "the field diverged" "$tmp/log") == 1 ]]'
 verdict
