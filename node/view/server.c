@@ -27,8 +27,11 @@
  */
 #include "view.h"
 
+#include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <ifaddrs.h>
+#include <netinet/in.h>
 #include <json-c/json.h>
 #include <libwebsockets.h>
 #include <stddef.h>
@@ -45,7 +48,10 @@
 #define PROMPT_TOPIC "/vlff/prompts"
 #define MAX_CLIENT_CHANNELS 8
 #define GATE_PROTOCOL "vlff-gate"
-#define GATE_TIMEOUT_S 10      /* for a whole request head */
+#define HEAD_TIMEOUT_S 5       /* default for a whole request head */
+#define IDLE_TIMEOUT_S 30      /* default: a WebSocket client silent this long is closed */
+#define ANSWER_WAIT_S 30       /* how long a posted prompt set waits for the learner */
+#define ANSWER_POLL_US 20000   /* how often the loop looks for the learner's answer */
 #define GATE_LINGER_S 2        /* reading what a refused client still sends */
 #define GATE_DRAIN_MAX (1u << 20)
 #define GATE_PENDING_MAX 64    /* connections that have not finished their head */
@@ -99,6 +105,8 @@ struct client {
   unsigned char *rx;
   size_t rx_len;
   int dropping;
+  uint64_t last_rx_ns; /* the client's last frame, pong included */
+  int want_ping, pinged;
 };
 
 struct vlff_view {
@@ -115,6 +123,15 @@ struct vlff_view {
   struct client *clients;
   struct vlff_view_counters c;
   struct vlff_prompts *mailbox;
+  /* the prompt set posted and waiting for the learner's answer (seq 0: none); the
+   * loop polls for the answer instead of waiting in a callback */
+  struct {
+    struct client *cl;
+    uint64_t seq, t0_ns;
+  } pending;
+  lws_sorted_usec_list_t answer_sul;
+  struct vlff_allow allow;
+  int head_timeout_s, idle_timeout_s;
   volatile int stop;
 };
 
@@ -387,30 +404,56 @@ static int token_ok(const char *want, const char *got) {
   return diff == 0;
 }
 
+/* The loop's look for the learner's answer to the pending post: the client gets it
+ * as a status (or hears that none came in ANSWER_WAIT_S); nothing here waits. */
+static void poll_answer(lws_sorted_usec_list_t *sul) {
+  struct vlff_view *v = lws_container_of(sul, struct vlff_view, answer_sul);
+  if (!v->pending.seq) return;
+  char reason[128] = "";
+  int st = v->mailbox ? vlff_prompts_wait_answer(v->mailbox, v->pending.seq, 0, reason, sizeof reason) : -1;
+  int e = errno;
+  struct client *cl = v->pending.cl;
+  if (st < 0 && e == ETIMEDOUT && vlff_shm_now_ns() - v->pending.t0_ns < (uint64_t)ANSWER_WAIT_S * 1000000000ull) {
+    lws_sul_schedule(v->ctx, 0, &v->answer_sul, poll_answer, ANSWER_POLL_US);
+    return;
+  }
+  if (cl && st == VLFF_PROMPT_ACCEPTED)
+    send_status(cl, 0, "prompt set (request %llu) accepted by the learner", (unsigned long long)v->pending.seq);
+  else if (cl && st == VLFF_PROMPT_REFUSED)
+    send_status(cl, 2, PROMPT_TOPIC ": the learner refused request %llu: %s", (unsigned long long)v->pending.seq,
+                reason);
+  else if (cl)
+    send_status(cl, 2, PROMPT_TOPIC ": no answer to request %llu: %s", (unsigned long long)v->pending.seq,
+                e == ETIMEDOUT ? "the learner did not answer in time" : vlff_shm_last_message());
+  if (st < 0 && e == EPIPE) {
+    vlff_prompts_close(v->mailbox);
+    v->mailbox = NULL;
+  }
+  v->pending.seq = 0;
+  v->pending.cl = NULL;
+}
+
 /* A client message on an advertised channel: {"token": "...", "prompts": [...]} or
  * {"token": "...", "set_index": n}, posted to the prompt mailbox. */
 static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
   struct vlff_view *v = cl->v;
-  if (n < 5) {
-    send_status(cl, 2, "binary message of %zu bytes is shorter than its 5-byte header", n);
+  char why[160];
+  uint32_t id;
+  if (vlff_view_publish_header(d, n, &id, why, sizeof why)) {
+    send_status(cl, 2, "%s", why);
     return;
   }
-  if (d[0] != 1) {
-    send_status(cl, 2, "binary opcode %u is not supported (1 = message data)", d[0]);
-    return;
-  }
-  uint32_t id = (uint32_t)d[1] | (uint32_t)d[2] << 8 | (uint32_t)d[3] << 16 | (uint32_t)d[4] << 24;
   int known = 0;
   for (int k = 0; k < cl->nadv; k++) known |= cl->adv_id[k] == id;
   if (!known) {
     send_status(cl, 2, "message data on channel %u, which this client has not advertised", id);
     return;
   }
-  struct json_tokener *tok = json_tokener_new();
-  json_object *o = tok ? json_tokener_parse_ex(tok, (const char *)d + 5, (int)(n - 5)) : NULL;
-  json_tokener_free(tok);
+  json_object *o = vlff_view_parse_json((const char *)d + 5, n - 5, why, sizeof why);
   json_object *t, *p, *si;
-  if (!o || !json_object_is_type(o, json_type_object)) {
+  if (!o) {
+    send_status(cl, 2, PROMPT_TOPIC ": the message is not JSON: %s", why);
+  } else if (!json_object_is_type(o, json_type_object)) {
     send_status(cl, 2, PROMPT_TOPIC ": the message is not a JSON object");
   } else if (!json_object_object_get_ex(o, "token", &t) || !json_object_is_type(t, json_type_string) ||
              !token_ok(v->p.token, json_object_get_string(t))) {
@@ -447,16 +490,28 @@ static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
     if (!v->mailbox) v->mailbox = vlff_prompts_attach(v->p.prompts_name);
     if (!v->mailbox) {
       send_status(cl, 2, PROMPT_TOPIC ": mailbox %s: %s", v->p.prompts_name, vlff_shm_last_message());
-    } else if ((np > 0 ? vlff_prompts_post(v->mailbox, texts, np) : vlff_prompts_post_index(v->mailbox, (int)set)) != 0) {
-      send_status(cl, 2, PROMPT_TOPIC ": posting to %s: %s", v->p.prompts_name, vlff_shm_last_message());
-      if (errno == EPIPE) {
+    } else if (v->pending.seq) {
+      /* the mailbox takes one request at a time: answer at once, never wait */
+      send_status(cl, 2, PROMPT_TOPIC ": busy: request %llu is still waiting for the learner's answer; post again later",
+                  (unsigned long long)v->pending.seq);
+    } else if (vlff_prompts_try_post(v->mailbox, np > 0 ? texts : NULL, np > 0 ? np : 0, np > 0 ? -1 : (int)set) != 0) {
+      int e = errno;
+      send_status(cl, 2, PROMPT_TOPIC ": %sposting to %s: %s", e == EBUSY ? "busy: " : "", v->p.prompts_name,
+                  vlff_shm_last_message());
+      if (e == EPIPE) {
         vlff_prompts_close(v->mailbox); /* replaced by a restarted node: attach again next time */
         v->mailbox = NULL;
       }
     } else {
       v->c.prompts_posted++;
-      send_status(cl, 0, "prompt set posted to %s", v->p.prompts_name);
-      fprintf(stderr, "vlff-view: client %s posted a prompt set to %s\n", cl->peer, v->p.prompts_name);
+      v->pending.cl = cl;
+      v->pending.seq = vlff_prompts_last_post(v->mailbox);
+      v->pending.t0_ns = vlff_shm_now_ns();
+      send_status(cl, 0, "prompt set posted to %s as request %llu; waiting for the learner's answer",
+                  v->p.prompts_name, (unsigned long long)v->pending.seq);
+      fprintf(stderr, "vlff-view: client %s posted a prompt set to %s (request %llu)\n", cl->peer, v->p.prompts_name,
+              (unsigned long long)v->pending.seq);
+      lws_sul_schedule(v->ctx, 0, &v->answer_sul, poll_answer, ANSWER_POLL_US);
     }
   }
 out:
@@ -464,13 +519,10 @@ out:
 }
 
 static void handle_text(struct client *cl, const char *s, size_t n) {
-  struct json_tokener *tok = json_tokener_new();
-  json_object *o = tok ? json_tokener_parse_ex(tok, s, (int)n) : NULL;
-  enum json_tokener_error err = tok ? json_tokener_get_error(tok) : json_tokener_continue;
-  const char *why = tok ? json_tokener_error_desc(err) : "out of memory";
-  json_tokener_free(tok);
+  char why[160];
+  json_object *o = vlff_view_parse_json(s, n, why, sizeof why);
   json_object *op;
-  if (!o || err != json_tokener_success) {
+  if (!o) {
     send_status(cl, 2, "request is not JSON: %s", why);
   } else if (!json_object_is_type(o, json_type_object) || !json_object_object_get_ex(o, "op", &op) ||
              !json_object_is_type(op, json_type_string)) {
@@ -489,6 +541,13 @@ static void handle_text(struct client *cl, const char *s, size_t n) {
 /* ---------------------------------------------------------------- the loop */
 
 static int write_one(struct client *cl) {
+  if (cl->want_ping) {
+    unsigned char ping[LWS_PRE + 1];
+    cl->want_ping = 0;
+    if (lws_write(cl->wsi, ping + LWS_PRE, 0, LWS_WRITE_PING) < 0) return -1;
+    if (cl->head) lws_callback_on_writable(cl->wsi);
+    return 0;
+  }
   struct qitem *q = cl->head;
   if (!q) return 0;
   unsigned char *p = vlff_view_msg_payload(q->m);
@@ -513,10 +572,31 @@ static int write_one(struct client *cl) {
   return 0;
 }
 
+/* A client silent for a third of the idle timeout is pinged (a live one answers
+ * with a pong, browsers and Foxglove on their own); one silent for the whole of it
+ * is closed, so that idle or dead peers cannot hold the client slots. */
+static void check_idle(struct vlff_view *v) {
+  uint64_t now = vlff_shm_now_ns(), limit = (uint64_t)v->idle_timeout_s * 1000000000ull;
+  for (struct client *cl = v->clients; cl; cl = cl->next) {
+    if (cl->dropping) continue;
+    uint64_t quiet = now - cl->last_rx_ns;
+    if (quiet >= limit) {
+      char why[96];
+      snprintf(why, sizeof why, "no answer to ping: silent for %d s", v->idle_timeout_s);
+      drop_client(cl, why);
+    } else if (quiet >= limit / 3 && !cl->pinged) {
+      cl->pinged = 1;
+      cl->want_ping = 1;
+      lws_callback_on_writable(cl->wsi);
+    }
+  }
+}
+
 static void tick(lws_sorted_usec_list_t *sul) {
   struct vlff_view *v = lws_container_of(sul, struct vlff_view, sul);
   struct vlff_view_msg *out[16];
   unsigned wanted = 0;
+  check_idle(v);
   for (struct client *cl = v->clients; cl; cl = cl->next)
     for (int ch = 1; ch <= VLFF_VIEW_CH_COUNT; ch++)
       if (cl->subscribed[ch]) wanted |= 1u << ch;
@@ -554,6 +634,7 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     lws_get_peer_simple(wsi, cl->peer, sizeof cl->peer);
     size_t pl = strlen(cl->peer);
     snprintf(cl->peer + pl, sizeof cl->peer - pl, "#%llu", (unsigned long long)v->c.connections + 1);
+    cl->last_rx_ns = vlff_shm_now_ns();
     cl->next = v->clients;
     v->clients = cl;
     v->c.clients++;
@@ -562,8 +643,13 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     send_hello(cl);
     return 0;
   }
+  case LWS_CALLBACK_RECEIVE_PONG:
+    if (cl->v) cl->last_rx_ns = vlff_shm_now_ns(), cl->pinged = 0;
+    return 0;
   case LWS_CALLBACK_RECEIVE: {
     if (!cl->v || cl->dropping) return 0;
+    cl->last_rx_ns = vlff_shm_now_ns();
+    cl->pinged = 0;
     if (cl->rx_len + len > v->p.max_request_bytes) {
       char why[96];
       snprintf(why, sizeof why, "message larger than %zu bytes", v->p.max_request_bytes);
@@ -594,6 +680,7 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
         break;
       }
     v->c.clients--;
+    if (v->pending.cl == cl) v->pending.cl = NULL; /* its answer has nobody to go to */
     if (v->p.verbose) fprintf(stderr, "vlff-view: client %s left\n", cl->peer);
     free_queue(cl);
     free(cl->rx);
@@ -631,7 +718,7 @@ static void gate_deadline(lws_sorted_usec_list_t *sul) {
   if (g->state != GATE_READING) return;
   if (g->len) {
     char why[96];
-    snprintf(why, sizeof why, "no complete request head within %d s", GATE_TIMEOUT_S);
+    snprintf(why, sizeof why, "no complete request head within %d s", g->v->head_timeout_s);
     gate_answer(g, 408, why, 0);
   } else {
     /* a connection that never sent a byte (a browser's spare one) just closes */
@@ -686,13 +773,13 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     lws_get_peer_simple(wsi, g->peer, sizeof g->peer);
     v->gate_pending++;
     /* the last word on how long a connection may stay here, whatever happens */
-    lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, GATE_TIMEOUT_S + 2 * GATE_LINGER_S);
+    lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, v->head_timeout_s + 2 * GATE_LINGER_S);
     if (v->gate_pending > GATE_PENDING_MAX) {
       char why[96];
       snprintf(why, sizeof why, "more than %d connections are sending a request", GATE_PENDING_MAX);
       gate_answer(g, 503, why, 0);
     } else {
-      lws_sul_schedule(lws_get_context(wsi), 0, &g->sul, gate_deadline, (lws_usec_t)GATE_TIMEOUT_S * LWS_US_PER_SEC);
+      lws_sul_schedule(lws_get_context(wsi), 0, &g->sul, gate_deadline, (lws_usec_t)v->head_timeout_s * LWS_US_PER_SEC);
     }
     return 0;
   case LWS_CALLBACK_RAW_RX: {
@@ -705,10 +792,20 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     memcpy(g->buf + g->len, in, take);
     g->len += take;
     struct vlff_head h;
-    switch (vlff_head_check(g->buf, g->len, &v->page, &h)) {
+    switch (vlff_head_check(g->buf, g->len, &v->page, &v->allow, &h)) {
     case VLFF_HEAD_MORE: return 0;
     case VLFF_HEAD_REFUSE: gate_answer(g, h.status, h.why, h.is_head); return 0;
-    case VLFF_HEAD_PASS: return gate_pass(g, h.head_len);
+    case VLFF_HEAD_PASS: {
+      /* only the header lines the server uses reach libwebsockets' parser */
+      char canon[VLFF_HTTP_HEAD_MAX + 1];
+      size_t n = vlff_head_canon(g->buf, &h, canon, sizeof canon);
+      if (!n) {
+        gate_answer(g, 400, "the request head could not be rewritten", 0);
+        return 0;
+      }
+      memcpy(g->buf, canon, n);
+      return gate_pass(g, n);
+    }
     }
     return -1;
   }
@@ -816,11 +913,102 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
   return lws_callback_http_dummy(wsi, reason, user, in, len);
 }
 
-static void log_to_stderr(int level, const char *line) {
+/* libwebsockets' own lines go through the viewer's rate limit: one counter per kind
+ * of line (its text without digits, so "accept: errno 24" is one kind however often
+ * it comes), the first five of each and every 1000th logged. */
+#define LWS_LOG_KINDS 16
+static struct {
+  char key[48];
+  uint64_t count;
+} lws_log_kinds[LWS_LOG_KINDS];
+
+static void log_lws(int level, const char *line) {
   /* lws_adopt_socket_vhost_readbuf reports its ordinary path at error level: every
    * passed request would log it */
   if (strstr(line, "adopt_socket_readbuf")) return;
-  if (level & (LLL_ERR | LLL_WARN)) fprintf(stderr, "vlff-view: libwebsockets: %s", line);
+  if (!(level & (LLL_ERR | LLL_WARN))) return;
+  const char *msg = strstr(line, "] ");
+  msg = msg ? msg + 2 : line; /* after lws' own time stamp */
+  int n = (int)strcspn(msg, "\r\n");
+  char key[48];
+  size_t k = 0;
+  for (const char *p = msg; p < msg + n && k < sizeof key - 1; p++)
+    if (*p < '0' || *p > '9') key[k++] = *p;
+  key[k] = 0;
+  int slot = LWS_LOG_KINDS - 1; /* the last kind is shared by all the others */
+  for (int i = 0; i < LWS_LOG_KINDS - 1; i++)
+    if (!lws_log_kinds[i].key[0] || !strcmp(lws_log_kinds[i].key, key)) {
+      if (!lws_log_kinds[i].key[0]) memcpy(lws_log_kinds[i].key, key, k + 1);
+      slot = i;
+      break;
+    }
+  vlff_warn_limited(&lws_log_kinds[slot].count, "vlff-view", "libwebsockets: %.*s [%llu so far]", n, msg,
+                    (unsigned long long)lws_log_kinds[slot].count + 1);
+}
+
+static int is_loopback(const struct sockaddr *sa) {
+  if (sa->sa_family == AF_INET) return (ntohl(((const struct sockaddr_in *)sa)->sin_addr.s_addr) >> 24) == 127;
+  if (sa->sa_family == AF_INET6) return IN6_IS_ADDR_LOOPBACK(&((const struct sockaddr_in6 *)sa)->sin6_addr);
+  return 0;
+}
+
+/* An address as a Host names it: IPv4 dotted, IPv6 in brackets. */
+static void add_addr(struct vlff_allow *a, const struct sockaddr *sa) {
+  char s[INET6_ADDRSTRLEN + 2] = "[";
+  if (sa->sa_family == AF_INET && inet_ntop(AF_INET, &((const struct sockaddr_in *)sa)->sin_addr, s, sizeof s))
+    vlff_allow_name(a, s);
+  else if (sa->sa_family == AF_INET6 &&
+           inet_ntop(AF_INET6, &((const struct sockaddr_in6 *)sa)->sin6_addr, s + 1, sizeof s - 2)) {
+    if (strchr(s, '%')) return; /* link-local with a zone: not a Host a browser sends */
+    strcat(s, "]");
+    vlff_allow_name(a, s);
+  }
+}
+
+/* The viewer's own names, which a Host (and an Origin's authority) may carry: its
+ * listening address; every address of the machine (and its host name) when it
+ * listens on all of them or on an interface; "localhost", "127.0.0.1" and "[::1]"
+ * when one of them is a loopback address. Then the configured origins. */
+static int build_allow(struct vlff_view *v) {
+  struct vlff_allow *a = &v->allow;
+  a->port = lws_get_vhost_listen_port(v->vh);
+  const char *addr = v->p.address ? v->p.address : "";
+  struct in_addr in4;
+  int any = !*addr || !strcmp(addr, "0.0.0.0"), loop = !strcmp(addr, "localhost");
+  if (!any && !loop && inet_pton(AF_INET, addr, &in4) == 1) {
+    struct sockaddr_in sin = {.sin_family = AF_INET, .sin_addr = in4};
+    add_addr(a, (struct sockaddr *)&sin);
+    loop = is_loopback((struct sockaddr *)&sin);
+  } else if (!loop) {
+    /* all addresses, or those of the interface named */
+    struct ifaddrs *ifs = NULL;
+    if (getifaddrs(&ifs) == 0) {
+      for (struct ifaddrs *i = ifs; i; i = i->ifa_next) {
+        if (!i->ifa_addr || (!any && strcmp(i->ifa_name, addr))) continue;
+        add_addr(a, i->ifa_addr);
+        loop |= is_loopback(i->ifa_addr);
+      }
+      freeifaddrs(ifs);
+    }
+    char host[256];
+    if (any && gethostname(host, sizeof host) == 0) {
+      host[sizeof host - 1] = 0;
+      vlff_allow_name(a, host);
+    }
+  }
+  if (loop) {
+    vlff_allow_name(a, "localhost");
+    vlff_allow_name(a, "127.0.0.1");
+    vlff_allow_name(a, "[::1]");
+  }
+  for (int i = 0; i < v->p.n_allow_origins; i++) {
+    char why[200];
+    if (vlff_allow_origin(a, v->p.allow_origins[i], why, sizeof why)) {
+      fprintf(stderr, "vlff-view: --allow-origin %s\n", why);
+      return -1;
+    }
+  }
+  return 0;
 }
 
 struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_feed *feed) {
@@ -832,7 +1020,11 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
     free(v);
     return NULL;
   }
-  lws_set_log_level(LLL_ERR | LLL_WARN | (p->verbose > 1 ? LLL_NOTICE | LLL_INFO : 0), log_to_stderr);
+  lws_set_log_level(LLL_ERR | LLL_WARN | (p->verbose > 1 ? LLL_NOTICE | LLL_INFO : 0), log_lws);
+  v->head_timeout_s = p->head_timeout_s > 0 ? (int)(p->head_timeout_s + 0.5) : HEAD_TIMEOUT_S;
+  v->idle_timeout_s = p->idle_timeout_s > 0 ? (int)(p->idle_timeout_s + 0.5) : IDLE_TIMEOUT_S;
+  if (v->head_timeout_s < 1) v->head_timeout_s = 1;
+  if (v->idle_timeout_s < 3) v->idle_timeout_s = 3;
 
   v->gate_protocols[0] = (struct lws_protocols){GATE_PROTOCOL, gate_cb, sizeof(struct gate), 4096, 0, NULL, 0};
   v->protocols[0] = (struct lws_protocols){"http", http_cb, sizeof(struct http_session), 0, 0, NULL, 0};
@@ -840,7 +1032,9 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
 
   struct lws_context_creation_info info;
   memset(&info, 0, sizeof info);
-  info.options = LWS_SERVER_OPTION_EXPLICIT_VHOSTS;
+  /* libwebsockets reads this option from the context's options, not the vhost's: a
+   * text frame that is not UTF-8 is closed with 1007 */
+  info.options = LWS_SERVER_OPTION_EXPLICIT_VHOSTS | LWS_SERVER_OPTION_VALIDATE_UTF8;
   info.user = v;
   /* room for any head the gate passes */
   info.max_http_header_data = VLFF_HTTP_HEAD_MAX + 1024;
@@ -862,6 +1056,10 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   v->vh = lws_create_vhost(v->ctx, &info);
   if (!v->vh || lws_get_vhost_listen_port(v->vh) <= 0) {
     fprintf(stderr, "vlff-view: cannot listen on %s:%d (address in use or not local?)\n", p->address, p->port);
+    vlff_view_free(v);
+    return NULL;
+  }
+  if (build_allow(v) != 0) {
     vlff_view_free(v);
     return NULL;
   }
@@ -898,6 +1096,7 @@ void vlff_view_free(struct vlff_view *v) {
   if (!v) return;
   lws_sul_cancel(&v->sul);
   lws_sul_cancel(&v->handoff_sul);
+  lws_sul_cancel(&v->answer_sul);
   while (v->handoffs) {
     struct handoff *h = v->handoffs;
     v->handoffs = h->next;
