@@ -24,7 +24,8 @@ struct json_object *vlff_view_parse_json(const char *s, size_t n, char *why, siz
     snprintf(why, len, "out of memory");
     return NULL;
   }
-  json_tokener_set_flags(tok, JSON_TOKENER_STRICT | JSON_TOKENER_VALIDATE_UTF8);
+  /* trailing bytes are let through here only to be named below */
+  json_tokener_set_flags(tok, JSON_TOKENER_STRICT | JSON_TOKENER_ALLOW_TRAILING_CHARS | JSON_TOKENER_VALIDATE_UTF8);
   json_object *o = json_tokener_parse_ex(tok, s, (int)n);
   enum json_tokener_error err = json_tokener_get_error(tok);
   size_t end = json_tokener_get_parse_end(tok);

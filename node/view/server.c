@@ -542,9 +542,11 @@ static void handle_text(struct client *cl, const char *s, size_t n) {
 
 static int write_one(struct client *cl) {
   if (cl->want_ping) {
-    unsigned char ping[LWS_PRE + 1];
+    /* with a payload: libwebsockets 4.1 passes an empty pong to no callback */
+    unsigned char ping[LWS_PRE + 4];
+    memcpy(ping + LWS_PRE, "vlff", 4);
     cl->want_ping = 0;
-    if (lws_write(cl->wsi, ping + LWS_PRE, 0, LWS_WRITE_PING) < 0) return -1;
+    if (lws_write(cl->wsi, ping + LWS_PRE, 4, LWS_WRITE_PING) < 4) return -1;
     if (cl->head) lws_callback_on_writable(cl->wsi);
     return 0;
   }
