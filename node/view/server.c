@@ -56,6 +56,8 @@
 #define GATE_DRAIN_MAX (1u << 20)
 #define GATE_PENDING_MAX 64    /* connections that have not finished their head */
 #define PAGE_CHUNK 16384
+#define ACCEPT_BURST 64        /* connections accepted per wake-up of the listener */
+#define ACCEPT_PAUSE_US 200000 /* out of descriptors: the listener rests this long */
 
 /* A connection whose request head is being read and checked. */
 struct gate {
@@ -132,6 +134,13 @@ struct vlff_view {
   lws_sorted_usec_list_t answer_sul;
   struct vlff_allow allow;
   int head_timeout_s, idle_timeout_s;
+  /* the listening socket is the viewer's own, watched by the loop as a raw file:
+   * accept() is called here, so that running out of descriptors pauses it instead
+   * of spinning on a listener that stays readable */
+  int listen_fd, port;
+  struct lws *listen_wsi;
+  lws_sorted_usec_list_t accept_sul;
+  uint64_t accept_failures;
   volatile int stop;
 };
 
@@ -764,10 +773,47 @@ static int gate_pass(struct gate *g, size_t head_len) {
   return -1;
 }
 
+static void accept_resume(lws_sorted_usec_list_t *sul) {
+  struct vlff_view *v = lws_container_of(sul, struct vlff_view, accept_sul);
+  if (v->listen_wsi) lws_rx_flow_control(v->listen_wsi, 1);
+}
+
+/* The listener is readable: accept what waits (a bounded burst, so that the loop
+ * goes on serving) and hand each connection to the gate. Out of descriptors (or
+ * memory), the listener stops being watched for ACCEPT_PAUSE_US: the connections
+ * wait in the kernel's backlog, and the log says so at the rate limit. */
+static void accept_some(struct vlff_view *v, struct lws *wsi) {
+  for (int i = 0; i < ACCEPT_BURST; i++) {
+    int fd = accept4(v->listen_fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+    if (fd < 0) {
+      if (errno == EAGAIN || errno == EWOULDBLOCK) return;
+      if (errno == EINTR || errno == ECONNABORTED || errno == EPROTO) continue;
+      int e = errno;
+      vlff_warn_limited(&v->accept_failures, "vlff-view",
+                        "cannot accept a connection: %s; not accepting for %d ms [%llu so far]", strerror(e),
+                        ACCEPT_PAUSE_US / 1000, (unsigned long long)v->accept_failures + 1);
+      lws_rx_flow_control(wsi, 0);
+      lws_sul_schedule(v->ctx, 0, &v->accept_sul, accept_resume, ACCEPT_PAUSE_US);
+      return;
+    }
+    lws_sock_file_fd_type u;
+    u.sockfd = fd;
+    /* on failure libwebsockets closes the descriptor itself */
+    lws_adopt_descriptor_vhost(v->vh, LWS_ADOPT_SOCKET, u, GATE_PROTOCOL, NULL);
+  }
+}
+
 static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len) {
   struct vlff_view *v = lws_context_user(lws_get_context(wsi));
   struct gate *g = user;
   switch (reason) {
+  case LWS_CALLBACK_RAW_ADOPT_FILE: return 0; /* the listener */
+  case LWS_CALLBACK_RAW_RX_FILE:
+    if (wsi == v->listen_wsi) accept_some(v, wsi);
+    return 0;
+  case LWS_CALLBACK_RAW_CLOSE_FILE:
+    if (wsi == v->listen_wsi) v->listen_wsi = NULL;
+    return 0;
   case LWS_CALLBACK_RAW_ADOPT:
     memset(g, 0, offsetof(struct gate, resp));
     g->v = v;
@@ -973,7 +1019,7 @@ static void add_addr(struct vlff_allow *a, const struct sockaddr *sa) {
  * when one of them is a loopback address. Then the configured origins. */
 static int build_allow(struct vlff_view *v) {
   struct vlff_allow *a = &v->allow;
-  a->port = lws_get_vhost_listen_port(v->vh);
+  a->port = v->port;
   const char *addr = v->p.address ? v->p.address : "";
   struct in_addr in4;
   int any = !*addr || !strcmp(addr, "0.0.0.0"), loop = !strcmp(addr, "localhost");
@@ -1013,11 +1059,57 @@ static int build_allow(struct vlff_view *v) {
   return 0;
 }
 
+/* The listening socket on the address (an IPv4 address, or an interface's first
+ * one; "0.0.0.0" all) and port, watched by the loop as a raw file of the gate. */
+static int open_listener(struct vlff_view *v) {
+  const char *addr = v->p.address ? v->p.address : "0.0.0.0";
+  struct sockaddr_in sin = {.sin_family = AF_INET, .sin_port = htons((uint16_t)v->p.port)};
+  if (!strcmp(addr, "localhost")) addr = "127.0.0.1";
+  if (inet_pton(AF_INET, addr, &sin.sin_addr) != 1) {
+    int found = 0;
+    struct ifaddrs *ifs = NULL;
+    if (getifaddrs(&ifs) == 0) {
+      for (struct ifaddrs *i = ifs; i && !found; i = i->ifa_next)
+        if (i->ifa_addr && i->ifa_addr->sa_family == AF_INET && !strcmp(i->ifa_name, addr)) {
+          sin.sin_addr = ((struct sockaddr_in *)i->ifa_addr)->sin_addr;
+          found = 1;
+        }
+      freeifaddrs(ifs);
+    }
+    if (!found) {
+      fprintf(stderr, "vlff-view: --listen %s is neither an IPv4 address nor an interface with one\n", addr);
+      return -1;
+    }
+  }
+  int one = 1;
+  socklen_t sl = sizeof sin;
+  v->listen_fd = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+  if (v->listen_fd < 0 || setsockopt(v->listen_fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
+      bind(v->listen_fd, (struct sockaddr *)&sin, sizeof sin) != 0 || listen(v->listen_fd, SOMAXCONN) != 0 ||
+      getsockname(v->listen_fd, (struct sockaddr *)&sin, &sl) != 0) {
+    fprintf(stderr, "vlff-view: cannot listen on %s:%d: %s\n", addr, v->p.port, strerror(errno));
+    if (v->listen_fd >= 0) close(v->listen_fd);
+    v->listen_fd = -1;
+    return -1;
+  }
+  v->port = ntohs(sin.sin_port);
+  lws_sock_file_fd_type u;
+  u.filefd = v->listen_fd;
+  v->listen_wsi = lws_adopt_descriptor_vhost(v->vh, LWS_ADOPT_RAW_FILE_DESC, u, GATE_PROTOCOL, NULL);
+  if (!v->listen_wsi) {
+    v->listen_fd = -1; /* closed by libwebsockets */
+    fprintf(stderr, "vlff-view: cannot watch the listening socket\n");
+    return -1;
+  }
+  return 0;
+}
+
 struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_feed *feed) {
   struct vlff_view *v = calloc(1, sizeof *v);
   if (!v) return NULL;
   v->p = *p;
   v->feed = feed;
+  v->listen_fd = -1;
   if (vlff_page_load(&v->page, p->www_dir) != 0) {
     free(v);
     return NULL;
@@ -1047,17 +1139,20 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
     free(v);
     return NULL;
   }
-  /* the listening vhost: every connection a raw socket of the gate */
-  info.port = p->port;
-  info.iface = p->address;
+  /* the gate's vhost: every connection, accepted by the viewer, a raw socket of it */
+  /* "no listener" in the client sense: libwebsockets picks the vhost of a request
+   * handed on by its port, and that must be the HTTP side's (NO_LISTEN_SERVER) */
+  info.port = CONTEXT_PORT_NO_LISTEN;
   info.protocols = v->gate_protocols;
-  info.options = LWS_SERVER_OPTION_ADOPT_APPLY_LISTEN_ACCEPT_CONFIG | LWS_SERVER_OPTION_DISABLE_IPV6;
-  info.listen_accept_role = "raw-skt";
-  info.listen_accept_protocol = GATE_PROTOCOL;
+  info.options = LWS_SERVER_OPTION_DISABLE_IPV6;
   info.vhost_name = "vlff-view";
   v->vh = lws_create_vhost(v->ctx, &info);
-  if (!v->vh || lws_get_vhost_listen_port(v->vh) <= 0) {
-    fprintf(stderr, "vlff-view: cannot listen on %s:%d (address in use or not local?)\n", p->address, p->port);
+  if (!v->vh) {
+    fprintf(stderr, "vlff-view: cannot create the gate\n");
+    vlff_view_free(v);
+    return NULL;
+  }
+  if (open_listener(v) != 0) {
     vlff_view_free(v);
     return NULL;
   }
@@ -1081,7 +1176,7 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   return v;
 }
 
-int vlff_view_port(const struct vlff_view *v) { return lws_get_vhost_listen_port(v->vh); }
+int vlff_view_port(const struct vlff_view *v) { return v->port; }
 
 int vlff_view_run(struct vlff_view *v) {
   while (!v->stop)
@@ -1099,6 +1194,7 @@ void vlff_view_free(struct vlff_view *v) {
   lws_sul_cancel(&v->sul);
   lws_sul_cancel(&v->handoff_sul);
   lws_sul_cancel(&v->answer_sul);
+  lws_sul_cancel(&v->accept_sul);
   while (v->handoffs) {
     struct handoff *h = v->handoffs;
     v->handoffs = h->next;

@@ -49,6 +49,7 @@ struct view {
 };
 
 static char tag[32];
+static const char *view_prefix = ""; /* shell words before the program: a ulimit */
 
 static double now_s(void) {
   struct timespec ts;
@@ -69,8 +70,8 @@ static void view_start(struct view *v, const char *const *extra) {
   fprintf(t, TOKEN "\n");
   fclose(t);
   int n = snprintf(cmd, sizeof cmd,
-                   "exec %s --port 0 --map /%s-map --frames '' --prompts /%s-prompts --token-file %s",
-                   vlff_test_prog(prog, sizeof prog, "node/view/vlff-view"), tag, tag, token);
+                   "%sexec %s --port 0 --map /%s-map --frames '' --prompts /%s-prompts --token-file %s",
+                   view_prefix, vlff_test_prog(prog, sizeof prog, "node/view/vlff-view"), tag, tag, token);
   for (; extra && *extra; extra++) n += snprintf(cmd + n, sizeof cmd - (size_t)n, " %s", *extra);
   snprintf(cmd + n, sizeof cmd - (size_t)n, " 2>%s", v->log);
   int out[2];
@@ -515,12 +516,48 @@ static void test_timeouts(void **state) {
   view_stop(&v);
 }
 
+/* Out of descriptors (ulimit -n 64, a burst of 200 connections): the viewer pauses
+ * accepting instead of spinning, logs that at the rate limit (the parent logged
+ * libwebsockets' "accept: errno 24" tens of thousands of times), and serves again
+ * once the connections are gone. */
+static void test_out_of_descriptors(void **state) {
+  (void)state;
+  struct view v;
+  view_prefix = "ulimit -n 64; ";
+  view_start(&v, NULL);
+  view_prefix = "";
+  enum { N = 200 };
+  int fds[N];
+  for (int i = 0; i < N; i++) {
+    fds[i] = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+    assert_true(fds[i] >= 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons((uint16_t)v.port)};
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    int rc = connect(fds[i], (struct sockaddr *)&a, sizeof a);
+    assert_true(rc == 0 || errno == EINPROGRESS || errno == EAGAIN);
+  }
+  sleep(2);
+  for (int i = 0; i < N; i++) close(fds[i]);
+  char resp[8192], req[256];
+  snprintf(req, sizeof req, "GET /index.html HTTP/1.1\r\nHost: 127.0.0.1:%d\r\n\r\n", v.port);
+  int status = 0;
+  for (double end = now_s() + 30; status != 200 && now_s() < end;) status = http(&v, req, resp, sizeof resp, 5);
+  assert_int_equal(status, 200);
+  const char *log = read_log(&v);
+  int lines = 0;
+  for (const char *p = log; (p = strchr(p, '\n')); p++) lines++;
+  if (lines > 40) fail_msg("%d log lines for a burst of %d connections: %.300s", lines, N, log);
+  if (!strstr(log, "cannot accept a connection: Too many open files"))
+    fail_msg("no line says the viewer ran out of descriptors: %.300s", log);
+  view_stop(&v);
+}
+
 int main(void) {
   snprintf(tag, sizeof tag, "vts%d", (int)getpid());
   signal(SIGPIPE, SIG_IGN);
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_host_origin), cmocka_unit_test(test_heads),  cmocka_unit_test(test_frames),
-      cmocka_unit_test(test_prompt_busy), cmocka_unit_test(test_timeouts),
+      cmocka_unit_test(test_prompt_busy), cmocka_unit_test(test_timeouts), cmocka_unit_test(test_out_of_descriptors),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
