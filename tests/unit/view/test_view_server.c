@@ -102,10 +102,17 @@ static void view_start(struct view *v, const char *const *extra) {
   assert_true(v->port > 0);
 }
 
+static char *read_log(const struct view *v);
+
+/* Stops it: it must exit 0 on SIGTERM, with no sanitizer report in its log (in
+ * the sanitizer builds). */
 static void view_stop(struct view *v) {
   kill(v->pid, SIGTERM);
   int st;
   waitpid(v->pid, &st, 0);
+  const char *log = read_log(v);
+  if (!WIFEXITED(st) || WEXITSTATUS(st) != 0 || strstr(log, "runtime error") || strstr(log, "Sanitizer"))
+    fail_msg("vlff-view ended with status 0x%x: %.2000s", st, log);
   char dir[128];
   snprintf(dir, sizeof dir, "%s", v->log);
   unlink(v->log);
