@@ -16,14 +16,22 @@
  * stays. An oversized message, too many clients or a foreign subprotocol close the
  * connection with a WebSocket close reason or an HTTP error saying so.
  *
- * Two vhosts: the listening one accepts every connection as a raw socket into the
- * gate, which reads the request head and checks it (page.h) before libwebsockets'
- * HTTP parser sees a byte; a refused head gets its HTTP status and sentence from
+ * The viewer owns the listening socket (the loop watches it as a raw file): it
+ * accepts each connection itself, pausing when out of descriptors, into the gate's
+ * vhost as a raw socket. Two vhosts: the gate reads the request head and checks it
+ * (page.h: syntax, file, Host and Origin against the allow-list) before
+ * libwebsockets' HTTP parser sees a byte; a refused head gets its HTTP status and sentence from
  * the gate, a passed one is handed with its bytes to the second vhost, which serves
  * the page's files from memory (with the Content-Security-Policy) or upgrades to the
  * Foxglove WebSocket. A page response closes its connection, so that every request
  * passes the gate. Refusals are counted per status (the status channel's viewer
- * object); their log lines are rate-limited, so that a flood cannot fill the journal.
+ * object); their log lines are rate-limited, so that a flood cannot fill the journal,
+ * and so are libwebsockets' own.
+ *
+ * Nothing here waits: a prompt set is posted with vlff_prompts_try_post ("busy" at
+ * once when the mailbox holds an unanswered request) and the learner's answer is
+ * looked for from a timer. A WebSocket client silent for a third of the idle timeout
+ * is pinged and one silent for all of it closed, so that dead peers free their slot.
  */
 #include "view.h"
 

@@ -11,11 +11,15 @@
  *   - the server (server.c) speaks the foxglove.websocket.v1 subprotocol through
  *     libwebsockets on one port, serves the page's files on the same port, fans each
  *     message out to the clients subscribed to its channel and drops a client whose
- *     queue grows past a bound instead of waiting for it;
+ *     queue grows past a bound instead of waiting for it; it pings clients silent for
+ *     a third of idle_timeout_s and closes those silent for all of it, and posts prompt
+ *     sets without waiting for the mailbox (the learner's answer is polled for);
  *   - the page (page.c, page.h) holds the files under the www directory, read once
  *     at start, and checks every HTTP request head before libwebsockets parses it:
  *     a request that is not a GET or HEAD of one of those files or a WebSocket
- *     upgrade gets an HTTP status and a sentence, and is counted.
+ *     upgrade, or whose Host or Origin is not the viewer's own or configured, gets
+ *     an HTTP status and a sentence, and is counted;
+ *   - request.c parses what clients send (JSON, strictly; clientPublish headers).
  *
  * CONTRACT
  * Errors: functions returning a pointer return NULL, functions returning int return
