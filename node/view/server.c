@@ -63,6 +63,7 @@
 #define GATE_LINGER_S 2        /* reading what a refused client still sends */
 #define GATE_DRAIN_MAX (1u << 20)
 #define GATE_PENDING_MAX 64    /* connections that have not finished their head */
+#define GATE_TOTAL_MAX 256     /* connections at the gate: reading, answering, lingering */
 #define PAGE_CHUNK 16384
 #define ACCEPT_BURST 64        /* connections accepted per wake-up of the listener */
 #define ACCEPT_PAUSE_US 200000 /* out of descriptors: the listener rests this long */
@@ -71,6 +72,8 @@
 struct gate {
   struct vlff_view *v;
   struct lws *wsi;
+  struct gate *older, *newer; /* the list of heads being read, oldest first */
+  int listed;
   lws_sorted_usec_list_t sul; /* the head's deadline */
   enum { GATE_READING, GATE_ANSWERING, GATE_FLUSHING, GATE_DRAINING, GATE_PASSED } state;
   char peer[64];
@@ -128,7 +131,9 @@ struct vlff_view {
   struct vlff_page page;
   lws_sorted_usec_list_t sul, handoff_sul;
   struct handoff *handoffs;
-  int gate_pending;
+  int gate_pending;                 /* connections at the gate */
+  int gate_reading;                 /* of which reading their head, listed: */
+  struct gate *oldest, *newest;
   uint64_t ws_refusals; /* WebSocket-level refusals, for their log's rate limit */
   struct client *clients;
   struct vlff_view_counters c;
@@ -724,7 +729,28 @@ static int offers_foxglove(const char *list) {
 
 /* ------------------------------------------------------------------ gate */
 
+static void reading_add(struct vlff_view *v, struct gate *g) {
+  g->older = v->newest;
+  g->newer = NULL;
+  if (v->newest) v->newest->newer = g;
+  else v->oldest = g;
+  v->newest = g;
+  g->listed = 1;
+  v->gate_reading++;
+}
+
+static void reading_remove(struct vlff_view *v, struct gate *g) {
+  if (!g->listed) return;
+  if (g->older) g->older->newer = g->newer;
+  else v->oldest = g->newer;
+  if (g->newer) g->newer->older = g->older;
+  else v->newest = g->older;
+  g->listed = 0;
+  v->gate_reading--;
+}
+
 static void gate_answer(struct gate *g, int status, const char *why, int is_head) {
+  reading_remove(g->v, g);
   count_refusal(g->v, g->peer, status, why);
   g->resp_len = vlff_http_refusal(g->resp + LWS_PRE, sizeof g->resp - LWS_PRE, status, why, is_head);
   g->state = GATE_ANSWERING;
@@ -777,6 +803,7 @@ static int gate_pass(struct gate *g, size_t head_len) {
   v->handoffs = h;
   lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
   g->state = GATE_PASSED;
+  reading_remove(v, g);
   lws_sul_cancel(&g->sul);
   return -1;
 }
@@ -830,11 +857,20 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     v->gate_pending++;
     /* the last word on how long a connection may stay here, whatever happens */
     lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, v->head_timeout_s + 2 * GATE_LINGER_S);
-    if (v->gate_pending > GATE_PENDING_MAX) {
+    if (v->gate_pending > GATE_TOTAL_MAX) {
       char why[96];
-      snprintf(why, sizeof why, "more than %d connections are sending a request", GATE_PENDING_MAX);
+      snprintf(why, sizeof why, "more than %d connections are at the gate", GATE_TOTAL_MAX);
       gate_answer(g, 503, why, 0);
     } else {
+      /* full of unfinished heads: the oldest makes room, so that connections that
+       * stall cannot lock out those that send their head at once */
+      if (v->gate_reading >= GATE_PENDING_MAX && v->oldest) {
+        char why[120];
+        snprintf(why, sizeof why, "%d request heads were unfinished: the oldest is closed to make room",
+                 GATE_PENDING_MAX);
+        gate_answer(v->oldest, 408, why, 0);
+      }
+      reading_add(v, g);
       lws_sul_schedule(lws_get_context(wsi), 0, &g->sul, gate_deadline, (lws_usec_t)v->head_timeout_s * LWS_US_PER_SEC);
     }
     return 0;
@@ -883,6 +919,7 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
   case LWS_CALLBACK_RAW_CLOSE:
     if (g->v) {
       lws_sul_cancel(&g->sul);
+      reading_remove(v, g);
       v->gate_pending--;
       g->v = NULL;
     }

@@ -523,6 +523,37 @@ static void test_timeouts(void **state) {
   view_stop(&v);
 }
 
+/* 70 connections that stall in their head: the oldest are answered 408 to make
+ * room, and a request sent whole is served at once (the parent answered it 503 for
+ * as long as the stalled heads lasted). */
+static void test_gate_full(void **state) {
+  (void)state;
+  struct view v;
+  view_start(&v, NULL);
+  enum { N = 70 };
+  int fds[N];
+  char req[256], resp[8192];
+  snprintf(req, sizeof req, "GET /index.html HTTP/1.1\r\nHost: 127.0.0.1:%d\r\n", v.port);
+  for (int i = 0; i < N; i++) {
+    fds[i] = tcp(v.port);
+    send_all(fds[i], req, strlen(req)); /* no empty line: the head never ends */
+  }
+  usleep(300000);
+  strcat(req, "\r\n");
+  assert_int_equal(http(&v, req, resp, sizeof resp, 4), 200);
+  int evicted = 0;
+  for (int i = 0; i < N; i++) {
+    struct pollfd p = {fds[i], POLLIN, 0};
+    if (poll(&p, 1, 0) == 1 && read_all(fds[i], resp, sizeof resp, 0.5) &&
+        strstr(resp, "408 Request Timeout") && strstr(resp, "the oldest is closed to make room"))
+      evicted++;
+    close(fds[i]);
+  }
+  /* 70 + 1 heads for 64 places: the 7 oldest made room */
+  assert_int_equal(evicted, N + 1 - 64);
+  view_stop(&v);
+}
+
 /* Out of descriptors (ulimit -n 64, a burst of 200 connections): the viewer pauses
  * accepting instead of spinning, logs that at the rate limit (the parent logged
  * libwebsockets' "accept: errno 24" tens of thousands of times), and serves again
@@ -564,7 +595,8 @@ int main(void) {
   signal(SIGPIPE, SIG_IGN);
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_host_origin), cmocka_unit_test(test_heads),  cmocka_unit_test(test_frames),
-      cmocka_unit_test(test_prompt_busy), cmocka_unit_test(test_timeouts), cmocka_unit_test(test_out_of_descriptors),
+      cmocka_unit_test(test_prompt_busy), cmocka_unit_test(test_timeouts), cmocka_unit_test(test_gate_full),
+      cmocka_unit_test(test_out_of_descriptors),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
