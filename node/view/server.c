@@ -75,11 +75,27 @@ struct gate {
   struct gate *older, *newer; /* the list of heads being read, oldest first */
   int listed;
   lws_sorted_usec_list_t sul; /* the head's deadline */
-  enum { GATE_READING, GATE_ANSWERING, GATE_FLUSHING, GATE_DRAINING, GATE_PASSED } state;
+  enum { GATE_READING, GATE_ANSWERING, GATE_FLUSHING, GATE_DRAINING, GATE_PASSED, GATE_RELAY } state;
   char peer[64];
+  /* RELAY: a WebSocket's bytes pass between the client's socket and the viewer's end
+   * of a socket pair whose other end libwebsockets serves; the client's frames are
+   * read on the way (fh: a frame header so far, f_left: payload bytes to skip) */
+  struct gate *pair;
+  int inner, closing;
+  unsigned char fh[14];
+  size_t fh_len, fh_need;
+  uint64_t f_left;
   size_t len, drained, resp_len;
   char resp[LWS_PRE + 768];
   char buf[VLFF_HTTP_HEAD_MAX + 1];
+};
+
+/* The client address of a relayed WebSocket, whose socket libwebsockets sees is
+ * the socket pair's. */
+struct peer_note {
+  struct peer_note *next;
+  int fd;
+  char peer[64];
 };
 
 /* A passed head on its way to the HTTP vhost (outside the gate's callback). */
@@ -133,6 +149,8 @@ struct vlff_view {
   struct handoff *handoffs;
   int gate_pending;                 /* connections at the gate */
   int gate_reading;                 /* of which reading their head, listed: */
+  struct gate *adopting;            /* the client whose pair end is being adopted */
+  struct peer_note *peer_notes;
   struct gate *oldest, *newest;
   uint64_t ws_refusals; /* WebSocket-level refusals, for their log's rate limit */
   struct client *clients;
@@ -156,6 +174,28 @@ struct vlff_view {
   uint64_t accept_failures;
   volatile int stop;
 };
+
+/* The client's address for a connection of the HTTP side: noted for a relayed
+ * WebSocket, else the socket's peer. */
+static void peer_of(struct vlff_view *v, struct lws *wsi, char *out, size_t cap) {
+  int fd = lws_get_socket_fd(wsi);
+  for (struct peer_note *n = v->peer_notes; n; n = n->next)
+    if (n->fd == fd) {
+      snprintf(out, cap, "%s", n->peer);
+      return;
+    }
+  lws_get_peer_simple(wsi, out, cap);
+}
+
+static void forget_peer(struct vlff_view *v, int fd) {
+  for (struct peer_note **pp = &v->peer_notes; *pp; pp = &(*pp)->next)
+    if ((*pp)->fd == fd) {
+      struct peer_note *n = *pp;
+      *pp = n->next;
+      free(n);
+      return;
+    }
+}
 
 /* Counts a refusal with HTTP status (its own counter in the status channel) and
  * logs it: the first five of each status and every 1000th. */
@@ -635,7 +675,7 @@ static void tick(lws_sorted_usec_list_t *sul) {
 
 static int refuse(struct vlff_view *v, struct lws *wsi, enum lws_close_status code, const char *why) {
   char peer[64] = "?";
-  lws_get_peer_simple(wsi, peer, sizeof peer);
+  peer_of(v, wsi, peer, sizeof peer);
   v->c.refused++;
   vlff_warn_limited(&v->ws_refusals, "vlff-view", "refused %s: %s", peer, why);
   lws_close_reason(wsi, code, (unsigned char *)why, strlen(why));
@@ -655,7 +695,7 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     memset(cl, 0, sizeof *cl);
     cl->v = v;
     cl->wsi = wsi;
-    lws_get_peer_simple(wsi, cl->peer, sizeof cl->peer);
+    peer_of(v, wsi, cl->peer, sizeof cl->peer);
     size_t pl = strlen(cl->peer);
     snprintf(cl->peer + pl, sizeof cl->peer - pl, "#%llu", (unsigned long long)v->c.connections + 1);
     cl->last_rx_ns = vlff_shm_now_ns();
@@ -704,6 +744,7 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
         break;
       }
     v->c.clients--;
+    forget_peer(v, lws_get_socket_fd(wsi));
     if (v->pending.cl == cl) v->pending.cl = NULL; /* its answer has nobody to go to */
     if (v->p.verbose) fprintf(stderr, "vlff-view: client %s left\n", cl->peer);
     free_queue(cl);
@@ -808,6 +849,133 @@ static int gate_pass(struct gate *g, size_t head_len) {
   return -1;
 }
 
+/* Bytes to the other end of a relay; when that end's socket is full, this end stops
+ * being read until it drains (its RAW_WRITEABLE), so that libwebsockets' writes to a
+ * client that reads slowly back up to its own queue, which drops the client. */
+static int relay_send(struct gate *from, struct gate *to, const void *data, size_t n) {
+  unsigned char stack[LWS_PRE + 4096], *buf = n <= 4096 ? stack : malloc(LWS_PRE + n);
+  if (!buf) return -1;
+  memcpy(buf + LWS_PRE, data, n);
+  int w = lws_write(to->wsi, buf + LWS_PRE, n, LWS_WRITE_RAW);
+  if (buf != stack) free(buf);
+  if (w < (int)n) return -1;
+  if (lws_send_pipe_choked(to->wsi)) {
+    lws_rx_flow_control(from->wsi, 0);
+    lws_callback_on_writable(to->wsi);
+  }
+  return 0;
+}
+
+/* Reads the client's frame headers in data[n]: the offset of the first frame that
+ * is not masked (RFC 6455 5.1: a server must close the connection), or n. */
+static size_t relay_scan(struct gate *g, const unsigned char *d, size_t n) {
+  size_t i = 0;
+  while (i < n) {
+    if (g->f_left) {
+      size_t take = g->f_left < n - i ? (size_t)g->f_left : n - i;
+      g->f_left -= take;
+      i += take;
+      continue;
+    }
+    size_t start = i - g->fh_len; /* where this frame began, when within data */
+    g->fh[g->fh_len++] = d[i++];
+    if (g->fh_len == 2) {
+      if (!(g->fh[1] & 0x80)) return g->fh_len <= i ? start : 0;
+      unsigned l7 = g->fh[1] & 0x7f;
+      g->fh_need = 2 + (l7 == 126 ? 2 : l7 == 127 ? 8 : 0) + 4;
+    }
+    if (g->fh_len >= 2 && g->fh_len == g->fh_need) {
+      unsigned l7 = g->fh[1] & 0x7f;
+      uint64_t len = l7;
+      if (l7 >= 126) {
+        len = 0;
+        for (size_t k = 0; k < (l7 == 126 ? 2u : 8u); k++) len = len << 8 | g->fh[2 + k];
+      }
+      g->f_left = len;
+      g->fh_len = g->fh_need = 0;
+    }
+  }
+  return n;
+}
+
+/* Hands a WebSocket upgrade on through a socket pair: libwebsockets serves one end
+ * (with the head, from the loop), the gate relays between the client and the other
+ * end, reading the client's frame headers on the way. */
+static int relay_start(struct gate *g, size_t head_len) {
+  struct vlff_view *v = g->v;
+  int sp[2] = {-1, -1};
+  struct handoff *h = NULL;
+  struct peer_note *pn = NULL;
+  if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0, sp) == 0) {
+    h = malloc(sizeof *h + head_len);
+    pn = malloc(sizeof *pn);
+  }
+  if (!h || !pn) {
+    if (sp[0] >= 0) close(sp[0]), close(sp[1]);
+    free(h);
+    free(pn);
+    gate_answer(g, 503, "out of descriptors or memory", 0);
+    return 0;
+  }
+  lws_sock_file_fd_type u;
+  u.sockfd = sp[0];
+  v->adopting = g;
+  struct lws *in = lws_adopt_descriptor_vhost(v->vh, LWS_ADOPT_SOCKET, u, GATE_PROTOCOL, NULL);
+  v->adopting = NULL;
+  if (!in || !g->pair) { /* libwebsockets closed sp[0] */
+    close(sp[1]);
+    free(h);
+    free(pn);
+    gate_answer(g, 503, "out of descriptors or memory", 0);
+    return 0;
+  }
+  forget_peer(v, sp[1]);
+  pn->fd = sp[1];
+  snprintf(pn->peer, sizeof pn->peer, "%s", g->peer);
+  pn->next = v->peer_notes;
+  v->peer_notes = pn;
+  h->fd = sp[1];
+  h->len = head_len;
+  memcpy(h->head, g->buf, head_len);
+  h->next = v->handoffs;
+  v->handoffs = h;
+  lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
+  g->state = GATE_RELAY;
+  reading_remove(v, g);
+  lws_sul_cancel(&g->sul);
+  v->gate_pending--; /* a WebSocket now: its client slot is counted on the other side */
+  lws_set_timeout(g->wsi, NO_PENDING_TIMEOUT, 0);
+  return 0;
+}
+
+/* The relayed client sent a frame that is not masked: a close frame 1002 goes to it
+ * straight away, libwebsockets' end is dropped, the client's socket closes once the
+ * close frame is out. */
+static void relay_refuse_unmasked(struct gate *g) {
+  struct vlff_view *v = g->v;
+  static const char why[] = "client frames must be masked (RFC 6455 5.1)";
+  unsigned char f[2 + 2 + sizeof why - 1];
+  f[0] = 0x88;
+  f[1] = (unsigned char)(2 + sizeof why - 1);
+  f[2] = 1002 >> 8;
+  f[3] = 1002 & 0xff;
+  memcpy(f + 4, why, sizeof why - 1);
+  v->c.refused++;
+  v->c.bad_requests++;
+  vlff_warn_limited(&v->ws_refusals, "vlff-view", "refused %s: %s [WebSocket close 1002]", g->peer, why);
+  if (g->pair) {
+    g->pair->pair = NULL;
+    lws_set_timeout(g->pair->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
+    g->pair = NULL;
+  }
+  unsigned char buf[LWS_PRE + sizeof f];
+  memcpy(buf + LWS_PRE, f, sizeof f);
+  lws_write(g->wsi, buf + LWS_PRE, sizeof f, LWS_WRITE_RAW);
+  g->closing = 1;
+  lws_set_timeout(g->wsi, PENDING_TIMEOUT_USER_REASON_BASE, 2 * GATE_LINGER_S);
+  lws_callback_on_writable(g->wsi);
+}
+
 static void accept_resume(lws_sorted_usec_list_t *sul) {
   struct vlff_view *v = lws_container_of(sul, struct vlff_view, accept_sul);
   if (v->listen_wsi) lws_rx_flow_control(v->listen_wsi, 1);
@@ -853,6 +1021,14 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     memset(g, 0, offsetof(struct gate, resp));
     g->v = v;
     g->wsi = wsi;
+    if (v->adopting) { /* the viewer's end of a relay's socket pair */
+      g->inner = 1;
+      g->state = GATE_RELAY;
+      g->pair = v->adopting;
+      v->adopting->pair = g;
+      snprintf(g->peer, sizeof g->peer, "%s", g->pair->peer);
+      return 0;
+    }
     lws_get_peer_simple(wsi, g->peer, sizeof g->peer);
     v->gate_pending++;
     /* the last word on how long a connection may stay here, whatever happens */
@@ -876,6 +1052,14 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     return 0;
   case LWS_CALLBACK_RAW_RX: {
     if (!g->v) return -1;
+    if (g->state == GATE_RELAY) {
+      if (!g->pair || g->closing) return 0; /* the other end is gone: drop */
+      if (g->inner) return relay_send(g, g->pair, in, len);
+      size_t ok = relay_scan(g, in, len);
+      if (ok && relay_send(g, g->pair, in, ok)) return -1;
+      if (ok < len) relay_refuse_unmasked(g);
+      return 0;
+    }
     if (g->state != GATE_READING) {
       g->drained += len; /* a refused client still sending: read and drop, up to a bound */
       return g->drained > GATE_DRAIN_MAX ? -1 : 0;
@@ -896,13 +1080,26 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
         return 0;
       }
       memcpy(g->buf, canon, n);
-      return gate_pass(g, n);
+      return h.upgrade ? relay_start(g, n) : gate_pass(g, n);
     }
     }
     return -1;
   }
   case LWS_CALLBACK_RAW_WRITEABLE:
     if (!g->v) return -1;
+    if (g->state == GATE_RELAY) {
+      if (lws_send_pipe_choked(wsi)) {
+        lws_callback_on_writable(wsi);
+      } else if (g->closing) {
+        /* what was queued for the client is out: end our side, linger for its close */
+        shutdown(lws_get_socket_fd(wsi), SHUT_WR);
+        g->state = GATE_DRAINING;
+        lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, GATE_LINGER_S);
+      } else if (g->pair) {
+        lws_rx_flow_control(g->pair->wsi, 1); /* drained: read the other end again */
+      }
+      return 0;
+    }
     if (g->state == GATE_ANSWERING) {
       if (lws_write(wsi, (unsigned char *)g->resp + LWS_PRE, g->resp_len, LWS_WRITE_RAW) < 0) return -1;
       g->state = GATE_FLUSHING; /* called again once libwebsockets has sent it all */
@@ -920,7 +1117,18 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     if (g->v) {
       lws_sul_cancel(&g->sul);
       reading_remove(v, g);
-      v->gate_pending--;
+      if (g->pair) { /* the relay's other end follows */
+        struct gate *o = g->pair;
+        o->pair = NULL;
+        if (o->inner) {
+          lws_set_timeout(o->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
+        } else { /* the client gets what libwebsockets sent (its close frame) first */
+          o->closing = 1;
+          lws_set_timeout(o->wsi, PENDING_TIMEOUT_USER_REASON_BASE, 2 * GATE_LINGER_S);
+          lws_callback_on_writable(o->wsi);
+        }
+      }
+      if (!g->inner && g->state != GATE_RELAY && !(g->state == GATE_DRAINING && g->closing)) v->gate_pending--;
       g->v = NULL;
     }
     return 0;
@@ -957,7 +1165,7 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
       code = HTTP_STATUS_SERVICE_UNAVAILABLE;
     }
     if (!code) return 0;
-    lws_get_peer_simple(wsi, peer, sizeof peer);
+    peer_of(v, wsi, peer, sizeof peer);
     count_refusal(v, peer, code, why);
     lws_return_http_status(wsi, (unsigned)code, why);
     return -1;
@@ -1247,6 +1455,11 @@ void vlff_view_free(struct vlff_view *v) {
     free(h);
   }
   lws_context_destroy(v->ctx);
+  while (v->peer_notes) {
+    struct peer_note *n = v->peer_notes;
+    v->peer_notes = n->next;
+    free(n);
+  }
   vlff_prompts_close(v->mailbox);
   vlff_page_free(&v->page);
   free(v);

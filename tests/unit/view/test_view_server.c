@@ -402,6 +402,19 @@ static void test_frames(void **state) {
   assert_true(n >= 2);
   assert_int_equal(((unsigned char)out[0] << 8) | (unsigned char)out[1], 1007);
   close(w->fd);
+  /* a client frame that is not masked (RFC 6455 5.1): closed with 1002, not served
+   * (the parent answered it as a request) */
+  assert_int_equal(ws_open(w, &v, ws_head(NULL, host)), 101);
+  assert_int_equal(ws_wait_text(w, "\"advertise\"", out, sizeof out, 10), 0);
+  const char *bogus = "{\"op\":\"bogus\"}";
+  ws_send(w, 1, bogus, strlen(bogus), 0);
+  do op = ws_next(w, out, sizeof out, &n, 10);
+  while (op >= 0 && op != 8 && !(op == 1 && strstr(out, "not supported")));
+  if (op != 8) fail_msg("an unmasked frame: %s", op == 1 ? out : "no close");
+  assert_int_equal(((unsigned char)out[0] << 8) | (unsigned char)out[1], 1002);
+  assert_non_null(strstr(out + 2, "must be masked"));
+  assert_int_equal(ws_next(w, out, sizeof out, &n, 10), -2); /* and the connection ends */
+  close(w->fd);
   free(w);
   view_stop(&v);
 }
