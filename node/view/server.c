@@ -23,7 +23,10 @@
  * libwebsockets' HTTP parser sees a byte; a refused head gets its HTTP status and sentence from
  * the gate, a passed one is handed with its bytes to the second vhost, which serves
  * the page's files from memory (with the Content-Security-Policy) or upgrades to the
- * Foxglove WebSocket. A page response closes its connection, so that every request
+ * Foxglove WebSocket. A page request's descriptor itself is handed on; an upgrade
+ * is relayed through a socket pair (libwebsockets serves one end), the gate passing
+ * bytes both ways and reading the client's frame headers, since libwebsockets 4.1
+ * accepts client frames that are not masked and does not show the mask bit. A page response closes its connection, so that every request
  * passes the gate. Refusals are counted per status (the status channel's viewer
  * object); their log lines are rate-limited, so that a flood cannot fill the journal,
  * and so are libwebsockets' own.
