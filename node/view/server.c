@@ -68,6 +68,7 @@
 #define GATE_PENDING_MAX 64    /* connections that have not finished their head */
 #define GATE_TOTAL_MAX 256     /* connections at the gate: reading, answering, lingering */
 #define PAGE_CHUNK 16384
+#define RELAY_CHUNK 65536      /* bytes a relay moves per read */
 #define ACCEPT_BURST 64        /* connections accepted per wake-up of the listener */
 #define ACCEPT_PAUSE_US 200000 /* out of descriptors: the listener rests this long */
 
@@ -153,6 +154,7 @@ struct vlff_view {
   int gate_pending;                 /* connections at the gate */
   int gate_reading;                 /* of which reading their head, listed: */
   struct gate *adopting;            /* the client whose pair end is being adopted */
+  unsigned char relay_buf[LWS_PRE + RELAY_CHUNK];
   struct peer_note *peer_notes;
   struct gate *oldest, *newest;
   uint64_t ws_refusals; /* WebSocket-level refusals, for their log's rate limit */
@@ -856,11 +858,11 @@ static int gate_pass(struct gate *g, size_t head_len) {
  * being read until it drains (its RAW_WRITEABLE), so that libwebsockets' writes to a
  * client that reads slowly back up to its own queue, which drops the client. */
 static int relay_send(struct gate *from, struct gate *to, const void *data, size_t n) {
-  unsigned char stack[LWS_PRE + 4096], *buf = n <= 4096 ? stack : malloc(LWS_PRE + n);
+  unsigned char *buf = n <= RELAY_CHUNK ? from->v->relay_buf : malloc(LWS_PRE + n);
   if (!buf) return -1;
   memcpy(buf + LWS_PRE, data, n);
   int w = lws_write(to->wsi, buf + LWS_PRE, n, LWS_WRITE_RAW);
-  if (buf != stack) free(buf);
+  if (buf != from->v->relay_buf) free(buf);
   if (w < (int)n) return -1;
   if (lws_send_pipe_choked(to->wsi)) {
     lws_rx_flow_control(from->wsi, 0);
@@ -1376,7 +1378,7 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   if (v->head_timeout_s < 1) v->head_timeout_s = 1;
   if (v->idle_timeout_s < 3) v->idle_timeout_s = 3;
 
-  v->gate_protocols[0] = (struct lws_protocols){GATE_PROTOCOL, gate_cb, sizeof(struct gate), 4096, 0, NULL, 0};
+  v->gate_protocols[0] = (struct lws_protocols){GATE_PROTOCOL, gate_cb, sizeof(struct gate), RELAY_CHUNK, 0, NULL, 0};
   v->protocols[0] = (struct lws_protocols){"http", http_cb, sizeof(struct http_session), 0, 0, NULL, 0};
   v->protocols[1] = (struct lws_protocols){FOX_PROTOCOL, fox_cb, sizeof(struct client), 65536, 0, NULL, 0};
 
@@ -1388,6 +1390,8 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   info.user = v;
   /* room for any head the gate passes */
   info.max_http_header_data = VLFF_HTTP_HEAD_MAX + 1024;
+  /* raw reads (the gate's relays) take at most this much at a time */
+  info.pt_serv_buf_size = RELAY_CHUNK;
   v->ctx = lws_create_context(&info);
   if (!v->ctx) {
     fprintf(stderr, "vlff-view: cannot start libwebsockets\n");
