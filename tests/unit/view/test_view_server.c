@@ -50,6 +50,8 @@ struct view {
 
 static char tag[32];
 static const char *view_prefix = ""; /* shell words before the program: a ulimit */
+/* the viewers running, so that a test that fails midway leaves none behind */
+static struct view running[4]; /* copies; pid 0: a free slot */
 
 static double now_s(void) {
   struct timespec ts;
@@ -100,6 +102,41 @@ static void view_start(struct view *v, const char *const *extra) {
   if (!p) fail_msg("vlff-view did not start: \"%s\"", line);
   v->port = atoi(p + strlen("http://127.0.0.1:"));
   assert_true(v->port > 0);
+  for (size_t i = 0; i < sizeof running / sizeof *running; i++)
+    if (!running[i].pid) {
+      running[i] = *v;
+      break;
+    }
+}
+
+static void view_cleanup(struct view *v) {
+  char dir[128];
+  snprintf(dir, sizeof dir, "%s", v->log);
+  unlink(v->log);
+  *strrchr(dir, '/') = 0;
+  char tok[160];
+  snprintf(tok, sizeof tok, "%s/token", dir);
+  unlink(tok);
+  rmdir(dir);
+  for (size_t i = 0; i < sizeof running / sizeof *running; i++)
+    if (running[i].pid == v->pid) running[i].pid = 0;
+}
+
+/* Each test's teardown: a viewer a failed test left running is killed, its files
+ * and the test's mailbox removed. */
+static int leftovers(void **state) {
+  (void)state;
+  for (size_t i = 0; i < sizeof running / sizeof *running; i++)
+    if (running[i].pid) {
+      struct view v = running[i];
+      kill(v.pid, SIGKILL);
+      waitpid(v.pid, NULL, 0);
+      view_cleanup(&v);
+    }
+  char name[64];
+  snprintf(name, sizeof name, "/%s-prompts", tag);
+  vlff_shm_unlink(name);
+  return 0;
 }
 
 static char *read_log(const struct view *v);
@@ -111,16 +148,11 @@ static void view_stop(struct view *v) {
   int st;
   waitpid(v->pid, &st, 0);
   const char *log = read_log(v);
-  if (!WIFEXITED(st) || WEXITSTATUS(st) != 0 || strstr(log, "runtime error") || strstr(log, "Sanitizer"))
-    fail_msg("vlff-view ended with status 0x%x: %.2000s", st, log);
-  char dir[128];
-  snprintf(dir, sizeof dir, "%s", v->log);
-  unlink(v->log);
-  *strrchr(dir, '/') = 0;
-  char tok[160];
-  snprintf(tok, sizeof tok, "%s/token", dir);
-  unlink(tok);
-  rmdir(dir);
+  int bad = !WIFEXITED(st) || WEXITSTATUS(st) != 0 || strstr(log, "runtime error") || strstr(log, "Sanitizer");
+  char msg[2100];
+  snprintf(msg, sizeof msg, "%.2000s", log);
+  view_cleanup(v);
+  if (bad) fail_msg("vlff-view ended with status 0x%x: %s", st, msg);
 }
 
 static char *read_log(const struct view *v) {
@@ -607,9 +639,13 @@ int main(void) {
   snprintf(tag, sizeof tag, "vts%d", (int)getpid());
   signal(SIGPIPE, SIG_IGN);
   const struct CMUnitTest tests[] = {
-      cmocka_unit_test(test_host_origin), cmocka_unit_test(test_heads),  cmocka_unit_test(test_frames),
-      cmocka_unit_test(test_prompt_busy), cmocka_unit_test(test_timeouts), cmocka_unit_test(test_gate_full),
-      cmocka_unit_test(test_out_of_descriptors),
+      cmocka_unit_test_teardown(test_host_origin, leftovers),
+      cmocka_unit_test_teardown(test_heads, leftovers),
+      cmocka_unit_test_teardown(test_frames, leftovers),
+      cmocka_unit_test_teardown(test_prompt_busy, leftovers),
+      cmocka_unit_test_teardown(test_timeouts, leftovers),
+      cmocka_unit_test_teardown(test_gate_full, leftovers),
+      cmocka_unit_test_teardown(test_out_of_descriptors, leftovers),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
