@@ -353,6 +353,43 @@ API int vlff_prompts_post_index(struct vlff_prompts *p, int set_index) {
   return post(p, &r);
 }
 
+/* The post of an event loop, which must not wait: with the lock taken here without
+ * waiting and no request unanswered, post() (whose flock on the same open file only
+ * confirms the lock this handle holds) passes its loop at once. */
+API int vlff_prompts_try_post(struct vlff_prompts *p, const char *const *texts, int count, int set_index) {
+  if (!p || (texts ? count < 1 : set_index < 0)) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_prompts_try_post: %s", p ? "no texts and no set index" : "NULL mailbox");
+    return -1;
+  }
+  if (!p->seg.writable) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: handle is not writable", p->seg.name);
+    return -1;
+  }
+  if (check_live(p, true) < 0)
+    return -1;
+  if (flock(p->seg.fd, LOCK_EX | LOCK_NB) != 0) {
+    shm_err(VLFF_SHM_ERR_EXISTS, EBUSY, "%s: mailbox busy (pid %d posting)", p->seg.name,
+            (int)atomic_load(&p->ctl->lock_pid));
+    return -1;
+  }
+  uint64_t waiting = unanswered(p);
+  int rc;
+  if (waiting) {
+    int32_t learner = atomic_load(&p->seg.h->creator_pid);
+    shm_err(VLFF_SHM_ERR_EXISTS, EBUSY,
+            "%s: request %llu is still waiting for the learner's answer (learner pid %d %s); not posting over it",
+            p->seg.name, (unsigned long long)waiting, (int)learner,
+            shm_creator_alive(learner, atomic_load(&p->seg.h->creator_start)) ? "running" : "not running");
+    rc = -1;
+  } else {
+    rc = texts ? vlff_prompts_post(p, texts, count) : vlff_prompts_post_index(p, set_index);
+  }
+  int e = errno;
+  flock(p->seg.fd, LOCK_UN); /* post() unlocks too; unless it failed before locking */
+  errno = e;
+  return rc;
+}
+
 /* What a poster wrote is external input for the learner. */
 static bool request_sane(struct vlff_prompt_request *r, char *why, size_t len) {
   if (r->set_index >= 0) {

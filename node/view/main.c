@@ -6,6 +6,7 @@
  */
 #include "cli.h"
 #include "files.h"
+#include "page.h"
 #include "view.h"
 #include "vlff/escape.h"
 
@@ -43,6 +44,11 @@ static const struct vlff_cli cli = {
     "      --max-clients N     clients at once (default 10, 1..1000)\n"
     "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32)\n"
     "      --max-request-kb KB largest client message (default 64)\n"
+    "      --allow-origin URL  also accept this origin (http[s]://HOST[:PORT]) and its HOST[:PORT] as Host;\n"
+    "                          repeatable (default: the listening address's own names and port only)\n"
+    "      --head-timeout S    seconds for a connection's whole request head (default 5, 1..60)\n"
+    "      --idle-timeout S    seconds a WebSocket client may stay silent, pinged after a third\n"
+    "                          of it (default 30, 3..3600)\n"
     "      --www DIR           the page's files (default: installed with the program)\n"
     "  -v, --verbose           log connections (twice: libwebsockets' notices too)\n"
     "  -V, --version           print the version and exit\n"
@@ -110,7 +116,8 @@ static int default_www(char *out, size_t cap) {
 }
 
 int main(int argc, char **argv) {
-  enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW };
+  enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
+         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT };
   static const struct option opts[] = {
       {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
       {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
@@ -118,6 +125,9 @@ int main(int argc, char **argv) {
       {"image-hz", required_argument, NULL, OPT_IMAGE_HZ}, {"poll-hz", required_argument, NULL, OPT_POLL_HZ},
       {"max-clients", required_argument, NULL, OPT_MAX_CLIENTS}, {"max-queue-mb", required_argument, NULL, OPT_QUEUE},
       {"max-request-kb", required_argument, NULL, OPT_REQUEST}, {"www", required_argument, NULL, OPT_WWW},
+      {"allow-origin", required_argument, NULL, OPT_ALLOW_ORIGIN},
+      {"head-timeout", required_argument, NULL, OPT_HEAD_TIMEOUT},
+      {"idle-timeout", required_argument, NULL, OPT_IDLE_TIMEOUT},
       {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
@@ -126,6 +136,8 @@ int main(int argc, char **argv) {
   const char *token_file = NULL, *www = NULL;
   double x;
   int c, status;
+  static const char *origins[VLFF_ALLOW_MAX];
+  struct vlff_allow check_origin;
   while ((c = vlff_cli_next(&cli, argc, argv, "l:p:m:f:v", opts, &status)) != -1) {
     switch (c) {
     case VLFF_CLI_EXIT: return status;
@@ -157,6 +169,23 @@ int main(int argc, char **argv) {
       vp.max_request_bytes = (size_t)(x * 1024);
       break;
     case OPT_WWW: www = optarg; break;
+    case OPT_ALLOW_ORIGIN: {
+      char why[200];
+      check_origin.n_origins = 0;
+      if (vlff_allow_origin(&check_origin, optarg, why, sizeof why))
+        return vlff_cli_usage_error(&cli, "--allow-origin %s", why);
+      if (vp.n_allow_origins == VLFF_ALLOW_MAX)
+        return vlff_cli_usage_error(&cli, "--allow-origin: at most %d", VLFF_ALLOW_MAX);
+      origins[vp.n_allow_origins++] = optarg;
+      vp.allow_origins = origins;
+      break;
+    }
+    case OPT_HEAD_TIMEOUT:
+      if (parse_num("head-timeout", optarg, 1, 60, &vp.head_timeout_s)) return 2;
+      break;
+    case OPT_IDLE_TIMEOUT:
+      if (parse_num("idle-timeout", optarg, 3, 3600, &vp.idle_timeout_s)) return 2;
+      break;
     case 'v': vp.verbose++; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }

@@ -11,6 +11,7 @@
  */
 #include "page.h"
 
+#include <ctype.h>
 #include <errno.h>
 #include <stdarg.h>
 #include <fts.h>
@@ -138,9 +139,10 @@ static const struct {
   int code;
   const char *reason;
 } statuses[VLFF_VIEW_HTTP_N] = {
-    {400, "Bad Request"},          {404, "Not Found"},
-    {405, "Method Not Allowed"},   {408, "Request Timeout"},
-    {414, "URI Too Long"},         {431, "Request Header Fields Too Large"},
+    {400, "Bad Request"},          {403, "Forbidden"},
+    {404, "Not Found"},            {405, "Method Not Allowed"},
+    {408, "Request Timeout"},      {414, "URI Too Long"},
+    {426, "Upgrade Required"},     {431, "Request Header Fields Too Large"},
     {503, "Service Unavailable"},  {505, "HTTP Version Not Supported"},
 };
 
@@ -161,7 +163,10 @@ size_t vlff_http_refusal(char *out, size_t cap, int status, const char *why, int
   int n = snprintf(out, cap,
                    "HTTP/1.1 %d %s\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: %zu\r\n%s"
                    "Cache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\nConnection: close\r\n\r\n%s%s",
-                   status, vlff_http_reason(status), strlen(why) + 1, status == 405 ? "Allow: GET, HEAD\r\n" : "",
+                   status, vlff_http_reason(status), strlen(why) + 1,
+                   status == 405   ? "Allow: GET, HEAD\r\n"
+                   : status == 426 ? "Sec-WebSocket-Version: 13\r\nUpgrade: websocket\r\n"
+                                   : "",
                    is_head ? "" : why, is_head ? "" : "\n");
   return n < 0 ? 0 : (size_t)n < cap ? (size_t)n : cap - 1;
 }
@@ -221,7 +226,12 @@ static enum vlff_head_verdict request_line(const char *b, const char *nl, struct
   return VLFF_HEAD_PASS;
 }
 
-enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct vlff_page *pg, struct vlff_head *h) {
+static void trim(const char **v, const char **e);
+static int has_token(const char *v, const char *e, const char *want);
+static int ws_key_ok(const char *v, const char *e);
+
+enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct vlff_page *pg,
+                                       const struct vlff_allow *allow, struct vlff_head *h) {
   memset(h, 0, sizeof *h);
   const char *end = buf + len, *nl = memchr(buf, '\n', len);
   if (!nl) {
@@ -243,6 +253,11 @@ enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct
   if (request_line(buf, nl, h, &target, &tlen) != VLFF_HEAD_PASS) return VLFF_HEAD_REFUSE;
 
   int lines = 0;
+  /* the headers the later checks and vlff_head_canon look at: value spans */
+  struct span {
+    const char *v, *e;
+    int n;
+  } host = {0}, origin = {0}, conn = {0}, key = {0}, version = {0};
   for (const char *q = nl + 1;;) {
     const char *le = memchr(q, '\n', (size_t)(end - q));
     if ((size_t)((le ? le + 1 : end) - buf) > VLFF_HTTP_HEAD_MAX)
@@ -263,6 +278,15 @@ enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct
       if (((unsigned char)*x < 0x20 && *x != '\t') || *x == 0x7f)
         return refuse(h, 400, "header %s holds a control character",
                       vlff_escape((char[VLFF_ESC_LEN]){0}, VLFF_ESC_LEN, q, (size_t)nlen, 40));
+    struct span *sp = NULL;
+    if (nlen == 4 && !strncasecmp(q, "Host", 4)) sp = &host;
+    else if (nlen == 6 && !strncasecmp(q, "Origin", 6)) sp = &origin;
+    else if (nlen == 10 && !strncasecmp(q, "Connection", 10)) sp = &conn;
+    else if (nlen == 17 && !strncasecmp(q, "Sec-WebSocket-Key", 17)) sp = &key;
+    else if (nlen == 21 && !strncasecmp(q, "Sec-WebSocket-Version", 21)) sp = &version;
+    if (sp && sp->n++ == 0) sp->v = c + 1, sp->e = le - 1;
+    if (sp && sp != &conn && sp->n > 1)
+      return refuse(h, 400, "header %s given twice", vlff_escape((char[VLFF_ESC_LEN]){0}, VLFF_ESC_LEN, q, (size_t)nlen, 40));
     if (nlen == 7 && !strncasecmp(q, "Upgrade", 7)) {
       if (!value_is(c + 1, le - 1, "websocket")) return refuse(h, 400, "only an upgrade to WebSocket is served");
       h->upgrade = 1;
@@ -284,5 +308,180 @@ enum vlff_head_verdict vlff_head_check(const char *buf, size_t len, const struct
     return refuse(h, 404, "%s is not a file of this page",
                   vlff_escape((char[VLFF_ESC_LEN]){0}, VLFF_ESC_LEN, target, plen, 60));
   }
+  if (!host.n) return refuse(h, 400, "the request has no Host header");
+  trim(&host.v, &host.e);
+  trim(&origin.v, &origin.e);
+  if (allow && !vlff_allow_host_ok(allow, host.v, (size_t)(host.e - host.v))) {
+    h->forbidden = 1;
+    return refuse(h, 403, "Host \"%.*s\" is not this viewer's (allow it with --allow-origin)",
+                  (int)(host.e - host.v > 60 ? 60 : host.e - host.v), host.v);
+  }
+  if (allow && origin.n && !vlff_allow_origin_ok(allow, origin.v, (size_t)(origin.e - origin.v))) {
+    h->forbidden = 2;
+    return refuse(h, 403, "Origin \"%.*s\" is not allowed (allow it with --allow-origin)",
+                  (int)(origin.e - origin.v > 60 ? 60 : origin.e - origin.v), origin.v);
+  }
+  if (h->upgrade) {
+    if (!conn.n || !has_token(conn.v, conn.e, "upgrade"))
+      return refuse(h, 400, "a WebSocket upgrade needs \"Connection: Upgrade\"");
+    trim(&version.v, &version.e);
+    if (!version.n || version.e - version.v != 2 || memcmp(version.v, "13", 2))
+      return refuse(h, 426, "WebSocket version \"%.*s\" is not supported; this server speaks 13",
+                    (int)(version.e - version.v > 20 ? 20 : version.e - version.v), version.n ? version.v : "");
+    trim(&key.v, &key.e);
+    if (!key.n || !ws_key_ok(key.v, key.e))
+      return refuse(h, 400, "a WebSocket upgrade needs a Sec-WebSocket-Key of 16 bytes in base64");
+  }
   return VLFF_HEAD_PASS;
+}
+
+/* ------------------------------------------------------------ canonical head */
+
+size_t vlff_head_canon(const char *buf, const struct vlff_head *h, char *out, size_t cap) {
+  static const char *const keep[] = {"Host", "Origin", "Upgrade", "Connection", "Sec-WebSocket-Key",
+                                     "Sec-WebSocket-Version", "Sec-WebSocket-Protocol"};
+  const char *end = buf + h->head_len, *nl = memchr(buf, '\n', h->head_len);
+  if (!nl) return 0;
+  size_t n = 0;
+  for (const char *q = buf, *le = nl;; q = le + 1, le = memchr(q, '\n', (size_t)(end - q))) {
+    if (!le) return 0;
+    const char *colon = memchr(q, ':', (size_t)(le - q));
+    size_t llen = (size_t)(le + 1 - q), nlen = colon ? (size_t)(colon - q) : 0;
+    int take = q == buf || llen == 2; /* the request line, the empty line */
+    for (size_t i = 0; !take && i < sizeof keep / sizeof keep[0]; i++)
+      take = nlen == strlen(keep[i]) && !strncasecmp(q, keep[i], nlen);
+    if (take) {
+      if (n + llen > cap) return 0;
+      memcpy(out + n, q, llen);
+      n += llen;
+    }
+    if (llen == 2) return n;
+  }
+}
+
+/* -------------------------------------------------------------- allow-list */
+
+static void trim(const char **v, const char **e) {
+  while (*v < *e && (**v == ' ' || **v == '\t')) (*v)++;
+  while (*e > *v && ((*e)[-1] == ' ' || (*e)[-1] == '\t')) (*e)--;
+}
+
+/* The comma-separated list [v, e) holds token want (ignoring case). */
+static int has_token(const char *v, const char *e, const char *want) {
+  size_t wl = strlen(want);
+  while (v < e) {
+    const char *c = memchr(v, ',', (size_t)(e - v));
+    const char *te = c ? c : e, *tv = v;
+    trim(&tv, &te);
+    if ((size_t)(te - tv) == wl && !strncasecmp(tv, want, wl)) return 1;
+    v = c ? c + 1 : e;
+  }
+  return 0;
+}
+
+/* A Sec-WebSocket-Key: 16 bytes in base64, 24 characters ending in "==". */
+static int ws_key_ok(const char *v, const char *e) {
+  if (e - v != 24 || v[22] != '=' || v[23] != '=') return 0;
+  for (int i = 0; i < 22; i++)
+    if (!(isalnum((unsigned char)v[i]) || v[i] == '+' || v[i] == '/')) return 0;
+  /* the last character before the padding carries 2 bits, the other 4 are zero */
+  return strchr("AQgw", v[21]) != NULL;
+}
+
+static int copy_lower(char *out, size_t cap, const char *s, size_t n) {
+  if (n == 0 || n >= cap) return -1;
+  for (size_t i = 0; i < n; i++) {
+    unsigned char c = (unsigned char)s[i];
+    if (c <= 0x20 || c >= 0x7f) return -1;
+    out[i] = (char)tolower(c);
+  }
+  out[n] = 0;
+  return 0;
+}
+
+int vlff_allow_name(struct vlff_allow *a, const char *name) {
+  if (a->n_names == VLFF_ALLOW_MAX) return -1;
+  for (int i = 0; i < a->n_names; i++)
+    if (!strcasecmp(a->names[i], name)) return 0;
+  if (copy_lower(a->names[a->n_names], VLFF_ALLOW_LEN, name, strlen(name))) return -1;
+  a->n_names++;
+  return 0;
+}
+
+/* An authority "host[:port]" with host a name, an IPv4 address or "[IPv6]". */
+static int authority_ok(const char *s, size_t n) {
+  if (!n) return 0;
+  size_t hl = n;
+  if (s[0] == '[') {
+    const char *rb = memchr(s, ']', n);
+    if (!rb) return 0;
+    hl = (size_t)(rb + 1 - s);
+    for (const char *p = s + 1; p < rb; p++)
+      if (!isxdigit((unsigned char)*p) && *p != ':' && *p != '.') return 0;
+  } else {
+    const char *colon = memchr(s, ':', n);
+    if (colon) hl = (size_t)(colon - s);
+    for (size_t i = 0; i < hl; i++)
+      if (!isalnum((unsigned char)s[i]) && !strchr("-._", s[i])) return 0;
+  }
+  if (hl == 0) return 0;
+  if (hl == n) return 1;
+  if (s[hl] != ':' || n - hl - 1 < 1 || n - hl - 1 > 5) return 0;
+  for (size_t i = hl + 1; i < n; i++)
+    if (!isdigit((unsigned char)s[i])) return 0;
+  return 1;
+}
+
+int vlff_allow_origin(struct vlff_allow *a, const char *origin, char *why, size_t len) {
+  size_t n = strlen(origin), skip = !strncasecmp(origin, "http://", 7) ? 7 : !strncasecmp(origin, "https://", 8) ? 8 : 0;
+  if (!skip || !authority_ok(origin + skip, n - skip)) {
+    snprintf(why, len, "'%.80s' is not an origin http://HOST[:PORT] or https://HOST[:PORT] (no path)", origin);
+    return -1;
+  }
+  if (a->n_origins == VLFF_ALLOW_MAX || copy_lower(a->origins[a->n_origins], VLFF_ALLOW_LEN, origin, n)) {
+    snprintf(why, len, "'%.80s': at most %d origins of fewer than %d characters", origin, VLFF_ALLOW_MAX,
+             VLFF_ALLOW_LEN);
+    return -1;
+  }
+  a->n_origins++;
+  return 0;
+}
+
+/* An own authority: a listed name with the viewer's port (or none for port 80). */
+static int own_authority(const struct vlff_allow *a, const char *v, size_t n) {
+  if (!authority_ok(v, n)) return 0;
+  size_t hl = n;
+  const char *colon = v[0] == '[' ? (const char *)memchr(v, ']', n) + 1 : memchr(v, ':', n);
+  if (colon && colon < v + n) {
+    hl = (size_t)(colon - v);
+    char port[8];
+    snprintf(port, sizeof port, "%d", a->port);
+    if (n - hl - 1 != strlen(port) || memcmp(colon + 1, port, n - hl - 1)) return 0;
+  } else if (a->port != 80) {
+    return 0;
+  }
+  for (int i = 0; i < a->n_names; i++)
+    if (strlen(a->names[i]) == hl && !strncasecmp(a->names[i], v, hl)) return 1;
+  return 0;
+}
+
+int vlff_allow_host_ok(const struct vlff_allow *a, const char *v, size_t n) {
+  const char *e = v + n;
+  trim(&v, &e);
+  n = (size_t)(e - v);
+  if (own_authority(a, v, n)) return 1;
+  for (int i = 0; i < a->n_origins; i++) {
+    const char *auth = strstr(a->origins[i], "://") + 3;
+    if (strlen(auth) == n && !strncasecmp(auth, v, n)) return 1;
+  }
+  return 0;
+}
+
+int vlff_allow_origin_ok(const struct vlff_allow *a, const char *v, size_t n) {
+  const char *e = v + n;
+  trim(&v, &e);
+  n = (size_t)(e - v);
+  for (int i = 0; i < a->n_origins; i++)
+    if (strlen(a->origins[i]) == n && !strncasecmp(a->origins[i], v, n)) return 1;
+  return n > 7 && !strncasecmp(v, "http://", 7) && own_authority(a, v + 7, n - 7);
 }

@@ -88,10 +88,12 @@ static const char status_schema[] =
     "\"viewer\":{\"type\":\"object\",\"properties\":{\"clients\":{\"type\":\"integer\"},\"connections\":{\"type\":\"integer\"},"
     "\"dropped_slow\":{\"type\":\"integer\"},\"refused\":{\"type\":\"integer\"},\"bad_requests\":{\"type\":\"integer\"},"
     "\"prompts_posted\":{\"type\":\"integer\"},\"messages_sent\":{\"type\":\"integer\"},\"bytes_sent\":{\"type\":\"integer\"},"
-    "\"http_refused\":{\"type\":\"object\",\"description\":\"HTTP requests refused, by status: 400 malformed, 404 no such "
-    "file, 405 not GET or HEAD, 408 no whole head in time, 414 target too long, 431 head too large, 503 too many "
-    "connections, 505 not HTTP/1.x\",\"properties\":{\"400\":{\"type\":\"integer\"},\"404\":{\"type\":\"integer\"},"
+    "\"http_refused\":{\"type\":\"object\",\"description\":\"HTTP requests refused, by status: 400 malformed, 403 Host or "
+    "Origin not allowed, 404 no such file, 405 not GET or HEAD, 408 no whole head in time, 414 target too long, 426 "
+    "WebSocket version not 13, 431 head too large, 503 too many connections, 505 not HTTP/1.x\",\"properties\":{"
+    "\"400\":{\"type\":\"integer\"},\"403\":{\"type\":\"integer\"},\"404\":{\"type\":\"integer\"},"
     "\"405\":{\"type\":\"integer\"},\"408\":{\"type\":\"integer\"},\"414\":{\"type\":\"integer\"},"
+    "\"426\":{\"type\":\"integer\"},"
     "\"431\":{\"type\":\"integer\"},\"503\":{\"type\":\"integer\"},\"505\":{\"type\":\"integer\"}}}}}},"
     "\"required\":[\"map\",\"learner\",\"frames\",\"viewer\"]}";
 

@@ -16,19 +16,33 @@
  * stays. An oversized message, too many clients or a foreign subprotocol close the
  * connection with a WebSocket close reason or an HTTP error saying so.
  *
- * Two vhosts: the listening one accepts every connection as a raw socket into the
- * gate, which reads the request head and checks it (page.h) before libwebsockets'
- * HTTP parser sees a byte; a refused head gets its HTTP status and sentence from
+ * The viewer owns the listening socket (the loop watches it as a raw file): it
+ * accepts each connection itself, pausing when out of descriptors, into the gate's
+ * vhost as a raw socket. Two vhosts: the gate reads the request head and checks it
+ * (page.h: syntax, file, Host and Origin against the allow-list) before
+ * libwebsockets' HTTP parser sees a byte; a refused head gets its HTTP status and sentence from
  * the gate, a passed one is handed with its bytes to the second vhost, which serves
  * the page's files from memory (with the Content-Security-Policy) or upgrades to the
- * Foxglove WebSocket. A page response closes its connection, so that every request
+ * Foxglove WebSocket. A page request's descriptor itself is handed on; an upgrade
+ * is relayed through a socket pair (libwebsockets serves one end), the gate passing
+ * bytes both ways and reading the client's frame headers, since libwebsockets 4.1
+ * accepts client frames that are not masked and does not show the mask bit. A page response closes its connection, so that every request
  * passes the gate. Refusals are counted per status (the status channel's viewer
- * object); their log lines are rate-limited, so that a flood cannot fill the journal.
+ * object); their log lines are rate-limited, so that a flood cannot fill the journal,
+ * and so are libwebsockets' own.
+ *
+ * Nothing here waits: a prompt set is posted with vlff_prompts_try_post ("busy" at
+ * once when the mailbox holds an unanswered request) and the learner's answer is
+ * looked for from a timer. A WebSocket client silent for a third of the idle timeout
+ * is pinged and one silent for all of it closed, so that dead peers free their slot.
  */
 #include "view.h"
 
+#include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <ifaddrs.h>
+#include <netinet/in.h>
 #include <json-c/json.h>
 #include <libwebsockets.h>
 #include <stddef.h>
@@ -40,27 +54,53 @@
 
 #include "log.h"
 #include "page.h"
+#include "vlff/escape.h" /* what a peer sent, quoted in messages */
 
 #define FOX_PROTOCOL "foxglove.websocket.v1"
 #define PROMPT_TOPIC "/vlff/prompts"
 #define MAX_CLIENT_CHANNELS 8
 #define GATE_PROTOCOL "vlff-gate"
-#define GATE_TIMEOUT_S 10      /* for a whole request head */
+#define HEAD_TIMEOUT_S 5       /* default for a whole request head */
+#define IDLE_TIMEOUT_S 30      /* default: a WebSocket client silent this long is closed */
+#define ANSWER_WAIT_S 30       /* how long a posted prompt set waits for the learner */
+#define ANSWER_POLL_US 20000   /* how often the loop looks for the learner's answer */
 #define GATE_LINGER_S 2        /* reading what a refused client still sends */
 #define GATE_DRAIN_MAX (1u << 20)
 #define GATE_PENDING_MAX 64    /* connections that have not finished their head */
+#define GATE_TOTAL_MAX 256     /* connections at the gate: reading, answering, lingering */
 #define PAGE_CHUNK 16384
+#define RELAY_CHUNK 65536      /* bytes a relay moves per read */
+#define ACCEPT_BURST 64        /* connections accepted per wake-up of the listener */
+#define ACCEPT_PAUSE_US 200000 /* out of descriptors: the listener rests this long */
 
 /* A connection whose request head is being read and checked. */
 struct gate {
   struct vlff_view *v;
   struct lws *wsi;
+  struct gate *older, *newer; /* the list of heads being read, oldest first */
+  int listed;
   lws_sorted_usec_list_t sul; /* the head's deadline */
-  enum { GATE_READING, GATE_ANSWERING, GATE_FLUSHING, GATE_DRAINING, GATE_PASSED } state;
+  enum { GATE_READING, GATE_ANSWERING, GATE_FLUSHING, GATE_DRAINING, GATE_PASSED, GATE_RELAY } state;
   char peer[64];
+  /* RELAY: a WebSocket's bytes pass between the client's socket and the viewer's end
+   * of a socket pair whose other end libwebsockets serves; the client's frames are
+   * read on the way (fh: a frame header so far, f_left: payload bytes to skip) */
+  struct gate *pair;
+  int inner, closing;
+  unsigned char fh[14];
+  size_t fh_len, fh_need;
+  uint64_t f_left;
   size_t len, drained, resp_len;
   char resp[LWS_PRE + 768];
   char buf[VLFF_HTTP_HEAD_MAX + 1];
+};
+
+/* The client address of a relayed WebSocket, whose socket libwebsockets sees is
+ * the socket pair's. */
+struct peer_note {
+  struct peer_note *next;
+  int fd;
+  char peer[64];
 };
 
 /* A passed head on its way to the HTTP vhost (outside the gate's callback). */
@@ -99,6 +139,8 @@ struct client {
   unsigned char *rx;
   size_t rx_len;
   int dropping;
+  uint64_t last_rx_ns; /* the client's last frame, pong included */
+  int want_ping, pinged;
 };
 
 struct vlff_view {
@@ -110,13 +152,56 @@ struct vlff_view {
   struct vlff_page page;
   lws_sorted_usec_list_t sul, handoff_sul;
   struct handoff *handoffs;
-  int gate_pending;
+  int gate_pending;                 /* connections at the gate */
+  int gate_reading;                 /* of which reading their head, listed: */
+  struct gate *adopting;            /* the client whose pair end is being adopted */
+  unsigned char relay_buf[LWS_PRE + RELAY_CHUNK];
+  struct peer_note *peer_notes;
+  struct gate *oldest, *newest;
   uint64_t ws_refusals; /* WebSocket-level refusals, for their log's rate limit */
   struct client *clients;
   struct vlff_view_counters c;
   struct vlff_prompts *mailbox;
+  /* the prompt set posted and waiting for the learner's answer (seq 0: none); the
+   * loop polls for the answer instead of waiting in a callback */
+  struct {
+    struct client *cl;
+    uint64_t seq, t0_ns;
+  } pending;
+  lws_sorted_usec_list_t answer_sul;
+  struct vlff_allow allow;
+  int head_timeout_s, idle_timeout_s;
+  /* the listening socket is the viewer's own, watched by the loop as a raw file:
+   * accept() is called here, so that running out of descriptors pauses it instead
+   * of spinning on a listener that stays readable */
+  int listen_fd, port;
+  struct lws *listen_wsi;
+  lws_sorted_usec_list_t accept_sul;
+  uint64_t accept_failures;
   volatile int stop;
 };
+
+/* The client's address for a connection of the HTTP side: noted for a relayed
+ * WebSocket, else the socket's peer. */
+static void peer_of(struct vlff_view *v, struct lws *wsi, char *out, size_t cap) {
+  int fd = lws_get_socket_fd(wsi);
+  for (struct peer_note *n = v->peer_notes; n; n = n->next)
+    if (n->fd == fd) {
+      snprintf(out, cap, "%s", n->peer);
+      return;
+    }
+  lws_get_peer_simple(wsi, out, cap);
+}
+
+static void forget_peer(struct vlff_view *v, int fd) {
+  for (struct peer_note **pp = &v->peer_notes; *pp; pp = &(*pp)->next)
+    if ((*pp)->fd == fd) {
+      struct peer_note *n = *pp;
+      *pp = n->next;
+      free(n);
+      return;
+    }
+}
 
 /* Counts a refusal with HTTP status (its own counter in the status channel) and
  * logs it: the first five of each status and every 1000th. */
@@ -387,30 +472,56 @@ static int token_ok(const char *want, const char *got) {
   return diff == 0;
 }
 
+/* The loop's look for the learner's answer to the pending post: the client gets it
+ * as a status (or hears that none came in ANSWER_WAIT_S); nothing here waits. */
+static void poll_answer(lws_sorted_usec_list_t *sul) {
+  struct vlff_view *v = lws_container_of(sul, struct vlff_view, answer_sul);
+  if (!v->pending.seq) return;
+  char reason[128] = "";
+  int st = v->mailbox ? vlff_prompts_wait_answer(v->mailbox, v->pending.seq, 0, reason, sizeof reason) : -1;
+  int e = errno;
+  struct client *cl = v->pending.cl;
+  if (st < 0 && e == ETIMEDOUT && vlff_shm_now_ns() - v->pending.t0_ns < (uint64_t)ANSWER_WAIT_S * 1000000000ull) {
+    lws_sul_schedule(v->ctx, 0, &v->answer_sul, poll_answer, ANSWER_POLL_US);
+    return;
+  }
+  if (cl && st == VLFF_PROMPT_ACCEPTED)
+    send_status(cl, 0, "prompt set (request %llu) accepted by the learner", (unsigned long long)v->pending.seq);
+  else if (cl && st == VLFF_PROMPT_REFUSED)
+    send_status(cl, 2, PROMPT_TOPIC ": the learner refused request %llu: %s", (unsigned long long)v->pending.seq,
+                reason);
+  else if (cl)
+    send_status(cl, 2, PROMPT_TOPIC ": no answer to request %llu: %s", (unsigned long long)v->pending.seq,
+                e == ETIMEDOUT ? "the learner did not answer in time" : vlff_shm_last_message());
+  if (st < 0 && e == EPIPE) {
+    vlff_prompts_close(v->mailbox);
+    v->mailbox = NULL;
+  }
+  v->pending.seq = 0;
+  v->pending.cl = NULL;
+}
+
 /* A client message on an advertised channel: {"token": "...", "prompts": [...]} or
  * {"token": "...", "set_index": n}, posted to the prompt mailbox. */
 static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
   struct vlff_view *v = cl->v;
-  if (n < 5) {
-    send_status(cl, 2, "binary message of %zu bytes is shorter than its 5-byte header", n);
+  char why[160];
+  uint32_t id;
+  if (vlff_view_publish_header(d, n, &id, why, sizeof why)) {
+    send_status(cl, 2, "%s", why);
     return;
   }
-  if (d[0] != 1) {
-    send_status(cl, 2, "binary opcode %u is not supported (1 = message data)", d[0]);
-    return;
-  }
-  uint32_t id = (uint32_t)d[1] | (uint32_t)d[2] << 8 | (uint32_t)d[3] << 16 | (uint32_t)d[4] << 24;
   int known = 0;
   for (int k = 0; k < cl->nadv; k++) known |= cl->adv_id[k] == id;
   if (!known) {
     send_status(cl, 2, "message data on channel %u, which this client has not advertised", id);
     return;
   }
-  struct json_tokener *tok = json_tokener_new();
-  json_object *o = tok ? json_tokener_parse_ex(tok, (const char *)d + 5, (int)(n - 5)) : NULL;
-  json_tokener_free(tok);
+  json_object *o = vlff_view_parse_json((const char *)d + 5, n - 5, why, sizeof why);
   json_object *t, *p, *si;
-  if (!o || !json_object_is_type(o, json_type_object)) {
+  if (!o) {
+    send_status(cl, 2, PROMPT_TOPIC ": the message is not JSON: %s", why);
+  } else if (!json_object_is_type(o, json_type_object)) {
     send_status(cl, 2, PROMPT_TOPIC ": the message is not a JSON object");
   } else if (!json_object_object_get_ex(o, "token", &t) || !json_object_is_type(t, json_type_string) ||
              !token_ok(v->p.token, json_object_get_string(t))) {
@@ -447,16 +558,28 @@ static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
     if (!v->mailbox) v->mailbox = vlff_prompts_attach(v->p.prompts_name);
     if (!v->mailbox) {
       send_status(cl, 2, PROMPT_TOPIC ": mailbox %s: %s", v->p.prompts_name, vlff_shm_last_message());
-    } else if ((np > 0 ? vlff_prompts_post(v->mailbox, texts, np) : vlff_prompts_post_index(v->mailbox, (int)set)) != 0) {
-      send_status(cl, 2, PROMPT_TOPIC ": posting to %s: %s", v->p.prompts_name, vlff_shm_last_message());
-      if (errno == EPIPE) {
+    } else if (v->pending.seq) {
+      /* the mailbox takes one request at a time: answer at once, never wait */
+      send_status(cl, 2, PROMPT_TOPIC ": busy: request %llu is still waiting for the learner's answer; post again later",
+                  (unsigned long long)v->pending.seq);
+    } else if (vlff_prompts_try_post(v->mailbox, np > 0 ? texts : NULL, np > 0 ? np : 0, np > 0 ? -1 : (int)set) != 0) {
+      int e = errno;
+      send_status(cl, 2, PROMPT_TOPIC ": %sposting to %s: %s", e == EBUSY ? "busy: " : "", v->p.prompts_name,
+                  vlff_shm_last_message());
+      if (e == EPIPE) {
         vlff_prompts_close(v->mailbox); /* replaced by a restarted node: attach again next time */
         v->mailbox = NULL;
       }
     } else {
       v->c.prompts_posted++;
-      send_status(cl, 0, "prompt set posted to %s", v->p.prompts_name);
-      fprintf(stderr, "vlff-view: client %s posted a prompt set to %s\n", cl->peer, v->p.prompts_name);
+      v->pending.cl = cl;
+      v->pending.seq = vlff_prompts_last_post(v->mailbox);
+      v->pending.t0_ns = vlff_shm_now_ns();
+      send_status(cl, 0, "prompt set posted to %s as request %llu; waiting for the learner's answer",
+                  v->p.prompts_name, (unsigned long long)v->pending.seq);
+      fprintf(stderr, "vlff-view: client %s posted a prompt set to %s (request %llu)\n", cl->peer, v->p.prompts_name,
+              (unsigned long long)v->pending.seq);
+      lws_sul_schedule(v->ctx, 0, &v->answer_sul, poll_answer, ANSWER_POLL_US);
     }
   }
 out:
@@ -464,13 +587,10 @@ out:
 }
 
 static void handle_text(struct client *cl, const char *s, size_t n) {
-  struct json_tokener *tok = json_tokener_new();
-  json_object *o = tok ? json_tokener_parse_ex(tok, s, (int)n) : NULL;
-  enum json_tokener_error err = tok ? json_tokener_get_error(tok) : json_tokener_continue;
-  const char *why = tok ? json_tokener_error_desc(err) : "out of memory";
-  json_tokener_free(tok);
+  char why[160];
+  json_object *o = vlff_view_parse_json(s, n, why, sizeof why);
   json_object *op;
-  if (!o || err != json_tokener_success) {
+  if (!o) {
     send_status(cl, 2, "request is not JSON: %s", why);
   } else if (!json_object_is_type(o, json_type_object) || !json_object_object_get_ex(o, "op", &op) ||
              !json_object_is_type(op, json_type_string)) {
@@ -489,6 +609,15 @@ static void handle_text(struct client *cl, const char *s, size_t n) {
 /* ---------------------------------------------------------------- the loop */
 
 static int write_one(struct client *cl) {
+  if (cl->want_ping) {
+    /* with a payload: libwebsockets 4.1 passes an empty pong to no callback */
+    unsigned char ping[LWS_PRE + 4];
+    memcpy(ping + LWS_PRE, "vlff", 4);
+    cl->want_ping = 0;
+    if (lws_write(cl->wsi, ping + LWS_PRE, 4, LWS_WRITE_PING) < 4) return -1;
+    if (cl->head) lws_callback_on_writable(cl->wsi);
+    return 0;
+  }
   struct qitem *q = cl->head;
   if (!q) return 0;
   unsigned char *p = vlff_view_msg_payload(q->m);
@@ -513,10 +642,31 @@ static int write_one(struct client *cl) {
   return 0;
 }
 
+/* A client silent for a third of the idle timeout is pinged (a live one answers
+ * with a pong, browsers and Foxglove on their own); one silent for the whole of it
+ * is closed, so that idle or dead peers cannot hold the client slots. */
+static void check_idle(struct vlff_view *v) {
+  uint64_t now = vlff_shm_now_ns(), limit = (uint64_t)v->idle_timeout_s * 1000000000ull;
+  for (struct client *cl = v->clients; cl; cl = cl->next) {
+    if (cl->dropping) continue;
+    uint64_t quiet = now - cl->last_rx_ns;
+    if (quiet >= limit) {
+      char why[96];
+      snprintf(why, sizeof why, "no answer to ping: silent for %d s", v->idle_timeout_s);
+      drop_client(cl, why);
+    } else if (quiet >= limit / 3 && !cl->pinged) {
+      cl->pinged = 1;
+      cl->want_ping = 1;
+      lws_callback_on_writable(cl->wsi);
+    }
+  }
+}
+
 static void tick(lws_sorted_usec_list_t *sul) {
   struct vlff_view *v = lws_container_of(sul, struct vlff_view, sul);
   struct vlff_view_msg *out[16];
   unsigned wanted = 0;
+  check_idle(v);
   for (struct client *cl = v->clients; cl; cl = cl->next)
     for (int ch = 1; ch <= VLFF_VIEW_CH_COUNT; ch++)
       if (cl->subscribed[ch]) wanted |= 1u << ch;
@@ -531,7 +681,7 @@ static void tick(lws_sorted_usec_list_t *sul) {
 
 static int refuse(struct vlff_view *v, struct lws *wsi, enum lws_close_status code, const char *why) {
   char peer[64] = "?";
-  lws_get_peer_simple(wsi, peer, sizeof peer);
+  peer_of(v, wsi, peer, sizeof peer);
   v->c.refused++;
   vlff_warn_limited(&v->ws_refusals, "vlff-view", "refused %s: %s", peer, why);
   lws_close_reason(wsi, code, (unsigned char *)why, strlen(why));
@@ -551,9 +701,10 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     memset(cl, 0, sizeof *cl);
     cl->v = v;
     cl->wsi = wsi;
-    lws_get_peer_simple(wsi, cl->peer, sizeof cl->peer);
+    peer_of(v, wsi, cl->peer, sizeof cl->peer);
     size_t pl = strlen(cl->peer);
     snprintf(cl->peer + pl, sizeof cl->peer - pl, "#%llu", (unsigned long long)v->c.connections + 1);
+    cl->last_rx_ns = vlff_shm_now_ns();
     cl->next = v->clients;
     v->clients = cl;
     v->c.clients++;
@@ -562,8 +713,13 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     send_hello(cl);
     return 0;
   }
+  case LWS_CALLBACK_RECEIVE_PONG:
+    if (cl->v) cl->last_rx_ns = vlff_shm_now_ns(), cl->pinged = 0;
+    return 0;
   case LWS_CALLBACK_RECEIVE: {
     if (!cl->v || cl->dropping) return 0;
+    cl->last_rx_ns = vlff_shm_now_ns();
+    cl->pinged = 0;
     if (cl->rx_len + len > v->p.max_request_bytes) {
       char why[96];
       snprintf(why, sizeof why, "message larger than %zu bytes", v->p.max_request_bytes);
@@ -594,6 +750,8 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
         break;
       }
     v->c.clients--;
+    forget_peer(v, lws_get_socket_fd(wsi));
+    if (v->pending.cl == cl) v->pending.cl = NULL; /* its answer has nobody to go to */
     if (v->p.verbose) fprintf(stderr, "vlff-view: client %s left\n", cl->peer);
     free_queue(cl);
     free(cl->rx);
@@ -618,7 +776,28 @@ static int offers_foxglove(const char *list) {
 
 /* ------------------------------------------------------------------ gate */
 
+static void reading_add(struct vlff_view *v, struct gate *g) {
+  g->older = v->newest;
+  g->newer = NULL;
+  if (v->newest) v->newest->newer = g;
+  else v->oldest = g;
+  v->newest = g;
+  g->listed = 1;
+  v->gate_reading++;
+}
+
+static void reading_remove(struct vlff_view *v, struct gate *g) {
+  if (!g->listed) return;
+  if (g->older) g->older->newer = g->newer;
+  else v->oldest = g->newer;
+  if (g->newer) g->newer->older = g->older;
+  else v->newest = g->older;
+  g->listed = 0;
+  v->gate_reading--;
+}
+
 static void gate_answer(struct gate *g, int status, const char *why, int is_head) {
+  reading_remove(g->v, g);
   count_refusal(g->v, g->peer, status, why);
   g->resp_len = vlff_http_refusal(g->resp + LWS_PRE, sizeof g->resp - LWS_PRE, status, why, is_head);
   g->state = GATE_ANSWERING;
@@ -631,7 +810,7 @@ static void gate_deadline(lws_sorted_usec_list_t *sul) {
   if (g->state != GATE_READING) return;
   if (g->len) {
     char why[96];
-    snprintf(why, sizeof why, "no complete request head within %d s", GATE_TIMEOUT_S);
+    snprintf(why, sizeof why, "no complete request head within %d s", g->v->head_timeout_s);
     gate_answer(g, 408, why, 0);
   } else {
     /* a connection that never sent a byte (a browser's spare one) just closes */
@@ -671,32 +850,222 @@ static int gate_pass(struct gate *g, size_t head_len) {
   v->handoffs = h;
   lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
   g->state = GATE_PASSED;
+  reading_remove(v, g);
   lws_sul_cancel(&g->sul);
   return -1;
+}
+
+/* Bytes to the other end of a relay; when that end's socket is full, this end stops
+ * being read until it drains (its RAW_WRITEABLE), so that libwebsockets' writes to a
+ * client that reads slowly back up to its own queue, which drops the client. */
+static int relay_send(struct gate *from, struct gate *to, const void *data, size_t n) {
+  unsigned char *buf = n <= RELAY_CHUNK ? from->v->relay_buf : malloc(LWS_PRE + n);
+  if (!buf) return -1;
+  memcpy(buf + LWS_PRE, data, n);
+  int w = lws_write(to->wsi, buf + LWS_PRE, n, LWS_WRITE_RAW);
+  if (buf != from->v->relay_buf) free(buf);
+  if (w < (int)n) return -1;
+  if (lws_send_pipe_choked(to->wsi)) {
+    lws_rx_flow_control(from->wsi, 0);
+    lws_callback_on_writable(to->wsi);
+  }
+  return 0;
+}
+
+/* Reads the client's frame headers in data[n]: the offset of the first frame that
+ * is not masked (RFC 6455 5.1: a server must close the connection), or n. */
+static size_t relay_scan(struct gate *g, const unsigned char *d, size_t n) {
+  size_t i = 0;
+  while (i < n) {
+    if (g->f_left) {
+      size_t take = g->f_left < n - i ? (size_t)g->f_left : n - i;
+      g->f_left -= take;
+      i += take;
+      continue;
+    }
+    size_t start = i - g->fh_len; /* where this frame began, when within data */
+    g->fh[g->fh_len++] = d[i++];
+    if (g->fh_len == 2) {
+      if (!(g->fh[1] & 0x80)) return g->fh_len <= i ? start : 0;
+      unsigned l7 = g->fh[1] & 0x7f;
+      g->fh_need = 2 + (l7 == 126 ? 2 : l7 == 127 ? 8 : 0) + 4;
+    }
+    if (g->fh_len >= 2 && g->fh_len == g->fh_need) {
+      unsigned l7 = g->fh[1] & 0x7f;
+      uint64_t len = l7;
+      if (l7 >= 126) {
+        len = 0;
+        for (size_t k = 0; k < (l7 == 126 ? 2u : 8u); k++) len = len << 8 | g->fh[2 + k];
+      }
+      g->f_left = len;
+      g->fh_len = g->fh_need = 0;
+    }
+  }
+  return n;
+}
+
+/* Hands a WebSocket upgrade on through a socket pair: libwebsockets serves one end
+ * (with the head, from the loop), the gate relays between the client and the other
+ * end, reading the client's frame headers on the way. */
+static int relay_start(struct gate *g, size_t head_len) {
+  struct vlff_view *v = g->v;
+  int sp[2] = {-1, -1};
+  struct handoff *h = NULL;
+  struct peer_note *pn = NULL;
+  if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0, sp) == 0) {
+    h = malloc(sizeof *h + head_len);
+    pn = malloc(sizeof *pn);
+  }
+  if (!h || !pn) {
+    if (sp[0] >= 0) close(sp[0]), close(sp[1]);
+    free(h);
+    free(pn);
+    gate_answer(g, 503, "out of descriptors or memory", 0);
+    return 0;
+  }
+  lws_sock_file_fd_type u;
+  u.sockfd = sp[0];
+  v->adopting = g;
+  struct lws *in = lws_adopt_descriptor_vhost(v->vh, LWS_ADOPT_SOCKET, u, GATE_PROTOCOL, NULL);
+  v->adopting = NULL;
+  if (!in || !g->pair) { /* libwebsockets closed sp[0] */
+    close(sp[1]);
+    free(h);
+    free(pn);
+    gate_answer(g, 503, "out of descriptors or memory", 0);
+    return 0;
+  }
+  forget_peer(v, sp[1]);
+  pn->fd = sp[1];
+  snprintf(pn->peer, sizeof pn->peer, "%s", g->peer);
+  pn->next = v->peer_notes;
+  v->peer_notes = pn;
+  h->fd = sp[1];
+  h->len = head_len;
+  memcpy(h->head, g->buf, head_len);
+  h->next = v->handoffs;
+  v->handoffs = h;
+  lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
+  g->state = GATE_RELAY;
+  reading_remove(v, g);
+  lws_sul_cancel(&g->sul);
+  v->gate_pending--; /* a WebSocket now: its client slot is counted on the other side */
+  lws_set_timeout(g->wsi, NO_PENDING_TIMEOUT, 0);
+  return 0;
+}
+
+/* The relayed client sent a frame that is not masked: a close frame 1002 goes to it
+ * straight away, libwebsockets' end is dropped, the client's socket closes once the
+ * close frame is out. */
+static void relay_refuse_unmasked(struct gate *g) {
+  struct vlff_view *v = g->v;
+  static const char why[] = "client frames must be masked (RFC 6455 5.1)";
+  unsigned char f[2 + 2 + sizeof why - 1];
+  f[0] = 0x88;
+  f[1] = (unsigned char)(2 + sizeof why - 1);
+  f[2] = 1002 >> 8;
+  f[3] = 1002 & 0xff;
+  memcpy(f + 4, why, sizeof why - 1);
+  v->c.refused++;
+  v->c.bad_requests++;
+  vlff_warn_limited(&v->ws_refusals, "vlff-view", "refused %s: %s [WebSocket close 1002]", g->peer, why);
+  if (g->pair) {
+    g->pair->pair = NULL;
+    lws_set_timeout(g->pair->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
+    g->pair = NULL;
+  }
+  unsigned char buf[LWS_PRE + sizeof f];
+  memcpy(buf + LWS_PRE, f, sizeof f);
+  lws_write(g->wsi, buf + LWS_PRE, sizeof f, LWS_WRITE_RAW);
+  g->closing = 1;
+  lws_set_timeout(g->wsi, PENDING_TIMEOUT_USER_REASON_BASE, 2 * GATE_LINGER_S);
+  lws_callback_on_writable(g->wsi);
+}
+
+static void accept_resume(lws_sorted_usec_list_t *sul) {
+  struct vlff_view *v = lws_container_of(sul, struct vlff_view, accept_sul);
+  if (v->listen_wsi) lws_rx_flow_control(v->listen_wsi, 1);
+}
+
+/* The listener is readable: accept what waits (a bounded burst, so that the loop
+ * goes on serving) and hand each connection to the gate. Out of descriptors (or
+ * memory), the listener stops being watched for ACCEPT_PAUSE_US: the connections
+ * wait in the kernel's backlog, and the log says so at the rate limit. */
+static void accept_some(struct vlff_view *v, struct lws *wsi) {
+  for (int i = 0; i < ACCEPT_BURST; i++) {
+    int fd = accept4(v->listen_fd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+    if (fd < 0) {
+      if (errno == EAGAIN || errno == EWOULDBLOCK) return;
+      if (errno == EINTR || errno == ECONNABORTED || errno == EPROTO) continue;
+      int e = errno;
+      vlff_warn_limited(&v->accept_failures, "vlff-view",
+                        "cannot accept a connection: %s; not accepting for %d ms [%llu so far]", strerror(e),
+                        ACCEPT_PAUSE_US / 1000, (unsigned long long)v->accept_failures + 1);
+      lws_rx_flow_control(wsi, 0);
+      lws_sul_schedule(v->ctx, 0, &v->accept_sul, accept_resume, ACCEPT_PAUSE_US);
+      return;
+    }
+    lws_sock_file_fd_type u;
+    u.sockfd = fd;
+    /* on failure libwebsockets closes the descriptor itself */
+    lws_adopt_descriptor_vhost(v->vh, LWS_ADOPT_SOCKET, u, GATE_PROTOCOL, NULL);
+  }
 }
 
 static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in, size_t len) {
   struct vlff_view *v = lws_context_user(lws_get_context(wsi));
   struct gate *g = user;
   switch (reason) {
+  case LWS_CALLBACK_RAW_ADOPT_FILE: return 0; /* the listener */
+  case LWS_CALLBACK_RAW_RX_FILE:
+    if (wsi == v->listen_wsi) accept_some(v, wsi);
+    return 0;
+  case LWS_CALLBACK_RAW_CLOSE_FILE:
+    if (wsi == v->listen_wsi) v->listen_wsi = NULL;
+    return 0;
   case LWS_CALLBACK_RAW_ADOPT:
     memset(g, 0, offsetof(struct gate, resp));
     g->v = v;
     g->wsi = wsi;
+    if (v->adopting) { /* the viewer's end of a relay's socket pair */
+      g->inner = 1;
+      g->state = GATE_RELAY;
+      g->pair = v->adopting;
+      v->adopting->pair = g;
+      snprintf(g->peer, sizeof g->peer, "%s", g->pair->peer);
+      return 0;
+    }
     lws_get_peer_simple(wsi, g->peer, sizeof g->peer);
     v->gate_pending++;
     /* the last word on how long a connection may stay here, whatever happens */
-    lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, GATE_TIMEOUT_S + 2 * GATE_LINGER_S);
-    if (v->gate_pending > GATE_PENDING_MAX) {
+    lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, v->head_timeout_s + 2 * GATE_LINGER_S);
+    if (v->gate_pending > GATE_TOTAL_MAX) {
       char why[96];
-      snprintf(why, sizeof why, "more than %d connections are sending a request", GATE_PENDING_MAX);
+      snprintf(why, sizeof why, "more than %d connections are at the gate", GATE_TOTAL_MAX);
       gate_answer(g, 503, why, 0);
     } else {
-      lws_sul_schedule(lws_get_context(wsi), 0, &g->sul, gate_deadline, (lws_usec_t)GATE_TIMEOUT_S * LWS_US_PER_SEC);
+      /* full of unfinished heads: the oldest makes room, so that connections that
+       * stall cannot lock out those that send their head at once */
+      if (v->gate_reading >= GATE_PENDING_MAX && v->oldest) {
+        char why[120];
+        snprintf(why, sizeof why, "%d request heads were unfinished: the oldest is closed to make room",
+                 GATE_PENDING_MAX);
+        gate_answer(v->oldest, 408, why, 0);
+      }
+      reading_add(v, g);
+      lws_sul_schedule(lws_get_context(wsi), 0, &g->sul, gate_deadline, (lws_usec_t)v->head_timeout_s * LWS_US_PER_SEC);
     }
     return 0;
   case LWS_CALLBACK_RAW_RX: {
     if (!g->v) return -1;
+    if (g->state == GATE_RELAY) {
+      if (!g->pair || g->closing) return 0; /* the other end is gone: drop */
+      if (g->inner) return relay_send(g, g->pair, in, len);
+      size_t ok = relay_scan(g, in, len);
+      if (ok && relay_send(g, g->pair, in, ok)) return -1;
+      if (ok < len) relay_refuse_unmasked(g);
+      return 0;
+    }
     if (g->state != GATE_READING) {
       g->drained += len; /* a refused client still sending: read and drop, up to a bound */
       return g->drained > GATE_DRAIN_MAX ? -1 : 0;
@@ -705,15 +1074,38 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     memcpy(g->buf + g->len, in, take);
     g->len += take;
     struct vlff_head h;
-    switch (vlff_head_check(g->buf, g->len, &v->page, &h)) {
+    switch (vlff_head_check(g->buf, g->len, &v->page, &v->allow, &h)) {
     case VLFF_HEAD_MORE: return 0;
     case VLFF_HEAD_REFUSE: gate_answer(g, h.status, h.why, h.is_head); return 0;
-    case VLFF_HEAD_PASS: return gate_pass(g, h.head_len);
+    case VLFF_HEAD_PASS: {
+      /* only the header lines the server uses reach libwebsockets' parser */
+      char canon[VLFF_HTTP_HEAD_MAX + 1];
+      size_t n = vlff_head_canon(g->buf, &h, canon, sizeof canon);
+      if (!n) {
+        gate_answer(g, 400, "the request head could not be rewritten", 0);
+        return 0;
+      }
+      memcpy(g->buf, canon, n);
+      return h.upgrade ? relay_start(g, n) : gate_pass(g, n);
+    }
     }
     return -1;
   }
   case LWS_CALLBACK_RAW_WRITEABLE:
     if (!g->v) return -1;
+    if (g->state == GATE_RELAY) {
+      if (lws_send_pipe_choked(wsi)) {
+        lws_callback_on_writable(wsi);
+      } else if (g->closing) {
+        /* what was queued for the client is out: end our side, linger for its close */
+        shutdown(lws_get_socket_fd(wsi), SHUT_WR);
+        g->state = GATE_DRAINING;
+        lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, GATE_LINGER_S);
+      } else if (g->pair) {
+        lws_rx_flow_control(g->pair->wsi, 1); /* drained: read the other end again */
+      }
+      return 0;
+    }
     if (g->state == GATE_ANSWERING) {
       if (lws_write(wsi, (unsigned char *)g->resp + LWS_PRE, g->resp_len, LWS_WRITE_RAW) < 0) return -1;
       g->state = GATE_FLUSHING; /* called again once libwebsockets has sent it all */
@@ -730,7 +1122,19 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
   case LWS_CALLBACK_RAW_CLOSE:
     if (g->v) {
       lws_sul_cancel(&g->sul);
-      v->gate_pending--;
+      reading_remove(v, g);
+      if (g->pair) { /* the relay's other end follows */
+        struct gate *o = g->pair;
+        o->pair = NULL;
+        if (o->inner) {
+          lws_set_timeout(o->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
+        } else { /* the client gets what libwebsockets sent (its close frame) first */
+          o->closing = 1;
+          lws_set_timeout(o->wsi, PENDING_TIMEOUT_USER_REASON_BASE, 2 * GATE_LINGER_S);
+          lws_callback_on_writable(o->wsi);
+        }
+      }
+      if (!g->inner && g->state != GATE_RELAY && !(g->state == GATE_DRAINING && g->closing)) v->gate_pending--;
       g->v = NULL;
     }
     return 0;
@@ -759,15 +1163,15 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     lws_hdr_copy(wsi, offered, sizeof offered, WSI_TOKEN_PROTOCOL);
     int code = 0;
     if (!offers_foxglove(offered)) {
-      snprintf(why, sizeof why, "unknown or missing WebSocket subprotocol \"%.60s\"; this server speaks " FOX_PROTOCOL,
-               offered);
+      snprintf(why, sizeof why, "unknown or missing WebSocket subprotocol \"%s\"; this server speaks " FOX_PROTOCOL,
+               VLFF_QMAX(offered, 60));
       code = HTTP_STATUS_BAD_REQUEST;
     } else if (v->c.clients >= v->p.max_clients) {
       snprintf(why, sizeof why, "too many clients (%d); try again later", v->p.max_clients);
       code = HTTP_STATUS_SERVICE_UNAVAILABLE;
     }
     if (!code) return 0;
-    lws_get_peer_simple(wsi, peer, sizeof peer);
+    peer_of(v, wsi, peer, sizeof peer);
     count_refusal(v, peer, code, why);
     lws_return_http_status(wsi, (unsigned)code, why);
     return -1;
@@ -777,7 +1181,7 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
     const struct vlff_page_file *f = vlff_page_find(&v->page, uri, strlen(uri));
     if (!f) { /* the gate passes listed files only; this is the second line */
       lws_get_peer_simple(wsi, peer, sizeof peer);
-      snprintf(why, sizeof why, "%.60s is not a file of this page", uri);
+      snprintf(why, sizeof why, "%s is not a file of this page", VLFF_QMAX(uri, 60));
       count_refusal(v, peer, HTTP_STATUS_NOT_FOUND, why);
       lws_return_http_status(wsi, HTTP_STATUS_NOT_FOUND, why);
       return -1;
@@ -816,11 +1220,147 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
   return lws_callback_http_dummy(wsi, reason, user, in, len);
 }
 
-static void log_to_stderr(int level, const char *line) {
+/* libwebsockets' own lines go through the viewer's rate limit: one counter per kind
+ * of line (its text without digits, so "accept: errno 24" is one kind however often
+ * it comes), the first five of each and every 1000th logged. */
+#define LWS_LOG_KINDS 16
+static struct {
+  char key[48];
+  uint64_t count;
+} lws_log_kinds[LWS_LOG_KINDS];
+
+static void log_lws(int level, const char *line) {
   /* lws_adopt_socket_vhost_readbuf reports its ordinary path at error level: every
    * passed request would log it */
   if (strstr(line, "adopt_socket_readbuf")) return;
-  if (level & (LLL_ERR | LLL_WARN)) fprintf(stderr, "vlff-view: libwebsockets: %s", line);
+  if (!(level & (LLL_ERR | LLL_WARN))) return;
+  const char *msg = strstr(line, "] ");
+  msg = msg ? msg + 2 : line; /* after lws' own time stamp */
+  int n = (int)strcspn(msg, "\r\n");
+  char key[48];
+  size_t k = 0;
+  for (const char *p = msg; p < msg + n && k < sizeof key - 1; p++)
+    if (*p < '0' || *p > '9') key[k++] = *p;
+  key[k] = 0;
+  int slot = LWS_LOG_KINDS - 1; /* the last kind is shared by all the others */
+  for (int i = 0; i < LWS_LOG_KINDS - 1; i++)
+    if (!lws_log_kinds[i].key[0] || !strcmp(lws_log_kinds[i].key, key)) {
+      if (!lws_log_kinds[i].key[0]) memcpy(lws_log_kinds[i].key, key, k + 1);
+      slot = i;
+      break;
+    }
+  vlff_warn_limited(&lws_log_kinds[slot].count, "vlff-view", "libwebsockets: %.*s [%llu so far]", n, msg,
+                    (unsigned long long)lws_log_kinds[slot].count + 1);
+}
+
+static int is_loopback(const struct sockaddr *sa) {
+  if (sa->sa_family == AF_INET) return (ntohl(((const struct sockaddr_in *)sa)->sin_addr.s_addr) >> 24) == 127;
+  if (sa->sa_family == AF_INET6) return IN6_IS_ADDR_LOOPBACK(&((const struct sockaddr_in6 *)sa)->sin6_addr);
+  return 0;
+}
+
+/* An address as a Host names it: IPv4 dotted, IPv6 in brackets. */
+static void add_addr(struct vlff_allow *a, const struct sockaddr *sa) {
+  char s[INET6_ADDRSTRLEN + 2] = "[";
+  if (sa->sa_family == AF_INET && inet_ntop(AF_INET, &((const struct sockaddr_in *)sa)->sin_addr, s, sizeof s))
+    vlff_allow_name(a, s);
+  else if (sa->sa_family == AF_INET6 &&
+           inet_ntop(AF_INET6, &((const struct sockaddr_in6 *)sa)->sin6_addr, s + 1, sizeof s - 2)) {
+    if (strchr(s, '%')) return; /* link-local with a zone: not a Host a browser sends */
+    strcat(s, "]");
+    vlff_allow_name(a, s);
+  }
+}
+
+/* The viewer's own names, which a Host (and an Origin's authority) may carry: its
+ * listening address; every address of the machine (and its host name) when it
+ * listens on all of them or on an interface; "localhost", "127.0.0.1" and "[::1]"
+ * when one of them is a loopback address. Then the configured origins. */
+static int build_allow(struct vlff_view *v) {
+  struct vlff_allow *a = &v->allow;
+  a->port = v->port;
+  const char *addr = v->p.address ? v->p.address : "";
+  struct in_addr in4;
+  int any = !*addr || !strcmp(addr, "0.0.0.0"), loop = !strcmp(addr, "localhost");
+  if (!any && !loop && inet_pton(AF_INET, addr, &in4) == 1) {
+    struct sockaddr_in sin = {.sin_family = AF_INET, .sin_addr = in4};
+    add_addr(a, (struct sockaddr *)&sin);
+    loop = is_loopback((struct sockaddr *)&sin);
+  } else if (!loop) {
+    /* all addresses, or those of the interface named */
+    struct ifaddrs *ifs = NULL;
+    if (getifaddrs(&ifs) == 0) {
+      for (struct ifaddrs *i = ifs; i; i = i->ifa_next) {
+        if (!i->ifa_addr || (!any && strcmp(i->ifa_name, addr))) continue;
+        add_addr(a, i->ifa_addr);
+        loop |= is_loopback(i->ifa_addr);
+      }
+      freeifaddrs(ifs);
+    }
+    char host[256];
+    if (any && gethostname(host, sizeof host) == 0) {
+      host[sizeof host - 1] = 0;
+      vlff_allow_name(a, host);
+    }
+  }
+  if (loop) {
+    vlff_allow_name(a, "localhost");
+    vlff_allow_name(a, "127.0.0.1");
+    vlff_allow_name(a, "[::1]");
+  }
+  for (int i = 0; i < v->p.n_allow_origins; i++) {
+    char why[200];
+    if (vlff_allow_origin(a, v->p.allow_origins[i], why, sizeof why)) {
+      fprintf(stderr, "vlff-view: --allow-origin %s\n", why);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+/* The listening socket on the address (an IPv4 address, or an interface's first
+ * one; "0.0.0.0" all) and port, watched by the loop as a raw file of the gate. */
+static int open_listener(struct vlff_view *v) {
+  const char *addr = v->p.address ? v->p.address : "0.0.0.0";
+  struct sockaddr_in sin = {.sin_family = AF_INET, .sin_port = htons((uint16_t)v->p.port)};
+  if (!strcmp(addr, "localhost")) addr = "127.0.0.1";
+  if (inet_pton(AF_INET, addr, &sin.sin_addr) != 1) {
+    int found = 0;
+    struct ifaddrs *ifs = NULL;
+    if (getifaddrs(&ifs) == 0) {
+      for (struct ifaddrs *i = ifs; i && !found; i = i->ifa_next)
+        if (i->ifa_addr && i->ifa_addr->sa_family == AF_INET && !strcmp(i->ifa_name, addr)) {
+          sin.sin_addr = ((struct sockaddr_in *)i->ifa_addr)->sin_addr;
+          found = 1;
+        }
+      freeifaddrs(ifs);
+    }
+    if (!found) {
+      fprintf(stderr, "vlff-view: --listen %s is neither an IPv4 address nor an interface with one\n", addr);
+      return -1;
+    }
+  }
+  int one = 1;
+  socklen_t sl = sizeof sin;
+  v->listen_fd = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+  if (v->listen_fd < 0 || setsockopt(v->listen_fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
+      bind(v->listen_fd, (struct sockaddr *)&sin, sizeof sin) != 0 || listen(v->listen_fd, SOMAXCONN) != 0 ||
+      getsockname(v->listen_fd, (struct sockaddr *)&sin, &sl) != 0) {
+    fprintf(stderr, "vlff-view: cannot listen on %s:%d: %s\n", addr, v->p.port, strerror(errno));
+    if (v->listen_fd >= 0) close(v->listen_fd);
+    v->listen_fd = -1;
+    return -1;
+  }
+  v->port = ntohs(sin.sin_port);
+  lws_sock_file_fd_type u;
+  u.filefd = v->listen_fd;
+  v->listen_wsi = lws_adopt_descriptor_vhost(v->vh, LWS_ADOPT_RAW_FILE_DESC, u, GATE_PROTOCOL, NULL);
+  if (!v->listen_wsi) {
+    v->listen_fd = -1; /* closed by libwebsockets */
+    fprintf(stderr, "vlff-view: cannot watch the listening socket\n");
+    return -1;
+  }
+  return 0;
 }
 
 struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_feed *feed) {
@@ -828,22 +1368,31 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   if (!v) return NULL;
   v->p = *p;
   v->feed = feed;
+  v->listen_fd = -1;
   if (vlff_page_load(&v->page, p->www_dir) != 0) {
     free(v);
     return NULL;
   }
-  lws_set_log_level(LLL_ERR | LLL_WARN | (p->verbose > 1 ? LLL_NOTICE | LLL_INFO : 0), log_to_stderr);
+  lws_set_log_level(LLL_ERR | LLL_WARN | (p->verbose > 1 ? LLL_NOTICE | LLL_INFO : 0), log_lws);
+  v->head_timeout_s = p->head_timeout_s > 0 ? (int)(p->head_timeout_s + 0.5) : HEAD_TIMEOUT_S;
+  v->idle_timeout_s = p->idle_timeout_s > 0 ? (int)(p->idle_timeout_s + 0.5) : IDLE_TIMEOUT_S;
+  if (v->head_timeout_s < 1) v->head_timeout_s = 1;
+  if (v->idle_timeout_s < 3) v->idle_timeout_s = 3;
 
-  v->gate_protocols[0] = (struct lws_protocols){GATE_PROTOCOL, gate_cb, sizeof(struct gate), 4096, 0, NULL, 0};
+  v->gate_protocols[0] = (struct lws_protocols){GATE_PROTOCOL, gate_cb, sizeof(struct gate), RELAY_CHUNK, 0, NULL, 0};
   v->protocols[0] = (struct lws_protocols){"http", http_cb, sizeof(struct http_session), 0, 0, NULL, 0};
   v->protocols[1] = (struct lws_protocols){FOX_PROTOCOL, fox_cb, sizeof(struct client), 65536, 0, NULL, 0};
 
   struct lws_context_creation_info info;
   memset(&info, 0, sizeof info);
-  info.options = LWS_SERVER_OPTION_EXPLICIT_VHOSTS;
+  /* libwebsockets reads this option from the context's options, not the vhost's: a
+   * text frame that is not UTF-8 is closed with 1007 */
+  info.options = LWS_SERVER_OPTION_EXPLICIT_VHOSTS | LWS_SERVER_OPTION_VALIDATE_UTF8;
   info.user = v;
   /* room for any head the gate passes */
   info.max_http_header_data = VLFF_HTTP_HEAD_MAX + 1024;
+  /* raw reads (the gate's relays) take at most this much at a time */
+  info.pt_serv_buf_size = RELAY_CHUNK;
   v->ctx = lws_create_context(&info);
   if (!v->ctx) {
     fprintf(stderr, "vlff-view: cannot start libwebsockets\n");
@@ -851,17 +1400,24 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
     free(v);
     return NULL;
   }
-  /* the listening vhost: every connection a raw socket of the gate */
-  info.port = p->port;
-  info.iface = p->address;
+  /* the gate's vhost: every connection, accepted by the viewer, a raw socket of it */
+  /* "no listener" in the client sense: libwebsockets picks the vhost of a request
+   * handed on by its port, and that must be the HTTP side's (NO_LISTEN_SERVER) */
+  info.port = CONTEXT_PORT_NO_LISTEN;
   info.protocols = v->gate_protocols;
-  info.options = LWS_SERVER_OPTION_ADOPT_APPLY_LISTEN_ACCEPT_CONFIG | LWS_SERVER_OPTION_DISABLE_IPV6;
-  info.listen_accept_role = "raw-skt";
-  info.listen_accept_protocol = GATE_PROTOCOL;
+  info.options = LWS_SERVER_OPTION_DISABLE_IPV6;
   info.vhost_name = "vlff-view";
   v->vh = lws_create_vhost(v->ctx, &info);
-  if (!v->vh || lws_get_vhost_listen_port(v->vh) <= 0) {
-    fprintf(stderr, "vlff-view: cannot listen on %s:%d (address in use or not local?)\n", p->address, p->port);
+  if (!v->vh) {
+    fprintf(stderr, "vlff-view: cannot create the gate\n");
+    vlff_view_free(v);
+    return NULL;
+  }
+  if (open_listener(v) != 0) {
+    vlff_view_free(v);
+    return NULL;
+  }
+  if (build_allow(v) != 0) {
     vlff_view_free(v);
     return NULL;
   }
@@ -881,7 +1437,7 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   return v;
 }
 
-int vlff_view_port(const struct vlff_view *v) { return lws_get_vhost_listen_port(v->vh); }
+int vlff_view_port(const struct vlff_view *v) { return v->port; }
 
 int vlff_view_run(struct vlff_view *v) {
   while (!v->stop)
@@ -898,6 +1454,8 @@ void vlff_view_free(struct vlff_view *v) {
   if (!v) return;
   lws_sul_cancel(&v->sul);
   lws_sul_cancel(&v->handoff_sul);
+  lws_sul_cancel(&v->answer_sul);
+  lws_sul_cancel(&v->accept_sul);
   while (v->handoffs) {
     struct handoff *h = v->handoffs;
     v->handoffs = h->next;
@@ -905,6 +1463,11 @@ void vlff_view_free(struct vlff_view *v) {
     free(h);
   }
   lws_context_destroy(v->ctx);
+  while (v->peer_notes) {
+    struct peer_note *n = v->peer_notes;
+    v->peer_notes = n->next;
+    free(n);
+  }
   vlff_prompts_close(v->mailbox);
   vlff_page_free(&v->page);
   free(v);

@@ -11,11 +11,15 @@
  *   - the server (server.c) speaks the foxglove.websocket.v1 subprotocol through
  *     libwebsockets on one port, serves the page's files on the same port, fans each
  *     message out to the clients subscribed to its channel and drops a client whose
- *     queue grows past a bound instead of waiting for it;
+ *     queue grows past a bound instead of waiting for it; it pings clients silent for
+ *     a third of idle_timeout_s and closes those silent for all of it, and posts prompt
+ *     sets without waiting for the mailbox (the learner's answer is polled for);
  *   - the page (page.c, page.h) holds the files under the www directory, read once
  *     at start, and checks every HTTP request head before libwebsockets parses it:
  *     a request that is not a GET or HEAD of one of those files or a WebSocket
- *     upgrade gets an HTTP status and a sentence, and is counted.
+ *     upgrade, or whose Host or Origin is not the viewer's own or configured, gets
+ *     an HTTP status and a sentence, and is counted;
+ *   - request.c parses what clients send (JSON, strictly; clientPublish headers).
  *
  * CONTRACT
  * Errors: functions returning a pointer return NULL, functions returning int return
@@ -82,10 +86,11 @@ struct vlff_feed_params {
   uint32_t brick;           /* brick edge in voxels for the scene channel */
 };
 
-/* The HTTP statuses requests are refused with: 400 malformed, 404 no such file,
- * 405 not GET or HEAD, 408 no whole head in time, 414 target too long, 431 head too
- * large, 503 too many clients or waiting connections, 505 not HTTP/1.x. */
-#define VLFF_VIEW_HTTP_N 8
+/* The HTTP statuses requests are refused with: 400 malformed, 403 a Host or Origin
+ * not allowed, 404 no such file, 405 not GET or HEAD, 408 no whole head in time,
+ * 414 target too long, 426 WebSocket version not 13, 431 head too large, 503 too
+ * many clients or waiting connections, 505 not HTTP/1.x. */
+#define VLFF_VIEW_HTTP_N 10
 /* The status of counter i (0..VLFF_VIEW_HTTP_N-1). */
 int vlff_view_http_status(int i);
 /* The counter of a status (the inverse), -1 for a status not counted. */
@@ -123,6 +128,18 @@ uint64_t vlff_feed_version(const struct vlff_feed *f);
 /* How many messages the feed has encoded for channel ch since it was made. */
 uint64_t vlff_feed_encoded(const struct vlff_feed *f, int ch);
 
+/* --------------------------------------------------------------- requests */
+
+/* What the viewer parses of client messages itself (request.c). A JSON text s[n]
+ * (a request, or a published message after its header): one JSON value in strict
+ * mode, valid UTF-8, nothing but whitespace after it. The value (json-c, the caller
+ * puts it), or NULL with the reason in why[len]. */
+struct json_object;
+struct json_object *vlff_view_parse_json(const char *s, size_t n, char *why, size_t len);
+/* The 5-byte header of clientPublish message data (opcode 1, channel id LE): 0 with
+ * *channel set, or -1 with the reason in why[len]. */
+int vlff_view_publish_header(const unsigned char *d, size_t n, uint32_t *channel, char *why, size_t len);
+
 /* ---------------------------------------------------------------- server */
 
 struct vlff_view_params {
@@ -135,6 +152,11 @@ struct vlff_view_params {
   int max_clients;
   size_t max_queue_bytes;   /* a client with more unsent bytes is dropped */
   size_t max_request_bytes; /* largest client message accepted */
+  double head_timeout_s;    /* a connection's whole request head, or 408 (0 = 5 s) */
+  double idle_timeout_s;    /* a WebSocket client silent this long is closed; pinged after
+                               a third of it (0 = 30 s) */
+  const char *const *allow_origins; /* more origins (and their hosts) than the viewer's own */
+  int n_allow_origins;
   int verbose;
 };
 

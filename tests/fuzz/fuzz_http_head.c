@@ -5,11 +5,16 @@
  * "/", ends in the empty line within the limits; a refusal carries one of the
  * statuses page.h lists and a sentence, and its response fits its buffer. The
  * input is checked whole, then cut at every line break, as a client sending it
- * in pieces would be. */
+ * in pieces would be. Host and Origin are checked against an allow-list (the
+ * viewer's own names on port 8765 and one configured origin): a passed head has
+ * exactly one Host the list allows and at most one Origin it allows; its
+ * rewritten form (vlff_head_canon), what libwebsockets gets, passes the check
+ * again unchanged but for the header lines left out. */
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 
 #include "page.h"
 
@@ -20,10 +25,27 @@ static struct vlff_page_file files[] = {
     {"/three/three.module.js", "text/javascript", three_js, sizeof three_js - 1},
 };
 static const struct vlff_page page = {files, 2};
+static const struct vlff_allow allow = {.port = 8765, .n_names = 3, .names = {"127.0.0.1", "localhost", "[::1]"},
+                                        .n_origins = 1, .origins = {"https://robot.lan"}};
+
+/* The value of the only header name[] in the passed head, or NULL. */
+static const char *header(const char *buf, size_t len, const char *name, size_t *n) {
+  size_t nl = strlen(name);
+  for (const char *q = memchr(buf, '\n', len) + 1; q < buf + len;) {
+    const char *le = memchr(q, '\n', (size_t)(buf + len - q));
+    if (!le) break;
+    if ((size_t)(le - q) > nl && q[nl] == ':' && !strncasecmp(q, name, nl)) {
+      *n = (size_t)(le - 1 - (q + nl + 1));
+      return q + nl + 1;
+    }
+    q = le + 1;
+  }
+  return NULL;
+}
 
 static void check(const char *buf, size_t len) {
   struct vlff_head h;
-  enum vlff_head_verdict v = vlff_head_check(buf, len, &page, &h);
+  enum vlff_head_verdict v = vlff_head_check(buf, len, &page, &allow, &h);
   switch (v) {
   case VLFF_HEAD_MORE: break;
   case VLFF_HEAD_PASS:
@@ -32,9 +54,24 @@ static void check(const char *buf, size_t len) {
     if (strncmp(buf, "GET ", 4) && strncmp(buf, "HEAD ", 5)) __builtin_trap();
     /* an upgrade is a GET of "/", a query or fragment after it allowed */
     if (h.upgrade && (strncmp(buf, "GET /", 5) || !strchr(" ?#", buf[5]))) __builtin_trap();
+    {
+      size_t n;
+      const char *host = header(buf, h.head_len, "Host", &n);
+      if (!host || !vlff_allow_host_ok(&allow, host, n)) __builtin_trap();
+      const char *origin = header(buf, h.head_len, "Origin", &n);
+      if (origin && !vlff_allow_origin_ok(&allow, origin, n)) __builtin_trap();
+      char *canon = malloc(h.head_len);
+      if (!canon) break;
+      size_t cn = vlff_head_canon(buf, &h, canon, h.head_len);
+      struct vlff_head h2;
+      if (!cn || cn > h.head_len || vlff_head_check(canon, cn, &page, &allow, &h2) != VLFF_HEAD_PASS ||
+          h2.head_len != cn || h2.upgrade != h.upgrade || h2.is_head != h.is_head)
+        __builtin_trap();
+      free(canon);
+    }
     break;
   case VLFF_HEAD_REFUSE: {
-    static const int listed[] = {400, 404, 405, 408, 414, 431, 505};
+    static const int listed[] = {400, 403, 404, 405, 408, 414, 426, 431, 505};
     int ok = 0;
     for (size_t i = 0; i < sizeof listed / sizeof listed[0]; i++) ok |= h.status == listed[i];
     if (!ok || !h.why[0] || !memchr(h.why, 0, sizeof h.why)) __builtin_trap();

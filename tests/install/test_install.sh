@@ -53,7 +53,8 @@ if [[ -x "$tmp/p/bin/vlff-view" ]]; then
   # fetch PATH OUT: the whole answer to GET PATH (the viewer closes after it)
   fetch() {
     exec 3<>"/dev/tcp/127.0.0.1/$port" || return 1
-    printf 'GET %s HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n' "$1" >&3
+    # the viewer answers requests naming it with its port only (Host check)
+    printf 'GET %s HTTP/1.1\r\nHost: 127.0.0.1:%s\r\n\r\n' "$1" "$port" >&3
     timeout 10 cat <&3 >"$2"
     local rc=$?
     exec 3<&-

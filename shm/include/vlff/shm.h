@@ -570,6 +570,12 @@ int vlff_prompt_check(const char *const *texts, int count);
 int vlff_prompts_post(struct vlff_prompts *p, const char *const *texts, int count);
 /* Posts "switch to configured set index". Same rules. */
 int vlff_prompts_post_index(struct vlff_prompts *p, int set_index);
+/* Posts like vlff_prompts_post (texts, count >= 1) or vlff_prompts_post_index (texts
+ * NULL, set_index >= 0) but never waits, for an event loop: -1/EBUSY at once when a
+ * request still waits for the learner's answer or another poster holds the lock;
+ * otherwise the same results. Poll vlff_prompts_wait_answer with timeout 0 for the
+ * answer. */
+int vlff_prompts_try_post(struct vlff_prompts *p, const char *const *texts, int count, int set_index);
 /* The number of this handle's last successful post, 0 if none. */
 uint64_t vlff_prompts_last_post(const struct vlff_prompts *p);
 

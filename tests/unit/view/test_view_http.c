@@ -87,9 +87,16 @@ static void test_files(void **state) {
   assert_int_equal(other.n, 0);
 }
 
+static struct vlff_allow allow = {.port = 8765, .n_names = 3, .names = {"127.0.0.1", "localhost", "[::1]"},
+                                   .n_origins = 1, .origins = {"https://robot.lan"}};
+
 static enum vlff_head_verdict check(const char *req, struct vlff_head *h) {
-  return vlff_head_check(req, strlen(req), &page, h);
+  return vlff_head_check(req, strlen(req), &page, &allow, h);
 }
+
+#define HOST "Host: 127.0.0.1:8765\r\n"
+#define WS "Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
+#define KEY "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
 
 static void test_heads(void **state) {
   (void)state;
@@ -103,10 +110,41 @@ static void test_heads(void **state) {
     int status;
     const char *why;
   } cases[] = {
-      {"GET / HTTP/1.1\r\nHost: x\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
-      {"HEAD /view.js?v=2 HTTP/1.0\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
-      {"GET / HTTP/1.1\r\nUpgrade: WebSocket \r\nConnection: Upgrade\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
-      {"GET / HTTP/1.1\r\nContent-Length: 0\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\n" HOST "\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"HEAD /view.js?v=2 HTTP/1.0\r\n" HOST "\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\n" HOST "Upgrade: WebSocket \r\nConnection: keep-alive, Upgrade\r\n"
+       "Sec-WebSocket-Version:13\r\n" KEY "\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\n" HOST "Content-Length: 0\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      /* Host and Origin (issue 51): the viewer's own names and port, or configured */
+      {"GET / HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 400, "no Host header"},
+      {"GET / HTTP/1.1\r\n" HOST HOST "\r\n", VLFF_HEAD_REFUSE, 400, "header Host given twice"},
+      {"GET / HTTP/1.1\r\nHost: evil.example:8765\r\n\r\n", VLFF_HEAD_REFUSE, 403, "Host \"evil.example:8765\""},
+      {"GET / HTTP/1.1\r\nHost: 127.0.0.1:8766\r\n\r\n", VLFF_HEAD_REFUSE, 403, "is not this viewer's"},
+      {"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n", VLFF_HEAD_REFUSE, 403, "is not this viewer's"},
+      {"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765x\r\n\r\n", VLFF_HEAD_REFUSE, 403, "is not this viewer's"},
+      {"GET / HTTP/1.1\r\nHost: LocalHost:8765\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\nHost: [::1]:8765\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\nHost: robot.lan\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\nHost: robot.lan:8765\r\n\r\n", VLFF_HEAD_REFUSE, 403, "Host"},
+      {"GET / HTTP/1.1\r\n" HOST "Origin: http://127.0.0.1:8765\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\n" HOST "Origin: https://robot.lan\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET / HTTP/1.1\r\n" HOST "Origin: http://evil.example\r\n\r\n", VLFF_HEAD_REFUSE, 403, "Origin \"http://evil"},
+      {"GET / HTTP/1.1\r\n" HOST "Origin: null\r\n\r\n", VLFF_HEAD_REFUSE, 403, "Origin \"null\""},
+      {"GET / HTTP/1.1\r\n" HOST "Origin: https://127.0.0.1:8765\r\n\r\n", VLFF_HEAD_REFUSE, 403, "Origin"},
+      {"GET / HTTP/1.1\r\n" HOST "Origin: http://127.0.0.1:8765/x\r\n\r\n", VLFF_HEAD_REFUSE, 403, "Origin"},
+      {"GET / HTTP/1.1\r\n" HOST "Origin: http://127.0.0.1:876\r\n" WS KEY "\r\n", VLFF_HEAD_REFUSE, 403, "Origin"},
+      /* WebSocket upgrades without what RFC 6455 requires */
+      {"GET / HTTP/1.1\r\n" HOST WS "\r\n", VLFF_HEAD_REFUSE, 400, "Sec-WebSocket-Key of 16 bytes"},
+      {"GET / HTTP/1.1\r\n" HOST WS "Sec-WebSocket-Key: abc\r\n\r\n", VLFF_HEAD_REFUSE, 400, "Sec-WebSocket-Key"},
+      {"GET / HTTP/1.1\r\n" HOST WS "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZR==\r\n\r\n", VLFF_HEAD_REFUSE, 400,
+       "Sec-WebSocket-Key"},
+      {"GET / HTTP/1.1\r\n" HOST WS KEY KEY "\r\n", VLFF_HEAD_REFUSE, 400, "given twice"},
+      {"GET / HTTP/1.1\r\n" HOST "Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 99\r\n" KEY
+       "\r\n", VLFF_HEAD_REFUSE, 426, "version \"99\" is not supported; this server speaks 13"},
+      {"GET / HTTP/1.1\r\n" HOST "Upgrade: websocket\r\nConnection: Upgrade\r\n" KEY "\r\n", VLFF_HEAD_REFUSE, 426,
+       "version \"\" is not supported"},
+      {"GET / HTTP/1.1\r\n" HOST "Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\n" KEY "\r\n", VLFF_HEAD_REFUSE,
+       400, "Connection: Upgrade"},
       {"GET / HTTP/1.1\r\nHost: x\r\n", VLFF_HEAD_MORE, 0, ""},
       {"GET /index.ht", VLFF_HEAD_MORE, 0, ""},
       {"", VLFF_HEAD_MORE, 0, ""},
@@ -140,7 +178,7 @@ static void test_heads(void **state) {
       {"GET /passwd.js HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 404, "not a file"},
       {"GET /.env HTTP/1.1\r\n\r\n", VLFF_HEAD_REFUSE, 404, "not a file"},
       {"GET /view.js HTTP/1.1\r\nUpgrade: websocket\r\n\r\n", VLFF_HEAD_REFUSE, 404, "served at /"},
-      {"GET /?t=1 HTTP/1.1\r\nUpgrade: websocket\r\n\r\n", VLFF_HEAD_PASS, 0, ""},
+      {"GET /?t=1 HTTP/1.1\r\n" HOST WS KEY "\r\n", VLFF_HEAD_PASS, 0, ""},
       {"HEAD / HTTP/1.1\r\nUpgrade: websocket\r\n\r\n", VLFF_HEAD_REFUSE, 400, "is a GET, not a HEAD"},
   };
   struct vlff_head h;
@@ -149,7 +187,7 @@ static void test_heads(void **state) {
     if (got != cases[i].verdict || h.status != cases[i].status || !strstr(h.why, cases[i].why))
       fail_msg("case %zu \"%.40s\": verdict %d status %d \"%s\"", i, cases[i].req, got, h.status, h.why);
   }
-  assert_int_equal(check("GET / HTTP/1.1\r\nUpgrade: websocket\r\n\r\n", &h), VLFF_HEAD_PASS);
+  assert_int_equal(check("GET / HTTP/1.1\r\n" HOST WS KEY "\r\n", &h), VLFF_HEAD_PASS);
   assert_true(h.upgrade);
   assert_int_equal(check("HEAD /nope HTTP/1.1\r\n\r\n", &h), VLFF_HEAD_REFUSE);
   assert_true(h.is_head);
@@ -165,7 +203,7 @@ static void test_heads(void **state) {
   strcat(big, "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa");
   assert_int_equal(check(big, &h), VLFF_HEAD_REFUSE);
   assert_int_equal(h.status, 414);
-  int n = snprintf(big, sizeof big, "GET / HTTP/1.1\r\nX-Pad: ");
+  int n = snprintf(big, sizeof big, "GET / HTTP/1.1\r\n" HOST "X-Pad: ");
   memset(big + n, 'p', VLFF_HTTP_HEAD_MAX - n - 4);
   memcpy(big + VLFF_HTTP_HEAD_MAX - 4, "\r\n\r\n", 5);
   assert_int_equal(check(big, &h), VLFF_HEAD_PASS); /* exactly the limit */
@@ -182,9 +220,52 @@ static void test_heads(void **state) {
 
   /* byte by byte: more, more, ..., then passed at the last byte */
   const char *req = "GET /three/three.module.js HTTP/1.1\r\nHost: 127.0.0.1:8765\r\nAccept: */*\r\n\r\n";
-  for (size_t k = 1; k < strlen(req); k++) assert_int_equal(vlff_head_check(req, k, &page, &h), VLFF_HEAD_MORE);
+  for (size_t k = 1; k < strlen(req); k++)
+    assert_int_equal(vlff_head_check(req, k, &page, &allow, &h), VLFF_HEAD_MORE);
   assert_int_equal(check(req, &h), VLFF_HEAD_PASS);
   assert_int_equal(h.head_len, strlen(req));
+}
+
+/* A passed head reaches libwebsockets with the request line and the headers the
+ * server uses only: a one-letter header (issue 51: "X: a" left libwebsockets
+ * waiting) or any other is left out. */
+static void test_canon(void **state) {
+  (void)state;
+  const char *req = "GET /?a HTTP/1.1\r\nX: a\r\n" HOST "Accept: */*\r\nOrigin: http://localhost:8765\r\n" WS KEY
+                    "Sec-WebSocket-Protocol: foxglove.websocket.v1\r\nCookie: c=1\r\n\r\n";
+  struct vlff_head h;
+  assert_int_equal(check(req, &h), VLFF_HEAD_PASS);
+  char out[1024];
+  size_t n = vlff_head_canon(req, &h, out, sizeof out);
+  out[n] = 0;
+  assert_string_equal(out, "GET /?a HTTP/1.1\r\n" HOST "Origin: http://localhost:8765\r\n" WS KEY
+                           "Sec-WebSocket-Protocol: foxglove.websocket.v1\r\n\r\n");
+  assert_int_equal(vlff_head_canon(req, &h, out, 20), 0); /* too small: nothing */
+}
+
+/* The configured origins: http(s)://HOST[:PORT] only. */
+static void test_origins(void **state) {
+  (void)state;
+  struct vlff_allow a = {.port = 80};
+  char why[200];
+  assert_int_equal(vlff_allow_origin(&a, "HTTP://Robot.Lan:9000", why, sizeof why), 0);
+  assert_string_equal(a.origins[0], "http://robot.lan:9000");
+  assert_int_equal(vlff_allow_origin(&a, "https://[fd00::1]", why, sizeof why), 0);
+  static const char *const bad[] = {"robot.lan", "http://", "http://a/b", "http://u@h", "ftp://h", "http://h:",
+                                    "http://h:123456", "http://h h", "*", "null"};
+  for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+    if (vlff_allow_origin(&a, bad[i], why, sizeof why) == 0) fail_msg("origin '%s' accepted", bad[i]);
+    assert_non_null(strstr(why, "is not an origin"));
+  }
+  assert_int_equal(a.n_origins, 2);
+  vlff_allow_name(&a, "robot");
+  assert_true(vlff_allow_host_ok(&a, "robot", 5));      /* port 80: no port needed */
+  assert_true(vlff_allow_host_ok(&a, " robot:80 ", 10));
+  assert_true(vlff_allow_host_ok(&a, "ROBOT.LAN:9000", 14));
+  assert_false(vlff_allow_host_ok(&a, "robot.lan", 9));
+  assert_true(vlff_allow_origin_ok(&a, "http://robot", 12));
+  assert_false(vlff_allow_origin_ok(&a, "https://robot", 13));
+  assert_true(vlff_allow_origin_ok(&a, "https://[FD00::1]", 17));
 }
 
 static void test_refusal(void **state) {
@@ -210,4 +291,4 @@ static void test_refusal(void **state) {
 }
 
 VLFF_UNIT_MAIN(setup, teardown, cmocka_unit_test(test_files), cmocka_unit_test(test_heads),
-               cmocka_unit_test(test_refusal))
+               cmocka_unit_test(test_canon), cmocka_unit_test(test_origins), cmocka_unit_test(test_refusal))

@@ -242,7 +242,9 @@ async function main() {
     await pageUntil(page, () => /wrong or missing token/.test(document.getElementById('msg').textContent));
     await page.fill('#token', TOKEN);
     await page.click('#editor button');
-    await pageUntil(page, () => /prompt set posted/.test(document.getElementById('msg').textContent), 60000);
+    // the viewer answers "posted ... waiting for the learner's answer" at once and the
+    // learner's acceptance when it comes: the page shows the last
+    await pageUntil(page, () => /accepted by the learner/.test(document.getElementById('msg').textContent), 60000);
     const t0 = Date.now();
     while (statOf(demo).prompts.join() !== 'chair,table,wall') {
       assert.ok(Date.now() - t0 < 60000, `the node took the posted prompts: ${statOf(demo).prompts}`);
@@ -250,7 +252,7 @@ async function main() {
     }
     await pageUntil(page, () => [...document.querySelectorAll('#legend li')].map((li) => li.textContent).join() ===
       'chair,table,wall', 30000);
-    ok('a prompt set posted from the page (wrong token refused first) becomes the map\'s prompts and legend');
+    ok('a prompt set posted from the page (wrong token refused first) is accepted by the learner and becomes the map\'s prompts and legend');
     assert.deepStrictEqual(foreign, [], 'requests to other origins');
     assert.deepStrictEqual(await page.evaluate(() => window.cspViolations), [], 'CSP violations');
     assert.deepStrictEqual(errors, [], 'no errors in the page');
