@@ -413,20 +413,24 @@ int shm_seg_check(struct seg *s, bool stat_it) {
  * page that cannot be had faults (SIGBUS), which the guard took for a truncation,
  * so creators replaced their segments again and again. posix_fallocate fails
  * with ENOSPC instead, here, where it can be said. */
+/* A segment's size that could not be had (errno e, what was tried): a full
+ * /dev/shm is an error of its own, which creators back off from. */
+static int size_failed(const char *name, int e, uint64_t total, const char *tried) {
+  if (e == ENOSPC || e == EFBIG)
+    shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", VLFF_Q(name),
+            (unsigned long long)total);
+  else
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot %s %llu bytes: %s", VLFF_Q(name), tried, (unsigned long long)total,
+            strerror(e));
+  return -1;
+}
+
 static int reserve_pages(const char *name, int fd, uint64_t total) {
   int e;
   do
     e = posix_fallocate(fd, 0, (off_t)total);
   while (e == EINTR);
-  if (e == 0)
-    return 0;
-  if (e == ENOSPC || e == EFBIG)
-    shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", VLFF_Q(name),
-            (unsigned long long)total);
-  else
-    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot reserve %llu bytes for it: %s", VLFF_Q(name), (unsigned long long)total,
-            strerror(e));
-  return -1;
+  return e == 0 ? 0 : size_failed(name, e, total, "reserve");
 }
 
 static int resolve_group(const char *name, const char *group, gid_t *gid) {
@@ -635,15 +639,8 @@ int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec,
     }
     snprintf(s->name, sizeof s->name, "%s", name);
     int bad = apply_perm(name, fd, mode, group);
-    if (bad == 0 && ftruncate(fd, (off_t)total) < 0) {
-      if (errno == ENOSPC || errno == EFBIG)
-        shm_err(VLFF_SHM_ERR_NOSPACE, ENOSPC, "%s: no space left in /dev/shm (%llu bytes needed)", VLFF_Q(name),
-                (unsigned long long)total);
-      else
-        shm_err(VLFF_SHM_ERR_SYS, errno, "%s: cannot size it to %llu bytes: %s", VLFF_Q(name), (unsigned long long)total,
-                strerror(errno));
-      bad = -1;
-    }
+    if (bad == 0 && ftruncate(fd, (off_t)total) < 0)
+      bad = size_failed(name, errno, total, "size it to");
     if (bad == 0 && reserve_pages(name, fd, total) < 0)
       bad = -1;
     if (bad < 0) {

@@ -18,57 +18,8 @@
 #include <cmocka.h>
 
 #include "field_internal.h"
-#include "scene.h"
+#include "small_field.h"
 #include "unit.h"
-
-#define D 24
-#define NV 4
-
-static struct scene_view sv[NV];
-static struct vlff_view views[NV];
-
-static void cfg_small(struct vlff_config *cfg) {
-  vlff_config_defaults(cfg);
-  cfg->node.threads = 2;
-  cfg->field.feature_dim = D;
-  cfg->field.feature_width = 32;
-  cfg->field.hash_log2_size = 12;
-  cfg->field.hash_levels = 8;
-  cfg->field.finest_resolution = 128;
-  for (int a = 0; a < 3; a++) {
-    cfg->field.scene_min[a] = -2.0;
-    cfg->field.scene_max[a] = 2.5;
-  }
-  cfg->train.rays_per_step = 128;
-  cfg->train.samples_per_ray = 16;
-  cfg->train.occupancy_resolution = 16;
-  cfg->train.occupancy_update_steps = 4;
-}
-
-static struct vlff_field *trained(const struct vlff_config *cfg, int steps) {
-  char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, sizeof(err));
-  assert_non_null(f);
-  for (int i = 0; i < steps; i++) assert_int_equal(vlff_field_step(f, views, NV, NULL, NULL, err, sizeof(err)), 0);
-  return f;
-}
-
-static int setup(void **state) {
-  (void)state;
-  for (int k = 0; k < NV; k++) {
-    double c2w[16];
-    scene_pose(k, NV, c2w);
-    scene_render(&sv[k], 24, 18, D, c2w);
-    views[k] = sv[k].v;
-  }
-  return 0;
-}
-
-static int teardown(void **state) {
-  (void)state;
-  for (int k = 0; k < NV; k++) scene_view_free(&sv[k]);
-  return 0;
-}
 
 static void random_prompts(float *e, int k) {
   uint64_t r = 5;

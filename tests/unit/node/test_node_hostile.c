@@ -56,19 +56,25 @@ static void send(struct vlff_ring *ring, const struct vlff_sim_frame *f, long lo
   assert_int_equal(vlff_ring_commit(ring, len), 0);
 }
 
-static void test_absurd_intrinsics(void **state) {
-  (void)state;
-  tk_setup(&tk, "hostile");
-  struct vlff_config cfg;
-  tk_config(&tk, &cfg,
+/* The small node both cases run: a 64x48 simulated stream, a tiny field,
+ * no checkpoints; extra is YAML appended. */
+static void hostile_config(struct vlff_config *cfg, const char *extra) {
+  tk_config(&tk, cfg,
             "node:\n  state_dir: %s\n  checkpoint_period_s: 0\n  threads: 2\n"
             "source:\n  kind: sim\n  features: sim\n"
             "sim:\n  seed: 3\n  width: 64\n  height: 48\n  frames: 100\n"
             "field:\n  feature_dim: 16\n  hash_log2_size: 14\n"
             "shm:\n%s"
             "  max_width: 64\n  max_height: 48\n  map_max_voxels: 100000\n"
-            "keyframes:\n  rate_hz: 100\n  start_after: 100\n",
-            tk.dir, tk_shm_names(&tk));
+            "%s",
+            tk.dir, tk_shm_names(&tk), extra);
+}
+
+static void test_absurd_intrinsics(void **state) {
+  (void)state;
+  tk_setup(&tk, "hostile");
+  struct vlff_config cfg;
+  hostile_config(&cfg, "keyframes:\n  rate_hz: 100\n  start_after: 100\n");
   char err[512];
   struct tk_scene sc;
   struct vlff_sim_source *src;
@@ -124,14 +130,7 @@ static void test_fifo_at_ring_names(void **state) {
   (void)state;
   tk_setup(&tk, "hfifo");
   struct vlff_config cfg;
-  tk_config(&tk, &cfg,
-            "node:\n  state_dir: %s\n  checkpoint_period_s: 0\n  threads: 2\n"
-            "source:\n  kind: sim\n  features: sim\n"
-            "sim:\n  seed: 3\n  width: 64\n  height: 48\n  frames: 100\n"
-            "field:\n  feature_dim: 16\n  hash_log2_size: 14\n"
-            "shm:\n%s"
-            "  max_width: 64\n  max_height: 48\n  map_max_voxels: 100000\n",
-            tk.dir, tk_shm_names(&tk));
+  hostile_config(&cfg, "");
   const char *rings[] = {cfg.shm.ring, cfg.shm.pose_ring, cfg.shm.feature_ring};
   for (int i = 0; i < 3; i++) {
     char path[300];

@@ -149,23 +149,41 @@ static int has_pose(struct vlff_ring *r, uint64_t t_ns) {
   return vlff_pose_lookup(r, t_ns, 0, &rec) == 0;
 }
 
+/* One vlff-pose on UDP writing a ring of its own: named after tag, its
+ * config with pose_extra (YAML under pose:, or NULL), started and attached. */
+struct pose_run {
+  char cfg[300], log[300], ring[64];
+  int port;
+  pid_t pid;
+  struct vlff_ring *r;
+};
+
+static void pose_start(struct pose_run *u, const char *tag, const char *pose_extra) {
+  char args[400];
+  snprintf(u->ring, sizeof u->ring, "/pin-%s-%d", tag, (int)getpid());
+  snprintf(u->cfg, sizeof u->cfg, "%s/%s.yaml", dir, tag);
+  snprintf(u->log, sizeof u->log, "%s/%s.log", dir, tag);
+  u->port = free_port();
+  write_config(u->cfg, u->ring, u->port, pose_extra);
+  snprintf(args, sizeof args, "--config '%s'", u->cfg);
+  u->pid = spawn_pose(args, u->log);
+  if (!wait_for_text(u->log, "-> pose ring", 10)) fail_msg("vlff-pose did not start:\n%s", slurp(u->log));
+  u->r = vlff_ring_attach(u->ring, VLFF_RECORD_POSE);
+  assert_non_null(u->r);
+}
+
 /* One line forged far ahead of the clock is refused as a clock error; one
  * forged a little ahead (within the tolerance) is taken, and then the
  * tracker's own lines, older, restart the order after ten of them instead
  * of being refused until their stamps catch up. */
 static void test_forged_future_line(void **state) {
   (void)state;
-  char cfg[300], log[300], ring[64], args[400];
-  snprintf(ring, sizeof ring, "/pin-f-%d", (int)getpid());
-  snprintf(cfg, sizeof cfg, "%s/future.yaml", dir);
-  snprintf(log, sizeof log, "%s/future.log", dir);
-  int port = free_port();
-  write_config(cfg, ring, port, NULL);
-  snprintf(args, sizeof args, "--config '%s'", cfg);
-  pid_t pid = spawn_pose(args, log);
-  assert_true(wait_for_text(log, "-> pose ring", 10));
-  struct vlff_ring *r = vlff_ring_attach(ring, VLFF_RECORD_POSE);
-  assert_non_null(r);
+  struct pose_run u;
+  pose_start(&u, "future", NULL);
+  const char *log = u.log, *ring = u.ring;
+  int port = u.port;
+  pid_t pid = u.pid;
+  struct vlff_ring *r = u.r;
   int tracker_port, forger_port;
   int tracker = udp_socket("127.0.0.1", &tracker_port), forger = udp_socket("127.0.0.1", &forger_port);
 
@@ -281,17 +299,12 @@ static void test_bound_peer(void **state) {
  * NUL used to vanish without a word. */
 static void test_datagram_with_nul(void **state) {
   (void)state;
-  char cfg[300], log[300], ring[64], args[400];
-  snprintf(ring, sizeof ring, "/pin-n-%d", (int)getpid());
-  snprintf(cfg, sizeof cfg, "%s/nul.yaml", dir);
-  snprintf(log, sizeof log, "%s/nul.log", dir);
-  int port = free_port();
-  write_config(cfg, ring, port, NULL);
-  snprintf(args, sizeof args, "--config '%s'", cfg);
-  pid_t pid = spawn_pose(args, log);
-  assert_true(wait_for_text(log, "-> pose ring", 10));
-  struct vlff_ring *r = vlff_ring_attach(ring, VLFF_RECORD_POSE);
-  assert_non_null(r);
+  struct pose_run u;
+  pose_start(&u, "nul", NULL);
+  const char *log = u.log, *ring = u.ring;
+  int port = u.port;
+  pid_t pid = u.pid;
+  struct vlff_ring *r = u.r;
   int sp, s = udp_socket("127.0.0.1", &sp);
   uint64_t t = vlff_shm_now_ns() - 1000000000ull;
   char d[160];
