@@ -830,12 +830,27 @@ static void run_handoffs(lws_sorted_usec_list_t *sul) {
   }
 }
 
+/* Queues descriptor fd with the head the gate read for the HTTP vhost, which
+ * adopts it from the loop (run_handoffs), and leaves the gate's reading list in
+ * state (passed, or relaying a WebSocket). */
+static void gate_hand_over(struct gate *g, struct handoff *h, int fd, size_t head_len, int state) {
+  struct vlff_view *v = g->v;
+  h->fd = fd;
+  h->len = head_len;
+  memcpy(h->head, g->buf, head_len);
+  h->next = v->handoffs;
+  v->handoffs = h;
+  lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
+  g->state = state;
+  reading_remove(v, g);
+  lws_sul_cancel(&g->sul);
+}
+
 /* Hands the connection on: a copy of its descriptor, with the head it sent, goes to
  * the HTTP vhost from the loop (not from inside this connection's callback); this
  * raw connection then closes its own descriptor only (a raw socket is not shut
  * down on close). Returns the callback's answer. */
 static int gate_pass(struct gate *g, size_t head_len) {
-  struct vlff_view *v = g->v;
   int fd = fcntl(lws_get_socket_fd(g->wsi), F_DUPFD_CLOEXEC, 0);
   struct handoff *h = fd >= 0 ? malloc(sizeof *h + head_len) : NULL;
   if (!h) {
@@ -843,15 +858,7 @@ static int gate_pass(struct gate *g, size_t head_len) {
     gate_answer(g, 503, "out of descriptors or memory", 0);
     return 0;
   }
-  h->fd = fd;
-  h->len = head_len;
-  memcpy(h->head, g->buf, head_len);
-  h->next = v->handoffs;
-  v->handoffs = h;
-  lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
-  g->state = GATE_PASSED;
-  reading_remove(v, g);
-  lws_sul_cancel(&g->sul);
+  gate_hand_over(g, h, fd, head_len, GATE_PASSED);
   return -1;
 }
 
@@ -940,15 +947,7 @@ static int relay_start(struct gate *g, size_t head_len) {
   snprintf(pn->peer, sizeof pn->peer, "%s", g->peer);
   pn->next = v->peer_notes;
   v->peer_notes = pn;
-  h->fd = sp[1];
-  h->len = head_len;
-  memcpy(h->head, g->buf, head_len);
-  h->next = v->handoffs;
-  v->handoffs = h;
-  lws_sul_schedule(v->ctx, 0, &v->handoff_sul, run_handoffs, 1);
-  g->state = GATE_RELAY;
-  reading_remove(v, g);
-  lws_sul_cancel(&g->sul);
+  gate_hand_over(g, h, sp[1], head_len, GATE_RELAY);
   v->gate_pending--; /* a WebSocket now: its client slot is counted on the other side */
   lws_set_timeout(g->wsi, NO_PENDING_TIMEOUT, 0);
   return 0;

@@ -10,6 +10,9 @@
 #include "config.h"
 #include "scene.h"
 
+#include <stdio.h>
+#include <unistd.h>
+
 #define D 24
 #define NV 4
 
@@ -57,6 +60,22 @@ static int teardown(void **state) {
   (void)state;
   for (int k = 0; k < NV; k++) scene_view_free(&sv[k]);
   return 0;
+}
+
+/* A checkpoint path of this test process in $TMPDIR (else /tmp). */
+static void tmp_path(char *buf, size_t n, const char *tag) {
+  const char *dir = getenv("TMPDIR");
+  snprintf(buf, n, "%s/vlff-field-%s-%ld.ckpt", dir ? dir : "/tmp", tag, (long)getpid());
+}
+
+/* Whether two fields answer the same density and features at 64 random points. */
+static int same_queries(struct vlff_field *a, struct vlff_field *b) {
+  float xyz[3 * 64], da[64], db[64], fa[64 * D], fb[64 * D];
+  uint64_t r = 3;
+  for (int i = 0; i < 3 * 64; i++) xyz[i] = -1.5f + 3.0f * vlff_rng_uniform(&r);
+  vlff_field_query(a, xyz, 64, da, fa, NULL, NULL, NULL);
+  vlff_field_query(b, xyz, 64, db, fb, NULL, NULL, NULL);
+  return !memcmp(da, db, sizeof(da)) && !memcmp(fa, fb, sizeof(fa));
 }
 
 #endif

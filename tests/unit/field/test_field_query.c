@@ -207,20 +207,6 @@ static void test_folded_equals_unfolded(void **state) {
   vlff_field_destroy(f);
 }
 
-static void tmp_path(char *buf, size_t n, const char *tag) {
-  const char *dir = getenv("TMPDIR");
-  snprintf(buf, n, "%s/vlff-field-%s-%ld.ckpt", dir ? dir : "/tmp", tag, (long)getpid());
-}
-
-static int same_queries(struct vlff_field *a, struct vlff_field *b) {
-  float xyz[3 * 64], da[64], db[64], fa[64 * D], fb[64 * D];
-  uint64_t r = 3;
-  for (int i = 0; i < 3 * 64; i++) xyz[i] = -1.5f + 3.0f * vlff_rng_uniform(&r);
-  vlff_field_query(a, xyz, 64, da, fa, NULL, NULL, NULL);
-  vlff_field_query(b, xyz, 64, db, fb, NULL, NULL, NULL);
-  return !memcmp(da, db, sizeof(da)) && !memcmp(fa, fb, sizeof(fa));
-}
-
 static void test_checkpoint(void **state) {
   (void)state;
   struct vlff_config cfg;
