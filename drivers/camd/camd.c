@@ -34,6 +34,7 @@
 #include "ringsink.h"
 #include "service.h"
 #include "stamps.h"
+#include "vlff/escape.h"
 #ifdef VLFF_HAVE_ARAVIS
 #include "aravis.h"
 #endif
@@ -42,7 +43,6 @@
 #endif
 #ifdef VLFF_HAVE_GPIOD
 #include "gpio.h"
-#include "vlff/escape.h"
 #endif
 
 #define TAG "camd"

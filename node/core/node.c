@@ -35,11 +35,11 @@
 #include "publish.h"
 #include "select.h"
 #include "source.h"
+#include "vlff/escape.h"
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_VLM
 #include "image_encoder.h"
 #include "text_encoder.h"
-#include "vlff/escape.h"
 #endif
 
 /* Steps in a row with a non-finite loss on a finite field before it is
