@@ -1282,9 +1282,13 @@ static int build_allow(struct vlff_view *v) {
   struct in_addr in4;
   int any = !*addr || !strcmp(addr, "0.0.0.0"), loop = !strcmp(addr, "localhost");
   if (!any && !loop && inet_pton(AF_INET, addr, &in4) == 1) {
-    struct sockaddr_in sin = {.sin_family = AF_INET, .sin_addr = in4};
-    add_addr(a, (struct sockaddr *)&sin);
-    loop = is_loopback((struct sockaddr *)&sin);
+    /* In storage of any family's size: is_loopback reads the address by its family. */
+    struct sockaddr_storage ss = {0};
+    struct sockaddr_in *sin = (struct sockaddr_in *)&ss;
+    sin->sin_family = AF_INET;
+    sin->sin_addr = in4;
+    add_addr(a, (struct sockaddr *)&ss);
+    loop = is_loopback((struct sockaddr *)&ss);
   } else if (!loop) {
     /* all addresses, or those of the interface named */
     struct ifaddrs *ifs = NULL;
