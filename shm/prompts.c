@@ -362,13 +362,13 @@ API int vlff_prompts_try_post(struct vlff_prompts *p, const char *const *texts, 
     return -1;
   }
   if (!p->seg.writable) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: handle is not writable", p->seg.name);
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: handle is not writable", VLFF_Q(p->seg.name));
     return -1;
   }
   if (check_live(p, true) < 0)
     return -1;
   if (flock(p->seg.fd, LOCK_EX | LOCK_NB) != 0) {
-    shm_err(VLFF_SHM_ERR_EXISTS, EBUSY, "%s: mailbox busy (pid %d posting)", p->seg.name,
+    shm_err(VLFF_SHM_ERR_EXISTS, EBUSY, "%s: mailbox busy (pid %d posting)", VLFF_Q(p->seg.name),
             (int)atomic_load(&p->ctl->lock_pid));
     return -1;
   }
@@ -378,7 +378,7 @@ API int vlff_prompts_try_post(struct vlff_prompts *p, const char *const *texts, 
     int32_t learner = atomic_load(&p->seg.h->creator_pid);
     shm_err(VLFF_SHM_ERR_EXISTS, EBUSY,
             "%s: request %llu is still waiting for the learner's answer (learner pid %d %s); not posting over it",
-            p->seg.name, (unsigned long long)waiting, (int)learner,
+            VLFF_Q(p->seg.name), (unsigned long long)waiting, (int)learner,
             shm_creator_alive(learner, atomic_load(&p->seg.h->creator_start)) ? "running" : "not running");
     rc = -1;
   } else {
@@ -423,7 +423,7 @@ static bool request_sane(struct vlff_prompt_request *r, char *why, size_t len) {
 static int learner_replace(struct vlff_prompts *p, uint64_t last_seq) {
   char msg[320];
   if (p->broken)
-    snprintf(msg, sizeof msg, "%s: made again after its replacement had failed", p->seg.name);
+    snprintf(msg, sizeof msg, "%s: made again after its replacement had failed", VLFF_Q(p->seg.name));
   else
     snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
   /* After a failed replacement (no space left in /dev/shm), again after a growing delay. */
@@ -469,7 +469,7 @@ static int learner_repair(struct vlff_prompts *p, uint64_t *last_seq) {
     shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG,
             "%s: state word %u (%s) written by a process with write access to the mailbox (its group); the learner "
             "is alive and set it back to ready (%llu repairs so far)",
-            p->seg.name, st, st == SEG_ABANDONED ? "abandoned" : st == SEG_INIT ? "not ready" : "no state",
+            VLFF_Q(p->seg.name), st, st == SEG_ABANDONED ? "abandoned" : st == SEG_INIT ? "not ready" : "no state",
             (unsigned long long)p->repairs);
     return -1;
   }
@@ -512,7 +512,7 @@ static int learner_repair(struct vlff_prompts *p, uint64_t *last_seq) {
   shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG,
           "%s: %s, written by a process with write access to the mailbox, not by a post; set it back so that "
           "the next post is %llu (%llu resyncs so far)",
-          p->seg.name, what, (unsigned long long)(posted + 1), (unsigned long long)p->resyncs);
+          VLFF_Q(p->seg.name), what, (unsigned long long)(posted + 1), (unsigned long long)p->resyncs);
   return -1;
 }
 
