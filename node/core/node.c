@@ -1368,6 +1368,9 @@ static void *trainer_main(void *arg) {
    * controllers have it back at once. */
   bool first = n->resumed;
   if (first) apply_warmup(n);
+  /* The first step scans: a resumed field's values may be within the bounds
+   * and still overflow together from its first update on. */
+  n->scanned_step = -FIELD_SCAN_STEPS;
   while (!atomic_load(&n->stop)) {
     atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
     bool publish_now = first;
