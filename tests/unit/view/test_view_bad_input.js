@@ -190,11 +190,20 @@ async function main() {
     const e = await connect(demo.ws).then(() => null, (err) => err);
     assert.ok(e && e.status === 503 && e.body.includes('too many clients (10)'), `11th client: ${e && e.status}`);
     many.forEach((m) => m.ws.close());
+    await until(() => many.every((m) => m.closed), 5000, 'the clients closed');
     ok('with ten clients connected an eleventh gets HTTP 503 "too many clients (10)"');
 
     // A client that subscribes to the camera at 20 Hz and stops reading: its queue
-    // passes 1 MiB and it is dropped; the good client's stream goes on.
-    const slow = await connect(demo.ws);
+    // passes 1 MiB and it is dropped; the good client's stream goes on. A closed
+    // client's slot is free once the relayed connection behind it is gone too,
+    // a moment after its close handshake: a 503 before then is tried again.
+    let slow = null;
+    for (const t0 = Date.now(); !slow; await new Promise((r) => setTimeout(r, 50))) {
+      slow = await connect(demo.ws).catch((err) => {
+        if (err.status !== 503 || Date.now() - t0 > 5000) throw err;
+        return null;
+      });
+    }
     await until(() => slow.adv, 5000, 'advertise');
     slow.ws._socket.pause();
     subscribeAll(slow);
