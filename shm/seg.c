@@ -408,11 +408,6 @@ int shm_seg_check(struct seg *s, bool stat_it) {
   return -1;
 }
 
-/* Gives the segment's pages their memory now. On tmpfs a file's size is only a
- * promise: with /dev/shm full, ftruncate still succeeds and the first write to a
- * page that cannot be had faults (SIGBUS), which the guard took for a truncation,
- * so creators replaced their segments again and again. posix_fallocate fails
- * with ENOSPC instead, here, where it can be said. */
 /* A segment's size that could not be had (errno e, what was tried): a full
  * /dev/shm is an error of its own, which creators back off from. */
 static int size_failed(const char *name, int e, uint64_t total, const char *tried) {
@@ -425,6 +420,11 @@ static int size_failed(const char *name, int e, uint64_t total, const char *trie
   return -1;
 }
 
+/* Gives the segment's pages their memory now. On tmpfs a file's size is only a
+ * promise: with /dev/shm full, ftruncate still succeeds and the first write to a
+ * page that cannot be had faults (SIGBUS), which the guard took for a truncation,
+ * so creators replaced their segments again and again. posix_fallocate fails
+ * with ENOSPC instead, here, where it can be said. */
 static int reserve_pages(const char *name, int fd, uint64_t total) {
   int e;
   do

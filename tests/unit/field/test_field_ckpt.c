@@ -165,7 +165,6 @@ static void test_forged(void **state) {
   vlff_field_destroy(f);
 }
 
-/* Every value of the field's state within the bounds of field.h. */
 /* What an absurd but allowed learning rate makes (the demo at train.lr 10 held
  * |Adam m| of 1.2e4 after 1,200 steps, with a finite loss and a useful map) is
  * no forgery: it saves and resumes. The first bounds (1e4) threw such a field
@@ -194,6 +193,7 @@ static void test_large_state_kept(void **state) {
   unlink(path);
 }
 
+/* Every value of the field's state within the bounds of field.h. */
 static void assert_state_finite(const struct vlff_field *f) {
   for (size_t i = 0; i < f->nparams; i++) {
     assert_true(isfinite(f->params[i]) && fabsf(f->params[i]) <= VLFF_FIELD_MAX_PARAM);
