@@ -81,7 +81,7 @@ struct vlff_node {
    * keyframe, iteration or request (each used by one thread). */
   struct {
     uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder, features_late,
-        kf_rejected, kf_refused, kf_store, step_failed;
+        kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback;
   } warned;
 
   pthread_t ingest_thread, trainer_thread;
@@ -117,7 +117,6 @@ struct vlff_node {
    * fed only while both move (vlff_node_status). */
   _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
-  uint64_t nonfinite_logged, rollback_logged; /* vlff_warn_limited's counts */
   int nonfinite_run;          /* trainer: steps in a row whose loss was not finite */
   long long scanned_step;     /* trainer: the step of the last vlff_field_check */
   unsigned rollback_tried;    /* trainer: slots the field was loaded from since its last save */
@@ -878,9 +877,9 @@ static void obs_path(const struct vlff_node *n, int slot, char *out, size_t len)
   snprintf(out, len, "%s/map.%d.obs", n->cfg.node.state_dir, slot);
 }
 
-/* The field's own state went non-finite (why names where): back to the
- * newest checkpoint that loads, or to a new field when none does. The
- * keyframes stay, so it learns again from what it has. */
+/* The field's own state went non-finite or out of the bounds of field.h (why
+ * names where): back to the newest checkpoint that loads, or to a new field
+ * when none does. The keyframes stay, so it learns again from what it has. */
 static void roll_back(struct vlff_node *n, const char *why) {
   char path[2][VLFF_CFG_PATH + 32], err[640];
   const char *paths[2];
@@ -895,27 +894,27 @@ static void roll_back(struct vlff_node *n, const char *why) {
     slot_of[np++] = i;
   }
   err[0] = 0;
-  int i = vlff_field_rollback(n->field, paths, np, err, sizeof err);
+  int k = vlff_field_rollback(n->field, paths, np, err, sizeof err);
   STAT_ADD(n, field_rollbacks, 1);
-  if (i >= 0) {
-    n->rollback_tried |= 1u << slot_of[i];
-    i = slot_of[i];
+  if (k >= 0) {
+    int slot = slot_of[k];
+    n->rollback_tried |= 1u << slot;
     /* The next checkpoint goes to the other slot: the good one stays. */
     n->ckpt_steps = vlff_field_steps(n->field);
-    n->ckpt_slot = i ^ 1;
-    vlff_warn_limited(&n->rollback_logged, TAG, "the field diverged (%s): rolled back to %s at step %lld%s%s", why,
-                      path[i], n->ckpt_steps, err[0] ? "; refused: " : "", err);
+    n->ckpt_slot = slot ^ 1;
+    vlff_warn_limited(&n->warned.rollback, TAG, "the field diverged (%s): rolled back to %s at step %lld%s%s", why,
+                      VLFF_Q(paths[k]), n->ckpt_steps, err[0] ? "; refused: " : "", err);
   } else {
     n->ckpt_steps = 0;
     n->resumed = false;
-    vlff_warn_limited(&n->rollback_logged, TAG, "the field diverged (%s): re-initialised, no checkpoint loads%s%s", why,
+    vlff_warn_limited(&n->warned.rollback, TAG, "the field diverged (%s): re-initialised, no checkpoint loads%s%s", why,
                       err[0] ? ": " : "", err);
   }
 }
 
 /* A step whose loss was not finite applied nothing; if the field itself is
  * what went non-finite, roll it back. The scan costs a pass over the
- * parameters and moments, only after such a step. */
+ * parameters and moments, as the trainer's periodic scan does. */
 static void step_not_finite(struct vlff_node *n, const char *step_err) {
   STAT_ADD(n, steps_nonfinite, 1);
   char why[320];
@@ -925,7 +924,7 @@ static void step_not_finite(struct vlff_node *n, const char *step_err) {
      * nothing and is rolled back as well. Keyframes are checked on entry,
      * so a run this long is the field's. */
     if (++n->nonfinite_run < NONFINITE_RUN_MAX) {
-      vlff_warn_limited(&n->nonfinite_logged, TAG, "%s (the field itself is finite)", step_err);
+      vlff_warn_limited(&n->warned.nonfinite, TAG, "%s (the field itself is finite)", step_err);
       return;
     }
     snprintf(why, sizeof why, "%d steps in a row with a non-finite loss, the last: %s", NONFINITE_RUN_MAX, step_err);

@@ -75,4 +75,23 @@ kill "$simpid"; wait "$simpid"; simpid=
 stop_node
 check "the new field checkpoints on SIGTERM" 'grep -q "I node: checkpoint .* at step" "$tmp/log"'
 check "it diverged once, not again" '[[ $(grep -c "the field diverged" "$tmp/log") == 1 ]]'
+
+# The same forgery in the newest slot with a genuine checkpoint in the other:
+# the node resumes the forged one, and its rollback passes over the slot it
+# came from and takes the other, naming it.
+good=$(ls -t "$tmp"/field.*.ckpt | head -1)
+bad=$tmp/field.$((1 - ${good: -6:1})).ckpt
+cp "$good" "$bad"
+forge "$bad" mlp
+touch -d '+1 second' "$bad"
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
+nodepid=$!
+"$sim" --config "$tmp/n.yaml" --quiet 2>>"$tmp/simlog" &
+simpid=$!
+check "the node resumes from the forged newest slot" 'wait_until 300 "grep -q \"resumed from $bad\" \"$tmp/log\""'
+check "it rolls back to the other slot, named" \
+  'wait_until 600 "grep -q \"the field diverged (.*): rolled back to $good at step\" \"$tmp/log\""'
+kill "$simpid"; wait "$simpid"; simpid=
+stop_node
+check "it diverged once" '[[ $(grep -c "the field diverged" "$tmp/log") == 1 ]]'
 verdict
