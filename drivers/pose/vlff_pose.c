@@ -62,7 +62,7 @@ static const struct vlff_cli cli = {
     "                           time, converted to it (pose.clock)\n"
     "      --clock-offset S     seconds added to every line's stamp (pose.clock_offset_s)\n"
     "      --future-tolerance S refuse stamps more than S seconds ahead of the clock as a clock\n"
-    "                           error (pose.future_tolerance_s, 5; 0: no check)\n"
+    "                           error (pose.future_tolerance_s, 0.05; 0: no check)\n"
     "      --out-of-order-reset N\n"
     "                           the Nth line in a row older than the last accepted one restarts\n"
     "                           the order (pose.out_of_order_reset, 10; 0: never)\n"

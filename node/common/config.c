@@ -272,7 +272,11 @@ static const struct key schema[] = {
     BOOL("pose.extra_fields", pose.extra_fields, 0),
     INT("pose.source_id", pose.source_id, 0, 2147483647, 0),
     STR("pose.udp_peer", pose.udp_peer, ""),
-    DBL("pose.future_tolerance_s", pose.future_tolerance_s, 0, 1e10, 5),
+    /* A pose is computed after its image, so a stamp ahead of the clock is
+     * the hosts' clock disagreement: milliseconds under NTP on a LAN,
+     * microseconds under PTP. 50 ms passes that with margin and stays under
+     * two periods of a 30 Hz tracker; a wrong clock or offset is beyond it. */
+    DBL("pose.future_tolerance_s", pose.future_tolerance_s, 0, 1e10, 0.05),
     INT("pose.out_of_order_reset", pose.out_of_order_reset, 0, 1000000, 10),
 
     STR("vlm.image_model", vlm.image_model, ""),
