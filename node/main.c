@@ -39,6 +39,7 @@ static const struct vlff_cli cli = {
     "\n"
     "  -c, --config FILE        run with this YAML config; without it $VLFF_CONFIG,\n"
     "                           then " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
+    "                           (installed elsewhere: vlff/vlff.yaml in that install's sysconfdir)\n"
     "      --check-config FILE  validate FILE, print the effective config, exit 0/1\n"
     "      --status             print a live progress line on the terminal\n"
     "      --snapshot DIR       on exit, write DIR/strip.png (image | segmentation | truth)\n"

@@ -52,6 +52,7 @@ static const struct vlff_cli cli = {
     "\n"
     "  -c, --config FILE        the config; without it $VLFF_CONFIG, then\n"
     "                           " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
+    "                           (installed elsewhere: vlff/vlff.yaml in that install's sysconfdir)\n"
     "  -r, --ring NAME          pose ring segment name (default: shm.pose_ring)\n"
     "  -u, --udp ADDR:PORT      read datagrams of lines on this address (127.0.0.1:5600, [::]:5600)\n"
     "      --udp-peer ADDR[:PORT]\n"
