@@ -103,6 +103,7 @@ _Static_assert(sizeof BPE_VOCAB_DEFAULT <= VLFF_CFG_PATH, "the install's datadir
  * the sysconfdir (cmake/VlffInstallPaths.cmake.in: prefix /usr keeps its
  * configs in /etc, /opt/X in /etc/opt/X). A file not found there (a program
  * run from the build tree) is looked for where the build configured it. */
+_Static_assert(sizeof VLFF_SYSCONFDIR "/vlff/vlff.yaml" <= PATH_MAX, "the install's sysconfdir is too long");
 static struct {
   pthread_once_t once;
   char config[PATH_MAX], vocab[VLFF_CFG_PATH];
