@@ -329,6 +329,10 @@ static int features_frame_numbers(struct vlff_dataset *ds, const struct h5feat *
     ds->feat_row[i] = r < n && num[r] == ds->number[i] ? (int)r : -1;
     ds->feat_frames += ds->feat_row[i] >= 0;
   }
+  if (ds->feat_frames == 0) {
+    seterr(err, errlen, "%s: 'frames' names no usable frame of the scene", VLFF_Q(path));
+    goto out;
+  }
   rc = 0;
 out:
   free(num);

@@ -651,6 +651,21 @@ static void test_features_some_frames(void **state) {
 #define FEATURES_TEST
 #endif
 
+#if defined(VLFF_HAVE_HDF5) && (defined(VLFF_EVAL_BUILT) || defined(VLFF_REPLAY_BUILT))
+/* grep -q for text (a fixed string) in root/<log>.log. */
+static int log_has(const char *log, const char *text) {
+  char cmd[1200];
+  snprintf(cmd, sizeof cmd, "grep -qF -- '%s' %s/%s.log", text, root, log);
+  return system(cmd) == 0;
+}
+
+static void show_log(const char *log) {
+  char cmd[700];
+  snprintf(cmd, sizeof cmd, "cat %s/%s.log >&2", root, log);
+  (void)!system(cmd);
+}
+#endif
+
 #if defined(VLFF_HAVE_HDF5) && defined(VLFF_EVAL_BUILT)
 /* prompt_embeddings.txt in dir naming every class of the label set, D = dim
  * (>= 4; the first four distinguish the classes). */
@@ -751,19 +766,6 @@ static int run_eval(const char *args, const char *log) {
   vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
   snprintf(cmd, sizeof cmd, "%s %s --iters 0 --quiet --holdout 2 >%s/%s.log 2>&1", eval, args, root, log);
   return system(cmd);
-}
-
-/* grep -q for text (a fixed string) in root/<log>.log. */
-static int log_has(const char *log, const char *text) {
-  char cmd[1200];
-  snprintf(cmd, sizeof cmd, "grep -qF -- '%s' %s/%s.log", text, root, log);
-  return system(cmd) == 0;
-}
-
-static void show_log(const char *log) {
-  char cmd[700];
-  snprintf(cmd, sizeof cmd, "cat %s/%s.log >&2", root, log);
-  (void)!system(cmd);
 }
 
 /* vlff-eval on features stored for every second frame (features.hdf with
@@ -978,7 +980,41 @@ static void test_replay_sens(void **state) {
   vlff_ring_close(pr);
   vlff_dataset_close(&ds);
 }
-#define REPLAY_TEST , cmocka_unit_test(test_replay_sens)
+
+#ifdef VLFF_HAVE_HDF5
+/* vlff-replay on features stored for some frames: the frames they hold are
+ * played with their features, the others passed over and counted, and the
+ * replay succeeds (each used to be an unreadable frame, and the exit 1). */
+static void test_replay_some_features(void **state) {
+  (void)state;
+  char dir[400], path[600], cfg[700], p[700];
+  sens_scene(dir, sizeof dir, path, sizeof path, "scene0013_00");
+  snprintf(p, sizeof p, "%s/features.hdf", dir);
+  const long long first[1] = {0};
+  write_feats(p, 0, 1, 2, 2, 4, 4, first, 1, 0);
+  const char *what[3] = {"r", "p", "f"};
+  for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-tscf-%d-%s", (int)getpid(), what[k]);
+  snprintf(cfg, sizeof cfg, "%s/replay-f.yaml", root);
+  putf(cfg, "shm:\n  ring: %s\n  pose_ring: %s\n  feature_ring: %s\n  ring_slots: 4\n", replay_shm[0], replay_shm[1],
+       replay_shm[2]);
+  char prog[700], cmd[2400];
+  vlff_test_prog(prog, sizeof prog, "node/dataset/vlff-replay");
+  snprintf(cmd, sizeof cmd, "%s -c %s --fps 1000 %s >%s/replay-f.log 2>&1", prog, cfg, path, root);
+  if (system(cmd) != 0) {
+    show_log("replay-f");
+    fail_msg("vlff-replay on features of some frames failed");
+  }
+  if (!log_has("replay-f", "the features hold 1 of the 2 frames: the others are passed over") ||
+      !log_has("replay-f", "1 frames published, 0 unreadable skipped, 1 without features passed over")) {
+    show_log("replay-f");
+    fail_msg("the replay does not say which frames it passed over");
+  }
+}
+#define REPLAY_FEATURES_TEST , cmocka_unit_test(test_replay_some_features)
+#else
+#define REPLAY_FEATURES_TEST
+#endif
+#define REPLAY_TEST , cmocka_unit_test(test_replay_sens) REPLAY_FEATURES_TEST
 #else
 #define REPLAY_TEST
 #endif
