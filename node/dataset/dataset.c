@@ -395,7 +395,7 @@ static int features_dir_probe(struct vlff_dataset *ds, const char *dir, char *er
       char *end;
       errno = 0;
       long v = strtol(st.s[k], &end, 10);
-      if (all_digits(st.s[k]) && !errno && v <= ds->last_number) continue; /* a lost frame */
+      if (ds->skipped > 0 && all_digits(st.s[k]) && !errno && v <= ds->last_number) continue; /* a lost frame */
       seterr(err, errlen, "%s/%s.hdf: the scene has no frame %s", VLFF_Q(dir), VLFF_Q(st.s[k]), VLFF_Q(st.s[k]));
       goto out;
     }
@@ -807,7 +807,8 @@ static int open_features(struct vlff_dataset *ds, const char *dir, char *err, si
 static int check_required(struct vlff_dataset *ds, const char *sens, int require, char *err, size_t errlen) {
   char p[PATHMAX], q[PATHMAX];
   const int ref = ds->layout == VLFF_DS_REFERENCE;
-  if (require & VLFF_DS_REQUIRE_POINTS && vlff_scannet_points_path(ds->dir, ds->layout, sens, p, sizeof p, err, errlen) < 0)
+  if ((require & VLFF_DS_REQUIRE_POINTS) &&
+      vlff_scannet_points_path(ds->dir, ds->layout, sens, p, sizeof p, err, errlen) < 0)
     return -1;
   if (require & VLFF_DS_REQUIRE_LABELS) {
     join(p, ds->dir, "gt_semantic");
