@@ -425,7 +425,7 @@ static int choose_stride(struct scene *sc, const struct vlff_dataset *ds, const 
               "vlff-eval: %s: the %d training frames --stride %d takes need %.1f MiB of images and features, more "
               "than keyframes.memory_mb (%.0f): using --stride %ld instead (%d frames, %d of them training, %.1f MiB; "
               "raise keyframes.memory_mb to keep more)\n",
-              ds->dir, asked_train, o->stride, asked_mb, budget, s, n, ntrain, ntrain * frame_mb);
+              VLFF_Q(ds->dir), asked_train, o->stride, asked_mb, budget, s, n, ntrain, ntrain * frame_mb);
       sc->stride_why = "keyframes.memory_mb";
       return (int)s;
     }
@@ -433,7 +433,7 @@ static int choose_stride(struct scene *sc, const struct vlff_dataset *ds, const 
   die("%s: a training frame needs %.1f MiB of images and features; keyframes.memory_mb (%.0f) holds %d, and no "
       "multiple of --stride %d leaves that few training frames and a held-out one (--holdout %d): raise "
       "keyframes.memory_mb or lower --holdout",
-      ds->dir, frame_mb, budget, (int)(budget / frame_mb), o->stride, o->holdout);
+      VLFF_Q(ds->dir), frame_mb, budget, (int)(budget / frame_mb), o->stride, o->holdout);
   return -1;
 }
 
@@ -489,8 +489,8 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
   for (int i = 0; i < sc->n; i++)
     if (ds.feat_row[idx[i]] < 0) {
       char q[4400];
-      if (ds.feat_files) snprintf(q, sizeof q, "%s/features/%s.hdf: missing", dir, ds.stem[idx[i]]);
-      else snprintf(q, sizeof q, "%s/features.hdf: holds no map for frame %s", dir, ds.stem[idx[i]]);
+      if (ds.feat_files) snprintf(q, sizeof q, "%s/features/%s.hdf: missing", VLFF_Q(dir), VLFF_Q(ds.stem[idx[i]]));
+      else snprintf(q, sizeof q, "%s/features.hdf: holds no map for frame %s", VLFF_Q(dir), VLFF_Q(ds.stem[idx[i]]));
       die("%s, which --stride %d takes (the features hold %d of the scene's %d frames): give a --stride whose "
           "frames they hold",
           q, sc->stride, ds.feat_frames, ds.n);
