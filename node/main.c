@@ -18,7 +18,6 @@
 #include "clock.h"
 #include "config.h"
 #include "dataset.h"
-#include "embeddings.h"
 #include "log.h"
 #include "node.h"
 #include "service.h"
@@ -39,6 +38,7 @@ static const struct vlff_cli cli = {
     "\n"
     "  -c, --config FILE        run with this YAML config; without it $VLFF_CONFIG,\n"
     "                           then " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
+    "                           (installed elsewhere: vlff/vlff.yaml in that install's sysconfdir)\n"
     "      --check-config FILE  validate FILE, print the effective config, exit 0/1\n"
     "      --status             print a live progress line on the terminal\n"
     "      --snapshot DIR       on exit, write DIR/strip.png (image | segmentation | truth)\n"
@@ -112,11 +112,14 @@ static int write_snapshot(struct vlff_node *node, const char *dir, char *err, si
   return rc < 0 ? -1 : 0;
 }
 
-/* --check-config: what start-up would refuse is refused here too (the CAN
- * keys together, the prompt embeddings file, the segments' group). */
+/* --check-config: what start-up would refuse is refused here too, short of
+ * making segments or opening the CAN bus: the CAN keys together, the
+ * segments' group, the simulator the config asks for, and the node's own
+ * checks with the files it loads (a text encoder for the prompts, the
+ * embeddings file, the models and vocabulary; vlff_node_check). */
 static int check_config(const char *path) {
-  struct vlff_config cfg;
-  char err[512];
+  static struct vlff_config cfg;
+  char err[1024];
   if (vlff_config_load(path, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
 #ifdef VLFF_HAVE_CAN
   if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
@@ -124,14 +127,6 @@ static int check_config(const char *path) {
     return 1;
   }
 #endif
-  if (cfg.prompts.embeddings[0]) {
-    struct vlff_embeddings *e = vlff_embeddings_load(cfg.prompts.embeddings, cfg.field.feature_dim, err, sizeof err);
-    if (!e) {
-      fprintf(stderr, "%s: key 'prompts.embeddings': %s\n", path, err);
-      return 1;
-    }
-    vlff_embeddings_free(e);
-  }
   if (cfg.shm.group[0]) {
     char *end;
     long gid = strtol(cfg.shm.group, &end, 10);
@@ -139,6 +134,14 @@ static int check_config(const char *path) {
       fprintf(stderr, "%s: key 'shm.group': no group '%s' on this machine\n", path, cfg.shm.group);
       return 1;
     }
+  }
+  struct vlff_source_hooks hooks;
+  struct vlff_sim_source *sim = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
+  int bad = !sim || vlff_node_check(&cfg, &hooks, true, err, sizeof err);
+  vlff_sim_source_destroy(sim);
+  if (bad) {
+    fprintf(stderr, "%s: %s\n", path, err);
+    return 1;
   }
   vlff_config_dump(&cfg, stdout);
   fprintf(stderr, "%s: OK\n", path);

@@ -16,6 +16,7 @@
 #include "depthreg.h"
 #include "stamps.h"
 #include "log.h"
+#include "vlff/escape.h"
 
 #define TAG "pipe"
 
@@ -197,6 +198,20 @@ static struct vlff_pipe *pipe_create(const struct vlff_config *cfg, bool range, 
       free(p);
       return NULL;
     }
+    /* Both sizes in the config and in the file: they must agree, or the
+     * first pair would find out and every pair be dropped. */
+    const struct vlff_cfg_depth_camera *dc = &cfg->depth_camera;
+    bool color_off = rc.color_w && cfg->camera.width && cfg->camera.height &&
+                     (rc.color_w != cfg->camera.width || rc.color_h != cfg->camera.height);
+    if (color_off || (rc.depth_w && dc->width && dc->height && (rc.depth_w != dc->width || rc.depth_h != dc->height))) {
+      snprintf(err, errlen, "key 'depth_camera.calibration': %s is calibrated for %s %dx%d, but %s say %dx%d",
+               VLFF_Q(cfg->depth_camera.calibration), color_off ? "colour" : "depth",
+               color_off ? rc.color_w : rc.depth_w, color_off ? rc.color_h : rc.depth_h,
+               color_off ? "camera.width/height" : "depth_camera.width/height",
+               color_off ? cfg->camera.width : dc->width, color_off ? cfg->camera.height : dc->height);
+      free(p);
+      return NULL;
+    }
     if (rc.nc > 5 && any_nonzero(rc.dc + 5, rc.nc - 5)) {
       snprintf(err, errlen, "key 'depth_camera.calibration': %s: the colour camera's rational distortion (D2 "
                "k4..k6) is not supported by the colour pipeline; calibrate it with 5 coefficients",
@@ -216,6 +231,14 @@ static struct vlff_pipe *pipe_create(const struct vlff_config *cfg, bool range, 
       return NULL;
     }
     p->have_calib = true;
+    if (cfg->camera.depth != VLFF_DEPTH_STEREO && p->calib.width && cfg->camera.width && cfg->camera.height &&
+        (p->calib.width != cfg->camera.width || p->calib.height != cfg->camera.height)) {
+      snprintf(err, errlen, "key 'camera.calibration': %s is calibrated for %dx%d images (image_width/height), but "
+               "camera.width/height say %dx%d", VLFF_Q(cfg->camera.calibration), p->calib.width, p->calib.height,
+               cfg->camera.width, cfg->camera.height);
+      free(p);
+      return NULL;
+    }
     if (cfg->camera.depth == VLFF_DEPTH_STEREO && !p->calib.has_stereo) {
       snprintf(err, errlen,
                "key 'camera.calibration': depth: stereo needs stereo keys M1 D1 M2 D2 R T in %s",

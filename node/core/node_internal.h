@@ -23,6 +23,8 @@
  *  - commands.c:   prompts, queued commands and the prompt mailbox (trainer
  *                  thread), the status (any thread reads it).
  *  - lifecycle.c:  create, stop, destroy and snapshot (the caller's thread).
+ *  - check.c:      what create refuses before it makes anything, also run
+ *                  by --check-config (vlff_node_check, node.h).
  *
  * Contract of struct vlff_node
  *  - cfg, hooks, model_h/model_w and t_start are set by vlff_node_create
