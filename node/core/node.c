@@ -80,7 +80,7 @@ struct vlff_node {
   /* vlff_warn_limited's counters, one per line that can come with every frame,
    * keyframe, iteration or request (each used by one thread). */
   struct {
-    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder, features_late,
+    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder,
         kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback;
   } warned;
 
@@ -364,6 +364,7 @@ static const char *const refusal_names[VLFF_REFUSED_COUNT] = {
     [VLFF_REFUSED_EMPTY_DEPTH] = "empty depth",
     [VLFF_REFUSED_TOO_SMALL] = "too small",
     [VLFF_REFUSED_NO_FEATURES] = "no features",
+    [VLFF_REFUSED_FEATURES_LATE] = "features late",
 };
 
 const char *vlff_refusal_name(int reason) {
@@ -655,6 +656,8 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
     c->deadline_s = now + cfg->vlm.feature_timeout_s;
     if (ig->npend == PENDING_CAP) {
       STAT_ADD(n, features_timeout, 1);
+      refuse(n, &ig->rl, VLFF_REFUSED_FEATURES_LATE, ig->pending[0]->id, "%d newer keyframes wait for their "
+             "features: the feature source is slower than the keyframes come", PENDING_CAP);
       candidate_free(ig->pending[0]);
       pending_remove(ig->pending, &ig->npend, 0);
     }
@@ -778,8 +781,8 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
   for (int i = 0; i < ig->npend; i++)
     if (vlff_seconds() > ig->pending[i]->deadline_s) {
       STAT_ADD(n, features_timeout, 1);
-      vlff_warn_limited(&n->warned.features_late, TAG, "frame %lld: features did not arrive within %.1f s",
-                        ig->pending[i]->id, cfg->vlm.feature_timeout_s);
+      refuse(n, &ig->rl, VLFF_REFUSED_FEATURES_LATE, ig->pending[i]->id, "its features did not arrive within "
+             "vlm.feature_timeout_s (%g s): the feature source lags or stopped", cfg->vlm.feature_timeout_s);
       candidate_free(ig->pending[i]);
       pending_remove(ig->pending, &ig->npend, i);
       i--;

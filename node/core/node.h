@@ -64,6 +64,7 @@ enum vlff_refusal {
   VLFF_REFUSED_EMPTY_DEPTH = 10,   /* depth plane without one valid pixel */
   VLFF_REFUSED_TOO_SMALL = 11,     /* under 4x4 pixels at train.image_scale */
   VLFF_REFUSED_NO_FEATURES = 12,   /* simulated features could not be rendered */
+  VLFF_REFUSED_FEATURES_LATE = 13, /* a keyframe's features (ring or model) did not come in time */
   VLFF_REFUSED_COUNT
 };
 
