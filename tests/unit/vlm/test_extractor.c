@@ -260,6 +260,60 @@ static void test_python_extractor_skips_to_newest(void **state) {
   vlff_ring_close(fr);
 }
 
+/* Features beyond float16's range are refused by the extractor (they would
+ * be infinite in the record) and not published; the next frame's features
+ * take the slot and arrive whole. */
+static void test_python_extractor_refuses_out_of_range(void **state) {
+  (void)state;
+  if (!fixture_have_torch()) skip();
+  char frames[64], feats[64], out[192];
+  snprintf(frames, sizeof frames, "/%s-of", tk.tag);
+  snprintf(feats, sizeof feats, "/%s-ox", tk.tag);
+  snprintf(out, sizeof out, "%s/extractor-range.out", tk.dir);
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_FRAME, .slots = 8,
+                               .slot_size = vlff_frame_slot_size(FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE)};
+  struct vlff_ring *fr = vlff_ring_create(frames, &p);
+  if (!fr) fail_msg("%s", vlff_shm_last_message());
+  const char *extra[] = {"--max-frames", "2", "--idle-exit", "20", NULL};
+  pid_t pid = spawn_extractor(frames, feats, D, HH, WW, "odd_huge_features", out, extra);
+  struct vlff_ring *ft = NULL;
+  for (int i = 0; i < 400 && !ft; i++) {
+    ft = vlff_ring_attach(feats, VLFF_RECORD_FEATURE);
+    if (!ft) usleep(50000);
+  }
+  if (!ft) {
+    kill(pid, SIGTERM);
+    waitpid(pid, NULL, 0);
+    fail_msg("extractor never created %s: %s\n%s", feats, vlff_shm_last_message(), tk_slurp(out));
+  }
+  assert_true(pix(11, 0, 0, 0) % 2 == 1 && pix(22, 0, 0, 0) % 2 == 0);
+  write_frame(fr, 11);
+  assert_true(tk_wait_for_text(out, "vlff_extractor: frame 11: non-finite features", 20));
+  write_frame(fr, 22);
+  size_t cap = vlff_ring_slot_size(ft);
+  uint8_t *rec = malloc(cap);
+  struct vlff_ring_view v;
+  ssize_t len = vlff_ring_read_copy(ft, rec, cap, &v, 20000000000ull);
+  assert_true(len > 0);
+  int status = 0;
+  assert_int_equal(waitpid(pid, &status, 0), pid);
+  assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  assert_non_null(strstr(tk_slurp(out), "vlff_extractor: 1 frames, 1 failed, 0 skipped\n"));
+  const struct vlff_feature_hdr *h = (const struct vlff_feature_hdr *)rec;
+  assert_int_equal(h->frame_id, 22);
+  assert_int_equal(vlff_feature_validate(rec, (size_t)len), 0);
+  const uint16_t *data = (const uint16_t *)(rec + h->data_offset);
+  for (int d = 0; d < D; d++)
+    for (int y = 0; y < HH; y++)
+      for (int x = 0; x < WW; x++)
+        assert_true(fabs(vlff_f16_to_f32(data[((size_t)d * HH + y) * WW + x]) - expected(22, d, y, x)) < 1e-3);
+  /* Nothing else was published. */
+  assert_int_equal(vlff_ring_read_copy(ft, rec, cap, &v, 0), -1);
+  free(rec);
+  vlff_ring_close(ft);
+  vlff_ring_close(fr);
+}
+
 /* Renders scene frame index into the ring as a camera driver would (RGB8,
  * depth, the pose and intrinsics flagged valid), stamped now. */
 static void put_scene_frame(struct tk_scene *sc, long long index) {
@@ -502,4 +556,5 @@ static int teardown(void **state) {
 VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_join_rules), cmocka_unit_test(test_join_transpose),
     cmocka_unit_test(test_python_extractor_round_trip), cmocka_unit_test(test_python_extractor_skips_to_newest),
+    cmocka_unit_test(test_python_extractor_refuses_out_of_range),
     cmocka_unit_test(test_slow_feature_source_refused))
