@@ -204,23 +204,19 @@ class Extractor:
         f = np.asarray(feats)
         if f.shape != (self.dim, self.height, self.width):
             raise ValueError(f"frame {hdr.frame_id}: features {f.shape}, expected {(self.dim, self.height, self.width)}")
-        if f.dtype != np.float16:
-            # Through contiguous float32: numpy casts to float16 several times
-            # faster from that than from float64 or a strided view.
-            f = np.ascontiguousarray(f, dtype=np.float32)
         slot = self.lib.vlff_ring_reserve(self.features, None)
         if not slot:
             raise ShmError(self._msg())
         out = FeatureHdr.from_address(slot)
         if not self.lib.vlff_feature_layout(ctypes.byref(out), self.slot_size, self.dim, self.height, self.width):
             raise ShmError("feature layout does not fit the slot")
-        # Converted straight into the slot (no array of the record's size to
-        # allocate and copy per frame) and checked there, as the node checks
-        # the record: a value beyond float16's range is infinite there too.
-        # The check reads the bits (exponent all ones = Inf or NaN) in one
-        # integer pass; float16 arithmetic in numpy is emulated per element.
-        # Refused features are not committed: the slot is reserved again by
-        # the next frame.
+        # Converted straight into the slot in one pass whatever the input's
+        # type and layout (no array of the record's size to allocate and copy
+        # per frame), and checked there, as the node checks the record: a
+        # value beyond float16's range is infinite there too. The check reads
+        # the bits (exponent all ones = Inf or NaN) in one integer pass;
+        # float16 arithmetic in numpy is emulated per element. Refused
+        # features are not committed: the next frame reserves the same slot.
         n = self.dim * self.height * self.width
         bits = np.ctypeslib.as_array((ctypes.c_uint16 * n).from_address(slot + out.data_offset)).view("<u2")
         with np.errstate(over="ignore", invalid="ignore"):
