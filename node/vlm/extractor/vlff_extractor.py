@@ -189,7 +189,7 @@ class Extractor:
         self.last_seq = view.seq
         if self.lib.vlff_frame_validate(self.buf, n) != 0:
             raise ShmError(self._msg())
-        hdr = FrameHdr.from_buffer_copy(self.buf.raw[:ctypes.sizeof(FrameHdr)])
+        hdr = FrameHdr.from_buffer_copy(self.buf)  # the header only (.raw would copy the slot)
         p = hdr.plane[PLANE_COLOR]
         if p.format not in (PIX_RGB8, PIX_BGR8):
             raise ShmError(f"frame {hdr.frame_id}: color format {p.format}, this client takes RGB8/BGR8")
