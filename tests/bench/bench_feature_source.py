@@ -18,6 +18,7 @@ own line). Usage: bench_feature_source.py --lib libvlff-shm.so.1 [--frames N]
 import argparse
 import ctypes
 import os
+import statistics
 import sys
 import time
 
@@ -72,12 +73,13 @@ class FrameWriter:
 
 
 def measure(lib_path, h, w, frames):
-    """(ms per frame all told, ms of the read alone, ms of the model alone)."""
+    """(ms per frame all told, ms of the read alone, ms of the model alone),
+    medians over the frames (a shared host's other work lands on a few)."""
     tag = f"/vlff-bench-fs{os.getpid()}-{h}"
     lib = vx.load_library(lib_path)
     cam = FrameWriter(lib, tag + "-f")
     fn = numpy_model(h, w)
-    total = read = model = 0.0
+    total, read, model = [], [], []
     try:
         with vx.Extractor(tag + "-f", tag + "-x", DIM, h, w, fn, lib=lib_path, mode=0o600) as ex:
             for k in range(frames + 2):  # two to warm up
@@ -90,16 +92,16 @@ def measure(lib_path, h, w, frames):
                 ex.publish(hdr, feats)
                 t3 = time.perf_counter()
                 if k >= 2:
-                    total += t3 - t0
-                    read += t1 - t0
-                    model += t2 - t1
+                    total.append(t3 - t0)
+                    read.append(t1 - t0)
+                    model.append(t2 - t1)
             if ex.skipped or ex.failed:
                 raise RuntimeError(f"{ex.skipped} frames skipped, {ex.failed} failed: the bench serves every one")
     finally:
         lib.vlff_ring_close(cam.ring)
         for s in ("-f", "-x"):
             lib.vlff_shm_unlink((tag + s).encode())
-    return 1e3 * total / frames, 1e3 * read / frames, 1e3 * model / frames
+    return tuple(1e3 * statistics.median(x) for x in (total, read, model))
 
 
 def main():
