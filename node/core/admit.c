@@ -91,6 +91,7 @@ static const char *const refusal_names[VLFF_REFUSED_COUNT] = {
     [VLFF_REFUSED_TOO_SMALL] = "too small",
     [VLFF_REFUSED_NO_FEATURES] = "no features",
     [VLFF_REFUSED_FUTURE_POSE] = "future pose",
+    [VLFF_REFUSED_FEATURES_LATE] = "features late",
 };
 
 const char *vlff_refusal_name(int reason) {
@@ -360,6 +361,8 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
     c->deadline_s = now + cfg->vlm.feature_timeout_s;
     if (ig->npend == PENDING_CAP) {
       STAT_ADD(n, features_timeout, 1);
+      refuse(n, &ig->rl, VLFF_REFUSED_FEATURES_LATE, ig->pending[0]->id, "%d newer keyframes wait for their "
+             "features: the feature source is slower than the keyframes come", PENDING_CAP);
       candidate_free(ig->pending[0]);
       pending_remove(ig->pending, &ig->npend, 0);
     }

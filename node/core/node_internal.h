@@ -105,7 +105,7 @@ struct vlff_node {
   /* vlff_warn_limited's counters, one per line that can come with every frame,
    * keyframe, iteration or request (each used by one thread). */
   struct {
-    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder, features_late,
+    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder,
         kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback;
   } warned;
 

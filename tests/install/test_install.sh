@@ -4,7 +4,9 @@
 # in C and C++, run against a segment; the installed programs answer
 # --version; the installed vlff-view serves the installed page (index.html and
 # three.js over HTTP); the default config's vlm.bpe_vocab is installed; a
-# prefix moved after the install keeps its programs finding its files; a /usr install
+# prefix moved after the install keeps its programs finding its files; the
+# feature extractor (share/vlff/extractor) runs from the prefix, also moved,
+# and loads the library installed beside it; a /usr install
 # (DESTDIR) puts configs in /etc/vlff, the library in the multiarch directory
 # and the units' paths under /usr.
 # Usage: test_install.sh BUILD_DIR SOURCE_DIR LIBDIR
@@ -38,6 +40,16 @@ check "the C controller links the installed shared library" \
 cp -a "$tmp/p" "$tmp/moved"
 check "moved prefix: pkg-config follows" \
   '[[ "$(readlink -f "$(PKG_CONFIG_PATH="$tmp/moved/$libdir/pkgconfig" pkg-config --variable=libdir vlff-shm)")" == "$(readlink -f "$tmp/moved/$libdir")" ]]'
+# The extractor: its help, and the library it loads by default is the
+# prefix's (in place and in the moved copy).
+ext=share/vlff/extractor/vlff_extractor.py
+check "extractor installed, executable" '[[ -x "$tmp/p/$ext" ]]'
+check "installed extractor --help" '/usr/bin/python3 "$tmp/p/$ext" --help | grep -q -- "--frames"'
+for pre in p moved; do
+  check "$pre: the extractor loads the prefix's libvlff-shm" \
+    '[[ "$(cd / && PYTHONPATH="$tmp/$pre/share/vlff/extractor" /usr/bin/python3 -c \
+        "import vlff_extractor as e; print(e.load_library()._name)")" == "$(readlink -f "$tmp/$pre/$libdir")/libvlff-shm.so.1" ]]'
+done
 for prog in "$tmp"/p/bin/vlff-*; do
   check "$(basename "$prog") --version" '"$prog" --version | grep -qE "^$(basename "$prog") [0-9]+\.[0-9]+\.[0-9]+$"'
 done
@@ -113,6 +125,7 @@ check "/usr: library in /usr/$libdir" '[[ -f "$tmp/stage/usr/$libdir/libvlff-shm
 check "/usr: unit runs /usr/bin/vlff-node with /etc/vlff/vlff.yaml" \
   'grep -qx "ExecStart=/usr/bin/vlff-node --config /etc/vlff/vlff.yaml" "$tmp/stage/usr/lib/systemd/system/vlff-node.service"'
 check "/usr: sysusers file" '[[ -f "$tmp/stage/usr/lib/sysusers.d/vlff.conf" ]]'
+check "/usr: the extractor in /usr/share/vlff/extractor" '[[ -x "$tmp/stage/usr/$ext" ]]'
 echo "$passes passed, $fails failed"
 rm -f /dev/shm/vlff-install-*-$$
 (( fails == 0 ))
