@@ -94,6 +94,7 @@ check "/usr: library in /usr/$libdir" '[[ -f "$tmp/stage/usr/$libdir/libvlff-shm
 check "/usr: unit runs /usr/bin/vlff-node with /etc/vlff/vlff.yaml" \
   'grep -qx "ExecStart=/usr/bin/vlff-node --config /etc/vlff/vlff.yaml" "$tmp/stage/usr/lib/systemd/system/vlff-node.service"'
 check "/usr: sysusers file" '[[ -f "$tmp/stage/usr/lib/sysusers.d/vlff.conf" ]]'
+check "/usr: udev rules in /usr/lib/udev/rules.d" '[[ -f "$tmp/stage/usr/lib/udev/rules.d/60-vlff.rules" ]]'
 check "/usr: vlff-shm.pc gives no run path (the linker's own directory)" \
   '[[ -f "$tmp/stage/usr/$libdir/pkgconfig/vlff-shm.pc" ]] && ! grep -q rpath "$tmp/stage/usr/$libdir/pkgconfig/vlff-shm.pc"'
 check "/usr: CMake package in /usr/$libdir/cmake/vlff-shm" \

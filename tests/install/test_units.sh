@@ -113,6 +113,20 @@ fi
 # A mistyped directive must fail verify, or the checks above prove nothing.
 sed 's/^Type=notify/Tpye=notify/' "$units/vlff-node.service" >"$tmp/bad.service"
 check "a misspelt directive fails the check" '! quiet_verify "$tmp/bad.service" >/dev/null'
+# The udev rules that give camd (as vlff) the GPIO chips and USB3 Vision
+# cameras: installed where udev reads them, naming the sysusers group. No
+# udevd runs here; systemd 253's udevadm verify checks their syntax.
+rules="$tmp/p/lib/udev/rules.d/60-vlff.rules"
+check "udev rules in <prefix>/lib/udev/rules.d" '[[ -f "$rules" ]]'
+check "udev rules: GPIO chips to group vlff" \
+  'grep -qx "SUBSYSTEM==\"gpio\", KERNEL==\"gpiochip\[0-9\]\*\", GROUP=\"vlff\", MODE=\"0660\"" "$rules"'
+check "udev rules: USB3 Vision devices (interface class ef/05/00) to group vlff" \
+  'grep -q "^SUBSYSTEM==\"usb\", ENV{DEVTYPE}==\"usb_device\", ENV{ID_USB_INTERFACES}==\"\*:ef0500:\*\", GROUP=\"vlff\", MODE=\"0660\"$" "$rules"'
+check "udev rules' group is the sysusers file's" \
+  'grep -q "^u vlff " "$tmp/p/lib/sysusers.d/vlff.conf" && ! grep -v "^#" "$rules" | grep -o "GROUP=\"[^\"]*\"" | grep -vqx "GROUP=\"vlff\""'
+if udevadm verify --help >/dev/null 2>&1; then
+  check "udev rules verify" 'udevadm verify "$rules" >"$tmp/udev.log" 2>&1 || { cat "$tmp/udev.log"; false; }'
+fi
 if command -v systemd-sysusers >/dev/null; then
   check "sysusers file parses" \
     'systemd-sysusers --dry-run "$tmp/p/lib/sysusers.d/vlff.conf" >"$tmp/su.log" 2>&1 || { cat "$tmp/su.log"; false; }'
