@@ -96,10 +96,12 @@ check "node: system calls and socket families within vlff-node.service" 'rules v
 cp "$units/vlff-node.service" "$tmp/narrow.service"
 echo "SystemCallFilter=~@resources" >>"$tmp/narrow.service"
 check "sandbox_check refuses a call outside the filter" \
-  '"$py" "$src/tests/install/sandbox_check.py" "$tmp/narrow.service" "$tmp/vlff-node.st" | grep -q "system call sched_setscheduler is outside"'
+  '"$py" "$src/tests/install/sandbox_check.py" "$tmp/narrow.service" "$tmp/vlff-node.st" >"$tmp/narrow.out";
+   grep -q "system call sched_setscheduler is outside" "$tmp/narrow.out"'
 sed 's/^RestrictAddressFamilies=.*/RestrictAddressFamilies=AF_UNIX/' "$units/vlff-node.service" >"$tmp/narrow.service"
 check "sandbox_check refuses a family outside the list" \
-  '"$py" "$src/tests/install/sandbox_check.py" "$tmp/narrow.service" "$tmp/vlff-node.st" | grep -q "family AF_CAN is outside"'
+  '"$py" "$src/tests/install/sandbox_check.py" "$tmp/narrow.service" "$tmp/vlff-node.st" >"$tmp/narrow.out";
+   grep -q "family AF_CAN is outside" "$tmp/narrow.out"'
 
 # camd: Aravis' fake GigE camera on loopback (one at a time on the machine:
 # test_camd's lock) into the frame ring.
