@@ -2,7 +2,7 @@
 # The installed programs under their units' sandbox, as far as it can be had
 # without a running systemd: each does a short real job (the node trains on
 # the simulator with its CAN thread on, camd streams Aravis' fake GigE camera
-# into its ring, vlff-pose takes a pose over UDP, vlff-view serves its page)
+# into its ring, vlff-pose takes a pose over UDP, vlff-view serves its page on lo)
 # under strace and with the kernel's memory-deny-write-execute set
 # (PR_SET_MDWE, what MemoryDenyWriteExecute= asks of the kernel since systemd
 # 253; 252 refuses the same mappings with seccomp). Every system call each
@@ -51,7 +51,8 @@ else
     '"$py" -c "$wx" && ! "${mdwe[@]}" strace -f -qq -o /dev/null "$py" -c "$wx" 2>/dev/null'
 fi
 # sandboxed NAME CMD...: runs CMD (the program) in the background under MDWE
-# and strace (log $tmp/NAME.st); $traced is the program's pid, $tracer strace's.
+# and strace (log $tmp/NAME.st); $traced is the program's pid (the first
+# line of strace's log: its execve), $tracer strace's.
 sandboxed() {
   local name=$1
   shift
@@ -59,11 +60,15 @@ sandboxed() {
   tracer=$!
   pids+=("$tracer")
   traced=""
-  wait_until 100 'traced=$(pgrep -P "$tracer"); [[ -n "$traced" ]]'
+  wait_until 100 'traced=$(sed -n "1s/^\([0-9][0-9]*\) .*/\1/p" "$tmp/$name.st" 2>/dev/null); [[ -n "$traced" ]]'
+  [[ -n "$traced" ]] && pids+=("$traced")
 }
 # stopped SIGNAL: signals the program, waits for strace, which exits with the
 # program's status.
-stopped() { kill "-$1" "$traced" && wait "$tracer"; }
+stopped() {
+  [[ -n "$traced" ]] || { echo "no traced program to stop"; return 1; }
+  kill "-$1" "$traced" && wait "$tracer"
+}
 # rules NAME [FAMILY...]: NAME's calls and families within its unit; the
 # families named are the program's own tries that the unit refuses on purpose.
 rules() {
@@ -85,7 +90,7 @@ sandboxed vlff-node "$bin/vlff-node" --config "$tmp/n.yaml"
 wait_until 300 'it=$(stat_of $p-m iterations); [[ -n "$it" ]] && (( it > 0 )) && grep -q "vlffsbx0: cannot open" "$tmp/vlff-node.log"'
 stopped TERM
 node_rc=$?
-check "node exits 0 on SIGTERM (rc=$node_rc)" '(( node_rc == 0 )) || tail -5 "$tmp/vlff-node.log"'
+check "node exits 0 on SIGTERM (rc=$node_rc)" '(( node_rc == 0 )) || { tail -5 "$tmp/vlff-node.log"; false; }'
 kill "$sim" 2>/dev/null
 wait "$sim" 2>/dev/null
 check "node trained (iterations in its last line)" 'grep -qE "I node: stopped: [1-9][0-9]* iterations" "$tmp/vlff-node.log"'
@@ -122,8 +127,8 @@ if [[ -x "$bin/vlff-camd" ]] && command -v arv-fake-gv-camera-0.8 >/dev/null; th
   kill -9 "$cam" 2>/dev/null
   wait "$cam" 2>/dev/null
   flock -u 9
-  check "camd streamed the fake camera into its ring (head ${h:-none})" '[[ -n "$h" ]] && (( h >= 5 )) || tail -5 "$tmp/vlff-camd.log"'
-  check "camd exits 0 on SIGTERM (rc=$camd_rc)" '(( camd_rc == 0 ))'
+  check "camd streamed the fake camera into its ring (head ${h:-none})" '[[ -n "$h" ]] && (( h >= 5 )) || { tail -5 "$tmp/vlff-camd.log"; false; }'
+  check "camd exits 0 on SIGTERM (rc=$camd_rc)" '(( camd_rc == 0 )) || { tail -5 "$tmp/vlff-camd.log"; false; }'
   # Aravis first tries a packet socket for the stream (it needs CAP_NET_RAW,
   # which the unit does not give) and streams over UDP when refused.
   check "camd: system calls and socket families within vlff-camd.service" 'rules vlff-camd AF_PACKET'
@@ -147,11 +152,12 @@ if [[ -x "$bin/vlff-pose" ]]; then
   check "vlff-pose: system calls and socket families within vlff-pose.service" 'rules vlff-pose'
 fi
 
-# vlff-view: serves its page on loopback.
+# vlff-view: serves its page, listening on an interface by name (lo: the
+# interface list comes over netlink).
 if [[ -x "$bin/vlff-view" ]]; then
-  sandboxed vlff-view "$bin/vlff-view" --port 0 --map $p-m --frames ""
+  sandboxed vlff-view "$bin/vlff-view" --port 0 --listen lo --map $p-m --frames ""
   port=""
-  wait_until 100 'port=$(sed -n "s|^vlff-view: serving http://127\.0\.0\.1:\([0-9]*\)/.*|\1|p" "$tmp/vlff-view.log"); [[ -n "$port" ]]'
+  wait_until 100 'port=$(sed -n "s|^vlff-view: serving http://lo:\([0-9]*\)/.*|\1|p" "$tmp/vlff-view.log"); [[ -n "$port" ]]'
   got=""
   if [[ -n "$port" ]] && exec 3<>"/dev/tcp/127.0.0.1/$port"; then
     printf 'GET /index.html HTTP/1.1\r\nHost: 127.0.0.1:%s\r\n\r\n' "$port" >&3
