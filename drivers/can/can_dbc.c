@@ -13,9 +13,9 @@
 #include "can_proto.h"
 #include "config.h"
 
-/* {NAME} marks a value taken from the config. Lines naming {S4} (the CAN FD
- * status frame) or {S5} (the classic INGEST frame) are left out with their
- * message when that id is taken by another frame the node uses. */
+/* {NAME} marks a value taken from the config. A line naming a message the
+ * configured node does not send (write_dbc decides which) is left out, and
+ * with a BO_ line its whole message, up to the blank line that ends it. */
 static const char dbc_template[] =
     "VERSION \"vlff 1\"\n"
     "\n"
@@ -177,10 +177,11 @@ static const char dbc_template[] =
     "BA_ \"GenMsgCycleTime\" BO_ {S1} {STMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S2} {STMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S3} {STMS};\n"
-    "BA_ \"GenMsgCycleTime\" BO_ {S4} {STMS};\n"
+    "BA_ \"GenMsgCycleTime\" BO_ {S4} {FDMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S5} {STMS};\n"
     "VAL_ {HB} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
     "VAL_ {S0} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
+    "VAL_ {S4} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
     "VAL_ {S5} LastRefusal 0 \"none\" 1 \"malformed\" 2 \"oversize\" 3 \"pixel format\" 4 \"no intrinsics\" 5 \"bad intrinsics\" 6 \"no pose\" 7 \"bad pose\" 8 \"pose out of range\" 9 \"no depth\" 10 \"empty depth\" 11 \"too small\" 12 \"no features\" 13 \"future pose\" 14 \"features late\" ;\n"
     "VAL_ {S4} LastRefusal 0 \"none\" 1 \"malformed\" 2 \"oversize\" 3 \"pixel format\" 4 \"no intrinsics\" 5 \"bad intrinsics\" 6 \"no pose\" 7 \"bad pose\" 8 \"pose out of range\" 9 \"no depth\" 10 \"empty depth\" 11 \"too small\" 12 \"no features\" 13 \"future pose\" 14 \"features late\" ;\n"
     "VAL_ {CMD} Command 1 \"Start\" 2 \"Stop\" 3 \"Reset\" 4 \"Save\" 5 \"PromptSet\" 6 \"Publish\" ;\n"
@@ -216,14 +217,15 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
   if (vlff_can_check_config(cfg, err, errlen)) return -1;
   const int base = cfg->status_base_id, hb = VLFF_CANP_HEARTBEAT_BASE + cfg->node_id;
   const int fd_id = base + VLFF_CANP_STATUS_FD_OFFSET;
-  /* Without can.fd the node never sends the FD frame; its message stays in
-   * the file (a controller may switch) unless its id belongs to another. */
+  const int ingest_id = base + vlff_canp_status_offset(VLFF_CANP_INGEST);
+  /* With can.fd the node sends its status only as the FD frame: the five
+   * classic status messages are left out, lest a controller's DBC-driven
+   * timeout monitor wait for frames that never come. Without it the FD
+   * message stays for reference (a controller may switch) while its id is
+   * free, but with no cycle time, since the node never sends it. */
   const bool with_fd = cfg->fd || (fd_id <= 0x7ff && fd_id != hb && fd_id != cfg->command_id &&
                                        fd_id != cfg->ack_id);
-  /* Likewise INGEST's classic id, free in classic mode, with can.fd not sent. */
-  const int ingest_id = base + vlff_canp_status_offset(VLFF_CANP_INGEST);
-  const bool with_ingest = !cfg->fd || (ingest_id <= 0x7ff && ingest_id != hb &&
-                                            ingest_id != cfg->command_id && ingest_id != cfg->ack_id);
+  const bool with_classic = !cfg->fd;
   const struct subst s[] = {
       {"HB", hb},
       {"S0", base + VLFF_CANP_TRAIN},
@@ -237,12 +239,16 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
       {"NODE", cfg->node_id},
       {"HBMS", cfg->heartbeat_ms},
       {"STMS", cfg->status_ms},
+      {"FDMS", cfg->status_ms},
   };
+  static const char classic[][5] = {"{S0}", "{S1}", "{S2}", "{S3}", "{S5}"};
   bool skipping = false;
   for (const char *p = dbc_template; *p;) {
     const char *nl = strchr(p, '\n');
     size_t len = (size_t)(nl - p) + 1;
-    bool gone = (!with_fd && memmem(p, len, "{S4}", 4)) || (!with_ingest && memmem(p, len, "{S5}", 4));
+    bool gone = (!with_fd && memmem(p, len, "{S4}", 4)) || (!cfg->fd && memmem(p, len, "{FDMS}", 6));
+    for (int k = 0; !with_classic && !gone && k < (int)(sizeof classic / sizeof classic[0]); k++)
+      gone = memmem(p, len, classic[k], 4) != NULL;
     if (gone && !strncmp(p, "BO_ ", 4)) skipping = true;
     bool drop = skipping || gone;
     if (skipping && len == 1) skipping = false; /* the blank line ends the message */

@@ -6,9 +6,11 @@
 # three.js over HTTP); the default config's vlm.bpe_vocab is installed; a
 # prefix moved after the install keeps its programs finding its files; the
 # feature extractor (share/vlff/extractor) runs from the prefix, also moved,
-# and loads the library installed beside it; a /usr install
-# (DESTDIR) puts configs in /etc/vlff, the library in the multiarch directory
-# and the units' paths under /usr.
+# and loads the library installed beside it; a /usr install (DESTDIR) puts
+# configs in /etc/vlff, the library in the multiarch directory, the units'
+# paths under /usr and no run path in the .pc file; a prefix moved after the
+# install still serves controllers built with pkg-config and with
+# find_package(vlff-shm), which then start with no LD_LIBRARY_PATH.
 # Usage: test_install.sh BUILD_DIR SOURCE_DIR LIBDIR
 set -u
 build=$1 src=$2 libdir=$3
@@ -126,6 +128,38 @@ check "/usr: unit runs /usr/bin/vlff-node with /etc/vlff/vlff.yaml" \
   'grep -qx "ExecStart=/usr/bin/vlff-node --config /etc/vlff/vlff.yaml" "$tmp/stage/usr/lib/systemd/system/vlff-node.service"'
 check "/usr: sysusers file" '[[ -f "$tmp/stage/usr/lib/sysusers.d/vlff.conf" ]]'
 check "/usr: the extractor in /usr/share/vlff/extractor" '[[ -x "$tmp/stage/usr/$ext" ]]'
+check "/usr: udev rules in /usr/lib/udev/rules.d" '[[ -f "$tmp/stage/usr/lib/udev/rules.d/60-vlff.rules" ]]'
+check "/usr: vlff-shm.pc gives no run path (the linker's own directory)" \
+  '[[ -f "$tmp/stage/usr/$libdir/pkgconfig/vlff-shm.pc" ]] && ! grep -q rpath "$tmp/stage/usr/$libdir/pkgconfig/vlff-shm.pc"'
+check "/usr: CMake package in /usr/$libdir/cmake/vlff-shm" \
+  '[[ -f "$tmp/stage/usr/$libdir/cmake/vlff-shm/vlff-shmConfig.cmake" && -f "$tmp/stage/usr/$libdir/cmake/vlff-shm/vlff-shmConfigVersion.cmake" ]]'
+
+# The prefix moved after the install (P to Q, P gone): a controller built
+# against Q with pkg-config alone, and one built by its own CMake project with
+# find_package(vlff-shm), start without LD_LIBRARY_PATH and load Q's library.
+mv "$tmp/p" "$tmp/q"
+unset LD_LIBRARY_PATH
+q_so=$(readlink -f "$tmp/q/$libdir/libvlff-shm.so.1")
+# loads_q EXE: the libvlff-shm.so.1 EXE loads is Q's
+loads_q() {
+  local got
+  got=$(ldd "$1" | sed -n 's/^[[:space:]]*libvlff-shm\.so\.1 => \(.*\) (0x[0-9a-f]*)$/\1/p')
+  [[ -n "$got" && "$(readlink -f "$got")" == "$q_so" ]] || { echo "ldd $1:"; ldd "$1"; false; }
+}
+export PKG_CONFIG_PATH="$tmp/q/$libdir/pkgconfig"
+cflags=$(pkg-config --cflags vlff-shm) libs=$(pkg-config --libs vlff-shm)
+# shellcheck disable=SC2086
+check "moved prefix: C controller builds with pkg-config" \
+  '$cc -std=c17 -Wall -Wextra -Werror -D_GNU_SOURCE $cflags "$src/tests/install/controller.c" -o "$tmp/ctl_q" $libs 2>"$tmp/cc.log" || { cat "$tmp/cc.log"; false; }'
+check "moved prefix: the pkg-config controller starts by itself" \
+  '"$tmp/ctl_q" /vlff-install-q-$$ 2>&1 | grep -q "^ok /vlff-install-q-$$ seq 0$"'
+check "moved prefix: the pkg-config controller loads the moved library" 'loads_q "$tmp/ctl_q"'
+check "moved prefix: find_package(vlff-shm) configures and builds the controller" \
+  'cmake -S "$src/tests/install/cmake-consumer" -B "$tmp/cmake-ctl" -DCMAKE_PREFIX_PATH="$tmp/q" -DCMAKE_C_COMPILER="$cc" \
+     >"$tmp/cmake-ctl.log" 2>&1 && cmake --build "$tmp/cmake-ctl" >>"$tmp/cmake-ctl.log" 2>&1 || { cat "$tmp/cmake-ctl.log"; false; }'
+check "moved prefix: the CMake controller starts by itself" \
+  '"$tmp/cmake-ctl/controller" /vlff-install-cm-$$ 2>&1 | grep -q "^ok /vlff-install-cm-$$ seq 0$"'
+check "moved prefix: the CMake controller loads the moved library" 'loads_q "$tmp/cmake-ctl/controller"'
 echo "$passes passed, $fails failed"
 rm -f /dev/shm/vlff-install-*-$$
 (( fails == 0 ))

@@ -78,9 +78,55 @@ check "CAN drop-in's LimitRTPRIO allows can.rt_priority's default ($rtprio)" \
   '[[ -n "$rtprio" ]] && (( $(sed -n "s/^LimitRTPRIO=//p" "$canconf") >= rtprio ))'
 sed -i 's/^LimitRTPRIO=/LimitRTPIRO=/' "$tmp/can/vlff-node.service.d/can.conf"
 check "verify reads the drop-in (a misspelt directive there fails)" '! quiet_verify "$tmp/can/vlff-node.service" >/dev/null'
+# The sandbox: systemd-analyze security, offline from the unit files, rates
+# every unit (the node's also with the CAN drop-in) at 4.0 ("OK") or below;
+# the same units without their sandbox lines must rate above it, or the bound
+# proves nothing. What each program really does under these options is
+# test_unit_sandbox's.
+if systemd-analyze security --help 2>/dev/null | grep -q -- '--offline'; then
+  # exposure UNIT: systemd-analyze's overall rating of UNIT (e.g. 2.1)
+  exposure() { systemd-analyze security --offline=true "$1" 2>&1 | sed -n 's/^→ Overall exposure level for .*: \([0-9.]*\) .*/\1/p'; }
+  security_ok() {
+    systemd-analyze security --offline=true --threshold=40 "$1" >"$tmp/security.log" 2>&1 ||
+      { grep -E '^✗|Overall' "$tmp/security.log"; false; }
+  }
+  for u in vlff-node vlff-camd vlff-pose vlff-view; do
+    f="$units/$u.service"
+    [[ -f "$tmp/$u.service" ]] && f="$tmp/$u.service"   # the unit with its command replaced, above
+    check "$u.service: systemd-analyze security at most 4.0 (rated $(exposure "$f"))" 'security_ok "$f"'
+    sed '/^CapabilityBoundingSet=/,/^RestrictRealtime=/d' "$f" >"$tmp/open-$u.service"
+    check "$u.service without its sandbox rates above 4.0 ($(exposure "$tmp/open-$u.service"))" \
+      '! security_ok "$tmp/open-$u.service" >/dev/null'
+    check "$u.service: native system calls of @system-service only" \
+      'grep -qx "SystemCallArchitectures=native" "$f" && grep -qx "SystemCallFilter=@system-service" "$f" &&
+       grep -qx "SystemCallErrorNumber=EPERM" "$f" && grep -qx "MemoryDenyWriteExecute=yes" "$f" && grep -qx "CapabilityBoundingSet=" "$f"'
+  done
+  mkdir -p "$tmp/can2/vlff-node.service.d"
+  cp "$units/vlff-node.service" "$tmp/can2/"
+  cp "$canconf" "$tmp/can2/vlff-node.service.d/can.conf"
+  check "vlff-node.service with the CAN drop-in: security at most 4.0" 'security_ok "$tmp/can2/vlff-node.service"'
+  check "CAN drop-in lets the CAN thread take SCHED_FIFO (RestrictRealtime=no)" \
+    'grep -qx "RestrictRealtime=yes" "$units/vlff-node.service" && grep -qx "RestrictRealtime=no" "$canconf"'
+else
+  echo "note: systemd-analyze security has no --offline here (systemd < 250): exposure not rated"
+fi
 # A mistyped directive must fail verify, or the checks above prove nothing.
 sed 's/^Type=notify/Tpye=notify/' "$units/vlff-node.service" >"$tmp/bad.service"
 check "a misspelt directive fails the check" '! quiet_verify "$tmp/bad.service" >/dev/null'
+# The udev rules that give camd (as vlff) the GPIO chips and USB3 Vision
+# cameras: installed where udev reads them, naming the sysusers group. No
+# udevd runs here; systemd 253's udevadm verify checks their syntax.
+rules="$tmp/p/lib/udev/rules.d/60-vlff.rules"
+check "udev rules in <prefix>/lib/udev/rules.d" '[[ -f "$rules" ]]'
+check "udev rules: GPIO chips to group vlff" \
+  'grep -qx "SUBSYSTEM==\"gpio\", KERNEL==\"gpiochip\[0-9\]\*\", GROUP=\"vlff\", MODE=\"0660\"" "$rules"'
+check "udev rules: USB3 Vision devices (interface class ef/05/00) to group vlff" \
+  'grep -q "^SUBSYSTEM==\"usb\", ENV{DEVTYPE}==\"usb_device\", ENV{ID_USB_INTERFACES}==\"\*:ef0500:\*\", GROUP=\"vlff\", MODE=\"0660\"$" "$rules"'
+check "udev rules' group is the sysusers file's" \
+  'grep -q "^u vlff " "$tmp/p/lib/sysusers.d/vlff.conf" && ! grep -v "^#" "$rules" | grep -o "GROUP=\"[^\"]*\"" | grep -vqx "GROUP=\"vlff\""'
+if udevadm verify --help >/dev/null 2>&1; then
+  check "udev rules verify" 'udevadm verify "$rules" >"$tmp/udev.log" 2>&1 || { cat "$tmp/udev.log"; false; }'
+fi
 if command -v systemd-sysusers >/dev/null; then
   check "sysusers file parses" \
     'systemd-sysusers --dry-run "$tmp/p/lib/sysusers.d/vlff.conf" >"$tmp/su.log" 2>&1 || { cat "$tmp/su.log"; false; }'

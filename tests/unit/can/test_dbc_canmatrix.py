@@ -195,5 +195,56 @@ cycle = {f.name: f.cycle_time for f in db.frames}
 if cycle.get("VLFF_HEARTBEAT") != 50 or cycle.get("VLFF_TRAIN") != 100:
     print(f"FAIL: cycle times {cycle}")
     fails += 1
+if cycle.get("VLFF_STATUS_FD"):
+    print(f"FAIL: classic DBC gives VLFF_STATUS_FD, never sent, a cycle time: {cycle}")
+    fails += 1
+
+# With can.fd the node sends the heartbeat, STATUS_FD and acks, nothing else:
+# the DBC lists those (and the command), STATUS_FD cyclic with NmtState's
+# value table, and none of the classic status frames.
+nmt = {0: "BootUp", 4: "Stopped", 5: "Operational", 127: "PreOperational", 143: "Error"}
+cfg_fd = f"{tmp}/node17fd.yaml"
+with open(cfg_fd, "w") as f:
+    f.write(open(cfg).read() + "  fd: true\n")
+dbc_fd = f"{tmp}/node17fd.dbc"
+with open(dbc_fd, "w") as f:
+    subprocess.run([vlff_can, "dbc", "--config", cfg_fd], stdout=f, check=True)
+dbfd = canmatrix.formats.loadp_flat(dbc_fd)
+fd_names = {fr.name for fr in dbfd.frames}
+if fd_names != {"VLFF_HEARTBEAT", "VLFF_STATUS_FD", "VLFF_COMMAND", "VLFF_ACK"}:
+    print(f"FAIL: can.fd DBC lists {sorted(fd_names)}")
+    fails += 1
+fdcycle = {fr.name: fr.cycle_time for fr in dbfd.frames}
+if fdcycle.get("VLFF_STATUS_FD") != 100 or fdcycle.get("VLFF_HEARTBEAT") != 50:
+    print(f"FAIL: can.fd DBC cycle times {fdcycle}")
+    fails += 1
+for d, what in ((dbfd, "can.fd"), (db, "classic")):
+    fr = d.frame_by_name("VLFF_STATUS_FD")
+    vals = {int(k): v for k, v in fr.signal_by_name("NmtState").values.items()} if fr else {}
+    if vals != nmt:
+        print(f"FAIL: {what} DBC: VLFF_STATUS_FD.NmtState value table {vals}")
+        fails += 1
+out_fd = subprocess.run([frames_prog, cfg_fd], capture_output=True, text=True, check=True).stdout
+for line in out_fd.splitlines():
+    name, fid, hexdata = line.split()
+    frame = dbfd.frame_by_id(canmatrix.ArbitrationId(int(fid)))
+    if name in ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST"):
+        if frame is not None:
+            print(f"FAIL: can.fd DBC has {frame.name} at {int(fid):#x}, a classic status id")
+            fails += 1
+        continue
+    if frame is None or frame.name != name:
+        print(f"FAIL: can.fd DBC: id {int(fid):#x} is {frame.name if frame else 'nothing'}, expected {name}")
+        fails += 1
+        continue
+    decoded = frame.decode(bytes.fromhex(hexdata))
+    for sig, want in expect[name].items():
+        got = float(decoded[sig].phys_value)
+        if abs(got - want) > 1e-9 + 1e-6 * abs(want):
+            print(f"FAIL: can.fd DBC {name}.{sig}: decoded {got}, encoded {want}")
+            fails += 1
+    if "NmtState" in decoded and decoded["NmtState"].named_value != "Operational":
+        print(f"FAIL: can.fd DBC {name}.NmtState names {decoded['NmtState'].named_value}")
+        fails += 1
 print(f"{len(seen)} messages decoded, {fails} failures")
 sys.exit(1 if fails else 0)
