@@ -67,7 +67,7 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
       .loss_feature = (float)st->loss_feat,
       .keyframes = (uint32_t)st->keyframes,
       .map_version = (uint32_t)st->map_version,
-      .map_published_ns = st->map_age_s < 0 ? 0 : (int64_t)vlff_shm_now_ns() - (int64_t)(st->map_age_s * 1e9),
+      .map_published_ns = st->map_age_s < 0 ? 0 : (int64_t)vlff_now_ns() - (int64_t)(st->map_age_s * 1e9),
       .fps_in = (float)st->fps_in,
       .fps_dropped = (float)dropped_per_s,
       .prompt_set = st->prompt_set < 0 ? 0xff : (uint32_t)st->prompt_set,
@@ -198,7 +198,7 @@ static int start(struct run *r) {
 /* One pass of main's loop: the watchdog, CAN status, the --status line. */
 static void tick(struct run *r, double now) {
   struct vlff_node_status st;
-  uint64_t t = vlff_shm_now_ns();
+  uint64_t t = vlff_now_ns();
   if (vlff_service_watchdog_due(&r->svc, t)) {
     vlff_node_status(r->node, &st);
     uint64_t stale = r->svc.watchdog_ns / 2;

@@ -8,6 +8,7 @@
 #include <string.h>
 #include <vlff/shm.h>
 
+#include "clock.h"
 #include "log.h"
 #include "vlff/escape.h"
 
@@ -87,13 +88,11 @@ static void abort_frame(struct vlff_sink *s, struct vlff_sink_frame *f) {
   ((struct vlff_ringsink *)s->ctx)->hdr = NULL;
 }
 
-static uint64_t now_ns(void) { return vlff_shm_now_ns(); }
-
 static int pose_lookup(void *ctx, uint64_t t_ns, double tol_s, double pose[16], uint64_t *pose_ns, bool *untrusted) {
   struct vlff_ringsink *r = ctx;
   if (!r->pose_ring) {
-    if (now_ns() < r->pose_retry_ns) return -1;
-    r->pose_retry_ns = now_ns() + 1000000000u;
+    if (vlff_now_ns() < r->pose_retry_ns) return -1;
+    r->pose_retry_ns = vlff_now_ns() + 1000000000u;
     r->pose_ring = vlff_ring_attach(r->pose_name, VLFF_RECORD_POSE);
     if (!r->pose_ring) {
       if (errno != ENOENT) vlff_warn_limited(&r->pose_warned, TAG, "pose ring: %s", vlff_shm_last_message());

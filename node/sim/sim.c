@@ -24,9 +24,11 @@
 #include <strings.h>
 
 #include "field.h" /* float16 conversions */
+#include "hash.h"
 #include "hot.h"
 #include "log.h"
 #include "mem.h"
+#include "rng.h"
 
 static const char *const class_names[VLFF_SIM_CLASSES] = {
     "wall",    "floor",       "cabinet", "bed",          "chair",          "sofa",   "table",
@@ -103,15 +105,8 @@ struct vlff_sim {
 
 /* ---- deterministic randomness ------------------------------------------ */
 
-static uint64_t mix64(uint64_t x) {
-  x += 0x9e3779b97f4a7c15ull;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
-  return x ^ (x >> 31);
-}
-
 static uint64_t hash3(uint64_t a, uint64_t b, uint64_t c) {
-  return mix64(a ^ mix64(b ^ mix64(c)));
+  return vlff_mix64(a ^ vlff_mix64(b ^ vlff_mix64(c)));
 }
 
 struct rng {
@@ -123,15 +118,9 @@ static struct rng rng_make(uint64_t a, uint64_t b, uint64_t c) {
   return r;
 }
 
-static uint64_t rng_u64(struct rng *r) {
-  r->s += 0x9e3779b97f4a7c15ull;
-  uint64_t z = r->s;
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-  return z ^ (z >> 31);
-}
+static uint64_t rng_u64(struct rng *r) { return vlff_rng_next(&r->s); }
 
-static double rng_uniform(struct rng *r) { return (double)(rng_u64(r) >> 11) * 0x1.0p-53; }
+static double rng_uniform(struct rng *r) { return vlff_rng_double(&r->s); }
 
 static double rng_range(struct rng *r, double lo, double hi) { return lo + (hi - lo) * rng_uniform(r); }
 
@@ -1130,8 +1119,11 @@ void vlff_sim_text_embedding(const struct vlff_sim *s, const char *text, float *
     memcpy(out, s->text + (size_t)c * D, (size_t)D * sizeof(float));
     return;
   }
-  uint64_t h = 1469598103934665603ull;
-  for (const char *p = text ? text : ""; *p; p++) h = (h ^ (uint8_t)*p) * 1099511628211ull;
+  if (!text) text = "";
+  /* Keyed from 1469598103934665603, not FNV's offset basis: the start the
+   * generated vectors of unknown prompts have always had, so a scene and
+   * what was measured on it stay bit-identical. */
+  uint64_t h = vlff_fnv1a64(1469598103934665603ull, text, strlen(text));
   struct rng r = rng_make(FEATURE_SPACE_SEED, h, 1);
   for (int i = 0; i < D; i++) out[i] = (float)(0.45 * s->generic[i] + 0.9 * rng_normal(&r) / sqrt(D));
   normalize_f(out, D);
@@ -1152,10 +1144,7 @@ struct patch {
 VLFF_HOT
 static void feature_noise(uint64_t s0, float scale, const float *off, float sigma, float *v, int D) {
   for (int d = 0; d < D; d++) {
-    uint64_t z = s0 + (uint64_t)(d + 1) * 0x9e3779b97f4a7c15ull;
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
+    uint64_t z = vlff_mix64(s0 + (uint64_t)d * VLFF_RNG_GAMMA);
     uint32_t sum = (uint32_t)(z & 0xffff) + (uint32_t)((z >> 16) & 0xffff) + (uint32_t)((z >> 32) & 0xffff) +
                    (uint32_t)(z >> 48);
     float n = (float)(((double)sum / 65536.0 - 2.0) * 1.7320508075688772);
@@ -1525,7 +1514,7 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
                 iz = (int64_t)floor(x[2] / voxel);
         uint64_t key = ((uint64_t)(ix & 0x1fffff) << 42) | ((uint64_t)(iy & 0x1fffff) << 21) |
                        (uint64_t)(iz & 0x1fffff);
-        uint64_t h = mix64(key) & (hcap - 1);
+        uint64_t h = vlff_mix64(key) & (hcap - 1);
         int found = 0;
         while (tab[h].key) {
           if (tab[h].key == key + 1) {
@@ -1550,13 +1539,13 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
           if (!nt) goto oom;
           for (size_t i = 0; i < hcap; i++)
             if (tab[i].key) {
-              uint64_t hh = mix64(tab[i].key - 1) & (ncap - 1);
+              uint64_t hh = vlff_mix64(tab[i].key - 1) & (ncap - 1);
               while (nt[hh].key) hh = (hh + 1) & (ncap - 1);
               nt[hh] = tab[i];
             }
           free(tab);
           tab = nt, hcap = ncap;
-          h = mix64(key) & (hcap - 1);
+          h = vlff_mix64(key) & (hcap - 1);
           while (tab[h].key) h = (h + 1) & (hcap - 1);
         }
         tab[h].key = key + 1;

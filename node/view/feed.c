@@ -10,6 +10,7 @@
  * recolours or moves everything, so it is sent whole. A new subscriber gets the whole
  * copy, built once per version and shared.
  */
+#include "clock.h"
 #include "json.h"
 
 #include <errno.h>
@@ -64,12 +65,6 @@ struct vlff_feed {
   uint64_t encoded[VLFF_VIEW_CH_COUNT + 1]; /* messages built, per channel */
 };
 
-static uint64_t real_now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return (uint64_t)ts.tv_sec * NS + (uint64_t)ts.tv_nsec;
-}
-
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
 static uint64_t to_real(const struct vlff_feed *f, uint64_t mono_ns) { return mono_ns + f->mono_to_real; }
 
@@ -114,7 +109,7 @@ struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   }
   f->p = *p;
   if (f->p.brick < 1) f->p.brick = 8;
-  f->mono_to_real = real_now_ns() - vlff_shm_now_ns();
+  f->mono_to_real = vlff_wall_ns() - vlff_now_ns();
   return f;
 }
 
@@ -373,7 +368,7 @@ static void map_attach(struct vlff_feed *f, uint64_t now) {
 /* Reads a new map version, if any, and appends its delta messages. */
 static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   struct feed_map *m = &f->m;
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   map_attach(f, now);
   if (!m->map) return 0;
   uint64_t v = vlff_map_version(m->map);
@@ -550,7 +545,7 @@ static const char *image_encoding(uint32_t fmt) {
 
 static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   if (!f->p.frames_name || !*f->p.frames_name || cap < 1) return 0;
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   if (!f->ring) {
     if (now < f->ring_next_attach_ns) return 0;
     f->ring_next_attach_ns = now + NS;
@@ -648,7 +643,7 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
     jw_s(w, "null");
     return;
   }
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   jw_s(w, "{\"state\":");
   jw_str(w, st.state_name);
   jw_f(w, ",\"state_code\":%d,\"error_flags\":%u,\"age_s\":%.3f,\"updates\":%llu,\"frames_in\":%llu,"
@@ -679,7 +674,7 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
 
 static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_view_counters *c) {
   struct feed_map *m = &f->m;
-  uint64_t t = real_now_ns();
+  uint64_t t = vlff_wall_ns();
   struct jw w = {feed_msg(f, VLFF_VIEW_CH_STATUS, 2048), 0};
   if (!w.m) return NULL;
   w.m->t_ns = t;
@@ -725,7 +720,7 @@ int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsi
   uint64_t before = f->m.version;
   int n = map_poll(f, wanted, out, out_cap);
   n += frames_poll(f, wanted, out + n, out_cap - n);
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   if (n < out_cap && wants(wanted, VLFF_VIEW_CH_STATUS) && (f->m.version != before || now - f->last_status_ns >= NS)) {
     struct vlff_view_msg *s = status_msg(f, c);
     if (s) {
