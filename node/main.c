@@ -17,12 +17,14 @@
 #include "cli.h"
 #include "clock.h"
 #include "config.h"
-#include "dataset.h"
+#include "dataset.h" /* the PNG and PLY writers of --snapshot */
 #include "embeddings.h"
 #include "log.h"
 #include "node.h"
 #include "service.h"
+#ifdef VLFF_HAVE_SIM
 #include "sim_source.h"
+#endif
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_CAN
 #include "vlff_can.h"
@@ -148,7 +150,9 @@ static int check_config(const char *path) {
 /* The running node and what main's loop feeds from it. */
 struct run {
   struct vlff_config cfg;
+#ifdef VLFF_HAVE_SIM
   struct vlff_sim_source *sim;
+#endif
   struct vlff_node *node;
 #ifdef VLFF_HAVE_CAN
   struct vlff_can *can;
@@ -160,16 +164,40 @@ struct run {
   double t0, last_line;
 };
 
+/* The simulator's hooks when the config uses the simulator (source.kind:
+ * sim or source.features: sim), else none: the one place that knows every
+ * source kind. 0, or -1 with the reason in err. */
+static int source_hooks(struct run *r, struct vlff_source_hooks *hooks, char *err, size_t errlen) {
+  memset(hooks, 0, sizeof *hooks);
+  if (r->cfg.source.kind != VLFF_SOURCE_SIM && r->cfg.source.features != VLFF_FEAT_SIM) return 0;
+#ifdef VLFF_HAVE_SIM
+  r->sim = vlff_sim_source_create(&r->cfg, hooks, err, errlen);
+  return r->sim ? 0 : -1;
+#else
+  snprintf(err, errlen, "%s: this vlff-node was built without the simulator",
+           r->cfg.source.kind == VLFF_SOURCE_SIM ? "source.kind: sim" : "source.features: sim");
+  return -1;
+#endif
+}
+
+static void source_close(struct run *r) {
+#ifdef VLFF_HAVE_SIM
+  vlff_sim_source_destroy(r->sim);
+  r->sim = NULL;
+#else
+  (void)r;
+#endif
+}
+
 /* The node (with the simulator's hooks when the config uses them) and its
  * CAN side. 0, or 1 with the reason logged. */
 static int start(struct run *r) {
   char err[512];
   struct vlff_source_hooks hooks;
-  r->sim = vlff_sim_source_create(&r->cfg, &hooks, err, sizeof err);
-  r->node = r->sim ? vlff_node_create(&r->cfg, &hooks, err, sizeof err) : NULL;
+  r->node = source_hooks(r, &hooks, err, sizeof err) ? NULL : vlff_node_create(&r->cfg, &hooks, err, sizeof err);
   if (!r->node) {
     VLFF_ERROR("node", "%s", err);
-    vlff_sim_source_destroy(r->sim);
+    source_close(r);
     return 1;
   }
 #ifdef VLFF_HAVE_CAN
@@ -177,7 +205,7 @@ static int start(struct run *r) {
     if (vlff_can_check_config(&r->cfg.can, err, sizeof err)) {
       VLFF_ERROR("node", "%s", err);
       vlff_node_destroy(r->node, false);
-      vlff_sim_source_destroy(r->sim);
+      source_close(r);
       return 1;
     }
     r->can = vlff_can_open(&r->cfg.can, r->cfg.prompts.set_count, on_can_command, r->node);
@@ -253,7 +281,7 @@ static int finish(struct run *r, const char *snapshot_dir) {
     }
   }
   vlff_node_destroy(r->node, true);
-  vlff_sim_source_destroy(r->sim);
+  source_close(r);
   char why[256];
   refusals_text(&st, why, sizeof why);
   VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "

@@ -104,8 +104,6 @@ static int check_depth_camera(const struct vlff_config *cfg, const char *file, c
 
 int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err, size_t errlen) {
   const struct vlff_cfg_camera *c = &cfg->camera;
-  if (c->kind != VLFF_CAM_ARAVIS && c->kind != VLFF_CAM_LIBCAMERA)
-    BAD("camera.kind", "expected aravis or libcamera (vlff-camd drives real cameras), got sim");
   vlff_pix_t pix = vlff_pix_from_name(c->pixel_format);
   if (pix == VLFF_PIX_INVALID)
     BAD("camera.pixel_format", "expected one of %s, got '%s'", vlff_pix_names(), c->pixel_format);
