@@ -35,7 +35,6 @@ struct vlff_publisher {
   const struct vlff_source_hooks *hooks; /* NULL: none */
   double origin[3], voxel;
   double scene_lo[3], scene_hi[3]; /* field.scene_min / max: bounds for poses */
-  long long refused;               /* views refused as physically implausible */
   uint64_t heartbeat_warned;       /* vlff_warn_limited's */
   uint32_t dims[3];
   size_t nvox;
@@ -385,14 +384,11 @@ int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *
   char why[200];
   if (vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, why, sizeof why) ||
       vlff_pose_plausible(v->c2w, p->scene_lo, p->scene_hi, why, sizeof why)) {
-    p->refused++;
     snprintf(err, errlen, "view refused: %s", why);
     return -1;
   }
   return 0;
 }
-
-long long vlff_publisher_refused(const struct vlff_publisher *p) { return p->refused; }
 
 /* The part of the segment o + t w, t in [t0, t1], inside the map's box
  * (slab clipping). False when the segment misses the box. */
