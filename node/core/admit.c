@@ -348,7 +348,7 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
       pending_remove(ig->pending, &ig->npend, 0);
     }
     char jerr[256];
-    if (ig->join) vlff_feature_join_add_frame(ig->join, (uint64_t)id, vlff_shm_now_ns(), jerr, sizeof jerr);
+    if (ig->join) vlff_feature_join_add_frame(ig->join, (uint64_t)id, vlff_now_ns(), jerr, sizeof jerr);
 #ifdef VLFF_HAVE_VLM
     if (n->image_worker)
       vlff_image_worker_submit(n->image_worker, (uint64_t)id, vlff_frame_plane(buf, VLFF_PLANE_COLOR),
