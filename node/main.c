@@ -18,7 +18,6 @@
 #include "clock.h"
 #include "config.h"
 #include "dataset.h" /* the PNG and PLY writers of --snapshot */
-#include "embeddings.h"
 #include "log.h"
 #include "node.h"
 #include "service.h"
@@ -41,6 +40,7 @@ static const struct vlff_cli cli = {
     "\n"
     "  -c, --config FILE        run with this YAML config; without it $VLFF_CONFIG,\n"
     "                           then " VLFF_SYSCONFDIR "/vlff/vlff.yaml; none found is an error\n"
+    "                           (installed elsewhere: vlff/vlff.yaml in that install's sysconfdir)\n"
     "      --check-config FILE  validate FILE, print the effective config, exit 0/1\n"
     "      --status             print a live progress line on the terminal\n"
     "      --snapshot DIR       on exit, write DIR/strip.png (image | segmentation | truth)\n"
@@ -114,11 +114,40 @@ static int write_snapshot(struct vlff_node *node, const char *dir, char *err, si
   return rc < 0 ? -1 : 0;
 }
 
-/* --check-config: what start-up would refuse is refused here too (the CAN
- * keys together, the prompt embeddings file, the segments' group). */
+/* The simulator's source and hooks when the config uses the simulator
+ * (source.kind: sim or source.features: sim), else none: the one place
+ * that knows every source kind. 0, or -1 with the reason in err. */
+static int source_open(const struct vlff_config *cfg, void **src, struct vlff_source_hooks *hooks, char *err,
+                       size_t errlen) {
+  memset(hooks, 0, sizeof *hooks);
+  *src = NULL;
+  if (cfg->source.kind != VLFF_SOURCE_SIM && cfg->source.features != VLFF_FEAT_SIM) return 0;
+#ifdef VLFF_HAVE_SIM
+  *src = vlff_sim_source_create(cfg, hooks, err, errlen);
+  return *src ? 0 : -1;
+#else
+  snprintf(err, errlen, "%s: this vlff-node was built without the simulator",
+           cfg->source.kind == VLFF_SOURCE_SIM ? "source.kind: sim" : "source.features: sim");
+  return -1;
+#endif
+}
+
+static void source_close(void *src) {
+#ifdef VLFF_HAVE_SIM
+  vlff_sim_source_destroy(src);
+#else
+  (void)src;
+#endif
+}
+
+/* --check-config: what start-up would refuse is refused here too, short of
+ * making segments or opening the CAN bus: the CAN keys together, the
+ * segments' group, the simulator the config asks for, and the node's own
+ * checks with the files it loads (a text encoder for the prompts, the
+ * embeddings file, the models and vocabulary; vlff_node_check). */
 static int check_config(const char *path) {
-  struct vlff_config cfg;
-  char err[512];
+  static struct vlff_config cfg;
+  char err[1024];
   if (vlff_config_load(path, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
 #ifdef VLFF_HAVE_CAN
   if (vlff_can_check_config(&cfg.can, err, sizeof err)) {
@@ -126,14 +155,6 @@ static int check_config(const char *path) {
     return 1;
   }
 #endif
-  if (cfg.prompts.embeddings[0]) {
-    struct vlff_embeddings *e = vlff_embeddings_load(cfg.prompts.embeddings, cfg.field.feature_dim, err, sizeof err);
-    if (!e) {
-      fprintf(stderr, "%s: key 'prompts.embeddings': %s\n", path, err);
-      return 1;
-    }
-    vlff_embeddings_free(e);
-  }
   if (cfg.shm.group[0]) {
     char *end;
     long gid = strtol(cfg.shm.group, &end, 10);
@@ -141,6 +162,14 @@ static int check_config(const char *path) {
       fprintf(stderr, "%s: key 'shm.group': no group '%s' on this machine\n", path, cfg.shm.group);
       return 1;
     }
+  }
+  struct vlff_source_hooks hooks;
+  void *src;
+  int bad = source_open(&cfg, &src, &hooks, err, sizeof err) || vlff_node_check(&cfg, &hooks, true, err, sizeof err);
+  source_close(src);
+  if (bad) {
+    fprintf(stderr, "%s: %s\n", path, err);
+    return 1;
   }
   vlff_config_dump(&cfg, stdout);
   fprintf(stderr, "%s: OK\n", path);
@@ -150,9 +179,7 @@ static int check_config(const char *path) {
 /* The running node and what main's loop feeds from it. */
 struct run {
   struct vlff_config cfg;
-#ifdef VLFF_HAVE_SIM
-  struct vlff_sim_source *sim;
-#endif
+  void *source; /* the simulator's, when the config uses it (source_open) */
   struct vlff_node *node;
 #ifdef VLFF_HAVE_CAN
   struct vlff_can *can;
@@ -164,40 +191,17 @@ struct run {
   double t0, last_line;
 };
 
-/* The simulator's hooks when the config uses the simulator (source.kind:
- * sim or source.features: sim), else none: the one place that knows every
- * source kind. 0, or -1 with the reason in err. */
-static int source_hooks(struct run *r, struct vlff_source_hooks *hooks, char *err, size_t errlen) {
-  memset(hooks, 0, sizeof *hooks);
-  if (r->cfg.source.kind != VLFF_SOURCE_SIM && r->cfg.source.features != VLFF_FEAT_SIM) return 0;
-#ifdef VLFF_HAVE_SIM
-  r->sim = vlff_sim_source_create(&r->cfg, hooks, err, errlen);
-  return r->sim ? 0 : -1;
-#else
-  snprintf(err, errlen, "%s: this vlff-node was built without the simulator",
-           r->cfg.source.kind == VLFF_SOURCE_SIM ? "source.kind: sim" : "source.features: sim");
-  return -1;
-#endif
-}
-
-static void source_close(struct run *r) {
-#ifdef VLFF_HAVE_SIM
-  vlff_sim_source_destroy(r->sim);
-  r->sim = NULL;
-#else
-  (void)r;
-#endif
-}
-
 /* The node (with the simulator's hooks when the config uses them) and its
  * CAN side. 0, or 1 with the reason logged. */
 static int start(struct run *r) {
   char err[512];
   struct vlff_source_hooks hooks;
-  r->node = source_hooks(r, &hooks, err, sizeof err) ? NULL : vlff_node_create(&r->cfg, &hooks, err, sizeof err);
+  r->node = source_open(&r->cfg, &r->source, &hooks, err, sizeof err)
+                ? NULL
+                : vlff_node_create(&r->cfg, &hooks, err, sizeof err);
   if (!r->node) {
     VLFF_ERROR("node", "%s", err);
-    source_close(r);
+    source_close(r->source);
     return 1;
   }
 #ifdef VLFF_HAVE_CAN
@@ -205,7 +209,7 @@ static int start(struct run *r) {
     if (vlff_can_check_config(&r->cfg.can, err, sizeof err)) {
       VLFF_ERROR("node", "%s", err);
       vlff_node_destroy(r->node, false);
-      source_close(r);
+      source_close(r->source);
       return 1;
     }
     r->can = vlff_can_open(&r->cfg.can, r->cfg.prompts.set_count, on_can_command, r->node);
@@ -281,7 +285,7 @@ static int finish(struct run *r, const char *snapshot_dir) {
     }
   }
   vlff_node_destroy(r->node, true);
-  source_close(r);
+  source_close(r->source);
   char why[256];
   refusals_text(&st, why, sizeof why);
   VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "

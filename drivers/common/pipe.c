@@ -16,6 +16,7 @@
 #include "depthreg.h"
 #include "stamps.h"
 #include "log.h"
+#include "vlff/escape.h"
 
 #define TAG "pipe"
 
@@ -174,10 +175,9 @@ void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_cfg_cam
   c->depth = VLFF_DEPTH_STREAM, c->depth_unit = VLFF_DEPTH_UNIT_MM, c->depth_scale_m = d->scale_m;
 }
 
-/* A pipeline for the camera section cam; pair_calibration: the
- * depth-to-colour calibration of a colour camera paired with a range
- * camera, else NULL. */
-static struct vlff_pipe *pipe_create(const struct vlff_cfg_camera *cam, const char *pair_calibration,
+/* A pipeline for the camera section cam; pair: the range camera a colour
+ * camera is paired with (its depth-to-colour calibration), else NULL. */
+static struct vlff_pipe *pipe_create(const struct vlff_cfg_camera *cam, const struct vlff_cfg_depth_camera *pair,
                                      double pose_tolerance_s, bool range, char *err, size_t errlen) {
   struct vlff_pipe *p = calloc(1, sizeof *p);
   if (!p) {
@@ -190,20 +190,33 @@ static struct vlff_pipe *pipe_create(const struct vlff_cfg_camera *cam, const ch
   p->pix = vlff_pix_from_name(cam->pixel_format);
   memcpy(p->k, cam->intrinsics, sizeof p->k);
   memcpy(p->dist, cam->distortion, sizeof p->dist);
-  if (!range && pair_calibration) {
+  if (!range && pair) {
     /* The registration projects into the colour camera of the calibration:
      * the colour image must be undistorted with that camera's own model. */
     struct vlff_rgbd_calib rc;
     char e[512];
-    if (vlff_rgbd_calib_load(pair_calibration, &rc, e, sizeof e)) {
+    if (vlff_rgbd_calib_load(pair->calibration, &rc, e, sizeof e)) {
       snprintf(err, errlen, "key 'depth_camera.calibration': %s", e);
+      free(p);
+      return NULL;
+    }
+    /* Both sizes in the config and in the file: they must agree, or the
+     * first pair would find out and every pair be dropped. */
+    const struct vlff_cfg_depth_camera *dc = pair;
+    bool color_off = rc.color_w && cam->width && cam->height && (rc.color_w != cam->width || rc.color_h != cam->height);
+    if (color_off || (rc.depth_w && dc->width && dc->height && (rc.depth_w != dc->width || rc.depth_h != dc->height))) {
+      snprintf(err, errlen, "key 'depth_camera.calibration': %s is calibrated for %s %dx%d, but %s say %dx%d",
+               VLFF_Q(pair->calibration), color_off ? "colour" : "depth",
+               color_off ? rc.color_w : rc.depth_w, color_off ? rc.color_h : rc.depth_h,
+               color_off ? "camera.width/height" : "depth_camera.width/height",
+               color_off ? cam->width : dc->width, color_off ? cam->height : dc->height);
       free(p);
       return NULL;
     }
     if (rc.nc > 5 && any_nonzero(rc.dc + 5, rc.nc - 5)) {
       snprintf(err, errlen, "key 'depth_camera.calibration': %s: the colour camera's rational distortion (D2 "
                "k4..k6) is not supported by the colour pipeline; calibrate it with 5 coefficients",
-               pair_calibration);
+               pair->calibration);
       free(p);
       return NULL;
     }
@@ -219,6 +232,14 @@ static struct vlff_pipe *pipe_create(const struct vlff_cfg_camera *cam, const ch
       return NULL;
     }
     p->have_calib = true;
+    if (cam->depth != VLFF_DEPTH_STEREO && p->calib.width && cam->width && cam->height &&
+        (p->calib.width != cam->width || p->calib.height != cam->height)) {
+      snprintf(err, errlen, "key 'camera.calibration': %s is calibrated for %dx%d images (image_width/height), but "
+               "camera.width/height say %dx%d", VLFF_Q(cam->calibration), p->calib.width, p->calib.height,
+               cam->width, cam->height);
+      free(p);
+      return NULL;
+    }
     if (cam->depth == VLFF_DEPTH_STEREO && !p->calib.has_stereo) {
       snprintf(err, errlen,
                "key 'camera.calibration': depth: stereo needs stereo keys M1 D1 M2 D2 R T in %s",
@@ -238,7 +259,7 @@ static struct vlff_pipe *pipe_create(const struct vlff_cfg_camera *cam, const ch
 
 struct vlff_pipe *vlff_pipe_new(const struct vlff_config *cfg, char *err, size_t errlen) {
   if (vlff_camcfg_check(cfg, "config", err, errlen)) return NULL;
-  const char *pair = cfg->camera.depth == VLFF_DEPTH_STREAM ? cfg->depth_camera.calibration : NULL;
+  const struct vlff_cfg_depth_camera *pair = cfg->camera.depth == VLFF_DEPTH_STREAM ? &cfg->depth_camera : NULL;
   return pipe_create(&cfg->camera, pair, cfg->source.pose_tolerance_s, false, err, errlen);
 }
 

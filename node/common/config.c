@@ -12,7 +12,9 @@
 #include "hash.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
@@ -49,9 +51,10 @@ struct key {
 #define MODE(p, f, lo, hi, d) {p, T_MODE, F(f), 0, lo, hi, d, NULL, NULL, NULL}
 #define BOOL(p, f, d) {p, T_BOOL, F(f), 0, 0, 1, d, NULL, NULL, NULL}
 #define STR(p, f, d) {p, T_STRING, F(f), SZ(f), 0, 0, 0, d, NULL, NULL}
-/* A file the install puts under its datadir: the default follows the build's
- * install prefix, and "" in a config file means that default, so a config
- * copied from default.yaml names no prefix (lo = 1 marks it). */
+/* A file the install puts under its datadir: the default follows the
+ * install the program runs from (installed_vocab), and "" in a config file
+ * means that default, so a config copied from default.yaml names no prefix
+ * (lo = 1 marks it; vlm.bpe_vocab is the only one). */
 #define STR_INSTALLED(p, f, d) {p, T_STRING, F(f), SZ(f), 1, 0, 0, d, NULL, NULL}
 #define ENUM(p, f, names, d) {p, T_ENUM, F(f), 0, 0, 0, 0, d, names, NULL}
 #define DVEC(p, f, lo, hi, d) \
@@ -83,11 +86,78 @@ static const char *const pose_stamps[] = {"source", "host", NULL};
 static const double clip_mean[3] = {0.48145466, 0.4578275, 0.40821073};
 static const double clip_std[3] = {0.26862954, 0.26130258, 0.27577711};
 
-#ifndef VLFF_DATADIR
-#error "VLFF_DATADIR must come from the install's datadir (CMake)"
+#if !defined VLFF_DATADIR || !defined VLFF_SYSCONFDIR || !defined VLFF_BINDIR_REL || !defined VLFF_DATADIR_REL || \
+    !defined VLFF_SYSCONFDIR_REL
+#error "VLFF_{DATA,SYSCONF}DIR and the install's relative dirs must come from the install's layout (CMake)"
 #endif
-#define BPE_VOCAB_DEFAULT VLFF_DATADIR "/vlff/bpe_simple_vocab_16e6.txt.gz"
+#define BPE_VOCAB_FILE "/vlff/bpe_simple_vocab_16e6.txt.gz"
+#define BPE_VOCAB_DEFAULT VLFF_DATADIR BPE_VOCAB_FILE
 _Static_assert(sizeof BPE_VOCAB_DEFAULT <= VLFF_CFG_PATH, "the install's datadir is too long for vlm.bpe_vocab");
+
+/* ---- the install's files, where the running program's install put them --
+ *
+ * The paths configured at build time hold for an install to that prefix; an
+ * install with `cmake --install --prefix P`, or a prefix moved afterwards,
+ * puts them under P. A program in an install's bindir finds them from its own
+ * location (as vlff-shm.pc does from its own), with the install's rules for
+ * the sysconfdir (cmake/VlffInstallPaths.cmake.in: prefix /usr keeps its
+ * configs in /etc, /opt/X in /etc/opt/X). A file not found there (a program
+ * run from the build tree) is looked for where the build configured it. */
+_Static_assert(sizeof VLFF_SYSCONFDIR "/vlff/vlff.yaml" <= PATH_MAX, "the install's sysconfdir is too long");
+static struct {
+  pthread_once_t once;
+  char config[PATH_MAX], vocab[VLFF_CFG_PATH];
+} installed = {PTHREAD_ONCE_INIT, "", ""};
+
+/* The prefix of the install the running program lies in, or -1. */
+static int exe_prefix(char *out, size_t len) {
+  char exe[PATH_MAX];
+  ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+  if (n <= 0) return -1;
+  exe[n] = 0;
+  char *slash = strrchr(exe, '/');
+  size_t bl = strlen(VLFF_BINDIR_REL);
+  if (!slash || (size_t)(slash - exe) < bl + 1) return -1;
+  *slash = 0;
+  char *bin = slash - bl;
+  if (bin[-1] != '/' || strcmp(bin, VLFF_BINDIR_REL) != 0) return -1;
+  bin[-1] = 0;
+  return snprintf(out, len, "%s", exe[0] ? exe : "/") < (int)len ? 0 : -1;
+}
+
+/* The install's sysconfdir for prefix p (an absolute sysconfdir stays). */
+static int sysconfdir_of(const char *p, char *out, size_t len) {
+  int k;
+  if (VLFF_SYSCONFDIR_REL[0] == '/') k = snprintf(out, len, "%s", VLFF_SYSCONFDIR_REL);
+  else if (!strcmp(VLFF_SYSCONFDIR_REL, "etc") && !strcmp(p, "/usr")) k = snprintf(out, len, "/etc");
+  else if (!strcmp(VLFF_SYSCONFDIR_REL, "etc") && !strncmp(p, "/opt/", 5) && p[5]) k = snprintf(out, len, "/etc%s", p);
+  else k = snprintf(out, len, "%s/%s", strcmp(p, "/") ? p : "", VLFF_SYSCONFDIR_REL);
+  return k > 0 && k < (int)len ? 0 : -1;
+}
+
+/* path, when it exists and fits out. */
+static void take_if_present(const char *path, int n, char *out, size_t len) {
+  if (n > 0 && (size_t)n < len && access(path, F_OK) == 0) memcpy(out, path, (size_t)n + 1);
+}
+
+static void find_installed(void) {
+  memcpy(installed.config, VLFF_SYSCONFDIR "/vlff/vlff.yaml", sizeof VLFF_SYSCONFDIR "/vlff/vlff.yaml");
+  memcpy(installed.vocab, BPE_VOCAB_DEFAULT, sizeof BPE_VOCAB_DEFAULT);
+  char prefix[PATH_MAX], dir[PATH_MAX], path[PATH_MAX];
+  if (exe_prefix(prefix, sizeof prefix)) return;
+  const char *root = strcmp(prefix, "/") ? prefix : "";
+  int n = VLFF_DATADIR_REL[0] == '/' ? snprintf(path, sizeof path, "%s" BPE_VOCAB_FILE, VLFF_DATADIR_REL)
+                                     : snprintf(path, sizeof path, "%s/%s" BPE_VOCAB_FILE, root, VLFF_DATADIR_REL);
+  take_if_present(path, n, installed.vocab, sizeof installed.vocab);
+  if (sysconfdir_of(prefix, dir, sizeof dir)) return;
+  n = snprintf(path, sizeof path, "%s/vlff/vlff.yaml", dir);
+  take_if_present(path, n, installed.config, sizeof installed.config);
+}
+
+static const char *installed_vocab(void) {
+  pthread_once(&installed.once, find_installed);
+  return installed.vocab;
+}
 
 static const struct key schema[] = {
     ENUM("node.log_level", node.log_level, log_levels, "info"),
@@ -270,7 +340,11 @@ static const struct key schema[] = {
     BOOL("pose.extra_fields", pose.extra_fields, 0),
     INT("pose.source_id", pose.source_id, 0, 2147483647, 0),
     STR("pose.udp_peer", pose.udp_peer, ""),
-    DBL("pose.future_tolerance_s", pose.future_tolerance_s, 0, 1e10, 5),
+    /* A pose is computed after its image, so a stamp ahead of the clock is
+     * the hosts' clock disagreement: milliseconds under NTP on a LAN,
+     * microseconds under PTP. 50 ms passes that with margin and stays under
+     * two periods of a 30 Hz tracker; a wrong clock or offset is beyond it. */
+    DBL("pose.future_tolerance_s", pose.future_tolerance_s, 0, 1e10, 0.05),
     INT("pose.out_of_order_reset", pose.out_of_order_reset, 0, 1000000, 10),
 
     STR("vlm.image_model", vlm.image_model, ""),
@@ -314,7 +388,7 @@ void vlff_config_defaults(struct vlff_config *cfg) {
     case T_MODE: *(int *)at(cfg, k) = (int)k->def; break;
     case T_DOUBLE: *(double *)at(cfg, k) = k->def; break;
     case T_BOOL: *(bool *)at(cfg, k) = k->def != 0; break;
-    case T_STRING: snprintf(at(cfg, k), k->size, "%s", k->sdef); break;
+    case T_STRING: snprintf(at(cfg, k), k->size, "%s", k->lo ? installed_vocab() : k->sdef); break;
     case T_ENUM:
       for (int j = 0; k->names[j]; j++)
         if (!strcmp(k->names[j], k->sdef)) *(int *)at(cfg, k) = j;
@@ -492,7 +566,7 @@ static int set_key(struct parse *p, const struct key *k, yaml_node_t *n, struct 
     if (strlen(scalar(n)) >= k->size)
       return fail(p, n, k->path, "expected string of at most %zu bytes, got %zu bytes", k->size - 1,
                   strlen(scalar(n)));
-    snprintf(at(cfg, k), k->size, "%s", k->lo && !*scalar(n) ? k->sdef : scalar(n));
+    snprintf(at(cfg, k), k->size, "%s", k->lo && !*scalar(n) ? installed_vocab() : scalar(n));
     return 0;
   case T_ENUM: {
     char opts[160] = "";
@@ -931,11 +1005,10 @@ int vlff_config_load_mem(const char *buf, size_t len, const char *name, struct v
   return rc;
 }
 
-#ifndef VLFF_SYSCONFDIR
-#error "VLFF_SYSCONFDIR must come from the install's sysconfdir (CMake)"
-#endif
-
-const char *vlff_config_default_path(void) { return VLFF_SYSCONFDIR "/vlff/vlff.yaml"; }
+const char *vlff_config_default_path(void) {
+  pthread_once(&installed.once, find_installed);
+  return installed.config;
+}
 
 const char *vlff_config_find(const char *path, char *err, size_t errlen) {
   if (path) return path;

@@ -342,8 +342,10 @@ void vlff_config_defaults(struct vlff_config *cfg);
  * naming every place looked at. */
 const char *vlff_config_find(const char *path, char *err, size_t errlen);
 
-/* The installed config: <sysconfdir>/vlff/vlff.yaml of this build's install
- * prefix (/etc/vlff/vlff.yaml for prefix /usr). */
+/* The installed config: <sysconfdir>/vlff/vlff.yaml of the install the
+ * program runs from (its bindir's parent is the prefix; /etc/vlff/vlff.yaml
+ * for prefix /usr), when that file exists; else that of the prefix the build
+ * was configured for. vlm.bpe_vocab's default follows the same rule. */
 const char *vlff_config_default_path(void);
 
 /* Load a YAML file. Returns 0, or -1 with err filled ("file:line:col: ..."). */

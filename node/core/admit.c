@@ -90,6 +90,8 @@ static const char *const refusal_names[VLFF_REFUSED_COUNT] = {
     [VLFF_REFUSED_EMPTY_DEPTH] = "empty depth",
     [VLFF_REFUSED_TOO_SMALL] = "too small",
     [VLFF_REFUSED_NO_FEATURES] = "no features",
+    [VLFF_REFUSED_FUTURE_POSE] = "future pose",
+    [VLFF_REFUSED_FEATURES_LATE] = "features late",
 };
 
 const char *vlff_refusal_name(int reason) {
@@ -216,7 +218,8 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
   bool have_pose = false, untrusted = false;
   int lookup_errno = 0;
   char why[384];
-  if ((h->flags & VLFF_FRAME_POSE_VALID) && !(h->flags & VLFF_FRAME_POSE_UNTRUSTED)) {
+  const bool in_frame = (h->flags & VLFF_FRAME_POSE_VALID) && !(h->flags & VLFF_FRAME_POSE_UNTRUSTED);
+  if (in_frame) {
     memcpy(pose, h->pose, 16 * sizeof pose[0]);
     have_pose = true;
   } else {
@@ -253,6 +256,20 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
       refuse(n, &ig->rl, VLFF_REFUSED_NO_POSE, id, "after waiting %.3f s (source.pose_wait_s): %s", waited_s, why);
     else
       refuse(n, &ig->rl, VLFF_REFUSED_NO_POSE, id, "%s", why);
+    return POSE_REFUSED;
+  }
+  /* A pose is computed after its image: one stamped ahead of the clock
+   * (beyond pose.future_tolerance_s) says the pose source's clock or offset
+   * is wrong, and every frame would take a pose from that much earlier. */
+  struct vlff_pose_rec newest;
+  uint64_t pose_t = in_frame ? h->pose_t_ns
+                    : vlff_ring_read_latest(ig->poses, &newest, sizeof newest, NULL) == (ssize_t)sizeof newest
+                        ? newest.t_ns : 0;
+  double ahead_s = ((double)pose_t - (double)vlff_now_ns()) * 1e-9;
+  if (cfg->pose.future_tolerance_s > 0 && ahead_s > cfg->pose.future_tolerance_s) {
+    refuse(n, &ig->rl, VLFF_REFUSED_FUTURE_POSE, id, "%s stamped %.3f s ahead of the clock (pose.future_tolerance_s "
+           "%g s): the pose source's clock or clock offset is wrong",
+           in_frame ? "the frame's pose is" : "the newest pose in the pose ring is", ahead_s, cfg->pose.future_tolerance_s);
     return POSE_REFUSED;
   }
   if (!vlff_pose_valid(pose)) {
@@ -344,6 +361,8 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
     c->deadline_s = now + cfg->vlm.feature_timeout_s;
     if (ig->npend == PENDING_CAP) {
       STAT_ADD(n, features_timeout, 1);
+      refuse(n, &ig->rl, VLFF_REFUSED_FEATURES_LATE, ig->pending[0]->id, "%d newer keyframes wait for their "
+             "features: the feature source is slower than the keyframes come", PENDING_CAP);
       candidate_free(ig->pending[0]);
       pending_remove(ig->pending, &ig->npend, 0);
     }

@@ -8,7 +8,7 @@
  * candidate calls (the trainer after taking it, destroy for what is left).
  * State: everything in struct ingest, local to ingest_main; of the node,
  * the image worker (submit and poll) and its counters in warned
- * (feature_ring, encoder, features_late).
+ * (feature_ring, encoder); refusals through refuse() (admit.c).
  * Locks: qlock to push a candidate, slock for the status counts (short,
  * never across work, never two at once; node_internal.h).
  */
@@ -182,8 +182,8 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
   for (int i = 0; i < ig->npend; i++)
     if (vlff_seconds() > ig->pending[i]->deadline_s) {
       STAT_ADD(n, features_timeout, 1);
-      vlff_warn_limited(&n->warned.features_late, TAG, "frame %lld: features did not arrive within %.1f s",
-                        ig->pending[i]->id, cfg->vlm.feature_timeout_s);
+      refuse(n, &ig->rl, VLFF_REFUSED_FEATURES_LATE, ig->pending[i]->id, "its features did not arrive within "
+             "vlm.feature_timeout_s (%g s): the feature source lags or stopped", cfg->vlm.feature_timeout_s);
       candidate_free(ig->pending[i]);
       pending_remove(ig->pending, &ig->npend, i);
       i--;

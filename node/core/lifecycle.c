@@ -40,30 +40,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
                                    size_t errlen) {
   static const struct vlff_source_hooks none;
   if (!hooks) hooks = &none;
-#ifndef VLFF_HAVE_VLM
-  if (cfg->source.features == VLFF_FEAT_MODEL || cfg->vlm.text_model[0]) {
-    snprintf(err, errlen, "%s: this vlff-node was built without OpenCV (VLFF_WITH_OPENCV=OFF)",
-             cfg->source.features == VLFF_FEAT_MODEL ? "source.features: model" : "vlm.text_model");
-    return NULL;
-  }
-#endif
-  if (!cfg->prompts.embeddings[0] && !cfg->vlm.text_model[0] && !hooks->embed) {
-    /* Checked before any segment is made: without a text encoder no prompt
-     * can be embedded, and the node would stop at the first one. */
-    snprintf(err, errlen, "no text encoder for the prompts: set prompts.embeddings (a precomputed file) or "
-             "vlm.text_model (the CLIP text encoder, ONNX)");
-    return NULL;
-  }
-  if (vlff_config_sim_features_misused(cfg)) {
-    snprintf(err, errlen, "source.features: sim with source.kind: ring pairs the simulator's features with a "
-             "camera's images; use ring or model, or set source.allow_sim_features: true to force it");
-    return NULL;
-  }
-  if (cfg->source.features == VLFF_FEAT_SIM && !hooks->features) {
-    snprintf(err, errlen, "source.features: sim, but the source gives no features (vlff-node makes the simulator's "
-             "hooks; a program embedding the node passes them to vlff_node_create)");
-    return NULL;
-  }
+  if (vlff_node_check(cfg, hooks, false, err, errlen)) return NULL;
   struct vlff_node *n = calloc(1, sizeof *n);
   if (!n) return snprintf(err, errlen, "out of memory"), NULL;
   n->cfg = *cfg;

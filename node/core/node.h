@@ -64,6 +64,8 @@ enum vlff_refusal {
   VLFF_REFUSED_EMPTY_DEPTH = 10,   /* depth plane without one valid pixel */
   VLFF_REFUSED_TOO_SMALL = 11,     /* under 4x4 pixels at train.image_scale */
   VLFF_REFUSED_NO_FEATURES = 12,   /* simulated features could not be rendered */
+  VLFF_REFUSED_FUTURE_POSE = 13,   /* pose stamped ahead of the clock beyond pose.future_tolerance_s */
+  VLFF_REFUSED_FEATURES_LATE = 14, /* a keyframe's features (ring or model) did not come in time */
   VLFF_REFUSED_COUNT
 };
 
@@ -117,6 +119,17 @@ enum vlff_node_command {
   VLFF_CMD_PROMPT_SET = 5, /* arg = configured prompt set index */
   VLFF_CMD_PUBLISH = 6   /* publish the map now */
 };
+
+/* What vlff_node_create refuses before it makes anything (node/core/
+ * check.c): a source kind it does not read, features or a text encoder this
+ * build lacks, prompts without a text encoder, the simulator's features
+ * without the simulator. With load_files, also what it then reads: the
+ * embeddings file (with every prompt of every set in it), the text encoder
+ * (vlm.text_model and vlm.bpe_vocab) and the image encoder (source.features:
+ * model), loaded and released; vlff-node --check-config runs that. 0, or -1
+ * with err naming the key. hooks as for vlff_node_create. */
+int vlff_node_check(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, bool load_files, char *err,
+                    size_t errlen);
 
 /* hooks: what the source gives beyond the frame ring (source.h; the
  * simulator's from vlff_sim_source_create), NULL for none; copied, their ctx

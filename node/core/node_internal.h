@@ -23,6 +23,8 @@
  *  - commands.c:   prompts, queued commands and the prompt mailbox (trainer
  *                  thread), the status (any thread reads it).
  *  - lifecycle.c:  create, stop, destroy and snapshot (the caller's thread).
+ *  - check.c:      what create refuses before it makes anything, also run
+ *                  by --check-config (vlff_node_check, node.h).
  *
  * Contract of struct vlff_node
  *  - cfg, hooks, model_h/model_w and t_start are set by vlff_node_create
@@ -103,7 +105,7 @@ struct vlff_node {
   /* vlff_warn_limited's counters, one per line that can come with every frame,
    * keyframe, iteration or request (each used by one thread). */
   struct {
-    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder, features_late,
+    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder,
         kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback;
   } warned;
 

@@ -175,97 +175,251 @@ static herr_t h5_first_dataset(hid_t g, const char *name, const H5L_info_t *info
   return 1;
 }
 
-static int features_probe(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
+/* An open feature file's dataset features/<name> as [rows][h][w][c]. */
+struct h5feat {
+  hid_t f, d;
+  hsize_t dims[4];
+  char name[VLFF_DS_NAME];
+};
+
+static void h5feat_close(struct h5feat *h) {
+  if (h->d >= 0) H5Dclose(h->d);
+  if (h->f >= 0) H5Fclose(h->f);
+  h->d = h->f = -1;
+}
+
+/* Open path's first dataset in group "features": [N,H,W,C] floating point
+ * (or, for one frame's own file, [1,H,W,C] or [H,W,C]), with sane sizes, a
+ * frame no larger than VLFF_DS_MAX_FEATURE_FRAME_BYTES, and the data the
+ * file really stores accounting for the shape: a header may claim any
+ * shape, and the reader allocates a frame of it (deflate cannot shrink
+ * data below about 1/1032 of its size; unfiltered data is stored whole). */
+static int h5feat_open(struct h5feat *h, const char *path, int one_frame, char *err, size_t errlen) {
+  h->f = h->d = -1;
   struct stat fst;
+  if (vlff_check_regular(path, err, errlen) < 0) return -1;
   if (stat(path, &fst) < 0) {
     seterr(err, errlen, "%s: cannot stat: %s", VLFF_Q(path), strerror(errno));
     return -1;
   }
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
-  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (f < 0) {
+  h->f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (h->f < 0) {
     seterr(err, errlen, "%s: not a readable HDF5 file", VLFF_Q(path));
     return -1;
   }
-  int rc = -1;
-  hid_t g = -1, d = -1, sp = -1, ty = -1;
-  g = H5Gopen2(f, "features", H5P_DEFAULT);
+  hid_t g = -1, sp = -1, ty = -1;
+  g = H5Gopen2(h->f, "features", H5P_DEFAULT);
   if (g < 0) {
     seterr(err, errlen, "%s: no group 'features'", VLFF_Q(path));
-    goto out;
+    goto fail;
   }
   struct h5find fd = {.found = 0};
   H5Literate(g, H5_INDEX_NAME, H5_ITER_INC, NULL, h5_first_dataset, &fd);
   if (!fd.found) {
     seterr(err, errlen, "%s: group 'features' holds no dataset", VLFF_Q(path));
-    goto out;
+    goto fail;
   }
-  d = H5Dopen2(g, fd.name, H5P_DEFAULT);
-  sp = d >= 0 ? H5Dget_space(d) : -1;
-  ty = d >= 0 ? H5Dget_type(d) : -1;
-  if (d < 0 || sp < 0 || ty < 0) {
+  snprintf(h->name, sizeof h->name, "%s", fd.name);
+  h->d = H5Dopen2(g, fd.name, H5P_DEFAULT);
+  sp = h->d >= 0 ? H5Dget_space(h->d) : -1;
+  ty = h->d >= 0 ? H5Dget_type(h->d) : -1;
+  if (h->d < 0 || sp < 0 || ty < 0) {
     seterr(err, errlen, "%s: features/%s cannot be opened", VLFF_Q(path), VLFF_Q(fd.name));
-    goto out;
+    goto fail;
   }
-  hsize_t dims[4];
-  if (H5Sget_simple_extent_ndims(sp) != 4 || H5Sget_simple_extent_dims(sp, dims, NULL) != 4) {
-    seterr(err, errlen, "%s: features/%s must be 4-D [N,H,W,C]", VLFF_Q(path), VLFF_Q(fd.name));
-    goto out;
+  int rank = H5Sget_simple_extent_ndims(sp);
+  hsize_t dims[4] = {1, 0, 0, 0};
+  if (rank == 4 || (one_frame && rank == 3)) {
+    if (H5Sget_simple_extent_dims(sp, dims + 4 - rank, NULL) != rank) rank = -1;
+  }
+  if (rank != 4 && !(one_frame && rank == 3)) {
+    seterr(err, errlen, "%s: features/%s must be %s", VLFF_Q(path), VLFF_Q(fd.name),
+           one_frame ? "[1,H,W,C] or [H,W,C] (one frame)" : "4-D [N,H,W,C]");
+    goto fail;
   }
   if (H5Tget_class(ty) != H5T_FLOAT) {
     seterr(err, errlen, "%s: features/%s is not floating point", VLFF_Q(path), VLFF_Q(fd.name));
-    goto out;
+    goto fail;
   }
-  /* One map per usable frame, or one per frame the scene lists (a feature
-   * extractor run over every exported image includes ScanNet's lost-tracking
-   * frames, whose rows are then passed over). */
-  ds->feat_per_listed = ds->skipped > 0 && dims[0] == (hsize_t)ds->n_listed;
-  if ((dims[0] != (hsize_t)ds->n && !ds->feat_per_listed) || dims[1] < 1 || dims[2] < 1 || dims[3] < 1 ||
-      dims[1] > 8192 || dims[2] > 8192 || dims[3] > 8192) {
-    char also[96] = "";
-    if (ds->skipped > 0)
-      snprintf(also, sizeof also, " (or %d, every frame listed, %d of them skipped for lost tracking)",
-               ds->n_listed, ds->skipped);
-    seterr(err, errlen, "%s: features/%s has shape [%llu,%llu,%llu,%llu]; expected N=%d frames%s and sane sizes",
+  if ((one_frame && dims[0] != 1) || dims[1] < 1 || dims[2] < 1 || dims[3] < 1 || dims[1] > 8192 ||
+      dims[2] > 8192 || dims[3] > 8192) {
+    seterr(err, errlen, "%s: features/%s has shape [%llu,%llu,%llu,%llu]; expected %s and H, W, C in 1..8192",
            VLFF_Q(path), VLFF_Q(fd.name), (unsigned long long)dims[0], (unsigned long long)dims[1],
-           (unsigned long long)dims[2], (unsigned long long)dims[3], ds->n, also);
-    goto out;
+           (unsigned long long)dims[2], (unsigned long long)dims[3], one_frame ? "one frame" : "[N,H,W,C]");
+    goto fail;
   }
-  /* The reader allocates one frame's features: a header may claim any
-   * shape, so the frame is capped, and the data the file really stores must
-   * account for the shape (deflate cannot shrink data below about 1/1032
-   * of its size, and unfiltered data is stored whole). */
   unsigned long long frame_bytes = (unsigned long long)dims[1] * dims[2] * dims[3] * sizeof(uint16_t);
   if (frame_bytes > VLFF_DS_MAX_FEATURE_FRAME_BYTES) {
     seterr(err, errlen, "%s: features/%s claims %llu bytes per frame ([%llu,%llu,%llu] float16), more than the %llu allowed",
            VLFF_Q(path), VLFF_Q(fd.name), frame_bytes, (unsigned long long)dims[1], (unsigned long long)dims[2],
            (unsigned long long)dims[3], (unsigned long long)VLFF_DS_MAX_FEATURE_FRAME_BYTES);
-    goto out;
+    goto fail;
   }
   {
-    unsigned long long raw = frame_bytes * dims[0], stored = (unsigned long long)H5Dget_storage_size(d);
-    hid_t pl = H5Dget_create_plist(d);
+    unsigned long long raw = frame_bytes * dims[0], stored = (unsigned long long)H5Dget_storage_size(h->d);
+    hid_t pl = H5Dget_create_plist(h->d);
     int nfilters = pl >= 0 ? H5Pget_nfilters(pl) : -1;
     if (pl >= 0) H5Pclose(pl);
     unsigned long long need = nfilters == 0 ? raw : raw / 1032;
     if (nfilters < 0 || stored < need || (unsigned long long)fst.st_size < need) {
       seterr(err, errlen, "%s: features/%s claims shape [%llu,%llu,%llu,%llu] (%llu bytes) but the file stores %llu bytes of it",
              VLFF_Q(path), VLFF_Q(fd.name), (unsigned long long)dims[0], (unsigned long long)dims[1],
-               (unsigned long long)dims[2],
-             (unsigned long long)dims[3], raw, stored);
+             (unsigned long long)dims[2], (unsigned long long)dims[3], raw, stored);
+      goto fail;
+    }
+  }
+  memcpy(h->dims, dims, sizeof dims);
+  H5Tclose(ty), H5Sclose(sp), H5Gclose(g);
+  return 0;
+fail:
+  if (ty >= 0) H5Tclose(ty);
+  if (sp >= 0) H5Sclose(sp);
+  if (g >= 0) H5Gclose(g);
+  h5feat_close(h);
+  return -1;
+}
+
+/* features.hdf's "frames": the frame number of each of its rows, strictly
+ * increasing and within the scene's; each usable frame gets the row that
+ * names it (rows naming a lost frame, or one the scene does not list, are
+ * passed over). */
+static int features_frame_numbers(struct vlff_dataset *ds, const struct h5feat *h, const char *path, char *err,
+                                  size_t errlen) {
+  int rc = -1;
+  long long *num = NULL;
+  hid_t d = H5Dopen2(h->f, "frames", H5P_DEFAULT);
+  hid_t sp = d >= 0 ? H5Dget_space(d) : -1, ty = d >= 0 ? H5Dget_type(d) : -1;
+  hsize_t n = 0;
+  if (d < 0 || sp < 0 || ty < 0 || H5Tget_class(ty) != H5T_INTEGER || H5Sget_simple_extent_ndims(sp) != 1 ||
+      H5Sget_simple_extent_dims(sp, &n, NULL) != 1) {
+    seterr(err, errlen, "%s: 'frames' must be a 1-D integer dataset (row r's frame number)", VLFF_Q(path));
+    goto out;
+  }
+  if (n != h->dims[0]) {
+    seterr(err, errlen, "%s: 'frames' names %llu frames but features/%s holds %llu", VLFF_Q(path),
+           (unsigned long long)n, VLFF_Q(h->name), (unsigned long long)h->dims[0]);
+    goto out;
+  }
+  if (n > (hsize_t)ds->last_number + 1) { /* strictly increasing within 0..last cannot hold more */
+    seterr(err, errlen, "%s: 'frames' names %llu frames; the scene's run 0..%ld", VLFF_Q(path),
+           (unsigned long long)n, ds->last_number);
+    goto out;
+  }
+  num = malloc((size_t)n * sizeof *num + 1);
+  if (!num || H5Dread(d, H5T_NATIVE_LLONG, H5S_ALL, H5S_ALL, H5P_DEFAULT, num) < 0) {
+    seterr(err, errlen, "%s: 'frames' cannot be read", VLFF_Q(path));
+    goto out;
+  }
+  for (hsize_t r = 0; r < n; r++) {
+    if (num[r] < 0 || num[r] > ds->last_number) {
+      seterr(err, errlen, "%s: frames[%llu] = %lld: the scene's frames run 0..%ld", VLFF_Q(path),
+             (unsigned long long)r, num[r], ds->last_number);
+      goto out;
+    }
+    if (r > 0 && num[r] <= num[r - 1]) {
+      seterr(err, errlen, "%s: frames[%llu] = %lld after frame %lld: frame numbers must increase", VLFF_Q(path),
+             (unsigned long long)r, num[r], num[r - 1]);
       goto out;
     }
   }
-  snprintf(ds->feat_name, sizeof ds->feat_name, "%s", fd.name);
-  ds->feat_height = (int)dims[1], ds->feat_width = (int)dims[2], ds->feature_dim = (int)dims[3];
-  ds->has_features = 1;
+  hsize_t r = 0;
+  for (int i = 0; i < ds->n; i++) {
+    while (r < n && num[r] < ds->number[i]) r++;
+    ds->feat_row[i] = r < n && num[r] == ds->number[i] ? (int)r : -1;
+    ds->feat_frames += ds->feat_row[i] >= 0;
+  }
+  if (ds->feat_frames == 0) {
+    seterr(err, errlen, "%s: 'frames' names no usable frame of the scene", VLFF_Q(path));
+    goto out;
+  }
   rc = 0;
 out:
+  free(num);
   if (ty >= 0) H5Tclose(ty);
   if (sp >= 0) H5Sclose(sp);
   if (d >= 0) H5Dclose(d);
-  if (g >= 0) H5Gclose(g);
-  H5Fclose(f);
+  return rc;
+}
+
+/* features.hdf: a map per usable frame, one per frame the scene lists (a
+ * feature extractor run over every exported image includes ScanNet's
+ * lost-tracking frames, whose rows are then passed over), or the frames its
+ * "frames" dataset names. */
+static int features_probe(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
+  struct h5feat h;
+  if (h5feat_open(&h, path, 0, err, errlen) < 0) return -1;
+  int rc = -1;
+  if (H5Lexists(h.f, "frames", H5P_DEFAULT) > 0) {
+    if (features_frame_numbers(ds, &h, path, err, errlen) < 0) goto out;
+  } else {
+    int per_listed = ds->skipped > 0 && h.dims[0] == (hsize_t)ds->n_listed;
+    if (h.dims[0] != (hsize_t)ds->n && !per_listed) {
+      char also[96] = "";
+      if (ds->skipped > 0)
+        snprintf(also, sizeof also, " (or %d, every frame listed, %d of them skipped for lost tracking)",
+                 ds->n_listed, ds->skipped);
+      seterr(err, errlen, "%s: features/%s holds %llu frames; expected N=%d frames%s, or a 'frames' dataset "
+                          "naming the frames it holds",
+             VLFF_Q(path), VLFF_Q(h.name), (unsigned long long)h.dims[0], ds->n, also);
+      goto out;
+    }
+    for (int i = 0; i < ds->n; i++) ds->feat_row[i] = per_listed ? ds->listed[i] : i;
+    ds->feat_frames = ds->n;
+  }
+  snprintf(ds->feat_name, sizeof ds->feat_name, "%s", h.name);
+  ds->feat_height = (int)h.dims[1], ds->feat_width = (int)h.dims[2], ds->feature_dim = (int)h.dims[3];
+  ds->has_features = 1;
+  rc = 0;
+out:
+  h5feat_close(&h);
+  return rc;
+}
+
+/* features/<stem>.hdf, one file per frame: every file must name a frame of
+ * the scene (a lost one is passed over); the first sets the shape, which
+ * every other file must have when it is read. */
+static int features_dir_probe(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
+  struct stems st;
+  if (list_stems(dir, ".hdf", &st, err, errlen) < 0) return -1;
+  int rc = -1, first = -1, j = 0;
+  if (st.n == 0) {
+    seterr(err, errlen, "%s: no .hdf files (one per frame, named by its stem)", VLFF_Q(dir));
+    goto out;
+  }
+  for (int k = 0; k < st.n; k++) {
+    int hit = -1;
+    for (int m = 0; m < ds->n && hit < 0; m++, j = (j + 1) % ds->n) /* both in the scene's order: j follows */
+      if (!strcmp(ds->stem[j], st.s[k])) hit = j;
+    if (hit < 0) {
+      char *end;
+      errno = 0;
+      long v = strtol(st.s[k], &end, 10);
+      if (ds->skipped > 0 && all_digits(st.s[k]) && !errno && v <= ds->last_number) continue; /* a lost frame */
+      seterr(err, errlen, "%s/%s.hdf: the scene has no frame %s", VLFF_Q(dir), VLFF_Q(st.s[k]), VLFF_Q(st.s[k]));
+      goto out;
+    }
+    ds->feat_row[hit] = 0;
+    if (first < 0 || hit < first) first = hit;
+  }
+  if (first < 0) {
+    seterr(err, errlen, "%s: no file names a usable frame of the scene", VLFF_Q(dir));
+    goto out;
+  }
+  char p[PATHMAX], name[VLFF_DS_NAME + 8];
+  snprintf(name, sizeof name, "%s.hdf", ds->stem[first]);
+  join(p, dir, name);
+  struct h5feat h;
+  if (h5feat_open(&h, p, 1, err, errlen) < 0) goto out;
+  snprintf(ds->feat_name, sizeof ds->feat_name, "%s", h.name);
+  ds->feat_height = (int)h.dims[1], ds->feat_width = (int)h.dims[2], ds->feature_dim = (int)h.dims[3];
+  h5feat_close(&h);
+  for (int i = 0; i < ds->n; i++) ds->feat_frames += ds->feat_row[i] >= 0;
+  ds->feat_files = 1;
+  ds->has_features = 1;
+  rc = 0;
+out:
+  free(st.s);
   return rc;
 }
 #endif
@@ -274,7 +428,7 @@ out:
 
 void vlff_dataset_close(struct vlff_dataset *ds) {
   if (!ds) return;
-  VLFF_FREE_ALL(ds->c2w, ds->stem, ds->listed, ds->label_map);
+  VLFF_FREE_ALL(ds->c2w, ds->stem, ds->listed, ds->label_map, ds->number, ds->feat_row);
   vlff_sens_close(ds->sens);
   memset(ds, 0, sizeof *ds);
 }
@@ -365,31 +519,38 @@ static int scannet_export_cameras(struct vlff_dataset *ds, const char *dir, char
 }
 
 /* Ground-truth label images: gt_semantic/ (class ids), or ScanNet's
- * label-filt/ (label ids, mapped through the TSV). */
-static int open_labels(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *o, char *err,
+ * label-filt/ (label ids, mapped through the TSV, which is found and read
+ * here, before any frame is listed). */
+static int label_table(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *o, char *err,
                        size_t errlen) {
   char p[PATHMAX], q[PATHMAX];
   snprintf(ds->label_dir, sizeof ds->label_dir, "gt_semantic");
   join(p, dir, "gt_semantic");
-  if (!is_dir(p)) {
-    join(p, dir, "label-filt");
-    if (ds->layout == VLFF_DS_REFERENCE || !is_dir(p)) return 0;
-    snprintf(ds->label_dir, sizeof ds->label_dir, "label-filt");
-    char tsv[PATHMAX] = "";
-    if (o->label_tsv) snprintf(tsv, sizeof tsv, "%s", o->label_tsv);
-    const char *up[3] = {"scannetv2-labels.combined.tsv", "../scannetv2-labels.combined.tsv",
-                         "../../scannetv2-labels.combined.tsv"};
-    for (int k = 0; k < 3 && !tsv[0]; k++) {
-      join(q, dir, up[k]);
-      if (is_file(q)) snprintf(tsv, sizeof tsv, "%s", q);
-    }
-    if (!tsv[0]) {
-      seterr(err, errlen, "%s: label-filt/ holds ScanNet label ids, but scannetv2-labels.combined.tsv is neither "
-                          "given nor in the scene directory or its two parents", VLFF_Q(dir));
-      return -1;
-    }
-    if (vlff_scannet_labels_load(ds, tsv, o->label_set, err, errlen) < 0) return -1;
+  if (is_dir(p)) return 0;
+  join(p, dir, "label-filt");
+  if (ds->layout == VLFF_DS_REFERENCE || !is_dir(p)) return 0;
+  snprintf(ds->label_dir, sizeof ds->label_dir, "label-filt");
+  char tsv[PATHMAX] = "";
+  if (o->label_tsv) snprintf(tsv, sizeof tsv, "%s", o->label_tsv);
+  const char *up[3] = {"scannetv2-labels.combined.tsv", "../scannetv2-labels.combined.tsv",
+                       "../../scannetv2-labels.combined.tsv"};
+  for (int k = 0; k < 3 && !tsv[0]; k++) {
+    join(q, dir, up[k]);
+    if (is_file(q)) snprintf(tsv, sizeof tsv, "%s", q);
   }
+  if (!tsv[0]) {
+    seterr(err, errlen, "%s: label-filt/ holds ScanNet label ids, but scannetv2-labels.combined.tsv is neither "
+                        "given nor in the scene directory or its two parents", VLFF_Q(dir));
+    return -1;
+  }
+  return vlff_scannet_labels_load(ds, tsv, o->label_set, err, errlen);
+}
+
+/* The label directory, when label_table found one, must label every frame. */
+static int open_labels(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
+  char p[PATHMAX], q[PATHMAX];
+  join(p, dir, ds->label_dir);
+  if (!is_dir(p) || (ds->layout == VLFF_DS_REFERENCE && strcmp(ds->label_dir, "gt_semantic"))) return 0;
   for (int i = 0; i < ds->n; i++) {
     char name[VLFF_DS_NAME + 24];
     snprintf(name, sizeof name, "%s/%s.png", ds->label_dir, ds->stem[i]);
@@ -484,6 +645,13 @@ static int read_poses(struct vlff_dataset *ds, const char *dir, const struct ste
   ds->c2w = calloc((size_t)rgb->n, 16 * sizeof(double));
   ds->listed = calloc((size_t)rgb->n, sizeof *ds->listed);
   ds->n_listed = rgb->n;
+  {
+    char *end;
+    const char *last = rgb->s[rgb->n - 1];
+    errno = 0;
+    long v = strtol(last, &end, 10);
+    ds->last_number = all_digits(last) && !errno ? v : rgb->n - 1; /* frame_numbers settles it */
+  }
   if (!ds->stem || !ds->c2w || !ds->listed) {
     seterr(err, errlen, "%s: out of memory", VLFF_Q(dir));
     return -1;
@@ -590,15 +758,82 @@ static int check_positions(const struct vlff_dataset *ds, const char *dir, const
   return 0;
 }
 
-/* features.hdf's shape, when there is one (without HDF5 the features are
- * simply not offered: has_features stays 0). */
+/* The frames' numbers: their stems when all are integers, else their
+ * positions among the listed frames (lost ones included). */
+static int frame_numbers(struct vlff_dataset *ds, char *err, size_t errlen) {
+  ds->number = calloc((size_t)ds->n, sizeof *ds->number);
+  ds->feat_row = malloc((size_t)ds->n * sizeof *ds->feat_row);
+  if (!ds->number || !ds->feat_row) {
+    seterr(err, errlen, "%s: out of memory", VLFF_Q(ds->dir));
+    return -1;
+  }
+  int stems = 1;
+  for (int i = 0; i < ds->n && stems; i++) {
+    char *end;
+    errno = 0;
+    long v = strtol(ds->stem[i], &end, 10);
+    stems = all_digits(ds->stem[i]) && !errno && v <= ds->last_number;
+    ds->number[i] = v;
+  }
+  if (!stems) {
+    for (int i = 0; i < ds->n; i++) ds->number[i] = ds->listed[i];
+    ds->last_number = ds->n_listed - 1;
+  }
+  for (int i = 0; i < ds->n; i++) ds->feat_row[i] = -1;
+  return 0;
+}
+
+/* The features, when there are any: features.hdf or a features/ directory
+ * of one file per frame (without HDF5 they are simply not offered:
+ * has_features stays 0). */
 static int open_features(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
-  char p[PATHMAX];
+  char p[PATHMAX], q[PATHMAX];
   int have = optional_file(p, dir, "features.hdf", err, errlen);
-  if (have <= 0) return have;
+  if (have < 0) return -1;
+  join(q, dir, "features");
+  if (have && is_dir(q)) {
+    seterr(err, errlen, "%s: both features.hdf and features/ (one file per frame): keep one", VLFF_Q(dir));
+    return -1;
+  }
 #ifdef VLFF_HAVE_HDF5
-  if (features_probe(ds, p, err, errlen) < 0) return -1;
+  if (have) return features_probe(ds, p, err, errlen);
+  if (is_dir(q)) return features_dir_probe(ds, q, err, errlen);
 #endif
+  return 0;
+}
+
+/* What the caller requires (options.require), before any frame is listed:
+ * a scene missing one of them would otherwise be read in full first. */
+static int check_required(struct vlff_dataset *ds, const char *sens, int require, char *err, size_t errlen) {
+  char p[PATHMAX], q[PATHMAX];
+  const int ref = ds->layout == VLFF_DS_REFERENCE;
+  if ((require & VLFF_DS_REQUIRE_POINTS) &&
+      vlff_scannet_points_path(ds->dir, ds->layout, sens, p, sizeof p, err, errlen) < 0)
+    return -1;
+  if (require & VLFF_DS_REQUIRE_LABELS) {
+    join(p, ds->dir, "gt_semantic");
+    join(q, ds->dir, "label-filt");
+    if (!is_dir(p) && (ref || !is_dir(q))) {
+      if (ref) seterr(err, errlen, "%s: missing (the 2D ground truth, one label image per frame)", VLFF_Q(p));
+      else
+        seterr(err, errlen, "%s: missing: ScanNet's 2D labels (the scene's <scene>_2d-label-filt.zip, unzipped "
+                            "there; or gt_semantic/ with class ids)", VLFF_Q(q));
+      return -1;
+    }
+  }
+  if (require & VLFF_DS_REQUIRE_FEATURES) {
+    join(p, ds->dir, "features.hdf");
+    join(q, ds->dir, "features");
+    if (access(p, F_OK) != 0 && !is_dir(q)) {
+      seterr(err, errlen, "%s: missing (nor a features/ directory of one <frame>.hdf per frame): the scene's feature maps",
+             VLFF_Q(p));
+      return -1;
+    }
+#ifndef VLFF_HAVE_HDF5
+    seterr(err, errlen, "%s: this build has no HDF5 support to read the features", VLFF_Q(ds->dir));
+    return -1;
+#endif
+  }
   return 0;
 }
 
@@ -620,21 +855,25 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
   int layout = choose_layout(dir, opts->layout, sens, err, errlen);
   if (layout < 0) return -1;
   ds->layout = layout;
+  /* the scene directory (labels, features, mesh) of a .sens is the file's */
+  char *slash = strrchr(sens, '/');
+  if (layout == VLFF_DS_SENS && is_file(dir))
+    snprintf(ds->dir, sizeof ds->dir, "%.*s", slash ? (int)(slash - sens) : 1, slash ? sens : ".");
+  if (check_required(ds, sens, opts->require, err, errlen) < 0 || label_table(ds, ds->dir, opts, err, errlen) < 0)
+    goto fail;
   if (layout == VLFF_DS_SENS) {
-    /* the scene directory (labels, features, mesh) is the file's */
-    char *slash = strrchr(sens, '/');
-    if (is_file(dir)) snprintf(ds->dir, sizeof ds->dir, "%.*s", slash ? (int)(slash - sens) : 1, slash ? sens : ".");
     if (vlff_sens_open(ds, sens, err, errlen) < 0) goto fail;
   } else { /* a reference or ScanNet-export directory */
     struct stems rgb;
-    if (list_frames(ds, dir, &rgb, err, errlen) < 0) return -1; /* nothing held yet */
+    if (list_frames(ds, dir, &rgb, err, errlen) < 0) goto fail;
     int rc = read_poses(ds, dir, &rgb, err, errlen);
     free(rgb.s);
     if (rc < 0 || read_cameras(ds, dir, err, errlen) < 0) goto fail;
   }
   dir = ds->dir;
-  if (read_bbox(ds, dir, err, errlen) < 0 || check_positions(ds, dir, sens, err, errlen) < 0 ||
-      open_labels(ds, dir, opts, err, errlen) < 0 || open_features(ds, dir, err, errlen) < 0)
+  if (frame_numbers(ds, err, errlen) < 0 || read_bbox(ds, dir, err, errlen) < 0 ||
+      check_positions(ds, dir, sens, err, errlen) < 0 || open_labels(ds, dir, err, errlen) < 0 ||
+      open_features(ds, dir, err, errlen) < 0)
     goto fail;
   return 0;
 fail:
@@ -790,41 +1029,53 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
     return -1;
   }
 #ifdef VLFF_HAVE_HDF5
-  char p[PATHMAX], dname[VLFF_DS_NAME + 16];
-  join(p, ds->dir, "features.hdf");
-  snprintf(dname, sizeof dname, "features/%s", ds->feat_name);
-  if (vlff_check_regular(p, err, errlen) < 0) return -1;
-  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
-  hid_t f = H5Fopen(p, H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (f < 0) {
-    seterr(err, errlen, "%s: cannot open", VLFF_Q(p));
+  char p[PATHMAX], name[VLFF_DS_NAME + 16];
+  if (ds->feat_files) snprintf(name, sizeof name, "features/%s.hdf", ds->stem[i]);
+  else snprintf(name, sizeof name, "features.hdf");
+  join(p, ds->dir, name);
+  if (ds->feat_row[i] < 0) {
+    seterr(err, errlen, "%s: holds no features for frame %s (%s for %d of the scene's %d frames)", VLFF_Q(p),
+           VLFF_Q(ds->stem[i]), ds->feat_files ? "features/ has files" : "it has maps", ds->feat_frames, ds->n);
     return -1;
   }
-  hid_t d = H5Dopen2(f, dname, H5P_DEFAULT);
-  hid_t fs = d >= 0 ? H5Dget_space(d) : -1;
+  struct h5feat h;
+  if (h5feat_open(&h, p, ds->feat_files, err, errlen) < 0) return -1;
+  if (h.dims[1] != (hsize_t)ds->feat_height || h.dims[2] != (hsize_t)ds->feat_width ||
+      h.dims[3] != (hsize_t)ds->feature_dim) {
+    seterr(err, errlen, "%s: features/%s is %llux%llux%llu; the scene's are %dx%dx%d", VLFF_Q(p), VLFF_Q(h.name),
+           (unsigned long long)h.dims[1], (unsigned long long)h.dims[2], (unsigned long long)h.dims[3],
+           ds->feat_height, ds->feat_width, ds->feature_dim);
+    h5feat_close(&h);
+    return -1;
+  }
+  hid_t fs = H5Dget_space(h.d);
   hid_t ht = h5_half();
-  hsize_t start[4] = {(hsize_t)(ds->feat_per_listed ? ds->listed[i] : i), 0, 0, 0};
   hsize_t cnt[4] = {1, (hsize_t)ds->feat_height, (hsize_t)ds->feat_width, (hsize_t)ds->feature_dim};
-  hid_t ms = H5Screate_simple(4, cnt, NULL);
+  hsize_t start[4] = {(hsize_t)ds->feat_row[i], 0, 0, 0};
+  int rank = fs >= 0 ? H5Sget_simple_extent_ndims(fs) : -1;
+  /* a one-frame file may be [H,W,C]: select in its own rank */
+  hid_t ms = H5Screate_simple(rank == 3 ? 3 : 4, rank == 3 ? cnt + 1 : cnt, NULL);
   int rc = -1;
-  if (d >= 0 && fs >= 0 && H5Sselect_hyperslab(fs, H5S_SELECT_SET, start, NULL, cnt, NULL) >= 0 &&
-      H5Dread(d, ht, ms, fs, H5P_DEFAULT, out) >= 0)
+  if (fs >= 0 && (rank == 3 || rank == 4) &&
+      H5Sselect_hyperslab(fs, H5S_SELECT_SET, rank == 3 ? start + 1 : start, NULL, rank == 3 ? cnt + 1 : cnt,
+                          NULL) >= 0 &&
+      H5Dread(h.d, ht, ms, fs, H5P_DEFAULT, out) >= 0)
     rc = 0;
   else
-    seterr(err, errlen, "%s: reading %s frame %d failed (compressed with a filter this libhdf5 lacks, e.g. lzf?)",
-           VLFF_Q(p),
-           VLFF_Q(dname), i);
+    seterr(err, errlen, "%s: reading features/%s for frame %s failed (compressed with a filter this libhdf5 lacks, "
+                        "e.g. lzf?)",
+           VLFF_Q(p), VLFF_Q(h.name), VLFF_Q(ds->stem[i]));
   H5Sclose(ms);
   H5Tclose(ht);
   if (fs >= 0) H5Sclose(fs);
-  if (d >= 0) H5Dclose(d);
-  H5Fclose(f);
+  h5feat_close(&h);
   if (rc == 0) {
     /* non-finite features would poison training and evaluation */
     size_t n = (size_t)ds->feat_height * ds->feat_width * ds->feature_dim;
     for (size_t k = 0; k < n; k++)
       if ((out[k] & 0x7c00u) == 0x7c00u) {
-        seterr(err, errlen, "%s: %s frame %d has a non-finite value at element %zu", VLFF_Q(p), VLFF_Q(dname), i, k);
+        seterr(err, errlen, "%s: features/%s frame %s has a non-finite value at element %zu", VLFF_Q(p),
+               VLFF_Q(ds->feat_name), VLFF_Q(ds->stem[i]), k);
         return -1;
       }
   }

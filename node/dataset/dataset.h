@@ -9,7 +9,13 @@
  *                              (x right, y down, z forward); inverted on read
  *    intrinsics.txt            4x4 (or 3x3) camera matrix at the rgb size
  *    bbox.txt                  6 numbers: scene min xyz, max xyz (metres)
- *    features.hdf              HDF5 dataset features/<name>, [N,H,W,C] float16
+ *    features.hdf              HDF5 dataset features/<name>, [N,H,W,C] float16;
+ *                              with a 1-D integer dataset "frames" [N] at the
+ *                              file's root, row r holds frame frames[r]
+ *                              (strictly increasing frame numbers)
+ *    features/<stem>.hdf       instead of features.hdf: one file per frame,
+ *                              features/<name> [1,H,W,C] or [H,W,C]; frames
+ *                              without a file have no features
  *    gt_semantic/<stem>.png    8- or 16-bit class ids 0..K-1; >= K (255) = unlabelled
  *    points.ply (or mesh.ply)  labelled point set: vertex x,y,z + "label"
  *    prompt_embeddings.txt     prompt -> vector, in the vlff-embeddings format
@@ -44,8 +50,12 @@
  *  same classes (vlff_dataset_read_points).
  *  Frames whose pose is non-finite (ScanNet marks lost tracking with -inf)
  *  are skipped and counted, as ScanNet's own tools do; the others keep their
- *  stems (ScanNet frame numbers). features.hdf holds a map per usable frame,
- *  or one per listed frame (lost ones included, their rows passed over).
+ *  stems (ScanNet frame numbers). A frame's number is its stem when every
+ *  stem is an integer, else its position among the listed frames.
+ *  features.hdf holds a map per usable frame, or one per listed frame (lost
+ *  ones included, their rows passed over), or, with "frames", the frames it
+ *  names (rows naming a lost frame passed over; a number beyond the scene's
+ *  last frame, or out of order, refused naming the file and the row).
  *  Frames are matched by file stem; stems sort numerically when all are
  *  integers, otherwise by name. Without a depth intrinsic, depth of a
  *  different size than rgb must share its aspect and is resampled (nearest)
@@ -86,10 +96,21 @@ enum vlff_dataset_layout { VLFF_DS_AUTO, VLFF_DS_REFERENCE, VLFF_DS_SCANNET, VLF
  * (class k = NYU40 id k + 1). */
 enum vlff_label_set { VLFF_LABELS_SCANNET20, VLFF_LABELS_NYU40 };
 
+/* What a caller cannot do without (options.require): open checks that it
+ * is there and opens before any frame is listed or read, and names the
+ * missing file by the name the layout gives it (ScanNet's
+ * <scene>_vh_clean_2.labels.ply, label-filt/, features.hdf). */
+enum {
+  VLFF_DS_REQUIRE_POINTS = 1,   /* the labelled 3D ground truth */
+  VLFF_DS_REQUIRE_LABELS = 2,   /* gt_semantic/ or label-filt/ (and the TSV) */
+  VLFF_DS_REQUIRE_FEATURES = 4, /* features.hdf or features/ */
+};
+
 struct vlff_dataset_options {
   int layout;             /* enum vlff_dataset_layout */
   int label_set;          /* enum vlff_label_set (ScanNet) */
   const char *label_tsv;  /* scannetv2-labels.combined.tsv; NULL = look for it */
+  int require;            /* VLFF_DS_REQUIRE_* */
 };
 struct vlff_sens;
 struct vlff_points;
@@ -101,7 +122,8 @@ struct vlff_dataset {
   int skipped;                 /* ScanNet frames dropped for invalid poses */
   int n_listed;                /* frames the scene lists: n + skipped */
   int *listed;                 /* [n] frame i's position among those listed */
-  int feat_per_listed;         /* features.hdf holds a map per listed frame */
+  long *number;                /* [n] frame i's number (see the layouts) */
+  long last_number;            /* the last listed frame's number, lost or not */
   int width, height;           /* rgb size (depth and labels are returned at it) */
   double fx, fy, cx, cy;
   int has_bbox;
@@ -110,6 +132,9 @@ struct vlff_dataset {
   char (*stem)[VLFF_DS_NAME];  /* [n] */
   int has_labels;              /* gt_semantic/ present for every frame */
   int has_features;
+  int feat_files;              /* features/<stem>.hdf, one per frame (else features.hdf) */
+  int *feat_row;               /* [n] frame i's row in features.hdf (0: its own file); -1 none */
+  int feat_frames;             /* frames with features */
   char feat_name[VLFF_DS_NAME];
   int feat_height, feat_width, feature_dim;
   char rgb_ext[8];
@@ -130,6 +155,12 @@ int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char
 /* The same with every option (opts NULL = defaults: auto layout, 20 classes). */
 int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *opts,
                            char *err, size_t errlen);
+/* The labelled 3D ground truth's path: points.ply or mesh.ply (reference),
+ * or the one *_vh_clean_2.labels.ply in the scene directory or its parent
+ * (ScanNet; points.ply or mesh.ply beside the scene stand in for it). -1
+ * with err naming the file as the layout calls it when none is there or it
+ * cannot be opened. */
+int vlff_dataset_points_path(const struct vlff_dataset *ds, char *path, size_t cap, char *err, size_t errlen);
 /* The labelled 3D ground truth: points.ply or mesh.ply (reference), or
  * *_vh_clean_2.labels.ply mapped to the label set (ScanNet). */
 int vlff_dataset_read_points(const struct vlff_dataset *ds, struct vlff_points *p, char *err, size_t errlen);
@@ -142,7 +173,9 @@ void vlff_dataset_close(struct vlff_dataset *ds);
  * unlabelled; only when has_labels). Any output may be NULL. */
 int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, float *depth,
                             uint8_t *label, char *err, size_t errlen);
-/* Frame i's features, float16 [feat_height][feat_width][feature_dim]. */
+/* Frame i's features, float16 [feat_height][feat_width][feature_dim]; -1
+ * naming the file and the frame when the features hold none for it
+ * (feat_row[i] < 0). */
 int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *out, char *err,
                                size_t errlen);
 

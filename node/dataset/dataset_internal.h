@@ -30,6 +30,10 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
 int vlff_sens_read(const struct vlff_dataset *ds, int i, uint8_t **rgb, uint16_t **depth, char *err,
                    size_t errlen);
 float vlff_sens_depth_scale(const struct vlff_dataset *ds);
+/* The labelled mesh's path for a scene directory of a layout (sens: the
+ * .sens file's path or NULL), checked to open (see vlff_dataset_points_path). */
+int vlff_scannet_points_path(const char *dir, int layout, const char *sens, char *path, size_t cap, char *err,
+                             size_t errlen);
 void vlff_sens_close(struct vlff_sens *s);
 
 #endif

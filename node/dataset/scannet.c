@@ -369,6 +369,7 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
   ds->stem = malloc(nframes * sizeof *ds->stem);
   ds->listed = malloc(nframes * sizeof *ds->listed);
   ds->n_listed = (int)nframes;
+  ds->last_number = (long)nframes - 1;
   if (!s->off || !ds->c2w || !ds->stem || !ds->listed) {
     seterr(err, errlen, "%s: out of memory for %llu frames", VLFF_Q(path), (unsigned long long)nframes);
     goto fail;
@@ -484,7 +485,7 @@ float vlff_sens_depth_scale(const struct vlff_dataset *ds) { return 1.0f / ds->s
 
 /* ---- 3D ground truth ---------------------------------------------------- */
 
-/* The one *_vh_clean_2.labels.ply in dir, 1 when found. */
+/* The *_vh_clean_2.labels.ply files in dir: how many, the first's path in out. */
 static int find_labels_ply(const char *dir, char *out, size_t cap) {
   static const char suffix[] = "_vh_clean_2.labels.ply";
   DIR *d = opendir(dir);
@@ -494,28 +495,74 @@ static int find_labels_ply(const char *dir, char *out, size_t cap) {
   while ((e = readdir(d))) {
     size_t l = strlen(e->d_name), sl = sizeof suffix - 1;
     if (l > sl && !strcmp(e->d_name + l - sl, suffix)) {
-      snprintf(out, cap, "%s/%s", dir, e->d_name);
+      if (!found) snprintf(out, cap, "%s/%s", dir, e->d_name);
       found++;
     }
   }
   closedir(d);
-  return found == 1;
+  return found;
+}
+
+/* A ScanNet scene's name: the .sens file's without ".sens", else the scene
+ * directory's (scans/scene0000_00). */
+static void scene_name(const char *dir, const char *sens, char *out, size_t cap) {
+  const char *p = sens && sens[0] ? sens : dir;
+  size_t l = strlen(p);
+  while (l > 1 && p[l - 1] == '/') l--;
+  size_t b = l;
+  while (b > 0 && p[b - 1] != '/') b--;
+  size_t n = l - b;
+  if (sens && sens[0] && n > 5 && !strncmp(p + l - 5, ".sens", 5)) n -= 5;
+  if (n == 0 || (n == 1 && p[b] == '.') || (n == 2 && !strncmp(p + b, "..", 2))) snprintf(out, cap, "<scene>");
+  else snprintf(out, cap, "%.*s", (int)n, p + b);
+}
+
+int vlff_scannet_points_path(const char *dir, int layout, const char *sens, char *path, size_t cap, char *err,
+                             size_t errlen) {
+  int found = 0;
+  char where[4200] = "";
+  if (layout != VLFF_DS_REFERENCE) {
+    char up[4200];
+    snprintf(up, sizeof up, "%s/..", dir);
+    snprintf(where, sizeof where, "%s", dir);
+    found = find_labels_ply(dir, path, cap);
+    if (!found) snprintf(where, sizeof where, "%s", up), found = find_labels_ply(up, path, cap);
+    if (found > 1) {
+      seterr(err, errlen, "%s: %d *_vh_clean_2.labels.ply files; keep the scene's own", VLFF_Q(where), found);
+      return -1;
+    }
+  }
+  if (!found) { /* the reference layout's names (a ScanNet scene may have them instead) */
+    snprintf(path, cap, "%s/points.ply", dir);
+    if (access(path, F_OK) != 0) snprintf(path, cap, "%s/mesh.ply", dir);
+    if (access(path, F_OK) != 0) {
+      if (layout == VLFF_DS_REFERENCE) {
+        seterr(err, errlen, "%s/points.ply: missing (nor mesh.ply): the labelled 3D ground truth", VLFF_Q(dir));
+      } else {
+        char name[VLFF_DS_NAME + 32];
+        scene_name(dir, sens, name, sizeof name);
+        seterr(err, errlen, "%s/%s_vh_clean_2.labels.ply: missing: ScanNet's labelled mesh (the 3D ground truth) is "
+                            "neither in the scene directory nor in its parent", VLFF_Q(dir), VLFF_Q(name));
+      }
+      return -1;
+    }
+  }
+  int fd = vlff_open_regular(path, err, errlen);
+  if (fd < 0) return -1;
+  close(fd);
+  return 0;
+}
+
+int vlff_dataset_points_path(const struct vlff_dataset *ds, char *path, size_t cap, char *err, size_t errlen) {
+  return vlff_scannet_points_path(ds->dir, ds->layout, ds->sens ? ds->sens->path : NULL, path, cap, err, errlen);
 }
 
 int vlff_dataset_read_points(const struct vlff_dataset *ds, struct vlff_points *p, char *err, size_t errlen) {
   char path[4400];
-  int scannet = ds->layout != VLFF_DS_REFERENCE;
-  if (scannet) {
-    char up[4200];
-    snprintf(up, sizeof up, "%s/..", ds->dir);
-    scannet = find_labels_ply(ds->dir, path, sizeof path) || find_labels_ply(up, path, sizeof path);
-  }
-  if (!scannet) {
-    snprintf(path, sizeof path, "%s/points.ply", ds->dir);
-    if (access(path, F_OK) != 0) snprintf(path, sizeof path, "%s/mesh.ply", ds->dir);
-  }
+  if (vlff_dataset_points_path(ds, path, sizeof path, err, errlen) < 0) return -1;
   if (vlff_ply_read(path, p, err, errlen) < 0) return -1;
-  if (scannet) /* vertex labels are NYU40 ids */
+  size_t l = strlen(path), sl = strlen("_vh_clean_2.labels.ply");
+  if (l > sl && !strcmp(path + l - sl, "_vh_clean_2.labels.ply")) /* vertex labels are NYU40 ids */
     for (size_t k = 0; k < p->n; k++) p->label[k] = nyu40_class(ds->label_set, p->label[k]);
   return 0;
 }

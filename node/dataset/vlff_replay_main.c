@@ -80,6 +80,7 @@ struct replay {
   int pose_in_frame, backpressure, quiet;
   int skipped_before; /* the previous frame was unreadable: flag the next one */
   long long published, unreadable, late;
+  long long featureless; /* frames the features do not hold, passed over */
 };
 
 static int ring_error(const char *what, const char *name) {
@@ -200,7 +201,7 @@ static int run(struct replay *r, double fps, double rate, int loop, long long co
   clock_gettime(CLOCK_MONOTONIC, &next);
   long long id = 0;
   for (long long pass = 0; !vlff_cli_stop; pass++) {
-    for (int i = pass ? 0 : start; i < n && !vlff_cli_stop && (count <= 0 || id < count); i++, id++) {
+    for (int i = pass ? 0 : start; i < n && !vlff_cli_stop && (count <= 0 || id < count); i++) {
       if (!r->backpressure) {
         struct timespec t;
         clock_gettime(CLOCK_MONOTONIC, &t);
@@ -213,8 +214,15 @@ static int run(struct replay *r, double fps, double rate, int loop, long long co
         }
         add_ns(&next, period);
       }
+      /* Features stored for some frames only (docs/datasets.md): the others
+       * are passed over in their time, so the scene keeps its pace, and are
+       * not records (no gap in frame_id, nothing reported dropped). */
+      if (r->feats && r->ds.feat_row[i] < 0) {
+        r->featureless++;
+        continue;
+      }
       uint64_t t_dev = (uint64_t)(((double)pass * n + i) / fps * 1e9);
-      if (publish(r, i, id, t_dev) < 0) return -1;
+      if (publish(r, i, id++, t_dev) < 0) return -1;
       if (!r->quiet && r->published % 100 == 0)
         fprintf(stderr, "vlff-replay: %lld frames published (scene frame %d of %d, pass %lld)\n", r->published,
                 i, n, pass + 1);
@@ -330,10 +338,15 @@ int main(int argc, char **argv) {
   if (!r.quiet)
     fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", VLFF_Q(r.ds.dir), r.ds.n, r.ds.width, r.ds.height,
             features ? " with features" : "", r.backpressure ? "paced by the reader" : "on schedule");
+  if (features && r.ds.feat_frames < r.ds.n)
+    fprintf(stderr, "vlff-replay: %s: the features hold %d of the %d frames: the others are passed over "
+                    "(--no-features plays them all)\n",
+            VLFF_Q(r.ds.dir), r.ds.feat_frames, r.ds.n);
   if (run(&r, fps, rate, loop, count, start) == 0) status = r.unreadable ? 1 : 0;
   if (!r.quiet || status)
-    fprintf(stderr, "vlff-replay: %lld frames published, %lld unreadable skipped, %lld late\n", r.published,
-            r.unreadable, r.late);
+    fprintf(stderr, "vlff-replay: %lld frames published, %lld unreadable skipped, %lld without features passed "
+                    "over, %lld late\n",
+            r.published, r.unreadable, r.featureless, r.late);
 out:
   vlff_ring_close(r.frames);
   vlff_ring_close(r.poses);

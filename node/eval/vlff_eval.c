@@ -63,7 +63,9 @@ static const struct vlff_cli cli = {
     "  --iters N           training steps (default 1500; 0 = baselines only)\n"
     "  --fit-seconds S     fit for S seconds of wall clock instead of --iters steps\n"
     "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
-    "  --stride N          dataset: use every N-th frame (default 1)\n"
+    "  --stride N          dataset: the frames whose number is a multiple of N\n"
+    "                      (default 1); a multiple of N when the training frames\n"
+    "                      would exceed keyframes.memory_mb (said, and in the report)\n"
     "  --label-set SET     ScanNet labels as scannet20 (default) or nyu40 classes\n"
     "  --label-tsv FILE    ScanNet's scannetv2-labels.combined.tsv (default: looked\n"
     "                      for in the scene directory and its two parents)\n"
@@ -114,6 +116,8 @@ struct scene {
   uint8_t *srgb;
   uint16_t *sfeat;
   float *sdepth;
+  int stride, stride_asked; /* dataset: the stride used, and --stride */
+  const char *stride_why;  /* why they differ (NULL: they do not) */
   const char *box_from;    /* where field.scene_min/max came from */
   size_t pts_outside;      /* labelled points outside that box */
 };
@@ -383,9 +387,87 @@ static void count_outside(struct scene *sc, const struct vlff_cfg_field *fc) {
             sc->box_from);
 }
 
+/* The frames --stride N takes: those whose number (a ScanNet scene's frame
+ * number) is a multiple of N, lost ones left out. Fills idx (when not
+ * NULL) and returns how many; *ntrain counts those not held out. */
+static int stride_frames(const struct vlff_dataset *ds, int stride, int holdout, int *idx, int *ntrain) {
+  int n = 0;
+  *ntrain = 0;
+  for (int i = 0; i < ds->n; i++)
+    if (ds->number[i] % stride == 0) {
+      if (idx) idx[n] = i;
+      *ntrain += !held_out(n, holdout);
+      n++;
+    }
+  return n;
+}
+
+/* The stride the run uses: --stride N, or, when the training frames it
+ * takes would need more memory than keyframes.memory_mb (they stay
+ * resident, as the node's keyframe store does), the smallest multiple of N
+ * whose frames fit (so they are among those --stride N takes, and features
+ * stored for those serve), said on stderr. */
+static int choose_stride(struct scene *sc, const struct vlff_dataset *ds, const struct opts *o,
+                         const struct vlff_config *cfg) {
+  const size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
+  const double frame_mb = (double)(npx * (3 + sizeof(float)) + nf * sizeof(uint16_t)) / (1 << 20);
+  const double budget = cfg->keyframes.memory_mb;
+  int ntrain, n = stride_frames(ds, o->stride, o->holdout, NULL, &ntrain);
+  sc->stride_asked = o->stride;
+  if (ntrain * frame_mb <= budget) return o->stride;
+  const double asked_mb = ntrain * frame_mb;
+  const int asked_train = ntrain;
+  for (long s = 2L * o->stride; s <= ds->last_number + 1 && s <= 100000L * o->stride; s += o->stride) {
+    n = stride_frames(ds, (int)s, o->holdout, NULL, &ntrain);
+    if (n < 2 || ntrain == n) break; /* nothing left to hold out */
+    if (ntrain * frame_mb <= budget) {
+      fprintf(stderr,
+              "vlff-eval: %s: the %d training frames --stride %d takes need %.1f MiB of images and features, more "
+              "than keyframes.memory_mb (%.0f): using --stride %ld instead (%d frames, %d of them training, %.1f MiB; "
+              "raise keyframes.memory_mb to keep more)\n",
+              VLFF_Q(ds->dir), asked_train, o->stride, asked_mb, budget, s, n, ntrain, ntrain * frame_mb);
+      sc->stride_why = "keyframes.memory_mb";
+      return (int)s;
+    }
+  }
+  die("%s: a training frame needs %.1f MiB of images and features; keyframes.memory_mb (%.0f) holds %d, and no "
+      "multiple of --stride %d leaves that few training frames and a held-out one (--holdout %d): raise "
+      "keyframes.memory_mb or lower --holdout",
+      VLFF_Q(ds->dir), frame_mb, budget, (int)(budget / frame_mb), o->stride, o->holdout);
+  return -1;
+}
+
+/* The prompts' vectors: prompts.embeddings, else the scene's
+ * prompt_embeddings.txt; ground-truth id k is record k. */
+static void load_prompts(struct scene *sc, const struct vlff_dataset *ds, const struct vlff_config *cfg, char *p,
+                         size_t cap) {
+  char err[1024];
+  if (cfg->prompts.embeddings[0]) snprintf(p, cap, "%s", cfg->prompts.embeddings);
+  else snprintf(p, cap, "%s/prompt_embeddings.txt", ds->dir);
+  /* Loaded with any dimension, then compared: a mismatch is between two
+   * files, and either may be the wrong one. */
+  struct vlff_embeddings *pe = vlff_embeddings_load(p, 0, err, sizeof err);
+  if (!pe) die("%s", err);
+  if (vlff_embeddings_dim(pe) != sc->D)
+    die("%s: vectors have dim %d, but the features in %s/%s have D=%d: one of the two files is from "
+        "another model",
+        p, vlff_embeddings_dim(pe), ds->dir, ds->feat_files ? "features/" : "features.hdf", sc->D);
+  if (vlff_embeddings_count(pe) > MAXK) die("%s: %d prompts, at most %d", p, vlff_embeddings_count(pe), MAXK);
+  sc->K = vlff_embeddings_count(pe);
+  for (int k = 0; k < sc->K; k++) {
+    snprintf(sc->names[k], VLFF_PROMPT_LEN, "%s", vlff_embeddings_prompt(pe, k));
+    memcpy(sc->emb + (size_t)k * sc->D, vlff_embeddings_vector(pe, k), (size_t)sc->D * sizeof(float));
+  }
+  vlff_embeddings_free(pe);
+}
+
 static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_config *cfg) {
   char err[1024], p[4200];
-  struct vlff_dataset_options dopt = {.layout = VLFF_DS_AUTO, .label_set = o->label_set, .label_tsv = o->label_tsv};
+  /* Every file the evaluation needs is checked before any frame is read,
+   * and a missing one named as the layout calls it. */
+  struct vlff_dataset_options dopt = {.layout = VLFF_DS_AUTO, .label_set = o->label_set, .label_tsv = o->label_tsv,
+                                      .require = VLFF_DS_REQUIRE_POINTS | VLFF_DS_REQUIRE_LABELS |
+                                                 VLFF_DS_REQUIRE_FEATURES};
   struct vlff_dataset ds;
   if (vlff_dataset_open_opts(&ds, o->dataset, &dopt, err, sizeof err) < 0) die("%s", err);
   /* the scene's directory, also when --dataset names its .sens file */
@@ -395,25 +477,30 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
   if (ds.feature_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feature_dim);
   sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feature_dim;
   sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;
-  sc->n = (ds.n + o->stride - 1) / o->stride;
   sc->holdout = o->holdout;
+  char pts_path[4400];
+  if (vlff_dataset_points_path(&ds, pts_path, sizeof pts_path, err, sizeof err) < 0) die("%s", err);
+  load_prompts(sc, &ds, cfg, p, sizeof p);
+  if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
+  sc->stride = choose_stride(sc, &ds, o, cfg);
+  int ntrain, *idx = xcalloc((size_t)ds.n, sizeof(int));
+  sc->n = stride_frames(&ds, sc->stride, o->holdout, idx, &ntrain);
+  /* features stored for some frames only must hold every frame the run takes */
+  for (int i = 0; i < sc->n; i++)
+    if (ds.feat_row[idx[i]] < 0) {
+      char q[4400];
+      if (ds.feat_files) snprintf(q, sizeof q, "%s/features/%s.hdf: missing", VLFF_Q(dir), VLFF_Q(ds.stem[idx[i]]));
+      else snprintf(q, sizeof q, "%s/features.hdf: holds no map for frame %s", VLFF_Q(dir), VLFF_Q(ds.stem[idx[i]]));
+      die("%s, which --stride %d takes (the features hold %d of the scene's %d frames): give a --stride whose "
+          "frames they hold",
+          q, sc->stride, ds.feat_frames, ds.n);
+    }
   sc->f = xcalloc((size_t)sc->n, sizeof *sc->f);
   size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
-  /* The training frames' images and features stay in memory: bound them by
-   * the keyframe store's budget, as the node is bound. */
-  int ntrain = 0;
-  for (int i = 0; i < sc->n; i++) ntrain += !held_out(i, o->holdout);
-  double need_mb = (double)ntrain * (npx * (3 + sizeof(float)) + nf * sizeof(uint16_t)) / (1 << 20);
-  if (need_mb > cfg->keyframes.memory_mb) {
-    int stride = (int)ceil(o->stride * need_mb / cfg->keyframes.memory_mb);
-    die("%s: %d training frames need %.0f MiB of images and features, more than keyframes.memory_mb (%d): "
-        "use --stride %d or raise keyframes.memory_mb",
-        dir, ntrain, need_mb, cfg->keyframes.memory_mb, stride);
-  }
   sc->srgb = xcalloc(npx, 3), sc->sfeat = xcalloc(nf, sizeof(uint16_t)), sc->sdepth = xcalloc(npx, sizeof(float));
   for (int i = 0; i < sc->n; i++) {
     struct frame *f = &sc->f[i];
-    f->index = i * o->stride;
+    f->index = idx[i];
     memcpy(f->c2w, ds.c2w + 16 * (size_t)f->index, sizeof f->c2w);
     f->label = xcalloc(npx, 1);
     if (held_out(i, o->holdout)) { /* labels only; images and features when scored */
@@ -426,25 +513,7 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
         vlff_dataset_read_features(&ds, f->index, f->feat, err, sizeof err) < 0)
       die("%s", err);
   }
-  if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
-  if (cfg->prompts.embeddings[0]) snprintf(p, sizeof p, "%s", cfg->prompts.embeddings);
-  else snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
-  /* Loaded with any dimension, then compared: a mismatch is between two
-   * files, and either may be the wrong one. */
-  struct vlff_embeddings *pe = vlff_embeddings_load(p, 0, err, sizeof err);
-  if (!pe) die("%s", err);
-  if (vlff_embeddings_dim(pe) != sc->D)
-    die("%s: vectors have dim %d, but the features in %s/features.hdf have D=%d: one of the two files is from "
-        "another model",
-        p, vlff_embeddings_dim(pe), dir, sc->D);
-  if (vlff_embeddings_count(pe) > MAXK) die("%s: %d prompts, at most %d", p, vlff_embeddings_count(pe), MAXK);
-  /* ground-truth id k is record k of the embeddings file */
-  sc->K = vlff_embeddings_count(pe);
-  for (int k = 0; k < sc->K; k++) {
-    snprintf(sc->names[k], VLFF_PROMPT_LEN, "%s", vlff_embeddings_prompt(pe, k));
-    memcpy(sc->emb + (size_t)k * sc->D, vlff_embeddings_vector(pe, k), (size_t)sc->D * sizeof(float));
-  }
-  vlff_embeddings_free(pe);
+  free(idx);
   /* A ground-truth class without a record would silently count as
    * unlabelled and drop out of every score: refuse, naming the first file
    * that uses one. */
@@ -455,14 +524,10 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
             "every class needs one",
             p, sc->K, dir, ds.label_dir, ds.stem[sc->f[i].index], sc->f[i].label[j]);
   for (size_t j = 0; j < sc->pts.n; j++)
-    if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K) {
-      char pp[4200];
-      snprintf(pp, sizeof pp, "%s/points.ply", dir);
-      if (access(pp, R_OK) != 0) snprintf(pp, sizeof pp, "%s/mesh.ply", dir);
+    if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K)
       die("%s: %d records, but %s uses class id %d (vertex %zu): ground-truth id k is record k, so every class "
           "needs one",
-          p, sc->K, pp, sc->pts.label[j], j);
-    }
+          p, sc->K, pts_path, sc->pts.label[j], j);
   dataset_box(sc, &ds, cfg);
   sc->ds = ds; /* kept open: held-out frames are read when scored */
   sc->streaming = 1;
@@ -1000,9 +1065,13 @@ static void write_report_md(const struct eval *e) {
   snprintf(path, sizeof path, "%s/report.md", o->out);
   FILE *md = fopen(path, "w");
   if (!md) die("%s: %s", path, strerror(errno));
-  if (o->dataset)
-    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %s to %s", o->dataset, frame_name(sc, 0),
-            frame_name(sc, sc->n - 1));
+  if (o->dataset) {
+    fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %s to %s, every %d-th", o->dataset,
+            frame_name(sc, 0), frame_name(sc, sc->n - 1), sc->stride);
+    if (sc->stride_why)
+      fprintf(md, " (--stride %d asked; its training frames would need more than %s, %d MiB)", sc->stride_asked,
+              sc->stride_why, e->cfg.keyframes.memory_mb);
+  }
   else
     fprintf(md, "# vlff-eval report\n\nScene: synthetic room (seed %d, difficulty %.2f)", e->cfg.sim.seed,
             e->cfg.sim.difficulty);
@@ -1061,6 +1130,14 @@ static void write_report_json(const struct eval *e) {
   struct json_object *trf = json_object_new_array(), *tef = json_object_new_array();
   for (int i = 0; i < sc->n; i++)
     json_object_array_add(held_out(i, o->holdout) ? tef : trf, frame_json(sc, i));
+  if (o->dataset) {
+    /* the stride used, and why when it is not --stride's */
+    struct json_object *st = json_object_new_object();
+    json_object_object_add(st, "asked", json_object_new_int(sc->stride_asked));
+    json_object_object_add(st, "used", json_object_new_int(sc->stride));
+    json_object_object_add(st, "chosen_for", sc->stride_why ? json_object_new_string(sc->stride_why) : NULL);
+    json_object_object_add(src, "stride", st);
+  }
   json_object_object_add(src, "train_frames", trf);
   json_object_object_add(src, "test_frames", tef);
   json_object_object_add(root, "source", src);

@@ -90,6 +90,10 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   fprintf(f,
           "node:\n  state_dir: %s/state\n  log_level: warn\n"
           "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: 0.25\n  pose_wait_s: 0.5\n"
+          /* vlff-scenecam sends each tick's pose at the tick's start, stamped
+           * at it and at 0.95 of the 200 ms tick: the second, ahead of the
+           * clock, is no clock error here. */
+          "pose:\n  future_tolerance_s: 0.25\n"
           "sim:\n  seed: 3\n  rate_hz: 5\n  width: %d\n  height: %d\n  frames: %d\n"
           "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
           "  max_width: 320\n  max_height: 240\n  ring_slots: 8\n"

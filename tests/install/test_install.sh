@@ -3,7 +3,10 @@
 # a controller built with pkg-config alone (PKG_CONFIG_PATH into the prefix),
 # in C and C++, run against a segment; the installed programs answer
 # --version; the installed vlff-view serves the installed page (index.html and
-# three.js over HTTP); the default config's vlm.bpe_vocab is installed; a /usr install
+# three.js over HTTP); the default config's vlm.bpe_vocab is installed; a
+# prefix moved after the install keeps its programs finding its files; the
+# feature extractor (share/vlff/extractor) runs from the prefix, also moved,
+# and loads the library installed beside it; a /usr install
 # (DESTDIR) puts configs in /etc/vlff, the library in the multiarch directory
 # and the units' paths under /usr.
 # Usage: test_install.sh BUILD_DIR SOURCE_DIR LIBDIR
@@ -37,6 +40,16 @@ check "the C controller links the installed shared library" \
 cp -a "$tmp/p" "$tmp/moved"
 check "moved prefix: pkg-config follows" \
   '[[ "$(readlink -f "$(PKG_CONFIG_PATH="$tmp/moved/$libdir/pkgconfig" pkg-config --variable=libdir vlff-shm)")" == "$(readlink -f "$tmp/moved/$libdir")" ]]'
+# The extractor: its help, and the library it loads by default is the
+# prefix's (in place and in the moved copy).
+ext=share/vlff/extractor/vlff_extractor.py
+check "extractor installed, executable" '[[ -x "$tmp/p/$ext" ]]'
+check "installed extractor --help" '/usr/bin/python3 "$tmp/p/$ext" --help | grep -q -- "--frames"'
+for pre in p moved; do
+  check "$pre: the extractor loads the prefix's libvlff-shm" \
+    '[[ "$(cd / && PYTHONPATH="$tmp/$pre/share/vlff/extractor" /usr/bin/python3 -c \
+        "import vlff_extractor as e; print(e.load_library()._name)")" == "$(readlink -f "$tmp/$pre/$libdir")/libvlff-shm.so.1" ]]'
+done
 for prog in "$tmp"/p/bin/vlff-*; do
   check "$(basename "$prog") --version" '"$prog" --version | grep -qE "^$(basename "$prog") [0-9]+\.[0-9]+\.[0-9]+$"'
 done
@@ -75,15 +88,35 @@ fi
 check "configs under the prefix" '[[ -f "$tmp/p/etc/vlff/vlff.yaml" && -f "$tmp/p/etc/vlff/vlff.dbc" ]]'
 check "unit follows the prefix" \
   'grep -qx "ExecStart=$tmp/p/bin/vlff-node --config $tmp/p/etc/vlff/vlff.yaml" "$tmp/p/lib/systemd/system/vlff-node.service"'
-check "installed vlff.yaml is a valid config" '"$tmp/p/bin/vlff-node" --check-config "$tmp/p/etc/vlff/vlff.yaml" >/dev/null 2>&1'
-# The programs' defaults come from the configured prefix (the config search
-# path, vlm.bpe_vocab): an install with that prefix, staged with DESTDIR, must
-# put CLIP's vocabulary where the installed configs' vlm.bpe_vocab looks.
+# The installed vlff.yaml is valid and needs only what its comment says the
+# user adds (a text encoder for the prompts; test_configs checks them all).
+check "installed vlff.yaml: --check-config asks only for a text encoder" \
+  '! "$tmp/p/bin/vlff-node" --check-config "$tmp/p/etc/vlff/vlff.yaml" >/dev/null 2>"$tmp/vc.err" && grep -q "vlff.yaml: no text encoder for the prompts" "$tmp/vc.err"'
+# vlm.bpe_vocab's default as the installed configs leave it (unset, or ""),
+# in a config --check-config accepts (the simulator embeds its prompts).
+printf 'source:\n  kind: sim\nvlm:\n  bpe_vocab: ""\n' >"$tmp/vocab.yaml"
+check "the installed configs leave vlm.bpe_vocab to its default" \
+  '! grep -q "^ *bpe_vocab: *[^ \"#]" "$tmp/p/etc/vlff/vlff.yaml" "$tmp/p/etc/vlff/default.yaml" && grep -q "^  bpe_vocab: \"\"" "$tmp/p/etc/vlff/default.yaml"'
+# A program outside an install (the build tree's) takes the defaults of the
+# configured prefix (the config search path, vlm.bpe_vocab): an install with
+# that prefix, staged with DESTDIR, must put CLIP's vocabulary where the
+# installed configs' vlm.bpe_vocab then looks.
 DESTDIR="$tmp/conf" cmake --install "$build" >"$tmp/install3.log" 2>&1 || { cat "$tmp/install3.log"; exit 1; }
-for c in vlff.yaml default.yaml; do
-  vocab=$("$tmp/p/bin/vlff-node" --check-config "$tmp/p/etc/vlff/$c" 2>/dev/null | sed -n 's/^vlm\.bpe_vocab: "\(.*\)"$/\1/p')
-  check "$c: vlm.bpe_vocab ($vocab) is installed there" '[[ "$vocab" == /* && -f "$tmp/conf$vocab" ]] && gzip -t "$tmp/conf$vocab"'
-done
+vocab=$("$build/node/vlff-node" --check-config "$tmp/vocab.yaml" 2>/dev/null | sed -n 's/^vlm\.bpe_vocab: "\(.*\)"$/\1/p')
+check "vlm.bpe_vocab's default ($vocab) is installed there" '[[ "$vocab" == /* && -f "$tmp/conf$vocab" ]] && gzip -t "$tmp/conf$vocab"'
+
+# Installed to one prefix, then moved: the programs find the install's files
+# (the config search path's vlff.yaml, vlm.bpe_vocab's default) from where
+# they run, not at the prefix configured or installed to.
+cmake --install "$build" --prefix "$tmp/q" >"$tmp/install4.log" 2>&1 || { cat "$tmp/install4.log"; exit 1; }
+mv "$tmp/q" "$tmp/r"
+vocab=$("$tmp/r/bin/vlff-node" --check-config "$tmp/vocab.yaml" 2>/dev/null | sed -n 's/^vlm\.bpe_vocab: "\(.*\)"$/\1/p')
+check "moved prefix: vlm.bpe_vocab ($vocab) is the moved install's" \
+  '[[ "$vocab" == "$tmp/r/share/vlff/bpe_simple_vocab_16e6.txt.gz" ]] && gzip -t "$vocab"'
+printf 'vlff_moved_probe: 1\n' >"$tmp/r/etc/vlff/vlff.yaml"
+check "moved prefix: without --config, vlff-pose reads the moved install's vlff.yaml" \
+  'env -u VLFF_CONFIG "$tmp/r/bin/vlff-pose" </dev/null >/dev/null 2>"$tmp/moved.err"; [[ $? == 1 ]] &&
+   grep -q "^$tmp/r/etc/vlff/vlff.yaml:1:1: .*unknown key" "$tmp/moved.err" || { cat "$tmp/moved.err"; false; }'
 
 # prefix /usr, staged with DESTDIR as a packager does
 DESTDIR="$tmp/stage" cmake --install "$build" --prefix /usr >"$tmp/install2.log" 2>&1 || { cat "$tmp/install2.log"; exit 1; }
@@ -92,6 +125,7 @@ check "/usr: library in /usr/$libdir" '[[ -f "$tmp/stage/usr/$libdir/libvlff-shm
 check "/usr: unit runs /usr/bin/vlff-node with /etc/vlff/vlff.yaml" \
   'grep -qx "ExecStart=/usr/bin/vlff-node --config /etc/vlff/vlff.yaml" "$tmp/stage/usr/lib/systemd/system/vlff-node.service"'
 check "/usr: sysusers file" '[[ -f "$tmp/stage/usr/lib/sysusers.d/vlff.conf" ]]'
+check "/usr: the extractor in /usr/share/vlff/extractor" '[[ -x "$tmp/stage/usr/$ext" ]]'
 echo "$passes passed, $fails failed"
 rm -f /dev/shm/vlff-install-*-$$
 (( fails == 0 ))

@@ -8,6 +8,12 @@ this process creates and owns (one producer per ring). The node joins them
 to its keyframes by id and drops keyframes whose features do not arrive
 within vlm.feature_timeout_s.
 
+A feature function slower than the camera never falls behind: each frame
+served is the newest in the ring when the previous one is done, and the
+frames passed over are counted (skipped) and summarised on stderr every
+5 s, as are features refused (wrong shape, non-finite after the float16
+conversion).
+
 Library use:
     from vlff_extractor import Extractor
     def features(rgb):            # rgb: uint8 [H,W,3]; return float [D,h,w]
@@ -18,6 +24,9 @@ Library use:
 Command line (FN is module_path.py:function):
     vlff_extractor.py --frames /vlff-frames --features /vlff-features \\
         --dim 512 --height 120 --width 160 --fn my_lseg.py:features
+
+Installed as share/vlff/extractor/vlff_extractor.py under the prefix; that
+copy loads the libvlff-shm.so.1 installed beside it unless --lib says.
 """
 import argparse
 import ctypes
@@ -26,8 +35,14 @@ import errno
 import importlib.util
 import os
 import sys
+import time
 
 import numpy as np
+
+# The installed copy's path to the library directory, relative to its own
+# directory (CMake fills it in); the source tree's copy keeps the marker.
+INSTALLED_LIBDIR = "@VLFF_EXTRACTOR_LIBDIR@"
+REPORT_S = 5.0
 
 RECORD_FRAME, RECORD_FEATURE = 2, 3
 PIX_RGB8, PIX_BGR8 = 1, 2
@@ -64,14 +79,27 @@ class RingView(ctypes.Structure):
                 ("generation", ctypes.c_uint32), ("new_generation", ctypes.c_uint32)]
 
 
+def default_library():
+    """The installed library beside an installed copy, else the system's."""
+    if not INSTALLED_LIBDIR.startswith("@"):
+        here = os.path.dirname(os.path.realpath(__file__))
+        cand = os.path.normpath(os.path.join(here, INSTALLED_LIBDIR, "libvlff-shm.so.1"))
+        if os.path.exists(cand):
+            return cand
+    return ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.1"
+
+
 def load_library(path=None):
-    lib = ctypes.CDLL(path or ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.1", use_errno=True)
+    lib = ctypes.CDLL(path or default_library(), use_errno=True)
     vp, u32, u64, sz = ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint64, ctypes.c_size_t
     sigs = {
         "vlff_ring_attach": (vp, [ctypes.c_char_p, u32]),
         "vlff_ring_create": (vp, [ctypes.c_char_p, ctypes.POINTER(RingParams)]),
         "vlff_ring_close": (None, [vp]),
         "vlff_ring_slot_size": (u64, [vp]),
+        "vlff_ring_head": (u64, [vp]),
+        "vlff_ring_seek_newest": (None, [vp]),
+        "vlff_ring_read_latest": (ctypes.c_ssize_t, [vp, vp, sz, ctypes.POINTER(RingView)]),
         "vlff_ring_read_copy": (ctypes.c_ssize_t, [vp, vp, sz, ctypes.POINTER(RingView), u64]),
         "vlff_ring_reserve": (vp, [vp, ctypes.POINTER(u64)]),
         "vlff_ring_commit": (ctypes.c_int, [vp, sz]),
@@ -109,7 +137,11 @@ class Extractor:
             raise ShmError(self._msg())
         self.slot_size = slot
         self.buf = ctypes.create_string_buffer(self.lib.vlff_ring_slot_size(self.frames))
-        self.done = self.failed = 0
+        self.done = self.failed = self.skipped = 0
+        self.last_seq = None  # ring record number of the newest frame taken
+        self._since = {"done": 0, "failed": 0, "skipped": 0}
+        self._last_error = ""
+        self._report_t = time.monotonic()
 
     def _msg(self):
         m = self.lib.vlff_shm_last_message()
@@ -129,7 +161,10 @@ class Extractor:
         self.close()
 
     def next_frame(self, timeout_s=1.0):
-        """(header, rgb [H,W,3] uint8) of the next frame, or None on timeout."""
+        """(header, rgb [H,W,3] uint8) of the newest frame not taken yet, or None
+        on timeout. Frames that came while the previous one was being served are
+        passed over for the newest and counted in self.skipped: features of a
+        stale frame would only expire in the node."""
         view = RingView()
         n = self.lib.vlff_ring_read_copy(self.frames, self.buf, len(self.buf), ctypes.byref(view),
                                          int(timeout_s * 1e9))
@@ -138,9 +173,23 @@ class Extractor:
             if e in (errno.ETIMEDOUT, errno.EAGAIN, errno.EINTR):
                 return None
             raise ShmError(self._msg())
+        if self.lib.vlff_ring_head(self.frames) > view.seq + 1:
+            # Newer frames wait: copy the newest, then move the cursor past it
+            # (a frame committed between the two is passed over and counted).
+            latest = RingView()
+            m = self.lib.vlff_ring_read_latest(self.frames, self.buf, len(self.buf), ctypes.byref(latest))
+            if m < 0:
+                raise ShmError(self._msg())
+            self.lib.vlff_ring_seek_newest(self.frames)
+            n, view = m, latest
+        if self.last_seq is not None and view.seq <= self.last_seq:
+            return self.next_frame(timeout_s)  # one already passed over: wait for a newer one
+        if self.last_seq is not None:
+            self._count("skipped", view.seq - self.last_seq - 1)
+        self.last_seq = view.seq
         if self.lib.vlff_frame_validate(self.buf, n) != 0:
             raise ShmError(self._msg())
-        hdr = FrameHdr.from_buffer_copy(self.buf.raw[:ctypes.sizeof(FrameHdr)])
+        hdr = FrameHdr.from_buffer_copy(self.buf)  # the header only (.raw would copy the slot)
         p = hdr.plane[PLANE_COLOR]
         if p.format not in (PIX_RGB8, PIX_BGR8):
             raise ShmError(f"frame {hdr.frame_id}: color format {p.format}, this client takes RGB8/BGR8")
@@ -154,25 +203,55 @@ class Extractor:
         """Write feats [D,h,w] for the frame of hdr into the feature ring."""
         f = np.asarray(feats)
         if f.shape != (self.dim, self.height, self.width):
-            raise ValueError(f"features {f.shape}, expected {(self.dim, self.height, self.width)}")
-        if not np.all(np.isfinite(f)):
-            raise ValueError(f"frame {hdr.frame_id}: non-finite features")
-        f16 = np.ascontiguousarray(f, dtype="<f2")
+            raise ValueError(f"frame {hdr.frame_id}: features {f.shape}, expected {(self.dim, self.height, self.width)}")
         slot = self.lib.vlff_ring_reserve(self.features, None)
         if not slot:
             raise ShmError(self._msg())
         out = FeatureHdr.from_address(slot)
         if not self.lib.vlff_feature_layout(ctypes.byref(out), self.slot_size, self.dim, self.height, self.width):
             raise ShmError("feature layout does not fit the slot")
+        # Converted straight into the slot in one pass whatever the input's
+        # type and layout (no array of the record's size to allocate and copy
+        # per frame), and checked there, as the node checks the record: a
+        # value beyond float16's range is infinite there too. The check reads
+        # the bits (exponent all ones = Inf or NaN) in one integer pass;
+        # float16 arithmetic in numpy is emulated per element. Refused
+        # features are not committed: the next frame reserves the same slot.
+        n = self.dim * self.height * self.width
+        bits = np.ctypeslib.as_array((ctypes.c_uint16 * n).from_address(slot + out.data_offset)).view("<u2")
+        with np.errstate(over="ignore", invalid="ignore"):
+            np.copyto(bits.view("<f2").reshape(f.shape), f, casting="unsafe")
+        if int(np.max(bits & np.uint16(0x7FFF), initial=0)) >= 0x7C00:
+            raise ValueError(f"frame {hdr.frame_id}: non-finite features (NaN, Inf, or beyond float16's +-65504)")
         out.frame_id, out.t_host_ns, out.sensor_id = hdr.frame_id, hdr.t_host_ns, hdr.sensor_id
-        ctypes.memmove(slot + out.data_offset, f16.ctypes.data, f16.nbytes)
-        if self.lib.vlff_ring_commit(self.features, out.data_offset + f16.nbytes) != 0:
+        if self.lib.vlff_ring_commit(self.features, out.data_offset + 2 * n) != 0:
             raise ShmError(self._msg())
+
+    def _count(self, what, k=1):
+        setattr(self, what, getattr(self, what) + k)
+        self._since[what] += k
+
+    def report(self, force=False):
+        """One stderr line of what happened since the last one, at most every
+        REPORT_S seconds and only when frames were skipped or refused."""
+        now = time.monotonic()
+        if not force and now - self._report_t < REPORT_S:
+            return
+        s = self._since
+        if s["skipped"] or s["failed"]:
+            line = (f"vlff_extractor: last {now - self._report_t:.0f} s: {s['done']} frames served, "
+                    f"{s['skipped']} skipped for newer ones ({self.skipped} in all)")
+            if s["failed"]:
+                line += f", {s['failed']} refused ({self.failed} in all; latest: {self._last_error})"
+            print(line, file=sys.stderr, flush=True)
+        self._since = dict.fromkeys(s, 0)
+        self._report_t = now
 
     def run(self, max_frames=0, idle_timeout_s=0):
         """Serve frames until max_frames (0 = forever) or idle_timeout_s without one."""
         idle = 0.0
         while not max_frames or self.done + self.failed < max_frames:
+            self.report()
             got = self.next_frame(1.0)
             if got is None:
                 idle += 1.0
@@ -183,10 +262,13 @@ class Extractor:
             hdr, rgb = got
             try:
                 self.publish(hdr, self.fn(rgb))
-                self.done += 1
+                self._count("done")
             except (ValueError, FloatingPointError) as e:
-                print(f"vlff_extractor: {e}", file=sys.stderr)
-                self.failed += 1
+                if not self.failed:  # the first in full, later ones in the summaries
+                    print(f"vlff_extractor: {e}", file=sys.stderr, flush=True)
+                self._last_error = str(e)
+                self._count("failed")
+        self.report(force=True)
 
 
 def load_fn(spec):
@@ -216,7 +298,7 @@ def main():
         with Extractor(a.frames, a.features, a.dim, a.height, a.width, load_fn(a.fn), a.slots, a.lib) as ex:
             print(f"vlff_extractor: {a.frames} -> {a.features} [{a.dim},{a.height},{a.width}]", flush=True)
             ex.run(a.max_frames, a.idle_exit)
-            print(f"vlff_extractor: {ex.done} frames, {ex.failed} failed", flush=True)
+            print(f"vlff_extractor: {ex.done} frames, {ex.failed} failed, {ex.skipped} skipped", flush=True)
     except ShmError as e:
         sys.exit(f"vlff_extractor: {e}")
 

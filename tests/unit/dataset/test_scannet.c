@@ -416,23 +416,47 @@ static void test_sens(void **state) {
 }
 
 #ifdef VLFF_HAVE_HDF5
+/* A feature file at path: rows maps of h x w x c floats, every value of row
+ * r = base + r + 1; rank 3 writes one map as [h,w,c]. With nframes > 0 a root
+ * dataset "frames" of those numbers (as int64, or as float when as_float)
+ * names each row's frame. */
+static void write_feats(const char *path, float base, int rows, int h, int w, int c, int rank,
+                        const long long *frames, int nframes, int as_float) {
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  hid_t f = H5Fcreate(path, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  assert_true(f >= 0);
+  hid_t g = H5Gcreate2(f, "features", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  hsize_t dims[4] = {(hsize_t)rows, (hsize_t)h, (hsize_t)w, (hsize_t)c};
+  size_t per = (size_t)h * w * c;
+  float *v = malloc((size_t)rows * per * sizeof *v);
+  assert_non_null(v);
+  for (int r = 0; r < rows; r++)
+    for (size_t k = 0; k < per; k++) v[r * per + k] = base + (float)(r + 1);
+  hid_t sp = rank == 3 ? H5Screate_simple(3, dims + 1, NULL) : H5Screate_simple(4, dims, NULL);
+  hid_t d = H5Dcreate2(g, "lseg", H5T_IEEE_F32LE, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  assert_true(d >= 0);
+  assert_true(H5Dwrite(d, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, v) >= 0);
+  H5Dclose(d), H5Sclose(sp), H5Gclose(g);
+  if (nframes > 0) {
+    hsize_t n = (hsize_t)nframes;
+    double fv[64];
+    for (int k = 0; k < nframes && k < 64; k++) fv[k] = (double)frames[k];
+    sp = H5Screate_simple(1, &n, NULL);
+    d = H5Dcreate2(f, "frames", as_float ? H5T_IEEE_F64LE : H5T_STD_I64LE, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    assert_true(d >= 0);
+    assert_true(H5Dwrite(d, as_float ? H5T_NATIVE_DOUBLE : H5T_NATIVE_LLONG, H5S_ALL, H5S_ALL, H5P_DEFAULT,
+                         as_float ? (const void *)fv : (const void *)frames) >= 0);
+    H5Dclose(d), H5Sclose(sp);
+  }
+  H5Fclose(f);
+  free(v);
+}
+
 /* features.hdf with rows maps of 2x2x4 floats, every value of row r = r + 1. */
 static void write_features(const char *scene, int rows) {
   char p[600];
   snprintf(p, sizeof p, "%s/features.hdf", scene);
-  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
-  hid_t f = H5Fcreate(p, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-  assert_true(f >= 0);
-  hid_t g = H5Gcreate2(f, "features", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-  hsize_t dims[4] = {(hsize_t)rows, 2, 2, 4};
-  float v[8 * 16];
-  for (int r = 0; r < rows; r++)
-    for (int k = 0; k < 16; k++) v[r * 16 + k] = (float)(r + 1);
-  hid_t sp = H5Screate_simple(4, dims, NULL);
-  hid_t d = H5Dcreate2(g, "lseg", H5T_IEEE_F32LE, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-  assert_true(d >= 0);
-  assert_true(H5Dwrite(d, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, v) >= 0);
-  H5Dclose(d), H5Sclose(sp), H5Gclose(g), H5Fclose(f);
+  write_feats(p, 0, rows, 2, 2, 4, 4, NULL, 0, 0);
 }
 
 /* Frame i's first feature as half-float bits. */
@@ -485,20 +509,185 @@ static void test_lost_tracking(void **state) {
 #endif
 }
 
+/* The usable frame whose stem is stem. */
+static int frame_of(const struct vlff_dataset *ds, const char *stem) {
+  for (int i = 0; i < ds->n; i++)
+    if (!strcmp(ds->stem[i], stem)) return i;
+  fail_msg("no frame %s", stem);
+  return -1;
+}
+
+/* What a caller requires is checked before any frame is listed and named
+ * as ScanNet names it: the labelled mesh <scene>_vh_clean_2.labels.ply (the
+ * .sens file's scene name), label-filt/, features.hdf. A reader that needs
+ * none of them (vlff-replay) still opens the scene. */
+static void test_required_files(void **state) {
+  (void)state;
+  char dir[400], path[600], p[700], err[512];
+  sens_scene(dir, sizeof dir, path, sizeof path, "scene0010_00");
+  snprintf(p, sizeof p, "%s/scene_vh_clean_2.labels.ply", dir);
+  assert_int_equal(unlink(p), 0);
+  struct vlff_dataset ds;
+  struct vlff_dataset_options o = {.layout = VLFF_DS_AUTO, .require = VLFF_DS_REQUIRE_POINTS};
+  assert_int_equal(vlff_dataset_open_opts(&ds, path, &o, err, sizeof err), -1);
+  if (!strstr(err, "scene0010_00/scene0010_00_vh_clean_2.labels.ply: missing") || strstr(err, "mesh.ply"))
+    fail_msg("%s", err);
+  if (vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  struct vlff_points pts;
+  assert_int_equal(vlff_dataset_read_points(&ds, &pts, err, sizeof err), -1);
+  if (!strstr(err, "scene0010_00_vh_clean_2.labels.ply: missing")) fail_msg("%s", err);
+  vlff_dataset_close(&ds);
+  /* the export layout names it after the scene directory; a FIFO there is refused, not waited on */
+  char scene[400];
+  scene_path(scene, sizeof scene, "scene0011_00");
+  write_export(scene, 2, -1);
+  snprintf(p, sizeof p, "%s/scene_vh_clean_2.labels.ply", scene);
+  assert_int_equal(unlink(p), 0);
+  assert_int_equal(vlff_dataset_open_opts(&ds, scene, &o, err, sizeof err), -1);
+  if (!strstr(err, "scans/scene0011_00/scene0011_00_vh_clean_2.labels.ply: missing")) fail_msg("%s", err);
+  snprintf(p, sizeof p, "%s/scene0011_00_vh_clean_2.labels.ply", scene);
+  assert_int_equal(mkfifo(p, 0644), 0);
+  assert_int_equal(vlff_dataset_open_opts(&ds, scene, &o, err, sizeof err), -1);
+  if (!strstr(err, "scene0011_00_vh_clean_2.labels.ply")) fail_msg("%s", err);
+  unlink(p);
+  write_tsv_and_ply(scene);
+  /* the 2D labels and the features */
+  o.require = VLFF_DS_REQUIRE_POINTS | VLFF_DS_REQUIRE_LABELS | VLFF_DS_REQUIRE_FEATURES;
+  assert_int_equal(vlff_dataset_open_opts(&ds, scene, &o, err, sizeof err), -1);
+  if (!strstr(err, "scene0011_00/features.hdf: missing")) fail_msg("%s", err);
+  snprintf(p, sizeof p, "rm -r %s/label-filt", scene);
+  assert_int_equal(system(p), 0);
+  assert_int_equal(vlff_dataset_open_opts(&ds, scene, &o, err, sizeof err), -1);
+  if (!strstr(err, "scene0011_00/label-filt: missing: ScanNet's 2D labels")) fail_msg("%s", err);
+}
+
+#ifdef VLFF_HAVE_HDF5
+/* Features for some frames only (a whole ScanNet scene's maps at D = 512
+ * are about 110 GB): features.hdf naming its rows' frames in "frames", or
+ * features/<frame>.hdf, one file per frame. A frame without features is
+ * refused when read, naming the file and the frame; frame numbers out of
+ * order, beyond the scene or not matching the rows, and a file naming no
+ * frame of the scene, are refused at open naming the file and the row. */
+static void test_features_some_frames(void **state) {
+  (void)state;
+  char scene[400], err[512], p[700];
+  scene_path(scene, sizeof scene, "scene0006_00");
+  write_export(scene, 7, 4); /* frames 0..6, 4 lost */
+  snprintf(p, sizeof p, "%s/features.hdf", scene);
+  const long long every2[4] = {0, 2, 4, 6};
+  write_feats(p, 0, 4, 2, 2, 4, 4, every2, 4, 0);
+  struct vlff_dataset ds;
+  uint16_t out[16];
+  if (vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_int_equal(ds.n, 6);
+  assert_int_equal(ds.feat_frames, 3); /* 0, 2 and 6; 4 is lost */
+  assert_int_equal(first_feature(&ds, frame_of(&ds, "0")), 0x3c00); /* row 0: 1 */
+  assert_int_equal(first_feature(&ds, frame_of(&ds, "2")), 0x4000); /* row 1: 2 */
+  assert_int_equal(first_feature(&ds, frame_of(&ds, "6")), 0x4400); /* row 3: 4 */
+  assert_int_equal(vlff_dataset_read_features(&ds, frame_of(&ds, "1"), out, err, sizeof err), -1);
+  if (!strstr(err, "scene0006_00/features.hdf: holds no features for frame 1")) fail_msg("%s", err);
+  vlff_dataset_close(&ds);
+  struct {
+    long long f[4];
+    int n, as_float;
+    const char *says;
+  } bad[] = {
+      {{0, 4, 2, 6}, 4, 0, "frames[2] = 2 after frame 4: frame numbers must increase"},
+      {{0, 2, 2, 6}, 4, 0, "frames[2] = 2 after frame 2"},
+      {{0, 2, 4, 7}, 4, 0, "frames[3] = 7: the scene's frames run 0..6"},
+      {{-1, 2, 4, 6}, 4, 0, "frames[0] = -1"},
+      {{0, 2, 4}, 3, 0, "'frames' names 3 frames but features/lseg holds 4"},
+      {{0, 2, 4, 6}, 4, 1, "'frames' must be a 1-D integer dataset"},
+  };
+  for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
+    write_feats(p, 0, 4, 2, 2, 4, 4, bad[k].f, bad[k].n, bad[k].as_float);
+    assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+    if (!strstr(err, bad[k].says) || !strstr(err, "scene0006_00/features.hdf")) fail_msg("case %zu: %s", k, err);
+  }
+  /* without "frames", a count that fits no rule says how to name them */
+  write_feats(p, 0, 4, 2, 2, 4, 4, NULL, 0, 0);
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "holds 4 frames; expected N=6") || !strstr(err, "'frames' dataset")) fail_msg("%s", err);
+  /* one file per frame, [H,W,C] or [1,H,W,C]; the lost frame's is passed over */
+  unlink(p);
+  snprintf(p, sizeof p, "%s/features", scene);
+  assert_int_equal(mkdir(p, 0755), 0);
+  const int have[4] = {0, 2, 4, 6};
+  for (int k = 0; k < 4; k++) {
+    snprintf(p, sizeof p, "%s/features/%d.hdf", scene, have[k]);
+    write_feats(p, (float)have[k], 1, 2, 2, 4, k % 2 ? 4 : 3, NULL, 0, 0);
+  }
+  if (vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_true(ds.feat_files);
+  assert_int_equal(ds.feat_frames, 3);
+  assert_int_equal(first_feature(&ds, frame_of(&ds, "0")), 0x3c00); /* 1 */
+  assert_int_equal(first_feature(&ds, frame_of(&ds, "2")), 0x4200); /* 3 */
+  assert_int_equal(first_feature(&ds, frame_of(&ds, "6")), 0x4700); /* 7 */
+  assert_int_equal(vlff_dataset_read_features(&ds, frame_of(&ds, "5"), out, err, sizeof err), -1);
+  if (!strstr(err, "scene0006_00/features/5.hdf: holds no features for frame 5")) fail_msg("%s", err);
+  vlff_dataset_close(&ds);
+  /* a file of another shape is refused when read, naming it */
+  snprintf(p, sizeof p, "%s/features/6.hdf", scene);
+  write_feats(p, 6, 1, 2, 2, 8, 3, NULL, 0, 0);
+  if (vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  assert_int_equal(vlff_dataset_read_features(&ds, frame_of(&ds, "6"), out, err, sizeof err), -1);
+  if (!strstr(err, "features/6.hdf: features/lseg is 2x2x8; the scene's are 2x2x4")) fail_msg("%s", err);
+  vlff_dataset_close(&ds);
+  /* a file naming no frame of the scene, or two maps in one frame's file */
+  snprintf(p, sizeof p, "%s/features/9.hdf", scene);
+  write_feats(p, 0, 1, 2, 2, 4, 3, NULL, 0, 0);
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "features/9.hdf: the scene has no frame 9")) fail_msg("%s", err);
+  unlink(p);
+  snprintf(p, sizeof p, "%s/features/0.hdf", scene);
+  write_feats(p, 0, 2, 2, 2, 4, 4, NULL, 0, 0);
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "features/0.hdf: features/lseg has shape [2,2,2,4]; expected one frame")) fail_msg("%s", err);
+  /* both forms at once: which one is meant? */
+  write_feats(p, 0, 1, 2, 2, 4, 4, NULL, 0, 0);
+  snprintf(p, sizeof p, "%s/features.hdf", scene);
+  write_feats(p, 0, 6, 2, 2, 4, 4, NULL, 0, 0);
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "both features.hdf and features/")) fail_msg("%s", err);
+}
+#define FEATURES_TEST , cmocka_unit_test(test_features_some_frames)
+#else
+#define FEATURES_TEST
+#endif
+
+#if defined(VLFF_HAVE_HDF5) && (defined(VLFF_EVAL_BUILT) || defined(VLFF_REPLAY_BUILT))
+/* grep -q for text (a fixed string) in root/<log>.log. */
+static int log_has(const char *log, const char *text) {
+  char cmd[1200];
+  snprintf(cmd, sizeof cmd, "grep -qF -- '%s' %s/%s.log", text, root, log);
+  return system(cmd) == 0;
+}
+
+static void show_log(const char *log) {
+  char cmd[700];
+  snprintf(cmd, sizeof cmd, "cat %s/%s.log >&2", root, log);
+  (void)!system(cmd);
+}
+#endif
+
 #if defined(VLFF_HAVE_HDF5) && defined(VLFF_EVAL_BUILT)
-/* prompt_embeddings.txt in dir naming every class of the label set, D = 4. */
-static void write_embeddings(const char *dir, int set) {
-  char p[600], line[128];
+/* prompt_embeddings.txt in dir naming every class of the label set, D = dim
+ * (>= 4; the first four distinguish the classes). */
+static void write_embeddings_dim(const char *dir, int set, int dim) {
+  char p[600];
   snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
   FILE *f = fopen(p, "w");
   assert_non_null(f);
-  fputs("vlff-embeddings 1\ndim 4\n", f);
+  fprintf(f, "vlff-embeddings 1\ndim %d\n", dim);
   for (int k = 0; vlff_label_set_name(set, k); k++) {
-    snprintf(line, sizeof line, "%s\t%d %d %d 1\n", vlff_label_set_name(set, k), k % 3, k / 3 % 3, k / 9);
-    fputs(line, f);
+    fprintf(f, "%s\t%d %d %d 1", vlff_label_set_name(set, k), k % 3, k / 3 % 3, k / 9);
+    for (int j = 4; j < dim; j++) fputs(" 0", f);
+    fputc('\n', f);
   }
   fclose(f);
 }
+
+static void write_embeddings(const char *dir, int set) { write_embeddings_dim(dir, set, 4); }
 
 /* report.json's source frames as "n n ...": train_frames, then test_frames. */
 static void report_frames(const char *out, char *train, char *test, size_t cap) {
@@ -514,7 +703,6 @@ static void report_frames(const char *out, char *train, char *test, size_t cap) 
   assert_int_equal(pclose(p), 0);
 }
 
-#define EVAL_TEST , cmocka_unit_test(test_eval_reads_scannet)
 
 /* vlff-eval on ScanNet as users have it: an export with a lost-tracking
  * frame and features.hdf holding a map per listed frame, its NYU40 labels
@@ -575,6 +763,144 @@ static void test_eval_reads_scannet(void **state) {
   assert_string_equal(train, "0\n");
   assert_string_equal(test, "2\n");
 }
+
+/* Runs vlff-eval with args; its output in root/<log>.log. The exit status. */
+static int run_eval(const char *args, const char *log) {
+  char eval[600], cmd[3000];
+  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
+  snprintf(cmd, sizeof cmd, "%s %s --iters 0 --quiet --holdout 2 >%s/%s.log 2>&1", eval, args, root, log);
+  return system(cmd);
+}
+
+/* vlff-eval on features stored for every second frame (features.hdf with
+ * "frames", then features/<frame>.hdf): --stride 2 and 4 take frames they
+ * hold; --stride 3 is refused before any frame is read, naming the file
+ * and the first frame it lacks. */
+static void test_eval_strided_features(void **state) {
+  (void)state;
+  char scene[400], args[1500], train[64], test[64], p[700];
+  scene_path(scene, sizeof scene, "scene0008_00");
+  write_export(scene, 16, -1);
+  write_embeddings(scene, VLFF_LABELS_SCANNET20);
+  snprintf(p, sizeof p, "%s/features.hdf", scene);
+  long long even[8];
+  for (int k = 0; k < 8; k++) even[k] = 2 * k;
+  write_feats(p, 0, 8, 2, 2, 4, 4, even, 8, 0);
+  snprintf(args, sizeof args, "--dataset %s --stride 2 --out %s/out-s2", scene, root);
+  if (run_eval(args, "s2") != 0) {
+    show_log("s2");
+    fail_msg("vlff-eval --stride 2 on features of every 2nd frame failed");
+  }
+  snprintf(p, sizeof p, "%s/out-s2", root);
+  report_frames(p, train, test, sizeof train);
+  assert_string_equal(train, "0 4 8 12\n");
+  assert_string_equal(test, "2 6 10 14\n");
+  snprintf(args, sizeof args, "--dataset %s --stride 3 --out %s/out-s3", scene, root);
+  assert_int_not_equal(run_eval(args, "s3"), 0);
+  if (!log_has("s3", "scene0008_00/features.hdf: holds no map for frame 3, which --stride 3 takes")) {
+    show_log("s3");
+    fail_msg("the refusal does not name the file and the frame");
+  }
+  /* one file per frame */
+  snprintf(p, sizeof p, "%s/features.hdf", scene);
+  assert_int_equal(unlink(p), 0);
+  snprintf(p, sizeof p, "%s/features", scene);
+  assert_int_equal(mkdir(p, 0755), 0);
+  for (int k = 0; k < 16; k += 4) {
+    snprintf(p, sizeof p, "%s/features/%d.hdf", scene, k);
+    write_feats(p, 0, 1, 2, 2, 4, 3, NULL, 0, 0);
+  }
+  snprintf(args, sizeof args, "--dataset %s --stride 4 --out %s/out-s4", scene, root);
+  if (run_eval(args, "s4") != 0) {
+    show_log("s4");
+    fail_msg("vlff-eval --stride 4 on features/ failed");
+  }
+  snprintf(p, sizeof p, "%s/out-s4", root);
+  report_frames(p, train, test, sizeof train);
+  assert_string_equal(train, "0 8\n");
+  assert_string_equal(test, "4 12\n");
+  snprintf(args, sizeof args, "--dataset %s --stride 2 --out %s/out-s2d", scene, root);
+  assert_int_not_equal(run_eval(args, "s2d"), 0);
+  if (!log_has("s2d", "scene0008_00/features/2.hdf: missing, which --stride 2 takes")) {
+    show_log("s2d");
+    fail_msg("the refusal does not name the frame's file");
+  }
+}
+
+/* A scene whose training frames exceed keyframes.memory_mb: vlff-eval
+ * takes every k-th of the frames --stride asked for, the smallest k that
+ * fits, and says so on stderr and in its report (it used to stop). */
+static void test_eval_chooses_stride(void **state) {
+  (void)state;
+  char scene[400], args[1500], train[64], test[64], p[700];
+  scene_path(scene, sizeof scene, "scene0009_00");
+  write_export(scene, 16, -1);
+  /* 30x40x64 float16 maps and 80x60 images: 0.18 MiB a frame, 8 training frames 1.4 MiB */
+  snprintf(p, sizeof p, "%s/features.hdf", scene);
+  write_feats(p, 0, 16, 30, 40, 64, 4, NULL, 0, 0);
+  write_embeddings_dim(scene, VLFF_LABELS_SCANNET20, 64);
+  char cfg[600];
+  snprintf(cfg, sizeof cfg, "%s/small.yaml", root);
+  putf(cfg, "keyframes:\n  memory_mb: 1\n");
+  snprintf(args, sizeof args, "--dataset %s -c %s --out %s/out-mem", scene, cfg, root);
+  if (run_eval(args, "mem") != 0) {
+    show_log("mem");
+    fail_msg("vlff-eval stopped instead of choosing a stride");
+  }
+  if (!log_has("mem", "the 8 training frames --stride 1 takes need 1.4 MiB") ||
+      !log_has("mem", "more than keyframes.memory_mb (1): using --stride 2 instead (8 frames, 4 of them training, 0.7 MiB")) {
+    show_log("mem");
+    fail_msg("stderr does not say which stride it chose and why");
+  }
+  snprintf(p, sizeof p, "%s/out-mem", root);
+  report_frames(p, train, test, sizeof train);
+  assert_string_equal(train, "0 4 8 12\n");
+  assert_string_equal(test, "2 6 10 14\n");
+  char cmd[1200], line[128];
+  snprintf(cmd, sizeof cmd,
+           "python3 -c 'import json,sys; s=json.load(open(sys.argv[1]))[\"source\"][\"stride\"]; "
+           "print(s[\"asked\"], s[\"used\"], s[\"chosen_for\"])' %s/out-mem/report.json",
+           root);
+  FILE *f = popen(cmd, "r");
+  assert_non_null(f);
+  assert_non_null(fgets(line, sizeof line, f));
+  assert_int_equal(pclose(f), 0);
+  assert_string_equal(line, "1 2 keyframes.memory_mb\n");
+  snprintf(cmd, sizeof cmd, "grep -qF 'every 2-th (--stride 1 asked; its training frames would need more than "
+                            "keyframes.memory_mb, 1 MiB)' %s/out-mem/report.md", root);
+  assert_int_equal(system(cmd), 0);
+}
+
+/* A scene without its labelled mesh is refused before any frame is read,
+ * naming ScanNet's file (it used to read every frame, then fail on
+ * "mesh.ply: cannot open"): a broken label image, which reading the frames
+ * would trip on first, is not what the error names. */
+static void test_eval_names_missing_mesh(void **state) {
+  (void)state;
+  char dir[400], path[600], p[700], args[1500];
+  sens_scene(dir, sizeof dir, path, sizeof path, "scene0012_00");
+  snprintf(p, sizeof p, "%s/scene_vh_clean_2.labels.ply", dir);
+  assert_int_equal(unlink(p), 0);
+  snprintf(p, sizeof p, "%s/label-filt", dir);
+  assert_int_equal(mkdir(p, 0755), 0);
+  for (int i = 0; i < 3; i += 2) {
+    snprintf(p, sizeof p, "%s/label-filt/%d.png", dir, i);
+    putf(p, "not a png");
+  }
+  write_features(dir, 3);
+  write_embeddings(dir, VLFF_LABELS_SCANNET20);
+  snprintf(args, sizeof args, "--dataset %s --out %s/out-nomesh", path, root);
+  assert_int_not_equal(run_eval(args, "nomesh"), 0);
+  if (!log_has("nomesh", "scene0012_00/scene0012_00_vh_clean_2.labels.ply: missing") || log_has("nomesh", "mesh.ply:") ||
+      log_has("nomesh", "label-filt/0.png")) {
+    show_log("nomesh");
+    fail_msg("the refusal does not name ScanNet's labelled mesh first");
+  }
+}
+
+#define EVAL_TEST                                                                                             \
+  , cmocka_unit_test(test_eval_reads_scannet), cmocka_unit_test(test_eval_strided_features),                  \
+      cmocka_unit_test(test_eval_chooses_stride), cmocka_unit_test(test_eval_names_missing_mesh)
 #else
 #define EVAL_TEST
 #endif
@@ -658,7 +984,41 @@ static void test_replay_sens(void **state) {
   vlff_ring_close(pr);
   vlff_dataset_close(&ds);
 }
-#define REPLAY_TEST , cmocka_unit_test(test_replay_sens)
+
+#ifdef VLFF_HAVE_HDF5
+/* vlff-replay on features stored for some frames: the frames they hold are
+ * played with their features, the others passed over and counted, and the
+ * replay succeeds (each used to be an unreadable frame, and the exit 1). */
+static void test_replay_some_features(void **state) {
+  (void)state;
+  char dir[400], path[600], cfg[700], p[700];
+  sens_scene(dir, sizeof dir, path, sizeof path, "scene0013_00");
+  snprintf(p, sizeof p, "%s/features.hdf", dir);
+  const long long first[1] = {0};
+  write_feats(p, 0, 1, 2, 2, 4, 4, first, 1, 0);
+  const char *what[3] = {"r", "p", "f"};
+  for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-tscf-%d-%s", (int)getpid(), what[k]);
+  snprintf(cfg, sizeof cfg, "%s/replay-f.yaml", root);
+  putf(cfg, "shm:\n  ring: %s\n  pose_ring: %s\n  feature_ring: %s\n  ring_slots: 4\n", replay_shm[0], replay_shm[1],
+       replay_shm[2]);
+  char prog[700], cmd[2400];
+  vlff_test_prog(prog, sizeof prog, "node/dataset/vlff-replay");
+  snprintf(cmd, sizeof cmd, "%s -c %s --fps 1000 %s >%s/replay-f.log 2>&1", prog, cfg, path, root);
+  if (system(cmd) != 0) {
+    show_log("replay-f");
+    fail_msg("vlff-replay on features of some frames failed");
+  }
+  if (!log_has("replay-f", "the features hold 1 of the 2 frames: the others are passed over") ||
+      !log_has("replay-f", "1 frames published, 0 unreadable skipped, 1 without features passed over")) {
+    show_log("replay-f");
+    fail_msg("the replay does not say which frames it passed over");
+  }
+}
+#define REPLAY_FEATURES_TEST , cmocka_unit_test(test_replay_some_features)
+#else
+#define REPLAY_FEATURES_TEST
+#endif
+#define REPLAY_TEST , cmocka_unit_test(test_replay_sens) REPLAY_FEATURES_TEST
 #else
 #define REPLAY_TEST
 #endif
@@ -685,4 +1045,5 @@ static int teardown(void **state) {
 }
 
 VLFF_UNIT_MAIN(setup, teardown,
-    cmocka_unit_test(test_export_layout), cmocka_unit_test(test_sens), cmocka_unit_test(test_lost_tracking) EVAL_TEST REPLAY_TEST)
+    cmocka_unit_test(test_export_layout), cmocka_unit_test(test_sens), cmocka_unit_test(test_lost_tracking),
+    cmocka_unit_test(test_required_files) FEATURES_TEST EVAL_TEST REPLAY_TEST)

@@ -288,8 +288,8 @@ static void test_reconnects_after_camera_restart(void **state) {
 static char rig_path[256];
 
 /* The pair's config: the fake GigE camera as colour, the in-process fake
- * camera as range, an identity rig. */
-static void write_pair_cfg(const char *depth_extra) {
+ * camera as range, an identity rig (rig_extra: more lines of its file). */
+static void write_pair_cfg_rig(const char *depth_extra, const char *rig_extra) {
   snprintf(rig_path, sizeof rig_path, "/tmp/vlff-test-camd-%d-rig.yaml", (int)getpid());
   FILE *f = fopen(rig_path, "w");
   assert_non_null(f);
@@ -301,6 +301,7 @@ static void write_pair_cfg(const char *depth_extra) {
         "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
         "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n",
         f);
+  if (rig_extra) fputs(rig_extra, f);
   fclose(f);
   char extra[1024];
   snprintf(extra, sizeof extra,
@@ -310,6 +311,8 @@ static void write_pair_cfg(const char *depth_extra) {
            rig_path, depth_extra ? depth_extra : "");
   write_cfg("Mono8", 320, 240, extra);
 }
+
+static void write_pair_cfg(const char *depth_extra) { write_pair_cfg_rig(depth_extra, NULL); }
 
 /* vlff-camd run on the pair for `frames` records, all committed; the ring
  * is returned read from its oldest record, *buf sized for one of them. */
@@ -499,7 +502,60 @@ static void test_bad_configs(void **state) {
   cleanup();
 }
 
+/* vlff-camd --check-config on the config last written: its exit status,
+ * its output in out; the config is removed. */
+static int check_config(char *out, size_t len) {
+  char cmd[1024];
+  snprintf(cmd, sizeof cmd, "%s/drivers/camd/vlff-camd --check-config %s 2>&1", getenv("VLFF_BINARY_DIR"), cfg_path);
+  FILE *p = popen(cmd, "r");
+  size_t n = fread(out, 1, len - 1, p);
+  out[n] = 0;
+  int st = pclose(p);
+  cleanup();
+  return WEXITSTATUS(st);
+}
+
+/* --check-config refuses a calibration made for other image sizes than the
+ * config's camera.width/height (and depth_camera's) when both say theirs, as
+ * start-up does; before, it said ok and every pair was dropped at the first. */
+static void test_check_config_calibration_sizes(void **state) {
+  (void)state;
+  char out[2048];
+  write_pair_cfg_rig(NULL, "depth_width: 320\ndepth_height: 240\ncolor_width: 320\ncolor_height: 240\n");
+  if (check_config(out, sizeof out) != 0) fail_msg("sizes that agree refused: %s", out);
+  write_pair_cfg_rig(NULL, "color_width: 640\ncolor_height: 480\n");
+  assert_int_equal(check_config(out, sizeof out), 1);
+  if (!strstr(out, "key 'depth_camera.calibration': ") ||
+      !strstr(out, "is calibrated for colour 640x480, but camera.width/height say 320x240"))
+    fail_msg("no colour size refusal in: %s", out);
+  write_pair_cfg_rig(NULL, "depth_width: 640\ndepth_height: 480\n");
+  assert_int_equal(check_config(out, sizeof out), 1);
+  if (!strstr(out, "is calibrated for depth 640x480, but depth_camera.width/height say 320x240"))
+    fail_msg("no depth size refusal in: %s", out);
+  unlink(rig_path);
+  /* A single camera's calibration of another image size. */
+  char calib[256], extra[400];
+  snprintf(calib, sizeof calib, "/tmp/vlff-test-camd-%d-mono.yaml", (int)getpid());
+  FILE *f = fopen(calib, "w");
+  assert_non_null(f);
+  fputs("%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n"
+        "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 600., 0., 319.5, 0., 600., 239.5, 0., 0., 1. ]\n"
+        "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n",
+        f);
+  fclose(f);
+  snprintf(extra, sizeof extra, "  calibration: %s\n", calib);
+  write_cfg("Mono8", 320, 240, extra);
+  assert_int_equal(check_config(out, sizeof out), 1);
+  if (!strstr(out, "key 'camera.calibration': ") ||
+      !strstr(out, "is calibrated for 640x480 images (image_width/height), but camera.width/height say 320x240"))
+    fail_msg("no camera.calibration size refusal in: %s", out);
+  write_cfg("Mono8", 640, 480, extra);
+  if (check_config(out, sizeof out) != 0) fail_msg("a calibration of the camera's size refused: %s", out);
+  unlink(calib);
+}
+
 VLFF_UNIT_MAIN(setup, teardown,
+    cmocka_unit_test(test_check_config_calibration_sizes),
     cmocka_unit_test(test_streams_n_frames),
     cmocka_unit_test(test_software_trigger_one_frame_each), cmocka_unit_test(test_bad_configs),
     cmocka_unit_test(test_reconnects_after_camera_restart),

@@ -12,7 +12,9 @@ tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
 check "--version" '"${node[@]}" --version | grep -qE "^vlff-node [0-9]+\.[0-9]+\.[0-9]+$"'
 check "--help lists --check-config" '"${node[@]}" --help | grep -q -- "--check-config"'
 check "bad option exits 2" '"${node[@]}" --bogus >/dev/null 2>&1; [[ $? == 2 ]]'
-check "default.yaml checks" '"${node[@]}" --check-config "$src/configs/default.yaml" >/dev/null 2>&1'
+# --check-config refuses what start-up refuses (the shipped configs: test_configs).
+check "--check-config: the rig defaults need a text encoder" \
+  '! "${node[@]}" --check-config "$src/configs/default.yaml" >/dev/null 2>"$tmp/dc.err" && grep -q "default.yaml: no text encoder for the prompts: set prompts.embeddings" "$tmp/dc.err"'
 # The defaults describe a rig: without a text encoder for the prompts the
 # node refuses to start, saying so, before it makes any segment.
 sed -e "s#\"/var/lib/vlff\"#\"$tmp/state\"#; s#\"/vlff-#\"/cli-$$-#" "$src/configs/default.yaml" >"$tmp/rig.yaml"
@@ -59,8 +61,20 @@ check "--check-config loads prompts.embeddings" \
 printf 'shm:\n  group: vlff-no-such-group\n' >"$tmp/grp.yaml"
 check "--check-config checks that shm.group exists" \
   '! "${node[@]}" --check-config "$tmp/grp.yaml" >/dev/null 2>"$tmp/err" && grep -q "grp.yaml: key .shm.group.: no group .vlff-no-such-group." "$tmp/err"'
-printf 'shm:\n  group: "0"\n' >"$tmp/gid.yaml"
+printf 'source:\n  kind: sim\nshm:\n  group: "0"\n' >"$tmp/gid.yaml"
 check "--check-config takes a numeric shm.group" '"${node[@]}" --check-config "$tmp/gid.yaml" >/dev/null 2>&1'
+# Every prompt of every set must be in the embeddings file, as start-up
+# needs the active set's and a controller may select another.
+{ printf 'vlff-embeddings 1\ndim 8\n'; for p in wall floor; do printf '%s\t1 0 0 0 0 0 0 0\n' "$p"; done; } >"$tmp/emb8.txt"
+printf 'field:\n  feature_dim: 8\nprompts:\n  embeddings: %s/emb8.txt\n  sets:\n    - name: a\n      prompts: [wall, floor]\n    - name: b\n      prompts: [floor, sofa]\n' "$tmp" >"$tmp/emb8.yaml"
+check "--check-config: a prompt of another set not in prompts.embeddings" \
+  '! "${node[@]}" --check-config "$tmp/emb8.yaml" >/dev/null 2>"$tmp/err" && grep -q "emb8.yaml: key .prompts.embeddings.: prompt .sofa. of set .b. is not in .*emb8.txt" "$tmp/err"'
+sed -i 's/\[floor, sofa\]/[floor]/' "$tmp/emb8.yaml"
+check "--check-config: every prompt in prompts.embeddings" '"${node[@]}" --check-config "$tmp/emb8.yaml" >/dev/null 2>"$tmp/err" || { cat "$tmp/err"; false; }'
+# The text encoder's files are named by their keys.
+printf 'vlm:\n  text_model: %s/none.onnx\n' "$tmp" >"$tmp/tm.yaml"
+check "--check-config: a missing vlm.text_model" \
+  '! "${node[@]}" --check-config "$tmp/tm.yaml" >/dev/null 2>"$tmp/err" && grep -qE "tm.yaml: (key .vlm.text_model.: .*none.onnx: cannot open|vlm.text_model: this vlff-node was built without OpenCV)" "$tmp/err"'
 mkdir -p "$tmp/fstate"
 mkfifo "$tmp/fstate/field.1.ckpt"
 (exit 0) & dead=$!; wait $dead

@@ -17,6 +17,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
@@ -65,7 +66,7 @@ static int teardown(void **state) {
   return tk_teardown(&tk);
 }
 
-enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS };
+enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, FUTURE_POSE };
 
 /* Writes simulator frame `index` into the ring, stamped t_ns. The pose
  * travels in the frame except for NO_POSE_FLAG (the pose ring must give
@@ -83,6 +84,7 @@ static void put_frame(struct vlff_ring *ring, struct vlff_sim *s, struct vlff_si
     h->flags &= ~(uint32_t)VLFF_FRAME_POSE_VALID;
     memset(h->pose, 0, sizeof h->pose);
   }
+  if (kind == FUTURE_POSE) h->pose_t_ns = vlff_shm_now_ns() + 3000000000ull; /* a camera clock 3 s ahead */
   memcpy((uint8_t *)h + h->plane[0].offset, f->rgb, (size_t)f->width * f->height * 3);
   if (kind != NO_DEPTH) memcpy((uint8_t *)h + h->plane[1].offset, f->depth_mm, (size_t)f->width * f->height * 2);
   assert_int_equal(vlff_ring_commit(ring, len), 0);
@@ -188,7 +190,10 @@ static void test_pose_adapter_feeds_node(void **state) {
   struct vlff_sim_frame *f = sc.frame;
   struct vlff_ring *ring = sc.ring;
   const uint64_t step = 200000000; /* the keyframe rate: every posed frame is a candidate */
-  uint64_t t = vlff_shm_now_ns();
+  /* The frames' stamps start in the past and advance faster than the test
+   * runs, so a trajectory written ahead of its frames is never ahead of the
+   * clock, which vlff-pose and the node refuse (pose.future_tolerance_s). */
+  uint64_t t = vlff_shm_now_ns() - 6000000000ull;
   long long id = 0;
   for (int i = 0; i < 4; i++, id++, t += step) put_frame(ring, s, f, id, t, NO_POSE_FLAG);
   struct vlff_node_status st;
@@ -312,10 +317,60 @@ static void test_pose_adapter_feeds_node(void **state) {
   tk_scene_close(&sc);
 }
 
+/* A pose source whose clock runs 3 s ahead: the pose ring holds the poses
+ * of the frames' stamps, and the newest, just written, 3 s ahead of the
+ * clock. Each frame would take a pose from 3 s earlier; the node refuses
+ * them all as "future pose", as it does a frame carrying a pose stamped
+ * 3 s ahead. Before, both kinds became keyframes. */
+static void test_future_pose_refused(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg);
+  struct tk_scene sc;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 320, 240, &src);
+  struct vlff_ring_params pp = {VLFF_RECORD_POSE, 64, sizeof(struct vlff_pose_rec), {0}};
+  struct vlff_ring *poses = vlff_ring_create(cfg.shm.pose_ring, &pp);
+  assert_non_null(poses);
+  const uint64_t step = 200000000;
+  const int nframes = 4;
+  uint64_t t = vlff_shm_now_ns() - 2000000000ull;
+  for (int i = 0; i <= nframes; i++) {
+    char err[256];
+    assert_int_equal(vlff_sim_render(sc.sim, i, 0, sc.frame, err, sizeof err), 0);
+    struct vlff_pose_rec pr = {.t_ns = t + (uint64_t)i * step};
+    memcpy(pr.pose, sc.frame->c2w, sizeof pr.pose);
+    if (i == nframes) pr.t_ns = vlff_shm_now_ns() + 3000000000ull;
+    assert_true(vlff_ring_write(poses, &pr, sizeof pr) >= 0);
+  }
+  for (int i = 0; i < nframes; i++) {
+    put_frame(sc.ring, sc.sim, sc.frame, i, t + (uint64_t)i * step, NO_POSE_FLAG);
+    tk_sleep_s(0.1);
+  }
+  /* A camera's own pose, 3 s ahead. */
+  put_frame(sc.ring, sc.sim, sc.frame, nframes, vlff_shm_now_ns(), FUTURE_POSE);
+  struct vlff_node_status st;
+  double t0 = vlff_seconds();
+  do {
+    tk_sleep_s(0.1);
+    vlff_node_status(n, &st);
+  } while (st.refused[VLFF_REFUSED_FUTURE_POSE] < nframes + 1 && vlff_seconds() - t0 < 10 * tk.scale);
+  printf("%d keyframes, %lld refused as future pose\n", st.keyframes, st.refused[VLFF_REFUSED_FUTURE_POSE]);
+  assert_int_equal(st.refused[VLFF_REFUSED_FUTURE_POSE], nframes + 1);
+  assert_int_equal(st.frames_invalid, nframes + 1);
+  assert_int_equal(st.keyframes, 0);
+  assert_string_equal(vlff_refusal_name(VLFF_REFUSED_FUTURE_POSE), "future pose");
+  vlff_ring_close(poses);
+  shm_unlink(cfg.shm.pose_ring);
+  tk_node_destroy(n, src);
+  tk_scene_close(&sc);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_setup_teardown(test_status_says_why, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_adapter_feeds_node, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_future_pose_refused, setup, teardown),
   };
   if (getenv("VLFF_TEST_FILTER")) cmocka_set_test_filter(getenv("VLFF_TEST_FILTER"));
   if (getenv("VLFF_TEST_DEBUG")) vlff_log_set_level(VLFF_LOG_DEBUG); /* every refusal's detail */

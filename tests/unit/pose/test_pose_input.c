@@ -172,10 +172,12 @@ static void pose_start(struct pose_run *u, const char *tag, const char *pose_ext
   assert_non_null(u->r);
 }
 
-/* One line forged far ahead of the clock is refused as a clock error; one
- * forged a little ahead (within the tolerance) is taken, and then the
- * tracker's own lines, older, restart the order after ten of them instead
- * of being refused until their stamps catch up. */
+/* One line forged far ahead of the clock is refused as a clock error, and
+ * so is one 3 s ahead (a clock off by that much, which the default
+ * tolerance of 5 s took before, each frame then posed from 3 s earlier).
+ * One forged newer than the tracker's lines but not ahead of the clock is
+ * taken, and then the tracker's own lines, older, restart the order after
+ * ten of them instead of being refused until their stamps catch up. */
 static void test_forged_future_line(void **state) {
   (void)state;
   struct pose_run u;
@@ -197,10 +199,15 @@ static void test_forged_future_line(void **state) {
   assert_true(wait_for_text(log, "udp datagram 2 line 1: refused, clock error: stamp", 10));
   assert_non_null(strstr(slurp(log), "s ahead of the clock"));
 
-  /* 3 s ahead: within the 5 s tolerance, taken. The tracker's next nine
-   * lines are refused out of order, the tenth restarts the order. */
-  uint64_t near = vlff_shm_now_ns() + 3000000000ull;
-  send_line(forger, port, near);
+  /* 3 s ahead: refused too, with its reason and the default tolerance. */
+  send_line(forger, port, vlff_shm_now_ns() + 3000000000ull);
+  assert_true(wait_for_text(log, "udp datagram 6 line 1: refused, clock error: stamp", 10));
+  assert_non_null(strstr(slurp(log), "tolerance 0.050 s): a wrong clock or clock offset, or a forged line"));
+
+  /* Newer than the tracker's lines, not ahead of the clock: taken. The
+   * tracker's next nine lines are refused out of order, the tenth restarts
+   * the order. */
+  send_line(forger, port, t + 1000000000ull);
   wait_head(r, 5);
   for (int i = 4; i < 4 + 12; i++) send_line(tracker, port, t + (uint64_t)i * step);
   wait_head(r, 5 + 3);
@@ -211,7 +218,7 @@ static void test_forged_future_line(void **state) {
   assert_non_null(strstr(text, "10 lines in a row were older than the last accepted stamp"));
   assert_non_null(strstr(text, "the order restarts at this line's"));
   char want[200];
-  snprintf(want, sizeof want, "8 poses written to %s, 10 lines refused (out of order 9, clock error 1), order "
+  snprintf(want, sizeof want, "8 poses written to %s, 11 lines refused (out of order 9, clock error 2), order "
            "restarted 1 times", ring);
   if (!strstr(text, want)) fail_msg("no '%s' in:\n%s", want, text);
   vlff_ring_close(r);
