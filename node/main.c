@@ -17,11 +17,13 @@
 #include "cli.h"
 #include "clock.h"
 #include "config.h"
-#include "dataset.h"
+#include "dataset.h" /* the PNG and PLY writers of --snapshot */
 #include "log.h"
 #include "node.h"
 #include "service.h"
+#ifdef VLFF_HAVE_SIM
 #include "sim_source.h"
+#endif
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_CAN
 #include "vlff_can.h"
@@ -67,7 +69,7 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
       .loss_feature = (float)st->loss_feat,
       .keyframes = (uint32_t)st->keyframes,
       .map_version = (uint32_t)st->map_version,
-      .map_published_ns = st->map_age_s < 0 ? 0 : (int64_t)vlff_shm_now_ns() - (int64_t)(st->map_age_s * 1e9),
+      .map_published_ns = st->map_age_s < 0 ? 0 : (int64_t)vlff_now_ns() - (int64_t)(st->map_age_s * 1e9),
       .fps_in = (float)st->fps_in,
       .fps_dropped = (float)dropped_per_s,
       .prompt_set = st->prompt_set < 0 ? 0xff : (uint32_t)st->prompt_set,
@@ -112,6 +114,32 @@ static int write_snapshot(struct vlff_node *node, const char *dir, char *err, si
   return rc < 0 ? -1 : 0;
 }
 
+/* The simulator's source and hooks when the config uses the simulator
+ * (source.kind: sim or source.features: sim), else none: the one place
+ * that knows every source kind. 0, or -1 with the reason in err. */
+static int source_open(const struct vlff_config *cfg, void **src, struct vlff_source_hooks *hooks, char *err,
+                       size_t errlen) {
+  memset(hooks, 0, sizeof *hooks);
+  *src = NULL;
+  if (cfg->source.kind != VLFF_SOURCE_SIM && cfg->source.features != VLFF_FEAT_SIM) return 0;
+#ifdef VLFF_HAVE_SIM
+  *src = vlff_sim_source_create(cfg, hooks, err, errlen);
+  return *src ? 0 : -1;
+#else
+  snprintf(err, errlen, "%s: this vlff-node was built without the simulator",
+           cfg->source.kind == VLFF_SOURCE_SIM ? "source.kind: sim" : "source.features: sim");
+  return -1;
+#endif
+}
+
+static void source_close(void *src) {
+#ifdef VLFF_HAVE_SIM
+  vlff_sim_source_destroy(src);
+#else
+  (void)src;
+#endif
+}
+
 /* --check-config: what start-up would refuse is refused here too, short of
  * making segments or opening the CAN bus: the CAN keys together, the
  * segments' group, the simulator the config asks for, and the node's own
@@ -136,9 +164,9 @@ static int check_config(const char *path) {
     }
   }
   struct vlff_source_hooks hooks;
-  struct vlff_sim_source *sim = vlff_sim_source_create(&cfg, &hooks, err, sizeof err);
-  int bad = !sim || vlff_node_check(&cfg, &hooks, true, err, sizeof err);
-  vlff_sim_source_destroy(sim);
+  void *src;
+  int bad = source_open(&cfg, &src, &hooks, err, sizeof err) || vlff_node_check(&cfg, &hooks, true, err, sizeof err);
+  source_close(src);
   if (bad) {
     fprintf(stderr, "%s: %s\n", path, err);
     return 1;
@@ -151,7 +179,7 @@ static int check_config(const char *path) {
 /* The running node and what main's loop feeds from it. */
 struct run {
   struct vlff_config cfg;
-  struct vlff_sim_source *sim;
+  void *source; /* the simulator's, when the config uses it (source_open) */
   struct vlff_node *node;
 #ifdef VLFF_HAVE_CAN
   struct vlff_can *can;
@@ -168,11 +196,12 @@ struct run {
 static int start(struct run *r) {
   char err[512];
   struct vlff_source_hooks hooks;
-  r->sim = vlff_sim_source_create(&r->cfg, &hooks, err, sizeof err);
-  r->node = r->sim ? vlff_node_create(&r->cfg, &hooks, err, sizeof err) : NULL;
+  r->node = source_open(&r->cfg, &r->source, &hooks, err, sizeof err)
+                ? NULL
+                : vlff_node_create(&r->cfg, &hooks, err, sizeof err);
   if (!r->node) {
     VLFF_ERROR("node", "%s", err);
-    vlff_sim_source_destroy(r->sim);
+    source_close(r->source);
     return 1;
   }
 #ifdef VLFF_HAVE_CAN
@@ -180,7 +209,7 @@ static int start(struct run *r) {
     if (vlff_can_check_config(&r->cfg.can, err, sizeof err)) {
       VLFF_ERROR("node", "%s", err);
       vlff_node_destroy(r->node, false);
-      vlff_sim_source_destroy(r->sim);
+      source_close(r->source);
       return 1;
     }
     r->can = vlff_can_open(&r->cfg.can, r->cfg.prompts.set_count, on_can_command, r->node);
@@ -201,7 +230,7 @@ static int start(struct run *r) {
 /* One pass of main's loop: the watchdog, CAN status, the --status line. */
 static void tick(struct run *r, double now) {
   struct vlff_node_status st;
-  uint64_t t = vlff_shm_now_ns();
+  uint64_t t = vlff_now_ns();
   if (vlff_service_watchdog_due(&r->svc, t)) {
     vlff_node_status(r->node, &st);
     uint64_t stale = r->svc.watchdog_ns / 2;
@@ -256,7 +285,7 @@ static int finish(struct run *r, const char *snapshot_dir) {
     }
   }
   vlff_node_destroy(r->node, true);
-  vlff_sim_source_destroy(r->sim);
+  source_close(r->source);
   char why[256];
   refusals_text(&st, why, sizeof why);
   VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "

@@ -41,12 +41,6 @@ struct vlff_arv {
   struct vlff_arv_stats st;
 };
 
-static uint64_t real_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static void on_control_lost(ArvDevice *dev, gpointer data) {
   (void)dev;
   atomic_store(&((struct vlff_arv *)data)->lost, true);
@@ -372,7 +366,7 @@ int vlff_arv_grab(struct vlff_arv *a, int timeout_ms, struct vlff_pipe *pipe, st
     /* Aravis stamps buffer arrival with the wall clock; move it onto
      * CLOCK_MONOTONIC through the current offset between the two. Fall back
      * to "now" when that is not plausible (no stamp, or a clock step). */
-    uint64_t sys = arv_buffer_get_system_timestamp(b), rnow = real_ns();
+    uint64_t sys = arv_buffer_get_system_timestamp(b), rnow = vlff_wall_ns();
     raw.host_ns = sys && sys <= rnow && rnow - sys < 1000000000u ? now - (rnow - sys) : now;
     rc = vlff_pipe_push(pipe, &raw, sink, poses) == 0 ? 1 : 0;
   }

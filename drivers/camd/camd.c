@@ -120,7 +120,7 @@ static void on_edge(void *ctx, uint64_t t, uint64_t n) {
 struct slot {
   const char *what; /* "camera" or "depth camera", for messages */
   const struct backend *be;
-  struct vlff_config cfg; /* camera.* describes this camera */
+  struct vlff_cfg_camera camera; /* this camera's section (the range camera's: vlff_depth_camera_config) */
   struct vlff_pipe *pipe;
   struct vlff_sink *sink;
   const struct vlff_pose_source *poses;
@@ -138,7 +138,7 @@ static int slot_open(struct slot *s, const char *path) {
   char err[1024];
   uint64_t now = vlff_now_ns();
   if (now < s->next_try) return 0;
-  s->cam = s->be->open(&s->cfg.camera, err, sizeof err);
+  s->cam = s->be->open(&s->camera, err, sizeof err);
   if (!s->cam) {
     if (errno != ENODEV) {
       fprintf(stderr, "%s: %s%s\n", path, strcmp(s->what, "camera") ? "depth camera: " : "", err);
@@ -149,7 +149,7 @@ static int slot_open(struct slot *s, const char *path) {
       VLFF_WARN(TAG, "%s: %s (attempt %llu, next in %.1f s)", s->what, err, (unsigned long long)s->open_failures,
                 s->backoff);
     s->next_try = now + (uint64_t)(s->backoff * 1e9);
-    s->backoff = s->backoff * 2 < s->cfg.camera.reconnect_max_s ? s->backoff * 2 : s->cfg.camera.reconnect_max_s;
+    s->backoff = s->backoff * 2 < s->camera.reconnect_max_s ? s->backoff * 2 : s->camera.reconnect_max_s;
     return 0;
   }
   if (s->ever_open) {
@@ -174,7 +174,7 @@ static void slot_close(struct slot *s) {
 
 static void slot_trigger(struct slot *s, uint64_t n) {
   char err[512];
-  for (; n > 0 && s->cam && s->be->trigger && s->cfg.camera.trigger == VLFF_TRIG_SOFTWARE; n--) {
+  for (; n > 0 && s->cam && s->be->trigger && s->camera.trigger == VLFF_TRIG_SOFTWARE; n--) {
     if (s->be->trigger(s->cam, err, sizeof err)) {
       s->trig_fail++;
       VLFF_WARN(TAG, "%s: %s", s->what, err);
@@ -190,7 +190,7 @@ static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
   s->lost++;
   s->lost_at = vlff_now_ns();
   slot_close(s);
-  VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, VLFF_Q(s->cfg.camera.device),
+  VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, VLFF_Q(s->camera.device),
              (unsigned long long)s->lost, ring);
   s->next_try = vlff_now_ns() + (uint64_t)(s->backoff * 1e9);
 }
@@ -288,7 +288,7 @@ static int setup_cameras(struct camd *d) {
   const bool paired = cfg->camera.depth == VLFF_DEPTH_STREAM;
   d->nslots = paired ? 2 : 1;
   struct slot *color = &d->slots[0], *range = paired ? &d->slots[1] : NULL;
-  color->what = "camera", color->be = be, color->cfg = *cfg, color->backoff = 0.1;
+  color->what = "camera", color->be = be, color->camera = cfg->camera, color->backoff = 0.1;
   color->pipe = vlff_pipe_new(cfg, err, sizeof err);
   if (!color->pipe) {
     fprintf(stderr, "%s: %s\n", d->path, err);
@@ -297,7 +297,7 @@ static int setup_cameras(struct camd *d) {
   if (range) {
 #ifdef VLFF_HAVE_ARAVIS
     range->what = "depth camera", range->be = &aravis_backend, range->backoff = 0.1;
-    vlff_depth_camera_config(cfg, &range->cfg);
+    vlff_depth_camera_config(cfg, &range->camera);
     range->pipe = vlff_pipe_new_depth(cfg, err, sizeof err);
 #else
     snprintf(err, sizeof err, "key 'depth_camera.kind': this build has no Aravis support");
@@ -324,7 +324,7 @@ static int setup_cameras(struct camd *d) {
  * ring, or the pairing's calibration). */
 static int setup_ring(struct camd *d) {
   char err[1024];
-  d->ring = vlff_ringsink_new(&d->cfg, err, sizeof err);
+  d->ring = vlff_ringsink_new(&d->cfg.shm, &d->cfg.camera, err, sizeof err);
   if (!d->ring) {
     fprintf(stderr, "vlff-camd: %s\n", err);
     return 1;
@@ -377,7 +377,7 @@ static int setup_gpio(struct camd *d) {
      * readout and transfer, easily more than a frame period; it is still the
      * edge's frame. Stamping-only edges must fall within one period. */
     for (int i = 0; i < d->nslots; i++) {
-      uint64_t period = (uint64_t)(1e9 / d->slots[i].cfg.camera.frame_rate);
+      uint64_t period = (uint64_t)(1e9 / d->slots[i].camera.frame_rate);
       vlff_pipe_set_stamps(d->slots[i].pipe, i ? &depth_stamps : &stamps,
                            trigger_on_edge && period < 1000000000u ? 1000000000u : period);
     }

@@ -8,6 +8,7 @@
 #include <string.h>
 #include <vlff/shm.h>
 
+#include "clock.h"
 #include "log.h"
 #include "vlff/escape.h"
 
@@ -87,13 +88,11 @@ static void abort_frame(struct vlff_sink *s, struct vlff_sink_frame *f) {
   ((struct vlff_ringsink *)s->ctx)->hdr = NULL;
 }
 
-static uint64_t now_ns(void) { return vlff_shm_now_ns(); }
-
 static int pose_lookup(void *ctx, uint64_t t_ns, double tol_s, double pose[16], uint64_t *pose_ns, bool *untrusted) {
   struct vlff_ringsink *r = ctx;
   if (!r->pose_ring) {
-    if (now_ns() < r->pose_retry_ns) return -1;
-    r->pose_retry_ns = now_ns() + 1000000000u;
+    if (vlff_now_ns() < r->pose_retry_ns) return -1;
+    r->pose_retry_ns = vlff_now_ns() + 1000000000u;
     r->pose_ring = vlff_ring_attach(r->pose_name, VLFF_RECORD_POSE);
     if (!r->pose_ring) {
       if (errno != ENOENT) vlff_warn_limited(&r->pose_warned, TAG, "pose ring: %s", vlff_shm_last_message());
@@ -115,29 +114,30 @@ static int pose_lookup(void *ctx, uint64_t t_ns, double tol_s, double pose[16], 
   return 0;
 }
 
-struct vlff_ringsink *vlff_ringsink_new(const struct vlff_config *cfg, char *err, size_t errlen) {
+struct vlff_ringsink *vlff_ringsink_new(const struct vlff_cfg_shm *shm, const struct vlff_cfg_camera *camera, char *err,
+                                        size_t errlen) {
   struct vlff_ringsink *r = calloc(1, sizeof *r);
   if (!r) return snprintf(err, errlen, "out of memory"), NULL;
-  uint32_t dfmt = cfg->camera.depth == VLFF_DEPTH_NONE       ? VLFF_PIX_NONE
-                  : cfg->camera.depth_unit == VLFF_DEPTH_UNIT_MM ? VLFF_PIX_DEPTH_U16_MM
+  uint32_t dfmt = camera->depth == VLFF_DEPTH_NONE       ? VLFF_PIX_NONE
+                  : camera->depth_unit == VLFF_DEPTH_UNIT_MM ? VLFF_PIX_DEPTH_U16_MM
                                                              : VLFF_PIX_DEPTH_F32_M;
-  r->slot_size = vlff_frame_slot_size((uint32_t)cfg->shm.max_width, (uint32_t)cfg->shm.max_height, VLFF_PIX_RGB8, dfmt);
+  r->slot_size = vlff_frame_slot_size((uint32_t)shm->max_width, (uint32_t)shm->max_height, VLFF_PIX_RGB8, dfmt);
   struct vlff_ring_params p = {
       .record_kind = VLFF_RECORD_FRAME,
-      .slots = (uint32_t)cfg->shm.ring_slots,
+      .slots = (uint32_t)shm->ring_slots,
       .slot_size = r->slot_size,
-      .perm = {.mode = (mode_t)cfg->shm.mode, .group = cfg->shm.group},
+      .perm = {.mode = (mode_t)shm->mode, .group = shm->group},
   };
-  r->ring = vlff_ring_create(cfg->shm.ring, &p);
+  r->ring = vlff_ring_create(shm->ring, &p);
   if (!r->ring) {
-    snprintf(err, errlen, "key 'shm.ring': cannot create frame ring %s: %s", cfg->shm.ring, vlff_shm_last_message());
+    snprintf(err, errlen, "key 'shm.ring': cannot create frame ring %s: %s", shm->ring, vlff_shm_last_message());
     free(r);
     return NULL;
   }
-  snprintf(r->pose_name, sizeof r->pose_name, "%s", cfg->shm.pose_ring);
+  snprintf(r->pose_name, sizeof r->pose_name, "%s", shm->pose_ring);
   r->sink = (struct vlff_sink){reserve, commit, abort_frame, r};
   r->poses = (struct vlff_pose_source){pose_lookup, r};
-  VLFF_INFO(TAG, "frame ring %s: %d slots of %llu bytes (generation %u)", cfg->shm.ring, cfg->shm.ring_slots,
+  VLFF_INFO(TAG, "frame ring %s: %d slots of %llu bytes (generation %u)", shm->ring, shm->ring_slots,
             (unsigned long long)r->slot_size, vlff_ring_generation(r->ring));
   return r;
 }

@@ -21,7 +21,10 @@
 #include "sink.h"
 
 struct vlff_ringsink;
-struct vlff_ringsink *vlff_ringsink_new(const struct vlff_config *cfg, char *err, size_t errlen);
+/* shm: the segments (shm.*); camera: the colour camera, whose depth
+ * settings fix the ring's depth plane. */
+struct vlff_ringsink *vlff_ringsink_new(const struct vlff_cfg_shm *shm, const struct vlff_cfg_camera *camera, char *err,
+                                        size_t errlen);
 void vlff_ringsink_free(struct vlff_ringsink *r);
 struct vlff_sink *vlff_ringsink_sink(struct vlff_ringsink *r);
 struct vlff_pose_source *vlff_ringsink_poses(struct vlff_ringsink *r);

@@ -21,7 +21,8 @@
 #define TAG "pipe"
 
 struct vlff_pipe {
-  struct vlff_config cfg;
+  struct vlff_cfg_camera cam;   /* this camera's section (the range camera's: vlff_depth_camera_config) */
+  double pose_tolerance_s;      /* source.pose_tolerance_s */
   vlff_pix_t pix;
   double k[4];                  /* intrinsics from config or calibration */
   double dist[5];
@@ -105,8 +106,6 @@ static int check_depth_camera(const struct vlff_config *cfg, const char *file, c
 
 int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err, size_t errlen) {
   const struct vlff_cfg_camera *c = &cfg->camera;
-  if (c->kind != VLFF_CAM_ARAVIS && c->kind != VLFF_CAM_LIBCAMERA)
-    BAD("camera.kind", "expected aravis or libcamera (vlff-camd drives real cameras), got sim");
   vlff_pix_t pix = vlff_pix_from_name(c->pixel_format);
   if (pix == VLFF_PIX_INVALID)
     BAD("camera.pixel_format", "expected one of %s, got '%s'", vlff_pix_names(), c->pixel_format);
@@ -159,10 +158,10 @@ int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err
   return 0;
 }
 
-void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_config *out) {
+void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_cfg_camera *out) {
   const struct vlff_cfg_depth_camera *d = &cfg->depth_camera;
-  *out = *cfg;
-  struct vlff_cfg_camera *c = &out->camera;
+  *out = cfg->camera;
+  struct vlff_cfg_camera *c = out;
   c->kind = VLFF_CAM_ARAVIS;
   snprintf(c->device, sizeof c->device, "%s", d->device);
   snprintf(c->pixel_format, sizeof c->pixel_format, "%s", d->pixel_format);
@@ -174,48 +173,50 @@ void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_config 
   memset(c->distortion, 0, sizeof c->distortion);
   c->calibration[0] = 0;
   c->depth = VLFF_DEPTH_STREAM, c->depth_unit = VLFF_DEPTH_UNIT_MM, c->depth_scale_m = d->scale_m;
-  out->depth_camera.kind = VLFF_DCAM_NONE;
 }
 
-static struct vlff_pipe *pipe_create(const struct vlff_config *cfg, bool range, char *err, size_t errlen) {
+/* A pipeline for the camera section cam; pair: the range camera a colour
+ * camera is paired with (its depth-to-colour calibration), else NULL. */
+static struct vlff_pipe *pipe_create(const struct vlff_cfg_camera *cam, const struct vlff_cfg_depth_camera *pair,
+                                     double pose_tolerance_s, bool range, char *err, size_t errlen) {
   struct vlff_pipe *p = calloc(1, sizeof *p);
   if (!p) {
     snprintf(err, errlen, "out of memory");
     return NULL;
   }
-  p->cfg = *cfg;
+  p->cam = *cam;
+  p->pose_tolerance_s = pose_tolerance_s;
   p->range = range;
-  p->pix = vlff_pix_from_name(cfg->camera.pixel_format);
-  memcpy(p->k, cfg->camera.intrinsics, sizeof p->k);
-  memcpy(p->dist, cfg->camera.distortion, sizeof p->dist);
-  if (!range && cfg->camera.depth == VLFF_DEPTH_STREAM) {
+  p->pix = vlff_pix_from_name(cam->pixel_format);
+  memcpy(p->k, cam->intrinsics, sizeof p->k);
+  memcpy(p->dist, cam->distortion, sizeof p->dist);
+  if (!range && pair) {
     /* The registration projects into the colour camera of the calibration:
      * the colour image must be undistorted with that camera's own model. */
     struct vlff_rgbd_calib rc;
     char e[512];
-    if (vlff_rgbd_calib_load(cfg->depth_camera.calibration, &rc, e, sizeof e)) {
+    if (vlff_rgbd_calib_load(pair->calibration, &rc, e, sizeof e)) {
       snprintf(err, errlen, "key 'depth_camera.calibration': %s", e);
       free(p);
       return NULL;
     }
     /* Both sizes in the config and in the file: they must agree, or the
      * first pair would find out and every pair be dropped. */
-    const struct vlff_cfg_depth_camera *dc = &cfg->depth_camera;
-    bool color_off = rc.color_w && cfg->camera.width && cfg->camera.height &&
-                     (rc.color_w != cfg->camera.width || rc.color_h != cfg->camera.height);
+    const struct vlff_cfg_depth_camera *dc = pair;
+    bool color_off = rc.color_w && cam->width && cam->height && (rc.color_w != cam->width || rc.color_h != cam->height);
     if (color_off || (rc.depth_w && dc->width && dc->height && (rc.depth_w != dc->width || rc.depth_h != dc->height))) {
       snprintf(err, errlen, "key 'depth_camera.calibration': %s is calibrated for %s %dx%d, but %s say %dx%d",
-               VLFF_Q(cfg->depth_camera.calibration), color_off ? "colour" : "depth",
+               VLFF_Q(pair->calibration), color_off ? "colour" : "depth",
                color_off ? rc.color_w : rc.depth_w, color_off ? rc.color_h : rc.depth_h,
                color_off ? "camera.width/height" : "depth_camera.width/height",
-               color_off ? cfg->camera.width : dc->width, color_off ? cfg->camera.height : dc->height);
+               color_off ? cam->width : dc->width, color_off ? cam->height : dc->height);
       free(p);
       return NULL;
     }
     if (rc.nc > 5 && any_nonzero(rc.dc + 5, rc.nc - 5)) {
       snprintf(err, errlen, "key 'depth_camera.calibration': %s: the colour camera's rational distortion (D2 "
                "k4..k6) is not supported by the colour pipeline; calibrate it with 5 coefficients",
-               cfg->depth_camera.calibration);
+               pair->calibration);
       free(p);
       return NULL;
     }
@@ -223,26 +224,26 @@ static struct vlff_pipe *pipe_create(const struct vlff_config *cfg, bool range, 
     memset(p->dist, 0, sizeof p->dist);
     memcpy(p->dist, rc.dc, sizeof(double) * (size_t)(rc.nc < 5 ? rc.nc : 5));
   }
-  if (cfg->camera.calibration[0]) {
+  if (cam->calibration[0]) {
     char e[512];
-    if (vlff_cv_calib_load(cfg->camera.calibration, &p->calib, e, sizeof e)) {
+    if (vlff_cv_calib_load(cam->calibration, &p->calib, e, sizeof e)) {
       snprintf(err, errlen, "key 'camera.calibration': %s", e);
       free(p);
       return NULL;
     }
     p->have_calib = true;
-    if (cfg->camera.depth != VLFF_DEPTH_STEREO && p->calib.width && cfg->camera.width && cfg->camera.height &&
-        (p->calib.width != cfg->camera.width || p->calib.height != cfg->camera.height)) {
+    if (cam->depth != VLFF_DEPTH_STEREO && p->calib.width && cam->width && cam->height &&
+        (p->calib.width != cam->width || p->calib.height != cam->height)) {
       snprintf(err, errlen, "key 'camera.calibration': %s is calibrated for %dx%d images (image_width/height), but "
-               "camera.width/height say %dx%d", VLFF_Q(cfg->camera.calibration), p->calib.width, p->calib.height,
-               cfg->camera.width, cfg->camera.height);
+               "camera.width/height say %dx%d", VLFF_Q(cam->calibration), p->calib.width, p->calib.height,
+               cam->width, cam->height);
       free(p);
       return NULL;
     }
-    if (cfg->camera.depth == VLFF_DEPTH_STEREO && !p->calib.has_stereo) {
+    if (cam->depth == VLFF_DEPTH_STEREO && !p->calib.has_stereo) {
       snprintf(err, errlen,
                "key 'camera.calibration': depth: stereo needs stereo keys M1 D1 M2 D2 R T in %s",
-               cfg->camera.calibration);
+               cam->calibration);
       free(p);
       return NULL;
     }
@@ -252,13 +253,14 @@ static struct vlff_pipe *pipe_create(const struct vlff_config *cfg, bool range, 
       if (!any_nonzero(p->dist, 5)) memcpy(p->dist, p->calib.dist, sizeof p->dist);
     }
   }
-  p->undistort = !range && cfg->camera.depth != VLFF_DEPTH_STEREO && any_nonzero(p->dist, 5);
+  p->undistort = !range && cam->depth != VLFF_DEPTH_STEREO && any_nonzero(p->dist, 5);
   return p;
 }
 
 struct vlff_pipe *vlff_pipe_new(const struct vlff_config *cfg, char *err, size_t errlen) {
   if (vlff_camcfg_check(cfg, "config", err, errlen)) return NULL;
-  return pipe_create(cfg, false, err, errlen);
+  const struct vlff_cfg_depth_camera *pair = cfg->camera.depth == VLFF_DEPTH_STREAM ? &cfg->depth_camera : NULL;
+  return pipe_create(&cfg->camera, pair, cfg->source.pose_tolerance_s, false, err, errlen);
 }
 
 struct vlff_pipe *vlff_pipe_new_depth(const struct vlff_config *cfg, char *err, size_t errlen) {
@@ -267,9 +269,9 @@ struct vlff_pipe *vlff_pipe_new_depth(const struct vlff_config *cfg, char *err, 
     snprintf(err, errlen, "key 'camera.depth': a range camera's pipeline needs camera.depth: stream");
     return NULL;
   }
-  struct vlff_config d;
+  struct vlff_cfg_camera d;
   vlff_depth_camera_config(cfg, &d);
-  return pipe_create(&d, true, err, errlen);
+  return pipe_create(&d, NULL, cfg->source.pose_tolerance_s, true, err, errlen);
 }
 
 void vlff_pipe_free(struct vlff_pipe *p) {
@@ -324,14 +326,14 @@ static int prepare(struct vlff_pipe *p, int raw_w, int w, int h, char *err, size
              p->calib.width, p->calib.height, w, h);
     return -1;
   }
-  if (p->cfg.camera.depth == VLFF_DEPTH_STEREO) {
-    p->stereo = vlff_cv_stereo_new(&p->calib, w, h, p->cfg.camera.stereo_disparities, err, errlen);
+  if (p->cam.depth == VLFF_DEPTH_STEREO) {
+    p->stereo = vlff_cv_stereo_new(&p->calib, w, h, p->cam.stereo_disparities, err, errlen);
     if (!p->stereo) return -1;
     double b;
     vlff_cv_stereo_geometry(p->stereo, p->k, &b);
-    if (p->cfg.camera.stereo_baseline_m > 0 && fabs(b - p->cfg.camera.stereo_baseline_m) > 0.01 * b)
+    if (p->cam.stereo_baseline_m > 0 && fabs(b - p->cam.stereo_baseline_m) > 0.01 * b)
       VLFF_WARN(TAG, "camera.stereo_baseline_m %.4f m disagrees with the calibration's %.4f m; using the calibration",
-                p->cfg.camera.stereo_baseline_m, b);
+                p->cam.stereo_baseline_m, b);
   } else if (p->undistort) {
     if (!any_nonzero(p->k, 4)) {
       snprintf(err, errlen, "key 'camera.distortion': undistortion needs intrinsics");
@@ -349,10 +351,10 @@ static int prepare(struct vlff_pipe *p, int raw_w, int w, int h, char *err, size
  * does not fit uint16 millimetres is invalid too rather than clamped. */
 static void range_to_depth(const struct vlff_pipe *p, const uint16_t *src, size_t sstride, void *dst,
                            size_t dstride, int w, int h) {
-  double scale = p->cfg.camera.depth_scale_m;
+  double scale = p->cam.depth_scale_m;
   for (int y = 0; y < h; y++) {
     const uint16_t *s = (const uint16_t *)((const char *)src + (size_t)y * sstride);
-    if (p->cfg.camera.depth_unit == VLFF_DEPTH_UNIT_MM) {
+    if (p->cam.depth_unit == VLFF_DEPTH_UNIT_MM) {
       uint16_t *d = (uint16_t *)((char *)dst + (size_t)y * dstride);
       for (int x = 0; x < w; x++) {
         double mm = s[x] * scale * 1000.0 + 0.5;
@@ -383,7 +385,7 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
          raw->height, vlff_pix_name(raw->pix));
     return -1;
   }
-  bool stereo = p->cfg.camera.depth == VLFF_DEPTH_STEREO;
+  bool stereo = p->cam.depth == VLFF_DEPTH_STEREO;
   if (stereo && raw->width % 2) {
     drop(p, &p->st.dropped_format, "stereo pair width %d is odd", raw->width);
     return -1;
@@ -399,8 +401,8 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
    * pair computes both. */
   struct vlff_sink_frame f = {.width = w, .height = h};
   f.color_format = p->range ? VLFF_PIX_NONE : VLFF_PIX_RGB8;
-  if (p->range || p->cfg.camera.depth == VLFF_DEPTH_STEREO)
-    f.depth_format = p->cfg.camera.depth_unit == VLFF_DEPTH_UNIT_MM ? VLFF_DEPTH_FMT_U16_MM : VLFF_DEPTH_FMT_F32_M;
+  if (p->range || p->cam.depth == VLFF_DEPTH_STEREO)
+    f.depth_format = p->cam.depth_unit == VLFF_DEPTH_UNIT_MM ? VLFF_DEPTH_FMT_U16_MM : VLFF_DEPTH_FMT_F32_M;
   if (sink->reserve(sink, &f, err, sizeof err)) {
     drop(p, &p->st.dropped_sink, "%s", err);
     return -1;
@@ -451,11 +453,11 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
       p->st.trigger_stamped++;
     }
   }
-  f.sensor_id = (uint32_t)p->cfg.camera.sensor_id;
+  f.sensor_id = (uint32_t)p->cam.sensor_id;
   memcpy(f.intrinsics, p->k, sizeof f.intrinsics);
   f.pose_valid = false;
   if (poses && poses->lookup &&
-      poses->lookup(poses->ctx, f.host_ns, p->cfg.source.pose_tolerance_s, f.pose, &f.pose_ns,
+      poses->lookup(poses->ctx, f.host_ns, p->pose_tolerance_s, f.pose, &f.pose_ns,
                     &f.pose_untrusted) == 0) {
     f.pose_valid = true;
     if (f.pose_untrusted) p->st.no_pose++;

@@ -54,14 +54,16 @@ struct vlff_pipe_stats {
 
 int vlff_camcfg_check(const struct vlff_config *cfg, const char *file, char *err, size_t errlen);
 
-/* The camera.* view of the range camera (depth_camera.*), for opening it
- * with a camera backend. */
-void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_config *out);
+/* The camera.* section of the range camera (depth_camera.*), for opening
+ * it with a camera backend. */
+void vlff_depth_camera_config(const struct vlff_config *cfg, struct vlff_cfg_camera *out);
 
 struct vlff_pipe;
 /* The colour camera's pipeline. With camera.depth: stream its frames carry
  * colour only (the pairing adds the depth plane) and its intrinsics and
- * distortion come from the depth-to-colour calibration's colour camera. */
+ * distortion come from the depth-to-colour calibration's colour camera.
+ * The whole config is checked (vlff_camcfg_check); the pipeline keeps only
+ * its camera's section and source.pose_tolerance_s. */
 struct vlff_pipe *vlff_pipe_new(const struct vlff_config *cfg, char *err, size_t errlen);
 /* The range camera's pipeline (camera.depth: stream): 16-bit counts times
  * depth_camera.scale_m into a uint16 millimetre depth plane, no colour

@@ -124,7 +124,7 @@ static void feed(struct vlff_tum_feed *f, struct vlff_ring *ring, struct reporte
   struct vlff_pose_rec rec;
   char why[512];
   uint64_t resets = f->resets;
-  int r = vlff_tum_feed_buf(f, line, len, vlff_shm_now_ns(), &rec, why, sizeof why);
+  int r = vlff_tum_feed_buf(f, line, len, vlff_now_ns(), &rec, why, sizeof why);
   if (f->resets != resets)
     vlff_warn_limited(&rp->resets, TAG,
                       "%s: %u lines in a row were older than the last accepted stamp %.9f: the tracker restarted "
@@ -525,10 +525,8 @@ int main(int argc, char **argv) {
   vlff_log_set_level(o.quiet > 0 ? VLFF_LOG_WARN : (enum vlff_log_level)cfg.node.log_level);
   if (realtime) {
     /* UNIX-time stamps onto the node's clock: both clocks read back to back. */
-    struct timespec rt, mt;
-    clock_gettime(CLOCK_REALTIME, &rt);
-    clock_gettime(CLOCK_MONOTONIC, &mt);
-    fp.clock_offset_ns += ((int64_t)mt.tv_sec - rt.tv_sec) * 1000000000 + (mt.tv_nsec - rt.tv_nsec);
+    uint64_t rt = vlff_wall_ns(), mt = vlff_now_ns();
+    fp.clock_offset_ns += (int64_t)(mt - rt);
   }
   /* Both ways in checked it: the option above, the config's cross-check. */
   double qn = sqrt(ext[3] * ext[3] + ext[4] * ext[4] + ext[5] * ext[5] + ext[6] * ext[6]);

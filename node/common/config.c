@@ -61,14 +61,14 @@ struct key {
   {p, T_DVEC, F(f), SZ(f) / sizeof(double), lo, hi, 0, NULL, NULL, d}
 
 static const char *const log_levels[] = {"error", "warn", "info", "debug", NULL};
-static const char *const source_kinds[] = {"sim", "ring", "dataset", NULL};
+static const char *const source_kinds[] = {"sim", "ring", NULL};
 static const char *const feature_sources[] = {"sim", "model", "ring", NULL};
 static const char *const feat_losses[] = {"l2", "l1", "cos", NULL};
 static const char *const samplings[] = {"depth", "uniform", NULL};
 static const char *const label_images[] = {"surface", "render", NULL};
 static const char *const trajectories[] = {"walk", "orbit", NULL};
 static const char *const sim_layouts[] = {"room", "flat", NULL};
-static const char *const camera_kinds[] = {"aravis", "libcamera", "sim", NULL};
+static const char *const camera_kinds[] = {"aravis", "libcamera", NULL};
 static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
 static const char *const depth_kinds[] = {"none", "stream", "stereo", NULL};
@@ -160,7 +160,6 @@ static const char *installed_vocab(void) {
 }
 
 static const struct key schema[] = {
-    STR("node.name", node.name, "vlff"),
     ENUM("node.log_level", node.log_level, log_levels, "info"),
     STR("node.state_dir", node.state_dir, "/var/lib/vlff"),
     DBL("node.checkpoint_period_s", node.checkpoint_period_s, 0, 86400, 60),
@@ -183,7 +182,6 @@ static const struct key schema[] = {
     MODE("shm.mode", shm.mode, 0, 0777, 0640),
 
     ENUM("source.kind", source.kind, source_kinds, "ring"),
-    STR("source.dataset", source.dataset, ""),
     ENUM("source.features", source.features, feature_sources, "ring"),
     DBL("source.pose_tolerance_s", source.pose_tolerance_s, 0, 10, 1.0 / 60),
     DBL("source.pose_wait_s", source.pose_wait_s, 0, 10, 0),
@@ -285,7 +283,7 @@ static const struct key schema[] = {
     INT("can.rt_priority", can.rt_priority, 0, 99, 10),
     INT("can.heartbeat_spin_max_us", can.heartbeat_spin_max_us, 0, 20000, 4000),
 
-    ENUM("camera.kind", camera.kind, camera_kinds, "sim"),
+    ENUM("camera.kind", camera.kind, camera_kinds, "aravis"),
     STR("camera.device", camera.device, ""),
     STR("camera.pixel_format", camera.pixel_format, "RGB8"),
     INT("camera.width", camera.width, 0, 16384, 0),

@@ -71,14 +71,14 @@
 #define VLFF_CONFIG_MAX_DIRECTIVES 16
 
 enum vlff_log_level { VLFF_LOG_ERROR, VLFF_LOG_WARN, VLFF_LOG_INFO, VLFF_LOG_DEBUG };
-enum vlff_source_kind { VLFF_SOURCE_SIM, VLFF_SOURCE_RING, VLFF_SOURCE_DATASET };
+enum vlff_source_kind { VLFF_SOURCE_SIM, VLFF_SOURCE_RING };
 enum vlff_feature_source { VLFF_FEAT_SIM, VLFF_FEAT_MODEL, VLFF_FEAT_RING };
 enum vlff_feat_loss { VLFF_FEAT_LOSS_L2, VLFF_FEAT_LOSS_L1, VLFF_FEAT_LOSS_COS };
 enum vlff_sampling { VLFF_SAMPLING_DEPTH, VLFF_SAMPLING_UNIFORM };
 enum vlff_label_image { VLFF_LABEL_IMAGE_SURFACE, VLFF_LABEL_IMAGE_RENDER };
 enum vlff_trajectory { VLFF_TRAJ_WALK, VLFF_TRAJ_ORBIT };
 enum vlff_sim_layout { VLFF_LAYOUT_ROOM, VLFF_LAYOUT_FLAT };
-enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA, VLFF_CAM_SIM };
+enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA };
 enum vlff_depth_camera_kind { VLFF_DCAM_NONE, VLFF_DCAM_ARAVIS };
 enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
 enum vlff_gpio_mode { VLFF_GPIO_OFF, VLFF_GPIO_OUTPUT, VLFF_GPIO_INPUT };
@@ -94,7 +94,6 @@ struct vlff_prompt_set {
 };
 
 struct vlff_cfg_node {
-  char name[VLFF_CFG_STR];         /* instance name, used in shm names */
   int log_level;                   /* enum vlff_log_level */
   char state_dir[VLFF_CFG_PATH];   /* checkpoints live here */
   double checkpoint_period_s;      /* 0 = only on SIGTERM / command */
@@ -119,7 +118,6 @@ struct vlff_cfg_shm {
 
 struct vlff_cfg_source {
   int kind;                        /* enum vlff_source_kind */
-  char dataset[VLFF_CFG_PATH];     /* scene directory for kind=dataset */
   int features;                    /* enum vlff_feature_source */
   double pose_tolerance_s;         /* frame<->pose timestamp match */
   bool allow_sim_features;         /* features: sim with kind: ring, forced (tests, demos) */

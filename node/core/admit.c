@@ -265,7 +265,7 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
   uint64_t pose_t = in_frame ? h->pose_t_ns
                     : vlff_ring_read_latest(ig->poses, &newest, sizeof newest, NULL) == (ssize_t)sizeof newest
                         ? newest.t_ns : 0;
-  double ahead_s = ((double)pose_t - (double)vlff_shm_now_ns()) * 1e-9;
+  double ahead_s = ((double)pose_t - (double)vlff_now_ns()) * 1e-9;
   if (cfg->pose.future_tolerance_s > 0 && ahead_s > cfg->pose.future_tolerance_s) {
     refuse(n, &ig->rl, VLFF_REFUSED_FUTURE_POSE, id, "%s stamped %.3f s ahead of the clock (pose.future_tolerance_s "
            "%g s): the pose source's clock or clock offset is wrong",
@@ -367,7 +367,7 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
       pending_remove(ig->pending, &ig->npend, 0);
     }
     char jerr[256];
-    if (ig->join) vlff_feature_join_add_frame(ig->join, (uint64_t)id, vlff_shm_now_ns(), jerr, sizeof jerr);
+    if (ig->join) vlff_feature_join_add_frame(ig->join, (uint64_t)id, vlff_now_ns(), jerr, sizeof jerr);
 #ifdef VLFF_HAVE_VLM
     if (n->image_worker)
       vlff_image_worker_submit(n->image_worker, (uint64_t)id, vlff_frame_plane(buf, VLFF_PLANE_COLOR),

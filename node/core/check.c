@@ -72,10 +72,6 @@ int vlff_node_check(const struct vlff_config *cfg, const struct vlff_source_hook
                     size_t errlen) {
   static const struct vlff_source_hooks none;
   if (!hooks) hooks = &none;
-  if (cfg->source.kind == VLFF_SOURCE_DATASET) {
-    snprintf(err, errlen, "source.kind: dataset is for vlff-eval; vlff-node reads the frame ring (sim or ring)");
-    return -1;
-  }
 #ifndef VLFF_HAVE_VLM
   if (cfg->source.features == VLFF_FEAT_MODEL || cfg->vlm.text_model[0]) {
     snprintf(err, errlen, "%s: this vlff-node was built without OpenCV (VLFF_WITH_OPENCV=OFF)",

@@ -21,12 +21,12 @@
  * those with the fewest samples among the voxels that none of the last 8
  * views touched (counted: vlff_evidence_evicted), and goes on; only when
  * none can be given up does a new voxel go without evidence (field only;
- * counted: vlff_evidence_overflow). Why: on a walk through an 80 m2 flat at
- * 5 keyframes a second, 64 MB were full after about 21 s, a quarter of the
- * slots holding a single sample (noisy depth scatters samples in front of
- * and behind a surface; a surface seen once from afar gets few), and every
- * room entered later read the field alone, not fitted there yet
- * (docs/field.md, "A full evidence budget"). The mean gives each sample
+ * counted: vlff_evidence_overflow). Why: a walk through a flat fills any
+ * budget long before it ends, and many slots then hold a single sample
+ * (noisy depth scatters samples in front of and behind a surface; a
+ * surface seen once from afar gets few); without giving those up, every
+ * room entered later would read the field alone, not fitted there yet
+ * (docs/field.md, "A full evidence budget"; docs/benchmarks.md). The mean gives each sample
  * (a feature pixel of a view whose footprint reaches the voxel) equal
  * weight up to 255 samples per voxel, then new ones weigh 1/255 (the map
  * follows a changing scene rather than freezing).

@@ -112,7 +112,7 @@ struct vlff_ring *attach_input(struct vlff_node *n, const char *name, uint32_t k
 static struct vlff_ring *attach_retry(struct vlff_node *n, const char *name, uint32_t kind) {
   int refused = 0;
   while (!atomic_load(&n->stop)) {
-    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
+    atomic_store(&n->ingest_beat_ns, vlff_now_ns());
     struct vlff_ring *r = attach_input(n, name, kind);
     if (r) {
       VLFF_INFO(TAG, "attached to ring %s (%u slots of %llu bytes)", VLFF_Q(name), vlff_ring_slots(r),
@@ -151,7 +151,7 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
     }
     uint64_t fid;
     int fh, fw, ev;
-    while ((ev = vlff_feature_join_poll(ig->join, vlff_shm_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {
+    while ((ev = vlff_feature_join_poll(ig->join, vlff_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {
       if (ev == VLFF_JOIN_READY) pending_complete(n, ig->pending, &ig->npend, fid, fbuf, fh, fw);
     }
   }
@@ -218,7 +218,7 @@ void *ingest_main(void *arg) {
   uint64_t lost_seen = 0;
   struct rate_meter fps = {vlff_seconds(), 0};
   while (ring && buf && ig.held && fbuf && !atomic_load(&n->stop)) {
-    atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
+    atomic_store(&n->ingest_beat_ns, vlff_now_ns());
     ingest_features(&ig, &feats, fbuf, model_h, model_w);
     ingest_held(&ig, vlff_seconds());
     refusal_summary(n, &ig.rl, vlff_seconds());

@@ -103,8 +103,8 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   }
   restore_checkpoint(n);
   if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
-  atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
-  atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
+  atomic_store(&n->trainer_beat_ns, vlff_now_ns());
+  atomic_store(&n->ingest_beat_ns, vlff_now_ns());
   if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
     snprintf(err, errlen, "cannot start the trainer thread");
     goto fail;

@@ -105,7 +105,7 @@ struct vlff_node_status {
   long long miou2d_frame;       /* the frame id of the view miou2d scored; -1 when unknown */
   double last_pose_residual_m;
   double frame_to_map_ms_p50, frame_to_map_ms_p99;
-  /* Monotonic ns (vlff_shm_now_ns) of the trainer's and the ingest thread's
+  /* Monotonic ns (vlff_now_ns) of the trainer's and the ingest thread's
    * last loop pass; both pass at least every few hundred ms while alive,
    * busy or idle. */
   uint64_t trainer_beat_ns, ingest_beat_ns;

@@ -35,7 +35,6 @@ struct vlff_publisher {
   const struct vlff_source_hooks *hooks; /* NULL: none */
   double origin[3], voxel;
   double scene_lo[3], scene_hi[3]; /* field.scene_min / max: bounds for poses */
-  long long refused;               /* views refused as physically implausible */
   uint64_t heartbeat_warned;       /* vlff_warn_limited's */
   uint32_t dims[3];
   size_t nvox;
@@ -385,14 +384,11 @@ int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *
   char why[200];
   if (vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, why, sizeof why) ||
       vlff_pose_plausible(v->c2w, p->scene_lo, p->scene_hi, why, sizeof why)) {
-    p->refused++;
     snprintf(err, errlen, "view refused: %s", why);
     return -1;
   }
   return 0;
 }
-
-long long vlff_publisher_refused(const struct vlff_publisher *p) { return p->refused; }
 
 /* The part of the segment o + t w, t in [t0, t1], inside the map's box
  * (slab clipping). False when the segment misses the box. */
@@ -538,11 +534,9 @@ static uint8_t conf_of(float margin) {
   return (uint8_t)(c < 0 ? 0 : c > 255 ? 255 : c);
 }
 
-int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                           struct vlff_publish_result *r, char *err, size_t errlen) {
-  memset(r, 0, sizeof *r);
-  r->miou2d = r->miou3d = -1;
-  r->miou2d_frame = -1;
+/* The observed voxels' query points into p->qxyz (their hits' mean, or the
+ * voxel's centre) and indices into p->qidx: their count. */
+static size_t gather_observed(struct vlff_publisher *p) {
   size_t nq = 0;
   for (size_t i = 0; i < p->nvox; i++) {
     if (!p->observed[i]) continue;
@@ -557,6 +551,14 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
     }
     p->qidx[nq++] = i;
   }
+  return nq;
+}
+
+/* Density at the nq observed voxels: the free ones are marked, the
+ * occupied ones compacted to the front of p->qxyz/p->qidx. Their count, or
+ * -1 when the query failed. */
+static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq, struct vlff_publish_result *r,
+                      char *err, size_t errlen) {
   /* Two passes: density for every observed voxel (the hash grid and MLP1
    * only), then labels and margins for the occupied ones. Free voxels, most
    * of a room, never need MLP3, the prompt fold or a feature norm. */
@@ -578,6 +580,14 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
       r->free_voxels++;
     }
   }
+  return (long)nocc;
+}
+
+/* Labels and confidences of the nocc occupied voxels, and with evidence the
+ * census of lost classes; the prompts' stamp into *stamp_out. 0, or -1
+ * when the query failed. */
+static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                          size_t nocc, uint64_t *stamp_out, struct vlff_publish_result *r, char *err, size_t errlen) {
   uint64_t stamp = 0;
   if (p->ev) {
     int K;
@@ -604,45 +614,62 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
       r->free_voxels++;
     }
   }
+  *stamp_out = stamp;
+  return 0;
+}
+
+/* The label image of the last camera (p->cam) at the map's label image
+ * size: true when it was rendered into *img. */
+static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t stamp,
+                        struct vlff_map_label_image *img) {
+  struct vlff_view cam = p->cam;
+  double sx = (double)p->lw / cam.width, sy = (double)p->lh / cam.height;
+  cam.width = p->lw;
+  cam.height = p->lh;
+  cam.fx *= sx, cam.cx *= sx, cam.fy *= sy, cam.cy *= sy;
+  /* A stereo sensor's single depth is off by a decimetre at a few metres,
+   * where a point query reads free space or the next object; the field
+   * has fitted that surface from every view. */
+  memcpy(p->snap_xyz, p->sel_xyz, p->nsel * 3 * sizeof *p->snap_xyz);
+  vlff_field_snap_surface(f, &cam, p->sel_pix, p->nsel, p->snap_xyz);
+  if ((!p->nhole ||
+       vlff_field_render_pixels(f, &cam, p->hole_pix, p->nhole, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) &&
+      (!p->nsel || label_points(p, f, p->snap_xyz, p->nsel, stamp, p->sel_lab, p->sel_score, NULL) == 0)) {
+    for (size_t j = 0; j < p->nsel; j++) {
+      p->img_lab[p->sel_pix[j]] = p->sel_lab[j];
+      p->img_score[p->sel_pix[j]] = p->sel_score[j];
+    }
+    size_t li = (size_t)p->lw * p->lh;
+    for (size_t i = 0; i < li; i++) {
+      p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;
+      float s = p->img_score[i] * 255.0f;
+      p->img_conf[i] = (uint8_t)(s < 0 ? 0 : s > 255 ? 255 : s);
+    }
+    *img = (struct vlff_map_label_image){.width = (uint32_t)p->lw, .height = (uint32_t)p->lh,
+                                        .labels = p->img_labels, .confidence = p->img_conf,
+                                        .fx = cam.fx, .fy = cam.fy, .cx = cam.cx, .cy = cam.cy,
+                                        .t_ns = p->cam_t_ns};
+    memcpy(img->pose, cam.c2w, sizeof img->pose);
+    return true;
+  }
+  return false;
+}
+
+int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                           struct vlff_publish_result *r, char *err, size_t errlen) {
+  memset(r, 0, sizeof *r);
+  r->miou2d = r->miou3d = -1;
+  r->miou2d_frame = -1;
+  long nocc = mark_free(p, f, gather_observed(p), r, err, errlen);
+  uint64_t stamp = 0;
+  if (nocc < 0 || label_occupied(p, f, prompts, k, (size_t)nocc, &stamp, r, err, errlen)) return -1;
   r->unknown = p->nvox - r->labelled - r->free_voxels;
   struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
   memcpy(grid.origin, p->origin, sizeof grid.origin);
   memcpy(grid.dims, p->dims, sizeof grid.dims);
 
   struct vlff_map_label_image img;
-  bool have_img = false;
-  if (p->have_cam) {
-    struct vlff_view cam = p->cam;
-    double sx = (double)p->lw / cam.width, sy = (double)p->lh / cam.height;
-    cam.width = p->lw;
-    cam.height = p->lh;
-    cam.fx *= sx, cam.cx *= sx, cam.fy *= sy, cam.cy *= sy;
-    /* A stereo sensor's single depth is off by a decimetre at a few metres,
-     * where a point query reads free space or the next object; the field
-     * has fitted that surface from every view. */
-    memcpy(p->snap_xyz, p->sel_xyz, p->nsel * 3 * sizeof *p->snap_xyz);
-    vlff_field_snap_surface(f, &cam, p->sel_pix, p->nsel, p->snap_xyz);
-    if ((!p->nhole ||
-         vlff_field_render_pixels(f, &cam, p->hole_pix, p->nhole, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) &&
-        (!p->nsel || label_points(p, f, p->snap_xyz, p->nsel, stamp, p->sel_lab, p->sel_score, NULL) == 0)) {
-      for (size_t j = 0; j < p->nsel; j++) {
-        p->img_lab[p->sel_pix[j]] = p->sel_lab[j];
-        p->img_score[p->sel_pix[j]] = p->sel_score[j];
-      }
-      size_t li = (size_t)p->lw * p->lh;
-      for (size_t i = 0; i < li; i++) {
-        p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;
-        float s = p->img_score[i] * 255.0f;
-        p->img_conf[i] = (uint8_t)(s < 0 ? 0 : s > 255 ? 255 : s);
-      }
-      img = (struct vlff_map_label_image){.width = (uint32_t)p->lw, .height = (uint32_t)p->lh,
-                                          .labels = p->img_labels, .confidence = p->img_conf,
-                                          .fx = cam.fx, .fy = cam.fy, .cx = cam.cx, .cy = cam.cy,
-                                          .t_ns = p->cam_t_ns};
-      memcpy(img.pose, cam.c2w, sizeof img.pose);
-      have_img = true;
-    }
-  }
+  bool have_img = p->have_cam && label_image(p, f, stamp, &img);
   struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k,
                                .label_image = have_img ? &img : NULL};
   if (vlff_map_publish(p->map, &up)) {

@@ -53,8 +53,6 @@ void vlff_publisher_destroy(struct vlff_publisher *p);
  * against field.scene_min / max)? 0, or -1 with err saying which value
  * broke which bound; each refusal is counted. */
 int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen);
-/* Views refused by check_view (and so by observe / set_camera) so far. */
-long long vlff_publisher_refused(const struct vlff_publisher *p);
 /* Account an admitted keyframe's measured depth (observed / hit voxels)
  * and average its features into the evidence.
  * The view is checked first (-1 with err, nothing accounted); every ray's

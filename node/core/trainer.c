@@ -30,6 +30,7 @@
 #include "node_internal.h"
 #include "publish.h"
 #include "select.h"
+#include "stats.h"
 #include "vlff/shm.h"
 
 /* Render depth at the candidate's pose at low resolution and compare it with
@@ -103,10 +104,9 @@ static void take_candidates(struct vlff_node *n, bool wait) {
   int nb;
   pthread_mutex_lock(&n->qlock);
   if (wait && n->qlen == 0) {
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    ts.tv_nsec += 20 * 1000 * 1000;
-    if (ts.tv_nsec >= 1000000000) ts.tv_sec++, ts.tv_nsec -= 1000000000;
+    /* pthread_cond_timedwait's deadline is on the wall clock */
+    uint64_t until = vlff_wall_ns() + 20 * 1000 * 1000;
+    struct timespec ts = {.tv_sec = (time_t)(until / 1000000000u), .tv_nsec = (long)(until % 1000000000u)};
     pthread_cond_timedwait(&n->qcond, &n->qlock, &ts);
   }
   nb = n->qlen;
@@ -165,7 +165,7 @@ void do_publish(struct vlff_node *n) {
   }
   VLFF_DEBUG(TAG, "published map v%llu in %.0f ms: %zu labelled, %zu free, %zu unknown voxels",
              (unsigned long long)r.version, (vlff_seconds() - t0) * 1e3, r.labelled, r.free_voxels, r.unknown);
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   for (int i = 0; i < n->pending_lat; i++) {
     double ms = (double)(now - n->pending_t_host[i]) * 1e-6;
     n->lat_ms[n->lat_n++ % LAT_CAP] = ms;
@@ -177,14 +177,8 @@ void do_publish(struct vlff_node *n) {
     double *tmp = malloc((size_t)cnt * sizeof(double));
     if (tmp) {
       memcpy(tmp, n->lat_ms, (size_t)cnt * sizeof(double));
-      for (int i = 1; i < cnt; i++) /* insertion sort: cnt is small */
-        for (int j = i; j > 0 && tmp[j - 1] > tmp[j]; j--) {
-          double t = tmp[j];
-          tmp[j] = tmp[j - 1];
-          tmp[j - 1] = t;
-        }
-      p50 = tmp[cnt / 2];
-      p99 = tmp[(int)floor(0.99 * (cnt - 1))];
+      p99 = vlff_percentile(tmp, (size_t)cnt, 0.99);
+      p50 = tmp[cnt / 2]; /* tmp is sorted now: the upper middle value, as vlff_medianf */
       free(tmp);
     }
   }
@@ -240,7 +234,7 @@ void *trainer_main(void *arg) {
    * and still overflow together from its first update on. */
   n->scanned_step = -FIELD_SCAN_STEPS;
   while (!atomic_load(&n->stop)) {
-    atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
+    atomic_store(&n->trainer_beat_ns, vlff_now_ns());
     bool publish_now = first;
     first = false;
     run_commands(n, &publish_now);

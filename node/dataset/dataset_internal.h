@@ -10,9 +10,6 @@
 /* JPEG decoding through OpenCV (jpeg_cv.cpp): RGB8 rows, malloc'd. */
 int vlff_cv_decode_jpeg(const uint8_t *buf, size_t len, int max_side, int *w, int *h, uint8_t **rgb,
                         char *err, size_t errlen);
-/* JPEG encoding (the tests write ScanNet's own files with it): malloc'd. */
-int vlff_cv_encode_jpeg(const uint8_t *rgb, int w, int h, int quality, uint8_t **out, size_t *len, char *err,
-                        size_t errlen);
 
 /* ScanNet (scannet.c). */
 struct vlff_dataset;

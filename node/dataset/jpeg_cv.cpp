@@ -1,4 +1,4 @@
-// JPEG decoding (and, for the tests, encoding) through OpenCV imgcodecs,
+// JPEG decoding through OpenCV imgcodecs,
 // behind a C interface: no C++ type or exception crosses it.
 #include <cstdlib>
 #include <cstring>
@@ -56,22 +56,6 @@ extern "C" int vlff_cv_decode_jpeg(const uint8_t *buf, size_t len, int max_side,
     cv::cvtColor(bgr, out, cv::COLOR_BGR2RGB); // a fresh, continuous matrix
     if (copy_out(out.ptr(0), (size_t)out.cols * out.rows * 3, rgb, err, errlen) < 0) return -1;
     *w = out.cols, *h = out.rows;
-    return 0;
-  });
-}
-
-extern "C" int vlff_cv_encode_jpeg(const uint8_t *rgb, int w, int h, int quality, uint8_t **out, size_t *len,
-                                   char *err, size_t errlen) {
-  return guarded(err, errlen, [&] {
-    cv::Mat src(h, w, CV_8UC3, const_cast<uint8_t *>(rgb)), bgr;
-    cv::cvtColor(src, bgr, cv::COLOR_RGB2BGR);
-    std::vector<uchar> buf;
-    if (!cv::imencode(".jpg", bgr, buf, {cv::IMWRITE_JPEG_QUALITY, quality})) {
-      vlff_errf(err, errlen, "JPEG encoding failed");
-      return -1;
-    }
-    if (copy_out(buf.data(), buf.size(), out, err, errlen) < 0) return -1;
-    *len = buf.size();
     return 0;
   });
 }

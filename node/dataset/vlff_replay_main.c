@@ -28,6 +28,7 @@
 #include <time.h>
 
 #include "cli.h"
+#include "clock.h"
 #include "config.h"
 #include "dataset.h"
 #include "transpose.h"
@@ -136,7 +137,7 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
     if (vlff_cli_stop) return 0;
   }
   const double *c2w = ds->c2w + (size_t)i * 16;
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   if (r->poses) {
     struct vlff_pose_rec pr = {.t_ns = now, .flags = 0, .source_id = 0};
     memcpy(pr.pose, c2w, sizeof pr.pose);

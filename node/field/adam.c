@@ -4,7 +4,7 @@
  * The hash table is updated lazily: only entries that received a gradient
  * this step move, and their moments decay only then (as torch's SparseAdam):
  * a step touches a small part of a 2^19-entry level, and a dense pass over
- * 4 x 64 MB would cost more than the rest of the step.
+ * every level's table would cost more than the rest of the step.
  */
 #include <math.h>
 #include <stdbool.h>
@@ -221,7 +221,7 @@ static inline size_t word_lines(uint64_t word, size_t e0, int width, size_t *las
 VLFF_HOT
 size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float *p, float *g, float *m, float *v,
                         const uint8_t *marks, uint8_t stamp, size_t n, int width, size_t *lines) {
-  /* Break-even, measured: a vectorised block costs about what 16 scattered
+  /* Break-even: a vectorised block costs about what 16 scattered
    * single-entry updates do. Marks are packed to words a run at a time,
    * PF_AHEAD words beyond it, for the prefetch below. */
   enum { BLOCK_MIN_BITS = 16, PF_AHEAD = 16, RUN = 256 };

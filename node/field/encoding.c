@@ -11,8 +11,8 @@
  * One level on one thread is bound by instructions (a level whose table
  * sits in L1 costs nearly as much per point as a hashed one); in a
  * full two-thread query the finer hashed levels wait on cache misses, and
- * prefetching every corner of a group was the fastest variant measured
- * (fewer, shallower or L2-only prefetches were slower). On CPUs with
+ * prefetching every corner of a group beats fewer, shallower or L2-only
+ * prefetches (bench field_isa). On CPUs with
  * AVX-512 it runs 16 points per vector and fetches each
  * corner's two features as one 64-bit lane (scalar loads and inserts, which
  * beat the gather instruction), well under the scalar loop's time per point
@@ -136,8 +136,9 @@ static inline __attribute__((always_inline)) void corners(const struct vlff_enco
 
 #if VLFF_ENC_V4
 /* Points per coordinate block (arrays on the stack), vectors per prefetch
- * group: 8 (128 points' corners requested before the first is loaded) is
- * as fast as 16 and faster than 4 or 2 (docs/field.md). */
+ * group: 8 (128 points' corners requested before the first is loaded), the
+ * smallest group that keeps the hashed levels' misses overlapped
+ * (docs/field.md). */
 enum { VLFF_ENC_V4_BLOCK = 256, V4_GROUP = 8 };
 #define V4_TARGET __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")))
 
@@ -206,8 +207,7 @@ V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const floa
 
 /* Eight 64-bit table entries (a corner's feature pair each) into one
  * vector by scalar loads and inserts: an 8-lane vpgatherqq is slow even
- * from L1 on the CPUs measured, and the loads and inserts cost a fraction
- * of it. */
+ * from L1, and the loads and inserts cost a fraction of it. */
 static inline __attribute__((always_inline)) long long pair_bits(const float *t, uint32_t i) {
   long long v;
   memcpy(&v, t + (size_t)i * 2, sizeof(v)); /* one 8-byte load; no aliasing of float as integer */

@@ -16,6 +16,7 @@
 #include "clock.h" /* vlff_seconds for the step timers */
 #include "field.h"
 #include "hot.h"
+#include "rng.h" /* vlff_rng_next, the generator of rays and initial weights */
 
 /* ---- thread pool (pool.c) ---------------------------------------------- */
 struct vlff_pool;
@@ -203,12 +204,6 @@ static inline float vlff_depth_band(float depth, float noise_1m) {
 }
 
 /* ---- small shared helpers ---------------------------------------------- */
-static inline uint64_t vlff_rng_next(uint64_t *s) {
-  uint64_t z = (*s += 0x9e3779b97f4a7c15ull);
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-  return z ^ (z >> 31);
-}
 static inline float vlff_rng_uniform(uint64_t *s) { return (float)(vlff_rng_next(s) >> 40) * (1.0f / 16777216.0f); }
 /* Real spherical harmonics up to degree deg (deg*deg values) of unit d. */
 void vlff_sh_encode(const float *d, int deg, float *out);

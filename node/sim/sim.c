@@ -24,9 +24,11 @@
 #include <strings.h>
 
 #include "field.h" /* float16 conversions */
+#include "hash.h"
 #include "hot.h"
 #include "log.h"
 #include "mem.h"
+#include "rng.h"
 
 static const char *const class_names[VLFF_SIM_CLASSES] = {
     "wall",    "floor",       "cabinet", "bed",          "chair",          "sofa",   "table",
@@ -103,15 +105,8 @@ struct vlff_sim {
 
 /* ---- deterministic randomness ------------------------------------------ */
 
-static uint64_t mix64(uint64_t x) {
-  x += 0x9e3779b97f4a7c15ull;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
-  return x ^ (x >> 31);
-}
-
 static uint64_t hash3(uint64_t a, uint64_t b, uint64_t c) {
-  return mix64(a ^ mix64(b ^ mix64(c)));
+  return vlff_mix64(a ^ vlff_mix64(b ^ vlff_mix64(c)));
 }
 
 struct rng {
@@ -123,15 +118,9 @@ static struct rng rng_make(uint64_t a, uint64_t b, uint64_t c) {
   return r;
 }
 
-static uint64_t rng_u64(struct rng *r) {
-  r->s += 0x9e3779b97f4a7c15ull;
-  uint64_t z = r->s;
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-  return z ^ (z >> 31);
-}
+static uint64_t rng_u64(struct rng *r) { return vlff_rng_next(&r->s); }
 
-static double rng_uniform(struct rng *r) { return (double)(rng_u64(r) >> 11) * 0x1.0p-53; }
+static double rng_uniform(struct rng *r) { return vlff_rng_double(&r->s); }
 
 static double rng_range(struct rng *r, double lo, double hi) { return lo + (hi - lo) * rng_uniform(r); }
 
@@ -389,45 +378,47 @@ static void chair(struct vlff_sim *s, struct rng *r, double cx, double cy, doubl
   box(s, r, C_CHAIR, b.x0, b.y0, zs + 0.05, b.x1, b.y1, zs + 0.47);
 }
 
-static void furnish(struct vlff_sim *s, struct rng *rr, struct layout *L, unsigned what) {
-  struct rng r = *rr;
-  const double *lo = L->lo, *hi = L->hi;
-  double fz = lo[2];
+/* The door (with a clearance zone kept) and a desk with its chair, against
+ * walls: bigger items first, so that they find room. */
+static void furnish_door_desk(struct vlff_sim *s, struct rng *r, struct layout *L, unsigned what, double fz) {
   struct spot sp;
-
   /* Bigger items first so they find room; door keeps a clearance zone. */
-  if ((what & F_DOOR) && place(s, L, &r, rng_range(&r, 0.8, 1.0), 0.7, 1, 0.1, &sp)) {
+  if ((what & F_DOOR) && place(s, L, r, rng_range(r, 0.8, 1.0), 0.7, 1, 0.1, &sp)) {
     struct spot d = wall_slab(&sp, -0.005, 0.045);
-    box(s, &r, C_DOOR, d.x0, d.y0, fz, d.x1, d.y1, fz + rng_range(&r, 1.95, 2.1));
+    box(s, r, C_DOOR, d.x0, d.y0, fz, d.x1, d.y1, fz + rng_range(r, 1.95, 2.1));
     if (L->nwall < 32) L->wall_used[L->nwall++] = sp;
   }
-  if ((what & F_DESK) && place(s, L, &r, rng_range(&r, 1.1, 1.4), 0.65, 1, 0.5, &sp)) {
+  if ((what & F_DESK) && place(s, L, r, rng_range(r, 1.1, 1.4), 0.65, 1, 0.5, &sp)) {
     double zt = fz + 0.74;
-    box(s, &r, C_DESK, sp.x0, sp.y0, zt - 0.04, sp.x1, sp.y1, zt);
+    box(s, r, C_DESK, sp.x0, sp.y0, zt - 0.04, sp.x1, sp.y1, zt);
     add_top(L, sp.x0, sp.y0, sp.x1, sp.y1, zt);
-    legs(s, &r, C_DESK, &sp, fz, zt - 0.04, 0.05);
+    legs(s, r, C_DESK, &sp, fz, zt - 0.04, 0.05);
     /* a chair in front of the desk */
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
     double dx = sp.wall == 2 ? 0.65 : sp.wall == 3 ? -0.65 : 0;
     double dy = sp.wall == 0 ? 0.65 : sp.wall == 1 ? -0.65 : 0;
     struct spot c = {cx + dx - 0.22, cy + dy - 0.22, cx + dx + 0.22, cy + dy + 0.22, -1};
     s->cur_obj++;
-    box(s, &r, C_CHAIR, c.x0, c.y0, fz + 0.42, c.x1, c.y1, fz + 0.47);
-    legs(s, &r, C_CHAIR, &c, fz, fz + 0.42, 0.04);
+    box(s, r, C_CHAIR, c.x0, c.y0, fz + 0.42, c.x1, c.y1, fz + 0.47);
+    legs(s, r, C_CHAIR, &c, fz, fz + 0.42, 0.04);
     struct spot back = c;
     if (dx > 0) back.x0 = back.x1 - 0.05;
     else if (dx < 0) back.x1 = back.x0 + 0.05;
     else if (dy > 0) back.y0 = back.y1 - 0.05;
     else back.y1 = back.y0 + 0.05;
-    box(s, &r, C_CHAIR, back.x0, back.y0, fz + 0.47, back.x1, back.y1, fz + 0.9);
+    box(s, r, C_CHAIR, back.x0, back.y0, fz + 0.47, back.x1, back.y1, fz + 0.9);
     if (L->nused < 64) L->used[L->nused++] = c;
   }
-  /* Dining table with chairs, free-standing. */
-  if ((what & F_DINING) && place(s, L, &r, rng_range(&r, 1.0, 1.4), rng_range(&r, 0.7, 0.9), 0, 0.7, &sp)) {
+}
+
+/* A free-standing dining table with chairs. */
+static void furnish_dining(struct vlff_sim *s, struct rng *r, struct layout *L, unsigned what, double fz) {
+  struct spot sp;
+  if ((what & F_DINING) && place(s, L, r, rng_range(r, 1.0, 1.4), rng_range(r, 0.7, 0.9), 0, 0.7, &sp)) {
     double zt = fz + 0.75;
-    box(s, &r, C_TABLE, sp.x0, sp.y0, zt - 0.05, sp.x1, sp.y1, zt);
+    box(s, r, C_TABLE, sp.x0, sp.y0, zt - 0.05, sp.x1, sp.y1, zt);
     add_top(L, sp.x0, sp.y0, sp.x1, sp.y1, zt);
-    legs(s, &r, C_TABLE, &sp, fz, zt - 0.05, 0.06);
+    legs(s, r, C_TABLE, &sp, fz, zt - 0.05, 0.06);
     int along_x = sp.x1 - sp.x0 > sp.y1 - sp.y0;
     for (int side = 0; side < 2; side++) {
       double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
@@ -436,15 +427,15 @@ static void furnish(struct vlff_sim *s, struct rng *rr, struct layout *L, unsign
       else cx += o * (0.5 * (sp.x1 - sp.x0) + 0.3);
       struct spot c = {cx - 0.21, cy - 0.21, cx + 0.21, cy + 0.21, -1};
       s->cur_obj++;
-      box(s, &r, C_CHAIR, c.x0, c.y0, fz + 0.43, c.x1, c.y1, fz + 0.48);
-      legs(s, &r, C_CHAIR, &c, fz, fz + 0.43, 0.04);
+      box(s, r, C_CHAIR, c.x0, c.y0, fz + 0.43, c.x1, c.y1, fz + 0.48);
+      legs(s, r, C_CHAIR, &c, fz, fz + 0.43, 0.04);
       struct spot back = c;
       if (along_x) {
         if (o > 0) back.y0 = back.y1 - 0.05; else back.y1 = back.y0 + 0.05;
       } else {
         if (o > 0) back.x0 = back.x1 - 0.05; else back.x1 = back.x0 + 0.05;
       }
-      box(s, &r, C_CHAIR, back.x0, back.y0, fz + 0.48, back.x1, back.y1, fz + 0.92);
+      box(s, r, C_CHAIR, back.x0, back.y0, fz + 0.48, back.x1, back.y1, fz + 0.92);
     }
     /* and one at each end */
     if (what & F_MORE_CHAIRS)
@@ -453,119 +444,145 @@ static void furnish(struct vlff_sim *s, struct rng *rr, struct layout *L, unsign
         double o = side ? 1 : -1;
         if (along_x) cx += o * (0.5 * (sp.x1 - sp.x0) + 0.28);
         else cy += o * (0.5 * (sp.y1 - sp.y0) + 0.28);
-        chair(s, &r, cx, cy, 0.2, fz, along_x ? (o > 0 ? 0 : 1) : (o > 0 ? 2 : 3));
+        chair(s, r, cx, cy, 0.2, fz, along_x ? (o > 0 ? 0 : 1) : (o > 0 ? 2 : 3));
       }
   }
-  /* A bed with its long side against the wall and a headboard at one end. */
-  if ((what & F_BED) && place(s, L, &r, rng_range(&r, 1.9, 2.1), rng_range(&r, 1.0, 1.4), 1, 0.2, &sp)) {
-    box(s, &r, C_BED, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(&r, 0.45, 0.6));
+}
+
+/* The large pieces against walls: bed, sofa, bathtub, counter, fridge,
+ * shelf, cabinets, toilet. */
+static void furnish_large(struct vlff_sim *s, struct rng *r, struct layout *L, unsigned what, double fz) {
+  struct spot sp;
+  if ((what & F_BED) && place(s, L, r, rng_range(r, 1.9, 2.1), rng_range(r, 1.0, 1.4), 1, 0.2, &sp)) {
+    box(s, r, C_BED, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(r, 0.45, 0.6));
     struct spot h = sp;
     if (sp.wall < 2) h.x1 = h.x0 + 0.08;
     else h.y1 = h.y0 + 0.08;
-    box(s, &r, C_BED, h.x0, h.y0, fz, h.x1, h.y1, fz + rng_range(&r, 0.9, 1.1));
+    box(s, r, C_BED, h.x0, h.y0, fz, h.x1, h.y1, fz + rng_range(r, 0.9, 1.1));
   }
-  if ((what & F_SOFA) && place(s, L, &r, rng_range(&r, 1.6, 2.0), rng_range(&r, 0.8, 0.9), 1, 0.2, &sp)) {
-    double zs = fz + 0.42, zb = fz + rng_range(&r, 0.8, 0.95);
-    box(s, &r, C_SOFA, sp.x0, sp.y0, fz, sp.x1, sp.y1, zs);
+  if ((what & F_SOFA) && place(s, L, r, rng_range(r, 1.6, 2.0), rng_range(r, 0.8, 0.9), 1, 0.2, &sp)) {
+    double zs = fz + 0.42, zb = fz + rng_range(r, 0.8, 0.95);
+    box(s, r, C_SOFA, sp.x0, sp.y0, fz, sp.x1, sp.y1, zs);
     struct spot b = wall_slab(&sp, 0, 0.22);
-    box(s, &r, C_SOFA, b.x0, b.y0, zs, b.x1, b.y1, zb);
+    box(s, r, C_SOFA, b.x0, b.y0, zs, b.x1, b.y1, zb);
     /* arms at the two ends along the wall */
     int along_x = sp.wall < 2;
     double a = 0.18;
     if (along_x) {
-      box(s, &r, C_SOFA, sp.x0, sp.y0, zs, sp.x0 + a, sp.y1, zs + 0.2);
-      box(s, &r, C_SOFA, sp.x1 - a, sp.y0, zs, sp.x1, sp.y1, zs + 0.2);
+      box(s, r, C_SOFA, sp.x0, sp.y0, zs, sp.x0 + a, sp.y1, zs + 0.2);
+      box(s, r, C_SOFA, sp.x1 - a, sp.y0, zs, sp.x1, sp.y1, zs + 0.2);
     } else {
-      box(s, &r, C_SOFA, sp.x0, sp.y0, zs, sp.x1, sp.y0 + a, zs + 0.2);
-      box(s, &r, C_SOFA, sp.x0, sp.y1 - a, zs, sp.x1, sp.y1, zs + 0.2);
+      box(s, r, C_SOFA, sp.x0, sp.y0, zs, sp.x1, sp.y0 + a, zs + 0.2);
+      box(s, r, C_SOFA, sp.x0, sp.y1 - a, zs, sp.x1, sp.y1, zs + 0.2);
     }
   }
-  if ((what & F_BATH) && place(s, L, &r, rng_range(&r, 1.5, 1.7), rng_range(&r, 0.7, 0.8), 1, 0.1, &sp)) {
-    double zt = fz + rng_range(&r, 0.5, 0.6);
-    box(s, &r, C_BATHTUB, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
+  if ((what & F_BATH) && place(s, L, r, rng_range(r, 1.5, 1.7), rng_range(r, 0.7, 0.8), 1, 0.1, &sp)) {
+    double zt = fz + rng_range(r, 0.5, 0.6);
+    box(s, r, C_BATHTUB, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
     /* shower curtain hanging along the tub's open side */
     struct spot c = wall_slab(&sp, (sp.wall < 2 ? sp.y1 - sp.y0 : sp.x1 - sp.x0) - 0.03, 0.02);
-    box(s, &r, C_SHOWER, c.x0, c.y0, zt + 0.15, c.x1, c.y1, fz + 2.0);
+    box(s, r, C_SHOWER, c.x0, c.y0, zt + 0.15, c.x1, c.y1, fz + 2.0);
   }
-  if ((what & F_COUNTER) && place(s, L, &r, rng_range(&r, 1.4, 2.0), 0.6, 1, 0.1, &sp)) {
-    double zc = fz + rng_range(&r, 0.88, 0.95);
-    box(s, &r, C_COUNTER, sp.x0, sp.y0, fz, sp.x1, sp.y1, zc);
+  if ((what & F_COUNTER) && place(s, L, r, rng_range(r, 1.4, 2.0), 0.6, 1, 0.1, &sp)) {
+    double zc = fz + rng_range(r, 0.88, 0.95);
+    box(s, r, C_COUNTER, sp.x0, sp.y0, fz, sp.x1, sp.y1, zc);
     /* a sink basin set into the counter top */
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
     s->cur_obj++;
-    box(s, &r, C_SINK, cx - 0.25, cy - 0.2, zc, cx + 0.25, cy + 0.2, zc + 0.12);
+    box(s, r, C_SINK, cx - 0.25, cy - 0.2, zc, cx + 0.25, cy + 0.2, zc + 0.12);
   }
-  if ((what & F_FRIDGE) && place(s, L, &r, rng_range(&r, 0.7, 0.8), 0.7, 1, 0.1, &sp))
-    box(s, &r, C_FRIDGE, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(&r, 1.7, 1.9));
-  if ((what & F_SHELF) && place(s, L, &r, rng_range(&r, 0.8, 1.2), 0.35, 1, 0.1, &sp)) {
-    double zt = fz + rng_range(&r, 1.6, 2.0);
-    box(s, &r, C_BOOKSHELF, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
+  if ((what & F_FRIDGE) && place(s, L, r, rng_range(r, 0.7, 0.8), 0.7, 1, 0.1, &sp))
+    box(s, r, C_FRIDGE, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(r, 1.7, 1.9));
+  if ((what & F_SHELF) && place(s, L, r, rng_range(r, 0.8, 1.2), 0.35, 1, 0.1, &sp)) {
+    double zt = fz + rng_range(r, 1.6, 2.0);
+    box(s, r, C_BOOKSHELF, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
   }
-  for (int i = 0, n = (what & F_CABINET) ? 1 + (int)(rng_u64(&r) % 2) : 0; i < n; i++)
-    if (place(s, L, &r, rng_range(&r, 0.6, 1.0), 0.5, 1, 0.1, &sp)) {
-      double zt = fz + rng_range(&r, 0.7, 1.0);
-      box(s, &r, C_CABINET, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
+  for (int i = 0, n = (what & F_CABINET) ? 1 + (int)(rng_u64(r) % 2) : 0; i < n; i++)
+    if (place(s, L, r, rng_range(r, 0.6, 1.0), 0.5, 1, 0.1, &sp)) {
+      double zt = fz + rng_range(r, 0.7, 1.0);
+      box(s, r, C_CABINET, sp.x0, sp.y0, fz, sp.x1, sp.y1, zt);
       add_top(L, sp.x0, sp.y0, sp.x1, sp.y1, zt);
     }
-  if ((what & F_TOILET) && place(s, L, &r, 0.45, 0.7, 1, 0.15, &sp)) {
+  if ((what & F_TOILET) && place(s, L, r, 0.45, 0.7, 1, 0.15, &sp)) {
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
-    cyl(s, &r, C_TOILET, cx, cy, 0.2, fz, fz + 0.42);
+    cyl(s, r, C_TOILET, cx, cy, 0.2, fz, fz + 0.42);
     struct spot tank = wall_slab(&sp, 0, 0.2);
-    box(s, &r, C_TOILET, tank.x0, tank.y0, fz + 0.3, tank.x1, tank.y1, fz + 0.8);
+    box(s, r, C_TOILET, tank.x0, tank.y0, fz + 0.3, tank.x1, tank.y1, fz + 0.8);
   }
-  /* Other furniture: a round side table and an ottoman or nightstand. */
-  for (int i = 0, n = (what & F_OTHER) ? 1 + (int)(rng_u64(&r) % 2) : 0; i < n; i++) {
-    if (!place(s, L, &r, 0.5, 0.5, i & 1, 0.3, &sp)) continue;
+}
+
+/* The lighter pieces: side tables, wall-mounted window and pictures, a
+ * vanity, floor lamps. */
+static void furnish_lighter(struct vlff_sim *s, struct rng *r, struct layout *L, unsigned what, double fz) {
+  const double *lo = L->lo, *hi = L->hi;
+  struct spot sp;
+  for (int i = 0, n = (what & F_OTHER) ? 1 + (int)(rng_u64(r) % 2) : 0; i < n; i++) {
+    if (!place(s, L, r, 0.5, 0.5, i & 1, 0.3, &sp)) continue;
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
-    if (rng_uniform(&r) < 0.5) cyl(s, &r, C_OTHER, cx, cy, 0.24, fz, fz + rng_range(&r, 0.4, 0.6));
-    else box(s, &r, C_OTHER, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(&r, 0.4, 0.6));
+    if (rng_uniform(r) < 0.5) cyl(s, r, C_OTHER, cx, cy, 0.24, fz, fz + rng_range(r, 0.4, 0.6));
+    else box(s, r, C_OTHER, sp.x0, sp.y0, fz, sp.x1, sp.y1, fz + rng_range(r, 0.4, 0.6));
   }
   /* Wall-mounted: window with a curtain beside it, pictures. */
-  if ((what & F_WINDOW) && place_on_wall(s, L, &r, rng_range(&r, 0.9, 1.3), &sp)) {
+  if ((what & F_WINDOW) && place_on_wall(s, L, r, rng_range(r, 0.9, 1.3), &sp)) {
     struct spot w = wall_slab(&sp, -0.01, 0.03);
-    double z0 = fz + rng_range(&r, 0.9, 1.1), z1 = fmin(z0 + rng_range(&r, 1.0, 1.3), hi[2] - 0.15);
-    box(s, &r, C_WINDOW, w.x0, w.y0, z0, w.x1, w.y1, z1);
+    double z0 = fz + rng_range(r, 0.9, 1.1), z1 = fmin(z0 + rng_range(r, 1.0, 1.3), hi[2] - 0.15);
+    box(s, r, C_WINDOW, w.x0, w.y0, z0, w.x1, w.y1, z1);
     struct spot c = wall_slab(&sp, 0.05, 0.04);
     double cw = 0.35;
     if (sp.wall < 2) c.x1 = c.x0, c.x0 -= cw; else c.y1 = c.y0, c.y0 -= cw;
     s->cur_obj++;
-    if (c.x0 > lo[0] && c.y0 > lo[1]) box(s, &r, C_CURTAIN, c.x0, c.y0, fz + 0.3, c.x1, c.y1, z1 + 0.1);
+    if (c.x0 > lo[0] && c.y0 > lo[1]) box(s, r, C_CURTAIN, c.x0, c.y0, fz + 0.3, c.x1, c.y1, z1 + 0.1);
   }
-  for (int i = 0, n = (what & F_PICTURES) ? 2 + (int)(rng_u64(&r) % 2) : 0; i < n; i++)
-    if (place_on_wall(s, L, &r, rng_range(&r, 0.4, 0.8), &sp)) {
+  for (int i = 0, n = (what & F_PICTURES) ? 2 + (int)(rng_u64(r) % 2) : 0; i < n; i++)
+    if (place_on_wall(s, L, r, rng_range(r, 0.4, 0.8), &sp)) {
       struct spot p = wall_slab(&sp, 0, 0.025);
-      double z0 = fz + rng_range(&r, 1.3, 1.6);
-      box(s, &r, C_PICTURE, p.x0, p.y0, z0, p.x1, p.y1, z0 + rng_range(&r, 0.3, 0.6));
+      double z0 = fz + rng_range(r, 1.3, 1.6);
+      box(s, r, C_PICTURE, p.x0, p.y0, z0, p.x1, p.y1, z0 + rng_range(r, 0.3, 0.6));
     }
   /* A bathroom vanity: a small cabinet with a basin on it. */
-  if ((what & F_VANITY) && place(s, L, &r, rng_range(&r, 0.55, 0.75), 0.45, 1, 0.1, &sp)) {
-    double zc = fz + rng_range(&r, 0.8, 0.86);
-    box(s, &r, C_CABINET, sp.x0, sp.y0, fz, sp.x1, sp.y1, zc);
+  if ((what & F_VANITY) && place(s, L, r, rng_range(r, 0.55, 0.75), 0.45, 1, 0.1, &sp)) {
+    double zc = fz + rng_range(r, 0.8, 0.86);
+    box(s, r, C_CABINET, sp.x0, sp.y0, fz, sp.x1, sp.y1, zc);
     double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1);
     s->cur_obj++;
-    box(s, &r, C_SINK, cx - 0.2, cy - 0.16, zc, cx + 0.2, cy + 0.16, zc + 0.14);
+    box(s, r, C_SINK, cx - 0.2, cy - 0.16, zc, cx + 0.2, cy + 0.16, zc + 0.14);
   }
   /* Floor lamps: a thin pole on a disc under a shade, against a wall. */
-  for (int i = 0, n = (what & F_LAMPS) ? 1 + (int)(rng_u64(&r) % 2) : 0; i < n; i++)
-    if (place(s, L, &r, 0.36, 0.36, 1, 0.1, &sp)) {
-      double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1), h = rng_range(&r, 1.4, 1.7);
-      cyl(s, &r, C_OTHER, cx, cy, 0.14, fz, fz + 0.03);
-      cyl(s, &r, C_OTHER, cx, cy, 0.015, fz + 0.03, fz + h - 0.2);
-      cyl(s, &r, C_OTHER, cx, cy, rng_range(&r, 0.13, 0.18), fz + h - 0.22, fz + h);
+  for (int i = 0, n = (what & F_LAMPS) ? 1 + (int)(rng_u64(r) % 2) : 0; i < n; i++)
+    if (place(s, L, r, 0.36, 0.36, 1, 0.1, &sp)) {
+      double cx = 0.5 * (sp.x0 + sp.x1), cy = 0.5 * (sp.y0 + sp.y1), h = rng_range(r, 1.4, 1.7);
+      cyl(s, r, C_OTHER, cx, cy, 0.14, fz, fz + 0.03);
+      cyl(s, r, C_OTHER, cx, cy, 0.015, fz + 0.03, fz + h - 0.2);
+      cyl(s, r, C_OTHER, cx, cy, rng_range(r, 0.13, 0.18), fz + h - 0.22, fz + h);
     }
-  /* Hand-sized things on tops: cups, books, boxes. */
+}
+
+/* Hand-sized things on the tops the pieces above left: cups, books, boxes. */
+static void furnish_tops(struct vlff_sim *s, struct rng *r, struct layout *L, unsigned what, double fz) {
   for (int t = 0; (what & F_SMALL) && t < L->ntops; t++) {
     const struct top *tp = &L->tops[t];
-    for (int i = 0, n = 1 + (int)(rng_u64(&r) % 3); i < n; i++) {
-      double hw = rng_range(&r, 0.03, 0.08), hd = rng_range(&r, 0.03, 0.08), h = rng_range(&r, 0.06, 0.25);
+    for (int i = 0, n = 1 + (int)(rng_u64(r) % 3); i < n; i++) {
+      double hw = rng_range(r, 0.03, 0.08), hd = rng_range(r, 0.03, 0.08), h = rng_range(r, 0.06, 0.25);
       if (tp->x1 - tp->x0 < 2 * hw + 0.04 || tp->y1 - tp->y0 < 2 * hd + 0.04) continue;
-      double cx = rng_range(&r, tp->x0 + hw + 0.02, tp->x1 - hw - 0.02);
-      double cy = rng_range(&r, tp->y0 + hd + 0.02, tp->y1 - hd - 0.02);
+      double cx = rng_range(r, tp->x0 + hw + 0.02, tp->x1 - hw - 0.02);
+      double cy = rng_range(r, tp->y0 + hd + 0.02, tp->y1 - hd - 0.02);
       s->cur_obj++;
-      if (rng_uniform(&r) < 0.4) cyl(s, &r, C_OTHER, cx, cy, fmin(hw, hd), tp->z, tp->z + h);
-      else box(s, &r, C_OTHER, cx - hw, cy - hd, tp->z, cx + hw, cy + hd, tp->z + h);
+      if (rng_uniform(r) < 0.4) cyl(s, r, C_OTHER, cx, cy, fmin(hw, hd), tp->z, tp->z + h);
+      else box(s, r, C_OTHER, cx - hw, cy - hd, tp->z, cx + hw, cy + hd, tp->z + h);
     }
   }
+}
+
+/* Furniture for what (F_ flags) in the layout's box, drawn from *rr in a
+ * fixed order (a seed gives the same room), stage by stage. */
+static void furnish(struct vlff_sim *s, struct rng *rr, struct layout *L, unsigned what) {
+  struct rng r = *rr;
+  double fz = L->lo[2];
+  furnish_door_desk(s, &r, L, what, fz);
+  furnish_dining(s, &r, L, what, fz);
+  furnish_large(s, &r, L, what, fz);
+  furnish_lighter(s, &r, L, what, fz);
+  furnish_tops(s, &r, L, what, fz);
   *rr = r;
 }
 
@@ -1130,8 +1147,11 @@ void vlff_sim_text_embedding(const struct vlff_sim *s, const char *text, float *
     memcpy(out, s->text + (size_t)c * D, (size_t)D * sizeof(float));
     return;
   }
-  uint64_t h = 1469598103934665603ull;
-  for (const char *p = text ? text : ""; *p; p++) h = (h ^ (uint8_t)*p) * 1099511628211ull;
+  if (!text) text = "";
+  /* Keyed from 1469598103934665603, not FNV's offset basis: the start the
+   * generated vectors of unknown prompts have always had, so a scene and
+   * what was measured on it stay bit-identical. */
+  uint64_t h = vlff_fnv1a64(1469598103934665603ull, text, strlen(text));
   struct rng r = rng_make(FEATURE_SPACE_SEED, h, 1);
   for (int i = 0; i < D; i++) out[i] = (float)(0.45 * s->generic[i] + 0.9 * rng_normal(&r) / sqrt(D));
   normalize_f(out, D);
@@ -1152,10 +1172,7 @@ struct patch {
 VLFF_HOT
 static void feature_noise(uint64_t s0, float scale, const float *off, float sigma, float *v, int D) {
   for (int d = 0; d < D; d++) {
-    uint64_t z = s0 + (uint64_t)(d + 1) * 0x9e3779b97f4a7c15ull;
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
+    uint64_t z = vlff_mix64(s0 + (uint64_t)d * VLFF_RNG_GAMMA);
     uint32_t sum = (uint32_t)(z & 0xffff) + (uint32_t)((z >> 16) & 0xffff) + (uint32_t)((z >> 32) & 0xffff) +
                    (uint32_t)(z >> 48);
     float n = (float)(((double)sum / 65536.0 - 2.0) * 1.7320508075688772);
@@ -1525,7 +1542,7 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
                 iz = (int64_t)floor(x[2] / voxel);
         uint64_t key = ((uint64_t)(ix & 0x1fffff) << 42) | ((uint64_t)(iy & 0x1fffff) << 21) |
                        (uint64_t)(iz & 0x1fffff);
-        uint64_t h = mix64(key) & (hcap - 1);
+        uint64_t h = vlff_mix64(key) & (hcap - 1);
         int found = 0;
         while (tab[h].key) {
           if (tab[h].key == key + 1) {
@@ -1550,13 +1567,13 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
           if (!nt) goto oom;
           for (size_t i = 0; i < hcap; i++)
             if (tab[i].key) {
-              uint64_t hh = mix64(tab[i].key - 1) & (ncap - 1);
+              uint64_t hh = vlff_mix64(tab[i].key - 1) & (ncap - 1);
               while (nt[hh].key) hh = (hh + 1) & (ncap - 1);
               nt[hh] = tab[i];
             }
           free(tab);
           tab = nt, hcap = ncap;
-          h = mix64(key) & (hcap - 1);
+          h = vlff_mix64(key) & (hcap - 1);
           while (tab[h].key) h = (h + 1) & (hcap - 1);
         }
         tab[h].key = key + 1;

@@ -24,6 +24,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "clock.h"
 #include "config.h"
 #include "dataset.h"
 #include "embeddings.h"
@@ -209,7 +210,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
       status = 1;
       break;
     }
-    uint64_t now = vlff_shm_now_ns();
+    uint64_t now = vlff_now_ns();
     h->frame_id = (uint64_t)id;
     h->t_host_ns = now;
     h->t_device_ns = (uint64_t)(f->time_s * 1e9);

@@ -10,6 +10,7 @@
  * recolours or moves everything, so it is sent whole. A new subscriber gets the whole
  * copy, built once per version and shared.
  */
+#include "clock.h"
 #include "json.h"
 
 #include <errno.h>
@@ -64,12 +65,6 @@ struct vlff_feed {
   uint64_t encoded[VLFF_VIEW_CH_COUNT + 1]; /* messages built, per channel */
 };
 
-static uint64_t real_now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return (uint64_t)ts.tv_sec * NS + (uint64_t)ts.tv_nsec;
-}
-
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
 static uint64_t to_real(const struct vlff_feed *f, uint64_t mono_ns) { return mono_ns + f->mono_to_real; }
 
@@ -114,7 +109,7 @@ struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   }
   f->p = *p;
   if (f->p.brick < 1) f->p.brick = 8;
-  f->mono_to_real = real_now_ns() - vlff_shm_now_ns();
+  f->mono_to_real = vlff_wall_ns() - vlff_now_ns();
   return f;
 }
 
@@ -370,14 +365,15 @@ static void map_attach(struct vlff_feed *f, uint64_t now) {
   m->reported = 0;
 }
 
-/* Reads a new map version, if any, and appends its delta messages. */
-static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
+/* Takes a snapshot of a map version not read yet into m->snap and its
+ * info: 0, or -1 when there is none (no map, no new version, or the
+ * segment was replaced: then it is forgotten, to attach again). */
+static int map_take_version(struct vlff_feed *f, struct vlff_map_info *info) {
   struct feed_map *m = &f->m;
-  uint64_t now = vlff_shm_now_ns();
-  map_attach(f, now);
-  if (!m->map) return 0;
+  map_attach(f, vlff_now_ns());
+  if (!m->map) return -1;
   uint64_t v = vlff_map_version(m->map);
-  if (v == 0 || (v == m->version && vlff_map_generation(m->map) == m->generation)) return 0;
+  if (v == 0 || (v == m->version && vlff_map_generation(m->map) == m->generation)) return -1;
   if (vlff_map_snapshot_take(m->map, m->snap) != 0) {
     if (errno == EPIPE) {
       fprintf(stderr, "vlff-view: map %s was replaced by a new one; attaching again\n", f->p.map_name);
@@ -385,43 +381,193 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
       map_forget(m);
       m->version = keep; /* clients keep their map until the new segment publishes */
     }
-    return 0;
+    return -1;
   }
-  struct vlff_map_info info;
-  if (vlff_map_snapshot_info(m->snap, &info) != 0) return 0;
-  const struct vlff_map_grid *g = &info.grid;
+  return vlff_map_snapshot_info(m->snap, info) != 0 ? -1 : 0;
+}
+
+/* Whether the snapshot must be sent whole: a first map, a new geometry or
+ * new prompts. */
+static int map_needs_full(const struct feed_map *m, const struct vlff_map_info *info) {
+  const struct vlff_map_grid *g = &info->grid;
   size_t n = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
   int full = !m->labels || n != m->n || memcmp(g->dims, m->dims, sizeof m->dims) ||
              memcmp(g->origin, m->origin, sizeof m->origin) || g->voxel_size != m->vs ||
-             info.prompt_count != m->prompt_count;
-  for (int i = 0; !full && i < info.prompt_count && i < VLFF_SHM_MAX_PROMPTS; i++) {
+             info->prompt_count != m->prompt_count;
+  for (int i = 0; !full && i < info->prompt_count && i < VLFF_SHM_MAX_PROMPTS; i++) {
     const char *p = vlff_map_snapshot_prompt(m->snap, (uint16_t)i);
     full = strcmp(p ? p : "", m->prompts[i]) != 0;
   }
-  uint64_t t = to_real(f, info.publish_ns);
-  int nout = 0;
-  uint32_t edge = f->p.brick;
+  return full;
+}
 
-  if (full) {
-    free(m->labels);
-    free(m->conf);
-    free(m->brick_sent);
-    m->n = n;
-    memcpy(m->dims, g->dims, sizeof m->dims);
-    memcpy(m->origin, g->origin, sizeof m->origin);
-    m->vs = g->voxel_size;
-    m->labels = malloc(n * sizeof *m->labels + 1);
-    m->conf = malloc(n + 1);
-    m->brick_sent = calloc(brick_count(m, edge) + 1, 1);
-    if (!m->labels || !m->conf || !m->brick_sent) {
-      fprintf(stderr, "vlff-view: out of memory for a %zu-voxel map\n", n);
-      map_forget(m);
-      return 0;
-    }
-    memcpy(m->labels, g->labels, n * sizeof *m->labels);
-    if (g->confidence) memcpy(m->conf, g->confidence, n);
-    else memset(m->conf, 255, n);
+/* The copy of the map replaced by the snapshot's grid: 0, or -1 out of
+ * memory (the map is forgotten). */
+static int map_copy_whole(struct feed_map *m, const struct vlff_map_grid *g, uint32_t edge) {
+  size_t n = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
+  free(m->labels);
+  free(m->conf);
+  free(m->brick_sent);
+  m->n = n;
+  memcpy(m->dims, g->dims, sizeof m->dims);
+  memcpy(m->origin, g->origin, sizeof m->origin);
+  m->vs = g->voxel_size;
+  m->labels = malloc(n * sizeof *m->labels + 1);
+  m->conf = malloc(n + 1);
+  m->brick_sent = calloc(brick_count(m, edge) + 1, 1);
+  if (!m->labels || !m->conf || !m->brick_sent) {
+    fprintf(stderr, "vlff-view: out of memory for a %zu-voxel map\n", n);
+    map_forget(m);
+    return -1;
   }
+  memcpy(m->labels, g->labels, n * sizeof *m->labels);
+  if (g->confidence) memcpy(m->conf, g->confidence, n);
+  else memset(m->conf, 255, n);
+  return 0;
+}
+
+/* Appends msg to out when there is room, else drops it. */
+static void emit(struct vlff_view_msg **out, int *nout, int cap, struct vlff_view_msg *msg) {
+  if (msg && *nout < cap) out[(*nout)++] = msg;
+  else vlff_view_msg_unref(msg);
+}
+
+/* The whole map's messages, which also become the channels' current ones. */
+static int map_whole_msgs(struct vlff_feed *f, unsigned wanted, uint32_t edge, uint64_t t, struct vlff_view_msg **out,
+                          int cap) {
+  int nout = 0;
+  count_labels(&f->m);
+  /* a channel nobody subscribes to is not encoded: vlff_feed_current builds it
+   * for its first subscriber */
+  struct vlff_view_msg *s = wants(wanted, VLFF_VIEW_CH_SCENE) ? scene_msg(f, NULL, edge, t, 1) : NULL;
+  struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_full_msg(f, t) : NULL;
+  set_current(f, VLFF_VIEW_CH_SCENE, s);
+  set_current(f, VLFF_VIEW_CH_VOXELS, vx);
+  /* the small voxel message first: it is not queued behind the scene */
+  emit(out, &nout, cap, vx);
+  emit(out, &nout, cap, s);
+  return nout;
+}
+
+/* Copies the voxels of g that changed into the map, listing their indices
+ * in f->changed (index order) and marking their bricks in dirty: their
+ * count, or -1 out of memory (the map is forgotten). */
+static long map_take_changes(struct vlff_feed *f, const struct vlff_map_grid *g, uint32_t edge, uint8_t *dirty) {
+  struct feed_map *m = &f->m;
+  const uint8_t *gc = g->confidence;
+  size_t changed = 0;
+  uint32_t nb0 = (m->dims[0] + edge - 1) / edge, nb1 = (m->dims[1] + edge - 1) / edge;
+  for (uint32_t k = 0; k < m->dims[2]; k++)
+    for (uint32_t j = 0; j < m->dims[1]; j++) {
+      size_t row = (size_t)m->dims[0] * (j + (size_t)m->dims[1] * k);
+      /* most rows are unchanged: compare them whole first */
+      if (!memcmp(m->labels + row, g->labels + row, m->dims[0] * sizeof *m->labels) &&
+          (gc ? !memcmp(m->conf + row, gc + row, m->dims[0]) : 1))
+        continue;
+      for (uint32_t i = 0; i < m->dims[0]; i++) {
+        size_t idx = row + i;
+        uint8_t c = gc ? gc[idx] : 255;
+        if (g->labels[idx] == m->labels[idx] && c == m->conf[idx]) continue;
+        if (changed == f->changed_cap) {
+          size_t nc = f->changed_cap ? f->changed_cap * 2 : 4096;
+          uint32_t *p = realloc(f->changed, nc * sizeof *p);
+          if (!p) {
+            fprintf(stderr, "vlff-view: out of memory for a map delta\n");
+            map_forget(m);
+            return -1;
+          }
+          f->changed = p;
+          f->changed_cap = nc;
+        }
+        f->changed[changed++] = (uint32_t)idx;
+        m->labels[idx] = g->labels[idx];
+        m->conf[idx] = c;
+        dirty[i / edge + nb0 * (j / edge + nb1 * (k / edge))] = 1;
+      }
+    }
+  return (long)changed;
+}
+
+/* The delta's messages: the changed voxels, in index order, and the bricks
+ * holding them; -1 out of memory. */
+static int map_delta_msgs(struct vlff_feed *f, const struct vlff_map_grid *g, unsigned wanted, uint32_t edge,
+                          uint64_t t, struct vlff_view_msg **out, int cap) {
+  struct feed_map *m = &f->m;
+  int nout = 0;
+  uint8_t *dirty = calloc(brick_count(m, edge), 1);
+  if (!dirty) return -1;
+  long nchanged = map_take_changes(f, g, edge, dirty);
+  if (nchanged < 0) {
+    free(dirty);
+    return -1;
+  }
+  size_t changed = (size_t)nchanged;
+  count_labels(m);
+  struct jw w = {wants(wanted, VLFF_VIEW_CH_VOXELS) ? feed_msg(f, VLFF_VIEW_CH_VOXELS, 64 + changed * 16) : NULL, 0};
+  struct vlff_view_msg *vx = NULL, *s = NULL;
+  if (w.m) {
+    w.m->t_ns = t;
+    w.m->version = m->version;
+    write_map_header(&w, m, 0);
+    for (size_t c = 0; c < changed; c++) {
+      uint32_t idx = f->changed[c];
+      jw_f(&w, "%s%u,%u,%u", c ? "," : "", idx, m->labels[idx], m->conf[idx]);
+    }
+    jw_s(&w, "]}");
+    vx = jw_finish(&w);
+  }
+  /* a version that changed no voxel still reaches the voxel channel (clients
+   * learn the version); the scene has nothing to replace then */
+  if (changed && wants(wanted, VLFF_VIEW_CH_SCENE)) s = scene_msg(f, dirty, edge, t, 1);
+  free(dirty);
+  emit(out, &nout, cap, vx);
+  emit(out, &nout, cap, s);
+  /* the whole map for new subscribers is rebuilt when first asked for */
+  set_current(f, VLFF_VIEW_CH_SCENE, NULL);
+  set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
+  return nout;
+}
+
+/* A newer label image than the one kept, and the camera pose it carries
+ * when the frames carry none. */
+static int map_label_image_msgs(struct vlff_feed *f, const struct vlff_map_info *info, unsigned wanted,
+                                struct vlff_view_msg **out, int cap) {
+  struct feed_map *m = &f->m;
+  int nout = 0;
+  if (!info->has_label_image || info->label_image.t_ns == m->label_image_t_ns) return 0;
+  m->label_image_t_ns = info->label_image.t_ns;
+  /* a newer image than the one kept: a later subscriber waits for the next */
+  set_current(f, VLFF_VIEW_CH_LABELS, NULL);
+  if (wants(wanted, VLFF_VIEW_CH_LABELS) && nout < cap) {
+    struct vlff_view_msg *li = label_image_msg(f, &info->label_image);
+    if (li) {
+      out[nout++] = li;
+      set_current(f, VLFF_VIEW_CH_LABELS, li);
+    }
+  }
+  /* the camera pose comes from the frames when they carry one, else from here */
+  if ((!f->ring || !f->ring_has_pose) && wants(wanted, VLFF_VIEW_CH_POSE) && valid_pose(info->label_image.pose) &&
+      nout < cap) {
+    struct vlff_view_msg *pm = pose_msg(f, to_real(f, info->label_image.t_ns), info->label_image.pose);
+    if (pm) {
+      out[nout++] = pm;
+      set_current(f, VLFF_VIEW_CH_POSE, pm);
+    }
+  }
+  return nout;
+}
+
+/* Reads a new map version, if any, and appends its messages: the whole map
+ * or the delta, then a new label image. */
+static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
+  struct feed_map *m = &f->m;
+  struct vlff_map_info info;
+  if (map_take_version(f, &info)) return 0;
+  const struct vlff_map_grid *g = &info.grid;
+  int full = map_needs_full(m, &info);
+  uint64_t t = to_real(f, info.publish_ns);
+  uint32_t edge = f->p.brick;
+  if (full && map_copy_whole(m, g, edge)) return 0;
   m->prompt_count = info.prompt_count > VLFF_SHM_MAX_PROMPTS ? VLFF_SHM_MAX_PROMPTS : info.prompt_count;
   for (int i = 0; i < m->prompt_count; i++) {
     const char *p = vlff_map_snapshot_prompt(m->snap, (uint16_t)i);
@@ -430,106 +576,9 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
   m->version = info.version;
   m->publish_ns = info.publish_ns;
   m->generation = info.generation;
-
-  if (full) {
-    count_labels(m);
-    /* a channel nobody subscribes to is not encoded: vlff_feed_current builds it
-     * for its first subscriber */
-    struct vlff_view_msg *s = wants(wanted, VLFF_VIEW_CH_SCENE) ? scene_msg(f, NULL, edge, t, 1) : NULL;
-    struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_full_msg(f, t) : NULL;
-    set_current(f, VLFF_VIEW_CH_SCENE, s);
-    set_current(f, VLFF_VIEW_CH_VOXELS, vx);
-    /* the small voxel message first: it is not queued behind the scene */
-    if (vx && nout < cap) out[nout++] = vx;
-    else vlff_view_msg_unref(vx);
-    if (s && nout < cap) out[nout++] = s;
-    else vlff_view_msg_unref(s);
-  } else {
-    /* the delta: changed voxels, in index order, and the bricks holding them */
-    uint32_t nb = brick_count(m, edge);
-    uint8_t *dirty = calloc(nb, 1);
-    if (!dirty) return 0;
-    const uint8_t *gc = g->confidence;
-    size_t changed = 0;
-    uint32_t nb0 = (m->dims[0] + edge - 1) / edge, nb1 = (m->dims[1] + edge - 1) / edge;
-    for (uint32_t k = 0; k < m->dims[2]; k++)
-      for (uint32_t j = 0; j < m->dims[1]; j++) {
-        size_t row = (size_t)m->dims[0] * (j + (size_t)m->dims[1] * k);
-        /* most rows are unchanged: compare them whole first */
-        if (!memcmp(m->labels + row, g->labels + row, m->dims[0] * sizeof *m->labels) &&
-            (gc ? !memcmp(m->conf + row, gc + row, m->dims[0]) : 1))
-          continue;
-        for (uint32_t i = 0; i < m->dims[0]; i++) {
-          size_t idx = row + i;
-          uint8_t c = gc ? gc[idx] : 255;
-          if (g->labels[idx] == m->labels[idx] && c == m->conf[idx]) continue;
-          if (changed == f->changed_cap) {
-            size_t nc = f->changed_cap ? f->changed_cap * 2 : 4096;
-            uint32_t *p = realloc(f->changed, nc * sizeof *p);
-            if (!p) {
-              free(dirty);
-              fprintf(stderr, "vlff-view: out of memory for a map delta\n");
-              map_forget(m);
-              return 0;
-            }
-            f->changed = p;
-            f->changed_cap = nc;
-          }
-          f->changed[changed++] = (uint32_t)idx;
-          m->labels[idx] = g->labels[idx];
-          m->conf[idx] = c;
-          dirty[i / edge + nb0 * (j / edge + nb1 * (k / edge))] = 1;
-        }
-      }
-    count_labels(m);
-    struct jw w = {wants(wanted, VLFF_VIEW_CH_VOXELS) ? feed_msg(f, VLFF_VIEW_CH_VOXELS, 64 + changed * 16) : NULL, 0};
-    struct vlff_view_msg *vx = NULL, *s = NULL;
-    if (w.m) {
-      w.m->t_ns = t;
-      w.m->version = m->version;
-      write_map_header(&w, m, 0);
-      for (size_t c = 0; c < changed; c++) {
-        uint32_t idx = f->changed[c];
-        jw_f(&w, "%s%u,%u,%u", c ? "," : "", idx, m->labels[idx], m->conf[idx]);
-      }
-      jw_s(&w, "]}");
-      vx = jw_finish(&w);
-    }
-    /* a version that changed no voxel still reaches the voxel channel (clients
-     * learn the version); the scene has nothing to replace then */
-    if (changed && wants(wanted, VLFF_VIEW_CH_SCENE)) s = scene_msg(f, dirty, edge, t, 1);
-    free(dirty);
-    if (vx && nout < cap) out[nout++] = vx;
-    else vlff_view_msg_unref(vx);
-    if (s && nout < cap) out[nout++] = s;
-    else vlff_view_msg_unref(s);
-    /* the whole map for new subscribers is rebuilt when first asked for */
-    set_current(f, VLFF_VIEW_CH_SCENE, NULL);
-    set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
-  }
-
-  if (info.has_label_image && info.label_image.t_ns != m->label_image_t_ns) {
-    m->label_image_t_ns = info.label_image.t_ns;
-    /* a newer image than the one kept: a later subscriber waits for the next */
-    set_current(f, VLFF_VIEW_CH_LABELS, NULL);
-    if (wants(wanted, VLFF_VIEW_CH_LABELS) && nout < cap) {
-      struct vlff_view_msg *li = label_image_msg(f, &info.label_image);
-      if (li) {
-        out[nout++] = li;
-        set_current(f, VLFF_VIEW_CH_LABELS, li);
-      }
-    }
-    /* the camera pose comes from the frames when they carry one, else from here */
-    if ((!f->ring || !f->ring_has_pose) && wants(wanted, VLFF_VIEW_CH_POSE) && valid_pose(info.label_image.pose) &&
-        nout < cap) {
-      struct vlff_view_msg *pm = pose_msg(f, to_real(f, info.label_image.t_ns), info.label_image.pose);
-      if (pm) {
-        out[nout++] = pm;
-        set_current(f, VLFF_VIEW_CH_POSE, pm);
-      }
-    }
-  }
-  return nout;
+  int nout = full ? map_whole_msgs(f, wanted, edge, t, out, cap) : map_delta_msgs(f, g, wanted, edge, t, out, cap);
+  if (nout < 0) return 0;
+  return nout + map_label_image_msgs(f, &info, wanted, out + nout, cap - nout);
 }
 
 /* ----------------------------------------------------------- camera frames */
@@ -550,7 +599,7 @@ static const char *image_encoding(uint32_t fmt) {
 
 static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   if (!f->p.frames_name || !*f->p.frames_name || cap < 1) return 0;
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   if (!f->ring) {
     if (now < f->ring_next_attach_ns) return 0;
     f->ring_next_attach_ns = now + NS;
@@ -648,7 +697,7 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
     jw_s(w, "null");
     return;
   }
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   jw_s(w, "{\"state\":");
   jw_str(w, st.state_name);
   jw_f(w, ",\"state_code\":%d,\"error_flags\":%u,\"age_s\":%.3f,\"updates\":%llu,\"frames_in\":%llu,"
@@ -679,7 +728,7 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
 
 static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_view_counters *c) {
   struct feed_map *m = &f->m;
-  uint64_t t = real_now_ns();
+  uint64_t t = vlff_wall_ns();
   struct jw w = {feed_msg(f, VLFF_VIEW_CH_STATUS, 2048), 0};
   if (!w.m) return NULL;
   w.m->t_ns = t;
@@ -725,7 +774,7 @@ int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsi
   uint64_t before = f->m.version;
   int n = map_poll(f, wanted, out, out_cap);
   n += frames_poll(f, wanted, out + n, out_cap - n);
-  uint64_t now = vlff_shm_now_ns();
+  uint64_t now = vlff_now_ns();
   if (n < out_cap && wants(wanted, VLFF_VIEW_CH_STATUS) && (f->m.version != before || now - f->last_status_ns >= NS)) {
     struct vlff_view_msg *s = status_msg(f, c);
     if (s) {

@@ -52,6 +52,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include "clock.h"
 #include "log.h"
 #include "page.h"
 #include "vlff/escape.h" /* what a peer sent, quoted in messages */
@@ -313,7 +314,7 @@ static void send_hello(struct client *cl) {
   json_object_object_add(md, "prompt_topic", json_object_new_string(PROMPT_TOPIC));
   json_object_object_add(o, "metadata", md);
   char sid[32];
-  snprintf(sid, sizeof sid, "%llu", (unsigned long long)vlff_shm_now_ns());
+  snprintf(sid, sizeof sid, "%llu", (unsigned long long)vlff_now_ns());
   json_object_object_add(o, "sessionId", json_object_new_string(sid));
   send_json(cl, o);
 
@@ -481,7 +482,7 @@ static void poll_answer(lws_sorted_usec_list_t *sul) {
   int st = v->mailbox ? vlff_prompts_wait_answer(v->mailbox, v->pending.seq, 0, reason, sizeof reason) : -1;
   int e = errno;
   struct client *cl = v->pending.cl;
-  if (st < 0 && e == ETIMEDOUT && vlff_shm_now_ns() - v->pending.t0_ns < (uint64_t)ANSWER_WAIT_S * 1000000000ull) {
+  if (st < 0 && e == ETIMEDOUT && vlff_now_ns() - v->pending.t0_ns < (uint64_t)ANSWER_WAIT_S * 1000000000ull) {
     lws_sul_schedule(v->ctx, 0, &v->answer_sul, poll_answer, ANSWER_POLL_US);
     return;
   }
@@ -574,7 +575,7 @@ static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
       v->c.prompts_posted++;
       v->pending.cl = cl;
       v->pending.seq = vlff_prompts_last_post(v->mailbox);
-      v->pending.t0_ns = vlff_shm_now_ns();
+      v->pending.t0_ns = vlff_now_ns();
       send_status(cl, 0, "prompt set posted to %s as request %llu; waiting for the learner's answer",
                   v->p.prompts_name, (unsigned long long)v->pending.seq);
       fprintf(stderr, "vlff-view: client %s posted a prompt set to %s (request %llu)\n", cl->peer, v->p.prompts_name,
@@ -646,7 +647,7 @@ static int write_one(struct client *cl) {
  * with a pong, browsers and Foxglove on their own); one silent for the whole of it
  * is closed, so that idle or dead peers cannot hold the client slots. */
 static void check_idle(struct vlff_view *v) {
-  uint64_t now = vlff_shm_now_ns(), limit = (uint64_t)v->idle_timeout_s * 1000000000ull;
+  uint64_t now = vlff_now_ns(), limit = (uint64_t)v->idle_timeout_s * 1000000000ull;
   for (struct client *cl = v->clients; cl; cl = cl->next) {
     if (cl->dropping) continue;
     uint64_t quiet = now - cl->last_rx_ns;
@@ -704,7 +705,7 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     peer_of(v, wsi, cl->peer, sizeof cl->peer);
     size_t pl = strlen(cl->peer);
     snprintf(cl->peer + pl, sizeof cl->peer - pl, "#%llu", (unsigned long long)v->c.connections + 1);
-    cl->last_rx_ns = vlff_shm_now_ns();
+    cl->last_rx_ns = vlff_now_ns();
     cl->next = v->clients;
     v->clients = cl;
     v->c.clients++;
@@ -714,11 +715,11 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     return 0;
   }
   case LWS_CALLBACK_RECEIVE_PONG:
-    if (cl->v) cl->last_rx_ns = vlff_shm_now_ns(), cl->pinged = 0;
+    if (cl->v) cl->last_rx_ns = vlff_now_ns(), cl->pinged = 0;
     return 0;
   case LWS_CALLBACK_RECEIVE: {
     if (!cl->v || cl->dropping) return 0;
-    cl->last_rx_ns = vlff_shm_now_ns();
+    cl->last_rx_ns = vlff_now_ns();
     cl->pinged = 0;
     if (cl->rx_len + len > v->p.max_request_bytes) {
       char why[96];

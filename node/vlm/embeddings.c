@@ -58,6 +58,111 @@ void vlff_embeddings_free(struct vlff_embeddings *e) {
   free(e);
 }
 
+/* The two header lines, in order: 'vlff-embeddings 1', then 'dim N'. */
+static int parse_header(struct vlff_embeddings *e, const char *line, const char *name, int lineno, int expected_dim,
+                        bool *have_magic, char *err, size_t errlen) {
+  if (!*have_magic) {
+    if (strcmp(line, "vlff-embeddings 1")) {
+      vlff_errf(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%s'", name, lineno, VLFF_QMAX(line, 40));
+      return -1;
+    }
+    *have_magic = true;
+    return 0;
+  }
+  char *end;
+  long d = strncmp(line, "dim ", 4) ? 0 : strtol(line + 4, &end, 10);
+  if (d < 1 || d > 4096 || *end) {
+    vlff_errf(err, errlen, "%s:%d: expected 'dim N' with N in 1..4096, got '%s'", name, lineno, VLFF_QMAX(line, 40));
+    return -1;
+  }
+  if (expected_dim && d != expected_dim) {
+    vlff_errf(err, errlen, "%s:%d: vectors have dim %ld, but field.feature_dim is %d", name, lineno, d, expected_dim);
+    return -1;
+  }
+  e->dim = (int)d;
+  return 0;
+}
+
+/* A vector line's prompt, up to its tab (replaced by a NUL): checked, new
+ * and within the count. Its length, or -1. */
+static long parse_prompt(const struct vlff_embeddings *e, char *line, const char *name, int lineno, char *err,
+                         size_t errlen) {
+  char *tab = strchr(line, '\t');
+  if (!tab) {
+    vlff_errf(err, errlen, "%s:%d: expected 'prompt<TAB>numbers'", name, lineno);
+    return -1;
+  }
+  size_t pl = (size_t)(tab - line);
+  if (pl > PROMPT_MAX || !prompt_ok(line, pl)) {
+    vlff_errf(err, errlen, "%s:%d: prompt must be 1..%d bytes of UTF-8 without control characters", name, lineno,
+              PROMPT_MAX);
+    return -1;
+  }
+  *tab = 0;
+  for (int i = 0; i < e->count; i++)
+    if (!strcmp(e->prompts[i], line)) {
+      vlff_errf(err, errlen, "%s:%d: duplicate prompt '%s'", name, lineno, VLFF_Q(line));
+      return -1;
+    }
+  if (e->count == VLFF_EMBEDDINGS_MAX) {
+    vlff_errf(err, errlen, "%s:%d: more than %d prompts", name, lineno, VLFF_EMBEDDINGS_MAX);
+    return -1;
+  }
+  return (long)pl;
+}
+
+/* Room for more prompts and vectors: 0, or -1 out of memory. */
+static int grow(struct vlff_embeddings *e, int *cap) {
+  int nc = *cap ? *cap * 2 : 16;
+  if (nc > VLFF_EMBEDDINGS_MAX) nc = VLFF_EMBEDDINGS_MAX;
+  void *np = realloc(e->prompts, (size_t)nc * sizeof *e->prompts);
+  if (!np) return -1;
+  e->prompts = np;
+  float *nv = realloc(e->vectors, (size_t)nc * e->dim * sizeof *nv);
+  if (!nv) return -1;
+  e->vectors = nv;
+  *cap = nc;
+  return 0;
+}
+
+/* The numbers at p of prompt's line: dim finite floats separated by single
+ * spaces, not all zero, into v. */
+static int parse_vector(const char *prompt, const char *p, int dim, float *v, const char *name, int lineno, char *err,
+                        size_t errlen) {
+  double ss = 0;
+  for (int k = 0; k < dim; k++) {
+    if (k && *p++ != ' ') {
+      vlff_errf(err, errlen, "%s:%d: expected %d numbers separated by single spaces, got %d", name, lineno, dim, k);
+      return -1;
+    }
+    if (*p == ' ' || *p == 0 || *p == '\t') {
+      vlff_errf(err, errlen, "%s:%d: expected %d numbers, got %d", name, lineno, dim, k);
+      return -1;
+    }
+    char *end;
+    errno = 0;
+    float f = strtof(p, &end);
+    /* ERANGE with a finite result is underflow (1e-45 is a subnormal
+     * float, 1e-50 rounds to zero): a valid, tiny number. */
+    if (end == p || (*end && *end != ' ') || !isfinite(f) || (errno == ERANGE && fabsf(f) > FLT_MIN)) {
+      vlff_errf(err, errlen, "%s:%d: number %d is not a finite float", name, lineno, k + 1);
+      return -1;
+    }
+    v[k] = f;
+    ss += (double)f * f;
+    p = end;
+  }
+  if (*p) {
+    vlff_errf(err, errlen, "%s:%d: more than %d numbers", name, lineno, dim);
+    return -1;
+  }
+  if (!(ss > 0)) {
+    vlff_errf(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, VLFF_Q(prompt));
+    return -1;
+  }
+  return 0;
+}
+
 struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const char *name, int expected_dim,
                                               char *err, size_t errlen) {
   if (!name) name = "embeddings";
@@ -90,96 +195,17 @@ struct vlff_embeddings *vlff_embeddings_parse(const char *buf, size_t len, const
       vlff_errf(err, errlen, "%s:%d: CRLF line end (the format uses '\\n' alone)", name, lineno);
       goto fail;
     }
-    if (!have_magic) {
-      if (strcmp(line, "vlff-embeddings 1")) {
-        vlff_errf(err, errlen, "%s:%d: expected 'vlff-embeddings 1', got '%s'", name, lineno, VLFF_QMAX(line, 40));
-        goto fail;
-      }
-      have_magic = true;
-      continue;
-    }
-    if (!e->dim) {
-      char *end;
-      long d = strncmp(line, "dim ", 4) ? 0 : strtol(line + 4, &end, 10);
-      if (d < 1 || d > 4096 || *end) {
-        vlff_errf(err, errlen, "%s:%d: expected 'dim N' with N in 1..4096, got '%s'", name, lineno, VLFF_QMAX(line,
-                  40));
-        goto fail;
-      }
-      if (expected_dim && d != expected_dim) {
-        vlff_errf(err, errlen, "%s:%d: vectors have dim %ld, but field.feature_dim is %d", name, lineno, d, expected_dim);
-        goto fail;
-      }
-      e->dim = (int)d;
+    if (!have_magic || !e->dim) {
+      if (parse_header(e, line, name, lineno, expected_dim, &have_magic, err, errlen)) goto fail;
       continue;
     }
     if (!ll || line[0] == '#') continue;
-    char *tab = strchr(line, '\t');
-    if (!tab) {
-      vlff_errf(err, errlen, "%s:%d: expected 'prompt<TAB>numbers'", name, lineno);
-      goto fail;
-    }
-    size_t pl = (size_t)(tab - line);
-    if (pl > PROMPT_MAX || !prompt_ok(line, pl)) {
-      vlff_errf(err, errlen, "%s:%d: prompt must be 1..%d bytes of UTF-8 without control characters", name, lineno,
-              PROMPT_MAX);
-      goto fail;
-    }
-    *tab = 0;
-    for (int i = 0; i < e->count; i++)
-      if (!strcmp(e->prompts[i], line)) {
-        vlff_errf(err, errlen, "%s:%d: duplicate prompt '%s'", name, lineno, VLFF_Q(line));
-        goto fail;
-      }
-    if (e->count == VLFF_EMBEDDINGS_MAX) {
-      vlff_errf(err, errlen, "%s:%d: more than %d prompts", name, lineno, VLFF_EMBEDDINGS_MAX);
-      goto fail;
-    }
-    if (e->count == cap) {
-      int nc = cap ? cap * 2 : 16;
-      if (nc > VLFF_EMBEDDINGS_MAX) nc = VLFF_EMBEDDINGS_MAX;
-      void *np = realloc(e->prompts, (size_t)nc * sizeof *e->prompts);
-      if (!np) goto oom;
-      e->prompts = np;
-      float *nv = realloc(e->vectors, (size_t)nc * e->dim * sizeof *nv);
-      if (!nv) goto oom;
-      e->vectors = nv;
-      cap = nc;
-    }
+    long pl = parse_prompt(e, line, name, lineno, err, errlen);
+    if (pl < 0) goto fail;
+    if (e->count == cap && grow(e, &cap)) goto oom;
     float *v = e->vectors + (size_t)e->count * e->dim;
-    const char *p = tab + 1;
-    double ss = 0;
-    for (int k = 0; k < e->dim; k++) {
-      if (k && *p++ != ' ') {
-        vlff_errf(err, errlen, "%s:%d: expected %d numbers separated by single spaces, got %d", name, lineno, e->dim, k);
-        goto fail;
-      }
-      if (*p == ' ' || *p == 0 || *p == '\t') {
-        vlff_errf(err, errlen, "%s:%d: expected %d numbers, got %d", name, lineno, e->dim, k);
-        goto fail;
-      }
-      char *end;
-      errno = 0;
-      float f = strtof(p, &end);
-      /* ERANGE with a finite result is underflow (1e-45 is a subnormal
-       * float, 1e-50 rounds to zero): a valid, tiny number. */
-      if (end == p || (*end && *end != ' ') || !isfinite(f) || (errno == ERANGE && fabsf(f) > FLT_MIN)) {
-        vlff_errf(err, errlen, "%s:%d: number %d is not a finite float", name, lineno, k + 1);
-        goto fail;
-      }
-      v[k] = f;
-      ss += (double)f * f;
-      p = end;
-    }
-    if (*p) {
-      vlff_errf(err, errlen, "%s:%d: more than %d numbers", name, lineno, e->dim);
-      goto fail;
-    }
-    if (!(ss > 0)) {
-      vlff_errf(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, VLFF_Q(line));
-      goto fail;
-    }
-    memcpy(e->prompts[e->count], line, pl + 1);
+    if (parse_vector(line, line + pl + 1, e->dim, v, name, lineno, err, errlen)) goto fail;
+    memcpy(e->prompts[e->count], line, (size_t)pl + 1);
     e->count++;
   }
   if (!have_magic || !e->dim) {

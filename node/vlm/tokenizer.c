@@ -572,22 +572,10 @@ fail:
   return NULL;
 }
 
-struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t errlen) {
-  if (!path || !*path) {
-    vlff_errf(err, errlen, "vlm.bpe_vocab: no BPE merges file configured");
-    return NULL;
-  }
-  size_t len = 0;
-  char *text = read_gz(path, &len, err, errlen);
-  if (!text) return NULL;
-  struct vlff_tokenizer *t = calloc(1, sizeof *t);
-  if (!t) {
-    vlff_errf(err, errlen, "%s: out of memory", path);
-    free(text);
-    return NULL;
-  }
-  /* Base symbols in the reference's order: bytes '!'..'~', 0xA1..0xAC,
-   * 0xAE..0xFF stand for themselves, then the other bytes as 256 + n. */
+/* The 512 byte symbols (each byte alone and at a word's end), in the
+ * reference's order: bytes '!'..'~', 0xA1..0xAC, 0xAE..0xFF stand for
+ * themselves, then the other bytes as 256 + n. */
+static int add_byte_symbols(struct vlff_tokenizer *t, const char *path, char *err, size_t errlen) {
   int32_t id = 0;
   uint32_t sym[256];
   int extra = 0;
@@ -605,7 +593,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
     if (!s || !s2) {
       free(s), free(s2);
       vlff_errf(err, errlen, "%s: out of memory", path);
-      goto fail;
+      return -1;
     }
     memcpy(s, u, ul), s[ul] = 0;
     memcpy(s2, u, ul), memcpy(s2 + ul, "</w>", 5);
@@ -614,20 +602,26 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
   }
   for (int32_t i = 0; i < 512; i++) str_insert(t, i);
 
-  /* Header line, then NUM_MERGES lines "a b". */
-  char *p = strchr(text, '\n');
+  return 0;
+}
+
+/* The merges file's header line, then NUM_MERGES lines "a b" of known
+ * symbols, each adding the symbol ab. */
+static int add_merges(struct vlff_tokenizer *t, const char *text, size_t len, const char *path, char *err,
+                      size_t errlen) {
+  const char *p = strchr(text, '\n');
   if (!p || !strstr(text, "#version") || (size_t)(p - text) > 200 || memchr(text, 0, len)) {
     vlff_errf(err, errlen, "%s:1: expected a BPE merges header ('#version: ...'), not a CLIP merges file", path);
-    goto fail;
+    return -1;
   }
   p++;
   for (int r = 0; r < NUM_MERGES; r++) {
     int line = r + 2;
-    char *eol = strchr(p, '\n');
+    const char *eol = strchr(p, '\n');
     size_t ll = eol ? (size_t)(eol - p) : strlen(p);
     if (!ll && !eol) {
       vlff_errf(err, errlen, "%s: only %d merges, expected %d (truncated file?)", path, r, NUM_MERGES);
-      goto fail;
+      return -1;
     }
     size_t bad_at;
     char a[256], b[256];
@@ -636,7 +630,7 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
     if (sp == 0 || sp >= ll - 1 || sp >= sizeof a || ll - sp - 1 >= sizeof b || memchr(p + sp + 1, ' ', ll - sp - 1)) {
       vlff_errf(err, errlen, "%s:%d: expected a merge 'a b' (two symbols, one space), got '%.*s'", path, line,
               (int)(ll > 60 ? 60 : ll), p);
-      goto fail;
+      return -1;
     }
     memcpy(a, p, sp), a[sp] = 0;
     memcpy(b, p + sp + 1, ll - sp - 1), b[ll - sp - 1] = 0;
@@ -645,18 +639,18 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
     free(cps);
     if (ok < 0) {
       vlff_errf(err, errlen, "%s:%d: invalid UTF-8 in merge", path, line);
-      goto fail;
+      return -1;
     }
     int32_t ia = str_lookup(t, a, sp), ib = str_lookup(t, b, ll - sp - 1);
     if (ia < 0 || ib < 0) {
       vlff_errf(err, errlen, "%s:%d: merge of unknown symbol '%s' (corrupt merges file)", path, line, ia < 0 ? a : b);
-      goto fail;
+      return -1;
     }
     size_t nl = sp + (ll - sp - 1);
     char *s = malloc(nl + 1);
     if (!s) {
       vlff_errf(err, errlen, "%s: out of memory", path);
-      goto fail;
+      return -1;
     }
     memcpy(s, a, sp), memcpy(s + sp, b, ll - sp - 1), s[nl] = 0;
     t->strings[512 + r] = s;
@@ -667,33 +661,56 @@ struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t e
   t->strings[VLFF_CLIP_EOT] = strdup("<|endoftext|>");
   if (!t->strings[VLFF_CLIP_SOT] || !t->strings[VLFF_CLIP_EOT]) {
     vlff_errf(err, errlen, "%s: out of memory", path);
-    goto fail;
+    return -1;
   }
   str_insert(t, VLFF_CLIP_SOT);
   str_insert(t, VLFF_CLIP_EOT);
-  /* Resolve everything through the string table so that repeated strings
-   * behave as in the reference (the last id wins). */
+  return 0;
+}
+
+/* Resolves every byte symbol and merge through the string table, so that
+ * repeated strings behave as in the reference (the last id wins), and
+ * fills the merge ranks. */
+static void resolve_merges(struct vlff_tokenizer *t, const char *text) {
   for (int b = 0; b < 256; b++) {
     const char *s = t->strings[t->byte_id[b]], *s2 = t->strings[t->byte_id[b] + 256];
     t->byte_eow[b] = str_lookup(t, s2, strlen(s2));
     t->byte_id[b] = str_lookup(t, s, strlen(s));
   }
-  p = strchr(text, '\n') + 1;
+  const char *p = strchr(text, '\n') + 1;
   for (int r = 0; r < NUM_MERGES; r++) {
-    char *eol = strchr(p, '\n');
+    const char *eol = strchr(p, '\n');
     size_t ll = eol ? (size_t)(eol - p) : strlen(p);
-    size_t sp = (size_t)((char *)memchr(p, ' ', ll) - p);
+    size_t sp = (size_t)((const char *)memchr(p, ' ', ll) - p);
     int32_t ia = str_lookup(t, p, sp), ib = str_lookup(t, p + sp + 1, ll - sp - 1);
     const char *s = t->strings[512 + r];
     pair_insert(t, ia, ib, r, str_lookup(t, s, strlen(s)));
     p = eol ? eol + 1 : p + ll;
   }
+}
+
+struct vlff_tokenizer *vlff_tokenizer_open(const char *path, char *err, size_t errlen) {
+  if (!path || !*path) {
+    vlff_errf(err, errlen, "vlm.bpe_vocab: no BPE merges file configured");
+    return NULL;
+  }
+  size_t len = 0;
+  char *text = read_gz(path, &len, err, errlen);
+  if (!text) return NULL;
+  struct vlff_tokenizer *t = calloc(1, sizeof *t);
+  if (!t) {
+    vlff_errf(err, errlen, "%s: out of memory", path);
+    free(text);
+    return NULL;
+  }
+  if (add_byte_symbols(t, path, err, errlen) || add_merges(t, text, len, path, err, errlen)) {
+    free(text);
+    vlff_tokenizer_close(t);
+    return NULL;
+  }
+  resolve_merges(t, text);
   free(text);
   return t;
-fail:
-  free(text);
-  vlff_tokenizer_close(t);
-  return NULL;
 }
 
 void vlff_tokenizer_close(struct vlff_tokenizer *t) {

@@ -46,8 +46,14 @@ static const struct {
   const char *yaml, *prefix, *fragment;
 } bad[] = {
   /* A typo is answered with the key it is nearest (two edits at most). */
-  {"node:\n  nmae: x\n", "t.yaml:2:3: key 'node.nmae': ", "unknown key (did you mean 'node.name'?)"},
+  {"node:\n  stat_dir: x\n", "t.yaml:2:3: key 'node.stat_dir': ", "unknown key (did you mean 'node.state_dir'?)"},
   {"nod:\n  name: x\n", "t.yaml:1:1: key 'nod': ", "unknown key (did you mean 'node'?)"},
+  /* Keys that did nothing are gone: the node has no instance name, a scene
+   * directory is vlff-replay's, and vlff-camd drives no simulated camera. */
+  {"node:\n  name: x\n", "t.yaml:2:3: key 'node.name': ", "unknown key"},
+  {"source:\n  dataset: /d\n", "t.yaml:2:3: key 'source.dataset': ", "unknown key"},
+  {"source:\n  kind: dataset\n", "t.yaml:2:9: key 'source.kind': ", "expected one of sim|ring, got 'dataset'"},
+  {"camera:\n  kind: sim\n", "t.yaml:2:9: key 'camera.kind': ", "expected one of aravis|libcamera, got 'sim'"},
   {"sim:\n  rate_hzz: 5\n", "t.yaml:2:3: key 'sim.rate_hzz': ", "unknown key (did you mean 'sim.rate_hz'?)"},
   /* One name for the feature dimension: the simulator's old key says where it went. */
   {"sim:\n  feature_dim: 16\n", "t.yaml:2:3: key 'sim.feature_dim': ", "field.feature_dim"},
@@ -61,15 +67,15 @@ static const struct {
   {"train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ", "expected one of depth|uniform, got 'random'"},
   {"sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat, got 'house'"},
   {"sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'"},
-  {"node:\n  name: [a, b]\n", "t.yaml:2:9: key 'node.name': ", "expected string, got a sequence"},
+  {"node:\n  state_dir: [a, b]\n", "t.yaml:2:14: key 'node.state_dir': ", "expected string, got a sequence"},
   {"can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n", "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes"},
   {"field:\n  scene_min: [1, 2]\n", "t.yaml:2:14: key 'field.scene_min': ", "expected sequence of 3 numbers, got a sequence"},
   {"field:\n  scene_min: [1, x, 2]\n", "t.yaml:2:18: key 'field.scene_min': ", "at index 1, got 'x'"},
   {"field: 3\n", "t.yaml:1:8: key 'field': ", "expected a mapping, got '3'"},
   {"- a\n- b\n", "t.yaml:1:1: ", "expected a mapping at top level, got a sequence"},
-  {"node:\n  name: a\n  name: b\n", "t.yaml:3:3: key 'node.name': ", "duplicate key (first at line 2)"},
-  {"node:\n  name: [a\n", "t.yaml:", "YAML syntax error"},
-  {"node:\n  name: a\n---\nnode:\n  name: b\n", "t.yaml:", "expected one YAML document"},
+  {"node:\n  state_dir: a\n  state_dir: b\n", "t.yaml:3:3: key 'node.state_dir': ", "duplicate key (first at line 2)"},
+  {"node:\n  state_dir: [a\n", "t.yaml:", "YAML syntax error"},
+  {"node:\n  state_dir: a\n---\nnode:\n  state_dir: b\n", "t.yaml:", "expected one YAML document"},
   {"prompts:\n  sets: x\n", "t.yaml:2:9: key 'prompts.sets': ", "expected sequence of {name, prompts}"},
   {"prompts:\n  sets: []\n", "t.yaml:2:9: key 'prompts.sets': ", "expected 1 to 8 prompt sets, got 0"},
   {"prompts:\n  sets:\n    - name: a\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected a 'prompts' list"},
@@ -89,7 +95,7 @@ static const struct {
   {"source:\n  features: sim\n", "t.yaml:2:13: key 'source.features': ", "never a camera's"},
   /* What the file says is quoted in messages without control bytes, and a
    * NUL inside a string is refused rather than cutting it short. */
-  {"node:\n  name: \"a\\0b\"\n", "t.yaml:2:9: key 'node.name': ", "expected a string without NUL bytes, got 'a\\x00b'"},
+  {"node:\n  state_dir: \"a\\0b\"\n", "t.yaml:2:14: key 'node.state_dir': ", "expected a string without NUL bytes, got 'a\\x00b'"},
   {"prompts:\n  sets:\n    - name: \"x\\0y\"\n      prompts: [a]\n", "t.yaml:3:13: key 'prompts.sets[0].name': ", "got 'x\\x00y'"},
   {"prompts:\n  sets:\n    - prompts: [\"a\\0b\"]\n", "t.yaml:3:17: key 'prompts.sets[0].prompts': ", "at index 0, got 'a\\x00b'"},
   /* Control characters in any string value (issue 29): a quoted scalar's
@@ -150,7 +156,7 @@ static void test_defaults_valid(void **state) {
 static void test_good_file(void **state) {
   (void)state;
   struct vlff_config cfg;
-  const char *y = "node:\n  name: robot1\n  log_level: debug\n"
+  const char *y = "node:\n  state_dir: /srv/robot1\n  log_level: debug\n"
                   "field:\n  feature_dim: 128\n  scene_min: [-1, -2, -3]\n  scene_max: [1, 2, 3.5]\n"
                   "can:\n  enabled: yes\n  node_id: 0x10\n"
                   "shm:\n  mode: 0660\n"
@@ -158,7 +164,7 @@ static void test_good_file(void **state) {
                   "prompts:\n  active: 1\n  sets:\n    - name: a\n      prompts: [x, y]\n"
                   "    - name: b\n      prompts: [chair, \"shower curtain\", z]\n";
   assert_int_equal(load(y, &cfg), 0);
-  assert_string_equal(cfg.node.name, "robot1");
+  assert_string_equal(cfg.node.state_dir, "/srv/robot1");
   assert_int_equal(cfg.node.log_level, VLFF_LOG_DEBUG);
   assert_int_equal(cfg.field.feature_dim, 128);
   assert_true(cfg.field.scene_min[2] == -3 && cfg.field.scene_max[2] == 3.5);
@@ -501,7 +507,7 @@ static const struct refusal duplicates[] = {
   {"prompts:\n  sets:\n    - prompts: [x]\n    - prompts: [y]\n      prompts: [z]\n",
    "t.yaml:5:7: key 'prompts.sets[1].prompts': ", "duplicate key (first at line 4)"},
   /* Quoting does not make another key. */
-  {"node:\n  name: a\n  \"name\": b\n", "t.yaml:3:3: key 'node.name': ", "duplicate key (first at line 2)"},
+  {"node:\n  state_dir: a\n  \"state_dir\": b\n", "t.yaml:3:3: key 'node.state_dir': ", "duplicate key (first at line 2)"},
 };
 
 static void test_duplicate_spellings(void **state) {
@@ -589,7 +595,7 @@ static void test_yaml_anchors(void **state) {
   /* Anchor 65 (&a64) is on line 1 + 65. */
   assert_string_equal(err, "t.yaml:66:5: more than 64 YAML anchors (&name), not a vlff config");
   /* Aliases of one anchor. */
-  o = (size_t)sprintf(y, "node:\n  name: &n x\nx:\n");
+  o = (size_t)sprintf(y, "node:\n  state_dir: &n x\nx:\n");
   for (int i = 0; i < 300; i++) o += (size_t)sprintf(y + o, "  - *n\n");
   assert_int_equal(load(y, &cfg), -1);
   assert_string_equal(err, "t.yaml:260:5: more than 256 YAML aliases (*name), not a vlff config");

@@ -273,7 +273,6 @@ static void test_config_combinations(void **state) {
       {"camera: {kind: aravis, depth: stream, width: 640, height: 480}\n"
        "depth_camera: {kind: aravis, calibration: r.yaml, register_width: 640, register_height: 360}\n",
        "depth_camera.register_width"},
-      {"camera: {kind: sim}\n", "camera.kind"},
       {"camera: {kind: aravis, intrinsics: [500, 0, 320, 240]}\n", "camera.intrinsics"},
       {"camera: {kind: aravis, distortion: [0.1, 0, 0, 0, 0]}\n", "camera.distortion"},
       {"camera: {kind: aravis, width: 4000}\n", "camera.width"},
@@ -290,6 +289,9 @@ static void test_config_combinations(void **state) {
   }
   struct vlff_config c;
   char err[512];
+  /* The default camera.kind is one vlff-camd drives. */
+  assert_int_equal(vlff_config_load_mem("", 0, "t.yaml", &c, err, sizeof err), 0);
+  if (vlff_camcfg_check(&c, "t.yaml", err, sizeof err)) fail_msg("%s", err);
   const char *ok = "camera: {kind: aravis, pixel_format: BayerRG8, width: 640, height: 480}\n";
   assert_int_equal(vlff_config_load_mem(ok, strlen(ok), "t.yaml", &c, err, sizeof err), 0);
   assert_int_equal(vlff_camcfg_check(&c, "t.yaml", err, sizeof err), 0);

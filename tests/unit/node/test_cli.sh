@@ -23,7 +23,7 @@ check "the rig defaults need a text encoder" \
 printf 'source:\n  kind: ring\n  features: sim\n' >"$tmp/simfeat.yaml"
 check "sim features with a camera ring are a config error" \
   '! "${node[@]}" --check-config "$tmp/simfeat.yaml" >/dev/null 2>"$tmp/sf.err" && grep -q "simfeat.yaml:3:13: key .source.features.: sim features" "$tmp/sf.err"'
-printf 'node:\n  name: x\ntrain:\n  lr: fast\n' >"$tmp/bad.yaml"
+printf 'node:\n  log_level: info\ntrain:\n  lr: fast\n' >"$tmp/bad.yaml"
 check "bad config exits 1 with file:line:col" \
   '! "${node[@]}" --check-config "$tmp/bad.yaml" >/dev/null 2>"$tmp/err" && grep -q "bad.yaml:4:7: key .train.lr.: expected number" "$tmp/err"'
 check "bad --config refuses to start" '! "${node[@]}" --config "$tmp/bad.yaml" >/dev/null 2>&1'
