@@ -112,14 +112,10 @@ static struct {
 /* The prefix of the install the running program lies in, or -1. */
 static int exe_prefix(char *out, size_t len) {
   char exe[PATH_MAX];
-  ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
-  if (n <= 0) return -1;
-  exe[n] = 0;
-  char *slash = strrchr(exe, '/');
-  size_t bl = strlen(VLFF_BINDIR_REL);
-  if (!slash || (size_t)(slash - exe) < bl + 1) return -1;
-  *slash = 0;
-  char *bin = slash - bl;
+  if (vlff_exe_dir(exe, sizeof exe) != 0) return -1;
+  size_t el = strlen(exe), bl = strlen(VLFF_BINDIR_REL);
+  if (el < bl + 1) return -1;
+  char *bin = exe + el - bl;
   if (bin[-1] != '/' || strcmp(bin, VLFF_BINDIR_REL) != 0) return -1;
   bin[-1] = 0;
   return snprintf(out, len, "%s", exe[0] ? exe : "/") < (int)len ? 0 : -1;

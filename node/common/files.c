@@ -231,3 +231,13 @@ int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, cha
   *buf = b, *len = n;
   return 0;
 }
+
+int vlff_exe_dir(char *out, size_t len) {
+  ssize_t n = readlink("/proc/self/exe", out, len);
+  if (n <= 0 || (size_t)n >= len) return -1;
+  out[n] = 0;
+  char *slash = strrchr(out, '/');
+  if (!slash) return -1;
+  *slash = 0;
+  return 0;
+}

@@ -42,6 +42,12 @@ int vlff_check_regular(const char *path, char *err, size_t errlen);
  * writers' files and non-regular files are left alone. */
 int vlff_remove_dead_temps(const char *dir, const char *const *prefixes);
 
+/* The directory the running executable lies in (/proc/self/exe without its
+ * last component; "" for one at the root), for programs that find their
+ * install from where they run. 0, or -1 when it cannot be read or does not
+ * fit out. */
+int vlff_exe_dir(char *out, size_t len);
+
 /* Create an atomic writer's temporary "tmp" for writing (mode before the
  * umask): whatever sat at that name is removed first and the file is
  * created exclusively without following links, so a FIFO or a symbolic

@@ -104,12 +104,7 @@ static int is_dir_with_index(const char *dir) {
  * them (bin/../share/vlff/view). */
 static int default_www(char *out, size_t cap) {
   char exe[PATH_MAX];
-  ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
-  if (n <= 0) return -1;
-  exe[n] = 0;
-  char *slash = strrchr(exe, '/');
-  if (!slash) return -1;
-  *slash = 0;
+  if (vlff_exe_dir(exe, sizeof exe) != 0) return -1;
   if (snprintf(out, cap, "%.*s/www", PATH_MAX - 64, exe) < (int)cap && is_dir_with_index(out)) return 0;
   if (snprintf(out, cap, "%.*s/../share/vlff/view", PATH_MAX - 64, exe) < (int)cap && is_dir_with_index(out)) return 0;
   return -1;

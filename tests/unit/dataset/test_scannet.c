@@ -772,13 +772,40 @@ static int run_eval(const char *args, const char *log) {
   return system(cmd);
 }
 
+/* vlff-eval --stride N on scene, output and log named by tag: it must pass
+ * and train on frames want_train, hold out want_test ("0 4\n"). */
+static void eval_stride_takes(const char *scene, int stride, const char *tag, const char *want_train,
+                              const char *want_test) {
+  char args[1500], out[400], train[64], test[64];
+  snprintf(out, sizeof out, "%s/out-%s", root, tag);
+  snprintf(args, sizeof args, "--dataset %s --stride %d --out %s", scene, stride, out);
+  if (run_eval(args, tag) != 0) {
+    show_log(tag);
+    fail_msg("vlff-eval --stride %d failed", stride);
+  }
+  report_frames(out, train, test, sizeof train);
+  assert_string_equal(train, want_train);
+  assert_string_equal(test, want_test);
+}
+
+/* vlff-eval --stride N on scene must be refused, its log holding want. */
+static void eval_stride_refused(const char *scene, int stride, const char *tag, const char *want) {
+  char args[1500];
+  snprintf(args, sizeof args, "--dataset %s --stride %d --out %s/out-%s", scene, stride, root, tag);
+  assert_int_not_equal(run_eval(args, tag), 0);
+  if (!log_has(tag, want)) {
+    show_log(tag);
+    fail_msg("the refusal of --stride %d does not say \"%s\"", stride, want);
+  }
+}
+
 /* vlff-eval on features stored for every second frame (features.hdf with
  * "frames", then features/<frame>.hdf): --stride 2 and 4 take frames they
  * hold; --stride 3 is refused before any frame is read, naming the file
  * and the first frame it lacks. */
 static void test_eval_strided_features(void **state) {
   (void)state;
-  char scene[400], args[1500], train[64], test[64], p[700];
+  char scene[400], p[700];
   scene_path(scene, sizeof scene, "scene0008_00");
   write_export(scene, 16, -1);
   write_embeddings(scene, VLFF_LABELS_SCANNET20);
@@ -786,21 +813,8 @@ static void test_eval_strided_features(void **state) {
   long long even[8];
   for (int k = 0; k < 8; k++) even[k] = 2 * k;
   write_feats(p, 0, 8, 2, 2, 4, 4, even, 8, 0);
-  snprintf(args, sizeof args, "--dataset %s --stride 2 --out %s/out-s2", scene, root);
-  if (run_eval(args, "s2") != 0) {
-    show_log("s2");
-    fail_msg("vlff-eval --stride 2 on features of every 2nd frame failed");
-  }
-  snprintf(p, sizeof p, "%s/out-s2", root);
-  report_frames(p, train, test, sizeof train);
-  assert_string_equal(train, "0 4 8 12\n");
-  assert_string_equal(test, "2 6 10 14\n");
-  snprintf(args, sizeof args, "--dataset %s --stride 3 --out %s/out-s3", scene, root);
-  assert_int_not_equal(run_eval(args, "s3"), 0);
-  if (!log_has("s3", "scene0008_00/features.hdf: holds no map for frame 3, which --stride 3 takes")) {
-    show_log("s3");
-    fail_msg("the refusal does not name the file and the frame");
-  }
+  eval_stride_takes(scene, 2, "s2", "0 4 8 12\n", "2 6 10 14\n");
+  eval_stride_refused(scene, 3, "s3", "scene0008_00/features.hdf: holds no map for frame 3, which --stride 3 takes");
   /* one file per frame */
   snprintf(p, sizeof p, "%s/features.hdf", scene);
   assert_int_equal(unlink(p), 0);
@@ -810,21 +824,8 @@ static void test_eval_strided_features(void **state) {
     snprintf(p, sizeof p, "%s/features/%d.hdf", scene, k);
     write_feats(p, 0, 1, 2, 2, 4, 3, NULL, 0, 0);
   }
-  snprintf(args, sizeof args, "--dataset %s --stride 4 --out %s/out-s4", scene, root);
-  if (run_eval(args, "s4") != 0) {
-    show_log("s4");
-    fail_msg("vlff-eval --stride 4 on features/ failed");
-  }
-  snprintf(p, sizeof p, "%s/out-s4", root);
-  report_frames(p, train, test, sizeof train);
-  assert_string_equal(train, "0 8\n");
-  assert_string_equal(test, "4 12\n");
-  snprintf(args, sizeof args, "--dataset %s --stride 2 --out %s/out-s2d", scene, root);
-  assert_int_not_equal(run_eval(args, "s2d"), 0);
-  if (!log_has("s2d", "scene0008_00/features/2.hdf: missing, which --stride 2 takes")) {
-    show_log("s2d");
-    fail_msg("the refusal does not name the frame's file");
-  }
+  eval_stride_takes(scene, 4, "s4", "0 8\n", "4 12\n");
+  eval_stride_refused(scene, 2, "s2d", "scene0008_00/features/2.hdf: missing, which --stride 2 takes");
 }
 
 /* A scene whose training frames exceed keyframes.memory_mb: vlff-eval

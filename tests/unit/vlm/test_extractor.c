@@ -71,6 +71,23 @@ static void write_frame(struct vlff_ring *ring, uint64_t id) {
   assert_int_equal(vlff_ring_commit(ring, len), 0);
 }
 
+/* The feature ring the extractor pid creates, attached (python and numpy
+ * start up first); fails the test, stopping pid, when it never comes. out:
+ * the extractor's output file, shown then, or NULL. */
+static struct vlff_ring *attach_features(const char *feats, pid_t pid, const char *out) {
+  struct vlff_ring *ft = NULL;
+  for (int i = 0; i < 400 && !ft; i++) {
+    ft = vlff_ring_attach(feats, VLFF_RECORD_FEATURE);
+    if (!ft) usleep(50000);
+  }
+  if (!ft) {
+    kill(pid, SIGTERM);
+    waitpid(pid, NULL, 0);
+    fail_msg("extractor never created %s: %s\n%s", feats, vlff_shm_last_message(), out ? tk_slurp(out) : "");
+  }
+  return ft;
+}
+
 static void test_python_extractor_round_trip(void **state) {
   if (!have_numpy()) skip();
   char frames[64], feats[64];
@@ -93,16 +110,7 @@ static void test_python_extractor_round_trip(void **state) {
   pid_t pid;
   assert_int_equal(posix_spawn(&pid, argv[0], NULL, NULL, argv, environ), 0);
 
-  struct vlff_ring *ft = NULL;
-  for (int i = 0; i < 400 && !ft; i++) { /* python + numpy start-up */
-    ft = vlff_ring_attach(feats, VLFF_RECORD_FEATURE);
-    if (!ft) usleep(50000);
-  }
-  if (!ft) {
-    kill(pid, SIGTERM);
-    waitpid(pid, NULL, 0);
-    fail_msg("extractor never created %s: %s", feats, vlff_shm_last_message());
-  }
+  struct vlff_ring *ft = attach_features(feats, pid, NULL);
   char err[256];
   struct vlff_feature_join *j = vlff_feature_join_create(8, 10.0, D, HH, WW, err, sizeof err);
   assert_non_null(j);
@@ -223,16 +231,7 @@ static void test_python_extractor_skips_to_newest(void **state) {
   pid_t pid = spawn_extractor(frames, feats, D, HH, WW, "slow_features", out, extra);
   unsetenv("VLFF_TEST_MARK");
   unsetenv("VLFF_TEST_DELAY_S");
-  struct vlff_ring *ft = NULL;
-  for (int i = 0; i < 400 && !ft; i++) { /* python + numpy start-up */
-    ft = vlff_ring_attach(feats, VLFF_RECORD_FEATURE);
-    if (!ft) usleep(50000);
-  }
-  if (!ft) {
-    kill(pid, SIGTERM);
-    waitpid(pid, NULL, 0);
-    fail_msg("extractor never created %s: %s\n%s", feats, vlff_shm_last_message(), tk_slurp(out));
-  }
+  struct vlff_ring *ft = attach_features(feats, pid, out);
   write_frame(fr, 11);
   /* Frame 11 is being served (its function was called): five more come. */
   for (int i = 0; i < 400 && file_size(mark) <= 0; i++) usleep(50000);
@@ -283,16 +282,7 @@ static void test_python_extractor_refuses_out_of_range(void **state) {
   if (!fr) fail_msg("%s", vlff_shm_last_message());
   const char *extra[] = {"--max-frames", "2", "--idle-exit", "20", NULL};
   pid_t pid = spawn_extractor(frames, feats, D, HH, WW, "odd_huge_features", out, extra);
-  struct vlff_ring *ft = NULL;
-  for (int i = 0; i < 400 && !ft; i++) {
-    ft = vlff_ring_attach(feats, VLFF_RECORD_FEATURE);
-    if (!ft) usleep(50000);
-  }
-  if (!ft) {
-    kill(pid, SIGTERM);
-    waitpid(pid, NULL, 0);
-    fail_msg("extractor never created %s: %s\n%s", feats, vlff_shm_last_message(), tk_slurp(out));
-  }
+  struct vlff_ring *ft = attach_features(feats, pid, out);
   assert_true(pix(11, 0, 0, 0) % 2 == 1 && pix(22, 0, 0, 0) % 2 == 0);
   write_frame(fr, 11);
   assert_true(tk_wait_for_text(out, "vlff_extractor: frame 11: non-finite features", 20));
