@@ -156,6 +156,7 @@ struct vlff_cfg_field {
   int feature_width, feature_layers;
   int sh_degree;
   double scene_min[3], scene_max[3];
+  char scene_box_file[VLFF_CFG_PATH]; /* a bbox.txt that sets scene_min/max ("" = none) */
 };
 
 struct vlff_cfg_train {
@@ -213,6 +214,7 @@ struct vlff_cfg_prompts {
   char templ[VLFF_CFG_STR];        /* prompt template, "{}" = the class */
   char embeddings[VLFF_CFG_PATH];  /* precomputed prompt->vector file */
   int set_count;
+  bool sets_named;                 /* the file gave prompts.sets (else an embeddings file defines the prompts) */
   struct vlff_prompt_set sets[VLFF_MAX_PROMPT_SETS];
 };
 

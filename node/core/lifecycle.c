@@ -100,7 +100,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->model_w = cfg->vlm.input_width;
   if (cfg->prompts.embeddings[0]) {
     n->emb_file = vlff_embeddings_load(cfg->prompts.embeddings, cfg->field.feature_dim, err, errlen);
-    if (!n->emb_file) goto fail;
+    if (!n->emb_file || adopt_embeddings_prompts(n, err, errlen)) goto fail;
   }
 #ifdef VLFF_HAVE_VLM
   if (!n->emb_file && cfg->vlm.text_model[0]) {
@@ -129,7 +129,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
     goto fail;
   }
   restore_checkpoint(n);
-  if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
+  if (apply_prompt_set(n, n->cfg.prompts.active, err, errlen)) goto fail;
   atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
   atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
   if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
