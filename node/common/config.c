@@ -95,6 +95,7 @@ static const struct key schema[] = {
     ENUM("node.log_level", node.log_level, log_levels, "info"),
     STR("node.state_dir", node.state_dir, "/var/lib/vlff"),
     DBL("node.checkpoint_period_s", node.checkpoint_period_s, 0, 86400, 60),
+    BOOL("node.resume", node.resume, 1),
     DBL("node.run_seconds", node.run_seconds, 0, 1e7, 0),
     INT("node.threads", node.threads, 0, 256, 0),
 

@@ -98,6 +98,7 @@ struct vlff_cfg_node {
   int log_level;                   /* enum vlff_log_level */
   char state_dir[VLFF_CFG_PATH];   /* checkpoints live here */
   double checkpoint_period_s;      /* 0 = only on SIGTERM / command */
+  bool resume;                     /* start from state_dir's checkpoint (false: remove it, start anew) */
   double run_seconds;              /* 0 = run until signalled */
   int threads;                     /* 0 = one per core */
 };
