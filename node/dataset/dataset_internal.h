@@ -33,6 +33,8 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
 int vlff_sens_read(const struct vlff_dataset *ds, int i, uint8_t **rgb, uint16_t **depth, char *err,
                    size_t errlen);
 float vlff_sens_depth_scale(const struct vlff_dataset *ds);
+/* Frame i's colour timestamp as the file stores it (microseconds). */
+int vlff_sens_stamp_us(const struct vlff_dataset *ds, int i, uint64_t *us);
 void vlff_sens_close(struct vlff_sens *s);
 
 #endif

@@ -11,13 +11,15 @@
  * the pose travels in the frame record instead, as a camera with its own
  * tracker delivers it.
  *
- * Scene directories carry no timestamps (dataset.h), so the recording's rate
- * is given (--fps); frames go out on that schedule times --rate, never
- * catching up after a late frame (a replay behind schedule would otherwise
- * burst). --backpressure instead waits before each frame until the frame
- * ring's reader has read everything, so a slow consumer loses nothing.
- * frame_id counts up across loops; t_device_ns is the frame's place in the
- * recording (loop * n + i) / fps.
+ * Frames go out at the recording's own times: its stamps
+ * (vlff_dataset_stamps: timestamps.txt, or a .sens file's), else 30 Hz;
+ * --fps gives a uniform rate instead. The schedule runs at --rate times
+ * that and never catches up after a late frame (a replay behind schedule
+ * would otherwise burst). --backpressure instead waits before each frame
+ * until the frame ring's reader has read everything, so a slow consumer
+ * loses nothing. frame_id counts up across loops; t_device_ns is the
+ * frame's place in the recording, loop * span + t[i] (span: the recording's
+ * length plus one mean frame interval).
  */
 #include <errno.h>
 #include <math.h>
@@ -47,7 +49,8 @@ static const struct vlff_cli cli = {
     "                         (else $VLFF_CONFIG, else the installed vlff.yaml, else\n"
     "                         built-in defaults, saying so on stderr)\n"
     "      --layout NAME      auto (default), reference, scannet or sens\n"
-    "      --fps HZ           the recording's frame rate (default 30)\n"
+    "      --fps HZ           play at this uniform frame rate (default: the recording's\n"
+    "                         stamps, timestamps.txt or a .sens file's; without any, 30)\n"
     "  -r, --rate X           play at X times the recorded rate (default 1)\n"
     "  -b, --backpressure     as fast as the frame ring's reader takes the frames:\n"
     "                         wait before each frame until it has read everything\n"
@@ -186,34 +189,32 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
   return 0;
 }
 
-static void add_ns(struct timespec *t, uint64_t ns) {
-  t->tv_sec += (time_t)(ns / 1000000000ull);
-  t->tv_nsec += (long)(ns % 1000000000ull);
-  if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
+static uint64_t mono_ns(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (uint64_t)t.tv_sec * 1000000000ull + (uint64_t)t.tv_nsec;
 }
 
-static int run(struct replay *r, double fps, double rate, int loop, long long count, int start) {
+/* t[i]: frame i's time in the recording (s, t[0] = 0); span: one loop's length. */
+static int run(struct replay *r, const double *t, double span, double rate, int loop, long long count, int start) {
   const int n = r->ds.n;
-  const uint64_t period = (uint64_t)(1e9 / (fps * rate));
-  struct timespec next;
-  clock_gettime(CLOCK_MONOTONIC, &next);
+  uint64_t base = mono_ns();
   long long id = 0;
   for (long long pass = 0; !vlff_cli_stop; pass++) {
     for (int i = pass ? 0 : start; i < n && !vlff_cli_stop && (count <= 0 || id < count); i++, id++) {
+      double rec = (double)pass * span + t[i]; /* seconds into the recording */
       if (!r->backpressure) {
-        struct timespec t;
-        clock_gettime(CLOCK_MONOTONIC, &t);
-        if (t.tv_sec > next.tv_sec || (t.tv_sec == next.tv_sec && t.tv_nsec > next.tv_nsec + 1000000L)) {
+        uint64_t off = (uint64_t)((rec - t[start]) / rate * 1e9), due = base + off, now = mono_ns();
+        if (now > due + 1000000ull) {
           r->late++; /* reading the scene is slower than the schedule: restart it from now */
-          next = t;
+          base = now - off;
         } else {
-          while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
+          struct timespec ts = {(time_t)(due / 1000000000ull), (long)(due % 1000000000ull)};
+          while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
           }
         }
-        add_ns(&next, period);
       }
-      uint64_t t_dev = (uint64_t)(((double)pass * n + i) / fps * 1e9);
-      if (publish(r, i, id, t_dev) < 0) return -1;
+      if (publish(r, i, id, (uint64_t)(rec * 1e9)) < 0) return -1;
       if (!r->quiet && r->published % 100 == 0)
         fprintf(stderr, "vlff-replay: %lld frames published (scene frame %d of %d, pass %lld)\n", r->published,
                 i, n, pass + 1);
@@ -254,7 +255,7 @@ int main(int argc, char **argv) {
   struct replay r;
   memset(&r, 0, sizeof r);
   int layout = VLFF_DS_AUTO, loop = 0, features = 1, c;
-  double fps = 30, rate = 1, x;
+  double fps = 0, rate = 1, x; /* fps 0: the recording's stamps */
   long long count = 0;
   int start = 0;
   char err[1024];
@@ -308,6 +309,7 @@ int main(int argc, char **argv) {
             VLFF_Q(cfg.shm.pose_ring), VLFF_Q(cfg.shm.feature_ring));
   if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
   int status = 1;
+  double *times = NULL, span = 0;
   if (start >= r.ds.n) {
     fprintf(stderr, "vlff-replay: --start %d: the scene has %d frames\n", start, r.ds.n);
     goto out;
@@ -324,12 +326,36 @@ int main(int argc, char **argv) {
     fprintf(stderr, "vlff-replay: out of memory for %dx%d frames\n", r.ds.width, r.ds.height);
     goto out;
   }
+  /* The recording's times: its stamps unless --fps gives a uniform rate. */
+  times = malloc((size_t)r.ds.n * sizeof *times);
+  if (!times) {
+    fprintf(stderr, "vlff-replay: out of memory\n");
+    goto out;
+  }
+  int stamped = fps > 0 ? 0 : vlff_dataset_stamps(&r.ds, times, err, sizeof err);
+  if (stamped < 0) {
+    fprintf(stderr, "vlff-replay: %s\n", err);
+    goto out;
+  }
+  char pace[128];
+  if (stamped && r.ds.n > 1 && times[r.ds.n - 1] > 0) {
+    double mean = times[r.ds.n - 1] / (r.ds.n - 1);
+    span = times[r.ds.n - 1] + mean;
+    snprintf(pace, sizeof pace, "at the recording's stamps (%.2f Hz on average)", 1 / mean);
+  } else {
+    if (stamped) fprintf(stderr, "vlff-replay: the scene's stamps span no time; playing at 30 Hz\n");
+    snprintf(pace, sizeof pace, "at %g Hz%s", fps > 0 ? fps : 30,
+             fps > 0 ? " (--fps)" : " (the scene has no stamps; --fps sets the rate)");
+    if (fps <= 0) fps = 30;
+    for (int i = 0; i < r.ds.n; i++) times[i] = i / fps;
+    span = r.ds.n / fps;
+  }
   if (open_rings(&r, &cfg, features) < 0) goto out;
   vlff_cli_catch_stop();
   if (!r.quiet)
     fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", VLFF_Q(r.ds.dir), r.ds.n, r.ds.width, r.ds.height,
-            features ? " with features" : "", r.backpressure ? "paced by the reader" : "on schedule");
-  if (run(&r, fps, rate, loop, count, start) == 0) status = r.unreadable ? 1 : 0;
+            features ? " with features" : "", r.backpressure ? "paced by the reader" : pace);
+  if (run(&r, times, span, rate, loop, count, start) == 0) status = r.unreadable ? 1 : 0;
   if (!r.quiet || status)
     fprintf(stderr, "vlff-replay: %lld frames published, %lld unreadable skipped, %lld late\n", r.published,
             r.unreadable, r.late);
@@ -340,6 +366,7 @@ out:
   free(r.rgb);
   free(r.depth);
   free(r.hwc);
+  free(times);
   vlff_dataset_close(&r.ds);
   return status;
 }
