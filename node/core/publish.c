@@ -421,6 +421,16 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
            vlff_evidence_capacity(p->ev), what);
 }
 
+/* A measured surface point hp in voxel vi (< 0: outside the map). */
+static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
+  if (vi < 0) return;
+  p->observed[vi] = 1;
+  if (p->hits[vi] < UINT16_MAX) {
+    p->hits[vi]++;
+    for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
+  }
+}
+
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
   if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
   if (!v->depth) return 0;
@@ -457,13 +467,16 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
         }
       }
       long vi = voxel_of(p, hp);
-      if (vi >= 0) {
-        p->observed[vi] = 1;
-        if (p->hits[vi] < UINT16_MAX) {
-          p->hits[vi]++;
-          for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
-        }
-      }
+      add_hit(p, vi, hp);
+      /* A surface near a voxel face is measured on either side of it (noise,
+       * where the pixel's ray lands): the voxel half a voxel behind the
+       * measured point holds the same surface, and nothing else would ever
+       * observe it. It takes the same hit, so the surface's points there are
+       * labelled instead of staying unknown for good. */
+      double b[3];
+      for (int i = 0; i < 3; i++) b[i] = hp[i] + w[i] / len * h;
+      long vb = voxel_of(p, b);
+      if (vb != vi) add_hit(p, vb, hp);
     }
   if (!p->ev) return 0;
   if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;

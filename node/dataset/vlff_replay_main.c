@@ -54,6 +54,8 @@ static const struct vlff_cli cli = {
     "  -r, --rate X           play at X times the recorded rate (default 1)\n"
     "  -b, --backpressure     as fast as the frame ring's reader takes the frames:\n"
     "                         wait before each frame until it has read everything\n"
+    "      --wait-reader      hold the first frame until the frame ring has a reader,\n"
+    "                         then keep the schedule (an evaluation's node sees every frame)\n"
     "  -l, --loop             start over after the last frame, until SIGINT/SIGTERM\n"
     "  -n, --count N          stop after N frames\n"
     "      --start I          begin at frame I of the scene\n"
@@ -79,7 +81,7 @@ struct replay {
   uint8_t *rgb;
   float *depth;
   uint16_t *hwc; /* features as stored, [h][w][D] */
-  int pose_in_frame, backpressure, quiet;
+  int pose_in_frame, backpressure, wait_reader, quiet;
   int skipped_before; /* the previous frame was unreadable: flag the next one */
   long long published, unreadable, late;
 };
@@ -198,6 +200,16 @@ static uint64_t mono_ns(void) {
 /* t[i]: frame i's time in the recording (s, t[0] = 0); span: one loop's length. */
 static int run(struct replay *r, const double *t, double span, double rate, int loop, long long count, int start) {
   const int n = r->ds.n;
+  if (r->wait_reader && !r->backpressure) {
+    /* The first frame waits for the node to attach, the rest keep the
+     * schedule: an evaluation's node then sees every frame at the
+     * recording's rate. */
+    int said = 0;
+    while (!vlff_cli_stop && vlff_ring_wait_reader(r->frames, 1000ull * 1000 * 1000) < 0) {
+      if (!said && !r->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
+      said = 1;
+    }
+  }
   uint64_t base = mono_ns();
   long long id = 0;
   for (long long pass = 0; !vlff_cli_stop; pass++) {
@@ -235,13 +247,14 @@ static int parse_num(const char *opt, const char *v, double lo, double hi, doubl
 }
 
 int main(int argc, char **argv) {
-  enum { OPT_LAYOUT = 256, OPT_FPS, OPT_START, OPT_POSE_IN_FRAME, OPT_NO_FEATURES };
+  enum { OPT_LAYOUT = 256, OPT_FPS, OPT_START, OPT_POSE_IN_FRAME, OPT_NO_FEATURES, OPT_WAIT_READER };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
       {"layout", required_argument, NULL, OPT_LAYOUT},
       {"fps", required_argument, NULL, OPT_FPS},
       {"rate", required_argument, NULL, 'r'},
       {"backpressure", no_argument, NULL, 'b'},
+      {"wait-reader", no_argument, NULL, OPT_WAIT_READER},
       {"loop", no_argument, NULL, 'l'},
       {"count", required_argument, NULL, 'n'},
       {"start", required_argument, NULL, OPT_START},
@@ -279,6 +292,7 @@ int main(int argc, char **argv) {
       if (parse_num("--rate", optarg, 0.001, 1000, &rate)) return 2;
       break;
     case 'b': r.backpressure = 1; break;
+    case OPT_WAIT_READER: r.wait_reader = 1; break;
     case 'l': loop = 1; break;
     case 'n':
       if (parse_num("--count", optarg, 1, 1e15, &x)) return 2;

@@ -49,10 +49,9 @@ static int find_bin(const char *given, const char *name, const char *rel, char *
   char *slash = strrchr(self, '/');
   if (!slash) return -1;
   *slash = 0;
-  snprintf(out, len, "%s/%s", self, name);
-  if (access(out, X_OK) == 0) return 0;
-  snprintf(out, len, "%s/%s", self, rel);
-  return access(out, X_OK) == 0 ? 0 : -1;
+  /* A name that does not fit is no program found. */
+  if (snprintf(out, len, "%s/%s", self, name) < (int)len && access(out, X_OK) == 0) return 0;
+  return snprintf(out, len, "%s/%s", self, rel) < (int)len && access(out, X_OK) == 0 ? 0 : -1;
 }
 
 /* The config as YAML the loader reads back: vlff_config_dump's "a.b: v"
@@ -268,7 +267,7 @@ int vlff_eval_online(const struct vlff_online_opts *o, const struct vlff_config 
   snprintf(log, sizeof log, "%s/replay.log", r.dir);
   char scene[PATH_MAX];
   snprintf(scene, sizeof scene, "%s", o->scene);
-  char *rargv[] = {replay_bin, "--config", r.cfg_path, "--quiet", scene, NULL};
+  char *rargv[] = {replay_bin, "--config", r.cfg_path, "--wait-reader", "--quiet", scene, NULL};
   if ((r.replay = spawn(rargv, log, err, errlen)) < 0) {
     r.replay = 0;
     goto out;

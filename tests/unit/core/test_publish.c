@@ -235,6 +235,27 @@ static void test_saved_map_loads_within_budget(void **state) {
   vlff_shm_unlink(cc.shm.map);
 }
 
+/* A wall measured just in front of a voxel face (issue 55's coverage gap):
+ * the voxel behind the face holds the same wall and is a known surface, so
+ * its points are labelled; it used to stay unobserved (unknown for good).
+ * The surface is one voxel thick there, no thicker, and the voxels in
+ * front stay free space. Voxels of 8 cm from -2.5 m: a face at z = 1.02. */
+static void test_surface_behind_voxel_face(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "face");
+  struct vlff_publisher *p = create(&cfg);
+  struct vlff_view v = view(1.019f);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_true(vlff_publisher_surface_known(p, (const double[3]){0, 0, 1.0}));   /* the measured voxel */
+  assert_true(vlff_publisher_surface_known(p, (const double[3]){0, 0, 1.03}));  /* behind the face */
+  assert_false(vlff_publisher_surface_known(p, (const double[3]){0, 0, 1.11})); /* two voxels on */
+  assert_false(vlff_publisher_surface_known(p, (const double[3]){0, 0, 0.9}));  /* in front */
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
-    cmocka_unit_test(test_saved_map_loads_within_budget))
+    cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face))
