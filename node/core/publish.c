@@ -442,9 +442,13 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
   double diag = 0;
   for (int i = 0; i < 3; i++) diag += pow(p->dims[i] * p->voxel, 2);
   const double max_steps = sqrt(diag) / h + 2;
+  /* Free space is marched from every other pixel of a large view (a ray's
+   * march is the cost); every pixel's measured point counts, or a wall
+   * seen at a grazing angle keeps unobserved holes between the sampled
+   * pixels' points, and its labelled points there stay unknown. */
   int stride = v->width >= 160 ? 2 : 1;
-  for (int y = 0; y < v->height; y += stride)
-    for (int x = 0; x < v->width; x += stride) {
+  for (int y = 0; y < v->height; y++)
+    for (int x = 0; x < v->width; x++) {
       float d = v->depth[(size_t)y * v->width + x];
       if (!(d > 0) || !isfinite(d)) continue;
       double hp[3], w[3];
@@ -456,7 +460,7 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
        * surface voxel is a hit, not free), only where the ray is inside
        * the map: samples outside it would mark nothing. */
       double steps = floor((len - h) / h), t0 = 0, t1 = 1;
-      if (steps > 0 && clip_to_map(p, o, w, &t0, &t1)) {
+      if (x % stride == 0 && y % stride == 0 && steps > 0 && clip_to_map(p, o, w, &t0, &t1)) {
         double s0 = fmax(0, ceil(t0 * len / h)), s1 = fmin(steps, floor(t1 * len / h) + 1);
         if (s1 - s0 > max_steps) s1 = s0 + max_steps;
         for (double s = s0; s < s1; s++) {
