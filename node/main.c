@@ -43,6 +43,8 @@ static const struct vlff_cli cli = {
     "                           (installed elsewhere: vlff/vlff.yaml in that install's sysconfdir)\n"
     "      --check-config FILE  validate FILE, print the effective config, exit 0/1\n"
     "      --status             print a live progress line on the terminal\n"
+    "      --fresh              start anew: remove node.state_dir's checkpoints instead of\n"
+    "                           resuming them (node.resume: false)\n"
     "      --snapshot DIR       on exit, write DIR/strip.png (image | segmentation | truth)\n"
     "                           and DIR/map.ply (the labelled map)\n"
     "  -V, --version            print the version and exit\n"
@@ -255,9 +257,10 @@ static void tick(struct run *r, double now) {
     if (st.miou3d >= 0) snprintf(m3, sizeof m3, "%5.1f", st.miou3d);
     refusals_text(&st, why, sizeof why);
     vlff_log_status("[%6.1f s] frames %lld (%.1f/s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
-                    "psnr %.1f | map v%llu mIoU 2D %s 3D %s   ",
+                    "psnr %.1f | map v%llu mIoU 2D %s 3D %s%s%s   ",
                     now - r->t0, st.frames_in, st.fps_in, st.frames_invalid, why, st.keyframes, st.poses_rejected,
-                    st.iteration, st.it_per_s, st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3);
+                    st.iteration, st.it_per_s, st.loss, st.psnr, (unsigned long long)st.map_version, m2, m3,
+                    st.adjusted[0] ? " | adjusted: " : "", st.adjusted);
   }
 }
 
@@ -296,17 +299,19 @@ static int finish(struct run *r, const char *snapshot_dir) {
 }
 
 int main(int argc, char **argv) {
-  enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT };
+  enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT, OPT_FRESH };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
       {"check-config", required_argument, NULL, OPT_CHECK},
       {"status", no_argument, NULL, OPT_STATUS},
       {"snapshot", required_argument, NULL, OPT_SNAPSHOT},
+      {"fresh", no_argument, NULL, OPT_FRESH},
       VLFF_CLI_COMMON_OPTIONS,
   };
   static struct run r;
   const char *config_path = NULL, *check_path = NULL, *snapshot_dir = NULL;
   int c, exit_status;
+  bool fresh = false;
   while ((c = vlff_cli_next(&cli, argc, argv, "c:", opts, &exit_status)) != -1) {
     switch (c) {
     case VLFF_CLI_EXIT: return exit_status;
@@ -314,6 +319,7 @@ int main(int argc, char **argv) {
     case OPT_CHECK: check_path = optarg; break;
     case OPT_STATUS: r.status_view = true; break;
     case OPT_SNAPSHOT: snapshot_dir = optarg; break;
+    case OPT_FRESH: fresh = true; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
@@ -325,6 +331,7 @@ int main(int argc, char **argv) {
   config_path = vlff_config_find(config_path, err, sizeof err);
   if (!config_path) return vlff_cli_error(&cli, "%s", err);
   if (vlff_config_load(config_path, &r.cfg, err, sizeof err)) return vlff_cli_config_error(err);
+  if (fresh) r.cfg.node.resume = false;
   vlff_log_set_level(r.cfg.node.log_level);
   vlff_cli_catch_stop();
   VLFF_INFO("node", "vlff-node %s starting, config %s", vlff_version(), config_path);

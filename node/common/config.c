@@ -23,6 +23,7 @@
 #include <yaml.h>
 
 #include "files.h"
+#include "scene_box.h"
 #include "vlff/shm.h" /* vlff_prompt_check: the mailbox's and the embeddings format's rule */
 #include "vlff/escape.h" /* vlff_escape: outside data quoted in messages */
 
@@ -159,6 +160,7 @@ static const struct key schema[] = {
     ENUM("node.log_level", node.log_level, log_levels, "info"),
     STR("node.state_dir", node.state_dir, "/var/lib/vlff"),
     DBL("node.checkpoint_period_s", node.checkpoint_period_s, 0, 86400, 60),
+    BOOL("node.resume", node.resume, 1),
     DBL("node.run_seconds", node.run_seconds, 0, 1e7, 0),
     INT("node.threads", node.threads, 0, 256, 0),
 
@@ -215,6 +217,7 @@ static const struct key schema[] = {
     INT("field.sh_degree", field.sh_degree, 1, 4, 4),
     DVEC("field.scene_min", field.scene_min, -1e4, 1e4, scene_min_def),
     DVEC("field.scene_max", field.scene_max, -1e4, 1e4, scene_max_def),
+    STR("field.scene_box_file", field.scene_box_file, ""),
 
     DBL("train.lr", train.lr, 0, 10, 1e-2),
     DBL("train.beta1", train.beta1, 0, 0.999999, 0.9),
@@ -675,6 +678,7 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
     if (!prompts_at) return fail(p, s, path, "expected a 'prompts' list, got none");
   }
   cfg->prompts.set_count = (int)count;
+  cfg->prompts.sets_named = true;
   return 0;
 }
 
@@ -826,6 +830,11 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
   if (!(fabs(qn - 1) <= 0.01))
     return fail_cross(p, "pose.extrinsic", "expected tx ty tz qx qy qz qw with a unit quaternion, got norm %g", qn);
   if (check_shm_names(p, cfg)) return -1;
+  if (cfg->field.scene_box_file[0]) {
+    char e[400];
+    if (vlff_scene_box_read(cfg->field.scene_box_file, cfg->field.scene_min, cfg->field.scene_max, e, sizeof e))
+      return fail_cross(p, "field.scene_box_file", "%s", e);
+  }
   for (int i = 0; i < 3; i++)
     if (!(cfg->field.scene_min[i] < cfg->field.scene_max[i]))
       return fail_cross(p, "field.scene_max", "expected scene_max > scene_min on every axis, got axis %d with %g <= %g", i,
@@ -1123,7 +1132,8 @@ uint64_t vlff_config_field_hash(const struct vlff_cfg_field *field) {
   uint64_t h = VLFF_FNV1A64_INIT;
   for (size_t i = 0; i < NKEYS; i++) {
     const struct key *k = &schema[i];
-    if (strncmp(k->path, "field.", 6)) continue;
+    /* A path says where the box came from; the box itself is hashed. */
+    if (strncmp(k->path, "field.", 6) || k->type == T_STRING) continue;
     h = vlff_fnv1a64(h, k->path, strlen(k->path));
     size_t n = k->type == T_DVEC ? k->size * sizeof(double) : k->type == T_INT ? sizeof(int) : sizeof(double);
     /* The schema's offsets are into the whole config; this is its field section. */

@@ -97,6 +97,7 @@ struct vlff_cfg_node {
   int log_level;                   /* enum vlff_log_level */
   char state_dir[VLFF_CFG_PATH];   /* checkpoints live here */
   double checkpoint_period_s;      /* 0 = only on SIGTERM / command */
+  bool resume;                     /* start from state_dir's checkpoint (false: remove it, start anew) */
   double run_seconds;              /* 0 = run until signalled */
   int threads;                     /* 0 = one per core */
 };
@@ -154,6 +155,7 @@ struct vlff_cfg_field {
   int feature_width, feature_layers;
   int sh_degree;
   double scene_min[3], scene_max[3];
+  char scene_box_file[VLFF_CFG_PATH]; /* a bbox.txt that sets scene_min/max ("" = none) */
 };
 
 struct vlff_cfg_train {
@@ -211,6 +213,7 @@ struct vlff_cfg_prompts {
   char templ[VLFF_CFG_STR];        /* prompt template, "{}" = the class */
   char embeddings[VLFF_CFG_PATH];  /* precomputed prompt->vector file */
   int set_count;
+  bool sets_named;                 /* the file gave prompts.sets (else an embeddings file defines the prompts) */
   struct vlff_prompt_set sets[VLFF_MAX_PROMPT_SETS];
 };
 

@@ -10,8 +10,11 @@
  * nonfinite_run and resumed, the field and the publisher's grid.
  * Locks: slock for the status counts only (node_internal.h).
  */
+#include <errno.h>
 #include <pthread.h>
 #include <stdio.h>
+#include <string.h>
+#include <unistd.h>
 #include <sys/stat.h>
 
 #include "field.h"
@@ -140,6 +143,22 @@ void restore_checkpoint(struct vlff_node *n) {
   for (int i = 0; i < 2; i++) {
     ckpt_path(n, i, path[i], sizeof path[i]);
     have[i] = stat(path[i], &sb[i]) == 0;
+  }
+  if (!n->cfg.node.resume) {
+    /* A fresh start removes the old run's checkpoints rather than leaving
+     * them beside this run's: a later resume must never fall back to them. */
+    int removed = 0;
+    for (int i = 0; i < 2; i++) {
+      char op[VLFF_CFG_PATH + 32];
+      obs_path(n, i, op, sizeof op);
+      removed += have[i] && unlink(path[i]) == 0;
+      if (unlink(op) != 0 && errno != ENOENT) VLFF_WARN(TAG, "fresh start: cannot remove %s: %s", VLFF_Q(op), strerror(errno));
+      if (have[i] && access(path[i], F_OK) == 0)
+        VLFF_WARN(TAG, "fresh start: cannot remove %s: %s", VLFF_Q(path[i]), strerror(errno));
+    }
+    VLFF_INFO(TAG, "fresh start (node.resume false): %d checkpoint(s) in %s removed, not resumed", removed,
+              VLFF_Q(n->cfg.node.state_dir));
+    return;
   }
   /* Newest first; fall back to the other when it is refused. */
   int order[2] = {0, 1};

@@ -88,6 +88,35 @@ static int apply_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN
   return 0;
 }
 
+/* An embeddings file given without prompts.sets defines the prompts: its
+ * records, in its order, become set 0 (the map's label k is the file's
+ * record k, as vlff-eval's ground truth numbers them). With prompts.sets the
+ * sets apply and the file only supplies vectors. The log says which. */
+int adopt_embeddings_prompts(struct vlff_node *n, char *err, size_t errlen) {
+  struct vlff_cfg_prompts *pc = &n->cfg.prompts;
+  if (!n->emb_file) return 0;
+  if (pc->sets_named) {
+    VLFF_INFO(TAG, "prompts: set '%s' of prompts.sets (prompts.active %d); vectors from %s", pc->sets[pc->active].name,
+              pc->active, VLFF_Q(pc->embeddings));
+    return 0;
+  }
+  int k = vlff_embeddings_count(n->emb_file);
+  if (k < 1 || k > VLFF_MAX_PROMPTS) {
+    snprintf(err, errlen, "prompts.embeddings %s holds %d prompts; without prompts.sets it defines the prompts, "
+             "1 to %d of them: name the ones to use in prompts.sets", VLFF_Q(pc->embeddings), k, VLFF_MAX_PROMPTS);
+    return -1;
+  }
+  struct vlff_prompt_set *s = &pc->sets[0];
+  snprintf(s->name, sizeof s->name, "embeddings-file");
+  for (int i = 0; i < k; i++) snprintf(s->text[i], VLFF_PROMPT_LEN, "%s", vlff_embeddings_prompt(n->emb_file, i));
+  s->count = k;
+  pc->set_count = 1;
+  pc->active = 0;
+  VLFF_INFO(TAG, "prompts: the %d of the embeddings file %s, in its order (no prompts.sets in the config)", k,
+            VLFF_Q(pc->embeddings));
+  return 0;
+}
+
 int apply_prompt_set(struct vlff_node *n, int idx, char *err, size_t errlen) {
   if (idx < 0 || idx >= n->cfg.prompts.set_count) {
     snprintf(err, errlen, "prompt set %d does not exist (have %d)", idx, n->cfg.prompts.set_count);

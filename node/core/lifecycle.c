@@ -25,6 +25,7 @@
 
 #include "clock.h"
 #include "embeddings.h"
+#include "evidence.h"
 #include "field.h"
 #include "keyframes.h"
 #include "node_internal.h"
@@ -35,6 +36,20 @@
 #include "image_encoder.h"
 #include "text_encoder.h"
 #endif
+
+/* Start-up adjustments, for the status (node.h "adjusted"). The publisher
+ * plans its grid with vlff_map_grid_plan; the same plan here says whether it
+ * had to coarsen the voxels to fit shm.map_max_voxels. */
+static void note_adjustments(struct vlff_node *n) {
+  const struct vlff_config *c = &n->cfg;
+  uint32_t dims[3];
+  double v = vlff_map_grid_plan(c->field.scene_min, c->field.scene_max, c->publish.voxel_size_m,
+                                (size_t)c->shm.map_max_voxels, dims);
+  if (v > c->publish.voxel_size_m)
+    snprintf(n->st.adjusted, sizeof n->st.adjusted,
+             "publish.voxel_size_m %.3f -> %.3f m (the box needs more than shm.map_max_voxels %d)",
+             c->publish.voxel_size_m, v, c->shm.map_max_voxels);
+}
 
 struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, char *err,
                                    size_t errlen) {
@@ -73,7 +88,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->model_w = cfg->vlm.input_width;
   if (cfg->prompts.embeddings[0]) {
     n->emb_file = vlff_embeddings_load(cfg->prompts.embeddings, cfg->field.feature_dim, err, errlen);
-    if (!n->emb_file) goto fail;
+    if (!n->emb_file || adopt_embeddings_prompts(n, err, errlen)) goto fail;
   }
 #ifdef VLFF_HAVE_VLM
   if (!n->emb_file && cfg->vlm.text_model[0]) {
@@ -91,6 +106,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
 #endif
   n->pub = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, &n->hooks, err, errlen);
   if (!n->pub) goto fail;
+  note_adjustments(n);
   /* Controllers of the segments' group post prompts: the mailbox alone is
    * group-writable whenever the group may read. */
   mode_t mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;
@@ -102,7 +118,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
     goto fail;
   }
   restore_checkpoint(n);
-  if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
+  if (apply_prompt_set(n, n->cfg.prompts.active, err, errlen)) goto fail;
   atomic_store(&n->trainer_beat_ns, vlff_now_ns());
   atomic_store(&n->ingest_beat_ns, vlff_now_ns());
   if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {

@@ -109,6 +109,10 @@ struct vlff_node_status {
    * last loop pass; both pass at least every few hundred ms while alive,
    * busy or idle. */
   uint64_t trainer_beat_ns, ingest_beat_ns;
+  /* What start-up changed in the config to make it work, "key from -> to
+   * (why)" joined by "; " ("" when nothing): shown on --status, where the
+   * user looks, besides the warning in the log. */
+  char adjusted[192];
 };
 
 enum vlff_node_command {

@@ -230,6 +230,7 @@ void restore_checkpoint(struct vlff_node *n);
 /* commands.c (trainer thread; apply_prompt_set also at create, rate_publish
  * on either thread for its own meter) */
 int apply_prompt_set(struct vlff_node *n, int idx, char *err, size_t errlen);
+int adopt_embeddings_prompts(struct vlff_node *n, char *err, size_t errlen);
 void run_commands(struct vlff_node *n, bool *publish_now);
 void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now);
 void update_state(struct vlff_node *n);

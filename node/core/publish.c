@@ -417,6 +417,16 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
            vlff_evidence_capacity(p->ev), what);
 }
 
+/* A measured surface point hp in voxel vi (< 0: outside the map). */
+static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
+  if (vi < 0) return;
+  p->observed[vi] = 1;
+  if (p->hits[vi] < UINT16_MAX) {
+    p->hits[vi]++;
+    for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
+  }
+}
+
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
   if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
   if (!v->depth) return 0;
@@ -428,9 +438,13 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
   double diag = 0;
   for (int i = 0; i < 3; i++) diag += pow(p->dims[i] * p->voxel, 2);
   const double max_steps = sqrt(diag) / h + 2;
+  /* Free space is marched from every other pixel of a large view (a ray's
+   * march is the cost); every pixel's measured point counts, or a wall
+   * seen at a grazing angle keeps unobserved holes between the sampled
+   * pixels' points, and its labelled points there stay unknown. */
   int stride = v->width >= 160 ? 2 : 1;
-  for (int y = 0; y < v->height; y += stride)
-    for (int x = 0; x < v->width; x += stride) {
+  for (int y = 0; y < v->height; y++)
+    for (int x = 0; x < v->width; x++) {
       float d = v->depth[(size_t)y * v->width + x];
       if (!(d > 0) || !isfinite(d)) continue;
       double hp[3], w[3];
@@ -442,7 +456,7 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
        * surface voxel is a hit, not free), only where the ray is inside
        * the map: samples outside it would mark nothing. */
       double steps = floor((len - h) / h), t0 = 0, t1 = 1;
-      if (steps > 0 && clip_to_map(p, o, w, &t0, &t1)) {
+      if (x % stride == 0 && y % stride == 0 && steps > 0 && clip_to_map(p, o, w, &t0, &t1)) {
         double s0 = fmax(0, ceil(t0 * len / h)), s1 = fmin(steps, floor(t1 * len / h) + 1);
         if (s1 - s0 > max_steps) s1 = s0 + max_steps;
         for (double s = s0; s < s1; s++) {
@@ -453,13 +467,16 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
         }
       }
       long vi = voxel_of(p, hp);
-      if (vi >= 0) {
-        p->observed[vi] = 1;
-        if (p->hits[vi] < UINT16_MAX) {
-          p->hits[vi]++;
-          for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
-        }
-      }
+      add_hit(p, vi, hp);
+      /* A surface near a voxel face is measured on either side of it (noise,
+       * where the pixel's ray lands): the voxel half a voxel behind the
+       * measured point holds the same surface, and nothing else would ever
+       * observe it. It takes the same hit, so the surface's points there are
+       * labelled instead of staying unknown for good. */
+      double b[3];
+      for (int i = 0; i < 3; i++) b[i] = hp[i] + w[i] / len * h;
+      long vb = voxel_of(p, b);
+      if (vb != vi) add_hit(p, vb, hp);
     }
   if (!p->ev) return 0;
   if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;

@@ -18,6 +18,7 @@
  *                              without a file have no features
  *    gt_semantic/<stem>.png    8- or 16-bit class ids 0..K-1; >= K (255) = unlabelled
  *    points.ply (or mesh.ply)  labelled point set: vertex x,y,z + "label"
+ *    timestamps.txt            optional: "STEM SECONDS" per frame (vlff_dataset_stamps)
  *    prompt_embeddings.txt     prompt -> vector, in the vlff-embeddings format
  *                              (node/vlm/embeddings.h: read with
  *                              vlff_embeddings_load, written with
@@ -178,6 +179,19 @@ int vlff_dataset_read_frame(const struct vlff_dataset *ds, int i, uint8_t *rgb, 
  * (feat_row[i] < 0). */
 int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *out, char *err,
                                size_t errlen);
+
+/* The recording's frame times: t[i] = frame i's stamp minus frame 0's, in
+ * seconds, for every usable frame (t has ds->n entries). From
+ * timestamps.txt in the scene directory (any layout; one "STEM SECONDS" line
+ * per frame, '#' comments; every usable frame's stem listed) or, for .sens,
+ * the colour stamps in the file (all zero = none). Stamps must be finite and
+ * non-decreasing in frame order, at most 60 s apart. Returns 1 with t
+ * filled, 0 when the scene has no stamps, -1 with err naming the file and
+ * frame. */
+int vlff_dataset_stamps(const struct vlff_dataset *ds, double *t, char *err, size_t errlen);
+/* Writes DIR/timestamps.txt for frames written by the writer (stems %05d):
+ * frame i at t[i] seconds. Atomic. */
+int vlff_dataset_write_stamps(const char *dir, int n, const double *t, char *err, size_t errlen);
 
 /* Writer for the reference layout. nframes and the feature shape are fixed
  * at open (feature_dim 0 = no features.hdf). */

@@ -34,6 +34,8 @@ float vlff_sens_depth_scale(const struct vlff_dataset *ds);
  * .sens file's path or NULL), checked to open (see vlff_dataset_points_path). */
 int vlff_scannet_points_path(const char *dir, int layout, const char *sens, char *path, size_t cap, char *err,
                              size_t errlen);
+/* Frame i's colour timestamp as the file stores it (microseconds). */
+int vlff_sens_stamp_us(const struct vlff_dataset *ds, int i, uint64_t *us);
 void vlff_sens_close(struct vlff_sens *s);
 
 #endif

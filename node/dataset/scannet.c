@@ -483,6 +483,16 @@ fail:
 
 float vlff_sens_depth_scale(const struct vlff_dataset *ds) { return 1.0f / ds->sens->depth_shift; }
 
+/* A frame record is pose (64 bytes), colour and depth stamps (2 x uint64,
+ * microseconds), sizes (2 x uint64), then the colour blob at off[0]. */
+int vlff_sens_stamp_us(const struct vlff_dataset *ds, int i, uint64_t *us) {
+  uint64_t st[2];
+  off_t at = (off_t)ds->sens->off[(size_t)i * 4] - 32;
+  if (rd(ds->sens->fd, st, sizeof st, &at) < 0) return -1;
+  *us = st[0];
+  return 0;
+}
+
 /* ---- 3D ground truth ---------------------------------------------------- */
 
 /* The *_vh_clean_2.labels.ply files in dir: how many, the first's path in out. */

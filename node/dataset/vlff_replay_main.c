@@ -11,13 +11,15 @@
  * the pose travels in the frame record instead, as a camera with its own
  * tracker delivers it.
  *
- * Scene directories carry no timestamps (dataset.h), so the recording's rate
- * is given (--fps); frames go out on that schedule times --rate, never
- * catching up after a late frame (a replay behind schedule would otherwise
- * burst). --backpressure instead waits before each frame until the frame
- * ring's reader has read everything, so a slow consumer loses nothing.
- * frame_id counts up across loops; t_device_ns is the frame's place in the
- * recording (loop * n + i) / fps.
+ * Frames go out at the recording's own times: its stamps
+ * (vlff_dataset_stamps: timestamps.txt, or a .sens file's), else 30 Hz;
+ * --fps gives a uniform rate instead. The schedule runs at --rate times
+ * that and never catches up after a late frame (a replay behind schedule
+ * would otherwise burst). --backpressure instead waits before each frame
+ * until the frame ring's reader has read everything, so a slow consumer
+ * loses nothing. frame_id counts up across loops; t_device_ns is the
+ * frame's place in the recording, loop * span + t[i] (span: the recording's
+ * length plus one mean frame interval).
  */
 #include <errno.h>
 #include <math.h>
@@ -48,10 +50,13 @@ static const struct vlff_cli cli = {
     "                         (else $VLFF_CONFIG, else the installed vlff.yaml, else\n"
     "                         built-in defaults, saying so on stderr)\n"
     "      --layout NAME      auto (default), reference, scannet or sens\n"
-    "      --fps HZ           the recording's frame rate (default 30)\n"
+    "      --fps HZ           play at this uniform frame rate (default: the recording's\n"
+    "                         stamps, timestamps.txt or a .sens file's; without any, 30)\n"
     "  -r, --rate X           play at X times the recorded rate (default 1)\n"
     "  -b, --backpressure     as fast as the frame ring's reader takes the frames:\n"
     "                         wait before each frame until it has read everything\n"
+    "      --wait-reader      hold the first frame until the frame ring has a reader,\n"
+    "                         then keep the schedule (an evaluation's node sees every frame)\n"
     "  -l, --loop             start over after the last frame, until SIGINT/SIGTERM\n"
     "  -n, --count N          stop after N frames\n"
     "      --start I          begin at frame I of the scene\n"
@@ -77,7 +82,7 @@ struct replay {
   uint8_t *rgb;
   float *depth;
   uint16_t *hwc; /* features as stored, [h][w][D] */
-  int pose_in_frame, backpressure, quiet;
+  int pose_in_frame, backpressure, wait_reader, quiet;
   int skipped_before; /* the previous frame was unreadable: flag the next one */
   long long published, unreadable, late;
   long long featureless; /* frames the features do not hold, passed over */
@@ -188,31 +193,34 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
   return 0;
 }
 
-static void add_ns(struct timespec *t, uint64_t ns) {
-  t->tv_sec += (time_t)(ns / 1000000000ull);
-  t->tv_nsec += (long)(ns % 1000000000ull);
-  if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
-}
-
-static int run(struct replay *r, double fps, double rate, int loop, long long count, int start) {
+/* t[i]: frame i's time in the recording (s, t[0] = 0); span: one loop's length. */
+static int run(struct replay *r, const double *t, double span, double rate, int loop, long long count, int start) {
   const int n = r->ds.n;
-  const uint64_t period = (uint64_t)(1e9 / (fps * rate));
-  struct timespec next;
-  clock_gettime(CLOCK_MONOTONIC, &next);
+  if (r->wait_reader && !r->backpressure) {
+    /* The first frame waits for the node to attach, the rest keep the
+     * schedule: an evaluation's node then sees every frame at the
+     * recording's rate. */
+    int said = 0;
+    while (!vlff_cli_stop && vlff_ring_wait_reader(r->frames, 1000ull * 1000 * 1000) < 0) {
+      if (!said && !r->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
+      said = 1;
+    }
+  }
+  uint64_t base = vlff_now_ns();
   long long id = 0;
   for (long long pass = 0; !vlff_cli_stop; pass++) {
     for (int i = pass ? 0 : start; i < n && !vlff_cli_stop && (count <= 0 || id < count); i++) {
+      double rec = (double)pass * span + t[i]; /* seconds into the recording */
       if (!r->backpressure) {
-        struct timespec t;
-        clock_gettime(CLOCK_MONOTONIC, &t);
-        if (t.tv_sec > next.tv_sec || (t.tv_sec == next.tv_sec && t.tv_nsec > next.tv_nsec + 1000000L)) {
+        uint64_t off = (uint64_t)((rec - t[start]) / rate * 1e9), due = base + off, now = vlff_now_ns();
+        if (now > due + 1000000ull) {
           r->late++; /* reading the scene is slower than the schedule: restart it from now */
-          next = t;
+          base = now - off;
         } else {
-          while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
+          struct timespec ts = {(time_t)(due / 1000000000ull), (long)(due % 1000000000ull)};
+          while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
           }
         }
-        add_ns(&next, period);
       }
       /* Features stored for some frames only (docs/datasets.md): the others
        * are passed over in their time, so the scene keeps its pace, and are
@@ -221,8 +229,7 @@ static int run(struct replay *r, double fps, double rate, int loop, long long co
         r->featureless++;
         continue;
       }
-      uint64_t t_dev = (uint64_t)(((double)pass * n + i) / fps * 1e9);
-      if (publish(r, i, id++, t_dev) < 0) return -1;
+      if (publish(r, i, id++, (uint64_t)(rec * 1e9)) < 0) return -1;
       if (!r->quiet && r->published % 100 == 0)
         fprintf(stderr, "vlff-replay: %lld frames published (scene frame %d of %d, pass %lld)\n", r->published,
                 i, n, pass + 1);
@@ -243,13 +250,14 @@ static int parse_num(const char *opt, const char *v, double lo, double hi, doubl
 }
 
 int main(int argc, char **argv) {
-  enum { OPT_LAYOUT = 256, OPT_FPS, OPT_START, OPT_POSE_IN_FRAME, OPT_NO_FEATURES };
+  enum { OPT_LAYOUT = 256, OPT_FPS, OPT_START, OPT_POSE_IN_FRAME, OPT_NO_FEATURES, OPT_WAIT_READER };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
       {"layout", required_argument, NULL, OPT_LAYOUT},
       {"fps", required_argument, NULL, OPT_FPS},
       {"rate", required_argument, NULL, 'r'},
       {"backpressure", no_argument, NULL, 'b'},
+      {"wait-reader", no_argument, NULL, OPT_WAIT_READER},
       {"loop", no_argument, NULL, 'l'},
       {"count", required_argument, NULL, 'n'},
       {"start", required_argument, NULL, OPT_START},
@@ -263,7 +271,7 @@ int main(int argc, char **argv) {
   struct replay r;
   memset(&r, 0, sizeof r);
   int layout = VLFF_DS_AUTO, loop = 0, features = 1, c;
-  double fps = 30, rate = 1, x;
+  double fps = 0, rate = 1, x; /* fps 0: the recording's stamps */
   long long count = 0;
   int start = 0;
   char err[1024];
@@ -287,6 +295,7 @@ int main(int argc, char **argv) {
       if (parse_num("--rate", optarg, 0.001, 1000, &rate)) return 2;
       break;
     case 'b': r.backpressure = 1; break;
+    case OPT_WAIT_READER: r.wait_reader = 1; break;
     case 'l': loop = 1; break;
     case 'n':
       if (parse_num("--count", optarg, 1, 1e15, &x)) return 2;
@@ -317,6 +326,7 @@ int main(int argc, char **argv) {
             VLFF_Q(cfg.shm.pose_ring), VLFF_Q(cfg.shm.feature_ring));
   if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
   int status = 1;
+  double *times = NULL, span = 0;
   if (start >= r.ds.n) {
     fprintf(stderr, "vlff-replay: --start %d: the scene has %d frames\n", start, r.ds.n);
     goto out;
@@ -333,16 +343,40 @@ int main(int argc, char **argv) {
     fprintf(stderr, "vlff-replay: out of memory for %dx%d frames\n", r.ds.width, r.ds.height);
     goto out;
   }
+  /* The recording's times: its stamps unless --fps gives a uniform rate. */
+  times = malloc((size_t)r.ds.n * sizeof *times);
+  if (!times) {
+    fprintf(stderr, "vlff-replay: out of memory\n");
+    goto out;
+  }
+  int stamped = fps > 0 ? 0 : vlff_dataset_stamps(&r.ds, times, err, sizeof err);
+  if (stamped < 0) {
+    fprintf(stderr, "vlff-replay: %s\n", err);
+    goto out;
+  }
+  char pace[128];
+  if (stamped && r.ds.n > 1 && times[r.ds.n - 1] > 0) {
+    double mean = times[r.ds.n - 1] / (r.ds.n - 1);
+    span = times[r.ds.n - 1] + mean;
+    snprintf(pace, sizeof pace, "at the recording's stamps (%.2f Hz on average)", 1 / mean);
+  } else {
+    if (stamped) fprintf(stderr, "vlff-replay: the scene's stamps span no time; playing at 30 Hz\n");
+    snprintf(pace, sizeof pace, "at %g Hz%s", fps > 0 ? fps : 30,
+             fps > 0 ? " (--fps)" : " (the scene has no stamps; --fps sets the rate)");
+    if (fps <= 0) fps = 30;
+    for (int i = 0; i < r.ds.n; i++) times[i] = i / fps;
+    span = r.ds.n / fps;
+  }
   if (open_rings(&r, &cfg, features) < 0) goto out;
   vlff_cli_catch_stop();
   if (!r.quiet)
     fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", VLFF_Q(r.ds.dir), r.ds.n, r.ds.width, r.ds.height,
-            features ? " with features" : "", r.backpressure ? "paced by the reader" : "on schedule");
+            features ? " with features" : "", r.backpressure ? "paced by the reader" : pace);
   if (features && r.ds.feat_frames < r.ds.n)
     fprintf(stderr, "vlff-replay: %s: the features hold %d of the %d frames: the others are passed over "
                     "(--no-features plays them all)\n",
             VLFF_Q(r.ds.dir), r.ds.feat_frames, r.ds.n);
-  if (run(&r, fps, rate, loop, count, start) == 0) status = r.unreadable ? 1 : 0;
+  if (run(&r, times, span, rate, loop, count, start) == 0) status = r.unreadable ? 1 : 0;
   if (!r.quiet || status)
     fprintf(stderr, "vlff-replay: %lld frames published, %lld unreadable skipped, %lld without features passed "
                     "over, %lld late\n",
@@ -354,6 +388,7 @@ out:
   free(r.rgb);
   free(r.depth);
   free(r.hwc);
+  free(times);
   vlff_dataset_close(&r.ds);
   return status;
 }

@@ -39,6 +39,7 @@
 #include "field.h"
 #include "log.h"
 #include "metrics.h"
+#include "online.h"
 #include "palette.h"
 #include "select.h"
 #include "sim.h"
@@ -72,6 +73,11 @@ static const struct vlff_cli cli = {
     "  --threads N         node.threads\n"
     "  --out DIR           report directory (default eval-out)\n"
     "  --overlays N        overlay images to write (default 3)\n"
+    "  --online            then play --dataset through vlff-replay into a vlff-node and\n"
+    "                      score its published map over time (docs/eval.md)\n"
+    "  --online-interval S seconds between the map's samples (default 10)\n"
+    "  --online-after S    keep sampling this long after the replay ends (default 60)\n"
+    "  --node FILE, --replay FILE  the programs --online runs (default: beside vlff-eval)\n"
     "  --quiet             no progress bar\n"
     "  -V, --version       print the version and exit\n"
     "  -h, --help          print this help and exit\n"
@@ -83,7 +89,9 @@ static const struct vlff_cli cli = {
 };
 
 struct opts {
-  const char *config, *dataset, *out, *label_tsv;
+  const char *config, *dataset, *out, *label_tsv, *node_bin, *replay_bin;
+  int online;
+  double online_interval, online_after;
   int seed, frames, dim, iters, holdout, threads, overlays, quiet, stride, label_set;
   double difficulty, fit_seconds;
 };
@@ -159,7 +167,8 @@ static double parse_dbl(const char *s, const char *opt, double lo, double hi) {
 
 static void parse_args(int argc, char **argv, struct opts *o) {
   enum { O_DATASET = 256, O_OUT, O_SEED, O_FRAMES, O_DIM, O_ITERS, O_HOLDOUT, O_THREADS, O_OVERLAYS,
-         O_DIFFICULTY, O_QUIET, O_STRIDE, O_LABEL_SET, O_LABEL_TSV, O_FIT_SECONDS };
+         O_DIFFICULTY, O_QUIET, O_STRIDE, O_LABEL_SET, O_LABEL_TSV, O_FIT_SECONDS, O_ONLINE, O_ONLINE_INTERVAL,
+         O_ONLINE_AFTER, O_NODE, O_REPLAY };
   static const struct option longopts[] = {
       {"config", required_argument, NULL, 'c'},          {"dataset", required_argument, NULL, O_DATASET},
       {"out", required_argument, NULL, O_OUT},           {"seed", required_argument, NULL, O_SEED},
@@ -170,6 +179,9 @@ static void parse_args(int argc, char **argv, struct opts *o) {
       {"stride", required_argument, NULL, O_STRIDE},     {"label-set", required_argument, NULL, O_LABEL_SET},
       {"label-tsv", required_argument, NULL, O_LABEL_TSV},
       {"fit-seconds", required_argument, NULL, O_FIT_SECONDS},
+      {"online", no_argument, NULL, O_ONLINE},           {"online-interval", required_argument, NULL, O_ONLINE_INTERVAL},
+      {"online-after", required_argument, NULL, O_ONLINE_AFTER},
+      {"node", required_argument, NULL, O_NODE},         {"replay", required_argument, NULL, O_REPLAY},
       VLFF_CLI_COMMON_OPTIONS,
   };
   memset(o, 0, sizeof *o);
@@ -177,6 +189,7 @@ static void parse_args(int argc, char **argv, struct opts *o) {
   o->difficulty = -1;
   o->iters = 1500, o->holdout = 8, o->overlays = 3, o->out = "eval-out", o->stride = 1;
   o->label_set = VLFF_LABELS_SCANNET20;
+  o->online_interval = 10, o->online_after = 60;
   int c, status;
   while ((c = vlff_cli_next(&cli, argc, argv, "c:", longopts, &status)) != -1) {
     const char *a = argv[optind - 1], *v = optarg;
@@ -197,6 +210,11 @@ static void parse_args(int argc, char **argv, struct opts *o) {
     case O_FIT_SECONDS: o->fit_seconds = parse_dbl(v, a, 0.001, 1e7); break;
     case O_STRIDE: o->stride = parse_int(v, a, 1, 100000); break;
     case O_LABEL_TSV: o->label_tsv = v; break;
+    case O_ONLINE: o->online = 1; break;
+    case O_ONLINE_INTERVAL: o->online_interval = parse_dbl(v, a, 0.1, 3600); break;
+    case O_ONLINE_AFTER: o->online_after = parse_dbl(v, a, 0, 86400); break;
+    case O_NODE: o->node_bin = v; break;
+    case O_REPLAY: o->replay_bin = v; break;
     case O_LABEL_SET:
       if (!strcmp(v, "scannet20")) o->label_set = VLFF_LABELS_SCANNET20;
       else if (!strcmp(v, "nyu40")) o->label_set = VLFF_LABELS_NYU40;
@@ -206,6 +224,8 @@ static void parse_args(int argc, char **argv, struct opts *o) {
     }
   }
   if (optind < argc) exit(vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]));
+  if (o->online && !o->dataset)
+    exit(vlff_cli_usage_error(&cli, "--online plays a recorded scene: give it with --dataset"));
 }
 
 /* ---- scene loading ------------------------------------------------------ */
@@ -674,6 +694,7 @@ struct eval {
   uint8_t *gl;     /* a held-out frame's labels at the feature-map resolution */
   int *pl;         /* and a prediction at that resolution */
   int *p3;         /* fusion's label per point */
+  uint8_t *seen3;  /* 1 where a training frame saw the point */
   int *pred3;      /* the field's label per point; NULL until it is queried */
   int fitted, steps;
   double fit_s;
@@ -758,6 +779,7 @@ static size_t baseline_fusion_3d(struct eval *e) {
   const size_t np = sc->pts.n;
   char err[1024];
   e->p3 = xcalloc(np, sizeof(int));
+  e->seen3 = xcalloc(np, 1);
   struct vlff_fusion_view *fv = xcalloc((size_t)e->ntrain, sizeof *fv);
   int nv = 0;
   for (int i = 0; i < sc->n; i++) {
@@ -776,7 +798,10 @@ static size_t baseline_fusion_3d(struct eval *e) {
     size_t m = np - s0 < chunk ? np - s0 : chunk;
     if (vlff_fusion(sc->pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, seen, err, sizeof err) < 0) die("%s", err);
     vlff_classify_f32(acc, m, D, sc->emb, K, e->p3 + s0, NULL);
-    for (size_t k = 0; k < m; k++) unseen += seen[k] == 0 && sc->pts.label[s0 + k] < K;
+    for (size_t k = 0; k < m; k++) {
+      unseen += seen[k] == 0 && sc->pts.label[s0 + k] < K;
+      e->seen3[s0 + k] = seen[k] != 0;
+    }
   }
   free(acc), free(seen);
   free(fv);
@@ -1257,13 +1282,48 @@ static void scene_free(struct eval *e) {
   }
   free(sc->srgb), free(sc->sfeat), free(sc->sdepth);
   if (sc->streaming) vlff_dataset_close(&sc->ds);
-  free(sc->f), free(e->gl), free(e->pl), free(e->p3), free(e->pred3), free(e->emb_raw);
+  free(sc->f), free(e->gl), free(e->pl), free(e->p3), free(e->pred3), free(e->emb_raw), free(e->seen3);
   vlff_points_free(&sc->pts);
   vlff_confusion_free(&e->r2_raw.c), vlff_confusion_free(&e->r2_field.c), vlff_confusion_free(&e->r3_fusion.c);
   vlff_confusion_free(&e->r3_field.c), vlff_confusion_free(&e->r3_field_ref.c);
   vlff_confusion_free(&e->r3_alone.c);
   vlff_confusion_free(&e->r2_alone.c);
   vlff_evidence_destroy(e->ev);
+}
+
+/* --online (online.h): the same scene through vlff-replay into a vlff-node,
+ * its published map scored over time beside this run's offline fit and
+ * fusion, and the RESULT line of the two together. */
+static int online(struct eval *e) {
+  const struct opts *o = &e->o;
+  struct scene *sc = &e->sc;
+  char emb[4200], err[1024];
+  if (e->cfg.prompts.embeddings[0]) snprintf(emb, sizeof emb, "%s", e->cfg.prompts.embeddings);
+  else snprintf(emb, sizeof emb, "%s/prompt_embeddings.txt", o->dataset);
+  struct vlff_online_opts oo = {.scene = o->dataset, .embeddings = emb, .out = o->out, .node_bin = o->node_bin,
+                                .replay_bin = o->replay_bin, .interval_s = o->online_interval,
+                                .after_s = o->online_after, .width = sc->W, .height = sc->H, .quiet = o->quiet,
+                                /* a recording of at least 1 Hz, played ten times slower than it should */
+                                .replay_limit_s = 10.0 * sc->n * o->stride + 60};
+  struct vlff_online_result res;
+  if (o->stride > 1)
+    fprintf(stderr, "vlff-eval: --online plays every frame of the scene; --stride %d applied to the offline fit only\n",
+            o->stride);
+  if (vlff_eval_online(&oo, &e->cfg, &sc->pts, e->seen3, sc->K, (const char(*)[VLFF_PROMPT_LEN])sc->names, &res, err,
+                       sizeof err) < 0) {
+    fprintf(stderr, "vlff-eval: --online: %s\n", err);
+    return 1;
+  }
+  char a[16], b[16];
+  printf("online: after %.0f s past the replay's end: map v%llu, 3D mIoU %.1f mAcc %.1f, %.1f %% of the labelled points "
+         "a training frame saw are labelled; offline fit %s, fusion %s; a map every %.2f s\n",
+         o->online_after, (unsigned long long)res.version, 100 * res.miou3d, 100 * res.macc3d, 100 * res.coverage,
+         pct(&e->r3_field, e->r3_field.s.miou, a), pct(&e->r3_fusion, e->r3_fusion.s.miou, b), res.publish_interval_s);
+  printf("RESULT online_miou3d_%.0fs=%.2f offline_miou3d=%s fusion_miou3d=%s online_coverage_%.0fs=%.2f "
+         "publish_interval_s=%.2f\n",
+         o->online_after, 100 * res.miou3d, pct(&e->r3_field, e->r3_field.s.miou, a),
+         pct(&e->r3_fusion, e->r3_fusion.s.miou, b), o->online_after, 100 * res.coverage, res.publish_interval_s);
+  return 0;
 }
 
 /* ---- main --------------------------------------------------------------- */
@@ -1282,6 +1342,7 @@ int main(int argc, char **argv) {
   write_report_md(&e);
   write_report_json(&e);
   print_summary(&e);
+  int rc = e.o.online ? online(&e) : 0;
   scene_free(&e);
-  return 0;
+  return rc;
 }

@@ -102,6 +102,19 @@ static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, cons
     fprintf(stderr, "vlff-sim: %s\n", err);
     return 1;
   }
+  /* The frames' times at sim.rate_hz, so a replay plays them at the rate they were made. */
+  double *t = malloc((size_t)n * sizeof *t);
+  if (!t) {
+    fprintf(stderr, "vlff-sim: out of memory\n");
+    return 1;
+  }
+  for (int i = 0; i < n; i++) t[i] = i / cfg->sim.rate_hz;
+  int trc = vlff_dataset_write_stamps(dir, n, t, err, sizeof err);
+  free(t);
+  if (trc < 0) {
+    fprintf(stderr, "vlff-sim: %s\n", err);
+    return 1;
+  }
   char p[4200];
   struct vlff_sim_points pts;
   if (vlff_sim_points(s, n, 2, 0.04, &pts, err, sizeof err) < 0) {

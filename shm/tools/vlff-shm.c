@@ -7,6 +7,7 @@
 #include "vlff/escape.h"
 
 #include "cli.h"
+#include "dump_map.h"
 
 #include <dirent.h>
 #include <errno.h>
@@ -26,6 +27,7 @@ static const struct vlff_cli cli = {
   "  list                      vlff segments under /dev/shm, one per line\n"
   "  stat NAME                 header of a segment (kind, generation, creator, sizes)\n"
   "  dump-frame NAME FILE      newest frame of a frame ring to FILE (.ppm color, .pgm mono/depth)\n"
+  "  dump-map NAME FILE        the map's current version to FILE (.ply: labelled voxels; else vlff-map binary)\n"
   "  label NAME X Y Z          label, confidence and prompt of the map voxel at world point X Y Z (m)\n"
   "  set-prompts [-t SECONDS] NAME TEXT...\n"
   "                            post a prompt set to a prompt mailbox and wait (default 5 s)\n"
@@ -40,6 +42,7 @@ static const struct vlff_cli cli = {
   "  vlff-shm list\n"
   "  vlff-shm stat /vlff-map\n"
   "  vlff-shm dump-frame /vlff-frames frame.ppm\n"
+  "  vlff-shm dump-map /vlff-map map.ply\n"
   "  vlff-shm label /vlff-map 1.25 0.4 -0.1\n"
   "  vlff-shm set-prompts /vlff-prompts \"chair\" \"table\" \"door\"\n"
   "  vlff-shm watch /vlff-frames 100\n"
@@ -397,6 +400,16 @@ static const struct vlff_cli cli_dump = {
   "(16-bit, millimetres; a colour+depth frame gives its depth to a .pgm).\n"
   "\n" SUB_HELP,
 };
+static const struct vlff_cli cli_dump_map = {
+  "vlff-shm",
+  "Usage: vlff-shm dump-map NAME FILE\n"
+  "The current version of map NAME, copied consistently (vlff_map_snapshot_take), to FILE:\n"
+  "FILE ending in .ply: binary little-endian PLY of the labelled voxels' centres (float x y z,\n"
+  "uchar red green blue in the label palette, ushort label, uchar confidence), the prompts\n"
+  "as 'comment prompt K TEXT' lines; any other FILE: the whole grid in the vlff-map binary\n"
+  "format (docs/shm.md), free and unknown voxels included. Prints the version and the counts.\n"
+  "\n" SUB_HELP,
+};
 static const struct vlff_cli cli_label = {
   "vlff-shm",
   "Usage: vlff-shm label NAME X Y Z\n"
@@ -535,6 +548,9 @@ int main(int argc, char **argv) {
   if (!strcmp(c, "dump-frame"))
     return sub_operands(&cli_dump, argc, argv, "", 2, 2, &status) < 0 ? status
                                                                      : cmd_dump_frame(argv[optind], argv[optind + 1]);
+  if (!strcmp(c, "dump-map"))
+    return sub_operands(&cli_dump_map, argc, argv, "", 2, 2, &status) < 0 ? status
+                                                                         : vlff_dump_map(argv[optind], argv[optind + 1]);
   if (!strcmp(c, "label"))
     return sub_label(argc, argv);
   if (!strcmp(c, "set-prompts"))

@@ -233,6 +233,55 @@ static void test_saved_map_loads_within_budget(void **state) {
   vlff_shm_unlink(cc.shm.map);
 }
 
+/* A wall measured just in front of a voxel face (issue 55's coverage gap):
+ * the voxel behind the face holds the same wall and is a known surface, so
+ * its points are labelled; it used to stay unobserved (unknown for good).
+ * The surface is one voxel thick there, no thicker, and the voxels in
+ * front stay free space. Voxels of 8 cm from -2.5 m: a face at z = 1.02. */
+static void test_surface_behind_voxel_face(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "face");
+  struct vlff_publisher *p = create(&cfg);
+  struct vlff_view v = view(1.019f);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_true(vlff_publisher_surface_known(p, (const double[3]){0, 0, 1.0}));   /* the measured voxel */
+  assert_true(vlff_publisher_surface_known(p, (const double[3]){0, 0, 1.03}));  /* behind the face */
+  assert_false(vlff_publisher_surface_known(p, (const double[3]){0, 0, 1.11})); /* two voxels on */
+  assert_false(vlff_publisher_surface_known(p, (const double[3]){0, 0, 0.9}));  /* in front */
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
+/* Every pixel's measured point counts, not only those of the pixels whose
+ * rays are marched (every other one of a large view): a view whose only
+ * valid depth is at odd pixels still shows its wall. Subsampled, a wall
+ * seen at a grazing angle kept holes between the sampled points, and the
+ * labelled points there stayed unknown (issue 55). */
+static void test_every_pixel_counts(void **state) {
+  (void)state;
+  enum { BW = 160, BH = 120 };
+  static float big[BW * BH];
+  struct vlff_config cfg;
+  config_for(&cfg, "odd");
+  struct vlff_publisher *p = create(&cfg);
+  struct vlff_view v = {.width = BW, .height = BH, .depth = big};
+  v.fx = v.fy = 0.5 * BW / tan(0.5 * 65.0 * M_PI / 180.0);
+  v.cx = BW / 2.0, v.cy = BH / 2.0;
+  v.c2w[0] = v.c2w[5] = v.c2w[10] = v.c2w[15] = 1;
+  for (int y = 0; y < BH; y++)
+    for (int x = 0; x < BW; x++) big[y * BW + x] = x % 2 && y % 2 ? 1.5f : 0.0f;
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  /* pixel (81, 61)'s point */
+  double x[3] = {(81.5 - v.cx) / v.fx * 1.5, (61.5 - v.cy) / v.fy * 1.5, 1.5};
+  assert_true(vlff_publisher_surface_known(p, x));
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
-    cmocka_unit_test(test_saved_map_loads_within_budget))
+    cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
+    cmocka_unit_test(test_every_pixel_counts))

@@ -373,10 +373,74 @@ static void test_cli(void **state) {
   vlff_ring_close(r);
 }
 
+/* Frame i's time in the stamped scene below: 4 Hz, frame 3 a little late,
+ * the recording starting at 10 s. */
+static double stamp(int i) { return 10 + i * 0.25 + (i == 3 ? 0.1 : 0); }
+
+/* Reads n frames as the ring's reader (the replay paced by it) and checks
+ * each one's place in the recording, t_device_ns, against want(i). */
+static void expect_device_times(const struct vlff_config *cfg, int n, double (*want)(int)) {
+  struct vlff_ring *fr = NULL;
+  for (int k = 0; k < 200 && !fr; k++)
+    if (!(fr = vlff_ring_attach(cfg->shm.ring, VLFF_RECORD_FRAME))) tk_sleep_s(0.02);
+  assert_non_null(fr);
+  void *buf = malloc(vlff_ring_slot_size(fr));
+  for (int i = 0; i < n; i++) {
+    struct vlff_ring_view v;
+    ssize_t len = vlff_ring_read_copy(fr, buf, vlff_ring_slot_size(fr), &v, 10ull * 1000 * 1000 * 1000);
+    if (len < 0) fail_msg("frame %d: %s", i, vlff_shm_last_message());
+    const struct vlff_frame_hdr *h = buf;
+    double t = (double)h->t_device_ns * 1e-9;
+    if (fabs(t - want(i)) > 1e-6) fail_msg("frame %d: t_device %.6f s, expected %.6f s", i, t, want(i));
+  }
+  free(buf);
+  vlff_ring_close(fr);
+}
+
+static double stamped(int i) { return stamp(i) - stamp(0); }
+static double at_5hz(int i) { return i * 0.2; }
+
+/* The recording's own stamps pace the replay by default (issue 55: the
+ * default 30 Hz had to be lowered by hand for a 5 Hz recording); --fps
+ * still gives a uniform rate; stamps that go backwards are refused, naming
+ * the file and the frame. */
+static void test_stamps_pace_the_replay(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg, 2);
+  write_scene(&cfg, NULL);
+  char p[400], out[8192], args[1000];
+  snprintf(p, sizeof p, "%s/timestamps.txt", scene);
+  FILE *f = fopen(p, "w");
+  assert_non_null(f);
+  fprintf(f, "# stem seconds\n");
+  for (int i = 0; i < FRAMES; i++) fprintf(f, "%05d %.6f\n", i, stamp(i));
+  fclose(f);
+  const char *args1[] = {"-c", cfg_path, "--backpressure", "--count", "6", "--quiet", scene, NULL};
+  pid_t pid = tk_spawn(&tk, "node/dataset/vlff-replay", args1, NULL);
+  expect_device_times(&cfg, 6, stamped);
+  assert_int_equal(tk_wait_child(&tk, pid), 0);
+  snprintf(args, sizeof args, "-c %s --rate 100 --count 3 %s", cfg_path, scene);
+  assert_int_equal(run_cli(args, out, sizeof out), 0);
+  assert_non_null(strstr(out, "at the recording's stamps (4.00 Hz on average)"));
+  const char *args2[] = {"-c", cfg_path, "--backpressure", "--fps", "5", "--count", "6", "--quiet", scene, NULL};
+  pid = tk_spawn(&tk, "node/dataset/vlff-replay", args2, NULL);
+  expect_device_times(&cfg, 6, at_5hz);
+  assert_int_equal(tk_wait_child(&tk, pid), 0);
+  f = fopen(p, "w");
+  assert_non_null(f);
+  for (int i = 0; i < FRAMES; i++) fprintf(f, "%05d %.6f\n", i, i == 7 ? 1.0 : stamp(i));
+  fclose(f);
+  snprintf(args, sizeof args, "-c %s --rate 100 --count 3 %s", cfg_path, scene);
+  assert_int_equal(run_cli(args, out, sizeof out), 1);
+  if (!strstr(out, "timestamps.txt: frame 00007: stamp 1.000000 s is ")) fail_msg("%s", out);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_setup_teardown(test_cli, setup, teardown),
       cmocka_unit_test_setup_teardown(test_scannet_layout_into_rings, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_stamps_pace_the_replay, setup, teardown),
       cmocka_unit_test_setup_teardown(test_backpressure_loses_nothing, setup, teardown),
       cmocka_unit_test_setup_teardown(test_node_trains_from_replay, setup, teardown),
   };
