@@ -217,18 +217,26 @@ static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
   if (s->be->grab(s->cam, timeout_ms, s->pipe, s->sink, s->poses) >= 0) return;
   s->lost++;
   s->lost_at = vlff_now_ns();
-  slot_close(s);
+  /* said before closing: releasing a camera that is gone can take seconds */
   VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, VLFF_Q(s->cfg.camera.device),
              (unsigned long long)s->lost, ring);
+  slot_close(s);
   s->next_try = vlff_now_ns() + (uint64_t)(s->backoff * 1e9);
 }
 
 /* A free-running camera that is open but sends nothing is said at once
- * (the loss itself may take the control channel's timeouts to show): after
- * a second, or three frame periods when longer, without a frame. With two
- * cameras no pair forms meanwhile, and the node sees no frame either. */
-static void slot_watch(struct slot *s, const struct slot *other, uint64_t now) {
+ * (the loss itself takes the control channel's timeouts to show, and the
+ * backend asks it after a second): after half a second, or three frame
+ * periods when longer, without a frame. With two cameras no pair forms
+ * meanwhile, and the node sees no frame either. */
+static void slot_watch(struct slot *s, const struct slot *other, uint64_t now, bool stalled) {
   uint64_t seen = slot_frames(s);
+  /* stalled: this loop was held up (a lost camera's release or reopen
+   * blocks it for seconds), so the other camera's silence is camd's own */
+  if (stalled && seen == s->seen && s->cam) {
+    if (!s->silent) s->last_frame_ns = now;
+    return;
+  }
   if (seen != s->seen || !s->cam) {
     if (s->silent && s->cam)
       VLFF_INFO(TAG, "%s '%s': frames again after %.1f s", s->what, VLFF_Q(s->cfg.camera.device),
@@ -237,11 +245,11 @@ static void slot_watch(struct slot *s, const struct slot *other, uint64_t now) {
     if (s->cam) s->last_frame_ns = now;
     return;
   }
-  const double rate = s->cfg.camera.frame_rate, quiet = rate > 0 && 3 / rate > 1 ? 3 / rate : 1;
+  const double rate = s->cfg.camera.frame_rate, quiet = rate > 0 && 3 / rate > 0.5 ? 3 / rate : 0.5;
   if (s->silent || s->cfg.camera.trigger != VLFF_TRIG_FREERUN || (double)(now - s->last_frame_ns) * 1e-9 < quiet)
     return;
   s->silent = true;
-  VLFF_ERROR(TAG, "%s '%s': no frame for %.1f s although open%s", s->what, VLFF_Q(s->cfg.camera.device),
+  VLFF_WARN(TAG, "%s '%s': no frame for %.1f s although open%s", s->what, VLFF_Q(s->cfg.camera.device),
              (double)(now - s->last_frame_ns) * 1e-9,
              other ? (other->cam ? ": no pairs until it is back (the other camera streams)" : ": no pairs") : "");
 }
@@ -491,6 +499,7 @@ static int run(struct camd *d) {
   vlff_service_ready(&svc);
   uint64_t t0 = vlff_now_ns();
   struct pair_report report = {0};
+  uint64_t last_pass = vlff_now_ns();
   while (!stop_req) {
     if (vlff_service_watchdog_due(&svc, vlff_now_ns())) vlff_service_watchdog();
     if (d->max_seconds > 0 && (double)(vlff_now_ns() - t0) * 1e-9 >= d->max_seconds) break;
@@ -520,7 +529,10 @@ static int run(struct camd *d) {
      * wait per camera keeps both drained. */
     for (int i = 0; i < d->nslots; i++) slot_grab(&d->slots[i], 20 / d->nslots, d->cfg.shm.ring);
     uint64_t now = vlff_now_ns();
-    for (int i = 0; i < d->nslots; i++) slot_watch(&d->slots[i], d->nslots == 2 ? &d->slots[1 - i] : NULL, now);
+    const bool stalled = now - last_pass > 250000000u;
+    last_pass = now;
+    for (int i = 0; i < d->nslots; i++)
+      slot_watch(&d->slots[i], d->nslots == 2 ? &d->slots[1 - i] : NULL, now, stalled);
     if (d->pair) pair_report(&report, d->pair, d->slots, now);
   }
   vlff_service_stopping();

@@ -56,6 +56,7 @@ struct vlff_pair {
   uint64_t tol_ns;      /* depth_camera.pair_tolerance_s: trigger-stamped pairs */
   uint64_t free_tol_ns; /* free-running pairs: under half the faster camera's period */
   struct vlff_pair_stats st;
+  bool paired;     /* a pair was matched: the streams are in step */
   uint64_t logged; /* drops warned of (vlff_warn_limited) */
   char last_error[256];
 };
@@ -66,15 +67,17 @@ static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
 /* Drops q's oldest frame, which found no partner in the other stream. It
  * is counted as a start-up frame when the other stream had not begun
  * (nothing from it yet, or its first frame came more than the tolerance
- * after this one: no frame of it could have been this one's partner), as
- * unmatched otherwise. */
+ * after this one: no frame of it could have been this one's partner) or no
+ * pair was made yet (a camera's first frames after it starts streaming
+ * need not keep its period: Aravis' fake camera sends its first at once,
+ * off the grid of the later ones), as unmatched otherwise. */
 static void drop_oldest(struct vlff_pair *p, struct fifo *q) {
   const bool color = q == &p->color;
   const struct fifo *other = color ? &p->depth : &p->color;
   const struct held *h = oldest(q);
   const uint64_t t = h->meta.host_ns;
   const uint64_t tol = !h->meta.trigger_stamped && p->free_tol_ns > p->tol_ns ? p->free_tol_ns : p->tol_ns;
-  if (!other->started || t + tol < other->first_ns)
+  if (!p->paired || !other->started || t + tol < other->first_ns)
     (*(color ? &p->st.startup_color : &p->st.startup_depth))++;
   else
     (*(color ? &p->st.unmatched_color : &p->st.unmatched_depth))++;
@@ -206,6 +209,11 @@ static void match(struct vlff_pair *p) {
     if (dist(tc, td) <= tol) {
       const struct held *c2 = p->color.n > 1 ? &p->color.f[(p->color.head + 1) % HOLD] : NULL;
       const struct held *d2 = p->depth.n > 1 ? &p->depth.f[(p->depth.head + 1) % HOLD] : NULL;
+      /* Free-running frames more than a quarter period apart: the earlier
+       * one's stream may still send a frame nearer the later one (only a
+       * frame less than half a period after its predecessor could, which
+       * a camera starting up does send); wait for it. */
+      if (fr && 2 * dist(tc, td) > tol && (tc < td ? !c2 : !d2)) break;
       if (c2 && dist(when(&p->color, c2, fr), td) < dist(tc, td)) {
         drop_oldest(p, &p->color);
       } else if (d2 && dist(tc, when(&p->depth, d2, fr)) < dist(tc, td)) {
@@ -215,6 +223,7 @@ static void match(struct vlff_pair *p) {
         p->st.skew_sum_ns += skew;
         if (skew > p->st.skew_max_ns) p->st.skew_max_ns = skew;
         if (fr) p->st.free_pairs++;
+        p->paired = true;
         emit(p, c, d);
         pop(&p->color), pop(&p->depth);
       }

@@ -13,7 +13,10 @@
  *    cameras keep an arbitrary phase between them), on each frame's device
  *    time moved onto the host clock by its stream's smallest arrival delay
  *    over the latest 32 frames (frames without a device time: arrival), so
- *    that a frame delayed on its way (scheduling, the network) still pairs.
+ *    that a frame delayed on its way (scheduling, the network) still pairs;
+ *    frames more than a quarter period apart wait for the earlier one's
+ *    successor, which could be nearer (a camera starting up sends frames
+ *    closer than its period).
  * The config check keeps pair_tolerance_s under half of either camera's
  * frame period, so at most one frame of each stream can qualify: frames are
  * never paired wrongly (and a camera running faster than configured still
@@ -52,7 +55,8 @@
 /* A frame dropped without a partner is counted once, as a start-up frame
  * when the other stream had not begun yet (no frame of it so far, or its
  * first frame more than the tolerance after this one: one camera opens and
- * streams before the other), else as unmatched: both were streaming and
+ * streams before the other) or no pair was made yet (a camera's first
+ * frames need not keep its period), else as unmatched: both were streaming and
  * this frame's partner never came (a frame lost or late on the other side,
  * the other camera lost and reconnecting, a free-running colour camera
  * beside a triggered range camera). */

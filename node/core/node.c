@@ -35,6 +35,7 @@
 #include "publish.h"
 #include "select.h"
 #include "source.h"
+#include "watch.h"
 #include "vlff/escape.h"
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_VLM
@@ -105,6 +106,7 @@ struct vlff_node {
   pthread_mutex_t slock;
   struct vlff_node_status st;
   double last_frame_s, last_pose_ok_s, last_lapped_s;
+  struct vlff_frame_watch fwatch; /* under slock */
 
   /* trainer-private */
   float *prompt_emb;           /* [k][D] */
@@ -449,9 +451,7 @@ static void no_pose_detail(const struct vlff_config *cfg, struct vlff_ring *pose
     snprintf(why, len, "frame stamped %.6f s is newer than the newest pose in %s (%.3f s older): the pose source "
              "lags or stopped", (double)t_ns * 1e-9, cfg->shm.pose_ring, -dt);
   else
-    snprintf(why, len, "no two poses in %s bracket the frame's stamp %.6f s within source.pose_tolerance_s %g s "
-             "(newest pose %+.3f s from it): clocks apart, or poses sparser than the tolerance",
-             cfg->shm.pose_ring, (double)t_ns * 1e-9, cfg->source.pose_tolerance_s, dt);
+    vlff_pose_miss_hint(poses, cfg->shm.pose_ring, t_ns, cfg->source.pose_tolerance_s, why, len);
 }
 
 /* The ingest thread's state, shared by a frame's stages. */
@@ -851,6 +851,7 @@ static void *ingest_main(void *arg) {
     pthread_mutex_lock(&n->slock);
     n->st.frames_in++;
     n->last_frame_s = now;
+    vlff_frame_watch_frame(&n->fwatch, now);
     pthread_mutex_unlock(&n->slock);
     fps.count++;
     rate_publish(&fps, now, n, &n->st.fps_in);
@@ -1269,7 +1270,7 @@ static void update_state(struct vlff_node *n) {
   double now = vlff_seconds();
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
-  if (n->last_frame_s > 0 ? now - n->last_frame_s > 2.0 : now - n->t_start > 5.0) f |= VLFF_NODE_ERR_CAMERA_LOST;
+  if (vlff_frame_watch_lost(&n->fwatch, now, n->cfg.shm.ring)) f |= VLFF_NODE_ERR_CAMERA_LOST, n->st.fps_in = 0;
   if (n->last_frame_s > 0 && now - n->last_pose_ok_s > 2.0) f |= VLFF_NODE_ERR_POSE_STALE;
   if (n->last_lapped_s > 0 && now - n->last_lapped_s < 2.0) f |= VLFF_NODE_ERR_SHM_LAPPED;
   n->st.error_flags = f;
@@ -1490,6 +1491,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->hooks = *hooks;
   n->mapping = true;
   n->t_start = vlff_seconds();
+  vlff_frame_watch_init(&n->fwatch, n->t_start);
   n->st.prompt_set = cfg->prompts.active;
   n->st.map_age_s = -1;
   n->st.miou2d = n->st.miou3d = -1;

@@ -275,6 +275,11 @@ static void test_free_running_phase_and_jitter(void **state) {
     dev_ns = td - clock + 1000 * MS; /* the range camera's clock: yet another origin */
     push_depth(k, td + 2 * MS + (k == 9 ? 30 * MS : 0));
   }
+  /* 12 ms is more than a quarter period: the last pair waits for the next
+   * colour frame, which could have been nearer */
+  assert_int_equal(vlff_pair_get_stats(pair)->pairs, 19);
+  dev_ns = t0 + 20 * 33 * MS - clock;
+  push_color(20, t0 + 20 * 33 * MS + 2 * MS);
   int first = -1;
   assert_int_equal(check_records(&first), 20);
   assert_int_equal(first, 0);
@@ -299,6 +304,7 @@ static void test_free_running_nearest(void **state) {
     push_depth(k, t0 + (uint64_t)k * 33 * MS + 20 * MS);
   }
   push_color(10, t0 + 10 * 33 * MS);
+  push_depth(10, t0 + 10 * 33 * MS + 20 * MS); /* the successor that shows range 9 nearer colour 10 */
   const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
   /* range k pairs with colour k + 1 (13 ms away); colour 0 came more than
    * the tolerance before the range camera's first frame */
@@ -307,6 +313,34 @@ static void test_free_running_nearest(void **state) {
   assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
   int n = (int)vlff_memsink_committed(out);
   for (int i = 0; i < n; i++) assert_int_equal(vlff_memsink_get(out, i)->device_frame_id, (uint64_t)(n - i)); /* newest first */
+}
+
+/* A range camera starting up off its grid (Aravis' fake camera sends its
+ * first frame at once): range frames at 17 ms (half a 30 Hz period from
+ * the colour frames), 28 ms, then in step from 66 ms. Colour 1 (33 ms) is
+ * 16 ms from the first range frame, within half a period, but its partner
+ * is the one at 28 ms that comes next: the pair waits for it, and the
+ * stray frame counts as start-up, not unmatched. Failed before (colour 1
+ * paired with the stray frame and the range frame at 28 ms was unmatched). */
+static void test_free_running_startup(void **state) {
+  (void)state;
+  free_run = true, dev_ns = 0;
+  const uint64_t t0 = 6000 * MS;
+  push_color(0, t0);
+  push_depth(0, t0 + 17 * MS); /* the stray: depth image 0, never paired */
+  push_color(1, t0 + 33 * MS);
+  push_depth(1, t0 + 28 * MS);
+  for (int k = 2; k < 6; k++) {
+    push_color(k, t0 + (uint64_t)k * 33 * MS);
+    push_depth(k, t0 + (uint64_t)k * 33 * MS + MS);
+  }
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 1);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->startup_color, 1);
+  assert_int_equal(st->startup_depth, 1);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
 }
 
 int main(void) {
@@ -320,6 +354,7 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_startup_range_first, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_phase_and_jitter, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_nearest, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_free_running_startup, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
