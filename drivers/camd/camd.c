@@ -258,6 +258,7 @@ static void slot_watch(struct slot *s, const struct slot *other, uint64_t now, b
  * no partner or pairs were lost (and once at the start): the exit line
  * alone would hide a tolerance or a calibration that fails every pair. */
 #define PAIR_REPORT_S 10
+#define PAIR_FIRST_S 3
 struct pair_report {
   uint64_t t_ns;
   struct vlff_pair_stats last;
@@ -267,7 +268,9 @@ struct pair_report {
 
 static void pair_report(struct pair_report *r, const struct vlff_pair *pair, const struct slot *slots, uint64_t now) {
   if (!r->t_ns) r->t_ns = now;
-  if (now - r->t_ns < (uint64_t)PAIR_REPORT_S * 1000000000u) return;
+  /* the first soon after the start: a pairing that fails every pair is
+   * said within seconds */
+  if (now - r->t_ns < (r->first_done ? PAIR_REPORT_S : PAIR_FIRST_S) * 1000000000ull) return;
   const struct vlff_pair_stats *st = vlff_pair_get_stats(pair), *o = &r->last;
   uint64_t c = vlff_pipe_get_stats(slots[0].pipe)->committed, d = vlff_pipe_get_stats(slots[1].pipe)->committed;
   uint64_t pairs = st->pairs - o->pairs, um_c = st->unmatched_color - o->unmatched_color,

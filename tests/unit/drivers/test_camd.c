@@ -286,6 +286,7 @@ static void test_reconnects_after_camera_restart(void **state) {
  * matrix, no offset) the depth plane is the range image itself, in mm.
  * The record's ids and intrinsics are the colour camera's. */
 static char rig_path[256];
+static const char *rig_extra = ""; /* appended to the rig's calibration */
 
 /* The pair's config: the fake GigE camera as colour, the in-process fake
  * camera as range, an identity rig. */
@@ -301,6 +302,7 @@ static void write_pair_cfg(const char *depth_extra) {
         "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n"
         "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0. ]\n",
         f);
+  fputs(rig_extra, f);
   fclose(f);
   char extra[1024];
   snprintf(extra, sizeof extra,
@@ -393,6 +395,42 @@ static void test_pairs_colour_and_range(void **state) {
     check_range_ramp(n, hd, buf, true, 230);
   }
   pair_done(r, buf);
+}
+
+/* A calibration made for another resolution (640x480 range images; the
+ * range camera sends 320x240): every pair is dropped, and vlff-camd says
+ * so within seconds, with the reason, not only in its exit line. Failed
+ * before: 5 warnings, then nothing while 0 pairs were committed. */
+static void test_pair_calibration_other_size(void **state) {
+  (void)state;
+  rig_extra = "depth_width: 640\ndepth_height: 480\n";
+  write_pair_cfg(NULL);
+  rig_extra = "";
+  char log[300];
+  snprintf(log, sizeof log, "%s.log", out_path);
+  pid_t parent = getpid(), pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (getppid() != parent) _exit(1);
+    int fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) dup2(fd, 1), dup2(fd, 2);
+    char bin[512];
+    snprintf(bin, sizeof bin, "%s/drivers/camd/vlff-camd", getenv("VLFF_BINARY_DIR"));
+    execl(bin, bin, "--config", cfg_path, "--seconds", "5", (char *)NULL);
+    _exit(127);
+  }
+  assert_int_equal(wait_exit(pid, 60), 0);
+  static char text[1 << 16];
+  FILE *f = fopen(log, "r");
+  assert_non_null(f);
+  text[fread(text, 1, sizeof text - 1, f)] = 0;
+  fclose(f);
+  const char *rep = strstr(text, "E camd: pairing, last ");
+  if (!rep) fail_msg("no pairing report in vlff-camd's log:\n%s", text);
+  assert_non_null(strstr(rep, " 0 pairs of "));
+  assert_non_null(strstr(rep, "calibrated for depth 640x480"));
+  unlink(log);
 }
 
 /* The same pair registered at half the colour camera's size
@@ -504,4 +542,5 @@ VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_software_trigger_one_frame_each), cmocka_unit_test(test_bad_configs),
     cmocka_unit_test(test_reconnects_after_camera_restart),
     cmocka_unit_test(test_pairs_colour_and_range), cmocka_unit_test(test_pairs_at_register_size),
-    cmocka_unit_test(test_pair_survives_camera_restart))
+    cmocka_unit_test(test_pair_survives_camera_restart),
+    cmocka_unit_test(test_pair_calibration_other_size))
