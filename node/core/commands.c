@@ -1,0 +1,275 @@
+/*
+ * What controllers ask of the node and what it tells them: prompt sets and
+ * texts (embedded and handed to the field), the queued commands (start,
+ * stop, reset, save, publish, prompt set), the prompt mailbox, and the
+ * status (--status, CAN, the map segment).
+ *
+ * Thread: vlff_node_command and vlff_node_status are called from any
+ * thread; everything else runs on the trainer's (apply_prompt_set also in
+ * vlff_node_create, before the threads start).
+ * State: the trainer-private prompts (prompt_emb, prompt_k, prompt_text) and
+ * mapping, the mailbox, the command queue, the status.
+ * Locks: cmd_lock for the command queue, slock for the status (short, never
+ * across work, never two at once; node_internal.h).
+ */
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "clock.h"
+#include "embeddings.h"
+#include "field.h"
+#include "keyframes.h"
+#include "log.h"
+#include "node_internal.h"
+#include "publish.h"
+#include "vlff/escape.h"
+#include "vlff/shm.h"
+#ifdef VLFF_HAVE_VLM
+#include "text_encoder.h"
+#endif
+
+/* Embeddings for prompt texts, from the first source configured: the
+ * precomputed file, the in-node text encoder, or the source's own encoder
+ * (the simulator's, source.h). */
+static int embed_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN], int k,
+                         float *out, char *err, size_t errlen) {
+  int d = n->cfg.field.feature_dim;
+  for (int i = 0; i < k; i++) {
+    float *o = out + (size_t)i * d;
+    if (n->emb_file) {
+      const float *v = vlff_embeddings_lookup(n->emb_file, texts[i]);
+      if (!v) {
+        snprintf(err, errlen, "prompt '%s': not in the embeddings file %s", VLFF_Q(texts[i]),
+                 VLFF_Q(n->cfg.prompts.embeddings));
+        return -1;
+      }
+      memcpy(o, v, (size_t)d * sizeof(float));
+#ifdef VLFF_HAVE_VLM
+    } else if (n->text_enc) {
+      if (vlff_text_encoder_encode(n->text_enc, texts[i], o, err, errlen)) return -1;
+#endif
+    } else if (n->hooks.embed) {
+      if (n->hooks.embed(n->hooks.ctx, texts[i], o, err, errlen)) return -1;
+    } else {
+      snprintf(err, errlen, "prompt '%s': no text encoder (set prompts.embeddings or vlm.text_model)",
+               VLFF_Q(texts[i]));
+      return -1;
+    }
+  }
+  return 0;
+}
+
+static int apply_prompts(struct vlff_node *n, const char texts[][VLFF_PROMPT_LEN], int k, int set_index,
+                         char *err, size_t errlen) {
+  if (k < 1 || k > VLFF_MAX_PROMPTS) {
+    snprintf(err, errlen, "prompt set of %d prompts (expected 1..%d)", k, VLFF_MAX_PROMPTS);
+    return -1;
+  }
+  float *emb = malloc((size_t)k * n->cfg.field.feature_dim * sizeof(float));
+  if (!emb) return snprintf(err, errlen, "out of memory"), -1;
+  if (embed_prompts(n, texts, k, emb, err, errlen) ||
+      vlff_field_set_prompts(n->field, emb, k, err, errlen)) {
+    free(emb);
+    return -1;
+  }
+  free(n->prompt_emb);
+  n->prompt_emb = emb;
+  n->prompt_k = k;
+  for (int i = 0; i < k; i++) snprintf(n->prompt_text[i], VLFF_PROMPT_LEN, "%s", texts[i]);
+  pthread_mutex_lock(&n->slock);
+  n->st.prompt_set = set_index;
+  n->st.prompt_count = k;
+  pthread_mutex_unlock(&n->slock);
+  VLFF_INFO(TAG, "prompts: %d (%s%s)", k, set_index >= 0 ? "set " : "posted texts",
+            set_index >= 0 ? n->cfg.prompts.sets[set_index].name : "");
+  return 0;
+}
+
+int apply_prompt_set(struct vlff_node *n, int idx, char *err, size_t errlen) {
+  if (idx < 0 || idx >= n->cfg.prompts.set_count) {
+    snprintf(err, errlen, "prompt set %d does not exist (have %d)", idx, n->cfg.prompts.set_count);
+    return -1;
+  }
+  const struct vlff_prompt_set *s = &n->cfg.prompts.sets[idx];
+  return apply_prompts(n, (const char(*)[VLFF_PROMPT_LEN])s->text, s->count, idx, err, errlen);
+}
+
+static void reset_mapping(struct vlff_node *n) {
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&n->cfg.field, &n->cfg.train, n->cfg.node.threads, err, sizeof err);
+  struct vlff_kfstore *s =
+      vlff_kfstore_create((size_t)n->cfg.keyframes.memory_mb << 20, n->cfg.keyframes.max_keyframes, KF_PROTECT);
+  if (!f || !s) {
+    VLFF_ERROR(TAG, "reset failed: %s", f ? "out of memory" : err);
+    vlff_field_destroy(f);
+    vlff_kfstore_destroy(s);
+    return;
+  }
+  vlff_field_destroy(n->field);
+  vlff_kfstore_destroy(n->store);
+  n->field = f;
+  n->resumed = false;
+  n->ckpt_steps = -1; /* the saved map is no longer the learned one */
+  n->store = s;
+  vlff_publisher_reset(n->pub);
+  if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);
+  VLFF_INFO(TAG, "mapping reset");
+}
+
+void run_commands(struct vlff_node *n, bool *publish_now) {
+  int cmds[16][2], nc;
+  pthread_mutex_lock(&n->cmd_lock);
+  nc = n->ncmds;
+  memcpy(cmds, n->cmds, sizeof cmds);
+  n->ncmds = 0;
+  pthread_mutex_unlock(&n->cmd_lock);
+  for (int i = 0; i < nc; i++) {
+    char err[256];
+    switch (cmds[i][0]) {
+    case VLFF_CMD_START: n->mapping = true; VLFF_INFO(TAG, "mapping started"); break;
+    case VLFF_CMD_STOP: n->mapping = false; VLFF_INFO(TAG, "mapping stopped"); break;
+    case VLFF_CMD_RESET: reset_mapping(n); break;
+    case VLFF_CMD_SAVE: save_checkpoint(n); break;
+    case VLFF_CMD_PUBLISH: *publish_now = true; break;
+    case VLFF_CMD_PROMPT_SET:
+      if (apply_prompt_set(n, cmds[i][1], err, sizeof err))
+        VLFF_ERROR(TAG, "prompt set command: %s", err);
+      else
+        *publish_now = true;
+      break;
+    }
+  }
+}
+
+/* Every request gets an answer in the mailbox, so that the poster learns whether its
+ * prompts were taken; a malformed or half-written one is answered by the library and
+ * only logged here. */
+void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) {
+  struct vlff_prompt_request req;
+  if (!n->mailbox) return;
+  int got = vlff_prompts_poll(n->mailbox, seq, &req);
+  if (got < 0) {
+    /* Once per repair by the library (a forged state word or request number),
+     * but a group member can forge them at every iteration. */
+    vlff_warn_limited(&n->warned.mailbox, TAG, "prompt mailbox: %s", vlff_shm_last_message());
+    return;
+  }
+  if (got != 1) return;
+  char err[256];
+  int rc;
+  if (req.set_index >= 0) {
+    rc = apply_prompt_set(n, req.set_index, err, sizeof err);
+  } else {
+    char texts[VLFF_MAX_PROMPTS][VLFF_PROMPT_LEN];
+    int k = req.count > VLFF_MAX_PROMPTS ? VLFF_MAX_PROMPTS : req.count;
+    for (int i = 0; i < k; i++) snprintf(texts[i], VLFF_PROMPT_LEN, "%s", req.text[i]);
+    rc = apply_prompts(n, (const char(*)[VLFF_PROMPT_LEN])texts, k, -1, err, sizeof err);
+  }
+  if (rc)
+    vlff_warn_limited(&n->warned.mailbox_refused, TAG, "prompt mailbox request %llu from pid %d refused: %s",
+                      (unsigned long long)req.seq, req.poster_pid, err);
+  else
+    *publish_now = true;
+  if (vlff_prompts_answer(n->mailbox, req.seq, rc == 0, rc ? err : NULL))
+    vlff_warn_limited(&n->warned.mailbox_answer, TAG, "prompt mailbox: cannot answer request %llu: %s",
+                      (unsigned long long)req.seq, vlff_shm_last_message());
+}
+
+void update_state(struct vlff_node *n) {
+  double now = vlff_seconds();
+  pthread_mutex_lock(&n->slock);
+  unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
+  if (vlff_frame_watch_lost(&n->fwatch, now, n->cfg.shm.ring)) f |= VLFF_NODE_ERR_CAMERA_LOST, n->st.fps_in = 0;
+  if (n->last_frame_s > 0 && now - n->last_pose_ok_s > 2.0) f |= VLFF_NODE_ERR_POSE_STALE;
+  if (n->last_lapped_s > 0 && now - n->last_lapped_s < 2.0) f |= VLFF_NODE_ERR_SHM_LAPPED;
+  n->st.error_flags = f;
+  n->st.keyframes = vlff_kfstore_count(n->store);
+  n->st.keyframes_evicted = vlff_kfstore_evicted(n->store);
+  n->st.state = !n->mapping ? VLFF_NODE_STOPPED
+                : n->st.keyframes >= n->cfg.keyframes.start_after ? VLFF_NODE_OPERATIONAL
+                                                                  : VLFF_NODE_PREOP;
+  n->st.map_age_s = vlff_publisher_age_s(n->pub);
+  pthread_mutex_unlock(&n->slock);
+}
+
+static const char *state_name(int state) {
+  switch (state) {
+  case VLFF_NODE_BOOT: return "boot";
+  case VLFF_NODE_PREOP: return "preoperational";
+  case VLFF_NODE_OPERATIONAL: return "operational";
+  case VLFF_NODE_STOPPED: return "stopped";
+  case VLFF_NODE_ERROR: return "error";
+  default: return "unknown";
+  }
+}
+
+/* The status, as --status and CAN have it, into the map segment for any
+ * controller (vlff-shm stat, vlff-view). Every reason is listed, counted or
+ * not, with its name, so that readers learn the list from the segment. */
+void share_status(struct vlff_node *n) {
+  _Static_assert(VLFF_REFUSED_COUNT - 1 <= VLFF_SHM_MAX_REASONS, "every refusal reason fits the map's status");
+  struct vlff_node_status st;
+  vlff_node_status(n, &st);
+  struct vlff_map_status ms = {
+      .state = st.state,
+      .error_flags = st.error_flags,
+      .frames_in = (uint64_t)st.frames_in,
+      .frames_lost = (uint64_t)st.frames_lost,
+      .frames_refused = (uint64_t)st.frames_invalid,
+      .keyframes = (uint64_t)st.keyframes,
+      .keyframes_evicted = (uint64_t)st.keyframes_evicted,
+      .iterations = (uint64_t)st.iteration,
+      .iterations_per_s = st.it_per_s,
+      .fps_in = st.fps_in,
+      .loss = st.loss,
+      .loss_rgb = st.loss_rgb,
+      .loss_depth = st.loss_depth,
+      .loss_feat = st.loss_feat,
+      .psnr = st.psnr,
+  };
+  snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st.state));
+  for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
+    struct vlff_map_reason *e = &ms.reason[ms.reason_count++];
+    snprintf(e->name, sizeof e->name, "%s", vlff_refusal_name(r));
+    e->count = (uint64_t)st.refused[r];
+  }
+  char err[320];
+  /* A map truncated under the node is replaced by the library; say so. */
+  if (vlff_publisher_set_status(n->pub, &ms, err, sizeof err))
+    vlff_warn_limited(&n->warned.map_status, TAG, "map status: %s", err);
+}
+
+void rate_publish(struct rate_meter *r, double now, struct vlff_node *n, double *out) {
+  if (now - r->t0 < 1.0) return;
+  pthread_mutex_lock(&n->slock);
+  *out = r->count / (now - r->t0);
+  pthread_mutex_unlock(&n->slock);
+  r->t0 = now;
+  r->count = 0;
+}
+
+void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out) {
+  pthread_mutex_lock(&n->slock);
+  *out = n->st;
+  pthread_mutex_unlock(&n->slock);
+  out->trainer_beat_ns = atomic_load(&n->trainer_beat_ns);
+  out->ingest_beat_ns = atomic_load(&n->ingest_beat_ns);
+}
+
+int vlff_node_command(struct vlff_node *n, int cmd, int arg) {
+  if (cmd < VLFF_CMD_START || cmd > VLFF_CMD_PUBLISH) return -1;
+  if (cmd == VLFF_CMD_PROMPT_SET && (arg < 0 || arg >= n->cfg.prompts.set_count)) return -1;
+  pthread_mutex_lock(&n->cmd_lock);
+  int rc = -1;
+  if (n->ncmds < 16) {
+    n->cmds[n->ncmds][0] = cmd;
+    n->cmds[n->ncmds][1] = arg;
+    n->ncmds++;
+    rc = 0;
+  }
+  pthread_mutex_unlock(&n->cmd_lock);
+  return rc;
+}

@@ -1,0 +1,197 @@
+/*
+ * The node's life: vlff_node_create validates the config, builds the field,
+ * the store, the encoders, the publisher and the mailbox, restores the
+ * newest checkpoint and starts the trainer and ingest threads;
+ * vlff_node_stop asks them to finish; vlff_node_destroy joins them, saves
+ * when asked and frees; vlff_node_snapshot joins them and renders the final
+ * map.
+ *
+ * Thread: the caller's. Before the threads start and after they are joined
+ * it is the only thread touching the node; vlff_node_stop and
+ * vlff_node_finished only use the atomics and may be called from any thread.
+ * Locks: it initialises and destroys qlock, cmd_lock and slock; what it
+ * calls after the join (the final checkpoint, do_publish) takes slock,
+ * uncontended.
+ * State: the threads, ingest_started, trainer_started, joined, and the
+ * node's allocation as a whole (node_internal.h).
+ */
+#include <errno.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "clock.h"
+#include "embeddings.h"
+#include "field.h"
+#include "keyframes.h"
+#include "node_internal.h"
+#include "publish.h"
+#include "vlff/escape.h"
+#include "vlff/shm.h"
+#ifdef VLFF_HAVE_VLM
+#include "image_encoder.h"
+#include "text_encoder.h"
+#endif
+
+struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, char *err,
+                                   size_t errlen) {
+  static const struct vlff_source_hooks none;
+  if (!hooks) hooks = &none;
+  if (cfg->source.kind == VLFF_SOURCE_DATASET) {
+    snprintf(err, errlen, "source.kind: dataset is for vlff-eval; vlff-node reads the frame ring (sim or ring)");
+    return NULL;
+  }
+#ifndef VLFF_HAVE_VLM
+  if (cfg->source.features == VLFF_FEAT_MODEL || cfg->vlm.text_model[0]) {
+    snprintf(err, errlen, "%s: this vlff-node was built without OpenCV (VLFF_WITH_OPENCV=OFF)",
+             cfg->source.features == VLFF_FEAT_MODEL ? "source.features: model" : "vlm.text_model");
+    return NULL;
+  }
+#endif
+  if (!cfg->prompts.embeddings[0] && !cfg->vlm.text_model[0] && !hooks->embed) {
+    /* Checked before any segment is made: without a text encoder no prompt
+     * can be embedded, and the node would stop at the first one. */
+    snprintf(err, errlen, "no text encoder for the prompts: set prompts.embeddings (a precomputed file) or "
+             "vlm.text_model (the CLIP text encoder, ONNX)");
+    return NULL;
+  }
+  if (vlff_config_sim_features_misused(cfg)) {
+    snprintf(err, errlen, "source.features: sim with source.kind: ring pairs the simulator's features with a "
+             "camera's images; use ring or model, or set source.allow_sim_features: true to force it");
+    return NULL;
+  }
+  if (cfg->source.features == VLFF_FEAT_SIM && !hooks->features) {
+    snprintf(err, errlen, "source.features: sim, but the source gives no features (vlff-node makes the simulator's "
+             "hooks; a program embedding the node passes them to vlff_node_create)");
+    return NULL;
+  }
+  struct vlff_node *n = calloc(1, sizeof *n);
+  if (!n) return snprintf(err, errlen, "out of memory"), NULL;
+  n->cfg = *cfg;
+  n->hooks = *hooks;
+  n->mapping = true;
+  n->t_start = vlff_seconds();
+  vlff_frame_watch_init(&n->fwatch, n->t_start);
+  n->st.prompt_set = cfg->prompts.active;
+  n->st.map_age_s = -1;
+  n->st.miou2d = n->st.miou3d = -1;
+  n->st.miou2d_frame = -1;
+  n->st.last_pose_residual_m = -1;
+  n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = -1;
+  pthread_mutex_init(&n->qlock, NULL);
+  pthread_cond_init(&n->qcond, NULL);
+  pthread_mutex_init(&n->cmd_lock, NULL);
+  pthread_mutex_init(&n->slock, NULL);
+
+  if (mkdir(cfg->node.state_dir, 0750) != 0 && errno != EEXIST) {
+    snprintf(err, errlen, "node.state_dir '%s': %s", VLFF_Q(cfg->node.state_dir), strerror(errno));
+    goto fail;
+  }
+  n->field = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, errlen);
+  if (!n->field) goto fail;
+  n->store = vlff_kfstore_create((size_t)cfg->keyframes.memory_mb << 20, cfg->keyframes.max_keyframes, KF_PROTECT);
+  if (!n->store) {
+    snprintf(err, errlen, "keyframe store: %s", strerror(errno));
+    goto fail;
+  }
+  n->model_h = cfg->vlm.input_height;
+  n->model_w = cfg->vlm.input_width;
+  if (cfg->prompts.embeddings[0]) {
+    n->emb_file = vlff_embeddings_load(cfg->prompts.embeddings, cfg->field.feature_dim, err, errlen);
+    if (!n->emb_file) goto fail;
+  }
+#ifdef VLFF_HAVE_VLM
+  if (!n->emb_file && cfg->vlm.text_model[0]) {
+    n->text_enc = vlff_text_encoder_open(&cfg->vlm, cfg->prompts.templ, cfg->field.feature_dim, err, errlen);
+    if (!n->text_enc) goto fail;
+  }
+  if (cfg->source.features == VLFF_FEAT_MODEL) {
+    struct vlff_image_encoder *enc = vlff_image_encoder_open(&cfg->vlm, cfg->field.feature_dim, err, errlen);
+    if (!enc) goto fail;
+    int dd;
+    vlff_image_encoder_shape(enc, &dd, &n->model_h, &n->model_w);
+    n->image_worker = vlff_image_worker_start(enc, 2, err, errlen);
+    if (!n->image_worker) goto fail;
+  }
+#endif
+  n->pub = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, &n->hooks, err, errlen);
+  if (!n->pub) goto fail;
+  /* Controllers of the segments' group post prompts: the mailbox alone is
+   * group-writable whenever the group may read. */
+  mode_t mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;
+  if (mode & S_IRGRP) mode |= S_IWGRP;
+  struct vlff_shm_perm perm = {.mode = mode, .group = cfg->shm.group};
+  n->mailbox = vlff_prompts_create(cfg->shm.prompts, &perm);
+  if (!n->mailbox) {
+    snprintf(err, errlen, "prompt mailbox %s: %s", cfg->shm.prompts, vlff_shm_last_message());
+    goto fail;
+  }
+  restore_checkpoint(n);
+  if (apply_prompt_set(n, cfg->prompts.active, err, errlen)) goto fail;
+  atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
+  atomic_store(&n->ingest_beat_ns, vlff_shm_now_ns());
+  if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
+    snprintf(err, errlen, "cannot start the trainer thread");
+    goto fail;
+  }
+  n->trainer_started = true;
+  if (pthread_create(&n->ingest_thread, NULL, ingest_main, n) != 0) {
+    snprintf(err, errlen, "cannot start the ingest thread");
+    goto fail;
+  }
+  n->ingest_started = true;
+  return n;
+fail:
+  vlff_node_destroy(n, false);
+  return NULL;
+}
+
+void vlff_node_stop(struct vlff_node *n) { atomic_store(&n->stop, true); }
+
+/* After this only the calling thread touches the node. */
+static void join_threads(struct vlff_node *n) {
+  if (n->joined) return;
+  atomic_store(&n->stop, true);
+  if (n->ingest_started) pthread_join(n->ingest_thread, NULL);
+  if (n->trainer_started) pthread_join(n->trainer_thread, NULL);
+  n->joined = true;
+}
+
+bool vlff_node_finished(struct vlff_node *n) {
+  return atomic_load(&n->finished) || atomic_load(&n->stop);
+}
+
+void vlff_node_destroy(struct vlff_node *n, bool save_on_exit) {
+  if (!n) return;
+  join_threads(n);
+  if (save_on_exit && n->field && n->trainer_started && vlff_field_steps(n->field) > 0) save_checkpoint(n);
+  for (int i = 0; i < n->qlen; i++) candidate_free(n->queue[i]);
+  vlff_publisher_destroy(n->pub);
+  vlff_prompts_close(n->mailbox);
+  vlff_field_destroy(n->field);
+  vlff_kfstore_destroy(n->store);
+  vlff_embeddings_free(n->emb_file);
+#ifdef VLFF_HAVE_VLM
+  vlff_text_encoder_close(n->text_enc);
+  vlff_image_worker_stop(n->image_worker);
+#endif
+  free(n->prompt_emb);
+  pthread_mutex_destroy(&n->qlock);
+  pthread_cond_destroy(&n->qcond);
+  pthread_mutex_destroy(&n->cmd_lock);
+  pthread_mutex_destroy(&n->slock);
+  free(n);
+}
+
+int vlff_node_snapshot(struct vlff_node *n, struct vlff_snapshot *out, char *err, size_t errlen) {
+  join_threads(n);
+  memset(out, 0, sizeof *out);
+  if (vlff_field_steps(n->field) == 0) return snprintf(err, errlen, "the field was never trained"), -1;
+  const char *texts[VLFF_MAX_PROMPTS];
+  for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
+  do_publish(n); /* the snapshot shows the final map */
+  return vlff_publisher_snapshot(n->pub, n->field, texts, n->prompt_k, out, err, errlen);
+}

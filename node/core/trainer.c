@@ -1,0 +1,320 @@
+/*
+ * The trainer thread (vlff-trainer): its loop (trainer_main) takes the
+ * candidates the ingest thread queued, checks their poses against the map,
+ * stores keyframes, runs the field's steps with their young-field
+ * schedules, publishes the map and times checkpoints, commands and status
+ * (checkpoint.c, commands.c).
+ *
+ * Thread: trainer only, except do_publish, which vlff_node_snapshot also
+ * calls once the threads are joined.
+ * State: the field, the keyframe store, the publisher and the
+ * trainer-private fields of struct vlff_node (node_internal.h).
+ * Locks: qlock to take candidates (the only wait, a short timed one when
+ * there is nothing to train), slock for the status (short, never across
+ * work, never two at once).
+ */
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "bounds.h"
+#include "clock.h"
+#include "field.h"
+#include "keyframes.h"
+#include "log.h"
+#include "mem.h"
+#include "node_internal.h"
+#include "publish.h"
+#include "select.h"
+#include "vlff/shm.h"
+
+/* Render depth at the candidate's pose at low resolution and compare it with
+ * what the frame measured, on surfaces the map has already seen measured.
+ * The bar adapts to how well the map currently explains good frames: a
+ * young map disagrees with every frame by tens of centimetres, a wrong pose
+ * disagrees by several times more than the frames admitted just before. */
+static bool pose_check(struct vlff_node *n, const struct candidate *c) {
+  const struct vlff_config *cfg = &n->cfg;
+  if (vlff_kfstore_count(n->store) < cfg->keyframes.start_after ||
+      vlff_field_steps(n->field) < cfg->keyframes.posecheck_min_steps)
+    return true;
+  enum { S = 4 };
+  int w = c->view.width / S, h = c->view.height / S;
+  if (w < 4 || h < 4) return true;
+  size_t px = (size_t)w * h;
+  float *rd = malloc(px * sizeof(float)), *md = malloc(px * sizeof(float));
+  int *lab = malloc(px * sizeof(int));
+  unsigned char *hit = malloc(px);
+  bool ok = true;
+  if (rd && md && lab && hit) {
+    struct vlff_view cam = c->view;
+    cam.width = w;
+    cam.height = h;
+    cam.fx /= S, cam.fy /= S, cam.cx /= S, cam.cy /= S;
+    if (vlff_field_render(n->field, &cam, NULL, rd, NULL, lab, NULL) == 0) {
+      for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+          size_t i = (size_t)y * w + x;
+          md[i] = c->view.depth[(size_t)(y * S + S / 2) * c->view.width + x * S + S / 2];
+          double d = rd[i], wp[3];
+          vlff_unproject(cam.c2w, cam.fx, cam.fy, cam.cx, cam.cy, x + 0.5, y + 0.5, d, wp);
+          hit[i] = lab[i] >= 0 && isfinite(d) && vlff_publisher_surface_known(n->pub, wp);
+        }
+      struct vlff_pose_evidence ev;
+      double med_r = 0, med_i = 0;
+      int k = n->n_accepted < KF_HISTORY ? n->n_accepted : KF_HISTORY;
+      if (k >= 4) {
+        float tr[KF_HISTORY], ti[KF_HISTORY];
+        memcpy(tr, n->accepted_res, (size_t)k * sizeof tr[0]);
+        memcpy(ti, n->accepted_inl, (size_t)k * sizeof ti[0]);
+        med_r = vlff_medianf(tr, (size_t)k), med_i = vlff_medianf(ti, (size_t)k);
+      }
+      enum vlff_posecheck v = vlff_pose_evidence(rd, hit, md, px, 0.15, cfg->keyframes.bad_pose_threshold_m,
+                                                 cfg->train.depth_noise_m, &ev);
+      if (v != VLFF_POSE_UNKNOWN) v = vlff_pose_verdict(&ev, med_r, med_i);
+      pthread_mutex_lock(&n->slock);
+      n->st.last_pose_residual_m = ev.residual_m;
+      pthread_mutex_unlock(&n->slock);
+      if (v == VLFF_POSE_BAD) {
+        vlff_warn_limited(&n->warned.kf_rejected, TAG,
+                  "keyframe %lld rejected: depth residual %.3f m, %.2f of what a good frame shows at its ranges, "
+                  "with %.0f %% inliers (recent good: %.2f, %.0f %%)",
+                  c->id, ev.residual_m, ev.residual, 100 * ev.inlier_frac, med_r, 100 * med_i);
+        ok = false;
+      } else if (v == VLFF_POSE_OK) {
+        VLFF_DEBUG(TAG, "keyframe %lld pose ok: depth residual %.3f m (%.2f scaled), %.0f %% inliers", c->id,
+                   ev.residual_m, ev.residual, 100 * ev.inlier_frac);
+        n->accepted_res[n->n_accepted % KF_HISTORY] = (float)ev.residual;
+        n->accepted_inl[n->n_accepted % KF_HISTORY] = (float)ev.inlier_frac;
+        n->n_accepted++;
+      }
+    }
+  }
+  VLFF_FREE_ALL(rd, md, lab, hit);
+  return ok;
+}
+
+static void take_candidates(struct vlff_node *n, bool wait) {
+  struct candidate *batch[QUEUE_CAP];
+  int nb;
+  pthread_mutex_lock(&n->qlock);
+  if (wait && n->qlen == 0) {
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    ts.tv_nsec += 20 * 1000 * 1000;
+    if (ts.tv_nsec >= 1000000000) ts.tv_sec++, ts.tv_nsec -= 1000000000;
+    pthread_cond_timedwait(&n->qcond, &n->qlock, &ts);
+  }
+  nb = n->qlen;
+  memcpy(batch, n->queue, (size_t)nb * sizeof batch[0]);
+  n->qlen = 0;
+  pthread_mutex_unlock(&n->qlock);
+  for (int i = 0; i < nb; i++) {
+    struct candidate *c = batch[i];
+    char verr[256];
+    if (n->mapping && vlff_publisher_check_view(n->pub, &c->view, verr, sizeof verr)) {
+      /* Implausible intrinsics or pose would make every ray of this view
+       * wrong (and, unbounded, endless): never train on or map it. */
+      vlff_warn_limited(&n->warned.kf_refused, TAG, "keyframe %lld refused (intrinsics at train.image_scale): %s",
+                        c->id, verr);
+      /* Counted under its reason like the ingest's refusals, which hold
+       * frames to the same bounds at full size. */
+      const struct vlff_view *v = &c->view;
+      int reason = vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, NULL, 0)
+                       ? VLFF_REFUSED_BAD_INTRINSICS
+                       : VLFF_REFUSED_POSE_RANGE;
+      pthread_mutex_lock(&n->slock);
+      n->st.frames_invalid++;
+      n->st.refused[reason]++;
+      n->st.last_refusal = reason;
+      pthread_mutex_unlock(&n->slock);
+    } else if (n->mapping) {
+      if (!pose_check(n, c)) {
+        STAT_ADD(n, poses_rejected, 1);
+      } else {
+        struct vlff_keyframe_in kin = {.id = c->id, .t_ns = (long long)c->t_host_ns, .view = c->view,
+                                       .feature_dim = n->cfg.field.feature_dim};
+        if (vlff_kfstore_add(n->store, &kin) == 0) {
+          /* The view passed the same check just above: these cannot refuse it. */
+          if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
+            vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id, verr, sizeof verr);
+          if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
+        } else {
+          vlff_warn_limited(&n->warned.kf_store, TAG, "keyframe %lld does not fit the keyframe store: %s", c->id,
+                            strerror(errno));
+        }
+      }
+    }
+    candidate_free(c);
+  }
+}
+
+void do_publish(struct vlff_node *n) {
+  char err[256];
+  struct vlff_publish_result r;
+  const char *texts[VLFF_MAX_PROMPTS];
+  for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
+  double t0 = vlff_seconds();
+  if (vlff_publisher_publish(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
+    vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
+    return;
+  }
+  VLFF_DEBUG(TAG, "published map v%llu in %.0f ms: %zu labelled, %zu free, %zu unknown voxels",
+             (unsigned long long)r.version, (vlff_seconds() - t0) * 1e3, r.labelled, r.free_voxels, r.unknown);
+  uint64_t now = vlff_shm_now_ns();
+  for (int i = 0; i < n->pending_lat; i++) {
+    double ms = (double)(now - n->pending_t_host[i]) * 1e-6;
+    n->lat_ms[n->lat_n++ % LAT_CAP] = ms;
+  }
+  n->pending_lat = 0;
+  int cnt = n->lat_n < LAT_CAP ? n->lat_n : LAT_CAP;
+  double p50 = -1, p99 = -1;
+  if (cnt > 0) {
+    double *tmp = malloc((size_t)cnt * sizeof(double));
+    if (tmp) {
+      memcpy(tmp, n->lat_ms, (size_t)cnt * sizeof(double));
+      for (int i = 1; i < cnt; i++) /* insertion sort: cnt is small */
+        for (int j = i; j > 0 && tmp[j - 1] > tmp[j]; j--) {
+          double t = tmp[j];
+          tmp[j] = tmp[j - 1];
+          tmp[j - 1] = t;
+        }
+      p50 = tmp[cnt / 2];
+      p99 = tmp[(int)floor(0.99 * (cnt - 1))];
+      free(tmp);
+    }
+  }
+  pthread_mutex_lock(&n->slock);
+  n->st.map_version = r.version;
+  n->st.miou2d = r.miou2d;
+  n->st.miou2d_frame = r.miou2d_frame;
+  n->st.miou3d = r.miou3d;
+  n->st.frame_to_map_ms_p50 = p50;
+  n->st.frame_to_map_ms_p99 = p99;
+  pthread_mutex_unlock(&n->slock);
+}
+
+/* The young-field schedules, both keyed on the field's step count. */
+static void apply_warmup(struct vlff_node *n) {
+  /* A young field learns faster from more, cheaper steps: a quarter
+   * of the batch at first, growing geometrically to all of it. Not for
+   * a field resumed from a checkpoint, however young: its keyframes are
+   * gone, and many small steps on its first few new ones would pull the
+   * shared MLPs toward those views and away from the rest of the map
+   * (the end-to-end kill -9 test saw 3D mIoU fall from 23 to 4). */
+  const struct vlff_config *cfg = &n->cfg;
+  int warm = cfg->train.warmup_steps, full = cfg->train.rays_per_step;
+  long long steps = vlff_field_steps(n->field);
+  if (warm > 0 && !n->resumed) {
+    double fr = fmin(1.0, (double)steps / warm);
+    vlff_field_set_rays(n->field, (int)lround(full / 4.0 * pow(4.0, fr)));
+  }
+  /* Coarse to fine: the coarse levels, shared by many samples, fit a
+   * new view's layout in fewer steps, and the finer ones, cheaper to
+   * leave out, add detail once it is there. Keyed on the field's own
+   * step, so a field resumed young goes on where it stopped rather than
+   * switching its untrained fine levels on at once. */
+  int l0 = cfg->train.warmup_levels, lw = cfg->train.warmup_level_steps, levels = cfg->field.hash_levels;
+  if (l0 > 0 && l0 < levels && lw > 0 && steps <= lw)
+    vlff_field_set_levels(n->field, l0 + (int)((levels - l0) * steps / lw));
+}
+
+void *trainer_main(void *arg) {
+  pthread_setname_np(pthread_self(), "vlff-trainer"); /* as ingest_main's */
+  struct vlff_node *n = arg;
+  const struct vlff_config *cfg = &n->cfg;
+  double next_publish = vlff_seconds() + 1.0 / cfg->publish.rate_hz;
+  double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
+  uint64_t mailbox_seq = 0;
+  struct rate_meter steps = {vlff_seconds(), 0};
+  double status_s = -INFINITY;
+  /* A resumed map is published before it trains on anything new, so
+   * controllers have it back at once. */
+  bool first = n->resumed;
+  if (first) apply_warmup(n);
+  /* The first step scans: a resumed field's values may be within the bounds
+   * and still overflow together from its first update on. */
+  n->scanned_step = -FIELD_SCAN_STEPS;
+  while (!atomic_load(&n->stop)) {
+    atomic_store(&n->trainer_beat_ns, vlff_shm_now_ns());
+    bool publish_now = first;
+    first = false;
+    run_commands(n, &publish_now);
+    poll_mailbox(n, &mailbox_seq, &publish_now);
+    bool train = n->mapping && vlff_kfstore_count(n->store) >= cfg->keyframes.start_after;
+    take_candidates(n, !train);
+    if (train) {
+      const struct vlff_view *views;
+      const float *w;
+      int nv = vlff_kfstore_views(n->store, cfg->keyframes.recent, &views, &w);
+      apply_warmup(n);
+      struct vlff_train_stats ts;
+      char err[256];
+      int rc = vlff_field_step(n->field, views, nv, w, &ts, err, sizeof err);
+      if (rc == 0) {
+        n->nonfinite_run = 0;
+        /* Values can run out of bounds while every loss stays finite (a forged
+         * checkpoint's weights of 1e6 drove Adam's m to 2e10 with a loss of
+         * 1e29): the field is scanned every FIELD_SCAN_STEPS steps, a pass
+         * over its parameters and moments, not only before a checkpoint. */
+        if (ts.step - n->scanned_step >= FIELD_SCAN_STEPS) {
+          char why[256];
+          n->scanned_step = ts.step;
+          if (vlff_field_check(n->field, why, sizeof why)) {
+            roll_back(n, why);
+            n->scanned_step = vlff_field_steps(n->field);
+            continue;
+          }
+        }
+        steps.count++;
+        pthread_mutex_lock(&n->slock);
+        n->st.iteration = ts.step;
+        n->st.loss = ts.loss;
+        n->st.loss_rgb = ts.loss_rgb;
+        n->st.loss_depth = ts.loss_depth;
+        n->st.loss_feat = ts.loss_feat;
+        n->st.psnr = ts.psnr;
+        pthread_mutex_unlock(&n->slock);
+      } else if (rc == -2) {
+        step_not_finite(n, err);
+      } else {
+        vlff_warn_limited(&n->warned.step_failed, TAG, "training step failed: %s", err);
+      }
+    }
+    double now = vlff_seconds();
+    rate_publish(&steps, now, n, &n->st.it_per_s);
+    /* An untrained field has nothing to say: readers see version 0 until
+     * the first step, and the heartbeat says the writer is alive. */
+    bool published = false;
+    if ((publish_now || now >= next_publish) && vlff_field_steps(n->field) > 0) {
+      do_publish(n);
+      published = true;
+      /* publish.rate_hz is an upper bound: publishing never takes more than
+       * a fifth of the trainer's time, or learning would stall behind it. */
+      double spent = vlff_seconds() - now;
+      next_publish = now + fmax(1.0 / cfg->publish.rate_hz, 5.0 * spent);
+    } else {
+      vlff_publisher_heartbeat(n->pub);
+    }
+    if (now >= next_ckpt) {
+      save_checkpoint(n);
+      next_ckpt = now + cfg->node.checkpoint_period_s;
+    }
+    update_state(n);
+    /* Controllers see the status as often as the heartbeat says "alive". */
+    if (published || now - status_s >= 0.1) {
+      share_status(n);
+      status_s = now;
+    }
+    if (cfg->node.run_seconds > 0 && now - n->t_start >= cfg->node.run_seconds) {
+      atomic_store(&n->finished, true);
+      break;
+    }
+  }
+  share_status(n); /* the counts the node stopped with */
+  return NULL;
+}
