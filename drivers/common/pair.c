@@ -58,7 +58,7 @@ struct vlff_pair {
   struct vlff_pair_stats st;
   bool paired;     /* a pair was matched: the streams are in step */
   uint64_t logged; /* drops warned of (vlff_warn_limited) */
-  char last_error[256];
+  char last_error[512]; /* as large as the messages it keeps */
 };
 
 static struct held *oldest(struct fifo *q) { return q->n ? &q->f[q->head] : NULL; }
