@@ -184,12 +184,12 @@ int rig_start(struct rig *r, char *err, size_t errlen) {
   return 0;
 }
 
-static void end(pid_t *pid, double *cpu_s) {
+static void end(pid_t *pid, double *cpu_s, double wait_s) {
   if (*pid <= 0) return;
   kill(*pid, SIGTERM);
   int st;
   struct rusage ru;
-  for (int i = 0; i < 200; i++) {
+  for (int i = 0; i < wait_s * 20; i++) {
     if (wait4(*pid, &st, WNOHANG, &ru) == *pid) goto reaped;
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
@@ -204,9 +204,11 @@ reaped:
 }
 
 void rig_stop(struct rig *r) {
-  end(&r->camd, &r->camd_cpu_s);
-  end(&r->scenecam, NULL);
-  end(&r->pose, NULL);
+  /* vlff-camd ends its loop pass first: releasing or reopening a camera
+   * that went away (rig_lose_range_camera) takes it many seconds */
+  end(&r->camd, &r->camd_cpu_s, 40);
+  end(&r->scenecam, NULL, 10);
+  end(&r->pose, NULL, 10);
 }
 
 static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
