@@ -209,11 +209,13 @@ static void match(struct vlff_pair *p) {
     if (dist(tc, td) <= tol) {
       const struct held *c2 = p->color.n > 1 ? &p->color.f[(p->color.head + 1) % HOLD] : NULL;
       const struct held *d2 = p->depth.n > 1 ? &p->depth.f[(p->depth.head + 1) % HOLD] : NULL;
-      /* Free-running frames more than a quarter period apart: the earlier
-       * one's stream may still send a frame nearer the later one (only a
-       * frame less than half a period after its predecessor could, which
-       * a camera starting up does send); wait for it. */
-      if (fr && 2 * dist(tc, td) > tol && (tc < td ? !c2 : !d2)) break;
+      /* Free-running frames: the earlier one's stream may still send a
+       * frame nearer the later one (a camera starting up sends its first
+       * frames off its period's grid, one 18 ms before the next in the e2e
+       * rig), so the pair waits for that successor, unless the later
+       * one's stream has moved on by two frames meanwhile (the earlier
+       * camera stopped). */
+      if (fr && (tc < td ? !c2 : !d2) && (tc < td ? p->depth.n : p->color.n) < 3) break;
       if (c2 && dist(when(&p->color, c2, fr), td) < dist(tc, td)) {
         drop_oldest(p, &p->color);
       } else if (d2 && dist(tc, when(&p->depth, d2, fr)) < dist(tc, td)) {

@@ -14,9 +14,9 @@
  *    time moved onto the host clock by its stream's smallest arrival delay
  *    over the latest 32 frames (frames without a device time: arrival), so
  *    that a frame delayed on its way (scheduling, the network) still pairs;
- *    frames more than a quarter period apart wait for the earlier one's
- *    successor, which could be nearer (a camera starting up sends frames
- *    closer than its period).
+ *    a pair waits for the earlier frame's successor, which could be nearer
+ *    (a camera starting up sends frames closer than its period), unless
+ *    the later frame's stream holds two more frames meanwhile.
  * The config check keeps pair_tolerance_s under half of either camera's
  * frame period, so at most one frame of each stream can qualify: frames are
  * never paired wrongly (and a camera running faster than configured still

@@ -275,8 +275,8 @@ static void test_free_running_phase_and_jitter(void **state) {
     dev_ns = td - clock + 1000 * MS; /* the range camera's clock: yet another origin */
     push_depth(k, td + 2 * MS + (k == 9 ? 30 * MS : 0));
   }
-  /* 12 ms is more than a quarter period: the last pair waits for the next
-   * colour frame, which could have been nearer */
+  /* the last pair waits for the next colour frame, which could have been
+   * nearer */
   assert_int_equal(vlff_pair_get_stats(pair)->pairs, 19);
   dev_ns = t0 + 20 * 33 * MS - clock;
   push_color(20, t0 + 20 * 33 * MS + 2 * MS);
@@ -320,7 +320,8 @@ static void test_free_running_nearest(void **state) {
  * the colour frames), 28 ms, then in step from 66 ms. Colour 1 (33 ms) is
  * 16 ms from the first range frame, within half a period, but its partner
  * is the one at 28 ms that comes next: the pair waits for it, and the
- * stray frame counts as start-up, not unmatched. Failed before (colour 1
+ * stray frame counts as start-up, not unmatched. (In the e2e rig the stray
+ * came 18 ms before the next range frame of a 5 Hz camera.) Failed before (colour 1
  * paired with the stray frame and the range frame at 28 ms was unmatched). */
 static void test_free_running_startup(void **state) {
   (void)state;
@@ -334,11 +335,38 @@ static void test_free_running_startup(void **state) {
     push_color(k, t0 + (uint64_t)k * 33 * MS);
     push_depth(k, t0 + (uint64_t)k * 33 * MS + MS);
   }
+  push_color(6, t0 + 6 * 33 * MS); /* the successor the last pair waits for */
   int first = -1;
   assert_int_equal(check_records(&first), 5);
   assert_int_equal(first, 1);
   const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
   assert_int_equal(st->startup_color, 1);
+  assert_int_equal(st->startup_depth, 1);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
+}
+
+/* The e2e rig's case: the range camera's stray first frame 3 ms before
+ * colour 1, its frame on the grid 1 ms after it. Close as the stray is,
+ * the pair waits for the range camera's next frame, the nearer one.
+ * Failed before (a pair under a quarter period was made at once: colour 1
+ * with the stray, and the true partner unmatched). */
+static void test_free_running_close_stray(void **state) {
+  (void)state;
+  free_run = true, dev_ns = 0;
+  const uint64_t t0 = 7000 * MS;
+  push_color(0, t0);
+  push_depth(0, t0 + 30 * MS); /* the stray */
+  push_color(1, t0 + 33 * MS);
+  push_depth(1, t0 + 34 * MS);
+  for (int k = 2; k < 6; k++) {
+    push_color(k, t0 + (uint64_t)k * 33 * MS);
+    push_depth(k, t0 + (uint64_t)k * 33 * MS + MS);
+  }
+  push_color(6, t0 + 6 * 33 * MS);
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 1);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
   assert_int_equal(st->startup_depth, 1);
   assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
 }
@@ -355,6 +383,7 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_free_running_phase_and_jitter, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_nearest, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_startup, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_free_running_close_stray, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
