@@ -87,6 +87,7 @@ struct scene {
   atomic_llong color_fills, depth_fills, bad_buffers, poses_sent;
   atomic_ullong last_depth_fill_ns; /* monotonic, when the range camera's latest fill began */
   ArvGvFakeCamera *gd;              /* the range camera, until SIGUSR1 */
+  long long last_pose_tick;         /* the colour camera's fill thread only; -1 before the first */
 };
 
 struct cam {
@@ -110,8 +111,7 @@ static long long tick_of_now(struct scene *sc, long long *tick) {
 
 /* The tick's pose, held through the tick: stamped at every pose period
  * (1 / POSE_HZ) from the tick's start until the next tick. */
-static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
-  if (sc->udp < 0) return;
+static void send_tick_poses(struct scene *sc, long long tick, const double c2w[16]) {
   const double t0 = (double)tick * (double)sc->period_us * 1e-6, period = (double)sc->period_us * 1e-6;
   double wxyz[4];
   vlff_pose_quaternion(c2w, wxyz);
@@ -123,6 +123,22 @@ static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
                     t0 + k * (1.0 / POSE_HZ), c2w[3], c2w[7], c2w[11], q[0], q[1], q[2], q[3]);
   if (sendto(sc->udp, msg, (size_t)len, 0, (struct sockaddr *)&sc->to, sizeof sc->to) == len)
     atomic_fetch_add(&sc->poses_sent, lines);
+}
+
+/* The poses of this tick, after those of ticks the colour camera skipped
+ * (a fill that starts late on a busy host waits for the next multiple of
+ * the period): a tracker's stream has no hole where the camera has one. */
+static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
+  if (sc->udp < 0) return;
+  if (sc->last_pose_tick >= 0 && tick - sc->last_pose_tick > 1 && tick - sc->last_pose_tick <= 10)
+    for (long long t = sc->last_pose_tick + 1; t < tick; t++) {
+      double m[16];
+      long long idx = (t - atomic_load(&sc->first_tick)) % sc->cfg->sim.frames;
+      vlff_sim_pose(sc->sim, idx < 0 ? idx + sc->cfg->sim.frames : idx, m);
+      send_tick_poses(sc, t, m);
+    }
+  send_tick_poses(sc, tick, c2w);
+  sc->last_pose_tick = tick;
 }
 
 static void fill(ArvBuffer *buffer, void *data, guint32 exposure_us, guint32 gain, ArvPixelFormat fmt) {
@@ -323,7 +339,7 @@ int main(int argc, char **argv) {
     fprintf(stderr, "%s\n", err);
     return 1;
   }
-  struct scene sc = {.cfg = &cfg, .udp = -1, .lock = PTHREAD_MUTEX_INITIALIZER};
+  struct scene sc = {.cfg = &cfg, .udp = -1, .lock = PTHREAD_MUTEX_INITIALIZER, .last_pose_tick = -1};
   atomic_init(&sc.first_tick, -1);
   sc.period_us = (uint64_t)llround(1e6 / cfg.sim.rate_hz);
   if (poses) {
