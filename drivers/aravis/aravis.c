@@ -38,6 +38,7 @@ struct vlff_arv {
   int w, h;
   size_t payload;
   uint64_t silent_since_ns;
+  bool gone; /* its control channel did not answer: closing skips the device */
   struct vlff_arv_stats st;
 };
 
@@ -254,7 +255,9 @@ fail:
 void vlff_arv_close(struct vlff_arv *a) {
   if (!a) return;
   if (a->cam) {
-    if (a->stream) arv_camera_stop_acquisition(a->cam, NULL);
+    /* Stopping a camera that is gone costs the GVCP retries of every
+     * register written (seconds) for nothing. */
+    if (a->stream && !a->gone && !atomic_load(&a->lost)) arv_camera_stop_acquisition(a->cam, NULL);
     if (a->lost_handler) g_signal_handler_disconnect(arv_camera_get_device(a->cam), a->lost_handler);
   }
   if (a->stream) g_object_unref(a->stream);
@@ -307,14 +310,20 @@ static const char *status_name(ArvBufferStatus s) {
   }
 }
 
-/* Is the camera still there? A register read goes over the control channel
- * and fails within the GVCP timeout when nobody answers. */
+/* Is the camera still there? One register read goes over the control
+ * channel and fails after Aravis' GVCP retries (5 of 500 ms) when nobody
+ * answers: the bootstrap's first register (the GigE Vision version, the
+ * GenCP version on USB3 Vision), which every device has. A feature read
+ * instead (the payload size) goes through several registers, each with
+ * its own retries: 10 s for a camera that is gone. */
 static bool probe(struct vlff_arv *a) {
   GError *e = NULL;
-  arv_camera_get_payload(a->cam, &e);
+  guint32 v = 0;
+  arv_device_read_register(arv_camera_get_device(a->cam), 0, &v, &e);
   if (e) {
     VLFF_WARN(TAG, "'%s' does not answer: %s", a->name, e->message);
     g_clear_error(&e);
+    a->gone = true;
     return false;
   }
   return true;

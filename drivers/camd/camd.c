@@ -129,7 +129,33 @@ struct slot {
   double backoff;
   uint64_t lost, reconnects, open_failures, incomplete, timeouts, triggers, trig_fail;
   bool ever_open;
+  uint64_t seen;          /* frames its pipeline took (committed or dropped) */
+  uint64_t last_frame_ns; /* when seen last grew, or the camera opened */
+  bool silent;            /* its silence was logged */
 };
+
+/* Frames the slot's pipeline has taken so far, kept or not. */
+static uint64_t slot_frames(const struct slot *s) {
+  const struct vlff_pipe_stats *ps = vlff_pipe_get_stats(s->pipe);
+  return ps->committed + ps->dropped_format + ps->dropped_short + ps->dropped_convert + ps->dropped_sink;
+}
+
+/* The range camera's settings travel as camera.* keys into the backend:
+ * its messages name them as the user wrote them, depth_camera.*. */
+static void name_depth_keys(char *msg, size_t len) {
+  char out[1024];
+  size_t k = 0;
+  for (const char *p = msg; *p && k + 1 < sizeof out;) {
+    if (!strncmp(p, "'camera.", 8) && k + 15 < sizeof out) {
+      memcpy(out + k, "'depth_camera.", 14);
+      k += 14, p += 8;
+    } else {
+      out[k++] = *p++;
+    }
+  }
+  out[k] = 0;
+  snprintf(msg, len, "%s", out);
+}
 
 /* Opens the camera when it is due; 1 open, 0 not (yet), -1 the camera
  * refuses its configuration (retrying will not help). */
@@ -139,9 +165,10 @@ static int slot_open(struct slot *s, const char *path) {
   uint64_t now = vlff_now_ns();
   if (now < s->next_try) return 0;
   s->cam = s->be->open(&s->camera, err, sizeof err);
+  if (!s->cam && strcmp(s->what, "camera")) name_depth_keys(err, sizeof err);
   if (!s->cam) {
     if (errno != ENODEV) {
-      fprintf(stderr, "%s: %s%s\n", path, strcmp(s->what, "camera") ? "depth camera: " : "", err);
+      fprintf(stderr, "%s: %s\n", path, err);
       return -1;
     }
     s->open_failures++;
@@ -158,6 +185,7 @@ static int slot_open(struct slot *s, const char *path) {
               (unsigned long long)s->reconnects);
   }
   s->ever_open = true;
+  s->last_frame_ns = vlff_now_ns();
   s->open_failures = 0;
   s->backoff = 0.1;
   return 1;
@@ -189,10 +217,83 @@ static void slot_grab(struct slot *s, int timeout_ms, const char *ring) {
   if (s->be->grab(s->cam, timeout_ms, s->pipe, s->sink, s->poses) >= 0) return;
   s->lost++;
   s->lost_at = vlff_now_ns();
-  slot_close(s);
+  /* said before closing: releasing a camera that is gone can take seconds */
   VLFF_ERROR(TAG, "%s '%s' lost (%llu so far); ring %s stays up, reconnecting", s->what, VLFF_Q(s->camera.device),
              (unsigned long long)s->lost, ring);
+  slot_close(s);
   s->next_try = vlff_now_ns() + (uint64_t)(s->backoff * 1e9);
+}
+
+/* A free-running camera that is open but sends nothing is said at once
+ * (the loss itself takes the control channel's timeouts to show, and the
+ * backend asks it after a second): after half a second, or three frame
+ * periods when longer, without a frame. With two cameras no pair forms
+ * meanwhile, and the node sees no frame either. */
+static void slot_watch(struct slot *s, const struct slot *other, uint64_t now, bool stalled) {
+  uint64_t seen = slot_frames(s);
+  /* stalled: this loop was held up (a lost camera's release or reopen
+   * blocks it for seconds), so the other camera's silence is camd's own */
+  if (stalled && seen == s->seen && s->cam) {
+    if (!s->silent) s->last_frame_ns = now;
+    return;
+  }
+  if (seen != s->seen || !s->cam) {
+    if (s->silent && s->cam)
+      VLFF_INFO(TAG, "%s '%s': frames again after %.1f s", s->what, VLFF_Q(s->camera.device),
+                (double)(now - s->last_frame_ns) * 1e-9);
+    s->seen = seen, s->silent = false;
+    if (s->cam) s->last_frame_ns = now;
+    return;
+  }
+  const double rate = s->camera.frame_rate, quiet = rate > 0 && 3 / rate > 0.5 ? 3 / rate : 0.5;
+  if (s->silent || s->camera.trigger != VLFF_TRIG_FREERUN || (double)(now - s->last_frame_ns) * 1e-9 < quiet)
+    return;
+  s->silent = true;
+  VLFF_WARN(TAG, "%s '%s': no frame for %.1f s although open%s", s->what, VLFF_Q(s->camera.device),
+             (double)(now - s->last_frame_ns) * 1e-9,
+             other ? (other->cam ? ": no pairs until it is back (the other camera streams)" : ": no pairs") : "");
+}
+
+/* The pairing's counts over the last report period, said when frames found
+ * no partner or pairs were lost (and once at the start): the exit line
+ * alone would hide a tolerance or a calibration that fails every pair. */
+#define PAIR_REPORT_S 10
+#define PAIR_FIRST_S 3
+struct pair_report {
+  uint64_t t_ns;
+  struct vlff_pair_stats last;
+  uint64_t color, depth;
+  bool first_done;
+};
+
+static void pair_report(struct pair_report *r, const struct vlff_pair *pair, const struct slot *slots,
+                        double pair_tolerance_s, uint64_t now) {
+  if (!r->t_ns) r->t_ns = now;
+  /* the first soon after the start: a pairing that fails every pair is
+   * said within seconds */
+  if (now - r->t_ns < (r->first_done ? PAIR_REPORT_S : PAIR_FIRST_S) * 1000000000ull) return;
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair), *o = &r->last;
+  uint64_t c = vlff_pipe_get_stats(slots[0].pipe)->committed, d = vlff_pipe_get_stats(slots[1].pipe)->committed;
+  uint64_t pairs = st->pairs - o->pairs, um_c = st->unmatched_color - o->unmatched_color,
+           um_d = st->unmatched_depth - o->unmatched_depth, drop = st->dropped - o->dropped,
+           nc = c - r->color, nd = d - r->depth;
+  double secs = (double)(now - r->t_ns) * 1e-9;
+  double skew = pairs ? (double)(st->skew_sum_ns - o->skew_sum_ns) / (double)pairs * 1e-6 : 0;
+  bool bad = um_c + um_d + drop > 0 || (!pairs && nc && nd);
+  if (bad || !r->first_done) {
+    enum vlff_log_level lv = !pairs && (nc || nd) ? VLFF_LOG_ERROR : bad ? VLFF_LOG_WARN : VLFF_LOG_INFO;
+    const char *why = vlff_pair_last_error(pair);
+    vlff_log(lv, TAG,
+             "pairing, last %.0f s: %llu pairs of %llu colour and %llu range frames, without a partner %llu colour "
+             "%llu range, %llu pairs dropped%s%s; skew mean %.1f ms, max so far %.1f ms (depth_camera.pair_tolerance_s "
+             "%g s holds trigger-stamped pairs, free-running ones pair within half a frame period)",
+             secs, (unsigned long long)pairs, (unsigned long long)nc, (unsigned long long)nd,
+             (unsigned long long)um_c, (unsigned long long)um_d, (unsigned long long)drop,
+             drop && why[0] ? ": " : "", drop ? why : "", skew, (double)st->skew_max_ns * 1e-6,
+             pair_tolerance_s);
+  }
+  r->first_done = true;
+  r->last = *st, r->color = c, r->depth = d, r->t_ns = now;
 }
 
 static const struct vlff_cli cli = {
@@ -401,6 +502,8 @@ static int run(struct camd *d) {
   struct vlff_service svc;
   vlff_service_ready(&svc);
   uint64_t t0 = vlff_now_ns();
+  struct pair_report report = {0};
+  uint64_t last_pass = vlff_now_ns();
   while (!stop_req) {
     if (vlff_service_watchdog_due(&svc, vlff_now_ns())) vlff_service_watchdog();
     if (d->max_seconds > 0 && (double)(vlff_now_ns() - t0) * 1e-9 >= d->max_seconds) break;
@@ -429,6 +532,12 @@ static int run(struct camd *d) {
     /* Each camera's stream fills its buffers in the background: a short
      * wait per camera keeps both drained. */
     for (int i = 0; i < d->nslots; i++) slot_grab(&d->slots[i], 20 / d->nslots, d->cfg.shm.ring);
+    uint64_t now = vlff_now_ns();
+    const bool stalled = now - last_pass > 250000000u;
+    last_pass = now;
+    for (int i = 0; i < d->nslots; i++)
+      slot_watch(&d->slots[i], d->nslots == 2 ? &d->slots[1 - i] : NULL, now, stalled);
+    if (d->pair) pair_report(&report, d->pair, d->slots, d->cfg.depth_camera.pair_tolerance_s, now);
   }
   vlff_service_stopping();
   for (int i = 0; i < d->nslots; i++) slot_close(&d->slots[i]);

@@ -29,12 +29,21 @@ struct held {
   size_t cap;
 };
 
+/* Frames whose device clock maps each arrival back to its exposure: the
+ * least-delayed of the last OFFSETS frames gives the device-to-host offset
+ * (the delay's floor), so a frame delayed in the scene server, the network
+ * or the host's scheduler keeps its device time on the host clock. */
+#define OFFSETS 32
+
 struct fifo {
   struct held f[HOLD];
   int head, n;
   bool reserved;
   bool started;      /* a frame of this stream was committed */
   uint64_t first_ns; /* the first one's time */
+  int64_t off[OFFSETS]; /* host_ns - device_ns of the latest frames */
+  int noff, off_next;
+  uint64_t last_ns;  /* the newest frame's host time */
 };
 
 struct vlff_pair {
@@ -44,9 +53,12 @@ struct vlff_pair {
   struct vlff_depthreg *reg;
   int reg_dw, reg_dh, reg_cw, reg_ch;
   int out_w, out_h; /* the record's size, 0 x 0 = the colour frames' */
-  uint64_t tol_ns;
+  uint64_t tol_ns;      /* depth_camera.pair_tolerance_s: trigger-stamped pairs */
+  uint64_t free_tol_ns; /* free-running pairs: under half the faster camera's period */
   struct vlff_pair_stats st;
+  bool paired;     /* a pair was matched: the streams are in step */
   uint64_t logged; /* drops warned of (vlff_warn_limited) */
+  char last_error[512]; /* as large as the messages it keeps */
 };
 
 static struct held *oldest(struct fifo *q) { return q->n ? &q->f[q->head] : NULL; }
@@ -55,13 +67,17 @@ static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
 /* Drops q's oldest frame, which found no partner in the other stream. It
  * is counted as a start-up frame when the other stream had not begun
  * (nothing from it yet, or its first frame came more than the tolerance
- * after this one: no frame of it could have been this one's partner), as
- * unmatched otherwise. */
+ * after this one: no frame of it could have been this one's partner) or no
+ * pair was made yet (a camera's first frames after it starts streaming
+ * need not keep its period: Aravis' fake camera sends its first at once,
+ * off the grid of the later ones), as unmatched otherwise. */
 static void drop_oldest(struct vlff_pair *p, struct fifo *q) {
   const bool color = q == &p->color;
   const struct fifo *other = color ? &p->depth : &p->color;
-  const uint64_t t = oldest(q)->meta.host_ns;
-  if (!other->started || t + p->tol_ns < other->first_ns)
+  const struct held *h = oldest(q);
+  const uint64_t t = h->meta.host_ns;
+  const uint64_t tol = !h->meta.trigger_stamped && p->free_tol_ns > p->tol_ns ? p->free_tol_ns : p->tol_ns;
+  if (!p->paired || !other->started || t + tol < other->first_ns)
     (*(color ? &p->st.startup_color : &p->st.startup_depth))++;
   else
     (*(color ? &p->st.unmatched_color : &p->st.unmatched_depth))++;
@@ -85,6 +101,14 @@ static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, size_t byt
   return h;
 }
 
+/* A pair lost on the way out: counted, its reason kept for camd's
+ * periodic report and warned of (rate-limited). */
+static void lost_pair(struct vlff_pair *p, const char *why) {
+  p->st.dropped++;
+  snprintf(p->last_error, sizeof p->last_error, "%s", why);
+  vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", why);
+}
+
 static void emit(struct vlff_pair *p, const struct held *c, const struct held *d) {
   const struct vlff_sink_frame *cm = &c->meta, *dm = &d->meta;
   char err[512];
@@ -95,8 +119,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
                                sizeof err);
     p->reg_dw = dm->width, p->reg_dh = dm->height, p->reg_cw = cm->width, p->reg_ch = cm->height;
     if (!p->reg) {
-      p->st.dropped++;
-      vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
+      lost_pair(p, err);
       return;
     }
   }
@@ -106,8 +129,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   struct vlff_sink_frame f = {.width = ow, .height = oh, .color_format = VLFF_PIX_RGB8,
                               .depth_format = VLFF_DEPTH_FMT_U16_MM};
   if (p->out->reserve(p->out, &f, err, sizeof err)) {
-    p->st.dropped++;
-    vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
+    lost_pair(p, err);
     return;
   }
   /* At another size the colour plane is resampled to the registration's
@@ -119,15 +141,13 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   } else if (vlff_cv_resize_rgb(c->px, (size_t)cm->width * 3, cm->width, cm->height, f.color, f.color_stride, ow,
                                 oh, err, sizeof err)) {
     p->out->abort(p->out, &f);
-    p->st.dropped++;
-    vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
+    lost_pair(p, err);
     return;
   }
   if (vlff_depthreg_apply(p->reg, d->px, (size_t)dm->width * 2, 0.001, f.depth, f.depth_stride, err, sizeof err) <
       0) {
     p->out->abort(p->out, &f);
-    p->st.dropped++;
-    vlff_warn_limited(&p->logged, TAG, "pair dropped: %s", err);
+    lost_pair(p, err);
     return;
   }
   f.device_frame_id = cm->device_frame_id;
@@ -140,8 +160,7 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
   memcpy(f.pose, cm->pose, sizeof f.pose);
   f.pose_ns = cm->pose_ns;
   if (p->out->commit(p->out, &f)) {
-    p->st.dropped++;
-    vlff_warn_limited(&p->logged, TAG, "pair dropped: the output refused the commit");
+    lost_pair(p, "the output refused the commit");
     return;
   }
   p->st.pairs++;
@@ -149,23 +168,64 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
 
 static uint64_t dist(uint64_t a, uint64_t b) { return a > b ? a - b : b - a; }
 
+/* The device-to-host offset of q's stream: the smallest host - device of the
+ * latest frames; a jump of more than a second (the camera's clock reset, a
+ * reconnect) starts the window afresh. */
+static void track_offset(struct fifo *q, const struct vlff_sink_frame *f) {
+  if (!f->device_ns || f->trigger_stamped) return;
+  int64_t o = (int64_t)(f->host_ns - f->device_ns), lo = INT64_MAX;
+  for (int i = 0; i < q->noff; i++) lo = q->off[i] < lo ? q->off[i] : lo;
+  if (q->noff && (o < lo - 1000000000ll || o > lo + 1000000000ll)) q->noff = 0, q->off_next = 0;
+  q->off[q->off_next] = o;
+  q->off_next = (q->off_next + 1) % OFFSETS;
+  if (q->noff < OFFSETS) q->noff++;
+}
+
+/* A held frame's time for matching against a frame of the other stream:
+ * both free-running (arrival-stamped), the device time on the host clock
+ * when the camera stamps its frames; else the host stamp. */
+static uint64_t when(const struct fifo *q, const struct held *h, bool free_pair) {
+  if (!free_pair || !h->meta.device_ns || !q->noff) return h->meta.host_ns;
+  int64_t lo = INT64_MAX;
+  for (int i = 0; i < q->noff; i++) lo = q->off[i] < lo ? q->off[i] : lo;
+  uint64_t t = h->meta.device_ns + (uint64_t)lo;
+  return t <= h->meta.host_ns ? t : h->meta.host_ns;
+}
+
 /* Frames arrive in time order per stream, so an oldest frame more than the
  * tolerance before the other stream's oldest can never be paired. Within the
  * tolerance the pair must also be mutually nearest among the frames held: a
  * camera running faster than configured can put two frames near one of the
- * other's, and only the nearer is its partner. */
+ * other's, and only the nearer is its partner. Two free-running frames
+ * (neither stamped by a trigger) pair within just under half the faster
+ * camera's period: free-running cameras keep an arbitrary phase between
+ * them, and mutual nearness alone keeps each frame to its one partner. */
 static void match(struct vlff_pair *p) {
   struct held *c, *d;
   while ((c = oldest(&p->color)) && (d = oldest(&p->depth))) {
-    uint64_t tc = c->meta.host_ns, td = d->meta.host_ns;
-    if (dist(tc, td) <= p->tol_ns) {
+    const bool fr = !c->meta.trigger_stamped && !d->meta.trigger_stamped;
+    const uint64_t tol = fr && p->free_tol_ns > p->tol_ns ? p->free_tol_ns : p->tol_ns;
+    uint64_t tc = when(&p->color, c, fr), td = when(&p->depth, d, fr);
+    if (dist(tc, td) <= tol) {
       const struct held *c2 = p->color.n > 1 ? &p->color.f[(p->color.head + 1) % HOLD] : NULL;
       const struct held *d2 = p->depth.n > 1 ? &p->depth.f[(p->depth.head + 1) % HOLD] : NULL;
-      if (c2 && dist(c2->meta.host_ns, td) < dist(tc, td)) {
+      /* Free-running frames: the earlier one's stream may still send a
+       * frame nearer the later one (a camera starting up sends its first
+       * frames off its period's grid, one 18 ms before the next in the e2e
+       * rig), so the pair waits for that successor, unless the later
+       * one's stream has moved on by two frames meanwhile (the earlier
+       * camera stopped). */
+      if (fr && (tc < td ? !c2 : !d2) && (tc < td ? p->depth.n : p->color.n) < 3) break;
+      if (c2 && dist(when(&p->color, c2, fr), td) < dist(tc, td)) {
         drop_oldest(p, &p->color);
-      } else if (d2 && dist(tc, d2->meta.host_ns) < dist(tc, td)) {
+      } else if (d2 && dist(tc, when(&p->depth, d2, fr)) < dist(tc, td)) {
         drop_oldest(p, &p->depth);
       } else {
+        uint64_t skew = dist(tc, td);
+        p->st.skew_sum_ns += skew;
+        if (skew > p->st.skew_max_ns) p->st.skew_max_ns = skew;
+        if (fr) p->st.free_pairs++;
+        p->paired = true;
         emit(p, c, d);
         pop(&p->color), pop(&p->depth);
       }
@@ -213,6 +273,8 @@ static int commit_to(struct vlff_pair *p, struct fifo *q, struct vlff_sink_frame
   h->meta = *f;
   q->reserved = false;
   if (!q->started) q->started = true, q->first_ns = f->host_ns;
+  q->last_ns = f->host_ns;
+  track_offset(q, f);
   q->n++;
   match(p);
   return 0;
@@ -265,6 +327,8 @@ struct vlff_pair *vlff_pair_new(const struct vlff_cfg_depth_camera *dcam, const 
   p->out_w = d->register_width, p->out_h = d->register_height;
   p->out = out;
   p->tol_ns = (uint64_t)(dcam->pair_tolerance_s * 1e9);
+  const double rate = cam->frame_rate > dcam->frame_rate ? cam->frame_rate : dcam->frame_rate;
+  p->free_tol_ns = rate > 0 ? (uint64_t)(0.5e9 / rate) - 1 : p->tol_ns;
   p->color_sink = (struct vlff_sink){color_reserve, color_commit, color_abort, p};
   p->depth_sink = (struct vlff_sink){depth_reserve, depth_commit, depth_abort, p};
   return p;
@@ -280,3 +344,5 @@ void vlff_pair_free(struct vlff_pair *p) {
 struct vlff_sink *vlff_pair_color_sink(struct vlff_pair *p) { return &p->color_sink; }
 struct vlff_sink *vlff_pair_depth_sink(struct vlff_pair *p) { return &p->depth_sink; }
 const struct vlff_pair_stats *vlff_pair_get_stats(const struct vlff_pair *p) { return &p->st; }
+const char *vlff_pair_last_error(const struct vlff_pair *p) { return p->last_error; }
+uint64_t vlff_pair_last_ns(const struct vlff_pair *p, int depth) { return depth ? p->depth.last_ns : p->color.last_ns; }

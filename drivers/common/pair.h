@@ -4,16 +4,25 @@
  *
  * The colour camera's pipeline delivers into vlff_pair_color_sink, the range
  * camera's into vlff_pair_depth_sink; each keeps a few frames. A colour and
- * a range frame are paired when their host timestamps (the trigger stamp
- * when the pipelines stamp frames from a GPIO trigger, else the arrival
- * time) lie within depth_camera.pair_tolerance_s of each other and each is
- * the other's nearest among the frames held. The config check keeps that
- * tolerance under half of either camera's frame period, so at most one frame
- * of each stream can qualify: frames are never paired wrongly (and a camera
- * running faster than configured still gets its nearer frame paired), and
- * the oldest frame of either queue that can no longer find a
- * partner (the other stream is already past it by more than the tolerance,
- * or its queue overflowed) is dropped and counted.
+ * a range frame are paired when each is the other's nearest among the
+ * frames held and their times lie within the tolerance of each other:
+ *  - either frame stamped from a GPIO trigger (trigger_stamped): the host
+ *    stamps, within depth_camera.pair_tolerance_s;
+ *  - both free-running (arrival-stamped): within just under half the faster
+ *    camera's configured frame period, whatever pair_tolerance_s says (free
+ *    cameras keep an arbitrary phase between them), on each frame's device
+ *    time moved onto the host clock by its stream's smallest arrival delay
+ *    over the latest 32 frames (frames without a device time: arrival), so
+ *    that a frame delayed on its way (scheduling, the network) still pairs;
+ *    a pair waits for the earlier frame's successor, which could be nearer
+ *    (a camera starting up sends frames closer than its period), unless
+ *    the later frame's stream holds two more frames meanwhile.
+ * The config check keeps pair_tolerance_s under half of either camera's
+ * frame period, so at most one frame of each stream can qualify: frames are
+ * never paired wrongly (and a camera running faster than configured still
+ * gets its nearer frame paired), and the oldest frame of either queue that
+ * can no longer find a partner (the other stream is already past it by more
+ * than the tolerance, or its queue overflowed) is dropped and counted.
  *
  * A pair is written into the output sink: the colour frame's pixels,
  * timestamps, ids and pose, the range image registered into the colour
@@ -46,7 +55,8 @@
 /* A frame dropped without a partner is counted once, as a start-up frame
  * when the other stream had not begun yet (no frame of it so far, or its
  * first frame more than the tolerance after this one: one camera opens and
- * streams before the other), else as unmatched: both were streaming and
+ * streams before the other) or no pair was made yet (a camera's first
+ * frames need not keep its period), else as unmatched: both were streaming and
  * this frame's partner never came (a frame lost or late on the other side,
  * the other camera lost and reconnecting, a free-running colour camera
  * beside a triggered range camera). */
@@ -57,6 +67,8 @@ struct vlff_pair_stats {
   uint64_t startup_color;    /* colour frames dropped before the range camera's first frame */
   uint64_t startup_depth;    /* range frames dropped before the colour camera's first frame */
   uint64_t dropped;          /* pairs lost: output sink full, registration impossible */
+  uint64_t free_pairs;       /* pairs of two free-running frames (the wider tolerance) */
+  uint64_t skew_sum_ns, skew_max_ns; /* the pairs' time differences, as matched */
 };
 
 struct vlff_pair;
@@ -68,5 +80,10 @@ void vlff_pair_free(struct vlff_pair *p);
 struct vlff_sink *vlff_pair_color_sink(struct vlff_pair *p);
 struct vlff_sink *vlff_pair_depth_sink(struct vlff_pair *p);
 const struct vlff_pair_stats *vlff_pair_get_stats(const struct vlff_pair *p);
+/* Why the latest pair was dropped ("" before any): camd's report says it. */
+const char *vlff_pair_last_error(const struct vlff_pair *p);
+/* The host time of the newest colour (depth 0) or range (1) frame committed
+ * to the pairing, 0 before the first. */
+uint64_t vlff_pair_last_ns(const struct vlff_pair *p, int depth);
 
 #endif

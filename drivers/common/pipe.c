@@ -450,6 +450,7 @@ int vlff_pipe_push(struct vlff_pipe *p, const struct vlff_raw_frame *raw, struct
     uint64_t t = vlff_stamps_match(p->stamps, raw->host_ns, p->stamp_window_ns);
     if (t) {
       f.host_ns = t;
+      f.trigger_stamped = true;
       p->st.trigger_stamped++;
     }
   }

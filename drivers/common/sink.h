@@ -43,6 +43,7 @@ struct vlff_sink_frame {
   /* In to commit(): */
   uint64_t device_frame_id;
   uint64_t device_ns, host_ns;
+  bool trigger_stamped;           /* host_ns is the trigger pulse's or edge's stamp, not the arrival */
   uint32_t sensor_id;
   double intrinsics[4];           /* fx fy cx cy; zeros = unknown */
   bool pose_valid;                /* false: no pose within tolerance, learner skips */

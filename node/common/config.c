@@ -181,7 +181,7 @@ static const struct key schema[] = {
 
     ENUM("source.kind", source.kind, source_kinds, "ring"),
     ENUM("source.features", source.features, feature_sources, "ring"),
-    DBL("source.pose_tolerance_s", source.pose_tolerance_s, 0, 10, 1.0 / 60),
+    DBL("source.pose_tolerance_s", source.pose_tolerance_s, 0, 10, 0.04),
     DBL("source.pose_wait_s", source.pose_wait_s, 0, 10, 0),
     BOOL("source.allow_sim_features", source.allow_sim_features, 0),
 

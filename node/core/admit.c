@@ -162,9 +162,7 @@ static void no_pose_detail(const struct vlff_config *cfg, struct vlff_ring *pose
     snprintf(why, len, "frame stamped %.6f s is newer than the newest pose in %s (%.3f s older): the pose source "
              "lags or stopped", (double)t_ns * 1e-9, cfg->shm.pose_ring, -dt);
   else
-    snprintf(why, len, "no two poses in %s bracket the frame's stamp %.6f s within source.pose_tolerance_s %g s "
-             "(newest pose %+.3f s from it): clocks apart, or poses sparser than the tolerance",
-             cfg->shm.pose_ring, (double)t_ns * 1e-9, cfg->source.pose_tolerance_s, dt);
+    vlff_pose_miss_hint(poses, cfg->shm.pose_ring, t_ns, cfg->source.pose_tolerance_s, why, len);
 }
 
 /* Stage 1: the record, its size, its colour format, its intrinsics. */

@@ -211,7 +211,7 @@ void update_state(struct vlff_node *n) {
   double now = vlff_seconds();
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
-  if (n->last_frame_s > 0 ? now - n->last_frame_s > 2.0 : now - n->t_start > 5.0) f |= VLFF_NODE_ERR_CAMERA_LOST;
+  if (vlff_frame_watch_lost(&n->fwatch, now, n->cfg.shm.ring)) f |= VLFF_NODE_ERR_CAMERA_LOST, n->st.fps_in = 0;
   if (n->last_frame_s > 0 && now - n->last_pose_ok_s > 2.0) f |= VLFF_NODE_ERR_POSE_STALE;
   if (n->last_lapped_s > 0 && now - n->last_lapped_s < 2.0) f |= VLFF_NODE_ERR_SHM_LAPPED;
   n->st.error_flags = f;

@@ -255,6 +255,7 @@ void *ingest_main(void *arg) {
     pthread_mutex_lock(&n->slock);
     n->st.frames_in++;
     n->last_frame_s = now;
+    vlff_frame_watch_frame(&n->fwatch, now);
     pthread_mutex_unlock(&n->slock);
     fps.count++;
     rate_publish(&fps, now, n, &n->st.fps_in);

@@ -62,6 +62,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->hooks = *hooks;
   n->mapping = true;
   n->t_start = vlff_seconds();
+  vlff_frame_watch_init(&n->fwatch, n->t_start);
   n->st.prompt_set = cfg->prompts.active;
   n->st.map_age_s = -1;
   n->st.miou2d = n->st.miou3d = -1;

@@ -40,7 +40,7 @@ enum vlff_node_state { /* CANopen NMT-like */
 };
 
 enum vlff_node_error_flags {
-  VLFF_NODE_ERR_CAMERA_LOST = 1u << 0, /* no frame for 2 s */
+  VLFF_NODE_ERR_CAMERA_LOST = 1u << 0, /* no frame for 3 frame intervals, at least 1 s (watch.h) */
   VLFF_NODE_ERR_POSE_STALE = 1u << 1,  /* recent frames lack a usable pose */
   VLFF_NODE_ERR_SHM_LAPPED = 1u << 2,  /* the ring lapped us recently */
   VLFF_NODE_ERR_CHECKPOINT = 1u << 3   /* the last checkpoint failed */

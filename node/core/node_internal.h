@@ -38,7 +38,7 @@
  *  - qlock guards queue and qlen (ingest pushes, trainer takes; qcond wakes
  *    the trainer). cmd_lock guards cmds and ncmds (any thread posts, the
  *    trainer takes). slock guards st and last_frame_s, last_pose_ok_s,
- *    last_lapped_s. Each is held for a short copy or update, never across
+ *    last_lapped_s, fwatch. Each is held for a short copy or update, never across
  *    work, and no two are ever held together.
  *  - stop, finished and the two beats are atomics, read and written by any
  *    thread without a lock.
@@ -61,6 +61,7 @@
 #include "publish.h"
 #include "select.h"
 #include "source.h"
+#include "watch.h"
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_VLM
 #include "image_encoder.h"
@@ -130,6 +131,7 @@ struct vlff_node {
   pthread_mutex_t slock;
   struct vlff_node_status st;
   double last_frame_s, last_pose_ok_s, last_lapped_s;
+  struct vlff_frame_watch fwatch; /* under slock */
 
   /* trainer-private */
   float *prompt_emb;           /* [k][D] */

@@ -3,6 +3,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <ftw.h>
 #include <signal.h>
 #include <stdio.h>
@@ -17,6 +18,7 @@
 
 #include "embeddings.h"
 #include "metrics.h"
+#include "node.h"
 #include "vlff/shm.h"
 
 int rig_netns_enter(int argc, char **argv) {
@@ -47,9 +49,34 @@ static int fail(char *err, size_t len, const char *what) {
   return -1;
 }
 
+/* The tolerances the project ships (rig.h): what a user who starts from the
+ * example configs runs. */
+static int shipped_tolerances(struct rig *r, char *err, size_t errlen) {
+  struct vlff_config *c = malloc(sizeof *c);
+  if (!c) return fail(err, errlen, "out of memory");
+  vlff_config_defaults(c);
+  r->pose_tol_s = c->source.pose_tolerance_s;
+  const char *files[] = {"default.yaml", "aravis-gige.yaml", "aravis-rgbd.yaml"};
+  for (int i = 0; i < 3; i++) {
+    char path[512], e[512];
+    snprintf(path, sizeof path, "%s/%s", VLFF_CONFIGS, files[i]);
+    if (vlff_config_load(path, c, e, sizeof e)) {
+      snprintf(err, errlen, "%s: %s", path, e);
+      free(c);
+      return -1;
+    }
+    r->pose_tol_s = fmin(r->pose_tol_s, c->source.pose_tolerance_s);
+    r->pair_tol_s = c->depth_camera.pair_tolerance_s; /* the RGB-D example's, read last */
+  }
+  free(c);
+  return 0;
+}
+
 int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   memset(r, 0, sizeof *r);
+  r->saved_stderr = -1;
   r->cameras = cameras;
+  if (shipped_tolerances(r, err, errlen)) return -1;
   snprintf(r->tag, sizeof r->tag, "rig%d-%d", (int)getpid(), cameras);
   snprintf(r->dir, sizeof r->dir, "/tmp/vlff-%s", r->tag);
   mkdir(r->dir, 0755);
@@ -58,6 +85,7 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   snprintf(r->camd_out, sizeof r->camd_out, "%s/camd.out", r->dir);
   snprintf(r->scenecam_out, sizeof r->scenecam_out, "%s/scenecam.out", r->dir);
   snprintf(r->pose_out, sizeof r->pose_out, "%s/pose.out", r->dir);
+  snprintf(r->node_log, sizeof r->node_log, "%s/node.log", r->dir);
   /* The sim first (its intrinsics go into the calibration), from the same
    * room settings the config below gives every process. */
   struct vlff_config c0;
@@ -89,10 +117,10 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   if (!f) return vlff_sim_destroy(s), fail(err, errlen, "cannot write the config");
   fprintf(f,
           "node:\n  state_dir: %s/state\n  log_level: warn\n"
-          "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: 0.25\n  pose_wait_s: 0.5\n"
-          /* vlff-scenecam sends each tick's pose at the tick's start, stamped
-           * at it and at 0.95 of the 200 ms tick: the second, ahead of the
-           * clock, is no clock error here. */
+          "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: %.17g\n  pose_wait_s: 0.5\n"
+          /* vlff-scenecam sends each tick's poses at the tick's start,
+           * stamped at every pose period through the 200 ms tick: the later
+           * ones, ahead of the clock, are no clock error here. */
           "pose:\n  future_tolerance_s: 0.25\n"
           "sim:\n  seed: 3\n  rate_hz: 5\n  width: %d\n  height: %d\n  frames: %d\n"
           "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
@@ -107,10 +135,10 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
           "camera:\n  kind: aravis\n  device: 127.0.0.1\n  pixel_format: RGB8\n  width: %d\n  height: %d\n"
           "  frame_rate: 5\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n  reconnect_max_s: 0.5\n"
           "depth_camera:\n  kind: aravis\n  device: 127.0.0.2\n  pixel_format: Mono16\n  width: %d\n  height: %d\n"
-          "  frame_rate: 5\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.09\n",
-          r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", W, H, RIG_FRAMES, r->tag, r->tag, r->tag, r->tag,
+          "  frame_rate: 5\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: %.17g\n",
+          r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", r->pose_tol_s, W, H, RIG_FRAMES, r->tag, r->tag, r->tag, r->tag,
           r->tag, cameras ? "  embeddings: " : "", cameras ? emb_path : "", cameras ? "\n" : "", W, H, W, H,
-          r->calib_path);
+          r->calib_path, r->pair_tol_s);
   fclose(f);
   if (vlff_config_load(r->cfg_path, &r->cfg, err, errlen)) return vlff_sim_destroy(s), -1;
   const struct vlff_prompt_set *set = &r->cfg.prompts.sets[r->cfg.prompts.active];
@@ -160,12 +188,12 @@ int rig_start(struct rig *r, char *err, size_t errlen) {
   return 0;
 }
 
-static void end(pid_t *pid, double *cpu_s) {
+static void end(pid_t *pid, double *cpu_s, double wait_s) {
   if (*pid <= 0) return;
   kill(*pid, SIGTERM);
   int st;
   struct rusage ru;
-  for (int i = 0; i < 200; i++) {
+  for (int i = 0; i < wait_s * 20; i++) {
     if (wait4(*pid, &st, WNOHANG, &ru) == *pid) goto reaped;
     struct timespec ts = {0, 50 * 1000 * 1000};
     nanosleep(&ts, NULL);
@@ -180,9 +208,11 @@ reaped:
 }
 
 void rig_stop(struct rig *r) {
-  end(&r->camd, &r->camd_cpu_s);
-  end(&r->scenecam, NULL);
-  end(&r->pose, NULL);
+  /* vlff-camd ends its loop pass first: releasing or reopening a camera
+   * that went away (rig_lose_range_camera) takes it many seconds */
+  end(&r->camd, &r->camd_cpu_s, 40);
+  end(&r->scenecam, NULL, 10);
+  end(&r->pose, NULL, 10);
 }
 
 static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ftw) {
@@ -191,6 +221,7 @@ static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ft
 }
 
 void rig_free(struct rig *r) {
+  rig_release_stderr(r);
   rig_stop(r);
   vlff_sim_points_free(&r->gt);
   if (!getenv("VLFF_RIG_KEEP")) nftw(r->dir, rm_one, 16, FTW_DEPTH | FTW_PHYS);
@@ -218,4 +249,55 @@ long long rig_camd_stat(const struct rig *r, const char *key) {
   }
   fclose(f);
   return v;
+}
+
+int rig_capture_stderr(struct rig *r, char *err, size_t errlen) {
+  fflush(stderr);
+  int fd = open(r->node_log, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
+  if (fd < 0) return fail(err, errlen, "cannot create the node's log file");
+  r->saved_stderr = dup(2);
+  if (r->saved_stderr < 0 || dup2(fd, 2) < 0) {
+    close(fd);
+    return fail(err, errlen, "cannot redirect stderr");
+  }
+  close(fd);
+  return 0;
+}
+
+void rig_release_stderr(struct rig *r) {
+  if (r->saved_stderr < 0) return;
+  fflush(stderr);
+  dup2(r->saved_stderr, 2);
+  close(r->saved_stderr);
+  r->saved_stderr = -1;
+  fputs(tk_slurp(r->node_log), stderr);
+}
+
+static double mono_s(void) { return (double)vlff_shm_now_ns() * 1e-9; }
+
+double rig_lose_range_camera(struct rig *r, struct vlff_node *n, double timeout_s, char *err, size_t errlen) {
+  static const char stopped[] = "range camera stopped, last fill at ";
+  size_t log_from = strlen(tk_slurp(r->node_log)); /* what the node said before does not count */
+  if (r->scenecam <= 0 || kill(r->scenecam, SIGUSR1)) return fail(err, errlen, "vlff-scenecam is not running"), -1;
+  double t0 = mono_s(), last = -1, t_status = -1, t_log = -1;
+  while (mono_s() - t0 < timeout_s && (last < 0 || t_status < 0 || t_log < 0)) {
+    struct timespec ts = {0, 20 * 1000 * 1000};
+    nanosleep(&ts, NULL);
+    if (last < 0) {
+      const char *p = strstr(tk_slurp(r->scenecam_out), stopped);
+      if (p) last = strtod(p + strlen(stopped), NULL);
+    }
+    struct vlff_node_status st;
+    vlff_node_status(n, &st);
+    if (t_status < 0 && (st.error_flags & VLFF_NODE_ERR_CAMERA_LOST) && st.fps_in == 0) t_status = mono_s();
+    const char *log = tk_slurp(r->node_log);
+    if (t_log < 0 && strlen(log) >= log_from && strstr(log + log_from, "no frame from ring")) t_log = mono_s();
+  }
+  if (last < 0 || t_status < 0 || t_log < 0) {
+    snprintf(err, errlen, "after %.0f s: %s%s%s", timeout_s, last < 0 ? "vlff-scenecam did not stop the range camera; " : "",
+             t_status < 0 ? "the node's status does not show the camera lost (CAMERA_LOST, 0 frames/s); " : "",
+             t_log < 0 ? "the node's log does not say 'no frame from ring'" : "");
+    return -1;
+  }
+  return fmax(t_status, t_log) - last;
 }

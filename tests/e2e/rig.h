@@ -12,6 +12,12 @@
  * rig_netns_enter() re-executes the program inside one (unshare + ip);
  * programs started afterwards inherit it.
  *
+ * The rig runs the shipped tolerances: source.pose_tolerance_s the smallest
+ * of the compiled-in default and configs/default.yaml, aravis-gige.yaml and
+ * aravis-rgbd.yaml (a larger tolerance finds every pose a smaller one
+ * finds), depth_camera.pair_tolerance_s that of configs/aravis-rgbd.yaml,
+ * against vlff-scenecam's 30 Hz pose stream.
+ *
  * Contract: functions returning int give 0, or -1 with a message in err.
  * rig_stop() ends and reaps every child the rig started; rig_free()
  * removes the rig's files and shared memory. Single-threaded use.
@@ -29,9 +35,13 @@
 /* Frames of the room's trajectory (looped by both sources). */
 #define RIG_FRAMES 150
 
+struct vlff_node;
+
 struct rig {
   char dir[256], tag[64], cfg_path[320], calib_path[320];
-  char camd_out[320], scenecam_out[320], pose_out[320];
+  char camd_out[320], scenecam_out[320], pose_out[320], node_log[320];
+  double pose_tol_s, pair_tol_s; /* the shipped tolerances the rig runs */
+  int saved_stderr;              /* rig_capture_stderr: the real stderr, else -1 */
   int cameras; /* 1: the camera rig, 0: the node's sim source */
   struct vlff_config cfg;
   struct vlff_sim_points gt;
@@ -54,6 +64,19 @@ void rig_free(struct rig *r);
 /* 3D mIoU (percent) of the published map at the room's labelled points,
  * read through libvlff-shm; -1 before the first publish. */
 double rig_miou3d(const struct rig *r, uint64_t *version);
+
+/* The node's log (this process's stderr) into r->node_log from now on,
+ * until rig_release_stderr, which copies what was captured to the real
+ * stderr. */
+int rig_capture_stderr(struct rig *r, char *err, size_t errlen);
+void rig_release_stderr(struct rig *r);
+
+/* Stops the range camera (vlff-scenecam's SIGUSR1) and waits up to
+ * timeout_s for the node to say so: its status (what --status shows) with
+ * VLFF_NODE_ERR_CAMERA_LOST and no frame rate, and its log (captured) with
+ * 'no frame from ring'. Returns the seconds from the range camera's last
+ * frame to the later of the two, -1 on timeout (err says which is missing). */
+double rig_lose_range_camera(struct rig *r, struct vlff_node *n, double timeout_s, char *err, size_t errlen);
 
 /* The value of key in vlff-camd's stats line (after rig_stop), or -1. */
 long long rig_camd_stat(const struct rig *r, const char *key);

@@ -13,12 +13,18 @@
  * Which sim frame is shown: Aravis' fake camera exposes a frame at every
  * multiple of its frame period on the wall clock, so both cameras, set to
  * the same rate, fill at the same ticks; each fill renders sim frame
- * (tick - first tick) mod sim.frames. The trajectory is held during a tick:
- * every tick's pose is sent stamped at the tick and again late in the tick,
- * so a frame stamped anywhere inside its tick (vlff-camd stamps arrival)
- * finds the pose its image was rendered from. The feature publisher maps a
+ * (tick - first tick) mod sim.frames. The trajectory is held during a tick,
+ * sent as a tracker at POSE_HZ would send it: the tick's pose stamped at
+ * every pose period within the tick, so a frame stamped inside its tick
+ * (vlff-camd stamps arrival) finds the pose its image was rendered from
+ * between two poses one pose period apart. The feature publisher maps a
  * record to its tick by the record's host stamp: the newest colour fill
  * at or before it.
+ *
+ * SIGUSR1 stops the range camera (its GigE Vision device goes away, as a
+ * camera unplugged or powered off) and says on stderr, as
+ * 'range camera stopped, last fill at T' (CLOCK_MONOTONIC seconds), when it
+ * began its last frame.
  *
  * Contract: runs until SIGINT/SIGTERM or --seconds; prints one summary line
  * on stderr at the end; exit 0, 1 on a setup error (a camera that cannot be
@@ -59,8 +65,11 @@ static const struct vlff_cli cli = {
     "  -h, --help            this text\n"
     "  -V, --version         the version\n"};
 
-static volatile sig_atomic_t stop;
+static volatile sig_atomic_t stop, stop_depth;
 static void on_signal(int sig) { (void)sig, stop = 1; }
+static void on_usr1(int sig) { (void)sig, stop_depth = 1; }
+
+#define POSE_HZ 30 /* the pose stream's rate: a common visual-inertial tracker's */
 
 #define TICKS 256 /* colour fills remembered for the feature publisher */
 
@@ -76,6 +85,9 @@ struct scene {
   long long fill_idx[TICKS]; /* its sim frame */
   long long nfills;
   atomic_llong color_fills, depth_fills, bad_buffers, poses_sent;
+  atomic_ullong last_depth_fill_ns; /* monotonic, when the range camera's latest fill began */
+  ArvGvFakeCamera *gd;              /* the range camera, until SIGUSR1 */
+  long long last_pose_tick;         /* the colour camera's fill thread only; -1 before the first */
 };
 
 struct cam {
@@ -97,18 +109,36 @@ static long long tick_of_now(struct scene *sc, long long *tick) {
   return idx < 0 ? idx + sc->cfg->sim.frames : idx;
 }
 
-/* The tick's pose, held through the tick: stamped at its start and late in it. */
-static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
-  if (sc->udp < 0) return;
-  double wxyz[4], t0 = (double)tick * (double)sc->period_us * 1e-6, t1 = t0 + 0.95 * (double)sc->period_us * 1e-6;
+/* The tick's pose, held through the tick: stamped at every pose period
+ * (1 / POSE_HZ) from the tick's start until the next tick. */
+static void send_tick_poses(struct scene *sc, long long tick, const double c2w[16]) {
+  const double t0 = (double)tick * (double)sc->period_us * 1e-6, period = (double)sc->period_us * 1e-6;
+  double wxyz[4];
   vlff_pose_quaternion(c2w, wxyz);
   const double q[4] = {wxyz[1], wxyz[2], wxyz[3], wxyz[0]}; /* TUM order: x y z w */
-  char msg[512];
-  int len = snprintf(msg, sizeof msg, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
-                     t0, c2w[3], c2w[7], c2w[11], q[0], q[1], q[2], q[3], t1, c2w[3], c2w[7], c2w[11], q[0], q[1],
-                     q[2], q[3]);
+  char msg[2048];
+  int len = 0, lines = 0;
+  for (int k = 0; k * (1.0 / POSE_HZ) < period - 1e-9 && len < (int)sizeof msg - 200; k++, lines++)
+    len += snprintf(msg + len, sizeof msg - (size_t)len, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
+                    t0 + k * (1.0 / POSE_HZ), c2w[3], c2w[7], c2w[11], q[0], q[1], q[2], q[3]);
   if (sendto(sc->udp, msg, (size_t)len, 0, (struct sockaddr *)&sc->to, sizeof sc->to) == len)
-    atomic_fetch_add(&sc->poses_sent, 2);
+    atomic_fetch_add(&sc->poses_sent, lines);
+}
+
+/* The poses of this tick, after those of ticks the colour camera skipped
+ * (a fill that starts late on a busy host waits for the next multiple of
+ * the period): a tracker's stream has no hole where the camera has one. */
+static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
+  if (sc->udp < 0) return;
+  if (sc->last_pose_tick >= 0 && tick - sc->last_pose_tick > 1 && tick - sc->last_pose_tick <= 10)
+    for (long long t = sc->last_pose_tick + 1; t < tick; t++) {
+      double m[16];
+      long long idx = (t - atomic_load(&sc->first_tick)) % sc->cfg->sim.frames;
+      vlff_sim_pose(sc->sim, idx < 0 ? idx + sc->cfg->sim.frames : idx, m);
+      send_tick_poses(sc, t, m);
+    }
+  send_tick_poses(sc, tick, c2w);
+  sc->last_pose_tick = tick;
 }
 
 static void fill(ArvBuffer *buffer, void *data, guint32 exposure_us, guint32 gain, ArvPixelFormat fmt) {
@@ -129,6 +159,7 @@ static void fill(ArvBuffer *buffer, void *data, guint32 exposure_us, guint32 gai
               c->depth ? "range" : "colour", size, (unsigned)fmt, need, (unsigned)want, W, H);
     return;
   }
+  if (c->depth) atomic_store(&sc->last_depth_fill_ns, mono_ns());
   long long tick, idx = tick_of_now(sc, &tick);
   char err[256];
   if (vlff_sim_render(sc->sim, idx, VLFF_SIM_RGBD, c->f, err, sizeof err)) {
@@ -178,6 +209,15 @@ static ArvGvFakeCamera *camera_new(const char *addr, const char *serial, struct 
   return g;
 }
 
+/* SIGUSR1: the range camera goes away. */
+static void maybe_stop_depth(struct scene *sc) {
+  if (!stop_depth || !sc->gd) return;
+  g_object_unref(sc->gd);
+  sc->gd = NULL;
+  fprintf(stderr, "vlff-scenecam: range camera stopped, last fill at %.6f\n",
+          (double)atomic_load(&sc->last_depth_fill_ns) * 1e-9);
+}
+
 /* Features for every record of the frame ring, until stopped. */
 static int publish_features(struct scene *sc, long long *published, long long *unknown) {
   const struct vlff_config *cfg = sc->cfg;
@@ -197,6 +237,7 @@ static int publish_features(struct scene *sc, long long *published, long long *u
   size_t cap = 0;
   int status = 0;
   while (!stop && f) {
+    maybe_stop_depth(sc);
     if (!ring) {
       ring = vlff_ring_attach(cfg->shm.ring, VLFF_RECORD_FRAME);
       if (!ring) {
@@ -298,7 +339,7 @@ int main(int argc, char **argv) {
     fprintf(stderr, "%s\n", err);
     return 1;
   }
-  struct scene sc = {.cfg = &cfg, .udp = -1, .lock = PTHREAD_MUTEX_INITIALIZER};
+  struct scene sc = {.cfg = &cfg, .udp = -1, .lock = PTHREAD_MUTEX_INITIALIZER, .last_pose_tick = -1};
   atomic_init(&sc.first_tick, -1);
   sc.period_us = (uint64_t)llround(1e6 / cfg.sim.rate_hz);
   if (poses) {
@@ -321,18 +362,21 @@ int main(int argc, char **argv) {
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
     if (seconds > 0) alarm((unsigned)ceil(seconds)), sigaction(SIGALRM, &sa, NULL);
+    sc.gd = gd;
+    sa.sa_handler = on_usr1;
+    sigaction(SIGUSR1, &sa, NULL);
     long long published = 0, unknown = 0;
     if (features)
       rc = publish_features(&sc, &published, &unknown);
     else
-      while (!stop) g_usleep(50000);
+      while (!stop) maybe_stop_depth(&sc), g_usleep(50000);
     fprintf(stderr,
             "vlff-scenecam: %lld colour fills, %lld range fills, %lld wrong buffers, %lld poses sent, "
             "%lld feature records, %lld records of no known fill\n",
             (long long)atomic_load(&sc.color_fills), (long long)atomic_load(&sc.depth_fills),
             (long long)atomic_load(&sc.bad_buffers), (long long)atomic_load(&sc.poses_sent), published, unknown);
   }
-  if (gd) g_object_unref(gd);
+  if (sc.gd) g_object_unref(sc.gd); /* unless SIGUSR1 stopped it */
   if (gc) g_object_unref(gc);
   vlff_sim_frame_free(cc.f);
   vlff_sim_frame_free(cd.f);

@@ -7,7 +7,13 @@
  * room's labelled points, passes the threshold the simulator source passes
  * (test_node_e2e). Nothing is lost on the way: every pose line is taken,
  * every buffer served is of the cameras' format, and the node refuses no
- * more than a rare frame.
+ * more than a rare frame. The rig runs the shipped tolerances (rig.h) with
+ * a 30 Hz pose stream and free-running cameras: nearly every colour frame
+ * finds its range frame, and nearly every frame its pose.
+ *
+ * Then the range camera goes away (its fake device stops, as one unplugged):
+ * the node must say so in its status (what --status and CAN show) and its
+ * log, and vlff-camd in its log, naming the range camera's own keys.
  *
  * Timings scale with VLFF_E2E_SCALE; the quality threshold does not.
  */
@@ -47,6 +53,15 @@ static void test_camera_rig_trains_map(void **state) {
   double best = tk_wait_miou3d(r.cfg.shm.map, &r.gt, 35, 150 * scale, &version);
   struct vlff_node_status st;
   tk_report(n, vlff_seconds() - t0, best, version, &st);
+  if (rig_capture_stderr(&r, err, sizeof err)) fail_msg("%s", err);
+  double visible = rig_lose_range_camera(&r, n, 20 * scale, err, sizeof err);
+  rig_release_stderr(&r);
+  if (visible < 0) fail_msg("camera lost: %s", err);
+  printf("camera lost: the node's status and log said so %.2f s after the range camera's last frame\n", visible);
+  /* vlff-camd: the silent camera at once, then its reconnect attempts
+   * under the key the user wrote (depth_camera.device, not camera.device) */
+  assert_true(tk_wait_for_text(r.camd_out, "depth camera '127.0.0.2': no frame for", 10 * scale));
+  assert_true(tk_wait_for_text(r.camd_out, "key 'depth_camera.device'", 30 * scale));
   tk_node_destroy(n, src);
   rig_stop(&r);
   long long pairs = rig_camd_stat(&r, "committed"), colour = rig_camd_stat(&r, "color_frames"),
@@ -59,6 +74,15 @@ static void test_camera_rig_trains_map(void **state) {
   /* The rig delivered: pairs of both cameras, the scene server's images of
    * the right size and format, every pose line accepted. */
   assert_true(pairs > 10);
+  /* Free-running cameras pair whatever their phase (not only within the
+   * GPIO example's pair_tolerance_s, which paired 39 % of them): nearly
+   * every range frame found its colour frame (the colour camera's frames
+   * after the range camera went away below found none, as they should
+   * not; on a loaded host a colour frame can be lost on its way, its range
+   * frame then rightly unmatched). */
+  long long depth = rig_camd_stat(&r, "depth_frames");
+  assert_true(depth - su_d > 10);
+  assert_true((depth - su_d - pairs) * 4 <= depth - su_d);
   assert_true(strstr(tk_slurp(r.scenecam_out), " 0 wrong buffers"));
   assert_false(strstr(tk_slurp(r.pose_out), ": refused, ")); /* vlff-pose's line for each refusal */
   /* The node learned from them: keyframes, a map, and frames refused at
@@ -66,7 +90,7 @@ static void test_camera_rig_trains_map(void **state) {
    * source.pose_wait_s on a loaded host; a systematic fault, a missing depth
    * plane or pose, refuses them all). */
   assert_true(st.frames_in > 10);
-  assert_true(st.frames_invalid * 50 <= st.frames_in);
+  assert_true(st.frames_invalid <= 1 + st.frames_in / 50);
   assert_true(st.keyframes > 0);
   assert_true(version > 0);
   assert_true(best >= 35);

@@ -286,6 +286,8 @@ static void test_reconnects_after_camera_restart(void **state) {
  * matrix, no offset) the depth plane is the range image itself, in mm.
  * The record's ids and intrinsics are the colour camera's. */
 static char rig_path[256];
+/* The range camera's size in the pair's config ("" leaves it to the camera). */
+static const char *pair_depth_size = "  width: 320\n  height: 240\n";
 
 /* The pair's config: the fake GigE camera as colour, the in-process fake
  * camera as range, an identity rig (rig_extra: more lines of its file). */
@@ -306,9 +308,9 @@ static void write_pair_cfg_rig(const char *depth_extra, const char *rig_extra) {
   char extra[1024];
   snprintf(extra, sizeof extra,
            "  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
-           "depth_camera:\n  kind: aravis\n  device: Fake\n  pixel_format: Mono16\n  width: 320\n  height: 240\n"
+           "depth_camera:\n  kind: aravis\n  device: Fake\n  pixel_format: Mono16\n%s"
            "  frame_rate: 40\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.012\n%s",
-           rig_path, depth_extra ? depth_extra : "");
+           pair_depth_size, rig_path, depth_extra ? depth_extra : "");
   write_cfg("Mono8", 320, 240, extra);
 }
 
@@ -396,6 +398,44 @@ static void test_pairs_colour_and_range(void **state) {
     check_range_ramp(n, hd, buf, true, 230);
   }
   pair_done(r, buf);
+}
+
+/* A calibration made for another resolution (640x480 range images; the
+ * range camera sends its own, smaller size): every pair is dropped, and vlff-camd says
+ * so within seconds, with the reason, not only in its exit line. Failed
+ * before: 5 warnings, then nothing while 0 pairs were committed. */
+static void test_pair_calibration_other_size(void **state) {
+  (void)state;
+  /* No size in the config: start-up (and --check-config) cannot compare
+   * (test_check_config_calibration_sizes), the frames tell. */
+  pair_depth_size = "";
+  write_pair_cfg_rig(NULL, "depth_width: 640\ndepth_height: 480\n");
+  pair_depth_size = "  width: 320\n  height: 240\n";
+  char log[300];
+  snprintf(log, sizeof log, "%s.log", out_path);
+  pid_t parent = getpid(), pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (getppid() != parent) _exit(1);
+    int fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) dup2(fd, 1), dup2(fd, 2);
+    char bin[512];
+    snprintf(bin, sizeof bin, "%s/drivers/camd/vlff-camd", getenv("VLFF_BINARY_DIR"));
+    execl(bin, bin, "--config", cfg_path, "--seconds", "5", (char *)NULL);
+    _exit(127);
+  }
+  assert_int_equal(wait_exit(pid, 60), 0);
+  static char text[1 << 16];
+  FILE *f = fopen(log, "r");
+  assert_non_null(f);
+  text[fread(text, 1, sizeof text - 1, f)] = 0;
+  fclose(f);
+  const char *rep = strstr(text, "E camd: pairing, last ");
+  if (!rep) fail_msg("no pairing report in vlff-camd's log:\n%s", text);
+  assert_non_null(strstr(rep, " 0 pairs of "));
+  assert_non_null(strstr(rep, "calibrated for depth 640x480"));
+  unlink(log);
 }
 
 /* The same pair registered at half the colour camera's size
@@ -560,4 +600,5 @@ VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_software_trigger_one_frame_each), cmocka_unit_test(test_bad_configs),
     cmocka_unit_test(test_reconnects_after_camera_restart),
     cmocka_unit_test(test_pairs_colour_and_range), cmocka_unit_test(test_pairs_at_register_size),
-    cmocka_unit_test(test_pair_survives_camera_restart))
+    cmocka_unit_test(test_pair_survives_camera_restart),
+    cmocka_unit_test(test_pair_calibration_other_size))

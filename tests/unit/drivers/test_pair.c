@@ -6,7 +6,9 @@
  * never a neighbour's; frames without a partner are counted, apart from
  * those a camera sends before the other's first frame. The rig is
  * the identity (same camera, no offset), so the registered depth must be
- * the range image itself.
+ * the range image itself. Frames are trigger-stamped (GPIO) unless a test
+ * runs the cameras free: then they carry device times and arrive late by
+ * chosen delays.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -31,6 +33,10 @@
 static char calib[128];
 static struct vlff_memsink *out;
 static struct vlff_pair *pair;
+/* The next frames' stamping: trigger-stamped, or free-running with the
+ * device time dev_ns (0: none). */
+static bool free_run;
+static uint64_t dev_ns;
 
 /* Colour frame k: every red byte k. */
 static void push_color(int k, uint64_t t) {
@@ -44,6 +50,7 @@ static void push_color(int k, uint64_t t) {
       p[0] = (uint8_t)k, p[1] = (uint8_t)x, p[2] = (uint8_t)y;
     }
   f.host_ns = t, f.device_frame_id = (uint64_t)k;
+  f.trigger_stamped = !free_run, f.device_ns = free_run ? dev_ns : 0;
   assert_int_equal(s->commit(s, &f), 0);
 }
 
@@ -57,6 +64,7 @@ static void push_depth(int k, uint64_t t) {
   for (int y = 0; y < H; y++)
     for (int x = 0; x < W; x++) ((uint16_t *)((char *)f.depth + y * f.depth_stride))[x] = (uint16_t)(1000 + 10 * k + x + y);
   f.host_ns = t;
+  f.trigger_stamped = !free_run, f.device_ns = free_run ? dev_ns : 0;
   assert_int_equal(s->commit(s, &f), 0);
 }
 
@@ -103,6 +111,7 @@ static int setup(void **state) {
   vlff_config_defaults(&cfg);
   snprintf(cfg.depth_camera.calibration, sizeof cfg.depth_camera.calibration, "%s", calib);
   cfg.depth_camera.pair_tolerance_s = 0.005;
+  free_run = false, dev_ns = 0;
   out = vlff_memsink_new(64, W, H);
   char err[512];
   pair = vlff_pair_new(&cfg.depth_camera, &cfg.camera, vlff_memsink_sink(out), err, sizeof err);
@@ -247,6 +256,121 @@ static void test_startup_range_first(void **state) {
   assert_int_equal(st->unmatched_color + st->unmatched_depth + st->startup_color, 0);
 }
 
+/* Two free-running 30 Hz cameras 12 ms out of phase (beyond the 5 ms
+ * pair_tolerance_s, which only trigger-stamped pairs are held to), each
+ * frame arriving 2 ms after its device time on the host clock, except
+ * range frame 9, which the host took 30 ms later than that (a busy 2-core
+ * host): its arrival is 44 ms after its colour frame's, nearer the next
+ * colour frame than its own. Every frame pairs with its own partner, the
+ * late one by its device time. Failed before: no pair (the tolerance held
+ * free-running pairs to 5 ms). */
+static void test_free_running_phase_and_jitter(void **state) {
+  (void)state;
+  free_run = true;
+  const uint64_t t0 = 3000 * MS, clock = 7777 * MS; /* the cameras' clocks: another origin */
+  for (int k = 0; k < 20; k++) {
+    uint64_t tc = t0 + (uint64_t)k * 33 * MS, td = tc + 12 * MS;
+    dev_ns = tc - clock;
+    push_color(k, tc + 2 * MS);
+    dev_ns = td - clock + 1000 * MS; /* the range camera's clock: yet another origin */
+    push_depth(k, td + 2 * MS + (k == 9 ? 30 * MS : 0));
+  }
+  /* the last pair waits for the next colour frame, which could have been
+   * nearer */
+  assert_int_equal(vlff_pair_get_stats(pair)->pairs, 19);
+  dev_ns = t0 + 20 * 33 * MS - clock;
+  push_color(20, t0 + 20 * 33 * MS + 2 * MS);
+  int first = -1;
+  assert_int_equal(check_records(&first), 20);
+  assert_int_equal(first, 0);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->pairs, 20);
+  assert_int_equal(st->free_pairs, 20);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth + st->dropped, 0);
+  assert_true(st->skew_max_ns >= 12 * MS && st->skew_max_ns <= 13 * MS);
+}
+
+/* Free-running without device times (arrival only): pairs form within
+ * half the period, and a range frame half a period off two colour frames
+ * pairs with neither wrongly: with range frames 20 ms after colour frames
+ * of a 30 Hz camera (13 ms before the next one), each pairs with the
+ * nearer, the next colour frame, never two with one. */
+static void test_free_running_nearest(void **state) {
+  (void)state;
+  free_run = true, dev_ns = 0;
+  const uint64_t t0 = 4000 * MS;
+  for (int k = 0; k < 10; k++) {
+    push_color(k, t0 + (uint64_t)k * 33 * MS);
+    push_depth(k, t0 + (uint64_t)k * 33 * MS + 20 * MS);
+  }
+  push_color(10, t0 + 10 * 33 * MS);
+  push_depth(10, t0 + 10 * 33 * MS + 20 * MS); /* the successor that shows range 9 nearer colour 10 */
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  /* range k pairs with colour k + 1 (13 ms away); colour 0 came more than
+   * the tolerance before the range camera's first frame */
+  assert_int_equal(st->pairs, 10);
+  assert_int_equal(st->startup_color, 1);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
+  int n = (int)vlff_memsink_committed(out);
+  for (int i = 0; i < n; i++) assert_int_equal(vlff_memsink_get(out, i)->device_frame_id, (uint64_t)(n - i)); /* newest first */
+}
+
+/* A range camera starting up off its grid (Aravis' fake camera sends its
+ * first frame at once): range frames at 17 ms (half a 30 Hz period from
+ * the colour frames), 28 ms, then in step from 66 ms. Colour 1 (33 ms) is
+ * 16 ms from the first range frame, within half a period, but its partner
+ * is the one at 28 ms that comes next: the pair waits for it, and the
+ * stray frame counts as start-up, not unmatched. (In the e2e rig the stray
+ * came 18 ms before the next range frame of a 5 Hz camera.) Failed before (colour 1
+ * paired with the stray frame and the range frame at 28 ms was unmatched). */
+static void test_free_running_startup(void **state) {
+  (void)state;
+  free_run = true, dev_ns = 0;
+  const uint64_t t0 = 6000 * MS;
+  push_color(0, t0);
+  push_depth(0, t0 + 17 * MS); /* the stray: depth image 0, never paired */
+  push_color(1, t0 + 33 * MS);
+  push_depth(1, t0 + 28 * MS);
+  for (int k = 2; k < 6; k++) {
+    push_color(k, t0 + (uint64_t)k * 33 * MS);
+    push_depth(k, t0 + (uint64_t)k * 33 * MS + MS);
+  }
+  push_color(6, t0 + 6 * 33 * MS); /* the successor the last pair waits for */
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 1);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->startup_color, 1);
+  assert_int_equal(st->startup_depth, 1);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
+}
+
+/* The e2e rig's case: the range camera's stray first frame 3 ms before
+ * colour 1, its frame on the grid 1 ms after it. Close as the stray is,
+ * the pair waits for the range camera's next frame, the nearer one.
+ * Failed before (a pair under a quarter period was made at once: colour 1
+ * with the stray, and the true partner unmatched). */
+static void test_free_running_close_stray(void **state) {
+  (void)state;
+  free_run = true, dev_ns = 0;
+  const uint64_t t0 = 7000 * MS;
+  push_color(0, t0);
+  push_depth(0, t0 + 30 * MS); /* the stray */
+  push_color(1, t0 + 33 * MS);
+  push_depth(1, t0 + 34 * MS);
+  for (int k = 2; k < 6; k++) {
+    push_color(k, t0 + (uint64_t)k * 33 * MS);
+    push_depth(k, t0 + (uint64_t)k * 33 * MS + MS);
+  }
+  push_color(6, t0 + 6 * 33 * MS);
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 1);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->startup_depth, 1);
+  assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
+}
+
 int main(void) {
   vlff_log_set_level(VLFF_LOG_ERROR);
   const struct CMUnitTest tests[] = {
@@ -256,6 +380,10 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_faster_than_configured, setup, teardown),
       cmocka_unit_test_setup_teardown(test_startup, setup, teardown),
       cmocka_unit_test_setup_teardown(test_startup_range_first, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_free_running_phase_and_jitter, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_free_running_nearest, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_free_running_startup, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_free_running_close_stray, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
