@@ -434,14 +434,6 @@ static void take_prompt(struct vlff_dds *b, const char *data) {
     refuse(b, &b->c.prompts_oversized, "prompts_in: refused a message of %s", why);
     return;
   }
-  uint64_t now = mono_ns();
-  double gap_ns = 1e9 / b->o.dds.prompt_rate_hz;
-  if (b->last_post_ns && (double)(now - b->last_post_ns) < gap_ns) {
-    snprintf(why, sizeof why, "%.3g per second (dds.prompt_rate_hz)", b->o.dds.prompt_rate_hz);
-    refuse(b, &b->c.prompts_flood, "prompts_in: refused a message beyond %s", why);
-    return;
-  }
-  b->last_post_ns = now;
   char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
   int invalid;
   int n = vlff_dds_parse_prompts(data, len, texts, &invalid, why, sizeof why);
@@ -449,6 +441,16 @@ static void take_prompt(struct vlff_dds *b, const char *data) {
     refuse(b, invalid ? &b->c.prompts_invalid : &b->c.prompts_malformed, "prompts_in: refused: %s", why);
     return;
   }
+  /* The rate bounds what reaches the mailbox, so it counts posts; what is
+   * refused above costs a bounded parse and no post. */
+  uint64_t now = mono_ns();
+  double gap_ns = 1e9 / b->o.dds.prompt_rate_hz;
+  if (b->last_post_ns && (double)(now - b->last_post_ns) < gap_ns) {
+    snprintf(why, sizeof why, "%.3g per second (dds.prompt_rate_hz)", b->o.dds.prompt_rate_hz);
+    refuse(b, &b->c.prompts_flood, "prompts_in: refused a prompt set beyond %s", why);
+    return;
+  }
+  b->last_post_ns = now;
   if (!b->mailbox) b->mailbox = vlff_prompts_attach(b->o.prompts);
   const char *ptr[VLFF_SHM_MAX_PROMPTS];
   for (int i = 0; i < n; i++) ptr[i] = texts[i];

@@ -21,11 +21,13 @@
  *    "vlff: learner" (the segment's status, level OK/WARN/ERROR, STALE
  *    when the writer is gone) and "vlff-dds: bridge" (the bridge's counts).
  *  - prompts_in: std_msgs/String whose data is a JSON list of prompt texts.
- *    A message longer than dds.max_prompt_bytes, beyond dds.prompt_rate_hz,
- *    not a JSON list of strings, or refused by vlff_prompt_check() (the rule
- *    of vlff-shm set-prompts) is refused, counted and logged through
- *    vlff_warn_limited; only a checked set is posted, with
- *    vlff_prompts_try_post (never waits on the learner).
+ *    A message longer than dds.max_prompt_bytes, not a JSON list of
+ *    strings, refused by vlff_prompt_check() (the rule of vlff-shm
+ *    set-prompts), a valid set coming sooner than 1/dds.prompt_rate_hz after
+ *    the last one posted (a flood), or one the mailbox cannot take now (the
+ *    previous request unanswered, no mailbox) is refused, counted by kind
+ *    and logged through vlff_warn_limited; only a checked set is posted,
+ *    with vlff_prompts_try_post (never waits on the learner).
  *  - The node may start, stop and restart under a running bridge: segments
  *    are attached when they appear and again after they are replaced.
  *  - Single-threaded: one struct vlff_dds per thread.

@@ -114,7 +114,7 @@ int main(int argc, char **argv) {
   put_quoted(q[1], sizeof q[1], frame ? frame : "");
   put_quoted(q[2], sizeof q[2], map ? map : "");
   put_quoted(q[3], sizeof q[3], prompts ? prompts : "");
-  int n = snprintf(yaml, sizeof yaml, "dds:\n");
+  int n = snprintf(yaml, sizeof yaml, "%s", domain || ns || frame ? "dds:\n" : "");
   if (domain) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  domain_id: %s\n", domain);
   if (ns) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  namespace: %s\n", q[0]);
   if (frame) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  frame_id: %s\n", q[1]);
