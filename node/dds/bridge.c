@@ -29,9 +29,10 @@ int vlff_dds_topic(char *out, size_t len, const char *ns, const char *leaf) {
   return n < 0 || (size_t)n >= len ? -1 : 0;
 }
 
-int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *invalid, char *why,
-                           size_t whylen) {
+int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *set_index,
+                           int *invalid, char *why, size_t whylen) {
   *invalid = 0;
+  *set_index = -1;
   json_tokener *tok = json_tokener_new_ex(4); /* a list of strings nests 2 deep */
   if (!tok) {
     snprintf(why, whylen, "out of memory");
@@ -39,12 +40,31 @@ int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_P
   }
   json_object *root = json_tokener_parse_ex(tok, data, (int)len);
   enum json_tokener_error jerr = json_tokener_get_error(tok);
+  size_t end = json_tokener_get_parse_end(tok);
+  if (!root && jerr == json_tokener_continue) {
+    /* A number ends only where input does: the NUL says it has. */
+    root = json_tokener_parse_ex(tok, "", 1);
+    jerr = json_tokener_get_error(tok);
+    end = len;
+  }
   int count = -1;
-  if (!root || jerr != json_tokener_success || json_tokener_get_parse_end(tok) != len) {
+  if (!root || jerr != json_tokener_success || end != len) {
     snprintf(why, whylen, "not JSON (%s)", root && jerr == json_tokener_success ? "text after the value"
                                                                                  : json_tokener_error_desc(jerr));
+  } else if (json_object_is_type(root, json_type_int)) {
+    /* vlff-shm set-prompts -i N: a configured set by index, as that takes it;
+     * the learner refuses an index it does not have. */
+    errno = 0;
+    int64_t i = json_object_get_int64(root);
+    if (errno || i < 0 || i > INT32_MAX) {
+      snprintf(why, whylen, "expected a prompt set index in 0..2147483647, got %s", json_object_to_json_string(root));
+      *invalid = 1;
+    } else {
+      *set_index = (int)i;
+      count = 0;
+    }
   } else if (!json_object_is_type(root, json_type_array)) {
-    snprintf(why, whylen, "expected a JSON list of prompt texts, got a JSON %s",
+    snprintf(why, whylen, "expected a JSON list of prompt texts or a set index, got a JSON %s",
              json_type_to_name(json_object_get_type(root)));
   } else {
     size_t n = json_object_array_length(root);
@@ -435,8 +455,8 @@ static void take_prompt(struct vlff_dds *b, const char *data) {
     return;
   }
   char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
-  int invalid;
-  int n = vlff_dds_parse_prompts(data, len, texts, &invalid, why, sizeof why);
+  int invalid, set_index;
+  int n = vlff_dds_parse_prompts(data, len, texts, &set_index, &invalid, why, sizeof why);
   if (n < 0) {
     refuse(b, invalid ? &b->c.prompts_invalid : &b->c.prompts_malformed, "prompts_in: refused: %s", why);
     return;
@@ -454,7 +474,7 @@ static void take_prompt(struct vlff_dds *b, const char *data) {
   if (!b->mailbox) b->mailbox = vlff_prompts_attach(b->o.prompts);
   const char *ptr[VLFF_SHM_MAX_PROMPTS];
   for (int i = 0; i < n; i++) ptr[i] = texts[i];
-  if (!b->mailbox || vlff_prompts_try_post(b->mailbox, ptr, n, -1) < 0) {
+  if (!b->mailbox || vlff_prompts_try_post(b->mailbox, n ? ptr : NULL, n, set_index) < 0) {
     int e = errno;
     snprintf(why, sizeof why, "%s: %s", b->o.prompts, vlff_shm_last_message());
     refuse(b, &b->c.prompts_busy, "prompts_in: not posted, mailbox %s", why);
@@ -466,7 +486,10 @@ static void take_prompt(struct vlff_dds *b, const char *data) {
   }
   b->c.prompts_posted++;
   b->pending_seq = vlff_prompts_last_post(b->mailbox);
-  VLFF_INFO(TAG, "prompts_in: posted %d prompts as request %" PRIu64, n, b->pending_seq);
+  if (n)
+    VLFF_INFO(TAG, "prompts_in: posted %d prompts as request %" PRIu64, n, b->pending_seq);
+  else
+    VLFF_INFO(TAG, "prompts_in: posted prompt set %d as request %" PRIu64, set_index, b->pending_seq);
 }
 
 static void take_prompts(struct vlff_dds *b) {

@@ -20,7 +20,8 @@
  *  - status: diagnostic_msgs/DiagnosticArray at dds.status_hz, two entries:
  *    "vlff: learner" (the segment's status, level OK/WARN/ERROR, STALE
  *    when the writer is gone) and "vlff-dds: bridge" (the bridge's counts).
- *  - prompts_in: std_msgs/String whose data is a JSON list of prompt texts.
+ *  - prompts_in: std_msgs/String whose data is a JSON list of prompt texts,
+ *    or a JSON integer, the index of a configured prompt set.
  *    A message longer than dds.max_prompt_bytes, not a JSON list of
  *    strings, refused by vlff_prompt_check() (the rule of vlff-shm
  *    set-prompts), a valid set coming sooner than 1/dds.prompt_rate_hz after
@@ -65,11 +66,13 @@ struct vlff_dds_counts {
 int vlff_dds_topic(char *out, size_t len, const char *ns, const char *leaf);
 
 /* Parses a prompt message: a JSON list of 1..VLFF_SHM_MAX_PROMPTS strings,
- * each passing vlff_prompt_check. Returns the count, or -1 with the reason in
- * why and *invalid = 0 (not a JSON list of strings) or 1 (texts refused by
- * the mailbox's rule). */
-int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *invalid, char *why,
-                           size_t whylen);
+ * each passing vlff_prompt_check (returns the count, texts filled), or a
+ * JSON integer 0..INT32_MAX, the index of a configured set, as vlff-shm
+ * set-prompts -i takes it (returns 0, *set_index set; else it is -1).
+ * -1 with the reason in why and *invalid = 0 (not JSON, not a list of
+ * strings or an integer) or 1 (refused by the mailbox's rule). */
+int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *set_index,
+                           int *invalid, char *why, size_t whylen);
 
 /* The point cloud's payload of a snapshot: little-endian points as in the
  * contract, into a malloc'd buffer (*out, *npoints). 0, or -1/ENOMEM. */

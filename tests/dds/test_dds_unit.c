@@ -24,7 +24,8 @@ static void test_topic(void **state) {
 
 static int parse(const char *s, int *invalid, char *why) {
   static char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
-  return vlff_dds_parse_prompts(s, strlen(s), texts, invalid, why, 256);
+  int idx;
+  return vlff_dds_parse_prompts(s, strlen(s), texts, &idx, invalid, why, 256);
 }
 
 /* The rule of vlff-shm set-prompts (vlff_prompt_check), after JSON. */
@@ -32,10 +33,14 @@ static void test_prompts(void **state) {
   (void)state;
   static char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
   char why[256];
-  int invalid;
+  int invalid, idx;
   const char *ok = "[\"chair\", \"table\", \"caf\\u00e9\"]";
-  assert_int_equal(vlff_dds_parse_prompts(ok, strlen(ok), texts, &invalid, why, sizeof why), 3);
+  assert_int_equal(vlff_dds_parse_prompts(ok, strlen(ok), texts, &idx, &invalid, why, sizeof why), 3);
   assert_string_equal(texts[2], "caf\xc3\xa9");
+  assert_int_equal(idx, -1);
+  /* A configured set by index, as vlff-shm set-prompts -i. */
+  assert_int_equal(vlff_dds_parse_prompts("2", 1, texts, &idx, &invalid, why, sizeof why), 0);
+  assert_int_equal(idx, 2);
   static const struct {
     const char *msg, *why;
     int invalid;
@@ -44,6 +49,9 @@ static void test_prompts(void **state) {
       {"[\"chair\"] x", "not JSON", 0},
       {"[\"chair\"", "not JSON", 0},
       {"{\"a\": 1}", "got a JSON object", 0},
+      {"2.5", "got a JSON double", 0},
+      {"-1", "expected a prompt set index in 0..2147483647", 1},
+      {"2147483648", "expected a prompt set index", 1},
       {"\"chair\"", "got a JSON string", 0},
       {"[\"chair\", 3]", "prompt 1: expected a JSON string, got a JSON int", 0},
       {"[[[[[[\"deep\"]]]]]]", "not JSON", 0},
