@@ -31,7 +31,8 @@
  *    with vlff_prompts_try_post (never waits on the learner).
  *  - The node may start, stop and restart under a running bridge: segments
  *    are attached when they appear and again after they are replaced.
- *  - Single-threaded: one struct vlff_dds per thread.
+ *  - Single-threaded, and one struct vlff_dds per process (the status is
+ *    built in static storage).
  */
 #ifndef VLFF_DDS_H
 #define VLFF_DDS_H
