@@ -63,6 +63,17 @@ pkg_check_modules(JSONC REQUIRED IMPORTED_TARGET json-c)
 find_package(HDF5 QUIET COMPONENTS C)
 vlff_optional(HDF5 HDF5_FOUND "HDF5 C library not found: apt install libhdf5-dev")
 
+# vlff-dds: Eclipse Cyclone DDS (ROS 2's rmw_cyclonedds DDS) and its IDL
+# compiler, which generates the C of node/dds/idl at build time.
+find_package(CycloneDDS CONFIG QUIET)
+find_program(VLFF_IDLC idlc)
+if(CycloneDDS_FOUND AND VLFF_IDLC)
+  set(_vlff_dds_found TRUE)
+else()
+  set(_vlff_dds_found FALSE)
+endif()
+vlff_optional(DDS _vlff_dds_found "Cyclone DDS or its idlc not found: apt install cyclonedds-dev cyclonedds-tools")
+
 if(VLFF_FUZZ AND NOT CMAKE_C_COMPILER_ID STREQUAL "Clang")
   message(FATAL_ERROR "VLFF_FUZZ=ON needs clang (configure with CC=clang)")
 endif()

@@ -11,6 +11,7 @@
 #include "config.h"
 #include "hash.h"
 
+#include <ctype.h>
 #include <errno.h>
 #include <limits.h>
 #include <math.h>
@@ -357,6 +358,21 @@ static const struct key schema[] = {
     BOOL("vlm.normalize", vlm.normalize, 1),
     BOOL("vlm.cuda", vlm.cuda, 0),
     DBL("vlm.feature_timeout_s", vlm.feature_timeout_s, 0.001, 600, 2),
+
+    /* 232 is the highest domain whose ports fit under 65536 with the RTPS
+     * port mapping DDS uses by default. */
+    INT("dds.domain_id", dds.domain_id, 0, 232, 0),
+    STR("dds.namespace", dds.ns, ""),
+    STR("dds.frame_id", dds.frame_id, "map"),
+    BOOL("dds.map", dds.map, 1),
+    BOOL("dds.status", dds.status, 1),
+    BOOL("dds.prompts_in", dds.prompts_in, 1),
+    DBL("dds.status_hz", dds.status_hz, 0.01, 100, 1),
+    DBL("dds.poll_hz", dds.poll_hz, 1, 1000, 20),
+    DBL("dds.prompt_rate_hz", dds.prompt_rate_hz, 0.01, 100, 2),
+    /* A JSON list of 32 prompts of 63 bytes, each \u-escaped at worst
+     * (6 bytes per byte), fits 16 KiB; the default takes plainly written ones. */
+    INT("dds.max_prompt_bytes", dds.max_prompt_bytes, 64, 16384, 4096),
 };
 
 #define NKEYS (sizeof schema / sizeof schema[0])
@@ -824,7 +840,39 @@ static int check_shm_names(struct parse *p, struct vlff_config *cfg) {
   return 0;
 }
 
+/* dds.namespace: "" or ROS 2's rule for a namespace ('/' then tokens of
+ * letters, digits and '_' joined by single '/', none starting with a
+ * digit, no '/' at the end), so that every topic name built on it is a
+ * valid ROS 2 name. dds.frame_id: a tf2 frame id (no leading '/'). */
+static const char *dds_ns_problem(const char *s) {
+  if (!*s) return NULL;
+  if (s[0] != '/') return "a leading '/'";
+  for (const char *t = s + 1;; t++) {
+    if (!*t || *t == '/') return "no empty token ('//' or a trailing '/')";
+    if (*t >= '0' && *t <= '9') return "tokens that do not start with a digit";
+    while (*t && *t != '/') {
+      if (!(isalnum((unsigned char)*t) || *t == '_')) return "only letters, digits, '_' and '/'";
+      t++;
+    }
+    if (!*t) return NULL;
+  }
+}
+
+static int check_dds(struct parse *p, struct vlff_config *cfg) {
+  const char *why = dds_ns_problem(cfg->dds.ns);
+  if (why) return fail_cross(p, "dds.namespace", "expected \"\" or a ROS namespace like /robot1 (%s), got '%s'", why,
+                             VLFF_Q(cfg->dds.ns));
+  const char *f = cfg->dds.frame_id;
+  bool ok = *f && *f != '/';
+  for (const char *c = f; ok && *c; c++) ok = isalnum((unsigned char)*c) || strchr("_-./", *c);
+  if (!ok)
+    return fail_cross(p, "dds.frame_id", "expected a frame id of letters, digits and _-./ not starting with '/', got '%s'",
+                      VLFF_Q(f));
+  return 0;
+}
+
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
+  if (check_dds(p, cfg)) return -1;
   const double *q = cfg->pose.extrinsic + 3;
   double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
   if (!(fabs(qn - 1) <= 0.01))

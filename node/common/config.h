@@ -314,6 +314,21 @@ struct vlff_cfg_vlm {
   double feature_timeout_s;
 };
 
+/* vlff-dds: the bridge to DDS with ROS 2's wire conventions (docs/dds.md).
+ * Its command-line options override these. */
+struct vlff_cfg_dds {
+  int domain_id;                   /* DDS domain, 0..232 (ROS_DOMAIN_ID) */
+  char ns[VLFF_CFG_STR];           /* ROS namespace "/robot1", "" = none: topics rt<ns>/vlff/... */
+  char frame_id[VLFF_CFG_STR];     /* header frame_id of the map and status */
+  bool map;                        /* publish <ns>/vlff/map (PointCloud2, transient local) */
+  bool status;                     /* publish <ns>/vlff/status (DiagnosticArray) */
+  bool prompts_in;                 /* take prompt sets from <ns>/vlff/prompts_in (String, a JSON list) */
+  double status_hz;                /* status messages per second */
+  double poll_hz;                  /* map segment checks per second */
+  double prompt_rate_hz;           /* most prompt posts per second; more are refused as a flood */
+  int max_prompt_bytes;            /* longest prompt message taken */
+};
+
 /* The whole file: one section per module, each module given only its own
  * section (and what it names of another, passed as values). */
 struct vlff_config {
@@ -332,6 +347,7 @@ struct vlff_config {
   struct vlff_cfg_gpio gpio;
   struct vlff_cfg_pose pose;
   struct vlff_cfg_vlm vlm;
+  struct vlff_cfg_dds dds;
 };
 
 void vlff_config_defaults(struct vlff_config *cfg);

@@ -269,6 +269,37 @@ static void test_shm_names(void **state) {
   assert_string_equal(cfg.shm.prompts, "/p");
 }
 
+/* dds.namespace and dds.frame_id: ROS 2's name rules, so every topic the
+ * bridge builds is one a ROS 2 tool accepts; the rest range-checked. */
+static void test_dds_section(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  assert_int_equal(load("dds:\n  domain_id: 7\n  namespace: /fleet/robot_1\n  frame_id: odom\n  map: false\n", &cfg), 0);
+  assert_int_equal(cfg.dds.domain_id, 7);
+  assert_string_equal(cfg.dds.ns, "/fleet/robot_1");
+  assert_string_equal(cfg.dds.frame_id, "odom");
+  assert_false(cfg.dds.map);
+  assert_true(cfg.dds.status);
+  static const struct {
+    const char *yaml, *fragment;
+  } nsbad[] = {
+      {"dds:\n  namespace: robot1\n", "a leading '/'"},
+      {"dds:\n  namespace: /robot1/\n", "no empty token"},
+      {"dds:\n  namespace: /a//b\n", "no empty token"},
+      {"dds:\n  namespace: /1robot\n", "do not start with a digit"},
+      {"dds:\n  namespace: /ro-bot\n", "only letters, digits"},
+      {"dds:\n  frame_id: /map\n", "not starting with '/'"},
+      {"dds:\n  frame_id: \"\"\n", "expected a frame id"},
+      {"dds:\n  frame_id: \"a b\"\n", "expected a frame id"},
+  };
+  for (size_t i = 0; i < sizeof nsbad / sizeof nsbad[0]; i++) {
+    assert_int_equal(load(nsbad[i].yaml, &cfg), -1);
+    if (!strstr(err, nsbad[i].fragment)) fail_msg("%s: message '%s' lacks '%s'", nsbad[i].yaml, err, nsbad[i].fragment);
+  }
+  expect_error("dds:\n  domain_id: 233\n", "t.yaml:2:14: key 'dds.domain_id': ", "expected");
+  expect_error("dds:\n  max_prompt_bytes: 20000\n", "t.yaml:2:21: key 'dds.max_prompt_bytes': ", "expected");
+}
+
 static int load_fifo(void *path) {
   struct vlff_config cfg;
   char e[512];
@@ -640,4 +671,4 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_dead_temps), cmocka_unit_test(test_config_find),
     cmocka_unit_test(test_hostile_strings), cmocka_unit_test(test_duplicate_spellings),
     cmocka_unit_test(test_nul_keys_values), cmocka_unit_test(test_leading_zero_numbers),
-    cmocka_unit_test(test_yaml_anchors))
+    cmocka_unit_test(test_yaml_anchors), cmocka_unit_test(test_dds_section))

@@ -1,0 +1,91 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * vlff-dds: the bridge from the node's map segment and prompt mailbox to DDS
+ * (Eclipse Cyclone DDS), with ROS 2's wire conventions, so that a ROS 2 node
+ * on rmw_cyclonedds, or any DDS program built on idl/, reads vlff's map and
+ * status and posts prompt sets without vlff code (docs/dds.md).
+ *
+ * Contract
+ *  - Topics are "rt" + dds.namespace + "/vlff/" + leaf (map, status,
+ *    prompts_in): ROS 2's "/<ns>/vlff/map" on the wire. Type names are
+ *    ROS 2's "<pkg>::msg::dds_::<Type>_" (the files in idl/), CDR (XCDR1, final),
+ *    as rmw_cyclonedds writes them.
+ *  - map: sensor_msgs/PointCloud2, one point per labelled voxel (label
+ *    0..VLFF_LABEL_MAX; free and unknown voxels are left out) at the voxel's
+ *    centre in the map's world frame, fields x y z (float32) label (uint16)
+ *    confidence (float32, 0..1), little-endian, point_step 20, height 1.
+ *    Reliable, transient local, keep last 1: a reader joining late gets the
+ *    latest map whole. Sent once per map version, never while the version
+ *    stays the same. The stamp is the version's publish time in system time.
+ *  - status: diagnostic_msgs/DiagnosticArray at dds.status_hz, two entries:
+ *    "vlff: learner" (the segment's status, level OK/WARN/ERROR, STALE
+ *    when the writer is gone) and "vlff-dds: bridge" (the bridge's counts).
+ *  - prompts_in: std_msgs/String whose data is a JSON list of prompt texts,
+ *    or a JSON integer, the index of a configured prompt set.
+ *    A message longer than dds.max_prompt_bytes, not a JSON list of
+ *    strings, refused by vlff_prompt_check() (the rule of vlff-shm
+ *    set-prompts), a valid set coming sooner than 1/dds.prompt_rate_hz after
+ *    the last one posted (a flood), or one the mailbox cannot take now (the
+ *    previous request unanswered, no mailbox) is refused, counted by kind
+ *    and logged through vlff_warn_limited; only a checked set is posted,
+ *    with vlff_prompts_try_post (never waits on the learner).
+ *  - The node may start, stop and restart under a running bridge: segments
+ *    are attached when they appear and again after they are replaced.
+ *  - Single-threaded, and one struct vlff_dds per process (the status is
+ *    built in static storage).
+ */
+#ifndef VLFF_DDS_H
+#define VLFF_DDS_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "config.h"
+#include "vlff/shm.h"
+
+/* PointField datatypes and DiagnosticStatus levels (the ROS 2 constants). */
+enum { VLFF_DDS_UINT16 = 4, VLFF_DDS_FLOAT32 = 7 };
+enum { VLFF_DDS_OK = 0, VLFF_DDS_WARN = 1, VLFF_DDS_ERROR = 2, VLFF_DDS_STALE = 3 };
+#define VLFF_DDS_POINT_STEP 20u
+
+/* What the bridge reads and where it writes. */
+struct vlff_dds_opts {
+  struct vlff_cfg_dds dds;
+  char map[VLFF_CFG_STR];     /* map segment name */
+  char prompts[VLFF_CFG_STR]; /* prompt mailbox name */
+  char hardware_id[VLFF_CFG_STR]; /* DiagnosticStatus.hardware_id (the host's name) */
+  double run_seconds;         /* 0 = until vlff_dds_stop */
+};
+
+/* Why prompt messages were refused, and what was done. */
+struct vlff_dds_counts {
+  uint64_t maps_sent, status_sent;
+  uint64_t prompts_posted, prompts_oversized, prompts_flood, prompts_malformed, prompts_invalid, prompts_busy;
+};
+
+/* "rt<ns>/vlff/<leaf>" into out. 0, or -1 if it does not fit. */
+int vlff_dds_topic(char *out, size_t len, const char *ns, const char *leaf);
+
+/* Parses a prompt message: a JSON list of 1..VLFF_SHM_MAX_PROMPTS strings,
+ * each passing vlff_prompt_check (returns the count, texts filled), or a
+ * JSON integer 0..INT32_MAX, the index of a configured set, as vlff-shm
+ * set-prompts -i takes it (returns 0, *set_index set; else it is -1).
+ * -1 with the reason in why and *invalid = 0 (not JSON, not a list of
+ * strings or an integer) or 1 (refused by the mailbox's rule). */
+int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *set_index,
+                           int *invalid, char *why, size_t whylen);
+
+/* The point cloud's payload of a snapshot: little-endian points as in the
+ * contract, into a malloc'd buffer (*out, *npoints). 0, or -1/ENOMEM. */
+int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *npoints);
+
+struct vlff_dds;
+/* Creates the participant, topics, writers and reader. NULL with err. */
+struct vlff_dds *vlff_dds_create(const struct vlff_dds_opts *opts, char *err, size_t errlen);
+/* Runs until vlff_dds_stop, a signal (vlff_cli_stop) or run_seconds. 0 or -1. */
+int vlff_dds_run(struct vlff_dds *b);
+void vlff_dds_stop(struct vlff_dds *b); /* async-signal-safe */
+const struct vlff_dds_counts *vlff_dds_counts(const struct vlff_dds *b);
+void vlff_dds_destroy(struct vlff_dds *b);
+
+#endif

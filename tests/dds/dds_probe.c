@@ -1,0 +1,353 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * dds_probe: a DDS subscriber for test_dds_netns.sh, written only against
+ * Cyclone DDS's C API and the C that idlc generates from node/dds/idl (no
+ * vlff-dds code), as a ROS 2 node or any other DDS program would be. It
+ * checks what it receives field by field against the map segment, read with
+ * libvlff-shm.
+ *
+ * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S
+ *   final  wait until the node is gone, then until the latest map received
+ *          equals the segment's last map and a status matches its status;
+ *          prints "maps_sent N" (the bridge's count then)
+ *   late   a reader joining after that: the map comes whole from the
+ *          writer's history; prints "maps_sent N" from a later status
+ *   prompts  post bad and good prompt messages to prompts_in and wait for
+ *          the bridge's status to count each as expected
+ * Exit 0 when every check held; "FAIL: ..." lines and 1 otherwise.
+ */
+#include <math.h>
+#include <stdbool.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include <dds/dds.h>
+
+#include "diagnostic_msgs.h"
+#include "sensor_msgs.h"
+#include "std_msgs.h"
+#include "vlff/shm.h"
+
+static int fails;
+#define CHECK(cond, ...)                                                                                               \
+  do {                                                                                                                 \
+    if (!(cond)) {                                                                                                     \
+      printf("FAIL: " __VA_ARGS__);                                                                                    \
+      printf("\n");                                                                                                    \
+      fails++;                                                                                                         \
+    }                                                                                                                  \
+  } while (0)
+
+static double now_s(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+static float get_f32(const uint8_t *p) {
+  uint32_t u = (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+  float f;
+  memcpy(&f, &u, 4);
+  return f;
+}
+
+/* The map message against a snapshot: layout, then every point at a
+ * labelled voxel's centre with its label and confidence, each voxel once,
+ * all of them. Returns the number of mismatches, the first few printed
+ * when verbose. */
+static int compare_map(const sensor_msgs_msg_dds__PointCloud2_ *m, const struct vlff_map_info *in, bool verbose) {
+  int bad = 0;
+#define MISMATCH(...)                                                                                                  \
+  do {                                                                                                                 \
+    if (verbose && bad < 5) {                                                                                          \
+      printf("map mismatch: " __VA_ARGS__);                                                                            \
+      printf("\n");                                                                                                    \
+    }                                                                                                                  \
+    bad++;                                                                                                             \
+  } while (0)
+  static const struct {
+    const char *name;
+    uint32_t off;
+    uint8_t type;
+  } want[5] = {{"x", 0, 7}, {"y", 4, 7}, {"z", 8, 7}, {"label", 12, 4}, {"confidence", 16, 7}};
+  if (m->fields._length != 5) MISMATCH("%u fields, expected 5", m->fields._length);
+  for (uint32_t i = 0; i < m->fields._length && i < 5; i++) {
+    const sensor_msgs_msg_dds__PointField_ *f = &m->fields._buffer[i];
+    if (strcmp(f->name, want[i].name) || f->offset != want[i].off || f->datatype != want[i].type || f->count != 1)
+      MISMATCH("field %u is %s@%u type %u count %u", i, f->name, f->offset, f->datatype, f->count);
+  }
+  if (m->is_bigendian || m->height != 1 || m->point_step != 20 || m->row_step != m->width * 20 ||
+      m->data._length != m->row_step)
+    MISMATCH("layout: bigendian %d height %u point_step %u row_step %u width %u data %u", m->is_bigendian, m->height,
+             m->point_step, m->row_step, m->width, m->data._length);
+  if (bad) return bad;
+  const struct vlff_map_grid *g = &in->grid;
+  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2], labelled = 0;
+  for (size_t i = 0; i < total; i++) labelled += g->labels[i] <= VLFF_LABEL_MAX;
+  if (m->width != labelled) MISMATCH("%u points, the segment has %zu labelled voxels", m->width, labelled);
+  uint8_t *seen = calloc(total ? total : 1, 1);
+  for (uint32_t p = 0; p < m->width && bad < 50; p++) {
+    const uint8_t *d = m->data._buffer + (size_t)p * 20;
+    double c[3];
+    size_t ix[3];
+    bool inside = true;
+    for (int a = 0; a < 3; a++) {
+      c[a] = get_f32(d + 4 * a);
+      double f = (c[a] - g->origin[a]) / g->voxel_size;
+      inside = inside && f >= 0 && f < g->dims[a];
+      ix[a] = inside ? (size_t)f : 0;
+      /* at the voxel's centre, to float precision */
+      if (inside && fabs(f - (double)ix[a] - 0.5) > 1e-3) MISMATCH("point %u axis %d not at a voxel centre (%g)", p, a, f);
+    }
+    if (!inside) {
+      MISMATCH("point %u (%g %g %g) outside the grid", p, c[0], c[1], c[2]);
+      continue;
+    }
+    size_t i = ix[0] + g->dims[0] * (ix[1] + g->dims[1] * ix[2]);
+    uint16_t label = (uint16_t)(d[12] | d[13] << 8);
+    float conf = get_f32(d + 16), want_conf = (float)(g->confidence ? g->confidence[i] : 255) / 255.0f;
+    if (seen[i]++) MISMATCH("voxel %zu sent twice", i);
+    if (label != g->labels[i]) MISMATCH("point %u label %u, segment %u", p, label, g->labels[i]);
+    if (fabsf(conf - want_conf) > 1e-6f) MISMATCH("point %u confidence %g, segment %g", p, conf, want_conf);
+  }
+  free(seen);
+  return bad;
+}
+
+static const char *value_of(const diagnostic_msgs_msg_dds__DiagnosticStatus_ *s, const char *key) {
+  for (uint32_t i = 0; i < s->values._length; i++)
+    if (!strcmp(s->values._buffer[i].key, key)) return s->values._buffer[i].value;
+  return NULL;
+}
+
+static const diagnostic_msgs_msg_dds__DiagnosticStatus_ *entry(const diagnostic_msgs_msg_dds__DiagnosticArray_ *a,
+                                                               const char *name) {
+  for (uint32_t i = 0; i < a->status._length; i++)
+    if (!strcmp(a->status._buffer[i].name, name)) return &a->status._buffer[i];
+  return NULL;
+}
+
+static bool num_is(const diagnostic_msgs_msg_dds__DiagnosticStatus_ *s, const char *key, uint64_t want) {
+  const char *v = value_of(s, key);
+  return v && strtoull(v, NULL, 10) == want;
+}
+
+/* The learner's entry against the segment's status (the node gone). */
+static int compare_status(const diagnostic_msgs_msg_dds__DiagnosticArray_ *a, struct vlff_map *m, const char *node,
+                          bool verbose) {
+  struct vlff_map_status st;
+  if (vlff_map_get_status(m, &st) < 0) return 1;
+  const diagnostic_msgs_msg_dds__DiagnosticStatus_ *l = entry(a, "vlff: learner");
+  int bad = 0;
+  if (!l) return 1;
+  const char *state = value_of(l, "state");
+  bad += !state || strcmp(state, st.state_name);
+  bad += !num_is(l, "updates", st.updates) + !num_is(l, "frames_in", st.frames_in) +
+         !num_is(l, "frames_lost", st.frames_lost) + !num_is(l, "frames_refused", st.frames_refused) +
+         !num_is(l, "keyframes", st.keyframes) + !num_is(l, "iterations", st.iterations) +
+         !num_is(l, "map_version", vlff_map_version(m));
+  for (uint32_t i = 0; i < st.reason_count; i++) {
+    char key[64];
+    snprintf(key, sizeof key, "refused: %s", st.reason[i].name);
+    bad += !num_is(l, key, st.reason[i].count);
+  }
+  bad += l->level != 3; /* STALE: the writer is gone */
+  bad += strcmp(l->hardware_id, node) != 0;
+  if (verbose && bad)
+    printf("status mismatch: level %u state %s updates %s/%llu iterations %s/%llu hardware_id %s\n", l->level,
+           state ? state : "-", value_of(l, "updates") ? value_of(l, "updates") : "-",
+           (unsigned long long)st.updates, value_of(l, "iterations") ? value_of(l, "iterations") : "-",
+           (unsigned long long)st.iterations, l->hardware_id);
+  return bad;
+}
+
+static dds_entity_t reader(dds_entity_t pp, const dds_topic_descriptor_t *d, const char *ns, const char *leaf,
+                           bool transient) {
+  char name[256];
+  snprintf(name, sizeof name, "rt%s/vlff/%s", ns, leaf);
+  dds_entity_t t = dds_create_topic(pp, d, name, NULL, NULL);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  if (transient) dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_entity_t r = dds_create_reader(pp, t, q, NULL);
+  dds_delete_qos(q);
+  return r;
+}
+
+/* The newest sample of r, on loan in *s (return it with dds_return_loan
+ * (r, s, 1)): 1, or 0 when none came. Readers keep the last sample only. */
+static int take_one(dds_entity_t r, void **s) {
+  dds_sample_info_t info;
+  for (;;) {
+    s[0] = NULL;
+    dds_return_t n = dds_take(r, s, &info, 1, 1);
+    if (n <= 0) return 0;
+    if (info.valid_data) return 1;
+    dds_return_loan(r, s, n);
+  }
+}
+
+static int wait_data(dds_entity_t ws, double deadline) {
+  double left = deadline - now_s();
+  if (left <= 0) return 0;
+  dds_waitset_wait(ws, NULL, 0, DDS_MSECS(left > 0.1 ? 100 : (int64_t)(left * 1000) + 1));
+  return 1;
+}
+
+static dds_entity_t waitset_of(dds_entity_t pp, dds_entity_t r1, dds_entity_t r2) {
+  dds_entity_t ws = dds_create_waitset(pp);
+  dds_waitset_attach(ws, dds_create_readcondition(r1, DDS_ANY_STATE), 1);
+  if (r2) dds_waitset_attach(ws, dds_create_readcondition(r2, DDS_ANY_STATE), 2);
+  return ws;
+}
+
+/* final and late: the latest map and status against the segment, until
+ * both match or the deadline. */
+static int check_map_status(dds_entity_t pp, const char *ns, struct vlff_map *m, const char *node, double deadline,
+                            bool late) {
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
+  struct vlff_map_info in;
+  if (!snap || vlff_map_snapshot_take(m, snap) < 0 || vlff_map_snapshot_info(snap, &in) < 0) {
+    printf("FAIL: snapshot: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  dds_entity_t mr = reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, ns, "map", true);
+  dds_entity_t sr = reader(pp, &diagnostic_msgs_msg_dds__DiagnosticArray__desc, ns, "status", false);
+  dds_entity_t ws = waitset_of(pp, mr, sr);
+  int map_ok = 0, status_ok = 0, maps = 0, statuses = 0, last_map_bad = -1, last_status_bad = -1;
+  long long sent = -1, sent_first = -1;
+  int status_after_map = 0;
+  while ((!map_ok || !status_ok || (late && status_after_map < 2)) && wait_data(ws, deadline)) {
+    void *s[1];
+    if (take_one(mr, s)) {
+      const sensor_msgs_msg_dds__PointCloud2_ *pc = s[0];
+      maps++;
+      last_map_bad = compare_map(pc, &in, true);
+      struct timespec rt;
+      clock_gettime(CLOCK_REALTIME, &rt);
+      double age = (double)rt.tv_sec - pc->header.stamp.sec;
+      CHECK(!strcmp(pc->header.frame_id, "map"), "map frame_id '%s', expected 'map'", pc->header.frame_id);
+      CHECK(age > -5 && age < 600, "map stamp %d s is %g s from now", pc->header.stamp.sec, age);
+      if (!last_map_bad) map_ok = 1;
+      dds_return_loan(mr, s, 1);
+    }
+    if (take_one(sr, s)) {
+      const diagnostic_msgs_msg_dds__DiagnosticArray_ *a = s[0];
+      statuses++;
+      const diagnostic_msgs_msg_dds__DiagnosticStatus_ *br = entry(a, "vlff-dds: bridge");
+      const char *v = br ? value_of(br, "maps_sent") : NULL;
+      if (v) sent = strtoll(v, NULL, 10);
+      if (sent_first < 0) sent_first = sent;
+      last_status_bad = compare_status(a, m, node, true) + !(br && num_is(br, "map_version_sent", in.version));
+      if (!last_status_bad) status_ok = 1;
+      if (map_ok) status_after_map++;
+      dds_return_loan(sr, s, 1);
+    }
+  }
+  size_t total = (size_t)in.grid.dims[0] * in.grid.dims[1] * in.grid.dims[2], labelled = 0;
+  for (size_t i = 0; i < total; i++) labelled += in.grid.labels[i] <= VLFF_LABEL_MAX;
+  printf("%s: %d maps, %d status messages received; map version %llu, %zu labelled of %zu voxels\n",
+         late ? "late" : "final", maps, statuses, (unsigned long long)in.version, labelled, total);
+  CHECK(labelled > 0, "the segment's map has no labelled voxel: nothing was compared");
+  if (!map_ok) printf("FAIL: no map received equal to the segment's (last compare: %d mismatches)\n", last_map_bad);
+  if (!status_ok) printf("FAIL: no status received matching the segment's (last compare: %d mismatches)\n", last_status_bad);
+  if (late)
+    CHECK(sent == sent_first, "the bridge resent the map while nothing changed (maps_sent %lld then %lld)", sent_first,
+          sent);
+  printf("maps_sent %lld\n", sent);
+  vlff_map_snapshot_free(snap);
+  return !map_ok || !status_ok;
+}
+
+static void post(dds_entity_t w, const char *text) {
+  std_msgs_msg_dds__String_ msg = {(char *)text};
+  dds_return_t rc = dds_write(w, &msg);
+  CHECK(rc == DDS_RETCODE_OK, "write to prompts_in: %s", dds_strretcode(rc));
+}
+
+static int check_prompts(dds_entity_t pp, const char *ns, double deadline) {
+  char name[256];
+  snprintf(name, sizeof name, "rt%s/vlff/prompts_in", ns);
+  dds_entity_t t = dds_create_topic(pp, &std_msgs_msg_dds__String__desc, name, NULL, NULL);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
+  dds_entity_t w = dds_create_writer(pp, t, q, NULL);
+  dds_delete_qos(q);
+  dds_publication_matched_status_t pm = {0};
+  while (now_s() < deadline && (dds_get_publication_matched_status(w, &pm), pm.current_count < 1))
+    dds_sleepfor(DDS_MSECS(50));
+  CHECK(pm.current_count >= 1, "prompts_in: no bridge matched");
+  size_t big = 5000;
+  char *huge = malloc(big + 1);
+  memset(huge, 'a', big);
+  huge[0] = '[', huge[1] = '"', huge[big - 2] = '"', huge[big - 1] = ']', huge[big] = 0;
+  post(w, huge);                          /* oversized */
+  post(w, "chair, table");                /* malformed: not JSON */
+  post(w, "{\"prompts\": [\"chair\"]}");  /* malformed: not a list */
+  post(w, "[\"chair\", \"chair\"]");      /* invalid: repeated */
+  post(w, "[\"bad\\ttab\"]");             /* invalid: a control character */
+  post(w, "[\"chair\", \"table\"]");      /* posted */
+  post(w, "[\"door\"]");                  /* flood: right after a post */
+  free(huge);
+  dds_entity_t sr = reader(pp, &diagnostic_msgs_msg_dds__DiagnosticArray__desc, ns, "status", false);
+  dds_entity_t ws = waitset_of(pp, sr, 0);
+  static const char *const keys[] = {"prompts_refused_oversized", "prompts_refused_malformed", "prompts_refused_invalid",
+                                     "prompts_posted", "prompts_refused_flood", "prompts_refused_busy"};
+  static const uint64_t want[] = {1, 2, 2, 1, 1, 0};
+  int ok = 0;
+  char last[512] = "";
+  while (!ok && wait_data(ws, deadline)) {
+    void *s[1];
+    if (!take_one(sr, s)) continue;
+    const diagnostic_msgs_msg_dds__DiagnosticStatus_ *br = entry(s[0], "vlff-dds: bridge");
+    ok = br != NULL;
+    size_t n = 0;
+    for (int i = 0; br && i < 6; i++) {
+      const char *v = value_of(br, keys[i]);
+      ok = ok && num_is(br, keys[i], want[i]);
+      n += (size_t)snprintf(last + n, n < sizeof last ? sizeof last - n : 0, "%s=%s ", keys[i], v ? v : "-");
+    }
+    dds_return_loan(sr, s, 1);
+  }
+  printf("prompts: %s\n", last);
+  CHECK(ok, "the bridge's prompt counts are not oversized 1, malformed 2, invalid 2, posted 1, flood 1, busy 0");
+  return 0;
+}
+
+int main(int argc, char **argv) {
+  if (argc != 7) {
+    fprintf(stderr, "usage: dds_probe final|late|prompts DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S\n");
+    return 2;
+  }
+  const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5];
+  double deadline = now_s() + atof(argv[6]);
+  dds_entity_t pp = dds_create_participant((dds_domainid_t)atoi(argv[2]), NULL, NULL);
+  if (pp < 0) {
+    printf("FAIL: participant: %s\n", dds_strretcode(pp));
+    return 1;
+  }
+  if (!strcmp(mode, "prompts")) {
+    check_prompts(pp, ns, deadline);
+  } else {
+    /* The probe may start before the node has created the segment. */
+    struct vlff_map *m;
+    while (!(m = vlff_map_attach(mapname)) && now_s() < deadline) dds_sleepfor(DDS_MSECS(100));
+    if (!m) {
+      printf("FAIL: %s: %s\n", mapname, vlff_shm_last_message());
+      return 1;
+    }
+    /* final: the node is stopped by the test; its last map is the one to get. */
+    while (vlff_map_writer_alive(m, 5000000000ull) && now_s() < deadline) dds_sleepfor(DDS_MSECS(100));
+    CHECK(!vlff_map_writer_alive(m, 5000000000ull), "the node did not stop");
+    CHECK(vlff_map_version(m) > 0, "the node published no map");
+    if (!fails) fails += check_map_status(pp, ns, m, node, deadline, !strcmp(mode, "late"));
+    vlff_map_detach(m);
+  }
+  dds_delete(pp);
+  printf("%s\n", fails ? "probe FAILED" : "probe ok");
+  return fails ? 1 : 0;
+}

@@ -1,0 +1,122 @@
+/* SPDX-License-Identifier: MIT */
+/* vlff-dds's pure parts (dds.h): topic names, the prompt message rule and
+ * the point cloud's payload, without a network. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "dds.h"
+
+static void test_topic(void **state) {
+  (void)state;
+  char t[64];
+  assert_int_equal(vlff_dds_topic(t, sizeof t, "", "map"), 0);
+  assert_string_equal(t, "rt/vlff/map");
+  assert_int_equal(vlff_dds_topic(t, sizeof t, "/fleet/robot1", "status"), 0);
+  assert_string_equal(t, "rt/fleet/robot1/vlff/status");
+  assert_int_equal(vlff_dds_topic(t, 12, "/robot1", "map"), -1);
+}
+
+static int parse(const char *s, int *invalid, char *why) {
+  static char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+  int idx;
+  return vlff_dds_parse_prompts(s, strlen(s), texts, &idx, invalid, why, 256);
+}
+
+/* The rule of vlff-shm set-prompts (vlff_prompt_check), after JSON. */
+static void test_prompts(void **state) {
+  (void)state;
+  static char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+  char why[256];
+  int invalid, idx;
+  const char *ok = "[\"chair\", \"table\", \"caf\\u00e9\"]";
+  assert_int_equal(vlff_dds_parse_prompts(ok, strlen(ok), texts, &idx, &invalid, why, sizeof why), 3);
+  assert_string_equal(texts[2], "caf\xc3\xa9");
+  assert_int_equal(idx, -1);
+  /* A configured set by index, as vlff-shm set-prompts -i. */
+  assert_int_equal(vlff_dds_parse_prompts("2", 1, texts, &idx, &invalid, why, sizeof why), 0);
+  assert_int_equal(idx, 2);
+  static const struct {
+    const char *msg, *why;
+    int invalid;
+  } bad[] = {
+      {"chair", "not JSON", 0},
+      {"[\"chair\"] x", "not JSON", 0},
+      {"[\"chair\"", "not JSON", 0},
+      {"{\"a\": 1}", "got a JSON object", 0},
+      {"2.5", "got a JSON double", 0},
+      {"-1", "expected a prompt set index in 0..2147483647", 1},
+      {"2147483648", "expected a prompt set index", 1},
+      {"\"chair\"", "got a JSON string", 0},
+      {"[\"chair\", 3]", "prompt 1: expected a JSON string, got a JSON int", 0},
+      {"[[[[[[\"deep\"]]]]]]", "not JSON", 0},
+      {"[]", "expected 1 to 32 prompts, got 0", 1},
+      {"[\"a\", \"a\"]", "repeats", 1},
+      {"[\"\"]", "", 1},
+      {"[\"tab\\there\"]", "control", 1},
+      {"[\"nul\\u0000cut\"]", "without NUL", 1},
+      {"[\"0123456789012345678901234567890123456789012345678901234567890123\"]", "1 to 63 bytes", 1},
+  };
+  for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    why[0] = 0;
+    int n = parse(bad[i].msg, &invalid, why);
+    if (n != -1 || invalid != bad[i].invalid || !strstr(why, bad[i].why))
+      fail_msg("%s: got %d invalid %d '%s', expected -1 invalid %d '%s'", bad[i].msg, n, invalid, why, bad[i].invalid,
+               bad[i].why);
+  }
+  /* 33 prompts: one over the mailbox's table. */
+  char many[33 * 8 + 8] = "[";
+  for (int i = 0; i < 33; i++) sprintf(many + strlen(many), "%s\"p%02d\"", i ? "," : "", i);
+  strcat(many, "]");
+  assert_int_equal(parse(many, &invalid, why), -1);
+  assert_int_equal(invalid, 1);
+}
+
+static float f32_at(const uint8_t *p) {
+  uint32_t u = (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+  float f;
+  memcpy(&f, &u, 4);
+  return f;
+}
+
+/* One point per labelled voxel, at its centre, little-endian, free and
+ * unknown voxels left out. */
+static void test_cloud(void **state) {
+  (void)state;
+  uint16_t labels[2 * 3 * 2] = {0};
+  uint8_t conf[12] = {0};
+  for (int i = 0; i < 12; i++) labels[i] = i % 3 == 0 ? VLFF_LABEL_FREE : i % 3 == 1 ? VLFF_LABEL_UNKNOWN : 0x0102;
+  labels[11] = 7;
+  conf[11] = 51;
+  struct vlff_map_info in = {0};
+  in.grid = (struct vlff_map_grid){{1, -2, 0.5}, 0.5, {2, 3, 2}, labels, conf};
+  uint8_t *d;
+  uint32_t n;
+  assert_int_equal(vlff_dds_cloud(&in, &d, &n), 0);
+  assert_int_equal(n, 4); /* indices 2, 5, 8, 11 */
+  const uint8_t *last = d + 3 * VLFF_DDS_POINT_STEP;
+  /* index 11 = (1, 2, 1) */
+  assert_float_equal(f32_at(last), 1 + 1.5 * 0.5, 1e-6);
+  assert_float_equal(f32_at(last + 4), -2 + 2.5 * 0.5, 1e-6);
+  assert_float_equal(f32_at(last + 8), 0.5 + 1.5 * 0.5, 1e-6);
+  assert_int_equal(last[12] | last[13] << 8, 7);
+  assert_float_equal(f32_at(last + 16), 0.2, 1e-6);
+  assert_int_equal(d[12], 0x02);
+  assert_int_equal(d[13], 0x01);
+  free(d);
+  in.grid.confidence = NULL; /* all 255 */
+  assert_int_equal(vlff_dds_cloud(&in, &d, &n), 0);
+  assert_float_equal(f32_at(d + 16), 1.0, 0);
+  free(d);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts),
+                                     cmocka_unit_test(test_cloud)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
