@@ -214,8 +214,9 @@ static void match(struct vlff_pair *p) {
        * frames off its period's grid, one 18 ms before the next in the e2e
        * rig), so the pair waits for that successor, unless the later
        * one's stream has moved on by two frames meanwhile (the earlier
-       * camera stopped). */
-      if (fr && (tc < td ? !c2 : !d2) && (tc < td ? p->depth.n : p->color.n) < 3) break;
+       * camera stopped). Frames stamped at the same instant have no nearer
+       * partner to wait for. */
+      if (fr && tc != td && (tc < td ? !c2 : !d2) && (tc < td ? p->depth.n : p->color.n) < 3) break;
       if (c2 && dist(when(&p->color, c2, fr), td) < dist(tc, td)) {
         drop_oldest(p, &p->color);
       } else if (d2 && dist(tc, when(&p->depth, d2, fr)) < dist(tc, td)) {

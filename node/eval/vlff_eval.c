@@ -41,6 +41,7 @@
 #include "metrics.h"
 #include "online.h"
 #include "palette.h"
+#include "rng.h"
 #include "select.h"
 #include "sim.h"
 #include "vlff/escape.h"
@@ -991,14 +992,13 @@ static void score_field_3d_reference(struct eval *e, struct vlff_field *fld) {
   float *acc = xcalloc(chunk * D, sizeof(float)), *fb = xcalloc(chunk * D, sizeof(float));
   float *jx = xcalloc(chunk * 3, sizeof(float));
   int *pr = xcalloc(chunk, sizeof(int));
-  uint64_t rs = 0x9e3779b97f4a7c15ull;
+  uint64_t rs = 0; /* the jitter, the same every run */
   for (size_t s0 = 0; s0 < np; s0 += chunk) {
     size_t m = np - s0 < chunk ? np - s0 : chunk;
     memset(acc, 0, m * D * sizeof(float));
     for (int q = 0; q < 10; q++) {
       for (size_t k = 0; k < 3 * m; k++) {
-        rs = rs * 6364136223846793005ull + 1442695040888963407ull;
-        jx[k] = sc->pts.xyz[3 * s0 + k] + (float)(((rs >> 11) * 0x1.0p-53) * 0.04 - 0.02);
+        jx[k] = sc->pts.xyz[3 * s0 + k] + (float)(vlff_rng_double(&rs) * 0.04 - 0.02);
       }
       if (vlff_field_query(fld, jx, m, NULL, fb, NULL, NULL, NULL) < 0) die("3D query failed");
       for (size_t k = 0; k < m * D; k++) acc[k] += fb[k];
