@@ -12,6 +12,8 @@
  */
 #include "json.h"
 
+#include "log.h"
+
 #include <errno.h>
 #include <math.h>
 #include <stdbool.h>
@@ -109,7 +111,7 @@ static void set_current(struct vlff_feed *f, int ch, struct vlff_view_msg *m) {
 struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   struct vlff_feed *f = calloc(1, sizeof *f);
   if (!f) {
-    fprintf(stderr, "vlff-view: out of memory\n");
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory");
     return NULL;
   }
   f->p = *p;
@@ -355,18 +357,18 @@ static void map_attach(struct vlff_feed *f, uint64_t now) {
   m->map = vlff_map_attach(f->p.map_name);
   if (!m->map) {
     if (!m->reported)
-      fprintf(stderr, "vlff-view: map %s: %s; retrying every second\n", f->p.map_name, vlff_shm_last_message());
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s: %s; retrying every second", f->p.map_name, vlff_shm_last_message());
     m->reported = 1;
     return;
   }
   m->snap = vlff_map_snapshot_new(m->map);
   if (!m->snap) {
-    fprintf(stderr, "vlff-view: map %s: no memory for a snapshot\n", f->p.map_name);
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s: no memory for a snapshot", f->p.map_name);
     vlff_map_detach(m->map);
     m->map = NULL;
     return;
   }
-  fprintf(stderr, "vlff-view: attached to map %s\n", f->p.map_name);
+  vlff_log(VLFF_LOG_INFO, "vlff-view", "attached to map %s", f->p.map_name);
   m->reported = 0;
 }
 
@@ -380,7 +382,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
   if (v == 0 || (v == m->version && vlff_map_generation(m->map) == m->generation)) return 0;
   if (vlff_map_snapshot_take(m->map, m->snap) != 0) {
     if (errno == EPIPE) {
-      fprintf(stderr, "vlff-view: map %s was replaced by a new one; attaching again\n", f->p.map_name);
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s was replaced by a new one; attaching again", f->p.map_name);
       uint64_t keep = m->version;
       map_forget(m);
       m->version = keep; /* clients keep their map until the new segment publishes */
@@ -414,7 +416,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
     m->conf = malloc(n + 1);
     m->brick_sent = calloc(brick_count(m, edge) + 1, 1);
     if (!m->labels || !m->conf || !m->brick_sent) {
-      fprintf(stderr, "vlff-view: out of memory for a %zu-voxel map\n", n);
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a %zu-voxel map", n);
       map_forget(m);
       return 0;
     }
@@ -468,7 +470,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
             uint32_t *p = realloc(f->changed, nc * sizeof *p);
             if (!p) {
               free(dirty);
-              fprintf(stderr, "vlff-view: out of memory for a map delta\n");
+              vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a map delta");
               map_forget(m);
               return 0;
             }
@@ -557,7 +559,7 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
     f->ring = vlff_ring_attach(f->p.frames_name, VLFF_RECORD_FRAME);
     if (!f->ring) {
       if (!f->ring_reported)
-        fprintf(stderr, "vlff-view: frame ring %s: %s; retrying every second\n", f->p.frames_name,
+        vlff_log(VLFF_LOG_WARN, "vlff-view", "frame ring %s: %s; retrying every second", f->p.frames_name,
                 vlff_shm_last_message());
       f->ring_reported = 1;
       return 0;
@@ -567,13 +569,13 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
     f->rec_cap = vlff_ring_slot_size(f->ring);
     f->rec = malloc(f->rec_cap);
     if (!f->rec) {
-      fprintf(stderr, "vlff-view: no memory for a %zu-byte frame\n", f->rec_cap);
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "no memory for a %zu-byte frame", f->rec_cap);
       vlff_ring_close(f->ring);
       f->ring = NULL;
       return 0;
     }
     f->ring_head = 0;
-    fprintf(stderr, "vlff-view: attached to frame ring %s\n", f->p.frames_name);
+    vlff_log(VLFF_LOG_INFO, "vlff-view", "attached to frame ring %s", f->p.frames_name);
   }
   uint64_t head = vlff_ring_head(f->ring);
   if (now - f->fps_t_ns >= NS) {
@@ -589,7 +591,7 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
   ssize_t len = vlff_ring_read_latest(f->ring, f->rec, f->rec_cap, &info);
   if (len < 0) {
     if (errno == EPIPE) {
-      fprintf(stderr, "vlff-view: frame ring %s was replaced; attaching again\n", f->p.frames_name);
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "frame ring %s was replaced; attaching again", f->p.frames_name);
       vlff_ring_close(f->ring);
       f->ring = NULL;
     }
