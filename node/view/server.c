@@ -396,7 +396,7 @@ static void do_subscribe(struct client *cl, json_object *req) {
     }
     cl->subscribed[ch] = 1;
     cl->sub_id[ch] = (uint32_t)id;
-    struct vlff_view_msg *m = vlff_feed_current(cl->v->feed, (int)ch);
+    struct vlff_view_msg *m = vlff_feed_current(cl->v->feed, (int)ch, &cl->v->c);
     if (m) {
       enqueue(cl, m, (uint32_t)id, 0);
       vlff_view_msg_unref(m);
