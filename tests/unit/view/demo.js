@@ -39,16 +39,13 @@ function shmAsync(...args) {
 
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
-// sim: {rate_hz, width, height} in place of the demo config's camera stream.
-async function start({ withNode = true, viewArgs = [], token = null, sim = null } = {}) {
+async function start({ withNode = true, viewArgs = [], token = null } = {}) {
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'vlff-view-test-'));
   const tag = `vt${process.pid}`;
   const names = { frames: `/${tag}-frames`, map: `/${tag}-map`, prompts: `/${tag}-prompts` };
   const cfg = fs.readFileSync(`${src}/configs/demo-sim.yaml`, 'utf8')
     .replace(/\/tmp\/vlff-demo\/state/g, `${dir}/state`).replace(/\/vlff-demo-/g, `/${tag}-`);
-  const simmed = sim ? cfg.replace(/^(  rate_hz:) \d+/m, `$1 ${sim.rate_hz}`).replace(/^(  width:) \d+/m, `$1 ${sim.width}`)
-    .replace(/^(  height:) \d+/m, `$1 ${sim.height}`) : cfg;
-  fs.writeFileSync(`${dir}/cfg.yaml`, simmed);
+  fs.writeFileSync(`${dir}/cfg.yaml`, cfg);
   const procs = [];
   procs.push(run(prog.sim, ['--config', `${dir}/cfg.yaml`, '--quiet'], `${dir}/sim.log`));
   const node = withNode ? run(prog.node, ['--config', `${dir}/cfg.yaml`], `${dir}/node.log`) : null;
