@@ -15,9 +15,11 @@
 #include <memory>
 #include <new>
 #include <string>
+#include <vector>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 namespace {
@@ -90,6 +92,30 @@ struct vlff_cv_stereo {
   double baseline;
   int w, h;
 };
+
+extern "C" int vlff_cv_compress_rgb(const uint8_t *rgb, size_t stride, int w, int h, int png, int quality,
+                                    uint8_t **out, size_t *len, char *err, size_t errlen) {
+  return guarded(png ? "encode PNG" : "encode JPEG", err, errlen, [&]() -> int {
+    cv::Mat bgr;
+    cv::cvtColor(cv::Mat(h, w, CV_8UC3, const_cast<uint8_t *>(rgb), stride), bgr, cv::COLOR_RGB2BGR);
+    std::vector<uchar> buf;
+    std::vector<int> params;
+    if (!png) params = {cv::IMWRITE_JPEG_QUALITY, quality};
+    if (!cv::imencode(png ? ".png" : ".jpg", bgr, buf, params)) {
+      set_err(err, errlen, png ? "encode PNG" : "encode JPEG", "OpenCV could not encode the image");
+      return -1;
+    }
+    uint8_t *p = static_cast<uint8_t *>(std::malloc(buf.size() ? buf.size() : 1));
+    if (!p) {
+      set_err(err, errlen, png ? "encode PNG" : "encode JPEG", "out of memory");
+      return -1;
+    }
+    std::memcpy(p, buf.data(), buf.size());
+    *out = p;
+    *len = buf.size();
+    return 0;
+  });
+}
 
 extern "C" int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlff_pix_t fmt,
                               uint8_t *dst, size_t dstride, char *err, size_t errlen) {

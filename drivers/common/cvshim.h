@@ -31,6 +31,12 @@ extern "C" {
 int vlff_cv_to_rgb(const void *src, size_t sstride, int w, int h, vlff_pix_t fmt, uint8_t *dst,
                    size_t dstride, char *err, size_t errlen);
 
+/* Compress a packed RGB8 image (stride bytes a row) as JPEG (png 0, quality
+ * 1..100) or PNG (png 1, quality ignored) into a malloc'd buffer *out of *len
+ * bytes, which the caller frees. */
+int vlff_cv_compress_rgb(const uint8_t *rgb, size_t stride, int w, int h, int png, int quality, uint8_t **out,
+                         size_t *len, char *err, size_t errlen);
+
 /* Resample a packed RGB8 image from sw x sh to dw x dh, pixel centres on
  * pixel centres (output pixel (u, v) samples input (u + 0.5) * sw / dw - 0.5,
  * likewise in v): area averaging when both sides shrink (no aliasing of fine

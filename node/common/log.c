@@ -19,6 +19,11 @@ static _Atomic long long log_t0_ns;
 /* A status line is on stderr without its newline. */
 static atomic_bool status_shown;
 
+void vlff_log_start(void) {
+  long long zero = 0;
+  atomic_compare_exchange_strong(&log_t0_ns, &zero, (long long)vlff_now_ns());
+}
+
 void vlff_log_set_level(enum vlff_log_level level) { atomic_store(&log_level, (int)level); }
 
 void vlff_logv(enum vlff_log_level level, const char *tag, const char *fmt, va_list ap) {

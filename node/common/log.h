@@ -5,7 +5,7 @@
  *  - One line per call, written with a single write(2) so lines from
  *    different threads and processes never interleave.
  *  - Interactive: "[   12.345678] W tag: message" with CLOCK_MONOTONIC
- *    seconds since the process started logging.
+ *    seconds since vlff_log_start (or, without it, since the first line).
  *  - Under systemd (JOURNAL_STREAM set) lines start with the syslog
  *    priority "<N>" and carry no timestamp: journald adds its own.
  *  - Thread-safe; callable from any thread. Not async-signal-safe.
@@ -27,6 +27,9 @@
 extern "C" {
 #endif
 
+/* Starts the interactive stamps' clock now (a program calls it first thing, so that
+ * stamps count from its start); without it they count from the first line logged. */
+void vlff_log_start(void);
 void vlff_log_set_level(enum vlff_log_level level);
 
 void vlff_log(enum vlff_log_level level, const char *tag, const char *fmt, ...)

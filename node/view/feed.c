@@ -12,6 +12,9 @@
  */
 #include "clock.h"
 #include "json.h"
+#include "cvshim.h"
+
+#include "log.h"
 
 #include <errno.h>
 #include <math.h>
@@ -60,9 +63,13 @@ struct vlff_feed {
   double fps;
   bool ring_has_pose; /* a frame of the ring has carried a pose: poses come from the frames */
   uint64_t last_status_ns;
+  unsigned last_wanted; /* the channels subscribed at the last poll */
   /* the latest message of each channel; the map ones are built on demand */
   struct vlff_view_msg *current[VLFF_VIEW_CH_COUNT + 1];
   uint64_t encoded[VLFF_VIEW_CH_COUNT + 1]; /* messages built, per channel */
+  uint64_t encode_failures;
+  uint8_t *rgb; /* a camera frame converted to RGB8 for the encoder */
+  size_t rgb_cap;
 };
 
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
@@ -104,7 +111,7 @@ static void set_current(struct vlff_feed *f, int ch, struct vlff_view_msg *m) {
 struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   struct vlff_feed *f = calloc(1, sizeof *f);
   if (!f) {
-    fprintf(stderr, "vlff-view: out of memory\n");
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory");
     return NULL;
   }
   f->p = *p;
@@ -128,6 +135,7 @@ void vlff_feed_free(struct vlff_feed *f) {
   vlff_ring_close(f->ring);
   free(f->rec);
   free(f->changed);
+  free(f->rgb);
   for (int c = 0; c <= VLFF_VIEW_CH_COUNT; c++) vlff_view_msg_unref(f->current[c]);
   free(f);
 }
@@ -292,6 +300,32 @@ static void count_labels(struct feed_map *m) {
   }
 }
 
+/* A foxglove.CompressedImage of packed RGB8 pixels: JPEG (the camera) or PNG (the
+ * labels, whose colours must stay exact). NULL, the failure logged (rate-limited),
+ * when the encoder fails. */
+static struct vlff_view_msg *compressed_msg(struct vlff_feed *f, int ch, uint64_t t, const uint8_t *rgb, size_t stride,
+                                            uint32_t w, uint32_t h, int png) {
+  uint8_t *enc = NULL;
+  size_t n = 0;
+  char err[160];
+  if (vlff_cv_compress_rgb(rgb, stride, (int)w, (int)h, png, VLFF_VIEW_JPEG_QUALITY, &enc, &n, err, sizeof err)) {
+    vlff_warn_limited(&f->encode_failures, "vlff-view", "a %ux%u image for %s: %s", w, h, vlff_view_channel(ch)->topic,
+                      err);
+    return NULL;
+  }
+  struct jw w_ = {feed_msg(f, ch, n / 3 * 4 + 256), 0};
+  if (w_.m) {
+    w_.m->t_ns = t;
+    jw_s(&w_, "{\"timestamp\":");
+    jw_time(&w_, t);
+    jw_f(&w_, ",\"frame_id\":\"camera\",\"format\":\"%s\",\"data\":", png ? "png" : "jpeg");
+    jw_b64(&w_, enc, n);
+    jw_s(&w_, "}");
+  }
+  free(enc);
+  return w_.m ? jw_finish(&w_) : NULL;
+}
+
 static struct vlff_view_msg *label_image_msg(struct vlff_feed *f, const struct vlff_map_label_image *li) {
   size_t px = (size_t)li->width * li->height;
   uint8_t *rgb = malloc(px * 3 + 1);
@@ -306,18 +340,10 @@ static struct vlff_view_msg *label_image_msg(struct vlff_feed *f, const struct v
     else if (l == VLFF_LABEL_UNKNOWN) o[0] = o[1] = o[2] = 0;
     else o[0] = o[1] = o[2] = 128;
   }
-  struct jw w = {feed_msg(f, VLFF_VIEW_CH_LABELS, px * 4 + 512), 0};
-  if (w.m) {
-    w.m->t_ns = to_real(f, li->t_ns);
-    jw_s(&w, "{\"timestamp\":");
-    jw_time(&w, w.m->t_ns);
-    jw_f(&w, ",\"frame_id\":\"camera\",\"width\":%u,\"height\":%u,\"encoding\":\"rgb8\",\"step\":%u,\"data\":",
-         li->width, li->height, li->width * 3);
-    jw_b64(&w, rgb, px * 3);
-    jw_s(&w, "}");
-  }
+  struct vlff_view_msg *m =
+      compressed_msg(f, VLFF_VIEW_CH_LABELS, to_real(f, li->t_ns), rgb, (size_t)li->width * 3, li->width, li->height, 1);
   free(rgb);
-  return w.m ? jw_finish(&w) : NULL;
+  return m;
 }
 
 /* Row-major camera-to-world matrix to a FrameTransform world -> camera. */
@@ -350,18 +376,18 @@ static void map_attach(struct vlff_feed *f, uint64_t now) {
   m->map = vlff_map_attach(f->p.map_name);
   if (!m->map) {
     if (!m->reported)
-      fprintf(stderr, "vlff-view: map %s: %s; retrying every second\n", f->p.map_name, vlff_shm_last_message());
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s: %s; retrying every second", f->p.map_name, vlff_shm_last_message());
     m->reported = 1;
     return;
   }
   m->snap = vlff_map_snapshot_new(m->map);
   if (!m->snap) {
-    fprintf(stderr, "vlff-view: map %s: no memory for a snapshot\n", f->p.map_name);
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s: no memory for a snapshot", f->p.map_name);
     vlff_map_detach(m->map);
     m->map = NULL;
     return;
   }
-  fprintf(stderr, "vlff-view: attached to map %s\n", f->p.map_name);
+  vlff_log(VLFF_LOG_INFO, "vlff-view", "attached to map %s", f->p.map_name);
   m->reported = 0;
 }
 
@@ -376,7 +402,7 @@ static int map_take_version(struct vlff_feed *f, struct vlff_map_info *info) {
   if (v == 0 || (v == m->version && vlff_map_generation(m->map) == m->generation)) return -1;
   if (vlff_map_snapshot_take(m->map, m->snap) != 0) {
     if (errno == EPIPE) {
-      fprintf(stderr, "vlff-view: map %s was replaced by a new one; attaching again\n", f->p.map_name);
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s was replaced by a new one; attaching again", f->p.map_name);
       uint64_t keep = m->version;
       map_forget(m);
       m->version = keep; /* clients keep their map until the new segment publishes */
@@ -416,7 +442,7 @@ static int map_copy_whole(struct feed_map *m, const struct vlff_map_grid *g, uin
   m->conf = malloc(n + 1);
   m->brick_sent = calloc(brick_count(m, edge) + 1, 1);
   if (!m->labels || !m->conf || !m->brick_sent) {
-    fprintf(stderr, "vlff-view: out of memory for a %zu-voxel map\n", n);
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a %zu-voxel map", n);
     map_forget(m);
     return -1;
   }
@@ -472,7 +498,7 @@ static long map_take_changes(struct vlff_feed *f, const struct vlff_map_grid *g,
           size_t nc = f->changed_cap ? f->changed_cap * 2 : 4096;
           uint32_t *p = realloc(f->changed, nc * sizeof *p);
           if (!p) {
-            fprintf(stderr, "vlff-view: out of memory for a map delta\n");
+            vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a map delta");
             map_forget(m);
             return -1;
           }
@@ -583,19 +609,32 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
 
 /* ----------------------------------------------------------- camera frames */
 
-static const char *image_encoding(uint32_t fmt) {
-  switch (fmt) {
-  case VLFF_PIX_RGB8: return "rgb8";
-  case VLFF_PIX_BGR8: return "bgr8";
-  case VLFF_PIX_MONO8: return "mono8";
-  case VLFF_PIX_MONO16: return "mono16";
-  case VLFF_PIX_BAYER_RG8: return "bayer_rggb8";
-  case VLFF_PIX_BAYER_BG8: return "bayer_bggr8";
-  case VLFF_PIX_BAYER_GR8: return "bayer_grbg8";
-  case VLFF_PIX_BAYER_GB8: return "bayer_gbrg8";
-  default: return NULL;
-  }
+/* A foxglove.CameraCalibration of the frame's pinhole intrinsics: no distortion (the
+ * frames in the ring are undistorted by their driver), K and P in OpenCV's
+ * convention, whose principal point is half a pixel left of and above the ring's. */
+static struct vlff_view_msg *calib_msg(struct vlff_feed *f, uint64_t t, const struct vlff_frame_hdr *h) {
+  const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
+  struct jw w = {feed_msg(f, VLFF_VIEW_CH_CALIB, 768), 0};
+  if (!w.m) return NULL;
+  w.m->t_ns = t;
+  double cx = h->cx - 0.5, cy = h->cy - 0.5;
+  jw_s(&w, "{\"timestamp\":");
+  jw_time(&w, t);
+  jw_f(&w,
+       ",\"frame_id\":\"camera\",\"width\":%u,\"height\":%u,\"distortion_model\":\"plumb_bob\",\"D\":[0,0,0,0,0],"
+       "\"K\":[%.9g,0,%.9g,0,%.9g,%.9g,0,0,1],\"R\":[1,0,0,0,1,0,0,0,1],\"P\":[%.9g,0,%.9g,0,0,%.9g,%.9g,0,0,0,1,0]}",
+       pl->width, pl->height, h->fx, cx, h->fy, cy, h->fx, cx, h->fy, cy);
+  return jw_finish(&w);
 }
+
+static int valid_intrinsics(const struct vlff_frame_hdr *h) {
+  const double k[4] = {h->fx, h->fy, h->cx, h->cy};
+  for (int i = 0; i < 4; i++)
+    if (!isfinite(k[i]) || (i < 2 && k[i] <= 0)) return 0;
+  return (h->flags & VLFF_FRAME_INTRINSICS_VALID) != 0;
+}
+
+static int frame_encode(struct vlff_feed *f, unsigned build, struct vlff_view_msg **out, int cap);
 
 static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   if (!f->p.frames_name || !*f->p.frames_name || cap < 1) return 0;
@@ -606,7 +645,7 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
     f->ring = vlff_ring_attach(f->p.frames_name, VLFF_RECORD_FRAME);
     if (!f->ring) {
       if (!f->ring_reported)
-        fprintf(stderr, "vlff-view: frame ring %s: %s; retrying every second\n", f->p.frames_name,
+        vlff_log(VLFF_LOG_WARN, "vlff-view", "frame ring %s: %s; retrying every second", f->p.frames_name,
                 vlff_shm_last_message());
       f->ring_reported = 1;
       return 0;
@@ -616,13 +655,13 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
     f->rec_cap = vlff_ring_slot_size(f->ring);
     f->rec = malloc(f->rec_cap);
     if (!f->rec) {
-      fprintf(stderr, "vlff-view: no memory for a %zu-byte frame\n", f->rec_cap);
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "no memory for a %zu-byte frame", f->rec_cap);
       vlff_ring_close(f->ring);
       f->ring = NULL;
       return 0;
     }
     f->ring_head = 0;
-    fprintf(stderr, "vlff-view: attached to frame ring %s\n", f->p.frames_name);
+    vlff_log(VLFF_LOG_INFO, "vlff-view", "attached to frame ring %s", f->p.frames_name);
   }
   uint64_t head = vlff_ring_head(f->ring);
   if (now - f->fps_t_ns >= NS) {
@@ -631,42 +670,62 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
     f->fps_t_ns = now;
   }
   /* the ring is watched for the status either way; frames are read for subscribers */
-  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE))) return 0;
+  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE | 1u << VLFF_VIEW_CH_CALIB))) return 0;
   if (head == f->ring_head || (f->p.image_hz > 0 && now - f->last_image_ns < (uint64_t)(1e9 / f->p.image_hz)))
     return 0;
+  f->ring_head = head;
+  f->last_image_ns = now;
+  return frame_encode(f, wanted, out, cap);
+}
+
+/* Reads the ring's latest frame and appends its messages for the channels in build
+ * (image, pose), each also kept as its channel's current one. */
+static int frame_encode(struct vlff_feed *f, unsigned build, struct vlff_view_msg **out, int cap) {
+  unsigned wanted = build;
   struct vlff_ring_view info;
   ssize_t len = vlff_ring_read_latest(f->ring, f->rec, f->rec_cap, &info);
   if (len < 0) {
     if (errno == EPIPE) {
-      fprintf(stderr, "vlff-view: frame ring %s was replaced; attaching again\n", f->p.frames_name);
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "frame ring %s was replaced; attaching again", f->p.frames_name);
       vlff_ring_close(f->ring);
       f->ring = NULL;
     }
     return 0;
   }
-  f->ring_head = head;
-  f->last_image_ns = now;
   if (vlff_frame_validate(f->rec, (size_t)len) != 0) return 0;
   const struct vlff_frame_hdr *h = f->rec;
   const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
-  const char *enc = image_encoding(pl->format);
   const uint8_t *px = vlff_frame_plane(f->rec, VLFF_PLANE_COLOR);
+  uint64_t t = to_real(f, h->t_host_ns);
   int nout = 0;
-  if (enc && px && wants(wanted, VLFF_VIEW_CH_IMAGE)) {
-    struct jw w = {feed_msg(f, VLFF_VIEW_CH_IMAGE, pl->size / 3 * 4 + 512), 0};
-    if (w.m) {
-      w.m->t_ns = to_real(f, h->t_host_ns);
-      jw_s(&w, "{\"timestamp\":");
-      jw_time(&w, w.m->t_ns);
-      jw_f(&w, ",\"frame_id\":\"camera\",\"width\":%u,\"height\":%u,\"encoding\":\"%s\",\"step\":%u,\"data\":",
-           pl->width, pl->height, enc, pl->stride);
-      jw_b64(&w, px, pl->size);
-      jw_s(&w, "}");
-      struct vlff_view_msg *im = jw_finish(&w);
-      if (im) {
-        out[nout++] = im;
-        set_current(f, VLFF_VIEW_CH_IMAGE, im);
-      }
+  if (px && wants(wanted, VLFF_VIEW_CH_IMAGE) && nout < cap) {
+    size_t need = (size_t)pl->width * pl->height * 3;
+    if (need > f->rgb_cap) {
+      uint8_t *p = realloc(f->rgb, need);
+      if (p) f->rgb = p, f->rgb_cap = need;
+    }
+    char err[160];
+    struct vlff_view_msg *im = NULL;
+    if (need > f->rgb_cap) {
+      vlff_warn_limited(&f->encode_failures, "vlff-view", "no memory for a %ux%u image", pl->width, pl->height);
+    } else if (vlff_cv_to_rgb(px, pl->stride, (int)pl->width, (int)pl->height, (vlff_pix_t)pl->format, f->rgb,
+                              (size_t)pl->width * 3, err, sizeof err)) {
+      /* mono16 and formats the shim does not know are not shown */
+      vlff_warn_limited(&f->encode_failures, "vlff-view", "frame ring %s: a %ux%u image of format %u: %s",
+                        f->p.frames_name, pl->width, pl->height, pl->format, err);
+    } else {
+      im = compressed_msg(f, VLFF_VIEW_CH_IMAGE, t, f->rgb, (size_t)pl->width * 3, pl->width, pl->height, 0);
+    }
+    if (im) {
+      out[nout++] = im;
+      set_current(f, VLFF_VIEW_CH_IMAGE, im);
+    }
+  }
+  if (wants(wanted, VLFF_VIEW_CH_CALIB) && valid_intrinsics(h) && nout < cap) {
+    struct vlff_view_msg *cm = calib_msg(f, t, h);
+    if (cm) {
+      out[nout++] = cm;
+      set_current(f, VLFF_VIEW_CH_CALIB, cm);
     }
   }
   bool has_pose = (h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose);
@@ -772,6 +831,7 @@ static struct vlff_view_msg *status_msg(struct vlff_feed *f, const struct vlff_v
 int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsigned wanted, struct vlff_view_msg **out,
                    int out_cap) {
   uint64_t before = f->m.version;
+  f->last_wanted = wanted;
   int n = map_poll(f, wanted, out, out_cap);
   n += frames_poll(f, wanted, out + n, out_cap - n);
   uint64_t now = vlff_now_ns();
@@ -786,8 +846,42 @@ int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsi
   return n;
 }
 
-struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch) {
+/* The label image (and the pose it carries) of the map version last read, built
+ * now for a first subscriber of ch. */
+static void label_image_current(struct vlff_feed *f, int ch) {
+  struct vlff_map_info info;
+  if (!f->m.snap || !f->m.version || vlff_map_snapshot_info(f->m.snap, &info) != 0 || !info.has_label_image) return;
+  struct vlff_view_msg *m = NULL;
+  if (ch == VLFF_VIEW_CH_LABELS) m = label_image_msg(f, &info.label_image);
+  else if (valid_pose(info.label_image.pose)) m = pose_msg(f, to_real(f, info.label_image.t_ns), info.label_image.pose);
+  set_current(f, ch, m);
+  vlff_view_msg_unref(m);
+}
+
+struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struct vlff_view_counters *c) {
   if (ch < 1 || ch > VLFF_VIEW_CH_COUNT) return NULL;
+  /* A channel nobody subscribed to at the last poll was not kept current: its
+   * latest is built now from the segments (the frame ring's newest frame, the label
+   * image of the map version last read), never handed out from an earlier
+   * subscriber's time. The status is built now always: it names the clients and
+   * counts of this moment. */
+  int kept = wants(f->last_wanted, ch);
+  if (ch == VLFF_VIEW_CH_STATUS) {
+    static const struct vlff_view_counters none;
+    struct vlff_view_msg *s = status_msg(f, c ? c : &none);
+    set_current(f, ch, s);
+    vlff_view_msg_unref(s);
+  } else if (!kept && (ch == VLFF_VIEW_CH_IMAGE || ch == VLFF_VIEW_CH_CALIB || ch == VLFF_VIEW_CH_POSE)) {
+    set_current(f, ch, NULL);
+    if (f->ring && (ch != VLFF_VIEW_CH_POSE || f->ring_has_pose)) {
+      struct vlff_view_msg *tmp[2];
+      int n = frame_encode(f, 1u << ch, tmp, 2);
+      for (int i = 0; i < n; i++) vlff_view_msg_unref(tmp[i]);
+    }
+    if (ch == VLFF_VIEW_CH_POSE && !f->current[ch] && (!f->ring || !f->ring_has_pose)) label_image_current(f, ch);
+  } else if (!kept && ch == VLFF_VIEW_CH_LABELS) {
+    label_image_current(f, ch);
+  }
   if (!f->current[ch] && f->m.labels && f->m.version) {
     uint64_t t = to_real(f, f->m.publish_ns);
     /* deltas are not built while nobody subscribes to the scene: the whole scene

@@ -6,6 +6,7 @@
  */
 #include "cli.h"
 #include "files.h"
+#include "log.h"
 #include "page.h"
 #include "view.h"
 #include "vlff/escape.h"
@@ -111,6 +112,7 @@ static int default_www(char *out, size_t cap) {
 }
 
 int main(int argc, char **argv) {
+  vlff_log_start(); /* log stamps count from the start, not from the first line */
   enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
          OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT };
   static const struct option opts[] = {

@@ -7,7 +7,8 @@
  * the npm package @foxglove/schemas); Foxglove picks its panels by schema name and
  * decodes JSON messages with these schemas, so a field misspelt here is a blank
  * panel there.
- * Byte arrays are base64 strings, as Foxglove expects of JSON-encoded bytes.
+ * Byte arrays are base64 strings, as Foxglove expects of JSON-encoded bytes; images
+ * are compressed (JPEG for the camera, PNG for labels) rather than raw pixels.
  */
 #include "view.h"
 
@@ -50,12 +51,20 @@ static const char voxels_schema[] =
     "\"voxels\":{\"type\":\"array\",\"items\":{\"type\":\"integer\"}}},"
     "\"required\":[\"version\",\"full\",\"origin\",\"voxel_size\",\"dims\",\"prompts\",\"colors\",\"occupied\",\"voxels\"]}";
 
-static const char image_schema[] =
-    "{\"title\":\"foxglove.RawImage\",\"type\":\"object\",\"properties\":{"
-    "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},\"width\":{\"type\":\"integer\"},"
-    "\"height\":{\"type\":\"integer\"},\"encoding\":{\"type\":\"string\"},\"step\":{\"type\":\"integer\"},"
-    "\"data\":{\"type\":\"string\",\"contentEncoding\":\"base64\"}},"
-    "\"required\":[\"timestamp\",\"frame_id\",\"width\",\"height\",\"encoding\",\"step\",\"data\"]}";
+static const char compressed_schema[] =
+    "{\"title\":\"foxglove.CompressedImage\",\"type\":\"object\",\"properties\":{"
+    "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},"
+    "\"data\":{\"type\":\"string\",\"contentEncoding\":\"base64\"},\"format\":{\"type\":\"string\"}},"
+    "\"required\":[\"timestamp\",\"frame_id\",\"data\",\"format\"]}";
+
+#define NUMS_S(n) "{\"type\":\"array\",\"items\":{\"type\":\"number\"},\"minItems\":" #n ",\"maxItems\":" #n "}"
+static const char calib_schema[] =
+    "{\"title\":\"foxglove.CameraCalibration\",\"type\":\"object\",\"properties\":{"
+    "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},\"width\":{\"type\":\"integer\",\"minimum\":0},"
+    "\"height\":{\"type\":\"integer\",\"minimum\":0},\"distortion_model\":{\"type\":\"string\"},"
+    "\"D\":{\"type\":\"array\",\"items\":{\"type\":\"number\"}},\"K\":" NUMS_S(9) ",\"R\":" NUMS_S(9) ","
+    "\"P\":" NUMS_S(12) "},"
+    "\"required\":[\"timestamp\",\"frame_id\",\"width\",\"height\",\"distortion_model\",\"D\",\"K\",\"R\",\"P\"]}";
 
 static const char tf_schema[] =
     "{\"title\":\"foxglove.FrameTransform\",\"type\":\"object\",\"properties\":{"
@@ -100,10 +109,11 @@ static const char status_schema[] =
 static const struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
     {"/map", "foxglove.SceneUpdate", scene_schema},
     {"/map/voxels", "vlff.VoxelDelta", voxels_schema},
-    {"/camera/image", "foxglove.RawImage", image_schema},
-    {"/camera/labels", "foxglove.RawImage", image_schema},
+    {"/camera/image", "foxglove.CompressedImage", compressed_schema},
+    {"/camera/labels", "foxglove.CompressedImage", compressed_schema},
     {"/tf", "foxglove.FrameTransform", tf_schema},
     {"/vlff/status", "vlff.Status", status_schema},
+    {"/camera/calibration", "foxglove.CameraCalibration", calib_schema},
 };
 
 const struct vlff_view_channel_def *vlff_view_channel(int ch) {

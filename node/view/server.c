@@ -65,6 +65,7 @@
 #define IDLE_TIMEOUT_S 30      /* default: a WebSocket client silent this long is closed */
 #define ANSWER_WAIT_S 30       /* how long a posted prompt set waits for the learner */
 #define ANSWER_POLL_US 20000   /* how often the loop looks for the learner's answer */
+#define DROP_GRACE_S 5          /* a dropped client's socket taking its close frame */
 #define GATE_LINGER_S 2        /* reading what a refused client still sends */
 #define GATE_DRAIN_MAX (1u << 20)
 #define GATE_PENDING_MAX 64    /* connections that have not finished their head */
@@ -140,6 +141,8 @@ struct client {
   unsigned char *rx;
   size_t rx_len;
   int dropping;
+  int close_code;      /* dropping: the close frame's code and reason */
+  char close_why[124]; /* a close reason is at most 123 bytes */
   uint64_t last_rx_ns; /* the client's last frame, pong included */
   int want_ping, pinged;
 };
@@ -218,14 +221,21 @@ static void count_refusal(struct vlff_view *v, const char *peer, int status, con
 
 /* ----------------------------------------------------------------- queues */
 
-static void drop_client(struct client *cl, const char *why) {
+static void free_queue(struct client *cl);
+
+/* Drops a client with a close frame carrying code and why (a WebSocket close reason
+ * is at most 123 bytes): what it had queued is discarded, so that the close frame is
+ * the next thing written once its socket takes bytes again (the writeable callback
+ * sends it); a client that takes none within DROP_GRACE_S is cut off without one. */
+static void drop_client(struct client *cl, int code, const char *why) {
   if (cl->dropping) return;
   cl->dropping = 1;
-  lwsl_user("vlff-view: client %s dropped: %s\n", cl->peer, why);
-  fprintf(stderr, "vlff-view: client %s dropped: %s\n", cl->peer, why);
-  lws_close_reason(cl->wsi, LWS_CLOSE_STATUS_POLICY_VIOLATION, (unsigned char *)why, strlen(why));
-  /* a slow client may never become writable again: close it from the loop */
-  lws_set_timeout(cl->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
+  vlff_log(VLFF_LOG_WARN, "vlff-view", "client %s dropped: %s", cl->peer, why);
+  cl->close_code = code;
+  snprintf(cl->close_why, sizeof cl->close_why, "%s", why);
+  free_queue(cl);
+  lws_set_timeout(cl->wsi, PENDING_TIMEOUT_USER_REASON_BASE, DROP_GRACE_S);
+  lws_callback_on_writable(cl->wsi);
 }
 
 /* Unlinked item q leaves cl's queue: its bytes no longer count. */
@@ -239,7 +249,7 @@ static void enqueue(struct client *cl, struct vlff_view_msg *m, uint32_t sub_id,
   if (cl->dropping) return;
   struct qitem *q = malloc(sizeof *q);
   if (!q) {
-    drop_client(cl, "out of memory for its queue");
+    drop_client(cl, LWS_CLOSE_STATUS_UNEXPECTED_CONDITION, "out of memory for its queue");
     return;
   }
   q->m = vlff_view_msg_ref(m);
@@ -252,9 +262,10 @@ static void enqueue(struct client *cl, struct vlff_view_msg *m, uint32_t sub_id,
   cl->queued += m->len;
   if (cl->queued > cl->v->p.max_queue_bytes) {
     char why[120];
-    snprintf(why, sizeof why, "too slow: %zu bytes unsent, the limit is %zu", cl->queued, cl->v->p.max_queue_bytes);
+    snprintf(why, sizeof why, "too slow: %zu bytes unsent, above --max-queue-mb (%zu bytes)", cl->queued,
+             cl->v->p.max_queue_bytes);
     cl->v->c.dropped_slow++;
-    drop_client(cl, why);
+    drop_client(cl, 1013 /* try again later */, why);
     return;
   }
   lws_callback_on_writable(cl->wsi);
@@ -386,7 +397,7 @@ static void do_subscribe(struct client *cl, json_object *req) {
     }
     cl->subscribed[ch] = 1;
     cl->sub_id[ch] = (uint32_t)id;
-    struct vlff_view_msg *m = vlff_feed_current(cl->v->feed, (int)ch);
+    struct vlff_view_msg *m = vlff_feed_current(cl->v->feed, (int)ch, &cl->v->c);
     if (m) {
       enqueue(cl, m, (uint32_t)id, 0);
       vlff_view_msg_unref(m);
@@ -578,7 +589,7 @@ static void do_publish(struct client *cl, const unsigned char *d, size_t n) {
       v->pending.t0_ns = vlff_now_ns();
       send_status(cl, 0, "prompt set posted to %s as request %llu; waiting for the learner's answer",
                   v->p.prompts_name, (unsigned long long)v->pending.seq);
-      fprintf(stderr, "vlff-view: client %s posted a prompt set to %s (request %llu)\n", cl->peer, v->p.prompts_name,
+      vlff_log(VLFF_LOG_INFO, "vlff-view", "client %s posted a prompt set to %s (request %llu)", cl->peer, v->p.prompts_name,
               (unsigned long long)v->pending.seq);
       lws_sul_schedule(v->ctx, 0, &v->answer_sul, poll_answer, ANSWER_POLL_US);
     }
@@ -654,7 +665,7 @@ static void check_idle(struct vlff_view *v) {
     if (quiet >= limit) {
       char why[96];
       snprintf(why, sizeof why, "no answer to ping: silent for %d s", v->idle_timeout_s);
-      drop_client(cl, why);
+      drop_client(cl, LWS_CLOSE_STATUS_POLICY_VIOLATION, why);
     } else if (quiet >= limit / 3 && !cl->pinged) {
       cl->pinged = 1;
       cl->want_ping = 1;
@@ -710,7 +721,7 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     v->clients = cl;
     v->c.clients++;
     v->c.connections++;
-    if (v->p.verbose) fprintf(stderr, "vlff-view: client %s connected\n", cl->peer);
+    if (v->p.verbose) vlff_log(VLFF_LOG_INFO, "vlff-view", "client %s connected", cl->peer);
     send_hello(cl);
     return 0;
   }
@@ -741,7 +752,11 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
   }
   case LWS_CALLBACK_SERVER_WRITEABLE:
     if (!cl->v) return -1;
-    if (cl->dropping) return -1;
+    if (cl->dropping) {
+      lws_close_reason(wsi, (enum lws_close_status)cl->close_code, (unsigned char *)cl->close_why,
+                       strlen(cl->close_why));
+      return -1;
+    }
     return write_one(cl);
   case LWS_CALLBACK_CLOSED:
     if (!cl->v) return 0;
@@ -753,7 +768,7 @@ static int fox_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user,
     v->c.clients--;
     forget_peer(v, lws_get_socket_fd(wsi));
     if (v->pending.cl == cl) v->pending.cl = NULL; /* its answer has nobody to go to */
-    if (v->p.verbose) fprintf(stderr, "vlff-view: client %s left\n", cl->peer);
+    if (v->p.verbose) vlff_log(VLFF_LOG_INFO, "vlff-view", "client %s left", cl->peer);
     free_queue(cl);
     free(cl->rx);
     cl->v = NULL;
@@ -826,7 +841,7 @@ static void run_handoffs(lws_sorted_usec_list_t *sul) {
     v->handoffs = h->next;
     /* on failure libwebsockets closes the descriptor itself */
     if (!lws_adopt_socket_vhost_readbuf(v->http_vh, h->fd, h->head, h->len))
-      fprintf(stderr, "vlff-view: a checked request could not be handed to the HTTP side\n");
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "a checked request could not be handed to the HTTP side");
     free(h);
   }
 }
@@ -910,6 +925,45 @@ static size_t relay_scan(struct gate *g, const unsigned char *d, size_t n) {
     }
   }
   return n;
+}
+
+/* The Sec-WebSocket-Protocol lines of the canonical head buf[n] (vlff_head_canon),
+ * joined with commas into out[cap]. */
+static void head_protocols(const char *buf, size_t n, char *out, size_t cap) {
+  static const char name[] = "Sec-WebSocket-Protocol:";
+  size_t o = 0;
+  out[0] = 0;
+  for (const char *q = buf, *e = buf + n; q < e;) {
+    const char *le = memchr(q, '\n', (size_t)(e - q));
+    if (!le) break;
+    if ((size_t)(le - q) > sizeof name - 1 && !strncasecmp(q, name, sizeof name - 1)) {
+      const char *v = q + sizeof name - 1, *ve = le > v && le[-1] == '\r' ? le - 1 : le;
+      while (v < ve && (*v == ' ' || *v == '\t')) v++;
+      while (ve > v && (ve[-1] == ' ' || ve[-1] == '\t')) ve--;
+      int w = snprintf(out + o, cap - o, "%s%.*s", o ? "," : "", (int)(ve - v), v);
+      if (w < 0 || (size_t)w >= cap - o) break;
+      o += (size_t)w;
+    }
+    q = le + 1;
+  }
+}
+
+/* Whether a checked WebSocket upgrade (its canonical head buf[n]) is served: 0, or
+ * the HTTP status that refuses it with the sentence in why[len]: 400 when it does not
+ * offer the Foxglove subprotocol, 503 when all client slots are taken. */
+static int upgrade_refusal(struct vlff_view *v, const char *buf, size_t n, char *why, size_t len) {
+  char offered[256];
+  head_protocols(buf, n, offered, sizeof offered);
+  if (!offers_foxglove(offered)) {
+    snprintf(why, len, "unknown or missing WebSocket subprotocol \"%s\"; this server speaks " FOX_PROTOCOL,
+             VLFF_QMAX(offered, 60));
+    return 400;
+  }
+  if (v->c.clients >= v->p.max_clients) {
+    snprintf(why, len, "too many clients (%d); try again later", v->p.max_clients);
+    return 503;
+  }
+  return 0;
 }
 
 /* Hands a WebSocket upgrade on through a socket pair: libwebsockets serves one end
@@ -1086,7 +1140,18 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
         return 0;
       }
       memcpy(g->buf, canon, n);
-      return h.upgrade ? relay_start(g, n) : gate_pass(g, n);
+      if (h.upgrade) {
+        /* refused here, before the relay, so that the answer is the viewer's own
+         * plain sentence rather than libwebsockets' error page */
+        char why[160];
+        int code = upgrade_refusal(v, g->buf, n, why, sizeof why);
+        if (code) {
+          gate_answer(g, code, why, 0);
+          return 0;
+        }
+        return relay_start(g, n);
+      }
+      return gate_pass(g, n);
     }
     }
     return -1;
@@ -1166,10 +1231,10 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
       snprintf(why, sizeof why, "unknown or missing WebSocket subprotocol \"%s\"; this server speaks " FOX_PROTOCOL,
                VLFF_QMAX(offered, 60));
       code = HTTP_STATUS_BAD_REQUEST;
-    } else if (v->c.clients >= v->p.max_clients) {
-      snprintf(why, sizeof why, "too many clients (%d); try again later", v->p.max_clients);
-      code = HTTP_STATUS_SERVICE_UNAVAILABLE;
     }
+    /* the gate refused these already (upgrade_refusal), in plain text; this is a second
+     * line. Clients that passed the gate together beyond the limit are closed at
+     * LWS_CALLBACK_ESTABLISHED with 1013 and the reason. */
     if (!code) return 0;
     peer_of(v, wsi, peer, sizeof peer);
     count_refusal(v, peer, code, why);
@@ -1315,7 +1380,7 @@ static int build_allow(struct vlff_view *v) {
   for (int i = 0; i < v->p.n_allow_origins; i++) {
     char why[200];
     if (vlff_allow_origin(a, v->p.allow_origins[i], why, sizeof why)) {
-      fprintf(stderr, "vlff-view: --allow-origin %s\n", why);
+      vlff_log(VLFF_LOG_INFO, "vlff-view", "--allow-origin %s", why);
       return -1;
     }
   }
@@ -1340,7 +1405,7 @@ static int open_listener(struct vlff_view *v) {
       freeifaddrs(ifs);
     }
     if (!found) {
-      fprintf(stderr, "vlff-view: --listen %s is neither an IPv4 address nor an interface with one\n", addr);
+      vlff_log(VLFF_LOG_INFO, "vlff-view", "--listen %s is neither an IPv4 address nor an interface with one", addr);
       return -1;
     }
   }
@@ -1350,7 +1415,7 @@ static int open_listener(struct vlff_view *v) {
   if (v->listen_fd < 0 || setsockopt(v->listen_fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
       bind(v->listen_fd, (struct sockaddr *)&sin, sizeof sin) != 0 || listen(v->listen_fd, SOMAXCONN) != 0 ||
       getsockname(v->listen_fd, (struct sockaddr *)&sin, &sl) != 0) {
-    fprintf(stderr, "vlff-view: cannot listen on %s:%d: %s\n", addr, v->p.port, strerror(errno));
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "cannot listen on %s:%d: %s", addr, v->p.port, strerror(errno));
     if (v->listen_fd >= 0) close(v->listen_fd);
     v->listen_fd = -1;
     return -1;
@@ -1361,7 +1426,7 @@ static int open_listener(struct vlff_view *v) {
   v->listen_wsi = lws_adopt_descriptor_vhost(v->vh, LWS_ADOPT_RAW_FILE_DESC, u, GATE_PROTOCOL, NULL);
   if (!v->listen_wsi) {
     v->listen_fd = -1; /* closed by libwebsockets */
-    fprintf(stderr, "vlff-view: cannot watch the listening socket\n");
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "cannot watch the listening socket");
     return -1;
   }
   return 0;
@@ -1399,7 +1464,7 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   info.pt_serv_buf_size = RELAY_CHUNK;
   v->ctx = lws_create_context(&info);
   if (!v->ctx) {
-    fprintf(stderr, "vlff-view: cannot start libwebsockets\n");
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "cannot start libwebsockets");
     vlff_page_free(&v->page);
     free(v);
     return NULL;
@@ -1413,7 +1478,7 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   info.vhost_name = "vlff-view";
   v->vh = lws_create_vhost(v->ctx, &info);
   if (!v->vh) {
-    fprintf(stderr, "vlff-view: cannot create the gate\n");
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "cannot create the gate");
     vlff_view_free(v);
     return NULL;
   }
@@ -1433,7 +1498,7 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   info.vhost_name = "vlff-view-http";
   v->http_vh = lws_create_vhost(v->ctx, &info);
   if (!v->http_vh) {
-    fprintf(stderr, "vlff-view: cannot create the HTTP side\n");
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "cannot create the HTTP side");
     vlff_view_free(v);
     return NULL;
   }

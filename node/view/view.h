@@ -42,12 +42,18 @@
 enum vlff_view_channel {
   VLFF_VIEW_CH_SCENE = 1,  /* /map: foxglove.SceneUpdate, one entity of cubes per brick */
   VLFF_VIEW_CH_VOXELS,     /* /map/voxels: vlff.VoxelDelta, changed voxels with labels */
-  VLFF_VIEW_CH_IMAGE,      /* /camera/image: foxglove.RawImage, the latest camera frame */
-  VLFF_VIEW_CH_LABELS,     /* /camera/labels: foxglove.RawImage, the label image in prompt colours */
+  VLFF_VIEW_CH_IMAGE,      /* /camera/image: foxglove.CompressedImage, the latest camera frame as JPEG */
+  VLFF_VIEW_CH_LABELS,     /* /camera/labels: foxglove.CompressedImage, the label image in prompt
+                              colours as PNG (lossless: a colour is a class) */
   VLFF_VIEW_CH_POSE,       /* /tf: foxglove.FrameTransform, world -> camera */
   VLFF_VIEW_CH_STATUS,     /* /vlff/status: vlff.Status JSON */
-  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_STATUS
+  VLFF_VIEW_CH_CALIB,      /* /camera/calibration: foxglove.CameraCalibration, the pinhole
+                              intrinsics the frames carry (from the source's config), with each image */
+  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_CALIB
 };
+
+/* JPEG quality of the camera image channel. */
+#define VLFF_VIEW_JPEG_QUALITY 80
 
 struct vlff_view_channel_def {
   const char *topic;
@@ -121,8 +127,11 @@ void vlff_feed_free(struct vlff_feed *f);
 int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsigned wanted, struct vlff_view_msg **out,
                    int out_cap);
 /* A new subscriber's first message on channel ch: the whole map (scene, voxels) or
- * the latest image/pose/status. NULL when there is nothing yet. One new reference. */
-struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch);
+ * the latest image, calibration, labels or pose (never one kept from before the last
+ * poll when the channel had no subscriber then: it is read from the segments now), or
+ * a status built now with the counters c (NULL: zeros). NULL when there is nothing
+ * yet. One new reference. */
+struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struct vlff_view_counters *c);
 /* The map version the feed last sent (0 = none). */
 uint64_t vlff_feed_version(const struct vlff_feed *f);
 /* How many messages the feed has encoded for channel ch since it was made. */

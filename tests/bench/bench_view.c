@@ -4,7 +4,7 @@
  *
  *   bench_view publish MAP FRAMES SECONDS   a 64x54x32 map published at 2 Hz, each
  *       version moving a few surfaces (a share of the voxels changes label,
- *       confidence or occupancy), with a label image; 320x240 RGB frames at 5 Hz.
+ *       confidence or occupancy), with a label image; 640x480 RGB frames at 5 Hz.
  *   bench_view read MAP SECONDS             the baseline: a bare controller taking a
  *       snapshot of every version, the least any reader of the map does.
  * Both print their own CPU time at the end: "cpu_s X wall_s Y versions N".
@@ -17,7 +17,7 @@
 #include <sys/resource.h>
 #include <time.h>
 
-enum { NX = 64, NY = 54, NZ = 32, N = NX * NY * NZ, PROMPTS = 20, LW = 160, LH = 120, FW = 320, FH = 240 };
+enum { NX = 64, NY = 54, NZ = 32, N = NX * NY * NZ, PROMPTS = 20, LW = 160, LH = 120, FW = 640, FH = 480 };
 
 static double cpu_s(void) {
   struct rusage ru;
@@ -75,10 +75,16 @@ static int publish(const char *mapname, const char *frames, double secs) {
       struct vlff_frame_hdr *h = vlff_ring_reserve(ring, &seq);
       uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(ring), FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE);
       uint8_t *px = (uint8_t *)h + h->plane[0].offset;
-      for (int p = 0; p < FW * FH * 3; p++) px[p] = (uint8_t)(p / 3 + seq * 7);
+      /* a camera-like picture: 16-pixel tiles of two shades over a moving ramp */
+      for (int y = 0; y < FH; y++)
+        for (int x = 0; x < FW; x++)
+          for (int c = 0; c < 3; c++)
+            px[(y * FW + x) * 3 + c] =
+                (uint8_t)((((x / 16 + y / 16) & 1) ? 60 : 150) + ((x + y + (int)seq * 7) & 255) / 4 + c * 10);
       h->frame_id = seq;
       h->t_host_ns = vlff_shm_now_ns();
-      h->flags = VLFF_FRAME_POSE_VALID;
+      h->flags = VLFF_FRAME_POSE_VALID | VLFF_FRAME_INTRINSICS_VALID;
+      h->fx = h->fy = 500, h->cx = FW / 2.0, h->cy = FH / 2.0;
       memcpy(h->pose, li.pose, sizeof h->pose);
       vlff_ring_commit(ring, len);
       next_frame += 200000000u;

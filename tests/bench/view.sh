@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
 # Viewer benchmark (scripts/bench view): bench_view publishes a 64x54x32 map at
-# 2 Hz (a few surfaces change per version, with a label image) and 320x240 frames
+# 2 Hz (a few surfaces change per version, with a label image) and 640x480 frames
 # at 5 Hz; vlff-view serves them to CLIENTS Foxglove-like clients subscribed to
 # every channel. Measured over the run: the viewer's CPU time as a fraction of one
 # core (target <= 0.05), against the baseline of a bare controller that snapshots
 # every version in the same run; the p99 latency from a version's publish to a
-# client's receipt of its delta; bytes per update per client.
+# client's receipt of its delta; bytes per update per client; the camera image's
+# bytes per frame against raw RGB (target <= 1/8); and, after the clients left and 3 s
+# without a subscriber, the age of a new client's first message on each channel
+# (first_message_age_max_s, the oldest; each channel's latest is < its period old).
 # Last line: RESULT ...
 set -uo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
@@ -21,7 +24,7 @@ pids=()
 cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null; done; wait 2>/dev/null; rm -rf "$tmp" /dev/shm/$tag-*; }
 trap cleanup EXIT
 echo "host load: $(cut -d' ' -f1-3 /proc/loadavg) on $(nproc) cores"
-"$build/bench/bench_view" publish /$tag-map /$tag-frames $((secs + 8)) >"$tmp/pub" &
+"$build/bench/bench_view" publish /$tag-map /$tag-frames $((secs + 16)) >"$tmp/pub" &
 pids+=($!)
 sleep 1
 "$build/node/view/vlff-view" --port 0 --map /$tag-map --frames /$tag-frames --prompts /$tag-prompts \
@@ -52,10 +55,14 @@ print(f"viewer cpu {view:.4f} of a core, bare snapshot reader {reader:.4f}; {c['
       f"{c['clients']} clients ({c['closed']} dropped); latency p50 {c['p50']:.1f} ms p99 {c['p99']:.1f} ms "
       f"max {c['max']:.1f} ms; per update and client {c['bytes_per_update_map']:.0f} B of map, "
       f"{c['bytes_per_update_voxels']:.0f} B of it the voxel channel, {c['bytes_per_update_all']:.0f} B in all "
-      f"(images, pose, status too)")
+      f"(images, pose, status too); camera image {c['image_bytes']:.0f} B of {c['image_raw_bytes']:.0f} B raw; "
+      f"a late subscriber's first message ages (s): {json.dumps({k: round(v, 3) for k, v in c['first_age'].items()})}")
+img = c['image_bytes'] / c['image_raw_bytes']
 ok = "yes" if view <= 0.05 else "no"
 print(f"RESULT view_cpu_frac_one_core={view:.4f} view_cpu_target=0.05 target_met={ok} "
       f"reader_cpu_frac_one_core={reader:.4f} view_vs_reader={view / reader if reader > 0 else float('nan'):.1f} "
       f"view_update_latency_p99_ms={c['p99']:.1f} view_bytes_per_update={c['bytes_per_update_map']:.0f} "
-      f"view_bytes_per_update_voxels={c['bytes_per_update_voxels']:.0f} view_bytes_per_update_all_channels={c['bytes_per_update_all']:.0f} clients={c['clients'] - c['closed']}")
+      f"view_bytes_per_update_voxels={c['bytes_per_update_voxels']:.0f} view_bytes_per_update_all_channels={c['bytes_per_update_all']:.0f} "
+      f"image_bytes_vs_raw={img:.4f} image_target={1 / 8:.4f} first_message_age_max_s={c['first_age_max']:.3f} "
+      f"clients={c['clients'] - c['closed']}")
 PY

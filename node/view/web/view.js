@@ -77,11 +77,16 @@ function pickAt(x, y) {
   const idx = order[hit.instanceId], [label, conf] = map.vox.get(idx);
   return { idx, label, conf, prompt: map.prompts[label] ?? '(none)', point: hit.point };
 }
-renderer.domElement.addEventListener('pointermove', (e) => {
-  const h = pickAt(e.clientX, e.clientY), p = h && h.point;
+// the pointer's last place over the view: the text is picked again there when the
+// map changes under a still pointer
+let pointer = null;
+function showPick() {
+  const h = pointer && pickAt(pointer.x, pointer.y), p = h && h.point;
   $('pick').textContent = h ? `label ${h.label} prompt ${h.prompt} confidence ${h.conf} ` +
-    `at (${p.x.toFixed(2)}, ${p.y.toFixed(2)}, ${p.z.toFixed(2)})` : 'point at a voxel';
-});
+    `at (${p.x.toFixed(2)}, ${p.y.toFixed(2)}, ${p.z.toFixed(2)}) map version ${map.version}` : 'point at a voxel';
+}
+renderer.domElement.addEventListener('pointermove', (e) => { pointer = { x: e.clientX, y: e.clientY }; showPick(); });
+renderer.domElement.addEventListener('pointerleave', () => { pointer = null; showPick(); });
 // where a voxel's centre is on the screen (for scripts and the browser console)
 function screenOf(idx) {
   const [nx, ny] = map.dims, v = new THREE.Vector3(...voxelCentre(idx % nx, Math.floor(idx / nx) % ny,
@@ -101,6 +106,7 @@ function onVoxels(d) {
     if (v[n + 1] >= FREE) map.vox.delete(v[n]); else map.vox.set(v[n], [v[n + 1], v[n + 2]]);
   }
   rebuild(fresh && !mesh);
+  if (pointer) showPick();
   document.body.dataset.version = d.version;
   $('legend').replaceChildren(...d.prompts.map((p, i) => {
     // the swatch's colour set through the DOM: the CSP refuses style attributes in markup
@@ -122,19 +128,15 @@ function drawImages() {
   latestImage.forEach((d, canvas) => drawImage(canvas, d));
   latestImage.clear();
 }
+// foxglove.CompressedImage (JPEG camera, PNG labels), decoded by the browser off
+// the main thread; a canvas takes its image's size.
 function drawImage(canvas, d) {
   const bytes = Uint8Array.from(atob(d.data), (ch) => ch.charCodeAt(0));
-  canvas.width = d.width; canvas.height = d.height;
-  const ctx = canvas.getContext('2d'), img = ctx.createImageData(d.width, d.height), o = img.data;
-  const ch = { rgb8: 3, bgr8: 3, mono8: 1 }[d.encoding] || 1;
-  for (let y = 0; y < d.height; y++) {
-    for (let x = 0; x < d.width; x++) {
-      const s = y * d.step + x * ch, t = 4 * (y * d.width + x);
-      const r = bytes[s], g = ch === 3 ? bytes[s + 1] : r, b = ch === 3 ? bytes[s + 2] : r;
-      [o[t], o[t + 1], o[t + 2], o[t + 3]] = d.encoding === 'bgr8' ? [b, g, r, 255] : [r, g, b, 255];
-    }
-  }
-  ctx.putImageData(img, 0, 0);
+  createImageBitmap(new Blob([bytes], { type: `image/${d.format}` })).then((bmp) => {
+    if (canvas.width !== bmp.width || canvas.height !== bmp.height) { canvas.width = bmp.width; canvas.height = bmp.height; }
+    canvas.getContext('2d').drawImage(bmp, 0, 0);
+    bmp.close();
+  }, (e) => { $('msg').textContent = `an image on ${canvas.id} could not be decoded: ${e.message}`; });
 }
 function onStatus(d) {
   const set = (id, v) => { $(id).textContent = v; };
@@ -176,11 +178,17 @@ function onPose(d) {
 const handlers = { '/map/voxels': onVoxels, '/camera/image': (d) => onImage($('image'), d),
   '/camera/labels': (d) => onImage($('labels'), d), '/tf': onPose, '/vlff/status': onStatus };
 
-ws.onopen = () => { $('conn').textContent = 'live'; };
+// Reconnecting reloads the page; the wait doubles from 3 s up to 60 s while the
+// viewer keeps refusing or is away (kept across reloads in sessionStorage) and
+// starts over once a connection opens.
+const RETRY_KEY = 'vlff-view-retry-s';
+ws.onopen = () => { $('conn').textContent = 'live'; sessionStorage.removeItem(RETRY_KEY); };
 ws.onclose = (e) => {
-  $('conn').textContent = `closed ${e.code} ${e.reason}; reconnecting`;
+  const last = Number(sessionStorage.getItem(RETRY_KEY)) || 0, wait = last ? Math.min(60, last * 2) : 3;
+  sessionStorage.setItem(RETRY_KEY, String(wait));
+  $('conn').textContent = `closed ${e.code} ${e.reason}; reconnecting in ${wait} s`;
   $('conn').style.color = '#c66';
-  setTimeout(() => location.reload(), 3000);
+  setTimeout(() => location.reload(), wait * 1000);
 };
 ws.onmessage = (ev) => {
   if (typeof ev.data === 'string') {

@@ -39,7 +39,8 @@ function connect(url, proto = PROTO) {
     ws.on('unexpected-response', (req, res) => {
       let body = '';
       res.on('data', (d) => { body += d; });
-      res.on('end', () => reject(Object.assign(new Error(`HTTP ${res.statusCode}`), { status: res.statusCode, body })));
+      res.on('end', () => reject(Object.assign(new Error(`HTTP ${res.statusCode}`), { status: res.statusCode, body,
+        type: res.headers['content-type'] || '' })));
     });
     ws.on('error', reject);
     ws.on('open', () => resolve(c));
@@ -112,6 +113,7 @@ function cli() {
 
 async function main() {
   cli();
+  const started = Date.now();
   const demo = await start({ withNode: false, token: 'secret-token-1', viewArgs: ['--max-queue-mb', '1',
     '--image-hz', '20'] });
   demo_port = demo.port;
@@ -126,8 +128,23 @@ async function main() {
     for (const proto of ['bogus.v1', null]) {
       const e = await connect(demo.ws, proto).then(() => null, (err) => err);
       assert.ok(e && e.status === 400 && e.body.includes(PROTO), `subprotocol ${proto}: ${e && e.status} ${e && e.body}`);
+      assert.ok(/^text\/plain/.test(e.type) && !/<html|error\.css/i.test(e.body), `a plain sentence: ${e.type} ${e.body}`);
     }
-    ok('a foreign or missing subprotocol gets HTTP 400 naming foxglove.websocket.v1');
+    while (Date.now() - started < 1500) await sleep(100); // so that a stamp from the start differs from 0
+    const r400 = await raw(`GET / HTTP/1.1\r\nHost: 127.0.0.1:${demo_port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n` +
+      'Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol:  bogus.v2 \r\n\r\n');
+    assert.strictEqual(r400.status, 400, r400.text);
+    assert.strictEqual(r400.body, `unknown or missing WebSocket subprotocol "bogus.v2"; this server speaks ${PROTO}\n`);
+    const elapsed = (Date.now() - started) / 1000;
+    await until(() => /refused 127\.0\.0\.1: unknown or missing WebSocket subprotocol "bogus\.v2"/.test(demo.log('view')),
+      5000, 'the refusal logged');
+    const vlog = demo.log('view');
+    assert.ok(!/could not be handed/.test(vlog), `no misleading line after a refusal: ${vlog}`);
+    // the stamps count from the viewer's start: its first warning is not at 0
+    const stamp = Number(/\[ *([0-9.]+)\] W vlff-view: refused 127\.0\.0\.1: unknown or missing WebSocket subprotocol "bogus\.v2"/.exec(vlog)[1]);
+    assert.ok(stamp >= 1 && stamp <= elapsed + 1, `the refusal stamped ${stamp} s, ${elapsed} s after the start`);
+    ok('a foreign or missing subprotocol gets HTTP 400 with a plain sentence naming foxglove.websocket.v1; ' +
+      `logged once, stamped ${stamp} s from the viewer's start`);
 
     const c = await connect(demo.ws);
     await until(() => c.adv, 5000, 'advertise');
@@ -193,7 +210,9 @@ async function main() {
     await until(() => many.every((m) => m.closed), 5000, 'the clients closed');
     ok('with ten clients connected an eleventh gets HTTP 503 "too many clients (10)"');
 
-    // A client that subscribes to the camera at 20 Hz and stops reading: its queue
+    // A client that subscribes to the camera and stops reading while it sends requests
+    // that each earn a thousand status errors (compressed images alone would take a
+    // minute to fill the kernel's socket buffers and then 1 MiB): its queue
     // passes 1 MiB and it is dropped; the good client's stream goes on. A closed
     // client's slot is free once the relayed connection behind it is gone too,
     // a moment after its close handshake: a 503 before then is tried again.
@@ -207,10 +226,19 @@ async function main() {
     await until(() => slow.adv, 5000, 'advertise');
     slow.ws._socket.pause();
     subscribeAll(slow);
+    const noisy = JSON.stringify({ op: 'subscribe', subscriptions: new Array(1000).fill(7) });
+    for (let i = 0; i < 100; i++) slow.ws.send(noisy);
     const before = good.bins;
     await until(() => /dropped: too slow/.test(demo.log('view')), 30000, 'the slow client dropped');
+    // it reads again: what was queued for it is gone, a close frame with the reason comes
+    slow.ws._socket.resume();
+    await until(() => slow.closed, 5000, 'the slow client gets its close frame');
+    assert.strictEqual(slow.closed.code, 1013, JSON.stringify(slow.closed));
+    assert.ok(/^too slow: \d+ bytes unsent, above --max-queue-mb \(1048576 bytes\)$/.test(slow.closed.reason),
+      JSON.stringify(slow.closed));
     await until(() => good.bins > before + 20, 20000, 'the good client still receives');
-    ok('a client that stops reading is dropped as too slow; the others keep receiving');
+    ok(`a client that stops reading is dropped as too slow, closed with 1013 "${slow.closed.reason}"; ` +
+      'the others keep receiving');
 
     // HTTP requests the viewer does not serve: each gets its status and a sentence
     // from the viewer, is counted by status in the status channel, and the good

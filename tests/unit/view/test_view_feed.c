@@ -174,7 +174,7 @@ static void test_feed(void **state) {
   assert_int_equal(p.count[VLFF_VIEW_CH_LABELS], 0);
   assert_int_equal(json_object_array_length(get(p.msg[VLFF_VIEW_CH_VOXELS], "voxels")), 3);
   free_polled(&p);
-  struct vlff_view_msg *cur = vlff_feed_current(f, VLFF_VIEW_CH_SCENE);
+  struct vlff_view_msg *cur = vlff_feed_current(f, VLFF_VIEW_CH_SCENE, NULL);
   assert_non_null(cur);
   json_object *whole = parse(cur);
   assert_int_equal(cube_count(whole), NX * NY + 2);
@@ -214,7 +214,7 @@ static void test_feed(void **state) {
   free_polled(&p);
 
   /* a first voxel subscriber gets the whole map, the changes made unseen included */
-  cur = vlff_feed_current(f, VLFF_VIEW_CH_VOXELS);
+  cur = vlff_feed_current(f, VLFF_VIEW_CH_VOXELS, NULL);
   assert_non_null(cur);
   whole = parse(cur);
   assert_true(json_object_get_boolean(get(whole, "full")));
@@ -228,5 +228,99 @@ static void test_feed(void **state) {
   vlff_map_detach(m);
 }
 
+static char ring_name[64];
+
+/* A 8x6 RGB frame at the host time t, its camera at height z. */
+static void put_frame(struct vlff_ring *r, uint64_t t, double z) {
+  uint64_t seq;
+  struct vlff_frame_hdr *h = vlff_ring_reserve(r, &seq);
+  assert_non_null(h);
+  uint64_t len = vlff_frame_layout(h, vlff_ring_slot_size(r), 8, 6, VLFF_PIX_RGB8, VLFF_PIX_NONE);
+  assert_true(len > 0);
+  memset((uint8_t *)h + h->plane[0].offset, 90, h->plane[0].size);
+  h->t_host_ns = t;
+  h->frame_id = seq;
+  h->flags = VLFF_FRAME_POSE_VALID | VLFF_FRAME_INTRINSICS_VALID;
+  h->fx = h->fy = 6, h->cx = 4, h->cy = 3;
+  double P[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, z, 0, 0, 0, 1};
+  memcpy(h->pose, P, sizeof P);
+  h->pose_t_ns = t;
+  assert_int_equal(vlff_ring_commit(r, len), 0);
+}
+
+static uint64_t current_t(struct vlff_feed *f, int ch) {
+  struct vlff_view_msg *m = vlff_feed_current(f, ch, NULL);
+  assert_non_null(m);
+  uint64_t t = m->t_ns;
+  vlff_view_msg_unref(m);
+  return t;
+}
+
+/* A channel that had no subscriber for a while: a new subscriber's first message is
+ * the latest in the segments, not the one last sent to an earlier subscriber; the
+ * status is built at the moment, with the counts of that moment. */
+static void test_fresh(void **state) {
+  snprintf(ring_name, sizeof ring_name, "/vlff-test-view-ring-%d", getpid());
+  struct vlff_ring_params rp = {VLFF_RECORD_FRAME, 4, vlff_frame_slot_size(8, 6, VLFF_PIX_RGB8, VLFF_PIX_NONE),
+                                {0, NULL}};
+  struct vlff_ring *r = vlff_ring_create(ring_name, &rp);
+  assert_non_null(r);
+  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(m);
+  uint64_t t0 = vlff_shm_now_ns();
+  put_frame(r, t0, 1.0);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  struct vlff_feed_params fp = {name, ring_name, 0, 4};
+  struct vlff_feed *f = vlff_feed_new(&fp);
+  assert_non_null(f);
+  struct polled p;
+  poll_feed(f, ALL, &p); /* the segments exist: attached at the first poll */
+  assert_int_equal(p.count[VLFF_VIEW_CH_IMAGE], 1);
+  assert_int_equal(p.count[VLFF_VIEW_CH_LABELS], 1);
+  free_polled(&p);
+  uint64_t img0 = current_t(f, VLFF_VIEW_CH_IMAGE), lab0 = current_t(f, VLFF_VIEW_CH_LABELS);
+
+  /* everybody leaves; a newer frame and map version come meanwhile */
+  poll_feed(f, 0, &p);
+  free_polled(&p);
+  usleep(20000);
+  uint64_t t1 = vlff_shm_now_ns();
+  put_frame(r, t1, 2.5);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  poll_feed(f, 0, &p);
+  free_polled(&p);
+
+  assert_true(current_t(f, VLFF_VIEW_CH_IMAGE) - img0 == t1 - t0);
+  struct vlff_view_msg *pm = vlff_feed_current(f, VLFF_VIEW_CH_POSE, NULL);
+  assert_non_null(pm);
+  assert_true(pm->t_ns - img0 == t1 - t0);
+  json_object *pose = parse(pm);
+  assert_true(json_object_get_double(get(get(pose, "translation"), "z")) == 2.5);
+  json_object_put(pose);
+  vlff_view_msg_unref(pm);
+  assert_true(current_t(f, VLFF_VIEW_CH_LABELS) > lab0);
+
+  /* the status names the clients of now, not those of the last status sent */
+  struct vlff_view_counters c = {0};
+  c.clients = 5;
+  struct vlff_view_msg *out[16];
+  int n = vlff_feed_poll(f, &c, 1u << VLFF_VIEW_CH_STATUS, out, 16);
+  for (int i = 0; i < n; i++) vlff_view_msg_unref(out[i]);
+  c.clients = 1;
+  struct vlff_view_msg *sm = vlff_feed_current(f, VLFF_VIEW_CH_STATUS, &c);
+  assert_non_null(sm);
+  json_object *st = parse(sm);
+  assert_int_equal(json_object_get_int(get(get(st, "viewer"), "clients")), 1);
+  json_object_put(st);
+  vlff_view_msg_unref(sm);
+
+  vlff_feed_free(f);
+  vlff_map_detach(m);
+  vlff_ring_close(r);
+  vlff_shm_unlink(ring_name);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test_setup_teardown(test_feed, setup, teardown))
+    cmocka_unit_test_setup_teardown(test_feed, setup, teardown),
+    cmocka_unit_test_setup_teardown(test_fresh, setup, teardown))

@@ -17,6 +17,19 @@ const { validate, sameFields } = require('./schema');
 const publishedOf = (name) => (name.startsWith('foxglove.') ? published[name.slice(9)] : undefined);
 
 const FREE = 65534;
+const png = require('./png');
+
+// A baseline or progressive JPEG's size from its start-of-frame segment.
+function jpegSize(b) {
+  assert.ok(b[0] === 0xff && b[1] === 0xd8 && b.at(-2) === 0xff && b.at(-1) === 0xd9, 'a whole JPEG (SOI ... EOI)');
+  for (let p = 2; p + 9 < b.length;) {
+    assert.strictEqual(b[p], 0xff, `a JPEG marker at ${p}`);
+    const m = b[p + 1], len = b.readUInt16BE(p + 2);
+    if (m >= 0xc0 && m <= 0xc2) return { height: b.readUInt16BE(p + 5), width: b.readUInt16BE(p + 7) };
+    p += 2 + len;
+  }
+  throw new Error('no start-of-frame segment in the JPEG');
+}
 
 async function main() {
   const demo = await start();
@@ -70,19 +83,21 @@ async function main() {
       waiters.push(() => { if (cond()) { clearTimeout(t); resolve(); return true; } return false; });
     });
 
-    await until(() => serverInfo && Object.keys(chans).length === 6, 10000, 'serverInfo and advertise');
+    await until(() => serverInfo && Object.keys(chans).length === 7, 10000, 'serverInfo and advertise');
     assert.deepStrictEqual(Object.keys(chans).sort(),
-      ['/camera/image', '/camera/labels', '/map', '/map/voxels', '/tf', '/vlff/status']);
+      ['/camera/calibration', '/camera/image', '/camera/labels', '/map', '/map/voxels', '/tf', '/vlff/status']);
     for (const c of Object.values(chans)) {
       assert.strictEqual(c.encoding, 'json');
       assert.strictEqual(c.schemaEncoding, 'jsonschema');
       assert.strictEqual(JSON.parse(c.schema).title, c.schemaName);
     }
     assert.strictEqual(chans['/map'].schemaName, 'foxglove.SceneUpdate');
-    assert.strictEqual(chans['/camera/image'].schemaName, 'foxglove.RawImage');
+    assert.strictEqual(chans['/camera/image'].schemaName, 'foxglove.CompressedImage');
+    assert.strictEqual(chans['/camera/labels'].schemaName, 'foxglove.CompressedImage');
+    assert.strictEqual(chans['/camera/calibration'].schemaName, 'foxglove.CameraCalibration');
     assert.strictEqual(chans['/tf'].schemaName, 'foxglove.FrameTransform');
     assert.deepStrictEqual(serverInfo.capabilities, [], 'no clientPublish without a token');
-    ok('serverInfo and six channels advertised with JSON schemas');
+    ok('serverInfo and seven channels advertised with JSON schemas');
     const foxgloveChannels = Object.values(chans).filter((c) => c.schemaName.startsWith('foxglove.'));
     for (const c of foxgloveChannels) {
       const pub = publishedOf(c.schemaName);
@@ -93,10 +108,12 @@ async function main() {
     ok(`${foxgloveChannels.map((c) => `${c.topic} (${c.schemaName})`).join(', ')}: advertised schemas have the ` +
       'field names, types and required fields of @foxglove/schemas');
 
-    await until(() => fullSeen >= 1 && deltaSeen >= 2 && ['/camera/image', '/camera/labels', '/tf', '/vlff/status']
+    await until(() => fullSeen >= 1 && deltaSeen >= 2 && ['/camera/image', '/camera/labels', '/camera/calibration',
+      '/tf', '/vlff/status']
       .every((t) => got[t]), 120000, 'a whole map, two deltas and every channel');
     assert.deepStrictEqual(bad, [], 'every message matches its advertised schema and the published one');
-    for (const n of ['foxglove.SceneUpdate', 'foxglove.RawImage', 'foxglove.FrameTransform'])
+    for (const n of ['foxglove.SceneUpdate', 'foxglove.CompressedImage', 'foxglove.CameraCalibration',
+      'foxglove.FrameTransform'])
       assert.ok(checkedPublished[n] > 0, `messages checked against ${n}`);
     ok(`every channel delivered, ${Object.values(got).reduce((a, l) => a + l.length, 0)} messages match their schemas; ` +
       `against @foxglove/schemas: ${JSON.stringify(checkedPublished)}`);
@@ -187,18 +204,31 @@ async function main() {
     ok('status: prompts, grid, generation as vlff-shm stat says; frames arriving');
 
     const im = got['/camera/image'].at(-1), li = got['/camera/labels'].at(-1);
-    assert.strictEqual(`${im.width}x${im.height} ${im.encoding}`, '320x240 rgb8');
-    assert.strictEqual(Buffer.from(im.data, 'base64').length, im.step * im.height);
-    const lb = Buffer.from(li.data, 'base64');
-    assert.strictEqual(lb.length, li.width * li.height * 3);
+    assert.strictEqual(`${im.format} ${im.frame_id}`, 'jpeg camera');
+    const jpg = Buffer.from(im.data, 'base64'), size = jpegSize(jpg);
+    assert.strictEqual(`${size.width}x${size.height}`, '320x240', 'the JPEG is the 320x240 frame');
+    const jpegVsRaw = Math.max(...got['/camera/image'].map((m) => Buffer.from(m.data, 'base64').length)) / (320 * 240 * 3);
+    assert.ok(jpegVsRaw <= 1 / 8, `the largest JPEG is ${jpegVsRaw.toFixed(3)} of the raw RGB frame`);
+    assert.strictEqual(li.format, 'png');
+    const lb = png.decode(Buffer.from(li.data, 'base64'));
+    assert.strictEqual(`${lb.width}x${lb.height}`, '160x120');
     const palette = new Set(grid.colors.concat(['#000000', '#282828', '#808080']));
-    for (let p = 0; p < lb.length; p += 3 * 97) {
-      const hex = '#' + [lb[p], lb[p + 1], lb[p + 2]].map((x) => x.toString(16).padStart(2, '0')).join('');
+    for (let p = 0; p < lb.width * lb.height; p += 97) {
+      const hex = '#' + lb.pixel(p % lb.width, Math.floor(p / lb.width)).map((x) => x.toString(16).padStart(2, '0')).join('');
       assert.ok(palette.has(hex), `label image pixel ${hex} is a prompt colour`);
     }
     const q = got['/tf'].at(-1).rotation;
     assert.ok(Math.abs(Math.hypot(q.x, q.y, q.z, q.w) - 1) < 1e-6, 'unit quaternion');
-    ok('camera image, label image in prompt colours and a unit-quaternion camera pose');
+    // the calibration: vlff-sim's pinhole (65 degrees across 320 pixels, centred), in
+    // OpenCV's convention (principal point at the centre minus half a pixel)
+    const cal = got['/camera/calibration'].at(-1), f = 0.5 * 320 / Math.tan(0.5 * 65 * Math.PI / 180);
+    assert.strictEqual(`${cal.width}x${cal.height} ${cal.frame_id} ${cal.distortion_model}`, '320x240 camera plumb_bob');
+    const near = (a, b) => a.every((x, i) => Math.abs(x - b[i]) < 1e-6);
+    assert.ok(near(cal.K, [f, 0, 159.5, 0, f, 119.5, 0, 0, 1]), `K ${cal.K}`);
+    assert.ok(near(cal.P, [f, 0, 159.5, 0, 0, f, 119.5, 0, 0, 0, 1, 0]) && near(cal.R, [1, 0, 0, 0, 1, 0, 0, 0, 1]) &&
+      near(cal.D, [0, 0, 0, 0, 0]), JSON.stringify(cal));
+    ok(`camera image as JPEG (${jpg.length} bytes, at most ${jpegVsRaw.toFixed(3)} of raw RGB), label image as PNG ` +
+      'in prompt colours, the camera calibration and a unit-quaternion camera pose');
 
     const imageSub = Object.keys(bySub).find((k) => bySub[k].topic === '/camera/image');
     client.unsubscribe(Number(imageSub));

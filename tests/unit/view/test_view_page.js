@@ -160,11 +160,21 @@ async function main() {
       const m = /^label (\d+) confidence (\d+) prompt (.*) version (\d+)$/m.exec(line);
       if (m[4] !== t.version || (await page.evaluate(() => document.body.dataset.version)) !== t.version) continue;
       assert.ok(text.startsWith(`label ${m[1]} prompt ${m[3]} confidence ${m[2]} `), `page "${text}", vlff-shm "${line}"`);
+      assert.ok(text.endsWith(` map version ${t.version}`), `page "${text}" at version ${t.version}`);
       hovered = true;
     }
     demo.resume();
     assert.ok(hovered, 'a hover at a stable version');
     ok('the voxel under the cursor: label, prompt and confidence as vlff-shm label gives them');
+    // the pointer still: a new map version refreshes the text under it
+    const hoverVersion = await page.evaluate(() => document.body.dataset.version);
+    await page.evaluate((v) => { window.hoverVersion = Number(v); }, hoverVersion);
+    await pageUntil(page, () => Number(document.body.dataset.version) > window.hoverVersion + 1, 60000);
+    const [pickNow, versionNow] = await page.evaluate(() => [document.getElementById('pick').textContent,
+      document.body.dataset.version]);
+    assert.ok(pickNow === 'point at a voxel' || pickNow.endsWith(` map version ${versionNow}`),
+      `the hover text "${pickNow}" at version ${versionNow}`);
+    ok(`the hover text follows the map under a still pointer (version ${hoverVersion} to ${versionNow})`);
 
     // The learner paused: on a loaded machine the page can be versions behind a
     // node that publishes on; once it stops, the page must catch up and agree.
@@ -259,7 +269,8 @@ async function main() {
 
     // A second viewer on the same map without --token-file: no editor to use.
     const port = await new Promise((resolve, reject) => {
-      plain = spawn(prog.view, ['--port', '0', '--map', demo.names.map, '--frames', demo.names.frames],
+      plain = spawn(prog.view, ['--port', '0', '--map', demo.names.map, '--frames', demo.names.frames,
+        '--max-clients', '1'],
         { stdio: ['ignore', 'pipe', 'ignore'] });
       let text = '';
       plain.stdout.on('data', (d) => {
@@ -275,6 +286,22 @@ async function main() {
     assert.ok(!(await page2.isVisible('#editor')), 'no editor without a token');
     assert.ok(await page2.isDisabled('#editor button') && await page2.isDisabled('#prompts'), 'its fields disabled');
     ok('from a viewer without a token the prompt editor is hidden and disabled');
+
+    // A page refused (503, the one client slot taken by page2) reloads after 3 s, then 6 s;
+    // once page2 leaves it connects.
+    const page3 = await browser.newPage(), loads = [];
+    page3.on('load', () => loads.push(Date.now()));
+    await page3.goto(`http://127.0.0.1:${port}/`);
+    for (const t0 = Date.now(); loads.length < 3; await sleep(200))
+      assert.ok(Date.now() - t0 < 60000, `three loads of the refused page, not ${loads.length}`);
+    await pageUntil(page3, () => /; reconnecting in 12 s$/.test(document.getElementById('conn').textContent), 30000);
+    const gaps = loads.slice(1, 3).map((t, i) => (t - loads[i]) / 1000);
+    assert.ok(gaps[0] >= 2.5 && gaps[1] >= 5.5, `reloads ${gaps} s apart`);
+    await page2.close();
+    await pageUntil(page3, () => document.getElementById('conn').textContent === 'live' && document.body.dataset.version,
+      30000);
+    ok(`a refused page reloads after a wait that doubles (${gaps.map((g) => g.toFixed(1)).join(' s, ')} s), ` +
+      'then connects once a slot is free');
   }, async () => {
     await browser.close();
     if (plain && plain.exitCode === null) plain.kill('SIGINT');
