@@ -1231,10 +1231,10 @@ static int http_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
       snprintf(why, sizeof why, "unknown or missing WebSocket subprotocol \"%s\"; this server speaks " FOX_PROTOCOL,
                VLFF_QMAX(offered, 60));
       code = HTTP_STATUS_BAD_REQUEST;
+    } else if (v->c.clients >= v->p.max_clients) {
+      snprintf(why, sizeof why, "too many clients (%d); try again later", v->p.max_clients);
+      code = HTTP_STATUS_SERVICE_UNAVAILABLE;
     }
-    /* the gate refused these already (upgrade_refusal), in plain text; this is a second
-     * line. Clients that passed the gate together beyond the limit are closed at
-     * LWS_CALLBACK_ESTABLISHED with 1013 and the reason. */
     if (!code) return 0;
     peer_of(v, wsi, peer, sizeof peer);
     count_refusal(v, peer, code, why);
