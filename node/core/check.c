@@ -16,12 +16,25 @@
 #endif
 
 /* Every prompt of every set is in the embeddings file: a set a controller
- * selects later is embedded from it as the active one is at start-up. */
+ * selects later is embedded from it as the active one is at start-up.
+ * Without prompts.sets the file defines the prompts (adopt_embeddings_prompts):
+ * then only its size matters, as at start-up. */
 static int check_embeddings(const struct vlff_config *cfg, char *err, size_t errlen) {
   char e[512];
   struct vlff_embeddings *emb = vlff_embeddings_load(cfg->prompts.embeddings, cfg->field.feature_dim, e, sizeof e);
   if (!emb) return snprintf(err, errlen, "key 'prompts.embeddings': %s", e), -1;
   int rc = 0;
+  if (!cfg->prompts.sets_named) {
+    int k = vlff_embeddings_count(emb);
+    if (k < 1 || k > VLFF_MAX_PROMPTS) {
+      snprintf(err, errlen, "key 'prompts.embeddings': %s holds %d prompts; without prompts.sets it defines the "
+               "prompts, 1 to %d of them: name the ones to use in prompts.sets", VLFF_Q(cfg->prompts.embeddings), k,
+               VLFF_MAX_PROMPTS);
+      rc = -1;
+    }
+    vlff_embeddings_free(emb);
+    return rc;
+  }
   for (int s = 0; s < cfg->prompts.set_count && !rc; s++)
     for (int i = 0; i < cfg->prompts.sets[s].count && !rc; i++)
       if (!vlff_embeddings_lookup(emb, cfg->prompts.sets[s].text[i])) {

@@ -71,6 +71,11 @@ check "--check-config: a prompt of another set not in prompts.embeddings" \
   '! "${node[@]}" --check-config "$tmp/emb8.yaml" >/dev/null 2>"$tmp/err" && grep -q "emb8.yaml: key .prompts.embeddings.: prompt .sofa. of set .b. is not in .*emb8.txt" "$tmp/err"'
 sed -i 's/\[floor, sofa\]/[floor]/' "$tmp/emb8.yaml"
 check "--check-config: every prompt in prompts.embeddings" '"${node[@]}" --check-config "$tmp/emb8.yaml" >/dev/null 2>"$tmp/err" || { cat "$tmp/err"; false; }'
+# Without prompts.sets the file defines the prompts (start-up adopts its
+# records), so the default sets' prompts need not be in it.
+printf 'field:\n  feature_dim: 8\nprompts:\n  embeddings: %s/emb8.txt\n' "$tmp" >"$tmp/emb8only.yaml"
+check "--check-config: prompts.embeddings without prompts.sets defines the prompts" \
+  '"${node[@]}" --check-config "$tmp/emb8only.yaml" >/dev/null 2>"$tmp/err" || { cat "$tmp/err"; false; }'
 # The text encoder's files are named by their keys.
 printf 'vlm:\n  text_model: %s/none.onnx\n' "$tmp" >"$tmp/tm.yaml"
 check "--check-config: a missing vlm.text_model" \
