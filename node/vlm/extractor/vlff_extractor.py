@@ -34,6 +34,7 @@ import ctypes.util
 import errno
 import importlib.util
 import os
+import signal
 import sys
 import time
 
@@ -276,9 +277,18 @@ def load_fn(spec):
     if not path or not name:
         sys.exit(f"--fn {spec}: expected file.py:function")
     s = importlib.util.spec_from_file_location("vlff_user_features", path)
+    if s is None or not os.path.isfile(path):
+        sys.exit(f"vlff_extractor: --fn {spec}: {path} is not a Python file")
     mod = importlib.util.module_from_spec(s)
     s.loader.exec_module(mod)
-    return getattr(mod, name)
+    fn = getattr(mod, name, None)
+    if not callable(fn):
+        sys.exit(f"vlff_extractor: --fn {spec}: {path} defines no function {name}")
+    return fn
+
+
+def _stop(signum, frame):
+    raise KeyboardInterrupt  # unwinds to main(), which prints the totals
 
 
 def main():
@@ -297,7 +307,12 @@ def main():
     try:
         with Extractor(a.frames, a.features, a.dim, a.height, a.width, load_fn(a.fn), a.slots, a.lib) as ex:
             print(f"vlff_extractor: {a.frames} -> {a.features} [{a.dim},{a.height},{a.width}]", flush=True)
-            ex.run(a.max_frames, a.idle_exit)
+            # SIGTERM (systemd, timeout) ends it as Ctrl-C does: the totals, exit 0
+            signal.signal(signal.SIGTERM, _stop)
+            try:
+                ex.run(a.max_frames, a.idle_exit)
+            except KeyboardInterrupt:
+                ex.report(force=True)
             print(f"vlff_extractor: {ex.done} frames, {ex.failed} failed, {ex.skipped} skipped", flush=True)
     except ShmError as e:
         sys.exit(f"vlff_extractor: {e}")
