@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /* vlff-dds's bridge: the map segment and mailbox on one side, Cyclone DDS on
  * the other (dds.h). */
 #include "dds.h"

@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * vlff-dds: the bridge from the node's map segment and prompt mailbox to DDS
  * (Eclipse Cyclone DDS), with ROS 2's wire conventions, so that a ROS 2 node

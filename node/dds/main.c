@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * vlff-dds: the bridge to DDS. Reads the node's map segment and serves the
  * map and status over Cyclone DDS with ROS 2's wire conventions, and posts

@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /* json.h - the viewer's append-only JSON writer into a shared message (msg.c). */
 #ifndef VLFF_VIEW_JSON_H
 #define VLFF_VIEW_JSON_H

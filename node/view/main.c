@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * vlff-view: the live viewer. Reads the map segment and the frame ring like any
  * controller and serves them to Foxglove (foxglove.websocket.v1) and to its own page

@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * msg.c - the viewer's shared messages and the JSON writer that fills them.
  *

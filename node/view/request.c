@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * request.c - what the viewer itself parses of a client's WebSocket messages (the
  * frames are libwebsockets'): the JSON text of a request or of a published

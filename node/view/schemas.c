@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * schemas.c - the channels' topics and JSON Schemas, as advertised to clients.
  *

@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * server.c - the foxglove.websocket.v1 server and the page's HTTP files, one port.
  *

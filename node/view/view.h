@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * view.h - vlff-view, the live viewer: a Foxglove WebSocket server and its own page.
  *

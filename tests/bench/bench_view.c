@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * bench_view: the load for scripts/bench view (tests/bench/view.sh).
  *

@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * dds_probe: a DDS subscriber for test_dds_netns.sh, written only against
  * Cyclone DDS's C API and the C that idlc generates from node/dds/idl (no

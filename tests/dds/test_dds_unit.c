@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /* vlff-dds's pure parts (dds.h): topic names, the prompt message rule and
  * the point cloud's payload, without a network. */
 #include <setjmp.h>

@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * vlff/shm.h - the shared-memory layer of vlff, and the controller reader library.
  *

@@ -1,4 +1,4 @@
-/* SPDX-License-Identifier: MIT */
+/* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * The viewer's feed against a map segment published in this process: the first
  * version goes out whole, later ones as exactly the changed voxels and the bricks
