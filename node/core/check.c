@@ -47,6 +47,7 @@ static int check_embeddings(const struct vlff_config *cfg, char *err, size_t err
   return rc;
 }
 
+#ifdef VLFF_HAVE_VLM
 /* key's file is a readable regular file: the files the user supplies are
  * named by their key before the encoders say more of them. */
 static int check_file(const char *key, const char *path, char *err, size_t errlen) {
@@ -55,6 +56,7 @@ static int check_file(const char *key, const char *path, char *err, size_t errle
   snprintf(err, errlen, "key '%s': %s", key, e);
   return -1;
 }
+#endif
 
 /* The models and the vocabulary load as start-up loads them. */
 static int check_models(const struct vlff_config *cfg, char *err, size_t errlen) {

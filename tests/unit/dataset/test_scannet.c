@@ -509,6 +509,7 @@ static void test_lost_tracking(void **state) {
 #endif
 }
 
+#ifdef VLFF_HAVE_HDF5
 /* The usable frame whose stem is stem. */
 static int frame_of(const struct vlff_dataset *ds, const char *stem) {
   for (int i = 0; i < ds->n; i++)
@@ -516,6 +517,7 @@ static int frame_of(const struct vlff_dataset *ds, const char *stem) {
   fail_msg("no frame %s", stem);
   return -1;
 }
+#endif
 
 /* What a caller requires is checked before any frame is listed and named
  * as ScanNet names it: the labelled mesh <scene>_vh_clean_2.labels.ply (the
