@@ -40,7 +40,7 @@ for f in "$src"/configs/*.yaml; do
     # shellcheck disable=SC2206
     prog=(${VLFF_EMULATOR:-} "${path[$p]}")
     "${prog[@]}" --check-config "$tmp/$c" >/dev/null 2>"$tmp/err"; rc=$?
-    if grep -q "this build has no" "$tmp/err"; then
+    if grep -qE "this build has no|was built without" "$tmp/err"; then
       echo "note: $p: $(cat "$tmp/err")"
       continue
     fi
