@@ -7,18 +7,7 @@
 # Usage: test_node_prompts_file.sh NODE SHM SIM
 set -u
 node=$1 shm=$2 sim=$3
-fails=0 passes=0
-check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
-wait_until() { local k; for ((k = 0; k < $1; k++)); do eval "$2" && return 0; sleep 0.1; done; return 1; }
-tmp=$(mktemp -d)
-p=/npf-$$
-cleanup() {
-  [[ -n ${simpid:-} ]] && kill "$simpid" 2>/dev/null
-  [[ -n ${nodepid:-} ]] && kill -9 "$nodepid" 2>/dev/null
-  rm -rf "$tmp"
-  rm -f /dev/shm$p-*
-}
-trap cleanup EXIT
+. "$(dirname "$0")/sh_kit.sh" npf
 # three prompts, not in scannet20's order, one not in scannet20 at all
 awk 'BEGIN { print "vlff-embeddings 1"; print "dim 16"; n = split("chair lamp wall", t, " ")
   for (k = 1; k <= n; k++) { v = ""; for (i = 1; i <= 16; i++) v = v (i > 1 ? " " : "") (i == k ? 1 : 0); print t[k] "\t" v } }' >"$tmp/emb.txt"
@@ -56,6 +45,4 @@ check "with prompts.sets the set applies, in its order" \
 check "the log names the set and the file" "grep -q \"prompts: set 'mine' of prompts.sets (prompts.active 0); vectors from .*emb.txt\" \"\$tmp/log\""
 stop_node
 
-echo "$passes passed, $fails failed"
-(( fails == 0 )) || { echo "--- node log"; tail -30 "$tmp/log"; }
-(( fails == 0 ))
+verdict
