@@ -71,6 +71,15 @@ static void write_frame(struct vlff_ring *ring, uint64_t id) {
   assert_int_equal(vlff_ring_commit(ring, len), 0);
 }
 
+/* The frame ring the extractor reads: 8 slots of FW x FH RGB8 frames. */
+static struct vlff_ring *create_frame_ring(const char *name) {
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_FRAME, .slots = 8,
+                               .slot_size = vlff_frame_slot_size(FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE)};
+  struct vlff_ring *fr = vlff_ring_create(name, &p);
+  if (!fr) fail_msg("%s", vlff_shm_last_message());
+  return fr;
+}
+
 /* The feature ring the extractor pid creates, attached (python and numpy
  * start up first); fails the test, stopping pid, when it never comes. out:
  * the extractor's output file, shown then, or NULL. */
@@ -95,10 +104,7 @@ static void test_python_extractor_round_trip(void **state) {
   snprintf(feats, sizeof feats, "/vlff-test-features-%d", (int)getpid());
   vlff_shm_unlink(frames);
   vlff_shm_unlink(feats);
-  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_FRAME, .slots = 8,
-                               .slot_size = vlff_frame_slot_size(FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE)};
-  struct vlff_ring *fr = vlff_ring_create(frames, &p);
-  if (!fr) fail_msg("%s", vlff_shm_last_message());
+  struct vlff_ring *fr = create_frame_ring(frames);
 
   char script[512], fn[512], dim[8], hh[8], ww[8];
   snprintf(script, sizeof script, "%s/node/vlm/extractor/vlff_extractor.py", getenv("VLFF_SOURCE_DIR"));
@@ -221,10 +227,7 @@ static void test_python_extractor_skips_to_newest(void **state) {
   snprintf(feats, sizeof feats, "/%s-sx", tk.tag);
   snprintf(mark, sizeof mark, "%s/mark", tk.dir);
   snprintf(out, sizeof out, "%s/extractor.out", tk.dir);
-  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_FRAME, .slots = 8,
-                               .slot_size = vlff_frame_slot_size(FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE)};
-  struct vlff_ring *fr = vlff_ring_create(frames, &p);
-  if (!fr) fail_msg("%s", vlff_shm_last_message());
+  struct vlff_ring *fr = create_frame_ring(frames);
   setenv("VLFF_TEST_MARK", mark, 1);
   setenv("VLFF_TEST_DELAY_S", "1", 1);
   const char *extra[] = {"--max-frames", "2", "--idle-exit", "20", NULL};
@@ -276,10 +279,7 @@ static void test_python_extractor_refuses_out_of_range(void **state) {
   snprintf(frames, sizeof frames, "/%s-of", tk.tag);
   snprintf(feats, sizeof feats, "/%s-ox", tk.tag);
   snprintf(out, sizeof out, "%s/extractor-range.out", tk.dir);
-  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_FRAME, .slots = 8,
-                               .slot_size = vlff_frame_slot_size(FW, FH, VLFF_PIX_RGB8, VLFF_PIX_NONE)};
-  struct vlff_ring *fr = vlff_ring_create(frames, &p);
-  if (!fr) fail_msg("%s", vlff_shm_last_message());
+  struct vlff_ring *fr = create_frame_ring(frames);
   const char *extra[] = {"--max-frames", "2", "--idle-exit", "20", NULL};
   pid_t pid = spawn_extractor(frames, feats, D, HH, WW, "odd_huge_features", out, extra);
   struct vlff_ring *ft = attach_features(feats, pid, out);
