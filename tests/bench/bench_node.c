@@ -26,13 +26,14 @@
  *
  * A building (sim.layout building, tests/bench/node-building.yaml): the
  * first walk through it (frames 0 .. sim.frames-1, from flat 1 through
- * every flat and back into flat 1) is scored as it happens. When the
- * published label image is of the first frame outside flat 1, the map is
- * read from its segment and scored at flat 1's labelled points; when it is
- * of the walk's last frame, flat 1 is scored again and the node's 3D mIoU
- * over the whole building (its observer's, every labelled point) is taken:
- * miou3d_end, forgetting_pts (flat 1's first score less its last; > 0 is
- * lost). The baseline: multi-view fusion (metrics.h, as vlff-eval's) of
+ * every flat and back into flat 1) is scored as the robot walks it: when
+ * the simulator has written the first frame outside flat 1 into the frame
+ * ring (the ring's head), the map is read from its segment and scored at
+ * flat 1's labelled points; when it has written the walk's last frame,
+ * flat 1 is scored again and so is the whole building (every labelled
+ * point): miou3d_end, forgetting_pts (flat 1's first score less its last;
+ * > 0 is lost). The map is what the node has then, however far its
+ * training lags the camera (a loaded host's lag shows as a lower score). The baseline: multi-view fusion (metrics.h, as vlff-eval's) of
  * every frame of that walk at the same points, miou3d_fusion_end.
  * rss_peak_mb is read before the baseline is computed.
  */
@@ -278,6 +279,7 @@ int main(int argc, char **argv) {
   }
   struct vlff_map *wmap = NULL;
   struct vlff_map_snapshot *wsnap = NULL;
+  struct vlff_ring *wring = NULL;
   enum { MAXS = 4096 };
   static double ts[MAXS], m2[MAXS];
   static long long fr[MAXS];
@@ -305,16 +307,20 @@ int main(int argc, char **argv) {
     m2[ns++] = st.miou2d;
     if (id_c < 0 && ts[ns - 1] >= seconds && st.miou2d_frame >= 0) id_c = st.miou2d_frame;
     if (walk && !wmap && (wmap = vlff_map_attach(cfg.shm.map))) wsnap = vlff_map_snapshot_new(wmap);
-    if (walk && flat1_leave < 0 && st.miou2d_frame >= leave_frame) {
+    if (walk && !wring) wring = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
+    /* frame ids count from 0: the head is the newest written id + 1 */
+    long long written = wring ? (long long)vlff_ring_head(wring) : 0;
+    if (walk && flat1_leave < 0 && written > leave_frame) {
       flat1_leave = map_miou3d(wmap, wsnap, &wpts, in_flat1);
-      printf("t=%5.1f s  frame %lld: left flat 1; its 3D mIoU %.1f\n", ts[ns - 1], st.miou2d_frame, flat1_leave);
+      printf("t=%5.1f s  frame %lld written, the map at frame %lld: left flat 1; its 3D mIoU %.1f\n", ts[ns - 1],
+             written - 1, st.miou2d_frame, flat1_leave);
     }
-    if (walk && miou3d_end < 0 && st.miou2d_frame >= loop_n - 1) {
+    if (walk && flat1_leave >= 0 && miou3d_end < 0 && written >= loop_n) {
       flat1_end = map_miou3d(wmap, wsnap, &wpts, in_flat1);
       miou3d_end = map_miou3d(wmap, wsnap, &wpts, in_all);
-      printf("t=%5.1f s  frame %lld: the walk's end; flat 1's 3D mIoU %.1f, the building's %.1f (the node's %.1f), "
-             "%d keyframes, %lld evicted\n",
-             ts[ns - 1], st.miou2d_frame, flat1_end, miou3d_end, st.miou3d, st.keyframes, st.keyframes_evicted);
+      printf("t=%5.1f s  frame %lld written, the map at frame %lld: the walk's end; flat 1's 3D mIoU %.1f, the "
+             "building's %.1f, %d keyframes, %lld evicted\n",
+             ts[ns - 1], written - 1, st.miou2d_frame, flat1_end, miou3d_end, st.keyframes, st.keyframes_evicted);
     }
     if (ns % 10 == 0)
       printf("t=%5.1f s  it %lld  kf %d  2D mIoU %.1f  3D mIoU %.1f\n", ts[ns - 1], st.iteration, st.keyframes,
@@ -323,6 +329,7 @@ int main(int argc, char **argv) {
   vlff_node_status(n, &st);
   vlff_map_snapshot_free(wsnap);
   vlff_map_detach(wmap);
+  if (wring) vlff_ring_close(wring);
   tk_node_destroy(n, sim_src);
   kill(sim, SIGTERM);
   waitpid(sim, NULL, 0);
