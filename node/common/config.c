@@ -69,7 +69,7 @@ static const char *const feat_losses[] = {"l2", "l1", "cos", NULL};
 static const char *const samplings[] = {"depth", "uniform", NULL};
 static const char *const label_images[] = {"surface", "render", NULL};
 static const char *const trajectories[] = {"walk", "orbit", NULL};
-static const char *const sim_layouts[] = {"room", "flat", NULL};
+static const char *const sim_layouts[] = {"room", "flat", "building", NULL};
 static const char *const camera_kinds[] = {"aravis", "libcamera", NULL};
 static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
@@ -193,6 +193,7 @@ static const struct key schema[] = {
     DBL("sim.difficulty", sim.difficulty, 0, 1, 0.5),
     ENUM("sim.trajectory", sim.trajectory, trajectories, "walk"),
     ENUM("sim.layout", sim.layout, sim_layouts, "room"),
+    INT("sim.flats", sim.flats, 2, 8, 3),
     DBL("sim.object_bias", sim.object_bias, 0, 1, 0),
     DBL("sim.speed_mps", sim.speed_mps, 0.01, 10, 0.4),
     DBL("sim.depth_noise_m", sim.depth_noise_m, 0, 1, 0.01),

@@ -77,7 +77,7 @@ enum vlff_feat_loss { VLFF_FEAT_LOSS_L2, VLFF_FEAT_LOSS_L1, VLFF_FEAT_LOSS_COS }
 enum vlff_sampling { VLFF_SAMPLING_DEPTH, VLFF_SAMPLING_UNIFORM };
 enum vlff_label_image { VLFF_LABEL_IMAGE_SURFACE, VLFF_LABEL_IMAGE_RENDER };
 enum vlff_trajectory { VLFF_TRAJ_WALK, VLFF_TRAJ_ORBIT };
-enum vlff_sim_layout { VLFF_LAYOUT_ROOM, VLFF_LAYOUT_FLAT };
+enum vlff_sim_layout { VLFF_LAYOUT_ROOM, VLFF_LAYOUT_FLAT, VLFF_LAYOUT_BUILDING };
 enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA };
 enum vlff_depth_camera_kind { VLFF_DCAM_NONE, VLFF_DCAM_ARAVIS };
 enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
@@ -132,6 +132,7 @@ struct vlff_cfg_sim {
   double difficulty;               /* 0 = clean features, 1 = very noisy */
   int trajectory;                  /* enum vlff_trajectory (room layout) */
   int layout;                      /* enum vlff_sim_layout */
+  int flats;                       /* building layout: flats off the corridor */
   double object_bias;              /* 0..1: per-object feature bias every view shares */
   double speed_mps;
   double depth_noise_m;
