@@ -149,8 +149,45 @@ struct json_object *vlff_view_parse_json(const char *s, size_t n, char *why, siz
  * *channel set, or -1 with the reason in why[len]. */
 int vlff_view_publish_header(const unsigned char *d, size_t n, uint32_t *channel, char *why, size_t len);
 
+/* ------------------------------------------------------ recording, playback */
+
+/* The most channels a server carries: a recording played back may hold others
+ * than this build's (subscriptions are kept in a 32-bit mask). */
+#define VLFF_VIEW_CH_MAX 31
+
+/* A channel as the server advertises it. */
+struct vlff_view_chan {
+  const char *topic, *encoding, *schema_name, *schema_encoding, *schema;
+};
+
+/* An MCAP recording served as if live (play.c): read whole into memory and every
+ * record checked once when opened (mcap.h's bounds; a file cut short by a killed
+ * recorder plays up to its last whole chunk, with a warning); its channels are
+ * numbered 1..n in the order the file defines them. Playback starts when a client
+ * first subscribes and sends each message when as much time has passed since the
+ * first as passed between their log times, with its publish time as the Foxglove
+ * timestamp; a new subscriber gets the latest message played on its channel. */
+struct vlff_view_play;
+/* NULL (the reason on stderr) for a file that is not a readable recording. */
+struct vlff_view_play *vlff_view_play_open(const char *path);
+void vlff_view_play_free(struct vlff_view_play *p);
+int vlff_view_play_channels(const struct vlff_view_play *p);
+/* Channel ch, 1..vlff_view_play_channels. */
+const struct vlff_view_chan *vlff_view_play_channel(const struct vlff_view_play *p, int ch);
+/* The messages due at now_ns (CLOCK_MONOTONIC), at most out_cap; starts the clock
+ * at the first call with wanted non-zero. The number appended; the caller owns them. */
+int vlff_view_play_poll(struct vlff_view_play *p, unsigned wanted, uint64_t now_ns, struct vlff_view_msg **out,
+                        int out_cap);
+/* The latest message played on channel ch (one new reference), or NULL. */
+struct vlff_view_msg *vlff_view_play_current(struct vlff_view_play *p, int ch);
+/* Messages played so far, in the file; 1 once all are played. */
+uint64_t vlff_view_play_sent(const struct vlff_view_play *p);
+uint64_t vlff_view_play_total(const struct vlff_view_play *p);
+int vlff_view_play_done(const struct vlff_view_play *p);
+
 /* ---------------------------------------------------------------- server */
 
+struct vlff_mcap_writer;
 struct vlff_view_params {
   const char *address;      /* listening address, "127.0.0.1" */
   int port;                 /* 0 = any free port (see vlff_view_port) */
@@ -167,6 +204,11 @@ struct vlff_view_params {
   const char *const *allow_origins; /* more origins (and their hosts) than the viewer's own */
   int n_allow_origins;
   int verbose;
+  /* a recording to serve instead of the feed (the feed is then NULL) */
+  struct vlff_view_play *play;
+  /* a recording (mcap.h) every message sent on a channel is written to, with the
+   * channels declared by vlff_view_new; the caller closes it after the server */
+  struct vlff_mcap_writer *record;
 };
 
 struct vlff_view;
