@@ -506,6 +506,14 @@ static const uint8_t *c_bytes(struct cur *c, size_t max, size_t *len) {
   return s;
 }
 
+/* A name (topic, schema name, encoding): at most VLFF_MCAP_MAX_NAME bytes, no NUL
+ * (it is kept as a C string). */
+static const uint8_t *c_name(struct cur *c, size_t *len) {
+  const uint8_t *s = c_bytes(c, VLFF_MCAP_MAX_NAME, len);
+  if (s && memchr(s, 0, *len)) c->bad = 1;
+  return c->bad ? NULL : s;
+}
+
 static char *dup_n(const uint8_t *s, size_t n) {
   char *d = malloc(n + 1);
   if (!d) return NULL;
@@ -592,9 +600,9 @@ static int bad(char *why, size_t len, uint64_t at, const char *what) {
 static int read_schema(struct vlff_mcap_reader *r, struct cur *c, uint64_t at, char *why, size_t len) {
   uint16_t id = (uint16_t)c_le(c, 2);
   size_t nn, ne, nd;
-  const uint8_t *name = c_bytes(c, VLFF_MCAP_MAX_NAME, &nn), *enc = c_bytes(c, VLFF_MCAP_MAX_NAME, &ne);
+  const uint8_t *name = c_name(c, &nn), *enc = c_name(c, &ne);
   const uint8_t *data = c_bytes(c, VLFF_MCAP_MAX_SCHEMA, &nd);
-  if (c->bad) return bad(why, len, at, "a schema record whose fields do not fit it (or a name or schema too long)");
+  if (c->bad) return bad(why, len, at, "a schema record whose fields do not fit it (or a name too long or holding a NUL, or a schema too long)");
   if (id == 0) return bad(why, len, at, "a schema with id 0 (reserved for none)");
   for (int i = 0; i < r->nschemas; i++)
     if (r->schemas[i].id == id) {
@@ -618,9 +626,9 @@ static int read_schema(struct vlff_mcap_reader *r, struct cur *c, uint64_t at, c
 static int read_channel(struct vlff_mcap_reader *r, struct cur *c, uint64_t at, char *why, size_t len) {
   uint16_t id = (uint16_t)c_le(c, 2), sid = (uint16_t)c_le(c, 2);
   size_t nt, ne, nm;
-  const uint8_t *topic = c_bytes(c, VLFF_MCAP_MAX_NAME, &nt), *enc = c_bytes(c, VLFF_MCAP_MAX_NAME, &ne);
+  const uint8_t *topic = c_name(c, &nt), *enc = c_name(c, &ne);
   c_bytes(c, c->n, &nm); /* metadata: not used */
-  if (c->bad) return bad(why, len, at, "a channel record whose fields do not fit it (or a topic too long)");
+  if (c->bad) return bad(why, len, at, "a channel record whose fields do not fit it (or a topic too long or holding a NUL)");
   const struct vlff_mcap_channel *old = find_channel(r, id);
   if (old) {
     if (strlen(old->topic) != nt || memcmp(old->topic, topic, nt))
@@ -676,6 +684,14 @@ static int open_chunk(struct vlff_mcap_reader *r, struct cur *c, uint64_t at, ch
         (unsigned long long)at, (unsigned long long)usize, VLFF_MCAP_MAX_CHUNK);
     return -1;
   }
+  if (nc == 0 && nrec != usize) return bad(why, len, at, "an uncompressed chunk whose size is not its records'");
+  if (nc == 4 && !memcmp(comp, "zstd", 4)) {
+    /* a frame that states its size (as vlff-view's do) must state the chunk's, before
+     * that much memory is taken for it */
+    unsigned long long fs = ZSTD_getFrameContentSize(rec, nrec);
+    if (fs == ZSTD_CONTENTSIZE_ERROR || (fs != ZSTD_CONTENTSIZE_UNKNOWN && fs != usize))
+      return bad(why, len, at, "a zstd chunk whose frame is not the size the chunk declares");
+  }
   if ((size_t)usize > r->chunk_cap) {
     uint8_t *b = realloc(r->chunk, usize ? (size_t)usize : 1);
     if (!b) return bad(why, len, at, "out of memory for a chunk");
@@ -683,7 +699,6 @@ static int open_chunk(struct vlff_mcap_reader *r, struct cur *c, uint64_t at, ch
     r->chunk_cap = (size_t)usize;
   }
   if (nc == 0) {
-    if (nrec != usize) return bad(why, len, at, "an uncompressed chunk whose size is not its records'");
     if (nrec) memcpy(r->chunk, rec, nrec);
   } else if (nc == 4 && !memcmp(comp, "zstd", 4)) {
     size_t z = ZSTD_decompress(r->chunk, (size_t)usize, rec, nrec);

@@ -30,6 +30,17 @@ struct vlff_view_play {
   struct vlff_mcap_message next;
 };
 
+/* Text advertised to clients as JSON strings: UTF-8 without NUL. */
+static int utf8_ok(const char *s, size_t n) {
+  for (size_t i = 0; i < n;) {
+    unsigned long cp;
+    size_t k = (unsigned char)s[i] < 0x80 ? (s[i] != 0) : vlff_utf8_len((const unsigned char *)s + i, n - i, &cp);
+    if (!k) return 0;
+    i += k;
+  }
+  return 1;
+}
+
 static int view_channel(const struct vlff_view_play *p, uint16_t id) {
   for (int i = 1; i <= p->nch; i++)
     if (p->mcap_id[i] == id) return i;
@@ -69,6 +80,14 @@ struct vlff_view_play *vlff_view_play_open(const char *path) {
   }
   for (int i = 0; i < n; i++) {
     const struct vlff_mcap_channel *c = vlff_mcap_channel_at(p->r, i);
+    if (!utf8_ok(c->topic, strlen(c->topic)) || !utf8_ok(c->message_encoding, strlen(c->message_encoding)) ||
+        !utf8_ok(c->schema_name, strlen(c->schema_name)) || !utf8_ok(c->schema_encoding, strlen(c->schema_encoding)) ||
+        !utf8_ok(c->schema, c->schema_len)) {
+      fprintf(stderr, "vlff-view: --play %s: channel %u (%s): its topic, encodings or schema are not UTF-8 text\n",
+              VLFF_Q(path), c->id, VLFF_Q(c->topic));
+      vlff_view_play_free(p);
+      return NULL;
+    }
     p->nch++;
     p->mcap_id[p->nch] = c->id;
     p->ch[p->nch] = (struct vlff_view_chan){c->topic, c->message_encoding, c->schema_name, c->schema_encoding,
