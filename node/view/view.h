@@ -19,7 +19,9 @@
  *     a request that is not a GET or HEAD of one of those files or a WebSocket
  *     upgrade, or whose Host or Origin is not the viewer's own or configured, gets
  *     an HTTP status and a sentence, and is counted;
- *   - request.c parses what clients send (JSON, strictly; clientPublish headers).
+ *   - request.c parses what clients send (JSON, strictly; clientPublish headers);
+ *   - recordings: the server writes every message it makes to an MCAP file when
+ *     given a writer (mcap.h), and play.c serves such a file instead of the feed.
  *
  * CONTRACT
  * Errors: functions returning a pointer return NULL, functions returning int return
