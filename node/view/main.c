@@ -20,6 +20,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 static struct vlff_view *running;
@@ -53,7 +54,8 @@ static const struct vlff_cli cli = {
     "                          of it (default 30, 3..3600)\n"
     "      --www DIR           the page's files (default: installed with the program)\n"
     "      --record FILE       also write every message of every channel to FILE, an MCAP recording\n"
-    "                          (zstd-compressed chunks of at most 1 s; Foxglove opens it)\n"
+    "                          (zstd-compressed chunks of at most 1 s; Foxglove opens it); a directory:\n"
+    "                          a new file there per run, vlff-view-YYYYmmdd-HHMMSS.mcap (local time)\n"
     "      --record-level N    zstd level of the recording's chunks (default 3, 1..19; 0 = none)\n"
     "      --play FILE         serve the MCAP recording FILE instead of the segments, at its recorded\n"
     "                          rate, from the first subscription on\n"
@@ -100,6 +102,19 @@ static char *read_token(const char *path) {
     return NULL;
   }
   return line;
+}
+
+/* --record DIR: a file of its own for this run, named by the local start time. */
+static const char *record_path(const char *arg, char *buf, size_t cap) {
+  struct stat st;
+  if (stat(arg, &st) != 0 || !S_ISDIR(st.st_mode)) return arg;
+  time_t now = time(NULL);
+  struct tm tm;
+  char stamp[32];
+  if (!localtime_r(&now, &tm) || !strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", &tm)) return arg;
+  size_t n = strlen(arg);
+  int k = snprintf(buf, cap, "%s%svlff-view-%s.mcap", arg, n && arg[n - 1] == '/' ? "" : "/", stamp);
+  return k > 0 && (size_t)k < cap ? buf : arg;
 }
 
 static int is_dir_with_index(const char *dir) {
@@ -227,6 +242,8 @@ int main(int argc, char **argv) {
   } else {
     feed = vlff_feed_new(&fp);
   }
+  char record_buf[PATH_MAX];
+  if (record) record = record_path(record, record_buf, sizeof record_buf);
   if (record && feed) {
     char why[512];
     struct vlff_mcap_writer_params mp = {.library = "vlff-view " VLFF_VERSION, .zstd_level = record_level};

@@ -8,8 +8,8 @@
 // stream reader reads to its last whole chunk. Then --play serves the recording to
 // a Foxglove client: the recorded channels, every message in the file's order with
 // its bytes and publish time, no message before its recorded offset, and a late
-// subscriber given the latest of its channel. Bad files on --play are refused with
-// exit 1 and a reason.
+// subscriber given the latest of its channel. --record DIR names a file per run.
+// Bad files on --play are refused with exit 1 and a reason.
 'use strict';
 const assert = require('assert');
 const fs = require('fs');
@@ -228,6 +228,21 @@ async function main() {
   assert.ok(/ends at byte \d+ without its summary/.test(fs.readFileSync(path.join(tmp, 'kplay.log'), 'utf8')));
   assert.ok(kp.text().includes(`${kinds.Message} messages`), `${kp.text()} (${kinds.Message} in the file)`);
   ok(`--play of the killed recorder's file serves its ${kinds.Message} messages and warns that its summary is lost`);
+
+  // ---- --record DIR: a file of its own per run
+  const rdir = path.join(tmp, 'runs');
+  fs.mkdirSync(rdir);
+  const rp = viewProc(['--map', `/vlff-none-${process.pid}`, '--frames', '', '--record', rdir],
+    path.join(tmp, 'dir.log'));
+  await rp.port;
+  await sleep(1500);
+  rp.kill('SIGINT');
+  assert.strictEqual(await exited(rp), 0);
+  const runs = fs.readdirSync(rdir);
+  assert.ok(runs.length === 1 && /^vlff-view-\d{8}-\d{6}\.mcap$/.test(runs[0]), runs.join());
+  const { msgs: dm } = await readIndexed(fs.readFileSync(path.join(rdir, runs[0])));
+  assert.ok(dm.length >= 1 && dm.every((m) => m.topic === '/vlff/status'), `${dm.length} messages`);
+  ok(`--record DIR writes ${runs[0]} there, read by @mcap/core (${dm.length} status messages without a map)`);
 
   // ---- bad files on --play
   const bad1 = (name, data) => { const p = path.join(tmp, name); fs.writeFileSync(p, data); return p; };
