@@ -165,6 +165,7 @@ struct vlff_view {
   struct gate *oldest, *newest;
   uint64_t ws_refusals; /* WebSocket-level refusals, for their log's rate limit */
   int nch;              /* channels served: this build's, or a recording's */
+  struct vlff_view_log *log; /* the /log channel's lines (live only) */
   int record_failed;    /* the recording stopped at its first write error */
   struct client *clients;
   struct vlff_view_counters c;
@@ -323,7 +324,9 @@ static struct vlff_view_chan chan_info(const struct vlff_view *v, int ch) {
 
 /* The first message of a new subscription to ch. */
 static struct vlff_view_msg *current(struct vlff_view *v, int ch) {
-  return v->p.play ? vlff_view_play_current(v->p.play, ch) : vlff_feed_current(v->feed, ch, &v->c);
+  if (v->p.play) return vlff_view_play_current(v->p.play, ch);
+  if (ch == VLFF_VIEW_CH_LOG) return vlff_view_log_current(v->log);
+  return vlff_feed_current(v->feed, ch, &v->c);
 }
 
 static void send_hello(struct client *cl) {
@@ -723,7 +726,7 @@ static int declare_channels(struct vlff_view *v) {
 
 static void tick(lws_sorted_usec_list_t *sul) {
   struct vlff_view *v = lws_container_of(sul, struct vlff_view, sul);
-  struct vlff_view_msg *out[16];
+  struct vlff_view_msg *out[32];
   unsigned wanted = 0;
   check_idle(v);
   for (struct client *cl = v->clients; cl; cl = cl->next)
@@ -734,7 +737,12 @@ static void tick(lws_sorted_usec_list_t *sul) {
     n = vlff_view_play_poll(v->p.play, wanted, vlff_now_ns(), out, 16);
   } else {
     if (v->p.record && !v->record_failed) wanted = ~0u; /* a recording wants every channel */
+    /* the log follows the status whether or not /log has subscribers, so that its
+     * latest line is there for the first one */
+    wanted |= 1u << VLFF_VIEW_CH_STATUS;
     n = vlff_feed_poll(v->feed, &v->c, wanted, out, 16);
+    for (int i = 0, k = n; i < k && n < 32; i++)
+      if (out[i]->channel == VLFF_VIEW_CH_STATUS) n += vlff_view_log_status(v->log, out[i], out + n, 32 - n);
     record(v, out, n);
   }
   for (int i = 0; i < n; i++) {
@@ -1492,13 +1500,19 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   v->p = *p;
   v->feed = feed;
   v->nch = p->play ? vlff_view_play_channels(p->play) : VLFF_VIEW_CH_COUNT;
+  if (!p->play && !(v->log = vlff_view_log_new())) {
+    free(v);
+    return NULL;
+  }
   if (p->record && (p->play || declare_channels(v))) {
     if (p->play) vlff_log(VLFF_LOG_WARN, "vlff-view", "--record and --play together: a recording is not re-recorded");
+    vlff_view_log_free(v->log);
     free(v);
     return NULL;
   }
   v->listen_fd = -1;
   if (vlff_page_load(&v->page, p->www_dir) != 0) {
+    vlff_view_log_free(v->log);
     free(v);
     return NULL;
   }
@@ -1599,5 +1613,6 @@ void vlff_view_free(struct vlff_view *v) {
   }
   vlff_prompts_close(v->mailbox);
   vlff_page_free(&v->page);
+  vlff_view_log_free(v->log);
   free(v);
 }

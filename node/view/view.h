@@ -51,7 +51,8 @@ enum vlff_view_channel {
   VLFF_VIEW_CH_STATUS,     /* /vlff/status: vlff.Status JSON */
   VLFF_VIEW_CH_CALIB,      /* /camera/calibration: foxglove.CameraCalibration, the pinhole
                               intrinsics the frames carry (from the source's config), with each image */
-  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_CALIB
+  VLFF_VIEW_CH_LOG,        /* /log: foxglove.Log, what changed in the status (logch.c) */
+  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_LOG
 };
 
 /* JPEG quality of the camera image channel. */
@@ -150,6 +151,22 @@ struct json_object *vlff_view_parse_json(const char *s, size_t n, char *why, siz
 /* The 5-byte header of clientPublish message data (opcode 1, channel id LE): 0 with
  * *channel set, or -1 with the reason in why[len]. */
 int vlff_view_publish_header(const unsigned char *d, size_t n, uint32_t *channel, char *why, size_t len);
+
+/* -------------------------------------------------------------------- log */
+
+/* The /log channel (logch.c): lines made from the status messages the feed makes,
+ * when something in them changes (segments attached or gone, the map's writer
+ * alive or silent, the learner's state and error flags, frames refused per reason
+ * and lost, these at most one line per reason every 10 s with the count since). */
+struct vlff_view_log;
+struct vlff_view_log *vlff_view_log_new(void);
+void vlff_view_log_free(struct vlff_view_log *l);
+/* The lines status (a /vlff/status message) gives, at most cap, into out; the
+ * caller owns them. */
+int vlff_view_log_status(struct vlff_view_log *l, const struct vlff_view_msg *status, struct vlff_view_msg **out,
+                         int cap);
+/* The latest line (one new reference), or NULL. */
+struct vlff_view_msg *vlff_view_log_current(struct vlff_view_log *l);
 
 /* ------------------------------------------------------ recording, playback */
 
