@@ -89,7 +89,7 @@ static void counted(struct vlff_view_log *l, struct counted *c, uint64_t count, 
   }
   if (c->t_ns && t_ns - c->t_ns < (uint64_t)REPEAT_S * 1000000000u) return;
   char text[200];
-  snprintf(text, sizeof text, "%llu frame%s %s: %s (%llu in all)", (unsigned long long)(count - c->reported),
+  snprintf(text, sizeof text, "%llu frame%s %.16s: %.63s (%llu in all)", (unsigned long long)(count - c->reported),
            count - c->reported == 1 ? "" : "s", what, c->name, (unsigned long long)count);
   line(l, t_ns, L_WARNING, "vlff-node", text, out, cap, n);
   c->reported = count;
@@ -110,7 +110,7 @@ int vlff_view_log_status(struct vlff_view_log *l, const struct vlff_view_msg *st
   const char *frames_name = json_object_get_string(member(frames, "segment"));
   int map_attached = flag(map, "attached"), writer = flag(map, "writer_alive"), frames_attached = flag(frames, "attached");
   if (map_attached != l->map_attached || !l->seen) {
-    snprintf(text, sizeof text, "map segment %s %s", map_name ? map_name : "?",
+    snprintf(text, sizeof text, "map segment %.100s %s", map_name ? map_name : "?",
              map_attached ? "attached" : l->seen ? "gone (its writer removed or replaced it)" : "not there yet");
     line(l, t, map_attached ? L_INFO : L_WARNING, "vlff-view", text, out, cap, &n);
   }
@@ -121,7 +121,7 @@ int vlff_view_log_status(struct vlff_view_log *l, const struct vlff_view_msg *st
   }
   if (frames_name && *frames_name && (frames_attached != l->frames_attached || !l->seen) &&
       (frames_attached || l->seen)) {
-    snprintf(text, sizeof text, "frame ring %s %s", frames_name, frames_attached ? "attached" : "gone");
+    snprintf(text, sizeof text, "frame ring %.100s %s", frames_name, frames_attached ? "attached" : "gone");
     line(l, t, frames_attached ? L_INFO : L_WARNING, "vlff-view", text, out, cap, &n);
   }
   l->map_attached = map_attached;
@@ -132,10 +132,10 @@ int vlff_view_log_status(struct vlff_view_log *l, const struct vlff_view_msg *st
     const char *state = json_object_get_string(member(learner, "state"));
     unsigned flags = (unsigned)json_object_get_int64(member(learner, "error_flags"));
     if (state && (!l->has_learner || strcmp(state, l->state))) {
-      if (l->has_learner) snprintf(text, sizeof text, "learner state %s (was %s)", state, l->state);
-      else snprintf(text, sizeof text, "learner state %s", state);
+      if (l->has_learner) snprintf(text, sizeof text, "learner state %.63s (was %.63s)", state, l->state);
+      else snprintf(text, sizeof text, "learner state %.63s", state);
       line(l, t, L_INFO, "vlff-node", text, out, cap, &n);
-      snprintf(l->state, sizeof l->state, "%s", state);
+      snprintf(l->state, sizeof l->state, "%.63s", state);
     }
     if (flags != l->flags && (l->has_learner || flags)) {
       unsigned set = flags & ~l->flags, cleared = l->flags & ~flags;
@@ -157,7 +157,7 @@ int vlff_view_log_status(struct vlff_view_log *l, const struct vlff_view_msg *st
         if (!strncmp(l->reasons[k].name, reason, sizeof l->reasons[k].name - 1)) c = &l->reasons[k];
       if (!c && l->nreasons < MAX_REASONS) {
         c = &l->reasons[l->nreasons++];
-        snprintf(c->name, sizeof c->name, "%s", reason);
+        snprintf(c->name, sizeof c->name, "%.63s", reason);
       }
       if (c) counted(l, c, count, t, "refused", out, cap, &n);
     }
