@@ -8,7 +8,8 @@
 # client's receipt of its delta; bytes per update per client; the camera image's
 # bytes per frame against raw RGB (target <= 1/8); and, after the clients left and 3 s
 # without a subscriber, the age of a new client's first message on each channel
-# (first_message_age_max_s, the oldest; each channel's latest is < its period old).
+# (first_message_age_max_s, the oldest; each channel's latest is < its period old;
+# /log, whose latest line is as old as its event, is printed but not counted).
 # A second vlff-view, without clients, records every channel with --record over the
 # same run (its CPU apart from the first's): mcap_ok is 1 when @mcap/core reads the
 # file whole with its CRCs, mcap_mb_per_min its size per minute of recorded time.
