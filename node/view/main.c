@@ -59,6 +59,7 @@ static const struct vlff_cli cli = {
     "      --record-level N    zstd level of the recording's chunks (default 3, 1..19; 0 = none)\n"
     "      --play FILE         serve the MCAP recording FILE instead of the segments, at its recorded\n"
     "                          rate, from the first subscription on\n"
+    "      --play-rate R       play R times as fast as recorded (default 1, 0.01..100)\n"
     "  -v, --verbose           log connections (twice: libwebsockets' notices too)\n"
     "  -V, --version           print the version and exit\n"
     "  -h, --help              print this help and exit\n"
@@ -136,7 +137,7 @@ static int default_www(char *out, size_t cap) {
 int main(int argc, char **argv) {
   vlff_log_start(); /* log stamps count from the start, not from the first line */
   enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
-         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_PLAY };
+         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_PLAY, OPT_PLAY_RATE };
   static const struct option opts[] = {
       {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
       {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
@@ -150,6 +151,7 @@ int main(int argc, char **argv) {
       {"record", required_argument, NULL, OPT_RECORD},
       {"record-level", required_argument, NULL, OPT_RECORD_LEVEL},
       {"play", required_argument, NULL, OPT_PLAY},
+      {"play-rate", required_argument, NULL, OPT_PLAY_RATE},
       {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
@@ -157,6 +159,7 @@ int main(int argc, char **argv) {
   struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
   const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL;
   int record_level = 3;
+  double play_rate = 1;
   double x;
   int c, status;
   static const char *origins[VLFF_ALLOW_MAX];
@@ -215,6 +218,9 @@ int main(int argc, char **argv) {
       record_level = (int)x;
       break;
     case OPT_PLAY: play = optarg; break;
+    case OPT_PLAY_RATE:
+      if (parse_num("play-rate", optarg, 0.01, 100, &play_rate)) return 2;
+      break;
     case 'v': vp.verbose++; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }
@@ -238,7 +244,7 @@ int main(int argc, char **argv) {
   struct vlff_feed *feed = NULL;
   struct vlff_view *v = NULL;
   if (play) {
-    vp.play = vlff_view_play_open(play);
+    if ((vp.play = vlff_view_play_open(play))) vlff_view_play_rate(vp.play, play_rate);
   } else {
     feed = vlff_feed_new(&fp);
   }
@@ -263,6 +269,9 @@ int main(int argc, char **argv) {
   sigaction(SIGINT, &sa, NULL);
   sigaction(SIGTERM, &sa, NULL);
   signal(SIGPIPE, SIG_IGN);
+  /* a recording past the file size limit (ulimit -f) is a write error that stops
+   * the recording, not a signal that ends the viewer */
+  signal(SIGXFSZ, SIG_IGN);
   if (play)
     printf("vlff-view: serving http://%s:%d/ (Foxglove: ws://%s:%d) recording %s, %llu messages on %d channels\n",
            vp.address, vlff_view_port(v), vp.address, vlff_view_port(v), play,

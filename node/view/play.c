@@ -27,6 +27,7 @@ struct vlff_view_play {
   uint64_t total, sent;
   int started, done, have_next;
   uint64_t t0_log, t0_now;
+  double rate;
   struct vlff_mcap_message next;
 };
 
@@ -99,6 +100,7 @@ struct vlff_view_play *vlff_view_play_open(const char *path) {
     return NULL;
   }
   vlff_mcap_rewind(p->r);
+  p->rate = 1;
   return p;
 }
 
@@ -109,6 +111,8 @@ void vlff_view_play_free(struct vlff_view_play *p) {
   free(p->file);
   free(p);
 }
+
+void vlff_view_play_rate(struct vlff_view_play *p, double rate) { p->rate = rate > 0 ? rate : 1; }
 
 int vlff_view_play_channels(const struct vlff_view_play *p) { return p->nch; }
 
@@ -141,7 +145,7 @@ int vlff_view_play_poll(struct vlff_view_play *p, unsigned wanted, uint64_t now_
   }
   int n = 0;
   while (n < out_cap && p->have_next) {
-    uint64_t due = p->next.log_ns > p->t0_log ? p->next.log_ns - p->t0_log : 0;
+    uint64_t due = p->next.log_ns > p->t0_log ? (uint64_t)((double)(p->next.log_ns - p->t0_log) / p->rate) : 0;
     if (now_ns - p->t0_now < due) break;
     int ch = view_channel(p, p->next.channel);
     struct vlff_view_msg *m = ch ? vlff_view_msg_new(ch, p->next.len) : NULL;

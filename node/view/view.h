@@ -189,6 +189,8 @@ struct vlff_view_chan {
 struct vlff_view_play;
 /* NULL (the reason on stderr) for a file that is not a readable recording. */
 struct vlff_view_play *vlff_view_play_open(const char *path);
+/* Plays rate times as fast as recorded (default 1). */
+void vlff_view_play_rate(struct vlff_view_play *p, double rate);
 void vlff_view_play_free(struct vlff_view_play *p);
 int vlff_view_play_channels(const struct vlff_view_play *p);
 /* Channel ch, 1..vlff_view_play_channels. */

@@ -77,9 +77,12 @@ function exited(p) {
   return new Promise((resolve) => { if (p.exitCode !== null) resolve(p.exitCode); else p.once('exit', resolve); });
 }
 
-function viewProc(args, log) {
+function viewProc(args, log, fileLimitKb = 0) {
   const out = fs.openSync(log, 'w');
-  const p = spawn(prog.view, ['--port', '0', ...args], { stdio: ['ignore', 'pipe', out] });
+  const p = fileLimitKb
+    ? spawn('bash', ['-c', `ulimit -f ${fileLimitKb}; exec "$0" "$@"`, prog.view, '--port', '0', ...args],
+      { stdio: ['ignore', 'pipe', out] })
+    : spawn(prog.view, ['--port', '0', ...args], { stdio: ['ignore', 'pipe', out] });
   process.on('exit', () => { if (p.exitCode === null) p.kill('SIGKILL'); });
   let text = '';
   p.stdout.on('data', (d) => { text += d; });
@@ -98,9 +101,9 @@ async function main() {
   await zstd.isLoaded;
   const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'vlff-view-mcap-'));
   process.on('exit', () => fs.rmSync(tmp, { recursive: true, force: true }));
-  const file = path.join(tmp, 'run.mcap'), killed = path.join(tmp, 'killed.mcap');
+  const file = path.join(tmp, 'run.mcap'), killed = path.join(tmp, 'killed.mcap'), full = path.join(tmp, 'full.mcap');
   const demo = await start({ viewArgs: ['--record', file] });
-  let live, advertised, killedLog;
+  let live, advertised, killedLog, fullExit, fullLimitKb;
   await check(demo, async () => {
     live = watch(demo.ws);
     await waitVersion(demo, 2, 240000);
@@ -113,6 +116,20 @@ async function main() {
     k.kill('SIGKILL');
     await exited(k);
     killedLog = fs.readFileSync(path.join(tmp, 'killed.log'), 'utf8');
+    // a recorder whose file reaches the size limit (ulimit -f: a few KiB past what
+    // the killed one wrote in 3.5 s): the recording stops with a line, the viewer
+    // serves on and exits 1
+    fullLimitKb = Math.ceil(fs.statSync(killed).size / 1024) + 8;
+    const f = viewProc(['--map', demo.names.map, '--frames', demo.names.frames, '--prompts', demo.names.prompts,
+      '--record', full], path.join(tmp, 'full.log'), fullLimitKb);
+    const fport = await f.port;
+    await until(() => /recording stopped: .*full\.mcap: write failed .*File too large/.test(
+      fs.readFileSync(path.join(tmp, 'full.log'), 'utf8')), 60000, 'the recording stopped at the size limit');
+    const fc = watch(`ws://127.0.0.1:${fport}/`);
+    await until(() => fc.got['/vlff/status'], 10000, 'the viewer serves on after its recording stopped');
+    fc.client.close();
+    f.kill('SIGINT');
+    fullExit = await exited(f);
     advertised = live.chans;
     live.client.close();
   });
@@ -182,7 +199,8 @@ async function main() {
     `${kinds.Chunk || 'its'} whole chunks (${sr.bytesRemaining()} bytes of an unfinished one left), the index is lost`);
 
   // ---- playback
-  const player = viewProc(['--play', file], path.join(tmp, 'play.log'));
+  const RATE = 4n; // played four times as fast as recorded
+  const player = viewProc(['--play', file, '--play-rate', String(RATE)], path.join(tmp, 'play.log'));
   const port = await player.port;
   assert.ok(player.text().includes(`${msgs.length} messages on ${topics.length} channels`), player.text());
   const pl = watch(`ws://127.0.0.1:${port}/`);
@@ -198,15 +216,15 @@ async function main() {
     const f = msgs[i], g = pl.all[i];
     assert.ok(g.topic === f.topic && g.bytes.equals(f.bytes), `played message ${i} is the file's (${g.topic}, ${f.topic})`);
     assert.strictEqual(g.timestamp, f.pub, `played message ${i} carries its publish time`);
-    // never before its offset in the recording (the first one's delivery may lag by 0.5 s)
-    const due = f.log - msgs[0].log, got = g.at - pl.all[0].at;
-    if (got + 500000000n < due) late.push(`message ${i} after ${got} ns, due at ${due} ns`);
+    // never before its offset in the recording at that rate (the first one's delivery may lag by 0.25 s)
+    const due = (f.log - msgs[0].log) / RATE, got = g.at - pl.all[0].at;
+    if (got + 250000000n < due) late.push(`message ${i} after ${got} ns, due at ${due} ns`);
   }
   assert.deepStrictEqual(late.slice(0, 3), []);
   const span = Number(msgs.at(-1).log - msgs[0].log) / 1e9, took = Number(pl.all.at(-1).at - pl.all[0].at) / 1e9;
-  ok(`--play serves the ${topics.length} recorded channels and all ${msgs.length} messages in the file's order with ` +
-    `their bytes and publish times, none ahead of its recorded offset (recorded over ${span.toFixed(1)} s, played ` +
-    `over ${took.toFixed(1)} s)`);
+  ok(`--play --play-rate ${RATE} serves the ${topics.length} recorded channels and all ${msgs.length} messages in ` +
+    `the file's order with their bytes and publish times, none ahead of its recorded offset at that rate (recorded ` +
+    `over ${span.toFixed(1)} s, played over ${took.toFixed(1)} s)`);
 
   // a subscriber after the end gets the latest message of each channel
   const after = watch(`ws://127.0.0.1:${port}/`);
@@ -219,6 +237,18 @@ async function main() {
   pl.client.close();
   player.kill('SIGINT');
   assert.strictEqual(await exited(player), 0);
+
+  // ---- the recording stopped by the size limit: its whole chunks read
+  assert.strictEqual(fullExit, 1, 'a recording that stopped on an error: exit status 1');
+  const fb = fs.readFileSync(full);
+  assert.ok(fb.length <= fullLimitKb * 1024, `${fb.length} bytes`);
+  const fr = new McapStreamReader({ decompressHandlers, validateCrcs: true });
+  fr.append(fb);
+  let fmsgs = 0;
+  for (let rec; (rec = fr.nextRecord());) if (rec.type === 'Message') fmsgs++;
+  assert.ok(fmsgs > 0 && !fr.done(), `${fmsgs} messages`);
+  ok(`a recording stopped by the file size limit (${fullLimitKb} KiB): one log line, the viewer serves on and exits 1; ` +
+    `@mcap/core reads the ${fmsgs} messages of its whole chunks`);
 
   // ---- the killed recorder's file plays, with a warning
   const kp = viewProc(['--play', killed], path.join(tmp, 'kplay.log'));
