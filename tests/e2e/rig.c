@@ -71,6 +71,7 @@ static int shipped_tolerances(struct rig *r, char *err, size_t errlen) {
     if (c->pose.future_tolerance_s > 0 && (r->future_tol_s == 0 || c->pose.future_tolerance_s < r->future_tol_s))
       r->future_tol_s = c->pose.future_tolerance_s;
     r->pair_tol_s = c->depth_camera.pair_tolerance_s; /* the RGB-D example's, read last */
+    r->pose_wait_s = c->source.pose_wait_s;           /* idem */
   }
   free(c);
   return 0;
@@ -121,7 +122,7 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   if (!f) return vlff_sim_destroy(s), fail(err, errlen, "cannot write the config");
   fprintf(f,
           "node:\n  state_dir: %s/state\n  log_level: warn\n"
-          "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: %.17g\n  pose_wait_s: 0.5\n"
+          "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: %.17g\n  pose_wait_s: %.17g\n"
           "pose:\n  future_tolerance_s: %.17g\n"
           "sim:\n  seed: 3\n  rate_hz: 5\n  width: %d\n  height: %d\n  frames: %d\n"
           "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
@@ -137,7 +138,7 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
           "  frame_rate: 5\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n  reconnect_max_s: 0.5\n"
           "depth_camera:\n  kind: aravis\n  device: 127.0.0.2\n  pixel_format: Mono16\n  width: %d\n  height: %d\n"
           "  frame_rate: 5\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: %.17g\n",
-          r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", r->pose_tol_s, r->future_tol_s, W, H, RIG_FRAMES,
+          r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", r->pose_tol_s, r->pose_wait_s, r->future_tol_s, W, H, RIG_FRAMES,
           r->tag, r->tag, r->tag, r->tag,
           r->tag, cameras ? "  embeddings: " : "", cameras ? emb_path : "", cameras ? "\n" : "", W, H, W, H,
           r->calib_path, r->pair_tol_s);

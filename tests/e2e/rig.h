@@ -41,7 +41,7 @@ struct vlff_node;
 struct rig {
   char dir[256], tag[64], cfg_path[320], calib_path[320];
   char camd_out[320], scenecam_out[320], pose_out[320], node_log[320];
-  double pose_tol_s, future_tol_s, pair_tol_s; /* the shipped tolerances the rig runs */
+  double pose_tol_s, pose_wait_s, future_tol_s, pair_tol_s; /* the shipped tolerances the rig runs */
   int saved_stderr;              /* rig_capture_stderr: the real stderr, else -1 */
   int cameras; /* 1: the camera rig, 0: the node's sim source */
   struct vlff_config cfg;
