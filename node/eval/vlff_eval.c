@@ -3,7 +3,9 @@
  *
  * A scene (a synthetic room from the sim, or a scene directory) is split into
  * training frames and held-out frames (every --holdout'th). The field is fit
- * on the training frames for --iters steps; then
+ * on the training frames (a dataset's: those of them keyframes.memory_mb
+ * holds, spread over the scene; every other pass reads a dataset one frame
+ * at a time, so a scene of any length fits) for --iters steps; then
  *   2D: the held-out frames are rendered at the feature-map resolution and
  *       segmented with the prompts, cells on measured surfaces as the node's
  *       label image reads them (field and evidence); the raw per-frame
@@ -66,8 +68,8 @@ static const struct vlff_cli cli = {
     "  --fit-seconds S     fit for S seconds of wall clock instead of --iters steps\n"
     "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
     "  --stride N          dataset: the frames whose number is a multiple of N\n"
-    "                      (default 1); a multiple of N when the training frames\n"
-    "                      would exceed keyframes.memory_mb (said, and in the report)\n"
+    "                      (default 1); read one at a time, the field fitting on as\n"
+    "                      many as keyframes.memory_mb holds, spread over the scene\n"
     "  --label-set SET     ScanNet labels as scannet20 (default) or nyu40 classes\n"
     "  --label-tsv FILE    ScanNet's scannetv2-labels.combined.tsv (default: looked\n"
     "                      for in the scene directory and its two parents)\n"
