@@ -97,7 +97,7 @@ static void write_scene_n(const struct vlff_config *cfg, struct vlff_sim_points 
     names[k] = set->text[k];
     vlff_sim_text_embedding(s, set->text[k], emb + (size_t)k * D);
   }
-  char p[400];
+  char p[4200];
   snprintf(p, sizeof p, "%s/prompt_embeddings.txt", dir);
   if (vlff_embeddings_save(p, D, set->count, names, emb, err, sizeof err)) fail_msg("%s", err);
   free(emb);
