@@ -77,6 +77,16 @@ static const char *const depth_kinds[] = {"none", "stream", "stereo", NULL};
 static const char *const depth_units[] = {"mm", "m", NULL};
 static const char *const depth_camera_kinds[] = {"none", "aravis", NULL};
 
+static const char *const dds_reliabilities[] = {"best_effort", "reliable", NULL};
+static const char *const dds_durabilities[] = {"volatile", "transient_local", NULL};
+/* A DDS topic's switch and QoS: dds.<name>, dds.qos.<name>.{reliability,
+ * durability,depth}. A history deeper than 1000 samples holds more of a
+ * map or image stream than a robot's memory wants. */
+#define DDS_TOPIC(name, i, def_on, rel, dur, hist)                                                                         \
+  BOOL("dds." name, dds.on[i], def_on), ENUM("dds.qos." name ".reliability", dds.qos[i].reliability, dds_reliabilities, rel), \
+      ENUM("dds.qos." name ".durability", dds.qos[i].durability, dds_durabilities, dur),                                  \
+      INT("dds.qos." name ".depth", dds.qos[i].depth, 1, 1000, hist)
+
 static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
 static const double zero4[4] = {0, 0, 0, 0};
@@ -364,15 +374,25 @@ static const struct key schema[] = {
     INT("dds.domain_id", dds.domain_id, 0, 232, 0),
     STR("dds.namespace", dds.ns, ""),
     STR("dds.frame_id", dds.frame_id, "map"),
-    BOOL("dds.map", dds.map, 1),
-    BOOL("dds.status", dds.status, 1),
-    BOOL("dds.prompts_in", dds.prompts_in, 1),
+    STR("dds.camera_frame_id", dds.camera_frame_id, "camera"),
+    DDS_TOPIC("map", VLFF_DDS_MAP, 1, "reliable", "transient_local", 1),
+    DDS_TOPIC("status", VLFF_DDS_STATUS, 1, "reliable", "volatile", 10),
+    DDS_TOPIC("prompts_in", VLFF_DDS_PROMPTS_IN, 1, "reliable", "volatile", 10),
+    DDS_TOPIC("prompts", VLFF_DDS_PROMPTS, 1, "reliable", "transient_local", 1),
+    DDS_TOPIC("label_image", VLFF_DDS_LABEL_IMAGE, 1, "reliable", "volatile", 1),
+    DDS_TOPIC("label_image_compressed", VLFF_DDS_LABEL_IMAGE_COMPRESSED, 0, "reliable", "volatile", 1),
+    DDS_TOPIC("camera_image", VLFF_DDS_CAMERA_IMAGE, 1, "reliable", "volatile", 1),
+    DDS_TOPIC("camera_image_compressed", VLFF_DDS_CAMERA_IMAGE_COMPRESSED, 0, "reliable", "volatile", 1),
+    DDS_TOPIC("camera_info", VLFF_DDS_CAMERA_INFO, 1, "reliable", "volatile", 1),
+    DDS_TOPIC("tf", VLFF_DDS_TF, 1, "reliable", "volatile", 10),
     DBL("dds.status_hz", dds.status_hz, 0.01, 100, 1),
     DBL("dds.poll_hz", dds.poll_hz, 1, 1000, 20),
+    DBL("dds.image_hz", dds.image_hz, 0.01, 60, 2),
     DBL("dds.prompt_rate_hz", dds.prompt_rate_hz, 0.01, 100, 2),
     /* A JSON list of 32 prompts of 63 bytes, each \u-escaped at worst
      * (6 bytes per byte), fits 16 KiB; the default takes plainly written ones. */
     INT("dds.max_prompt_bytes", dds.max_prompt_bytes, 64, 16384, 4096),
+    INT("dds.jpeg_quality", dds.jpeg_quality, 1, 100, 80),
 };
 
 #define NKEYS (sizeof schema / sizeof schema[0])
@@ -858,16 +878,31 @@ static const char *dds_ns_problem(const char *s) {
   }
 }
 
+static int check_frame_id(struct parse *p, const char *key, const char *f) {
+  bool ok = *f && *f != '/';
+  for (const char *c = f; ok && *c; c++) ok = isalnum((unsigned char)*c) || strchr("_-./", *c);
+  if (!ok)
+    return fail_cross(p, key, "expected a frame id of letters, digits and _-./ not starting with '/', got '%s'",
+                      VLFF_Q(f));
+  return 0;
+}
+
 static int check_dds(struct parse *p, struct vlff_config *cfg) {
   const char *why = dds_ns_problem(cfg->dds.ns);
   if (why) return fail_cross(p, "dds.namespace", "expected \"\" or a ROS namespace like /robot1 (%s), got '%s'", why,
                              VLFF_Q(cfg->dds.ns));
-  const char *f = cfg->dds.frame_id;
-  bool ok = *f && *f != '/';
-  for (const char *c = f; ok && *c; c++) ok = isalnum((unsigned char)*c) || strchr("_-./", *c);
-  if (!ok)
-    return fail_cross(p, "dds.frame_id", "expected a frame id of letters, digits and _-./ not starting with '/', got '%s'",
-                      VLFF_Q(f));
+  if (check_frame_id(p, "dds.frame_id", cfg->dds.frame_id) ||
+      check_frame_id(p, "dds.camera_frame_id", cfg->dds.camera_frame_id))
+    return -1;
+  if (!strcmp(cfg->dds.frame_id, cfg->dds.camera_frame_id))
+    return fail_cross(p, "dds.camera_frame_id", "expected a frame distinct from dds.frame_id, got the same '%s'",
+                      VLFF_Q(cfg->dds.frame_id));
+  /* A transient-local reader asks every writer for what it kept: a bridge
+   * (re)started would post again the prompt sets some writer latched. */
+  if (cfg->dds.qos[VLFF_DDS_PROMPTS_IN].durability != VLFF_DDS_VOLATILE)
+    return fail_cross(p, "dds.qos.prompts_in.durability",
+                      "expected volatile (a transient-local reader would post again, at each start, the prompt sets "
+                      "writers kept), got transient_local");
   return 0;
 }
 

@@ -6,10 +6,13 @@
  * checks what it receives field by field against the map segment, read with
  * libvlff-shm.
  *
- * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S
+ * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES]
  *   final  wait until the node is gone, then until the latest map received
  *          equals the segment's last map and a status matches its status;
- *          prints "maps_sent N" (the bridge's count then)
+ *          prints "maps_sent N" (the bridge's count then); with FRAMES (the
+ *          frame ring) also until the prompt list, the label image, the
+ *          camera image, its camera info and the camera pose (tf) equal
+ *          the segment's and the ring's newest
  *   late   a reader joining after that: the map comes whole from the
  *          writer's history; prints "maps_sent N" from a later status
  *   prompts  post bad and good prompt messages to prompts_in and wait for
@@ -28,6 +31,7 @@
 #include "diagnostic_msgs.h"
 #include "sensor_msgs.h"
 #include "std_msgs.h"
+#include "tf2_msgs.h"
 #include "vlff/shm.h"
 
 static int fails;
@@ -318,18 +322,174 @@ static int check_prompts(dds_entity_t pp, const char *ns, double deadline) {
   return 0;
 }
 
+/* The prompt list as the bridge writes it (a JSON list, json-c's plain
+ * form): prompts hold no control characters, so only '"' and '\' escape. */
+static void prompt_json(const struct vlff_map_snapshot *snap, int count, char *out, size_t len) {
+  size_t n = 0;
+  out[n++] = '[';
+  for (int i = 0; i < count && n + 8 < len; i++) {
+    const char *t = vlff_map_snapshot_prompt(snap, (uint16_t)i);
+    if (i) out[n++] = ',';
+    out[n++] = '"';
+    for (; t && *t && n + 4 < len; t++) {
+      if (*t == '"' || *t == '\\') out[n++] = '\\';
+      out[n++] = *t;
+    }
+    out[n++] = '"';
+  }
+  out[n++] = ']';
+  out[n] = 0;
+}
+
+struct images {
+  dds_entity_t prompts, label, camera, info, tf, ws;
+  bool prompts_ok, label_ok, camera_ok, info_ok, tf_ok;
+  char why[5][200];
+};
+
+static void images_readers(dds_entity_t pp, const char *ns, struct images *im) {
+  im->prompts = reader(pp, &std_msgs_msg_dds__String__desc, ns, "prompts", true);
+  im->label = reader(pp, &sensor_msgs_msg_dds__Image__desc, ns, "label_image", false);
+  im->camera = reader(pp, &sensor_msgs_msg_dds__Image__desc, ns, "camera/image_raw", false);
+  im->info = reader(pp, &sensor_msgs_msg_dds__CameraInfo__desc, ns, "camera/camera_info", false);
+  char name[256];
+  snprintf(name, sizeof name, "rt%s/tf", ns);
+  dds_entity_t t = dds_create_topic(pp, &tf2_msgs_msg_dds__TFMessage__desc, name, NULL, NULL);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  im->tf = dds_create_reader(pp, t, q, NULL);
+  dds_delete_qos(q);
+  im->ws = dds_create_waitset(pp);
+  dds_entity_t rs[5] = {im->prompts, im->label, im->camera, im->info, im->tf};
+  for (int i = 0; i < 5; i++) dds_waitset_attach(im->ws, dds_create_readcondition(rs[i], DDS_ANY_STATE), i);
+}
+
+/* What came last on each topic against the segment's last version and the
+ * ring's newest frame, until every one matches or the deadline. */
+static int check_images(struct images *im, struct vlff_map *m, const char *frames, double deadline) {
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
+  struct vlff_map_info in;
+  if (!snap || vlff_map_snapshot_take(m, snap) < 0 || vlff_map_snapshot_info(snap, &in) < 0) {
+    printf("FAIL: snapshot: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  struct vlff_ring *ring = vlff_ring_attach(frames, VLFF_RECORD_FRAME);
+  if (!ring) {
+    printf("FAIL: frame ring %s: %s\n", frames, vlff_shm_last_message());
+    return 1;
+  }
+  size_t cap = vlff_ring_slot_size(ring);
+  uint8_t *rec = malloc(cap);
+  struct vlff_ring_view view;
+  ssize_t len = rec ? vlff_ring_read_latest(ring, rec, cap, &view) : -1;
+  if (len < 0 || vlff_frame_validate(rec, (size_t)len) < 0) {
+    printf("FAIL: the ring's newest frame: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  const struct vlff_frame_hdr *h = (const struct vlff_frame_hdr *)rec;
+  const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
+  const uint8_t *px = vlff_frame_plane(rec, VLFF_PLANE_COLOR);
+  char want_prompts[VLFF_SHM_MAX_PROMPTS * (VLFF_SHM_PROMPT_LEN * 2 + 3) + 3];
+  prompt_json(snap, in.prompt_count, want_prompts, sizeof want_prompts);
+  CHECK(in.has_label_image, "the segment has no label image: nothing to compare");
+  CHECK(h->flags & VLFF_FRAME_POSE_VALID, "the ring's frame has no pose: nothing to compare");
+  while (!(im->prompts_ok && im->label_ok && im->camera_ok && im->info_ok && im->tf_ok) && wait_data(im->ws, deadline)) {
+    void *s[1];
+    if (take_one(im->prompts, s)) {
+      const std_msgs_msg_dds__String_ *p = s[0];
+      im->prompts_ok = !strcmp(p->data, want_prompts);
+      snprintf(im->why[0], sizeof im->why[0], "prompts '%.80s', segment '%.80s'", p->data, want_prompts);
+      dds_return_loan(im->prompts, s, 1);
+    }
+    if (take_one(im->label, s)) {
+      const sensor_msgs_msg_dds__Image_ *a = s[0];
+      const struct vlff_map_label_image *li = &in.label_image;
+      bool ok = a->width == li->width && a->height == li->height && !strcmp(a->encoding, "mono16") &&
+                a->step == li->width * 2 && a->is_bigendian == 0 && a->data._length == li->width * li->height * 2 &&
+                !strcmp(a->header.frame_id, "camera");
+      size_t diff = 0;
+      for (size_t i = 0; ok && i < (size_t)li->width * li->height; i++)
+        diff += (uint16_t)(a->data._buffer[2 * i] | a->data._buffer[2 * i + 1] << 8) != li->labels[i];
+      im->label_ok = ok && !diff;
+      snprintf(im->why[1], sizeof im->why[1], "label image %ux%u %s step %u frame %s, %zu labels differ; segment %ux%u",
+               a->width, a->height, a->encoding, a->step, a->header.frame_id, diff, li->width, li->height);
+      dds_return_loan(im->label, s, 1);
+    }
+    if (take_one(im->camera, s)) {
+      const sensor_msgs_msg_dds__Image_ *a = s[0];
+      bool ok = a->width == pl->width && a->height == pl->height && a->step == pl->stride &&
+                a->data._length == (size_t)pl->stride * pl->height && pl->format == VLFF_PIX_RGB8 &&
+                !strcmp(a->encoding, "rgb8") && px && !memcmp(a->data._buffer, px, a->data._length);
+      im->camera_ok = ok;
+      snprintf(im->why[2], sizeof im->why[2], "camera %ux%u %s step %u (ring %ux%u format %u stride %u)%s", a->width,
+               a->height, a->encoding, a->step, pl->width, pl->height, pl->format, pl->stride,
+               ok ? "" : ", or the pixels differ");
+      dds_return_loan(im->camera, s, 1);
+    }
+    if (take_one(im->info, s)) {
+      const sensor_msgs_msg_dds__CameraInfo_ *c = s[0];
+      im->info_ok = c->width == pl->width && c->height == pl->height && fabs(c->k[0] - h->fx) < 1e-9 &&
+                    fabs(c->k[4] - h->fy) < 1e-9 && fabs(c->k[2] - (h->cx - 0.5)) < 1e-9 &&
+                    fabs(c->k[5] - (h->cy - 0.5)) < 1e-9 && c->k[8] == 1 && c->p[0] == c->k[0] && c->p[10] == 1;
+      snprintf(im->why[3], sizeof im->why[3], "camera_info %ux%u fx %g fy %g cx %g cy %g (ring fx %g cx %g)", c->width,
+               c->height, c->k[0], c->k[4], c->k[2], c->k[5], h->fx, h->cx);
+      dds_return_loan(im->info, s, 1);
+    }
+    if (take_one(im->tf, s)) {
+      const tf2_msgs_msg_dds__TFMessage_ *t = s[0];
+      bool ok = t->transforms._length == 1;
+      if (ok) {
+        const geometry_msgs_msg_dds__TransformStamped_ *ts = &t->transforms._buffer[0];
+        const geometry_msgs_msg_dds__Quaternion_ *q = &ts->transform.rotation;
+        /* the quaternion's rotation matrix against the pose's */
+        double R[9] = {1 - 2 * (q->y * q->y + q->z * q->z), 2 * (q->x * q->y - q->z * q->w), 2 * (q->x * q->z + q->y * q->w),
+                       2 * (q->x * q->y + q->z * q->w), 1 - 2 * (q->x * q->x + q->z * q->z), 2 * (q->y * q->z - q->x * q->w),
+                       2 * (q->x * q->z - q->y * q->w), 2 * (q->y * q->z + q->x * q->w), 1 - 2 * (q->x * q->x + q->y * q->y)};
+        double err = fabs(ts->transform.translation.x - h->pose[3]) + fabs(ts->transform.translation.y - h->pose[7]) +
+                     fabs(ts->transform.translation.z - h->pose[11]);
+        for (int i = 0; i < 9; i++) err += fabs(R[i] - h->pose[4 * (i / 3) + i % 3]);
+        ok = err < 1e-6 && !strcmp(ts->header.frame_id, "map") && !strcmp(ts->child_frame_id, "camera");
+        snprintf(im->why[4], sizeof im->why[4], "tf %s -> %s t (%g %g %g), error %g against the ring's pose",
+                 ts->header.frame_id, ts->child_frame_id, ts->transform.translation.x, ts->transform.translation.y,
+                 ts->transform.translation.z, err);
+      }
+      im->tf_ok = ok;
+      dds_return_loan(im->tf, s, 1);
+    }
+  }
+  const bool oks[5] = {im->prompts_ok, im->label_ok, im->camera_ok, im->info_ok, im->tf_ok};
+  static const char *const names[5] = {"prompt list", "label image", "camera image", "camera info", "tf"};
+  for (int i = 0; i < 5; i++)
+    if (!oks[i])
+      printf("FAIL: no %s received equal to the segment's or ring's (last: %s)\n", names[i],
+             im->why[i][0] ? im->why[i] : "none received");
+  printf("images: prompt list %s; %ux%u label image, %ux%u camera image, camera info and tf equal the segment's and "
+         "ring's\n",
+         want_prompts, in.label_image.width, in.label_image.height, pl->width, pl->height);
+  free(rec);
+  vlff_ring_close(ring);
+  vlff_map_snapshot_free(snap);
+  int bad = 0;
+  for (int i = 0; i < 5; i++) bad += !oks[i];
+  return bad;
+}
+
 int main(int argc, char **argv) {
-  if (argc != 7) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S\n");
+  if (argc != 7 && argc != 8) {
+    fprintf(stderr, "usage: dds_probe final|late|prompts DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES]\n");
     return 2;
   }
-  const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5];
+  const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5], *frames = argc == 8 ? argv[7] : NULL;
   double deadline = now_s() + atof(argv[6]);
   dds_entity_t pp = dds_create_participant((dds_domainid_t)atoi(argv[2]), NULL, NULL);
   if (pp < 0) {
     printf("FAIL: participant: %s\n", dds_strretcode(pp));
     return 1;
   }
+  /* Volatile topics: the readers exist before the bridge's last samples. */
+  struct images im = {0};
+  if (frames) images_readers(pp, ns, &im);
   if (!strcmp(mode, "prompts")) {
     check_prompts(pp, ns, deadline);
   } else {
@@ -345,6 +505,7 @@ int main(int argc, char **argv) {
     CHECK(!vlff_map_writer_alive(m, 5000000000ull), "the node did not stop");
     CHECK(vlff_map_version(m) > 0, "the node published no map");
     if (!fails) fails += check_map_status(pp, ns, m, node, deadline, !strcmp(mode, "late"));
+    if (!fails && frames) fails += check_images(&im, m, frames, deadline);
     vlff_map_detach(m);
   }
   dds_delete(pp);

@@ -52,16 +52,16 @@ domain=$((($$ % 200) + 1)) ns=/t$$
 printf 'node:\n  state_dir: %s\n  threads: 1\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\n  width: 160\n  height: 120\nfield:\n  feature_dim: 64\n  hash_log2_size: 14\n  finest_resolution: 256\ntrain:\n  rays_per_step: 256\nkeyframes:\n  start_after: 2\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n  pose_ring: %s-q\npublish:\n  rate_hz: 2\n  voxel_size_m: 0.1\ndds:\n  domain_id: %d\n  namespace: %s\n  status_hz: 5\n  prompt_rate_hz: 0.2\n' \
   "$tmp" $p $p $p $p $p $domain $ns >"$tmp/n.yaml"
 check "vlff-dds --check-config names the topics" \
-  '"$dds" --check-config "$tmp/n.yaml" >"$tmp/check" && grep -qx "map: rt$ns/vlff/map <- $p-m" "$tmp/check" && grep -qx "dds.domain_id: $domain" "$tmp/check"'
+  '"$dds" --check-config "$tmp/n.yaml" >"$tmp/check" && grep -q "^map: rt$ns/vlff/map <- $p-m (reliable, transient_local, keep last 1)$" "$tmp/check" && grep -qx "dds.domain_id: $domain" "$tmp/check"'
 check "--namespace overrides the file, with the file's checks" \
-  '"$dds" -c "$tmp/n.yaml" --namespace /other --check-config "$tmp/n.yaml" | grep -qx "status: rt/other/vlff/status"'
+  '"$dds" -c "$tmp/n.yaml" --namespace /other --check-config "$tmp/n.yaml" | grep -q "^status: rt/other/vlff/status <- "'
 check "a bad --namespace is a usage error naming it" \
   '! "$dds" -c "$tmp/n.yaml" --namespace robot1 --check-config "$tmp/n.yaml" 2>"$tmp/err" && grep -q "dds.namespace.*a leading ./." "$tmp/err"'
 
 "${in_a[@]}" "$node" --config "$tmp/n.yaml" 2>"$tmp/node.log" & nodepid=$!
 "${in_a[@]}" "$dds" --config "$tmp/n.yaml" 2>"$tmp/dds.log" & ddspid=$!
 # The probe joins before the map exists and reads its last version once the node is gone.
-"${in_b[@]}" "$probe" final $domain $ns $p-m "$host" 60 >"$tmp/final" 2>&1 & probepid=$!
+"${in_b[@]}" "$probe" final $domain $ns $p-m "$host" 60 $p-r >"$tmp/final" 2>&1 & probepid=$!
 "${in_a[@]}" "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/sim.log" & simpid=$!
 val() { "$shm" stat $p-m 2>/dev/null | awk -v k="$1" '$1 == k { print $2 }'; }
 wait_until 300 '[[ $(val version) -ge 3 ]] 2>/dev/null'
@@ -70,7 +70,7 @@ kill "$simpid"; wait "$simpid"; simpid=
 kill -TERM "$nodepid"; wait "$nodepid"; rc=$?; nodepid=
 check "the node exits 0 (rc=$rc)" '[[ $rc == 0 ]]'
 wait "$probepid"; rc=$?
-check "across the link the map and status equal the segment's (rc=$rc)" '[[ $rc == 0 ]]'
+check "across the link the map, status, prompt list, label and camera images, camera info and tf equal the segment's and ring's (rc=$rc)" '[[ $rc == 0 ]]'
 sent=$(awk '$1 == "maps_sent" { print $2 }' "$tmp/final")
 check "the bridge sent the map at most once per version ($sent <= $(val version))" '[[ -n $sent && $sent -ge 1 && $sent -le $(val version) ]]'
 

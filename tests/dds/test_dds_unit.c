@@ -20,6 +20,30 @@ static void test_topic(void **state) {
   assert_int_equal(vlff_dds_topic(t, sizeof t, "/fleet/robot1", "status"), 0);
   assert_string_equal(t, "rt/fleet/robot1/vlff/status");
   assert_int_equal(vlff_dds_topic(t, 12, "/robot1", "map"), -1);
+  /* by id: the image topics as ROS's image_transport names them, the pose
+   * on the namespace's tf */
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "/r1", VLFF_DDS_CAMERA_IMAGE_COMPRESSED), 0);
+  assert_string_equal(t, "rt/r1/vlff/camera/image_raw/compressed");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "/r1", VLFF_DDS_CAMERA_INFO), 0);
+  assert_string_equal(t, "rt/r1/vlff/camera/camera_info");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "/r1", VLFF_DDS_TF), 0);
+  assert_string_equal(t, "rt/r1/tf");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "", VLFF_DDS_TF), 0);
+  assert_string_equal(t, "rt/tf");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "", VLFF_DDS_NTOPICS), -1);
+  assert_string_equal(vlff_dds_topic_key(VLFF_DDS_LABEL_IMAGE_COMPRESSED), "label_image_compressed");
+  assert_null(vlff_dds_topic_key(-1));
+}
+
+/* sensor_msgs/image_encodings names; depth formats have none here. */
+static void test_encoding(void **state) {
+  (void)state;
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_RGB8), "rgb8");
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_MONO16), "mono16");
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_BAYER_RG8), "bayer_rggb8");
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_BAYER_GB8), "bayer_gbrg8");
+  assert_null(vlff_dds_encoding(VLFF_PIX_DEPTH_F32_M));
+  assert_null(vlff_dds_encoding(999));
 }
 
 static int parse(const char *s, int *invalid, char *why) {
@@ -116,7 +140,7 @@ static void test_cloud(void **state) {
 }
 
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts),
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding),
                                      cmocka_unit_test(test_cloud)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
