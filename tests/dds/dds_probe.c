@@ -17,6 +17,13 @@
  *          writer's history; prints "maps_sent N" from a later status
  *   prompts  post bad and good prompt messages to prompts_in and wait for
  *          the bridge's status to count each as expected
+ *   stall  a subscriber that never reads: reliable keep-all readers of at
+ *          most 4 samples each on every topic the bridge writes, held until
+ *          TIMEOUT_S or a signal; prints how many samples it holds
+ *   flood  2000 prompt messages as fast as DDS takes them (malformed,
+ *          invalid, oversized and valid ones), then waits for the
+ *          bridge's status to have counted at least one of each kind;
+ *          prints the counts
  * Exit 0 when every check held; "FAIL: ..." lines and 1 otherwise.
  */
 #include <math.h>
@@ -475,9 +482,92 @@ static int check_images(struct images *im, struct vlff_map *m, const char *frame
   return bad;
 }
 
+static int stall(dds_entity_t pp, const char *ns, double deadline) {
+  static const char *const leaves[] = {"map", "status", "prompts", "label_image", "camera/image_raw",
+                                       "camera/camera_info"};
+  static const dds_topic_descriptor_t *const descs[] = {
+      &sensor_msgs_msg_dds__PointCloud2__desc, &diagnostic_msgs_msg_dds__DiagnosticArray__desc,
+      &std_msgs_msg_dds__String__desc,         &sensor_msgs_msg_dds__Image__desc,
+      &sensor_msgs_msg_dds__Image__desc,       &sensor_msgs_msg_dds__CameraInfo__desc};
+  dds_entity_t rs[6];
+  for (int i = 0; i < 6; i++) {
+    char name[256];
+    snprintf(name, sizeof name, "rt%s/vlff/%s", ns, leaves[i]);
+    dds_entity_t t = dds_create_topic(pp, descs[i], name, NULL, NULL);
+    dds_qos_t *q = dds_create_qos();
+    dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+    dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
+    dds_qset_resource_limits(q, 4, DDS_LENGTH_UNLIMITED, 4);
+    if (i == 0 || i == 2) dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+    rs[i] = dds_create_reader(pp, t, q, NULL);
+    dds_delete_qos(q);
+    CHECK(rs[i] > 0, "stall reader %s: %s", leaves[i], dds_strretcode(rs[i]));
+  }
+  printf("stall: readers up\n");
+  fflush(stdout);
+  while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
+  for (int i = 0; i < 6; i++) {
+    void *buf[8] = {NULL};
+    dds_sample_info_t info[8];
+    dds_return_t n = dds_read(rs[i], buf, info, 8, 8); /* at the end only */
+    printf("stall: %s holds %d samples\n", leaves[i], (int)n);
+    if (n > 0) dds_return_loan(rs[i], buf, n);
+  }
+  return 0;
+}
+
+static int flood(dds_entity_t pp, const char *ns, double deadline) {
+  char name[256];
+  snprintf(name, sizeof name, "rt%s/vlff/prompts_in", ns);
+  dds_entity_t t = dds_create_topic(pp, &std_msgs_msg_dds__String__desc, name, NULL, NULL);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_SECS(5));
+  dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
+  dds_entity_t w = dds_create_writer(pp, t, q, NULL);
+  dds_delete_qos(q);
+  dds_publication_matched_status_t pm = {0};
+  while (now_s() < deadline && (dds_get_publication_matched_status(w, &pm), pm.current_count < 1))
+    dds_sleepfor(DDS_MSECS(50));
+  CHECK(pm.current_count >= 1, "prompts_in: no bridge matched");
+  char *huge = malloc(20001);
+  memset(huge, '[', 20000);
+  huge[20000] = 0;
+  static const char *const kinds[] = {"[\"chair\",", "[\"a\", \"a\"]", NULL, "[\"lamp\", \"rug\"]"};
+  int sent = 0;
+  for (int i = 0; i < 2000 && now_s() < deadline; i++) {
+    const char *text = kinds[i % 4] ? kinds[i % 4] : huge;
+    std_msgs_msg_dds__String_ msg = {(char *)text};
+    if (dds_write(w, &msg) == DDS_RETCODE_OK) sent++;
+  }
+  free(huge);
+  printf("flood: %d messages written\n", sent);
+  dds_entity_t sr = reader(pp, &diagnostic_msgs_msg_dds__DiagnosticArray__desc, ns, "status", false);
+  dds_entity_t ws = waitset_of(pp, sr, 0);
+  static const char *const keys[] = {"prompts_refused_malformed", "prompts_refused_invalid", "prompts_refused_oversized",
+                                     "prompts_refused_flood", "prompts_posted"};
+  int ok = 0;
+  char last[512] = "";
+  while (!ok && wait_data(ws, deadline)) {
+    void *s[1];
+    if (!take_one(sr, s)) continue;
+    const diagnostic_msgs_msg_dds__DiagnosticStatus_ *br = entry(s[0], "vlff-dds: bridge");
+    ok = br != NULL;
+    size_t n = 0;
+    for (int i = 0; br && i < 5; i++) {
+      const char *v = value_of(br, keys[i]);
+      ok = ok && v && (i == 4 || strtoull(v, NULL, 10) > 0);
+      n += (size_t)snprintf(last + n, n < sizeof last ? sizeof last - n : 0, "%s=%s ", keys[i], v ? v : "-");
+    }
+    dds_return_loan(sr, s, 1);
+  }
+  printf("flood: %s\n", last);
+  CHECK(ok, "the bridge's status never counted each kind of the flood");
+  return 0;
+}
+
 int main(int argc, char **argv) {
   if (argc != 7 && argc != 8) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES]\n");
+    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES]\n");
     return 2;
   }
   const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5], *frames = argc == 8 ? argv[7] : NULL;
@@ -492,6 +582,10 @@ int main(int argc, char **argv) {
   if (frames) images_readers(pp, ns, &im);
   if (!strcmp(mode, "prompts")) {
     check_prompts(pp, ns, deadline);
+  } else if (!strcmp(mode, "stall")) {
+    stall(pp, ns, deadline);
+  } else if (!strcmp(mode, "flood")) {
+    flood(pp, ns, deadline);
   } else {
     /* The probe may start before the node has created the segment. */
     struct vlff_map *m;

@@ -2,9 +2,10 @@
 # vlff-dds on a real network stack: network namespaces A (vlff-node on the
 # simulator, vlff-sim, vlff-dds) and B (dds_probe: Cyclone's C API and the
 # IDL only) joined by a veth pair; DDS discovery is Cyclone's own SPDP
-# multicast over the veth link. The probe checks the map and the status
-# field by field against the map segment (shared memory is not network
-# state: both namespaces see /dev/shm), a late joiner gets the whole map
+# multicast over the veth link. The probe checks the map, the status, the
+# prompt list, the label image, the camera image, camera info and tf field
+# by field against the map segment and the frame ring (shared memory is not
+# network state: both namespaces see /dev/shm), a late joiner gets the whole map
 # from the writer's history with no resend, and bad, oversized and
 # flooding prompt messages are refused and counted while exactly one good
 # set reaches the mailbox. Needs root for ip netns: exits 77 (skipped)
@@ -13,39 +14,7 @@
 set -u
 node=$1 shm=$2 sim=$3 dds=$4 probe=$5
 host=$(hostname) # the status's hardware_id
-if [[ $(id -u) != 0 ]] || ! command -v ip >/dev/null; then
-  echo "skipped: ip netns needs root and iproute2"; exit 77
-fi
-fails=0 passes=0
-check() { if eval "$2"; then passes=$((passes + 1)); else echo "FAIL: $1"; fails=$((fails + 1)); fi; }
-wait_until() { local k; for ((k = 0; k < $1; k++)); do eval "$2" && return 0; sleep 0.1; done; return 1; }
-tmp=$(mktemp -d)
-p=/dds-$$
-nsa=vlffdds-a-$$ nsb=vlffdds-b-$$ va=vdda$$ vb=vddb$$
-cleanup() {
-  for pid in ${simpid:-} ${nodepid:-} ${ddspid:-}; do kill -9 "$pid" 2>/dev/null; done
-  ip netns del "$nsa" 2>/dev/null
-  ip netns del "$nsb" 2>/dev/null
-  rm -rf "$tmp"
-  rm -f /dev/shm$p-*
-}
-trap cleanup EXIT
-if ! ip netns add "$nsa" || ! ip netns add "$nsb"; then
-  echo "skipped: cannot create network namespaces here"; exit 77
-fi
-ip link add "$va" netns "$nsa" type veth peer name "$vb" netns "$nsb" || { echo "FAIL: veth pair"; exit 1; }
-ip -n "$nsa" addr add 10.213.0.1/24 dev "$va"
-ip -n "$nsb" addr add 10.213.0.2/24 dev "$vb"
-for n in "$nsa" "$nsb"; do ip -n "$n" link set lo up; done
-ip -n "$nsa" link set "$va" up
-ip -n "$nsb" link set "$vb" up
-# Each side's Cyclone on its veth end only (loopback would also work inside
-# one namespace; the point is the link between them).
-uri() { echo "<CycloneDDS><Domain Id=\"any\"><General><Interfaces><NetworkInterface name=\"$1\"/></Interfaces></General></Domain></CycloneDDS>"; }
-# ip netns exec and env exec the program: $! is the program's own pid.
-ua=$(uri "$va") ub=$(uri "$vb")
-in_a=(ip netns exec "$nsa" env CYCLONEDDS_URI="$ua")
-in_b=(ip netns exec "$nsb" env CYCLONEDDS_URI="$ub")
+source "$(dirname "$0")/netns_kit.sh"
 
 domain=$((($$ % 200) + 1)) ns=/t$$
 # A small field and scene: a map of labelled voxels within seconds, on one thread.
@@ -60,9 +29,11 @@ check "a bad --namespace is a usage error naming it" \
 
 "${in_a[@]}" "$node" --config "$tmp/n.yaml" 2>"$tmp/node.log" & nodepid=$!
 "${in_a[@]}" "$dds" --config "$tmp/n.yaml" 2>"$tmp/dds.log" & ddspid=$!
+pids+=($nodepid $ddspid)
 # The probe joins before the map exists and reads its last version once the node is gone.
 "${in_b[@]}" "$probe" final $domain $ns $p-m "$host" 60 $p-r >"$tmp/final" 2>&1 & probepid=$!
 "${in_a[@]}" "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/sim.log" & simpid=$!
+pids+=($probepid $simpid)
 val() { "$shm" stat $p-m 2>/dev/null | awk -v k="$1" '$1 == k { print $2 }'; }
 wait_until 300 '[[ $(val version) -ge 3 ]] 2>/dev/null'
 check "the node published maps ($(val version))" '[[ $(val version) -ge 3 ]]'
