@@ -58,6 +58,14 @@ int vlff_dds_topic_of(char *out, size_t len, const char *ns, int id) {
   return n < 0 || (size_t)n >= len ? -1 : 0;
 }
 
+int vlff_dds_can_compress(void) {
+#ifdef VLFF_DDS_CV
+  return 1;
+#else
+  return 0;
+#endif
+}
+
 const char *vlff_dds_encoding(uint32_t fmt) {
   switch (fmt) {
   case VLFF_PIX_RGB8: return "rgb8";

@@ -96,6 +96,9 @@ int vlff_dds_topic_of(char *out, size_t len, const char *ns, int id);
 /* A topic's config name (dds.<name>), NULL for an id out of range. */
 const char *vlff_dds_topic_key(int id);
 
+/* 1 when this build can publish CompressedImage (it has OpenCV's encoders). */
+int vlff_dds_can_compress(void);
+
 /* sensor_msgs/image_encodings name of a ring pixel format, NULL if none. */
 const char *vlff_dds_encoding(uint32_t pixfmt);
 /* The prompt list as a JSON list into a malloc'd string, NULL/ENOMEM. */

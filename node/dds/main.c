@@ -145,6 +145,10 @@ int main(int argc, char **argv) {
   if (!strcmp(cfg.shm.map, cfg.shm.prompts))
     return vlff_cli_usage_error(&cli, "the map segment and the prompt mailbox are both '%s'", VLFF_Q(cfg.shm.map));
 
+  for (int i = VLFF_DDS_LABEL_IMAGE_COMPRESSED; i <= VLFF_DDS_CAMERA_IMAGE_COMPRESSED; i += 2)
+    if (cfg.dds.on[i] && !vlff_dds_can_compress())
+      return vlff_cli_error(&cli, "dds.%s: this build has no image encoder (built without OpenCV): set it false",
+                            vlff_dds_topic_key(i));
   struct vlff_dds_opts o = {0};
   o.dds = cfg.dds;
   snprintf(o.map, sizeof o.map, "%s", cfg.shm.map);

@@ -6,13 +6,15 @@
  * checks what it receives field by field against the map segment, read with
  * libvlff-shm.
  *
- * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES]
+ * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES [compressed]]
  *   final  wait until the node is gone, then until the latest map received
  *          equals the segment's last map and a status matches its status;
  *          prints "maps_sent N" (the bridge's count then); with FRAMES (the
  *          frame ring) also until the prompt list, the label image, the
  *          camera image, its camera info and the camera pose (tf) equal
- *          the segment's and the ring's newest
+ *          the segment's and the ring's newest; with "compressed" also until
+ *          the label image came as a PNG and the camera image as a JPEG
+ *          stamped as the raw ones
  *   late   a reader joining after that: the map comes whole from the
  *          writer's history; prints "maps_sent N" from a later status
  *   prompts  post bad and good prompt messages to prompts_in and wait for
@@ -349,12 +351,13 @@ static void prompt_json(const struct vlff_map_snapshot *snap, int count, char *o
 }
 
 struct images {
-  dds_entity_t prompts, label, camera, info, tf, ws;
-  bool prompts_ok, label_ok, camera_ok, info_ok, tf_ok;
-  char why[5][200];
+  dds_entity_t prompts, label, camera, info, tf, ws, zlabel, zcamera;
+  bool prompts_ok, label_ok, camera_ok, info_ok, tf_ok, zlabel_ok, zcamera_ok;
+  builtin_interfaces_msg_dds__Time_ label_stamp, camera_stamp, zlabel_stamp, zcamera_stamp;
+  char why[7][200];
 };
 
-static void images_readers(dds_entity_t pp, const char *ns, struct images *im) {
+static void images_readers(dds_entity_t pp, const char *ns, struct images *im, bool compressed) {
   im->prompts = reader(pp, &std_msgs_msg_dds__String__desc, ns, "prompts", true);
   im->label = reader(pp, &sensor_msgs_msg_dds__Image__desc, ns, "label_image", false);
   im->camera = reader(pp, &sensor_msgs_msg_dds__Image__desc, ns, "camera/image_raw", false);
@@ -370,6 +373,30 @@ static void images_readers(dds_entity_t pp, const char *ns, struct images *im) {
   im->ws = dds_create_waitset(pp);
   dds_entity_t rs[5] = {im->prompts, im->label, im->camera, im->info, im->tf};
   for (int i = 0; i < 5; i++) dds_waitset_attach(im->ws, dds_create_readcondition(rs[i], DDS_ANY_STATE), i);
+  im->zlabel_ok = im->zcamera_ok = !compressed;
+  if (compressed) {
+    im->zlabel = reader(pp, &sensor_msgs_msg_dds__CompressedImage__desc, ns, "label_image/compressed", false);
+    im->zcamera = reader(pp, &sensor_msgs_msg_dds__CompressedImage__desc, ns, "camera/image_raw/compressed", false);
+    dds_waitset_attach(im->ws, dds_create_readcondition(im->zlabel, DDS_ANY_STATE), 5);
+    dds_waitset_attach(im->ws, dds_create_readcondition(im->zcamera, DDS_ANY_STATE), 6);
+  }
+}
+
+static bool same_time(builtin_interfaces_msg_dds__Time_ a, builtin_interfaces_msg_dds__Time_ b) {
+  return a.sec == b.sec && a.nanosec == b.nanosec;
+}
+
+/* A CompressedImage: its format, the encoder's magic bytes at the start, the
+ * camera frame. */
+static bool compressed_ok(const sensor_msgs_msg_dds__CompressedImage_ *c, bool png, char *why, size_t len) {
+  static const uint8_t png_magic[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'}, jpeg_magic[3] = {0xff, 0xd8, 0xff};
+  const uint8_t *magic = png ? png_magic : jpeg_magic;
+  uint32_t n = png ? 8 : 3;
+  bool ok = !strcmp(c->format, png ? "png" : "jpeg") && c->data._length > 64 && !memcmp(c->data._buffer, magic, n) &&
+            !strcmp(c->header.frame_id, "camera");
+  snprintf(why, len, "%s: format %s, %u bytes, frame %s", png ? "png" : "jpeg", c->format, c->data._length,
+           c->header.frame_id);
+  return ok;
 }
 
 /* What came last on each topic against the segment's last version and the
@@ -401,8 +428,24 @@ static int check_images(struct images *im, struct vlff_map *m, const char *frame
   prompt_json(snap, in.prompt_count, want_prompts, sizeof want_prompts);
   CHECK(in.has_label_image, "the segment has no label image: nothing to compare");
   CHECK(h->flags & VLFF_FRAME_POSE_VALID, "the ring's frame has no pose: nothing to compare");
-  while (!(im->prompts_ok && im->label_ok && im->camera_ok && im->info_ok && im->tf_ok) && wait_data(im->ws, deadline)) {
+  bool want_z = im->zlabel != 0;
+  while (!(im->prompts_ok && im->label_ok && im->camera_ok && im->info_ok && im->tf_ok &&
+           (!want_z || (im->zlabel_ok && im->zcamera_ok && same_time(im->zlabel_stamp, im->label_stamp) &&
+                        same_time(im->zcamera_stamp, im->camera_stamp)))) &&
+         wait_data(im->ws, deadline)) {
     void *s[1];
+    if (want_z && take_one(im->zlabel, s)) {
+      const sensor_msgs_msg_dds__CompressedImage_ *c = s[0];
+      im->zlabel_ok = compressed_ok(c, true, im->why[5], sizeof im->why[5]);
+      im->zlabel_stamp = c->header.stamp;
+      dds_return_loan(im->zlabel, s, 1);
+    }
+    if (want_z && take_one(im->zcamera, s)) {
+      const sensor_msgs_msg_dds__CompressedImage_ *c = s[0];
+      im->zcamera_ok = compressed_ok(c, false, im->why[6], sizeof im->why[6]);
+      im->zcamera_stamp = c->header.stamp;
+      dds_return_loan(im->zcamera, s, 1);
+    }
     if (take_one(im->prompts, s)) {
       const std_msgs_msg_dds__String_ *p = s[0];
       im->prompts_ok = !strcmp(p->data, want_prompts);
@@ -419,6 +462,7 @@ static int check_images(struct images *im, struct vlff_map *m, const char *frame
       for (size_t i = 0; ok && i < (size_t)li->width * li->height; i++)
         diff += (uint16_t)(a->data._buffer[2 * i] | a->data._buffer[2 * i + 1] << 8) != li->labels[i];
       im->label_ok = ok && !diff;
+      im->label_stamp = a->header.stamp;
       snprintf(im->why[1], sizeof im->why[1], "label image %ux%u %s step %u frame %s, %zu labels differ; segment %ux%u",
                a->width, a->height, a->encoding, a->step, a->header.frame_id, diff, li->width, li->height);
       dds_return_loan(im->label, s, 1);
@@ -429,6 +473,7 @@ static int check_images(struct images *im, struct vlff_map *m, const char *frame
                 a->data._length == (size_t)pl->stride * pl->height && pl->format == VLFF_PIX_RGB8 &&
                 !strcmp(a->encoding, "rgb8") && px && !memcmp(a->data._buffer, px, a->data._length);
       im->camera_ok = ok;
+      im->camera_stamp = a->header.stamp;
       snprintf(im->why[2], sizeof im->why[2], "camera %ux%u %s step %u (ring %ux%u format %u stride %u)%s", a->width,
                a->height, a->encoding, a->step, pl->width, pl->height, pl->format, pl->stride,
                ok ? "" : ", or the pixels differ");
@@ -465,9 +510,13 @@ static int check_images(struct images *im, struct vlff_map *m, const char *frame
       dds_return_loan(im->tf, s, 1);
     }
   }
-  const bool oks[5] = {im->prompts_ok, im->label_ok, im->camera_ok, im->info_ok, im->tf_ok};
-  static const char *const names[5] = {"prompt list", "label image", "camera image", "camera info", "tf"};
-  for (int i = 0; i < 5; i++)
+  const bool oks[7] = {im->prompts_ok, im->label_ok,  im->camera_ok, im->info_ok,
+                       im->tf_ok,      im->zlabel_ok && (!want_z || same_time(im->zlabel_stamp, im->label_stamp)),
+                       im->zcamera_ok && (!want_z || same_time(im->zcamera_stamp, im->camera_stamp))};
+  static const char *const names[7] = {"prompt list", "label image", "camera image", "camera info",
+                                       "tf", "compressed label image (stamped as the raw one)",
+                                       "compressed camera image (stamped as the raw one)"};
+  for (int i = 0; i < 7; i++)
     if (!oks[i])
       printf("FAIL: no %s received equal to the segment's or ring's (last: %s)\n", names[i],
              im->why[i][0] ? im->why[i] : "none received");
@@ -478,7 +527,8 @@ static int check_images(struct images *im, struct vlff_map *m, const char *frame
   vlff_ring_close(ring);
   vlff_map_snapshot_free(snap);
   int bad = 0;
-  for (int i = 0; i < 5; i++) bad += !oks[i];
+  for (int i = 0; i < 7; i++) bad += !oks[i];
+  if (want_z && !bad) printf("images: %s; %s\n", im->why[5], im->why[6]);
   return bad;
 }
 
@@ -566,11 +616,13 @@ static int flood(dds_entity_t pp, const char *ns, double deadline) {
 }
 
 int main(int argc, char **argv) {
-  if (argc != 7 && argc != 8) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES]\n");
+  if (argc < 7 || argc > 9) {
+    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
+                    "[compressed]]\n");
     return 2;
   }
-  const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5], *frames = argc == 8 ? argv[7] : NULL;
+  const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5], *frames = argc >= 8 ? argv[7] : NULL;
+  bool compressed = argc == 9 && !strcmp(argv[8], "compressed");
   double deadline = now_s() + atof(argv[6]);
   dds_entity_t pp = dds_create_participant((dds_domainid_t)atoi(argv[2]), NULL, NULL);
   if (pp < 0) {
@@ -579,7 +631,7 @@ int main(int argc, char **argv) {
   }
   /* Volatile topics: the readers exist before the bridge's last samples. */
   struct images im = {0};
-  if (frames) images_readers(pp, ns, &im);
+  if (frames) images_readers(pp, ns, &im, compressed);
   if (!strcmp(mode, "prompts")) {
     check_prompts(pp, ns, deadline);
   } else if (!strcmp(mode, "stall")) {

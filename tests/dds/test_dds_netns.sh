@@ -27,11 +27,21 @@ check "--namespace overrides the file, with the file's checks" \
 check "a bad --namespace is a usage error naming it" \
   '! "$dds" -c "$tmp/n.yaml" --namespace robot1 --check-config "$tmp/n.yaml" 2>"$tmp/err" && grep -q "dds.namespace.*a leading ./." "$tmp/err"'
 
+# The compressed images where the build has an encoder (OpenCV).
+z=""
+printf 'dds:\n  label_image_compressed: true\n  camera_image_compressed: true\n' >"$tmp/z.yaml"
+if "$dds" --check-config "$tmp/z.yaml" >/dev/null 2>"$tmp/z.err"; then
+  z=compressed
+  printf '  label_image_compressed: true\n  camera_image_compressed: true\n' >>"$tmp/n.yaml"
+else
+  check "a build without an encoder refuses compressed topics, naming the key" 'grep -q "dds.label_image_compressed: this build has no image encoder" "$tmp/z.err"'
+fi
+
 "${in_a[@]}" "$node" --config "$tmp/n.yaml" 2>"$tmp/node.log" & nodepid=$!
 "${in_a[@]}" "$dds" --config "$tmp/n.yaml" 2>"$tmp/dds.log" & ddspid=$!
 pids+=($nodepid $ddspid)
 # The probe joins before the map exists and reads its last version once the node is gone.
-"${in_b[@]}" "$probe" final $domain $ns $p-m "$host" 60 $p-r >"$tmp/final" 2>&1 & probepid=$!
+"${in_b[@]}" "$probe" final $domain $ns $p-m "$host" 60 $p-r $z >"$tmp/final" 2>&1 & probepid=$!
 "${in_a[@]}" "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/sim.log" & simpid=$!
 pids+=($probepid $simpid)
 val() { "$shm" stat $p-m 2>/dev/null | awk -v k="$1" '$1 == k { print $2 }'; }
