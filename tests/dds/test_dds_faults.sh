@@ -61,11 +61,13 @@ kill -TERM "$nodepid"; wait "$nodepid"; rc=$?
 check "the node exits 0 (rc=$rc)" '[[ $rc == 0 ]]'
 wait "$probepid"; rc=$?
 check "after the SIGKILL and the link down, the subscriber ends with the segment's map, prompt list, images, camera info and tf (rc=$rc)" '[[ $rc == 0 ]]'
+check "no write of the bridge failed or waited out its blocking time for the subscriber that never reads" \
+  '! grep -h " write: " "$tmp/dds1.log" "$tmp/dds2.log"'
 check "the subscriber that never reads is still there" 'kill -0 $stallpid && grep -q "readers up" "$tmp/stall"'
 kill -TERM "$ddspid"; wait "$ddspid"; rc=$?
 check "the restarted bridge exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
 kill "$stallpid" 2>/dev/null
-for f in final flood; do grep -v "^probe ok" "$tmp/$f"; done
+for f in final flood; do grep -v -e "^probe ok" -e "ddsi_udp_conn_write" "$tmp/$f"; done  # Cyclone notes sends failing while the link is down
 echo "$passes passed, $fails failed"
 if (( fails )); then
   for f in final flood stall dds1.log dds2.log node.log; do echo "--- $f"; tail -20 "$tmp/$f"; done
