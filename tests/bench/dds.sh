@@ -39,6 +39,7 @@ pids+=($sub)
 sleep 2   # discovery, and the subscriber takes the whole map from the history
 txb() { ip -n "$nsa" -s -j link show "$va" | python3 -c 'import json,sys; print(json.load(sys.stdin)[0]["stats64"]["tx"]["bytes"])'; }
 ticks() { awk '{print $14 + $15}' "/proc/$bridge/stat"; }
+[[ $(cat /proc/$bridge/comm 2>/dev/null) == vlff-dds ]] || { echo "bench dds: pid $bridge is not the bridge"; exit 1; }
 b0=$(txb) c0=$(ticks)
 sleep "$secs"
 b1=$(txb) c1=$(ticks)
