@@ -58,6 +58,17 @@ check "the bridge sent the map at most once per version ($sent <= $(val version)
 "${in_b[@]}" "$probe" late $domain $ns $p-m "$host" 30 >"$tmp/late" 2>&1; rc=$?
 check "a late joiner gets the whole map from the history (rc=$rc)" '[[ $rc == 0 ]]'
 check "and the bridge resent nothing for it" '[[ $(awk '"'"'$1 == "maps_sent" { print $2 }'"'"' "$tmp/late") == "$sent" ]]'
+# The QoS keys reach the wire: a second bridge whose map is volatile keeps no
+# history, so the same late joiner gets its status but no map.
+cp "$tmp/n.yaml" "$tmp/v.yaml"
+printf '  qos:\n    map:\n      durability: volatile\n' >>"$tmp/v.yaml"
+"${in_a[@]}" "$dds" --config "$tmp/v.yaml" --namespace $ns/v -v 2>"$tmp/dds-v.log" & vpid=$!
+pids+=($vpid)
+wait_until 100 'grep -q "map version" "$tmp/dds-v.log"'   # sent before the joiner is there
+"${in_b[@]}" "$probe" late $domain $ns/v $p-m "$host" 4 >"$tmp/late-v" 2>&1; rc=$?
+check "with dds.qos.map.durability volatile a late joiner gets no map (rc=$rc)" \
+  '[[ $rc != 0 ]] && grep -q "FAIL: no map received" "$tmp/late-v" && ! grep -q "FAIL: no status" "$tmp/late-v"'
+kill -TERM $vpid; wait $vpid
 
 posts0=$("$shm" stat $p-p | awk '$1 == "posts" { print $2 }')
 "${in_b[@]}" "$probe" prompts $domain $ns $p-m "$host" 30 >"$tmp/prompts" 2>&1; rc=$?
