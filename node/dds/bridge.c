@@ -80,11 +80,10 @@ const char *vlff_dds_encoding(uint32_t fmt) {
   }
 }
 
-char *vlff_dds_prompt_json(const struct vlff_map_snapshot *snap, int count) {
+char *vlff_dds_prompt_list_json(const char *const texts[], int count) {
   json_object *a = json_object_new_array();
   for (int i = 0; a && i < count; i++) {
-    const char *t = vlff_map_snapshot_prompt(snap, (uint16_t)i);
-    json_object *e = json_object_new_string(t ? t : "");
+    json_object *e = json_object_new_string(texts[i] ? texts[i] : "");
     if (!e || json_object_array_add(a, e)) {
       json_object_put(e);
       json_object_put(a);
@@ -96,6 +95,13 @@ char *vlff_dds_prompt_json(const struct vlff_map_snapshot *snap, int count) {
   json_object_put(a);
   if (!out) errno = ENOMEM;
   return out;
+}
+
+char *vlff_dds_prompt_json(const struct vlff_map_snapshot *snap, int count) {
+  const char *texts[VLFF_SHM_MAX_PROMPTS];
+  if (count > VLFF_SHM_MAX_PROMPTS) count = VLFF_SHM_MAX_PROMPTS;
+  for (int i = 0; i < count; i++) texts[i] = vlff_map_snapshot_prompt(snap, (uint16_t)i);
+  return vlff_dds_prompt_list_json(texts, count);
 }
 
 int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *set_index,

@@ -101,8 +101,10 @@ int vlff_dds_can_compress(void);
 
 /* sensor_msgs/image_encodings name of a ring pixel format, NULL if none. */
 const char *vlff_dds_encoding(uint32_t pixfmt);
-/* The prompt list as a JSON list into a malloc'd string, NULL/ENOMEM. */
+/* A prompt list as a JSON list into a malloc'd string, NULL/ENOMEM: the
+ * snapshot's, or count texts. */
 char *vlff_dds_prompt_json(const struct vlff_map_snapshot *snap, int count);
+char *vlff_dds_prompt_list_json(const char *const texts[], int count);
 
 /* Parses a prompt message: a JSON list of 1..VLFF_SHM_MAX_PROMPTS strings,
  * each passing vlff_prompt_check (returns the count, texts filled), or a
