@@ -121,7 +121,12 @@ static int take_robot(struct vlff_merge_robot *r, struct robot_io *io) {
     if (info.valid_data) {
       const char *data = ((const std_msgs_msg_dds__String_ *)s[0])->data;
       char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
-      int idx, invalid, n = strlen(data) > 16384 ? -1 : vlff_dds_parse_prompts(data, strlen(data), texts, &idx, &invalid, why, sizeof why);
+      int idx, invalid, n = -1;
+      size_t len = strlen(data);
+      if (len > 16384)
+        snprintf(why, sizeof why, "%zu bytes, more than 16384", len);
+      else
+        n = vlff_dds_parse_prompts(data, len, texts, &idx, &invalid, why, sizeof why);
       if (n <= 0) {
         r->refused++;
         vlff_warn_limited(&io->warn, TAG, "%s: prompt list refused: %s", r->ns, n == 0 ? "a set index" : why);
