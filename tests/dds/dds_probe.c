@@ -26,6 +26,9 @@
  *          invalid, oversized and valid ones), then waits for the
  *          bridge's status to have counted at least one of each kind;
  *          prints the counts
+ *   badmap  a robot gone wrong, for vlff-merge: on <ns>/vlff/map a cloud
+ *          whose data is shorter than its points, on <ns>/vlff/prompts a
+ *          list that is not JSON (both latched), held until TIMEOUT_S
  * Exit 0 when every check held; "FAIL: ..." lines and 1 otherwise.
  */
 #include <math.h>
@@ -615,9 +618,39 @@ static int flood(dds_entity_t pp, const char *ns, double deadline) {
   return 0;
 }
 
+static int badmap(dds_entity_t pp, const char *ns, double deadline) {
+  char name[2][256];
+  snprintf(name[0], sizeof name[0], "rt%s/vlff/map", ns);
+  snprintf(name[1], sizeof name[1], "rt%s/vlff/prompts", ns);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  dds_entity_t mw = dds_create_writer(pp, dds_create_topic(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name[0], NULL, NULL), q, NULL);
+  dds_entity_t pw = dds_create_writer(pp, dds_create_topic(pp, &std_msgs_msg_dds__String__desc, name[1], NULL, NULL), q, NULL);
+  dds_delete_qos(q);
+  sensor_msgs_msg_dds__PointField_ fields[5] = {{"x", 0, 7, 1}, {"y", 4, 7, 1}, {"z", 8, 7, 1}, {"label", 12, 4, 1},
+                                                {"confidence", 16, 7, 1}};
+  uint8_t data[40] = {0};
+  sensor_msgs_msg_dds__PointCloud2_ m = {0};
+  m.header.frame_id = "map";
+  m.height = 1, m.width = 1000; /* 1000 points in 40 bytes */
+  m.fields._length = m.fields._maximum = 5;
+  m.fields._buffer = fields;
+  m.point_step = 20, m.row_step = 20000;
+  m.data._length = m.data._maximum = sizeof data;
+  m.data._buffer = data;
+  std_msgs_msg_dds__String_ p = {"chair, table"};
+  CHECK(dds_write(mw, &m) == DDS_RETCODE_OK && dds_write(pw, &p) == DDS_RETCODE_OK, "badmap: writes failed");
+  printf("badmap: written\n");
+  fflush(stdout);
+  while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
+  return 0;
+}
+
 int main(int argc, char **argv) {
   if (argc < 7 || argc > 9) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
+    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
                     "[compressed]]\n");
     return 2;
   }
@@ -638,6 +671,8 @@ int main(int argc, char **argv) {
     stall(pp, ns, deadline);
   } else if (!strcmp(mode, "flood")) {
     flood(pp, ns, deadline);
+  } else if (!strcmp(mode, "badmap")) {
+    badmap(pp, ns, deadline);
   } else {
     /* The probe may start before the node has created the segment. */
     struct vlff_map *m;
