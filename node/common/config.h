@@ -337,6 +337,20 @@ struct vlff_cfg_dds_qos {
   int durability;  /* VLFF_DDS_VOLATILE / _TRANSIENT_LOCAL */
   int depth;       /* history: keep last depth */
 };
+/* vlff-merge's fleet (dds.merge): robots' maps over DDS into one. */
+#define VLFF_MAX_MERGE_ROBOTS 8
+struct vlff_cfg_merge_robot {
+  char ns[VLFF_CFG_STR];  /* its vlff-dds's dds.namespace */
+  double transform[4];    /* its map -> world: x y z (m), then yaw about +z (degrees), applied yaw first */
+};
+struct vlff_cfg_dds_merge {
+  char map[VLFF_CFG_STR];  /* the fleet's map segment */
+  char ns[VLFF_CFG_STR];   /* the fleet's ROS namespace */
+  double bounds[6];        /* world box x0 y0 z0 x1 y1 z1, m */
+  double voxel_size_m;
+  int robot_count;         /* dds.merge.robots */
+  struct vlff_cfg_merge_robot robots[VLFF_MAX_MERGE_ROBOTS];
+};
 struct vlff_cfg_dds {
   int domain_id;                   /* DDS domain, 0..232 (ROS_DOMAIN_ID) */
   char ns[VLFF_CFG_STR];           /* ROS namespace "/robot1", "" = none: topics rt<ns>/vlff/... */
@@ -350,6 +364,7 @@ struct vlff_cfg_dds {
   double prompt_rate_hz;           /* most prompt posts per second; more are refused as a flood */
   int max_prompt_bytes;            /* longest prompt message taken */
   int jpeg_quality;                /* camera/image_raw/compressed */
+  struct vlff_cfg_dds_merge merge;
 };
 
 /* The whole file: one section per module, each module given only its own

@@ -27,27 +27,30 @@
 
 static const struct vlff_cli cli = {
     "vlff-merge",
-    "Usage: vlff-merge [OPTIONS] --robot NS[@X,Y,Z,YAW] --robot ... --map NAME --bounds X0,Y0,Z0,X1,Y1,Z1\n"
+    "Usage: vlff-merge [OPTIONS]\n"
     "Merge the maps that robots' vlff-dds publish (<NS>/vlff/map, <NS>/vlff/prompts) into\n"
     "one map in a shared world frame: each voxel takes the label of the most confident\n"
     "robot point in it (the most recent on a tie). The fleet map goes into the map\n"
     "segment NAME (read it with vlff-shm like a node's) and over DDS as\n"
-    "<namespace>/vlff/map and <namespace>/vlff/prompts.\n"
+    "<namespace>/vlff/map and <namespace>/vlff/prompts. The robots, segment, box and\n"
+    "namespace are the config's dds.merge; the options below replace them.\n"
     "\n"
     "  -r, --robot NS[@X,Y,Z,YAW]  a robot's namespace and its map -> world transform:\n"
     "                          translation in m, yaw about +z in degrees (default 0,0,0,0);\n"
-    "                          2 to 8 robots\n"
-    "  -m, --map NAME          the fleet's map segment (created)\n"
-    "  -b, --bounds X0,Y0,Z0,X1,Y1,Z1  the world box the fleet map covers, m\n"
-    "      --voxel S           voxel size, m (default 0.1; 0.01..10)\n"
-    "  -c, --config FILE       dds.domain_id and dds.frame_id from FILE (default: defaults)\n"
-    "  -n, --namespace NS      the fleet's ROS namespace (default /fleet)\n"
+    "                          2 to 8 robots, all of them (dds.merge.robots)\n"
+    "  -m, --map NAME          the fleet's map segment, created (dds.merge.map)\n"
+    "  -b, --bounds X0,Y0,Z0,X1,Y1,Z1  the world box the fleet map covers, m (dds.merge.bounds)\n"
+    "      --voxel S           voxel size, m, 0.01..10 (dds.merge.voxel_size_m)\n"
+    "  -c, --config FILE       the config (default: $VLFF_CONFIG, then the installed vlff.yaml,\n"
+    "                          else the defaults); also dds.domain_id and dds.frame_id\n"
+    "  -n, --namespace NS      the fleet's ROS namespace (dds.merge.namespace)\n"
     "      --seconds S         stop after S seconds\n"
     "  -v, --verbose           log each merge\n"
     "  -V, --version           print the version and exit\n"
     "  -h, --help              print this help and exit\n"
     "\n"
-    "Example:\n"
+    "Examples:\n"
+    "  vlff-merge -c /etc/vlff/fleet.yaml\n"
     "  vlff-merge -r /robot1 -r /robot2@4.0,0,0,90 -m /vlff-fleet -b -5,-5,-1,10,10,3\n",
 };
 
@@ -177,9 +180,9 @@ int main(int argc, char **argv) {
   static struct vlff_merge_robot robots[VLFF_MERGE_MAX_ROBOTS];
   static struct robot_io io[VLFF_MERGE_MAX_ROBOTS];
   int nrobots = 0, c, status;
-  const char *out = NULL, *path = NULL, *fleet_ns = "/fleet";
-  double bounds[6], voxel = 0.1, seconds = 0;
-  bool have_bounds = false, verbose = false;
+  const char *out = NULL, *path = NULL, *fleet_ns = NULL;
+  double bounds[6], voxel = 0, seconds = 0;
+  bool have_bounds = false, have_voxel = false, verbose = false;
   char err[1024];
   while ((c = vlff_cli_next(&cli, argc, argv, "r:m:b:c:n:v", opts, &status)) != -1) {
     char *end;
@@ -216,6 +219,7 @@ int main(int argc, char **argv) {
     case OPT_VOXEL:
       if (parse_doubles(optarg, &voxel, 1) < 0)
         return vlff_cli_usage_error(&cli, "--voxel '%s' is not a number", VLFF_Q(optarg));
+      have_voxel = true;
       break;
     case 'c': path = optarg; break;
     case 'n': fleet_ns = optarg; break;
@@ -232,9 +236,24 @@ int main(int argc, char **argv) {
   if (optind != argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", VLFF_Q(argv[optind]));
   static struct vlff_config cfg;
   vlff_config_defaults(&cfg);
-  if (path && vlff_config_load(path, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
-  if (nrobots < 2) return vlff_cli_usage_error(&cli, "expected 2 to %d --robot, got %d", VLFF_MERGE_MAX_ROBOTS, nrobots);
-  if (!out || !have_bounds) return vlff_cli_usage_error(&cli, "--map and --bounds are required");
+  const char *found = vlff_config_find(path, err, sizeof err);
+  if (found && vlff_config_load(found, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
+  /* The config's fleet where the command line does not replace it. */
+  const struct vlff_cfg_dds_merge *cm = &cfg.dds.merge;
+  if (!nrobots)
+    for (int i = 0; i < cm->robot_count && i < VLFF_MERGE_MAX_ROBOTS; i++, nrobots++) {
+      snprintf(robots[i].ns, sizeof robots[i].ns, "%s", cm->robots[i].ns);
+      memcpy(robots[i].t, cm->robots[i].transform, sizeof robots[i].t);
+      robots[i].yaw = cm->robots[i].transform[3] * 3.14159265358979323846 / 180;
+      robots[i].nprompts = -1;
+    }
+  if (!out) out = cm->map;
+  if (!fleet_ns) fleet_ns = cm->ns;
+  if (!have_bounds) memcpy(bounds, cm->bounds, sizeof bounds);
+  if (!have_voxel) voxel = cm->voxel_size_m;
+  if (nrobots < 2)
+    return vlff_cli_usage_error(&cli, "expected 2 to %d robots (--robot or dds.merge.robots), got %d",
+                                VLFF_MERGE_MAX_ROBOTS, nrobots);
   if (check_ns(fleet_ns, err, sizeof err)) return vlff_cli_usage_error(&cli, "--namespace: %s", err);
   for (int i = 0; i < nrobots; i++)
     if (!strcmp(robots[i].ns, fleet_ns))

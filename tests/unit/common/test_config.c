@@ -332,6 +332,38 @@ static void test_dds_section(void **state) {
     assert_int_equal(load(cross[i].yaml, &cfg), -1);
     if (!strstr(err, cross[i].fragment)) fail_msg("%s: message '%s' lacks '%s'", cross[i].yaml, err, cross[i].fragment);
   }
+
+  /* vlff-merge's fleet: robots with transforms, checked one by one. */
+  assert_int_equal(load("dds:\n  merge:\n    robots:\n      - namespace: /r1\n      - {namespace: /r2, transform: [4, "
+                        "0.5, 0, 90]}\n    bounds: [-5, -5, -1, 10, 10, 3]\n",
+                        &cfg),
+                   0);
+  assert_int_equal(cfg.dds.merge.robot_count, 2);
+  assert_string_equal(cfg.dds.merge.robots[1].ns, "/r2");
+  assert_float_equal(cfg.dds.merge.robots[1].transform[1], 0.5, 0);
+  assert_float_equal(cfg.dds.merge.robots[1].transform[3], 90, 0);
+  assert_float_equal(cfg.dds.merge.robots[0].transform[0], 0, 0);
+  assert_string_equal(cfg.dds.merge.map, "/vlff-fleet");
+  static const struct {
+    const char *yaml, *fragment;
+  } mbad[] = {
+      {"dds:\n  merge:\n    robots: {namespace: /r1}\n", "expected a sequence of 0 to 8"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: r1\n", "a leading '/'"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: /r1\n      - namespace: /r1\n", "not given before"},
+      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [1, 2, 3]}\n", "expected [x, y, z, yaw_deg]"},
+      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [1, 2, 3, 400]}\n", "degrees within"},
+      {"dds:\n  merge:\n    robots:\n      - {transform: [1, 2, 3, 4]}\n", "expected a 'namespace'"},
+      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, pose: 3}\n", "unknown key"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: /fleet\n", "no robot has"},
+      {"dds:\n  merge:\n    bounds: [0, 0, 0, 0, 1, 1]\n", "below x1 y1 z1"},
+      {"dds:\n  merge:\n    bounds: [0, 0, 0, 1000, 1000, 100]\n    voxel_size_m: 0.01\n", "at most"},
+      {"dds:\n  merge:\n    map: fleet\n", "dds.merge.map"},
+      {"shm:\n  map: /m\ndds:\n  merge:\n    map: /m\n", "distinct from shm.map"},
+  };
+  for (size_t i = 0; i < sizeof mbad / sizeof mbad[0]; i++) {
+    assert_int_equal(load(mbad[i].yaml, &cfg), -1);
+    if (!strstr(err, mbad[i].fragment)) fail_msg("%s: message '%s' lacks '%s'", mbad[i].yaml, err, mbad[i].fragment);
+  }
 }
 
 static int load_fifo(void *path) {
