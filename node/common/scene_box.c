@@ -16,6 +16,9 @@ int vlff_scene_box_parse(const char *text, const char *name, double lo[3], doubl
   double v[6];
   const char *s = text;
   for (int i = 0; i < 6; i++) {
+    /* Commas separate like white space, as the scene reader takes bbox.txt
+     * (formats.c), so a file vlff-eval reads the node reads too. */
+    while (*s == ',' || isspace((unsigned char)*s)) s++;
     char *end;
     errno = 0;
     v[i] = strtod(s, &end);
@@ -29,7 +32,7 @@ int vlff_scene_box_parse(const char *text, const char *name, double lo[3], doubl
     }
     s = end;
   }
-  while (isspace((unsigned char)*s)) s++;
+  while (*s == ',' || isspace((unsigned char)*s)) s++;
   if (*s) {
     snprintf(err, errlen, "%s: expected 6 numbers (min x y z, max x y z) and nothing after them", VLFF_Q(name));
     return -1;

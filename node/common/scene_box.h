@@ -3,7 +3,8 @@
  * field.scene_min/max.
  *
  * Format: six numbers, min x y z then max x y z in metres, separated by
- * white space (the reference layout's bbox.txt, docs/datasets.md).
+ * white space or commas (the reference layout's bbox.txt, read as the scene
+ * reader reads it: docs/datasets.md).
  *
  * Contract
  *  - 0, or -1 with one line in err naming the file and what is wrong.

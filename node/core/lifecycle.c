@@ -28,6 +28,7 @@
 #include "evidence.h"
 #include "field.h"
 #include "keyframes.h"
+#include "log.h"
 #include "node_internal.h"
 #include "publish.h"
 #include "vlff/escape.h"
@@ -49,6 +50,18 @@ static void note_adjustments(struct vlff_node *n) {
     snprintf(n->st.adjusted, sizeof n->st.adjusted,
              "publish.voxel_size_m %.3f -> %.3f m (the box needs more than shm.map_max_voxels %d)",
              c->publish.voxel_size_m, v, c->shm.map_max_voxels);
+}
+
+/* The field's box, said once at start with where it came from: a box that
+ * is not the scene's clips the map without any other sign. */
+static void say_scene_box(const struct vlff_config *c) {
+  const double *lo = c->field.scene_min, *hi = c->field.scene_max;
+  char from[VLFF_CFG_PATH + 64];
+  if (c->field.scene_box_file[0])
+    snprintf(from, sizeof from, "field.scene_box_file %s", VLFF_Q(c->field.scene_box_file));
+  else
+    snprintf(from, sizeof from, "field.scene_min/max");
+  VLFF_INFO("node", "scene box [%g %g %g]..[%g %g %g] m from %s", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], from);
 }
 
 struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, char *err,
@@ -108,6 +121,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->pub = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, &n->hooks, err, errlen);
   if (!n->pub) goto fail;
   note_adjustments(n);
+  say_scene_box(cfg);
   /* Controllers of the segments' group post prompts: the mailbox alone is
    * group-writable whenever the group may read. */
   mode_t mode = cfg->shm.mode ? (mode_t)cfg->shm.mode : 0640;

@@ -39,7 +39,8 @@ static void test_box_from_file(void **state) {
   (void)state;
   char p[512], q[512];
   put("bbox.txt", "-0.5 -1.25 -0.1\n8.4 11.5 3.2\n", p, sizeof p);
-  put("same.txt", "-0.5 -1.25 -0.1 8.4 11.5 3.2", q, sizeof q);
+  /* commas separate as white space does, as vlff-eval's scene reader takes bbox.txt */
+  put("same.txt", "-0.5, -1.25, -0.1,\n8.4,11.5,3.2\n", q, sizeof q);
   struct vlff_config cfg, other, def;
   vlff_config_defaults(&def);
   assert_int_equal(load_with(p, &cfg), 0);
@@ -48,6 +49,24 @@ static void test_box_from_file(void **state) {
   assert_int_equal(load_with(q, &other), 0);
   assert_true(vlff_config_field_hash(&cfg.field) == vlff_config_field_hash(&other.field));
   assert_true(vlff_config_field_hash(&cfg.field) != vlff_config_field_hash(&def.field));
+  assert_true(other.field.scene_min[1] == -1.25 && other.field.scene_max[2] == 3.2);
+}
+
+/* The file's box replaces field.scene_min/max set in the same config,
+ * before or after the file's key. */
+static void test_file_wins_over_keys(void **state) {
+  (void)state;
+  char p[512], yaml[1200];
+  put("bbox.txt", "-5 -4 -1.5 5 4 1.5\n", p, sizeof p);
+  const char *fmt[] = {"field:\n  scene_min: [-1, -1, -1]\n  scene_max: [1, 1, 1]\n  scene_box_file: %s\n",
+                       "field:\n  scene_box_file: %s\n  scene_min: [-1, -1, -1]\n  scene_max: [1, 1, 1]\n"};
+  for (int i = 0; i < 2; i++) {
+    struct vlff_config cfg;
+    snprintf(yaml, sizeof yaml, fmt[i], p);
+    assert_int_equal(vlff_config_load_mem(yaml, strlen(yaml), "t.yaml", &cfg, err, sizeof err), 0);
+    assert_true(cfg.field.scene_min[0] == -5 && cfg.field.scene_min[1] == -4 && cfg.field.scene_min[2] == -1.5);
+    assert_true(cfg.field.scene_max[0] == 5 && cfg.field.scene_max[1] == 4 && cfg.field.scene_max[2] == 1.5);
+  }
 }
 
 /* A bad box file is refused at load, naming the key and the file. */
@@ -80,7 +99,8 @@ static void test_bad_box_files(void **state) {
 
 int main(void) {
   if (!mkdtemp(dir)) return 1;
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_box_from_file), cmocka_unit_test(test_bad_box_files)};
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_box_from_file), cmocka_unit_test(test_file_wins_over_keys),
+                                     cmocka_unit_test(test_bad_box_files)};
   int rc = cmocka_run_group_tests(tests, NULL, NULL);
   char cmd[600];
   snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
