@@ -175,6 +175,8 @@ static const struct key schema[] = {
     BOOL("node.resume", node.resume, 1),
     DBL("node.run_seconds", node.run_seconds, 0, 1e7, 0),
     INT("node.threads", node.threads, 0, 256, 0),
+    /* As node.threads, at most the cores a machine the pool could use has. */
+    DBL("node.cpu_budget", node.cpu_budget, 0, 256, 0),
 
     STR("shm.ring", shm.ring, "/vlff-frames"),
     INT("shm.ring_slots", shm.ring_slots, 2, 1024, 8),
@@ -1004,6 +1006,11 @@ static int check_dds(struct parse *p, struct vlff_config *cfg) {
 
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
   if (check_dds(p, cfg)) return -1;
+  /* A tenth of a core is a few training steps a second: below it the node
+   * would hold a map it can no longer learn. */
+  double b = cfg->node.cpu_budget;
+  if (b > 0 && b < 0.1)
+    return fail_cross(p, "node.cpu_budget", "expected 0 (no limit) or 0.1 to 256 cores, got %g", b);
   const double *q = cfg->pose.extrinsic + 3;
   double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
   if (!(fabs(qn - 1) <= 0.01))

@@ -100,6 +100,7 @@ struct vlff_cfg_node {
   bool resume;                     /* start from state_dir's checkpoint (false: remove it, start anew) */
   double run_seconds;              /* 0 = run until signalled */
   int threads;                     /* 0 = one per core */
+  double cpu_budget;               /* cores the whole process may use (0.1..256); 0 = no limit */
 };
 
 struct vlff_cfg_shm {

@@ -258,6 +258,8 @@ void share_status(struct vlff_node *n) {
       .loss_depth = st.loss_depth,
       .loss_feat = st.loss_feat,
       .psnr = st.psnr,
+      .cpu_budget = st.cpu_budget,
+      .cpu_used = st.cpu_used,
   };
   snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st.state));
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {

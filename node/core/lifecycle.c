@@ -23,6 +23,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "budget.h"
 #include "clock.h"
 #include "embeddings.h"
 #include "evidence.h"
@@ -82,6 +83,12 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->st.miou2d_frame = -1;
   n->st.last_pose_residual_m = -1;
   n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = -1;
+  /* node.cpu_budget bounds the learner's threads (budget.h); the field made
+   * again on a reset reads the same count from n->cfg. */
+  n->cfg.node.threads = vlff_budget_threads(cfg->node.cpu_budget, cfg->node.threads);
+  n->st.cpu_budget = cfg->node.cpu_budget;
+  n->st.cpu_used = -1;
+  n->st.threads = n->cfg.node.threads;
   pthread_mutex_init(&n->qlock, NULL);
   pthread_cond_init(&n->qcond, NULL);
   pthread_mutex_init(&n->cmd_lock, NULL);
@@ -91,7 +98,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
     snprintf(err, errlen, "node.state_dir '%s': %s", VLFF_Q(cfg->node.state_dir), strerror(errno));
     goto fail;
   }
-  n->field = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, errlen);
+  n->field = vlff_field_create(&cfg->field, &cfg->train, n->cfg.node.threads, err, errlen);
   if (!n->field) goto fail;
   n->store = vlff_kfstore_create((size_t)cfg->keyframes.memory_mb << 20, cfg->keyframes.max_keyframes, KF_PROTECT);
   if (!n->store) {
@@ -136,6 +143,9 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   if (apply_prompt_set(n, n->cfg.prompts.active, err, errlen)) goto fail;
   atomic_store(&n->trainer_beat_ns, vlff_now_ns());
   atomic_store(&n->ingest_beat_ns, vlff_now_ns());
+  /* Start-up's own CPU (building the field, restoring) is not charged to
+   * the budget: it starts with the threads. */
+  vlff_pacer_init(&n->pacer, cfg->node.cpu_budget);
   if (pthread_create(&n->trainer_thread, NULL, trainer_main, n) != 0) {
     snprintf(err, errlen, "cannot start the trainer thread");
     goto fail;

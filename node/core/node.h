@@ -105,6 +105,11 @@ struct vlff_node_status {
   long long miou2d_frame;       /* the frame id of the view miou2d scored; -1 when unknown */
   double last_pose_residual_m;
   double frame_to_map_ms_p50, frame_to_map_ms_p99;
+  /* node.cpu_budget in cores (0 = no limit), the process's measured use in
+   * cores over the last second or so (all its threads; -1 before the first
+   * second), and the learner's worker threads (at most ceil(budget)). */
+  double cpu_budget, cpu_used;
+  int threads;
   /* Monotonic ns (vlff_now_ns) of the trainer's and the ingest thread's
    * last loop pass; both pass at least every few hundred ms while alive,
    * busy or idle. */

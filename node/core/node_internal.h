@@ -53,6 +53,7 @@
 #include <stdint.h>
 #include <sys/types.h>
 
+#include "budget.h"
 #include "embeddings.h"
 #include "feature_join.h"
 #include "field.h"
@@ -107,7 +108,7 @@ struct vlff_node {
    * keyframe, iteration or request (each used by one thread). */
   struct {
     uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder,
-        kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback;
+        kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback, cpu_budget;
   } warned;
 
   pthread_t ingest_thread, trainer_thread;
@@ -144,6 +145,7 @@ struct vlff_node {
    * fed only while both move (vlff_node_status). */
   _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
+  struct vlff_pacer pacer;    /* trainer: node.cpu_budget's pacing and the measured use (budget.h) */
   int nonfinite_run;          /* trainer: steps in a row whose loss was not finite */
   long long scanned_step;     /* trainer: the step of the last vlff_field_check */
   unsigned rollback_tried;    /* trainer: slots the field was loaded from since its last save */

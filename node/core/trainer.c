@@ -217,6 +217,27 @@ static void apply_warmup(struct vlff_node *n) {
     vlff_field_set_levels(n->field, l0 + (int)((levels - l0) * steps / lw));
 }
 
+/* node.cpu_budget (budget.h): whether to step now. Sleeps while the process
+ * is over its budget, at most 0.1 s per pass so the loop still beats,
+ * publishes and takes commands; only training waits. Always measures the
+ * use, for the status. */
+static bool pace_training(struct vlff_node *n, bool train) {
+  double used;
+  bool go = vlff_pacer_pace(&n->pacer, train, 0.1, &used);
+  if (used >= 0) {
+    pthread_mutex_lock(&n->slock);
+    n->st.cpu_used = used;
+    pthread_mutex_unlock(&n->slock);
+    double b = n->cfg.node.cpu_budget;
+    if (b > 0 && used > 1.2 * b)
+      vlff_warn_limited(&n->warned.cpu_budget, TAG,
+                        "node.cpu_budget %.2f cores: the process used %.2f over the last second; its work besides "
+                        "training (ingest, publishing, encoders) takes more than the budget",
+                        b, used);
+  }
+  return train && go;
+}
+
 void *trainer_main(void *arg) {
   pthread_setname_np(pthread_self(), "vlff-trainer"); /* as ingest_main's */
   struct vlff_node *n = arg;
@@ -241,6 +262,7 @@ void *trainer_main(void *arg) {
     poll_mailbox(n, &mailbox_seq, &publish_now);
     bool train = n->mapping && vlff_kfstore_count(n->store) >= cfg->keyframes.start_after;
     take_candidates(n, !train);
+    train = pace_training(n, train);
     if (train) {
       const struct vlff_view *views;
       const float *w;

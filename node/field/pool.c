@@ -94,6 +94,9 @@ static void *worker(void *arg) {
   struct vlff_pool *p = wa->p;
   int id = wa->id;
   free(wa);
+  /* Named so that the node's threads can be told apart (ps -L, top -H):
+   * node.cpu_budget bounds how many of these there are. */
+  pthread_setname_np(pthread_self(), "vlff-pool");
   unsigned long seen = 0;
   for (;;) {
     if (!spin_until(p, new_run, seen)) {

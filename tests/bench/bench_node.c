@@ -36,6 +36,13 @@
  * training lags the camera (a loaded host's lag shows as a lower score). The baseline: multi-view fusion (metrics.h, as vlff-eval's) of
  * every frame of that walk at the same points, miou3d_fusion_end.
  * rss_peak_mb is read before the baseline is computed.
+ *
+ * CPU: cpu_cores_used is the process's CPU time (the node's threads; the
+ * simulator is a process of its own) over the wall time from the first
+ * sample that shows a training step to the end of the run (before it the
+ * node only waits for its first keyframes). VLFF_BENCH_BUDGET=CORES sets node.cpu_budget
+ * (and prints cpu_budget and cpu_budget_ratio, use over budget); node.sh
+ * runs it at 0.5, 1 and 2.
  */
 #include <math.h>
 #include <signal.h>
@@ -61,6 +68,12 @@ extern char **environ;
 static double mono_s(void) {
   struct timespec ts;
   clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static double cpu_s(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
   return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
@@ -236,6 +249,10 @@ int main(int argc, char **argv) {
   fclose(out);
   struct vlff_config cfg;
   if (vlff_config_load(cfg_path, &cfg, err, sizeof err)) return fprintf(stderr, "%s\n", err), 1;
+  double budget = getenv("VLFF_BENCH_BUDGET") ? atof(getenv("VLFF_BENCH_BUDGET")) : 0;
+  if (budget < 0 || (budget > 0 && budget < 0.1) || budget > 256)
+    return fprintf(stderr, "bench_node: VLFF_BENCH_BUDGET: expected 0 or 0.1 to 256 cores, got %g\n", budget), 1;
+  cfg.node.cpu_budget = budget;
 
   double raw = raw_miou2d(&cfg, 30);
   printf("raw per-frame features: 2D mIoU %.1f (baseline)\n", raw);
@@ -286,7 +303,7 @@ int main(int argc, char **argv) {
   int ns = 0;
   const int loop_n = cfg.sim.frames;
   const double loop_s = cfg.sim.frames / cfg.sim.rate_hz;
-  double t0 = mono_s();
+  double t0 = mono_s(), cpu0 = -1, wall0 = 0;
   struct vlff_node_status st;
   const double half = 15; /* the final value's window, each side of `seconds` */
   /* The final loop: the views whose frame ids lie within half a loop of the
@@ -305,6 +322,7 @@ int main(int argc, char **argv) {
     ts[ns] = mono_s() - t0;
     fr[ns] = st.miou2d_frame;
     m2[ns++] = st.miou2d;
+    if (cpu0 < 0 && st.iteration > 0) cpu0 = cpu_s(), wall0 = mono_s();
     if (id_c < 0 && ts[ns - 1] >= seconds && st.miou2d_frame >= 0) id_c = st.miou2d_frame;
     if (walk && !wmap && (wmap = vlff_map_attach(cfg.shm.map))) wsnap = vlff_map_snapshot_new(wmap);
     if (walk && !wring) wring = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
@@ -330,6 +348,7 @@ int main(int argc, char **argv) {
   vlff_map_snapshot_free(wsnap);
   vlff_map_detach(wmap);
   if (wring) vlff_ring_close(wring);
+  double cores = cpu0 >= 0 ? (cpu_s() - cpu0) / (mono_s() - wall0) : -1;
   tk_node_destroy(n, sim_src);
   kill(sim, SIGTERM);
   waitpid(sim, NULL, 0);
@@ -415,5 +434,10 @@ int main(int argc, char **argv) {
          "miou2d_vs_raw=%.2f miou3d=%.1f time_to_useful_same_view_s=%.1f%s\n",
          useful, seconds, final, st.frame_to_map_ms_p99, rss_mb, raw, raw > 0 ? final / raw : 0, st.miou3d,
          useful_sv, walk_kv);
+  /* miou3d_end: the same 3D mIoU, named for comparing runs of one walk at
+   * different budgets (node.sh). */
+  if (walk) printf("RESULT cpu_cores_used=%.3f\n", cores); /* the walk's miou3d_end is above */
+  else printf("RESULT cpu_cores_used=%.3f miou3d_end=%.1f\n", cores, st.miou3d);
+  if (budget > 0) printf("RESULT cpu_budget=%.2f cpu_budget_ratio=%.3f\n", budget, cores / budget);
   return 0;
 }

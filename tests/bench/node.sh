@@ -3,16 +3,25 @@
 # on today's room (configs/demo-sim.yaml), on the flat
 # (tests/bench/node-flat.yaml) and on the building
 # (tests/bench/node-building.yaml: its first walk through three flats,
-# scored at its end and for forgetting; docs/sim.md, bench_node.c). RESULT:
-# the room's keys as bench_node prints them, then the flat's with a _flat
-# suffix, then the building's with a bldg_ prefix.
-# Env: VLFF_BUILD (release build dir), VLFF_BENCH_SECONDS (passed on),
-# VLFF_NODE_SCENES (default "room flat bldg").
+# scored at its end and for forgetting; docs/sim.md, bench_node.c), then the
+# room under node.cpu_budget (docs/node.md, "CPU budget"). RESULT: the
+# room's keys as bench_node prints them, then the flat's with a _flat
+# suffix, then the building's with a bldg_ prefix, then per budget B
+# (0.5 -> 05) cpu_cores_used_budgetB (the process's cores over the run) and
+# cpu_cores_used_budgetB_ratio (over B; target 0.95..1.05), and
+# miou3d_end_1core: the 3D mIoU at the end of the same walk as the room's
+# miou3d_end with a budget of 1 (target >= miou3d_end - 5).
+# Env: VLFF_BUILD (release build dir), VLFF_BENCH_SECONDS (passed on; the
+# budget-1 run walks as long), VLFF_NODE_SCENES (default "room flat bldg"),
+# VLFF_NODE_BUDGETS (default "1 0.5 2"; "" for none),
+# VLFF_BENCH_BUDGET_SECONDS (the other budgets' runs, default 60).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 build=${VLFF_BUILD:-$here/../../build/release}
 exe=$build/bench/bench_node
 [[ -x $exe ]] || { echo "node.sh: $exe not built" >&2; exit 1; }
+kv_of() { grep '^RESULT ' <<<"$1" | sed 's/^RESULT //' | tr '\n' ' '; }
+val_of() { tr ' ' '\n' <<<"$1" | sed -n "s/^$2=//p" | head -1; }
 res="RESULT"
 for sc in ${VLFF_NODE_SCENES:-room flat bldg}; do
   echo "--- $sc"
@@ -22,9 +31,18 @@ for sc in ${VLFF_NODE_SCENES:-room flat bldg}; do
     bldg) log=$(VLFF_BENCH_CONFIG=$here/node-building.yaml "$exe" | tee /dev/stderr) ;;
     *) echo "node.sh: unknown scene '$sc'" >&2; exit 1 ;;
   esac
-  kv=$(grep '^RESULT ' <<<"$log" | sed 's/^RESULT //')
+  kv=$(kv_of "$log")
   if [[ $sc == room ]]; then res="$res $kv"
   elif [[ $sc == bldg ]]; then for p in $kv; do res="$res bldg_$p"; done
   else for p in $kv; do res="$res ${p%%=*}_$sc=${p#*=}"; done; fi
+done
+for b in ${VLFF_NODE_BUDGETS-1 0.5 2}; do
+  echo "--- room, node.cpu_budget $b"
+  secs=${VLFF_BENCH_SECONDS:-120}
+  [[ $b == 1 ]] || secs=${VLFF_BENCH_BUDGET_SECONDS:-60}
+  kv=$(kv_of "$(VLFF_BENCH_BUDGET=$b VLFF_BENCH_SECONDS=$secs "$exe" | tee /dev/stderr)")
+  key=budget${b/./}
+  res="$res cpu_cores_used_$key=$(val_of "$kv" cpu_cores_used) cpu_cores_used_${key}_ratio=$(val_of "$kv" cpu_budget_ratio)"
+  [[ $b == 1 ]] && res="$res miou3d_end_1core=$(val_of "$kv" miou3d_end)"
 done
 echo "$res"

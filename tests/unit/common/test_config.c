@@ -90,6 +90,10 @@ static const struct {
   {"shm:\n  mode: 0666\n", "t.yaml:2:9: key 'shm.mode': ", "world-writable"},
   {"field:\n  base_resolution: 64\n  finest_resolution: 32\n", "t.yaml:3:22: key 'field.finest_resolution': ", ">= field.base_resolution"},
   {"field:\n  base_resolution: 4096\n", "t.yaml: key 'field.finest_resolution': ", "got 2048"},
+  {"node:\n  cpu_budget: 0.05\n", "t.yaml:2:15: key 'node.cpu_budget': ", "expected 0 (no limit) or 0.1 to 256 cores, got 0.05"},
+  {"node:\n  cpu_budget: 300\n", "t.yaml:2:15: key 'node.cpu_budget': ", "expected number in [0, 256], got '300'"},
+  {"node:\n  cpu_budget: -1\n", "t.yaml:2:15: key 'node.cpu_budget': ", "got '-1'"},
+  {"node:\n  cpu_budget: inf\n", "t.yaml:2:15: key 'node.cpu_budget': ", "expected number"},
   {"prompts:\n  template: a photo\n", "t.yaml:2:13: key 'prompts.template': ", "containing {}"},
   /* The simulator's features with a camera's frames: refused unless forced. */
   {"source:\n  kind: ring\n  features: sim\n", "t.yaml:3:13: key 'source.features': ", "source.allow_sim_features: true"},
@@ -152,12 +156,13 @@ static void test_defaults_valid(void **state) {
   assert_int_equal(cfg.shm.mode, 0640);
   assert_int_equal(cfg.sim.layout, VLFF_LAYOUT_ROOM);
   assert_true(cfg.sim.object_bias == 0);
+  assert_true(cfg.node.cpu_budget == 0); /* no limit */
 }
 
 static void test_good_file(void **state) {
   (void)state;
   struct vlff_config cfg;
-  const char *y = "node:\n  state_dir: /srv/robot1\n  log_level: debug\n"
+  const char *y = "node:\n  state_dir: /srv/robot1\n  log_level: debug\n  cpu_budget: 1.5\n"
                   "field:\n  feature_dim: 128\n  scene_min: [-1, -2, -3]\n  scene_max: [1, 2, 3.5]\n"
                   "can:\n  enabled: yes\n  node_id: 0x10\n"
                   "shm:\n  mode: 0660\n"
@@ -167,6 +172,7 @@ static void test_good_file(void **state) {
   assert_int_equal(load(y, &cfg), 0);
   assert_string_equal(cfg.node.state_dir, "/srv/robot1");
   assert_int_equal(cfg.node.log_level, VLFF_LOG_DEBUG);
+  assert_true(cfg.node.cpu_budget == 1.5);
   assert_int_equal(cfg.field.feature_dim, 128);
   assert_true(cfg.field.scene_min[2] == -3 && cfg.field.scene_max[2] == 3.5);
   assert_true(cfg.can.enabled);
