@@ -105,6 +105,12 @@ struct vlff_node_status {
   long long miou2d_frame;       /* the frame id of the view miou2d scored; -1 when unknown */
   double last_pose_residual_m;
   double frame_to_map_ms_p50, frame_to_map_ms_p99;
+  /* Label flips: voxels whose published label changed at the last publish;
+   * since start, those that changed although no keyframe observed them
+   * since the publish before (label_flips_elsewhere), among the labelled
+   * voxels no keyframe observed in between (label_mapped_elsewhere), summed
+   * over publishes (publish.h, hold.h). */
+  long long label_flips, label_flips_elsewhere, label_mapped_elsewhere;
   /* Monotonic ns (vlff_now_ns) of the trainer's and the ingest thread's
    * last loop pass; both pass at least every few hundred ms while alive,
    * busy or idle. */

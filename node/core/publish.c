@@ -18,6 +18,7 @@
 
 #include "bounds.h"
 #include "evidence.h"
+#include "hold.h"
 #include "log.h"
 #include "palette.h"
 #include "select.h"
@@ -80,6 +81,8 @@ struct vlff_publisher {
   double lost_ratio;  /* publish.lost_class_ratio */
   uint64_t lost_mask, lost_mask_stamp; /* the prompts last reported lost (evidence.h, "Lost classes"), and of which prompts */
   double last_publish_s, last_heartbeat_s;
+  struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
+  uint64_t hold_prompts;  /* a hash of the prompt embeddings the held labels index */
 };
 
 
@@ -87,6 +90,7 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   if (!p) return;
   vlff_map_detach(p->map);
   vlff_evidence_destroy(p->ev);
+  vlff_hold_destroy(p->hold);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
                 p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
@@ -139,11 +143,12 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->snap_xyz = malloc(li * 3 * sizeof *p->snap_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
+  p->hold = vlff_hold_create(n, pub->label_hysteresis);
+  p->D = field->feature_dim;
   p->ev_budget = (size_t)pub->evidence_max_mb << 20; /* also bounds a saved map's evidence read without it */
   if (pub->evidence_weight > 0) {
     p->ev = vlff_evidence_for(pub, field, VLFF_MAX_PROMPTS, err, errlen);
     p->ev_weight = (float)pub->evidence_weight;
-    p->D = field->feature_dim;
     p->trust_rays = pub->field_trust_rays;
     p->lost_ratio = pub->lost_class_ratio;
     p->qcos = malloc(QBLOCK * VLFF_FIELD_MAX_PROMPTS * sizeof *p->qcos);
@@ -157,7 +162,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
-      !p->sel_lab) {
+      !p->sel_lab || !p->hold) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
     return NULL;
@@ -350,6 +355,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     vlff_evidence_reset(p->ev);
   }
   memcpy(p->observed, g, n);
+  vlff_hold_reset(p->hold);
   memcpy(p->hits, g + n, n * 2);
   memcpy(p->hit_sum, g + n * 3, n * 12);
   rc = 0;
@@ -366,6 +372,7 @@ void vlff_publisher_reset(struct vlff_publisher *p) {
   if (p->ev) vlff_evidence_reset(p->ev);
   p->ev_full_said = p->ev_overflow_said = false;
   p->lost_mask = 0;
+  vlff_hold_reset(p->hold);
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
   memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
@@ -421,6 +428,7 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
 static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
   if (vi < 0) return;
   p->observed[vi] = 1;
+  vlff_hold_observed(p->hold, (size_t)vi);
   if (p->hits[vi] < UINT16_MAX) {
     p->hits[vi]++;
     for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
@@ -430,6 +438,7 @@ static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
   if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
   if (!v->depth) return 0;
+  vlff_hold_keyframe(p->hold);
   const double *m = v->c2w;
   double o[3] = {m[3], m[7], m[11]};
   const double h = p->voxel * 0.5;
@@ -463,7 +472,7 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
           double t = s / (len / h);
           double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
           long vi = voxel_of(p, q);
-          if (vi >= 0) p->observed[vi] = 1;
+          if (vi >= 0) p->observed[vi] = 1, vlff_hold_observed(p->hold, (size_t)vi);
         }
       }
       long vi = voxel_of(p, hp);
@@ -592,7 +601,7 @@ static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq,
       memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
       p->qidx[nocc++] = i;
     } else {
-      p->labels[i] = VLFF_LABEL_FREE;
+      p->labels[i] = vlff_hold_label(p->hold, i, VLFF_LABEL_FREE, 0);
       p->conf[i] = 255;
       r->free_voxels++;
     }
@@ -622,11 +631,11 @@ static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, const 
   for (size_t j = 0; j < nocc; j++) {
     size_t i = p->qidx[j];
     if (p->qlabel[j] >= 0) {
-      p->labels[i] = (uint16_t)p->qlabel[j];
+      p->labels[i] = vlff_hold_label(p->hold, i, (uint16_t)p->qlabel[j], p->qmargin[j]);
       p->conf[i] = conf_of(p->qmargin[j]);
       r->labelled++;
     } else {
-      p->labels[i] = VLFF_LABEL_FREE;
+      p->labels[i] = vlff_hold_label(p->hold, i, VLFF_LABEL_FREE, 0);
       p->conf[i] = 255;
       r->free_voxels++;
     }
@@ -677,10 +686,19 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
   memset(r, 0, sizeof *r);
   r->miou2d = r->miou3d = -1;
   r->miou2d_frame = -1;
+  /* Labels index the prompts: other prompts, other labels, none held. */
+  int hk;
+  const float *he = vlff_field_prompt_embeddings(f, &hk);
+  uint64_t hstamp = vlff_fnv1a64(vlff_fnv1a64(VLFF_FNV1A64_INIT, &hk, sizeof hk), he,
+                                 he ? (size_t)hk * p->D * sizeof *he : 0);
+  if (hstamp != p->hold_prompts) vlff_hold_reset(p->hold), p->hold_prompts = hstamp;
+  vlff_hold_begin(p->hold);
   long nocc = mark_free(p, f, gather_observed(p), r, err, errlen);
   uint64_t stamp = 0;
   if (nocc < 0 || label_occupied(p, f, prompts, k, (size_t)nocc, &stamp, r, err, errlen)) return -1;
   r->unknown = p->nvox - r->labelled - r->free_voxels;
+  const struct vlff_hold_stats *hs = vlff_hold_stats(p->hold);
+  r->flips = hs->changed, r->flips_elsewhere = hs->changed_elsewhere, r->mapped_elsewhere = hs->mapped_elsewhere;
   struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
   memcpy(grid.origin, p->origin, sizeof grid.origin);
   memcpy(grid.dims, p->dims, sizeof grid.dims);

@@ -11,6 +11,10 @@
  * them, so the feature is read on the surface rather than in the air at the
  * voxel centre.
  *
+ * A voxel's published label changes only when a keyframe observed it since
+ * it was last labelled, or when its new label wins by more than
+ * publish.label_hysteresis (hold.h); the result counts the flips.
+ *
  * The 2D label image is made at the latest keyframe's pose. With
  * publish.label_image: surface, a pixel with measured depth gets the label
  * of the field's feature (and evidence) at that measured surface point,
@@ -39,6 +43,11 @@ struct vlff_publish_result {
   double miou2d, miou3d; /* the source's observer's scores (source.h), -1 when not available */
   long long miou2d_frame; /* the frame id of the label image miou2d scored, -1 when none */
   size_t labelled, free_voxels, unknown;
+  /* Voxels whose label differs from the previous publish's; of those,
+   * the ones no keyframe observed since (flips_elsewhere), among the
+   * mapped_elsewhere voxels labelled before and not observed since
+   * (hold.h: labels held within publish.label_hysteresis). */
+  size_t flips, flips_elsewhere, mapped_elsewhere;
 };
 
 /* From the publish section, the map segment's shm keys and the field's

@@ -187,6 +187,9 @@ void do_publish(struct vlff_node *n) {
   n->st.miou2d = r.miou2d;
   n->st.miou2d_frame = r.miou2d_frame;
   n->st.miou3d = r.miou3d;
+  n->st.label_flips = (long long)r.flips;
+  n->st.label_flips_elsewhere += (long long)r.flips_elsewhere;
+  n->st.label_mapped_elsewhere += (long long)r.mapped_elsewhere;
   n->st.frame_to_map_ms_p50 = p50;
   n->st.frame_to_map_ms_p99 = p99;
   pthread_mutex_unlock(&n->slock);

@@ -23,6 +23,12 @@
  * the final loop published no label image near (keyframes refused there)
  * are left out. VLFF_BENCH_TRACE=FILE writes every sample: seconds, frame
  * id, 2D mIoU, the same views' final mIoU.
+ *
+ * label_flip_frac: over the final window (from `seconds` - 15 s to the
+ * end), the share of the labelled voxels no keyframe observed between two
+ * consecutive publishes whose published label changed all the same (the
+ * node's label_flips_elsewhere / label_mapped_elsewhere: the camera looked
+ * elsewhere), on its own RESULT line.
  */
 #include <math.h>
 #include <signal.h>
@@ -156,6 +162,7 @@ int main(int argc, char **argv) {
    * than sim.rate_hz must still give every view). Run until it is whole,
    * or for one loop's time (twice, for a slow simulator) after `seconds`. */
   long long id_c = -1;
+  long long flips0 = -1, mapped0 = 0; /* the flip counts where the final window starts */
   for (;;) {
     double t = mono_s() - t0;
     bool final_done = id_c >= 0 && ns > 0 && fr[ns - 1] >= id_c + loop_n / 2;
@@ -167,6 +174,7 @@ int main(int argc, char **argv) {
     fr[ns] = st.miou2d_frame;
     m2[ns++] = st.miou2d;
     if (id_c < 0 && ts[ns - 1] >= seconds && st.miou2d_frame >= 0) id_c = st.miou2d_frame;
+    if (flips0 < 0 && ts[ns - 1] >= seconds - half) flips0 = st.label_flips_elsewhere, mapped0 = st.label_mapped_elsewhere;
     if (ns % 10 == 0)
       printf("t=%5.1f s  it %lld  kf %d  2D mIoU %.1f  3D mIoU %.1f\n", ts[ns - 1], st.iteration, st.keyframes,
              st.miou2d, st.miou3d);
@@ -242,5 +250,9 @@ int main(int argc, char **argv) {
          "miou2d_vs_raw=%.2f miou3d=%.1f time_to_useful_same_view_s=%.1f\n",
          useful, seconds, final, st.frame_to_map_ms_p99, peak_rss_kb() / 1024.0, raw, raw > 0 ? final / raw : 0,
          st.miou3d, useful_sv);
+  long long dm = st.label_mapped_elsewhere - (flips0 < 0 ? 0 : mapped0);
+  long long df = st.label_flips_elsewhere - (flips0 < 0 ? 0 : flips0);
+  printf("label flips without new evidence: %lld of %lld labelled voxels over the final window\n", df, dm);
+  printf("RESULT label_flip_frac=%.4f\n", dm > 0 ? (double)df / (double)dm : -1.0);
   return 0;
 }

@@ -18,7 +18,7 @@ for sc in ${VLFF_NODE_SCENES:-room flat}; do
     flat) log=$(VLFF_BENCH_CONFIG=$here/node-flat.yaml "$exe" | tee /dev/stderr) ;;
     *) echo "node.sh: unknown scene '$sc'" >&2; exit 1 ;;
   esac
-  kv=$(grep '^RESULT ' <<<"$log" | sed 's/^RESULT //')
+  kv=$(grep '^RESULT ' <<<"$log" | sed 's/^RESULT //' | tr '\n' ' ')
   if [[ $sc == room ]]; then res="$res $kv"
   else for p in $kv; do res="$res ${p%%=*}_$sc=${p#*=}"; done; fi
 done

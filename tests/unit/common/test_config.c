@@ -67,6 +67,7 @@ static const struct {
   {"train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ", "expected one of depth|uniform, got 'random'"},
   {"sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat, got 'house'"},
   {"sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'"},
+  {"publish:\n  label_hysteresis: 2.5\n", "t.yaml:2:21: key 'publish.label_hysteresis': ", "expected number in [0, 2], got '2.5'"},
   {"node:\n  state_dir: [a, b]\n", "t.yaml:2:14: key 'node.state_dir': ", "expected string, got a sequence"},
   {"can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n", "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes"},
   {"field:\n  scene_min: [1, 2]\n", "t.yaml:2:14: key 'field.scene_min': ", "expected sequence of 3 numbers, got a sequence"},
