@@ -80,6 +80,7 @@ struct vlff_node_status {
   double it_per_s;
   int keyframes;
   long long keyframes_evicted;
+  long long keyframes_retired;  /* dropped because newer depth saw through what they show */
   long long frames_in;          /* frames read from the ring */
   long long frames_lost;        /* lapped or torn in the ring */
   long long frames_invalid;     /* refused, all reasons: the sum of refused[] */

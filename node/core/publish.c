@@ -83,6 +83,14 @@ struct vlff_publisher {
   double last_publish_s, last_heartbeat_s;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
   uint64_t hold_prompts;  /* a hash of the prompt embeddings the held labels index */
+  /* Seen through (publish.h, "Depth that passes through"): per voxel, flags
+   * of the view being observed (THRU_*) and the run of views whose rays
+   * passed through it without ending in it (low bits); the voxels the view
+   * touched, listed once each. */
+  uint8_t *thru;
+  uint32_t *thru_list;
+  size_t nthru;
+  long long cleared; /* surfaces seen through since create */
 };
 
 
@@ -91,6 +99,7 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   vlff_map_detach(p->map);
   vlff_evidence_destroy(p->ev);
   vlff_hold_destroy(p->hold);
+  VLFF_FREE_ALL(p->thru, p->thru_list);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
                 p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
@@ -144,6 +153,8 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
   p->hold = vlff_hold_create(n, pub->label_hysteresis);
+  p->thru = calloc(n, 1);
+  p->thru_list = malloc(n * sizeof *p->thru_list);
   p->D = field->feature_dim;
   p->ev_budget = (size_t)pub->evidence_max_mb << 20; /* also bounds a saved map's evidence read without it */
   if (pub->evidence_weight > 0) {
@@ -162,7 +173,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
-      !p->sel_lab || !p->hold) {
+      !p->sel_lab || !p->hold || !p->thru || !p->thru_list) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
     return NULL;
@@ -356,6 +367,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   }
   memcpy(p->observed, g, n);
   vlff_hold_reset(p->hold);
+  memset(p->thru, 0, n);
   memcpy(p->hits, g + n, n * 2);
   memcpy(p->hit_sum, g + n * 3, n * 12);
   rc = 0;
@@ -373,6 +385,7 @@ void vlff_publisher_reset(struct vlff_publisher *p) {
   p->ev_full_said = p->ev_overflow_said = false;
   p->lost_mask = 0;
   vlff_hold_reset(p->hold);
+  memset(p->thru, 0, p->nvox);
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
   memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
@@ -424,15 +437,71 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
            vlff_evidence_capacity(p->ev), what);
 }
 
+enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_RUN = 0x03 };
+
+/* Voxel vi gets flag f from the view being observed. */
+static void thru_mark(struct vlff_publisher *p, size_t vi, uint8_t f) {
+  if (!(p->thru[vi] & THRU_LISTED)) p->thru[vi] |= THRU_LISTED, p->thru_list[p->nthru++] = (uint32_t)vi;
+  p->thru[vi] |= f;
+}
+
+/* The view is observed: a voxel its rays passed through, well in front of
+ * where they ended, and that none of them ended in, is seen through once
+ * more; seen through by two views in a row, its measured surface is gone
+ * (the thing moved or was taken away). A view that ends a ray in it starts
+ * the run over. Two views, not one: a single view's holes and noise must
+ * not erase a surface. */
+static void thru_commit(struct vlff_publisher *p) {
+  for (size_t k = 0; k < p->nthru; k++) {
+    size_t vi = p->thru_list[k];
+    uint8_t t = p->thru[vi], run = t & THRU_RUN;
+    if (t & THRU_HIT) run = 0;
+    else if ((t & THRU_PASSED) && run < THRU_RUN) run++;
+    if (run >= 2 && p->hits[vi]) {
+      p->hits[vi] = 0;
+      memset(p->hit_sum + vi * 3, 0, 3 * sizeof *p->hit_sum);
+      p->cleared++;
+    }
+    p->thru[vi] = run;
+  }
+  p->nthru = 0;
+}
+
+/* Seen through by the last two views or more that reached it, and no
+ * surface measured in it since: free, whatever the field's density says
+ * (the field still holds what was there until training forgets it). */
+static bool seen_through(const struct vlff_publisher *p, size_t vi) { return (p->thru[vi] & THRU_RUN) >= 2; }
+
 /* A measured surface point hp in voxel vi (< 0: outside the map). */
 static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
   if (vi < 0) return;
+  thru_mark(p, (size_t)vi, THRU_HIT);
   p->observed[vi] = 1;
   vlff_hold_observed(p->hold, (size_t)vi);
   if (p->hits[vi] < UINT16_MAX) {
     p->hits[vi]++;
     for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
   }
+}
+
+long long vlff_publisher_cleared(const struct vlff_publisher *p) { return p->cleared; }
+
+bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vlff_view *v) {
+  if (!v->depth) return false;
+  size_t n = 0, through = 0;
+  /* Every fourth pixel each way: a moved object covers thousands of them. */
+  for (int y = 1; y < v->height; y += 4)
+    for (int x = 1; x < v->width; x += 4) {
+      float d = v->depth[(size_t)y * v->width + x];
+      if (!(d > 0) || !isfinite(d)) continue;
+      double hp[3];
+      vlff_unproject(v->c2w, v->fx, v->fy, v->cx, v->cy, x + 0.5, y + 0.5, d, hp);
+      long vi = voxel_of(p, hp);
+      if (vi < 0) continue;
+      n++;
+      through += !p->hits[vi] && seen_through(p, (size_t)vi);
+    }
+  return through >= 8 && through * 50 >= n;
 }
 
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
@@ -465,6 +534,10 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
        * surface voxel is a hit, not free), only where the ray is inside
        * the map: samples outside it would mark nothing. */
       double steps = floor((len - h) / h), t0 = 0, t1 = 1;
+      /* Only the part of the ray the depth's noise cannot reach clears
+       * (thru_commit): up to two voxels or a tenth of its length, whichever
+       * is more, before its end. */
+      const double clear_to = (len - fmax(2 * p->voxel, 0.1 * len)) / h;
       if (x % stride == 0 && y % stride == 0 && steps > 0 && clip_to_map(p, o, w, &t0, &t1)) {
         double s0 = fmax(0, ceil(t0 * len / h)), s1 = fmin(steps, floor(t1 * len / h) + 1);
         if (s1 - s0 > max_steps) s1 = s0 + max_steps;
@@ -472,7 +545,10 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
           double t = s / (len / h);
           double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
           long vi = voxel_of(p, q);
-          if (vi >= 0) p->observed[vi] = 1, vlff_hold_observed(p->hold, (size_t)vi);
+          if (vi >= 0) {
+            p->observed[vi] = 1, vlff_hold_observed(p->hold, (size_t)vi);
+            if (s <= clear_to) thru_mark(p, (size_t)vi, THRU_PASSED);
+          }
         }
       }
       long vi = voxel_of(p, hp);
@@ -487,6 +563,7 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
       long vb = voxel_of(p, b);
       if (vb != vi) add_hit(p, vb, hp);
     }
+  thru_commit(p);
   if (!p->ev) return 0;
   if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;
   say_budget(p, &p->ev_full_said, vlff_evidence_evicted(p->ev), VLFF_LOG_INFO,
@@ -596,7 +673,7 @@ static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq,
   size_t nocc = 0;
   for (size_t j = 0; j < nq; j++) {
     size_t i = p->qidx[j];
-    if (p->hits[i] > 0 || p->qdens[j] >= p->free_density) {
+    if (p->hits[i] > 0 || (p->qdens[j] >= p->free_density && !seen_through(p, i))) {
       /* Compacted in place: nocc <= j. */
       memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
       p->qidx[nocc++] = i;

@@ -75,6 +75,17 @@ int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *
 /* True when measured depth of admitted keyframes already ended in the voxel
  * holding world point x (at least twice): a surface the map has seen. */
 bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]);
+/* Depth that passes through: a voxel that the rays of two views in a row
+ * passed through (well in front of their measured ends: two voxels or a
+ * tenth of the ray, whichever is more) without any of them ending in it
+ * loses its measured surface and is published FREE whatever the field's
+ * density there, until a ray ends in it again. cleared(): surfaces lost so
+ * since create. contradicted(): a stored view (a keyframe) whose measured
+ * points end, at 2 % of them or more (at least 8 of every fourth pixel each
+ * way), in voxels newer depth has seen through: it shows what is no longer
+ * there. */
+long long vlff_publisher_cleared(const struct vlff_publisher *p);
+bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vlff_view *v);
 /* The observation grids (what measured depth has seen) are learned state
  * too: saved beside each field checkpoint so a restarted node publishes the
  * same map at once. Save is atomic; load refuses a file of another grid,
