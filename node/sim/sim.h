@@ -23,6 +23,12 @@
  *    furniture); VLFF_SIM_UNLABELLED (255) marks the ceiling and misses.
  *  - Features are IEEE float16 bits, HWC, D = field.feature_dim, not
  *    normalised (like LSeg's raw output).
+ *  - A changing world (sim.changes, docs/sim.md): at each change's time_s
+ *    an object (a class name, or class#n for the n-th of that class as
+ *    built) moves (its footprint's centre to `to`, x y), is removed, or is
+ *    added (absent before; at `to`, or where it was built). A frame renders
+ *    the scene at its own time (index / sim.rate_hz): RGB, depth, labels and
+ *    features alike, so ground truth moves with the object.
  *
  * Contract
  *  - Functions returning int give 0 on success, -1 on error with a message
@@ -94,9 +100,12 @@ void vlff_sim_class_counts(const struct vlff_sim *s, int counts[VLFF_SIM_CLASSES
 
 /* Exact ray cast from world point o along direction d (need not be unit):
  * returns the hit parameter t (point = o + t d) or -1 when nothing is hit,
- * and the hit's class id and unit normal facing the ray (either may be NULL). */
+ * and the hit's class id and unit normal facing the ray (either may be NULL).
+ * In the scene at sim time 0; _at: at time_s (sim.changes). */
 double vlff_sim_raycast(const struct vlff_sim *s, const double o[3], const double d[3],
                         int *label, double normal[3]);
+double vlff_sim_raycast_at(const struct vlff_sim *s, double time_s, const double o[3], const double d[3], int *label,
+                           double normal[3]);
 
 /* The class name of id c (0..19), or NULL. */
 const char *vlff_sim_class_name(int c);
@@ -114,7 +123,8 @@ void vlff_sim_prototype(const struct vlff_sim *s, int c, float *out);
 
 /* A ground-truth labelled point set for 3D evaluation: surface points seen
  * from frames 0, step, 2 step, ... < nframes (exact depth), one per cubic
- * voxel of `voxel` metres. xyz [n][3], label [n] (255 = unlabelled). */
+ * voxel of `voxel` metres, in the scene as it stands at frame nframes - 1
+ * (sim.changes). xyz [n][3], label [n] (255 = unlabelled). */
 struct vlff_sim_points {
   size_t n;
   float *xyz;
