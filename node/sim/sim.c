@@ -841,6 +841,12 @@ static double cast(const struct sim_world *s, const double o[3], const double d[
 
 static const struct sim_world *world_at(const struct vlff_sim *s, double t);
 
+long long vlff_sim_stream_frame(const struct vlff_sim *s, long long id) {
+  if (s->cfg.change_count > 0) return id;
+  long long f = id % s->cfg.frames;
+  return f < 0 ? f + s->cfg.frames : f;
+}
+
 double vlff_sim_raycast(const struct vlff_sim *s, const double o[3], const double d[3],
                         int *label, double normal[3]) {
   return vlff_sim_raycast_at(s, 0, o, d, label, normal);
@@ -868,7 +874,8 @@ static const struct sim_world *world_at(const struct vlff_sim *s, double t) {
  * object holding a primitive of that class, in the order the scene was
  * built. Its id, or -1 with err naming the change. */
 static int find_object(const struct vlff_sim *s, int ci, const char *name, char *err, size_t errlen) {
-  char cls[VLFF_SIM_OBJECT_LEN];
+  char cls[VLFF_SIM_OBJECT_LEN], what[48] = "object";
+  if (ci >= 0) snprintf(what, sizeof what, "sim.changes[%d].object", ci);
   snprintf(cls, sizeof cls, "%s", name);
   long nth = 1;
   char *hash = strchr(cls, '#');
@@ -877,15 +884,15 @@ static int find_object(const struct vlff_sim *s, int ci, const char *name, char 
     *hash = 0;
     nth = strtol(hash + 1, &end, 10);
     if (end == hash + 1 || *end || nth < 1 || nth > 10000) {
-      vlff_errf(err, errlen, "sim: sim.changes[%d].object '%s': expected class#n with n a whole number from 1", ci,
+      vlff_errf(err, errlen, "sim: %s '%s': expected class#n with n a whole number from 1", what,
                 VLFF_Q(name));
       return -1;
     }
   }
   int c = vlff_sim_class_of(cls);
   if (c < 0) {
-    vlff_errf(err, errlen, "sim: sim.changes[%d].object '%s': '%s' is not a class of the simulator (wall, chair, "
-                           "table, ...)", ci, VLFF_Q(name), VLFF_Q(cls));
+    vlff_errf(err, errlen, "sim: %s '%s': '%s' is not a class of the simulator (wall, chair, "
+                           "table, ...)", what, VLFF_Q(name), VLFF_Q(cls));
     return -1;
   }
   int seen = 0, last = -1;
@@ -896,7 +903,7 @@ static int find_object(const struct vlff_sim *s, int ci, const char *name, char 
     last = s->prims[i].obj;
     if (!before && ++seen == nth) return s->prims[i].obj;
   }
-  vlff_errf(err, errlen, "sim: sim.changes[%d].object '%s': this scene has %d %s object%s", ci, VLFF_Q(name), seen,
+  vlff_errf(err, errlen, "sim: %s '%s': this scene has %d %s object%s", what, VLFF_Q(name), seen,
             VLFF_Q(cls), seen == 1 ? "" : "s");
   return -1;
 }
@@ -1499,6 +1506,20 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
   free(cosview);
   free(primbuf);
   free(scratch);
+  return 0;
+}
+
+int vlff_sim_object_box(const struct vlff_sim *s, const char *name, double time_s, double lo[3], double hi[3],
+                        char *err, size_t errlen) {
+  int o = find_object(s, -1, name, err, errlen);
+  if (o < 0) return -1;
+  const struct sim_world *w = world_at(s, time_s);
+  for (int k = 0; k < 3; k++) lo[k] = INFINITY, hi[k] = -INFINITY;
+  for (int i = 0; i < s->nprims; i++)
+    for (int k = 0; k < 3 && s->prims[i].obj == o; k++)
+      lo[k] = fmin(lo[k], w->prims[i].lo[k]), hi[k] = fmax(hi[k], w->prims[i].hi[k]);
+  for (int i = 0; i < w->count; i++)
+    if (w->prims[w->order[i]].obj == o) return 1;
   return 0;
 }
 

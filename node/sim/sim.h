@@ -88,6 +88,19 @@ void vlff_sim_frame_free(struct vlff_sim_frame *f);
 int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
                     struct vlff_sim_frame *f, char *err, size_t errlen);
 
+/* The scene frame a stream's frame id (>= 0) shows: the id modulo
+ * sim.frames (the walk repeats), or the id itself with sim.changes, so that
+ * the scene's time runs on and each change happens once. vlff-sim's stream
+ * and the node's sim source agree through it. */
+long long vlff_sim_stream_frame(const struct vlff_sim *s, long long id);
+
+/* The box (world AABB) of the object `name` (as sim.changes names it) at
+ * sim time time_s: 1 when it is present then, 0 when absent (removed, or
+ * not added yet; the box is where it was last), -1 with err for a name the
+ * scene does not have. */
+int vlff_sim_object_box(const struct vlff_sim *s, const char *name, double time_s, double lo[3], double hi[3],
+                        char *err, size_t errlen);
+
 /* The camera of frame `index` without rendering it. */
 void vlff_sim_pose(const struct vlff_sim *s, long long index, double c2w[16]);
 void vlff_sim_intrinsics(const struct vlff_sim *s, double *fx, double *fy, double *cx, double *cy);
