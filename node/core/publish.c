@@ -437,7 +437,11 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
            vlff_evidence_capacity(p->ev), what);
 }
 
-enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_RUN = 0x03 };
+enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_GONE = 0x10, THRU_NEW = 0x08, THRU_RUN = 0x03 };
+/* A voxel whose measured surface this many rays had ended in before it was
+ * seen through held a thing (THRU_GONE), not the depth's stray points in
+ * front of a far surface, which newer views rightly see through too. */
+enum { GONE_HITS = 8 };
 
 /* Voxel vi gets flag f from the view being observed. */
 static void thru_mark(struct vlff_publisher *p, size_t vi, uint8_t f) {
@@ -454,17 +458,41 @@ static void thru_mark(struct vlff_publisher *p, size_t vi, uint8_t f) {
 static void thru_commit(struct vlff_publisher *p) {
   for (size_t k = 0; k < p->nthru; k++) {
     size_t vi = p->thru_list[k];
-    uint8_t t = p->thru[vi], run = t & THRU_RUN;
-    if (t & THRU_HIT) run = 0;
+    uint8_t t = p->thru[vi], run = t & THRU_RUN, gone = t & THRU_GONE;
+    if (t & THRU_HIT) run = 0, gone = 0;
     else if ((t & THRU_PASSED) && run < THRU_RUN) run++;
     if (run >= 2 && p->hits[vi]) {
+      if (p->hits[vi] >= GONE_HITS) gone = THRU_GONE, p->cleared++;
       p->hits[vi] = 0;
       memset(p->hit_sum + vi * 3, 0, 3 * sizeof *p->hit_sum);
-      p->cleared++;
     }
-    p->thru[vi] = run;
+    p->thru[vi] = run | gone | (t & THRU_NEW);
   }
   p->nthru = 0;
+}
+
+/* A surface where rays had only passed before (a thing moved or put
+ * there, THRU_NEW) is read from the evidence alone until this many rays
+ * ended in it: the field's trust there (its exposure, vlff_field_exposure)
+ * counts the rays that ended on what stood there before (the floor under
+ * the chair), and its feature is that one's until training catches up. */
+enum { NEW_HITS = 64 };
+
+static bool new_surface(const struct vlff_publisher *p, long vi) {
+  return vi >= 0 && (p->thru[vi] & THRU_NEW) && p->hits[vi] < NEW_HITS;
+}
+
+/* A ray (o + t w, |w| = len) through voxel vi with a measured surface
+ * passes through that surface, not beside it: within 0.3 voxel of its
+ * measured points' mean. A voxel an object's edge or a leg fills in part is
+ * crossed beside the surface by views that see past the edge; those
+ * rays say nothing about the surface. */
+static bool through_surface(const struct vlff_publisher *p, size_t vi, const double o[3], const double w[3],
+                            double len) {
+  double m[3], c[3];
+  for (int i = 0; i < 3; i++) m[i] = p->hit_sum[vi * 3 + i] / p->hits[vi] - o[i];
+  c[0] = m[1] * w[2] - m[2] * w[1], c[1] = m[2] * w[0] - m[0] * w[2], c[2] = m[0] * w[1] - m[1] * w[0];
+  return sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) < 0.3 * p->voxel * len;
 }
 
 /* Seen through by the last two views or more that reached it, and no
@@ -475,6 +503,8 @@ static bool seen_through(const struct vlff_publisher *p, size_t vi) { return (p-
 /* A measured surface point hp in voxel vi (< 0: outside the map). */
 static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
   if (vi < 0) return;
+  /* Free space before this view (observed, no surface): a new surface. */
+  if (p->observed[vi] && !p->hits[vi] && !(p->thru[vi] & THRU_LISTED)) p->thru[vi] |= THRU_NEW;
   thru_mark(p, (size_t)vi, THRU_HIT);
   p->observed[vi] = 1;
   vlff_hold_observed(p->hold, (size_t)vi);
@@ -499,9 +529,9 @@ bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vl
       long vi = voxel_of(p, hp);
       if (vi < 0) continue;
       n++;
-      through += !p->hits[vi] && seen_through(p, (size_t)vi);
+      through += !p->hits[vi] && (p->thru[vi] & THRU_GONE);
     }
-  return through >= 8 && through * 50 >= n;
+  return through >= 16 && through * 20 >= n;
 }
 
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
@@ -547,7 +577,8 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
           long vi = voxel_of(p, q);
           if (vi >= 0) {
             p->observed[vi] = 1, vlff_hold_observed(p->hold, (size_t)vi);
-            if (s <= clear_to) thru_mark(p, (size_t)vi, THRU_PASSED);
+            if (s <= clear_to && (!p->hits[vi] || through_surface(p, (size_t)vi, o, w, len)))
+              thru_mark(p, (size_t)vi, THRU_PASSED);
           }
         }
       }
@@ -586,6 +617,10 @@ static int label_points(struct vlff_publisher *p, struct vlff_field *f, const fl
     size_t m = n - a < QBLOCK ? n - a : QBLOCK;
     if (vlff_field_query_cosines(f, xyz + 3 * a, m, p->qcos)) return -1;
     vlff_field_exposure(f, xyz + 3 * a, m, p->qrays);
+    for (size_t j = 0; j < m; j++) {
+      const float *x = xyz + 3 * (a + j);
+      if (new_surface(p, voxel_of(p, (const double[3]){x[0], x[1], x[2]}))) p->qrays[j] = 0;
+    }
     vlff_evidence_label(p->ev, xyz + 3 * a, m, p->qcos, p->qrays, p->trust_rays, E, K, stamp, p->ev_weight, lab + a,
                         score ? score + a : NULL, margin ? margin + a : NULL);
   }

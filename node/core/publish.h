@@ -77,13 +77,18 @@ int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *
 bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]);
 /* Depth that passes through: a voxel that the rays of two views in a row
  * passed through (well in front of their measured ends: two voxels or a
- * tenth of the ray, whichever is more) without any of them ending in it
+ * tenth of the ray, whichever is more; through its measured surface, within
+ * 0.3 voxel of its points' mean, where it has one) without any of them
+ * ending in it
  * loses its measured surface and is published FREE whatever the field's
- * density there, until a ray ends in it again. cleared(): surfaces lost so
- * since create. contradicted(): a stored view (a keyframe) whose measured
- * points end, at 2 % of them or more (at least 8 of every fourth pixel each
- * way), in voxels newer depth has seen through: it shows what is no longer
- * there. */
+ * density there, until a ray ends in it again. cleared(): surfaces of at
+ * least 8 measured points (a thing, not the depth's stray points in front
+ * of a far surface) lost so since create. contradicted(): a stored view (a
+ * keyframe) whose measured points end, at 5 % of them or more (at least 16
+ * of every fourth pixel each way), in such lost surfaces: it shows what is
+ * no longer there. A surface where only rays had passed before is labelled
+ * from the evidence alone until 64 rays ended in it (the field's trust
+ * there counts what stood there before). */
 long long vlff_publisher_cleared(const struct vlff_publisher *p);
 bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vlff_view *v);
 /* The observation grids (what measured depth has seen) are learned state

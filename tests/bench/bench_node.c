@@ -430,7 +430,8 @@ int main(int argc, char **argv) {
          st.miou3d, useful_sv);
   long long dm = st.label_mapped_elsewhere - (flips0 < 0 ? 0 : mapped0);
   long long df = st.label_flips_elsewhere - (flips0 < 0 ? 0 : flips0);
-  printf("label flips without new evidence: %lld of %lld labelled voxels over the final window\n", df, dm);
+  printf("label flips without new evidence: %lld of %lld labelled voxels over the final window; %lld keyframes "
+         "retired (newer depth saw through them)\n", df, dm, st.keyframes_retired);
   printf("RESULT label_flip_frac=%.4f\n", dm > 0 ? (double)df / (double)dm : -1.0);
   if (cw.on) {
     printf("change: the map had the chair as label %d at %d points before the move; both places seen at %.1f s; the "
