@@ -168,6 +168,12 @@ static void emit(struct vlff_pair *p, const struct held *c, const struct held *d
 
 static uint64_t dist(uint64_t a, uint64_t b) { return a > b ? a - b : b - a; }
 
+/* A stream whose device-to-host offset comes from one frame alone (its
+ * first, or its first after a clock reset): that offset is that frame's
+ * delay, which at a stream's start is often long (a camera sends its first
+ * frame at once when acquisition starts, or late). */
+static bool young(const struct fifo *q) { return q->noff == 1; }
+
 /* The device-to-host offset of q's stream: the smallest host - device of the
  * latest frames; a jump of more than a second (the camera's clock reset, a
  * reconnect) starts the window afresh. */
@@ -230,6 +236,11 @@ static void match(struct vlff_pair *p) {
         emit(p, c, d);
         pop(&p->color), pop(&p->depth);
       }
+    } else if (fr && (young(&p->color) || young(&p->depth)) && p->color.n < 3 && p->depth.n < 3) {
+      /* Too far apart by an offset from one frame: the next frame of that
+       * stream gives its true offset, which may bring the two together.
+       * Bounded: either stream holding three frames decides. */
+      break;
     } else if (tc < td) {
       drop_oldest(p, &p->color);
     } else {

@@ -16,7 +16,11 @@
  *    that a frame delayed on its way (scheduling, the network) still pairs;
  *    a pair waits for the earlier frame's successor, which could be nearer
  *    (a camera starting up sends frames closer than its period), unless
- *    the later frame's stream holds two more frames meanwhile.
+ *    the later frame's stream holds two more frames meanwhile; two frames
+ *    too far apart while either stream's offset comes from one frame alone
+ *    (its first, often late: a camera sends it when acquisition starts)
+ *    wait for that stream's next frame, which gives its true offset,
+ *    unless either stream holds three frames.
  * The config check keeps pair_tolerance_s under half of either camera's
  * frame period, so at most one frame of each stream can qualify: frames are
  * never paired wrongly (and a camera running faster than configured still

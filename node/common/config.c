@@ -69,7 +69,7 @@ static const char *const feat_losses[] = {"l2", "l1", "cos", NULL};
 static const char *const samplings[] = {"depth", "uniform", NULL};
 static const char *const label_images[] = {"surface", "render", NULL};
 static const char *const trajectories[] = {"walk", "orbit", NULL};
-static const char *const sim_layouts[] = {"room", "flat", NULL};
+static const char *const sim_layouts[] = {"room", "flat", "building", NULL};
 static const char *const camera_kinds[] = {"aravis", "libcamera", NULL};
 static const char *const trigger_modes[] = {"freerun", "software", "hardware", NULL};
 static const char *const gpio_modes[] = {"off", "output", "input", NULL};
@@ -77,6 +77,17 @@ static const char *const depth_kinds[] = {"none", "stream", "stereo", NULL};
 static const char *const depth_units[] = {"mm", "m", NULL};
 static const char *const depth_camera_kinds[] = {"none", "aravis", NULL};
 
+static const char *const dds_reliabilities[] = {"best_effort", "reliable", NULL};
+static const char *const dds_durabilities[] = {"volatile", "transient_local", NULL};
+/* A DDS topic's switch and QoS: dds.<name>, dds.qos.<name>.{reliability,
+ * durability,depth}. A history deeper than 1000 samples holds more of a
+ * map or image stream than a robot's memory wants. */
+#define DDS_TOPIC(name, i, def_on, rel, dur, hist)                                                                         \
+  BOOL("dds." name, dds.on[i], def_on), ENUM("dds.qos." name ".reliability", dds.qos[i].reliability, dds_reliabilities, rel), \
+      ENUM("dds.qos." name ".durability", dds.qos[i].durability, dds_durabilities, dur),                                  \
+      INT("dds.qos." name ".depth", dds.qos[i].depth, 1, 1000, hist)
+
+static const double merge_bounds_def[6] = {-10, -10, -2, 10, 10, 4};
 static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
 static const double zero4[4] = {0, 0, 0, 0};
@@ -193,6 +204,7 @@ static const struct key schema[] = {
     DBL("sim.difficulty", sim.difficulty, 0, 1, 0.5),
     ENUM("sim.trajectory", sim.trajectory, trajectories, "walk"),
     ENUM("sim.layout", sim.layout, sim_layouts, "room"),
+    INT("sim.flats", sim.flats, 2, 8, 3),
     DBL("sim.object_bias", sim.object_bias, 0, 1, 0),
     DBL("sim.speed_mps", sim.speed_mps, 0.01, 10, 0.4),
     DBL("sim.depth_noise_m", sim.depth_noise_m, 0, 1, 0.01),
@@ -365,21 +377,36 @@ static const struct key schema[] = {
     INT("dds.domain_id", dds.domain_id, 0, 232, 0),
     STR("dds.namespace", dds.ns, ""),
     STR("dds.frame_id", dds.frame_id, "map"),
-    BOOL("dds.map", dds.map, 1),
-    BOOL("dds.status", dds.status, 1),
-    BOOL("dds.prompts_in", dds.prompts_in, 1),
+    STR("dds.camera_frame_id", dds.camera_frame_id, "camera"),
+    DDS_TOPIC("map", VLFF_DDS_MAP, 1, "reliable", "transient_local", 1),
+    DDS_TOPIC("status", VLFF_DDS_STATUS, 1, "reliable", "volatile", 10),
+    DDS_TOPIC("prompts_in", VLFF_DDS_PROMPTS_IN, 1, "reliable", "volatile", 10),
+    DDS_TOPIC("prompts", VLFF_DDS_PROMPTS, 1, "reliable", "transient_local", 1),
+    DDS_TOPIC("label_image", VLFF_DDS_LABEL_IMAGE, 1, "reliable", "volatile", 1),
+    DDS_TOPIC("label_image_compressed", VLFF_DDS_LABEL_IMAGE_COMPRESSED, 0, "reliable", "volatile", 1),
+    DDS_TOPIC("camera_image", VLFF_DDS_CAMERA_IMAGE, 1, "reliable", "volatile", 1),
+    DDS_TOPIC("camera_image_compressed", VLFF_DDS_CAMERA_IMAGE_COMPRESSED, 0, "reliable", "volatile", 1),
+    DDS_TOPIC("camera_info", VLFF_DDS_CAMERA_INFO, 1, "reliable", "volatile", 1),
+    DDS_TOPIC("tf", VLFF_DDS_TF, 1, "reliable", "volatile", 10),
     DBL("dds.status_hz", dds.status_hz, 0.01, 100, 1),
     DBL("dds.poll_hz", dds.poll_hz, 1, 1000, 20),
+    DBL("dds.image_hz", dds.image_hz, 0.01, 60, 2),
     DBL("dds.prompt_rate_hz", dds.prompt_rate_hz, 0.01, 100, 2),
     /* A JSON list of 32 prompts of 63 bytes, each \u-escaped at worst
      * (6 bytes per byte), fits 16 KiB; the default takes plainly written ones. */
     INT("dds.max_prompt_bytes", dds.max_prompt_bytes, 64, 16384, 4096),
+    INT("dds.jpeg_quality", dds.jpeg_quality, 1, 100, 80),
+    STR("dds.merge.map", dds.merge.map, "/vlff-fleet"),
+    STR("dds.merge.namespace", dds.merge.ns, "/fleet"),
+    DVEC("dds.merge.bounds", dds.merge.bounds, -1e5, 1e5, merge_bounds_def),
+    DBL("dds.merge.voxel_size_m", dds.merge.voxel_size_m, 0.01, 10, 0.1),
 };
 
 #define NKEYS (sizeof schema / sizeof schema[0])
 
 /* prompts.sets is the one structured key: a sequence of {name, prompts}. */
 static const char PROMPT_SETS[] = "prompts.sets";
+static const char MERGE_ROBOTS[] = "dds.merge.robots";
 
 static const char *const default_prompts[] = {
     "wall",   "floor",   "cabinet", "bed",      "chair",        "sofa",           "table",
@@ -426,6 +453,7 @@ struct parse {
   const yaml_node_t *where[sizeof schema / sizeof schema[0]]; /* value node per key, if set */
   const yaml_node_t *key_at[sizeof schema / sizeof schema[0]]; /* its key node, as written */
   const yaml_node_t *sets_key;                                 /* prompts.sets' key, once set */
+  const yaml_node_t *robots_key;                               /* dds.merge.robots' key, once set */
   const yaml_node_t *changes_key;                              /* sim.changes' key, once set */
   const char *name;
   char *err;
@@ -700,6 +728,68 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
   return 0;
 }
 
+static const char *dds_ns_problem(const char *s);
+
+/* dds.merge.robots: a sequence of {namespace, transform: [x, y, z, yaw]}. */
+static int parse_merge_robots(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
+  char g[96];
+  got(n, g, sizeof g);
+  long count = n->type == YAML_SEQUENCE_NODE ? n->data.sequence.items.top - n->data.sequence.items.start : -1;
+  if (count < 0 || count > VLFF_MAX_MERGE_ROBOTS)
+    return fail(p, n, MERGE_ROBOTS, "expected a sequence of 0 to %d {namespace, transform}, got %s",
+                VLFF_MAX_MERGE_ROBOTS, g);
+  struct vlff_cfg_dds_merge *m = &cfg->dds.merge;
+  for (long i = 0; i < count; i++) {
+    yaml_node_t *s = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
+    struct vlff_cfg_merge_robot *r = &m->robots[i];
+    memset(r, 0, sizeof *r);
+    char path[64];
+    snprintf(path, sizeof path, "%s[%ld]", MERGE_ROBOTS, i);
+    got(s, g, sizeof g);
+    if (s->type != YAML_MAPPING_NODE) return fail(p, s, path, "expected mapping with namespace and transform, got %s", g);
+    const yaml_node_t *ns_at = NULL, *tf_at = NULL;
+    for (yaml_node_pair_t *pr = s->data.mapping.pairs.start; pr < s->data.mapping.pairs.top; pr++) {
+      yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
+      yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
+      if (has_nul(kn)) return fail_nul_key(p, kn, path);
+      const char *kname = kn->type == YAML_SCALAR_NODE ? scalar(kn) : "";
+      char sub[96];
+      snprintf(sub, sizeof sub, "%s.%s", path, kname);
+      got(vn, g, sizeof g);
+      const yaml_node_t **seen = !strcmp(kname, "namespace") ? &ns_at : !strcmp(kname, "transform") ? &tf_at : NULL;
+      if (seen && *seen) return fail(p, kn, sub, "duplicate key (first at line %u)", (unsigned)(*seen)->start_mark.line + 1);
+      if (seen) *seen = kn;
+      if (!strcmp(kname, "namespace")) {
+        const char *why = vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || !*scalar(vn) ||
+                                  strlen(scalar(vn)) >= VLFF_CFG_STR
+                              ? "a string"
+                              : dds_ns_problem(scalar(vn));
+        if (why) return fail(p, vn, sub, "expected a ROS namespace like /robot1 (%s), got %s", why, g);
+        for (long j = 0; j < i; j++)
+          if (!strcmp(m->robots[j].ns, scalar(vn))) return fail(p, vn, sub, "expected a namespace not given before, got %s", g);
+        snprintf(r->ns, sizeof r->ns, "%s", scalar(vn));
+      } else if (!strcmp(kname, "transform")) {
+        long k = vn->type == YAML_SEQUENCE_NODE ? vn->data.sequence.items.top - vn->data.sequence.items.start : -1;
+        if (k != 4) return fail(p, vn, sub, "expected [x, y, z, yaw_deg], got %s", g);
+        for (long j = 0; j < 4; j++) {
+          yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
+          double v;
+          double lim = j < 3 ? 1e5 : 360;
+          got(e, g, sizeof g);
+          if (e->type != YAML_SCALAR_NODE || parse_number(e, false, &v) || !(fabs(v) <= lim))
+            return fail(p, e, sub, "expected %s within +-%g at index %ld, got %s", j < 3 ? "metres" : "degrees", lim, j, g);
+          r->transform[j] = v;
+        }
+      } else {
+        return fail(p, kn, sub, "unknown key (expected namespace or transform)");
+      }
+    }
+    if (!ns_at) return fail(p, s, path, "expected a 'namespace', got none");
+  }
+  m->robot_count = (int)count;
+  return 0;
+}
+
 /* sim.changes: a sequence of {time_s, object, action, to}. Which objects a
  * scene has is the simulator's to say (vlff_sim_create); here each value's
  * form and physical bounds. */
@@ -842,6 +932,7 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
       if (!strcmp(schema[i].path, path)) k = &schema[i];
     if (k) first = &p->key_at[k - schema];
     if (!strcmp(path, PROMPT_SETS)) first = &p->sets_key;
+    if (!strcmp(path, MERGE_ROBOTS)) first = &p->robots_key;
     if (!strcmp(path, SIM_CHANGES)) first = &p->changes_key;
     if (first && *first) {
       char e[256];
@@ -851,6 +942,10 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
     if (first) *first = kn;
     if (!strcmp(path, PROMPT_SETS)) {
       if (parse_prompt_sets(p, vn, cfg)) return -1;
+      continue;
+    }
+    if (!strcmp(path, MERGE_ROBOTS)) {
+      if (parse_merge_robots(p, vn, cfg)) return -1;
       continue;
     }
     if (!strcmp(path, SIM_CHANGES)) {
@@ -945,16 +1040,52 @@ static const char *dds_ns_problem(const char *s) {
   }
 }
 
+static int check_frame_id(struct parse *p, const char *key, const char *f) {
+  bool ok = *f && *f != '/';
+  for (const char *c = f; ok && *c; c++) ok = isalnum((unsigned char)*c) || strchr("_-./", *c);
+  if (!ok)
+    return fail_cross(p, key, "expected a frame id of letters, digits and _-./ not starting with '/', got '%s'",
+                      VLFF_Q(f));
+  return 0;
+}
+
 static int check_dds(struct parse *p, struct vlff_config *cfg) {
   const char *why = dds_ns_problem(cfg->dds.ns);
   if (why) return fail_cross(p, "dds.namespace", "expected \"\" or a ROS namespace like /robot1 (%s), got '%s'", why,
                              VLFF_Q(cfg->dds.ns));
-  const char *f = cfg->dds.frame_id;
-  bool ok = *f && *f != '/';
-  for (const char *c = f; ok && *c; c++) ok = isalnum((unsigned char)*c) || strchr("_-./", *c);
-  if (!ok)
-    return fail_cross(p, "dds.frame_id", "expected a frame id of letters, digits and _-./ not starting with '/', got '%s'",
-                      VLFF_Q(f));
+  if (check_frame_id(p, "dds.frame_id", cfg->dds.frame_id) ||
+      check_frame_id(p, "dds.camera_frame_id", cfg->dds.camera_frame_id))
+    return -1;
+  if (!strcmp(cfg->dds.frame_id, cfg->dds.camera_frame_id))
+    return fail_cross(p, "dds.camera_frame_id", "expected a frame distinct from dds.frame_id, got the same '%s'",
+                      VLFF_Q(cfg->dds.frame_id));
+  /* A transient-local reader asks every writer for what it kept: a bridge
+   * (re)started would post again the prompt sets some writer latched. */
+  const struct vlff_cfg_dds_merge *m = &cfg->dds.merge;
+  why = dds_ns_problem(m->ns);
+  if (why || !*m->ns)
+    return fail_cross(p, "dds.merge.namespace", "expected a ROS namespace like /fleet (%s), got '%s'",
+                      why ? why : "not empty", VLFF_Q(m->ns));
+  for (int i = 0; i < m->robot_count; i++)
+    if (!strcmp(m->robots[i].ns, m->ns))
+      return fail_cross(p, "dds.merge.namespace", "expected a namespace no robot has, got '%s'", VLFF_Q(m->ns));
+  if ((why = shm_name_problem(m->map)))
+    return fail_cross(p, "dds.merge.map", "expected a POSIX shared-memory name (%s), got '%s'", why, VLFF_Q(m->map));
+  if (!strcmp(m->map, cfg->shm.map))
+    return fail_cross(p, "dds.merge.map", "expected a segment distinct from shm.map, got the same '%s'", VLFF_Q(m->map));
+  for (int a = 0; a < 3; a++)
+    if (!(m->bounds[a] < m->bounds[a + 3]))
+      return fail_cross(p, "dds.merge.bounds", "expected x0 y0 z0 below x1 y1 z1, got axis %d: %g..%g", a, m->bounds[a],
+                        m->bounds[a + 3]);
+  double voxels = 1;
+  for (int a = 0; a < 3; a++) voxels *= ceil((m->bounds[a + 3] - m->bounds[a]) / m->voxel_size_m);
+  if (voxels > (double)(64u << 20))
+    return fail_cross(p, "dds.merge.bounds", "expected at most %u voxels of dds.merge.voxel_size_m, got %.0f",
+                      64u << 20, voxels);
+  if (cfg->dds.qos[VLFF_DDS_PROMPTS_IN].durability != VLFF_DDS_VOLATILE)
+    return fail_cross(p, "dds.qos.prompts_in.durability",
+                      "expected volatile (a transient-local reader would post again, at each start, the prompt sets "
+                      "writers kept), got transient_local");
   return 0;
 }
 
@@ -1249,6 +1380,15 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
       break;
     }
     }
+  }
+  for (int r = 0; r < cfg->dds.merge.robot_count; r++) {
+    const struct vlff_cfg_merge_robot *rb = &cfg->dds.merge.robots[r];
+    fprintf(out, "%s[%d]: \"%s\" [", MERGE_ROBOTS, r, rb->ns);
+    for (int j = 0; j < 4; j++) {
+      if (j) fputs(", ", out);
+      put_double(out, rb->transform[j]);
+    }
+    fputs("]\n", out);
   }
   for (int s = 0; s < cfg->prompts.set_count; s++) {
     const struct vlff_prompt_set *set = &cfg->prompts.sets[s];

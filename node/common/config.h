@@ -77,7 +77,7 @@ enum vlff_feat_loss { VLFF_FEAT_LOSS_L2, VLFF_FEAT_LOSS_L1, VLFF_FEAT_LOSS_COS }
 enum vlff_sampling { VLFF_SAMPLING_DEPTH, VLFF_SAMPLING_UNIFORM };
 enum vlff_label_image { VLFF_LABEL_IMAGE_SURFACE, VLFF_LABEL_IMAGE_RENDER };
 enum vlff_trajectory { VLFF_TRAJ_WALK, VLFF_TRAJ_ORBIT };
-enum vlff_sim_layout { VLFF_LAYOUT_ROOM, VLFF_LAYOUT_FLAT };
+enum vlff_sim_layout { VLFF_LAYOUT_ROOM, VLFF_LAYOUT_FLAT, VLFF_LAYOUT_BUILDING };
 enum vlff_camera_kind { VLFF_CAM_ARAVIS, VLFF_CAM_LIBCAMERA };
 enum vlff_depth_camera_kind { VLFF_DCAM_NONE, VLFF_DCAM_ARAVIS };
 enum vlff_trigger_mode { VLFF_TRIG_FREERUN, VLFF_TRIG_SOFTWARE, VLFF_TRIG_HARDWARE };
@@ -144,6 +144,7 @@ struct vlff_cfg_sim {
   double difficulty;               /* 0 = clean features, 1 = very noisy */
   int trajectory;                  /* enum vlff_trajectory (room layout) */
   int layout;                      /* enum vlff_sim_layout */
+  int flats;                       /* building layout: flats off the corridor */
   double object_bias;              /* 0..1: per-object feature bias every view shares */
   double speed_mps;
   double depth_noise_m;
@@ -330,18 +331,56 @@ struct vlff_cfg_vlm {
 };
 
 /* vlff-dds: the bridge to DDS with ROS 2's wire conventions (docs/dds.md).
- * Its command-line options override these. */
+ * Its command-line options override these. Topics, in the order of on[]
+ * and qos[] (their config names: dds.<name>, dds.qos.<name>.*). */
+enum vlff_dds_topic_id {
+  VLFF_DDS_MAP,                     /* map: PointCloud2 */
+  VLFF_DDS_STATUS,                  /* status: DiagnosticArray */
+  VLFF_DDS_PROMPTS_IN,              /* prompts_in: String (in) */
+  VLFF_DDS_PROMPTS,                 /* prompts: String, the map's prompt list */
+  VLFF_DDS_LABEL_IMAGE,             /* label_image: Image mono16 */
+  VLFF_DDS_LABEL_IMAGE_COMPRESSED,  /* label_image/compressed: CompressedImage png */
+  VLFF_DDS_CAMERA_IMAGE,            /* camera/image_raw: Image */
+  VLFF_DDS_CAMERA_IMAGE_COMPRESSED, /* camera/image_raw/compressed: CompressedImage jpeg */
+  VLFF_DDS_CAMERA_INFO,             /* camera/camera_info: CameraInfo */
+  VLFF_DDS_TF,                      /* <namespace>/tf: TFMessage */
+  VLFF_DDS_NTOPICS
+};
+enum { VLFF_DDS_BEST_EFFORT = 0, VLFF_DDS_RELIABLE = 1 };
+enum { VLFF_DDS_VOLATILE = 0, VLFF_DDS_TRANSIENT_LOCAL = 1 };
+struct vlff_cfg_dds_qos {
+  int reliability; /* VLFF_DDS_BEST_EFFORT / _RELIABLE */
+  int durability;  /* VLFF_DDS_VOLATILE / _TRANSIENT_LOCAL */
+  int depth;       /* history: keep last depth */
+};
+/* vlff-merge's fleet (dds.merge): robots' maps over DDS into one. */
+#define VLFF_MAX_MERGE_ROBOTS 8
+struct vlff_cfg_merge_robot {
+  char ns[VLFF_CFG_STR];  /* its vlff-dds's dds.namespace */
+  double transform[4];    /* its map -> world: x y z (m), then yaw about +z (degrees), applied yaw first */
+};
+struct vlff_cfg_dds_merge {
+  char map[VLFF_CFG_STR];  /* the fleet's map segment */
+  char ns[VLFF_CFG_STR];   /* the fleet's ROS namespace */
+  double bounds[6];        /* world box x0 y0 z0 x1 y1 z1, m */
+  double voxel_size_m;
+  int robot_count;         /* dds.merge.robots */
+  struct vlff_cfg_merge_robot robots[VLFF_MAX_MERGE_ROBOTS];
+};
 struct vlff_cfg_dds {
   int domain_id;                   /* DDS domain, 0..232 (ROS_DOMAIN_ID) */
   char ns[VLFF_CFG_STR];           /* ROS namespace "/robot1", "" = none: topics rt<ns>/vlff/... */
-  char frame_id[VLFF_CFG_STR];     /* header frame_id of the map and status */
-  bool map;                        /* publish <ns>/vlff/map (PointCloud2, transient local) */
-  bool status;                     /* publish <ns>/vlff/status (DiagnosticArray) */
-  bool prompts_in;                 /* take prompt sets from <ns>/vlff/prompts_in (String, a JSON list) */
+  char frame_id[VLFF_CFG_STR];     /* header frame_id of the map, status and the pose's parent */
+  char camera_frame_id[VLFF_CFG_STR]; /* frame_id of the images and camera info, the pose's child */
+  bool on[VLFF_DDS_NTOPICS];       /* which topics are published (taken, for prompts_in) */
+  struct vlff_cfg_dds_qos qos[VLFF_DDS_NTOPICS];
   double status_hz;                /* status messages per second */
   double poll_hz;                  /* map segment checks per second */
+  double image_hz;                 /* most images (label, camera) per second each */
   double prompt_rate_hz;           /* most prompt posts per second; more are refused as a flood */
   int max_prompt_bytes;            /* longest prompt message taken */
+  int jpeg_quality;                /* camera/image_raw/compressed */
+  struct vlff_cfg_dds_merge merge;
 };
 
 /* The whole file: one section per module, each module given only its own

@@ -18,15 +18,90 @@
 #include "cli.h"
 #include "diagnostic_msgs.h"
 #include "log.h"
+#include "palette.h"
 #include "sensor_msgs.h"
 #include "std_msgs.h"
+#include "tf2_msgs.h"
 #include "vlff/escape.h"
+#ifdef VLFF_DDS_CV
+#include "cvshim.h"
+#endif
 
 #define TAG "dds"
 
 int vlff_dds_topic(char *out, size_t len, const char *ns, const char *leaf) {
   int n = snprintf(out, len, "rt%s/vlff/%s", ns, leaf);
   return n < 0 || (size_t)n >= len ? -1 : 0;
+}
+
+static const struct {
+  const char *key, *leaf; /* leaf NULL: rt<ns>/tf */
+} topics[VLFF_DDS_NTOPICS] = {
+    [VLFF_DDS_MAP] = {"map", "map"},
+    [VLFF_DDS_STATUS] = {"status", "status"},
+    [VLFF_DDS_PROMPTS_IN] = {"prompts_in", "prompts_in"},
+    [VLFF_DDS_PROMPTS] = {"prompts", "prompts"},
+    [VLFF_DDS_LABEL_IMAGE] = {"label_image", "label_image"},
+    [VLFF_DDS_LABEL_IMAGE_COMPRESSED] = {"label_image_compressed", "label_image/compressed"},
+    [VLFF_DDS_CAMERA_IMAGE] = {"camera_image", "camera/image_raw"},
+    [VLFF_DDS_CAMERA_IMAGE_COMPRESSED] = {"camera_image_compressed", "camera/image_raw/compressed"},
+    [VLFF_DDS_CAMERA_INFO] = {"camera_info", "camera/camera_info"},
+    [VLFF_DDS_TF] = {"tf", NULL},
+};
+
+const char *vlff_dds_topic_key(int id) { return id >= 0 && id < VLFF_DDS_NTOPICS ? topics[id].key : NULL; }
+
+int vlff_dds_topic_of(char *out, size_t len, const char *ns, int id) {
+  if (id < 0 || id >= VLFF_DDS_NTOPICS) return -1;
+  if (topics[id].leaf) return vlff_dds_topic(out, len, ns, topics[id].leaf);
+  int n = snprintf(out, len, "rt%s/tf", ns);
+  return n < 0 || (size_t)n >= len ? -1 : 0;
+}
+
+int vlff_dds_can_compress(void) {
+#ifdef VLFF_DDS_CV
+  return 1;
+#else
+  return 0;
+#endif
+}
+
+const char *vlff_dds_encoding(uint32_t fmt) {
+  switch (fmt) {
+  case VLFF_PIX_RGB8: return "rgb8";
+  case VLFF_PIX_BGR8: return "bgr8";
+  case VLFF_PIX_MONO8: return "mono8";
+  case VLFF_PIX_MONO16: return "mono16";
+  case VLFF_PIX_BAYER_RG8: return "bayer_rggb8";
+  case VLFF_PIX_BAYER_BG8: return "bayer_bggr8";
+  case VLFF_PIX_BAYER_GR8: return "bayer_grbg8";
+  case VLFF_PIX_BAYER_GB8: return "bayer_gbrg8";
+  default: return NULL;
+  }
+}
+
+char *vlff_dds_prompt_list_json(const char *const texts[], int count) {
+  json_object *a = json_object_new_array();
+  for (int i = 0; a && i < count; i++) {
+    json_object *e = json_object_new_string(texts[i] ? texts[i] : "");
+    if (!e || json_object_array_add(a, e)) {
+      json_object_put(e);
+      json_object_put(a);
+      a = NULL;
+    }
+  }
+  char *out = a ? strdup(json_object_to_json_string_ext(a, JSON_C_TO_STRING_PLAIN | JSON_C_TO_STRING_NOSLASHESCAPE))
+                : NULL;
+  json_object_put(a);
+  if (!out) errno = ENOMEM;
+  return out;
+}
+
+char *vlff_dds_prompt_json(const struct vlff_map_snapshot *snap, int count) {
+  const char *texts[VLFF_SHM_MAX_PROMPTS];
+  if (count > VLFF_SHM_MAX_PROMPTS) count = VLFF_SHM_MAX_PROMPTS;
+  for (int i = 0; i < count; i++) texts[i] = vlff_map_snapshot_prompt(snap, (uint16_t)i);
+  return vlff_dds_prompt_list_json(texts, count);
 }
 
 int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *set_index,
@@ -147,33 +222,87 @@ int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *np
 
 struct vlff_dds {
   struct vlff_dds_opts o;
-  dds_entity_t pp, map_w, status_w, prompts_r, ws, prompts_cond;
+  dds_entity_t pp, w[VLFF_DDS_NTOPICS], prompts_r, ws, prompts_cond;
   struct vlff_map *map;
   struct vlff_map_snapshot *snap;
   struct vlff_prompts *mailbox;
+  struct vlff_ring *ring; /* the camera's frame ring */
+  uint8_t *rec;           /* its newest record */
+  size_t rec_cap;
+  uint64_t ring_head, ring_next_attach, last_camera_ns, last_label_ns, label_t_sent;
+  char *prompts_sent;     /* the prompt list's JSON last sent */
+  uint64_t snap_version;  /* the version and generation in snap */
+  uint32_t snap_generation;
+  bool map_pending, prompts_pending, label_pending; /* in snap, not sent yet */
+  bool ring_has_pose;     /* poses come from the frames */
   uint64_t sent_version;
   uint32_t sent_generation;
   uint64_t pending_seq; /* last post whose answer is not logged yet */
   uint64_t last_post_ns;
   volatile sig_atomic_t stop;
   struct vlff_dds_counts c;
-  uint64_t warn_attach, warn_map, warn_prompt, warn_mailbox, warn_write;
+  uint64_t warn_attach, warn_map, warn_prompt, warn_mailbox, warn_write, warn_ring, warn_image;
 };
 
 static void set_err(char *err, size_t errlen, const char *what, dds_return_t rc) {
   snprintf(err, errlen, "%s: %s", what, dds_strretcode(rc));
 }
 
-static dds_entity_t make_topic(struct vlff_dds *b, const dds_topic_descriptor_t *desc, const char *leaf, char *err,
-                               size_t errlen) {
-  char name[256];
-  if (vlff_dds_topic(name, sizeof name, b->o.dds.ns, leaf) < 0) {
-    snprintf(err, errlen, "topic name for %s too long", leaf);
+static const dds_topic_descriptor_t *descriptor(int id) {
+  switch (id) {
+  case VLFF_DDS_MAP: return &sensor_msgs_msg_dds__PointCloud2__desc;
+  case VLFF_DDS_STATUS: return &diagnostic_msgs_msg_dds__DiagnosticArray__desc;
+  case VLFF_DDS_PROMPTS_IN:
+  case VLFF_DDS_PROMPTS: return &std_msgs_msg_dds__String__desc;
+  case VLFF_DDS_LABEL_IMAGE:
+  case VLFF_DDS_CAMERA_IMAGE: return &sensor_msgs_msg_dds__Image__desc;
+  case VLFF_DDS_LABEL_IMAGE_COMPRESSED:
+  case VLFF_DDS_CAMERA_IMAGE_COMPRESSED: return &sensor_msgs_msg_dds__CompressedImage__desc;
+  case VLFF_DDS_CAMERA_INFO: return &sensor_msgs_msg_dds__CameraInfo__desc;
+  default: return &tf2_msgs_msg_dds__TFMessage__desc;
+  }
+}
+
+/* The topic's QoS as configured. A keep-last history on a reliable writer
+ * never blocks it: a reader that does not keep up loses the oldest. */
+static dds_qos_t *topic_qos(const struct vlff_cfg_dds_qos *c) {
+  dds_qos_t *q = dds_create_qos();
+  if (!q) return NULL;
+  if (c->reliability == VLFF_DDS_RELIABLE)
+    dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  else
+    dds_qset_reliability(q, DDS_RELIABILITY_BEST_EFFORT, 0);
+  dds_qset_durability(q, c->durability == VLFF_DDS_TRANSIENT_LOCAL ? DDS_DURABILITY_TRANSIENT_LOCAL
+                                                                   : DDS_DURABILITY_VOLATILE);
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, c->depth);
+  return q;
+}
+
+/* Writer (or, for prompts_in, reader) of topic id. */
+static dds_entity_t make_endpoint(struct vlff_dds *b, int id, char *err, size_t errlen) {
+  char name[300];
+  if (vlff_dds_topic_of(name, sizeof name, b->o.dds.ns, id) < 0) {
+    snprintf(err, errlen, "topic name for %s too long", topics[id].key);
     return -1;
   }
-  dds_entity_t t = dds_create_topic(b->pp, desc, name, NULL, NULL);
-  if (t < 0) set_err(err, errlen, name, t);
-  return t;
+  dds_entity_t t = dds_create_topic(b->pp, descriptor(id), name, NULL, NULL);
+  if (t < 0) {
+    set_err(err, errlen, name, t);
+    return t;
+  }
+  dds_qos_t *q = topic_qos(&b->o.dds.qos[id]);
+  if (!q) {
+    snprintf(err, errlen, "%s: out of memory", name);
+    return -1;
+  }
+  if (id == VLFF_DDS_PROMPTS_IN) {
+    /* Bounded in samples: a flood costs at most depth messages held. */
+    dds_qset_resource_limits(q, b->o.dds.qos[id].depth, DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED);
+  }
+  dds_entity_t e = id == VLFF_DDS_PROMPTS_IN ? dds_create_reader(b->pp, t, q, NULL) : dds_create_writer(b->pp, t, q, NULL);
+  dds_delete_qos(q);
+  if (e < 0) set_err(err, errlen, name, e);
+  return e;
 }
 
 struct vlff_dds *vlff_dds_create(const struct vlff_dds_opts *opts, char *err, size_t errlen) {
@@ -183,53 +312,35 @@ struct vlff_dds *vlff_dds_create(const struct vlff_dds_opts *opts, char *err, si
     return NULL;
   }
   b->o = *opts;
+#ifndef VLFF_DDS_CV
+  for (int id = VLFF_DDS_LABEL_IMAGE_COMPRESSED; id <= VLFF_DDS_CAMERA_IMAGE_COMPRESSED; id += 2)
+    if (b->o.dds.on[id]) {
+      snprintf(err, errlen, "dds.%s: this build has no image encoder (built without OpenCV)", topics[id].key);
+      free(b);
+      return NULL;
+    }
+#endif
   b->pp = dds_create_participant((dds_domainid_t)opts->dds.domain_id, NULL, NULL);
   if (b->pp < 0) {
     set_err(err, errlen, "DDS participant", b->pp);
     free(b);
     return NULL;
   }
-  dds_qos_t *q = dds_create_qos();
-  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
-  if (opts->dds.map) {
-    dds_entity_t t = make_topic(b, &sensor_msgs_msg_dds__PointCloud2__desc, "map", err, errlen);
-    if (t < 0) goto fail;
-    /* Keep last 1 on a reliable writer never blocks it: a reader that does not
-     * keep up gets the newest map, and a late one gets it from the history. */
-    dds_qos_t *mq = dds_create_qos();
-    dds_copy_qos(mq, q);
-    dds_qset_durability(mq, DDS_DURABILITY_TRANSIENT_LOCAL);
-    dds_qset_history(mq, DDS_HISTORY_KEEP_LAST, 1);
-    b->map_w = dds_create_writer(b->pp, t, mq, NULL);
-    dds_delete_qos(mq);
-    if (b->map_w < 0) {
-      set_err(err, errlen, "map writer", b->map_w);
-      goto fail;
-    }
-  }
-  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 10);
-  if (opts->dds.status) {
-    dds_entity_t t = make_topic(b, &diagnostic_msgs_msg_dds__DiagnosticArray__desc, "status", err, errlen);
-    if (t < 0) goto fail;
-    b->status_w = dds_create_writer(b->pp, t, q, NULL);
-    if (b->status_w < 0) {
-      set_err(err, errlen, "status writer", b->status_w);
-      goto fail;
-    }
-  }
   b->ws = dds_create_waitset(b->pp);
   if (b->ws < 0) {
     set_err(err, errlen, "waitset", b->ws);
     goto fail;
   }
-  if (opts->dds.prompts_in) {
-    dds_entity_t t = make_topic(b, &std_msgs_msg_dds__String__desc, "prompts_in", err, errlen);
-    if (t < 0) goto fail;
-    b->prompts_r = dds_create_reader(b->pp, t, q, NULL);
-    if (b->prompts_r < 0) {
-      set_err(err, errlen, "prompts reader", b->prompts_r);
-      goto fail;
-    }
+  for (int id = 0; id < VLFF_DDS_NTOPICS; id++) {
+    if (!opts->dds.on[id]) continue;
+    dds_entity_t e = make_endpoint(b, id, err, errlen);
+    if (e < 0) goto fail;
+    if (id == VLFF_DDS_PROMPTS_IN)
+      b->prompts_r = e;
+    else
+      b->w[id] = e;
+  }
+  if (b->prompts_r) {
     b->prompts_cond = dds_create_readcondition(b->prompts_r, DDS_ANY_STATE);
     dds_return_t rc = b->prompts_cond < 0 ? b->prompts_cond : dds_waitset_attach(b->ws, b->prompts_cond, 0);
     if (rc < 0) {
@@ -237,10 +348,8 @@ struct vlff_dds *vlff_dds_create(const struct vlff_dds_opts *opts, char *err, si
       goto fail;
     }
   }
-  dds_delete_qos(q);
   return b;
 fail:
-  dds_delete_qos(q);
   dds_delete(b->pp);
   free(b);
   return NULL;
@@ -255,6 +364,9 @@ void vlff_dds_destroy(struct vlff_dds *b) {
   vlff_map_snapshot_free(b->snap);
   vlff_map_detach(b->map);
   vlff_prompts_close(b->mailbox);
+  vlff_ring_close(b->ring);
+  free(b->rec);
+  free(b->prompts_sent);
   free(b);
 }
 
@@ -272,6 +384,7 @@ static builtin_interfaces_msg_dds__Time_ ros_time(uint64_t mono) {
 }
 
 static void drop_map(struct vlff_dds *b) {
+  b->snap_version = 0;
   vlff_map_snapshot_free(b->snap);
   vlff_map_detach(b->map);
   b->snap = NULL;
@@ -296,31 +409,38 @@ static struct vlff_map *get_map(struct vlff_dds *b) {
   return b->map;
 }
 
-static void send_map(struct vlff_dds *b) {
-  struct vlff_map *m = get_map(b);
-  if (!m) return;
-  uint64_t v = vlff_map_version(m);
-  uint32_t gen = vlff_map_generation(m);
-  if (v == 0 || (v == b->sent_version && gen == b->sent_generation)) return;
-  struct vlff_map_info info;
-  if (vlff_map_snapshot_take(m, b->snap) < 0 || vlff_map_snapshot_info(b->snap, &info) < 0) {
-    vlff_warn_limited(&b->warn_map, TAG, "map segment %s: %s", VLFF_Q(b->o.map), vlff_shm_last_message());
-    if (errno == EPIPE) drop_map(b);
-    return;
-  }
+/* A sequence's buffer from read-only data (dds_write only reads it). */
+static uint8_t *unconst(const void *p) {
+  uint8_t *q;
+  memcpy(&q, &p, sizeof q);
+  return q;
+}
+
+static bool host_big_endian(void) {
+  const uint16_t one = 1;
+  return *(const uint8_t *)&one == 0;
+}
+
+static bool write_ok(struct vlff_dds *b, int id, const void *msg) {
+  dds_return_t rc = dds_write(b->w[id], msg);
+  if (rc < 0) vlff_warn_limited(&b->warn_write, TAG, "%s write: %s", topics[id].key, dds_strretcode(rc));
+  return rc >= 0;
+}
+
+static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
   uint8_t *data;
   uint32_t n;
-  if (vlff_dds_cloud(&info, &data, &n) < 0) {
-    vlff_warn_limited(&b->warn_map, TAG, "map version %" PRIu64 ": no memory for %s's points", info.version,
+  if (vlff_dds_cloud(info, &data, &n) < 0) {
+    vlff_warn_limited(&b->warn_map, TAG, "map version %" PRIu64 ": no memory for %s's points", info->version,
                       VLFF_Q(b->o.map));
-    return;
+    return false;
   }
   sensor_msgs_msg_dds__PointField_ fields[5] = {
       {"x", 0, VLFF_DDS_FLOAT32, 1},     {"y", 4, VLFF_DDS_FLOAT32, 1},          {"z", 8, VLFF_DDS_FLOAT32, 1},
       {"label", 12, VLFF_DDS_UINT16, 1}, {"confidence", 16, VLFF_DDS_FLOAT32, 1},
   };
   sensor_msgs_msg_dds__PointCloud2_ msg = {0};
-  msg.header.stamp = ros_time(info.publish_ns);
+  msg.header.stamp = ros_time(info->publish_ns);
   msg.header.frame_id = b->o.dds.frame_id;
   msg.height = 1;
   msg.width = n;
@@ -332,16 +452,276 @@ static void send_map(struct vlff_dds *b) {
   msg.data._length = msg.data._maximum = msg.row_step;
   msg.data._buffer = data;
   msg.is_dense = true;
-  dds_return_t rc = dds_write(b->map_w, &msg);
+  bool ok = write_ok(b, VLFF_DDS_MAP, &msg);
   free(data);
-  if (rc < 0) {
-    vlff_warn_limited(&b->warn_write, TAG, "map write: %s", dds_strretcode(rc));
+  if (!ok) return false;
+  b->sent_version = info->version;
+  b->sent_generation = info->generation;
+  b->c.maps_sent++;
+  VLFF_DEBUG(TAG, "map version %" PRIu64 ": %u points", info->version, n);
+  return true;
+}
+
+/* The prompt list, when it differs from the one last sent. */
+static bool send_prompt_list(struct vlff_dds *b, const struct vlff_map_info *info) {
+  char *json = vlff_dds_prompt_json(b->snap, info->prompt_count);
+  if (!json) return false;
+  if (b->prompts_sent && !strcmp(json, b->prompts_sent)) {
+    free(json);
+    return true;
+  }
+  std_msgs_msg_dds__String_ msg = {json};
+  if (!write_ok(b, VLFF_DDS_PROMPTS, &msg)) {
+    free(json);
+    return false;
+  }
+  free(b->prompts_sent);
+  b->prompts_sent = json;
+  b->c.prompt_lists_sent++;
+  return true;
+}
+
+static int valid_pose(const double P[16]) {
+  for (int i = 0; i < 16; i++)
+    if (!isfinite(P[i])) return 0;
+  return 1;
+}
+
+/* The camera's pose: a camera-to-world matrix as the transform
+ * frame_id -> camera_frame_id. */
+static void send_tf(struct vlff_dds *b, uint64_t t, const double P[16]) {
+  double q[4]; /* w x y z */
+  vlff_pose_quaternion(P, q);
+  geometry_msgs_msg_dds__TransformStamped_ ts = {0};
+  ts.header.stamp = ros_time(t);
+  ts.header.frame_id = b->o.dds.frame_id;
+  ts.child_frame_id = b->o.dds.camera_frame_id;
+  ts.transform.translation.x = P[3];
+  ts.transform.translation.y = P[7];
+  ts.transform.translation.z = P[11];
+  ts.transform.rotation.w = q[0];
+  ts.transform.rotation.x = q[1];
+  ts.transform.rotation.y = q[2];
+  ts.transform.rotation.z = q[3];
+  tf2_msgs_msg_dds__TFMessage_ msg = {0};
+  msg.transforms._length = msg.transforms._maximum = 1;
+  msg.transforms._buffer = &ts;
+  if (write_ok(b, VLFF_DDS_TF, &msg)) b->c.tf_sent++;
+}
+
+#ifdef VLFF_DDS_CV
+static void send_compressed(struct vlff_dds *b, int id, builtin_interfaces_msg_dds__Time_ stamp, const uint8_t *rgb,
+                            uint32_t w, uint32_t h, int png) {
+  uint8_t *enc = NULL;
+  size_t n = 0;
+  char err[160];
+  if (vlff_cv_compress_rgb(rgb, (size_t)w * 3, (int)w, (int)h, png, b->o.dds.jpeg_quality, &enc, &n, err, sizeof err)) {
+    vlff_warn_limited(&b->warn_image, TAG, "%s: a %ux%u image: %s", topics[id].key, w, h, err);
     return;
   }
-  b->sent_version = info.version;
-  b->sent_generation = info.generation;
-  b->c.maps_sent++;
-  VLFF_DEBUG(TAG, "map version %" PRIu64 ": %u points", info.version, n);
+  sensor_msgs_msg_dds__CompressedImage_ msg = {0};
+  msg.header.stamp = stamp;
+  msg.header.frame_id = b->o.dds.camera_frame_id;
+  msg.format = png ? "png" : "jpeg";
+  msg.data._length = msg.data._maximum = (uint32_t)n;
+  msg.data._buffer = enc;
+  write_ok(b, id, &msg);
+  free(enc);
+}
+#endif
+
+static void send_label_image(struct vlff_dds *b, const struct vlff_map_label_image *li) {
+  builtin_interfaces_msg_dds__Time_ stamp = ros_time(li->t_ns);
+  size_t px = (size_t)li->width * li->height;
+  if (b->w[VLFF_DDS_LABEL_IMAGE]) {
+    sensor_msgs_msg_dds__Image_ msg = {0};
+    msg.header.stamp = stamp;
+    msg.header.frame_id = b->o.dds.camera_frame_id;
+    msg.height = li->height;
+    msg.width = li->width;
+    msg.encoding = "mono16";
+    msg.is_bigendian = host_big_endian();
+    msg.step = li->width * 2;
+    msg.data._length = msg.data._maximum = (uint32_t)(px * 2);
+    msg.data._buffer = unconst(li->labels);
+    if (write_ok(b, VLFF_DDS_LABEL_IMAGE, &msg)) b->c.label_images_sent++;
+  }
+#ifdef VLFF_DDS_CV
+  if (b->w[VLFF_DDS_LABEL_IMAGE_COMPRESSED]) {
+    uint8_t *rgb = malloc(px * 3 + 1);
+    if (rgb) {
+      for (size_t i = 0; i < px; i++) {
+        uint16_t l = li->labels[i];
+        uint8_t *o = rgb + 3 * i;
+        if (l <= VLFF_LABEL_MAX) memcpy(o, vlff_label_color(l), 3);
+        else o[0] = o[1] = o[2] = l == VLFF_LABEL_FREE ? 40 : 0;
+      }
+      send_compressed(b, VLFF_DDS_LABEL_IMAGE_COMPRESSED, stamp, rgb, li->width, li->height, 1);
+      free(rgb);
+    }
+  }
+#endif
+  if (b->w[VLFF_DDS_TF] && !b->ring_has_pose && valid_pose(li->pose)) send_tf(b, li->t_ns, li->pose);
+}
+
+/* The map segment: a new version is taken once into the snapshot; the map,
+ * prompt list and label image go out from it, each retried at the next
+ * poll if its write failed, the label image when the rate allows. */
+static void poll_map(struct vlff_dds *b) {
+  struct vlff_map *m = get_map(b);
+  if (!m) return;
+  uint64_t v = vlff_map_version(m);
+  uint32_t gen = vlff_map_generation(m);
+  struct vlff_map_info info;
+  if (v && (v != b->snap_version || gen != b->snap_generation)) {
+    if (vlff_map_snapshot_take(m, b->snap) < 0 || vlff_map_snapshot_info(b->snap, &info) < 0) {
+      vlff_warn_limited(&b->warn_map, TAG, "map segment %s: %s", VLFF_Q(b->o.map), vlff_shm_last_message());
+      if (errno == EPIPE) drop_map(b);
+      return;
+    }
+    b->snap_version = info.version;
+    b->snap_generation = info.generation;
+    b->map_pending = b->w[VLFF_DDS_MAP] != 0;
+    b->prompts_pending = b->w[VLFF_DDS_PROMPTS] != 0;
+    b->label_pending = info.has_label_image && info.label_image.t_ns != b->label_t_sent &&
+                       (b->w[VLFF_DDS_LABEL_IMAGE] || b->w[VLFF_DDS_LABEL_IMAGE_COMPRESSED] || b->w[VLFF_DDS_TF]);
+  } else if (!b->map_pending && !b->prompts_pending && !b->label_pending) {
+    return;
+  } else if (vlff_map_snapshot_info(b->snap, &info) < 0) {
+    return;
+  }
+  if (b->map_pending && send_map(b, &info)) b->map_pending = false;
+  if (b->prompts_pending && send_prompt_list(b, &info)) b->prompts_pending = false;
+  uint64_t now = mono_ns();
+  if (b->label_pending && (!b->last_label_ns || (double)(now - b->last_label_ns) >= 1e9 / b->o.dds.image_hz)) {
+    send_label_image(b, &info.label_image);
+    b->label_t_sent = info.label_image.t_ns;
+    b->last_label_ns = now;
+    b->label_pending = false;
+  }
+}
+
+static int valid_intrinsics(const struct vlff_frame_hdr *h) {
+  const double k[4] = {h->fx, h->fy, h->cx, h->cy};
+  for (int i = 0; i < 4; i++)
+    if (!isfinite(k[i]) || (i < 2 && k[i] <= 0)) return 0;
+  return (h->flags & VLFF_FRAME_INTRINSICS_VALID) != 0;
+}
+
+/* CameraInfo of a frame's pinhole intrinsics, K and P in ROS's (OpenCV's)
+ * convention, whose principal point is half a pixel left of and above the
+ * ring's (pixel centres at +0.5 there). */
+static void send_camera_info(struct vlff_dds *b, builtin_interfaces_msg_dds__Time_ stamp, const struct vlff_frame_hdr *h) {
+  const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
+  double d[5] = {0, 0, 0, 0, 0}, cx = h->cx - 0.5, cy = h->cy - 0.5;
+  sensor_msgs_msg_dds__CameraInfo_ msg = {0};
+  msg.header.stamp = stamp;
+  msg.header.frame_id = b->o.dds.camera_frame_id;
+  msg.height = pl->height;
+  msg.width = pl->width;
+  msg.distortion_model = "plumb_bob";
+  msg.d._length = msg.d._maximum = 5;
+  msg.d._buffer = d;
+  const double k[9] = {h->fx, 0, cx, 0, h->fy, cy, 0, 0, 1};
+  const double r[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  const double p[12] = {h->fx, 0, cx, 0, 0, h->fy, cy, 0, 0, 0, 1, 0};
+  memcpy(msg.k, k, sizeof k);
+  memcpy(msg.r, r, sizeof r);
+  memcpy(msg.p, p, sizeof p);
+  write_ok(b, VLFF_DDS_CAMERA_INFO, &msg);
+}
+
+/* The frame ring's newest frame, at most dds.image_hz a second. */
+static void poll_camera(struct vlff_dds *b) {
+  if (!(b->w[VLFF_DDS_CAMERA_IMAGE] || b->w[VLFF_DDS_CAMERA_IMAGE_COMPRESSED] || b->w[VLFF_DDS_CAMERA_INFO] ||
+        b->w[VLFF_DDS_TF]) ||
+      !*b->o.frames)
+    return;
+  uint64_t now = mono_ns();
+  if (!b->ring) {
+    if (now < b->ring_next_attach) return;
+    b->ring_next_attach = now + 1000000000ull;
+    b->ring = vlff_ring_attach(b->o.frames, VLFF_RECORD_FRAME);
+    if (!b->ring) {
+      vlff_warn_limited(&b->warn_ring, TAG, "frame ring %s: %s (retrying every second)", VLFF_Q(b->o.frames),
+                        vlff_shm_last_message());
+      return;
+    }
+    size_t cap = vlff_ring_slot_size(b->ring);
+    uint8_t *rec = cap == b->rec_cap ? b->rec : realloc(b->rec, cap);
+    if (!rec) {
+      vlff_warn_limited(&b->warn_ring, TAG, "no memory for a %zu-byte frame of %s", cap, VLFF_Q(b->o.frames));
+      vlff_ring_close(b->ring);
+      b->ring = NULL;
+      return;
+    }
+    b->rec = rec;
+    b->rec_cap = cap;
+    b->ring_head = 0;
+    VLFF_INFO(TAG, "attached to frame ring %s", VLFF_Q(b->o.frames));
+  }
+  uint64_t head = vlff_ring_head(b->ring);
+  if (head == b->ring_head || (b->last_camera_ns && (double)(now - b->last_camera_ns) < 1e9 / b->o.dds.image_hz)) return;
+  struct vlff_ring_view view;
+  ssize_t len = vlff_ring_read_latest(b->ring, b->rec, b->rec_cap, &view);
+  if (len < 0) {
+    if (errno == EPIPE) {
+      VLFF_INFO(TAG, "frame ring %s was replaced; attaching again", VLFF_Q(b->o.frames));
+      vlff_ring_close(b->ring);
+      b->ring = NULL;
+    }
+    return;
+  }
+  b->ring_head = head;
+  b->last_camera_ns = now;
+  if (vlff_frame_validate(b->rec, (size_t)len) != 0) {
+    vlff_warn_limited(&b->warn_ring, TAG, "frame ring %s: a malformed frame record, skipped", VLFF_Q(b->o.frames));
+    return;
+  }
+  const struct vlff_frame_hdr *h = (const struct vlff_frame_hdr *)b->rec;
+  const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
+  const uint8_t *px = vlff_frame_plane(b->rec, VLFF_PLANE_COLOR);
+  builtin_interfaces_msg_dds__Time_ stamp = ros_time(h->t_host_ns);
+  const char *enc = vlff_dds_encoding(pl->format);
+  if (px && b->w[VLFF_DDS_CAMERA_IMAGE]) {
+    if (!enc) {
+      vlff_warn_limited(&b->warn_image, TAG, "frame ring %s: pixel format %s has no ROS encoding", VLFF_Q(b->o.frames),
+                        vlff_pixfmt_name(pl->format));
+    } else {
+      sensor_msgs_msg_dds__Image_ msg = {0};
+      msg.header.stamp = stamp;
+      msg.header.frame_id = b->o.dds.camera_frame_id;
+      msg.height = pl->height;
+      msg.width = pl->width;
+      msg.encoding = (char *)enc;
+      msg.is_bigendian = pl->format == VLFF_PIX_MONO16 && host_big_endian();
+      msg.step = pl->stride;
+      msg.data._length = msg.data._maximum = (uint32_t)((size_t)pl->stride * pl->height);
+      msg.data._buffer = unconst(px);
+      if (write_ok(b, VLFF_DDS_CAMERA_IMAGE, &msg)) b->c.camera_images_sent++;
+    }
+  }
+#ifdef VLFF_DDS_CV
+  if (px && b->w[VLFF_DDS_CAMERA_IMAGE_COMPRESSED]) {
+    size_t need = (size_t)pl->width * pl->height * 3;
+    uint8_t *rgb = malloc(need + 1);
+    char err[160];
+    if (!rgb)
+      vlff_warn_limited(&b->warn_image, TAG, "no memory for a %ux%u image", pl->width, pl->height);
+    else if (vlff_cv_to_rgb(px, pl->stride, (int)pl->width, (int)pl->height, (vlff_pix_t)pl->format, rgb,
+                            (size_t)pl->width * 3, err, sizeof err))
+      vlff_warn_limited(&b->warn_image, TAG, "frame ring %s: a %ux%u %s image: %s", VLFF_Q(b->o.frames), pl->width,
+                        pl->height, vlff_pixfmt_name(pl->format), err);
+    else
+      send_compressed(b, VLFF_DDS_CAMERA_IMAGE_COMPRESSED, stamp, rgb, pl->width, pl->height, 0);
+    free(rgb);
+  }
+#endif
+  if (b->w[VLFF_DDS_CAMERA_INFO] && valid_intrinsics(h)) send_camera_info(b, stamp, h);
+  if ((h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose)) {
+    b->ring_has_pose = true;
+    if (b->w[VLFF_DDS_TF]) send_tf(b, h->pose_t_ns ? h->pose_t_ns : h->t_host_ns, h->pose);
+  }
 }
 
 /* Key-value lists of the status, built in fixed storage. */
@@ -420,6 +800,10 @@ static void send_status(struct vlff_dds *b) {
   st[1].message = bmsg;
   kv(&bk, "maps_sent", "%" PRIu64, c->maps_sent);
   kv(&bk, "map_version_sent", "%" PRIu64, b->sent_version);
+  kv(&bk, "prompt_lists_sent", "%" PRIu64, c->prompt_lists_sent);
+  kv(&bk, "label_images_sent", "%" PRIu64, c->label_images_sent);
+  kv(&bk, "camera_images_sent", "%" PRIu64, c->camera_images_sent);
+  kv(&bk, "tf_sent", "%" PRIu64, c->tf_sent);
   kv(&bk, "prompts_posted", "%" PRIu64, c->prompts_posted);
   kv(&bk, "prompts_refused_oversized", "%" PRIu64, c->prompts_oversized);
   kv(&bk, "prompts_refused_flood", "%" PRIu64, c->prompts_flood);
@@ -434,11 +818,7 @@ static void send_status(struct vlff_dds *b) {
   msg.header.frame_id = b->o.dds.frame_id;
   msg.status._length = msg.status._maximum = 2;
   msg.status._buffer = st;
-  dds_return_t rc = dds_write(b->status_w, &msg);
-  if (rc < 0)
-    vlff_warn_limited(&b->warn_write, TAG, "status write: %s", dds_strretcode(rc));
-  else
-    b->c.status_sent++;
+  if (write_ok(b, VLFF_DDS_STATUS, &msg)) b->c.status_sent++;
 }
 
 static void refuse(struct vlff_dds *b, uint64_t *count, const char *fmt, const char *why) {
@@ -526,16 +906,17 @@ int vlff_dds_run(struct vlff_dds *b) {
     uint64_t now = mono_ns();
     if (b->o.run_seconds > 0 && (double)(now - start) >= b->o.run_seconds * 1e9) break;
     if (now >= next_poll) {
-      if (b->map_w) send_map(b);
+      poll_map(b);
+      poll_camera(b);
       check_answer(b);
       next_poll = now + poll_ns;
     }
-    if (b->status_w && now >= next_status) {
+    if (b->w[VLFF_DDS_STATUS] && now >= next_status) {
       send_status(b);
       next_status = now + status_ns;
     }
     uint64_t next = next_poll;
-    if (b->status_w && next_status < next) next = next_status;
+    if (b->w[VLFF_DDS_STATUS] && next_status < next) next = next_status;
     now = mono_ns();
     dds_duration_t wait = next > now ? (dds_duration_t)(next - now) : 0;
     dds_return_t rc = dds_waitset_wait(b->ws, NULL, 0, wait);

@@ -6,10 +6,13 @@
  * status and posts prompt sets without vlff code (docs/dds.md).
  *
  * Contract
- *  - Topics are "rt" + dds.namespace + "/vlff/" + leaf (map, status,
- *    prompts_in): ROS 2's "/<ns>/vlff/map" on the wire. Type names are
- *    ROS 2's "<pkg>::msg::dds_::<Type>_" (the files in idl/), CDR (XCDR1, final),
- *    as rmw_cyclonedds writes them.
+ *  - Topics are "rt" + dds.namespace + "/vlff/" + leaf: ROS 2's
+ *    "/<ns>/vlff/map" on the wire; the camera pose goes to "rt<ns>/tf"
+ *    (ROS's /tf, namespaced as a robot's tf is remapped). Type names are
+ *    ROS 2's "<pkg>::msg::dds_::<Type>_" (the files in idl/), CDR (XCDR1,
+ *    final), as rmw_cyclonedds writes them. Each topic is switched and given
+ *    its QoS (reliability, durability, keep-last depth) by the config
+ *    (dds.<name>, dds.qos.<name>.*); the defaults are below.
  *  - map: sensor_msgs/PointCloud2, one point per labelled voxel (label
  *    0..VLFF_LABEL_MAX; free and unknown voxels are left out) at the voxel's
  *    centre in the map's world frame, fields x y z (float32) label (uint16)
@@ -17,6 +20,22 @@
  *    Reliable, transient local, keep last 1: a reader joining late gets the
  *    latest map whole. Sent once per map version, never while the version
  *    stays the same. The stamp is the version's publish time in system time.
+ *  - prompts: std_msgs/String, the map's prompt list as a JSON list (label
+ *    i is element i), sent when it changes; reliable, transient local, keep
+ *    last 1 (ROS's latched topic).
+ *  - label_image: sensor_msgs/Image "mono16", the map's 2D label image
+ *    (label per pixel, 65534 free, 65535 unknown), frame dds.camera_frame_id,
+ *    stamped with the frame it was rendered for; label_image/compressed:
+ *    the same as a PNG in the label palette (off by default). At most
+ *    dds.image_hz a second, once per new label image.
+ *  - camera/image_raw: sensor_msgs/Image of the frame ring's newest frame
+ *    (encoding rgb8, bgr8, mono8, mono16 or bayer_*8, step the ring's
+ *    stride), camera/image_raw/compressed a JPEG of it (off by default),
+ *    camera/camera_info its pinhole intrinsics (plumb_bob, no distortion:
+ *    ring frames are undistorted), at most dds.image_hz a second.
+ *  - tf: tf2_msgs/TFMessage, the camera pose dds.frame_id -> 
+ *    dds.camera_frame_id (an optical frame: x right, y down, z forward), from
+ *    the frames when they carry a pose, else from the label image's view.
  *  - status: diagnostic_msgs/DiagnosticArray at dds.status_hz, two entries:
  *    "vlff: learner" (the segment's status, level OK/WARN/ERROR, STALE
  *    when the writer is gone) and "vlff-dds: bridge" (the bridge's counts).
@@ -28,9 +47,14 @@
  *    the last one posted (a flood), or one the mailbox cannot take now (the
  *    previous request unanswered, no mailbox) is refused, counted by kind
  *    and logged through vlff_warn_limited; only a checked set is posted,
- *    with vlff_prompts_try_post (never waits on the learner).
+ *    with vlff_prompts_try_post (never waits on the learner). The reader
+ *    keeps dds.qos.prompts_in.depth messages: a flood beyond that is
+ *    dropped by DDS before the bridge sees it.
+ *  - Writers keep last N: a subscriber that never reads never blocks the
+ *    bridge (a reliable writer with a keep-last history drops the oldest).
  *  - The node may start, stop and restart under a running bridge: segments
- *    are attached when they appear and again after they are replaced.
+ *    are attached when they appear and again after they are replaced; a
+ *    restarted bridge sends the current map, prompt list and images anew.
  *  - Single-threaded, and one struct vlff_dds per process (the status is
  *    built in static storage).
  */
@@ -52,6 +76,7 @@ enum { VLFF_DDS_OK = 0, VLFF_DDS_WARN = 1, VLFF_DDS_ERROR = 2, VLFF_DDS_STALE = 
 struct vlff_dds_opts {
   struct vlff_cfg_dds dds;
   char map[VLFF_CFG_STR];     /* map segment name */
+  char frames[VLFF_CFG_STR];  /* frame ring name (the camera) */
   char prompts[VLFF_CFG_STR]; /* prompt mailbox name */
   char hardware_id[VLFF_CFG_STR]; /* DiagnosticStatus.hardware_id (the host's name) */
   double run_seconds;         /* 0 = until vlff_dds_stop */
@@ -59,12 +84,27 @@ struct vlff_dds_opts {
 
 /* Why prompt messages were refused, and what was done. */
 struct vlff_dds_counts {
-  uint64_t maps_sent, status_sent;
+  uint64_t maps_sent, status_sent, prompt_lists_sent, label_images_sent, camera_images_sent, tf_sent;
   uint64_t prompts_posted, prompts_oversized, prompts_flood, prompts_malformed, prompts_invalid, prompts_busy;
 };
 
 /* "rt<ns>/vlff/<leaf>" into out. 0, or -1 if it does not fit. */
 int vlff_dds_topic(char *out, size_t len, const char *ns, const char *leaf);
+/* A topic's DDS name by id (enum vlff_dds_topic_id): "rt<ns>/vlff/<leaf>",
+ * "rt<ns>/tf" for the pose. 0, or -1 if it does not fit. */
+int vlff_dds_topic_of(char *out, size_t len, const char *ns, int id);
+/* A topic's config name (dds.<name>), NULL for an id out of range. */
+const char *vlff_dds_topic_key(int id);
+
+/* 1 when this build can publish CompressedImage (it has OpenCV's encoders). */
+int vlff_dds_can_compress(void);
+
+/* sensor_msgs/image_encodings name of a ring pixel format, NULL if none. */
+const char *vlff_dds_encoding(uint32_t pixfmt);
+/* A prompt list as a JSON list into a malloc'd string, NULL/ENOMEM: the
+ * snapshot's, or count texts. */
+char *vlff_dds_prompt_json(const struct vlff_map_snapshot *snap, int count);
+char *vlff_dds_prompt_list_json(const char *const texts[], int count);
 
 /* Parses a prompt message: a JSON list of 1..VLFF_SHM_MAX_PROMPTS strings,
  * each passing vlff_prompt_check (returns the count, texts filled), or a

@@ -20,9 +20,11 @@
 static const struct vlff_cli cli = {
     "vlff-dds",
     "Usage: vlff-dds [OPTIONS]\n"
-    "Publish the node's map (sensor_msgs/PointCloud2) and status (diagnostic_msgs/\n"
-    "DiagnosticArray) over DDS as ROS 2 topics, and post prompt sets received on\n"
-    "<namespace>/vlff/prompts_in (std_msgs/String, a JSON list) to the prompt mailbox.\n"
+    "Publish the node's map (sensor_msgs/PointCloud2), prompt list (std_msgs/String),\n"
+    "label and camera images (sensor_msgs/Image, CompressedImage, CameraInfo), camera\n"
+    "pose (tf2_msgs/TFMessage) and status (diagnostic_msgs/DiagnosticArray) over DDS\n"
+    "as ROS 2 topics, and post prompt sets received on <namespace>/vlff/prompts_in\n"
+    "(std_msgs/String, a JSON list) to the prompt mailbox.\n"
     "\n"
     "  -c, --config FILE       the config (default: $VLFF_CONFIG, then the installed vlff.yaml)\n"
     "      --check-config FILE validate FILE, print the bridge's effective settings, exit 0/1\n"
@@ -31,6 +33,7 @@ static const struct vlff_cli cli = {
     "      --frame-id ID       header frame_id (dds.frame_id)\n"
     "  -m, --map NAME          map segment (shm.map)\n"
     "      --prompts NAME      prompt mailbox (shm.prompts)\n"
+    "      --frames NAME       frame ring, the camera (shm.ring)\n"
     "      --no-map            do not publish the map (dds.map: false)\n"
     "      --no-status         do not publish the status (dds.status: false)\n"
     "      --no-prompts        take no prompt sets (dds.prompts_in: false)\n"
@@ -44,7 +47,7 @@ static const struct vlff_cli cli = {
     "  ros2 topic echo /robot1/vlff/status   # on any machine of the network\n",
 };
 
-enum { OPT_CHECK = 256, OPT_FRAME, OPT_PROMPTS, OPT_NO_MAP, OPT_NO_STATUS, OPT_NO_PROMPTS, OPT_SECONDS };
+enum { OPT_CHECK = 256, OPT_FRAME, OPT_PROMPTS, OPT_FRAMES, OPT_NO_MAP, OPT_NO_STATUS, OPT_NO_PROMPTS, OPT_SECONDS };
 
 /* A YAML single-quoted scalar of s ('' for '). */
 static void put_quoted(char *out, size_t len, const char *s) {
@@ -66,13 +69,15 @@ int main(int argc, char **argv) {
                                        {"frame-id", required_argument, NULL, OPT_FRAME},
                                        {"map", required_argument, NULL, 'm'},
                                        {"prompts", required_argument, NULL, OPT_PROMPTS},
+                                       {"frames", required_argument, NULL, OPT_FRAMES},
                                        {"no-map", no_argument, NULL, OPT_NO_MAP},
                                        {"no-status", no_argument, NULL, OPT_NO_STATUS},
                                        {"no-prompts", no_argument, NULL, OPT_NO_PROMPTS},
                                        {"seconds", required_argument, NULL, OPT_SECONDS},
                                        {"verbose", no_argument, NULL, 'v'},
                                        VLFF_CLI_COMMON_OPTIONS};
-  const char *path = NULL, *domain = NULL, *ns = NULL, *frame = NULL, *map = NULL, *prompts = NULL;
+  const char *path = NULL, *domain = NULL, *ns = NULL, *frame = NULL, *map = NULL, *prompts = NULL,
+             *frames = NULL;
   bool check = false, no_map = false, no_status = false, no_prompts = false, verbose = false;
   double seconds = 0;
   int c, status;
@@ -87,6 +92,7 @@ int main(int argc, char **argv) {
     case OPT_FRAME: frame = optarg; break;
     case 'm': map = optarg; break;
     case OPT_PROMPTS: prompts = optarg; break;
+    case OPT_FRAMES: frames = optarg; break;
     case OPT_NO_MAP: no_map = true; break;
     case OPT_NO_STATUS: no_status = true; break;
     case OPT_NO_PROMPTS: no_prompts = true; break;
@@ -110,18 +116,20 @@ int main(int argc, char **argv) {
 
   /* The overrides pass the config's own checks: they are loaded as a
    * config of their own, named after the options in messages. */
-  char yaml[2048], q[4][600];
+  char yaml[2560], q[5][600];
   put_quoted(q[0], sizeof q[0], ns ? ns : "");
   put_quoted(q[1], sizeof q[1], frame ? frame : "");
   put_quoted(q[2], sizeof q[2], map ? map : "");
   put_quoted(q[3], sizeof q[3], prompts ? prompts : "");
+  put_quoted(q[4], sizeof q[4], frames ? frames : "");
   int n = snprintf(yaml, sizeof yaml, "%s", domain || ns || frame ? "dds:\n" : "");
   if (domain) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  domain_id: %s\n", domain);
   if (ns) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  namespace: %s\n", q[0]);
   if (frame) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  frame_id: %s\n", q[1]);
-  if (map || prompts) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "shm:\n");
+  if (map || prompts || frames) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "shm:\n");
   if (map) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  map: %s\n", q[2]);
   if (prompts) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  prompts: %s\n", q[3]);
+  if (frames) n += snprintf(yaml + n, sizeof yaml - (size_t)n, "  ring: %s\n", q[4]);
   if (n >= (int)sizeof yaml || strchr(domain ? domain : "", '\n') ||
       vlff_config_load_mem(yaml, strlen(yaml), "(command line)", &over, err, sizeof err))
     return vlff_cli_usage_error(&cli, "%s", n >= (int)sizeof yaml ? "options too long" : err);
@@ -130,40 +138,58 @@ int main(int argc, char **argv) {
   if (frame) snprintf(cfg.dds.frame_id, sizeof cfg.dds.frame_id, "%s", over.dds.frame_id);
   if (map) snprintf(cfg.shm.map, sizeof cfg.shm.map, "%s", over.shm.map);
   if (prompts) snprintf(cfg.shm.prompts, sizeof cfg.shm.prompts, "%s", over.shm.prompts);
-  if (no_map) cfg.dds.map = false;
-  if (no_status) cfg.dds.status = false;
-  if (no_prompts) cfg.dds.prompts_in = false;
+  if (frames) snprintf(cfg.shm.ring, sizeof cfg.shm.ring, "%s", over.shm.ring);
+  if (no_map) cfg.dds.on[VLFF_DDS_MAP] = false;
+  if (no_status) cfg.dds.on[VLFF_DDS_STATUS] = false;
+  if (no_prompts) cfg.dds.on[VLFF_DDS_PROMPTS_IN] = false;
   if (!strcmp(cfg.shm.map, cfg.shm.prompts))
     return vlff_cli_usage_error(&cli, "the map segment and the prompt mailbox are both '%s'", VLFF_Q(cfg.shm.map));
 
+  for (int i = VLFF_DDS_LABEL_IMAGE_COMPRESSED; i <= VLFF_DDS_CAMERA_IMAGE_COMPRESSED; i += 2)
+    if (cfg.dds.on[i] && !vlff_dds_can_compress())
+      return vlff_cli_error(&cli, "dds.%s: this build has no image encoder (built without OpenCV): set it false",
+                            vlff_dds_topic_key(i));
   struct vlff_dds_opts o = {0};
   o.dds = cfg.dds;
   snprintf(o.map, sizeof o.map, "%s", cfg.shm.map);
   snprintf(o.prompts, sizeof o.prompts, "%s", cfg.shm.prompts);
+  snprintf(o.frames, sizeof o.frames, "%s", cfg.shm.ring);
   /* DiagnosticStatus.hardware_id: the computer the node runs on (a fleet
    * tells its robots apart by it and by the namespace). */
   if (gethostname(o.hardware_id, sizeof o.hardware_id - 1) != 0) snprintf(o.hardware_id, sizeof o.hardware_id, "vlff");
   o.run_seconds = seconds;
-  char topic[3][300];
-  vlff_dds_topic(topic[0], sizeof topic[0], o.dds.ns, "map");
-  vlff_dds_topic(topic[1], sizeof topic[1], o.dds.ns, "status");
-  vlff_dds_topic(topic[2], sizeof topic[2], o.dds.ns, "prompts_in");
+  char topic[VLFF_DDS_NTOPICS][300];
+  for (int i = 0; i < VLFF_DDS_NTOPICS; i++)
+    if (vlff_dds_topic_of(topic[i], sizeof topic[i], o.dds.ns, i) < 0)
+      return vlff_cli_usage_error(&cli, "dds.namespace '%s' too long for a topic name", VLFF_Q(o.dds.ns));
   if (check) {
+    static const char *const rel[] = {"best_effort", "reliable"}, *const dur[] = {"volatile", "transient_local"};
     printf("config: %s\n", found ? found : "(none: defaults)");
     printf("dds.domain_id: %d\n", o.dds.domain_id);
     printf("dds.namespace: \"%s\"\n", o.dds.ns);
     printf("dds.frame_id: \"%s\"\n", o.dds.frame_id);
-    printf("map: %s <- %s\n", o.dds.map ? topic[0] : "(off)", o.map);
-    printf("status: %s\n", o.dds.status ? topic[1] : "(off)");
-    printf("prompts_in: %s -> %s\n", o.dds.prompts_in ? topic[2] : "(off)", o.prompts);
+    printf("dds.camera_frame_id: \"%s\"\n", o.dds.camera_frame_id);
+    for (int i = 0; i < VLFF_DDS_NTOPICS; i++) {
+      const struct vlff_cfg_dds_qos *qq = &o.dds.qos[i];
+      const char *from = i == VLFF_DDS_MAP || i == VLFF_DDS_PROMPTS || i == VLFF_DDS_LABEL_IMAGE ||
+                                 i == VLFF_DDS_LABEL_IMAGE_COMPRESSED || i == VLFF_DDS_STATUS
+                             ? o.map
+                         : i == VLFF_DDS_PROMPTS_IN ? o.prompts
+                         : i == VLFF_DDS_TF         ? "frames or label image"
+                                                    : o.frames;
+      if (o.dds.on[i])
+        printf("%s: %s %s %s (%s, %s, keep last %d)\n", vlff_dds_topic_key(i), topic[i],
+               i == VLFF_DDS_PROMPTS_IN ? "->" : "<-", from, rel[qq->reliability], dur[qq->durability], qq->depth);
+      else
+        printf("%s: (off)\n", vlff_dds_topic_key(i));
+    }
     return 0;
   }
   vlff_log_set_level(verbose ? VLFF_LOG_DEBUG : (enum vlff_log_level)cfg.node.log_level);
   vlff_cli_catch_stop();
   struct vlff_dds *b = vlff_dds_create(&o, err, sizeof err);
   if (!b) return vlff_cli_error(&cli, "%s", err);
-  VLFF_INFO("dds", "domain %d: %s%s%s from %s", o.dds.domain_id, o.dds.map ? topic[0] : "",
-            o.dds.status ? " " : "", o.dds.status ? topic[1] : "", o.map);
+  VLFF_INFO("dds", "domain %d, namespace \"%s\": from %s and %s", o.dds.domain_id, o.dds.ns, o.map, o.frames);
   int rc = vlff_dds_run(b);
   const struct vlff_dds_counts *k = vlff_dds_counts(b);
   VLFF_INFO("dds", "stopping: %llu maps, %llu status messages sent; %llu prompt sets posted, refused: %llu oversized, "

@@ -147,6 +147,83 @@ void vlff_classify_f16(const uint16_t *feat, size_t n, int d, const float *emb_u
   free(tmp);
 }
 
+/* The feature-map cell a point takes its feature from in view w, or -1
+ * when the view does not see it (outside the image, behind the camera, or
+ * not within tol of the measured depth there). */
+static long fusion_cell(const struct vlff_fusion_view *w, const float *xyz, double tol) {
+  const double *M = w->c2w;
+  double p[3] = {xyz[0] - M[3], xyz[1] - M[7], xyz[2] - M[11]};
+  /* world -> camera with R^T */
+  double x = M[0] * p[0] + M[4] * p[1] + M[8] * p[2];
+  double y = M[1] * p[0] + M[5] * p[1] + M[9] * p[2];
+  double z = M[2] * p[0] + M[6] * p[1] + M[10] * p[2];
+  if (z <= 1e-6) return -1;
+  double u = w->fx * x / z + w->cx, vv = w->fy * y / z + w->cy;
+  if (!(u >= 0 && vv >= 0 && u < w->width && vv < w->height)) return -1;
+  int iu = (int)u, iv = (int)vv;
+  float dz = w->depth[(size_t)iv * w->width + iu];
+  if (!(dz > 0) || fabs(dz - z) > tol) return -1;
+  int fi = (int)(u * w->feat_width / w->width), fj = (int)(vv * w->feat_height / w->height);
+  if (fi >= w->feat_width) fi = w->feat_width - 1;
+  if (fj >= w->feat_height) fj = w->feat_height - 1;
+  return (long)fj * w->feat_width + fi;
+}
+
+static int fusion_view_ok(const struct vlff_fusion_view *w) {
+  return w->width >= 1 && w->height >= 1 && w->feat_width >= 1 && w->feat_height >= 1 && w->depth &&
+         w->fx > 0 && w->fy > 0;
+}
+
+int vlff_fusion_add(const float *xyz, size_t n, const struct vlff_fusion_view *view, int d, const float *emb_unit,
+                    int k, double tol, double *acc, int *count, char *err, size_t errlen) {
+  if (d < 1 || k < 1 || !(tol > 0) || !fusion_view_ok(view) || !view->features) {
+    vlff_errf(err, errlen, "fusion: invalid view sizes, intrinsics or buffers (D=%d, K=%d, tol=%g)", d, k, tol);
+    return -1;
+  }
+  /* cells are projected when a point first lands in them: a view sees a
+   * part of the scene, and most of its cells may hold no labelled point */
+  const size_t cells = (size_t)view->feat_width * view->feat_height;
+  float *proj = malloc(cells * (size_t)k * sizeof(float) + (size_t)d * sizeof(float));
+  uint8_t *done = calloc(cells, 1);
+  if (!proj || !done) {
+    free(proj), free(done);
+    vlff_errf(err, errlen, "fusion: out of memory for a %dx%d feature map", view->feat_width, view->feat_height);
+    return -1;
+  }
+  float *tmp = proj + cells * (size_t)k;
+  for (size_t i = 0; i < n; i++) {
+    long cell = fusion_cell(view, xyz + 3 * i, tol);
+    if (cell < 0) continue;
+    float *f = proj + (size_t)cell * k;
+    if (!done[cell]) {
+      const uint16_t *src = view->features + (size_t)cell * d;
+      for (int j = 0; j < d; j++) tmp[j] = vlff_f16_to_f32(src[j]);
+      for (int c = 0; c < k; c++) {
+        double dot = 0;
+        for (int j = 0; j < d; j++) dot += (double)tmp[j] * emb_unit[(size_t)c * d + j];
+        f[c] = (float)dot;
+      }
+      done[cell] = 1;
+    }
+    double *o = acc + i * k;
+    for (int c = 0; c < k; c++) o[c] += f[c];
+    count[i]++;
+  }
+  free(proj), free(done);
+  return 0;
+}
+
+void vlff_fusion_labels(const double *acc, const int *count, size_t n, int k, int *label) {
+  for (size_t i = 0; i < n; i++) {
+    int best = -1;
+    double bv = -INFINITY;
+    if (count[i] > 0)
+      for (int c = 0; c < k; c++)
+        if (isfinite(acc[i * k + c]) && acc[i * k + c] > bv) bv = acc[i * k + c], best = c;
+    label[i] = best;
+  }
+}
+
 int vlff_fusion(const float *xyz, size_t n, const struct vlff_fusion_view *views, int nviews, int d,
                 double tol, float *out, int *count, char *err, size_t errlen) {
   if (d < 1 || nviews < 0 || !(tol > 0)) {
@@ -155,8 +232,7 @@ int vlff_fusion(const float *xyz, size_t n, const struct vlff_fusion_view *views
   }
   for (int v = 0; v < nviews; v++) {
     const struct vlff_fusion_view *w = &views[v];
-    if (w->width < 1 || w->height < 1 || w->feat_width < 1 || w->feat_height < 1 || !w->depth ||
-        !w->features || !(w->fx > 0) || !(w->fy > 0)) {
+    if (!fusion_view_ok(w) || !w->features) {
       vlff_errf(err, errlen, "fusion: view %d has invalid sizes, intrinsics or buffers", v);
       return -1;
     }
@@ -165,23 +241,10 @@ int vlff_fusion(const float *xyz, size_t n, const struct vlff_fusion_view *views
   if (count) memset(count, 0, n * sizeof(int));
   for (int v = 0; v < nviews; v++) {
     const struct vlff_fusion_view *w = &views[v];
-    const double *M = w->c2w;
     for (size_t i = 0; i < n; i++) {
-      double p[3] = {xyz[3 * i] - M[3], xyz[3 * i + 1] - M[7], xyz[3 * i + 2] - M[11]};
-      /* world -> camera with R^T */
-      double x = M[0] * p[0] + M[4] * p[1] + M[8] * p[2];
-      double y = M[1] * p[0] + M[5] * p[1] + M[9] * p[2];
-      double z = M[2] * p[0] + M[6] * p[1] + M[10] * p[2];
-      if (z <= 1e-6) continue;
-      double u = w->fx * x / z + w->cx, vv = w->fy * y / z + w->cy;
-      if (!(u >= 0 && vv >= 0 && u < w->width && vv < w->height)) continue;
-      int iu = (int)u, iv = (int)vv;
-      float dz = w->depth[(size_t)iv * w->width + iu];
-      if (!(dz > 0) || fabs(dz - z) > tol) continue;
-      int fi = (int)(u * w->feat_width / w->width), fj = (int)(vv * w->feat_height / w->height);
-      if (fi >= w->feat_width) fi = w->feat_width - 1;
-      if (fj >= w->feat_height) fj = w->feat_height - 1;
-      const uint16_t *f = w->features + ((size_t)fj * w->feat_width + fi) * d;
+      long cell = fusion_cell(w, xyz + 3 * i, tol);
+      if (cell < 0) continue;
+      const uint16_t *f = w->features + (size_t)cell * d;
       float *o = out + i * d;
       for (int j = 0; j < d; j++) o[j] += vlff_f16_to_f32(f[j]);
       if (count) count[i]++;

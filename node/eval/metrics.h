@@ -94,6 +94,19 @@ struct vlff_fusion_view {
 int vlff_fusion(const float *xyz, size_t n, const struct vlff_fusion_view *views, int nviews, int d,
                 double tol, float *out, int *count, char *err, size_t errlen);
 
+/* The same fusion one view at a time, in the prompts' K dimensions
+ * instead of the features' D: a point the view sees (the same visibility
+ * test and cell as vlff_fusion) adds that cell's feature projected on the
+ * K unit embeddings to acc[n][k] and 1 to count[n] (both zeroed by the
+ * caller). The projection is linear, so the argmax of the summed
+ * projections (vlff_fusion_labels: -1 for a point no view saw) is the
+ * argmax of the averaged feature's cosines, the label vlff_fusion and
+ * vlff_classify_f32 give (up to rounding), from [n][K] sums instead of
+ * [n][D] and with one view in memory at a time. */
+int vlff_fusion_add(const float *xyz, size_t n, const struct vlff_fusion_view *view, int d, const float *emb_unit,
+                    int k, double tol, double *acc, int *count, char *err, size_t errlen);
+void vlff_fusion_labels(const double *acc, const int *count, size_t n, int k, int *label);
+
 /* Ground-truth label at the centre of feature-map cell (i, j) of an image
  * labelled [h][w]: the label image nearest-sampled to the evaluation grid. */
 void vlff_downsample_labels(const uint8_t *label, int w, int h, uint8_t *out, int ow, int oh);

@@ -3,7 +3,9 @@
  *
  * A scene (a synthetic room from the sim, or a scene directory) is split into
  * training frames and held-out frames (every --holdout'th). The field is fit
- * on the training frames for --iters steps; then
+ * on the training frames (a dataset's: those of them keyframes.memory_mb
+ * holds, spread over the scene; every other pass reads a dataset one frame
+ * at a time, so a scene of any length fits) for --iters steps; then
  *   2D: the held-out frames are rendered at the feature-map resolution and
  *       segmented with the prompts, cells on measured surfaces as the node's
  *       label image reads them (field and evidence); the raw per-frame
@@ -66,8 +68,8 @@ static const struct vlff_cli cli = {
     "  --fit-seconds S     fit for S seconds of wall clock instead of --iters steps\n"
     "  --holdout K         every K-th frame is held out for 2D evaluation (default 8)\n"
     "  --stride N          dataset: the frames whose number is a multiple of N\n"
-    "                      (default 1); a multiple of N when the training frames\n"
-    "                      would exceed keyframes.memory_mb (said, and in the report)\n"
+    "                      (default 1); read one at a time, the field fitting on as\n"
+    "                      many as keyframes.memory_mb holds, spread over the scene\n"
     "  --label-set SET     ScanNet labels as scannet20 (default) or nyu40 classes\n"
     "  --label-tsv FILE    ScanNet's scannetv2-labels.combined.tsv (default: looked\n"
     "                      for in the scene directory and its two parents)\n"
@@ -97,16 +99,21 @@ struct opts {
   double difficulty, fit_seconds;
 };
 
-/* One scene frame in memory. */
+/* One scene frame. The synthetic room's frames are rendered into memory
+ * and stay there; a dataset's are read when a pass needs them (frame_data),
+ * and only the field's keyframes keep their training copies resident. */
 struct frame {
   int index;
   double c2w[16];
   uint8_t *rgb, *label;
   float *depth;
   uint16_t *feat;
-  /* training copies at train.image_scale */
+  int key;         /* a training frame the field fits on */
+  /* a keyframe's training copies at train.image_scale, and (dataset) its
+   * features */
   uint8_t *trgb;
   float *tdepth;
+  uint16_t *kfeat;
 };
 
 struct scene {
@@ -119,14 +126,17 @@ struct scene {
   struct vlff_points pts;
   int tw, th;              /* training image size */
   int holdout;             /* frame i is held out when i % holdout == holdout / 2 */
-  /* dataset: held-out frames' images and features are read when scored */
+  /* dataset: every frame's images, labels and features are read when a
+   * pass needs them, into these scratch buffers */
   struct vlff_dataset ds;
   int streaming;
-  uint8_t *srgb;
+  uint8_t *srgb, *slabel;
   uint16_t *sfeat;
   float *sdepth;
-  int stride, stride_asked; /* dataset: the stride used, and --stride */
-  const char *stride_why;  /* why they differ (NULL: they do not) */
+  int stride;              /* dataset: --stride */
+  int nkey;                /* keyframes: the training frames the field fits on */
+  double key_mib;          /* what one keyframe holds resident */
+  const char *key_why;     /* why nkey is fewer than the training frames (NULL: it is not) */
   const char *box_from;    /* where field.scene_min/max came from */
   size_t pts_outside;      /* labelled points outside that box */
 };
@@ -274,23 +284,24 @@ static void load_sim(struct scene *sc, const struct vlff_config *cfg) {
 
 static int held_out(int i, int holdout) { return i % holdout == holdout / 2; }
 
-enum { FD_RGB = 1, FD_DEPTH = 2, FD_FEAT = 4 };
+enum { FD_RGB = 1, FD_DEPTH = 2, FD_FEAT = 4, FD_LABEL = 8 };
 
-/* Frame i's images and features in memory: training frames hold theirs,
- * a held-out frame of a dataset has the parts asked for (FD_*) read into
- * scratch buffers until the next call, the others NULL (the field's
- * training set stays resident, as the node's keyframe store does; the
- * frames it is scored on need not, nor more of them than a score reads). */
+/* Frame i's parts asked for (FD_*): the synthetic room's are in memory; a
+ * dataset's are read into the scene's scratch buffers, valid until the next
+ * call, and the parts not asked for are NULL (a keyframe's features come
+ * from memory). A dataset of any length thus holds one frame's images at a
+ * time besides the keyframes, as the node's keyframe store bounds it. */
 static struct frame *frame_data(struct scene *sc, int i, unsigned parts) {
   struct frame *f = &sc->f[i];
-  if (!sc->streaming || !held_out(i, sc->holdout)) return f;
+  if (!sc->streaming) return f;
   char err[1024];
   f->rgb = parts & FD_RGB ? sc->srgb : NULL;
   f->depth = parts & FD_DEPTH ? sc->sdepth : NULL;
-  f->feat = parts & FD_FEAT ? sc->sfeat : NULL;
-  if (((parts & (FD_RGB | FD_DEPTH)) &&
-       vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, f->depth, NULL, err, sizeof err) < 0) ||
-      (f->feat && vlff_dataset_read_features(&sc->ds, f->index, f->feat, err, sizeof err) < 0))
+  f->label = parts & FD_LABEL ? sc->slabel : NULL;
+  f->feat = parts & FD_FEAT ? (f->kfeat ? f->kfeat : sc->sfeat) : NULL;
+  if (((parts & (FD_RGB | FD_DEPTH | FD_LABEL)) &&
+       vlff_dataset_read_frame(&sc->ds, f->index, f->rgb, f->depth, f->label, err, sizeof err) < 0) ||
+      (f->feat == sc->sfeat && vlff_dataset_read_features(&sc->ds, f->index, f->feat, err, sizeof err) < 0))
     die("%s", err);
   return f;
 }
@@ -308,10 +319,10 @@ static int cmp_float(const void *a, const void *b) {
  * large costs a little resolution; one too small loses what it cuts). Sets
  * *inside to the share of those points within the config's box. 0, or -1
  * when the frames measured too little to bound anything. */
-static int measured_box(const struct scene *sc, const struct vlff_cfg_field *fc, double lo[3], double hi[3],
+static int measured_box(struct scene *sc, const struct vlff_cfg_field *fc, double lo[3], double hi[3],
                         double *inside) {
-  size_t nd = 0; /* frames with depth */
-  for (int i = 0; i < sc->n; i++) nd += sc->f[i].depth != NULL;
+  size_t nd = 0; /* the training frames: their depth is read one at a time */
+  for (int i = 0; i < sc->n; i++) nd += !held_out(i, sc->holdout);
   int step = 1;
   while (nd * sc->W * sc->H / ((size_t)step * step) > (1u << 20)) step++;
   /* pixels sampled per frame (from step / 2 on, every step-th), exactly:
@@ -322,8 +333,8 @@ static int measured_box(const struct scene *sc, const struct vlff_cfg_field *fc,
   float *ax[3];
   for (int a = 0; a < 3; a++) ax[a] = xcalloc(cap, sizeof(float));
   for (int i = 0; i < sc->n; i++) {
-    const struct frame *f = &sc->f[i];
-    if (!f->depth) continue;
+    if (held_out(i, sc->holdout)) continue;
+    const struct frame *f = frame_data(sc, i, FD_DEPTH);
     double x[3];
     for (int v = step / 2; v < sc->H; v += step)
       for (int u = step / 2; u < sc->W; u += step) {
@@ -423,39 +434,46 @@ static int stride_frames(const struct vlff_dataset *ds, int stride, int holdout,
   return n;
 }
 
-/* The stride the run uses: --stride N, or, when the training frames it
- * takes would need more memory than keyframes.memory_mb (they stay
- * resident, as the node's keyframe store does), the smallest multiple of N
- * whose frames fit (so they are among those --stride N takes, and features
- * stored for those serve), said on stderr. */
-static int choose_stride(struct scene *sc, const struct vlff_dataset *ds, const struct opts *o,
-                         const struct vlff_config *cfg) {
-  const size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
-  const double frame_mb = (double)(npx * (3 + sizeof(float)) + nf * sizeof(uint16_t)) / (1 << 20);
+/* The field's keyframes among the training frames. Every training frame
+ * feeds fusion and the evidence, read one at a time; the field samples its
+ * rays from all of its keyframes at every step, so their training copies
+ * and features stay in memory, within keyframes.memory_mb as the node's
+ * keyframe store. When the training frames need more, as many as fit are
+ * taken spread evenly over the whole scene (the k-th of m from the middle
+ * of its share of the training frames), so the field sees every part of a
+ * recording, not only its start; said on stderr and in the report. */
+static void choose_keyframes(struct scene *sc, const struct vlff_config *cfg, int fit) {
+  int ntrain = 0;
+  for (int i = 0; i < sc->n; i++) ntrain += !held_out(i, sc->holdout);
+  const size_t nf = (size_t)sc->fw * sc->fh * sc->D;
+  sc->key_mib = (double)((size_t)sc->tw * sc->th * (3 + sizeof(float)) + (sc->streaming ? nf * sizeof(uint16_t) : 0)) /
+                (1 << 20);
   const double budget = cfg->keyframes.memory_mb;
-  int ntrain, n = stride_frames(ds, o->stride, o->holdout, NULL, &ntrain);
-  sc->stride_asked = o->stride;
-  if (ntrain * frame_mb <= budget) return o->stride;
-  const double asked_mb = ntrain * frame_mb;
-  const int asked_train = ntrain;
-  for (long s = 2L * o->stride; s <= ds->last_number + 1 && s <= 100000L * o->stride; s += o->stride) {
-    n = stride_frames(ds, (int)s, o->holdout, NULL, &ntrain);
-    if (n < 2 || ntrain == n) break; /* nothing left to hold out */
-    if (ntrain * frame_mb <= budget) {
-      fprintf(stderr,
-              "vlff-eval: %s: the %d training frames --stride %d takes need %.1f MiB of images and features, more "
-              "than keyframes.memory_mb (%.0f): using --stride %ld instead (%d frames, %d of them training, %.1f MiB; "
-              "raise keyframes.memory_mb to keep more)\n",
-              VLFF_Q(ds->dir), asked_train, o->stride, asked_mb, budget, s, n, ntrain, ntrain * frame_mb);
-      sc->stride_why = "keyframes.memory_mb";
-      return (int)s;
-    }
+  long m = ntrain;
+  /* the synthetic room is rendered into memory whole; a run that fits
+   * nothing keeps no keyframes */
+  if (!fit) m = 0;
+  else if (sc->streaming && ntrain * sc->key_mib > budget) {
+    m = (long)(budget / sc->key_mib);
+    if (m < 1)
+      die("%s: a keyframe needs %.1f MiB (its training images at train.image_scale %.2f and its %dx%dx%d features), "
+          "more than keyframes.memory_mb (%.0f): raise keyframes.memory_mb",
+          VLFF_Q(sc->ds.dir), sc->key_mib, cfg->train.image_scale, sc->fw, sc->fh, sc->D, budget);
+    fprintf(stderr,
+            "vlff-eval: %s: the %d training frames need %.1f MiB as keyframes, more than keyframes.memory_mb (%.0f): "
+            "the field fits on %ld of them spread over the whole scene (%.1f MiB); fusion and the evidence read all "
+            "%d (raise keyframes.memory_mb to fit on more)\n",
+            VLFF_Q(sc->ds.dir), ntrain, ntrain * sc->key_mib, budget, m, m * sc->key_mib, ntrain);
+    sc->key_why = "keyframes.memory_mb";
   }
-  die("%s: a training frame needs %.1f MiB of images and features; keyframes.memory_mb (%.0f) holds %d, and no "
-      "multiple of --stride %d leaves that few training frames and a held-out one (--holdout %d): raise "
-      "keyframes.memory_mb or lower --holdout",
-      VLFF_Q(ds->dir), frame_mb, budget, (int)(budget / frame_mb), o->stride, o->holdout);
-  return -1;
+  sc->nkey = (int)m;
+  for (int i = 0, t = 0, k = 0; i < sc->n && k < m; i++) {
+    if (held_out(i, sc->holdout)) continue;
+    /* training frame t is the k-th keyframe when it is the one nearest the
+     * middle of the k-th m-th of them */
+    if (t == (int)(((double)k + 0.5) * ntrain / (double)m)) sc->f[i].key = 1, k++;
+    t++;
+  }
 }
 
 /* The prompts' vectors: prompts.embeddings, else the scene's
@@ -503,7 +521,7 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
   if (vlff_dataset_points_path(&ds, pts_path, sizeof pts_path, err, sizeof err) < 0) die("%s", err);
   load_prompts(sc, &ds, cfg, p, sizeof p);
   if (vlff_dataset_read_points(&ds, &sc->pts, err, sizeof err) < 0) die("%s", err);
-  sc->stride = choose_stride(sc, &ds, o, cfg);
+  sc->stride = o->stride;
   int ntrain, *idx = xcalloc((size_t)ds.n, sizeof(int));
   sc->n = stride_frames(&ds, sc->stride, o->holdout, idx, &ntrain);
   /* features stored for some frames only must hold every frame the run takes */
@@ -519,69 +537,64 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
   sc->f = xcalloc((size_t)sc->n, sizeof *sc->f);
   size_t npx = (size_t)sc->W * sc->H, nf = (size_t)sc->fw * sc->fh * sc->D;
   sc->srgb = xcalloc(npx, 3), sc->sfeat = xcalloc(nf, sizeof(uint16_t)), sc->sdepth = xcalloc(npx, sizeof(float));
+  sc->slabel = xcalloc(npx, 1);
   for (int i = 0; i < sc->n; i++) {
     struct frame *f = &sc->f[i];
     f->index = idx[i];
     memcpy(f->c2w, ds.c2w + 16 * (size_t)f->index, sizeof f->c2w);
-    f->label = xcalloc(npx, 1);
-    if (held_out(i, o->holdout)) { /* labels only; images and features when scored */
-      if (vlff_dataset_read_frame(&ds, f->index, NULL, NULL, f->label, err, sizeof err) < 0) die("%s", err);
-      continue;
-    }
-    f->rgb = xcalloc(npx, 3), f->depth = xcalloc(npx, sizeof(float));
-    f->feat = xcalloc(nf, sizeof(uint16_t));
-    if (vlff_dataset_read_frame(&ds, f->index, f->rgb, f->depth, f->label, err, sizeof err) < 0 ||
-        vlff_dataset_read_features(&ds, f->index, f->feat, err, sizeof err) < 0)
-      die("%s", err);
   }
   free(idx);
+  sc->ds = ds; /* kept open: frames are read when a pass needs them */
+  sc->streaming = 1;
   /* A ground-truth class without a record would silently count as
    * unlabelled and drop out of every score: refuse, naming the first file
-   * that uses one. */
-  for (int i = 0; i < sc->n; i++)
+   * that uses one, before anything is fitted (each label image is read
+   * once here and again when scored). */
+  for (int i = 0; i < sc->n; i++) {
+    const struct frame *f = frame_data(sc, i, FD_LABEL);
     for (size_t j = 0; j < npx; j++)
-      if (sc->f[i].label[j] != 255 && sc->f[i].label[j] >= sc->K)
+      if (f->label[j] != 255 && f->label[j] >= sc->K)
         die("%s: %d records, but %s/%s/%s.png uses class id %d: ground-truth id k is record k, so "
             "every class needs one",
-            p, sc->K, dir, ds.label_dir, ds.stem[sc->f[i].index], sc->f[i].label[j]);
+            p, sc->K, dir, sc->ds.label_dir, sc->ds.stem[f->index], f->label[j]);
+  }
   for (size_t j = 0; j < sc->pts.n; j++)
     if (sc->pts.label[j] != 255 && sc->pts.label[j] >= sc->K)
       die("%s: %d records, but %s uses class id %d (vertex %zu): ground-truth id k is record k, so every class "
           "needs one",
           p, sc->K, pts_path, sc->pts.label[j], j);
-  dataset_box(sc, &ds, cfg);
-  sc->ds = ds; /* kept open: held-out frames are read when scored */
-  sc->streaming = 1;
+  dataset_box(sc, &sc->ds, cfg);
 }
 
-/* Training copies at train.image_scale: colour box-filtered, depth the
- * nearest sample (averaging depth across an edge invents surfaces). */
-static void make_training_images(struct scene *sc, double scale) {
+/* The training image size at train.image_scale. */
+static void training_size(struct scene *sc, double scale) {
   sc->tw = (int)(sc->W * scale + 0.5), sc->th = (int)(sc->H * scale + 0.5);
   if (sc->tw < 8) sc->tw = 8;
   if (sc->th < 8) sc->th = 8;
-  for (int i = 0; i < sc->n; i++) {
-    struct frame *f = &sc->f[i];
-    if (held_out(i, sc->holdout)) continue; /* they train nothing */
-    f->trgb = xcalloc((size_t)sc->tw * sc->th, 3);
-    f->tdepth = xcalloc((size_t)sc->tw * sc->th, sizeof(float));
-    for (int v = 0; v < sc->th; v++)
-      for (int u = 0; u < sc->tw; u++) {
-        int u0 = u * sc->W / sc->tw, u1 = (u + 1) * sc->W / sc->tw;
-        int v0 = v * sc->H / sc->th, v1 = (v + 1) * sc->H / sc->th;
-        if (u1 <= u0) u1 = u0 + 1;
-        if (v1 <= v0) v1 = v0 + 1;
-        unsigned acc[3] = {0, 0, 0}, cnt = 0;
-        for (int y = v0; y < v1; y++)
-          for (int x = u0; x < u1; x++) {
-            for (int c = 0; c < 3; c++) acc[c] += f->rgb[((size_t)y * sc->W + x) * 3 + c];
-            cnt++;
-          }
-        for (int c = 0; c < 3; c++) f->trgb[((size_t)v * sc->tw + u) * 3 + c] = (uint8_t)((acc[c] + cnt / 2) / cnt);
-        int cu = (int)((u + 0.5) * sc->W / sc->tw), cv = (int)((v + 0.5) * sc->H / sc->th);
-        f->tdepth[(size_t)v * sc->tw + u] = f->depth[(size_t)cv * sc->W + cu];
-      }
-  }
+}
+
+/* A keyframe's training copies at train.image_scale from its full-size
+ * images: colour box-filtered, depth the nearest sample (averaging depth
+ * across an edge invents surfaces). */
+static void make_training_copy(const struct scene *sc, struct frame *f) {
+  f->trgb = xcalloc((size_t)sc->tw * sc->th, 3);
+  f->tdepth = xcalloc((size_t)sc->tw * sc->th, sizeof(float));
+  for (int v = 0; v < sc->th; v++)
+    for (int u = 0; u < sc->tw; u++) {
+      int u0 = u * sc->W / sc->tw, u1 = (u + 1) * sc->W / sc->tw;
+      int v0 = v * sc->H / sc->th, v1 = (v + 1) * sc->H / sc->th;
+      if (u1 <= u0) u1 = u0 + 1;
+      if (v1 <= v0) v1 = v0 + 1;
+      unsigned acc[3] = {0, 0, 0}, cnt = 0;
+      for (int y = v0; y < v1; y++)
+        for (int x = u0; x < u1; x++) {
+          for (int c = 0; c < 3; c++) acc[c] += f->rgb[((size_t)y * sc->W + x) * 3 + c];
+          cnt++;
+        }
+      for (int c = 0; c < 3; c++) f->trgb[((size_t)v * sc->tw + u) * 3 + c] = (uint8_t)((acc[c] + cnt / 2) / cnt);
+      int cu = (int)((u + 0.5) * sc->W / sc->tw), cv = (int)((v + 0.5) * sc->H / sc->th);
+      f->tdepth[(size_t)v * sc->tw + u] = f->depth[(size_t)cv * sc->W + cu];
+    }
 }
 
 /* ---- progress ----------------------------------------------------------- */
@@ -737,10 +750,16 @@ static void load_scene(struct eval *e) {
   e->emb_raw = xcalloc((size_t)sc->K * sc->D, sizeof(float));
   memcpy(e->emb_raw, sc->emb, (size_t)sc->K * sc->D * sizeof(float));
   vlff_normalize_rows(e->emb_raw, sc->emb, sc->K, sc->D);
-  make_training_images(sc, e->cfg.train.image_scale);
   for (int i = 0; i < sc->n; i++) held_out(i, o->holdout) ? e->ntest++ : e->ntrain++;
   if (e->ntest == 0 || e->ntrain == 0)
     die("%d frames with --holdout %d leave no training or no test frames", sc->n, o->holdout);
+  training_size(sc, e->cfg.train.image_scale);
+  choose_keyframes(sc, &e->cfg, o->iters > 0 || o->fit_seconds > 0);
+  /* the synthetic room's frames are in memory: its keyframes' copies now
+   * (a dataset's are made in the training pass, as each is read) */
+  if (!sc->streaming)
+    for (int i = 0; i < sc->n; i++)
+      if (sc->f[i].key) make_training_copy(sc, &sc->f[i]);
   fprintf(stderr, "vlff-eval: scene %s: %d frames (%d train, %d held out) %dx%d, features %dx%dx%d, %zu labelled points, %d prompts (%.1f s)\n",
           o->dataset ? o->dataset : "synthetic", sc->n, e->ntrain, e->ntest, sc->W, sc->H, sc->fw, sc->fh, sc->D,
           sc->pts.n, sc->K, vlff_seconds() - t_load);
@@ -764,7 +783,7 @@ static void baseline_raw_2d(struct eval *e) {
   e->pl = xcalloc((size_t)fw * fh, sizeof(int));
   for (int i = 0; i < sc->n; i++) {
     if (!held_out(i, e->o.holdout)) continue;
-    const struct frame *f = frame_data(sc, i, FD_FEAT);
+    const struct frame *f = frame_data(sc, i, FD_FEAT | FD_LABEL);
     vlff_downsample_labels(f->label, sc->W, sc->H, e->gl, fw, fh);
     vlff_classify_f16(f->feat, (size_t)fw * fh, sc->D, sc->emb, sc->K, e->pl, NULL);
     vlff_confusion_add(&e->r2_raw.c, e->gl, e->pl, (size_t)fw * fh);
@@ -772,49 +791,67 @@ static void baseline_raw_2d(struct eval *e) {
   summarize(&e->r2_raw);
 }
 
-/* 3D baseline: OpenScene-style multi-view fusion of the training frames'
- * features at the labelled points. Returns the points no training view saw. */
-static size_t baseline_fusion_3d(struct eval *e) {
-  const struct scene *sc = &e->sc;
+static void build_evidence_begin(struct eval *e);
+
+/* The pass over the training frames, each read once: OpenScene-style
+ * multi-view fusion of their features at the labelled points (the 3D
+ * baseline; vlff_fusion_add keeps [points][K] sums, so one view at a time
+ * is in memory), the evidence the node would hold after admitting them
+ * (when a fit will use it), and the keyframes' training copies and
+ * features, which stay. Returns the labelled points no training view saw. */
+static size_t training_pass(struct eval *e) {
+  struct scene *sc = &e->sc;
   const int K = sc->K, D = sc->D;
-  const size_t np = sc->pts.n;
+  const size_t np = sc->pts.n, nf = (size_t)sc->fw * sc->fh * D;
+  const int fit = e->o.iters > 0 || e->o.fit_seconds > 0;
   char err[1024];
+  if (fit && e->cfg.publish.evidence_weight > 0) build_evidence_begin(e);
   e->p3 = xcalloc(np, sizeof(int));
   e->seen3 = xcalloc(np, 1);
-  struct vlff_fusion_view *fv = xcalloc((size_t)e->ntrain, sizeof *fv);
-  int nv = 0;
+  double *acc = xcalloc(np * (size_t)K, sizeof(double));
+  int *seen = xcalloc(np, sizeof(int));
   for (int i = 0; i < sc->n; i++) {
     if (held_out(i, e->o.holdout)) continue;
-    struct vlff_fusion_view *v = &fv[nv++];
-    v->width = sc->W, v->height = sc->H, v->fx = sc->fx, v->fy = sc->fy, v->cx = sc->cx, v->cy = sc->cy;
-    memcpy(v->c2w, sc->f[i].c2w, sizeof v->c2w);
-    v->depth = sc->f[i].depth, v->feat_width = sc->fw, v->feat_height = sc->fh, v->features = sc->f[i].feat;
-  }
-  /* in chunks: [n][D] floats of a whole scene can be large */
-  const size_t chunk = 8192;
-  float *acc = xcalloc(chunk * D, sizeof(float));
-  int *seen = xcalloc(chunk, sizeof(int));
-  size_t unseen = 0;
-  for (size_t s0 = 0; s0 < np; s0 += chunk) {
-    size_t m = np - s0 < chunk ? np - s0 : chunk;
-    if (vlff_fusion(sc->pts.xyz + 3 * s0, m, fv, nv, D, 0.05, acc, seen, err, sizeof err) < 0) die("%s", err);
-    vlff_classify_f32(acc, m, D, sc->emb, K, e->p3 + s0, NULL);
-    for (size_t k = 0; k < m; k++) {
-      unseen += seen[k] == 0 && sc->pts.label[s0 + k] < K;
-      e->seen3[s0 + k] = seen[k] != 0;
+    struct frame *f = frame_data(sc, i, FD_DEPTH | FD_FEAT | (sc->f[i].key ? FD_RGB : 0));
+    struct vlff_fusion_view fv = {.width = sc->W, .height = sc->H, .fx = sc->fx, .fy = sc->fy, .cx = sc->cx,
+                                  .cy = sc->cy, .depth = f->depth, .feat_width = sc->fw, .feat_height = sc->fh,
+                                  .features = f->feat};
+    memcpy(fv.c2w, f->c2w, sizeof fv.c2w);
+    if (vlff_fusion_add(sc->pts.xyz, np, &fv, D, sc->emb, K, 0.05, acc, seen, err, sizeof err) < 0) die("%s", err);
+    if (e->ev) {
+      struct vlff_view v = {.width = sc->W, .height = sc->H, .fx = sc->fx, .fy = sc->fy, .cx = sc->cx, .cy = sc->cy,
+                            .depth = f->depth, .features = f->feat, .feat_width = sc->fw, .feat_height = sc->fh,
+                            .feature_dim = D};
+      memcpy(v.c2w, f->c2w, sizeof v.c2w);
+      if (vlff_evidence_add(e->ev, &v, err, sizeof err) < 0) die("frame %d: %s", f->index, err);
+    }
+    if (sc->streaming && f->key) {
+      make_training_copy(sc, f);
+      f->kfeat = xcalloc(nf, sizeof(uint16_t));
+      memcpy(f->kfeat, f->feat, nf * sizeof(uint16_t));
     }
   }
+  vlff_fusion_labels(acc, seen, np, K, e->p3);
+  size_t unseen = 0;
+  for (size_t k = 0; k < np; k++) {
+    unseen += seen[k] == 0 && sc->pts.label[k] < K;
+    e->seen3[k] = seen[k] != 0;
+  }
   free(acc), free(seen);
-  free(fv);
   vlff_confusion_add(&e->r3_fusion.c, sc->pts.label, e->p3, np);
   summarize(&e->r3_fusion);
+  if (e->ev && (vlff_evidence_overflow(e->ev) || vlff_evidence_evicted(e->ev)))
+    fprintf(stderr,
+            "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld voxels given up, %lld "
+            "samples lost)\n",
+            vlff_evidence_voxels(e->ev), vlff_evidence_evicted(e->ev), vlff_evidence_overflow(e->ev));
   return unseen;
 }
 
 static void baselines(struct eval *e) {
   baseline_raw_2d(e);
   double t = vlff_seconds();
-  size_t unseen = baseline_fusion_3d(e);
+  size_t unseen = training_pass(e);
   fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f, %zu labelled points no training view saw (%.1f s)\n",
           100 * e->r2_raw.s.miou, 100 * e->r3_fusion.s.miou, unseen, vlff_seconds() - t);
 }
@@ -834,12 +871,13 @@ static struct vlff_field *fit_field(struct eval *e) {
   int nv = 0;
   double s = (double)sc->tw / sc->W, sy = (double)sc->th / sc->H;
   for (int i = 0; i < sc->n; i++) {
-    if (held_out(i, o->holdout)) continue;
+    if (held_out(i, o->holdout) || !sc->f[i].key) continue;
     struct vlff_view *v = &views[nv++];
     v->width = sc->tw, v->height = sc->th, v->rgb = sc->f[i].trgb, v->depth = sc->f[i].tdepth;
     v->fx = sc->fx * s, v->fy = sc->fy * sy, v->cx = sc->cx * s, v->cy = sc->cy * sy;
     memcpy(v->c2w, sc->f[i].c2w, sizeof v->c2w);
-    v->feat_width = sc->fw, v->feat_height = sc->fh, v->feature_dim = sc->D, v->features = sc->f[i].feat;
+    v->feat_width = sc->fw, v->feat_height = sc->fh, v->feature_dim = sc->D;
+    v->features = sc->f[i].kfeat ? sc->f[i].kfeat : sc->f[i].feat;
   }
   int tty = isatty(2) && !o->quiet;
   double t0 = vlff_seconds(), last = t0;
@@ -890,11 +928,10 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
     if (!held_out(i, e->o.holdout)) continue;
     memcpy(cam.c2w, sc->f[i].c2w, sizeof cam.c2w);
     if (vlff_field_render(fld, &cam, NULL, NULL, NULL, e->pl, NULL) < 0) die("render of frame %d failed", i);
-    vlff_downsample_labels(sc->f[i].label, sc->W, sc->H, e->gl, fw, fh);
-    vlff_confusion_add(&e->r2_alone.c, e->gl, e->pl, npx);
     const int overlay = nover < e->o.overlays;
-    const struct frame *f =
-        e->ev || overlay ? frame_data(sc, i, (e->ev ? FD_DEPTH : 0) | (overlay ? FD_RGB : 0)) : NULL;
+    const struct frame *f = frame_data(sc, i, FD_LABEL | (e->ev ? FD_DEPTH : 0) | (overlay ? FD_RGB : 0));
+    vlff_downsample_labels(f->label, sc->W, sc->H, e->gl, fw, fh);
+    vlff_confusion_add(&e->r2_alone.c, e->gl, e->pl, npx);
     if (e->ev) {
       /* the cells the node's label image reads on the measured surface */
       size_t m = vlff_label_surface(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, sc->W, sc->H, f->depth, fw, fh, xyz, pix,
@@ -915,26 +952,12 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
 }
 
 /* The evidence the node would hold after admitting the training frames:
- * their features averaged per voxel of the node's map grid (evidence.h). */
-static void build_evidence(struct eval *e) {
-  const struct scene *sc = &e->sc;
-  const struct vlff_config *cfg = &e->cfg;
+ * their features averaged per voxel of the node's map grid (evidence.h);
+ * the training pass adds them. */
+static void build_evidence_begin(struct eval *e) {
   char err[1024];
-  e->ev = vlff_evidence_for(&cfg->publish, &cfg->field, MAXK, err, sizeof err);
+  e->ev = vlff_evidence_for(&e->cfg.publish, &e->cfg.field, MAXK, err, sizeof err);
   if (!e->ev) die("%s", err);
-  for (int i = 0; i < sc->n; i++) {
-    if (held_out(i, e->o.holdout)) continue;
-    struct vlff_view v = {.width = sc->W, .height = sc->H, .fx = sc->fx, .fy = sc->fy, .cx = sc->cx, .cy = sc->cy,
-                          .depth = sc->f[i].depth, .features = sc->f[i].feat, .feat_width = sc->fw,
-                          .feat_height = sc->fh, .feature_dim = sc->D};
-    memcpy(v.c2w, sc->f[i].c2w, sizeof v.c2w);
-    if (vlff_evidence_add(e->ev, &v, err, sizeof err) < 0) die("frame %d: %s", sc->f[i].index, err);
-  }
-  if (vlff_evidence_overflow(e->ev) || vlff_evidence_evicted(e->ev))
-    fprintf(stderr,
-            "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld voxels given up, %lld "
-            "samples lost)\n",
-            vlff_evidence_voxels(e->ev), vlff_evidence_evicted(e->ev), vlff_evidence_overflow(e->ev));
 }
 
 /* What the field says at n points: its cosines with each prompt [n][K]
@@ -1032,8 +1055,7 @@ static void score_field(struct eval *e, struct vlff_field *fld) {
   if (vlff_field_set_prompts(fld, e->emb_raw, e->sc.K, err, sizeof err) < 0) die("%s", err);
   /* The field read at the 3D points serves the census and the 3D score. */
   struct field_read fr3 = {0};
-  if (e->cfg.publish.evidence_weight > 0) {
-    build_evidence(e);
+  if (e->ev) {
     fr3 = read_field(fld, e->sc.pts.xyz, e->sc.pts.n);
     census(e, fld, &fr3);
   }
@@ -1093,9 +1115,6 @@ static void write_report_md(const struct eval *e) {
   if (o->dataset) {
     fprintf(md, "# vlff-eval report\n\nScene: dataset `%s`, frames %s to %s, every %d-th", o->dataset,
             frame_name(sc, 0), frame_name(sc, sc->n - 1), sc->stride);
-    if (sc->stride_why)
-      fprintf(md, " (--stride %d asked; its training frames would need more than %s, %d MiB)", sc->stride_asked,
-              sc->stride_why, e->cfg.keyframes.memory_mb);
   }
   else
     fprintf(md, "# vlff-eval report\n\nScene: synthetic room (seed %d, difficulty %.2f)", e->cfg.sim.seed,
@@ -1104,6 +1123,10 @@ static void write_report_md(const struct eval *e) {
               "%zu labelled points; %d prompts.\nField: %s.\n\n",
           sc->n, e->ntrain, e->ntest, o->holdout, sc->W, sc->H, sc->fw, sc->fh, sc->D, sc->pts.n, sc->K,
           e->fitted ? "fitted" : "not fitted (--iters 0)");
+  if (e->fitted && sc->key_why)
+    fprintf(md, "Keyframes: the field fitted on %d of the %d training frames, spread over the scene (all of them "
+                "would need more than %s, %d MiB); fusion and the evidence used all.\n\n",
+            sc->nkey, e->ntrain, sc->key_why, e->cfg.keyframes.memory_mb);
   if (e->fitted)
     fprintf(md, "Training: %d steps in %.1f s (%.2f steps/s), last loss %.4f, PSNR %.1f dB.\n\n", e->steps, e->fit_s,
             e->steps / e->fit_s, e->st.loss, e->st.psnr);
@@ -1156,13 +1179,17 @@ static void write_report_json(const struct eval *e) {
   for (int i = 0; i < sc->n; i++)
     json_object_array_add(held_out(i, o->holdout) ? tef : trf, frame_json(sc, i));
   if (o->dataset) {
-    /* the stride used, and why when it is not --stride's */
-    struct json_object *st = json_object_new_object();
-    json_object_object_add(st, "asked", json_object_new_int(sc->stride_asked));
-    json_object_object_add(st, "used", json_object_new_int(sc->stride));
-    json_object_object_add(st, "chosen_for", sc->stride_why ? json_object_new_string(sc->stride_why) : NULL);
-    json_object_object_add(src, "stride", st);
+    json_object_object_add(src, "stride", json_object_new_int(sc->stride));
   }
+  /* the training frames the field fitted on, and why when not all */
+  struct json_object *kf = json_object_new_object(), *kff = json_object_new_array();
+  for (int i = 0; i < sc->n; i++)
+    if (sc->f[i].key) json_object_array_add(kff, frame_json(sc, i));
+  json_object_object_add(kf, "frames", kff);
+  json_object_object_add(kf, "frame_mib", json_object_new_double(sc->key_mib));
+  json_object_object_add(kf, "memory_mb", json_object_new_int(e->cfg.keyframes.memory_mb));
+  json_object_object_add(kf, "chosen_for", sc->key_why ? json_object_new_string(sc->key_why) : NULL);
+  json_object_object_add(src, "keyframes", kf);
   json_object_object_add(src, "train_frames", trf);
   json_object_object_add(src, "test_frames", tef);
   json_object_object_add(root, "source", src);
@@ -1275,12 +1302,12 @@ static void print_summary(const struct eval *e) {
 static void scene_free(struct eval *e) {
   struct scene *sc = &e->sc;
   for (int i = 0; i < sc->n; i++) {
-    if (sc->streaming && held_out(i, sc->holdout))
-      sc->f[i].rgb = NULL, sc->f[i].feat = NULL, sc->f[i].depth = NULL; /* scratch */
+    if (sc->streaming) /* scratch, or a keyframe's features freed below */
+      sc->f[i].rgb = NULL, sc->f[i].feat = NULL, sc->f[i].depth = NULL, sc->f[i].label = NULL;
     free(sc->f[i].rgb), free(sc->f[i].label), free(sc->f[i].depth), free(sc->f[i].feat);
-    free(sc->f[i].trgb), free(sc->f[i].tdepth);
+    free(sc->f[i].trgb), free(sc->f[i].tdepth), free(sc->f[i].kfeat);
   }
-  free(sc->srgb), free(sc->sfeat), free(sc->sdepth);
+  free(sc->srgb), free(sc->sfeat), free(sc->sdepth), free(sc->slabel);
   if (sc->streaming) vlff_dataset_close(&sc->ds);
   free(sc->f), free(e->gl), free(e->pl), free(e->p3), free(e->pred3), free(e->emb_raw), free(e->seen3);
   vlff_points_free(&sc->pts);

@@ -50,8 +50,11 @@ enum { C_WALL, C_FLOOR, C_CABINET, C_BED, C_CHAIR, C_SOFA, C_TABLE, C_DOOR, C_WI
 
 enum { PRIM_BOX, PRIM_CYL };
 
-#define FLAT_ROOMS 4
-#define FLAT_WAY 64
+/* The building's bounds: sim.flats <= 8 flats of 3 rooms and a corridor;
+ * each flat's tour takes under 48 waypoints. */
+#define MAX_FLATS 8
+#define MAX_ROOMS (3 * MAX_FLATS + 1)
+#define MAX_WAY (48 * MAX_FLATS + 8)
 
 struct prim {
   int kind;
@@ -103,14 +106,18 @@ struct vlff_sim {
   float *obj_vec;          /* [nobj][D] view-consistent additive bias */
   float *obj_mix;          /* [nobj] weight moved toward obj_to */
   int *obj_to;             /* [nobj] the class an object's features lean to */
-  /* Flat layout: rooms (inside faces of their walls) and doorways. */
+  /* Flat and building layouts: rooms (inside faces of their walls), the
+   * flat each belongs to (-1: the building's corridor) and doorways. */
   int nrooms;
-  double rooms[FLAT_ROOMS][4];     /* x0 y0 x1 y1 */
+  double rooms[MAX_ROOMS][4];      /* x0 y0 x1 y1 */
+  int room_flat[MAX_ROOMS];
+  int nflats;
+  double flats[MAX_FLATS][4];      /* each flat's inside, x0 y0 x1 y1 */
   int ndoors;
-  double doors[FLAT_ROOMS][2];     /* doorway centres in xy */
+  double doors[MAX_ROOMS][2];      /* doorway centres in xy */
   int nway;
-  double way[FLAT_WAY][2];         /* closed walk through the rooms, xy */
-  double way_len[FLAT_WAY + 1];    /* cumulative length at each waypoint */
+  double way[MAX_WAY][2];          /* closed walk through the rooms, xy */
+  double way_len[MAX_WAY + 1];     /* cumulative length at each waypoint */
 };
 
 /* ---- deterministic randomness ------------------------------------------ */
@@ -620,41 +627,58 @@ static void keep_clear(struct layout *L, int wall, double c, double half) {
   if (L->nwall < (int)(sizeof L->wall_used / sizeof L->wall_used[0])) L->wall_used[L->nwall++] = sp;
 }
 
-/* The flat: the box split by interior walls into a living room (with a
- * kitchen corner) on one side and a bedroom and a bathroom on the other,
- * each opening onto the living room through a doorway with its door leaf
- * standing open. Furniture keeps the doorways clear. */
-static void build_flat(struct vlff_sim *s, int attempt) {
-  struct rng r = rng_make(s->seed, 1, (uint64_t)attempt);
-  s->nprims = 0, s->cur_obj = 0;
-  const double *lo = s->room_lo, *hi = s->room_hi;
+/* One flat's plan: where its interior walls and doorways are, and the
+ * first of its three rooms in s->rooms (living room, bedroom, bathroom). */
+struct flat_plan {
+  double ys, yb, yt, wx0, wx1;
+  int entrance;      /* a doorway in its y=lo[1] wall onto the building's corridor */
+  double xe;         /* that doorway's centre in x */
+  int room0;
+};
+
+/* A flat inside lo..hi (the inside faces of walls that already stand): the
+ * box split by interior walls into a living room (with a kitchen corner) on
+ * one side and a bedroom and a bathroom on the other, each opening onto the
+ * living room through a doorway with its door leaf standing open.
+ * Furniture keeps the doorways clear. fp->entrance asks for a doorway onto
+ * the corridor too (the building); the lone flat draws nothing for it, so
+ * its seeds give the same flat as before the building existed. */
+static void flat_inside(struct vlff_sim *s, struct rng *r, const double *lo, const double *hi, int flat_id,
+                        struct flat_plan *fp) {
   const double tw = 0.1, dw = 0.9, dh = 2.05, fz = lo[2], hz = hi[2];
-  shell(s, &r, lo, hi);
-  double xs = lo[0] + (hi[0] - lo[0]) * rng_range(&r, 0.5, 0.6);
-  double ys = lo[1] + (hi[1] - lo[1]) * rng_range(&r, 0.42, 0.58);
-  double yb = rng_range(&r, ys + tw / 2 + 0.7, hi[1] - 0.7);  /* bedroom doorway */
-  double yt = rng_range(&r, lo[1] + 0.7, ys - tw / 2 - 0.7);  /* bathroom doorway */
+  double xs = lo[0] + (hi[0] - lo[0]) * rng_range(r, 0.5, 0.6);
+  double ys = lo[1] + (hi[1] - lo[1]) * rng_range(r, 0.42, 0.58);
+  double yb = rng_range(r, ys + tw / 2 + 0.7, hi[1] - 0.7);  /* bedroom doorway */
+  double yt = rng_range(r, lo[1] + 0.7, ys - tw / 2 - 0.7);  /* bathroom doorway */
   double wx0 = xs - tw / 2, wx1 = xs + tw / 2;
+  /* the entrance, clear of the living room's corners */
+  if (fp->entrance) fp->xe = rng_range(r, lo[0] + 1.0, wx0 - 1.0);
   /* wall between the living room and the rest, with two openings */
   s->cur_obj++;
-  box(s, &r, C_WALL, wx0, lo[1], fz, wx1, yt - dw / 2, hz);
+  box(s, r, C_WALL, wx0, lo[1], fz, wx1, yt - dw / 2, hz);
   s->cur_obj++;
-  box(s, &r, C_WALL, wx0, yt + dw / 2, fz, wx1, yb - dw / 2, hz);
+  box(s, r, C_WALL, wx0, yt + dw / 2, fz, wx1, yb - dw / 2, hz);
   s->cur_obj++;
-  box(s, &r, C_WALL, wx0, yb + dw / 2, fz, wx1, hi[1], hz);
+  box(s, r, C_WALL, wx0, yb + dw / 2, fz, wx1, hi[1], hz);
   s->cur_obj++;
-  box(s, &r, C_WALL, wx0, yt - dw / 2, fz + dh, wx1, yt + dw / 2, hz);
+  box(s, r, C_WALL, wx0, yt - dw / 2, fz + dh, wx1, yt + dw / 2, hz);
   s->cur_obj++;
-  box(s, &r, C_WALL, wx0, yb - dw / 2, fz + dh, wx1, yb + dw / 2, hz);
+  box(s, r, C_WALL, wx0, yb - dw / 2, fz + dh, wx1, yb + dw / 2, hz);
   /* wall between bedroom and bathroom */
   s->cur_obj++;
-  box(s, &r, C_WALL, wx1, ys - tw / 2, fz, hi[0], ys + tw / 2, hz);
+  box(s, r, C_WALL, wx1, ys - tw / 2, fz, hi[0], ys + tw / 2, hz);
   for (int i = s->nprims - 6; i < s->nprims; i++) s->prims[i].pattern = 0;
   /* door leaves standing open into the bedroom and the bathroom */
   s->cur_obj++;
-  box(s, &r, C_DOOR, wx1, yb + dw / 2, fz, wx1 + 0.85, yb + dw / 2 + 0.04, fz + dh - 0.02);
+  box(s, r, C_DOOR, wx1, yb + dw / 2, fz, wx1 + 0.85, yb + dw / 2 + 0.04, fz + dh - 0.02);
   s->cur_obj++;
-  box(s, &r, C_DOOR, wx1, yt - dw / 2 - 0.04, fz, wx1 + 0.85, yt - dw / 2, fz + dh - 0.02);
+  box(s, r, C_DOOR, wx1, yt - dw / 2 - 0.04, fz, wx1 + 0.85, yt - dw / 2, fz + dh - 0.02);
+  /* and the entrance's, open into the living room against its -x jamb
+   * (away from the bathroom doorway the walk heads for) */
+  if (fp->entrance) {
+    s->cur_obj++;
+    box(s, r, C_DOOR, fp->xe - dw / 2 - 0.04, lo[1], fz, fp->xe - dw / 2, lo[1] + 0.85, fz + dh - 0.02);
+  }
 
   double rl[3][3] = {{lo[0], lo[1], fz}, {wx1, ys + tw / 2, fz}, {wx1, lo[1], fz}};
   double rh[3][3] = {{wx0, hi[1], hz}, {hi[0], hi[1], hz}, {hi[0], ys - tw / 2, hz}};
@@ -663,46 +687,163 @@ static void build_flat(struct vlff_sim *s, int attempt) {
           F_PICTURES | F_LAMPS | F_SMALL,
       F_BED | F_DESK | F_CABINET | F_OTHER | F_WINDOW | F_PICTURES | F_LAMPS | F_SMALL,
       F_BATH | F_TOILET | F_VANITY | F_PICTURES | F_SMALL};
+  fp->room0 = s->nrooms;
   for (int k = 0; k < 3; k++) {
     struct layout L = {.lo = rl[k], .hi = rh[k]};
     if (k == 0) keep_clear(&L, 3, yb, 0.6), keep_clear(&L, 3, yt, 0.6);
     else keep_clear(&L, 2, k == 1 ? yb : yt, 0.65);
-    furnish(s, &r, &L, what[k]);
-    s->rooms[k][0] = rl[k][0], s->rooms[k][1] = rl[k][1], s->rooms[k][2] = rh[k][0], s->rooms[k][3] = rh[k][1];
+    if (k == 0 && fp->entrance) keep_clear(&L, 0, fp->xe, 0.6);
+    furnish(s, r, &L, what[k]);
+    double *rm = s->rooms[s->nrooms];
+    rm[0] = rl[k][0], rm[1] = rl[k][1], rm[2] = rh[k][0], rm[3] = rh[k][1];
+    s->room_flat[s->nrooms++] = flat_id;
   }
-  s->nrooms = 3;
-  s->ndoors = 2;
-  s->doors[0][0] = xs, s->doors[0][1] = yb;
-  s->doors[1][0] = xs, s->doors[1][1] = yt;
+  s->doors[s->ndoors][0] = xs, s->doors[s->ndoors++][1] = yb;
+  s->doors[s->ndoors][0] = xs, s->doors[s->ndoors++][1] = yt;
+  if (fp->entrance) s->doors[s->ndoors][0] = fp->xe, s->doors[s->ndoors++][1] = lo[1] - tw / 2;
+  fp->ys = ys, fp->yb = yb, fp->yt = yt, fp->wx0 = wx0, fp->wx1 = wx1;
+}
 
-  /* The walk: a loop in the living room, through the bedroom doorway, a
-   * loop there and back, the same for the bathroom, and home. */
-  int n = 0;
-  double(*w)[2] = s->way;
-#define WAY(X, Y) (w[n][0] = (X), w[n][1] = (Y), n++)
+static void way_add(struct vlff_sim *s, double x, double y) {
+  if (s->nway < MAX_WAY) s->way[s->nway][0] = x, s->way[s->nway][1] = y, s->nway++;
+}
+
+/* A flat's tour: a loop in the living room, through the bedroom doorway, a
+ * loop there and back, the same for the bathroom. It starts (and its living
+ * room loop ends) on the loop's side facing the doorways; it ends in the
+ * living room in front of the bathroom doorway.
+ *  - scale: the loops' half-axes as a fraction of their room's sides;
+ *  - past: how far beyond the doorways the walk turns toward a loop (beyond
+ *    the 0.85-m door leaves, or a turn toward a loop close to a leaf can
+ *    cut through it);
+ *  - living_loop 0: cross the living room through its middle instead of
+ *    looping (the building's walk crosses each living room three times). */
+static void flat_tour(struct vlff_sim *s, const struct flat_plan *fp, double scale, double past, int living_loop) {
   for (int room = 0; room < 3; room++) {
-    const double *rm = s->rooms[room];
+    const double *rm = s->rooms[fp->room0 + room];
     double cx = 0.5 * (rm[0] + rm[2]), cy = 0.5 * (rm[1] + rm[3]);
-    double ax = 0.28 * (rm[2] - rm[0]), ay = 0.28 * (rm[3] - rm[1]);
-    double yd = room == 1 ? yb : yt;
-    if (room > 0) WAY(wx0 - 0.8, yd), WAY(wx1 + 0.8, yd);
+    double ax = scale * (rm[2] - rm[0]), ay = scale * (rm[3] - rm[1]);
+    double yd = room == 1 ? fp->yb : fp->yt;
+    /* a narrow room's loop stays past the door leaf on the doorway's side */
+    if (room > 0) ax = fmin(ax, cx - fp->wx1 - past);
+    if (room > 0) way_add(s, fp->wx0 - 0.8, yd), way_add(s, fp->wx1 + past, yd);
     int m = room == 0 ? 10 : 7;
+    if (room == 0 && !living_loop) {
+      way_add(s, cx, cy); /* across the living room through its middle */
+      continue;
+    }
     /* start on the side facing the doorways (+x in the living room, -x
      * in the others) and go round once */
     double a0 = room == 0 ? 0 : M_PI;
     for (int i = 0; i <= m; i++) {
       double a = a0 + 2 * M_PI * i / m;
-      WAY(cx + ax * cos(a), cy + ay * sin(a));
+      way_add(s, cx + ax * cos(a), cy + ay * sin(a));
     }
-    if (room > 0) WAY(wx1 + 0.8, yd), WAY(wx0 - 0.8, yd);
+    if (room > 0) way_add(s, fp->wx1 + past, yd), way_add(s, fp->wx0 - 0.8, yd);
   }
-#undef WAY
-  s->nway = n;
+}
+
+static void way_close(struct vlff_sim *s) {
+  int n = s->nway;
   s->way_len[0] = 0;
   for (int i = 0; i < n; i++) {
-    const double *p = w[i], *q = w[(i + 1) % n];
+    const double *p = s->way[i], *q = s->way[(i + 1) % n];
     s->way_len[i + 1] = s->way_len[i] + hypot(q[0] - p[0], q[1] - p[1]);
   }
+}
+
+/* The flat: the whole box, its walk one tour closed on itself. */
+static void build_flat(struct vlff_sim *s, int attempt) {
+  struct rng r = rng_make(s->seed, 1, (uint64_t)attempt);
+  s->nprims = 0, s->cur_obj = 0, s->nrooms = s->ndoors = s->nway = 0;
+  shell(s, &r, s->room_lo, s->room_hi);
+  struct flat_plan fp = {.entrance = 0};
+  flat_inside(s, &r, s->room_lo, s->room_hi, 0, &fp);
+  s->nflats = 1;
+  memcpy(s->flats[0], (double[4]){s->room_lo[0], s->room_lo[1], s->room_hi[0], s->room_hi[1]}, sizeof s->flats[0]);
+  flat_tour(s, &fp, 0.28, 0.8, 1); /* the walk every flat seed has had */
+  way_close(s);
+}
+
+/* The building's corridor: along its y=lo side, the flats' entrances in
+ * the wall that closes it. */
+#define CORRIDOR_M 1.8
+
+/* Walls take the plain noise texture, as the shell's do. */
+static void plain(struct prim *p) {
+  if (p) p->pattern = 0;
+}
+
+static int classes_from(const struct vlff_sim *s, int first) {
+  int have[VLFF_SIM_CLASSES] = {0}, nc = 0;
+  have[C_WALL] = have[C_FLOOR] = 1; /* the building's shell */
+  for (int i = first; i < s->nprims; i++)
+    if (s->prims[i].label < VLFF_SIM_CLASSES) have[s->prims[i].label] = 1;
+  for (int c = 0; c < VLFF_SIM_CLASSES; c++) nc += have[c];
+  return nc;
+}
+
+/* The building: sim.flats flats side by side along x, each a flat as above,
+ * opening through an entrance onto a corridor along the box's y=lo side.
+ * Each flat is re-drawn (its own stream per attempt) until it holds every
+ * class. The walk starts in flat 0's living room, tours every flat in turn
+ * (out along the corridor, in through the entrance, round the flat, out),
+ * walks the corridor back to flat 0 and ends where it started. */
+static void build_building(struct vlff_sim *s, int attempt) {
+  (void)attempt; /* the flats draw their own attempts */
+  struct rng r = rng_make(s->seed, 1, 0);
+  s->nprims = 0, s->cur_obj = 0, s->nrooms = s->ndoors = s->nway = 0;
+  const double *lo = s->room_lo, *hi = s->room_hi;
+  const double tw = 0.1, dw = 0.9, dh = 2.05, fz = lo[2], hz = hi[2];
+  const int nf = s->cfg.flats;
+  shell(s, &r, lo, hi);
+  const double cy1 = lo[1] + CORRIDOR_M, fy0 = cy1 + tw, yc = 0.5 * (lo[1] + cy1);
+  const double wf = (hi[0] - lo[0] - (nf - 1) * tw) / nf;
+  /* party walls between neighbouring flats */
+  for (int k = 1; k < nf; k++) {
+    double x = lo[0] + k * wf + (k - 1) * tw;
+    s->cur_obj++;
+    plain(box(s, &r, C_WALL, x, cy1, fz, x + tw, hi[1], hz));
+  }
+  double *rc = s->rooms[s->nrooms];
+  rc[0] = lo[0], rc[1] = lo[1], rc[2] = hi[0], rc[3] = cy1;
+  s->room_flat[s->nrooms++] = -1;
+  struct flat_plan fp[MAX_FLATS];
+  for (int k = 0; k < nf; k++) {
+    double fl[3] = {lo[0] + k * (wf + tw), fy0, fz}, fh[3] = {fl[0] + wf, hi[1], hz};
+    memcpy(s->flats[k], (double[4]){fl[0], fl[1], fh[0], fh[1]}, sizeof s->flats[k]);
+    int first = s->nprims, obj = s->cur_obj, rooms = s->nrooms, doors = s->ndoors, best = 0, best_nc = -1;
+    for (int a = 0; a < 17; a++) {
+      s->nprims = first, s->cur_obj = obj, s->nrooms = rooms, s->ndoors = doors;
+      fp[k] = (struct flat_plan){.entrance = 1};
+      struct rng fr = rng_make(s->seed, 20 + (uint64_t)k, (uint64_t)(a < 16 ? a : best));
+      flat_inside(s, &fr, fl, fh, k, &fp[k]);
+      if (a == 16) break; /* the fullest attempt, rebuilt */
+      int nc = classes_from(s, first);
+      if (nc > best_nc) best_nc = nc, best = a;
+      if (nc == VLFF_SIM_CLASSES) break;
+    }
+  }
+  s->nflats = nf;
+  /* the corridor's wall: solid between the entrances, a lintel over each */
+  double x = lo[0];
+  for (int k = 0; k <= nf; k++) {
+    double x1 = k < nf ? fp[k].xe - dw / 2 : hi[0];
+    s->cur_obj++;
+    plain(box(s, &r, C_WALL, x, cy1, fz, x1, fy0, hz));
+    if (k == nf) break;
+    s->cur_obj++;
+    plain(box(s, &r, C_WALL, x1, cy1, fz + dh, x1 + dw, fy0, hz));
+    x = x1 + dw;
+  }
+  for (int k = 0; k < nf; k++) {
+    double xe = fp[k].xe, in = fy0 + 0.9;
+    if (k > 0) way_add(s, xe, yc), way_add(s, xe, in);
+    flat_tour(s, &fp[k], 0.2, 1.0, 0);
+    way_add(s, xe, in), way_add(s, xe, yc);
+  }
+  way_add(s, fp[0].xe, yc), way_add(s, fp[0].xe, fy0 + 0.9);
+  way_close(s);
 }
 
 /* ---- BVH ---------------------------------------------------------------- */
@@ -1549,6 +1690,23 @@ struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vl
       return NULL;
     }
   }
+  if (sim->layout == VLFF_LAYOUT_BUILDING) {
+    if (sim->flats < 2 || sim->flats > MAX_FLATS) {
+      vlff_errf(err, errlen, "sim: sim.flats is %d; the building holds 2 to %d flats", sim->flats, MAX_FLATS);
+      return NULL;
+    }
+    /* the floor: the flats (less their interior walls) and the corridor */
+    double ax = bh[0] - bl[0] - 0.2, ay = bh[1] - bl[1] - 0.2;
+    double wf = (ax - (sim->flats - 1) * 0.1) / sim->flats, df = ay - CORRIDOR_M - 0.1;
+    double floor = sim->flats * (wf - 0.1) * (df - 0.1) + ax * CORRIDOR_M;
+    if (wf < 6 || df < 6 || floor < 200) {
+      vlff_errf(err, errlen,
+                "sim: sim.layout building fills field.scene_min/max with %d flats of %.1f x %.1f m off a %.1f m "
+                "corridor, %.0f m^2 of floor; each flat needs at least 6 m each way and the building 200 m^2",
+                sim->flats, wf, df, CORRIDOR_M, floor);
+      return NULL;
+    }
+  }
   struct vlff_sim *s = calloc(1, sizeof *s);
   if (!s) {
     vlff_errf(err, errlen, "sim: out of memory");
@@ -1563,11 +1721,14 @@ struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vl
   s->fx = s->fy = 0.5 * s->width / tan(0.5 * 65.0 * M_PI / 180.0);
   s->cx = 0.5 * s->width, s->cy = 0.5 * s->height;
   struct rng r = rng_make(s->seed, 0, 0);
-  const int flat = sim->layout == VLFF_LAYOUT_FLAT;
+  const int flat = sim->layout == VLFF_LAYOUT_FLAT || sim->layout == VLFF_LAYOUT_BUILDING;
+  void (*build)(struct vlff_sim *, int) = sim->layout == VLFF_LAYOUT_FLAT       ? build_flat
+                                          : sim->layout == VLFF_LAYOUT_BUILDING ? build_building
+                                                                                : build_room;
   for (int k = 0; k < 2; k++) {
     double c = 0.5 * (bl[k] + bh[k]);
     double half = fmin(0.5 * (bh[k] - bl[k]) - 0.1, 4.0) * rng_range(&r, 0.8, 1.0);
-    if (flat) half = 0.5 * (bh[k] - bl[k]) - 0.1; /* the flat fills the box */
+    if (flat) half = 0.5 * (bh[k] - bl[k]) - 0.1; /* the flat or building fills the box */
     s->room_lo[k] = c - half, s->room_hi[k] = c + half;
   }
   double cz = 0.5 * (bl[2] + bh[2]);
@@ -1576,15 +1737,15 @@ struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vl
   /* Re-draw crowded layouts that could not place every class; keep the
    * fullest if none manages all twenty. */
   int best_attempt = 0, best_classes = -1;
-  for (int attempt = 0; attempt < 16; attempt++) {
-    (flat ? build_flat : build_room)(s, attempt);
+  for (int attempt = 0; attempt < (sim->layout == VLFF_LAYOUT_BUILDING ? 1 : 16); attempt++) {
+    build(s, attempt);
     int have[VLFF_SIM_CLASSES] = {0}, nc = 0;
     for (int i = 0; i < s->nprims; i++)
       if (s->prims[i].label < VLFF_SIM_CLASSES && !have[s->prims[i].label]++) nc++;
     if (nc > best_classes) best_classes = nc, best_attempt = attempt;
     if (nc == VLFF_SIM_CLASSES) break;
   }
-  (flat ? build_flat : build_room)(s, best_attempt);
+  build(s, best_attempt);
   if (s->nprims < 6) {
     vlff_sim_destroy(s);
     vlff_errf(err, errlen, "sim: out of memory building the room");
@@ -1654,6 +1815,26 @@ void vlff_sim_bounds(const struct vlff_sim *s, double lo[3], double hi[3]) {
   memcpy(lo, s->room_lo, 3 * sizeof(double));
   memcpy(hi, s->room_hi, 3 * sizeof(double));
 }
+
+int vlff_sim_rooms(const struct vlff_sim *s, struct vlff_sim_room *out, int max) {
+  for (int i = 0; i < s->nrooms && i < max; i++) {
+    const double *rm = s->rooms[i];
+    out[i] = (struct vlff_sim_room){{rm[0], rm[1]}, {rm[2], rm[3]}, s->room_flat[i]};
+  }
+  return s->nrooms;
+}
+
+int vlff_sim_flat_count(const struct vlff_sim *s) { return s->nflats; }
+
+int vlff_sim_flat_at(const struct vlff_sim *s, double x, double y) {
+  for (int k = 0; k < s->nflats; k++) {
+    const double *f = s->flats[k];
+    if (x >= f[0] && x <= f[2] && y >= f[1] && y <= f[3]) return k;
+  }
+  return -1;
+}
+
+double vlff_sim_walk_length(const struct vlff_sim *s) { return s->nway > 1 ? s->way_len[s->nway] : 0; }
 
 void vlff_sim_class_counts(const struct vlff_sim *s, int counts[VLFF_SIM_CLASSES]) {
   memcpy(counts, s->class_counts, sizeof s->class_counts);

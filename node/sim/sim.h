@@ -2,7 +2,8 @@
  * vlff_sim: procedural indoor RGB-D scenes with ground truth and LSeg-like
  * simulated vision-language features.
  *
- * A seed picks a room (walls, floor, ceiling) furnished with the 20 ScanNet
+ * A seed picks a room, a flat or a building of flats off a corridor
+ * (sim.layout; walls, floor, ceiling) furnished with the 20 ScanNet
  * benchmark classes, built from axis-aligned boxes and vertical cylinders
  * with procedural textures. Frames are ray-cast analytically: RGB with
  * Lambertian shading (view-independent, so the field's photometric loss sees
@@ -14,7 +15,8 @@
  *
  * Conventions (the same as node/field/field.h)
  *  - World frame in metres, z up. The room is centred in field.scene_min/max
- *    (shrunk by 0.1 m), floor and ceiling within the box.
+ *    (shrunk by 0.1 m), floor and ceiling within the box; the flat and the
+ *    building (sim.layout) fill the box less 0.1 m each side.
  *  - Cameras follow OpenCV: x right, y down, z forward; poses are
  *    camera-to-world, 4x4 row-major double; pixel (u,v)'s centre is at
  *    (u+0.5, v+0.5).
@@ -108,6 +110,22 @@ void vlff_sim_size(const struct vlff_sim *s, int *width, int *height, int *feat_
                    int *feat_height, int *feature_dim);
 /* Room bounds (inside of the walls) and the scene box of all geometry. */
 void vlff_sim_bounds(const struct vlff_sim *s, double lo[3], double hi[3]);
+/* The flat and building layouts' rooms (inside faces of their walls, xy)
+ * and the flat each belongs to (0.., -1 for the building's corridor). Fills
+ * at most max and returns how many there are (0 for the room layout). */
+struct vlff_sim_room {
+  double lo[2], hi[2];
+  int flat;
+};
+int vlff_sim_rooms(const struct vlff_sim *s, struct vlff_sim_room *out, int max);
+/* Number of flats (1 for the flat layout, sim.flats for the building, 0
+ * for the room), and the one whose inside holds xy, or -1 (the corridor,
+ * a wall, outside). */
+int vlff_sim_flat_count(const struct vlff_sim *s);
+int vlff_sim_flat_at(const struct vlff_sim *s, double x, double y);
+/* Length in metres of the walk the flat and building layouts loop once per
+ * sim.frames frames (0 for the room layout). */
+double vlff_sim_walk_length(const struct vlff_sim *s);
 /* Number of primitives of each class present (counts[VLFF_SIM_CLASSES]). */
 void vlff_sim_class_counts(const struct vlff_sim *s, int counts[VLFF_SIM_CLASSES]);
 

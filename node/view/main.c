@@ -7,6 +7,7 @@
 #include "cli.h"
 #include "files.h"
 #include "log.h"
+#include "mcap.h"
 #include "page.h"
 #include "view.h"
 #include "vlff/escape.h"
@@ -19,6 +20,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 static struct vlff_view *running;
@@ -51,6 +53,13 @@ static const struct vlff_cli cli = {
     "      --idle-timeout S    seconds a WebSocket client may stay silent, pinged after a third\n"
     "                          of it (default 30, 3..3600)\n"
     "      --www DIR           the page's files (default: installed with the program)\n"
+    "      --record FILE       also write every message of every channel to FILE, an MCAP recording\n"
+    "                          (zstd-compressed chunks of at most 1 s; Foxglove opens it); a directory:\n"
+    "                          a new file there per run, vlff-view-YYYYmmdd-HHMMSS.mcap (local time)\n"
+    "      --record-level N    zstd level of the recording's chunks (default 3, 1..19; 0 = none)\n"
+    "      --play FILE         serve the MCAP recording FILE instead of the segments, at its recorded\n"
+    "                          rate, from the first subscription on\n"
+    "      --play-rate R       play R times as fast as recorded (default 1, 0.01..100)\n"
     "  -v, --verbose           log connections (twice: libwebsockets' notices too)\n"
     "  -V, --version           print the version and exit\n"
     "  -h, --help              print this help and exit\n"
@@ -58,6 +67,7 @@ static const struct vlff_cli cli = {
     "Examples:\n"
     "  vlff-view --map /vlff-demo-map --frames /vlff-demo-frames --prompts /vlff-demo-prompts\n"
     "  vlff-view --listen 0.0.0.0 --token-file /etc/vlff/view.token\n"
+    "  vlff-view --record run.mcap     (later: vlff-view --play run.mcap)\n"
     "Then open http://127.0.0.1:8765/ or connect Foxglove to ws://127.0.0.1:8765.\n",
 };
 
@@ -95,6 +105,19 @@ static char *read_token(const char *path) {
   return line;
 }
 
+/* --record DIR: a file of its own for this run, named by the local start time. */
+static const char *record_path(const char *arg, char *buf, size_t cap) {
+  struct stat st;
+  if (stat(arg, &st) != 0 || !S_ISDIR(st.st_mode)) return arg;
+  time_t now = time(NULL);
+  struct tm tm;
+  char stamp[32];
+  if (!localtime_r(&now, &tm) || !strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", &tm)) return arg;
+  size_t n = strlen(arg);
+  int k = snprintf(buf, cap, "%s%svlff-view-%s.mcap", arg, n && arg[n - 1] == '/' ? "" : "/", stamp);
+  return k > 0 && (size_t)k < cap ? buf : arg;
+}
+
 static int is_dir_with_index(const char *dir) {
   char p[PATH_MAX];
   struct stat st;
@@ -114,7 +137,7 @@ static int default_www(char *out, size_t cap) {
 int main(int argc, char **argv) {
   vlff_log_start(); /* log stamps count from the start, not from the first line */
   enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
-         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT };
+         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_PLAY, OPT_PLAY_RATE };
   static const struct option opts[] = {
       {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
       {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
@@ -125,12 +148,18 @@ int main(int argc, char **argv) {
       {"allow-origin", required_argument, NULL, OPT_ALLOW_ORIGIN},
       {"head-timeout", required_argument, NULL, OPT_HEAD_TIMEOUT},
       {"idle-timeout", required_argument, NULL, OPT_IDLE_TIMEOUT},
+      {"record", required_argument, NULL, OPT_RECORD},
+      {"record-level", required_argument, NULL, OPT_RECORD_LEVEL},
+      {"play", required_argument, NULL, OPT_PLAY},
+      {"play-rate", required_argument, NULL, OPT_PLAY_RATE},
       {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
                                 .max_request_bytes = 64u << 10};
   struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
-  const char *token_file = NULL, *www = NULL;
+  const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL;
+  int record_level = 3;
+  double play_rate = 1;
   double x;
   int c, status;
   static const char *origins[VLFF_ALLOW_MAX];
@@ -183,6 +212,15 @@ int main(int argc, char **argv) {
     case OPT_IDLE_TIMEOUT:
       if (parse_num("idle-timeout", optarg, 3, 3600, &vp.idle_timeout_s)) return 2;
       break;
+    case OPT_RECORD: record = optarg; break;
+    case OPT_RECORD_LEVEL:
+      if (parse_num("record-level", optarg, 0, 19, &x) || x != (int)x) return 2;
+      record_level = (int)x;
+      break;
+    case OPT_PLAY: play = optarg; break;
+    case OPT_PLAY_RATE:
+      if (parse_num("play-rate", optarg, 0.01, 100, &play_rate)) return 2;
+      break;
     case 'v': vp.verbose++; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }
@@ -198,13 +236,29 @@ int main(int argc, char **argv) {
   } else {
     return vlff_cli_error(&cli, "the page's files are not installed beside the program; pass --www DIR");
   }
+  if (record && play) return vlff_cli_usage_error(&cli, "--record and --play exclude each other");
   char *token = NULL;
   if (token_file && !(token = read_token(token_file))) return 1;
   vp.token = token;
 
-  struct vlff_feed *feed = vlff_feed_new(&fp);
-  struct vlff_view *v = feed ? vlff_view_new(&vp, feed) : NULL;
+  struct vlff_feed *feed = NULL;
+  struct vlff_view *v = NULL;
+  if (play) {
+    if ((vp.play = vlff_view_play_open(play))) vlff_view_play_rate(vp.play, play_rate);
+  } else {
+    feed = vlff_feed_new(&fp);
+  }
+  char record_buf[PATH_MAX];
+  if (record) record = record_path(record, record_buf, sizeof record_buf);
+  if (record && feed) {
+    char why[512];
+    struct vlff_mcap_writer_params mp = {.library = "vlff-view " VLFF_VERSION, .zstd_level = record_level};
+    if (!(vp.record = vlff_mcap_writer_open(record, &mp, why, sizeof why))) vlff_cli_error(&cli, "--record %s", why);
+  }
+  if ((feed || vp.play) && (!record || vp.record)) v = vlff_view_new(&vp, feed);
   if (!v) {
+    vlff_mcap_writer_close(vp.record, NULL, 0);
+    vlff_view_play_free(vp.play);
     vlff_feed_free(feed);
     free(token);
     return 1;
@@ -215,12 +269,32 @@ int main(int argc, char **argv) {
   sigaction(SIGINT, &sa, NULL);
   sigaction(SIGTERM, &sa, NULL);
   signal(SIGPIPE, SIG_IGN);
-  printf("vlff-view: serving http://%s:%d/ (Foxglove: ws://%s:%d) map %s%s\n", vp.address, vlff_view_port(v),
-         vp.address, vlff_view_port(v), fp.map_name, token ? ", prompt posting enabled" : "");
+  /* a recording past the file size limit (ulimit -f) is a write error that stops
+   * the recording, not a signal that ends the viewer */
+  signal(SIGXFSZ, SIG_IGN);
+  if (play)
+    printf("vlff-view: serving http://%s:%d/ (Foxglove: ws://%s:%d) recording %s, %llu messages on %d channels\n",
+           vp.address, vlff_view_port(v), vp.address, vlff_view_port(v), play,
+           (unsigned long long)vlff_view_play_total(vp.play), vlff_view_play_channels(vp.play));
+  else
+    printf("vlff-view: serving http://%s:%d/ (Foxglove: ws://%s:%d) map %s%s%s%s\n", vp.address, vlff_view_port(v),
+           vp.address, vlff_view_port(v), fp.map_name, token ? ", prompt posting enabled" : "",
+           record ? ", recording to " : "", record ? record : "");
   fflush(stdout);
   int rc = vlff_view_run(v);
   running = NULL;
   vlff_view_free(v);
+  if (vp.record) {
+    char why[512];
+    uint64_t msgs = vlff_mcap_writer_messages(vp.record);
+    if (vlff_mcap_writer_close(vp.record, why, sizeof why)) {
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "--record %s", why);
+      rc = -1;
+    } else {
+      printf("vlff-view: recorded %llu messages to %s\n", (unsigned long long)msgs, record);
+    }
+  }
+  vlff_view_play_free(vp.play);
   vlff_feed_free(feed);
   free(token);
   return rc ? 1 : 0;

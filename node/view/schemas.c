@@ -106,6 +106,13 @@ static const char status_schema[] =
     "\"431\":{\"type\":\"integer\"},\"503\":{\"type\":\"integer\"},\"505\":{\"type\":\"integer\"}}}}}},"
     "\"required\":[\"map\",\"learner\",\"frames\",\"viewer\"]}";
 
+static const char log_schema[] =
+    "{\"title\":\"foxglove.Log\",\"type\":\"object\",\"properties\":{"
+    "\"timestamp\":" TIME_S ",\"level\":{\"type\":\"integer\",\"enum\":[0,1,2,3,4,5],\"description\":\"0 unknown, "
+    "1 debug, 2 info, 3 warning, 4 error, 5 fatal\"},\"message\":{\"type\":\"string\"},\"name\":{\"type\":\"string\"},"
+    "\"file\":{\"type\":\"string\"},\"line\":{\"type\":\"integer\",\"minimum\":0}},"
+    "\"required\":[\"timestamp\",\"level\",\"message\",\"name\",\"file\",\"line\"]}";
+
 static const struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
     {"/map", "foxglove.SceneUpdate", scene_schema},
     {"/map/voxels", "vlff.VoxelDelta", voxels_schema},
@@ -114,6 +121,7 @@ static const struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
     {"/tf", "foxglove.FrameTransform", tf_schema},
     {"/vlff/status", "vlff.Status", status_schema},
     {"/camera/calibration", "foxglove.CameraCalibration", calib_schema},
+    {"/log", "foxglove.Log", log_schema},
 };
 
 const struct vlff_view_channel_def *vlff_view_channel(int ch) {

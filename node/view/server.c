@@ -37,6 +37,7 @@
  * is pinged and one silent for all of it closed, so that dead peers free their slot.
  */
 #include "view.h"
+#include "mcap.h"
 
 #include <arpa/inet.h>
 #include <errno.h>
@@ -132,8 +133,8 @@ struct client {
   struct lws *wsi;
   struct client *next;
   char peer[64];
-  int subscribed[VLFF_VIEW_CH_COUNT + 1];
-  uint32_t sub_id[VLFF_VIEW_CH_COUNT + 1];
+  int subscribed[VLFF_VIEW_CH_MAX + 1];
+  uint32_t sub_id[VLFF_VIEW_CH_MAX + 1];
   uint32_t adv_id[MAX_CLIENT_CHANNELS]; /* client channels advertised for the prompt topic */
   int nadv;
   struct qitem *head, *tail;
@@ -163,6 +164,9 @@ struct vlff_view {
   struct peer_note *peer_notes;
   struct gate *oldest, *newest;
   uint64_t ws_refusals; /* WebSocket-level refusals, for their log's rate limit */
+  int nch;              /* channels served: this build's, or a recording's */
+  struct vlff_view_log *log; /* the /log channel's lines (live only) */
+  int record_failed;    /* the recording stopped at its first write error */
   struct client *clients;
   struct vlff_view_counters c;
   struct vlff_prompts *mailbox;
@@ -310,6 +314,21 @@ static void send_status(struct client *cl, int level, const char *fmt, ...) {
   send_json(cl, o);
 }
 
+/* Channel ch as advertised: a recording's own when playing one, else this build's
+ * (JSON messages with JSON Schemas). */
+static struct vlff_view_chan chan_info(const struct vlff_view *v, int ch) {
+  if (v->p.play) return *vlff_view_play_channel(v->p.play, ch);
+  const struct vlff_view_channel_def *d = vlff_view_channel(ch);
+  return (struct vlff_view_chan){d->topic, "json", d->schema_name, "jsonschema", d->schema};
+}
+
+/* The first message of a new subscription to ch. */
+static struct vlff_view_msg *current(struct vlff_view *v, int ch) {
+  if (v->p.play) return vlff_view_play_current(v->p.play, ch);
+  if (ch == VLFF_VIEW_CH_LOG) return vlff_view_log_current(v->log);
+  return vlff_feed_current(v->feed, ch, &v->c);
+}
+
 static void send_hello(struct client *cl) {
   struct vlff_view *v = cl->v;
   json_object *o = json_object_new_object();
@@ -332,15 +351,15 @@ static void send_hello(struct client *cl) {
   o = json_object_new_object();
   json_object_object_add(o, "op", json_object_new_string("advertise"));
   json_object *chans = json_object_new_array();
-  for (int ch = 1; ch <= VLFF_VIEW_CH_COUNT; ch++) {
-    const struct vlff_view_channel_def *d = vlff_view_channel(ch);
+  for (int ch = 1; ch <= v->nch; ch++) {
+    struct vlff_view_chan d = chan_info(v, ch);
     json_object *c = json_object_new_object();
     json_object_object_add(c, "id", json_object_new_int(ch));
-    json_object_object_add(c, "topic", json_object_new_string(d->topic));
-    json_object_object_add(c, "encoding", json_object_new_string("json"));
-    json_object_object_add(c, "schemaName", json_object_new_string(d->schema_name));
-    json_object_object_add(c, "schema", json_object_new_string(d->schema));
-    json_object_object_add(c, "schemaEncoding", json_object_new_string("jsonschema"));
+    json_object_object_add(c, "topic", json_object_new_string(d.topic));
+    json_object_object_add(c, "encoding", json_object_new_string(d.encoding));
+    json_object_object_add(c, "schemaName", json_object_new_string(d.schema_name));
+    json_object_object_add(c, "schema", json_object_new_string(d.schema));
+    json_object_object_add(c, "schemaEncoding", json_object_new_string(d.schema_encoding));
     json_object_array_add(chans, c);
   }
   json_object_object_add(o, "channels", chans);
@@ -385,19 +404,19 @@ static void do_subscribe(struct client *cl, json_object *req) {
     }
     int64_t id = get_u32(cl, s, "id", "subscribe"), ch = get_u32(cl, s, "channelId", "subscribe");
     if (id < 0 || ch < 0) continue;
-    if (!vlff_view_channel((int)ch)) {
-      send_status(cl, 2, "subscribe: no channel %lld (channels are 1..%d)", (long long)ch, VLFF_VIEW_CH_COUNT);
+    if (ch < 1 || ch > cl->v->nch) {
+      send_status(cl, 2, "subscribe: no channel %lld (channels are 1..%d)", (long long)ch, cl->v->nch);
       continue;
     }
     int dup = 0;
-    for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++) dup |= cl->subscribed[c] && cl->sub_id[c] == (uint32_t)id;
+    for (int c = 1; c <= cl->v->nch; c++) dup |= cl->subscribed[c] && cl->sub_id[c] == (uint32_t)id;
     if (dup || cl->subscribed[ch]) {
       send_status(cl, 2, "subscribe: %s", dup ? "subscription id already in use" : "already subscribed to that channel");
       continue;
     }
     cl->subscribed[ch] = 1;
     cl->sub_id[ch] = (uint32_t)id;
-    struct vlff_view_msg *m = vlff_feed_current(cl->v->feed, (int)ch, &cl->v->c);
+    struct vlff_view_msg *m = current(cl->v, (int)ch);
     if (m) {
       enqueue(cl, m, (uint32_t)id, 0);
       vlff_view_msg_unref(m);
@@ -431,7 +450,7 @@ static void do_unsubscribe(struct client *cl, json_object *req) {
     json_object *x = json_object_array_get_idx(ids, i);
     int found = 0;
     if (json_object_is_type(x, json_type_int))
-      for (int c = 1; c <= VLFF_VIEW_CH_COUNT; c++)
+      for (int c = 1; c <= cl->v->nch; c++)
         if (cl->subscribed[c] && cl->sub_id[c] == json_object_get_int64(x)) {
           cl->subscribed[c] = 0;
           forget_queued(cl, cl->sub_id[c]);
@@ -674,15 +693,58 @@ static void check_idle(struct vlff_view *v) {
   }
 }
 
+/* Every message the feed made, into the recording (log time: now, on the wall
+ * clock; publish time: the message's own). A write error ends the recording with
+ * one line; the viewer serves on. */
+static void record(struct vlff_view *v, struct vlff_view_msg **out, int n) {
+  struct vlff_mcap_writer *w = v->p.record;
+  if (!w || v->record_failed) return;
+  uint64_t now = vlff_wall_ns();
+  int rc = 0;
+  for (int i = 0; i < n && !rc; i++)
+    rc = vlff_mcap_writer_message(w, (uint16_t)out[i]->channel, now, out[i]->t_ns, vlff_view_msg_payload(out[i]),
+                                  out[i]->len);
+  if (!rc) rc = vlff_mcap_writer_tick(w, vlff_now_ns());
+  if (rc) {
+    v->record_failed = 1;
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "recording stopped: %s", vlff_mcap_writer_error(w));
+  }
+}
+
+/* The channels, declared in the recording before any message. */
+static int declare_channels(struct vlff_view *v) {
+  for (int ch = 1; ch <= v->nch; ch++) {
+    struct vlff_view_chan d = chan_info(v, ch);
+    if (vlff_mcap_writer_channel(v->p.record, (uint16_t)ch, d.topic, d.encoding, d.schema_name, d.schema_encoding,
+                                 d.schema, strlen(d.schema))) {
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "--record: %s", vlff_mcap_writer_error(v->p.record));
+      return -1;
+    }
+  }
+  return 0;
+}
+
 static void tick(lws_sorted_usec_list_t *sul) {
   struct vlff_view *v = lws_container_of(sul, struct vlff_view, sul);
-  struct vlff_view_msg *out[16];
+  struct vlff_view_msg *out[32];
   unsigned wanted = 0;
   check_idle(v);
   for (struct client *cl = v->clients; cl; cl = cl->next)
-    for (int ch = 1; ch <= VLFF_VIEW_CH_COUNT; ch++)
+    for (int ch = 1; ch <= v->nch; ch++)
       if (cl->subscribed[ch]) wanted |= 1u << ch;
-  int n = vlff_feed_poll(v->feed, &v->c, wanted, out, 16);
+  int n;
+  if (v->p.play) {
+    n = vlff_view_play_poll(v->p.play, wanted, vlff_now_ns(), out, 16);
+  } else {
+    if (v->p.record && !v->record_failed) wanted = ~0u; /* a recording wants every channel */
+    /* the log follows the status whether or not /log has subscribers, so that its
+     * latest line is there for the first one */
+    wanted |= 1u << VLFF_VIEW_CH_STATUS;
+    n = vlff_feed_poll(v->feed, &v->c, wanted, out, 16);
+    for (int i = 0, k = n; i < k && n < 32; i++)
+      if (out[i]->channel == VLFF_VIEW_CH_STATUS) n += vlff_view_log_status(v->log, out[i], out + n, 32 - n);
+    record(v, out, n);
+  }
   for (int i = 0; i < n; i++) {
     for (struct client *cl = v->clients; cl; cl = cl->next)
       if (cl->subscribed[out[i]->channel]) enqueue(cl, out[i], cl->sub_id[out[i]->channel], 0);
@@ -1437,8 +1499,20 @@ struct vlff_view *vlff_view_new(const struct vlff_view_params *p, struct vlff_fe
   if (!v) return NULL;
   v->p = *p;
   v->feed = feed;
+  v->nch = p->play ? vlff_view_play_channels(p->play) : VLFF_VIEW_CH_COUNT;
+  if (!p->play && !(v->log = vlff_view_log_new())) {
+    free(v);
+    return NULL;
+  }
+  if (p->record && (p->play || declare_channels(v))) {
+    if (p->play) vlff_log(VLFF_LOG_WARN, "vlff-view", "--record and --play together: a recording is not re-recorded");
+    vlff_view_log_free(v->log);
+    free(v);
+    return NULL;
+  }
   v->listen_fd = -1;
   if (vlff_page_load(&v->page, p->www_dir) != 0) {
+    vlff_view_log_free(v->log);
     free(v);
     return NULL;
   }
@@ -1539,5 +1613,6 @@ void vlff_view_free(struct vlff_view *v) {
   }
   vlff_prompts_close(v->mailbox);
   vlff_page_free(&v->page);
+  vlff_view_log_free(v->log);
   free(v);
 }

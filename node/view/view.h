@@ -19,7 +19,9 @@
  *     a request that is not a GET or HEAD of one of those files or a WebSocket
  *     upgrade, or whose Host or Origin is not the viewer's own or configured, gets
  *     an HTTP status and a sentence, and is counted;
- *   - request.c parses what clients send (JSON, strictly; clientPublish headers).
+ *   - request.c parses what clients send (JSON, strictly; clientPublish headers);
+ *   - recordings: the server writes every message it makes to an MCAP file when
+ *     given a writer (mcap.h), and play.c serves such a file instead of the feed.
  *
  * CONTRACT
  * Errors: functions returning a pointer return NULL, functions returning int return
@@ -49,7 +51,8 @@ enum vlff_view_channel {
   VLFF_VIEW_CH_STATUS,     /* /vlff/status: vlff.Status JSON */
   VLFF_VIEW_CH_CALIB,      /* /camera/calibration: foxglove.CameraCalibration, the pinhole
                               intrinsics the frames carry (from the source's config), with each image */
-  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_CALIB
+  VLFF_VIEW_CH_LOG,        /* /log: foxglove.Log, what changed in the status (logch.c) */
+  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_LOG
 };
 
 /* JPEG quality of the camera image channel. */
@@ -149,8 +152,63 @@ struct json_object *vlff_view_parse_json(const char *s, size_t n, char *why, siz
  * *channel set, or -1 with the reason in why[len]. */
 int vlff_view_publish_header(const unsigned char *d, size_t n, uint32_t *channel, char *why, size_t len);
 
+/* -------------------------------------------------------------------- log */
+
+/* The /log channel (logch.c): lines made from the status messages the feed makes,
+ * when something in them changes (segments attached or gone, the map's writer
+ * alive or silent, the learner's state and error flags, frames refused per reason
+ * and lost, these at most one line per reason every 10 s with the count since). */
+struct vlff_view_log;
+struct vlff_view_log *vlff_view_log_new(void);
+void vlff_view_log_free(struct vlff_view_log *l);
+/* The lines status (a /vlff/status message) gives, at most cap, into out; the
+ * caller owns them. */
+int vlff_view_log_status(struct vlff_view_log *l, const struct vlff_view_msg *status, struct vlff_view_msg **out,
+                         int cap);
+/* The latest line (one new reference), or NULL. */
+struct vlff_view_msg *vlff_view_log_current(struct vlff_view_log *l);
+
+/* ------------------------------------------------------ recording, playback */
+
+/* The most channels a server carries: a recording played back may hold others
+ * than this build's (subscriptions are kept in a 32-bit mask). */
+#define VLFF_VIEW_CH_MAX 31
+
+/* A channel as the server advertises it. */
+struct vlff_view_chan {
+  const char *topic, *encoding, *schema_name, *schema_encoding, *schema;
+};
+
+/* An MCAP recording served as if live (play.c): read whole into memory and every
+ * record checked once when opened (mcap.h's bounds; a file cut short by a killed
+ * recorder plays up to its last whole chunk, with a warning); its channels are
+ * numbered 1..n in the order the file defines them. Playback starts when a client
+ * first subscribes and sends each message when as much time has passed since the
+ * first as passed between their log times, with its publish time as the Foxglove
+ * timestamp; a new subscriber gets the latest message played on its channel. */
+struct vlff_view_play;
+/* NULL (the reason on stderr) for a file that is not a readable recording. */
+struct vlff_view_play *vlff_view_play_open(const char *path);
+/* Plays rate times as fast as recorded (default 1). */
+void vlff_view_play_rate(struct vlff_view_play *p, double rate);
+void vlff_view_play_free(struct vlff_view_play *p);
+int vlff_view_play_channels(const struct vlff_view_play *p);
+/* Channel ch, 1..vlff_view_play_channels. */
+const struct vlff_view_chan *vlff_view_play_channel(const struct vlff_view_play *p, int ch);
+/* The messages due at now_ns (CLOCK_MONOTONIC), at most out_cap; starts the clock
+ * at the first call with wanted non-zero. The number appended; the caller owns them. */
+int vlff_view_play_poll(struct vlff_view_play *p, unsigned wanted, uint64_t now_ns, struct vlff_view_msg **out,
+                        int out_cap);
+/* The latest message played on channel ch (one new reference), or NULL. */
+struct vlff_view_msg *vlff_view_play_current(struct vlff_view_play *p, int ch);
+/* Messages played so far, in the file; 1 once all are played. */
+uint64_t vlff_view_play_sent(const struct vlff_view_play *p);
+uint64_t vlff_view_play_total(const struct vlff_view_play *p);
+int vlff_view_play_done(const struct vlff_view_play *p);
+
 /* ---------------------------------------------------------------- server */
 
+struct vlff_mcap_writer;
 struct vlff_view_params {
   const char *address;      /* listening address, "127.0.0.1" */
   int port;                 /* 0 = any free port (see vlff_view_port) */
@@ -167,6 +225,11 @@ struct vlff_view_params {
   const char *const *allow_origins; /* more origins (and their hosts) than the viewer's own */
   int n_allow_origins;
   int verbose;
+  /* a recording to serve instead of the feed (the feed is then NULL) */
+  struct vlff_view_play *play;
+  /* a recording (mcap.h) every message sent on a channel is written to, with the
+   * channels declared by vlff_view_new; the caller closes it after the server */
+  struct vlff_mcap_writer *record;
 };
 
 struct vlff_view;

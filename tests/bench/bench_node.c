@@ -24,6 +24,19 @@
  * are left out. VLFF_BENCH_TRACE=FILE writes every sample: seconds, frame
  * id, 2D mIoU, the same views' final mIoU.
  *
+ * A building (sim.layout building, tests/bench/node-building.yaml): the
+ * first walk through it (frames 0 .. sim.frames-1, from flat 1 through
+ * every flat and back into flat 1) is scored as the robot walks it: when
+ * the simulator has written the first frame outside flat 1 into the frame
+ * ring (the ring's head), the map is read from its segment and scored at
+ * flat 1's labelled points; when it has written the walk's last frame,
+ * flat 1 is scored again and so is the whole building (every labelled
+ * point): miou3d_end, forgetting_pts (flat 1's first score less its last;
+ * > 0 is lost). The map is what the node has then, however far its
+ * training lags the camera (a loaded host's lag shows as a lower score). The baseline: multi-view fusion (metrics.h, as vlff-eval's) of
+ * every frame of that walk at the same points, miou3d_fusion_end.
+ * rss_peak_mb is read before the baseline is computed.
+ *
  * label_flip_frac: over the final window (from `seconds` - 15 s to the
  * end), the share of the labelled voxels no keyframe observed between two
  * consecutive publishes whose published label changed all the same (the
@@ -58,8 +71,10 @@
 #include "config.h"
 #include "metrics.h"
 #include "node.h"
+#include "field.h" /* float16 conversions */
 #include "testkit.h"
 #include "sim.h"
+#include "vlff/shm.h"
 
 extern char **environ;
 
@@ -267,6 +282,100 @@ static double raw_miou2d(const struct vlff_config *cfg, int frames) {
   return sum.miou * 100;
 }
 
+/* The labelled points the node's observer scores (sim_source.c's set). */
+static int walk_points(const struct vlff_config *cfg, struct vlff_sim **sim, struct vlff_sim_points *pts) {
+  char err[256];
+  *sim = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
+  if (!*sim || vlff_sim_points(*sim, cfg->sim.frames, 5, 0.05, pts, err, sizeof err))
+    return fprintf(stderr, "bench_node: %s\n", err), -1;
+  return 0;
+}
+
+/* 3D mIoU of the published map (a snapshot of its segment) at the points
+ * whose in[] is set: a point takes the class of its voxel's prompt. */
+static double map_miou3d(struct vlff_map *map, struct vlff_map_snapshot *snap, const struct vlff_sim_points *p,
+                         const uint8_t *in) {
+  struct vlff_confusion c;
+  char err[128];
+  if (!map || !snap || vlff_map_snapshot_take(map, snap) || vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err))
+    return -1;
+  for (size_t i = 0; i < p->n; i++) {
+    if (!in[i]) continue;
+    const float *x = p->xyz + 3 * i;
+    const char *pr = vlff_map_snapshot_prompt(snap, vlff_map_snapshot_label_at(snap, x[0], x[1], x[2], NULL));
+    vlff_confusion_add_one(&c, p->label[i], pr ? vlff_sim_class_of(pr) : -1);
+  }
+  struct vlff_summary sum;
+  vlff_confusion_summary(&c, &sum);
+  vlff_confusion_free(&c);
+  return sum.present ? sum.miou * 100 : -1;
+}
+
+/* Multi-view fusion of frames 0 .. sim.frames-1 at the points. Fusion
+ * averages features, and a class's score (the dot product with its unit
+ * embedding) is linear in the feature, so averaging each view's scores
+ * picks the same class as scoring the averaged feature: the views carry
+ * K scores per feature pixel instead of D features. */
+static double fusion_miou3d(const struct vlff_config *cfg, const struct vlff_sim_points *p) {
+  char err[256];
+  struct vlff_sim *s = vlff_sim_create(&cfg->sim, &cfg->field, err, sizeof err);
+  struct vlff_sim_frame *f = s ? vlff_sim_frame_new(s) : NULL;
+  if (!f) return -1;
+  const struct vlff_prompt_set *ps = &cfg->prompts.sets[cfg->prompts.active];
+  const int d = cfg->field.feature_dim, k = ps->count, nv = cfg->sim.frames;
+  const size_t npx = (size_t)f->width * f->height, nfp = (size_t)f->feat_width * f->feat_height;
+  float *emb = malloc((size_t)k * d * sizeof(float)), *unit = malloc((size_t)k * d * sizeof(float));
+  float *feat = malloc((size_t)d * sizeof(float)), *sc = malloc((size_t)k * sizeof(float));
+  int *cls = malloc((size_t)k * sizeof(int)), *count = malloc(p->n * sizeof(int));
+  struct vlff_fusion_view *views = calloc((size_t)nv, sizeof *views);
+  float *depth = malloc((size_t)nv * npx * sizeof(float)), *out = malloc(p->n * (size_t)k * sizeof(float));
+  uint16_t *score = malloc((size_t)nv * nfp * k * sizeof(uint16_t));
+  double miou = -1;
+  struct vlff_confusion c;
+  if (!emb || !unit || !feat || !sc || !cls || !count || !views || !depth || !out || !score ||
+      vlff_confusion_init(&c, VLFF_SIM_CLASSES, err, sizeof err))
+    goto done;
+  for (int i = 0; i < k; i++) {
+    vlff_sim_text_embedding(s, ps->text[i], emb + (size_t)i * d);
+    cls[i] = vlff_sim_class_of(ps->text[i]);
+  }
+  vlff_normalize_rows(emb, unit, k, d);
+  for (int v = 0; v < nv; v++) {
+    if (vlff_sim_render(s, v, VLFF_SIM_ALL, f, err, sizeof err)) goto done;
+    memcpy(depth + (size_t)v * npx, f->depth, npx * sizeof(float));
+    for (size_t q = 0; q < nfp; q++) {
+      vlff_f16_to_f32_n(f->features + q * d, feat, (size_t)d);
+      for (int j = 0; j < k; j++) {
+        double dot = 0;
+        for (int i = 0; i < d; i++) dot += (double)feat[i] * unit[(size_t)j * d + i];
+        sc[j] = (float)dot;
+      }
+      vlff_f32_to_f16_n(sc, score + ((size_t)v * nfp + q) * k, (size_t)k);
+    }
+    views[v] = (struct vlff_fusion_view){f->width, f->height, f->fx, f->fy, f->cx, f->cy, {0},
+                                         depth + (size_t)v * npx, f->feat_width, f->feat_height,
+                                         score + (size_t)v * nfp * k};
+    memcpy(views[v].c2w, f->c2w, sizeof views[v].c2w);
+  }
+  if (vlff_fusion(p->xyz, p->n, views, nv, k, 0.05, out, count, err, sizeof err)) goto done;
+  for (size_t i = 0; i < p->n; i++) {
+    int best = -1;
+    for (int j = 0; count[i] && j < k; j++)
+      if (best < 0 || out[i * k + j] > out[i * k + best]) best = j;
+    vlff_confusion_add_one(&c, p->label[i], best >= 0 ? cls[best] : -1);
+  }
+  struct vlff_summary sum;
+  vlff_confusion_summary(&c, &sum);
+  miou = sum.present ? sum.miou * 100 : -1;
+done:
+  if (miou < 0) fprintf(stderr, "bench_node: fusion: %s\n", err);
+  vlff_confusion_free(&c);
+  free(emb), free(unit), free(feat), free(sc), free(cls), free(count), free(views), free(depth), free(out), free(score);
+  vlff_sim_frame_free(f);
+  vlff_sim_destroy(s);
+  return miou;
+}
+
 int main(int argc, char **argv) {
   (void)argc;
   const char *src = getenv("VLFF_SOURCE_DIR") ? getenv("VLFF_SOURCE_DIR") : VLFF_SOURCE_DEFAULT;
@@ -304,6 +413,32 @@ int main(int argc, char **argv) {
   double raw = raw_miou2d(&cfg, 30);
   printf("raw per-frame features: 2D mIoU %.1f (baseline)\n", raw);
 
+  /* The building's walk: where it leaves flat 1, and flat 1's points. */
+  const bool walk = cfg.sim.layout == VLFF_LAYOUT_BUILDING;
+  struct vlff_sim *wsim = NULL;
+  struct vlff_sim_points wpts = {0};
+  uint8_t *in_flat1 = NULL, *in_all = NULL;
+  long long leave_frame = -1;
+  double flat1_leave = -1, flat1_end = -1, miou3d_end = -1;
+  if (walk) {
+    if (walk_points(&cfg, &wsim, &wpts)) return 1;
+    in_flat1 = calloc(wpts.n + 1, 1), in_all = calloc(wpts.n + 1, 1);
+    if (!in_flat1 || !in_all) return fprintf(stderr, "bench_node: out of memory\n"), 1;
+    size_t n1 = 0;
+    for (size_t i = 0; i < wpts.n; i++) {
+      in_all[i] = 1;
+      n1 += in_flat1[i] = vlff_sim_flat_at(wsim, wpts.xyz[3 * i], wpts.xyz[3 * i + 1]) == 0;
+    }
+    for (long long i = 1; i < cfg.sim.frames && leave_frame < 0; i++) {
+      double m[16];
+      vlff_sim_pose(wsim, i, m);
+      if (vlff_sim_flat_at(wsim, m[3], m[7]) != 0) leave_frame = i;
+    }
+    printf("building: %d flats, walk %.1f m in %d frames, leaves flat 1 at frame %lld; %zu labelled points, %zu in "
+           "flat 1\n",
+           vlff_sim_flat_count(wsim), vlff_sim_walk_length(wsim), cfg.sim.frames, leave_frame, wpts.n, n1);
+  }
+
   char simpath[1024];
   snprintf(simpath, sizeof simpath, "%.*s/../node/sim/vlff-sim", (int)(strrchr(argv[0], '/') - argv[0]), argv[0]);
   char *sargv[] = {simpath, "--config", cfg_path, "--quiet", NULL};
@@ -316,6 +451,9 @@ int main(int argc, char **argv) {
     kill(sim, SIGKILL);
     return fprintf(stderr, "%s\n", err), 1;
   }
+  struct vlff_map *wmap = NULL;
+  struct vlff_map_snapshot *wsnap = NULL;
+  struct vlff_ring *wring = NULL;
   enum { MAXS = 4096 };
   static double ts[MAXS], m2[MAXS];
   static long long fr[MAXS];
@@ -340,7 +478,8 @@ int main(int argc, char **argv) {
   for (;;) {
     double t = mono_s() - t0;
     bool final_done = id_c >= 0 && ns > 0 && fr[ns - 1] >= id_c + loop_n / 2;
-    if (ns >= MAXS || (t >= seconds + half && final_done) || t >= seconds + 2 * loop_s) break;
+    bool walk_done = !walk || miou3d_end >= 0;
+    if (ns >= MAXS || (t >= seconds + half && final_done && walk_done) || t >= seconds + 2 * loop_s) break;
     for (int k = 0; k < 5; k++) {
       struct timespec nap = {0, 100 * 1000 * 1000};
       nanosleep(&nap, NULL);
@@ -352,12 +491,31 @@ int main(int argc, char **argv) {
     m2[ns++] = st.miou2d;
     if (id_c < 0 && ts[ns - 1] >= seconds && st.miou2d_frame >= 0) id_c = st.miou2d_frame;
     if (flips0 < 0 && ts[ns - 1] >= seconds - half) flips0 = st.label_flips_elsewhere, mapped0 = st.label_mapped_elsewhere;
+    if (walk && !wmap && (wmap = vlff_map_attach(cfg.shm.map))) wsnap = vlff_map_snapshot_new(wmap);
+    if (walk && !wring) wring = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
+    /* frame ids count from 0: the head is the newest written id + 1 */
+    long long written = wring ? (long long)vlff_ring_head(wring) : 0;
+    if (walk && flat1_leave < 0 && written > leave_frame) {
+      flat1_leave = map_miou3d(wmap, wsnap, &wpts, in_flat1);
+      printf("t=%5.1f s  frame %lld written, the map at frame %lld: left flat 1; its 3D mIoU %.1f\n", ts[ns - 1],
+             written - 1, st.miou2d_frame, flat1_leave);
+    }
+    if (walk && flat1_leave >= 0 && miou3d_end < 0 && written >= loop_n) {
+      flat1_end = map_miou3d(wmap, wsnap, &wpts, in_flat1);
+      miou3d_end = map_miou3d(wmap, wsnap, &wpts, in_all);
+      printf("t=%5.1f s  frame %lld written, the map at frame %lld: the walk's end; flat 1's 3D mIoU %.1f, the "
+             "building's %.1f, %d keyframes, %lld evicted\n",
+             ts[ns - 1], written - 1, st.miou2d_frame, flat1_end, miou3d_end, st.keyframes, st.keyframes_evicted);
+    }
     if (ns % 10 == 0)
       printf("t=%5.1f s  it %lld  kf %d  2D mIoU %.1f  3D mIoU %.1f\n", ts[ns - 1], st.iteration, st.keyframes,
              st.miou2d, st.miou3d);
   }
   vlff_node_status(n, &st);
   if (cw.map) vlff_map_detach(cw.map);
+  vlff_map_snapshot_free(wsnap);
+  vlff_map_detach(wmap);
+  if (wring) vlff_ring_close(wring);
   tk_node_destroy(n, sim_src);
   kill(sim, SIGTERM);
   waitpid(sim, NULL, 0);
@@ -424,10 +582,25 @@ int main(int argc, char **argv) {
   printf("\n");
   printf("final: %lld iterations, %d keyframes, 3D mIoU %.1f, frame-to-map p50 %.0f ms\n", st.iteration,
          st.keyframes, st.miou3d, st.frame_to_map_ms_p50);
+  const double rss_mb = peak_rss_kb() / 1024.0;
+  char walk_kv[256] = "";
+  if (walk) {
+    double fusion = fusion_miou3d(&cfg, &wpts);
+    printf("the walk: 3D mIoU at its end %.1f, fusion of its %d frames %.1f; flat 1 %.1f when left, %.1f at the "
+           "end\n",
+           miou3d_end, loop_n, fusion, flat1_leave, flat1_end);
+    char forgot[32] = "n/a"; /* flat 1 never scored twice (no map yet, or the walk never ended) */
+    if (flat1_leave >= 0 && flat1_end >= 0) snprintf(forgot, sizeof forgot, "%.1f", flat1_leave - flat1_end);
+    snprintf(walk_kv, sizeof walk_kv, " miou3d_end=%.1f miou3d_fusion_end=%.1f forgetting_pts=%s rss_peak_mb=%.0f",
+             miou3d_end, fusion, forgot, rss_mb);
+    free(in_flat1), free(in_all);
+    vlff_sim_points_free(&wpts);
+    vlff_sim_destroy(wsim);
+  }
   printf("RESULT time_to_useful_s=%.1f miou2d_at_%.0fs=%.1f frame_to_map_p99_ms=%.0f rss_mb=%.0f miou2d_raw=%.1f "
-         "miou2d_vs_raw=%.2f miou3d=%.1f time_to_useful_same_view_s=%.1f\n",
-         useful, seconds, final, st.frame_to_map_ms_p99, peak_rss_kb() / 1024.0, raw, raw > 0 ? final / raw : 0,
-         st.miou3d, useful_sv);
+         "miou2d_vs_raw=%.2f miou3d=%.1f time_to_useful_same_view_s=%.1f%s\n",
+         useful, seconds, final, st.frame_to_map_ms_p99, rss_mb, raw, raw > 0 ? final / raw : 0, st.miou3d,
+         useful_sv, walk_kv);
   long long dm = st.label_mapped_elsewhere - (flips0 < 0 ? 0 : mapped0);
   long long df = st.label_flips_elsewhere - (flips0 < 0 ? 0 : flips0);
   printf("label flips without new evidence: %lld of %lld labelled voxels over the final window; %lld keyframes "

@@ -8,7 +8,11 @@
 # client's receipt of its delta; bytes per update per client; the camera image's
 # bytes per frame against raw RGB (target <= 1/8); and, after the clients left and 3 s
 # without a subscriber, the age of a new client's first message on each channel
-# (first_message_age_max_s, the oldest; each channel's latest is < its period old).
+# (first_message_age_max_s, the oldest; each channel's latest is < its period old;
+# /log, whose latest line is as old as its event, is printed but not counted).
+# A second vlff-view, without clients, records every channel with --record over the
+# same run (its CPU apart from the first's): mcap_ok is 1 when @mcap/core reads the
+# file whole with its CRCs, mcap_mb_per_min its size per minute of recorded time.
 # Last line: RESULT ...
 set -uo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
@@ -34,19 +38,33 @@ pids+=($view)
 for ((i = 0; i < 50; i++)); do grep -q serving "$tmp/view.out" && break; sleep 0.1; done
 port=$(sed -n 's/.*127\.0\.0\.1:\([0-9]*\)\/.*/\1/p' "$tmp/view.out" | head -1)
 [[ -n "$port" ]] || { echo "bench view: vlff-view did not start"; cat "$tmp/view.err"; exit 1; }
+"$build/node/view/vlff-view" --port 0 --map /$tag-map --frames /$tag-frames --prompts /$tag-prompts \
+  --record "$tmp/rec.mcap" >"$tmp/rec.out" 2>"$tmp/rec.err" &
+rec=$!
+pids+=($rec)
 node "$root/tests/bench/view_clients.js" "$port" "$clients" $((secs + 3)) >"$tmp/clients" &
 cl=$!
 pids+=($cl)
 sleep 3   # the clients connect and receive the whole map first
 ticks() { awk '{print $14 + $15}' "/proc/$view/stat"; }
 c0=$(ticks)
+r0=$(awk '{print $14 + $15}' "/proc/$rec/stat")
 "$build/bench/bench_view" read /$tag-map "$secs" >"$tmp/reader"
 c1=$(ticks)
+r1=$(awk '{print $14 + $15}' "/proc/$rec/stat")
 wait $cl
+kill -INT $rec; wait $rec
+node "$root/tests/bench/mcap_check.js" "$tmp/rec.mcap" >"$tmp/mcap"
 hz=$(getconf CLK_TCK)
-python3 - "$tmp" "$c0" "$c1" "$hz" "$secs" <<'PY'
+python3 - "$tmp" "$c0" "$c1" "$hz" "$secs" "$r0" "$r1" <<'PY'
 import json, sys
 tmp, c0, c1, hz, secs = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5])
+r0, r1 = int(sys.argv[6]), int(sys.argv[7])
+mc = json.loads(open(f"{tmp}/mcap").read())
+rec_cpu = (r1 - r0) / hz / secs
+mb_min = mc["bytes"] / 1e6 / (mc["span_s"] / 60) if mc["span_s"] > 0 else float("nan")
+print(f"recording: {mc['bytes']} B, {mc['messages']} messages on {mc['channels']} channels in {mc['chunks']} chunks "
+      f"over {mc['span_s']:.1f} s; read by @mcap/core: {'ok' if mc['ok'] else mc['error']}; recorder cpu {rec_cpu:.4f} of a core")
 r = dict(zip(*[iter(open(f"{tmp}/reader").read().split())] * 2))
 c = json.loads(open(f"{tmp}/clients").read())
 view = (c1 - c0) / hz / secs
@@ -64,5 +82,6 @@ print(f"RESULT view_cpu_frac_one_core={view:.4f} view_cpu_target=0.05 target_met
       f"view_update_latency_p99_ms={c['p99']:.1f} view_bytes_per_update={c['bytes_per_update_map']:.0f} "
       f"view_bytes_per_update_voxels={c['bytes_per_update_voxels']:.0f} view_bytes_per_update_all_channels={c['bytes_per_update_all']:.0f} "
       f"image_bytes_vs_raw={img:.4f} image_target={1 / 8:.4f} first_message_age_max_s={c['first_age_max']:.3f} "
-      f"clients={c['clients'] - c['closed']}")
+      f"clients={c['clients'] - c['closed']} mcap_ok={mc['ok']} mcap_mb_per_min={mb_min:.2f} "
+      f"mcap_recorder_cpu_frac_one_core={rec_cpu:.4f}")
 PY

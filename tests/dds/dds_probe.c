@@ -6,14 +6,29 @@
  * checks what it receives field by field against the map segment, read with
  * libvlff-shm.
  *
- * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S
+ * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES [compressed]]
  *   final  wait until the node is gone, then until the latest map received
  *          equals the segment's last map and a status matches its status;
- *          prints "maps_sent N" (the bridge's count then)
+ *          prints "maps_sent N" (the bridge's count then); with FRAMES (the
+ *          frame ring) also until the prompt list, the label image, the
+ *          camera image, its camera info and the camera pose (tf) equal
+ *          the segment's and the ring's newest; with "compressed" also until
+ *          the label image came as a PNG and the camera image as a JPEG
+ *          stamped as the raw ones
  *   late   a reader joining after that: the map comes whole from the
  *          writer's history; prints "maps_sent N" from a later status
  *   prompts  post bad and good prompt messages to prompts_in and wait for
  *          the bridge's status to count each as expected
+ *   stall  a subscriber that never reads: reliable keep-all readers of at
+ *          most 4 samples each on every topic the bridge writes, held until
+ *          TIMEOUT_S or a signal; prints how many samples it holds
+ *   flood  2000 prompt messages as fast as DDS takes them (malformed,
+ *          invalid, oversized and valid ones), then waits for the
+ *          bridge's status to have counted at least one of each kind;
+ *          prints the counts
+ *   badmap  a robot gone wrong, for vlff-merge: on <ns>/vlff/map a cloud
+ *          whose data is shorter than its points, on <ns>/vlff/prompts a
+ *          list that is not JSON (both latched), held until TIMEOUT_S
  * Exit 0 when every check held; "FAIL: ..." lines and 1 otherwise.
  */
 #include <math.h>
@@ -28,6 +43,7 @@
 #include "diagnostic_msgs.h"
 #include "sensor_msgs.h"
 #include "std_msgs.h"
+#include "tf2_msgs.h"
 #include "vlff/shm.h"
 
 static int fails;
@@ -318,20 +334,345 @@ static int check_prompts(dds_entity_t pp, const char *ns, double deadline) {
   return 0;
 }
 
+/* The prompt list as the bridge writes it (a JSON list, json-c's plain
+ * form): prompts hold no control characters, so only '"' and '\' escape. */
+static void prompt_json(const struct vlff_map_snapshot *snap, int count, char *out, size_t len) {
+  size_t n = 0;
+  out[n++] = '[';
+  for (int i = 0; i < count && n + 8 < len; i++) {
+    const char *t = vlff_map_snapshot_prompt(snap, (uint16_t)i);
+    if (i) out[n++] = ',';
+    out[n++] = '"';
+    for (; t && *t && n + 4 < len; t++) {
+      if (*t == '"' || *t == '\\') out[n++] = '\\';
+      out[n++] = *t;
+    }
+    out[n++] = '"';
+  }
+  out[n++] = ']';
+  out[n] = 0;
+}
+
+struct images {
+  dds_entity_t prompts, label, camera, info, tf, ws, zlabel, zcamera;
+  bool prompts_ok, label_ok, camera_ok, info_ok, tf_ok, zlabel_ok, zcamera_ok;
+  builtin_interfaces_msg_dds__Time_ label_stamp, camera_stamp, zlabel_stamp, zcamera_stamp;
+  char why[7][200];
+};
+
+static void images_readers(dds_entity_t pp, const char *ns, struct images *im, bool compressed) {
+  im->prompts = reader(pp, &std_msgs_msg_dds__String__desc, ns, "prompts", true);
+  im->label = reader(pp, &sensor_msgs_msg_dds__Image__desc, ns, "label_image", false);
+  im->camera = reader(pp, &sensor_msgs_msg_dds__Image__desc, ns, "camera/image_raw", false);
+  im->info = reader(pp, &sensor_msgs_msg_dds__CameraInfo__desc, ns, "camera/camera_info", false);
+  char name[256];
+  snprintf(name, sizeof name, "rt%s/tf", ns);
+  dds_entity_t t = dds_create_topic(pp, &tf2_msgs_msg_dds__TFMessage__desc, name, NULL, NULL);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  im->tf = dds_create_reader(pp, t, q, NULL);
+  dds_delete_qos(q);
+  im->ws = dds_create_waitset(pp);
+  dds_entity_t rs[5] = {im->prompts, im->label, im->camera, im->info, im->tf};
+  for (int i = 0; i < 5; i++) dds_waitset_attach(im->ws, dds_create_readcondition(rs[i], DDS_ANY_STATE), i);
+  im->zlabel_ok = im->zcamera_ok = !compressed;
+  if (compressed) {
+    im->zlabel = reader(pp, &sensor_msgs_msg_dds__CompressedImage__desc, ns, "label_image/compressed", false);
+    im->zcamera = reader(pp, &sensor_msgs_msg_dds__CompressedImage__desc, ns, "camera/image_raw/compressed", false);
+    dds_waitset_attach(im->ws, dds_create_readcondition(im->zlabel, DDS_ANY_STATE), 5);
+    dds_waitset_attach(im->ws, dds_create_readcondition(im->zcamera, DDS_ANY_STATE), 6);
+  }
+}
+
+static bool same_time(builtin_interfaces_msg_dds__Time_ a, builtin_interfaces_msg_dds__Time_ b) {
+  return a.sec == b.sec && a.nanosec == b.nanosec;
+}
+
+/* A CompressedImage: its format, the encoder's magic bytes at the start, the
+ * camera frame. */
+static bool compressed_ok(const sensor_msgs_msg_dds__CompressedImage_ *c, bool png, char *why, size_t len) {
+  static const uint8_t png_magic[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'}, jpeg_magic[3] = {0xff, 0xd8, 0xff};
+  const uint8_t *magic = png ? png_magic : jpeg_magic;
+  uint32_t n = png ? 8 : 3;
+  bool ok = !strcmp(c->format, png ? "png" : "jpeg") && c->data._length > 64 && !memcmp(c->data._buffer, magic, n) &&
+            !strcmp(c->header.frame_id, "camera");
+  snprintf(why, len, "%s: format %s, %u bytes, frame %s", png ? "png" : "jpeg", c->format, c->data._length,
+           c->header.frame_id);
+  return ok;
+}
+
+/* What came last on each topic against the segment's last version and the
+ * ring's newest frame, until every one matches or the deadline. */
+static int check_images(struct images *im, struct vlff_map *m, const char *frames, double deadline) {
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
+  struct vlff_map_info in;
+  if (!snap || vlff_map_snapshot_take(m, snap) < 0 || vlff_map_snapshot_info(snap, &in) < 0) {
+    printf("FAIL: snapshot: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  struct vlff_ring *ring = vlff_ring_attach(frames, VLFF_RECORD_FRAME);
+  if (!ring) {
+    printf("FAIL: frame ring %s: %s\n", frames, vlff_shm_last_message());
+    return 1;
+  }
+  size_t cap = vlff_ring_slot_size(ring);
+  uint8_t *rec = malloc(cap);
+  struct vlff_ring_view view;
+  ssize_t len = rec ? vlff_ring_read_latest(ring, rec, cap, &view) : -1;
+  if (len < 0 || vlff_frame_validate(rec, (size_t)len) < 0) {
+    printf("FAIL: the ring's newest frame: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  const struct vlff_frame_hdr *h = (const struct vlff_frame_hdr *)rec;
+  const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
+  const uint8_t *px = vlff_frame_plane(rec, VLFF_PLANE_COLOR);
+  char want_prompts[VLFF_SHM_MAX_PROMPTS * (VLFF_SHM_PROMPT_LEN * 2 + 3) + 3];
+  prompt_json(snap, in.prompt_count, want_prompts, sizeof want_prompts);
+  CHECK(in.has_label_image, "the segment has no label image: nothing to compare");
+  CHECK(h->flags & VLFF_FRAME_POSE_VALID, "the ring's frame has no pose: nothing to compare");
+  bool want_z = im->zlabel != 0;
+  while (!(im->prompts_ok && im->label_ok && im->camera_ok && im->info_ok && im->tf_ok &&
+           (!want_z || (im->zlabel_ok && im->zcamera_ok && same_time(im->zlabel_stamp, im->label_stamp) &&
+                        same_time(im->zcamera_stamp, im->camera_stamp)))) &&
+         wait_data(im->ws, deadline)) {
+    void *s[1];
+    if (want_z && take_one(im->zlabel, s)) {
+      const sensor_msgs_msg_dds__CompressedImage_ *c = s[0];
+      im->zlabel_ok = compressed_ok(c, true, im->why[5], sizeof im->why[5]);
+      im->zlabel_stamp = c->header.stamp;
+      dds_return_loan(im->zlabel, s, 1);
+    }
+    if (want_z && take_one(im->zcamera, s)) {
+      const sensor_msgs_msg_dds__CompressedImage_ *c = s[0];
+      im->zcamera_ok = compressed_ok(c, false, im->why[6], sizeof im->why[6]);
+      im->zcamera_stamp = c->header.stamp;
+      dds_return_loan(im->zcamera, s, 1);
+    }
+    if (take_one(im->prompts, s)) {
+      const std_msgs_msg_dds__String_ *p = s[0];
+      im->prompts_ok = !strcmp(p->data, want_prompts);
+      snprintf(im->why[0], sizeof im->why[0], "prompts '%.80s', segment '%.80s'", p->data, want_prompts);
+      dds_return_loan(im->prompts, s, 1);
+    }
+    if (take_one(im->label, s)) {
+      const sensor_msgs_msg_dds__Image_ *a = s[0];
+      const struct vlff_map_label_image *li = &in.label_image;
+      bool ok = a->width == li->width && a->height == li->height && !strcmp(a->encoding, "mono16") &&
+                a->step == li->width * 2 && a->is_bigendian == 0 && a->data._length == li->width * li->height * 2 &&
+                !strcmp(a->header.frame_id, "camera");
+      size_t diff = 0;
+      for (size_t i = 0; ok && i < (size_t)li->width * li->height; i++)
+        diff += (uint16_t)(a->data._buffer[2 * i] | a->data._buffer[2 * i + 1] << 8) != li->labels[i];
+      im->label_ok = ok && !diff;
+      im->label_stamp = a->header.stamp;
+      snprintf(im->why[1], sizeof im->why[1], "label image %ux%u %s step %u frame %s, %zu labels differ; segment %ux%u",
+               a->width, a->height, a->encoding, a->step, a->header.frame_id, diff, li->width, li->height);
+      dds_return_loan(im->label, s, 1);
+    }
+    if (take_one(im->camera, s)) {
+      const sensor_msgs_msg_dds__Image_ *a = s[0];
+      bool ok = a->width == pl->width && a->height == pl->height && a->step == pl->stride &&
+                a->data._length == (size_t)pl->stride * pl->height && pl->format == VLFF_PIX_RGB8 &&
+                !strcmp(a->encoding, "rgb8") && px && !memcmp(a->data._buffer, px, a->data._length);
+      im->camera_ok = ok;
+      im->camera_stamp = a->header.stamp;
+      snprintf(im->why[2], sizeof im->why[2], "camera %ux%u %s step %u (ring %ux%u format %u stride %u)%s", a->width,
+               a->height, a->encoding, a->step, pl->width, pl->height, pl->format, pl->stride,
+               ok ? "" : ", or the pixels differ");
+      dds_return_loan(im->camera, s, 1);
+    }
+    if (take_one(im->info, s)) {
+      const sensor_msgs_msg_dds__CameraInfo_ *c = s[0];
+      im->info_ok = c->width == pl->width && c->height == pl->height && fabs(c->k[0] - h->fx) < 1e-9 &&
+                    fabs(c->k[4] - h->fy) < 1e-9 && fabs(c->k[2] - (h->cx - 0.5)) < 1e-9 &&
+                    fabs(c->k[5] - (h->cy - 0.5)) < 1e-9 && c->k[8] == 1 && c->p[0] == c->k[0] && c->p[10] == 1;
+      snprintf(im->why[3], sizeof im->why[3], "camera_info %ux%u fx %g fy %g cx %g cy %g (ring fx %g cx %g)", c->width,
+               c->height, c->k[0], c->k[4], c->k[2], c->k[5], h->fx, h->cx);
+      dds_return_loan(im->info, s, 1);
+    }
+    if (take_one(im->tf, s)) {
+      const tf2_msgs_msg_dds__TFMessage_ *t = s[0];
+      bool ok = t->transforms._length == 1;
+      if (ok) {
+        const geometry_msgs_msg_dds__TransformStamped_ *ts = &t->transforms._buffer[0];
+        const geometry_msgs_msg_dds__Quaternion_ *q = &ts->transform.rotation;
+        /* the quaternion's rotation matrix against the pose's */
+        double R[9] = {1 - 2 * (q->y * q->y + q->z * q->z), 2 * (q->x * q->y - q->z * q->w), 2 * (q->x * q->z + q->y * q->w),
+                       2 * (q->x * q->y + q->z * q->w), 1 - 2 * (q->x * q->x + q->z * q->z), 2 * (q->y * q->z - q->x * q->w),
+                       2 * (q->x * q->z - q->y * q->w), 2 * (q->y * q->z + q->x * q->w), 1 - 2 * (q->x * q->x + q->y * q->y)};
+        double err = fabs(ts->transform.translation.x - h->pose[3]) + fabs(ts->transform.translation.y - h->pose[7]) +
+                     fabs(ts->transform.translation.z - h->pose[11]);
+        for (int i = 0; i < 9; i++) err += fabs(R[i] - h->pose[4 * (i / 3) + i % 3]);
+        ok = err < 1e-6 && !strcmp(ts->header.frame_id, "map") && !strcmp(ts->child_frame_id, "camera");
+        snprintf(im->why[4], sizeof im->why[4], "tf %s -> %s t (%g %g %g), error %g against the ring's pose",
+                 ts->header.frame_id, ts->child_frame_id, ts->transform.translation.x, ts->transform.translation.y,
+                 ts->transform.translation.z, err);
+      }
+      im->tf_ok = ok;
+      dds_return_loan(im->tf, s, 1);
+    }
+  }
+  const bool oks[7] = {im->prompts_ok, im->label_ok,  im->camera_ok, im->info_ok,
+                       im->tf_ok,      im->zlabel_ok && (!want_z || same_time(im->zlabel_stamp, im->label_stamp)),
+                       im->zcamera_ok && (!want_z || same_time(im->zcamera_stamp, im->camera_stamp))};
+  static const char *const names[7] = {"prompt list", "label image", "camera image", "camera info",
+                                       "tf", "compressed label image (stamped as the raw one)",
+                                       "compressed camera image (stamped as the raw one)"};
+  for (int i = 0; i < 7; i++)
+    if (!oks[i])
+      printf("FAIL: no %s received equal to the segment's or ring's (last: %s)\n", names[i],
+             im->why[i][0] ? im->why[i] : "none received");
+  printf("images: prompt list %s; %ux%u label image, %ux%u camera image, camera info and tf equal the segment's and "
+         "ring's\n",
+         want_prompts, in.label_image.width, in.label_image.height, pl->width, pl->height);
+  free(rec);
+  vlff_ring_close(ring);
+  vlff_map_snapshot_free(snap);
+  int bad = 0;
+  for (int i = 0; i < 7; i++) bad += !oks[i];
+  if (want_z && !bad) printf("images: %s; %s\n", im->why[5], im->why[6]);
+  return bad;
+}
+
+static int stall(dds_entity_t pp, const char *ns, double deadline) {
+  static const char *const leaves[] = {"map", "status", "prompts", "label_image", "camera/image_raw",
+                                       "camera/camera_info"};
+  static const dds_topic_descriptor_t *const descs[] = {
+      &sensor_msgs_msg_dds__PointCloud2__desc, &diagnostic_msgs_msg_dds__DiagnosticArray__desc,
+      &std_msgs_msg_dds__String__desc,         &sensor_msgs_msg_dds__Image__desc,
+      &sensor_msgs_msg_dds__Image__desc,       &sensor_msgs_msg_dds__CameraInfo__desc};
+  dds_entity_t rs[6];
+  for (int i = 0; i < 6; i++) {
+    char name[256];
+    snprintf(name, sizeof name, "rt%s/vlff/%s", ns, leaves[i]);
+    dds_entity_t t = dds_create_topic(pp, descs[i], name, NULL, NULL);
+    dds_qos_t *q = dds_create_qos();
+    dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+    dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
+    dds_qset_resource_limits(q, 4, DDS_LENGTH_UNLIMITED, 4);
+    if (i == 0 || i == 2) dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+    rs[i] = dds_create_reader(pp, t, q, NULL);
+    dds_delete_qos(q);
+    CHECK(rs[i] > 0, "stall reader %s: %s", leaves[i], dds_strretcode(rs[i]));
+  }
+  printf("stall: readers up\n");
+  fflush(stdout);
+  while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
+  for (int i = 0; i < 6; i++) {
+    void *buf[8] = {NULL};
+    dds_sample_info_t info[8];
+    dds_return_t n = dds_read(rs[i], buf, info, 8, 8); /* at the end only */
+    printf("stall: %s holds %d samples\n", leaves[i], (int)n);
+    if (n > 0) dds_return_loan(rs[i], buf, n);
+  }
+  return 0;
+}
+
+static int flood(dds_entity_t pp, const char *ns, double deadline) {
+  char name[256];
+  snprintf(name, sizeof name, "rt%s/vlff/prompts_in", ns);
+  dds_entity_t t = dds_create_topic(pp, &std_msgs_msg_dds__String__desc, name, NULL, NULL);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_SECS(5));
+  dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
+  dds_entity_t w = dds_create_writer(pp, t, q, NULL);
+  dds_delete_qos(q);
+  dds_publication_matched_status_t pm = {0};
+  while (now_s() < deadline && (dds_get_publication_matched_status(w, &pm), pm.current_count < 1))
+    dds_sleepfor(DDS_MSECS(50));
+  CHECK(pm.current_count >= 1, "prompts_in: no bridge matched");
+  char *huge = malloc(20001);
+  memset(huge, '[', 20000);
+  huge[20000] = 0;
+  static const char *const kinds[] = {"[\"chair\",", "[\"a\", \"a\"]", NULL, "[\"lamp\", \"rug\"]"};
+  int sent = 0;
+  for (int i = 0; i < 2000 && now_s() < deadline; i++) {
+    const char *text = kinds[i % 4] ? kinds[i % 4] : huge;
+    std_msgs_msg_dds__String_ msg = {(char *)text};
+    if (dds_write(w, &msg) == DDS_RETCODE_OK) sent++;
+  }
+  free(huge);
+  printf("flood: %d messages written\n", sent);
+  dds_entity_t sr = reader(pp, &diagnostic_msgs_msg_dds__DiagnosticArray__desc, ns, "status", false);
+  dds_entity_t ws = waitset_of(pp, sr, 0);
+  static const char *const keys[] = {"prompts_refused_malformed", "prompts_refused_invalid", "prompts_refused_oversized",
+                                     "prompts_refused_flood", "prompts_posted"};
+  int ok = 0;
+  char last[512] = "";
+  while (!ok && wait_data(ws, deadline)) {
+    void *s[1];
+    if (!take_one(sr, s)) continue;
+    const diagnostic_msgs_msg_dds__DiagnosticStatus_ *br = entry(s[0], "vlff-dds: bridge");
+    ok = br != NULL;
+    size_t n = 0;
+    for (int i = 0; br && i < 5; i++) {
+      const char *v = value_of(br, keys[i]);
+      ok = ok && v && (i == 4 || strtoull(v, NULL, 10) > 0);
+      n += (size_t)snprintf(last + n, n < sizeof last ? sizeof last - n : 0, "%s=%s ", keys[i], v ? v : "-");
+    }
+    dds_return_loan(sr, s, 1);
+  }
+  printf("flood: %s\n", last);
+  CHECK(ok, "the bridge's status never counted each kind of the flood");
+  return 0;
+}
+
+static int badmap(dds_entity_t pp, const char *ns, double deadline) {
+  char name[2][256];
+  snprintf(name[0], sizeof name[0], "rt%s/vlff/map", ns);
+  snprintf(name[1], sizeof name[1], "rt%s/vlff/prompts", ns);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  dds_entity_t mw = dds_create_writer(pp, dds_create_topic(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name[0], NULL, NULL), q, NULL);
+  dds_entity_t pw = dds_create_writer(pp, dds_create_topic(pp, &std_msgs_msg_dds__String__desc, name[1], NULL, NULL), q, NULL);
+  dds_delete_qos(q);
+  sensor_msgs_msg_dds__PointField_ fields[5] = {{"x", 0, 7, 1}, {"y", 4, 7, 1}, {"z", 8, 7, 1}, {"label", 12, 4, 1},
+                                                {"confidence", 16, 7, 1}};
+  uint8_t data[40] = {0};
+  sensor_msgs_msg_dds__PointCloud2_ m = {0};
+  m.header.frame_id = "map";
+  m.height = 1, m.width = 1000; /* 1000 points in 40 bytes */
+  m.fields._length = m.fields._maximum = 5;
+  m.fields._buffer = fields;
+  m.point_step = 20, m.row_step = 20000;
+  m.data._length = m.data._maximum = sizeof data;
+  m.data._buffer = data;
+  std_msgs_msg_dds__String_ p = {"chair, table"};
+  CHECK(dds_write(mw, &m) == DDS_RETCODE_OK && dds_write(pw, &p) == DDS_RETCODE_OK, "badmap: writes failed");
+  printf("badmap: written\n");
+  fflush(stdout);
+  while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
+  return 0;
+}
+
 int main(int argc, char **argv) {
-  if (argc != 7) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S\n");
+  if (argc < 7 || argc > 9) {
+    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
+                    "[compressed]]\n");
     return 2;
   }
-  const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5];
+  const char *mode = argv[1], *ns = argv[3], *mapname = argv[4], *node = argv[5], *frames = argc >= 8 ? argv[7] : NULL;
+  bool compressed = argc == 9 && !strcmp(argv[8], "compressed");
   double deadline = now_s() + atof(argv[6]);
   dds_entity_t pp = dds_create_participant((dds_domainid_t)atoi(argv[2]), NULL, NULL);
   if (pp < 0) {
     printf("FAIL: participant: %s\n", dds_strretcode(pp));
     return 1;
   }
+  /* Volatile topics: the readers exist before the bridge's last samples. */
+  struct images im = {0};
+  if (frames) images_readers(pp, ns, &im, compressed);
   if (!strcmp(mode, "prompts")) {
     check_prompts(pp, ns, deadline);
+  } else if (!strcmp(mode, "stall")) {
+    stall(pp, ns, deadline);
+  } else if (!strcmp(mode, "flood")) {
+    flood(pp, ns, deadline);
+  } else if (!strcmp(mode, "badmap")) {
+    badmap(pp, ns, deadline);
   } else {
     /* The probe may start before the node has created the segment. */
     struct vlff_map *m;
@@ -345,6 +686,7 @@ int main(int argc, char **argv) {
     CHECK(!vlff_map_writer_alive(m, 5000000000ull), "the node did not stop");
     CHECK(vlff_map_version(m) > 0, "the node published no map");
     if (!fails) fails += check_map_status(pp, ns, m, node, deadline, !strcmp(mode, "late"));
+    if (!fails && frames) fails += check_images(&im, m, frames, deadline);
     vlff_map_detach(m);
   }
   dds_delete(pp);

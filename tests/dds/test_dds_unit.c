@@ -1,6 +1,7 @@
 /* SPDX-License-Identifier: BSD-3-Clause */
 /* vlff-dds's pure parts (dds.h): topic names, the prompt message rule and
  * the point cloud's payload, without a network. */
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -11,6 +12,7 @@
 #include <cmocka.h>
 
 #include "dds.h"
+#include "merge.h"
 
 static void test_topic(void **state) {
   (void)state;
@@ -20,6 +22,30 @@ static void test_topic(void **state) {
   assert_int_equal(vlff_dds_topic(t, sizeof t, "/fleet/robot1", "status"), 0);
   assert_string_equal(t, "rt/fleet/robot1/vlff/status");
   assert_int_equal(vlff_dds_topic(t, 12, "/robot1", "map"), -1);
+  /* by id: the image topics as ROS's image_transport names them, the pose
+   * on the namespace's tf */
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "/r1", VLFF_DDS_CAMERA_IMAGE_COMPRESSED), 0);
+  assert_string_equal(t, "rt/r1/vlff/camera/image_raw/compressed");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "/r1", VLFF_DDS_CAMERA_INFO), 0);
+  assert_string_equal(t, "rt/r1/vlff/camera/camera_info");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "/r1", VLFF_DDS_TF), 0);
+  assert_string_equal(t, "rt/r1/tf");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "", VLFF_DDS_TF), 0);
+  assert_string_equal(t, "rt/tf");
+  assert_int_equal(vlff_dds_topic_of(t, sizeof t, "", VLFF_DDS_NTOPICS), -1);
+  assert_string_equal(vlff_dds_topic_key(VLFF_DDS_LABEL_IMAGE_COMPRESSED), "label_image_compressed");
+  assert_null(vlff_dds_topic_key(-1));
+}
+
+/* sensor_msgs/image_encodings names; depth formats have none here. */
+static void test_encoding(void **state) {
+  (void)state;
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_RGB8), "rgb8");
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_MONO16), "mono16");
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_BAYER_RG8), "bayer_rggb8");
+  assert_string_equal(vlff_dds_encoding(VLFF_PIX_BAYER_GB8), "bayer_gbrg8");
+  assert_null(vlff_dds_encoding(VLFF_PIX_DEPTH_F32_M));
+  assert_null(vlff_dds_encoding(999));
 }
 
 static int parse(const char *s, int *invalid, char *why) {
@@ -115,8 +141,74 @@ static void test_cloud(void **state) {
   free(d);
 }
 
+/* One point of vlff-dds's layout. */
+static void put_point(uint8_t *p, float x, float y, float z, uint16_t label, float conf) {
+  memcpy(p, &x, 4), memcpy(p + 4, &y, 4), memcpy(p + 8, &z, 4);
+  p[12] = (uint8_t)label, p[13] = (uint8_t)(label >> 8), p[14] = p[15] = 0;
+  memcpy(p + 16, &conf, 4);
+}
+
+static const char *const names[5] = {"x", "y", "z", "label", "confidence"};
+static const uint32_t offs[5] = {0, 4, 8, 12, 16};
+static const uint8_t types[5] = {VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_UINT16, VLFF_DDS_FLOAT32};
+
+/* Robots' clouds: what is refused, and the merge by confidence, then recency,
+ * in the world frame of each robot's transform. */
+static void test_merge(void **state) {
+  (void)state;
+  static struct vlff_merge_robot r[2];
+  memset(r, 0, sizeof r);
+  char why[256];
+  uint8_t d[3 * 20];
+  put_point(d, 0.05f, 0.05f, 0.05f, 0, 0.5f);
+  put_point(d + 20, 0.15f, 0.05f, 0.05f, 1, 1.0f);
+  put_point(d + 40, 0.05f, 0.15f, 0.05f, 1, 0.2f);
+  r[0].nprompts = r[1].nprompts = -1;
+  /* refused whole: another layout, a short buffer, a NaN, a confidence > 1 */
+  const uint8_t bad_types[5] = {VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32};
+  assert_int_equal(vlff_merge_take_cloud(&r[0], 3, 1, 20, false, names, offs, bad_types, 5, d, sizeof d, 1, why, sizeof why), -1);
+  assert_non_null(strstr(why, "field 3"));
+  assert_int_equal(vlff_merge_take_cloud(&r[0], 3, 1, 20, true, names, offs, types, 5, d, sizeof d, 1, why, sizeof why), -1);
+  assert_int_equal(vlff_merge_take_cloud(&r[0], 4, 1, 20, false, names, offs, types, 5, d, sizeof d, 1, why, sizeof why), -1);
+  uint8_t nan[20];
+  put_point(nan, NAN, 0, 0, 0, 0.5f);
+  assert_int_equal(vlff_merge_take_cloud(&r[0], 1, 1, 20, false, names, offs, types, 5, nan, 20, 1, why, sizeof why), -1);
+  put_point(nan, 0, 0, 0, 0, 1.5f);
+  assert_int_equal(vlff_merge_take_cloud(&r[0], 1, 1, 20, false, names, offs, types, 5, nan, 20, 1, why, sizeof why), -1);
+  assert_null(r[0].xyz);
+  assert_int_equal(vlff_merge_take_cloud(&r[0], 3, 1, 20, false, names, offs, types, 5, d, sizeof d, 100, why, sizeof why), 0);
+  /* robot 1: turned 90 degrees, its points land on robot 0's */
+  uint8_t e[2 * 20];
+  put_point(e, 0.05f, -0.05f, 0.05f, 0, 0.5f); /* same confidence, more recent: wins */
+  put_point(e + 20, 0.05f, -0.15f, 0.05f, 1, 0.9f); /* onto robot 0's 0.15,0.05 (1.0): loses */
+  assert_int_equal(vlff_merge_take_cloud(&r[1], 2, 1, 20, false, names, offs, types, 5, e, sizeof e, 200, why, sizeof why), 0);
+  r[1].yaw = 3.14159265358979323846 / 2, r[1].t[2] = 0.01; /* (x, y) -> (-y, x), 1 cm up */
+  r[0].nprompts = 2, r[1].nprompts = 2;
+  strcpy(r[0].prompts[0], "chair"), strcpy(r[0].prompts[1], "table");
+  strcpy(r[1].prompts[0], "door"), strcpy(r[1].prompts[1], "table");
+  static struct vlff_merge_grid g;
+  const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1}, huge[3] = {1e4, 1e4, 1e4};
+  assert_int_equal(vlff_merge_grid_init(&g, lo, huge, 0.01, why, sizeof why), -1);
+  assert_non_null(strstr(why, "more than"));
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_compute(&g, r, 2), 3);
+  assert_int_equal(g.nprompts, 3); /* chair table door */
+  assert_string_equal(g.prompts[2], "door");
+  assert_int_equal(g.labels[0], 2);          /* robot 1's door: equal confidence, newer */
+  assert_int_equal(g.labels[1], 1);          /* robot 0's table at 1.0 over robot 1's 0.9 */
+  assert_int_equal(g.conf[1], 255);
+  assert_int_equal(g.labels[10], 1);         /* 0.05,0.15: robot 0's only */
+  assert_int_equal(g.labels[2], VLFF_LABEL_UNKNOWN);
+  r[1].stamp_ns = 50; /* older now: robot 0's chair wins the tie */
+  vlff_merge_compute(&g, r, 2);
+  assert_int_equal(g.labels[0], 0);
+  vlff_merge_grid_free(&g);
+  vlff_merge_robot_free(&r[0]);
+  vlff_merge_robot_free(&r[1]);
+}
+
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts),
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding), cmocka_unit_test(test_merge),
                                      cmocka_unit_test(test_cloud)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

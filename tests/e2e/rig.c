@@ -56,6 +56,7 @@ static int shipped_tolerances(struct rig *r, char *err, size_t errlen) {
   if (!c) return fail(err, errlen, "out of memory");
   vlff_config_defaults(c);
   r->pose_tol_s = c->source.pose_tolerance_s;
+  r->future_tol_s = c->pose.future_tolerance_s;
   const char *files[] = {"default.yaml", "aravis-gige.yaml", "aravis-rgbd.yaml"};
   for (int i = 0; i < 3; i++) {
     char path[512], e[512];
@@ -66,7 +67,11 @@ static int shipped_tolerances(struct rig *r, char *err, size_t errlen) {
       return -1;
     }
     r->pose_tol_s = fmin(r->pose_tol_s, c->source.pose_tolerance_s);
+    /* 0 there means no check: the widest */
+    if (c->pose.future_tolerance_s > 0 && (r->future_tol_s == 0 || c->pose.future_tolerance_s < r->future_tol_s))
+      r->future_tol_s = c->pose.future_tolerance_s;
     r->pair_tol_s = c->depth_camera.pair_tolerance_s; /* the RGB-D example's, read last */
+    r->pose_wait_s = c->source.pose_wait_s;           /* idem */
   }
   free(c);
   return 0;
@@ -117,11 +122,8 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
   if (!f) return vlff_sim_destroy(s), fail(err, errlen, "cannot write the config");
   fprintf(f,
           "node:\n  state_dir: %s/state\n  log_level: warn\n"
-          "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: %.17g\n  pose_wait_s: 0.5\n"
-          /* vlff-scenecam sends each tick's poses at the tick's start,
-           * stamped at every pose period through the 200 ms tick: the later
-           * ones, ahead of the clock, are no clock error here. */
-          "pose:\n  future_tolerance_s: 0.25\n"
+          "source:\n  kind: %s\n  features: %s\n  pose_tolerance_s: %.17g\n  pose_wait_s: %.17g\n"
+          "pose:\n  future_tolerance_s: %.17g\n"
           "sim:\n  seed: 3\n  rate_hz: 5\n  width: %d\n  height: %d\n  frames: %d\n"
           "shm:\n  ring: /%s-f\n  map: /%s-m\n  prompts: /%s-p\n  pose_ring: /%s-q\n  feature_ring: /%s-x\n"
           "  max_width: 320\n  max_height: 240\n  ring_slots: 8\n"
@@ -136,7 +138,8 @@ int rig_init(struct rig *r, int cameras, char *err, size_t errlen) {
           "  frame_rate: 5\n  depth: stream\n  intrinsics: [0, 0, 0, 0]\n  reconnect_max_s: 0.5\n"
           "depth_camera:\n  kind: aravis\n  device: 127.0.0.2\n  pixel_format: Mono16\n  width: %d\n  height: %d\n"
           "  frame_rate: 5\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: %.17g\n",
-          r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", r->pose_tol_s, W, H, RIG_FRAMES, r->tag, r->tag, r->tag, r->tag,
+          r->dir, cameras ? "ring" : "sim", cameras ? "ring" : "sim", r->pose_tol_s, r->pose_wait_s, r->future_tol_s, W, H, RIG_FRAMES,
+          r->tag, r->tag, r->tag, r->tag,
           r->tag, cameras ? "  embeddings: " : "", cameras ? emb_path : "", cameras ? "\n" : "", W, H, W, H,
           r->calib_path, r->pair_tol_s);
   fclose(f);
@@ -249,6 +252,11 @@ long long rig_camd_stat(const struct rig *r, const char *key) {
   }
   fclose(f);
   return v;
+}
+
+long long rig_scenecam_stat(const struct rig *r, const char *key) {
+  const char *p = strstr(tk_slurp(r->scenecam_out), key);
+  return p ? strtoll(p + strlen(key), NULL, 10) : -1;
 }
 
 int rig_capture_stderr(struct rig *r, char *err, size_t errlen) {

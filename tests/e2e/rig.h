@@ -12,11 +12,12 @@
  * rig_netns_enter() re-executes the program inside one (unshare + ip);
  * programs started afterwards inherit it.
  *
- * The rig runs the shipped tolerances: source.pose_tolerance_s the smallest
- * of the compiled-in default and configs/default.yaml, aravis-gige.yaml and
- * aravis-rgbd.yaml (a larger tolerance finds every pose a smaller one
- * finds), depth_camera.pair_tolerance_s that of configs/aravis-rgbd.yaml,
- * against vlff-scenecam's 30 Hz pose stream.
+ * The rig runs the shipped tolerances: source.pose_tolerance_s and
+ * pose.future_tolerance_s each the smallest of the compiled-in default and
+ * configs/default.yaml, aravis-gige.yaml and aravis-rgbd.yaml (a larger
+ * tolerance accepts every pose a smaller one accepts),
+ * depth_camera.pair_tolerance_s that of configs/aravis-rgbd.yaml, against
+ * vlff-scenecam's 30 Hz pose stream (each pose sent at its own stamp).
  *
  * Contract: functions returning int give 0, or -1 with a message in err.
  * rig_stop() ends and reaps every child the rig started; rig_free()
@@ -40,7 +41,7 @@ struct vlff_node;
 struct rig {
   char dir[256], tag[64], cfg_path[320], calib_path[320];
   char camd_out[320], scenecam_out[320], pose_out[320], node_log[320];
-  double pose_tol_s, pair_tol_s; /* the shipped tolerances the rig runs */
+  double pose_tol_s, pose_wait_s, future_tol_s, pair_tol_s; /* the shipped tolerances the rig runs */
   int saved_stderr;              /* rig_capture_stderr: the real stderr, else -1 */
   int cameras; /* 1: the camera rig, 0: the node's sim source */
   struct vlff_config cfg;
@@ -80,5 +81,8 @@ double rig_lose_range_camera(struct rig *r, struct vlff_node *n, double timeout_
 
 /* The value of key in vlff-camd's stats line (after rig_stop), or -1. */
 long long rig_camd_stat(const struct rig *r, const char *key);
+/* The number after key (its text up to the number, e.g. "range frames of a
+ * skipped colour tick: ") in vlff-scenecam's summary (after rig_stop), or -1. */
+long long rig_scenecam_stat(const struct rig *r, const char *key);
 
 #endif

@@ -13,18 +13,29 @@
  * Which sim frame is shown: Aravis' fake camera exposes a frame at every
  * multiple of its frame period on the wall clock, so both cameras, set to
  * the same rate, fill at the same ticks; each fill renders sim frame
- * (tick - first tick) mod sim.frames. The trajectory is held during a tick,
- * sent as a tracker at POSE_HZ would send it: the tick's pose stamped at
- * every pose period within the tick, so a frame stamped inside its tick
- * (vlff-camd stamps arrival) finds the pose its image was rendered from
- * between two poses one pose period apart. The feature publisher maps a
- * record to its tick by the record's host stamp: the newest colour fill
- * at or before it.
+ * (tick - first tick) mod sim.frames, and its buffer carries the tick's
+ * instant as the camera's timestamp. (The fake camera stamps the moment its
+ * thread starts the fill, which on a busy host lags the tick by up to a
+ * period while the image is the tick's; a real camera's clock stamps the
+ * exposure, on its frame grid, however late the frame then arrives.) The
+ * trajectory is held during a tick and sent as a tracker at POSE_HZ sends
+ * it: each pose at its own stamp, on a grid of 1 / POSE_HZ on the wall
+ * clock, holding the pose of the tick the stamp falls in, so a frame
+ * stamped inside its tick (vlff-camd stamps arrival) finds the pose its
+ * image was rendered from between two poses one pose period apart, and no
+ * pose is ever ahead of the clock. The feature publisher maps a record to
+ * its tick by the record's host stamp: the newest colour fill at or before
+ * it.
  *
  * SIGUSR1 stops the range camera (its GigE Vision device goes away, as a
  * camera unplugged or powered off) and says on stderr, as
  * 'range camera stopped, last fill at T' (CLOCK_MONOTONIC seconds), when it
  * began its last frame.
+ *
+ * A fill that begins more than a period late (a busy host) leaves its
+ * camera without a frame of a tick: the summary counts each camera's
+ * skipped ticks and the range frames whose tick the colour camera skipped,
+ * which no pairing can give a partner.
  *
  * Contract: runs until SIGINT/SIGTERM or --seconds; prints one summary line
  * on stderr at the end; exit 0, 1 on a setup error (a camera that cannot be
@@ -77,9 +88,10 @@ struct scene {
   const struct vlff_config *cfg;
   struct vlff_sim *sim;
   uint64_t period_us;
-  atomic_llong first_tick; /* -1 until the first fill */
+  atomic_llong first_tick; /* -1 until the first fill or pose */
   int udp;
   struct sockaddr_in to;
+  atomic_bool poses_done;  /* the pose thread's stop */
   pthread_mutex_t lock;
   uint64_t fill_mono[TICKS]; /* monotonic ns of colour fill i % TICKS */
   long long fill_idx[TICKS]; /* its sim frame */
@@ -87,7 +99,6 @@ struct scene {
   atomic_llong color_fills, depth_fills, bad_buffers, poses_sent;
   atomic_ullong last_depth_fill_ns; /* monotonic, when the range camera's latest fill began */
   ArvGvFakeCamera *gd;              /* the range camera, until SIGUSR1 */
-  long long last_pose_tick;         /* the colour camera's fill thread only; -1 before the first */
 };
 
 struct cam {
@@ -97,48 +108,61 @@ struct cam {
   ArvFakeCamera *fake;
 };
 
+/* Which ticks (from the first) each camera, colour 0 and range 1, sent a
+ * frame of: a fill that begins more than a period late leaves a tick
+ * without a frame of that camera, and the other camera's frame of it
+ * without a partner. Written by the fill threads, read at the end. */
+#define SENT_TICKS 65536 /* 3.6 h at 5 Hz */
+static atomic_uchar sent[2][SENT_TICKS];
+
 static uint64_t mono_ns(void) { return vlff_shm_now_ns(); }
 
-/* The sim frame of the tick now in progress on the fake cameras' clock. */
-static long long tick_of_now(struct scene *sc, long long *tick) {
-  long long t = (long long)((uint64_t)g_get_real_time() / sc->period_us);
+/* The sim frame of a tick (a multiple of the period on the wall clock):
+ * the first tick asked for, by a fill or a pose, shows frame 0. */
+static long long frame_of_tick(struct scene *sc, long long tick) {
   long long expected = -1;
-  atomic_compare_exchange_strong(&sc->first_tick, &expected, t);
-  *tick = t;
-  long long idx = (t - atomic_load(&sc->first_tick)) % sc->cfg->sim.frames;
+  atomic_compare_exchange_strong(&sc->first_tick, &expected, tick);
+  long long idx = (tick - atomic_load(&sc->first_tick)) % sc->cfg->sim.frames;
   return idx < 0 ? idx + sc->cfg->sim.frames : idx;
 }
 
-/* The tick's pose, held through the tick: stamped at every pose period
- * (1 / POSE_HZ) from the tick's start until the next tick. */
-static void send_tick_poses(struct scene *sc, long long tick, const double c2w[16]) {
-  const double t0 = (double)tick * (double)sc->period_us * 1e-6, period = (double)sc->period_us * 1e-6;
-  double wxyz[4];
-  vlff_pose_quaternion(c2w, wxyz);
-  const double q[4] = {wxyz[1], wxyz[2], wxyz[3], wxyz[0]}; /* TUM order: x y z w */
-  char msg[2048];
-  int len = 0, lines = 0;
-  for (int k = 0; k * (1.0 / POSE_HZ) < period - 1e-9 && len < (int)sizeof msg - 200; k++, lines++)
-    len += snprintf(msg + len, sizeof msg - (size_t)len, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
-                    t0 + k * (1.0 / POSE_HZ), c2w[3], c2w[7], c2w[11], q[0], q[1], q[2], q[3]);
-  if (sendto(sc->udp, msg, (size_t)len, 0, (struct sockaddr *)&sc->to, sizeof sc->to) == len)
-    atomic_fetch_add(&sc->poses_sent, lines);
+/* The sim frame of the tick now in progress on the fake cameras' clock. */
+static long long tick_of_now(struct scene *sc, long long *tick) {
+  *tick = (long long)((uint64_t)g_get_real_time() / sc->period_us);
+  return frame_of_tick(sc, *tick);
 }
 
-/* The poses of this tick, after those of ticks the colour camera skipped
- * (a fill that starts late on a busy host waits for the next multiple of
- * the period): a tracker's stream has no hole where the camera has one. */
-static void send_pose(struct scene *sc, long long tick, const double c2w[16]) {
-  if (sc->udp < 0) return;
-  if (sc->last_pose_tick >= 0 && tick - sc->last_pose_tick > 1 && tick - sc->last_pose_tick <= 10)
-    for (long long t = sc->last_pose_tick + 1; t < tick; t++) {
-      double m[16];
-      long long idx = (t - atomic_load(&sc->first_tick)) % sc->cfg->sim.frames;
-      vlff_sim_pose(sc->sim, idx < 0 ? idx + sc->cfg->sim.frames : idx, m);
-      send_tick_poses(sc, t, m);
-    }
-  send_tick_poses(sc, tick, c2w);
-  sc->last_pose_tick = tick;
+/* Wall-clock ns of pose n of the POSE_HZ grid (n / POSE_HZ s; split so that
+ * n * 1e9 does not overflow). */
+static uint64_t pose_stamp_ns(uint64_t n) {
+  return n / POSE_HZ * 1000000000ull + n % POSE_HZ * 1000000000ull / POSE_HZ;
+}
+
+/* The pose stream: each pose sent at its own stamp (never ahead of the
+ * clock), late ones at once in order, as a tracker that fell behind sends
+ * them; each holds the pose of the tick its stamp falls in. */
+static void *send_poses(void *arg) {
+  struct scene *sc = arg;
+  struct timespec now;
+  clock_gettime(CLOCK_REALTIME, &now);
+  uint64_t n = (uint64_t)now.tv_sec * POSE_HZ + (uint64_t)now.tv_nsec * POSE_HZ / 1000000000ull + 1;
+  while (!atomic_load(&sc->poses_done)) {
+    const uint64_t t = pose_stamp_ns(n);
+    const struct timespec at = {(time_t)(t / 1000000000ull), (long)(t % 1000000000ull)};
+    if (clock_nanosleep(CLOCK_REALTIME, TIMER_ABSTIME, &at, NULL)) continue; /* a signal: sleep on */
+    double c2w[16], wxyz[4];
+    vlff_sim_pose(sc->sim, frame_of_tick(sc, (long long)(t / (sc->period_us * 1000))), c2w);
+    vlff_pose_quaternion(c2w, wxyz);
+    char msg[256];
+    /* TUM order: t x y z qx qy qz qw */
+    int len = snprintf(msg, sizeof msg, "%llu.%09llu %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
+                       (unsigned long long)(t / 1000000000ull), (unsigned long long)(t % 1000000000ull), c2w[3],
+                       c2w[7], c2w[11], wxyz[1], wxyz[2], wxyz[3], wxyz[0]);
+    if (sendto(sc->udp, msg, (size_t)len, 0, (struct sockaddr *)&sc->to, sizeof sc->to) == len)
+      atomic_fetch_add(&sc->poses_sent, 1);
+    n++;
+  }
+  return NULL;
 }
 
 static void fill(ArvBuffer *buffer, void *data, guint32 exposure_us, guint32 gain, ArvPixelFormat fmt) {
@@ -161,6 +185,11 @@ static void fill(ArvBuffer *buffer, void *data, guint32 exposure_us, guint32 gai
   }
   if (c->depth) atomic_store(&sc->last_depth_fill_ns, mono_ns());
   long long tick, idx = tick_of_now(sc, &tick);
+  /* the camera's clock: the instant of the tick whose image this is (the
+   * fake camera's own stamp is when this fill began) */
+  arv_buffer_set_timestamp(buffer, (guint64)tick * sc->period_us * 1000u);
+  const long long k = tick - atomic_load(&sc->first_tick);
+  if (k >= 0 && k < SENT_TICKS) atomic_store(&sent[c->depth][k], 1);
   char err[256];
   if (vlff_sim_render(sc->sim, idx, VLFF_SIM_RGBD, c->f, err, sizeof err)) {
     fprintf(stderr, "vlff-scenecam: frame %lld: %s\n", idx, err);
@@ -178,7 +207,6 @@ static void fill(ArvBuffer *buffer, void *data, guint32 exposure_us, guint32 gai
   sc->fill_idx[sc->nfills % TICKS] = idx;
   sc->nfills++;
   pthread_mutex_unlock(&sc->lock);
-  send_pose(sc, tick, c->f->c2w);
   atomic_fetch_add(&sc->color_fills, 1);
 }
 
@@ -212,10 +240,37 @@ static ArvGvFakeCamera *camera_new(const char *addr, const char *serial, struct 
 /* SIGUSR1: the range camera goes away. */
 static void maybe_stop_depth(struct scene *sc) {
   if (!stop_depth || !sc->gd) return;
+  /* Its acquisition off first: the fake camera's thread, cancelled, sends
+   * one more frame at once, off its period's grid (a second frame of the
+   * tick it last sent), which a camera unplugged does not. */
+  arv_fake_camera_write_register(arv_gv_fake_camera_get_fake_camera(sc->gd), ARV_FAKE_CAMERA_REGISTER_ACQUISITION,
+                                 0);
   g_object_unref(sc->gd);
   sc->gd = NULL;
   fprintf(stderr, "vlff-scenecam: range camera stopped, last fill at %.6f\n",
           (double)atomic_load(&sc->last_depth_fill_ns) * 1e-9);
+}
+
+/* The ticks each camera skipped between its first and last frame, and the
+ * range frames of ticks the colour camera skipped while streaming (no
+ * colour frame was ever sent for them to pair with). */
+static void count_skipped(long long skipped[2], long long *orphans) {
+  long long first[2] = {-1, -1}, last[2] = {-1, -1};
+  for (int c = 0; c < 2; c++)
+    for (long long k = 0; k < SENT_TICKS; k++)
+      if (atomic_load(&sent[c][k])) {
+        if (first[c] < 0) first[c] = k;
+        last[c] = k;
+      }
+  *orphans = 0;
+  for (int c = 0; c < 2; c++) {
+    skipped[c] = 0;
+    for (long long k = first[c] + 1; first[c] >= 0 && k < last[c]; k++) {
+      const bool none = !atomic_load(&sent[c][k]);
+      skipped[c] += none;
+      if (c == 0 && none && atomic_load(&sent[1][k])) (*orphans)++;
+    }
+  }
 }
 
 /* Features for every record of the frame ring, until stopped. */
@@ -339,8 +394,9 @@ int main(int argc, char **argv) {
     fprintf(stderr, "%s\n", err);
     return 1;
   }
-  struct scene sc = {.cfg = &cfg, .udp = -1, .lock = PTHREAD_MUTEX_INITIALIZER, .last_pose_tick = -1};
+  struct scene sc = {.cfg = &cfg, .udp = -1, .lock = PTHREAD_MUTEX_INITIALIZER};
   atomic_init(&sc.first_tick, -1);
+  atomic_init(&sc.poses_done, false);
   sc.period_us = (uint64_t)llround(1e6 / cfg.sim.rate_hz);
   if (poses) {
     if (parse_addr(poses, &sc.to)) return vlff_cli_usage_error(&cli, "--poses: expected IPv4:PORT, got '%s'", poses);
@@ -365,16 +421,30 @@ int main(int argc, char **argv) {
     sc.gd = gd;
     sa.sa_handler = on_usr1;
     sigaction(SIGUSR1, &sa, NULL);
+    /* the pose thread takes no signal: this one sees them all */
+    pthread_t poser;
+    sigset_t all, old;
+    sigfillset(&all);
+    pthread_sigmask(SIG_SETMASK, &all, &old);
+    bool posing = sc.udp >= 0 && pthread_create(&poser, NULL, send_poses, &sc) == 0;
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+    if (sc.udp >= 0 && !posing) rc = vlff_cli_error(&cli, "cannot start the pose thread");
     long long published = 0, unknown = 0;
-    if (features)
+    if (rc == 0 && features)
       rc = publish_features(&sc, &published, &unknown);
     else
-      while (!stop) maybe_stop_depth(&sc), g_usleep(50000);
+      while (rc == 0 && !stop) maybe_stop_depth(&sc), g_usleep(50000);
+    atomic_store(&sc.poses_done, true);
+    if (posing) pthread_join(poser, NULL);
+    long long skipped[2], orphans;
+    count_skipped(skipped, &orphans);
     fprintf(stderr,
             "vlff-scenecam: %lld colour fills, %lld range fills, %lld wrong buffers, %lld poses sent, "
-            "%lld feature records, %lld records of no known fill\n",
+            "%lld feature records, %lld records of no known fill, ticks skipped: %lld colour %lld range, "
+            "range frames of a skipped colour tick: %lld\n",
             (long long)atomic_load(&sc.color_fills), (long long)atomic_load(&sc.depth_fills),
-            (long long)atomic_load(&sc.bad_buffers), (long long)atomic_load(&sc.poses_sent), published, unknown);
+            (long long)atomic_load(&sc.bad_buffers), (long long)atomic_load(&sc.poses_sent), published, unknown,
+            skipped[0], skipped[1], orphans);
   }
   if (sc.gd) g_object_unref(sc.gd); /* unless SIGUSR1 stopped it */
   if (gc) g_object_unref(gc);

@@ -8,8 +8,9 @@
  * (test_node_e2e). Nothing is lost on the way: every pose line is taken,
  * every buffer served is of the cameras' format, and the node refuses no
  * more than a rare frame. The rig runs the shipped tolerances (rig.h) with
- * a 30 Hz pose stream and free-running cameras: nearly every colour frame
- * finds its range frame, and nearly every frame its pose.
+ * a 30 Hz pose stream, each pose sent at its own stamp, and free-running
+ * cameras: every range frame finds its colour frame (unless the scene
+ * server never sent that one), and nearly every frame its pose.
  *
  * Then the range camera goes away (its fake device stops, as one unplugged):
  * the node must say so in its status (what --status and CAN show) and its
@@ -53,6 +54,21 @@ static void test_camera_rig_trains_map(void **state) {
   double best = tk_wait_miou3d(r.cfg.shm.map, &r.gt, 35, 150 * scale, &version);
   struct vlff_node_status st;
   tk_report(n, vlff_seconds() - t0, best, version, &st);
+  /* The scene server's cameras stamp as free-running cameras do: the
+   * device time of a record (its colour frame's) is an exposure on the
+   * colour camera's frame grid, whenever the frame was filled and sent. */
+  struct vlff_ring *ring = vlff_ring_attach(r.cfg.shm.ring, VLFF_RECORD_FRAME);
+  assert_non_null(ring);
+  void *rec = malloc(vlff_ring_slot_size(ring));
+  assert_non_null(rec);
+  struct vlff_ring_view view;
+  assert_true(vlff_ring_read_latest(ring, rec, vlff_ring_slot_size(ring), &view) > 0);
+  const uint64_t t_dev = ((const struct vlff_frame_hdr *)rec)->t_device_ns,
+                 period_ns = (uint64_t)llround(1e9 / r.cfg.camera.frame_rate);
+  free(rec);
+  vlff_ring_close(ring);
+  if (t_dev == 0 || t_dev % period_ns) fail_msg("a record's device time %llu ns is off the %llu ns frame grid",
+                                                (unsigned long long)t_dev, (unsigned long long)period_ns);
   if (rig_capture_stderr(&r, err, sizeof err)) fail_msg("%s", err);
   double visible = rig_lose_range_camera(&r, n, 20 * scale, err, sizeof err);
   rig_release_stderr(&r);
@@ -75,14 +91,21 @@ static void test_camera_rig_trains_map(void **state) {
    * the right size and format, every pose line accepted. */
   assert_true(pairs > 10);
   /* Free-running cameras pair whatever their phase (not only within the
-   * GPIO example's pair_tolerance_s, which paired 39 % of them): nearly
-   * every range frame found its colour frame (the colour camera's frames
-   * after the range camera went away below found none, as they should
-   * not; on a loaded host a colour frame can be lost on its way, its range
-   * frame then rightly unmatched). */
-  long long depth = rig_camd_stat(&r, "depth_frames");
+   * GPIO example's pair_tolerance_s, which paired 39 % of them) and
+   * however late a frame arrives: every range frame after the start-up
+   * found its colour frame, unless that was never sent (a tick
+   * vlff-scenecam's colour camera skipped, its fill begun more than a
+   * period late on a busy host), lost on its way (an incomplete buffer) or
+   * dropped. Counted on the range side: the colour camera's frames after
+   * the range camera went away below rightly found none. */
+  long long depth = rig_camd_stat(&r, "depth_frames"), incomplete = rig_camd_stat(&r, "incomplete"),
+            dropped = rig_camd_stat(&r, "dropped"),
+            orphans = rig_scenecam_stat(&r, "range frames of a skipped colour tick: ");
+  printf("vlff-scenecam: %lld range frames of a tick its colour camera skipped; vlff-camd: %lld incomplete, "
+         "%lld dropped\n", orphans, incomplete, dropped);
   assert_true(depth - su_d > 10);
-  assert_true((depth - su_d - pairs) * 4 <= depth - su_d);
+  assert_true(orphans >= 0 && incomplete >= 0 && dropped >= 0);
+  assert_true(depth - su_d - pairs <= orphans + incomplete + dropped);
   assert_true(strstr(tk_slurp(r.scenecam_out), " 0 wrong buffers"));
   assert_false(strstr(tk_slurp(r.pose_out), ": refused, ")); /* vlff-pose's line for each refusal */
   /* The node learned from them: keyframes, a map, and frames refused at

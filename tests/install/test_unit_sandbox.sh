@@ -170,5 +170,20 @@ if [[ -x "$bin/vlff-view" ]]; then
   check "vlff-view exits 0 on SIGINT (rc=$view_rc)" '(( view_rc == 0 ))'
   check "vlff-view: system calls and socket families within vlff-view.service" 'rules vlff-view'
 fi
+# vlff-dds: joins DDS (multicast discovery on lo, the interface list over
+# netlink), publishes the map and status of the node's segment from above.
+if [[ -x "$bin/vlff-dds" ]]; then
+  dom=$((($$ % 200) + 1))
+  printf 'shm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\ndds:\n  domain_id: %d\n  namespace: /sbx\n  status_hz: 10\n' \
+    $p $p $p $dom >"$tmp/d.yaml"
+  sandboxed vlff-dds env CYCLONEDDS_URI='<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface name="lo"/></Interfaces></General></Domain></CycloneDDS>' \
+    "$bin/vlff-dds" --config "$tmp/d.yaml" -v
+  wait_until 100 'grep -q "map version" "$tmp/vlff-dds.log"'
+  stopped TERM
+  dds_rc=$?
+  check "vlff-dds sent the segment's map (log: $(tail -1 "$tmp/vlff-dds.log"))" 'grep -q "map version" "$tmp/vlff-dds.log"'
+  check "vlff-dds exits 0 on SIGTERM (rc=$dds_rc)" '(( dds_rc == 0 ))'
+  check "vlff-dds: system calls and socket families within vlff-dds.service" 'rules vlff-dds'
+fi
 echo "$passes passed, $fails failed"
 (( fails == 0 ))

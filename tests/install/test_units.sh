@@ -27,8 +27,8 @@ printf '[Service]\nType=oneshot\nExecStart=/bin/true\n' >"$tmp/probe.service"
 if ! systemd-analyze verify "$tmp/probe.service" >"$tmp/probe.log" 2>&1; then
   echo "SKIP: systemd-analyze verify cannot run here:"; cat "$tmp/probe.log"; exit 77
 fi
-for u in vlff-node vlff-camd vlff-pose vlff-view; do
-  if [[ ($u == vlff-pose || $u == vlff-view) && ! -x "$tmp/p/bin/$u" ]]; then
+for u in vlff-node vlff-camd vlff-pose vlff-view vlff-dds; do
+  if [[ ($u == vlff-pose || $u == vlff-view || $u == vlff-dds) && ! -x "$tmp/p/bin/$u" ]]; then
     echo "note: $u is not built in this tree; its unit is checked without its binary"
     sed "s|^ExecStart=[^ ]*|ExecStart=/bin/true|" "$units/$u.service" >"$tmp/$u.service"
     check "$u.service verifies" 'quiet_verify "$tmp/$u.service"'
@@ -41,6 +41,11 @@ check "vlff-view.service listens on loopback only (no --listen without a drop-in
   '! grep -q "^ExecStart=.*--listen" "$units/vlff-view.service"'
 check "vlff-view.service comes after the node and wants it" \
   'grep -qx "Wants=vlff-node.service" "$units/vlff-view.service" && grep -qx "After=vlff-node.service" "$units/vlff-view.service"'
+check "vlff-dds.service comes after the node and wants it, runs vlff-dds with the installed vlff.yaml" \
+  'grep -qx "Wants=vlff-node.service" "$units/vlff-dds.service" && grep -q "^After=vlff-node.service" "$units/vlff-dds.service" &&
+   grep -qx "ExecStart=$tmp/p/bin/vlff-dds --config $tmp/p/etc/vlff/vlff.yaml" "$units/vlff-dds.service"'
+check "vlff-dds.service allows the socket families DDS needs" \
+  'grep -qx "RestrictAddressFamilies=AF_UNIX AF_NETLINK AF_INET AF_INET6" "$units/vlff-dds.service"'
 # The notifying programs' units: Type=notify with a watchdog exactly when the
 # build has libsystemd, Type=simple without one otherwise.
 notify_units="vlff-node vlff-camd vlff-pose"
@@ -90,7 +95,7 @@ if systemd-analyze security --help 2>/dev/null | grep -q -- '--offline'; then
     systemd-analyze security --offline=true --threshold=40 "$1" >"$tmp/security.log" 2>&1 ||
       { grep -E '^✗|Overall' "$tmp/security.log"; false; }
   }
-  for u in vlff-node vlff-camd vlff-pose vlff-view; do
+  for u in vlff-node vlff-camd vlff-pose vlff-view vlff-dds; do
     f="$units/$u.service"
     [[ -f "$tmp/$u.service" ]] && f="$tmp/$u.service"   # the unit with its command replaced, above
     check "$u.service: systemd-analyze security at most 4.0 (rated $(exposure "$f"))" 'security_ok "$f"'

@@ -65,7 +65,7 @@ static const struct {
   {"train:\n  lr: -1\n", "t.yaml:2:7: key 'train.lr': ", "got '-1'"},
   {"can:\n  enabled: maybe\n", "t.yaml:2:12: key 'can.enabled': ", "expected true or false, got 'maybe'"},
   {"train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ", "expected one of depth|uniform, got 'random'"},
-  {"sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat, got 'house'"},
+  {"sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat|building, got 'house'"},
   {"sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'"},
   {"sim:\n  changes: 5\n", "t.yaml:2:12: key 'sim.changes': ", "expected sequence of {time_s, object, action, to}, got '5'"},
   {"sim:\n  changes:\n    - {time_s: -1, object: chair, action: remove}\n", "t.yaml:3:16: key 'sim.changes[0].time_s': ",
@@ -79,6 +79,7 @@ static const struct {
   {"sim:\n  changes:\n    - {time_s: 1, object: chair, action: remove, to: [1, 1]}\n", "t.yaml:3:7: key 'sim.changes[0]': ",
    "expected no 'to' for action remove"},
   {"publish:\n  label_hysteresis: 2.5\n", "t.yaml:2:21: key 'publish.label_hysteresis': ", "expected number in [0, 2], got '2.5'"},
+  {"sim:\n  flats: 9\n", "t.yaml:2:10: key 'sim.flats': ", "expected integer in [2, 8], got '9'"},
   {"node:\n  state_dir: [a, b]\n", "t.yaml:2:14: key 'node.state_dir': ", "expected string, got a sequence"},
   {"can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n", "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes"},
   {"field:\n  scene_min: [1, 2]\n", "t.yaml:2:14: key 'field.scene_min': ", "expected sequence of 3 numbers, got a sequence"},
@@ -320,8 +321,8 @@ static void test_dds_section(void **state) {
   assert_int_equal(cfg.dds.domain_id, 7);
   assert_string_equal(cfg.dds.ns, "/fleet/robot_1");
   assert_string_equal(cfg.dds.frame_id, "odom");
-  assert_false(cfg.dds.map);
-  assert_true(cfg.dds.status);
+  assert_false(cfg.dds.on[VLFF_DDS_MAP]);
+  assert_true(cfg.dds.on[VLFF_DDS_STATUS]);
   static const struct {
     const char *yaml, *fragment;
   } nsbad[] = {
@@ -340,6 +341,72 @@ static void test_dds_section(void **state) {
   }
   expect_error("dds:\n  domain_id: 233\n", "t.yaml:2:14: key 'dds.domain_id': ", "expected");
   expect_error("dds:\n  max_prompt_bytes: 20000\n", "t.yaml:2:21: key 'dds.max_prompt_bytes': ", "expected");
+
+  /* Per-topic switches and QoS, nested or dotted. */
+  assert_int_equal(load("dds:\n  tf: false\n  camera_frame_id: cam0\n  qos:\n    camera_image:\n      reliability: "
+                        "best_effort\n      depth: 5\n  qos.map.durability: volatile\n",
+                        &cfg),
+                   0);
+  assert_false(cfg.dds.on[VLFF_DDS_TF]);
+  assert_true(cfg.dds.on[VLFF_DDS_CAMERA_IMAGE]);
+  assert_false(cfg.dds.on[VLFF_DDS_CAMERA_IMAGE_COMPRESSED]);
+  assert_string_equal(cfg.dds.camera_frame_id, "cam0");
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_CAMERA_IMAGE].reliability, VLFF_DDS_BEST_EFFORT);
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_CAMERA_IMAGE].depth, 5);
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_CAMERA_IMAGE].durability, VLFF_DDS_VOLATILE);
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_MAP].durability, VLFF_DDS_VOLATILE);
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_MAP].reliability, VLFF_DDS_RELIABLE);
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_PROMPTS].durability, VLFF_DDS_TRANSIENT_LOCAL);
+  expect_error("dds:\n  qos:\n    map:\n      depth: 0\n", "t.yaml:4:14: key 'dds.qos.map.depth': ", "expected");
+  expect_error("dds:\n  qos:\n    tf:\n      depth: 1001\n", "t.yaml:4:14: key 'dds.qos.tf.depth': ", "expected");
+  expect_error("dds:\n  qos:\n    status:\n      reliability: sure\n",
+               "t.yaml:4:20: key 'dds.qos.status.reliability': ", "best_effort");
+  expect_error("dds:\n  qos:\n    map:\n      lifespan: 3\n", "t.yaml:4:7: key 'dds.qos.map.lifespan': ", "unknown key");
+  expect_error("dds:\n  image_hz: 0\n", "t.yaml:2:13: key 'dds.image_hz': ", "expected");
+  expect_error("dds:\n  jpeg_quality: 101\n", "t.yaml:2:17: key 'dds.jpeg_quality': ", "expected");
+  static const struct {
+    const char *yaml, *fragment;
+  } cross[] = {
+      {"dds:\n  qos:\n    prompts_in:\n      durability: transient_local\n", "expected volatile"},
+      {"dds:\n  camera_frame_id: map\n", "distinct from dds.frame_id"},
+      {"dds:\n  camera_frame_id: /cam\n", "dds.camera_frame_id"},
+  };
+  for (size_t i = 0; i < sizeof cross / sizeof cross[0]; i++) {
+    assert_int_equal(load(cross[i].yaml, &cfg), -1);
+    if (!strstr(err, cross[i].fragment)) fail_msg("%s: message '%s' lacks '%s'", cross[i].yaml, err, cross[i].fragment);
+  }
+
+  /* vlff-merge's fleet: robots with transforms, checked one by one. */
+  assert_int_equal(load("dds:\n  merge:\n    robots:\n      - namespace: /r1\n      - {namespace: /r2, transform: [4, "
+                        "0.5, 0, 90]}\n    bounds: [-5, -5, -1, 10, 10, 3]\n",
+                        &cfg),
+                   0);
+  assert_int_equal(cfg.dds.merge.robot_count, 2);
+  assert_string_equal(cfg.dds.merge.robots[1].ns, "/r2");
+  assert_float_equal(cfg.dds.merge.robots[1].transform[1], 0.5, 0);
+  assert_float_equal(cfg.dds.merge.robots[1].transform[3], 90, 0);
+  assert_float_equal(cfg.dds.merge.robots[0].transform[0], 0, 0);
+  assert_string_equal(cfg.dds.merge.map, "/vlff-fleet");
+  static const struct {
+    const char *yaml, *fragment;
+  } mbad[] = {
+      {"dds:\n  merge:\n    robots: {namespace: /r1}\n", "expected a sequence of 0 to 8"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: r1\n", "a leading '/'"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: /r1\n      - namespace: /r1\n", "not given before"},
+      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [1, 2, 3]}\n", "expected [x, y, z, yaw_deg]"},
+      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [1, 2, 3, 400]}\n", "degrees within"},
+      {"dds:\n  merge:\n    robots:\n      - {transform: [1, 2, 3, 4]}\n", "expected a 'namespace'"},
+      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, pose: 3}\n", "unknown key"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: /fleet\n", "no robot has"},
+      {"dds:\n  merge:\n    bounds: [0, 0, 0, 0, 1, 1]\n", "below x1 y1 z1"},
+      {"dds:\n  merge:\n    bounds: [0, 0, 0, 1000, 1000, 100]\n    voxel_size_m: 0.01\n", "at most"},
+      {"dds:\n  merge:\n    map: fleet\n", "dds.merge.map"},
+      {"shm:\n  map: /m\ndds:\n  merge:\n    map: /m\n", "distinct from shm.map"},
+  };
+  for (size_t i = 0; i < sizeof mbad / sizeof mbad[0]; i++) {
+    assert_int_equal(load(mbad[i].yaml, &cfg), -1);
+    if (!strstr(err, mbad[i].fragment)) fail_msg("%s: message '%s' lacks '%s'", mbad[i].yaml, err, mbad[i].fragment);
+  }
 }
 
 static int load_fifo(void *path) {
@@ -492,9 +559,12 @@ static void test_shipped_configs(void **state) {
   text[n] = 0;
   fclose(f);
   for (size_t i = 0; i < vlff_config_key_count(); i++) {
-    const char *k = strrchr(vlff_config_key_path(i), '.') + 1;
+    /* a.b at two spaces, a.b.c.d (dds.qos.map.depth) at six */
+    const char *kp = vlff_config_key_path(i), *k = strrchr(kp, '.') + 1;
+    int depth = 0;
+    for (const char *c = kp; *c; c++) depth += *c == '.';
     char needle[80];
-    snprintf(needle, sizeof needle, "\n  %s:", k);
+    snprintf(needle, sizeof needle, "\n%*s%s:", 2 * depth, "", k);
     if (!strstr(text, needle)) fail_msg("default.yaml lacks key %s", vlff_config_key_path(i));
   }
   const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "aravis-rgbd.yaml", "libcamera.yaml", "vlff.yaml"};

@@ -831,46 +831,55 @@ static void test_eval_strided_features(void **state) {
 }
 
 /* A scene whose training frames exceed keyframes.memory_mb: vlff-eval
- * takes every k-th of the frames --stride asked for, the smallest k that
- * fits, and says so on stderr and in its report (it used to stop). */
-static void test_eval_chooses_stride(void **state) {
+ * keeps every frame --stride takes (all train fusion and the evidence, all
+ * held-out ones are scored) and fits the field on as many of the training
+ * frames as the budget holds, spread over the whole scene, saying so on
+ * stderr and in its report (it used to thin every score's frames with a
+ * larger stride). */
+static void test_eval_keyframes_within_budget(void **state) {
   (void)state;
-  char scene[400], args[1500], train[64], test[64], p[700];
+  char scene[400], train[64], test[64], p[700], eval[600], cmd[3000];
   scene_path(scene, sizeof scene, "scene0009_00");
   write_export(scene, 16, -1);
-  /* 30x40x64 float16 maps and 80x60 images: 0.18 MiB a frame, 8 training frames 1.4 MiB */
+  /* 30x40x64 float16 maps and 40x30 training images: 0.15 MiB a keyframe,
+   * 8 training frames 1.2 MiB */
   snprintf(p, sizeof p, "%s/features.hdf", scene);
   write_feats(p, 0, 16, 30, 40, 64, 4, NULL, 0, 0);
   write_embeddings_dim(scene, VLFF_LABELS_SCANNET20, 64);
   char cfg[600];
   snprintf(cfg, sizeof cfg, "%s/small.yaml", root);
   putf(cfg, "keyframes:\n  memory_mb: 1\n");
-  snprintf(args, sizeof args, "--dataset %s -c %s --out %s/out-mem", scene, cfg, root);
-  if (run_eval(args, "mem") != 0) {
+  vlff_test_prog(eval, sizeof eval, "node/eval/vlff-eval");
+  snprintf(cmd, sizeof cmd, "%s --dataset %s -c %s --out %s/out-mem --iters 1 --threads 1 --quiet --holdout 2 "
+           ">%s/mem.log 2>&1", eval, scene, cfg, root, root);
+  if (system(cmd) != 0) {
     show_log("mem");
-    fail_msg("vlff-eval stopped instead of choosing a stride");
+    fail_msg("vlff-eval stopped instead of choosing keyframes");
   }
-  if (!log_has("mem", "the 8 training frames --stride 1 takes need 1.4 MiB") ||
-      !log_has("mem", "more than keyframes.memory_mb (1): using --stride 2 instead (8 frames, 4 of them training, 0.7 MiB")) {
+  if (!log_has("mem", "the 8 training frames need 1.2 MiB as keyframes, more than keyframes.memory_mb (1): the "
+                      "field fits on 6 of them spread over the whole scene (0.9 MiB); fusion and the evidence read "
+                      "all 8")) {
     show_log("mem");
-    fail_msg("stderr does not say which stride it chose and why");
+    fail_msg("stderr does not say how many keyframes it kept and why");
   }
   snprintf(p, sizeof p, "%s/out-mem", root);
   report_frames(p, train, test, sizeof train);
-  assert_string_equal(train, "0 4 8 12\n");
-  assert_string_equal(test, "2 6 10 14\n");
-  char cmd[1200], line[128];
+  assert_string_equal(train, "0 2 4 6 8 10 12 14\n");
+  assert_string_equal(test, "1 3 5 7 9 11 13 15\n");
+  char line[128];
   snprintf(cmd, sizeof cmd,
-           "python3 -c 'import json,sys; s=json.load(open(sys.argv[1]))[\"source\"][\"stride\"]; "
-           "print(s[\"asked\"], s[\"used\"], s[\"chosen_for\"])' %s/out-mem/report.json",
+           "python3 -c 'import json,sys; s=json.load(open(sys.argv[1]))[\"source\"]; k=s[\"keyframes\"]; "
+           "print(s[\"stride\"], k[\"chosen_for\"], k[\"memory_mb\"], *k[\"frames\"])' %s/out-mem/report.json",
            root);
   FILE *f = popen(cmd, "r");
   assert_non_null(f);
   assert_non_null(fgets(line, sizeof line, f));
   assert_int_equal(pclose(f), 0);
-  assert_string_equal(line, "1 2 keyframes.memory_mb\n");
-  snprintf(cmd, sizeof cmd, "grep -qF 'every 2-th (--stride 1 asked; its training frames would need more than "
-                            "keyframes.memory_mb, 1 MiB)' %s/out-mem/report.md", root);
+  /* the k-th of 6 is the training frame nearest the middle of its sixth */
+  assert_string_equal(line, "1 keyframes.memory_mb 1 0 4 6 8 12 14\n");
+  snprintf(cmd, sizeof cmd, "grep -qF 'Keyframes: the field fitted on 6 of the 8 training frames, spread over the "
+                            "scene (all of them would need more than keyframes.memory_mb, 1 MiB)' %s/out-mem/report.md",
+           root);
   assert_int_equal(system(cmd), 0);
 }
 
@@ -903,7 +912,7 @@ static void test_eval_names_missing_mesh(void **state) {
 
 #define EVAL_TEST                                                                                             \
   , cmocka_unit_test(test_eval_reads_scannet), cmocka_unit_test(test_eval_strided_features),                  \
-      cmocka_unit_test(test_eval_chooses_stride), cmocka_unit_test(test_eval_names_missing_mesh)
+      cmocka_unit_test(test_eval_keyframes_within_budget), cmocka_unit_test(test_eval_names_missing_mesh)
 #else
 #define EVAL_TEST
 #endif

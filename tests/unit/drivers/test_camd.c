@@ -286,12 +286,13 @@ static void test_reconnects_after_camera_restart(void **state) {
  * matrix, no offset) the depth plane is the range image itself, in mm.
  * The record's ids and intrinsics are the colour camera's. */
 static char rig_path[256];
-/* The range camera's size in the pair's config ("" leaves it to the camera). */
-static const char *pair_depth_size = "  width: 320\n  height: 240\n";
+/* The range camera's size in the pair's config: its own 320 x 240. */
+#define PAIR_DEPTH_SIZE "  width: 320\n  height: 240\n"
 
 /* The pair's config: the fake GigE camera as colour, the in-process fake
- * camera as range, an identity rig (rig_extra: more lines of its file). */
-static void write_pair_cfg_rig(const char *depth_extra, const char *rig_extra) {
+ * camera as range, an identity rig (rig_extra: more lines of its file);
+ * depth_size: the range camera's size keys ("" leaves it to the camera). */
+static void write_pair_cfg_rig(const char *depth_size, const char *depth_extra, const char *rig_extra) {
   snprintf(rig_path, sizeof rig_path, "/tmp/vlff-test-camd-%d-rig.yaml", (int)getpid());
   FILE *f = fopen(rig_path, "w");
   assert_non_null(f);
@@ -310,11 +311,11 @@ static void write_pair_cfg_rig(const char *depth_extra, const char *rig_extra) {
            "  depth: stream\n  intrinsics: [0, 0, 0, 0]\n"
            "depth_camera:\n  kind: aravis\n  device: Fake\n  pixel_format: Mono16\n%s"
            "  frame_rate: 40\n  scale_m: 0.001\n  calibration: %s\n  pair_tolerance_s: 0.012\n%s",
-           pair_depth_size, rig_path, depth_extra ? depth_extra : "");
+           depth_size, rig_path, depth_extra ? depth_extra : "");
   write_cfg("Mono8", 320, 240, extra);
 }
 
-static void write_pair_cfg(const char *depth_extra) { write_pair_cfg_rig(depth_extra, NULL); }
+static void write_pair_cfg(const char *depth_extra) { write_pair_cfg_rig(PAIR_DEPTH_SIZE, depth_extra, NULL); }
 
 /* vlff-camd run on the pair for `frames` records, all committed; the ring
  * is returned read from its oldest record, *buf sized for one of them. */
@@ -408,9 +409,7 @@ static void test_pair_calibration_other_size(void **state) {
   (void)state;
   /* No size in the config: start-up (and --check-config) cannot compare
    * (test_check_config_calibration_sizes), the frames tell. */
-  pair_depth_size = "";
-  write_pair_cfg_rig(NULL, "depth_width: 640\ndepth_height: 480\n");
-  pair_depth_size = "  width: 320\n  height: 240\n";
+  write_pair_cfg_rig("", NULL, "depth_width: 640\ndepth_height: 480\n");
   char log[300];
   snprintf(log, sizeof log, "%s.log", out_path);
   pid_t parent = getpid(), pid = fork();
@@ -561,14 +560,15 @@ static int check_config(char *out, size_t len) {
 static void test_check_config_calibration_sizes(void **state) {
   (void)state;
   char out[2048];
-  write_pair_cfg_rig(NULL, "depth_width: 320\ndepth_height: 240\ncolor_width: 320\ncolor_height: 240\n");
+  write_pair_cfg_rig(PAIR_DEPTH_SIZE, NULL,
+                     "depth_width: 320\ndepth_height: 240\ncolor_width: 320\ncolor_height: 240\n");
   if (check_config(out, sizeof out) != 0) fail_msg("sizes that agree refused: %s", out);
-  write_pair_cfg_rig(NULL, "color_width: 640\ncolor_height: 480\n");
+  write_pair_cfg_rig(PAIR_DEPTH_SIZE, NULL, "color_width: 640\ncolor_height: 480\n");
   assert_int_equal(check_config(out, sizeof out), 1);
   if (!strstr(out, "key 'depth_camera.calibration': ") ||
       !strstr(out, "is calibrated for colour 640x480, but camera.width/height say 320x240"))
     fail_msg("no colour size refusal in: %s", out);
-  write_pair_cfg_rig(NULL, "depth_width: 640\ndepth_height: 480\n");
+  write_pair_cfg_rig(PAIR_DEPTH_SIZE, NULL, "depth_width: 640\ndepth_height: 480\n");
   assert_int_equal(check_config(out, sizeof out), 1);
   if (!strstr(out, "is calibrated for depth 640x480, but depth_camera.width/height say 320x240"))
     fail_msg("no depth size refusal in: %s", out);

@@ -371,6 +371,55 @@ static void test_free_running_close_stray(void **state) {
   assert_int_equal(st->unmatched_color + st->unmatched_depth, 0);
 }
 
+/* The first frames of two free-running cameras as scripts/bench e2e's rig
+ * delivered them (host arrival and device time, ns, as vlff-camd saw them;
+ * the device clock is the wall clock): both cameras expose at 228.2 s, but
+ * each sends its first frame when its acquisition starts, late, the range
+ * camera's 104 ms after the colour camera's; from the second frame on both
+ * arrive within a few ms of their exposure. Each stream's device-to-host
+ * offset from its first frame alone put the two first frames 104 ms apart,
+ * beyond half the 5 Hz period: both were dropped as start-up frames. The
+ * second frames give the streams' true offsets, 4 ms apart: the first
+ * frames pair too. Failed before (the first pair was frame 1, start-up 1
+ * colour 1 range). */
+static void test_free_running_first_frames(void **state) {
+  (void)state;
+  vlff_pair_free(pair);
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  snprintf(cfg.depth_camera.calibration, sizeof cfg.depth_camera.calibration, "%s", calib);
+  cfg.depth_camera.pair_tolerance_s = 0.002;
+  cfg.camera.frame_rate = cfg.depth_camera.frame_rate = 5;
+  char err[512];
+  pair = vlff_pair_new(&cfg.depth_camera, &cfg.camera, vlff_memsink_sink(out), err, sizeof err);
+  if (!pair) fail_msg("%s", err);
+  free_run = true;
+  const uint64_t wall = 1796190000000000000ull, mono = 23526000000000ull;
+  static const struct {
+    int depth;
+    uint64_t host, dev; /* host - mono, dev - wall */
+  } seq[] = {
+      {0, 159951950, 228200000000}, {1, 264089667, 228200000000}, {0, 334970876, 228400000000},
+      {1, 339066360, 228400000000}, {1, 529047371, 228600000000}, {0, 539969527, 228600000000},
+      {1, 729070300, 228800000000}, {0, 744974691, 228800000000}, {0, 935082926, 229000000000},
+      {1, 929043903, 229000000000}, {0, 1135082926, 229200000000}, {1, 1129043903, 229200000000},
+  };
+  for (size_t i = 0; i < sizeof seq / sizeof seq[0]; i++) {
+    dev_ns = wall + seq[i].dev;
+    const int k = (int)((seq[i].dev - 228200000000) / 200000000);
+    if (seq[i].depth)
+      push_depth(k, mono + seq[i].host);
+    else
+      push_color(k, mono + seq[i].host);
+  }
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 0);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->startup_color + st->startup_depth + st->unmatched_color + st->unmatched_depth, 0);
+  assert_true(st->skew_max_ns < 10 * MS);
+}
+
 int main(void) {
   vlff_log_set_level(VLFF_LOG_ERROR);
   const struct CMUnitTest tests[] = {
@@ -384,6 +433,7 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_free_running_nearest, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_startup, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_close_stray, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_free_running_first_frames, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -152,6 +152,63 @@ static void test_fusion(void **state) {
   assert_non_null(strstr(err, "view 0"));
 }
 
+static double lcg(uint64_t *s) {
+  *s = *s * 6364136223846793005ull + 1442695040888963407ull;
+  return (double)(*s >> 11) / (double)(1ull << 53);
+}
+
+/* Fusion one view at a time in the prompts' K dimensions gives the labels
+ * (and counts) of fusion in D dimensions followed by the argmax of the
+ * cosines: three views of a plane 2-3 m away, random features and
+ * prompts, points on the plane and off it. */
+static void test_fusion_streamed(void **state) {
+  (void)state;
+  enum { W = 16, H = 12, FW = 8, FH = 6, D = 8, K = 4, NV = 3, NP = 400 };
+  uint64_t rs = 7;
+  static float depth[NV][W * H];
+  static uint16_t feat[NV][FW * FH * D];
+  struct vlff_fusion_view v[NV];
+  memset(v, 0, sizeof v);
+  for (int k = 0; k < NV; k++) {
+    v[k].width = W, v[k].height = H, v[k].fx = v[k].fy = 12, v[k].cx = W / 2.0, v[k].cy = H / 2.0;
+    for (int i = 0; i < 4; i++) v[k].c2w[5 * i] = 1;
+    v[k].c2w[3] = 0.3 * (k - 1), v[k].c2w[11] = -0.5 * k; /* the plane z = 2 is 2 + 0.5 k m away */
+    for (int i = 0; i < W * H; i++) depth[k][i] = (float)(2 + 0.5 * k);
+    for (int i = 0; i < FW * FH * D; i++) feat[k][i] = vlff_f32_to_f16((float)(lcg(&rs) * 2 - 1));
+    v[k].depth = depth[k], v[k].feat_width = FW, v[k].feat_height = FH, v[k].features = feat[k];
+  }
+  float emb[K * D], unit_emb[K * D];
+  for (int i = 0; i < K * D; i++) emb[i] = (float)(lcg(&rs) * 2 - 1);
+  vlff_normalize_rows(emb, unit_emb, K, D);
+  static float pts[NP * 3];
+  for (int i = 0; i < NP; i++) {
+    pts[3 * i] = (float)(lcg(&rs) * 2.4 - 1.2), pts[3 * i + 1] = (float)(lcg(&rs) * 1.8 - 0.9);
+    pts[3 * i + 2] = i % 5 == 0 ? 2.5f : 2.0f; /* every fifth off the plane: no view sees it */
+  }
+  static float avg[NP * D];
+  static double acc[NP * K];
+  int cnt[NP], cnt2[NP] = {0}, want[NP], got[NP];
+  char err[128];
+  assert_int_equal(vlff_fusion(pts, NP, v, NV, D, 0.05, avg, cnt, err, sizeof err), 0);
+  vlff_classify_f32(avg, NP, D, unit_emb, K, want, NULL);
+  memset(acc, 0, sizeof acc);
+  for (int k = 0; k < NV; k++)
+    assert_int_equal(vlff_fusion_add(pts, NP, &v[k], D, unit_emb, K, 0.05, acc, cnt2, err, sizeof err), 0);
+  vlff_fusion_labels(acc, cnt2, NP, K, got);
+  int seen = 0, multi = 0;
+  for (int i = 0; i < NP; i++) {
+    assert_int_equal(cnt[i], cnt2[i]);
+    assert_int_equal(want[i], got[i]);
+    seen += cnt[i] > 0, multi += cnt[i] > 1;
+    if (i % 5 == 0) assert_int_equal(got[i], -1);
+  }
+  /* the comparison covers points seen by one view and by several */
+  assert_true(seen > NP / 2 && multi > NP / 4);
+  v[1].fx = 0;
+  assert_int_equal(vlff_fusion_add(pts, NP, &v[1], D, unit_emb, K, 0.05, acc, cnt2, err, sizeof err), -1);
+  assert_non_null(strstr(err, "fusion: invalid view"));
+}
+
 static void test_downsample_labels(void **state) {
   (void)state;
   uint8_t img[4 * 4], out[2 * 2];
@@ -166,5 +223,5 @@ static void test_downsample_labels(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_hand_computed), cmocka_unit_test(test_absent_classes),
-    cmocka_unit_test(test_classify), cmocka_unit_test(test_fusion),
+    cmocka_unit_test(test_classify), cmocka_unit_test(test_fusion), cmocka_unit_test(test_fusion_streamed),
     cmocka_unit_test(test_downsample_labels))

@@ -415,6 +415,187 @@ static void test_object_bias_view_consistent(void **state) {
   vlff_sim_destroy(a), vlff_sim_destroy(b);
 }
 
+/* The building: sim.flats flats off a corridor over a 24.4 x 10 m box
+ * (tests/bench/eval-building.yaml's), walked once per sim.frames frames. */
+static void building_cfg(struct vlff_config *c, int seed, int frames) {
+  small_cfg(c, seed);
+  c->sim.layout = VLFF_LAYOUT_BUILDING;
+  c->sim.flats = 3;
+  c->sim.frames = frames;
+  double lo[3] = {-12.2, -5, -1.5}, hi[3] = {12.2, 5, 1.5};
+  memcpy(c->field.scene_min, lo, sizeof lo);
+  memcpy(c->field.scene_max, hi, sizeof hi);
+}
+
+/* Floor (the rooms' insides) of at least 200 m^2; every flat has two or
+ * more rooms; the corridor joins them. */
+static void check_building_rooms(struct vlff_sim *s, int flats) {
+  struct vlff_sim_room rooms[64];
+  int n = vlff_sim_rooms(s, rooms, 64);
+  assert_true(n > 0 && n <= 64);
+  assert_int_equal(vlff_sim_flat_count(s), flats);
+  double area = 0;
+  int per[8] = {0}, corridor = 0;
+  for (int i = 0; i < n; i++) {
+    area += (rooms[i].hi[0] - rooms[i].lo[0]) * (rooms[i].hi[1] - rooms[i].lo[1]);
+    if (rooms[i].flat < 0) corridor++;
+    else per[rooms[i].flat]++;
+  }
+  print_message("building: %d rooms, %.1f m^2 of floor\n", n, area);
+  assert_true(area >= 200);
+  assert_int_equal(corridor, 1);
+  for (int k = 0; k < flats; k++)
+    if (per[k] < 2) fail_msg("flat %d has %d rooms", k + 1, per[k]);
+}
+
+/* The walk, sampled at every frame: its length, that it starts and ends in
+ * flat 1 and enters every flat, and that no step between two frames passes
+ * through anything (walls, doors, furniture): ray-cast along each step. */
+static double check_building_walk(struct vlff_sim *s, int frames, int flats) {
+  double prev[16] = {0}, first[16] = {0}, len = 0;
+  int crossings = 0, inside[8] = {0};
+  for (int i = 0; i <= frames; i++) {
+    double m[16];
+    vlff_sim_pose(s, i, m);
+    if (i == 0) memcpy(first, m, sizeof m);
+    int f = vlff_sim_flat_at(s, m[3], m[7]);
+    if (f >= 0) inside[f]++;
+    if (i > 0) {
+      double d[3] = {m[3] - prev[3], m[7] - prev[7], m[11] - prev[11]}, o[3] = {prev[3], prev[7], prev[11]};
+      len += sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      int lab;
+      double t = vlff_sim_raycast(s, o, d, &lab, NULL);
+      if (t >= 0 && t < 1) {
+        crossings++;
+        print_message("frame %d: the step from (%.2f %.2f %.2f) to (%.2f %.2f) hits %s at %.2f\n", i, o[0], o[1], o[2],
+                      m[3], m[7], lab < VLFF_SIM_CLASSES ? vlff_sim_class_name(lab) : "the ceiling", t);
+      }
+    }
+    memcpy(prev, m, sizeof m);
+  }
+  assert_int_equal(crossings, 0);
+  for (int k = 0; k < flats; k++)
+    if (inside[k] < frames / (4 * flats)) fail_msg("the walk spends %d of %d frames in flat %d", inside[k], frames, k + 1);
+  assert_int_equal(vlff_sim_flat_at(s, first[3], first[7]), 0);
+  /* the last frame of the loop is back in flat 1, and the loop closes */
+  double last[16];
+  vlff_sim_pose(s, frames - 1, last);
+  assert_int_equal(vlff_sim_flat_at(s, last[3], last[7]), 0);
+  assert_true(fabs(prev[3] - first[3]) < 1e-9 && fabs(prev[7] - first[7]) < 1e-9);
+  return len;
+}
+
+static void test_building_layout_and_walk(void **state) {
+  (void)state;
+  for (int seed = 1; seed <= 3; seed++) {
+    struct vlff_config c;
+    building_cfg(&c, seed, 2000); /* poses only: fine steps measure the walk */
+    struct vlff_sim *s = make(&c);
+    check_building_rooms(s, 3);
+    double len = check_building_walk(s, c.sim.frames, 3);
+    print_message("seed %d: walk %.1f m (the path's %.1f m)\n", seed, len, vlff_sim_walk_length(s));
+    assert_true(len >= 90);
+    assert_true(fabs(len - vlff_sim_walk_length(s)) < 0.02 * len);
+    vlff_sim_destroy(s);
+  }
+  /* at 240 frames, as the benches walk it: steps stay short */
+  struct vlff_config c;
+  building_cfg(&c, 1, 240);
+  struct vlff_sim *s = make(&c);
+  double len = check_building_walk(s, 240, 3);
+  assert_true(len / 240 < 0.65);
+  vlff_sim_destroy(s);
+  /* more flats, a longer box */
+  building_cfg(&c, 4, 2000);
+  c.sim.flats = 5;
+  c.field.scene_min[0] = -20.5, c.field.scene_max[0] = 20.5;
+  s = make(&c);
+  check_building_rooms(s, 5);
+  check_building_walk(s, 2000, 5);
+  vlff_sim_destroy(s);
+}
+
+/* What the walk's frames see: every flat's surfaces (each with most of the
+ * 20 classes), every class somewhere in the building. */
+static void test_building_seen(void **state) {
+  (void)state;
+  struct vlff_config c;
+  building_cfg(&c, 2, 240);
+  struct vlff_sim *s = make(&c);
+  int counts[VLFF_SIM_CLASSES];
+  vlff_sim_class_counts(s, counts);
+  struct vlff_sim_points p;
+  char err[256] = "";
+  assert_int_equal(vlff_sim_points(s, 240, 2, 0.05, &p, err, sizeof err), 0);
+  long per_flat[3] = {0};
+  int cls[3][VLFF_SIM_CLASSES] = {{0}}, all[VLFF_SIM_CLASSES] = {0};
+  for (size_t i = 0; i < p.n; i++) {
+    if (p.label[i] >= VLFF_SIM_CLASSES) continue;
+    all[p.label[i]]++;
+    int f = vlff_sim_flat_at(s, p.xyz[3 * i], p.xyz[3 * i + 1]);
+    if (f >= 0) per_flat[f]++, cls[f][p.label[i]]++;
+  }
+  for (int k = 0; k < VLFF_SIM_CLASSES; k++) {
+    if (counts[k] == 0) fail_msg("no %s in the building", vlff_sim_class_name(k));
+    if (all[k] == 0) fail_msg("no %s point seen", vlff_sim_class_name(k));
+  }
+  for (int f = 0; f < 3; f++) {
+    int nc = 0;
+    for (int k = 0; k < VLFF_SIM_CLASSES; k++) nc += cls[f][k] > 0;
+    print_message("flat %d: %ld labelled points, %d classes\n", f + 1, per_flat[f], nc);
+    assert_true(per_flat[f] > (long)p.n / 6);
+    assert_true(nc >= 17);
+  }
+  vlff_sim_points_free(&p);
+  vlff_sim_destroy(s);
+}
+
+/* A seed gives the same building, walk and frames; another seed another. */
+static void test_building_deterministic(void **state) {
+  (void)state;
+  struct vlff_config c;
+  building_cfg(&c, 5, 240);
+  struct vlff_sim *a = make(&c), *b = make(&c);
+  c.sim.seed = 6;
+  struct vlff_sim *o = make(&c);
+  struct vlff_sim_frame *fa = vlff_sim_frame_new(a), *fb = vlff_sim_frame_new(b), *fo = vlff_sim_frame_new(o);
+  size_t n = (size_t)fa->width * fa->height, nf = (size_t)fa->feat_width * fa->feat_height * fa->feature_dim;
+  int moved = 0;
+  for (int i = 0; i < 240; i += 17) {
+    double ma[16], mb[16], mo[16];
+    vlff_sim_pose(a, i, ma), vlff_sim_pose(b, i, mb), vlff_sim_pose(o, i, mo);
+    assert_memory_equal(ma, mb, sizeof ma);
+    moved += fabs(ma[3] - mo[3]) > 1e-6 || fabs(ma[7] - mo[7]) > 1e-6;
+  }
+  assert_true(moved > 0);
+  for (int i = 100; i < 240; i += 70) {
+    render(a, i, fa), render(b, i, fb), render(o, i, fo);
+    assert_memory_equal(fa->rgb, fb->rgb, n * 3);
+    assert_memory_equal(fa->depth, fb->depth, n * sizeof(float));
+    assert_memory_equal(fa->label, fb->label, n);
+    assert_memory_equal(fa->features, fb->features, nf * sizeof(uint16_t));
+    assert_true(memcmp(fa->rgb, fo->rgb, n * 3) != 0);
+  }
+  vlff_sim_frame_free(fa), vlff_sim_frame_free(fb), vlff_sim_frame_free(fo);
+  vlff_sim_destroy(a), vlff_sim_destroy(b), vlff_sim_destroy(o);
+}
+
+/* A box too small for three 6 x 6 m flats or 200 m^2, or a flat count
+ * out of range, is refused with the reason. */
+static void test_building_bad_config(void **state) {
+  (void)state;
+  struct vlff_config c;
+  building_cfg(&c, 1, 240);
+  c.field.scene_min[0] = -8, c.field.scene_max[0] = 8;
+  char err[256] = "";
+  assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
+  assert_non_null(strstr(err, "200 m^2"));
+  building_cfg(&c, 1, 240);
+  c.sim.flats = 9;
+  assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
+  assert_non_null(strstr(err, "sim.flats"));
+}
+
 static void test_bad_config(void **state) {
   (void)state;
   struct vlff_config c;
@@ -545,5 +726,7 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_embeddings_structure),
     cmocka_unit_test(test_features_imperfect_but_informative), cmocka_unit_test(test_points),
     cmocka_unit_test(test_bad_config), cmocka_unit_test(test_flat_walk_through_doorways),
-    cmocka_unit_test(test_object_bias_view_consistent), cmocka_unit_test(test_change_moves_object),
+    cmocka_unit_test(test_object_bias_view_consistent), cmocka_unit_test(test_building_layout_and_walk),
+    cmocka_unit_test(test_building_seen), cmocka_unit_test(test_building_deterministic),
+    cmocka_unit_test(test_building_bad_config), cmocka_unit_test(test_change_moves_object),
     cmocka_unit_test(test_change_removes_adds_and_refuses))

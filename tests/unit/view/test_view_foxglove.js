@@ -83,9 +83,9 @@ async function main() {
       waiters.push(() => { if (cond()) { clearTimeout(t); resolve(); return true; } return false; });
     });
 
-    await until(() => serverInfo && Object.keys(chans).length === 7, 10000, 'serverInfo and advertise');
+    await until(() => serverInfo && Object.keys(chans).length === 8, 10000, 'serverInfo and advertise');
     assert.deepStrictEqual(Object.keys(chans).sort(),
-      ['/camera/calibration', '/camera/image', '/camera/labels', '/map', '/map/voxels', '/tf', '/vlff/status']);
+      ['/camera/calibration', '/camera/image', '/camera/labels', '/log', '/map', '/map/voxels', '/tf', '/vlff/status']);
     for (const c of Object.values(chans)) {
       assert.strictEqual(c.encoding, 'json');
       assert.strictEqual(c.schemaEncoding, 'jsonschema');
@@ -97,7 +97,8 @@ async function main() {
     assert.strictEqual(chans['/camera/calibration'].schemaName, 'foxglove.CameraCalibration');
     assert.strictEqual(chans['/tf'].schemaName, 'foxglove.FrameTransform');
     assert.deepStrictEqual(serverInfo.capabilities, [], 'no clientPublish without a token');
-    ok('serverInfo and seven channels advertised with JSON schemas');
+    assert.strictEqual(chans['/log'].schemaName, 'foxglove.Log');
+    ok('serverInfo and eight channels advertised with JSON schemas');
     const foxgloveChannels = Object.values(chans).filter((c) => c.schemaName.startsWith('foxglove.'));
     for (const c of foxgloveChannels) {
       const pub = publishedOf(c.schemaName);
@@ -109,11 +110,11 @@ async function main() {
       'field names, types and required fields of @foxglove/schemas');
 
     await until(() => fullSeen >= 1 && deltaSeen >= 2 && ['/camera/image', '/camera/labels', '/camera/calibration',
-      '/tf', '/vlff/status']
+      '/tf', '/vlff/status', '/log']
       .every((t) => got[t]), 120000, 'a whole map, two deltas and every channel');
     assert.deepStrictEqual(bad, [], 'every message matches its advertised schema and the published one');
     for (const n of ['foxglove.SceneUpdate', 'foxglove.CompressedImage', 'foxglove.CameraCalibration',
-      'foxglove.FrameTransform'])
+      'foxglove.FrameTransform', 'foxglove.Log'])
       assert.ok(checkedPublished[n] > 0, `messages checked against ${n}`);
     ok(`every channel delivered, ${Object.values(got).reduce((a, l) => a + l.length, 0)} messages match their schemas; ` +
       `against @foxglove/schemas: ${JSON.stringify(checkedPublished)}`);
@@ -202,6 +203,16 @@ async function main() {
     assert.strictEqual(st.map.generation, Number(/^generation (\d+)$/m.exec(stat)[1]));
     assert.ok(st.frames.attached && st.frames.head > 0 && st.map.writer_alive);
     ok('status: prompts, grid, generation as vlff-shm stat says; frames arriving');
+
+    // /log: lines of the kinds logch.c makes, from vlff-view or vlff-node
+    const kinds = [/^map segment \/\S+ (attached|not there yet|gone)/, /^frame ring \/\S+ (attached|gone)$/,
+      /^the map's writer (stopped|is alive again)/, /^learner state \S+/, /^error flags 0x[0-9a-f]+: /,
+      /^\d+ frames? (refused|lost): .+ \(\d+ in all\)$/];
+    for (const m of got['/log']) {
+      assert.ok(['vlff-view', 'vlff-node'].includes(m.name) && [2, 3, 4].includes(m.level) &&
+        kinds.some((k) => k.test(m.message)), `a /log line of a known kind: ${JSON.stringify(m)}`);
+    }
+    ok(`/log: ${got['/log'].length} foxglove.Log lines (${got['/log'].map((m) => m.message).slice(0, 3).join('; ')})`);
 
     const im = got['/camera/image'].at(-1), li = got['/camera/labels'].at(-1);
     assert.strictEqual(`${im.format} ${im.frame_id}`, 'jpeg camera');

@@ -1,0 +1,173 @@
+/* SPDX-License-Identifier: BSD-3-Clause */
+/* vlff-merge's merging (merge.h): robots' clouds into one world grid. */
+#include "merge.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "dds.h"
+
+int vlff_merge_grid_init(struct vlff_merge_grid *g, const double lo[3], const double hi[3], double voxel, char *why,
+                         size_t whylen) {
+  memset(g, 0, sizeof *g);
+  if (!(voxel >= 0.01 && voxel <= 10)) {
+    snprintf(why, whylen, "voxel size %g m outside 0.01..10", voxel);
+    return -1;
+  }
+  double n = 1;
+  for (int a = 0; a < 3; a++) {
+    if (!isfinite(lo[a]) || !isfinite(hi[a]) || !(hi[a] > lo[a]) || fabs(lo[a]) > 1e5 || fabs(hi[a]) > 1e5) {
+      snprintf(why, whylen, "bounds axis %d: expected finite lo < hi within +-1e5 m, got %g..%g", a, lo[a], hi[a]);
+      return -1;
+    }
+    g->origin[a] = lo[a];
+    g->dims[a] = (uint32_t)ceil((hi[a] - lo[a]) / voxel);
+    n *= g->dims[a];
+  }
+  /* The map segment's grid counts voxels in 32 bits; 64 M is 320 MB here. */
+  if (n > (double)(64u << 20)) {
+    snprintf(why, whylen, "%.0f voxels, more than %u: larger voxels or smaller bounds", n, 64u << 20);
+    return -1;
+  }
+  g->voxel = voxel;
+  size_t count = (size_t)n;
+  g->labels = malloc(count * sizeof *g->labels);
+  g->conf = malloc(count);
+  g->stamp = malloc(count * sizeof *g->stamp);
+  if (!g->labels || !g->conf || !g->stamp) {
+    vlff_merge_grid_free(g);
+    snprintf(why, whylen, "no memory for %zu voxels", count);
+    return -1;
+  }
+  return 0;
+}
+
+void vlff_merge_grid_free(struct vlff_merge_grid *g) {
+  free(g->labels);
+  free(g->conf);
+  free(g->stamp);
+  g->labels = NULL, g->conf = NULL, g->stamp = NULL;
+}
+
+void vlff_merge_robot_free(struct vlff_merge_robot *r) {
+  free(r->xyz);
+  free(r->label);
+  free(r->conf);
+  r->xyz = NULL, r->label = NULL, r->conf = NULL, r->n = 0;
+}
+
+static float f32_le(const uint8_t *p) {
+  uint32_t u = (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+  float f;
+  memcpy(&f, &u, 4);
+  return f;
+}
+
+int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
+                          bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
+                          uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
+                          size_t whylen) {
+  static const char *const want[5] = {"x", "y", "z", "label", "confidence"};
+  static const uint32_t woff[5] = {0, 4, 8, 12, 16};
+  static const uint8_t wtype[5] = {VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_UINT16,
+                                   VLFF_DDS_FLOAT32};
+  if (nfields != 5 || bigendian || point_step < VLFF_DDS_POINT_STEP) {
+    snprintf(why, whylen, "expected vlff-dds's layout (5 fields, little-endian, point_step >= 20), got %u fields%s, "
+             "point_step %u", nfields, bigendian ? ", big-endian" : "", point_step);
+    return -1;
+  }
+  for (uint32_t i = 0; i < 5; i++)
+    if (!names[i] || strcmp(names[i], want[i]) || offsets[i] != woff[i] || types[i] != wtype[i]) {
+      snprintf(why, whylen, "field %u: expected %s at %u of type %u", i, want[i], woff[i], wtype[i]);
+      return -1;
+    }
+  uint64_t n = (uint64_t)width * height;
+  if (n > VLFF_MERGE_MAX_POINTS || n * point_step != len) {
+    snprintf(why, whylen, "%llu points of %u bytes in %zu bytes of data (at most %u points)", (unsigned long long)n,
+             point_step, len, VLFF_MERGE_MAX_POINTS);
+    return -1;
+  }
+  float *xyz = malloc(n ? n * 3 * sizeof *xyz : 1);
+  uint16_t *label = malloc(n ? n * sizeof *label : 1);
+  uint8_t *conf = malloc(n ? n : 1);
+  if (!xyz || !label || !conf) {
+    free(xyz), free(label), free(conf);
+    snprintf(why, whylen, "no memory for %llu points", (unsigned long long)n);
+    return -1;
+  }
+  for (uint64_t i = 0; i < n; i++) {
+    const uint8_t *p = data + i * point_step;
+    float c = f32_le(p + 16);
+    uint16_t l = (uint16_t)(p[12] | p[13] << 8);
+    for (int a = 0; a < 3; a++) xyz[3 * i + a] = f32_le(p + 4 * a);
+    if (!isfinite(xyz[3 * i]) || !isfinite(xyz[3 * i + 1]) || !isfinite(xyz[3 * i + 2]) || !(c >= 0 && c <= 1) ||
+        (int)l >= (r->nprompts > 0 ? r->nprompts : VLFF_SHM_MAX_PROMPTS)) {
+      snprintf(why, whylen, "point %llu: coordinates (%g %g %g), confidence %g, label %u (expected finite, 0..1, a "
+               "label of its %d prompts)", (unsigned long long)i, xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2], c, l,
+               r->nprompts);
+      free(xyz), free(label), free(conf);
+      return -1;
+    }
+    label[i] = l;
+    conf[i] = (uint8_t)lrintf(c * 255.0f);
+  }
+  vlff_merge_robot_free(r);
+  r->xyz = xyz, r->label = label, r->conf = conf, r->n = (uint32_t)n;
+  r->stamp_ns = stamp_ns;
+  r->maps++;
+  return 0;
+}
+
+/* The fleet label of a robot's prompt text; -1 when the fleet list is full. */
+static int fleet_label(struct vlff_merge_grid *g, const char *text) {
+  for (int i = 0; i < g->nprompts; i++)
+    if (!strcmp(g->prompts[i], text)) return i;
+  if (g->nprompts >= VLFF_SHM_MAX_PROMPTS) return -1;
+  snprintf(g->prompts[g->nprompts], sizeof g->prompts[0], "%s", text);
+  return g->nprompts++;
+}
+
+size_t vlff_merge_compute(struct vlff_merge_grid *g, struct vlff_merge_robot *robots, int nrobots) {
+  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2], labelled = 0;
+  for (size_t i = 0; i < total; i++) g->labels[i] = VLFF_LABEL_UNKNOWN, g->conf[i] = 0, g->stamp[i] = INT64_MIN;
+  g->nprompts = 0;
+  g->outside = g->no_label = 0;
+  for (int k = 0; k < nrobots; k++) {
+    struct vlff_merge_robot *r = &robots[k];
+    if (r->nprompts < 0 || !r->xyz) continue;
+    int map_label[VLFF_SHM_MAX_PROMPTS];
+    for (int i = 0; i < r->nprompts; i++) map_label[i] = fleet_label(g, r->prompts[i]);
+    double c = cos(r->yaw), s = sin(r->yaw);
+    for (uint32_t i = 0; i < r->n; i++) {
+      const float *p = r->xyz + 3 * (size_t)i;
+      double w[3] = {c * p[0] - s * p[1] + r->t[0], s * p[0] + c * p[1] + r->t[1], p[2] + r->t[2]};
+      size_t ix[3];
+      bool inside = true;
+      for (int a = 0; a < 3 && inside; a++) {
+        double f = floor((w[a] - g->origin[a]) / g->voxel);
+        inside = f >= 0 && f < g->dims[a];
+        ix[a] = inside ? (size_t)f : 0;
+      }
+      if (!inside) {
+        g->outside++;
+        continue;
+      }
+      int l = r->label[i] < r->nprompts ? map_label[r->label[i]] : -1;
+      if (l < 0) {
+        g->no_label++;
+        continue;
+      }
+      size_t v = ix[0] + g->dims[0] * (ix[1] + g->dims[1] * ix[2]);
+      bool empty = g->labels[v] == VLFF_LABEL_UNKNOWN;
+      if (empty || r->conf[i] > g->conf[v] || (r->conf[i] == g->conf[v] && r->stamp_ns > g->stamp[v])) {
+        labelled += empty;
+        g->labels[v] = (uint16_t)l;
+        g->conf[v] = r->conf[i];
+        g->stamp[v] = r->stamp_ns;
+      }
+    }
+  }
+  return labelled;
+}

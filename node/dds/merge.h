@@ -1,0 +1,83 @@
+/* SPDX-License-Identifier: BSD-3-Clause */
+/*
+ * vlff-merge: a fleet of robots' maps, each received over DDS from its
+ * vlff-dds (rt<ns>/vlff/map and rt<ns>/vlff/prompts), placed in one world
+ * frame and merged into one map, written into a local map segment (read
+ * with libvlff-shm like a node's) and published over DDS as the fleet's
+ * rt<fleet ns>/vlff/map (docs/dds.md, "A fleet").
+ *
+ * Contract
+ *  - Each robot has a transform robot map -> world: a translation and a yaw
+ *    about +z (vlff's world frame is the robot's first camera frame; robots
+ *    on one floor differ by where they started and which way they faced).
+ *  - A robot's cloud is taken only with the layout vlff-dds writes (fields
+ *    x y z float32, label uint16, confidence float32 at 0 4 8 12 16,
+ *    little-endian, point_step >= 20, data = width * height * point_step, at
+ *    most VLFF_MERGE_MAX_POINTS points, finite coordinates, confidence 0..1,
+ *    labels within its prompt list); anything else is refused whole, counted
+ *    and logged rate-limited. A robot's prompt list is a JSON list checked by
+ *    the rule of vlff-shm set-prompts; its cloud waits for its list.
+ *  - The fleet's labels are the union of the robots' prompt texts in order of
+ *    first appearance (at most VLFF_SHM_MAX_PROMPTS; points of a text beyond
+ *    that are left out and counted). Each world voxel takes the label of the
+ *    robot point with the highest confidence falling in it; equal
+ *    confidences go to the most recent map (its header stamp). A robot's new
+ *    map replaces its old one whole.
+ *  - Voxels outside the configured bounds are left out and counted.
+ */
+#ifndef VLFF_MERGE_H
+#define VLFF_MERGE_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vlff/shm.h"
+
+#define VLFF_MERGE_MAX_ROBOTS 8
+#define VLFF_MERGE_MAX_POINTS (16u << 20)
+
+struct vlff_merge_robot {
+  char ns[256];        /* ROS namespace of its vlff-dds */
+  double t[3], yaw;    /* robot map -> world: rotate by yaw (radians) about +z, then add t */
+  /* what was received last */
+  int nprompts;        /* -1 until its list came */
+  char prompts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+  float *xyz;          /* n points, robot frame */
+  uint16_t *label;
+  uint8_t *conf;
+  uint32_t n;
+  int64_t stamp_ns;    /* its map's header stamp */
+  uint64_t maps, refused;
+};
+
+struct vlff_merge_grid {
+  double origin[3], voxel;
+  uint32_t dims[3];
+  uint16_t *labels;    /* dims product, VLFF_LABEL_UNKNOWN where no robot saw a label */
+  uint8_t *conf;
+  int64_t *stamp;
+  int nprompts;
+  char prompts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+  uint64_t outside, no_label; /* points left out at the last merge */
+};
+
+/* A grid over [lo, hi) at voxel size: 0, or -1 with why (too large, bad bounds). */
+int vlff_merge_grid_init(struct vlff_merge_grid *g, const double lo[3], const double hi[3], double voxel, char *why,
+                         size_t whylen);
+void vlff_merge_grid_free(struct vlff_merge_grid *g);
+
+/* Takes a robot's PointCloud2 fields as received; 0, or -1 with why (the
+ * cloud refused whole, the robot's previous one kept). */
+int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
+                          bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
+                          uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
+                          size_t whylen);
+
+/* Recomputes the fleet grid from every robot holding both a map and a prompt
+ * list. Returns the number of labelled voxels. */
+size_t vlff_merge_compute(struct vlff_merge_grid *g, struct vlff_merge_robot *robots, int nrobots);
+
+void vlff_merge_robot_free(struct vlff_merge_robot *r);
+
+#endif

@@ -1,0 +1,172 @@
+/* SPDX-License-Identifier: BSD-3-Clause */
+/*
+ * play.c - an MCAP recording served as if live (vlff-view --play; view.h).
+ *
+ * The whole file is read into memory and walked once when opened, so that every
+ * error the file holds (mcap.h's checks) is found before a client connects rather
+ * than in the middle of a playback; playing then walks it again, one message ahead.
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "files.h"
+#include "log.h"
+#include "mcap.h"
+#include "view.h"
+#include "vlff/escape.h"
+
+struct vlff_view_play {
+  uint8_t *file;
+  size_t len;
+  struct vlff_mcap_reader *r;
+  int nch;
+  uint16_t mcap_id[VLFF_VIEW_CH_MAX + 1];
+  struct vlff_view_chan ch[VLFF_VIEW_CH_MAX + 1];
+  struct vlff_view_msg *latest[VLFF_VIEW_CH_MAX + 1];
+  uint64_t total, sent;
+  int started, done, have_next;
+  uint64_t t0_log, t0_now;
+  double rate;
+  struct vlff_mcap_message next;
+};
+
+/* Text advertised to clients as JSON strings: UTF-8 without NUL. */
+static int utf8_ok(const char *s, size_t n) {
+  for (size_t i = 0; i < n;) {
+    unsigned long cp;
+    size_t k = (unsigned char)s[i] < 0x80 ? (s[i] != 0) : vlff_utf8_len((const unsigned char *)s + i, n - i, &cp);
+    if (!k) return 0;
+    i += k;
+  }
+  return 1;
+}
+
+static int view_channel(const struct vlff_view_play *p, uint16_t id) {
+  for (int i = 1; i <= p->nch; i++)
+    if (p->mcap_id[i] == id) return i;
+  return 0;
+}
+
+struct vlff_view_play *vlff_view_play_open(const char *path) {
+  char why[512];
+  struct vlff_view_play *p = calloc(1, sizeof *p);
+  if (!p) return NULL;
+  if (vlff_read_file(path, VLFF_MCAP_MAX_FILE, &p->file, &p->len, why, sizeof why) != 0) {
+    fprintf(stderr, "vlff-view: --play %s\n", why);
+    free(p);
+    return NULL;
+  }
+  p->r = vlff_mcap_reader_new(p->file, p->len, why, sizeof why);
+  struct vlff_mcap_message m;
+  int rc = p->r ? 1 : -1;
+  while (rc == 1 && (rc = vlff_mcap_next(p->r, &m, why, sizeof why)) == 1) p->total++;
+  if (rc < 0) {
+    fprintf(stderr, "vlff-view: --play %s: %s\n", VLFF_Q(path), why);
+    vlff_view_play_free(p);
+    return NULL;
+  }
+  uint64_t at;
+  if (vlff_mcap_truncated(p->r, &at))
+    vlff_log(VLFF_LOG_WARN, "vlff-view",
+             "--play %s: the file ends at byte %llu without its summary (a recorder stopped before closing it): "
+             "playing the %llu messages of its whole chunks",
+             VLFF_Q(path), (unsigned long long)at, (unsigned long long)p->total);
+  int n = vlff_mcap_channel_count(p->r);
+  if (n > VLFF_VIEW_CH_MAX) {
+    fprintf(stderr, "vlff-view: --play %s: %d channels, more than the %d vlff-view serves\n", VLFF_Q(path), n,
+            VLFF_VIEW_CH_MAX);
+    vlff_view_play_free(p);
+    return NULL;
+  }
+  for (int i = 0; i < n; i++) {
+    const struct vlff_mcap_channel *c = vlff_mcap_channel_at(p->r, i);
+    if (!utf8_ok(c->topic, strlen(c->topic)) || !utf8_ok(c->message_encoding, strlen(c->message_encoding)) ||
+        !utf8_ok(c->schema_name, strlen(c->schema_name)) || !utf8_ok(c->schema_encoding, strlen(c->schema_encoding)) ||
+        !utf8_ok(c->schema, c->schema_len)) {
+      fprintf(stderr, "vlff-view: --play %s: channel %u (%s): its topic, encodings or schema are not UTF-8 text\n",
+              VLFF_Q(path), c->id, VLFF_Q(c->topic));
+      vlff_view_play_free(p);
+      return NULL;
+    }
+    p->nch++;
+    p->mcap_id[p->nch] = c->id;
+    p->ch[p->nch] = (struct vlff_view_chan){c->topic, c->message_encoding, c->schema_name, c->schema_encoding,
+                                            c->schema};
+  }
+  if (!p->total) {
+    fprintf(stderr, "vlff-view: --play %s: the recording holds no message\n", VLFF_Q(path));
+    vlff_view_play_free(p);
+    return NULL;
+  }
+  vlff_mcap_rewind(p->r);
+  p->rate = 1;
+  return p;
+}
+
+void vlff_view_play_free(struct vlff_view_play *p) {
+  if (!p) return;
+  for (int i = 0; i <= VLFF_VIEW_CH_MAX; i++) vlff_view_msg_unref(p->latest[i]);
+  vlff_mcap_reader_free(p->r);
+  free(p->file);
+  free(p);
+}
+
+void vlff_view_play_rate(struct vlff_view_play *p, double rate) { p->rate = rate > 0 ? rate : 1; }
+
+int vlff_view_play_channels(const struct vlff_view_play *p) { return p->nch; }
+
+const struct vlff_view_chan *vlff_view_play_channel(const struct vlff_view_play *p, int ch) {
+  return ch >= 1 && ch <= p->nch ? &p->ch[ch] : NULL;
+}
+
+/* The next message of the file into p->next; 0 at the end. The file was read
+ * whole when opened, so an error here would be a changed file: it ends playback. */
+static int advance(struct vlff_view_play *p) {
+  char why[256];
+  int rc = vlff_mcap_next(p->r, &p->next, why, sizeof why);
+  if (rc < 0) vlff_log(VLFF_LOG_WARN, "vlff-view", "--play: %s", why);
+  p->have_next = rc == 1;
+  if (!p->have_next && !p->done) {
+    p->done = 1;
+    vlff_log(VLFF_LOG_INFO, "vlff-view", "--play: all %llu messages played", (unsigned long long)p->sent);
+  }
+  return p->have_next;
+}
+
+int vlff_view_play_poll(struct vlff_view_play *p, unsigned wanted, uint64_t now_ns, struct vlff_view_msg **out,
+                        int out_cap) {
+  if (!p->started) {
+    if (!wanted) return 0;
+    p->started = 1;
+    if (!advance(p)) return 0;
+    p->t0_log = p->next.log_ns;
+    p->t0_now = now_ns;
+  }
+  int n = 0;
+  while (n < out_cap && p->have_next) {
+    uint64_t due = p->next.log_ns > p->t0_log ? (uint64_t)((double)(p->next.log_ns - p->t0_log) / p->rate) : 0;
+    if (now_ns - p->t0_now < due) break;
+    int ch = view_channel(p, p->next.channel);
+    struct vlff_view_msg *m = ch ? vlff_view_msg_new(ch, p->next.len) : NULL;
+    if (m) {
+      memcpy(vlff_view_msg_payload(m), p->next.data, p->next.len);
+      m->len = p->next.len;
+      m->t_ns = p->next.publish_ns;
+      vlff_view_msg_unref(p->latest[ch]);
+      p->latest[ch] = vlff_view_msg_ref(m);
+      out[n++] = m;
+    }
+    p->sent++;
+    advance(p);
+  }
+  return n;
+}
+
+struct vlff_view_msg *vlff_view_play_current(struct vlff_view_play *p, int ch) {
+  return ch >= 1 && ch <= p->nch ? vlff_view_msg_ref(p->latest[ch]) : NULL;
+}
+
+uint64_t vlff_view_play_sent(const struct vlff_view_play *p) { return p->sent; }
+uint64_t vlff_view_play_total(const struct vlff_view_play *p) { return p->total; }
+int vlff_view_play_done(const struct vlff_view_play *p) { return p->done; }

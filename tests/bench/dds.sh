@@ -1,0 +1,75 @@
+#!/usr/bin/env bash
+# DDS bridge benchmark (scripts/bench dds), in two network namespaces joined
+# by a veth pair (tests/dds/netns_kit.sh; root needed): bench_dds publishes a
+# 64x64x32 map at 1 Hz (a few small regions relabelled per version, a
+# 160x120 label image) and 640x480 RGB frames at 2 Hz; vlff-dds in namespace
+# A serves them; bench_dds subscribe in B (Cyclone's C API and the IDL only)
+# takes the map, the label and camera images, camera info and tf. Measured
+# over the run:
+#  - dds_change_latency_p99_ms: a map version's publish into the segment
+#    (its header stamp) to the remote subscriber's receipt, p99 (target <= 100);
+#  - dds_bytes_per_s_per_robot: bytes A sent over the link per second (every
+#    topic, discovery and DDS's own traffic), and dds_map_bytes_per_s the map
+#    topic's payload alone, each against the baseline of the map's changed
+#    bytes per second (changed voxels x 20 B, a PointCloud2 point; target
+#    map <= 2 x baseline);
+#  - dds_bridge_cpu_frac: the bridge's CPU time over the run as a fraction of
+#    one core (target <= 0.05).
+# Last line: RESULT ...
+set -uo pipefail
+root=$(cd "$(dirname "$0")/../.." && pwd)
+build=${VLFF_BUILD:-$root/build/release}
+secs=${VLFF_DDS_BENCH_SECONDS:-30}
+[[ -x $build/bench/bench_dds && -x $build/node/dds/vlff-dds ]] || { echo "bench dds: vlff-dds not built"; exit 1; }
+[[ $(id -u) == 0 ]] || { echo "bench dds: needs root for ip netns"; exit 1; }
+source "$root/tests/dds/netns_kit.sh"
+echo "host load: $(cut -d' ' -f1-3 /proc/loadavg) on $(nproc) cores"
+domain=$((($$ % 200) + 1)) ns=/bench
+printf 'shm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\ndds:\n  domain_id: %d\n  namespace: %s\n  image_hz: 2\n' \
+  $p $p $p $domain $ns >"$tmp/d.yaml"
+"$build/bench/bench_dds" publish $p-m $p-r $((secs + 8)) >"$tmp/pub" 2>&1 &
+pub=$!
+pids+=($pub)
+"${in_a[@]}" "$build/node/dds/vlff-dds" --config "$tmp/d.yaml" 2>"$tmp/dds.log" &
+bridge=$!
+pids+=($bridge)
+"${in_b[@]}" "$build/bench/bench_dds" subscribe $domain $ns $((secs + 2)) >"$tmp/sub" 2>&1 &
+sub=$!
+pids+=($sub)
+sleep 2   # discovery, and the subscriber takes the whole map from the history
+txb() { ip -n "$nsa" -s -j link show "$va" | python3 -c 'import json,sys; print(json.load(sys.stdin)[0]["stats64"]["tx"]["bytes"])'; }
+ticks() { awk '{print $14 + $15}' "/proc/$bridge/stat"; }
+[[ $(cat /proc/$bridge/comm 2>/dev/null) == vlff-dds ]] || { echo "bench dds: pid $bridge is not the bridge"; exit 1; }
+b0=$(txb) c0=$(ticks)
+sleep "$secs"
+b1=$(txb) c1=$(ticks)
+wait $sub
+wait $pub
+kill -TERM $bridge; wait $bridge 2>/dev/null
+hz=$(getconf CLK_TCK)
+python3 - "$tmp" "$b0" "$b1" "$c0" "$c1" "$hz" "$secs" <<'PY'
+import sys
+tmp, b0, b1, c0, c1, hz, secs = sys.argv[1], *map(int, sys.argv[2:7]), float(sys.argv[7])
+def kv(f):
+    return {k: float(v) for k, v in (l.split() for l in open(f"{tmp}/{f}") if len(l.split()) == 2)}
+s, p = kv("sub"), kv("pub")
+if "latency_p99_ms" not in s:
+    sys.exit(f"bench dds: the subscriber measured no map latency: {s}")
+versions = p["versions"]
+changed = p["changed_voxels"] * 20 / (versions - 1) if versions > 1 else float("nan")  # B per version
+link = (b1 - b0) / secs
+map_per_s = s["map_bytes"] / max(s["maps"], 1)  # B per map message; 1 Hz
+cpu = (c1 - c0) / hz / secs
+print(f"{int(s['maps'])} maps received, latency p50 {s['latency_p50_ms']:.1f} ms p99 {s['latency_p99_ms']:.1f} ms "
+      f"max {s['latency_max_ms']:.1f} ms; link {link:.0f} B/s; map {map_per_s:.0f} B per version (1 Hz) against "
+      f"{changed:.0f} B of changed voxels per version; {int(s['label_images'])} label images, "
+      f"{int(s['camera_images'])} camera images, {int(s['camera_infos'])} camera infos, {int(s['tfs'])} tf; "
+      f"bridge cpu {cpu:.4f} of a core")
+lat_ok = "yes" if s["latency_p99_ms"] <= 100 else "no"
+bytes_ok = "yes" if map_per_s <= 2 * changed else "no"
+cpu_ok = "yes" if cpu <= 0.05 else "no"
+print(f"RESULT dds_change_latency_p99_ms={s['latency_p99_ms']:.1f} latency_target_met={lat_ok} "
+      f"dds_bytes_per_s_per_robot={link:.0f} dds_map_bytes_per_s={map_per_s:.0f} "
+      f"dds_changed_bytes_per_s={changed:.0f} dds_map_vs_changed={map_per_s / changed:.1f} "
+      f"bytes_target_met={bytes_ok} dds_bridge_cpu_frac={cpu:.4f} cpu_target_met={cpu_ok}")
+PY

@@ -1,0 +1,157 @@
+/* SPDX-License-Identifier: BSD-3-Clause */
+/*
+ * map_writer: robots' map segments with known content for test_dds_merge.sh,
+ * and the check of a fleet map merged from them.
+ *
+ *   map_writer write NAME SEED SECONDS   a 20x20x10 grid of 0.1 m voxels at
+ *       the origin: a floor, a wall and a box labelled, confidences that
+ *       differ by SEED (odd for 1, even for 2), a prompt list of SEED's;
+ *       published once, then alive (heartbeats) for SECONDS.
+ *   map_writer check FLEET SEG@X,Y,Z,YAW ...   every labelled voxel of each
+ *       robot segment, at its centre moved by its transform, against the
+ *       fleet segment: each fleet voxel holds the text and confidence of the
+ *       most confident robot voxel falling in it, and no other voxel is
+ *       labelled. Exit 0 when all agree; the first mismatches printed.
+ */
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "vlff/shm.h"
+
+enum { NX = 20, NY = 20, NZ = 10, N = NX * NY * NZ };
+
+static volatile sig_atomic_t stop;
+static void on_signal(int s) { (void)s, stop = 1; }
+
+static int write_map(const char *name, int seed, double secs) {
+  static const char *const lists[2][3] = {{"wall", "floor", "chair"}, {"floor", "table", "wall"}};
+  const char *const *texts = lists[seed == 2];
+  struct vlff_map_params mp = {N, 0, 0, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  static uint16_t labels[N];
+  static uint8_t conf[N];
+  if (!m) {
+    fprintf(stderr, "map_writer: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  /* label texts: floor at k = 0, wall at i = 0, a box (chair or table) */
+  int floor_l = seed == 2 ? 0 : 1, wall_l = seed == 2 ? 2 : 0, box_l = seed == 2 ? 1 : 2;
+  for (int k = 0; k < NZ; k++)
+    for (int j = 0; j < NY; j++)
+      for (int i = 0; i < NX; i++) {
+        size_t v = i + NX * (j + NY * (size_t)k);
+        uint16_t l = VLFF_LABEL_FREE;
+        if (k == 0) l = (uint16_t)floor_l;
+        else if (i == 0 && k < 6) l = (uint16_t)wall_l;
+        else if (i >= 8 && i < 12 && j >= 5 + 3 * seed && j < 9 + 3 * seed && k < 4) l = (uint16_t)box_l;
+        labels[v] = l;
+        conf[v] = (uint8_t)(2 * ((i * 7 + j * 3 + k * 5 + seed * 11) % 100) + 20 + (seed == 1));
+      }
+  struct vlff_map_grid g = {{0, 0, 0}, 0.1, {NX, NY, NZ}, labels, conf};
+  struct vlff_map_update up = {&g, texts, 3, NULL};
+  if (vlff_map_publish(m, &up) < 0) {
+    fprintf(stderr, "map_writer: publish: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  signal(SIGTERM, on_signal);
+  signal(SIGINT, on_signal);
+  struct timespec t0, t;
+  clock_gettime(CLOCK_MONOTONIC, &t0);
+  do {
+    struct timespec half = {0, 200000000};
+    nanosleep(&half, NULL);
+    vlff_map_heartbeat(m);
+    clock_gettime(CLOCK_MONOTONIC, &t);
+  } while (!stop && (double)(t.tv_sec - t0.tv_sec) < secs);
+  vlff_map_detach(m);
+  return 0;
+}
+
+struct want {
+  char text[VLFF_SHM_PROMPT_LEN];
+  int conf; /* -1: no robot voxel here */
+};
+
+static int check(const char *fleet, int nrobots, char **robots) {
+  struct vlff_map *fm = vlff_map_attach(fleet);
+  struct vlff_map_snapshot *fs = fm ? vlff_map_snapshot_new(fm) : NULL;
+  struct vlff_map_info fi;
+  if (!fs || vlff_map_snapshot_take(fm, fs) < 0 || vlff_map_snapshot_info(fs, &fi) < 0) {
+    printf("check: %s: %s\n", fleet, vlff_shm_last_message());
+    return 1;
+  }
+  const struct vlff_map_grid *fg = &fi.grid;
+  size_t total = (size_t)fg->dims[0] * fg->dims[1] * fg->dims[2];
+  struct want *want = calloc(total, sizeof *want);
+  for (size_t v = 0; v < total; v++) want[v].conf = -1;
+  for (int r = 0; r < nrobots; r++) {
+    char name[256];
+    double tf[4];
+    if (sscanf(robots[r], "%255[^@]@%lf,%lf,%lf,%lf", name, &tf[0], &tf[1], &tf[2], &tf[3]) != 5) {
+      printf("check: '%s' is not SEG@X,Y,Z,YAW\n", robots[r]);
+      return 2;
+    }
+    struct vlff_map *m = vlff_map_attach(name);
+    struct vlff_map_snapshot *s = m ? vlff_map_snapshot_new(m) : NULL;
+    struct vlff_map_info in;
+    if (!s || vlff_map_snapshot_take(m, s) < 0 || vlff_map_snapshot_info(s, &in) < 0) {
+      printf("check: %s: %s\n", name, vlff_shm_last_message());
+      return 1;
+    }
+    double c = cos(tf[3] * 3.14159265358979323846 / 180), sn = sin(tf[3] * 3.14159265358979323846 / 180);
+    const struct vlff_map_grid *g = &in.grid;
+    for (uint32_t k = 0; k < g->dims[2]; k++)
+      for (uint32_t j = 0; j < g->dims[1]; j++)
+        for (uint32_t i = 0; i < g->dims[0]; i++) {
+          size_t v = i + g->dims[0] * (j + (size_t)g->dims[1] * k);
+          if (g->labels[v] > VLFF_LABEL_MAX) continue;
+          double p[3] = {g->origin[0] + (i + 0.5) * g->voxel_size, g->origin[1] + (j + 0.5) * g->voxel_size,
+                         g->origin[2] + (k + 0.5) * g->voxel_size};
+          double w[3] = {c * p[0] - sn * p[1] + tf[0], sn * p[0] + c * p[1] + tf[1], p[2] + tf[2]};
+          size_t ix[3];
+          int inside = 1;
+          for (int a = 0; a < 3 && inside; a++) {
+            double f = floor((w[a] - fg->origin[a]) / fg->voxel_size);
+            inside = f >= 0 && f < fg->dims[a];
+            ix[a] = inside ? (size_t)f : 0;
+          }
+          if (!inside) continue;
+          size_t fv = ix[0] + fg->dims[0] * (ix[1] + (size_t)fg->dims[1] * ix[2]);
+          int cf = g->confidence ? g->confidence[v] : 255;
+          if (cf > want[fv].conf) {
+            want[fv].conf = cf;
+            snprintf(want[fv].text, sizeof want[fv].text, "%s", vlff_map_snapshot_prompt(s, g->labels[v]));
+          }
+        }
+    vlff_map_snapshot_free(s);
+    vlff_map_detach(m);
+  }
+  size_t bad = 0, labelled = 0, overlap = 0;
+  for (size_t v = 0; v < total; v++) {
+    uint16_t l = fg->labels[v];
+    const char *text = l <= VLFF_LABEL_MAX ? vlff_map_snapshot_prompt(fs, l) : NULL;
+    int cf = l <= VLFF_LABEL_MAX ? (fg->confidence ? fg->confidence[v] : 255) : -1;
+    labelled += want[v].conf >= 0;
+    if (cf != want[v].conf || (text ? strcmp(text, want[v].text) : want[v].conf >= 0)) {
+      if (bad++ < 5)
+        printf("check: fleet voxel %zu: '%s' confidence %d, expected '%s' %d\n", v, text ? text : "-", cf,
+               want[v].conf >= 0 ? want[v].text : "-", want[v].conf);
+    }
+  }
+  (void)overlap;
+  printf("check: %zu labelled voxels expected, %zu mismatches, fleet map version %llu, %d labels\n", labelled, bad,
+         (unsigned long long)fi.version, fi.prompt_count);
+  free(want);
+  return bad || !labelled;
+}
+
+int main(int argc, char **argv) {
+  if (argc == 5 && !strcmp(argv[1], "write")) return write_map(argv[2], atoi(argv[3]), atof(argv[4]));
+  if (argc >= 4 && !strcmp(argv[1], "check")) return check(argv[2], argc - 3, argv + 3);
+  fprintf(stderr, "usage: map_writer write NAME SEED SECONDS | check FLEET SEG@X,Y,Z,YAW ...\n");
+  return 2;
+}

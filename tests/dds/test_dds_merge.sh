@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# vlff-merge on a real network stack (netns_kit.sh): in namespace A two
+# robots, each a map segment of known content (map_writer) served by its own
+# vlff-dds (/r1, /r2); in B vlff-merge (dds.merge) with robot 2 moved by 1 m in x and
+# turned 90 degrees, so that the two maps overlap. The fleet segment must
+# hold, in every voxel, the text and confidence of the most confident robot
+# voxel falling in it and nothing elsewhere (map_writer check, reading the
+# robots' segments); a third robot sending a malformed cloud and prompt
+# list (dds_probe badmap) is refused, counted and logged and changes
+# nothing; bad --robot and --bounds are refused naming them.
+# Needs root for ip netns: exits 77 (skipped) without it.
+# Usage: test_dds_merge.sh DDS MERGE MAP_WRITER PROBE
+set -u
+dds=$1 merge=$2 writer=$3 probe=$4
+source "$(dirname "$0")/netns_kit.sh"
+check "a bad --robot transform is a usage error naming it" \
+  '! "$merge" -r /a -r /b@1,2 -m $p-x -b 0,0,0,1,1,1 2>"$tmp/e1" && grep -q "expected NS@X,Y,Z,YAW" "$tmp/e1"'
+check "a bad robot namespace is refused by the namespace rule" \
+  '! "$merge" -r /a -r b -m $p-x -b 0,0,0,1,1,1 2>"$tmp/e2" && grep -q "a leading" "$tmp/e2"'
+check "bounds too large for a map are refused" \
+  '! "$merge" -r /a -r /b -m $p-x -b 0,0,0,1000,1000,100 --voxel 0.01 2>"$tmp/e3" && grep -q "more than" "$tmp/e3"'
+
+domain=$((($$ % 200) + 1))
+printf 'dds:\n  domain_id: %d\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n' $domain >"$tmp/d.yaml"
+# The fleet from the config (the bridges ignore dds.merge).
+cp "$tmp/d.yaml" "$tmp/f.yaml"
+printf '  merge:\n    robots:\n      - namespace: /r1\n      - {namespace: /r2, transform: [1.0, 0, 0, 90]}\n      - namespace: /r3\n    map: %s-fleet\n    bounds: [-3, -3, -1, 3, 3, 2]\n' $p >>"$tmp/f.yaml"
+"$writer" write $p-m1 1 60 & w1=$!
+"$writer" write $p-m2 2 60 & w2=$!
+pids+=($w1 $w2)
+"${in_a[@]}" "$dds" -c "$tmp/d.yaml" -n /r1 -m $p-m1 2>"$tmp/b1.log" & b1=$!
+"${in_a[@]}" "$dds" -c "$tmp/d.yaml" -n /r2 -m $p-m2 2>"$tmp/b2.log" & b2=$!
+"${in_a[@]}" "$probe" badmap $domain /r3 - - 60 >"$tmp/bad" 2>&1 & bad=$!
+"${in_b[@]}" "$merge" -c "$tmp/f.yaml" -v 2>"$tmp/merge.log" & mg=$!
+pids+=($b1 $b2 $mg $bad)
+wait_until 300 '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/check" 2>&1'
+check "the fleet map holds the most confident robot voxel in each voxel ($(tail -1 "$tmp/check"))" \
+  '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/check" 2>&1'
+check "the fleet's labels are the union of the robots' texts (wall floor chair table)" 'grep -q ", 4 labels$" "$tmp/check"'
+check "the check fails against another transform (robot 2 not turned), or it proves nothing" \
+  '! "$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,0 >"$tmp/check-wrong" 2>&1'
+check "the malformed robot's cloud and list were refused and logged" \
+  'wait_until 50 "grep -q \"/r3: map refused: 1000 points\" \"$tmp/merge.log\"" && grep -q "/r3: prompt list refused: not JSON" "$tmp/merge.log"'
+kill -TERM $mg; wait $mg; rc=$?
+check "vlff-merge exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
+check "and counts the refused messages" 'grep -q "merges, 2 robot messages refused" "$tmp/merge.log"'
+kill -TERM $b1 $b2 $w1 $w2 $bad 2>/dev/null
+wait $b1 $b2 $w1 $w2 $bad
+cat "$tmp/check"
+echo "$passes passed, $fails failed"
+if (( fails )); then
+  for f in check merge.log b1.log; do echo "--- $f"; tail -20 "$tmp/$f"; done
+fi
+(( fails == 0 ))
