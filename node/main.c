@@ -261,11 +261,12 @@ static void tick(struct run *r, double now) {
     if (st.cpu_used >= 0) snprintf(cpu, sizeof cpu, "cpu %.2f", st.cpu_used);
     if (st.cpu_budget > 0) snprintf(cpu + strlen(cpu), sizeof cpu - strlen(cpu), " of %.2f", st.cpu_budget);
     vlff_log_status("[%6.1f s] frames %lld (%.1f/s%s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
-                    "psnr %.1f | %s | map v%llu mIoU 2D %s 3D %s%s%s   ",
+                    "psnr %.1f | %s | map v%llu flips %lld mIoU 2D %s 3D %s%s%s   ",
                     now - r->t0, st.frames_in, st.fps_in,
                     (st.error_flags & VLFF_NODE_ERR_CAMERA_LOST) ? ", CAMERA LOST: none lately" : "",
                     st.frames_invalid, why, st.keyframes, st.poses_rejected, st.iteration, st.it_per_s, st.loss,
-                    st.psnr, cpu, (unsigned long long)st.map_version, m2, m3, st.adjusted[0] ? " | adjusted: " : "",
+                    st.psnr, cpu, (unsigned long long)st.map_version, st.label_flips, m2, m3,
+                    st.adjusted[0] ? " | adjusted: " : "",
                     st.adjusted);
   }
 }

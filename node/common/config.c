@@ -280,6 +280,7 @@ static const struct key schema[] = {
     DBL("publish.lost_class_ratio", publish.lost_class_ratio, 0, 1, 0.25),
     DBL("publish.evidence_voxel_m", publish.evidence_voxel_m, 0.01, 10, 0.1),
     INT("publish.evidence_max_mb", publish.evidence_max_mb, 1, 1 << 16, 64),
+    DBL("publish.label_hysteresis", publish.label_hysteresis, 0, 2, 0.05),
 
     INT("prompts.active", prompts.active, 0, VLFF_MAX_PROMPT_SETS - 1, 0),
     STR("prompts.template", prompts.templ, "{}"),
@@ -455,6 +456,7 @@ struct parse {
   const yaml_node_t *key_at[sizeof schema / sizeof schema[0]]; /* its key node, as written */
   const yaml_node_t *sets_key;                                 /* prompts.sets' key, once set */
   const yaml_node_t *robots_key;                               /* dds.merge.robots' key, once set */
+  const yaml_node_t *changes_key;                              /* sim.changes' key, once set */
   const char *name;
   char *err;
   size_t errlen;
@@ -790,6 +792,86 @@ static int parse_merge_robots(struct parse *p, yaml_node_t *n, struct vlff_confi
   return 0;
 }
 
+/* sim.changes: a sequence of {time_s, object, action, to}. Which objects a
+ * scene has is the simulator's to say (vlff_sim_create); here each value's
+ * form and physical bounds. */
+static const char SIM_CHANGES[] = "sim.changes";
+static const char *const sim_actions[] = {"move", "remove", "add", NULL};
+
+static int parse_sim_changes(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
+  char g[96];
+  got(n, g, sizeof g);
+  if (n->type != YAML_SEQUENCE_NODE)
+    return fail(p, n, SIM_CHANGES, "expected sequence of {time_s, object, action, to}, got %s", g);
+  long count = n->data.sequence.items.top - n->data.sequence.items.start;
+  if (count > VLFF_SIM_MAX_CHANGES)
+    return fail(p, n, SIM_CHANGES, "expected at most %d changes, got %ld", VLFF_SIM_MAX_CHANGES, count);
+  for (long i = 0; i < count; i++) {
+    yaml_node_t *c = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
+    struct vlff_sim_change *ch = &cfg->sim.changes[i];
+    memset(ch, 0, sizeof *ch);
+    ch->action = -1;
+    ch->time_s = -1;
+    char path[64];
+    snprintf(path, sizeof path, "%s[%ld]", SIM_CHANGES, i);
+    got(c, g, sizeof g);
+    if (c->type != YAML_MAPPING_NODE) return fail(p, c, path, "expected mapping {time_s, object, action, to}, got %s", g);
+    for (yaml_node_pair_t *pr = c->data.mapping.pairs.start; pr < c->data.mapping.pairs.top; pr++) {
+      yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
+      yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
+      if (has_nul(kn)) return fail_nul_key(p, kn, path);
+      const char *kname = kn->type == YAML_SCALAR_NODE ? scalar(kn) : "";
+      char sub[96];
+      snprintf(sub, sizeof sub, "%s.%s", path, kname);
+      got(vn, g, sizeof g);
+      for (yaml_node_pair_t *q = c->data.mapping.pairs.start; q < pr; q++) {
+        yaml_node_t *qk = yaml_document_get_node(&p->doc, q->key);
+        if (qk->type == YAML_SCALAR_NODE && !strcmp(scalar(qk), kname))
+          return fail(p, kn, sub, "duplicate key (first at line %u)", (unsigned)qk->start_mark.line + 1);
+      }
+      double v;
+      if (!strcmp(kname, "time_s")) {
+        /* a week of simulated time: far beyond any run */
+        if (parse_number(vn, false, &v) || v < 0 || v > 604800)
+          return fail(p, vn, sub, "expected number in [0, 604800] (seconds of sim time), got %s", g);
+        ch->time_s = v;
+      } else if (!strcmp(kname, "object")) {
+        if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || !*scalar(vn) ||
+            strlen(scalar(vn)) >= VLFF_SIM_OBJECT_LEN)
+          return fail(p, vn, sub, "expected an object name (a class, or class#n) of 1 to %d bytes, got %s",
+                      VLFF_SIM_OBJECT_LEN - 1, g);
+        snprintf(ch->object, sizeof ch->object, "%s", scalar(vn));
+      } else if (!strcmp(kname, "action")) {
+        for (int a = 0; sim_actions[a] && vn->type == YAML_SCALAR_NODE; a++)
+          if (!strcmp(scalar(vn), sim_actions[a])) ch->action = a;
+        if (ch->action < 0) return fail(p, vn, sub, "expected one of move|remove|add, got %s", g);
+      } else if (!strcmp(kname, "to")) {
+        long m = vn->type == YAML_SEQUENCE_NODE ? vn->data.sequence.items.top - vn->data.sequence.items.start : -1;
+        if (m != 2) return fail(p, vn, sub, "expected [x, y] in metres, got %s", g);
+        for (int j = 0; j < 2; j++) {
+          yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
+          got(e, g, sizeof g);
+          /* the field's box is bounded the same way (field.scene_min/max) */
+          if (parse_number(e, false, &v) || fabs(v) > 1e4)
+            return fail(p, e, sub, "expected [x, y] with each in [-10000, 10000] m, got %s at index %d", g, j);
+          ch->to[j] = v;
+        }
+        ch->has_to = true;
+      } else {
+        return fail(p, kn, sub, "unknown key (expected time_s, object, action or to)");
+      }
+    }
+    if (ch->time_s < 0) return fail(p, c, path, "expected a 'time_s', got none");
+    if (!ch->object[0]) return fail(p, c, path, "expected an 'object', got none");
+    if (ch->action < 0) return fail(p, c, path, "expected an 'action' (move, remove or add), got none");
+    if (ch->action == VLFF_SIM_MOVE && !ch->has_to) return fail(p, c, path, "expected a 'to' for action move, got none");
+    if (ch->action == VLFF_SIM_REMOVE && ch->has_to)
+      return fail(p, c, path, "expected no 'to' for action remove (it takes the object away)");
+  }
+  cfg->sim.change_count = (int)count;
+  return 0;
+}
+
 static bool has_prefix(const char *prefix) {
   size_t l = strlen(prefix);
   for (size_t i = 0; i < NKEYS; i++)
@@ -853,6 +935,7 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
     if (k) first = &p->key_at[k - schema];
     if (!strcmp(path, PROMPT_SETS)) first = &p->sets_key;
     if (!strcmp(path, MERGE_ROBOTS)) first = &p->robots_key;
+    if (!strcmp(path, SIM_CHANGES)) first = &p->changes_key;
     if (first && *first) {
       char e[256];
       vlff_escape(e, sizeof e, scalar(*first), strlen(scalar(*first)), 120);
@@ -865,6 +948,10 @@ static int walk(struct parse *p, yaml_node_t *map, const char *prefix, struct vl
     }
     if (!strcmp(path, MERGE_ROBOTS)) {
       if (parse_merge_robots(p, vn, cfg)) return -1;
+      continue;
+    }
+    if (!strcmp(path, SIM_CHANGES)) {
+      if (parse_sim_changes(p, vn, cfg)) return -1;
       continue;
     }
     if (k) {
@@ -1315,6 +1402,20 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
     fprintf(out, "%s[%d]: \"%s\" [", PROMPT_SETS, s, set->name);
     for (int j = 0; j < set->count; j++) fprintf(out, "%s\"%s\"", j ? ", " : "", set->text[j]);
     fputs("]\n", out);
+  }
+  for (int c = 0; c < cfg->sim.change_count; c++) {
+    const struct vlff_sim_change *ch = &cfg->sim.changes[c];
+    fprintf(out, "%s[%d]: {time_s: ", SIM_CHANGES, c);
+    put_double(out, ch->time_s);
+    fprintf(out, ", object: \"%s\", action: %s", ch->object, sim_actions[ch->action]);
+    if (ch->has_to) {
+      fputs(", to: [", out);
+      put_double(out, ch->to[0]);
+      fputs(", ", out);
+      put_double(out, ch->to[1]);
+      fputc(']', out);
+    }
+    fputs("}\n", out);
   }
 }
 

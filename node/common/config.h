@@ -126,6 +126,18 @@ struct vlff_cfg_source {
   double pose_wait_s;              /* a keyframe candidate newer than every pose waits this long */
 };
 
+/* sim.changes: what happens to the scene's objects, and when. */
+#define VLFF_SIM_MAX_CHANGES 16
+#define VLFF_SIM_OBJECT_LEN 40
+enum vlff_sim_action { VLFF_SIM_MOVE, VLFF_SIM_REMOVE, VLFF_SIM_ADD };
+struct vlff_sim_change {
+  double time_s;                   /* sim time (frame index / sim.rate_hz) it happens at */
+  char object[VLFF_SIM_OBJECT_LEN]; /* "<class>" or "<class>#<n>": the n-th (from 1) of that class, as built */
+  int action;                      /* enum vlff_sim_action */
+  bool has_to;
+  double to[2];                    /* move, add: the new centre of its footprint, world x y in m */
+};
+
 struct vlff_cfg_sim {
   int seed;
   double rate_hz;
@@ -141,6 +153,8 @@ struct vlff_cfg_sim {
   double depth_max_m;
   int frames;                      /* frames per trajectory loop */
   double bad_pose_frac;            /* fraction of frames with corrupted poses */
+  int change_count;                /* sim.changes, in the order written */
+  struct vlff_sim_change changes[VLFF_SIM_MAX_CHANGES];
 };
 
 struct vlff_cfg_field {
@@ -208,6 +222,7 @@ struct vlff_cfg_publish {
   double lost_class_ratio;         /* a class the fitted field keeps at under this share of evidence's is read from evidence (0: off) */
   double evidence_voxel_m;         /* their voxel edge */
   int evidence_max_mb;             /* memory for those features */
+  double label_hysteresis;         /* a voxel's label changes without new evidence only past this margin (hold.h) */
 };
 
 struct vlff_cfg_prompts {

@@ -217,6 +217,7 @@ void update_state(struct vlff_node *n) {
   n->st.error_flags = f;
   n->st.keyframes = vlff_kfstore_count(n->store);
   n->st.keyframes_evicted = vlff_kfstore_evicted(n->store);
+  n->st.keyframes_retired = vlff_kfstore_retired(n->store);
   n->st.state = !n->mapping ? VLFF_NODE_STOPPED
                 : n->st.keyframes >= n->cfg.keyframes.start_after ? VLFF_NODE_OPERATIONAL
                                                                   : VLFF_NODE_PREOP;

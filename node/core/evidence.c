@@ -19,6 +19,11 @@
  * seen surface has few samples yet and would be given up before the views
  * that are looking at it could add theirs. */
 #define RECENT_VIEWS 8
+/* The running mean weighs a new sample at least 1/RECENT_SAMPLES: a few
+ * views' worth (a view adds several feature pixels to a voxel), so what the
+ * camera sees again replaces what it saw before rather than being averaged
+ * into a lifetime. */
+#define RECENT_SAMPLES 64
 
 struct vlff_evidence {
   double origin[3], voxel;
@@ -224,7 +229,7 @@ static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
   }
   /* whole rows through the vector conversions: a keyframe adds a few
    * thousand features of D values, on the trainer's thread */
-  float *mean = e->tmp + e->D, a = 1.0f / (float)n;
+  float *mean = e->tmp + e->D, a = 1.0f / (float)(n < RECENT_SAMPLES ? n : RECENT_SAMPLES);
   vlff_f16_to_f32_n(m, mean, (size_t)e->D);
   for (int j = 0; j < e->D; j++) mean[j] += (f[j] - mean[j]) * a;
   vlff_f32_to_f16_n(mean, m, (size_t)e->D);

@@ -28,8 +28,10 @@
  * room entered later would read the field alone, not fitted there yet
  * (docs/field.md, "A full evidence budget"; docs/benchmarks.md). The mean gives each sample
  * (a feature pixel of a view whose footprint reaches the voxel) equal
- * weight up to 255 samples per voxel, then new ones weigh 1/255 (the map
- * follows a changing scene rather than freezing).
+ * weight up to 64 samples per voxel, then new ones weigh 1/64: a recency
+ * mean over the last few views, so a re-observation replaces old features
+ * (a moved object's) instead of joining a lifetime average. The count
+ * itself goes on to 255 (which voxels a full budget gives up).
  *
  * Contract: one owner thread. Functions returning int give 0, or -1 with
  * err filled; a refused view leaves the evidence untouched.

@@ -23,7 +23,7 @@ struct kf {
 struct vlff_kfstore {
   size_t budget, bytes;
   int max_count, protect, count;
-  long long evicted;
+  long long evicted, retired;
   struct kf *kfs;              /* oldest first */
   struct vlff_view *views;     /* rebuilt by views() */
   float *weights;
@@ -128,6 +128,24 @@ int vlff_kfstore_add(struct vlff_kfstore *s, const struct vlff_keyframe_in *in) 
   s->bytes += cost;
   return 0;
 }
+
+int vlff_kfstore_retire(struct vlff_kfstore *s, bool (*contradicted)(void *ctx, const struct vlff_view *v), void *ctx) {
+  int kept = 0, dropped = 0;
+  for (int i = 0; i < s->count; i++) {
+    if (i < s->count - 1 && contradicted(ctx, &s->kfs[i].view)) {
+      s->bytes -= s->kfs[i].bytes;
+      free(s->kfs[i].mem);
+      dropped++;
+      continue;
+    }
+    s->kfs[kept++] = s->kfs[i];
+  }
+  s->count = kept;
+  s->retired += dropped;
+  return dropped;
+}
+
+long long vlff_kfstore_retired(const struct vlff_kfstore *s) { return s->retired; }
 
 int vlff_kfstore_count(const struct vlff_kfstore *s) { return s->count; }
 size_t vlff_kfstore_bytes(const struct vlff_kfstore *s) { return s->bytes; }

@@ -8,6 +8,8 @@
  *    the keyframe whose pose is closest to another keyframe's (the most
  *    redundant view) is dropped; the newest `protect` keyframes are never
  *    dropped, so fresh views always get trained on.
+ *  - A keyframe that newer depth contradicts is retired on request
+ *    (vlff_kfstore_retire), whatever its age, but never the newest.
  *  - vlff_kfstore_views() hands out views pointing into the store; they stay
  *    valid until the next add. Weights favour recent keyframes (half of the
  *    rays go to the newest `recent`) while every keyframe keeps a share.
@@ -16,6 +18,7 @@
 #ifndef VLFF_KEYFRAMES_H
 #define VLFF_KEYFRAMES_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -43,6 +46,13 @@ int vlff_kfstore_add(struct vlff_kfstore *s, const struct vlff_keyframe_in *kf);
 int vlff_kfstore_count(const struct vlff_kfstore *s);
 size_t vlff_kfstore_bytes(const struct vlff_kfstore *s);
 long long vlff_kfstore_evicted(const struct vlff_kfstore *s);
+
+/* Drops every keyframe but the newest for which contradicted(ctx, its
+ * view) is true (newer depth shows that what it saw is gone: training on
+ * it would keep a moved object at its old place); returns how many,
+ * counted in vlff_kfstore_retired. */
+int vlff_kfstore_retire(struct vlff_kfstore *s, bool (*contradicted)(void *ctx, const struct vlff_view *v), void *ctx);
+long long vlff_kfstore_retired(const struct vlff_kfstore *s);
 
 /* Views and per-view sampling weights for vlff_field_step; returns count. */
 int vlff_kfstore_views(struct vlff_kfstore *s, int recent, const struct vlff_view **views, const float **weights);

@@ -80,6 +80,7 @@ struct vlff_node_status {
   double it_per_s;
   int keyframes;
   long long keyframes_evicted;
+  long long keyframes_retired;  /* dropped because newer depth saw through what they show */
   long long frames_in;          /* frames read from the ring */
   long long frames_lost;        /* lapped or torn in the ring */
   long long frames_invalid;     /* refused, all reasons: the sum of refused[] */
@@ -110,6 +111,12 @@ struct vlff_node_status {
    * second), and the learner's worker threads (at most ceil(budget)). */
   double cpu_budget, cpu_used;
   int threads;
+  /* Label flips: voxels whose published label changed at the last publish;
+   * since start, those that changed although no keyframe observed them
+   * since the publish before (label_flips_elsewhere), among the labelled
+   * voxels no keyframe observed in between (label_mapped_elsewhere), summed
+   * over publishes (publish.h, hold.h). */
+  long long label_flips, label_flips_elsewhere, label_mapped_elsewhere;
   /* Monotonic ns (vlff_now_ns) of the trainer's and the ingest thread's
    * last loop pass; both pass at least every few hundred ms while alive,
    * busy or idle. */

@@ -156,6 +156,7 @@ struct vlff_node {
   float accepted_res[KF_HISTORY]; /* pose evidence of recently admitted keyframes */
   float accepted_inl[KF_HISTORY];
   int n_accepted;
+  long long cleared_seen; /* vlff_publisher_cleared when keyframes were last checked against it */
 };
 
 #define STAT_ADD(n, field, v)          \

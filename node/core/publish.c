@@ -18,6 +18,7 @@
 
 #include "bounds.h"
 #include "evidence.h"
+#include "hold.h"
 #include "log.h"
 #include "palette.h"
 #include "select.h"
@@ -80,6 +81,16 @@ struct vlff_publisher {
   double lost_ratio;  /* publish.lost_class_ratio */
   uint64_t lost_mask, lost_mask_stamp; /* the prompts last reported lost (evidence.h, "Lost classes"), and of which prompts */
   double last_publish_s, last_heartbeat_s;
+  struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
+  uint64_t hold_prompts;  /* a hash of the prompt embeddings the held labels index */
+  /* Seen through (publish.h, "Depth that passes through"): per voxel, flags
+   * of the view being observed (THRU_*) and the run of views whose rays
+   * passed through it without ending in it (low bits); the voxels the view
+   * touched, listed once each. */
+  uint8_t *thru;
+  uint32_t *thru_list;
+  size_t nthru;
+  long long cleared; /* surfaces seen through since create */
 };
 
 
@@ -87,6 +98,8 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   if (!p) return;
   vlff_map_detach(p->map);
   vlff_evidence_destroy(p->ev);
+  vlff_hold_destroy(p->hold);
+  VLFF_FREE_ALL(p->thru, p->thru_list);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
                 p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
@@ -139,11 +152,14 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->snap_xyz = malloc(li * 3 * sizeof *p->snap_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
+  p->hold = vlff_hold_create(n, pub->label_hysteresis);
+  p->thru = calloc(n, 1);
+  p->thru_list = malloc(n * sizeof *p->thru_list);
+  p->D = field->feature_dim;
   p->ev_budget = (size_t)pub->evidence_max_mb << 20; /* also bounds a saved map's evidence read without it */
   if (pub->evidence_weight > 0) {
     p->ev = vlff_evidence_for(pub, field, VLFF_MAX_PROMPTS, err, errlen);
     p->ev_weight = (float)pub->evidence_weight;
-    p->D = field->feature_dim;
     p->trust_rays = pub->field_trust_rays;
     p->lost_ratio = pub->lost_class_ratio;
     p->qcos = malloc(QBLOCK * VLFF_FIELD_MAX_PROMPTS * sizeof *p->qcos);
@@ -157,7 +173,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
-      !p->sel_lab) {
+      !p->sel_lab || !p->hold || !p->thru || !p->thru_list) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
     return NULL;
@@ -350,6 +366,8 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     vlff_evidence_reset(p->ev);
   }
   memcpy(p->observed, g, n);
+  vlff_hold_reset(p->hold);
+  memset(p->thru, 0, n);
   memcpy(p->hits, g + n, n * 2);
   memcpy(p->hit_sum, g + n * 3, n * 12);
   rc = 0;
@@ -366,6 +384,8 @@ void vlff_publisher_reset(struct vlff_publisher *p) {
   if (p->ev) vlff_evidence_reset(p->ev);
   p->ev_full_said = p->ev_overflow_said = false;
   p->lost_mask = 0;
+  vlff_hold_reset(p->hold);
+  memset(p->thru, 0, p->nvox);
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
   memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
@@ -417,19 +437,107 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
            vlff_evidence_capacity(p->ev), what);
 }
 
+enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_GONE = 0x10, THRU_NEW = 0x08, THRU_RUN = 0x03 };
+/* A voxel whose measured surface this many rays had ended in before it was
+ * seen through held a thing (THRU_GONE), not the depth's stray points in
+ * front of a far surface, which newer views rightly see through too. */
+enum { GONE_HITS = 8 };
+
+/* Voxel vi gets flag f from the view being observed. */
+static void thru_mark(struct vlff_publisher *p, size_t vi, uint8_t f) {
+  if (!(p->thru[vi] & THRU_LISTED)) p->thru[vi] |= THRU_LISTED, p->thru_list[p->nthru++] = (uint32_t)vi;
+  p->thru[vi] |= f;
+}
+
+/* The view is observed: a voxel its rays passed through, well in front of
+ * where they ended, and that none of them ended in, is seen through once
+ * more; seen through by two views in a row, its measured surface is gone
+ * (the thing moved or was taken away). A view that ends a ray in it starts
+ * the run over. Two views, not one: a single view's holes and noise must
+ * not erase a surface. */
+static void thru_commit(struct vlff_publisher *p) {
+  for (size_t k = 0; k < p->nthru; k++) {
+    size_t vi = p->thru_list[k];
+    uint8_t t = p->thru[vi], run = t & THRU_RUN, gone = t & THRU_GONE;
+    if (t & THRU_HIT) run = 0, gone = 0;
+    else if ((t & THRU_PASSED) && run < THRU_RUN) run++;
+    if (run >= 2 && p->hits[vi]) {
+      if (p->hits[vi] >= GONE_HITS) gone = THRU_GONE, p->cleared++;
+      p->hits[vi] = 0;
+      memset(p->hit_sum + vi * 3, 0, 3 * sizeof *p->hit_sum);
+    }
+    p->thru[vi] = run | gone | (t & THRU_NEW);
+  }
+  p->nthru = 0;
+}
+
+/* A surface where rays had only passed before (a thing moved or put
+ * there, THRU_NEW) is read from the evidence alone until this many rays
+ * ended in it: the field's trust there (its exposure, vlff_field_exposure)
+ * counts the rays that ended on what stood there before (the floor under
+ * the chair), and its feature is that one's until training catches up. */
+enum { NEW_HITS = 64 };
+
+static bool new_surface(const struct vlff_publisher *p, long vi) {
+  return vi >= 0 && (p->thru[vi] & THRU_NEW) && p->hits[vi] < NEW_HITS;
+}
+
+/* A ray (o + t w, |w| = len) through voxel vi with a measured surface
+ * passes through that surface, not beside it: within 0.3 voxel of its
+ * measured points' mean. A voxel an object's edge or a leg fills in part is
+ * crossed beside the surface by views that see past the edge; those
+ * rays say nothing about the surface. */
+static bool through_surface(const struct vlff_publisher *p, size_t vi, const double o[3], const double w[3],
+                            double len) {
+  double m[3], c[3];
+  for (int i = 0; i < 3; i++) m[i] = p->hit_sum[vi * 3 + i] / p->hits[vi] - o[i];
+  c[0] = m[1] * w[2] - m[2] * w[1], c[1] = m[2] * w[0] - m[0] * w[2], c[2] = m[0] * w[1] - m[1] * w[0];
+  return sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) < 0.3 * p->voxel * len;
+}
+
+/* Seen through by the last two views or more that reached it, and no
+ * surface measured in it since: free, whatever the field's density says
+ * (the field still holds what was there until training forgets it). */
+static bool seen_through(const struct vlff_publisher *p, size_t vi) { return (p->thru[vi] & THRU_RUN) >= 2; }
+
 /* A measured surface point hp in voxel vi (< 0: outside the map). */
 static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
   if (vi < 0) return;
+  /* Free space before this view (observed, no surface): a new surface. */
+  if (p->observed[vi] && !p->hits[vi] && !(p->thru[vi] & THRU_LISTED)) p->thru[vi] |= THRU_NEW;
+  thru_mark(p, (size_t)vi, THRU_HIT);
   p->observed[vi] = 1;
+  vlff_hold_observed(p->hold, (size_t)vi);
   if (p->hits[vi] < UINT16_MAX) {
     p->hits[vi]++;
     for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
   }
 }
 
+long long vlff_publisher_cleared(const struct vlff_publisher *p) { return p->cleared; }
+
+bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vlff_view *v) {
+  if (!v->depth) return false;
+  size_t n = 0, through = 0;
+  /* Every fourth pixel each way: a moved object covers thousands of them. */
+  for (int y = 1; y < v->height; y += 4)
+    for (int x = 1; x < v->width; x += 4) {
+      float d = v->depth[(size_t)y * v->width + x];
+      if (!(d > 0) || !isfinite(d)) continue;
+      double hp[3];
+      vlff_unproject(v->c2w, v->fx, v->fy, v->cx, v->cy, x + 0.5, y + 0.5, d, hp);
+      long vi = voxel_of(p, hp);
+      if (vi < 0) continue;
+      n++;
+      through += !p->hits[vi] && (p->thru[vi] & THRU_GONE);
+    }
+  return through >= 16 && through * 20 >= n;
+}
+
 int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
   if (vlff_publisher_check_view(p, v, err, errlen)) return -1;
   if (!v->depth) return 0;
+  vlff_hold_keyframe(p->hold);
   const double *m = v->c2w;
   double o[3] = {m[3], m[7], m[11]};
   const double h = p->voxel * 0.5;
@@ -456,6 +564,10 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
        * surface voxel is a hit, not free), only where the ray is inside
        * the map: samples outside it would mark nothing. */
       double steps = floor((len - h) / h), t0 = 0, t1 = 1;
+      /* Only the part of the ray the depth's noise cannot reach clears
+       * (thru_commit): up to two voxels or a tenth of its length, whichever
+       * is more, before its end. */
+      const double clear_to = (len - fmax(2 * p->voxel, 0.1 * len)) / h;
       if (x % stride == 0 && y % stride == 0 && steps > 0 && clip_to_map(p, o, w, &t0, &t1)) {
         double s0 = fmax(0, ceil(t0 * len / h)), s1 = fmin(steps, floor(t1 * len / h) + 1);
         if (s1 - s0 > max_steps) s1 = s0 + max_steps;
@@ -463,7 +575,11 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
           double t = s / (len / h);
           double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
           long vi = voxel_of(p, q);
-          if (vi >= 0) p->observed[vi] = 1;
+          if (vi >= 0) {
+            p->observed[vi] = 1, vlff_hold_observed(p->hold, (size_t)vi);
+            if (s <= clear_to && (!p->hits[vi] || through_surface(p, (size_t)vi, o, w, len)))
+              thru_mark(p, (size_t)vi, THRU_PASSED);
+          }
         }
       }
       long vi = voxel_of(p, hp);
@@ -478,6 +594,7 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
       long vb = voxel_of(p, b);
       if (vb != vi) add_hit(p, vb, hp);
     }
+  thru_commit(p);
   if (!p->ev) return 0;
   if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;
   say_budget(p, &p->ev_full_said, vlff_evidence_evicted(p->ev), VLFF_LOG_INFO,
@@ -500,6 +617,10 @@ static int label_points(struct vlff_publisher *p, struct vlff_field *f, const fl
     size_t m = n - a < QBLOCK ? n - a : QBLOCK;
     if (vlff_field_query_cosines(f, xyz + 3 * a, m, p->qcos)) return -1;
     vlff_field_exposure(f, xyz + 3 * a, m, p->qrays);
+    for (size_t j = 0; j < m; j++) {
+      const float *x = xyz + 3 * (a + j);
+      if (new_surface(p, voxel_of(p, (const double[3]){x[0], x[1], x[2]}))) p->qrays[j] = 0;
+    }
     vlff_evidence_label(p->ev, xyz + 3 * a, m, p->qcos, p->qrays, p->trust_rays, E, K, stamp, p->ev_weight, lab + a,
                         score ? score + a : NULL, margin ? margin + a : NULL);
   }
@@ -587,12 +708,12 @@ static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq,
   size_t nocc = 0;
   for (size_t j = 0; j < nq; j++) {
     size_t i = p->qidx[j];
-    if (p->hits[i] > 0 || p->qdens[j] >= p->free_density) {
+    if (p->hits[i] > 0 || (p->qdens[j] >= p->free_density && !seen_through(p, i))) {
       /* Compacted in place: nocc <= j. */
       memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
       p->qidx[nocc++] = i;
     } else {
-      p->labels[i] = VLFF_LABEL_FREE;
+      p->labels[i] = vlff_hold_label(p->hold, i, VLFF_LABEL_FREE, 0);
       p->conf[i] = 255;
       r->free_voxels++;
     }
@@ -622,11 +743,11 @@ static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, const 
   for (size_t j = 0; j < nocc; j++) {
     size_t i = p->qidx[j];
     if (p->qlabel[j] >= 0) {
-      p->labels[i] = (uint16_t)p->qlabel[j];
+      p->labels[i] = vlff_hold_label(p->hold, i, (uint16_t)p->qlabel[j], p->qmargin[j]);
       p->conf[i] = conf_of(p->qmargin[j]);
       r->labelled++;
     } else {
-      p->labels[i] = VLFF_LABEL_FREE;
+      p->labels[i] = vlff_hold_label(p->hold, i, VLFF_LABEL_FREE, 0);
       p->conf[i] = 255;
       r->free_voxels++;
     }
@@ -677,10 +798,19 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
   memset(r, 0, sizeof *r);
   r->miou2d = r->miou3d = -1;
   r->miou2d_frame = -1;
+  /* Labels index the prompts: other prompts, other labels, none held. */
+  int hk;
+  const float *he = vlff_field_prompt_embeddings(f, &hk);
+  uint64_t hstamp = vlff_fnv1a64(vlff_fnv1a64(VLFF_FNV1A64_INIT, &hk, sizeof hk), he,
+                                 he ? (size_t)hk * p->D * sizeof *he : 0);
+  if (hstamp != p->hold_prompts) vlff_hold_reset(p->hold), p->hold_prompts = hstamp;
+  vlff_hold_begin(p->hold);
   long nocc = mark_free(p, f, gather_observed(p), r, err, errlen);
   uint64_t stamp = 0;
   if (nocc < 0 || label_occupied(p, f, prompts, k, (size_t)nocc, &stamp, r, err, errlen)) return -1;
   r->unknown = p->nvox - r->labelled - r->free_voxels;
+  const struct vlff_hold_stats *hs = vlff_hold_stats(p->hold);
+  r->flips = hs->changed, r->flips_elsewhere = hs->changed_elsewhere, r->mapped_elsewhere = hs->mapped_elsewhere;
   struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
   memcpy(grid.origin, p->origin, sizeof grid.origin);
   memcpy(grid.dims, p->dims, sizeof grid.dims);

@@ -11,6 +11,10 @@
  * them, so the feature is read on the surface rather than in the air at the
  * voxel centre.
  *
+ * A voxel's published label changes only when a keyframe observed it since
+ * it was last labelled, or when its new label wins by more than
+ * publish.label_hysteresis (hold.h); the result counts the flips.
+ *
  * The 2D label image is made at the latest keyframe's pose. With
  * publish.label_image: surface, a pixel with measured depth gets the label
  * of the field's feature (and evidence) at that measured surface point,
@@ -39,6 +43,11 @@ struct vlff_publish_result {
   double miou2d, miou3d; /* the source's observer's scores (source.h), -1 when not available */
   long long miou2d_frame; /* the frame id of the label image miou2d scored, -1 when none */
   size_t labelled, free_voxels, unknown;
+  /* Voxels whose label differs from the previous publish's; of those,
+   * the ones no keyframe observed since (flips_elsewhere), among the
+   * mapped_elsewhere voxels labelled before and not observed since
+   * (hold.h: labels held within publish.label_hysteresis). */
+  size_t flips, flips_elsewhere, mapped_elsewhere;
 };
 
 /* From the publish section, the map segment's shm keys and the field's
@@ -66,6 +75,22 @@ int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *
 /* True when measured depth of admitted keyframes already ended in the voxel
  * holding world point x (at least twice): a surface the map has seen. */
 bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x[3]);
+/* Depth that passes through: a voxel that the rays of two views in a row
+ * passed through (well in front of their measured ends: two voxels or a
+ * tenth of the ray, whichever is more; through its measured surface, within
+ * 0.3 voxel of its points' mean, where it has one) without any of them
+ * ending in it
+ * loses its measured surface and is published FREE whatever the field's
+ * density there, until a ray ends in it again. cleared(): surfaces of at
+ * least 8 measured points (a thing, not the depth's stray points in front
+ * of a far surface) lost so since create. contradicted(): a stored view (a
+ * keyframe) whose measured points end, at 5 % of them or more (at least 16
+ * of every fourth pixel each way), in such lost surfaces: it shows what is
+ * no longer there. A surface where only rays had passed before is labelled
+ * from the evidence alone until 64 rays ended in it (the field's trust
+ * there counts what stood there before). */
+long long vlff_publisher_cleared(const struct vlff_publisher *p);
+bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vlff_view *v);
 /* The observation grids (what measured depth has seen) are learned state
  * too: saved beside each field checkpoint so a restarted node publishes the
  * same map at once. Save is atomic; load refuses a file of another grid,

@@ -99,6 +99,19 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
   return ok;
 }
 
+static bool contradicted(void *pub, const struct vlff_view *v) { return vlff_publisher_contradicted(pub, v); }
+
+/* Newer depth saw through surfaces the map had measured (a thing moved or
+ * went): the keyframes that show them are no longer trained on, or the
+ * field would keep them where they were. */
+static void retire_contradicted(struct vlff_node *n) {
+  long long c = vlff_publisher_cleared(n->pub);
+  if (c == n->cleared_seen) return;
+  n->cleared_seen = c;
+  int k = vlff_kfstore_retire(n->store, contradicted, n->pub);
+  if (k) VLFF_DEBUG(TAG, "%d keyframes retired: newer depth sees through what they show", k);
+}
+
 static void take_candidates(struct vlff_node *n, bool wait) {
   struct candidate *batch[QUEUE_CAP];
   int nb;
@@ -142,6 +155,7 @@ static void take_candidates(struct vlff_node *n, bool wait) {
           /* The view passed the same check just above: these cannot refuse it. */
           if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
             vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id, verr, sizeof verr);
+          retire_contradicted(n);
           if (n->pending_lat < 64) n->pending_t_host[n->pending_lat++] = c->t_host_ns;
         } else {
           vlff_warn_limited(&n->warned.kf_store, TAG, "keyframe %lld does not fit the keyframe store: %s", c->id,
@@ -187,6 +201,9 @@ void do_publish(struct vlff_node *n) {
   n->st.miou2d = r.miou2d;
   n->st.miou2d_frame = r.miou2d_frame;
   n->st.miou3d = r.miou3d;
+  n->st.label_flips = (long long)r.flips;
+  n->st.label_flips_elsewhere += (long long)r.flips_elsewhere;
+  n->st.label_mapped_elsewhere += (long long)r.mapped_elsewhere;
   n->st.frame_to_map_ms_p50 = p50;
   n->st.frame_to_map_ms_p99 = p99;
   pthread_mutex_unlock(&n->slock);

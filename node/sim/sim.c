@@ -29,6 +29,7 @@
 #include "log.h"
 #include "mem.h"
 #include "rng.h"
+#include "vlff/escape.h"
 
 static const char *const class_names[VLFF_SIM_CLASSES] = {
     "wall",    "floor",       "cabinet", "bed",          "chair",          "sofa",   "table",
@@ -73,6 +74,16 @@ struct bvh_node {
   int first, count;        /* leaf: prims[order[first..first+count)] */
 };
 
+/* The scene at a time (sim.changes): the primitives as built, moved where
+ * the changes up to then put their objects (same indices), and a BVH over
+ * those present. */
+struct sim_world {
+  double from_s;           /* in force from this sim time on */
+  struct prim *prims;      /* [nprims] */
+  struct bvh_node *nodes;
+  int *order, count, nnodes; /* the present primitives (count of them) under nodes */
+};
+
 struct vlff_sim {
   struct vlff_cfg_sim cfg;
   uint32_t seed;
@@ -82,9 +93,8 @@ struct vlff_sim {
   double bbox_lo[3], bbox_hi[3];
   struct prim *prims;
   int nprims, cap;
-  struct bvh_node *nodes;
-  int nnodes;
-  int *order;
+  struct sim_world *worlds; /* [nworlds]: as built (before any change), then after each change */
+  int nworlds;
   float *proto;            /* [NPROTO][D] unit */
   float *text;             /* [VLFF_SIM_CLASSES][D] unit */
   float *generic;          /* [D] the component every embedding shares */
@@ -838,7 +848,7 @@ static void build_building(struct vlff_sim *s, int attempt) {
 
 /* ---- BVH ---------------------------------------------------------------- */
 
-static int bvh_build(struct vlff_sim *s, int first, int count) {
+static int bvh_build(struct sim_world *s, int first, int count) {
   int id = s->nnodes++;
   struct bvh_node *n = &s->nodes[id];
   for (int k = 0; k < 3; k++) n->lo[k] = INFINITY, n->hi[k] = -INFINITY;
@@ -937,7 +947,7 @@ static int prim_hit(const struct prim *p, const double o[3], const double d[3],
   return hit;
 }
 
-static double cast(const struct vlff_sim *s, const double o[3], const double d[3], int *prim,
+static double cast(const struct sim_world *s, const double o[3], const double d[3], int *prim,
                    double n[3]) {
   double inv[3];
   for (int k = 0; k < 3; k++) inv[k] = d[k] != 0 ? 1.0 / d[k] : copysign(1e300, d[k]);
@@ -945,7 +955,7 @@ static double cast(const struct vlff_sim *s, const double o[3], const double d[3
   int bp = -1;
   double bn[3] = {0, 0, 1};
   int stack[64], sp = 0;
-  stack[sp++] = 0;
+  if (s->count) stack[sp++] = 0;
   while (sp) {
     const struct bvh_node *nd = &s->nodes[stack[--sp]];
     double tn;
@@ -970,13 +980,143 @@ static double cast(const struct vlff_sim *s, const double o[3], const double d[3
   return best;
 }
 
+static const struct sim_world *world_at(const struct vlff_sim *s, double t);
+
+long long vlff_sim_stream_frame(const struct vlff_sim *s, long long id) {
+  if (s->cfg.change_count > 0) return id;
+  long long f = id % s->cfg.frames;
+  return f < 0 ? f + s->cfg.frames : f;
+}
+
 double vlff_sim_raycast(const struct vlff_sim *s, const double o[3], const double d[3],
                         int *label, double normal[3]) {
+  return vlff_sim_raycast_at(s, 0, o, d, label, normal);
+}
+
+double vlff_sim_raycast_at(const struct vlff_sim *s, double time_s, const double o[3], const double d[3], int *label,
+                           double normal[3]) {
   int p;
-  double t = cast(s, o, d, &p, normal);
+  double t = cast(world_at(s, time_s), o, d, &p, normal);
   if (t >= 0 && label) *label = s->prims[p].label;
   if (t < 0 && label) *label = VLFF_SIM_UNLABELLED;
   return t;
+}
+
+/* ---- a changing world (sim.changes) -------------------------------------- */
+
+/* The world in force at sim time t: the last whose from_s is at or before t. */
+static const struct sim_world *world_at(const struct vlff_sim *s, double t) {
+  int w = 0;
+  while (w + 1 < s->nworlds && s->worlds[w + 1].from_s <= t) w++;
+  return &s->worlds[w];
+}
+
+/* The object a change names, "<class>" or "<class>#<n>": the n-th (from 1)
+ * object holding a primitive of that class, in the order the scene was
+ * built. Its id, or -1 with err naming the change. */
+static int find_object(const struct vlff_sim *s, int ci, const char *name, char *err, size_t errlen) {
+  char cls[VLFF_SIM_OBJECT_LEN], what[48] = "object";
+  if (ci >= 0) snprintf(what, sizeof what, "sim.changes[%d].object", ci);
+  snprintf(cls, sizeof cls, "%s", name);
+  long nth = 1;
+  char *hash = strchr(cls, '#');
+  if (hash) {
+    char *end;
+    *hash = 0;
+    nth = strtol(hash + 1, &end, 10);
+    if (end == hash + 1 || *end || nth < 1 || nth > 10000) {
+      vlff_errf(err, errlen, "sim: %s '%s': expected class#n with n a whole number from 1", what,
+                VLFF_Q(name));
+      return -1;
+    }
+  }
+  int c = vlff_sim_class_of(cls);
+  if (c < 0) {
+    vlff_errf(err, errlen, "sim: %s '%s': '%s' is not a class of the simulator (wall, chair, "
+                           "table, ...)", what, VLFF_Q(name), VLFF_Q(cls));
+    return -1;
+  }
+  int seen = 0, last = -1;
+  for (int i = 0; i < s->nprims; i++) {
+    if (s->prims[i].label != c || s->prims[i].obj == last) continue;
+    bool before = false; /* an object's primitives need not be adjacent */
+    for (int j = 0; j < i && !before; j++) before = s->prims[j].label == c && s->prims[j].obj == s->prims[i].obj;
+    last = s->prims[i].obj;
+    if (!before && ++seen == nth) return s->prims[i].obj;
+  }
+  vlff_errf(err, errlen, "sim: %s '%s': this scene has %d %s object%s", what, VLFF_Q(name), seen,
+            VLFF_Q(cls), seen == 1 ? "" : "s");
+  return -1;
+}
+
+/* The worlds: the scene as built, then one after each change in time order
+ * (changes at one time in the order written). An object whose first change
+ * adds it is absent before it. */
+static int build_worlds(struct vlff_sim *s, char *err, size_t errlen) {
+  const int nc = s->cfg.change_count, nobj = s->cur_obj + 1;
+  int order[VLFF_SIM_MAX_CHANGES], obj[VLFF_SIM_MAX_CHANGES];
+  for (int i = 0; i < nc; i++) {
+    int j = i;
+    for (; j > 0 && s->cfg.changes[order[j - 1]].time_s > s->cfg.changes[i].time_s; j--) order[j] = order[j - 1];
+    order[j] = i;
+    if ((obj[i] = find_object(s, i, s->cfg.changes[i].object, err, errlen)) < 0) return -1;
+  }
+  bool *present = malloc((size_t)nobj * sizeof *present);
+  double(*off)[2] = calloc((size_t)nobj, sizeof *off);
+  s->worlds = calloc((size_t)nc + 1, sizeof *s->worlds);
+  int rc = -1;
+  if (!present || !off || !s->worlds) goto oom;
+  for (int o = 0; o < nobj; o++) present[o] = true;
+  for (int k = nc - 1; k >= 0; k--) /* the first change of each object decides its start */
+    present[obj[order[k]]] = s->cfg.changes[order[k]].action != VLFF_SIM_ADD;
+  for (int w = 0; w <= nc; w++) {
+    struct sim_world *wd = &s->worlds[w];
+    wd->from_s = -INFINITY;
+    if (w > 0) {
+      const struct vlff_sim_change *ch = &s->cfg.changes[order[w - 1]];
+      const int o = obj[order[w - 1]];
+      wd->from_s = ch->time_s;
+      present[o] = ch->action != VLFF_SIM_REMOVE;
+      if (ch->has_to) {
+        /* The object's footprint as built, and where its centre goes. */
+        double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+        for (int i = 0; i < s->nprims; i++)
+          for (int a = 0; a < 2 && s->prims[i].obj == o; a++)
+            lo[a] = fmin(lo[a], s->prims[i].lo[a]), hi[a] = fmax(hi[a], s->prims[i].hi[a]);
+        for (int a = 0; a < 2; a++) {
+          off[o][a] = ch->to[a] - 0.5 * (lo[a] + hi[a]);
+          if (lo[a] + off[o][a] < s->bbox_lo[a] || hi[a] + off[o][a] > s->bbox_hi[a]) {
+            vlff_errf(err, errlen, "sim: sim.changes[%d]: '%s' at (%.2f, %.2f) would stand outside the scene "
+                                   "(x %.2f..%.2f, y %.2f..%.2f m)", order[w - 1], VLFF_Q(ch->object), ch->to[0],
+                      ch->to[1], s->bbox_lo[0], s->bbox_hi[0], s->bbox_lo[1], s->bbox_hi[1]);
+            goto out;
+          }
+        }
+      }
+    }
+    wd->prims = malloc((size_t)s->nprims * sizeof *wd->prims);
+    wd->order = malloc((size_t)s->nprims * sizeof *wd->order);
+    wd->nodes = malloc((size_t)2 * s->nprims * sizeof *wd->nodes);
+    s->nworlds = w + 1;
+    if (!wd->prims || !wd->order || !wd->nodes) goto oom;
+    memcpy(wd->prims, s->prims, (size_t)s->nprims * sizeof *wd->prims);
+    for (int i = 0; i < s->nprims; i++) {
+      struct prim *p = &wd->prims[i];
+      const double *d = off[p->obj];
+      for (int a = 0; a < 2; a++) p->lo[a] += d[a], p->hi[a] += d[a];
+      p->cx += d[0], p->cy += d[1];
+      if (present[p->obj]) wd->order[wd->count++] = i;
+    }
+    if (wd->count) bvh_build(wd, 0, wd->count);
+  }
+  rc = 0;
+  goto out;
+oom:
+  vlff_errf(err, errlen, "sim: out of memory");
+out:
+  free(present);
+  free(off);
+  return rc;
 }
 
 /* ---- textures and shading ---------------------------------------------- */
@@ -1432,6 +1572,7 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
   if (f->bad_pose) corrupt_pose(s, index, f->c2w);
   const double *M = f->c2w_true;
   const double o[3] = {M[3], M[7], M[11]};
+  const struct sim_world *w = world_at(s, f->time_s);
   float *cosview = malloc((size_t)W * H * sizeof(float));
   int *primbuf = malloc((size_t)W * H * sizeof(int));
   float *scratch = malloc((size_t)(NPROTO + 2 * s->dim) * sizeof(float));
@@ -1456,7 +1597,7 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
                      M[8] * dc[0] + M[9] * dc[1] + M[10] * dc[2]};
       int pi;
       double n[3];
-      double t = cast(s, o, d, &pi, n);
+      double t = cast(w, o, d, &pi, n);
       if (t < 0) {
         f->label[k] = VLFF_SIM_UNLABELLED;
         f->depth_gt[k] = 0;
@@ -1465,7 +1606,7 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
         primbuf[k] = -1;
         continue;
       }
-      const struct prim *p = &s->prims[pi];
+      const struct prim *p = &w->prims[pi];
       double x[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
       f->label[k] = (uint8_t)p->label;
       primbuf[k] = pi;
@@ -1506,6 +1647,20 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
   free(cosview);
   free(primbuf);
   free(scratch);
+  return 0;
+}
+
+int vlff_sim_object_box(const struct vlff_sim *s, const char *name, double time_s, double lo[3], double hi[3],
+                        char *err, size_t errlen) {
+  int o = find_object(s, -1, name, err, errlen);
+  if (o < 0) return -1;
+  const struct sim_world *w = world_at(s, time_s);
+  for (int k = 0; k < 3; k++) lo[k] = INFINITY, hi[k] = -INFINITY;
+  for (int i = 0; i < s->nprims; i++)
+    for (int k = 0; k < 3 && s->prims[i].obj == o; k++)
+      lo[k] = fmin(lo[k], w->prims[i].lo[k]), hi[k] = fmax(hi[k], w->prims[i].hi[k]);
+  for (int i = 0; i < w->count; i++)
+    if (w->prims[w->order[i]].obj == o) return 1;
   return 0;
 }
 
@@ -1599,21 +1754,22 @@ struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vl
   for (int k = 0; k < 3; k++) s->bbox_lo[k] = s->room_lo[k] - 0.1, s->bbox_hi[k] = s->room_hi[k] + 0.1;
   for (int i = 0; i < s->nprims; i++)
     if (s->prims[i].label < VLFF_SIM_CLASSES) s->class_counts[s->prims[i].label]++;
-  s->order = malloc((size_t)s->nprims * sizeof(int));
-  s->nodes = malloc((size_t)2 * s->nprims * sizeof *s->nodes);
-  if (!s->order || !s->nodes || build_features(s) < 0 || build_objects(s) < 0) {
+  if (build_features(s) < 0 || build_objects(s) < 0) {
     vlff_sim_destroy(s);
     vlff_errf(err, errlen, "sim: out of memory");
     return NULL;
   }
-  for (int i = 0; i < s->nprims; i++) s->order[i] = i;
-  bvh_build(s, 0, s->nprims);
+  if (build_worlds(s, err, errlen)) {
+    vlff_sim_destroy(s);
+    return NULL;
+  }
   return s;
 }
 
 void vlff_sim_destroy(struct vlff_sim *s) {
   if (!s) return;
-  VLFF_FREE_ALL(s->prims, s->nodes, s->order, s->proto, s->text, s->generic, s->obj_vec, s->obj_mix,
+  for (int i = 0; i < s->nworlds; i++) VLFF_FREE_ALL(s->worlds[i].prims, s->worlds[i].nodes, s->worlds[i].order);
+  VLFF_FREE_ALL(s->worlds, s->prims, s->proto, s->text, s->generic, s->obj_vec, s->obj_mix,
                 s->obj_to, s);
 }
 
@@ -1705,7 +1861,9 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
   out->label = malloc(cap);
   if (!tab || !out->xyz || !out->label) goto oom;
   /* Every second pixel of each chosen view; one point per voxel keeps the
-   * density roughly uniform whatever the number of views. */
+   * density roughly uniform whatever the number of views. The scene as it
+   * stands at the last of those frames (sim.changes). */
+  const struct sim_world *w = world_at(s, (double)(nframes - 1) / s->cfg.rate_hz);
   for (int fi = 0; fi < nframes; fi += step) {
     double M[16];
     true_pose(s, fi, M);
@@ -1716,7 +1874,7 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
         double d[3] = {M[0] * dc[0] + M[1] * dc[1] + M[2] * dc[2], M[4] * dc[0] + M[5] * dc[1] + M[6] * dc[2],
                        M[8] * dc[0] + M[9] * dc[1] + M[10] * dc[2]};
         int pi;
-        double t = cast(s, o, d, &pi, NULL);
+        double t = cast(w, o, d, &pi, NULL);
         if (t < 0 || t > s->cfg.depth_max_m) continue;
         double x[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
         int64_t ix = (int64_t)floor(x[0] / voxel), iy = (int64_t)floor(x[1] / voxel),

@@ -25,6 +25,12 @@
  *    furniture); VLFF_SIM_UNLABELLED (255) marks the ceiling and misses.
  *  - Features are IEEE float16 bits, HWC, D = field.feature_dim, not
  *    normalised (like LSeg's raw output).
+ *  - A changing world (sim.changes, docs/sim.md): at each change's time_s
+ *    an object (a class name, or class#n for the n-th of that class as
+ *    built) moves (its footprint's centre to `to`, x y), is removed, or is
+ *    added (absent before; at `to`, or where it was built). A frame renders
+ *    the scene at its own time (index / sim.rate_hz): RGB, depth, labels and
+ *    features alike, so ground truth moves with the object.
  *
  * Contract
  *  - Functions returning int give 0 on success, -1 on error with a message
@@ -84,6 +90,19 @@ void vlff_sim_frame_free(struct vlff_sim_frame *f);
 int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
                     struct vlff_sim_frame *f, char *err, size_t errlen);
 
+/* The scene frame a stream's frame id (>= 0) shows: the id modulo
+ * sim.frames (the walk repeats), or the id itself with sim.changes, so that
+ * the scene's time runs on and each change happens once. vlff-sim's stream
+ * and the node's sim source agree through it. */
+long long vlff_sim_stream_frame(const struct vlff_sim *s, long long id);
+
+/* The box (world AABB) of the object `name` (as sim.changes names it) at
+ * sim time time_s: 1 when it is present then, 0 when absent (removed, or
+ * not added yet; the box is where it was last), -1 with err for a name the
+ * scene does not have. */
+int vlff_sim_object_box(const struct vlff_sim *s, const char *name, double time_s, double lo[3], double hi[3],
+                        char *err, size_t errlen);
+
 /* The camera of frame `index` without rendering it. */
 void vlff_sim_pose(const struct vlff_sim *s, long long index, double c2w[16]);
 void vlff_sim_intrinsics(const struct vlff_sim *s, double *fx, double *fy, double *cx, double *cy);
@@ -112,9 +131,12 @@ void vlff_sim_class_counts(const struct vlff_sim *s, int counts[VLFF_SIM_CLASSES
 
 /* Exact ray cast from world point o along direction d (need not be unit):
  * returns the hit parameter t (point = o + t d) or -1 when nothing is hit,
- * and the hit's class id and unit normal facing the ray (either may be NULL). */
+ * and the hit's class id and unit normal facing the ray (either may be NULL).
+ * In the scene at sim time 0; _at: at time_s (sim.changes). */
 double vlff_sim_raycast(const struct vlff_sim *s, const double o[3], const double d[3],
                         int *label, double normal[3]);
+double vlff_sim_raycast_at(const struct vlff_sim *s, double time_s, const double o[3], const double d[3], int *label,
+                           double normal[3]);
 
 /* The class name of id c (0..19), or NULL. */
 const char *vlff_sim_class_name(int c);
@@ -132,7 +154,8 @@ void vlff_sim_prototype(const struct vlff_sim *s, int c, float *out);
 
 /* A ground-truth labelled point set for 3D evaluation: surface points seen
  * from frames 0, step, 2 step, ... < nframes (exact depth), one per cubic
- * voxel of `voxel` metres. xyz [n][3], label [n] (255 = unlabelled). */
+ * voxel of `voxel` metres, in the scene as it stands at frame nframes - 1
+ * (sim.changes). xyz [n][3], label [n] (255 = unlabelled). */
 struct vlff_sim_points {
   size_t n;
   float *xyz;

@@ -21,8 +21,7 @@ struct vlff_sim_source {
 };
 
 static long long scene_frame(const struct vlff_sim_source *s, long long id) {
-  long long f = id % s->frames;
-  return f < 0 ? f + s->frames : f;
+  return vlff_sim_stream_frame(s->sim, id);
 }
 
 static int features(void *ctx, long long frame_id, uint16_t *out, char *err, size_t errlen) {

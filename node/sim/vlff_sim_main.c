@@ -196,7 +196,7 @@ static int live(const struct vlff_config *cfg, struct vlff_sim *s, long long cou
   int status = 0;
   uint64_t ring_warned = 0, fring_warned = 0; /* vlff_warn_limited's */
   for (long long id = 0; !vlff_cli_stop && (count <= 0 || id < count); id++) {
-    long long idx = id % cfg->sim.frames;
+    long long idx = vlff_sim_stream_frame(s, id);
     if (vlff_sim_render(s, idx, features ? VLFF_SIM_ALL : VLFF_SIM_RGBD, f, err, sizeof err) < 0) {
       fprintf(stderr, "vlff-sim: %s\n", err);
       status = 1;

@@ -43,6 +43,26 @@
  * node only waits for its first keyframes). VLFF_BENCH_BUDGET=CORES sets node.cpu_budget
  * (and prints cpu_budget and cpu_budget_ratio, use over budget); node.sh
  * runs it at 0.5, 1 and 2.
+ *
+ * label_flip_frac: over the final window (from `seconds` - 15 s to the
+ * end), the share of the labelled voxels no keyframe observed between two
+ * consecutive publishes whose published label changed all the same (the
+ * node's label_flips_elsewhere / label_mapped_elsewhere: the camera looked
+ * elsewhere), on its own RESULT line.
+ *
+ * change_visible_s (VLFF_BENCH_CHANGE=1, scene "change" of node.sh): the
+ * config gets a sim.changes entry that moves the scene's first chair, at
+ * sim time VLFF_BENCH_CHANGE_AT (30 s), to bare floor at least 1.2 m from
+ * where it stood and off the camera's walk. From the time vlff-sim is due
+ * to stream the first frame by which both places have been seen (the chair
+ * at its new place, 200 pixels of it, and its old place seen through to a
+ * surface 0.3 m or more behind its centre, by the simulator's own ground
+ * truth; a simulator running late only makes this longer) to the first map (read from the map segment every 0.1 s) where
+ * 90 % of the points of the old place that were labelled just before the
+ * move read FREE and the new place has at least 0.3 times as many points
+ * (3 at least) labelled as the map labelled the chair then (its most
+ * common class at the old place). -1: never within the run, or the map
+ * had not labelled the chair before it moved.
  */
 #include <math.h>
 #include <signal.h>
@@ -64,6 +84,155 @@
 #include "vlff/shm.h"
 
 extern char **environ;
+
+/* change_visible_s's state (see the top). */
+struct change_watch {
+  bool on;
+  double t_change, t_seen;          /* bench time of the move, of the first frame showing the new place */
+  double old_lo[3], old_hi[3], new_lo[3], new_hi[3], step;
+  struct vlff_map *map;
+  int cls, n_old;                   /* the map's class of the chair just before the move, its points */
+  float old_pts[1024][3];           /* those points */
+  double t_done, t_free, t_new;     /* both; the old place free; the new place labelled (first times) */
+};
+
+static bool inside(const double x[3], const double lo[3], const double hi[3], double pad) {
+  for (int k = 0; k < 3; k++)
+    if (x[k] < lo[k] - pad || x[k] > hi[k] + pad) return false;
+  return true;
+}
+
+/* Points of a box on the map's voxel pitch. */
+#define BOX_POINTS(w, lo, hi, x)                                                             \
+  for (double x##z = (lo)[2] + (w)->step / 2; x##z < (hi)[2]; x##z += (w)->step)             \
+    for (double x##y = (lo)[1] + (w)->step / 2; x##y < (hi)[1]; x##y += (w)->step)           \
+      for (double x##x = (lo)[0] + (w)->step / 2, x[3] = {x##x, x##y, x##z}; x##x < (hi)[0]; \
+           x##x += (w)->step, x[0] = x##x)
+
+static void change_poll(struct change_watch *w, double t) {
+  if (!w->on || w->t_done >= 0) return;
+  uint16_t lab;
+  if (t < w->t_change) {
+    /* The chair as the map has it just before the move. */
+    int count[VLFF_LABEL_MAX < 4096 ? VLFF_LABEL_MAX : 4096] = {0}, n = 0, best = -1;
+    BOX_POINTS(w, w->old_lo, w->old_hi, x) {
+      if (vlff_map_label_at(w->map, x[0], x[1], x[2], &lab, NULL) || lab >= 4096) continue;
+      if (n < 1024) w->old_pts[n][0] = (float)x[0], w->old_pts[n][1] = (float)x[1], w->old_pts[n][2] = (float)x[2];
+      n++;
+      if (best < 0 || ++count[lab] > count[best]) best = lab;
+    }
+    w->n_old = n < 1024 ? n : 1024, w->cls = best;
+    return;
+  }
+  if (t < w->t_seen || w->cls < 0 || !w->n_old) return;
+  int free_n = 0, old_n = 0, new_n = 0;
+  for (int i = 0; i < w->n_old; i++) {
+    double x[3] = {w->old_pts[i][0], w->old_pts[i][1], w->old_pts[i][2]};
+    if (inside(x, w->new_lo, w->new_hi, 0.05)) continue;
+    old_n++;
+    free_n += vlff_map_label_at(w->map, x[0], x[1], x[2], &lab, NULL) == 0 && lab == VLFF_LABEL_FREE;
+  }
+  BOX_POINTS(w, w->new_lo, w->new_hi, x) {
+    new_n += vlff_map_label_at(w->map, x[0], x[1], x[2], &lab, NULL) == 0 && lab == w->cls;
+  }
+  bool is_free = free_n >= 0.9 * old_n, is_new = new_n >= 3 && new_n >= 0.3 * w->n_old;
+  if (is_free && w->t_free < 0) w->t_free = t;
+  if (is_new && w->t_new < 0) w->t_new = t;
+  if (is_free && is_new) w->t_done = t;
+}
+
+/* Moves the first chair (see the top): the change is written into the
+ * config at path, and w knows where and when. 0, or -1 with err. */
+static int change_setup(const char *path, struct vlff_config *cfg, struct change_watch *w, char *err, size_t errlen) {
+  struct vlff_sim *a = vlff_sim_create(&cfg->sim, &cfg->field, err, errlen);
+  if (!a) return -1;
+  const double at = getenv("VLFF_BENCH_CHANGE_AT") ? atof(getenv("VLFF_BENCH_CHANGE_AT")) : 30;
+  double lo[3], hi[3], clo[3], chi[3], to[2] = {0, 0};
+  bool found = false;
+  vlff_sim_bounds(a, lo, hi);
+  if (vlff_sim_object_box(a, "chair", 0, clo, chi, err, errlen) < 0) return vlff_sim_destroy(a), -1;
+  const int FLOOR = vlff_sim_class_of("floor");
+  for (double x = lo[0] + 0.6; x < hi[0] - 0.6 && !found; x += 0.2)
+    for (double y = lo[1] + 0.6; y < hi[1] - 0.6 && !found; y += 0.2) {
+      if (hypot(x - 0.5 * (clo[0] + chi[0]), y - 0.5 * (clo[1] + chi[1])) < 1.2) continue;
+      /* Off the camera's walk (an ellipse at about half the room's half-sizes). */
+      if (hypot((x - 0.5 * (lo[0] + hi[0])) / (0.5 * (hi[0] - lo[0])), (y - 0.5 * (lo[1] + hi[1])) / (0.5 * (hi[1] - lo[1]))) < 0.7)
+        continue;
+      bool bare = true;
+      for (int k = 0; k < 9 && bare; k++) {
+        int l;
+        vlff_sim_raycast(a, (const double[3]){x + 0.4 * (k % 3 - 1), y + 0.4 * (k / 3 - 1), hi[2] - 0.05},
+                         (const double[3]){0, 0, -1}, &l, NULL);
+        bare = l == FLOOR;
+      }
+      if (bare) to[0] = x, to[1] = y, found = true;
+    }
+  vlff_sim_destroy(a);
+  if (!found) return snprintf(err, errlen, "no bare floor to move the chair to"), -1;
+  /* The change goes under the config's sim section. */
+  static char text[20000];
+  FILE *f = fopen(path, "r");
+  size_t len = f ? fread(text, 1, sizeof text - 1, f) : 0;
+  if (f) fclose(f);
+  text[len] = 0;
+  char line[200];
+  snprintf(line, sizeof line, "  changes: [{time_s: %.3f, object: chair, action: move, to: [%.3f, %.3f]}]\n", at,
+           to[0], to[1]);
+  f = fopen(path, "w");
+  char *sim = strstr(text, "\nsim:\n");
+  if (!f) return snprintf(err, errlen, "cannot write %s", path), -1;
+  if (sim) fprintf(f, "%.*s%s%s", (int)(sim + 6 - text), text, line, sim + 6);
+  else fprintf(f, "%ssim:\n%s", text, line);
+  fclose(f);
+  if (vlff_config_load(path, cfg, err, errlen)) return -1;
+  struct vlff_sim *b = vlff_sim_create(&cfg->sim, &cfg->field, err, errlen);
+  struct vlff_sim_frame *fr = b ? vlff_sim_frame_new(b) : NULL;
+  if (!fr) return vlff_sim_destroy(b), -1;
+  vlff_sim_object_box(b, "chair", at - 1e-3, w->old_lo, w->old_hi, err, errlen);
+  vlff_sim_object_box(b, "chair", at, w->new_lo, w->new_hi, err, errlen);
+  /* Above the floor's voxels, which stay floor wherever the chair stands. */
+  w->old_lo[2] += cfg->publish.voxel_size_m, w->new_lo[2] += cfg->publish.voxel_size_m;
+  const int CHAIR = vlff_sim_class_of("chair");
+  long long first = (long long)ceil(at * cfg->sim.rate_hz), seen = -1, seen_new = -1, seen_old = -1;
+  const double oc[3] = {0.5 * (w->old_lo[0] + w->old_hi[0]), 0.5 * (w->old_lo[1] + w->old_hi[1]),
+                        0.5 * (w->old_lo[2] + w->old_hi[2])};
+  for (long long id = first; id < first + 2LL * cfg->sim.frames && seen < 0; id++) {
+    if (vlff_sim_render(b, id, 0, fr, err, errlen)) break;
+    /* The old place seen through: its centre in the image, the surface
+     * behind it 0.3 m or more further. */
+    const double *M = fr->c2w_true;
+    double dw[3] = {oc[0] - M[3], oc[1] - M[7], oc[2] - M[11]}, pc[3];
+    for (int r = 0; r < 3; r++) pc[r] = M[r] * dw[0] + M[4 + r] * dw[1] + M[8 + r] * dw[2];
+    if (seen_old < 0 && pc[2] > 0.3) {
+      int u = (int)(fr->fx * pc[0] / pc[2] + fr->cx), v = (int)(fr->fy * pc[1] / pc[2] + fr->cy);
+      if (u >= 0 && v >= 0 && u < fr->width && v < fr->height && fr->depth_gt[(size_t)v * fr->width + u] > pc[2] + 0.3)
+        seen_old = id;
+    }
+    int n = 0;
+    for (int v = 0; v < fr->height; v++)
+      for (int u = 0; u < fr->width; u++) {
+        size_t k = (size_t)v * fr->width + u;
+        if (fr->label[k] != CHAIR || !(fr->depth_gt[k] > 0)) continue;
+        double x[3], d = fr->depth_gt[k], xc = (u + 0.5 - fr->cx) / fr->fx * d, yc = (v + 0.5 - fr->cy) / fr->fy * d;
+        for (int r = 0; r < 3; r++) x[r] = fr->c2w_true[4 * r] * xc + fr->c2w_true[4 * r + 1] * yc + fr->c2w_true[4 * r + 2] * d + fr->c2w_true[4 * r + 3];
+        n += inside(x, w->new_lo, w->new_hi, 0.05);
+      }
+    if (n >= 200 && seen_new < 0) seen_new = id;
+    if (seen_new >= 0 && seen_old >= 0) seen = id;
+  }
+  vlff_sim_frame_free(fr);
+  vlff_sim_destroy(b);
+  if (seen < 0) return snprintf(err, errlen, "no frame shows the chair at its new place"), -1;
+  w->on = true;
+  w->t_change = at;          /* as sim time; made bench time once vlff-sim starts */
+  w->t_seen = (double)seen / cfg->sim.rate_hz;
+  w->step = cfg->publish.voxel_size_m;
+  w->cls = -1;
+  w->t_done = w->t_free = w->t_new = -1;
+  printf("change: chair moved at %.1f s from (%.2f, %.2f) to (%.2f, %.2f); frame %lld first shows it there, frame %lld "
+         "sees through its old place\n", at, oc[0], oc[1], to[0], to[1], seen_new, seen_old);
+  return 0;
+}
 
 static double mono_s(void) {
   struct timespec ts;
@@ -253,6 +422,10 @@ int main(int argc, char **argv) {
   if (budget < 0 || (budget > 0 && budget < 0.1) || budget > 256)
     return fprintf(stderr, "bench_node: VLFF_BENCH_BUDGET: expected 0 or 0.1 to 256 cores, got %g\n", budget), 1;
   cfg.node.cpu_budget = budget;
+  static struct change_watch cw;
+  if (getenv("VLFF_BENCH_CHANGE") && atoi(getenv("VLFF_BENCH_CHANGE")) &&
+      change_setup(cfg_path, &cfg, &cw, err, sizeof err))
+    return fprintf(stderr, "bench_node: change: %s\n", err), 1;
 
   double raw = raw_miou2d(&cfg, 30);
   printf("raw per-frame features: 2D mIoU %.1f (baseline)\n", raw);
@@ -287,6 +460,7 @@ int main(int argc, char **argv) {
   snprintf(simpath, sizeof simpath, "%.*s/../node/sim/vlff-sim", (int)(strrchr(argv[0], '/') - argv[0]), argv[0]);
   char *sargv[] = {simpath, "--config", cfg_path, "--quiet", NULL};
   pid_t sim;
+  const double t_spawn = mono_s();
   if (posix_spawn(&sim, simpath, NULL, NULL, sargv, environ)) return fprintf(stderr, "cannot start %s\n", simpath), 1;
   struct vlff_sim_source *sim_src;
   struct vlff_node *n = tk_node_create(&cfg, &sim_src, err, sizeof err);
@@ -304,6 +478,12 @@ int main(int argc, char **argv) {
   const int loop_n = cfg.sim.frames;
   const double loop_s = cfg.sim.frames / cfg.sim.rate_hz;
   double t0 = mono_s(), cpu0 = -1, wall0 = 0;
+  if (cw.on) {
+    /* Sim time to bench time: vlff-sim streams frame i at t_spawn + i / rate. */
+    cw.t_change += t_spawn - t0, cw.t_seen += t_spawn - t0;
+    cw.map = vlff_map_attach(cfg.shm.map);
+    if (!cw.map) cw.on = false, fprintf(stderr, "bench_node: change: cannot read the map segment\n");
+  }
   struct vlff_node_status st;
   const double half = 15; /* the final value's window, each side of `seconds` */
   /* The final loop: the views whose frame ids lie within half a loop of the
@@ -311,19 +491,24 @@ int main(int argc, char **argv) {
    * than sim.rate_hz must still give every view). Run until it is whole,
    * or for one loop's time (twice, for a slow simulator) after `seconds`. */
   long long id_c = -1;
+  long long flips0 = -1, mapped0 = 0; /* the flip counts where the final window starts */
   for (;;) {
     double t = mono_s() - t0;
     bool final_done = id_c >= 0 && ns > 0 && fr[ns - 1] >= id_c + loop_n / 2;
     bool walk_done = !walk || miou3d_end >= 0;
     if (ns >= MAXS || (t >= seconds + half && final_done && walk_done) || t >= seconds + 2 * loop_s) break;
-    struct timespec nap = {0, 500 * 1000 * 1000};
-    nanosleep(&nap, NULL);
+    for (int k = 0; k < 5; k++) {
+      struct timespec nap = {0, 100 * 1000 * 1000};
+      nanosleep(&nap, NULL);
+      change_poll(&cw, mono_s() - t0);
+    }
     vlff_node_status(n, &st);
     ts[ns] = mono_s() - t0;
     fr[ns] = st.miou2d_frame;
     m2[ns++] = st.miou2d;
     if (cpu0 < 0 && st.iteration > 0) cpu0 = cpu_s(), wall0 = mono_s();
     if (id_c < 0 && ts[ns - 1] >= seconds && st.miou2d_frame >= 0) id_c = st.miou2d_frame;
+    if (flips0 < 0 && ts[ns - 1] >= seconds - half) flips0 = st.label_flips_elsewhere, mapped0 = st.label_mapped_elsewhere;
     if (walk && !wmap && (wmap = vlff_map_attach(cfg.shm.map))) wsnap = vlff_map_snapshot_new(wmap);
     if (walk && !wring) wring = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
     /* frame ids count from 0: the head is the newest written id + 1 */
@@ -345,6 +530,7 @@ int main(int argc, char **argv) {
              st.miou2d, st.miou3d);
   }
   vlff_node_status(n, &st);
+  if (cw.map) vlff_map_detach(cw.map);
   vlff_map_snapshot_free(wsnap);
   vlff_map_detach(wmap);
   if (wring) vlff_ring_close(wring);
@@ -439,5 +625,16 @@ int main(int argc, char **argv) {
   if (walk) printf("RESULT cpu_cores_used=%.3f\n", cores); /* the walk's miou3d_end is above */
   else printf("RESULT cpu_cores_used=%.3f miou3d_end=%.1f\n", cores, st.miou3d);
   if (budget > 0) printf("RESULT cpu_budget=%.2f cpu_budget_ratio=%.3f\n", budget, cores / budget);
+  long long dm = st.label_mapped_elsewhere - (flips0 < 0 ? 0 : mapped0);
+  long long df = st.label_flips_elsewhere - (flips0 < 0 ? 0 : flips0);
+  printf("label flips without new evidence: %lld of %lld labelled voxels over the final window; %lld keyframes "
+         "retired (newer depth saw through them)\n", df, dm, st.keyframes_retired);
+  printf("RESULT label_flip_frac=%.4f\n", dm > 0 ? (double)df / (double)dm : -1.0);
+  if (cw.on) {
+    printf("change: the map had the chair as label %d at %d points before the move; both places seen at %.1f s; the "
+           "old place free at %.1f s, the new place labelled at %.1f s (-1: never); %lld keyframes retired\n",
+           cw.cls, cw.n_old, cw.t_seen, cw.t_free, cw.t_new, st.keyframes_retired);
+    printf("RESULT change_visible_s=%.2f\n", cw.t_done >= 0 ? fmax(0, cw.t_done - cw.t_seen) : -1.0);
+  }
   return 0;
 }

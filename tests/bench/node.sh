@@ -1,19 +1,21 @@
 #!/usr/bin/env bash
 # Node benchmark: bench_node (time to a useful map on the live 5 Hz stream)
 # on today's room (configs/demo-sim.yaml), on the flat
-# (tests/bench/node-flat.yaml) and on the building
+# (tests/bench/node-flat.yaml), on the building
 # (tests/bench/node-building.yaml: its first walk through three flats,
-# scored at its end and for forgetting; docs/sim.md, bench_node.c), then the
-# room under node.cpu_budget (docs/node.md, "CPU budget"). RESULT: the
-# room's keys as bench_node prints them, then the flat's with a _flat
-# suffix, then the building's with a bldg_ prefix, then per budget B
-# (0.5 -> 05) cpu_cores_used_budgetB (the process's cores over the run) and
+# scored at its end and for forgetting; docs/sim.md, bench_node.c), on the
+# room with a chair moved at 30 s ("change": bench_node's change_visible_s,
+# 60 s unless VLFF_BENCH_SECONDS says), then the room under node.cpu_budget
+# (docs/node.md, "CPU budget"). RESULT: the room's keys as bench_node
+# prints them, then the flat's with a _flat suffix, the building's with a
+# bldg_ prefix, then change_visible_s, then per budget B (0.5 -> 05)
+# cpu_cores_used_budgetB (the process's cores over the run) and
 # cpu_cores_used_budgetB_ratio (over B; target 0.95..1.05), and
 # miou3d_end_1core: the 3D mIoU at the end of the same walk as the room's
 # miou3d_end with a budget of 1 (target >= miou3d_end - 5).
 # Env: VLFF_BUILD (release build dir), VLFF_BENCH_SECONDS (passed on; the
-# budget-1 run walks as long), VLFF_NODE_SCENES (default "room flat bldg"),
-# VLFF_NODE_BUDGETS (default "1 0.5 2"; "" for none),
+# budget-1 run walks as long), VLFF_NODE_SCENES (default "room flat bldg
+# change"), VLFF_NODE_BUDGETS (default "1 0.5 2"; "" for none),
 # VLFF_BENCH_BUDGET_SECONDS (the other budgets' runs, default 60).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -23,17 +25,19 @@ exe=$build/bench/bench_node
 kv_of() { grep '^RESULT ' <<<"$1" | sed 's/^RESULT //' | tr '\n' ' '; }
 val_of() { tr ' ' '\n' <<<"$1" | sed -n "s/^$2=//p" | head -1; }
 res="RESULT"
-for sc in ${VLFF_NODE_SCENES:-room flat bldg}; do
+for sc in ${VLFF_NODE_SCENES:-room flat bldg change}; do
   echo "--- $sc"
   case $sc in
     room) log=$("$exe" | tee /dev/stderr) ;;
     flat) log=$(VLFF_BENCH_CONFIG=$here/node-flat.yaml "$exe" | tee /dev/stderr) ;;
     bldg) log=$(VLFF_BENCH_CONFIG=$here/node-building.yaml "$exe" | tee /dev/stderr) ;;
+    change) log=$(VLFF_BENCH_CHANGE=1 VLFF_BENCH_SECONDS=${VLFF_BENCH_SECONDS:-60} "$exe" | tee /dev/stderr) ;;
     *) echo "node.sh: unknown scene '$sc'" >&2; exit 1 ;;
   esac
   kv=$(kv_of "$log")
   if [[ $sc == room ]]; then res="$res $kv"
   elif [[ $sc == bldg ]]; then for p in $kv; do res="$res bldg_$p"; done
+  elif [[ $sc == change ]]; then res="$res $(grep -o 'change_visible_s=[^ ]*' <<<"$kv" || true)"
   else for p in $kv; do res="$res ${p%%=*}_$sc=${p#*=}"; done; fi
 done
 for b in ${VLFF_NODE_BUDGETS-1 0.5 2}; do

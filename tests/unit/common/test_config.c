@@ -67,6 +67,18 @@ static const struct {
   {"train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ", "expected one of depth|uniform, got 'random'"},
   {"sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat|building, got 'house'"},
   {"sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'"},
+  {"sim:\n  changes: 5\n", "t.yaml:2:12: key 'sim.changes': ", "expected sequence of {time_s, object, action, to}, got '5'"},
+  {"sim:\n  changes:\n    - {time_s: -1, object: chair, action: remove}\n", "t.yaml:3:16: key 'sim.changes[0].time_s': ",
+   "expected number in [0, 604800] (seconds of sim time), got '-1'"},
+  {"sim:\n  changes:\n    - {time_s: 1, object: chair, action: jump}\n", "t.yaml:3:42: key 'sim.changes[0].action': ",
+   "expected one of move|remove|add, got 'jump'"},
+  {"sim:\n  changes:\n    - {time_s: 1, object: chair, action: move}\n", "t.yaml:3:7: key 'sim.changes[0]': ",
+   "expected a 'to' for action move, got none"},
+  {"sim:\n  changes:\n    - {time_s: 1, object: chair, action: move, to: [1, 1e9]}\n",
+   "t.yaml:3:56: key 'sim.changes[0].to': ", "expected [x, y] with each in [-10000, 10000] m, got '1e9' at index 1"},
+  {"sim:\n  changes:\n    - {time_s: 1, object: chair, action: remove, to: [1, 1]}\n", "t.yaml:3:7: key 'sim.changes[0]': ",
+   "expected no 'to' for action remove"},
+  {"publish:\n  label_hysteresis: 2.5\n", "t.yaml:2:21: key 'publish.label_hysteresis': ", "expected number in [0, 2], got '2.5'"},
   {"sim:\n  flats: 9\n", "t.yaml:2:10: key 'sim.flats': ", "expected integer in [2, 8], got '9'"},
   {"node:\n  state_dir: [a, b]\n", "t.yaml:2:14: key 'node.state_dir': ", "expected string, got a sequence"},
   {"can:\n  interface: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n", "t.yaml:2:14: key 'can.interface': ", "at most 31 bytes"},
@@ -206,6 +218,36 @@ static void test_sim_features(void **state) {
   assert_int_equal(cfg.source.features, VLFF_FEAT_RING);
   cfg.source.features = VLFF_FEAT_SIM;
   assert_true(vlff_config_sim_features_misused(&cfg));
+}
+
+/* sim.changes reads into the sim section in the order written, and the
+ * dump writes it back. */
+static void test_sim_changes(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  assert_int_equal(load("sim:\n  changes:\n    - {time_s: 30, object: chair#2, action: move, to: [1.5, -0.25]}\n"
+                        "    - {time_s: 12.5, object: shower curtain, action: remove}\n"
+                        "    - {time_s: 0, object: sofa, action: add}\n", &cfg), 0);
+  assert_int_equal(cfg.sim.change_count, 3);
+  assert_float_equal(cfg.sim.changes[0].time_s, 30, 0);
+  assert_string_equal(cfg.sim.changes[0].object, "chair#2");
+  assert_int_equal(cfg.sim.changes[0].action, VLFF_SIM_MOVE);
+  assert_true(cfg.sim.changes[0].has_to);
+  assert_float_equal(cfg.sim.changes[0].to[1], -0.25, 0);
+  assert_string_equal(cfg.sim.changes[1].object, "shower curtain");
+  assert_int_equal(cfg.sim.changes[1].action, VLFF_SIM_REMOVE);
+  assert_int_equal(cfg.sim.changes[2].action, VLFF_SIM_ADD);
+  assert_false(cfg.sim.changes[2].has_to);
+  char *text = NULL;
+  size_t len = 0;
+  FILE *f = open_memstream(&text, &len);
+  vlff_config_dump(&cfg, f);
+  fclose(f);
+  assert_non_null(strstr(text, "\nsim.changes[0]: {time_s: 30, object: \"chair#2\", action: move, to: [1.5, -0.25]}\n"));
+  assert_non_null(strstr(text, "\nsim.changes[2]: {time_s: 0, object: \"sofa\", action: add}\n"));
+  free(text);
+  assert_int_equal(load("", &cfg), 0);
+  assert_int_equal(cfg.sim.change_count, 0);
 }
 
 /* Deep brackets cost libyaml the square of their depth to load; the limit
@@ -742,7 +784,7 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_errors), cmocka_unit_test(test_missing_file),
     cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_unknown_key_without_guess),
     cmocka_unit_test(test_field_hash),
-    cmocka_unit_test(test_sim_features), cmocka_unit_test(test_deep_yaml),
+    cmocka_unit_test(test_sim_features), cmocka_unit_test(test_sim_changes), cmocka_unit_test(test_deep_yaml),
     cmocka_unit_test(test_shm_names), cmocka_unit_test(test_fifo_config),
     cmocka_unit_test(test_dead_temps), cmocka_unit_test(test_config_find),
     cmocka_unit_test(test_hostile_strings), cmocka_unit_test(test_duplicate_spellings),

@@ -535,6 +535,26 @@ static void test_grid_plan(void **state) {
   assert_true((size_t)d[0] * d[1] * d[2] <= 10000);
 }
 
+/* A re-observation replaces what was seen before: a voxel averaged from
+ * 60 views of one thing reads another after 20 views of it (a thing moved
+ * there). A lifetime mean (each new sample 1/255 once the count was
+ * full) still read mostly the old one: 0.25 of the new. */
+static void test_recent_views_replace_old(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  struct wall a, b;
+  wall_make(&a, 2.2f, (const float[D]){1, 0, 0, 0});
+  wall_make(&b, 2.2f, (const float[D]){0, 1, 0, 0});
+  char err[256];
+  for (int i = 0; i < 60; i++) assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  for (int i = 0; i < 20; i++) assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+  float out[D];
+  assert_true(vlff_evidence_get(e, vlff_evidence_voxel(e, (const double[3]){0.1, 0.1, 2.2}), out) > 0);
+  assert_true(out[1] > 0.6f);
+  assert_true(out[0] < 0.4f);
+  vlff_evidence_destroy(e);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_views_average_where_depth_ends),
     cmocka_unit_test(test_footprint_reaches_every_voxel),
@@ -542,4 +562,4 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
     cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load), cmocka_unit_test(test_load_thins_to_budget),
-    cmocka_unit_test(test_grid_plan))
+    cmocka_unit_test(test_grid_plan), cmocka_unit_test(test_recent_views_replace_old))

@@ -118,6 +118,35 @@ static void test_pose_distance(void **st) {
   assert_float_equal(vlff_pose_distance(a, b), 5 + 0.5 * 1.5707963267948966, 1e-9);
 }
 
+/* Views whose camera stands at x >= 2 "show what is gone" here. */
+static bool shows_gone(void *ctx, const struct vlff_view *v) {
+  (*(int *)ctx)++;
+  return v->c2w[3] >= 2;
+}
+
+/* Keyframes newer depth contradicts are retired whatever their age, the
+ * rest keep their place and bytes; the newest stays even when
+ * contradicted (its depth is the newest there is). */
+static void test_contradicted_retired(void **st) {
+  (void)st;
+  size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
+  struct vlff_kfstore *s = vlff_kfstore_create(cost * 10, 10, 1);
+  for (int i = 0; i < 5; i++) {
+    struct vlff_keyframe_in k = make(i, i, 0);
+    assert_int_equal(vlff_kfstore_add(s, &k), 0);
+  }
+  int calls = 0;
+  assert_int_equal(vlff_kfstore_retire(s, shows_gone, &calls), 2);
+  assert_int_equal(calls, 4);
+  assert_int_equal(vlff_kfstore_count(s), 3);
+  assert_int_equal(vlff_kfstore_retired(s), 2);
+  assert_int_equal(vlff_kfstore_bytes(s), 3 * cost);
+  assert_true(has_id(s, 0) && has_id(s, 1) && has_id(s, 4) && !has_id(s, 2) && !has_id(s, 3));
+  assert_int_equal(vlff_kfstore_id(s, 2), 4);
+  vlff_kfstore_destroy(s);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_budget_and_copy), cmocka_unit_test(test_redundant_view_goes),
-    cmocka_unit_test(test_newest_protected_and_weights), cmocka_unit_test(test_pose_distance))
+    cmocka_unit_test(test_newest_protected_and_weights), cmocka_unit_test(test_pose_distance),
+    cmocka_unit_test(test_contradicted_retired))

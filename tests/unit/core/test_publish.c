@@ -281,7 +281,80 @@ static void test_every_pixel_counts(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* The test views' depth: d everywhere but an object at depth 1 m over
+ * columns x0..x0+15 of rows 16..31. */
+static void object_at(int x0, float d) {
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) depth[y * W + x] = y >= 16 && y < 32 && x >= x0 && x < x0 + 16 ? 1.0f : d;
+}
+
+/* A thing moves: the map shows it at its new place, and its old place,
+ * which the rays of two newer views pass through to the wall behind, is
+ * FREE in the published map whatever the (untrained) field's density says
+ * there; the views that showed it there are contradicted. Before depth
+ * cleared what it passed through, the old place kept its measured surface
+ * and its class for good. */
+static void test_moved_object_clears(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "moved");
+  cfg.field.feature_dim = 24;
+  cfg.field.hash_log2_size = 12;
+  cfg.field.hash_levels = 8;
+  cfg.field.finest_resolution = 128;
+  cfg.publish.evidence_weight = 0;
+  struct vlff_publisher *p = create(&cfg);
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, 1, err, sizeof err);
+  assert_non_null(f);
+  float emb[2 * 24];
+  for (int i = 0; i < 2 * 24; i++) emb[i] = (float)((i * 37 % 11) - 5) + (i < 24 ? 0.5f : -0.5f);
+  assert_int_equal(vlff_field_set_prompts(f, emb, 2, err, sizeof err), 0);
+  const char *prompts[2] = {"chair", "wall"};
+  struct vlff_map *rd = vlff_map_attach(cfg.shm.map);
+  assert_non_null(rd);
+  struct vlff_publish_result r;
+  /* Pixel column x's object point at 1 m, and the wall at 2 m behind the old place. */
+  const double fx = 0.5 * W / tan(0.5 * 65.0 * M_PI / 180.0);
+  const double old_pt[3] = {(40 - 32) / fx, (24 - 24) / fx, 1.0}, new_pt[3] = {(8 - 32) / fx, 0, 1.0};
+  struct vlff_view v = view(2.0f);
+  object_at(32, 2.0f);
+  for (int i = 0; i < 2; i++) assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 2, &r, err, sizeof err), 0);
+  uint16_t lab;
+  assert_int_equal(vlff_map_label_at(rd, old_pt[0], old_pt[1], old_pt[2], &lab, NULL), 0);
+  assert_true(lab <= VLFF_LABEL_MAX);
+  assert_true(vlff_publisher_surface_known(p, old_pt));
+  /* The object moves left: one view through the old place is not enough
+   * (a single view's holes and noise), the second clears it. */
+  object_at(0, 2.0f);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_true(vlff_publisher_surface_known(p, old_pt));
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_false(vlff_publisher_surface_known(p, old_pt));
+  assert_true(vlff_publisher_surface_known(p, new_pt));
+  assert_true(vlff_publisher_cleared(p) > 0);
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 2, &r, err, sizeof err), 0);
+  assert_int_equal(vlff_map_label_at(rd, old_pt[0], old_pt[1], old_pt[2], &lab, NULL), 0);
+  assert_int_equal(lab, VLFF_LABEL_FREE);
+  assert_int_equal(vlff_map_label_at(rd, new_pt[0], new_pt[1], new_pt[2], &lab, NULL), 0);
+  assert_true(lab <= VLFF_LABEL_MAX);
+  /* The wall behind the old place stays a surface. */
+  assert_int_equal(vlff_map_label_at(rd, old_pt[0], old_pt[1], 2.0, &lab, NULL), 0);
+  assert_true(lab <= VLFF_LABEL_MAX);
+  /* A keyframe that showed the object at its old place is contradicted
+   * by the newer depth; one of the new place is not. */
+  object_at(32, 2.0f);
+  assert_true(vlff_publisher_contradicted(p, &v));
+  object_at(0, 2.0f);
+  assert_false(vlff_publisher_contradicted(p, &v));
+  vlff_map_detach(rd);
+  vlff_field_destroy(f);
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
     cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
     cmocka_unit_test(test_every_pixel_counts))

@@ -606,6 +606,120 @@ static void test_bad_config(void **state) {
   assert_non_null(strstr(err, "scene_min/max"));
 }
 
+/* Pixels of class c in a frame rendered (labels only) at index i. */
+static int count_class(struct vlff_sim *s, long long i, struct vlff_sim_frame *f, int c) {
+  char err[256] = "";
+  if (vlff_sim_render(s, i, 0, f, err, sizeof err) < 0) fail_msg("%s", err);
+  int n = 0;
+  for (int k = 0; k < f->width * f->height; k++) n += f->label[k] == c;
+  return n;
+}
+
+/* The class seen straight down at (x, y) at sim time t. */
+static int down(struct vlff_sim *s, double t, double x, double y) {
+  double lo[3], hi[3];
+  vlff_sim_bounds(s, lo, hi);
+  int label;
+  vlff_sim_raycast_at(s, t, (const double[3]){x, y, hi[2] - 0.05}, (const double[3]){0, 0, -1}, &label, NULL);
+  return label;
+}
+
+/* sim.changes: a chair moved at 2 s stands at its new place from then on,
+ * in the exact ray casts and in the rendered labels; frames before are
+ * those of the unchanged scene; the same config renders the same frames. */
+static void test_change_moves_object(void **state) {
+  (void)state;
+  const int CHAIR = vlff_sim_class_of("chair"), FLOOR = vlff_sim_class_of("floor");
+  struct vlff_config c;
+  small_cfg(&c, 7);
+  struct vlff_sim *a = make(&c);
+  /* A spot of bare floor 0.7 m across. */
+  double lo[3], hi[3], to[2] = {0, 0};
+  bool found = false;
+  vlff_sim_bounds(a, lo, hi);
+  for (double x = lo[0] + 0.5; x < hi[0] - 0.5 && !found; x += 0.25)
+    for (double y = lo[1] + 0.5; y < hi[1] - 0.5 && !found; y += 0.25) {
+      bool bare = true;
+      for (int k = 0; k < 9; k++) bare &= down(a, 0, x + 0.35 * (k % 3 - 1), y + 0.35 * (k / 3 - 1)) == FLOOR;
+      if (bare) to[0] = x, to[1] = y, found = true;
+    }
+  assert_true(found);
+  c.sim.change_count = 1;
+  c.sim.changes[0] = (struct vlff_sim_change){.time_s = 2.0, .object = "chair", .action = VLFF_SIM_MOVE,
+                                              .has_to = true, .to = {to[0], to[1]}};
+  struct vlff_sim *b = make(&c), *b2 = make(&c);
+  assert_int_equal(down(b, 1.99, to[0], to[1]), FLOOR);
+  assert_int_equal(down(b, 2.0, to[0], to[1]), CHAIR);
+  assert_int_equal(down(b, 100.0, to[0], to[1]), CHAIR);
+  assert_int_equal(down(a, 100.0, to[0], to[1]), FLOOR);
+  struct vlff_sim_frame *fa = vlff_sim_frame_new(a), *fb = vlff_sim_frame_new(b), *fc = vlff_sim_frame_new(b2);
+  const size_t px = (size_t)fa->width * fa->height;
+  for (long long i = 0; i < 10; i += 3) { /* 5 Hz: frames before 2 s */
+    count_class(a, i, fa, CHAIR), count_class(b, i, fb, CHAIR);
+    assert_memory_equal(fa->label, fb->label, px);
+  }
+  int differ = 0;
+  for (long long i = 10; i < 10 + c.sim.frames; i += 3) {
+    count_class(a, i, fa, CHAIR), count_class(b, i, fb, CHAIR);
+    differ += memcmp(fa->label, fb->label, px) != 0;
+  }
+  assert_true(differ > 0);
+  render(b, 40, fb), render(b2, 40, fc);
+  assert_memory_equal(fb->rgb, fc->rgb, px * 3);
+  assert_memory_equal(fb->depth, fc->depth, px * sizeof(float));
+  assert_memory_equal(fb->features, fc->features, (size_t)fb->feat_width * fb->feat_height * fb->feature_dim * 2);
+  vlff_sim_frame_free(fa), vlff_sim_frame_free(fb), vlff_sim_frame_free(fc);
+  vlff_sim_destroy(a), vlff_sim_destroy(b), vlff_sim_destroy(b2);
+}
+
+/* Removed at 0 s, a chair is in no frame; a table added at 4 s is in none
+ * before and where it was built after. Names the scene does not have, and
+ * a move out of the scene, are refused naming the change. */
+static void test_change_removes_adds_and_refuses(void **state) {
+  (void)state;
+  const int CHAIR = vlff_sim_class_of("chair"), TABLE = vlff_sim_class_of("table");
+  struct vlff_config c;
+  small_cfg(&c, 7);
+  struct vlff_sim *a = make(&c);
+  c.sim.change_count = 1;
+  c.sim.changes[0] = (struct vlff_sim_change){.time_s = 0, .object = "chair", .action = VLFF_SIM_REMOVE};
+  struct vlff_sim *b = make(&c);
+  c.sim.changes[0] = (struct vlff_sim_change){.time_s = 4, .object = "table", .action = VLFF_SIM_ADD};
+  struct vlff_sim *d = make(&c);
+  struct vlff_sim_frame *fa = vlff_sim_frame_new(a), *fb = vlff_sim_frame_new(b);
+  int fewer = 0, tables_before = 0, tables_after = 0;
+  for (long long i = 0; i < c.sim.frames; i += 3) {
+    int ca = count_class(a, i, fa, CHAIR), cb = count_class(b, i, fb, CHAIR);
+    assert_true(cb <= ca);
+    fewer += cb < ca;
+    int ta = count_class(a, i, fa, TABLE), td = count_class(d, i, fb, TABLE);
+    if (i < 20) tables_before += td;
+    else tables_after += td, assert_int_equal(td, ta);
+  }
+  assert_true(fewer > 0);
+  assert_int_equal(tables_before, 0);
+  assert_true(tables_after > 0);
+  vlff_sim_frame_free(fa), vlff_sim_frame_free(fb);
+  vlff_sim_destroy(b), vlff_sim_destroy(d);
+  char err[256];
+  int counts[VLFF_SIM_CLASSES];
+  vlff_sim_class_counts(a, counts);
+  const char *bad[] = {"chair#99", "stool", "chair#0"};
+  const char *why[] = {"sim.changes[0].object 'chair#99': this scene has ", "'stool' is not a class", "class#n"};
+  c.sim.change_count = 1;
+  for (int k = 0; k < 3; k++) {
+    c.sim.changes[0] = (struct vlff_sim_change){.time_s = 1, .action = VLFF_SIM_REMOVE};
+    snprintf(c.sim.changes[0].object, sizeof c.sim.changes[0].object, "%s", bad[k]);
+    assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
+    if (!strstr(err, why[k])) fail_msg("%s", err);
+  }
+  c.sim.changes[0] = (struct vlff_sim_change){.time_s = 1, .object = "chair", .action = VLFF_SIM_MOVE,
+                                              .has_to = true, .to = {50, 0}};
+  assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
+  if (!strstr(err, "sim.changes[0]: 'chair' at (50.00, 0.00) would stand outside the scene")) fail_msg("%s", err);
+  vlff_sim_destroy(a);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_deterministic_per_seed), cmocka_unit_test(test_depth_matches_geometry),
     cmocka_unit_test(test_labels_cover_classes), cmocka_unit_test(test_poses_opencv_and_speed),
@@ -614,4 +728,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_bad_config), cmocka_unit_test(test_flat_walk_through_doorways),
     cmocka_unit_test(test_object_bias_view_consistent), cmocka_unit_test(test_building_layout_and_walk),
     cmocka_unit_test(test_building_seen), cmocka_unit_test(test_building_deterministic),
-    cmocka_unit_test(test_building_bad_config))
+    cmocka_unit_test(test_building_bad_config), cmocka_unit_test(test_change_moves_object),
+    cmocka_unit_test(test_change_removes_adds_and_refuses))
