@@ -36,7 +36,7 @@ static int publish(struct vlff_map *m, const char *const *p, int np) {
   struct vlff_map_grid g = {{-1, 0, 0.5}, 0.25, {NX, NY, NZ}, labels, conf};
   struct vlff_map_label_image li = {4, 3, limg, NULL, 100, 100, 2, 1.5,
                                     {1, 0, 0, 1, 0, 1, 0, 2, 0, 0, 1, 3, 0, 0, 0, 1}, vlff_shm_now_ns()};
-  struct vlff_map_update up = {&g, p, np, &li};
+  struct vlff_map_update up = {.grid = &g, .prompts = p, .prompt_count = np, .label_image = &li};
   return vlff_map_publish(m, &up);
 }
 
