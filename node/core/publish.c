@@ -80,6 +80,20 @@ struct vlff_publisher {
   double lost_ratio;  /* publish.lost_class_ratio */
   uint64_t lost_mask, lost_mask_stamp; /* the prompts last reported lost (evidence.h, "Lost classes"), and of which prompts */
   double last_publish_s, last_heartbeat_s;
+  /* Incremental publication: the voxels observe() touched since they were
+   * last relabelled (flag per voxel, and their list), the runs a partial
+   * publish logs, the voxel counts by state (kept as voxels are relabelled),
+   * the next slice of the round-robin refresh, and whether the next publish
+   * must be whole (nothing published yet, a reset or a load, new prompts). */
+  uint8_t *dirty;
+  size_t *dirty_idx, ndirty;
+  struct vlff_map_range *runs;
+  uint16_t *pub_labels; /* the grid as last published */
+  uint8_t *pub_conf;
+  size_t n_labelled, n_free;
+  int slice_next;
+  bool need_full;
+  uint64_t prompts_hash;
 };
 
 
@@ -89,7 +103,8 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   vlff_evidence_destroy(p->ev);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
-                p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
+                p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays,
+                p->dirty, p->dirty_idx, p->runs, p->pub_labels, p->pub_conf, p);
 }
 
 struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub, const struct vlff_cfg_shm *shm,
@@ -139,6 +154,12 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->snap_xyz = malloc(li * 3 * sizeof *p->snap_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
+  p->dirty = calloc(n, 1);
+  p->dirty_idx = malloc(n * sizeof *p->dirty_idx);
+  p->runs = malloc((n / 2 + 1) * sizeof *p->runs);
+  p->pub_labels = malloc(n * sizeof *p->pub_labels);
+  p->pub_conf = malloc(n);
+  p->need_full = true;
   p->ev_budget = (size_t)pub->evidence_max_mb << 20; /* also bounds a saved map's evidence read without it */
   if (pub->evidence_weight > 0) {
     p->ev = vlff_evidence_for(pub, field, VLFF_MAX_PROMPTS, err, errlen);
@@ -157,11 +178,13 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
-      !p->sel_lab) {
+      !p->sel_lab || !p->dirty || !p->dirty_idx || !p->runs || !p->pub_labels || !p->pub_conf) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
     return NULL;
   }
+  for (size_t i = 0; i < n; i++) p->labels[i] = VLFF_LABEL_UNKNOWN;
+  memset(p->conf, 0, n);
   struct vlff_map_params mp = {.max_voxels = (uint32_t)shm->map_max_voxels,
                                .label_max_width = (uint32_t)shm->label_max_width,
                                .label_max_height = (uint32_t)shm->label_max_height,
@@ -352,6 +375,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   memcpy(p->observed, g, n);
   memcpy(p->hits, g + n, n * 2);
   memcpy(p->hit_sum, g + n * 3, n * 12);
+  p->need_full = true; /* every voxel may have changed */
   rc = 0;
 out:
   free(g);
@@ -369,6 +393,9 @@ void vlff_publisher_reset(struct vlff_publisher *p) {
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
   memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
+  for (size_t j = 0; j < p->ndirty; j++) p->dirty[p->dirty_idx[j]] = 0;
+  p->ndirty = 0;
+  p->need_full = true;
 }
 
 static long voxel_of(const struct vlff_publisher *p, const double x[3]) {
@@ -417,10 +444,19 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
            vlff_evidence_capacity(p->ev), what);
 }
 
+/* Voxel vi's observations changed: it is relabelled and published with the
+ * keyframe (vlff_publisher_publish_changed). */
+static void touch(struct vlff_publisher *p, size_t vi) {
+  if (p->dirty[vi]) return;
+  p->dirty[vi] = 1;
+  p->dirty_idx[p->ndirty++] = vi;
+}
+
 /* A measured surface point hp in voxel vi (< 0: outside the map). */
 static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
   if (vi < 0) return;
   p->observed[vi] = 1;
+  touch(p, (size_t)vi);
   if (p->hits[vi] < UINT16_MAX) {
     p->hits[vi]++;
     for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
@@ -463,7 +499,7 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
           double t = s / (len / h);
           double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
           long vi = voxel_of(p, q);
-          if (vi >= 0) p->observed[vi] = 1;
+          if (vi >= 0) p->observed[vi] = 1, touch(p, (size_t)vi);
         }
       }
       long vi = voxel_of(p, hp);
@@ -551,12 +587,33 @@ static uint8_t conf_of(float margin) {
   return (uint8_t)(c < 0 ? 0 : c > 255 ? 255 : c);
 }
 
-/* The observed voxels' query points into p->qxyz (their hits' mean, or the
- * voxel's centre) and indices into p->qidx: their count. */
-static size_t gather_observed(struct vlff_publisher *p) {
+/* Voxel i's state counted into (d = 1) or out of (d = -1) the totals. */
+static void count_state(struct vlff_publisher *p, size_t i, int d) {
+  uint16_t l = p->labels[i];
+  size_t *c = l <= VLFF_LABEL_MAX ? &p->n_labelled : l == VLFF_LABEL_FREE ? &p->n_free : NULL;
+  if (c) *c = d > 0 ? *c + 1 : *c - 1;
+}
+
+/* The one place a relabelled voxel's new state is decided and written:
+ * label (or FREE, UNKNOWN) with its confidence. */
+static void set_label(struct vlff_publisher *p, size_t i, uint16_t label, uint8_t conf) {
+  p->labels[i] = label;
+  p->conf[i] = conf;
+}
+
+/* The voxels to relabel: idx[0..n), or first .. first + n - 1 when idx is
+ * NULL. Unobserved ones become UNKNOWN; the observed ones' query points go
+ * into p->qxyz (their hits' mean, or the voxel's centre) and their indices
+ * into p->qidx: their count. */
+static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, size_t n) {
   size_t nq = 0;
-  for (size_t i = 0; i < p->nvox; i++) {
-    if (!p->observed[i]) continue;
+  for (size_t j = 0; j < n; j++) {
+    size_t i = idx ? idx[j] : first + j;
+    count_state(p, i, -1);
+    if (!p->observed[i]) {
+      set_label(p, i, VLFF_LABEL_UNKNOWN, 0);
+      continue;
+    }
     float *q = p->qxyz + nq * 3;
     if (p->hits[i]) {
       for (int a = 0; a < 3; a++) q[a] = p->hit_sum[i * 3 + a] / p->hits[i];
@@ -571,11 +628,10 @@ static size_t gather_observed(struct vlff_publisher *p) {
   return nq;
 }
 
-/* Density at the nq observed voxels: the free ones are marked, the
+/* Density at the nq gathered voxels: the free ones are labelled FREE, the
  * occupied ones compacted to the front of p->qxyz/p->qidx. Their count, or
  * -1 when the query failed. */
-static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq, struct vlff_publish_result *r,
-                      char *err, size_t errlen) {
+static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq, char *err, size_t errlen) {
   /* Two passes: density for every observed voxel (the hash grid and MLP1
    * only), then labels and margins for the occupied ones. Free voxels, most
    * of a room, never need MLP3, the prompt fold or a feature norm. */
@@ -583,7 +639,6 @@ static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq,
     snprintf(err, errlen, "field query of %zu voxels failed", nq);
     return -1;
   }
-  for (size_t i = 0; i < p->nvox; i++) p->labels[i] = VLFF_LABEL_UNKNOWN, p->conf[i] = 0;
   size_t nocc = 0;
   for (size_t j = 0; j < nq; j++) {
     size_t i = p->qidx[j];
@@ -592,46 +647,50 @@ static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq,
       memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
       p->qidx[nocc++] = i;
     } else {
-      p->labels[i] = VLFF_LABEL_FREE;
-      p->conf[i] = 255;
-      r->free_voxels++;
+      set_label(p, i, VLFF_LABEL_FREE, 255);
     }
   }
   return (long)nocc;
 }
 
-/* Labels and confidences of the nocc occupied voxels, and with evidence the
- * census of lost classes; the prompts' stamp into *stamp_out. 0, or -1
- * when the query failed. */
-static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                          size_t nocc, uint64_t *stamp_out, struct vlff_publish_result *r, char *err, size_t errlen) {
-  uint64_t stamp = 0;
-  if (p->ev) {
-    int K;
-    const float *E = vlff_field_prompt_embeddings(f, &K);
-    stamp = vlff_fnv1a64(VLFF_FNV1A64_INIT, E, (size_t)K * p->D * sizeof *E);
-  }
-  /* The 3D map is the census of lost classes: this pass counts, the next
-   * publish (and this one's label image) reads what it found. */
-  if (p->ev) vlff_evidence_census_begin(p->ev);
+/* A hash of the prompt embeddings the evidence's label calls key on (0
+ * without evidence). */
+static uint64_t prompt_stamp(const struct vlff_publisher *p, struct vlff_field *f) {
+  if (!p->ev) return 0;
+  int K;
+  const float *E = vlff_field_prompt_embeddings(f, &K);
+  return vlff_fnv1a64(VLFF_FNV1A64_INIT, E, (size_t)K * p->D * sizeof *E);
+}
+
+/* Labels and confidences of the nocc occupied voxels. 0, or -1 when the
+ * query failed. */
+static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, size_t nocc, uint64_t stamp, char *err,
+                          size_t errlen) {
   if (nocc && label_points(p, f, p->qxyz, nocc, stamp, p->qlabel, NULL, p->qmargin)) {
     snprintf(err, errlen, "field query of %zu occupied voxels failed", nocc);
     return -1;
   }
-  if (p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   for (size_t j = 0; j < nocc; j++) {
     size_t i = p->qidx[j];
-    if (p->qlabel[j] >= 0) {
-      p->labels[i] = (uint16_t)p->qlabel[j];
-      p->conf[i] = conf_of(p->qmargin[j]);
-      r->labelled++;
-    } else {
-      p->labels[i] = VLFF_LABEL_FREE;
-      p->conf[i] = 255;
-      r->free_voxels++;
-    }
+    if (p->qlabel[j] >= 0)
+      set_label(p, i, (uint16_t)p->qlabel[j], conf_of(p->qmargin[j]));
+    else
+      set_label(p, i, VLFF_LABEL_FREE, 255);
   }
-  *stamp_out = stamp;
+  return 0;
+}
+
+/* Relabels voxels idx[0..n) (each once), or first .. first + n - 1 when
+ * idx is NULL, through the field: only those are queried. 0, or -1 when a
+ * query failed (the totals are then recounted by the next whole publish). */
+static int relabel_voxels(struct vlff_publisher *p, struct vlff_field *f, const size_t *idx, size_t first, size_t n,
+                          uint64_t stamp, char *err, size_t errlen) {
+  long nocc = mark_free(p, f, gather(p, idx, first, n), err, errlen);
+  if (nocc < 0 || label_occupied(p, f, (size_t)nocc, stamp, err, errlen)) {
+    p->need_full = true;
+    return -1;
+  }
+  for (size_t j = 0; j < n; j++) count_state(p, idx ? idx[j] : first + j, 1);
   return 0;
 }
 
@@ -672,37 +731,156 @@ static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t
   return false;
 }
 
-int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                           struct vlff_publish_result *r, char *err, size_t errlen) {
-  memset(r, 0, sizeof *r);
-  r->miou2d = r->miou3d = -1;
-  r->miou2d_frame = -1;
-  long nocc = mark_free(p, f, gather_observed(p), r, err, errlen);
-  uint64_t stamp = 0;
-  if (nocc < 0 || label_occupied(p, f, prompts, k, (size_t)nocc, &stamp, r, err, errlen)) return -1;
-  r->unknown = p->nvox - r->labelled - r->free_voxels;
+/* Publishes runs[0..nruns) of the grid (runs NULL: the whole grid), the
+ * prompts and, when img is not NULL, the label image. */
+static int publish_ranges(struct vlff_publisher *p, const struct vlff_map_range *runs, size_t nruns,
+                          const char *const *prompts, int k, const struct vlff_map_label_image *img,
+                          struct vlff_publish_result *r, char *err, size_t errlen) {
   struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
   memcpy(grid.origin, p->origin, sizeof grid.origin);
   memcpy(grid.dims, p->dims, sizeof grid.dims);
-
-  struct vlff_map_label_image img;
-  bool have_img = p->have_cam && label_image(p, f, stamp, &img);
-  struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k,
-                               .label_image = have_img ? &img : NULL};
+  struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k, .label_image = img,
+                               .ranges = runs, .range_count = runs ? nruns : 0};
   if (vlff_map_publish(p->map, &up)) {
     snprintf(err, errlen, "map publish: %s", vlff_shm_last_message());
+    p->need_full = true; /* a replaced segment holds nothing: all of it again */
     return -1;
   }
-  r->version = vlff_map_version(p->map);
-  p->last_publish_s = p->last_heartbeat_s = vlff_seconds();
-
-  /* Quality against the source's ground truth, what the demo shows live. */
-  if (p->hooks && p->hooks->observe) {
-    struct vlff_map_seen seen = {.grid = &grid, .image_labels = have_img ? p->img_lab : NULL, .width = p->lw,
-                                 .height = p->lh, .frame_id = p->cam_frame, .prompts = prompts, .prompt_count = k};
-    p->hooks->observe(p->hooks->ctx, &seen, &r->miou2d, &r->miou3d);
-    if (r->miou2d >= 0) r->miou2d_frame = p->cam_frame;
+  for (size_t j = 0; runs && j < nruns; j++) {
+    memcpy(p->pub_labels + runs[j].first, p->labels + runs[j].first, runs[j].count * sizeof *p->labels);
+    memcpy(p->pub_conf + runs[j].first, p->conf + runs[j].first, runs[j].count);
   }
+  if (!runs) {
+    memcpy(p->pub_labels, p->labels, p->nvox * sizeof *p->labels);
+    memcpy(p->pub_conf, p->conf, p->nvox);
+  }
+  r->version = vlff_map_version(p->map);
+  r->labelled = p->n_labelled;
+  r->free_voxels = p->n_free;
+  r->unknown = p->nvox - p->n_labelled - p->n_free;
+  p->last_publish_s = p->last_heartbeat_s = vlff_seconds();
+  return 0;
+}
+
+/* Runs of the sorted voxel indices idx[0..n) into p->runs: their count. */
+static size_t runs_of(struct vlff_publisher *p, const size_t *idx, size_t n) {
+  size_t nr = 0;
+  for (size_t j = 0; j < n; j++) {
+    if (nr && p->runs[nr - 1].first + p->runs[nr - 1].count == idx[j])
+      p->runs[nr - 1].count++;
+    else
+      p->runs[nr++] = (struct vlff_map_range){(uint32_t)idx[j], 1};
+  }
+  return nr;
+}
+
+static uint64_t prompts_hash(const char *const *prompts, int k) {
+  uint64_t h = vlff_fnv1a64(VLFF_FNV1A64_INIT, &k, sizeof k);
+  for (int i = 0; i < k; i++) h = vlff_fnv1a64(h, prompts[i], strlen(prompts[i]) + 1);
+  return h;
+}
+
+/* Quality against the source's ground truth, what the demo shows live: at
+ * each whole refresh of the map. */
+static void score(struct vlff_publisher *p, const char *const *prompts, int k, bool have_img,
+                  struct vlff_publish_result *r) {
+  if (!p->hooks || !p->hooks->observe) return;
+  struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
+  memcpy(grid.origin, p->origin, sizeof grid.origin);
+  memcpy(grid.dims, p->dims, sizeof grid.dims);
+  struct vlff_map_seen seen = {.grid = &grid, .image_labels = have_img ? p->img_lab : NULL, .width = p->lw,
+                               .height = p->lh, .frame_id = p->cam_frame, .prompts = prompts, .prompt_count = k};
+  p->hooks->observe(p->hooks->ctx, &seen, &r->miou2d, &r->miou3d);
+  if (r->miou2d >= 0) r->miou2d_frame = p->cam_frame;
+}
+
+static void result_init(struct vlff_publish_result *r) {
+  memset(r, 0, sizeof *r);
+  r->miou2d = r->miou3d = -1;
+  r->miou2d_frame = -1;
+}
+
+int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                           struct vlff_publish_result *r, char *err, size_t errlen) {
+  result_init(r);
+  uint64_t stamp = prompt_stamp(p, f);
+  /* The 3D map is the census of lost classes: this pass counts, the next
+   * publish (and this one's label image) reads what it found. */
+  if (p->ev) vlff_evidence_census_begin(p->ev);
+  /* The totals are recounted: relabelling takes each voxel's old state out. */
+  p->n_labelled = p->n_free = 0;
+  for (size_t i = 0; i < p->nvox; i++) count_state(p, i, 1);
+  if (relabel_voxels(p, f, NULL, 0, p->nvox, stamp, err, errlen)) return -1;
+  if (p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
+  struct vlff_map_label_image img;
+  bool have_img = p->have_cam && label_image(p, f, stamp, &img);
+  if (publish_ranges(p, NULL, 0, prompts, k, have_img ? &img : NULL, r, err, errlen)) return -1;
+  for (size_t j = 0; j < p->ndirty; j++) p->dirty[p->dirty_idx[j]] = 0;
+  p->ndirty = 0;
+  p->need_full = false;
+  p->prompts_hash = prompts_hash(prompts, k);
+  r->whole = r->cycle_done = true;
+  r->changed = p->nvox;
+  score(p, prompts, k, have_img, r);
+  return 0;
+}
+
+static int by_index(const void *a, const void *b) {
+  size_t x = *(const size_t *)a, y = *(const size_t *)b;
+  return (x > y) - (x < y);
+}
+
+int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                   struct vlff_publish_result *r, char *err, size_t errlen) {
+  if (p->need_full || prompts_hash(prompts, k) != p->prompts_hash)
+    return vlff_publisher_publish(p, f, prompts, k, r, err, errlen);
+  result_init(r);
+  r->version = vlff_map_version(p->map);
+  if (!p->ndirty) return 0;
+  qsort(p->dirty_idx, p->ndirty, sizeof *p->dirty_idx, by_index);
+  if (relabel_voxels(p, f, p->dirty_idx, 0, p->ndirty, prompt_stamp(p, f), err, errlen)) return -1;
+  size_t nr = runs_of(p, p->dirty_idx, p->ndirty);
+  r->changed = p->ndirty;
+  for (size_t j = 0; j < p->ndirty; j++) p->dirty[p->dirty_idx[j]] = 0;
+  p->ndirty = 0;
+  return publish_ranges(p, p->runs, nr, prompts, k, NULL, r, err, errlen);
+}
+
+int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                 int slices, struct vlff_publish_result *r, char *err, size_t errlen) {
+  if (p->need_full || prompts_hash(prompts, k) != p->prompts_hash) {
+    p->slice_next = 0;
+    return vlff_publisher_publish(p, f, prompts, k, r, err, errlen);
+  }
+  result_init(r);
+  if (slices < 1) slices = 1;
+  if (p->slice_next >= slices) p->slice_next = 0;
+  int s = p->slice_next;
+  size_t a = p->nvox * (size_t)s / (size_t)slices, b = p->nvox * (size_t)(s + 1) / (size_t)slices;
+  bool last = s == slices - 1;
+  uint64_t stamp = prompt_stamp(p, f);
+  /* The census of lost classes spans one whole refresh, slice by slice. */
+  if (s == 0 && p->ev) vlff_evidence_census_begin(p->ev);
+  if (relabel_voxels(p, f, NULL, a, b - a, stamp, err, errlen)) return -1;
+  if (last && p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
+  struct vlff_map_label_image img;
+  bool have_img = last && p->have_cam && label_image(p, f, stamp, &img);
+  p->slice_next = last ? 0 : s + 1;
+  /* Only what changed is logged: a refresh that finds the field agreeing
+   * with the map costs readers nothing. */
+  size_t nr = 0;
+  r->changed = 0;
+  for (size_t i = a; i < b; i++) {
+    if (p->labels[i] == p->pub_labels[i] && p->conf[i] == p->pub_conf[i]) continue;
+    r->changed++;
+    if (nr && p->runs[nr - 1].first + p->runs[nr - 1].count == i)
+      p->runs[nr - 1].count++;
+    else
+      p->runs[nr++] = (struct vlff_map_range){(uint32_t)i, 1};
+  }
+  if (publish_ranges(p, p->runs, nr, prompts, k, have_img ? &img : NULL, r, err, errlen)) return -1;
+  r->cycle_done = last;
+  if (last) score(p, prompts, k, have_img, r);
   return 0;
 }
 
@@ -804,3 +982,5 @@ out:
   VLFF_FREE_ALL(rgbf, lab, image, truth);
   return rc;
 }
+
+size_t vlff_publisher_pending(const struct vlff_publisher *p) { return p->ndirty; }

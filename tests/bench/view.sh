@@ -6,7 +6,10 @@
 # core (target <= 0.05), against the baseline of a bare controller that snapshots
 # every version in the same run; the p99 latency from a version's publish to a
 # client's receipt of its delta; bytes per update per client; the camera image's
-# bytes per frame against raw RGB (target <= 1/8); and, after the clients left and 3 s
+# bytes per frame against raw RGB (target <= 1/8); the map bytes per update per client
+# over the bytes (label and confidence) of the voxels that changed in it
+# (view_bytes_per_update_vs_changed: what the change log saves the viewer from
+# sending); and, after the clients left and 3 s
 # without a subscriber, the age of a new client's first message on each channel
 # (first_message_age_max_s, the oldest; each channel's latest is < its period old).
 # Last line: RESULT ...
@@ -43,11 +46,14 @@ c0=$(ticks)
 "$build/bench/bench_view" read /$tag-map "$secs" >"$tmp/reader"
 c1=$(ticks)
 wait $cl
+wait "${pids[0]}"  # the publisher's totals
 hz=$(getconf CLK_TCK)
 python3 - "$tmp" "$c0" "$c1" "$hz" "$secs" <<'PY'
 import json, sys
 tmp, c0, c1, hz, secs = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5])
 r = dict(zip(*[iter(open(f"{tmp}/reader").read().split())] * 2))
+pub = dict(zip(*[iter(open(f"{tmp}/pub").read().split())] * 2))
+changed = float(pub.get("changed_bytes_per_version", "nan"))
 c = json.loads(open(f"{tmp}/clients").read())
 view = (c1 - c0) / hz / secs
 reader = float(r["cpu_s"]) / float(r["wall_s"])
@@ -63,6 +69,7 @@ print(f"RESULT view_cpu_frac_one_core={view:.4f} view_cpu_target=0.05 target_met
       f"reader_cpu_frac_one_core={reader:.4f} view_vs_reader={view / reader if reader > 0 else float('nan'):.1f} "
       f"view_update_latency_p99_ms={c['p99']:.1f} view_bytes_per_update={c['bytes_per_update_map']:.0f} "
       f"view_bytes_per_update_voxels={c['bytes_per_update_voxels']:.0f} view_bytes_per_update_all_channels={c['bytes_per_update_all']:.0f} "
+      f"view_bytes_per_update_vs_changed={c['bytes_per_update_map'] / changed if changed > 0 else float('nan'):.2f} "
       f"image_bytes_vs_raw={img:.4f} image_target={1 / 8:.4f} first_message_age_max_s={c['first_age_max']:.3f} "
       f"clients={c['clients'] - c['closed']}")
 PY
