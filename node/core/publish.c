@@ -444,8 +444,9 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
            vlff_evidence_capacity(p->ev), what);
 }
 
-/* Voxel vi's observations changed: it is relabelled and published with the
- * keyframe (vlff_publisher_publish_changed). */
+/* Voxel vi's observations changed, or a ray passed through what the map
+ * labels occupied: it is relabelled and published with the keyframe
+ * (vlff_publisher_publish_changed). */
 static void touch(struct vlff_publisher *p, size_t vi) {
   if (p->dirty[vi]) return;
   p->dirty[vi] = 1;
@@ -499,7 +500,13 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
           double t = s / (len / h);
           double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
           long vi = voxel_of(p, q);
-          if (vi >= 0) p->observed[vi] = 1, touch(p, (size_t)vi);
+          if (vi < 0) continue;
+          /* Free space seen again where the map already says free changes
+           * nothing a keyframe publish would show (most of a view's rays
+           * cross such voxels); what the field's density does there, the
+           * round-robin refresh brings. */
+          if (!p->observed[vi] || p->labels[vi] != VLFF_LABEL_FREE) touch(p, (size_t)vi);
+          p->observed[vi] = 1;
         }
       }
       long vi = voxel_of(p, hp);

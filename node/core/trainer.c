@@ -216,10 +216,13 @@ static void publish_changed(struct vlff_node *n) {
   struct vlff_publish_result r;
   const char *texts[VLFF_MAX_PROMPTS];
   prompt_texts(n, texts);
+  double t0 = vlff_seconds();
   if (vlff_publisher_publish_changed(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
     vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
     return;
   }
+  VLFF_DEBUG(TAG, "published map v%llu (%s) in %.0f ms: %zu voxels", (unsigned long long)r.version,
+             r.whole ? "whole" : "keyframes", (vlff_seconds() - t0) * 1e3, r.changed);
   note_publish(n, &r, true);
 }
 
@@ -230,10 +233,13 @@ static bool publish_slice(struct vlff_node *n, int slices) {
   struct vlff_publish_result r;
   const char *texts[VLFF_MAX_PROMPTS];
   prompt_texts(n, texts);
+  double t0 = vlff_seconds();
   if (vlff_publisher_publish_slice(n->pub, n->field, texts, n->prompt_k, slices, &r, err, sizeof err)) {
     vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
     return false;
   }
+  VLFF_DEBUG(TAG, "published map v%llu (%s) in %.0f ms: %zu voxels changed", (unsigned long long)r.version,
+             r.whole ? "whole" : r.cycle_done ? "last slice" : "slice", (vlff_seconds() - t0) * 1e3, r.changed);
   /* A whole publish (owed after a reset or new prompts) covers every keyframe. */
   note_publish(n, &r, r.whole);
   return r.cycle_done;
@@ -291,7 +297,7 @@ void *trainer_main(void *arg) {
   const double period = 1.0 / cfg->publish.rate_hz;
   const int slices = (int)fmax(1, fmin(64, lround(period / 0.1)));
   double next_slice = vlff_seconds() + period / slices;
-  double pub_spent = 0; /* seconds spent publishing since the last slice */
+  double kf_spent = 0; /* seconds spent publishing keyframes since the last slice */
   double last_refresh = -1, refresh_ring[REFRESH_WINDOW];
   int refreshes = 0;
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
@@ -319,7 +325,7 @@ void *trainer_main(void *arg) {
         vlff_field_steps(n->field) > 0) {
       double t = vlff_seconds();
       publish_changed(n);
-      pub_spent += vlff_seconds() - t;
+      kf_spent += vlff_seconds() - t;
     }
     if (train) {
       const struct vlff_view *views;
@@ -374,16 +380,17 @@ void *trainer_main(void *arg) {
       }
       published = true;
       if (round) note_refresh(n, vlff_seconds(), &last_refresh, refresh_ring, &refreshes);
-      /* publish.rate_hz is an upper bound: publishing (slices and keyframes
-       * together) never takes more than a fifth of the trainer's time, or
-       * learning would stall behind it. The slices keep to their schedule
-       * otherwise, so rounds end every period; one that fell a whole period
-       * behind starts over from now rather than catching up in a burst. */
-      double end = vlff_seconds();
-      pub_spent += end - now;
+      /* publish.rate_hz is an upper bound: publishing never takes more than
+       * a fifth of the trainer's time, or learning would stall behind it;
+       * keyframes go first, and the slices take what is left of that fifth,
+       * but always at least a tenth, so the refresh never starves behind a
+       * stream of keyframes. The slices keep to their schedule otherwise, so
+       * rounds end every period; one that fell a whole period behind starts
+       * over from now rather than catching up in a burst. */
+      double end = vlff_seconds(), spent = end - now;
       if (next_slice < now - period) next_slice = now;
-      next_slice = fmax(next_slice + period / slices, end + 4.0 * pub_spent);
-      pub_spent = 0;
+      next_slice = fmax(next_slice + period / slices, end + fmin(4.0 * (spent + kf_spent), 9.0 * spent));
+      kf_spent = 0;
     } else {
       vlff_publisher_heartbeat(n->pub);
     }

@@ -554,6 +554,12 @@ struct vlff_map_status {
   uint32_t reason_count;   /* used entries of reason[] */
   uint32_t pad;
   struct vlff_map_reason reason[VLFF_SHM_MAX_REASONS]; /* refused frames per reason */
+  /* How current the map is (vlff-node; docs/node.md, "Publishing"): ms from a
+   * keyframe's capture to the first map version whose change log covers its
+   * voxels (median and 99th percentile of the recent ones), and s between
+   * whole refreshes of the map; -1 while unknown. */
+  double frame_to_map_ms_p50, frame_to_map_ms_p99;
+  double publish_interval_s;
 };
 
 /* Writer: replaces the status (t_ns and updates are set here, the rest is taken as
