@@ -611,45 +611,53 @@ static void set_label(struct vlff_publisher *p, size_t i, uint16_t label, uint8_
 /* The voxels to relabel: idx[0..n), or first .. first + n - 1 when idx is
  * NULL. Unobserved ones become UNKNOWN; the observed ones' query points go
  * into p->qxyz (their hits' mean, or the voxel's centre) and their indices
- * into p->qidx: their count. */
-static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, size_t n) {
+ * into p->qidx, those with hits first (*nhit of them): their count. */
+static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, size_t n, size_t *nhit) {
   size_t nq = 0;
-  for (size_t j = 0; j < n; j++) {
-    size_t i = idx ? idx[j] : first + j;
-    count_state(p, i, -1);
-    if (!p->observed[i]) {
-      set_label(p, i, VLFF_LABEL_UNKNOWN, 0);
-      continue;
+  for (int pass = 0; pass < 2; pass++) {
+    if (pass) *nhit = nq;
+    for (size_t j = 0; j < n; j++) {
+      size_t i = idx ? idx[j] : first + j;
+      if (!pass) count_state(p, i, -1);
+      if (!p->observed[i]) {
+        if (!pass) set_label(p, i, VLFF_LABEL_UNKNOWN, 0);
+        continue;
+      }
+      if ((p->hits[i] > 0) != !pass) continue;
+      float *q = p->qxyz + nq * 3;
+      if (p->hits[i]) {
+        for (int a = 0; a < 3; a++) q[a] = p->hit_sum[i * 3 + a] / p->hits[i];
+      } else {
+        size_t ix = i % p->dims[0], iy = (i / p->dims[0]) % p->dims[1], iz = i / ((size_t)p->dims[0] * p->dims[1]);
+        q[0] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
+        q[1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
+        q[2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
+      }
+      p->qidx[nq++] = i;
     }
-    float *q = p->qxyz + nq * 3;
-    if (p->hits[i]) {
-      for (int a = 0; a < 3; a++) q[a] = p->hit_sum[i * 3 + a] / p->hits[i];
-    } else {
-      size_t ix = i % p->dims[0], iy = (i / p->dims[0]) % p->dims[1], iz = i / ((size_t)p->dims[0] * p->dims[1]);
-      q[0] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
-      q[1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
-      q[2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
-    }
-    p->qidx[nq++] = i;
   }
   return nq;
 }
 
-/* Density at the nq gathered voxels: the free ones are labelled FREE, the
- * occupied ones compacted to the front of p->qxyz/p->qidx. Their count, or
- * -1 when the query failed. */
-static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq, char *err, size_t errlen) {
-  /* Two passes: density for every observed voxel (the hash grid and MLP1
-   * only), then labels and margins for the occupied ones. Free voxels, most
-   * of a room, never need MLP3, the prompt fold or a feature norm. */
-  if (nq && vlff_field_query(f, p->qxyz, nq, p->qdens, NULL, NULL, NULL, NULL)) {
-    snprintf(err, errlen, "field query of %zu voxels failed", nq);
+/* Density at the nq gathered voxels but the nhit first, occupied whatever
+ * the field says (measured depth ended there): the free ones are labelled
+ * FREE, the occupied ones compacted to the front of p->qxyz/p->qidx. Their
+ * count, or -1 when the query failed. */
+static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq, size_t nhit, char *err,
+                      size_t errlen) {
+  /* Two passes: density for every observed voxel without hits (the hash
+   * grid and MLP1 only), then labels and margins for the occupied ones.
+   * Free voxels, most of a room, never need MLP3, the prompt fold or a
+   * feature norm. */
+  if (nq > nhit &&
+      vlff_field_query(f, p->qxyz + 3 * nhit, nq - nhit, p->qdens + nhit, NULL, NULL, NULL, NULL)) {
+    snprintf(err, errlen, "field query of %zu voxels failed", nq - nhit);
     return -1;
   }
-  size_t nocc = 0;
-  for (size_t j = 0; j < nq; j++) {
+  size_t nocc = nhit;
+  for (size_t j = nhit; j < nq; j++) {
     size_t i = p->qidx[j];
-    if (p->hits[i] > 0 || p->qdens[j] >= p->free_density) {
+    if (p->qdens[j] >= p->free_density) {
       /* Compacted in place: nocc <= j. */
       memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
       p->qidx[nocc++] = i;
@@ -692,7 +700,8 @@ static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, size_t
  * query failed (the totals are then recounted by the next whole publish). */
 static int relabel_voxels(struct vlff_publisher *p, struct vlff_field *f, const size_t *idx, size_t first, size_t n,
                           uint64_t stamp, char *err, size_t errlen) {
-  long nocc = mark_free(p, f, gather(p, idx, first, n), err, errlen);
+  size_t nhit = 0, nq = gather(p, idx, first, n, &nhit);
+  long nocc = mark_free(p, f, nq, nhit, err, errlen);
   if (nocc < 0 || label_occupied(p, f, (size_t)nocc, stamp, err, errlen)) {
     p->need_full = true;
     return -1;
