@@ -9,7 +9,16 @@
  *
  * The writer's status lives in the first page, between the control words and the
  * buffers, in one block under its own sequence word: it is small and replaced whole,
- * so a reader that finds the word odd or moved simply copies it again. */
+ * so a reader that finds the word odd or moved simply copies it again.
+ *
+ * The change log follows the two buffers: a ring of (version, first, count) entries,
+ * appended by every publish that changes grid elements before its buffer is flipped
+ * in, so a reader that sees version V finds every entry up to V. Entries are
+ * numbered; the writer announces the numbers it is about to overwrite (log_reserved)
+ * before writing them and publishes them (log_head) after, so a reader knows which
+ * of the entries it copied can have been torn, exactly as with a seqlock. The same
+ * log lets the writer bring the buffer it is about to fill up to date by copying
+ * only the runs of the previous publish, not the whole grid. */
 #include "shm_internal.h"
 
 #include <errno.h>
@@ -19,6 +28,10 @@
 
 #define MAP_BUF_OFFSET 4096u
 #define READ_RETRIES 10000
+/* Change log entries: a power of two, scaled with the grid (a sixteenth of its
+ * capacity, within these bounds), so that a small map has a small segment. */
+#define LOG_MIN 256u
+#define LOG_MAX 16384u
 
 struct map_meta {
   uint64_t version, publish_ns;
@@ -29,6 +42,7 @@ struct map_meta {
   double lfx, lfy, lcx, lcy, lpose[16];
   uint64_t lt_ns;
   char prompts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
+  uint64_t limg_version; /* the version that set the label image */
 };
 
 struct map_buf {
@@ -42,6 +56,13 @@ struct map_ctl {
   _Atomic uint32_t current;
   uint32_t pad;
   _Atomic uint64_t version;
+  _Atomic uint64_t log_head;     /* entries written and published so far */
+  _Atomic uint64_t log_reserved; /* entries whose slots the writer may be writing */
+};
+
+struct log_entry {
+  uint64_t version;
+  uint32_t first, count;
 };
 
 #define STATUS_OFFSET 1024u
@@ -51,7 +72,7 @@ struct status_block {
   uint8_t pad[56];
   struct vlff_map_status st;
 };
-_Static_assert(sizeof(struct vlff_map_status) == 680, "struct vlff_map_status is the segment's layout");
+_Static_assert(sizeof(struct vlff_map_status) == 704, "struct vlff_map_status is the segment's layout");
 _Static_assert(STATUS_OFFSET >= sizeof(struct seg_hdr) + sizeof(struct map_ctl) &&
                    STATUS_OFFSET + sizeof(struct status_block) <= MAP_BUF_OFFSET,
                "the status block lies between the control words and the buffers");
@@ -59,20 +80,33 @@ _Static_assert(STATUS_OFFSET >= sizeof(struct seg_hdr) + sizeof(struct map_ctl) 
 struct vlff_map {
   struct seg seg;
   struct map_ctl *ctl;
-  uint64_t max_voxels, lw_max, lh_max, stride;
+  uint64_t max_voxels, lw_max, lh_max, stride, log_cap;
   bool writer;
   bool broken;           /* writer: the segment could not be replaced */
   uint64_t last_version; /* writer: carried over into a replacing segment */
+  /* Writer: the runs of its last publish (prev_all: the whole grid) and of which
+   * version, to bring the other buffer up to date; prev_ok false = unknown. */
+  bool prev_ok, prev_all;
+  uint64_t prev_version;
+  size_t prev_n;
+  struct vlff_map_range *prev;    /* log_cap / 4 */
+  struct vlff_map_range *scratch; /* the update's runs being merged */
+  uint32_t *gaps;
+  size_t scratch_cap;
 };
 
 struct vlff_map_snapshot {
-  uint64_t max_voxels, lw_max, lh_max;
+  uint64_t max_voxels, lw_max, lh_max, log_cap;
   uint32_t generation;
   struct map_meta meta;
   uint16_t *labels;
   uint8_t *conf;
   uint16_t *llabels;
   uint8_t *lconf;
+  /* What the last take or follow changed: changes[0..nchanges), all = whole. */
+  struct vlff_map_range *changes; /* log_cap */
+  size_t nchanges;
+  int all;
 };
 
 /* Voxel count of a grid if it fits cap (three uint32 factors can overflow 64 bits). */
@@ -93,19 +127,29 @@ static uint64_t off_llabels(uint64_t mv) { return off_conf(mv) + align64(mv); }
 static uint64_t off_lconf(uint64_t mv, uint64_t lpx) { return off_llabels(mv) + align64(2 * lpx); }
 static uint64_t buf_stride(uint64_t mv, uint64_t lpx) { return align64(off_lconf(mv, lpx) + lpx); }
 
+static uint64_t log_cap_for(uint64_t mv) {
+  uint64_t c = LOG_MIN;
+  while (c < LOG_MAX && c * 16 < mv)
+    c *= 2;
+  return c;
+}
+
 static uint64_t map_total(const uint64_t g[6]) {
   uint64_t mv = g[0], lw = g[1], lh = g[2];
   if (!mv || mv > (1ull << 32) || lw > 65536 || lh > 65536 || (!lw) != (!lh))
     return 0;
-  if (g[3] != buf_stride(mv, lw * lh) || g[4] != MAP_BUF_OFFSET || g[5])
+  if (g[3] != buf_stride(mv, lw * lh) || g[4] != MAP_BUF_OFFSET || g[5] != log_cap_for(mv))
     return 0;
-  return MAP_BUF_OFFSET + 2 * g[3];
+  return MAP_BUF_OFFSET + 2 * g[3] + g[5] * sizeof(struct log_entry);
 }
 
 static struct map_buf *buf(const struct vlff_map *m, uint32_t i) {
   return (struct map_buf *)(m->seg.base + MAP_BUF_OFFSET + (uint64_t)(i & 1) * m->stride);
 }
 static uint8_t *bufp(const struct vlff_map *m, uint32_t i, uint64_t off) { return (uint8_t *)buf(m, i) + off; }
+static struct log_entry *log_slot(const struct vlff_map *m, uint64_t i) {
+  return (struct log_entry *)(m->seg.base + MAP_BUF_OFFSET + 2 * m->stride) + (i & (m->log_cap - 1));
+}
 
 static void map_stat(const struct seg *s, struct vlff_shm_info *info) {
   const struct map_ctl *c = (const struct map_ctl *)(s->base + sizeof(struct seg_hdr));
@@ -121,6 +165,7 @@ static void bind(struct vlff_map *m) {
   m->lw_max = m->seg.h->geom[1];
   m->lh_max = m->seg.h->geom[2];
   m->stride = m->seg.h->geom[3];
+  m->log_cap = m->seg.h->geom[5];
 }
 
 API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *p) {
@@ -136,9 +181,16 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
   }
   uint64_t lpx = (uint64_t)p->label_max_width * p->label_max_height;
   uint64_t geom[6] = {p->max_voxels, p->label_max_width, p->label_max_height, buf_stride(p->max_voxels, lpx),
-                      MAP_BUF_OFFSET, 0};
+                      MAP_BUF_OFFSET, log_cap_for(p->max_voxels)};
+  m->prev = malloc(geom[5] / 4 * sizeof *m->prev);
+  if (!m->prev) {
+    free(m);
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
+    return NULL;
+  }
   int fresh = shm_seg_create(&m->seg, name, &shm_map_spec, geom, &p->perm);
   if (fresh < 0) {
+    free(m->prev);
     free(m);
     return NULL;
   }
@@ -157,6 +209,7 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
  * that found it is refused with the reason. */
 static void writer_rebind(struct vlff_map *m) {
   bind(m);
+  m->prev_ok = false; /* the new segment's buffers hold nothing of ours */
   if (atomic_load(&m->ctl->version) < m->last_version)
     atomic_store(&m->ctl->version, m->last_version);
   shm_seg_ready(&m->seg);
@@ -205,6 +258,9 @@ API void vlff_map_detach(struct vlff_map *m) {
   if (!m)
     return;
   shm_seg_close(&m->seg);
+  free(m->prev);
+  free(m->scratch);
+  free(m->gaps);
   free(m);
 }
 
@@ -215,14 +271,28 @@ static int bad_update(const struct vlff_map *m, int code, int e, const char *why
   return -1;
 }
 
+static bool same_geometry(const struct map_meta *a, const double origin[3], double voxel, const uint32_t dims[3]) {
+  return !memcmp(a->dims, dims, sizeof a->dims) && a->voxel_size == voxel && a->origin[0] == origin[0] &&
+         a->origin[1] == origin[1] && a->origin[2] == origin[2];
+}
+
 static int check_update(const struct vlff_map *m, const struct vlff_map_update *u) {
   if (u->grid) {
     const struct vlff_map_grid *g = u->grid;
     if (!g->labels || !isfinite(g->voxel_size) || g->voxel_size <= 0 || !isfinite(g->origin[0]) ||
         !isfinite(g->origin[1]) || !isfinite(g->origin[2]) || !g->dims[0] || !g->dims[1] || !g->dims[2])
       return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "grid without labels, with non-finite geometry or 0 dims");
-    if (!dims_fit(g->dims, m->max_voxels, NULL))
+    uint64_t n;
+    if (!dims_fit(g->dims, m->max_voxels, &n))
       return bad_update(m, VLFF_SHM_ERR_SIZE, EMSGSIZE, "grid larger than the map capacity");
+    if (u->range_count && !u->ranges)
+      return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "range_count without ranges");
+    if (u->ranges)
+      for (size_t i = 0; i < u->range_count; i++)
+        if ((uint64_t)u->ranges[i].first + u->ranges[i].count > n)
+          return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "a changed range runs past the grid");
+  } else if (u->ranges || u->range_count) {
+    return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "changed ranges without a grid");
   }
   if (u->prompts) {
     if (u->prompt_count < 0 || u->prompt_count > VLFF_SHM_MAX_PROMPTS)
@@ -241,6 +311,110 @@ static int check_update(const struct vlff_map *m, const struct vlff_map_update *
   return 0;
 }
 
+static int by_first(const void *a, const void *b) {
+  uint32_t x = ((const struct vlff_map_range *)a)->first, y = ((const struct vlff_map_range *)b)->first;
+  return (x > y) - (x < y);
+}
+static int by_value(const void *a, const void *b) {
+  uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
+  return (x > y) - (x < y);
+}
+
+/* Sorts r[0..n) and merges overlapping and touching runs in place; the new count. */
+static size_t merge_runs(struct vlff_map_range *r, size_t n) {
+  if (n > 1)
+    qsort(r, n, sizeof *r, by_first);
+  size_t o = 0;
+  for (size_t i = 0; i < n; i++) {
+    if (!r[i].count)
+      continue;
+    if (o && (uint64_t)r[o - 1].first + r[o - 1].count >= r[i].first) {
+      uint64_t end = (uint64_t)r[i].first + r[i].count, cur = (uint64_t)r[o - 1].first + r[o - 1].count;
+      if (end > cur)
+        r[o - 1].count = (uint32_t)(end - r[o - 1].first);
+    } else {
+      r[o++] = r[i];
+    }
+  }
+  return o;
+}
+
+/* Merged runs r[0..n) coarsened to at most max by closing the smallest gaps
+ * between them: the covered elements grow, none is dropped. gaps: n - 1 words. */
+static size_t coarsen_runs(struct vlff_map_range *r, size_t n, size_t max, uint32_t *gaps) {
+  if (n <= max)
+    return n;
+  size_t need = n - max; /* gaps to close */
+  for (size_t i = 0; i + 1 < n; i++)
+    gaps[i] = r[i + 1].first - (r[i].first + r[i].count);
+  qsort(gaps, n - 1, sizeof *gaps, by_value);
+  uint32_t t = gaps[need - 1];
+  size_t below = 0;
+  for (size_t i = 0; i < need; i++)
+    below += gaps[i] < t;
+  size_t ties = need - below, o = 0;
+  for (size_t i = 0; i < n; i++) {
+    if (o) {
+      uint32_t gap = r[i].first - (r[o - 1].first + r[o - 1].count);
+      if (gap < t || (gap == t && ties)) {
+        if (gap == t)
+          ties--;
+        r[o - 1].count = r[i].first + r[i].count - r[o - 1].first;
+        continue;
+      }
+    }
+    r[o++] = r[i];
+  }
+  return o;
+}
+
+/* The update's runs merged and coarsened into m->scratch: their count, or -1
+ * (ENOMEM). */
+static long writer_runs(struct vlff_map *m, const struct vlff_map_update *u) {
+  size_t n = u->range_count;
+  if (n > m->scratch_cap) {
+    struct vlff_map_range *r = realloc(m->scratch, n * sizeof *r);
+    if (r)
+      m->scratch = r;
+    uint32_t *g = realloc(m->gaps, n * sizeof *g);
+    if (g)
+      m->gaps = g;
+    if (!r || !g) {
+      shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "%s: publish refused: out of memory for %zu ranges", VLFF_Q(m->seg.name), n);
+      return -1;
+    }
+    m->scratch_cap = n;
+  }
+  if (n)
+    memcpy(m->scratch, u->ranges, n * sizeof *m->scratch);
+  n = merge_runs(m->scratch, n);
+  return (long)coarsen_runs(m->scratch, n, m->log_cap / 4, m->gaps);
+}
+
+/* Copies runs r[0..n) of the labels and confidences from buffer `from` to `to`. */
+static void copy_runs(const struct vlff_map *m, uint32_t to, uint32_t from, const struct vlff_map_range *r, size_t n) {
+  uint64_t mv = m->max_voxels;
+  for (size_t i = 0; i < n; i++) {
+    shm_racy_copy(bufp(m, to, off_labels() + 2 * (uint64_t)r[i].first),
+                  bufp(m, from, off_labels() + 2 * (uint64_t)r[i].first), 2 * (size_t)r[i].count);
+    shm_racy_copy(bufp(m, to, off_conf(mv) + r[i].first), bufp(m, from, off_conf(mv) + r[i].first), r[i].count);
+  }
+}
+
+/* Appends runs r[0..n) of version v to the change log. */
+static void log_append(struct vlff_map *m, uint64_t v, const struct vlff_map_range *r, size_t n) {
+  if (!n)
+    return;
+  uint64_t h = atomic_load_explicit(&m->ctl->log_head, memory_order_relaxed);
+  atomic_store_explicit(&m->ctl->log_reserved, h + n, memory_order_relaxed);
+  atomic_thread_fence(memory_order_release);
+  for (size_t i = 0; i < n; i++) {
+    struct log_entry e = {.version = v, .first = r[i].first, .count = r[i].count};
+    shm_racy_copy(log_slot(m, h + i), &e, sizeof e);
+  }
+  atomic_store_explicit(&m->ctl->log_head, h + n, memory_order_release);
+}
+
 API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
   if (!m || !m->writer || !u) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_publish: not a writer handle or no update");
@@ -254,20 +428,38 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     return writer_replace(m, "; this update was not published");
   uint32_t cur = atomic_load_explicit(&m->ctl->current, memory_order_relaxed) & 1, nb = cur ^ 1;
   struct map_buf *b = buf(m, nb);
-  struct map_meta meta;
+  struct map_meta meta, nbm;
   shm_racy_copy(&meta, &buf(m, cur)->meta, sizeof meta);
+  shm_racy_copy(&nbm, &b->meta, sizeof nbm);
   /* A taken-over segment is only as good as what the dead writer (or anyone else
    * with write access) left: start from nothing rather than from garbage. */
   if (!meta_sane(m, &meta))
     memset(&meta, 0, sizeof meta);
+  const struct vlff_map_grid *g = u->grid;
+  bool partial = g && u->ranges;
+  bool has_grid = meta.version && meta.dims[0] && meta.dims[1] && meta.dims[2];
+  if (partial && !(has_grid && same_geometry(&meta, g->origin, g->voxel_size, g->dims)))
+    return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL,
+                      "changed ranges given for a grid of another geometry than the published one, or before it");
+  long nruns = partial ? writer_runs(m, u) : 0;
+  if (nruns < 0)
+    return -1;
+  /* A writer killed between flipping `current` and storing the version left a
+   * published buffer one version ahead of ctl->version: number on from the higher,
+   * so that no version number ever names two different maps. */
+  uint64_t base = atomic_load_explicit(&m->ctl->version, memory_order_relaxed);
+  uint64_t version = (meta.version > base ? meta.version : base) + 1;
   /* A writer that died mid-publish left this buffer odd; continue from there. */
   uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
   atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
   atomic_thread_fence(memory_order_release);
 
   uint64_t mv = m->max_voxels, lpx = m->lw_max * m->lh_max;
-  if (u->grid) {
-    const struct vlff_map_grid *g = u->grid;
+  struct vlff_map_range whole = {0, 0};
+  const struct vlff_map_range *logged = NULL;
+  size_t nlogged = 0;
+  bool logged_all = false;
+  if (g && !partial) {
     uint64_t n = (uint64_t)g->dims[0] * g->dims[1] * g->dims[2];
     memcpy(meta.origin, g->origin, sizeof meta.origin);
     meta.voxel_size = g->voxel_size;
@@ -277,10 +469,29 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
       shm_racy_copy(bufp(m, nb, off_conf(mv)), g->confidence, n);
     else
       shm_racy_fill(bufp(m, nb, off_conf(mv)), 255, n);
-  } else if (meta.version) {
+    whole.count = (uint32_t)n;
+    logged = &whole, nlogged = 1, logged_all = true;
+  } else if (has_grid) {
     uint64_t n = (uint64_t)meta.dims[0] * meta.dims[1] * meta.dims[2];
-    shm_racy_copy(bufp(m, nb, off_labels()), bufp(m, cur, off_labels()), 2 * n);
-    shm_racy_copy(bufp(m, nb, off_conf(mv)), bufp(m, cur, off_conf(mv)), n);
+    /* This buffer holds the version before the current one when this writer
+     * published both: the runs of its last publish bring it up to date. */
+    if (m->prev_ok && !m->prev_all && m->prev_version == meta.version && nbm.version + 1 == meta.version &&
+        same_geometry(&nbm, meta.origin, meta.voxel_size, meta.dims)) {
+      copy_runs(m, nb, cur, m->prev, m->prev_n);
+    } else {
+      shm_racy_copy(bufp(m, nb, off_labels()), bufp(m, cur, off_labels()), 2 * n);
+      shm_racy_copy(bufp(m, nb, off_conf(mv)), bufp(m, cur, off_conf(mv)), n);
+    }
+    for (long i = 0; partial && i < nruns; i++) {
+      const struct vlff_map_range *r = &m->scratch[i];
+      shm_racy_copy(bufp(m, nb, off_labels() + 2 * (uint64_t)r->first), g->labels + r->first, 2 * (size_t)r->count);
+      if (g->confidence)
+        shm_racy_copy(bufp(m, nb, off_conf(mv) + r->first), g->confidence + r->first, r->count);
+      else
+        shm_racy_fill(bufp(m, nb, off_conf(mv) + r->first), 255, r->count);
+    }
+    if (partial)
+      logged = m->scratch, nlogged = (size_t)nruns;
   }
   if (u->prompts) {
     memset(meta.prompts, 0, sizeof meta.prompts);
@@ -300,6 +511,7 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     meta.lcy = li->cy;
     memcpy(meta.lpose, li->pose, sizeof meta.lpose);
     meta.lt_ns = li->t_ns;
+    meta.limg_version = version;
     shm_racy_copy(bufp(m, nb, off_llabels(mv)), li->labels, 2 * n);
     if (li->confidence)
       shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), li->confidence, n);
@@ -310,12 +522,10 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     shm_racy_copy(bufp(m, nb, off_llabels(mv)), bufp(m, cur, off_llabels(mv)), 2 * n);
     shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), bufp(m, cur, off_lconf(mv, lpx)), n);
   }
+  /* Logged before the flip: a reader that sees this version finds its runs. */
+  log_append(m, version, logged, nlogged);
   uint64_t now = shm_now();
-  /* A writer killed between flipping `current` and storing the version left a
-   * published buffer one version ahead of ctl->version: number on from the higher,
-   * so that no version number ever names two different maps. */
-  uint64_t base = atomic_load_explicit(&m->ctl->version, memory_order_relaxed);
-  meta.version = (meta.version > base ? meta.version : base) + 1;
+  meta.version = version;
   meta.publish_ns = now;
   shm_racy_copy(&b->meta, &meta, sizeof meta);
   atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
@@ -326,6 +536,12 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
   if (shm_seg_check(&m->seg, false) < 0)
     return writer_replace(m, "; this update was not published");
   m->last_version = meta.version;
+  m->prev_ok = true;
+  m->prev_all = logged_all;
+  m->prev_version = version;
+  m->prev_n = logged_all ? 0 : nlogged;
+  if (m->prev_n)
+    memcpy(m->prev, logged, m->prev_n * sizeof *m->prev);
   return 0;
 }
 
@@ -510,8 +726,10 @@ API struct vlff_map_snapshot *vlff_map_snapshot_new(struct vlff_map *m) {
     s->conf = malloc(m->max_voxels);
     s->llabels = malloc(2 * lpx + 2);
     s->lconf = malloc(lpx + 1);
+    s->log_cap = m->log_cap;
+    s->changes = malloc(m->log_cap * sizeof *s->changes);
   }
-  if (!s || !s->labels || !s->conf || !s->llabels || !s->lconf) {
+  if (!s || !s->labels || !s->conf || !s->llabels || !s->lconf || !s->changes) {
     vlff_map_snapshot_free(s);
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "snapshot: out of memory");
     return NULL;
@@ -526,6 +744,7 @@ API void vlff_map_snapshot_free(struct vlff_map_snapshot *s) {
   free(s->conf);
   free(s->llabels);
   free(s->lconf);
+  free(s->changes);
   free(s);
 }
 
@@ -545,17 +764,139 @@ static bool copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta
   return true;
 }
 
-API int vlff_map_snapshot_take(struct vlff_map *m, struct vlff_map_snapshot *s) {
-  if (!m || !s || s->max_voxels != m->max_voxels || s->lw_max != m->lw_max || s->lh_max != m->lh_max) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_take: snapshot not made for this map");
-    return -1;
-  }
-  if (read_consistent(m, &s->meta, copy_all, s) < 0)
-    return -1;
+static bool snap_fits(const struct vlff_map *m, const struct vlff_map_snapshot *s) {
+  return s->max_voxels == m->max_voxels && s->lw_max == m->lw_max && s->lh_max == m->lh_max &&
+         s->log_cap == m->log_cap;
+}
+
+/* The snapshot's change list after a whole copy of a map with meta mm. */
+static void changes_all(struct vlff_map_snapshot *s, const struct map_meta *mm) {
+  uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2];
+  s->all = 1;
+  s->nchanges = 0;
+  if (mm->version && n)
+    s->changes[s->nchanges++] = (struct vlff_map_range){0, (uint32_t)n};
+}
+
+static void snap_done(struct vlff_map *m, struct vlff_map_snapshot *s, const struct map_meta *mm) {
+  if (&s->meta != mm)
+    s->meta = *mm;
   for (int i = 0; i < VLFF_SHM_MAX_PROMPTS; i++)
     s->meta.prompts[i][VLFF_SHM_PROMPT_LEN - 1] = 0;
   s->generation = atomic_load(&m->seg.h->generation);
+}
+
+API int vlff_map_snapshot_take(struct vlff_map *m, struct vlff_map_snapshot *s) {
+  if (!m || !s || !snap_fits(m, s)) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_take: snapshot not made for this map");
+    return -1;
+  }
+  if (read_consistent(m, &s->meta, copy_all, s) < 0) {
+    s->meta.version = 0; /* torn: the next follow copies everything */
+    s->nchanges = 0;
+    s->all = 0;
+    return -1;
+  }
+  changes_all(s, &s->meta);
+  snap_done(m, s, &s->meta);
   return 0;
+}
+
+struct follow_ctx {
+  struct vlff_map_snapshot *s;
+  bool whole; /* out: copied everything */
+};
+
+/* The runs logged for versions in (from, to] into s->changes, merged: true, or
+ * false when the log cannot prove it holds all of them (it wrapped past `from`,
+ * entries were overwritten while read, or an entry is out of the grid of n
+ * elements). */
+static bool logged_since(const struct vlff_map *m, struct vlff_map_snapshot *s, uint64_t from, uint64_t to,
+                         uint64_t n) {
+  uint64_t head = atomic_load_explicit(&m->ctl->log_head, memory_order_acquire);
+  uint64_t lo = head > m->log_cap ? head - m->log_cap : 0, i = head;
+  bool found = false, sane = true;
+  size_t k = 0;
+  while (i > lo) {
+    struct log_entry e;
+    shm_racy_copy(&e, log_slot(m, --i), sizeof e);
+    if (e.version <= from) {
+      found = true;
+      break;
+    }
+    if (e.version > to)
+      continue; /* a publish after the buffer being read: not in it yet */
+    if (!e.count || (uint64_t)e.first + e.count > n) {
+      sane = false;
+      break;
+    }
+    s->changes[k++] = (struct vlff_map_range){e.first, e.count};
+  }
+  atomic_thread_fence(memory_order_acquire);
+  uint64_t reserved = atomic_load_explicit(&m->ctl->log_reserved, memory_order_relaxed);
+  /* Slots from reserved - cap on may have been rewritten while we read them. */
+  if (reserved > m->log_cap && i < reserved - m->log_cap)
+    return false;
+  if (!found || !sane)
+    return false;
+  s->nchanges = merge_runs(s->changes, k);
+  return true;
+}
+
+static bool copy_changed(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
+  struct follow_ctx *c = vctx;
+  struct vlff_map_snapshot *s = c->s;
+  const struct map_meta *old = &s->meta;
+  uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2], mv = m->max_voxels;
+  /* Once an attempt copied everything (torn, since it is retried), so do the rest. */
+  c->whole = c->whole || !old->version || !mm->version || mm->version < old->version ||
+             s->generation != atomic_load(&m->seg.h->generation) ||
+             !same_geometry(old, mm->origin, mm->voxel_size, mm->dims) ||
+             !logged_since(m, s, old->version, mm->version, n);
+  if (c->whole) {
+    changes_all(s, mm);
+    return copy_all(m, b, mm, s);
+  }
+  s->all = 0;
+  for (size_t i = 0; i < s->nchanges; i++) {
+    const struct vlff_map_range *r = &s->changes[i];
+    shm_racy_copy(s->labels + r->first, bufp(m, b, off_labels() + 2 * (uint64_t)r->first), 2 * (size_t)r->count);
+    shm_racy_copy(s->conf + r->first, bufp(m, b, off_conf(mv) + r->first), r->count);
+  }
+  if (mm->has_limg && mm->limg_version != old->limg_version) {
+    uint64_t ln = (uint64_t)mm->lw * mm->lh;
+    shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * ln);
+    shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), ln);
+  }
+  return true;
+}
+
+API int vlff_map_snapshot_follow(struct vlff_map *m, struct vlff_map_snapshot *s) {
+  if (!m || !s || !snap_fits(m, s)) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_follow: snapshot not made for this map");
+    return -1;
+  }
+  struct map_meta mm;
+  struct follow_ctx c = {.s = s};
+  /* A retry copies the runs of a later version, a superset of those a torn
+   * attempt wrote into the snapshot, or everything: nothing torn survives. */
+  if (read_consistent(m, &mm, copy_changed, &c) < 0) {
+    s->meta.version = 0;
+    s->nchanges = 0;
+    s->all = 0;
+    return -1;
+  }
+  snap_done(m, s, &mm);
+  return c.whole ? 1 : 0;
+}
+
+API size_t vlff_map_snapshot_changes(const struct vlff_map_snapshot *s, const struct vlff_map_range **ranges,
+                                     int *all) {
+  if (all)
+    *all = s ? s->all : 0;
+  if (ranges)
+    *ranges = s ? s->changes : NULL;
+  return s ? s->nchanges : 0;
 }
 
 API int vlff_map_snapshot_info(const struct vlff_map_snapshot *s, struct vlff_map_info *info) {

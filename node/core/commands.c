@@ -261,6 +261,9 @@ void share_status(struct vlff_node *n) {
       .psnr = st.psnr,
       .cpu_budget = st.cpu_budget,
       .cpu_used = st.cpu_used,
+      .frame_to_map_ms_p50 = st.frame_to_map_ms_p50,
+      .frame_to_map_ms_p99 = st.frame_to_map_ms_p99,
+      .publish_interval_s = st.publish_interval_s,
   };
   snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st.state));
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {

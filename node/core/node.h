@@ -105,6 +105,8 @@ struct vlff_node_status {
   double miou2d, miou3d;        /* against synthetic ground truth; -1 when unknown */
   long long miou2d_frame;       /* the frame id of the view miou2d scored; -1 when unknown */
   double last_pose_residual_m;
+  /* From a keyframe's capture stamp to the first map version whose change
+   * log covers its voxels (the last LAT_CAP keyframes), ms; -1 before any. */
   double frame_to_map_ms_p50, frame_to_map_ms_p99;
   /* node.cpu_budget in cores (0 = no limit), the process's measured use in
    * cores over the last second or so (all its threads; -1 before the first
@@ -117,6 +119,9 @@ struct vlff_node_status {
    * voxels no keyframe observed in between (label_mapped_elsewhere), summed
    * over publishes (publish.h, hold.h). */
   long long label_flips, label_flips_elsewhere, label_mapped_elsewhere;
+  /* Seconds between whole refreshes of the map (the mean of the last 8;
+   * the target is 1 / publish.rate_hz); -1 before the second. */
+  double publish_interval_s;
   /* Monotonic ns (vlff_now_ns) of the trainer's and the ingest thread's
    * last loop pass; both pass at least every few hundred ms while alive,
    * busy or idle. */

@@ -81,6 +81,20 @@ struct vlff_publisher {
   double lost_ratio;  /* publish.lost_class_ratio */
   uint64_t lost_mask, lost_mask_stamp; /* the prompts last reported lost (evidence.h, "Lost classes"), and of which prompts */
   double last_publish_s, last_heartbeat_s;
+  /* Incremental publication: the voxels observe() touched since they were
+   * last relabelled (flag per voxel, and their list), the runs a partial
+   * publish logs, the voxel counts by state (kept as voxels are relabelled),
+   * the next slice of the round-robin refresh, and whether the next publish
+   * must be whole (nothing published yet, a reset or a load, new prompts). */
+  uint8_t *dirty;
+  size_t *dirty_idx, ndirty;
+  struct vlff_map_range *runs;
+  uint16_t *pub_labels; /* the grid as last published */
+  uint8_t *pub_conf;
+  size_t n_labelled, n_free;
+  int slice_next;
+  bool need_full;
+  uint64_t prompts_hash;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
   uint64_t hold_prompts;  /* a hash of the prompt embeddings the held labels index */
   /* Seen through (publish.h, "Depth that passes through"): per voxel, flags
@@ -102,7 +116,8 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   VLFF_FREE_ALL(p->thru, p->thru_list);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
-                p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays, p);
+                p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays,
+                p->dirty, p->dirty_idx, p->runs, p->pub_labels, p->pub_conf, p);
 }
 
 struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub, const struct vlff_cfg_shm *shm,
@@ -152,6 +167,12 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->snap_xyz = malloc(li * 3 * sizeof *p->snap_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
   p->sel_lab = malloc(li * sizeof *p->sel_lab);
+  p->dirty = calloc(n, 1);
+  p->dirty_idx = malloc(n * sizeof *p->dirty_idx);
+  p->runs = malloc((n / 2 + 1) * sizeof *p->runs);
+  p->pub_labels = malloc(n * sizeof *p->pub_labels);
+  p->pub_conf = malloc(n);
+  p->need_full = true;
   p->hold = vlff_hold_create(n, pub->label_hysteresis);
   p->thru = calloc(n, 1);
   p->thru_list = malloc(n * sizeof *p->thru_list);
@@ -173,11 +194,14 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
       !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
-      !p->sel_lab || !p->hold || !p->thru || !p->thru_list) {
+      !p->sel_lab || !p->dirty || !p->dirty_idx || !p->runs || !p->pub_labels || !p->pub_conf || !p->hold ||
+      !p->thru || !p->thru_list) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
     vlff_publisher_destroy(p);
     return NULL;
   }
+  for (size_t i = 0; i < n; i++) p->labels[i] = VLFF_LABEL_UNKNOWN;
+  memset(p->conf, 0, n);
   struct vlff_map_params mp = {.max_voxels = (uint32_t)shm->map_max_voxels,
                                .label_max_width = (uint32_t)shm->label_max_width,
                                .label_max_height = (uint32_t)shm->label_max_height,
@@ -370,6 +394,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   memset(p->thru, 0, n);
   memcpy(p->hits, g + n, n * 2);
   memcpy(p->hit_sum, g + n * 3, n * 12);
+  p->need_full = true; /* every voxel may have changed */
   rc = 0;
 out:
   free(g);
@@ -389,6 +414,9 @@ void vlff_publisher_reset(struct vlff_publisher *p) {
   memset(p->observed, 0, p->nvox);
   memset(p->hits, 0, p->nvox * sizeof *p->hits);
   memset(p->hit_sum, 0, p->nvox * 3 * sizeof *p->hit_sum);
+  for (size_t j = 0; j < p->ndirty; j++) p->dirty[p->dirty_idx[j]] = 0;
+  p->ndirty = 0;
+  p->need_full = true;
 }
 
 static long voxel_of(const struct vlff_publisher *p, const double x[3]) {
@@ -435,6 +463,15 @@ static void say_budget(struct vlff_publisher *p, bool *said, long long count, en
   *said = true;
   vlff_log(level, TAG, "evidence: publish.evidence_max_mb (%zu MB, %zu voxels) %s", p->ev_budget >> 20,
            vlff_evidence_capacity(p->ev), what);
+}
+
+/* Voxel vi's observations changed, or a ray passed through what the map
+ * labels occupied: it is relabelled and published with the keyframe
+ * (vlff_publisher_publish_changed). */
+static void touch(struct vlff_publisher *p, size_t vi) {
+  if (p->dirty[vi]) return;
+  p->dirty[vi] = 1;
+  p->dirty_idx[p->ndirty++] = vi;
 }
 
 enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_GONE = 0x10, THRU_NEW = 0x08, THRU_RUN = 0x03 };
@@ -508,6 +545,7 @@ static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
   thru_mark(p, (size_t)vi, THRU_HIT);
   p->observed[vi] = 1;
   vlff_hold_observed(p->hold, (size_t)vi);
+  touch(p, (size_t)vi);
   if (p->hits[vi] < UINT16_MAX) {
     p->hits[vi]++;
     for (int i = 0; i < 3; i++) p->hit_sum[vi * 3 + i] += (float)hp[i];
@@ -575,11 +613,15 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
           double t = s / (len / h);
           double q[3] = {o[0] + w[0] * t, o[1] + w[1] * t, o[2] + w[2] * t};
           long vi = voxel_of(p, q);
-          if (vi >= 0) {
-            p->observed[vi] = 1, vlff_hold_observed(p->hold, (size_t)vi);
-            if (s <= clear_to && (!p->hits[vi] || through_surface(p, (size_t)vi, o, w, len)))
-              thru_mark(p, (size_t)vi, THRU_PASSED);
-          }
+          if (vi < 0) continue;
+          /* Free space seen again where the map already says free changes
+           * nothing a keyframe publish would show (most of a view's rays
+           * cross such voxels); what the field's density does there, the
+           * round-robin refresh brings. */
+          if (!p->observed[vi] || p->labels[vi] != VLFF_LABEL_FREE) touch(p, (size_t)vi);
+          p->observed[vi] = 1, vlff_hold_observed(p->hold, (size_t)vi);
+          if (s <= clear_to && (!p->hits[vi] || through_surface(p, (size_t)vi, o, w, len)))
+            thru_mark(p, (size_t)vi, THRU_PASSED);
         }
       }
       long vi = voxel_of(p, hp);
@@ -672,87 +714,121 @@ static uint8_t conf_of(float margin) {
   return (uint8_t)(c < 0 ? 0 : c > 255 ? 255 : c);
 }
 
-/* The observed voxels' query points into p->qxyz (their hits' mean, or the
- * voxel's centre) and indices into p->qidx: their count. */
-static size_t gather_observed(struct vlff_publisher *p) {
+/* Voxel i's state counted into (d = 1) or out of (d = -1) the totals. */
+static void count_state(struct vlff_publisher *p, size_t i, int d) {
+  uint16_t l = p->labels[i];
+  size_t *c = l <= VLFF_LABEL_MAX ? &p->n_labelled : l == VLFF_LABEL_FREE ? &p->n_free : NULL;
+  if (c) *c = d > 0 ? *c + 1 : *c - 1;
+}
+
+/* The one place a relabelled voxel's new state is decided and written:
+ * label (or FREE, UNKNOWN) with its confidence; a class or FREE through the
+ * label hold (hold.h), margin its lead (ignored for FREE). An unobserved
+ * voxel is UNKNOWN whatever was held (only a reset or a load unobserves). */
+static void set_label(struct vlff_publisher *p, size_t i, uint16_t label, uint8_t conf, float margin) {
+  p->labels[i] = label == VLFF_LABEL_UNKNOWN ? label : vlff_hold_label(p->hold, i, label, margin);
+  p->conf[i] = conf;
+}
+
+/* The voxels to relabel: idx[0..n), or first .. first + n - 1 when idx is
+ * NULL. Unobserved ones become UNKNOWN; the observed ones' query points go
+ * into p->qxyz (their hits' mean, or the voxel's centre) and their indices
+ * into p->qidx, those with hits first (*nhit of them): their count. */
+static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, size_t n, size_t *nhit) {
   size_t nq = 0;
-  for (size_t i = 0; i < p->nvox; i++) {
-    if (!p->observed[i]) continue;
-    float *q = p->qxyz + nq * 3;
-    if (p->hits[i]) {
-      for (int a = 0; a < 3; a++) q[a] = p->hit_sum[i * 3 + a] / p->hits[i];
-    } else {
-      size_t ix = i % p->dims[0], iy = (i / p->dims[0]) % p->dims[1], iz = i / ((size_t)p->dims[0] * p->dims[1]);
-      q[0] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
-      q[1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
-      q[2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
+  for (int pass = 0; pass < 2; pass++) {
+    if (pass) *nhit = nq;
+    for (size_t j = 0; j < n; j++) {
+      size_t i = idx ? idx[j] : first + j;
+      if (!pass) count_state(p, i, -1);
+      if (!p->observed[i]) {
+        if (!pass) set_label(p, i, VLFF_LABEL_UNKNOWN, 0, 0);
+        continue;
+      }
+      if ((p->hits[i] > 0) != !pass) continue;
+      float *q = p->qxyz + nq * 3;
+      if (p->hits[i]) {
+        for (int a = 0; a < 3; a++) q[a] = p->hit_sum[i * 3 + a] / p->hits[i];
+      } else {
+        size_t ix = i % p->dims[0], iy = (i / p->dims[0]) % p->dims[1], iz = i / ((size_t)p->dims[0] * p->dims[1]);
+        q[0] = (float)(p->origin[0] + (ix + 0.5) * p->voxel);
+        q[1] = (float)(p->origin[1] + (iy + 0.5) * p->voxel);
+        q[2] = (float)(p->origin[2] + (iz + 0.5) * p->voxel);
+      }
+      p->qidx[nq++] = i;
     }
-    p->qidx[nq++] = i;
   }
   return nq;
 }
 
-/* Density at the nq observed voxels: the free ones are marked, the
- * occupied ones compacted to the front of p->qxyz/p->qidx. Their count, or
- * -1 when the query failed. */
-static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq, struct vlff_publish_result *r,
-                      char *err, size_t errlen) {
-  /* Two passes: density for every observed voxel (the hash grid and MLP1
-   * only), then labels and margins for the occupied ones. Free voxels, most
-   * of a room, never need MLP3, the prompt fold or a feature norm. */
-  if (nq && vlff_field_query(f, p->qxyz, nq, p->qdens, NULL, NULL, NULL, NULL)) {
-    snprintf(err, errlen, "field query of %zu voxels failed", nq);
+/* Density at the nq gathered voxels but the nhit first, occupied whatever
+ * the field says (measured depth ended there): the free ones are labelled
+ * FREE, the occupied ones compacted to the front of p->qxyz/p->qidx. Their
+ * count, or -1 when the query failed. */
+static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq, size_t nhit, char *err,
+                      size_t errlen) {
+  /* Two passes: density for every observed voxel without hits (the hash
+   * grid and MLP1 only), then labels and margins for the occupied ones.
+   * Free voxels, most of a room, never need MLP3, the prompt fold or a
+   * feature norm. */
+  if (nq > nhit &&
+      vlff_field_query(f, p->qxyz + 3 * nhit, nq - nhit, p->qdens + nhit, NULL, NULL, NULL, NULL)) {
+    snprintf(err, errlen, "field query of %zu voxels failed", nq - nhit);
     return -1;
   }
-  for (size_t i = 0; i < p->nvox; i++) p->labels[i] = VLFF_LABEL_UNKNOWN, p->conf[i] = 0;
-  size_t nocc = 0;
-  for (size_t j = 0; j < nq; j++) {
+  size_t nocc = nhit;
+  for (size_t j = nhit; j < nq; j++) {
     size_t i = p->qidx[j];
-    if (p->hits[i] > 0 || (p->qdens[j] >= p->free_density && !seen_through(p, i))) {
+    if (p->qdens[j] >= p->free_density && !seen_through(p, i)) {
       /* Compacted in place: nocc <= j. */
       memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
       p->qidx[nocc++] = i;
     } else {
-      p->labels[i] = vlff_hold_label(p->hold, i, VLFF_LABEL_FREE, 0);
-      p->conf[i] = 255;
-      r->free_voxels++;
+      set_label(p, i, VLFF_LABEL_FREE, 255, 0);
     }
   }
   return (long)nocc;
 }
 
-/* Labels and confidences of the nocc occupied voxels, and with evidence the
- * census of lost classes; the prompts' stamp into *stamp_out. 0, or -1
- * when the query failed. */
-static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                          size_t nocc, uint64_t *stamp_out, struct vlff_publish_result *r, char *err, size_t errlen) {
-  uint64_t stamp = 0;
-  if (p->ev) {
-    int K;
-    const float *E = vlff_field_prompt_embeddings(f, &K);
-    stamp = vlff_fnv1a64(VLFF_FNV1A64_INIT, E, (size_t)K * p->D * sizeof *E);
-  }
-  /* The 3D map is the census of lost classes: this pass counts, the next
-   * publish (and this one's label image) reads what it found. */
-  if (p->ev) vlff_evidence_census_begin(p->ev);
+/* A hash of the prompt embeddings the evidence's label calls key on (0
+ * without evidence). */
+static uint64_t prompt_stamp(const struct vlff_publisher *p, struct vlff_field *f) {
+  if (!p->ev) return 0;
+  int K;
+  const float *E = vlff_field_prompt_embeddings(f, &K);
+  return vlff_fnv1a64(VLFF_FNV1A64_INIT, E, (size_t)K * p->D * sizeof *E);
+}
+
+/* Labels and confidences of the nocc occupied voxels. 0, or -1 when the
+ * query failed. */
+static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, size_t nocc, uint64_t stamp, char *err,
+                          size_t errlen) {
   if (nocc && label_points(p, f, p->qxyz, nocc, stamp, p->qlabel, NULL, p->qmargin)) {
     snprintf(err, errlen, "field query of %zu occupied voxels failed", nocc);
     return -1;
   }
-  if (p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   for (size_t j = 0; j < nocc; j++) {
     size_t i = p->qidx[j];
-    if (p->qlabel[j] >= 0) {
-      p->labels[i] = vlff_hold_label(p->hold, i, (uint16_t)p->qlabel[j], p->qmargin[j]);
-      p->conf[i] = conf_of(p->qmargin[j]);
-      r->labelled++;
-    } else {
-      p->labels[i] = vlff_hold_label(p->hold, i, VLFF_LABEL_FREE, 0);
-      p->conf[i] = 255;
-      r->free_voxels++;
-    }
+    if (p->qlabel[j] >= 0)
+      set_label(p, i, (uint16_t)p->qlabel[j], conf_of(p->qmargin[j]), p->qmargin[j]);
+    else
+      set_label(p, i, VLFF_LABEL_FREE, 255, 0);
   }
-  *stamp_out = stamp;
+  return 0;
+}
+
+/* Relabels voxels idx[0..n) (each once), or first .. first + n - 1 when
+ * idx is NULL, through the field: only those are queried. 0, or -1 when a
+ * query failed (the totals are then recounted by the next whole publish). */
+static int relabel_voxels(struct vlff_publisher *p, struct vlff_field *f, const size_t *idx, size_t first, size_t n,
+                          uint64_t stamp, char *err, size_t errlen) {
+  size_t nhit = 0, nq = gather(p, idx, first, n, &nhit);
+  long nocc = mark_free(p, f, nq, nhit, err, errlen);
+  if (nocc < 0 || label_occupied(p, f, (size_t)nocc, stamp, err, errlen)) {
+    p->need_full = true;
+    return -1;
+  }
+  for (size_t j = 0; j < n; j++) count_state(p, idx ? idx[j] : first + j, 1);
   return 0;
 }
 
@@ -793,46 +869,179 @@ static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t
   return false;
 }
 
-int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                           struct vlff_publish_result *r, char *err, size_t errlen) {
+/* Publishes runs[0..nruns) of the grid (runs NULL: the whole grid), the
+ * prompts and, when img is not NULL, the label image. */
+static int publish_ranges(struct vlff_publisher *p, const struct vlff_map_range *runs, size_t nruns,
+                          const char *const *prompts, int k, const struct vlff_map_label_image *img,
+                          struct vlff_publish_result *r, char *err, size_t errlen) {
+  struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
+  memcpy(grid.origin, p->origin, sizeof grid.origin);
+  memcpy(grid.dims, p->dims, sizeof grid.dims);
+  struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k, .label_image = img,
+                               .ranges = runs, .range_count = runs ? nruns : 0};
+  if (vlff_map_publish(p->map, &up)) {
+    snprintf(err, errlen, "map publish: %s", vlff_shm_last_message());
+    p->need_full = true; /* a replaced segment holds nothing: all of it again */
+    return -1;
+  }
+  for (size_t j = 0; runs && j < nruns; j++) {
+    memcpy(p->pub_labels + runs[j].first, p->labels + runs[j].first, runs[j].count * sizeof *p->labels);
+    memcpy(p->pub_conf + runs[j].first, p->conf + runs[j].first, runs[j].count);
+  }
+  if (!runs) {
+    memcpy(p->pub_labels, p->labels, p->nvox * sizeof *p->labels);
+    memcpy(p->pub_conf, p->conf, p->nvox);
+  }
+  r->version = vlff_map_version(p->map);
+  r->labelled = p->n_labelled;
+  r->free_voxels = p->n_free;
+  r->unknown = p->nvox - p->n_labelled - p->n_free;
+  p->last_publish_s = p->last_heartbeat_s = vlff_seconds();
+  return 0;
+}
+
+/* Runs of the sorted voxel indices idx[0..n) into p->runs: their count. */
+static size_t runs_of(struct vlff_publisher *p, const size_t *idx, size_t n) {
+  size_t nr = 0;
+  for (size_t j = 0; j < n; j++) {
+    if (nr && p->runs[nr - 1].first + p->runs[nr - 1].count == idx[j])
+      p->runs[nr - 1].count++;
+    else
+      p->runs[nr++] = (struct vlff_map_range){(uint32_t)idx[j], 1};
+  }
+  return nr;
+}
+
+static uint64_t prompts_hash(const char *const *prompts, int k) {
+  uint64_t h = vlff_fnv1a64(VLFF_FNV1A64_INIT, &k, sizeof k);
+  for (int i = 0; i < k; i++) h = vlff_fnv1a64(h, prompts[i], strlen(prompts[i]) + 1);
+  return h;
+}
+
+/* Quality against the source's ground truth, what the demo shows live: at
+ * each whole refresh of the map. */
+static void score(struct vlff_publisher *p, const char *const *prompts, int k, bool have_img,
+                  struct vlff_publish_result *r) {
+  if (!p->hooks || !p->hooks->observe) return;
+  struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
+  memcpy(grid.origin, p->origin, sizeof grid.origin);
+  memcpy(grid.dims, p->dims, sizeof grid.dims);
+  struct vlff_map_seen seen = {.grid = &grid, .image_labels = have_img ? p->img_lab : NULL, .width = p->lw,
+                               .height = p->lh, .frame_id = p->cam_frame, .prompts = prompts, .prompt_count = k};
+  p->hooks->observe(p->hooks->ctx, &seen, &r->miou2d, &r->miou3d);
+  if (r->miou2d >= 0) r->miou2d_frame = p->cam_frame;
+}
+
+static void result_init(struct vlff_publish_result *r) {
   memset(r, 0, sizeof *r);
   r->miou2d = r->miou3d = -1;
   r->miou2d_frame = -1;
-  /* Labels index the prompts: other prompts, other labels, none held. */
+}
+
+/* A publish's label decisions begin (hold.h). Labels index the prompts:
+ * other prompt embeddings, other labels, none held. */
+static void hold_begin(struct vlff_publisher *p, struct vlff_field *f) {
   int hk;
   const float *he = vlff_field_prompt_embeddings(f, &hk);
   uint64_t hstamp = vlff_fnv1a64(vlff_fnv1a64(VLFF_FNV1A64_INIT, &hk, sizeof hk), he,
                                  he ? (size_t)hk * p->D * sizeof *he : 0);
   if (hstamp != p->hold_prompts) vlff_hold_reset(p->hold), p->hold_prompts = hstamp;
   vlff_hold_begin(p->hold);
-  long nocc = mark_free(p, f, gather_observed(p), r, err, errlen);
-  uint64_t stamp = 0;
-  if (nocc < 0 || label_occupied(p, f, prompts, k, (size_t)nocc, &stamp, r, err, errlen)) return -1;
-  r->unknown = p->nvox - r->labelled - r->free_voxels;
+}
+
+/* The publish's label flips into its result. */
+static void hold_end(const struct vlff_publisher *p, struct vlff_publish_result *r) {
   const struct vlff_hold_stats *hs = vlff_hold_stats(p->hold);
   r->flips = hs->changed, r->flips_elsewhere = hs->changed_elsewhere, r->mapped_elsewhere = hs->mapped_elsewhere;
-  struct vlff_map_grid grid = {.voxel_size = p->voxel, .labels = p->labels, .confidence = p->conf};
-  memcpy(grid.origin, p->origin, sizeof grid.origin);
-  memcpy(grid.dims, p->dims, sizeof grid.dims);
+}
 
+int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                           struct vlff_publish_result *r, char *err, size_t errlen) {
+  result_init(r);
+  hold_begin(p, f);
+  uint64_t stamp = prompt_stamp(p, f);
+  /* The 3D map is the census of lost classes: this pass counts, the next
+   * publish (and this one's label image) reads what it found. */
+  if (p->ev) vlff_evidence_census_begin(p->ev);
+  /* The totals are recounted: relabelling takes each voxel's old state out. */
+  p->n_labelled = p->n_free = 0;
+  for (size_t i = 0; i < p->nvox; i++) count_state(p, i, 1);
+  if (relabel_voxels(p, f, NULL, 0, p->nvox, stamp, err, errlen)) return -1;
+  if (p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   struct vlff_map_label_image img;
   bool have_img = p->have_cam && label_image(p, f, stamp, &img);
-  struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k,
-                               .label_image = have_img ? &img : NULL};
-  if (vlff_map_publish(p->map, &up)) {
-    snprintf(err, errlen, "map publish: %s", vlff_shm_last_message());
-    return -1;
-  }
-  r->version = vlff_map_version(p->map);
-  p->last_publish_s = p->last_heartbeat_s = vlff_seconds();
+  if (publish_ranges(p, NULL, 0, prompts, k, have_img ? &img : NULL, r, err, errlen)) return -1;
+  for (size_t j = 0; j < p->ndirty; j++) p->dirty[p->dirty_idx[j]] = 0;
+  p->ndirty = 0;
+  p->need_full = false;
+  p->prompts_hash = prompts_hash(prompts, k);
+  r->whole = r->cycle_done = true;
+  r->changed = p->nvox;
+  hold_end(p, r);
+  score(p, prompts, k, have_img, r);
+  return 0;
+}
 
-  /* Quality against the source's ground truth, what the demo shows live. */
-  if (p->hooks && p->hooks->observe) {
-    struct vlff_map_seen seen = {.grid = &grid, .image_labels = have_img ? p->img_lab : NULL, .width = p->lw,
-                                 .height = p->lh, .frame_id = p->cam_frame, .prompts = prompts, .prompt_count = k};
-    p->hooks->observe(p->hooks->ctx, &seen, &r->miou2d, &r->miou3d);
-    if (r->miou2d >= 0) r->miou2d_frame = p->cam_frame;
+static int by_index(const void *a, const void *b) {
+  size_t x = *(const size_t *)a, y = *(const size_t *)b;
+  return (x > y) - (x < y);
+}
+
+int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                   struct vlff_publish_result *r, char *err, size_t errlen) {
+  if (p->need_full || prompts_hash(prompts, k) != p->prompts_hash)
+    return vlff_publisher_publish(p, f, prompts, k, r, err, errlen);
+  result_init(r);
+  r->version = vlff_map_version(p->map);
+  if (!p->ndirty) return 0;
+  qsort(p->dirty_idx, p->ndirty, sizeof *p->dirty_idx, by_index);
+  hold_begin(p, f);
+  if (relabel_voxels(p, f, p->dirty_idx, 0, p->ndirty, prompt_stamp(p, f), err, errlen)) return -1;
+  size_t nr = runs_of(p, p->dirty_idx, p->ndirty);
+  r->changed = p->ndirty;
+  for (size_t j = 0; j < p->ndirty; j++) p->dirty[p->dirty_idx[j]] = 0;
+  p->ndirty = 0;
+  hold_end(p, r);
+  return publish_ranges(p, p->runs, nr, prompts, k, NULL, r, err, errlen);
+}
+
+int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                 int slices, struct vlff_publish_result *r, char *err, size_t errlen) {
+  if (p->need_full || prompts_hash(prompts, k) != p->prompts_hash) {
+    p->slice_next = 0;
+    return vlff_publisher_publish(p, f, prompts, k, r, err, errlen);
   }
+  result_init(r);
+  if (slices < 1) slices = 1;
+  if (p->slice_next >= slices) p->slice_next = 0;
+  int s = p->slice_next;
+  size_t a = p->nvox * (size_t)s / (size_t)slices, b = p->nvox * (size_t)(s + 1) / (size_t)slices;
+  bool last = s == slices - 1;
+  uint64_t stamp = prompt_stamp(p, f);
+  /* The census of lost classes spans one whole refresh, slice by slice. */
+  if (s == 0 && p->ev) vlff_evidence_census_begin(p->ev);
+  hold_begin(p, f);
+  if (relabel_voxels(p, f, NULL, a, b - a, stamp, err, errlen)) return -1;
+  hold_end(p, r);
+  if (last && p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
+  struct vlff_map_label_image img;
+  bool have_img = last && p->have_cam && label_image(p, f, stamp, &img);
+  p->slice_next = last ? 0 : s + 1;
+  /* Only what changed is logged: a refresh that finds the field agreeing
+   * with the map costs readers nothing. */
+  size_t nr = 0;
+  r->changed = 0;
+  for (size_t i = a; i < b; i++) {
+    if (p->labels[i] == p->pub_labels[i] && p->conf[i] == p->pub_conf[i]) continue;
+    r->changed++;
+    if (nr && p->runs[nr - 1].first + p->runs[nr - 1].count == i)
+      p->runs[nr - 1].count++;
+    else
+      p->runs[nr++] = (struct vlff_map_range){(uint32_t)i, 1};
+  }
+  if (publish_ranges(p, p->runs, nr, prompts, k, have_img ? &img : NULL, r, err, errlen)) return -1;
+  r->cycle_done = last;
+  if (last) score(p, prompts, k, have_img, r);
   return 0;
 }
 
@@ -934,3 +1143,5 @@ out:
   VLFF_FREE_ALL(rgbf, lab, image, truth);
   return rc;
 }
+
+size_t vlff_publisher_pending(const struct vlff_publisher *p) { return p->ndirty; }

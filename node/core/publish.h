@@ -39,14 +39,17 @@
 struct vlff_publisher;
 
 struct vlff_publish_result {
-  uint64_t version;
+  uint64_t version; /* the map's version after the call (unchanged when nothing was published) */
   double miou2d, miou3d; /* the source's observer's scores (source.h), -1 when not available */
   long long miou2d_frame; /* the frame id of the label image miou2d scored, -1 when none */
-  size_t labelled, free_voxels, unknown;
-  /* Voxels whose label differs from the previous publish's; of those,
-   * the ones no keyframe observed since (flips_elsewhere), among the
-   * mapped_elsewhere voxels labelled before and not observed since
-   * (hold.h: labels held within publish.label_hysteresis). */
+  size_t labelled, free_voxels, unknown; /* the whole map's voxels by state */
+  size_t changed;   /* voxels the publish logged as changed (0: nothing published) */
+  bool whole;       /* the whole grid was relabelled and published */
+  bool cycle_done;  /* the map was wholly refreshed: a whole publish, or the last slice */
+  /* Voxels whose label differs from what it was before this publish
+   * relabelled it; of those, the ones no keyframe observed since
+   * (flips_elsewhere), among the mapped_elsewhere voxels labelled before and
+   * not observed since (hold.h: labels held within publish.label_hysteresis). */
   size_t flips, flips_elsewhere, mapped_elsewhere;
 };
 
@@ -103,8 +106,33 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
 /* Forget observations and evidence (mapping reset). */
 void vlff_publisher_reset(struct vlff_publisher *p);
 
+/* Publication (docs/node.md, "Publishing"). The grid is relabelled through
+ * the field in three ways, each published at once to the map segment, whose
+ * change log (vlff/shm.h) tells readers which voxels changed:
+ *
+ * publish: the whole grid, with the 2D label image and the source's scores;
+ * the census of lost classes (evidence.h) spans it.
+ *
+ * publish_changed: only the voxels observe() touched (hit or passed
+ * through) since they were last relabelled, as a partial publish logging
+ * all of them, without a label image: what an admitted keyframe changed,
+ * soon after it was admitted. Nothing touched: nothing published. A whole
+ * publish instead when one is owed (nothing published yet, a reset, a
+ * load, a failed publish, other prompts).
+ *
+ * publish_slice: the next of `slices` consecutive index slices of the grid,
+ * round-robin, logging only the voxels whose label or confidence changed;
+ * the last slice of a round also renders the label image, closes the
+ * census and scores (cycle_done). A whole publish instead when one is owed
+ * (it restarts the round). */
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen);
+int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                   struct vlff_publish_result *r, char *err, size_t errlen);
+int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                 int slices, struct vlff_publish_result *r, char *err, size_t errlen);
+/* Voxels observe() touched that no publish has relabelled yet. */
+size_t vlff_publisher_pending(const struct vlff_publisher *p);
 /* For people: the strip (camera image | segmentation | the source's ground
  * truth when it has one) at the latest keyframe's view, and the labelled
  * voxels coloured by label. The caller writes them (strip.png, map.ply). */

@@ -167,11 +167,56 @@ static void take_candidates(struct vlff_node *n, bool wait) {
   }
 }
 
+/* What a publish did to the node's figures: the map version; with covers,
+ * the frame-to-map latency of every keyframe admitted before it (their
+ * voxels are in this version's change log); the scores when the map was
+ * wholly refreshed. */
+static void note_publish(struct vlff_node *n, const struct vlff_publish_result *r, bool covers) {
+  double p50 = -1, p99 = -1;
+  if (covers) {
+    uint64_t now = vlff_now_ns();
+    for (int i = 0; i < n->pending_lat; i++) {
+      double ms = (double)(now - n->pending_t_host[i]) * 1e-6;
+      n->lat_ms[n->lat_n++ % LAT_CAP] = ms;
+    }
+    n->pending_lat = 0;
+    int cnt = n->lat_n < LAT_CAP ? n->lat_n : LAT_CAP;
+    if (cnt > 0) {
+      double *tmp = malloc((size_t)cnt * sizeof(double));
+      if (tmp) {
+        memcpy(tmp, n->lat_ms, (size_t)cnt * sizeof(double));
+        p99 = vlff_percentile(tmp, (size_t)cnt, 0.99);
+        p50 = tmp[cnt / 2]; /* tmp is sorted now: the upper middle value, as vlff_medianf */
+        free(tmp);
+      }
+    }
+  }
+  pthread_mutex_lock(&n->slock);
+  n->st.map_version = r->version;
+  if (r->cycle_done) {
+    n->st.miou2d = r->miou2d;
+    n->st.miou2d_frame = r->miou2d_frame;
+    n->st.miou3d = r->miou3d;
+  }
+  if (p50 >= 0) {
+    n->st.frame_to_map_ms_p50 = p50;
+    n->st.frame_to_map_ms_p99 = p99;
+  }
+  n->st.label_flips = (long long)r->flips;
+  n->st.label_flips_elsewhere += (long long)r->flips_elsewhere;
+  n->st.label_mapped_elsewhere += (long long)r->mapped_elsewhere;
+  pthread_mutex_unlock(&n->slock);
+}
+
+static void prompt_texts(const struct vlff_node *n, const char **texts) {
+  for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
+}
+
 void do_publish(struct vlff_node *n) {
   char err[256];
   struct vlff_publish_result r;
   const char *texts[VLFF_MAX_PROMPTS];
-  for (int i = 0; i < n->prompt_k; i++) texts[i] = n->prompt_text[i];
+  prompt_texts(n, texts);
   double t0 = vlff_seconds();
   if (vlff_publisher_publish(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
     vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
@@ -179,34 +224,58 @@ void do_publish(struct vlff_node *n) {
   }
   VLFF_DEBUG(TAG, "published map v%llu in %.0f ms: %zu labelled, %zu free, %zu unknown voxels",
              (unsigned long long)r.version, (vlff_seconds() - t0) * 1e3, r.labelled, r.free_voxels, r.unknown);
-  uint64_t now = vlff_now_ns();
-  for (int i = 0; i < n->pending_lat; i++) {
-    double ms = (double)(now - n->pending_t_host[i]) * 1e-6;
-    n->lat_ms[n->lat_n++ % LAT_CAP] = ms;
+  note_publish(n, &r, true);
+}
+
+/* What the keyframes admitted since the last publish changed, at once. */
+static void publish_changed(struct vlff_node *n) {
+  char err[256];
+  struct vlff_publish_result r;
+  const char *texts[VLFF_MAX_PROMPTS];
+  prompt_texts(n, texts);
+  double t0 = vlff_seconds();
+  if (vlff_publisher_publish_changed(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
+    vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
+    return;
   }
-  n->pending_lat = 0;
-  int cnt = n->lat_n < LAT_CAP ? n->lat_n : LAT_CAP;
-  double p50 = -1, p99 = -1;
-  if (cnt > 0) {
-    double *tmp = malloc((size_t)cnt * sizeof(double));
-    if (tmp) {
-      memcpy(tmp, n->lat_ms, (size_t)cnt * sizeof(double));
-      p99 = vlff_percentile(tmp, (size_t)cnt, 0.99);
-      p50 = tmp[cnt / 2]; /* tmp is sorted now: the upper middle value, as vlff_medianf */
-      free(tmp);
-    }
+  VLFF_DEBUG(TAG, "published map v%llu (%s) in %.0f ms: %zu voxels", (unsigned long long)r.version,
+             r.whole ? "whole" : "keyframes", (vlff_seconds() - t0) * 1e3, r.changed);
+  note_publish(n, &r, true);
+}
+
+/* The next slice of the map's round-robin refresh: true when it ended a
+ * round (the whole map refreshed). */
+static bool publish_slice(struct vlff_node *n, int slices) {
+  char err[256];
+  struct vlff_publish_result r;
+  const char *texts[VLFF_MAX_PROMPTS];
+  prompt_texts(n, texts);
+  double t0 = vlff_seconds();
+  if (vlff_publisher_publish_slice(n->pub, n->field, texts, n->prompt_k, slices, &r, err, sizeof err)) {
+    vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
+    return false;
   }
-  pthread_mutex_lock(&n->slock);
-  n->st.map_version = r.version;
-  n->st.miou2d = r.miou2d;
-  n->st.miou2d_frame = r.miou2d_frame;
-  n->st.miou3d = r.miou3d;
-  n->st.label_flips = (long long)r.flips;
-  n->st.label_flips_elsewhere += (long long)r.flips_elsewhere;
-  n->st.label_mapped_elsewhere += (long long)r.mapped_elsewhere;
-  n->st.frame_to_map_ms_p50 = p50;
-  n->st.frame_to_map_ms_p99 = p99;
-  pthread_mutex_unlock(&n->slock);
+  VLFF_DEBUG(TAG, "published map v%llu (%s) in %.0f ms: %zu voxels changed", (unsigned long long)r.version,
+             r.whole ? "whole" : r.cycle_done ? "last slice" : "slice", (vlff_seconds() - t0) * 1e3, r.changed);
+  /* A whole publish (owed after a reset or new prompts) covers every keyframe. */
+  note_publish(n, &r, r.whole);
+  return r.cycle_done;
+}
+
+/* The time between whole refreshes of the map, the mean of the last few,
+ * into the status. */
+static void note_refresh(struct vlff_node *n, double now, double *last, double *ring, int *count) {
+  if (*last >= 0) {
+    ring[*count % REFRESH_WINDOW] = now - *last;
+    (*count)++;
+    int m = *count < REFRESH_WINDOW ? *count : REFRESH_WINDOW;
+    double sum = 0;
+    for (int i = 0; i < m; i++) sum += ring[i];
+    pthread_mutex_lock(&n->slock);
+    n->st.publish_interval_s = sum / m;
+    pthread_mutex_unlock(&n->slock);
+  }
+  *last = now;
 }
 
 /* The young-field schedules, both keyed on the field's step count. */
@@ -259,7 +328,16 @@ void *trainer_main(void *arg) {
   pthread_setname_np(pthread_self(), "vlff-trainer"); /* as ingest_main's */
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
-  double next_publish = vlff_seconds() + 1.0 / cfg->publish.rate_hz;
+  /* The map is refreshed whole every 1 / publish.rate_hz, in slices of
+   * about a tenth of a second each, so no single publish stalls training
+   * for long; what keyframes change is published as soon as they are
+   * admitted. */
+  const double period = 1.0 / cfg->publish.rate_hz;
+  const int slices = (int)fmax(1, fmin(64, lround(period / 0.1)));
+  double next_slice = vlff_seconds() + period / slices;
+  double kf_spent = 0; /* seconds spent publishing keyframes since the last slice */
+  double last_refresh = -1, refresh_ring[REFRESH_WINDOW];
+  int refreshes = 0;
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
   uint64_t mailbox_seq = 0;
   struct rate_meter steps = {vlff_seconds(), 0};
@@ -279,6 +357,14 @@ void *trainer_main(void *arg) {
     poll_mailbox(n, &mailbox_seq, &publish_now);
     bool train = n->mapping && vlff_kfstore_count(n->store) >= cfg->keyframes.start_after;
     take_candidates(n, !train);
+    /* What admitted keyframes saw is published before the next step: the
+     * frame-to-map latency is the time to here. */
+    if ((vlff_publisher_pending(n->pub) > 0 || n->pending_lat > 0) && !publish_now &&
+        vlff_field_steps(n->field) > 0) {
+      double t = vlff_seconds();
+      publish_changed(n);
+      kf_spent += vlff_seconds() - t;
+    }
     train = pace_training(n, train);
     if (train) {
       const struct vlff_view *views;
@@ -323,13 +409,27 @@ void *trainer_main(void *arg) {
     /* An untrained field has nothing to say: readers see version 0 until
      * the first step, and the heartbeat says the writer is alive. */
     bool published = false;
-    if ((publish_now || now >= next_publish) && vlff_field_steps(n->field) > 0) {
-      do_publish(n);
+    if ((publish_now || now >= next_slice) && vlff_field_steps(n->field) > 0) {
+      bool round = false;
+      if (publish_now) {
+        do_publish(n);
+        round = true;
+      } else {
+        round = publish_slice(n, slices);
+      }
       published = true;
+      if (round) note_refresh(n, vlff_seconds(), &last_refresh, refresh_ring, &refreshes);
       /* publish.rate_hz is an upper bound: publishing never takes more than
-       * a fifth of the trainer's time, or learning would stall behind it. */
-      double spent = vlff_seconds() - now;
-      next_publish = now + fmax(1.0 / cfg->publish.rate_hz, 5.0 * spent);
+       * a fifth of the trainer's time, or learning would stall behind it;
+       * keyframes go first, and the slices take what is left of that fifth,
+       * but always at least a tenth, so the refresh never starves behind a
+       * stream of keyframes. The slices keep to their schedule otherwise, so
+       * rounds end every period; one that fell a whole period behind starts
+       * over from now rather than catching up in a burst. */
+      double end = vlff_seconds(), spent = end - now;
+      if (next_slice < now - period) next_slice = now;
+      next_slice = fmax(next_slice + period / slices, end + fmin(4.0 * (spent + kf_spent), 9.0 * spent));
+      kf_spent = 0;
     } else {
       vlff_publisher_heartbeat(n->pub);
     }

@@ -301,7 +301,7 @@ int main(int argc, char **argv) {
     for (int i = 0; i < g.nprompts; i++) texts[i] = g.prompts[i];
     struct vlff_map_grid grid = {{g.origin[0], g.origin[1], g.origin[2]}, g.voxel, {g.dims[0], g.dims[1], g.dims[2]},
                                  g.labels, g.conf};
-    struct vlff_map_update up = {&grid, texts, g.nprompts, NULL};
+    struct vlff_map_update up = {.grid = &grid, .prompts = texts, .prompt_count = g.nprompts};
     if (vlff_map_publish(map, &up) < 0)
       vlff_warn_limited(&warn_pub, TAG, "map segment %s: %s", out, vlff_shm_last_message());
     /* the same over DDS, as vlff-dds sends a robot's */

@@ -145,7 +145,7 @@ static void cleanup(struct run *r) {
 
 /* One sample of the map: scores at the labelled points. */
 struct sample {
-  double t, miou, macc, coverage;
+  double t, miou, macc, coverage, refresh_s;
   uint64_t version, publish_ns, frames, keyframes;
 };
 
@@ -181,6 +181,7 @@ static int take(struct run *r, const struct vlff_points *pts, const uint8_t *see
   if (vlff_map_get_status(r->map, &st) < 0) memset(&st, 0, sizeof st);
   s->miou = sum.miou, s->macc = sum.macc, s->coverage = want ? (double)got / want : 0;
   s->version = mi.version, s->publish_ns = mi.publish_ns, s->frames = st.frames_in, s->keyframes = st.keyframes;
+  s->refresh_s = st.t_ns ? st.publish_interval_s : -1;
   return 0;
 }
 
@@ -315,7 +316,12 @@ int vlff_eval_online(const struct vlff_online_opts *o, const struct vlff_config 
     sleep_s(0.02);
   }
   res->miou3d = s.miou, res->macc3d = s.macc, res->coverage = s.coverage, res->version = s.version;
-  if (first.version && s.version > first.version)
+  /* The node publishes what keyframes change as they come and refreshes the
+   * rest in slices: its publish interval is the time between whole
+   * refreshes, from its status; a writer without one, the time per version. */
+  if (s.refresh_s > 0)
+    res->publish_interval_s = s.refresh_s;
+  else if (first.version && s.version > first.version)
     res->publish_interval_s = (double)(s.publish_ns - first.publish_ns) * 1e-9 / (double)(s.version - first.version);
   rc = 0;
 out:

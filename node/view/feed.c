@@ -391,16 +391,17 @@ static void map_attach(struct vlff_feed *f, uint64_t now) {
   m->reported = 0;
 }
 
-/* Takes a snapshot of a map version not read yet into m->snap and its
- * info: 0, or -1 when there is none (no map, no new version, or the
- * segment was replaced: then it is forgotten, to attach again). */
+/* Brings m->snap up to a map version not read yet, copying only what the
+ * map's change log says changed (vlff_map_snapshot_follow), and its info:
+ * 0, or -1 when there is none (no map, no new version, or the segment was
+ * replaced: then it is forgotten, to attach again). */
 static int map_take_version(struct vlff_feed *f, struct vlff_map_info *info) {
   struct feed_map *m = &f->m;
   map_attach(f, vlff_now_ns());
   if (!m->map) return -1;
   uint64_t v = vlff_map_version(m->map);
   if (v == 0 || (v == m->version && vlff_map_generation(m->map) == m->generation)) return -1;
-  if (vlff_map_snapshot_take(m->map, m->snap) != 0) {
+  if (vlff_map_snapshot_follow(m->map, m->snap) < 0) {
     if (errno == EPIPE) {
       vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s was replaced by a new one; attaching again", f->p.map_name);
       uint64_t keep = m->version;
@@ -477,40 +478,46 @@ static int map_whole_msgs(struct vlff_feed *f, unsigned wanted, uint32_t edge, u
 
 /* Copies the voxels of g that changed into the map, listing their indices
  * in f->changed (index order) and marking their bricks in dirty: their
- * count, or -1 out of memory (the map is forgotten). */
+ * count, or -1 out of memory (the map is forgotten). Only the runs the
+ * map's change log named since the last version read are compared (all of
+ * the grid when the snapshot was copied whole). */
 static long map_take_changes(struct vlff_feed *f, const struct vlff_map_grid *g, uint32_t edge, uint8_t *dirty) {
   struct feed_map *m = &f->m;
   const uint8_t *gc = g->confidence;
   size_t changed = 0;
   uint32_t nb0 = (m->dims[0] + edge - 1) / edge, nb1 = (m->dims[1] + edge - 1) / edge;
-  for (uint32_t k = 0; k < m->dims[2]; k++)
-    for (uint32_t j = 0; j < m->dims[1]; j++) {
-      size_t row = (size_t)m->dims[0] * (j + (size_t)m->dims[1] * k);
-      /* most rows are unchanged: compare them whole first */
-      if (!memcmp(m->labels + row, g->labels + row, m->dims[0] * sizeof *m->labels) &&
-          (gc ? !memcmp(m->conf + row, gc + row, m->dims[0]) : 1))
-        continue;
-      for (uint32_t i = 0; i < m->dims[0]; i++) {
-        size_t idx = row + i;
-        uint8_t c = gc ? gc[idx] : 255;
-        if (g->labels[idx] == m->labels[idx] && c == m->conf[idx]) continue;
-        if (changed == f->changed_cap) {
-          size_t nc = f->changed_cap ? f->changed_cap * 2 : 4096;
-          uint32_t *p = realloc(f->changed, nc * sizeof *p);
-          if (!p) {
-            vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a map delta");
-            map_forget(m);
-            return -1;
-          }
-          f->changed = p;
-          f->changed_cap = nc;
+  const struct vlff_map_range *runs;
+  int all;
+  size_t nruns = vlff_map_snapshot_changes(m->snap, &runs, &all);
+  struct vlff_map_range whole = {0, (uint32_t)m->n};
+  if (all) runs = &whole, nruns = 1;
+  for (size_t r = 0; r < nruns; r++) {
+    size_t end = (size_t)runs[r].first + runs[r].count;
+    /* the library keeps runs inside the grid; the viewer's copy is of the
+     * same geometry (map_needs_full) */
+    if (end > m->n) end = m->n;
+    for (size_t idx = runs[r].first; idx < end; idx++) {
+      uint8_t c = gc ? gc[idx] : 255;
+      if (g->labels[idx] == m->labels[idx] && c == m->conf[idx]) continue;
+      uint32_t i = (uint32_t)(idx % m->dims[0]), j = (uint32_t)(idx / m->dims[0] % m->dims[1]),
+               k = (uint32_t)(idx / m->dims[0] / m->dims[1]);
+      if (changed == f->changed_cap) {
+        size_t nc = f->changed_cap ? f->changed_cap * 2 : 4096;
+        uint32_t *p = realloc(f->changed, nc * sizeof *p);
+        if (!p) {
+          vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a map delta");
+          map_forget(m);
+          return -1;
         }
-        f->changed[changed++] = (uint32_t)idx;
-        m->labels[idx] = g->labels[idx];
-        m->conf[idx] = c;
-        dirty[i / edge + nb0 * (j / edge + nb1 * (k / edge))] = 1;
+        f->changed = p;
+        f->changed_cap = nc;
       }
+      f->changed[changed++] = (uint32_t)idx;
+      m->labels[idx] = g->labels[idx];
+      m->conf[idx] = c;
+      dirty[i / edge + nb0 * (j / edge + nb1 * (k / edge))] = 1;
     }
+  }
   return (long)changed;
 }
 

@@ -66,7 +66,7 @@ static int publish(const char *mapname, const char *frames, double secs) {
       }
   struct vlff_map_grid g = {{-0.2, -0.2, -0.2}, 0.1, {NX, NY, NZ}, labels, conf};
   struct vlff_map_label_image li = {LW, LH, limg, NULL, 150, 150, 80, 60, {1, 0, 0, 3, 0, 1, 0, 2.5, 0, 0, 1, 1.2, 0, 0, 0, 1}, 0};
-  struct vlff_map_update up = {&g, prompts, PROMPTS, &li};
+  struct vlff_map_update up = {.grid = &g, .prompts = prompts, .prompt_count = PROMPTS, .label_image = &li};
   uint64_t t0 = vlff_shm_now_ns(), next_map = t0, next_frame = t0, end = t0 + (uint64_t)(secs * 1e9);
   unsigned rng = 12345, versions = 0;
   unsigned long long changed = 0;

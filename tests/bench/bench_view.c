@@ -4,9 +4,12 @@
  *
  *   bench_view publish MAP FRAMES SECONDS   a 64x54x32 map published at 2 Hz, each
  *       version moving a few surfaces (a share of the voxels changes label,
- *       confidence or occupancy), with a label image; 640x480 RGB frames at 5 Hz.
- *   bench_view read MAP SECONDS             the baseline: a bare controller taking a
- *       snapshot of every version, the least any reader of the map does.
+ *       confidence or occupancy) as a partial publish of the regions it touched,
+ *       with a label image; 640x480 RGB frames at 5 Hz. Also prints
+ *       "changed_bytes_per_version B": the bytes (label and confidence) of the
+ *       voxels whose value changed, per version.
+ *   bench_view read MAP SECONDS             the baseline: a bare controller following
+ *       every version (vlff_map_snapshot_follow), the least any reader of the map does.
  * Both print their own CPU time at the end: "cpu_s X wall_s Y versions N".
  */
 #include <vlff/shm.h>
@@ -64,9 +67,12 @@ static int publish(const char *mapname, const char *frames, double secs) {
       }
   struct vlff_map_grid g = {{-0.2, -0.2, -0.2}, 0.1, {NX, NY, NZ}, labels, conf};
   struct vlff_map_label_image li = {LW, LH, limg, lconf, 150, 150, 80, 60, {1, 0, 0, 3, 0, 1, 0, 2.5, 0, 0, 1, 1.2, 0, 0, 0, 1}, 0};
-  struct vlff_map_update up = {&g, prompts, PROMPTS, &li};
+  struct vlff_map_update up = {.grid = &g, .prompts = prompts, .prompt_count = PROMPTS, .label_image = &li};
   uint64_t t0 = vlff_shm_now_ns(), next_map = t0, next_frame = t0, end = t0 + (uint64_t)(secs * 1e9);
   unsigned rng = 12345, versions = 0;
+  static struct vlff_map_range runs[12 * 3 * 4];
+  uint64_t changed_voxels = 0;
+  int first = 1;
   double c0 = cpu_s();
   while (vlff_shm_now_ns() < end) {
     if (next_frame <= next_map) {
@@ -93,19 +99,31 @@ static int publish(const char *mapname, const char *frames, double secs) {
     sleep_until(next_map);
     /* a learner refines a few regions per version: relabel some boxes' voxels,
      * grow or shrink surfaces, nudge confidences */
+    size_t nruns = 0;
     for (int r = 0; r < 12; r++) {
       rng = rng * 1103515245u + 12345u;
       int ci = (int)(rng >> 8) % NX, cj = (int)(rng >> 14) % NY, ck = (int)(rng >> 20) % 8;
       uint16_t nl = (uint16_t)((rng >> 4) % PROMPTS);
       for (int k = ck; k < ck + 3 && k < NZ; k++)
-        for (int j = cj; j < cj + 4 && j < NY; j++)
-          for (int i = ci; i < ci + 4 && i < NX; i++) {
+        for (int j = cj; j < cj + 4 && j < NY; j++) {
+          int i1 = ci + 4 < NX ? ci + 4 : NX;
+          runs[nruns++] = (struct vlff_map_range){(uint32_t)(ci + NX * (j + NY * k)), (uint32_t)(i1 - ci)};
+          for (int i = ci; i < i1; i++) {
             size_t idx = i + NX * (j + NY * (size_t)k);
+            uint16_t ol = labels[idx];
+            uint8_t oc = conf[idx];
             if (labels[idx] <= VLFF_LABEL_MAX) labels[idx] = (r & 3) ? nl : VLFF_LABEL_FREE;
             else if ((r & 3) == 1) labels[idx] = nl;
             conf[idx] = (uint8_t)(100 + (rng >> 24) % 155);
+            /* a voxel two regions touched counts once per change */
+            changed_voxels += labels[idx] != ol || conf[idx] != oc;
           }
+        }
     }
+    /* the first version whole, then only the regions touched */
+    up.ranges = first ? NULL : runs;
+    up.range_count = first ? 0 : nruns;
+    first = 0;
     for (int p = 0; p < LW * LH; p++) limg[p] = (uint16_t)((p / LW / 20 + versions) % PROMPTS);
     memset(lconf, 255, LW * LH);
     li.t_ns = vlff_shm_now_ns();
@@ -113,7 +131,8 @@ static int publish(const char *mapname, const char *frames, double secs) {
     versions++;
     next_map += 500000000u;
   }
-  printf("cpu_s %.3f wall_s %.3f versions %u\n", cpu_s() - c0, (vlff_shm_now_ns() - t0) / 1e9, versions);
+  printf("cpu_s %.3f wall_s %.3f versions %u changed_bytes_per_version %.1f\n", cpu_s() - c0,
+         (vlff_shm_now_ns() - t0) / 1e9, versions, versions ? 3.0 * (double)changed_voxels / versions : 0.0);
   vlff_map_detach(map);
   vlff_ring_close(ring);
   vlff_shm_unlink(mapname);
@@ -142,7 +161,7 @@ static int read_map(const char *mapname, double secs) {
   t0 = vlff_shm_now_ns();
   while (vlff_shm_now_ns() < end) {
     uint64_t v = vlff_map_version(map);
-    if (v != last && vlff_map_snapshot_take(map, s) == 0) {
+    if (v != last && vlff_map_snapshot_follow(map, s) >= 0) {
       last = v;
       versions++;
     }

@@ -52,7 +52,7 @@ static int write_map(const char *name, int seed, double secs) {
         conf[v] = (uint8_t)(2 * ((i * 7 + j * 3 + k * 5 + seed * 11) % 100) + 20 + (seed == 1));
       }
   struct vlff_map_grid g = {{0, 0, 0}, 0.1, {NX, NY, NZ}, labels, conf};
-  struct vlff_map_update up = {&g, texts, 3, NULL};
+  struct vlff_map_update up = {.grid = &g, .prompts = texts, .prompt_count = 3};
   if (vlff_map_publish(m, &up) < 0) {
     fprintf(stderr, "map_writer: publish: %s\n", vlff_shm_last_message());
     return 1;

@@ -14,6 +14,9 @@
 #include <sys/mman.h>
 #include <unistd.h>
 
+/* shm/map.c: the map's `current` buffer word follows the 128-byte segment header. */
+#define MAP_CURRENT_OFF 128
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   static char name[64];
   if (!name[0])
@@ -59,6 +62,25 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     struct vlff_map_snapshot *s = vlff_map_snapshot_new(m);
     if (s && vlff_map_snapshot_take(m, s) == 0)
       (void)vlff_map_snapshot_label_at(s, 0.1, 0.2, 0.3, &c);
+    /* The change log: the other buffer made current (an older version, or
+     * anything) is followed, then the current one again, from the log. */
+    int mfd = shm_open(name, O_RDWR, 0);
+    void *base = mfd >= 0 ? mmap(NULL, 4096, PROT_READ | PROT_WRITE, MAP_SHARED, mfd, 0) : MAP_FAILED;
+    if (s && base != MAP_FAILED && size >= MAP_CURRENT_OFF + 4) {
+      volatile uint32_t *current = (volatile uint32_t *)((uint8_t *)base + MAP_CURRENT_OFF);
+      const struct vlff_map_range *runs;
+      *current ^= 1;
+      (void)vlff_map_snapshot_follow(m, s);
+      *current ^= 1;
+      if (vlff_map_snapshot_follow(m, s) >= 0) {
+        (void)vlff_map_snapshot_changes(s, &runs, NULL);
+        (void)vlff_map_snapshot_label_at(s, 0.1, 0.2, 0.3, &c);
+      }
+    }
+    if (base != MAP_FAILED)
+      munmap(base, 4096);
+    if (mfd >= 0)
+      close(mfd);
     vlff_map_snapshot_free(s);
     vlff_map_detach(m);
   }

@@ -100,8 +100,15 @@ static void make_map(const char *name) {
                                     .t_ns = 1000};
   identity(li.pose, 0.5, 0.5, -1);
   struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 3, .label_image = &li};
-  /* Two versions: both buffers hold a map. */
-  if (vlff_map_publish(m, &u) < 0 || vlff_map_publish(m, &u) < 0)
+  /* Two versions: both buffers hold a map, and the change log the runs of the
+   * second, a partial publish, for a follower to read. */
+  if (vlff_map_publish(m, &u) < 0)
+    die(name);
+  const struct vlff_map_range runs[2] = {{3, 4}, {20, 2}};
+  for (int i = 3; i < 7; i++)
+    labels[i] = 2;
+  struct vlff_map_update part = {.grid = &g, .ranges = runs, .range_count = 2};
+  if (vlff_map_publish(m, &part) < 0)
     die(name);
   struct vlff_map_status st = {.state = 2, .frames_in = 40, .frames_refused = 3, .keyframes = 5,
                                .iterations = 100, .iterations_per_s = 50, .fps_in = 10, .loss = 0.5,

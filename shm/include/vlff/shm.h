@@ -88,7 +88,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 4
+#define VLFF_SHM_ABI_VERSION 5
 
 /* ------------------------------------------------------------------ errors */
 
@@ -409,12 +409,32 @@ struct vlff_map_label_image {
   uint64_t t_ns;              /* capture time of the frame it was rendered for */
 };
 
-/* What a publish replaces; a NULL member keeps the previous value. */
+/* A run of grid elements, [first, first + count), in the grid's storage order
+ * (vlff_map_grid: the voxel index). The change log speaks only of such runs, so
+ * that a later grid layout (tiles, a sparse grid) keeps the same contract: follow
+ * versions, learn which elements changed. */
+struct vlff_map_range {
+  uint32_t first, count;
+};
+
+/* What a publish replaces; a NULL member keeps the previous value.
+ *
+ * With grid and ranges: a partial publish. The elements inside the ranges are
+ * replaced from grid->labels / grid->confidence, which still hold the whole grid's
+ * current values (a coarsened run, below, also reads the elements between the runs
+ * it joins); the rest of the map stays as it was. The grid's geometry
+ * must be the published one (EINVAL otherwise, and before the first publish).
+ * Ranges may come in any order and overlap; range_count 0 changes no element.
+ * The writer logs them (merged, and coarsened to at most a quarter of the log when
+ * there are more: a logged run may cover unchanged elements, never miss a changed
+ * one). A grid without ranges replaces and logs the whole grid. */
 struct vlff_map_update {
   const struct vlff_map_grid *grid;
   const char *const *prompts; /* prompt_count texts; label i = prompts[i] */
   int prompt_count;           /* -1 = keep (when prompts is NULL) */
   const struct vlff_map_label_image *label_image;
+  const struct vlff_map_range *ranges; /* NULL = the whole grid (when grid is given) */
+  size_t range_count;
 };
 
 /* Writer: creates the map segment (same O_EXCL / stale-creator / owner rules as
@@ -459,6 +479,26 @@ void vlff_map_snapshot_free(struct vlff_map_snapshot *snap);
 /* Reader: copies the current version into snap, retrying while the writer overwrites
  * it. 0, or -1 (EAGAIN after many retries, EPIPE). */
 int vlff_map_snapshot_take(struct vlff_map *map, struct vlff_map_snapshot *snap);
+
+/* Reader: brings snap up to the current version by copying only what changed since
+ * the version it holds, read from the map's change log: a bounded ring of (version,
+ * changed runs) that every publish appends to beside the consistent full map. Falls
+ * back to a whole copy, as vlff_map_snapshot_take, when snap is empty (never taken,
+ * or a take or follow failed), the log no longer reaches back to snap's version
+ * (the reader fell too far behind), or the writer's generation or the grid's
+ * geometry changed. Prompts, the label image and the metadata are always current
+ * afterwards. The copy is as consistent as a take: never a mix of two versions.
+ * Returns 1 (a whole copy), 0 (only changed runs, possibly none: snap was current),
+ * or -1 (as vlff_map_snapshot_take; snap is then empty, and the next follow copies
+ * everything). */
+int vlff_map_snapshot_follow(struct vlff_map *map, struct vlff_map_snapshot *snap);
+/* The grid elements the last take or follow changed in snap: *ranges (sorted,
+ * disjoint, not adjacent; valid until the next call on snap) and their count.
+ * *all (may be NULL) is 1 when the whole grid was copied (the ranges then are the
+ * one run of the whole grid, or none for a map without a grid). A run may hold
+ * elements whose value did not change (the writer logged what it relabelled). */
+size_t vlff_map_snapshot_changes(const struct vlff_map_snapshot *snap, const struct vlff_map_range **ranges,
+                                 int *all);
 
 /* Accessors of a taken snapshot; pointers live as long as snap's contents. */
 struct vlff_map_info {
@@ -516,6 +556,12 @@ struct vlff_map_status {
   uint32_t reason_count;   /* used entries of reason[] */
   uint32_t pad;
   struct vlff_map_reason reason[VLFF_SHM_MAX_REASONS]; /* refused frames per reason */
+  /* How current the map is (vlff-node; docs/node.md, "Publishing"): ms from a
+   * keyframe's capture to the first map version whose change log covers its
+   * voxels (median and 99th percentile of the recent ones), and s between
+   * whole refreshes of the map; -1 while unknown. */
+  double frame_to_map_ms_p50, frame_to_map_ms_p99;
+  double publish_interval_s;
 };
 
 /* Writer: replaces the status (t_ns and updates are set here, the rest is taken as

@@ -15,6 +15,7 @@
 #include <cmocka.h>
 
 #include "evidence.h"
+#include "field.h"
 #include "publish.h"
 #include "unit.h"
 #include "vlff/shm.h"
@@ -353,8 +354,144 @@ static void test_moved_object_clears(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* ------------------------------------------------ incremental publication */
+
+/* A small field (random, untrained: its answers are deterministic, which is
+ * all the comparisons below need) with K random prompts of seed. */
+static struct vlff_field *small_field(struct vlff_config *cfg, int K, unsigned seed) {
+  cfg->node.threads = 1;
+  cfg->field.feature_dim = 16;
+  cfg->field.hash_log2_size = 12;
+  cfg->field.hash_levels = 8;
+  struct vlff_field *f = vlff_field_create(&cfg->field, &cfg->train, 1, err, sizeof err);
+  if (!f) fail_msg("%s", err);
+  float e[8 * 16];
+  for (int i = 0; i < K * 16; i++) e[i] = (float)rand_r(&seed) / (float)RAND_MAX - 0.5f;
+  assert_int_equal(vlff_field_set_prompts(f, e, K, err, sizeof err), 0);
+  return f;
+}
+
+/* A camera at x looking along +z at a wall depth d away, with a bump. */
+static struct vlff_view view_at(double x, float d) {
+  struct vlff_view v = view(d);
+  v.c2w[3] = x;
+  for (int i = 0; i < W * H; i += 7) depth[i] = d * 0.6f;
+  return v;
+}
+
+static void take(struct vlff_map *m, struct vlff_map_snapshot *s, struct vlff_map_info *in) {
+  assert_int_equal(vlff_map_snapshot_take(m, s), 0);
+  vlff_map_snapshot_info(s, in);
+}
+
+/* What a keyframe changed is relabelled and published alone, and leaves the
+ * map exactly as relabelling the whole grid would; slices refresh the rest,
+ * a round of them equal to a whole publish, logging only what changed; new
+ * prompts, a reset or a load make the next publish whole. Before incremental
+ * publication every publish relabelled the whole grid. */
+static void test_incremental_publication(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "inc");
+  cfg.publish.evidence_weight = 0; /* labels are the field's alone: exactly reproducible */
+  struct vlff_publisher *p = create(&cfg);
+  struct vlff_field *f = small_field(&cfg, 3, 11);
+  const char *prompts[3] = {"wall", "floor", "chair"};
+  struct vlff_map *m = vlff_map_attach(cfg.shm.map);
+  assert_non_null(m);
+  struct vlff_map_snapshot *fol = vlff_map_snapshot_new(m), *a = vlff_map_snapshot_new(m), *b = vlff_map_snapshot_new(m);
+  assert_non_null(fol);
+  struct vlff_publish_result r;
+  struct vlff_map_info ia, ib;
+
+  /* The first publish is whole, whatever was asked. */
+  struct vlff_view v = view_at(0, 1.5f);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_true(vlff_publisher_pending(p) > 0);
+  assert_int_equal(vlff_publisher_publish_changed(p, f, prompts, 3, &r, err, sizeof err), 0);
+  assert_true(r.whole);
+  assert_int_equal(vlff_publisher_pending(p), 0);
+  assert_int_equal(vlff_map_snapshot_follow(m, fol), 1);
+  /* Nothing observed since: nothing published. */
+  assert_int_equal(vlff_publisher_publish_changed(p, f, prompts, 3, &r, err, sizeof err), 0);
+  assert_int_equal(r.changed, 0);
+  assert_int_equal(r.version, 1);
+
+  /* A second keyframe elsewhere: only its voxels, logged. */
+  v = view_at(0.8, 2.0f);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  size_t touched = vlff_publisher_pending(p);
+  assert_true(touched > 100 && touched < 62 * 62 * 62 / 4);
+  assert_int_equal(vlff_publisher_publish_changed(p, f, prompts, 3, &r, err, sizeof err), 0);
+  assert_false(r.whole);
+  assert_int_equal(r.changed, touched);
+  assert_int_equal(r.version, 2);
+  assert_int_equal(vlff_map_snapshot_follow(m, fol), 0);
+  const struct vlff_map_range *runs;
+  size_t nr = vlff_map_snapshot_changes(fol, &runs, NULL), logged = 0;
+  for (size_t i = 0; i < nr; i++) logged += runs[i].count;
+  assert_true(logged >= touched && logged < 62 * 62 * 62 / 4);
+  take(m, a, &ia);
+  assert_true(ia.grid.labels[0] == VLFF_LABEL_UNKNOWN);
+  /* The same map as relabelling everything. */
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+  assert_true(r.whole && r.cycle_done);
+  take(m, b, &ib);
+  size_t nv = (size_t)ib.grid.dims[0] * ib.grid.dims[1] * ib.grid.dims[2];
+  assert_memory_equal(ia.grid.labels, ib.grid.labels, nv * 2);
+  assert_memory_equal(ia.grid.confidence, ib.grid.confidence, nv);
+  assert_true(r.labelled + r.free_voxels > touched / 2);
+
+  /* The field answers otherwise (new embeddings, the same prompt texts): a
+   * round of slices brings the whole map to what a whole publish makes. */
+  float e2[3 * 16];
+  unsigned seed = 99;
+  for (int i = 0; i < 3 * 16; i++) e2[i] = (float)rand_r(&seed) / (float)RAND_MAX - 0.5f;
+  assert_int_equal(vlff_field_set_prompts(f, e2, 3, err, sizeof err), 0);
+  assert_int_equal(vlff_map_snapshot_follow(m, fol), 0);
+  size_t changed = 0;
+  for (int s = 0; s < 5; s++) {
+    assert_int_equal(vlff_publisher_publish_slice(p, f, prompts, 3, 5, &r, err, sizeof err), 0);
+    assert_false(r.whole);
+    assert_int_equal(r.cycle_done, s == 4);
+    changed += r.changed;
+    assert_int_equal(vlff_map_snapshot_follow(m, fol), 0);
+  }
+  assert_true(changed > 0);
+  take(m, a, &ia);
+  struct vlff_map_info fi;
+  vlff_map_snapshot_info(fol, &fi);
+  assert_memory_equal(fi.grid.labels, ia.grid.labels, nv * 2); /* the follower kept up from the log */
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+  take(m, b, &ib);
+  assert_memory_equal(ia.grid.labels, ib.grid.labels, nv * 2);
+  assert_memory_equal(ia.grid.confidence, ib.grid.confidence, nv);
+  /* Nothing changed since: a round logs nothing. */
+  for (int s = 0; s < 5; s++) {
+    assert_int_equal(vlff_publisher_publish_slice(p, f, prompts, 3, 5, &r, err, sizeof err), 0);
+    assert_int_equal(r.changed, 0);
+  }
+
+  /* Other prompts, a reset: the next publish is whole. */
+  const char *other[3] = {"wall", "floor", "door"};
+  assert_int_equal(vlff_publisher_publish_slice(p, f, other, 3, 5, &r, err, sizeof err), 0);
+  assert_true(r.whole);
+  vlff_publisher_reset(p);
+  assert_int_equal(vlff_publisher_publish_changed(p, f, other, 3, &r, err, sizeof err), 0);
+  assert_true(r.whole);
+  assert_int_equal(r.labelled + r.free_voxels, 0);
+
+  vlff_map_snapshot_free(fol);
+  vlff_map_snapshot_free(a);
+  vlff_map_snapshot_free(b);
+  vlff_map_detach(m);
+  vlff_field_destroy(f);
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
     cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
-    cmocka_unit_test(test_every_pixel_counts))
+    cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication))

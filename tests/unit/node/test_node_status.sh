@@ -19,6 +19,13 @@ check "vlff-shm stat: keyframes ($(val keyframes))" '[[ $(val keyframes) -gt 0 ]
 check "vlff-shm stat: iterations ($(val iterations))" '[[ $(val iterations) -gt 0 ]]'
 check "vlff-shm stat: a state, a loss and a recent status ($(val state), loss $(val loss), age $(val status_age))" \
   '[[ $(val state) =~ ^(preoperational|operational)$ && $(val loss) != 0 && $(val status_age) =~ ^[0-9]+\.[0-9]+s$ ]]'
+# Incremental publication (issue 49): a keyframe's voxels reach the map's
+# change log, timed from its capture, and the whole map is refreshed round by
+# round; both figures reach controllers through the status.
+pos() { awk -v v="$1" 'BEGIN { exit !(v + 0 > 0) }'; }
+wait_until 600 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null; pos "$(val frame_to_map_ms_p99)" && pos "$(val publish_interval_s)"'
+check "vlff-shm stat: frame to map p50 $(val frame_to_map_ms_p50) p99 $(val frame_to_map_ms_p99) ms, whole refresh every $(val publish_interval_s) s" \
+  'pos "$(val frame_to_map_ms_p50)" && pos "$(val frame_to_map_ms_p99)" && pos "$(val publish_interval_s)"'
 check "frames refused is the sum of the reasons" \
   '[[ $(val frames_refused) == $(awk '"'"'$1 == "refused" { s += $2 } END { print s + 0 }'"'"' "$tmp/stat") ]]'
 

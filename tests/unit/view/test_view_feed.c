@@ -36,7 +36,7 @@ static int publish(struct vlff_map *m, const char *const *p, int np) {
   struct vlff_map_grid g = {{-1, 0, 0.5}, 0.25, {NX, NY, NZ}, labels, conf};
   struct vlff_map_label_image li = {4, 3, limg, NULL, 100, 100, 2, 1.5,
                                     {1, 0, 0, 1, 0, 1, 0, 2, 0, 0, 1, 3, 0, 0, 0, 1}, vlff_shm_now_ns()};
-  struct vlff_map_update up = {&g, p, np, &li};
+  struct vlff_map_update up = {.grid = &g, .prompts = p, .prompt_count = np, .label_image = &li};
   return vlff_map_publish(m, &up);
 }
 
@@ -228,6 +228,74 @@ static void test_feed(void **state) {
   vlff_map_detach(m);
 }
 
+/* Partial publishes (the map's change log): a client gets exactly the voxels
+ * whose value changed, though the logged runs hold unchanged ones too, and a
+ * feed left behind by more publishes than the log holds still sends exactly
+ * what changed since its last version. */
+static int publish_runs(struct vlff_map *m, const struct vlff_map_range *r, size_t n) {
+  struct vlff_map_grid g = {{-1, 0, 0.5}, 0.25, {NX, NY, NZ}, labels, conf};
+  struct vlff_map_update up = {.grid = &g, .ranges = r, .range_count = n};
+  return vlff_map_publish(m, &up);
+}
+
+static void test_feed_follows_log(void **state) {
+  (void)state;
+  struct vlff_feed_params fp = {name, "", 2, 4};
+  struct vlff_feed *f = vlff_feed_new(&fp);
+  struct polled p;
+  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(m);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  usleep(1100000); /* the feed tries to attach once a second */
+  poll_feed(f, ALL, &p);
+  assert_true(json_object_get_boolean(get(p.msg[VLFF_VIEW_CH_VOXELS], "full")));
+  free_polled(&p);
+
+  /* a run of a whole row, one voxel of it changed */
+  labels[at(4, 6, 2)] = 2;
+  struct vlff_map_range row = {(uint32_t)at(0, 6, 2), NX};
+  assert_int_equal(publish_runs(m, &row, 1), 0);
+  poll_feed(f, ALL, &p);
+  json_object *v = get(p.msg[VLFF_VIEW_CH_VOXELS], "voxels");
+  assert_false(json_object_get_boolean(get(p.msg[VLFF_VIEW_CH_VOXELS], "full")));
+  assert_int_equal(json_object_array_length(v), 3);
+  assert_int_equal(json_object_get_int(json_object_array_get_idx(v, 0)), at(4, 6, 2));
+  assert_int_equal(json_object_array_length(get(p.msg[VLFF_VIEW_CH_SCENE], "entities")), 1);
+  free_polled(&p);
+
+  /* 200 publishes of three one-voxel runs each, unread: more runs than this
+   * map's log holds (256) */
+  static uint16_t sent[N];
+  memcpy(sent, labels, sizeof sent);
+  for (int i = 0; i < 200; i++) {
+    size_t a = (size_t)(i * 7) % N, b = (a + 1) % N, c = (a + 2) % N;
+    labels[a] = (uint16_t)(i % 3);
+    struct vlff_map_range r[3] = {{(uint32_t)a, 1}, {(uint32_t)b, 1}, {(uint32_t)c, 1}};
+    assert_int_equal(publish_runs(m, r, 3), 0);
+  }
+  int want = 0;
+  for (size_t i = 0; i < N; i++) want += labels[i] != sent[i];
+  assert_true(want > 50);
+  poll_feed(f, ALL, &p);
+  assert_false(json_object_get_boolean(get(p.msg[VLFF_VIEW_CH_VOXELS], "full")));
+  v = get(p.msg[VLFF_VIEW_CH_VOXELS], "voxels");
+  assert_int_equal(json_object_array_length(v), 3 * (size_t)want);
+  for (int t = 0; t < want; t++) {
+    int idx = json_object_get_int(json_object_array_get_idx(v, 3 * t));
+    assert_true(labels[idx] != sent[idx]);
+    assert_int_equal(json_object_get_int(json_object_array_get_idx(v, 3 * t + 1)), labels[idx]);
+  }
+  free_polled(&p);
+  /* and nothing more: the next version with no change sends an empty delta */
+  assert_int_equal(publish_runs(m, NULL, 0), 0);
+  poll_feed(f, ALL, &p);
+  assert_int_equal(json_object_array_length(get(p.msg[VLFF_VIEW_CH_VOXELS], "voxels")), 0);
+  free_polled(&p);
+  vlff_feed_free(f);
+  vlff_map_detach(m);
+}
+
 static char ring_name[64];
 
 /* A 8x6 RGB frame at the host time t, its camera at height z. */
@@ -323,4 +391,5 @@ static void test_fresh(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test_setup_teardown(test_feed, setup, teardown),
-    cmocka_unit_test_setup_teardown(test_fresh, setup, teardown))
+    cmocka_unit_test_setup_teardown(test_fresh, setup, teardown),
+    cmocka_unit_test_setup_teardown(test_feed_follows_log, setup, teardown))
