@@ -17,6 +17,7 @@
 
 #include "cli.h"
 #include "diagnostic_msgs.h"
+#include "hash.h"
 #include "log.h"
 #include "palette.h"
 #include "sensor_msgs.h"
@@ -229,7 +230,7 @@ struct vlff_dds {
   struct vlff_ring *ring; /* the camera's frame ring */
   uint8_t *rec;           /* its newest record */
   size_t rec_cap;
-  uint64_t ring_head, ring_next_attach, last_camera_ns, last_label_ns, label_t_sent;
+  uint64_t ring_head, ring_next_attach, last_camera_ns, last_label_ns, label_sent;
   char *prompts_sent;     /* the prompt list's JSON last sent */
   uint64_t snap_version;  /* the version and generation in snap */
   uint32_t snap_generation;
@@ -564,6 +565,22 @@ static void send_label_image(struct vlff_dds *b, const struct vlff_map_label_ima
   if (b->w[VLFF_DDS_TF] && !b->ring_has_pose && valid_pose(li->pose)) send_tf(b, li->t_ns, li->pose);
 }
 
+/* What tells two label images apart: their stamp and their labels. */
+static uint64_t label_key(const struct vlff_map_label_image *li) {
+  uint64_t h = vlff_fnv1a64(VLFF_FNV1A64_INIT, &li->t_ns, sizeof li->t_ns);
+  return vlff_fnv1a64(h, li->labels, (size_t)li->width * li->height * sizeof *li->labels);
+}
+
+/* The label image is a stream, like the camera's: an image that has not
+ * changed is sent again each LABEL_RESEND_S, so a subscriber that joined or
+ * came back after a link was down (volatile: nothing is kept for it) has
+ * the current one within that time, whatever the learner's refresh rate. */
+#define LABEL_RESEND_S 1.0
+static bool label_stale(const struct vlff_dds *b) {
+  return b->label_sent && (b->w[VLFF_DDS_LABEL_IMAGE] || b->w[VLFF_DDS_LABEL_IMAGE_COMPRESSED]) &&
+         (double)(mono_ns() - b->last_label_ns) >= LABEL_RESEND_S * 1e9;
+}
+
 /* The map segment: a new version is taken once into the snapshot; the map,
  * prompt list and label image go out from it, each retried at the next
  * poll if its write failed, the label image when the rate allows. */
@@ -583,9 +600,12 @@ static void poll_map(struct vlff_dds *b) {
     b->snap_generation = info.generation;
     b->map_pending = b->w[VLFF_DDS_MAP] != 0;
     b->prompts_pending = b->w[VLFF_DDS_PROMPTS] != 0;
-    b->label_pending = info.has_label_image && info.label_image.t_ns != b->label_t_sent &&
+    /* The label image is re-rendered for the same view as the field learns
+     * (a refresh of the map): a new image is one whose view or labels
+     * changed, not only its stamp. */
+    b->label_pending = info.has_label_image && label_key(&info.label_image) != b->label_sent &&
                        (b->w[VLFF_DDS_LABEL_IMAGE] || b->w[VLFF_DDS_LABEL_IMAGE_COMPRESSED] || b->w[VLFF_DDS_TF]);
-  } else if (!b->map_pending && !b->prompts_pending && !b->label_pending) {
+  } else if (!b->map_pending && !b->prompts_pending && !b->label_pending && !label_stale(b)) {
     return;
   } else if (vlff_map_snapshot_info(b->snap, &info) < 0) {
     return;
@@ -593,9 +613,11 @@ static void poll_map(struct vlff_dds *b) {
   if (b->map_pending && send_map(b, &info)) b->map_pending = false;
   if (b->prompts_pending && send_prompt_list(b, &info)) b->prompts_pending = false;
   uint64_t now = mono_ns();
+  if (label_stale(b) && info.has_label_image) b->label_pending = true;
   if (b->label_pending && (!b->last_label_ns || (double)(now - b->last_label_ns) >= 1e9 / b->o.dds.image_hz)) {
+    VLFF_DEBUG(TAG, "label image of map version %" PRIu64 " t_ns %" PRIu64 " sent", info.version, info.label_image.t_ns);
     send_label_image(b, &info.label_image);
-    b->label_t_sent = info.label_image.t_ns;
+    b->label_sent = label_key(&info.label_image);
     b->last_label_ns = now;
     b->label_pending = false;
   }
