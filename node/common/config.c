@@ -395,7 +395,10 @@ static const struct key schema[] = {
     DDS_TOPIC("map_updates", VLFF_DDS_MAP_UPDATES, 1, "reliable", "transient_local", 200),
     DBL("dds.status_hz", dds.status_hz, 0.01, 100, 1),
     DBL("dds.poll_hz", dds.poll_hz, 1, 1000, 20),
-    DBL("dds.map_full_period_s", dds.map_full_period_s, 1, 3600, 60),
+    /* A safety net for subscribers that lost updates (late joiners get the
+     * updates' history): every resend costs the whole map, dozens of
+     * versions' changes for a map refined a region at a time. */
+    DBL("dds.map_full_period_s", dds.map_full_period_s, 1, 3600, 120),
     DBL("dds.image_hz", dds.image_hz, 0.01, 60, 2),
     DBL("dds.prompt_rate_hz", dds.prompt_rate_hz, 0.01, 100, 2),
     /* A JSON list of 32 prompts of 63 bytes, each \u-escaped at worst

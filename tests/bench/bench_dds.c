@@ -14,8 +14,8 @@
  *       bridge's map, map updates, images, camera info and tf (the IDL
  *       only): per map change (an update, or a whole map), the latency from
  *       its publish into the segment (the header stamp) to its receipt;
- *       payload bytes per topic, those of the writers' histories sent when
- *       the reader joined apart. Prints "key value" lines.
+ *       payload bytes per topic, apart those of the writers' histories sent
+ *       when the reader joined and the first whole map. Prints "key value" lines.
  */
 #include <vlff/shm.h>
 
@@ -204,8 +204,11 @@ static int subscribe(int domain, const char *ns, double secs) {
         count[i]++;
         if (i == 0 || i == 5) {
           const sensor_msgs_msg_dds__PointCloud2_ *m = s[k];
+          /* the first whole map (the history's, or the bridge's first) is
+           * what joining costs, not the steady rate */
+          bool first_full = i == 0 && !last_full;
           if (i == 0) last_full = m->data._length;
-          if (info[k].source_timestamp < joined) {
+          if (info[k].source_timestamp < joined || first_full) {
             joined_bytes += m->data._length;
             count[i]--;
             continue;

@@ -11,7 +11,7 @@
 #  - dds_bytes_per_s_per_robot: bytes A sent over the link per second (every
 #    topic, discovery and DDS's own traffic), and dds_map_bytes_per_s the map
 #    topics' payload alone (map/updates and the whole maps sent during the
-#    run; not the histories a joining reader gets), against the baseline of
+#    run; not the histories a joining reader gets, nor the first whole map), against the baseline of
 #    the map's changed bytes per second (voxels whose label, or a labelled
 #    voxel's confidence, changed x 20 B, a PointCloud2 point):
 #    dds_map_vs_changed as measured, and dds_map_vs_changed_amortized with
