@@ -6,7 +6,9 @@
  *   map_writer write NAME SEED SECONDS   a 20x20x10 grid of 0.1 m voxels at
  *       the origin: a floor, a wall and a box labelled, confidences that
  *       differ by SEED (odd for 1, even for 2), a prompt list of SEED's;
- *       published once, then alive (heartbeats) for SECONDS.
+ *       published once; after 2 s a partial publish (its runs) that clears
+ *       part of the wall and labels a new box, then prints "changed"; alive
+ *       (heartbeats) for SECONDS.
  *   map_writer churn NAME VERSIONS HZ SECONDS   for test_dds_updates.sh:
  *       seed 1's map, then after 3 s VERSIONS partial publishes at HZ
  *       (vlff_map_update.ranges, as the node's), each relabelling a 3x3x2
@@ -68,11 +70,37 @@ static int write_map(const char *name, int seed, double secs) {
   signal(SIGINT, on_signal);
   struct timespec t0, t;
   clock_gettime(CLOCK_MONOTONIC, &t0);
+  int changed = 0;
   do {
     struct timespec half = {0, 200000000};
     nanosleep(&half, NULL);
     vlff_map_heartbeat(m);
     clock_gettime(CLOCK_MONOTONIC, &t);
+    if (!changed && t.tv_sec - t0.tv_sec >= 2) {
+      /* the map changes: a subscriber following it (vlff-merge) must too */
+      struct vlff_map_range runs[2 * 3 + 3 * 3];
+      size_t nr = 0;
+      for (int k = 1; k < 3; k++)
+        for (int j = 0; j < 3; j++) {
+          size_t first = NX * ((size_t)j + NY * (size_t)k);
+          runs[nr++] = (struct vlff_map_range){(uint32_t)first, 1};
+          labels[first] = VLFF_LABEL_FREE;
+        }
+      for (int k = 1; k < 4; k++)
+        for (int j = 15; j < 18; j++) {
+          size_t first = 14 + NX * ((size_t)j + NY * (size_t)k);
+          runs[nr++] = (struct vlff_map_range){(uint32_t)first, 3};
+          for (size_t v = first; v < first + 3; v++) labels[v] = (uint16_t)box_l, conf[v] = (uint8_t)(240 + seed);
+        }
+      struct vlff_map_update pu = {.grid = &g, .ranges = runs, .range_count = nr};
+      if (vlff_map_publish(m, &pu) < 0) {
+        fprintf(stderr, "map_writer: publish: %s\n", vlff_shm_last_message());
+        return 1;
+      }
+      printf("changed\n");
+      fflush(stdout);
+      changed = 1;
+    }
   } while (!stop && (double)(t.tv_sec - t0.tv_sec) < secs);
   vlff_map_detach(m);
   return 0;
