@@ -714,6 +714,7 @@ static void poll_map(struct vlff_dds *b) {
   uint32_t gen = vlff_map_generation(m);
   struct vlff_map_info info;
   bool maps = b->w[VLFF_DDS_MAP] || b->w[VLFF_DDS_MAP_UPDATES];
+  bool fresh = false;
   bool period_due = b->w[VLFF_DDS_MAP] && b->updates_since_full &&
                     (double)(now - b->last_full_ns) >= b->o.dds.map_full_period_s * 1e9;
   if (v && (v != b->snap_version || gen != b->snap_generation)) {
@@ -726,6 +727,7 @@ static void poll_map(struct vlff_dds *b) {
     b->snap_version = info.version;
     b->snap_generation = info.generation;
     b->snap_stamp = version_stamp(b, info.publish_ns);
+    fresh = true;
     if (maps) {
       if (whole == 1 || collect_updates(b, &info.grid) < 0) {
         /* A whole copy, or no memory for the update: subscribers get the
@@ -775,6 +777,8 @@ static void poll_map(struct vlff_dds *b) {
     /* the whole map of the same version already holds it */
     if (!full_now) b->updates_since_full++;
   }
+  /* a version that changed nothing subscribers see: they hold it already */
+  if (fresh && maps && !b->full_pending && !b->upd_n) b->sent_version = info.version;
   if (b->prompts_pending && send_prompt_list(b, &info)) b->prompts_pending = false;
   if (b->label_pending && (!b->last_label_ns || (double)(now - b->last_label_ns) >= 1e9 / b->o.dds.image_hz)) {
     send_label_image(b, &info.label_image);
