@@ -390,8 +390,15 @@ static const struct key schema[] = {
     DDS_TOPIC("camera_image_compressed", VLFF_DDS_CAMERA_IMAGE_COMPRESSED, 0, "reliable", "volatile", 1),
     DDS_TOPIC("camera_info", VLFF_DDS_CAMERA_INFO, 1, "reliable", "volatile", 1),
     DDS_TOPIC("tf", VLFF_DDS_TF, 1, "reliable", "volatile", 10),
+    /* A late joiner needs every update since the whole map it gets: the
+     * bridge resends the whole map before more than depth updates follow it. */
+    DDS_TOPIC("map_updates", VLFF_DDS_MAP_UPDATES, 1, "reliable", "transient_local", 200),
     DBL("dds.status_hz", dds.status_hz, 0.01, 100, 1),
     DBL("dds.poll_hz", dds.poll_hz, 1, 1000, 20),
+    /* A safety net for subscribers that lost updates (late joiners get the
+     * updates' history): every resend costs the whole map, dozens of
+     * versions' changes for a map refined a region at a time. */
+    DBL("dds.map_full_period_s", dds.map_full_period_s, 1, 3600, 120),
     DBL("dds.image_hz", dds.image_hz, 0.01, 60, 2),
     DBL("dds.prompt_rate_hz", dds.prompt_rate_hz, 0.01, 100, 2),
     /* A JSON list of 32 prompts of 63 bytes, each \u-escaped at worst

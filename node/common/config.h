@@ -345,6 +345,7 @@ enum vlff_dds_topic_id {
   VLFF_DDS_CAMERA_IMAGE_COMPRESSED, /* camera/image_raw/compressed: CompressedImage jpeg */
   VLFF_DDS_CAMERA_INFO,             /* camera/camera_info: CameraInfo */
   VLFF_DDS_TF,                      /* <namespace>/tf: TFMessage */
+  VLFF_DDS_MAP_UPDATES,             /* map/updates: PointCloud2 of the changed voxels */
   VLFF_DDS_NTOPICS
 };
 enum { VLFF_DDS_BEST_EFFORT = 0, VLFF_DDS_RELIABLE = 1 };
@@ -377,6 +378,7 @@ struct vlff_cfg_dds {
   struct vlff_cfg_dds_qos qos[VLFF_DDS_NTOPICS];
   double status_hz;                /* status messages per second */
   double poll_hz;                  /* map segment checks per second */
+  double map_full_period_s;        /* slowest resend of the whole map while it changes */
   double image_hz;                 /* most images (label, camera) per second each */
   double prompt_rate_hz;           /* most prompt posts per second; more are refused as a flood */
   int max_prompt_bytes;            /* longest prompt message taken */

@@ -48,6 +48,7 @@ static const struct {
     [VLFF_DDS_CAMERA_IMAGE_COMPRESSED] = {"camera_image_compressed", "camera/image_raw/compressed"},
     [VLFF_DDS_CAMERA_INFO] = {"camera_info", "camera/camera_info"},
     [VLFF_DDS_TF] = {"tf", NULL},
+    [VLFF_DDS_MAP_UPDATES] = {"map_updates", "map/updates"},
 };
 
 const char *vlff_dds_topic_key(int id) { return id >= 0 && id < VLFF_DDS_NTOPICS ? topics[id].key : NULL; }
@@ -189,6 +190,18 @@ static void put_f32(uint8_t *p, float f) {
   for (int i = 0; i < 4; i++) p[i] = (uint8_t)(u >> (8 * i));
 }
 
+void vlff_dds_put_point(uint8_t *p, const struct vlff_map_grid *g, size_t i) {
+  uint16_t l = g->labels[i];
+  size_t ix = i % g->dims[0], iy = (i / g->dims[0]) % g->dims[1], iz = i / ((size_t)g->dims[0] * g->dims[1]);
+  put_f32(p, (float)(g->origin[0] + ((double)ix + 0.5) * g->voxel_size));
+  put_f32(p + 4, (float)(g->origin[1] + ((double)iy + 0.5) * g->voxel_size));
+  put_f32(p + 8, (float)(g->origin[2] + ((double)iz + 0.5) * g->voxel_size));
+  p[12] = (uint8_t)l;
+  p[13] = (uint8_t)(l >> 8);
+  p[14] = p[15] = 0;
+  put_f32(p + 16, (float)(g->confidence ? g->confidence[i] : 255) / 255.0f);
+}
+
 int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *npoints) {
   const struct vlff_map_grid *g = &info->grid;
   size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
@@ -202,16 +215,8 @@ int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *np
   }
   uint8_t *p = buf;
   for (size_t i = 0; i < total; i++) {
-    uint16_t l = g->labels[i];
-    if (l > VLFF_LABEL_MAX) continue;
-    size_t ix = i % g->dims[0], iy = (i / g->dims[0]) % g->dims[1], iz = i / ((size_t)g->dims[0] * g->dims[1]);
-    put_f32(p, (float)(g->origin[0] + ((double)ix + 0.5) * g->voxel_size));
-    put_f32(p + 4, (float)(g->origin[1] + ((double)iy + 0.5) * g->voxel_size));
-    put_f32(p + 8, (float)(g->origin[2] + ((double)iz + 0.5) * g->voxel_size));
-    p[12] = (uint8_t)l;
-    p[13] = (uint8_t)(l >> 8);
-    p[14] = p[15] = 0;
-    put_f32(p + 16, (float)(g->confidence ? g->confidence[i] : 255) / 255.0f);
+    if (g->labels[i] > VLFF_LABEL_MAX) continue;
+    vlff_dds_put_point(p, g, i);
     p += VLFF_DDS_POINT_STEP;
   }
   *out = buf;
@@ -234,10 +239,23 @@ struct vlff_dds {
   char *prompts_sent;     /* the prompt list's JSON last sent */
   uint64_t snap_version;  /* the version and generation in snap */
   uint32_t snap_generation;
-  bool map_pending, prompts_pending, label_pending; /* in snap, not sent yet */
+  bool prompts_pending, label_pending; /* in snap, not sent yet */
   bool ring_has_pose;     /* poses come from the frames */
   uint64_t sent_version;
   uint32_t sent_generation;
+  /* Following the map: shadow is the grid as subscribers know it (the last
+   * whole map sent and the updates after it); upd the changed voxels not
+   * sent yet, as update points. */
+  uint16_t *shadow_labels;
+  uint8_t *shadow_conf;
+  size_t shadow_n;
+  uint8_t *upd;
+  size_t upd_n, upd_cap;
+  int64_t snap_stamp, last_stamp; /* the version's header stamp (ns of system time), the latest given */
+  bool full_pending;
+  const char *full_why;           /* why the whole map goes out (-v) */
+  uint64_t full_version, last_full_ns, updates_since_full;
+  char *full_prompts;             /* the prompt list's JSON at the last whole map */
   uint64_t pending_seq; /* last post whose answer is not logged yet */
   uint64_t last_post_ns;
   volatile sig_atomic_t stop;
@@ -251,7 +269,8 @@ static void set_err(char *err, size_t errlen, const char *what, dds_return_t rc)
 
 static const dds_topic_descriptor_t *descriptor(int id) {
   switch (id) {
-  case VLFF_DDS_MAP: return &sensor_msgs_msg_dds__PointCloud2__desc;
+  case VLFF_DDS_MAP:
+  case VLFF_DDS_MAP_UPDATES: return &sensor_msgs_msg_dds__PointCloud2__desc;
   case VLFF_DDS_STATUS: return &diagnostic_msgs_msg_dds__DiagnosticArray__desc;
   case VLFF_DDS_PROMPTS_IN:
   case VLFF_DDS_PROMPTS: return &std_msgs_msg_dds__String__desc;
@@ -276,6 +295,11 @@ static dds_qos_t *topic_qos(const struct vlff_cfg_dds_qos *c) {
   dds_qset_durability(q, c->durability == VLFF_DDS_TRANSIENT_LOCAL ? DDS_DURABILITY_TRANSIENT_LOCAL
                                                                    : DDS_DURABILITY_VOLATILE);
   dds_qset_history(q, DDS_HISTORY_KEEP_LAST, c->depth);
+  /* What a late joiner gets is the durability service's history in
+   * Cyclone (keep last 1 unless said): the same depth. */
+  if (c->durability == VLFF_DDS_TRANSIENT_LOCAL)
+    dds_qset_durability_service(q, 0, DDS_HISTORY_KEEP_LAST, c->depth, DDS_LENGTH_UNLIMITED, DDS_LENGTH_UNLIMITED,
+                                DDS_LENGTH_UNLIMITED);
   return q;
 }
 
@@ -368,6 +392,10 @@ void vlff_dds_destroy(struct vlff_dds *b) {
   vlff_ring_close(b->ring);
   free(b->rec);
   free(b->prompts_sent);
+  free(b->full_prompts);
+  free(b->shadow_labels);
+  free(b->shadow_conf);
+  free(b->upd);
   free(b);
 }
 
@@ -382,6 +410,23 @@ static builtin_interfaces_msg_dds__Time_ ros_time(uint64_t mono) {
   uint64_t t = now_rt > age ? now_rt - age : 0;
   builtin_interfaces_msg_dds__Time_ out = {(int32_t)(t / 1000000000ull), (uint32_t)(t % 1000000000ull)};
   return out;
+}
+
+static builtin_interfaces_msg_dds__Time_ stamp_time(int64_t ns) {
+  builtin_interfaces_msg_dds__Time_ out = {(int32_t)(ns / 1000000000), (uint32_t)(ns % 1000000000)};
+  return out;
+}
+
+/* A version's header stamp, fixed when the bridge first reads the version
+ * so that its whole map and its update carry the same one, and increasing
+ * from version to version whatever the system clock does: subscribers
+ * order the two topics by it (docs/dds.md, "Following the map"). */
+static int64_t version_stamp(struct vlff_dds *b, uint64_t publish_ns) {
+  builtin_interfaces_msg_dds__Time_ t = ros_time(publish_ns);
+  int64_t ns = (int64_t)t.sec * 1000000000 + t.nanosec;
+  if (ns <= b->last_stamp) ns = b->last_stamp + 1;
+  b->last_stamp = ns;
+  return ns;
 }
 
 static void drop_map(struct vlff_dds *b) {
@@ -441,7 +486,7 @@ static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
       {"label", 12, VLFF_DDS_UINT16, 1}, {"confidence", 16, VLFF_DDS_FLOAT32, 1},
   };
   sensor_msgs_msg_dds__PointCloud2_ msg = {0};
-  msg.header.stamp = ros_time(info->publish_ns);
+  msg.header.stamp = stamp_time(b->snap_stamp);
   msg.header.frame_id = b->o.dds.frame_id;
   msg.height = 1;
   msg.width = n;
@@ -459,8 +504,91 @@ static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
   b->sent_version = info->version;
   b->sent_generation = info->generation;
   b->c.maps_sent++;
-  VLFF_DEBUG(TAG, "map version %" PRIu64 ": %u points", info->version, n);
+  VLFF_DEBUG(TAG, "map version %" PRIu64 ": %u points (whole: %s)", info->version, n, b->full_why);
   return true;
+}
+
+/* The changed voxels not sent yet, as one update stamped and numbered with
+ * the snapshot's version. */
+static bool send_updates(struct vlff_dds *b, const struct vlff_map_info *info) {
+  uint32_t n = (uint32_t)b->upd_n, v = (uint32_t)info->version;
+  for (uint32_t k = 0; k < n; k++) {
+    uint8_t *p = b->upd + (size_t)k * VLFF_DDS_UPDATE_STEP + VLFF_DDS_POINT_STEP;
+    for (int i = 0; i < 4; i++) p[i] = (uint8_t)(v >> (8 * i));
+  }
+  sensor_msgs_msg_dds__PointField_ fields[6] = {
+      {"x", 0, VLFF_DDS_FLOAT32, 1},         {"y", 4, VLFF_DDS_FLOAT32, 1},
+      {"z", 8, VLFF_DDS_FLOAT32, 1},         {"label", 12, VLFF_DDS_UINT16, 1},
+      {"confidence", 16, VLFF_DDS_FLOAT32, 1}, {"version", 20, VLFF_DDS_UINT32, 1},
+  };
+  sensor_msgs_msg_dds__PointCloud2_ msg = {0};
+  msg.header.stamp = stamp_time(b->snap_stamp);
+  msg.header.frame_id = b->o.dds.frame_id;
+  msg.height = 1;
+  msg.width = n;
+  msg.fields._length = msg.fields._maximum = 6;
+  msg.fields._buffer = fields;
+  msg.is_bigendian = false;
+  msg.point_step = VLFF_DDS_UPDATE_STEP;
+  msg.row_step = n * VLFF_DDS_UPDATE_STEP;
+  msg.data._length = msg.data._maximum = msg.row_step;
+  msg.data._buffer = b->upd;
+  msg.is_dense = true;
+  if (!write_ok(b, VLFF_DDS_MAP_UPDATES, &msg)) return false;
+  b->sent_version = info->version;
+  b->sent_generation = info->generation;
+  b->c.map_updates_sent++;
+  b->c.map_update_points += n;
+  VLFF_DEBUG(TAG, "map version %" PRIu64 ": update of %u voxels", info->version, n);
+  return true;
+}
+
+/* What a voxel shows a subscriber: its label, and its confidence when it
+ * is labelled (free and unknown voxels are not points of the whole map). */
+static bool voxel_differs(const struct vlff_dds *b, const struct vlff_map_grid *g, size_t i) {
+  uint16_t l = g->labels[i];
+  uint8_t c = g->confidence ? g->confidence[i] : 255;
+  return l != b->shadow_labels[i] || (l <= VLFF_LABEL_MAX && c != b->shadow_conf[i]);
+}
+
+/* The shadow made the snapshot's grid whole: after a whole copy (the
+ * first, a restarted writer, a log overrun, a new geometry). 0 or -1. */
+static int shadow_reset(struct vlff_dds *b, const struct vlff_map_grid *g) {
+  size_t total = g->labels ? (size_t)g->dims[0] * g->dims[1] * g->dims[2] : 0;
+  if (total != b->shadow_n) {
+    free(b->shadow_labels);
+    free(b->shadow_conf);
+    b->shadow_labels = malloc(total ? total * 2 : 1);
+    b->shadow_conf = malloc(total ? total : 1);
+    b->shadow_n = b->shadow_labels && b->shadow_conf ? total : 0;
+    if (!b->shadow_n && total) return -1;
+  }
+  if (total) memcpy(b->shadow_labels, g->labels, total * 2);
+  for (size_t i = 0; i < total; i++) b->shadow_conf[i] = g->confidence ? g->confidence[i] : 255;
+  return 0;
+}
+
+/* The voxels the follow changed that a subscriber sees change, appended to
+ * the pending update and written into the shadow. 0 or -1 (no memory). */
+static int collect_updates(struct vlff_dds *b, const struct vlff_map_grid *g) {
+  const struct vlff_map_range *runs;
+  size_t nruns = vlff_map_snapshot_changes(b->snap, &runs, NULL);
+  for (size_t r = 0; r < nruns; r++) {
+    for (size_t i = runs[r].first; i < (size_t)runs[r].first + runs[r].count && i < b->shadow_n; i++) {
+      if (!voxel_differs(b, g, i)) continue;
+      if (b->upd_n == b->upd_cap) {
+        size_t cap = b->upd_cap ? 2 * b->upd_cap : 256;
+        uint8_t *u = cap <= UINT32_MAX / VLFF_DDS_UPDATE_STEP ? realloc(b->upd, cap * VLFF_DDS_UPDATE_STEP) : NULL;
+        if (!u) return -1;
+        b->upd = u;
+        b->upd_cap = cap;
+      }
+      vlff_dds_put_point(b->upd + b->upd_n++ * VLFF_DDS_UPDATE_STEP, g, i);
+      b->shadow_labels[i] = g->labels[i];
+      b->shadow_conf[i] = g->confidence ? g->confidence[i] : 255;
+    }
+  }
+  return 0;
 }
 
 /* The prompt list, when it differs from the one last sent. */
@@ -581,41 +709,100 @@ static bool label_stale(const struct vlff_dds *b) {
          (double)(mono_ns() - b->last_label_ns) >= LABEL_RESEND_S * 1e9;
 }
 
-/* The map segment: a new version is taken once into the snapshot; the map,
- * prompt list and label image go out from it, each retried at the next
- * poll if its write failed, the label image when the rate allows. */
+static void mark_full(struct vlff_dds *b, const char *why) {
+  if (!b->full_pending) b->full_why = why;
+  b->full_pending = true;
+}
+
+/* The map segment, followed: a new version's changes are read once into
+ * the snapshot (vlff_map_snapshot_follow); the voxels a subscriber sees
+ * change go out as an update, the whole map only when a subscriber could
+ * not follow otherwise (a whole copy: the first, a restarted writer, a log
+ * overrun, a new geometry; new prompts, which rename the labels; more
+ * updates since the last whole map than the updates' history keeps for a
+ * late joiner) and every dds.map_full_period_s while the map changes. The
+ * prompt list and label image go out from the same snapshot; each write
+ * that failed is retried at the next poll, the label image when the rate
+ * allows. */
 static void poll_map(struct vlff_dds *b) {
   struct vlff_map *m = get_map(b);
   if (!m) return;
-  uint64_t v = vlff_map_version(m);
+  uint64_t v = vlff_map_version(m), now = mono_ns();
   uint32_t gen = vlff_map_generation(m);
   struct vlff_map_info info;
+  bool maps = b->w[VLFF_DDS_MAP] || b->w[VLFF_DDS_MAP_UPDATES];
+  bool fresh = false;
+  bool period_due = b->w[VLFF_DDS_MAP] && b->updates_since_full &&
+                    (double)(now - b->last_full_ns) >= b->o.dds.map_full_period_s * 1e9;
   if (v && (v != b->snap_version || gen != b->snap_generation)) {
-    if (vlff_map_snapshot_take(m, b->snap) < 0 || vlff_map_snapshot_info(b->snap, &info) < 0) {
+    int whole = vlff_map_snapshot_follow(m, b->snap);
+    if (whole < 0 || vlff_map_snapshot_info(b->snap, &info) < 0) {
       vlff_warn_limited(&b->warn_map, TAG, "map segment %s: %s", VLFF_Q(b->o.map), vlff_shm_last_message());
       if (errno == EPIPE) drop_map(b);
       return;
     }
     b->snap_version = info.version;
     b->snap_generation = info.generation;
-    b->map_pending = b->w[VLFF_DDS_MAP] != 0;
+    b->snap_stamp = version_stamp(b, info.publish_ns);
+    fresh = true;
+    if (maps) {
+      if (whole == 1 || collect_updates(b, &info.grid) < 0) {
+        /* A whole copy, or no memory for the update: subscribers get the
+         * whole map, which the shadow then is. */
+        b->upd_n = 0;
+        mark_full(b, whole == 1 ? "a whole copy of the segment" : "no memory for an update");
+        if (shadow_reset(b, &info.grid) < 0) {
+          vlff_warn_limited(&b->warn_map, TAG, "map version %" PRIu64 ": no memory to follow %s", info.version,
+                            VLFF_Q(b->o.map));
+          drop_map(b);
+          return;
+        }
+      }
+      char *json = vlff_dds_prompt_json(b->snap, info.prompt_count);
+      if (json && b->full_prompts && strcmp(json, b->full_prompts)) mark_full(b, "new prompts");
+      free(json);
+    }
     b->prompts_pending = b->w[VLFF_DDS_PROMPTS] != 0;
     /* The label image is re-rendered for the same view as the field learns
      * (a refresh of the map): a new image is one whose view or labels
      * changed, not only its stamp. */
     b->label_pending = info.has_label_image && label_key(&info.label_image) != b->label_sent &&
                        (b->w[VLFF_DDS_LABEL_IMAGE] || b->w[VLFF_DDS_LABEL_IMAGE_COMPRESSED] || b->w[VLFF_DDS_TF]);
-  } else if (!b->map_pending && !b->prompts_pending && !b->label_pending && !label_stale(b)) {
+  } else if (!b->full_pending && !b->upd_n && !period_due && !b->prompts_pending && !b->label_pending &&
+             !label_stale(b)) {
     return;
   } else if (vlff_map_snapshot_info(b->snap, &info) < 0) {
     return;
   }
-  if (b->map_pending && send_map(b, &info)) b->map_pending = false;
+  if (period_due) mark_full(b, "dds.map_full_period_s");
+  /* A late joiner applies the updates after the whole map it gets: the
+   * updates' history must still hold all of them. */
+  const struct vlff_cfg_dds_qos *uq = &b->o.dds.qos[VLFF_DDS_MAP_UPDATES];
+  if (b->upd_n && (!b->w[VLFF_DDS_MAP_UPDATES] ||
+                   (uq->durability == VLFF_DDS_TRANSIENT_LOCAL && b->updates_since_full >= (uint64_t)uq->depth)))
+    mark_full(b, b->w[VLFF_DDS_MAP_UPDATES] ? "the updates' history is full" : "dds.map_updates is off");
+  bool full_now = false;
+  if (b->full_pending && !b->w[VLFF_DDS_MAP]) b->full_pending = false;
+  if (b->full_pending && send_map(b, &info)) {
+    b->full_pending = false;
+    b->full_version = info.version;
+    b->last_full_ns = now;
+    b->updates_since_full = 0;
+    free(b->full_prompts);
+    b->full_prompts = vlff_dds_prompt_json(b->snap, info.prompt_count);
+    full_now = true;
+  }
+  if (b->upd_n && !b->w[VLFF_DDS_MAP_UPDATES]) b->upd_n = 0;
+  if (b->upd_n && send_updates(b, &info)) {
+    b->upd_n = 0;
+    /* the whole map of the same version already holds it */
+    if (!full_now) b->updates_since_full++;
+  }
+  /* a version that changed nothing subscribers see: they hold it already */
+  if (fresh && maps && !b->full_pending && !b->upd_n) b->sent_version = info.version;
   if (b->prompts_pending && send_prompt_list(b, &info)) b->prompts_pending = false;
-  uint64_t now = mono_ns();
   if (label_stale(b) && info.has_label_image) b->label_pending = true;
   if (b->label_pending && (!b->last_label_ns || (double)(now - b->last_label_ns) >= 1e9 / b->o.dds.image_hz)) {
-    VLFF_DEBUG(TAG, "label image of map version %" PRIu64 " t_ns %" PRIu64 " sent", info.version, info.label_image.t_ns);
     send_label_image(b, &info.label_image);
     b->label_sent = label_key(&info.label_image);
     b->last_label_ns = now;
@@ -817,10 +1004,12 @@ static void send_status(struct vlff_dds *b) {
   st[1].name = "vlff-dds: bridge";
   st[1].hardware_id = b->o.hardware_id;
   st[1].level = VLFF_DDS_OK;
-  snprintf(bmsg, sizeof bmsg, "%" PRIu64 " maps sent, %" PRIu64 " prompt sets posted, %" PRIu64 " refused", c->maps_sent,
-           c->prompts_posted, refused);
+  snprintf(bmsg, sizeof bmsg, "%" PRIu64 " maps and %" PRIu64 " updates sent, %" PRIu64 " prompt sets posted, %" PRIu64
+           " refused", c->maps_sent, c->map_updates_sent, c->prompts_posted, refused);
   st[1].message = bmsg;
   kv(&bk, "maps_sent", "%" PRIu64, c->maps_sent);
+  kv(&bk, "map_updates_sent", "%" PRIu64, c->map_updates_sent);
+  kv(&bk, "map_update_points", "%" PRIu64, c->map_update_points);
   kv(&bk, "map_version_sent", "%" PRIu64, b->sent_version);
   kv(&bk, "prompt_lists_sent", "%" PRIu64, c->prompt_lists_sent);
   kv(&bk, "label_images_sent", "%" PRIu64, c->label_images_sent);

@@ -18,8 +18,26 @@
  *    centre in the map's world frame, fields x y z (float32) label (uint16)
  *    confidence (float32, 0..1), little-endian, point_step 20, height 1.
  *    Reliable, transient local, keep last 1: a reader joining late gets the
- *    latest map whole. Sent once per map version, never while the version
- *    stays the same. The stamp is the version's publish time in system time.
+ *    latest whole map. Sent only when a subscriber could not follow the
+ *    updates otherwise: the first version the bridge reads, a whole copy of
+ *    the segment (a restarted writer, a change log the bridge fell behind,
+ *    a new geometry), a new prompt list, more updates since the last whole
+ *    map than dds.qos.map_updates.depth (when that history is transient
+ *    local: a late joiner needs them all), and every dds.map_full_period_s
+ *    while the map changes; never while nothing changed. With map_updates
+ *    off, once per version that changed what subscribers see.
+ *  - map_updates ("map/updates"): sensor_msgs/PointCloud2 of the voxels a
+ *    map version changed as a subscriber sees them (the label, or a
+ *    labelled voxel's confidence), read from the segment's change log
+ *    (vlff_map_snapshot_follow) against what was sent: the map's fields,
+ *    free (65534) and unknown (65535) voxels included so that subscribers
+ *    clear them, and "version" (uint32 at 20, the low 32 bits of the map
+ *    version the update brings a subscriber to), point_step 24. Reliable,
+ *    transient local, keep last 200: a late joiner applies the updates
+ *    stamped later than the whole map it got.
+ *    Stamps: a version's whole map and update carry the same header stamp,
+ *    its publish time in system time, fixed when the bridge reads it and
+ *    increasing from version to version.
  *  - prompts: std_msgs/String, the map's prompt list as a JSON list (label
  *    i is element i), sent when it changes; reliable, transient local, keep
  *    last 1 (ROS's latched topic).
@@ -68,9 +86,10 @@
 #include "vlff/shm.h"
 
 /* PointField datatypes and DiagnosticStatus levels (the ROS 2 constants). */
-enum { VLFF_DDS_UINT16 = 4, VLFF_DDS_FLOAT32 = 7 };
+enum { VLFF_DDS_UINT16 = 4, VLFF_DDS_UINT32 = 6, VLFF_DDS_FLOAT32 = 7 };
 enum { VLFF_DDS_OK = 0, VLFF_DDS_WARN = 1, VLFF_DDS_ERROR = 2, VLFF_DDS_STALE = 3 };
-#define VLFF_DDS_POINT_STEP 20u
+#define VLFF_DDS_POINT_STEP 20u  /* map */
+#define VLFF_DDS_UPDATE_STEP 24u /* map/updates: a map point, then its version */
 
 /* What the bridge reads and where it writes. */
 struct vlff_dds_opts {
@@ -84,7 +103,7 @@ struct vlff_dds_opts {
 
 /* Why prompt messages were refused, and what was done. */
 struct vlff_dds_counts {
-  uint64_t maps_sent, status_sent, prompt_lists_sent, label_images_sent, camera_images_sent, tf_sent;
+  uint64_t maps_sent, map_updates_sent, map_update_points, status_sent, prompt_lists_sent, label_images_sent, camera_images_sent, tf_sent;
   uint64_t prompts_posted, prompts_oversized, prompts_flood, prompts_malformed, prompts_invalid, prompts_busy;
 };
 
@@ -115,6 +134,9 @@ char *vlff_dds_prompt_list_json(const char *const texts[], int count);
 int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_PROMPT_LEN], int *set_index,
                            int *invalid, char *why, size_t whylen);
 
+/* Grid element i as a map point (VLFF_DDS_POINT_STEP bytes) at p, whatever
+ * its label. */
+void vlff_dds_put_point(uint8_t *p, const struct vlff_map_grid *g, size_t i);
 /* The point cloud's payload of a snapshot: little-endian points as in the
  * contract, into a malloc'd buffer (*out, *npoints). 0, or -1/ENOMEM. */
 int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *npoints);

@@ -169,9 +169,10 @@ int main(int argc, char **argv) {
     printf("dds.namespace: \"%s\"\n", o.dds.ns);
     printf("dds.frame_id: \"%s\"\n", o.dds.frame_id);
     printf("dds.camera_frame_id: \"%s\"\n", o.dds.camera_frame_id);
+    printf("dds.map_full_period_s: %g\n", o.dds.map_full_period_s);
     for (int i = 0; i < VLFF_DDS_NTOPICS; i++) {
       const struct vlff_cfg_dds_qos *qq = &o.dds.qos[i];
-      const char *from = i == VLFF_DDS_MAP || i == VLFF_DDS_PROMPTS || i == VLFF_DDS_LABEL_IMAGE ||
+      const char *from = i == VLFF_DDS_MAP || i == VLFF_DDS_MAP_UPDATES || i == VLFF_DDS_PROMPTS || i == VLFF_DDS_LABEL_IMAGE ||
                                  i == VLFF_DDS_LABEL_IMAGE_COMPRESSED || i == VLFF_DDS_STATUS
                              ? o.map
                          : i == VLFF_DDS_PROMPTS_IN ? o.prompts
@@ -192,9 +193,10 @@ int main(int argc, char **argv) {
   VLFF_INFO("dds", "domain %d, namespace \"%s\": from %s and %s", o.dds.domain_id, o.dds.ns, o.map, o.frames);
   int rc = vlff_dds_run(b);
   const struct vlff_dds_counts *k = vlff_dds_counts(b);
-  VLFF_INFO("dds", "stopping: %llu maps, %llu status messages sent; %llu prompt sets posted, refused: %llu oversized, "
-                   "%llu flood, %llu malformed, %llu invalid, %llu mailbox busy",
-            (unsigned long long)k->maps_sent, (unsigned long long)k->status_sent, (unsigned long long)k->prompts_posted,
+  VLFF_INFO("dds", "stopping: %llu whole maps, %llu map updates, %llu status messages sent; %llu prompt sets posted, "
+                   "refused: %llu oversized, %llu flood, %llu malformed, %llu invalid, %llu mailbox busy",
+            (unsigned long long)k->maps_sent, (unsigned long long)k->map_updates_sent,
+            (unsigned long long)k->status_sent, (unsigned long long)k->prompts_posted,
             (unsigned long long)k->prompts_oversized, (unsigned long long)k->prompts_flood,
             (unsigned long long)k->prompts_malformed, (unsigned long long)k->prompts_invalid,
             (unsigned long long)k->prompts_busy);

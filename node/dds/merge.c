@@ -55,7 +55,8 @@ void vlff_merge_robot_free(struct vlff_merge_robot *r) {
   free(r->xyz);
   free(r->label);
   free(r->conf);
-  r->xyz = NULL, r->label = NULL, r->conf = NULL, r->n = 0;
+  free(r->slot);
+  r->xyz = NULL, r->label = NULL, r->conf = NULL, r->slot = NULL, r->n = r->cap = 0, r->nslot = 0;
 }
 
 static float f32_le(const uint8_t *p) {
@@ -65,20 +66,21 @@ static float f32_le(const uint8_t *p) {
   return f;
 }
 
-int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
-                          bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
-                          uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
-                          size_t whylen) {
-  static const char *const want[5] = {"x", "y", "z", "label", "confidence"};
-  static const uint32_t woff[5] = {0, 4, 8, 12, 16};
-  static const uint8_t wtype[5] = {VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_UINT16,
-                                   VLFF_DDS_FLOAT32};
-  if (nfields != 5 || bigendian || point_step < VLFF_DDS_POINT_STEP) {
-    snprintf(why, whylen, "expected vlff-dds's layout (5 fields, little-endian, point_step >= 20), got %u fields%s, "
-             "point_step %u", nfields, bigendian ? ", big-endian" : "", point_step);
+/* The layout vlff-dds writes: map's five fields, an update's six. 0 or -1. */
+static int check_layout(bool update, uint32_t width, uint32_t height, uint32_t point_step, bool bigendian,
+                        const char *const names[], const uint32_t offsets[], const uint8_t types[], uint32_t nfields,
+                        size_t len, char *why, size_t whylen) {
+  static const char *const want[6] = {"x", "y", "z", "label", "confidence", "version"};
+  static const uint32_t woff[6] = {0, 4, 8, 12, 16, 20};
+  static const uint8_t wtype[6] = {VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32,
+                                   VLFF_DDS_UINT16,  VLFF_DDS_FLOAT32, VLFF_DDS_UINT32};
+  uint32_t nf = update ? 6 : 5, step = update ? VLFF_DDS_UPDATE_STEP : VLFF_DDS_POINT_STEP;
+  if (nfields != nf || bigendian || point_step < step) {
+    snprintf(why, whylen, "expected vlff-dds's layout (%u fields, little-endian, point_step >= %u), got %u fields%s, "
+             "point_step %u", nf, step, nfields, bigendian ? ", big-endian" : "", point_step);
     return -1;
   }
-  for (uint32_t i = 0; i < 5; i++)
+  for (uint32_t i = 0; i < nf; i++)
     if (!names[i] || strcmp(names[i], want[i]) || offsets[i] != woff[i] || types[i] != wtype[i]) {
       snprintf(why, whylen, "field %u: expected %s at %u of type %u", i, want[i], woff[i], wtype[i]);
       return -1;
@@ -89,6 +91,37 @@ int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t h
              point_step, len, VLFF_MERGE_MAX_POINTS);
     return -1;
   }
+  return 0;
+}
+
+/* A point's values, checked: 0, or -1 with why. Labels free and unknown
+ * only where allowed (updates). */
+static int take_point(const struct vlff_merge_robot *r, const uint8_t *p, uint64_t i, bool clears, float xyz[3],
+                      uint16_t *label, uint8_t *conf, char *why, size_t whylen) {
+  float c = f32_le(p + 16);
+  uint16_t l = (uint16_t)(p[12] | p[13] << 8);
+  for (int a = 0; a < 3; a++) xyz[a] = f32_le(p + 4 * a);
+  bool label_ok = (int)l < (r->nprompts > 0 ? r->nprompts : VLFF_SHM_MAX_PROMPTS) ||
+                  (clears && (l == VLFF_LABEL_FREE || l == VLFF_LABEL_UNKNOWN));
+  if (!isfinite(xyz[0]) || !isfinite(xyz[1]) || !isfinite(xyz[2]) || !(c >= 0 && c <= 1) || !label_ok) {
+    snprintf(why, whylen, "point %llu: coordinates (%g %g %g), confidence %g, label %u (expected finite, 0..1, a "
+             "label of its %d prompts%s)", (unsigned long long)i, xyz[0], xyz[1], xyz[2], c, l, r->nprompts,
+             clears ? ", free or unknown" : "");
+    return -1;
+  }
+  *label = l;
+  *conf = (uint8_t)lrintf(c * 255.0f);
+  return 0;
+}
+
+int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
+                          bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
+                          uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
+                          size_t whylen) {
+  if (check_layout(false, width, height, point_step, bigendian, names, offsets, types, nfields, len, why, whylen))
+    return -1;
+  uint64_t n = (uint64_t)width * height;
+  if (r->xyz && stamp_ns < r->stamp_ns) return 0; /* what is held is newer */
   float *xyz = malloc(n ? n * 3 * sizeof *xyz : 1);
   uint16_t *label = malloc(n ? n * sizeof *label : 1);
   uint8_t *conf = malloc(n ? n : 1);
@@ -98,26 +131,108 @@ int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t h
     return -1;
   }
   for (uint64_t i = 0; i < n; i++) {
-    const uint8_t *p = data + i * point_step;
-    float c = f32_le(p + 16);
-    uint16_t l = (uint16_t)(p[12] | p[13] << 8);
-    for (int a = 0; a < 3; a++) xyz[3 * i + a] = f32_le(p + 4 * a);
-    if (!isfinite(xyz[3 * i]) || !isfinite(xyz[3 * i + 1]) || !isfinite(xyz[3 * i + 2]) || !(c >= 0 && c <= 1) ||
-        (int)l >= (r->nprompts > 0 ? r->nprompts : VLFF_SHM_MAX_PROMPTS)) {
-      snprintf(why, whylen, "point %llu: coordinates (%g %g %g), confidence %g, label %u (expected finite, 0..1, a "
-               "label of its %d prompts)", (unsigned long long)i, xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2], c, l,
-               r->nprompts);
+    if (take_point(r, data + i * point_step, i, false, xyz + 3 * i, &label[i], &conf[i], why, whylen) < 0) {
       free(xyz), free(label), free(conf);
       return -1;
     }
-    label[i] = l;
-    conf[i] = (uint8_t)lrintf(c * 255.0f);
   }
   vlff_merge_robot_free(r);
-  r->xyz = xyz, r->label = label, r->conf = conf, r->n = (uint32_t)n;
+  r->xyz = xyz, r->label = label, r->conf = conf, r->n = r->cap = (uint32_t)n;
   r->stamp_ns = stamp_ns;
   r->maps++;
   return 0;
+}
+
+static size_t point_hash(const float p[3], size_t mask) {
+  uint32_t u[3];
+  memcpy(u, p, sizeof u);
+  uint64_t h = 1469598103934665603ull;
+  for (int a = 0; a < 3; a++) h = (h ^ u[a]) * 1099511628211ull;
+  return (size_t)(h ^ h >> 29) & mask;
+}
+
+/* The slot of the point at p, or the empty slot where it would go. */
+static size_t find_slot(const struct vlff_merge_robot *r, const float p[3]) {
+  size_t mask = r->nslot - 1, s = point_hash(p, mask);
+  while (r->slot[s] != UINT32_MAX && memcmp(r->xyz + 3 * (size_t)r->slot[s], p, 3 * sizeof *p)) s = (s + 1) & mask;
+  return s;
+}
+
+/* The position index over the held points, at most half full. 0 or -1. */
+static int index_points(struct vlff_merge_robot *r, uint32_t need) {
+  size_t want = 64;
+  while (want < 2 * (size_t)need) want *= 2;
+  if (r->slot && r->nslot >= want) return 0;
+  free(r->slot);
+  r->slot = malloc(want * sizeof *r->slot);
+  r->nslot = r->slot ? want : 0;
+  if (!r->slot) return -1;
+  memset(r->slot, 0xff, want * sizeof *r->slot);
+  for (uint32_t i = 0; i < r->n; i++) {
+    size_t s = find_slot(r, r->xyz + 3 * (size_t)i);
+    if (r->slot[s] == UINT32_MAX) r->slot[s] = i;
+  }
+  return 0;
+}
+
+int vlff_merge_take_update(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
+                           bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
+                           uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
+                           size_t whylen) {
+  if (check_layout(true, width, height, point_step, bigendian, names, offsets, types, nfields, len, why, whylen))
+    return -1;
+  uint64_t n = (uint64_t)width * height;
+  /* checked whole first: a refused update changes nothing */
+  for (uint64_t i = 0; i < n; i++) {
+    float xyz[3];
+    uint16_t l;
+    uint8_t c;
+    if (take_point(r, data + i * point_step, i, true, xyz, &l, &c, why, whylen) < 0) return -1;
+  }
+  if (!r->xyz || stamp_ns <= r->stamp_ns) return 0;
+  if ((uint64_t)r->n + n > VLFF_MERGE_MAX_POINTS) {
+    snprintf(why, whylen, "%llu points more than the %u held: more than %u", (unsigned long long)n, r->n,
+             VLFF_MERGE_MAX_POINTS);
+    return -1;
+  }
+  uint32_t need = r->n + (uint32_t)n;
+  if (need > r->cap) {
+    uint32_t cap = need > 2 * r->cap ? need : 2 * r->cap;
+    float *xyz = realloc(r->xyz, (size_t)cap * 3 * sizeof *xyz);
+    if (xyz) r->xyz = xyz;
+    uint16_t *label = xyz ? realloc(r->label, (size_t)cap * sizeof *label) : NULL;
+    if (label) r->label = label;
+    uint8_t *conf = label ? realloc(r->conf, cap) : NULL;
+    if (conf) r->conf = conf;
+    if (!conf) {
+      snprintf(why, whylen, "no memory for %u points", cap);
+      return -1;
+    }
+    r->cap = cap;
+  }
+  if (index_points(r, need) < 0) {
+    snprintf(why, whylen, "no memory to index %u points", need);
+    return -1;
+  }
+  for (uint64_t i = 0; i < n; i++) {
+    float xyz[3];
+    uint16_t l;
+    uint8_t c;
+    take_point(r, data + i * point_step, i, true, xyz, &l, &c, why, whylen);
+    size_t s = find_slot(r, xyz);
+    uint32_t k = r->slot[s];
+    if (k == UINT32_MAX) {
+      if (l > VLFF_LABEL_MAX) continue; /* clears a voxel not held */
+      k = r->slot[s] = r->n++;
+      memcpy(r->xyz + 3 * (size_t)k, xyz, sizeof xyz);
+    }
+    /* a cleared voxel keeps its place, unlabelled */
+    r->label[k] = l <= VLFF_LABEL_MAX ? l : VLFF_LABEL_UNKNOWN;
+    r->conf[k] = c;
+  }
+  r->stamp_ns = stamp_ns;
+  r->updates++;
+  return 1;
 }
 
 /* The fleet label of a robot's prompt text; -1 when the fleet list is full. */
@@ -150,6 +265,7 @@ size_t vlff_merge_compute(struct vlff_merge_grid *g, struct vlff_merge_robot *ro
         inside = f >= 0 && f < g->dims[a];
         ix[a] = inside ? (size_t)f : 0;
       }
+      if (r->label[i] > VLFF_LABEL_MAX) continue; /* cleared by an update */
       if (!inside) {
         g->outside++;
         continue;

@@ -21,8 +21,12 @@
  *    first appearance (at most VLFF_SHM_MAX_PROMPTS; points of a text beyond
  *    that are left out and counted). Each world voxel takes the label of the
  *    robot point with the highest confidence falling in it; equal
- *    confidences go to the most recent map (its header stamp). A robot's new
- *    map replaces its old one whole.
+ *    confidences go to the most recent map (its header stamp). A robot's
+ *    whole map stamped later than what is held replaces it; an update
+ *    (map/updates: the same fields and a uint32 version at 20, point_step
+ *    >= 24, labels free and unknown too) stamped later is applied to it,
+ *    point by point at the same position (docs/dds.md, "Following the
+ *    map"); earlier ones are skipped as held already.
  *  - Voxels outside the configured bounds are left out and counted.
  */
 #ifndef VLFF_MERGE_H
@@ -46,9 +50,11 @@ struct vlff_merge_robot {
   float *xyz;          /* n points, robot frame */
   uint16_t *label;
   uint8_t *conf;
-  uint32_t n;
-  int64_t stamp_ns;    /* its map's header stamp */
-  uint64_t maps, refused;
+  uint32_t n, cap;     /* points held (a cleared voxel's stays, label VLFF_LABEL_UNKNOWN), room */
+  int64_t stamp_ns;    /* the header stamp of its whole map or update held last */
+  uint32_t *slot;      /* its points by position (open addressing, UINT32_MAX empty), for updates */
+  size_t nslot;
+  uint64_t maps, updates, refused;
 };
 
 struct vlff_merge_grid {
@@ -73,6 +79,14 @@ int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t h
                           bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
                           uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
                           size_t whylen);
+
+/* Applies a robot's update as received: 1 applied, 0 skipped (no whole map
+ * held yet, or stamped no later than what is held), or -1 with why (refused
+ * whole, nothing changed). */
+int vlff_merge_take_update(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
+                           bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
+                           uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
+                           size_t whylen);
 
 /* Recomputes the fleet grid from every robot holding both a map and a prompt
  * list. Returns the number of labelled voxels. */

@@ -80,11 +80,14 @@ static int check_ns(const char *ns, char *err, size_t errlen) {
 }
 
 struct robot_io {
-  dds_entity_t map_r, prompts_r;
+  dds_entity_t map_r, prompts_r, updates_r;
   uint64_t warn;
 };
 
-static dds_entity_t reader(dds_entity_t pp, const dds_topic_descriptor_t *d, const char *ns, const char *leaf) {
+/* Reliable and transient local, keeping depth samples (the updates: as many
+ * as a robot's vlff-dds keeps for late joiners, by default). */
+static dds_entity_t reader(dds_entity_t pp, const dds_topic_descriptor_t *d, const char *ns, const char *leaf,
+                           int depth) {
   char name[300];
   if (vlff_dds_topic(name, sizeof name, ns, leaf) < 0) return -1;
   dds_entity_t t = dds_create_topic(pp, d, name, NULL, NULL);
@@ -92,7 +95,7 @@ static dds_entity_t reader(dds_entity_t pp, const dds_topic_descriptor_t *d, con
   dds_qos_t *q = dds_create_qos();
   dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
   dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
-  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, depth);
   dds_entity_t r = dds_create_reader(pp, t, q, NULL);
   dds_delete_qos(q);
   return r;
@@ -163,6 +166,39 @@ static int take_robot(struct vlff_merge_robot *r, struct robot_io *io) {
       }
     }
     dds_return_loan(io->map_r, s, 1);
+  }
+  /* Updates wait in the reader until a whole map is held to apply them to
+   * (marked read meanwhile, so that they do not wake the loop again). */
+  if (!r->xyz) {
+    void *b[16] = {NULL};
+    dds_sample_info_t bi[16];
+    dds_return_t k;
+    while ((k = dds_read_mask(io->updates_r, b, bi, 16, 16, DDS_NOT_READ_SAMPLE_STATE)) > 0)
+      dds_return_loan(io->updates_r, b, k);
+  }
+  for (; r->xyz;) {
+    s[0] = NULL;
+    if (dds_take(io->updates_r, s, &info, 1, 1) <= 0) break;
+    if (info.valid_data) {
+      const sensor_msgs_msg_dds__PointCloud2_ *m = s[0];
+      const char *names[6] = {NULL};
+      uint32_t offs[6] = {0};
+      uint8_t types[6] = {0};
+      uint32_t nf = m->fields._length;
+      for (uint32_t i = 0; i < nf && i < 6; i++)
+        names[i] = m->fields._buffer[i].name, offs[i] = m->fields._buffer[i].offset,
+        types[i] = m->fields._buffer[i].count == 1 ? m->fields._buffer[i].datatype : 0;
+      int64_t stamp = (int64_t)m->header.stamp.sec * 1000000000 + m->header.stamp.nanosec;
+      int rc = vlff_merge_take_update(r, m->width, m->height, m->point_step, m->is_bigendian, names, offs, types, nf,
+                                      m->data._buffer, m->data._length, stamp, why, sizeof why);
+      if (rc < 0) {
+        r->refused++;
+        vlff_warn_limited(&io->warn, TAG, "%s: map update refused: %s", r->ns, why);
+      } else if (rc > 0) {
+        changed = 1;
+      }
+    }
+    dds_return_loan(io->updates_r, s, 1);
   }
   return changed;
 }
@@ -271,11 +307,14 @@ int main(int argc, char **argv) {
   if (pp < 0) return vlff_cli_error(&cli, "DDS participant: %s", dds_strretcode(pp));
   dds_entity_t ws = dds_create_waitset(pp);
   for (int i = 0; i < nrobots; i++) {
-    io[i].map_r = reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, robots[i].ns, "map");
-    io[i].prompts_r = reader(pp, &std_msgs_msg_dds__String__desc, robots[i].ns, "prompts");
-    if (io[i].map_r < 0 || io[i].prompts_r < 0) return vlff_cli_error(&cli, "%s: DDS readers", robots[i].ns);
+    io[i].map_r = reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, robots[i].ns, "map", 1);
+    io[i].prompts_r = reader(pp, &std_msgs_msg_dds__String__desc, robots[i].ns, "prompts", 1);
+    io[i].updates_r = reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, robots[i].ns, "map/updates", 1000);
+    if (io[i].map_r < 0 || io[i].prompts_r < 0 || io[i].updates_r < 0)
+      return vlff_cli_error(&cli, "%s: DDS readers", robots[i].ns);
     dds_waitset_attach(ws, dds_create_readcondition(io[i].map_r, DDS_ANY_STATE), 0);
     dds_waitset_attach(ws, dds_create_readcondition(io[i].prompts_r, DDS_ANY_STATE), 0);
+    dds_waitset_attach(ws, dds_create_readcondition(io[i].updates_r, DDS_NOT_READ_SAMPLE_STATE), 0);
   }
   dds_entity_t map_w = writer(pp, &sensor_msgs_msg_dds__PointCloud2__desc, fleet_ns, "map");
   dds_entity_t prompts_w = writer(pp, &std_msgs_msg_dds__String__desc, fleet_ns, "prompts");

@@ -4,14 +4,18 @@
  * (tests/bench/dds.sh).
  *
  *   bench_dds publish MAP FRAMES SECONDS   a 64x64x32 map published at 1 Hz,
- *       each version relabelling a few small regions, with a 160x120 label
- *       image; 640x480 RGB frames with a pose and intrinsics at 2 Hz. Prints
- *       "versions N changed_voxels M" (voxels whose label or confidence
- *       changed, summed over the versions after the first).
+ *       each version relabelling 12 small regions (4x4x3 voxels) published
+ *       as partial updates (their runs, as the node publishes), with a
+ *       160x120 label image; 640x480 RGB frames with a pose and intrinsics
+ *       at 2 Hz. Prints "versions N changed_voxels M" (voxels whose label,
+ *       or a labelled voxel's confidence, changed: what a map subscriber
+ *       sees change; summed over the versions after the first).
  *   bench_dds subscribe DOMAIN NAMESPACE SECONDS   Cyclone readers of the
- *       bridge's map, images, camera info and tf (the IDL only): per map, the
- *       latency from its publish into the segment (the header stamp) to its
- *       receipt; payload bytes per topic. Prints "key value" lines.
+ *       bridge's map, map updates, images, camera info and tf (the IDL
+ *       only): per map change (an update, or a whole map), the latency from
+ *       its publish into the segment (the header stamp) to its receipt;
+ *       payload bytes per topic, apart those of the writers' histories sent
+ *       when the reader joined and the first whole map. Prints "key value" lines.
  */
 #include <vlff/shm.h>
 
@@ -91,24 +95,37 @@ static int publish(const char *mapname, const char *frames, double secs) {
       continue;
     }
     sleep_until(next_map);
-    /* a learner refining a few regions per version */
+    /* a learner refining a few regions per version, publishing their runs */
+    static struct vlff_map_range runs[12 * 12];
+    static uint16_t prev_l[N];
+    static uint8_t prev_c[N];
+    size_t nruns = 0;
+    memcpy(prev_l, labels, sizeof prev_l);
+    memcpy(prev_c, conf, sizeof prev_c);
     for (int r = 0; versions && r < 12; r++) {
       rng = rng * 1103515245u + 12345u;
       int ci = (int)(rng >> 8) % NX, cj = (int)(rng >> 14) % NY, ck = (int)(rng >> 20) % 8;
       uint16_t nl = (uint16_t)((rng >> 4) % PROMPTS);
       uint8_t nc = (uint8_t)(100 + (rng >> 24) % 155);
       for (int k = ck; k < ck + 3 && k < NZ; k++)
-        for (int j = cj; j < cj + 4 && j < NY; j++)
-          for (int i = ci; i < ci + 4 && i < NX; i++) {
+        for (int j = cj; j < cj + 4 && j < NY; j++) {
+          int i1 = ci + 4 < NX ? ci + 4 : NX;
+          runs[nruns++] = (struct vlff_map_range){(uint32_t)(ci + NX * (j + NY * k)), (uint32_t)(i1 - ci)};
+          for (int i = ci; i < i1; i++) {
             size_t idx = i + NX * (j + NY * (size_t)k);
             uint16_t l = labels[idx];
             if (l <= VLFF_LABEL_MAX) l = (r & 3) ? nl : VLFF_LABEL_FREE;
             else if ((r & 3) == 1) l = nl;
-            changed += l != labels[idx] || nc != conf[idx];
             labels[idx] = l;
             conf[idx] = nc;
           }
+        }
     }
+    /* what a subscriber sees change: a label, or a labelled voxel's confidence */
+    for (size_t i = 0; versions && i < N; i++)
+      changed += labels[i] != prev_l[i] || (labels[i] <= VLFF_LABEL_MAX && conf[i] != prev_c[i]);
+    up.ranges = versions ? runs : NULL;
+    up.range_count = versions ? nruns : 0;
     for (int p = 0; p < LW * LH; p++) limg[p] = (uint16_t)((p / LW / 20 + versions) % PROMPTS);
     li.t_ns = vlff_shm_now_ns();
     if (vlff_map_publish(map, &up) != 0) fprintf(stderr, "bench_dds: publish: %s\n", vlff_shm_last_message());
@@ -148,30 +165,34 @@ static int subscribe(int domain, const char *ns, double secs) {
     fprintf(stderr, "bench_dds: participant: %s\n", dds_strretcode(pp));
     return 1;
   }
-  char name[5][256];
+  char name[6][256];
   snprintf(name[0], sizeof name[0], "rt%s/vlff/map", ns);
+  snprintf(name[5], sizeof name[5], "rt%s/vlff/map/updates", ns);
   snprintf(name[1], sizeof name[1], "rt%s/vlff/label_image", ns);
   snprintf(name[2], sizeof name[2], "rt%s/vlff/camera/image_raw", ns);
   snprintf(name[3], sizeof name[3], "rt%s/vlff/camera/camera_info", ns);
   snprintf(name[4], sizeof name[4], "rt%s/tf", ns);
-  dds_entity_t r[5] = {reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name[0], true),
+  dds_entity_t r[6] = {reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name[0], true),
                        reader(pp, &sensor_msgs_msg_dds__Image__desc, name[1], false),
                        reader(pp, &sensor_msgs_msg_dds__Image__desc, name[2], false),
                        reader(pp, &sensor_msgs_msg_dds__CameraInfo__desc, name[3], false),
-                       reader(pp, &tf2_msgs_msg_dds__TFMessage__desc, name[4], false)};
+                       reader(pp, &tf2_msgs_msg_dds__TFMessage__desc, name[4], false),
+                       reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name[5], true)};
   dds_entity_t ws = dds_create_waitset(pp);
-  for (int i = 0; i < 5; i++) dds_waitset_attach(ws, dds_create_readcondition(r[i], DDS_ANY_STATE), i);
+  for (int i = 0; i < 6; i++) dds_waitset_attach(ws, dds_create_readcondition(r[i], DDS_ANY_STATE), i);
   static double lat[100000];
   size_t nlat = 0;
-  unsigned long long bytes[5] = {0}, count[5] = {0};
+  unsigned long long bytes[6] = {0}, count[6] = {0}, joined_bytes = 0, last_full = 0;
   struct timespec t0;
   clock_gettime(CLOCK_MONOTONIC, &t0);
+  /* samples written before this reader existed come from the histories */
+  dds_time_t joined = dds_time();
   for (;;) {
     struct timespec t;
     clock_gettime(CLOCK_MONOTONIC, &t);
     if ((double)(t.tv_sec - t0.tv_sec) + 1e-9 * (double)(t.tv_nsec - t0.tv_nsec) >= secs) break;
     dds_waitset_wait(ws, NULL, 0, DDS_MSECS(100));
-    for (int i = 0; i < 5; i++) {
+    for (int i = 0; i < 6; i++) {
       void *s[8] = {NULL};
       dds_sample_info_t info[8];
       dds_return_t n = dds_take(r[i], s, info, 8, 8);
@@ -181,12 +202,20 @@ static int subscribe(int domain, const char *ns, double secs) {
       for (int k = 0; k < n; k++) {
         if (!info[k].valid_data) continue;
         count[i]++;
-        if (i == 0) {
+        if (i == 0 || i == 5) {
           const sensor_msgs_msg_dds__PointCloud2_ *m = s[k];
+          /* the first whole map (the history's, or the bridge's first) is
+           * what joining costs, not the steady rate */
+          bool first_full = i == 0 && !last_full;
+          if (i == 0) last_full = m->data._length;
+          if (info[k].source_timestamp < joined || first_full) {
+            joined_bytes += m->data._length;
+            count[i]--;
+            continue;
+          }
           bytes[i] += m->data._length;
           double ms = ((double)rt.tv_sec - m->header.stamp.sec) * 1e3 + ((double)rt.tv_nsec - m->header.stamp.nanosec) / 1e6;
-          /* the first is the writer's history, sent when this reader joined */
-          if (count[0] > 1 && nlat < sizeof lat / sizeof lat[0]) lat[nlat++] = ms;
+          if (nlat < sizeof lat / sizeof lat[0]) lat[nlat++] = ms;
         } else if (i < 3) {
           bytes[i] += ((const sensor_msgs_msg_dds__Image_ *)s[k])->data._length;
         }
@@ -195,13 +224,15 @@ static int subscribe(int domain, const char *ns, double secs) {
     }
   }
   qsort(lat, nlat, sizeof lat[0], cmp_double);
-  printf("maps %llu\nlatency_n %zu\n", count[0], nlat);
+  printf("maps %llu\nupdates %llu\nlatency_n %zu\n", count[0], count[5], nlat);
   if (nlat) {
     printf("latency_p50_ms %.2f\n", lat[nlat / 2]);
     printf("latency_p99_ms %.2f\n", lat[(size_t)ceil(0.99 * (double)nlat) - 1]);
     printf("latency_max_ms %.2f\n", lat[nlat - 1]);
   }
-  printf("map_bytes %llu\nlabel_image_bytes %llu\ncamera_image_bytes %llu\n", bytes[0], bytes[1], bytes[2]);
+  printf("map_bytes %llu\nupdate_bytes %llu\njoined_bytes %llu\nlast_full_bytes %llu\n", bytes[0], bytes[5], joined_bytes,
+         last_full);
+  printf("label_image_bytes %llu\ncamera_image_bytes %llu\n", bytes[1], bytes[2]);
   printf("label_images %llu\ncamera_images %llu\ncamera_infos %llu\ntfs %llu\n", count[1], count[2], count[3], count[4]);
   dds_delete(pp);
   return 0;

@@ -7,7 +7,8 @@
  * libvlff-shm.
  *
  * Usage: dds_probe MODE DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES [compressed]]
- *   final  wait until the node is gone, then until the latest map received
+ *   final  wait until the node is gone, then until the map followed as
+ *          docs/dds.md says (a whole map, the updates stamped after it)
  *          equals the segment's last map and a status matches its status;
  *          prints "maps_sent N" (the bridge's count then); with FRAMES (the
  *          frame ring) also until the prompt list, the label image, the
@@ -15,8 +16,14 @@
  *          the segment's and the ring's newest; with "compressed" also until
  *          the label image came as a PNG and the camera image as a JPEG
  *          stamped as the raw ones
- *   late   a reader joining after that: the map comes whole from the
- *          writer's history; prints "maps_sent N" from a later status
+ *   late   a reader joining after that: the map comes from the writers'
+ *          histories (the whole map and the updates after it); prints
+ *          "maps_sent N" from a later status
+ *   follow  (NODE_NAME is a map version V) the map followed from whenever
+ *          the probe joins, a whole map then updates, until the segment
+ *          holds version V and what the probe holds equals it, its last
+ *          update numbered V; every later whole map equal to what the
+ *          updates built; without the last update the comparison fails
  *   prompts  post bad and good prompt messages to prompts_in and wait for
  *          the bridge's status to count each as expected
  *   stall  a subscriber that never reads: reliable keep-all readers of at
@@ -220,6 +227,312 @@ static dds_entity_t waitset_of(dds_entity_t pp, dds_entity_t r1, dds_entity_t r2
   return ws;
 }
 
+/* ------------------------------------------------- following the map */
+
+/* Whole maps (map) and updates (map/updates) as received, replayed the way
+ * docs/dds.md tells a subscriber: start from a whole map, apply the updates
+ * stamped later than the map held, in stamp order; a later whole map
+ * replaces what is held. */
+struct cloud_msg {
+  int64_t stamp;
+  uint32_t version; /* updates */
+  uint32_t n;
+  uint8_t *data;    /* n points of 20 (whole) or 24 (update) bytes */
+};
+struct follower {
+  dds_entity_t map, upd, ws;
+  struct cloud_msg *full, *up;
+  size_t nfull, nup, capfull, capup;
+  int layout_bad;
+};
+
+static int64_t stamp_ns(builtin_interfaces_msg_dds__Time_ t) { return (int64_t)t.sec * 1000000000 + t.nanosec; }
+
+/* The fields the bridge writes, the update's with its version after them. */
+static bool layout_ok(const sensor_msgs_msg_dds__PointCloud2_ *m, bool update) {
+  static const struct {
+    const char *name;
+    uint32_t off;
+    uint8_t type;
+  } want[6] = {{"x", 0, 7}, {"y", 4, 7}, {"z", 8, 7}, {"label", 12, 4}, {"confidence", 16, 7}, {"version", 20, 6}};
+  uint32_t nf = update ? 6 : 5, step = update ? 24 : 20;
+  bool ok = m->fields._length == nf && !m->is_bigendian && m->height == 1 && m->point_step == step &&
+            m->row_step == m->width * step && m->data._length == m->row_step && !strcmp(m->header.frame_id, "map");
+  for (uint32_t i = 0; ok && i < nf; i++) {
+    const sensor_msgs_msg_dds__PointField_ *f = &m->fields._buffer[i];
+    ok = !strcmp(f->name, want[i].name) && f->offset == want[i].off && f->datatype == want[i].type && f->count == 1;
+  }
+  if (!ok)
+    printf("%s layout: %u fields, bigendian %d height %u point_step %u row_step %u width %u data %u frame %s\n",
+           update ? "update" : "map", m->fields._length, m->is_bigendian, m->height, m->point_step, m->row_step,
+           m->width, m->data._length, m->header.frame_id);
+  return ok;
+}
+
+static dds_entity_t follow_reader(dds_entity_t pp, const char *ns, const char *leaf, int depth) {
+  char name[256];
+  snprintf(name, sizeof name, "rt%s/vlff/%s", ns, leaf);
+  dds_entity_t t = dds_create_topic(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name, NULL, NULL);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, depth);
+  dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_entity_t r = dds_create_reader(pp, t, q, NULL);
+  dds_delete_qos(q);
+  return r;
+}
+
+static void follower_open(struct follower *f, dds_entity_t pp, const char *ns) {
+  memset(f, 0, sizeof *f);
+  f->map = follow_reader(pp, ns, "map", 100);
+  f->upd = follow_reader(pp, ns, "map/updates", 1000);
+  f->ws = waitset_of(pp, f->map, f->upd);
+}
+
+/* Takes what came on both topics; the number of messages. */
+static int follower_take(struct follower *f) {
+  int got = 0;
+  for (int u = 0; u < 2; u++) {
+    dds_entity_t r = u ? f->upd : f->map;
+    for (;;) {
+      void *s[16] = {NULL};
+      dds_sample_info_t info[16];
+      dds_return_t n = dds_take(r, s, info, 16, 16);
+      if (n <= 0) break;
+      for (int k = 0; k < n; k++) {
+        if (!info[k].valid_data) continue;
+        const sensor_msgs_msg_dds__PointCloud2_ *m = s[k];
+        if (!layout_ok(m, u)) {
+          f->layout_bad++;
+          continue;
+        }
+        struct cloud_msg **list = u ? &f->up : &f->full;
+        size_t *len = u ? &f->nup : &f->nfull, *cap = u ? &f->capup : &f->capfull;
+        if (*len == *cap) {
+          *cap = *cap ? 2 * *cap : 64;
+          *list = realloc(*list, *cap * sizeof **list);
+        }
+        struct cloud_msg *c = &(*list)[(*len)++];
+        c->stamp = stamp_ns(m->header.stamp);
+        c->n = m->width;
+        c->data = malloc(m->data._length + 1);
+        memcpy(c->data, m->data._buffer, m->data._length);
+        c->version = 0;
+        if (u && m->width) {
+          const uint8_t *v = m->data._buffer + 20;
+          c->version = (uint32_t)v[0] | (uint32_t)v[1] << 8 | (uint32_t)v[2] << 16 | (uint32_t)v[3] << 24;
+        }
+        got++;
+      }
+      dds_return_loan(r, s, n);
+    }
+  }
+  return got;
+}
+
+static void follower_close(struct follower *f) {
+  for (size_t i = 0; i < f->nfull; i++) free(f->full[i].data);
+  for (size_t i = 0; i < f->nup; i++) free(f->up[i].data);
+  free(f->full);
+  free(f->up);
+}
+
+/* A point's voxel in g, or SIZE_MAX when it is not at a voxel centre. */
+static size_t voxel_of(const struct vlff_map_grid *g, const uint8_t *d) {
+  size_t ix[3];
+  for (int a = 0; a < 3; a++) {
+    double c = get_f32(d + 4 * a), f = (c - g->origin[a]) / g->voxel_size;
+    if (!(f >= 0 && f < g->dims[a]) || fabs(f - floor(f) - 0.5) > 1e-3) return SIZE_MAX;
+    ix[a] = (size_t)f;
+  }
+  return ix[0] + g->dims[0] * (ix[1] + g->dims[1] * ix[2]);
+}
+
+static void apply_points(const struct vlff_map_grid *g, const struct cloud_msg *c, uint32_t step, uint16_t *label,
+                         float *conf, int *bad) {
+  for (uint32_t p = 0; p < c->n; p++) {
+    const uint8_t *d = c->data + (size_t)p * step;
+    size_t i = voxel_of(g, d);
+    if (i == SIZE_MAX) {
+      (*bad)++;
+      continue;
+    }
+    label[i] = (uint16_t)(d[12] | d[13] << 8);
+    conf[i] = get_f32(d + 16);
+  }
+}
+
+/* Mismatches between what a subscriber holds and a whole map (labelled
+ * voxels, their labels and confidences). */
+static size_t held_vs_full(const struct vlff_map_grid *g, const uint16_t *label, const float *conf,
+                           const struct cloud_msg *c) {
+  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2], bad = 0;
+  uint16_t *l2 = malloc(total * 2);
+  float *c2 = malloc(total * 4);
+  for (size_t i = 0; i < total; i++) l2[i] = VLFF_LABEL_UNKNOWN, c2[i] = 0;
+  int outside = 0;
+  apply_points(g, c, 20, l2, c2, &outside);
+  for (size_t i = 0; i < total; i++) {
+    bool a = label[i] <= VLFF_LABEL_MAX, b = l2[i] <= VLFF_LABEL_MAX;
+    bad += a != b || (a && (label[i] != l2[i] || conf[i] != c2[i]));
+  }
+  free(l2);
+  free(c2);
+  return bad + (size_t)outside;
+}
+
+struct replay {
+  size_t fulls_used, fulls_differing, updates_applied;
+  uint32_t last_version; /* of the last update applied */
+  int64_t held_stamp;
+  int outside;
+};
+
+/* Replays f into label/conf over g's geometry; skip: an update index left
+ * out (SIZE_MAX: none). 0, or -1 when no whole map came. */
+static int replay(const struct follower *f, const struct vlff_map_grid *g, size_t skip, uint16_t *label, float *conf,
+                  struct replay *r) {
+  memset(r, 0, sizeof *r);
+  if (!f->nfull) return -1;
+  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2], first = 0;
+  for (size_t i = 1; i < f->nfull; i++)
+    if (f->full[i].stamp < f->full[first].stamp) first = i;
+  for (size_t i = 0; i < total; i++) label[i] = VLFF_LABEL_UNKNOWN, conf[i] = 0;
+  apply_points(g, &f->full[first], 20, label, conf, &r->outside);
+  r->held_stamp = f->full[first].stamp;
+  r->fulls_used = 1;
+  /* both lists arrive in their writer's order, which is stamp order */
+  size_t u = 0, w = 0;
+  for (;;) {
+    while (w < f->nfull && f->full[w].stamp <= r->held_stamp) w++;
+    while (u < f->nup && f->up[u].stamp <= r->held_stamp) u++;
+    bool take_up = u < f->nup && (w >= f->nfull || f->up[u].stamp <= f->full[w].stamp);
+    if (take_up) {
+      if (u != skip) {
+        apply_points(g, &f->up[u], 24, label, conf, &r->outside);
+        r->updates_applied++;
+        r->last_version = f->up[u].version;
+      }
+      r->held_stamp = f->up[u].stamp;
+      /* a whole map of the same version: what it holds must be what the updates built */
+      for (size_t k = w; k < f->nfull && f->full[k].stamp == r->held_stamp; k++) {
+        r->fulls_used++;
+        r->fulls_differing += held_vs_full(g, label, conf, &f->full[k]) != 0;
+      }
+      u++;
+    } else if (w < f->nfull) {
+      /* a newer whole map replaces what is held */
+      r->fulls_used++;
+      r->fulls_differing += held_vs_full(g, label, conf, &f->full[w]) != 0;
+      for (size_t i = 0; i < total; i++) label[i] = VLFF_LABEL_UNKNOWN, conf[i] = 0;
+      apply_points(g, &f->full[w], 20, label, conf, &r->outside);
+      r->held_stamp = f->full[w].stamp;
+    } else {
+      break;
+    }
+  }
+  return 0;
+}
+
+/* What is held as a whole map message (5 fields, 20 bytes a point), for
+ * compare_map against the segment. */
+static void held_cloud(const struct vlff_map_grid *g, const uint16_t *label, const float *conf,
+                       sensor_msgs_msg_dds__PointCloud2_ *m, sensor_msgs_msg_dds__PointField_ fields[5]) {
+  static const sensor_msgs_msg_dds__PointField_ want[5] = {
+      {"x", 0, 7, 1}, {"y", 4, 7, 1}, {"z", 8, 7, 1}, {"label", 12, 4, 1}, {"confidence", 16, 7, 1}};
+  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2], n = 0;
+  for (size_t i = 0; i < total; i++) n += label[i] <= VLFF_LABEL_MAX;
+  memcpy(fields, want, sizeof want);
+  memset(m, 0, sizeof *m);
+  m->height = 1;
+  m->width = (uint32_t)n;
+  m->fields._length = m->fields._maximum = 5;
+  m->fields._buffer = fields;
+  m->point_step = 20;
+  m->row_step = (uint32_t)n * 20;
+  m->data._length = m->data._maximum = m->row_step;
+  m->data._buffer = malloc(n * 20 + 1);
+  uint8_t *p = m->data._buffer;
+  for (size_t i = 0; i < total; i++) {
+    if (label[i] > VLFF_LABEL_MAX) continue;
+    size_t ix = i % g->dims[0], iy = (i / g->dims[0]) % g->dims[1], iz = i / ((size_t)g->dims[0] * g->dims[1]);
+    float xyz[3] = {(float)(g->origin[0] + ((double)ix + 0.5) * g->voxel_size),
+                    (float)(g->origin[1] + ((double)iy + 0.5) * g->voxel_size),
+                    (float)(g->origin[2] + ((double)iz + 0.5) * g->voxel_size)};
+    memcpy(p, xyz, 12); /* little-endian hosts (the bridge's own tests run there) */
+    p[12] = (uint8_t)label[i], p[13] = (uint8_t)(label[i] >> 8), p[14] = p[15] = 0;
+    memcpy(p + 16, &conf[i], 4);
+    p += 20;
+  }
+}
+
+/* What f holds now against the snapshot's map: mismatches (compare_map's),
+ * the replay's counts in *r. */
+static int follower_compare(const struct follower *f, const struct vlff_map_info *in, size_t skip, bool verbose,
+                            struct replay *r) {
+  const struct vlff_map_grid *g = &in->grid;
+  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
+  uint16_t *label = malloc(total * 2 + 2);
+  float *conf = malloc(total * 4 + 4);
+  int bad;
+  if (replay(f, g, skip, label, conf, r) < 0) {
+    bad = -1;
+  } else {
+    sensor_msgs_msg_dds__PointCloud2_ m;
+    sensor_msgs_msg_dds__PointField_ fields[5];
+    held_cloud(g, label, conf, &m, fields);
+    bad = compare_map(&m, in, verbose) + r->outside;
+    free(m.data._buffer);
+  }
+  free(label);
+  free(conf);
+  return bad;
+}
+
+/* follow: the map followed from wherever this subscriber joins (a whole
+ * map, then updates), until the segment holds version final and what is
+ * held equals it; every later whole map must equal what the updates
+ * built; the same replay without the last update must differ (the check
+ * sees a dropped update). */
+static int follow(dds_entity_t pp, const char *ns, struct vlff_map *m, uint64_t final, double deadline) {
+  struct follower f;
+  follower_open(&f, pp, ns);
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
+  struct vlff_map_info in;
+  int bad = -1;
+  struct replay r = {0};
+  while (wait_data(f.ws, deadline)) {
+    if (!follower_take(&f) || vlff_map_version(m) != final) continue;
+    if (vlff_map_snapshot_take(m, snap) < 0 || vlff_map_snapshot_info(snap, &in) < 0 || in.version != final) continue;
+    bad = follower_compare(&f, &in, SIZE_MAX, false, &r);
+    if (!bad && r.last_version == (uint32_t)final) break;
+  }
+  if (bad) bad = vlff_map_snapshot_take(m, snap) < 0 || vlff_map_snapshot_info(snap, &in) < 0
+                     ? -1
+                     : follower_compare(&f, &in, SIZE_MAX, true, &r);
+  printf("follow: %zu whole maps and %zu updates received, %zu whole maps and %zu updates applied; "
+         "held version %u, segment %llu\n",
+         f.nfull, f.nup, r.fulls_used, r.updates_applied, r.last_version, (unsigned long long)in.version);
+  CHECK(f.nfull > 0, "no whole map received");
+  CHECK(!f.layout_bad, "%d messages not in the bridge's layout", f.layout_bad);
+  CHECK(bad == 0, "what the subscriber holds differs from the segment's map (%d mismatches)", bad);
+  CHECK(r.last_version == (uint32_t)final, "the last update applied brings version %u, the segment holds %llu",
+        r.last_version, (unsigned long long)final);
+  CHECK(r.fulls_differing == 0, "%zu later whole maps differ from what the updates built", r.fulls_differing);
+  CHECK(r.updates_applied > 0, "no update applied: the updates were not tested");
+  /* the check must see a lost update: the last one applied, left out */
+  size_t last = SIZE_MAX;
+  for (size_t i = 0; i < f.nup; i++)
+    if (f.up[i].version == r.last_version) last = i;
+  struct replay r2;
+  int bad2 = last == SIZE_MAX ? 0 : follower_compare(&f, &in, last, false, &r2);
+  printf("follow: without the last update, %d mismatches\n", bad2);
+  CHECK(bad2 > 0, "leaving the last update out changes nothing: the comparison cannot see a lost update");
+  follower_close(&f);
+  vlff_map_snapshot_free(snap);
+  return 0;
+}
+
 /* final and late: the latest map and status against the segment, until
  * both match or the deadline. */
 static int check_map_status(dds_entity_t pp, const char *ns, struct vlff_map *m, const char *node, double deadline,
@@ -230,25 +543,28 @@ static int check_map_status(dds_entity_t pp, const char *ns, struct vlff_map *m,
     printf("FAIL: snapshot: %s\n", vlff_shm_last_message());
     return 1;
   }
-  dds_entity_t mr = reader(pp, &sensor_msgs_msg_dds__PointCloud2__desc, ns, "map", true);
+  /* the map as a subscriber follows it: a whole map, then updates */
+  struct follower f;
+  follower_open(&f, pp, ns);
+  struct replay r;
   dds_entity_t sr = reader(pp, &diagnostic_msgs_msg_dds__DiagnosticArray__desc, ns, "status", false);
-  dds_entity_t ws = waitset_of(pp, mr, sr);
+  dds_entity_t ws = f.ws;
+  dds_waitset_attach(ws, dds_create_readcondition(sr, DDS_ANY_STATE), 3);
   int map_ok = 0, status_ok = 0, maps = 0, statuses = 0, last_map_bad = -1, last_status_bad = -1;
   long long sent = -1, sent_first = -1;
   int status_after_map = 0;
   while ((!map_ok || !status_ok || (late && status_after_map < 2)) && wait_data(ws, deadline)) {
     void *s[1];
-    if (take_one(mr, s)) {
-      const sensor_msgs_msg_dds__PointCloud2_ *pc = s[0];
-      maps++;
-      last_map_bad = compare_map(pc, &in, true);
+    int got = follower_take(&f);
+    if (got) {
+      maps += got;
+      last_map_bad = follower_compare(&f, &in, SIZE_MAX, false, &r);
       struct timespec rt;
       clock_gettime(CLOCK_REALTIME, &rt);
-      double age = (double)rt.tv_sec - pc->header.stamp.sec;
-      CHECK(!strcmp(pc->header.frame_id, "map"), "map frame_id '%s', expected 'map'", pc->header.frame_id);
-      CHECK(age > -5 && age < 600, "map stamp %d s is %g s from now", pc->header.stamp.sec, age);
+      double age = f.nfull ? (double)rt.tv_sec - (double)(f.full[f.nfull - 1].stamp / 1000000000) : 0;
+      CHECK(!f.layout_bad, "%d map messages not in the bridge's layout", f.layout_bad);
+      CHECK(age > -5 && age < 600, "map stamp is %g s from now", age);
       if (!last_map_bad) map_ok = 1;
-      dds_return_loan(mr, s, 1);
     }
     if (take_one(sr, s)) {
       const diagnostic_msgs_msg_dds__DiagnosticArray_ *a = s[0];
@@ -265,8 +581,11 @@ static int check_map_status(dds_entity_t pp, const char *ns, struct vlff_map *m,
   }
   size_t total = (size_t)in.grid.dims[0] * in.grid.dims[1] * in.grid.dims[2], labelled = 0;
   for (size_t i = 0; i < total; i++) labelled += in.grid.labels[i] <= VLFF_LABEL_MAX;
-  printf("%s: %d maps, %d status messages received; map version %llu, %zu labelled of %zu voxels\n",
-         late ? "late" : "final", maps, statuses, (unsigned long long)in.version, labelled, total);
+  if (!map_ok && f.nfull) last_map_bad = follower_compare(&f, &in, SIZE_MAX, true, &r);
+  printf("%s: %d maps (%zu whole, %zu updates), %d status messages received; map version %llu, %zu labelled of %zu "
+         "voxels\n",
+         late ? "late" : "final", maps, f.nfull, f.nup, statuses, (unsigned long long)in.version, labelled, total);
+  follower_close(&f);
   CHECK(labelled > 0, "the segment's map has no labelled voxel: nothing was compared");
   if (!map_ok) printf("FAIL: no map received equal to the segment's (last compare: %d mismatches)\n", last_map_bad);
   if (!status_ok) printf("FAIL: no status received matching the segment's (last compare: %d mismatches)\n", last_status_bad);
@@ -650,7 +969,7 @@ static int badmap(dds_entity_t pp, const char *ns, double deadline) {
 
 int main(int argc, char **argv) {
   if (argc < 7 || argc > 9) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
+    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap|follow DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
                     "[compressed]]\n");
     return 2;
   }
@@ -673,6 +992,15 @@ int main(int argc, char **argv) {
     flood(pp, ns, deadline);
   } else if (!strcmp(mode, "badmap")) {
     badmap(pp, ns, deadline);
+  } else if (!strcmp(mode, "follow")) {
+    struct vlff_map *m;
+    while (!(m = vlff_map_attach(mapname)) && now_s() < deadline) dds_sleepfor(DDS_MSECS(100));
+    if (!m) {
+      printf("FAIL: %s: %s\n", mapname, vlff_shm_last_message());
+      return 1;
+    }
+    follow(pp, ns, m, strtoull(node, NULL, 10), deadline);
+    vlff_map_detach(m);
   } else {
     /* The probe may start before the node has created the segment. */
     struct vlff_map *m;

@@ -6,7 +6,16 @@
  *   map_writer write NAME SEED SECONDS   a 20x20x10 grid of 0.1 m voxels at
  *       the origin: a floor, a wall and a box labelled, confidences that
  *       differ by SEED (odd for 1, even for 2), a prompt list of SEED's;
- *       published once, then alive (heartbeats) for SECONDS.
+ *       published once; after 2 s a partial publish (its runs) that clears
+ *       part of the wall and labels a new box, then prints "changed"; alive
+ *       (heartbeats) for SECONDS.
+ *   map_writer churn NAME VERSIONS HZ SECONDS   for test_dds_updates.sh:
+ *       seed 1's map, then after 3 s VERSIONS partial publishes at HZ
+ *       (vlff_map_update.ranges, as the node's), each relabelling a 3x3x2
+ *       box to a prompt's label, free or unknown with a new confidence; the
+ *       prompt list grows by one text halfway; the last version labels a
+ *       box with that text, a change every subscriber sees. Prints
+ *       "final V" (the last version) and stays alive SECONDS.
  *   map_writer check FLEET SEG@X,Y,Z,YAW ...   every labelled voxel of each
  *       robot segment, at its centre moved by its transform, against the
  *       fleet segment: each fleet voxel holds the text and confidence of the
@@ -61,12 +70,105 @@ static int write_map(const char *name, int seed, double secs) {
   signal(SIGINT, on_signal);
   struct timespec t0, t;
   clock_gettime(CLOCK_MONOTONIC, &t0);
+  int changed = 0;
   do {
     struct timespec half = {0, 200000000};
     nanosleep(&half, NULL);
     vlff_map_heartbeat(m);
     clock_gettime(CLOCK_MONOTONIC, &t);
+    if (!changed && t.tv_sec - t0.tv_sec >= 2) {
+      /* the map changes: a subscriber following it (vlff-merge) must too */
+      struct vlff_map_range runs[2 * 3 + 3 * 3];
+      size_t nr = 0;
+      for (int k = 1; k < 3; k++)
+        for (int j = 0; j < 3; j++) {
+          size_t first = NX * ((size_t)j + NY * (size_t)k);
+          runs[nr++] = (struct vlff_map_range){(uint32_t)first, 1};
+          labels[first] = VLFF_LABEL_FREE;
+        }
+      for (int k = 1; k < 4; k++)
+        for (int j = 15; j < 18; j++) {
+          size_t first = 14 + NX * ((size_t)j + NY * (size_t)k);
+          runs[nr++] = (struct vlff_map_range){(uint32_t)first, 3};
+          for (size_t v = first; v < first + 3; v++) labels[v] = (uint16_t)box_l, conf[v] = (uint8_t)(240 + seed);
+        }
+      struct vlff_map_update pu = {.grid = &g, .ranges = runs, .range_count = nr};
+      if (vlff_map_publish(m, &pu) < 0) {
+        fprintf(stderr, "map_writer: publish: %s\n", vlff_shm_last_message());
+        return 1;
+      }
+      printf("changed\n");
+      fflush(stdout);
+      changed = 1;
+    }
   } while (!stop && (double)(t.tv_sec - t0.tv_sec) < secs);
+  vlff_map_detach(m);
+  return 0;
+}
+
+static void sleep_s(double s) {
+  struct timespec t = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
+  nanosleep(&t, NULL);
+}
+
+static int churn(const char *name, int versions, double hz, double secs) {
+  static const char *const texts[4] = {"wall", "floor", "chair", "door"};
+  struct vlff_map_params mp = {N, 0, 0, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  static uint16_t labels[N];
+  static uint8_t conf[N];
+  if (!m) {
+    fprintf(stderr, "map_writer: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  for (size_t v = 0; v < N; v++) {
+    size_t k = v / (NX * NY), i = v % NX;
+    labels[v] = k == 0 ? 1 : i == 0 && k < 6 ? 0 : VLFF_LABEL_FREE;
+    conf[v] = (uint8_t)(20 + v % 200);
+  }
+  struct vlff_map_grid g = {{0, 0, 0}, 0.1, {NX, NY, NZ}, labels, conf};
+  struct vlff_map_update up = {.grid = &g, .prompts = texts, .prompt_count = 3};
+  if (vlff_map_publish(m, &up) < 0) {
+    fprintf(stderr, "map_writer: publish: %s\n", vlff_shm_last_message());
+    return 1;
+  }
+  signal(SIGTERM, on_signal);
+  signal(SIGINT, on_signal);
+  for (int t = 0; t < 15 && !stop; t++) { /* subscribers join */
+    sleep_s(0.2);
+    vlff_map_heartbeat(m);
+  }
+  unsigned rng = 7;
+  for (int n = 1; n <= versions && !stop; n++) {
+    rng = rng * 1103515245u + 12345u;
+    int ci = (int)(rng >> 8) % (NX - 3), cj = (int)(rng >> 14) % (NY - 3), ck = (int)(rng >> 20) % (NZ - 2);
+    int nprompts = n > versions / 2 ? 4 : 3;
+    uint16_t l = (uint16_t)((rng >> 4) % (unsigned)(nprompts + 2));
+    if (l >= nprompts) l = l == nprompts ? VLFF_LABEL_FREE : VLFF_LABEL_UNKNOWN;
+    if (n == versions) l = 3;
+    uint8_t c = (uint8_t)(1 + (rng >> 24) % 255);
+    struct vlff_map_range ranges[6];
+    size_t nr = 0;
+    for (int k = ck; k < ck + 2; k++)
+      for (int j = cj; j < cj + 3; j++) {
+        size_t first = (size_t)ci + NX * ((size_t)j + NY * (size_t)k);
+        ranges[nr++] = (struct vlff_map_range){(uint32_t)first, 3};
+        for (size_t v = first; v < first + 3; v++) labels[v] = l, conf[v] = c;
+      }
+    struct vlff_map_update pu = {.grid = &g, .prompts = texts, .prompt_count = nprompts, .ranges = ranges,
+                                 .range_count = nr};
+    if (vlff_map_publish(m, &pu) < 0) {
+      fprintf(stderr, "map_writer: publish: %s\n", vlff_shm_last_message());
+      return 1;
+    }
+    sleep_s(1 / hz);
+  }
+  printf("final %llu\n", (unsigned long long)vlff_map_version(m));
+  fflush(stdout);
+  for (double t = 0; t < secs && !stop; t += 0.2) {
+    sleep_s(0.2);
+    vlff_map_heartbeat(m);
+  }
   vlff_map_detach(m);
   return 0;
 }
@@ -151,7 +253,8 @@ static int check(const char *fleet, int nrobots, char **robots) {
 
 int main(int argc, char **argv) {
   if (argc == 5 && !strcmp(argv[1], "write")) return write_map(argv[2], atoi(argv[3]), atof(argv[4]));
+  if (argc == 6 && !strcmp(argv[1], "churn")) return churn(argv[2], atoi(argv[3]), atof(argv[4]), atof(argv[5]));
   if (argc >= 4 && !strcmp(argv[1], "check")) return check(argv[2], argc - 3, argv + 3);
-  fprintf(stderr, "usage: map_writer write NAME SEED SECONDS | check FLEET SEG@X,Y,Z,YAW ...\n");
+  fprintf(stderr, "usage: map_writer write NAME SEED SECONDS | churn NAME VERSIONS HZ SECONDS | check FLEET SEG@X,Y,Z,YAW ...\n");
   return 2;
 }

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # vlff-merge on a real network stack (netns_kit.sh): in namespace A two
 # robots, each a map segment of known content (map_writer) served by its own
-# vlff-dds (/r1, /r2); in B vlff-merge (dds.merge) with robot 2 moved by 1 m in x and
+# vlff-dds (/r1, /r2), changed by a partial publish after 2 s (so the fleet
+# is right only if vlff-merge applies the robots' map/updates); in B vlff-merge (dds.merge) with robot 2 moved by 1 m in x and
 # turned 90 degrees, so that the two maps overlap. The fleet segment must
 # hold, in every voxel, the text and confidence of the most confident robot
 # voxel falling in it and nothing elsewhere (map_writer check, reading the
@@ -25,16 +26,19 @@ printf 'dds:\n  domain_id: %d\n  status: false\n  prompts_in: false\n  label_ima
 # The fleet from the config (the bridges ignore dds.merge).
 cp "$tmp/d.yaml" "$tmp/f.yaml"
 printf '  merge:\n    robots:\n      - namespace: /r1\n      - {namespace: /r2, transform: [1.0, 0, 0, 90]}\n      - namespace: /r3\n    map: %s-fleet\n    bounds: [-3, -3, -1, 3, 3, 2]\n' $p >>"$tmp/f.yaml"
-"$writer" write $p-m1 1 60 & w1=$!
-"$writer" write $p-m2 2 60 & w2=$!
+"$writer" write $p-m1 1 60 >"$tmp/w1" & w1=$!
+"$writer" write $p-m2 2 60 >"$tmp/w2" & w2=$!
 pids+=($w1 $w2)
 "${in_a[@]}" "$dds" -c "$tmp/d.yaml" -n /r1 -m $p-m1 2>"$tmp/b1.log" & b1=$!
 "${in_a[@]}" "$dds" -c "$tmp/d.yaml" -n /r2 -m $p-m2 2>"$tmp/b2.log" & b2=$!
 "${in_a[@]}" "$probe" badmap $domain /r3 - - 60 >"$tmp/bad" 2>&1 & bad=$!
 "${in_b[@]}" "$merge" -c "$tmp/f.yaml" -v 2>"$tmp/merge.log" & mg=$!
 pids+=($b1 $b2 $mg $bad)
+# after 2 s each robot's map changes: the bridges send updates (not the whole
+# map), which vlff-merge applies
+wait_until 100 'grep -q changed "$tmp/w1" && grep -q changed "$tmp/w2"'
 wait_until 300 '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/check" 2>&1'
-check "the fleet map holds the most confident robot voxel in each voxel ($(tail -1 "$tmp/check"))" \
+check "the fleet map holds the most confident robot voxel in each voxel, the robots' updates applied ($(tail -1 "$tmp/check"))" \
   '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/check" 2>&1'
 check "the fleet's labels are the union of the robots' texts (wall floor chair table)" 'grep -q ", 4 labels$" "$tmp/check"'
 check "the check fails against another transform (robot 2 not turned), or it proves nothing" \

@@ -207,8 +207,66 @@ static void test_merge(void **state) {
   vlff_merge_robot_free(&r[1]);
 }
 
+/* A robot's updates (map/updates) applied to its whole map: relabel, clear,
+ * add at the same positions; older ones skipped; a malformed one refused
+ * whole. */
+static void test_merge_update(void **state) {
+  (void)state;
+  static struct vlff_merge_robot r;
+  memset(&r, 0, sizeof r);
+  r.nprompts = 2;
+  strcpy(r.prompts[0], "chair"), strcpy(r.prompts[1], "table");
+  char why[256];
+  static const char *const un[6] = {"x", "y", "z", "label", "confidence", "version"};
+  static const uint32_t uo[6] = {0, 4, 8, 12, 16, 20};
+  static const uint8_t ut[6] = {VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32,
+                                VLFF_DDS_UINT16,  VLFF_DDS_FLOAT32, VLFF_DDS_UINT32};
+  uint8_t d[2 * 20];
+  put_point(d, 0.05f, 0.05f, 0.05f, 0, 0.5f);
+  put_point(d + 20, 0.15f, 0.05f, 0.05f, 1, 1.0f);
+  uint8_t u[3 * 24] = {0};
+  put_point(u, 0.05f, 0.05f, 0.05f, VLFF_LABEL_FREE, 0.1f); /* clears the chair */
+  put_point(u + 24, 0.15f, 0.05f, 0.05f, 0, 0.75f);          /* the table becomes a chair */
+  put_point(u + 48, 0.25f, 0.05f, 0.05f, 1, 0.5f);           /* a new table */
+  /* no whole map held yet: skipped */
+  assert_int_equal(vlff_merge_take_update(&r, 3, 1, 24, false, un, uo, ut, 6, u, sizeof u, 150, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_take_cloud(&r, 2, 1, 20, false, names, offs, types, 5, d, sizeof d, 100, why, sizeof why), 0);
+  /* refused whole: a map's layout, a label beyond the list */
+  assert_int_equal(vlff_merge_take_update(&r, 3, 1, 24, false, names, offs, types, 5, u, sizeof u, 150, why, sizeof why), -1);
+  assert_non_null(strstr(why, "6 fields"));
+  uint8_t bad[2 * 24] = {0};
+  put_point(bad, 0.35f, 0.05f, 0.05f, 1, 0.5f);
+  put_point(bad + 24, 0.45f, 0.05f, 0.05f, 7, 0.5f);
+  assert_int_equal(vlff_merge_take_update(&r, 2, 1, 24, false, un, uo, ut, 6, bad, sizeof bad, 150, why, sizeof why), -1);
+  assert_int_equal(r.n, 2);
+  /* older than the whole map: held already */
+  assert_int_equal(vlff_merge_take_update(&r, 3, 1, 24, false, un, uo, ut, 6, u, sizeof u, 90, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_take_update(&r, 3, 1, 24, false, un, uo, ut, 6, u, sizeof u, 150, why, sizeof why), 1);
+  assert_int_equal(r.stamp_ns, 150);
+  static struct vlff_merge_grid g;
+  const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_compute(&g, &r, 1), 2);
+  assert_int_equal(g.labels[0], VLFF_LABEL_UNKNOWN); /* cleared */
+  assert_string_equal(g.prompts[g.labels[1]], "chair");
+  assert_int_equal(g.conf[1], 191);
+  assert_string_equal(g.prompts[g.labels[2]], "table");
+  /* a whole map older than the update: what is held is newer */
+  assert_int_equal(vlff_merge_take_cloud(&r, 2, 1, 20, false, names, offs, types, 5, d, sizeof d, 120, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_compute(&g, &r, 1), 2);
+  assert_int_equal(g.labels[0], VLFF_LABEL_UNKNOWN);
+  /* many new points: the index grows */
+  static uint8_t many[500 * 24];
+  for (int i = 0; i < 500; i++) put_point(many + 24 * i, 0.05f + 0.1f * (float)(i % 10), 0.05f + 0.1f * (float)(i / 10 % 10), 0.05f + 0.1f * (float)(i / 100), 1, 0.25f);
+  assert_int_equal(vlff_merge_take_update(&r, 500, 1, 24, false, un, uo, ut, 6, many, sizeof many, 200, why, sizeof why), 1);
+  assert_int_equal(r.n, 500);
+  assert_int_equal(vlff_merge_compute(&g, &r, 1), 500);
+  vlff_merge_grid_free(&g);
+  vlff_merge_robot_free(&r);
+}
+
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding), cmocka_unit_test(test_merge),
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding), cmocka_unit_test(test_merge), cmocka_unit_test(test_merge_update),
                                      cmocka_unit_test(test_cloud)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -347,6 +347,14 @@ static void test_dds_section(void **state) {
   }
   expect_error("dds:\n  domain_id: 233\n", "t.yaml:2:14: key 'dds.domain_id': ", "expected");
   expect_error("dds:\n  max_prompt_bytes: 20000\n", "t.yaml:2:21: key 'dds.max_prompt_bytes': ", "expected");
+  /* map/updates: on, transient local, keep last 200; the whole map's period bounded */
+  assert_int_equal(load("dds:\n  map_full_period_s: 30\n", &cfg), 0);
+  assert_true(cfg.dds.on[VLFF_DDS_MAP_UPDATES]);
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_MAP_UPDATES].durability, VLFF_DDS_TRANSIENT_LOCAL);
+  assert_int_equal(cfg.dds.qos[VLFF_DDS_MAP_UPDATES].depth, 200);
+  assert_true(cfg.dds.map_full_period_s == 30);
+  expect_error("dds:\n  map_full_period_s: 0.5\n", "t.yaml:2:22: key 'dds.map_full_period_s': ", "expected");
+  expect_error("dds:\n  map_full_period_s: 4000\n", "t.yaml:2:22: key 'dds.map_full_period_s': ", "expected");
 
   /* Per-topic switches and QoS, nested or dotted. */
   assert_int_equal(load("dds:\n  tf: false\n  camera_frame_id: cam0\n  qos:\n    camera_image:\n      reliability: "
