@@ -248,6 +248,11 @@ int main(int argc, char **argv) {
       robots[i].nprompts = -1;
     }
   if (!out) out = cm->map;
+  /* The node's own segment on this machine: creating it would replace the
+   * map the node publishes (the config refuses it for dds.merge.map). */
+  if (!strcmp(out, cfg.shm.map))
+    return vlff_cli_usage_error(&cli, "--map '%s': expected a segment distinct from shm.map, the node's map",
+                                VLFF_Q(out));
   if (!fleet_ns) fleet_ns = cm->ns;
   if (!have_bounds) memcpy(bounds, cm->bounds, sizeof bounds);
   if (!have_voxel) voxel = cm->voxel_size_m;
@@ -266,7 +271,7 @@ int main(int argc, char **argv) {
   vlff_cli_catch_stop();
   struct vlff_map_params mp = {g.dims[0] * g.dims[1] * g.dims[2], 0, 0, {0, NULL}};
   struct vlff_map *map = vlff_map_create(out, &mp);
-  if (!map) return vlff_cli_error(&cli, "map segment %s: %s", VLFF_Q(out), vlff_shm_last_message());
+  if (!map) return vlff_cli_error(&cli, "map segment '%s': %s", VLFF_Q(out), vlff_shm_last_message());
   dds_entity_t pp = dds_create_participant((dds_domainid_t)cfg.dds.domain_id, NULL, NULL);
   if (pp < 0) return vlff_cli_error(&cli, "DDS participant: %s", dds_strretcode(pp));
   dds_entity_t ws = dds_create_waitset(pp);
