@@ -788,6 +788,9 @@ static int parse_merge_robots(struct parse *p, yaml_node_t *n, struct vlff_confi
     }
     if (!ns_at) return fail(p, s, path, "expected a 'namespace', got none");
   }
+  /* vlff-merge refuses a fleet of one at start, without the line */
+  if (count == 1)
+    return fail(p, n, MERGE_ROBOTS, "expected 0 (no fleet) or 2 to %d robots, got 1", VLFF_MAX_MERGE_ROBOTS);
   m->robot_count = (int)count;
   return 0;
 }
