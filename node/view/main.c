@@ -105,7 +105,9 @@ static char *read_token(const char *path) {
   return line;
 }
 
-/* --record DIR: a file of its own for this run, named by the local start time. */
+/* --record DIR: a file of its own for this run, named by the local start time;
+ * a name taken (a restart within the second, a clock set back) gets -2, -3, ...
+ * rather than replacing an earlier run's recording. */
 static const char *record_path(const char *arg, char *buf, size_t cap) {
   struct stat st;
   if (stat(arg, &st) != 0 || !S_ISDIR(st.st_mode)) return arg;
@@ -114,8 +116,15 @@ static const char *record_path(const char *arg, char *buf, size_t cap) {
   char stamp[32];
   if (!localtime_r(&now, &tm) || !strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", &tm)) return arg;
   size_t n = strlen(arg);
-  int k = snprintf(buf, cap, "%s%svlff-view-%s.mcap", arg, n && arg[n - 1] == '/' ? "" : "/", stamp);
-  return k > 0 && (size_t)k < cap ? buf : arg;
+  const char *sep = n && arg[n - 1] == '/' ? "" : "/";
+  for (int i = 1; i <= 1000; i++) {
+    char suffix[16] = "";
+    if (i > 1) snprintf(suffix, sizeof suffix, "-%d", i);
+    int k = snprintf(buf, cap, "%s%svlff-view-%s%s.mcap", arg, sep, stamp, suffix);
+    if (k <= 0 || (size_t)k >= cap) return arg;
+    if (lstat(buf, &st) != 0 && errno == ENOENT) return buf;
+  }
+  return buf; /* a thousand runs in one second: the last name is replaced */
 }
 
 static int is_dir_with_index(const char *dir) {
