@@ -248,11 +248,14 @@ int main(int argc, char **argv) {
       robots[i].nprompts = -1;
     }
   if (!out) out = cm->map;
-  /* The node's own segment on this machine: creating it would replace the
-   * map the node publishes (the config refuses it for dds.merge.map). */
-  if (!strcmp(out, cfg.shm.map))
-    return vlff_cli_usage_error(&cli, "--map '%s': expected a segment distinct from shm.map, the node's map",
-                                VLFF_Q(out));
+  /* One of the node's segments on this machine: creating it would replace it
+   * (the config refuses them for dds.merge.map). */
+  const char *const shm_keys[] = {"shm.map", "shm.ring", "shm.pose_ring", "shm.prompts", "shm.feature_ring"};
+  const char *const shm_vals[] = {cfg.shm.map, cfg.shm.ring, cfg.shm.pose_ring, cfg.shm.prompts, cfg.shm.feature_ring};
+  for (int i = 0; i < 5; i++)
+    if (!strcmp(out, shm_vals[i]))
+      return vlff_cli_usage_error(&cli, "--map '%s': expected a segment distinct from %s, the node's", VLFF_Q(out),
+                                  shm_keys[i]);
   if (!fleet_ns) fleet_ns = cm->ns;
   if (!have_bounds) memcpy(bounds, cm->bounds, sizeof bounds);
   if (!have_voxel) voxel = cm->voxel_size_m;

@@ -409,6 +409,8 @@ static void test_dds_section(void **state) {
       {"dds:\n  merge:\n    bounds: [0, 0, 0, 1000, 1000, 100]\n    voxel_size_m: 0.01\n", "at most"},
       {"dds:\n  merge:\n    map: fleet\n", "dds.merge.map"},
       {"shm:\n  map: /m\ndds:\n  merge:\n    map: /m\n", "distinct from shm.map"},
+      {"dds:\n  merge:\n    map: /vlff-frames\n", "distinct from shm.ring"},
+      {"shm:\n  feature_ring: /f\ndds:\n  merge:\n    map: /f\n", "distinct from shm.feature_ring"},
   };
   for (size_t i = 0; i < sizeof mbad / sizeof mbad[0]; i++) {
     assert_int_equal(load(mbad[i].yaml, &cfg), -1);
