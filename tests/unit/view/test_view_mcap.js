@@ -282,7 +282,7 @@ async function main() {
   fs.rmSync(path.join(rdir, runs[0]));
   const pad = (v) => String(v).padStart(2, '0');
   const taken = [];
-  for (let k = -1; k < 6; k++) {
+  for (let k = -1; k < 60; k++) { // the seconds the run may start in on a loaded host
     const d = new Date(Date.now() + k * 1000);
     const name = `vlff-view-${d.getFullYear()}${pad(d.getMonth() + 1)}${pad(d.getDate())}-` +
       `${pad(d.getHours())}${pad(d.getMinutes())}${pad(d.getSeconds())}.mcap`;
