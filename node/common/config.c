@@ -795,6 +795,9 @@ static int parse_merge_robots(struct parse *p, yaml_node_t *n, struct vlff_confi
     }
     if (!ns_at) return fail(p, s, path, "expected a 'namespace', got none");
   }
+  /* vlff-merge refuses a fleet of one at start, without the line */
+  if (count == 1)
+    return fail(p, n, MERGE_ROBOTS, "expected 0 (no fleet) or 2 to %d robots, got 1", VLFF_MAX_MERGE_ROBOTS);
   m->robot_count = (int)count;
   return 0;
 }
@@ -1080,8 +1083,14 @@ static int check_dds(struct parse *p, struct vlff_config *cfg) {
       return fail_cross(p, "dds.merge.namespace", "expected a namespace no robot has, got '%s'", VLFF_Q(m->ns));
   if ((why = shm_name_problem(m->map)))
     return fail_cross(p, "dds.merge.map", "expected a POSIX shared-memory name (%s), got '%s'", why, VLFF_Q(m->map));
-  if (!strcmp(m->map, cfg->shm.map))
-    return fail_cross(p, "dds.merge.map", "expected a segment distinct from shm.map, got the same '%s'", VLFF_Q(m->map));
+  /* vlff-merge creates it: on a robot's computer it would replace that segment */
+  const char *const shm_keys[] = {"shm.map", "shm.ring", "shm.pose_ring", "shm.prompts", "shm.feature_ring"};
+  const char *const shm_vals[] = {cfg->shm.map, cfg->shm.ring, cfg->shm.pose_ring, cfg->shm.prompts,
+                                  cfg->shm.feature_ring};
+  for (int i = 0; i < 5; i++)
+    if (!strcmp(m->map, shm_vals[i]))
+      return fail_cross(p, "dds.merge.map", "expected a segment distinct from %s, got the same '%s'", shm_keys[i],
+                        VLFF_Q(m->map));
   for (int a = 0; a < 3; a++)
     if (!(m->bounds[a] < m->bounds[a + 3]))
       return fail_cross(p, "dds.merge.bounds", "expected x0 y0 z0 below x1 y1 z1, got axis %d: %g..%g", a, m->bounds[a],

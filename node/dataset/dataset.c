@@ -621,7 +621,9 @@ static int list_frames(struct vlff_dataset *ds, const char *dir, struct stems *r
       if (i >= o.n || strcmp(rgb->s[i], o.s[i])) bad = i;
     if (bad < 0 && o.n != rgb->n) bad = rgb->n;
     if (bad >= 0) {
-      if (bad < rgb->n)
+      /* both lists in stem order: at the first difference the earlier stem
+       * is the one the other directory lacks */
+      if (bad < rgb->n && (bad >= o.n || stem_cmp(rgb->s[bad], o.s[bad]) < 0))
         seterr(err, errlen, "%s/%s%s: missing (there is an image %s%s)", VLFF_Q(p), VLFF_Q(rgb->s[bad]), ext[k],
                VLFF_Q(rgb->s[bad]), rgb->ext);
       else

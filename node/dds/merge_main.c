@@ -284,6 +284,14 @@ int main(int argc, char **argv) {
       robots[i].nprompts = -1;
     }
   if (!out) out = cm->map;
+  /* One of the node's segments on this machine: creating it would replace it
+   * (the config refuses them for dds.merge.map). */
+  const char *const shm_keys[] = {"shm.map", "shm.ring", "shm.pose_ring", "shm.prompts", "shm.feature_ring"};
+  const char *const shm_vals[] = {cfg.shm.map, cfg.shm.ring, cfg.shm.pose_ring, cfg.shm.prompts, cfg.shm.feature_ring};
+  for (int i = 0; i < 5; i++)
+    if (!strcmp(out, shm_vals[i]))
+      return vlff_cli_usage_error(&cli, "--map '%s': expected a segment distinct from %s, the node's", VLFF_Q(out),
+                                  shm_keys[i]);
   if (!fleet_ns) fleet_ns = cm->ns;
   if (!have_bounds) memcpy(bounds, cm->bounds, sizeof bounds);
   if (!have_voxel) voxel = cm->voxel_size_m;
@@ -302,7 +310,7 @@ int main(int argc, char **argv) {
   vlff_cli_catch_stop();
   struct vlff_map_params mp = {g.dims[0] * g.dims[1] * g.dims[2], 0, 0, {0, NULL}};
   struct vlff_map *map = vlff_map_create(out, &mp);
-  if (!map) return vlff_cli_error(&cli, "map segment %s: %s", VLFF_Q(out), vlff_shm_last_message());
+  if (!map) return vlff_cli_error(&cli, "map segment '%s': %s", VLFF_Q(out), vlff_shm_last_message());
   dds_entity_t pp = dds_create_participant((dds_domainid_t)cfg.dds.domain_id, NULL, NULL);
   if (pp < 0) return vlff_cli_error(&cli, "DDS participant: %s", dds_strretcode(pp));
   dds_entity_t ws = dds_create_waitset(pp);

@@ -1076,6 +1076,13 @@ static int build_worlds(struct vlff_sim *s, char *err, size_t errlen) {
       const struct vlff_sim_change *ch = &s->cfg.changes[order[w - 1]];
       const int o = obj[order[w - 1]];
       wd->from_s = ch->time_s;
+      /* A move keeps an object where it is and as it is: one removed or not yet
+       * added would otherwise come back unasked. */
+      if (ch->action == VLFF_SIM_MOVE && !present[o]) {
+        vlff_errf(err, errlen, "sim: sim.changes[%d]: '%s' is moved at %g s while absent (removed, or not yet added): "
+                               "bring it back with action add and a 'to'", order[w - 1], VLFF_Q(ch->object), ch->time_s);
+        goto out;
+      }
       present[o] = ch->action != VLFF_SIM_REMOVE;
       if (ch->has_to) {
         /* The object's footprint as built, and where its centre goes. */

@@ -105,7 +105,9 @@ static char *read_token(const char *path) {
   return line;
 }
 
-/* --record DIR: a file of its own for this run, named by the local start time. */
+/* --record DIR: a file of its own for this run, named by the local start time;
+ * a name taken (a restart within the second, a clock set back) gets -2, -3, ...
+ * rather than replacing an earlier run's recording. */
 static const char *record_path(const char *arg, char *buf, size_t cap) {
   struct stat st;
   if (stat(arg, &st) != 0 || !S_ISDIR(st.st_mode)) return arg;
@@ -114,8 +116,15 @@ static const char *record_path(const char *arg, char *buf, size_t cap) {
   char stamp[32];
   if (!localtime_r(&now, &tm) || !strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", &tm)) return arg;
   size_t n = strlen(arg);
-  int k = snprintf(buf, cap, "%s%svlff-view-%s.mcap", arg, n && arg[n - 1] == '/' ? "" : "/", stamp);
-  return k > 0 && (size_t)k < cap ? buf : arg;
+  const char *sep = n && arg[n - 1] == '/' ? "" : "/";
+  for (int i = 1; i <= 1000; i++) {
+    char suffix[16] = "";
+    if (i > 1) snprintf(suffix, sizeof suffix, "-%d", i);
+    int k = snprintf(buf, cap, "%s%svlff-view-%s%s.mcap", arg, sep, stamp, suffix);
+    if (k <= 0 || (size_t)k >= cap) return arg;
+    if (lstat(buf, &st) != 0 && errno == ENOENT) return buf;
+  }
+  return buf; /* a thousand runs in one second: the last name is replaced */
 }
 
 static int is_dir_with_index(const char *dir) {
@@ -159,6 +168,7 @@ int main(int argc, char **argv) {
   struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
   const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL;
   int record_level = 3;
+  bool record_level_set = false, play_rate_set = false;
   double play_rate = 1;
   double x;
   int c, status;
@@ -215,11 +225,13 @@ int main(int argc, char **argv) {
     case OPT_RECORD: record = optarg; break;
     case OPT_RECORD_LEVEL:
       if (parse_num("record-level", optarg, 0, 19, &x) || x != (int)x) return 2;
+      record_level_set = true;
       record_level = (int)x;
       break;
     case OPT_PLAY: play = optarg; break;
     case OPT_PLAY_RATE:
       if (parse_num("play-rate", optarg, 0.01, 100, &play_rate)) return 2;
+      play_rate_set = true;
       break;
     case 'v': vp.verbose++; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
@@ -237,6 +249,9 @@ int main(int argc, char **argv) {
     return vlff_cli_error(&cli, "the page's files are not installed beside the program; pass --www DIR");
   }
   if (record && play) return vlff_cli_usage_error(&cli, "--record and --play exclude each other");
+  /* an option of a mode not asked for would be ignored without a word */
+  if (record_level_set && !record) return vlff_cli_usage_error(&cli, "--record-level without --record");
+  if (play_rate_set && !play) return vlff_cli_usage_error(&cli, "--play-rate without --play");
   char *token = NULL;
   if (token_file && !(token = read_token(token_file))) return 1;
   vp.token = token;

@@ -26,7 +26,7 @@ struct vlff_view_play {
   struct vlff_view_msg *latest[VLFF_VIEW_CH_MAX + 1];
   uint64_t total, sent;
   int started, done, have_next;
-  uint64_t t0_log, t0_now;
+  uint64_t t0_log, t0_now, prev_log;
   double rate;
   struct vlff_mcap_message next;
 };
@@ -41,6 +41,12 @@ static int utf8_ok(const char *s, size_t n) {
   }
   return 1;
 }
+
+/* Log times are the recorder's wall clock: a clock stepped while recording (NTP
+ * setting a robot's clock that started at 1970) leaves a jump of years between two
+ * messages. A forward jump longer than this is played without waiting, as a step
+ * back is (the writer records a time before the previous as the previous). */
+#define PLAY_MAX_GAP_NS (60ull * 1000000000ull)
 
 static int view_channel(const struct vlff_view_play *p, uint16_t id) {
   for (int i = 1; i <= p->nch; i++)
@@ -60,12 +66,26 @@ struct vlff_view_play *vlff_view_play_open(const char *path) {
   p->r = vlff_mcap_reader_new(p->file, p->len, why, sizeof why);
   struct vlff_mcap_message m;
   int rc = p->r ? 1 : -1;
-  while (rc == 1 && (rc = vlff_mcap_next(p->r, &m, why, sizeof why)) == 1) p->total++;
+  uint64_t prev = 0, jumps = 0, largest = 0, largest_at = 0;
+  while (rc == 1 && (rc = vlff_mcap_next(p->r, &m, why, sizeof why)) == 1) {
+    if (p->total && m.log_ns > prev && m.log_ns - prev > PLAY_MAX_GAP_NS) {
+      jumps++;
+      if (m.log_ns - prev > largest) largest = m.log_ns - prev, largest_at = p->total;
+    }
+    if (!p->total || m.log_ns > prev) prev = m.log_ns;
+    p->total++;
+  }
   if (rc < 0) {
     fprintf(stderr, "vlff-view: --play %s: %s\n", VLFF_Q(path), why);
     vlff_view_play_free(p);
     return NULL;
   }
+  if (jumps)
+    vlff_log(VLFF_LOG_WARN, "vlff-view",
+             "--play %s: %llu jump%s of more than %llu s between messages' log times (the largest %.0f s, before "
+             "message %llu: the recorder's clock stepped?): played without waiting",
+             VLFF_Q(path), (unsigned long long)jumps, jumps == 1 ? "" : "s", PLAY_MAX_GAP_NS / 1000000000ull,
+             (double)largest * 1e-9, (unsigned long long)largest_at + 1);
   uint64_t at;
   if (vlff_mcap_truncated(p->r, &at))
     vlff_log(VLFF_LOG_WARN, "vlff-view",
@@ -140,11 +160,16 @@ int vlff_view_play_poll(struct vlff_view_play *p, unsigned wanted, uint64_t now_
     if (!wanted) return 0;
     p->started = 1;
     if (!advance(p)) return 0;
-    p->t0_log = p->next.log_ns;
+    p->t0_log = p->prev_log = p->next.log_ns;
     p->t0_now = now_ns;
   }
   int n = 0;
   while (n < out_cap && p->have_next) {
+    if (p->next.log_ns > p->prev_log) {
+      /* a jump past the bound starts the clock again where the last message was due */
+      if (p->next.log_ns - p->prev_log > PLAY_MAX_GAP_NS) p->t0_log += p->next.log_ns - p->prev_log;
+      p->prev_log = p->next.log_ns;
+    }
     uint64_t due = p->next.log_ns > p->t0_log ? (uint64_t)((double)(p->next.log_ns - p->t0_log) / p->rate) : 0;
     if (now_ns - p->t0_now < due) break;
     int ch = view_channel(p, p->next.channel);

@@ -184,7 +184,8 @@ struct vlff_view_chan {
  * recorder plays up to its last whole chunk, with a warning); its channels are
  * numbered 1..n in the order the file defines them. Playback starts when a client
  * first subscribes and sends each message when as much time has passed since the
- * first as passed between their log times, with its publish time as the Foxglove
+ * first as passed between their log times (a jump forward of more than 60 s, a
+ * recorder's clock stepped, is not waited out), with its publish time as the Foxglove
  * timestamp; a new subscriber gets the latest message played on its channel. */
 struct vlff_view_play;
 /* NULL (the reason on stderr) for a file that is not a readable recording. */

@@ -8,7 +8,7 @@
 # voxel falling in it and nothing elsewhere (map_writer check, reading the
 # robots' segments); a third robot sending a malformed cloud and prompt
 # list (dds_probe badmap) is refused, counted and logged and changes
-# nothing; bad --robot and --bounds are refused naming them.
+# nothing; bad --robot, --bounds and --map are refused naming them.
 # Needs root for ip netns: exits 77 (skipped) without it.
 # Usage: test_dds_merge.sh DDS MERGE MAP_WRITER PROBE
 set -u
@@ -20,6 +20,13 @@ check "a bad robot namespace is refused by the namespace rule" \
   '! "$merge" -r /a -r b -m $p-x -b 0,0,0,1,1,1 2>"$tmp/e2" && grep -q "a leading" "$tmp/e2"'
 check "bounds too large for a map are refused" \
   '! "$merge" -r /a -r /b -m $p-x -b 0,0,0,1000,1000,100 --voxel 0.01 2>"$tmp/e3" && grep -q "more than" "$tmp/e3"'
+printf 'shm:\n  map: %s-node\n  ring: %s-ring\n' $p $p >"$tmp/n.yaml"
+check "--map naming the node's map segment (shm.map) is refused, not replaced" \
+  '! "$merge" -c "$tmp/n.yaml" -r /a -r /b -m $p-node -b 0,0,0,1,1,1 --seconds 1 2>"$tmp/e4" && grep -q "distinct from shm.map" "$tmp/e4" && [[ ! -e /dev/shm$p-node ]]'
+check "--map naming the node's frame ring (shm.ring) is refused, not replaced" \
+  '! "$merge" -c "$tmp/n.yaml" -r /a -r /b -m $p-ring -b 0,0,0,1,1,1 --seconds 1 2>"$tmp/e6" && grep -q "distinct from shm.ring" "$tmp/e6" && [[ ! -e /dev/shm$p-ring ]]'
+check "an empty --map is refused with the name quoted" \
+  '! "$merge" -r /a -r /b -m "" -b 0,0,0,1,1,1 --seconds 1 2>"$tmp/e5" && grep -q "map segment '"''"':" "$tmp/e5"'
 
 domain=$((($$ % 200) + 1))
 printf 'dds:\n  domain_id: %d\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n' $domain >"$tmp/d.yaml"

@@ -411,11 +411,14 @@ static void test_dds_section(void **state) {
       {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [1, 2, 3, 400]}\n", "degrees within"},
       {"dds:\n  merge:\n    robots:\n      - {transform: [1, 2, 3, 4]}\n", "expected a 'namespace'"},
       {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, pose: 3}\n", "unknown key"},
-      {"dds:\n  merge:\n    robots:\n      - namespace: /fleet\n", "no robot has"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: /r1\n      - namespace: /fleet\n", "no robot has"},
+      {"dds:\n  merge:\n    robots:\n      - namespace: /r1\n", "0 (no fleet) or 2 to 8 robots, got 1"},
       {"dds:\n  merge:\n    bounds: [0, 0, 0, 0, 1, 1]\n", "below x1 y1 z1"},
       {"dds:\n  merge:\n    bounds: [0, 0, 0, 1000, 1000, 100]\n    voxel_size_m: 0.01\n", "at most"},
       {"dds:\n  merge:\n    map: fleet\n", "dds.merge.map"},
       {"shm:\n  map: /m\ndds:\n  merge:\n    map: /m\n", "distinct from shm.map"},
+      {"dds:\n  merge:\n    map: /vlff-frames\n", "distinct from shm.ring"},
+      {"shm:\n  feature_ring: /f\ndds:\n  merge:\n    map: /f\n", "distinct from shm.feature_ring"},
   };
   for (size_t i = 0; i < sizeof mbad / sizeof mbad[0]; i++) {
     assert_int_equal(load(mbad[i].yaml, &cfg), -1);
@@ -585,6 +588,12 @@ static void test_shipped_configs(void **state) {
   for (size_t i = 0; i < sizeof examples / sizeof examples[0]; i++) {
     snprintf(path, sizeof path, "%s/configs/%s", src, examples[i]);
     if (vlff_config_load(path, &cfg, err, sizeof err)) fail_msg("%s", err);
+    /* A live camera's frames with a live tracker's poses: the newest pose is up
+     * to a period older than the newest frame (docs/pose.md: the example configs
+     * wait for it). */
+    if (cfg.source.kind == VLFF_SOURCE_RING && strcmp(examples[i], "vlff.yaml") && !(cfg.source.pose_wait_s > 0))
+      fail_msg("%s: source.pose_wait_s is %g, expected the shipped wait for a live tracker", examples[i],
+               cfg.source.pose_wait_s);
   }
 }
 

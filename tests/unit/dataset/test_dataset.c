@@ -233,6 +233,12 @@ static void test_malformed(void **state) {
   snprintf(p, sizeof p, "%s/depth/00003.png", path);
   assert_int_equal(remove(p), 0);
   expect_open_error(path, "depth/00003.png", "missing");
+  /* an image missing in the middle: its depth map is the file without an image
+   * (not the next image's depth map, which is there) */
+  write_dataset(x, "bad4", path);
+  snprintf(p, sizeof p, "%s/rgb/00001.png", path);
+  assert_int_equal(remove(p), 0);
+  expect_open_error(path, "depth/00001.png", "no matching image");
   /* a truncated image is reported when its frame is read */
   write_dataset(x, "bad2", path);
   snprintf(p, sizeof p, "%s/depth/00001.png", path);

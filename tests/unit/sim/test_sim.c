@@ -717,6 +717,13 @@ static void test_change_removes_adds_and_refuses(void **state) {
                                               .has_to = true, .to = {50, 0}};
   assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
   if (!strstr(err, "sim.changes[0]: 'chair' at (50.00, 0.00) would stand outside the scene")) fail_msg("%s", err);
+  /* a move of a removed object (written after it, applied in time order) would bring it back unasked */
+  c.sim.change_count = 2;
+  c.sim.changes[0] = (struct vlff_sim_change){.time_s = 2, .object = "chair", .action = VLFF_SIM_MOVE,
+                                              .has_to = true, .to = {0.5, 0.5}};
+  c.sim.changes[1] = (struct vlff_sim_change){.time_s = 1, .object = "chair", .action = VLFF_SIM_REMOVE};
+  assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
+  if (!strstr(err, "sim.changes[0]: 'chair' is moved at 2 s while absent")) fail_msg("%s", err);
   vlff_sim_destroy(a);
 }
 

@@ -82,7 +82,7 @@ function subscribeAll(c) {
 }
 
 function cli() {
-  const run = (...a) => spawnSync(prog.view, a, { encoding: 'utf8' });
+  const run = (...a) => spawnSync(prog.view, a, { encoding: 'utf8', timeout: 10000 });
   let r = run('--version');
   assert.ok(r.status === 0 && /^vlff-view \d+\.\d+\.\d+$/m.test(r.stdout));
   r = run('--help');
@@ -90,12 +90,14 @@ function cli() {
   for (const [args, msg, code] of [[['--bogus'], "unknown option '--bogus'"], [['--port', '70000'], 'not a number in 0..65535'],
     [['--image-hz', 'x'], '--image-hz'], [['--map', 'nope'], "must start with '/'"],
     [['--www', '/nonexistent'], 'no index.html'], [['extra'], 'unexpected argument'],
+    [['--play-rate', '2'], '--play-rate without --play'], [['--record-level', '5'], '--record-level without --record'],
     [['--token-file', '/nonexistent/t'], '/nonexistent/t', 1]]) {
     r = run(...args);
     assert.strictEqual(r.status, code || 2, args.join(' '));
     assert.ok(r.stderr.includes(msg), `${args.join(' ')}: ${r.stderr}`);
   }
-  ok('command line: --version, --help; six bad arguments exit 2, an unreadable token file 1, each with a reason');
+  ok('command line: --version, --help; eight bad arguments exit 2 (--play-rate and --record-level without their ' +
+    'mode among them), an unreadable token file 1, each with a reason');
 
   // A FIFO or a directory named as the token file: refused at once (a plain open of
   // a FIFO would wait for a writer forever), naming the file and what it is.

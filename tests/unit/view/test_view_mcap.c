@@ -4,7 +4,9 @@
  * recorder leaves) read up to its last whole chunk without an error, and corrupt
  * files (flipped bytes in a chunk, the data section or the summary; a chunk
  * claiming more than the bound; a record running past the end; no magic) refused with the
- * byte offset and the reason. @mcap/core checks the same files from the outside
+ * byte offset and the reason; a recording whose wall clock stepped forward by
+ * years between two messages played without waiting out the step (--play).
+ * @mcap/core checks the same files from the outside
  * (test_view_mcap_js).
  */
 #include <setjmp.h>
@@ -22,6 +24,7 @@
 #include "files.h"
 #include "mcap.h"
 #include "unit.h"
+#include "view.h"
 
 #define N_MSG 600
 
@@ -261,5 +264,40 @@ static void test_refuses(void **state) {
   unlink(fifo);
 }
 
+/* Messages vlff_view_play_poll gives at now_ns (each unreferenced). */
+static int poll_at(struct vlff_view_play *p, uint64_t now_ns) {
+  struct vlff_view_msg *out[8];
+  int n = vlff_view_play_poll(p, 1, now_ns, out, 8);
+  for (int i = 0; i < n; i++) vlff_view_msg_unref(out[i]);
+  return n;
+}
+
+/* The recorder stamps log times with the wall clock: one set by NTP while it
+ * records (a robot's clock that started at 1970) jumps by decades. Playback
+ * keeps the recorded spacing on each side of the jump and does not wait it out. */
+static void test_play_clock_step(void **state) {
+  (void)state;
+  char why[256];
+  struct vlff_mcap_writer_params wp = {.library = "test", .zstd_level = 3};
+  struct vlff_mcap_writer *w = vlff_mcap_writer_open(path, &wp, why, sizeof why);
+  assert_non_null(w);
+  assert_int_equal(vlff_mcap_writer_channel(w, 1, "/a", "json", "t.A", "jsonschema", SCHEMA_A, strlen(SCHEMA_A)), 0);
+  const uint64_t s = 1000000000ull, step = 56ull * 365 * 86400 * s;
+  const uint64_t at[4] = {10 * s, 11 * s, 11 * s + step, 12 * s + step};
+  for (int i = 0; i < 4; i++) assert_int_equal(vlff_mcap_writer_message(w, 1, at[i], at[i], "{}", 2), 0);
+  assert_int_equal(vlff_mcap_writer_close(w, why, sizeof why), 0);
+  struct vlff_view_play *p = vlff_view_play_open(path);
+  assert_non_null(p);
+  const uint64_t t0 = 5000 * s;
+  assert_int_equal(poll_at(p, t0), 1);
+  assert_int_equal(poll_at(p, t0 + s / 2), 0);
+  assert_int_equal(poll_at(p, t0 + s), 2); /* the one before the step and the one after it */
+  assert_int_equal(poll_at(p, t0 + s + s / 2), 0);
+  assert_int_equal(poll_at(p, t0 + 2 * s), 1); /* a second after the step's, as recorded */
+  assert_true(vlff_view_play_done(p));
+  assert_int_equal(vlff_view_play_sent(p), 4);
+  vlff_view_play_free(p);
+}
+
 VLFF_UNIT_MAIN(setup, teardown, cmocka_unit_test(test_round_trip), cmocka_unit_test(test_truncated),
-               cmocka_unit_test(test_corrupt), cmocka_unit_test(test_refuses))
+               cmocka_unit_test(test_corrupt), cmocka_unit_test(test_refuses), cmocka_unit_test(test_play_clock_step))

@@ -277,6 +277,27 @@ async function main() {
   assert.deepStrictEqual(dlog, [`map segment /vlff-none-${process.pid} not there yet`]);
   ok(`--record DIR writes ${runs[0]} there, read by @mcap/core (without a map: status and the /log line ` +
     `"${dlog[0]}")`);
+  // a run whose start second names an earlier run's file (a restart within the
+  // second, a clock set back) writes a file of its own beside it
+  fs.rmSync(path.join(rdir, runs[0]));
+  const pad = (v) => String(v).padStart(2, '0');
+  const taken = [];
+  for (let k = -1; k < 60; k++) { // the seconds the run may start in on a loaded host
+    const d = new Date(Date.now() + k * 1000);
+    const name = `vlff-view-${d.getFullYear()}${pad(d.getMonth() + 1)}${pad(d.getDate())}-` +
+      `${pad(d.getHours())}${pad(d.getMinutes())}${pad(d.getSeconds())}.mcap`;
+    fs.writeFileSync(path.join(rdir, name), 'an earlier run');
+    taken.push(name);
+  }
+  const rp2 = viewProc(['--map', `/vlff-none-${process.pid}`, '--frames', '', '--record', rdir],
+    path.join(tmp, 'dir2.log'));
+  await rp2.port;
+  rp2.kill('SIGINT');
+  assert.strictEqual(await exited(rp2), 0);
+  for (const t of taken) assert.strictEqual(fs.readFileSync(path.join(rdir, t), 'utf8'), 'an earlier run', t);
+  const runs2 = fs.readdirSync(rdir).filter((f) => !taken.includes(f));
+  assert.ok(runs2.length === 1 && /^vlff-view-\d{8}-\d{6}-2\.mcap$/.test(runs2[0]), runs2.join());
+  ok(`--record DIR beside an earlier run's file of the same second writes ${runs2[0]}, the earlier one kept`);
 
   // ---- bad files on --play
   const bad1 = (name, data) => { const p = path.join(tmp, name); fs.writeFileSync(p, data); return p; };
