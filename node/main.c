@@ -298,10 +298,10 @@ static int finish(struct run *r, const char *snapshot_dir) {
   source_close(r->source);
   char why[256];
   refusals_text(&st, why, sizeof why);
-  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted), %lld frames in, %lld refused%s, "
-            "%lld lost, %lld poses rejected, map version %llu",
-            st.iteration, st.keyframes, st.keyframes_evicted, st.frames_in, st.frames_invalid, why, st.frames_lost,
-            st.poses_rejected, (unsigned long long)st.map_version);
+  VLFF_INFO("node", "stopped: %lld iterations, %d keyframes (%lld evicted, %lld dropped: the trainer was busy), "
+            "%lld frames in, %lld refused%s, %lld lost, %lld poses rejected, map version %llu",
+            st.iteration, st.keyframes, st.keyframes_evicted, st.candidates_dropped, st.frames_in, st.frames_invalid,
+            why, st.frames_lost, st.poses_rejected, (unsigned long long)st.map_version);
   return rc;
 }
 

@@ -75,7 +75,11 @@
 /* Steps between two scans of the whole learned state (vlff_field_check). */
 #define FIELD_SCAN_STEPS 200
 #define TAG "node"
-#define QUEUE_CAP 4
+/* Keyframe candidates waiting for the trainer, which takes them between
+ * its steps: a publish of a large map or a checkpoint holds it for seconds
+ * on a loaded 2-core host (5 Hz keyframes: 16 are 3.2 s), and a candidate
+ * dropped when the queue is full is a view the map never observes. */
+#define QUEUE_CAP 16
 #define PENDING_CAP 16
 #define LAT_CAP 4096
 #define REFRESH_WINDOW 8 /* whole refreshes publish_interval_s averages */

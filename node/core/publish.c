@@ -552,6 +552,52 @@ static void add_hit(struct vlff_publisher *p, long vi, const double hp[3]) {
   }
 }
 
+/* Depth at pixel (x, y) of v: 0 outside the view or where it has none. */
+static double depth_at(const struct vlff_view *v, int x, int y) {
+  if (x < 0 || y < 0 || x >= v->width || y >= v->height) return 0;
+  float d = v->depth[(size_t)y * v->width + x];
+  return d > 0 && isfinite(d) ? d : 0;
+}
+
+/* The widest gap between neighbouring pixels' points that fill_gap closes. */
+enum { GAP_VOXELS = 4 };
+
+/* A surface seen at a grazing angle or from afar: neighbouring pixels'
+ * points lie more than a voxel apart on it, and the voxels between them,
+ * which hold the same surface, get no measured point; they stayed unknown
+ * (or free, passed by rays) for good, and the surface's labelled points in
+ * them with them. The voxels between pixel (x, y)'s point hp and the point
+ * of its neighbour (x + dx, y + dy) take hits on the segment between the two
+ * when both lie on one surface: on a plane, inverse depth is affine in the
+ * pixel coordinates, so the step between them continues the step before
+ * them or the one after them (within a quarter of it, or a tenth of a voxel
+ * of depth: the sensor's noise); an object's edge breaks both. Gaps of up to
+ * GAP_VOXELS voxels only: beyond, the surface is too oblique to trust. */
+static void fill_gap(struct vlff_publisher *p, const struct vlff_view *v, int x, int y, int dx, int dy,
+                     const double hp[3]) {
+  const double d1 = depth_at(v, x, y), d2 = depth_at(v, x + dx, y + dy);
+  if (!(d1 > 0) || !(d2 > 0)) return;
+  double hq[3];
+  vlff_unproject(v->c2w, v->fx, v->fy, v->cx, v->cy, x + dx + 0.5, y + dy + 0.5, d2, hq);
+  const double g = sqrt(pow(hq[0] - hp[0], 2) + pow(hq[1] - hp[1], 2) + pow(hq[2] - hp[2], 2));
+  if (!(g > 0.5 * p->voxel) || g > GAP_VOXELS * p->voxel) return;
+  const double d0 = depth_at(v, x - dx, y - dy), d3 = depth_at(v, x + 2 * dx, y + 2 * dy);
+  const double step = 1 / d2 - 1 / d1, tol = 0.25 * fabs(step) + 0.1 * p->voxel / (d1 * d2);
+  const bool before = d0 > 0 && fabs(step - (1 / d1 - 1 / d0)) <= tol;
+  const bool after = d3 > 0 && fabs(step - (1 / d3 - 1 / d2)) <= tol;
+  if (!before && !after) return;
+  const long v1 = voxel_of(p, hp), v2 = voxel_of(p, hq);
+  const int n = (int)ceil(g / (0.5 * p->voxel));
+  long last = v1;
+  for (int i = 1; i < n; i++) {
+    double t = (double)i / n, q[3];
+    for (int a = 0; a < 3; a++) q[a] = hp[a] + (hq[a] - hp[a]) * t;
+    long vi = voxel_of(p, q);
+    if (vi != last && vi != v1 && vi != v2) add_hit(p, vi, q);
+    last = vi;
+  }
+}
+
 long long vlff_publisher_cleared(const struct vlff_publisher *p) { return p->cleared; }
 
 bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vlff_view *v) {
@@ -635,6 +681,8 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
       for (int i = 0; i < 3; i++) b[i] = hp[i] + w[i] / len * h;
       long vb = voxel_of(p, b);
       if (vb != vi) add_hit(p, vb, hp);
+      fill_gap(p, v, x, y, 1, 0, hp);
+      fill_gap(p, v, x, y, 0, 1, hp);
     }
   thru_commit(p);
   if (!p->ev) return 0;

@@ -7,7 +7,10 @@
  * field's feature there, combined with the evidence of observe()d
  * keyframes (evidence.h) when publish.evidence_weight > 0; a voxel only
  * passed through by measured rays is FREE; a voxel no ray reached is
- * UNKNOWN. Hit voxels are queried at the mean of the measured points inside
+ * UNKNOWN. The voxels between neighbouring pixels' measured points that lie
+ * on one surface (up to 4 voxels apart) are hits too: a surface seen at a
+ * grazing angle keeps no holes between its sampled points. Hit voxels are
+ * queried at the mean of the measured points inside
  * them, so the feature is read on the surface rather than in the air at the
  * voxel centre.
  *

@@ -132,12 +132,12 @@ echo "chaos: node published map v$v after a cold start of ${cold} s; $target kil
 
 # The 3D mIoU a node log shows at its last checkpoint (empty: none yet).
 ckpt_q() {
-  tr '\r' '\n' <"$1" | awk '/map v[0-9]+ mIoU/ { for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") last = $(i + 1) }
+  tr '\r' '\n' <"$1" | awk '/map v[0-9]+ (flips [0-9]+ )?mIoU/ { for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") last = $(i + 1) }
                               / I node: checkpoint / { at = last } END { print at }'
 }
 # The first 3D mIoU a node log shows on a map newer than version $2 (empty: none yet).
 resumed_q() {
-  tr '\r' '\n' <"$1" | awk -v vb="$2" '/map v[0-9]+ mIoU/ {
+  tr '\r' '\n' <"$1" | awk -v vb="$2" '/map v[0-9]+ (flips [0-9]+ )?mIoU/ {
       for (i = 1; i <= NF; i++) if ($i ~ /^v[0-9]+$/) v = substr($i, 2) + 0
       for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") { if (v > vb) { print $(i + 1); exit } }
     }'

@@ -69,7 +69,7 @@ wait "$nodepid" || { echo "soak.sh: vlff-node failed; its log:" >&2; tail -20 "$
 stopped=$(grep -E ' node: stopped' "$out/node.log")
 echo "  $stopped"
 # Keyframes admitted = held + evicted; at the demo's 5 Hz that many take this long.
-admitted=$(sed -n 's/.* \([0-9]*\) keyframes (\([0-9]*\) evicted).*/\1 \2/p' <<<"$stopped" | awk '{ print $1 + $2 }')
+admitted=$(sed -n 's/.* \([0-9]*\) keyframes (\([0-9]*\) evicted[,)].*/\1 \2/p' <<<"$stopped" | awk '{ print $1 + $2 }')
 [[ -n $admitted ]] || { echo "soak.sh: no keyframe count in the node's stop line" >&2; exit 1; }
 checkpoints=$(grep -c ' I node: checkpoint ' "$out/node.log" || true)
 errors=$(grep -c '^\[[^]]*\] E ' "$out/node.log" || true)

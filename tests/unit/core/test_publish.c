@@ -282,6 +282,40 @@ static void test_every_pixel_counts(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* A floor seen at a grazing angle: its rows' points lie more than a voxel
+ * apart, and the voxels between them hold the same floor (issue 55: the
+ * labelled points there stayed unknown for good). They are known surfaces
+ * now; the voxel between a box's edge and the wall 25 cm behind it, two
+ * surfaces, is not. Voxels of 8 cm from -2.5 m; the floor 0.34 m below
+ * the camera (mid-voxel), seen from 1.2 to 2.3 m (rows 2.7 to 0.9 voxels
+ * apart); the box at 1 m over the upper left quarter, the wall at 1.25 m. */
+static void test_grazing_surface_filled(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "graze");
+  struct vlff_publisher *p = create(&cfg);
+  struct vlff_view v = view(0.0f);
+  const double h = 0.34;
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) {
+      double d = y < H / 2 ? (x < W / 2 ? 1.0 : 1.25) : h * v.fy / (y + 0.5 - v.cy);
+      depth[y * W + x] = d <= 2.4 ? (float)d : 0.0f;
+    }
+  for (int i = 0; i < 2; i++) assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  for (double z = 1.3; z <= 2.2; z += 0.04) {
+    const double x[3] = {0.005, h, z};
+    if (!vlff_publisher_surface_known(p, x)) fail_msg("the floor at z = %.2f m: no surface", z);
+  }
+  /* Row 10's points either side of the box's edge (columns 31 and 32), and
+   * the voxel between them. */
+  const double y0 = (10.5 - v.cy) / v.fy, mid[3] = {0.001, y0 * 1.125, 1.125};
+  assert_true(vlff_publisher_surface_known(p, (const double[3]){(31.5 - v.cx) / v.fx, y0, 1.0}));
+  assert_true(vlff_publisher_surface_known(p, (const double[3]){(32.5 - v.cx) / v.fx * 1.25, y0 * 1.25, 1.25}));
+  assert_false(vlff_publisher_surface_known(p, mid));
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 /* The test views' depth: d everywhere but an object at depth 1 m over
  * columns x0..x0+15 of rows 16..31. */
 static void object_at(int x0, float d) {
@@ -494,4 +528,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
     cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
-    cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication))
+    cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication),
+    cmocka_unit_test(test_grazing_surface_filled))
