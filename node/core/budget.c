@@ -27,7 +27,7 @@ double vlff_process_cpu_s(void) {
 
 void vlff_pacer_init(struct vlff_pacer *p, double budget) {
   *p = (struct vlff_pacer){.budget = budget > 0 ? budget : 0, .used = -1};
-  p->wall = p->win_wall = vlff_seconds();
+  p->wall = p->win_wall = p->last_step = vlff_seconds();
   p->cpu = p->win_cpu = vlff_process_cpu_s();
 }
 
@@ -50,7 +50,10 @@ bool vlff_pacer_pace(struct vlff_pacer *p, bool want_step, double max_sleep_s, d
     p->win_wall = p->wall;
     p->win_cpu = p->cpu;
   }
-  if (p->budget <= 0 || !want_step || p->debt <= 0) return true;
+  if (p->budget <= 0 || !want_step || p->debt <= 0 || p->wall - p->last_step >= PACER_DEBT_S) {
+    if (want_step) p->last_step = p->wall;
+    return true;
+  }
   /* Sleeping costs this process nothing, so budget x the sleep repays the
    * debt unless other threads use CPU meanwhile; what they use is counted
    * at the next call. */
@@ -59,5 +62,7 @@ bool vlff_pacer_pace(struct vlff_pacer *p, bool want_step, double max_sleep_s, d
   while (clock_nanosleep(CLOCK_MONOTONIC, 0, &ts, &ts) == EINTR) {
   }
   p->slept_s += nap;
-  return need <= max_sleep_s;
+  if (need > max_sleep_s) return false;
+  p->last_step = vlff_seconds();
+  return true;
 }

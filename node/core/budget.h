@@ -22,7 +22,10 @@
  *    publish) is repaid in full up to that, and delays training by at most
  *    that long; beyond it (threads other than training alone over the
  *    budget for seconds) the excess is forgiven rather than stalling
- *    training for as long again once they calm down.
+ *    training for as long again once they calm down. Whatever the debt, a
+ *    step is allowed at least every PACER_DEBT_S: when the node's other work
+ *    alone takes more than the budget, training goes on slowly rather than
+ *    never (the status and a warning say the budget is exceeded).
  *  - The pacer also measures the process's use in cores over windows of at
  *    least PACER_WINDOW_S, with or without a budget, for the status.
  *
@@ -49,6 +52,7 @@ struct vlff_pacer {
   double win_wall, win_cpu; /* start of the current measuring window */
   double used;           /* cores used over the last whole window; -1 before the first */
   double slept_s;        /* seconds slept in total, for the tests and the log */
+  double last_step;      /* monotonic seconds of the last step allowed */
 };
 
 void vlff_pacer_init(struct vlff_pacer *p, double budget);
