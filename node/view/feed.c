@@ -224,6 +224,7 @@ static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty
   if (!w.m) return NULL;
   w.m->t_ns = t;
   w.m->version = m->version;
+  w.m->whole = !dirty;
   jw_s(&w, "{\"deletions\":[");
   int first = 1;
   if (!dirty) {
@@ -277,6 +278,7 @@ static struct vlff_view_msg *voxels_full_msg(struct vlff_feed *f, uint64_t t) {
   if (!w.m) return NULL;
   w.m->t_ns = t;
   w.m->version = m->version;
+  w.m->whole = 1;
   write_map_header(&w, m, 1);
   int n = 0;
   for (size_t i = 0; i < m->n; i++)

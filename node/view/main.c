@@ -56,6 +56,8 @@ static const struct vlff_cli cli = {
     "      --record FILE       also write every message of every channel to FILE, an MCAP recording\n"
     "                          (zstd-compressed chunks of at most 1 s; Foxglove opens it); a directory:\n"
     "                          a new file there per run, vlff-view-YYYYmmdd-HHMMSS.mcap (local time)\n"
+    "      --record-map-s S    while the map changes, the whole map into the recording every S seconds,\n"
+    "                          each opening a chunk, for readers that seek (default 10, 1..3600)\n"
     "      --record-level N    zstd level of the recording's chunks (default 3, 1..19; 0 = none)\n"
     "      --play FILE         serve the MCAP recording FILE instead of the segments, at its recorded\n"
     "                          rate, from the first subscription on\n"
@@ -137,7 +139,7 @@ static int default_www(char *out, size_t cap) {
 int main(int argc, char **argv) {
   vlff_log_start(); /* log stamps count from the start, not from the first line */
   enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
-         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_PLAY, OPT_PLAY_RATE };
+         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_RECORD_MAP, OPT_PLAY, OPT_PLAY_RATE };
   static const struct option opts[] = {
       {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
       {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
@@ -150,12 +152,13 @@ int main(int argc, char **argv) {
       {"idle-timeout", required_argument, NULL, OPT_IDLE_TIMEOUT},
       {"record", required_argument, NULL, OPT_RECORD},
       {"record-level", required_argument, NULL, OPT_RECORD_LEVEL},
+      {"record-map-s", required_argument, NULL, OPT_RECORD_MAP},
       {"play", required_argument, NULL, OPT_PLAY},
       {"play-rate", required_argument, NULL, OPT_PLAY_RATE},
       {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
-                                .max_request_bytes = 64u << 10};
+                                .max_request_bytes = 64u << 10, .record_map_s = 10};
   struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
   const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL;
   int record_level = 3;
@@ -216,6 +219,9 @@ int main(int argc, char **argv) {
     case OPT_RECORD_LEVEL:
       if (parse_num("record-level", optarg, 0, 19, &x) || x != (int)x) return 2;
       record_level = (int)x;
+      break;
+    case OPT_RECORD_MAP:
+      if (parse_num("record-map-s", optarg, 1, 3600, &vp.record_map_s)) return 2;
       break;
     case OPT_PLAY: play = optarg; break;
     case OPT_PLAY_RATE:

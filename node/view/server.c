@@ -167,6 +167,7 @@ struct vlff_view {
   int nch;              /* channels served: this build's, or a recording's */
   struct vlff_view_log *log; /* the /log channel's lines (live only) */
   int record_failed;    /* the recording stopped at its first write error */
+  uint64_t rec_whole_ns, rec_whole_version; /* the whole map last recorded: when, which version */
   struct client *clients;
   struct vlff_view_counters c;
   struct vlff_prompts *mailbox;
@@ -694,21 +695,52 @@ static void check_idle(struct vlff_view *v) {
 }
 
 /* Every message the feed made, into the recording (log time: now, on the wall
- * clock; publish time: the message's own). A write error ends the recording with
- * one line; the viewer serves on. */
+ * clock; publish time: the message's own). The whole map opens a chunk of its
+ * own, so that the chunk indexes lead a seeking reader to it. A write error ends
+ * the recording with one line; the viewer serves on. */
 static void record(struct vlff_view *v, struct vlff_view_msg **out, int n) {
   struct vlff_mcap_writer *w = v->p.record;
   if (!w || v->record_failed) return;
   uint64_t now = vlff_wall_ns();
   int rc = 0;
-  for (int i = 0; i < n && !rc; i++)
-    rc = vlff_mcap_writer_message(w, (uint16_t)out[i]->channel, now, out[i]->t_ns, vlff_view_msg_payload(out[i]),
-                                  out[i]->len);
+  for (int i = 0; i < n && !rc; i++) {
+    if (out[i]->whole && !(i && out[i - 1]->whole)) rc = vlff_mcap_writer_flush(w);
+    if (!rc)
+      rc = vlff_mcap_writer_message(w, (uint16_t)out[i]->channel, now, out[i]->t_ns, vlff_view_msg_payload(out[i]),
+                                    out[i]->len);
+    if (out[i]->whole && out[i]->channel == VLFF_VIEW_CH_SCENE) {
+      v->rec_whole_ns = vlff_now_ns();
+      v->rec_whole_version = out[i]->version;
+    }
+  }
   if (!rc) rc = vlff_mcap_writer_tick(w, vlff_now_ns());
   if (rc) {
     v->record_failed = 1;
     vlff_log(VLFF_LOG_WARN, "vlff-view", "recording stopped: %s", vlff_mcap_writer_error(w));
   }
+}
+
+/* The map's channels carry changes, and a reader that seeks (Foxglove after a
+ * jump, a script starting mid-file) holds only what came after the point it
+ * started from: so while the map changes, the whole map (voxels and scene, the
+ * ones a new subscriber gets) goes into the recording every record_map_s, and
+ * the latest whole map before any point, with the changes after it, is the map
+ * at that point. Live clients get none of these. */
+static void record_whole_map(struct vlff_view *v) {
+  if (!v->p.record || v->record_failed || !v->feed) return;
+  uint64_t version = vlff_feed_version(v->feed), now = vlff_now_ns();
+  double every = v->p.record_map_s > 0 ? v->p.record_map_s : 10;
+  if (!version || version == v->rec_whole_version || now - v->rec_whole_ns < (uint64_t)(every * 1e9)) return;
+  /* the voxels first, as the feed sends a whole map */
+  const int chans[2] = {VLFF_VIEW_CH_VOXELS, VLFF_VIEW_CH_SCENE};
+  struct vlff_view_msg *out[2];
+  int n = 0;
+  for (int i = 0; i < 2; i++) {
+    struct vlff_view_msg *m = vlff_feed_current(v->feed, chans[i], NULL);
+    if (m) out[n++] = m;
+  }
+  record(v, out, n);
+  for (int i = 0; i < n; i++) vlff_view_msg_unref(out[i]);
 }
 
 /* The channels, declared in the recording before any message. */
@@ -744,6 +776,7 @@ static void tick(lws_sorted_usec_list_t *sul) {
     for (int i = 0, k = n; i < k && n < 32; i++)
       if (out[i]->channel == VLFF_VIEW_CH_STATUS) n += vlff_view_log_status(v->log, out[i], out + n, 32 - n);
     record(v, out, n);
+    record_whole_map(v);
   }
   for (int i = 0; i < n; i++) {
     for (struct client *cl = v->clients; cl; cl = cl->next)

@@ -78,6 +78,8 @@ struct vlff_view_msg {
   int channel;       /* enum vlff_view_channel */
   uint64_t t_ns;     /* Foxglove log time, ns since the epoch */
   uint64_t version;  /* map version it describes (map channels), else 0 */
+  int whole;         /* map channels: the whole map (a new subscriber's, a recording's
+                        periodic one), not the changes since the previous version */
   size_t len, cap;   /* payload bytes, capacity */
   unsigned char *buf; /* headroom + cap bytes */
 };
@@ -230,6 +232,10 @@ struct vlff_view_params {
   /* a recording (mcap.h) every message sent on a channel is written to, with the
    * channels declared by vlff_view_new; the caller closes it after the server */
   struct vlff_mcap_writer *record;
+  /* while the map changes, the whole map (scene and voxels) goes into the
+   * recording every record_map_s seconds (0 = 10), each time opening a chunk, so
+   * that a reader seeking into the file finds it shortly before any point */
+  double record_map_s;
 };
 
 struct vlff_view;
