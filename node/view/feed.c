@@ -70,6 +70,8 @@ struct vlff_feed {
   uint64_t encode_failures;
   uint8_t *rgb; /* a camera frame converted to RGB8 for the encoder */
   size_t rgb_cap;
+  uint8_t *pts; /* packed points for the point cloud */
+  size_t pts_cap;
 };
 
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
@@ -116,6 +118,7 @@ struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   }
   f->p = *p;
   if (f->p.brick < 1) f->p.brick = 8;
+  if (!f->p.cloud_piece_bytes) f->p.cloud_piece_bytes = 1u << 20;
   f->mono_to_real = vlff_wall_ns() - vlff_now_ns();
   return f;
 }
@@ -136,6 +139,7 @@ void vlff_feed_free(struct vlff_feed *f) {
   free(f->rec);
   free(f->changed);
   free(f->rgb);
+  free(f->pts);
   for (int c = 0; c <= VLFF_VIEW_CH_COUNT; c++) vlff_view_msg_unref(f->current[c]);
   free(f);
 }
@@ -286,6 +290,59 @@ static struct vlff_view_msg *voxels_full_msg(struct vlff_feed *f, uint64_t t) {
       jw_f(&w, "%s%zu,%u,%u", n++ ? "," : "", i, m->labels[i], m->conf ? m->conf[i] : 255u);
   jw_s(&w, "]}");
   return jw_finish(&w);
+}
+
+/* Voxel idx as a point of the cloud (view.h: VLFF_VIEW_CLOUD_STRIDE bytes, little-endian). */
+static void pack_point(uint8_t *o, const struct feed_map *m, size_t idx, const uint8_t (*rgb)[3]) {
+  size_t i = idx % m->dims[0], j = idx / m->dims[0] % m->dims[1], k = idx / m->dims[0] / m->dims[1];
+  const float c[3] = {(float)(m->origin[0] + (i + 0.5) * m->vs), (float)(m->origin[1] + (j + 0.5) * m->vs),
+                      (float)(m->origin[2] + (k + 0.5) * m->vs)};
+  for (int a = 0; a < 3; a++) {
+    uint32_t u;
+    memcpy(&u, &c[a], 4);
+    for (int b = 0; b < 4; b++) o[4 * a + b] = (uint8_t)(u >> (8 * b));
+  }
+  uint16_t l = m->labels[idx];
+  if (is_occupied(l)) {
+    memcpy(o + 12, l < VLFF_SHM_MAX_PROMPTS ? rgb[l] : rgb[VLFF_SHM_MAX_PROMPTS], 3);
+    o[15] = 255;
+  } else {
+    memset(o + 12, 0, 4); /* no longer occupied: transparent */
+  }
+  o[16] = (uint8_t)l;
+  o[17] = (uint8_t)(l >> 8);
+  o[18] = m->conf ? m->conf[idx] : 255;
+  o[19] = 0;
+}
+
+/* The point cloud of the listed voxels (idx == NULL: every occupied voxel, the
+ * whole map), in pieces of at most cloud_piece_bytes. */
+static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx, size_t n, uint64_t t) {
+  const struct feed_map *m = &f->m;
+  if (!idx) n = (size_t)m->occupied;
+  size_t need = (n ? n : 1) * VLFF_VIEW_CLOUD_STRIDE;
+  if (need > f->pts_cap) {
+    uint8_t *p = realloc(f->pts, need);
+    if (!p) {
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a point cloud of %zu points", n);
+      return NULL;
+    }
+    f->pts = p, f->pts_cap = need;
+  }
+  uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
+  palette(rgb);
+  size_t k = 0;
+  if (idx) {
+    for (; k < n; k++) pack_point(f->pts + k * VLFF_VIEW_CLOUD_STRIDE, m, idx[k], (const uint8_t(*)[3])rgb);
+  } else {
+    for (size_t i = 0; i < m->n && k < n; i++)
+      if (is_occupied(m->labels[i])) pack_point(f->pts + k++ * VLFF_VIEW_CLOUD_STRIDE, m, i, (const uint8_t(*)[3])rgb);
+  }
+  int pieces = 0;
+  struct vlff_view_msg *c = vlff_view_cloud_msgs(VLFF_VIEW_CH_CLOUD, f->pts, k, t, f->p.cloud_piece_bytes, &pieces);
+  f->encoded[VLFF_VIEW_CH_CLOUD] += (uint64_t)pieces;
+  for (struct vlff_view_msg *p = c; p; p = p->next) p->version = m->version, p->whole = !idx;
+  return c;
 }
 
 static void count_labels(struct feed_map *m) {
@@ -470,10 +527,13 @@ static int map_whole_msgs(struct vlff_feed *f, unsigned wanted, uint32_t edge, u
    * for its first subscriber */
   struct vlff_view_msg *s = wants(wanted, VLFF_VIEW_CH_SCENE) ? scene_msg(f, NULL, edge, t, 1) : NULL;
   struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_full_msg(f, t) : NULL;
+  struct vlff_view_msg *pc = wants(wanted, VLFF_VIEW_CH_CLOUD) ? cloud_msg(f, NULL, 0, t) : NULL;
   set_current(f, VLFF_VIEW_CH_SCENE, s);
   set_current(f, VLFF_VIEW_CH_VOXELS, vx);
+  set_current(f, VLFF_VIEW_CH_CLOUD, pc);
   /* the small voxel message first: it is not queued behind the scene */
   emit(out, &nout, cap, vx);
+  emit(out, &nout, cap, pc);
   emit(out, &nout, cap, s);
   return nout;
 }
@@ -554,12 +614,15 @@ static int map_delta_msgs(struct vlff_feed *f, const struct vlff_map_grid *g, un
   /* a version that changed no voxel still reaches the voxel channel (clients
    * learn the version); the scene has nothing to replace then */
   if (changed && wants(wanted, VLFF_VIEW_CH_SCENE)) s = scene_msg(f, dirty, edge, t, 1);
+  struct vlff_view_msg *pc = changed && wants(wanted, VLFF_VIEW_CH_CLOUD) ? cloud_msg(f, f->changed, changed, t) : NULL;
   free(dirty);
   emit(out, &nout, cap, vx);
+  emit(out, &nout, cap, pc);
   emit(out, &nout, cap, s);
   /* the whole map for new subscribers is rebuilt when first asked for */
   set_current(f, VLFF_VIEW_CH_SCENE, NULL);
   set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
+  set_current(f, VLFF_VIEW_CH_CLOUD, NULL);
   return nout;
 }
 
@@ -897,6 +960,7 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struc
      * sent now is what its clients hold from here on */
     if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(f, NULL, f->p.brick, t, 1);
     else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(f, t);
+    else if (ch == VLFF_VIEW_CH_CLOUD) f->current[ch] = cloud_msg(f, NULL, 0, t);
   }
   return vlff_view_msg_ref(f->current[ch]);
 }

@@ -243,6 +243,9 @@ int main(int argc, char **argv) {
     return vlff_cli_error(&cli, "the page's files are not installed beside the program; pass --www DIR");
   }
   if (record && play) return vlff_cli_usage_error(&cli, "--record and --play exclude each other");
+  /* a point cloud piece is a fraction of a client's queue: a whole map of any size
+   * reaches a client that reads, piece after piece */
+  fp.cloud_piece_bytes = vp.max_queue_bytes / 8 < (1u << 20) ? vp.max_queue_bytes / 8 : (1u << 20);
   char *token = NULL;
   if (token_file && !(token = read_token(token_file))) return 1;
   vp.token = token;

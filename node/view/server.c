@@ -320,7 +320,8 @@ static void send_status(struct client *cl, int level, const char *fmt, ...) {
 static struct vlff_view_chan chan_info(const struct vlff_view *v, int ch) {
   if (v->p.play) return *vlff_view_play_channel(v->p.play, ch);
   const struct vlff_view_channel_def *d = vlff_view_channel(ch);
-  return (struct vlff_view_chan){d->topic, "json", d->schema_name, "jsonschema", d->schema};
+  int pb = !strcmp(d->encoding, "protobuf");
+  return (struct vlff_view_chan){d->topic, d->encoding, d->schema_name, pb ? "protobuf" : "jsonschema", d->schema};
 }
 
 /* The first message of a new subscription to ch. */
@@ -664,10 +665,22 @@ static int write_one(struct client *cl) {
     kind = LWS_WRITE_BINARY;
   }
   int w = lws_write(cl->wsi, p, n, kind);
-  cl->head = q->next;
-  if (!cl->head) cl->tail = NULL;
-  qitem_free(cl, q);
   if (w < (int)n) return -1;
+  if (q->m->next) {
+    /* the next piece of a message sent in pieces takes its place at the head: the
+     * pieces go out in a row, ahead of what was queued after them, and only the
+     * piece waiting counts against the queue limit, so that a whole map larger
+     * than the limit reaches a client that reads */
+    struct vlff_view_msg *next = vlff_view_msg_ref(q->m->next);
+    cl->queued -= q->m->len;
+    vlff_view_msg_unref(q->m);
+    q->m = next;
+    cl->queued += next->len;
+  } else {
+    cl->head = q->next;
+    if (!cl->head) cl->tail = NULL;
+    qitem_free(cl, q);
+  }
   cl->v->c.messages_sent++;
   cl->v->c.bytes_sent += n;
   if (cl->head) lws_callback_on_writable(cl->wsi);
@@ -705,9 +718,8 @@ static void record(struct vlff_view *v, struct vlff_view_msg **out, int n) {
   int rc = 0;
   for (int i = 0; i < n && !rc; i++) {
     if (out[i]->whole && !(i && out[i - 1]->whole)) rc = vlff_mcap_writer_flush(w);
-    if (!rc)
-      rc = vlff_mcap_writer_message(w, (uint16_t)out[i]->channel, now, out[i]->t_ns, vlff_view_msg_payload(out[i]),
-                                    out[i]->len);
+    for (struct vlff_view_msg *m = out[i]; m && !rc; m = m->next) /* every piece */
+      rc = vlff_mcap_writer_message(w, (uint16_t)m->channel, now, m->t_ns, vlff_view_msg_payload(m), m->len);
     if (out[i]->whole && out[i]->channel == VLFF_VIEW_CH_SCENE) {
       v->rec_whole_ns = vlff_now_ns();
       v->rec_whole_version = out[i]->version;
@@ -747,8 +759,12 @@ static void record_whole_map(struct vlff_view *v) {
 static int declare_channels(struct vlff_view *v) {
   for (int ch = 1; ch <= v->nch; ch++) {
     struct vlff_view_chan d = chan_info(v, ch);
+    /* MCAP holds a protobuf schema as the FileDescriptorSet's bytes, not base64 */
+    const void *schema = d.schema;
+    size_t len = strlen(d.schema);
+    if (ch == VLFF_VIEW_CH_CLOUD) schema = vlff_view_cloud_descriptor(&len);
     if (vlff_mcap_writer_channel(v->p.record, (uint16_t)ch, d.topic, d.encoding, d.schema_name, d.schema_encoding,
-                                 d.schema, strlen(d.schema))) {
+                                 schema, len)) {
       vlff_log(VLFF_LOG_WARN, "vlff-view", "--record: %s", vlff_mcap_writer_error(v->p.record));
       return -1;
     }
