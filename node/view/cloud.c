@@ -213,14 +213,14 @@ static const struct {
 
 /* Everything of a PointCloud before its data's bytes; the data field's tag and
  * length end it. */
-static size_t cloud_head(uint8_t *out, size_t cap, uint64_t t_ns, size_t data_len) {
+static size_t cloud_head(uint8_t *out, size_t cap, const char *frame, uint64_t t_ns, size_t data_len) {
   struct pb b = {out, 0, cap, 0};
   uint8_t tb[32], vb[8], qb[16], pb_[64], fb[64];
   struct pb ts = {tb, 0, sizeof tb, 0};
   pb_uint(&ts, 1, t_ns / 1000000000u);
   pb_uint(&ts, 2, t_ns % 1000000000u);
   pb_msg(&b, 1, &ts);
-  pb_str(&b, 2, "world");
+  pb_str(&b, 2, frame);
   struct pb pos = {vb, 0, sizeof vb, 0}, rot = {qb, 0, sizeof qb, 0}, pose = {pb_, 0, sizeof pb_, 0};
   pb_double(&rot, 4, 1.0); /* identity: the points are in world coordinates */
   pb_msg(&pose, 1, &pos);
@@ -239,21 +239,24 @@ static size_t cloud_head(uint8_t *out, size_t cap, uint64_t t_ns, size_t data_le
   return b.failed ? 0 : b.n;
 }
 
-struct vlff_view_msg *vlff_view_cloud_msgs(int channel, const uint8_t *points, size_t n, uint64_t t_ns,
-                                           size_t piece_bytes, int *pieces) {
-  size_t per = piece_bytes > 1024 ? (piece_bytes - 512) / VLFF_VIEW_CLOUD_STRIDE : 25;
+struct vlff_view_msg *vlff_view_cloud_msgs(int channel, const char *frame, const uint8_t *points, size_t n,
+                                           uint64_t t_ns, size_t piece_bytes, int *pieces) {
+  /* the head holds the frame and fixed fields: 512 bytes with a frame of the
+   * config's bound */
+  size_t head_cap = 512 + strlen(frame);
+  size_t per = piece_bytes > 1024 + strlen(frame) ? (piece_bytes - 512 - strlen(frame)) / VLFF_VIEW_CLOUD_STRIDE : 25;
   struct vlff_view_msg *head = NULL, **link = &head;
   *pieces = 0;
   size_t at = 0;
   do {
     size_t k = n - at < per ? n - at : per, data = k * VLFF_VIEW_CLOUD_STRIDE;
-    struct vlff_view_msg *m = vlff_view_msg_new(channel, 512 + data);
+    struct vlff_view_msg *m = vlff_view_msg_new(channel, head_cap + data);
     if (!m) {
       vlff_view_msg_unref(head);
       return NULL;
     }
     uint8_t *p = vlff_view_msg_payload(m);
-    size_t h = cloud_head(p, 512, t_ns, data);
+    size_t h = cloud_head(p, head_cap, frame, t_ns, data);
     if (!h) abort(); /* the head's fields are fixed: it always fits */
     memcpy(p + h, points + at * VLFF_VIEW_CLOUD_STRIDE, data);
     m->len = h + data;

@@ -119,6 +119,8 @@ struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   f->p = *p;
   if (f->p.brick < 1) f->p.brick = 8;
   if (!f->p.cloud_piece_bytes) f->p.cloud_piece_bytes = 1u << 20;
+  if (!f->p.world_frame || !*f->p.world_frame) f->p.world_frame = "world";
+  if (!f->p.camera_frame || !*f->p.camera_frame) f->p.camera_frame = "camera";
   f->mono_to_real = vlff_wall_ns() - vlff_now_ns();
   return f;
 }
@@ -170,15 +172,17 @@ static uint32_t brick_count(const struct feed_map *m, uint32_t edge) {
   return (uint32_t)n;
 }
 
-static void write_brick_entity(struct jw *w, const struct feed_map *m, uint32_t b, uint32_t edge, uint64_t t,
-                               const uint8_t (*rgb)[3], int *first) {
+static void write_brick_entity(struct jw *w, const struct feed_map *m, const char *frame, uint32_t b, uint32_t edge,
+                               uint64_t t, const uint8_t (*rgb)[3], int *first) {
   uint32_t lo[3], hi[3];
   brick_range(m, b, lo, hi, edge);
   jw_s(w, *first ? "{" : ",{");
   *first = 0;
   jw_s(w, "\"timestamp\":");
   jw_time(w, t);
-  jw_f(w, ",\"frame_id\":\"world\",\"id\":\"brick-%u\",\"lifetime\":{\"sec\":0,\"nsec\":0},\"frame_locked\":true,"
+  jw_s(w, ",\"frame_id\":");
+  jw_str(w, frame);
+  jw_f(w, ",\"id\":\"brick-%u\",\"lifetime\":{\"sec\":0,\"nsec\":0},\"frame_locked\":true,"
           "\"metadata\":[],\"arrows\":[],\"cubes\":[",
        b);
   int n = 0;
@@ -252,7 +256,7 @@ static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty
     if (dirty && !dirty[b]) continue;
     int has = brick_has_voxels(m, b, edge);
     if (update_sent) m->brick_sent[b] = (uint8_t)has;
-    if (has) write_brick_entity(&w, m, b, edge, t, (const uint8_t(*)[3])rgb, &first);
+    if (has) write_brick_entity(&w, m, f->p.world_frame, b, edge, t, (const uint8_t(*)[3])rgb, &first);
   }
   jw_s(&w, "]}");
   return jw_finish(&w);
@@ -339,7 +343,8 @@ static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx,
       if (is_occupied(m->labels[i])) pack_point(f->pts + k++ * VLFF_VIEW_CLOUD_STRIDE, m, i, (const uint8_t(*)[3])rgb);
   }
   int pieces = 0;
-  struct vlff_view_msg *c = vlff_view_cloud_msgs(VLFF_VIEW_CH_CLOUD, f->pts, k, t, f->p.cloud_piece_bytes, &pieces);
+  struct vlff_view_msg *c =
+      vlff_view_cloud_msgs(VLFF_VIEW_CH_CLOUD, f->p.world_frame, f->pts, k, t, f->p.cloud_piece_bytes, &pieces);
   f->encoded[VLFF_VIEW_CH_CLOUD] += (uint64_t)pieces;
   for (struct vlff_view_msg *p = c; p; p = p->next) p->version = m->version, p->whole = !idx;
   return c;
@@ -377,7 +382,9 @@ static struct vlff_view_msg *compressed_msg(struct vlff_feed *f, int ch, uint64_
     w_.m->t_ns = t;
     jw_s(&w_, "{\"timestamp\":");
     jw_time(&w_, t);
-    jw_f(&w_, ",\"frame_id\":\"camera\",\"format\":\"%s\",\"data\":", png ? "png" : "jpeg");
+    jw_s(&w_, ",\"frame_id\":");
+    jw_str(&w_, f->p.camera_frame);
+    jw_f(&w_, ",\"format\":\"%s\",\"data\":", png ? "png" : "jpeg");
     jw_b64(&w_, enc, n);
     jw_s(&w_, "}");
   }
@@ -415,8 +422,12 @@ static struct vlff_view_msg *pose_msg(struct vlff_feed *f, uint64_t t, const dou
   w.m->t_ns = t;
   jw_s(&w, "{\"timestamp\":");
   jw_time(&w, t);
+  jw_s(&w, ",\"parent_frame_id\":");
+  jw_str(&w, f->p.world_frame);
+  jw_s(&w, ",\"child_frame_id\":");
+  jw_str(&w, f->p.camera_frame);
   jw_f(&w,
-       ",\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\",\"translation\":{\"x\":%.6f,\"y\":%.6f,\"z\":%.6f},"
+       ",\"translation\":{\"x\":%.6f,\"y\":%.6f,\"z\":%.6f},"
        "\"rotation\":{\"x\":%.9f,\"y\":%.9f,\"z\":%.9f,\"w\":%.9f}}",
        P[3], P[7], P[11], qx, qy, qz, qw);
   return jw_finish(&w);
@@ -692,8 +703,10 @@ static struct vlff_view_msg *calib_msg(struct vlff_feed *f, uint64_t t, const st
   double cx = h->cx - 0.5, cy = h->cy - 0.5;
   jw_s(&w, "{\"timestamp\":");
   jw_time(&w, t);
+  jw_s(&w, ",\"frame_id\":");
+  jw_str(&w, f->p.camera_frame);
   jw_f(&w,
-       ",\"frame_id\":\"camera\",\"width\":%u,\"height\":%u,\"distortion_model\":\"plumb_bob\",\"D\":[0,0,0,0,0],"
+       ",\"width\":%u,\"height\":%u,\"distortion_model\":\"plumb_bob\",\"D\":[0,0,0,0,0],"
        "\"K\":[%.9g,0,%.9g,0,%.9g,%.9g,0,0,1],\"R\":[1,0,0,0,1,0,0,0,1],\"P\":[%.9g,0,%.9g,0,0,%.9g,%.9g,0,0,0,1,0]}",
        pl->width, pl->height, h->fx, cx, h->fy, cy, h->fx, cx, h->fy, cy);
   return jw_finish(&w);

@@ -5,6 +5,7 @@
  * on one port, until SIGINT/SIGTERM.
  */
 #include "cli.h"
+#include "config.h"
 #include "files.h"
 #include "log.h"
 #include "mcap.h"
@@ -36,6 +37,10 @@ static const struct vlff_cli cli = {
     "Serve the node's live map, camera and status to Foxglove (foxglove.websocket.v1)\n"
     "and to a built-in web page, on one port.\n"
     "\n"
+    "  -c, --config FILE       the node's config: the map's and the camera's frame ids (dds.frame_id,\n"
+    "                          dds.camera_frame_id) and the segments (shm.map, shm.ring, shm.prompts),\n"
+    "                          which --map, --frames and --prompts override (without it: frames world\n"
+    "                          and camera, the default segments)\n"
     "  -l, --listen ADDR       IP address or interface to listen on (default 127.0.0.1; 0.0.0.0 = all)\n"
     "  -p, --port N            port (default 8765; 0 = any free port, printed on start)\n"
     "  -m, --map NAME          map segment (default /vlff-map)\n"
@@ -141,7 +146,7 @@ int main(int argc, char **argv) {
   enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
          OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_RECORD_MAP, OPT_PLAY, OPT_PLAY_RATE };
   static const struct option opts[] = {
-      {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
+      {"config", required_argument, NULL, 'c'},     {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
       {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
       {"prompts", required_argument, NULL, OPT_PROMPTS}, {"token-file", required_argument, NULL, OPT_TOKEN},
       {"image-hz", required_argument, NULL, OPT_IMAGE_HZ}, {"poll-hz", required_argument, NULL, OPT_POLL_HZ},
@@ -160,14 +165,15 @@ int main(int argc, char **argv) {
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
                                 .max_request_bytes = 64u << 10, .record_map_s = 10};
   struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
-  const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL;
+  const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL, *config = NULL;
+  int seg_given[3] = {0, 0, 0}; /* --map, --frames, --prompts */
   int record_level = 3;
   double play_rate = 1;
   double x;
   int c, status;
   static const char *origins[VLFF_ALLOW_MAX];
   struct vlff_allow check_origin;
-  while ((c = vlff_cli_next(&cli, argc, argv, "l:p:m:f:v", opts, &status)) != -1) {
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:l:p:m:f:v", opts, &status)) != -1) {
     switch (c) {
     case VLFF_CLI_EXIT: return status;
     case 'l': vp.address = optarg; break;
@@ -175,9 +181,10 @@ int main(int argc, char **argv) {
       if (parse_num("port", optarg, 0, 65535, &x) || x != (int)x) return 2;
       vp.port = (int)x;
       break;
-    case 'm': fp.map_name = optarg; break;
-    case 'f': fp.frames_name = optarg; break;
-    case OPT_PROMPTS: vp.prompts_name = optarg; break;
+    case 'c': config = optarg; break;
+    case 'm': fp.map_name = optarg, seg_given[0] = 1; break;
+    case 'f': fp.frames_name = optarg, seg_given[1] = 1; break;
+    case OPT_PROMPTS: vp.prompts_name = optarg, seg_given[2] = 1; break;
     case OPT_TOKEN: token_file = optarg; break;
     case OPT_IMAGE_HZ:
       if (parse_num("image-hz", optarg, 0.1, 60, &fp.image_hz)) return 2;
@@ -232,6 +239,19 @@ int main(int argc, char **argv) {
     }
   }
   if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", VLFF_Q(argv[optind]));
+  /* the config loader checks the frame ids (tf2 names, distinct) and the segment
+   * names as it does for every program */
+  static struct vlff_config cfg;
+  if (config) {
+    char err[1024];
+    vlff_config_defaults(&cfg);
+    if (vlff_config_load(config, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
+    fp.world_frame = cfg.dds.frame_id;
+    fp.camera_frame = cfg.dds.camera_frame_id;
+    if (!seg_given[0]) fp.map_name = cfg.shm.map;
+    if (!seg_given[1]) fp.frames_name = cfg.shm.ring;
+    if (!seg_given[2]) vp.prompts_name = cfg.shm.prompts;
+  }
   if (fp.map_name[0] != '/') return vlff_cli_usage_error(&cli, "--map '%s' must start with '/'", VLFF_Q(fp.map_name));
   char wwwbuf[PATH_MAX];
   if (www) {

@@ -96,7 +96,7 @@ void vlff_view_msg_unref(struct vlff_view_msg *m);
 
 /* ----------------------------------------------------------- point cloud */
 
-/* /map/points (cloud.c): foxglove.PointCloud in protobuf, frame "world", identity
+/* /map/points (cloud.c): foxglove.PointCloud in protobuf, in the map's frame, identity
  * pose; each point VLFF_VIEW_CLOUD_STRIDE bytes: x, y, z (float32, the voxel's
  * centre, m), red, green, blue, alpha (uint8: the prompt's colour; alpha 0 for a
  * voxel no longer occupied), label (uint16, as in the map), confidence (uint8), one
@@ -110,8 +110,8 @@ const char *vlff_view_cloud_descriptor_b64(void);
 /* PointClouds of the n packed points, in pieces of at most piece_bytes each
  * (chained through next; at least one, empty when n is 0), stamped t_ns; the
  * number made in *pieces. NULL out of memory. */
-struct vlff_view_msg *vlff_view_cloud_msgs(int channel, const uint8_t *points, size_t n, uint64_t t_ns,
-                                           size_t piece_bytes, int *pieces);
+struct vlff_view_msg *vlff_view_cloud_msgs(int channel, const char *frame, const uint8_t *points, size_t n,
+                                           uint64_t t_ns, size_t piece_bytes, int *pieces);
 
 /* ------------------------------------------------------------------ feed */
 
@@ -121,6 +121,9 @@ struct vlff_feed_params {
   double image_hz;          /* most camera images per second sent */
   uint32_t brick;           /* brick edge in voxels for the scene channel */
   size_t cloud_piece_bytes; /* the largest point cloud message (0 = 1 MiB) */
+  /* the map's frame (the scene, the point cloud, the pose's parent) and the
+   * camera's (images, calibration, the pose's child): NULL = "world", "camera" */
+  const char *world_frame, *camera_frame;
 };
 
 /* The HTTP statuses requests are refused with: 400 malformed, 403 a Host or Origin

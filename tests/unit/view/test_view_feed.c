@@ -104,7 +104,7 @@ static int teardown(void **state) {
 }
 
 static void test_feed(void **state) {
-  struct vlff_feed_params fp = {name, "", 2, 4, 0};
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .image_hz = 2, .brick = 4};
   struct vlff_feed *f = vlff_feed_new(&fp);
   struct polled p;
   assert_non_null(f);
@@ -240,7 +240,7 @@ static int publish_runs(struct vlff_map *m, const struct vlff_map_range *r, size
 
 static void test_feed_follows_log(void **state) {
   (void)state;
-  struct vlff_feed_params fp = {name, "", 2, 4, 0};
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .image_hz = 2, .brick = 4};
   struct vlff_feed *f = vlff_feed_new(&fp);
   struct polled p;
   struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
@@ -339,7 +339,7 @@ static void test_fresh(void **state) {
   uint64_t t0 = vlff_shm_now_ns();
   put_frame(r, t0, 1.0);
   assert_int_equal(publish(m, prompts, 3), 0);
-  struct vlff_feed_params fp = {name, ring_name, 0, 4, 0};
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = ring_name, .image_hz = 0, .brick = 4};
   struct vlff_feed *f = vlff_feed_new(&fp);
   assert_non_null(f);
   struct polled p;

@@ -9,13 +9,16 @@
 // with protobufjs from the FileDescriptorSet the channel advertises; that
 // descriptor is compared with the .proto definitions @foxglove/schemas generates,
 // and a second viewer with --max-queue-mb 1 sends a client the whole map in pieces
-// under its queue limit, the points equal to the voxels of /map/voxels.
+// under its queue limit, the points equal to the voxels of /map/voxels; that viewer
+// takes its segments and frame ids from a config (--config), and a config the
+// loader refuses stops it with the loader's message.
 'use strict';
 const assert = require('assert');
 const { FoxgloveClient } = require('@foxglove/ws-protocol');
 const published = require('@foxglove/schemas/jsonschema');
 const WebSocket = require('ws');
-const { spawn } = require('child_process');
+const { spawn, spawnSync } = require('child_process');
+const fs = require('fs');
 const protobuf = require('protobufjs');
 require('protobufjs/ext/descriptor');
 const { generateProto, foxgloveMessageSchemas, foxgloveEnumSchemas } = require('@foxglove/schemas/internal');
@@ -339,10 +342,20 @@ async function main() {
     // A second viewer with --max-queue-mb 1, a client of /map/voxels and /map/points:
     // the whole map comes in point cloud pieces of at most 1/8 of the queue limit,
     // the client is not dropped, and after each version the points are the voxels.
+    // Its segments and frames come from a config: the map's frame "odom", the
+    // camera's "cam_optical".
     const PIECE = (1 << 20) / 8;
+    const cfg2 = `${demo.dir}/view2.yaml`;
+    fs.writeFileSync(cfg2, `shm:\n  map: "${demo.names.map}"\n  ring: "${demo.names.frames}"\n  prompts: ` +
+      `"${demo.names.prompts}"\ndds:\n  frame_id: "odom"\n  camera_frame_id: "cam_optical"\n`);
+    fs.writeFileSync(`${demo.dir}/bad.yaml`, 'dds:\n  frame_id: "odom"\n  camera_frame_id: "odom"\n');
+    const refused = spawnSync(prog.view, ['--port', '0', '--config', `${demo.dir}/bad.yaml`], { encoding: 'utf8',
+      timeout: 20000 });
+    assert.ok(refused.status === 1 && /bad\.yaml:3:\d+: key 'dds\.camera_frame_id': expected a frame distinct/
+      .test(refused.stderr), `${refused.status} ${refused.stderr}`);
     let text = '', log2 = '';
-    const v2 = spawn(prog.view, ['--port', '0', '--map', demo.names.map, '--frames', '', '--prompts',
-      demo.names.prompts, '--max-queue-mb', '1'], { stdio: ['ignore', 'pipe', 'pipe'] });
+    const v2 = spawn(prog.view, ['--port', '0', '--config', cfg2, '--max-queue-mb', '1'],
+      { stdio: ['ignore', 'pipe', 'pipe'] });
     process.on('exit', () => { if (v2.exitCode === null) v2.kill('SIGKILL'); });
     v2.stderr.on('data', (d) => { log2 += d; });
     const port2 = await new Promise((resolve, reject) => {
@@ -360,7 +373,9 @@ async function main() {
     c2.on('advertise', (cs) => {
       for (const c of cs) {
         if (c.topic === '/map/points') ptype = protobufType(c).type;
-        if (c.topic === '/map/voxels' || c.topic === '/map/points') subs2[c2.subscribe(c.id)] = c;
+        if (['/map/voxels', '/map/points', '/tf', '/camera/calibration', '/camera/image'].includes(c.topic)) {
+          subs2[c2.subscribe(c.id)] = c;
+        }
       }
     });
     c2.on('close', (e) => { closed = e; });
@@ -375,7 +390,13 @@ async function main() {
     v2.kill('SIGINT');
     const cloud = new Map(), vox = new Map(), perr = [];
     let g = null, compared = 0, maxLen = 0, first = 0, points = 0, started = false, afterFirst = false;
+    const frames = new Set();
     for (const e of ev) {
+      if (['/tf', '/camera/calibration', '/camera/image'].includes(e.topic)) {
+        const m = JSON.parse(td.decode(e.data));
+        frames.add(e.topic === '/tf' ? `${e.topic} ${m.parent_frame_id} -> ${m.child_frame_id}` : `${e.topic} ${m.frame_id}`);
+        continue;
+      }
       if (e.topic === '/map/voxels') {
         // every piece of the versions before this one has come: the points are the voxels
         if (started) {
@@ -398,7 +419,8 @@ async function main() {
       maxLen = Math.max(maxLen, e.data.length);
       const { o, bytes } = cloudObject(ptype, e.data);
       perr.push(...validate(published.PointCloud, o, '$', [], true).slice(0, 2));
-      if (o.frame_id !== 'world' || o.point_stride !== 20 || bytes.length % 20) perr.push(`${o.frame_id} ${o.point_stride}`);
+      frames.add(`${e.topic} ${o.frame_id}`);
+      if (o.point_stride !== 20 || bytes.length % 20) perr.push(`${o.frame_id} ${o.point_stride}`);
       const at = Object.fromEntries(o.fields.map((f) => [f.name, [f.offset, f.type]]));
       assert.deepStrictEqual(at, { x: [0, 7], y: [4, 7], z: [8, 7], red: [12, 1], green: [13, 1], blue: [14, 1],
         alpha: [15, 1], label: [16, 3], confidence: [18, 1] }, 'the packed fields (FLOAT32 7, UINT8 1, UINT16 3)');
@@ -419,6 +441,8 @@ async function main() {
       }
     }
     assert.deepStrictEqual(perr.slice(0, 4), []);
+    assert.deepStrictEqual([...frames].sort(), ['/camera/calibration cam_optical', '/camera/image cam_optical',
+      '/map/points odom', '/tf odom -> cam_optical'], 'the frames of the config');
     assert.strictEqual(closed, null, 'the client of the second viewer was not dropped');
     assert.ok(compared >= 2, `${compared} versions compared`);
     assert.ok(maxLen <= PIECE, `a point cloud message of ${maxLen} bytes, above ${PIECE}`);
@@ -427,6 +451,9 @@ async function main() {
       `whole map in ${first} piece(s) of at most ${maxLen} bytes (limit ${PIECE} with --max-queue-mb 1), ${points} ` +
       `points in all, equal to /map/voxels after each of ${compared} versions (${whole} voxels), in the prompts' ` +
       'colours, freed voxels transparent');
+    ok('--config: the second viewer reads the segments and frame ids of a config (points in "odom", the pose ' +
+      '"odom" -> "cam_optical", image and calibration in "cam_optical"); a config whose frames are the same is ' +
+      'refused with the loader\'s file:line message');
   });
   plan();
 }
