@@ -50,7 +50,7 @@ static const struct vlff_cli cli = {
     "      --image-hz HZ       most camera images per second (default 2, 0.1..60)\n"
     "      --poll-hz HZ        segment checks per second (default 50, 1..1000)\n"
     "      --max-clients N     clients at once (default 10, 1..1000)\n"
-    "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32)\n"
+    "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32, 0.25..4096)\n"
     "      --max-request-kb KB largest client message (default 64)\n"
     "      --allow-origin URL  also accept this origin (http[s]://HOST[:PORT]) and its HOST[:PORT] as Host;\n"
     "                          repeatable (default: the listening address's own names and port only)\n"
@@ -197,7 +197,7 @@ int main(int argc, char **argv) {
       vp.max_clients = (int)x;
       break;
     case OPT_QUEUE:
-      if (parse_num("max-queue-mb", optarg, 1, 4096, &x)) return 2;
+      if (parse_num("max-queue-mb", optarg, 0.25, 4096, &x)) return 2;
       vp.max_queue_bytes = (size_t)(x * (1 << 20));
       break;
     case OPT_REQUEST:

@@ -451,6 +451,47 @@ async function main() {
       `whole map in ${first} piece(s) of at most ${maxLen} bytes (limit ${PIECE} with --max-queue-mb 1), ${points} ` +
       `points in all, equal to /map/voxels after each of ${compared} versions (${whole} voxels), in the prompts' ` +
       'colours, freed voxels transparent');
+    // A third with --max-queue-mb 0.25, below the whole map's point cloud: the pieces
+    // (32 KiB) go out one after another and only the waiting one counts, so a client
+    // of /map/points and /vlff/status that reads gets the whole map and is not dropped.
+    let text3 = '', log3 = '';
+    const v3 = spawn(prog.view, ['--port', '0', '--config', cfg2, '--max-queue-mb', '0.25'],
+      { stdio: ['ignore', 'pipe', 'pipe'] });
+    process.on('exit', () => { if (v3.exitCode === null) v3.kill('SIGKILL'); });
+    v3.stderr.on('data', (d) => { log3 += d; });
+    const port3 = await new Promise((resolve, reject) => {
+      v3.stdout.on('data', (d) => {
+        text3 += d;
+        const m = /serving http:\/\/127\.0\.0\.1:(\d+)\//.exec(text3);
+        if (m) resolve(Number(m[1]));
+      });
+      v3.on('exit', (code) => reject(new Error(`the third vlff-view exited ${code}: ${log3}`)));
+    });
+    const c3 = new FoxgloveClient({ ws: new WebSocket(`ws://127.0.0.1:${port3}/`,
+      [FoxgloveClient.SUPPORTED_SUBPROTOCOL]) });
+    const ev3 = [], subs3 = {}, occupied = new Set();
+    let closed3 = null;
+    c3.on('advertise', (cs) => {
+      for (const c of cs) if (c.topic === '/map/points' || c.topic === '/vlff/status') subs3[c3.subscribe(c.id)] = c;
+    });
+    c3.on('close', (e) => { closed3 = e; });
+    c3.on('message', ({ subscriptionId, timestamp, data }) => {
+      const t = subs3[subscriptionId].topic;
+      if (t === '/vlff/status') occupied.add(JSON.parse(td.decode(data)).map.occupied);
+      else ev3.push({ timestamp, len: data.byteLength, points: cloudObject(ptype, data).bytes.length / 20 });
+    });
+    await sleep(4000);
+    const closedBy = closed3 && `${closed3.code} ${closed3.reason}`;
+    c3.close();
+    v3.kill('SIGINT');
+    assert.strictEqual(closedBy, null, 'the client of the third viewer was not dropped');
+    const firstT = ev3.length && ev3[0].timestamp, group = ev3.filter((e) => e.timestamp === firstT);
+    const wholePoints = group.reduce((a, e) => a + e.points, 0), max3 = Math.max(...ev3.map((e) => e.len));
+    assert.ok(wholePoints * 20 > (1 << 20) / 4, `the whole map's ${wholePoints} points fit the queue limit anyway`);
+    assert.ok(occupied.has(wholePoints), `${wholePoints} points in the whole map, occupied ${[...occupied]}`);
+    assert.ok(max3 <= (1 << 20) / 32, `a piece of ${max3} bytes`);
+    ok(`--max-queue-mb 0.25: the whole map (${wholePoints} points, ${wholePoints * 20} bytes) reaches a client that ` +
+      `reads in ${group.length} pieces of at most ${max3} bytes, as many points as the status counts occupied`);
     ok('--config: the second viewer reads the segments and frame ids of a config (points in "odom", the pose ' +
       '"odom" -> "cam_optical", image and calibration in "cam_optical"); a config whose frames are the same is ' +
       'refused with the loader\'s file:line message');
