@@ -53,7 +53,7 @@ struct vlff_feed {
   struct feed_map m;
   /* frame ring */
   struct vlff_ring *ring;
-  uint64_t ring_next_attach_ns, ring_head, last_image_ns;
+  uint64_t ring_next_attach_ns, ring_head, last_image_ns, last_map_ns;
   int ring_reported;
   void *rec;
   size_t rec_cap;
@@ -70,6 +70,8 @@ struct vlff_feed {
   uint64_t encode_failures;
   uint8_t *rgb; /* a camera frame converted to RGB8 for the encoder */
   size_t rgb_cap;
+  uint8_t *pts; /* packed points for the point cloud */
+  size_t pts_cap;
 };
 
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
@@ -116,6 +118,9 @@ struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   }
   f->p = *p;
   if (f->p.brick < 1) f->p.brick = 8;
+  if (!f->p.cloud_piece_bytes) f->p.cloud_piece_bytes = 1u << 20;
+  if (!f->p.world_frame || !*f->p.world_frame) f->p.world_frame = "world";
+  if (!f->p.camera_frame || !*f->p.camera_frame) f->p.camera_frame = "camera";
   f->mono_to_real = vlff_wall_ns() - vlff_now_ns();
   return f;
 }
@@ -136,6 +141,7 @@ void vlff_feed_free(struct vlff_feed *f) {
   free(f->rec);
   free(f->changed);
   free(f->rgb);
+  free(f->pts);
   for (int c = 0; c <= VLFF_VIEW_CH_COUNT; c++) vlff_view_msg_unref(f->current[c]);
   free(f);
 }
@@ -166,15 +172,17 @@ static uint32_t brick_count(const struct feed_map *m, uint32_t edge) {
   return (uint32_t)n;
 }
 
-static void write_brick_entity(struct jw *w, const struct feed_map *m, uint32_t b, uint32_t edge, uint64_t t,
-                               const uint8_t (*rgb)[3], int *first) {
+static void write_brick_entity(struct jw *w, const struct feed_map *m, const char *frame, uint32_t b, uint32_t edge,
+                               uint64_t t, const uint8_t (*rgb)[3], int *first) {
   uint32_t lo[3], hi[3];
   brick_range(m, b, lo, hi, edge);
   jw_s(w, *first ? "{" : ",{");
   *first = 0;
   jw_s(w, "\"timestamp\":");
   jw_time(w, t);
-  jw_f(w, ",\"frame_id\":\"world\",\"id\":\"brick-%u\",\"lifetime\":{\"sec\":0,\"nsec\":0},\"frame_locked\":true,"
+  jw_s(w, ",\"frame_id\":");
+  jw_str(w, frame);
+  jw_f(w, ",\"id\":\"brick-%u\",\"lifetime\":{\"sec\":0,\"nsec\":0},\"frame_locked\":true,"
           "\"metadata\":[],\"arrows\":[],\"cubes\":[",
        b);
   int n = 0;
@@ -224,6 +232,7 @@ static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty
   if (!w.m) return NULL;
   w.m->t_ns = t;
   w.m->version = m->version;
+  w.m->whole = !dirty;
   jw_s(&w, "{\"deletions\":[");
   int first = 1;
   if (!dirty) {
@@ -247,7 +256,7 @@ static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty
     if (dirty && !dirty[b]) continue;
     int has = brick_has_voxels(m, b, edge);
     if (update_sent) m->brick_sent[b] = (uint8_t)has;
-    if (has) write_brick_entity(&w, m, b, edge, t, (const uint8_t(*)[3])rgb, &first);
+    if (has) write_brick_entity(&w, m, f->p.world_frame, b, edge, t, (const uint8_t(*)[3])rgb, &first);
   }
   jw_s(&w, "]}");
   return jw_finish(&w);
@@ -277,6 +286,7 @@ static struct vlff_view_msg *voxels_full_msg(struct vlff_feed *f, uint64_t t) {
   if (!w.m) return NULL;
   w.m->t_ns = t;
   w.m->version = m->version;
+  w.m->whole = 1;
   write_map_header(&w, m, 1);
   int n = 0;
   for (size_t i = 0; i < m->n; i++)
@@ -284,6 +294,60 @@ static struct vlff_view_msg *voxels_full_msg(struct vlff_feed *f, uint64_t t) {
       jw_f(&w, "%s%zu,%u,%u", n++ ? "," : "", i, m->labels[i], m->conf ? m->conf[i] : 255u);
   jw_s(&w, "]}");
   return jw_finish(&w);
+}
+
+/* Voxel idx as a point of the cloud (view.h: VLFF_VIEW_CLOUD_STRIDE bytes, little-endian). */
+static void pack_point(uint8_t *o, const struct feed_map *m, size_t idx, const uint8_t (*rgb)[3]) {
+  size_t i = idx % m->dims[0], j = idx / m->dims[0] % m->dims[1], k = idx / m->dims[0] / m->dims[1];
+  const float c[3] = {(float)(m->origin[0] + (i + 0.5) * m->vs), (float)(m->origin[1] + (j + 0.5) * m->vs),
+                      (float)(m->origin[2] + (k + 0.5) * m->vs)};
+  for (int a = 0; a < 3; a++) {
+    uint32_t u;
+    memcpy(&u, &c[a], 4);
+    for (int b = 0; b < 4; b++) o[4 * a + b] = (uint8_t)(u >> (8 * b));
+  }
+  uint16_t l = m->labels[idx];
+  if (is_occupied(l)) {
+    memcpy(o + 12, l < VLFF_SHM_MAX_PROMPTS ? rgb[l] : rgb[VLFF_SHM_MAX_PROMPTS], 3);
+    o[15] = 255;
+  } else {
+    memset(o + 12, 0, 4); /* no longer occupied: transparent */
+  }
+  o[16] = (uint8_t)l;
+  o[17] = (uint8_t)(l >> 8);
+  o[18] = m->conf ? m->conf[idx] : 255;
+  o[19] = 0;
+}
+
+/* The point cloud of the listed voxels (idx == NULL: every occupied voxel, the
+ * whole map), in pieces of at most cloud_piece_bytes. */
+static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx, size_t n, uint64_t t) {
+  const struct feed_map *m = &f->m;
+  if (!idx) n = (size_t)m->occupied;
+  size_t need = (n ? n : 1) * VLFF_VIEW_CLOUD_STRIDE;
+  if (need > f->pts_cap) {
+    uint8_t *p = realloc(f->pts, need);
+    if (!p) {
+      vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a point cloud of %zu points", n);
+      return NULL;
+    }
+    f->pts = p, f->pts_cap = need;
+  }
+  uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
+  palette(rgb);
+  size_t k = 0;
+  if (idx) {
+    for (; k < n; k++) pack_point(f->pts + k * VLFF_VIEW_CLOUD_STRIDE, m, idx[k], (const uint8_t(*)[3])rgb);
+  } else {
+    for (size_t i = 0; i < m->n && k < n; i++)
+      if (is_occupied(m->labels[i])) pack_point(f->pts + k++ * VLFF_VIEW_CLOUD_STRIDE, m, i, (const uint8_t(*)[3])rgb);
+  }
+  int pieces = 0;
+  struct vlff_view_msg *c =
+      vlff_view_cloud_msgs(VLFF_VIEW_CH_CLOUD, f->p.world_frame, f->pts, k, t, f->p.cloud_piece_bytes, &pieces);
+  f->encoded[VLFF_VIEW_CH_CLOUD] += (uint64_t)pieces;
+  for (struct vlff_view_msg *p = c; p; p = p->next) p->version = m->version, p->whole = !idx;
+  return c;
 }
 
 static void count_labels(struct feed_map *m) {
@@ -318,7 +382,9 @@ static struct vlff_view_msg *compressed_msg(struct vlff_feed *f, int ch, uint64_
     w_.m->t_ns = t;
     jw_s(&w_, "{\"timestamp\":");
     jw_time(&w_, t);
-    jw_f(&w_, ",\"frame_id\":\"camera\",\"format\":\"%s\",\"data\":", png ? "png" : "jpeg");
+    jw_s(&w_, ",\"frame_id\":");
+    jw_str(&w_, f->p.camera_frame);
+    jw_f(&w_, ",\"format\":\"%s\",\"data\":", png ? "png" : "jpeg");
     jw_b64(&w_, enc, n);
     jw_s(&w_, "}");
   }
@@ -356,8 +422,12 @@ static struct vlff_view_msg *pose_msg(struct vlff_feed *f, uint64_t t, const dou
   w.m->t_ns = t;
   jw_s(&w, "{\"timestamp\":");
   jw_time(&w, t);
+  jw_s(&w, ",\"parent_frame_id\":");
+  jw_str(&w, f->p.world_frame);
+  jw_s(&w, ",\"child_frame_id\":");
+  jw_str(&w, f->p.camera_frame);
   jw_f(&w,
-       ",\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\",\"translation\":{\"x\":%.6f,\"y\":%.6f,\"z\":%.6f},"
+       ",\"translation\":{\"x\":%.6f,\"y\":%.6f,\"z\":%.6f},"
        "\"rotation\":{\"x\":%.9f,\"y\":%.9f,\"z\":%.9f,\"w\":%.9f}}",
        P[3], P[7], P[11], qx, qy, qz, qw);
   return jw_finish(&w);
@@ -401,6 +471,13 @@ static int map_take_version(struct vlff_feed *f, struct vlff_map_info *info) {
   if (!m->map) return -1;
   uint64_t v = vlff_map_version(m->map);
   if (v == 0 || (v == m->version && vlff_map_generation(m->map) == m->generation)) return -1;
+  /* The node publishes what each keyframe saw at once and refreshes the rest
+   * in slices: many versions a second. A client gets them at most map_hz a
+   * second, each update holding everything that changed since its last (the
+   * change log spans versions), so a browser redraws at a rate it keeps up
+   * with. */
+  uint64_t now = vlff_now_ns();
+  if (m->version && f->p.map_hz > 0 && now - f->last_map_ns < (uint64_t)(1e9 / f->p.map_hz)) return -1;
   if (vlff_map_snapshot_follow(m->map, m->snap) < 0) {
     if (errno == EPIPE) {
       vlff_log(VLFF_LOG_WARN, "vlff-view", "map %s was replaced by a new one; attaching again", f->p.map_name);
@@ -410,6 +487,7 @@ static int map_take_version(struct vlff_feed *f, struct vlff_map_info *info) {
     }
     return -1;
   }
+  f->last_map_ns = now;
   return vlff_map_snapshot_info(m->snap, info) != 0 ? -1 : 0;
 }
 
@@ -468,10 +546,13 @@ static int map_whole_msgs(struct vlff_feed *f, unsigned wanted, uint32_t edge, u
    * for its first subscriber */
   struct vlff_view_msg *s = wants(wanted, VLFF_VIEW_CH_SCENE) ? scene_msg(f, NULL, edge, t, 1) : NULL;
   struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_full_msg(f, t) : NULL;
+  struct vlff_view_msg *pc = wants(wanted, VLFF_VIEW_CH_CLOUD) ? cloud_msg(f, NULL, 0, t) : NULL;
   set_current(f, VLFF_VIEW_CH_SCENE, s);
   set_current(f, VLFF_VIEW_CH_VOXELS, vx);
+  set_current(f, VLFF_VIEW_CH_CLOUD, pc);
   /* the small voxel message first: it is not queued behind the scene */
   emit(out, &nout, cap, vx);
+  emit(out, &nout, cap, pc);
   emit(out, &nout, cap, s);
   return nout;
 }
@@ -552,12 +633,15 @@ static int map_delta_msgs(struct vlff_feed *f, const struct vlff_map_grid *g, un
   /* a version that changed no voxel still reaches the voxel channel (clients
    * learn the version); the scene has nothing to replace then */
   if (changed && wants(wanted, VLFF_VIEW_CH_SCENE)) s = scene_msg(f, dirty, edge, t, 1);
+  struct vlff_view_msg *pc = changed && wants(wanted, VLFF_VIEW_CH_CLOUD) ? cloud_msg(f, f->changed, changed, t) : NULL;
   free(dirty);
   emit(out, &nout, cap, vx);
+  emit(out, &nout, cap, pc);
   emit(out, &nout, cap, s);
   /* the whole map for new subscribers is rebuilt when first asked for */
   set_current(f, VLFF_VIEW_CH_SCENE, NULL);
   set_current(f, VLFF_VIEW_CH_VOXELS, NULL);
+  set_current(f, VLFF_VIEW_CH_CLOUD, NULL);
   return nout;
 }
 
@@ -627,8 +711,10 @@ static struct vlff_view_msg *calib_msg(struct vlff_feed *f, uint64_t t, const st
   double cx = h->cx - 0.5, cy = h->cy - 0.5;
   jw_s(&w, "{\"timestamp\":");
   jw_time(&w, t);
+  jw_s(&w, ",\"frame_id\":");
+  jw_str(&w, f->p.camera_frame);
   jw_f(&w,
-       ",\"frame_id\":\"camera\",\"width\":%u,\"height\":%u,\"distortion_model\":\"plumb_bob\",\"D\":[0,0,0,0,0],"
+       ",\"width\":%u,\"height\":%u,\"distortion_model\":\"plumb_bob\",\"D\":[0,0,0,0,0],"
        "\"K\":[%.9g,0,%.9g,0,%.9g,%.9g,0,0,1],\"R\":[1,0,0,0,1,0,0,0,1],\"P\":[%.9g,0,%.9g,0,0,%.9g,%.9g,0,0,0,1,0]}",
        pl->width, pl->height, h->fx, cx, h->fy, cy, h->fx, cx, h->fy, cy);
   return jw_finish(&w);
@@ -895,6 +981,7 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struc
      * sent now is what its clients hold from here on */
     if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(f, NULL, f->p.brick, t, 1);
     else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(f, t);
+    else if (ch == VLFF_VIEW_CH_CLOUD) f->current[ch] = cloud_msg(f, NULL, 0, t);
   }
   return vlff_view_msg_ref(f->current[ch]);
 }

@@ -5,6 +5,7 @@
  * on one port, until SIGINT/SIGTERM.
  */
 #include "cli.h"
+#include "config.h"
 #include "files.h"
 #include "log.h"
 #include "mcap.h"
@@ -36,6 +37,10 @@ static const struct vlff_cli cli = {
     "Serve the node's live map, camera and status to Foxglove (foxglove.websocket.v1)\n"
     "and to a built-in web page, on one port.\n"
     "\n"
+    "  -c, --config FILE       the node's config: the map's and the camera's frame ids (dds.frame_id,\n"
+    "                          dds.camera_frame_id) and the segments (shm.map, shm.ring, shm.prompts),\n"
+    "                          which --map, --frames and --prompts override (without it: frames world\n"
+    "                          and camera, the default segments)\n"
     "  -l, --listen ADDR       IP address or interface to listen on (default 127.0.0.1; 0.0.0.0 = all)\n"
     "  -p, --port N            port (default 8765; 0 = any free port, printed on start)\n"
     "  -m, --map NAME          map segment (default /vlff-map)\n"
@@ -43,9 +48,11 @@ static const struct vlff_cli cli = {
     "      --prompts NAME      prompt mailbox (default /vlff-prompts)\n"
     "      --token-file FILE   enable posting prompt sets; clients must send the token in FILE\n"
     "      --image-hz HZ       most camera images per second (default 2, 0.1..60)\n"
+    "      --map-hz HZ         most map updates per second, each with all changes since the last\n"
+    "                          (default 2, 0.1..100)\n"
     "      --poll-hz HZ        segment checks per second (default 50, 1..1000)\n"
     "      --max-clients N     clients at once (default 10, 1..1000)\n"
-    "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32)\n"
+    "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32, 0.25..4096)\n"
     "      --max-request-kb KB largest client message (default 64)\n"
     "      --allow-origin URL  also accept this origin (http[s]://HOST[:PORT]) and its HOST[:PORT] as Host;\n"
     "                          repeatable (default: the listening address's own names and port only)\n"
@@ -56,6 +63,8 @@ static const struct vlff_cli cli = {
     "      --record FILE       also write every message of every channel to FILE, an MCAP recording\n"
     "                          (zstd-compressed chunks of at most 1 s; Foxglove opens it); a directory:\n"
     "                          a new file there per run, vlff-view-YYYYmmdd-HHMMSS.mcap (local time)\n"
+    "      --record-map-s S    while the map changes, the whole map into the recording every S seconds,\n"
+    "                          each opening a chunk, for readers that seek (default 10, 1..3600)\n"
     "      --record-level N    zstd level of the recording's chunks (default 3, 1..19; 0 = none)\n"
     "      --play FILE         serve the MCAP recording FILE instead of the segments, at its recorded\n"
     "                          rate, from the first subscription on\n"
@@ -145,13 +154,13 @@ static int default_www(char *out, size_t cap) {
 
 int main(int argc, char **argv) {
   vlff_log_start(); /* log stamps count from the start, not from the first line */
-  enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
-         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_PLAY, OPT_PLAY_RATE };
+  enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_MAP_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
+         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_RECORD_MAP, OPT_PLAY, OPT_PLAY_RATE };
   static const struct option opts[] = {
-      {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
+      {"config", required_argument, NULL, 'c'},     {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
       {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
       {"prompts", required_argument, NULL, OPT_PROMPTS}, {"token-file", required_argument, NULL, OPT_TOKEN},
-      {"image-hz", required_argument, NULL, OPT_IMAGE_HZ}, {"poll-hz", required_argument, NULL, OPT_POLL_HZ},
+      {"image-hz", required_argument, NULL, OPT_IMAGE_HZ}, {"map-hz", required_argument, NULL, OPT_MAP_HZ}, {"poll-hz", required_argument, NULL, OPT_POLL_HZ},
       {"max-clients", required_argument, NULL, OPT_MAX_CLIENTS}, {"max-queue-mb", required_argument, NULL, OPT_QUEUE},
       {"max-request-kb", required_argument, NULL, OPT_REQUEST}, {"www", required_argument, NULL, OPT_WWW},
       {"allow-origin", required_argument, NULL, OPT_ALLOW_ORIGIN},
@@ -159,14 +168,16 @@ int main(int argc, char **argv) {
       {"idle-timeout", required_argument, NULL, OPT_IDLE_TIMEOUT},
       {"record", required_argument, NULL, OPT_RECORD},
       {"record-level", required_argument, NULL, OPT_RECORD_LEVEL},
+      {"record-map-s", required_argument, NULL, OPT_RECORD_MAP},
       {"play", required_argument, NULL, OPT_PLAY},
       {"play-rate", required_argument, NULL, OPT_PLAY_RATE},
       {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
-                                .max_request_bytes = 64u << 10};
-  struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .brick = 4};
-  const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL;
+                                .max_request_bytes = 64u << 10, .record_map_s = 10};
+  struct vlff_feed_params fp = {.map_name = "/vlff-map", .frames_name = "/vlff-frames", .image_hz = 2, .map_hz = 2, .brick = 4};
+  const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL, *config = NULL;
+  int seg_given[3] = {0, 0, 0}; /* --map, --frames, --prompts */
   int record_level = 3;
   bool record_level_set = false, play_rate_set = false;
   double play_rate = 1;
@@ -174,7 +185,7 @@ int main(int argc, char **argv) {
   int c, status;
   static const char *origins[VLFF_ALLOW_MAX];
   struct vlff_allow check_origin;
-  while ((c = vlff_cli_next(&cli, argc, argv, "l:p:m:f:v", opts, &status)) != -1) {
+  while ((c = vlff_cli_next(&cli, argc, argv, "c:l:p:m:f:v", opts, &status)) != -1) {
     switch (c) {
     case VLFF_CLI_EXIT: return status;
     case 'l': vp.address = optarg; break;
@@ -182,12 +193,16 @@ int main(int argc, char **argv) {
       if (parse_num("port", optarg, 0, 65535, &x) || x != (int)x) return 2;
       vp.port = (int)x;
       break;
-    case 'm': fp.map_name = optarg; break;
-    case 'f': fp.frames_name = optarg; break;
-    case OPT_PROMPTS: vp.prompts_name = optarg; break;
+    case 'c': config = optarg; break;
+    case 'm': fp.map_name = optarg, seg_given[0] = 1; break;
+    case 'f': fp.frames_name = optarg, seg_given[1] = 1; break;
+    case OPT_PROMPTS: vp.prompts_name = optarg, seg_given[2] = 1; break;
     case OPT_TOKEN: token_file = optarg; break;
     case OPT_IMAGE_HZ:
       if (parse_num("image-hz", optarg, 0.1, 60, &fp.image_hz)) return 2;
+      break;
+    case OPT_MAP_HZ:
+      if (parse_num("map-hz", optarg, 0.1, 100, &fp.map_hz)) return 2;
       break;
     case OPT_POLL_HZ:
       if (parse_num("poll-hz", optarg, 1, 1000, &vp.poll_hz)) return 2;
@@ -197,7 +212,7 @@ int main(int argc, char **argv) {
       vp.max_clients = (int)x;
       break;
     case OPT_QUEUE:
-      if (parse_num("max-queue-mb", optarg, 1, 4096, &x)) return 2;
+      if (parse_num("max-queue-mb", optarg, 0.25, 4096, &x)) return 2;
       vp.max_queue_bytes = (size_t)(x * (1 << 20));
       break;
     case OPT_REQUEST:
@@ -228,6 +243,9 @@ int main(int argc, char **argv) {
       record_level_set = true;
       record_level = (int)x;
       break;
+    case OPT_RECORD_MAP:
+      if (parse_num("record-map-s", optarg, 1, 3600, &vp.record_map_s)) return 2;
+      break;
     case OPT_PLAY: play = optarg; break;
     case OPT_PLAY_RATE:
       if (parse_num("play-rate", optarg, 0.01, 100, &play_rate)) return 2;
@@ -238,6 +256,19 @@ int main(int argc, char **argv) {
     }
   }
   if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", VLFF_Q(argv[optind]));
+  /* the config loader checks the frame ids (tf2 names, distinct) and the segment
+   * names as it does for every program */
+  static struct vlff_config cfg;
+  if (config) {
+    char err[1024];
+    vlff_config_defaults(&cfg);
+    if (vlff_config_load(config, &cfg, err, sizeof err)) return vlff_cli_config_error(err);
+    fp.world_frame = cfg.dds.frame_id;
+    fp.camera_frame = cfg.dds.camera_frame_id;
+    if (!seg_given[0]) fp.map_name = cfg.shm.map;
+    if (!seg_given[1]) fp.frames_name = cfg.shm.ring;
+    if (!seg_given[2]) vp.prompts_name = cfg.shm.prompts;
+  }
   if (fp.map_name[0] != '/') return vlff_cli_usage_error(&cli, "--map '%s' must start with '/'", VLFF_Q(fp.map_name));
   char wwwbuf[PATH_MAX];
   if (www) {
@@ -252,6 +283,9 @@ int main(int argc, char **argv) {
   /* an option of a mode not asked for would be ignored without a word */
   if (record_level_set && !record) return vlff_cli_usage_error(&cli, "--record-level without --record");
   if (play_rate_set && !play) return vlff_cli_usage_error(&cli, "--play-rate without --play");
+  /* a point cloud piece is a fraction of a client's queue: a whole map of any size
+   * reaches a client that reads, piece after piece */
+  fp.cloud_piece_bytes = vp.max_queue_bytes / 8 < (1u << 20) ? vp.max_queue_bytes / 8 : (1u << 20);
   char *token = NULL;
   if (token_file && !(token = read_token(token_file))) return 1;
   vp.token = token;

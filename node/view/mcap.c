@@ -366,6 +366,8 @@ int vlff_mcap_writer_tick(struct vlff_mcap_writer *w, uint64_t now_ns) {
   return 0;
 }
 
+int vlff_mcap_writer_flush(struct vlff_mcap_writer *w) { return flush_chunk(w); }
+
 /* A summary group: its records, and its summary offset record. */
 static void group(struct vlff_mcap_writer *w, struct buf *sum, struct buf *offs, int op, const struct buf *g) {
   if (!g->n) return;

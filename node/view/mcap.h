@@ -70,6 +70,9 @@ int vlff_mcap_writer_message(struct vlff_mcap_writer *w, uint16_t channel, uint6
                              const void *data, size_t len);
 /* Writes the chunk being filled when it is chunk_s old at now_ns (CLOCK_MONOTONIC). */
 int vlff_mcap_writer_tick(struct vlff_mcap_writer *w, uint64_t now_ns);
+/* Writes the chunk being filled now, so that the next message opens a chunk (a
+ * reader seeking by the chunk indexes starts there); nothing when it is empty. */
+int vlff_mcap_writer_flush(struct vlff_mcap_writer *w);
 /* Writes the last chunk, the indexes, the summary and the footer, and closes the
  * file; frees w in every case. 0, or -1 (the file then holds every whole chunk). */
 int vlff_mcap_writer_close(struct vlff_mcap_writer *w, char *why, size_t len);

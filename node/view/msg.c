@@ -41,9 +41,12 @@ struct vlff_view_msg *vlff_view_msg_ref(struct vlff_view_msg *m) {
 }
 
 void vlff_view_msg_unref(struct vlff_view_msg *m) {
-  if (!m || --m->refs > 0) return;
-  free(m->buf);
-  free(m);
+  while (m && --m->refs == 0) {
+    struct vlff_view_msg *next = m->next;
+    free(m->buf);
+    free(m);
+    m = next; /* the pieces after it go with it, unless shared */
+  }
 }
 
 /* The writer remembers a failed allocation and refuses the message at the end

@@ -6,6 +6,7 @@
  * error the file holds (mcap.h's checks) is found before a client connects rather
  * than in the middle of a playback; playing then walks it again, one message ahead.
  */
+#include <libwebsockets.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,6 +24,7 @@ struct vlff_view_play {
   int nch;
   uint16_t mcap_id[VLFF_VIEW_CH_MAX + 1];
   struct vlff_view_chan ch[VLFF_VIEW_CH_MAX + 1];
+  char *b64[VLFF_VIEW_CH_MAX + 1]; /* binary schemas (protobuf) as advertised: base64 */
   struct vlff_view_msg *latest[VLFF_VIEW_CH_MAX + 1];
   uint64_t total, sent;
   int started, done, have_next;
@@ -101,9 +103,12 @@ struct vlff_view_play *vlff_view_play_open(const char *path) {
   }
   for (int i = 0; i < n; i++) {
     const struct vlff_mcap_channel *c = vlff_mcap_channel_at(p->r, i);
+    /* a protobuf schema is a FileDescriptorSet's bytes, which the WebSocket
+     * protocol advertises in base64; every other schema is text */
+    int binary = !strcmp(c->schema_encoding, "protobuf");
     if (!utf8_ok(c->topic, strlen(c->topic)) || !utf8_ok(c->message_encoding, strlen(c->message_encoding)) ||
         !utf8_ok(c->schema_name, strlen(c->schema_name)) || !utf8_ok(c->schema_encoding, strlen(c->schema_encoding)) ||
-        !utf8_ok(c->schema, c->schema_len)) {
+        (!binary && !utf8_ok(c->schema, c->schema_len))) {
       fprintf(stderr, "vlff-view: --play %s: channel %u (%s): its topic, encodings or schema are not UTF-8 text\n",
               VLFF_Q(path), c->id, VLFF_Q(c->topic));
       vlff_view_play_free(p);
@@ -111,8 +116,19 @@ struct vlff_view_play *vlff_view_play_open(const char *path) {
     }
     p->nch++;
     p->mcap_id[p->nch] = c->id;
-    p->ch[p->nch] = (struct vlff_view_chan){c->topic, c->message_encoding, c->schema_name, c->schema_encoding,
-                                            c->schema};
+    const char *schema = c->schema;
+    if (binary) {
+      size_t cap = (c->schema_len + 2) / 3 * 4 + 8; /* libwebsockets wants room past the end */
+      char *b = malloc(cap);
+      if (!b || lws_b64_encode_string(c->schema, (int)c->schema_len, b, (int)cap) < 0) {
+        free(b);
+        fprintf(stderr, "vlff-view: --play %s: no memory for channel %u's schema\n", VLFF_Q(path), c->id);
+        vlff_view_play_free(p);
+        return NULL;
+      }
+      schema = p->b64[p->nch] = b;
+    }
+    p->ch[p->nch] = (struct vlff_view_chan){c->topic, c->message_encoding, c->schema_name, c->schema_encoding, schema};
   }
   if (!p->total) {
     fprintf(stderr, "vlff-view: --play %s: the recording holds no message\n", VLFF_Q(path));
@@ -126,7 +142,7 @@ struct vlff_view_play *vlff_view_play_open(const char *path) {
 
 void vlff_view_play_free(struct vlff_view_play *p) {
   if (!p) return;
-  for (int i = 0; i <= VLFF_VIEW_CH_MAX; i++) vlff_view_msg_unref(p->latest[i]);
+  for (int i = 0; i <= VLFF_VIEW_CH_MAX; i++) vlff_view_msg_unref(p->latest[i]), free(p->b64[i]);
   vlff_mcap_reader_free(p->r);
   free(p->file);
   free(p);

@@ -113,17 +113,20 @@ static const char log_schema[] =
     "\"file\":{\"type\":\"string\"},\"line\":{\"type\":\"integer\",\"minimum\":0}},"
     "\"required\":[\"timestamp\",\"level\",\"message\",\"name\",\"file\",\"line\"]}";
 
-static const struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
-    {"/map", "foxglove.SceneUpdate", scene_schema},
-    {"/map/voxels", "vlff.VoxelDelta", voxels_schema},
-    {"/camera/image", "foxglove.CompressedImage", compressed_schema},
-    {"/camera/labels", "foxglove.CompressedImage", compressed_schema},
-    {"/tf", "foxglove.FrameTransform", tf_schema},
-    {"/vlff/status", "vlff.Status", status_schema},
-    {"/camera/calibration", "foxglove.CameraCalibration", calib_schema},
-    {"/log", "foxglove.Log", log_schema},
+static struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
+    {"/map", "foxglove.SceneUpdate", scene_schema, "json"},
+    {"/map/voxels", "vlff.VoxelDelta", voxels_schema, "json"},
+    {"/camera/image", "foxglove.CompressedImage", compressed_schema, "json"},
+    {"/camera/labels", "foxglove.CompressedImage", compressed_schema, "json"},
+    {"/tf", "foxglove.FrameTransform", tf_schema, "json"},
+    {"/vlff/status", "vlff.Status", status_schema, "json"},
+    {"/camera/calibration", "foxglove.CameraCalibration", calib_schema, "json"},
+    {"/log", "foxglove.Log", log_schema, "json"},
+    {"/map/points", "foxglove.PointCloud", NULL, "protobuf"}, /* its schema is built at the first call */
 };
 
 const struct vlff_view_channel_def *vlff_view_channel(int ch) {
-  return ch >= 1 && ch <= VLFF_VIEW_CH_COUNT ? &defs[ch - 1] : NULL;
+  if (ch < 1 || ch > VLFF_VIEW_CH_COUNT) return NULL;
+  if (ch == VLFF_VIEW_CH_CLOUD) defs[ch - 1].schema = vlff_view_cloud_descriptor_b64();
+  return &defs[ch - 1];
 }

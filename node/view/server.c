@@ -167,6 +167,7 @@ struct vlff_view {
   int nch;              /* channels served: this build's, or a recording's */
   struct vlff_view_log *log; /* the /log channel's lines (live only) */
   int record_failed;    /* the recording stopped at its first write error */
+  uint64_t rec_whole_ns, rec_whole_version; /* the whole map last recorded: when, which version */
   struct client *clients;
   struct vlff_view_counters c;
   struct vlff_prompts *mailbox;
@@ -319,7 +320,8 @@ static void send_status(struct client *cl, int level, const char *fmt, ...) {
 static struct vlff_view_chan chan_info(const struct vlff_view *v, int ch) {
   if (v->p.play) return *vlff_view_play_channel(v->p.play, ch);
   const struct vlff_view_channel_def *d = vlff_view_channel(ch);
-  return (struct vlff_view_chan){d->topic, "json", d->schema_name, "jsonschema", d->schema};
+  int pb = !strcmp(d->encoding, "protobuf");
+  return (struct vlff_view_chan){d->topic, d->encoding, d->schema_name, pb ? "protobuf" : "jsonschema", d->schema};
 }
 
 /* The first message of a new subscription to ch. */
@@ -663,10 +665,22 @@ static int write_one(struct client *cl) {
     kind = LWS_WRITE_BINARY;
   }
   int w = lws_write(cl->wsi, p, n, kind);
-  cl->head = q->next;
-  if (!cl->head) cl->tail = NULL;
-  qitem_free(cl, q);
   if (w < (int)n) return -1;
+  if (q->m->next) {
+    /* the next piece of a message sent in pieces takes its place at the head: the
+     * pieces go out in a row, ahead of what was queued after them, and only the
+     * piece waiting counts against the queue limit, so that a whole map larger
+     * than the limit reaches a client that reads */
+    struct vlff_view_msg *next = vlff_view_msg_ref(q->m->next);
+    cl->queued -= q->m->len;
+    vlff_view_msg_unref(q->m);
+    q->m = next;
+    cl->queued += next->len;
+  } else {
+    cl->head = q->next;
+    if (!cl->head) cl->tail = NULL;
+    qitem_free(cl, q);
+  }
   cl->v->c.messages_sent++;
   cl->v->c.bytes_sent += n;
   if (cl->head) lws_callback_on_writable(cl->wsi);
@@ -694,16 +708,23 @@ static void check_idle(struct vlff_view *v) {
 }
 
 /* Every message the feed made, into the recording (log time: now, on the wall
- * clock; publish time: the message's own). A write error ends the recording with
- * one line; the viewer serves on. */
+ * clock; publish time: the message's own). The whole map opens a chunk of its
+ * own, so that the chunk indexes lead a seeking reader to it. A write error ends
+ * the recording with one line; the viewer serves on. */
 static void record(struct vlff_view *v, struct vlff_view_msg **out, int n) {
   struct vlff_mcap_writer *w = v->p.record;
   if (!w || v->record_failed) return;
   uint64_t now = vlff_wall_ns();
   int rc = 0;
-  for (int i = 0; i < n && !rc; i++)
-    rc = vlff_mcap_writer_message(w, (uint16_t)out[i]->channel, now, out[i]->t_ns, vlff_view_msg_payload(out[i]),
-                                  out[i]->len);
+  for (int i = 0; i < n && !rc; i++) {
+    if (out[i]->whole && !(i && out[i - 1]->whole)) rc = vlff_mcap_writer_flush(w);
+    for (struct vlff_view_msg *m = out[i]; m && !rc; m = m->next) /* every piece */
+      rc = vlff_mcap_writer_message(w, (uint16_t)m->channel, now, m->t_ns, vlff_view_msg_payload(m), m->len);
+    if (out[i]->whole && out[i]->channel == VLFF_VIEW_CH_SCENE) {
+      v->rec_whole_ns = vlff_now_ns();
+      v->rec_whole_version = out[i]->version;
+    }
+  }
   if (!rc) rc = vlff_mcap_writer_tick(w, vlff_now_ns());
   if (rc) {
     v->record_failed = 1;
@@ -711,12 +732,39 @@ static void record(struct vlff_view *v, struct vlff_view_msg **out, int n) {
   }
 }
 
+/* The map's channels carry changes, and a reader that seeks (Foxglove after a
+ * jump, a script starting mid-file) holds only what came after the point it
+ * started from: so while the map changes, the whole map (voxels and scene, the
+ * ones a new subscriber gets) goes into the recording every record_map_s, and
+ * the latest whole map before any point, with the changes after it, is the map
+ * at that point. Live clients get none of these. */
+static void record_whole_map(struct vlff_view *v) {
+  if (!v->p.record || v->record_failed || !v->feed) return;
+  uint64_t version = vlff_feed_version(v->feed), now = vlff_now_ns();
+  double every = v->p.record_map_s > 0 ? v->p.record_map_s : 10;
+  if (!version || version == v->rec_whole_version || now - v->rec_whole_ns < (uint64_t)(every * 1e9)) return;
+  /* the voxels first, as the feed sends a whole map */
+  const int chans[2] = {VLFF_VIEW_CH_VOXELS, VLFF_VIEW_CH_SCENE};
+  struct vlff_view_msg *out[2];
+  int n = 0;
+  for (int i = 0; i < 2; i++) {
+    struct vlff_view_msg *m = vlff_feed_current(v->feed, chans[i], NULL);
+    if (m) out[n++] = m;
+  }
+  record(v, out, n);
+  for (int i = 0; i < n; i++) vlff_view_msg_unref(out[i]);
+}
+
 /* The channels, declared in the recording before any message. */
 static int declare_channels(struct vlff_view *v) {
   for (int ch = 1; ch <= v->nch; ch++) {
     struct vlff_view_chan d = chan_info(v, ch);
+    /* MCAP holds a protobuf schema as the FileDescriptorSet's bytes, not base64 */
+    const void *schema = d.schema;
+    size_t len = strlen(d.schema);
+    if (ch == VLFF_VIEW_CH_CLOUD) schema = vlff_view_cloud_descriptor(&len);
     if (vlff_mcap_writer_channel(v->p.record, (uint16_t)ch, d.topic, d.encoding, d.schema_name, d.schema_encoding,
-                                 d.schema, strlen(d.schema))) {
+                                 schema, len)) {
       vlff_log(VLFF_LOG_WARN, "vlff-view", "--record: %s", vlff_mcap_writer_error(v->p.record));
       return -1;
     }
@@ -744,6 +792,7 @@ static void tick(lws_sorted_usec_list_t *sul) {
     for (int i = 0, k = n; i < k && n < 32; i++)
       if (out[i]->channel == VLFF_VIEW_CH_STATUS) n += vlff_view_log_status(v->log, out[i], out + n, 32 - n);
     record(v, out, n);
+    record_whole_map(v);
   }
   for (int i = 0; i < n; i++) {
     for (struct client *cl = v->clients; cl; cl = cl->next)

@@ -52,7 +52,9 @@ enum vlff_view_channel {
   VLFF_VIEW_CH_CALIB,      /* /camera/calibration: foxglove.CameraCalibration, the pinhole
                               intrinsics the frames carry (from the source's config), with each image */
   VLFF_VIEW_CH_LOG,        /* /log: foxglove.Log, what changed in the status (logch.c) */
-  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_LOG
+  VLFF_VIEW_CH_CLOUD,      /* /map/points: foxglove.PointCloud in protobuf (cloud.c), the occupied
+                              voxels (whole, in pieces) and then the voxels that changed */
+  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_CLOUD
 };
 
 /* JPEG quality of the camera image channel. */
@@ -61,7 +63,8 @@ enum vlff_view_channel {
 struct vlff_view_channel_def {
   const char *topic;
   const char *schema_name;
-  const char *schema; /* JSON Schema text */
+  const char *schema; /* JSON Schema text; for protobuf, the FileDescriptorSet in base64 */
+  const char *encoding; /* "json" (messages and schema), or "protobuf" */
 };
 /* The definition of channel id ch (1..VLFF_VIEW_CH_COUNT). */
 const struct vlff_view_channel_def *vlff_view_channel(int ch);
@@ -78,13 +81,37 @@ struct vlff_view_msg {
   int channel;       /* enum vlff_view_channel */
   uint64_t t_ns;     /* Foxglove log time, ns since the epoch */
   uint64_t version;  /* map version it describes (map channels), else 0 */
+  int whole;         /* map channels: the whole map (a new subscriber's, a recording's
+                        periodic one), not the changes since the previous version */
   size_t len, cap;   /* payload bytes, capacity */
   unsigned char *buf; /* headroom + cap bytes */
+  /* the next piece of a message sent in pieces (the point cloud's), sent right
+   * after this one; a message holds a reference to its next */
+  struct vlff_view_msg *next;
 };
 struct vlff_view_msg *vlff_view_msg_new(int channel, size_t cap);
 unsigned char *vlff_view_msg_payload(struct vlff_view_msg *m);
 struct vlff_view_msg *vlff_view_msg_ref(struct vlff_view_msg *m);
 void vlff_view_msg_unref(struct vlff_view_msg *m);
+
+/* ----------------------------------------------------------- point cloud */
+
+/* /map/points (cloud.c): foxglove.PointCloud in protobuf, in the map's frame, identity
+ * pose; each point VLFF_VIEW_CLOUD_STRIDE bytes: x, y, z (float32, the voxel's
+ * centre, m), red, green, blue, alpha (uint8: the prompt's colour; alpha 0 for a
+ * voxel no longer occupied), label (uint16, as in the map), confidence (uint8), one
+ * byte unused; little-endian. */
+#define VLFF_VIEW_CLOUD_STRIDE 20
+/* The channel's schema: the FileDescriptorSet of foxglove.PointCloud and the
+ * messages it uses (binary, as MCAP holds it; *len its size), and in base64, as the
+ * WebSocket protocol advertises it. */
+const uint8_t *vlff_view_cloud_descriptor(size_t *len);
+const char *vlff_view_cloud_descriptor_b64(void);
+/* PointClouds of the n packed points, in pieces of at most piece_bytes each
+ * (chained through next; at least one, empty when n is 0), stamped t_ns; the
+ * number made in *pieces. NULL out of memory. */
+struct vlff_view_msg *vlff_view_cloud_msgs(int channel, const char *frame, const uint8_t *points, size_t n,
+                                           uint64_t t_ns, size_t piece_bytes, int *pieces);
 
 /* ------------------------------------------------------------------ feed */
 
@@ -92,7 +119,12 @@ struct vlff_feed_params {
   const char *map_name;     /* map segment */
   const char *frames_name;  /* frame ring, NULL or "" = no camera image */
   double image_hz;          /* most camera images per second sent */
+  double map_hz;            /* most map updates per second sent (0 = every version) */
   uint32_t brick;           /* brick edge in voxels for the scene channel */
+  size_t cloud_piece_bytes; /* the largest point cloud message (0 = 1 MiB) */
+  /* the map's frame (the scene, the point cloud, the pose's parent) and the
+   * camera's (images, calibration, the pose's child): NULL = "world", "camera" */
+  const char *world_frame, *camera_frame;
 };
 
 /* The HTTP statuses requests are refused with: 400 malformed, 403 a Host or Origin
@@ -231,6 +263,10 @@ struct vlff_view_params {
   /* a recording (mcap.h) every message sent on a channel is written to, with the
    * channels declared by vlff_view_new; the caller closes it after the server */
   struct vlff_mcap_writer *record;
+  /* while the map changes, the whole map (scene and voxels) goes into the
+   * recording every record_map_s seconds (0 = 10), each time opening a chunk, so
+   * that a reader seeking into the file finds it shortly before any point */
+  double record_map_s;
 };
 
 struct vlff_view;

@@ -1,12 +1,15 @@
 // Reads an MCAP recording with @mcap/core (CRCs checked: chunks, summary; the data
 // section's with @foxglove/crc) and prints one JSON line: ok (every message read,
-// as many as the statistics count, each a JSON text), messages, channels, chunks,
+// as many as the statistics count, each a JSON text or, on a protobuf channel, a
+// message protobufjs decodes with the channel's schema), messages, channels, chunks,
 // bytes, span_s (first to last log time). Usage: node mcap_check.js FILE
 'use strict';
 const fs = require('fs');
 const { McapIndexedReader } = require('@mcap/core');
 const { crc32 } = require('@foxglove/crc');
 const zstd = require('@foxglove/wasm-zstd');
+const protobuf = require('protobufjs');
+require('protobufjs/ext/descriptor');
 
 async function main() {
   await zstd.isLoaded;
@@ -19,8 +22,19 @@ async function main() {
     });
     const td = new TextDecoder('utf-8', { fatal: true });
     let first = null, last = null;
+    const types = new Map();
+    const typeOf = (c) => {
+      if (!types.has(c.id)) {
+        const s = r.schemasById.get(c.schemaId);
+        const set = protobuf.descriptor.FileDescriptorSet.decode(s.data);
+        types.set(c.id, protobuf.Root.fromDescriptor(set).lookupType(s.name));
+      }
+      return types.get(c.id);
+    };
     for await (const m of r.readMessages({ validateCrcs: true })) {
-      JSON.parse(td.decode(m.data));
+      const c = r.channelsById.get(m.channelId);
+      if (c.messageEncoding === 'protobuf') typeOf(c).decode(m.data);
+      else JSON.parse(td.decode(m.data));
       if (first === null) first = m.logTime;
       last = m.logTime;
       out.messages++;

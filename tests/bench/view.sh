@@ -9,7 +9,8 @@
 # bytes per frame against raw RGB (target <= 1/8); the map bytes per update per client
 # over the bytes (label and confidence) of the voxels that changed in it
 # (view_bytes_per_update_vs_changed: what the change log saves the viewer from
-# sending); and, after the clients left and 3 s
+# sending), and the same of /map/points alone (view_points_bytes_per_update_vs_changed:
+# 20-byte points of the changed voxels); and, after the clients left and 3 s
 # without a subscriber, the age of a new client's first message on each channel
 # (first_message_age_max_s, the oldest; each channel's latest is < its period old;
 # /log, whose latest line is as old as its event, is printed but not counted).
@@ -88,6 +89,8 @@ print(f"RESULT view_cpu_frac_one_core={view:.4f} view_cpu_target=0.05 target_met
       f"view_update_latency_p99_ms={c['p99']:.1f} view_bytes_per_update={c['bytes_per_update_map']:.0f} "
       f"view_bytes_per_update_voxels={c['bytes_per_update_voxels']:.0f} view_bytes_per_update_all_channels={c['bytes_per_update_all']:.0f} "
       f"view_bytes_per_update_vs_changed={c['bytes_per_update_map'] / changed if changed > 0 else float('nan'):.2f} "
+      f"view_points_bytes_per_update={c['bytes_per_update_points']:.0f} "
+      f"view_points_bytes_per_update_vs_changed={c['bytes_per_update_points'] / changed if changed > 0 else float('nan'):.2f} "
       f"image_bytes_vs_raw={img:.4f} image_target={1 / 8:.4f} first_message_age_max_s={c['first_age_max']:.3f} "
       f"clients={c['clients'] - c['closed']} mcap_ok={mc['ok']} mcap_mb_per_min={mb_min:.2f} "
       f"mcap_recorder_cpu_frac_one_core={rec_cpu:.4f}")

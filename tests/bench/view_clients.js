@@ -12,7 +12,7 @@
 const WebSocket = require('ws');
 const [port, n, secs] = process.argv.slice(2).map(Number);
 const LATE_GAP = 3;
-const lat = [], bytes = { map: 0, voxels: 0, all: 0 }, image = { bytes: 0, n: 0, w: 0, h: 0 }, socks = [];
+const lat = [], bytes = { map: 0, voxels: 0, points: 0, all: 0 }, image = { bytes: 0, n: 0, w: 0, h: 0 }, socks = [];
 let versions = 0, closed = 0;
 const td = new TextDecoder();
 const t0 = process.hrtime.bigint();
@@ -35,6 +35,7 @@ for (let c = 0; c < n; c++) {
       bytes.all += d.length;
       if (topic === '/map' || topic === '/map/voxels') bytes.map += d.length;
       if (topic === '/map/voxels') bytes.voxels += d.length;
+      if (topic === '/map/points') bytes.points += d.length;
       if (topic === '/camera/image') image.bytes += d.length - 13, image.n++;
       if (topic === '/camera/calibration' && !image.w) ({ width: image.w, height: image.h } = JSON.parse(d.subarray(13)));
     }
@@ -79,7 +80,8 @@ setTimeout(async () => {
   lat.sort((a, b) => a - b);
   const q = (p) => (lat.length ? lat[Math.min(lat.length - 1, Math.floor(p * lat.length))] : NaN);
   const res = { clients: n, closed, versions, p50: q(0.5), p99: q(0.99), max: lat.at(-1),
-    bytes_per_update_map: versions ? bytes.map / versions : 0, bytes_per_update_voxels: versions ? bytes.voxels / versions : 0, bytes_per_update_all: versions ? bytes.all / versions : 0,
+    bytes_per_update_map: versions ? bytes.map / versions : 0, bytes_per_update_voxels: versions ? bytes.voxels / versions : 0,
+    bytes_per_update_points: versions ? bytes.points / versions : 0, bytes_per_update_all: versions ? bytes.all / versions : 0,
     image_bytes: image.n ? image.bytes / image.n : NaN, image_raw_bytes: image.w * image.h * 3 || NaN,
     secs: Number(process.hrtime.bigint() - t0) / 1e9 };
   await new Promise((r) => setTimeout(r, LATE_GAP * 1000));

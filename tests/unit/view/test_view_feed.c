@@ -5,7 +5,8 @@
  * holding them (an emptied brick deleted), a version without changes as an empty
  * delta, a prompt change whole again; channels nobody wants are not encoded (the
  * feed's count of encoded messages stays put), and a new subscriber gets the whole
- * current map.
+ * current map. The point cloud: the whole map in pieces under the piece bound, a
+ * change as the changed voxels, in the frame given.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -104,7 +105,7 @@ static int teardown(void **state) {
 }
 
 static void test_feed(void **state) {
-  struct vlff_feed_params fp = {name, "", 2, 4};
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .image_hz = 2, .brick = 4};
   struct vlff_feed *f = vlff_feed_new(&fp);
   struct polled p;
   assert_non_null(f);
@@ -240,7 +241,7 @@ static int publish_runs(struct vlff_map *m, const struct vlff_map_range *r, size
 
 static void test_feed_follows_log(void **state) {
   (void)state;
-  struct vlff_feed_params fp = {name, "", 2, 4};
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .image_hz = 2, .brick = 4};
   struct vlff_feed *f = vlff_feed_new(&fp);
   struct polled p;
   struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
@@ -339,7 +340,7 @@ static void test_fresh(void **state) {
   uint64_t t0 = vlff_shm_now_ns();
   put_frame(r, t0, 1.0);
   assert_int_equal(publish(m, prompts, 3), 0);
-  struct vlff_feed_params fp = {name, ring_name, 0, 4};
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = ring_name, .image_hz = 0, .brick = 4};
   struct vlff_feed *f = vlff_feed_new(&fp);
   assert_non_null(f);
   struct polled p;
@@ -389,7 +390,100 @@ static void test_fresh(void **state) {
   vlff_shm_unlink(ring_name);
 }
 
+/* The points of a /map/points piece: its payload ends with them (the data field
+ * is the last), k of them. */
+static const uint8_t *piece_points(struct vlff_view_msg *m, size_t k) {
+  assert_true(m->len > k * VLFF_VIEW_CLOUD_STRIDE);
+  return vlff_view_msg_payload(m) + m->len - k * VLFF_VIEW_CLOUD_STRIDE;
+}
+
+/* Whether the payload holds the bytes s[n]. */
+static int holds(struct vlff_view_msg *m, const char *s, size_t n) {
+  const uint8_t *p = vlff_view_msg_payload(m);
+  for (size_t i = 0; i + n <= m->len; i++)
+    if (!memcmp(p + i, s, n)) return 1;
+  return 0;
+}
+
+/* The cloud's first message of a poll, or NULL. */
+static struct vlff_view_msg *poll_cloud(struct vlff_feed *f) {
+  struct vlff_view_counters c = {0};
+  struct vlff_view_msg *out[16], *cloud = NULL;
+  int n = vlff_feed_poll(f, &c, 1u << VLFF_VIEW_CH_CLOUD, out, 16);
+  for (int i = 0; i < n; i++) {
+    if (out[i]->channel == VLFF_VIEW_CH_CLOUD && !cloud) cloud = vlff_view_msg_ref(out[i]);
+    vlff_view_msg_unref(out[i]);
+  }
+  return cloud;
+}
+
+static void test_cloud(void **state) {
+  (void)state;
+  /* 1100 bytes: 29 points of 20 bytes beside the head (512 bytes and the frame) */
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .image_hz = 2, .brick = 4,
+                                .cloud_piece_bytes = 1100, .world_frame = "odom"};
+  struct vlff_feed *f = vlff_feed_new(&fp);
+  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(f);
+  assert_non_null(m);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  usleep(1100000); /* the feed tries to attach once a second */
+  struct vlff_view_msg *whole = poll_cloud(f);
+  assert_non_null(whole);
+  /* NX * NY + 2 occupied voxels in pieces of 29 points, each under the bound */
+  const size_t occupied = NX * NY + 2, per = 29;
+  size_t pieces = 0, seen = 0, labels_seen[3] = {0};
+  for (struct vlff_view_msg *p = whole; p; p = p->next, pieces++) {
+    size_t k = occupied - seen < per ? occupied - seen : per;
+    assert_true(p->len <= 1100);
+    assert_true(p->whole);
+    assert_true(holds(p, "\x12\x04odom", 6)); /* frame_id: field 2, 4 bytes */
+    const uint8_t *pt = piece_points(p, k);
+    for (size_t i = 0; i < k; i++, pt += VLFF_VIEW_CLOUD_STRIDE) {
+      uint16_t l = (uint16_t)(pt[16] | pt[17] << 8);
+      assert_true(l < 3);
+      assert_int_equal(pt[15], 255); /* occupied: opaque */
+      assert_int_equal(pt[18], 200); /* the confidence */
+      labels_seen[l]++;
+    }
+    seen += k;
+  }
+  assert_int_equal(seen, occupied);
+  assert_int_equal(pieces, (occupied + per - 1) / per);
+  assert_int_equal(labels_seen[1], NX * NY);
+  assert_int_equal(vlff_feed_encoded(f, VLFF_VIEW_CH_CLOUD), pieces);
+  /* a first subscriber gets the same whole map */
+  struct vlff_view_msg *cur = vlff_feed_current(f, VLFF_VIEW_CH_CLOUD, NULL);
+  assert_ptr_equal(cur, whole);
+  vlff_view_msg_unref(cur);
+  vlff_view_msg_unref(whole);
+
+  /* one voxel freed, one labelled: a change of two points, the freed one transparent */
+  labels[at(5, 5, 1)] = VLFF_LABEL_FREE;
+  labels[at(2, 2, 3)] = 0;
+  assert_int_equal(publish(m, prompts, 3), 0);
+  struct vlff_view_msg *delta = poll_cloud(f);
+  assert_non_null(delta);
+  assert_null(delta->next);
+  assert_false(delta->whole);
+  const uint8_t *pt = piece_points(delta, 2);
+  /* index order: (5, 5, 1) before (2, 2, 3) */
+  assert_int_equal(pt[16] | pt[17] << 8, VLFF_LABEL_FREE);
+  assert_int_equal(pt[15], 0);
+  uint32_t u = (uint32_t)pt[0] | (uint32_t)pt[1] << 8 | (uint32_t)pt[2] << 16 | (uint32_t)pt[3] << 24;
+  float x;
+  memcpy(&x, &u, 4);
+  assert_true(x > -1 + 5.5 * 0.25 - 1e-4 && x < -1 + 5.5 * 0.25 + 1e-4);
+  assert_int_equal(pt[20 + 16] | pt[20 + 17] << 8, 0);
+  assert_int_equal(pt[20 + 15], 255);
+  vlff_view_msg_unref(delta);
+  vlff_map_detach(m);
+  vlff_feed_free(f);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test_setup_teardown(test_feed, setup, teardown),
     cmocka_unit_test_setup_teardown(test_fresh, setup, teardown),
-    cmocka_unit_test_setup_teardown(test_feed_follows_log, setup, teardown))
+    cmocka_unit_test_setup_teardown(test_feed_follows_log, setup, teardown),
+    cmocka_unit_test_setup_teardown(test_cloud, setup, teardown))

@@ -5,12 +5,24 @@
 // published one (the npm package @foxglove/schemas: field names, types, required
 // fields, no field it does not name), and checks the voxels it was sent (a whole
 // map, then deltas) against `vlff-shm label` at the same points and map version.
+// /map/points (foxglove.PointCloud in protobuf) is decoded as Foxglove decodes it,
+// with protobufjs from the FileDescriptorSet the channel advertises; that
+// descriptor is compared with the .proto definitions @foxglove/schemas generates,
+// and a second viewer with --max-queue-mb 1 sends a client the whole map in pieces
+// under its queue limit, the points equal to the voxels of /map/voxels; that viewer
+// takes its segments and frame ids from a config (--config), and a config the
+// loader refuses stops it with the loader's message.
 'use strict';
 const assert = require('assert');
 const { FoxgloveClient } = require('@foxglove/ws-protocol');
 const published = require('@foxglove/schemas/jsonschema');
 const WebSocket = require('ws');
-const { start, shm, shmAsync, sleep, waitVersion, learnerOfStat, ok, plan, check } = require('./demo');
+const { spawn, spawnSync } = require('child_process');
+const fs = require('fs');
+const protobuf = require('protobufjs');
+require('protobufjs/ext/descriptor');
+const { generateProto, foxgloveMessageSchemas, foxgloveEnumSchemas } = require('@foxglove/schemas/internal');
+const { start, prog, shm, shmAsync, sleep, waitVersion, learnerOfStat, ok, plan, check } = require('./demo');
 const { validate, sameFields } = require('./schema');
 
 // Foxglove's published JSON Schema for a schema name "foxglove.X", or undefined.
@@ -18,6 +30,62 @@ const publishedOf = (name) => (name.startsWith('foxglove.') ? published[name.sli
 
 const FREE = 65534;
 const png = require('./png');
+
+// A protobuf channel's message type, from the FileDescriptorSet it advertises (base64),
+// as Foxglove builds it (protobufjs' descriptor extension).
+function protobufType(c) {
+  const set = protobuf.descriptor.FileDescriptorSet.decode(Buffer.from(c.schema, 'base64'));
+  return { set, type: protobuf.Root.fromDescriptor(set).lookupType(c.schemaName) };
+}
+// A decoded PointCloud in the shape of Foxglove's JSON schema (google.protobuf.Timestamp
+// is Foxglove's {sec, nsec}; bytes in base64), and its packed data.
+function cloudObject(type, data) {
+  const u8 = new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
+  const o = type.toObject(type.decode(u8), { longs: Number, enums: Number, bytes: String, defaults: true });
+  o.timestamp = { sec: o.timestamp.seconds, nsec: o.timestamp.nanos };
+  return { o, bytes: Buffer.from(o.data, 'base64') };
+}
+
+// The descriptor's files against the .proto text @foxglove/schemas generates: the
+// same file names, package, imports, message, and fields (label, type, name, number)
+// and enum values. Returns a list of differences.
+function descriptorVsPublished(set) {
+  const errs = [];
+  const scalar = { 1: 'double', 3: 'int64', 5: 'int32', 7: 'fixed32', 9: 'string', 12: 'bytes', 13: 'uint32',
+    15: 'sfixed32', 8: 'bool' };
+  const timestampProto = 'syntax = "proto3";\npackage google.protobuf;\nmessage Timestamp {\n  int64 seconds = 1;\n' +
+    '  int32 nanos = 2;\n}\n';
+  for (const f of set.file) {
+    const name = f.name.replace(/\.proto$/, '');
+    let text;
+    if (name === 'google/protobuf/timestamp') text = timestampProto; // the well-known type
+    else {
+      const schema = foxgloveMessageSchemas[name.replace('foxglove/', '')];
+      if (!schema) { errs.push(`${f.name}: not a schema of @foxglove/schemas`); continue; }
+      text = generateProto(schema, Object.values(foxgloveEnumSchemas).filter((e) => e.parentSchemaName === schema.name));
+    }
+    const lines = text.split('\n').map((l) => l.trim()).filter((l) => l && !l.startsWith('//'));
+    const want = {
+      package: lines.find((l) => l.startsWith('package ')).slice(8, -1),
+      imports: lines.filter((l) => l.startsWith('import ')).map((l) => l.slice(8, -2)).sort(),
+      message: /^message (\w+)/.exec(lines.find((l) => l.startsWith('message ')))[1],
+      fields: lines.filter((l) => /^(repeated )?[\w.]+ \w+ = \d+;$/.test(l)).map((l) => l.replace(/[\w]+\./g, '')),
+      values: lines.filter((l) => /^[A-Z0-9_]+ = \d+;$/.test(l)),
+    };
+    const m = f.messageType[0];
+    const got = {
+      package: f.package, imports: [...f.dependency].sort(), message: m.name,
+      fields: m.field.map((d) => `${d.label === 3 ? 'repeated ' : ''}${d.typeName ? d.typeName.split('.').at(-1) :
+        scalar[d.type]} ${d.name} = ${d.number};`),
+      values: (m.enumType || []).flatMap((e) => e.value.map((v) => `${v.name} = ${v.number};`)),
+    };
+    if (f.syntax !== 'proto3') errs.push(`${f.name}: syntax ${f.syntax}`);
+    if (set.file.length !== 6 || m === undefined) errs.push(`${f.name}: one message per file`);
+    const a = JSON.stringify(got), b = JSON.stringify(want);
+    if (a !== b) errs.push(`${f.name}: ${a} against @foxglove/schemas' ${b}`);
+  }
+  return errs;
+}
 
 // A baseline or progressive JPEG's size from its start-of-frame segment.
 function jpegSize(b) {
@@ -50,9 +118,15 @@ async function main() {
       }
     });
     client.on('message', ({ subscriptionId, timestamp, data }) => {
-      const c = bySub[subscriptionId], msg = JSON.parse(td.decode(data));
-      const errs = validate(JSON.parse(c.schema), msg);
-      if (errs.length) bad.push(`${c.topic}: ${errs.slice(0, 3).join('; ')}`);
+      const c = bySub[subscriptionId];
+      let msg;
+      if (c.encoding === 'protobuf') {
+        msg = cloudObject(protobufType(c).type, data).o;
+      } else {
+        msg = JSON.parse(td.decode(data));
+        const errs = validate(JSON.parse(c.schema), msg);
+        if (errs.length) bad.push(`${c.topic}: ${errs.slice(0, 3).join('; ')}`);
+      }
       const pub = publishedOf(c.schemaName);
       if (pub) {
         const perrs = validate(pub, msg, '$', [], true);
@@ -83,14 +157,19 @@ async function main() {
       waiters.push(() => { if (cond()) { clearTimeout(t); resolve(); return true; } return false; });
     });
 
-    await until(() => serverInfo && Object.keys(chans).length === 8, 10000, 'serverInfo and advertise');
-    assert.deepStrictEqual(Object.keys(chans).sort(),
-      ['/camera/calibration', '/camera/image', '/camera/labels', '/log', '/map', '/map/voxels', '/tf', '/vlff/status']);
+    await until(() => serverInfo && Object.keys(chans).length === 9, 10000, 'serverInfo and advertise');
+    assert.deepStrictEqual(Object.keys(chans).sort(), ['/camera/calibration', '/camera/image', '/camera/labels', '/log',
+      '/map', '/map/points', '/map/voxels', '/tf', '/vlff/status']);
     for (const c of Object.values(chans)) {
+      if (c.topic === '/map/points') continue;
       assert.strictEqual(c.encoding, 'json');
       assert.strictEqual(c.schemaEncoding, 'jsonschema');
       assert.strictEqual(JSON.parse(c.schema).title, c.schemaName);
     }
+    const pc = chans['/map/points'];
+    assert.ok(pc.encoding === 'protobuf' && pc.schemaEncoding === 'protobuf' && pc.schemaName === 'foxglove.PointCloud',
+      JSON.stringify(pc));
+    assert.deepStrictEqual(descriptorVsPublished(protobufType(pc).set), []);
     assert.strictEqual(chans['/map'].schemaName, 'foxglove.SceneUpdate');
     assert.strictEqual(chans['/camera/image'].schemaName, 'foxglove.CompressedImage');
     assert.strictEqual(chans['/camera/labels'].schemaName, 'foxglove.CompressedImage');
@@ -98,8 +177,10 @@ async function main() {
     assert.strictEqual(chans['/tf'].schemaName, 'foxglove.FrameTransform');
     assert.deepStrictEqual(serverInfo.capabilities, [], 'no clientPublish without a token');
     assert.strictEqual(chans['/log'].schemaName, 'foxglove.Log');
-    ok('serverInfo and eight channels advertised with JSON schemas');
-    const foxgloveChannels = Object.values(chans).filter((c) => c.schemaName.startsWith('foxglove.'));
+    ok('serverInfo and nine channels advertised: JSON schemas, and /map/points in protobuf whose FileDescriptorSet ' +
+      'has the files, imports, messages, fields and numbers of the .proto that @foxglove/schemas generates');
+    const foxgloveChannels = Object.values(chans).filter((c) => c.schemaName.startsWith('foxglove.') &&
+      c.encoding === 'json');
     for (const c of foxgloveChannels) {
       const pub = publishedOf(c.schemaName);
       assert.ok(pub && pub.title === c.schemaName, `${c.schemaName} is a schema of @foxglove/schemas`);
@@ -110,11 +191,11 @@ async function main() {
       'field names, types and required fields of @foxglove/schemas');
 
     await until(() => fullSeen >= 1 && deltaSeen >= 2 && ['/camera/image', '/camera/labels', '/camera/calibration',
-      '/tf', '/vlff/status', '/log']
+      '/tf', '/vlff/status', '/log', '/map/points']
       .every((t) => got[t]), 120000, 'a whole map, two deltas and every channel');
     assert.deepStrictEqual(bad, [], 'every message matches its advertised schema and the published one');
     for (const n of ['foxglove.SceneUpdate', 'foxglove.CompressedImage', 'foxglove.CameraCalibration',
-      'foxglove.FrameTransform', 'foxglove.Log'])
+      'foxglove.FrameTransform', 'foxglove.Log', 'foxglove.PointCloud'])
       assert.ok(checkedPublished[n] > 0, `messages checked against ${n}`);
     ok(`every channel delivered, ${Object.values(got).reduce((a, l) => a + l.length, 0)} messages match their schemas; ` +
       `against @foxglove/schemas: ${JSON.stringify(checkedPublished)}`);
@@ -257,6 +338,163 @@ async function main() {
     assert.strictEqual(got['/camera/image'].length, n, 'no images after unsubscribing');
     ok('unsubscribe stops a channel');
     client.close();
+
+    // A second viewer with --max-queue-mb 1, a client of /map/voxels and /map/points:
+    // the whole map comes in point cloud pieces of at most 1/8 of the queue limit,
+    // the client is not dropped, and after each version the points are the voxels.
+    // Its segments and frames come from a config: the map's frame "odom", the
+    // camera's "cam_optical".
+    const PIECE = (1 << 20) / 8;
+    const cfg2 = `${demo.dir}/view2.yaml`;
+    fs.writeFileSync(cfg2, `shm:\n  map: "${demo.names.map}"\n  ring: "${demo.names.frames}"\n  prompts: ` +
+      `"${demo.names.prompts}"\ndds:\n  frame_id: "odom"\n  camera_frame_id: "cam_optical"\n`);
+    fs.writeFileSync(`${demo.dir}/bad.yaml`, 'dds:\n  frame_id: "odom"\n  camera_frame_id: "odom"\n');
+    const refused = spawnSync(prog.view, ['--port', '0', '--config', `${demo.dir}/bad.yaml`], { encoding: 'utf8',
+      timeout: 20000 });
+    assert.ok(refused.status === 1 && /bad\.yaml:3:\d+: key 'dds\.camera_frame_id': expected a frame distinct/
+      .test(refused.stderr), `${refused.status} ${refused.stderr}`);
+    let text = '', log2 = '';
+    const v2 = spawn(prog.view, ['--port', '0', '--config', cfg2, '--max-queue-mb', '1'],
+      { stdio: ['ignore', 'pipe', 'pipe'] });
+    process.on('exit', () => { if (v2.exitCode === null) v2.kill('SIGKILL'); });
+    v2.stderr.on('data', (d) => { log2 += d; });
+    const port2 = await new Promise((resolve, reject) => {
+      v2.stdout.on('data', (d) => {
+        text += d;
+        const m = /serving http:\/\/127\.0\.0\.1:(\d+)\//.exec(text);
+        if (m) resolve(Number(m[1]));
+      });
+      v2.on('exit', (code) => reject(new Error(`the second vlff-view exited ${code}: ${log2}`)));
+    });
+    const c2 = new FoxgloveClient({ ws: new WebSocket(`ws://127.0.0.1:${port2}/`,
+      [FoxgloveClient.SUPPORTED_SUBPROTOCOL]) });
+    const ev = [], subs2 = {};
+    let ptype = null, closed = null;
+    c2.on('advertise', (cs) => {
+      for (const c of cs) {
+        if (c.topic === '/map/points') ptype = protobufType(c).type;
+        if (['/map/voxels', '/map/points', '/tf', '/camera/calibration', '/camera/image'].includes(c.topic)) {
+          subs2[c2.subscribe(c.id)] = c;
+        }
+      }
+    });
+    c2.on('close', (e) => { closed = e; });
+    c2.on('message', ({ subscriptionId, data }) => {
+      ev.push({ topic: subs2[subscriptionId].topic, data: Buffer.from(data.buffer, data.byteOffset, data.byteLength) });
+    });
+    for (const t0 = Date.now(); ev.filter((e) => e.topic === '/map/voxels').length < 4;) {
+      if (Date.now() - t0 > 60000 || closed) throw new Error(`no four map versions from the second viewer: ${log2}`);
+      await sleep(100);
+    }
+    c2.close();
+    v2.kill('SIGINT');
+    const cloud = new Map(), vox = new Map(), perr = [];
+    let g = null, compared = 0, maxLen = 0, first = 0, points = 0, started = false, afterFirst = false;
+    const frames = new Set();
+    for (const e of ev) {
+      if (['/tf', '/camera/calibration', '/camera/image'].includes(e.topic)) {
+        const m = JSON.parse(td.decode(e.data));
+        frames.add(e.topic === '/tf' ? `${e.topic} ${m.parent_frame_id} -> ${m.child_frame_id}` : `${e.topic} ${m.frame_id}`);
+        continue;
+      }
+      if (e.topic === '/map/voxels') {
+        // every piece of the versions before this one has come: the points are the voxels
+        if (started) {
+          afterFirst = true;
+          const same = cloud.size === vox.size && [...vox].every(([k, x]) => cloud.get(k) === x);
+          if (!same) perr.push(`before version ${JSON.parse(td.decode(e.data)).version}: ${cloud.size} points, ` +
+            `${vox.size} voxels`);
+          compared++;
+        }
+        g = JSON.parse(td.decode(e.data));
+        if (g.full) vox.clear();
+        for (let n = 0; n < g.voxels.length; n += 3) {
+          if (g.voxels[n + 1] >= FREE) vox.delete(g.voxels[n]);
+          else vox.set(g.voxels[n], `${g.voxels[n + 1]},${g.voxels[n + 2]}`);
+        }
+        continue;
+      }
+      started = true;
+      if (!afterFirst) first++;
+      maxLen = Math.max(maxLen, e.data.length);
+      const { o, bytes } = cloudObject(ptype, e.data);
+      perr.push(...validate(published.PointCloud, o, '$', [], true).slice(0, 2));
+      frames.add(`${e.topic} ${o.frame_id}`);
+      if (o.point_stride !== 20 || bytes.length % 20) perr.push(`${o.frame_id} ${o.point_stride}`);
+      const at = Object.fromEntries(o.fields.map((f) => [f.name, [f.offset, f.type]]));
+      assert.deepStrictEqual(at, { x: [0, 7], y: [4, 7], z: [8, 7], red: [12, 1], green: [13, 1], blue: [14, 1],
+        alpha: [15, 1], label: [16, 3], confidence: [18, 1] }, 'the packed fields (FLOAT32 7, UINT8 1, UINT16 3)');
+      const [nx, ny] = g.dims;
+      for (let p = 0; p < bytes.length; p += 20, points++) {
+        const ijk = [0, 1, 2].map((a) => Math.round((bytes.readFloatLE(p + 4 * a) - g.origin[a]) / g.voxel_size - 0.5));
+        const idx = ijk[0] + nx * (ijk[1] + ny * ijk[2]), label = bytes.readUInt16LE(p + 16);
+        const rgba = `#${bytes.subarray(p + 12, p + 15).toString('hex')}`, alpha = bytes[p + 15];
+        if (label >= FREE) {
+          cloud.delete(idx);
+          if (alpha !== 0) perr.push(`a freed voxel ${idx} with alpha ${alpha}`);
+        } else {
+          cloud.set(idx, `${label},${bytes[p + 18]}`);
+          if (alpha !== 255 || (label < g.colors.length && rgba !== g.colors[label])) {
+            perr.push(`voxel ${idx} label ${label}: ${rgba} alpha ${alpha}, prompt colour ${g.colors[label]}`);
+          }
+        }
+      }
+    }
+    assert.deepStrictEqual(perr.slice(0, 4), []);
+    assert.deepStrictEqual([...frames].sort(), ['/camera/calibration cam_optical', '/camera/image cam_optical',
+      '/map/points odom', '/tf odom -> cam_optical'], 'the frames of the config');
+    assert.strictEqual(closed, null, 'the client of the second viewer was not dropped');
+    assert.ok(compared >= 2, `${compared} versions compared`);
+    assert.ok(maxLen <= PIECE, `a point cloud message of ${maxLen} bytes, above ${PIECE}`);
+    const whole = first > 0 ? vox.size : 0;
+    ok(`/map/points decoded by protobufjs from its descriptor, valid against @foxglove/schemas' PointCloud: the ` +
+      `whole map in ${first} piece(s) of at most ${maxLen} bytes (limit ${PIECE} with --max-queue-mb 1), ${points} ` +
+      `points in all, equal to /map/voxels after each of ${compared} versions (${whole} voxels), in the prompts' ` +
+      'colours, freed voxels transparent');
+    // A third with --max-queue-mb 0.25, below the whole map's point cloud: the pieces
+    // (32 KiB) go out one after another and only the waiting one counts, so a client
+    // of /map/points and /vlff/status that reads gets the whole map and is not dropped.
+    let text3 = '', log3 = '';
+    const v3 = spawn(prog.view, ['--port', '0', '--config', cfg2, '--max-queue-mb', '0.25'],
+      { stdio: ['ignore', 'pipe', 'pipe'] });
+    process.on('exit', () => { if (v3.exitCode === null) v3.kill('SIGKILL'); });
+    v3.stderr.on('data', (d) => { log3 += d; });
+    const port3 = await new Promise((resolve, reject) => {
+      v3.stdout.on('data', (d) => {
+        text3 += d;
+        const m = /serving http:\/\/127\.0\.0\.1:(\d+)\//.exec(text3);
+        if (m) resolve(Number(m[1]));
+      });
+      v3.on('exit', (code) => reject(new Error(`the third vlff-view exited ${code}: ${log3}`)));
+    });
+    const c3 = new FoxgloveClient({ ws: new WebSocket(`ws://127.0.0.1:${port3}/`,
+      [FoxgloveClient.SUPPORTED_SUBPROTOCOL]) });
+    const ev3 = [], subs3 = {}, occupied = new Set();
+    let closed3 = null;
+    c3.on('advertise', (cs) => {
+      for (const c of cs) if (c.topic === '/map/points' || c.topic === '/vlff/status') subs3[c3.subscribe(c.id)] = c;
+    });
+    c3.on('close', (e) => { closed3 = e; });
+    c3.on('message', ({ subscriptionId, timestamp, data }) => {
+      const t = subs3[subscriptionId].topic;
+      if (t === '/vlff/status') occupied.add(JSON.parse(td.decode(data)).map.occupied);
+      else ev3.push({ timestamp, len: data.byteLength, points: cloudObject(ptype, data).bytes.length / 20 });
+    });
+    await sleep(4000);
+    const closedBy = closed3 && `${closed3.code} ${closed3.reason}`;
+    c3.close();
+    v3.kill('SIGINT');
+    assert.strictEqual(closedBy, null, 'the client of the third viewer was not dropped');
+    const firstT = ev3.length && ev3[0].timestamp, group = ev3.filter((e) => e.timestamp === firstT);
+    const wholePoints = group.reduce((a, e) => a + e.points, 0), max3 = Math.max(...ev3.map((e) => e.len));
+    assert.ok(wholePoints * 20 > (1 << 20) / 4, `the whole map's ${wholePoints} points fit the queue limit anyway`);
+    assert.ok(occupied.has(wholePoints), `${wholePoints} points in the whole map, occupied ${[...occupied]}`);
+    assert.ok(max3 <= (1 << 20) / 32, `a piece of ${max3} bytes`);
+    ok(`--max-queue-mb 0.25: the whole map (${wholePoints} points, ${wholePoints * 20} bytes) reaches a client that ` +
+      `reads in ${group.length} pieces of at most ${max3} bytes, as many points as the status counts occupied`);
+    ok('--config: the second viewer reads the segments and frame ids of a config (points in "odom", the pose ' +
+      '"odom" -> "cam_optical", image and calibration in "cam_optical"); a config whose frames are the same is ' +
+      'refused with the loader\'s file:line message');
   });
   plan();
 }

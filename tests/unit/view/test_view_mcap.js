@@ -9,6 +9,9 @@
 // a Foxglove client: the recorded channels, every message in the file's order with
 // its bytes and publish time, no message before its recorded offset, and a late
 // subscriber given the latest of its channel. --record DIR names a file per run.
+// Seeking: with --record-map-s 2 the whole map is in the file every 2 s while the map
+// changes, each time opening a chunk, and from any point the latest whole map before
+// it with the changes after it is the map a reader playing from the start holds.
 // Bad files on --play are refused with exit 1 and a reason.
 'use strict';
 const assert = require('assert');
@@ -21,6 +24,9 @@ const { McapIndexedReader, McapStreamReader } = require('@mcap/core');
 const { crc32 } = require('@foxglove/crc');
 const zstd = require('@foxglove/wasm-zstd');
 const WebSocket = require('ws');
+const protobuf = require('protobufjs');
+require('protobufjs/ext/descriptor');
+const published = require('@foxglove/schemas/jsonschema');
 const { start, sleep, waitVersion, prog, ok, plan, check } = require('./demo');
 const { validate } = require('./schema');
 
@@ -60,6 +66,20 @@ async function until(cond, ms, what) {
     if (Date.now() - t0 > ms) throw new Error(`timed out: ${what}`);
     await sleep(50);
   }
+}
+
+// A /map/points message decoded as Foxglove decodes it (protobufjs, from the
+// channel's FileDescriptorSet), in the shape of @foxglove/schemas' PointCloud.
+const pbTypes = new Map();
+function pointCloud(c, bytes) {
+  if (!pbTypes.has(c.schema)) {
+    const set = protobuf.descriptor.FileDescriptorSet.decode(Buffer.from(c.schema, 'base64'));
+    pbTypes.set(c.schema, protobuf.Root.fromDescriptor(set).lookupType(c.schemaName));
+  }
+  const t = pbTypes.get(c.schema);
+  const o = t.toObject(t.decode(bytes), { longs: Number, enums: Number, bytes: String, defaults: true });
+  o.timestamp = { sec: o.timestamp.seconds, nsec: o.timestamp.nanos };
+  return o;
 }
 
 // Messages of the file in order: { topic, log, pub, bytes }.
@@ -102,7 +122,8 @@ async function main() {
   const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'vlff-view-mcap-'));
   process.on('exit', () => fs.rmSync(tmp, { recursive: true, force: true }));
   const file = path.join(tmp, 'run.mcap'), killed = path.join(tmp, 'killed.mcap'), full = path.join(tmp, 'full.mcap');
-  const demo = await start({ viewArgs: ['--record', file] });
+  const RECORD_MAP_S = 2;
+  const demo = await start({ viewArgs: ['--record', file, '--record-map-s', String(RECORD_MAP_S)] });
   let live, advertised, killedLog, fullExit, fullLimitKb;
   await check(demo, async () => {
     live = watch(demo.ws);
@@ -146,7 +167,9 @@ async function main() {
     assert.strictEqual(c.messageEncoding, a.encoding);
     assert.strictEqual(s.name, a.schemaName);
     assert.strictEqual(s.encoding, a.schemaEncoding);
-    assert.strictEqual(td.decode(s.data), a.schema, `${c.topic}: the schema the live server advertises`);
+    // a protobuf schema: the FileDescriptorSet's bytes, advertised in base64
+    const text = s.encoding === 'protobuf' ? Buffer.from(s.data).toString('base64') : td.decode(s.data);
+    assert.strictEqual(text, a.schema, `${c.topic}: the schema the live server advertises`);
   }
   ok(`${topics.length} channels recorded with the live server's schemas (${topics.join(', ')})`);
 
@@ -161,7 +184,8 @@ async function main() {
   for (let i = 0; i < msgs.length; i++) {
     const m = msgs[i], c = advertised[m.topic];
     if (i && m.log < msgs[i - 1].log) bad.push(`message ${i} goes back in log time`);
-    const errs = validate(JSON.parse(c.schema), JSON.parse(td.decode(m.bytes)));
+    const errs = c.encoding === 'protobuf' ? validate(published.PointCloud, pointCloud(c, m.bytes), '$', [], true)
+      : validate(JSON.parse(c.schema), JSON.parse(td.decode(m.bytes)));
     if (errs.length) bad.push(`${m.topic}: ${errs.slice(0, 2).join('; ')}`);
   }
   assert.deepStrictEqual(bad.slice(0, 5), []);
@@ -171,19 +195,97 @@ async function main() {
   ok(`@mcap/core reads ${msgs.length} messages in ${r.chunkIndexes.length} chunks with their CRCs (chunks, ` +
     'summary, data section), as many as the statistics count, each valid against its channel\'s schema');
 
+  // ---- seeking: the whole map at most RECORD_MAP_S before any change, opening its chunk
+  {
+    const state = () => ({ bricks: new Map(), voxels: new Map() });
+    const parsed = (m) => JSON.parse(td.decode(m.bytes));
+    const isWhole = (m, j) => (m.topic === '/map' ? j.deletions.some((d) => d.type === 1) : j.full);
+    // a /map message replaces bricks by id (type 1 deletes all first); a /map/voxels
+    // message sets voxels (full: all occupied ones, after forgetting the rest)
+    const apply = (st, m, j) => {
+      if (m.topic === '/map') {
+        for (const d of j.deletions) if (d.type === 1) st.bricks.clear(); else st.bricks.delete(d.id);
+        for (const e of j.entities) st.bricks.set(e.id, JSON.stringify(e.cubes));
+      } else {
+        if (j.full) st.voxels.clear();
+        for (let i = 0; i < j.voxels.length; i += 3) {
+          const [idx, label, conf] = j.voxels.slice(i, i + 3);
+          if (label <= 0xfffd) st.voxels.set(idx, `${label},${conf}`); else st.voxels.delete(idx);
+        }
+      }
+    };
+    const same = (a, b) => a.size === b.size && [...a].every(([k, x]) => b.get(k) === x);
+    const replay = state(), seek = { bricks: null, voxels: null }, lastWhole = {}, late = {};
+    let compared = 0, deltas = 0, wholes = 0, maxGap = 0;
+    const bad = [];
+    for (const m of msgs) {
+      if (m.topic !== '/map' && m.topic !== '/map/voxels') continue;
+      const j = parsed(m), key = m.topic === '/map' ? 'bricks' : 'voxels';
+      apply(replay, m, j);
+      if (isWhole(m, j)) {
+        seek[key] = new Map();
+        lastWhole[key] = m.log;
+        late[key] = null;
+        if (key === 'bricks') wholes++;
+      } else {
+        deltas++;
+        // a change more than RECORD_MAP_S after the latest whole map is followed by one at once
+        if (late[key]) bad.push(`${m.topic}: ${late[key]} and no whole map follows it`);
+        if (lastWhole[key] === undefined) bad.push(`${m.topic}: a change before any whole map`);
+        const gap = Number(m.log - lastWhole[key]) / 1e9;
+        if (gap > RECORD_MAP_S) late[key] = `a change ${gap.toFixed(2)} s after the latest whole map`;
+        else maxGap = Math.max(maxGap, gap);
+      }
+      if (!seek[key]) continue;
+      apply({ [key]: seek[key] }, m, j);
+      // from this point: the latest whole map and the changes since are what the replay holds
+      if (!same(seek[key], replay[key])) bad.push(`${m.topic} at log time ${m.log}: seeking gives another map`);
+      compared++;
+    }
+    assert.deepStrictEqual(bad.slice(0, 3), []);
+    assert.ok(wholes >= 3 && deltas > wholes, `${wholes} whole maps and ${deltas} changes on the map's channels`);
+    // each whole map is the first message of its chunk (the voxels, then the scene)
+    const sr = new McapStreamReader({ decompressHandlers, validateCrcs: true, includeChunks: true });
+    sr.append(bytes);
+    let prev = null, opening = 0;
+    const chanTopic = new Map();
+    for (let rec; (rec = sr.nextRecord()); prev = rec) {
+      if (rec.type === 'Channel') chanTopic.set(rec.id, rec.topic);
+      if (rec.type !== 'Message' || chanTopic.get(rec.channelId) !== '/map/voxels') continue;
+      if (!JSON.parse(td.decode(rec.data)).full) continue;
+      assert.strictEqual(prev.type, 'Chunk', 'a whole map opens its chunk');
+      opening++;
+    }
+    assert.strictEqual(opening, wholes, 'as many whole voxel maps as whole scenes');
+    ok(`seeking: ${wholes} whole maps, each opening its chunk; a change more than ${RECORD_MAP_S} s after the ` +
+      `latest (--record-map-s ${RECORD_MAP_S}) followed by one at once, the others at most ${maxGap.toFixed(2)} s ` +
+      `after it; at each of ${compared} points on the map's channels the latest ` +
+      `whole map and the ${deltas} changes after it give the map a reader playing from the start holds`);
+  }
+
   // what the live client got after its first (built for it) message on each channel
-  // is a run of the recording, in order
+  // is a run of the recording, in order, but for the whole maps only the recording has
+  const recordedOnly = (t, b) => {
+    if (t !== '/map' && t !== '/map/voxels') return false;
+    const j = JSON.parse(td.decode(b));
+    return t === '/map' ? j.deletions.some((d) => d.type === 1) : j.full;
+  };
+  let skipped = 0;
   for (const [t, got] of Object.entries(live.got)) {
     const rec = byTopic[t].map((m) => m.bytes), later = got.slice(1).map((m) => m.bytes);
+    // the point cloud's whole map to a subscriber may come in several pieces
+    while (t === '/map/points' && later.length && !rec.some((b) => b.equals(later[0]))) later.shift();
     if (!later.length) continue;
-    const at = rec.findIndex((b) => b.equals(later[0]));
+    let at = rec.findIndex((b) => b.equals(later[0]));
     assert.ok(at >= 0, `${t}: the live client's second message is in the recording`);
-    for (let i = 0; i < later.length; i++) {
-      assert.ok(rec[at + i] && rec[at + i].equals(later[i]), `${t}: live message ${i + 1} is recorded in order`);
+    for (let i = 1; i < later.length; i++) {
+      at++;
+      while (rec[at] && !rec[at].equals(later[i]) && recordedOnly(t, rec[at])) at++, skipped++;
+      assert.ok(rec[at] && rec[at].equals(later[i]), `${t}: live message ${i + 1} is recorded in order`);
     }
   }
   ok(`every message the live client got on its ${Object.keys(live.got).length} channels is in the recording, in ` +
-    'the order it came');
+    `the order it came (${skipped} whole maps of the recording's own between them)`);
 
   // ---- a recorder killed with SIGKILL
   const kb = fs.readFileSync(killed);

@@ -89,6 +89,9 @@ async function main() {
     // The voxels under their own screen points, drawn in their prompts' colours.
     // The learner is paused meanwhile: a software-rendered screenshot may take
     // longer than the map's publish period.
+    // The node publishes what its first keyframes saw at once: wait for a map
+    // with voxels enough to probe before pausing it.
+    await pageUntil(page, () => window.vlff.map.vox.size >= 300, 60000);
     demo.pause();
     await sleep(1500);
     let checked = 0, shot = null;
