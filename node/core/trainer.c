@@ -336,6 +336,7 @@ void *trainer_main(void *arg) {
   const int slices = (int)fmax(1, fmin(64, lround(period / 0.1)));
   double next_slice = vlff_seconds() + period / slices;
   double kf_spent = 0; /* seconds spent publishing keyframes since the last slice */
+  double next_kf_publish = 0; /* when keyframes may be published again */
   double last_refresh = -1, refresh_ring[REFRESH_WINDOW];
   int refreshes = 0;
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
@@ -358,12 +359,18 @@ void *trainer_main(void *arg) {
     bool train = n->mapping && vlff_kfstore_count(n->store) >= cfg->keyframes.start_after;
     take_candidates(n, !train);
     /* What admitted keyframes saw is published before the next step: the
-     * frame-to-map latency is the time to here. */
+     * frame-to-map latency is the time to here. A publish that cost c waits
+     * 2c before the next (what is admitted meanwhile goes out with it), so
+     * keyframes never take more than a third of the trainer's time: on a slow
+     * machine (a sanitizer build's, a small core's) they would take all of
+     * it, and the field would not train, nor the mailbox be answered. */
     if ((vlff_publisher_pending(n->pub) > 0 || n->pending_lat > 0) && !publish_now &&
-        vlff_field_steps(n->field) > 0) {
+        vlff_field_steps(n->field) > 0 && vlff_seconds() >= next_kf_publish) {
       double t = vlff_seconds();
       publish_changed(n);
-      kf_spent += vlff_seconds() - t;
+      double c = vlff_seconds() - t;
+      kf_spent += c;
+      next_kf_publish = t + 3.0 * c;
     }
     train = pace_training(n, train);
     if (train) {

@@ -428,8 +428,8 @@ static void test_incremental_publication(void **state) {
   struct vlff_config cfg;
   config_for(&cfg, "inc");
   cfg.publish.evidence_weight = 0; /* labels are the field's alone: exactly reproducible */
+  struct vlff_field *f = small_field(&cfg, 3, 11); /* the publisher's feature_dim is the field's */
   struct vlff_publisher *p = create(&cfg);
-  struct vlff_field *f = small_field(&cfg, 3, 11);
   const char *prompts[3] = {"wall", "floor", "chair"};
   struct vlff_map *m = vlff_map_attach(cfg.shm.map);
   assert_non_null(m);
