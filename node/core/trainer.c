@@ -227,8 +227,9 @@ void do_publish(struct vlff_node *n) {
   note_publish(n, &r, true);
 }
 
-/* What the keyframes admitted since the last publish changed, at once. */
-static void publish_changed(struct vlff_node *n) {
+/* What the keyframes admitted since the last publish changed, at once:
+ * true when it had to be a whole publish (new prompts, a reset). */
+static bool publish_changed(struct vlff_node *n) {
   char err[256];
   struct vlff_publish_result r;
   const char *texts[VLFF_MAX_PROMPTS];
@@ -236,11 +237,12 @@ static void publish_changed(struct vlff_node *n) {
   double t0 = vlff_seconds();
   if (vlff_publisher_publish_changed(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
     vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
-    return;
+    return false;
   }
   VLFF_DEBUG(TAG, "published map v%llu (%s) in %.0f ms: %zu voxels", (unsigned long long)r.version,
              r.whole ? "whole" : "keyframes", (vlff_seconds() - t0) * 1e3, r.changed);
   note_publish(n, &r, true);
+  return r.whole;
 }
 
 /* The next slice of the map's round-robin refresh: true when it ended a
@@ -367,10 +369,11 @@ void *trainer_main(void *arg) {
     if ((vlff_publisher_pending(n->pub) > 0 || n->pending_lat > 0) && !publish_now &&
         vlff_field_steps(n->field) > 0 && vlff_seconds() >= next_kf_publish) {
       double t = vlff_seconds();
-      publish_changed(n);
+      bool whole = publish_changed(n);
       double c = vlff_seconds() - t;
       kf_spent += c;
-      next_kf_publish = t + 3.0 * c;
+      /* a whole publish is owed once (new prompts, a reset): not a rate */
+      next_kf_publish = whole ? 0 : t + 3.0 * c;
     }
     train = pace_training(n, train);
     if (train) {
