@@ -407,7 +407,7 @@ static void log_append(struct vlff_map *m, uint64_t v, const struct vlff_map_ran
     return;
   uint64_t h = atomic_load_explicit(&m->ctl->log_head, memory_order_relaxed);
   atomic_store_explicit(&m->ctl->log_reserved, h + n, memory_order_relaxed);
-  atomic_thread_fence(memory_order_release);
+  shm_fence_release();
   for (size_t i = 0; i < n; i++) {
     struct log_entry e = {.version = v, .first = r[i].first, .count = r[i].count};
     shm_racy_copy(log_slot(m, h + i), &e, sizeof e);
@@ -452,7 +452,7 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
   /* A writer that died mid-publish left this buffer odd; continue from there. */
   uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
   atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
-  atomic_thread_fence(memory_order_release);
+  shm_fence_release();
 
   uint64_t mv = m->max_voxels, lpx = m->lw_max * m->lh_max;
   struct vlff_map_range whole = {0, 0};
@@ -597,7 +597,7 @@ static int read_consistent(struct vlff_map *m, struct map_meta *mm, reader_fn fn
       continue;
     shm_racy_copy(mm, &b->meta, sizeof *mm);
     bool ok = meta_sane(m, mm) && (!fn || fn(m, c, mm, ctx));
-    atomic_thread_fence(memory_order_acquire);
+    shm_fence_acquire();
     if (abandoned(m))
       return -1;
     if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)
@@ -832,7 +832,7 @@ static bool logged_since(const struct vlff_map *m, struct vlff_map_snapshot *s, 
     }
     s->changes[k++] = (struct vlff_map_range){e.first, e.count};
   }
-  atomic_thread_fence(memory_order_acquire);
+  shm_fence_acquire();
   uint64_t reserved = atomic_load_explicit(&m->ctl->log_reserved, memory_order_relaxed);
   /* Slots from reserved - cap on may have been rewritten while we read them. */
   if (reserved > m->log_cap && i < reserved - m->log_cap)
@@ -997,7 +997,7 @@ API int vlff_map_set_status(struct vlff_map *m, const struct vlff_map_status *st
   /* A writer that died mid-write left the word odd; continue from there. */
   uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
   atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
-  atomic_thread_fence(memory_order_release);
+  shm_fence_release();
   shm_racy_copy(&b->st, &out, sizeof out);
   atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
   if (shm_seg_check(&m->seg, false) < 0)
@@ -1018,7 +1018,7 @@ API int vlff_map_get_status(struct vlff_map *m, struct vlff_map_status *out) {
     if (s1 & 1)
       continue;
     shm_racy_copy(out, &b->st, sizeof *out);
-    atomic_thread_fence(memory_order_acquire);
+    shm_fence_acquire();
     if (abandoned(m))
       return -1;
     if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)

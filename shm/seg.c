@@ -151,6 +151,9 @@ void shm_racy_copy(void *dst, const void *src, size_t n) { memcpy(dst, src, n); 
 void shm_racy_fill(void *dst, int c, size_t n) { memset(dst, c, n); }
 #endif
 
+void shm_fence_release(void) { atomic_thread_fence(memory_order_release); }
+void shm_fence_acquire(void) { atomic_thread_fence(memory_order_acquire); }
+
 static int check_name(const char *name) {
   if (!name || name[0] != '/' || strlen(name) < 2 || strlen(name) >= 250 || strchr(name + 1, '/')) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: a segment name is '/' followed by 1..248 characters without '/'",

@@ -134,6 +134,10 @@ void shm_guard_unregister(struct seg *s);
  * the sequence words around them are real atomics that TSan does check. */
 void shm_racy_copy(void *dst, const void *src, size_t n);
 void shm_racy_fill(void *dst, int c, size_t n);
+/* The fences between a seqlock's sequence words and its racy copies. Out of line:
+ * GCC refuses some inlined fences under -fsanitize=thread (-Wtsan). */
+void shm_fence_release(void);
+void shm_fence_acquire(void);
 
 /* The header of a named segment, read with pread and checked for the magic
  * only: which kind to attach it as (stat.c). */
