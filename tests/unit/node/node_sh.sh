@@ -12,5 +12,7 @@ stop_node() {
 }
 printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
   "$tmp" $p $p $p $p >"$tmp/n.yaml"
+# More top-level YAML from the sourcing test, before the node starts.
+[[ -n ${node_yaml_extra:-} ]] && printf '%s\n' "$node_yaml_extra" >>"$tmp/n.yaml"
 "$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
 nodepid=$!

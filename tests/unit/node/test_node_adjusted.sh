@@ -11,6 +11,7 @@ run() {  # run VOXELS: the node's --status output into $tmp/log until a status l
   printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\npublish:\n  voxel_size_m: 0.05\n' "$tmp" >"$tmp/n.yaml"
   printf 'shm:\n  map_max_voxels: %s\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
     "$1" $p $p $p $p >>"$tmp/n.yaml"
+  : >"$tmp/log"  # now: the background redirection may come after the first wait reads it
   "$node" --config "$tmp/n.yaml" --status 2>"$tmp/log" &
   nodepid=$!
   wait_until 300 'grep -q "mIoU 2D" "$tmp/log"'

@@ -20,6 +20,7 @@ cfg() {  # cfg BUDGET
 # 1.5 cores: the pool is ceil(1.5) = 2 threads, not node.threads' 4. The pool
 # exists once the map segment does (the field is made first).
 cfg 1.5 >"$tmp/a.yaml"
+: >"$tmp/log"  # now: the background redirection may come after the first wait reads it
 "$node" --config "$tmp/a.yaml" 2>"$tmp/log" &
 nodepid=$!
 wait_until 300 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val cpu_budget) ]]'
@@ -29,6 +30,7 @@ kill -TERM $nodepid; wait $nodepid; nodepid=
 rm -f /dev/shm$p-*
 
 cfg 0.5 >"$tmp/b.yaml"
+: >"$tmp/log"  # now: the background redirection may come after the first wait reads it
 "$node" --config "$tmp/b.yaml" --status 2>"$tmp/log" &
 nodepid=$!
 wait_until 300 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val cpu_budget) ]]'

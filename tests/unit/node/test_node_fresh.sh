@@ -19,6 +19,7 @@ first=$(ls "$tmp"/field.*.ckpt 2>/dev/null)
 check "the first run checkpointed ($first)" '[[ -n $first ]]'
 touch -d '2001-01-01' $first  # recognisable: a resume of it would log its name
 
+: >"$tmp/log"  # now: the background redirection may come after the first wait reads it
 "$node" --config "$tmp/n.yaml" --fresh 2>"$tmp/log" &
 nodepid=$!
 wait_until 300 'grep -q "fresh start" "$tmp/log"'
@@ -28,6 +29,7 @@ check "the old checkpoint is gone" '[[ -z $(find "$tmp" -name "field.*.ckpt" ! -
 learn
 check "the fresh run checkpointed at its own step count" 'grep -q "I node: checkpoint .* at step" "$tmp/log"'
 
+: >"$tmp/log"  # now: the background redirection may come after the first wait reads it
 "$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
 nodepid=$!
 wait_until 300 'grep -q "resumed from\|waiting for ring" "$tmp/log"'

@@ -17,6 +17,7 @@ base() {
   printf 'prompts:\n  embeddings: %s/emb.txt\n' "$tmp"
 }
 run_node() {
+  : >"$tmp/log"  # now: the background redirection may come after the first wait reads it
   "$node" --config "$1" 2>"$tmp/log" &
   nodepid=$!
   "$sim" --config "$1" --quiet 2>"$tmp/simlog" &
