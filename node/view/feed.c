@@ -78,6 +78,7 @@ struct vlff_feed {
   size_t cells_cap;
   uint64_t last_grid_ns;
   bool grid_owed; /* the map changed since the last grid sent */
+  uint64_t too_large; /* grids and depth images not sent for their size (rate-limited log) */
 };
 
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
@@ -381,6 +382,12 @@ static int grow(uint8_t **buf, size_t *cap, size_t need, const char *what) {
 static struct vlff_view_msg *grid_msg(struct vlff_feed *f, uint64_t t) {
   const struct feed_map *m = &f->m;
   uint32_t cols = m->dims[0], rows = m->dims[1];
+  size_t bytes = (size_t)cols * rows * VLFF_VIEW_GRID_STRIDE;
+  if (f->p.max_message_bytes && bytes > f->p.max_message_bytes) {
+    vlff_warn_limited(&f->too_large, "vlff-view", "/map/grid: a %ux%u grid is %zu bytes, above half of --max-queue-mb "
+                      "(%zu bytes): not sent", cols, rows, bytes, f->p.max_message_bytes);
+    return NULL;
+  }
   if (grow(&f->cells, &f->cells_cap, (size_t)cols * rows * VLFF_VIEW_GRID_STRIDE + 1, "the grid")) return NULL;
   uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
   palette(rgb);
@@ -838,6 +845,11 @@ static struct vlff_view_msg *depth_msg(struct vlff_feed *f, uint64_t t, const st
   const uint8_t *px = h->nplanes > 1 ? vlff_frame_plane(f->rec, VLFF_PLANE_DEPTH) : NULL;
   if (!px || (pl->format != VLFF_PIX_DEPTH_U16_MM && pl->format != VLFF_PIX_DEPTH_F32_M)) return NULL;
   uint32_t w = pl->width, hh = pl->height;
+  if (f->p.max_message_bytes && (size_t)w * hh * 2 > f->p.max_message_bytes) {
+    vlff_warn_limited(&f->too_large, "vlff-view", "/camera/depth: a %ux%u depth image is %zu bytes, above half of "
+                      "--max-queue-mb (%zu bytes): not sent", w, hh, (size_t)w * hh * 2, f->p.max_message_bytes);
+    return NULL;
+  }
   if (grow(&f->depth, &f->depth_cap, (size_t)w * hh * 2 + 1, "a depth image")) return NULL;
   for (uint32_t y = 0; y < hh; y++) {
     const uint8_t *row = px + (size_t)y * pl->stride;

@@ -306,6 +306,9 @@ int main(int argc, char **argv) {
   /* a point cloud piece is a fraction of a client's queue: a whole map of any size
    * reaches a client that reads, piece after piece */
   fp.cloud_piece_bytes = vp.max_queue_bytes / 8 < (1u << 20) ? vp.max_queue_bytes / 8 : (1u << 20);
+  /* a grid or depth image is one message: one above the queue limit would drop
+   * every client of its channel */
+  fp.max_message_bytes = vp.max_queue_bytes / 2;
   char *token = NULL;
   if (token_file && !(token = read_token(token_file))) return 1;
   vp.token = token;

@@ -145,6 +145,9 @@ struct vlff_feed_params {
   uint32_t brick;           /* brick edge in voxels for the scene channel */
   size_t cloud_piece_bytes; /* the largest point cloud message (0 = 1 MiB) */
   double grid_hz;           /* most /map/grid messages per second (0 = 1), sent while the map changes */
+  /* the largest grid or depth image sent (0 = no bound): one message above a
+   * client's queue limit would drop the client, again at every reconnection */
+  size_t max_message_bytes;
   /* the grid: per column the highest occupied voxel (seen from above), or with
    * grid_slice the voxels of the layer holding height grid_z (m, in the map's frame) */
   int grid_slice;
