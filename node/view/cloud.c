@@ -259,10 +259,6 @@ const char *vlff_view_descriptor_b64(int ch) {
   return d ? d->b64 : NULL;
 }
 
-const uint8_t *vlff_view_cloud_descriptor(size_t *len) { return vlff_view_descriptor(VLFF_VIEW_CH_CLOUD, len); }
-
-const char *vlff_view_cloud_descriptor_b64(void) { return vlff_view_descriptor_b64(VLFF_VIEW_CH_CLOUD); }
-
 /* ---------------------------------------------------------- the messages */
 
 /* PackedElementField.NumericType */

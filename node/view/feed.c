@@ -447,10 +447,10 @@ static int grid_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg 
     set_current(f, VLFF_VIEW_CH_GRID, NULL);
     return 0;
   }
+  f->last_grid_ns = now; /* a grid not built (too large, no memory) is tried again at the rate */
   struct vlff_view_msg *g = grid_msg(f, to_real(f, f->m.publish_ns));
   if (!g) return 0;
   f->grid_owed = false;
-  f->last_grid_ns = now;
   set_current(f, VLFF_VIEW_CH_GRID, g);
   out[0] = g;
   return 1;

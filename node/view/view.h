@@ -112,9 +112,6 @@ const char *vlff_view_descriptor_b64(int ch);
  * voxel no longer occupied), label (uint16, as in the map), confidence (uint8), one
  * byte unused; little-endian. */
 #define VLFF_VIEW_CLOUD_STRIDE 20
-/* The point cloud channel's schema (vlff_view_descriptor of VLFF_VIEW_CH_CLOUD). */
-const uint8_t *vlff_view_cloud_descriptor(size_t *len);
-const char *vlff_view_cloud_descriptor_b64(void);
 /* PointClouds of the n packed points, in pieces of at most piece_bytes each
  * (chained through next; at least one, empty when n is 0), stamped t_ns; the
  * number made in *pieces. NULL out of memory. */
