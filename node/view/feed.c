@@ -72,6 +72,13 @@ struct vlff_feed {
   size_t rgb_cap;
   uint8_t *pts; /* packed points for the point cloud */
   size_t pts_cap;
+  uint8_t *depth; /* a frame's depth as packed uint16 millimetres */
+  size_t depth_cap;
+  uint8_t *cells; /* the grid's cells */
+  size_t cells_cap;
+  uint64_t last_grid_ns;
+  bool grid_owed; /* the map changed since the last grid sent */
+  uint64_t too_large; /* grids and depth images not sent for their size (rate-limited log) */
 };
 
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
@@ -119,6 +126,7 @@ struct vlff_feed *vlff_feed_new(const struct vlff_feed_params *p) {
   f->p = *p;
   if (f->p.brick < 1) f->p.brick = 8;
   if (!f->p.cloud_piece_bytes) f->p.cloud_piece_bytes = 1u << 20;
+  if (!(f->p.grid_hz > 0)) f->p.grid_hz = 1;
   if (!f->p.world_frame || !*f->p.world_frame) f->p.world_frame = "world";
   if (!f->p.camera_frame || !*f->p.camera_frame) f->p.camera_frame = "camera";
   f->mono_to_real = vlff_wall_ns() - vlff_now_ns();
@@ -142,6 +150,8 @@ void vlff_feed_free(struct vlff_feed *f) {
   free(f->changed);
   free(f->rgb);
   free(f->pts);
+  free(f->depth);
+  free(f->cells);
   for (int c = 0; c <= VLFF_VIEW_CH_COUNT; c++) vlff_view_msg_unref(f->current[c]);
   free(f);
 }
@@ -348,6 +358,102 @@ static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx,
   f->encoded[VLFF_VIEW_CH_CLOUD] += (uint64_t)pieces;
   for (struct vlff_view_msg *p = c; p; p = p->next) p->version = m->version, p->whole = !idx;
   return c;
+}
+
+/* Grows *buf to at least need bytes: 0, or -1 out of memory (logged). */
+static int grow(uint8_t **buf, size_t *cap, size_t need, const char *what) {
+  if (need <= *cap) return 0;
+  uint8_t *p = realloc(*buf, need);
+  if (!p) {
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for %s of %zu bytes", what, need);
+    return -1;
+  }
+  *buf = p, *cap = need;
+  return 0;
+}
+
+/* /map/grid from the map copy: one cell per column (i, j) of the grid, its
+ * corner at the map's origin. Seen from above (no grid_slice), a column's cell is
+ * its highest occupied voxel (elevation: that voxel's top above the map's
+ * lowest plane); a column without one is free when any of its voxels is free,
+ * else unknown, transparent, elevation 0. As a slice, a cell is the voxel of the
+ * layer holding grid_z (elevation: that height above the lowest plane); a height
+ * outside the map gives unknown cells. */
+static struct vlff_view_msg *grid_msg(struct vlff_feed *f, uint64_t t) {
+  const struct feed_map *m = &f->m;
+  uint32_t cols = m->dims[0], rows = m->dims[1];
+  size_t bytes = (size_t)cols * rows * VLFF_VIEW_GRID_STRIDE;
+  if (f->p.max_message_bytes && bytes > f->p.max_message_bytes) {
+    vlff_warn_limited(&f->too_large, "vlff-view", "/map/grid: a %ux%u grid is %zu bytes, above half of --max-queue-mb "
+                      "(%zu bytes): not sent", cols, rows, bytes, f->p.max_message_bytes);
+    return NULL;
+  }
+  if (grow(&f->cells, &f->cells_cap, (size_t)cols * rows * VLFF_VIEW_GRID_STRIDE + 1, "the grid")) return NULL;
+  uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
+  palette(rgb);
+  int slice = f->p.grid_slice;
+  double zk = slice ? floor((f->p.grid_z - m->origin[2]) / m->vs) : 0;
+  size_t layer = (size_t)cols * rows;
+  for (uint32_t j = 0; j < rows; j++)
+    for (uint32_t i = 0; i < cols; i++) {
+      uint8_t *o = f->cells + ((size_t)j * cols + i) * VLFF_VIEW_GRID_STRIDE;
+      size_t col = i + (size_t)cols * j, idx = SIZE_MAX;
+      uint16_t l = VLFF_LABEL_UNKNOWN;
+      float elev = 0;
+      if (slice) {
+        if (zk >= 0 && zk < m->dims[2]) {
+          idx = col + layer * (size_t)zk;
+          l = m->labels[idx];
+          elev = (float)(f->p.grid_z - m->origin[2]);
+        }
+      } else {
+        for (uint32_t k = m->dims[2]; k-- > 0;) {
+          uint16_t v = m->labels[col + layer * k];
+          if (is_occupied(v)) {
+            idx = col + layer * k, l = v, elev = (float)((k + 1) * m->vs);
+            break;
+          }
+          if (v == VLFF_LABEL_FREE) l = VLFF_LABEL_FREE;
+        }
+      }
+      if (is_occupied(l)) {
+        memcpy(o, l < VLFF_SHM_MAX_PROMPTS ? rgb[l] : rgb[VLFF_SHM_MAX_PROMPTS], 3);
+        o[3] = 255;
+      } else {
+        memset(o, 0, 4);
+      }
+      o[4] = (uint8_t)l;
+      o[5] = (uint8_t)(l >> 8);
+      o[6] = idx != SIZE_MAX && is_occupied(l) ? m->conf[idx] : 0;
+      o[7] = 0;
+      uint32_t u;
+      memcpy(&u, &elev, 4);
+      for (int b = 0; b < 4; b++) o[8 + b] = (uint8_t)(u >> (8 * b));
+    }
+  f->encoded[VLFF_VIEW_CH_GRID]++;
+  struct vlff_view_msg *g = vlff_view_grid_msg(VLFF_VIEW_CH_GRID, f->p.world_frame, t, m->origin, m->vs, cols, rows,
+                                               f->cells);
+  if (g) g->version = m->version;
+  return g;
+}
+
+/* The grid when one is owed (the map changed since the last) and the rate
+ * allows: a grid is the whole projection, so a client needs only the latest. */
+static int grid_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
+  uint64_t now = vlff_now_ns();
+  if (!f->grid_owed || !f->m.labels || cap < 1 || now - f->last_grid_ns < (uint64_t)(1e9 / f->p.grid_hz)) return 0;
+  if (!wants(wanted, VLFF_VIEW_CH_GRID)) {
+    /* nobody to send it to: a first subscriber gets one built then */
+    set_current(f, VLFF_VIEW_CH_GRID, NULL);
+    return 0;
+  }
+  f->last_grid_ns = now; /* a grid not built (too large, no memory) is tried again at the rate */
+  struct vlff_view_msg *g = grid_msg(f, to_real(f, f->m.publish_ns));
+  if (!g) return 0;
+  f->grid_owed = false;
+  set_current(f, VLFF_VIEW_CH_GRID, g);
+  out[0] = g;
+  return 1;
 }
 
 static void count_labels(struct feed_map *m) {
@@ -695,6 +801,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
   m->generation = info.generation;
   int nout = full ? map_whole_msgs(f, wanted, edge, t, out, cap) : map_delta_msgs(f, g, wanted, edge, t, out, cap);
   if (nout < 0) return 0;
+  f->grid_owed = true;
   return nout + map_label_image_msgs(f, &info, wanted, out + nout, cap - nout);
 }
 
@@ -728,6 +835,41 @@ static int valid_intrinsics(const struct vlff_frame_hdr *h) {
 }
 
 static int frame_encode(struct vlff_feed *f, unsigned build, struct vlff_view_msg **out, int cap);
+
+/* A foxglove.RawImage 16UC1 of the frame's depth plane in millimetres: uint16
+ * millimetres as they are, float32 metres rounded to the millimetre (0 where
+ * not finite, not positive, or beyond 65.535 m, which 16 bits cannot hold).
+ * NULL for a frame without depth. */
+static struct vlff_view_msg *depth_msg(struct vlff_feed *f, uint64_t t, const struct vlff_frame_hdr *h) {
+  const struct vlff_plane *pl = &h->plane[VLFF_PLANE_DEPTH];
+  const uint8_t *px = h->nplanes > 1 ? vlff_frame_plane(f->rec, VLFF_PLANE_DEPTH) : NULL;
+  if (!px || (pl->format != VLFF_PIX_DEPTH_U16_MM && pl->format != VLFF_PIX_DEPTH_F32_M)) return NULL;
+  uint32_t w = pl->width, hh = pl->height;
+  if (f->p.max_message_bytes && (size_t)w * hh * 2 > f->p.max_message_bytes) {
+    vlff_warn_limited(&f->too_large, "vlff-view", "/camera/depth: a %ux%u depth image is %zu bytes, above half of "
+                      "--max-queue-mb (%zu bytes): not sent", w, hh, (size_t)w * hh * 2, f->p.max_message_bytes);
+    return NULL;
+  }
+  if (grow(&f->depth, &f->depth_cap, (size_t)w * hh * 2 + 1, "a depth image")) return NULL;
+  for (uint32_t y = 0; y < hh; y++) {
+    const uint8_t *row = px + (size_t)y * pl->stride;
+    uint8_t *o = f->depth + (size_t)y * w * 2;
+    for (uint32_t x = 0; x < w; x++) {
+      uint16_t mm;
+      if (pl->format == VLFF_PIX_DEPTH_U16_MM) {
+        memcpy(&mm, row + 2 * x, 2);
+      } else {
+        float d;
+        memcpy(&d, row + 4 * x, 4);
+        mm = isfinite(d) && d > 0 && d * 1000.0f < 65535.5f ? (uint16_t)lroundf(d * 1000.0f) : 0;
+      }
+      o[2 * x] = (uint8_t)mm;
+      o[2 * x + 1] = (uint8_t)(mm >> 8);
+    }
+  }
+  f->encoded[VLFF_VIEW_CH_DEPTH]++;
+  return vlff_view_depth_msg(VLFF_VIEW_CH_DEPTH, f->p.camera_frame, t, w, hh, f->depth);
+}
 
 static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg **out, int cap) {
   if (!f->p.frames_name || !*f->p.frames_name || cap < 1) return 0;
@@ -763,7 +905,9 @@ static int frames_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_ms
     f->fps_t_ns = now;
   }
   /* the ring is watched for the status either way; frames are read for subscribers */
-  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE | 1u << VLFF_VIEW_CH_CALIB))) return 0;
+  if (!(wanted & (1u << VLFF_VIEW_CH_IMAGE | 1u << VLFF_VIEW_CH_POSE | 1u << VLFF_VIEW_CH_CALIB |
+                  1u << VLFF_VIEW_CH_DEPTH)))
+    return 0;
   if (head == f->ring_head || (f->p.image_hz > 0 && now - f->last_image_ns < (uint64_t)(1e9 / f->p.image_hz)))
     return 0;
   f->ring_head = head;
@@ -819,6 +963,13 @@ static int frame_encode(struct vlff_feed *f, unsigned build, struct vlff_view_ms
     if (cm) {
       out[nout++] = cm;
       set_current(f, VLFF_VIEW_CH_CALIB, cm);
+    }
+  }
+  if (wants(wanted, VLFF_VIEW_CH_DEPTH) && nout < cap) {
+    struct vlff_view_msg *dm = depth_msg(f, t, h);
+    if (dm) {
+      out[nout++] = dm;
+      set_current(f, VLFF_VIEW_CH_DEPTH, dm);
     }
   }
   bool has_pose = (h->flags & VLFF_FRAME_POSE_VALID) && valid_pose(h->pose);
@@ -926,6 +1077,7 @@ int vlff_feed_poll(struct vlff_feed *f, const struct vlff_view_counters *c, unsi
   uint64_t before = f->m.version;
   f->last_wanted = wanted;
   int n = map_poll(f, wanted, out, out_cap);
+  n += grid_poll(f, wanted, out + n, out_cap - n);
   n += frames_poll(f, wanted, out + n, out_cap - n);
   uint64_t now = vlff_now_ns();
   if (n < out_cap && wants(wanted, VLFF_VIEW_CH_STATUS) && (f->m.version != before || now - f->last_status_ns >= NS)) {
@@ -964,7 +1116,8 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struc
     struct vlff_view_msg *s = status_msg(f, c ? c : &none);
     set_current(f, ch, s);
     vlff_view_msg_unref(s);
-  } else if (!kept && (ch == VLFF_VIEW_CH_IMAGE || ch == VLFF_VIEW_CH_CALIB || ch == VLFF_VIEW_CH_POSE)) {
+  } else if (!kept && (ch == VLFF_VIEW_CH_IMAGE || ch == VLFF_VIEW_CH_CALIB || ch == VLFF_VIEW_CH_POSE ||
+                        ch == VLFF_VIEW_CH_DEPTH)) {
     set_current(f, ch, NULL);
     if (f->ring && (ch != VLFF_VIEW_CH_POSE || f->ring_has_pose)) {
       struct vlff_view_msg *tmp[2];
@@ -974,6 +1127,10 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struc
     if (ch == VLFF_VIEW_CH_POSE && !f->current[ch] && (!f->ring || !f->ring_has_pose)) label_image_current(f, ch);
   } else if (!kept && ch == VLFF_VIEW_CH_LABELS) {
     label_image_current(f, ch);
+  } else if (ch == VLFF_VIEW_CH_GRID && f->grid_owed) {
+    /* the map changed since the latest grid (waiting on the rate): the first
+     * grid is of the map the client's other channels hold */
+    set_current(f, ch, NULL);
   }
   if (!f->current[ch] && f->m.labels && f->m.version) {
     uint64_t t = to_real(f, f->m.publish_ns);
@@ -982,6 +1139,7 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struc
     if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(f, NULL, f->p.brick, t, 1);
     else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(f, t);
     else if (ch == VLFF_VIEW_CH_CLOUD) f->current[ch] = cloud_msg(f, NULL, 0, t);
+    else if (ch == VLFF_VIEW_CH_GRID) f->current[ch] = grid_msg(f, t);
   }
   return vlff_view_msg_ref(f->current[ch]);
 }

@@ -50,6 +50,10 @@ static const struct vlff_cli cli = {
     "      --image-hz HZ       most camera images per second (default 2, 0.1..60)\n"
     "      --map-hz HZ         most map updates per second, each with all changes since the last\n"
     "                          (default 2, 0.1..100)\n"
+    "      --grid-hz HZ        most /map/grid messages per second while the map changes (default 1,\n"
+    "                          0.1..10)\n"
+    "      --grid-z M          /map/grid as the slice of the map at height M (m, in the map's frame)\n"
+    "                          instead of the highest occupied voxel of each column\n"
     "      --poll-hz HZ        segment checks per second (default 50, 1..1000)\n"
     "      --max-clients N     clients at once (default 10, 1..1000)\n"
     "      --max-queue-mb MB   unsent bytes after which a slow client is dropped (default 32, 0.25..4096)\n"
@@ -62,7 +66,9 @@ static const struct vlff_cli cli = {
     "      --www DIR           the page's files (default: installed with the program)\n"
     "      --record FILE       also write every message of every channel to FILE, an MCAP recording\n"
     "                          (zstd-compressed chunks of at most 1 s; Foxglove opens it); a directory:\n"
-    "                          a new file there per run, vlff-view-YYYYmmdd-HHMMSS.mcap (local time)\n"
+    "                          a new file there per run, vlff-view-YYYYmmdd-HHMMSS.mcap (local time);\n"
+    "                          an existing FILE is refused unless --force is given\n"
+    "      --force             let --record FILE replace an existing file\n"
     "      --record-map-s S    while the map changes, the whole map into the recording every S seconds,\n"
     "                          each opening a chunk, for readers that seek (default 10, 1..3600)\n"
     "      --record-level N    zstd level of the recording's chunks (default 3, 1..19; 0 = none)\n"
@@ -155,7 +161,8 @@ static int default_www(char *out, size_t cap) {
 int main(int argc, char **argv) {
   vlff_log_start(); /* log stamps count from the start, not from the first line */
   enum { OPT_PROMPTS = 256, OPT_TOKEN, OPT_IMAGE_HZ, OPT_MAP_HZ, OPT_POLL_HZ, OPT_MAX_CLIENTS, OPT_QUEUE, OPT_REQUEST, OPT_WWW,
-         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_RECORD_MAP, OPT_PLAY, OPT_PLAY_RATE };
+         OPT_ALLOW_ORIGIN, OPT_HEAD_TIMEOUT, OPT_IDLE_TIMEOUT, OPT_RECORD, OPT_RECORD_LEVEL, OPT_RECORD_MAP, OPT_PLAY, OPT_PLAY_RATE,
+         OPT_GRID_HZ, OPT_GRID_Z, OPT_FORCE };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},     {"listen", required_argument, NULL, 'l'},     {"port", required_argument, NULL, 'p'},
       {"map", required_argument, NULL, 'm'},        {"frames", required_argument, NULL, 'f'},
@@ -171,6 +178,9 @@ int main(int argc, char **argv) {
       {"record-map-s", required_argument, NULL, OPT_RECORD_MAP},
       {"play", required_argument, NULL, OPT_PLAY},
       {"play-rate", required_argument, NULL, OPT_PLAY_RATE},
+      {"grid-hz", required_argument, NULL, OPT_GRID_HZ},
+      {"grid-z", required_argument, NULL, OPT_GRID_Z},
+      {"force", no_argument, NULL, OPT_FORCE},
       {"verbose", no_argument, NULL, 'v'},          VLFF_CLI_COMMON_OPTIONS};
   struct vlff_view_params vp = {.address = "127.0.0.1", .port = 8765, .prompts_name = "/vlff-prompts",
                                 .poll_hz = 50, .max_clients = 10, .max_queue_bytes = 32u << 20,
@@ -179,7 +189,7 @@ int main(int argc, char **argv) {
   const char *token_file = NULL, *www = NULL, *record = NULL, *play = NULL, *config = NULL;
   int seg_given[3] = {0, 0, 0}; /* --map, --frames, --prompts */
   int record_level = 3;
-  bool record_level_set = false, play_rate_set = false;
+  bool record_level_set = false, play_rate_set = false, force = false;
   double play_rate = 1;
   double x;
   int c, status;
@@ -251,6 +261,15 @@ int main(int argc, char **argv) {
       if (parse_num("play-rate", optarg, 0.01, 100, &play_rate)) return 2;
       play_rate_set = true;
       break;
+    case OPT_GRID_HZ:
+      if (parse_num("grid-hz", optarg, 0.1, 10, &fp.grid_hz)) return 2;
+      break;
+    case OPT_GRID_Z:
+      /* a height a map can have: the grids vlff holds are metres to kilometres */
+      if (parse_num("grid-z", optarg, -10000, 10000, &fp.grid_z)) return 2;
+      fp.grid_slice = 1;
+      break;
+    case OPT_FORCE: force = true; break;
     case 'v': vp.verbose++; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }
@@ -283,9 +302,13 @@ int main(int argc, char **argv) {
   /* an option of a mode not asked for would be ignored without a word */
   if (record_level_set && !record) return vlff_cli_usage_error(&cli, "--record-level without --record");
   if (play_rate_set && !play) return vlff_cli_usage_error(&cli, "--play-rate without --play");
+  if (force && !record) return vlff_cli_usage_error(&cli, "--force without --record");
   /* a point cloud piece is a fraction of a client's queue: a whole map of any size
    * reaches a client that reads, piece after piece */
   fp.cloud_piece_bytes = vp.max_queue_bytes / 8 < (1u << 20) ? vp.max_queue_bytes / 8 : (1u << 20);
+  /* a grid or depth image is one message: one above the queue limit would drop
+   * every client of its channel */
+  fp.max_message_bytes = vp.max_queue_bytes / 2;
   char *token = NULL;
   if (token_file && !(token = read_token(token_file))) return 1;
   vp.token = token;
@@ -299,6 +322,17 @@ int main(int argc, char **argv) {
   }
   char record_buf[PATH_MAX];
   if (record) record = record_path(record, record_buf, sizeof record_buf);
+  struct stat rst;
+  if (record && feed && !force && record != record_buf && lstat(record, &rst) == 0) {
+    /* a recording named on the command line is likely a run worth keeping: a
+     * second run with the same line must not replace it without a word */
+    vlff_cli_error(&cli, "--record %s: the file exists; pass --force to replace it, or give a directory for a "
+                         "new file per run",
+                   record);
+    vlff_feed_free(feed);
+    free(token);
+    return 1;
+  }
   if (record && feed) {
     char why[512];
     struct vlff_mcap_writer_params mp = {.library = "vlff-view " VLFF_VERSION, .zstd_level = record_level};

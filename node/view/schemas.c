@@ -122,11 +122,14 @@ static struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
     {"/vlff/status", "vlff.Status", status_schema, "json"},
     {"/camera/calibration", "foxglove.CameraCalibration", calib_schema, "json"},
     {"/log", "foxglove.Log", log_schema, "json"},
-    {"/map/points", "foxglove.PointCloud", NULL, "protobuf"}, /* its schema is built at the first call */
+    /* the protobuf channels' schemas are built at the first call */
+    {"/map/points", "foxglove.PointCloud", NULL, "protobuf"},
+    {"/camera/depth", "foxglove.RawImage", NULL, "protobuf"},
+    {"/map/grid", "foxglove.Grid", NULL, "protobuf"},
 };
 
 const struct vlff_view_channel_def *vlff_view_channel(int ch) {
   if (ch < 1 || ch > VLFF_VIEW_CH_COUNT) return NULL;
-  if (ch == VLFF_VIEW_CH_CLOUD) defs[ch - 1].schema = vlff_view_cloud_descriptor_b64();
+  if (!defs[ch - 1].schema) defs[ch - 1].schema = vlff_view_descriptor_b64(ch);
   return &defs[ch - 1];
 }

@@ -762,7 +762,7 @@ static int declare_channels(struct vlff_view *v) {
     /* MCAP holds a protobuf schema as the FileDescriptorSet's bytes, not base64 */
     const void *schema = d.schema;
     size_t len = strlen(d.schema);
-    if (ch == VLFF_VIEW_CH_CLOUD) schema = vlff_view_cloud_descriptor(&len);
+    if (!strcmp(d.encoding, "protobuf")) schema = vlff_view_descriptor(ch, &len);
     if (vlff_mcap_writer_channel(v->p.record, (uint16_t)ch, d.topic, d.encoding, d.schema_name, d.schema_encoding,
                                  schema, len)) {
       vlff_log(VLFF_LOG_WARN, "vlff-view", "--record: %s", vlff_mcap_writer_error(v->p.record));

@@ -54,7 +54,11 @@ enum vlff_view_channel {
   VLFF_VIEW_CH_LOG,        /* /log: foxglove.Log, what changed in the status (logch.c) */
   VLFF_VIEW_CH_CLOUD,      /* /map/points: foxglove.PointCloud in protobuf (cloud.c), the occupied
                               voxels (whole, in pieces) and then the voxels that changed */
-  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_CLOUD
+  VLFF_VIEW_CH_DEPTH,      /* /camera/depth: foxglove.RawImage in protobuf, the latest frame's depth
+                              as 16UC1 millimetres, with each camera image */
+  VLFF_VIEW_CH_GRID,       /* /map/grid: foxglove.Grid in protobuf, the map seen from above (per
+                              column the highest occupied voxel) or a slice at a height */
+  VLFF_VIEW_CH_COUNT = VLFF_VIEW_CH_GRID
 };
 
 /* JPEG quality of the camera image channel. */
@@ -94,7 +98,13 @@ unsigned char *vlff_view_msg_payload(struct vlff_view_msg *m);
 struct vlff_view_msg *vlff_view_msg_ref(struct vlff_view_msg *m);
 void vlff_view_msg_unref(struct vlff_view_msg *m);
 
-/* ----------------------------------------------------------- point cloud */
+/* ------------------------------------------------------ protobuf channels */
+
+/* A protobuf channel's schema (cloud.c): the FileDescriptorSet of its message and
+ * the messages it uses (binary, as MCAP holds it; *len its size), and in base64,
+ * as the WebSocket protocol advertises it; NULL for a JSON channel. */
+const uint8_t *vlff_view_descriptor(int ch, size_t *len);
+const char *vlff_view_descriptor_b64(int ch);
 
 /* /map/points (cloud.c): foxglove.PointCloud in protobuf, in the map's frame, identity
  * pose; each point VLFF_VIEW_CLOUD_STRIDE bytes: x, y, z (float32, the voxel's
@@ -102,16 +112,25 @@ void vlff_view_msg_unref(struct vlff_view_msg *m);
  * voxel no longer occupied), label (uint16, as in the map), confidence (uint8), one
  * byte unused; little-endian. */
 #define VLFF_VIEW_CLOUD_STRIDE 20
-/* The channel's schema: the FileDescriptorSet of foxglove.PointCloud and the
- * messages it uses (binary, as MCAP holds it; *len its size), and in base64, as the
- * WebSocket protocol advertises it. */
-const uint8_t *vlff_view_cloud_descriptor(size_t *len);
-const char *vlff_view_cloud_descriptor_b64(void);
 /* PointClouds of the n packed points, in pieces of at most piece_bytes each
  * (chained through next; at least one, empty when n is 0), stamped t_ns; the
  * number made in *pieces. NULL out of memory. */
 struct vlff_view_msg *vlff_view_cloud_msgs(int channel, const char *frame, const uint8_t *points, size_t n,
                                            uint64_t t_ns, size_t piece_bytes, int *pieces);
+
+/* /map/grid: a foxglove.Grid of cols x rows cells, row-major (a row runs along x),
+ * each VLFF_VIEW_GRID_STRIDE bytes: red, green, blue, alpha (uint8, the label's
+ * colour; alpha 0 where no voxel is occupied), label (uint16), confidence (uint8),
+ * one byte unused, elevation (float32, m above the grid's plane); little-endian.
+ * The grid's corner is at corner[] in frame, with the frame's axes; cells are cell
+ * metres square. NULL out of memory. */
+#define VLFF_VIEW_GRID_STRIDE 12
+struct vlff_view_msg *vlff_view_grid_msg(int channel, const char *frame, uint64_t t_ns, const double corner[3],
+                                         double cell, uint32_t cols, uint32_t rows, const uint8_t *cells);
+/* /camera/depth: a foxglove.RawImage, encoding 16UC1, of w x h packed little-endian
+ * uint16 millimetres (0 = no depth). NULL out of memory. */
+struct vlff_view_msg *vlff_view_depth_msg(int channel, const char *frame, uint64_t t_ns, uint32_t w, uint32_t h,
+                                          const uint8_t *mm);
 
 /* ------------------------------------------------------------------ feed */
 
@@ -122,6 +141,14 @@ struct vlff_feed_params {
   double map_hz;            /* most map updates per second sent (0 = every version) */
   uint32_t brick;           /* brick edge in voxels for the scene channel */
   size_t cloud_piece_bytes; /* the largest point cloud message (0 = 1 MiB) */
+  double grid_hz;           /* most /map/grid messages per second (0 = 1), sent while the map changes */
+  /* the largest grid or depth image sent (0 = no bound): one message above a
+   * client's queue limit would drop the client, again at every reconnection */
+  size_t max_message_bytes;
+  /* the grid: per column the highest occupied voxel (seen from above), or with
+   * grid_slice the voxels of the layer holding height grid_z (m, in the map's frame) */
+  int grid_slice;
+  double grid_z;
   /* the map's frame (the scene, the point cloud, the pose's parent) and the
    * camera's (images, calibration, the pose's child): NULL = "world", "camera" */
   const char *world_frame, *camera_frame;

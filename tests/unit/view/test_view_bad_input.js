@@ -91,13 +91,15 @@ function cli() {
     [['--image-hz', 'x'], '--image-hz'], [['--map', 'nope'], "must start with '/'"],
     [['--www', '/nonexistent'], 'no index.html'], [['extra'], 'unexpected argument'],
     [['--play-rate', '2'], '--play-rate without --play'], [['--record-level', '5'], '--record-level without --record'],
+    [['--force'], '--force without --record'], [['--grid-hz', '0'], 'not a number in 0.1..10'],
+    [['--grid-z', 'nan'], '--grid-z'],
     [['--token-file', '/nonexistent/t'], '/nonexistent/t', 1]]) {
     r = run(...args);
     assert.strictEqual(r.status, code || 2, args.join(' '));
     assert.ok(r.stderr.includes(msg), `${args.join(' ')}: ${r.stderr}`);
   }
-  ok('command line: --version, --help; eight bad arguments exit 2 (--play-rate and --record-level without their ' +
-    'mode among them), an unreadable token file 1, each with a reason');
+  ok('command line: --version, --help; eleven bad arguments exit 2 (--play-rate, --record-level and --force without ' +
+    'their mode among them), an unreadable token file 1, each with a reason');
 
   // A FIFO or a directory named as the token file: refused at once (a plain open of
   // a FIFO would wait for a writer forever), naming the file and what it is.

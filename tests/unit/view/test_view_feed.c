@@ -417,6 +417,83 @@ static struct vlff_view_msg *poll_cloud(struct vlff_feed *f) {
   return cloud;
 }
 
+/* The grid's first message of a poll wanting only the grid, or NULL. */
+static struct vlff_view_msg *poll_grid(struct vlff_feed *f) {
+  struct vlff_view_counters c = {0};
+  struct vlff_view_msg *out[16], *grid = NULL;
+  int n = vlff_feed_poll(f, &c, 1u << VLFF_VIEW_CH_GRID, out, 16);
+  for (int i = 0; i < n; i++) {
+    if (out[i]->channel == VLFF_VIEW_CH_GRID && !grid) grid = vlff_view_msg_ref(out[i]);
+    vlff_view_msg_unref(out[i]);
+  }
+  return grid;
+}
+
+/* The cell (i, j) of a grid message: the cells are its payload's last bytes. */
+static const uint8_t *grid_cell(struct vlff_view_msg *g, int i, int j) {
+  return vlff_view_msg_payload(g) + g->len - (size_t)NX * NY * VLFF_VIEW_GRID_STRIDE +
+         ((size_t)j * NX + (size_t)i) * VLFF_VIEW_GRID_STRIDE;
+}
+
+static uint16_t cell_label(struct vlff_view_msg *g, int i, int j) {
+  const uint8_t *c = grid_cell(g, i, j);
+  return (uint16_t)(c[4] | c[5] << 8);
+}
+
+/* /map/grid: one per map change at most grid_hz a second, the current map's to a
+ * first subscriber while one is owed, and none above max_message_bytes (a grid
+ * above a client's queue limit would drop the client). */
+static void test_grid(void **state) {
+  (void)state;
+  const size_t bytes = (size_t)NX * NY * VLFF_VIEW_GRID_STRIDE;
+  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(m);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  /* one byte too small for the grid: nothing sent, nothing encoded */
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .brick = 4, .grid_hz = 0.1,
+                                .max_message_bytes = bytes - 1};
+  struct vlff_feed *small = vlff_feed_new(&fp);
+  assert_non_null(small);
+  usleep(1100000); /* the feed tries to attach once a second */
+  assert_null(poll_grid(small));
+  assert_null(vlff_feed_current(small, VLFF_VIEW_CH_GRID, NULL));
+  assert_int_equal(vlff_feed_encoded(small, VLFF_VIEW_CH_GRID), 0);
+  vlff_feed_free(small);
+
+  fp.max_message_bytes = bytes + 1024;
+  struct vlff_feed *f = vlff_feed_new(&fp);
+  assert_non_null(f);
+  usleep(1100000);
+  struct vlff_view_msg *g = poll_grid(f);
+  assert_non_null(g);
+  assert_true(g->len > bytes && g->len <= bytes + 1024);
+  /* seen from above: the floor, the chair on it, the lone voxel at the top */
+  assert_int_equal(cell_label(g, 0, 0), 1);
+  assert_int_equal(cell_label(g, 5, 5), 2);
+  assert_int_equal(cell_label(g, 9, 8), 0);
+  float elev;
+  memcpy(&elev, grid_cell(g, 5, 5) + 8, 4);
+  assert_true(elev == 0.5f); /* the chair voxel's top: 2 voxels of 0.25 m above the map's floor */
+  assert_int_equal(grid_cell(g, 5, 5)[3], 255);
+  assert_int_equal(grid_cell(g, 5, 5)[6], 200);
+  vlff_view_msg_unref(g);
+  assert_null(poll_grid(f)); /* no change, no grid */
+
+  /* a change within the rate's period: owed, not sent; a first subscriber gets
+   * the changed map's grid */
+  labels[at(5, 5, 1)] = VLFF_LABEL_FREE;
+  assert_int_equal(publish(m, prompts, 3), 0);
+  assert_null(poll_grid(f));
+  g = vlff_feed_current(f, VLFF_VIEW_CH_GRID, NULL);
+  assert_non_null(g);
+  assert_int_equal(cell_label(g, 5, 5), 1);
+  vlff_view_msg_unref(g);
+  assert_int_equal(vlff_feed_encoded(f, VLFF_VIEW_CH_GRID), 2);
+  vlff_feed_free(f);
+  vlff_map_detach(m);
+}
+
 static void test_cloud(void **state) {
   (void)state;
   /* 1100 bytes: 29 points of 20 bytes beside the head (512 bytes and the frame) */
@@ -486,4 +563,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test_setup_teardown(test_feed, setup, teardown),
     cmocka_unit_test_setup_teardown(test_fresh, setup, teardown),
     cmocka_unit_test_setup_teardown(test_feed_follows_log, setup, teardown),
-    cmocka_unit_test_setup_teardown(test_cloud, setup, teardown))
+    cmocka_unit_test_setup_teardown(test_cloud, setup, teardown),
+    cmocka_unit_test_setup_teardown(test_grid, setup, teardown))

@@ -80,7 +80,7 @@ function descriptorVsPublished(set) {
       values: (m.enumType || []).flatMap((e) => e.value.map((v) => `${v.name} = ${v.number};`)),
     };
     if (f.syntax !== 'proto3') errs.push(`${f.name}: syntax ${f.syntax}`);
-    if (set.file.length !== 6 || m === undefined) errs.push(`${f.name}: one message per file`);
+    if (f.messageType.length !== 1) errs.push(`${f.name}: one message per file`);
     const a = JSON.stringify(got), b = JSON.stringify(want);
     if (a !== b) errs.push(`${f.name}: ${a} against @foxglove/schemas' ${b}`);
   }
@@ -157,19 +157,23 @@ async function main() {
       waiters.push(() => { if (cond()) { clearTimeout(t); resolve(); return true; } return false; });
     });
 
-    await until(() => serverInfo && Object.keys(chans).length === 9, 10000, 'serverInfo and advertise');
-    assert.deepStrictEqual(Object.keys(chans).sort(), ['/camera/calibration', '/camera/image', '/camera/labels', '/log',
-      '/map', '/map/points', '/map/voxels', '/tf', '/vlff/status']);
+    await until(() => serverInfo && Object.keys(chans).length === 11, 10000, 'serverInfo and advertise');
+    assert.deepStrictEqual(Object.keys(chans).sort(), ['/camera/calibration', '/camera/depth', '/camera/image',
+      '/camera/labels', '/log', '/map', '/map/grid', '/map/points', '/map/voxels', '/tf', '/vlff/status']);
+    const pbChannels = { '/map/points': 'foxglove.PointCloud', '/map/grid': 'foxglove.Grid',
+      '/camera/depth': 'foxglove.RawImage' };
     for (const c of Object.values(chans)) {
-      if (c.topic === '/map/points') continue;
+      if (pbChannels[c.topic]) continue;
       assert.strictEqual(c.encoding, 'json');
       assert.strictEqual(c.schemaEncoding, 'jsonschema');
       assert.strictEqual(JSON.parse(c.schema).title, c.schemaName);
     }
-    const pc = chans['/map/points'];
-    assert.ok(pc.encoding === 'protobuf' && pc.schemaEncoding === 'protobuf' && pc.schemaName === 'foxglove.PointCloud',
-      JSON.stringify(pc));
-    assert.deepStrictEqual(descriptorVsPublished(protobufType(pc).set), []);
+    for (const [t, name] of Object.entries(pbChannels)) {
+      const pc = chans[t];
+      assert.ok(pc.encoding === 'protobuf' && pc.schemaEncoding === 'protobuf' && pc.schemaName === name,
+        JSON.stringify(pc));
+      assert.deepStrictEqual(descriptorVsPublished(protobufType(pc).set), [], t);
+    }
     assert.strictEqual(chans['/map'].schemaName, 'foxglove.SceneUpdate');
     assert.strictEqual(chans['/camera/image'].schemaName, 'foxglove.CompressedImage');
     assert.strictEqual(chans['/camera/labels'].schemaName, 'foxglove.CompressedImage');
@@ -177,8 +181,9 @@ async function main() {
     assert.strictEqual(chans['/tf'].schemaName, 'foxglove.FrameTransform');
     assert.deepStrictEqual(serverInfo.capabilities, [], 'no clientPublish without a token');
     assert.strictEqual(chans['/log'].schemaName, 'foxglove.Log');
-    ok('serverInfo and nine channels advertised: JSON schemas, and /map/points in protobuf whose FileDescriptorSet ' +
-      'has the files, imports, messages, fields and numbers of the .proto that @foxglove/schemas generates');
+    ok('serverInfo and eleven channels advertised: JSON schemas, and /map/points, /map/grid and /camera/depth in ' +
+      'protobuf whose FileDescriptorSets have the files, imports, messages, fields and numbers of the .proto that ' +
+      '@foxglove/schemas generates');
     const foxgloveChannels = Object.values(chans).filter((c) => c.schemaName.startsWith('foxglove.') &&
       c.encoding === 'json');
     for (const c of foxgloveChannels) {
@@ -191,11 +196,11 @@ async function main() {
       'field names, types and required fields of @foxglove/schemas');
 
     await until(() => fullSeen >= 1 && deltaSeen >= 2 && ['/camera/image', '/camera/labels', '/camera/calibration',
-      '/tf', '/vlff/status', '/log', '/map/points']
+      '/tf', '/vlff/status', '/log', '/map/points', '/map/grid', '/camera/depth']
       .every((t) => got[t]), 120000, 'a whole map, two deltas and every channel');
     assert.deepStrictEqual(bad, [], 'every message matches its advertised schema and the published one');
     for (const n of ['foxglove.SceneUpdate', 'foxglove.CompressedImage', 'foxglove.CameraCalibration',
-      'foxglove.FrameTransform', 'foxglove.Log', 'foxglove.PointCloud'])
+      'foxglove.FrameTransform', 'foxglove.Log', 'foxglove.PointCloud', 'foxglove.Grid', 'foxglove.RawImage'])
       assert.ok(checkedPublished[n] > 0, `messages checked against ${n}`);
     ok(`every channel delivered, ${Object.values(got).reduce((a, l) => a + l.length, 0)} messages match their schemas; ` +
       `against @foxglove/schemas: ${JSON.stringify(checkedPublished)}`);

@@ -68,8 +68,9 @@ async function until(cond, ms, what) {
   }
 }
 
-// A /map/points message decoded as Foxglove decodes it (protobufjs, from the
-// channel's FileDescriptorSet), in the shape of @foxglove/schemas' PointCloud.
+// A protobuf channel's message (/map/points, /map/grid, /camera/depth) decoded as
+// Foxglove decodes it (protobufjs, from the channel's FileDescriptorSet), in the
+// shape of its @foxglove/schemas JSON Schema.
 const pbTypes = new Map();
 function pointCloud(c, bytes) {
   if (!pbTypes.has(c.schema)) {
@@ -184,7 +185,7 @@ async function main() {
   for (let i = 0; i < msgs.length; i++) {
     const m = msgs[i], c = advertised[m.topic];
     if (i && m.log < msgs[i - 1].log) bad.push(`message ${i} goes back in log time`);
-    const errs = c.encoding === 'protobuf' ? validate(published.PointCloud, pointCloud(c, m.bytes), '$', [], true)
+    const errs = c.encoding === 'protobuf' ? validate(published[c.schemaName.slice(9)], pointCloud(c, m.bytes), '$', [], true)
       : validate(JSON.parse(c.schema), JSON.parse(td.decode(m.bytes)));
     if (errs.length) bad.push(`${m.topic}: ${errs.slice(0, 2).join('; ')}`);
   }
