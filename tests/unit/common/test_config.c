@@ -7,6 +7,7 @@
 #include <string.h>
 #include <cmocka.h>
 
+#include <dirent.h>
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/stat.h>
@@ -584,17 +585,36 @@ static void test_shipped_configs(void **state) {
     snprintf(needle, sizeof needle, "\n%*s%s:", 2 * depth, "", k);
     if (!strstr(text, needle)) fail_msg("default.yaml lacks key %s", vlff_config_key_path(i));
   }
-  const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "aravis-rgbd.yaml", "libcamera.yaml", "vlff.yaml"};
-  for (size_t i = 0; i < sizeof examples / sizeof examples[0]; i++) {
-    snprintf(path, sizeof path, "%s/configs/%s", src, examples[i]);
+  /* Every vlff config shipped in configs/ (the install copies them to
+   * /etc/vlff), found by listing the directory so that a new one is checked
+   * too; OpenCV FileStorage calibrations ("%YAML:1.0") are not vlff configs. */
+  snprintf(path, sizeof path, "%s/configs", src);
+  DIR *d = opendir(path);
+  assert_non_null(d);
+  int checked = 0, installed = 0;
+  for (struct dirent *e; (e = readdir(d));) {
+    size_t l = strlen(e->d_name);
+    if (l < 6 || strcmp(e->d_name + l - 5, ".yaml")) continue;
+    snprintf(path, sizeof path, "%s/configs/%s", src, e->d_name);
+    char head[16] = "";
+    FILE *h = fopen(path, "r");
+    assert_non_null(h);
+    if (!fgets(head, sizeof head, h)) head[0] = 0;
+    fclose(h);
+    if (!strncmp(head, "%YAML:", 6)) continue;
     if (vlff_config_load(path, &cfg, err, sizeof err)) fail_msg("%s", err);
-    /* A live camera's frames with a live tracker's poses: the newest pose is up
-     * to a period older than the newest frame (docs/pose.md: the example configs
-     * wait for it). */
-    if (cfg.source.kind == VLFF_SOURCE_RING && strcmp(examples[i], "vlff.yaml") && !(cfg.source.pose_wait_s > 0))
-      fail_msg("%s: source.pose_wait_s is %g, expected the shipped wait for a live tracker", examples[i],
+    checked++;
+    installed += !strcmp(e->d_name, "vlff.yaml");
+    /* A live camera's frames with a live tracker's poses: the newest pose is
+     * up to a period older than the newest frame (docs/pose.md: the shipped
+     * configs wait for it). default.yaml lists the built-in defaults. */
+    if (cfg.source.kind == VLFF_SOURCE_RING && strcmp(e->d_name, "default.yaml") && !(cfg.source.pose_wait_s > 0))
+      fail_msg("%s: source.pose_wait_s is %g, expected the shipped wait for a live tracker", e->d_name,
                cfg.source.pose_wait_s);
   }
+  closedir(d);
+  assert_int_equal(installed, 1);
+  assert_true(checked >= 6); /* default, vlff, demo-sim and the three rigs' */
 }
 
 static void test_field_hash(void **state) {
