@@ -405,6 +405,9 @@ static const struct key schema[] = {
      * (6 bytes per byte), fits 16 KiB; the default takes plainly written ones. */
     INT("dds.max_prompt_bytes", dds.max_prompt_bytes, 64, 16384, 4096),
     INT("dds.jpeg_quality", dds.jpeg_quality, 1, 100, 80),
+    /* Every topic's history (depth x its largest message) within it: a map
+     * segment of shm.map_max_voxels is 40 MiB a whole map at the default. */
+    DBL("dds.history_max_mb", dds.history_max_mb, 0.01, 65536, 512),
     STR("dds.merge.map", dds.merge.map, "/vlff-fleet"),
     STR("dds.merge.namespace", dds.merge.ns, "/fleet"),
     DVEC("dds.merge.bounds", dds.merge.bounds, -1e5, 1e5, merge_bounds_def),
@@ -1107,8 +1110,83 @@ static int check_dds(struct parse *p, struct vlff_config *cfg) {
   return 0;
 }
 
+uint64_t vlff_config_dds_message_max(const struct vlff_config *cfg, int id) {
+  const struct vlff_cfg_shm *m = &cfg->shm;
+  const uint64_t cam = (uint64_t)m->max_width * (uint64_t)m->max_height;
+  const uint64_t lab = (uint64_t)m->label_max_width * (uint64_t)m->label_max_height;
+  const uint64_t o = VLFF_DDS_MSG_OVERHEAD;
+  switch (id) {
+  case VLFF_DDS_MAP: return (uint64_t)m->map_max_voxels * 20 + o; /* vlff-dds' point_step */
+  case VLFF_DDS_MAP_UPDATES: return vlff_config_dds_update_points(cfg) * 24 + o;
+  case VLFF_DDS_STATUS: return VLFF_DDS_STATUS_MAX_BYTES;
+  case VLFF_DDS_PROMPTS_IN: return (uint64_t)cfg->dds.max_prompt_bytes + o;
+  /* a JSON list of the most prompts, each byte \u-escaped at worst */
+  case VLFF_DDS_PROMPTS: return (uint64_t)VLFF_SHM_MAX_PROMPTS * (6 * (VLFF_SHM_PROMPT_LEN - 1) + 3) + o;
+  case VLFF_DDS_LABEL_IMAGE: return lab * 2 + o;                  /* mono16 */
+  case VLFF_DDS_LABEL_IMAGE_COMPRESSED: return lab * 4 + o;       /* PNG: RGB, a filter byte a row, zlib's blocks */
+  case VLFF_DDS_CAMERA_IMAGE: return cam * 3 + o;                 /* the ring's colour plane: RGB8 at most */
+  case VLFF_DDS_CAMERA_IMAGE_COMPRESSED: return cam * 4 + o;      /* JPEG at quality 100 of noise stays below */
+  case VLFF_DDS_CAMERA_INFO: return 2 * o;                        /* 35 doubles, two frame ids */
+  case VLFF_DDS_TF: return 2 * o;                                 /* one transform, two frame ids */
+  default: return 0;
+  }
+}
+
+/* The bytes of the switched-on topics' histories but map_updates', and the
+ * topic whose history is the largest of them. */
+static uint64_t dds_fixed_history(const struct vlff_config *cfg, int *largest) {
+  uint64_t sum = 0, most = 0;
+  if (largest) *largest = VLFF_DDS_MAP;
+  for (int i = 0; i < VLFF_DDS_NTOPICS; i++) {
+    if (i == VLFF_DDS_MAP_UPDATES || !cfg->dds.on[i]) continue;
+    uint64_t h = (uint64_t)cfg->dds.qos[i].depth * vlff_config_dds_message_max(cfg, i);
+    sum += h;
+    if (h > most && largest) most = h, *largest = i;
+  }
+  return sum;
+}
+
+static uint64_t dds_history_cap(const struct vlff_config *cfg) {
+  return (uint64_t)(cfg->dds.history_max_mb * 1048576.0);
+}
+
+uint64_t vlff_config_dds_update_points(const struct vlff_config *cfg) {
+  uint64_t fixed = dds_fixed_history(cfg, NULL), cap = dds_history_cap(cfg);
+  uint64_t depth = (uint64_t)cfg->dds.qos[VLFF_DDS_MAP_UPDATES].depth;
+  /* each update's header too */
+  if (!depth || fixed >= cap || cap - fixed <= depth * VLFF_DDS_MSG_OVERHEAD) return 0;
+  return (cap - fixed - depth * VLFF_DDS_MSG_OVERHEAD) / (depth * 24);
+}
+
+/* Keep-last histories are bounded in samples, not bytes: a depth of 1000
+ * whole maps of 2 M voxels would be 40 GB held. Each switched-on topic's
+ * depth times its largest message, summed, must fit dds.history_max_mb,
+ * with at least one point per update left to map/updates. */
+static int check_dds_history(struct parse *p, const struct vlff_config *cfg) {
+  int largest;
+  uint64_t fixed = dds_fixed_history(cfg, &largest), cap = dds_history_cap(cfg);
+  const double mib = 1048576.0;
+  const char *key = "dds.qos.map.depth";
+  for (size_t i = 0; i < NKEYS; i++)
+    if (schema[i].off == F(dds.qos[0].depth) + (size_t)largest * sizeof cfg->dds.qos[0]) key = schema[i].path;
+  if (fixed > cap) {
+    return fail_cross(p, key,
+                      "expected a history that fits dds.history_max_mb (%g MiB), got keep last %d of up to %.1f MiB "
+                      "(%.1f MiB with the other topics' histories); lower the depth, switch topics off or raise "
+                      "dds.history_max_mb",
+                      cfg->dds.history_max_mb, cfg->dds.qos[largest].depth,
+                      (double)vlff_config_dds_message_max(cfg, largest) / mib, (double)fixed / mib);
+  }
+  if (cfg->dds.on[VLFF_DDS_MAP_UPDATES] && vlff_config_dds_update_points(cfg) < 1)
+    return fail_cross(p, "dds.qos.map_updates.depth",
+                      "expected a depth whose updates fit what dds.history_max_mb (%g MiB) leaves after the other "
+                      "topics' %.1f MiB, got keep last %d, which leaves no point per update",
+                      cfg->dds.history_max_mb, (double)fixed / mib, cfg->dds.qos[VLFF_DDS_MAP_UPDATES].depth);
+  return 0;
+}
+
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
-  if (check_dds(p, cfg)) return -1;
+  if (check_dds(p, cfg) || check_dds_history(p, cfg)) return -1;
   /* A tenth of a core is a few training steps a second: below it the node
    * would hold a map it can no longer learn. */
   double b = cfg->node.cpu_budget;

@@ -379,6 +379,34 @@ static void test_dds_section(void **state) {
   expect_error("dds:\n  qos:\n    map:\n      lifespan: 3\n", "t.yaml:4:7: key 'dds.qos.map.lifespan': ", "unknown key");
   expect_error("dds:\n  image_hz: 0\n", "t.yaml:2:13: key 'dds.image_hz': ", "expected");
   expect_error("dds:\n  jpeg_quality: 101\n", "t.yaml:2:17: key 'dds.jpeg_quality': ", "expected");
+  /* Keep-last histories bounded in bytes: each switched-on topic's depth
+   * times its largest message, together within dds.history_max_mb, the
+   * depth that holds the most named (with its line when the file sets it). */
+  expect_error("dds:\n  qos:\n    map:\n      depth: 1000\n", "t.yaml:4:14: key 'dds.qos.map.depth': ",
+               "fits dds.history_max_mb (512 MiB), got keep last 1000 of up to 40.0 MiB");
+  expect_error("shm:\n  map_max_voxels: 67108864\n", "t.yaml: key 'dds.qos.map.depth': ", "up to 1280.0 MiB");
+  expect_error("dds:\n  history_max_mb: 20\n", "t.yaml: key 'dds.qos.map.depth': ", "dds.history_max_mb (20 MiB)");
+  expect_error("dds:\n  qos:\n    camera_image:\n      depth: 100\n", "t.yaml:4:14: key 'dds.qos.camera_image.depth': ",
+               "keep last 100 of up to 5.9 MiB");
+  /* map/updates take what the others leave: at least a point an update */
+  expect_error("dds:\n  history_max_mb: 46.8\n  qos:\n    map_updates:\n      depth: 1000\n",
+               "t.yaml:5:14: key 'dds.qos.map_updates.depth': ", "leaves no point per update");
+  expect_error("dds:\n  history_max_mb: 46.8\n", "t.yaml: key 'dds.qos.map_updates.depth': ", "keep last 200");
+  expect_error("dds:\n  history_max_mb: 0.001\n", "t.yaml:2:19: key 'dds.history_max_mb': ", "expected");
+  assert_int_equal(load("dds:\n  history_max_mb: 46.8\n  map_updates: false\n", &cfg), 0);
+  assert_int_equal(load("", &cfg), 0);
+  assert_true(vlff_config_dds_message_max(&cfg, VLFF_DDS_MAP) == (2u << 20) * 20 + VLFF_DDS_MSG_OVERHEAD);
+  uint64_t pts = vlff_config_dds_update_points(&cfg);
+  assert_true(pts > 50000); /* a large region's change, within 512 MiB */
+  assert_true(vlff_config_dds_message_max(&cfg, VLFF_DDS_MAP_UPDATES) == pts * 24 + VLFF_DDS_MSG_OVERHEAD);
+  /* half a MiB more is 109 points more in each of 200 updates; the camera's
+   * image switched off leaves its 1920x1080 RGB to them */
+  assert_int_equal(load("dds:\n  history_max_mb: 512.5\n", &cfg), 0);
+  uint64_t more = vlff_config_dds_update_points(&cfg) - pts;
+  if (more < 109 || more > 110) fail_msg("%llu more points", (unsigned long long)more);
+  assert_int_equal(load("dds:\n  camera_image: false\n", &cfg), 0);
+  more = vlff_config_dds_update_points(&cfg) - pts;
+  if (more < 1296 || more > 1297) fail_msg("%llu more points", (unsigned long long)more);
   static const struct {
     const char *yaml, *fragment;
   } cross[] = {
