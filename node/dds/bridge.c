@@ -946,7 +946,8 @@ static void poll_camera(struct vlff_dds *b) {
 /* Key-value lists of the status, built in fixed storage. */
 #define MAX_KV (24 + VLFF_SHM_MAX_REASONS)
 /* two statuses of MAX_KV pairs (CDR: two lengths), name, message, hardware id */
-_Static_assert(2 * (MAX_KV * (48 + 48 + 8) + 96 + 2 * VLFF_CFG_STR) + VLFF_DDS_MSG_OVERHEAD <= VLFF_DDS_STATUS_MAX_BYTES,
+_Static_assert(2 * (MAX_KV * (48 + 48 + 8) + 96 + 2 * VLFF_CFG_STR) + VLFF_DDS_MSG_OVERHEAD <=
+                   VLFF_DDS_STATUS_MAX_BYTES,
                "the status fits the size dds.history_max_mb counts for it");
 struct kvs {
   diagnostic_msgs_msg_dds__KeyValue_ kv[MAX_KV];
