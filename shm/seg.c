@@ -207,6 +207,19 @@ static int open_regular(const char *name, int flags, const char *what, struct st
   return fd;
 }
 
+/* The kinds by name, for messages a user reads: "segment kind 1" alone
+ * does not say that a ring was named where a map was meant. */
+static const char *kind_name(uint32_t k) {
+  return k == VLFF_SHM_KIND_RING      ? "a ring"
+         : k == VLFF_SHM_KIND_MAP     ? "a map"
+         : k == VLFF_SHM_KIND_PROMPTS ? "a prompt mailbox"
+                                      : "an unknown kind";
+}
+static const char *record_name(uint32_t k) {
+  static const char *const n[] = {"any records", "raw records", "frames", "features", "poses"};
+  return k < sizeof n / sizeof n[0] ? n[k] : "unknown records";
+}
+
 /* The magic word: a new segment is zeros until its creator writes the
  * header, so 0 means not yet. */
 static int check_magic(const char *name, const struct seg_hdr *h) {
@@ -237,7 +250,8 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
     return -1;
   }
   if (h->kind != spec->kind) {
-    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u", VLFF_Q(name), h->kind, spec->kind);
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u (%s where %s is expected)", VLFF_Q(name),
+            h->kind, spec->kind, kind_name(h->kind), kind_name(spec->kind));
     return -1;
   }
   uint64_t want = spec->compute_total(h->geom);
@@ -248,8 +262,8 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
     return -1;
   }
   if (spec->record_kind && h->record_kind != spec->record_kind) {
-    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u", VLFF_Q(name), h->record_kind,
-            spec->record_kind);
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u (a ring of %s where %s are expected)",
+            VLFF_Q(name), h->record_kind, spec->record_kind, record_name(h->record_kind), record_name(spec->record_kind));
     return -1;
   }
   if (file_size < h->total_size) {
