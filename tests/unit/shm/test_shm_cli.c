@@ -78,31 +78,47 @@ static void cli_mailbox_repairs_shown(void **state) {
   vlff_shm_unlink(mbox);
 }
 
+/* A frame ring at name holding one 4x2 RGB frame numbered frame_id, its
+ * colour bytes 0, 10, 20, ... (copied to rgb[24] when given). */
+static struct vlff_ring *frame_ring(const char *name, uint64_t frame_id, uint8_t *rgb) {
+  uint64_t slot = vlff_frame_slot_size(4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_FRAME, .slots = 2, .slot_size = slot};
+  struct vlff_ring *w = vlff_ring_create(name, &rp);
+  assert_non_null(w);
+  struct vlff_frame_hdr *h = vlff_ring_reserve(w, NULL);
+  uint64_t len = vlff_frame_layout(h, slot, 4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  h->frame_id = frame_id;
+  uint8_t *px = (uint8_t *)h + h->plane[0].offset;
+  for (int i = 0; i < 24; i++)
+    px[i] = (uint8_t)(i * 10);
+  if (rgb)
+    memcpy(rgb, px, 24);
+  assert_int_equal(vlff_ring_commit(w, len), 0);
+  return w;
+}
+
+/* A map at name of 2x2x2 voxels of 1 m, published once. */
+static struct vlff_map *small_map(const char *name, uint16_t labels[8], const char **prompts, int n) {
+  struct vlff_map_params mp = {.max_voxels = 8};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(m);
+  struct vlff_map_grid g = {.voxel_size = 1, .dims = {2, 2, 2}, .labels = labels};
+  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = n};
+  assert_int_equal(vlff_map_publish(m, &u), 0);
+  return m;
+}
+
 static void cli_commands(void **state) {
   (void)state;
   char ring[64], map[64], mbox[64], args[512], out[8192];
   test_name(ring, sizeof ring, "cliring");
   test_name(map, sizeof map, "climap");
   test_name(mbox, sizeof mbox, "clibox");
-  uint64_t slot = vlff_frame_slot_size(4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
-  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_FRAME, .slots = 2, .slot_size = slot};
-  struct vlff_ring *w = vlff_ring_create(ring, &rp);
-  assert_non_null(w);
-  struct vlff_frame_hdr *h = vlff_ring_reserve(w, NULL);
-  uint64_t len = vlff_frame_layout(h, slot, 4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
-  h->frame_id = 77;
-  uint8_t *rgb = (uint8_t *)h + h->plane[0].offset;
-  for (int i = 0; i < 24; i++)
-    rgb[i] = (uint8_t)(i * 10);
-  assert_int_equal(vlff_ring_commit(w, len), 0);
-
-  struct vlff_map_params mp = {.max_voxels = 8};
-  struct vlff_map *m = vlff_map_create(map, &mp);
+  uint8_t rgb[24];
+  struct vlff_ring *w = frame_ring(ring, 77, rgb);
   uint16_t labels[8] = {0, 1, 1, 0, 0, 1, 1, 0};
   const char *prompts[] = {"floor", "door"};
-  struct vlff_map_grid g = {.voxel_size = 1, .dims = {2, 2, 2}, .labels = labels};
-  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 2};
-  assert_int_equal(vlff_map_publish(m, &u), 0);
+  struct vlff_map *m = small_map(map, labels, prompts, 2);
   struct vlff_shm_perm perm = {.mode = 0660};
   struct vlff_prompts *pb = vlff_prompts_create(mbox, &perm);
   assert_non_null(pb);
@@ -195,21 +211,10 @@ static void cli_wrong_targets(void **state) {
   char ring[64], map[64], args[512], out[8192], fifo[128], dir[128], fresh[128];
   test_name(ring, sizeof ring, "cliwr");
   test_name(map, sizeof map, "cliwm");
-  uint64_t slot = vlff_frame_slot_size(4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
-  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_FRAME, .slots = 2, .slot_size = slot};
-  struct vlff_ring *w = vlff_ring_create(ring, &rp);
-  assert_non_null(w);
-  struct vlff_frame_hdr *h = vlff_ring_reserve(w, NULL);
-  uint64_t len = vlff_frame_layout(h, slot, 4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
-  assert_int_equal(vlff_ring_commit(w, len), 0);
-  struct vlff_map_params mp = {.max_voxels = 8};
-  struct vlff_map *m = vlff_map_create(map, &mp);
-  assert_non_null(m);
+  struct vlff_ring *w = frame_ring(ring, 1, NULL);
   uint16_t labels[8] = {0};
   const char *prompts[] = {"floor"};
-  struct vlff_map_grid g = {.voxel_size = 1, .dims = {2, 2, 2}, .labels = labels};
-  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 1};
-  assert_int_equal(vlff_map_publish(m, &u), 0);
+  struct vlff_map *m = small_map(map, labels, prompts, 1);
 
   static const struct {
     const char *cmd, *says;
