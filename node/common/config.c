@@ -1254,6 +1254,19 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
                       "source.allow_sim_features: true to force it");
   if (!strstr(cfg->prompts.templ, "{}"))
     return fail_cross(p, "prompts.template", "expected a template containing {}, got '%s'", VLFF_Q(cfg->prompts.templ));
+  /* The publisher refused it at start, without the line. */
+  if (cfg->publish.label_width > cfg->shm.label_max_width || cfg->publish.label_height > cfg->shm.label_max_height)
+    return fail_cross(p, cfg->publish.label_width > cfg->shm.label_max_width ? "publish.label_width" : "publish.label_height",
+                      "expected a label image within the map segment's shm.label_max_width x label_max_height (%dx%d), "
+                      "got %dx%d",
+                      cfg->shm.label_max_width, cfg->shm.label_max_height, cfg->publish.label_width,
+                      cfg->publish.label_height);
+  /* The store never holds more than max_keyframes: training would never start. */
+  if (cfg->keyframes.start_after > cfg->keyframes.max_keyframes)
+    return fail_cross(p, "keyframes.start_after",
+                      "expected at most keyframes.max_keyframes (%d), the most the store holds: training would never "
+                      "start, got %d",
+                      cfg->keyframes.max_keyframes, cfg->keyframes.start_after);
   return 0;
 }
 

@@ -113,6 +113,12 @@ static const struct {
   {"shm:\n  mode: 0666\n", "t.yaml:2:9: key 'shm.mode': ", "world-writable"},
   {"field:\n  base_resolution: 64\n  finest_resolution: 32\n", "t.yaml:3:22: key 'field.finest_resolution': ", ">= field.base_resolution"},
   {"field:\n  base_resolution: 4096\n", "t.yaml: key 'field.finest_resolution': ", "got 2048"},
+  /* what start-up refused without a line, and a node that would never train */
+  {"publish:\n  label_width: 8192\n", "t.yaml:2:16: key 'publish.label_width': ",
+   "within the map segment's shm.label_max_width x label_max_height (640x480), got 8192x120"},
+  {"shm:\n  label_max_height: 100\n", "t.yaml: key 'publish.label_height': ", "(640x100), got 160x120"},
+  {"keyframes:\n  start_after: 400\n", "t.yaml:2:16: key 'keyframes.start_after': ",
+   "at most keyframes.max_keyframes (325), the most the store holds: training would never start, got 400"},
   {"node:\n  cpu_budget: 0.05\n", "t.yaml:2:15: key 'node.cpu_budget': ", "expected 0 (no limit) or 0.1 to 256 cores, got 0.05"},
   {"node:\n  cpu_budget: 300\n", "t.yaml:2:15: key 'node.cpu_budget': ", "expected number in [0, 256], got '300'"},
   {"node:\n  cpu_budget: -1\n", "t.yaml:2:15: key 'node.cpu_budget': ", "got '-1'"},
