@@ -24,6 +24,7 @@
 #ifdef VLFF_HAVE_SIM
 #include "sim_source.h"
 #endif
+#include "vlff/escape.h"
 #include "vlff/shm.h"
 #ifdef VLFF_HAVE_CAN
 #include "vlff_can.h"
@@ -100,6 +101,26 @@ static void refusals_text(const struct vlff_node_status *st, char *out, size_t l
     if (st->refused[r])
       k += (size_t)snprintf(out + k, len - k, "%s%s %lld", k ? ", " : " (", vlff_refusal_name(r), st->refused[r]);
   if (k && k < len) snprintf(out + k, len - k, ")");
+}
+
+/* --snapshot DIR checked before the run, not after it: a DIR that is a file,
+ * whose parent is missing, or too long for dir/strip.png learned so only at
+ * exit, after the whole run. 0, or -1 with why. */
+static int snapshot_dir_problem(const char *dir, char *why, size_t len) {
+  struct stat st;
+  if (!*dir) return snprintf(why, len, "an empty name, expected a directory"), -1;
+  if (strlen(dir) > 4000) return snprintf(why, len, "a name of %zu bytes, longer than the 4000 taken", strlen(dir)), -1;
+  if (stat(dir, &st) == 0)
+    return S_ISDIR(st.st_mode) ? 0 : (snprintf(why, len, "exists and is not a directory"), -1);
+  if (errno != ENOENT) return snprintf(why, len, "%s", strerror(errno)), -1;
+  /* made at exit: its parent must be there */
+  char parent[4096];
+  const char *slash = strrchr(dir, '/');
+  snprintf(parent, sizeof parent, "%.*s", slash ? (slash == dir ? 1 : (int)(slash - dir)) : 1, slash ? dir : ".");
+  if (stat(parent, &st) != 0 || !S_ISDIR(st.st_mode))
+    return snprintf(why, len, "its parent %s is not a directory (the node makes only DIR itself)", VLFF_Q(parent)),
+           -1;
+  return 0;
 }
 
 /* --snapshot: the final map for people, dir/strip.png and dir/map.ply. */
@@ -332,6 +353,9 @@ int main(int argc, char **argv) {
   }
   if (optind < argc) return vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]);
   if (check_path) return check_config(check_path);
+  char why[512];
+  if (snapshot_dir && snapshot_dir_problem(snapshot_dir, why, sizeof why))
+    return vlff_cli_usage_error(&cli, "--snapshot '%s': %s", VLFF_Q(snapshot_dir), why);
   /* Never the built-in defaults: a node started by mistake would create
    * segments and write checkpoints nobody asked for. */
   char err[512];

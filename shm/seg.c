@@ -187,6 +187,39 @@ static int not_regular(const char *name, const struct stat *st) {
   return -1;
 }
 
+/* shm_open of name (O_NONBLOCK added) that must be a regular file, its
+ * fstat in *st: the descriptor, or -1 with the error set (errno ENOENT when
+ * there is nothing at the name; error FOREIGN when something else is). */
+static int open_regular(const char *name, int flags, const char *what, struct stat *st) {
+  int fd = shm_open(name, flags | O_NONBLOCK, 0);
+  if (fd < 0)
+    return open_error(name, what);
+  if (fstat(fd, st) < 0) {
+    int e = errno;
+    close(fd);
+    errno = e;
+    return open_error(name, "fstat");
+  }
+  if (!S_ISREG(st->st_mode)) {
+    close(fd);
+    return not_regular(name, st);
+  }
+  return fd;
+}
+
+/* The kinds by name, for messages a user reads: "segment kind 1" alone
+ * does not say that a ring was named where a map was meant. */
+static const char *kind_name(uint32_t k) {
+  return k == VLFF_SHM_KIND_RING      ? "a ring"
+         : k == VLFF_SHM_KIND_MAP     ? "a map"
+         : k == VLFF_SHM_KIND_PROMPTS ? "a prompt mailbox"
+                                      : "an unknown kind";
+}
+static const char *record_name(uint32_t k) {
+  static const char *const n[] = {"any records", "raw records", "frames", "features", "poses"};
+  return k < sizeof n / sizeof n[0] ? n[k] : "unknown records";
+}
+
 /* The magic word: a new segment is zeros until its creator writes the
  * header, so 0 means not yet. */
 static int check_magic(const char *name, const struct seg_hdr *h) {
@@ -217,7 +250,8 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
     return -1;
   }
   if (h->kind != spec->kind) {
-    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u", VLFF_Q(name), h->kind, spec->kind);
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: segment kind %u, expected %u (%s where %s is expected)", VLFF_Q(name),
+            h->kind, spec->kind, kind_name(h->kind), kind_name(spec->kind));
     return -1;
   }
   uint64_t want = spec->compute_total(h->geom);
@@ -228,8 +262,8 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
     return -1;
   }
   if (spec->record_kind && h->record_kind != spec->record_kind) {
-    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u", VLFF_Q(name), h->record_kind,
-            spec->record_kind);
+    shm_err(VLFF_SHM_ERR_KIND, EPROTO, "%s: ring of record kind %u, expected %u (a ring of %s where %s are expected)",
+            VLFF_Q(name), h->record_kind, spec->record_kind, record_name(h->record_kind), record_name(spec->record_kind));
     return -1;
   }
   if (file_size < h->total_size) {
@@ -337,18 +371,10 @@ static int map_checked(struct seg *s, const char *name, int fd, bool writable, c
 int shm_seg_peek(const char *name, struct seg_hdr *out) {
   if (check_name(name) < 0)
     return -1;
-  int fd = shm_open(name, O_RDONLY | O_NONBLOCK, 0);
-  if (fd < 0)
-    return open_error(name, "open read-only");
   struct stat st;
-  if (fstat(fd, &st) < 0) {
-    close(fd);
-    return open_error(name, "fstat");
-  }
-  if (!S_ISREG(st.st_mode)) {
-    close(fd);
-    return not_regular(name, &st);
-  }
+  int fd = open_regular(name, O_RDONLY, "open read-only", &st);
+  if (fd < 0)
+    return -1;
   ssize_t n = pread(fd, out, sizeof *out, 0);
   close(fd);
   if (n != (ssize_t)sizeof *out) {
@@ -480,21 +506,13 @@ static int apply_perm(const char *name, int fd, mode_t mode, const char *group) 
  * never deleted. */
 static int try_take_over(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
                          uint64_t total, mode_t mode, const char *group) {
-  int fd = shm_open(name, O_RDWR | O_NONBLOCK, 0);
+  struct stat st;
+  int fd = open_regular(name, O_RDWR, "open existing read-write", &st);
   if (fd < 0) {
     if (errno == ENOENT)
-      return 1;
-    return open_error(name, "open existing read-write");
-  }
-  struct stat st;
-  if (fstat(fd, &st) < 0) {
-    close(fd);
-    return open_error(name, "fstat");
-  }
-  if (!S_ISREG(st.st_mode)) {
-    close(fd);
-    not_regular(name, &st);
-    errno = EEXIST;
+      return 1; /* nothing there: create it */
+    if (vlff_shm_last_error() == VLFF_SHM_ERR_FOREIGN)
+      errno = EEXIST; /* something else holds the name */
     return -1;
   }
   if (st.st_uid != geteuid()) {

@@ -405,6 +405,9 @@ static const struct key schema[] = {
      * (6 bytes per byte), fits 16 KiB; the default takes plainly written ones. */
     INT("dds.max_prompt_bytes", dds.max_prompt_bytes, 64, 16384, 4096),
     INT("dds.jpeg_quality", dds.jpeg_quality, 1, 100, 80),
+    /* Every topic's history (depth x its largest message) within it: a map
+     * segment of shm.map_max_voxels is 40 MiB a whole map at the default. */
+    DBL("dds.history_max_mb", dds.history_max_mb, 0.01, 65536, 512),
     STR("dds.merge.map", dds.merge.map, "/vlff-fleet"),
     STR("dds.merge.namespace", dds.merge.ns, "/fleet"),
     DVEC("dds.merge.bounds", dds.merge.bounds, -1e5, 1e5, merge_bounds_def),
@@ -666,25 +669,60 @@ static int fail_nul_key(struct parse *p, const yaml_node_t *kn, const char *pref
   return -1;
 }
 
-static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
-  char g[96];
+/* ---- the structured keys: prompts.sets, dds.merge.robots, sim.changes ----
+ *
+ * Each is a sequence of lo..hi mappings whose keys come from a fixed list,
+ * none twice; parse_list walks it and names every fault by the entry's path
+ * (prompts.sets[1].prompts) and line, and the list's own callbacks read the
+ * values. */
+#define LIST_MAX_KEYS 4
+struct list_spec {
+  const char *key;                       /* the list's config key */
+  const char *noun;                      /* "prompt sets" */
+  const char *const names[LIST_MAX_KEYS + 1]; /* an entry's keys, NULL-ended */
+  long lo, hi;                           /* entries */
+  int required;                          /* the key every entry must have (-1: none) */
+  const char *required_what;             /* it, for the message: "a 'namespace'" */
+  /* entry i before its keys (its defaults) */
+  void (*begin)(struct vlff_config *cfg, long i);
+  /* key names[k] of entry i with value vn; sub its path for messages */
+  int (*value)(struct parse *p, struct vlff_config *cfg, long i, int k, yaml_node_t *vn, const char *sub);
+  /* entry i after its keys, NULL if none: what it lacks otherwise */
+  int (*end)(struct parse *p, struct vlff_config *cfg, long i, yaml_node_t *entry, const char *path);
+};
+
+/* "{a, b, c}" and "a, b or c" of the spec's keys. */
+static void list_keys(const struct list_spec *ls, char *shape, size_t slen, char *alts, size_t alen) {
+  int n = 0;
+  while (ls->names[n]) n++;
+  size_t s = (size_t)snprintf(shape, slen, "{"), a = 0;
+  alts[0] = 0;
+  for (int k = 0; k < n; k++) {
+    s += (size_t)snprintf(shape + s, s < slen ? slen - s : 0, "%s%s", k ? ", " : "", ls->names[k]);
+    a += (size_t)snprintf(alts + a, a < alen ? alen - a : 0, "%s%s", k == 0 ? "" : k == n - 1 ? " or " : ", ",
+                          ls->names[k]);
+  }
+  snprintf(shape + s, s < slen ? slen - s : 0, "}");
+}
+
+static int parse_list(struct parse *p, yaml_node_t *n, const struct list_spec *ls, struct vlff_config *cfg) {
+  char g[96], shape[96], alts[96];
+  list_keys(ls, shape, sizeof shape, alts, sizeof alts);
   got(n, g, sizeof g);
-  if (n->type != YAML_SEQUENCE_NODE)
-    return fail(p, n, PROMPT_SETS, "expected sequence of {name, prompts}, got %s", g);
-  long count = n->data.sequence.items.top - n->data.sequence.items.start;
-  if (count < 1 || count > VLFF_MAX_PROMPT_SETS)
-    return fail(p, n, PROMPT_SETS, "expected 1 to %d prompt sets, got %ld", VLFF_MAX_PROMPT_SETS,
+  long count = n->type == YAML_SEQUENCE_NODE ? n->data.sequence.items.top - n->data.sequence.items.start : -1;
+  if (count < 0)
+    return fail(p, n, ls->key, "expected a sequence of %ld to %ld %s %s, got %s", ls->lo, ls->hi, ls->noun, shape, g);
+  if (count < ls->lo || count > ls->hi)
+    return fail(p, n, ls->key, "expected a sequence of %ld to %ld %s %s, got %ld", ls->lo, ls->hi, ls->noun, shape,
                 count);
   for (long i = 0; i < count; i++) {
     yaml_node_t *s = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
-    struct vlff_prompt_set *set = &cfg->prompts.sets[i];
-    memset(set, 0, sizeof *set);
     char path[64];
-    snprintf(path, sizeof path, "%s[%ld]", PROMPT_SETS, i);
+    snprintf(path, sizeof path, "%s[%ld]", ls->key, i);
     got(s, g, sizeof g);
-    if (s->type != YAML_MAPPING_NODE)
-      return fail(p, s, path, "expected mapping with name and prompts, got %s", g);
-    const yaml_node_t *name_at = NULL, *prompts_at = NULL;
+    if (s->type != YAML_MAPPING_NODE) return fail(p, s, path, "expected mapping %s, got %s", shape, g);
+    ls->begin(cfg, i);
+    const yaml_node_t *seen[LIST_MAX_KEYS] = {NULL};
     for (yaml_node_pair_t *pr = s->data.mapping.pairs.start; pr < s->data.mapping.pairs.top; pr++) {
       yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
       yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
@@ -692,193 +730,192 @@ static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config
       const char *kname = kn->type == YAML_SCALAR_NODE ? scalar(kn) : "";
       char sub[96];
       snprintf(sub, sizeof sub, "%s.%s", path, kname);
-      got(vn, g, sizeof g);
-      /* A second name or prompts list in one set would replace the first. */
-      const yaml_node_t **seen = !strcmp(kname, "name") ? &name_at : !strcmp(kname, "prompts") ? &prompts_at : NULL;
-      if (seen && *seen) return fail(p, kn, sub, "duplicate key (first at line %u)", (unsigned)(*seen)->start_mark.line + 1);
-      if (seen) *seen = kn;
-      if (!strcmp(kname, "name")) {
-        if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
-          return fail(p, vn, sub, "expected string of at most %d bytes without control characters, got %s",
-                      VLFF_PROMPT_LEN - 1, g);
-        snprintf(set->name, sizeof set->name, "%s", scalar(vn));
-      } else if (!strcmp(kname, "prompts")) {
-        long m = vn->type == YAML_SEQUENCE_NODE
-                     ? vn->data.sequence.items.top - vn->data.sequence.items.start
-                     : -1;
-        if (m < 1 || m > VLFF_MAX_PROMPTS)
-          return fail(p, vn, sub, "expected sequence of 1 to %d prompts, got %s", VLFF_MAX_PROMPTS,
-                      g);
-        const char *texts[VLFF_MAX_PROMPTS];
-        for (long j = 0; j < m; j++) {
-          yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
-          got(e, g, sizeof g);
-          if (e->type != YAML_SCALAR_NODE || has_nul(e))
-            return fail(p, e, sub, "expected a prompt (a string without NUL bytes) at index %ld, got %s", j, g);
-          /* The set is checked as the prompt mailbox and the embeddings
-           * format check theirs (UTF-8 text without control characters,
-           * 1..63 bytes, none repeated), one prompt more each time: the
-           * first prompt that breaks the rule is the one named. */
-          texts[j] = scalar(e);
-          if (vlff_prompt_check(texts, (int)j + 1) < 0)
-            return fail(p, e, sub, "expected a prompt as the mailbox and embeddings files take it (%s) at index %ld, got %s",
-                        vlff_shm_last_message(), j, g);
-          snprintf(set->text[j], VLFF_PROMPT_LEN, "%s", scalar(e));
-        }
-        set->count = (int)m;
-      } else {
-        return fail(p, kn, sub, "unknown key (expected name or prompts)");
-      }
+      int k = 0;
+      while (ls->names[k] && strcmp(kname, ls->names[k])) k++;
+      if (!ls->names[k]) return fail(p, kn, sub, "unknown key (expected %s)", alts);
+      /* A second value would replace the first. */
+      if (seen[k]) return fail(p, kn, sub, "duplicate key (first at line %u)", (unsigned)seen[k]->start_mark.line + 1);
+      seen[k] = kn;
+      if (ls->value(p, cfg, i, k, vn, sub)) return -1;
     }
-    if (!prompts_at) return fail(p, s, path, "expected a 'prompts' list, got none");
+    if (ls->required >= 0 && !seen[ls->required]) return fail(p, s, path, "expected %s, got none", ls->required_what);
+    if (ls->end && ls->end(p, cfg, i, s, path)) return -1;
   }
-  cfg->prompts.set_count = (int)count;
+  return 0;
+}
+
+/* prompts.sets: {name, prompts}. */
+static void prompt_set_begin(struct vlff_config *cfg, long i) {
+  memset(&cfg->prompts.sets[i], 0, sizeof cfg->prompts.sets[i]);
+}
+
+static int prompt_set_value(struct parse *p, struct vlff_config *cfg, long i, int k, yaml_node_t *vn, const char *sub) {
+  struct vlff_prompt_set *set = &cfg->prompts.sets[i];
+  char g[96];
+  got(vn, g, sizeof g);
+  if (k == 0) { /* name */
+    if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || strlen(scalar(vn)) >= VLFF_PROMPT_LEN)
+      return fail(p, vn, sub, "expected string of at most %d bytes without control characters, got %s",
+                  VLFF_PROMPT_LEN - 1, g);
+    snprintf(set->name, sizeof set->name, "%s", scalar(vn));
+    return 0;
+  }
+  long m = vn->type == YAML_SEQUENCE_NODE ? vn->data.sequence.items.top - vn->data.sequence.items.start : -1;
+  if (m < 1 || m > VLFF_MAX_PROMPTS)
+    return fail(p, vn, sub, "expected sequence of 1 to %d prompts, got %s", VLFF_MAX_PROMPTS, g);
+  const char *texts[VLFF_MAX_PROMPTS];
+  for (long j = 0; j < m; j++) {
+    yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
+    got(e, g, sizeof g);
+    if (e->type != YAML_SCALAR_NODE || has_nul(e))
+      return fail(p, e, sub, "expected a prompt (a string without NUL bytes) at index %ld, got %s", j, g);
+    /* The set is checked as the prompt mailbox and the embeddings format
+     * check theirs (UTF-8 text without control characters, 1..63 bytes,
+     * none repeated), one prompt more each time: the first prompt that
+     * breaks the rule is the one named. */
+    texts[j] = scalar(e);
+    if (vlff_prompt_check(texts, (int)j + 1) < 0)
+      return fail(p, e, sub, "expected a prompt as the mailbox and embeddings files take it (%s) at index %ld, got %s",
+                  vlff_shm_last_message(), j, g);
+    snprintf(set->text[j], VLFF_PROMPT_LEN, "%s", scalar(e));
+  }
+  set->count = (int)m;
+  return 0;
+}
+
+static const struct list_spec prompt_sets_spec = {
+    PROMPT_SETS, "prompt sets", {"name", "prompts", NULL}, 1, VLFF_MAX_PROMPT_SETS, 1, "a 'prompts' list",
+    prompt_set_begin, prompt_set_value, NULL};
+
+static const char *dds_ns_problem(const char *s);
+
+/* dds.merge.robots: {namespace, transform: [x, y, z, yaw]}. */
+static void robot_begin(struct vlff_config *cfg, long i) {
+  memset(&cfg->dds.merge.robots[i], 0, sizeof cfg->dds.merge.robots[i]);
+}
+
+static int robot_value(struct parse *p, struct vlff_config *cfg, long i, int k, yaml_node_t *vn, const char *sub) {
+  struct vlff_cfg_dds_merge *m = &cfg->dds.merge;
+  struct vlff_cfg_merge_robot *r = &m->robots[i];
+  char g[96];
+  got(vn, g, sizeof g);
+  if (k == 0) { /* namespace */
+    const char *why = vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || !*scalar(vn) ||
+                              strlen(scalar(vn)) >= VLFF_CFG_STR
+                          ? "a string"
+                          : dds_ns_problem(scalar(vn));
+    if (why) return fail(p, vn, sub, "expected a ROS namespace like /robot1 (%s), got %s", why, g);
+    for (long j = 0; j < i; j++)
+      if (!strcmp(m->robots[j].ns, scalar(vn)))
+        return fail(p, vn, sub, "expected a namespace not given before, got %s", g);
+    snprintf(r->ns, sizeof r->ns, "%s", scalar(vn));
+    return 0;
+  }
+  long n = vn->type == YAML_SEQUENCE_NODE ? vn->data.sequence.items.top - vn->data.sequence.items.start : -1;
+  if (n != 4) return fail(p, vn, sub, "expected [x, y, z, yaw_deg], got %s", g);
+  for (long j = 0; j < 4; j++) {
+    yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
+    double v, lim = j < 3 ? 1e5 : 360;
+    got(e, g, sizeof g);
+    if (e->type != YAML_SCALAR_NODE || parse_number(e, false, &v) || !(fabs(v) <= lim))
+      return fail(p, e, sub, "expected %s within +-%g at index %ld, got %s", j < 3 ? "metres" : "degrees", lim, j, g);
+    r->transform[j] = v;
+  }
+  return 0;
+}
+
+static const struct list_spec merge_robots_spec = {
+    MERGE_ROBOTS, "robots", {"namespace", "transform", NULL}, 0, VLFF_MAX_MERGE_ROBOTS, 0, "a 'namespace'",
+    robot_begin, robot_value, NULL};
+
+/* sim.changes: {time_s, object, action, to}. Which objects a scene has is
+ * the simulator's to say (vlff_sim_create); here each value's form and
+ * physical bounds. */
+static const char SIM_CHANGES[] = "sim.changes";
+static const char *const sim_actions[] = {"move", "remove", "add", NULL};
+
+static void change_begin(struct vlff_config *cfg, long i) {
+  struct vlff_sim_change *ch = &cfg->sim.changes[i];
+  memset(ch, 0, sizeof *ch);
+  ch->action = -1;
+  ch->time_s = -1;
+}
+
+static int change_value(struct parse *p, struct vlff_config *cfg, long i, int k, yaml_node_t *vn, const char *sub) {
+  struct vlff_sim_change *ch = &cfg->sim.changes[i];
+  char g[96];
+  got(vn, g, sizeof g);
+  double v;
+  switch (k) {
+  case 0: /* time_s: a week of simulated time, far beyond any run */
+    if (parse_number(vn, false, &v) || v < 0 || v > 604800)
+      return fail(p, vn, sub, "expected number in [0, 604800] (seconds of sim time), got %s", g);
+    ch->time_s = v;
+    return 0;
+  case 1: /* object */
+    if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || !*scalar(vn) ||
+        strlen(scalar(vn)) >= VLFF_SIM_OBJECT_LEN)
+      return fail(p, vn, sub, "expected an object name (a class, or class#n) of 1 to %d bytes, got %s",
+                  VLFF_SIM_OBJECT_LEN - 1, g);
+    snprintf(ch->object, sizeof ch->object, "%s", scalar(vn));
+    return 0;
+  case 2: /* action */
+    for (int a = 0; sim_actions[a] && vn->type == YAML_SCALAR_NODE; a++)
+      if (!strcmp(scalar(vn), sim_actions[a])) ch->action = a;
+    if (ch->action < 0) return fail(p, vn, sub, "expected one of move|remove|add, got %s", g);
+    return 0;
+  default: { /* to */
+    long m = vn->type == YAML_SEQUENCE_NODE ? vn->data.sequence.items.top - vn->data.sequence.items.start : -1;
+    if (m != 2) return fail(p, vn, sub, "expected [x, y] in metres, got %s", g);
+    for (int j = 0; j < 2; j++) {
+      yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
+      got(e, g, sizeof g);
+      /* the field's box is bounded the same way (field.scene_min/max) */
+      if (parse_number(e, false, &v) || fabs(v) > 1e4)
+        return fail(p, e, sub, "expected [x, y] with each in [-10000, 10000] m, got %s at index %d", g, j);
+      ch->to[j] = v;
+    }
+    ch->has_to = true;
+    return 0;
+  }
+  }
+}
+
+static int change_end(struct parse *p, struct vlff_config *cfg, long i, yaml_node_t *c, const char *path) {
+  const struct vlff_sim_change *ch = &cfg->sim.changes[i];
+  if (ch->time_s < 0) return fail(p, c, path, "expected a 'time_s', got none");
+  if (!ch->object[0]) return fail(p, c, path, "expected an 'object', got none");
+  if (ch->action < 0) return fail(p, c, path, "expected an 'action' (move, remove or add), got none");
+  if (ch->action == VLFF_SIM_MOVE && !ch->has_to) return fail(p, c, path, "expected a 'to' for action move, got none");
+  if (ch->action == VLFF_SIM_REMOVE && ch->has_to)
+    return fail(p, c, path, "expected no 'to' for action remove (it takes the object away)");
+  return 0;
+}
+
+static const struct list_spec sim_changes_spec = {
+    SIM_CHANGES, "changes", {"time_s", "object", "action", "to", NULL}, 0, VLFF_SIM_MAX_CHANGES, -1, NULL,
+    change_begin, change_value, change_end};
+
+static int parse_prompt_sets(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
+  if (parse_list(p, n, &prompt_sets_spec, cfg)) return -1;
+  cfg->prompts.set_count = (int)(n->data.sequence.items.top - n->data.sequence.items.start);
   cfg->prompts.sets_named = true;
   return 0;
 }
 
-static const char *dds_ns_problem(const char *s);
-
-/* dds.merge.robots: a sequence of {namespace, transform: [x, y, z, yaw]}. */
 static int parse_merge_robots(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
-  char g[96];
-  got(n, g, sizeof g);
-  long count = n->type == YAML_SEQUENCE_NODE ? n->data.sequence.items.top - n->data.sequence.items.start : -1;
-  if (count < 0 || count > VLFF_MAX_MERGE_ROBOTS)
-    return fail(p, n, MERGE_ROBOTS, "expected a sequence of 0 to %d {namespace, transform}, got %s",
-                VLFF_MAX_MERGE_ROBOTS, g);
-  struct vlff_cfg_dds_merge *m = &cfg->dds.merge;
-  for (long i = 0; i < count; i++) {
-    yaml_node_t *s = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
-    struct vlff_cfg_merge_robot *r = &m->robots[i];
-    memset(r, 0, sizeof *r);
-    char path[64];
-    snprintf(path, sizeof path, "%s[%ld]", MERGE_ROBOTS, i);
-    got(s, g, sizeof g);
-    if (s->type != YAML_MAPPING_NODE) return fail(p, s, path, "expected mapping with namespace and transform, got %s", g);
-    const yaml_node_t *ns_at = NULL, *tf_at = NULL;
-    for (yaml_node_pair_t *pr = s->data.mapping.pairs.start; pr < s->data.mapping.pairs.top; pr++) {
-      yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
-      yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
-      if (has_nul(kn)) return fail_nul_key(p, kn, path);
-      const char *kname = kn->type == YAML_SCALAR_NODE ? scalar(kn) : "";
-      char sub[96];
-      snprintf(sub, sizeof sub, "%s.%s", path, kname);
-      got(vn, g, sizeof g);
-      const yaml_node_t **seen = !strcmp(kname, "namespace") ? &ns_at : !strcmp(kname, "transform") ? &tf_at : NULL;
-      if (seen && *seen) return fail(p, kn, sub, "duplicate key (first at line %u)", (unsigned)(*seen)->start_mark.line + 1);
-      if (seen) *seen = kn;
-      if (!strcmp(kname, "namespace")) {
-        const char *why = vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || !*scalar(vn) ||
-                                  strlen(scalar(vn)) >= VLFF_CFG_STR
-                              ? "a string"
-                              : dds_ns_problem(scalar(vn));
-        if (why) return fail(p, vn, sub, "expected a ROS namespace like /robot1 (%s), got %s", why, g);
-        for (long j = 0; j < i; j++)
-          if (!strcmp(m->robots[j].ns, scalar(vn))) return fail(p, vn, sub, "expected a namespace not given before, got %s", g);
-        snprintf(r->ns, sizeof r->ns, "%s", scalar(vn));
-      } else if (!strcmp(kname, "transform")) {
-        long k = vn->type == YAML_SEQUENCE_NODE ? vn->data.sequence.items.top - vn->data.sequence.items.start : -1;
-        if (k != 4) return fail(p, vn, sub, "expected [x, y, z, yaw_deg], got %s", g);
-        for (long j = 0; j < 4; j++) {
-          yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
-          double v;
-          double lim = j < 3 ? 1e5 : 360;
-          got(e, g, sizeof g);
-          if (e->type != YAML_SCALAR_NODE || parse_number(e, false, &v) || !(fabs(v) <= lim))
-            return fail(p, e, sub, "expected %s within +-%g at index %ld, got %s", j < 3 ? "metres" : "degrees", lim, j, g);
-          r->transform[j] = v;
-        }
-      } else {
-        return fail(p, kn, sub, "unknown key (expected namespace or transform)");
-      }
-    }
-    if (!ns_at) return fail(p, s, path, "expected a 'namespace', got none");
-  }
+  if (parse_list(p, n, &merge_robots_spec, cfg)) return -1;
+  long count = n->data.sequence.items.top - n->data.sequence.items.start;
   /* vlff-merge refuses a fleet of one at start, without the line */
   if (count == 1)
     return fail(p, n, MERGE_ROBOTS, "expected 0 (no fleet) or 2 to %d robots, got 1", VLFF_MAX_MERGE_ROBOTS);
-  m->robot_count = (int)count;
+  cfg->dds.merge.robot_count = (int)count;
   return 0;
 }
 
-/* sim.changes: a sequence of {time_s, object, action, to}. Which objects a
- * scene has is the simulator's to say (vlff_sim_create); here each value's
- * form and physical bounds. */
-static const char SIM_CHANGES[] = "sim.changes";
-static const char *const sim_actions[] = {"move", "remove", "add", NULL};
-
 static int parse_sim_changes(struct parse *p, yaml_node_t *n, struct vlff_config *cfg) {
-  char g[96];
-  got(n, g, sizeof g);
-  if (n->type != YAML_SEQUENCE_NODE)
-    return fail(p, n, SIM_CHANGES, "expected sequence of {time_s, object, action, to}, got %s", g);
-  long count = n->data.sequence.items.top - n->data.sequence.items.start;
-  if (count > VLFF_SIM_MAX_CHANGES)
-    return fail(p, n, SIM_CHANGES, "expected at most %d changes, got %ld", VLFF_SIM_MAX_CHANGES, count);
-  for (long i = 0; i < count; i++) {
-    yaml_node_t *c = yaml_document_get_node(&p->doc, n->data.sequence.items.start[i]);
-    struct vlff_sim_change *ch = &cfg->sim.changes[i];
-    memset(ch, 0, sizeof *ch);
-    ch->action = -1;
-    ch->time_s = -1;
-    char path[64];
-    snprintf(path, sizeof path, "%s[%ld]", SIM_CHANGES, i);
-    got(c, g, sizeof g);
-    if (c->type != YAML_MAPPING_NODE) return fail(p, c, path, "expected mapping {time_s, object, action, to}, got %s", g);
-    for (yaml_node_pair_t *pr = c->data.mapping.pairs.start; pr < c->data.mapping.pairs.top; pr++) {
-      yaml_node_t *kn = yaml_document_get_node(&p->doc, pr->key);
-      yaml_node_t *vn = yaml_document_get_node(&p->doc, pr->value);
-      if (has_nul(kn)) return fail_nul_key(p, kn, path);
-      const char *kname = kn->type == YAML_SCALAR_NODE ? scalar(kn) : "";
-      char sub[96];
-      snprintf(sub, sizeof sub, "%s.%s", path, kname);
-      got(vn, g, sizeof g);
-      for (yaml_node_pair_t *q = c->data.mapping.pairs.start; q < pr; q++) {
-        yaml_node_t *qk = yaml_document_get_node(&p->doc, q->key);
-        if (qk->type == YAML_SCALAR_NODE && !strcmp(scalar(qk), kname))
-          return fail(p, kn, sub, "duplicate key (first at line %u)", (unsigned)qk->start_mark.line + 1);
-      }
-      double v;
-      if (!strcmp(kname, "time_s")) {
-        /* a week of simulated time: far beyond any run */
-        if (parse_number(vn, false, &v) || v < 0 || v > 604800)
-          return fail(p, vn, sub, "expected number in [0, 604800] (seconds of sim time), got %s", g);
-        ch->time_s = v;
-      } else if (!strcmp(kname, "object")) {
-        if (vn->type != YAML_SCALAR_NODE || has_nul(vn) || has_control(vn) || !*scalar(vn) ||
-            strlen(scalar(vn)) >= VLFF_SIM_OBJECT_LEN)
-          return fail(p, vn, sub, "expected an object name (a class, or class#n) of 1 to %d bytes, got %s",
-                      VLFF_SIM_OBJECT_LEN - 1, g);
-        snprintf(ch->object, sizeof ch->object, "%s", scalar(vn));
-      } else if (!strcmp(kname, "action")) {
-        for (int a = 0; sim_actions[a] && vn->type == YAML_SCALAR_NODE; a++)
-          if (!strcmp(scalar(vn), sim_actions[a])) ch->action = a;
-        if (ch->action < 0) return fail(p, vn, sub, "expected one of move|remove|add, got %s", g);
-      } else if (!strcmp(kname, "to")) {
-        long m = vn->type == YAML_SEQUENCE_NODE ? vn->data.sequence.items.top - vn->data.sequence.items.start : -1;
-        if (m != 2) return fail(p, vn, sub, "expected [x, y] in metres, got %s", g);
-        for (int j = 0; j < 2; j++) {
-          yaml_node_t *e = yaml_document_get_node(&p->doc, vn->data.sequence.items.start[j]);
-          got(e, g, sizeof g);
-          /* the field's box is bounded the same way (field.scene_min/max) */
-          if (parse_number(e, false, &v) || fabs(v) > 1e4)
-            return fail(p, e, sub, "expected [x, y] with each in [-10000, 10000] m, got %s at index %d", g, j);
-          ch->to[j] = v;
-        }
-        ch->has_to = true;
-      } else {
-        return fail(p, kn, sub, "unknown key (expected time_s, object, action or to)");
-      }
-    }
-    if (ch->time_s < 0) return fail(p, c, path, "expected a 'time_s', got none");
-    if (!ch->object[0]) return fail(p, c, path, "expected an 'object', got none");
-    if (ch->action < 0) return fail(p, c, path, "expected an 'action' (move, remove or add), got none");
-    if (ch->action == VLFF_SIM_MOVE && !ch->has_to) return fail(p, c, path, "expected a 'to' for action move, got none");
-    if (ch->action == VLFF_SIM_REMOVE && ch->has_to)
-      return fail(p, c, path, "expected no 'to' for action remove (it takes the object away)");
-  }
-  cfg->sim.change_count = (int)count;
+  if (parse_list(p, n, &sim_changes_spec, cfg)) return -1;
+  cfg->sim.change_count = (int)(n->data.sequence.items.top - n->data.sequence.items.start);
   return 0;
 }
 
@@ -1107,8 +1144,83 @@ static int check_dds(struct parse *p, struct vlff_config *cfg) {
   return 0;
 }
 
+uint64_t vlff_config_dds_message_max(const struct vlff_config *cfg, int id) {
+  const struct vlff_cfg_shm *m = &cfg->shm;
+  const uint64_t cam = (uint64_t)m->max_width * (uint64_t)m->max_height;
+  const uint64_t lab = (uint64_t)m->label_max_width * (uint64_t)m->label_max_height;
+  const uint64_t o = VLFF_DDS_MSG_OVERHEAD;
+  switch (id) {
+  case VLFF_DDS_MAP: return (uint64_t)m->map_max_voxels * 20 + o; /* vlff-dds' point_step */
+  case VLFF_DDS_MAP_UPDATES: return vlff_config_dds_update_points(cfg) * 24 + o;
+  case VLFF_DDS_STATUS: return VLFF_DDS_STATUS_MAX_BYTES;
+  case VLFF_DDS_PROMPTS_IN: return (uint64_t)cfg->dds.max_prompt_bytes + o;
+  /* a JSON list of the most prompts, each byte \u-escaped at worst */
+  case VLFF_DDS_PROMPTS: return (uint64_t)VLFF_SHM_MAX_PROMPTS * (6 * (VLFF_SHM_PROMPT_LEN - 1) + 3) + o;
+  case VLFF_DDS_LABEL_IMAGE: return lab * 2 + o;                  /* mono16 */
+  case VLFF_DDS_LABEL_IMAGE_COMPRESSED: return lab * 4 + o;       /* PNG: RGB, a filter byte a row, zlib's blocks */
+  case VLFF_DDS_CAMERA_IMAGE: return cam * 3 + o;                 /* the ring's colour plane: RGB8 at most */
+  case VLFF_DDS_CAMERA_IMAGE_COMPRESSED: return cam * 4 + o;      /* JPEG at quality 100 of noise stays below */
+  case VLFF_DDS_CAMERA_INFO: return 2 * o;                        /* 35 doubles, two frame ids */
+  case VLFF_DDS_TF: return 2 * o;                                 /* one transform, two frame ids */
+  default: return 0;
+  }
+}
+
+/* The bytes of the switched-on topics' histories but map_updates', and the
+ * topic whose history is the largest of them. */
+static uint64_t dds_fixed_history(const struct vlff_config *cfg, int *largest) {
+  uint64_t sum = 0, most = 0;
+  if (largest) *largest = VLFF_DDS_MAP;
+  for (int i = 0; i < VLFF_DDS_NTOPICS; i++) {
+    if (i == VLFF_DDS_MAP_UPDATES || !cfg->dds.on[i]) continue;
+    uint64_t h = (uint64_t)cfg->dds.qos[i].depth * vlff_config_dds_message_max(cfg, i);
+    sum += h;
+    if (h > most && largest) most = h, *largest = i;
+  }
+  return sum;
+}
+
+static uint64_t dds_history_cap(const struct vlff_config *cfg) {
+  return (uint64_t)(cfg->dds.history_max_mb * 1048576.0);
+}
+
+uint64_t vlff_config_dds_update_points(const struct vlff_config *cfg) {
+  uint64_t fixed = dds_fixed_history(cfg, NULL), cap = dds_history_cap(cfg);
+  uint64_t depth = (uint64_t)cfg->dds.qos[VLFF_DDS_MAP_UPDATES].depth;
+  /* each update's header too */
+  if (!depth || fixed >= cap || cap - fixed <= depth * VLFF_DDS_MSG_OVERHEAD) return 0;
+  return (cap - fixed - depth * VLFF_DDS_MSG_OVERHEAD) / (depth * 24);
+}
+
+/* Keep-last histories are bounded in samples, not bytes: a depth of 1000
+ * whole maps of 2 M voxels would be 40 GB held. Each switched-on topic's
+ * depth times its largest message, summed, must fit dds.history_max_mb,
+ * with at least one point per update left to map/updates. */
+static int check_dds_history(struct parse *p, const struct vlff_config *cfg) {
+  int largest;
+  uint64_t fixed = dds_fixed_history(cfg, &largest), cap = dds_history_cap(cfg);
+  const double mib = 1048576.0;
+  const char *key = "dds.qos.map.depth";
+  for (size_t i = 0; i < NKEYS; i++)
+    if (schema[i].off == F(dds.qos[0].depth) + (size_t)largest * sizeof cfg->dds.qos[0]) key = schema[i].path;
+  if (fixed > cap) {
+    return fail_cross(p, key,
+                      "expected a history that fits dds.history_max_mb (%g MiB), got keep last %d of up to %.1f MiB "
+                      "(%.1f MiB with the other topics' histories); lower the depth, switch topics off or raise "
+                      "dds.history_max_mb",
+                      cfg->dds.history_max_mb, cfg->dds.qos[largest].depth,
+                      (double)vlff_config_dds_message_max(cfg, largest) / mib, (double)fixed / mib);
+  }
+  if (cfg->dds.on[VLFF_DDS_MAP_UPDATES] && vlff_config_dds_update_points(cfg) < 1)
+    return fail_cross(p, "dds.qos.map_updates.depth",
+                      "expected a depth whose updates fit what dds.history_max_mb (%g MiB) leaves after the other "
+                      "topics' %.1f MiB, got keep last %d, which leaves no point per update",
+                      cfg->dds.history_max_mb, (double)fixed / mib, cfg->dds.qos[VLFF_DDS_MAP_UPDATES].depth);
+  return 0;
+}
+
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
-  if (check_dds(p, cfg)) return -1;
+  if (check_dds(p, cfg) || check_dds_history(p, cfg)) return -1;
   /* A tenth of a core is a few training steps a second: below it the node
    * would hold a map it can no longer learn. */
   double b = cfg->node.cpu_budget;
@@ -1142,6 +1254,19 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
                       "source.allow_sim_features: true to force it");
   if (!strstr(cfg->prompts.templ, "{}"))
     return fail_cross(p, "prompts.template", "expected a template containing {}, got '%s'", VLFF_Q(cfg->prompts.templ));
+  /* The publisher refused it at start, without the line. */
+  if (cfg->publish.label_width > cfg->shm.label_max_width || cfg->publish.label_height > cfg->shm.label_max_height)
+    return fail_cross(p, cfg->publish.label_width > cfg->shm.label_max_width ? "publish.label_width" : "publish.label_height",
+                      "expected a label image within the map segment's shm.label_max_width x label_max_height (%dx%d), "
+                      "got %dx%d",
+                      cfg->shm.label_max_width, cfg->shm.label_max_height, cfg->publish.label_width,
+                      cfg->publish.label_height);
+  /* The store never holds more than max_keyframes: training would never start. */
+  if (cfg->keyframes.start_after > cfg->keyframes.max_keyframes)
+    return fail_cross(p, "keyframes.start_after",
+                      "expected at most keyframes.max_keyframes (%d), the most the store holds: training would never "
+                      "start, got %d",
+                      cfg->keyframes.max_keyframes, cfg->keyframes.start_after);
   return 0;
 }
 

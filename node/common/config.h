@@ -65,7 +65,7 @@
  * two sets) through a few. libyaml's loader compares every new anchor with
  * every earlier one and looks each alias up among them, so these bound its
  * work to a few thousand string compares; its parser does the same for
- * %TAG directives. 256 aliases outnumber the schema's keys (179). */
+ * %TAG directives. 256 aliases outnumber the schema's keys (245). */
 #define VLFF_CONFIG_MAX_ANCHORS 64
 #define VLFF_CONFIG_MAX_ALIASES 256
 #define VLFF_CONFIG_MAX_DIRECTIVES 16
@@ -383,8 +383,14 @@ struct vlff_cfg_dds {
   double prompt_rate_hz;           /* most prompt posts per second; more are refused as a flood */
   int max_prompt_bytes;            /* longest prompt message taken */
   int jpeg_quality;                /* camera/image_raw/compressed */
+  double history_max_mb;           /* what all topics' keep-last histories may hold together, MiB */
   struct vlff_cfg_dds_merge merge;
 };
+/* A DDS message's header, field list and frame ids, beyond its data. */
+#define VLFF_DDS_MSG_OVERHEAD 1024u
+/* The largest status message (DiagnosticArray of two statuses; the bridge
+ * asserts that its fixed storage fits). */
+#define VLFF_DDS_STATUS_MAX_BYTES 16384u
 
 /* The whole file: one section per module, each module given only its own
  * section (and what it names of another, passed as values). */
@@ -443,6 +449,21 @@ const char *vlff_config_key_path(size_t i);
  * features would be paired with another scene's images. Loading refuses
  * such a file; vlff_node_create() refuses such a struct. */
 bool vlff_config_sim_features_misused(const struct vlff_config *cfg);
+
+/* The largest message of DDS topic id (enum vlff_dds_topic_id) in bytes,
+ * from the sizes its source can have under cfg: the map's shm.map_max_voxels
+ * points, the frame ring's shm.max_width x max_height pixels, the label
+ * image's shm.label_max_*, dds.max_prompt_bytes; map_updates: the bytes of
+ * vlff_config_dds_update_points() points. 0 for an id out of range. */
+uint64_t vlff_config_dds_message_max(const struct vlff_config *cfg, int id);
+
+/* The most points one map/updates message may carry: what dds.history_max_mb
+ * leaves after the other switched-on topics' histories (each its depth times
+ * its largest message), divided among the updates' depth; 0 when nothing is
+ * left. Loading refuses a config that leaves less than one point, naming the
+ * depth that took the most; the bridge sends the whole map instead of a
+ * larger update. */
+uint64_t vlff_config_dds_update_points(const struct vlff_config *cfg);
 
 /* Stable 64-bit hash of the fields that shape learned state (field.*),
  * stored in checkpoints so a mismatched model is refused. */

@@ -60,6 +60,19 @@ int vlff_check_regular(const char *path, char *err, size_t errlen) {
   return 0;
 }
 
+int vlff_check_output(const char *path, char *err, size_t errlen) {
+  struct stat st;
+  if (stat(path, &st) < 0) {
+    if (errno == ENOENT) return 0;
+    if (err && errlen) snprintf(err, errlen, "%s: cannot stat: %s", VLFF_Q(path), strerror(errno));
+    return -1;
+  }
+  if (S_ISREG(st.st_mode)) return 0;
+  if (err && errlen)
+    snprintf(err, errlen, "%s: is %s, expected a regular file or a new name to write", VLFF_Q(path), kind_of(st.st_mode));
+  return -1;
+}
+
 int vlff_create_temp(const char *tmp, unsigned mode, char *err, size_t errlen) {
   if (unlink(tmp) < 0 && errno != ENOENT) {
     if (err && errlen) snprintf(err, errlen, "%s: cannot remove the old temporary: %s", VLFF_Q(tmp), strerror(errno));

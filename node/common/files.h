@@ -48,6 +48,13 @@ int vlff_remove_dead_temps(const char *dir, const char *const *prefixes);
  * fit out. */
 int vlff_exe_dir(char *out, size_t len);
 
+/* An output path a user named (vlff-shm dump-map FILE): 0 when nothing is
+ * there yet or a regular file is (following links), which an atomic writer
+ * then replaces; -1 with err naming what else is there. Renaming a file over
+ * /dev/sda or a FIFO replaces the device node or the pipe, and opening a FIFO
+ * to write waits for a reader: neither is what the user meant. */
+int vlff_check_output(const char *path, char *err, size_t errlen);
+
 /* Create an atomic writer's temporary "tmp" for writing (mode before the
  * umask): whatever sat at that name is removed first and the file is
  * created exclusively without following links, so a FIFO or a symbolic

@@ -8,6 +8,7 @@
 #include <stdio.h>
 
 #include "embeddings.h"
+#include "field.h"
 #include "files.h"
 #include "vlff/escape.h"
 #ifdef VLFF_HAVE_VLM
@@ -94,6 +95,7 @@ int vlff_node_check(const struct vlff_config *cfg, const struct vlff_source_hook
     return -1;
   }
 #endif
+  if (vlff_field_check_memory(&cfg->field, &cfg->train, err, errlen)) return -1;
   if (!cfg->prompts.embeddings[0] && !cfg->vlm.text_model[0] && !hooks->embed) {
     /* Checked before any segment is made: without a text encoder no prompt
      * can be embedded, and the node would stop at the first one. */

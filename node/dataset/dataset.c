@@ -38,7 +38,10 @@ static int is_file(const char *p) {
   return stat(p, &st) == 0 && S_ISREG(st.st_mode);
 }
 
-/* a/b into out[PATHMAX], truncated (callers cap a at 4000 bytes, b is short) */
+/* a/b into out[PATHMAX]: a is at most VLFF_DS_PATH_MAX bytes (open refuses
+ * longer), b a name of the layout with a stem of under VLFF_DS_NAME, so it
+ * always fits; the clamp only keeps a broken caller inside out. */
+_Static_assert(VLFF_DS_PATH_MAX + 1 + VLFF_DS_NAME + 64 < PATHMAX, "dataset paths fit PATHMAX");
 static void join(char *out, const char *a, const char *b) {
   size_t la = strnlen(a, PATHMAX - 2), lb = strnlen(b, PATHMAX - 2 - la);
   memcpy(out, a, la);
@@ -457,6 +460,16 @@ static int check_intrinsics(struct vlff_dataset *ds, const double K[16], const c
   return 0;
 }
 
+/* Refuse a path longer than VLFF_DS_PATH_MAX, its length and its start
+ * named (the whole would not fit the message). */
+static int path_too_long(const char *what, const char *path, char *err, size_t errlen) {
+  size_t l = strlen(path);
+  if (l <= VLFF_DS_PATH_MAX) return 0;
+  seterr(err, errlen, "%s path of %zu bytes is longer than the %d a dataset path may have: '%s...'", what, l,
+         VLFF_DS_PATH_MAX, VLFF_QMAX(path, 120));
+  return -1;
+}
+
 int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char *err, size_t errlen) {
   struct vlff_dataset_options o = {.layout = layout, .label_set = VLFF_LABELS_SCANNET20};
   return vlff_dataset_open_opts(ds, dir, &o, err, errlen);
@@ -844,10 +857,9 @@ int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struc
   static const struct vlff_dataset_options defaults = {.layout = VLFF_DS_AUTO, .label_set = VLFF_LABELS_SCANNET20};
   if (!opts) opts = &defaults;
   memset(ds, 0, sizeof *ds);
-  if (strlen(dir) >= sizeof ds->dir - 64) {
-    seterr(err, errlen, "%s: path too long", VLFF_Q(dir));
+  if (path_too_long("dataset", dir, err, errlen) ||
+      (opts->label_tsv && path_too_long("label table", opts->label_tsv, err, errlen)))
     return -1;
-  }
   if (opts->label_set != VLFF_LABELS_SCANNET20 && opts->label_set != VLFF_LABELS_NYU40) {
     seterr(err, errlen, "%s: unknown label set %d", VLFF_Q(dir), opts->label_set);
     return -1;
@@ -1147,10 +1159,7 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
     seterr(err, errlen, "%s: invalid dataset shape", VLFF_Q(dir));
     return NULL;
   }
-  if (strlen(dir) > 4000) {
-    seterr(err, errlen, "%s: path too long", VLFF_Q(dir));
-    return NULL;
-  }
+  if (path_too_long("dataset", dir, err, errlen)) return NULL;
   struct vlff_dataset_writer *w = calloc(1, sizeof *w);
   if (!w) return NULL;
 #ifdef VLFF_HAVE_HDF5

@@ -88,6 +88,11 @@
 #include <stdint.h>
 
 #define VLFF_DS_NAME 64
+/* The longest path of a scene (its directory or .sens file) and of a label
+ * table the reader takes, in bytes. A longer one is refused at open, naming
+ * it, so that no path formed from it (dir/label-filt/<stem>.png) is cut
+ * short and no file is read in place of another. */
+#define VLFF_DS_PATH_MAX 4000
 /* One frame's features may claim at most this much memory. */
 #define VLFF_DS_MAX_FEATURE_FRAME_BYTES (256ull << 20)
 
@@ -117,7 +122,7 @@ struct vlff_sens;
 struct vlff_points;
 
 struct vlff_dataset {
-  char dir[4096];
+  char dir[VLFF_DS_PATH_MAX + 1];
   int layout;                  /* enum vlff_dataset_layout actually found */
   int n;                       /* usable frames */
   int skipped;                 /* ScanNet frames dropped for invalid poses */
@@ -151,7 +156,8 @@ struct vlff_dataset {
 };
 
 /* Open a scene directory: list and validate every frame's pose, the
- * intrinsics, bbox and the features' shape; images are read per frame. */
+ * intrinsics, bbox and the features' shape; images are read per frame.
+ * dir and options.label_tsv longer than VLFF_DS_PATH_MAX are refused. */
 int vlff_dataset_open(struct vlff_dataset *ds, const char *dir, int layout, char *err, size_t errlen);
 /* The same with every option (opts NULL = defaults: auto layout, 20 classes). */
 int vlff_dataset_open_opts(struct vlff_dataset *ds, const char *dir, const struct vlff_dataset_options *opts,

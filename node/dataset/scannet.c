@@ -276,7 +276,7 @@ enum { SENS_DEPTH_RAW = 0, SENS_DEPTH_ZLIB = 1 };
 
 struct vlff_sens {
   int fd;
-  char path[4096];
+  char *path; /* whole: the mesh and labels are looked for beside it */
   int color_type, depth_type;
   float depth_shift;
   uint64_t *off; /* [n][4]: colour offset, colour bytes, depth offset, depth bytes */
@@ -296,17 +296,18 @@ static void mat_from_f32(const float f[16], double m[16]) {
 void vlff_sens_close(struct vlff_sens *s) {
   if (!s) return;
   if (s->fd >= 0) close(s->fd);
+  free(s->path);
   free(s->off);
   free(s);
 }
 
 int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t errlen) {
   struct vlff_sens *s = calloc(1, sizeof *s);
-  if (!s) {
+  if (!s || !(s->path = strdup(path))) {
+    free(s);
     seterr(err, errlen, "%s: out of memory", VLFF_Q(path));
     return -1;
   }
-  snprintf(s->path, sizeof s->path, "%s", path);
   s->fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
   struct stat st;
   if (s->fd < 0 || fstat(s->fd, &st) < 0 || !S_ISREG(st.st_mode)) {
@@ -403,9 +404,12 @@ int vlff_sens_open(struct vlff_dataset *ds, const char *path, char *err, size_t 
       ds->skipped++;
       continue;
     }
-    char name[48];
-    snprintf(name, sizeof name, "%s frame %llu pose", path, (unsigned long long)i);
-    if (vlff_check_pose(m, name, err, errlen) < 0) goto fail;
+    char name[48], why[256];
+    snprintf(name, sizeof name, "frame %llu pose", (unsigned long long)i);
+    if (vlff_check_pose(m, name, why, sizeof why) < 0) {
+      seterr(err, errlen, "%s: %s", VLFF_Q(path), why);
+      goto fail;
+    }
     memcpy(ds->c2w + (size_t)ds->n * 16, m, sizeof m);
     snprintf(ds->stem[ds->n], VLFF_DS_NAME, "%llu", (unsigned long long)i);
     ds->listed[ds->n++] = (int)i;

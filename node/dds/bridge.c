@@ -337,6 +337,11 @@ struct vlff_dds *vlff_dds_create(const struct vlff_dds_opts *opts, char *err, si
     return NULL;
   }
   b->o = *opts;
+  if (b->o.dds.on[VLFF_DDS_MAP_UPDATES] && !b->o.update_points_max) {
+    snprintf(err, errlen, "dds.qos.map_updates.depth: dds.history_max_mb leaves no point per map update");
+    free(b);
+    return NULL;
+  }
 #ifndef VLFF_DDS_CV
   for (int id = VLFF_DDS_LABEL_IMAGE_COMPRESSED; id <= VLFF_DDS_CAMERA_IMAGE_COMPRESSED; id += 2)
     if (b->o.dds.on[id]) {
@@ -576,6 +581,7 @@ static int collect_updates(struct vlff_dds *b, const struct vlff_map_grid *g) {
   for (size_t r = 0; r < nruns; r++) {
     for (size_t i = runs[r].first; i < (size_t)runs[r].first + runs[r].count && i < b->shadow_n; i++) {
       if (!voxel_differs(b, g, i)) continue;
+      if (b->upd_n >= b->o.update_points_max) return -2; /* its share of dds.history_max_mb */
       if (b->upd_n == b->upd_cap) {
         size_t cap = b->upd_cap ? 2 * b->upd_cap : 256;
         uint8_t *u = cap <= UINT32_MAX / VLFF_DDS_UPDATE_STEP ? realloc(b->upd, cap * VLFF_DDS_UPDATE_STEP) : NULL;
@@ -746,11 +752,15 @@ static void poll_map(struct vlff_dds *b) {
     b->snap_stamp = version_stamp(b, info.publish_ns);
     fresh = true;
     if (maps) {
-      if (whole == 1 || collect_updates(b, &info.grid) < 0) {
-        /* A whole copy, or no memory for the update: subscribers get the
-         * whole map, which the shadow then is. */
+      int upd = whole == 1 ? 0 : collect_updates(b, &info.grid);
+      if (whole == 1 || upd < 0) {
+        /* A whole copy, no memory for the update, or an update larger than
+         * its share of the histories: subscribers get the whole map, which
+         * the shadow then is. */
         b->upd_n = 0;
-        mark_full(b, whole == 1 ? "a whole copy of the segment" : "no memory for an update");
+        mark_full(b, whole == 1 ? "a whole copy of the segment"
+                     : upd == -2 ? "an update larger than its share of dds.history_max_mb"
+                                 : "no memory for an update");
         if (shadow_reset(b, &info.grid) < 0) {
           vlff_warn_limited(&b->warn_map, TAG, "map version %" PRIu64 ": no memory to follow %s", info.version,
                             VLFF_Q(b->o.map));
@@ -935,6 +945,10 @@ static void poll_camera(struct vlff_dds *b) {
 
 /* Key-value lists of the status, built in fixed storage. */
 #define MAX_KV (24 + VLFF_SHM_MAX_REASONS)
+/* two statuses of MAX_KV pairs (CDR: two lengths), name, message, hardware id */
+_Static_assert(2 * (MAX_KV * (48 + 48 + 8) + 96 + 2 * VLFF_CFG_STR) + VLFF_DDS_MSG_OVERHEAD <=
+                   VLFF_DDS_STATUS_MAX_BYTES,
+               "the status fits the size dds.history_max_mb counts for it");
 struct kvs {
   diagnostic_msgs_msg_dds__KeyValue_ kv[MAX_KV];
   char key[MAX_KV][48], val[MAX_KV][48];

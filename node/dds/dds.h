@@ -34,7 +34,10 @@
  *    clear them, and "version" (uint32 at 20, the low 32 bits of the map
  *    version the update brings a subscriber to), point_step 24. Reliable,
  *    transient local, keep last 200: a late joiner applies the updates
- *    stamped later than the whole map it got.
+ *    stamped later than the whole map it got. An update of more than
+ *    opts.update_points_max points (its share of dds.history_max_mb) is
+ *    not sent: the whole map goes instead, so the updates' history holds at
+ *    most depth x that many points.
  *    Stamps: a version's whole map and update carry the same header stamp,
  *    its publish time in system time, fixed when the bridge reads it and
  *    increasing from version to version.
@@ -98,6 +101,7 @@ struct vlff_dds_opts {
   char frames[VLFF_CFG_STR];  /* frame ring name (the camera) */
   char prompts[VLFF_CFG_STR]; /* prompt mailbox name */
   char hardware_id[VLFF_CFG_STR]; /* DiagnosticStatus.hardware_id (the host's name) */
+  uint64_t update_points_max; /* most points of one map update: vlff_config_dds_update_points() */
   double run_seconds;         /* 0 = until vlff_dds_stop */
 };
 

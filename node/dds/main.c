@@ -158,6 +158,7 @@ int main(int argc, char **argv) {
    * tells its robots apart by it and by the namespace). */
   if (gethostname(o.hardware_id, sizeof o.hardware_id - 1) != 0) snprintf(o.hardware_id, sizeof o.hardware_id, "vlff");
   o.run_seconds = seconds;
+  o.update_points_max = vlff_config_dds_update_points(&cfg);
   char topic[VLFF_DDS_NTOPICS][300];
   for (int i = 0; i < VLFF_DDS_NTOPICS; i++)
     if (vlff_dds_topic_of(topic[i], sizeof topic[i], o.dds.ns, i) < 0)
@@ -170,6 +171,8 @@ int main(int argc, char **argv) {
     printf("dds.frame_id: \"%s\"\n", o.dds.frame_id);
     printf("dds.camera_frame_id: \"%s\"\n", o.dds.camera_frame_id);
     printf("dds.map_full_period_s: %g\n", o.dds.map_full_period_s);
+    printf("dds.history_max_mb: %g (map updates of up to %llu points)\n", o.dds.history_max_mb,
+           (unsigned long long)o.update_points_max);
     for (int i = 0; i < VLFF_DDS_NTOPICS; i++) {
       const struct vlff_cfg_dds_qos *qq = &o.dds.qos[i];
       const char *from = i == VLFF_DDS_MAP || i == VLFF_DDS_MAP_UPDATES || i == VLFF_DDS_PROMPTS || i == VLFF_DDS_LABEL_IMAGE ||

@@ -61,8 +61,23 @@ struct vlff_train_stats {
   double time_rays, time_table, time_dense;
 };
 
+/* The bytes vlff_field_create allocates and fills at once for these
+ * sections, at the least (one worker thread): the hash table and MLPs with
+ * Adam's two moments, the MLPs' gradient, transposes and average, each
+ * step's sample positions and encodings (train.rays_per_step x
+ * train.samples_per_ray), the occupancy grid. */
+uint64_t vlff_field_plan_bytes(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train);
+
+/* 0 when that plan fits this machine's physical memory; -1 with err naming
+ * the keys and both sizes. Every byte of the plan is written at create, so a
+ * field larger than memory is not a slow start but the OOM killer: 32 levels
+ * of 2^24 entries of 8 features are 48 GiB. */
+int vlff_field_check_memory(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, char *err,
+                            size_t errlen);
+
 /* Create from the field and train sections, on threads worker threads
- * (node.threads: 0 = one per core). */
+ * (node.threads: 0 = one per core); refuses what vlff_field_check_memory
+ * refuses. */
 struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, int threads,
                                      char *err, size_t errlen);
 void vlff_field_destroy(struct vlff_field *f);

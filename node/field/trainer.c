@@ -18,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <stdio.h>
+#include <unistd.h>
 
 #include "field_internal.h"
 #include "mem.h"
@@ -154,12 +155,49 @@ void vlff_field_destroy(struct vlff_field *f) {
                 f->E_, f->bal_feat, f->EW, f->EWt, f->Eb, f->G, f->u, f->Rt, f->r12, f);
 }
 
+uint64_t vlff_field_plan_bytes(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train) {
+  struct vlff_encoding enc;
+  vlff_encoding_init(&enc, field);
+  struct vlff_mlp m;
+  const int geo = field->geo_dim, sh = field->sh_degree * field->sh_degree;
+  size_t nmlp = vlff_mlp_init(&m, enc.dim, field->density_width, field->density_layers, 1 + geo, 0);
+  nmlp = vlff_mlp_init(&m, geo + sh, field->color_width, field->color_layers, 3, nmlp);
+  nmlp = vlff_mlp_init(&m, geo, field->feature_width, field->feature_layers, field->feature_dim, nmlp);
+  const uint64_t ntable = (uint64_t)enc.levels * enc.size * (uint64_t)enc.feats;
+  const uint64_t spr = (uint64_t)train->samples_per_ray, nrays = (uint64_t)train->rays_per_step;
+  const uint64_t chunk = spr < VLFF_CHUNK_SAMPLES ? VLFF_CHUNK_SAMPLES / spr : 1;
+  const uint64_t samples = (nrays + chunk - 1) / chunk * chunk * spr;
+  const uint64_t cells = (uint64_t)train->occupancy_resolution * train->occupancy_resolution *
+                         train->occupancy_resolution;
+  const uint64_t fs = sizeof(float);
+  return fs * (3 * (ntable + nmlp) + 4 * nmlp) + fs * samples * (3 + (uint64_t)enc.levels * enc.feats) +
+         cells * (fs + 1 + sizeof(uint16_t) + fs) + nrays * (sizeof(struct vlff_ray) + fs);
+}
+
+int vlff_field_check_memory(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, char *err,
+                            size_t errlen) {
+  long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page <= 0) return 0; /* unknown: nothing to compare with */
+  const double gib = 1073741824.0, have = (double)pages * (double)page;
+  const double need = (double)vlff_field_plan_bytes(field, train);
+  if (need <= have) return 0;
+  if (err && errlen)
+    snprintf(err, errlen,
+         "field: the model and its step buffers need %.1f GiB (field.hash_levels %d x 2^field.hash_log2_size %d x "
+         "field.hash_features %d entries with Adam's two moments; train.rays_per_step %d x train.samples_per_ray %d "
+         "samples a step), more than this machine's %.1f GiB of memory",
+         need / gib, field->hash_levels, field->hash_log2_size, field->hash_features, train->rays_per_step,
+         train->samples_per_ray, have / gib);
+  return -1;
+}
+
 struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, int threads,
                                      char *err, size_t errlen) {
   if (!field || !train) {
     seterr(err, errlen, "field: %s", "no config");
     return NULL;
   }
+  if (vlff_field_check_memory(field, train, err, errlen)) return NULL;
   const int levels = field->hash_levels;
   if (levels > 32) {
     seterr(err, errlen, "field: %s", "field.hash_levels must be <= 32");

@@ -1856,9 +1856,14 @@ struct vox_entry {
 
 int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxel,
                     struct vlff_sim_points *out, char *err, size_t errlen) {
+  return vlff_sim_points_budget(s, nframes, step, voxel, UINT64_MAX, out, err, errlen);
+}
+
+int vlff_sim_points_budget(const struct vlff_sim *s, int nframes, int step, double voxel, uint64_t max_rays,
+                           struct vlff_sim_points *out, char *err, size_t errlen) {
   memset(out, 0, sizeof *out);
-  if (nframes < 1 || step < 1 || !(voxel > 0)) {
-    vlff_errf(err, errlen, "sim: points need nframes >= 1, step >= 1 and voxel > 0");
+  if (nframes < 1 || step < 1 || !(voxel > 0) || max_rays < 16) {
+    vlff_errf(err, errlen, "sim: points need nframes >= 1, step >= 1, voxel > 0 and 16 rays or more");
     return -1;
   }
   size_t cap = 1 << 16, n = 0;
@@ -1869,14 +1874,22 @@ int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxe
   if (!tab || !out->xyz || !out->label) goto oom;
   /* Every second pixel of each chosen view; one point per voxel keeps the
    * density roughly uniform whatever the number of views. The scene as it
-   * stands at the last of those frames (sim.changes). */
+   * stands at the last of those frames (sim.changes). Within the ray budget:
+   * a view of at most a sixteenth of it, then as many views as it holds. */
+  int px = 2;
+  while ((uint64_t)((s->width + px - 1) / px) * (uint64_t)((s->height + px - 1) / px) > max_rays / 16)
+    px *= 2;
+  const uint64_t per_view = (uint64_t)((s->width + px - 1) / px) * (uint64_t)((s->height + px - 1) / px);
+  while (step < nframes && (uint64_t)((nframes + step - 1) / step) * per_view > max_rays)
+    step = step > nframes / 2 ? nframes : 2 * step;
   const struct sim_world *w = world_at(s, (double)(nframes - 1) / s->cfg.rate_hz);
   for (int fi = 0; fi < nframes; fi += step) {
     double M[16];
     true_pose(s, fi, M);
     const double o[3] = {M[3], M[7], M[11]};
-    for (int v = 0; v < s->height; v += 2)
-      for (int u = 0; u < s->width; u += 2) {
+    out->rays += per_view;
+    for (int v = 0; v < s->height; v += px)
+      for (int u = 0; u < s->width; u += px) {
         double dc[3] = {(u + 0.5 - s->cx) / s->fx, (v + 0.5 - s->cy) / s->fy, 1.0};
         double d[3] = {M[0] * dc[0] + M[1] * dc[1] + M[2] * dc[2], M[4] * dc[0] + M[5] * dc[1] + M[6] * dc[2],
                        M[8] * dc[0] + M[9] * dc[1] + M[10] * dc[2]};

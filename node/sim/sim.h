@@ -153,16 +153,26 @@ void vlff_sim_text_embedding(const struct vlff_sim *s, const char *text, float *
 void vlff_sim_prototype(const struct vlff_sim *s, int c, float *out);
 
 /* A ground-truth labelled point set for 3D evaluation: surface points seen
- * from frames 0, step, 2 step, ... < nframes (exact depth), one per cubic
- * voxel of `voxel` metres, in the scene as it stands at frame nframes - 1
- * (sim.changes). xyz [n][3], label [n] (255 = unlabelled). */
+ * from frames 0, step, 2 step, ... < nframes (exact depth) through every
+ * second pixel, one per cubic voxel of `voxel` metres, in the scene as it
+ * stands at frame nframes - 1 (sim.changes). xyz [n][3], label [n] (255 =
+ * unlabelled); rays: how many rays were cast. */
 struct vlff_sim_points {
   size_t n;
   float *xyz;
   uint8_t *label;
+  uint64_t rays;
 };
 int vlff_sim_points(const struct vlff_sim *s, int nframes, int step, double voxel,
                     struct vlff_sim_points *out, char *err, size_t errlen);
+/* The same casting at most max_rays rays: a view of more than a sixteenth
+ * of them takes every 4th, 8th ... pixel, and more views than the rest
+ * hold every 2 step-th, 4 step-th ... frame. The node's live score uses
+ * VLFF_SIM_POINTS_RAYS: sim.frames 1000000 cast 4 billion rays at its
+ * start, hours deaf to SIGTERM (the default run casts 1.2 million). */
+#define VLFF_SIM_POINTS_RAYS (1u << 24)
+int vlff_sim_points_budget(const struct vlff_sim *s, int nframes, int step, double voxel, uint64_t max_rays,
+                           struct vlff_sim_points *out, char *err, size_t errlen);
 void vlff_sim_points_free(struct vlff_sim_points *p);
 
 #endif

@@ -144,7 +144,8 @@ struct vlff_sim_source *vlff_sim_source_create(const struct vlff_config *cfg, st
     hooks->feat_height = fh;
   }
   if (truth) {
-    if (vlff_sim_points(s->sim, cfg->sim.frames, 5, 0.05, &s->points, err, errlen)) goto fail;
+    if (vlff_sim_points_budget(s->sim, cfg->sim.frames, 5, 0.05, VLFF_SIM_POINTS_RAYS, &s->points, err, errlen))
+      goto fail;
     hooks->observe = observe;
     hooks->panels = panels;
     hooks->color = color;

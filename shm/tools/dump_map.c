@@ -114,17 +114,19 @@ static void write_ply(struct out *o, const struct vlff_map_info *mi, const struc
 }
 
 int vlff_dump_map(const char *name, const char *path) {
-  struct vlff_map *m = vlff_map_attach(name);
-  if (!m) {
-    fprintf(stderr, "vlff-shm: %s: %s (%s)\n", VLFF_Q(name), vlff_shm_last_message(), strerror(errno));
+  char err[512];
+  if (vlff_check_output(path, err, sizeof err) < 0) {
+    fprintf(stderr, "vlff-shm: %s\n", err);
     return 1;
   }
+  struct vlff_map *m = vlff_map_attach(name);
+  if (!m) return vlff_shm_fail(name);
   struct vlff_map_snapshot *s = vlff_map_snapshot_new(m);
   struct vlff_map_info mi;
   int rc = 1;
   struct out o = {0};
   if (!s || vlff_map_snapshot_take(m, s) < 0 || vlff_map_snapshot_info(s, &mi) < 0) {
-    fprintf(stderr, "vlff-shm: %s: %s (%s)\n", VLFF_Q(name), vlff_shm_last_message(), strerror(errno));
+    vlff_shm_fail(name);
     goto done;
   }
   size_t nvox = (size_t)mi.grid.dims[0] * mi.grid.dims[1] * mi.grid.dims[2];
@@ -139,7 +141,6 @@ int vlff_dump_map(const char *name, const char *path) {
   }
   if (ends_with(path, ".ply") || ends_with(path, ".PLY")) write_ply(&o, &mi, s, labelled);
   else write_binary(&o, &mi, s, nvox);
-  char err[512];
   if (o.oom) {
     fprintf(stderr, "vlff-shm: %s: out of memory for %zu voxels\n", VLFF_Q(path), nvox);
   } else if (vlff_write_file_atomic(path, o.p, o.n, err, sizeof err) < 0) {

@@ -2,7 +2,9 @@
  * vlff-shm dump-map: a map segment's current version to a file.
  *
  * The version is copied with vlff_map_snapshot_take (consistent, never
- * waits for the writer) and written atomically (temp file, rename):
+ * waits for the writer) and written atomically (temp file, rename); a FILE
+ * that exists and is not a regular file (a device, a FIFO, a directory) is
+ * refused, never replaced:
  *  - FILE ending in ".ply": binary little-endian PLY, one vertex per voxel
  *    holding a prompt's label (free and unknown voxels left out): float x y z
  *    (the voxel's centre, metres), uchar red green blue (vlff_label_color),
@@ -21,5 +23,10 @@
 #define VLFF_SHM_DUMP_MAP_H
 
 int vlff_dump_map(const char *name, const char *path);
+
+/* vlff-shm's error line for a failed library call about what (a segment):
+ * "vlff-shm: <the library's message>", what added when the message does not
+ * name it. Returns 1, the exit status. */
+int vlff_shm_fail(const char *what);
 
 #endif

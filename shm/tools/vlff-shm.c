@@ -8,6 +8,7 @@
 
 #include "cli.h"
 #include "dump_map.h"
+#include "files.h"
 
 #include <dirent.h>
 #include <errno.h>
@@ -50,8 +51,17 @@ static const struct vlff_cli cli = {
   "Exit status: 0 ok, 1 error, refusal or no answer in time (message on stderr), 2 usage.\n",
 };
 
-static int fail(const char *what) {
-  fprintf(stderr, "vlff-shm: %s: %s (%s)\n", VLFF_Q(what), vlff_shm_last_message(), strerror(errno));
+/* The library's message, which names the segment itself (and a system
+ * call's error text); what is added only when the message does not start
+ * with it ("vlff-shm: /x: /x: no such segment (No such file or directory)"
+ * said everything twice). */
+int vlff_shm_fail(const char *what) {
+  const char *msg = vlff_shm_last_message(), *q = VLFF_Q(what);
+  size_t l = strlen(q);
+  if (!strncmp(msg, q, l) && msg[l] == ':')
+    fprintf(stderr, "vlff-shm: %s\n", msg);
+  else
+    fprintf(stderr, "vlff-shm: %s: %s\n", q, msg);
   return 1;
 }
 
@@ -114,7 +124,7 @@ static int print_status(struct vlff_map *m, const char *name) {
       printf("status none\n");
       return 0;
     }
-    return fail(name);
+    return vlff_shm_fail(name);
   }
   printf("status_age ");
   print_age(st.t_ns);
@@ -136,7 +146,7 @@ static int print_status(struct vlff_map *m, const char *name) {
 static int cmd_stat(const char *name) {
   struct vlff_shm_info in;
   if (vlff_shm_stat(name, &in) < 0)
-    return fail(name);
+    return vlff_shm_fail(name);
   printf("name %s\nkind %s\nabi_version %" PRIu32 "\ngeneration %" PRIu32 "\ncreator_pid %d\ncreator_alive %s\n"
          "bytes %" PRIu64 "\n",
          VLFF_Q(name), kind_name(in.kind), in.abi_version, in.generation, (int)in.creator_pid,
@@ -154,13 +164,13 @@ static int cmd_stat(const char *name) {
   if (in.kind == VLFF_SHM_KIND_MAP) {
     struct vlff_map *m = vlff_map_attach(name);
     if (!m)
-      return fail(name);
+      return vlff_shm_fail(name);
     struct vlff_map_snapshot *s = vlff_map_snapshot_new(m);
     struct vlff_map_info mi;
     if (!s || vlff_map_snapshot_take(m, s) < 0 || vlff_map_snapshot_info(s, &mi) < 0) {
       vlff_map_snapshot_free(s);
       vlff_map_detach(m);
-      return fail(name);
+      return vlff_shm_fail(name);
     }
     printf("grid_origin %.4f %.4f %.4f\ngrid_voxel_size %.4f\ngrid_dims %" PRIu32 " %" PRIu32 " %" PRIu32 "\n",
            mi.grid.origin[0], mi.grid.origin[1], mi.grid.origin[2], mi.grid.voxel_size, mi.grid.dims[0],
@@ -178,11 +188,17 @@ static int cmd_stat(const char *name) {
   return 0;
 }
 
+/* The plane as a PNM image, written as dump-map writes its file: built in
+ * memory, then renamed into place (vlff_write_file_atomic), so that a full
+ * disk is an error rather than a cut image, and a FIFO or device at path was
+ * refused before (vlff_check_output). */
 static int write_image(const char *path, const struct vlff_plane *p, const uint8_t *px) {
   unsigned bpp = vlff_pixfmt_bpp(p->format);
   int color = p->format == VLFF_PIX_RGB8 || p->format == VLFF_PIX_BGR8;
   int wide = bpp >= 2 && !color;
-  FILE *f = fopen(path, "wb");
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *f = open_memstream(&buf, &len);
   if (!f) {
     fprintf(stderr, "vlff-shm: %s: %s\n", VLFF_Q(path), strerror(errno));
     return 1;
@@ -212,17 +228,28 @@ static int write_image(const char *path, const struct vlff_plane *p, const uint8
       }
     }
   }
-  if (fclose(f) != 0) {
-    fprintf(stderr, "vlff-shm: %s: %s\n", VLFF_Q(path), strerror(errno));
-    return 1;
+  char err[512];
+  int rc = 0;
+  if (ferror(f) | fclose(f)) {
+    fprintf(stderr, "vlff-shm: %s: out of memory for the image\n", VLFF_Q(path));
+    rc = 1;
+  } else if (vlff_write_file_atomic(path, buf, len, err, sizeof err) < 0) {
+    fprintf(stderr, "vlff-shm: %s\n", err);
+    rc = 1;
   }
-  return 0;
+  free(buf);
+  return rc;
 }
 
 static int cmd_dump_frame(const char *name, const char *path) {
+  char err[512];
+  if (vlff_check_output(path, err, sizeof err) < 0) {
+    fprintf(stderr, "vlff-shm: %s\n", err);
+    return 1;
+  }
   struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_FRAME);
   if (!r)
-    return fail(name);
+    return vlff_shm_fail(name);
   size_t cap = vlff_ring_slot_size(r);
   uint8_t *buf = malloc(cap);
   struct vlff_ring_view v;
@@ -230,9 +257,9 @@ static int cmd_dump_frame(const char *name, const char *path) {
   if (!buf) {
     perror("vlff-shm");
   } else if (vlff_ring_read_latest(r, buf, cap, &v) < 0) {
-    rc = fail(name);
+    rc = vlff_shm_fail(name);
   } else if (vlff_frame_validate(buf, v.len) < 0) {
-    rc = fail("frame record");
+    rc = vlff_shm_fail("frame record");
   } else {
     const struct vlff_frame_hdr *h = (const struct vlff_frame_hdr *)buf;
     size_t plen = strlen(path);
@@ -263,12 +290,12 @@ static int parse_double(const char *s, double *v) {
 static int cmd_label(const char *name, const double p[3]) {
   struct vlff_map *m = vlff_map_attach(name);
   if (!m)
-    return fail(name);
+    return vlff_shm_fail(name);
   uint16_t label;
   uint8_t conf;
   int rc = 0;
   if (vlff_map_label_at(m, p[0], p[1], p[2], &label, &conf) < 0) {
-    rc = fail(name);
+    rc = vlff_shm_fail(name);
   } else {
     char text[VLFF_SHM_PROMPT_LEN];
     if (label == VLFF_LABEL_FREE)
@@ -291,10 +318,10 @@ static int cmd_set_prompts(const char *name, char **texts, int n, long idx, doub
   }
   struct vlff_prompts *p = vlff_prompts_attach(name);
   if (!p)
-    return fail(name);
+    return vlff_shm_fail(name);
   int rc = idx >= 0 ? vlff_prompts_post_index(p, (int)idx) : vlff_prompts_post(p, (const char *const *)texts, n);
   if (rc < 0) {
-    rc = fail(name);
+    rc = vlff_shm_fail(name);
     vlff_prompts_close(p);
     return rc;
   }
@@ -308,7 +335,7 @@ static int cmd_set_prompts(const char *name, char **texts, int n, long idx, doub
     printf("refused %" PRIu64 ": %s\n", seq, VLFF_Q(why));
     rc = 1;
   } else {
-    rc = fail(name);
+    rc = vlff_shm_fail(name);
   }
   vlff_prompts_close(p);
   return rc;
@@ -320,21 +347,21 @@ static void on_signal(int sig) { stop = sig; }
 static int cmd_watch(const char *name, long count) {
   struct vlff_shm_info in;
   if (vlff_shm_stat(name, &in) < 0)
-    return fail(name);
+    return vlff_shm_fail(name);
   signal(SIGINT, on_signal);
   signal(SIGTERM, on_signal);
   long seen = 0;
   if (in.kind == VLFF_SHM_KIND_RING) {
     struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_ANY);
     if (!r)
-      return fail(name);
+      return vlff_shm_fail(name);
     while (!stop && (count <= 0 || seen < count)) {
       struct vlff_ring_view v;
       if (vlff_ring_read_begin(r, &v, 500000000ull) < 0) {
         if (errno == ETIMEDOUT || errno == EINTR)
           continue;
         vlff_ring_close(r);
-        return fail(name);
+        return vlff_shm_fail(name);
       }
       struct vlff_frame_hdr fh;
       int is_frame = in.record_kind == VLFF_RECORD_FRAME && v.len >= sizeof fh;
@@ -356,7 +383,7 @@ static int cmd_watch(const char *name, long count) {
   if (in.kind == VLFF_SHM_KIND_MAP) {
     struct vlff_map *m = vlff_map_attach(name);
     if (!m)
-      return fail(name);
+      return vlff_shm_fail(name);
     uint64_t last = 0;
     while (!stop && (count <= 0 || seen < count)) {
       uint64_t v = vlff_map_version(m);

@@ -50,9 +50,26 @@ check "no whole map resent while nothing changes ($n, then $(wholes))" '[[ $(who
 kill -TERM $b; wait $b; rc=$?
 check "vlff-dds exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
 kill -TERM $w; wait $w
+
+# dds.history_max_mb: a 4000-voxel map (81 KB a whole map) and the prompt
+# list leave 30 updates 8 points each; the churn's updates change 18 voxels,
+# so every version goes as a whole map, none as an update.
+printf 'dds:\n  domain_id: %d\n  namespace: %ss\n  poll_hz: 50\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n  history_max_mb: 0.1247\n  qos:\n    map_updates:\n      depth: 30\nshm:\n  map_max_voxels: 4000\n' \
+  $domain $ns >"$tmp/s.yaml"
+check "--check-config gives map updates their share" \
+  '"$dds" --check-config "$tmp/s.yaml" | grep -qx "dds.history_max_mb: 0.1247 (map updates of up to 8 points)"'
+"$writer" churn $p-s 12 20 20 >"$tmp/swriter" 2>&1 & w=$!
+pids+=($w)
+"${in_a[@]}" "$dds" -c "$tmp/s.yaml" -m $p-s -v 2>"$tmp/sdds.log" & b=$!
+pids+=($b)
+wait_until 300 'grep -q "map version 13: .*(whole: " "$tmp/sdds.log"'
+check "updates over their share of dds.history_max_mb go as whole maps, to the last version" \
+  'grep -q "map version 13: .*(whole: an update larger than its share of dds.history_max_mb)" "$tmp/sdds.log"'
+check "no update sent over its share" '! grep -q ": update of " "$tmp/sdds.log"'
+kill -TERM $b $w; wait $b $w
 for f in early late; do grep -v "^probe ok" "$tmp/$f"; done
 echo "$passes passed, $fails failed"
 if (( fails )); then
-  for f in writer dds.log; do echo "--- $f"; grep -v ": update of " "$tmp/$f" | tail -20; done
+  for f in writer dds.log swriter sdds.log; do echo "--- $f"; grep -v ": update of " "$tmp/$f" | tail -20; done
 fi
 (( fails == 0 ))

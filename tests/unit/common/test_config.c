@@ -7,6 +7,7 @@
 #include <string.h>
 #include <cmocka.h>
 
+#include <dirent.h>
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/stat.h>
@@ -67,7 +68,17 @@ static const struct {
   {"train:\n  sampling: random\n", "t.yaml:2:13: key 'train.sampling': ", "expected one of depth|uniform, got 'random'"},
   {"sim:\n  layout: house\n", "t.yaml:2:11: key 'sim.layout': ", "expected one of room|flat|building, got 'house'"},
   {"sim:\n  object_bias: 2\n", "t.yaml:2:16: key 'sim.object_bias': ", "got '2'"},
-  {"sim:\n  changes: 5\n", "t.yaml:2:12: key 'sim.changes': ", "expected sequence of {time_s, object, action, to}, got '5'"},
+  {"sim:\n  changes: 5\n", "t.yaml:2:12: key 'sim.changes': ", "expected a sequence of 0 to 16 changes {time_s, object, action, to}, got '5'"},
+  /* the three structured lists share their walk: count, shape, unknown and repeated keys */
+  {"sim:\n  changes: [{time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}, {time_s: 1, object: a, action: add}]\n",
+   "t.yaml:2:12: key 'sim.changes': ", "changes {time_s, object, action, to}, got 17"},
+  {"sim:\n  changes:\n    - [1, a, add]\n", "t.yaml:3:7: key 'sim.changes[0]': ", "expected mapping {time_s, object, action, to}, got a sequence"},
+  {"sim:\n  changes:\n    - {time_s: 1, object: a, time_s: 2, action: add}\n", "t.yaml:3:30: key 'sim.changes[0].time_s': ",
+   "duplicate key (first at line 3)"},
+  {"sim:\n  changes:\n    - {time_s: 1, object: a, action: add, at: [1, 2]}\n", "t.yaml:3:43: key 'sim.changes[0].at': ",
+   "unknown key (expected time_s, object, action or to)"},
+  {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [0, 0, 0, 0], transform: [1, 0, 0, 0]}\n",
+   "t.yaml:4:51: key 'dds.merge.robots[0].transform': ", "duplicate key (first at line 4)"},
   {"sim:\n  changes:\n    - {time_s: -1, object: chair, action: remove}\n", "t.yaml:3:16: key 'sim.changes[0].time_s': ",
    "expected number in [0, 604800] (seconds of sim time), got '-1'"},
   {"sim:\n  changes:\n    - {time_s: 1, object: chair, action: jump}\n", "t.yaml:3:42: key 'sim.changes[0].action': ",
@@ -89,8 +100,8 @@ static const struct {
   {"node:\n  state_dir: a\n  state_dir: b\n", "t.yaml:3:3: key 'node.state_dir': ", "duplicate key (first at line 2)"},
   {"node:\n  state_dir: [a\n", "t.yaml:", "YAML syntax error"},
   {"node:\n  state_dir: a\n---\nnode:\n  state_dir: b\n", "t.yaml:", "expected one YAML document"},
-  {"prompts:\n  sets: x\n", "t.yaml:2:9: key 'prompts.sets': ", "expected sequence of {name, prompts}"},
-  {"prompts:\n  sets: []\n", "t.yaml:2:9: key 'prompts.sets': ", "expected 1 to 8 prompt sets, got 0"},
+  {"prompts:\n  sets: x\n", "t.yaml:2:9: key 'prompts.sets': ", "expected a sequence of 1 to 8 prompt sets {name, prompts}, got 'x'"},
+  {"prompts:\n  sets: []\n", "t.yaml:2:9: key 'prompts.sets': ", "expected a sequence of 1 to 8 prompt sets {name, prompts}, got 0"},
   {"prompts:\n  sets:\n    - name: a\n", "t.yaml:3:7: key 'prompts.sets[0]': ", "expected a 'prompts' list"},
   {"prompts:\n  sets:\n    - name: a\n      promts: [x]\n", "t.yaml:4:7: key 'prompts.sets[0].promts': ", "unknown key"},
   {"prompts:\n  sets:\n    - prompts: [x, \"\"]\n", "t.yaml:3:20: key 'prompts.sets[0].prompts': ", "at index 1, got ''"},
@@ -102,6 +113,12 @@ static const struct {
   {"shm:\n  mode: 0666\n", "t.yaml:2:9: key 'shm.mode': ", "world-writable"},
   {"field:\n  base_resolution: 64\n  finest_resolution: 32\n", "t.yaml:3:22: key 'field.finest_resolution': ", ">= field.base_resolution"},
   {"field:\n  base_resolution: 4096\n", "t.yaml: key 'field.finest_resolution': ", "got 2048"},
+  /* what start-up refused without a line, and a node that would never train */
+  {"publish:\n  label_width: 8192\n", "t.yaml:2:16: key 'publish.label_width': ",
+   "within the map segment's shm.label_max_width x label_max_height (640x480), got 8192x120"},
+  {"shm:\n  label_max_height: 100\n", "t.yaml: key 'publish.label_height': ", "(640x100), got 160x120"},
+  {"keyframes:\n  start_after: 400\n", "t.yaml:2:16: key 'keyframes.start_after': ",
+   "at most keyframes.max_keyframes (325), the most the store holds: training would never start, got 400"},
   {"node:\n  cpu_budget: 0.05\n", "t.yaml:2:15: key 'node.cpu_budget': ", "expected 0 (no limit) or 0.1 to 256 cores, got 0.05"},
   {"node:\n  cpu_budget: 300\n", "t.yaml:2:15: key 'node.cpu_budget': ", "expected number in [0, 256], got '300'"},
   {"node:\n  cpu_budget: -1\n", "t.yaml:2:15: key 'node.cpu_budget': ", "got '-1'"},
@@ -378,6 +395,34 @@ static void test_dds_section(void **state) {
   expect_error("dds:\n  qos:\n    map:\n      lifespan: 3\n", "t.yaml:4:7: key 'dds.qos.map.lifespan': ", "unknown key");
   expect_error("dds:\n  image_hz: 0\n", "t.yaml:2:13: key 'dds.image_hz': ", "expected");
   expect_error("dds:\n  jpeg_quality: 101\n", "t.yaml:2:17: key 'dds.jpeg_quality': ", "expected");
+  /* Keep-last histories bounded in bytes: each switched-on topic's depth
+   * times its largest message, together within dds.history_max_mb, the
+   * depth that holds the most named (with its line when the file sets it). */
+  expect_error("dds:\n  qos:\n    map:\n      depth: 1000\n", "t.yaml:4:14: key 'dds.qos.map.depth': ",
+               "fits dds.history_max_mb (512 MiB), got keep last 1000 of up to 40.0 MiB");
+  expect_error("shm:\n  map_max_voxels: 67108864\n", "t.yaml: key 'dds.qos.map.depth': ", "up to 1280.0 MiB");
+  expect_error("dds:\n  history_max_mb: 20\n", "t.yaml: key 'dds.qos.map.depth': ", "dds.history_max_mb (20 MiB)");
+  expect_error("dds:\n  qos:\n    camera_image:\n      depth: 100\n", "t.yaml:4:14: key 'dds.qos.camera_image.depth': ",
+               "keep last 100 of up to 5.9 MiB");
+  /* map/updates take what the others leave: at least a point an update */
+  expect_error("dds:\n  history_max_mb: 46.8\n  qos:\n    map_updates:\n      depth: 1000\n",
+               "t.yaml:5:14: key 'dds.qos.map_updates.depth': ", "leaves no point per update");
+  expect_error("dds:\n  history_max_mb: 46.8\n", "t.yaml: key 'dds.qos.map_updates.depth': ", "keep last 200");
+  expect_error("dds:\n  history_max_mb: 0.001\n", "t.yaml:2:19: key 'dds.history_max_mb': ", "expected");
+  assert_int_equal(load("dds:\n  history_max_mb: 46.8\n  map_updates: false\n", &cfg), 0);
+  assert_int_equal(load("", &cfg), 0);
+  assert_true(vlff_config_dds_message_max(&cfg, VLFF_DDS_MAP) == (2u << 20) * 20 + VLFF_DDS_MSG_OVERHEAD);
+  uint64_t pts = vlff_config_dds_update_points(&cfg);
+  assert_true(pts > 50000); /* a large region's change, within 512 MiB */
+  assert_true(vlff_config_dds_message_max(&cfg, VLFF_DDS_MAP_UPDATES) == pts * 24 + VLFF_DDS_MSG_OVERHEAD);
+  /* half a MiB more is 109 points more in each of 200 updates; the camera's
+   * image switched off leaves its 1920x1080 RGB to them */
+  assert_int_equal(load("dds:\n  history_max_mb: 512.5\n", &cfg), 0);
+  uint64_t more = vlff_config_dds_update_points(&cfg) - pts;
+  if (more < 109 || more > 110) fail_msg("%llu more points", (unsigned long long)more);
+  assert_int_equal(load("dds:\n  camera_image: false\n", &cfg), 0);
+  more = vlff_config_dds_update_points(&cfg) - pts;
+  if (more < 1296 || more > 1297) fail_msg("%llu more points", (unsigned long long)more);
   static const struct {
     const char *yaml, *fragment;
   } cross[] = {
@@ -404,13 +449,13 @@ static void test_dds_section(void **state) {
   static const struct {
     const char *yaml, *fragment;
   } mbad[] = {
-      {"dds:\n  merge:\n    robots: {namespace: /r1}\n", "expected a sequence of 0 to 8"},
+      {"dds:\n  merge:\n    robots: {namespace: /r1}\n", "expected a sequence of 0 to 8 robots {namespace, transform}, got a mapping"},
       {"dds:\n  merge:\n    robots:\n      - namespace: r1\n", "a leading '/'"},
       {"dds:\n  merge:\n    robots:\n      - namespace: /r1\n      - namespace: /r1\n", "not given before"},
       {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [1, 2, 3]}\n", "expected [x, y, z, yaw_deg]"},
       {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, transform: [1, 2, 3, 400]}\n", "degrees within"},
       {"dds:\n  merge:\n    robots:\n      - {transform: [1, 2, 3, 4]}\n", "expected a 'namespace'"},
-      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, pose: 3}\n", "unknown key"},
+      {"dds:\n  merge:\n    robots:\n      - {namespace: /r1, pose: 3}\n", "unknown key (expected namespace or transform)"},
       {"dds:\n  merge:\n    robots:\n      - namespace: /r1\n      - namespace: /fleet\n", "no robot has"},
       {"dds:\n  merge:\n    robots:\n      - namespace: /r1\n", "0 (no fleet) or 2 to 8 robots, got 1"},
       {"dds:\n  merge:\n    bounds: [0, 0, 0, 0, 1, 1]\n", "below x1 y1 z1"},
@@ -584,17 +629,36 @@ static void test_shipped_configs(void **state) {
     snprintf(needle, sizeof needle, "\n%*s%s:", 2 * depth, "", k);
     if (!strstr(text, needle)) fail_msg("default.yaml lacks key %s", vlff_config_key_path(i));
   }
-  const char *examples[] = {"demo-sim.yaml", "aravis-gige.yaml", "aravis-rgbd.yaml", "libcamera.yaml", "vlff.yaml"};
-  for (size_t i = 0; i < sizeof examples / sizeof examples[0]; i++) {
-    snprintf(path, sizeof path, "%s/configs/%s", src, examples[i]);
+  /* Every vlff config shipped in configs/ (the install copies them to
+   * /etc/vlff), found by listing the directory so that a new one is checked
+   * too; OpenCV FileStorage calibrations ("%YAML:1.0") are not vlff configs. */
+  snprintf(path, sizeof path, "%s/configs", src);
+  DIR *d = opendir(path);
+  assert_non_null(d);
+  int checked = 0, installed = 0;
+  for (struct dirent *e; (e = readdir(d));) {
+    size_t l = strlen(e->d_name);
+    if (l < 6 || strcmp(e->d_name + l - 5, ".yaml")) continue;
+    snprintf(path, sizeof path, "%s/configs/%s", src, e->d_name);
+    char head[16] = "";
+    FILE *h = fopen(path, "r");
+    assert_non_null(h);
+    if (!fgets(head, sizeof head, h)) head[0] = 0;
+    fclose(h);
+    if (!strncmp(head, "%YAML:", 6)) continue;
     if (vlff_config_load(path, &cfg, err, sizeof err)) fail_msg("%s", err);
-    /* A live camera's frames with a live tracker's poses: the newest pose is up
-     * to a period older than the newest frame (docs/pose.md: the example configs
-     * wait for it). */
-    if (cfg.source.kind == VLFF_SOURCE_RING && strcmp(examples[i], "vlff.yaml") && !(cfg.source.pose_wait_s > 0))
-      fail_msg("%s: source.pose_wait_s is %g, expected the shipped wait for a live tracker", examples[i],
+    checked++;
+    installed += !strcmp(e->d_name, "vlff.yaml");
+    /* A live camera's frames with a live tracker's poses: the newest pose is
+     * up to a period older than the newest frame (docs/pose.md: the shipped
+     * configs wait for it). default.yaml lists the built-in defaults. */
+    if (cfg.source.kind == VLFF_SOURCE_RING && strcmp(e->d_name, "default.yaml") && !(cfg.source.pose_wait_s > 0))
+      fail_msg("%s: source.pose_wait_s is %g, expected the shipped wait for a live tracker", e->d_name,
                cfg.source.pose_wait_s);
   }
+  closedir(d);
+  assert_int_equal(installed, 1);
+  assert_true(checked >= 6); /* default, vlff, demo-sim and the three rigs' */
 }
 
 static void test_field_hash(void **state) {

@@ -213,6 +213,7 @@ struct sens_opts {
   int32_t dtype;
   uint64_t nframes_claimed;
   long truncate_to; /* < 0: bytes cut from the end */
+  int skewed_frame; /* > 0: that frame's rotation is not orthonormal */
 };
 
 static void write_sens(const char *path, const struct sens_opts *o) {
@@ -245,6 +246,7 @@ static void write_sens(const char *path, const struct sens_opts *o) {
   for (int i = 0; i < 3; i++) {
     float pose[16] = {1, 0, 0, 0.1f * i, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
     if (i == 1) pose[0] = -INFINITY; /* lost tracking */
+    if (o->skewed_frame && i == o->skewed_frame) pose[1] = 0.5f;
     uint64_t st[2] = {1000u * i, 1000u * i}, sz[2] = {im.blob_len, zn};
     fwrite(pose, 4, 16, f), fwrite(st, 8, 2, f), fwrite(sz, 8, 2, f), fwrite(im.blob, 1, im.blob_len, f);
     fwrite(z, 1, zn, f);
@@ -413,6 +415,40 @@ static void test_sens(void **state) {
     assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
     if (!strstr(err, bad[k].says) || !strstr(err, "scene0001_00.sens")) fail_msg("case %zu: %s", k, err);
   }
+}
+
+/* A .sens deep in long directory names: a bad pose is named with the whole
+ * path and the frame (the message was formed in 48 bytes, which kept the
+ * path's first 47 and lost the frame); paths longer than the reader takes
+ * are refused naming their length, not cut short. */
+static void test_sens_long_path(void **state) {
+  (void)state;
+  char dir[1024], path[1200], err[2048], seg[201];
+  memset(seg, 'd', 200), seg[200] = 0;
+  snprintf(dir, sizeof dir, "%s/%s", root, seg);
+  assert_int_equal(mkdir(dir, 0755), 0);
+  size_t l = strlen(dir);
+  snprintf(dir + l, sizeof dir - l, "/%s", "scene0003_00");
+  assert_int_equal(mkdir(dir, 0755), 0);
+  snprintf(path, sizeof path, "%s/scene0003_00.sens", dir);
+  struct sens_opts skew = {.version = 4, .dtype = 1, .nframes_claimed = 3, .skewed_frame = 2};
+  write_sens(path, &skew);
+  write_tsv_and_ply(dir);
+  struct vlff_dataset ds;
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (strncmp(err, path, strlen(path)) || !strstr(err, ": frame 2 pose: rotation is not orthonormal"))
+    fail_msg("%s", err);
+  /* 4001 bytes: one more than a dataset path may have */
+  char *lng = malloc(VLFF_DS_PATH_MAX + 2);
+  assert_non_null(lng);
+  memset(lng, 'x', VLFF_DS_PATH_MAX + 1), lng[VLFF_DS_PATH_MAX + 1] = 0;
+  lng[0] = '/';
+  assert_int_equal(vlff_dataset_open(&ds, lng, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "dataset path of 4001 bytes is longer than the 4000")) fail_msg("%s", err);
+  struct vlff_dataset_options o = {.layout = VLFF_DS_AUTO, .label_set = VLFF_LABELS_SCANNET20, .label_tsv = lng};
+  assert_int_equal(vlff_dataset_open_opts(&ds, path, &o, err, sizeof err), -1);
+  if (!strstr(err, "label table path of 4001 bytes")) fail_msg("%s", err);
+  free(lng);
 }
 
 #ifdef VLFF_HAVE_HDF5
@@ -1057,5 +1093,6 @@ static int teardown(void **state) {
 }
 
 VLFF_UNIT_MAIN(setup, teardown,
-    cmocka_unit_test(test_export_layout), cmocka_unit_test(test_sens), cmocka_unit_test(test_lost_tracking),
+    cmocka_unit_test(test_export_layout), cmocka_unit_test(test_sens), cmocka_unit_test(test_sens_long_path),
+    cmocka_unit_test(test_lost_tracking),
     cmocka_unit_test(test_required_files) FEATURES_TEST EVAL_TEST REPLAY_TEST)

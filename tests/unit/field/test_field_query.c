@@ -576,8 +576,61 @@ static void test_bad_inputs(void **state) {
   vlff_field_destroy(f);
 }
 
+/* Resident memory, in bytes (/proc/self/statm's second field). */
+static uint64_t rss_bytes(void) {
+  FILE *f = fopen("/proc/self/statm", "r");
+  unsigned long long size = 0, rss = 0;
+  if (f) {
+    if (fscanf(f, "%llu %llu", &size, &rss) != 2) rss = 0;
+    fclose(f);
+  }
+  return rss * (uint64_t)sysconf(_SC_PAGE_SIZE);
+}
+
+/* The field's memory plan: a lower bound of what create writes (so that it
+ * never refuses a field that would fit), growing with the keys it names, and
+ * a field larger than the machine refused at create before a byte of it is
+ * written (it was written whole, and the OOM killer ended the process). */
+static void test_memory_plan(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  cfg.node.threads = 1;
+  uint64_t plan = vlff_field_plan_bytes(&cfg.field, &cfg.train);
+  uint64_t table = (uint64_t)cfg.field.hash_levels * (1u << cfg.field.hash_log2_size) * cfg.field.hash_features;
+  assert_true(plan >= table * 3 * sizeof(float)); /* the table with Adam's moments */
+  char err[512] = "";
+  uint64_t before = rss_bytes();
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, 1, err, sizeof err);
+  if (!f) fail_msg("%s", err);
+  uint64_t grew = rss_bytes() - before;
+  vlff_field_destroy(f);
+  /* within a tenth: small buffers may reuse pages earlier tests freed */
+  if (grew < plan - plan / 10) fail_msg("create wrote %llu bytes, the plan says %llu", (unsigned long long)grew,
+                            (unsigned long long)plan);
+  struct vlff_config more = cfg;
+  more.train.rays_per_step *= 2;
+  assert_true(vlff_field_plan_bytes(&more.field, &more.train) > plan);
+  more = cfg;
+  more.field.hash_log2_size++;
+  assert_true(vlff_field_plan_bytes(&more.field, &more.train) >= plan + table * 3 * sizeof(float));
+  /* terabytes of step buffers: no machine of ours has them */
+  struct vlff_config huge = cfg;
+  huge.field.hash_levels = 32, huge.field.hash_log2_size = 24, huge.field.hash_features = 8;
+  huge.train.rays_per_step = 1 << 20, huge.train.samples_per_ray = 4096;
+  assert_true(vlff_field_plan_bytes(&huge.field, &huge.train) > (1ull << 42));
+  assert_int_equal(vlff_field_check_memory(&huge.field, &huge.train, err, sizeof err), -1);
+  assert_non_null(strstr(err, "more than this machine's"));
+  err[0] = 0;
+  before = rss_bytes();
+  assert_null(vlff_field_create(&huge.field, &huge.train, 1, err, sizeof err));
+  assert_non_null(strstr(err, "field.hash_levels 32 x 2^field.hash_log2_size 24 x field.hash_features 8"));
+  assert_true(rss_bytes() < before + (64u << 20));
+  assert_int_equal(vlff_field_check_memory(&cfg.field, &cfg.train, err, sizeof err), 0);
+}
+
 VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_folded_equals_unfolded), cmocka_unit_test(test_norm_paths),
     cmocka_unit_test(test_checkpoint), cmocka_unit_test(test_exposure), cmocka_unit_test(test_average),
     cmocka_unit_test(test_determinism),
-    cmocka_unit_test(test_bad_inputs))
+    cmocka_unit_test(test_bad_inputs), cmocka_unit_test(test_memory_plan))

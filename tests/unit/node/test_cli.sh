@@ -52,6 +52,21 @@ check "ring without a slash refused with file:line" \
 python3 -c "print('node: '+'['*100000+']'*100000)" >"$tmp/deep.yaml"
 check "100000-deep YAML refused at once" \
   'timeout 20 "${node[@]}" --check-config "$tmp/deep.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "deep.yaml:1:38: nesting deeper than 32 levels" "$tmp/err"'
+# A field larger than the machine: create wrote every byte of it (48 GiB for
+# these tables alone, terabytes for the step buffers) and the OOM killer
+# ended the node, or a neighbour. Refused before anything is allocated.
+printf 'field:\n  hash_levels: 32\n  hash_log2_size: 24\n  hash_features: 8\ntrain:\n  rays_per_step: 1048576\n  samples_per_ray: 4096\nshm:\n  ring: /cli-%s-hr\n  map: /cli-%s-hm\n  prompts: /cli-%s-hp\n' $$ $$ $$ >"$tmp/huge.yaml"
+check "a field larger than memory refused by --check-config, naming the keys" \
+  'timeout 20 "${node[@]}" --check-config "$tmp/huge.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "huge.yaml: field: the model and its step buffers need [0-9.]* GiB (field.hash_levels 32 .*train.rays_per_step 1048576 x train.samples_per_ray 4096 .*more than this machine" "$tmp/err"'
+check "a field larger than memory refused at start, before any segment" \
+  'timeout 20 "${node[@]}" --config "$tmp/huge.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "more than this machine" "$tmp/err" && ! ls /dev/shm/cli-$$-h* >/dev/null 2>&1'
+# --snapshot DIR is checked at start: a file there, or a missing parent, was
+# found only when the run ended (the node here would wait for its ring).
+touch "$tmp/snapfile"
+check "--snapshot on a file refused at start" \
+  'timeout 20 "${node[@]}" --config "$tmp/ok.yaml" --snapshot "$tmp/snapfile" >/dev/null 2>"$tmp/err"; [[ $? == 2 ]] && grep -q -- "--snapshot .*snapfile.: exists and is not a directory" "$tmp/err"'
+check "--snapshot under a missing directory refused at start" \
+  'timeout 20 "${node[@]}" --config "$tmp/ok.yaml" --snapshot "$tmp/no/such" >/dev/null 2>"$tmp/err"; [[ $? == 2 ]] && grep -q "its parent .*/no is not a directory" "$tmp/err"'
 mkfifo "$tmp/fifo.yaml"
 check "a FIFO as config refused, not waited on" \
   'timeout 20 "${node[@]}" --check-config "$tmp/fifo.yaml" >/dev/null 2>"$tmp/err"; [[ $? == 1 ]] && grep -q "fifo.yaml: is a FIFO, expected a regular file" "$tmp/err"'

@@ -78,31 +78,47 @@ static void cli_mailbox_repairs_shown(void **state) {
   vlff_shm_unlink(mbox);
 }
 
+/* A frame ring at name holding one 4x2 RGB frame numbered frame_id, its
+ * colour bytes 0, 10, 20, ... (copied to rgb[24] when given). */
+static struct vlff_ring *frame_ring(const char *name, uint64_t frame_id, uint8_t *rgb) {
+  uint64_t slot = vlff_frame_slot_size(4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_FRAME, .slots = 2, .slot_size = slot};
+  struct vlff_ring *w = vlff_ring_create(name, &rp);
+  assert_non_null(w);
+  struct vlff_frame_hdr *h = vlff_ring_reserve(w, NULL);
+  uint64_t len = vlff_frame_layout(h, slot, 4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  h->frame_id = frame_id;
+  uint8_t *px = (uint8_t *)h + h->plane[0].offset;
+  for (int i = 0; i < 24; i++)
+    px[i] = (uint8_t)(i * 10);
+  if (rgb)
+    memcpy(rgb, px, 24);
+  assert_int_equal(vlff_ring_commit(w, len), 0);
+  return w;
+}
+
+/* A map at name of 2x2x2 voxels of 1 m, published once. */
+static struct vlff_map *small_map(const char *name, uint16_t labels[8], const char **prompts, int n) {
+  struct vlff_map_params mp = {.max_voxels = 8};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(m);
+  struct vlff_map_grid g = {.voxel_size = 1, .dims = {2, 2, 2}, .labels = labels};
+  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = n};
+  assert_int_equal(vlff_map_publish(m, &u), 0);
+  return m;
+}
+
 static void cli_commands(void **state) {
   (void)state;
   char ring[64], map[64], mbox[64], args[512], out[8192];
   test_name(ring, sizeof ring, "cliring");
   test_name(map, sizeof map, "climap");
   test_name(mbox, sizeof mbox, "clibox");
-  uint64_t slot = vlff_frame_slot_size(4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
-  struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_FRAME, .slots = 2, .slot_size = slot};
-  struct vlff_ring *w = vlff_ring_create(ring, &rp);
-  assert_non_null(w);
-  struct vlff_frame_hdr *h = vlff_ring_reserve(w, NULL);
-  uint64_t len = vlff_frame_layout(h, slot, 4, 2, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
-  h->frame_id = 77;
-  uint8_t *rgb = (uint8_t *)h + h->plane[0].offset;
-  for (int i = 0; i < 24; i++)
-    rgb[i] = (uint8_t)(i * 10);
-  assert_int_equal(vlff_ring_commit(w, len), 0);
-
-  struct vlff_map_params mp = {.max_voxels = 8};
-  struct vlff_map *m = vlff_map_create(map, &mp);
+  uint8_t rgb[24];
+  struct vlff_ring *w = frame_ring(ring, 77, rgb);
   uint16_t labels[8] = {0, 1, 1, 0, 0, 1, 1, 0};
   const char *prompts[] = {"floor", "door"};
-  struct vlff_map_grid g = {.voxel_size = 1, .dims = {2, 2, 2}, .labels = labels};
-  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 2};
-  assert_int_equal(vlff_map_publish(m, &u), 0);
+  struct vlff_map *m = small_map(map, labels, prompts, 2);
   struct vlff_shm_perm perm = {.mode = 0660};
   struct vlff_prompts *pb = vlff_prompts_create(mbox, &perm);
   assert_non_null(pb);
@@ -184,6 +200,69 @@ static void cli_commands(void **state) {
   vlff_shm_unlink(mbox);
 }
 
+/* What a new user gets wrong: a segment of the wrong kind is named as such
+ * (it said "segment kind 1, expected 2"), each message names the segment
+ * once, and an output FILE that is a FIFO or a directory is refused and left
+ * as it was: dump-frame opened a FIFO to write and waited for a reader for
+ * ever, dump-map renamed its file over it (over a device node too, as root).
+ * `timeout` in run() turns a hang into status 124. */
+static void cli_wrong_targets(void **state) {
+  (void)state;
+  char ring[64], map[64], args[512], out[8192], fifo[128], dir[128], fresh[128];
+  test_name(ring, sizeof ring, "cliwr");
+  test_name(map, sizeof map, "cliwm");
+  struct vlff_ring *w = frame_ring(ring, 1, NULL);
+  uint16_t labels[8] = {0};
+  const char *prompts[] = {"floor"};
+  struct vlff_map *m = small_map(map, labels, prompts, 1);
+
+  static const struct {
+    const char *cmd, *says;
+  } kinds[] = {
+      {"label %s 0 0 0", "(a ring where a map is expected)"},
+      {"dump-map %s /tmp/vlff-cli-never.bin", "(a ring where a map is expected)"},
+      {"set-prompts -t 0.2 %s door", "(a ring where a prompt mailbox is expected)"},
+  };
+  for (size_t i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {
+    snprintf(args, sizeof args, kinds[i].cmd, ring);
+    assert_int_equal(run(args, out, sizeof out), 1);
+    char once[128];
+    snprintf(once, sizeof once, "vlff-shm: %s: segment kind 1, expected", ring);
+    if (strncmp(out, once, strlen(once)) || !strstr(out, kinds[i].says)) fail_msg("%s: %s", args, out);
+  }
+  snprintf(args, sizeof args, "dump-frame %s /tmp/vlff-cli-never.ppm", map);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  assert_non_null(strstr(out, "(a map where a ring is expected)"));
+
+  snprintf(fifo, sizeof fifo, "/tmp/vlff-cli-fifo-%d", (int)getpid());
+  snprintf(dir, sizeof dir, "/tmp/vlff-cli-dir-%d", (int)getpid());
+  snprintf(fresh, sizeof fresh, "/tmp/vlff-cli-fresh-%d.bin", (int)getpid());
+  assert_int_equal(mkfifo(fifo, 0644), 0);
+  assert_int_equal(mkdir(dir, 0755), 0);
+  const char *const targets[][2] = {{fifo, "is a FIFO"}, {dir, "is a directory"}};
+  for (int t = 0; t < 2; t++)
+    for (int c = 0; c < 2; c++) {
+      snprintf(args, sizeof args, c ? "dump-map %s %s" : "dump-frame %s %s", c ? map : ring, targets[t][0]);
+      assert_int_equal(run(args, out, sizeof out), 1);
+      if (!strstr(out, targets[t][1]) || !strstr(out, "expected a regular file or a new name")) fail_msg("%s: %s", args, out);
+      struct stat st;
+      assert_int_equal(lstat(targets[t][0], &st), 0);
+      assert_true(t ? S_ISDIR(st.st_mode) : S_ISFIFO(st.st_mode));
+    }
+  /* a new name and a regular file are written (replaced whole) */
+  for (int k = 0; k < 2; k++) {
+    snprintf(args, sizeof args, "dump-map %s %s", map, fresh);
+    assert_int_equal(run(args, out, sizeof out), 0);
+  }
+  unlink(fresh);
+  unlink(fifo);
+  rmdir(dir);
+  vlff_map_detach(m);
+  vlff_ring_close(w);
+  vlff_shm_unlink(ring);
+  vlff_shm_unlink(map);
+}
+
 /* Segment names are outside data: a name holding ESC and a newline, given on
  * the command line or found in /dev/shm, reaches the terminal escaped
  * (vlff/escape.h), in the library's messages and in `list`. */
@@ -218,4 +297,4 @@ static void cli_escapes_names(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown),
-    cmocka_unit_test(cli_escapes_names))
+    cmocka_unit_test(cli_escapes_names), cmocka_unit_test(cli_wrong_targets))

@@ -683,6 +683,7 @@ static void test_fifo_at_segment_name(void **state) {
   struct vlff_ring_params rp = {.record_kind = VLFF_RECORD_RAW, .slots = 2, .slot_size = 64};
   assert_null(vlff_ring_create(name, &rp));
   expect_fifo_refused(name, "ring create");
+  assert_int_equal(errno, EEXIST); /* something else holds the name */
   struct vlff_map_params mp = {.max_voxels = 64};
   assert_null(vlff_map_create(name, &mp));
   expect_fifo_refused(name, "map create");

@@ -304,7 +304,24 @@ static void test_points(void **state) {
       assert_int_equal(lab, 1);
       break;
     }
+  /* every second pixel of 160x120, frames 0, 4, ..., 56 */
+  assert_true(p.rays == 15 * 80 * 60);
   vlff_sim_points_free(&p);
+  /* within a budget: the same while it holds them; a million frames take
+   * views spread over the whole run; every 4th pixel of a view larger than
+   * a sixteenth of it */
+  const uint64_t budget = 80000;
+  assert_int_equal(vlff_sim_points_budget(s, 60, 4, 0.05, budget, &p, err, sizeof err), 0);
+  assert_true(p.rays == 15 * 80 * 60);
+  vlff_sim_points_free(&p);
+  assert_int_equal(vlff_sim_points_budget(s, 1000000, 5, 0.05, budget, &p, err, sizeof err), 0);
+  assert_true(p.rays <= budget && p.rays > budget / 4);
+  assert_true(p.n > 500);
+  vlff_sim_points_free(&p);
+  assert_int_equal(vlff_sim_points_budget(s, 60, 4, 0.05, 4 * 4800, &p, err, sizeof err), 0);
+  assert_true(p.rays == 15 * 40 * 30); /* 160x120 at every 4th pixel, the same 15 views */
+  vlff_sim_points_free(&p);
+  assert_int_equal(vlff_sim_points_budget(s, 60, 4, 0.05, 8, &p, err, sizeof err), -1);
   assert_int_equal(vlff_sim_points(s, 0, 1, 0.05, &p, err, sizeof err), -1);
   assert_null(p.xyz);
   vlff_sim_destroy(s);
