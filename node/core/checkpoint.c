@@ -178,8 +178,16 @@ void restore_checkpoint(struct vlff_node *n) {
       n->rollback_tried = 1u << i; /* diverging before the next save goes to the other slot */
       char op[VLFF_CFG_PATH + 32];
       obs_path(n, i, op, sizeof op);
-      if (vlff_publisher_load(n->pub, op, err, sizeof err))
+      /* A refused grid (corrupt, forged, another map's) is counted with
+       * the refused checkpoints; the field is kept. */
+      if (vlff_publisher_load(n->pub, op, err, sizeof err)) {
         VLFF_WARN(TAG, "observation grid not restored (the map refills as keyframes arrive): %s", err);
+        if (access(op, F_OK) == 0) {
+          pthread_mutex_lock(&n->slock);
+          n->st.checkpoint_failures++;
+          pthread_mutex_unlock(&n->slock);
+        }
+      }
       return;
     }
     VLFF_ERROR(TAG, "checkpoint refused, skipped: %s", err);
