@@ -287,12 +287,19 @@ static bool publish_slice(struct vlff_node *n, double to, bool *whole) {
  * pass would come (a linear plan, one pass ahead), and the pass before the
  * deadline publishes the rest. Fixed slice counts on a fixed timer lost up
  * to a step per slice, and a round came every 1.2 s at 1 Hz. */
+/* The passes the pass time is taken over: few, so a slower step shows at
+ * once; a quartile, so one rare long pass (a checkpoint) does not make the
+ * next slices refresh everything. */
+#define PASS_WINDOW 8
+
 struct refresh {
   double period;   /* 1 / publish.rate_hz */
   double span;     /* this round's length: the period, longer when the refresh would take over half the trainer */
   double start;    /* when this round began (its deadline is start + span); < 0 before the first publish */
   double cost;     /* seconds this round's slices took so far */
-  double pass;     /* a loop pass without its slices (a step, keyframes, waits): recent, rising at once */
+  double pass;     /* a loop pass without its slices (a step, keyframes, waits): the recent passes' 3rd quartile */
+  double passes[PASS_WINDOW];
+  int npass;
   double top;      /* when the current pass began */
   double sliced;   /* seconds of slices in the current pass */
   double last_end; /* when the last round ended, < 0 before the first */
@@ -309,8 +316,11 @@ struct refresh {
 
 static void refresh_pass_begin(struct refresh *rf, double now) {
   if (rf->top > 0) {
-    double d = fmax(0, now - rf->top - rf->sliced);
-    rf->pass = d > rf->pass ? d : 0.8 * rf->pass + 0.2 * d;
+    rf->passes[rf->npass++ % PASS_WINDOW] = fmax(0, now - rf->top - rf->sliced);
+    double tmp[PASS_WINDOW];
+    int m = rf->npass < PASS_WINDOW ? rf->npass : PASS_WINDOW;
+    memcpy(tmp, rf->passes, (size_t)m * sizeof tmp[0]);
+    rf->pass = vlff_percentile(tmp, (size_t)m, 0.75);
   }
   rf->top = now;
   rf->sliced = 0;
@@ -341,6 +351,8 @@ static void refresh_round_end(struct vlff_node *n, struct refresh *rf, double en
     n->st.publish_interval_s = sum / m;
     pthread_mutex_unlock(&n->slock);
   }
+  VLFF_DEBUG(TAG, "refresh round ended (%s): %.2f s after the last, its slices %.0f ms, a pass %.0f ms", whole ? "whole" : "slices",
+             rf->last_end >= 0 ? end - rf->last_end : -1.0, rf->cost * 1e3, rf->pass * 1e3);
   rf->last_end = end;
   double next = rf->start + rf->span;
   rf->start = whole || rf->start < 0 || end - next > 0.5 * rf->period ? end : next;
@@ -521,6 +533,10 @@ void *trainer_main(void *arg) {
       vlff_publisher_heartbeat(n->pub);
     }
     if (now >= next_ckpt) {
+      /* A checkpoint holds the trainer for a while (the field's moments are
+       * written whole): the keyframes already waiting go out before it. */
+      take_candidates(n, false);
+      publish_keyframes(n, &rf, &next_kf_publish);
       save_checkpoint(n);
       next_ckpt = now + cfg->node.checkpoint_period_s;
     }
