@@ -82,7 +82,6 @@
 #define QUEUE_CAP 16
 #define PENDING_CAP 16
 #define LAT_CAP 4096
-#define REFRESH_WINDOW 8 /* whole refreshes publish_interval_s averages */
 #define KF_PROTECT 8  /* newest keyframes never evicted */
 #define KF_HISTORY 32 /* admitted keyframes the pose check compares against */
 

@@ -29,6 +29,7 @@
 #include "mem.h"
 #include "node_internal.h"
 #include "publish.h"
+#include "refresh.h"
 #include "select.h"
 #include "stats.h"
 #include "vlff/shm.h"
@@ -280,84 +281,17 @@ static bool publish_slice(struct vlff_node *n, double to, bool *whole) {
   return r.cycle_done;
 }
 
-/* The whole-map refresh's schedule (docs/node.md, "Publishing"). Rounds
- * end on a grid of deadlines `span` apart (1 / publish.rate_hz), whatever a
- * training step costs: a slice can only run between steps, so each pass of
- * the loop publishes what the round needs to be done by the time the next
- * pass would come (a linear plan, one pass ahead), and the pass before the
- * deadline publishes the rest. Fixed slice counts on a fixed timer lost up
- * to a step per slice, and a round came every 1.2 s at 1 Hz. */
-/* The passes the pass time is taken over: few, so a slower step shows at
- * once; a quartile, so one rare long pass (a checkpoint) does not make the
- * next slices refresh everything. */
-#define PASS_WINDOW 8
-
-struct refresh {
-  double period;   /* 1 / publish.rate_hz */
-  double span;     /* this round's length: the period, longer when the refresh would take over half the trainer */
-  double start;    /* when this round began (its deadline is start + span); < 0 before the first publish */
-  double cost;     /* seconds this round's slices took so far */
-  double pass;     /* a loop pass without its slices (a step, keyframes, waits): the recent passes' 3rd quartile */
-  double passes[PASS_WINDOW];
-  int npass;
-  double top;      /* when the current pass began */
-  double sliced;   /* seconds of slices in the current pass */
-  double last_end; /* when the last round ended, < 0 before the first */
-  double ring[REFRESH_WINDOW];
-  int count;
-};
-
-/* A slice is at least this share of the grid (the last excepted): a fast
- * loop would otherwise publish a sliver every pass, each a map version. */
-#define REFRESH_MIN_SLICE (1.0 / 32)
-/* A round takes at most half the trainer's time: rounds are stretched past
- * the period when they cost more (a map too large for the machine). */
-#define REFRESH_SHARE 0.5
-
-static void refresh_pass_begin(struct refresh *rf, double now) {
-  if (rf->top > 0) {
-    rf->passes[rf->npass++ % PASS_WINDOW] = fmax(0, now - rf->top - rf->sliced);
-    double tmp[PASS_WINDOW];
-    int m = rf->npass < PASS_WINDOW ? rf->npass : PASS_WINDOW;
-    memcpy(tmp, rf->passes, (size_t)m * sizeof tmp[0]);
-    rf->pass = vlff_percentile(tmp, (size_t)m, 0.75);
-  }
-  rf->top = now;
-  rf->sliced = 0;
-}
-
-/* Where this pass's slice should end (fraction of the grid), or -1 when
- * none is due yet. */
-static double refresh_due(const struct refresh *rf, double now, double done) {
-  if (rf->start < 0) return -1;
-  double to = (now + rf->pass - rf->start) / rf->span;
-  if (to >= 1) return 1;
-  return to - done >= REFRESH_MIN_SLICE ? to : -1;
-}
-
-/* A round ended at `end` (the last slice, or a whole publish): the time
- * since the previous one (the mean of the last few) into the status when
- * counted, and the next round's deadline. A whole publish out of turn (new
- * prompts, a reset) starts the grid over from it; a round that fell more
- * than half a period behind starts over rather than catching up. */
-static void refresh_round_end(struct vlff_node *n, struct refresh *rf, double end, bool counted, bool whole) {
-  if (counted && rf->last_end >= 0) {
-    rf->ring[rf->count % REFRESH_WINDOW] = end - rf->last_end;
-    rf->count++;
-    int m = rf->count < REFRESH_WINDOW ? rf->count : REFRESH_WINDOW;
-    double sum = 0;
-    for (int i = 0; i < m; i++) sum += rf->ring[i];
-    pthread_mutex_lock(&n->slock);
-    n->st.publish_interval_s = sum / m;
-    pthread_mutex_unlock(&n->slock);
-  }
-  VLFF_DEBUG(TAG, "refresh round ended (%s): %.2f s after the last, its slices %.0f ms, a pass %.0f ms", whole ? "whole" : "slices",
-             rf->last_end >= 0 ? end - rf->last_end : -1.0, rf->cost * 1e3, rf->pass * 1e3);
-  rf->last_end = end;
-  double next = rf->start + rf->span;
-  rf->start = whole || rf->start < 0 || end - next > 0.5 * rf->period ? end : next;
-  rf->span = whole ? rf->period : fmax(rf->period, rf->cost / REFRESH_SHARE);
-  rf->cost = 0;
+/* A refresh round ended (refresh.h): the mean time between rounds into
+ * the status once there is one. */
+static void refresh_round_end(struct vlff_node *n, struct vlff_refresh *rf, double end, bool counted, bool whole) {
+  double prev = rf->last_end, cost = rf->cost;
+  double mean = vlff_refresh_round_end(rf, end, counted, whole);
+  VLFF_DEBUG(TAG, "refresh round ended (%s): %.2f s after the last, its slices %.0f ms, a pass %.0f ms",
+             whole ? "whole" : "slices", prev >= 0 ? end - prev : -1.0, cost * 1e3, rf->pass * 1e3);
+  if (mean < 0) return;
+  pthread_mutex_lock(&n->slock);
+  n->st.publish_interval_s = mean;
+  pthread_mutex_unlock(&n->slock);
 }
 
 /* Keyframes go first: what admitted keyframes saw is published at once
@@ -366,7 +300,7 @@ static void refresh_round_end(struct vlff_node *n, struct refresh *rf, double en
  * so keyframes never take more than a third of the trainer's time: on a
  * slow machine (a sanitizer build's, a small core's) they would take all
  * of it, and the field would not train, nor the mailbox be answered. */
-static void publish_keyframes(struct vlff_node *n, struct refresh *rf, double *next_kf_publish) {
+static void publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, double *next_kf_publish) {
   if ((vlff_publisher_pending(n->pub) == 0 && n->pending_lat == 0) || vlff_field_steps(n->field) == 0 ||
       vlff_seconds() < *next_kf_publish)
     return;
@@ -430,11 +364,11 @@ void *trainer_main(void *arg) {
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
   /* The map is refreshed whole every 1 / publish.rate_hz, in slices
-   * between steps (struct refresh), so no single publish stalls training
-   * for long; what keyframes change is published as soon as they are
+   * between steps (refresh.h), so no single publish stalls training for
+   * long; what keyframes change is published as soon as they are
    * admitted. */
-  const double period = 1.0 / cfg->publish.rate_hz;
-  struct refresh rf = {.period = period, .span = period, .start = -1, .last_end = -1};
+  struct vlff_refresh rf;
+  vlff_refresh_init(&rf, 1.0 / cfg->publish.rate_hz);
   double next_kf_publish = 0; /* when keyframes may be published again */
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
   uint64_t mailbox_seq = 0;
@@ -449,7 +383,7 @@ void *trainer_main(void *arg) {
   n->scanned_step = -FIELD_SCAN_STEPS;
   while (!atomic_load(&n->stop)) {
     atomic_store(&n->trainer_beat_ns, vlff_now_ns());
-    refresh_pass_begin(&rf, vlff_seconds());
+    vlff_refresh_pass(&rf, vlff_seconds());
     bool publish_now = first;
     first = false;
     run_commands(n, &publish_now);
@@ -503,14 +437,14 @@ void *trainer_main(void *arg) {
     bool published = false;
     double to = -1;
     if (vlff_field_steps(n->field) > 0) {
-      to = publish_now || rf.start < 0 ? 1 : refresh_due(&rf, now, vlff_publisher_refresh_done(n->pub));
+      to = publish_now ? 1 : vlff_refresh_due(&rf, now, vlff_publisher_refresh_done(n->pub));
       if (to >= 0 && !publish_now && rf.start >= 0) {
         /* Keyframes still go first: those admitted during the step are
          * published before the slice, not a pass later. One that had to be
          * a whole publish refreshed the map and restarted the round. */
         take_candidates(n, false);
         publish_keyframes(n, &rf, &next_kf_publish);
-        to = refresh_due(&rf, vlff_seconds(), vlff_publisher_refresh_done(n->pub));
+        to = vlff_refresh_due(&rf, vlff_seconds(), vlff_publisher_refresh_done(n->pub));
       }
     }
     if (to >= 0 && vlff_field_steps(n->field) > 0) {
@@ -523,8 +457,7 @@ void *trainer_main(void *arg) {
         round = publish_slice(n, to, &whole);
       }
       double end = vlff_seconds();
-      rf.sliced += end - t;
-      rf.cost += end - t;
+      vlff_refresh_sliced(&rf, end - t);
       published = true;
       /* A whole publish out of turn (new prompts, a reset, the first map)
        * restarts the grid; a round of slices ends on its deadline. */
