@@ -142,6 +142,7 @@ static void reset_mapping(struct vlff_node *n) {
   n->field = f;
   n->resumed = false;
   n->ckpt_steps = -1; /* the saved map is no longer the learned one */
+  n->ckpt_owed = false;
   n->store = s;
   vlff_publisher_reset(n->pub);
   if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);

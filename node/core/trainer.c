@@ -465,12 +465,16 @@ void *trainer_main(void *arg) {
     } else {
       vlff_publisher_heartbeat(n->pub);
     }
-    if (now >= next_ckpt) {
+    if (n->ckpt_owed) {
+      /* The field's part, a pass after the grid's: the keyframes that came
+       * while the grid was written went out at this pass's top. */
+      save_checkpoint_end(n);
+    } else if (now >= next_ckpt) {
       /* A checkpoint holds the trainer for a while (the field's moments are
        * written whole): the keyframes already waiting go out before it. */
       take_candidates(n, false);
       publish_keyframes(n, &rf, &next_kf_publish);
-      save_checkpoint(n);
+      save_checkpoint_begin(n);
       next_ckpt = now + cfg->node.checkpoint_period_s;
     }
     update_state(n);
