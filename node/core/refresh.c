@@ -29,6 +29,12 @@ void vlff_refresh_pass(struct vlff_refresh *rf, double now) {
 double vlff_refresh_due(const struct vlff_refresh *rf, double now, double done) {
   if (rf->start < 0) return 1;
   double to = (now + rf->pass - rf->start) / rf->span;
+  /* A round behind its plan (a long pass) catches up by slices of a
+   * bounded size, not in one: a keyframe that comes during a slice waits
+   * for it. The bound grows with the passes, so that a round of slow
+   * passes still fits its period. */
+  double most = fmax(VLFF_REFRESH_MAX_SLICE, 2 * rf->pass / rf->span);
+  if (to > done + most) to = done + most;
   if (to >= 1) return 1;
   return to - done >= VLFF_REFRESH_MIN_SLICE ? to : -1;
 }

@@ -17,7 +17,10 @@
  *    everything;
  *  - a slice covers at least VLFF_REFRESH_MIN_SLICE of the grid (the last
  *    excepted), or a fast loop would publish a sliver every pass, each a map
- *    version;
+ *    version; and at most VLFF_REFRESH_MAX_SLICE of it, or two passes'
+ *    worth when passes are longer than that allows: a round behind its plan
+ *    (after a long pass) catches up over several passes, not in one slice
+ *    that a keyframe arriving meanwhile would wait for;
  *  - rounds end on a grid of deadlines one period apart: the next round
  *    starts at this one's deadline, so a late round is made up by a shorter
  *    next one, by at most half a period (deadlines missed by more are given
@@ -38,6 +41,7 @@
 #define VLFF_REFRESH_PASSES 8
 #define VLFF_REFRESH_WINDOW 8 /* rounds the mean interval is taken over */
 #define VLFF_REFRESH_MIN_SLICE (1.0 / 32)
+#define VLFF_REFRESH_MAX_SLICE 0.25
 #define VLFF_REFRESH_SHARE 0.5
 
 struct vlff_refresh {
