@@ -50,7 +50,8 @@ struct vlff_publish_result {
   bool whole;       /* the whole grid was relabelled and published */
   bool cycle_done;  /* the map was wholly refreshed: a whole publish, or the last slice */
   /* Voxels whose label differs from what it was before this publish
-   * relabelled it; of those, the ones no keyframe observed since
+   * relabelled it (a voxel labelled for the first time is new, not
+   * counted); of those, the ones no keyframe observed since
    * (flips_elsewhere), among the mapped_elsewhere voxels labelled before and
    * not observed since (hold.h: labels held within publish.label_hysteresis). */
   size_t flips, flips_elsewhere, mapped_elsewhere;
