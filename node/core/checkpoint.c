@@ -6,7 +6,7 @@
  * Thread: the trainer's (periodic and commanded saves, rollbacks); the
  * caller's in vlff_node_create (restore, before the threads start) and
  * vlff_node_destroy (the final save, after the join).
- * State: the trainer-private ckpt_slot, ckpt_steps, rollback_tried,
+ * State: the trainer-private ckpt_slot, ckpt_owed, ckpt_steps, rollback_tried,
  * nonfinite_run and resumed, the field and the publisher's grid.
  * Locks: slock for the status counts only (node_internal.h).
  */
@@ -17,6 +17,7 @@
 #include <unistd.h>
 #include <sys/stat.h>
 
+#include "clock.h"
 #include "field.h"
 #include "files.h"
 #include "log.h"
@@ -49,6 +50,7 @@ void roll_back(struct vlff_node *n, const char *why) {
     slot_of[np++] = i;
   }
   err[0] = 0;
+  n->ckpt_owed = false; /* a grid written for the field rolled back from is not written beside another */
   int k = vlff_field_rollback(n->field, paths, np, err, sizeof err);
   STAT_ADD(n, field_rollbacks, 1);
   if (k >= 0) {
@@ -88,9 +90,17 @@ void step_not_finite(struct vlff_node *n, const char *step_err) {
   roll_back(n, why);
 }
 
-int save_checkpoint(struct vlff_node *n) {
+static void ckpt_failed(struct vlff_node *n, const char *err) {
+  VLFF_ERROR(TAG, "checkpoint failed: %s", err);
+  pthread_mutex_lock(&n->slock);
+  n->st.checkpoint_failures++;
+  n->st.error_flags |= VLFF_NODE_ERR_CHECKPOINT;
+  pthread_mutex_unlock(&n->slock);
+}
+
+int save_checkpoint_begin(struct vlff_node *n) {
   char path[VLFF_CFG_PATH + 32], err[256];
-  int slot = n->ckpt_slot;
+  n->ckpt_owed = false;
   /* Only learning changes what a checkpoint holds, and every change is a
    * step: an idle node (no frames, stopped, a camera unplugged) writes
    * nothing, sparing the robot's flash. */
@@ -108,15 +118,28 @@ int save_checkpoint(struct vlff_node *n) {
   }
   /* The observation grid first: a field checkpoint is only ever newer than
    * (or as new as) the grid beside it. */
-  obs_path(n, slot, path, sizeof path);
-  int obs_rc = vlff_publisher_save(n->pub, path, err, sizeof err);
-  ckpt_path(n, slot, path, sizeof path);
-  if (obs_rc || vlff_field_save(n->field, path, err, sizeof err)) {
-    VLFF_ERROR(TAG, "checkpoint failed: %s", err);
-    pthread_mutex_lock(&n->slock);
-    n->st.checkpoint_failures++;
-    n->st.error_flags |= VLFF_NODE_ERR_CHECKPOINT;
-    pthread_mutex_unlock(&n->slock);
+  double t = vlff_seconds();
+  obs_path(n, n->ckpt_slot, path, sizeof path);
+  if (vlff_publisher_save(n->pub, path, err, sizeof err)) {
+    ckpt_failed(n, err);
+    return -1;
+  }
+  VLFF_DEBUG(TAG, "checkpoint: observation grid %s written in %.0f ms", VLFF_Q(path), (vlff_seconds() - t) * 1e3);
+  n->ckpt_owed = true;
+  return 1;
+}
+
+int save_checkpoint_end(struct vlff_node *n) {
+  char path[VLFF_CFG_PATH + 32], err[256];
+  /* A rollback or a mapping reset since the grid was written: the grid is
+   * not this field's, and the slot is written whole next time. */
+  if (!n->ckpt_owed) return 0;
+  n->ckpt_owed = false;
+  double t = vlff_seconds();
+  long long steps = vlff_field_steps(n->field);
+  ckpt_path(n, n->ckpt_slot, path, sizeof path);
+  if (vlff_field_save(n->field, path, err, sizeof err)) {
+    ckpt_failed(n, err);
     return -1;
   }
   /* Two alternating files: a crash while writing one leaves the other. */
@@ -127,8 +150,14 @@ int save_checkpoint(struct vlff_node *n) {
   n->st.error_flags &= ~(unsigned)VLFF_NODE_ERR_CHECKPOINT;
   pthread_mutex_unlock(&n->slock);
   n->ckpt_steps = steps;
+  VLFF_DEBUG(TAG, "checkpoint: field written in %.0f ms", (vlff_seconds() - t) * 1e3);
   VLFF_INFO(TAG, "checkpoint %s at step %lld", VLFF_Q(path), steps);
   return 0;
+}
+
+int save_checkpoint(struct vlff_node *n) {
+  int rc = save_checkpoint_begin(n);
+  return rc == 1 ? save_checkpoint_end(n) : rc;
 }
 
 void restore_checkpoint(struct vlff_node *n) {
@@ -178,8 +207,16 @@ void restore_checkpoint(struct vlff_node *n) {
       n->rollback_tried = 1u << i; /* diverging before the next save goes to the other slot */
       char op[VLFF_CFG_PATH + 32];
       obs_path(n, i, op, sizeof op);
-      if (vlff_publisher_load(n->pub, op, err, sizeof err))
+      /* A refused grid (corrupt, forged, another map's) is counted with
+       * the refused checkpoints; the field is kept. */
+      if (vlff_publisher_load(n->pub, op, err, sizeof err)) {
         VLFF_WARN(TAG, "observation grid not restored (the map refills as keyframes arrive): %s", err);
+        if (access(op, F_OK) == 0) {
+          pthread_mutex_lock(&n->slock);
+          n->st.checkpoint_failures++;
+          pthread_mutex_unlock(&n->slock);
+        }
+      }
       return;
     }
     VLFF_ERROR(TAG, "checkpoint refused, skipped: %s", err);

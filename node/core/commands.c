@@ -142,6 +142,7 @@ static void reset_mapping(struct vlff_node *n) {
   n->field = f;
   n->resumed = false;
   n->ckpt_steps = -1; /* the saved map is no longer the learned one */
+  n->ckpt_owed = false;
   n->store = s;
   vlff_publisher_reset(n->pub);
   if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);
@@ -264,6 +265,10 @@ void share_status(struct vlff_node *n) {
       .frame_to_map_ms_p50 = st.frame_to_map_ms_p50,
       .frame_to_map_ms_p99 = st.frame_to_map_ms_p99,
       .publish_interval_s = st.publish_interval_s,
+      .label_flips = (uint64_t)st.label_flips,
+      .label_flips_refresh = (uint64_t)st.label_flips_refresh,
+      .label_flips_total = (uint64_t)st.label_flips_total,
+      .label_flip_frac = st.label_flip_frac,
   };
   snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st.state));
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {

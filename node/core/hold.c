@@ -4,6 +4,7 @@
 #include "hold.h"
 
 #include <stdbool.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -76,7 +77,9 @@ uint16_t vlff_hold_label(struct vlff_hold *h, size_t vi, uint16_t label, float m
   if (old != VLFF_LABEL_UNKNOWN && !fresh && old != label && is_class(old) && is_class(label) && !(margin > h->h))
     out = old;
   h->st.decided++;
-  h->st.changed += out != old;
+  /* A voxel labelled for the first time is new to the map, not a flip: a
+   * reader's copy had nothing there to change. */
+  h->st.changed += out != old && old != VLFF_LABEL_UNKNOWN;
   if (old != VLFF_LABEL_UNKNOWN && !fresh) {
     h->st.mapped_elsewhere++;
     h->st.changed_elsewhere += out != old;
@@ -89,3 +92,48 @@ uint16_t vlff_hold_label(struct vlff_hold *h, size_t vi, uint16_t label, float m
 void vlff_hold_forget(struct vlff_hold *h, size_t vi) { h->label[vi] = VLFF_LABEL_UNKNOWN; }
 
 const struct vlff_hold_stats *vlff_hold_stats(const struct vlff_hold *h) { return &h->st; }
+
+/* Saved per voxel: the label (u16, little-endian as the host's other saved
+ * grids: the file is this machine's own) and flags. */
+enum { HOLD_SEEN = 1, HOLD_FRESH = 2, HOLD_BYTES = 3 };
+
+size_t vlff_hold_save_size(const struct vlff_hold *h) { return h->nvox * HOLD_BYTES; }
+
+void vlff_hold_save(const struct vlff_hold *h, uint8_t *out) {
+  for (size_t i = 0; i < h->nvox; i++, out += HOLD_BYTES) {
+    memcpy(out, &h->label[i], 2);
+    out[2] = (uint8_t)((h->seen[i] ? HOLD_SEEN : 0) | (h->seen[i] > h->decided[i] ? HOLD_FRESH : 0));
+  }
+}
+
+int vlff_hold_load(struct vlff_hold *h, const uint8_t *in, size_t len, char *err, size_t errlen) {
+  if (len != h->nvox * HOLD_BYTES) {
+    snprintf(err, errlen, "label hold: %zu bytes, expected %zu for %zu voxels", len, h->nvox * HOLD_BYTES, h->nvox);
+    return -1;
+  }
+  for (size_t i = 0; i < h->nvox; i++) {
+    const uint8_t *q = in + i * HOLD_BYTES;
+    uint16_t l;
+    memcpy(&l, q, 2);
+    if (l >= VLFF_SHM_MAX_PROMPTS && l != VLFF_LABEL_FREE && l != VLFF_LABEL_UNKNOWN) {
+      snprintf(err, errlen, "label hold: voxel %zu holds label %u, not one of %d prompts, free or unknown", i, l,
+               VLFF_SHM_MAX_PROMPTS);
+      return -1;
+    }
+    if (q[2] & ~(HOLD_SEEN | HOLD_FRESH) || (q[2] & HOLD_FRESH && !(q[2] & HOLD_SEEN))) {
+      snprintf(err, errlen, "label hold: voxel %zu has flags 0x%02x (known: seen 0x1, fresh 0x3)", i, q[2]);
+      return -1;
+    }
+  }
+  /* Stamps 1 (decided, or seen and not since) and 2 (seen since its label
+   * was decided) keep every voxel's order; new keyframes count from 3. */
+  memset(&h->st, 0, sizeof h->st);
+  h->kf = 2;
+  for (size_t i = 0; i < h->nvox; i++) {
+    const uint8_t *q = in + i * HOLD_BYTES;
+    memcpy(&h->label[i], q, 2);
+    h->decided[i] = 1;
+    h->seen[i] = q[2] & HOLD_FRESH ? 2 : q[2] & HOLD_SEEN ? 1 : 0;
+  }
+  return 0;
+}

@@ -23,9 +23,15 @@
  *    ended in is occupied follows the field's density (h is a margin between
  *    classes' scores, not between densities).
  * Otherwise the held label stays. Each decision counts whether the label
- * changed, and whether that happened without new evidence ("elsewhere": the
- * camera looked elsewhere) among the voxels that had a label (class or
- * FREE): the flips a reader sees where nothing was seen again.
+ * changed (a flip: a voxel that had a label, class or FREE, and now shows
+ * another; a voxel labelled for the first time is new, not a flip), and
+ * whether that happened without new evidence ("elsewhere": the camera
+ * looked elsewhere): the flips a reader sees where nothing was seen again.
+ *
+ * The held labels and their evidence stamps are learned state: saved with
+ * the observation grid (vlff_hold_save, 3 bytes a voxel: the label and
+ * whether the voxel was observed, and observed since its label was
+ * decided), so a restarted node holds the labels it published before.
  *
  * Contract: one owner thread (the publisher's). Voxel indices are below the
  * nvox given at create (not checked).
@@ -41,7 +47,7 @@ struct vlff_hold;
 /* The counts of the decisions since the last vlff_hold_begin. */
 struct vlff_hold_stats {
   size_t decided;           /* voxels labelled */
-  size_t changed;           /* their label differs from the one held before */
+  size_t changed;           /* their label differs from the one they had (not counting new ones) */
   size_t mapped_elsewhere;  /* labelled (class or FREE) before, and no evidence since */
   size_t changed_elsewhere; /* of those, changed (a flip without new evidence) */
 };
@@ -68,5 +74,15 @@ uint16_t vlff_hold_label(struct vlff_hold *h, size_t vi, uint16_t label, float m
  * voxel no longer observed). */
 void vlff_hold_forget(struct vlff_hold *h, size_t vi);
 const struct vlff_hold_stats *vlff_hold_stats(const struct vlff_hold *h);
+
+/* Saved state: vlff_hold_save_size bytes, written by vlff_hold_save into
+ * out. vlff_hold_load takes them back into a hold of the same nvox: 0, or
+ * -1 with err naming the first value out of bounds (a label neither a class
+ * of at most VLFF_SHM_MAX_PROMPTS prompts, FREE nor UNKNOWN, or unknown
+ * flags) and the hold untouched. The hold's own keyframe count starts over;
+ * only which voxels have evidence newer than their label matters. */
+size_t vlff_hold_save_size(const struct vlff_hold *h);
+void vlff_hold_save(const struct vlff_hold *h, uint8_t *out);
+int vlff_hold_load(struct vlff_hold *h, const uint8_t *in, size_t len, char *err, size_t errlen);
 
 #endif

@@ -82,7 +82,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->st.miou2d = n->st.miou3d = -1;
   n->st.miou2d_frame = -1;
   n->st.last_pose_residual_m = -1;
-  n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = n->st.publish_interval_s = -1;
+  n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = n->st.publish_interval_s = n->st.label_flip_frac = -1;
   /* node.cpu_budget bounds the learner's threads (budget.h); the field made
    * again on a reset reads the same count from n->cfg. */
   n->cfg.node.threads = vlff_budget_threads(cfg->node.cpu_budget, cfg->node.threads);

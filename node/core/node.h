@@ -117,8 +117,15 @@ struct vlff_node_status {
    * since start, those that changed although no keyframe observed them
    * since the publish before (label_flips_elsewhere), among the labelled
    * voxels no keyframe observed in between (label_mapped_elsewhere), summed
-   * over publishes (publish.h, hold.h). */
+   * over publishes (publish.h, hold.h). A voxel labelled for the first
+   * time is not a flip. label_flips_total: all flips since start;
+   * label_flips_refresh: those of the publishes during the last whole
+   * refresh of the map (keyframe publishes included), and label_flip_frac
+   * the share of the voxels mapped elsewhere then that flipped (-1 before
+   * the first refresh, or when none was mapped elsewhere). */
   long long label_flips, label_flips_elsewhere, label_mapped_elsewhere;
+  long long label_flips_total, label_flips_refresh;
+  double label_flip_frac;
   /* Seconds between whole refreshes of the map (the mean of the last 8;
    * the target is 1 / publish.rate_hz); -1 before the second. */
   double publish_interval_s;

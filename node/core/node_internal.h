@@ -82,7 +82,6 @@
 #define QUEUE_CAP 16
 #define PENDING_CAP 16
 #define LAT_CAP 4096
-#define REFRESH_WINDOW 8 /* whole refreshes publish_interval_s averages */
 #define KF_PROTECT 8  /* newest keyframes never evicted */
 #define KF_HISTORY 32 /* admitted keyframes the pose check compares against */
 
@@ -150,6 +149,7 @@ struct vlff_node {
    * fed only while both move (vlff_node_status). */
   _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
+  bool ckpt_owed;             /* trainer: the grid of ckpt_slot is written, its field not yet (save_checkpoint_begin) */
   struct vlff_pacer pacer;    /* trainer: node.cpu_budget's pacing and the measured use (budget.h) */
   int nonfinite_run;          /* trainer: steps in a row whose loss was not finite */
   long long scanned_step;     /* trainer: the step of the last vlff_field_check */
@@ -162,6 +162,9 @@ struct vlff_node {
   float accepted_inl[KF_HISTORY];
   int n_accepted;
   long long cleared_seen; /* vlff_publisher_cleared when keyframes were last checked against it */
+  /* trainer: the label flips of the publishes since the last whole refresh
+   * ended (all, without new evidence, and the voxels that could) */
+  long long round_flips, round_flips_elsewhere, round_mapped_elsewhere;
 };
 
 #define STAT_ADD(n, field, v)          \
@@ -235,6 +238,13 @@ void *trainer_main(void *arg);
 void roll_back(struct vlff_node *n, const char *why);
 void step_not_finite(struct vlff_node *n, const char *step_err);
 int save_checkpoint(struct vlff_node *n);
+/* save_checkpoint in two parts, for the trainer's periodic checkpoint: the
+ * grid (begin: 1 when the field's part is owed, 0 nothing to save, -1
+ * failed), then in a later pass the field (end), so keyframes that arrive
+ * meanwhile are published between the two writes rather than after both.
+ * A rollback or a mapping reset in between cancels the field's part. */
+int save_checkpoint_begin(struct vlff_node *n);
+int save_checkpoint_end(struct vlff_node *n);
 void restore_checkpoint(struct vlff_node *n);
 
 /* commands.c (trainer thread; apply_prompt_set also at create, rate_publish

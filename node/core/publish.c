@@ -92,7 +92,7 @@ struct vlff_publisher {
   uint16_t *pub_labels; /* the grid as last published */
   uint8_t *pub_conf;
   size_t n_labelled, n_free;
-  int slice_next;
+  size_t refresh_at; /* the next voxel of the round-robin refresh */
   bool need_full;
   uint64_t prompts_hash;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
@@ -219,10 +219,18 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
 }
 
 /* File: magic, dims, voxel, origin; observed u8[n], hits u16[n],
- * hit_sum f32[3n]; the evidence's length (u64) and bytes (evidence.h; 0
- * without evidence); FNV-1a 64 of everything before it. VLFFOBS1 files,
- * without the evidence, still load. */
-#define OBS_MAGIC "VLFFOBS2"
+ * hit_sum f32[3n]; (VLFFOBS3) the see-through marks u8[n] (THRU_KEPT bits),
+ * the surfaces cleared (i64), the hash of the prompt embeddings the held
+ * labels index (u64) and the label hold (hold.h, 3 bytes a voxel); the
+ * evidence's length (u64) and bytes (evidence.h; 0 without evidence);
+ * FNV-1a 64 of everything before it. VLFFOBS2 files (without the marks and
+ * the hold) and VLFFOBS1 files (without the evidence too) still load. */
+enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_GONE = 0x10, THRU_NEW = 0x08, THRU_RUN = 0x03 };
+/* The marks a voxel keeps between views (the rest are the view's being
+ * observed): what a checkpoint saves. */
+enum { THRU_KEPT = THRU_GONE | THRU_NEW | THRU_RUN };
+#define OBS_MAGIC "VLFFOBS3"
+#define OBS_MAGIC_V2 "VLFFOBS2"
 #define OBS_MAGIC_V1 "VLFFOBS1"
 
 struct obs_header {
@@ -232,9 +240,13 @@ struct obs_header {
   double voxel, origin[3];
 };
 
+/* The bytes of a VLFFOBS3 file's marks and hold, between hit_sum and the
+ * evidence's length. */
+static size_t obs_v3_size(const struct vlff_publisher *p) { return p->nvox + 16 + vlff_hold_save_size(p->hold); }
+
 int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   size_t n = p->nvox, evn = p->ev ? vlff_evidence_save_size(p->ev) : 0;
-  size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + 8 + evn + 8;
+  size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + obs_v3_size(p) + 8 + evn + 8;
   uint8_t *buf = malloc(len);
   if (!buf) return snprintf(err, errlen, "%s: out of memory", path), -1;
   struct obs_header h = {.voxel = p->voxel};
@@ -246,6 +258,14 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
   memcpy(q, p->observed, n), q += n;
   memcpy(q, p->hits, n * 2), q += n * 2;
   memcpy(q, p->hit_sum, n * 12), q += n * 12;
+  /* Between keyframes no voxel holds a view's marks (thru_commit cleared
+   * them); masked all the same, so the file holds only what load accepts. */
+  for (size_t i = 0; i < n; i++) q[i] = p->thru[i] & THRU_KEPT;
+  q += n;
+  int64_t cleared = p->cleared;
+  memcpy(q, &cleared, 8), q += 8;
+  memcpy(q, &p->hold_prompts, 8), q += 8;
+  vlff_hold_save(p->hold, q), q += vlff_hold_save_size(p->hold);
   uint64_t ev64 = evn;
   memcpy(q, &ev64, 8), q += 8;
   if (evn) vlff_evidence_save(p->ev, q), q += evn;
@@ -306,7 +326,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   struct obs_reader r = {.fd = vlff_open_regular(path, err, errlen), .path = path};
   if (r.fd < 0) return -1;
   int rc = -1;
-  uint8_t *g = NULL;
+  uint8_t *g = NULL, *marks = NULL;
   struct stat st;
   if (fstat(r.fd, &st) < 0) {
     snprintf(err, errlen, "%s: cannot stat: %s", path, strerror(errno));
@@ -326,8 +346,14 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     goto out;
   }
   if (obs_get(&r, 0, &h, sizeof h, err, errlen)) goto out;
-  int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8);
-  if (!v1 && len >= grids + 16 && obs_get(&r, grids, &evn, 8, err, errlen)) goto out;
+  const int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8), v2 = !memcmp(h.magic, OBS_MAGIC_V2, 8);
+  if (!v1 && !v2 && memcmp(h.magic, OBS_MAGIC, 8)) {
+    snprintf(err, errlen, "%s: not an observation grid (magic %.8s)", path, h.magic);
+    goto out;
+  }
+  /* VLFFOBS3: the see-through marks and the label hold follow the grids. */
+  const size_t v3n = v1 || v2 ? 0 : obs_v3_size(p), evn_at = grids + v3n;
+  if (!v1 && len >= evn_at + 16 && obs_get(&r, evn_at, &evn, 8, err, errlen)) goto out;
   /* The whole file is hashed before anything is taken from it: evidence
    * over EV_THIN_MAX times this budget is refused unread, so a file
    * claiming gigabytes (sparse, or from a budget more than that much
@@ -339,14 +365,13 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
              path, (unsigned long long)(evn >> 20), EV_THIN_MAX, p->ev_budget >> 20);
     goto out;
   }
-  uint64_t want = v1 ? grids + 8 : grids + 8 + evn + 8;
+  uint64_t want = v1 ? grids + 8 : evn_at + 8 + evn + 8;
   if (evn > len || len != want) {
     snprintf(err, errlen, "%s: %llu bytes, expected %llu for a %ux%ux%u grid", path, (unsigned long long)len,
              (unsigned long long)want, p->dims[0], p->dims[1], p->dims[2]);
     goto out;
   }
-  if ((!v1 && memcmp(h.magic, OBS_MAGIC, 8)) || memcmp(h.dims, p->dims, sizeof h.dims) || h.voxel != p->voxel ||
-      memcmp(h.origin, p->origin, sizeof h.origin)) {
+  if (memcmp(h.dims, p->dims, sizeof h.dims) || h.voxel != p->voxel || memcmp(h.origin, p->origin, sizeof h.origin)) {
     snprintf(err, errlen, "%s: not an observation grid of this map's geometry", path);
     goto out;
   }
@@ -366,12 +391,50 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     goto out;
   }
   if (obs_get(&r, sizeof h, g, grids - sizeof h, err, errlen)) goto out;
+  /* The marks and the hold are checked whole before anything changes: a
+   * file whose checksum holds may still have been written by another
+   * program (or a bug) with values no observation makes. */
+  int64_t cleared = 0;
+  uint64_t hold_prompts = 0;
+  if (v3n) {
+    marks = malloc(v3n);
+    if (!marks) {
+      snprintf(err, errlen, "%s: out of memory", path);
+      goto out;
+    }
+    if (obs_get(&r, grids, marks, v3n, err, errlen)) goto out;
+    for (size_t i = 0; i < n; i++)
+      if (marks[i] & ~THRU_KEPT) {
+        snprintf(err, errlen, "%s: voxel %zu has see-through marks 0x%02x (known: 0x%02x)", path, i, marks[i],
+                 THRU_KEPT);
+        goto out;
+      }
+    memcpy(&cleared, marks + n, 8);
+    memcpy(&hold_prompts, marks + n + 8, 8);
+    if (cleared < 0) {
+      snprintf(err, errlen, "%s: %lld surfaces cleared, a negative count", path, (long long)cleared);
+      goto out;
+    }
+    /* Validated into a scratch hold first: a refused one leaves the map's. */
+    char herr[192];
+    struct vlff_hold *tmp = vlff_hold_create(n, 0);
+    if (!tmp) {
+      snprintf(err, errlen, "%s: out of memory", path);
+      goto out;
+    }
+    int hrc = vlff_hold_load(tmp, marks + n + 16, v3n - n - 16, herr, sizeof herr);
+    vlff_hold_destroy(tmp);
+    if (hrc) {
+      snprintf(err, errlen, "%s: %s", path, herr);
+      goto out;
+    }
+  }
   /* The evidence first: it is checked whole before anything changes. A file
    * without evidence leaves the node's empty; evidence the node no longer
    * keeps (publish.evidence_weight 0) is ignored. */
   if (p->ev && evn) {
     char eerr[256];
-    r.base = grids + 8;
+    r.base = evn_at + 8;
     int erc = vlff_evidence_load_from(p->ev, obs_read, &r, evn, eerr, sizeof eerr);
     if (erc < 0) {
       snprintf(err, errlen, "%s: %s", path, eerr);
@@ -390,15 +453,23 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     vlff_evidence_reset(p->ev);
   }
   memcpy(p->observed, g, n);
-  vlff_hold_reset(p->hold);
-  memset(p->thru, 0, n);
   memcpy(p->hits, g + n, n * 2);
   memcpy(p->hit_sum, g + n * 3, n * 12);
+  /* An older file has no marks or hold: labels are decided afresh. */
+  if (v3n) {
+    memcpy(p->thru, marks, n);
+    p->cleared = cleared;
+    p->hold_prompts = hold_prompts;
+    vlff_hold_load(p->hold, marks + n + 16, v3n - n - 16, err, errlen); /* checked above: cannot refuse */
+  } else {
+    memset(p->thru, 0, n);
+    vlff_hold_reset(p->hold);
+  }
+  p->nthru = 0;
   p->need_full = true; /* every voxel may have changed */
   rc = 0;
 out:
-  free(g);
-  free(r.buf);
+  VLFF_FREE_ALL(g, marks, r.buf);
   close(r.fd);
   return rc;
 }
@@ -474,7 +545,6 @@ static void touch(struct vlff_publisher *p, size_t vi) {
   p->dirty_idx[p->ndirty++] = vi;
 }
 
-enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_GONE = 0x10, THRU_NEW = 0x08, THRU_RUN = 0x03 };
 /* A voxel whose measured surface this many rays had ended in before it was
  * seen through held a thing (THRU_GONE), not the depth's stray points in
  * front of a far surface, which newer views rightly see through too. */
@@ -1022,6 +1092,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
   for (size_t j = 0; j < p->ndirty; j++) p->dirty[p->dirty_idx[j]] = 0;
   p->ndirty = 0;
   p->need_full = false;
+  p->refresh_at = 0; /* a whole refresh: the next round starts over */
   p->prompts_hash = prompts_hash(prompts, k);
   r->whole = r->cycle_done = true;
   r->changed = p->nvox;
@@ -1053,28 +1124,32 @@ int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *
   return publish_ranges(p, p->runs, nr, prompts, k, NULL, r, err, errlen);
 }
 
+double vlff_publisher_refresh_done(const struct vlff_publisher *p) {
+  return p->nvox ? (double)p->refresh_at / (double)p->nvox : 0;
+}
+
 int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                                 int slices, struct vlff_publish_result *r, char *err, size_t errlen) {
+                                 double to, struct vlff_publish_result *r, char *err, size_t errlen) {
   if (p->need_full || prompts_hash(prompts, k) != p->prompts_hash) {
-    p->slice_next = 0;
+    p->refresh_at = 0;
     return vlff_publisher_publish(p, f, prompts, k, r, err, errlen);
   }
   result_init(r);
-  if (slices < 1) slices = 1;
-  if (p->slice_next >= slices) p->slice_next = 0;
-  int s = p->slice_next;
-  size_t a = p->nvox * (size_t)s / (size_t)slices, b = p->nvox * (size_t)(s + 1) / (size_t)slices;
-  bool last = s == slices - 1;
+  /* Up to the voxel at fraction `to` of the grid, at least one voxel. */
+  size_t a = p->refresh_at, b = !(to < 1) ? p->nvox : (size_t)ceil(fmax(0, to) * (double)p->nvox);
+  if (b <= a) b = a + 1;
+  if (b > p->nvox) b = p->nvox;
+  const bool last = b == p->nvox;
   uint64_t stamp = prompt_stamp(p, f);
   /* The census of lost classes spans one whole refresh, slice by slice. */
-  if (s == 0 && p->ev) vlff_evidence_census_begin(p->ev);
+  if (a == 0 && p->ev) vlff_evidence_census_begin(p->ev);
   hold_begin(p, f);
   if (relabel_voxels(p, f, NULL, a, b - a, stamp, err, errlen)) return -1;
   hold_end(p, r);
   if (last && p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   struct vlff_map_label_image img;
   bool have_img = last && p->have_cam && label_image(p, f, stamp, &img);
-  p->slice_next = last ? 0 : s + 1;
+  p->refresh_at = last ? 0 : b;
   /* Only what changed is logged: a refresh that finds the field agreeing
    * with the map costs readers nothing. */
   size_t nr = 0;

@@ -50,7 +50,8 @@ struct vlff_publish_result {
   bool whole;       /* the whole grid was relabelled and published */
   bool cycle_done;  /* the map was wholly refreshed: a whole publish, or the last slice */
   /* Voxels whose label differs from what it was before this publish
-   * relabelled it; of those, the ones no keyframe observed since
+   * relabelled it (a voxel labelled for the first time is new, not
+   * counted); of those, the ones no keyframe observed since
    * (flips_elsewhere), among the mapped_elsewhere voxels labelled before and
    * not observed since (hold.h: labels held within publish.label_hysteresis). */
   size_t flips, flips_elsewhere, mapped_elsewhere;
@@ -123,17 +124,23 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * publish instead when one is owed (nothing published yet, a reset, a
  * load, a failed publish, other prompts).
  *
- * publish_slice: the next of `slices` consecutive index slices of the grid,
- * round-robin, logging only the voxels whose label or confidence changed;
- * the last slice of a round also renders the label image, closes the
- * census and scores (cycle_done). A whole publish instead when one is owed
- * (it restarts the round). */
+ * publish_slice: the next consecutive index range of the grid, from where
+ * the last slice ended up to the voxel at fraction `to` of the grid (at
+ * least one voxel; to >= 1: the rest of the grid), logging only the voxels
+ * whose label or confidence changed; the slice that reaches the grid's end
+ * ends a round (cycle_done): it also renders the label image, closes the
+ * census and scores, and the next slice starts from voxel 0. The caller
+ * sizes the slices (the trainer: so that a round ends on time, docs/node.md
+ * "Publishing"). A whole publish instead when one is owed (it restarts the
+ * round). refresh_done: the fraction of the grid the current round has
+ * refreshed, in [0, 1). */
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen);
 int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                                    struct vlff_publish_result *r, char *err, size_t errlen);
 int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
-                                 int slices, struct vlff_publish_result *r, char *err, size_t errlen);
+                                 double to, struct vlff_publish_result *r, char *err, size_t errlen);
+double vlff_publisher_refresh_done(const struct vlff_publisher *p);
 /* Voxels observe() touched that no publish has relabelled yet. */
 size_t vlff_publisher_pending(const struct vlff_publisher *p);
 /* For people: the strip (camera image | segmentation | the source's ground

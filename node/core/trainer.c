@@ -29,6 +29,7 @@
 #include "mem.h"
 #include "node_internal.h"
 #include "publish.h"
+#include "refresh.h"
 #include "select.h"
 #include "stats.h"
 #include "vlff/shm.h"
@@ -203,8 +204,21 @@ static void note_publish(struct vlff_node *n, const struct vlff_publish_result *
     n->st.frame_to_map_ms_p99 = p99;
   }
   n->st.label_flips = (long long)r->flips;
+  n->st.label_flips_total += (long long)r->flips;
   n->st.label_flips_elsewhere += (long long)r->flips_elsewhere;
   n->st.label_mapped_elsewhere += (long long)r->mapped_elsewhere;
+  n->round_flips += (long long)r->flips;
+  n->round_flips_elsewhere += (long long)r->flips_elsewhere;
+  n->round_mapped_elsewhere += (long long)r->mapped_elsewhere;
+  if (r->cycle_done) {
+    /* Over a whole refresh every labelled voxel was relabelled once: the
+     * share of those no keyframe saw again that flipped is the churn a
+     * reader sees between two of its copies of the map. */
+    n->st.label_flips_refresh = n->round_flips;
+    n->st.label_flip_frac =
+        n->round_mapped_elsewhere > 0 ? (double)n->round_flips_elsewhere / (double)n->round_mapped_elsewhere : -1;
+    n->round_flips = n->round_flips_elsewhere = n->round_mapped_elsewhere = 0;
+  }
   pthread_mutex_unlock(&n->slock);
 }
 
@@ -245,18 +259,21 @@ static bool publish_changed(struct vlff_node *n) {
   return r.whole;
 }
 
-/* The next slice of the map's round-robin refresh: true when it ended a
- * round (the whole map refreshed). */
-static bool publish_slice(struct vlff_node *n, int slices) {
+/* The map's round-robin refresh up to fraction `to` of the grid: true when
+ * it ended a round (the whole map refreshed); *whole when that took a
+ * whole publish (owed after a reset or new prompts). */
+static bool publish_slice(struct vlff_node *n, double to, bool *whole) {
   char err[256];
   struct vlff_publish_result r;
   const char *texts[VLFF_MAX_PROMPTS];
   prompt_texts(n, texts);
   double t0 = vlff_seconds();
-  if (vlff_publisher_publish_slice(n->pub, n->field, texts, n->prompt_k, slices, &r, err, sizeof err)) {
+  *whole = false;
+  if (vlff_publisher_publish_slice(n->pub, n->field, texts, n->prompt_k, to, &r, err, sizeof err)) {
     vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
     return false;
   }
+  *whole = r.whole;
   VLFF_DEBUG(TAG, "published map v%llu (%s) in %.0f ms: %zu voxels changed", (unsigned long long)r.version,
              r.whole ? "whole" : r.cycle_done ? "last slice" : "slice", (vlff_seconds() - t0) * 1e3, r.changed);
   /* A whole publish (owed after a reset or new prompts) covers every keyframe. */
@@ -264,20 +281,36 @@ static bool publish_slice(struct vlff_node *n, int slices) {
   return r.cycle_done;
 }
 
-/* The time between whole refreshes of the map, the mean of the last few,
- * into the status. */
-static void note_refresh(struct vlff_node *n, double now, double *last, double *ring, int *count) {
-  if (*last >= 0) {
-    ring[*count % REFRESH_WINDOW] = now - *last;
-    (*count)++;
-    int m = *count < REFRESH_WINDOW ? *count : REFRESH_WINDOW;
-    double sum = 0;
-    for (int i = 0; i < m; i++) sum += ring[i];
-    pthread_mutex_lock(&n->slock);
-    n->st.publish_interval_s = sum / m;
-    pthread_mutex_unlock(&n->slock);
-  }
-  *last = now;
+/* A refresh round ended (refresh.h): the mean time between rounds into
+ * the status once there is one. */
+static void refresh_round_end(struct vlff_node *n, struct vlff_refresh *rf, double end, bool counted, bool whole) {
+  double prev = rf->last_end, cost = rf->cost;
+  double mean = vlff_refresh_round_end(rf, end, counted, whole);
+  VLFF_DEBUG(TAG, "refresh round ended (%s): %.2f s after the last, its slices %.0f ms, a pass %.0f ms",
+             whole ? "whole" : "slices", prev >= 0 ? end - prev : -1.0, cost * 1e3, rf->pass * 1e3);
+  if (mean < 0) return;
+  pthread_mutex_lock(&n->slock);
+  n->st.publish_interval_s = mean;
+  pthread_mutex_unlock(&n->slock);
+}
+
+/* Keyframes go first: what admitted keyframes saw is published at once
+ * (the frame-to-map latency is the time to here). A publish that cost c
+ * waits 2c before the next (what is admitted meanwhile goes out with it),
+ * so keyframes never take more than a third of the trainer's time: on a
+ * slow machine (a sanitizer build's, a small core's) they would take all
+ * of it, and the field would not train, nor the mailbox be answered. */
+static void publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, double *next_kf_publish) {
+  if ((vlff_publisher_pending(n->pub) == 0 && n->pending_lat == 0) || vlff_field_steps(n->field) == 0 ||
+      vlff_seconds() < *next_kf_publish)
+    return;
+  double t = vlff_seconds();
+  bool whole = publish_changed(n);
+  double end = vlff_seconds(), c = end - t;
+  /* a whole publish is owed once (new prompts, a reset): not a rate; it
+   * refreshed the whole map, so the refresh's round starts over */
+  *next_kf_publish = whole ? 0 : t + 3.0 * c;
+  if (whole) refresh_round_end(n, rf, end, false, true);
 }
 
 /* The young-field schedules, both keyed on the field's step count. */
@@ -330,17 +363,13 @@ void *trainer_main(void *arg) {
   pthread_setname_np(pthread_self(), "vlff-trainer"); /* as ingest_main's */
   struct vlff_node *n = arg;
   const struct vlff_config *cfg = &n->cfg;
-  /* The map is refreshed whole every 1 / publish.rate_hz, in slices of
-   * about a tenth of a second each, so no single publish stalls training
-   * for long; what keyframes change is published as soon as they are
+  /* The map is refreshed whole every 1 / publish.rate_hz, in slices
+   * between steps (refresh.h), so no single publish stalls training for
+   * long; what keyframes change is published as soon as they are
    * admitted. */
-  const double period = 1.0 / cfg->publish.rate_hz;
-  const int slices = (int)fmax(1, fmin(64, lround(period / 0.1)));
-  double next_slice = vlff_seconds() + period / slices;
-  double kf_spent = 0; /* seconds spent publishing keyframes since the last slice */
+  struct vlff_refresh rf;
+  vlff_refresh_init(&rf, 1.0 / cfg->publish.rate_hz);
   double next_kf_publish = 0; /* when keyframes may be published again */
-  double last_refresh = -1, refresh_ring[REFRESH_WINDOW];
-  int refreshes = 0;
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
   uint64_t mailbox_seq = 0;
   struct rate_meter steps = {vlff_seconds(), 0};
@@ -354,27 +383,14 @@ void *trainer_main(void *arg) {
   n->scanned_step = -FIELD_SCAN_STEPS;
   while (!atomic_load(&n->stop)) {
     atomic_store(&n->trainer_beat_ns, vlff_now_ns());
+    vlff_refresh_pass(&rf, vlff_seconds());
     bool publish_now = first;
     first = false;
     run_commands(n, &publish_now);
     poll_mailbox(n, &mailbox_seq, &publish_now);
     bool train = n->mapping && vlff_kfstore_count(n->store) >= cfg->keyframes.start_after;
     take_candidates(n, !train);
-    /* What admitted keyframes saw is published before the next step: the
-     * frame-to-map latency is the time to here. A publish that cost c waits
-     * 2c before the next (what is admitted meanwhile goes out with it), so
-     * keyframes never take more than a third of the trainer's time: on a slow
-     * machine (a sanitizer build's, a small core's) they would take all of
-     * it, and the field would not train, nor the mailbox be answered. */
-    if ((vlff_publisher_pending(n->pub) > 0 || n->pending_lat > 0) && !publish_now &&
-        vlff_field_steps(n->field) > 0 && vlff_seconds() >= next_kf_publish) {
-      double t = vlff_seconds();
-      bool whole = publish_changed(n);
-      double c = vlff_seconds() - t;
-      kf_spent += c;
-      /* a whole publish is owed once (new prompts, a reset): not a rate */
-      next_kf_publish = whole ? 0 : t + 3.0 * c;
-    }
+    if (!publish_now) publish_keyframes(n, &rf, &next_kf_publish);
     train = pace_training(n, train);
     if (train) {
       const struct vlff_view *views;
@@ -419,32 +435,46 @@ void *trainer_main(void *arg) {
     /* An untrained field has nothing to say: readers see version 0 until
      * the first step, and the heartbeat says the writer is alive. */
     bool published = false;
-    if ((publish_now || now >= next_slice) && vlff_field_steps(n->field) > 0) {
-      bool round = false;
+    double to = -1;
+    if (vlff_field_steps(n->field) > 0) {
+      to = publish_now ? 1 : vlff_refresh_due(&rf, now, vlff_publisher_refresh_done(n->pub));
+      if (to >= 0 && !publish_now && rf.start >= 0) {
+        /* Keyframes still go first: those admitted during the step are
+         * published before the slice, not a pass later. One that had to be
+         * a whole publish refreshed the map and restarted the round. */
+        take_candidates(n, false);
+        publish_keyframes(n, &rf, &next_kf_publish);
+        to = vlff_refresh_due(&rf, vlff_seconds(), vlff_publisher_refresh_done(n->pub));
+      }
+    }
+    if (to >= 0 && vlff_field_steps(n->field) > 0) {
+      double t = vlff_seconds();
+      bool round, whole = true;
       if (publish_now) {
         do_publish(n);
         round = true;
       } else {
-        round = publish_slice(n, slices);
+        round = publish_slice(n, to, &whole);
       }
+      double end = vlff_seconds();
+      vlff_refresh_sliced(&rf, end - t);
       published = true;
-      if (round) note_refresh(n, vlff_seconds(), &last_refresh, refresh_ring, &refreshes);
-      /* publish.rate_hz is an upper bound: publishing never takes more than
-       * a fifth of the trainer's time, or learning would stall behind it;
-       * keyframes go first, and the slices take what is left of that fifth,
-       * but always at least a tenth, so the refresh never starves behind a
-       * stream of keyframes. The slices keep to their schedule otherwise, so
-       * rounds end every period; one that fell a whole period behind starts
-       * over from now rather than catching up in a burst. */
-      double end = vlff_seconds(), spent = end - now;
-      if (next_slice < now - period) next_slice = now;
-      next_slice = fmax(next_slice + period / slices, end + fmin(4.0 * (spent + kf_spent), 9.0 * spent));
-      kf_spent = 0;
+      /* A whole publish out of turn (new prompts, a reset, the first map)
+       * restarts the grid; a round of slices ends on its deadline. */
+      if (round) refresh_round_end(n, &rf, end, !whole, whole);
     } else {
       vlff_publisher_heartbeat(n->pub);
     }
-    if (now >= next_ckpt) {
-      save_checkpoint(n);
+    if (n->ckpt_owed) {
+      /* The field's part, a pass after the grid's: the keyframes that came
+       * while the grid was written went out at this pass's top. */
+      save_checkpoint_end(n);
+    } else if (now >= next_ckpt) {
+      /* A checkpoint holds the trainer for a while (the field's moments are
+       * written whole): the keyframes already waiting go out before it. */
+      take_candidates(n, false);
+      publish_keyframes(n, &rf, &next_kf_publish);
+      save_checkpoint_begin(n);
       next_ckpt = now + cfg->node.checkpoint_period_s;
     }
     update_state(n);

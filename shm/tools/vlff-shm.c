@@ -136,10 +136,12 @@ static int print_status(struct vlff_map *m, const char *name) {
   printf("keyframes %" PRIu64 "\nkeyframes_evicted %" PRIu64 "\niterations %" PRIu64 "\n"
          "iterations_per_s %.3f\nfps_in %.3f\nloss %.6g\nloss_rgb %.6g\nloss_depth %.6g\nloss_feat %.6g\n"
          "psnr %.3f\ncpu_budget %.3f\ncpu_used %.3f\nframe_to_map_ms_p50 %.1f\nframe_to_map_ms_p99 %.1f\n"
-         "publish_interval_s %.3f\n",
+         "publish_interval_s %.3f\nlabel_flips %" PRIu64 "\nlabel_flips_refresh %" PRIu64 "\nlabel_flips_total %" PRIu64
+         "\nlabel_flip_frac %.4f\n",
          st.keyframes, st.keyframes_evicted, st.iterations, st.iterations_per_s, st.fps_in, st.loss, st.loss_rgb,
          st.loss_depth, st.loss_feat, st.psnr, st.cpu_budget, st.cpu_used, st.frame_to_map_ms_p50,
-         st.frame_to_map_ms_p99, st.publish_interval_s);
+         st.frame_to_map_ms_p99, st.publish_interval_s, st.label_flips, st.label_flips_refresh, st.label_flips_total,
+         st.label_flip_frac);
   return 0;
 }
 

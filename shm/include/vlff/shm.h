@@ -88,7 +88,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 5
+#define VLFF_SHM_ABI_VERSION 6
 
 /* ------------------------------------------------------------------ errors */
 
@@ -562,6 +562,14 @@ struct vlff_map_status {
    * whole refreshes of the map; -1 while unknown. */
   double frame_to_map_ms_p50, frame_to_map_ms_p99;
   double publish_interval_s;
+  /* Label churn (vlff-node; docs/shm.md, "The writer's status"): voxels whose
+   * published label changed (one labelled for the first time is new, not a flip)
+   * at the last publish, over the publishes of the last whole refresh, and since
+   * the writer started; label_flip_frac: over the last whole refresh, the share of
+   * the labelled voxels that no new observation reached that flipped anyway; -1
+   * while unknown. */
+  uint64_t label_flips, label_flips_refresh, label_flips_total;
+  double label_flip_frac;
 };
 
 /* Writer: replaces the status (t_ns and updates are set here, the rest is taken as

@@ -12,10 +12,12 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include <sys/stat.h>
 #include <cmocka.h>
 
 #include "evidence.h"
 #include "field.h"
+#include "hash.h"
 #include "publish.h"
 #include "unit.h"
 #include "vlff/shm.h"
@@ -485,9 +487,10 @@ static void test_incremental_publication(void **state) {
   assert_int_equal(vlff_map_snapshot_follow(m, fol), 0);
   size_t changed = 0;
   for (int s = 0; s < 5; s++) {
-    assert_int_equal(vlff_publisher_publish_slice(p, f, prompts, 3, 5, &r, err, sizeof err), 0);
+    assert_int_equal(vlff_publisher_publish_slice(p, f, prompts, 3, (s + 1) / 5.0, &r, err, sizeof err), 0);
     assert_false(r.whole);
     assert_int_equal(r.cycle_done, s == 4);
+    assert_true(fabs(vlff_publisher_refresh_done(p) - (s == 4 ? 0 : (s + 1) / 5.0)) < 1e-3);
     changed += r.changed;
     assert_int_equal(vlff_map_snapshot_follow(m, fol), 0);
   }
@@ -500,15 +503,18 @@ static void test_incremental_publication(void **state) {
   take(m, b, &ib);
   assert_memory_equal(ia.grid.labels, ib.grid.labels, nv * 2);
   assert_memory_equal(ia.grid.confidence, ib.grid.confidence, nv);
-  /* Nothing changed since: a round logs nothing. */
+  /* Nothing changed since: a round logs nothing, in slices of any size (a
+   * target behind the last slice's end still refreshes a voxel). */
+  const double to[] = {0.3, 0.1, 0.31, 0.9, 2};
   for (int s = 0; s < 5; s++) {
-    assert_int_equal(vlff_publisher_publish_slice(p, f, prompts, 3, 5, &r, err, sizeof err), 0);
+    assert_int_equal(vlff_publisher_publish_slice(p, f, prompts, 3, to[s], &r, err, sizeof err), 0);
     assert_int_equal(r.changed, 0);
+    assert_int_equal(r.cycle_done, s == 4);
   }
 
   /* Other prompts, a reset: the next publish is whole. */
   const char *other[3] = {"wall", "floor", "door"};
-  assert_int_equal(vlff_publisher_publish_slice(p, f, other, 3, 5, &r, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_publish_slice(p, f, other, 3, 0.2, &r, err, sizeof err), 0);
   assert_true(r.whole);
   vlff_publisher_reset(p);
   assert_int_equal(vlff_publisher_publish_changed(p, f, other, 3, &r, err, sizeof err), 0);
@@ -524,9 +530,147 @@ static void test_incremental_publication(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* ------------------------------------------------------ restart: the hold */
+
+/* Rewrites byte `at` of a saved map and its checksum, as a forger who knows
+ * the format would. */
+static void forge(const char *path, long at, uint8_t byte) {
+  FILE *f = fopen(path, "r+b");
+  assert_non_null(f);
+  assert_int_equal(fseek(f, 0, SEEK_END), 0);
+  long len = ftell(f);
+  uint8_t *b = malloc((size_t)len);
+  assert_non_null(b);
+  rewind(f);
+  assert_int_equal(fread(b, 1, (size_t)len, f), (size_t)len);
+  b[at] = byte;
+  uint64_t sum = vlff_fnv1a64(VLFF_FNV1A64_INIT, b, (size_t)len - 8);
+  memcpy(b + len - 8, &sum, 8);
+  rewind(f);
+  assert_int_equal(fwrite(b, 1, (size_t)len, f), (size_t)len);
+  fclose(f);
+  free(b);
+}
+
+/* The label hold and the see-through marks are saved with the observation
+ * grid: a restarted publisher publishes the labels it held (a field that
+ * answers otherwise, without new evidence, does not flip them), and a
+ * surface one view had seen through before the restart is cleared by the
+ * next view through it, as without the restart. A forged label or mark is
+ * refused naming the voxel, and the publisher keeps what it had. Before,
+ * a restart forgot both: every held label was decided afresh by the field
+ * and the run of views through a surface started over. */
+static void test_hold_survives_restart(void **state) {
+  (void)state;
+  struct vlff_config ca, cb, cc;
+  config_for(&ca, "ha");
+  struct vlff_field *f1 = small_field(&ca, 3, 11);
+  config_for(&cb, "hb");
+  config_for(&cc, "hc");
+  cb.field = cc.field = ca.field;
+  ca.publish.evidence_weight = cb.publish.evidence_weight = cc.publish.evidence_weight = 0;
+  ca.publish.label_hysteresis = cb.publish.label_hysteresis = 2; /* a cosine margin never exceeds it: always held */
+  cc.publish.label_hysteresis = 0;                               /* the field's label always */
+  /* Another field (another hash grid) with the same prompts: it answers
+   * otherwise at many voxels. */
+  struct vlff_cfg_field f2c = ca.field;
+  f2c.hash_log2_size = 13;
+  f2c.finest_resolution *= 2;
+  struct vlff_field *f2 = vlff_field_create(&f2c, &ca.train, 1, err, sizeof err);
+  assert_non_null(f2);
+  int K;
+  const float *E = vlff_field_prompt_embeddings(f1, &K);
+  assert_int_equal(vlff_field_set_prompts(f2, E, K, err, sizeof err), 0);
+  struct vlff_publisher *pa = create(&ca), *pb = create(&cb), *pc = create(&cc);
+  const char *prompts[3] = {"wall", "floor", "chair"};
+  struct vlff_publish_result r;
+  const double fx = 0.5 * W / tan(0.5 * 65.0 * M_PI / 180.0), old_pt[3] = {(40 - 32) / fx, 0, 1.0};
+  struct vlff_view v = view(2.0f);
+  object_at(32, 2.0f);
+  for (int i = 0; i < 2; i++) assert_int_equal(vlff_publisher_observe(pa, &v, err, sizeof err), 0);
+  object_at(0, 2.0f); /* one view through the object's old place: not cleared yet */
+  assert_int_equal(vlff_publisher_observe(pa, &v, err, sizeof err), 0);
+  assert_true(vlff_publisher_surface_known(pa, old_pt));
+  assert_int_equal(vlff_publisher_publish(pa, f1, prompts, 3, &r, err, sizeof err), 0);
+  assert_int_equal(r.flips, 0); /* every voxel was new: none flipped */
+  assert_true(r.labelled > 100);
+  char path[] = "/tmp/vlff-test-hold-XXXXXX";
+  int fd = mkstemp(path);
+  assert_true(fd >= 0);
+  close(fd);
+  assert_int_equal(vlff_publisher_save(pa, path, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_load(pb, path, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_load(pc, path, err, sizeof err), 0);
+
+  /* Restarted with another field: pb holds pa's labels, pc (no hold) shows
+   * the field's. */
+  struct vlff_map *ma = vlff_map_attach(ca.shm.map), *mb = vlff_map_attach(cb.shm.map),
+                  *mc = vlff_map_attach(cc.shm.map);
+  assert_true(ma && mb && mc);
+  assert_int_equal(vlff_publisher_publish(pb, f2, prompts, 3, &r, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_publish(pc, f2, prompts, 3, &r, err, sizeof err), 0);
+  struct vlff_map_snapshot *sa = vlff_map_snapshot_new(ma), *sb = vlff_map_snapshot_new(mb),
+                           *sc = vlff_map_snapshot_new(mc);
+  struct vlff_map_info ia, ib, ic;
+  take(ma, sa, &ia);
+  take(mb, sb, &ib);
+  take(mc, sc, &ic);
+  size_t nv = (size_t)ia.grid.dims[0] * ia.grid.dims[1] * ia.grid.dims[2], both = 0, held = 0, differ = 0;
+  for (size_t i = 0; i < nv; i++) {
+    uint16_t a = ia.grid.labels[i], b = ib.grid.labels[i], c = ic.grid.labels[i];
+    if (a > VLFF_LABEL_MAX || b > VLFF_LABEL_MAX || c > VLFF_LABEL_MAX) continue;
+    both++;
+    held += a == b;
+    differ += a != c;
+  }
+  assert_true(both > 100);
+  assert_int_equal(held, both);
+  assert_true(differ > 0);
+
+  /* The run of views through the old place went on: one more clears it. */
+  assert_true(vlff_publisher_surface_known(pb, old_pt));
+  assert_int_equal(vlff_publisher_cleared(pb), 0);
+  assert_int_equal(vlff_publisher_observe(pb, &v, err, sizeof err), 0);
+  assert_false(vlff_publisher_surface_known(pb, old_pt));
+  assert_true(vlff_publisher_cleared(pb) > 0);
+
+  /* Forged: a label no prompt has, a mark no view makes. The file: a 56-byte
+   * header, 15 bytes a voxel of grids, 1 of marks, 16 of counts, 3 of hold,
+   * the evidence's length (0 here) and the checksum. */
+  struct stat st;
+  assert_int_equal(stat(path, &st), 0);
+  const long n = ((long)st.st_size - 56 - 16 - 16) / 19, hold_at = 56 + 16 * n + 16;
+  assert_int_equal(56 + 19 * n + 32, st.st_size);
+  forge(path, hold_at + 3 * 7, 0);
+  forge(path, hold_at + 3 * 7 + 1, 0x12);
+  assert_int_equal(vlff_publisher_load(pc, path, err, sizeof err), -1);
+  assert_non_null(strstr(err, "label hold: voxel 7 holds label 4608"));
+  assert_int_equal(vlff_publisher_save(pa, path, err, sizeof err), 0);
+  forge(path, 56 + 15 * n + 9, 0x40 /* a view's mark (THRU_HIT), never saved */);
+  assert_int_equal(vlff_publisher_load(pc, path, err, sizeof err), -1);
+  assert_non_null(strstr(err, "voxel 9 has see-through marks 0x40"));
+  assert_true(vlff_publisher_surface_known(pc, old_pt)); /* pc kept what it had */
+
+  vlff_map_snapshot_free(sa);
+  vlff_map_snapshot_free(sb);
+  vlff_map_snapshot_free(sc);
+  vlff_map_detach(ma);
+  vlff_map_detach(mb);
+  vlff_map_detach(mc);
+  unlink(path);
+  vlff_field_destroy(f1);
+  vlff_field_destroy(f2);
+  vlff_publisher_destroy(pa);
+  vlff_publisher_destroy(pb);
+  vlff_publisher_destroy(pc);
+  vlff_shm_unlink(ca.shm.map);
+  vlff_shm_unlink(cb.shm.map);
+  vlff_shm_unlink(cc.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
     cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
     cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication),
-    cmocka_unit_test(test_grazing_surface_filled))
+    cmocka_unit_test(test_grazing_surface_filled), cmocka_unit_test(test_hold_survives_restart))

@@ -26,6 +26,11 @@ pos() { awk -v v="$1" 'BEGIN { exit !(v + 0 > 0) }'; }
 wait_until 600 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null; pos "$(val frame_to_map_ms_p99)" && pos "$(val publish_interval_s)"'
 check "vlff-shm stat: frame to map p50 $(val frame_to_map_ms_p50) p99 $(val frame_to_map_ms_p99) ms, whole refresh every $(val publish_interval_s) s" \
   'pos "$(val frame_to_map_ms_p50)" && pos "$(val frame_to_map_ms_p99)" && pos "$(val publish_interval_s)"'
+# Label churn (issue 49): the flips of the last publish, of the last whole
+# refresh and since start, and the share flipped where nothing was seen again.
+frac_ok() { awk -v v="$1" 'BEGIN { exit !(v == -1 || (v >= 0 && v <= 1)) }'; }
+check "vlff-shm stat: label flips $(val label_flips), $(val label_flips_refresh) over the last refresh, $(val label_flips_total) in all, share $(val label_flip_frac)" \
+  '[[ $(val label_flips) =~ ^[0-9]+$ && $(val label_flips_refresh) =~ ^[0-9]+$ ]] && (( $(val label_flips_total) >= $(val label_flips_refresh) && $(val label_flips_total) >= $(val label_flips) )) && frac_ok "$(val label_flip_frac)"'
 check "frames refused is the sum of the reasons" \
   '[[ $(val frames_refused) == $(awk '"'"'$1 == "refused" { s += $2 } END { print s + 0 }'"'"' "$tmp/stat") ]]'
 

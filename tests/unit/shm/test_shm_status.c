@@ -44,6 +44,13 @@ static void fill(struct vlff_map_status *s, uint64_t k) {
   s->loss_depth = s->loss / 4;
   s->loss_feat = s->loss / 8;
   s->psnr = (double)k + 0.125;
+  s->frame_to_map_ms_p50 = (double)k * 3;
+  s->frame_to_map_ms_p99 = (double)k * 9;
+  s->publish_interval_s = 1.0 + 1.0 / (double)(k + 1);
+  s->label_flips = k * 7;
+  s->label_flips_refresh = k * 13;
+  s->label_flips_total = k * 17;
+  s->label_flip_frac = 1.0 / (double)(k + 2);
   s->reason_count = (uint32_t)(k % (VLFF_SHM_MAX_REASONS + 1));
   for (uint32_t r = 0; r < s->reason_count; r++) {
     snprintf(s->reason[r].name, sizeof s->reason[r].name, "reason %u of %u", r % 16u,
