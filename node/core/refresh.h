@@ -5,8 +5,8 @@
  * whatever a training step costs.
  *
  * Why: a slice can only run between the trainer's steps. Fixed slices on a
- * fixed timer lost up to a step each (rounds came every 1.23 s at 1 Hz on
- * the flat); here each pass of the loop refreshes what keeps the round on a
+ * fixed timer lost up to a step each, and rounds came late by that much; here
+ * each pass of the loop refreshes what keeps the round on a
  * straight line from its start to its deadline one pass ahead, and the pass
  * before the deadline refreshes the rest.
  *
