@@ -409,6 +409,10 @@ static const struct key schema[] = {
     STR("dds.merge.namespace", dds.merge.ns, "/fleet"),
     DVEC("dds.merge.bounds", dds.merge.bounds, -1e5, 1e5, merge_bounds_def),
     DBL("dds.merge.voxel_size_m", dds.merge.voxel_size_m, 0.01, 10, 0.1),
+    STR("dds.merge.frame_id", dds.merge.frame_id, "world"),
+    /* A robot's evidence counts half when it is this much older than the
+     * newest: long against a walk through a flat, short against a day. */
+    DBL("dds.merge.half_life_s", dds.merge.half_life_s, 1, 1e7, 600),
 };
 
 #define NKEYS (sizeof schema / sizeof schema[0])
@@ -789,6 +793,7 @@ static int parse_merge_robots(struct parse *p, yaml_node_t *n, struct vlff_confi
             return fail(p, e, sub, "expected %s within +-%g at index %ld, got %s", j < 3 ? "metres" : "degrees", lim, j, g);
           r->transform[j] = v;
         }
+        r->has_transform = true;
       } else {
         return fail(p, kn, sub, "unknown key (expected namespace or transform)");
       }
@@ -1066,7 +1071,8 @@ static int check_dds(struct parse *p, struct vlff_config *cfg) {
   if (why) return fail_cross(p, "dds.namespace", "expected \"\" or a ROS namespace like /robot1 (%s), got '%s'", why,
                              VLFF_Q(cfg->dds.ns));
   if (check_frame_id(p, "dds.frame_id", cfg->dds.frame_id) ||
-      check_frame_id(p, "dds.camera_frame_id", cfg->dds.camera_frame_id))
+      check_frame_id(p, "dds.camera_frame_id", cfg->dds.camera_frame_id) ||
+      check_frame_id(p, "dds.merge.frame_id", cfg->dds.merge.frame_id))
     return -1;
   if (!strcmp(cfg->dds.frame_id, cfg->dds.camera_frame_id))
     return fail_cross(p, "dds.camera_frame_id", "expected a frame distinct from dds.frame_id, got the same '%s'",
