@@ -213,6 +213,9 @@ static const struct key schema[] = {
     DBL("sim.depth_hole_frac", sim.depth_hole_frac, 0, 1, 0.02),
     DBL("sim.depth_max_m", sim.depth_max_m, 0.1, 100, 6),
     INT("sim.frames", sim.frames, 1, 1000000, 300),
+    /* A part of the walk, for a robot of a fleet that covers one region. */
+    INT("sim.range_first", sim.range_first, 0, 999999, 0),
+    INT("sim.range_count", sim.range_count, 0, 1000000, 0),
     DBL("sim.bad_pose_frac", sim.bad_pose_frac, 0, 1, 0),
 
     INT("field.feature_dim", field.feature_dim, 8, 1024, 512),
@@ -1115,6 +1118,15 @@ static int check_dds(struct parse *p, struct vlff_config *cfg) {
 
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
   if (check_dds(p, cfg)) return -1;
+  if ((long)cfg->sim.range_first + cfg->sim.range_count > cfg->sim.frames)
+    return fail_cross(p, "sim.range_count", "expected sim.range_first + sim.range_count within sim.frames (%d), got "
+                      "%d + %d", cfg->sim.frames, cfg->sim.range_first, cfg->sim.range_count);
+  if (cfg->sim.range_first && !cfg->sim.range_count)
+    return fail_cross(p, "sim.range_count", "expected 1 or more frames with sim.range_first %d, got 0",
+                      cfg->sim.range_first);
+  if (cfg->sim.range_count && cfg->sim.change_count)
+    return fail_cross(p, "sim.range_count", "expected 0 with sim.changes (a changing scene is streamed whole), got %d",
+                      cfg->sim.range_count);
   /* A tenth of a core is a few training steps a second: below it the node
    * would hold a map it can no longer learn. */
   double b = cfg->node.cpu_budget;

@@ -152,6 +152,7 @@ struct vlff_cfg_sim {
   double depth_hole_frac;
   double depth_max_m;
   int frames;                      /* frames per trajectory loop */
+  int range_first, range_count;    /* stream only frames first..first+count-1 of the loop (count 0: all) */
   double bad_pose_frac;            /* fraction of frames with corrupted poses */
   int change_count;                /* sim.changes, in the order written */
   struct vlff_sim_change changes[VLFF_SIM_MAX_CHANGES];
