@@ -262,8 +262,8 @@ static int check(const char *fleet, int nrobots, char **robots) {
       printf("check: fleet voxel %zu: '%s' confidence %d, expected '%s' %ld (of %d robot voxels, %d texts)\n", v,
              text ? text : "-", cf, w->n ? w->text[bk] : "-", w->n ? lrint(255 * best / w->n) : -1L, w->n, w->ntexts);
   }
-  printf("check: %zu labelled voxels expected, %zu mismatches, fleet map version %llu, %d labels\n", labelled, bad,
-         (unsigned long long)fi.version, fi.prompt_count);
+  printf("check: %zu labelled voxels expected (%zu where robots disagree), %zu mismatches, fleet map version %llu, "
+         "%d labels\n", labelled, overlap, bad, (unsigned long long)fi.version, fi.prompt_count);
   free(want);
   return bad || !labelled;
 }
