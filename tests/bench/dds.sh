@@ -93,7 +93,8 @@ PY
 [[ -s $tmp/result ]] || exit 1
 # The fleet: the same scenario as test_dds_fleet, its figures kept.
 t=$build/tests/dds
-VLFF_FLEET_RESULT=$tmp/fleet.result "$root/tests/dds/test_dds_fleet.sh" "$build/node/vlff-node" "$build/shm/vlff-shm" "$build/node/dds/vlff-dds" \
+VLFF_FLEET_RESULT=$tmp/fleet.result "$root/tests/dds/test_dds_fleet.sh" "$build/node/vlff-node" "$build/shm/vlff-shm" "$build/node/sim/vlff-sim" \
+  "$build/node/dds/vlff-dds" \
   "$build/node/dds/vlff-merge" "$t/map_score" "$t/map_writer" >"$tmp/fleet.log" 2>&1
 fleet_rc=$?
 grep -E "miou3d|passed|FAIL" "$tmp/fleet.log"

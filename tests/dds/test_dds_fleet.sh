@@ -12,13 +12,13 @@
 # (map_writer check), and its 3D mIoU against the simulator's ground truth
 # (map_score) must be within 2 points of the single robot's.
 # Needs root for ip netns: exits 77 (skipped) without it.
-# Usage: test_dds_fleet.sh NODE SHM DDS MERGE MAP_SCORE MAP_WRITER
+# Usage: test_dds_fleet.sh NODE SHM SIM DDS MERGE MAP_SCORE MAP_WRITER
 # Environment (scripts/bench dds): VLFF_FLEET_ITERS (iterations per robot),
 # VLFF_FLEET_RESULT (a file that gets "merge_miou3d=M single_miou3d=S").
 set -u
-node=$1 shm=$2 dds=$3 merge=$4 score=$5 writer=$6
+node=$1 shm=$2 sim=$3 dds=$4 merge=$5 score=$6 writer=$7
 source "$(dirname "$0")/netns_kit.sh"
-iters=${VLFF_FLEET_ITERS:-600}
+iters=${VLFF_FLEET_ITERS:-100}
 budget=0.5
 domain=$((($$ % 200) + 1))
 # The kit's A is robot 1, its B the fleet; robots 2 and 3 are two more
@@ -52,7 +52,7 @@ in_d=(ip netns exec "$nsd" env CYCLONEDDS_URI="$(uri "$vd")")
 # The flat at a small scale: 60 frames of 160x120 at 10 Hz, D = 64, one
 # thread; each fleet robot walks 20 consecutive frames of it.
 robot_yaml() { # NAME RANGE_FIRST RANGE_COUNT
-  printf 'node:\n  state_dir: %s/%s\n  threads: 1\n  cpu_budget: %s\nsource:\n  kind: sim\n' "$tmp" "$1" $budget
+  printf 'node:\n  state_dir: %s/%s\n  threads: 1\n  cpu_budget: %s\nsource:\n  kind: sim\n  features: sim\n' "$tmp" "$1" $budget
   printf 'sim:\n  layout: flat\n  seed: 4\n  frames: 60\n  rate_hz: 10\n  width: 160\n  height: 120\n  range_first: %d\n  range_count: %d\n' "$2" "$3"
   printf 'field:\n  feature_dim: 64\n  scene_min: [-5, -4, -1.5]\n  scene_max: [5, 4, 1.5]\nkeyframes:\n  start_after: 2\n'
   printf 'publish:\n  rate_hz: 2\n  voxel_size_m: 0.1\n'
@@ -73,13 +73,15 @@ iterations() { "$shm" stat "$1" 2>/dev/null | awk '$1 == "iterations" { print $2
 # Runs nodes (NAME:NS-PREFIX-ARRAY ...) until each has made $iters
 # iterations; each is stopped (SIGTERM) as it gets there. 0 when all did.
 run_until_iters() {
-  local -A pid=()
+  local -A pid=() spid=()
   local name left
   for name in "$@"; do
     local -n pre=in_$(case $name in f1|one) echo a;; f2) echo c;; f3) echo d;; esac)
     "${pre[@]}" "$node" --config "$tmp/$name.yaml" 2>"$tmp/$name.log" &
     pid[$name]=$!
-    pids+=(${pid[$name]})
+    "$sim" --config "$tmp/$name.yaml" --no-features --quiet 2>"$tmp/sim-$name.log" &
+    spid[$name]=$!
+    pids+=(${pid[$name]} ${spid[$name]})
   done
   # generous: the slowest of them on a loaded machine
   for ((t = 0; t < 2400; t++)); do
@@ -87,8 +89,11 @@ run_until_iters() {
     for name in "${!pid[@]}"; do
       [[ -z ${pid[$name]} ]] && continue
       if [[ $(iterations $p-$name-m) -ge $iters ]] 2>/dev/null; then
-        kill -TERM "${pid[$name]}"; wait "${pid[$name]}"; pid[$name]=
+        kill -TERM "${pid[$name]}" "${spid[$name]}"; wait "${pid[$name]}" "${spid[$name]}"; pid[$name]=
         echo "$name: $iters iterations, stopped"
+      elif ! kill -0 "${pid[$name]}" 2>/dev/null; then
+        echo "FAIL: node $name ended before $iters iterations: $(tail -3 "$tmp/$name.log")"
+        return 1
       else
         left=$((left + 1))
       fi
@@ -100,12 +105,14 @@ run_until_iters() {
   return 1
 }
 
+bridges=()
 "${in_b[@]}" "$merge" -c "$tmp/m.yaml" 2>"$tmp/merge.log" & mg=$!
 pids+=($mg)
 for r in f1 f2 f3; do
   case $r in f1) pre=("${in_a[@]}");; f2) pre=("${in_c[@]}");; f3) pre=("${in_d[@]}");; esac
-  "${pre[@]}" "$dds" -c "$tmp/$r.yaml" 2>"$tmp/b-$r.log" & pids+=($!)
+  "${pre[@]}" "$dds" -c "$tmp/$r.yaml" 2>"$tmp/b-$r.log" & bridges+=($!)
 done
+pids+=("${bridges[@]}")
 check "the three fleet robots each made $iters iterations" 'run_until_iters f1 f2 f3'
 # The fleet map follows: it equals the merge of the robots' last maps.
 wait_until 600 '"$writer" check $p-fleet $p-f1-m@0,0,0,0 $p-f2-m@0,0,0,0 $p-f3-m@0,0,0,0 >"$tmp/check" 2>&1'
@@ -123,7 +130,8 @@ for r in f1 f2 f3; do
   check "robot $r alone, a third of the flat, scores below the fleet ($m < $fleet)" 'awk -v a="$m" -v b="$fleet" "BEGIN { exit !(a < b) }"'
 done
 [[ -n ${VLFF_FLEET_RESULT:-} ]] && echo "merge_miou3d=$fleet single_miou3d=$one" >"$VLFF_FLEET_RESULT"
-kill -TERM $mg; wait $mg; rc=$?
+kill -TERM $mg "${bridges[@]}"; wait $mg; rc=$?
+wait "${bridges[@]}"
 check "vlff-merge exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
 echo "$passes passed, $fails failed"
 if (( fails )); then
