@@ -51,8 +51,6 @@ static const struct vlff_cli cli = {
     "  --count N            stop after N frames (default: until SIGINT/SIGTERM)\n"
     "  --range A..B         walk only scene frames A to B (of sim.frames), repeated\n"
     "                       (sim.range_first, sim.range_count)\n"
-    "  --range A..B         walk only scene frames A to B (of sim.frames), repeated\n"
-    "                       (sim.range_first, sim.range_count)\n"
     "  --no-features        do not publish features (consumers regenerate them)\n"
     "  --write-dataset DIR  write sim.frames frames to DIR and exit\n"
     "  --quiet              no progress output\n"

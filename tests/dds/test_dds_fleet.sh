@@ -60,6 +60,8 @@ robot_yaml() { # NAME RANGE_FIRST RANGE_COUNT
   printf 'dds:\n  domain_id: %d\n  namespace: /%s\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n' $domain "$1"
 }
 robot_yaml f1 0 20 >"$tmp/f1.yaml"
+check "vlff-sim --range beyond sim.frames is a usage error naming it" \
+  '! "$sim" --config "$tmp/f1.yaml" --range 50..60 --count 1 2>"$tmp/e1" && grep -q "range: expected A..B with 0 <= A <= B < sim.frames (60)" "$tmp/e1"'
 robot_yaml f2 20 20 >"$tmp/f2.yaml"
 robot_yaml f3 40 20 >"$tmp/f3.yaml"
 robot_yaml one 0 0 >"$tmp/one.yaml"
