@@ -36,6 +36,9 @@
  *   badmap  a robot gone wrong, for vlff-merge: on <ns>/vlff/map a cloud
  *          whose data is shorter than its points, on <ns>/vlff/prompts a
  *          list that is not JSON (both latched), held until TIMEOUT_S
+ *   texts  a robot with 32 prompt texts of its own ("thing 0" ...) and an
+ *          empty map (no points), both latched, for vlff-merge: with other
+ *          robots' texts more than a fleet's 32; held until TIMEOUT_S
  *   tf     a robot's localisation, for vlff-merge: MAP is X,Y,Z,YAW (m,
  *          degrees about +z) and NODE_NAME PARENT:CHILD; the transform
  *          PARENT -> CHILD latched on <ns>/tf_static (transient local, as
@@ -972,6 +975,37 @@ static int badmap(dds_entity_t pp, const char *ns, double deadline) {
   return 0;
 }
 
+static int many_texts(dds_entity_t pp, const char *ns, double deadline) {
+  char name[2][256], json[32 * 16] = "[";
+  snprintf(name[0], sizeof name[0], "rt%s/vlff/map", ns);
+  snprintf(name[1], sizeof name[1], "rt%s/vlff/prompts", ns);
+  for (int i = 0; i < 32; i++)
+    snprintf(json + strlen(json), sizeof json - strlen(json), "%s\"thing %d\"", i ? ", " : "", i);
+  strcat(json, "]");
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  dds_entity_t mw = dds_create_writer(pp, dds_create_topic(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name[0], NULL, NULL), q, NULL);
+  dds_entity_t pw = dds_create_writer(pp, dds_create_topic(pp, &std_msgs_msg_dds__String__desc, name[1], NULL, NULL), q, NULL);
+  dds_delete_qos(q);
+  sensor_msgs_msg_dds__PointField_ fields[5] = {{"x", 0, 7, 1}, {"y", 4, 7, 1}, {"z", 8, 7, 1}, {"label", 12, 4, 1},
+                                                {"confidence", 16, 7, 1}};
+  sensor_msgs_msg_dds__PointCloud2_ m = {0};
+  m.header.frame_id = "map";
+  m.height = 1, m.width = 0;
+  m.fields._length = m.fields._maximum = 5;
+  m.fields._buffer = fields;
+  m.point_step = 20;
+  m.is_dense = true;
+  std_msgs_msg_dds__String_ p = {json};
+  CHECK(dds_write(pw, &p) == DDS_RETCODE_OK && dds_write(mw, &m) == DDS_RETCODE_OK, "texts: writes failed");
+  printf("texts: written\n");
+  fflush(stdout);
+  while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
+  return 0;
+}
+
 static int static_tf(dds_entity_t pp, const char *ns, const char *xyzyaw, const char *frames, double deadline) {
   char name[256], parent[64], child[64];
   double v[4];
@@ -1007,7 +1041,7 @@ static int static_tf(dds_entity_t pp, const char *ns, const char *xyzyaw, const 
 
 int main(int argc, char **argv) {
   if (argc < 7 || argc > 9) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap|tf|follow DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
+    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap|texts|tf|follow DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
                     "[compressed]]\n");
     return 2;
   }
@@ -1030,6 +1064,8 @@ int main(int argc, char **argv) {
     flood(pp, ns, deadline);
   } else if (!strcmp(mode, "badmap")) {
     badmap(pp, ns, deadline);
+  } else if (!strcmp(mode, "texts")) {
+    fails += many_texts(pp, ns, deadline);
   } else if (!strcmp(mode, "tf")) {
     fails += static_tf(pp, ns, mapname, node, deadline);
   } else if (!strcmp(mode, "follow")) {

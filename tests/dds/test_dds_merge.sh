@@ -41,7 +41,7 @@ domain=$((($$ % 200) + 1))
 printf 'dds:\n  domain_id: %d\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n' $domain >"$tmp/d.yaml"
 # The fleet from the config (the bridges ignore dds.merge).
 cp "$tmp/d.yaml" "$tmp/f.yaml"
-printf '  merge:\n    robots:\n      - {namespace: /r1, transform: [0, 0, 0, 0]}\n      - namespace: /r2\n      - namespace: /r3\n    map: %s-fleet\n    bounds: [-3, -3, -1, 3, 3, 2]\n' $p >>"$tmp/f.yaml"
+printf '  merge:\n    robots:\n      - {namespace: /r1, transform: [0, 0, 0, 0]}\n      - namespace: /r2\n      - namespace: /r3\n      - namespace: /r4\n    map: %s-fleet\n    bounds: [-3, -3, -1, 3, 3, 2]\n' $p >>"$tmp/f.yaml"
 "$writer" write $p-m1 1 60 >"$tmp/w1" & w1=$!
 "$writer" write $p-m2 2 60 >"$tmp/w2" & w2=$!
 pids+=($w1 $w2)
@@ -52,6 +52,9 @@ pids+=($w1 $w2)
 "${in_a[@]}" "$probe" tf $domain /r2 1.0,0,0,90 world:map 60 >"$tmp/tf2" 2>&1 & tf2=$!
 "${in_a[@]}" "$probe" tf $domain /r1 5,5,0,45 world:map 60 >"$tmp/tf1" 2>&1 & tf1=$!
 pids+=($tf1 $tf2)
+# a fourth robot with 32 texts of its own: 4 do not fit beside the others' 4
+"${in_a[@]}" "$probe" texts $domain /r4 - - 60 >"$tmp/texts" 2>&1 & r4=$!
+pids+=($r4)
 "${in_b[@]}" "$merge" -c "$tmp/f.yaml" -v 2>"$tmp/merge.log" & mg=$!
 pids+=($b1 $b2 $mg $bad)
 # after 2 s each robot's map changes: the bridges send updates (not the whole
@@ -60,7 +63,9 @@ wait_until 100 'grep -q changed "$tmp/w1" && grep -q changed "$tmp/w2"'
 wait_until 300 '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/check" 2>&1'
 check "the fleet map holds the text with the most evidence in each voxel, the robots' updates applied, robot 2 placed by its tf ($(tail -1 "$tmp/check"))" \
   '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/check" 2>&1'
-check "the fleet's labels are the union of the robots' texts (wall floor chair table)" 'grep -q ", 4 labels$" "$tmp/check"'
+check "the fleet's labels are the union of the robots' texts, 32 at most (wall floor chair table, thing 0..27)" 'grep -q ", 32 labels$" "$tmp/check"'
+check "the texts left out are logged, naming the robot and the texts" \
+  'grep -q "/r4: 4 of its 32 prompt texts left out of the fleet.s labels (at most 32 in all), with the points labelled with them: .thing 28., .thing 29., .thing 30., .thing 31.$" "$tmp/merge.log"'
 check "the check fails against another transform (robot 2 not turned), or it proves nothing" \
   '! "$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,0 >"$tmp/check-wrong" 2>&1'
 check "robot 2's transform came from its tf_static (world -> map), logged" \
@@ -70,9 +75,9 @@ check "the malformed robot's cloud and list were refused and logged" \
   'wait_until 50 "grep -q \"/r3: map refused: 1000 points\" \"$tmp/merge.log\"" && grep -q "/r3: prompt list refused: not JSON" "$tmp/merge.log"'
 kill -TERM $mg; wait $mg; rc=$?
 check "vlff-merge exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
-check "and counts the refused messages" 'grep -q "merges, 2 robot messages refused" "$tmp/merge.log"'
-kill -TERM $b1 $b2 $w1 $w2 $bad $tf1 $tf2 2>/dev/null
-wait $b1 $b2 $w1 $w2 $bad $tf1 $tf2
+check "and counts the refused messages and the texts left out" 'grep -Eq "merges, 2 robot messages refused, [1-9][0-9]* times robots. texts left out" "$tmp/merge.log"'
+kill -TERM $b1 $b2 $w1 $w2 $bad $tf1 $tf2 $r4 2>/dev/null
+wait $b1 $b2 $w1 $w2 $bad $tf1 $tf2 $r4
 cat "$tmp/check"
 echo "$passes passed, $fails failed"
 if (( fails )); then
