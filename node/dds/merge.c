@@ -356,7 +356,7 @@ long vlff_merge_compute(struct vlff_merge_grid *g, struct vlff_merge_robot *robo
   if (nv < 0) return -1;
   /* Votes grouped by voxel, then label: each run of one label sums its
    * evidence; the voxel takes the run with the most (the newest on a tie). */
-  qsort(g->votes, (size_t)nv, sizeof *g->votes, vote_order);
+  if (nv > 1) qsort(g->votes, (size_t)nv, sizeof *g->votes, vote_order);
   long labelled = 0;
   for (long i = 0; i < nv;) {
     uint32_t v = g->votes[i].voxel;

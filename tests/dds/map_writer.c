@@ -265,6 +265,8 @@ static int check(const char *fleet, int nrobots, char **robots) {
   printf("check: %zu labelled voxels expected (%zu where robots disagree), %zu mismatches, fleet map version %llu, "
          "%d labels\n", labelled, overlap, bad, (unsigned long long)fi.version, fi.prompt_count);
   free(want);
+  vlff_map_snapshot_free(fs);
+  vlff_map_detach(fm);
   return bad || !labelled;
 }
 
