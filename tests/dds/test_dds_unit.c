@@ -241,6 +241,8 @@ static void test_merge_evidence(void **state) {
   static struct vlff_merge_grid g;
   const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
   assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, 600, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_compute(&g, r, 0), 0); /* no robot, no votes: an empty map */
+  assert_int_equal(g.labels[0], VLFF_LABEL_UNKNOWN);
   assert_int_equal(vlff_merge_compute(&g, r, 3), 1);
   assert_int_equal(g.labels[0], 0); /* chair 0.8 over sofa 0.7 (the most confident point says sofa) */
   assert_int_equal(g.conf[0], 68);  /* 255 x 0.8 / 3 */
