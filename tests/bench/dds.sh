@@ -100,5 +100,5 @@ fleet_rc=$?
 grep -E "miou3d|passed|FAIL" "$tmp/fleet.log"
 read -r merge_kv single_kv < <(cat "$tmp/fleet.result" 2>/dev/null || echo "merge_miou3d=nan single_miou3d=nan")
 fleet_ok=no
-[[ $fleet_rc == 0 ]] && fleet_ok=yes
+[[ $fleet_rc == 0 ]] && awk -v a="${merge_kv#*=}" -v b="${single_kv#*=}" 'BEGIN { exit !(a >= b - 2) }' && fleet_ok=yes
 echo "$(cat "$tmp/result") $merge_kv $single_kv fleet_target_met=$fleet_ok"
