@@ -9,6 +9,37 @@
 
 #include "dds.h"
 
+int vlff_merge_add_path(struct vlff_merge_robot *r, const double p[3]) {
+  if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]) || fabs(p[0]) > 1e5 || fabs(p[1]) > 1e5 ||
+      fabs(p[2]) > 1e5)
+    return -1;
+  for (uint32_t i = 0; i < r->npath; i++) {
+    double dx = p[0] - r->path[i][0], dy = p[1] - r->path[i][1], dz = p[2] - r->path[i][2];
+    if (dx * dx + dy * dy + dz * dz < VLFF_MERGE_PATH_STEP * VLFF_MERGE_PATH_STEP) return 0;
+  }
+  if (r->npath == VLFF_MERGE_MAX_PATH) {
+    r->path_full++;
+    return 0;
+  }
+  for (int a = 0; a < 3; a++) r->path[r->npath][a] = (float)p[a];
+  r->npath++;
+  return 1;
+}
+
+/* How much a robot's vote at p (its frame) counts by its distance from the
+ * robot's camera path: 1 on it, a half VLFF_MERGE_PATH_NEAR away; 1 with no
+ * path known. */
+static float path_weight(const struct vlff_merge_robot *r, const float p[3]) {
+  if (!r->npath) return 1;
+  float d2 = INFINITY;
+  for (uint32_t i = 0; i < r->npath; i++) {
+    float dx = p[0] - r->path[i][0], dy = p[1] - r->path[i][1], dz = p[2] - r->path[i][2];
+    float e = dx * dx + dy * dy + dz * dz;
+    if (e < d2) d2 = e;
+  }
+  return 1.0f / (1.0f + d2 / (float)(VLFF_MERGE_PATH_NEAR * VLFF_MERGE_PATH_NEAR));
+}
+
 void vlff_merge_yaw(double rot[9], double yaw) {
   double c = cos(yaw), s = sin(yaw);
   const double m[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
@@ -338,7 +369,7 @@ static long collect_votes(struct vlff_merge_grid *g, struct vlff_merge_robot *ro
         continue;
       }
       double age_s = 1e-9 * (double)(newest - r->changed_ns[i]);
-      float rec = (float)exp2(-age_s / g->half_life_s);
+      float rec = (float)exp2(-age_s / g->half_life_s) * path_weight(r, p);
       g->votes[nv++] = (struct vlff_merge_vote){(uint32_t)(ix[0] + g->dims[0] * (ix[1] + g->dims[1] * ix[2])),
                                                 (uint16_t)l, rec * (float)r->conf[i] / 255.0f, rec,
                                                 r->changed_ns[i]};

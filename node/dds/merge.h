@@ -27,7 +27,9 @@
  *    times a recency weight 2^-(age / half_life_s) to its label, age being
  *    how long before the newest point held of any robot the point last
  *    changed (its label or confidence: a whole map that repeats a voxel keeps
- *    its time). The voxel's confidence is the winner's evidence over the
+ *    its time), and, for a robot whose camera path is known (the poses its
+ *    vlff-dds sends), times 1 / (1 + (d / VLFF_MERGE_PATH_NEAR)^2), d the
+ *    point's distance from the nearest position of that path. The voxel's confidence is the winner's evidence over the
  *    recency weights of all points there (a disagreeing point counts 0); a
  *    tie goes to the label changed last. A robot's whole map stamped no
  *    earlier than what is held replaces it; an update (map/updates: the same
@@ -48,6 +50,9 @@
 
 #define VLFF_MERGE_MAX_ROBOTS 8
 #define VLFF_MERGE_MAX_POINTS (16u << 20)
+#define VLFF_MERGE_MAX_PATH 1024   /* camera positions kept per robot, VLFF_MERGE_PATH_STEP apart */
+#define VLFF_MERGE_PATH_STEP 0.25  /* m */
+#define VLFF_MERGE_PATH_NEAR 1.0   /* m: a vote this far from the robot's path counts half */
 
 struct vlff_merge_robot {
   char ns[256];        /* ROS namespace of its vlff-dds */
@@ -65,6 +70,9 @@ struct vlff_merge_robot {
   size_t nslot;
   uint64_t maps, updates, refused;
   uint32_t left_out;   /* bit i: its text i did not fit the fleet's VLFF_SHM_MAX_PROMPTS at the last merge */
+  float path[VLFF_MERGE_MAX_PATH][3]; /* where its camera was (robot frame), VLFF_MERGE_PATH_STEP apart */
+  uint32_t npath;
+  uint64_t path_full;  /* positions not kept: the path was full */
 };
 
 struct vlff_merge_grid {
@@ -84,9 +92,14 @@ struct vlff_merge_vote {
   uint32_t voxel;
   uint16_t label;
   float w;             /* confidence x recency */
-  float rec;           /* recency */
+  float rec;           /* recency x the path's weight: what a full confidence would add */
   int64_t changed_ns;
 };
+
+/* Adds a camera position (robot map frame) to the robot's path: 1 kept, 0
+ * within VLFF_MERGE_PATH_STEP of one kept or the path full (counted), -1 not
+ * finite. */
+int vlff_merge_add_path(struct vlff_merge_robot *r, const double p[3]);
 
 /* rot from a yaw about +z (radians), the configured transforms' form. */
 void vlff_merge_yaw(double rot[9], double yaw);

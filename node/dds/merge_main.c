@@ -91,7 +91,7 @@ struct robot_tf {
 };
 
 struct robot_io {
-  dds_entity_t map_r, prompts_r, updates_r, tf_r, tf_static_r; /* tf readers only without a configured transform */
+  dds_entity_t map_r, prompts_r, updates_r, tf_r, tf_static_r; /* tf_static only without a configured transform */
   bool configured;     /* its transform from the config or the command line: tf not read */
   char frame[128];     /* its map's frame_id, from its last whole map */
   struct robot_tf tfs[8]; /* what it published with the fleet's frame as parent, by child */
@@ -149,8 +149,20 @@ static int take_tf(struct vlff_merge_robot *r, struct robot_io *io, const tf2_ms
   char why[200];
   for (uint32_t i = 0; i < m->transforms._length; i++) {
     const geometry_msgs_msg_dds__TransformStamped_ *ts = &m->transforms._buffer[i];
-    if (!ts->header.frame_id || strcmp(ts->header.frame_id, world) || !ts->child_frame_id) continue;
     const geometry_msgs_msg_dds__Vector3_ *v = &ts->transform.translation;
+    if (ts->header.frame_id && !strcmp(ts->header.frame_id, io->frame)) {
+      /* its map -> its camera (vlff-dds's pose): where it has been */
+      const double at[3] = {v->x, v->y, v->z};
+      int k = vlff_merge_add_path(r, at);
+      if (k < 0) {
+        r->refused++;
+        vlff_warn_limited(&io->warn, TAG, "%s: camera pose refused: position (%g %g %g) not within +-1e5 m", r->ns,
+                          at[0], at[1], at[2]);
+      }
+      changed |= k > 0;
+      continue;
+    }
+    if (!ts->header.frame_id || strcmp(ts->header.frame_id, world) || !ts->child_frame_id) continue;
     const geometry_msgs_msg_dds__Quaternion_ *qq = &ts->transform.rotation;
     double q[4] = {qq->x, qq->y, qq->z, qq->w}, rot[9], t[3] = {v->x, v->y, v->z};
     int bad = vlff_merge_quat(rot, q, why, sizeof why);
@@ -262,9 +274,9 @@ static int take_robot(struct vlff_merge_robot *r, struct robot_io *io, const cha
   } else {
     TAKE_ALL(io->updates_r, sensor_msgs_msg_dds__PointCloud2_, changed |= take_map(r, io, m, true))
   }
+  TAKE_ALL(io->tf_r, tf2_msgs_msg_dds__TFMessage_, changed |= take_tf(r, io, m, world))
   if (!io->configured) {
-    TAKE_ALL(io->tf_static_r, tf2_msgs_msg_dds__TFMessage_, take_tf(r, io, m, world))
-    TAKE_ALL(io->tf_r, tf2_msgs_msg_dds__TFMessage_, take_tf(r, io, m, world))
+    TAKE_ALL(io->tf_static_r, tf2_msgs_msg_dds__TFMessage_, changed |= take_tf(r, io, m, world))
     changed |= choose_tf(r, io, world);
   }
   return changed;
@@ -308,13 +320,14 @@ static int open_dds(dds_entity_t pp, dds_entity_t ws, struct vlff_merge_robot *r
     io[i].prompts_r = leaf_endpoint(pp, &std_msgs_msg_dds__String__desc, robots[i].ns, "prompts", 1, false);
     io[i].updates_r = leaf_endpoint(pp, &sensor_msgs_msg_dds__PointCloud2__desc, robots[i].ns, "map/updates", 1000, false);
     dds_return_t bad = io[i].map_r < 0 ? io[i].map_r : io[i].prompts_r < 0 ? io[i].prompts_r : io[i].updates_r;
-    if (!io[i].configured && bad >= 0) {
-      /* ROS's tf2: static transforms latched on tf_static, others on tf */
+    if (bad >= 0) {
+      /* ROS's tf2: static transforms latched on tf_static, others (and the
+       * camera poses vlff-dds sends) on tf */
       char name[300];
       if (vlff_dds_topic_of(name, sizeof name - 8, robots[i].ns, VLFF_DDS_TF) < 0) return -1;
       io[i].tf_r = endpoint(pp, &tf2_msgs_msg_dds__TFMessage__desc, name, false, 100, false);
       strcat(name, "_static");
-      io[i].tf_static_r = endpoint(pp, &tf2_msgs_msg_dds__TFMessage__desc, name, true, 100, false);
+      if (!io[i].configured) io[i].tf_static_r = endpoint(pp, &tf2_msgs_msg_dds__TFMessage__desc, name, true, 100, false);
       bad = io[i].tf_r < 0 ? io[i].tf_r : io[i].tf_static_r;
     }
     if (bad < 0) {
@@ -324,10 +337,8 @@ static int open_dds(dds_entity_t pp, dds_entity_t ws, struct vlff_merge_robot *r
     dds_waitset_attach(ws, dds_create_readcondition(io[i].map_r, DDS_ANY_STATE), 0);
     dds_waitset_attach(ws, dds_create_readcondition(io[i].prompts_r, DDS_ANY_STATE), 0);
     dds_waitset_attach(ws, dds_create_readcondition(io[i].updates_r, DDS_NOT_READ_SAMPLE_STATE), 0);
-    if (!io[i].configured) {
-      dds_waitset_attach(ws, dds_create_readcondition(io[i].tf_r, DDS_ANY_STATE), 0);
-      dds_waitset_attach(ws, dds_create_readcondition(io[i].tf_static_r, DDS_ANY_STATE), 0);
-    }
+    dds_waitset_attach(ws, dds_create_readcondition(io[i].tf_r, DDS_ANY_STATE), 0);
+    if (!io[i].configured) dds_waitset_attach(ws, dds_create_readcondition(io[i].tf_static_r, DDS_ANY_STATE), 0);
   }
   *map_w = leaf_endpoint(pp, &sensor_msgs_msg_dds__PointCloud2__desc, fleet_ns, "map", 1, true);
   *prompts_w = leaf_endpoint(pp, &std_msgs_msg_dds__String__desc, fleet_ns, "prompts", 1, true);

@@ -9,11 +9,11 @@
 # then is stopped (its last map stays in its segment, and its bridge keeps
 # serving it): the same compute per robot, whatever the load on the test's
 # machine, and the same load on each (they run together).
-# The fleet segment must equal the merge of the robots' last maps
-# (map_writer check), and its 3D mIoU against the simulator's ground truth
-# (map_score) must be near the single robot's (10 points; the issue's
-# target, 2, is not met yet: docs/dds.md) and well above each fleet robot's
-# own.
+# The fleet segment must label what the robots' last maps label, each voxel
+# with a text one of them gave there (map_writer check-any: the votes are
+# also weighed by the robots' camera paths, which the segments do not keep), and its 3D mIoU against the simulator's ground truth
+# (map_score) must be near the single robot's (5 points; the issue's
+# target, 2, is scripts/bench dds's) and well above each fleet robot's own.
 # Needs root for ip netns: exits 77 (skipped) without it.
 # Usage: test_dds_fleet.sh NODE SHM SIM DDS MERGE MAP_SCORE MAP_WRITER
 # Environment (scripts/bench dds): VLFF_FLEET_ITERS (iterations per robot),
@@ -60,7 +60,7 @@ robot_yaml() { # NAME RANGE_FIRST RANGE_COUNT
   printf 'field:\n  feature_dim: 64\n  scene_min: [-5, -4, -1.5]\n  scene_max: [5, 4, 1.5]\nkeyframes:\n  start_after: 2\n'
   printf 'publish:\n  rate_hz: 2\n  voxel_size_m: 0.1\n'
   printf 'shm:\n  ring: %s-%s-r\n  map: %s-%s-m\n  prompts: %s-%s-p\n  feature_ring: %s-%s-f\n  pose_ring: %s-%s-q\n' $p $1 $p $1 $p $1 $p $1 $p $1
-  printf 'dds:\n  domain_id: %d\n  namespace: /%s\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n' $domain "$1"
+  printf 'dds:\n  domain_id: %d\n  namespace: /%s\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n' $domain "$1"
 }
 robot_yaml f1 0 20 >"$tmp/f1.yaml"
 check "vlff-sim --range beyond sim.frames is a usage error naming it" \
@@ -123,20 +123,20 @@ pids+=("${bridges[@]}")
 # iteration than another.
 check "the three fleet robots and the single robot each made $iters iterations" 'run_until_iters f1 f2 f3 one'
 # The fleet map follows: it equals the merge of the robots' last maps.
-wait_until 600 '"$writer" check $p-fleet $p-f1-m@0,0,0,0 $p-f2-m@0,0,0,0 $p-f3-m@0,0,0,0 >"$tmp/check" 2>&1'
-check "the fleet segment holds the merge of the three robots' last maps ($(tail -1 "$tmp/check"))" \
-  '"$writer" check $p-fleet $p-f1-m@0,0,0,0 $p-f2-m@0,0,0,0 $p-f3-m@0,0,0,0 >"$tmp/check" 2>&1'
+wait_until 600 '"$writer" check-any $p-fleet $p-f1-m@0,0,0,0 $p-f2-m@0,0,0,0 $p-f3-m@0,0,0,0 >"$tmp/check" 2>&1'
+check "the fleet segment labels the voxels the three robots' last maps label, each with a text one of them gave ($(tail -1 "$tmp/check"))" \
+  '"$writer" check-any $p-fleet $p-f1-m@0,0,0,0 $p-f2-m@0,0,0,0 $p-f3-m@0,0,0,0 >"$tmp/check" 2>&1'
 "$score" "$tmp/one.yaml" $p-fleet $p-one-m $p-f1-m $p-f2-m $p-f3-m >"$tmp/score" 2>&1
 cat "$tmp/score"
 fleet=$(awk -v m=$p-fleet '$1 == m { print $3 }' "$tmp/score")
 one=$(awk -v m=$p-one-m '$1 == m { print $3 }' "$tmp/score")
 check "both maps scored (fleet $fleet, one robot $one)" '[[ -n $fleet && -n $one ]] && awk -v a="$fleet" -v b="$one" "BEGIN { exit !(a > 0 && b > 0) }"'
-# The issue's target is the fleet within 2 points of one robot; measured
-# here 2 to 7 points below on a quiet machine, and above it on a loaded one
-# (docs/dds.md, "Not done yet"), so the test holds the fleet to 10 points (a
-# merge that kept one robot's map would be 15 or more below), and
-# scripts/bench dds reports the target itself.
-check "the fleet's 3D mIoU $fleet is within 10 points of one robot's $one" 'awk -v a="$fleet" -v b="$one" "BEGIN { exit !(a >= b - 10) }"'
+# The issue's target is the fleet within 2 points of one robot: met in the
+# runs measured (docs/dds.md), but a run's figures move by 2 to 3 points
+# with the machine's load, so the test holds the fleet to 5 (a merge that
+# kept one robot's map, or counted every robot's glimpses as its walk, is
+# 5 to 15 below), and scripts/bench dds reports the target itself.
+check "the fleet's 3D mIoU $fleet is within 5 points of one robot's $one" 'awk -v a="$fleet" -v b="$one" "BEGIN { exit !(a >= b - 5) }"'
 for r in f1 f2 f3; do
   m=$(awk -v m=$p-$r-m '$1 == m { print $3 }' "$tmp/score")
   check "robot $r alone, a third of the flat, scores 8 points or more below the fleet ($m, $fleet)" 'awk -v a="$m" -v b="$fleet" "BEGIN { exit !(a + 8 <= b) }"'

@@ -275,6 +275,40 @@ static void test_merge_evidence(void **state) {
   for (int k = 0; k < 3; k++) vlff_merge_robot_free(&r[k]);
 }
 
+/* Votes weighed by their distance from the robot's camera path: a robot
+ * that walked by a voxel outweighs a more confident one that saw it from
+ * 3 m; the path keeps positions VLFF_MERGE_PATH_STEP apart. */
+static void test_merge_path(void **state) {
+  (void)state;
+  static struct vlff_merge_robot r[2];
+  memset(r, 0, sizeof r);
+  char why[256];
+  const float conf[2] = {0.5f, 0.9f};
+  for (int k = 0; k < 2; k++) {
+    uint8_t d[20];
+    put_point(d, 0.05f, 0.05f, 0.05f, (uint16_t)k, conf[k]);
+    r[k].nprompts = 2;
+    strcpy(r[k].prompts[0], "chair"), strcpy(r[k].prompts[1], "sofa");
+    vlff_merge_yaw(r[k].rot, 0);
+    assert_int_equal(vlff_merge_take_cloud(&r[k], 1, 1, 20, false, names, offs, types, 5, d, 20, 100, why, sizeof why), 0);
+  }
+  static struct vlff_merge_grid g;
+  const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, 600, why, sizeof why), 0);
+  vlff_merge_compute(&g, r, 2);
+  assert_int_equal(g.labels[0], 1); /* no paths: the sofa's 0.9 */
+  const double here[3] = {0, 0, 0}, near[3] = {0.1, 0, 0}, far[3] = {3, 0, 0}, bad[3] = {NAN, 0, 0};
+  assert_int_equal(vlff_merge_add_path(&r[0], here), 1);
+  assert_int_equal(vlff_merge_add_path(&r[0], near), 0); /* within a step of one kept */
+  assert_int_equal(vlff_merge_add_path(&r[0], bad), -1);
+  assert_int_equal(r[0].npath, 1);
+  assert_int_equal(vlff_merge_add_path(&r[1], far), 1);
+  vlff_merge_compute(&g, r, 2);
+  assert_int_equal(g.labels[0], 0); /* the chair of the robot that walked by */
+  vlff_merge_grid_free(&g);
+  for (int k = 0; k < 2; k++) vlff_merge_robot_free(&r[k]);
+}
+
 /* A robot's updates (map/updates) applied to its whole map: relabel, clear,
  * add at the same positions; older ones skipped; a malformed one refused
  * whole. */
@@ -335,7 +369,7 @@ static void test_merge_update(void **state) {
 }
 
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding), cmocka_unit_test(test_merge), cmocka_unit_test(test_merge_evidence), cmocka_unit_test(test_merge_update),
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding), cmocka_unit_test(test_merge), cmocka_unit_test(test_merge_evidence), cmocka_unit_test(test_merge_path), cmocka_unit_test(test_merge_update),
                                      cmocka_unit_test(test_cloud)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
