@@ -945,7 +945,11 @@ static int flood(dds_entity_t pp, const char *ns, double deadline) {
   return 0;
 }
 
-static int badmap(dds_entity_t pp, const char *ns, double deadline) {
+/* A robot's map (width points of vlff-dds's layout in len bytes of data)
+ * and prompt list, both latched as vlff-dds writes them, held until the
+ * deadline. */
+static int robot_writes(dds_entity_t pp, const char *ns, const char *what, uint32_t width, uint8_t *data, uint32_t len,
+                        char *prompts, double deadline) {
   char name[2][256];
   snprintf(name[0], sizeof name[0], "rt%s/vlff/map", ns);
   snprintf(name[1], sizeof name[1], "rt%s/vlff/prompts", ns);
@@ -958,52 +962,35 @@ static int badmap(dds_entity_t pp, const char *ns, double deadline) {
   dds_delete_qos(q);
   sensor_msgs_msg_dds__PointField_ fields[5] = {{"x", 0, 7, 1}, {"y", 4, 7, 1}, {"z", 8, 7, 1}, {"label", 12, 4, 1},
                                                 {"confidence", 16, 7, 1}};
-  uint8_t data[40] = {0};
   sensor_msgs_msg_dds__PointCloud2_ m = {0};
   m.header.frame_id = "map";
-  m.height = 1, m.width = 1000; /* 1000 points in 40 bytes */
+  m.height = 1, m.width = width;
   m.fields._length = m.fields._maximum = 5;
   m.fields._buffer = fields;
-  m.point_step = 20, m.row_step = 20000;
-  m.data._length = m.data._maximum = sizeof data;
+  m.point_step = 20, m.row_step = 20 * width;
+  m.data._length = m.data._maximum = len;
   m.data._buffer = data;
-  std_msgs_msg_dds__String_ p = {"chair, table"};
-  CHECK(dds_write(mw, &m) == DDS_RETCODE_OK && dds_write(pw, &p) == DDS_RETCODE_OK, "badmap: writes failed");
-  printf("badmap: written\n");
+  m.is_dense = true;
+  std_msgs_msg_dds__String_ p = {prompts};
+  CHECK(dds_write(pw, &p) == DDS_RETCODE_OK && dds_write(mw, &m) == DDS_RETCODE_OK, "%s: writes failed", what);
+  printf("%s: written\n", what);
   fflush(stdout);
   while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
   return 0;
 }
 
+static int badmap(dds_entity_t pp, const char *ns, double deadline) {
+  static uint8_t data[40];
+  static char list[] = "chair, table";
+  return robot_writes(pp, ns, "badmap", 1000, data, sizeof data, list, deadline); /* 1000 points in 40 bytes */
+}
+
 static int many_texts(dds_entity_t pp, const char *ns, double deadline) {
-  char name[2][256], json[32 * 16] = "[";
-  snprintf(name[0], sizeof name[0], "rt%s/vlff/map", ns);
-  snprintf(name[1], sizeof name[1], "rt%s/vlff/prompts", ns);
+  char json[32 * 16] = "[";
   for (int i = 0; i < 32; i++)
     snprintf(json + strlen(json), sizeof json - strlen(json), "%s\"thing %d\"", i ? ", " : "", i);
   strcat(json, "]");
-  dds_qos_t *q = dds_create_qos();
-  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
-  dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
-  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
-  dds_entity_t mw = dds_create_writer(pp, dds_create_topic(pp, &sensor_msgs_msg_dds__PointCloud2__desc, name[0], NULL, NULL), q, NULL);
-  dds_entity_t pw = dds_create_writer(pp, dds_create_topic(pp, &std_msgs_msg_dds__String__desc, name[1], NULL, NULL), q, NULL);
-  dds_delete_qos(q);
-  sensor_msgs_msg_dds__PointField_ fields[5] = {{"x", 0, 7, 1}, {"y", 4, 7, 1}, {"z", 8, 7, 1}, {"label", 12, 4, 1},
-                                                {"confidence", 16, 7, 1}};
-  sensor_msgs_msg_dds__PointCloud2_ m = {0};
-  m.header.frame_id = "map";
-  m.height = 1, m.width = 0;
-  m.fields._length = m.fields._maximum = 5;
-  m.fields._buffer = fields;
-  m.point_step = 20;
-  m.is_dense = true;
-  std_msgs_msg_dds__String_ p = {json};
-  CHECK(dds_write(pw, &p) == DDS_RETCODE_OK && dds_write(mw, &m) == DDS_RETCODE_OK, "texts: writes failed");
-  printf("texts: written\n");
-  fflush(stdout);
-  while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
-  return 0;
+  return robot_writes(pp, ns, "texts", 0, NULL, 0, json, deadline);
 }
 
 static int static_tf(dds_entity_t pp, const char *ns, const char *xyzyaw, const char *frames, double deadline) {
