@@ -213,6 +213,9 @@ static const struct key schema[] = {
     DBL("sim.depth_hole_frac", sim.depth_hole_frac, 0, 1, 0.02),
     DBL("sim.depth_max_m", sim.depth_max_m, 0.1, 100, 6),
     INT("sim.frames", sim.frames, 1, 1000000, 300),
+    /* A part of the walk, for a robot of a fleet that covers one region. */
+    INT("sim.range_first", sim.range_first, 0, 999999, 0),
+    INT("sim.range_count", sim.range_count, 0, 1000000, 0),
     DBL("sim.bad_pose_frac", sim.bad_pose_frac, 0, 1, 0),
 
     INT("field.feature_dim", field.feature_dim, 8, 1024, 512),
@@ -412,6 +415,10 @@ static const struct key schema[] = {
     STR("dds.merge.namespace", dds.merge.ns, "/fleet"),
     DVEC("dds.merge.bounds", dds.merge.bounds, -1e5, 1e5, merge_bounds_def),
     DBL("dds.merge.voxel_size_m", dds.merge.voxel_size_m, 0.01, 10, 0.1),
+    STR("dds.merge.frame_id", dds.merge.frame_id, "world"),
+    /* A robot's evidence counts half when it is this much older than the
+     * newest: long against a walk through a flat, short against a day. */
+    DBL("dds.merge.half_life_s", dds.merge.half_life_s, 1, 1e7, 600),
 };
 
 #define NKEYS (sizeof schema / sizeof schema[0])
@@ -821,6 +828,7 @@ static int robot_value(struct parse *p, struct vlff_config *cfg, long i, int k, 
       return fail(p, e, sub, "expected %s within +-%g at index %ld, got %s", j < 3 ? "metres" : "degrees", lim, j, g);
     r->transform[j] = v;
   }
+  r->has_transform = true;
   return 0;
 }
 
@@ -1103,7 +1111,8 @@ static int check_dds(struct parse *p, struct vlff_config *cfg) {
   if (why) return fail_cross(p, "dds.namespace", "expected \"\" or a ROS namespace like /robot1 (%s), got '%s'", why,
                              VLFF_Q(cfg->dds.ns));
   if (check_frame_id(p, "dds.frame_id", cfg->dds.frame_id) ||
-      check_frame_id(p, "dds.camera_frame_id", cfg->dds.camera_frame_id))
+      check_frame_id(p, "dds.camera_frame_id", cfg->dds.camera_frame_id) ||
+      check_frame_id(p, "dds.merge.frame_id", cfg->dds.merge.frame_id))
     return -1;
   if (!strcmp(cfg->dds.frame_id, cfg->dds.camera_frame_id))
     return fail_cross(p, "dds.camera_frame_id", "expected a frame distinct from dds.frame_id, got the same '%s'",
@@ -1221,6 +1230,15 @@ static int check_dds_history(struct parse *p, const struct vlff_config *cfg) {
 
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
   if (check_dds(p, cfg) || check_dds_history(p, cfg)) return -1;
+  if ((long)cfg->sim.range_first + cfg->sim.range_count > cfg->sim.frames)
+    return fail_cross(p, "sim.range_count", "expected sim.range_first + sim.range_count within sim.frames (%d), got "
+                      "%d + %d", cfg->sim.frames, cfg->sim.range_first, cfg->sim.range_count);
+  if (cfg->sim.range_first && !cfg->sim.range_count)
+    return fail_cross(p, "sim.range_count", "expected 1 or more frames with sim.range_first %d, got 0",
+                      cfg->sim.range_first);
+  if (cfg->sim.range_count && cfg->sim.change_count)
+    return fail_cross(p, "sim.range_count", "expected 0 with sim.changes (a changing scene is streamed whole), got %d",
+                      cfg->sim.range_count);
   /* A tenth of a core is a few training steps a second: below it the node
    * would hold a map it can no longer learn. */
   double b = cfg->node.cpu_budget;

@@ -152,6 +152,7 @@ struct vlff_cfg_sim {
   double depth_hole_frac;
   double depth_max_m;
   int frames;                      /* frames per trajectory loop */
+  int range_first, range_count;    /* stream only frames first..first+count-1 of the loop (count 0: all) */
   double bad_pose_frac;            /* fraction of frames with corrupted poses */
   int change_count;                /* sim.changes, in the order written */
   struct vlff_sim_change changes[VLFF_SIM_MAX_CHANGES];
@@ -360,12 +361,15 @@ struct vlff_cfg_dds_qos {
 struct vlff_cfg_merge_robot {
   char ns[VLFF_CFG_STR];  /* its vlff-dds's dds.namespace */
   double transform[4];    /* its map -> world: x y z (m), then yaw about +z (degrees), applied yaw first */
+  bool has_transform;     /* transform given; else the one the robot publishes on its tf */
 };
 struct vlff_cfg_dds_merge {
   char map[VLFF_CFG_STR];  /* the fleet's map segment */
   char ns[VLFF_CFG_STR];   /* the fleet's ROS namespace */
   double bounds[6];        /* world box x0 y0 z0 x1 y1 z1, m */
   double voxel_size_m;
+  char frame_id[VLFF_CFG_STR]; /* the fleet's (world) frame: its map's frame_id, the parent read on robots' tf */
+  double half_life_s;      /* recency: a robot's evidence this much older than the newest counts half */
   int robot_count;         /* dds.merge.robots */
   struct vlff_cfg_merge_robot robots[VLFF_MAX_MERGE_ROBOTS];
 };

@@ -9,9 +9,65 @@
 
 #include "dds.h"
 
-int vlff_merge_grid_init(struct vlff_merge_grid *g, const double lo[3], const double hi[3], double voxel, char *why,
-                         size_t whylen) {
+int vlff_merge_add_path(struct vlff_merge_robot *r, const double p[3]) {
+  if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]) || fabs(p[0]) > 1e5 || fabs(p[1]) > 1e5 ||
+      fabs(p[2]) > 1e5)
+    return -1;
+  for (uint32_t i = 0; i < r->npath; i++) {
+    double dx = p[0] - r->path[i][0], dy = p[1] - r->path[i][1], dz = p[2] - r->path[i][2];
+    if (dx * dx + dy * dy + dz * dz < VLFF_MERGE_PATH_STEP * VLFF_MERGE_PATH_STEP) return 0;
+  }
+  if (r->npath == VLFF_MERGE_MAX_PATH) {
+    r->path_full++;
+    return 0;
+  }
+  for (int a = 0; a < 3; a++) r->path[r->npath][a] = (float)p[a];
+  r->npath++;
+  return 1;
+}
+
+/* How much a robot's vote at p (its frame) counts by its distance from the
+ * robot's camera path: 1 on it, a half VLFF_MERGE_PATH_NEAR away; 1 with no
+ * path known. */
+static float path_weight(const struct vlff_merge_robot *r, const float p[3]) {
+  if (!r->npath) return 1;
+  float d2 = INFINITY;
+  for (uint32_t i = 0; i < r->npath; i++) {
+    float dx = p[0] - r->path[i][0], dy = p[1] - r->path[i][1], dz = p[2] - r->path[i][2];
+    float e = dx * dx + dy * dy + dz * dz;
+    if (e < d2) d2 = e;
+  }
+  return 1.0f / (1.0f + d2 / (float)(VLFF_MERGE_PATH_NEAR * VLFF_MERGE_PATH_NEAR));
+}
+
+void vlff_merge_yaw(double rot[9], double yaw) {
+  double c = cos(yaw), s = sin(yaw);
+  const double m[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
+  memcpy(rot, m, sizeof m);
+}
+
+int vlff_merge_quat(double rot[9], const double q[4], char *why, size_t whylen) {
+  double x = q[0], y = q[1], z = q[2], w = q[3], n = sqrt(x * x + y * y + z * z + w * w);
+  if (!isfinite(n) || fabs(n - 1) > 0.01) {
+    snprintf(why, whylen, "rotation (%g %g %g %g): expected a unit quaternion (norm within 1 +- 0.01)", x, y, z, w);
+    return -1;
+  }
+  x /= n, y /= n, z /= n, w /= n;
+  const double m[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - z * w),     2 * (x * z + y * w),
+                       2 * (x * y + z * w),     1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+                       2 * (x * z - y * w),     2 * (y * z + x * w),     1 - 2 * (x * x + y * y)};
+  memcpy(rot, m, sizeof m);
+  return 0;
+}
+
+int vlff_merge_grid_init(struct vlff_merge_grid *g, const double lo[3], const double hi[3], double voxel,
+                         double half_life_s, char *why, size_t whylen) {
   memset(g, 0, sizeof *g);
+  if (!(half_life_s > 0 && half_life_s <= 1e9)) {
+    snprintf(why, whylen, "recency half-life %g s outside (0, 1e9]", half_life_s);
+    return -1;
+  }
+  g->half_life_s = half_life_s;
   if (!(voxel >= 0.01 && voxel <= 10)) {
     snprintf(why, whylen, "voxel size %g m outside 0.01..10", voxel);
     return -1;
@@ -35,8 +91,7 @@ int vlff_merge_grid_init(struct vlff_merge_grid *g, const double lo[3], const do
   size_t count = (size_t)n;
   g->labels = malloc(count * sizeof *g->labels);
   g->conf = malloc(count);
-  g->stamp = malloc(count * sizeof *g->stamp);
-  if (!g->labels || !g->conf || !g->stamp) {
+  if (!g->labels || !g->conf) {
     vlff_merge_grid_free(g);
     snprintf(why, whylen, "no memory for %zu voxels", count);
     return -1;
@@ -47,16 +102,18 @@ int vlff_merge_grid_init(struct vlff_merge_grid *g, const double lo[3], const do
 void vlff_merge_grid_free(struct vlff_merge_grid *g) {
   free(g->labels);
   free(g->conf);
-  free(g->stamp);
-  g->labels = NULL, g->conf = NULL, g->stamp = NULL;
+  free(g->votes);
+  g->labels = NULL, g->conf = NULL, g->votes = NULL, g->nvotes_cap = 0;
 }
 
 void vlff_merge_robot_free(struct vlff_merge_robot *r) {
   free(r->xyz);
   free(r->label);
   free(r->conf);
+  free(r->changed_ns);
   free(r->slot);
-  r->xyz = NULL, r->label = NULL, r->conf = NULL, r->slot = NULL, r->n = r->cap = 0, r->nslot = 0;
+  r->xyz = NULL, r->label = NULL, r->conf = NULL, r->changed_ns = NULL, r->slot = NULL, r->n = r->cap = 0,
+  r->nslot = 0;
 }
 
 static float f32_le(const uint8_t *p) {
@@ -114,35 +171,6 @@ static int take_point(const struct vlff_merge_robot *r, const uint8_t *p, uint64
   return 0;
 }
 
-int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
-                          bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
-                          uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
-                          size_t whylen) {
-  if (check_layout(false, width, height, point_step, bigendian, names, offsets, types, nfields, len, why, whylen))
-    return -1;
-  uint64_t n = (uint64_t)width * height;
-  if (r->xyz && stamp_ns < r->stamp_ns) return 0; /* what is held is newer */
-  float *xyz = malloc(n ? n * 3 * sizeof *xyz : 1);
-  uint16_t *label = malloc(n ? n * sizeof *label : 1);
-  uint8_t *conf = malloc(n ? n : 1);
-  if (!xyz || !label || !conf) {
-    free(xyz), free(label), free(conf);
-    snprintf(why, whylen, "no memory for %llu points", (unsigned long long)n);
-    return -1;
-  }
-  for (uint64_t i = 0; i < n; i++) {
-    if (take_point(r, data + i * point_step, i, false, xyz + 3 * i, &label[i], &conf[i], why, whylen) < 0) {
-      free(xyz), free(label), free(conf);
-      return -1;
-    }
-  }
-  vlff_merge_robot_free(r);
-  r->xyz = xyz, r->label = label, r->conf = conf, r->n = r->cap = (uint32_t)n;
-  r->stamp_ns = stamp_ns;
-  r->maps++;
-  return 0;
-}
-
 static size_t point_hash(const float p[3], size_t mask) {
   uint32_t u[3];
   memcpy(u, p, sizeof u);
@@ -175,6 +203,44 @@ static int index_points(struct vlff_merge_robot *r, uint32_t need) {
   return 0;
 }
 
+int vlff_merge_take_cloud(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
+                          bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
+                          uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
+                          size_t whylen) {
+  if (check_layout(false, width, height, point_step, bigendian, names, offsets, types, nfields, len, why, whylen))
+    return -1;
+  uint64_t n = (uint64_t)width * height;
+  if (r->xyz && stamp_ns < r->stamp_ns) return 0; /* what is held is newer */
+  float *xyz = malloc(n ? n * 3 * sizeof *xyz : 1);
+  uint16_t *label = malloc(n ? n * sizeof *label : 1);
+  uint8_t *conf = malloc(n ? n : 1);
+  int64_t *changed = malloc(n ? n * sizeof *changed : 1);
+  if (!xyz || !label || !conf || !changed) {
+    free(xyz), free(label), free(conf), free(changed);
+    snprintf(why, whylen, "no memory for %llu points", (unsigned long long)n);
+    return -1;
+  }
+  /* A voxel the new map repeats keeps the time it last changed: a whole map
+   * resent as a safety net is no new observation (recency, merge.h). */
+  bool old = r->xyz && index_points(r, r->n) == 0;
+  for (uint64_t i = 0; i < n; i++) {
+    if (take_point(r, data + i * point_step, i, false, xyz + 3 * i, &label[i], &conf[i], why, whylen) < 0) {
+      free(xyz), free(label), free(conf), free(changed);
+      return -1;
+    }
+    changed[i] = stamp_ns;
+    if (old) {
+      uint32_t k = r->slot[find_slot(r, xyz + 3 * i)];
+      if (k != UINT32_MAX && r->label[k] == label[i] && r->conf[k] == conf[i]) changed[i] = r->changed_ns[k];
+    }
+  }
+  vlff_merge_robot_free(r);
+  r->xyz = xyz, r->label = label, r->conf = conf, r->changed_ns = changed, r->n = r->cap = (uint32_t)n;
+  r->stamp_ns = stamp_ns;
+  r->maps++;
+  return 0;
+}
+
 int vlff_merge_take_update(struct vlff_merge_robot *r, uint32_t width, uint32_t height, uint32_t point_step,
                            bool bigendian, const char *const names[], const uint32_t offsets[], const uint8_t types[],
                            uint32_t nfields, const uint8_t *data, size_t len, int64_t stamp_ns, char *why,
@@ -204,7 +270,9 @@ int vlff_merge_take_update(struct vlff_merge_robot *r, uint32_t width, uint32_t 
     if (label) r->label = label;
     uint8_t *conf = label ? realloc(r->conf, cap) : NULL;
     if (conf) r->conf = conf;
-    if (!conf) {
+    int64_t *changed = conf ? realloc(r->changed_ns, (size_t)cap * sizeof *changed) : NULL;
+    if (changed) r->changed_ns = changed;
+    if (!changed) {
       snprintf(why, whylen, "no memory for %u points", cap);
       return -1;
     }
@@ -229,6 +297,7 @@ int vlff_merge_take_update(struct vlff_merge_robot *r, uint32_t width, uint32_t 
     /* a cleared voxel keeps its place, unlabelled */
     r->label[k] = l <= VLFF_LABEL_MAX ? l : VLFF_LABEL_UNKNOWN;
     r->conf[k] = c;
+    r->changed_ns[k] = stamp_ns;
   }
   r->stamp_ns = stamp_ns;
   r->updates++;
@@ -244,28 +313,52 @@ static int fleet_label(struct vlff_merge_grid *g, const char *text) {
   return g->nprompts++;
 }
 
-size_t vlff_merge_compute(struct vlff_merge_grid *g, struct vlff_merge_robot *robots, int nrobots) {
-  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2], labelled = 0;
-  for (size_t i = 0; i < total; i++) g->labels[i] = VLFF_LABEL_UNKNOWN, g->conf[i] = 0, g->stamp[i] = INT64_MIN;
-  g->nprompts = 0;
-  g->outside = g->no_label = 0;
+static int vote_order(const void *a, const void *b) {
+  const struct vlff_merge_vote *x = a, *y = b;
+  if (x->voxel != y->voxel) return x->voxel < y->voxel ? -1 : 1;
+  return x->label < y->label ? -1 : x->label > y->label;
+}
+
+/* Each robot point's vote, in its world voxel; the number of votes, or -1
+ * without memory. */
+static long collect_votes(struct vlff_merge_grid *g, struct vlff_merge_robot *robots, int nrobots) {
+  size_t need = 0;
+  int64_t newest = INT64_MIN;
+  for (int k = 0; k < nrobots; k++) {
+    const struct vlff_merge_robot *r = &robots[k];
+    if (r->nprompts < 0 || !r->xyz) continue;
+    need += r->n;
+    for (uint32_t i = 0; i < r->n; i++)
+      if (r->changed_ns[i] > newest) newest = r->changed_ns[i];
+  }
+  if (need > g->nvotes_cap) {
+    free(g->votes);
+    g->votes = malloc(need * sizeof *g->votes);
+    g->nvotes_cap = g->votes ? need : 0;
+    if (!g->votes) return -1;
+  }
+  size_t nv = 0;
   for (int k = 0; k < nrobots; k++) {
     struct vlff_merge_robot *r = &robots[k];
+    r->left_out = 0;
     if (r->nprompts < 0 || !r->xyz) continue;
     int map_label[VLFF_SHM_MAX_PROMPTS];
-    for (int i = 0; i < r->nprompts; i++) map_label[i] = fleet_label(g, r->prompts[i]);
-    double c = cos(r->yaw), s = sin(r->yaw);
+    for (int i = 0; i < r->nprompts; i++) {
+      map_label[i] = fleet_label(g, r->prompts[i]);
+      if (map_label[i] < 0) r->left_out |= 1u << i;
+    }
+    const double *m = r->rot;
     for (uint32_t i = 0; i < r->n; i++) {
+      if (r->label[i] > VLFF_LABEL_MAX) continue; /* cleared by an update */
       const float *p = r->xyz + 3 * (size_t)i;
-      double w[3] = {c * p[0] - s * p[1] + r->t[0], s * p[0] + c * p[1] + r->t[1], p[2] + r->t[2]};
       size_t ix[3];
       bool inside = true;
       for (int a = 0; a < 3 && inside; a++) {
-        double f = floor((w[a] - g->origin[a]) / g->voxel);
+        double w = m[3 * a] * p[0] + m[3 * a + 1] * p[1] + m[3 * a + 2] * p[2] + r->t[a];
+        double f = floor((w - g->origin[a]) / g->voxel);
         inside = f >= 0 && f < g->dims[a];
         ix[a] = inside ? (size_t)f : 0;
       }
-      if (r->label[i] > VLFF_LABEL_MAX) continue; /* cleared by an update */
       if (!inside) {
         g->outside++;
         continue;
@@ -275,15 +368,45 @@ size_t vlff_merge_compute(struct vlff_merge_grid *g, struct vlff_merge_robot *ro
         g->no_label++;
         continue;
       }
-      size_t v = ix[0] + g->dims[0] * (ix[1] + g->dims[1] * ix[2]);
-      bool empty = g->labels[v] == VLFF_LABEL_UNKNOWN;
-      if (empty || r->conf[i] > g->conf[v] || (r->conf[i] == g->conf[v] && r->stamp_ns > g->stamp[v])) {
-        labelled += empty;
-        g->labels[v] = (uint16_t)l;
-        g->conf[v] = r->conf[i];
-        g->stamp[v] = r->stamp_ns;
-      }
+      double age_s = 1e-9 * (double)(newest - r->changed_ns[i]);
+      float rec = (float)exp2(-age_s / g->half_life_s) * path_weight(r, p);
+      g->votes[nv++] = (struct vlff_merge_vote){(uint32_t)(ix[0] + g->dims[0] * (ix[1] + g->dims[1] * ix[2])),
+                                                (uint16_t)l, rec * (float)r->conf[i] / 255.0f, rec,
+                                                r->changed_ns[i]};
     }
+  }
+  return (long)nv;
+}
+
+long vlff_merge_compute(struct vlff_merge_grid *g, struct vlff_merge_robot *robots, int nrobots) {
+  size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
+  for (size_t i = 0; i < total; i++) g->labels[i] = VLFF_LABEL_UNKNOWN, g->conf[i] = 0;
+  g->nprompts = 0;
+  g->outside = g->no_label = 0;
+  long nv = collect_votes(g, robots, nrobots);
+  if (nv < 0) return -1;
+  /* Votes grouped by voxel, then label: each run of one label sums its
+   * evidence; the voxel takes the run with the most (the newest on a tie). */
+  if (nv > 1) qsort(g->votes, (size_t)nv, sizeof *g->votes, vote_order);
+  long labelled = 0;
+  for (long i = 0; i < nv;) {
+    uint32_t v = g->votes[i].voxel;
+    double all = 0, best = -1;
+    int64_t best_t = INT64_MIN;
+    uint16_t best_l = VLFF_LABEL_UNKNOWN;
+    while (i < nv && g->votes[i].voxel == v) {
+      uint16_t l = g->votes[i].label;
+      double sum = 0;
+      int64_t t = INT64_MIN;
+      for (; i < nv && g->votes[i].voxel == v && g->votes[i].label == l; i++) {
+        sum += g->votes[i].w, all += g->votes[i].rec;
+        if (g->votes[i].changed_ns > t) t = g->votes[i].changed_ns;
+      }
+      if (sum > best || (sum == best && t > best_t)) best = sum, best_t = t, best_l = l;
+    }
+    g->labels[v] = best_l;
+    g->conf[v] = (uint8_t)lrint(all > 0 ? 255 * best / all : 0);
+    labelled++;
   }
   return labelled;
 }

@@ -984,8 +984,9 @@ static const struct sim_world *world_at(const struct vlff_sim *s, double t);
 
 long long vlff_sim_stream_frame(const struct vlff_sim *s, long long id) {
   if (s->cfg.change_count > 0) return id;
-  long long f = id % s->cfg.frames;
-  return f < 0 ? f + s->cfg.frames : f;
+  long long n = s->cfg.range_count > 0 ? s->cfg.range_count : s->cfg.frames;
+  long long f = id % n;
+  return (f < 0 ? f + n : f) + (s->cfg.range_count > 0 ? s->cfg.range_first : 0);
 }
 
 double vlff_sim_raycast(const struct vlff_sim *s, const double o[3], const double d[3],

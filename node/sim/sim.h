@@ -91,7 +91,9 @@ int vlff_sim_render(const struct vlff_sim *s, long long index, unsigned what,
                     struct vlff_sim_frame *f, char *err, size_t errlen);
 
 /* The scene frame a stream's frame id (>= 0) shows: the id modulo
- * sim.frames (the walk repeats), or the id itself with sim.changes, so that
+ * sim.frames (the walk repeats); with sim.range_count, sim.range_first plus
+ * the id modulo sim.range_count (a part of the walk, repeated); or the id
+ * itself with sim.changes, so that
  * the scene's time runs on and each change happens once. vlff-sim's stream
  * and the node's sim source agree through it. */
 long long vlff_sim_stream_frame(const struct vlff_sim *s, long long id);

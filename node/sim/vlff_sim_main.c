@@ -40,7 +40,7 @@
 static const struct vlff_cli cli = {
     "vlff-sim",
     "Usage: vlff-sim [-c FILE] [--seed N] [--frames N] [--rate HZ] [--count N]\n"
-    "                [--no-features] [--write-dataset DIR] [--quiet]\n"
+    "                [--range A..B] [--no-features] [--write-dataset DIR] [--quiet]\n"
     "Publish the synthetic room into the frame ring (and its features into the\n"
     "feature ring) at sim.rate_hz, or write it as a scene directory.\n"
     "\n"
@@ -49,6 +49,8 @@ static const struct vlff_cli cli = {
     "  --frames N           sim.frames\n"
     "  --rate HZ            sim.rate_hz\n"
     "  --count N            stop after N frames (default: until SIGINT/SIGTERM)\n"
+    "  --range A..B         walk only scene frames A to B (of sim.frames), repeated\n"
+    "                       (sim.range_first, sim.range_count)\n"
     "  --no-features        do not publish features (consumers regenerate them)\n"
     "  --write-dataset DIR  write sim.frames frames to DIR and exit\n"
     "  --quiet              no progress output\n"
@@ -295,17 +297,18 @@ int main(int argc, char **argv) {
   long long count = 0;
   int features = 1, quiet = 0;
   char err[1024];
-  enum { O_SEED = 256, O_FRAMES, O_RATE, O_COUNT, O_NOFEAT, O_DATASET, O_QUIET };
+  enum { O_SEED = 256, O_FRAMES, O_RATE, O_COUNT, O_NOFEAT, O_DATASET, O_QUIET, O_RANGE };
   static const struct option longopts[] = {
       {"config", required_argument, NULL, 'c'}, {"seed", required_argument, NULL, O_SEED},
       {"frames", required_argument, NULL, O_FRAMES}, {"rate", required_argument, NULL, O_RATE},
       {"count", required_argument, NULL, O_COUNT},   {"no-features", no_argument, NULL, O_NOFEAT},
       {"write-dataset", required_argument, NULL, O_DATASET}, {"quiet", no_argument, NULL, O_QUIET},
+      {"range", required_argument, NULL, O_RANGE},
       VLFF_CLI_COMMON_OPTIONS,
   };
   /* Values are applied after the options end, so that --seed before --config
    * is not overwritten by the file. */
-  const char *seed = NULL, *frames = NULL, *rate = NULL, *cnt = NULL;
+  const char *seed = NULL, *frames = NULL, *rate = NULL, *cnt = NULL, *range = NULL;
   int c, status;
   while ((c = vlff_cli_next(&cli, argc, argv, "c:", longopts, &status)) != -1) {
     switch (c) {
@@ -318,6 +321,7 @@ int main(int argc, char **argv) {
     case O_NOFEAT: features = 0; break;
     case O_DATASET: dataset = optarg; break;
     case O_QUIET: quiet = 1; break;
+    case O_RANGE: range = optarg; break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", argv[optind - 1]);
     }
   }
@@ -336,6 +340,16 @@ int main(int argc, char **argv) {
   if (cnt && (!parse_num(cnt, &x) || x < 1 || x > 1e15 || x != (long long)x))
     return vlff_cli_usage_error(&cli, "--count: expected a positive integer, got '%s'", cnt);
   if (cnt) count = (long long)x;
+  if (range) {
+    long a, b;
+    char tail;
+    if (sscanf(range, "%ld..%ld%c", &a, &b, &tail) != 2 || a < 0 || b < a || b >= cfg.sim.frames)
+      return vlff_cli_usage_error(&cli, "--range: expected A..B with 0 <= A <= B < sim.frames (%d), got '%s'",
+                                  cfg.sim.frames, VLFF_Q(range));
+    if (cfg.sim.change_count)
+      return vlff_cli_usage_error(&cli, "--range: a scene with sim.changes is streamed whole");
+    cfg.sim.range_first = (int)a, cfg.sim.range_count = (int)(b - a + 1);
+  }
   vlff_log_set_level((enum vlff_log_level)cfg.node.log_level);
   struct vlff_sim *s = vlff_sim_create(&cfg.sim, &cfg.field, err, sizeof err);
   if (!s) {

@@ -19,7 +19,13 @@
 #    shorter than that period) in place of the whole maps measured (target
 #    <= 2);
 #  - dds_bridge_cpu_frac: the bridge's CPU time over the run as a fraction of
-#    one core (target <= 0.05).
+#    one core (target <= 0.05);
+#  - merge_miou3d and single_miou3d: tests/dds/test_dds_fleet.sh's scenario,
+#    run after the above in the same run: three robots on three parts of the
+#    simulated flat merged by vlff-merge, against one robot that walked it
+#    all, each with the same node.cpu_budget and the same number of training
+#    iterations (VLFF_FLEET_ITERS, default the test's); 3D mIoU against the
+#    simulator's ground truth (target merge >= single - 2).
 # Last line: RESULT ...
 set -uo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
@@ -78,9 +84,21 @@ print(f"{int(s['maps'])} whole maps and {int(s['updates'])} updates received (wh
 lat_ok = "yes" if s["latency_p99_ms"] <= 100 else "no"
 bytes_ok = "yes" if max(map_per_s, amortized) <= 2 * changed else "no"
 cpu_ok = "yes" if cpu <= 0.05 else "no"
-print(f"RESULT dds_change_latency_p99_ms={s['latency_p99_ms']:.1f} latency_target_met={lat_ok} "
+open(f"{tmp}/result", "w").write(f"RESULT dds_change_latency_p99_ms={s['latency_p99_ms']:.1f} latency_target_met={lat_ok} "
       f"dds_bytes_per_s_per_robot={link:.0f} dds_map_bytes_per_s={map_per_s:.0f} "
       f"dds_changed_bytes_per_s={changed:.0f} dds_map_vs_changed={map_per_s / changed:.2f} "
       f"dds_map_vs_changed_amortized={amortized / changed:.2f} "
       f"bytes_target_met={bytes_ok} dds_bridge_cpu_frac={cpu:.4f} cpu_target_met={cpu_ok}")
 PY
+[[ -s $tmp/result ]] || exit 1
+# The fleet: the same scenario as test_dds_fleet, its figures kept.
+t=$build/tests/dds
+VLFF_FLEET_RESULT=$tmp/fleet.result "$root/tests/dds/test_dds_fleet.sh" "$build/node/vlff-node" "$build/shm/vlff-shm" "$build/node/sim/vlff-sim" \
+  "$build/node/dds/vlff-dds" \
+  "$build/node/dds/vlff-merge" "$t/map_score" "$t/map_writer" >"$tmp/fleet.log" 2>&1
+fleet_rc=$?
+grep -E "miou3d|passed|FAIL" "$tmp/fleet.log"
+read -r merge_kv single_kv < <(cat "$tmp/fleet.result" 2>/dev/null || echo "merge_miou3d=nan single_miou3d=nan")
+fleet_ok=no
+[[ $fleet_rc == 0 ]] && awk -v a="${merge_kv#*=}" -v b="${single_kv#*=}" 'BEGIN { exit !(a >= b - 2) }' && fleet_ok=yes
+echo "$(cat "$tmp/result") $merge_kv $single_kv fleet_target_met=$fleet_ok"

@@ -36,6 +36,14 @@
  *   badmap  a robot gone wrong, for vlff-merge: on <ns>/vlff/map a cloud
  *          whose data is shorter than its points, on <ns>/vlff/prompts a
  *          list that is not JSON (both latched), held until TIMEOUT_S
+ *   texts  a robot with 32 prompt texts of its own ("thing 0" ...) and an
+ *          empty map (no points), both latched, for vlff-merge: with other
+ *          robots' texts more than a fleet's 32; held until TIMEOUT_S
+ *   tf     a robot's localisation, for vlff-merge: MAP is X,Y,Z,YAW (m,
+ *          degrees about +z) and NODE_NAME PARENT:CHILD; the transform
+ *          PARENT -> CHILD latched on <ns>/tf_static (transient local, as
+ *          ROS's static_transform_publisher), with a transform between two
+ *          other frames in the same message; held until TIMEOUT_S
  * Exit 0 when every check held; "FAIL: ..." lines and 1 otherwise.
  */
 #include <math.h>
@@ -937,7 +945,11 @@ static int flood(dds_entity_t pp, const char *ns, double deadline) {
   return 0;
 }
 
-static int badmap(dds_entity_t pp, const char *ns, double deadline) {
+/* A robot's map (width points of vlff-dds's layout in len bytes of data)
+ * and prompt list, both latched as vlff-dds writes them, held until the
+ * deadline. */
+static int robot_writes(dds_entity_t pp, const char *ns, const char *what, uint32_t width, uint8_t *data, uint32_t len,
+                        char *prompts, double deadline) {
   char name[2][256];
   snprintf(name[0], sizeof name[0], "rt%s/vlff/map", ns);
   snprintf(name[1], sizeof name[1], "rt%s/vlff/prompts", ns);
@@ -950,18 +962,65 @@ static int badmap(dds_entity_t pp, const char *ns, double deadline) {
   dds_delete_qos(q);
   sensor_msgs_msg_dds__PointField_ fields[5] = {{"x", 0, 7, 1}, {"y", 4, 7, 1}, {"z", 8, 7, 1}, {"label", 12, 4, 1},
                                                 {"confidence", 16, 7, 1}};
-  uint8_t data[40] = {0};
   sensor_msgs_msg_dds__PointCloud2_ m = {0};
   m.header.frame_id = "map";
-  m.height = 1, m.width = 1000; /* 1000 points in 40 bytes */
+  m.height = 1, m.width = width;
   m.fields._length = m.fields._maximum = 5;
   m.fields._buffer = fields;
-  m.point_step = 20, m.row_step = 20000;
-  m.data._length = m.data._maximum = sizeof data;
+  m.point_step = 20, m.row_step = 20 * width;
+  m.data._length = m.data._maximum = len;
   m.data._buffer = data;
-  std_msgs_msg_dds__String_ p = {"chair, table"};
-  CHECK(dds_write(mw, &m) == DDS_RETCODE_OK && dds_write(pw, &p) == DDS_RETCODE_OK, "badmap: writes failed");
-  printf("badmap: written\n");
+  m.is_dense = true;
+  std_msgs_msg_dds__String_ p = {prompts};
+  CHECK(dds_write(pw, &p) == DDS_RETCODE_OK && dds_write(mw, &m) == DDS_RETCODE_OK, "%s: writes failed", what);
+  printf("%s: written\n", what);
+  fflush(stdout);
+  while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
+  return 0;
+}
+
+static int badmap(dds_entity_t pp, const char *ns, double deadline) {
+  static uint8_t data[40];
+  static char list[] = "chair, table";
+  return robot_writes(pp, ns, "badmap", 1000, data, sizeof data, list, deadline); /* 1000 points in 40 bytes */
+}
+
+static int many_texts(dds_entity_t pp, const char *ns, double deadline) {
+  char json[32 * 16] = "[";
+  for (int i = 0; i < 32; i++)
+    snprintf(json + strlen(json), sizeof json - strlen(json), "%s\"thing %d\"", i ? ", " : "", i);
+  strcat(json, "]");
+  return robot_writes(pp, ns, "texts", 0, NULL, 0, json, deadline);
+}
+
+static int static_tf(dds_entity_t pp, const char *ns, const char *xyzyaw, const char *frames, double deadline) {
+  char name[256], parent[64], child[64];
+  double v[4];
+  if (sscanf(xyzyaw, "%lf,%lf,%lf,%lf", &v[0], &v[1], &v[2], &v[3]) != 4 ||
+      sscanf(frames, "%63[^:]:%63s", parent, child) != 2) {
+    printf("FAIL: tf: expected X,Y,Z,YAW and PARENT:CHILD, got '%s' '%s'\n", xyzyaw, frames);
+    return 1;
+  }
+  snprintf(name, sizeof name, "rt%s/tf_static", ns);
+  dds_qos_t *q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+  dds_qset_durability(q, DDS_DURABILITY_TRANSIENT_LOCAL);
+  dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 1);
+  dds_entity_t w = dds_create_writer(pp, dds_create_topic(pp, &tf2_msgs_msg_dds__TFMessage__desc, name, NULL, NULL), q, NULL);
+  dds_delete_qos(q);
+  geometry_msgs_msg_dds__TransformStamped_ ts[2];
+  memset(ts, 0, sizeof ts);
+  double h = v[3] * 3.14159265358979323846 / 360; /* half the yaw */
+  ts[0].header.frame_id = "base_link", ts[0].child_frame_id = "camera";
+  ts[0].transform.rotation.w = 1;
+  ts[1].header.frame_id = parent, ts[1].child_frame_id = child;
+  ts[1].transform.translation.x = v[0], ts[1].transform.translation.y = v[1], ts[1].transform.translation.z = v[2];
+  ts[1].transform.rotation.z = sin(h), ts[1].transform.rotation.w = cos(h);
+  tf2_msgs_msg_dds__TFMessage_ m = {0};
+  m.transforms._length = m.transforms._maximum = 2;
+  m.transforms._buffer = ts;
+  CHECK(dds_write(w, &m) == DDS_RETCODE_OK, "tf: write failed");
+  printf("tf: written\n");
   fflush(stdout);
   while (now_s() < deadline) dds_sleepfor(DDS_MSECS(200));
   return 0;
@@ -969,7 +1028,7 @@ static int badmap(dds_entity_t pp, const char *ns, double deadline) {
 
 int main(int argc, char **argv) {
   if (argc < 7 || argc > 9) {
-    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap|follow DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
+    fprintf(stderr, "usage: dds_probe final|late|prompts|stall|flood|badmap|texts|tf|follow DOMAIN NAMESPACE MAP NODE_NAME TIMEOUT_S [FRAMES "
                     "[compressed]]\n");
     return 2;
   }
@@ -992,6 +1051,10 @@ int main(int argc, char **argv) {
     flood(pp, ns, deadline);
   } else if (!strcmp(mode, "badmap")) {
     badmap(pp, ns, deadline);
+  } else if (!strcmp(mode, "texts")) {
+    fails += many_texts(pp, ns, deadline);
+  } else if (!strcmp(mode, "tf")) {
+    fails += static_tf(pp, ns, mapname, node, deadline);
   } else if (!strcmp(mode, "follow")) {
     struct vlff_map *m;
     while (!(m = vlff_map_attach(mapname)) && now_s() < deadline) dds_sleepfor(DDS_MSECS(100));

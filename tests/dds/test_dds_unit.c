@@ -152,8 +152,8 @@ static const char *const names[5] = {"x", "y", "z", "label", "confidence"};
 static const uint32_t offs[5] = {0, 4, 8, 12, 16};
 static const uint8_t types[5] = {VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_FLOAT32, VLFF_DDS_UINT16, VLFF_DDS_FLOAT32};
 
-/* Robots' clouds: what is refused, and the merge by confidence, then recency,
- * in the world frame of each robot's transform. */
+/* Robots' clouds: what is refused, and the merge of their evidence in the
+ * world frame of each robot's transform. */
 static void test_merge(void **state) {
   (void)state;
   static struct vlff_merge_robot r[2];
@@ -179,32 +179,134 @@ static void test_merge(void **state) {
   assert_int_equal(vlff_merge_take_cloud(&r[0], 3, 1, 20, false, names, offs, types, 5, d, sizeof d, 100, why, sizeof why), 0);
   /* robot 1: turned 90 degrees, its points land on robot 0's */
   uint8_t e[2 * 20];
-  put_point(e, 0.05f, -0.05f, 0.05f, 0, 0.5f); /* same confidence, more recent: wins */
-  put_point(e + 20, 0.05f, -0.15f, 0.05f, 1, 0.9f); /* onto robot 0's 0.15,0.05 (1.0): loses */
+  put_point(e, 0.05f, -0.05f, 0.05f, 0, 0.5f);      /* same evidence, changed later: wins */
+  put_point(e + 20, 0.05f, -0.15f, 0.05f, 1, 0.6f); /* agrees with robot 0's table at 1.0 */
   assert_int_equal(vlff_merge_take_cloud(&r[1], 2, 1, 20, false, names, offs, types, 5, e, sizeof e, 200, why, sizeof why), 0);
-  r[1].yaw = 3.14159265358979323846 / 2, r[1].t[2] = 0.01; /* (x, y) -> (-y, x), 1 cm up */
+  vlff_merge_yaw(r[0].rot, 0);
+  vlff_merge_yaw(r[1].rot, 3.14159265358979323846 / 2); /* (x, y) -> (-y, x) */
+  r[1].t[2] = 0.01;                                      /* 1 cm up */
   r[0].nprompts = 2, r[1].nprompts = 2;
   strcpy(r[0].prompts[0], "chair"), strcpy(r[0].prompts[1], "table");
   strcpy(r[1].prompts[0], "door"), strcpy(r[1].prompts[1], "table");
   static struct vlff_merge_grid g;
   const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1}, huge[3] = {1e4, 1e4, 1e4};
-  assert_int_equal(vlff_merge_grid_init(&g, lo, huge, 0.01, why, sizeof why), -1);
+  assert_int_equal(vlff_merge_grid_init(&g, lo, huge, 0.01, 600, why, sizeof why), -1);
   assert_non_null(strstr(why, "more than"));
-  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, 0, why, sizeof why), -1);
+  assert_non_null(strstr(why, "half-life"));
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, 600, why, sizeof why), 0);
   assert_int_equal(vlff_merge_compute(&g, r, 2), 3);
   assert_int_equal(g.nprompts, 3); /* chair table door */
   assert_string_equal(g.prompts[2], "door");
-  assert_int_equal(g.labels[0], 2);          /* robot 1's door: equal confidence, newer */
-  assert_int_equal(g.labels[1], 1);          /* robot 0's table at 1.0 over robot 1's 0.9 */
-  assert_int_equal(g.conf[1], 255);
-  assert_int_equal(g.labels[10], 1);         /* 0.05,0.15: robot 0's only */
+  assert_int_equal(g.labels[0], 2);  /* robot 1's door: 0.5 against chair's 0.5, changed later */
+  assert_int_equal(g.conf[0], 64);   /* half the evidence there: 255 x 0.5 / 2 */
+  assert_int_equal(g.labels[1], 1);  /* both say table */
+  assert_int_equal(g.conf[1], 204);  /* 255 x (1.0 + 0.6) / 2 */
+  assert_int_equal(g.labels[10], 1); /* 0.05,0.15: robot 0's only, as it said */
+  assert_int_equal(g.conf[10], 51);
   assert_int_equal(g.labels[2], VLFF_LABEL_UNKNOWN);
-  r[1].stamp_ns = 50; /* older now: robot 0's chair wins the tie */
+  r[1].changed_ns[0] = 50; /* robot 1's door older now: robot 0's chair wins the tie */
   vlff_merge_compute(&g, r, 2);
   assert_int_equal(g.labels[0], 0);
+  /* a whole map that repeats a voxel keeps when it changed; one that changes it does not */
+  put_point(e + 20, 0.05f, -0.15f, 0.05f, 1, 0.8f);
+  assert_int_equal(vlff_merge_take_cloud(&r[1], 2, 1, 20, false, names, offs, types, 5, e, sizeof e, 300, why, sizeof why), 0);
+  assert_true(r[1].changed_ns[0] == 50);
+  assert_true(r[1].changed_ns[1] == 300);
   vlff_merge_grid_free(&g);
   vlff_merge_robot_free(&r[0]);
   vlff_merge_robot_free(&r[1]);
+}
+
+/* Evidence, not the single most confident point: two robots that agree
+ * outweigh a more confident third; a newer observation outweighs an older,
+ * more confident one by the half-life; texts beyond the fleet's 32 are left
+ * out, per robot. And transforms from quaternions. */
+static void test_merge_evidence(void **state) {
+  (void)state;
+  static struct vlff_merge_robot r[3];
+  memset(r, 0, sizeof r);
+  char why[256];
+  const int64_t s = 1000000000;
+  const float conf[3] = {0.4f, 0.4f, 0.7f};
+  const uint16_t lab[3] = {0, 0, 1};
+  for (int k = 0; k < 3; k++) {
+    uint8_t d[20];
+    put_point(d, 0.05f, 0.05f, 0.05f, lab[k], conf[k]);
+    r[k].nprompts = 2;
+    strcpy(r[k].prompts[0], "chair"), strcpy(r[k].prompts[1], "sofa");
+    vlff_merge_yaw(r[k].rot, 0);
+    assert_int_equal(vlff_merge_take_cloud(&r[k], 1, 1, 20, false, names, offs, types, 5, d, 20, 100 * s, why, sizeof why), 0);
+  }
+  static struct vlff_merge_grid g;
+  const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, 600, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_compute(&g, r, 0), 0); /* no robot, no votes: an empty map */
+  assert_int_equal(g.labels[0], VLFF_LABEL_UNKNOWN);
+  assert_int_equal(vlff_merge_compute(&g, r, 3), 1);
+  assert_int_equal(g.labels[0], 0); /* chair 0.8 over sofa 0.7 (the most confident point says sofa) */
+  assert_int_equal(g.conf[0], 68);  /* 255 x 0.8 / 3 */
+  /* the sofa seen 600 s later (one half-life): the chairs count half */
+  r[2].changed_ns[0] = 700 * s;
+  vlff_merge_compute(&g, r, 3);
+  assert_int_equal(g.labels[0], 1);  /* sofa 0.7 over chair 0.4 */
+  assert_int_equal(g.conf[0], 89);   /* 255 x 0.7 / (0.5 + 0.5 + 1) */
+  /* one robot's 32 texts fill the fleet's list: another's new text is left out, with its points */
+  r[0].nprompts = 32;
+  for (int i = 0; i < 32; i++) snprintf(r[0].prompts[i], sizeof r[0].prompts[i], "thing %d", i);
+  strcpy(r[0].prompts[0], "chair");
+  vlff_merge_compute(&g, r, 3);
+  assert_int_equal(g.nprompts, 32);
+  assert_int_equal(r[0].left_out, 0);
+  assert_int_equal(r[1].left_out, 2); /* its text 1, sofa */
+  assert_int_equal(r[2].left_out, 2);
+  assert_int_equal(g.no_label, 1);    /* robot 2's sofa point */
+  assert_int_equal(g.labels[0], 0);   /* the chairs' evidence alone */
+  /* a published transform: a quaternion turning 90 degrees about +z equals the yaw */
+  double qr[9], yr[9];
+  const double q[4] = {0, 0, sqrt(0.5), sqrt(0.5)}, bad[4] = {0, 0, 1, 1}, inf[4] = {NAN, 0, 0, 1};
+  assert_int_equal(vlff_merge_quat(qr, q, why, sizeof why), 0);
+  vlff_merge_yaw(yr, 3.14159265358979323846 / 2);
+  for (int i = 0; i < 9; i++) assert_float_equal(qr[i], yr[i], 1e-12);
+  assert_int_equal(vlff_merge_quat(qr, bad, why, sizeof why), -1);
+  assert_non_null(strstr(why, "unit quaternion"));
+  assert_int_equal(vlff_merge_quat(qr, inf, why, sizeof why), -1);
+  vlff_merge_grid_free(&g);
+  for (int k = 0; k < 3; k++) vlff_merge_robot_free(&r[k]);
+}
+
+/* Votes weighed by their distance from the robot's camera path: a robot
+ * that walked by a voxel outweighs a more confident one that saw it from
+ * 3 m; the path keeps positions VLFF_MERGE_PATH_STEP apart. */
+static void test_merge_path(void **state) {
+  (void)state;
+  static struct vlff_merge_robot r[2];
+  memset(r, 0, sizeof r);
+  char why[256];
+  const float conf[2] = {0.5f, 0.9f};
+  for (int k = 0; k < 2; k++) {
+    uint8_t d[20];
+    put_point(d, 0.05f, 0.05f, 0.05f, (uint16_t)k, conf[k]);
+    r[k].nprompts = 2;
+    strcpy(r[k].prompts[0], "chair"), strcpy(r[k].prompts[1], "sofa");
+    vlff_merge_yaw(r[k].rot, 0);
+    assert_int_equal(vlff_merge_take_cloud(&r[k], 1, 1, 20, false, names, offs, types, 5, d, 20, 100, why, sizeof why), 0);
+  }
+  static struct vlff_merge_grid g;
+  const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, 600, why, sizeof why), 0);
+  vlff_merge_compute(&g, r, 2);
+  assert_int_equal(g.labels[0], 1); /* no paths: the sofa's 0.9 */
+  const double here[3] = {0, 0, 0}, near[3] = {0.1, 0, 0}, far[3] = {3, 0, 0}, bad[3] = {NAN, 0, 0};
+  assert_int_equal(vlff_merge_add_path(&r[0], here), 1);
+  assert_int_equal(vlff_merge_add_path(&r[0], near), 0); /* within a step of one kept */
+  assert_int_equal(vlff_merge_add_path(&r[0], bad), -1);
+  assert_int_equal(r[0].npath, 1);
+  assert_int_equal(vlff_merge_add_path(&r[1], far), 1);
+  vlff_merge_compute(&g, r, 2);
+  assert_int_equal(g.labels[0], 0); /* the chair of the robot that walked by */
+  vlff_merge_grid_free(&g);
+  for (int k = 0; k < 2; k++) vlff_merge_robot_free(&r[k]);
 }
 
 /* A robot's updates (map/updates) applied to its whole map: relabel, clear,
@@ -245,7 +347,8 @@ static void test_merge_update(void **state) {
   assert_int_equal(r.stamp_ns, 150);
   static struct vlff_merge_grid g;
   const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
-  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, why, sizeof why), 0);
+  assert_int_equal(vlff_merge_grid_init(&g, lo, hi, 0.1, 600, why, sizeof why), 0);
+  vlff_merge_yaw(r.rot, 0);
   assert_int_equal(vlff_merge_compute(&g, &r, 1), 2);
   assert_int_equal(g.labels[0], VLFF_LABEL_UNKNOWN); /* cleared */
   assert_string_equal(g.prompts[g.labels[1]], "chair");
@@ -266,7 +369,7 @@ static void test_merge_update(void **state) {
 }
 
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding), cmocka_unit_test(test_merge), cmocka_unit_test(test_merge_update),
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_topic), cmocka_unit_test(test_prompts), cmocka_unit_test(test_encoding), cmocka_unit_test(test_merge), cmocka_unit_test(test_merge_evidence), cmocka_unit_test(test_merge_path), cmocka_unit_test(test_merge_update),
                                      cmocka_unit_test(test_cloud)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

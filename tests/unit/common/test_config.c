@@ -446,6 +446,15 @@ static void test_dds_section(void **state) {
   assert_float_equal(cfg.dds.merge.robots[1].transform[3], 90, 0);
   assert_float_equal(cfg.dds.merge.robots[0].transform[0], 0, 0);
   assert_string_equal(cfg.dds.merge.map, "/vlff-fleet");
+  /* a robot without a transform takes the one it publishes */
+  assert_false(cfg.dds.merge.robots[0].has_transform);
+  assert_true(cfg.dds.merge.robots[1].has_transform);
+  assert_string_equal(cfg.dds.merge.frame_id, "world");
+  assert_float_equal(cfg.dds.merge.half_life_s, 600, 0);
+  /* a part of the simulator's walk */
+  assert_int_equal(load("sim:\n  frames: 60\n  range_first: 20\n  range_count: 20\n", &cfg), 0);
+  assert_int_equal(cfg.sim.range_first, 20);
+  assert_int_equal(cfg.sim.range_count, 20);
   static const struct {
     const char *yaml, *fragment;
   } mbad[] = {
@@ -464,6 +473,11 @@ static void test_dds_section(void **state) {
       {"shm:\n  map: /m\ndds:\n  merge:\n    map: /m\n", "distinct from shm.map"},
       {"dds:\n  merge:\n    map: /vlff-frames\n", "distinct from shm.ring"},
       {"shm:\n  feature_ring: /f\ndds:\n  merge:\n    map: /f\n", "distinct from shm.feature_ring"},
+      {"dds:\n  merge:\n    frame_id: /world\n", "dds.merge.frame_id"},
+      {"dds:\n  merge:\n    half_life_s: 0\n", "dds.merge.half_life_s"},
+      {"sim:\n  frames: 60\n  range_first: 50\n  range_count: 20\n", "within sim.frames (60), got 50 + 20"},
+      {"sim:\n  range_first: 5\n", "1 or more frames with sim.range_first 5"},
+      {"sim:\n  range_count: 5\n  changes:\n    - {time_s: 1, object: chair, action: remove}\n", "streamed whole"},
   };
   for (size_t i = 0; i < sizeof mbad / sizeof mbad[0]; i++) {
     assert_int_equal(load(mbad[i].yaml, &cfg), -1);

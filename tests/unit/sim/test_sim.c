@@ -623,6 +623,29 @@ static void test_bad_config(void **state) {
   assert_non_null(strstr(err, "scene_min/max"));
 }
 
+/* sim.range_first/range_count: the stream shows only that part of the
+ * walk, repeated; without them the whole loop. */
+static void test_stream_range(void **state) {
+  (void)state;
+  struct vlff_config c;
+  small_cfg(&c, 1);
+  c.sim.frames = 60;
+  char err[256] = "";
+  struct vlff_sim *s = vlff_sim_create(&c.sim, &c.field, err, sizeof err);
+  assert_non_null(s);
+  assert_int_equal(vlff_sim_stream_frame(s, 0), 0);
+  assert_int_equal(vlff_sim_stream_frame(s, 61), 1);
+  vlff_sim_destroy(s);
+  c.sim.range_first = 20, c.sim.range_count = 20;
+  s = vlff_sim_create(&c.sim, &c.field, err, sizeof err);
+  assert_non_null(s);
+  assert_int_equal(vlff_sim_stream_frame(s, 0), 20);
+  assert_int_equal(vlff_sim_stream_frame(s, 19), 39);
+  assert_int_equal(vlff_sim_stream_frame(s, 20), 20);
+  assert_int_equal(vlff_sim_stream_frame(s, 45), 25);
+  vlff_sim_destroy(s);
+}
+
 /* Pixels of class c in a frame rendered (labels only) at index i. */
 static int count_class(struct vlff_sim *s, long long i, struct vlff_sim_frame *f, int c) {
   char err[256] = "";
@@ -749,7 +772,7 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_labels_cover_classes), cmocka_unit_test(test_poses_opencv_and_speed),
     cmocka_unit_test(test_embeddings_structure),
     cmocka_unit_test(test_features_imperfect_but_informative), cmocka_unit_test(test_points),
-    cmocka_unit_test(test_bad_config), cmocka_unit_test(test_flat_walk_through_doorways),
+    cmocka_unit_test(test_bad_config), cmocka_unit_test(test_stream_range), cmocka_unit_test(test_flat_walk_through_doorways),
     cmocka_unit_test(test_object_bias_view_consistent), cmocka_unit_test(test_building_layout_and_walk),
     cmocka_unit_test(test_building_seen), cmocka_unit_test(test_building_deterministic),
     cmocka_unit_test(test_building_bad_config), cmocka_unit_test(test_change_moves_object),
