@@ -5,10 +5,10 @@
 //   foxglove.websocket.v1) receives every occupied voxel exactly once, each point
 //   its voxel's centre, label, confidence and opacity, in pieces of at most 1 MiB,
 //   and is not dropped;
-// - a client subscribed to /map/points, /map/voxels and /map at once: the whole
-//   map on /map/points and /map/voxels, each voxel once, without a drop; /map (the
-//   page's JSON cubes, about 190 bytes a voxel) is not sent whole for a map whose
-//   message would exceed half of --max-queue-mb, and the viewer's /log says so.
+// - a client subscribed to /map/points, /map/voxels and /map at once gets every
+//   voxel once on each, without a drop: /map (JSON cubes, about 190 bytes a voxel)
+//   in pieces of at most 1 MiB as /map/points, /map/voxels (about 14 bytes a
+//   voxel) as one message under the queue limit.
 'use strict';
 const assert = require('assert');
 const { spawn } = require('child_process');
@@ -128,6 +128,23 @@ function voxelsInto(seen, map, bytes) {
   return m.occupied;
 }
 
+// The cubes of a /map piece (a SceneUpdate of brick entities), each its voxel's centre.
+function cubesInto(seen, map, bytes, bound, first) {
+  assert.ok(bytes.length <= bound, `a /map piece of ${bytes.length} bytes, above ${bound}`);
+  const m = JSON.parse(bytes.toString('utf8'));
+  // the first piece clears what an earlier map left; later ones only add bricks
+  assert.deepStrictEqual(m.deletions.map((d) => d.type), first ? [1] : [], 'the deletions of a whole scene');
+  const [nx, ny] = map.dims;
+  for (const e of m.entities) {
+    for (const c of e.cubes) {
+      const p = [c.pose.position.x, c.pose.position.y, c.pose.position.z];
+      const ijk = p.map((x, a) => Math.round((x - map.origin[a]) / map.voxel_size - 0.5));
+      p.forEach((x, a) => assert.ok(Math.abs(x - (map.origin[a] + (ijk[a] + 0.5) * map.voxel_size)) < 1e-3, `cube ${p}`));
+      seen[ijk[0] + nx * (ijk[1] + ny * ijk[2])]++;
+    }
+  }
+}
+
 // Every voxel of the map (all occupied) named once.
 function once(seen, what) {
   let missing = 0, twice = 0;
@@ -161,20 +178,22 @@ async function main() {
     `centre, label and confidence, in ${pieces} pieces of at most ${bound} bytes, no drop`);
 
   // /map/points, /map/voxels and /map at once
-  const seenB = new Uint8Array(n), seenV = new Uint8Array(n);
-  let gotB = 0, gotV = 0, scenes = 0, occupied = -1;
+  const seenB = new Uint8Array(n), seenV = new Uint8Array(n), seenS = new Uint8Array(n);
+  let gotB = 0, gotV = 0, gotS = 0, scenes = 0, occupied = -1, voxelBytes = 0;
+  const sum = (a) => a.reduce((s, x) => s + x, 0);
   const b = client(port, ['/map/points', '/map/voxels', '/map'], (topic, bytes) => {
-    if (topic === '/map/points') { pointsInto(seenB, map, bytes, bound); gotB = seenB.reduce((s, x) => s + x, 0); }
-    else if (topic === '/map/voxels') { occupied = voxelsInto(seenV, map, bytes); gotV = seenV.reduce((s, x) => s + x, 0); }
-    else scenes++;
+    if (topic === '/map/points') { pointsInto(seenB, map, bytes, bound); gotB = sum(seenB); }
+    else if (topic === '/map/voxels') { occupied = voxelsInto(seenV, map, bytes); gotV = sum(seenV); voxelBytes = bytes.length; }
+    else { cubesInto(seenS, map, bytes, bound, !scenes++); gotS = sum(seenS); }
   });
-  await until(b, () => gotB >= n && gotV >= n, 60000, 'the whole map on /map/points and /map/voxels');
+  await until(b, () => gotB >= n && gotV >= n && gotS >= n, 60000, 'the whole map on the three map channels');
   once(seenB, '/map/points beside /map/voxels and /map');
   once(seenV, '/map/voxels');
+  once(seenS, '/map');
   assert.strictEqual(occupied, n, '/map/voxels counts the occupied voxels');
   assert.strictEqual(b.closed, null, 'the client of the three map channels still open');
-  ok(`/map/points, /map/voxels and /map together: every voxel once on /map/points and /map/voxels, no drop ` +
-    `(${scenes} /map messages)`);
+  ok(`/map/points, /map/voxels and /map together: every voxel once on each (/map in ${scenes} pieces of at most ` +
+    `${bound} bytes, /map/voxels one message of ${voxelBytes} bytes), no drop`);
   a.close();
   b.close();
   fx.stdin.end();
