@@ -282,14 +282,15 @@ static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty
     if (dirty && !dirty[b]) continue;
     int has = brick_has_voxels(m, b, edge);
     if (update_sent) m->brick_sent[b] = (uint8_t)has;
-    if (!has) continue;
+    /* after a failure the loop goes on for brick_sent, which must follow the map */
+    if (!has || failed) continue;
     if (!first && w.m->len + brick_max > bound) {
       /* this piece is full: closed, and the next one started */
       jw_s(&w, "]}");
       failed |= w.failed;
       if (!scene_piece(f, &w, t, !dirty)) {
         failed = 1;
-        break;
+        continue;
       }
       *link = w.m, link = &w.m->next;
       jw_s(&w, "],\"entities\":[");
