@@ -229,21 +229,36 @@ static void palette(uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3]) {
   rgb[VLFF_SHM_MAX_PROMPTS][0] = rgb[VLFF_SHM_MAX_PROMPTS][1] = rgb[VLFF_SHM_MAX_PROMPTS][2] = 128;
 }
 
+/* A scene piece's message, its deletions opened. */
+static struct vlff_view_msg *scene_piece(struct vlff_feed *f, struct jw *w, uint64_t t, int whole) {
+  *w = (struct jw){feed_msg(f, VLFF_VIEW_CH_SCENE, 4096), 0};
+  if (!w->m) return NULL;
+  w->m->t_ns = t;
+  w->m->version = f->m.version;
+  w->m->whole = whole;
+  jw_s(w, "{\"deletions\":[");
+  return w->m;
+}
+
 /* The scene message: the listed bricks (dirty == NULL: every brick; full also
- * deletes every entity the client may hold from an earlier map). Updates
- * brick_sent. */
+ * deletes every entity the client may hold from an earlier map), in pieces of at
+ * most cloud_piece_bytes (chained through next) as the point cloud is: Foxglove
+ * replaces entities by id, so bricks split over several SceneUpdates make the
+ * same scene, and a client of a map whose cubes exceed the queue limit (about 190
+ * bytes a voxel: 32 MiB is some 170 k voxels) still gets it whole. The deletions
+ * go in the first piece. Updates brick_sent. */
 static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty, uint32_t edge, uint64_t t,
                                        int update_sent) {
   struct feed_map *m = &f->m;
   uint32_t nb = brick_count(m, edge);
   uint8_t rgb[VLFF_SHM_MAX_PROMPTS + 1][3];
   palette(rgb);
-  struct jw w = {feed_msg(f, VLFF_VIEW_CH_SCENE, 4096), 0};
-  if (!w.m) return NULL;
-  w.m->t_ns = t;
-  w.m->version = m->version;
-  w.m->whole = !dirty;
-  jw_s(&w, "{\"deletions\":[");
+  /* a brick's entity is at most its cubes (under 256 bytes each) and a header */
+  size_t brick_max = (size_t)edge * edge * edge * 256 + 512, bound = f->p.cloud_piece_bytes;
+  struct jw w;
+  struct vlff_view_msg *head = scene_piece(f, &w, t, !dirty);
+  if (!head) return NULL;
+  struct vlff_view_msg **link = &head->next;
   int first = 1;
   if (!dirty) {
     jw_s(&w, "{\"timestamp\":");
@@ -262,14 +277,37 @@ static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty
   }
   jw_s(&w, "],\"entities\":[");
   first = 1;
+  int failed = 0;
   for (uint32_t b = 0; b < nb; b++) {
     if (dirty && !dirty[b]) continue;
     int has = brick_has_voxels(m, b, edge);
     if (update_sent) m->brick_sent[b] = (uint8_t)has;
-    if (has) write_brick_entity(&w, m, f->p.world_frame, b, edge, t, (const uint8_t(*)[3])rgb, &first);
+    /* after a failure the loop goes on for brick_sent, which must follow the map */
+    if (!has || failed) continue;
+    if (!first && w.m->len + brick_max > bound) {
+      /* this piece is full: closed, and the next one started */
+      jw_s(&w, "]}");
+      failed |= w.failed;
+      if (!scene_piece(f, &w, t, !dirty)) {
+        failed = 1;
+        continue;
+      }
+      *link = w.m, link = &w.m->next;
+      jw_s(&w, "],\"entities\":[");
+      first = 1;
+    }
+    write_brick_entity(&w, m, f->p.world_frame, b, edge, t, (const uint8_t(*)[3])rgb, &first);
   }
-  jw_s(&w, "]}");
-  return jw_finish(&w);
+  if (w.m) {
+    jw_s(&w, "]}");
+    failed |= w.failed;
+  }
+  if (failed) {
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for the /map scene");
+    vlff_view_msg_unref(head); /* the pieces go with it */
+    return NULL;
+  }
+  return head;
 }
 
 static void write_map_header(struct jw *w, const struct feed_map *m, int full) {

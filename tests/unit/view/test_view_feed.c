@@ -182,6 +182,32 @@ static void test_feed(void **state) {
   json_object_put(whole);
   vlff_view_msg_unref(cur);
 
+  /* pieces of at most 8 KiB: the same scene in several SceneUpdates of whole
+   * bricks, the first one deleting all */
+  struct vlff_feed_params fp2 = fp;
+  fp2.cloud_piece_bytes = 8192;
+  struct vlff_feed *f2 = vlff_feed_new(&fp2);
+  assert_non_null(f2);
+  poll_feed(f2, 0, &p);
+  free_polled(&p);
+  cur = vlff_feed_current(f2, VLFF_VIEW_CH_SCENE, NULL);
+  assert_non_null(cur);
+  int pieces = 0, cubes = 0;
+  for (struct vlff_view_msg *piece = cur; piece; piece = piece->next, pieces++) {
+    assert_true(piece->len <= 8192);
+    assert_true(piece->whole);
+    json_object *o = parse(piece);
+    json_object *d = get(o, "deletions");
+    assert_int_equal(json_object_array_length(d), pieces ? 0 : 1);
+    if (!pieces) assert_int_equal(json_object_get_int(get(json_object_array_get_idx(d, 0), "type")), 1);
+    cubes += cube_count(o);
+    json_object_put(o);
+  }
+  assert_true(pieces >= 2);
+  assert_int_equal(cubes, NX * NY + 2);
+  vlff_view_msg_unref(cur);
+  vlff_feed_free(f2);
+
   /* new prompts recolour everything: whole again */
   assert_int_equal(publish(m, prompts2, 2), 0);
   poll_feed(f, ALL, &p);

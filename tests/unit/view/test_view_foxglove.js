@@ -245,7 +245,10 @@ async function main() {
     ok(`${checked} voxels (label, confidence, prompt) equal vlff-shm label's at the same version`);
 
     // The scene (Foxglove's cubes) holds the same voxels in the prompts' colours.
-    await until(() => sceneT === voxelT, 10000, 'scene and voxels of one version');
+    // (a scene comes in pieces of whole bricks: the version's last piece holds as many
+    // cubes as there are voxels)
+    const sceneCubes = () => [...scene.values()].reduce((n, e) => n + e.cubes.length, 0);
+    await until(() => sceneT === voxelT && sceneCubes() === voxels.size, 10000, 'scene and voxels of one version');
     const centres = new Map();
     for (const [idx, [label]] of voxels) {
       const [nx, ny] = grid.dims, ijk = [idx % nx, Math.floor(idx / nx) % ny, Math.floor(idx / (nx * ny))];

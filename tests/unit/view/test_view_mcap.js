@@ -216,14 +216,19 @@ async function main() {
       }
     };
     const same = (a, b) => a.size === b.size && [...a].every(([k, x]) => b.get(k) === x);
-    const replay = state(), seek = { bricks: null, voxels: null }, lastWhole = {}, late = {};
+    const replay = state(), seek = { bricks: null, voxels: null }, lastWhole = {}, late = {}, lastLog = {};
     let compared = 0, deltas = 0, wholes = 0, maxGap = 0;
     const bad = [];
     for (const m of msgs) {
       if (m.topic !== '/map' && m.topic !== '/map/voxels') continue;
       const j = parsed(m), key = m.topic === '/map' ? 'bricks' : 'voxels';
       apply(replay, m, j);
-      if (isWhole(m, j)) {
+      // the later pieces of a scene (one log time) go with its first
+      const piece = m.topic === '/map' && m.log === lastLog[key];
+      lastLog[key] = m.log;
+      if (piece) {
+        if (isWhole(m, j)) bad.push(`${m.topic} at log time ${m.log}: a later piece deletes all`);
+      } else if (isWhole(m, j)) {
         seek[key] = new Map();
         lastWhole[key] = m.log;
         late[key] = null;
@@ -274,14 +279,19 @@ async function main() {
   let skipped = 0;
   for (const [t, got] of Object.entries(live.got)) {
     const rec = byTopic[t].map((m) => m.bytes), later = got.slice(1).map((m) => m.bytes);
-    // the point cloud's whole map to a subscriber may come in several pieces
-    while (t === '/map/points' && later.length && !rec.some((b) => b.equals(later[0]))) later.shift();
+    // the point cloud's and the scene's whole map to a subscriber may come in several pieces
+    while ((t === '/map/points' || t === '/map') && later.length && !rec.some((b) => b.equals(later[0]))) later.shift();
     if (!later.length) continue;
     let at = rec.findIndex((b) => b.equals(later[0]));
     assert.ok(at >= 0, `${t}: the live client's second message is in the recording`);
     for (let i = 1; i < later.length; i++) {
       at++;
-      while (rec[at] && !rec[at].equals(later[i]) && recordedOnly(t, rec[at])) at++, skipped++;
+      // a whole scene's later pieces follow its first, which deletes all
+      for (let piece = false; rec[at] && !rec[at].equals(later[i]) && (recordedOnly(t, rec[at]) ||
+        (piece && t === '/map')); at++) {
+        if (recordedOnly(t, rec[at])) skipped++;
+        piece = true;
+      }
       assert.ok(rec[at] && rec[at].equals(later[i]), `${t}: live message ${i + 1} is recorded in order`);
     }
   }

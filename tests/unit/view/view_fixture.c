@@ -1,6 +1,6 @@
 /* SPDX-License-Identifier: BSD-3-Clause */
 /*
- * view_fixture MAP FRAMES DIR: a map writer and a camera for vlff-view's tests
+ * view_fixture MAP FRAMES DIR [big]: a map writer and a camera for vlff-view's tests
  * that need a known map and depth without a learner (test_view_proto). It creates
  * the map segment and the frame ring, publishes version 1 of an 80x60x6 room (a
  * floor, a box, columns never seen) and a 64x48 RGB-D frame every 100 ms, writes
@@ -8,6 +8,9 @@
  * confidences) and DIR/frame.json (the depth in millimetres, the intrinsics) and
  * prints "map V" once each is written. Each line "change" on stdin publishes the
  * next version (part of the box freed, a new box); end of input ends it.
+ * With "big", version 1 is instead a 128x128x64 block with every voxel occupied
+ * (1,048,576 voxels, labels 0..2 and confidences from the position), for the
+ * whole-map sends of a 1 M-voxel map; "change" is then not taken.
  */
 #include <vlff/shm.h>
 
@@ -17,9 +20,11 @@
 #include <string.h>
 #include <unistd.h>
 
-enum { NX = 80, NY = 60, NZ = 6, N = NX * NY * NZ, FW = 64, FH = 48 };
-static uint16_t labels[N];
-static uint8_t conf[N];
+enum { FW = 64, FH = 48 };
+static int NX = 80, NY = 60, NZ = 6;
+static size_t N;
+static uint16_t *labels;
+static uint8_t *conf;
 static const char *prompts[3] = {"floor", "box", "wall"};
 
 static size_t at(int i, int j, int k) { return (size_t)i + NX * ((size_t)j + NY * (size_t)k); }
@@ -80,15 +85,22 @@ static void frame(struct vlff_ring *r) {
 }
 
 int main(int argc, char **argv) {
-  if (argc != 4) {
-    fprintf(stderr, "usage: view_fixture MAP FRAMES DIR\n");
+  int big = argc == 5 && !strcmp(argv[4], "big");
+  if (argc != 4 && !big) {
+    fprintf(stderr, "usage: view_fixture MAP FRAMES DIR [big]\n");
     return 2;
   }
+  if (big) NX = 128, NY = 128, NZ = 64;
+  N = (size_t)NX * NY * NZ;
+  labels = malloc(N * sizeof *labels);
+  conf = malloc(N);
+  if (!labels || !conf) return 1;
   for (int k = 0; k < NZ; k++)
     for (int j = 0; j < NY; j++)
       for (int i = 0; i < NX; i++) {
         uint16_t l = VLFF_LABEL_FREE;
-        if (i >= 76) l = VLFF_LABEL_UNKNOWN; /* never seen */
+        if (big) l = (uint16_t)((i + 2 * j + 3 * k) % 3);
+        else if (i >= 76) l = VLFF_LABEL_UNKNOWN; /* never seen */
         else if (k == 0) l = 0;
         else if (i >= 10 && i < 20 && j >= 5 && j < 15 && k < 4) l = 1;
         labels[at(i, j, k)] = l;
@@ -115,7 +127,7 @@ int main(int argc, char **argv) {
     frame(r);
     if (n <= 0) continue;
     if (!fgets(line, sizeof line, stdin)) break;
-    if (strncmp(line, "change", 6)) continue;
+    if (big || strncmp(line, "change", 6)) continue;
     v++;
     /* the box loses its western half; a box of another label appears */
     for (int k = 1; k < 4; k++)
@@ -132,5 +144,7 @@ int main(int argc, char **argv) {
   vlff_map_detach(m);
   vlff_shm_unlink(argv[1]);
   vlff_shm_unlink(argv[2]);
+  free(labels);
+  free(conf);
   return 0;
 }
