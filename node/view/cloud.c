@@ -264,10 +264,24 @@ const char *vlff_view_descriptor_b64(int ch) {
 /* PackedElementField.NumericType */
 enum { NT_UINT8 = 1, NT_UINT16 = 3, NT_FLOAT32 = 7 };
 
-static const struct {
+struct packed_field {
   const char *name;
   uint32_t offset, type;
-} point_fields[] = {
+};
+
+/* Each of fields[0..n) as a PackedElementField, message field `no` of b. */
+static void pb_packed_fields(struct pb *b, int no, const struct packed_field *fields, size_t n) {
+  for (size_t i = 0; i < n; i++) {
+    uint8_t fb[64];
+    struct pb f = {fb, 0, sizeof fb, 0};
+    pb_str(&f, 1, fields[i].name);
+    pb_fixed32(&f, 2, fields[i].offset);
+    pb_uint(&f, 3, fields[i].type);
+    pb_msg(b, no, &f);
+  }
+}
+
+static const struct packed_field point_fields[] = {
     {"x", 0, NT_FLOAT32},  {"y", 4, NT_FLOAT32},     {"z", 8, NT_FLOAT32},   {"red", 12, NT_UINT8},
     {"green", 13, NT_UINT8}, {"blue", 14, NT_UINT8}, {"alpha", 15, NT_UINT8}, {"label", 16, NT_UINT16},
     {"confidence", 18, NT_UINT8},
@@ -277,7 +291,7 @@ static const struct {
  * length end it. */
 static size_t cloud_head(uint8_t *out, size_t cap, const char *frame, uint64_t t_ns, size_t data_len) {
   struct pb b = {out, 0, cap, 0};
-  uint8_t tb[32], vb[8], qb[16], pb_[64], fb[64];
+  uint8_t tb[32], vb[8], qb[16], pb_[64];
   struct pb ts = {tb, 0, sizeof tb, 0};
   pb_uint(&ts, 1, t_ns / 1000000000u);
   pb_uint(&ts, 2, t_ns % 1000000000u);
@@ -289,13 +303,7 @@ static size_t cloud_head(uint8_t *out, size_t cap, const char *frame, uint64_t t
   pb_msg(&pose, 2, &rot);
   pb_msg(&b, 3, &pose);
   pb_fixed32(&b, 4, VLFF_VIEW_CLOUD_STRIDE);
-  for (size_t i = 0; i < sizeof point_fields / sizeof *point_fields; i++) {
-    struct pb f = {fb, 0, sizeof fb, 0};
-    pb_str(&f, 1, point_fields[i].name);
-    pb_fixed32(&f, 2, point_fields[i].offset);
-    pb_uint(&f, 3, point_fields[i].type);
-    pb_msg(&b, 5, &f);
-  }
+  pb_packed_fields(&b, 5, point_fields, sizeof point_fields / sizeof *point_fields);
   pb_tag(&b, 6, WT_LEN);
   pb_varint(&b, data_len);
   return b.failed ? 0 : b.n;
@@ -342,10 +350,7 @@ static void stamp_frame(struct pb *b, uint64_t t_ns, const char *frame, unsigned
   pb_str(b, frame_field, frame);
 }
 
-static const struct {
-  const char *name;
-  uint32_t offset, type;
-} grid_fields[] = {
+static const struct packed_field grid_fields[] = {
     {"red", 0, NT_UINT8},   {"green", 1, NT_UINT8},       {"blue", 2, NT_UINT8},          {"alpha", 3, NT_UINT8},
     {"label", 4, NT_UINT16}, {"confidence", 6, NT_UINT8}, {"elevation", 8, NT_FLOAT32},
 };
@@ -358,7 +363,7 @@ struct vlff_view_msg *vlff_view_grid_msg(int channel, const char *frame, uint64_
   uint8_t *p = vlff_view_msg_payload(m);
   struct pb b = {p, 0, head_cap, 0};
   stamp_frame(&b, t_ns, frame, 2);
-  uint8_t vb[32], qb[16], pb_[80], cb[24], fb[64];
+  uint8_t vb[32], qb[16], pb_[80], cb[24];
   struct pb pos = {vb, 0, sizeof vb, 0}, rot = {qb, 0, sizeof qb, 0}, pose = {pb_, 0, sizeof pb_, 0};
   for (unsigned a = 0; a < 3; a++) pb_double(&pos, a + 1, corner[a]);
   pb_double(&rot, 4, 1.0); /* the map's axes: the grid lies in its x-y plane */
@@ -372,13 +377,7 @@ struct vlff_view_msg *vlff_view_grid_msg(int channel, const char *frame, uint64_
   pb_msg(&b, 5, &cs);
   pb_fixed32(&b, 6, cols * VLFF_VIEW_GRID_STRIDE);
   pb_fixed32(&b, 7, VLFF_VIEW_GRID_STRIDE);
-  for (size_t i = 0; i < sizeof grid_fields / sizeof *grid_fields; i++) {
-    struct pb f = {fb, 0, sizeof fb, 0};
-    pb_str(&f, 1, grid_fields[i].name);
-    pb_fixed32(&f, 2, grid_fields[i].offset);
-    pb_uint(&f, 3, grid_fields[i].type);
-    pb_msg(&b, 8, &f);
-  }
+  pb_packed_fields(&b, 8, grid_fields, sizeof grid_fields / sizeof *grid_fields);
   pb_tag(&b, 9, WT_LEN);
   pb_varint(&b, data);
   if (b.failed) abort(); /* the head's fields are fixed: it always fits */
