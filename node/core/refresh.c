@@ -11,6 +11,7 @@
 void vlff_refresh_init(struct vlff_refresh *rf, double period) {
   memset(rf, 0, sizeof *rf);
   rf->period = rf->span = period;
+  rf->share = VLFF_REFRESH_SHARE;
   rf->start = rf->top = rf->last_end = -1;
 }
 
@@ -68,7 +69,7 @@ double vlff_refresh_round_end(struct vlff_refresh *rf, double end, bool counted,
     while (end - next > 0.5 * rf->span) next += rf->span;
     rf->start = next;
   }
-  rf->span = whole ? rf->period : fmax(rf->period, rf->cost / VLFF_REFRESH_SHARE);
+  rf->span = whole ? rf->period : fmax(rf->period, rf->cost / rf->share);
   rf->cost = 0;
   return mean;
 }

@@ -26,9 +26,10 @@
  *    next one, by at most half a period (deadlines missed by more are given
  *    up, never caught up in a burst of rounds); a whole publish out of turn
  *    (new prompts, a reset, the first map) starts the grid over from it;
- *  - a round may take at most VLFF_REFRESH_SHARE of the trainer's time: one
- *    that cost more (a map too large for the machine) stretches the next
- *    round's period to its cost over that share.
+ *  - a round may take at most `share` of the trainer's time
+ *    (VLFF_REFRESH_SHARE, less under a CPU budget: the caller lowers it):
+ *    one that cost more (a map too large for the machine) stretches the
+ *    next round's period to its cost over that share.
  *
  * Contract: pure arithmetic on the times it is given (seconds, any
  * monotonic origin); one owner (the trainer thread).
@@ -46,7 +47,8 @@
 
 struct vlff_refresh {
   double period;   /* 1 / publish.rate_hz */
-  double span;     /* this round's length: the period, or longer (VLFF_REFRESH_SHARE) */
+  double span;     /* this round's length: the period, or longer (share) */
+  double share;    /* most of the trainer's time a round may take (0, 1]; VLFF_REFRESH_SHARE at init */
   double start;    /* when this round began (its deadline is start + span); < 0 before the first round */
   double cost;     /* seconds this round's slices took so far */
   double pass;     /* a loop pass without its slices, as the rules take it */

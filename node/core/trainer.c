@@ -294,12 +294,22 @@ static void refresh_round_end(struct vlff_node *n, struct vlff_refresh *rf, doub
   pthread_mutex_unlock(&n->slock);
 }
 
+/* Under node.cpu_budget below one core, the publishing work's shares of
+ * the trainer's time (keyframes, the refresh) shrink with the budget: they
+ * run outside the pacer, which delays only training, and at their
+ * one-core shares they alone would pass a small budget. */
+static double work_scale(const struct vlff_node *n) {
+  double b = n->cfg.node.cpu_budget;
+  return b > 0 && b < 1 ? b : 1.0;
+}
+
 /* Keyframes go first: what admitted keyframes saw is published at once
  * (the frame-to-map latency is the time to here). A publish that cost c
- * waits 2c before the next (what is admitted meanwhile goes out with it),
- * so keyframes never take more than a third of the trainer's time: on a
- * slow machine (a sanitizer build's, a small core's) they would take all
- * of it, and the field would not train, nor the mailbox be answered. */
+ * waits c (3 / s - 1) before the next, s = work_scale (what is admitted
+ * meanwhile goes out with it), so keyframes never take more than s / 3 of
+ * the trainer's time: on a slow machine (a sanitizer build's, a small
+ * core's) they would take all of it, and the field would not train, nor
+ * the mailbox be answered. */
 static void publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, double *next_kf_publish) {
   if ((vlff_publisher_pending(n->pub) == 0 && n->pending_lat == 0) || vlff_field_steps(n->field) == 0 ||
       vlff_seconds() < *next_kf_publish)
@@ -309,7 +319,7 @@ static void publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, doub
   double end = vlff_seconds(), c = end - t;
   /* a whole publish is owed once (new prompts, a reset): not a rate; it
    * refreshed the whole map, so the refresh's round starts over */
-  *next_kf_publish = whole ? 0 : t + 3.0 * c;
+  *next_kf_publish = whole ? 0 : t + c * (3.0 / work_scale(n) - 1.0);
   if (whole) refresh_round_end(n, rf, end, false, true);
 }
 
@@ -369,6 +379,7 @@ void *trainer_main(void *arg) {
    * admitted. */
   struct vlff_refresh rf;
   vlff_refresh_init(&rf, 1.0 / cfg->publish.rate_hz);
+  rf.share *= work_scale(n);
   double next_kf_publish = 0; /* when keyframes may be published again */
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
   uint64_t mailbox_seq = 0;

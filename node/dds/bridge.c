@@ -236,6 +236,7 @@ struct vlff_dds {
   uint8_t *rec;           /* its newest record */
   size_t rec_cap;
   uint64_t ring_head, ring_next_attach, last_camera_ns, last_label_ns, label_sent;
+  bool have_frame; /* rec holds a valid frame, read at ring_head */
   char *prompts_sent;     /* the prompt list's JSON last sent */
   uint64_t snap_version;  /* the version and generation in snap */
   uint32_t snap_generation;
@@ -706,13 +707,13 @@ static uint64_t label_key(const struct vlff_map_label_image *li) {
 }
 
 /* The label image is a stream, like the camera's: an image that has not
- * changed is sent again each LABEL_RESEND_S, so a subscriber that joined or
+ * changed is sent again each RESEND_S, so a subscriber that joined or
  * came back after a link was down (volatile: nothing is kept for it) has
  * the current one within that time, whatever the learner's refresh rate. */
-#define LABEL_RESEND_S 1.0
+#define RESEND_S 1.0
 static bool label_stale(const struct vlff_dds *b) {
   return b->label_sent && (b->w[VLFF_DDS_LABEL_IMAGE] || b->w[VLFF_DDS_LABEL_IMAGE_COMPRESSED]) &&
-         (double)(mono_ns() - b->last_label_ns) >= LABEL_RESEND_S * 1e9;
+         (double)(mono_ns() - b->last_label_ns) >= RESEND_S * 1e9;
 }
 
 static void mark_full(struct vlff_dds *b, const char *why) {
@@ -877,26 +878,36 @@ static void poll_camera(struct vlff_dds *b) {
     b->rec = rec;
     b->rec_cap = cap;
     b->ring_head = 0;
+    b->have_frame = false;
     VLFF_INFO(TAG, "attached to frame ring %s", VLFF_Q(b->o.frames));
   }
   uint64_t head = vlff_ring_head(b->ring);
-  if (head == b->ring_head || (b->last_camera_ns && (double)(now - b->last_camera_ns) < 1e9 / b->o.dds.image_hz)) return;
-  struct vlff_ring_view view;
-  ssize_t len = vlff_ring_read_latest(b->ring, b->rec, b->rec_cap, &view);
-  if (len < 0) {
-    if (errno == EPIPE) {
-      VLFF_INFO(TAG, "frame ring %s was replaced; attaching again", VLFF_Q(b->o.frames));
-      vlff_ring_close(b->ring);
-      b->ring = NULL;
+  double since = b->last_camera_ns ? (double)(now - b->last_camera_ns) : INFINITY;
+  if (since < 1e9 / b->o.dds.image_hz) return;
+  /* No new frame: the last one again each RESEND_S, as the label image, so
+   * that a subscriber that joined late or came back after a link was down
+   * (the topics are volatile) gets the camera's latest image and pose. */
+  if (head == b->ring_head && !(b->have_frame && since >= RESEND_S * 1e9)) return;
+  if (head != b->ring_head) {
+    struct vlff_ring_view view;
+    ssize_t len = vlff_ring_read_latest(b->ring, b->rec, b->rec_cap, &view);
+    if (len < 0) {
+      if (errno == EPIPE) {
+        VLFF_INFO(TAG, "frame ring %s was replaced; attaching again", VLFF_Q(b->o.frames));
+        vlff_ring_close(b->ring);
+        b->ring = NULL;
+      }
+      return;
     }
-    return;
+    b->ring_head = head;
+    b->have_frame = vlff_frame_validate(b->rec, (size_t)len) == 0;
+    if (!b->have_frame) {
+      b->last_camera_ns = now;
+      vlff_warn_limited(&b->warn_ring, TAG, "frame ring %s: a malformed frame record, skipped", VLFF_Q(b->o.frames));
+      return;
+    }
   }
-  b->ring_head = head;
   b->last_camera_ns = now;
-  if (vlff_frame_validate(b->rec, (size_t)len) != 0) {
-    vlff_warn_limited(&b->warn_ring, TAG, "frame ring %s: a malformed frame record, skipped", VLFF_Q(b->o.frames));
-    return;
-  }
   const struct vlff_frame_hdr *h = (const struct vlff_frame_hdr *)b->rec;
   const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
   const uint8_t *px = vlff_frame_plane(b->rec, VLFF_PLANE_COLOR);
