@@ -39,12 +39,15 @@ function shmAsync(...args) {
 
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
-async function start({ withNode = true, viewArgs = [], token = null } = {}) {
+// cpuBudget: the node's node.cpu_budget (cores), so that a browser beside it
+// on a small machine gets the rest.
+async function start({ withNode = true, viewArgs = [], token = null, cpuBudget = 0 } = {}) {
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'vlff-view-test-'));
   const tag = `vt${process.pid}`;
   const names = { frames: `/${tag}-frames`, map: `/${tag}-map`, prompts: `/${tag}-prompts` };
   const cfg = fs.readFileSync(`${src}/configs/demo-sim.yaml`, 'utf8')
-    .replace(/\/tmp\/vlff-demo\/state/g, `${dir}/state`).replace(/\/vlff-demo-/g, `/${tag}-`);
+    .replace(/\/tmp\/vlff-demo\/state/g, `${dir}/state`).replace(/\/vlff-demo-/g, `/${tag}-`)
+    .replace(/^node:\n/m, cpuBudget > 0 ? `node:\n  cpu_budget: ${cpuBudget}\n` : 'node:\n');
   fs.writeFileSync(`${dir}/cfg.yaml`, cfg);
   const procs = [];
   procs.push(run(prog.sim, ['--config', `${dir}/cfg.yaml`, '--quiet'], `${dir}/sim.log`));

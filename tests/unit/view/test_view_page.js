@@ -48,7 +48,10 @@ async function pageUntil(page, fn, ms = 30000) {
 }
 
 async function main() {
-  const demo = await start({ token: TOKEN });
+  // The learner at one core: on a 2-core machine the headless browser's
+  // input and drawing need the other (a click waited out its 30 s beside a
+  // learner taking both).
+  const demo = await start({ token: TOKEN, cpuBudget: 1 });
   const browser = await chromium.launch({ executablePath: process.env.VLFF_CHROMIUM || 'chromium',
     args: ['--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'] });
   await check(demo, async () => {
