@@ -62,7 +62,7 @@ v0=$(mapv)
 wait_until 600 '(( $(mapv) >= v0 + 2 ))'
 check "node publishes while a poster holds the mailbox mid-post (v$v0 -> v$(mapv))" '(( $(mapv) >= v0 + 2 ))'
 kill -9 $holder; wait $holder 2>/dev/null
-wait_until 100 'grep -q "left half-written" "$tmp/log"'
+wait_until 600 'grep -q "left half-written" "$tmp/log"'
 check "the dead poster's half-written request is logged" 'grep -q "left half-written by poster pid" "$tmp/log"'
 check "posting works after the dead poster" '"$shm" set-prompts $p-p -i 0 | grep -q "^accepted"'
 kill "$simpid"; wait "$simpid"; simpid=
