@@ -64,7 +64,7 @@ static const char *lines(struct vlff_view_log *l, uint64_t t, const struct st *s
     char why[128];
     json_object *o = vlff_view_parse_json((const char *)vlff_view_msg_payload(msgs[i]), msgs[i]->len, why, sizeof why);
     assert_non_null(o);
-    json_object *ts, *sec, *lv, *msg, *name, *file, *line;
+    json_object *ts = NULL, *sec = NULL, *lv = NULL, *msg = NULL, *name = NULL, *file = NULL, *line = NULL;
     assert_true(json_object_object_get_ex(o, "timestamp", &ts) && json_object_object_get_ex(ts, "sec", &sec));
     assert_true((uint64_t)json_object_get_int64(sec) == t / S);
     assert_true(json_object_object_get_ex(o, "level", &lv) && json_object_object_get_ex(o, "message", &msg) &&
