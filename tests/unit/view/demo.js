@@ -41,6 +41,21 @@ const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
 // cpuBudget: the node's node.cpu_budget (cores), so that a browser beside it
 // on a small machine gets the rest.
+// The port a vlff-view started with --port 0 serves on, from its stdout;
+// rejects, with its log, if it exits first.
+function viewPort(view, log) {
+  return new Promise((resolve, reject) => {
+    let text = '', port = 0;
+    view.stdout.on('data', (d) => {
+      text += d;
+      const m = /serving http:\/\/127\.0\.0\.1:(\d+)\//.exec(text);
+      if (m && !port) resolve(port = Number(m[1]));
+    });
+    // an exit after it served is the test's own (its log may be gone by then)
+    view.on('exit', (code) => port || reject(new Error(`vlff-view exited ${code}: ${fs.readFileSync(log)}`)));
+  });
+}
+
 async function start({ withNode = true, viewArgs = [], token = null, cpuBudget = 0 } = {}) {
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'vlff-view-test-'));
   const tag = `vt${process.pid}`;
@@ -62,15 +77,7 @@ async function start({ withNode = true, viewArgs = [], token = null, cpuBudget =
   procs.push(view);
   // however this test ends, it leaves no program running
   process.on('exit', () => procs.forEach((p) => { if (p.exitCode === null) { p.kill('SIGCONT'); p.kill('SIGKILL'); } }));
-  const port = await new Promise((resolve, reject) => {
-    let text = '';
-    view.stdout.on('data', (d) => {
-      text += d;
-      const m = /serving http:\/\/127\.0\.0\.1:(\d+)\//.exec(text);
-      if (m) resolve(Number(m[1]));
-    });
-    view.on('exit', (code) => reject(new Error(`vlff-view exited ${code}: ${fs.readFileSync(`${dir}/view.log`)}`)));
-  });
+  const port = await viewPort(view, `${dir}/view.log`);
   const demo = {
     dir, names, port, view, url: `http://127.0.0.1:${port}/`, ws: `ws://127.0.0.1:${port}/`,
     // Freezes the learner (SIGSTOP) so that the map holds one version; resume() goes on.
@@ -153,4 +160,4 @@ async function check(demo, checks, close = async () => {}) {
   return log;
 }
 
-module.exports = { start, shm, shmAsync, sleep, waitVersion, learnerOfStat, prog, ok, plan, check };
+module.exports = { start, viewPort, shm, shmAsync, sleep, waitVersion, learnerOfStat, prog, ok, plan, check };

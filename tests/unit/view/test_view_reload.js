@@ -12,7 +12,7 @@ const os = require('os');
 const path = require('path');
 const WebSocket = require('ws');
 const { chromium } = require('playwright-core');
-const { prog, ok, plan, sleep } = require('./demo');
+const { prog, ok, plan, sleep, viewPort } = require('./demo');
 
 const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'vlff-view-reload-'));
 const tag = `vr${process.pid}`;
@@ -35,15 +35,7 @@ const waitText = (page, re, what) => pageUntil(page, `(${conn})().match(${re}) ?
 async function main() {
   view = spawn(prog.view, ['--port', '0', '--max-clients', '1', '--map', `/${tag}-map`, '--frames', '',
     '--prompts', `/${tag}-prompts`], { stdio: ['ignore', 'pipe', fs.openSync(`${dir}/view.log`, 'w')] });
-  const port = await new Promise((resolve, reject) => {
-    let text = '';
-    view.stdout.on('data', (d) => {
-      text += d;
-      const m = /serving http:\/\/127\.0\.0\.1:(\d+)\//.exec(text);
-      if (m) resolve(Number(m[1]));
-    });
-    view.on('exit', (code) => reject(new Error(`vlff-view exited ${code}`)));
-  });
+  const port = await viewPort(view, `${dir}/view.log`);
   const url = `http://127.0.0.1:${port}/`;
   // the one slot, held
   const holder = new WebSocket(`ws://127.0.0.1:${port}/`, ['foxglove.websocket.v1']);
