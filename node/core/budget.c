@@ -5,6 +5,7 @@
 
 #include <errno.h>
 #include <math.h>
+#include <string.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -27,8 +28,9 @@ double vlff_process_cpu_s(void) {
 
 void vlff_pacer_init(struct vlff_pacer *p, double budget) {
   *p = (struct vlff_pacer){.budget = budget > 0 ? budget : 0, .used = -1};
-  p->wall = p->win_wall = p->last_step = vlff_seconds();
-  p->cpu = p->win_cpu = vlff_process_cpu_s();
+  p->wall = p->win_wall[0] = p->last_step = vlff_seconds();
+  p->cpu = p->win_cpu[0] = vlff_process_cpu_s();
+  p->wins = 1;
 }
 
 /* Adds what was used since the last reading and pays budget x the time gone by. */
@@ -44,11 +46,16 @@ static void account(struct vlff_pacer *p) {
 bool vlff_pacer_pace(struct vlff_pacer *p, bool want_step, double max_sleep_s, double *used) {
   account(p);
   *used = -1;
-  if (p->wall - p->win_wall >= PACER_WINDOW_S) {
-    p->used = (p->cpu - p->win_cpu) / (p->wall - p->win_wall);
+  if (p->wall - p->win_wall[p->wins - 1] >= PACER_WINDOW_S) {
+    if (p->wins == PACER_WINDOWS + 1) {
+      memmove(p->win_wall, p->win_wall + 1, PACER_WINDOWS * sizeof p->win_wall[0]);
+      memmove(p->win_cpu, p->win_cpu + 1, PACER_WINDOWS * sizeof p->win_cpu[0]);
+      p->wins--;
+    }
+    p->win_wall[p->wins] = p->wall;
+    p->win_cpu[p->wins++] = p->cpu;
+    p->used = (p->cpu - p->win_cpu[0]) / (p->wall - p->win_wall[0]);
     *used = p->used;
-    p->win_wall = p->wall;
-    p->win_cpu = p->cpu;
   }
   if (p->budget <= 0 || !want_step || p->debt <= 0 || p->wall - p->last_step >= PACER_DEBT_S) {
     if (want_step) p->last_step = p->wall;

@@ -26,8 +26,11 @@
  *    step is allowed at least every PACER_DEBT_S: when the node's other work
  *    alone takes more than the budget, training goes on slowly rather than
  *    never (the status and a warning say the budget is exceeded).
- *  - The pacer also measures the process's use in cores over windows of at
- *    least PACER_WINDOW_S, with or without a budget, for the status.
+ *  - The pacer also measures the process's use in cores, with or without a
+ *    budget, for the status: each PACER_WINDOW_S or so, over the last
+ *    PACER_WINDOWS windows. One second alone swings with each keyframe
+ *    publish (a controller, and the budget's own warning, want the use, not
+ *    its bursts).
  *
  * Thread: a pacer belongs to the one thread that calls vlff_pacer_pace.
  */
@@ -39,6 +42,7 @@
 #define PACER_CREDIT_S 0.1
 #define PACER_DEBT_S 5.0
 #define PACER_WINDOW_S 1.0
+#define PACER_WINDOWS 3
 
 /* Worker threads for a field under a budget: threads as node.threads (0 =
  * one per online core), then at most ceil(budget) when budget > 0. At
@@ -49,8 +53,10 @@ struct vlff_pacer {
   double budget;         /* cores; 0 = measure only */
   double wall, cpu;      /* seconds at the last call (monotonic, process CPU) */
   double debt;           /* CPU seconds used beyond budget x wall time; negative = credit */
-  double win_wall, win_cpu; /* start of the current measuring window */
-  double used;           /* cores used over the last whole window; -1 before the first */
+  /* the last PACER_WINDOWS + 1 window boundaries (monotonic, process CPU), oldest first */
+  double win_wall[PACER_WINDOWS + 1], win_cpu[PACER_WINDOWS + 1];
+  int wins;              /* boundaries held */
+  double used;           /* cores used over the windows held; -1 before the first ends */
   double slept_s;        /* seconds slept in total, for the tests and the log */
   double last_step;      /* monotonic seconds of the last step allowed */
 };
@@ -61,7 +67,8 @@ void vlff_pacer_init(struct vlff_pacer *p, double budget);
  * want_step, sleeps while in debt, at most max_sleep_s. Returns true when a
  * training step may run now: no budget, or the debt is repaid by the sleep
  * (false: more sleep is needed; call again on the next loop pass). *used is
- * set to the cores used over a window that has just ended, else to -1. */
+ * set, when a window has just ended, to the cores used over the last
+ * PACER_WINDOWS windows (fewer at first), else to -1. */
 bool vlff_pacer_pace(struct vlff_pacer *p, bool want_step, double max_sleep_s, double *used);
 
 /* The process's CPU time in seconds (all threads). */

@@ -109,7 +109,7 @@ struct vlff_node_status {
    * log covers its voxels (the last LAT_CAP keyframes), ms; -1 before any. */
   double frame_to_map_ms_p50, frame_to_map_ms_p99;
   /* node.cpu_budget in cores (0 = no limit), the process's measured use in
-   * cores over the last second or so (all its threads; -1 before the first
+   * cores over the last 3 seconds (all its threads; -1 before the first
    * second), and the learner's worker threads (at most ceil(budget)). */
   double cpu_budget, cpu_used;
   int threads;

@@ -552,7 +552,7 @@ struct vlff_map_status {
   double loss, loss_rgb, loss_depth, loss_feat; /* latest training loss and its terms */
   double psnr;             /* dB of the colour term; NaN when unknown */
   double cpu_budget;       /* cores the writer allows itself (vlff-node: node.cpu_budget); 0 = no limit */
-  double cpu_used;         /* cores the writer's process used lately (vlff-node: the last second); -1 unknown */
+  double cpu_used;         /* cores the writer's process used lately (vlff-node: the last 3 s); -1 unknown */
   uint32_t reason_count;   /* used entries of reason[] */
   uint32_t pad;
   struct vlff_map_reason reason[VLFF_SHM_MAX_REASONS]; /* refused frames per reason */

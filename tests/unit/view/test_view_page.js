@@ -282,6 +282,11 @@ async function main() {
     assert.deepStrictEqual(errors, [], 'no errors in the page');
 
     // A second viewer on the same map without --token-file: no editor to use.
+    // The first page closed and the learner paused (to the end): a second
+    // software-rendered page beside a drawing one and a learning node on a
+    // loaded 2-core machine did not answer isVisible within 30 s.
+    await page.close();
+    demo.pause();
     const port = await new Promise((resolve, reject) => {
       plain = spawn(prog.view, ['--port', '0', '--map', demo.names.map, '--frames', demo.names.frames,
         '--max-clients', '1'],
