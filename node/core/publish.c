@@ -864,6 +864,12 @@ static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, 
         continue;
       }
       if ((p->hits[i] > 0) != !pass) continue;
+      /* Seen through is free whatever the density (mark_free): most of a
+       * map's observed voxels are, and their query was most of a round. */
+      if (pass && seen_through(p, i)) {
+        set_label(p, i, VLFF_LABEL_FREE, 255, 0);
+        continue;
+      }
       float *q = p->qxyz + nq * 3;
       if (p->hits[i]) {
         for (int a = 0; a < 3; a++) q[a] = p->hit_sum[i * 3 + a] / p->hits[i];
