@@ -43,7 +43,11 @@
 #define VLFF_REFRESH_WINDOW 8 /* rounds the mean interval is taken over */
 #define VLFF_REFRESH_MIN_SLICE (1.0 / 32)
 #define VLFF_REFRESH_MAX_SLICE 0.25
-#define VLFF_REFRESH_SHARE 0.5
+#define VLFF_REFRESH_SHARE 0.7
+/* Under node.cpu_budget below a core, the share is this times the budget:
+ * publishing runs outside the pacer, and at 0.7 x 0.5 the refresh plus the
+ * keyframes' sixth alone would pass a budget of half a core. */
+#define VLFF_REFRESH_SHARE_BUDGETED 0.5
 
 struct vlff_refresh {
   double period;   /* 1 / publish.rate_hz */

@@ -379,7 +379,7 @@ void *trainer_main(void *arg) {
    * admitted. */
   struct vlff_refresh rf;
   vlff_refresh_init(&rf, 1.0 / cfg->publish.rate_hz);
-  rf.share *= work_scale(n);
+  if (work_scale(n) < 1) rf.share = VLFF_REFRESH_SHARE_BUDGETED * work_scale(n);
   double next_kf_publish = 0; /* when keyframes may be published again */
   double next_ckpt = cfg->node.checkpoint_period_s > 0 ? vlff_seconds() + cfg->node.checkpoint_period_s : INFINITY;
   uint64_t mailbox_seq = 0;
