@@ -362,7 +362,7 @@ static bool pace_training(struct vlff_node *n, bool train) {
     double b = n->cfg.node.cpu_budget;
     if (b > 0 && used > 1.2 * b)
       vlff_warn_limited(&n->warned.cpu_budget, TAG,
-                        "node.cpu_budget %.2f cores: the process used %.2f over the last seconds; its work besides "
+                        "node.cpu_budget %.2f cores: the process used %.2f over the last 3 s; its work besides "
                         "training (ingest, publishing, encoders) takes more than the budget",
                         b, used);
   }

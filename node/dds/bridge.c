@@ -955,7 +955,7 @@ static void poll_camera(struct vlff_dds *b) {
 }
 
 /* Key-value lists of the status, built in fixed storage. */
-#define MAX_KV (24 + VLFF_SHM_MAX_REASONS)
+#define MAX_KV (32 + VLFF_SHM_MAX_REASONS)
 /* two statuses of MAX_KV pairs (CDR: two lengths), name, message, hardware id */
 _Static_assert(2 * (MAX_KV * (48 + 48 + 8) + 96 + 2 * VLFF_CFG_STR) + VLFF_DDS_MSG_OVERHEAD <=
                    VLFF_DDS_STATUS_MAX_BYTES,
@@ -1013,6 +1013,17 @@ static void send_status(struct vlff_dds *b) {
     kv(&lk, "fps_in", "%.3f", s.fps_in);
     kv(&lk, "loss", "%.6g", s.loss);
     kv(&lk, "psnr", "%.3f", s.psnr);
+    /* how current and how still the map is, the CPU the node takes: as
+     * vlff-shm stat prints them (-1 while unknown) */
+    kv(&lk, "cpu_budget", "%.3f", s.cpu_budget);
+    kv(&lk, "cpu_used", "%.3f", s.cpu_used);
+    kv(&lk, "frame_to_map_ms_p50", "%.1f", s.frame_to_map_ms_p50);
+    kv(&lk, "frame_to_map_ms_p99", "%.1f", s.frame_to_map_ms_p99);
+    kv(&lk, "publish_interval_s", "%.3f", s.publish_interval_s);
+    kv(&lk, "label_flips", "%" PRIu64, s.label_flips);
+    kv(&lk, "label_flips_refresh", "%" PRIu64, s.label_flips_refresh);
+    kv(&lk, "label_flips_total", "%" PRIu64, s.label_flips_total);
+    kv(&lk, "label_flip_frac", "%.4f", s.label_flip_frac);
     kv(&lk, "map_version", "%" PRIu64, vlff_map_version(m));
     for (uint32_t i = 0; i < s.reason_count && i < VLFF_SHM_MAX_REASONS; i++) {
       char key[48];

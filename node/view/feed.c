@@ -1064,6 +1064,20 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
   }
   jw_s(w, ",\"psnr\":");
   jw_num(w, "%.3f", st.psnr);
+  /* How current and how still the map is, and the CPU the writer takes: as
+   * vlff-shm stat prints them (-1 while unknown). */
+  const char *more[] = {"cpu_budget", "cpu_used", "frame_to_map_ms_p50", "frame_to_map_ms_p99", "publish_interval_s"};
+  const char *fmt[] = {"%.3f", "%.3f", "%.1f", "%.1f", "%.3f"};
+  const double mv[] = {st.cpu_budget, st.cpu_used, st.frame_to_map_ms_p50, st.frame_to_map_ms_p99,
+                       st.publish_interval_s};
+  for (int i = 0; i < 5; i++) {
+    jw_f(w, ",\"%s\":", more[i]);
+    jw_num(w, fmt[i], mv[i]);
+  }
+  jw_f(w, ",\"label_flips\":%llu,\"label_flips_refresh\":%llu,\"label_flips_total\":%llu,\"label_flip_frac\":",
+       (unsigned long long)st.label_flips, (unsigned long long)st.label_flips_refresh,
+       (unsigned long long)st.label_flips_total);
+  jw_num(w, "%.4f", st.label_flip_frac);
   jw_s(w, "}");
 }
 

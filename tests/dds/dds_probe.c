@@ -165,6 +165,13 @@ static bool num_is(const diagnostic_msgs_msg_dds__DiagnosticStatus_ *s, const ch
   return v && strtoull(v, NULL, 10) == want;
 }
 
+static bool text_is(const diagnostic_msgs_msg_dds__DiagnosticStatus_ *s, const char *key, const char *fmt, double want) {
+  char w[48];
+  snprintf(w, sizeof w, fmt, want);
+  const char *v = value_of(s, key);
+  return v && !strcmp(v, w);
+}
+
 /* The learner's entry against the segment's status (the node gone). */
 static int compare_status(const diagnostic_msgs_msg_dds__DiagnosticArray_ *a, struct vlff_map *m, const char *node,
                           bool verbose) {
@@ -178,7 +185,12 @@ static int compare_status(const diagnostic_msgs_msg_dds__DiagnosticArray_ *a, st
   bad += !num_is(l, "updates", st.updates) + !num_is(l, "frames_in", st.frames_in) +
          !num_is(l, "frames_lost", st.frames_lost) + !num_is(l, "frames_refused", st.frames_refused) +
          !num_is(l, "keyframes", st.keyframes) + !num_is(l, "iterations", st.iterations) +
-         !num_is(l, "map_version", vlff_map_version(m));
+         !num_is(l, "map_version", vlff_map_version(m)) + !num_is(l, "label_flips", st.label_flips) +
+         !num_is(l, "label_flips_refresh", st.label_flips_refresh) +
+         !num_is(l, "label_flips_total", st.label_flips_total) + !text_is(l, "cpu_used", "%.3f", st.cpu_used) +
+         !text_is(l, "frame_to_map_ms_p99", "%.1f", st.frame_to_map_ms_p99) +
+         !text_is(l, "publish_interval_s", "%.3f", st.publish_interval_s) +
+         !text_is(l, "label_flip_frac", "%.4f", st.label_flip_frac);
   for (uint32_t i = 0; i < st.reason_count; i++) {
     char key[64];
     snprintf(key, sizeof key, "refused: %s", st.reason[i].name);

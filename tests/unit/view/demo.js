@@ -130,7 +130,8 @@ function learnerOfStat(stat) {
     frames_refused: num('frames_refused'),
     refused: [...stat.matchAll(/^refused (\d+) (.*)$/gm)].map((m) => ({ reason: m[2], count: Number(m[1]) })) };
   for (const k of ['keyframes', 'keyframes_evicted', 'iterations', 'iterations_per_s', 'fps_in', 'loss', 'loss_rgb',
-    'loss_depth', 'loss_feat', 'psnr']) out[k] = num(k);
+    'loss_depth', 'loss_feat', 'psnr', 'cpu_budget', 'cpu_used', 'frame_to_map_ms_p50', 'frame_to_map_ms_p99',
+    'publish_interval_s', 'label_flips', 'label_flips_refresh', 'label_flips_total', 'label_flip_frac']) out[k] = num(k);
   return out;
 }
 
