@@ -248,7 +248,21 @@ async function main() {
     // (a scene comes in pieces of whole bricks: the version's last piece holds as many
     // cubes as there are voxels)
     const sceneCubes = () => [...scene.values()].reduce((n, e) => n + e.cubes.length, 0);
-    await until(() => sceneT === voxelT && sceneCubes() === voxels.size, 10000, 'scene and voxels of one version');
+    // Within 10 s of the pause, or after letting the learner publish once more: a
+    // pause that caught the node mid-publish left the two channels a version apart
+    // for good in one fresh-clone run.
+    for (let attempt = 0; ; attempt++) {
+      try {
+        await until(() => sceneT === voxelT && sceneCubes() === voxels.size, 10000, 'scene and voxels of one version');
+        break;
+      } catch (e) {
+        if (attempt === 2) throw e;
+        demo.resume();
+        await sleep(2000);
+        demo.pause();
+        await sleep(1500);
+      }
+    }
     const centres = new Map();
     for (const [idx, [label]] of voxels) {
       const [nx, ny] = grid.dims, ijk = [idx % nx, Math.floor(idx / nx) % ny, Math.floor(idx / (nx * ny))];

@@ -103,7 +103,8 @@ async function main() {
       const probe = await page.evaluate(() => {
         window.vlff.render(); // the drawing buffer holds this version's mesh
         const out = [], keys = [...window.vlff.map.vox.keys()];
-        for (let n = 0; n < 400 && out.length < 25; n++) {
+        // many candidates: most voxels of a small map hide behind others
+        for (let n = 0; n < 4000 && out.length < 25; n++) {
           const idx = keys[Math.floor(Math.random() * keys.length)], s = window.vlff.screenOf(idx);
           const hit = window.vlff.pickAt(s.x, s.y);
           if (hit && hit.idx === idx && s.x > 5 && s.y > 40 && s.x < 930 && s.y < 795)
