@@ -864,8 +864,9 @@ static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, 
         continue;
       }
       if ((p->hits[i] > 0) != !pass) continue;
-      /* Seen through is free whatever the density (mark_free): most of a
-       * map's observed voxels are, and their query was most of a round. */
+      /* Seen through is free whatever the density, so it is not queried:
+       * most of a map's observed voxels are, and their query was most of a
+       * round. */
       if (pass && seen_through(p, i)) {
         set_label(p, i, VLFF_LABEL_FREE, 255, 0);
         continue;
@@ -903,7 +904,7 @@ static long mark_free(struct vlff_publisher *p, struct vlff_field *f, size_t nq,
   size_t nocc = nhit;
   for (size_t j = nhit; j < nq; j++) {
     size_t i = p->qidx[j];
-    if (p->qdens[j] >= p->free_density && !seen_through(p, i)) {
+    if (p->qdens[j] >= p->free_density) { /* seen-through voxels were labelled free in gather */
       /* Compacted in place: nocc <= j. */
       memmove(p->qxyz + nocc * 3, p->qxyz + j * 3, 3 * sizeof(float));
       p->qidx[nocc++] = i;
