@@ -93,6 +93,11 @@ struct vlff_publisher {
   uint8_t *pub_conf;
   size_t n_labelled, n_free;
   size_t refresh_at; /* the next voxel of the round-robin refresh */
+  /* Every other refresh round passes over settled voxels (settled()):
+   * whether this round does, and the prompt stamp of the last round that
+   * relabelled every voxel (a skipping round needs the same prompts). */
+  bool skip_settled;
+  uint64_t full_round_stamp;
   bool need_full;
   uint64_t prompts_hash;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
@@ -848,12 +853,26 @@ static void set_label(struct vlff_publisher *p, size_t i, uint16_t label, uint8_
   p->conf[i] = conf;
 }
 
+/* A labelled voxel whose map label led the second best by at least
+ * SETTLED_MARGIN when it was last relabelled (at least twice the default
+ * hysteresis): a field drifting between two rounds does not overturn such a
+ * lead, and new evidence for it is relabelled by the keyframe's own publish,
+ * so a skipping round leaves it as it is. Those are most of a learned map's
+ * occupied voxels, and their query most of a round's cost. */
+#define SETTLED_MARGIN 0.1f
+static bool settled(const struct vlff_publisher *p, size_t i) {
+  return p->skip_settled && p->labels[i] <= VLFF_LABEL_MAX && p->conf[i] >= conf_of(SETTLED_MARGIN);
+}
+
 /* The voxels to relabel: idx[0..n), or first .. first + n - 1 when idx is
  * NULL. Unobserved ones become UNKNOWN; the observed ones' query points go
  * into p->qxyz (their hits' mean, or the voxel's centre) and their indices
  * into p->qidx, those with hits first (*nhit of them): their count. */
 static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, size_t n, size_t *nhit) {
   size_t nq = 0;
+  /* Only a refresh slice (idx NULL) may pass over settled voxels; they keep
+   * their label, conf and counts. */
+  const bool skip = !idx && p->skip_settled;
   for (int pass = 0; pass < 2; pass++) {
     if (pass) *nhit = nq;
     for (size_t j = 0; j < n; j++) {
@@ -863,6 +882,7 @@ static size_t gather(struct vlff_publisher *p, const size_t *idx, size_t first, 
         if (!pass) set_label(p, i, VLFF_LABEL_UNKNOWN, 0, 0);
         continue;
       }
+      if (skip && settled(p, i)) continue;
       if ((p->hits[i] > 0) != !pass) continue;
       /* Seen through is free whatever the density, so it is not queried:
        * most of a map's observed voxels are, and their query was most of a
@@ -1063,13 +1083,17 @@ static void result_init(struct vlff_publish_result *r) {
   r->miou2d_frame = -1;
 }
 
+/* A hash of the prompt count and embeddings (with or without evidence). */
+static uint64_t embeddings_hash(const struct vlff_publisher *p, struct vlff_field *f) {
+  int hk;
+  const float *he = vlff_field_prompt_embeddings(f, &hk);
+  return vlff_fnv1a64(vlff_fnv1a64(VLFF_FNV1A64_INIT, &hk, sizeof hk), he, he ? (size_t)hk * p->D * sizeof *he : 0);
+}
+
 /* A publish's label decisions begin (hold.h). Labels index the prompts:
  * other prompt embeddings, other labels, none held. */
 static void hold_begin(struct vlff_publisher *p, struct vlff_field *f) {
-  int hk;
-  const float *he = vlff_field_prompt_embeddings(f, &hk);
-  uint64_t hstamp = vlff_fnv1a64(vlff_fnv1a64(VLFF_FNV1A64_INIT, &hk, sizeof hk), he,
-                                 he ? (size_t)hk * p->D * sizeof *he : 0);
+  uint64_t hstamp = embeddings_hash(p, f);
   if (hstamp != p->hold_prompts) vlff_hold_reset(p->hold), p->hold_prompts = hstamp;
   vlff_hold_begin(p->hold);
 }
@@ -1085,6 +1109,10 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
   result_init(r);
   hold_begin(p, f);
   uint64_t stamp = prompt_stamp(p, f);
+  /* A whole publish relabels every voxel: a full round, which the next
+   * round may follow by skipping settled ones. */
+  p->skip_settled = false;
+  p->full_round_stamp = embeddings_hash(p, f);
   /* The 3D map is the census of lost classes: this pass counts, the next
    * publish (and this one's label image) reads what it found. */
   if (p->ev) vlff_evidence_census_begin(p->ev);
@@ -1148,12 +1176,21 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
   if (b > p->nvox) b = p->nvox;
   const bool last = b == p->nvox;
   uint64_t stamp = prompt_stamp(p, f);
-  /* The census of lost classes spans one whole refresh, slice by slice. */
-  if (a == 0 && p->ev) vlff_evidence_census_begin(p->ev);
+  /* Rounds alternate: one relabels every voxel, the next only those not
+   * settled (as long as the prompts' embeddings are those of the last full
+   * round). The census of lost classes spans one whole full round, slice by
+   * slice: a skipping round sees only part of each class. */
+  if (a == 0) {
+    uint64_t eh = embeddings_hash(p, f);
+    p->skip_settled = !p->skip_settled && eh == p->full_round_stamp;
+    if (!p->skip_settled) p->full_round_stamp = eh;
+    if (!p->skip_settled && p->ev) vlff_evidence_census_begin(p->ev);
+  }
   hold_begin(p, f);
   if (relabel_voxels(p, f, NULL, a, b - a, stamp, err, errlen)) return -1;
   hold_end(p, r);
-  if (last && p->ev) report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
+  if (last && p->ev && !p->skip_settled)
+    report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   struct vlff_map_label_image img;
   bool have_img = last && p->have_cam && label_image(p, f, stamp, &img);
   p->refresh_at = last ? 0 : b;

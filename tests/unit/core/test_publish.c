@@ -530,6 +530,85 @@ static void test_incremental_publication(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* Refresh rounds alternate: after a round that relabelled every voxel, the
+ * next passes over the settled ones (a class leading the second best by at
+ * least 0.1 when last relabelled) and relabels only the rest; the round
+ * after it relabels all again, ending where a whole publish would. A field
+ * that answers otherwise (here another field with the same prompt
+ * embeddings, as training moves one) reaches the settled voxels within two
+ * rounds. Before, every round relabelled every voxel, and a round's cost
+ * (mostly the settled voxels' queries) stretched the refresh interval. */
+static void test_refresh_skips_settled(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "settled");
+  cfg.publish.evidence_weight = 0;
+  cfg.publish.label_hysteresis = 0; /* the map's label at every publish: rounds compare exactly */
+  struct vlff_field *f = small_field(&cfg, 3, 11);
+  cfg.field.hash_log2_size = 13; /* another table: another field, the same embeddings (seed 11) */
+  struct vlff_field *g = vlff_field_create(&cfg.field, &cfg.train, 1, err, sizeof err);
+  assert_non_null(g);
+  int K;
+  const float *E = vlff_field_prompt_embeddings(f, &K);
+  assert_int_equal(vlff_field_set_prompts(g, E, K, err, sizeof err), 0);
+  cfg.field.hash_log2_size = 12;
+  struct vlff_publisher *p = create(&cfg);
+  const char *prompts[3] = {"wall", "floor", "chair"};
+  struct vlff_map *m = vlff_map_attach(cfg.shm.map);
+  assert_non_null(m);
+  struct vlff_map_snapshot *a = vlff_map_snapshot_new(m), *b = vlff_map_snapshot_new(m), *c = vlff_map_snapshot_new(m);
+  struct vlff_publish_result r;
+  struct vlff_map_info ia, ib, ic;
+  struct vlff_view v = view_at(0, 1.5f);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  v = view_at(0.8, 2.0f);
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0); /* a full round */
+  take(m, a, &ia);
+  size_t nv = (size_t)ia.grid.dims[0] * ia.grid.dims[1] * ia.grid.dims[2];
+
+  /* The skipping round, with field g: settled voxels keep f's labels. */
+  for (int s = 0; s < 4; s++)
+    assert_int_equal(vlff_publisher_publish_slice(p, g, prompts, 3, (s + 1) / 4.0, &r, err, sizeof err), 0);
+  assert_true(r.cycle_done);
+  take(m, b, &ib);
+  size_t settled = 0, unsettled = 0, moved = 0;
+  for (size_t i = 0; i < nv; i++) {
+    if (ia.grid.labels[i] <= VLFF_LABEL_MAX && ia.grid.confidence[i] == 255) {
+      settled++;
+      assert_int_equal(ib.grid.labels[i], ia.grid.labels[i]);
+      assert_int_equal(ib.grid.confidence[i], 255);
+    } else if (ia.grid.labels[i] <= VLFF_LABEL_MAX) {
+      unsettled++;
+      moved += ib.grid.labels[i] != ia.grid.labels[i] || ib.grid.confidence[i] != ia.grid.confidence[i];
+    }
+  }
+  assert_true(settled > 20 && unsettled > 20); /* the test sees both kinds */
+  assert_true(moved > 0);                       /* the unsettled ones were relabelled by g */
+
+  /* The next round relabels every voxel: as a whole publish with g. */
+  for (int s = 0; s < 4; s++)
+    assert_int_equal(vlff_publisher_publish_slice(p, g, prompts, 3, (s + 1) / 4.0, &r, err, sizeof err), 0);
+  take(m, c, &ic);
+  assert_int_equal(vlff_publisher_publish(p, g, prompts, 3, &r, err, sizeof err), 0);
+  take(m, b, &ib);
+  assert_memory_equal(ic.grid.labels, ib.grid.labels, nv * 2);
+  assert_memory_equal(ic.grid.confidence, ib.grid.confidence, nv);
+  size_t differ = 0;
+  for (size_t i = 0; i < nv; i++)
+    differ += ia.grid.labels[i] <= VLFF_LABEL_MAX && ia.grid.confidence[i] == 255 && ic.grid.labels[i] != ia.grid.labels[i];
+  assert_true(differ > 0); /* some settled voxel did change with g, in the full round */
+
+  vlff_map_snapshot_free(a);
+  vlff_map_snapshot_free(b);
+  vlff_map_snapshot_free(c);
+  vlff_map_detach(m);
+  vlff_field_destroy(f);
+  vlff_field_destroy(g);
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 /* ------------------------------------------------------ restart: the hold */
 
 /* Rewrites byte `at` of a saved map and its checksum, as a forger who knows
@@ -673,4 +752,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
     cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
     cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication),
+      cmocka_unit_test(test_refresh_skips_settled),
     cmocka_unit_test(test_grazing_surface_filled), cmocka_unit_test(test_hold_survives_restart))
