@@ -223,8 +223,13 @@ void *ingest_main(void *arg) {
     ingest_held(&ig, vlff_seconds());
     refusal_summary(n, &ig.rl, vlff_seconds());
     struct vlff_ring_view info;
-    /* A held frame is looked at again soon after each short wait. */
-    uint64_t wait_ns = ig.holding ? 5 * 1000 * 1000ull : 50 * 1000 * 1000ull;
+    /* A held frame, and a keyframe waiting for its features (their ring and
+     * the image worker are polled at the top of this loop, not waited on),
+     * are looked at again soon after each short wait: with the long one, a
+     * keyframe's features that came just after it waited up to 50 ms more
+     * before the keyframe went to the trainer, on every keyframe's
+     * frame-to-map latency. */
+    uint64_t wait_ns = ig.holding || ig.npend > 0 ? 5 * 1000 * 1000ull : 50 * 1000 * 1000ull;
     ssize_t len = vlff_ring_read_copy(ring, buf, cap, &info, wait_ns);
     uint64_t lost = vlff_ring_lost(ring);
     if (lost != lost_seen) {

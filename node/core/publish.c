@@ -98,6 +98,7 @@ struct vlff_publisher {
    * relabelled every voxel (a skipping round needs the same prompts). */
   bool skip_settled;
   uint64_t full_round_stamp;
+  bool image_owed; /* a round ended: its label image and scores are due (publish_image) */
   bool need_full;
   uint64_t prompts_hash;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
@@ -1133,6 +1134,8 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
   r->changed = p->nvox;
   hold_end(p, r);
   score(p, prompts, k, have_img, r);
+  r->scored = true;
+  p->image_owed = false;
   return 0;
 }
 
@@ -1191,9 +1194,8 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
   hold_end(p, r);
   if (last && p->ev && !p->skip_settled)
     report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
-  struct vlff_map_label_image img;
-  bool have_img = last && p->have_cam && label_image(p, f, stamp, &img);
   p->refresh_at = last ? 0 : b;
+  if (last) p->image_owed = true;
   /* Only what changed is logged: a refresh that finds the field agreeing
    * with the map costs readers nothing. */
   size_t nr = 0;
@@ -1206,9 +1208,22 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
     else
       p->runs[nr++] = (struct vlff_map_range){(uint32_t)i, 1};
   }
-  if (publish_ranges(p, p->runs, nr, prompts, k, have_img ? &img : NULL, r, err, errlen)) return -1;
+  if (publish_ranges(p, p->runs, nr, prompts, k, NULL, r, err, errlen)) return -1;
   r->cycle_done = last;
-  if (last) score(p, prompts, k, have_img, r);
+  return 0;
+}
+
+int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                 struct vlff_publish_result *r, char *err, size_t errlen) {
+  result_init(r);
+  r->version = vlff_map_version(p->map);
+  if (!p->image_owed || p->need_full || prompts_hash(prompts, k) != p->prompts_hash) return 0;
+  p->image_owed = false;
+  struct vlff_map_label_image img;
+  bool have_img = p->have_cam && label_image(p, f, prompt_stamp(p, f), &img);
+  if (have_img && publish_ranges(p, p->runs, 0, prompts, k, &img, r, err, errlen)) return -1;
+  score(p, prompts, k, have_img, r);
+  r->scored = true;
   return 0;
 }
 

@@ -49,6 +49,7 @@ struct vlff_publish_result {
   size_t changed;   /* voxels the publish logged as changed (0: nothing published) */
   bool whole;       /* the whole grid was relabelled and published */
   bool cycle_done;  /* the map was wholly refreshed: a whole publish, or the last slice */
+  bool scored;      /* miou2d/miou3d are this call's: a whole publish, or publish_image */
   /* Voxels whose label differs from what it was before this publish
    * relabelled it (a voxel labelled for the first time is new, not
    * counted); of those, the ones no keyframe observed since
@@ -128,18 +129,27 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * the last slice ended up to the voxel at fraction `to` of the grid (at
  * least one voxel; to >= 1: the rest of the grid), logging only the voxels
  * whose label or confidence changed; the slice that reaches the grid's end
- * ends a round (cycle_done): it also renders the label image, closes the
- * census and scores, and the next slice starts from voxel 0. The caller
+ * ends a round (cycle_done): it also closes the census, owes the round's
+ * label image, and the next slice starts from voxel 0. The caller
  * sizes the slices (the trainer: so that a round ends on time, docs/node.md
  * "Publishing"). A whole publish instead when one is owed (it restarts the
  * round). refresh_done: the fraction of the grid the current round has
- * refreshed, in [0, 1). */
+ * refreshed, in [0, 1).
+ *
+ * publish_image: the label image a round owes (rendered at the latest
+ * keyframe's view) as a version of its own without voxel changes, and the
+ * source's scores (scored). Apart from the round's last slice so that a
+ * keyframe admitted meanwhile is not held behind both (the trainer
+ * publishes keyframes between the two). Nothing owed, or a whole publish
+ * owed instead: nothing published, 0. */
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen);
 int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                                    struct vlff_publish_result *r, char *err, size_t errlen);
 int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                                  double to, struct vlff_publish_result *r, char *err, size_t errlen);
+int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
+                                 struct vlff_publish_result *r, char *err, size_t errlen);
 double vlff_publisher_refresh_done(const struct vlff_publisher *p);
 /* Voxels observe() touched that no publish has relabelled yet. */
 size_t vlff_publisher_pending(const struct vlff_publisher *p);

@@ -194,7 +194,7 @@ static void note_publish(struct vlff_node *n, const struct vlff_publish_result *
   }
   pthread_mutex_lock(&n->slock);
   n->st.map_version = r->version;
-  if (r->cycle_done) {
+  if (r->scored) {
     n->st.miou2d = r->miou2d;
     n->st.miou2d_frame = r->miou2d_frame;
     n->st.miou3d = r->miou3d;
@@ -279,6 +279,24 @@ static bool publish_slice(struct vlff_node *n, double to, bool *whole) {
   /* A whole publish (owed after a reset or new prompts) covers every keyframe. */
   note_publish(n, &r, r.whole);
   return r.cycle_done;
+}
+
+/* The label image and scores a round of slices owes, published once the
+ * keyframes admitted during its last slice went out. */
+static void publish_image(struct vlff_node *n) {
+  char err[256];
+  struct vlff_publish_result r;
+  const char *texts[VLFF_MAX_PROMPTS];
+  prompt_texts(n, texts);
+  double t0 = vlff_seconds();
+  if (vlff_publisher_publish_image(n->pub, n->field, texts, n->prompt_k, &r, err, sizeof err)) {
+    vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
+    return;
+  }
+  if (!r.scored) return;
+  VLFF_DEBUG(TAG, "published map v%llu (label image) in %.0f ms", (unsigned long long)r.version,
+             (vlff_seconds() - t0) * 1e3);
+  note_publish(n, &r, false);
 }
 
 /* A refresh round ended (refresh.h): the mean time between rounds into
@@ -466,6 +484,15 @@ void *trainer_main(void *arg) {
         round = true;
       } else {
         round = publish_slice(n, to, &whole);
+      }
+      if (round && !whole) {
+        /* The round's label image after the keyframes admitted during its
+         * last slice: neither waits for both. */
+        double ti = vlff_seconds();
+        take_candidates(n, false);
+        publish_keyframes(n, &rf, &next_kf_publish);
+        t += vlff_seconds() - ti; /* the keyframes' time is not the refresh's */
+        publish_image(n);
       }
       double end = vlff_seconds();
       vlff_refresh_sliced(&rf, end - t);

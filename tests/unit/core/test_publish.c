@@ -568,10 +568,29 @@ static void test_refresh_skips_settled(void **state) {
   size_t nv = (size_t)ia.grid.dims[0] * ia.grid.dims[1] * ia.grid.dims[2];
 
   /* The skipping round, with field g: settled voxels keep f's labels. */
-  for (int s = 0; s < 4; s++)
+  assert_int_equal(vlff_publisher_set_camera(p, &v, 123, 7, err, sizeof err), 0);
+  for (int s = 0; s < 4; s++) {
     assert_int_equal(vlff_publisher_publish_slice(p, g, prompts, 3, (s + 1) / 4.0, &r, err, sizeof err), 0);
-  assert_true(r.cycle_done);
+    assert_false(r.scored);
+    /* Until the round ends, no label image is owed. */
+    uint64_t ver = r.version;
+    if (s == 3) take(m, c, &ic);
+    assert_int_equal(vlff_publisher_publish_image(p, g, prompts, 3, &r, err, sizeof err), 0);
+    assert_int_equal(r.scored, s == 3);
+    assert_int_equal(r.version, ver + (s == 3));
+  }
   take(m, b, &ib);
+  /* The round's label image came in a version of its own, at the camera's
+   * view, changing no voxel; none is owed twice. */
+  assert_true(ib.has_label_image);
+  assert_int_equal(ib.label_image.t_ns, 123);
+  assert_false(ic.has_label_image);
+  assert_int_equal(vlff_map_snapshot_follow(m, c), 0);
+  const struct vlff_map_range *runs;
+  assert_int_equal(vlff_map_snapshot_changes(c, &runs, NULL), 0);
+  assert_int_equal(vlff_publisher_publish_image(p, g, prompts, 3, &r, err, sizeof err), 0);
+  assert_false(r.scored);
+  assert_int_equal(r.version, ib.version);
   size_t settled = 0, unsettled = 0, moved = 0;
   for (size_t i = 0; i < nv; i++) {
     if (ia.grid.labels[i] <= VLFF_LABEL_MAX && ia.grid.confidence[i] == 255) {
