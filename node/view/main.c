@@ -303,7 +303,7 @@ int main(int argc, char **argv) {
   if (record_level_set && !record) return vlff_cli_usage_error(&cli, "--record-level without --record");
   if (play_rate_set && !play) return vlff_cli_usage_error(&cli, "--play-rate without --play");
   if (force && !record) return vlff_cli_usage_error(&cli, "--force without --record");
-  /* a map piece (points, scene, voxels) is a fraction of a client's queue: a whole map of any size
+  /* a point cloud piece is a fraction of a client's queue: a whole map of any size
    * reaches a client that reads, piece after piece */
   fp.cloud_piece_bytes = vp.max_queue_bytes / 8 < (1u << 20) ? vp.max_queue_bytes / 8 : (1u << 20);
   /* a grid or depth image is one message: one above the queue limit would drop
