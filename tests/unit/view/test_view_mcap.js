@@ -124,7 +124,8 @@ async function main() {
   process.on('exit', () => fs.rmSync(tmp, { recursive: true, force: true }));
   const file = path.join(tmp, 'run.mcap'), killed = path.join(tmp, 'killed.mcap'), full = path.join(tmp, 'full.mcap');
   const RECORD_MAP_S = 2;
-  const demo = await start({ viewArgs: ['--record', file, '--record-map-s', String(RECORD_MAP_S)] });
+  // --max-queue-mb 0.5: map pieces of at most 64 KiB, so that the whole maps are recorded in several
+  const demo = await start({ viewArgs: ['--record', file, '--record-map-s', String(RECORD_MAP_S), '--max-queue-mb', '0.5'] });
   let live, advertised, killedLog, fullExit, fullLimitKb;
   await check(demo, async () => {
     live = watch(demo.ws);
