@@ -310,10 +310,15 @@ static struct vlff_view_msg *scene_msg(struct vlff_feed *f, const uint8_t *dirty
   return head;
 }
 
-static void write_map_header(struct jw *w, const struct feed_map *m, int full) {
-  jw_f(w, "{\"version\":%llu,\"full\":%s,\"publish_mono_ns\":%llu,\"origin\":[%.6f,%.6f,%.6f],\"voxel_size\":%.6f,",
-       (unsigned long long)m->version, full ? "true" : "false", (unsigned long long)m->publish_ns, m->origin[0],
-       m->origin[1], m->origin[2], m->vs);
+/* A /map/voxels piece's head: piece of pieces (0-based) of one version's message,
+ * full on the first piece of a whole map only, so that a reader that knows no
+ * pieces (full: forget every voxel not listed) still ends with the whole map: the
+ * first piece replaces its copy, the later ones add to it as a change does. */
+static void write_map_header(struct jw *w, const struct feed_map *m, int full, uint32_t piece, uint32_t pieces) {
+  jw_f(w, "{\"version\":%llu,\"full\":%s,\"piece\":%u,\"pieces\":%u,\"publish_mono_ns\":%llu,"
+          "\"origin\":[%.6f,%.6f,%.6f],\"voxel_size\":%.6f,",
+       (unsigned long long)m->version, full ? "true" : "false", piece, pieces, (unsigned long long)m->publish_ns,
+       m->origin[0], m->origin[1], m->origin[2], m->vs);
   jw_f(w, "\"dims\":[%u,%u,%u],\"prompts\":[", m->dims[0], m->dims[1], m->dims[2]);
   for (int i = 0; i < m->prompt_count; i++) {
     if (i) jw_s(w, ",");
@@ -328,20 +333,96 @@ static void write_map_header(struct jw *w, const struct feed_map *m, int full) {
   jw_f(w, "],\"occupied\":%llu,\"voxels\":[", (unsigned long long)m->occupied);
 }
 
-static struct vlff_view_msg *voxels_full_msg(struct vlff_feed *f, uint64_t t) {
+/* The voxels a /map/voxels message lists, in index order: the listed ones, or
+ * (idx NULL) every occupied one. */
+struct vox_iter {
+  const struct feed_map *m;
+  const uint32_t *idx;
+  size_t n, k;
+};
+static int vox_next(struct vox_iter *it, size_t *i) {
+  if (it->idx) {
+    if (it->k >= it->n) return 0;
+    *i = it->idx[it->k++];
+    return 1;
+  }
+  while (it->k < it->m->n && !is_occupied(it->m->labels[it->k])) it->k++;
+  if (it->k >= it->m->n) return 0;
+  *i = it->k++;
+  return 1;
+}
+/* Voxel i's triple with its leading comma into e (48 bytes); its length. */
+static size_t vox_entry(char *e, const struct feed_map *m, size_t i) {
+  return (size_t)snprintf(e, 48, ",%zu,%u,%u", i, m->labels[i], m->conf[i]);
+}
+
+/* A piece of /map/voxels, its head written. */
+static struct vlff_view_msg *voxels_piece(struct vlff_feed *f, struct jw *w, uint64_t t, int whole, uint32_t piece,
+                                          uint32_t pieces) {
+  *w = (struct jw){feed_msg(f, VLFF_VIEW_CH_VOXELS, 4096), 0};
+  if (!w->m) return NULL;
+  w->m->t_ns = t;
+  w->m->version = f->m.version;
+  w->m->whole = whole;
+  write_map_header(w, &f->m, whole && !piece, piece, pieces);
+  return w->m;
+}
+
+/* /map/voxels: the listed voxels (idx == NULL: every occupied voxel, the whole
+ * map), in pieces of at most cloud_piece_bytes (chained through next) as the
+ * point cloud is, so that a map whose JSON exceeds a client's queue limit (13 to
+ * 15 bytes a voxel) still reaches it. Each piece repeats the head (version,
+ * geometry, prompts) and says which piece of how many it is; at least one piece,
+ * so that a version without changes still tells clients its number. */
+static struct vlff_view_msg *voxels_msg(struct vlff_feed *f, const uint32_t *idx, size_t n, uint64_t t) {
   const struct feed_map *m = &f->m;
-  struct jw w = {feed_msg(f, VLFF_VIEW_CH_VOXELS, 4096), 0};
-  if (!w.m) return NULL;
-  w.m->t_ns = t;
-  w.m->version = m->version;
-  w.m->whole = 1;
-  write_map_header(&w, m, 1);
-  int n = 0;
-  for (size_t i = 0; i < m->n; i++)
-    if (is_occupied(m->labels[i]))
-      jw_f(&w, "%s%zu,%u,%u", n++ ? "," : "", i, m->labels[i], m->conf ? m->conf[i] : 255u);
-  jw_s(&w, "]}");
-  return jw_finish(&w);
+  int whole = !idx;
+  struct jw w;
+  struct vlff_view_msg *head = voxels_piece(f, &w, t, whole, 0, 0);
+  if (!head) return NULL;
+  /* the room for triples beside a head: the head measured, with room for the
+   * piece numbers' digits and the closing "]}" */
+  size_t bound = f->p.cloud_piece_bytes, hl = head->len + 2 * 10 + 2, room = bound > hl ? bound - hl : 0;
+  /* the pieces counted first, cut where the writing below cuts them */
+  char e[48];
+  size_t i, used = 0;
+  uint32_t pieces = 1;
+  for (struct vox_iter it = {m, idx, n, 0}; vox_next(&it, &i);) {
+    size_t l = vox_entry(e, m, i);
+    if (used && used + l > room) pieces++, used = 0;
+    used += l;
+  }
+  head->len = 0;
+  write_map_header(&w, m, whole, 0, pieces);
+  struct vlff_view_msg **link = &head->next;
+  uint32_t piece = 0;
+  int failed = 0;
+  used = 0;
+  for (struct vox_iter it = {m, idx, n, 0}; vox_next(&it, &i);) {
+    size_t l = vox_entry(e, m, i);
+    if (used && used + l > room) {
+      jw_s(&w, "]}");
+      failed |= w.failed;
+      if (failed || !voxels_piece(f, &w, t, whole, ++piece, pieces)) {
+        failed = 1;
+        break;
+      }
+      *link = w.m, link = &w.m->next;
+      used = 0;
+    }
+    jw_raw(&w, used ? e : e + 1, used ? l : l - 1); /* the first triple of a piece without its comma */
+    used += l;
+  }
+  if (!failed) {
+    jw_s(&w, "]}");
+    failed = w.failed;
+  }
+  if (failed) {
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for /map/voxels");
+    vlff_view_msg_unref(head); /* the pieces go with it */
+    return NULL;
+  }
+  return head;
 }
 
 /* Voxel idx as a point of the cloud (view.h: VLFF_VIEW_CLOUD_STRIDE bytes, little-endian). */
@@ -689,7 +770,7 @@ static int map_whole_msgs(struct vlff_feed *f, unsigned wanted, uint32_t edge, u
   /* a channel nobody subscribes to is not encoded: vlff_feed_current builds it
    * for its first subscriber */
   struct vlff_view_msg *s = wants(wanted, VLFF_VIEW_CH_SCENE) ? scene_msg(f, NULL, edge, t, 1) : NULL;
-  struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_full_msg(f, t) : NULL;
+  struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_msg(f, NULL, 0, t) : NULL;
   struct vlff_view_msg *pc = wants(wanted, VLFF_VIEW_CH_CLOUD) ? cloud_msg(f, NULL, 0, t) : NULL;
   set_current(f, VLFF_VIEW_CH_SCENE, s);
   set_current(f, VLFF_VIEW_CH_VOXELS, vx);
@@ -761,19 +842,8 @@ static int map_delta_msgs(struct vlff_feed *f, const struct vlff_map_grid *g, un
   }
   size_t changed = (size_t)nchanged;
   count_labels(m);
-  struct jw w = {wants(wanted, VLFF_VIEW_CH_VOXELS) ? feed_msg(f, VLFF_VIEW_CH_VOXELS, 64 + changed * 16) : NULL, 0};
-  struct vlff_view_msg *vx = NULL, *s = NULL;
-  if (w.m) {
-    w.m->t_ns = t;
-    w.m->version = m->version;
-    write_map_header(&w, m, 0);
-    for (size_t c = 0; c < changed; c++) {
-      uint32_t idx = f->changed[c];
-      jw_f(&w, "%s%u,%u,%u", c ? "," : "", idx, m->labels[idx], m->conf[idx]);
-    }
-    jw_s(&w, "]}");
-    vx = jw_finish(&w);
-  }
+  struct vlff_view_msg *vx = wants(wanted, VLFF_VIEW_CH_VOXELS) ? voxels_msg(f, f->changed, changed, t) : NULL,
+                       *s = NULL;
   /* a version that changed no voxel still reaches the voxel channel (clients
    * learn the version); the scene has nothing to replace then */
   if (changed && wants(wanted, VLFF_VIEW_CH_SCENE)) s = scene_msg(f, dirty, edge, t, 1);
@@ -1189,7 +1259,7 @@ struct vlff_view_msg *vlff_feed_current(struct vlff_feed *f, int ch, const struc
     /* deltas are not built while nobody subscribes to the scene: the whole scene
      * sent now is what its clients hold from here on */
     if (ch == VLFF_VIEW_CH_SCENE) f->current[ch] = scene_msg(f, NULL, f->p.brick, t, 1);
-    else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_full_msg(f, t);
+    else if (ch == VLFF_VIEW_CH_VOXELS) f->current[ch] = voxels_msg(f, NULL, 0, t);
     else if (ch == VLFF_VIEW_CH_CLOUD) f->current[ch] = cloud_msg(f, NULL, 0, t);
     else if (ch == VLFF_VIEW_CH_GRID) f->current[ch] = grid_msg(f, t);
   }

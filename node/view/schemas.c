@@ -38,9 +38,12 @@ static const char scene_schema[] =
 static const char voxels_schema[] =
     "{\"title\":\"vlff.VoxelDelta\",\"description\":\"Voxels of the labelled map that changed since the "
     "previous message (all occupied voxels when full is true). voxels holds triples (index, label, "
-    "confidence); index = i + dims[0]*(j + dims[1]*k); label 65534 = free, 65535 = unknown.\","
+    "confidence); index = i + dims[0]*(j + dims[1]*k); label 65534 = free, 65535 = unknown. A version "
+    "goes out in pieces, piece 0..pieces-1 in a row: full is true on the first piece of a whole map "
+    "(forget every voxel it does not list), and later pieces add their voxels as a change does.\","
     "\"type\":\"object\",\"properties\":{"
     "\"version\":{\"type\":\"integer\"},\"full\":{\"type\":\"boolean\"},"
+    "\"piece\":{\"type\":\"integer\",\"minimum\":0},\"pieces\":{\"type\":\"integer\",\"minimum\":1},"
     "\"publish_mono_ns\":{\"type\":\"integer\"},"
     "\"origin\":{\"type\":\"array\",\"items\":{\"type\":\"number\"},\"minItems\":3,\"maxItems\":3},"
     "\"voxel_size\":{\"type\":\"number\"},"

@@ -734,20 +734,20 @@ static void record(struct vlff_view *v, struct vlff_view_msg **out, int n) {
 
 /* The map's channels carry changes, and a reader that seeks (Foxglove after a
  * jump, a script starting mid-file) holds only what came after the point it
- * started from: so while the map changes, the whole map (voxels and scene, the
- * ones a new subscriber gets) goes into the recording every record_map_s, and
- * the latest whole map before any point, with the changes after it, is the map
- * at that point. Live clients get none of these. */
+ * started from: so while the map changes, the whole map (voxels, point cloud and
+ * scene, the ones a new subscriber gets, each in its pieces) goes into the
+ * recording every record_map_s, and the latest whole map before any point, with
+ * the changes after it, is the map at that point. Live clients get none of these. */
 static void record_whole_map(struct vlff_view *v) {
   if (!v->p.record || v->record_failed || !v->feed) return;
   uint64_t version = vlff_feed_version(v->feed), now = vlff_now_ns();
   double every = v->p.record_map_s > 0 ? v->p.record_map_s : 10;
   if (!version || version == v->rec_whole_version || now - v->rec_whole_ns < (uint64_t)(every * 1e9)) return;
-  /* the voxels first, as the feed sends a whole map */
-  const int chans[2] = {VLFF_VIEW_CH_VOXELS, VLFF_VIEW_CH_SCENE};
-  struct vlff_view_msg *out[2];
+  /* in the order the feed sends a whole map */
+  const int chans[3] = {VLFF_VIEW_CH_VOXELS, VLFF_VIEW_CH_CLOUD, VLFF_VIEW_CH_SCENE};
+  struct vlff_view_msg *out[3];
   int n = 0;
-  for (int i = 0; i < 2; i++) {
+  for (int i = 0; i < 3; i++) {
     struct vlff_view_msg *m = vlff_feed_current(v->feed, chans[i], NULL);
     if (m) out[n++] = m;
   }

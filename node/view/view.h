@@ -89,7 +89,7 @@ struct vlff_view_msg {
                         periodic one), not the changes since the previous version */
   size_t len, cap;   /* payload bytes, capacity */
   unsigned char *buf; /* headroom + cap bytes */
-  /* the next piece of a message sent in pieces (the point cloud's, the scene's), sent right
+  /* the next piece of a message sent in pieces (the map channels'), sent right
    * after this one; a message holds a reference to its next */
   struct vlff_view_msg *next;
 };
@@ -140,7 +140,7 @@ struct vlff_feed_params {
   double image_hz;          /* most camera images per second sent */
   double map_hz;            /* most map updates per second sent (0 = every version) */
   uint32_t brick;           /* brick edge in voxels for the scene channel */
-  size_t cloud_piece_bytes; /* the largest piece of a point cloud or scene (0 = 1 MiB) */
+  size_t cloud_piece_bytes; /* the largest piece of a point cloud, scene or voxel message (0 = 1 MiB) */
   double grid_hz;           /* most /map/grid messages per second (0 = 1), sent while the map changes */
   /* the largest grid or depth image sent (0 = no bound): one message above a
    * client's queue limit would drop the client, again at every reconnection */
@@ -290,7 +290,7 @@ struct vlff_view_params {
   /* a recording (mcap.h) every message sent on a channel is written to, with the
    * channels declared by vlff_view_new; the caller closes it after the server */
   struct vlff_mcap_writer *record;
-  /* while the map changes, the whole map (scene and voxels) goes into the
+  /* while the map changes, the whole map (voxels, point cloud, scene) goes into the
    * recording every record_map_s seconds (0 = 10), each time opening a chunk, so
    * that a reader seeking into the file finds it shortly before any point */
   double record_map_s;

@@ -42,7 +42,8 @@ for (let c = 0; c < n; c++) {
     if (topic === '/map/voxels') {
       const head = td.decode(d.subarray(13, 200));
       const full = /"full":true/.test(head), pub = BigInt(/"publish_mono_ns":(\d+)/.exec(head)[1]);
-      if (!full && now - t0 > 3000000000n) { // after the clients' whole maps went out
+      const later = /"piece":[1-9]/.test(head); // a version in pieces counts once, at its first
+      if (!full && !later && now - t0 > 3000000000n) { // after the clients' whole maps went out
         lat.push(Number(now - pub) / 1e6);
         if (c === 0) versions++;
       }

@@ -96,8 +96,9 @@ function screenOf(idx) {
 window.vlff = { map, pickAt, screenOf, render: () => renderer.render(scene, camera) };
 
 // --- messages
+let fresh = false; // a new map's voxels are coming: centre the view once they are drawn
 function onVoxels(d) {
-  const fresh = d.full || !map.dims || d.dims.join() !== map.dims.join();
+  fresh ||= d.full || !map.dims || d.dims.join() !== map.dims.join();
   if (d.full) map.vox.clear();
   Object.assign(map, { version: d.version, origin: d.origin, voxel_size: d.voxel_size, dims: d.dims,
     prompts: d.prompts, colors: d.colors });
@@ -105,7 +106,10 @@ function onVoxels(d) {
   for (let n = 0; n < v.length; n += 3) {
     if (v[n + 1] >= FREE) map.vox.delete(v[n]); else map.vox.set(v[n], [v[n + 1], v[n + 2]]);
   }
+  // a version in pieces is drawn once, at its last piece (no piece numbers: one piece)
+  if ((d.piece ?? 0) + 1 < (d.pieces ?? 1)) return;
   rebuild(fresh && !mesh);
+  fresh = false;
   if (pointer) showPick();
   document.body.dataset.version = d.version;
   $('legend').replaceChildren(...d.prompts.map((p, i) => {

@@ -1,14 +1,16 @@
 // A 1 M-voxel map opened over the Foxglove protocol at vlff-view's default
-// --max-queue-mb (issue 53's target), against view_fixture's "big" map (every
-// voxel of a 128x128x64 block occupied, no learner):
+// --max-queue-mb and at --max-queue-mb 4 (issue 53's target), against view_fixture's
+// "big" map (every voxel of a 128x128x64 block occupied, no learner):
 // - a late client subscribed to /map/points alone (ws, subprotocol
 //   foxglove.websocket.v1) receives every occupied voxel exactly once, each point
 //   its voxel's centre, label, confidence and opacity, in pieces of at most 1 MiB,
 //   and is not dropped;
 // - a client subscribed to /map/points, /map/voxels and /map at once gets every
-//   voxel once on each, without a drop: /map (JSON cubes, about 190 bytes a voxel)
-//   in pieces of at most 1 MiB as /map/points, /map/voxels (about 14 bytes a
-//   voxel) as one message under the queue limit.
+//   voxel once on each, without a drop, each channel in pieces of at most 1 MiB:
+//   /map (JSON cubes, about 190 bytes a voxel), /map/voxels (about 14 bytes a
+//   voxel: 13 MB, one message of it would not fit 4 MiB), numbered, the first full;
+// - the same client of a second viewer with --max-queue-mb 4, below the whole
+//   map's voxels alone, gets it too, in pieces of at most 512 KiB.
 'use strict';
 const assert = require('assert');
 const { spawn } = require('child_process');
@@ -48,9 +50,10 @@ function startFixture() {
   return p;
 }
 
-function startView() {
-  const p = spawn(prog.view, ['--port', '0', '--map', names.map, '--frames', names.frames, '--prompts', names.prompts],
-    { stdio: ['ignore', 'pipe', fs.openSync(`${dir}/view.log`, 'w')] });
+function startView(args = [], log = 'view.log') {
+  const p = spawn(prog.view, ['--port', '0', '--map', names.map, '--frames', names.frames, '--prompts', names.prompts,
+    ...args],
+    { stdio: ['ignore', 'pipe', fs.openSync(`${dir}/${log}`, 'w')] });
   procs.push(p);
   p.port = new Promise((resolve, reject) => {
     let text = '';
@@ -116,16 +119,18 @@ function pointsInto(seen, map, bytes, bound) {
   }
 }
 
-// The voxels of a whole /map/voxels message (index, label, confidence triples).
-function voxelsInto(seen, map, bytes) {
+// The voxels of a piece of a whole /map/voxels message (index, label, confidence
+// triples), the piece numbered in a row, the first one full.
+function voxelsInto(seen, map, bytes, bound, piece) {
+  assert.ok(bytes.length <= bound, `a /map/voxels piece of ${bytes.length} bytes, above ${bound}`);
   const m = JSON.parse(bytes.toString('utf8'));
-  assert.strictEqual(m.full, true, 'a whole /map/voxels message');
+  assert.deepStrictEqual([m.piece, m.full], [piece, piece === 0], 'the pieces of a whole /map/voxels message');
   for (let i = 0; i < m.voxels.length; i += 3) {
     const idx = m.voxels[i];
     assert.deepStrictEqual([m.voxels[i + 1], m.voxels[i + 2]], [map.labels[idx], map.confidence[idx]], `voxel ${idx}`);
     seen[idx]++;
   }
-  return m.occupied;
+  return m;
 }
 
 // The cubes of a /map piece (a SceneUpdate of brick entities), each its voxel's centre.
@@ -150,6 +155,34 @@ function once(seen, what) {
   let missing = 0, twice = 0;
   for (const s of seen) { if (s === 0) missing++; else if (s > 1) twice++; }
   assert.deepStrictEqual([missing, twice], [0, 0], `${what}: voxels missing, voxels more than once`);
+}
+
+// A client of /map/points, /map/voxels and /map at once gets every voxel exactly
+// once on each, in pieces of at most bound bytes, and is not dropped.
+async function threeChannels(port, map, bound, what) {
+  const n = map.labels.length;
+  const seenB = new Uint8Array(n), seenV = new Uint8Array(n), seenS = new Uint8Array(n);
+  let gotB = 0, gotV = 0, gotS = 0, scenes = 0, voxelPieces = 0, occupied = -1, voxelBytes = 0, pieces = 0;
+  const sum = (a) => a.reduce((s, x) => s + x, 0);
+  const b = client(port, ['/map/points', '/map/voxels', '/map'], (topic, bytes) => {
+    if (topic === '/map/points') { pointsInto(seenB, map, bytes, bound); gotB = sum(seenB); }
+    else if (topic === '/map/voxels') {
+      const m = voxelsInto(seenV, map, bytes, bound, voxelPieces++);
+      [occupied, pieces] = [m.occupied, m.pieces];
+      gotV = sum(seenV);
+      voxelBytes += bytes.length;
+    } else { cubesInto(seenS, map, bytes, bound, !scenes++); gotS = sum(seenS); }
+  });
+  await until(b, () => gotB >= n && gotV >= n && gotS >= n, 120000, `${what}: the whole map on the three map channels`);
+  once(seenB, '/map/points beside /map/voxels and /map');
+  once(seenV, '/map/voxels');
+  once(seenS, '/map');
+  assert.strictEqual(occupied, n, '/map/voxels counts the occupied voxels');
+  assert.strictEqual(voxelPieces, pieces, 'as many /map/voxels pieces as each says');
+  assert.strictEqual(b.closed, null, `${what}: the client of the three map channels still open`);
+  ok(`${what}: /map/points, /map/voxels and /map together: every voxel once on each (/map in ${scenes} pieces, ` +
+    `/map/voxels ${voxelBytes} bytes in ${voxelPieces} pieces, each of at most ${bound} bytes), no drop`);
+  b.close();
 }
 
 async function main() {
@@ -177,25 +210,13 @@ async function main() {
   ok(`/map/points at the default --max-queue-mb: ${n} occupied voxels to a late client, each once with its ` +
     `centre, label and confidence, in ${pieces} pieces of at most ${bound} bytes, no drop`);
 
-  // /map/points, /map/voxels and /map at once
-  const seenB = new Uint8Array(n), seenV = new Uint8Array(n), seenS = new Uint8Array(n);
-  let gotB = 0, gotV = 0, gotS = 0, scenes = 0, occupied = -1, voxelBytes = 0;
-  const sum = (a) => a.reduce((s, x) => s + x, 0);
-  const b = client(port, ['/map/points', '/map/voxels', '/map'], (topic, bytes) => {
-    if (topic === '/map/points') { pointsInto(seenB, map, bytes, bound); gotB = sum(seenB); }
-    else if (topic === '/map/voxels') { occupied = voxelsInto(seenV, map, bytes); gotV = sum(seenV); voxelBytes = bytes.length; }
-    else { cubesInto(seenS, map, bytes, bound, !scenes++); gotS = sum(seenS); }
-  });
-  await until(b, () => gotB >= n && gotV >= n && gotS >= n, 60000, 'the whole map on the three map channels');
-  once(seenB, '/map/points beside /map/voxels and /map');
-  once(seenV, '/map/voxels');
-  once(seenS, '/map');
-  assert.strictEqual(occupied, n, '/map/voxels counts the occupied voxels');
-  assert.strictEqual(b.closed, null, 'the client of the three map channels still open');
-  ok(`/map/points, /map/voxels and /map together: every voxel once on each (/map in ${scenes} pieces of at most ` +
-    `${bound} bytes, /map/voxels one message of ${voxelBytes} bytes), no drop`);
+  await threeChannels(port, map, bound, 'the default --max-queue-mb');
+  // a second viewer with --max-queue-mb 4: the whole map's voxels alone (13 MB) exceed it
+  const view4 = startView(['--max-queue-mb', '4'], 'view4.log');
+  await threeChannels(await view4.port, map, (4 << 20) / 8, '--max-queue-mb 4');
+  view4.kill('SIGINT');
+  assert.strictEqual(await view4.exited, 0);
   a.close();
-  b.close();
   fx.stdin.end();
   view.kill('SIGINT');
   assert.strictEqual(await view.exited, 0);
@@ -205,6 +226,6 @@ async function main() {
 
 main().catch((e) => {
   console.log(`not ok - ${e.stack}`);
-  try { console.log(fs.readFileSync(`${dir}/view.log`, 'utf8')); } catch (x) { /**/ }
+  for (const l of ['view.log', 'view4.log']) try { console.log(fs.readFileSync(`${dir}/${l}`, 'utf8')); } catch (x) { /**/ }
   process.exit(1);
 });

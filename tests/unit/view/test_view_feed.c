@@ -6,7 +6,8 @@
  * delta, a prompt change whole again; channels nobody wants are not encoded (the
  * feed's count of encoded messages stays put), and a new subscriber gets the whole
  * current map. The point cloud: the whole map in pieces under the piece bound, a
- * change as the changed voxels, in the frame given.
+ * change as the changed voxels, in the frame given. The voxels: the whole map and a
+ * change in pieces under the piece bound, numbered, full on the whole map's first.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -585,9 +586,115 @@ static void test_cloud(void **state) {
   vlff_feed_free(f);
 }
 
+/* The voxels of a /map/voxels message in pieces (under bound each, numbered 0..n-1
+ * in a row, full on the first piece of a whole map only, every piece with the
+ * version's head) into idx/lab/cf, in order: their count; *npieces the pieces. */
+static size_t voxel_pieces(struct vlff_view_msg *head, size_t bound, int whole, uint32_t *idx, uint16_t *lab,
+                           uint8_t *cf, size_t cap, int *npieces) {
+  int pieces = 0, total = -1;
+  size_t k = 0;
+  uint64_t version = head->version;
+  for (struct vlff_view_msg *p = head; p; p = p->next, pieces++) {
+    assert_true(p->len <= bound);
+    assert_int_equal(p->whole, whole);
+    assert_int_equal(p->version, version);
+    json_object *o = parse(p);
+    assert_int_equal(json_object_get_int(get(o, "piece")), pieces);
+    if (total < 0) total = json_object_get_int(get(o, "pieces"));
+    assert_int_equal(json_object_get_int(get(o, "pieces")), total);
+    assert_int_equal(json_object_get_boolean(get(o, "full")), whole && !pieces);
+    assert_int_equal(json_object_get_int64(get(o, "version")), (int64_t)version);
+    assert_int_equal(json_object_array_length(get(o, "prompts")), 3);
+    json_object *v = get(o, "voxels");
+    size_t n = json_object_array_length(v);
+    assert_int_equal(n % 3, 0);
+    assert_true(n > 0);
+    for (size_t i = 0; i < n; i += 3, k++) {
+      assert_true(k < cap);
+      idx[k] = (uint32_t)json_object_get_int(json_object_array_get_idx(v, i));
+      lab[k] = (uint16_t)json_object_get_int(json_object_array_get_idx(v, i + 1));
+      cf[k] = (uint8_t)json_object_get_int(json_object_array_get_idx(v, i + 2));
+      if (k) assert_true(idx[k] > idx[k - 1]); /* index order, each voxel once */
+    }
+    json_object_put(o);
+  }
+  assert_int_equal(pieces, total);
+  *npieces = pieces;
+  return k;
+}
+
+/* The voxel channel's message of a poll wanting only it, or NULL. */
+static struct vlff_view_msg *poll_voxels(struct vlff_feed *f) {
+  struct vlff_view_counters c = {0};
+  struct vlff_view_msg *out[16], *vx = NULL;
+  int n = vlff_feed_poll(f, &c, 1u << VLFF_VIEW_CH_VOXELS, out, 16);
+  for (int i = 0; i < n; i++) {
+    if (out[i]->channel == VLFF_VIEW_CH_VOXELS && !vx) vx = vlff_view_msg_ref(out[i]);
+    vlff_view_msg_unref(out[i]);
+  }
+  return vx;
+}
+
+/* /map/voxels in pieces under the piece bound: the whole map (every occupied voxel
+ * once, with its label and confidence) and a change (exactly the changed voxels),
+ * each piece numbered and carrying the version's head. */
+static void test_voxel_pieces(void **state) {
+  (void)state;
+  const size_t bound = 600; /* some 30 triples beside the head */
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .image_hz = 2, .brick = 4,
+                                .cloud_piece_bytes = bound};
+  struct vlff_feed *f = vlff_feed_new(&fp);
+  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  struct vlff_map *m = vlff_map_create(name, &mp);
+  assert_non_null(f);
+  assert_non_null(m);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  usleep(1100000); /* the feed tries to attach once a second */
+  struct vlff_view_msg *vx = poll_voxels(f);
+  assert_non_null(vx);
+  static uint32_t idx[N];
+  static uint16_t lab[N];
+  static uint8_t cf[N];
+  int pieces = 0;
+  size_t k = voxel_pieces(vx, bound, 1, idx, lab, cf, N, &pieces);
+  assert_int_equal(k, NX * NY + 2);
+  assert_true(pieces >= 3);
+  for (size_t i = 0; i < k; i++) {
+    assert_int_equal(lab[i], labels[idx[i]]);
+    assert_int_equal(cf[i], 200);
+  }
+  assert_int_equal(vlff_feed_encoded(f, VLFF_VIEW_CH_VOXELS), (uint64_t)pieces);
+  /* a first subscriber gets the same pieces */
+  struct vlff_view_msg *cur = vlff_feed_current(f, VLFF_VIEW_CH_VOXELS, NULL);
+  assert_ptr_equal(cur, vx);
+  vlff_view_msg_unref(cur);
+  vlff_view_msg_unref(vx);
+
+  /* the floor relabelled and the chair voxel freed: a change of 91 voxels, in pieces */
+  for (int i = 0; i < NX; i++)
+    for (int j = 0; j < NY; j++) labels[at(i, j, 0)] = 2;
+  labels[at(5, 5, 1)] = VLFF_LABEL_FREE;
+  assert_int_equal(publish(m, prompts, 3), 0);
+  vx = poll_voxels(f);
+  assert_non_null(vx);
+  k = voxel_pieces(vx, bound, 0, idx, lab, cf, N, &pieces);
+  assert_int_equal(k, NX * NY + 1);
+  assert_true(pieces >= 3);
+  for (size_t i = 0; i < NX * NY; i++) {
+    assert_int_equal(idx[i], i); /* the floor, in index order */
+    assert_int_equal(lab[i], 2);
+  }
+  assert_int_equal(idx[NX * NY], at(5, 5, 1));
+  assert_int_equal(lab[NX * NY], VLFF_LABEL_FREE);
+  vlff_view_msg_unref(vx);
+  vlff_map_detach(m);
+  vlff_feed_free(f);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test_setup_teardown(test_feed, setup, teardown),
     cmocka_unit_test_setup_teardown(test_fresh, setup, teardown),
     cmocka_unit_test_setup_teardown(test_feed_follows_log, setup, teardown),
     cmocka_unit_test_setup_teardown(test_cloud, setup, teardown),
+    cmocka_unit_test_setup_teardown(test_voxel_pieces, setup, teardown),
     cmocka_unit_test_setup_teardown(test_grid, setup, teardown))

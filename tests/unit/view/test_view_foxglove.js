@@ -107,7 +107,7 @@ async function main() {
     const chans = {}, bySub = {}, got = {};
     const voxels = new Map(), checkedPublished = {};
     const scene = new Map();
-    let grid = null, voxelVersion = 0, voxelT = 0n, sceneT = 0n, fullSeen = 0, deltaSeen = 0, bad = [];
+    let grid = null, voxelVersion = 0, voxelT = 0n, sceneT = 0n, fullSeen = 0, deltaSeen = 0, bad = [], nextPiece = 0;
     let serverInfo = null, waiters = [];
     const td = new TextDecoder();
     client.on('serverInfo', (i) => { serverInfo = i; });
@@ -135,15 +135,20 @@ async function main() {
       }
       (got[c.topic] = got[c.topic] || []).push(msg);
       if (c.topic === '/map/voxels') {
-        if (msg.full) { voxels.clear(); fullSeen++; } else deltaSeen++;
+        // a version's pieces in a row, the first of a whole map full
+        assert.deepStrictEqual([msg.piece, msg.full], [nextPiece, msg.full && !msg.piece], `v${msg.version} pieces`);
+        nextPiece = msg.piece + 1 < msg.pieces ? msg.piece + 1 : 0;
+        if (msg.full) { voxels.clear(); fullSeen++; } else if (!msg.piece) deltaSeen++;
         grid = msg;
         for (let n = 0; n < msg.voxels.length; n += 3) {
           if (msg.voxels[n + 1] >= FREE) voxels.delete(msg.voxels[n]);
           else voxels.set(msg.voxels[n], [msg.voxels[n + 1], msg.voxels[n + 2]]);
         }
-        assert.strictEqual(voxels.size, msg.occupied, `v${msg.version}: client holds as many voxels as the map`);
-        voxelVersion = msg.version;
-        voxelT = timestamp;
+        if (!nextPiece) { // the version's last piece
+          assert.strictEqual(voxels.size, msg.occupied, `v${msg.version}: client holds as many voxels as the map`);
+          voxelVersion = msg.version;
+          voxelT = timestamp;
+        }
       } else if (c.topic === '/map') {
         for (const d of msg.deletions) { if (d.type === 1) scene.clear(); else scene.delete(d.id); }
         for (const e of msg.entities) scene.set(e.id, e);
@@ -404,14 +409,16 @@ async function main() {
     c2.on('message', ({ subscriptionId, data }) => {
       ev.push({ topic: subs2[subscriptionId].topic, data: Buffer.from(data.buffer, data.byteOffset, data.byteLength) });
     });
-    for (const t0 = Date.now(); ev.filter((e) => e.topic === '/map/voxels').length < 4;) {
+    // four versions: their first /map/voxels pieces
+    const versions2 = () => ev.filter((e) => e.topic === '/map/voxels' && /"piece":0,/.test(td.decode(e.data.subarray(0, 120))));
+    for (const t0 = Date.now(); versions2().length < 4;) {
       if (Date.now() - t0 > 60000 || closed) throw new Error(`no four map versions from the second viewer: ${log2}`);
       await sleep(100);
     }
     c2.close();
     v2.kill('SIGINT');
     const cloud = new Map(), vox = new Map(), perr = [];
-    let g = null, compared = 0, maxLen = 0, first = 0, points = 0, started = false, afterFirst = false;
+    let g = null, compared = 0, maxLen = 0, vmax = 0, first = 0, points = 0, started = false, afterFirst = false;
     const frames = new Set();
     for (const e of ev) {
       if (['/tf', '/camera/calibration', '/camera/image'].includes(e.topic)) {
@@ -420,15 +427,16 @@ async function main() {
         continue;
       }
       if (e.topic === '/map/voxels') {
-        // every piece of the versions before this one has come: the points are the voxels
-        if (started) {
+        const v = JSON.parse(td.decode(e.data));
+        vmax = Math.max(vmax, e.data.length);
+        // at a version's first piece every piece of the versions before it has come: the points are the voxels
+        if (started && !v.piece) {
           afterFirst = true;
           const same = cloud.size === vox.size && [...vox].every(([k, x]) => cloud.get(k) === x);
-          if (!same) perr.push(`before version ${JSON.parse(td.decode(e.data)).version}: ${cloud.size} points, ` +
-            `${vox.size} voxels`);
+          if (!same) perr.push(`before version ${v.version}: ${cloud.size} points, ${vox.size} voxels`);
           compared++;
         }
-        g = JSON.parse(td.decode(e.data));
+        g = v;
         if (g.full) vox.clear();
         for (let n = 0; n < g.voxels.length; n += 3) {
           if (g.voxels[n + 1] >= FREE) vox.delete(g.voxels[n]);
@@ -468,9 +476,11 @@ async function main() {
     assert.strictEqual(closed, null, 'the client of the second viewer was not dropped');
     assert.ok(compared >= 2, `${compared} versions compared`);
     assert.ok(maxLen <= PIECE, `a point cloud message of ${maxLen} bytes, above ${PIECE}`);
+    assert.ok(vmax <= PIECE, `a /map/voxels message of ${vmax} bytes, above ${PIECE}`);
     const whole = first > 0 ? vox.size : 0;
     ok(`/map/points decoded by protobufjs from its descriptor, valid against @foxglove/schemas' PointCloud: the ` +
-      `whole map in ${first} piece(s) of at most ${maxLen} bytes (limit ${PIECE} with --max-queue-mb 1), ${points} ` +
+      `whole map in ${first} piece(s) of at most ${maxLen} bytes (limit ${PIECE} with --max-queue-mb 1; /map/voxels ` +
+      `pieces of at most ${vmax} bytes), ${points} ` +
       `points in all, equal to /map/voxels after each of ${compared} versions (${whole} voxels), in the prompts' ` +
       'colours, freed voxels transparent');
     // A third with --max-queue-mb 0.25, below the whole map's point cloud: the pieces

@@ -124,7 +124,8 @@ async function main() {
   process.on('exit', () => fs.rmSync(tmp, { recursive: true, force: true }));
   const file = path.join(tmp, 'run.mcap'), killed = path.join(tmp, 'killed.mcap'), full = path.join(tmp, 'full.mcap');
   const RECORD_MAP_S = 2;
-  const demo = await start({ viewArgs: ['--record', file, '--record-map-s', String(RECORD_MAP_S)] });
+  // --max-queue-mb 0.5: map pieces of at most 64 KiB, so that the whole maps are recorded in several
+  const demo = await start({ viewArgs: ['--record', file, '--record-map-s', String(RECORD_MAP_S), '--max-queue-mb', '0.5'] });
   let live, advertised, killedLog, fullExit, fullLimitKb;
   await check(demo, async () => {
     live = watch(demo.ws);
@@ -197,42 +198,75 @@ async function main() {
     'summary, data section), as many as the statistics count, each valid against its channel\'s schema');
 
   // ---- seeking: the whole map at most RECORD_MAP_S before any change, opening its chunk
+  // A whole map is recorded at one log time on the three map channels (the voxels,
+  // the points, the scene, each in its pieces), its first /map/voxels piece full:
+  // a reader seeking finds that piece and reads every map channel from its log time.
+  const MAPS = ['/map', '/map/voxels', '/map/points'];
+  const parsed = (m) => JSON.parse(td.decode(m.bytes));
+  const wholeLogs = new Map(); // log time of a whole map -> its first /map/voxels piece
+  for (const m of msgs) if (m.topic === '/map/voxels' && parsed(m).full) wholeLogs.set(m.log, parsed(m));
+  // a /map/points message as voxels: index -> label,conf (freed ones transparent), in geometry g
+  const pointsOf = (m, g) => {
+    const d = Buffer.from(pointCloud(advertised['/map/points'], m.bytes).data, 'base64'), out = [];
+    for (let p = 0; p < d.length; p += 20) {
+      const ijk = [0, 1, 2].map((a) => Math.round((d.readFloatLE(p + 4 * a) - g.origin[a]) / g.voxel_size - 0.5));
+      out.push([ijk[0] + g.dims[0] * (ijk[1] + g.dims[1] * ijk[2]), d[p + 15] === 255, `${d.readUInt16LE(p + 16)},${d[p + 18]}`]);
+    }
+    return out;
+  };
   {
-    const state = () => ({ bricks: new Map(), voxels: new Map() });
-    const parsed = (m) => JSON.parse(td.decode(m.bytes));
-    const isWhole = (m, j) => (m.topic === '/map' ? j.deletions.some((d) => d.type === 1) : j.full);
+    const state = () => ({ bricks: new Map(), voxels: new Map(), points: new Map() });
+    const keyOf = { '/map': 'bricks', '/map/voxels': 'voxels', '/map/points': 'points' };
+    let geometry = null;
+    const isWhole = (m, j) => (m.topic === '/map' ? j.deletions.some((d) => d.type === 1)
+      : m.topic === '/map/voxels' ? j.full : wholeLogs.has(m.log));
     // a /map message replaces bricks by id (type 1 deletes all first); a /map/voxels
-    // message sets voxels (full: all occupied ones, after forgetting the rest)
+    // message sets voxels (full: all occupied ones, after forgetting the rest); a
+    // /map/points message sets its points' voxels (transparent: no longer occupied),
+    // the first piece of a whole map after forgetting the rest
     const apply = (st, m, j) => {
       if (m.topic === '/map') {
         for (const d of j.deletions) if (d.type === 1) st.bricks.clear(); else st.bricks.delete(d.id);
         for (const e of j.entities) st.bricks.set(e.id, JSON.stringify(e.cubes));
-      } else {
+      } else if (m.topic === '/map/voxels') {
         if (j.full) st.voxels.clear();
         for (let i = 0; i < j.voxels.length; i += 3) {
           const [idx, label, conf] = j.voxels.slice(i, i + 3);
           if (label <= 0xfffd) st.voxels.set(idx, `${label},${conf}`); else st.voxels.delete(idx);
         }
+      } else {
+        if (j.wholeFirst) st.points.clear();
+        for (const [idx, occupied, v] of j.points) if (occupied) st.points.set(idx, v); else st.points.delete(idx);
       }
     };
     const same = (a, b) => a.size === b.size && [...a].every(([k, x]) => b.get(k) === x);
-    const replay = state(), seek = { bricks: null, voxels: null }, lastWhole = {}, late = {}, lastLog = {};
-    let compared = 0, deltas = 0, wholes = 0, maxGap = 0;
+    const replay = state(), seek = { bricks: null, voxels: null, points: null }, lastWhole = {}, late = {};
+    const lastLog = {}, wholes = { bricks: 0, voxels: 0, points: 0 };
+    let compared = 0, deltas = 0, maxGap = 0;
     const bad = [];
     for (const m of msgs) {
-      if (m.topic !== '/map' && m.topic !== '/map/voxels') continue;
-      const j = parsed(m), key = m.topic === '/map' ? 'bricks' : 'voxels';
-      apply(replay, m, j);
-      // the later pieces of a scene (one log time) go with its first
-      const piece = m.topic === '/map' && m.log === lastLog[key];
+      if (!MAPS.includes(m.topic)) continue;
+      const key = keyOf[m.topic];
+      let j;
+      if (m.topic === '/map/points') {
+        if (!geometry) { bad.push('/map/points before any /map/voxels'); continue; }
+        j = { points: pointsOf(m, geometry) };
+      } else {
+        j = parsed(m);
+        if (m.topic === '/map/voxels') geometry = j;
+      }
+      // the later pieces of a message (one log time) go with its first
+      const piece = m.log === lastLog[key];
       lastLog[key] = m.log;
+      if (m.topic === '/map/points') j.wholeFirst = !piece && isWhole(m, j);
+      apply(replay, m, j);
       if (piece) {
-        if (isWhole(m, j)) bad.push(`${m.topic} at log time ${m.log}: a later piece deletes all`);
+        if (m.topic !== '/map/points' && isWhole(m, j)) bad.push(`${m.topic} at log time ${m.log}: a later piece is full`);
       } else if (isWhole(m, j)) {
         seek[key] = new Map();
         lastWhole[key] = m.log;
         late[key] = null;
-        if (key === 'bricks') wholes++;
+        wholes[key]++;
       } else {
         deltas++;
         // a change more than RECORD_MAP_S after the latest whole map is followed by one at once
@@ -249,8 +283,10 @@ async function main() {
       compared++;
     }
     assert.deepStrictEqual(bad.slice(0, 3), []);
-    assert.ok(wholes >= 3 && deltas > wholes, `${wholes} whole maps and ${deltas} changes on the map's channels`);
-    // each whole map is the first message of its chunk (the voxels, then the scene)
+    assert.ok(wholes.bricks >= 3 && deltas > wholes.bricks, `${wholes.bricks} whole maps and ${deltas} changes on the map's channels`);
+    assert.deepStrictEqual([wholes.voxels, wholes.points], [wholes.bricks, wholes.bricks],
+      'a whole map on each map channel each time');
+    // each whole map is the first message of its chunk (the voxels, then the points and the scene)
     const sr = new McapStreamReader({ decompressHandlers, validateCrcs: true, includeChunks: true });
     sr.append(bytes);
     let prev = null, opening = 0;
@@ -262,41 +298,67 @@ async function main() {
       assert.strictEqual(prev.type, 'Chunk', 'a whole map opens its chunk');
       opening++;
     }
-    assert.strictEqual(opening, wholes, 'as many whole voxel maps as whole scenes');
-    ok(`seeking: ${wholes} whole maps, each opening its chunk; a change more than ${RECORD_MAP_S} s after the ` +
-      `latest (--record-map-s ${RECORD_MAP_S}) followed by one at once, the others at most ${maxGap.toFixed(2)} s ` +
-      `after it; at each of ${compared} points on the map's channels the latest ` +
-      `whole map and the ${deltas} changes after it give the map a reader playing from the start holds`);
+    assert.strictEqual(opening, wholes.bricks, 'as many whole voxel maps as whole scenes');
+    ok(`seeking: ${wholes.bricks} whole maps on each of /map, /map/voxels and /map/points, each opening its chunk; ` +
+      `a change more than ${RECORD_MAP_S} s after the latest (--record-map-s ${RECORD_MAP_S}) followed by one at ` +
+      `once, the others at most ${maxGap.toFixed(2)} s after it; at each of ${compared} points on the map's ` +
+      `channels the latest whole map and the ${deltas} changes after it give the map a reader playing from the start holds`);
+  }
+
+  // The last whole /map/points map of a version the live client was sent, read alone
+  // (its pieces, from its log time): the occupied voxels the live client held at
+  // that version on /map/voxels, each with its label and confidence.
+  {
+    const liveAt = new Map(), live1 = new Map(); // version -> the live client's voxels after it
+    for (const m of live.got['/map/voxels']) {
+      const j = JSON.parse(td.decode(m.bytes));
+      if (j.full) live1.clear();
+      for (let i = 0; i < j.voxels.length; i += 3) {
+        if (j.voxels[i + 1] <= 0xfffd) live1.set(j.voxels[i], `${j.voxels[i + 1]},${j.voxels[i + 2]}`);
+        else live1.delete(j.voxels[i]);
+      }
+      if (j.piece + 1 === j.pieces) liveAt.set(j.version, new Map(live1));
+    }
+    const last = [...wholeLogs].filter(([, g]) => liveAt.has(g.version)).pop();
+    assert.ok(last, 'a whole map of a version the live client got');
+    const [log, g] = last, pts = new Map();
+    let pieces = 0;
+    for (const m of msgs) {
+      if (m.topic !== '/map/points' || m.log !== log) continue;
+      pieces++;
+      for (const [idx, occupied, v] of pointsOf(m, g)) {
+        assert.ok(occupied && !pts.has(idx), `voxel ${idx}: a whole map's point, opaque, once`);
+        pts.set(idx, v);
+      }
+    }
+    const want = liveAt.get(g.version);
+    assert.ok(want.size > 0 && pieces > 0, `${pieces} pieces, ${want.size} voxels`);
+    assert.ok(pts.size === want.size && [...want].every(([k, x]) => pts.get(k) === x), `the whole /map/points of version ${g.version}: ${pts.size} points, the live client ` +
+      `held ${want.size} voxels`);
+    ok(`a reader starting at the recording's last whole /map/points (version ${g.version}, ${pieces} piece(s)) ` +
+      `holds the ${pts.size} occupied voxels, labels and confidences the live client held at that version`);
   }
 
   // what the live client got after its first (built for it) message on each channel
   // is a run of the recording, in order, but for the whole maps only the recording has
-  const recordedOnly = (t, b) => {
-    if (t !== '/map' && t !== '/map/voxels') return false;
-    const j = JSON.parse(td.decode(b));
-    return t === '/map' ? j.deletions.some((d) => d.type === 1) : j.full;
-  };
+  // (the pieces of the map channels at a whole map's log time)
   let skipped = 0;
   for (const [t, got] of Object.entries(live.got)) {
-    const rec = byTopic[t].map((m) => m.bytes), later = got.slice(1).map((m) => m.bytes);
-    // the point cloud's and the scene's whole map to a subscriber may come in several pieces
-    while ((t === '/map/points' || t === '/map') && later.length && !rec.some((b) => b.equals(later[0]))) later.shift();
+    const recMsgs = byTopic[t], rec = recMsgs.map((m) => m.bytes), later = got.slice(1).map((m) => m.bytes);
+    const recordedOnly = (i) => MAPS.includes(t) && wholeLogs.has(recMsgs[i].log);
+    // a map channel's whole map to a subscriber may come in several pieces
+    while (MAPS.includes(t) && later.length && !rec.some((b) => b.equals(later[0]))) later.shift();
     if (!later.length) continue;
     let at = rec.findIndex((b) => b.equals(later[0]));
     assert.ok(at >= 0, `${t}: the live client's second message is in the recording`);
     for (let i = 1; i < later.length; i++) {
       at++;
-      // a whole scene's later pieces follow its first, which deletes all
-      for (let piece = false; rec[at] && !rec[at].equals(later[i]) && (recordedOnly(t, rec[at]) ||
-        (piece && t === '/map')); at++) {
-        if (recordedOnly(t, rec[at])) skipped++;
-        piece = true;
-      }
+      for (; rec[at] && !rec[at].equals(later[i]) && recordedOnly(at); at++) skipped++;
       assert.ok(rec[at] && rec[at].equals(later[i]), `${t}: live message ${i + 1} is recorded in order`);
     }
   }
   ok(`every message the live client got on its ${Object.keys(live.got).length} channels is in the recording, in ` +
-    `the order it came (${skipped} whole maps of the recording's own between them)`);
+    `the order it came (${skipped} pieces of whole maps of the recording's own between them)`);
 
   // ---- a recorder killed with SIGKILL
   const kb = fs.readFileSync(killed);

@@ -49,8 +49,9 @@ async function pageUntil(page, fn, ms = 30000) {
 
 async function main() {
   // The learner at one core: on a 2-core machine the headless browser's
-  // input and drawing need the other.
-  const demo = await start({ token: TOKEN, cpuBudget: 1 });
+  // input and drawing need the other. --max-queue-mb 0.5: map pieces of at most
+  // 64 KiB, so that the page draws /map/voxels from several pieces a version.
+  const demo = await start({ token: TOKEN, cpuBudget: 1, viewArgs: ['--max-queue-mb', '0.5'] });
   const browser = await chromium.launch({ executablePath: process.env.VLFF_CHROMIUM || 'chromium',
     args: ['--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'] });
   await check(demo, async () => {
@@ -96,6 +97,9 @@ async function main() {
     await pageUntil(page, () => window.vlff.map.vox.size >= 300, 60000);
     demo.pause();
     await sleep(1500);
+    // the paused map put together from its pieces: as many voxels as the status counts occupied
+    await pageUntil(page, () => window.vlff.map.vox.size === Number(document.getElementById('s-occupied').textContent),
+      10000);
     let checked = 0, shot = null;
     for (let attempt = 0; attempt < 10; attempt++) {
       checked = 0;
