@@ -98,7 +98,19 @@ struct vlff_publisher {
    * relabelled every voxel (a skipping round needs the same prompts). */
   bool skip_settled;
   uint64_t full_round_stamp;
-  bool image_owed; /* a round ended: its label image and scores are due (publish_image) */
+  /* The label image a round owes, rendered a piece per publish_image call
+   * (IMAGE_PIECE_S each) from a copy of the camera it began with, so that
+   * keyframes admitted meanwhile (set_camera) neither wait for the whole
+   * image nor change it halfway: tail is TAIL_NONE, TAIL_IMAGE (ipix of
+   * the inhole + insel pixels done, holes first) or TAIL_SCORE (the image
+   * published, its scores owed). px_s: seconds a pixel took, as measured. */
+  int tail;
+  struct vlff_view icam;
+  uint32_t *isel_pix, *ihole_pix;
+  size_t insel, inhole, ipix;
+  uint64_t icam_t_ns;
+  long long icam_frame;
+  double px_s;
   bool need_full;
   uint64_t prompts_hash;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
@@ -122,7 +134,7 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   VLFF_FREE_ALL(p->thru, p->thru_list);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
-                p->sel_pix, p->hole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays,
+                p->sel_pix, p->hole_pix, p->isel_pix, p->ihole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays,
                 p->dirty, p->dirty_idx, p->runs, p->pub_labels, p->pub_conf, p);
 }
 
@@ -169,6 +181,8 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->surface = pub->label_image == VLFF_LABEL_IMAGE_SURFACE;
   p->sel_pix = malloc(li * sizeof *p->sel_pix);
   p->hole_pix = malloc(li * sizeof *p->hole_pix);
+  p->isel_pix = malloc(li * sizeof *p->isel_pix);
+  p->ihole_pix = malloc(li * sizeof *p->ihole_pix);
   p->sel_xyz = malloc(li * 3 * sizeof *p->sel_xyz);
   p->snap_xyz = malloc(li * 3 * sizeof *p->snap_xyz);
   p->sel_score = malloc(li * sizeof *p->sel_score);
@@ -199,7 +213,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   }
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
-      !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
+      !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->isel_pix || !p->ihole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
       !p->sel_lab || !p->dirty || !p->dirty_idx || !p->runs || !p->pub_labels || !p->pub_conf || !p->hold ||
       !p->thru || !p->thru_list) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
@@ -978,41 +992,80 @@ static int relabel_voxels(struct vlff_publisher *p, struct vlff_field *f, const 
   return 0;
 }
 
-/* The label image of the last camera (p->cam) at the map's label image
- * size: true when it was rendered into *img. */
-static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t stamp,
-                        struct vlff_map_label_image *img) {
+enum { TAIL_NONE, TAIL_IMAGE, TAIL_SCORE };
+/* A piece of the label image takes about this long: what a keyframe
+ * admitted meanwhile waits at most (a piece is at least IMAGE_PIECE_MIN
+ * pixels, or a slow machine would render one per call). */
+#define IMAGE_PIECE_S 0.02
+#define IMAGE_PIECE_MIN 1024
+
+/* A label image of the last camera (p->cam) at the map's label image size
+ * begins: its camera and pixels are copied (set_camera may replace them
+ * before it is done). */
+static void label_image_begin(struct vlff_publisher *p) {
   struct vlff_view cam = p->cam;
   double sx = (double)p->lw / cam.width, sy = (double)p->lh / cam.height;
   cam.width = p->lw;
   cam.height = p->lh;
   cam.fx *= sx, cam.cx *= sx, cam.fy *= sy, cam.cy *= sy;
-  /* A stereo sensor's single depth is off by a decimetre at a few metres,
-   * where a point query reads free space or the next object; the field
-   * has fitted that surface from every view. */
+  p->icam = cam;
+  p->icam_t_ns = p->cam_t_ns;
+  p->icam_frame = p->cam_frame;
+  p->insel = p->nsel, p->inhole = p->nhole, p->ipix = 0;
+  memcpy(p->isel_pix, p->sel_pix, p->nsel * sizeof *p->isel_pix);
+  memcpy(p->ihole_pix, p->hole_pix, p->nhole * sizeof *p->ihole_pix);
   memcpy(p->snap_xyz, p->sel_xyz, p->nsel * 3 * sizeof *p->snap_xyz);
-  vlff_field_snap_surface(f, &cam, p->sel_pix, p->nsel, p->snap_xyz);
-  if ((!p->nhole ||
-       vlff_field_render_pixels(f, &cam, p->hole_pix, p->nhole, NULL, NULL, NULL, p->img_lab, p->img_score) == 0) &&
-      (!p->nsel || label_points(p, f, p->snap_xyz, p->nsel, stamp, p->sel_lab, p->sel_score, NULL) == 0)) {
-    for (size_t j = 0; j < p->nsel; j++) {
-      p->img_lab[p->sel_pix[j]] = p->sel_lab[j];
-      p->img_score[p->sel_pix[j]] = p->sel_score[j];
-    }
-    size_t li = (size_t)p->lw * p->lh;
-    for (size_t i = 0; i < li; i++) {
-      p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;
-      float s = p->img_score[i] * 255.0f;
-      p->img_conf[i] = (uint8_t)(s < 0 ? 0 : s > 255 ? 255 : s);
-    }
-    *img = (struct vlff_map_label_image){.width = (uint32_t)p->lw, .height = (uint32_t)p->lh,
-                                        .labels = p->img_labels, .confidence = p->img_conf,
-                                        .fx = cam.fx, .fy = cam.fy, .cx = cam.cx, .cy = cam.cy,
-                                        .t_ns = p->cam_t_ns};
-    memcpy(img->pose, cam.c2w, sizeof img->pose);
-    return true;
+}
+
+/* Up to n more of its pixels, holes (rendered) first, then surface points:
+ * 0, or -1 when the field failed. */
+static int label_image_piece(struct vlff_publisher *p, struct vlff_field *f, uint64_t stamp, size_t n) {
+  size_t a = p->ipix, b = a + n < p->inhole + p->insel ? a + n : p->inhole + p->insel;
+  if (a < p->inhole) {
+    size_t e = b < p->inhole ? b : p->inhole;
+    if (vlff_field_render_pixels(f, &p->icam, p->ihole_pix + a, e - a, NULL, NULL, NULL, p->img_lab, p->img_score))
+      return -1;
   }
-  return false;
+  size_t s0 = a > p->inhole ? a - p->inhole : 0, s1 = b > p->inhole ? b - p->inhole : 0;
+  if (s1 > s0) {
+    /* A stereo sensor's single depth is off by a decimetre at a few
+     * metres, where a point query reads free space or the next object;
+     * the field has fitted that surface from every view. */
+    vlff_field_snap_surface(f, &p->icam, p->isel_pix + s0, s1 - s0, p->snap_xyz + 3 * s0);
+    if (label_points(p, f, p->snap_xyz + 3 * s0, s1 - s0, stamp, p->sel_lab + s0, p->sel_score + s0, NULL)) return -1;
+    for (size_t j = s0; j < s1; j++) {
+      p->img_lab[p->isel_pix[j]] = p->sel_lab[j];
+      p->img_score[p->isel_pix[j]] = p->sel_score[j];
+    }
+  }
+  p->ipix = b;
+  return 0;
+}
+
+/* The finished label image into *img. */
+static void label_image_end(struct vlff_publisher *p, struct vlff_map_label_image *img) {
+  size_t li = (size_t)p->lw * p->lh;
+  for (size_t i = 0; i < li; i++) {
+    p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;
+    float s = p->img_score[i] * 255.0f;
+    p->img_conf[i] = (uint8_t)(s < 0 ? 0 : s > 255 ? 255 : s);
+  }
+  const struct vlff_view *cam = &p->icam;
+  *img = (struct vlff_map_label_image){.width = (uint32_t)p->lw, .height = (uint32_t)p->lh,
+                                      .labels = p->img_labels, .confidence = p->img_conf,
+                                      .fx = cam->fx, .fy = cam->fy, .cx = cam->cx, .cy = cam->cy,
+                                      .t_ns = p->icam_t_ns};
+  memcpy(img->pose, cam->c2w, sizeof img->pose);
+}
+
+/* The label image of the last camera, whole: true when it was rendered
+ * into *img. */
+static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t stamp,
+                        struct vlff_map_label_image *img) {
+  label_image_begin(p);
+  if (label_image_piece(p, f, stamp, p->inhole + p->insel)) return false;
+  label_image_end(p, img);
+  return true;
 }
 
 /* Publishes runs[0..nruns) of the grid (runs NULL: the whole grid), the
@@ -1073,9 +1126,9 @@ static void score(struct vlff_publisher *p, const char *const *prompts, int k, b
   memcpy(grid.origin, p->origin, sizeof grid.origin);
   memcpy(grid.dims, p->dims, sizeof grid.dims);
   struct vlff_map_seen seen = {.grid = &grid, .image_labels = have_img ? p->img_lab : NULL, .width = p->lw,
-                               .height = p->lh, .frame_id = p->cam_frame, .prompts = prompts, .prompt_count = k};
+                               .height = p->lh, .frame_id = p->icam_frame, .prompts = prompts, .prompt_count = k};
   p->hooks->observe(p->hooks->ctx, &seen, &r->miou2d, &r->miou3d);
-  if (r->miou2d >= 0) r->miou2d_frame = p->cam_frame;
+  if (r->miou2d >= 0) r->miou2d_frame = p->icam_frame;
 }
 
 static void result_init(struct vlff_publish_result *r) {
@@ -1135,7 +1188,7 @@ int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const
   hold_end(p, r);
   score(p, prompts, k, have_img, r);
   r->scored = true;
-  p->image_owed = false;
+  p->tail = TAIL_NONE; /* an image a round owed is this one */
   return 0;
 }
 
@@ -1195,7 +1248,7 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
   if (last && p->ev && !p->skip_settled)
     report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   p->refresh_at = last ? 0 : b;
-  if (last) p->image_owed = true;
+  if (last) p->tail = TAIL_IMAGE, p->ipix = SIZE_MAX; /* begun by the first publish_image */
   /* Only what changed is logged: a refresh that finds the field agreeing
    * with the map costs readers nothing. */
   size_t nr = 0;
@@ -1217,15 +1270,38 @@ int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f,
                                  struct vlff_publish_result *r, char *err, size_t errlen) {
   result_init(r);
   r->version = vlff_map_version(p->map);
-  if (!p->image_owed || p->need_full || prompts_hash(prompts, k) != p->prompts_hash) return 0;
-  p->image_owed = false;
+  if (p->tail == TAIL_NONE) return 0;
+  if (p->need_full || prompts_hash(prompts, k) != p->prompts_hash) {
+    p->tail = TAIL_NONE; /* the whole publish owed renders its own */
+    return 0;
+  }
+  if (p->tail == TAIL_SCORE) {
+    score(p, prompts, k, p->have_cam, r);
+    r->scored = true;
+    p->tail = TAIL_NONE;
+    return 0;
+  }
+  if (!p->have_cam) { /* no keyframe yet: no image, the map's scores alone */
+    p->tail = TAIL_SCORE;
+    return 0;
+  }
+  if (p->ipix == SIZE_MAX) label_image_begin(p);
+  double t0 = vlff_seconds();
+  size_t n = p->px_s > 0 ? (size_t)(IMAGE_PIECE_S / p->px_s) : IMAGE_PIECE_MIN, before = p->ipix;
+  if (label_image_piece(p, f, prompt_stamp(p, f), n > IMAGE_PIECE_MIN ? n : IMAGE_PIECE_MIN)) {
+    p->tail = TAIL_NONE;
+    snprintf(err, errlen, "field query of the label image failed");
+    return -1;
+  }
+  if (p->ipix > before) p->px_s = (vlff_seconds() - t0) / (double)(p->ipix - before);
+  if (p->ipix < p->inhole + p->insel) return 0;
   struct vlff_map_label_image img;
-  bool have_img = p->have_cam && label_image(p, f, prompt_stamp(p, f), &img);
-  if (have_img && publish_ranges(p, p->runs, 0, prompts, k, &img, r, err, errlen)) return -1;
-  score(p, prompts, k, have_img, r);
-  r->scored = true;
-  return 0;
+  label_image_end(p, &img);
+  p->tail = TAIL_SCORE;
+  return publish_ranges(p, p->runs, 0, prompts, k, &img, r, err, errlen);
 }
+
+bool vlff_publisher_image_owed(const struct vlff_publisher *p) { return p->tail != TAIL_NONE; }
 
 void vlff_publisher_heartbeat(struct vlff_publisher *p) {
   double now = vlff_seconds();

@@ -136,12 +136,14 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * round). refresh_done: the fraction of the grid the current round has
  * refreshed, in [0, 1).
  *
- * publish_image: the label image a round owes (rendered at the latest
- * keyframe's view) as a version of its own without voxel changes, and the
- * source's scores (scored). Apart from the round's last slice so that a
- * keyframe admitted meanwhile is not held behind both (the trainer
- * publishes keyframes between the two). Nothing owed, or a whole publish
- * owed instead: nothing published, 0. */
+ * publish_image: the next piece of what a round owes after its last slice:
+ * its label image at the latest keyframe's view when the round ended,
+ * rendered a piece of about 20 ms per call and published, when done, as a
+ * version of its own that changes no voxel; then, in a call of its own, the
+ * source's scores (scored). In pieces so that a keyframe admitted
+ * meanwhile waits for a piece, not for all of it (the trainer publishes
+ * keyframes between calls; image_owed says whether a piece is due).
+ * Nothing owed, or a whole publish owed instead: nothing published, 0. */
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen);
 int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
@@ -150,6 +152,7 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
                                  double to, struct vlff_publish_result *r, char *err, size_t errlen);
 int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                                  struct vlff_publish_result *r, char *err, size_t errlen);
+bool vlff_publisher_image_owed(const struct vlff_publisher *p);
 double vlff_publisher_refresh_done(const struct vlff_publisher *p);
 /* Voxels observe() touched that no publish has relabelled yet. */
 size_t vlff_publisher_pending(const struct vlff_publisher *p);

@@ -281,8 +281,7 @@ static bool publish_slice(struct vlff_node *n, double to, bool *whole) {
   return r.cycle_done;
 }
 
-/* The label image and scores a round of slices owes, published once the
- * keyframes admitted during its last slice went out. */
+/* The next piece of what a round of slices owes (publish.h). */
 static void publish_image(struct vlff_node *n) {
   char err[256];
   struct vlff_publish_result r;
@@ -293,9 +292,8 @@ static void publish_image(struct vlff_node *n) {
     vlff_warn_limited(&n->warned.publish, TAG, "publish failed: %s", err);
     return;
   }
-  if (!r.scored) return;
-  VLFF_DEBUG(TAG, "published map v%llu (label image) in %.0f ms", (unsigned long long)r.version,
-             (vlff_seconds() - t0) * 1e3);
+  VLFF_DEBUG(TAG, "label image piece in %.0f ms (map v%llu)%s", (vlff_seconds() - t0) * 1e3,
+             (unsigned long long)r.version, r.scored ? ", scored" : "");
   note_publish(n, &r, false);
 }
 
@@ -463,11 +461,15 @@ void *trainer_main(void *arg) {
     rate_publish(&steps, now, n, &n->st.it_per_s);
     /* An untrained field has nothing to say: readers see version 0 until
      * the first step, and the heartbeat says the writer is alive. */
-    bool published = false;
+    bool published = false, tail = false;
     double to = -1;
     if (vlff_field_steps(n->field) > 0) {
       to = publish_now ? 1 : vlff_refresh_due(&rf, now, vlff_publisher_refresh_done(n->pub));
-      if (to >= 0 && !publish_now && rf.start >= 0) {
+      /* What a round owes after its last slice (its label image, in
+       * pieces, then its scores) goes first, a piece a pass instead of a
+       * slice: a keyframe waits for one piece at most. */
+      tail = !publish_now && vlff_publisher_image_owed(n->pub);
+      if ((to >= 0 || tail) && !publish_now && rf.start >= 0) {
         /* Keyframes still go first: those admitted during the step are
          * published before the slice, not a pass later. One that had to be
          * a whole publish refreshed the map and restarted the round. */
@@ -476,7 +478,12 @@ void *trainer_main(void *arg) {
         to = vlff_refresh_due(&rf, vlff_seconds(), vlff_publisher_refresh_done(n->pub));
       }
     }
-    if (to >= 0 && vlff_field_steps(n->field) > 0) {
+    if (tail) {
+      double t = vlff_seconds();
+      publish_image(n);
+      vlff_refresh_sliced(&rf, vlff_seconds() - t);
+      published = true;
+    } else if (to >= 0 && vlff_field_steps(n->field) > 0) {
       double t = vlff_seconds();
       bool round, whole = true;
       if (publish_now) {
@@ -484,15 +491,6 @@ void *trainer_main(void *arg) {
         round = true;
       } else {
         round = publish_slice(n, to, &whole);
-      }
-      if (round && !whole) {
-        /* The round's label image after the keyframes admitted during its
-         * last slice: neither waits for both. */
-        double ti = vlff_seconds();
-        take_candidates(n, false);
-        publish_keyframes(n, &rf, &next_kf_publish);
-        t += vlff_seconds() - ti; /* the keyframes' time is not the refresh's */
-        publish_image(n);
       }
       double end = vlff_seconds();
       vlff_refresh_sliced(&rf, end - t);

@@ -573,21 +573,34 @@ static void test_refresh_skips_settled(void **state) {
     assert_int_equal(vlff_publisher_publish_slice(p, g, prompts, 3, (s + 1) / 4.0, &r, err, sizeof err), 0);
     assert_false(r.scored);
     /* Until the round ends, no label image is owed. */
-    uint64_t ver = r.version;
-    if (s == 3) take(m, c, &ic);
-    assert_int_equal(vlff_publisher_publish_image(p, g, prompts, 3, &r, err, sizeof err), 0);
-    assert_int_equal(r.scored, s == 3);
-    assert_int_equal(r.version, ver + (s == 3));
+    assert_int_equal(vlff_publisher_image_owed(p), s == 3);
   }
+  /* The round's label image, in pieces, then its scores: one version, the
+   * image's, which changes no voxel; a camera set halfway (a keyframe
+   * admitted between two pieces) changes nothing of it. */
+  take(m, c, &ic);
+  assert_false(ic.has_label_image);
+  int calls = 0;
+  uint64_t ver = ic.version;
+  do {
+    assert_int_equal(vlff_publisher_publish_image(p, g, prompts, 3, &r, err, sizeof err), 0);
+    if (++calls == 1) {
+      struct vlff_view v2 = view_at(-0.5, 1.0f);
+      assert_int_equal(vlff_publisher_set_camera(p, &v2, 456, 8, err, sizeof err), 0);
+    }
+    assert_true(r.version == ver || r.version == ver + 1);
+    ver = r.version;
+  } while (!r.scored);
+  assert_true(calls >= 3); /* a first piece of 1024 pixels of 160 x 120, the rest, the scores */
+  assert_int_equal(ver, ic.version + 1);
+  assert_false(vlff_publisher_image_owed(p));
   take(m, b, &ib);
-  /* The round's label image came in a version of its own, at the camera's
-   * view, changing no voxel; none is owed twice. */
   assert_true(ib.has_label_image);
   assert_int_equal(ib.label_image.t_ns, 123);
-  assert_false(ic.has_label_image);
   assert_int_equal(vlff_map_snapshot_follow(m, c), 0);
   const struct vlff_map_range *runs;
   assert_int_equal(vlff_map_snapshot_changes(c, &runs, NULL), 0);
+  /* None owed twice. */
   assert_int_equal(vlff_publisher_publish_image(p, g, prompts, 3, &r, err, sizeof err), 0);
   assert_false(r.scored);
   assert_int_equal(r.version, ib.version);
@@ -609,8 +622,18 @@ static void test_refresh_skips_settled(void **state) {
   for (int s = 0; s < 4; s++)
     assert_int_equal(vlff_publisher_publish_slice(p, g, prompts, 3, (s + 1) / 4.0, &r, err, sizeof err), 0);
   take(m, c, &ic);
+  /* The pieced image is the image rendered whole (at its camera). */
+  size_t li = (size_t)ic.label_image.width * ic.label_image.height;
+  uint16_t *pieced = malloc(li * sizeof *pieced);
+  assert_non_null(pieced);
+  memcpy(pieced, ic.label_image.labels, li * sizeof *pieced);
+  v = view_at(0.8, 2.0f); /* its depth again (view_at writes one buffer) */
+  assert_int_equal(vlff_publisher_set_camera(p, &v, 123, 7, err, sizeof err), 0);
   assert_int_equal(vlff_publisher_publish(p, g, prompts, 3, &r, err, sizeof err), 0);
   take(m, b, &ib);
+  assert_int_equal(ib.label_image.t_ns, 123);
+  assert_memory_equal(pieced, ib.label_image.labels, li * sizeof *pieced);
+  free(pieced);
   assert_memory_equal(ic.grid.labels, ib.grid.labels, nv * 2);
   assert_memory_equal(ic.grid.confidence, ib.grid.confidence, nv);
   size_t differ = 0;
