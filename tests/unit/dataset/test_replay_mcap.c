@@ -1,0 +1,485 @@
+/*
+ * MCAP recordings of the node's inputs, round trip: a scene written to disk
+ * (reference layout, features.hdf, timestamps.txt) is played by vlff-replay
+ * into rings, vlff-record writes every record to an MCAP file (checked with
+ * @mcap/core through tests/bench/mcap_check.js where node and the npm packages
+ * are installed), vlff-replay plays that file into fresh rings, and a ring
+ * reader finds every frame (colour and depth bytes, intrinsics), pose (within
+ * float rounding, at its frame's time) and feature map (float16 bits, its
+ * frame's id and time) of the scene, as many, in order.
+ * Also: a recording without features plays without them and says so; files
+ * cut short, corrupted, or holding a message out of bounds are refused with
+ * the documented error, naming the channel and the message, before any ring
+ * is created.
+ */
+#define _XOPEN_SOURCE 700
+#include <errno.h>
+#include <math.h>
+#include <setjmp.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include <cmocka.h>
+
+#include "config.h"
+#include "dataset.h"
+#include "files.h"
+#include "inputs.h"
+#include "mcap.h"
+#include "testkit.h"
+#include "vlff/shm.h"
+
+#define N 9
+#define W 40
+#define H 30
+#define FD 5
+#define FH 3
+#define FW 4
+
+static struct tk tk;
+static char scene[300];
+
+/* The scene as written: the reference the rings are compared with. */
+static uint8_t rgb[N][H * W * 3];
+static uint16_t depth[N][H * W];
+static uint16_t feat_hwc[N][FH * FW * FD];
+static double c2w[N][16];
+static const double FX = 35.5, FY = 36.25, CX = 20.25, CY = 15.75;
+
+static uint32_t rng = 12345;
+static uint32_t next_rand(void) {
+  rng ^= rng << 13, rng ^= rng >> 17, rng ^= rng << 5;
+  return rng;
+}
+
+static void fill_scene(void) {
+  rng = 12345;
+  for (int i = 0; i < N; i++) {
+    for (int k = 0; k < H * W * 3; k++) rgb[i][k] = (uint8_t)next_rand();
+    for (int k = 0; k < H * W; k++) depth[i][k] = k % 7 == 0 ? 0 : (uint16_t)(300 + next_rand() % 5000);
+    for (int k = 0; k < FH * FW * FD; k++) {
+      /* finite half floats of both signs, no NaN or infinity */
+      uint16_t h = (uint16_t)(next_rand() & 0xFBFF);
+      feat_hwc[i][k] = h;
+    }
+    double a = 0.3 * i + 0.1, b = -0.2 * i;
+    double ca = cos(a), sa = sin(a), cb = cos(b), sb = sin(b);
+    /* R = Rz(a) Rx(b) */
+    double R[9] = {ca, -sa * cb, sa * sb, sa, ca * cb, -ca * sb, 0, sb, cb};
+    double *P = c2w[i];
+    memset(P, 0, sizeof c2w[i]);
+    for (int r = 0; r < 3; r++)
+      for (int c = 0; c < 3; c++) P[r * 4 + c] = R[r * 3 + c];
+    P[3] = 0.1 * i - 0.4, P[7] = 0.05 * i, P[11] = -0.3 + 0.02 * i, P[15] = 1;
+  }
+}
+
+static void write_scene(void) {
+  char err[1024];
+  const double lo[3] = {-2, -2, -2}, hi[3] = {2, 2, 2};
+  struct vlff_dataset_writer *w =
+      vlff_dataset_writer_open(scene, N, W, H, FX, FY, CX, CY, lo, hi, "clip", FW, FH, FD, err, sizeof err);
+  if (!w) fail_msg("%s", err);
+  double t[N];
+  for (int i = 0; i < N; i++) {
+    const double *P = c2w[i];
+    static uint8_t label[H * W]; /* the writer labels every frame: all class 0 */
+    if (vlff_dataset_writer_add(w, i, rgb[i], depth[i], label, P, feat_hwc[i], err, sizeof err)) fail_msg("%s", err);
+    t[i] = 0.031 * i + (i % 3) * 0.004; /* uneven, as a real camera's */
+  }
+  if (vlff_dataset_writer_close(w, err, sizeof err)) fail_msg("%s", err);
+  if (vlff_dataset_write_stamps(scene, N, t, err, sizeof err)) fail_msg("%s", err);
+}
+
+static const char *config(struct vlff_config *cfg) {
+  return tk_config(&tk, cfg, "shm:\n%s  ring_slots: 16\n", tk_shm_names(&tk));
+}
+
+static void unlink_rings(const struct vlff_config *cfg) {
+  vlff_shm_unlink(cfg->shm.ring);
+  vlff_shm_unlink(cfg->shm.pose_ring);
+  vlff_shm_unlink(cfg->shm.feature_ring);
+}
+
+static struct vlff_ring *attach_wait(const char *name, uint32_t kind, double timeout_s) {
+  for (double t = 0; t < timeout_s; t += 0.02) {
+    struct vlff_ring *r = vlff_ring_attach(name, kind);
+    if (r) {
+      vlff_ring_seek_oldest(r);
+      return r;
+    }
+    tk_sleep_s(0.02);
+  }
+  fail_msg("ring %s never appeared", name);
+  return NULL;
+}
+
+/* vlff-replay ARGS... (NULL-terminated), its output into log: the exit status. */
+static int run_replay(const char *log, ...) {
+  const char *args[16];
+  int n = 0;
+  va_list ap;
+  va_start(ap, log);
+  const char *a;
+  while ((a = va_arg(ap, const char *)) && n < 15) args[n++] = a;
+  va_end(ap);
+  args[n] = NULL;
+  pid_t pid = tk_spawn(&tk, "node/dataset/vlff-replay", args, log);
+  return tk_wait_child(&tk, pid);
+}
+
+/* The recording checked by @mcap/core, when node and the packages are here. */
+static void mcap_check(const char *path, int messages) {
+  const char *node = getenv("VLFF_NODEJS"), *script = getenv("VLFF_MCAP_CHECK");
+  if (!node || !*node || !script || !*script) {
+    printf("# @mcap/core check skipped: node or the npm packages not installed\n");
+    return;
+  }
+  char cmd[1200], line[2048] = "";
+  snprintf(cmd, sizeof cmd, "'%s' '%s' '%s'", node, script, path);
+  FILE *p = popen(cmd, "r");
+  assert_non_null(p);
+  if (!fgets(line, sizeof line, p)) line[0] = 0;
+  assert_int_equal(pclose(p), 0);
+  printf("# mcap_check: %s", line);
+  char want[64];
+  snprintf(want, sizeof want, "\"messages\":%d,", messages);
+  assert_non_null(strstr(line, "\"ok\":1"));
+  assert_non_null(strstr(line, want));
+  assert_non_null(strstr(line, "\"channels\":5,"));
+}
+
+static void test_round_trip(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *cfg_path = config(&cfg);
+  write_scene();
+  char mcap[300], rec_log[300], log1[300], log2[300];
+  snprintf(mcap, sizeof mcap, "%s/inputs.mcap", tk.dir);
+  snprintf(rec_log, sizeof rec_log, "%s/record.log", tk.dir);
+  snprintf(log1, sizeof log1, "%s/replay1.log", tk.dir);
+  snprintf(log2, sizeof log2, "%s/replay2.log", tk.dir);
+
+  /* scene -> rings -> vlff-record -> MCAP */
+  const char *rargs[] = {"--config", cfg_path, "--quiet", mcap, NULL};
+  pid_t rec = tk_spawn(&tk, "node/view/vlff-record", rargs, rec_log);
+  int rc = run_replay(log1, "--config", cfg_path, "--backpressure", "--quiet", scene, NULL);
+  if (rc) fail_msg("vlff-replay of the scene: %d: %s", rc, tk_slurp(log1));
+  /* the recorder reads what the rings still hold before it closes the file */
+  kill(rec, SIGINT);
+  assert_int_equal(tk_wait_child(&tk, rec), 0);
+  const char *said = tk_slurp(rec_log);
+  printf("# %s", said);
+  assert_non_null(strstr(said, "9 frames, 9 poses, 9 feature maps recorded; 0 records missed, 0 malformed"));
+  mcap_check(mcap, 5 * N);
+  unlink_rings(&cfg);
+
+  /* MCAP -> vlff-replay -> fresh rings -> this reader */
+  const char *pargs[] = {"--config", cfg_path, "--backpressure", mcap, NULL};
+  pid_t play = tk_spawn(&tk, "node/dataset/vlff-replay", pargs, log2);
+  struct vlff_ring *fr = attach_wait(cfg.shm.ring, VLFF_RECORD_FRAME, 20 * tk.scale);
+  struct vlff_ring *pr = attach_wait(cfg.shm.pose_ring, VLFF_RECORD_POSE, 5 * tk.scale);
+  struct vlff_ring *xr = attach_wait(cfg.shm.feature_ring, VLFF_RECORD_FEATURE, 5 * tk.scale);
+  size_t fcap = vlff_ring_slot_size(fr), xcap = vlff_ring_slot_size(xr);
+  uint8_t *fb = malloc(fcap), *xb = malloc(xcap);
+  assert_non_null(fb);
+  assert_non_null(xb);
+  uint64_t t_host[N];
+  for (int i = 0; i < N; i++) {
+    struct vlff_ring_view v;
+    ssize_t n = vlff_ring_read_copy(fr, fb, fcap, &v, (uint64_t)(10e9 * tk.scale));
+    if (n < 0) fail_msg("frame %d: %s", i, strerror(errno));
+    assert_int_equal(vlff_frame_validate(fb, (size_t)n), 0);
+    const struct vlff_frame_hdr *h = (const void *)fb;
+    assert_int_equal(h->frame_id, i);
+    assert_int_equal(h->plane[0].width, W);
+    assert_int_equal(h->plane[0].height, H);
+    assert_int_equal(h->plane[0].format, VLFF_PIX_RGB8);
+    assert_int_equal(h->plane[1].format, VLFF_PIX_DEPTH_U16_MM);
+    assert_true(h->fx == FX && h->fy == FY && h->cx == CX && h->cy == CY);
+    const uint8_t *c = vlff_frame_plane(fb, 0), *d = vlff_frame_plane(fb, 1);
+    for (int y = 0; y < H; y++) {
+      assert_memory_equal(c + (size_t)y * h->plane[0].stride, rgb[i] + y * W * 3, W * 3);
+      assert_memory_equal(d + (size_t)y * h->plane[1].stride, depth[i] + y * W, W * 2);
+    }
+    t_host[i] = h->t_host_ns;
+  }
+  for (int i = 0; i < N; i++) {
+    struct vlff_pose_rec p;
+    struct vlff_ring_view v;
+    ssize_t n = vlff_ring_read_copy(pr, &p, sizeof p, &v, (uint64_t)(5e9 * tk.scale));
+    if (n < 0) fail_msg("pose %d: %s", i, strerror(errno));
+    assert_int_equal(p.t_ns, t_host[i]); /* at its frame's time: the node's lookup finds it exactly */
+    for (int k = 0; k < 16; k++)
+      if (fabs(p.pose[k] - c2w[i][k]) > 1e-12) fail_msg("pose %d [%d]: %.17g, the scene's %.17g", i, k, p.pose[k], c2w[i][k]);
+  }
+  for (int i = 0; i < N; i++) {
+    struct vlff_ring_view v;
+    ssize_t n = vlff_ring_read_copy(xr, xb, xcap, &v, (uint64_t)(5e9 * tk.scale));
+    if (n < 0) fail_msg("feature map %d: %s", i, strerror(errno));
+    assert_int_equal(vlff_feature_validate(xb, (size_t)n), 0);
+    const struct vlff_feature_hdr *f = (const void *)xb;
+    assert_int_equal(f->frame_id, i);
+    assert_int_equal(f->t_host_ns, t_host[i]);
+    assert_true(f->dim == FD && f->height == FH && f->width == FW);
+    const uint16_t *x = (const uint16_t *)(xb + f->data_offset);
+    for (int k = 0; k < FD; k++)
+      for (int p = 0; p < FH * FW; p++)
+        if (x[k * FH * FW + p] != feat_hwc[i][p * FD + k])
+          fail_msg("feature map %d [%d][%d]: %04x, the scene's %04x", i, k, p, x[k * FH * FW + p],
+                   feat_hwc[i][p * FD + k]);
+  }
+  assert_int_equal(tk_wait_child(&tk, play), 0);
+  /* nothing more than the scene */
+  struct vlff_ring_view v;
+  assert_true(vlff_ring_read_copy(fr, fb, fcap, &v, 0) < 0 && errno == EAGAIN);
+  assert_true(vlff_ring_read_copy(pr, xb, xcap, &v, 0) < 0 && errno == EAGAIN);
+  assert_true(vlff_ring_read_copy(xr, xb, xcap, &v, 0) < 0 && errno == EAGAIN);
+  assert_int_equal(vlff_ring_lost(fr) + vlff_ring_lost(pr) + vlff_ring_lost(xr), 0);
+  printf("# %s", tk_slurp(log2));
+  assert_non_null(strstr(tk_slurp(log2), "9 frames, 9 poses, 9 feature maps published; 0 maps without their frame"));
+  free(fb);
+  free(xb);
+  vlff_ring_close(fr);
+  vlff_ring_close(pr);
+  vlff_ring_close(xr);
+}
+
+/* ------------------------------------------------- recordings written here */
+
+static struct vlff_mcap_writer *writer(const char *path) {
+  char err[512];
+  struct vlff_mcap_writer_params wp = {"test_replay_mcap", 0, 0, 1};
+  struct vlff_mcap_writer *w = vlff_mcap_writer_open(path, &wp, err, sizeof err);
+  if (!w) fail_msg("%s", err);
+  if (vlff_in_declare(w, err, sizeof err)) fail_msg("%s", err);
+  return w;
+}
+
+/* Frame i of the scene as a ring record, written as its messages at t. */
+static void put_frame(struct vlff_mcap_writer *w, int i, uint64_t t) {
+  size_t cap = vlff_frame_slot_size(W, H, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  struct vlff_frame_hdr *h = aligned_alloc(64, (cap + 63) / 64 * 64);
+  assert_non_null(h);
+  memset(h, 0, cap);
+  uint64_t len = vlff_frame_layout(h, cap, W, H, VLFF_PIX_RGB8, VLFF_PIX_DEPTH_U16_MM);
+  assert_true(len > 0);
+  h->frame_id = (uint64_t)i, h->t_host_ns = t, h->flags = VLFF_FRAME_INTRINSICS_VALID;
+  h->fx = FX, h->fy = FY, h->cx = CX, h->cy = CY;
+  memcpy((uint8_t *)h + h->plane[0].offset, rgb[i], sizeof rgb[i]);
+  memcpy((uint8_t *)h + h->plane[1].offset, depth[i], sizeof depth[i]);
+  char *scratch = NULL, err[512];
+  size_t scap = 0;
+  if (vlff_in_write_frame(w, h, len, &scratch, &scap, err, sizeof err)) fail_msg("%s", err);
+  free(scratch);
+  free(h);
+}
+
+static void put_raw(struct vlff_mcap_writer *w, int ch, uint64_t t, const char *json) {
+  assert_int_equal(vlff_mcap_writer_message(w, (uint16_t)ch, t, t, json, strlen(json)), 0);
+}
+
+static void close_writer(struct vlff_mcap_writer *w) {
+  char err[512];
+  if (vlff_mcap_writer_close(w, err, sizeof err)) fail_msg("%s", err);
+}
+
+/* A recording of frames and poses only: played without features, saying so. */
+static void test_no_features(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *cfg_path = config(&cfg);
+  char path[300], log[300];
+  snprintf(path, sizeof path, "%s/nofeat.mcap", tk.dir);
+  snprintf(log, sizeof log, "%s/nofeat.log", tk.dir);
+  struct vlff_mcap_writer *w = writer(path);
+  for (int i = 0; i < 3; i++) {
+    uint64_t t = 1000000000ull + (uint64_t)i * 20000000ull;
+    char err[256];
+    if (vlff_in_write_pose(w, t, c2w[i], err, sizeof err)) fail_msg("%s", err);
+    put_frame(w, i, t);
+  }
+  close_writer(w);
+  assert_int_equal(run_replay(log, "--config", cfg_path, path, NULL), 0);
+  const char *said = tk_slurp(log);
+  printf("# %s", said);
+  assert_non_null(strstr(said, "has no feature maps (/input/features): playing without features, as --no-features"));
+  assert_non_null(strstr(said, "3 frames, 3 poses, 0 feature maps published"));
+  struct vlff_ring *x = vlff_ring_attach(cfg.shm.feature_ring, VLFF_RECORD_FEATURE);
+  assert_null(x); /* no feature ring */
+  struct vlff_ring *f = vlff_ring_attach(cfg.shm.ring, VLFF_RECORD_FRAME);
+  assert_non_null(f);
+  assert_int_equal(vlff_ring_head(f), 3);
+  vlff_ring_close(f);
+}
+
+/* vlff-replay refuses path: exit 1, the error text on stderr, no ring made. */
+static void refused(const struct vlff_config *cfg, const char *cfg_path, const char *path, const char *error) {
+  char log[400];
+  snprintf(log, sizeof log, "%s.log", path);
+  int rc = run_replay(log, "--config", cfg_path, "--quiet", path, NULL);
+  const char *said = tk_slurp(log);
+  printf("# %s", said);
+  assert_int_equal(rc, 1); /* refused, not a crash (128 + signal) */
+  if (!strstr(said, error)) fail_msg("expected '%s' in: %s", error, said);
+  assert_null(vlff_ring_attach(cfg->shm.ring, VLFF_RECORD_FRAME));
+}
+
+static void test_bad_recordings_refused(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *cfg_path = config(&cfg);
+  char path[300];
+  const uint64_t t0 = 5000000000ull, dt = 33000000ull;
+
+  /* a good recording of 4 frames with poses, features on frame 0 */
+  snprintf(path, sizeof path, "%s/good.mcap", tk.dir);
+  struct vlff_mcap_writer *w = writer(path);
+  char err[256];
+  for (int i = 0; i < 4; i++) {
+    if (vlff_in_write_pose(w, t0 + i * dt, c2w[i], err, sizeof err)) fail_msg("%s", err);
+    put_frame(w, i, t0 + i * dt);
+    assert_int_equal(vlff_mcap_writer_flush(w), 0); /* a chunk per frame */
+  }
+  close_writer(w);
+  uint8_t *good = NULL;
+  size_t n = 0;
+  assert_int_equal(vlff_read_file(path, 1 << 26, &good, &n, err, sizeof err), 0);
+
+  /* cut short inside a chunk, as a killed recorder leaves it */
+  snprintf(path, sizeof path, "%s/cut.mcap", tk.dir);
+  assert_int_equal(vlff_write_file_atomic(path, good, n * 6 / 10, err, sizeof err), 0);
+  refused(&cfg, cfg_path, path, "without its footer: a recording cut short");
+  /* cut inside the header */
+  snprintf(path, sizeof path, "%s/stub.mcap", tk.dir);
+  assert_int_equal(vlff_write_file_atomic(path, good, 12, err, sizeof err), 0);
+  refused(&cfg, cfg_path, path, "stub.mcap");
+  /* a byte flipped in the middle: a chunk's CRC or its compression fails */
+  snprintf(path, sizeof path, "%s/flip.mcap", tk.dir);
+  good[n / 2] ^= 0x5a;
+  assert_int_equal(vlff_write_file_atomic(path, good, n, err, sizeof err), 0);
+  good[n / 2] ^= 0x5a;
+  refused(&cfg, cfg_path, path, ": byte ");
+  free(good);
+
+  /* out of bounds: each file good but for one message, named by channel and index */
+  const char *cal_bad =
+      "{\"timestamp\":{\"sec\":5,\"nsec\":33000000},\"frame_id\":\"camera\",\"width\":40,\"height\":30,"
+      "\"distortion_model\":\"\",\"D\":[],\"K\":[-35,0,19.75,0,36,15.25,0,0,1],\"R\":[1,0,0,0,1,0,0,0,1],"
+      "\"P\":[35,0,19.75,0,0,36,15.25,0,0,0,1,0]}";
+  /* a colour image whose data is not its size */
+  snprintf(path, sizeof path, "%s/empty.mcap", tk.dir);
+  w = writer(path);
+  put_frame(w, 0, t0);
+  put_raw(w, VLFF_IN_COLOR, t0 + dt,
+          "{\"timestamp\":{\"sec\":5,\"nsec\":33000000},\"frame_id\":\"camera\",\"width\":40,\"height\":30,"
+          "\"encoding\":\"rgb8\",\"step\":120,\"data\":\"\"}");
+  close_writer(w);
+  refused(&cfg, cfg_path, path, "channel /input/color message 3: 'data' holds 0 base64 characters");
+
+  snprintf(path, sizeof path, "%s/fx2.mcap", tk.dir);
+  w = writer(path);
+  put_frame(w, 0, t0);
+  /* a calibration message with fx < 0 right after a good frame's colour: the
+   * good frame is re-sent at the next stamp with its calibration replaced */
+  {
+    struct vlff_mcap_writer *tmp_w;
+    char tmp[300];
+    snprintf(tmp, sizeof tmp, "%s/tmp.mcap", tk.dir);
+    tmp_w = writer(tmp);
+    put_frame(tmp_w, 1, t0 + dt);
+    close_writer(tmp_w);
+    uint8_t *d = NULL;
+    size_t dn = 0;
+    assert_int_equal(vlff_read_file(tmp, 1 << 26, &d, &dn, err, sizeof err), 0);
+    struct vlff_mcap_reader *r = vlff_mcap_reader_new(d, dn, err, sizeof err);
+    assert_non_null(r);
+    struct vlff_mcap_message m;
+    while (vlff_mcap_next(r, &m, err, sizeof err) == 1)
+      if (m.channel != VLFF_IN_CALIBRATION)
+        assert_int_equal(vlff_mcap_writer_message(w, m.channel, m.log_ns, m.publish_ns, m.data, m.len), 0);
+    vlff_mcap_reader_free(r);
+    free(d);
+    put_raw(w, VLFF_IN_CALIBRATION, t0 + dt, cal_bad);
+  }
+  close_writer(w);
+  refused(&cfg, cfg_path, path, "channel /input/calibration message 5: fx");
+
+  /* a pose whose rotation is not a unit quaternion */
+  snprintf(path, sizeof path, "%s/quat.mcap", tk.dir);
+  w = writer(path);
+  put_frame(w, 0, t0);
+  put_raw(w, VLFF_IN_POSE, t0,
+          "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\","
+          "\"translation\":{\"x\":0,\"y\":0,\"z\":0},\"rotation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":2}}");
+  close_writer(w);
+  refused(&cfg, cfg_path, path, "channel /input/pose message 3: rotation is not a unit quaternion");
+
+  /* a pose far outside any room */
+  snprintf(path, sizeof path, "%s/far.mcap", tk.dir);
+  w = writer(path);
+  put_raw(w, VLFF_IN_POSE, t0,
+          "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\","
+          "\"translation\":{\"x\":1e9,\"y\":0,\"z\":0},\"rotation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":1}}");
+  put_frame(w, 0, t0);
+  close_writer(w);
+  refused(&cfg, cfg_path, path, "channel /input/pose message 0: ");
+
+  /* a feature map of dimension 0 */
+  snprintf(path, sizeof path, "%s/dim.mcap", tk.dir);
+  w = writer(path);
+  put_frame(w, 0, t0);
+  put_raw(w, VLFF_IN_FEATURES, t0,
+          "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"frame_id\":0,\"dim\":0,\"height\":1,\"width\":1,"
+          "\"encoding\":\"float16\",\"data\":\"\"}");
+  close_writer(w);
+  refused(&cfg, cfg_path, path, "channel /input/features message 3: 'dim' 0 is outside [1, 4096]");
+
+  /* frames whose stamps go back */
+  snprintf(path, sizeof path, "%s/back.mcap", tk.dir);
+  w = writer(path);
+  put_frame(w, 0, t0);
+  put_frame(w, 1, t0 - dt);
+  close_writer(w);
+  refused(&cfg, cfg_path, path, "channel /input/color message 3: stamp ");
+
+  /* a vlff-view-like recording: no input channels */
+  snprintf(path, sizeof path, "%s/view.mcap", tk.dir);
+  {
+    struct vlff_mcap_writer_params wp = {"test", 0, 0, 0};
+    w = vlff_mcap_writer_open(path, &wp, err, sizeof err);
+    assert_non_null(w);
+    assert_int_equal(vlff_mcap_writer_channel(w, 1, "/tf", "json", "foxglove.FrameTransform", "jsonschema", "{}", 2), 0);
+    put_raw(w, 1, t0, "{}");
+    close_writer(w);
+  }
+  refused(&cfg, cfg_path, path, "no frames on /input/color (1 messages on other channels");
+}
+
+static int setup(void **state) {
+  (void)state;
+  tk_setup(&tk, "rmcap");
+  fill_scene();
+  snprintf(scene, sizeof scene, "%s/scene", tk.dir);
+  return 0;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  return tk_teardown(&tk);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test_setup_teardown(test_round_trip, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_no_features, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_bad_recordings_refused, setup, teardown),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
