@@ -127,7 +127,8 @@ static void wait_reader(struct player *p) {
   }
 }
 
-static int put_frame(struct player *p, const struct vlff_in_event *ev, uint64_t id, uint64_t t, uint64_t t_dev) {
+static int put_frame(struct player *p, const struct vlff_in_event *ev, uint64_t id, uint64_t t, uint64_t t_dev,
+                     double rate) {
   struct vlff_frame_hdr *h = vlff_ring_reserve(p->frames, NULL);
   uint64_t len = h ? vlff_frame_layout(h, vlff_ring_slot_size(p->frames), ev->width, ev->height, ev->color_format,
                                        ev->depth_format)
@@ -138,6 +139,15 @@ static int put_frame(struct player *p, const struct vlff_in_event *ev, uint64_t 
   h->t_device_ns = t_dev;
   h->flags = VLFF_FRAME_INTRINSICS_VALID;
   h->fx = ev->fx, h->fy = ev->fy, h->cx = ev->cx, h->cy = ev->cy;
+  if (ev->has_pose) {
+    /* the frame's own pose, as far from the frame's new time as it was recorded */
+    h->flags |= VLFF_FRAME_POSE_VALID;
+    memcpy(h->pose, ev->pose, sizeof h->pose);
+    int64_t d = (int64_t)(ev->pose_t_ns - ev->t_ns);
+    if (d == INT64_MIN) d++;
+    if (rate != 1) d = (int64_t)llround((double)d / rate);
+    h->pose_t_ns = d < 0 && (uint64_t)-d > t ? 0 : t + (uint64_t)d;
+  }
   for (unsigned i = 0; i < 2; i++) {
     const uint8_t *src = i ? ev->depth : ev->color;
     if (!src) continue;
@@ -228,7 +238,7 @@ static int play(struct player *p) {
         if (vlff_ring_write(p->poses, &pr, sizeof pr) < 0) return ring_error("pose", "commit");
         p->poses_out++;
       } else if (ev.kind == VLFF_IN_EV_FRAME) {
-        if (put_frame(p, &ev, id, t, rec - first) < 0) return -1;
+        if (put_frame(p, &ev, id, t, rec - first, rate) < 0) return -1;
         p->recent[id % RECENT] = (struct recent){ev.t_ns, id, t, pass};
         id++;
         p->published++;

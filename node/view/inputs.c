@@ -29,10 +29,10 @@
 #endif
 
 static const char *const topics[VLFF_IN_CHANNELS + 1] = {
-    NULL, "/input/color", "/input/depth", "/input/calibration", "/input/pose", "/input/features"};
+    NULL, "/input/color", "/input/depth", "/input/calibration", "/input/pose", "/input/features", "/input/frame_pose"};
 static const char *const schema_names[VLFF_IN_CHANNELS + 1] = {
     NULL, "foxglove.RawImage", "foxglove.RawImage", "foxglove.CameraCalibration", "foxglove.FrameTransform",
-    "vlff.FeatureMap"};
+    "vlff.FeatureMap", "foxglove.FrameTransform"};
 
 const char *vlff_in_topic(int ch) { return ch >= 1 && ch <= VLFF_IN_CHANNELS ? topics[ch] : NULL; }
 
@@ -72,8 +72,8 @@ static const char feat_schema[] =
     "\"width\":{\"type\":\"integer\",\"minimum\":1},\"encoding\":{\"type\":\"string\",\"enum\":[\"float16\"]},"
     "\"data\":{\"type\":\"string\",\"contentEncoding\":\"base64\"}},"
     "\"required\":[\"timestamp\",\"frame_id\",\"dim\",\"height\",\"width\",\"encoding\",\"data\"]}";
-static const char *const schemas[VLFF_IN_CHANNELS + 1] = {NULL, raw_schema, raw_schema, calib_schema, tf_schema,
-                                                          feat_schema};
+static const char *const schemas[VLFF_IN_CHANNELS + 1] = {NULL,      raw_schema,  raw_schema, calib_schema,
+                                                          tf_schema, feat_schema, tf_schema};
 
 static const struct {
   uint32_t fmt;
@@ -189,6 +189,9 @@ static int emit(struct vlff_mcap_writer *w, int ch, uint64_t t, struct sb *b, ch
   return 0;
 }
 
+static int write_transform(struct vlff_mcap_writer *w, int ch, uint64_t t_ns, const double P[16], char *why,
+                           size_t len);
+
 /* A plane as a RawImage, its rows packed. */
 static int write_plane(struct vlff_mcap_writer *w, int ch, uint64_t t, const struct vlff_plane *pl,
                        const uint8_t *px, struct sb *b, uint8_t **rows, char *why, size_t len) {
@@ -227,6 +230,8 @@ int vlff_in_write_frame(struct vlff_mcap_writer *w, const void *record, size_t r
   const uint8_t *dp = vlff_frame_plane(record, VLFF_PLANE_DEPTH);
   if (!rc && dp) rc = write_plane(w, VLFF_IN_DEPTH, t, &h->plane[VLFF_PLANE_DEPTH], dp, &b, &rows, why, len);
   free(rows);
+  if (!rc && (h->flags & VLFF_FRAME_POSE_VALID))
+    rc = write_transform(w, VLFF_IN_FRAME_POSE, h->pose_t_ns, h->pose, why, len);
   if (rc) return rc;
   const struct vlff_plane *pl = &h->plane[VLFF_PLANE_COLOR];
   double cx = h->cx - 0.5, cy = h->cy - 0.5; /* OpenCV's principal point */
@@ -241,7 +246,8 @@ int vlff_in_write_frame(struct vlff_mcap_writer *w, const void *record, size_t r
   return emit(w, VLFF_IN_CALIBRATION, t, &b, why, len);
 }
 
-int vlff_in_write_pose(struct vlff_mcap_writer *w, uint64_t t_ns, const double P[16], char *why, size_t len) {
+static int write_transform(struct vlff_mcap_writer *w, int ch, uint64_t t_ns, const double P[16], char *why,
+                           size_t len) {
   for (int i = 0; i < 16; i++)
     if (!isfinite(P[i])) return fail(why, len, "a pose with a non-finite element");
   double q[4]; /* w x y z */
@@ -254,10 +260,14 @@ int vlff_in_write_pose(struct vlff_mcap_writer *w, uint64_t t_ns, const double P
                    "\"rotation\":{\"x\":%.17g,\"y\":%.17g,\"z\":%.17g,\"w\":%.17g}}",
                    (unsigned long long)(t_ns / 1000000000u), (unsigned)(t_ns % 1000000000u), P[3], P[7], P[11], q[1],
                    q[2], q[3], q[0]);
-  if (k < 0 || (size_t)k >= cap) return fail(why, len, "%s: message too long", topics[VLFF_IN_POSE]);
-  if (vlff_mcap_writer_message(w, VLFF_IN_POSE, t_ns, t_ns, buf, (size_t)k) < 0)
-    return fail(why, len, "%s: %s", topics[VLFF_IN_POSE], vlff_mcap_writer_error(w));
+  if (k < 0 || (size_t)k >= cap) return fail(why, len, "%s: message too long", topics[ch]);
+  if (vlff_mcap_writer_message(w, (uint16_t)ch, t_ns, t_ns, buf, (size_t)k) < 0)
+    return fail(why, len, "%s: %s", topics[ch], vlff_mcap_writer_error(w));
   return 0;
+}
+
+int vlff_in_write_pose(struct vlff_mcap_writer *w, uint64_t t_ns, const double P[16], char *why, size_t len) {
+  return write_transform(w, VLFF_IN_POSE, t_ns, P, why, len);
 }
 
 int vlff_in_write_features(struct vlff_mcap_writer *w, const void *record, size_t rec_len, char **scratch,
@@ -602,6 +612,10 @@ int vlff_in_next(struct vlff_in_reader *r, struct vlff_in_event *out, char *why,
       bad(&c, "not just after a colour message of the same stamp");
       goto out;
     }
+    if (ch == VLFF_IN_FRAME_POSE && !r->pending) {
+      bad(&c, "not just after a frame's colour message");
+      goto out;
+    }
     switch (ch) {
     case VLFF_IN_COLOR:
       memset(&r->ev, 0, sizeof r->ev);
@@ -622,10 +636,23 @@ int vlff_in_next(struct vlff_in_reader *r, struct vlff_in_event *out, char *why,
         bad(&c, "%ux%u, its frame's colour is %ux%u", w, h, r->ev.width, r->ev.height);
         goto out;
       }
+      if (r->ev.has_pose) {
+        bad(&c, "the frame's depth after its pose");
+        goto out;
+      }
       r->pending_depth = 1, r->ev.depth_format = f;
       rc = 2;
       break;
     }
+    case VLFF_IN_FRAME_POSE:
+      if (r->ev.has_pose) {
+        bad(&c, "a second pose for the frame");
+        goto out;
+      }
+      if (pose(&r->ev, &c, o) < 0) goto out;
+      r->ev.has_pose = 1, r->ev.pose_t_ns = t;
+      rc = 2;
+      break;
     case VLFF_IN_CALIBRATION:
       if (calibration(r, &c, o) < 0) goto out;
       if (r->geom && (r->ev.width != r->width || r->ev.height != r->height || r->ev.color_format != r->color_format ||

@@ -18,12 +18,16 @@
  *                       left of and above the ring's); it closes the frame
  *   /input/pose         foxglove.FrameTransform world -> camera: a pose ring
  *                       record (camera-to-world), rotation as a quaternion
+ *   /input/frame_pose   foxglove.FrameTransform: the pose a frame record carries
+ *                       itself (VLFF_FRAME_POSE_VALID: a camera with its own
+ *                       tracker), stamped with its pose_t_ns
  *   /input/features     vlff.FeatureMap: a feature ring record, {timestamp,
  *                       frame_id (the frame's number in the ring), dim, height,
  *                       width, encoding "float16", data: base64 of the ring's
  *                       [dim][height][width] little-endian IEEE half floats}
- * A frame is its colour message, then its depth message, then its calibration,
- * consecutive and with one timestamp: the frame's t_host_ns. A pose's timestamp
+ * A frame is its colour message, then its depth message, then its own pose, then
+ * its calibration, consecutive, the images and the calibration with one
+ * timestamp: the frame's t_host_ns. A pose's timestamp
  * is its t_ns; a feature map's is its t_host_ns (the frame's host time, by which
  * vlff-replay finds the frame it belongs to). Numbers are written with 17
  * significant digits, so that every double reads back as the same double.
@@ -65,14 +69,15 @@ enum vlff_in_channel {
   VLFF_IN_CALIBRATION,
   VLFF_IN_POSE,
   VLFF_IN_FEATURES,
-  VLFF_IN_CHANNELS = VLFF_IN_FEATURES
+  VLFF_IN_FRAME_POSE,
+  VLFF_IN_CHANNELS = VLFF_IN_FRAME_POSE
 };
 /* The topic of channel ch (1..VLFF_IN_CHANNELS). */
 const char *vlff_in_topic(int ch);
 
 /* --------------------------------------------------------------- writing */
 
-/* Declares the five channels on w (ids 1..5) with their schemas. */
+/* Declares the channels on w (ids 1..VLFF_IN_CHANNELS) with their schemas. */
 int vlff_in_declare(struct vlff_mcap_writer *w, char *why, size_t len);
 /* One ring record as its messages: a frame record (its planes, intrinsics and
  * t_host_ns; a record that vlff_frame_validate refuses is refused), a pose
@@ -97,7 +102,9 @@ struct vlff_in_event {
   uint32_t color_format, depth_format; /* enum vlff_pixfmt; depth VLFF_PIX_NONE = none */
   const uint8_t *color, *depth;        /* packed rows */
   double fx, fy, cx, cy;               /* the ring's convention */
-  /* pose: camera-to-world, row-major */
+  int has_pose;                        /* the frame's own pose (in pose, at pose_t_ns) */
+  uint64_t pose_t_ns;
+  /* pose (and a frame's own): camera-to-world, row-major */
   double pose[16];
   /* features */
   uint64_t frame_id;

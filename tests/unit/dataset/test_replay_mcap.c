@@ -152,7 +152,7 @@ static void mcap_check(const char *path, int messages) {
   snprintf(want, sizeof want, "\"messages\":%d,", messages);
   assert_non_null(strstr(line, "\"ok\":1"));
   assert_non_null(strstr(line, want));
-  assert_non_null(strstr(line, "\"channels\":5,"));
+  assert_non_null(strstr(line, "\"channels\":6,"));
 }
 
 static void test_round_trip(void **state) {
@@ -249,6 +249,60 @@ static void test_round_trip(void **state) {
   vlff_ring_close(fr);
   vlff_ring_close(pr);
   vlff_ring_close(xr);
+}
+
+/* A camera with its own tracker: the pose travels in the frame record
+ * (vlff-replay --pose-in-frame), is recorded on /input/frame_pose and comes
+ * back in the frame record, at the frame's new time; the pose ring stays empty. */
+static void test_pose_in_frame(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *cfg_path = config(&cfg);
+  write_scene();
+  char mcap[300], rec_log[300], log1[300], log2[300];
+  snprintf(mcap, sizeof mcap, "%s/inframe.mcap", tk.dir);
+  snprintf(rec_log, sizeof rec_log, "%s/record.log", tk.dir);
+  snprintf(log1, sizeof log1, "%s/replay1.log", tk.dir);
+  snprintf(log2, sizeof log2, "%s/replay2.log", tk.dir);
+  const char *rargs[] = {"--config", cfg_path, "--quiet", "--no-features", mcap, NULL};
+  pid_t rec = tk_spawn(&tk, "node/view/vlff-record", rargs, rec_log);
+  int rc = run_replay(log1, "--config", cfg_path, "--backpressure", "--quiet", "--pose-in-frame", "--no-features",
+                      scene, NULL);
+  if (rc) fail_msg("vlff-replay of the scene: %d: %s", rc, tk_slurp(log1));
+  kill(rec, SIGINT);
+  assert_int_equal(tk_wait_child(&tk, rec), 0);
+  const char *said = tk_slurp(rec_log);
+  printf("# %s", said);
+  assert_non_null(strstr(said, "9 frames, 0 poses, 0 feature maps recorded; 0 records missed"));
+  mcap_check(mcap, 4 * N);
+  unlink_rings(&cfg);
+  const char *pargs[] = {"--config", cfg_path, "--backpressure", mcap, NULL};
+  pid_t play = tk_spawn(&tk, "node/dataset/vlff-replay", pargs, log2);
+  struct vlff_ring *fr = attach_wait(cfg.shm.ring, VLFF_RECORD_FRAME, 20 * tk.scale);
+  size_t fcap = vlff_ring_slot_size(fr);
+  uint8_t *fb = malloc(fcap);
+  assert_non_null(fb);
+  for (int i = 0; i < N; i++) {
+    struct vlff_ring_view v;
+    ssize_t n = vlff_ring_read_copy(fr, fb, fcap, &v, (uint64_t)(10e9 * tk.scale));
+    if (n < 0) fail_msg("frame %d: %s", i, strerror(errno));
+    assert_int_equal(vlff_frame_validate(fb, (size_t)n), 0);
+    const struct vlff_frame_hdr *h = (const void *)fb;
+    assert_int_equal(h->frame_id, i);
+    assert_true(h->flags & VLFF_FRAME_POSE_VALID);
+    assert_int_equal(h->pose_t_ns, h->t_host_ns);
+    for (int k = 0; k < 16; k++)
+      if (fabs(h->pose[k] - c2w[i][k]) > 1e-12) fail_msg("frame %d pose [%d]: %.17g, the scene's %.17g", i, k, h->pose[k], c2w[i][k]);
+    assert_memory_equal(vlff_frame_plane(fb, 0), rgb[i], W * 3); /* the first row */
+  }
+  assert_int_equal(tk_wait_child(&tk, play), 0);
+  struct vlff_ring *pr = vlff_ring_attach(cfg.shm.pose_ring, VLFF_RECORD_POSE);
+  assert_non_null(pr);
+  assert_int_equal(vlff_ring_head(pr), 0);
+  printf("# %s", tk_slurp(log2));
+  vlff_ring_close(pr);
+  vlff_ring_close(fr);
+  free(fb);
 }
 
 /* ------------------------------------------------- recordings written here */
@@ -478,6 +532,7 @@ static int teardown(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_setup_teardown(test_round_trip, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_pose_in_frame, setup, teardown),
       cmocka_unit_test_setup_teardown(test_no_features, setup, teardown),
       cmocka_unit_test_setup_teardown(test_bad_recordings_refused, setup, teardown),
   };
