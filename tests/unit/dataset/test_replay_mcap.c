@@ -344,6 +344,80 @@ static void close_writer(struct vlff_mcap_writer *w) {
   if (vlff_mcap_writer_close(w, err, sizeof err)) fail_msg("%s", err);
 }
 
+/* Frames 50 ms apart (a pose at each, one between): played at their stamps,
+ * --rate 2 twice as fast, --fps 10 at a mean 10 Hz, and --loop --count going on
+ * after the last frame with one mean interval; each pose at its frame's time
+ * or, between frames, at its own place. Times are the schedule's (base + the
+ * recorded offset / rate): exact unless the replay ran late, which a host this
+ * idle does not make it (a late frame is counted: the test then says so). */
+static void check_pace(const struct vlff_config *cfg, const char *cfg_path, const char *path, const char *log,
+                       double scale, int frames, const char *a1, const char *a2, const char *a3) {
+  unlink_rings(cfg);
+  const char *args[] = {"--config", cfg_path, "--wait-reader", path, a1, a2, a3, NULL}; /* a1 NULL: none */
+  pid_t play = tk_spawn(&tk, "node/dataset/vlff-replay", args, log);
+  struct vlff_ring *fr = attach_wait(cfg->shm.ring, VLFF_RECORD_FRAME, 20 * tk.scale);
+  struct vlff_ring *pr = attach_wait(cfg->shm.pose_ring, VLFF_RECORD_POSE, 5 * tk.scale);
+  size_t cap = vlff_ring_slot_size(fr);
+  uint8_t *b = malloc(cap);
+  assert_non_null(b);
+  uint64_t t[16];
+  assert_true(frames <= 16);
+  for (int i = 0; i < frames; i++) {
+    struct vlff_ring_view v;
+    if (vlff_ring_read_copy(fr, b, cap, &v, (uint64_t)(10e9 * tk.scale)) < 0) fail_msg("frame %d: %s", i, strerror(errno));
+    const struct vlff_frame_hdr *h = (const void *)b;
+    assert_int_equal(h->frame_id, i);
+    t[i] = h->t_host_ns;
+  }
+  assert_int_equal(tk_wait_child(&tk, play), 0);
+  const char *said = tk_slurp(log);
+  printf("# %s", said);
+  if (!strstr(said, " 0 late\n")) {
+    printf("# the replay ran late on this host: the pace is not checked\n");
+  } else {
+    for (int i = 1; i < frames; i++) {
+      int64_t want = (int64_t)llround(50e6 * scale), got = (int64_t)(t[i] - t[i - 1]);
+      if (llabs(got - want) > 1) fail_msg("frame %d %lld ns after the previous, not %lld", i, (long long)got, (long long)want);
+    }
+    /* poses: one at each frame's time, and one half-way to the next */
+    for (int i = 0; i < frames && i < 6; i++) {
+      struct vlff_pose_rec p;
+      struct vlff_ring_view v;
+      assert_true(vlff_ring_read_copy(pr, &p, sizeof p, &v, 0) == sizeof p);
+      assert_int_equal(p.t_ns, t[i]);
+      if (i == 2) {
+        assert_true(vlff_ring_read_copy(pr, &p, sizeof p, &v, 0) == sizeof p);
+        int64_t d = (int64_t)(p.t_ns - t[2]), want = (int64_t)llround(20e6 * scale);
+        if (llabs(d - want) > 1) fail_msg("the pose between frames %lld ns after frame 2, not %lld", (long long)d, (long long)want);
+      }
+    }
+  }
+  free(b);
+  vlff_ring_close(fr);
+  vlff_ring_close(pr);
+}
+
+static void test_pace(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *cfg_path = config(&cfg);
+  char path[300], log[300], err[256];
+  snprintf(path, sizeof path, "%s/pace.mcap", tk.dir);
+  snprintf(log, sizeof log, "%s/pace.log", tk.dir);
+  struct vlff_mcap_writer *w = writer(path);
+  const uint64_t t0 = 7000000000ull, dt = 50000000ull;
+  for (int i = 0; i < 6; i++) {
+    if (vlff_in_write_pose(w, t0 + i * dt, c2w[i], err, sizeof err)) fail_msg("%s", err);
+    put_frame(w, i, t0 + i * dt);
+    if (i == 2 && vlff_in_write_pose(w, t0 + i * dt + 20000000ull, c2w[i], err, sizeof err)) fail_msg("%s", err);
+  }
+  close_writer(w);
+  check_pace(&cfg, cfg_path, path, log, 1, 6, NULL, NULL, NULL);
+  check_pace(&cfg, cfg_path, path, log, 0.5, 6, "--rate", "2", NULL);
+  check_pace(&cfg, cfg_path, path, log, 2, 6, "--fps", "10", NULL);
+  check_pace(&cfg, cfg_path, path, log, 0.5, 9, "--rate=2", "--loop", "--count=9");
+}
+
 /* A recording of frames and poses only: played without features, saying so. */
 static void test_no_features(void **state) {
   (void)state;
@@ -533,6 +607,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_setup_teardown(test_round_trip, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_in_frame, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_pace, setup, teardown),
       cmocka_unit_test_setup_teardown(test_no_features, setup, teardown),
       cmocka_unit_test_setup_teardown(test_bad_recordings_refused, setup, teardown),
   };
