@@ -418,6 +418,82 @@ static void test_pace(void **state) {
   check_pace(&cfg, cfg_path, path, log, 0.5, 9, "--rate=2", "--loop", "--count=9");
 }
 
+/* A recorder that falls behind (stopped here while the replay goes on, as a
+ * slow disk would stall it) is lapped: it logs and counts the records it
+ * missed, the producer never waits for it, and the file it closes holds what
+ * it did read, which plays (maps whose frame was missed passed over). */
+static void test_recorder_behind(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *cfg_path = tk_config(&tk, &cfg, "shm:\n%s  ring_slots: 2\n", tk_shm_names(&tk));
+  write_scene();
+  char mcap[300], rec_log[300], log1[300], log2[300];
+  snprintf(mcap, sizeof mcap, "%s/behind.mcap", tk.dir);
+  snprintf(rec_log, sizeof rec_log, "%s/record.log", tk.dir);
+  snprintf(log1, sizeof log1, "%s/replay1.log", tk.dir);
+  snprintf(log2, sizeof log2, "%s/replay2.log", tk.dir);
+  const char *rargs[] = {"--config", cfg_path, mcap, NULL};
+  pid_t rec = tk_spawn(&tk, "node/view/vlff-record", rargs, rec_log);
+  const char *pargs[] = {"--config", cfg_path, "--quiet", "--loop", "--rate", "10", scene, NULL};
+  pid_t play = tk_spawn(&tk, "node/dataset/vlff-replay", pargs, log1);
+  assert_true(tk_wait_for_text(rec_log, "recording the feature ring", 20 * tk.scale));
+  tk_sleep_s(0.3);
+  kill(rec, SIGSTOP);
+  tk_sleep_s(1.0); /* the replay publishes some 300 frames into 2 slots meanwhile */
+  kill(rec, SIGCONT);
+  tk_sleep_s(0.3);
+  kill(rec, SIGINT);
+  assert_int_equal(tk_wait_child(&tk, rec), 0);
+  kill(play, SIGTERM);
+  assert_int_equal(tk_wait_child(&tk, play), 0);
+  const char *said = tk_slurp(rec_log);
+  printf("# %s", said);
+  assert_non_null(strstr(said, "vlff-record: fell behind the frame ring: "));
+  const char *sum = strstr(said, "feature maps recorded; ");
+  assert_non_null(sum);
+  unsigned long long missed = strtoull(sum + strlen("feature maps recorded; "), NULL, 10);
+  assert_true(missed >= 100);
+  unlink_rings(&cfg);
+  assert_int_equal(run_replay(log2, "--config", cfg_path, "--rate", "20", mcap, NULL), 0);
+  printf("# %s", tk_slurp(log2));
+  assert_non_null(strstr(tk_slurp(log2), "feature maps published;"));
+}
+
+/* vlff-record's command line: an existing file is kept without --force. */
+static void test_record_cli(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  const char *cfg_path = config(&cfg);
+  char path[300], log[300], err[256];
+  snprintf(path, sizeof path, "%s/exists.mcap", tk.dir);
+  snprintf(log, sizeof log, "%s/cli.log", tk.dir);
+  assert_int_equal(vlff_write_file_atomic(path, "keep", 4, err, sizeof err), 0);
+  const char *a1[] = {"--config", cfg_path, path, NULL};
+  assert_int_equal(tk_wait_child(&tk, tk_spawn(&tk, "node/view/vlff-record", a1, log)), 1);
+  assert_non_null(strstr(tk_slurp(log), "exists (--force replaces it)"));
+  assert_string_equal(tk_slurp(path), "keep");
+  const char *a2[] = {"--config", cfg_path, "--zstd", "20", path, NULL};
+  assert_int_equal(tk_wait_child(&tk, tk_spawn(&tk, "node/view/vlff-record", a2, log)), 2);
+  const char *a3[] = {"--config", cfg_path, NULL};
+  assert_int_equal(tk_wait_child(&tk, tk_spawn(&tk, "node/view/vlff-record", a3, log)), 2);
+  /* --force, --count: stops by itself after that many frames */
+  const char *a4[] = {"--config", cfg_path, "--force", "--count", "2", "--quiet", path, NULL};
+  pid_t rec = tk_spawn(&tk, "node/view/vlff-record", a4, log);
+  struct vlff_mcap_writer *w;
+  char src[300];
+  snprintf(src, sizeof src, "%s/three.mcap", tk.dir);
+  w = writer(src);
+  for (int i = 0; i < 3; i++) put_frame(w, i, 1000000000ull + (uint64_t)i * 10000000ull);
+  close_writer(w);
+  char log2[300];
+  snprintf(log2, sizeof log2, "%s/cli2.log", tk.dir);
+  /* --wait-reader, not --backpressure: a recorder that has its frames stops reading */
+  assert_int_equal(run_replay(log2, "--config", cfg_path, "--wait-reader", "--quiet", src, NULL), 0);
+  assert_int_equal(tk_wait_child(&tk, rec), 0);
+  printf("# %s", tk_slurp(log));
+  assert_non_null(strstr(tk_slurp(log), ": 2 frames, 0 poses, 0 feature maps recorded"));
+}
+
 /* A recording of frames and poses only: played without features, saying so. */
 static void test_no_features(void **state) {
   (void)state;
@@ -608,6 +684,8 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_round_trip, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_in_frame, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pace, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_recorder_behind, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_record_cli, setup, teardown),
       cmocka_unit_test_setup_teardown(test_no_features, setup, teardown),
       cmocka_unit_test_setup_teardown(test_bad_recordings_refused, setup, teardown),
   };
