@@ -199,7 +199,10 @@ static int play(struct player *p) {
     int rc = 0;
     int done = 0;
     while (!vlff_cli_stop && (rc = vlff_in_next(p->in, &ev, why, sizeof why)) == 1) {
-      if (!pass && ev.t_ns < t0) continue; /* before --start's frame */
+      /* Records before the first played frame (--start's, or a pose ring's
+       * history the recorder found when it attached) have no place in the
+       * schedule, which starts at that frame: passed over. */
+      if (ev.t_ns < (pass ? first : t0)) continue;
       uint64_t rec = pass * span + ev.t_ns; /* the record's place in the playback */
       uint64_t off = rate == 1 ? rec - t0 : (uint64_t)llround((double)(rec - t0) / rate);
       if (ev.kind == VLFF_IN_EV_FRAME) {
