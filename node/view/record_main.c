@@ -15,9 +15,10 @@
  *
  * Each ring is attached when it appears (a producer started after the
  * recorder), from its oldest record still held, and again when its producer
- * replaces it. The loop drains the pose ring, then the frame ring, then the
- * feature ring, the order in which the live processes produce a frame's
- * records, so the file's order is the order the node saw them in.
+ * replaces it. Each frame is written after the poses committed before it was
+ * read and before the feature maps committed after, the order in which the
+ * live processes produce a frame's records, so the file's order is the order
+ * the node saw them in.
  */
 #include <errno.h>
 #include <getopt.h>
@@ -84,6 +85,8 @@ struct rec {
   size_t scratch_cap;
   int quiet;
   uint64_t lost_prev; /* rings replaced: what their old handles had lost */
+  size_t held_len;    /* a feature map read and kept for after its frame (in the ring's buffer) */
+  uint64_t held_seq;
 };
 
 static void attach(struct rec *r, int i, uint64_t now) {
@@ -107,62 +110,125 @@ static void attach(struct rec *r, int i, uint64_t now) {
   if (!r->quiet) fprintf(stderr, "vlff-record: recording the %s ring %s\n", ring_what[i], VLFF_Q(s->name));
 }
 
-/* Reads and writes what ring i holds, waiting up to timeout_ns for the first
- * record. -1 when the file cannot be written. */
-static int drain(struct rec *r, int i, uint64_t timeout_ns, long long *frames, long long count) {
+/* The next record of ring i into its buffer, waiting up to timeout_ns: its
+ * length, or 0 when there is none (the ring replaced: attached again later). */
+static ssize_t read_one(struct rec *r, int i, uint64_t timeout_ns, uint64_t *seq) {
   struct src *s = &r->s[i];
   if (!s->ring) return 0;
+  struct vlff_ring_view v;
+  ssize_t n = vlff_ring_read_copy(s->ring, s->buf, s->cap, &v, timeout_ns);
+  uint64_t lost = vlff_ring_lost(s->ring);
+  if (lost > s->lost_said) {
+    fprintf(stderr, "vlff-record: fell behind the %s ring: %llu records missed so far\n", ring_what[i],
+            (unsigned long long)lost);
+    s->lost_said = lost;
+  }
+  if (n < 0) {
+    if (errno == EPIPE) { /* the producer replaced the ring: attach the new one */
+      fprintf(stderr, "vlff-record: the %s ring %s was replaced: attaching again\n", ring_what[i], VLFF_Q(s->name));
+      r->lost_prev += vlff_ring_lost(s->ring);
+      vlff_ring_close(s->ring);
+      s->ring = NULL;
+      s->lost_said = 0;
+      s->last_try = 0;
+    }
+    return 0; /* EAGAIN, ETIMEDOUT, EINTR */
+  }
+  *seq = v.seq;
+  return n;
+}
+
+/* Writes the record of ring i read into its buffer. -1 when the file cannot be
+ * written; a record its producer got wrong is named and counted. */
+static int write_one(struct rec *r, int i, size_t n, uint64_t seq) {
+  struct src *s = &r->s[i];
   char why[512];
+  int rc;
+  if (i == R_POSE) {
+    const struct vlff_pose_rec *p = s->buf;
+    rc = n >= sizeof *p ? vlff_in_write_pose(r->w, p->t_ns, p->pose, why, sizeof why)
+                        : (snprintf(why, sizeof why, "a pose record of %zu bytes", n), -1);
+  } else if (i == R_FRAME) {
+    rc = vlff_in_write_frame(r->w, s->buf, n, &r->scratch, &r->scratch_cap, why, sizeof why);
+  } else {
+    rc = vlff_in_write_features(r->w, s->buf, n, &r->scratch, &r->scratch_cap, why, sizeof why);
+  }
+  if (rc < 0) {
+    if (vlff_mcap_writer_error(r->w)) {
+      fprintf(stderr, "vlff-record: %s\n", why);
+      return -1;
+    }
+    s->bad++; /* a record its producer got wrong: the node refuses it too */
+    fprintf(stderr, "vlff-record: %s ring record %llu not recorded: %s\n", ring_what[i], (unsigned long long)seq,
+            why);
+    return 0;
+  }
+  s->records++;
+  return 0;
+}
+
+/* Writes every record ring i holds now. */
+static int drain(struct rec *r, int i) {
+  uint64_t seq;
+  ssize_t n;
+  while ((n = read_one(r, i, 0, &seq)) > 0)
+    if (write_one(r, i, (size_t)n, seq) < 0) return -1;
+  return 0;
+}
+
+/* Writes the feature maps the ring holds now (all), or only those of frames
+ * stamped before limit_ns, the first later one kept for after its frame. */
+static int drain_features(struct rec *r, int all, uint64_t limit_ns) {
+  struct src *s = &r->s[R_FEAT];
+  if (r->held_len) {
+    if (!all && ((const struct vlff_feature_hdr *)s->buf)->t_host_ns >= limit_ns) return 0;
+    size_t n = r->held_len;
+    r->held_len = 0;
+    if (write_one(r, R_FEAT, n, r->held_seq) < 0) return -1;
+  }
+  uint64_t seq;
+  ssize_t n;
+  while ((n = read_one(r, R_FEAT, 0, &seq)) > 0) {
+    if (!all && (size_t)n >= sizeof(struct vlff_feature_hdr) &&
+        ((const struct vlff_feature_hdr *)s->buf)->t_host_ns >= limit_ns) {
+      r->held_len = (size_t)n, r->held_seq = seq; /* its frame is the one being written, or a later one */
+      return 0;
+    }
+    if (write_one(r, R_FEAT, (size_t)n, seq) < 0) return -1;
+  }
+  return 0;
+}
+
+/* The frames, waiting up to timeout_ns for the first. Each is written after
+ * the feature maps of earlier frames and the poses committed before it was
+ * read, and before its own feature map: the order in which a pose source, a
+ * camera and an extractor commit a frame's records, which the node's pose
+ * lookup relies on when the recording is played. Stops at count frames (0: no
+ * limit). */
+static int frames_step(struct rec *r, uint64_t timeout_ns, long long *frames, long long count) {
   for (;;) {
-    if (i == R_FRAME && count > 0 && *frames >= count) return 0;
-    struct vlff_ring_view v;
-    ssize_t n = vlff_ring_read_copy(s->ring, s->buf, s->cap, &v, timeout_ns);
+    if (count > 0 && *frames >= count) return 0;
+    uint64_t seq;
+    ssize_t n = read_one(r, R_FRAME, timeout_ns, &seq);
     timeout_ns = 0;
-    uint64_t lost = vlff_ring_lost(s->ring);
-    if (lost > s->lost_said) {
-      fprintf(stderr, "vlff-record: fell behind the %s ring: %llu records missed so far\n", ring_what[i],
-              (unsigned long long)lost);
-      s->lost_said = lost;
-    }
-    if (n < 0) {
-      if (errno == EPIPE) { /* the producer replaced the ring: attach the new one */
-        fprintf(stderr, "vlff-record: the %s ring %s was replaced: attaching again\n", ring_what[i],
-                VLFF_Q(s->name));
-        r->lost_prev += vlff_ring_lost(s->ring);
-        vlff_ring_close(s->ring);
-        s->ring = NULL;
-        s->lost_said = 0;
-        s->last_try = 0;
+    int framed = n >= (ssize_t)sizeof(struct vlff_frame_hdr);
+    uint64_t t = framed ? ((const struct vlff_frame_hdr *)r->s[R_FRAME].buf)->t_host_ns : 0;
+    /* the maps of earlier frames, then the poses, the frame, its own map */
+    if (drain_features(r, !framed, t) < 0 || drain(r, R_POSE) < 0) return -1;
+    if (n > 0) {
+      uint64_t before = r->s[R_FRAME].records;
+      if (write_one(r, R_FRAME, (size_t)n, seq) < 0) return -1;
+      if (r->s[R_FRAME].records > before) {
+        ++*frames;
+        if (!r->quiet && *frames % 300 == 0)
+          fprintf(stderr, "vlff-record: %lld frames, %llu bytes\n", *frames,
+                  (unsigned long long)vlff_mcap_writer_bytes(r->w));
       }
-      return 0; /* EAGAIN, ETIMEDOUT, EINTR */
     }
-    int rc;
-    if (i == R_POSE) {
-      const struct vlff_pose_rec *p = s->buf;
-      rc = (size_t)n >= sizeof *p ? vlff_in_write_pose(r->w, p->t_ns, p->pose, why, sizeof why)
-                                  : (snprintf(why, sizeof why, "a pose record of %zd bytes", n), -1);
-    } else if (i == R_FRAME) {
-      rc = vlff_in_write_frame(r->w, s->buf, (size_t)n, &r->scratch, &r->scratch_cap, why, sizeof why);
-    } else {
-      rc = vlff_in_write_features(r->w, s->buf, (size_t)n, &r->scratch, &r->scratch_cap, why, sizeof why);
-    }
-    if (rc < 0) {
-      if (vlff_mcap_writer_error(r->w)) {
-        fprintf(stderr, "vlff-record: %s\n", why);
-        return -1;
-      }
-      s->bad++; /* a record its producer got wrong: the node refuses it too */
-      fprintf(stderr, "vlff-record: %s ring record %llu not recorded: %s\n", ring_what[i],
-              (unsigned long long)v.seq, why);
-      continue;
-    }
-    s->records++;
-    if (i == R_FRAME) {
-      ++*frames;
-      if (!r->quiet && *frames % 300 == 0)
-        fprintf(stderr, "vlff-record: %lld frames, %llu bytes\n", *frames,
-                (unsigned long long)vlff_mcap_writer_bytes(r->w));
-    }
+    /* with no frame left to read, every map's frame has been read (an extractor
+     * reads a frame before it publishes the frame's map) */
+    if (framed ? drain_features(r, t == UINT64_MAX, t + 1) < 0 : drain_features(r, 1, 0) < 0) return -1;
+    if (n <= 0) return 0;
   }
 }
 
@@ -245,9 +311,8 @@ int main(int argc, char **argv) {
       said_wait = 1;
     }
     /* the frame ring paces the loop: its reader sleeps there between frames */
-    if (drain(&r, R_POSE, 0, &frames, count) < 0 ||
-        drain(&r, R_FRAME, stopping || !r.s[R_FRAME].ring ? 0 : 20000000ull, &frames, count) < 0 ||
-        drain(&r, R_FEAT, 0, &frames, count) < 0 || vlff_mcap_writer_tick(r.w, vlff_now_ns()) < 0)
+    if (frames_step(&r, stopping || !r.s[R_FRAME].ring ? 0 : 20000000ull, &frames, count) < 0 ||
+        drain(&r, R_POSE) < 0 || drain_features(&r, 1, 0) < 0 || vlff_mcap_writer_tick(r.w, vlff_now_ns()) < 0)
       failed = 1;
     if (stopping) break; /* the rings drained once more after the stop */
     if (!r.s[R_FRAME].ring) {

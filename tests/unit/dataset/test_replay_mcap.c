@@ -178,6 +178,33 @@ static void test_round_trip(void **state) {
   printf("# %s", said);
   assert_non_null(strstr(said, "9 frames, 9 poses, 9 feature maps recorded; 0 records missed, 0 malformed"));
   mcap_check(mcap, 5 * N);
+  /* in the file, each frame's pose before it, its feature map after it: the
+   * order the producers committed them, which the node's pose lookup needs */
+  {
+    uint8_t *d = NULL;
+    size_t dn = 0;
+    char err[256];
+    assert_int_equal(vlff_read_file(mcap, 1 << 26, &d, &dn, err, sizeof err), 0);
+    struct vlff_in_reader *in = vlff_in_reader_new(d, dn, err, sizeof err);
+    assert_non_null(in);
+    struct vlff_in_event ev;
+    uint64_t last_pose = 0, last_frame = 0;
+    int frames = 0, next;
+    while ((next = vlff_in_next(in, &ev, err, sizeof err)) == 1) {
+      if (ev.kind == VLFF_IN_EV_POSE) last_pose = ev.t_ns;
+      if (ev.kind == VLFF_IN_EV_FRAME) {
+        if (last_pose != ev.t_ns) fail_msg("frame %d (message %llu) before its pose", frames, (unsigned long long)ev.index);
+        last_frame = ev.t_ns;
+        frames++;
+      }
+      if (ev.kind == VLFF_IN_EV_FEATURES && ev.t_ns != last_frame)
+        fail_msg("the feature map of message %llu not after its frame", (unsigned long long)ev.index);
+    }
+    assert_int_equal(next, 0);
+    assert_int_equal(frames, N);
+    vlff_in_reader_free(in);
+    free(d);
+  }
   unlink_rings(&cfg);
 
   /* MCAP -> vlff-replay -> fresh rings -> this reader */
