@@ -309,10 +309,15 @@ int vlff_replay_mcap(const char *path, const struct vlff_config *cfg, const stru
   p.o = &opts;
   if (open_rings(&p, cfg) < 0) goto out;
   vlff_cli_catch_stop();
+  char pace[96];
+  if (opts.backpressure) snprintf(pace, sizeof pace, "paced by the reader");
+  else if (opts.fps > 0)
+    snprintf(pace, sizeof pace, "at the recording's stamps scaled to %g Hz on average (--fps)", opts.fps * opts.rate);
+  else if (opts.rate != 1) snprintf(pace, sizeof pace, "at %g times the recording's stamps", opts.rate);
+  else snprintf(pace, sizeof pace, "at the recording's stamps");
   if (!opts.quiet)
     fprintf(stderr, "vlff-replay: %s: %lld frames %ux%u, %lld poses, %lld feature maps%s, %s\n", VLFF_Q(path),
-            p.s.frames, p.s.width, p.s.height, p.s.poses, p.s.maps, opts.features ? "" : " (not played)",
-            opts.backpressure ? "paced by the reader" : "at the recording's stamps");
+            p.s.frames, p.s.width, p.s.height, p.s.poses, p.s.maps, opts.features ? "" : " (not played)", pace);
   if (play(&p) == 0) status = 0;
   if (!opts.quiet || status)
     fprintf(stderr, "vlff-replay: %lld frames, %lld poses, %lld feature maps published; %lld maps without their "

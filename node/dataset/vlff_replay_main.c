@@ -20,6 +20,10 @@
  * loses nothing. frame_id counts up across loops; t_device_ns is the
  * frame's place in the recording, loop * span + t[i] (span: the recording's
  * length plus one mean frame interval).
+ *
+ * An MCAP recording of the node's inputs (vlff-record's) is played by
+ * replay_mcap.c instead: it holds the records themselves, poses at their own
+ * stamps and feature maps, rather than a scene to read frames from.
  */
 #include <errno.h>
 #include <math.h>
@@ -292,6 +296,7 @@ int main(int argc, char **argv) {
     case VLFF_CLI_EXIT: return cli_status;
     case 'c': config = optarg; break;
     case OPT_LAYOUT:
+      mcap = 0;
       if (!strcmp(optarg, "auto")) layout = VLFF_DS_AUTO;
       else if (!strcmp(optarg, "reference")) layout = VLFF_DS_REFERENCE;
       else if (!strcmp(optarg, "scannet")) layout = VLFF_DS_SCANNET;
