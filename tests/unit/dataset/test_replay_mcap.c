@@ -695,6 +695,16 @@ static void test_bad_recordings_refused(void **state) {
     close_writer(w);
   }
   refused(&cfg, cfg_path, path, "no frames on /input/color (1 messages on other channels");
+  /* a real vlff-view recording (the fuzzer's seed) */
+  char view[1200];
+  snprintf(view, sizeof view, "%s/tests/fuzz/seeds/mcap/status-zstd.mcap", getenv("VLFF_SOURCE_DIR"));
+  snprintf(path, sizeof path, "%s/viewer.mcap", tk.dir);
+  uint8_t *d = NULL;
+  size_t dn = 0;
+  assert_int_equal(vlff_read_file(view, 1 << 26, &d, &dn, err, sizeof err), 0);
+  assert_int_equal(vlff_write_file_atomic(path, d, dn, err, sizeof err), 0);
+  free(d);
+  refused(&cfg, cfg_path, path, "a vlff-view recording holds no inputs; vlff-record records them");
 }
 
 static int setup(void **state) {
