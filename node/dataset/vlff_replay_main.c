@@ -20,6 +20,10 @@
  * loses nothing. frame_id counts up across loops; t_device_ns is the
  * frame's place in the recording, loop * span + t[i] (span: the recording's
  * length plus one mean frame interval).
+ *
+ * An MCAP recording of the node's inputs (vlff-record's) is played by
+ * replay_mcap.c instead: it holds the records themselves, poses at their own
+ * stamps and feature maps, rather than a scene to read frames from.
  */
 #include <errno.h>
 #include <math.h>
@@ -36,22 +40,27 @@
 #include "transpose.h"
 #include "vlff/shm.h"
 #include "vlff/escape.h"
+#ifdef VLFF_HAVE_MCAP
+#include "replay_mcap.h"
+#endif
 
 #define POSE_SLOTS 256
 
 static const struct vlff_cli cli = {
     "vlff-replay",
     "Usage: vlff-replay [OPTIONS] SCENE\n"
-    "Play a recorded scene (a directory, or a ScanNet .sens file) into the frame,\n"
-    "pose and feature rings, as live cameras, a pose source and a feature extractor\n"
-    "would.\n"
+    "Play a recorded scene (a directory, a ScanNet .sens file, or an MCAP recording of\n"
+    "the node's inputs made by vlff-record) into the frame, pose and feature rings, as\n"
+    "live cameras, a pose source and a feature extractor would.\n"
     "\n"
     "  -c, --config FILE      ring names, slots and permissions from FILE's shm section\n"
     "                         (else $VLFF_CONFIG, else the installed vlff.yaml, else\n"
     "                         built-in defaults, saying so on stderr)\n"
-    "      --layout NAME      auto (default), reference, scannet or sens\n"
+    "      --layout NAME      auto (default: an MCAP file by its magic, else a scene),\n"
+    "                         reference, scannet, sens or mcap\n"
     "      --fps HZ           play at this uniform frame rate (default: the recording's\n"
-    "                         stamps, timestamps.txt or a .sens file's; without any, 30)\n"
+    "                         stamps, timestamps.txt or a .sens file's; without any, 30;\n"
+    "                         an MCAP recording keeps its pace scaled to HZ on average)\n"
     "  -r, --rate X           play at X times the recorded rate (default 1)\n"
     "  -b, --backpressure     as fast as the frame ring's reader takes the frames:\n"
     "                         wait before each frame until it has read everything\n"
@@ -61,18 +70,23 @@ static const struct vlff_cli cli = {
     "  -n, --count N          stop after N frames\n"
     "      --start I          begin at frame I of the scene\n"
     "      --pose-in-frame    put the pose into the frame record, not the pose ring\n"
-    "      --no-features      do not publish the scene's features\n"
+    "                         (scenes only: an MCAP recording plays its poses as recorded)\n"
+    "      --no-features      do not publish the scene's features (a recording without\n"
+    "                         any plays as with this option, and says so)\n"
     "  -q, --quiet            no progress lines\n"
     "  -V, --version          print the version and exit\n"
     "  -h, --help             print this help and exit\n"
     "\n"
     "Exit status: 0 when every frame was published, 1 when a frame could not be\n"
-    "read (it is skipped, named and counted) or a ring failed, 2 for a bad command line.\n"
+    "read (it is skipped, named and counted), an MCAP recording is malformed or out\n"
+    "of bounds (nothing is played; the error names the channel and the message) or a\n"
+    "ring failed, 2 for a bad command line.\n"
     "\n"
     "Examples:\n"
     "  vlff-replay --config /etc/vlff/vlff.yaml /data/scannet/scene0000_00\n"
     "  vlff-replay -c node.yaml --rate 2 --loop /data/room3\n"
-    "  vlff-replay -c node.yaml --backpressure --count 500 /data/room3\n",
+    "  vlff-replay -c node.yaml --backpressure --count 500 /data/room3\n"
+    "  vlff-replay -c node.yaml --loop inputs.mcap\n",
 };
 
 
@@ -270,7 +284,7 @@ int main(int argc, char **argv) {
   vlff_config_defaults(&cfg);
   struct replay r;
   memset(&r, 0, sizeof r);
-  int layout = VLFF_DS_AUTO, loop = 0, features = 1, c;
+  int layout = VLFF_DS_AUTO, loop = 0, features = 1, mcap = 0, c;
   double fps = 0, rate = 1, x; /* fps 0: the recording's stamps */
   long long count = 0;
   int start = 0;
@@ -282,11 +296,14 @@ int main(int argc, char **argv) {
     case VLFF_CLI_EXIT: return cli_status;
     case 'c': config = optarg; break;
     case OPT_LAYOUT:
+      mcap = 0;
       if (!strcmp(optarg, "auto")) layout = VLFF_DS_AUTO;
       else if (!strcmp(optarg, "reference")) layout = VLFF_DS_REFERENCE;
       else if (!strcmp(optarg, "scannet")) layout = VLFF_DS_SCANNET;
       else if (!strcmp(optarg, "sens")) layout = VLFF_DS_SENS;
-      else return vlff_cli_usage_error(&cli, "--layout: expected auto, reference, scannet or sens, got '%s'", optarg);
+      else if (!strcmp(optarg, "mcap")) mcap = 1;
+      else return vlff_cli_usage_error(&cli, "--layout: expected auto, reference, scannet, sens or mcap, got '%s'",
+                                       optarg);
       break;
     case OPT_FPS:
       if (parse_num("--fps", optarg, 0.01, 10000, &fps)) return 2;
@@ -324,6 +341,17 @@ int main(int argc, char **argv) {
   if (!path)
     fprintf(stderr, "vlff-replay: %s; using the default ring names (%s, %s, %s)\n", ferr, VLFF_Q(cfg.shm.ring),
             VLFF_Q(cfg.shm.pose_ring), VLFF_Q(cfg.shm.feature_ring));
+#ifdef VLFF_HAVE_MCAP
+  if (mcap || (layout == VLFF_DS_AUTO && vlff_replay_is_mcap(argv[optind]))) {
+    if (r.pose_in_frame)
+      return vlff_cli_usage_error(&cli, "--pose-in-frame: an MCAP recording plays its poses as recorded");
+    struct vlff_replay_opts mo = {fps, rate, loop, r.backpressure, r.wait_reader, r.quiet, features, count, start,
+                                  POSE_SLOTS};
+    return vlff_replay_mcap(argv[optind], &cfg, &mo);
+  }
+#else
+  if (mcap) return vlff_cli_error(&cli, "built without MCAP support (libzstd, zlib and json-c)");
+#endif
   if (vlff_dataset_open(&r.ds, argv[optind], layout, err, sizeof err) < 0) return vlff_cli_error(&cli, "%s", err);
   int status = 1;
   double *times = NULL, span = 0;

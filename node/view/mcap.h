@@ -1,7 +1,10 @@
 /* SPDX-License-Identifier: BSD-3-Clause */
 /*
  * mcap.h - MCAP files (the recording format of Foxglove and ROS 2): a writer for
- * vlff-view --record and a reader for vlff-view --play.
+ * vlff-view --record and vlff-record, and a reader for vlff-view --play and
+ * vlff-replay (through inputs.h, which also validates every message it reads).
+ * One implementation, the library vlff_mcap, which needs neither libwebsockets
+ * nor OpenCV, so that vlff-record and vlff-replay link it without the viewer.
  *
  * The writer makes a chunked, indexed file: the header, then every schema and
  * channel (before any message, so that a file cut short still names them), then
@@ -15,8 +18,10 @@
  *
  * The reader walks a file held in memory record by record, every length checked
  * against what is left before it is used: a truncated file ends early (with
- * vlff_mcap_truncated saying where), anything malformed is an error naming the
- * record and the byte offset. It reads uncompressed and zstd chunks, checks the
+ * vlff_mcap_truncated saying where; vlff-view plays what is there, vlff-replay
+ * refuses it), anything malformed is an error naming the record and the byte
+ * offset. It reads untrusted files (recordings copied from robots): the checks
+ * are the bounds below, and tests/fuzz/fuzz_mcap.c holds it to them. It reads uncompressed and zstd chunks, checks the
  * CRCs a file carries (chunk, data section, summary), and ignores the summary
  * (it plays messages in file order).
  *

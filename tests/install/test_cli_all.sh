@@ -48,6 +48,7 @@ for path in "$@"; do
   args=()
   [[ $p == vlff-can ]] && args=(dbc)
   [[ $p == vlff-replay ]] && args=("$tmp/no-scene")
+  [[ $p == vlff-record ]] && args=("$tmp/no-recording.mcap")
   "${prog[@]}" -c "$tmp/bad.yaml" "${args[@]}" </dev/null >/dev/null 2>"$tmp/cfg.err"; rc=$?
   check "$p: a bad config exits 1 (rc=$rc)" '[[ $rc == 1 ]]'
   check "$p: a bad config's error starts with file:line:col" \

@@ -229,6 +229,50 @@ static void test_backpressure_loses_nothing(void **state) {
   tk_node_destroy(n, src);
 }
 
+#ifdef VLFF_RECORD_BUILT
+/* A run recorded by vlff-record (docs/replay.md, "MCAP recordings of the
+ * inputs") drives the node as the run did: every frame read, none refused
+ * (a frame played ahead of its pose would be, "no pose"), none lost. */
+static void test_node_reads_mcap_recording(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg, 8);
+  write_scene_n(&cfg, NULL, scene, 30);
+  char mcap[400], log[400];
+  snprintf(mcap, sizeof mcap, "%s/run.mcap", tk.dir);
+  snprintf(log, sizeof log, "%s/record.log", tk.dir);
+  const char *rargs[] = {"-c", cfg_path, "--quiet", mcap, NULL};
+  pid_t rec = tk_spawn(&tk, "node/view/vlff-record", rargs, log);
+  const char *args1[] = {"-c", cfg_path, "--backpressure", "--quiet", scene, NULL};
+  assert_int_equal(tk_wait_child(&tk, tk_spawn(&tk, "node/dataset/vlff-replay", args1, NULL)), 0);
+  kill(rec, SIGINT);
+  assert_int_equal(tk_wait_child(&tk, rec), 0);
+  printf("%s", tk_slurp(log));
+  assert_non_null(strstr(tk_slurp(log), "30 frames, 30 poses, 30 feature maps recorded; 0 records missed"));
+  vlff_shm_unlink(cfg.shm.ring);
+  vlff_shm_unlink(cfg.shm.pose_ring);
+  vlff_shm_unlink(cfg.shm.feature_ring);
+  char err[512];
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_node_create(&cfg, &src, err, sizeof err);
+  if (!n) fail_msg("%s", err);
+  const char *args2[] = {"-c", cfg_path, "--backpressure", "--quiet", mcap, NULL};
+  assert_int_equal(tk_wait_child(&tk, tk_spawn(&tk, "node/dataset/vlff-replay", args2, NULL)), 0);
+  struct vlff_node_status st;
+  double t0 = vlff_seconds();
+  do {
+    tk_sleep_s(0.2);
+    vlff_node_status(n, &st);
+  } while (st.frames_in < 30 && vlff_seconds() - t0 < 20 * tk.scale);
+  printf("%lld frames in, %lld lost, %lld refused (no pose %lld)\n", st.frames_in, st.frames_lost, st.frames_invalid,
+         st.refused[VLFF_REFUSED_NO_POSE]);
+  assert_int_equal(st.frames_in, 30);
+  assert_int_equal(st.frames_lost, 0);
+  assert_int_equal(st.frames_invalid, 0);
+  tk_node_destroy(n, src);
+}
+#endif
+
 /* A ScanNet export (color/, depth/, pose/ camera-to-world, intrinsic/),
  * played paced by a reader that is this test: every frame arrives with the
  * scene's pixels and millimetre depth, its pose waits in the pose ring at the
@@ -494,6 +538,9 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_stamps_pace_the_replay, setup, teardown),
       cmocka_unit_test_setup_teardown(test_backpressure_loses_nothing, setup, teardown),
       cmocka_unit_test_setup_teardown(test_node_trains_from_replay, setup, teardown),
+#ifdef VLFF_RECORD_BUILT
+      cmocka_unit_test_setup_teardown(test_node_reads_mcap_recording, setup, teardown),
+#endif
   };
   if (getenv("VLFF_TEST_FILTER")) cmocka_set_test_filter(getenv("VLFF_TEST_FILTER"));
   return cmocka_run_group_tests(tests, NULL, NULL);
