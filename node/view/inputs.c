@@ -517,7 +517,7 @@ static int calibration(struct vlff_in_reader *r, const struct ctx *c, json_objec
 
 static int pose(struct vlff_in_event *ev, const struct ctx *c, json_object *o) {
   json_object *t = get(c, o, "translation", json_type_object), *q = t ? get(c, o, "rotation", json_type_object) : NULL;
-  double x, y, z, qx, qy, qz, qw;
+  double x = 0, y = 0, z = 0, qx = 0, qy = 0, qz = 0, qw = 0; /* set by get_num (gcc -O2 cannot tell) */
   if (!q || get_num(c, t, "x", &x) < 0 || get_num(c, t, "y", &y) < 0 || get_num(c, t, "z", &z) < 0 ||
       get_num(c, q, "x", &qx) < 0 || get_num(c, q, "y", &qy) < 0 || get_num(c, q, "z", &qz) < 0 ||
       get_num(c, q, "w", &qw) < 0)
