@@ -48,14 +48,14 @@ static const char raw_schema[] =
     "\"height\":{\"type\":\"integer\",\"minimum\":0},\"encoding\":{\"type\":\"string\"},"
     "\"step\":{\"type\":\"integer\",\"minimum\":0},\"data\":{\"type\":\"string\",\"contentEncoding\":\"base64\"}},"
     "\"required\":[\"timestamp\",\"frame_id\",\"width\",\"height\",\"encoding\",\"step\",\"data\"]}";
-static const char calib_schema[] =
+const char vlff_schema_camera_calibration[] =
     "{\"title\":\"foxglove.CameraCalibration\",\"type\":\"object\",\"properties\":{"
     "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},\"width\":{\"type\":\"integer\",\"minimum\":0},"
     "\"height\":{\"type\":\"integer\",\"minimum\":0},\"distortion_model\":{\"type\":\"string\"},"
     "\"D\":{\"type\":\"array\",\"items\":{\"type\":\"number\"}},\"K\":" NUMS_S(9) ",\"R\":" NUMS_S(9) ","
     "\"P\":" NUMS_S(12) "},"
     "\"required\":[\"timestamp\",\"frame_id\",\"width\",\"height\",\"distortion_model\",\"D\",\"K\",\"R\",\"P\"]}";
-static const char tf_schema[] =
+const char vlff_schema_frame_transform[] =
     "{\"title\":\"foxglove.FrameTransform\",\"type\":\"object\",\"properties\":{"
     "\"timestamp\":" TIME_S ",\"parent_frame_id\":{\"type\":\"string\"},\"child_frame_id\":{\"type\":\"string\"},"
     "\"translation\":{\"type\":\"object\",\"properties\":{\"x\":" NUM_S ",\"y\":" NUM_S ",\"z\":" NUM_S "},"
@@ -72,8 +72,9 @@ static const char feat_schema[] =
     "\"width\":{\"type\":\"integer\",\"minimum\":1},\"encoding\":{\"type\":\"string\",\"enum\":[\"float16\"]},"
     "\"data\":{\"type\":\"string\",\"contentEncoding\":\"base64\"}},"
     "\"required\":[\"timestamp\",\"frame_id\",\"dim\",\"height\",\"width\",\"encoding\",\"data\"]}";
-static const char *const schemas[VLFF_IN_CHANNELS + 1] = {NULL,      raw_schema,  raw_schema, calib_schema,
-                                                          tf_schema, feat_schema, tf_schema};
+static const char *const schemas[VLFF_IN_CHANNELS + 1] = {
+    NULL, raw_schema, raw_schema, vlff_schema_camera_calibration, vlff_schema_frame_transform, feat_schema,
+    vlff_schema_frame_transform};
 
 static const struct {
   uint32_t fmt;

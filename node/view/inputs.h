@@ -77,6 +77,11 @@ const char *vlff_in_topic(int ch);
 
 /* --------------------------------------------------------------- writing */
 
+/* The JSON Schemas of foxglove.CameraCalibration and foxglove.FrameTransform,
+ * shared with vlff-view's channels of the same names (schemas.c). */
+extern const char vlff_schema_camera_calibration[];
+extern const char vlff_schema_frame_transform[];
+
 /* Declares the channels on w (ids 1..VLFF_IN_CHANNELS) with their schemas. */
 int vlff_in_declare(struct vlff_mcap_writer *w, char *why, size_t len);
 /* One ring record as its messages: a frame record (its planes, intrinsics and

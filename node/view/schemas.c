@@ -10,6 +10,7 @@
  * Byte arrays are base64 strings, as Foxglove expects of JSON-encoded bytes; images
  * are compressed (JPEG for the camera, PNG for labels) rather than raw pixels.
  */
+#include "inputs.h"
 #include "view.h"
 
 #define TIME_S "{\"type\":\"object\",\"properties\":{\"sec\":{\"type\":\"integer\",\"minimum\":0},\"nsec\":{\"type\":\"integer\",\"minimum\":0,\"maximum\":999999999}},\"required\":[\"sec\",\"nsec\"]}"
@@ -59,21 +60,6 @@ static const char compressed_schema[] =
     "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},"
     "\"data\":{\"type\":\"string\",\"contentEncoding\":\"base64\"},\"format\":{\"type\":\"string\"}},"
     "\"required\":[\"timestamp\",\"frame_id\",\"data\",\"format\"]}";
-
-#define NUMS_S(n) "{\"type\":\"array\",\"items\":{\"type\":\"number\"},\"minItems\":" #n ",\"maxItems\":" #n "}"
-static const char calib_schema[] =
-    "{\"title\":\"foxglove.CameraCalibration\",\"type\":\"object\",\"properties\":{"
-    "\"timestamp\":" TIME_S ",\"frame_id\":{\"type\":\"string\"},\"width\":{\"type\":\"integer\",\"minimum\":0},"
-    "\"height\":{\"type\":\"integer\",\"minimum\":0},\"distortion_model\":{\"type\":\"string\"},"
-    "\"D\":{\"type\":\"array\",\"items\":{\"type\":\"number\"}},\"K\":" NUMS_S(9) ",\"R\":" NUMS_S(9) ","
-    "\"P\":" NUMS_S(12) "},"
-    "\"required\":[\"timestamp\",\"frame_id\",\"width\",\"height\",\"distortion_model\",\"D\",\"K\",\"R\",\"P\"]}";
-
-static const char tf_schema[] =
-    "{\"title\":\"foxglove.FrameTransform\",\"type\":\"object\",\"properties\":{"
-    "\"timestamp\":" TIME_S ",\"parent_frame_id\":{\"type\":\"string\"},\"child_frame_id\":{\"type\":\"string\"},"
-    "\"translation\":" VEC3_S ",\"rotation\":" QUAT_S "},"
-    "\"required\":[\"timestamp\",\"parent_frame_id\",\"child_frame_id\",\"translation\",\"rotation\"]}";
 
 static const char status_schema[] =
     "{\"title\":\"vlff.Status\",\"description\":\"What the map segment, its writer, the frame ring and the "
@@ -127,9 +113,9 @@ static struct vlff_view_channel_def defs[VLFF_VIEW_CH_COUNT] = {
     {"/map/voxels", "vlff.VoxelDelta", voxels_schema, "json"},
     {"/camera/image", "foxglove.CompressedImage", compressed_schema, "json"},
     {"/camera/labels", "foxglove.CompressedImage", compressed_schema, "json"},
-    {"/tf", "foxglove.FrameTransform", tf_schema, "json"},
+    {"/tf", "foxglove.FrameTransform", vlff_schema_frame_transform, "json"},
     {"/vlff/status", "vlff.Status", status_schema, "json"},
-    {"/camera/calibration", "foxglove.CameraCalibration", calib_schema, "json"},
+    {"/camera/calibration", "foxglove.CameraCalibration", vlff_schema_camera_calibration, "json"},
     {"/log", "foxglove.Log", log_schema, "json"},
     /* the protobuf channels' schemas are built at the first call */
     {"/map/points", "foxglove.PointCloud", NULL, "protobuf"},

@@ -18,6 +18,7 @@
 #include <setjmp.h>
 #include <signal.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -566,6 +567,20 @@ static void refused(const struct vlff_config *cfg, const char *cfg_path, const c
   assert_null(vlff_ring_attach(cfg->shm.ring, VLFF_RECORD_FRAME));
 }
 
+/* A recording at dir/name: frame 0 at t0, and the one message json on
+ * channel ch at t, before the frame or after it. */
+static const char *one_bad(const char *dir, const char *name, uint64_t t0, bool before, int ch, uint64_t t,
+                           const char *json) {
+  static char path[512];
+  snprintf(path, sizeof path, "%s/%s", dir, name);
+  struct vlff_mcap_writer *w = writer(path);
+  if (!before) put_frame(w, 0, t0);
+  put_raw(w, ch, t, json);
+  if (before) put_frame(w, 0, t0);
+  close_writer(w);
+  return path;
+}
+
 static void test_bad_recordings_refused(void **state) {
   (void)state;
   struct vlff_config cfg;
@@ -609,14 +624,11 @@ static void test_bad_recordings_refused(void **state) {
       "\"distortion_model\":\"\",\"D\":[],\"K\":[-35,0,19.75,0,36,15.25,0,0,1],\"R\":[1,0,0,0,1,0,0,0,1],"
       "\"P\":[35,0,19.75,0,0,36,15.25,0,0,0,1,0]}";
   /* a colour image whose data is not its size */
-  snprintf(path, sizeof path, "%s/empty.mcap", tk.dir);
-  w = writer(path);
-  put_frame(w, 0, t0);
-  put_raw(w, VLFF_IN_COLOR, t0 + dt,
-          "{\"timestamp\":{\"sec\":5,\"nsec\":33000000},\"frame_id\":\"camera\",\"width\":40,\"height\":30,"
-          "\"encoding\":\"rgb8\",\"step\":120,\"data\":\"\"}");
-  close_writer(w);
-  refused(&cfg, cfg_path, path, "channel /input/color message 3: 'data' holds 0 base64 characters");
+  refused(&cfg, cfg_path,
+          one_bad(tk.dir, "empty.mcap", t0, false, VLFF_IN_COLOR, t0 + dt,
+                  "{\"timestamp\":{\"sec\":5,\"nsec\":33000000},\"frame_id\":\"camera\",\"width\":40,"
+                  "\"height\":30,\"encoding\":\"rgb8\",\"step\":120,\"data\":\"\"}"),
+          "channel /input/color message 3: 'data' holds 0 base64 characters");
 
   snprintf(path, sizeof path, "%s/fx2.mcap", tk.dir);
   w = writer(path);
@@ -647,34 +659,23 @@ static void test_bad_recordings_refused(void **state) {
   refused(&cfg, cfg_path, path, "channel /input/calibration message 5: fx");
 
   /* a pose whose rotation is not a unit quaternion */
-  snprintf(path, sizeof path, "%s/quat.mcap", tk.dir);
-  w = writer(path);
-  put_frame(w, 0, t0);
-  put_raw(w, VLFF_IN_POSE, t0,
-          "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\","
-          "\"translation\":{\"x\":0,\"y\":0,\"z\":0},\"rotation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":2}}");
-  close_writer(w);
-  refused(&cfg, cfg_path, path, "channel /input/pose message 3: rotation is not a unit quaternion");
-
+#define POSE_AT(xyz, w) \
+  "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\"," \
+  "\"translation\":{" xyz "},\"rotation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":" w "}}"
+  refused(&cfg, cfg_path,
+          one_bad(tk.dir, "quat.mcap", t0, false, VLFF_IN_POSE, t0, POSE_AT("\"x\":0,\"y\":0,\"z\":0", "2")),
+          "channel /input/pose message 3: rotation is not a unit quaternion");
   /* a pose far outside any room */
-  snprintf(path, sizeof path, "%s/far.mcap", tk.dir);
-  w = writer(path);
-  put_raw(w, VLFF_IN_POSE, t0,
-          "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"parent_frame_id\":\"world\",\"child_frame_id\":\"camera\","
-          "\"translation\":{\"x\":1e9,\"y\":0,\"z\":0},\"rotation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":1}}");
-  put_frame(w, 0, t0);
-  close_writer(w);
-  refused(&cfg, cfg_path, path, "channel /input/pose message 0: ");
-
+  refused(&cfg, cfg_path,
+          one_bad(tk.dir, "far.mcap", t0, true, VLFF_IN_POSE, t0, POSE_AT("\"x\":1e9,\"y\":0,\"z\":0", "1")),
+          "channel /input/pose message 0: ");
+#undef POSE_AT
   /* a feature map of dimension 0 */
-  snprintf(path, sizeof path, "%s/dim.mcap", tk.dir);
-  w = writer(path);
-  put_frame(w, 0, t0);
-  put_raw(w, VLFF_IN_FEATURES, t0,
-          "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"frame_id\":0,\"dim\":0,\"height\":1,\"width\":1,"
-          "\"encoding\":\"float16\",\"data\":\"\"}");
-  close_writer(w);
-  refused(&cfg, cfg_path, path, "channel /input/features message 3: 'dim' 0 is outside [1, 4096]");
+  refused(&cfg, cfg_path,
+          one_bad(tk.dir, "dim.mcap", t0, false, VLFF_IN_FEATURES, t0,
+                  "{\"timestamp\":{\"sec\":5,\"nsec\":0},\"frame_id\":0,\"dim\":0,\"height\":1,\"width\":1,"
+                  "\"encoding\":\"float16\",\"data\":\"\"}"),
+          "channel /input/features message 3: 'dim' 0 is outside [1, 4096]");
 
   /* frames whose stamps go back */
   snprintf(path, sizeof path, "%s/back.mcap", tk.dir);

@@ -432,29 +432,20 @@ static int holds(struct vlff_view_msg *m, const char *s, size_t n) {
   return 0;
 }
 
-/* The cloud's first message of a poll, or NULL. */
-static struct vlff_view_msg *poll_cloud(struct vlff_feed *f) {
+/* Channel ch's first message of a poll wanting only it, or NULL. */
+static struct vlff_view_msg *poll_one(struct vlff_feed *f, int ch) {
   struct vlff_view_counters c = {0};
-  struct vlff_view_msg *out[16], *cloud = NULL;
-  int n = vlff_feed_poll(f, &c, 1u << VLFF_VIEW_CH_CLOUD, out, 16);
+  struct vlff_view_msg *out[16], *m = NULL;
+  int n = vlff_feed_poll(f, &c, 1u << ch, out, 16);
   for (int i = 0; i < n; i++) {
-    if (out[i]->channel == VLFF_VIEW_CH_CLOUD && !cloud) cloud = vlff_view_msg_ref(out[i]);
+    if (out[i]->channel == ch && !m) m = vlff_view_msg_ref(out[i]);
     vlff_view_msg_unref(out[i]);
   }
-  return cloud;
+  return m;
 }
-
-/* The grid's first message of a poll wanting only the grid, or NULL. */
-static struct vlff_view_msg *poll_grid(struct vlff_feed *f) {
-  struct vlff_view_counters c = {0};
-  struct vlff_view_msg *out[16], *grid = NULL;
-  int n = vlff_feed_poll(f, &c, 1u << VLFF_VIEW_CH_GRID, out, 16);
-  for (int i = 0; i < n; i++) {
-    if (out[i]->channel == VLFF_VIEW_CH_GRID && !grid) grid = vlff_view_msg_ref(out[i]);
-    vlff_view_msg_unref(out[i]);
-  }
-  return grid;
-}
+static struct vlff_view_msg *poll_cloud(struct vlff_feed *f) { return poll_one(f, VLFF_VIEW_CH_CLOUD); }
+static struct vlff_view_msg *poll_grid(struct vlff_feed *f) { return poll_one(f, VLFF_VIEW_CH_GRID); }
+static struct vlff_view_msg *poll_voxels(struct vlff_feed *f) { return poll_one(f, VLFF_VIEW_CH_VOXELS); }
 
 /* The cell (i, j) of a grid message: the cells are its payload's last bytes. */
 static const uint8_t *grid_cell(struct vlff_view_msg *g, int i, int j) {
@@ -621,18 +612,6 @@ static size_t voxel_pieces(struct vlff_view_msg *head, size_t bound, int whole, 
   assert_int_equal(pieces, total);
   *npieces = pieces;
   return k;
-}
-
-/* The voxel channel's message of a poll wanting only it, or NULL. */
-static struct vlff_view_msg *poll_voxels(struct vlff_feed *f) {
-  struct vlff_view_counters c = {0};
-  struct vlff_view_msg *out[16], *vx = NULL;
-  int n = vlff_feed_poll(f, &c, 1u << VLFF_VIEW_CH_VOXELS, out, 16);
-  for (int i = 0; i < n; i++) {
-    if (out[i]->channel == VLFF_VIEW_CH_VOXELS && !vx) vx = vlff_view_msg_ref(out[i]);
-    vlff_view_msg_unref(out[i]);
-  }
-  return vx;
 }
 
 /* /map/voxels in pieces under the piece bound: the whole map (every occupied voxel
