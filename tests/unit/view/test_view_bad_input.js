@@ -120,6 +120,7 @@ async function main() {
   const started = Date.now();
   const demo = await start({ withNode: false, token: 'secret-token-1', viewArgs: ['--max-queue-mb', '1',
     '--image-hz', '20'] });
+  const up = Date.now(); // the viewer started between `started` and now
   demo_port = demo.port;
   const log = await check(demo, async () => {
     const good = await connect(demo.ws);
@@ -134,7 +135,9 @@ async function main() {
       assert.ok(e && e.status === 400 && e.body.includes(PROTO), `subprotocol ${proto}: ${e && e.status} ${e && e.body}`);
       assert.ok(/^text\/plain/.test(e.type) && !/<html|error\.css/i.test(e.body), `a plain sentence: ${e.type} ${e.body}`);
     }
-    while (Date.now() - started < 1500) await sleep(100); // so that a stamp from the start differs from 0
+    // 1.5 s after the viewer was surely up, so that a stamp from its start is at
+    // least that (counted from `started`, a slow start under load left it below 1)
+    while (Date.now() - up < 1500) await sleep(100);
     const r400 = await raw(`GET / HTTP/1.1\r\nHost: 127.0.0.1:${demo_port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n` +
       'Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol:  bogus.v2 \r\n\r\n');
     assert.strictEqual(r400.status, 400, r400.text);
