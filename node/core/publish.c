@@ -108,7 +108,7 @@ struct vlff_publisher {
   struct vlff_view icam;
   uint32_t *isel_pix, *ihole_pix;
   size_t insel, inhole, ipix;
-  uint64_t icam_t_ns;
+  uint64_t icam_t_ns, istamp; /* istamp: embeddings_hash when the image began */
   long long icam_frame;
   double px_s;
   bool need_full;
@@ -134,7 +134,8 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   VLFF_FREE_ALL(p->thru, p->thru_list);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
-                p->sel_pix, p->hole_pix, p->isel_pix, p->ihole_pix, p->sel_xyz, p->snap_xyz, p->sel_score, p->sel_lab, p->qcos, p->qrays,
+                p->sel_pix, p->hole_pix, p->isel_pix, p->ihole_pix, p->sel_xyz, p->snap_xyz, p->sel_score,
+                p->sel_lab, p->qcos, p->qrays,
                 p->dirty, p->dirty_idx, p->runs, p->pub_labels, p->pub_conf, p);
 }
 
@@ -213,7 +214,8 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   }
   if (!p->observed || !p->hits || !p->hit_sum || !p->labels || !p->conf || !p->qidx || !p->qxyz ||
       !p->qdens || !p->qmargin || !p->qlabel || !p->img_labels || !p->img_conf ||
-      !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->isel_pix || !p->ihole_pix || !p->sel_xyz || !p->snap_xyz || !p->sel_score ||
+      !p->img_lab || !p->img_score || !p->sel_pix || !p->hole_pix || !p->isel_pix || !p->ihole_pix || !p->sel_xyz ||
+      !p->snap_xyz || !p->sel_score ||
       !p->sel_lab || !p->dirty || !p->dirty_idx || !p->runs || !p->pub_labels || !p->pub_conf || !p->hold ||
       !p->thru || !p->thru_list) {
     snprintf(err, errlen, "out of memory for a %u x %u x %u map", p->dims[0], p->dims[1], p->dims[2]);
@@ -1285,7 +1287,11 @@ int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f,
     p->tail = TAIL_SCORE;
     return 0;
   }
-  if (p->ipix == SIZE_MAX) label_image_begin(p);
+  /* Other embeddings halfway (the same prompt texts): the pixels done so
+   * far labelled for the others, so it begins again. */
+  uint64_t eh = embeddings_hash(p, f);
+  if (p->ipix != SIZE_MAX && eh != p->istamp) p->ipix = SIZE_MAX;
+  if (p->ipix == SIZE_MAX) label_image_begin(p), p->istamp = eh;
   double t0 = vlff_seconds();
   size_t n = p->px_s > 0 ? (size_t)(IMAGE_PIECE_S / p->px_s) : IMAGE_PIECE_MIN, before = p->ipix;
   if (label_image_piece(p, f, prompt_stamp(p, f), n > IMAGE_PIECE_MIN ? n : IMAGE_PIECE_MIN)) {

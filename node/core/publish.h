@@ -142,7 +142,9 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * version of its own that changes no voxel; then, in a call of its own, the
  * source's scores (scored). In pieces so that a keyframe admitted
  * meanwhile waits for a piece, not for all of it (the trainer publishes
- * keyframes between calls; image_owed says whether a piece is due).
+ * keyframes between calls; image_owed says whether a piece is due). Its
+ * camera is the one it began with, whatever keyframes set_camera meanwhile;
+ * new prompt embeddings halfway make it begin again, at the latest camera.
  * Nothing owed, or a whole publish owed instead: nothing published, 0. */
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen);

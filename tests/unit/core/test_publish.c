@@ -641,6 +641,31 @@ static void test_refresh_skips_settled(void **state) {
     differ += ia.grid.labels[i] <= VLFF_LABEL_MAX && ia.grid.confidence[i] == 255 && ic.grid.labels[i] != ia.grid.labels[i];
   assert_true(differ > 0); /* some settled voxel did change with g, in the full round */
 
+  /* New embeddings (the same prompt texts) after an image's first piece:
+   * it begins again, with them, at the latest camera, and equals the image
+   * rendered whole. */
+  for (int s = 0; s < 2; s++)
+    assert_int_equal(vlff_publisher_publish_slice(p, g, prompts, 3, (s + 1) / 2.0, &r, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_publish_image(p, g, prompts, 3, &r, err, sizeof err), 0);
+  struct vlff_view v3 = view_at(0.3, 1.8f);
+  assert_int_equal(vlff_publisher_set_camera(p, &v3, 789, 9, err, sizeof err), 0);
+  float e3[3 * 16];
+  unsigned seed3 = 5;
+  for (int i = 0; i < 3 * 16; i++) e3[i] = (float)rand_r(&seed3) / (float)RAND_MAX - 0.5f;
+  assert_int_equal(vlff_field_set_prompts(g, e3, 3, err, sizeof err), 0);
+  do assert_int_equal(vlff_publisher_publish_image(p, g, prompts, 3, &r, err, sizeof err), 0);
+  while (!r.scored);
+  take(m, c, &ic);
+  assert_int_equal(ic.label_image.t_ns, 789);
+  pieced = malloc(li * sizeof *pieced);
+  assert_non_null(pieced);
+  memcpy(pieced, ic.label_image.labels, li * sizeof *pieced);
+  assert_int_equal(vlff_publisher_publish(p, g, prompts, 3, &r, err, sizeof err), 0);
+  take(m, b, &ib);
+  assert_int_equal(ib.label_image.t_ns, 789);
+  assert_memory_equal(pieced, ib.label_image.labels, li * sizeof *pieced);
+  free(pieced);
+
   vlff_map_snapshot_free(a);
   vlff_map_snapshot_free(b);
   vlff_map_snapshot_free(c);
