@@ -17,6 +17,7 @@
 #include "clock.h"
 #include "files.h"
 #include "inputs.h"
+#include "replay_rings.h"
 #include "vlff/escape.h"
 #include "vlff/shm.h"
 
@@ -54,11 +55,6 @@ struct player {
   struct recent recent[RECENT];
   long long published, poses_out, maps_out, orphans, late;
 };
-
-static int ring_error(const char *what, const char *name) {
-  fprintf(stderr, "vlff-replay: %s ring %s: %s\n", what, VLFF_Q(name), vlff_shm_last_message());
-  return -1;
-}
 
 static int scan(struct player *p) {
   char why[1024];
@@ -101,30 +97,11 @@ static int scan(struct player *p) {
 }
 
 static int open_rings(struct player *p, const struct vlff_config *cfg) {
-  struct vlff_shm_perm perm = {(mode_t)cfg->shm.mode, cfg->shm.group};
-  struct vlff_ring_params fp = {VLFF_RECORD_FRAME, (uint32_t)cfg->shm.ring_slots,
-                                vlff_frame_slot_size(p->s.width, p->s.height, p->s.color_format, p->s.depth_format),
-                                perm};
-  p->frames = vlff_ring_create(cfg->shm.ring, &fp);
-  if (!p->frames) return ring_error("frame", cfg->shm.ring);
-  struct vlff_ring_params pp = {VLFF_RECORD_POSE, (uint32_t)p->o->pose_slots, sizeof(struct vlff_pose_rec), perm};
-  p->poses = vlff_ring_create(cfg->shm.pose_ring, &pp);
-  if (!p->poses) return ring_error("pose", cfg->shm.pose_ring);
-  if (p->o->features) {
-    struct vlff_ring_params xp = {VLFF_RECORD_FEATURE, (uint32_t)cfg->shm.ring_slots,
-                                  vlff_feature_slot_size(p->s.dim, p->s.fh, p->s.fw), perm};
-    p->feats = vlff_ring_create(cfg->shm.feature_ring, &xp);
-    if (!p->feats) return ring_error("feature", cfg->shm.feature_ring);
-  }
-  return 0;
-}
-
-static void wait_reader(struct player *p) {
-  int said = 0;
-  while (!vlff_cli_stop && vlff_ring_wait_reader(p->frames, 1000ull * 1000 * 1000) < 0) {
-    if (!said && !p->o->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
-    said = 1;
-  }
+  struct vlff_replay_rings r = {0};
+  int rc = vlff_replay_rings_open(&r, cfg, p->s.width, p->s.height, p->s.color_format, p->s.depth_format,
+                                  (uint32_t)p->o->pose_slots, p->o->features ? p->s.dim : 0, p->s.fh, p->s.fw);
+  p->frames = r.frames, p->poses = r.poses, p->feats = r.feats;
+  return rc;
 }
 
 static int put_frame(struct player *p, const struct vlff_in_event *ev, uint64_t id, uint64_t t, uint64_t t_dev,
@@ -133,7 +110,7 @@ static int put_frame(struct player *p, const struct vlff_in_event *ev, uint64_t 
   uint64_t len = h ? vlff_frame_layout(h, vlff_ring_slot_size(p->frames), ev->width, ev->height, ev->color_format,
                                        ev->depth_format)
                    : 0;
-  if (!len) return ring_error("frame", "layout");
+  if (!len) return vlff_replay_ring_error("frame", "layout");
   h->frame_id = id;
   h->t_host_ns = t;
   h->t_device_ns = t_dev;
@@ -156,7 +133,7 @@ static int put_frame(struct player *p, const struct vlff_in_event *ev, uint64_t 
     uint8_t *dst = (uint8_t *)h + pl->offset;
     for (uint32_t v = 0; v < pl->height; v++) memcpy(dst + (size_t)v * pl->stride, src + (size_t)v * step, step);
   }
-  if (vlff_ring_commit(p->frames, len) < 0) return ring_error("frame", "commit");
+  if (vlff_ring_commit(p->frames, len) < 0) return vlff_replay_ring_error("frame", "commit");
   return 0;
 }
 
@@ -164,18 +141,12 @@ static int put_features(struct player *p, const struct vlff_in_event *ev, uint64
   struct vlff_feature_hdr *f = vlff_ring_reserve(p->feats, NULL);
   uint64_t len = f ? vlff_feature_layout(f, vlff_ring_slot_size(p->feats), ev->dim, ev->feat_height, ev->feat_width)
                    : 0;
-  if (!len) return ring_error("feature", "layout");
+  if (!len) return vlff_replay_ring_error("feature", "layout");
   f->frame_id = id;
   f->t_host_ns = t;
   memcpy((uint8_t *)f + f->data_offset, ev->features, (size_t)2 * ev->dim * ev->feat_height * ev->feat_width);
-  if (vlff_ring_commit(p->feats, len) < 0) return ring_error("feature", "commit");
+  if (vlff_ring_commit(p->feats, len) < 0) return vlff_replay_ring_error("feature", "commit");
   return 0;
-}
-
-static void sleep_until(uint64_t due) {
-  struct timespec ts = {(time_t)(due / 1000000000ull), (long)(due % 1000000000ull)};
-  while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
-  }
 }
 
 static int play(struct player *p) {
@@ -188,7 +159,7 @@ static int play(struct player *p) {
   double rate = o->rate;
   if (o->fps > 0) rate *= o->fps * (double)mean * 1e-9;
   const uint64_t t0 = p->s.stamp[o->start];
-  if (o->wait_reader && !o->backpressure) wait_reader(p);
+  if (o->wait_reader && !o->backpressure) vlff_replay_wait_reader(p->frames, o->quiet);
   uint64_t base = vlff_now_ns(), newest = 0;
   int have_newest = 0;
   uint64_t id = 0;
@@ -213,11 +184,7 @@ static int play(struct player *p) {
         if (o->backpressure) {
           /* No reader yet (or a node restarting) holds the replay: frames
            * nobody reads would be lost, which is what this mode exists to prevent. */
-          int said = 0;
-          while (!vlff_cli_stop && vlff_ring_wait_reader(p->frames, 1000ull * 1000 * 1000) < 0) {
-            if (!said && !o->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
-            said = 1;
-          }
+          vlff_replay_wait_reader(p->frames, o->quiet);
           if (vlff_cli_stop) break;
         }
       }
@@ -230,7 +197,7 @@ static int play(struct player *p) {
           if (!o->backpressure && ev.kind == VLFF_IN_EV_FRAME) p->late++;
           base = now - off;
         } else if (!o->backpressure) {
-          sleep_until(due);
+          vlff_replay_sleep_until(due);
         }
         newest = rec, have_newest = 1;
       }
@@ -238,7 +205,7 @@ static int play(struct player *p) {
       if (ev.kind == VLFF_IN_EV_POSE) {
         struct vlff_pose_rec pr = {.t_ns = t, .flags = 0, .source_id = 0};
         memcpy(pr.pose, ev.pose, sizeof pr.pose);
-        if (vlff_ring_write(p->poses, &pr, sizeof pr) < 0) return ring_error("pose", "commit");
+        if (vlff_ring_write(p->poses, &pr, sizeof pr) < 0) return vlff_replay_ring_error("pose", "commit");
         p->poses_out++;
       } else if (ev.kind == VLFF_IN_EV_FRAME) {
         if (put_frame(p, &ev, id, t, rec - first, rate) < 0) return -1;

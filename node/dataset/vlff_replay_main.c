@@ -37,6 +37,7 @@
 #include "clock.h"
 #include "config.h"
 #include "dataset.h"
+#include "replay_rings.h"
 #include "transpose.h"
 #include "vlff/shm.h"
 #include "vlff/escape.h"
@@ -102,34 +103,15 @@ struct replay {
   long long featureless; /* frames the features do not hold, passed over */
 };
 
-static int ring_error(const char *what, const char *name) {
-  fprintf(stderr, "vlff-replay: %s ring %s: %s\n", what, VLFF_Q(name), vlff_shm_last_message());
-  return -1;
-}
-
 static int open_rings(struct replay *r, const struct vlff_config *cfg, int features) {
   const struct vlff_dataset *ds = &r->ds;
-  struct vlff_shm_perm perm = {(mode_t)cfg->shm.mode, cfg->shm.group};
-  struct vlff_ring_params fp = {VLFF_RECORD_FRAME, (uint32_t)cfg->shm.ring_slots,
-                                vlff_frame_slot_size((uint32_t)ds->width, (uint32_t)ds->height, VLFF_PIX_RGB8,
-                                                     VLFF_PIX_DEPTH_U16_MM),
-                                perm};
-  r->frames = vlff_ring_create(cfg->shm.ring, &fp);
-  if (!r->frames) return ring_error("frame", cfg->shm.ring);
-  if (!r->pose_in_frame) {
-    struct vlff_ring_params pp = {VLFF_RECORD_POSE, POSE_SLOTS, sizeof(struct vlff_pose_rec), perm};
-    r->poses = vlff_ring_create(cfg->shm.pose_ring, &pp);
-    if (!r->poses) return ring_error("pose", cfg->shm.pose_ring);
-  }
-  if (features) {
-    struct vlff_ring_params xp = {VLFF_RECORD_FEATURE, (uint32_t)cfg->shm.ring_slots,
-                                  vlff_feature_slot_size((uint32_t)ds->feature_dim, (uint32_t)ds->feat_height,
-                                                         (uint32_t)ds->feat_width),
-                                  perm};
-    r->feats = vlff_ring_create(cfg->shm.feature_ring, &xp);
-    if (!r->feats) return ring_error("feature", cfg->shm.feature_ring);
-  }
-  return 0;
+  struct vlff_replay_rings rr = {0};
+  int rc = vlff_replay_rings_open(&rr, cfg, (uint32_t)ds->width, (uint32_t)ds->height, VLFF_PIX_RGB8,
+                                  VLFF_PIX_DEPTH_U16_MM, r->pose_in_frame ? 0 : POSE_SLOTS,
+                                  features ? (uint32_t)ds->feature_dim : 0, (uint32_t)ds->feat_height,
+                                  (uint32_t)ds->feat_width);
+  r->frames = rr.frames, r->poses = rr.poses, r->feats = rr.feats;
+  return rc;
 }
 
 /* Frame i of the scene as record number id. 0 published, 1 skipped (the
@@ -148,11 +130,7 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
   if (r->backpressure) {
     /* No reader yet (or a node restarting) holds the replay: frames nobody
      * reads would be lost, which is what this mode exists to prevent. */
-    int said = 0;
-    while (!vlff_cli_stop && vlff_ring_wait_reader(r->frames, 1000ull * 1000 * 1000) < 0) {
-      if (!said && !r->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
-      said = 1;
-    }
+    vlff_replay_wait_reader(r->frames, r->quiet);
     if (vlff_cli_stop) return 0;
   }
   const double *c2w = ds->c2w + (size_t)i * 16;
@@ -160,13 +138,13 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
   if (r->poses) {
     struct vlff_pose_rec pr = {.t_ns = now, .flags = 0, .source_id = 0};
     memcpy(pr.pose, c2w, sizeof pr.pose);
-    if (vlff_ring_write(r->poses, &pr, sizeof pr) < 0) return ring_error("pose", "commit");
+    if (vlff_ring_write(r->poses, &pr, sizeof pr) < 0) return vlff_replay_ring_error("pose", "commit");
   }
   struct vlff_frame_hdr *h = vlff_ring_reserve(r->frames, NULL);
   uint64_t len = h ? vlff_frame_layout(h, vlff_ring_slot_size(r->frames), (uint32_t)W, (uint32_t)H, VLFF_PIX_RGB8,
                                        VLFF_PIX_DEPTH_U16_MM)
                    : 0;
-  if (!len) return ring_error("frame", "layout");
+  if (!len) return vlff_replay_ring_error("frame", "layout");
   h->frame_id = (uint64_t)id;
   h->t_host_ns = now;
   h->t_device_ns = t_device_ns;
@@ -189,19 +167,19 @@ static int publish(struct replay *r, int i, long long id, uint64_t t_device_ns) 
       row[u] = isfinite(d) && d > 0 ? (uint16_t)fminf(lrintf(d * 1000.0f), 65535.0f) : 0;
     }
   }
-  if (vlff_ring_commit(r->frames, len) < 0) return ring_error("frame", "commit");
+  if (vlff_ring_commit(r->frames, len) < 0) return vlff_replay_ring_error("frame", "commit");
   if (r->feats) {
     struct vlff_feature_hdr *f = vlff_ring_reserve(r->feats, NULL);
     uint64_t flen = f ? vlff_feature_layout(f, vlff_ring_slot_size(r->feats), (uint32_t)ds->feature_dim,
                                             (uint32_t)ds->feat_height, (uint32_t)ds->feat_width)
                       : 0;
-    if (!flen) return ring_error("feature", "layout");
+    if (!flen) return vlff_replay_ring_error("feature", "layout");
     f->frame_id = (uint64_t)id;
     f->t_host_ns = now;
     /* the scene stores [h][w][D]; the ring carries [D][h][w] */
     vlff_transpose_u16(r->hwc, (size_t)ds->feat_height * ds->feat_width, (size_t)ds->feature_dim,
                        (uint16_t *)((uint8_t *)f + f->data_offset));
-    if (vlff_ring_commit(r->feats, flen) < 0) return ring_error("feature", "commit");
+    if (vlff_ring_commit(r->feats, flen) < 0) return vlff_replay_ring_error("feature", "commit");
   }
   r->published++;
   return 0;
@@ -214,11 +192,7 @@ static int run(struct replay *r, const double *t, double span, double rate, int 
     /* The first frame waits for the node to attach, the rest keep the
      * schedule: an evaluation's node then sees every frame at the
      * recording's rate. */
-    int said = 0;
-    while (!vlff_cli_stop && vlff_ring_wait_reader(r->frames, 1000ull * 1000 * 1000) < 0) {
-      if (!said && !r->quiet) fprintf(stderr, "vlff-replay: waiting for a reader of the frame ring\n");
-      said = 1;
-    }
+    vlff_replay_wait_reader(r->frames, r->quiet);
   }
   uint64_t base = vlff_now_ns();
   long long id = 0;
@@ -231,9 +205,7 @@ static int run(struct replay *r, const double *t, double span, double rate, int 
           r->late++; /* reading the scene is slower than the schedule: restart it from now */
           base = now - off;
         } else {
-          struct timespec ts = {(time_t)(due / 1000000000ull), (long)(due % 1000000000ull)};
-          while (!vlff_cli_stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
-          }
+          vlff_replay_sleep_until(due);
         }
       }
       /* Features stored for some frames only (docs/datasets.md): the others

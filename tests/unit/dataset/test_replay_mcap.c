@@ -607,9 +607,9 @@ static void test_bad_recordings_refused(void **state) {
   assert_int_equal(vlff_write_file_atomic(path, good, n * 6 / 10, err, sizeof err), 0);
   refused(&cfg, cfg_path, path, "without its footer: a recording cut short");
   /* cut inside the header */
-  snprintf(path, sizeof path, "%s/stub.mcap", tk.dir);
+  snprintf(path, sizeof path, "%s/header-cut.mcap", tk.dir);
   assert_int_equal(vlff_write_file_atomic(path, good, 12, err, sizeof err), 0);
-  refused(&cfg, cfg_path, path, "stub.mcap");
+  refused(&cfg, cfg_path, path, "header-cut.mcap");
   /* a byte flipped in the middle: a chunk's CRC or its compression fails */
   snprintf(path, sizeof path, "%s/flip.mcap", tk.dir);
   good[n / 2] ^= 0x5a;
