@@ -256,7 +256,9 @@ static void slot_watch(struct slot *s, const struct slot *other, uint64_t now, b
 
 /* The pairing's counts over the last report period, said when frames found
  * no partner or pairs were lost (and once at the start): the exit line
- * alone would hide a tolerance or a calibration that fails every pair. */
+ * alone would hide a tolerance or a calibration that fails every pair. At
+ * exit (final) the part-period since the last report is said if it had
+ * trouble: a short run would otherwise end with the reason unsaid. */
 #define PAIR_REPORT_S 10
 #define PAIR_FIRST_S 3
 struct pair_report {
@@ -267,11 +269,11 @@ struct pair_report {
 };
 
 static void pair_report(struct pair_report *r, const struct vlff_pair *pair, const struct slot *slots,
-                        double pair_tolerance_s, uint64_t now) {
+                        double pair_tolerance_s, uint64_t now, bool final) {
   if (!r->t_ns) r->t_ns = now;
   /* the first soon after the start: a pairing that fails every pair is
    * said within seconds */
-  if (now - r->t_ns < (r->first_done ? PAIR_REPORT_S : PAIR_FIRST_S) * 1000000000ull) return;
+  if (!final && now - r->t_ns < (r->first_done ? PAIR_REPORT_S : PAIR_FIRST_S) * 1000000000ull) return;
   const struct vlff_pair_stats *st = vlff_pair_get_stats(pair), *o = &r->last;
   uint64_t c = vlff_pipe_get_stats(slots[0].pipe)->committed, d = vlff_pipe_get_stats(slots[1].pipe)->committed;
   uint64_t pairs = st->pairs - o->pairs, um_c = st->unmatched_color - o->unmatched_color,
@@ -280,7 +282,7 @@ static void pair_report(struct pair_report *r, const struct vlff_pair *pair, con
   double secs = (double)(now - r->t_ns) * 1e-9;
   double skew = pairs ? (double)(st->skew_sum_ns - o->skew_sum_ns) / (double)pairs * 1e-6 : 0;
   bool bad = um_c + um_d + drop > 0 || (!pairs && nc && nd);
-  if (bad || !r->first_done) {
+  if (bad || (!r->first_done && !final)) {
     enum vlff_log_level lv = !pairs && (nc || nd) ? VLFF_LOG_ERROR : bad ? VLFF_LOG_WARN : VLFF_LOG_INFO;
     const char *why = vlff_pair_last_error(pair);
     vlff_log(lv, TAG,
@@ -537,8 +539,10 @@ static int run(struct camd *d) {
     last_pass = now;
     for (int i = 0; i < d->nslots; i++)
       slot_watch(&d->slots[i], d->nslots == 2 ? &d->slots[1 - i] : NULL, now, stalled);
-    if (d->pair) pair_report(&report, d->pair, d->slots, d->cfg.depth_camera.pair_tolerance_s, now);
+    if (d->pair) pair_report(&report, d->pair, d->slots, d->cfg.depth_camera.pair_tolerance_s, now, false);
   }
+  if (d->pair && report.t_ns)
+    pair_report(&report, d->pair, d->slots, d->cfg.depth_camera.pair_tolerance_s, vlff_now_ns(), true);
   vlff_service_stopping();
   for (int i = 0; i < d->nslots; i++) slot_close(&d->slots[i]);
   return status;
