@@ -71,6 +71,7 @@ function(vlff_fuzz name)
   target_link_options(fuzz_${name} PRIVATE -fsanitize=fuzzer,address,undefined)
   target_link_libraries(fuzz_${name} PRIVATE ${F_LIBS})
   set_target_properties(fuzz_${name} PROPERTIES RUNTIME_OUTPUT_DIRECTORY ${PROJECT_BINARY_DIR}/fuzz)
+  set_property(GLOBAL APPEND PROPERTY VLFF_FUZZERS fuzz_${name})
 endfunction()
 
 # Subdirectories are added only when present, so each module lands on its own.

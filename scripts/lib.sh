@@ -10,7 +10,8 @@ vlff_build() {
     || { cat "$dir.configure.log"; return 1; }
   grep -m1 'vlff parts' "$dir.configure.log" || true
   local rc=0
-  cmake --build "$dir" -j "$VLFF_JOBS" >"$dir.build.log" 2>&1 || rc=$?
+  # VLFF_TARGET: one target (and what it needs) in place of everything
+  cmake --build "$dir" -j "$VLFF_JOBS" ${VLFF_TARGET:+--target "$VLFF_TARGET"} >"$dir.build.log" 2>&1 || rc=$?
   grep -vE '^\[ *[0-9]+%\]|^Consolidate|^-- ' "$dir.build.log" || true   # warnings and errors only
   return $rc
 }

@@ -103,7 +103,8 @@ struct vlff_publisher {
    * keyframes admitted meanwhile (set_camera) neither wait for the whole
    * image nor change it halfway: tail is TAIL_NONE, TAIL_IMAGE (ipix of
    * the inhole + insel pixels done, holes first) or TAIL_SCORE (the image
-   * published, its scores owed). px_s: seconds a pixel took, as measured. */
+   * published, its scores owed). px_s: seconds a pixel took, as measured;
+   * piece_px: a fixed piece size instead (0: by px_s). */
   int tail;
   struct vlff_view icam;
   uint32_t *isel_pix, *ihole_pix;
@@ -111,6 +112,7 @@ struct vlff_publisher {
   uint64_t icam_t_ns, istamp; /* istamp: embeddings_hash when the image began */
   long long icam_frame;
   double px_s;
+  size_t piece_px;
   bool need_full;
   uint64_t prompts_hash;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
@@ -1294,7 +1296,9 @@ int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f,
   if (p->ipix == SIZE_MAX) label_image_begin(p), p->istamp = eh;
   double t0 = vlff_seconds();
   size_t n = p->px_s > 0 ? (size_t)(IMAGE_PIECE_S / p->px_s) : IMAGE_PIECE_MIN, before = p->ipix;
-  if (label_image_piece(p, f, prompt_stamp(p, f), n > IMAGE_PIECE_MIN ? n : IMAGE_PIECE_MIN)) {
+  if (n < IMAGE_PIECE_MIN) n = IMAGE_PIECE_MIN;
+  if (p->piece_px) n = p->piece_px;
+  if (label_image_piece(p, f, prompt_stamp(p, f), n)) {
     p->tail = TAIL_NONE;
     snprintf(err, errlen, "field query of the label image failed");
     return -1;
@@ -1308,6 +1312,8 @@ int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f,
 }
 
 bool vlff_publisher_image_owed(const struct vlff_publisher *p) { return p->tail != TAIL_NONE; }
+
+void vlff_publisher_set_image_piece(struct vlff_publisher *p, size_t pixels) { p->piece_px = pixels; }
 
 void vlff_publisher_heartbeat(struct vlff_publisher *p) {
   double now = vlff_seconds();

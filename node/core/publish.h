@@ -155,6 +155,11 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
 int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                                  struct vlff_publish_result *r, char *err, size_t errlen);
 bool vlff_publisher_image_owed(const struct vlff_publisher *p);
+/* publish_image's pieces of exactly `pixels` pixels (at least 1), or 0 (the
+ * default): of about 20 ms each, by the measured speed. A fixed size makes
+ * the pieces, and so what a test sees between them, the same on a fast
+ * host and under emulation. */
+void vlff_publisher_set_image_piece(struct vlff_publisher *p, size_t pixels);
 double vlff_publisher_refresh_done(const struct vlff_publisher *p);
 /* Voxels observe() touched that no publish has relabelled yet. */
 size_t vlff_publisher_pending(const struct vlff_publisher *p);
