@@ -281,12 +281,17 @@ static void tick(struct run *r, double now) {
     char cpu[48] = "cpu -";
     if (st.cpu_used >= 0) snprintf(cpu, sizeof cpu, "cpu %.2f", st.cpu_used);
     if (st.cpu_budget > 0) snprintf(cpu + strlen(cpu), sizeof cpu - strlen(cpu), " of %.2f", st.cpu_budget);
+    /* Memory against its limits, MiB: keyframes, evidence, the process. */
+    char mem[96] = "mem -";
+    if (st.mem_rss_mb >= 0)
+      snprintf(mem, sizeof mem, "mem kf %.0f/%.0f ev %.0f/%.0f rss %.0f MiB", st.mem_keyframes_mb,
+               st.mem_keyframes_limit_mb, st.mem_evidence_mb, st.mem_evidence_limit_mb, st.mem_rss_mb);
     vlff_log_status("[%6.1f s] frames %lld (%.1f/s%s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
-                    "psnr %.1f | %s | map v%llu flips %lld mIoU 2D %s 3D %s%s%s   ",
+                    "psnr %.1f | %s | %s | map v%llu flips %lld mIoU 2D %s 3D %s%s%s   ",
                     now - r->t0, st.frames_in, st.fps_in,
                     (st.error_flags & VLFF_NODE_ERR_CAMERA_LOST) ? ", CAMERA LOST: none lately" : "",
                     st.frames_invalid, why, st.keyframes, st.poses_rejected, st.iteration, st.it_per_s, st.loss,
-                    st.psnr, cpu, (unsigned long long)st.map_version, st.label_flips, m2, m3,
+                    st.psnr, cpu, mem, (unsigned long long)st.map_version, st.label_flips, m2, m3,
                     st.adjusted[0] ? " | adjusted: " : "",
                     st.adjusted);
   }

@@ -17,6 +17,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "clock.h"
 #include "embeddings.h"
@@ -208,8 +209,31 @@ void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) {
                       (unsigned long long)req.seq, vlff_shm_last_message());
 }
 
+/* The memory fields of the status, taken outside slock (trainer-private
+ * reads); the resident set is read at most twice a second. */
+static void memory_state(struct vlff_node *n, double now, double mem[6]) {
+  const double mib = 1.0 / (1 << 20);
+  size_t ev_used, ev_limit;
+  vlff_publisher_evidence_memory(n->pub, &ev_used, &ev_limit);
+  mem[0] = (double)vlff_kfstore_bytes(n->store) * mib;
+  mem[1] = n->cfg.keyframes.memory_mb;
+  mem[2] = (double)ev_used * mib;
+  mem[3] = (double)ev_limit * mib;
+  mem[4] = (double)vlff_field_plan_bytes(&n->cfg.field, &n->cfg.train) * mib;
+  if (now - n->rss_read_s >= 0.5) {
+    n->rss_read_s = now;
+    FILE *f = fopen("/proc/self/statm", "r");
+    unsigned long long size, resident;
+    if (f && fscanf(f, "%llu %llu", &size, &resident) == 2)
+      n->rss_mb = (double)resident * (double)sysconf(_SC_PAGESIZE) * mib;
+    if (f) fclose(f);
+  }
+  mem[5] = n->rss_mb;
+}
+
 void update_state(struct vlff_node *n) {
-  double now = vlff_seconds();
+  double now = vlff_seconds(), mem[6];
+  memory_state(n, now, mem);
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
   if (vlff_frame_watch_lost(&n->fwatch, now, n->cfg.shm.ring)) f |= VLFF_NODE_ERR_CAMERA_LOST, n->st.fps_in = 0;
@@ -223,6 +247,9 @@ void update_state(struct vlff_node *n) {
                 : n->st.keyframes >= n->cfg.keyframes.start_after ? VLFF_NODE_OPERATIONAL
                                                                   : VLFF_NODE_PREOP;
   n->st.map_age_s = vlff_publisher_age_s(n->pub);
+  n->st.mem_keyframes_mb = mem[0], n->st.mem_keyframes_limit_mb = mem[1];
+  n->st.mem_evidence_mb = mem[2], n->st.mem_evidence_limit_mb = mem[3];
+  n->st.mem_field_mb = mem[4], n->st.mem_rss_mb = mem[5];
   pthread_mutex_unlock(&n->slock);
 }
 
@@ -269,6 +296,12 @@ void share_status(struct vlff_node *n) {
       .label_flips_refresh = (uint64_t)st.label_flips_refresh,
       .label_flips_total = (uint64_t)st.label_flips_total,
       .label_flip_frac = st.label_flip_frac,
+      .mem_keyframes_mb = st.mem_keyframes_mb,
+      .mem_keyframes_limit_mb = st.mem_keyframes_limit_mb,
+      .mem_evidence_mb = st.mem_evidence_mb,
+      .mem_evidence_limit_mb = st.mem_evidence_limit_mb,
+      .mem_field_mb = st.mem_field_mb,
+      .mem_rss_mb = st.mem_rss_mb,
   };
   snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st.state));
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {

@@ -83,6 +83,7 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->st.miou2d_frame = -1;
   n->st.last_pose_residual_m = -1;
   n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = n->st.publish_interval_s = n->st.label_flip_frac = -1;
+  n->st.mem_rss_mb = n->rss_mb = -1;
   /* node.cpu_budget bounds the learner's threads (budget.h); the field made
    * again on a reset reads the same count from n->cfg. */
   n->cfg.node.threads = vlff_budget_threads(cfg->node.cpu_budget, cfg->node.threads);

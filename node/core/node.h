@@ -129,6 +129,15 @@ struct vlff_node_status {
   /* Seconds between whole refreshes of the map (the mean of the last 8;
    * the target is 1 / publish.rate_hz); -1 before the second. */
   double publish_interval_s;
+  /* Memory, MiB (docs/node.md, "Memory"): the keyframe store's use and
+   * its limit (keyframes.memory_mb); the evidence's use (voxels holding
+   * evidence at their share of the budget) and its limit
+   * (publish.evidence_max_mb); the field's parameters, Adam moments and
+   * step buffers (fixed at create); the process's resident set (-1 until
+   * read). */
+  double mem_keyframes_mb, mem_keyframes_limit_mb;
+  double mem_evidence_mb, mem_evidence_limit_mb;
+  double mem_field_mb, mem_rss_mb;
   /* Monotonic ns (vlff_now_ns) of the trainer's and the ingest thread's
    * last loop pass; both pass at least every few hundred ms while alive,
    * busy or idle. */

@@ -136,6 +136,7 @@ struct vlff_node {
   pthread_mutex_t slock;
   struct vlff_node_status st;
   double last_frame_s, last_pose_ok_s, last_lapped_s;
+  double rss_read_s, rss_mb; /* the resident set, MiB, and when update_state last read it (trainer) */
   struct vlff_frame_watch fwatch; /* under slock */
 
   /* trainer-private */

@@ -1415,3 +1415,9 @@ out:
 }
 
 size_t vlff_publisher_pending(const struct vlff_publisher *p) { return p->ndirty; }
+
+void vlff_publisher_evidence_memory(const struct vlff_publisher *p, size_t *used, size_t *limit) {
+  size_t cap = p->ev ? vlff_evidence_capacity(p->ev) : 0;
+  *limit = p->ev ? p->ev_budget : 0;
+  *used = cap ? (size_t)((double)vlff_evidence_voxels(p->ev) / (double)cap * (double)p->ev_budget) : 0;
+}

@@ -161,6 +161,10 @@ bool vlff_publisher_image_owed(const struct vlff_publisher *p);
  * host and under emulation. */
 void vlff_publisher_set_image_piece(struct vlff_publisher *p, size_t pixels);
 double vlff_publisher_refresh_done(const struct vlff_publisher *p);
+/* The evidence's memory: what the voxels holding evidence take of
+ * publish.evidence_max_mb, and that budget, in bytes (0 and 0 without
+ * evidence). */
+void vlff_publisher_evidence_memory(const struct vlff_publisher *p, size_t *used, size_t *limit);
 /* Voxels observe() touched that no publish has relabelled yet. */
 size_t vlff_publisher_pending(const struct vlff_publisher *p);
 /* For people: the strip (camera image | segmentation | the source's ground

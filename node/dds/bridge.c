@@ -1024,6 +1024,13 @@ static void send_status(struct vlff_dds *b) {
     kv(&lk, "label_flips_refresh", "%" PRIu64, s.label_flips_refresh);
     kv(&lk, "label_flips_total", "%" PRIu64, s.label_flips_total);
     kv(&lk, "label_flip_frac", "%.4f", s.label_flip_frac);
+    /* memory against its limits, MiB (-1 while unknown) */
+    kv(&lk, "mem_keyframes_mb", "%.1f", s.mem_keyframes_mb);
+    kv(&lk, "mem_keyframes_limit_mb", "%.1f", s.mem_keyframes_limit_mb);
+    kv(&lk, "mem_evidence_mb", "%.1f", s.mem_evidence_mb);
+    kv(&lk, "mem_evidence_limit_mb", "%.1f", s.mem_evidence_limit_mb);
+    kv(&lk, "mem_field_mb", "%.1f", s.mem_field_mb);
+    kv(&lk, "mem_rss_mb", "%.1f", s.mem_rss_mb);
     kv(&lk, "map_version", "%" PRIu64, vlff_map_version(m));
     for (uint32_t i = 0; i < s.reason_count && i < VLFF_SHM_MAX_REASONS; i++) {
       char key[48];

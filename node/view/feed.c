@@ -1134,13 +1134,21 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
   }
   jw_s(w, ",\"psnr\":");
   jw_num(w, "%.3f", st.psnr);
-  /* How current and how still the map is, and the CPU the writer takes: as
-   * vlff-shm stat prints them (-1 while unknown). */
-  const char *more[] = {"cpu_budget", "cpu_used", "frame_to_map_ms_p50", "frame_to_map_ms_p99", "publish_interval_s"};
-  const char *fmt[] = {"%.3f", "%.3f", "%.1f", "%.1f", "%.3f"};
-  const double mv[] = {st.cpu_budget, st.cpu_used, st.frame_to_map_ms_p50, st.frame_to_map_ms_p99,
-                       st.publish_interval_s};
-  for (int i = 0; i < 5; i++) {
+  /* How current and how still the map is, the CPU and memory the writer
+   * takes: as vlff-shm stat prints them (-1 while unknown). */
+  const char *more[] = {"cpu_budget",       "cpu_used",
+                        "frame_to_map_ms_p50", "frame_to_map_ms_p99",
+                        "publish_interval_s", "mem_keyframes_mb",
+                        "mem_keyframes_limit_mb", "mem_evidence_mb",
+                        "mem_evidence_limit_mb", "mem_field_mb",
+                        "mem_rss_mb"};
+  const char *fmt[] = {"%.3f", "%.3f", "%.1f", "%.1f", "%.3f", "%.1f", "%.1f", "%.1f", "%.1f", "%.1f", "%.1f"};
+  const double mv[] = {st.cpu_budget,       st.cpu_used,           st.frame_to_map_ms_p50,
+                       st.frame_to_map_ms_p99, st.publish_interval_s, st.mem_keyframes_mb,
+                       st.mem_keyframes_limit_mb, st.mem_evidence_mb,   st.mem_evidence_limit_mb,
+                       st.mem_field_mb,       st.mem_rss_mb};
+  _Static_assert(sizeof more / sizeof *more == sizeof mv / sizeof *mv && sizeof fmt == sizeof more, "one key per value");
+  for (size_t i = 0; i < sizeof mv / sizeof *mv; i++) {
     jw_f(w, ",\"%s\":", more[i]);
     jw_num(w, fmt[i], mv[i]);
   }

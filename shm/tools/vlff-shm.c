@@ -137,11 +137,13 @@ static int print_status(struct vlff_map *m, const char *name) {
          "iterations_per_s %.3f\nfps_in %.3f\nloss %.6g\nloss_rgb %.6g\nloss_depth %.6g\nloss_feat %.6g\n"
          "psnr %.3f\ncpu_budget %.3f\ncpu_used %.3f\nframe_to_map_ms_p50 %.1f\nframe_to_map_ms_p99 %.1f\n"
          "publish_interval_s %.3f\nlabel_flips %" PRIu64 "\nlabel_flips_refresh %" PRIu64 "\nlabel_flips_total %" PRIu64
-         "\nlabel_flip_frac %.4f\n",
+         "\nlabel_flip_frac %.4f\nmem_keyframes_mb %.1f\nmem_keyframes_limit_mb %.1f\nmem_evidence_mb %.1f\n"
+         "mem_evidence_limit_mb %.1f\nmem_field_mb %.1f\nmem_rss_mb %.1f\n",
          st.keyframes, st.keyframes_evicted, st.iterations, st.iterations_per_s, st.fps_in, st.loss, st.loss_rgb,
          st.loss_depth, st.loss_feat, st.psnr, st.cpu_budget, st.cpu_used, st.frame_to_map_ms_p50,
          st.frame_to_map_ms_p99, st.publish_interval_s, st.label_flips, st.label_flips_refresh, st.label_flips_total,
-         st.label_flip_frac);
+         st.label_flip_frac, st.mem_keyframes_mb, st.mem_keyframes_limit_mb, st.mem_evidence_mb,
+         st.mem_evidence_limit_mb, st.mem_field_mb, st.mem_rss_mb);
   return 0;
 }
 

@@ -190,7 +190,10 @@ static int compare_status(const diagnostic_msgs_msg_dds__DiagnosticArray_ *a, st
          !num_is(l, "label_flips_total", st.label_flips_total) + !text_is(l, "cpu_used", "%.3f", st.cpu_used) +
          !text_is(l, "frame_to_map_ms_p99", "%.1f", st.frame_to_map_ms_p99) +
          !text_is(l, "publish_interval_s", "%.3f", st.publish_interval_s) +
-         !text_is(l, "label_flip_frac", "%.4f", st.label_flip_frac);
+         !text_is(l, "label_flip_frac", "%.4f", st.label_flip_frac) +
+         !text_is(l, "mem_keyframes_mb", "%.1f", st.mem_keyframes_mb) +
+         !text_is(l, "mem_keyframes_limit_mb", "%.1f", st.mem_keyframes_limit_mb) +
+         !text_is(l, "mem_rss_mb", "%.1f", st.mem_rss_mb);
   for (uint32_t i = 0; i < st.reason_count; i++) {
     char key[64];
     snprintf(key, sizeof key, "refused: %s", st.reason[i].name);

@@ -88,7 +88,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 6
+#define VLFF_SHM_ABI_VERSION 7
 
 /* ------------------------------------------------------------------ errors */
 
@@ -570,6 +570,11 @@ struct vlff_map_status {
    * while unknown. */
   uint64_t label_flips, label_flips_refresh, label_flips_total;
   double label_flip_frac;
+  /* Memory, MiB (vlff-node; docs/node.md, "Memory"): the keyframe store's use
+   * and limit, the evidence's use and limit, the field's fixed size, the
+   * writer process's resident set; -1 while unknown. */
+  double mem_keyframes_mb, mem_keyframes_limit_mb, mem_evidence_mb, mem_evidence_limit_mb;
+  double mem_field_mb, mem_rss_mb;
 };
 
 /* Writer: replaces the status (t_ns and updates are set here, the rest is taken as

@@ -49,6 +49,7 @@ c1=$(ticks) t1=$(date +%s.%N)
 used=$(awk -v c="$((c1 - c0))" -v hz="$hz" -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", c / hz / (b - a) }')
 check "process CPU over 4 s: $used cores, at most 1.3 x 0.5" "awk -v u=$used 'BEGIN { exit !(u <= 0.65) }'"
 check "--status shows the use against the budget" 'grep -aq "| cpu [0-9]*\.[0-9]* of 0.50 |" "$tmp/log"'
+check "--status shows the memory against its limits" 'grep -aq "| mem kf [0-9]*/1024 ev [0-9]*/64 rss [0-9]* MiB |" "$tmp/log"'
 "$shm" stat $p-m >"$tmp/stat"
 check "the map's status: budget $(val cpu_budget), use $(val cpu_used) in (0, 1.3 x budget]" \
   "[[ \$(val cpu_budget) == 0.500 ]] && awk -v u=\$(val cpu_used) 'BEGIN { exit !(u > 0 && u <= 0.65) }'"

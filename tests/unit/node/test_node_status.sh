@@ -4,6 +4,8 @@
 # of a learning node, every refusal reason by name, and after the node stopped,
 # the counts it stopped with.
 set -u
+# Memory limits of its own, so that the status shows the config's.
+node_yaml_extra=$'keyframes:\n  memory_mb: 64\npublish:\n  evidence_max_mb: 16'
 . "$(dirname "$0")/node_sh.sh" nst "$@"
 val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
 wait_until 200 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val frames_in) ]]'
@@ -31,6 +33,12 @@ check "vlff-shm stat: frame to map p50 $(val frame_to_map_ms_p50) p99 $(val fram
 frac_ok() { awk -v v="$1" 'BEGIN { exit !(v == -1 || (v >= 0 && v <= 1)) }'; }
 check "vlff-shm stat: label flips $(val label_flips), $(val label_flips_refresh) over the last refresh, $(val label_flips_total) in all, share $(val label_flip_frac)" \
   '[[ $(val label_flips) =~ ^[0-9]+$ && $(val label_flips_refresh) =~ ^[0-9]+$ ]] && (( $(val label_flips_total) >= $(val label_flips_refresh) && $(val label_flips_total) >= $(val label_flips) )) && frac_ok "$(val label_flip_frac)"'
+# Memory (issue 48): each component's use within its limit, the limits the
+# config's, the field's size and the process's resident set known; the
+# resident set holds at least what the components take.
+le() { awk -v a="$1" -v b="$2" 'BEGIN { exit !(a + 0 <= b + 0) }'; }
+check "vlff-shm stat: memory keyframes $(val mem_keyframes_mb)/$(val mem_keyframes_limit_mb), evidence $(val mem_evidence_mb)/$(val mem_evidence_limit_mb), field $(val mem_field_mb), rss $(val mem_rss_mb) MiB" \
+  'pos "$(val mem_keyframes_mb)" && le "$(val mem_keyframes_mb)" "$(val mem_keyframes_limit_mb)" && [[ $(val mem_keyframes_limit_mb) == 64.0 && $(val mem_evidence_limit_mb) == 16.0 ]] && le "$(val mem_evidence_mb)" "$(val mem_evidence_limit_mb)" && pos "$(val mem_field_mb)" && le "$(val mem_field_mb)" "$(val mem_rss_mb)" && le "$(val mem_keyframes_mb)" "$(val mem_rss_mb)"'
 check "frames refused is the sum of the reasons" \
   '[[ $(val frames_refused) == $(awk '"'"'$1 == "refused" { s += $2 } END { print s + 0 }'"'"' "$tmp/stat") ]]'
 

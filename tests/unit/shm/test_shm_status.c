@@ -51,6 +51,9 @@ static void fill(struct vlff_map_status *s, uint64_t k) {
   s->label_flips_refresh = k * 13;
   s->label_flips_total = k * 17;
   s->label_flip_frac = 1.0 / (double)(k + 2);
+  s->mem_keyframes_mb = (double)k * 0.5, s->mem_keyframes_limit_mb = 1024;
+  s->mem_evidence_mb = (double)k * 0.25, s->mem_evidence_limit_mb = 64;
+  s->mem_field_mb = 300 + (double)k, s->mem_rss_mb = 1000 + (double)k * 2;
   s->reason_count = (uint32_t)(k % (VLFF_SHM_MAX_REASONS + 1));
   for (uint32_t r = 0; r < s->reason_count; r++) {
     snprintf(s->reason[r].name, sizeof s->reason[r].name, "reason %u of %u", r % 16u,

@@ -131,7 +131,9 @@ function learnerOfStat(stat) {
     refused: [...stat.matchAll(/^refused (\d+) (.*)$/gm)].map((m) => ({ reason: m[2], count: Number(m[1]) })) };
   for (const k of ['keyframes', 'keyframes_evicted', 'iterations', 'iterations_per_s', 'fps_in', 'loss', 'loss_rgb',
     'loss_depth', 'loss_feat', 'psnr', 'cpu_budget', 'cpu_used', 'frame_to_map_ms_p50', 'frame_to_map_ms_p99',
-    'publish_interval_s', 'label_flips', 'label_flips_refresh', 'label_flips_total', 'label_flip_frac']) out[k] = num(k);
+    'publish_interval_s', 'label_flips', 'label_flips_refresh', 'label_flips_total', 'label_flip_frac',
+    'mem_keyframes_mb', 'mem_keyframes_limit_mb', 'mem_evidence_mb', 'mem_evidence_limit_mb', 'mem_field_mb',
+    'mem_rss_mb']) out[k] = num(k);
   return out;
 }
 
