@@ -15,6 +15,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -243,6 +244,52 @@ int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, cha
   b[n] = 0;
   *buf = b, *len = n;
   return 0;
+}
+
+int vlff_map_file(const char *path, size_t max, const uint8_t **buf, size_t *len, char *err, size_t errlen) {
+  static const uint8_t empty[1];
+  *buf = NULL, *len = 0;
+  int fd = vlff_open_regular(path, err, errlen);
+  if (fd < 0) return -1;
+  struct stat st;
+  if (fstat(fd, &st) < 0) {
+    vlff_errf(err, errlen, "%s: cannot stat: %s", VLFF_Q(path), strerror(errno));
+    close(fd);
+    return -1;
+  }
+  if ((uint64_t)st.st_size > max) {
+    vlff_errf(err, errlen, "%s: %lld bytes, more than the %zu this file may have", VLFF_Q(path),
+              (long long)st.st_size, max);
+    close(fd);
+    return -1;
+  }
+  if (st.st_size == 0) {
+    close(fd);
+    *buf = empty;
+    return 0;
+  }
+  void *m = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE, fd, 0);
+  int e = errno;
+  close(fd); /* the mapping keeps the file */
+  if (m == MAP_FAILED) {
+    vlff_errf(err, errlen, "%s: cannot map: %s", VLFF_Q(path), strerror(e));
+    return -1;
+  }
+  /* read ahead further, and dropped behind sooner */
+  (void)madvise(m, (size_t)st.st_size, MADV_SEQUENTIAL);
+  *buf = m, *len = (size_t)st.st_size;
+  return 0;
+}
+
+void vlff_unmap_file(const uint8_t *buf, size_t len) {
+  if (buf && len) munmap((void *)buf, len);
+}
+
+void vlff_unread_mapped(const uint8_t *buf, size_t upto) {
+  size_t page = (size_t)sysconf(_SC_PAGESIZE);
+  upto -= upto % page;
+  /* a private mapping never written: its pages come back from the file */
+  if (buf && upto) (void)madvise((void *)buf, upto, MADV_DONTNEED);
 }
 
 int vlff_exe_dir(char *out, size_t len) {

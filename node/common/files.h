@@ -83,6 +83,18 @@ int vlff_read_at(int fd, uint64_t off, void *p, size_t n);
 /* A whole regular file of at most max bytes (opened with vlff_open_regular);
  * *buf is NUL-terminated (not counted in *len), the caller frees it. */
 int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);
+/* A whole regular file of at most max bytes, mapped read-only (opened with
+ * vlff_open_regular): the kernel reads it in as it is touched, and
+ * vlff_unread_mapped gives pages back, so a file larger than memory can be
+ * read through. A file cut short while mapped makes a read past its new end
+ * raise SIGBUS: callers that read files others may write catch it
+ * (vlff-replay says so and exits 1). An empty file maps to a valid empty
+ * buffer. Unmapped with vlff_unmap_file. */
+int vlff_map_file(const char *path, size_t max, const uint8_t **buf, size_t *len, char *err, size_t errlen);
+void vlff_unmap_file(const uint8_t *buf, size_t len);
+/* The pages of buf[0, upto) given back (read from the file again if
+ * touched again); upto is rounded down to a page. */
+void vlff_unread_mapped(const uint8_t *buf, size_t upto);
 /* The whole of data as path's new content, atomically (0644). */
 int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen);
 

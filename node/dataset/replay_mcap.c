@@ -7,6 +7,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -49,6 +50,8 @@ struct recent {
 struct player {
   const char *path;
   const struct vlff_replay_opts *o;
+  const uint8_t *file; /* the recording, mapped */
+  size_t n, given_back;  /* its size; the prefix whose pages went back */
   struct vlff_in_reader *in;
   struct scan s;
   struct vlff_ring *frames, *poses, *feats;
@@ -56,12 +59,35 @@ struct player {
   long long published, poses_out, maps_out, orphans, late;
 };
 
+/* The pages of what was read go back every 4 MiB: a recording larger than
+ * memory plays (and is checked) through a bounded resident set. */
+#define GIVE_BACK_BYTES (4u << 20)
+static void give_back(struct player *p) {
+  size_t c = vlff_in_consumed(p->in);
+  if (c < p->given_back) p->given_back = 0; /* rewound */
+  if (c - p->given_back < GIVE_BACK_BYTES) return;
+  vlff_unread_mapped(p->file, c);
+  p->given_back = c;
+}
+
+/* A recording cut short under the replay: its mapped pages past the new end
+ * raise SIGBUS. Said, and the replay ends with status 1 (the file was
+ * checked whole before: it changed, and nothing more of it can be trusted). */
+static char bus_msg[600];
+static size_t bus_len;
+static void on_sigbus(int sig) {
+  (void)sig;
+  if (bus_len) (void)!write(2, bus_msg, bus_len);
+  _exit(1);
+}
+
 static int scan(struct player *p) {
   char why[1024];
   struct vlff_in_event ev;
   int rc;
   size_t cap = 0;
   while ((rc = vlff_in_next(p->in, &ev, why, sizeof why)) == 1) {
+    give_back(p);
     if (ev.kind == VLFF_IN_EV_FRAME) {
       if ((size_t)p->s.frames == cap) {
         cap = cap ? cap * 2 : 1024;
@@ -170,6 +196,7 @@ static int play(struct player *p) {
     int rc = 0;
     int done = 0;
     while (!vlff_cli_stop && (rc = vlff_in_next(p->in, &ev, why, sizeof why)) == 1) {
+      give_back(p);
       /* Records before the first played frame (--start's, or a pose ring's
        * history the recorder found when it attached) have no place in the
        * schedule, which starts at that frame: passed over. */
@@ -249,15 +276,20 @@ int vlff_replay_mcap(const char *path, const struct vlff_config *cfg, const stru
   memset(&p, 0, sizeof p);
   p.path = path;
   p.o = o;
-  uint8_t *file = NULL;
-  size_t n = 0;
   char err[1024];
   int status = 1;
-  if (vlff_read_file(path, VLFF_MCAP_MAX_FILE, &file, &n, err, sizeof err) != 0) {
+  if (vlff_map_file(path, VLFF_MCAP_MAX_FILE, &p.file, &p.n, err, sizeof err) != 0) {
     fprintf(stderr, "vlff-replay: %s\n", err);
     return 1;
   }
-  p.in = vlff_in_reader_new(file, n, err, sizeof err);
+  int m = snprintf(bus_msg, sizeof bus_msg, "vlff-replay: %s: the file was cut short while it was played\n",
+                   VLFF_Q(path));
+  bus_len = m < 0 ? 0 : (size_t)m < sizeof bus_msg ? (size_t)m : sizeof bus_msg - 1;
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_sigbus;
+  sigaction(SIGBUS, &sa, NULL);
+  p.in = vlff_in_reader_new(p.file, p.n, err, sizeof err);
   if (!p.in) {
     fprintf(stderr, "vlff-replay: %s: %s\n", VLFF_Q(path), err);
     goto out;
@@ -296,6 +328,6 @@ out:
   vlff_ring_close(p.feats);
   vlff_in_reader_free(p.in);
   free(p.s.stamp);
-  free(file);
+  vlff_unmap_file(p.file, p.n);
   return status;
 }

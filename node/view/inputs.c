@@ -338,6 +338,7 @@ void vlff_in_rewind(struct vlff_in_reader *r) {
 }
 
 uint64_t vlff_in_other_messages(const struct vlff_in_reader *r) { return r->other; }
+size_t vlff_in_consumed(const struct vlff_in_reader *r) { return vlff_mcap_consumed(r->m); }
 
 /* The input channel of a message's channel id: 1..5, 0 another channel, -1 an
  * /input/ topic with another schema or encoding. */

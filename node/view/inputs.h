@@ -130,5 +130,8 @@ int vlff_in_next(struct vlff_in_reader *r, struct vlff_in_event *ev, char *why, 
 void vlff_in_rewind(struct vlff_in_reader *r);
 /* Messages passed over so far (not on an /input/ channel). */
 uint64_t vlff_in_other_messages(const struct vlff_in_reader *r);
+/* The recording's offset before which no byte is needed again until a
+ * rewind (vlff_mcap_consumed): an event's images and features are copies. */
+size_t vlff_in_consumed(const struct vlff_in_reader *r);
 
 #endif /* VLFF_VIEW_INPUTS_H */

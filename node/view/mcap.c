@@ -472,6 +472,11 @@ struct vlff_mcap_reader {
   size_t chunk_cap, chunk_n, cpos;
   uint64_t chunk_at;     /* its offset in the file, for messages */
   int in_chunk;
+  /* the data section's CRC over d[0, crc_at), taken as the top-level records
+   * pass: the check at its end does not read the whole file again */
+  uint32_t dcrc;
+  size_t crc_at;
+  size_t last_at;        /* the top-level record the last message came from */
 };
 
 /* A cursor over one record's fields. */
@@ -576,7 +581,10 @@ void vlff_mcap_rewind(struct vlff_mcap_reader *r) {
   r->pos = sizeof MAGIC;
   r->ended = r->truncated = 0;
   r->in_chunk = 0;
+  r->dcrc = 0, r->crc_at = 0, r->last_at = 0;
 }
+
+size_t vlff_mcap_consumed(const struct vlff_mcap_reader *r) { return r->last_at; }
 
 int vlff_mcap_truncated(const struct vlff_mcap_reader *r, uint64_t *at) {
   if (r->truncated && at) *at = r->trunc_at;
@@ -772,6 +780,9 @@ int vlff_mcap_next(struct vlff_mcap_reader *r, struct vlff_mcap_message *m, char
       }
     }
     uint64_t at = r->pos;
+    r->dcrc = crc(r->dcrc, r->d + r->crc_at, (size_t)at - r->crc_at);
+    r->crc_at = (size_t)at;
+    r->last_at = (size_t)at;
     if (r->pos == r->n || r->n - r->pos < 9) {
       r->ended = r->truncated = 1;
       r->trunc_at = r->pos;
@@ -809,7 +820,7 @@ int vlff_mcap_next(struct vlff_mcap_reader *r, struct vlff_mcap_message *m, char
     case OP_DATA_END: {
       uint32_t dcrc = (uint32_t)c_le(&f, 4);
       if (f.bad) return bad(why, len, at, "a data end record shorter than its CRC");
-      if (dcrc && crc(0, r->d, (size_t)at) != dcrc) return bad(why, len, at, "a data section whose CRC does not match");
+      if (dcrc && r->dcrc != dcrc) return bad(why, len, at, "a data section whose CRC does not match");
       r->ended = 1;
       return check_footer(r, why, len);
     }

@@ -113,6 +113,10 @@ void vlff_mcap_reader_free(struct vlff_mcap_reader *r);
 int vlff_mcap_next(struct vlff_mcap_reader *r, struct vlff_mcap_message *m, char *why, size_t len);
 /* Back to the first message. */
 void vlff_mcap_rewind(struct vlff_mcap_reader *r);
+/* The file offset before which the reader needs no byte again until a
+ * rewind (the start of the record the last message came from): a caller
+ * reading a mapped file may give those pages back (vlff_unread_mapped). */
+size_t vlff_mcap_consumed(const struct vlff_mcap_reader *r);
 /* After vlff_mcap_next returned 0: 1 when the file ended without its footer (a
  * recorder that was killed), with the offset of the first byte not read in *at. */
 int vlff_mcap_truncated(const struct vlff_mcap_reader *r, uint64_t *at);

@@ -9,6 +9,8 @@
  * test runs under; vlff_test_in_child() runs a call that may block under an
  * alarm, in a child process. vlff_test_normal() draws a reproducible
  * standard normal value from a 64-bit seed it advances.
+ * vlff_test_wait_peak() waits for a spawned child and gives its peak
+ * resident set.
  */
 #ifndef VLFF_UNIT_H
 #define VLFF_UNIT_H
@@ -70,5 +72,34 @@ static inline int vlff_test_in_child(int (*fn)(void *ctx), void *ctx, unsigned t
     const struct CMUnitTest unit_tests_[] = {__VA_ARGS__};     \
     return cmocka_run_group_tests(unit_tests_, setup, teardown); \
   }
+
+/* Waits for child pid (its wait status in *status) and returns its peak
+ * resident set in MiB: VmHWM, the high-water mark of the memory its program
+ * mapped, polled every 5 ms while it runs (0 if never read). Not wait4's
+ * ru_maxrss: a child spawned by this test starts with the test process's own
+ * peak, which its exec carries over, so a small program run from a large
+ * test reads as large as the test. */
+static inline double vlff_test_wait_peak(pid_t pid, int *status) {
+  long peak = 0;
+  char path[64], line[128];
+  snprintf(path, sizeof path, "/proc/%d/status", (int)pid);
+  for (;;) {
+    FILE *f = fopen(path, "r");
+    long kb = 0;
+    if (f) {
+      while (fgets(line, sizeof line, f))
+        if (sscanf(line, "VmHWM: %ld kB", &kb) == 1) break;
+      fclose(f);
+    }
+    if (kb > peak) peak = kb;
+    pid_t w = waitpid(pid, status, WNOHANG);
+    if (w == pid) return peak / 1024.0;
+    if (w < 0) {
+      *status = -1;
+      return peak / 1024.0;
+    }
+    usleep(5000);
+  }
+}
 
 #endif

@@ -11,7 +11,6 @@
 #include <string.h>
 #include <fcntl.h>
 #include <spawn.h>
-#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -236,8 +235,8 @@ static void test_dataset_matches_synthetic(void **state) {
 extern char **environ;
 
 /* vlff-eval run with args (NULL-terminated after argv[0]), its output in
- * log; must succeed. Returns its peak resident set in MiB (the child's
- * ru_maxrss). */
+ * log; must succeed. Returns its peak resident set in MiB
+ * (vlff_test_wait_peak). */
 static double eval_rss(const char *eval, const char *const *args, const char *log) {
   /* eval is "[EMULATOR] PATH" (vlff_test_prog) */
   char prog[1024];
@@ -256,15 +255,14 @@ static double eval_rss(const char *eval, const char *const *args, const char *lo
   assert_int_equal(posix_spawn(&pid, argv[0], &fa, NULL, (char *const *)argv, environ), 0);
   posix_spawn_file_actions_destroy(&fa);
   int st;
-  struct rusage ru;
-  assert_int_equal(wait4(pid, &st, 0, &ru), pid);
-  if (!WIFEXITED(st) || WEXITSTATUS(st) != 0) {
+  double peak = vlff_test_wait_peak(pid, &st);
+  if (st == -1 || !WIFEXITED(st) || WEXITSTATUS(st) != 0) {
     char cmd[600];
     snprintf(cmd, sizeof cmd, "tail -20 %s", log);
     if (system(cmd)) {}
     fail_msg("vlff-eval failed (status %d), log %s", st, log);
   }
-  return ru.ru_maxrss / 1024.0;
+  return peak;
 }
 
 /* The RESULT line of a log. */

@@ -239,7 +239,7 @@ async function main() {
     await until(() => /dropped: too slow/.test(demo.log('view')), 30000, 'the slow client dropped');
     // it reads again: what was queued for it is gone, a close frame with the reason comes
     slow.ws._socket.resume();
-    await until(() => slow.closed, 5000, 'the slow client gets its close frame');
+    await until(() => slow.closed, 15000, 'the slow client gets its close frame');
     assert.strictEqual(slow.closed.code, 1013, JSON.stringify(slow.closed));
     assert.ok(/^too slow: \d+ bytes unsent, above --max-queue-mb \(1048576 bytes\)$/.test(slow.closed.reason),
       JSON.stringify(slow.closed));
