@@ -205,50 +205,9 @@ int vlff_remove_dead_temps(const char *dir, const char *const *prefixes) {
   return removed;
 }
 
-int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen) {
-  *buf = NULL, *len = 0;
-  int fd = vlff_open_regular(path, err, errlen);
-  if (fd < 0) return -1;
-  FILE *f = fdopen(fd, "rb");
-  if (!f) {
-    close(fd);
-    vlff_errf(err, errlen, "%s: cannot open: %s", VLFF_Q(path), strerror(errno));
-    return -1;
-  }
-  struct stat st;
-  if (fstat(fileno(f), &st) < 0) {
-    fclose(f);
-    vlff_errf(err, errlen, "%s: cannot stat: %s", VLFF_Q(path), strerror(errno));
-    return -1;
-  }
-  if ((size_t)st.st_size > max) {
-    fclose(f);
-    vlff_errf(err, errlen, "%s: %lld bytes, more than the %zu this file may have", VLFF_Q(path),
-           (long long)st.st_size, max);
-    return -1;
-  }
-  uint8_t *b = malloc((size_t)st.st_size + 1);
-  if (!b) {
-    fclose(f);
-    vlff_errf(err, errlen, "%s: out of memory", VLFF_Q(path));
-    return -1;
-  }
-  size_t n = fread(b, 1, (size_t)st.st_size, f);
-  int bad = ferror(f);
-  fclose(f);
-  if (bad || n != (size_t)st.st_size) {
-    free(b);
-    vlff_errf(err, errlen, "%s: read error", VLFF_Q(path));
-    return -1;
-  }
-  b[n] = 0;
-  *buf = b, *len = n;
-  return 0;
-}
-
-int vlff_map_file(const char *path, size_t max, const uint8_t **buf, size_t *len, char *err, size_t errlen) {
-  static const uint8_t empty[1];
-  *buf = NULL, *len = 0;
+/* path opened as vlff_open_regular does, with its size, refused above max
+ * bytes: the fd, or -1 with err. */
+static int open_sized(const char *path, size_t max, size_t *size, char *err, size_t errlen) {
   int fd = vlff_open_regular(path, err, errlen);
   if (fd < 0) return -1;
   struct stat st;
@@ -263,12 +222,52 @@ int vlff_map_file(const char *path, size_t max, const uint8_t **buf, size_t *len
     close(fd);
     return -1;
   }
-  if (st.st_size == 0) {
+  *size = (size_t)st.st_size;
+  return fd;
+}
+
+int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen) {
+  *buf = NULL, *len = 0;
+  size_t size;
+  int fd = open_sized(path, max, &size, err, errlen);
+  if (fd < 0) return -1;
+  FILE *f = fdopen(fd, "rb");
+  if (!f) {
+    close(fd);
+    vlff_errf(err, errlen, "%s: cannot open: %s", VLFF_Q(path), strerror(errno));
+    return -1;
+  }
+  uint8_t *b = malloc(size + 1);
+  if (!b) {
+    fclose(f);
+    vlff_errf(err, errlen, "%s: out of memory", VLFF_Q(path));
+    return -1;
+  }
+  size_t n = fread(b, 1, size, f);
+  int bad = ferror(f);
+  fclose(f);
+  if (bad || n != size) {
+    free(b);
+    vlff_errf(err, errlen, "%s: read error", VLFF_Q(path));
+    return -1;
+  }
+  b[n] = 0;
+  *buf = b, *len = n;
+  return 0;
+}
+
+int vlff_map_file(const char *path, size_t max, const uint8_t **buf, size_t *len, char *err, size_t errlen) {
+  static const uint8_t empty[1];
+  *buf = NULL, *len = 0;
+  size_t size;
+  int fd = open_sized(path, max, &size, err, errlen);
+  if (fd < 0) return -1;
+  if (size == 0) {
     close(fd);
     *buf = empty;
     return 0;
   }
-  void *m = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE, fd, 0);
+  void *m = mmap(NULL, size, PROT_READ, MAP_PRIVATE, fd, 0);
   int e = errno;
   close(fd); /* the mapping keeps the file */
   if (m == MAP_FAILED) {
@@ -276,8 +275,8 @@ int vlff_map_file(const char *path, size_t max, const uint8_t **buf, size_t *len
     return -1;
   }
   /* read ahead further, and dropped behind sooner */
-  (void)madvise(m, (size_t)st.st_size, MADV_SEQUENTIAL);
-  *buf = m, *len = (size_t)st.st_size;
+  (void)madvise(m, size, MADV_SEQUENTIAL);
+  *buf = m, *len = size;
   return 0;
 }
 

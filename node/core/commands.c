@@ -209,17 +209,16 @@ void poll_mailbox(struct vlff_node *n, uint64_t *seq, bool *publish_now) {
                       (unsigned long long)req.seq, vlff_shm_last_message());
 }
 
-/* The memory fields of the status, taken outside slock (trainer-private
- * reads); the resident set is read at most twice a second. */
-static void memory_state(struct vlff_node *n, double now, double mem[6]) {
+/* The memory in use for the status, taken outside slock (trainer-private
+ * reads: the keyframes, the evidence and its limit, the resident set, read
+ * at most twice a second); the fixed figures are set at create. */
+static void memory_state(struct vlff_node *n, double now, double mem[4]) {
   const double mib = 1.0 / (1 << 20);
   size_t ev_used, ev_limit;
   vlff_publisher_evidence_memory(n->pub, &ev_used, &ev_limit);
   mem[0] = (double)vlff_kfstore_bytes(n->store) * mib;
-  mem[1] = n->cfg.keyframes.memory_mb;
-  mem[2] = (double)ev_used * mib;
-  mem[3] = (double)ev_limit * mib;
-  mem[4] = (double)vlff_field_plan_bytes(&n->cfg.field, &n->cfg.train) * mib;
+  mem[1] = (double)ev_used * mib;
+  mem[2] = (double)ev_limit * mib;
   if (now - n->rss_read_s >= 0.5) {
     n->rss_read_s = now;
     FILE *f = fopen("/proc/self/statm", "r");
@@ -228,11 +227,11 @@ static void memory_state(struct vlff_node *n, double now, double mem[6]) {
       n->rss_mb = (double)resident * (double)sysconf(_SC_PAGESIZE) * mib;
     if (f) fclose(f);
   }
-  mem[5] = n->rss_mb;
+  mem[3] = n->rss_mb;
 }
 
 void update_state(struct vlff_node *n) {
-  double now = vlff_seconds(), mem[6];
+  double now = vlff_seconds(), mem[4];
   memory_state(n, now, mem);
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
@@ -247,9 +246,9 @@ void update_state(struct vlff_node *n) {
                 : n->st.keyframes >= n->cfg.keyframes.start_after ? VLFF_NODE_OPERATIONAL
                                                                   : VLFF_NODE_PREOP;
   n->st.map_age_s = vlff_publisher_age_s(n->pub);
-  n->st.mem_keyframes_mb = mem[0], n->st.mem_keyframes_limit_mb = mem[1];
-  n->st.mem_evidence_mb = mem[2], n->st.mem_evidence_limit_mb = mem[3];
-  n->st.mem_field_mb = mem[4], n->st.mem_rss_mb = mem[5];
+  n->st.mem_keyframes_mb = mem[0];
+  n->st.mem_evidence_mb = mem[1], n->st.mem_evidence_limit_mb = mem[2];
+  n->st.mem_rss_mb = mem[3];
   pthread_mutex_unlock(&n->slock);
 }
 

@@ -84,6 +84,9 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   n->st.last_pose_residual_m = -1;
   n->st.frame_to_map_ms_p50 = n->st.frame_to_map_ms_p99 = n->st.publish_interval_s = n->st.label_flip_frac = -1;
   n->st.mem_rss_mb = n->rss_mb = -1;
+  /* the memory figures that do not change while the node runs */
+  n->st.mem_keyframes_limit_mb = cfg->keyframes.memory_mb;
+  n->st.mem_field_mb = (double)vlff_field_plan_bytes(&cfg->field, &cfg->train) / (1 << 20);
   /* node.cpu_budget bounds the learner's threads (budget.h); the field made
    * again on a reset reads the same count from n->cfg. */
   n->cfg.node.threads = vlff_budget_threads(cfg->node.cpu_budget, cfg->node.threads);
