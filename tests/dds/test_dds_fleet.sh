@@ -52,11 +52,16 @@ in_b=(ip netns exec "$nsb" env CYCLONEDDS_URI="$ub")
 in_c=(ip netns exec "$nsc" env CYCLONEDDS_URI="$(uri "$vc")")
 in_d=(ip netns exec "$nsd" env CYCLONEDDS_URI="$(uri "$vd")")
 
-# The flat at a small scale: 60 frames of 160x120 at 10 Hz, D = 64, one
-# thread; each fleet robot walks 20 consecutive frames of it.
+# The flat at a small scale: 60 frames of 320x240 at 10 Hz, D = 64, one
+# thread; each fleet robot walks 20 consecutive frames of it. Not 160x120:
+# there the bathroom's toilet, sink and bathtub are a few feature pixels
+# each, and which of them a voxel took depended on the frames a run
+# admitted: one robot alone scored 52 to 62 from run to run on a quiet
+# machine, so the comparison below failed by chance. At 320x240 the same
+# robot scored within a point of 65 in every run measured.
 robot_yaml() { # NAME RANGE_FIRST RANGE_COUNT
   printf 'node:\n  state_dir: %s/%s\n  threads: 1\n  cpu_budget: %s\nsource:\n  kind: sim\n  features: sim\n' "$tmp" "$1" $budget
-  printf 'sim:\n  layout: flat\n  seed: 4\n  frames: 60\n  rate_hz: 10\n  width: 160\n  height: 120\n  range_first: %d\n  range_count: %d\n' "$2" "$3"
+  printf 'sim:\n  layout: flat\n  seed: 4\n  frames: 60\n  rate_hz: 10\n  width: 320\n  height: 240\n  range_first: %d\n  range_count: %d\n' "$2" "$3"
   printf 'field:\n  feature_dim: 64\n  scene_min: [-5, -4, -1.5]\n  scene_max: [5, 4, 1.5]\nkeyframes:\n  start_after: 2\n'
   printf 'publish:\n  rate_hz: 2\n  voxel_size_m: 0.1\n'
   printf 'shm:\n  ring: %s-%s-r\n  map: %s-%s-m\n  prompts: %s-%s-p\n  feature_ring: %s-%s-f\n  pose_ring: %s-%s-q\n' $p $1 $p $1 $p $1 $p $1 $p $1
@@ -79,7 +84,7 @@ iterations() { "$shm" stat "$1" 2>/dev/null | awk '$1 == "iterations" { print $2
 # iterations; each is stopped (SIGTERM) as it gets there. 0 when all did.
 run_until_iters() {
   local -A pid=() spid=()
-  local name left
+  local name left stopping=()
   for name in "$@"; do
     local -n pre=in_$(case $name in f1|one) echo a;; f2) echo c;; f3) echo d;; esac)
     "${pre[@]}" "$node" --config "$tmp/$name.yaml" 2>"$tmp/$name.log" &
@@ -94,7 +99,9 @@ run_until_iters() {
     for name in "${!pid[@]}"; do
       [[ -z ${pid[$name]} ]] && continue
       if [[ $(iterations $p-$name-m) -ge $iters ]] 2>/dev/null; then
-        kill -TERM "${pid[$name]}" "${spid[$name]}"; wait "${pid[$name]}" "${spid[$name]}"; pid[$name]=
+        # Not waited for here: the others would train on while this one
+        # writes its checkpoint, and the last stopped would have learned most.
+        kill -TERM "${pid[$name]}" "${spid[$name]}"; stopping+=(${pid[$name]} ${spid[$name]}); pid[$name]=
         echo "$name: $iters iterations, stopped"
       elif ! kill -0 "${pid[$name]}" 2>/dev/null; then
         echo "FAIL: node $name ended before $iters iterations: $(tail -3 "$tmp/$name.log")"
@@ -103,7 +110,7 @@ run_until_iters() {
         left=$((left + 1))
       fi
     done
-    ((left == 0)) && return 0
+    ((left == 0)) && { wait "${stopping[@]}"; return 0; }
     sleep 0.1
   done
   echo "FAIL: nodes did not reach $iters iterations: $(for name in "$@"; do echo -n "$name $(iterations $p-$name-m) "; done)"
@@ -131,12 +138,13 @@ cat "$tmp/score"
 fleet=$(awk -v m=$p-fleet '$1 == m { print $3 }' "$tmp/score")
 one=$(awk -v m=$p-one-m '$1 == m { print $3 }' "$tmp/score")
 check "both maps scored (fleet $fleet, one robot $one)" '[[ -n $fleet && -n $one ]] && awk -v a="$fleet" -v b="$one" "BEGIN { exit !(a > 0 && b > 0) }"'
-# The issue's target is the fleet within 2 points of one robot: met in the
-# runs measured (docs/dds.md), but a run's figures move by 2 to 3 points
-# with the machine's load, so the test holds the fleet to 5 (a merge that
-# kept one robot's map, or counted every robot's glimpses as its walk, is
-# 5 to 15 below), and scripts/bench dds reports the target itself.
-check "the fleet's 3D mIoU $fleet is within 5 points of one robot's $one" 'awk -v a="$fleet" -v b="$one" "BEGIN { exit !(a >= b - 5) }"'
+# The issue's target is the fleet within 2 points of one robot
+# (scripts/bench dds reports it). The runs measured put the fleet 0.6 below
+# to 2.5 above the single robot, with the machine idle or its two cores
+# oversubscribed twice (docs/dds.md), so the test holds the fleet to 3: a
+# merge that kept one robot's map, or counted every robot's glimpses as its
+# walk, is 5 to 15 below.
+check "the fleet's 3D mIoU $fleet is within 3 points of one robot's $one" 'awk -v a="$fleet" -v b="$one" "BEGIN { exit !(a >= b - 3) }"'
 for r in f1 f2 f3; do
   m=$(awk -v m=$p-$r-m '$1 == m { print $3 }' "$tmp/score")
   check "robot $r alone, a third of the flat, scores 8 points or more below the fleet ($m, $fleet)" 'awk -v a="$m" -v b="$fleet" "BEGIN { exit !(a + 8 <= b) }"'
