@@ -79,6 +79,11 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
       .error_flags = st->error_flags & 0x0f, /* the node's bits 0..3 are CAN's */
       .frames_refused = (uint32_t)st->frames_invalid,
       .last_refusal = (uint32_t)st->last_refusal,
+      .mem_rss_mb = (float)st->mem_rss_mb,
+      .mem_keyframes_mb = (float)st->mem_keyframes_mb,
+      .mem_keyframes_limit_mb = (float)st->mem_keyframes_limit_mb,
+      .mem_evidence_mb = (float)st->mem_evidence_mb,
+      .mem_evidence_limit_mb = (float)st->mem_evidence_limit_mb,
   };
   _Static_assert(VLFF_REFUSED_COUNT <= VLFF_CAN_REFUSAL_CODES, "every refusal reason has a bit in INGEST");
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) cs.refused[r] = (uint32_t)st->refused[r];

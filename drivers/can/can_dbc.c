@@ -89,6 +89,13 @@ static const char dbc_template[] =
     " SG_ RefusedFeaturesLate : 53|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
     " SG_ RefusedPeriod : 56|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
     "\n"
+    "BO_ {S6} VLFF_MEMORY: 8 VLFF\n"
+    " SG_ MemRss : 0|16@1+ (1,0) [0|65535] \"MiB\" CONTROLLER\n"
+    " SG_ MemKeyframes : 16|12@1+ (4,0) [0|16380] \"MiB\" CONTROLLER\n"
+    " SG_ MemKeyframesLimit : 28|12@1+ (4,0) [0|16380] \"MiB\" CONTROLLER\n"
+    " SG_ MemEvidence : 40|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
+    " SG_ MemEvidenceLimit : 52|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
+    "\n"
     "BO_ {S4} VLFF_STATUS_FD: 48 VLFF\n"
     " SG_ Iteration : 0|32@1+ (1,0) [0|4294967295] \"\" CONTROLLER\n"
     " SG_ Keyframes : 32|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
@@ -136,6 +143,11 @@ static const char dbc_template[] =
     " SG_ RefusedFuturePose : 308|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
     " SG_ RefusedFeaturesLate : 309|1@1+ (1,0) [0|1] \"\" CONTROLLER\n"
     " SG_ RefusedPeriod : 312|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
+    " SG_ MemRss : 320|16@1+ (1,0) [0|65535] \"MiB\" CONTROLLER\n"
+    " SG_ MemKeyframes : 336|12@1+ (4,0) [0|16380] \"MiB\" CONTROLLER\n"
+    " SG_ MemKeyframesLimit : 348|12@1+ (4,0) [0|16380] \"MiB\" CONTROLLER\n"
+    " SG_ MemEvidence : 360|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
+    " SG_ MemEvidenceLimit : 372|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
     "\n"
     "BO_ {CMD} VLFF_COMMAND: 4 CONTROLLER\n"
     " SG_ Target : 0|8@1+ (1,0) [0|255] \"\" VLFF\n"
@@ -155,7 +167,8 @@ static const char dbc_template[] =
     "CM_ BO_ {S2} \"Published map at can.status_base_id + 2.\";\n"
     "CM_ BO_ {S3} \"Health at can.status_base_id + 3; counters saturate at 65535; Err*/Bus* bits 4..6 and 56..63 cover the status period just ended.\";\n"
     "CM_ BO_ {S5} \"Frames the node refused, at can.status_base_id + 5 (+ 4 is the FD frame's id): total since start, the latest reason, one bit per reason that refused a frame in the status period just ended, and how many were refused in it. vlff-node --status and its log give the per-reason counts.\";\n"
-    "CM_ BO_ {S4} \"With can.fd: the five status payloads (TRAIN, LOSS, MAP, HEALTH, INGEST, 8 bytes each, in that order; bytes 40..47 zero) in one CAN FD frame at can.status_base_id + 4 instead of five classic frames.\";\n"
+    "CM_ BO_ {S6} \"Memory against its limits at can.status_base_id + 6, MiB: the process's resident set, the keyframe store and keyframes.memory_mb (4 MiB steps), the evidence and publish.evidence_max_mb. A signal with every bit set is unknown or above its range.\";\n"
+    "CM_ BO_ {S4} \"With can.fd: the six status payloads (TRAIN, LOSS, MAP, HEALTH, INGEST, MEMORY, 8 bytes each, in that order) in one CAN FD frame at can.status_base_id + 4 instead of six classic frames.\";\n"
     "CM_ BO_ {CMD} \"Command from a controller at can.command_id. Exactly 4 bytes; Target 0 = every node. Other lengths are dropped and counted.\";\n"
     "CM_ BO_ {ACK} \"Acknowledgement at can.ack_id for every well-formed command addressed to this node.\";\n"
     "CM_ SG_ {S2} MapAge \"Age of the published map; 65535 = never published or older than 65.534 s.\";\n"
@@ -179,6 +192,7 @@ static const char dbc_template[] =
     "BA_ \"GenMsgCycleTime\" BO_ {S3} {STMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S4} {FDMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S5} {STMS};\n"
+    "BA_ \"GenMsgCycleTime\" BO_ {S6} {STMS};\n"
     "VAL_ {HB} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
     "VAL_ {S0} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
     "VAL_ {S4} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
@@ -218,7 +232,7 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
   const int base = cfg->status_base_id, hb = VLFF_CANP_HEARTBEAT_BASE + cfg->node_id;
   const int fd_id = base + VLFF_CANP_STATUS_FD_OFFSET;
   const int ingest_id = base + vlff_canp_status_offset(VLFF_CANP_INGEST);
-  /* With can.fd the node sends its status only as the FD frame: the five
+  /* With can.fd the node sends its status only as the FD frame: the six
    * classic status messages are left out, lest a controller's DBC-driven
    * timeout monitor wait for frames that never come. Without it the FD
    * message stays for reference (a controller may switch) while its id is
@@ -234,6 +248,7 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
       {"S3", base + VLFF_CANP_HEALTH},
       {"S4", fd_id},
       {"S5", ingest_id},
+      {"S6", base + vlff_canp_status_offset(VLFF_CANP_MEMORY)},
       {"CMD", cfg->command_id},
       {"ACK", cfg->ack_id},
       {"NODE", cfg->node_id},
@@ -241,7 +256,7 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
       {"STMS", cfg->status_ms},
       {"FDMS", cfg->status_ms},
   };
-  static const char classic[][5] = {"{S0}", "{S1}", "{S2}", "{S3}", "{S5}"};
+  static const char classic[][5] = {"{S0}", "{S1}", "{S2}", "{S3}", "{S5}", "{S6}"};
   bool skipping = false;
   for (const char *p = dbc_template; *p;) {
     const char *nl = strchr(p, '\n');

@@ -28,6 +28,32 @@ static uint32_t get32(const uint8_t *p) {
 
 static uint16_t sat16(uint64_t v) { return v > 0xffff ? 0xffff : (uint16_t)v; }
 
+/* An unsigned field of len bits (len <= 16) from bit start, little-endian
+ * (DBC "@1+"). */
+static void put_bits(uint8_t *p, int start, int len, uint32_t v) {
+  for (int i = 0; i < len; i++)
+    if (v >> i & 1) p[(start + i) / 8] |= (uint8_t)(1u << ((start + i) % 8));
+}
+
+static uint32_t get_bits(const uint8_t *p, int start, int len) {
+  uint32_t v = 0;
+  for (int i = 0; i < len; i++) v |= (uint32_t)(p[(start + i) / 8] >> ((start + i) % 8) & 1) << i;
+  return v;
+}
+
+/* MiB in a len-bit field of scale MiB: rounded; all ones = unknown (NaN,
+ * negative) or above range. */
+static uint32_t mib_field(double mb, double scale, int len) {
+  const uint32_t all = (1u << len) - 1;
+  if (!(mb >= 0)) return all;
+  double raw = mb / scale + 0.5;
+  return raw >= all ? all : (uint32_t)raw;
+}
+
+static double mib_value(uint32_t raw, double scale, int len) {
+  return raw == (1u << len) - 1 ? -1.0 : raw * scale;
+}
+
 uint16_t vlff_canp_u16(double value, double scale) {
   if (!isfinite(value)) return 0xffff;
   if (value <= 0) return 0;
@@ -39,7 +65,12 @@ uint16_t vlff_canp_u16(double value, double scale) {
 static double unscale(uint16_t raw, double scale) { return raw == 0xffff ? -1.0 : raw * scale; }
 
 int vlff_canp_status_offset(int index) {
-  return index == VLFF_CANP_INGEST ? VLFF_CANP_STATUS_FD_OFFSET + 1 : index;
+  return index >= VLFF_CANP_INGEST ? index + 1 : index;
+}
+
+int vlff_canp_status_index(int offset) {
+  if (offset < 0 || offset == VLFF_CANP_STATUS_FD_OFFSET || offset > VLFF_CANP_STATUS_FRAMES) return -1;
+  return offset > VLFF_CANP_STATUS_FD_OFFSET ? offset - 1 : offset;
 }
 
 void vlff_canp_encode_status(int index, const struct vlff_can_status *st, const struct vlff_canp_link *link,
@@ -75,6 +106,15 @@ void vlff_canp_encode_status(int index, const struct vlff_can_status *st, const 
       out[4] = st->last_refusal > 0xff ? 0xff : (uint8_t)st->last_refusal;
       put16(out + 5, link->refused_active);
       out[7] = link->refused_period > 0xff ? 0xff : (uint8_t)link->refused_period;
+      break;
+    case VLFF_CANP_MEMORY:
+      /* The keyframe store is the large one (GiB on a building): 4 MiB
+       * steps reach 16 GiB; the evidence's budget is MiB to a few GiB. */
+      put16(out, (uint16_t)mib_field(st->mem_rss_mb, 1, 16));
+      put_bits(out, 16, 12, mib_field(st->mem_keyframes_mb, 4, 12));
+      put_bits(out, 28, 12, mib_field(st->mem_keyframes_limit_mb, 4, 12));
+      put_bits(out, 40, 12, mib_field(st->mem_evidence_mb, 1, 12));
+      put_bits(out, 52, 12, mib_field(st->mem_evidence_limit_mb, 1, 12));
       break;
     default:
       break;
@@ -113,6 +153,13 @@ int vlff_canp_decode_status(int index, const uint8_t *d, int len, struct vlff_ca
       v->last_refusal = d[4];
       v->refused_active = get16(d + 5);
       v->refused_period = d[7];
+      return 0;
+    case VLFF_CANP_MEMORY:
+      v->mem_rss_mb = mib_value(get16(d), 1, 16);
+      v->mem_keyframes_mb = mib_value(get_bits(d, 16, 12), 4, 12);
+      v->mem_keyframes_limit_mb = mib_value(get_bits(d, 28, 12), 4, 12);
+      v->mem_evidence_mb = mib_value(get_bits(d, 40, 12), 1, 12);
+      v->mem_evidence_limit_mb = mib_value(get_bits(d, 52, 12), 1, 12);
       return 0;
     default:
       return -1;

@@ -115,6 +115,10 @@ struct vlff_can_status {
   uint32_t frames_refused;   /* all reasons, cumulative */
   uint32_t last_refusal;     /* reason of the latest refused frame, 0 = none yet */
   uint32_t refused[VLFF_CAN_REFUSAL_CODES]; /* per reason code, cumulative; [0] unused */
+  /* Memory against its limits (MEMORY frame), MiB; negative = unknown. */
+  float mem_rss_mb;                /* the process's resident set */
+  float mem_keyframes_mb, mem_keyframes_limit_mb; /* the keyframe store, keyframes.memory_mb */
+  float mem_evidence_mb, mem_evidence_limit_mb;   /* the evidence, publish.evidence_max_mb */
 };
 
 struct vlff_can_command {

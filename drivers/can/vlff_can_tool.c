@@ -112,6 +112,16 @@ static void print_loss(const char *name, double v) {
   else printf(" %s=%.4f", name, v);
 }
 
+/* " name=USE/LIMITMiB" (limit -2: none), "?" for unknown or above range. */
+static void print_mib(const char *name, double use, double limit) {
+  printf(" %s=", name);
+  if (use < 0) printf("?");
+  else printf("%.0f", use);
+  if (limit >= 0) printf("/%.0f", limit);
+  else if (limit > -2) printf("/?");
+  printf("MiB");
+}
+
 static void print_status(int index, const uint8_t *d) {
   struct vlff_canp_status_view v;
   char a[96], b[96];
@@ -146,6 +156,12 @@ static void print_status(int index, const uint8_t *d) {
       printf("INGEST refused=%u last_reason=%u refused_period=%u active=0x%04x", v.frames_refused, v.last_refusal,
              v.refused_period, v.refused_active);
       break;
+    case VLFF_CANP_MEMORY:
+      printf("MEMORY");
+      print_mib("rss", v.mem_rss_mb, -2);
+      print_mib("keyframes", v.mem_keyframes_mb, v.mem_keyframes_limit_mb);
+      print_mib("evidence", v.mem_evidence_mb, v.mem_evidence_limit_mb);
+      break;
   }
 }
 
@@ -161,11 +177,9 @@ static void print_frame(const struct vlff_config *c, const struct canfd_frame *f
   uint32_t base = (uint32_t)c->can.status_base_id;
   if (id == VLFF_CANP_HEARTBEAT_BASE + (uint32_t)c->can.node_id && f->len == 1) {
     printf("%.6f %03X heartbeat node=%d state=%s\n", t, id, c->can.node_id, vlff_can_nmt_name(f->data[0]));
-  } else if (id >= base && id <= base + (uint32_t)vlff_canp_status_offset(VLFF_CANP_INGEST) &&
-             id != base + VLFF_CANP_STATUS_FD_OFFSET && f->len == 8) {
+  } else if (id >= base && vlff_canp_status_index((int)(id - base)) >= 0 && f->len == 8) {
     printf("%.6f %03X ", t, id);
-    print_status(id == base + (uint32_t)vlff_canp_status_offset(VLFF_CANP_INGEST) ? VLFF_CANP_INGEST : (int)(id - base),
-                 f->data);
+    print_status(vlff_canp_status_index((int)(id - base)), f->data);
     printf("\n");
   } else if (id == base + VLFF_CANP_STATUS_FD_OFFSET && f->len == VLFF_CANP_STATUS_FD_LEN) {
     for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {

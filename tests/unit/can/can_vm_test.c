@@ -191,7 +191,9 @@ static struct vlff_can_status fixed_status(void) {
   struct vlff_can_status st = {.iteration = 123456789, .loss_total = 2.5f, .loss_color = 0.0421f,
                                .loss_depth = 0.137f, .loss_feature = 0.9f, .keyframes = 77, .map_version = 31,
                                .fps_in = 29.97f, .fps_dropped = 0.5f, .prompt_set = 1,
-                               .error_flags = VLFF_CAN_ERRF_POSE_STALE, .frames_refused = 193, .last_refusal = 6};
+                               .error_flags = VLFF_CAN_ERRF_POSE_STALE, .frames_refused = 193, .last_refusal = 6,
+                               .mem_rss_mb = 1435, .mem_keyframes_mb = 60, .mem_keyframes_limit_mb = 2048,
+                               .mem_evidence_mb = 9, .mem_evidence_limit_mb = 16};
   st.refused[6] = 193;
   return st;
 }
@@ -591,8 +593,8 @@ static void check_dbc_frames(bool fd) {
     }
     checked++;
   }
-  printf("dbc%s: %d frames decoded and checked (hb %d, status %d/%d/%d/%d/%d, fd %d)\n", fd ? " (FD)" : "", checked,
-         counts[7], counts[0], counts[1], counts[2], counts[3], counts[5], counts[4]);
+  printf("dbc%s: %d frames decoded and checked (hb %d, status %d/%d/%d/%d/%d/%d, fd %d)\n", fd ? " (FD)" : "",
+         checked, counts[7], counts[0], counts[1], counts[2], counts[3], counts[5], counts[6], counts[4]);
   assert_true(counts[7] >= 20);
   if (fd) assert_true(counts[4] >= 10);
   else for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) assert_true(counts[vlff_canp_status_offset(i)] >= 10);

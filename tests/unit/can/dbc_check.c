@@ -26,6 +26,15 @@ static double expect_scaled(double v, double scale) {
   return (raw > 65535 ? 65535 : raw) * scale;
 }
 
+/* What a receiver should read for MiB sent in a bits-wide field of this
+ * scale: all ones (unknown, above range) reads as its raw value times scale. */
+static double expect_mib(double v, double scale, int bits) {
+  const double all = (double)((1u << bits) - 1);
+  if (!(v >= 0)) return all * scale;
+  double raw = floor(v / scale + 0.5);
+  return (raw > all ? all : raw) * scale;
+}
+
 static int near(const char *sig, double got, double want, double tol, char *why, size_t n) {
   if (fabs(got - want) <= tol) return 0;
   snprintf(why, n, "signal %s: decoded %.6f, expected %.6f", sig, got, want);
@@ -34,10 +43,10 @@ static int near(const char *sig, double got, double want, double tol, char *why,
 
 int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data, int len,
                      const struct vlff_can_status *st, int nmt_state, char *why, size_t n) {
-  const char *prefix_names[5] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST"};
+  const char *prefix_names[6] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_MEMORY"};
   const char *kind = m->name;
   if (!strcmp(m->name, "VLFF_STATUS_FD")) {
-    if (part < 0 || part > 4) { snprintf(why, n, "bad FD part %d", part); return -1; }
+    if (part < 0 || part > 5) { snprintf(why, n, "bad FD part %d", part); return -1; }
     kind = prefix_names[part];
   }
   if (len != m->dlc) {
@@ -68,6 +77,12 @@ int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data,
   } else if (!strcmp(kind, "VLFF_INGEST")) {
     c[k++] = (struct want){"FramesRefused", st->frames_refused, 0};
     c[k++] = (struct want){"LastRefusal", st->last_refusal > 255 ? 255 : st->last_refusal, 0};
+  } else if (!strcmp(kind, "VLFF_MEMORY")) {
+    c[k++] = (struct want){"MemRss", expect_mib(st->mem_rss_mb, 1, 16), 0};
+    c[k++] = (struct want){"MemKeyframes", expect_mib(st->mem_keyframes_mb, 4, 12), 0};
+    c[k++] = (struct want){"MemKeyframesLimit", expect_mib(st->mem_keyframes_limit_mb, 4, 12), 0};
+    c[k++] = (struct want){"MemEvidence", expect_mib(st->mem_evidence_mb, 1, 12), 0};
+    c[k++] = (struct want){"MemEvidenceLimit", expect_mib(st->mem_evidence_limit_mb, 1, 12), 0};
   } else {
     snprintf(why, n, "%s is not a status message", m->name);
     return -1;

@@ -30,8 +30,8 @@ static int setup(void **state) {
  * FD frame's padding are described. */
 static void test_layout_covers_payload(void **state) {
   (void)state;
-  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_STATUS_FD",
-                         "VLFF_COMMAND", "VLFF_ACK", "VLFF_HEARTBEAT"};
+  const char *names[] = {"VLFF_TRAIN",     "VLFF_LOSS",    "VLFF_MAP", "VLFF_HEALTH",   "VLFF_INGEST",
+                         "VLFF_MEMORY",    "VLFF_STATUS_FD", "VLFF_COMMAND", "VLFF_ACK", "VLFF_HEARTBEAT"};
   /* Reason codes 1..VLFF_CAN_REFUSAL_CODES-1 fit the INGEST bits; those
    * the node does not define yet are unused. */
   const int reason_bits_unused = 16 - (VLFF_REFUSED_COUNT - 1);
@@ -52,7 +52,7 @@ static void test_layout_covers_payload(void **state) {
     for (int b = 0; b < m->dlc * 8; b++) unused += owner[b] < 0;
     int expect_unused = !strcmp(names[i], "VLFF_HEALTH")      ? 1
                         : !strcmp(names[i], "VLFF_INGEST")    ? reason_bits_unused
-                        : !strcmp(names[i], "VLFF_STATUS_FD") ? 1 + reason_bits_unused + 64
+                        : !strcmp(names[i], "VLFF_STATUS_FD") ? 1 + reason_bits_unused
                                                               : 0;
     assert_int_equal(unused, expect_unused);
   }
@@ -66,6 +66,7 @@ static void test_layout_covers_payload(void **state) {
   assert_int_equal(dbc_find_name(&db, "VLFF_STATUS_FD")->dlc, VLFF_CANP_STATUS_FD_LEN);
   assert_int_equal(dbc_find_name(&db, "VLFF_INGEST")->id,
                    cfg.can.status_base_id + vlff_canp_status_offset(VLFF_CANP_INGEST));
+  assert_int_equal(dbc_find_name(&db, "VLFF_MEMORY")->id, cfg.can.status_base_id + 6);
   /* One bit per reason the node defines, in code order, in both frames. */
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
     int found = 0;
@@ -86,7 +87,8 @@ static float rnd(double hi) { return (float)(hi * rand() / RAND_MAX); }
 
 static void test_random_status_decodes(void **state) {
   (void)state;
-  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST"};
+  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_MEMORY"};
+  _Static_assert(sizeof names / sizeof names[0] == VLFF_CANP_STATUS_FRAMES, "a name per status frame");
   const struct dbc_message *fd = dbc_find_name(&db, "VLFF_STATUS_FD");
   srand(7);
   for (int it = 0; it < 2000; it++) {
@@ -95,7 +97,10 @@ static void test_random_status_decodes(void **state) {
         .loss_feature = rnd(1), .keyframes = (uint32_t)(rand() % 70000), .map_version = (uint32_t)rand(),
         .fps_in = rnd(700), .fps_dropped = rnd(50), .prompt_set = (uint32_t)(rand() % 300),
         .error_flags = (uint32_t)(rand() & 0x0f), .frames_refused = (uint32_t)rand() * 2u,
-        .last_refusal = (uint32_t)(rand() % VLFF_REFUSED_COUNT)};
+        .last_refusal = (uint32_t)(rand() % VLFF_REFUSED_COUNT), .mem_rss_mb = rnd(70000),
+        .mem_keyframes_mb = rnd(17000), .mem_keyframes_limit_mb = rnd(17000), .mem_evidence_mb = rnd(4200),
+        .mem_evidence_limit_mb = rnd(4200)};
+    if (it % 11 == 0) st.mem_rss_mb = -1, st.mem_evidence_mb = NAN;
     if (it % 10 == 0) st.loss_total = NAN;
     if (it % 13 == 0) st.loss_depth = -1;
     struct vlff_canp_link link = {.nmt_state = (uint8_t)(it % 2 ? VLFF_NMT_OPERATIONAL : VLFF_NMT_ERROR),

@@ -20,7 +20,8 @@ static void test_status_roundtrip(void **state) {
                                .loss_depth = 0.5f, .loss_feature = 0.25f, .keyframes = 41, .map_version = 7,
                                .fps_in = 29.97f, .fps_dropped = 1.5f, .prompt_set = 3,
                                .error_flags = VLFF_CAN_ERRF_POSE_STALE | 0xf0u, .frames_refused = 0x01020304,
-                               .last_refusal = 6};
+                               .last_refusal = 6, .mem_rss_mb = 1435.4f, .mem_keyframes_mb = 58.3f,
+                               .mem_keyframes_limit_mb = 2048, .mem_evidence_mb = 9.6f, .mem_evidence_limit_mb = 16};
   struct vlff_canp_link link = {.nmt_state = VLFF_NMT_OPERATIONAL, .extra_flags = VLFF_CAN_ERRF_TX_DROPPED,
                                 .can_errors = VLFF_CAN_BUS_OFF, .cmd_rejected = 70000, .tx_dropped = 12,
                                 .map_age_ms = 250, .refused_active = 0x0120, .refused_period = 300};
@@ -55,10 +56,22 @@ static void test_status_roundtrip(void **state) {
   assert_int_equal(v.refused_active, 0x0120);
   assert_int_equal(v.refused_period, 255); /* saturates */
   assert_int_equal(vlff_canp_decode_status(0, f[0], 7, &v), -1);
-  assert_int_equal(vlff_canp_decode_status(5, f[0], 8, &v), -1);
-  /* INGEST's classic id skips base + 4, the FD frame's. */
+  /* MEMORY: MiB rounded, the keyframe store's in 4 MiB steps. */
+  assert_true(v.mem_rss_mb == 1435);
+  assert_true(v.mem_keyframes_mb == 60);
+  assert_true(v.mem_keyframes_limit_mb == 2048);
+  assert_true(v.mem_evidence_mb == 10);
+  assert_true(v.mem_evidence_limit_mb == 16);
+  assert_int_equal(f[5][0] | f[5][1] << 8, 1435);
+  assert_int_equal(vlff_canp_decode_status(VLFF_CANP_STATUS_FRAMES, f[0], 8, &v), -1);
+  /* INGEST's and MEMORY's classic ids skip base + 4, the FD frame's. */
   assert_int_equal(vlff_canp_status_offset(VLFF_CANP_HEALTH), 3);
   assert_int_equal(vlff_canp_status_offset(VLFF_CANP_INGEST), 5);
+  assert_int_equal(vlff_canp_status_offset(VLFF_CANP_MEMORY), 6);
+  for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) assert_int_equal(vlff_canp_status_index(vlff_canp_status_offset(i)), i);
+  assert_int_equal(vlff_canp_status_index(VLFF_CANP_STATUS_FD_OFFSET), -1);
+  assert_int_equal(vlff_canp_status_index(7), -1);
+  assert_int_equal(vlff_canp_status_index(-1), -1);
 }
 
 static void test_scaling_saturates(void **state) {
@@ -84,6 +97,19 @@ static void test_scaling_saturates(void **state) {
   vlff_canp_encode_status(VLFF_CANP_MAP, &st, &link, f);
   vlff_canp_decode_status(VLFF_CANP_MAP, f, 8, &v);
   assert_int_equal(v.map_age_ms, 0xffff);
+  /* Memory: unknown (negative, NaN) and above range read back unknown;
+   * neither wraps into a small value. */
+  st.mem_rss_mb = -1, st.mem_keyframes_mb = NAN, st.mem_keyframes_limit_mb = 1 << 20;
+  st.mem_evidence_mb = 4094.6f, st.mem_evidence_limit_mb = 65536;
+  vlff_canp_encode_status(VLFF_CANP_MEMORY, &st, &link, f);
+  vlff_canp_decode_status(VLFF_CANP_MEMORY, f, 8, &v);
+  assert_true(v.mem_rss_mb < 0 && v.mem_keyframes_mb < 0 && v.mem_keyframes_limit_mb < 0);
+  assert_true(v.mem_evidence_mb < 0); /* 4094.6 rounds to the all-ones raw value */
+  assert_true(v.mem_evidence_limit_mb < 0);
+  st.mem_evidence_mb = 4094.4f, st.mem_keyframes_limit_mb = 16376;
+  vlff_canp_encode_status(VLFF_CANP_MEMORY, &st, &link, f);
+  vlff_canp_decode_status(VLFF_CANP_MEMORY, f, 8, &v);
+  assert_true(v.mem_evidence_mb == 4094 && v.mem_keyframes_limit_mb == 16376);
 }
 
 static void test_command_validation(void **state) {

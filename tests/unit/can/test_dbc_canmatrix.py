@@ -66,10 +66,11 @@ def node_check(path):
             decoded.append((frame.name, {k: float(v.phys_value) for k, v in frame.decode(data).items()}))
     names = {n for n, _ in decoded}
     # With can.fd (the case's config) one STATUS_FD frame carries what the
-    # classic TRAIN, LOSS, MAP, HEALTH and INGEST frames would.
+    # classic TRAIN, LOSS, MAP, HEALTH, INGEST and MEMORY frames would.
     fd = "VLFF_STATUS_FD" in names
-    train, mapm, ingest = ("VLFF_STATUS_FD",) * 3 if fd else ("VLFF_TRAIN", "VLFF_MAP", "VLFF_INGEST")
-    for want in ("VLFF_HEARTBEAT", "VLFF_ACK", train, mapm, ingest):
+    train, mapm, ingest, mem = (("VLFF_STATUS_FD",) * 4 if fd
+                                else ("VLFF_TRAIN", "VLFF_MAP", "VLFF_INGEST", "VLFF_MEMORY"))
+    for want in ("VLFF_HEARTBEAT", "VLFF_ACK", train, mapm, ingest, mem):
         if want not in names:
             fails.append(f"no {want} frame captured")
     states = [d["NmtState"] for n, d in decoded if n == "VLFF_HEARTBEAT"]
@@ -94,6 +95,19 @@ def node_check(path):
     got = newest.get(ingest, {}).get("FramesRefused")
     if got != int(stat["frames_refused"]):
         fails.append(f"{ingest}.FramesRefused: {got}, vlff-shm stat {stat['frames_refused']}")
+    # The limits are the config's, in the signals' steps; the resident set
+    # moves between the frame and the stat, so only its scale is checked.
+    last = newest.get(mem, {})
+    for sig, key, step in (("MemKeyframesLimit", "mem_keyframes_limit_mb", 4),
+                           ("MemEvidenceLimit", "mem_evidence_limit_mb", 1)):
+        want_mb = step * int(float(stat[key]) / step + 0.5)
+        if last.get(sig) != want_mb:
+            fails.append(f"{mem}.{sig}: {last.get(sig)}, vlff-shm stat {stat[key]}")
+    rss = float(stat["mem_rss_mb"])
+    if not (rss / 2 <= last.get("MemRss", -1) <= rss * 2):
+        fails.append(f"{mem}.MemRss: {last.get('MemRss')}, vlff-shm stat {rss}")
+    if not 0 <= last.get("MemKeyframes", -1) <= last.get("MemKeyframesLimit", -1):
+        fails.append(f"{mem}.MemKeyframes: {last.get('MemKeyframes')} of {last.get('MemKeyframesLimit')}")
     if not any(d["FpsIn"] > 0 for n, d in decoded if n == mapm):
         fails.append(f"no {mapm} frame with frames coming in")
     for f in fails:
@@ -111,6 +125,8 @@ def candump_check(path):
         "VLFF_LOSS": {"LossTotal": 2.5, "LossColor": 0.0421, "LossDepth": 0.137, "LossFeature": 0.9},
         "VLFF_MAP": {"MapVersion": 31, "MapAge": 65535, "FpsIn": 29.97},
         "VLFF_HEALTH": {"ErrPoseStale": 1, "ErrCameraLost": 0, "FpsDropped": 0.5},
+        "VLFF_MEMORY": {"MemRss": 1435, "MemKeyframes": 60, "MemKeyframesLimit": 2048, "MemEvidence": 9,
+                        "MemEvidenceLimit": 16},
     }
     newest = {}
     for fid, data in frames:
@@ -156,14 +172,16 @@ expect = {
                     "CmdRejected": 3, "TxDropped": 4, "BusOff": 1, "BusPassive": 0},
     "VLFF_INGEST": {"FramesRefused": 193, "LastRefusal": 6, "RefusedNoPose": 1, "RefusedNoDepth": 0,
                     "RefusedPeriod": 15},
+    "VLFF_MEMORY": {"MemRss": 1435, "MemKeyframes": 60, "MemKeyframesLimit": 2048, "MemEvidence": 9,
+                    "MemEvidenceLimit": 16},
     "VLFF_HEARTBEAT": {"NmtState": 5},
     "VLFF_COMMAND": {"Target": 17, "Command": 5, "Argument": 2, "Sequence": 17},
     "VLFF_ACK": {"Node": 17, "Command": 5, "Result": 2, "Sequence": 17},
 }
-expect["VLFF_STATUS_FD"] = {k: v for m in ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST")
-                            for k, v in expect[m].items()}
+CLASSIC = ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_MEMORY")
+expect["VLFF_STATUS_FD"] = {k: v for m in CLASSIC for k, v in expect[m].items()}
 ids = {"VLFF_HEARTBEAT": 0x700 + 17, "VLFF_TRAIN": 0x200, "VLFF_HEALTH": 0x203, "VLFF_STATUS_FD": 0x204,
-       "VLFF_INGEST": 0x205,
+       "VLFF_INGEST": 0x205, "VLFF_MEMORY": 0x206,
        "VLFF_COMMAND": 0x611, "VLFF_ACK": 0x591}
 
 fails = 0
@@ -228,7 +246,7 @@ out_fd = subprocess.run([frames_prog, cfg_fd], capture_output=True, text=True, c
 for line in out_fd.splitlines():
     name, fid, hexdata = line.split()
     frame = dbfd.frame_by_id(canmatrix.ArbitrationId(int(fid)))
-    if name in ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST"):
+    if name in CLASSIC:
         if frame is not None:
             print(f"FAIL: can.fd DBC has {frame.name} at {int(fid):#x}, a classic status id")
             fails += 1
