@@ -291,6 +291,34 @@ void vlff_unread_mapped(const uint8_t *buf, size_t upto) {
   if (buf && upto) (void)madvise((void *)buf, upto, MADV_DONTNEED);
 }
 
+/* Every 4 MiB read: a reader's resident share of the file stays small
+ * beside its own buffers, and madvise is called a few times a second at most. */
+#define GIVE_BACK_BYTES (4u << 20)
+void vlff_unread_mapped_paced(const uint8_t *buf, size_t *given, size_t consumed) {
+  if (consumed < *given) *given = 0; /* rewound */
+  if (consumed - *given < GIVE_BACK_BYTES) return;
+  vlff_unread_mapped(buf, consumed);
+  *given = consumed;
+}
+
+static char bus_msg[600];
+static size_t bus_len;
+static void on_sigbus(int sig) {
+  (void)sig;
+  if (bus_len) (void)!write(2, bus_msg, bus_len);
+  _exit(1);
+}
+
+void vlff_map_exit_on_sigbus(const char *prog, const char *path) {
+  int m = snprintf(bus_msg, sizeof bus_msg, "%s: %s: the file was cut short while it was played\n", prog,
+                   VLFF_Q(path));
+  bus_len = m < 0 ? 0 : (size_t)m < sizeof bus_msg ? (size_t)m : sizeof bus_msg - 1;
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_sigbus;
+  sigaction(SIGBUS, &sa, NULL);
+}
+
 int vlff_exe_dir(char *out, size_t len) {
   ssize_t n = readlink("/proc/self/exe", out, len);
   if (n <= 0 || (size_t)n >= len) return -1;

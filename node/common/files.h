@@ -95,6 +95,15 @@ void vlff_unmap_file(const uint8_t *buf, size_t len);
 /* The pages of buf[0, upto) given back (read from the file again if
  * touched again); upto is rounded down to a page. */
 void vlff_unread_mapped(const uint8_t *buf, size_t upto);
+/* For a reader going through a mapped file: gives back buf[0, consumed)
+ * once 4 MiB more than at the last give-back (*given, 0 at the start) were
+ * consumed; a consumed below *given (a rewind) starts the count again. */
+void vlff_unread_mapped_paced(const uint8_t *buf, size_t *given, size_t consumed);
+/* From now on a SIGBUS (a mapped file cut short under its reader: the file
+ * was checked whole before, so nothing more of it can be trusted) writes
+ * "PROG: PATH: the file was cut short while it was played" to stderr and
+ * exits with status 1. One file per process. */
+void vlff_map_exit_on_sigbus(const char *prog, const char *path);
 /* The whole of data as path's new content, atomically (0644). */
 int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen);
 

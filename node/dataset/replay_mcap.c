@@ -59,27 +59,9 @@ struct player {
   long long published, poses_out, maps_out, orphans, late;
 };
 
-/* The pages of what was read go back every 4 MiB: a recording larger than
+/* The pages of what was read go back as it is read: a recording larger than
  * memory plays (and is checked) through a bounded resident set. */
-#define GIVE_BACK_BYTES (4u << 20)
-static void give_back(struct player *p) {
-  size_t c = vlff_in_consumed(p->in);
-  if (c < p->given_back) p->given_back = 0; /* rewound */
-  if (c - p->given_back < GIVE_BACK_BYTES) return;
-  vlff_unread_mapped(p->file, c);
-  p->given_back = c;
-}
-
-/* A recording cut short under the replay: its mapped pages past the new end
- * raise SIGBUS. Said, and the replay ends with status 1 (the file was
- * checked whole before: it changed, and nothing more of it can be trusted). */
-static char bus_msg[600];
-static size_t bus_len;
-static void on_sigbus(int sig) {
-  (void)sig;
-  if (bus_len) (void)!write(2, bus_msg, bus_len);
-  _exit(1);
-}
+static void give_back(struct player *p) { vlff_unread_mapped_paced(p->file, &p->given_back, vlff_in_consumed(p->in)); }
 
 static int scan(struct player *p) {
   char why[1024];
@@ -282,13 +264,7 @@ int vlff_replay_mcap(const char *path, const struct vlff_config *cfg, const stru
     fprintf(stderr, "vlff-replay: %s\n", err);
     return 1;
   }
-  int m = snprintf(bus_msg, sizeof bus_msg, "vlff-replay: %s: the file was cut short while it was played\n",
-                   VLFF_Q(path));
-  bus_len = m < 0 ? 0 : (size_t)m < sizeof bus_msg ? (size_t)m : sizeof bus_msg - 1;
-  struct sigaction sa;
-  memset(&sa, 0, sizeof sa);
-  sa.sa_handler = on_sigbus;
-  sigaction(SIGBUS, &sa, NULL);
+  vlff_map_exit_on_sigbus("vlff-replay", path);
   p.in = vlff_in_reader_new(p.file, p.n, err, sizeof err);
   if (!p.in) {
     fprintf(stderr, "vlff-replay: %s: %s\n", VLFF_Q(path), err);

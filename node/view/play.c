@@ -2,9 +2,13 @@
 /*
  * play.c - an MCAP recording served as if live (vlff-view --play; view.h).
  *
- * The whole file is read into memory and walked once when opened, so that every
- * error the file holds (mcap.h's checks) is found before a client connects rather
- * than in the middle of a playback; playing then walks it again, one message ahead.
+ * The file is mapped and walked once when opened, so that every error it holds
+ * (mcap.h's checks) is found before a client connects rather than in the middle
+ * of a playback; playing then walks it again, one message ahead. The pages
+ * walked go back as the walks pass them (vlff_unread_mapped_paced), so a
+ * recording larger than memory plays through a bounded resident set; one cut
+ * short while it is played ends vlff-view with status 1 and says so
+ * (vlff_map_exit_on_sigbus).
  */
 #include <libwebsockets.h>
 #include <stdio.h>
@@ -18,8 +22,8 @@
 #include "vlff/escape.h"
 
 struct vlff_view_play {
-  uint8_t *file;
-  size_t len;
+  const uint8_t *file; /* mapped */
+  size_t len, given_back;
   struct vlff_mcap_reader *r;
   int nch;
   uint16_t mcap_id[VLFF_VIEW_CH_MAX + 1];
@@ -60,16 +64,18 @@ struct vlff_view_play *vlff_view_play_open(const char *path) {
   char why[512];
   struct vlff_view_play *p = calloc(1, sizeof *p);
   if (!p) return NULL;
-  if (vlff_read_file(path, VLFF_MCAP_MAX_FILE, &p->file, &p->len, why, sizeof why) != 0) {
+  if (vlff_map_file(path, VLFF_MCAP_MAX_FILE, &p->file, &p->len, why, sizeof why) != 0) {
     fprintf(stderr, "vlff-view: --play %s\n", why);
     free(p);
     return NULL;
   }
+  vlff_map_exit_on_sigbus("vlff-view: --play", path);
   p->r = vlff_mcap_reader_new(p->file, p->len, why, sizeof why);
   struct vlff_mcap_message m;
   int rc = p->r ? 1 : -1;
   uint64_t prev = 0, jumps = 0, largest = 0, largest_at = 0;
   while (rc == 1 && (rc = vlff_mcap_next(p->r, &m, why, sizeof why)) == 1) {
+    vlff_unread_mapped_paced(p->file, &p->given_back, vlff_mcap_consumed(p->r));
     if (p->total && m.log_ns > prev && m.log_ns - prev > PLAY_MAX_GAP_NS) {
       jumps++;
       if (m.log_ns - prev > largest) largest = m.log_ns - prev, largest_at = p->total;
@@ -144,7 +150,7 @@ void vlff_view_play_free(struct vlff_view_play *p) {
   if (!p) return;
   for (int i = 0; i <= VLFF_VIEW_CH_MAX; i++) vlff_view_msg_unref(p->latest[i]), free(p->b64[i]);
   vlff_mcap_reader_free(p->r);
-  free(p->file);
+  if (p->file) vlff_unmap_file(p->file, p->len);
   free(p);
 }
 
@@ -157,10 +163,12 @@ const struct vlff_view_chan *vlff_view_play_channel(const struct vlff_view_play 
 }
 
 /* The next message of the file into p->next; 0 at the end. The file was read
- * whole when opened, so an error here would be a changed file: it ends playback. */
+ * whole when opened, so an error here would be a changed file: it ends playback.
+ * The message's bytes stay mapped: they are copied out before the next call. */
 static int advance(struct vlff_view_play *p) {
   char why[256];
   int rc = vlff_mcap_next(p->r, &p->next, why, sizeof why);
+  vlff_unread_mapped_paced(p->file, &p->given_back, vlff_mcap_consumed(p->r));
   if (rc < 0) vlff_log(VLFF_LOG_WARN, "vlff-view", "--play: %s", why);
   p->have_next = rc == 1;
   if (!p->have_next && !p->done) {

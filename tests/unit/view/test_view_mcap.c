@@ -5,7 +5,8 @@
  * files (flipped bytes in a chunk, the data section or the summary; a chunk
  * claiming more than the bound; a record running past the end; no magic) refused with the
  * byte offset and the reason; a recording whose wall clock stepped forward by
- * years between two messages played without waiting out the step (--play).
+ * years between two messages played without waiting out the step (--play); a
+ * recording of 50 MiB played (--play) with the file's resident pages bounded.
  * @mcap/core checks the same files from the outside
  * (test_view_mcap_js).
  */
@@ -299,5 +300,59 @@ static void test_play_clock_step(void **state) {
   vlff_view_play_free(p);
 }
 
+/* This process's resident pages of mapped files, MiB (RssFile). */
+static double rss_file_mb(void) {
+  FILE *f = fopen("/proc/self/status", "r");
+  char line[256];
+  double kb = -1;
+  while (f && fgets(line, sizeof line, f))
+    if (sscanf(line, "RssFile: %lf kB", &kb) == 1) break;
+  if (f) fclose(f);
+  return kb / 1024;
+}
+
+/* --play maps its recording and gives back what it walked: checking and playing
+ * a 50 MiB recording leaves at most a few MiB of it resident at any time (the
+ * whole of it without the give-back), so a recording larger than memory plays. */
+static void test_play_long_recording_memory(void **state) {
+  (void)state;
+  char why[256];
+  struct vlff_mcap_writer_params wp = {.library = "test", .chunk_bytes = 1u << 20};
+  struct vlff_mcap_writer *w = vlff_mcap_writer_open(path, &wp, why, sizeof why);
+  assert_non_null(w);
+  assert_int_equal(vlff_mcap_writer_channel(w, 1, "/a", "json", "t.A", "jsonschema", SCHEMA_A, strlen(SCHEMA_A)), 0);
+  enum { N = 200, LEN = 256 << 10 };
+  uint8_t *payload = malloc(LEN);
+  assert_non_null(payload);
+  uint32_t x = 1;
+  for (int i = 0; i < N; i++) {
+    for (size_t k = 0; k < LEN; k++) x = x * 1664525u + 1013904223u, payload[k] = (uint8_t)(x >> 24);
+    assert_int_equal(vlff_mcap_writer_message(w, 1, t_of(i), t_of(i), payload, LEN), 0);
+  }
+  free(payload);
+  assert_int_equal(vlff_mcap_writer_close(w, why, sizeof why), 0);
+  struct stat st;
+  assert_int_equal(stat(path, &st), 0);
+  assert_true(st.st_size > 50 << 20);
+  double before = rss_file_mb();
+  assert_true(before >= 0);
+  struct vlff_view_play *p = vlff_view_play_open(path);
+  assert_non_null(p);
+  double peak = rss_file_mb();
+  uint64_t now = 0;
+  while (!vlff_view_play_done(p)) {
+    now += 1000000000ull;
+    poll_at(p, now);
+    double r = rss_file_mb();
+    if (r > peak) peak = r;
+  }
+  assert_int_equal(vlff_view_play_sent(p), N);
+  vlff_view_play_free(p);
+  printf("--play of a %.1f MiB recording: the file's resident pages peaked %.1f MiB above the start\n",
+         st.st_size / 1048576.0, peak - before);
+  assert_true(peak - before < 16);
+}
+
 VLFF_UNIT_MAIN(setup, teardown, cmocka_unit_test(test_round_trip), cmocka_unit_test(test_truncated),
-               cmocka_unit_test(test_corrupt), cmocka_unit_test(test_refuses), cmocka_unit_test(test_play_clock_step))
+               cmocka_unit_test(test_corrupt), cmocka_unit_test(test_refuses), cmocka_unit_test(test_play_clock_step),
+               cmocka_unit_test(test_play_long_recording_memory))
