@@ -333,6 +333,10 @@ static int finish(struct run *r, const char *snapshot_dir) {
             "%lld frames in, %lld refused%s, %lld lost, %lld poses rejected, map version %llu",
             st.iteration, st.keyframes, st.keyframes_evicted, st.candidates_dropped, st.frames_in, st.frames_invalid,
             why, st.frames_lost, st.poses_rejected, (unsigned long long)st.map_version);
+  if (st.evidence_paged_out || st.evidence_dropped)
+    VLFF_INFO("node", "evidence beyond publish.evidence_max_mb: %lld voxels in the page file (%lld paged out, %lld "
+                      "brought back), %lld given up",
+              st.evidence_paged, st.evidence_paged_out, st.evidence_paged_in, st.evidence_dropped);
   return rc;
 }
 

@@ -283,6 +283,7 @@ static const struct key schema[] = {
     DBL("publish.lost_class_ratio", publish.lost_class_ratio, 0, 1, 0.25),
     DBL("publish.evidence_voxel_m", publish.evidence_voxel_m, 0.01, 10, 0.1),
     INT("publish.evidence_max_mb", publish.evidence_max_mb, 1, 1 << 16, 64),
+    INT("publish.evidence_page_mb", publish.evidence_page_mb, 0, 1 << 20, 512),
     DBL("publish.label_hysteresis", publish.label_hysteresis, 0, 2, 0.05),
 
     INT("prompts.active", prompts.active, 0, VLFF_MAX_PROMPT_SETS - 1, 0),

@@ -223,6 +223,7 @@ struct vlff_cfg_publish {
   double lost_class_ratio;         /* a class the fitted field keeps at under this share of evidence's is read from evidence (0: off) */
   double evidence_voxel_m;         /* their voxel edge */
   int evidence_max_mb;             /* memory for those features */
+  int evidence_page_mb;            /* disk in node.state_dir for what that memory gives up (0: dropped) */
   double label_hysteresis;         /* a voxel's label changes without new evidence only past this margin (hold.h) */
 };
 

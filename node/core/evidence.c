@@ -3,14 +3,18 @@
  */
 #include "evidence.h"
 
+#include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "log.h"
 #include "select.h"
 #include "mem.h"
+#include "vlff/escape.h"
 
 #define MAX_VIEWS 255
 /* A full budget gives up this share of its slots at a time ... */
@@ -44,7 +48,7 @@ struct vlff_evidence {
   int max_k;        /* prompts a slot caches cosines for */
   size_t used, cap;
   long long overflow, evicted;
-  float *tmp;       /* [2 D]: a feature, a mean */
+  float *tmp;       /* [3 D]: a feature, a mean, a slot's cosines' scratch */
   float blend[VLFF_FIELD_MAX_PROMPTS]; /* one point's blended cosines (label) */
   /* The census of lost classes (vlff_evidence_census_begin / _end): per
    * prompt, points of the current pass the fitted field and the evidence
@@ -56,7 +60,32 @@ struct vlff_evidence {
   unsigned long long n_field[VLFF_FIELD_MAX_PROMPTS], n_ev[VLFF_FIELD_MAX_PROMPTS];
   bool lost[VLFF_FIELD_MAX_PROMPTS];
   int nlost;
+  /* Paging (vlff_evidence_page_to): voxel v's evidence in record r of the
+   * page file when slot[v] == -2 - r. */
+  char *page_path;      /* NULL: evidence given up is dropped */
+  int page_fd;          /* opened at the first page-out: -1 before */
+  char page_err[320];   /* the first write or read that failed */
+  size_t page_cap;      /* records the file may hold */
+  size_t page_top;      /* records written so far (the file's length / record) */
+  size_t page_alloc;    /* records the arrays below hold */
+  size_t paged;         /* live records */
+  uint32_t *powner;     /* [page_alloc] the voxel a record holds, NO_VOXEL: free */
+  int8_t *pcos;         /* [page_alloc][max_k] its cosines with the prompts x 127 ... */
+  uint64_t pstamp;      /* ... of these prompts (pk of them); */
+  int pk;
+  bool pvalid;          /* false: none yet */
+  uint32_t *pfree;      /* [page_alloc] free records below page_top */
+  size_t nfree;
+  float *E;             /* [pk][D] the prompts of the last label call: a record's cosines when paged */
+  uint8_t *pbuf;        /* [record] one record's bytes */
+  float pc[VLFF_FIELD_MAX_PROMPTS]; /* one record's cosines (label) */
+  long long paged_out, paged_in, page_errors;
 };
+
+#define NO_VOXEL UINT32_MAX
+/* slot[] values: >= 0 a slot, -1 no evidence, <= -2 a page record. */
+static bool is_paged(int32_t s) { return s <= -2; }
+static size_t record_of(int32_t s) { return (size_t)(-2 - (long)s); }
 
 double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, size_t max_voxels, uint32_t dims[3]) {
   for (;;) {
@@ -73,7 +102,12 @@ double vlff_map_grid_plan(const double lo[3], const double hi[3], double voxel, 
 
 void vlff_evidence_destroy(struct vlff_evidence *e) {
   if (!e) return;
-  VLFF_FREE_ALL(e->slot, e->mean, e->views, e->owner, e->seen, e->cos, e->dirty, e->tmp, e);
+  if (e->page_fd >= 0) {
+    close(e->page_fd);
+    unlink(e->page_path); /* its records index this run's table only */
+  }
+  VLFF_FREE_ALL(e->page_path, e->slot, e->mean, e->views, e->owner, e->seen, e->cos, e->dirty, e->tmp, e->powner, e->pcos, e->pfree,
+                e->E, e->pbuf, e);
 }
 
 struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_t dims[3], double voxel, int D,
@@ -99,6 +133,7 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
     return NULL;
   }
   e->max_k = max_k;
+  e->page_fd = -1;
   size_t per = (size_t)D * sizeof(uint16_t) + (size_t)max_k * sizeof(float) + 2 + 2 * sizeof(uint32_t);
   e->cap = max_bytes / per;
   if (e->cap < 1) e->cap = 1;
@@ -111,7 +146,7 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   e->seen = malloc(e->cap * sizeof *e->seen);
   e->cos = malloc(e->cap * (size_t)max_k * sizeof *e->cos);
   e->dirty = calloc(e->cap, 1);
-  e->tmp = malloc(2 * (size_t)D * sizeof *e->tmp);
+  e->tmp = malloc(3 * (size_t)D * sizeof *e->tmp);
   if (!e->slot || !e->mean || !e->views || !e->owner || !e->seen || !e->cos || !e->dirty || !e->tmp) {
     vlff_errf(err, errlen, "evidence: out of memory for %zu voxels of %d features", e->cap, D);
     vlff_evidence_destroy(e);
@@ -141,6 +176,10 @@ void vlff_evidence_reset(struct vlff_evidence *e) {
   memset(e->n_field, 0, sizeof e->n_field);
   memset(e->n_ev, 0, sizeof e->n_ev);
   e->nlost = 0;
+  e->paged = e->page_top = e->nfree = 0;
+  e->paged_out = e->paged_in = e->page_errors = 0;
+  e->pvalid = false;
+  if (e->page_fd >= 0 && ftruncate(e->page_fd, 0)) e->page_errors++;
 }
 
 long vlff_grid_voxel(const double origin[3], double voxel, const uint32_t dims[3], const double x[3]) {
@@ -176,6 +215,9 @@ static bool recent(const struct vlff_evidence *e, size_t s) { return e->nadd - e
  * first slots), and packs the rest. The least-observed voxels are the depth
  * noise's strays in front of and behind surfaces and surfaces seen once from
  * afar; a voxel seen again starts over. Returns the slots freed. */
+static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float *E, int K);
+static int page_write(struct vlff_evidence *e, uint32_t vi, uint8_t count, const uint16_t *mean, const float *cos);
+
 static size_t reclaim(struct vlff_evidence *e) {
   size_t hist[MAX_VIEWS + 1] = {0}, want = e->cap / RECLAIM_DIV ? e->cap / RECLAIM_DIV : 1;
   for (size_t s = 0; s < e->used; s++)
@@ -187,7 +229,12 @@ static size_t reclaim(struct vlff_evidence *e) {
   for (size_t s = 0; s < e->used; s++) {
     if (recent(e, s) || e->views[s] > c || (e->views[s] == c && !atc)) continue;
     if (e->views[s] == c) atc--;
-    e->slot[e->owner[s]] = -1;
+    /* To the page file when there is one (with its cosines, so that the
+     * map still reads it), else dropped. */
+    const float *cs = e->page_path && e->pvalid ? slot_cosines(e, (int32_t)s, e->E, e->pk) : NULL;
+    int r = e->page_path ? page_write(e, e->owner[s], e->views[s], e->mean + s * (size_t)e->D, cs) : -1;
+    e->slot[e->owner[s]] = r >= 0 ? -2 - r : -1;
+    e->evicted += r < 0;
     e->views[s] = 0; /* a live slot holds at least one sample */
     freed++;
   }
@@ -202,8 +249,162 @@ static size_t reclaim(struct vlff_evidence *e) {
     move_slot(e, --hi, s);
   }
   e->used = hi;
-  e->evicted += (long long)freed;
   return freed;
+}
+
+/* ------------------------------------------------------------ paging */
+
+/* Per record in the page file: its count (u8), a pad byte, its mean (D float16). */
+static size_t page_record(int D) { return 2 + (size_t)D * 2; }
+
+static int8_t quantize_cos(float c) {
+  float q = c * 127.0f;
+  return (int8_t)(q >= 127 ? 127 : q <= -127 ? -127 : lrintf(q));
+}
+
+/* A free record (reused, or the next after page_top), the arrays grown to
+ * hold it: its index, or -1 when the file is full or memory is out. */
+static long page_alloc(struct vlff_evidence *e) {
+  if (e->nfree) return (long)e->pfree[--e->nfree];
+  if (e->page_top >= e->page_cap) return -1;
+  if (e->page_top == e->page_alloc) {
+    size_t n = e->page_alloc ? e->page_alloc * 2 : 4096;
+    if (n > e->page_cap) n = e->page_cap;
+    uint32_t *o = realloc(e->powner, n * sizeof *o);
+    if (o) e->powner = o;
+    int8_t *c = realloc(e->pcos, n * (size_t)e->max_k);
+    if (c) e->pcos = c;
+    uint32_t *f = realloc(e->pfree, n * sizeof *f);
+    if (f) e->pfree = f;
+    if (!o || !c || !f) return -1;
+    e->page_alloc = n;
+  }
+  return (long)e->page_top++;
+}
+
+static void page_release(struct vlff_evidence *e, size_t r) {
+  e->powner[r] = NO_VOXEL;
+  e->pfree[e->nfree++] = (uint32_t)r;
+  e->paged--;
+}
+
+/* Writes voxel vi's evidence to a record: its index, or -1 (counted in
+ * page_errors when the write failed; the file full is not an error). cos:
+ * its cosines with the current prompts, NULL when there are none yet. */
+static int page_write(struct vlff_evidence *e, uint32_t vi, uint8_t count, const uint16_t *mean, const float *cos) {
+  if (e->page_fd < 0) {
+    /* Made when first needed: a node whose budget never fills writes none.
+     * O_TRUNC: records index this run's table only. One that cannot be made
+     * ends paging (said once; what is given up is dropped, as without). */
+    e->page_fd = open(e->page_path, O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0600);
+    if (e->page_fd < 0) {
+      snprintf(e->page_err, sizeof e->page_err, "%s: %s", VLFF_Q(e->page_path), strerror(errno));
+      e->page_errors++;
+      free(e->page_path);
+      e->page_path = NULL;
+      return -1;
+    }
+  }
+  long r = page_alloc(e);
+  if (r < 0) return -1;
+  const size_t rs = page_record(e->D);
+  e->pbuf[0] = count, e->pbuf[1] = 0;
+  memcpy(e->pbuf + 2, mean, (size_t)e->D * 2);
+  ssize_t w;
+  do w = pwrite(e->page_fd, e->pbuf, rs, (off_t)((size_t)r * rs));
+  while (w < 0 && errno == EINTR);
+  if (w != (ssize_t)rs) {
+    e->pfree[e->nfree++] = (uint32_t)r;
+    if (!e->page_errors++)
+      snprintf(e->page_err, sizeof e->page_err, "%s: writing: %s", VLFF_Q(e->page_path),
+               w < 0 ? strerror(errno) : "short write (disk full?)");
+    return -1;
+  }
+  e->powner[r] = vi;
+  int8_t *q = e->pcos + (size_t)r * e->max_k;
+  for (int k = 0; k < e->max_k; k++) q[k] = cos && k < e->pk ? quantize_cos(cos[k]) : 0;
+  e->paged++;
+  e->paged_out++;
+  return (int)r;
+}
+
+/* Record r's count and mean (into mean[D]): 0, or -1 when it cannot be read
+ * back whole or is not what was written (counted). */
+static int page_read(struct vlff_evidence *e, size_t r, uint8_t *count, uint16_t *mean) {
+  const size_t rs = page_record(e->D);
+  ssize_t n;
+  do n = pread(e->page_fd, e->pbuf, rs, (off_t)(r * rs));
+  while (n < 0 && errno == EINTR);
+  bool ok = n == (ssize_t)rs && e->pbuf[0] > 0;
+  for (int j = 0; ok && j < e->D; j++) {
+    uint16_t h;
+    memcpy(&h, e->pbuf + 2 + 2 * (size_t)j, 2);
+    ok = (h & 0x7c00) != 0x7c00; /* float16 inf and NaN */
+  }
+  if (!ok) {
+    if (!e->page_errors++)
+      snprintf(e->page_err, sizeof e->page_err, "%s: record %zu does not read back as written", VLFF_Q(e->page_path),
+               r);
+    return -1;
+  }
+  *count = e->pbuf[0];
+  memcpy(mean, e->pbuf + 2, (size_t)e->D * 2);
+  return 0;
+}
+
+int vlff_evidence_page_to(struct vlff_evidence *e, const char *path, size_t max_bytes, char *err, size_t errlen) {
+  if (e->page_fd >= 0) close(e->page_fd), unlink(e->page_path);
+  e->page_fd = -1;
+  free(e->page_path);
+  e->page_path = NULL;
+  /* What was paged before is gone with the file. */
+  for (size_t v = 0; v < e->nvox; v++)
+    if (is_paged(e->slot[v])) e->slot[v] = -1;
+  e->paged = e->page_top = e->nfree = 0;
+  e->page_cap = max_bytes / page_record(e->D);
+  if (e->page_cap > (size_t)INT32_MAX - 2) e->page_cap = (size_t)INT32_MAX - 2;
+  if (!e->page_cap) return 0;
+  free(e->pbuf);
+  e->pbuf = malloc(page_record(e->D));
+  e->page_path = e->pbuf ? strdup(path) : NULL;
+  if (!e->page_path) return vlff_errf(err, errlen, "evidence: out of memory for paging"), -1;
+  return 0;
+}
+
+const char *vlff_evidence_page_error(const struct vlff_evidence *e) { return e->page_err; }
+
+/* Every live record's cosines again, read back from the file, for new
+ * prompts E[K][D] (a change of prompts: rare). */
+static void repage_cosines(struct vlff_evidence *e, const float *E, int K) {
+  uint16_t *mean = (uint16_t *)e->tmp; /* 2 D floats: room for D float16 */
+  float *x = e->tmp + e->D;
+  uint8_t count;
+  for (size_t r = 0; r < e->page_top; r++) {
+    if (e->powner[r] == NO_VOXEL) continue;
+    int8_t *q = e->pcos + r * (size_t)e->max_k;
+    if (page_read(e, r, &count, mean)) {
+      memset(q, 0, (size_t)e->max_k);
+      continue;
+    }
+    vlff_f16_to_f32_n(mean, x, (size_t)e->D);
+    float nn = 0;
+    for (int j = 0; j < e->D; j++) nn += x[j] * x[j];
+    float inv = nn > 0 ? 1.0f / sqrtf(nn) : 0;
+    for (int k = 0; k < e->max_k; k++) {
+      float c = 0;
+      if (k < K)
+        for (int j = 0; j < e->D; j++) c += x[j] * E[(size_t)k * e->D + j];
+      q[k] = quantize_cos(c * inv);
+    }
+  }
+}
+
+size_t vlff_evidence_paged(const struct vlff_evidence *e) { return e->paged; }
+long long vlff_evidence_paged_out(const struct vlff_evidence *e) { return e->paged_out; }
+long long vlff_evidence_paged_in(const struct vlff_evidence *e) { return e->paged_in; }
+long long vlff_evidence_page_errors(const struct vlff_evidence *e) { return e->page_errors; }
+size_t vlff_evidence_page_memory(const struct vlff_evidence *e) {
+  return e->page_alloc * (sizeof *e->powner + (size_t)e->max_k + sizeof *e->pfree);
 }
 
 /* The running mean of one voxel takes feature f (D finite floats). */
@@ -214,10 +415,19 @@ static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
       e->overflow++;
       return;
     }
+    const int32_t was = s; /* reclaim frees slots only: a paged voxel stays in its record */
     s = (int32_t)e->used++;
     e->slot[vi] = s;
     e->views[s] = 0;
     e->owner[s] = (uint32_t)vi;
+    if (is_paged(was)) {
+      /* Seen again: its evidence comes back from the page file, and the new
+       * sample joins its mean instead of starting one over. */
+      uint8_t count;
+      if (page_read(e, record_of(was), &count, e->mean + (size_t)s * e->D) == 0) e->views[s] = count;
+      page_release(e, record_of(was));
+      e->paged_in++;
+    }
   }
   e->seen[s] = e->nadd;
   e->dirty[s] = 1;
@@ -309,7 +519,7 @@ static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float
   if (!e->dirty[s]) return c;
   const int D = e->D;
   const uint16_t *m = e->mean + (size_t)s * D;
-  float *x = e->tmp;
+  float *x = e->tmp + 2 * D; /* not tmp's first 2 D: a reclaim in the middle of an add pages slots out */
   vlff_f16_to_f32_n(m, x, (size_t)D);
   float nn = dot16(x, x, D);
   float inv = nn > 0 ? 1.0f / sqrtf(nn) : 0;
@@ -342,8 +552,15 @@ static bool blend_cosines(struct vlff_evidence *e, const double x[3], const floa
       continue;
     int32_t s = e->slot[ix + (long)e->dims[0] * (iy + (long)e->dims[1] * iz)];
     float wt = (c & 1 ? fr[0] : 1 - fr[0]) * (c >> 1 & 1 ? fr[1] : 1 - fr[1]) * (c >> 2 & 1 ? fr[2] : 1 - fr[2]);
-    if (s < 0 || !(wt > 0)) continue;
-    const float *cs = slot_cosines(e, s, E, K);
+    if (s == -1 || !(wt > 0) || (is_paged(s) && !e->pvalid)) continue;
+    const float *cs;
+    if (is_paged(s)) {
+      const int8_t *q = e->pcos + record_of(s) * (size_t)e->max_k;
+      for (int k = 0; k < K; k++) e->pc[k] = q[k] * (1.0f / 127.0f);
+      cs = e->pc;
+    } else {
+      cs = slot_cosines(e, s, E, K);
+    }
     for (int k = 0; k < K; k++) out[k] = (wsum > 0 ? out[k] : 0.0f) + wt * cs[k];
     wsum += wt;
   }
@@ -404,9 +621,21 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
                          const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
                          int *label, float *score, float *margin) {
   if (K > e->max_k) K = e->max_k;
-  if (stamp != e->stamp || K != e->stamp_k) {
+  if (stamp != e->stamp || K != e->stamp_k || (e->page_path && !e->pvalid)) {
     memset(e->dirty, 1, e->used);
     e->stamp = stamp, e->stamp_k = K;
+    if (e->page_path) {
+      /* The prompts, kept for the cosines of what is paged out later; what
+       * is paged now is read back once for them. */
+      float *c = realloc(e->E, (size_t)K * e->D * sizeof *c);
+      e->pvalid = c != NULL;
+      if (c) {
+        e->E = c;
+        memcpy(e->E, E, (size_t)K * e->D * sizeof *c);
+        e->pk = K, e->pstamp = stamp;
+        repage_cosines(e, E, K);
+      }
+    }
   }
   if (e->census && !e->census_stamped) e->census_stamp = stamp, e->census_k = K, e->census_stamped = true;
   const bool count = e->census && e->census_stamp == stamp && e->census_k == K;
@@ -458,22 +687,36 @@ struct ev_header {
 static size_t record_size(int D) { return 4 + 1 + (size_t)D * 2; }
 
 size_t vlff_evidence_save_size(const struct vlff_evidence *e) {
-  return sizeof(struct ev_header) + e->used * record_size(e->D);
+  return sizeof(struct ev_header) + (e->used + e->paged) * record_size(e->D);
 }
 
 void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out) {
-  struct ev_header h = {.D = e->D, .voxel = e->voxel, .used = e->used};
+  struct ev_header h = {.D = e->D, .voxel = e->voxel, .used = e->used + e->paged};
+  /* Reading a paged voxel back uses the page buffer and may count an error:
+   * scratch and counters, not the evidence's learned state. */
+  struct vlff_evidence *pg = (struct vlff_evidence *)e;
   memcpy(h.dims, e->dims, sizeof h.dims);
   memcpy(h.origin, e->origin, sizeof h.origin);
   memcpy(out, &h, sizeof h);
   out += sizeof h;
   for (size_t vi = 0; vi < e->nvox; vi++) {
     int32_t s = e->slot[vi];
-    if (s < 0) continue;
+    if (s == -1) continue;
     uint32_t idx = (uint32_t)vi;
     memcpy(out, &idx, 4);
-    out[4] = e->views[s];
-    memcpy(out + 5, e->mean + (size_t)s * e->D, (size_t)e->D * 2);
+    if (is_paged(s)) {
+      uint16_t *mean = (uint16_t *)(out + 5);
+      if (page_read(pg, record_of(s), &out[4], (uint16_t *)pg->tmp) == 0) {
+        memcpy(mean, pg->tmp, (size_t)e->D * 2);
+      } else {
+        /* unreadable (counted): a sample of nothing, which no prompt wins */
+        out[4] = 1;
+        memset(mean, 0, (size_t)e->D * 2);
+      }
+    } else {
+      out[4] = e->views[s];
+      memcpy(out + 5, e->mean + (size_t)s * e->D, (size_t)e->D * 2);
+    }
     out += record_size(e->D);
   }
 }
@@ -532,7 +775,12 @@ int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, v
     /* Read again: a file changed under the reader leaves no evidence
      * rather than a mix of two. */
     if (read_record(e, rd, ctx, i, prev, &idx, &count, scratch, err, errlen)) goto changed;
-    if (count < c || (count == c && !atc)) continue;
+    if (count < c || (count == c && !atc)) {
+      /* Beyond the budget: to the page file when there is one. */
+      int r = e->page_path ? page_write(e, idx, count, scratch, NULL) : -1;
+      if (r >= 0) e->slot[idx] = -2 - r;
+      continue;
+    }
     if (count == c) atc--;
     int32_t s = (int32_t)e->used++;
     memcpy(e->mean + (size_t)s * e->D, scratch, (size_t)e->D * 2);
@@ -542,7 +790,8 @@ int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, v
     e->seen[s] = e->nadd - RECENT_VIEWS; /* no view since the load touched it: a full budget may give it up */
     e->dirty[s] = 1;
   }
-  e->evicted = (long long)(h.used - e->used);
+  e->evicted = (long long)(h.used - e->used - e->paged);
+  e->paged_out = 0; /* what a load pages is not given up for room */
   return 0;
 changed:
   vlff_evidence_reset(e);

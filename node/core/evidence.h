@@ -33,6 +33,21 @@
  * (a moved object's) instead of joining a lifetime average. The count
  * itself goes on to 255 (which voxels a full budget gives up).
  *
+ * Paging (vlff_evidence_page_to): what a full budget gives up is written to
+ * a page file (the node's state directory) instead of dropped, up to the
+ * file's own budget: per voxel its count and mean, and in memory its
+ * cosines with the current prompts at 8 bits (max_k + 8 bytes a voxel
+ * instead of D x 2 + max_k x 4 + 10), which the map reads as it reads the
+ * voxels in memory. A view that sees a paged voxel again brings its
+ * evidence back into a slot, and its samples join that mean. New prompts
+ * read every paged voxel back once for its cosines. Why: on a building
+ * the budget holds a flat or two; without paging the rooms left behind
+ * read the field alone, which training on the next rooms moves
+ * (docs/field.md, "Evidence paging"). Saved with the rest (a checkpoint
+ * holds every voxel's evidence, paged or not); a load pages out what is
+ * beyond the budget. Only a full page file (or its write failing, counted)
+ * drops evidence, as before (vlff_evidence_evicted).
+ *
  * Contract: one owner thread. Functions returning int give 0, or -1 with
  * err filled; a refused view leaves the evidence untouched.
  */
@@ -157,9 +172,24 @@ typedef int (*vlff_evidence_read_fn)(void *ctx, uint64_t off, void *dst, size_t 
 int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t len,
                             char *err, size_t errlen);
 
+/* Pages what the budget gives up to the file at path, holding at most
+ * max_bytes of it (0: no paging; the default until called). The file is
+ * made (0600, truncated) at the first page-out and removed at destroy; one
+ * that cannot be made or written is counted in page_errors, said by
+ * page_error ("PATH: why", "" before any) and what it would have held is
+ * dropped as without paging (one that cannot be made ends paging). 0, or -1
+ * with err (out of memory: no paging). */
+int vlff_evidence_page_to(struct vlff_evidence *e, const char *path, size_t max_bytes, char *err, size_t errlen);
+const char *vlff_evidence_page_error(const struct vlff_evidence *e);
+size_t vlff_evidence_paged(const struct vlff_evidence *e);        /* voxels whose evidence is in the page file */
+long long vlff_evidence_paged_out(const struct vlff_evidence *e); /* voxels written to it since the reset */
+long long vlff_evidence_paged_in(const struct vlff_evidence *e);  /* ... and brought back by a view */
+long long vlff_evidence_page_errors(const struct vlff_evidence *e); /* writes and reads that failed */
+size_t vlff_evidence_page_memory(const struct vlff_evidence *e);  /* bytes the paged voxels take in memory */
+
 size_t vlff_evidence_voxels(const struct vlff_evidence *e);   /* voxels with evidence */
 size_t vlff_evidence_capacity(const struct vlff_evidence *e); /* voxels the budget holds */
 long long vlff_evidence_overflow(const struct vlff_evidence *e); /* additions lost to a full budget */
-long long vlff_evidence_evicted(const struct vlff_evidence *e);  /* voxels whose evidence was given up for room */
+long long vlff_evidence_evicted(const struct vlff_evidence *e);  /* voxels whose evidence was given up (dropped) for room */
 
 #endif

@@ -131,6 +131,9 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
 #endif
   n->pub = vlff_publisher_create(&cfg->publish, &cfg->shm, &cfg->field, &n->hooks, err, errlen);
   if (!n->pub) goto fail;
+  char perr[VLFF_CFG_PATH + 400];
+  if (vlff_publisher_page_evidence(n->pub, cfg->node.state_dir, perr, sizeof perr))
+    VLFF_WARN(TAG, "%s: the evidence a full publish.evidence_max_mb gives up is dropped", perr);
   note_adjustments(n);
   say_scene_box(cfg);
   /* Controllers of the segments' group post prompts: the mailbox alone is

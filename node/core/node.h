@@ -81,6 +81,11 @@ struct vlff_node_status {
   int keyframes;
   long long keyframes_evicted;
   long long keyframes_retired;  /* dropped because newer depth saw through what they show */
+  /* Evidence paging (publish.evidence_page_mb; docs/field.md): voxels whose
+   * evidence is in the state directory's page file now, written there and
+   * brought back since the start (or the last reset), and given up for
+   * good (no page file, or it full). */
+  long long evidence_paged, evidence_paged_out, evidence_paged_in, evidence_dropped;
   long long frames_in;          /* frames read from the ring */
   long long frames_lost;        /* lapped or torn in the ring */
   long long frames_invalid;     /* refused, all reasons: the sum of refused[] */

@@ -75,6 +75,9 @@ struct vlff_publisher {
   int D;
   size_t ev_budget; /* bytes: publish.evidence_max_mb */
   bool ev_full_said, ev_overflow_said; /* logged once each per map (a mapping reset starts over) */
+  bool ev_paged_said, ev_page_error_said;
+  int page_mb;                          /* publish.evidence_page_mb */
+  char page_path[VLFF_CFG_PATH + 32];     /* the page file, "" without */
   float *qcos; /* [QBLOCK][VLFF_FIELD_MAX_PROMPTS] the field's cosines of a block of points */
   uint16_t *qrays; /* [QBLOCK] the field's exposure there (vlff_field_exposure) */
   int trust_rays;  /* publish.field_trust_rays */
@@ -201,6 +204,7 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->thru_list = malloc(n * sizeof *p->thru_list);
   p->D = field->feature_dim;
   p->ev_budget = (size_t)pub->evidence_max_mb << 20; /* also bounds a saved map's evidence read without it */
+  p->page_mb = pub->evidence_page_mb;
   if (pub->evidence_weight > 0) {
     p->ev = vlff_evidence_for(pub, field, VLFF_MAX_PROMPTS, err, errlen);
     p->ev_weight = (float)pub->evidence_weight;
@@ -502,7 +506,7 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
 
 void vlff_publisher_reset(struct vlff_publisher *p) {
   if (p->ev) vlff_evidence_reset(p->ev);
-  p->ev_full_said = p->ev_overflow_said = false;
+  p->ev_full_said = p->ev_overflow_said = p->ev_paged_said = p->ev_page_error_said = false;
   p->lost_mask = 0;
   vlff_hold_reset(p->hold);
   memset(p->thru, 0, p->nvox);
@@ -781,8 +785,19 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
   thru_commit(p);
   if (!p->ev) return 0;
   if (vlff_evidence_add(p->ev, v, err, errlen)) return -1;
+  say_budget(p, &p->ev_paged_said, vlff_evidence_paged_out(p->ev), VLFF_LOG_INFO,
+             "is full; from now on the least-observed voxels page theirs out to the state directory's "
+             "evidence.pages (publish.evidence_page_mb), and get it back when the camera sees them again");
   say_budget(p, &p->ev_full_said, vlff_evidence_evicted(p->ev), VLFF_LOG_INFO,
-             "is full; from now on the least-observed voxels give theirs up to newly seen ones");
+             p->page_path[0] ? "and its page file (publish.evidence_page_mb) are full; from now on the least-observed "
+                               "voxels give theirs up to newly seen ones"
+                             : "is full; from now on the least-observed voxels give theirs up to newly seen ones");
+  if (!p->ev_page_error_said && vlff_evidence_page_errors(p->ev)) {
+    p->ev_page_error_said = true;
+    VLFF_WARN(TAG, "evidence: page file %s: what could not be written is given up, what could not be read back "
+                   "starts anew (%lld failed so far)",
+              vlff_evidence_page_error(p->ev), vlff_evidence_page_errors(p->ev));
+  }
   say_budget(p, &p->ev_overflow_said, vlff_evidence_overflow(p->ev), VLFF_LOG_WARN,
              "had no room for some newly seen voxels (those the last 8 views saw are kept, and one view frees at most "
              "an eighth); they read the field alone (raise publish.evidence_max_mb)");
@@ -1415,6 +1430,21 @@ out:
 }
 
 size_t vlff_publisher_pending(const struct vlff_publisher *p) { return p->ndirty; }
+
+int vlff_publisher_page_evidence(struct vlff_publisher *p, const char *dir, char *err, size_t errlen) {
+  if (!p->ev || p->page_mb <= 0) return 0;
+  snprintf(p->page_path, sizeof p->page_path, "%s/evidence.pages", dir);
+  if (vlff_evidence_page_to(p->ev, p->page_path, (size_t)p->page_mb << 20, err, errlen)) return -1;
+  return 0;
+}
+
+void vlff_publisher_evidence_paging(const struct vlff_publisher *p, size_t *paged, long long *out, long long *in,
+                                    long long *dropped) {
+  *paged = p->ev ? vlff_evidence_paged(p->ev) : 0;
+  *out = p->ev ? vlff_evidence_paged_out(p->ev) : 0;
+  *in = p->ev ? vlff_evidence_paged_in(p->ev) : 0;
+  *dropped = p->ev ? vlff_evidence_evicted(p->ev) : 0;
+}
 
 void vlff_publisher_evidence_memory(const struct vlff_publisher *p, size_t *used, size_t *limit) {
   size_t cap = p->ev ? vlff_evidence_capacity(p->ev) : 0;

@@ -165,6 +165,14 @@ double vlff_publisher_refresh_done(const struct vlff_publisher *p);
  * publish.evidence_max_mb, and that budget, in bytes (0 and 0 without
  * evidence). */
 void vlff_publisher_evidence_memory(const struct vlff_publisher *p, size_t *used, size_t *limit);
+/* Evidence a full publish.evidence_max_mb gives up goes to dir/evidence.pages,
+ * up to publish.evidence_page_mb (evidence.h, "Paging"); said in the log.
+ * 0, or -1 with err (the node goes on without paging). */
+int vlff_publisher_page_evidence(struct vlff_publisher *p, const char *dir, char *err, size_t errlen);
+/* The paged voxels, those paged out and back in, and those given up for
+ * good since the start or the last reset (0 without evidence). */
+void vlff_publisher_evidence_paging(const struct vlff_publisher *p, size_t *paged, long long *out, long long *in,
+                                    long long *dropped);
 /* Voxels observe() touched that no publish has relabelled yet. */
 size_t vlff_publisher_pending(const struct vlff_publisher *p);
 /* For people: the strip (camera image | segmentation | the source's ground

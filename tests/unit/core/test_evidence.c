@@ -8,6 +8,8 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <stdio.h>
+#include <unistd.h>
 #include <cmocka.h>
 
 #include "evidence.h"
@@ -387,6 +389,108 @@ static void test_full_budget_gives_up_least_observed(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Label of the voxel (i, j, k)'s centre with field cosines fc for prompts E
+ * (K = 2, stamp), evidence weight 1; its score in *score. */
+static int label_at(struct vlff_evidence *e, int i, int j, int k, const float E[2 * D], uint64_t stamp,
+                    const float fc[2], float *score) {
+  const float xyz[3] = {(float)origin[0] + 0.25f + 0.5f * i, (float)origin[1] + 0.25f + 0.5f * j,
+                        (float)origin[2] + 0.25f + 0.5f * k};
+  int lab;
+  vlff_evidence_label(e, xyz, 1, fc, NULL, 0, E, 2, stamp, 1.0f, &lab, score, NULL);
+  return lab;
+}
+
+/* With a page file, what a full budget gives up is written there instead
+ * of dropped: nothing is evicted; the map still reads the paged voxels
+ * (their cosines kept in memory), follows new prompts there (read back from
+ * the file), and a voxel seen again gets its evidence back and adds to it.
+ * A checkpoint holds every voxel, paged or not; a load pages out what is
+ * beyond its budget. A page file that cannot be made is said, naming it. */
+static void test_full_budget_pages_out(void **state) {
+  (void)state;
+  char dir[] = "/tmp/vlff-test-evpage-XXXXXX", path[64];
+  assert_non_null(mkdtemp(dir));
+  snprintf(path, sizeof path, "%s/evidence.pages", dir);
+  char err[256];
+  struct vlff_evidence *e = make(1 << 14);
+  assert_int_equal(vlff_evidence_page_to(e, path, 1 << 20, err, sizeof err), 0);
+  const float well[D] = {0, 0, 1, 0}, stray[D] = {1, 0, 0, 0};
+  const float E[2 * D] = {0, 0, 1, 0, 1, 0, 0, 0}, E2[2 * D] = {1, 0, 0, 0, 0, 0, 1, 0};
+  const float fc[2] = {0.6f, 0.5f}; /* the field leans to prompt 0 */
+  float score;
+  for (int r = 0; r < 3; r++) add_at(e, 0, 0, 0, well);
+  assert_int_equal(label_at(e, 0, 0, 0, E, 1, fc, &score), 0);
+  int i = 1;
+  for (; vlff_evidence_paged_out(e) == 0; i++) {
+    assert_true(i < 8 * 8 * 8);
+    add_at(e, i % 8, i / 8 % 8, i / 64, stray);
+  }
+  const size_t cap = vlff_evidence_capacity(e);
+  const long long paged = vlff_evidence_paged_out(e);
+  assert_int_equal(paged, cap / 8);
+  assert_int_equal(vlff_evidence_paged(e), (size_t)paged);
+  assert_int_equal(vlff_evidence_evicted(e), 0);
+  assert_int_equal(vlff_evidence_page_errors(e), 0);
+  assert_true(vlff_evidence_page_memory(e) > 0);
+  float out[D];
+  /* The oldest strays are paged: not in memory, but the map reads them. */
+  assert_int_equal(vlff_evidence_get(e, voxel_at(e, 1, 0, 0), out), 0);
+  assert_int_equal(label_at(e, 1, 0, 0, E, 1, fc, &score), 1);
+  assert_float_equal(score, (0.5f + 1.0f) / 2, 1e-2);
+  /* New prompts (swapped): the paged voxels' cosines follow. */
+  assert_int_equal(label_at(e, 1, 0, 0, E2, 2, (const float[2]){0.5f, 0.6f}, &score), 0);
+  assert_float_equal(score, (0.5f + 1.0f) / 2, 1e-2);
+  /* Seen again: its evidence comes back and the new view adds to it. */
+  add_at(e, 1, 0, 0, stray);
+  assert_int_equal(vlff_evidence_get(e, voxel_at(e, 1, 0, 0), out), 32);
+  assert_float_equal(out[0], 1.0f, 1e-3);
+  assert_int_equal(vlff_evidence_paged_in(e), 1);
+  /* A checkpoint holds every voxel: loaded with room for all, each as it was. */
+  size_t sz = vlff_evidence_save_size(e);
+  uint8_t *buf = malloc(sz);
+  vlff_evidence_save(e, buf);
+  struct vlff_evidence *g = make(1 << 20);
+  assert_int_equal(vlff_evidence_load(g, buf, sz, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(g), vlff_evidence_voxels(e) + vlff_evidence_paged(e));
+  for (int t = 1; t < i; t++) {
+    int got = vlff_evidence_get(g, voxel_at(g, t % 8, t / 8 % 8, t / 64), out);
+    assert_int_equal(got, t == 1 ? 32 : 16);
+    assert_float_equal(out[0], 1.0f, 1e-3);
+  }
+  /* Loaded into a budget that holds a part: the rest is paged, none dropped. */
+  char path2[80];
+  snprintf(path2, sizeof path2, "%s/second.pages", dir);
+  struct vlff_evidence *h = make(1 << 14);
+  assert_int_equal(vlff_evidence_page_to(h, path2, 1 << 20, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_load(h, buf, sz, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_evicted(h), 0);
+  assert_int_equal(vlff_evidence_voxels(h) + vlff_evidence_paged(h), vlff_evidence_voxels(g));
+  assert_true(vlff_evidence_paged(h) > 0);
+  for (int t = 1; t < i; t++) assert_int_equal(label_at(h, t % 8, t / 8 % 8, t / 64, E, 1, fc, &score), 1);
+  /* A page file that cannot be made: said, naming it, and what the budget
+   * gives up is dropped (counted) as without paging. */
+  struct vlff_evidence *bad = make(1 << 14);
+  assert_int_equal(vlff_evidence_page_to(bad, "/nonexistent-dir/evidence.pages", 1 << 20, err, sizeof err), 0);
+  assert_string_equal(vlff_evidence_page_error(bad), "");
+  for (int t = 1; vlff_evidence_evicted(bad) == 0; t++) {
+    assert_true(t < 8 * 8 * 8);
+    add_at(bad, t % 8, t / 8 % 8, t / 64, stray);
+  }
+  assert_int_equal(vlff_evidence_page_errors(bad), 1);
+  assert_int_equal(vlff_evidence_paged(bad), 0);
+  assert_non_null(strstr(vlff_evidence_page_error(bad), "/nonexistent-dir/evidence.pages: No such file"));
+  vlff_evidence_destroy(bad);
+  /* The file goes with the evidence. */
+  assert_int_equal(access(path, F_OK), 0);
+  free(buf);
+  vlff_evidence_destroy(h);
+  vlff_evidence_destroy(g);
+  vlff_evidence_destroy(e);
+  assert_int_equal(access(path, F_OK), -1);
+  assert_int_equal(access(path2, F_OK), -1);
+  assert_int_equal(rmdir(dir), 0);
+}
+
 /* Evidence is read between voxel centres as a grid is: trilinearly, over the
  * voxels that have some. Two voxels side by side, one of prompt 0's feature,
  * one of prompt 1's: a point 0.3 of the way from the first's centre reads
@@ -561,5 +665,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
+    cmocka_unit_test(test_full_budget_pages_out),
     cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load), cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan), cmocka_unit_test(test_recent_views_replace_old))

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Evidence paging through the real node (publish.evidence_page_mb;
+# docs/field.md, "Evidence paging"): with an evidence budget far smaller than
+# the simulated room's surfaces, what the full budget gives up goes to
+# node.state_dir's evidence.pages while the node runs (said once in its log,
+# counted in its stop line, none given up for good), the file goes when the
+# node stops, and the checkpoint holds every voxel's evidence: the node
+# started again pages out what is beyond its budget instead of dropping it.
+set -u
+node_yaml_extra=$'publish:\n  evidence_max_mb: 1\n  evidence_page_mb: 64'
+. "$(dirname "$0")/node_sh.sh" nep "$@"
+"$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
+simpid=$!
+wait_until 1200 'grep -q "page theirs out" "$tmp/log"'
+check "a full evidence budget pages out to the state directory: said ($(grep -o 'publish.evidence_max_mb[^;]*' "$tmp/log" | head -1)), and the file is there" \
+  'grep -q "evidence: publish.evidence_max_mb (1 MB, [0-9]* voxels) is full; from now on the least-observed voxels page theirs out" "$tmp/log" && [[ -s $tmp/evidence.pages ]]'
+# Keyframes past the first fill: views of what was paged out come round again.
+sleep 3
+kill "$simpid"; wait "$simpid"; simpid=
+stop_node
+line=$(grep "evidence beyond publish.evidence_max_mb" "$tmp/log")
+check "the stop line counts what was paged ($line), nothing given up for good" \
+  '[[ $line =~ ([0-9]+)\ voxels\ in\ the\ page\ file\ \(([0-9]+)\ paged\ out,\ ([0-9]+)\ brought\ back\),\ 0\ given\ up ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[2] >= BASH_REMATCH[1] ))'
+check "the page file goes with the node" '[[ ! -e $tmp/evidence.pages ]]'
+check "no page file error" '! grep -q "evidence: page file" "$tmp/log"'
+# Started again on its checkpoint: the evidence beyond the budget is paged,
+# not given up (the load would say how many it gave up).
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log2" &
+nodepid=$!
+wait_until 600 'grep -q "resumed\|restored\|checkpoint" "$tmp/log2" && [[ -s $tmp/evidence.pages ]]'
+check "restarted on its checkpoint, the evidence beyond the budget is paged again, none given up" \
+  '[[ -s $tmp/evidence.pages ]] && ! grep -q "were given up" "$tmp/log2"'
+stop_node
+echo "$passes passed, $fails failed"
+(( fails == 0 )) || { echo "--- node log"; tail -30 "$tmp/log"; echo "--- restarted"; tail -30 "$tmp/log2"; }
+(( fails == 0 ))
