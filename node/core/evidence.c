@@ -368,6 +368,9 @@ int vlff_evidence_page_to(struct vlff_evidence *e, const char *path, size_t max_
   e->pbuf = malloc(page_record(e->D));
   e->page_path = e->pbuf ? strdup(path) : NULL;
   if (!e->page_path) return vlff_errf(err, errlen, "evidence: out of memory for paging"), -1;
+  /* A run killed before it could remove its file left one (up to the
+   * budget): nothing in it holds for this run. */
+  (void)unlink(path);
   return 0;
 }
 
