@@ -693,35 +693,48 @@ size_t vlff_evidence_save_size(const struct vlff_evidence *e) {
   return sizeof(struct ev_header) + (e->used + e->paged) * record_size(e->D);
 }
 
-void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out) {
-  struct ev_header h = {.D = e->D, .voxel = e->voxel, .used = e->used + e->paged};
+size_t vlff_evidence_save_part(const struct vlff_evidence *e, uint64_t *cursor, uint8_t *out, size_t cap) {
   /* Reading a paged voxel back uses the page buffer and may count an error:
    * scratch and counters, not the evidence's learned state. */
   struct vlff_evidence *pg = (struct vlff_evidence *)e;
-  memcpy(h.dims, e->dims, sizeof h.dims);
-  memcpy(h.origin, e->origin, sizeof h.origin);
-  memcpy(out, &h, sizeof h);
-  out += sizeof h;
-  for (size_t vi = 0; vi < e->nvox; vi++) {
+  const size_t rs = record_size(e->D);
+  uint8_t *o = out;
+  if (*cursor == 0) {
+    struct ev_header h = {.D = e->D, .voxel = e->voxel, .used = e->used + e->paged};
+    memcpy(h.dims, e->dims, sizeof h.dims);
+    memcpy(h.origin, e->origin, sizeof h.origin);
+    if (cap < sizeof h) return 0;
+    memcpy(o, &h, sizeof h);
+    o += sizeof h;
+    *cursor = 1;
+  }
+  size_t vi = (size_t)*cursor - 1; /* the next voxel to look at */
+  for (; vi < e->nvox && (size_t)(o - out) + rs <= cap; vi++) {
     int32_t s = e->slot[vi];
     if (s == -1) continue;
     uint32_t idx = (uint32_t)vi;
-    memcpy(out, &idx, 4);
+    memcpy(o, &idx, 4);
     if (is_paged(s)) {
-      uint16_t *mean = (uint16_t *)(out + 5);
-      if (page_read(pg, record_of(s), &out[4], (uint16_t *)pg->tmp) == 0) {
-        memcpy(mean, pg->tmp, (size_t)e->D * 2);
+      if (page_read(pg, record_of(s), &o[4], (uint16_t *)pg->tmp) == 0) {
+        memcpy(o + 5, pg->tmp, (size_t)e->D * 2);
       } else {
         /* unreadable (counted): a sample of nothing, which no prompt wins */
-        out[4] = 1;
-        memset(mean, 0, (size_t)e->D * 2);
+        o[4] = 1;
+        memset(o + 5, 0, (size_t)e->D * 2);
       }
     } else {
-      out[4] = e->views[s];
-      memcpy(out + 5, e->mean + (size_t)s * e->D, (size_t)e->D * 2);
+      o[4] = e->views[s];
+      memcpy(o + 5, e->mean + (size_t)s * e->D, (size_t)e->D * 2);
     }
-    out += record_size(e->D);
+    o += rs;
   }
+  *cursor = vi + 1;
+  return (size_t)(o - out);
+}
+
+void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out) {
+  uint64_t cursor = 0;
+  vlff_evidence_save_part(e, &cursor, out, vlff_evidence_save_size(e));
 }
 
 /* Record i read and checked: its voxel in the grid and after the last one

@@ -162,6 +162,11 @@ bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long
  * filled makes room for the next view's new voxels. */
 size_t vlff_evidence_save_size(const struct vlff_evidence *e);
 void vlff_evidence_save(const struct vlff_evidence *e, uint8_t *out);
+/* The same bytes a part at a time, so that evidence paged out is not held
+ * in memory to be saved: from *cursor (0 at the start; updated) as many
+ * whole records as fit in cap bytes (the header first) into out; the bytes
+ * written, 0 once all were (cap must hold the header and a record). */
+size_t vlff_evidence_save_part(const struct vlff_evidence *e, uint64_t *cursor, uint8_t *out, size_t cap);
 int vlff_evidence_load(struct vlff_evidence *e, const uint8_t *in, size_t len, char *err, size_t errlen);
 /* The same from a reader of the saved bytes (n bytes at offset off into
  * dst: 0, or -1 with err filled), so that a file of a larger budget's

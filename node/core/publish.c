@@ -272,10 +272,14 @@ struct obs_header {
  * evidence's length. */
 static size_t obs_v3_size(const struct vlff_publisher *p) { return p->nvox + 16 + vlff_hold_save_size(p->hold); }
 
+/* Written as it is made: the grids, then the evidence a megabyte at a time
+ * (with paging it holds every voxel the robot has seen, most of it not in
+ * memory), the checksum taken as the bytes go. */
 int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   size_t n = p->nvox, evn = p->ev ? vlff_evidence_save_size(p->ev) : 0;
-  size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + obs_v3_size(p) + 8 + evn + 8;
-  uint8_t *buf = malloc(len);
+  size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + obs_v3_size(p) + 8;
+  const size_t piece = (size_t)1 << 20, rec = 5 + (size_t)p->D * 2;
+  uint8_t *buf = malloc(len > piece + rec ? len : piece + rec);
   if (!buf) return snprintf(err, errlen, "%s: out of memory", path), -1;
   struct obs_header h = {.voxel = p->voxel};
   memcpy(h.magic, OBS_MAGIC, 8);
@@ -296,12 +300,23 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
   vlff_hold_save(p->hold, q), q += vlff_hold_save_size(p->hold);
   uint64_t ev64 = evn;
   memcpy(q, &ev64, 8), q += 8;
-  if (evn) vlff_evidence_save(p->ev, q), q += evn;
+  struct vlff_atomic a;
+  if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return free(buf), -1;
   uint64_t sum = vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, (size_t)(q - buf));
-  memcpy(q, &sum, 8);
-  int rc = vlff_write_file_atomic(path, buf, len, err, errlen);
+  bool ok = vlff_write_all(a.fd, buf, (size_t)(q - buf)) == 0;
+  uint64_t cursor = 0, written = 0;
+  for (size_t k; ok && evn && (k = vlff_evidence_save_part(p->ev, &cursor, buf, piece + rec)) > 0; written += k) {
+    sum = vlff_fnv1a64(sum, buf, k);
+    ok = vlff_write_all(a.fd, buf, k) == 0;
+  }
+  ok = ok && written == evn && vlff_write_all(a.fd, &sum, 8) == 0;
   free(buf);
-  return rc;
+  if (!ok) {
+    if (err && errlen) snprintf(err, errlen, "%s: write failed: %s", VLFF_Q(a.tmp), strerror(errno));
+    vlff_atomic_abort(&a);
+    return -1;
+  }
+  return vlff_atomic_commit(&a, err, errlen);
 }
 
 /* A saved map is read a piece at a time, never held whole: its evidence

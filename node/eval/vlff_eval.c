@@ -697,6 +697,7 @@ static const char *pct(const struct result *r, double v, char *buf) {
 /* What one run carries from stage to stage. */
 struct eval {
   struct opts o;
+  char page_dir[64]; /* the evidence's page file's directory while it pages */
   struct vlff_config cfg;
   struct scene sc;
   float *emb_raw;  /* the prompts' vectors as loaded; sc.emb holds them normalised */
@@ -845,6 +846,10 @@ static size_t training_pass(struct eval *e) {
             "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels, too few (%lld voxels given up, %lld "
             "samples lost)\n",
             vlff_evidence_voxels(e->ev), vlff_evidence_evicted(e->ev), vlff_evidence_overflow(e->ev));
+  if (e->ev && vlff_evidence_paged_out(e->ev))
+    fprintf(stderr, "vlff-eval: evidence: publish.evidence_max_mb holds %zu voxels; %zu more paged out%s%s\n",
+            vlff_evidence_voxels(e->ev), vlff_evidence_paged(e->ev), vlff_evidence_page_errors(e->ev) ? ": " : "",
+            vlff_evidence_page_error(e->ev));
   return unseen;
 }
 
@@ -958,6 +963,26 @@ static void build_evidence_begin(struct eval *e) {
   char err[1024];
   e->ev = vlff_evidence_for(&e->cfg.publish, &e->cfg.field, MAXK, err, sizeof err);
   if (!e->ev) die("%s", err);
+  /* Paged as the node pages it (publish.evidence_page_mb), in a directory
+   * of its own under TMPDIR: vlff-eval keeps no state. */
+  if (e->cfg.publish.evidence_page_mb > 0) {
+    const char *tmp = getenv("TMPDIR") && *getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp";
+    char path[sizeof e->page_dir + 16];
+    if (snprintf(e->page_dir, sizeof e->page_dir, "%s/vlff-eval-XXXXXX", tmp) >= (int)sizeof e->page_dir ||
+        !mkdtemp(e->page_dir))
+      die("evidence: no directory for its page file under %s: %s", tmp, strerror(errno));
+    snprintf(path, sizeof path, "%s/evidence.pages", e->page_dir);
+    if (vlff_evidence_page_to(e->ev, path, (size_t)e->cfg.publish.evidence_page_mb << 20, err, sizeof err))
+      die("%s", err);
+  }
+}
+
+/* The evidence and its page file's directory gone. */
+static void evidence_free(struct eval *e) {
+  vlff_evidence_destroy(e->ev);
+  e->ev = NULL;
+  if (e->page_dir[0]) rmdir(e->page_dir);
+  e->page_dir[0] = 0;
 }
 
 /* What the field says at n points: its cosines with each prompt [n][K]
@@ -1063,8 +1088,7 @@ static void score_field(struct eval *e, struct vlff_field *fld) {
   score_field_3d(e, fld, &fr3);
   free(fr3.cs), free(fr3.rays);
   score_field_3d_reference(e, fld);
-  vlff_evidence_destroy(e->ev);
-  e->ev = NULL;
+  evidence_free(e);
   e->fitted = 1;
 }
 
@@ -1315,7 +1339,7 @@ static void scene_free(struct eval *e) {
   vlff_confusion_free(&e->r3_field.c), vlff_confusion_free(&e->r3_field_ref.c);
   vlff_confusion_free(&e->r3_alone.c);
   vlff_confusion_free(&e->r2_alone.c);
-  vlff_evidence_destroy(e->ev);
+  evidence_free(e);
 }
 
 /* --online (online.h): the same scene through vlff-replay into a vlff-node,
