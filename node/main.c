@@ -341,6 +341,7 @@ static int finish(struct run *r, const char *snapshot_dir) {
 }
 
 int main(int argc, char **argv) {
+  vlff_node_process_setup();
   enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT, OPT_FRESH };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},

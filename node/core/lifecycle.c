@@ -16,6 +16,7 @@
  * node's allocation as a whole (node_internal.h).
  */
 #include <errno.h>
+#include <malloc.h>
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -170,6 +171,8 @@ fail:
 }
 
 void vlff_node_stop(struct vlff_node *n) { atomic_store(&n->stop, true); }
+
+void vlff_node_process_setup(void) { (void)mallopt(M_MMAP_THRESHOLD, 1 << 20); }
 
 /* After this only the calling thread touches the node. */
 static void join_threads(struct vlff_node *n) {

@@ -179,6 +179,16 @@ int vlff_node_check(const struct vlff_config *cfg, const struct vlff_source_hook
 struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, char *err,
                                    size_t errlen);
 void vlff_node_stop(struct vlff_node *n);
+/* For a process that hosts a node (vlff-node, bench_node): call first,
+ * before any thread starts. Allocations of 1 MiB and more (a keyframe's
+ * feature map is 20 MB at 320 x 240 and D = 512) are mapped and unmapped
+ * on their own. glibc's default raises that threshold to the size of each
+ * large block freed, up to 32 MB, after which keyframes came from the
+ * threads' arenas, and what the trainer freed of the ingest thread's
+ * blocks stayed there: a building's walk grew the node's resident set past
+ * its limits (2.1 GB and rising with the keyframe store full at 1 GB,
+ * against 1.5 GB flat with the threshold fixed; docs/node.md, "Memory"). */
+void vlff_node_process_setup(void);
 /* True once the node stopped by itself (node.run_seconds) or was asked to. */
 bool vlff_node_finished(struct vlff_node *n);
 void vlff_node_destroy(struct vlff_node *n, bool save_on_exit);

@@ -391,6 +391,7 @@ done:
 
 int main(int argc, char **argv) {
   (void)argc;
+  vlff_node_process_setup(); /* as vlff-node: the RSS measured is the deployed node's */
   const char *src = getenv("VLFF_SOURCE_DIR") ? getenv("VLFF_SOURCE_DIR") : VLFF_SOURCE_DEFAULT;
   double seconds = getenv("VLFF_BENCH_SECONDS") ? atof(getenv("VLFF_BENCH_SECONDS")) : 120;
   char path[1024], err[512], tmp[256];
