@@ -3,19 +3,24 @@
 # on today's room (configs/demo-sim.yaml), on the flat
 # (tests/bench/node-flat.yaml), on the building
 # (tests/bench/node-building.yaml: its first walk through three flats,
-# scored at its end and for forgetting; docs/sim.md, bench_node.c), on the
+# scored at its end and for forgetting; docs/sim.md, bench_node.c), the
+# building again with half the memory (bldg_half: keyframes.memory_mb 512
+# and publish.evidence_max_mb 32, half the defaults the building fills;
+# what the budgets give up is paged or evicted), on the
 # room with a chair moved at 30 s ("change": bench_node's change_visible_s,
 # 60 s unless VLFF_BENCH_SECONDS says), then the room under node.cpu_budget
 # (docs/node.md, "CPU budget"). RESULT: the room's keys as bench_node
 # prints them, then the flat's with a _flat suffix, the building's with a
-# bldg_ prefix, then change_visible_s, then per budget B (0.5 -> 05)
+# bldg_ prefix, then bldg_half_budget_miou3d_end and _rss_peak_mb (target:
+# within 5 points of bldg_miou3d_end), then change_visible_s, then per
+# budget B (0.5 -> 05)
 # cpu_cores_used_budgetB (the process's cores over the run) and
 # cpu_cores_used_budgetB_ratio (over B; target 0.95..1.05), and
 # miou3d_end_1core: the 3D mIoU at the end of the same walk as the room's
 # miou3d_end with a budget of 1 (target >= miou3d_end - 5).
 # Env: VLFF_BUILD (release build dir), VLFF_BENCH_SECONDS (passed on; the
 # budget-1 run walks as long), VLFF_NODE_SCENES (default "room flat bldg
-# change"), VLFF_NODE_BUDGETS (default "1 0.5 2"; "" for none),
+# bldg_half change"), VLFF_NODE_BUDGETS (default "1 0.5 2"; "" for none),
 # VLFF_BENCH_BUDGET_SECONDS (the other budgets' runs, default 60).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -25,18 +30,26 @@ exe=$build/bench/bench_node
 kv_of() { grep '^RESULT ' <<<"$1" | sed 's/^RESULT //' | tr '\n' ' '; }
 val_of() { tr ' ' '\n' <<<"$1" | sed -n "s/^$2=//p" | head -1; }
 res="RESULT"
-for sc in ${VLFF_NODE_SCENES:-room flat bldg change}; do
+# The building at half the memory: the same config with the two budgets halved.
+half=$(mktemp --suffix=.yaml)
+trap 'rm -f "$half"' EXIT
+sed 's/^publish:$/publish:\n  evidence_max_mb: 32/' "$here/node-building.yaml" >"$half"
+printf 'keyframes:\n  memory_mb: 512\n' >>"$half"
+for sc in ${VLFF_NODE_SCENES:-room flat bldg bldg_half change}; do
   echo "--- $sc"
   case $sc in
     room) log=$("$exe" | tee /dev/stderr) ;;
     flat) log=$(VLFF_BENCH_CONFIG=$here/node-flat.yaml "$exe" | tee /dev/stderr) ;;
     bldg) log=$(VLFF_BENCH_CONFIG=$here/node-building.yaml "$exe" | tee /dev/stderr) ;;
+    bldg_half) log=$(VLFF_BENCH_CONFIG=$half "$exe" | tee /dev/stderr) ;;
     change) log=$(VLFF_BENCH_CHANGE=1 VLFF_BENCH_SECONDS=${VLFF_BENCH_SECONDS:-60} "$exe" | tee /dev/stderr) ;;
     *) echo "node.sh: unknown scene '$sc'" >&2; exit 1 ;;
   esac
   kv=$(kv_of "$log")
   if [[ $sc == room ]]; then res="$res $kv"
   elif [[ $sc == bldg ]]; then for p in $kv; do res="$res bldg_$p"; done
+  elif [[ $sc == bldg_half ]]; then
+    res="$res bldg_half_budget_miou3d_end=$(val_of "$kv" miou3d_end) bldg_half_budget_rss_peak_mb=$(val_of "$kv" rss_peak_mb)"
   elif [[ $sc == change ]]; then res="$res $(grep -o 'change_visible_s=[^ ]*' <<<"$kv" || true)"
   else for p in $kv; do res="$res ${p%%=*}_$sc=${p#*=}"; done; fi
 done
