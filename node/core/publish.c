@@ -398,14 +398,17 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   const size_t v3n = v1 || v2 ? 0 : obs_v3_size(p), evn_at = grids + v3n;
   if (!v1 && len >= evn_at + 16 && obs_get(&r, evn_at, &evn, 8, err, errlen)) goto out;
   /* The whole file is hashed before anything is taken from it: evidence
-   * over EV_THIN_MAX times this budget is refused unread, so a file
-   * claiming gigabytes (sparse, or from a budget more than that much
-   * larger) costs seconds at most, not minutes. */
-  const uint64_t ev_most = (uint64_t)EV_THIN_MAX * p->ev_budget;
+   * over EV_THIN_MAX times this budget, besides what the page file may add
+   * (its records, 3 bytes shorter each than a saved one, counted twice over
+   * for that), is refused unread, so a file claiming gigabytes (sparse, or
+   * from a budget more than that much larger) costs seconds at most, not
+   * minutes. */
+  const uint64_t ev_most = (uint64_t)EV_THIN_MAX * p->ev_budget + ((uint64_t)p->page_mb << 21);
   if (evn > ev_most) {
     snprintf(err, errlen,
-             "%s: its evidence claims %llu MB, more than %d times publish.evidence_max_mb (%zu MB): refused unread",
-             path, (unsigned long long)(evn >> 20), EV_THIN_MAX, p->ev_budget >> 20);
+             "%s: its evidence claims %llu MB, more than %d times publish.evidence_max_mb (%zu MB) and twice "
+             "publish.evidence_page_mb (%d MB): refused unread",
+             path, (unsigned long long)(evn >> 20), EV_THIN_MAX, p->ev_budget >> 20, p->page_mb);
     goto out;
   }
   uint64_t want = v1 ? grids + 8 : evn_at + 8 + evn + 8;

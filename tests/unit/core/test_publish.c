@@ -189,12 +189,12 @@ static void test_saved_map_loads_within_budget(void **state) {
   assert_int_equal(count_known(pe), known);
   vlff_publisher_destroy(pe);
   vlff_shm_unlink(ce.shm.map);
-  /* An evidence length of 1 GB, more than 16 times b's 2 MB: refused
-   * before a byte of it is read or hashed. */
+  /* An evidence length of 4 GB, more than 16 times b's 2 MB and twice its
+   * page file's 512 MB: refused before a byte of it is read or hashed. */
   const long evn_at = -(long)vlff_evidence_save_size(ea) - 16;
   FILE *f = fopen(path, "r+b");
   assert_non_null(f);
-  uint64_t evn, huge = 1ull << 30;
+  uint64_t evn, huge = 1ull << 32;
   assert_int_equal(fseek(f, evn_at, SEEK_END), 0);
   assert_int_equal(fread(&evn, 8, 1, f), 1);
   assert_int_equal(evn, vlff_evidence_save_size(ea));
