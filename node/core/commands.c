@@ -234,9 +234,8 @@ void update_state(struct vlff_node *n) {
   double now = vlff_seconds(), mem[4];
   memory_state(n, now, mem);
   size_t paged;
-  long long paging[4];
-  vlff_publisher_evidence_paging(n->pub, &paged, &paging[1], &paging[2], &paging[3]);
-  paging[0] = (long long)paged;
+  long long paged_out, paged_in, dropped;
+  vlff_publisher_evidence_paging(n->pub, &paged, &paged_out, &paged_in, &dropped);
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
   if (vlff_frame_watch_lost(&n->fwatch, now, n->cfg.shm.ring)) f |= VLFF_NODE_ERR_CAMERA_LOST, n->st.fps_in = 0;
@@ -253,8 +252,8 @@ void update_state(struct vlff_node *n) {
   n->st.mem_keyframes_mb = mem[0];
   n->st.mem_evidence_mb = mem[1], n->st.mem_evidence_limit_mb = mem[2];
   n->st.mem_rss_mb = mem[3];
-  n->st.evidence_paged = (long long)paging[0], n->st.evidence_paged_out = paging[1];
-  n->st.evidence_paged_in = paging[2], n->st.evidence_dropped = paging[3];
+  n->st.evidence_paged = (long long)paged, n->st.evidence_paged_out = paged_out;
+  n->st.evidence_paged_in = paged_in, n->st.evidence_dropped = dropped;
   pthread_mutex_unlock(&n->slock);
 }
 

@@ -70,10 +70,9 @@ struct vlff_evidence {
   size_t page_alloc;    /* records the arrays below hold */
   size_t paged;         /* live records */
   uint32_t *powner;     /* [page_alloc] the voxel a record holds, NO_VOXEL: free */
-  int8_t *pcos;         /* [page_alloc][max_k] its cosines with the prompts x 127 ... */
-  uint64_t pstamp;      /* ... of these prompts (pk of them); */
-  int pk;
-  bool pvalid;          /* false: none yet */
+  int8_t *pcos;         /* [page_alloc][max_k] its cosines with the prompts E x 127 */
+  int pk;               /* the prompts in E */
+  bool pvalid;          /* false: E and the cosines not made yet (for the prompts of stamp) */
   uint32_t *pfree;      /* [page_alloc] free records below page_top */
   size_t nfree;
   float *E;             /* [pk][D] the prompts of the last label call: a record's cosines when paged */
@@ -376,6 +375,8 @@ int vlff_evidence_page_to(struct vlff_evidence *e, const char *path, size_t max_
 
 const char *vlff_evidence_page_error(const struct vlff_evidence *e) { return e->page_err; }
 
+static void mean_cosines(struct vlff_evidence *e, const uint16_t *mean, float *x, const float *E, int K, float *out);
+
 /* Every live record's cosines again, read back from the file, for new
  * prompts E[K][D] (a change of prompts: rare). */
 static void repage_cosines(struct vlff_evidence *e, const float *E, int K) {
@@ -389,16 +390,9 @@ static void repage_cosines(struct vlff_evidence *e, const float *E, int K) {
       memset(q, 0, (size_t)e->max_k);
       continue;
     }
-    vlff_f16_to_f32_n(mean, x, (size_t)e->D);
-    float nn = 0;
-    for (int j = 0; j < e->D; j++) nn += x[j] * x[j];
-    float inv = nn > 0 ? 1.0f / sqrtf(nn) : 0;
-    for (int k = 0; k < e->max_k; k++) {
-      float c = 0;
-      if (k < K)
-        for (int j = 0; j < e->D; j++) c += x[j] * E[(size_t)k * e->D + j];
-      q[k] = quantize_cos(c * inv);
-    }
+    float c[VLFF_FIELD_MAX_PROMPTS];
+    mean_cosines(e, mean, x, E, K, c);
+    for (int k = 0; k < e->max_k; k++) q[k] = k < K ? quantize_cos(c[k]) : 0;
   }
 }
 
@@ -516,17 +510,22 @@ static float dot16(const float *a, const float *b, int n) {
   return s;
 }
 
+/* The cosines of a float16 mean (through x, D floats of scratch) with
+ * E[K][D] into out[K]; 0 for a zero mean. */
+static void mean_cosines(struct vlff_evidence *e, const uint16_t *mean, float *x, const float *E, int K, float *out) {
+  const int D = e->D;
+  vlff_f16_to_f32_n(mean, x, (size_t)D);
+  float nn = dot16(x, x, D);
+  float inv = nn > 0 ? 1.0f / sqrtf(nn) : 0;
+  for (int k = 0; k < K; k++) out[k] = dot16(x, E + (size_t)k * D, D) * inv;
+}
+
 /* Slot s's cosines with E, recomputed when its evidence changed. */
 static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float *E, int K) {
   float *c = e->cos + (size_t)s * e->max_k;
   if (!e->dirty[s]) return c;
-  const int D = e->D;
-  const uint16_t *m = e->mean + (size_t)s * D;
-  float *x = e->tmp + 2 * D; /* not tmp's first 2 D: a reclaim in the middle of an add pages slots out */
-  vlff_f16_to_f32_n(m, x, (size_t)D);
-  float nn = dot16(x, x, D);
-  float inv = nn > 0 ? 1.0f / sqrtf(nn) : 0;
-  for (int k = 0; k < K; k++) c[k] = dot16(x, E + (size_t)k * D, D) * inv;
+  /* not tmp's first 2 D: a reclaim in the middle of an add pages slots out */
+  mean_cosines(e, e->mean + (size_t)s * e->D, e->tmp + 2 * e->D, E, K, c);
   e->dirty[s] = 0;
   return c;
 }
@@ -635,7 +634,7 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
       if (c) {
         e->E = c;
         memcpy(e->E, E, (size_t)K * e->D * sizeof *c);
-        e->pk = K, e->pstamp = stamp;
+        e->pk = K;
         repage_cosines(e, E, K);
       }
     }
