@@ -37,6 +37,7 @@ void candidate_free(struct candidate *c) {
 
 void queue_push(struct vlff_node *n, struct candidate *c) {
   struct candidate *dropped = NULL;
+  c->t_queued_ns = vlff_now_ns();
   pthread_mutex_lock(&n->qlock);
   if (n->qlen == QUEUE_CAP) {
     dropped = n->queue[0];

@@ -88,6 +88,7 @@
 struct candidate {
   long long id;
   uint64_t t_host_ns;
+  uint64_t t_queued_ns; /* when the ingest queued it (debug log of its latency's parts) */
   struct vlff_view view; /* points into the buffers below */
   uint8_t *rgb;
   float *depth;

@@ -116,6 +116,11 @@ struct vlff_publisher {
   long long icam_frame;
   double px_s;
   size_t piece_px;
+  /* A refresh slice stops after about SLICE_PIECE_S of queries: vox_s,
+   * seconds a queried voxel took (a running mean over slices), or
+   * piece_vox queried voxels instead (0: by vox_s). */
+  double vox_s;
+  size_t piece_vox;
   bool need_full;
   uint64_t prompts_hash;
   struct vlff_hold *hold; /* the published labels held between publishes (hold.h) */
@@ -916,6 +921,13 @@ static bool settled(const struct vlff_publisher *p, size_t i) {
   return p->skip_settled && p->labels[i] <= VLFF_LABEL_MAX && p->conf[i] >= conf_of(SETTLED_MARGIN);
 }
 
+/* Whether a refresh slice queries the field at voxel i (gather's rules): an
+ * observed voxel, not settled in a round that skips those, with hits or
+ * not seen through. */
+static bool slice_queries(const struct vlff_publisher *p, size_t i) {
+  return p->observed[i] && !settled(p, i) && (p->hits[i] > 0 || !seen_through(p, i));
+}
+
 /* The voxels to relabel: idx[0..n), or first .. first + n - 1 when idx is
  * NULL. Unobserved ones become UNKNOWN; the observed ones' query points go
  * into p->qxyz (their hits' mean, or the voxel's centre) and their indices
@@ -1035,6 +1047,10 @@ enum { TAIL_NONE, TAIL_IMAGE, TAIL_SCORE };
  * pixels, or a slow machine would render one per call). */
 #define IMAGE_PIECE_S 0.02
 #define IMAGE_PIECE_MIN 1024
+/* A refresh slice queries at most about this long (publish_slice), at
+ * least SLICE_PIECE_MIN voxels. */
+#define SLICE_PIECE_S 0.04
+#define SLICE_PIECE_MIN 256
 
 /* A label image of the last camera (p->cam) at the map's label image size
  * begins: its camera and pixels are copied (set_camera may replace them
@@ -1267,7 +1283,6 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
   size_t a = p->refresh_at, b = !(to < 1) ? p->nvox : (size_t)ceil(fmax(0, to) * (double)p->nvox);
   if (b <= a) b = a + 1;
   if (b > p->nvox) b = p->nvox;
-  const bool last = b == p->nvox;
   uint64_t stamp = prompt_stamp(p, f);
   /* Rounds alternate: one relabels every voxel, the next only those not
    * settled (as long as the prompts' embeddings are those of the last full
@@ -1279,9 +1294,27 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
     if (!p->skip_settled) p->full_round_stamp = eh;
     if (!p->skip_settled && p->ev) vlff_evidence_census_begin(p->ev);
   }
+  /* The grid's occupied voxels lie in a few parts of its index range: a
+   * slice over one cost many times one elsewhere, and a keyframe admitted
+   * meanwhile waited for all of it. It stops after about SLICE_PIECE_S of
+   * queries instead, short of `to` (refresh_done says where). */
+  size_t cap = p->piece_vox ? p->piece_vox : p->vox_s > 0 ? (size_t)(SLICE_PIECE_S / p->vox_s) : SLICE_PIECE_MIN;
+  if (cap < SLICE_PIECE_MIN && !p->piece_vox) cap = SLICE_PIECE_MIN;
+  size_t work = 0;
+  for (size_t i = a; i < b; i++)
+    if (slice_queries(p, i) && ++work == cap) {
+      b = i + 1;
+      break;
+    }
+  const bool last = b == p->nvox;
+  double t0 = vlff_seconds();
   hold_begin(p, f);
   if (relabel_voxels(p, f, NULL, a, b - a, stamp, err, errlen)) return -1;
   hold_end(p, r);
+  if (work >= SLICE_PIECE_MIN) {
+    double s = (vlff_seconds() - t0) / (double)work;
+    p->vox_s = p->vox_s > 0 ? 0.5 * (p->vox_s + s) : s;
+  }
   if (last && p->ev && !p->skip_settled)
     report_lost(p, prompts, k, stamp, vlff_evidence_census_end(p->ev, p->lost_ratio));
   p->refresh_at = last ? 0 : b;
@@ -1347,6 +1380,7 @@ int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f,
 bool vlff_publisher_image_owed(const struct vlff_publisher *p) { return p->tail != TAIL_NONE; }
 
 void vlff_publisher_set_image_piece(struct vlff_publisher *p, size_t pixels) { p->piece_px = pixels; }
+void vlff_publisher_set_slice_piece(struct vlff_publisher *p, size_t voxels) { p->piece_vox = voxels; }
 
 void vlff_publisher_heartbeat(struct vlff_publisher *p) {
   double now = vlff_seconds();

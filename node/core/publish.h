@@ -132,7 +132,10 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * ends a round (cycle_done): it also closes the census, owes the round's
  * label image, and the next slice starts from voxel 0. The caller
  * sizes the slices (the trainer: so that a round ends on time, docs/node.md
- * "Publishing"). A whole publish instead when one is owed (it restarts the
+ * "Publishing"); a slice stops short of `to` after about 40 ms of field
+ * queries by the measured speed (set_slice_piece), so that a keyframe
+ * admitted meanwhile waits for that, not for a slice over the dense part of
+ * the grid: the caller goes on with more slices to `to`. A whole publish instead when one is owed (it restarts the
  * round). refresh_done: the fraction of the grid the current round has
  * refreshed, in [0, 1).
  *
@@ -160,6 +163,10 @@ bool vlff_publisher_image_owed(const struct vlff_publisher *p);
  * the pieces, and so what a test sees between them, the same on a fast
  * host and under emulation. */
 void vlff_publisher_set_image_piece(struct vlff_publisher *p, size_t pixels);
+/* publish_slice's pieces: at most `voxels` queried voxels (at least 1;
+ * SIZE_MAX: none, each slice reaches its target), or 0 (the default):
+ * about 40 ms of queries, by the measured speed. */
+void vlff_publisher_set_slice_piece(struct vlff_publisher *p, size_t voxels);
 double vlff_publisher_refresh_done(const struct vlff_publisher *p);
 /* The evidence's memory: what the voxels holding evidence take of
  * publish.evidence_max_mb, and that budget, in bytes (0 and 0 without

@@ -130,6 +130,9 @@ static void take_candidates(struct vlff_node *n, bool wait) {
   for (int i = 0; i < nb; i++) {
     struct candidate *c = batch[i];
     char verr[256];
+    uint64_t now = vlff_now_ns();
+    VLFF_DEBUG(TAG, "keyframe %lld taken: captured %.0f ms ago, queued %.0f ms ago", c->id,
+               (double)(now - c->t_host_ns) * 1e-6, (double)(now - c->t_queued_ns) * 1e-6);
     if (n->mapping && vlff_publisher_check_view(n->pub, &c->view, verr, sizeof verr)) {
       /* Implausible intrinsics or pose would make every ray of this view
        * wrong (and, unbounded, endless): never train on or map it. */
@@ -326,10 +329,10 @@ static double work_scale(const struct vlff_node *n) {
  * the trainer's time: on a slow machine (a sanitizer build's, a small
  * core's) they would take all of it, and the field would not train, nor
  * the mailbox be answered. */
-static void publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, double *next_kf_publish) {
+static bool publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, double *next_kf_publish) {
   if ((vlff_publisher_pending(n->pub) == 0 && n->pending_lat == 0) || vlff_field_steps(n->field) == 0 ||
       vlff_seconds() < *next_kf_publish)
-    return;
+    return false;
   double t = vlff_seconds();
   bool whole = publish_changed(n);
   double end = vlff_seconds(), c = end - t;
@@ -337,6 +340,7 @@ static void publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, doub
    * refreshed the whole map, so the refresh's round starts over */
   *next_kf_publish = whole ? 0 : t + c * (3.0 / work_scale(n) - 1.0);
   if (whole) refresh_round_end(n, rf, end, false, true);
+  return whole;
 }
 
 /* The young-field schedules, both keyed on the field's step count. */
@@ -489,11 +493,21 @@ void *trainer_main(void *arg) {
       if (publish_now) {
         do_publish(n);
         round = true;
+        vlff_refresh_sliced(&rf, vlff_seconds() - t);
       } else {
-        round = publish_slice(n, to, &whole);
+        /* A slice stops after about 40 ms of queries (publish.h): the
+         * keyframes admitted meanwhile go out before it goes on to `to`.
+         * One that had to be a whole publish restarted the round. */
+        for (;;) {
+          round = publish_slice(n, to, &whole);
+          vlff_refresh_sliced(&rf, vlff_seconds() - t);
+          if (round || whole || atomic_load(&n->stop) || !(vlff_publisher_refresh_done(n->pub) < to)) break;
+          take_candidates(n, false);
+          if (publish_keyframes(n, &rf, &next_kf_publish)) break;
+          t = vlff_seconds();
+        }
       }
       double end = vlff_seconds();
-      vlff_refresh_sliced(&rf, end - t);
       published = true;
       /* A whole publish out of turn (new prompts, a reset, the first map)
        * restarts the grid; a round of slices ends on its deadline. */

@@ -79,6 +79,7 @@
 #include "metrics.h"
 #include "node.h"
 #include "field.h" /* float16 conversions */
+#include "log.h"
 #include "testkit.h"
 #include "sim.h"
 #include "vlff/shm.h"
@@ -419,6 +420,7 @@ int main(int argc, char **argv) {
   fclose(out);
   struct vlff_config cfg;
   if (vlff_config_load(cfg_path, &cfg, err, sizeof err)) return fprintf(stderr, "%s\n", err), 1;
+  vlff_log_set_level(cfg.node.log_level); /* as vlff-node: node.log_level debug shows each publish's cost */
   double budget = getenv("VLFF_BENCH_BUDGET") ? atof(getenv("VLFF_BENCH_BUDGET")) : 0;
   if (budget < 0 || (budget > 0 && budget < 0.1) || budget > 256)
     return fprintf(stderr, "bench_node: VLFF_BENCH_BUDGET: expected 0 or 0.1 to 256 cores, got %g\n", budget), 1;
