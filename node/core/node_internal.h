@@ -164,6 +164,7 @@ struct vlff_node {
   float accepted_inl[KF_HISTORY];
   int n_accepted;
   long long cleared_seen; /* vlff_publisher_cleared when keyframes were last checked against it */
+  bool kf_full_said;      /* the keyframe store's first eviction was logged */
   /* trainer: the label flips of the publishes since the last whole refresh
    * ended (all, without new evidence, and the voxels that could) */
   long long round_flips, round_flips_elsewhere, round_mapped_elsewhere;

@@ -156,6 +156,13 @@ static void take_candidates(struct vlff_node *n, bool wait) {
         struct vlff_keyframe_in kin = {.id = c->id, .t_ns = (long long)c->t_host_ns, .view = c->view,
                                        .feature_dim = n->cfg.field.feature_dim};
         if (vlff_kfstore_add(n->store, &kin) == 0) {
+          if (!n->kf_full_said && vlff_kfstore_evicted(n->store) > 0) {
+            n->kf_full_said = true;
+            VLFF_INFO(TAG, "keyframes: the store is full at %d keyframes (keyframes.memory_mb %d MiB, "
+                           "max_keyframes %d); from now on each new one replaces the most redundant (the view "
+                           "nearest another), counted as evicted",
+                      vlff_kfstore_count(n->store), n->cfg.keyframes.memory_mb, n->cfg.keyframes.max_keyframes);
+          }
           /* The view passed the same check just above: these cannot refuse it. */
           if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
             vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id, verr, sizeof verr);

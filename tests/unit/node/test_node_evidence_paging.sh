@@ -6,8 +6,10 @@
 # counted in its stop line, none given up for good), the file goes when the
 # node stops, and the checkpoint holds every voxel's evidence: the node
 # started again pages out what is beyond its budget instead of dropping it.
+# The keyframe store, kept to 12 keyframes, says when it is full and counts
+# what it evicts in the stop line.
 set -u
-node_yaml_extra=$'publish:\n  evidence_max_mb: 1\n  evidence_page_mb: 64'
+node_yaml_extra=$'publish:\n  evidence_max_mb: 1\n  evidence_page_mb: 64\nkeyframes:\n  max_keyframes: 12'
 . "$(dirname "$0")/node_sh.sh" nep "$@"
 "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
 simpid=$!
@@ -22,6 +24,9 @@ line=$(grep "evidence beyond publish.evidence_max_mb" "$tmp/log")
 check "the stop line counts what was paged ($line), nothing given up for good" \
   '[[ $line =~ ([0-9]+)\ voxels\ in\ the\ page\ file\ \(([0-9]+)\ paged\ out,\ ([0-9]+)\ brought\ back\),\ 0\ given\ up ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[2] >= BASH_REMATCH[1] ))'
 check "the page file goes with the node" '[[ ! -e $tmp/evidence.pages ]]'
+stopped=$(grep "stopped: " "$tmp/log")
+check "a full keyframe store is said once ($(grep -o 'keyframes: the store is full[^;]*' "$tmp/log")), and what it evicted counted at the stop ($stopped)" \
+  '(( $(grep -c "keyframes: the store is full at 12 keyframes (keyframes.memory_mb [0-9]* MiB, max_keyframes 12); from now on each new one replaces the most redundant" "$tmp/log") == 1 )) && [[ $stopped =~ [0-9]+\ keyframes\ \(([0-9]+)\ evicted ]] && (( BASH_REMATCH[1] > 0 ))'
 check "no page file error" '! grep -q "evidence: page file" "$tmp/log"'
 # Started again on its checkpoint: the evidence beyond the budget is paged,
 # not given up (the load would say how many it gave up). A file a killed
