@@ -3,7 +3,8 @@
  *
  * Layout (host byte order, checked by a byte-order mark):
  *   header  : magic "VLFFCKPT", version, byte-order mark, config field hash,
- *             array sizes, step, rng, occupancy cursor
+ *             array sizes, step, rng, occupancy cursor, the encoding's
+ *             cells (from version 5; before, per axis)
  *   arrays  : params, Adam m, Adam v (float32), occupancy density (float32),
  *             occupancy bits (uint8), per-cell exposure (uint16; from
  *             version 2), the averaged MLP weights queries read (float32,
@@ -32,7 +33,7 @@
 #include "mem.h"
 
 #define CKPT_MAGIC "VLFFCKPT"
-#define CKPT_VERSION 4u
+#define CKPT_VERSION 5u
 /* Version 1 lacks the exposure; it still loads, the field counting as fitted
  * everywhere, so a robot's learned map survives the upgrade. Its later
  * checkpoints carry that on until a mapping reset: nothing tells where an
@@ -44,6 +45,10 @@
 /* Versions 1-3 lack the cells' running losses: error sampling measures them
  * anew (every cell is drawn as not yet trained until a ray ends there). */
 #define CKPT_VERSION_NO_ERRORS 3u
+/* Versions 1-4 were learned in cells scaled to the box per axis: their
+ * field loads in those cells, and says so in its later checkpoints
+ * (header's cells: 0) until a mapping reset makes them cubic. */
+#define CKPT_VERSION_AXIS_CELLS 4u
 #define CKPT_BOM 0x01020304u
 
 struct ckpt_header {
@@ -54,7 +59,7 @@ struct ckpt_header {
   int64_t step;
   uint64_t rng;
   int64_t occ_cursor;
-  int32_t feature_dim, pad;
+  int32_t feature_dim, cells; /* cells (from version 5): 1 cubic, 0 scaled per axis (encoding.c) */
 };
 
 /* Word-wise FNV-style mix: fast enough for hundreds of MB. */
@@ -202,6 +207,7 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   h.rng = f->rng;
   h.occ_cursor = f->occ_cursor;
   h.feature_dim = f->D;
+  h.cells = f->enc.cubic;
   struct sum s;
   sum_init(&s);
   size_t np = f->nparams * sizeof(float), nc = vlff_occ_cells(&f->occ);
@@ -260,6 +266,8 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     why = "model configuration (field.*) differs from this node's";
   else if (h.nparams != np || h.ntable != f->ntable || h.ncells != nc || h.feature_dim != f->D)
     why = "array sizes differ from this model";
+  else if (h.version > CKPT_VERSION_AXIS_CELLS && h.cells != 0 && h.cells != 1)
+    why = "cells neither cubic (1) nor per axis (0)";
   else if (h.step < 0 || h.step > VLFF_FIELD_MAX_STEP) {
     snprintf(whybuf, sizeof whybuf, "step %lld outside [0, %lld]", (long long)h.step, (long long)VLFF_FIELD_MAX_STEP);
     why = whybuf;
@@ -321,6 +329,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   f->step = h.step;
   f->rng = h.rng;
   f->occ_cursor = (int)h.occ_cursor;
+  vlff_encoding_set_cells(&f->enc, h.version > CKPT_VERSION_AXIS_CELLS ? h.cells : 0);
   /* Where the field was fitted is learned state too: resumed with less,
    * its cosines would outweigh the evidence where it has hardly trained
    * (the kill -9 test saw the resumed 3D map 5-8 points below the one

@@ -41,14 +41,22 @@ struct vlff_encoding {
   int active;              /* levels in use: finer ones output 0 and get no gradient */
   int dim;                 /* levels*feats + 6*freq_bands */
   uint32_t size;           /* entries per level */
-  float box_min[3], box_scale[3];  /* p = (x - min) * scale, in [0,1] */
+  /* p = (x - min) * scale: the same scale on every axis (cubic cells), the
+   * box's longest axis spanning [0, 1] and each axis [0, p_top]; the
+   * frequency part's angle is p * freq_scale, [0, pi] over each axis. */
+  float box_min[3], box_scale[3], p_top[3], freq_scale[3];
+  double box_ext[3];       /* the box's size, metres */
+  int cubic;               /* 1: as above; 0: each axis scaled to [0, 1] (checkpoints before version 5) */
   float res[32];           /* grid cells per axis, per level */
   int dense[32];           /* level indexed densely (no hashing) */
   int simd;                /* VLFF_ISA_*: the vector kernels (the portable loops' results to float rounding) */
 };
 void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cfg);
-/* Normalised position of world point x, clamped to [0,1]; returns 0 when x
- * was outside the box. */
+/* The cells' shape: cubic (1, the default) or each axis of the box scaled
+ * to [0, 1] (0: what a field checkpointed before version 5 learned in). */
+void vlff_encoding_set_cells(struct vlff_encoding *e, int cubic);
+/* Normalised position of world point x, clamped to [0, p_top]; returns 0
+ * when x was outside the box. */
 int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float *p);
 /* out[n][dim] for n normalised points p[n][3]; table = level-major params. */
 void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, const float *p, int n,

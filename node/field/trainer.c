@@ -141,6 +141,7 @@ static void init_state(struct vlff_field *f) {
   memset(f->bal_freq, 0, sizeof f->bal_freq);
   f->step = 0;
   f->occ_cursor = 0;
+  vlff_encoding_set_cells(&f->enc, 1);
   vlff_field_forget_errors(f);
   vlff_field_reset_average(f);
 }

@@ -400,6 +400,53 @@ static void test_encoding(void **state) {
   free(marks);
 }
 
+/* Cells are cubic (encoding.c): one scale for every axis of an 8 x 4 x 2 m
+ * box, its longest axis spanning [0, 1], so a metre moves the position as
+ * far along z as along x; a point beyond a short axis's face is outside,
+ * clamped to the face. The frequency part still spans [0, pi] over each
+ * axis. Scaled per axis (a field checkpointed before version 5), each axis
+ * spans [0, 1] and the frequency part is the same. */
+static void test_encoding_cells(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  small_cfg(&cfg);
+  const double lo[3] = {-1, 2, 0}, hi[3] = {7, 6, 2};
+  memcpy(cfg.field.scene_min, lo, sizeof lo);
+  memcpy(cfg.field.scene_max, hi, sizeof hi);
+  struct vlff_encoding e;
+  vlff_encoding_init(&e, &cfg.field);
+  assert_int_equal(e.cubic, 1);
+  const float corner[3] = {7, 6, 2}, a[3] = {0, 3, 0.5f}, ax[3] = {1, 3, 0.5f}, az[3] = {0, 3, 1.5f},
+              above[3] = {3, 4, 2.5f}, mid[3] = {3, 4, 1};
+  float p[3], pa[3], px[3], pz[3];
+  const size_t nt = (size_t)e.levels * e.size * e.feats;
+  float *table = falloc(nt), *cub = falloc(e.dim), *axis = falloc(e.dim);
+  for (size_t i = 0; i < nt; i++) table[i] = frand();
+  for (int cubic = 1; cubic >= 0; cubic--) {
+    vlff_encoding_set_cells(&e, cubic);
+    assert_int_equal(vlff_encoding_normalise(&e, corner, p), 1);
+    const float want[2][3] = {{1, 1, 1}, {1, 0.5f, 0.25f}};
+    for (int k = 0; k < 3; k++) assert_true(fabsf(p[k] - want[cubic][k]) < 1e-6f);
+    vlff_encoding_normalise(&e, a, pa);
+    vlff_encoding_normalise(&e, ax, px);
+    vlff_encoding_normalise(&e, az, pz);
+    /* a metre along x and along z: 1/8 both, or 1/8 and 1/2 */
+    assert_true(fabsf((px[0] - pa[0]) - 0.125f) < 1e-6f);
+    assert_true(fabsf((pz[2] - pa[2]) - (cubic ? 0.125f : 0.5f)) < 1e-6f);
+    assert_int_equal(vlff_encoding_normalise(&e, above, p), 0);
+    assert_true(fabsf(p[2] - (cubic ? 0.25f : 1.0f)) < 1e-6f);
+    vlff_encoding_normalise(&e, mid, p);
+    vlff_encoding_forward(&e, table, p, 1, cubic ? cub : axis, e.dim);
+  }
+  /* The box's centre: pi / 2 on every axis in both, so the same frequency
+   * part (the lowest octave: sin 1, cos 0); the hash grid's differs. */
+  const int off = e.levels * e.feats;
+  for (int k = 0; k < 6 * e.freq_bands; k++) assert_true(fabsf(cub[off + k] - axis[off + k]) < 1e-6f);
+  assert_true(fabsf(cub[off] - 1) < 1e-6f && fabsf(cub[off + 1]) < 1e-6f);
+  assert_true(memcmp(cub, axis, (size_t)off * sizeof(float)) != 0);
+  free(table), free(cub), free(axis);
+}
+
 /* FNV-1a of n bytes, continuing from h. */
 static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
   for (size_t i = 0; i < n; i++) h = (h ^ ((const unsigned char *)p)[i]) * 0x100000001b3ull;
@@ -795,6 +842,6 @@ static void test_f16(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_gemm), cmocka_unit_test(test_score), cmocka_unit_test(test_mlp),
-    cmocka_unit_test(test_encoding), cmocka_unit_test(test_encoding_simd),
+    cmocka_unit_test(test_encoding), cmocka_unit_test(test_encoding_cells), cmocka_unit_test(test_encoding_simd),
     cmocka_unit_test(test_render), cmocka_unit_test(test_losses), cmocka_unit_test(test_adam),
     cmocka_unit_test(test_f16), cmocka_unit_test(test_f16_bulk))

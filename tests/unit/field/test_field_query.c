@@ -417,7 +417,7 @@ static void test_exposure(void **state) {
   fclose(in);
   uint32_t version;
   memcpy(&version, b + 8, 4);
-  assert_int_equal(version, 4);
+  assert_int_equal(version, 5);
   size_t v3 = (size_t)size - nc * sizeof(float) - sizeof(double); /* the same file without the losses */
   size_t v2 = v3 - f->nmlp * sizeof(float); /* ... and without the average */
   size_t v1 = v2 - nc * sizeof(uint16_t);              /* ... and without the exposure */
@@ -432,14 +432,44 @@ static void test_exposure(void **state) {
   const double forged_mean = -1.0;
   memcpy(bad, b, (size_t)size);
   memcpy(bad + v3 - 8 + 7 * sizeof(float), &forged_loss, sizeof forged_loss);
-  forge(path, bad, (size_t)size, 4);
+  forge(path, bad, (size_t)size, 5);
   assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "running loss out of range"));
   memcpy(bad, b, (size_t)size);
   memcpy(bad + size - 16, &forged_mean, sizeof forged_mean);
-  forge(path, bad, (size_t)size, 4);
+  forge(path, bad, (size_t)size, 5);
   assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "mean loss out of range"));
+  /* The encoding's cells (header bytes 76-79, from version 5): cubic as
+   * saved; neither cubic nor per axis is refused. */
+  int32_t cells;
+  memcpy(&cells, b + 76, sizeof cells);
+  assert_int_equal(cells, 1);
+  memcpy(bad, b, (size_t)size);
+  cells = 7;
+  memcpy(bad + 76, &cells, sizeof cells);
+  forge(path, bad, (size_t)size, 5);
+  assert_int_equal(vlff_field_load(young, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "cells neither cubic"));
+  /* Version 4 (the same body) was learned in cells scaled per axis: it
+   * loads in those, whatever its header's last word, and says so in its
+   * next checkpoint, which loads in them again; a mapping reset makes them
+   * cubic. */
+  forge(path, bad, (size_t)size, 4);
+  struct vlff_field *h4 = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(h4);
+  assert_int_equal(h4->enc.cubic, 1);
+  assert_int_equal(vlff_field_load(h4, path, err, sizeof(err)), 0);
+  assert_int_equal(h4->enc.cubic, 0);
+  assert_int_equal(vlff_field_save(h4, path, err, sizeof(err)), 0);
+  struct vlff_field *h5 = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(h5);
+  assert_int_equal(vlff_field_load(h5, path, err, sizeof(err)), 0);
+  assert_int_equal(h5->enc.cubic, 0);
+  vlff_field_reinit(h5);
+  assert_int_equal(h5->enc.cubic, 1);
+  vlff_field_destroy(h4);
+  vlff_field_destroy(h5);
   free(bad);
   refuses_mismatched_version(young, path, b, (size_t)size, v3, 4); /* 3 with the losses, 4 without */
   forge(path, b, v3, 3);

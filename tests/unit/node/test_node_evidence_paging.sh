@@ -16,8 +16,10 @@ simpid=$!
 wait_until 1200 'grep -q "page theirs out" "$tmp/log"'
 check "a full evidence budget pages out to the state directory: said ($(grep -o 'publish.evidence_max_mb[^;]*' "$tmp/log" | head -1)), and the file is there" \
   'grep -q "evidence: publish.evidence_max_mb (1 MB, [0-9]* voxels) is full; from now on the least-observed voxels page theirs out" "$tmp/log" && [[ -s $tmp/evidence.pages ]]'
-# Keyframes past the first fill: views of what was paged out come round again.
+# Keyframes past the first fill: views of what was paged out come round
+# again; and past the keyframe store's.
 sleep 3
+wait_until 600 'grep -q "keyframes: the store is full" "$tmp/log"'
 kill "$simpid"; wait "$simpid"; simpid=
 stop_node
 line=$(grep "evidence beyond publish.evidence_max_mb" "$tmp/log")
