@@ -310,11 +310,13 @@ static int finish(struct run *r, const char *snapshot_dir) {
   VLFF_INFO("node", "stopping (%s)", vlff_cli_stop == SIGTERM ? "SIGTERM"
                                      : vlff_cli_stop == SIGINT ? "SIGINT"
                                                                 : "run_seconds reached");
-  struct vlff_node_status st;
-  vlff_node_status(r->node, &st);
 #ifdef VLFF_HAVE_CAN
   vlff_can_close(r->can);
 #endif
+  /* The stop line's counts are those the threads stopped with. */
+  vlff_node_join(r->node);
+  struct vlff_node_status st;
+  vlff_node_status(r->node, &st);
   int rc = 0;
   char err[512];
   if (snapshot_dir) {

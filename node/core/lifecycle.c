@@ -183,6 +183,8 @@ static void join_threads(struct vlff_node *n) {
   n->joined = true;
 }
 
+void vlff_node_join(struct vlff_node *n) { join_threads(n); }
+
 bool vlff_node_finished(struct vlff_node *n) {
   return atomic_load(&n->finished) || atomic_load(&n->stop);
 }

@@ -192,6 +192,10 @@ void vlff_node_process_setup(void);
 /* True once the node stopped by itself (node.run_seconds) or was asked to. */
 bool vlff_node_finished(struct vlff_node *n);
 void vlff_node_destroy(struct vlff_node *n, bool save_on_exit);
+/* Stop the threads and wait for them: vlff_node_status then holds the
+ * counts the node stopped with (before, the last a pass shared: a pass
+ * under a sanitizer can last seconds). */
+void vlff_node_join(struct vlff_node *n);
 
 /* Stop the threads (as vlff_node_stop, and wait for them), publish once
  * more, then take the publisher's snapshot (publish.h) into out, which the

@@ -178,6 +178,13 @@ static void take_candidates(struct vlff_node *n, bool wait) {
   }
 }
 
+static bool candidates_waiting(struct vlff_node *n) {
+  pthread_mutex_lock(&n->qlock);
+  bool any = n->qlen > 0;
+  pthread_mutex_unlock(&n->qlock);
+  return any;
+}
+
 /* What a publish did to the node's figures: the map version; with covers,
  * the frame-to-map latency of every keyframe admitted before it (their
  * voxels are in this version's change log); the scores when the map was
@@ -504,13 +511,23 @@ void *trainer_main(void *arg) {
       } else {
         /* A slice stops after about 40 ms of queries (publish.h): the
          * keyframes admitted meanwhile go out before it goes on to `to`.
-         * One that had to be a whole publish restarted the round. */
+         * One that had to be a whole publish restarted the round. Once a
+         * pass: candidates that come after that end the slicing after its
+         * piece and are taken at the pass's top, or on a host too slow for
+         * the keyframes' rate (a sanitizer build's) the trainer would only
+         * ever take keyframes, and never step. */
+        bool served = false;
         for (;;) {
           round = publish_slice(n, to, &whole);
           vlff_refresh_sliced(&rf, vlff_seconds() - t);
           if (round || whole || atomic_load(&n->stop) || !(vlff_publisher_refresh_done(n->pub) < to)) break;
-          take_candidates(n, false);
-          if (publish_keyframes(n, &rf, &next_kf_publish)) break;
+          if (served) {
+            if (candidates_waiting(n)) break;
+          } else {
+            served = true;
+            take_candidates(n, false);
+            if (publish_keyframes(n, &rf, &next_kf_publish)) break;
+          }
           t = vlff_seconds();
         }
       }
@@ -545,6 +562,7 @@ void *trainer_main(void *arg) {
       break;
     }
   }
-  share_status(n); /* the counts the node stopped with */
+  update_state(n); /* the counts the node stopped with: the pass that saw the stop may have added to them */
+  share_status(n);
   return NULL;
 }
