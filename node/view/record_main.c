@@ -15,7 +15,10 @@
  *
  * Each ring is attached when it appears (a producer started after the
  * recorder), from its oldest record still held, and again when its producer
- * replaces it. Each frame is written after the poses committed before it was
+ * replaces it; a pose or feature ring not attached yet is looked for again as
+ * soon as a frame is read, since a producer makes its rings before its first
+ * frame (a feature ring found 100 ms late had lost the maps of the first
+ * frames a fast replay wrote). Each frame is written after the poses committed before it was
  * read and before the feature maps committed after, the order in which the
  * live processes produce a frame's records, so the file's order is the order
  * the node saw them in.
@@ -89,9 +92,10 @@ struct rec {
   uint64_t held_seq;
 };
 
-static void attach(struct rec *r, int i, uint64_t now) {
+/* Attaches ring i when it exists, trying at most every 100 ms unless forced. */
+static void attach(struct rec *r, int i, uint64_t now, int force) {
   struct src *s = &r->s[i];
-  if (!s->wanted || s->ring || (s->last_try && now - s->last_try < 100000000ull)) return;
+  if (!s->wanted || s->ring || (!force && s->last_try && now - s->last_try < 100000000ull)) return;
   s->last_try = now;
   s->ring = vlff_ring_attach(s->name, ring_kind[i]);
   if (!s->ring) return;
@@ -214,6 +218,13 @@ static int frames_step(struct rec *r, uint64_t timeout_ns, long long *frames, lo
     int framed = n >= (ssize_t)sizeof(struct vlff_frame_hdr);
     uint64_t t = framed ? ((const struct vlff_frame_hdr *)r->s[R_FRAME].buf)->t_host_ns : 0;
     /* the maps of earlier frames, then the poses, the frame, its own map */
+    if (framed) {
+      /* A producer makes its rings before it writes its first frame: one not
+       * attached yet exists now, and what it holds of this frame is kept. */
+      uint64_t now = vlff_now_ns();
+      attach(r, R_POSE, now, 1);
+      attach(r, R_FEAT, now, 1);
+    }
     if (drain_features(r, !framed, t) < 0 || drain(r, R_POSE) < 0) return -1;
     if (n > 0) {
       uint64_t before = r->s[R_FRAME].records;
@@ -305,7 +316,7 @@ int main(int argc, char **argv) {
   while (!failed) {
     int stopping = vlff_cli_stop || (count > 0 && frames >= count);
     uint64_t now = vlff_now_ns();
-    for (int i = 0; i < R_COUNT; i++) attach(&r, i, now);
+    for (int i = 0; i < R_COUNT; i++) attach(&r, i, now, 0);
     if (!r.s[R_FRAME].ring && !said_wait && !r.quiet && !stopping) {
       fprintf(stderr, "vlff-record: waiting for the frame ring %s\n", VLFF_Q(r.s[R_FRAME].name));
       said_wait = 1;
