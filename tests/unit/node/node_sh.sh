@@ -12,6 +12,11 @@ stop_node() {
 }
 printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
   "$tmp" $p $p $p $p >"$tmp/n.yaml"
+# A light field (64-dim features, a 2^16 table) unless the test names its own
+# (node_field; empty for the default field): these tests check the node's
+# plumbing, not what it learns, and a sanitizer build trains and publishes the
+# default 512 dimensions slowly.
+printf '%s\n' "${node_field-$'field:\n  feature_dim: 64\n  hash_log2_size: 16'}" >>"$tmp/n.yaml"
 # More top-level YAML from the sourcing test, before the node starts.
 [[ -n ${node_yaml_extra:-} ]] && printf '%s\n' "$node_yaml_extra" >>"$tmp/n.yaml"
 "$node" --config "$tmp/n.yaml" 2>"$tmp/log" &

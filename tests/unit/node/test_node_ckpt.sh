@@ -8,7 +8,7 @@
 set -u
 # A small hash table: the forger below recomputes the checksum in Python,
 # word by word, and the default table made that the test's longest step.
-node_yaml_extra=$'field:\n  hash_log2_size: 14'
+node_field=$'field:\n  feature_dim: 64\n  hash_log2_size: 14'
 . "$(dirname "$0")/node_sh.sh" nck "$@"
 val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
 "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &

@@ -9,6 +9,7 @@
 # The keyframe store, kept to 12 keyframes, says when it is full and counts
 # what it evicts in the stop line.
 set -u
+node_field=  # the default field: its evidence records (D = 512) fill the 1 MiB budget
 node_yaml_extra=$'publish:\n  evidence_max_mb: 1\n  evidence_page_mb: 64\nkeyframes:\n  max_keyframes: 12'
 . "$(dirname "$0")/node_sh.sh" nep "$@"
 "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
