@@ -601,6 +601,52 @@ int vlff_evidence_census_end(struct vlff_evidence *e, double ratio) {
   return n;
 }
 
+void vlff_evidence_lost_save(const struct vlff_evidence *e, uint8_t out[VLFF_EVIDENCE_LOST_BYTES]) {
+  memset(out, 0, VLFF_EVIDENCE_LOST_BYTES);
+  if (!e || !e->nlost) return;
+  const int32_t k = e->lost_k;
+  const uint32_t n = (uint32_t)e->nlost;
+  memcpy(out, &e->lost_stamp, 8);
+  memcpy(out + 8, &k, 4);
+  memcpy(out + 12, &n, 4);
+  for (int i = 0; i < k; i++) out[16 + i] = e->lost[i];
+}
+
+int vlff_evidence_lost_check(const uint8_t in[VLFF_EVIDENCE_LOST_BYTES], int max_k, char *err, size_t errlen) {
+  int32_t k;
+  uint32_t n, count = 0;
+  memcpy(&k, in + 8, 4);
+  memcpy(&n, in + 12, 4);
+  if (k < 0 || k > max_k || k > VLFF_FIELD_MAX_PROMPTS) {
+    snprintf(err, errlen, "lost classes: %d prompts, expected 0 to %d", (int)k, max_k);
+    return -1;
+  }
+  for (int i = 0; i < VLFF_FIELD_MAX_PROMPTS; i++) {
+    if (in[16 + i] > 1 || (i >= k && in[16 + i])) {
+      snprintf(err, errlen, "lost classes: prompt %d marked %u (of %d prompts)", i, in[16 + i], (int)k);
+      return -1;
+    }
+    count += in[16 + i];
+  }
+  if (count != n) {
+    snprintf(err, errlen, "lost classes: %u marked, the block says %u", count, n);
+    return -1;
+  }
+  return 0;
+}
+
+void vlff_evidence_lost_set(struct vlff_evidence *e, const uint8_t in[VLFF_EVIDENCE_LOST_BYTES]) {
+  int32_t k;
+  uint32_t n;
+  memcpy(&e->lost_stamp, in, 8);
+  memcpy(&k, in + 8, 4);
+  memcpy(&n, in + 12, 4);
+  memset(e->lost, 0, sizeof e->lost);
+  for (int i = 0; i < k; i++) e->lost[i] = in[16 + i];
+  e->lost_k = k;
+  e->nlost = (int)n;
+}
+
 bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long *n_field, unsigned long long *n_ev) {
   if (k < 0 || k >= e->max_k) return false;
   if (n_field) *n_field = e->n_field[k];

@@ -147,6 +147,18 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
 void vlff_evidence_census_begin(struct vlff_evidence *e);
 int vlff_evidence_census_end(struct vlff_evidence *e, double ratio);
 bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long *n_field, unsigned long long *n_ev);
+/* The last census's verdict, saved with the map (publish.h): the prompts'
+ * stamp and count, and one byte per prompt, 1 where lost (little-endian
+ * u64, i32, u32 lost count, VLFF_FIELD_MAX_PROMPTS bytes). Restored after a
+ * load, a restarted node reads its lost classes from the evidence from its
+ * first publish, as the node before it did, not from the publish after its
+ * first census. lost_check refuses a block no census writes (a count beyond
+ * max_k prompts, a byte not 0 or 1, a lost prompt past the count, a wrong
+ * lost count); lost_set takes a checked one. */
+#define VLFF_EVIDENCE_LOST_BYTES (16 + VLFF_FIELD_MAX_PROMPTS)
+void vlff_evidence_lost_save(const struct vlff_evidence *e, uint8_t out[VLFF_EVIDENCE_LOST_BYTES]);
+int vlff_evidence_lost_check(const uint8_t in[VLFF_EVIDENCE_LOST_BYTES], int max_k, char *err, size_t errlen);
+void vlff_evidence_lost_set(struct vlff_evidence *e, const uint8_t in[VLFF_EVIDENCE_LOST_BYTES]);
 
 /* Learned state, saved beside the field (vlff_publisher_save): the bytes
  * of the grid's geometry and every voxel's mean and count (voxels in index

@@ -254,15 +254,18 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
 /* File: magic, dims, voxel, origin; observed u8[n], hits u16[n],
  * hit_sum f32[3n]; (VLFFOBS3) the see-through marks u8[n] (THRU_KEPT bits),
  * the surfaces cleared (i64), the hash of the prompt embeddings the held
- * labels index (u64) and the label hold (hold.h, 3 bytes a voxel); the
- * evidence's length (u64) and bytes (evidence.h; 0 without evidence);
- * FNV-1a 64 of everything before it. VLFFOBS2 files (without the marks and
- * the hold) and VLFFOBS1 files (without the evidence too) still load. */
+ * labels index (u64) and the label hold (hold.h, 3 bytes a voxel); (VLFFOBS4)
+ * the lost classes (evidence.h, VLFF_EVIDENCE_LOST_BYTES); the evidence's
+ * length (u64) and bytes (evidence.h; 0 without evidence); FNV-1a 64 of
+ * everything before it. VLFFOBS3 files (without the lost classes: found
+ * again by the first census), VLFFOBS2 files (without the marks and the
+ * hold) and VLFFOBS1 files (without the evidence too) still load. */
 enum { THRU_LISTED = 0x80, THRU_HIT = 0x40, THRU_PASSED = 0x20, THRU_GONE = 0x10, THRU_NEW = 0x08, THRU_RUN = 0x03 };
 /* The marks a voxel keeps between views (the rest are the view's being
  * observed): what a checkpoint saves. */
 enum { THRU_KEPT = THRU_GONE | THRU_NEW | THRU_RUN };
-#define OBS_MAGIC "VLFFOBS3"
+#define OBS_MAGIC "VLFFOBS4"
+#define OBS_MAGIC_V3 "VLFFOBS3"
 #define OBS_MAGIC_V2 "VLFFOBS2"
 #define OBS_MAGIC_V1 "VLFFOBS1"
 
@@ -274,15 +277,16 @@ struct obs_header {
 };
 
 /* The bytes of a VLFFOBS3 file's marks and hold, between hit_sum and the
- * evidence's length. */
+ * evidence's length; a VLFFOBS4 file's lost classes follow them. */
 static size_t obs_v3_size(const struct vlff_publisher *p) { return p->nvox + 16 + vlff_hold_save_size(p->hold); }
+static size_t obs_v4_size(const struct vlff_publisher *p) { return obs_v3_size(p) + VLFF_EVIDENCE_LOST_BYTES; }
 
 /* Written as it is made: the grids, then the evidence a megabyte at a time
  * (with paging it holds every voxel the robot has seen, most of it not in
  * memory), the checksum taken as the bytes go. */
 int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   size_t n = p->nvox, evn = p->ev ? vlff_evidence_save_size(p->ev) : 0;
-  size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + obs_v3_size(p) + 8;
+  size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + obs_v4_size(p) + 8;
   const size_t piece = (size_t)1 << 20, rec = 5 + (size_t)p->D * 2;
   uint8_t *buf = malloc(len > piece + rec ? len : piece + rec);
   if (!buf) return snprintf(err, errlen, "%s: out of memory", path), -1;
@@ -303,6 +307,7 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
   memcpy(q, &cleared, 8), q += 8;
   memcpy(q, &p->hold_prompts, 8), q += 8;
   vlff_hold_save(p->hold, q), q += vlff_hold_save_size(p->hold);
+  vlff_evidence_lost_save(p->ev, q), q += VLFF_EVIDENCE_LOST_BYTES;
   uint64_t ev64 = evn;
   memcpy(q, &ev64, 8), q += 8;
   struct vlff_atomic a;
@@ -394,13 +399,16 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     goto out;
   }
   if (obs_get(&r, 0, &h, sizeof h, err, errlen)) goto out;
-  const int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8), v2 = !memcmp(h.magic, OBS_MAGIC_V2, 8);
-  if (!v1 && !v2 && memcmp(h.magic, OBS_MAGIC, 8)) {
+  const int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8), v2 = !memcmp(h.magic, OBS_MAGIC_V2, 8),
+            v3 = !memcmp(h.magic, OBS_MAGIC_V3, 8);
+  if (!v1 && !v2 && !v3 && memcmp(h.magic, OBS_MAGIC, 8)) {
     snprintf(err, errlen, "%s: not an observation grid (magic %.8s)", path, h.magic);
     goto out;
   }
-  /* VLFFOBS3: the see-through marks and the label hold follow the grids. */
-  const size_t v3n = v1 || v2 ? 0 : obs_v3_size(p), evn_at = grids + v3n;
+  /* VLFFOBS3: the see-through marks and the label hold follow the grids;
+   * VLFFOBS4: the lost classes after them. */
+  const size_t v3n = v1 || v2 ? 0 : v3 ? obs_v3_size(p) : obs_v4_size(p), evn_at = grids + v3n;
+  const uint8_t *lost = NULL; /* in marks: the lost classes (VLFFOBS4) */
   if (!v1 && len >= evn_at + 16 && obs_get(&r, evn_at, &evn, 8, err, errlen)) goto out;
   /* The whole file is hashed before anything is taken from it: evidence
    * over EV_THIN_MAX times this budget, besides what the page file may add
@@ -473,11 +481,19 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
       snprintf(err, errlen, "%s: out of memory", path);
       goto out;
     }
-    int hrc = vlff_hold_load(tmp, marks + n + 16, v3n - n - 16, herr, sizeof herr);
+    const size_t hn = vlff_hold_save_size(p->hold);
+    int hrc = vlff_hold_load(tmp, marks + n + 16, hn, herr, sizeof herr);
     vlff_hold_destroy(tmp);
     if (hrc) {
       snprintf(err, errlen, "%s: %s", path, herr);
       goto out;
+    }
+    if (v3n > obs_v3_size(p)) {
+      lost = marks + n + 16 + hn;
+      if (vlff_evidence_lost_check(lost, VLFF_FIELD_MAX_PROMPTS, herr, sizeof herr)) {
+        snprintf(err, errlen, "%s: %s", path, herr);
+        goto out;
+      }
     }
   }
   /* The evidence first: it is checked whole before anything changes. A file
@@ -496,10 +512,15 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     if (erc > 0) {
       VLFF_WARN(TAG, "%s: %s; the map goes on without it", VLFF_Q(path), eerr);
       vlff_evidence_reset(p->ev);
-    } else if (vlff_evidence_evicted(p->ev))
-      VLFF_WARN(TAG, "%s: its evidence holds more voxels than publish.evidence_max_mb (%zu MB, %zu voxels); the %lld "
-                     "least-observed were given up",
-                VLFF_Q(path), p->ev_budget >> 20, vlff_evidence_capacity(p->ev), vlff_evidence_evicted(p->ev));
+    } else {
+      if (vlff_evidence_evicted(p->ev))
+        VLFF_WARN(TAG, "%s: its evidence holds more voxels than publish.evidence_max_mb (%zu MB, %zu voxels); the "
+                       "%lld least-observed were given up",
+                  VLFF_Q(path), p->ev_budget >> 20, vlff_evidence_capacity(p->ev), vlff_evidence_evicted(p->ev));
+      /* What the last census found lost goes on being read from this
+       * evidence (for the same prompts), from the first publish on. */
+      if (lost) vlff_evidence_lost_set(p->ev, lost);
+    }
   } else if (p->ev) {
     vlff_evidence_reset(p->ev);
   }
@@ -511,7 +532,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     memcpy(p->thru, marks, n);
     p->cleared = cleared;
     p->hold_prompts = hold_prompts;
-    vlff_hold_load(p->hold, marks + n + 16, v3n - n - 16, err, errlen); /* checked above: cannot refuse */
+    vlff_hold_load(p->hold, marks + n + 16, vlff_hold_save_size(p->hold), err, errlen); /* checked above */
   } else {
     memset(p->thru, 0, n);
     vlff_hold_reset(p->hold);

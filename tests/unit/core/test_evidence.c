@@ -290,6 +290,73 @@ static void test_lost_class_read_from_evidence(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* The census's verdict saved, and set on an evidence of the same views (a
+ * restarted node's, loaded from the map it saved): its first label call
+ * reads the lost prompt from the evidence, without a census of its own,
+ * for the same prompts only. A block no census writes is refused by
+ * what is wrong in it. */
+static void test_lost_classes_saved(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20), *r = make(1 << 20);
+  const float E[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
+  struct wall a, b;
+  wall_make(&a, 2.2f, (const float[D]){0.6f, 0.8f});
+  wall_make(&b, 3.2f, (const float[D]){0.8f, 0.6f});
+  char err[256];
+  for (int i = 0; i < 2; i++) {
+    struct vlff_evidence *x = i ? r : e;
+    assert_int_equal(vlff_evidence_add(x, &a.v, err, sizeof err), 0);
+    assert_int_equal(vlff_evidence_add(x, &b.v, err, sizeof err), 0);
+  }
+  enum { N = 32 };
+  float xyz[N * 3], fcos[N * 2];
+  uint16_t fitted[N];
+  for (int i = 0; i < N; i++) {
+    xyz[3 * i] = i & 1 ? 0.1f : -0.1f, xyz[3 * i + 1] = i & 2 ? 0.1f : -0.1f;
+    xyz[3 * i + 2] = i < N / 2 ? 2.2f : 3.2f;
+    fcos[2 * i] = 0.9f, fcos[2 * i + 1] = 0.5f;
+    fitted[i] = 60;
+  }
+  int lab[N];
+  uint8_t blk[VLFF_EVIDENCE_LOST_BYTES], bad[VLFF_EVIDENCE_LOST_BYTES];
+  vlff_evidence_lost_save(e, blk); /* nothing lost yet: a block that restores nothing */
+  assert_int_equal(vlff_evidence_lost_check(blk, 8, err, sizeof err), 0);
+  vlff_evidence_census_begin(e);
+  vlff_evidence_label(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(vlff_evidence_census_end(e, 0.25), 1);
+  /* Before: the restarted evidence's first labels are the field's. */
+  vlff_evidence_label(r, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  assert_int_equal(lab[0], 0);
+  vlff_evidence_lost_save(e, blk);
+  assert_int_equal(vlff_evidence_lost_check(blk, 8, err, sizeof err), 0);
+  vlff_evidence_lost_set(r, blk);
+  assert_true(vlff_evidence_lost(r, 1, NULL, NULL));
+  assert_false(vlff_evidence_lost(r, 0, NULL, NULL));
+  vlff_evidence_label(r, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL);
+  for (int i = 0; i < N; i++) assert_int_equal(lab[i], i < N / 2 ? 1 : 0);
+  vlff_evidence_label(r, xyz, N, fcos, fitted, 50, E, 2, 7, 1.0f, lab, NULL, NULL); /* other prompts */
+  assert_int_equal(lab[0], 0);
+  /* Forged blocks. */
+  memcpy(bad, blk, sizeof bad);
+  bad[16 + 1] = 2;
+  assert_int_equal(vlff_evidence_lost_check(bad, 8, err, sizeof err), -1);
+  assert_non_null(strstr(err, "prompt 1 marked 2"));
+  memcpy(bad, blk, sizeof bad);
+  bad[16 + 5] = 1; /* past the census's 2 prompts */
+  assert_int_equal(vlff_evidence_lost_check(bad, 8, err, sizeof err), -1);
+  assert_non_null(strstr(err, "prompt 5 marked 1 (of 2 prompts)"));
+  memcpy(bad, blk, sizeof bad);
+  bad[12] = 3; /* the lost count */
+  assert_int_equal(vlff_evidence_lost_check(bad, 8, err, sizeof err), -1);
+  assert_non_null(strstr(err, "1 marked, the block says 3"));
+  memcpy(bad, blk, sizeof bad);
+  bad[8] = 9; /* prompts beyond what the evidence takes */
+  assert_int_equal(vlff_evidence_lost_check(bad, 8, err, sizeof err), -1);
+  assert_non_null(strstr(err, "9 prompts, expected 0 to 8"));
+  vlff_evidence_destroy(e);
+  vlff_evidence_destroy(r);
+}
+
 /* A budget full of what the view in hand saw leaves further voxels to the
  * field, counted; bad values in a view are skipped; a view of another D is
  * refused. */
@@ -664,6 +731,7 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_footprint_reaches_every_voxel),
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
+    cmocka_unit_test(test_lost_classes_saved),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
     cmocka_unit_test(test_full_budget_pages_out),
     cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load), cmocka_unit_test(test_load_thins_to_budget),

@@ -158,6 +158,15 @@ static void test_saved_map_loads_within_budget(void **state) {
                              *ec = vlff_publisher_evidence(c);
   assert_true(vlff_evidence_voxels(ea) > vlff_evidence_capacity(eb));
   assert_int_equal(vlff_evidence_evicted(ea), 0);
+  /* Prompt 2 of 3 lost, as a census leaves it: saved with the map, it is
+   * read from the loaded evidence at once (before, only after the restarted
+   * node's first census). */
+  uint8_t lost[VLFF_EVIDENCE_LOST_BYTES] = {0};
+  const uint64_t stamp = 42;
+  const int32_t nk = 3;
+  const uint32_t one = 1;
+  memcpy(lost, &stamp, 8), memcpy(lost + 8, &nk, 4), memcpy(lost + 12, &one, 4), lost[16 + 2] = 1;
+  vlff_evidence_lost_set((struct vlff_evidence *)ea, lost); /* a's own evidence: the test made it */
   char path[] = "/tmp/vlff-test-publish-XXXXXX";
   int fd = mkstemp(path);
   assert_true(fd >= 0);
@@ -166,6 +175,8 @@ static void test_saved_map_loads_within_budget(void **state) {
   assert_int_equal(vlff_publisher_load(c, path, err, sizeof err), 0);
   assert_int_equal(vlff_evidence_voxels(ec), vlff_evidence_voxels(ea));
   assert_int_equal(count_known(c), count_known(a));
+  assert_true(vlff_evidence_lost(ec, 2, NULL, NULL));
+  assert_false(vlff_evidence_lost(ec, 1, NULL, NULL));
   assert_int_equal(vlff_publisher_load(b, path, err, sizeof err), 0);
   const size_t cap = vlff_evidence_capacity(eb);
   assert_int_equal(vlff_evidence_voxels(eb), cap);
@@ -177,6 +188,7 @@ static void test_saved_map_loads_within_budget(void **state) {
    * load, the evidence starts empty. */
   assert_int_equal(vlff_publisher_load(d, path, err, sizeof err), 0);
   assert_int_equal(vlff_evidence_voxels(vlff_publisher_evidence(d)), 0);
+  assert_false(vlff_evidence_lost(vlff_publisher_evidence(d), 2, NULL, NULL)); /* of evidence not loaded */
   assert_int_equal(count_known(d), known);
   /* Without evidence (publish.evidence_weight 0) the observations load and
    * the evidence is passed over. */
@@ -796,13 +808,19 @@ static void test_hold_survives_restart(void **state) {
   assert_false(vlff_publisher_surface_known(pb, old_pt));
   assert_true(vlff_publisher_cleared(pb) > 0);
 
-  /* Forged: a label no prompt has, a mark no view makes. The file: a 56-byte
-   * header, 15 bytes a voxel of grids, 1 of marks, 16 of counts, 3 of hold,
-   * the evidence's length (0 here) and the checksum. */
+  /* Forged: a label no prompt has, a mark no view makes, a lost-class
+   * block no census writes. The file: a 56-byte header, 15 bytes a voxel
+   * of grids, 1 of marks, 16 of counts, 3 of hold, the lost classes, the
+   * evidence's length (0 here) and the checksum. */
   struct stat st;
   assert_int_equal(stat(path, &st), 0);
-  const long n = ((long)st.st_size - 56 - 16 - 16) / 19, hold_at = 56 + 16 * n + 16;
-  assert_int_equal(56 + 19 * n + 32, st.st_size);
+  const long LB = VLFF_EVIDENCE_LOST_BYTES;
+  const long n = ((long)st.st_size - 56 - 16 - LB - 16) / 19, hold_at = 56 + 16 * n + 16;
+  assert_int_equal(56 + 19 * n + LB + 32, st.st_size);
+  forge(path, hold_at + 3 * n + 16 + 3, 1); /* prompt 3 lost, of none */
+  assert_int_equal(vlff_publisher_load(pc, path, err, sizeof err), -1);
+  assert_non_null(strstr(err, "lost classes: prompt 3 marked 1 (of 0 prompts)"));
+  assert_int_equal(vlff_publisher_save(pa, path, err, sizeof err), 0);
   forge(path, hold_at + 3 * 7, 0);
   forge(path, hold_at + 3 * 7 + 1, 0x12);
   assert_int_equal(vlff_publisher_load(pc, path, err, sizeof err), -1);
