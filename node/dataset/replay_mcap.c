@@ -202,10 +202,16 @@ static int play(struct player *p) {
        * rather than bursting to catch up. */
       if (!have_newest || rec > newest) {
         uint64_t now = vlff_now_ns(), due = base + off;
-        if (now > due + (o->backpressure ? 0 : 1000000ull)) {
-          if (!o->backpressure && ev.kind == VLFF_IN_EV_FRAME) p->late++;
+        if (o->backpressure) {
+          /* Paced by the reader, not the schedule: a stamp is when its
+           * records go out. One kept from the schedule was ahead of the
+           * clock whenever the reader ran faster than the recording, and the
+           * node refuses a pose from the future. */
           base = now - off;
-        } else if (!o->backpressure) {
+        } else if (now > due + 1000000ull) {
+          if (ev.kind == VLFF_IN_EV_FRAME) p->late++;
+          base = now - off;
+        } else {
           vlff_replay_sleep_until(due);
         }
         newest = rec, have_newest = 1;
