@@ -1009,6 +1009,19 @@ static int relay_send(struct gate *from, struct gate *to, const void *data, size
   return 0;
 }
 
+/* The relay's end of its socket pair closes: what libwebsockets wrote into the
+ * pair and the relay has not read yet (it stops reading while the client's
+ * socket is full: a slow client's close frame, 1013) goes to the client before
+ * its end closes too. Without this, a client dropped as too slow now and then
+ * got no close frame at all (1006). */
+static void relay_forward_rest(struct gate *g, struct gate *o) {
+  int fd = lws_get_socket_fd(g->wsi);
+  if (fd < 0) return;
+  unsigned char b[LWS_PRE + 16384];
+  for (ssize_t n; (n = recv(fd, b + LWS_PRE, sizeof b - LWS_PRE, MSG_DONTWAIT)) > 0;)
+    if (lws_write(o->wsi, b + LWS_PRE, (size_t)n, LWS_WRITE_RAW) < (int)n) break; /* sent as it can, in order */
+}
+
 /* Reads the client's frame headers in data[n]: the offset of the first frame that
  * is not masked (RFC 6455 5.1: a server must close the connection), or n. */
 static size_t relay_scan(struct gate *g, const unsigned char *d, size_t n) {
@@ -1230,7 +1243,18 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
       if (!g->pair || g->closing) return 0; /* the other end is gone: drop */
       if (g->inner) return relay_send(g, g->pair, in, len);
       size_t ok = relay_scan(g, in, len);
-      if (ok && relay_send(g, g->pair, in, ok)) return -1;
+      if (ok && relay_send(g, g->pair, in, ok)) {
+        /* The viewer's end is gone (it has just closed this client): the
+         * client's bytes have nowhere to go. Closing here reset the
+         * connection with them unread, and the reset destroyed what the
+         * viewer sent last, its close frame, before the client read it
+         * (1006 rather than 1013 for a client dropped as too slow). This end
+         * is ended in order instead: flushed, shut, lingering. */
+        g->closing = 1;
+        lws_set_timeout(wsi, PENDING_TIMEOUT_USER_REASON_BASE, 2 * GATE_LINGER_S);
+        lws_callback_on_writable(wsi);
+        return 0;
+      }
       if (ok < len) relay_refuse_unmasked(g);
       return 0;
     }
@@ -1308,6 +1332,7 @@ static int gate_cb(struct lws *wsi, enum lws_callback_reasons reason, void *user
         if (o->inner) {
           lws_set_timeout(o->wsi, PENDING_TIMEOUT_USER_REASON_BASE, LWS_TO_KILL_ASYNC);
         } else { /* the client gets what libwebsockets sent (its close frame) first */
+          relay_forward_rest(g, o);
           o->closing = 1;
           lws_set_timeout(o->wsi, PENDING_TIMEOUT_USER_REASON_BASE, 2 * GATE_LINGER_S);
           lws_callback_on_writable(o->wsi);
