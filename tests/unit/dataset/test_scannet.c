@@ -959,6 +959,13 @@ static pid_t child;
 static char replay_shm[3][64];
 
 #ifdef VLFF_REPLAY_BUILT
+/* The segments the last replay test named, removed: by the next replay test
+ * before it names its own (teardown runs once, after all of them, and saw
+ * only the last test's: every run left the first one's in /dev/shm). */
+static void replay_shm_unlink(void) {
+  for (int k = 0; k < 3; k++)
+    if (replay_shm[k][0]) vlff_shm_unlink(replay_shm[k]), replay_shm[k][0] = 0;
+}
 /* vlff-replay plays the raw .sens into the rings a live node reads: each
  * usable frame (the lost one passed over) arrives as the dataset reader
  * gives it, colour and depth at the colour camera's size, with the reader's
@@ -968,6 +975,7 @@ static void test_replay_sens(void **state) {
   char dir[400], path[600], cfg[700], err[512];
   sens_scene(dir, sizeof dir, path, sizeof path, "scene0005_00");
   const char *what[3] = {"r", "p", "f"};
+  replay_shm_unlink();
   for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-tscn-%d-%s", (int)getpid(), what[k]);
   snprintf(cfg, sizeof cfg, "%s/replay.yaml", root);
   putf(cfg, "shm:\n  ring: %s\n  pose_ring: %s\n  feature_ring: %s\n  ring_slots: 4\n", replay_shm[0], replay_shm[1], replay_shm[2]);
@@ -1045,6 +1053,7 @@ static void test_replay_some_features(void **state) {
   const long long first[1] = {0};
   write_feats(p, 0, 1, 2, 2, 4, 4, first, 1, 0);
   const char *what[3] = {"r", "p", "f"};
+  replay_shm_unlink();
   for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-tscf-%d-%s", (int)getpid(), what[k]);
   snprintf(cfg, sizeof cfg, "%s/replay-f.yaml", root);
   putf(cfg, "shm:\n  ring: %s\n  pose_ring: %s\n  feature_ring: %s\n  ring_slots: 4\n", replay_shm[0], replay_shm[1],
@@ -1085,8 +1094,7 @@ static int teardown(void **state) {
     child = 0;
   }
 #ifdef VLFF_REPLAY_BUILT
-  for (int k = 0; k < 3; k++)
-    if (replay_shm[k][0]) vlff_shm_unlink(replay_shm[k]), replay_shm[k][0] = 0;
+  replay_shm_unlink();
 #endif
   nftw(root, rm_one, 16, FTW_DEPTH | FTW_PHYS);
   return 0;
