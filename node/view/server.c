@@ -1017,9 +1017,9 @@ static int relay_send(struct gate *from, struct gate *to, const void *data, size
 static void relay_forward_rest(struct gate *g, struct gate *o) {
   int fd = lws_get_socket_fd(g->wsi);
   if (fd < 0) return;
-  unsigned char b[LWS_PRE + 16384];
-  for (ssize_t n; (n = recv(fd, b + LWS_PRE, sizeof b - LWS_PRE, MSG_DONTWAIT)) > 0;)
-    if (lws_write(o->wsi, b + LWS_PRE, (size_t)n, LWS_WRITE_RAW) < (int)n) break; /* sent as it can, in order */
+  unsigned char b[16384];
+  for (ssize_t n; (n = recv(fd, b, sizeof b, MSG_DONTWAIT)) > 0;)
+    if (relay_send(g, o, b, (size_t)n)) break;
 }
 
 /* Reads the client's frame headers in data[n]: the offset of the first frame that

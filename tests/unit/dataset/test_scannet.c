@@ -966,6 +966,12 @@ static void replay_shm_unlink(void) {
   for (int k = 0; k < 3; k++)
     if (replay_shm[k][0]) vlff_shm_unlink(replay_shm[k]), replay_shm[k][0] = 0;
 }
+/* The ring segments of the replay test named by tag, the last test's gone. */
+static void replay_shm_name(const char *tag) {
+  const char *what[3] = {"r", "p", "f"};
+  replay_shm_unlink();
+  for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-%s-%d-%s", tag, (int)getpid(), what[k]);
+}
 /* vlff-replay plays the raw .sens into the rings a live node reads: each
  * usable frame (the lost one passed over) arrives as the dataset reader
  * gives it, colour and depth at the colour camera's size, with the reader's
@@ -974,9 +980,7 @@ static void test_replay_sens(void **state) {
   (void)state;
   char dir[400], path[600], cfg[700], err[512];
   sens_scene(dir, sizeof dir, path, sizeof path, "scene0005_00");
-  const char *what[3] = {"r", "p", "f"};
-  replay_shm_unlink();
-  for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-tscn-%d-%s", (int)getpid(), what[k]);
+  replay_shm_name("tscn");
   snprintf(cfg, sizeof cfg, "%s/replay.yaml", root);
   putf(cfg, "shm:\n  ring: %s\n  pose_ring: %s\n  feature_ring: %s\n  ring_slots: 4\n", replay_shm[0], replay_shm[1], replay_shm[2]);
   struct vlff_dataset ds;
@@ -1052,9 +1056,7 @@ static void test_replay_some_features(void **state) {
   snprintf(p, sizeof p, "%s/features.hdf", dir);
   const long long first[1] = {0};
   write_feats(p, 0, 1, 2, 2, 4, 4, first, 1, 0);
-  const char *what[3] = {"r", "p", "f"};
-  replay_shm_unlink();
-  for (int k = 0; k < 3; k++) snprintf(replay_shm[k], sizeof replay_shm[k], "/vlff-tscf-%d-%s", (int)getpid(), what[k]);
+  replay_shm_name("tscf");
   snprintf(cfg, sizeof cfg, "%s/replay-f.yaml", root);
   putf(cfg, "shm:\n  ring: %s\n  pose_ring: %s\n  feature_ring: %s\n  ring_slots: 4\n", replay_shm[0], replay_shm[1],
        replay_shm[2]);
