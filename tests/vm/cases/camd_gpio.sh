@@ -6,6 +6,7 @@
 # vm-tools: arv-fake-gv-camera-0.8
 # vm-files: tests/vm/cases/camd.inc
 # vm-timeout: 90
+# vm-stream: cameras
 set -e
 . "$VLFF_SRC/tests/vm/cases/camd.inc"
 camd_gpio_run vlff-camd gpio-trigger 127.0.0.1

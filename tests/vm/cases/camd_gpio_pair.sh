@@ -7,6 +7,7 @@
 # vm-tools: arv-fake-gv-camera-0.8
 # vm-files: tests/vm/cases/camd.inc
 # vm-timeout: 120
+# vm-stream: cameras
 set -e
 . "$VLFF_SRC/tests/vm/cases/camd.inc"
 ip link set lo up

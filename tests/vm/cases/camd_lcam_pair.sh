@@ -11,6 +11,7 @@
 # vm-host-files: /usr/lib/x86_64-linux-gnu/libcamera/vimc_ipa_proxy /usr/share/libcamera/ipa/vimc
 # vm-files: tests/vm/cases/camd.inc
 # vm-timeout: 180
+# vm-stream: cameras
 set -e
 . "$VLFF_SRC/tests/vm/cases/camd.inc"
 ip link set lo up

@@ -8,6 +8,7 @@
 # vm-host-files: /usr/lib/x86_64-linux-gnu/libcamera/vimc_ipa_proxy /usr/share/libcamera/ipa/vimc
 # vm-files: tests/vm/cases/camd.inc
 # vm-timeout: 150
+# vm-stream: cameras
 # vm-host-check: /usr/bin/python3 tests/install/sandbox_check.py --vm configs/systemd/vlff-camd.service.in
 set -e
 . "$VLFF_SRC/tests/vm/cases/camd.inc"
