@@ -226,7 +226,9 @@ static void test_convergence(void **state) {
   const int d = 16, nv = 16, W = 40, H = 30;
   struct vlff_config cfg;
   scene_cfg(&cfg, d);
-  cfg.train.rays_per_step = light() ? 256 : 512;
+  /* Under emulation half the sanitizers' rays: a step there costs what 100
+   * native ones do, and the light thresholds hold with a margin at 128. */
+  cfg.train.rays_per_step = vlff_test_emulator() ? 128 : light() ? 256 : 512;
   cfg.train.samples_per_ray = 32; /* the thresholds were fixed at this budget */
   cfg.train.feature_loss = VLFF_FEAT_LOSS_L1;
   const int steps = light() ? 60 : 150;
