@@ -236,6 +236,8 @@ static const struct key schema[] = {
     DVEC("field.scene_min", field.scene_min, -1e4, 1e4, scene_min_def),
     DVEC("field.scene_max", field.scene_max, -1e4, 1e4, scene_max_def),
     STR("field.scene_box_file", field.scene_box_file, ""),
+    BOOL("field.grow", field.grow, 0),
+    DBL("field.world_limit_m", field.world_limit_m, 10, 1e4, 1000),
 
     DBL("train.lr", train.lr, 0, 10, 1e-2),
     DBL("train.beta1", train.beta1, 0, 0.999999, 0.9),
@@ -259,6 +261,7 @@ static const struct key schema[] = {
     DBL("train.near_m", train.near_m, 0, 100, 0.05),
     DBL("train.depth_noise_m", train.depth_noise_m, 0, 1, 0.01),
     INT("train.occupancy_resolution", train.occupancy_resolution, 8, 512, 64),
+    DBL("train.occupancy_max_mb", train.occupancy_max_mb, 1, 1 << 20, 256),
     INT("train.occupancy_update_steps", train.occupancy_update_steps, 1, 1 << 20, 16),
     DBL("train.image_scale", train.image_scale, 0.05, 1, 0.5),
 
@@ -1259,6 +1262,14 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
     if (!(cfg->field.scene_min[i] < cfg->field.scene_max[i]))
       return fail_cross(p, "field.scene_max", "expected scene_max > scene_min on every axis, got axis %d with %g <= %g", i,
                   cfg->field.scene_max[i], cfg->field.scene_min[i]);
+  if (cfg->field.grow)
+    for (int i = 0; i < 3; i++) {
+      double w = cfg->field.world_limit_m;
+      if (!(cfg->field.scene_min[i] >= -w && cfg->field.scene_max[i] <= w))
+        return fail_cross(p, "field.scene_min", "expected the first box within field.world_limit_m (%g m) of the "
+                          "origin when field.grow is on, got axis %d spanning [%g, %g]",
+                          w, i, cfg->field.scene_min[i], cfg->field.scene_max[i]);
+    }
   if (cfg->prompts.active >= cfg->prompts.set_count)
     return fail_cross(p, "prompts.active", "expected an index below %d (the number of prompt sets), got %d",
                 cfg->prompts.set_count, cfg->prompts.active);
@@ -1590,8 +1601,15 @@ uint64_t vlff_config_field_hash(const struct vlff_cfg_field *field) {
     const struct key *k = &schema[i];
     /* A path says where the box came from; the box itself is hashed. */
     if (strncmp(k->path, "field.", 6) || k->type == T_STRING) continue;
+    /* The growth keys change nothing a fixed box's field learns: a fixed
+     * field's hash is the one it had before they existed, so its
+     * checkpoints still load. */
+    if (!field->grow && (!strcmp(k->path, "field.grow") || !strcmp(k->path, "field.world_limit_m"))) continue;
     h = vlff_fnv1a64(h, k->path, strlen(k->path));
-    size_t n = k->type == T_DVEC ? k->size * sizeof(double) : k->type == T_INT ? sizeof(int) : sizeof(double);
+    size_t n = k->type == T_DVEC  ? k->size * sizeof(double)
+               : k->type == T_INT ? sizeof(int)
+               : k->type == T_BOOL ? sizeof(bool)
+                                   : sizeof(double);
     /* The schema's offsets are into the whole config; this is its field section. */
     h = vlff_fnv1a64(h, (const char *)field + (k->off - offsetof(struct vlff_config, field)), n);
   }

@@ -173,6 +173,10 @@ struct vlff_cfg_field {
   int sh_degree;
   double scene_min[3], scene_max[3];
   char scene_box_file[VLFF_CFG_PATH]; /* a bbox.txt that sets scene_min/max ("" = none) */
+  /* The box grows where depth lands (field.h "Growth"): scene_min/max are
+   * then the first box, and the learned cells keep their size in metres. */
+  bool grow;
+  double world_limit_m;            /* growth stays within +-this of the origin */
 };
 
 struct vlff_cfg_train {
@@ -196,6 +200,7 @@ struct vlff_cfg_train {
   double near_m;
   double depth_noise_m;            /* the depth sensor's noise sigma at 1 m, growing with range squared */
   int occupancy_resolution;
+  double occupancy_max_mb;         /* a growing field's occupancy cells stay within this */
   int occupancy_update_steps;
   double image_scale;              /* training images scaled by this */
 };

@@ -4,7 +4,9 @@
  * Layout (host byte order, checked by a byte-order mark):
  *   header  : magic "VLFFCKPT", version, byte-order mark, config field hash,
  *             array sizes, step, rng, occupancy cursor, the encoding's
- *             cells (from version 5; before, per axis)
+ *             cells (from version 5; before, per axis); from version 6 the
+ *             occupancy grid's place on its lattice (first cell, cells per
+ *             axis: the box, which a growing field's checkpoint restores)
  *   arrays  : params, Adam m, Adam v (float32), occupancy density (float32),
  *             occupancy bits (uint8), per-cell exposure (uint16; from
  *             version 2), the averaged MLP weights queries read (float32,
@@ -33,7 +35,7 @@
 #include "mem.h"
 
 #define CKPT_MAGIC "VLFFCKPT"
-#define CKPT_VERSION 5u
+#define CKPT_VERSION 6u
 /* Version 1 lacks the exposure; it still loads, the field counting as fitted
  * everywhere, so a robot's learned map survives the upgrade. Its later
  * checkpoints carry that on until a mapping reset: nothing tells where an
@@ -49,6 +51,9 @@
  * field loads in those cells, and says so in its later checkpoints
  * (header's cells: 0) until a mapping reset makes them cubic. */
 #define CKPT_VERSION_AXIS_CELLS 4u
+/* Versions 1-5 hold no box: their grid is the fixed box's (growing fields
+ * came with version 6). */
+#define CKPT_VERSION_NO_BOX 5u
 #define CKPT_BOM 0x01020304u
 
 struct ckpt_header {
@@ -60,6 +65,9 @@ struct ckpt_header {
   uint64_t rng;
   int64_t occ_cursor;
   int32_t feature_dim, cells; /* cells (from version 5): 1 cubic, 0 scaled per axis (encoding.c) */
+};
+struct ckpt_box { /* from version 6, after the header */
+  int32_t k0[3], dims[3];
 };
 
 /* Word-wise FNV-style mix: fast enough for hundreds of MB. */
@@ -208,10 +216,12 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   h.occ_cursor = f->occ_cursor;
   h.feature_dim = f->D;
   h.cells = f->enc.cubic;
+  struct ckpt_box b;
+  for (int i = 0; i < 3; i++) b.k0[i] = f->occ_k0[i], b.dims[i] = f->occ.dims[i];
   struct sum s;
   sum_init(&s);
   size_t np = f->nparams * sizeof(float), nc = vlff_occ_cells(&f->occ);
-  int rc = write_all(fd, &h, sizeof(h), &s) || write_all(fd, f->params, np, &s) ||
+  int rc = write_all(fd, &h, sizeof(h), &s) || write_all(fd, &b, sizeof b, &s) || write_all(fd, f->params, np, &s) ||
            write_all(fd, f->adam_m, np, &s) || write_all(fd, f->adam_v, np, &s) ||
            write_all(fd, f->occ.density, nc * sizeof(float), &s) || write_all(fd, f->occ.occ, nc, &s) ||
            write_all(fd, f->exposure, nc * sizeof(uint16_t), &s) || write_all(fd, f->avg, f->nmlp * sizeof(float), &s) ||
@@ -227,6 +237,37 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   }
   if (vlff_atomic_commit(&a, cerr, sizeof cerr) < 0) {
     if (err && errlen) snprintf(err, errlen, "checkpoint %s", cerr);
+    return -1;
+  }
+  return 0;
+}
+
+/* A checkpoint's box: the fixed box's grid when fixed; when growing, cells
+ * of the lattice within the world and within train.occupancy_max_mb. */
+static int box_check(const struct vlff_field *f, const struct ckpt_box *b, char *why, size_t len) {
+  const struct vlff_field_cfg *c = &f->cfg;
+  double cells = 1;
+  for (int a = 0; a < 3; a++) {
+    if (!c->field.grow) {
+      if (b->k0[a] != 0 || b->dims[a] != c->train.occupancy_resolution) {
+        snprintf(why, len, "box: grid axis %d is cells [%d, +%d), the fixed box's is [0, +%d)", a, (int)b->k0[a],
+                 (int)b->dims[a], c->train.occupancy_resolution);
+        return -1;
+      }
+      continue;
+    }
+    double lo = f->first_lo[a] + (double)b->k0[a] * f->occ.cell[a], hi = lo + (double)b->dims[a] * f->occ.cell[a];
+    double w = c->field.world_limit_m + f->occ.cell[a];
+    if (b->dims[a] < 1 || !(lo >= -w && hi <= w)) {
+      snprintf(why, len, "box: axis %d spans [%g, %g] m, not within field.world_limit_m (%g)", a, lo, hi,
+               c->field.world_limit_m);
+      return -1;
+    }
+    cells *= b->dims[a];
+  }
+  if (cells * (double)vlff_occ_cell_bytes() > c->train.occupancy_max_mb * 1048576.0) {
+    snprintf(why, len, "box: %.0f occupancy cells, more than train.occupancy_max_mb (%g) holds", cells,
+             c->train.occupancy_max_mb);
     return -1;
   }
   return 0;
@@ -253,8 +294,19 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   uint8_t *occ = NULL;
   uint16_t *expo = NULL;
   size_t np = f->nparams, nc = vlff_occ_cells(&f->occ);
+  struct ckpt_box b;
+  for (int i = 0; i < 3; i++) b.k0[i] = f->occ_k0[i], b.dims[i] = f->occ.dims[i];
   int r = read_all(fd, &h, sizeof(h), &s);
-  if (r)
+  if (!r && !memcmp(h.magic, CKPT_MAGIC, 8) && h.version > CKPT_VERSION_NO_BOX && h.version <= CKPT_VERSION) {
+    r = read_all(fd, &b, sizeof b, &s);
+    if (!r && box_check(f, &b, whybuf, sizeof whybuf)) why = whybuf;
+    nc = (size_t)b.dims[0] * b.dims[1] * b.dims[2]; /* within the cap when box_check passed */
+  } else if (!r && f->cfg.field.grow) {
+    nc = 0, why = "a growing field's checkpoint holds its box (version 6 on), this one none";
+  }
+  if (why) {
+    /* the box's verdict */
+  } else if (r)
     why = "truncated header";
   else if (memcmp(h.magic, CKPT_MAGIC, 8))
     why = "not a vlff checkpoint (bad magic)";
@@ -268,6 +320,8 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     why = "array sizes differ from this model";
   else if (h.version > CKPT_VERSION_AXIS_CELLS && h.cells != 0 && h.cells != 1)
     why = "cells neither cubic (1) nor per axis (0)";
+  else if (f->cfg.field.grow && h.cells != 1)
+    why = "a growing field's cells are cubic (1)";
   else if (h.step < 0 || h.step > VLFF_FIELD_MAX_STEP) {
     snprintf(whybuf, sizeof whybuf, "step %lld outside [0, %lld]", (long long)h.step, (long long)VLFF_FIELD_MAX_STEP);
     why = whybuf;
@@ -321,6 +375,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
     return -1;
   }
   VLFF_FREE_ALL(f->params, f->adam_m, f->adam_v, f->occ.density, f->occ.occ, f->exposure, f->avg, f->cell_err);
+  for (int i = 0; i < 3; i++) f->occ_k0[i] = b.k0[i], f->occ.dims[i] = b.dims[i];
   f->params = p;
   f->adam_m = m;
   f->adam_v = v;
@@ -330,6 +385,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   f->rng = h.rng;
   f->occ_cursor = (int)h.occ_cursor;
   vlff_encoding_set_cells(&f->enc, h.version > CKPT_VERSION_AXIS_CELLS ? h.cells : 0);
+  vlff_field_set_box(f);
   /* Where the field was fitted is learned state too: resumed with less,
    * its cosines would outweigh the evidence where it has hardly trained
    * (the kill -9 test saw the resumed 3D map 5-8 points below the one

@@ -43,20 +43,37 @@ void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cf
   e->freq_bands = cfg->freq_bands;
   e->size = 1u << e->log2_size;
   e->dim = e->levels * e->feats + 6 * e->freq_bands;
+  e->grow = cfg->grow;
+  double first = 0; /* the first box's longest side */
   for (int i = 0; i < 3; i++) {
-    e->box_min[i] = (float)cfg->scene_min[i];
-    e->box_ext[i] = cfg->scene_max[i] - cfg->scene_min[i];
+    e->freq_ext[i] = e->box_ext[i] = cfg->scene_max[i] - cfg->scene_min[i];
+    first = fmax(first, e->box_ext[i]);
+  }
+  /* A growing field's levels count their cells over the world's side: that
+   * many times the first box's, so each keeps its cell size in metres. */
+  double world = 1.0;
+  for (int i = 0; i < 3; i++) {
+    if (e->grow) {
+      double half = cfg->world_limit_m + first;
+      e->box_min[i] = (float)(0.5 * (cfg->scene_min[i] + cfg->scene_max[i]) - half);
+      e->box_ext[i] = 2 * half;
+      world = 2 * half / first;
+    } else {
+      e->box_min[i] = (float)cfg->scene_min[i];
+    }
   }
   vlff_encoding_set_cells(e, 1);
   double base = cfg->base_resolution, fine = cfg->finest_resolution;
   double growth = e->levels > 1 ? exp((log(fine) - log(base)) / (e->levels - 1)) : 1.0;
   for (int l = 0; l < e->levels; l++) {
-    double r = floor(base * pow(growth, l) + 1e-6);
+    double r = floor(base * pow(growth, l) * world + 1e-6);
     if (r < 1) r = 1;
     e->res[l] = (float)r;
     double pts = (r + 1) * (r + 1) * (r + 1);
-    e->dense[l] = pts <= (double)e->size;
+    /* A dense level would have to cover the whole world. */
+    e->dense[l] = !e->grow && pts <= (double)e->size;
   }
+  vlff_encoding_set_inside(e, cfg->scene_min, cfg->scene_max);
   /* The gather kernel follows the GEMM's choice, so VLFF_GEMM=generic
    * makes the whole field portable code. */
   e->simd = VLFF_ENC_V4 && e->feats == 2 ? vlff_gemm_isa_level() : VLFF_ISA_PORTABLE;
@@ -75,7 +92,20 @@ void vlff_encoding_set_cells(struct vlff_encoding *e, int cubic) {
     double s = cubic ? m : e->box_ext[i];
     e->box_scale[i] = (float)(1.0 / s);
     e->p_top[i] = (float)(e->box_ext[i] / s);
-    e->freq_scale[i] = (float)(M_PI * s / e->box_ext[i]);
+    e->freq_scale[i] = (float)(M_PI * s / e->freq_ext[i]);
+    if (!e->grow) e->in_lo[i] = 0.0f, e->in_hi[i] = e->p_top[i];
+  }
+}
+
+void vlff_encoding_set_inside(struct vlff_encoding *e, const double lo[3], const double hi[3]) {
+  for (int i = 0; i < 3; i++) {
+    if (e->grow) {
+      e->in_lo[i] = (float)((lo[i] - e->box_min[i]) * e->box_scale[i]);
+      e->in_hi[i] = (float)((hi[i] - e->box_min[i]) * e->box_scale[i]);
+    } else { /* exactly the clamp's bounds: the fixed box's results are unchanged */
+      e->in_lo[i] = 0.0f;
+      e->in_hi[i] = e->p_top[i];
+    }
   }
 }
 
@@ -85,6 +115,7 @@ int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float
     float v = (x[i] - e->box_min[i]) * e->box_scale[i];
     if (!(v >= 0.0f)) { v = 0.0f; inside = 0; }  /* also catches NaN */
     if (v > e->p_top[i]) { v = e->p_top[i]; inside = 0; }
+    if (v < e->in_lo[i] || v > e->in_hi[i]) inside = 0;
     p[i] = v;
   }
   return inside;

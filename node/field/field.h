@@ -134,13 +134,34 @@ const float *vlff_field_prompt_embeddings(const struct vlff_field *f, int *k);
 
 /* How much the field has been fitted at n points: rays[n] = the training
  * rays whose measured depth ended in the point's occupancy cell
- * (train.occupancy_resolution^3 over the box), saturating at 65535; 0
+ * (train.occupancy_resolution^3 over a fixed box), saturating at 65535; 0
  * outside the box. Checkpoints keep it; a field loaded from a version-1
  * checkpoint, which lacks it, counts 65535 in every cell. Where the camera
  * has only just looked, the field's feature is what the shared decoder
  * says of other places: a map can trust its own fused evidence more there
  * (evidence.h). */
 void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n, uint16_t *rays);
+
+/* Growth (field.grow). The field's box is where it samples rays and keeps
+ * occupancy; outside it density is 0 and nothing is rendered. Fixed, it is
+ * field.scene_min/max. Growing, those are the first box, and the hash grid
+ * and the frequency part are laid over the whole world (+-field.world_limit_m
+ * around the first box) with the first box's cell sizes in metres: a point's
+ * encoding never changes when the box grows, so growing changes nothing the
+ * field has learned. The occupancy cells are cubic (the first box's longest
+ * side over train.occupancy_resolution), on one lattice from the first box's
+ * low corner.
+ *  - vlff_field_grow: the box grows, in whole cells, to hold [lo, hi]
+ *    (clipped to the world): 1 grown, 0 when it already held it, -1 (f
+ *    unchanged) when the box is fixed, the box is empty or not finite, or
+ *    the cells would pass train.occupancy_max_mb (err names the size). New
+ *    cells start as a new field's (occupied, nothing fitted); old cells keep
+ *    their state. A mapping reset (vlff_field_reinit) returns to the first
+ *    box. Checkpoints keep the box.
+ *  - vlff_field_box: the box now; vlff_field_growths: growths since create. */
+int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen);
+void vlff_field_box(const struct vlff_field *f, double lo[3], double hi[3]);
+long long vlff_field_growths(const struct vlff_field *f);
 
 /* Render a view at cam's pose and intrinsics (cam->rgb/depth/features are
  * ignored). Outputs may be NULL: rgb[h][w][3] in [0,1], depth[h][w] metres,

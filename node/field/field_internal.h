@@ -32,6 +32,20 @@ void vlff_pool_run(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
  * t) when it is free: for tasks of unequal cost whose results do not depend
  * on the thread that runs them. */
 void vlff_pool_run_dynamic(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
+/* ---- the box (grow.c) ---------------------------------------------------- */
+/* The first box's occupancy lattice: sets occ.cell and occ.threshold and
+ * first_lo, and gives the first grid's cells. */
+void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]);
+/* (Re)allocates the occupancy arrays for cells k0 .. k0+dims of the lattice,
+ * copying the old grid's cells that lie in it (none at create) and starting
+ * the others as a new field's; sets the box. -1: out of memory, f unchanged. */
+int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[3]);
+/* The box from the grid's place on the lattice (the config's when fixed),
+ * and the encoding's inside test with it. */
+void vlff_field_set_box(struct vlff_field *f);
+/* An occupancy cell's bytes: density, occupancy, exposure, running loss. */
+static inline size_t vlff_occ_cell_bytes(void) { return sizeof(float) + 1 + sizeof(uint16_t) + sizeof(float); }
+
 /* CLOCK_MONOTONIC in seconds: the pool's spin, the step's phases and the
  * GEMM's per-thread time share it. */
 
@@ -47,6 +61,17 @@ struct vlff_encoding {
   float box_min[3], box_scale[3], p_top[3], freq_scale[3];
   double box_ext[3];       /* the box's size, metres */
   int cubic;               /* 1: as above; 0: each axis scaled to [0, 1] (checkpoints before version 5) */
+  /* Growing (field.grow): the box above is the whole world, a cube of
+   * +-(field.world_limit_m + the first box's longest side) around the first
+   * box's centre, so that a point's cells never move as the field's box
+   * grows; the levels keep the first box's cell sizes in metres and are all
+   * hashed, and the frequency part keeps the first box's periods
+   * (freq_ext). Fixed: freq_ext is the box's size. */
+  int grow;
+  double freq_ext[3];
+  /* The field's box in normalised units: a point outside is "outside" for
+   * vlff_encoding_normalise (the whole of [0, p_top] when fixed). */
+  float in_lo[3], in_hi[3];
   float res[32];           /* grid cells per axis, per level */
   int dense[32];           /* level indexed densely (no hashing) */
   int simd;                /* VLFF_ISA_*: the vector kernels (the portable loops' results to float rounding) */
@@ -55,8 +80,10 @@ void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cf
 /* The cells' shape: cubic (1, the default) or each axis of the box scaled
  * to [0, 1] (0: what a field checkpointed before version 5 learned in). */
 void vlff_encoding_set_cells(struct vlff_encoding *e, int cubic);
+/* Sets the field's box (metres) that vlff_encoding_normalise tests against. */
+void vlff_encoding_set_inside(struct vlff_encoding *e, const double lo[3], const double hi[3]);
 /* Normalised position of world point x, clamped to [0, p_top]; returns 0
- * when x was outside the box. */
+ * when x was outside the field's box. */
 int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float *p);
 /* out[n][dim] for n normalised points p[n][3]; table = level-major params. */
 void vlff_encoding_forward(const struct vlff_encoding *e, const float *table, const float *p, int n,
@@ -184,14 +211,19 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
 
 /* ---- sampling (sampler.c) ---------------------------------------------- */
 struct vlff_occupancy {
-  int res;
+  /* Cells per axis: train.occupancy_resolution on each over a fixed box;
+   * over a growing one, cubic cells of the first box's longest side over
+   * that resolution, as many as the box holds. x fastest, then y, z. */
+  int dims[3];
   float box_min[3], cell[3];
-  float *density;          /* res^3, EMA of max density */
-  uint8_t *occ;            /* res^3 */
+  float *density;          /* EMA of max density */
+  uint8_t *occ;
   float threshold;         /* density above which a cell is occupied */
 };
-/* Cells in the grid: res^3. */
-static inline size_t vlff_occ_cells(const struct vlff_occupancy *g) { return (size_t)g->res * g->res * g->res; }
+/* Cells in the grid. */
+static inline size_t vlff_occ_cells(const struct vlff_occupancy *g) {
+  return (size_t)g->dims[0] * g->dims[1] * g->dims[2];
+}
 /* Box entry/exit of a ray (t along dir); returns 0 when it misses. */
 int vlff_ray_box(const float *o, const float *d, const float *bmin, const float *bmax, float *t0, float *t1);
 /* Stratified samples in [t0,t1] restricted to occupied cells; returns the
@@ -284,8 +316,14 @@ struct vlff_field {
   float *avg, *avgT;
   struct vlff_adam adam;
   struct vlff_occupancy occ;
-  /* Training rays whose measured depth ended in each occupancy cell (res^3,
-   * saturating): how much the field has been fitted there
+  /* The field's box (metres): the fixed box, or the growing one, whose
+   * occupancy cells start occ_k0 cells from the first box's low corner
+   * (first_lo; 0 when fixed). grown: growths since create. */
+  double box_lo[3], box_hi[3], first_lo[3];
+  int occ_k0[3];
+  long long grown;
+  /* Training rays whose measured depth ended in each occupancy cell
+   * (saturating): how much the field has been fitted there
    * (vlff_field_exposure). */
   uint16_t *exposure;
   /* train.error_sampling: each occupancy cell's running feature loss of the

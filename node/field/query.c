@@ -292,8 +292,8 @@ static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct
   const int round = S >= 64 ? S / 8 : S >= 4 ? 4 : S;
   float bmin[3], bmax[3];
   for (int a = 0; a < 3; a++) {
-    bmin[a] = (float)cfg->field.scene_min[a];
-    bmax[a] = (float)cfg->field.scene_max[a];
+    bmin[a] = (float)f->box_lo[a];
+    bmax[a] = (float)f->box_hi[a];
   }
   const int uniform = cfg->train.sampling == VLFF_SAMPLING_UNIFORM;
   float *code = w->din3;       /* [nr*S][geo], per (ray, sample) */

@@ -81,7 +81,7 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
   float seg0[MAX_SEGS], seg1[MAX_SEGS];
   int nseg = 0, open = 0;
   float total = 0.0f;
-  int res = g->res;
+  const int *dims = g->dims;
   /* The march in cell units: no division per step (it was most of the
    * sampler's cost on long rays through an empty room). */
   float x0[3], dx[3];
@@ -90,16 +90,16 @@ int vlff_sample_occupied(const struct vlff_occupancy *g, const float *o, const f
     x0[a] = (o[a] - g->box_min[a]) * inv;
     dx[a] = d[a] * inv;
   }
-  const float top = (float)res;
+  const float top[3] = {(float)dims[0], (float)dims[1], (float)dims[2]};
   for (float tt = t0; tt < t1 && nseg < MAX_SEGS; tt += step) {
     float tm = fminf(tt + 0.5f * step, t1);
     int c[3], ok = 1;
     for (int a = 0; a < 3; a++) {
       float x = x0[a] + tm * dx[a];
       /* Clamped as a float first: the cast of an out-of-range float is undefined. */
-      c[a] = x >= top ? res - 1 : x > 0.0f ? (int)x : 0;
+      c[a] = x >= top[a] ? dims[a] - 1 : x > 0.0f ? (int)x : 0;
     }
-    ok = g->occ[((size_t)c[2] * res + c[1]) * res + c[0]];
+    ok = g->occ[((size_t)c[2] * dims[1] + c[1]) * dims[0] + c[0]];
     float te = fminf(tt + step, t1);
     if (ok) {
       if (open) {

@@ -126,6 +126,13 @@ static int work_alloc(struct vlff_field *f, struct vlff_work *w) {
  * from one config start identical, and a field re-initialised is the one
  * it was created as. */
 static void init_state(struct vlff_field *f) {
+  /* A growing field starts over in its first box (or, when memory for it
+   * cannot be had, in the box it has: the cells are reset all the same). */
+  if (f->cfg.field.grow) {
+    int k0[3], dims[3];
+    vlff_field_first_layout(f, k0, dims);
+    (void)vlff_field_occ_layout(f, k0, dims);
+  }
   const size_t ncell = vlff_occ_cells(&f->occ), fs = sizeof(float);
   f->rng = 0x5eed0f1e1dull;
   for (size_t i = 0; i < f->ntable; i++) f->params[i] = (2.0f * vlff_rng_uniform(&f->rng) - 1.0f) * 1e-4f;
@@ -252,21 +259,10 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   f->wT = xalloc(f->nmlp * fs, &ok);
   f->avg = xalloc(f->nmlp * fs, &ok);
   f->avgT = xalloc(f->nmlp * fs, &ok);
-  int ores = cfg->train.occupancy_resolution;
-  f->occ.res = ores;
-  size_t ncell = vlff_occ_cells(&f->occ);
-  for (int a = 0; a < 3; a++) {
-    f->occ.box_min[a] = (float)cfg->field.scene_min[a];
-    f->occ.cell[a] = (float)((cfg->field.scene_max[a] - cfg->field.scene_min[a]) / ores);
-  }
-  f->occ.density = xalloc(ncell * fs, &ok);
-  f->occ.occ = xalloc(ncell, &ok);
-  f->exposure = xalloc(ncell * sizeof *f->exposure, &ok);
-  f->cell_err = xalloc(ncell * sizeof *f->cell_err, &ok);
   {
-    /* Occupied when a cell-long interval would stop >= 1 % of the light. */
-    float cmin = fminf(f->occ.cell[0], fminf(f->occ.cell[1], f->occ.cell[2]));
-    f->occ.threshold = 0.01005f / cmin;
+    int k0[3], dims[3];
+    vlff_field_first_layout(f, k0, dims);
+    if (ok && vlff_field_occ_layout(f, k0, dims)) ok = 0;
   }
   f->nrays = f->nrays_max = cfg->train.rays_per_step;
   f->rays = xalloc((size_t)f->nrays * sizeof(struct vlff_ray), &ok);
@@ -520,8 +516,8 @@ static void chunk_sample(struct vlff_field *f, struct vlff_work *w, struct chunk
   const int nr = c->nr, train = c->train, S = f->spr;
   float bmin[3], bmax[3];
   for (int a = 0; a < 3; a++) {
-    bmin[a] = (float)cfg->field.scene_min[a];
-    bmax[a] = (float)cfg->field.scene_max[a];
+    bmin[a] = (float)f->box_lo[a];
+    bmax[a] = (float)f->box_hi[a];
   }
   const int uniform = cfg->train.sampling == VLFF_SAMPLING_UNIFORM;
   int N = 0;
@@ -1016,10 +1012,10 @@ static long occ_cell_of(const struct vlff_occupancy *g, const float x[3]) {
   long c[3];
   for (int a = 0; a < 3; a++) {
     float q = (x[a] - g->box_min[a]) / g->cell[a];
-    if (!(q >= 0) || q >= (float)g->res) return -1;
+    if (!(q >= 0) || q >= (float)g->dims[a]) return -1;
     c[a] = (long)q;
   }
-  return c[0] + (long)g->res * (c[1] + (long)g->res * c[2]);
+  return c[0] + (long)g->dims[0] * (c[1] + (long)g->dims[1] * c[2]);
 }
 
 void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n, uint16_t *rays) {
@@ -1275,7 +1271,8 @@ static void occ_task(void *ctx, int task, int thread) {
     size_t first = i;
     for (; i < b && n < VLFF_QUERY_BLOCK; i++, n++) {
       size_t c = (oc->c0 + i) % total;
-      int cx = (int)(c % g->res), cy = (int)(c / g->res % g->res), cz = (int)(c / ((size_t)g->res * g->res));
+      int cx = (int)(c % g->dims[0]), cy = (int)(c / g->dims[0] % g->dims[1]),
+          cz = (int)(c / ((size_t)g->dims[0] * g->dims[1]));
       float x[3] = {g->box_min[0] + (cx + vlff_rng_uniform(&rng)) * g->cell[0],
                     g->box_min[1] + (cy + vlff_rng_uniform(&rng)) * g->cell[1],
                     g->box_min[2] + (cz + vlff_rng_uniform(&rng)) * g->cell[2]};

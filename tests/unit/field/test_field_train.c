@@ -12,6 +12,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <cmocka.h>
 
@@ -265,6 +266,159 @@ static void test_convergence(void **state) {
     assert_true(ev.depth_err < 0.07);
     assert_true(ev.label_acc > 0.94);
   }
+  for (int k = 0; k < nv; k++) scene_view_free(&sv[k]);
+  vlff_field_destroy(f);
+}
+
+/* Density and features at n points, and their exposure. */
+struct answers {
+  float dens[8], feat[8 * 16];
+  uint16_t expo[8];
+};
+static void answers_at(struct vlff_field *f, const float *xyz, int n, struct answers *a) {
+  memset(a, 0, sizeof *a);
+  assert_int_equal(vlff_field_query(f, xyz, (size_t)n, a->dens, a->feat, NULL, NULL, NULL), 0);
+  vlff_field_exposure(f, xyz, (size_t)n, a->expo);
+}
+
+/* A growing field (field.grow): trained in a first box that holds the
+ * room's low half, then grown to hold the whole room. Growth leaves what
+ * was learned exactly as it was (the encoding's frame is the world's, the
+ * occupancy cells are copied in place), the field then learns the rest of
+ * the room as well as a fixed box does, a checkpoint restores the grown box,
+ * and growth past the world's limit, the memory cap, a fixed box or a bad
+ * box is refused or clipped with the field untouched. */
+static void test_growth(void **state) {
+  (void)state;
+  const int d = 16, nv = 16, W = 40, H = 30;
+  struct vlff_config cfg;
+  scene_cfg(&cfg, d); /* [-2, 2.5] on every axis */
+  cfg.field.grow = true;
+  cfg.field.world_limit_m = 10;
+  cfg.field.scene_max[0] = 0.25; /* the first box: x in [-2, 0.25] */
+  cfg.train.rays_per_step = vlff_test_emulator() ? 128 : light() ? 256 : 512;
+  cfg.train.samples_per_ray = 32;
+  cfg.train.feature_loss = VLFF_FEAT_LOSS_L1;
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(f);
+  struct scene_view sv[16];
+  struct vlff_view v[16];
+  for (int k = 0; k < nv; k++) {
+    double c2w[16];
+    scene_pose(2 * k, 2 * nv, c2w);
+    scene_render(&sv[k], W, H, d, c2w);
+    v[k] = sv[k].v;
+  }
+  double lo[3], hi[3];
+  vlff_field_box(f, lo, hi);
+  /* cubic cells of 4.5 m / 64 from the first box's low corner: x ends on
+   * the first cell boundary at or past 0.25 */
+  const double cell = 4.5 / cfg.train.occupancy_resolution;
+  for (int a = 0; a < 3; a++) assert_true(fabs(lo[a] + 2.0) < 1e-9);
+  assert_true(hi[0] >= 0.25 && hi[0] < 0.25 + cell + 1e-6);
+  assert_true(fabs(hi[1] - 2.5) < 1e-6 && fabs(hi[2] - 2.5) < 1e-6);
+  const int early = light() ? 10 : 30;
+  for (int i = 0; i < early; i++) assert_int_equal(vlff_field_step(f, v, nv, NULL, NULL, err, sizeof(err)), 0);
+  /* points in the first box (on the room's walls, floor and ceiling, where
+   * rays end), and one beyond it */
+  const float in[3 * 4] = {-1.49f, 0.3f, 0.5f, -0.5f, -1.2f, 0.01f, -1.0f, 1.49f, 1.0f, 0.0f, 0.0f, 1.99f};
+  const float out[3] = {1.2f, 0.2f, 0.8f};
+  struct answers before, after;
+  answers_at(f, in, 4, &before);
+  float dout;
+  assert_int_equal(vlff_field_query(f, out, 1, &dout, NULL, NULL, NULL, NULL), 0);
+  assert_true(dout == 0.0f); /* outside the box: nothing */
+  long exposed = 0;
+  for (int i = 0; i < 4; i++) exposed += before.expo[i];
+
+  const double room_lo[3] = {-2, -2, -2}, room_hi[3] = {2.5, 2.5, 2.5};
+  assert_int_equal(vlff_field_grow(f, room_lo, room_hi, err, sizeof(err)), 1);
+  assert_int_equal(vlff_field_growths(f), 1);
+  vlff_field_box(f, lo, hi);
+  for (int a = 0; a < 3; a++) assert_true(lo[a] <= room_lo[a] + 1e-9 && hi[a] >= room_hi[a] - 1e-6);
+  answers_at(f, in, 4, &after);
+  assert_memory_equal(&before, &after, sizeof before); /* growing changed nothing learned */
+  assert_true(exposed > 0);                             /* ... and there was something */
+  assert_int_equal(vlff_field_grow(f, room_lo, room_hi, err, sizeof(err)), 0); /* already held */
+
+  const int steps = light() ? 60 : 150;
+  for (int i = early; i < steps; i++) assert_int_equal(vlff_field_step(f, v, nv, NULL, NULL, err, sizeof(err)), 0);
+  if (!vlff_test_emulator()) {
+    /* the whole room learned, as a fixed box's field learns it (test_convergence) */
+    struct eval ev = evaluate(f, d, W, H);
+    print_message("grown after %d of %d steps: novel-view PSNR %.2f dB, depth error %.3f m, label accuracy %.3f\n",
+                  early, steps, ev.psnr, ev.depth_err, ev.label_acc);
+    assert_true(ev.psnr > (light() ? 17.5 : 20.0));
+    assert_true(ev.depth_err < (light() ? 0.22 : 0.08));
+    assert_true(ev.label_acc > (light() ? 0.9 : 0.93));
+  }
+
+  /* A checkpoint restores the grown box; the fixed box's field refuses it. */
+  char path[256];
+  snprintf(path, sizeof path, "%s/vlff-grow-%ld.ckpt", getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp", (long)getpid());
+  assert_int_equal(vlff_field_save(f, path, err, sizeof(err)), 0);
+  struct vlff_field *g = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(g);
+  assert_int_equal(vlff_field_load(g, path, err, sizeof(err)), 0);
+  double glo[3], ghi[3];
+  vlff_field_box(g, glo, ghi);
+  assert_memory_equal(glo, lo, sizeof lo);
+  assert_memory_equal(ghi, hi, sizeof hi);
+  answers_at(f, in, 4, &before);
+  answers_at(g, in, 4, &after);
+  assert_memory_equal(&before, &after, sizeof before);
+  struct vlff_config fixed;
+  scene_cfg(&fixed, d);
+  struct vlff_field *h = vlff_field_create(&fixed.field, &fixed.train, fixed.node.threads, err, sizeof(err));
+  assert_non_null(h);
+  assert_int_equal(vlff_field_load(h, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "model configuration"));
+  /* a fixed box does not grow */
+  assert_int_equal(vlff_field_grow(h, room_lo, room_hi, err, sizeof(err)), 0);
+  const double far_hi[3] = {3, 2.5, 2.5};
+  assert_int_equal(vlff_field_grow(h, room_lo, far_hi, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "field.grow is off"));
+  vlff_field_destroy(h);
+  unlink(path);
+
+  /* A mapping reset starts over in the first box. */
+  vlff_field_reinit(g);
+  vlff_field_box(g, glo, ghi);
+  assert_true(ghi[0] < 0.25 + cell + 1e-6);
+  assert_int_equal(vlff_field_steps(g), 0);
+  vlff_field_destroy(g);
+
+  /* Clipped to the world (+-10 m here), in whole cells; refused past the
+   * memory cap, or for a box that is empty or not finite, f unchanged. */
+  cfg.train.occupancy_resolution = 16; /* 0.28 m cells: the world is 72^3 of them, 3.9 MB */
+  cfg.train.occupancy_max_mb = 8;
+  h = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(h);
+  const double huge_lo[3] = {-5000, -5000, -5000}, huge_hi[3] = {5000, 5000, 5000};
+  const double nan_hi[3] = {NAN, 1, 1}, empty_hi[3] = {-3, 1, 1};
+  assert_int_equal(vlff_field_grow(h, room_lo, nan_hi, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "non-finite"));
+  assert_int_equal(vlff_field_grow(h, room_lo, empty_hi, err, sizeof(err)), -1);
+  assert_int_equal(vlff_field_growths(h), 0);
+  assert_int_equal(vlff_field_grow(h, huge_lo, huge_hi, err, sizeof(err)), 1);
+  vlff_field_box(h, lo, hi);
+  const double c16 = 4.5 / 16;
+  for (int a = 0; a < 3; a++) {
+    assert_true(lo[a] <= -10 + 1e-9 && lo[a] > -10 - c16);
+    assert_true(hi[a] >= 10 - 1e-9 && hi[a] < 10 + c16);
+  }
+  assert_int_equal(vlff_field_grow(h, huge_lo, huge_hi, err, sizeof(err)), 0); /* the whole world held */
+  vlff_field_destroy(h);
+  cfg.train.occupancy_max_mb = 1;
+  h = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(h);
+  assert_int_equal(vlff_field_grow(h, huge_lo, huge_hi, err, sizeof(err)), -1);
+  print_message("%s\n", err);
+  assert_non_null(strstr(err, "train.occupancy_max_mb"));
+  vlff_field_box(h, lo, hi);
+  assert_true(hi[0] < 0.25 + c16 + 1e-6);
+  vlff_field_destroy(h);
   for (int k = 0; k < nv; k++) scene_view_free(&sv[k]);
   vlff_field_destroy(f);
 }
@@ -645,7 +799,7 @@ static double high_loss_share(double b, double *pixel_share) {
   const int edge = (int)((-1.0f - g->box_min[0]) / g->cell[0]);
   const double xb = g->box_min[0] + edge * g->cell[0];
   *pixel_share = (v.cx + xb / 2.0 * v.fx) / W;
-  for (long c = 0; c < (long)g->res * g->res * g->res; c++) f->cell_err[c] = c % g->res < edge ? 1.0f : 0.1f;
+  for (long c = 0; c < (long)vlff_occ_cells(g); c++) f->cell_err[c] = c % g->dims[0] < edge ? 1.0f : 0.1f;
   long high = 0, total = 0;
   for (int draw = 0; draw < 8; draw++) {
     vlff_field_draw_rays(f, &v, 1, NULL, NULL);
@@ -653,7 +807,7 @@ static double high_loss_share(double b, double *pixel_share) {
     for (int r = 0; r < f->nrays; r++, total++) {
       int c = f->rays[r].cell;
       assert_true(c >= 0); /* every pixel's depth ends on the plane, inside the box */
-      high += c % g->res < edge;
+      high += c % g->dims[0] < edge;
     }
   }
   vlff_field_destroy(f);
@@ -723,4 +877,4 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_marks_wrap), cmocka_unit_test(test_slab),
     cmocka_unit_test(test_chunk_gradient), cmocka_unit_test(test_class_balance),
     cmocka_unit_test(test_error_sampling_share), cmocka_unit_test(test_error_sampling_new_view),
-    cmocka_unit_test(test_convergence), cmocka_unit_test(test_noisy_depth_unbiased))
+    cmocka_unit_test(test_convergence), cmocka_unit_test(test_growth), cmocka_unit_test(test_noisy_depth_unbiased))

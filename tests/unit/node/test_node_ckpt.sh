@@ -27,11 +27,12 @@ import struct, sys
 path, mode = sys.argv[1], sys.argv[2]
 b = bytearray(open(path, "rb").read())
 nparams, ntable = struct.unpack_from("<QQ", b, 24)  # after magic, version, BOM, config hash
+p0 = 80 + 24  # params[0]: after the 80-byte header and the box (version 6)
 if mode == "nan":
-    b[80:84] = struct.pack("<f", float("nan"))  # params[0], right after the 80-byte header
+    b[p0:p0 + 4] = struct.pack("<f", float("nan"))
 else:
     for i in range(ntable, nparams):
-        struct.pack_into("<f", b, 80 + 4 * i, 1e6)
+        struct.pack_into("<f", b, p0 + 4 * i, 1e6)
 M = (1 << 64) - 1
 h, body = 0xcbf29ce484222325, bytes(b[:-8])
 for i in range(0, len(body) + 1, 8):
