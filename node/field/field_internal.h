@@ -37,9 +37,10 @@ void vlff_pool_run_dynamic(struct vlff_pool *p, int ntasks, vlff_task_fn fn, voi
  * first_lo, and gives the first grid's cells. */
 void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]);
 /* (Re)allocates the occupancy arrays for cells k0 .. k0+dims of the lattice,
- * copying the old grid's cells that lie in it (none at create) and starting
- * the others as a new field's; sets the box. -1: out of memory, f unchanged. */
-int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[3]);
+ * starting every cell as a new field's, but with copy, the old grid's cells
+ * in their places (the old grid must lie inside); sets the box. -1: out of
+ * memory, f unchanged. */
+int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[3], int copy);
 /* The box from the grid's place on the lattice (the config's when fixed),
  * and the encoding's inside test with it. */
 void vlff_field_set_box(struct vlff_field *f);

@@ -14,6 +14,7 @@
 #include <string.h>
 
 #include "field_internal.h"
+#include "lattice.h"
 #include "mem.h"
 
 #define MIB 1048576.0
@@ -57,8 +58,9 @@ void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]) {
   f->occ.threshold = 0.01005f / cmin;
 }
 
-int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[3]) {
-  const size_t n = (size_t)dims[0] * dims[1] * dims[2];
+int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[3], int copy) {
+  const uint32_t nd[3] = {(uint32_t)dims[0], (uint32_t)dims[1], (uint32_t)dims[2]};
+  const size_t n = vlff_lattice_cells(nd);
   float *dens = malloc(n * sizeof *dens), *cerr = malloc(n * sizeof *cerr);
   uint8_t *occ = malloc(n);
   uint16_t *expo = malloc(n * sizeof *expo);
@@ -72,26 +74,14 @@ int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[
   memset(occ, 1, n);
   memset(expo, 0, n * sizeof *expo);
   for (size_t i = 0; i < n; i++) cerr[i] = -1;
-  const struct vlff_occupancy *g = &f->occ;
-  if (g->density) {
-    /* The old cells that lie in the new grid, row by row (x is contiguous). */
-    int o[3], lo[3], hi[3];
-    for (int a = 0; a < 3; a++) {
-      o[a] = f->occ_k0[a] - k0[a];
-      lo[a] = o[a] < 0 ? -o[a] : 0;
-      hi[a] = g->dims[a] < dims[a] - o[a] ? g->dims[a] : dims[a] - o[a];
-    }
-    if (lo[0] < hi[0])
-      for (int z = lo[2]; z < hi[2]; z++)
-        for (int y = lo[1]; y < hi[1]; y++) {
-          size_t from = ((size_t)z * g->dims[1] + y) * g->dims[0] + lo[0];
-          size_t to = ((size_t)(z + o[2]) * dims[1] + (y + o[1])) * dims[0] + lo[0] + o[0];
-          size_t len = (size_t)(hi[0] - lo[0]);
-          memcpy(dens + to, g->density + from, len * sizeof *dens);
-          memcpy(occ + to, g->occ + from, len);
-          memcpy(expo + to, f->exposure + from, len * sizeof *expo);
-          memcpy(cerr + to, f->cell_err + from, len * sizeof *cerr);
-        }
+  if (copy) { /* the old grid lies inside the new one */
+    const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
+    const uint32_t sh[3] = {(uint32_t)(f->occ_k0[0] - k0[0]), (uint32_t)(f->occ_k0[1] - k0[1]),
+                            (uint32_t)(f->occ_k0[2] - k0[2])};
+    vlff_lattice_copy(dens, nd, f->occ.density, od, sh, sizeof *dens);
+    vlff_lattice_copy(occ, nd, f->occ.occ, od, sh, 1);
+    vlff_lattice_copy(expo, nd, f->exposure, od, sh, sizeof *expo);
+    vlff_lattice_copy(cerr, nd, f->cell_err, od, sh, sizeof *cerr);
   }
   VLFF_FREE_ALL(f->occ.density, f->occ.occ, f->exposure, f->cell_err);
   f->occ.density = dens;
@@ -113,47 +103,35 @@ long long vlff_field_growths(const struct vlff_field *f) { return f->grown; }
 
 int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen) {
   const struct vlff_cfg_field *c = &f->cfg.field;
-  int in = 1;
-  for (int a = 0; a < 3; a++) {
-    if (!(isfinite(lo[a]) && isfinite(hi[a]) && lo[a] <= hi[a])) {
-      if (err && errlen) snprintf(err, errlen, "field: growth to an empty or non-finite box (axis %d)", a);
-      return -1;
-    }
-    in &= lo[a] >= f->box_lo[a] && hi[a] <= f->box_hi[a];
+  const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
+  uint32_t sh[3], nd[3];
+  /* Cells are cubic when growing; a fixed box's are not, but it only asks
+   * whether the box holds [lo, hi], which whole cells of any size answer. */
+  int rc = vlff_lattice_cover(f->box_lo, f->occ.cell[0], od, lo, hi, c->grow ? c->world_limit_m : INFINITY, sh, nd);
+  if (rc < 0) {
+    if (err && errlen) snprintf(err, errlen, "field: growth to an empty or non-finite box");
+    return -1;
   }
-  if (in) return 0;
+  int in = 1;
+  for (int a = 0; a < 3; a++) in &= lo[a] >= f->box_lo[a] && hi[a] <= f->box_hi[a];
+  if (in || (c->grow && rc == 0)) return 0; /* held, or beyond the world's limit: nothing to add */
   if (!c->grow) {
     if (err && errlen) snprintf(err, errlen, "field: the box is fixed (field.grow is off)");
     return -1;
   }
-  /* Within the world (field.world_limit_m), in whole cells of the lattice. */
-  int k0[3], dims[3];
-  const double w = c->world_limit_m;
-  for (int a = 0; a < 3; a++) {
-    double cell = f->occ.cell[a];
-    double l = fmax(lo[a], -w), h = fmin(hi[a], w);
-    if (l > h) l = h = lo[a] < -w ? -w : w;
-    long kl = (long)floor((l - f->first_lo[a]) / cell), kh = (long)ceil((h - f->first_lo[a]) / cell);
-    long k_lo = kl < f->occ_k0[a] ? kl : f->occ_k0[a];
-    long k_hi = kh > (long)f->occ_k0[a] + f->occ.dims[a] ? kh : (long)f->occ_k0[a] + f->occ.dims[a];
-    k0[a] = (int)k_lo;
-    dims[a] = (int)(k_hi - k_lo);
-  }
-  const double need = (double)dims[0] * dims[1] * dims[2] * (double)vlff_occ_cell_bytes();
-  const double cap = f->cfg.train.occupancy_max_mb * MIB;
-  if (need > cap) {
+  const double need = (double)vlff_lattice_cells(nd) * (double)vlff_occ_cell_bytes();
+  if (need > f->cfg.train.occupancy_max_mb * MIB) {
     if (err && errlen)
       snprintf(err, errlen,
                "field: growing the box to %.1f x %.1f x %.1f m needs %.0f MiB of occupancy cells, more than "
                "train.occupancy_max_mb (%g)",
-               dims[0] * (double)f->occ.cell[0], dims[1] * (double)f->occ.cell[1], dims[2] * (double)f->occ.cell[2],
+               nd[0] * (double)f->occ.cell[0], nd[1] * (double)f->occ.cell[1], nd[2] * (double)f->occ.cell[2],
                need / MIB, f->cfg.train.occupancy_max_mb);
     return -1;
   }
-  int same = 1;
-  for (int a = 0; a < 3; a++) same &= k0[a] == f->occ_k0[a] && dims[a] == f->occ.dims[a];
-  if (same) return 0; /* beyond the world's limit: nothing more to add */
-  if (vlff_field_occ_layout(f, k0, dims)) {
+  const int k0[3] = {f->occ_k0[0] - (int)sh[0], f->occ_k0[1] - (int)sh[1], f->occ_k0[2] - (int)sh[2]};
+  const int dims[3] = {(int)nd[0], (int)nd[1], (int)nd[2]};
+  if (vlff_field_occ_layout(f, k0, dims, 1)) {
     if (err && errlen) snprintf(err, errlen, "field: out of memory growing the box (%.0f MiB)", need / MIB);
     return -1;
   }

@@ -131,7 +131,7 @@ static void init_state(struct vlff_field *f) {
   if (f->cfg.field.grow) {
     int k0[3], dims[3];
     vlff_field_first_layout(f, k0, dims);
-    (void)vlff_field_occ_layout(f, k0, dims);
+    (void)vlff_field_occ_layout(f, k0, dims, 0);
   }
   const size_t ncell = vlff_occ_cells(&f->occ), fs = sizeof(float);
   f->rng = 0x5eed0f1e1dull;
@@ -262,7 +262,7 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   {
     int k0[3], dims[3];
     vlff_field_first_layout(f, k0, dims);
-    if (ok && vlff_field_occ_layout(f, k0, dims)) ok = 0;
+    if (ok && vlff_field_occ_layout(f, k0, dims, 0)) ok = 0;
   }
   f->nrays = f->nrays_max = cfg->train.rays_per_step;
   f->rays = xalloc((size_t)f->nrays * sizeof(struct vlff_ray), &ok);

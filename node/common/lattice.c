@@ -1,0 +1,38 @@
+/*
+ * Grids that grow on a fixed lattice (lattice.h).
+ */
+#include "lattice.h"
+
+#include <math.h>
+#include <string.h>
+
+int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[3], const double lo[3],
+                       const double hi[3], double limit, uint32_t shift[3], uint32_t ndims[3]) {
+  int larger = 0;
+  for (int a = 0; a < 3; a++)
+    if (!(isfinite(lo[a]) && isfinite(hi[a]) && lo[a] <= hi[a]) || !(cell > 0)) return -1;
+  for (int a = 0; a < 3; a++) {
+    double l = fmax(lo[a], -limit), h = fmin(hi[a], limit);
+    if (l > h) l = h = lo[a] < -limit ? -limit : limit; /* wholly beyond: its nearest edge */
+    /* Cells from the old grid's first: the new range [k_lo, k_hi). */
+    double kl = floor((l - origin[a]) / cell), kh = ceil((h - origin[a]) / cell);
+    if (kl > 0) kl = 0;
+    if (kh < dims[a]) kh = dims[a];
+    if (kh - kl > 2147483647.0) return -1;
+    shift[a] = (uint32_t)-kl;
+    ndims[a] = (uint32_t)(kh - kl);
+    larger |= ndims[a] != dims[a];
+  }
+  return larger;
+}
+
+void vlff_lattice_copy(void *dst, const uint32_t ndims[3], const void *src, const uint32_t dims[3],
+                       const uint32_t shift[3], size_t elem) {
+  const size_t row = (size_t)dims[0] * elem;
+  for (uint32_t z = 0; z < dims[2]; z++)
+    for (uint32_t y = 0; y < dims[1]; y++) {
+      size_t from = ((size_t)z * dims[1] + y) * dims[0];
+      size_t to = ((size_t)(z + shift[2]) * ndims[1] + (y + shift[1])) * ndims[0] + shift[0];
+      memcpy((char *)dst + to * elem, (const char *)src + from * elem, row);
+    }
+}

@@ -1,0 +1,69 @@
+/* vlff_lattice: grids that grow on a fixed lattice keep every cell in its
+ * place in the world. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "lattice.h"
+
+static void test_cover(void **state) {
+  (void)state;
+  const double origin[3] = {-1, -1, 0}, cell = 0.5;
+  const uint32_t dims[3] = {4, 4, 2}; /* [-1, 1] x [-1, 1] x [0, 1] */
+  uint32_t sh[3], nd[3];
+  const double in_lo[3] = {-0.9, 0, 0.1}, in_hi[3] = {0.99, 1, 1};
+  assert_int_equal(vlff_lattice_cover(origin, cell, dims, in_lo, in_hi, 100, sh, nd), 0);
+  for (int a = 0; a < 3; a++) assert_int_equal(sh[a], 0), assert_int_equal(nd[a], dims[a]);
+  /* out by 0.2 below in x (one cell) and by 1.1 above in z (three cells) */
+  const double lo[3] = {-1.2, 0, 0}, hi[3] = {0, 0, 2.1};
+  assert_int_equal(vlff_lattice_cover(origin, cell, dims, lo, hi, 100, sh, nd), 1);
+  assert_int_equal(sh[0], 1), assert_int_equal(nd[0], 5);
+  assert_int_equal(sh[1], 0), assert_int_equal(nd[1], 4);
+  assert_int_equal(sh[2], 0), assert_int_equal(nd[2], 5);
+  /* clipped to +-limit (3 m): [-3, 3] in x is 12 cells, 4 of them below the
+   * old grid's first */
+  const double far_lo[3] = {-1e6, 0, 0}, far_hi[3] = {1e6, 0, 0};
+  assert_int_equal(vlff_lattice_cover(origin, cell, dims, far_lo, far_hi, 3, sh, nd), 1);
+  assert_int_equal(sh[0], 4), assert_int_equal(nd[0], 12);
+  /* wholly beyond the limit: grows to the limit's edge only */
+  const double past_lo[3] = {50, 0, 0}, past_hi[3] = {60, 0, 0};
+  assert_int_equal(vlff_lattice_cover(origin, cell, dims, past_lo, past_hi, 3, sh, nd), 1);
+  assert_int_equal(sh[0], 0), assert_int_equal(nd[0], 8);
+  /* empty, non-finite, no cell */
+  const double nan_hi[3] = {NAN, 0, 0}, empty_hi[3] = {-2, 0, 0};
+  assert_int_equal(vlff_lattice_cover(origin, cell, dims, lo, nan_hi, 3, sh, nd), -1);
+  assert_int_equal(vlff_lattice_cover(origin, cell, dims, lo, empty_hi, 3, sh, nd), -1);
+  assert_int_equal(vlff_lattice_cover(origin, 0, dims, lo, hi, 3, sh, nd), -1);
+  /* past 2^31 cells on an axis */
+  assert_int_equal(vlff_lattice_cover(origin, 1e-6, dims, far_lo, far_hi, 1e4, sh, nd), -1);
+}
+
+static void test_copy_and_index(void **state) {
+  (void)state;
+  const uint32_t dims[3] = {3, 2, 2}, sh[3] = {1, 2, 0}, nd[3] = {5, 4, 3};
+  uint16_t old[12], grown[60];
+  for (int i = 0; i < 12; i++) old[i] = (uint16_t)(100 + i);
+  for (int i = 0; i < 60; i++) grown[i] = 7;
+  vlff_lattice_copy(grown, nd, old, dims, sh, sizeof old[0]);
+  int copied = 0;
+  for (size_t i = 0; i < 12; i++) {
+    size_t j = vlff_lattice_index(i, dims, sh, nd);
+    assert_int_equal(grown[j], old[i]);
+    /* the same place: x, y, z each moved by the shift */
+    size_t x = i % 3, y = i / 3 % 2, z = i / 6;
+    assert_int_equal(j, (x + 1) + 5 * ((y + 2) + 4 * z));
+  }
+  for (int i = 0; i < 60; i++) copied += grown[i] != 7;
+  assert_int_equal(copied, 12); /* the rest left as it was */
+  assert_int_equal(vlff_lattice_cells(nd), 60);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_copy_and_index)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
