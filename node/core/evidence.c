@@ -11,6 +11,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "lattice.h"
 #include "log.h"
 #include "select.h"
 #include "mem.h"
@@ -31,6 +32,8 @@
 
 struct vlff_evidence {
   double origin[3], voxel;
+  double origin0[3]; /* the first grid's origin: origin = origin0 + k0 x voxel, k0 <= 0 after growths */
+  long k0[3];
   uint32_t dims[3];
   size_t nvox;
   int D;
@@ -47,6 +50,8 @@ struct vlff_evidence {
   int stamp_k;
   int max_k;        /* prompts a slot caches cosines for */
   size_t used, cap;
+  size_t cap_max;   /* the slots the budget holds (cap: no more than the grid has voxels) */
+  size_t max_vox;   /* voxels a growth may reach (vlff_evidence_grow; 0: the grid is fixed) */
   long long overflow, evicted;
   float *tmp;       /* [3 D]: a feature, a mean, a slot's cosines' scratch */
   float blend[VLFF_FIELD_MAX_PROMPTS]; /* one point's blended cosines (label) */
@@ -122,6 +127,7 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
     return NULL;
   }
   memcpy(e->origin, origin, sizeof e->origin);
+  memcpy(e->origin0, origin, sizeof e->origin0);
   memcpy(e->dims, dims, sizeof e->dims);
   e->voxel = voxel;
   e->D = D;
@@ -136,8 +142,9 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
   size_t per = (size_t)D * sizeof(uint16_t) + (size_t)max_k * sizeof(float) + 2 + 2 * sizeof(uint32_t);
   e->cap = max_bytes / per;
   if (e->cap < 1) e->cap = 1;
-  if (e->cap > e->nvox) e->cap = e->nvox;
   if (e->cap > INT32_MAX) e->cap = INT32_MAX;
+  e->cap_max = e->cap;
+  if (e->cap > e->nvox) e->cap = e->nvox;
   e->slot = malloc(e->nvox * sizeof *e->slot);
   e->mean = malloc(e->cap * (size_t)D * sizeof *e->mean);
   e->views = calloc(e->cap, 1);
@@ -161,8 +168,83 @@ struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, cons
   uint32_t dims[3];
   double voxel = vlff_map_grid_plan(field->scene_min, field->scene_max, pub->evidence_voxel_m,
                                     budget / 4 / sizeof(int32_t), dims);
-  return vlff_evidence_create(field->scene_min, dims, voxel, field->feature_dim, max_k,
+  struct vlff_evidence *e = vlff_evidence_create(field->scene_min, dims, voxel, field->feature_dim, max_k,
                               budget - (size_t)dims[0] * dims[1] * dims[2] * sizeof(int32_t), err, errlen);
+  /* A growing box's evidence keeps its voxel; its index may grow to that
+   * quarter of the budget. */
+  if (e && field->grow) e->max_vox = budget / 4 / sizeof(int32_t);
+  return e;
+}
+
+/* More slots, up to cap_max, for a grid that grew (views and dirty flags
+ * of the new slots zero, as at create). */
+static int more_slots(struct vlff_evidence *e, size_t cap) {
+  const size_t D = (size_t)e->D, K = (size_t)e->max_k;
+  uint16_t *mean = realloc(e->mean, cap * D * sizeof *mean);
+  if (mean) e->mean = mean;
+  uint8_t *views = realloc(e->views, cap);
+  if (views) e->views = views;
+  uint32_t *owner = realloc(e->owner, cap * sizeof *owner);
+  if (owner) e->owner = owner;
+  uint32_t *seen = realloc(e->seen, cap * sizeof *seen);
+  if (seen) e->seen = seen;
+  float *cs = realloc(e->cos, cap * K * sizeof *cs);
+  if (cs) e->cos = cs;
+  uint8_t *dirty = realloc(e->dirty, cap);
+  if (dirty) e->dirty = dirty;
+  if (!mean || !views || !owner || !seen || !cs || !dirty) return -1; /* the old cap stands, the arrays at least as large */
+  memset(e->views + e->cap, 0, cap - e->cap);
+  memset(e->dirty + e->cap, 0, cap - e->cap);
+  e->cap = cap;
+  return 0;
+}
+
+/* The grid shifted by sh voxels into nd (on the same lattice): every slot
+ * and page record follows its voxel. */
+static int relayout(struct vlff_evidence *e, const uint32_t sh[3], const uint32_t nd[3], char *err, size_t errlen) {
+  const size_t n = vlff_lattice_cells(nd);
+  if (n > e->max_vox || n > UINT32_MAX)
+    return vlff_errf(err, errlen,
+                     "evidence: growing to %.1f x %.1f x %.1f m needs %zu voxels, more than a quarter of "
+                     "publish.evidence_max_mb indexes (%zu)",
+                     nd[0] * e->voxel, nd[1] * e->voxel, nd[2] * e->voxel, n, e->max_vox),
+           -1;
+  int32_t *slot = malloc(n * sizeof *slot);
+  size_t cap = e->cap_max < n ? e->cap_max : n;
+  if (!slot || (cap > e->cap && more_slots(e, cap))) {
+    free(slot);
+    return vlff_errf(err, errlen, "evidence: out of memory growing to %zu voxels", n), -1;
+  }
+  memset(slot, 0xff, n * sizeof *slot);
+  for (size_t v = 0; v < e->nvox; v++) {
+    int32_t s = e->slot[v];
+    if (s == -1) continue;
+    size_t nv = vlff_lattice_index(v, e->dims, sh, nd);
+    slot[nv] = s;
+    if (s >= 0)
+      e->owner[s] = (uint32_t)nv;
+    else
+      e->powner[record_of(s)] = (uint32_t)nv;
+  }
+  free(e->slot);
+  e->slot = slot;
+  for (int a = 0; a < 3; a++) {
+    e->k0[a] -= (long)sh[a];
+    e->origin[a] = e->origin0[a] + (double)e->k0[a] * e->voxel; /* the same k0, the same bits */
+    e->dims[a] = nd[a];
+  }
+  e->nvox = n;
+  return 0;
+}
+
+int vlff_evidence_grow(struct vlff_evidence *e, const double lo[3], const double hi[3], double limit, char *err,
+                       size_t errlen) {
+  uint32_t sh[3], nd[3];
+  int rc = vlff_lattice_cover(e->origin, e->voxel, e->dims, lo, hi, limit, sh, nd);
+  if (rc < 0) return vlff_errf(err, errlen, "evidence: growth to an empty or non-finite box"), -1;
+  if (rc == 0) return 0;
+  if (!e->max_vox) return vlff_errf(err, errlen, "evidence: the grid is fixed (field.grow is off)"), -1;
+  return relayout(e, sh, nd, err, errlen) ? -1 : 1;
 }
 
 void vlff_evidence_reset(struct vlff_evidence *e) {
@@ -800,11 +882,30 @@ static int read_record(const struct vlff_evidence *e, vlff_evidence_read_fn rd, 
   return 0;
 }
 
+/* A growing grid grows to a saved grid that holds it on its lattice (what
+ * it had grown to when saved): -1 only when that growth fails. */
+static int grow_to_saved(struct vlff_evidence *e, const struct ev_header *h, char *err, size_t errlen) {
+  if (!e->max_vox || h->D != e->D || h->voxel != e->voxel) return 0;
+  uint32_t sh[3];
+  int same = 1;
+  for (int a = 0; a < 3; a++) {
+    double k = (h->origin[a] - e->origin0[a]) / e->voxel;
+    long kr = lround(k);
+    if (!(fabs(k - (double)kr) < 1e-6) || kr > e->k0[a]) return 0;           /* not on the lattice, or inside */
+    if ((double)(e->k0[a] - kr) + e->dims[a] > (double)h->dims[a]) return 0; /* does not hold the grid */
+    sh[a] = (uint32_t)(e->k0[a] - kr);
+    same &= sh[a] == 0 && h->dims[a] == e->dims[a];
+  }
+  if (same) return 0;
+  return relayout(e, sh, h->dims, err, errlen);
+}
+
 int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t len,
                             char *err, size_t errlen) {
   struct ev_header h;
   if (len < sizeof h) return vlff_errf(err, errlen, "evidence: saved evidence truncated"), -1;
   if (rd(ctx, 0, &h, sizeof h, err, errlen)) return -1;
+  if (grow_to_saved(e, &h, err, errlen)) return -1;
   if (memcmp(h.dims, e->dims, sizeof h.dims) || h.D != e->D || h.voxel != e->voxel ||
       memcmp(h.origin, e->origin, sizeof h.origin))
     return vlff_errf(err, errlen,

@@ -82,6 +82,17 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
  * publish.evidence_max_mb), slots in the rest of that budget. */
 struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, const struct vlff_cfg_field *field,
                                         int max_k, char *err, size_t errlen);
+/* Growth (field.grow): the grid grows on its lattice, in whole voxels, to
+ * hold [lo, hi] clipped to +-limit; every voxel's evidence (in a slot or
+ * paged) stays where it is in the world, and more slots are allocated up
+ * to the budget when the grid held fewer voxels than it. 1 grown, 0 when
+ * the grid already held it; -1 with err for a box that is empty or not
+ * finite, a fixed grid (vlff_evidence_for with field.grow off, or
+ * vlff_evidence_create), an index past a quarter of publish.evidence_max_mb,
+ * or no memory: the evidence unchanged. A load of saved evidence whose grid
+ * holds this one on its lattice grows to it first. */
+int vlff_evidence_grow(struct vlff_evidence *e, const double lo[3], const double hi[3], double limit, char *err,
+                       size_t errlen);
 void vlff_evidence_destroy(struct vlff_evidence *e);
 void vlff_evidence_reset(struct vlff_evidence *e);
 

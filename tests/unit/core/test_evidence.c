@@ -636,6 +636,79 @@ static void test_save_load(void **state) {
   vlff_evidence_destroy(g);
 }
 
+/* A growing box's evidence (field.grow): the grid grows on its lattice and
+ * every voxel's evidence stays where it is in the world; the new part takes
+ * evidence; a save of the grown grid loads into a first-box evidence by
+ * growing it; past the index's share of the budget, or for a fixed grid or
+ * a bad box, growth is refused and nothing changes. */
+static void test_grow(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  cfg.field.feature_dim = D;
+  cfg.field.grow = true;
+  memcpy(cfg.field.scene_min, origin, sizeof origin);
+  for (int a = 0; a < 3; a++) cfg.field.scene_max[a] = origin[a] + 4;
+  cfg.publish.evidence_voxel_m = 0.5;
+  cfg.publish.evidence_max_mb = 1; /* an index of at most 65536 voxels */
+  char err[256];
+  struct vlff_evidence *e = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
+  assert_non_null(e);
+  struct wall a;
+  wall_make(&a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  const double p[3] = {-0.1, 0.1, 2.2}, q[3] = {-4.3, 0.1, 2.2};
+  float x[D], y[D];
+  int n = vlff_evidence_get(e, vlff_evidence_voxel(e, p), x);
+  assert_int_equal(n, 4);
+  assert_int_equal(vlff_evidence_voxel(e, q), -1); /* beyond the first box */
+
+  const double lo[3] = {-4.6, -2, 0}, hi[3] = {1, 1, 7.9};
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 1);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
+  assert_memory_equal(x, y, sizeof x);
+  assert_int_equal(vlff_evidence_voxels(e), 4);
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 0); /* held */
+  /* the new part takes evidence: the same wall seen from 4.2 m further -x */
+  struct wall b;
+  wall_make(&b, 2.2f, (const float[D]){0, 0, 0, 1});
+  b.v.c2w[3] = -4.2;
+  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+  assert_true(vlff_evidence_voxel(e, q) >= 0);
+  assert_true(vlff_evidence_get(e, vlff_evidence_voxel(e, q), y) > 0);
+
+  /* past the index's quarter of the budget: refused, nothing changed */
+  const double huge_lo[3] = {-100, -100, 0}, huge_hi[3] = {100, 100, 4};
+  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, 1000, err, sizeof err), -1);
+  assert_non_null(strstr(err, "publish.evidence_max_mb"));
+  const double nan_hi[3] = {NAN, 0, 0};
+  assert_int_equal(vlff_evidence_grow(e, lo, nan_hi, 1000, err, sizeof err), -1);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
+  assert_memory_equal(x, y, sizeof x);
+
+  /* saved grown, loaded into a first-box evidence: it grows to the grid */
+  size_t len = vlff_evidence_save_size(e);
+  uint8_t *buf = malloc(len);
+  vlff_evidence_save(e, buf);
+  struct vlff_evidence *g = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
+  assert_non_null(g);
+  assert_int_equal(vlff_evidence_load(g, buf, len, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxels(g), vlff_evidence_voxels(e));
+  assert_int_equal(vlff_evidence_voxel(g, q), vlff_evidence_voxel(e, q));
+  assert_int_equal(vlff_evidence_get(g, vlff_evidence_voxel(g, p), y), n);
+  assert_memory_equal(x, y, sizeof x);
+  /* a fixed grid does not grow, and does not take the grown save */
+  struct vlff_evidence *fixed = make(1 << 20);
+  assert_int_equal(vlff_evidence_grow(fixed, lo, hi, 1000, err, sizeof err), -1);
+  assert_non_null(strstr(err, "fixed"));
+  assert_int_equal(vlff_evidence_load(fixed, buf, len, err, sizeof err), 1);
+  assert_non_null(strstr(err, "another grid"));
+  free(buf);
+  vlff_evidence_destroy(fixed);
+  vlff_evidence_destroy(g);
+  vlff_evidence_destroy(e);
+}
+
 /* Saved evidence of more voxels than the budget holds (its budget lowered
  * since) keeps the most-observed, at equal counts the lowest voxel indices,
  * each as it was saved, and counts the rest as given up; a budget with room
@@ -734,5 +807,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_lost_classes_saved),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
     cmocka_unit_test(test_full_budget_pages_out),
-    cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load), cmocka_unit_test(test_load_thins_to_budget),
+    cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load), cmocka_unit_test(test_grow),
+    cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan), cmocka_unit_test(test_recent_views_replace_old))
