@@ -335,6 +335,10 @@ static int finish(struct run *r, const char *snapshot_dir) {
             "%lld frames in, %lld refused%s, %lld lost, %lld poses rejected, map version %llu",
             st.iteration, st.keyframes, st.keyframes_evicted, st.candidates_dropped, st.frames_in, st.frames_invalid,
             why, st.frames_lost, st.poses_rejected, (unsigned long long)st.map_version);
+  if (st.box_growths || st.box_refused)
+    VLFF_INFO("node", "the box grew %lld times, to [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m; %lld growths refused",
+              st.box_growths, st.box_lo[0], st.box_hi[0], st.box_lo[1], st.box_hi[1], st.box_lo[2], st.box_hi[2],
+              st.box_refused);
   if (st.evidence_paged_out || st.evidence_dropped)
     VLFF_INFO("node", "evidence beyond publish.evidence_max_mb: %lld voxels in the page file (%lld paged out, %lld "
                       "brought back), %lld given up",

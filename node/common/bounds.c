@@ -47,6 +47,19 @@ int vlff_intrinsics_plausible(int width, int height, double fx, double fy, doubl
   return 0;
 }
 
+int vlff_pose_in_world(const double c2w[16], double limit, char *why, size_t whylen) {
+  const char axis[3] = {'x', 'y', 'z'};
+  for (int i = 0; i < 3; i++) {
+    double t = c2w[i * 4 + 3];
+    if (!(fabs(t) <= limit)) {
+      if (why && whylen)
+        snprintf(why, whylen, "camera %c = %g m outside [%g, %g] (field.world_limit_m)", axis[i], t, -limit, limit);
+      return -1;
+    }
+  }
+  return 0;
+}
+
 int vlff_pose_plausible(const double c2w[16], const double lo[3], const double hi[3], char *why, size_t whylen) {
   const char axis[3] = {'x', 'y', 'z'};
   double grow = 0;

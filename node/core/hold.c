@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "lattice.h"
 #include "mem.h"
 #include "vlff/shm.h"
 
@@ -40,6 +41,24 @@ struct vlff_hold *vlff_hold_create(size_t nvox, double hysteresis) {
 void vlff_hold_destroy(struct vlff_hold *h) {
   if (!h) return;
   VLFF_FREE_ALL(h->label, h->seen, h->decided, h);
+}
+
+int vlff_hold_grow(struct vlff_hold *h, const uint32_t dims[3], const uint32_t sh[3], const uint32_t nd[3]) {
+  const size_t n = vlff_lattice_cells(nd);
+  uint16_t *label = malloc(n * sizeof *label);
+  uint32_t *seen = calloc(n, sizeof *seen), *decided = calloc(n, sizeof *decided);
+  if (!label || !seen || !decided) {
+    VLFF_FREE_ALL(label, seen, decided);
+    return -1;
+  }
+  memset(label, 0xff, n * sizeof *label); /* VLFF_LABEL_UNKNOWN */
+  vlff_lattice_copy(label, nd, h->label, dims, sh, sizeof *label);
+  vlff_lattice_copy(seen, nd, h->seen, dims, sh, sizeof *seen);
+  vlff_lattice_copy(decided, nd, h->decided, dims, sh, sizeof *decided);
+  VLFF_FREE_ALL(h->label, h->seen, h->decided);
+  h->label = label, h->seen = seen, h->decided = decided;
+  h->nvox = n;
+  return 0;
 }
 
 void vlff_hold_reset(struct vlff_hold *h) {

@@ -86,6 +86,12 @@ struct vlff_node_status {
    * brought back since the start (or the last reset), and given up for
    * good (no page file, or it full). */
   long long evidence_paged, evidence_paged_out, evidence_paged_in, evidence_dropped;
+  /* The map's box (metres), how often it grew since the start and how
+   * often the field's or the map's growth was refused (field.grow: the
+   * world's limit, train.occupancy_max_mb, shm.map_max_voxels, the
+   * evidence's index budget). */
+  double box_lo[3], box_hi[3];
+  long long box_growths, box_refused;
   long long frames_in;          /* frames read from the ring */
   long long frames_lost;        /* lapped or torn in the ring */
   long long frames_invalid;     /* refused, all reasons: the sum of refused[] */

@@ -19,6 +19,7 @@
 #include "bounds.h"
 #include "evidence.h"
 #include "hold.h"
+#include "lattice.h"
 #include "log.h"
 #include "palette.h"
 #include "select.h"
@@ -36,6 +37,13 @@ struct vlff_publisher {
   const struct vlff_source_hooks *hooks; /* NULL: none */
   double origin[3], voxel;
   double scene_lo[3], scene_hi[3]; /* field.scene_min / max: bounds for poses */
+  /* A growing box (field.grow; world_limit 0: fixed): origin = origin0 + k0
+   * x voxel, k0 <= 0 after growths (the same k0, the same bits), at most
+   * max_voxels (shm.map_max_voxels, the segment's capacity). */
+  double world_limit, origin0[3];
+  long k0[3];
+  size_t max_voxels;
+  long long grown, grow_refused;
   uint64_t heartbeat_warned;       /* vlff_warn_limited's */
   uint32_t dims[3];
   size_t nvox;
@@ -163,9 +171,11 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
     VLFF_WARN(TAG, "publish.voxel_size_m %.3f m needs more than shm.map_max_voxels; using %.3f m",
               pub->voxel_size_m, p->voxel);
   for (int i = 0; i < 3; i++) {
-    p->origin[i] = p->scene_lo[i] = field->scene_min[i];
+    p->origin[i] = p->origin0[i] = p->scene_lo[i] = field->scene_min[i];
     p->scene_hi[i] = field->scene_max[i];
   }
+  p->world_limit = field->grow ? field->world_limit_m : 0;
+  p->max_voxels = (size_t)shm->map_max_voxels;
   p->lw = pub->label_width;
   p->lh = pub->label_height;
   if (p->lw > shm->label_max_width || p->lh > shm->label_max_height) {
@@ -374,6 +384,28 @@ static int obs_get(struct obs_reader *r, uint64_t off, void *dst, size_t n, char
   return -1;
 }
 
+static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], const uint32_t nd[3]);
+
+/* A growing map grows to a saved grid that holds its own on its lattice
+ * (the grid it had grown to when saved): 1 when it grew, 0 when the grid is
+ * not such (the geometry check refuses it then), -1 when growing failed. */
+static int grow_to_saved(struct vlff_publisher *p, const struct obs_header *h) {
+  if (p->world_limit <= 0 || h->voxel != p->voxel) return 0;
+  uint32_t sh[3];
+  int same = 1;
+  for (int a = 0; a < 3; a++) {
+    double k = (h->origin[a] - p->origin0[a]) / p->voxel;
+    long kr = lround(k);
+    if (!(fabs(k - (double)kr) < 1e-6) || kr > p->k0[a]) return 0;
+    if ((double)(p->k0[a] - kr) + p->dims[a] > (double)h->dims[a]) return 0;
+    sh[a] = (uint32_t)(p->k0[a] - kr);
+    same &= sh[a] == 0 && h->dims[a] == p->dims[a];
+  }
+  if (same) return 0;
+  if (vlff_lattice_cells(h->dims) > p->max_voxels) return 0;
+  return publisher_regrid(p, sh, h->dims) ? -1 : 1;
+}
+
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   size_t n = p->nvox, grids = sizeof(struct obs_header) + n + n * 2 + n * 12;
   struct obs_reader r = {.fd = vlff_open_regular(path, err, errlen), .path = path};
@@ -387,8 +419,7 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   }
   r.size = (uint64_t)st.st_size;
   r.buf = malloc(OBS_CHUNK);
-  g = malloc(grids - sizeof(struct obs_header));
-  if (!r.buf || !g) {
+  if (!r.buf) {
     snprintf(err, errlen, "%s: out of memory", path);
     goto out;
   }
@@ -399,6 +430,20 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
     goto out;
   }
   if (obs_get(&r, 0, &h, sizeof h, err, errlen)) goto out;
+  /* A grown map's file: this map grows to it first (the geometry check
+   * below refuses any other grid). Growing changes nothing observed, so a
+   * file refused after it leaves the map as it was, only larger. */
+  if (grow_to_saved(p, &h) < 0) {
+    snprintf(err, errlen, "%s: out of memory growing the map to the saved %ux%ux%u grid", path, h.dims[0], h.dims[1],
+             h.dims[2]);
+    goto out;
+  }
+  n = p->nvox, grids = sizeof(struct obs_header) + n + n * 2 + n * 12;
+  g = malloc(grids - sizeof(struct obs_header));
+  if (!g) {
+    snprintf(err, errlen, "%s: out of memory", path);
+    goto out;
+  }
   const int v1 = !memcmp(h.magic, OBS_MAGIC_V1, 8), v2 = !memcmp(h.magic, OBS_MAGIC_V2, 8),
             v3 = !memcmp(h.magic, OBS_MAGIC_V3, 8);
   if (!v1 && !v2 && !v3 && memcmp(h.magic, OBS_MAGIC, 8)) {
@@ -548,6 +593,102 @@ out:
 
 const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher *p) { return p->ev; }
 
+/* A per-voxel array regridded: n elements of elem bytes, each byte fill,
+ * with the old grid's in their places (old NULL: none). NULL when out of
+ * memory. */
+static void *regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const uint32_t sh[3],
+                    const uint32_t nd[3]) {
+  void *a = malloc(vlff_lattice_cells(nd) * elem);
+  if (!a) return NULL;
+  memset(a, fill, vlff_lattice_cells(nd) * elem);
+  if (old) vlff_lattice_copy(a, nd, old, dims, sh, elem);
+  return a;
+}
+
+/* The map's grid and everything kept per voxel, from dims shifted by sh
+ * into nd: all allocated before anything changes. */
+static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], const uint32_t nd[3]) {
+  const size_t n = vlff_lattice_cells(nd);
+  const uint32_t *od = p->dims;
+  /* kept: what was observed and published where */
+  uint8_t *observed = regrid(p->observed, 1, 0, od, sh, nd), *conf = regrid(p->conf, 1, 0, od, sh, nd);
+  uint16_t *hits = regrid(p->hits, 2, 0, od, sh, nd), *labels = regrid(p->labels, 2, 0xff, od, sh, nd);
+  float *hit_sum = regrid(p->hit_sum, 12, 0, od, sh, nd);
+  uint16_t *pub_labels = regrid(p->pub_labels, 2, 0xff, od, sh, nd);
+  uint8_t *pub_conf = regrid(p->pub_conf, 1, 0, od, sh, nd), *thru = regrid(p->thru, 1, 0, od, sh, nd);
+  /* scratch, and the dirty marks (the next publish is whole) */
+  uint8_t *dirty = regrid(NULL, 1, 0, od, sh, nd);
+  size_t *qidx = malloc(n * sizeof *qidx), *dirty_idx = malloc(n * sizeof *dirty_idx);
+  float *qxyz = malloc(n * 3 * sizeof *qxyz), *qdens = malloc(n * sizeof *qdens),
+        *qmargin = malloc(n * sizeof *qmargin);
+  int *qlabel = malloc(n * sizeof *qlabel);
+  struct vlff_map_range *runs = malloc((n / 2 + 1) * sizeof *runs);
+  uint32_t *thru_list = malloc(n * sizeof *thru_list);
+  if (!observed || !conf || !hits || !labels || !hit_sum || !pub_labels || !pub_conf || !thru || !dirty || !qidx ||
+      !dirty_idx || !qxyz || !qdens || !qmargin || !qlabel || !runs || !thru_list ||
+      vlff_hold_grow(p->hold, od, sh, nd)) {
+    VLFF_FREE_ALL(observed, conf, hits, labels, hit_sum, pub_labels, pub_conf, thru, dirty, qidx, dirty_idx, qxyz,
+                  qdens, qmargin, qlabel, runs, thru_list);
+    return -1;
+  }
+  /* Between keyframes no view's list is open (thru_commit emptied it). */
+  for (size_t k = 0; k < p->nthru; k++) thru_list[k] = (uint32_t)vlff_lattice_index(p->thru_list[k], od, sh, nd);
+  VLFF_FREE_ALL(p->observed, p->conf, p->hits, p->labels, p->hit_sum, p->pub_labels, p->pub_conf, p->thru, p->dirty,
+                p->qidx, p->dirty_idx, p->qxyz, p->qdens, p->qmargin, p->qlabel, p->runs, p->thru_list);
+  p->observed = observed, p->conf = conf, p->hits = hits, p->labels = labels, p->hit_sum = hit_sum;
+  p->pub_labels = pub_labels, p->pub_conf = pub_conf, p->thru = thru, p->dirty = dirty;
+  p->qidx = qidx, p->dirty_idx = dirty_idx, p->qxyz = qxyz, p->qdens = qdens, p->qmargin = qmargin;
+  p->qlabel = qlabel, p->runs = runs, p->thru_list = thru_list;
+  p->ndirty = 0;
+  for (int a = 0; a < 3; a++) {
+    p->k0[a] -= (long)sh[a];
+    p->origin[a] = p->origin0[a] + (double)p->k0[a] * p->voxel;
+    p->dims[a] = nd[a];
+  }
+  p->nvox = n;
+  /* Readers see the new geometry with the next publish, which is whole. */
+  p->need_full = true;
+  p->refresh_at = 0;
+  p->grown++;
+  return 0;
+}
+
+int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen) {
+  uint32_t sh[3], nd[3];
+  int rc = vlff_lattice_cover(p->origin, p->voxel, p->dims, lo, hi, p->world_limit > 0 ? p->world_limit : INFINITY,
+                              sh, nd);
+  if (rc < 0) return snprintf(err, errlen, "map: growth to an empty or non-finite box"), -1;
+  char e[256] = "";
+  /* The evidence first: its grid is its own (publish.evidence_voxel_m). */
+  int erc = 0;
+  if (p->ev && p->world_limit > 0) erc = vlff_evidence_grow(p->ev, lo, hi, p->world_limit, e, sizeof e);
+  if (rc == 0 && erc >= 0) return erc;
+  if (p->world_limit <= 0) return snprintf(err, errlen, "map: the box is fixed (field.grow is off)"), -1;
+  const size_t n = vlff_lattice_cells(nd);
+  if (erc < 0 || n > p->max_voxels) {
+    p->grow_refused++;
+    if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;
+    return snprintf(err, errlen,
+                    "map: growing to %.1f x %.1f x %.1f m needs %zu voxels of %.3f m, more than shm.map_max_voxels "
+                    "(%zu)",
+                    nd[0] * p->voxel, nd[1] * p->voxel, nd[2] * p->voxel, n, p->voxel, p->max_voxels),
+           -1;
+  }
+  if (rc == 0) return 1; /* the evidence grew, the map's grid held it */
+  if (publisher_regrid(p, sh, nd)) {
+    p->grow_refused++;
+    return snprintf(err, errlen, "map: out of memory growing to %zu voxels", n), -1;
+  }
+  return 1;
+}
+
+void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown,
+                        long long *refused) {
+  for (int a = 0; a < 3; a++) lo[a] = p->origin[a], hi[a] = p->origin[a] + p->dims[a] * p->voxel;
+  if (grown) *grown = p->grown;
+  if (refused) *refused = p->grow_refused;
+}
+
 void vlff_publisher_reset(struct vlff_publisher *p) {
   if (p->ev) vlff_evidence_reset(p->ev);
   p->ev_full_said = p->ev_overflow_said = p->ev_paged_said = p->ev_page_error_said = false;
@@ -574,7 +715,8 @@ bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x
 int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
   char why[200];
   if (vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, why, sizeof why) ||
-      vlff_pose_plausible(v->c2w, p->scene_lo, p->scene_hi, why, sizeof why)) {
+      (p->world_limit > 0 ? vlff_pose_in_world(v->c2w, p->world_limit, why, sizeof why)
+                          : vlff_pose_plausible(v->c2w, p->scene_lo, p->scene_hi, why, sizeof why))) {
     snprintf(err, errlen, "view refused: %s", why);
     return -1;
   }

@@ -100,6 +100,65 @@ static bool pose_check(struct vlff_node *n, const struct candidate *c) {
   return ok;
 }
 
+/* A keyframe's measured points and its camera: their box, false when the
+ * view has no depth. Every fourth pixel of every fourth row: the box of a
+ * surface, not of each pixel. */
+static bool view_extent(const struct vlff_view *v, double lo[3], double hi[3]) {
+  const double *T = v->c2w;
+  for (int a = 0; a < 3; a++) lo[a] = hi[a] = T[4 * a + 3];
+  if (!v->depth) return false;
+  bool any = false;
+  for (int y = 0; y < v->height; y += 4)
+    for (int x = 0; x < v->width; x += 4) {
+      float d = v->depth[(size_t)y * v->width + x];
+      if (!(d > 0) || !isfinite(d)) continue;
+      double c[3] = {(x + 0.5 - v->cx) / v->fx * d, (y + 0.5 - v->cy) / v->fy * d, d};
+      for (int a = 0; a < 3; a++) {
+        double w = T[4 * a] * c[0] + T[4 * a + 1] * c[1] + T[4 * a + 2] * c[2] + T[4 * a + 3];
+        lo[a] = fmin(lo[a], w), hi[a] = fmax(hi[a], w);
+      }
+      any = true;
+    }
+  return any;
+}
+
+/* field.grow: a keyframe whose camera or measured points (with a margin for
+ * the samples around a surface) leave the field's or the map's box grows
+ * both, by GROW_AHEAD_M more on every side, so that a robot walking on
+ * grows them every few metres rather than every keyframe. What cannot grow
+ * (the world's limit, a memory cap) is said, rate-limited, and counted;
+ * the keyframe is trained and mapped within the box as it is. */
+#define GROW_NEAR_M 0.25
+#define GROW_AHEAD_M 1.0
+static void grow_to_view(struct vlff_node *n, const struct vlff_view *v) {
+  double lo[3], hi[3], flo[3], fhi[3], plo[3], phi[3];
+  if (!n->cfg.field.grow || !view_extent(v, lo, hi)) return;
+  vlff_field_box(n->field, flo, fhi);
+  long long grown0, refused0;
+  vlff_publisher_box(n->pub, plo, phi, &grown0, &refused0);
+  bool held = true;
+  for (int a = 0; a < 3; a++)
+    held = held && lo[a] - GROW_NEAR_M >= fmax(flo[a], plo[a]) && hi[a] + GROW_NEAR_M <= fmin(fhi[a], phi[a]);
+  if (held) return;
+  for (int a = 0; a < 3; a++) lo[a] -= GROW_AHEAD_M, hi[a] += GROW_AHEAD_M;
+  char e[320];
+  int rf = vlff_field_grow(n->field, lo, hi, e, sizeof e);
+  if (rf < 0) {
+    n->field_grow_refused++;
+    vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
+  }
+  int rp = vlff_publisher_grow(n->pub, lo, hi, e, sizeof e);
+  if (rp < 0) vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
+  if (rf > 0 || rp > 0) {
+    vlff_field_box(n->field, flo, fhi);
+    vlff_publisher_box(n->pub, plo, phi, NULL, NULL);
+    VLFF_INFO(TAG, "box grown for keyframe at (%.1f, %.1f, %.1f): field [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m, "
+                   "map [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m",
+              v->c2w[3], v->c2w[7], v->c2w[11], flo[0], fhi[0], flo[1], fhi[1], flo[2], fhi[2], plo[0], phi[0],
+              plo[1], phi[1], plo[2], phi[2]);
+  }
+}
+
 static bool contradicted(void *pub, const struct vlff_view *v) { return vlff_publisher_contradicted(pub, v); }
 
 /* Newer depth saw through surfaces the map had measured (a thing moved or
@@ -163,6 +222,7 @@ static void take_candidates(struct vlff_node *n, bool wait) {
                            "nearest another), counted as evicted",
                       vlff_kfstore_count(n->store), n->cfg.keyframes.memory_mb, n->cfg.keyframes.max_keyframes);
           }
+          grow_to_view(n, &c->view);
           /* The view passed the same check just above: these cannot refuse it. */
           if (vlff_publisher_observe(n->pub, &c->view, verr, sizeof verr) == 0)
             vlff_publisher_set_camera(n->pub, &c->view, c->t_host_ns, c->id, verr, sizeof verr);

@@ -430,6 +430,84 @@ static void pose_quaternion_every_branch(void **state) {
   }
 }
 
+/* A map that grows (field.grow; docs/shm.md "A map that grows"): the node
+ * publishes a larger grid, on the same lattice, in the same segment. A
+ * reader attached before keeps reading every world point's label through
+ * the same handle, and a snapshot it follows takes the new geometry whole. */
+static void map_grows_under_reader(void **state) {
+  (void)state;
+  char name[64];
+  test_name(name, sizeof name, "grow");
+  struct vlff_map_params mp = {.max_voxels = 1000, .label_max_width = 8, .label_max_height = 6};
+  struct vlff_map *w = vlff_map_create(name, &mp);
+  assert_non_null(w);
+  struct vlff_map *r = vlff_map_attach(name);
+  assert_non_null(r);
+  struct vlff_map_snapshot *s = vlff_map_snapshot_new(r);
+  assert_non_null(s);
+  const char *prompts[] = {"wall", "floor", "door", "sofa"};
+  /* first: 4 x 4 x 4 voxels of 0.25 m from (0, 0, 0), label = x index % 3 */
+  uint16_t a[64], b[10 * 8 * 4];
+  uint8_t ca[64], cb[10 * 8 * 4];
+  for (int i = 0; i < 64; i++) a[i] = (uint16_t)(i % 4 % 3), ca[i] = 200;
+  struct vlff_map_grid ga = {.origin = {0, 0, 0}, .voxel_size = 0.25, .dims = {4, 4, 4}, .labels = a, .confidence = ca};
+  struct vlff_map_update ua = {.grid = &ga, .prompts = prompts, .prompt_count = 4};
+  assert_int_equal(vlff_map_publish(w, &ua), 0);
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 1); /* the first: whole */
+  const double old_pt[3] = {0.6, 0.3, 0.9}; /* x index 2: label 2 */
+  uint16_t label;
+  uint8_t conf;
+  assert_int_equal(vlff_map_label_at(r, old_pt[0], old_pt[1], old_pt[2], &label, &conf), 0);
+  assert_int_equal(label, 2);
+  assert_int_equal(vlff_map_label_at(r, -1.2, 0.3, 0.9, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN); /* not mapped yet */
+  /* grown by 4 voxels toward -x and 2 toward +x, 4 toward +y: 10 x 8 x 4
+   * from (-1, 0, 0); the old voxels where they were, the new ones sofa */
+  for (int i = 0; i < 10 * 8 * 4; i++) b[i] = 3, cb[i] = 100;
+  for (int z = 0; z < 4; z++)
+    for (int y = 0; y < 4; y++)
+      for (int x = 0; x < 4; x++) {
+        b[(x + 4) + 10 * (y + 8 * z)] = a[x + 4 * (y + 4 * z)];
+        cb[(x + 4) + 10 * (y + 8 * z)] = ca[x + 4 * (y + 4 * z)];
+      }
+  struct vlff_map_grid gb = {.origin = {-1, 0, 0}, .voxel_size = 0.25, .dims = {10, 8, 4}, .labels = b,
+                             .confidence = cb};
+  struct vlff_map_update ub = {.grid = &gb, .prompts = prompts, .prompt_count = 4};
+  assert_int_equal(vlff_map_publish(w, &ub), 0);
+  /* the same handle: old points keep their labels, new points have theirs */
+  assert_int_equal(vlff_map_label_at(r, old_pt[0], old_pt[1], old_pt[2], &label, &conf), 0);
+  assert_int_equal(label, 2);
+  assert_int_equal(conf, 200);
+  assert_int_equal(vlff_map_label_at(r, -0.9, 1.9, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 3);
+  assert_int_equal(vlff_map_label_at(r, 1.4, 0.1, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 3);
+  assert_int_equal(vlff_map_label_at(r, 1.6, 0.1, 0.1, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN); /* beyond the grown grid */
+  /* the followed snapshot: the new geometry, copied whole */
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 1);
+  struct vlff_map_info info;
+  assert_int_equal(vlff_map_snapshot_info(s, &info), 0);
+  assert_int_equal(info.grid.dims[0], 10);
+  assert_true(info.grid.origin[0] == -1.0);
+  assert_memory_equal(info.grid.labels, b, sizeof b);
+  assert_int_equal(vlff_map_snapshot_label_at(s, old_pt[0], old_pt[1], old_pt[2], &conf), 2);
+  /* past the segment's capacity (1000 voxels): refused, the map as it was */
+  uint16_t big[11 * 10 * 10] = {0};
+  uint8_t cbig[11 * 10 * 10] = {0};
+  struct vlff_map_grid gc = {.origin = {-1, 0, 0}, .voxel_size = 0.25, .dims = {11, 10, 10}, .labels = big,
+                             .confidence = cbig};
+  struct vlff_map_update uc = {.grid = &gc, .prompts = prompts, .prompt_count = 4};
+  assert_int_equal(vlff_map_publish(w, &uc), -1);
+  assert_int_equal(errno, EMSGSIZE);
+  assert_int_equal(vlff_map_label_at(r, -0.9, 1.9, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 3);
+  vlff_map_snapshot_free(s);
+  vlff_map_detach(r);
+  vlff_map_detach(w);
+  assert_int_equal(vlff_shm_unlink(name), 0);
+}
+
 static void map_publish_and_read(void **state) {
   (void)state;
   char name[64];
@@ -598,4 +676,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(ring_takeover_of_dead_creator), cmocka_unit_test(attach_rejects_bad_segments),
     cmocka_unit_test(frame_records), cmocka_unit_test(pose_interpolation_and_tolerance),
     cmocka_unit_test(pose_quaternion_every_branch),
-    cmocka_unit_test(map_publish_and_read), cmocka_unit_test(prompt_mailbox))
+    cmocka_unit_test(map_publish_and_read), cmocka_unit_test(map_grows_under_reader),
+    cmocka_unit_test(prompt_mailbox))

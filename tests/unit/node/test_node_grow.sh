@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# A box that grows (field.grow; docs/field.md "Growth", docs/shm.md "A map
+# that grows"): the node starts in a first box of +-2.5 m while the
+# simulator walks a 10 x 8 m flat. The keyframes that see beyond it grow the
+# field's, the evidence's and the map's boxes (said in the log, counted in
+# the stop line); the map segment keeps its name and capacity and shows the
+# grown grid, labelled beyond the first box; a restarted node resumes in the
+# grown box from its checkpoint.
+set -u
+node_field=$'field:\n  feature_dim: 64\n  hash_log2_size: 16\n  grow: true'
+# 0.1 m voxels: the flat and the margins grown around it within
+# shm.map_max_voxels (2^21).
+node_yaml_extra=$'publish:\n  voxel_size_m: 0.1'
+. "$(dirname "$0")/node_sh.sh" ngr "$@"
+# The simulator's world: the flat in its own box (the node's config without
+# growth, with the flat's box and layout).
+sed -e '/^  grow: true$/d' -e 's/^  frames: 20$/  frames: 40\n  layout: flat/' \
+  -e 's/^  hash_log2_size: 16$/  hash_log2_size: 16\n  scene_min: [-5, -4, -1.5]\n  scene_max: [5, 4, 1.5]/' \
+  "$tmp/n.yaml" >"$tmp/s.yaml"
+"$sim" --config "$tmp/s.yaml" --quiet 2>"$tmp/simlog" &
+simpid=$!
+wait_until 600 'grep -q "box grown for keyframe" "$tmp/log"'
+check "a keyframe that sees beyond the first box grows it: $(grep -m1 -o 'box grown for keyframe.*' "$tmp/log")" \
+  'grep -q "box grown for keyframe at" "$tmp/log"'
+# The map segment: the grid beyond +-2.5 m on x, on the first box's lattice.
+grown_map() {
+  read -r _ ox oy oz < <("$shm" stat "$p-m" | grep '^grid_origin ')
+  read -r _ vs < <("$shm" stat "$p-m" | grep '^grid_voxel_size ')
+  read -r _ dx dy dz < <("$shm" stat "$p-m" | grep '^grid_dims ')
+  awk -v o="$ox" -v d="$dx" -v v="$vs" "BEGIN { exit !(o < -2.6 || o + d * v > 2.6) }"
+}
+wait_until 600 grown_map
+sleep 3 # a few keyframes more in the grown map (the simulator walks the flat round)
+kill "$simpid"; wait "$simpid"; simpid=
+sleep 1
+read -r _ ox oy oz < <("$shm" stat "$p-m" | grep '^grid_origin ')
+read -r _ vs < <("$shm" stat "$p-m" | grep '^grid_voxel_size ')
+read -r _ dx dy dz < <("$shm" stat "$p-m" | grep '^grid_dims ')
+check "the map's grid grew past the first box (origin $ox $oy $oz, $dx x $dy x $dz voxels of $vs m)" \
+  'awk -v o="$ox" -v d="$dx" -v v="$vs" "BEGIN { exit !(o < -2.6 || o + d * v > 2.6) }"'
+check "on the first box's lattice (origin -2.5 + whole voxels)" \
+  'awk -v o="$ox" -v v="$vs" "BEGIN { k = (o + 2.5) / v; r = k - int(k + (k < 0 ? -0.5 : 0.5)); exit !(r < 1e-6 && r > -1e-6) }"'
+# A labelled voxel beyond the first box: the flat's walls at x = +-4.9 m.
+beyond=0
+for x in -4.85 -4.75 -4.65 4.65 4.75 4.85; do
+  for y in -1 0 1; do
+    for z in -1 0 1; do
+      out=$("$shm" label "$p-m" "$x" "$y" "$z" 2>/dev/null)
+      [[ $out =~ ^label\ ([0-9]+)\  ]] && (( BASH_REMATCH[1] < 65534 )) && beyond=$((beyond + 1))
+    done
+  done
+done
+check "voxels beyond the first box carry class labels ($beyond of 54 probed at the flat's end walls)" '(( beyond > 0 ))'
+stop_node
+line=$(grep "the box grew" "$tmp/log")
+check "the stop line counts the growths ($line)" \
+  '[[ $line =~ the\ box\ grew\ ([0-9]+)\ times,\ to\ \[(-?[0-9.]+),\ (-?[0-9.]+)\].*\ ([0-9]+)\ growths\ refused ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[4] == 0 ))'
+# Restarted on its checkpoint: the field and the map resume in the grown box.
+dims_before="$dx $dy $dz"
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log2" &
+nodepid=$!
+wait_until 600 '"$shm" stat "$p-m" 2>/dev/null | grep -q "^grid_dims $dims_before\$" && grep -q "resum\|restor" "$tmp/log2"'
+check "restarted, the map is the grown grid again ($("$shm" stat "$p-m" | grep '^grid_dims '), was $dims_before)" \
+  '"$shm" stat "$p-m" | grep -q "^grid_dims $dims_before\$"'
+check "no checkpoint or map refused on the restart" '! grep -qi "refused\|not an observation grid" "$tmp/log2"'
+stop_node
+verdict
