@@ -89,6 +89,7 @@ static const char *const dds_durabilities[] = {"volatile", "transient_local", NU
 
 static const double merge_bounds_def[6] = {-10, -10, -2, 10, 10, 4};
 static const double scene_min_def[3] = {-2.5, -2.5, -2.5};
+static const double zero3[3] = {0, 0, 0};
 static const double scene_max_def[3] = {2.5, 2.5, 2.5};
 static const double zero4[4] = {0, 0, 0, 0};
 static const double zero5[5] = {0, 0, 0, 0, 0};
@@ -217,6 +218,8 @@ static const struct key schema[] = {
     INT("sim.range_first", sim.range_first, 0, 999999, 0),
     INT("sim.range_count", sim.range_count, 0, 1000000, 0),
     DBL("sim.bad_pose_frac", sim.bad_pose_frac, 0, 1, 0),
+    DVEC("sim.scene_min", sim.scene_min, -1e4, 1e4, zero3),
+    DVEC("sim.scene_max", sim.scene_max, -1e4, 1e4, zero3),
 
     INT("field.feature_dim", field.feature_dim, 8, 1024, 512),
     INT("field.hash_levels", field.hash_levels, 1, 32, 16),
@@ -1262,6 +1265,15 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
     if (!(cfg->field.scene_min[i] < cfg->field.scene_max[i]))
       return fail_cross(p, "field.scene_max", "expected scene_max > scene_min on every axis, got axis %d with %g <= %g", i,
                   cfg->field.scene_max[i], cfg->field.scene_min[i]);
+  {
+    const double *lo = cfg->sim.scene_min, *hi = cfg->sim.scene_max;
+    bool set = false;
+    for (int i = 0; i < 3; i++) set = set || lo[i] != 0 || hi[i] != 0;
+    for (int i = 0; set && i < 3; i++)
+      if (!(lo[i] < hi[i]))
+        return fail_cross(p, "sim.scene_max", "expected sim.scene_max > sim.scene_min on every axis (or both all 0: "
+                          "the field's box), got axis %d with %g <= %g", i, hi[i], lo[i]);
+  }
   if (cfg->field.grow)
     for (int i = 0; i < 3; i++) {
       double w = cfg->field.world_limit_m;
@@ -1593,6 +1605,16 @@ void vlff_config_dump(const struct vlff_config *cfg, FILE *out) {
 bool vlff_config_sim_features_misused(const struct vlff_config *cfg) {
   return cfg->source.features == VLFF_FEAT_SIM && cfg->source.kind == VLFF_SOURCE_RING &&
          !cfg->source.allow_sim_features;
+}
+
+void vlff_config_sim_box(const struct vlff_cfg_sim *sim, const struct vlff_cfg_field *field, double lo[3],
+                         double hi[3]) {
+  bool set = false;
+  for (int i = 0; i < 3; i++) set = set || sim->scene_min[i] != 0 || sim->scene_max[i] != 0;
+  for (int i = 0; i < 3; i++) {
+    lo[i] = set ? sim->scene_min[i] : field->scene_min[i];
+    hi[i] = set ? sim->scene_max[i] : field->scene_max[i];
+  }
 }
 
 uint64_t vlff_config_field_hash(const struct vlff_cfg_field *field) {

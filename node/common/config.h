@@ -154,9 +154,18 @@ struct vlff_cfg_sim {
   int frames;                      /* frames per trajectory loop */
   int range_first, range_count;    /* stream only frames first..first+count-1 of the loop (count 0: all) */
   double bad_pose_frac;            /* fraction of frames with corrupted poses */
+  /* The simulated world's box (the room, flat or building fills it); all
+   * zero: field.scene_min/max. A node with field.grow starts in a first box
+   * smaller than the world (vlff_config_sim_box). */
+  double scene_min[3], scene_max[3];
   int change_count;                /* sim.changes, in the order written */
   struct vlff_sim_change changes[VLFF_SIM_MAX_CHANGES];
 };
+
+struct vlff_cfg_field;
+/* The simulated world's box: sim.scene_min/max when set, else the field's. */
+void vlff_config_sim_box(const struct vlff_cfg_sim *sim, const struct vlff_cfg_field *field, double lo[3],
+                         double hi[3]);
 
 struct vlff_cfg_field {
   int feature_dim;                 /* D */

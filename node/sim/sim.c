@@ -1676,11 +1676,14 @@ int vlff_sim_object_box(const struct vlff_sim *s, const char *name, double time_
 
 struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vlff_cfg_field *field, char *err,
                                  size_t errlen) {
-  const double *bl = field->scene_min, *bh = field->scene_max;
+  double bl[3], bh[3];
+  vlff_config_sim_box(sim, field, bl, bh);
   for (int k = 0; k < 3; k++)
     if (!(bh[k] - bl[k] >= 2.6)) {
-      vlff_errf(err, errlen, "sim: field.scene_min/max axis %d spans %.2f m; the room needs at least 2.6 m", k,
-             bh[k] - bl[k]);
+      vlff_errf(err, errlen,
+                "sim: the world's box (sim.scene_min/max, else field.scene_min/max) axis %d spans %.2f m; the room "
+                "needs at least 2.6 m",
+                k, bh[k] - bl[k]);
       return NULL;
     }
   if (sim->width < 16 || sim->height < 16 || field->feature_dim < 1 || sim->rate_hz <= 0) {
@@ -1692,8 +1695,8 @@ struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vl
     double ax = bh[0] - bl[0] - 0.2, ay = bh[1] - bl[1] - 0.2;
     if (ax < 6 || ay < 6 || ax * ay < 60) {
       vlff_errf(err, errlen,
-                "sim: sim.layout flat fills field.scene_min/max: its floor is %.1f x %.1f m; it needs at least 6 m "
-                "each way and 60 m^2",
+                "sim: sim.layout flat fills the world's box (sim.scene_min/max, else field.scene_min/max): its "
+                "floor is %.1f x %.1f m; it needs at least 6 m each way and 60 m^2",
                 ax, ay);
       return NULL;
     }
@@ -1709,8 +1712,9 @@ struct vlff_sim *vlff_sim_create(const struct vlff_cfg_sim *sim, const struct vl
     double floor = sim->flats * (wf - 0.1) * (df - 0.1) + ax * CORRIDOR_M;
     if (wf < 6 || df < 6 || floor < 200) {
       vlff_errf(err, errlen,
-                "sim: sim.layout building fills field.scene_min/max with %d flats of %.1f x %.1f m off a %.1f m "
-                "corridor, %.0f m^2 of floor; each flat needs at least 6 m each way and the building 200 m^2",
+                "sim: sim.layout building fills the world's box (sim.scene_min/max, else field.scene_min/max) with "
+                "%d flats of %.1f x %.1f m off a %.1f m corridor, %.0f m^2 of floor; each flat needs at least 6 m "
+                "each way and the building 200 m^2",
                 sim->flats, wf, df, CORRIDOR_M, floor);
       return NULL;
     }

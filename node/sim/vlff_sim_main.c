@@ -75,7 +75,7 @@ static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, cons
   double fx, fy, cx, cy, lo[3], hi[3];
   vlff_sim_size(s, &W, &H, &fw, &fh, &D);
   vlff_sim_intrinsics(s, &fx, &fy, &cx, &cy);
-  for (int k = 0; k < 3; k++) lo[k] = cfg->field.scene_min[k], hi[k] = cfg->field.scene_max[k];
+  vlff_config_sim_box(&cfg->sim, &cfg->field, lo, hi);
   int n = cfg->sim.frames;
   struct vlff_dataset_writer *w =
       vlff_dataset_writer_open(dir, n, W, H, fx, fy, cx, cy, lo, hi, "sim", fw, fh, D, err, sizeof err);

@@ -874,11 +874,38 @@ static void test_yaml_anchors(void **state) {
   free(at);
 }
 
+/* The growth keys (field.grow, field.world_limit_m; sim.scene_min/max):
+ * checked together, and in the field's hash only when growing, so that a
+ * fixed box's checkpoints load as before they existed. */
+static void test_grow_keys(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  assert_int_equal(load("field:\n  grow: true\n  world_limit_m: 10\n  scene_max: [2.5, 2.5, 12]\n", &cfg), -1);
+  assert_non_null(strstr(err, "within field.world_limit_m (10 m)"));
+  assert_int_equal(load("sim:\n  scene_min: [1, -1, -1]\n  scene_max: [0, 1, 1]\n", &cfg), -1);
+  assert_non_null(strstr(err, "sim.scene_max"));
+  assert_int_equal(load("sim:\n  scene_min: [-5, -4, -1.5]\n  scene_max: [5, 4, 1.5]\n", &cfg), 0);
+  double lo[3], hi[3];
+  vlff_config_sim_box(&cfg.sim, &cfg.field, lo, hi);
+  assert_true(lo[0] == -5 && hi[1] == 4);
+  assert_int_equal(load("", &cfg), 0);
+  vlff_config_sim_box(&cfg.sim, &cfg.field, lo, hi);
+  assert_true(lo[0] == -2.5 && hi[1] == 2.5); /* unset: the field's box */
+  const uint64_t fixed = vlff_config_field_hash(&cfg.field);
+  assert_int_equal(load("field:\n  world_limit_m: 20\n", &cfg), 0);
+  assert_true(vlff_config_field_hash(&cfg.field) == fixed);
+  assert_int_equal(load("field:\n  grow: true\n", &cfg), 0);
+  const uint64_t grow = vlff_config_field_hash(&cfg.field);
+  assert_true(grow != fixed);
+  assert_int_equal(load("field:\n  grow: true\n  world_limit_m: 20\n", &cfg), 0);
+  assert_true(vlff_config_field_hash(&cfg.field) != grow);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_defaults_valid), cmocka_unit_test(test_good_file),
     cmocka_unit_test(test_errors), cmocka_unit_test(test_missing_file),
     cmocka_unit_test(test_shipped_configs), cmocka_unit_test(test_unknown_key_without_guess),
-    cmocka_unit_test(test_field_hash),
+    cmocka_unit_test(test_field_hash), cmocka_unit_test(test_grow_keys),
     cmocka_unit_test(test_sim_features), cmocka_unit_test(test_sim_changes), cmocka_unit_test(test_deep_yaml),
     cmocka_unit_test(test_shm_names), cmocka_unit_test(test_fifo_config),
     cmocka_unit_test(test_dead_temps), cmocka_unit_test(test_config_find),

@@ -621,6 +621,18 @@ static void test_bad_config(void **state) {
   char err[256] = "";
   assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
   assert_non_null(strstr(err, "scene_min/max"));
+  /* The world's own box (sim.scene_min/max) replaces the field's: a node
+   * whose box grows (field.grow) starts in a smaller first box. */
+  const double lo[3] = {-2, -2, -1.5}, hi[3] = {2, 2, 1.5};
+  memcpy(c.sim.scene_min, lo, sizeof lo);
+  memcpy(c.sim.scene_max, hi, sizeof hi);
+  struct vlff_sim *s = vlff_sim_create(&c.sim, &c.field, err, sizeof err);
+  assert_non_null(s);
+  vlff_sim_destroy(s);
+  c.sim.scene_max[0] = -2.5; /* and is refused by its own name */
+  c.sim.layout = VLFF_LAYOUT_FLAT;
+  assert_null(vlff_sim_create(&c.sim, &c.field, err, sizeof err));
+  assert_non_null(strstr(err, "sim.scene_min/max"));
 }
 
 /* sim.range_first/range_count: the stream shows only that part of the
