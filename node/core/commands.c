@@ -237,8 +237,8 @@ void update_state(struct vlff_node *n) {
   long long paged_out, paged_in, dropped;
   vlff_publisher_evidence_paging(n->pub, &paged, &paged_out, &paged_in, &dropped);
   double box_lo[3], box_hi[3];
-  long long grown, refused;
-  vlff_publisher_box(n->pub, box_lo, box_hi, &grown, &refused);
+  long long grown;
+  vlff_publisher_box(n->pub, box_lo, box_hi, &grown);
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
   if (vlff_frame_watch_lost(&n->fwatch, now, n->cfg.shm.ring)) f |= VLFF_NODE_ERR_CAMERA_LOST, n->st.fps_in = 0;
@@ -257,7 +257,7 @@ void update_state(struct vlff_node *n) {
   n->st.mem_rss_mb = mem[3];
   n->st.evidence_paged = (long long)paged, n->st.evidence_paged_out = paged_out;
   n->st.evidence_paged_in = paged_in, n->st.evidence_dropped = dropped;
-  n->st.box_growths = grown, n->st.box_refused = refused + n->field_grow_refused;
+  n->st.box_growths = grown, n->st.box_refused = n->grow_refused;
   memcpy(n->st.box_lo, box_lo, sizeof box_lo), memcpy(n->st.box_hi, box_hi, sizeof box_hi);
   pthread_mutex_unlock(&n->slock);
 }

@@ -86,9 +86,9 @@ struct vlff_node_status {
    * brought back since the start (or the last reset), and given up for
    * good (no page file, or it full). */
   long long evidence_paged, evidence_paged_out, evidence_paged_in, evidence_dropped;
-  /* The map's box (metres), how often it grew since the start and how
-   * often the field's or the map's growth was refused (field.grow: the
-   * world's limit, train.occupancy_max_mb, shm.map_max_voxels, the
+  /* The map's box (metres), how often it grew since the start, and the
+   * keyframes whose box the field or the map could not grow to (field.grow:
+   * the world's limit, train.occupancy_max_mb, shm.map_max_voxels, the
    * evidence's index budget). */
   double box_lo[3], box_hi[3];
   long long box_growths, box_refused;

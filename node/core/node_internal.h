@@ -115,7 +115,7 @@ struct vlff_node {
     uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder,
         kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback, cpu_budget, grow;
   } warned;
-  long long field_grow_refused; /* trainer: growths of the field's box refused (field.grow) */
+  long long grow_refused; /* trainer: keyframes whose box the field or the map could not grow to (field.grow) */
 
   pthread_t ingest_thread, trainer_thread;
   bool ingest_started, trainer_started, joined;

@@ -43,7 +43,10 @@ struct vlff_publisher {
   double world_limit, origin0[3];
   long k0[3];
   size_t max_voxels;
-  long long grown, grow_refused;
+  long long grown;
+  /* The grid grew since the last publish: the next writes it whole, as it
+   * is (its labels are still right; only readers' geometry is new). */
+  bool regridded;
   uint64_t heartbeat_warned;       /* vlff_warn_limited's */
   uint32_t dims[3];
   size_t nvox;
@@ -616,8 +619,8 @@ static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], cons
   float *hit_sum = regrid(p->hit_sum, 12, 0, od, sh, nd);
   uint16_t *pub_labels = regrid(p->pub_labels, 2, 0xff, od, sh, nd);
   uint8_t *pub_conf = regrid(p->pub_conf, 1, 0, od, sh, nd), *thru = regrid(p->thru, 1, 0, od, sh, nd);
-  /* scratch, and the dirty marks (the next publish is whole) */
-  uint8_t *dirty = regrid(NULL, 1, 0, od, sh, nd);
+  /* the voxels owed a relabel, and scratch */
+  uint8_t *dirty = regrid(p->dirty, 1, 0, od, sh, nd);
   size_t *qidx = malloc(n * sizeof *qidx), *dirty_idx = malloc(n * sizeof *dirty_idx);
   float *qxyz = malloc(n * 3 * sizeof *qxyz), *qdens = malloc(n * sizeof *qdens),
         *qmargin = malloc(n * sizeof *qmargin);
@@ -633,21 +636,23 @@ static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], cons
   }
   /* Between keyframes no view's list is open (thru_commit emptied it). */
   for (size_t k = 0; k < p->nthru; k++) thru_list[k] = (uint32_t)vlff_lattice_index(p->thru_list[k], od, sh, nd);
+  for (size_t k = 0; k < p->ndirty; k++) dirty_idx[k] = vlff_lattice_index(p->dirty_idx[k], od, sh, nd);
   VLFF_FREE_ALL(p->observed, p->conf, p->hits, p->labels, p->hit_sum, p->pub_labels, p->pub_conf, p->thru, p->dirty,
                 p->qidx, p->dirty_idx, p->qxyz, p->qdens, p->qmargin, p->qlabel, p->runs, p->thru_list);
   p->observed = observed, p->conf = conf, p->hits = hits, p->labels = labels, p->hit_sum = hit_sum;
   p->pub_labels = pub_labels, p->pub_conf = pub_conf, p->thru = thru, p->dirty = dirty;
   p->qidx = qidx, p->dirty_idx = dirty_idx, p->qxyz = qxyz, p->qdens = qdens, p->qmargin = qmargin;
   p->qlabel = qlabel, p->runs = runs, p->thru_list = thru_list;
-  p->ndirty = 0;
   for (int a = 0; a < 3; a++) {
     p->k0[a] -= (long)sh[a];
     p->origin[a] = p->origin0[a] + (double)p->k0[a] * p->voxel;
     p->dims[a] = nd[a];
   }
   p->nvox = n;
-  /* Readers see the new geometry with the next publish, which is whole. */
-  p->need_full = true;
+  /* Readers see the new geometry with the next publish, which writes the
+   * whole grid as it is: relabelling it all (need_full) would hold the
+   * keyframes behind it for a second on a building. */
+  p->regridded = true;
   p->refresh_at = 0;
   p->grown++;
   return 0;
@@ -666,7 +671,6 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
   if (p->world_limit <= 0) return snprintf(err, errlen, "map: the box is fixed (field.grow is off)"), -1;
   const size_t n = vlff_lattice_cells(nd);
   if (erc < 0 || n > p->max_voxels) {
-    p->grow_refused++;
     if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;
     return snprintf(err, errlen,
                     "map: growing to %.1f x %.1f x %.1f m needs %zu voxels of %.3f m, more than shm.map_max_voxels "
@@ -675,18 +679,14 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
            -1;
   }
   if (rc == 0) return 1; /* the evidence grew, the map's grid held it */
-  if (publisher_regrid(p, sh, nd)) {
-    p->grow_refused++;
+  if (publisher_regrid(p, sh, nd))
     return snprintf(err, errlen, "map: out of memory growing to %zu voxels", n), -1;
-  }
   return 1;
 }
 
-void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown,
-                        long long *refused) {
+void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown) {
   for (int a = 0; a < 3; a++) lo[a] = p->origin[a], hi[a] = p->origin[a] + p->dims[a] * p->voxel;
   if (grown) *grown = p->grown;
-  if (refused) *refused = p->grow_refused;
 }
 
 void vlff_publisher_reset(struct vlff_publisher *p) {
@@ -1374,9 +1374,20 @@ static void hold_end(const struct vlff_publisher *p, struct vlff_publish_result 
   r->flips = hs->changed, r->flips_elsewhere = hs->changed_elsewhere, r->mapped_elsewhere = hs->mapped_elsewhere;
 }
 
+/* After a growth: the grid whole, as it is (partial publishes keep to the
+ * published geometry). */
+static int publish_regridded(struct vlff_publisher *p, const char *const *prompts, int k,
+                             struct vlff_publish_result *r, char *err, size_t errlen) {
+  if (!p->regridded) return 0;
+  if (publish_ranges(p, NULL, 0, prompts, k, NULL, r, err, errlen)) return -1;
+  p->regridded = false;
+  return 0;
+}
+
 int vlff_publisher_publish(struct vlff_publisher *p, struct vlff_field *f, const char *const *prompts, int k,
                            struct vlff_publish_result *r, char *err, size_t errlen) {
   result_init(r);
+  p->regridded = false; /* this one is whole */
   hold_begin(p, f);
   uint64_t stamp = prompt_stamp(p, f);
   /* A whole publish relabels every voxel: a full round, which the next
@@ -1418,6 +1429,7 @@ int vlff_publisher_publish_changed(struct vlff_publisher *p, struct vlff_field *
   if (p->need_full || prompts_hash(prompts, k) != p->prompts_hash)
     return vlff_publisher_publish(p, f, prompts, k, r, err, errlen);
   result_init(r);
+  if (publish_regridded(p, prompts, k, r, err, errlen)) return -1;
   r->version = vlff_map_version(p->map);
   if (!p->ndirty) return 0;
   qsort(p->dirty_idx, p->ndirty, sizeof *p->dirty_idx, by_index);
@@ -1442,6 +1454,7 @@ int vlff_publisher_publish_slice(struct vlff_publisher *p, struct vlff_field *f,
     return vlff_publisher_publish(p, f, prompts, k, r, err, errlen);
   }
   result_init(r);
+  if (publish_regridded(p, prompts, k, r, err, errlen)) return -1;
   /* Up to the voxel at fraction `to` of the grid, at least one voxel. */
   size_t a = p->refresh_at, b = !(to < 1) ? p->nvox : (size_t)ceil(fmax(0, to) * (double)p->nvox);
   if (b <= a) b = a + 1;
@@ -1537,6 +1550,7 @@ int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f,
   struct vlff_map_label_image img;
   label_image_end(p, &img);
   p->tail = TAIL_SCORE;
+  if (publish_regridded(p, prompts, k, r, err, errlen)) return -1;
   return publish_ranges(p, p->runs, 0, prompts, k, &img, r, err, errlen);
 }
 

@@ -115,14 +115,12 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * clipped to +-field.world_limit_m; every voxel keeps what was observed,
  * published and held there; the next publish is whole (readers see the new
  * geometry with it: docs/shm.md "A map that grows"). 1 grown, 0 when both
- * already held it, -1 with err (counted: vlff_publisher_box's refused) for
- * a fixed box, a bad box, a grid past shm.map_max_voxels (the segment's
+ * already held it, -1 with err for a fixed box, a bad box, a grid past shm.map_max_voxels (the segment's
  * capacity), evidence past its index budget, or no memory; what did not
  * grow is unchanged. */
 int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen);
-/* The map's box now, growths so far and growths refused (each may be NULL). */
-void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown,
-                        long long *refused);
+/* The map's box now, and its growths so far (grown may be NULL). */
+void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown);
 
 /* Publication (docs/node.md, "Publishing"). The grid is relabelled through
  * the field in three ways, each published at once to the map segment, whose

@@ -124,34 +124,41 @@ static bool view_extent(const struct vlff_view *v, double lo[3], double hi[3]) {
 
 /* field.grow: a keyframe whose camera or measured points (with a margin for
  * the samples around a surface) leave the field's or the map's box grows
- * both, by GROW_AHEAD_M more on every side, so that a robot walking on
- * grows them every few metres rather than every keyframe. What cannot grow
- * (the world's limit, a memory cap) is said, rate-limited, and counted;
- * the keyframe is trained and mapped within the box as it is. */
+ * both, ahead of what it needs by a quarter of the box's side on that axis
+ * (at least GROW_AHEAD_M): each growth copies every grid, so a robot walking
+ * on grows them a few times per building rather than every few keyframes.
+ * When a cap refuses that, the growth is tried again with the margin alone.
+ * What cannot grow even then (the world's limit, a memory cap) is said,
+ * rate-limited, and counted; the keyframe is trained and mapped within the
+ * box as it is. */
 #define GROW_NEAR_M 0.25
 #define GROW_AHEAD_M 1.0
 static void grow_to_view(struct vlff_node *n, const struct vlff_view *v) {
   double lo[3], hi[3], flo[3], fhi[3], plo[3], phi[3];
   if (!n->cfg.field.grow || !view_extent(v, lo, hi)) return;
   vlff_field_box(n->field, flo, fhi);
-  long long grown0, refused0;
-  vlff_publisher_box(n->pub, plo, phi, &grown0, &refused0);
+  vlff_publisher_box(n->pub, plo, phi, NULL);
   bool held = true;
-  for (int a = 0; a < 3; a++)
-    held = held && lo[a] - GROW_NEAR_M >= fmax(flo[a], plo[a]) && hi[a] + GROW_NEAR_M <= fmin(fhi[a], phi[a]);
-  if (held) return;
-  for (int a = 0; a < 3; a++) lo[a] -= GROW_AHEAD_M, hi[a] += GROW_AHEAD_M;
-  char e[320];
-  int rf = vlff_field_grow(n->field, lo, hi, e, sizeof e);
-  if (rf < 0) {
-    n->field_grow_refused++;
-    vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
+  double alo[3], ahi[3];
+  for (int a = 0; a < 3; a++) {
+    lo[a] -= GROW_NEAR_M, hi[a] += GROW_NEAR_M;
+    held = held && lo[a] >= fmax(flo[a], plo[a]) && hi[a] <= fmin(fhi[a], phi[a]);
+    double ahead = fmax(GROW_AHEAD_M, 0.25 * (phi[a] - plo[a]));
+    alo[a] = lo[a] < plo[a] || lo[a] < flo[a] ? lo[a] - ahead : lo[a];
+    ahi[a] = hi[a] > phi[a] || hi[a] > fhi[a] ? hi[a] + ahead : hi[a];
   }
-  int rp = vlff_publisher_grow(n->pub, lo, hi, e, sizeof e);
+  if (held) return;
+  char e[320];
+  int rf = vlff_field_grow(n->field, alo, ahi, e, sizeof e);
+  if (rf < 0) rf = vlff_field_grow(n->field, lo, hi, e, sizeof e);
+  if (rf < 0) vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
+  int rp = vlff_publisher_grow(n->pub, alo, ahi, e, sizeof e);
+  if (rp < 0) rp = vlff_publisher_grow(n->pub, lo, hi, e, sizeof e);
   if (rp < 0) vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
+  if (rf < 0 || rp < 0) n->grow_refused++;
   if (rf > 0 || rp > 0) {
     vlff_field_box(n->field, flo, fhi);
-    vlff_publisher_box(n->pub, plo, phi, NULL, NULL);
+    vlff_publisher_box(n->pub, plo, phi, NULL);
     VLFF_INFO(TAG, "box grown for keyframe at (%.1f, %.1f, %.1f): field [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m, "
                    "map [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m",
               v->c2w[3], v->c2w[7], v->c2w[11], flo[0], fhi[0], flo[1], fhi[1], flo[2], fhi[2], plo[0], phi[0],
