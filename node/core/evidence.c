@@ -192,7 +192,8 @@ static int more_slots(struct vlff_evidence *e, size_t cap) {
   if (cs) e->cos = cs;
   uint8_t *dirty = realloc(e->dirty, cap);
   if (dirty) e->dirty = dirty;
-  if (!mean || !views || !owner || !seen || !cs || !dirty) return -1; /* the old cap stands, the arrays at least as large */
+  /* On failure the old cap stands, its arrays at least as large. */
+  if (!mean || !views || !owner || !seen || !cs || !dirty) return -1;
   memset(e->views + e->cap, 0, cap - e->cap);
   memset(e->dirty + e->cap, 0, cap - e->cap);
   e->cap = cap;

@@ -807,6 +807,7 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_lost_classes_saved),
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
     cmocka_unit_test(test_full_budget_pages_out),
-    cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load), cmocka_unit_test(test_grow),
+    cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load),
+    cmocka_unit_test(test_grow),
     cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan), cmocka_unit_test(test_recent_views_replace_old))
