@@ -16,9 +16,10 @@
  * Each ring is attached when it appears (a producer started after the
  * recorder), from its oldest record still held, and again when its producer
  * replaces it; a pose or feature ring not attached yet is looked for again as
- * soon as a frame is read, since a producer makes its rings before its first
- * frame (a feature ring found 100 ms late had lost the maps of the first
- * frames a fast replay wrote). Each frame is written after the poses committed before it was
+ * soon as the frame ring's first frame is read, since a producer makes its
+ * rings before its first frame (a feature ring found 100 ms late had lost the
+ * maps of the first frames a fast replay wrote), and every 100 ms after. Each
+ * frame is written after the poses committed before it was
  * read and before the feature maps committed after, the order in which the
  * live processes produce a frame's records, so the file's order is the order
  * the node saw them in.
@@ -90,6 +91,7 @@ struct rec {
   uint64_t lost_prev; /* rings replaced: what their old handles had lost */
   size_t held_len;    /* a feature map read and kept for after its frame (in the ring's buffer) */
   uint64_t held_seq;
+  int looked_at_first; /* the pose and feature rings were looked for at the frame ring's first frame */
 };
 
 /* Attaches ring i when it exists, trying at most every 100 ms unless forced. */
@@ -111,6 +113,7 @@ static void attach(struct rec *r, int i, uint64_t now, int force) {
     }
     s->buf = b, s->cap = cap;
   }
+  if (i == R_FRAME) r->looked_at_first = 0; /* a new frame ring: its first frame is to come */
   if (!r->quiet) fprintf(stderr, "vlff-record: recording the %s ring %s\n", ring_what[i], VLFF_Q(s->name));
 }
 
@@ -218,12 +221,15 @@ static int frames_step(struct rec *r, uint64_t timeout_ns, long long *frames, lo
     int framed = n >= (ssize_t)sizeof(struct vlff_frame_hdr);
     uint64_t t = framed ? ((const struct vlff_frame_hdr *)r->s[R_FRAME].buf)->t_host_ns : 0;
     /* the maps of earlier frames, then the poses, the frame, its own map */
-    if (framed) {
+    if (framed && !r->looked_at_first) {
       /* A producer makes its rings before it writes its first frame: one not
-       * attached yet exists now, and what it holds of this frame is kept. */
+       * attached yet exists now, and what it holds of this frame is kept.
+       * Once per frame ring: a recording without an extractor would
+       * otherwise look for its feature ring at every frame. */
       uint64_t now = vlff_now_ns();
       attach(r, R_POSE, now, 1);
       attach(r, R_FEAT, now, 1);
+      r->looked_at_first = 1;
     }
     if (drain_features(r, !framed, t) < 0 || drain(r, R_POSE) < 0) return -1;
     if (n > 0) {
