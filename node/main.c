@@ -287,10 +287,14 @@ static void tick(struct run *r, double now) {
     if (st.cpu_used >= 0) snprintf(cpu, sizeof cpu, "cpu %.2f", st.cpu_used);
     if (st.cpu_budget > 0) snprintf(cpu + strlen(cpu), sizeof cpu - strlen(cpu), " of %.2f", st.cpu_budget);
     /* Memory against its limits, MiB: keyframes, evidence, the process. */
-    char mem[96] = "mem -";
+    char mem[144] = "mem -";
     if (st.mem_rss_mb >= 0)
       snprintf(mem, sizeof mem, "mem kf %.0f/%.0f ev %.0f/%.0f rss %.0f MiB", st.mem_keyframes_mb,
                st.mem_keyframes_limit_mb, st.mem_evidence_mb, st.mem_evidence_limit_mb, st.mem_rss_mb);
+    /* A box that grew (field.grow): its size, and the keyframes it could not grow to. */
+    if (st.box_growths || st.box_refused)
+      snprintf(mem + strlen(mem), sizeof mem - strlen(mem), " box %.0fx%.0fx%.0f m%s", st.box_hi[0] - st.box_lo[0],
+               st.box_hi[1] - st.box_lo[1], st.box_hi[2] - st.box_lo[2], st.box_refused ? " CAPPED" : "");
     vlff_log_status("[%6.1f s] frames %lld (%.1f/s%s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
                     "psnr %.1f | %s | %s | map v%llu flips %lld mIoU 2D %s 3D %s%s%s   ",
                     now - r->t0, st.frames_in, st.fps_in,
