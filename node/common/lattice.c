@@ -26,6 +26,20 @@ int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[
   return larger;
 }
 
+int vlff_lattice_saved(const double origin0[3], double cell, const long k0[3], const uint32_t dims[3],
+                       const double so[3], const uint32_t sd[3], uint32_t shift[3]) {
+  int same = 1;
+  for (int a = 0; a < 3; a++) {
+    double k = (so[a] - origin0[a]) / cell;
+    long kr = lround(k);
+    if (!(fabs(k - (double)kr) < 1e-6) || kr > k0[a]) return 0;  /* another lattice, or starts inside */
+    if ((double)(k0[a] - kr) + dims[a] > (double)sd[a]) return 0; /* does not hold the grid */
+    shift[a] = (uint32_t)(k0[a] - kr);
+    same &= shift[a] == 0 && sd[a] == dims[a];
+  }
+  return !same;
+}
+
 void vlff_lattice_copy(void *dst, const uint32_t ndims[3], const void *src, const uint32_t dims[3],
                        const uint32_t shift[3], size_t elem) {
   const size_t row = (size_t)dims[0] * elem;

@@ -17,6 +17,11 @@
  *  - vlff_lattice_copy: each of the old grid's cells (elem bytes) to its
  *    place in the new grid; the new grid's other cells are left as they are.
  *  - vlff_lattice_index: an old cell index's index in the new grid.
+ *  - vlff_lattice_saved: whether a saved grid (origin so, sd cells) lies on
+ *    the lattice of a grid k0 cells from origin0 (k0 <= 0 after growths) and
+ *    holds it, larger: 1 and the shift, else 0 (another lattice, a grid that
+ *    does not hold it, or the same grid). What a grown grid's file is to a
+ *    grid that starts again in the first box.
  */
 #ifndef VLFF_LATTICE_H
 #define VLFF_LATTICE_H
@@ -34,5 +39,7 @@ static inline size_t vlff_lattice_index(size_t i, const uint32_t dims[3], const 
   return (x + shift[0]) + (size_t)ndims[0] * ((y + shift[1]) + (size_t)ndims[1] * (z + shift[2]));
 }
 static inline size_t vlff_lattice_cells(const uint32_t dims[3]) { return (size_t)dims[0] * dims[1] * dims[2]; }
+int vlff_lattice_saved(const double origin0[3], double cell, const long k0[3], const uint32_t dims[3],
+                       const double so[3], const uint32_t sd[3], uint32_t shift[3]);
 
 #endif

@@ -886,18 +886,10 @@ static int read_record(const struct vlff_evidence *e, vlff_evidence_read_fn rd, 
 /* A growing grid grows to a saved grid that holds it on its lattice (what
  * it had grown to when saved): -1 only when that growth fails. */
 static int grow_to_saved(struct vlff_evidence *e, const struct ev_header *h, char *err, size_t errlen) {
-  if (!e->max_vox || h->D != e->D || h->voxel != e->voxel) return 0;
   uint32_t sh[3];
-  int same = 1;
-  for (int a = 0; a < 3; a++) {
-    double k = (h->origin[a] - e->origin0[a]) / e->voxel;
-    long kr = lround(k);
-    if (!(fabs(k - (double)kr) < 1e-6) || kr > e->k0[a]) return 0;           /* not on the lattice, or inside */
-    if ((double)(e->k0[a] - kr) + e->dims[a] > (double)h->dims[a]) return 0; /* does not hold the grid */
-    sh[a] = (uint32_t)(e->k0[a] - kr);
-    same &= sh[a] == 0 && h->dims[a] == e->dims[a];
-  }
-  if (same) return 0;
+  if (!e->max_vox || h->D != e->D || h->voxel != e->voxel ||
+      !vlff_lattice_saved(e->origin0, e->voxel, e->k0, e->dims, h->origin, h->dims, sh))
+    return 0;
   return relayout(e, sh, h->dims, err, errlen);
 }
 

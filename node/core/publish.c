@@ -393,19 +393,10 @@ static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], cons
  * (the grid it had grown to when saved): 1 when it grew, 0 when the grid is
  * not such (the geometry check refuses it then), -1 when growing failed. */
 static int grow_to_saved(struct vlff_publisher *p, const struct obs_header *h) {
-  if (p->world_limit <= 0 || h->voxel != p->voxel) return 0;
   uint32_t sh[3];
-  int same = 1;
-  for (int a = 0; a < 3; a++) {
-    double k = (h->origin[a] - p->origin0[a]) / p->voxel;
-    long kr = lround(k);
-    if (!(fabs(k - (double)kr) < 1e-6) || kr > p->k0[a]) return 0;
-    if ((double)(p->k0[a] - kr) + p->dims[a] > (double)h->dims[a]) return 0;
-    sh[a] = (uint32_t)(p->k0[a] - kr);
-    same &= sh[a] == 0 && h->dims[a] == p->dims[a];
-  }
-  if (same) return 0;
-  if (vlff_lattice_cells(h->dims) > p->max_voxels) return 0;
+  if (p->world_limit <= 0 || h->voxel != p->voxel || vlff_lattice_cells(h->dims) > p->max_voxels ||
+      !vlff_lattice_saved(p->origin0, p->voxel, p->k0, p->dims, h->origin, h->dims, sh))
+    return 0;
   return publisher_regrid(p, sh, h->dims) ? -1 : 1;
 }
 

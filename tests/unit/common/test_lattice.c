@@ -63,7 +63,29 @@ static void test_copy_and_index(void **state) {
   assert_int_equal(vlff_lattice_cells(nd), 60);
 }
 
+/* A saved grid is recognised as a grown version of a grid on its lattice. */
+static void test_saved(void **state) {
+  (void)state;
+  const double origin0[3] = {-2.5, -2.5, 0};
+  const long k0[3] = {0, -2, 0}; /* grown by 2 cells toward -y so far */
+  const uint32_t dims[3] = {10, 12, 4};
+  uint32_t sh[3];
+  const double so[3] = {-3.0, -4.5, 0}; /* 1 cell more toward -x, 2 more toward -y */
+  const uint32_t sd[3] = {12, 14, 4};
+  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, so, sd, sh), 1);
+  assert_int_equal(sh[0], 1), assert_int_equal(sh[1], 2), assert_int_equal(sh[2], 0);
+  const double same_o[3] = {-2.5, -3.5, 0};
+  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, same_o, dims, sh), 0); /* the same grid */
+  const double off[3] = {-3.1, -4.5, 0};
+  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, off, sd, sh), 0); /* another lattice */
+  const uint32_t small[3] = {10, 12, 3};
+  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, same_o, small, sh), 0); /* does not hold it */
+  const double inside[3] = {-2.0, -3.5, 0};
+  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, inside, sd, sh), 0); /* starts inside */
+}
+
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_copy_and_index)};
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_copy_and_index),
+                                     cmocka_unit_test(test_saved)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
