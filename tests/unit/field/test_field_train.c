@@ -222,28 +222,45 @@ static struct eval evaluate(struct vlff_field *f, int d, int w, int h) {
   return ev;
 }
 
+/* The convergence scene's budget: under emulation half the sanitizers'
+ * rays (a step there costs what 100 native ones do, and the light
+ * thresholds hold with a margin at 128); the thresholds were fixed at 32
+ * samples a ray. */
+static void convergence_budget(struct vlff_config *cfg) {
+  cfg->train.rays_per_step = vlff_test_emulator() ? 128 : light() ? 256 : 512;
+  cfg->train.samples_per_ray = 32;
+  cfg->train.feature_loss = VLFF_FEAT_LOSS_L1;
+}
+
+static struct vlff_field *new_field(const struct vlff_config *cfg) {
+  char err[256];
+  struct vlff_field *f = vlff_field_create(&cfg->field, &cfg->train, cfg->node.threads, err, sizeof(err));
+  if (!f) fail_msg("%s", err);
+  return f;
+}
+
+/* nv training views around the scene (every other pose of 2 nv). */
+static void training_views(struct scene_view *sv, struct vlff_view *v, int nv, int w, int h, int d) {
+  for (int k = 0; k < nv; k++) {
+    double c2w[16];
+    scene_pose(2 * k, 2 * nv, c2w);
+    scene_render(&sv[k], w, h, d, c2w);
+    v[k] = sv[k].v;
+  }
+}
+
 static void test_convergence(void **state) {
   (void)state;
   const int d = 16, nv = 16, W = 40, H = 30;
   struct vlff_config cfg;
   scene_cfg(&cfg, d);
-  /* Under emulation half the sanitizers' rays: a step there costs what 100
-   * native ones do, and the light thresholds hold with a margin at 128. */
-  cfg.train.rays_per_step = vlff_test_emulator() ? 128 : light() ? 256 : 512;
-  cfg.train.samples_per_ray = 32; /* the thresholds were fixed at this budget */
-  cfg.train.feature_loss = VLFF_FEAT_LOSS_L1;
+  convergence_budget(&cfg);
   const int steps = light() ? 60 : 150;
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
-  assert_non_null(f);
+  struct vlff_field *f = new_field(&cfg);
   struct scene_view sv[16];
   struct vlff_view v[16];
-  for (int k = 0; k < nv; k++) {
-    double c2w[16];
-    scene_pose(2 * k, 2 * nv, c2w);
-    scene_render(&sv[k], W, H, d, c2w);
-    v[k] = sv[k].v;
-  }
+  training_views(sv, v, nv, W, H, d);
   struct vlff_train_stats st;
   double first = 0;
   for (int i = 0; i < steps; i++) {
@@ -296,20 +313,12 @@ static void test_growth(void **state) {
   cfg.field.grow = true;
   cfg.field.world_limit_m = 10;
   cfg.field.scene_max[0] = 0.25; /* the first box: x in [-2, 0.25] */
-  cfg.train.rays_per_step = vlff_test_emulator() ? 128 : light() ? 256 : 512;
-  cfg.train.samples_per_ray = 32;
-  cfg.train.feature_loss = VLFF_FEAT_LOSS_L1;
+  convergence_budget(&cfg);
   char err[256];
-  struct vlff_field *f = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
-  assert_non_null(f);
+  struct vlff_field *f = new_field(&cfg);
   struct scene_view sv[16];
   struct vlff_view v[16];
-  for (int k = 0; k < nv; k++) {
-    double c2w[16];
-    scene_pose(2 * k, 2 * nv, c2w);
-    scene_render(&sv[k], W, H, d, c2w);
-    v[k] = sv[k].v;
-  }
+  training_views(sv, v, nv, W, H, d);
   double lo[3], hi[3];
   vlff_field_box(f, lo, hi);
   /* cubic cells of 4.5 m / 64 from the first box's low corner: x ends on

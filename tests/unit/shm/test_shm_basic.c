@@ -430,6 +430,17 @@ static void pose_quaternion_every_branch(void **state) {
   }
 }
 
+/* A map segment of 1000 voxels and an 8 x 6 label image named for tag:
+ * its writer and a reader attached to it. */
+static const struct vlff_map_params small_map = {.max_voxels = 1000, .label_max_width = 8, .label_max_height = 6};
+static void map_pair(const char *tag, char *name, size_t len, struct vlff_map **w, struct vlff_map **r) {
+  test_name(name, len, tag);
+  *w = vlff_map_create(name, &small_map);
+  assert_non_null(*w);
+  *r = vlff_map_attach(name);
+  assert_non_null(*r);
+}
+
 /* A map that grows (field.grow; docs/shm.md "A map that grows"): the node
  * publishes a larger grid, on the same lattice, in the same segment. A
  * reader attached before keeps reading every world point's label through
@@ -437,12 +448,8 @@ static void pose_quaternion_every_branch(void **state) {
 static void map_grows_under_reader(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "grow");
-  struct vlff_map_params mp = {.max_voxels = 1000, .label_max_width = 8, .label_max_height = 6};
-  struct vlff_map *w = vlff_map_create(name, &mp);
-  assert_non_null(w);
-  struct vlff_map *r = vlff_map_attach(name);
-  assert_non_null(r);
+  struct vlff_map *w, *r;
+  map_pair("grow", name, sizeof name, &w, &r);
   struct vlff_map_snapshot *s = vlff_map_snapshot_new(r);
   assert_non_null(s);
   const char *prompts[] = {"wall", "floor", "door", "sofa"};
@@ -511,12 +518,8 @@ static void map_grows_under_reader(void **state) {
 static void map_publish_and_read(void **state) {
   (void)state;
   char name[64];
-  test_name(name, sizeof name, "map");
-  struct vlff_map_params mp = {.max_voxels = 1000, .label_max_width = 8, .label_max_height = 6};
-  struct vlff_map *w = vlff_map_create(name, &mp);
-  assert_non_null(w);
-  struct vlff_map *r = vlff_map_attach(name);
-  assert_non_null(r);
+  struct vlff_map *w, *r;
+  map_pair("map", name, sizeof name, &w, &r);
   uint16_t label;
   uint8_t conf;
   assert_int_equal(vlff_map_version(r), 0);
@@ -619,7 +622,7 @@ static void map_publish_and_read(void **state) {
   vlff_map_detach(w);
   assert_int_equal(vlff_map_generation(r), 1);
   /* this process is the creator: a restart of it is a take-over */
-  w = vlff_map_create(name, &mp);
+  w = vlff_map_create(name, &small_map);
   assert_non_null(w);
   assert_int_equal(vlff_map_generation(r), 2);
   assert_int_equal(vlff_map_version(r), 2);
