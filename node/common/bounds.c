@@ -8,6 +8,8 @@
 #include <math.h>
 #include <stdio.h>
 
+#include "config.h"
+
 static int say(char *why, size_t whylen, const char *msg, double v, double lo, double hi) {
   if (why && whylen) snprintf(why, whylen, msg, v, lo, hi);
   return -1;
@@ -47,7 +49,7 @@ int vlff_intrinsics_plausible(int width, int height, double fx, double fy, doubl
   return 0;
 }
 
-int vlff_pose_in_world(const double c2w[16], double limit, char *why, size_t whylen) {
+static int pose_in_world(const double c2w[16], double limit, char *why, size_t whylen) {
   const char axis[3] = {'x', 'y', 'z'};
   for (int i = 0; i < 3; i++) {
     double t = c2w[i * 4 + 3];
@@ -58,6 +60,11 @@ int vlff_pose_in_world(const double c2w[16], double limit, char *why, size_t why
     }
   }
   return 0;
+}
+
+int vlff_field_pose_plausible(const struct vlff_cfg_field *field, const double c2w[16], char *why, size_t whylen) {
+  return field->grow ? pose_in_world(c2w, field->world_limit_m, why, whylen)
+                     : vlff_pose_plausible(c2w, field->scene_min, field->scene_max, why, whylen);
 }
 
 int vlff_pose_plausible(const double c2w[16], const double lo[3], const double hi[3], char *why, size_t whylen) {

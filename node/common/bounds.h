@@ -43,8 +43,10 @@ int vlff_intrinsics_plausible(int width, int height, double fx, double fy, doubl
 
 /* lo and hi: the scene box (lo < hi on every axis), or both NULL. */
 int vlff_pose_plausible(const double c2w[16], const double lo[3], const double hi[3], char *why, size_t whylen);
-/* A growing box's bound instead: the camera within +-limit m of the origin
- * on every axis (field.world_limit_m). */
-int vlff_pose_in_world(const double c2w[16], double limit, char *why, size_t whylen);
+/* The node's bound for a camera pose by its field section: with a fixed box
+ * as vlff_pose_plausible over field.scene_min/max; with field.grow, within
+ * +-field.world_limit_m of the origin on every axis. */
+struct vlff_cfg_field;
+int vlff_field_pose_plausible(const struct vlff_cfg_field *field, const double c2w[16], char *why, size_t whylen);
 
 #endif

@@ -1235,6 +1235,13 @@ static int check_dds_history(struct parse *p, const struct vlff_config *cfg) {
   return 0;
 }
 
+/* sim.scene_min/max given: not both all 0 (the field's box then). */
+static bool sim_box_set(const struct vlff_cfg_sim *sim) {
+  for (int i = 0; i < 3; i++)
+    if (sim->scene_min[i] != 0 || sim->scene_max[i] != 0) return true;
+  return false;
+}
+
 static int check_cross(struct parse *p, struct vlff_config *cfg) {
   if (check_dds(p, cfg) || check_dds_history(p, cfg)) return -1;
   if ((long)cfg->sim.range_first + cfg->sim.range_count > cfg->sim.frames)
@@ -1267,9 +1274,7 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
                   cfg->field.scene_max[i], cfg->field.scene_min[i]);
   {
     const double *lo = cfg->sim.scene_min, *hi = cfg->sim.scene_max;
-    bool set = false;
-    for (int i = 0; i < 3; i++) set = set || lo[i] != 0 || hi[i] != 0;
-    for (int i = 0; set && i < 3; i++)
+    for (int i = 0; sim_box_set(&cfg->sim) && i < 3; i++)
       if (!(lo[i] < hi[i]))
         return fail_cross(p, "sim.scene_max", "expected sim.scene_max > sim.scene_min on every axis (or both all 0: "
                           "the field's box), got axis %d with %g <= %g", i, hi[i], lo[i]);
@@ -1609,8 +1614,7 @@ bool vlff_config_sim_features_misused(const struct vlff_config *cfg) {
 
 void vlff_config_sim_box(const struct vlff_cfg_sim *sim, const struct vlff_cfg_field *field, double lo[3],
                          double hi[3]) {
-  bool set = false;
-  for (int i = 0; i < 3; i++) set = set || sim->scene_min[i] != 0 || sim->scene_max[i] != 0;
+  const bool set = sim_box_set(sim);
   for (int i = 0; i < 3; i++) {
     lo[i] = set ? sim->scene_min[i] : field->scene_min[i];
     hi[i] = set ? sim->scene_max[i] : field->scene_max[i];

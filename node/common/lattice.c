@@ -4,6 +4,7 @@
 #include "lattice.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[3], const double lo[3],
@@ -49,4 +50,14 @@ void vlff_lattice_copy(void *dst, const uint32_t ndims[3], const void *src, cons
       size_t to = ((size_t)(z + shift[2]) * ndims[1] + (y + shift[1])) * ndims[0] + shift[0];
       memcpy((char *)dst + to * elem, (const char *)src + from * elem, row);
     }
+}
+
+void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const uint32_t shift[3],
+                          const uint32_t ndims[3]) {
+  const size_t bytes = vlff_lattice_cells(ndims) * elem;
+  void *a = malloc(bytes ? bytes : 1);
+  if (!a) return NULL;
+  memset(a, fill, bytes);
+  if (old) vlff_lattice_copy(a, ndims, old, dims, shift, elem);
+  return a;
 }

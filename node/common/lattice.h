@@ -16,6 +16,9 @@
  *    an axis.
  *  - vlff_lattice_copy: each of the old grid's cells (elem bytes) to its
  *    place in the new grid; the new grid's other cells are left as they are.
+ *  - vlff_lattice_regrid: a new grid's array of elem-byte cells, every byte
+ *    fill, with the old grid's cells (old NULL: none) copied to their
+ *    places; NULL when out of memory.
  *  - vlff_lattice_index: an old cell index's index in the new grid.
  *  - vlff_lattice_saved: whether a saved grid (origin so, sd cells) lies on
  *    the lattice of a grid k0 cells from origin0 (k0 <= 0 after growths) and
@@ -33,6 +36,8 @@ int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[
                        const double hi[3], double limit, uint32_t shift[3], uint32_t ndims[3]);
 void vlff_lattice_copy(void *dst, const uint32_t ndims[3], const void *src, const uint32_t dims[3],
                        const uint32_t shift[3], size_t elem);
+void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const uint32_t shift[3],
+                          const uint32_t ndims[3]);
 static inline size_t vlff_lattice_index(size_t i, const uint32_t dims[3], const uint32_t shift[3],
                                         const uint32_t ndims[3]) {
   size_t x = i % dims[0], y = i / dims[0] % dims[1], z = i / ((size_t)dims[0] * dims[1]);

@@ -274,8 +274,7 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
     refuse(n, &ig->rl, VLFF_REFUSED_BAD_POSE, id, "pose is not a rigid transform (NaN, or rotation not orthonormal)");
     return POSE_REFUSED;
   }
-  if (cfg->field.grow ? vlff_pose_in_world(pose, cfg->field.world_limit_m, why, sizeof why)
-                      : vlff_pose_plausible(pose, cfg->field.scene_min, cfg->field.scene_max, why, sizeof why)) {
+  if (vlff_field_pose_plausible(&cfg->field, pose, why, sizeof why)) {
     refuse(n, &ig->rl, VLFF_REFUSED_POSE_RANGE, id, "%s: poses in millimetres or in another world frame?", why);
     return POSE_REFUSED;
   }

@@ -44,20 +44,16 @@ void vlff_hold_destroy(struct vlff_hold *h) {
 }
 
 int vlff_hold_grow(struct vlff_hold *h, const uint32_t dims[3], const uint32_t sh[3], const uint32_t nd[3]) {
-  const size_t n = vlff_lattice_cells(nd);
-  uint16_t *label = malloc(n * sizeof *label);
-  uint32_t *seen = calloc(n, sizeof *seen), *decided = calloc(n, sizeof *decided);
+  uint16_t *label = vlff_lattice_regrid(h->label, sizeof *label, 0xff, dims, sh, nd); /* VLFF_LABEL_UNKNOWN */
+  uint32_t *seen = vlff_lattice_regrid(h->seen, sizeof *seen, 0, dims, sh, nd);
+  uint32_t *decided = vlff_lattice_regrid(h->decided, sizeof *decided, 0, dims, sh, nd);
   if (!label || !seen || !decided) {
     VLFF_FREE_ALL(label, seen, decided);
     return -1;
   }
-  memset(label, 0xff, n * sizeof *label); /* VLFF_LABEL_UNKNOWN */
-  vlff_lattice_copy(label, nd, h->label, dims, sh, sizeof *label);
-  vlff_lattice_copy(seen, nd, h->seen, dims, sh, sizeof *seen);
-  vlff_lattice_copy(decided, nd, h->decided, dims, sh, sizeof *decided);
   VLFF_FREE_ALL(h->label, h->seen, h->decided);
   h->label = label, h->seen = seen, h->decided = decided;
-  h->nvox = n;
+  h->nvox = vlff_lattice_cells(nd);
   return 0;
 }
 

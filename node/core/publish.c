@@ -36,11 +36,11 @@ struct vlff_publisher {
   struct vlff_map *map;
   const struct vlff_source_hooks *hooks; /* NULL: none */
   double origin[3], voxel;
-  double scene_lo[3], scene_hi[3]; /* field.scene_min / max: bounds for poses */
-  /* A growing box (field.grow; world_limit 0: fixed): origin = origin0 + k0
-   * x voxel, k0 <= 0 after growths (the same k0, the same bits), at most
-   * max_voxels (shm.map_max_voxels, the segment's capacity). */
-  double world_limit, origin0[3];
+  struct vlff_cfg_field field; /* its box and growth: the bounds for poses and growth */
+  /* A growing box (field.grow): origin = origin0 + k0 x voxel, k0 <= 0
+   * after growths (the same k0, the same bits), at most max_voxels
+   * (shm.map_max_voxels, the segment's capacity). */
+  double origin0[3];
   long k0[3];
   size_t max_voxels;
   long long grown;
@@ -173,11 +173,8 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   if (p->voxel > pub->voxel_size_m)
     VLFF_WARN(TAG, "publish.voxel_size_m %.3f m needs more than shm.map_max_voxels; using %.3f m",
               pub->voxel_size_m, p->voxel);
-  for (int i = 0; i < 3; i++) {
-    p->origin[i] = p->origin0[i] = p->scene_lo[i] = field->scene_min[i];
-    p->scene_hi[i] = field->scene_max[i];
-  }
-  p->world_limit = field->grow ? field->world_limit_m : 0;
+  for (int i = 0; i < 3; i++) p->origin[i] = p->origin0[i] = field->scene_min[i];
+  p->field = *field;
   p->max_voxels = (size_t)shm->map_max_voxels;
   p->lw = pub->label_width;
   p->lh = pub->label_height;
@@ -394,7 +391,7 @@ static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], cons
  * not such (the geometry check refuses it then), -1 when growing failed. */
 static int grow_to_saved(struct vlff_publisher *p, const struct obs_header *h) {
   uint32_t sh[3];
-  if (p->world_limit <= 0 || h->voxel != p->voxel || vlff_lattice_cells(h->dims) > p->max_voxels ||
+  if (!p->field.grow || h->voxel != p->voxel || vlff_lattice_cells(h->dims) > p->max_voxels ||
       !vlff_lattice_saved(p->origin0, p->voxel, p->k0, p->dims, h->origin, h->dims, sh))
     return 0;
   return publisher_regrid(p, sh, h->dims) ? -1 : 1;
@@ -587,31 +584,22 @@ out:
 
 const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher *p) { return p->ev; }
 
-/* A per-voxel array regridded: n elements of elem bytes, each byte fill,
- * with the old grid's in their places (old NULL: none). NULL when out of
- * memory. */
-static void *regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const uint32_t sh[3],
-                    const uint32_t nd[3]) {
-  void *a = malloc(vlff_lattice_cells(nd) * elem);
-  if (!a) return NULL;
-  memset(a, fill, vlff_lattice_cells(nd) * elem);
-  if (old) vlff_lattice_copy(a, nd, old, dims, sh, elem);
-  return a;
-}
-
 /* The map's grid and everything kept per voxel, from dims shifted by sh
  * into nd: all allocated before anything changes. */
 static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], const uint32_t nd[3]) {
   const size_t n = vlff_lattice_cells(nd);
   const uint32_t *od = p->dims;
   /* kept: what was observed and published where */
-  uint8_t *observed = regrid(p->observed, 1, 0, od, sh, nd), *conf = regrid(p->conf, 1, 0, od, sh, nd);
-  uint16_t *hits = regrid(p->hits, 2, 0, od, sh, nd), *labels = regrid(p->labels, 2, 0xff, od, sh, nd);
-  float *hit_sum = regrid(p->hit_sum, 12, 0, od, sh, nd);
-  uint16_t *pub_labels = regrid(p->pub_labels, 2, 0xff, od, sh, nd);
-  uint8_t *pub_conf = regrid(p->pub_conf, 1, 0, od, sh, nd), *thru = regrid(p->thru, 1, 0, od, sh, nd);
+  uint8_t *observed = vlff_lattice_regrid(p->observed, 1, 0, od, sh, nd);
+  uint8_t *conf = vlff_lattice_regrid(p->conf, 1, 0, od, sh, nd);
+  uint16_t *hits = vlff_lattice_regrid(p->hits, 2, 0, od, sh, nd);
+  uint16_t *labels = vlff_lattice_regrid(p->labels, 2, 0xff, od, sh, nd);
+  float *hit_sum = vlff_lattice_regrid(p->hit_sum, 12, 0, od, sh, nd);
+  uint16_t *pub_labels = vlff_lattice_regrid(p->pub_labels, 2, 0xff, od, sh, nd);
+  uint8_t *pub_conf = vlff_lattice_regrid(p->pub_conf, 1, 0, od, sh, nd);
+  uint8_t *thru = vlff_lattice_regrid(p->thru, 1, 0, od, sh, nd);
   /* the voxels owed a relabel, and scratch */
-  uint8_t *dirty = regrid(p->dirty, 1, 0, od, sh, nd);
+  uint8_t *dirty = vlff_lattice_regrid(p->dirty, 1, 0, od, sh, nd);
   size_t *qidx = malloc(n * sizeof *qidx), *dirty_idx = malloc(n * sizeof *dirty_idx);
   float *qxyz = malloc(n * 3 * sizeof *qxyz), *qdens = malloc(n * sizeof *qdens),
         *qmargin = malloc(n * sizeof *qmargin);
@@ -651,15 +639,15 @@ static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], cons
 
 int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen) {
   uint32_t sh[3], nd[3];
-  int rc = vlff_lattice_cover(p->origin, p->voxel, p->dims, lo, hi, p->world_limit > 0 ? p->world_limit : INFINITY,
-                              sh, nd);
+  const double limit = p->field.grow ? p->field.world_limit_m : INFINITY;
+  int rc = vlff_lattice_cover(p->origin, p->voxel, p->dims, lo, hi, limit, sh, nd);
   if (rc < 0) return snprintf(err, errlen, "map: growth to an empty or non-finite box"), -1;
   char e[256] = "";
   /* The evidence first: its grid is its own (publish.evidence_voxel_m). */
   int erc = 0;
-  if (p->ev && p->world_limit > 0) erc = vlff_evidence_grow(p->ev, lo, hi, p->world_limit, e, sizeof e);
+  if (p->ev && p->field.grow) erc = vlff_evidence_grow(p->ev, lo, hi, limit, e, sizeof e);
   if (rc == 0 && erc >= 0) return erc;
-  if (p->world_limit <= 0) return snprintf(err, errlen, "map: the box is fixed (field.grow is off)"), -1;
+  if (!p->field.grow) return snprintf(err, errlen, "map: the box is fixed (field.grow is off)"), -1;
   const size_t n = vlff_lattice_cells(nd);
   if (erc < 0 || n > p->max_voxels) {
     if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;
@@ -706,8 +694,7 @@ bool vlff_publisher_surface_known(const struct vlff_publisher *p, const double x
 int vlff_publisher_check_view(struct vlff_publisher *p, const struct vlff_view *v, char *err, size_t errlen) {
   char why[200];
   if (vlff_intrinsics_plausible(v->width, v->height, v->fx, v->fy, v->cx, v->cy, why, sizeof why) ||
-      (p->world_limit > 0 ? vlff_pose_in_world(v->c2w, p->world_limit, why, sizeof why)
-                          : vlff_pose_plausible(v->c2w, p->scene_lo, p->scene_hi, why, sizeof why))) {
+      vlff_field_pose_plausible(&p->field, v->c2w, why, sizeof why)) {
     snprintf(err, errlen, "view refused: %s", why);
     return -1;
   }

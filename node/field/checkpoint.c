@@ -265,7 +265,7 @@ static int box_check(const struct vlff_field *f, const struct ckpt_box *b, char 
     }
     cells *= b->dims[a];
   }
-  if (cells * (double)vlff_occ_cell_bytes() > c->train.occupancy_max_mb * 1048576.0) {
+  if (!vlff_occ_fits(&c->train, cells)) {
     snprintf(why, len, "box: %.0f occupancy cells, more than train.occupancy_max_mb (%g) holds", cells,
              c->train.occupancy_max_mb);
     return -1;

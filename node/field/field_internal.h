@@ -44,8 +44,14 @@ int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[
 /* The box from the grid's place on the lattice (the config's when fixed),
  * and the encoding's inside test with it. */
 void vlff_field_set_box(struct vlff_field *f);
-/* An occupancy cell's bytes: density, occupancy, exposure, running loss. */
-static inline size_t vlff_occ_cell_bytes(void) { return sizeof(float) + 1 + sizeof(uint16_t) + sizeof(float); }
+/* The bytes of `cells` occupancy cells (density, occupancy, exposure,
+ * running loss, 11 a cell), and whether train.occupancy_max_mb holds them. */
+static inline double vlff_occ_bytes(double cells) {
+  return cells * (double)(sizeof(float) + 1 + sizeof(uint16_t) + sizeof(float));
+}
+static inline int vlff_occ_fits(const struct vlff_cfg_train *train, double cells) {
+  return vlff_occ_bytes(cells) <= train->occupancy_max_mb * 1048576.0;
+}
 
 /* CLOCK_MONOTONIC in seconds: the pool's spin, the step's phases and the
  * GEMM's per-thread time share it. */

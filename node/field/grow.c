@@ -61,28 +61,22 @@ void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]) {
 int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[3], int copy) {
   const uint32_t nd[3] = {(uint32_t)dims[0], (uint32_t)dims[1], (uint32_t)dims[2]};
   const size_t n = vlff_lattice_cells(nd);
-  float *dens = malloc(n * sizeof *dens), *cerr = malloc(n * sizeof *cerr);
-  uint8_t *occ = malloc(n);
-  uint16_t *expo = malloc(n * sizeof *expo);
+  /* the old grid, when copied, lies inside the new one */
+  const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
+  const uint32_t sh[3] = {(uint32_t)(f->occ_k0[0] - k0[0]), (uint32_t)(f->occ_k0[1] - k0[1]),
+                          (uint32_t)(f->occ_k0[2] - k0[2])};
+  /* New cells: nothing learned, every one a candidate for samples (as a new
+   * field's), no loss measured yet (-1, which no byte fill gives). */
+  float *dens = vlff_lattice_regrid(copy ? f->occ.density : NULL, sizeof *dens, 0, od, sh, nd);
+  uint8_t *occ = vlff_lattice_regrid(copy ? f->occ.occ : NULL, 1, 1, od, sh, nd);
+  uint16_t *expo = vlff_lattice_regrid(copy ? f->exposure : NULL, sizeof *expo, 0, od, sh, nd);
+  float *cerr = malloc(n * sizeof *cerr);
   if (!dens || !cerr || !occ || !expo) {
     VLFF_FREE_ALL(dens, cerr, occ, expo);
     return -1;
   }
-  /* New cells: nothing learned, every one a candidate for samples (as a new
-   * field's), no loss measured yet. */
-  memset(dens, 0, n * sizeof *dens);
-  memset(occ, 1, n);
-  memset(expo, 0, n * sizeof *expo);
   for (size_t i = 0; i < n; i++) cerr[i] = -1;
-  if (copy) { /* the old grid lies inside the new one */
-    const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
-    const uint32_t sh[3] = {(uint32_t)(f->occ_k0[0] - k0[0]), (uint32_t)(f->occ_k0[1] - k0[1]),
-                            (uint32_t)(f->occ_k0[2] - k0[2])};
-    vlff_lattice_copy(dens, nd, f->occ.density, od, sh, sizeof *dens);
-    vlff_lattice_copy(occ, nd, f->occ.occ, od, sh, 1);
-    vlff_lattice_copy(expo, nd, f->exposure, od, sh, sizeof *expo);
-    vlff_lattice_copy(cerr, nd, f->cell_err, od, sh, sizeof *cerr);
-  }
+  if (copy) vlff_lattice_copy(cerr, nd, f->cell_err, od, sh, sizeof *cerr);
   VLFF_FREE_ALL(f->occ.density, f->occ.occ, f->exposure, f->cell_err);
   f->occ.density = dens;
   f->occ.occ = occ;
@@ -119,8 +113,8 @@ int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3]
     if (err && errlen) snprintf(err, errlen, "field: the box is fixed (field.grow is off)");
     return -1;
   }
-  const double need = (double)vlff_lattice_cells(nd) * (double)vlff_occ_cell_bytes();
-  if (need > f->cfg.train.occupancy_max_mb * MIB) {
+  const double need = vlff_occ_bytes((double)vlff_lattice_cells(nd));
+  if (!vlff_occ_fits(&f->cfg.train, (double)vlff_lattice_cells(nd))) {
     if (err && errlen)
       snprintf(err, errlen,
                "field: growing the box to %.1f x %.1f x %.1f m needs %.0f MiB of occupancy cells, more than "

@@ -127,11 +127,13 @@ static int work_alloc(struct vlff_field *f, struct vlff_work *w) {
  * it was created as. */
 static void init_state(struct vlff_field *f) {
   /* A growing field starts over in its first box (or, when memory for it
-   * cannot be had, in the box it has: the cells are reset all the same). */
+   * cannot be had, in the box it has: the cells are reset all the same).
+   * A new field's grid is that box already. */
   if (f->cfg.field.grow) {
-    int k0[3], dims[3];
+    int k0[3], dims[3], same = 1;
     vlff_field_first_layout(f, k0, dims);
-    (void)vlff_field_occ_layout(f, k0, dims, 0);
+    for (int a = 0; a < 3; a++) same &= f->occ_k0[a] == k0[a] && f->occ.dims[a] == dims[a];
+    if (!same) (void)vlff_field_occ_layout(f, k0, dims, 0);
   }
   const size_t ncell = vlff_occ_cells(&f->occ), fs = sizeof(float);
   f->rng = 0x5eed0f1e1dull;

@@ -8,6 +8,7 @@
 #include <cmocka.h>
 
 #include "bounds.h"
+#include "config.h"
 #include "unit.h"
 
 static char why[256];
@@ -68,6 +69,28 @@ static void test_pose_bounds(void **state) {
   assert_int_equal(vlff_pose_plausible(m, NULL, NULL, why, sizeof why), -1);
 }
 
+/* The node's bound by its field section: the box's with a fixed box, the
+ * world's limit when the box grows. */
+static void test_field_pose_bounds(void **state) {
+  (void)state;
+  struct vlff_config c;
+  vlff_config_defaults(&c); /* +-2.5 m, fixed */
+  double m[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  m[3] = 7.6;
+  assert_int_equal(vlff_field_pose_plausible(&c.field, m, why, sizeof why), -1);
+  assert_non_null(strstr(why, "scene box grown by its largest extent"));
+  c.field.grow = true;
+  c.field.world_limit_m = 10;
+  assert_int_equal(vlff_field_pose_plausible(&c.field, m, why, sizeof why), 0);
+  m[3] = -10, m[7] = 10;
+  assert_int_equal(vlff_field_pose_plausible(&c.field, m, why, sizeof why), 0);
+  m[11] = 10.5;
+  assert_int_equal(vlff_field_pose_plausible(&c.field, m, why, sizeof why), -1);
+  assert_string_equal(why, "camera z = 10.5 m outside [-10, 10] (field.world_limit_m)");
+  m[11] = NAN;
+  assert_int_equal(vlff_field_pose_plausible(&c.field, m, why, sizeof why), -1);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_real_cameras_pass), cmocka_unit_test(test_corrupt_intrinsics_refused),
-    cmocka_unit_test(test_pose_bounds))
+    cmocka_unit_test(test_pose_bounds), cmocka_unit_test(test_field_pose_bounds))

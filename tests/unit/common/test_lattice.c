@@ -61,6 +61,15 @@ static void test_copy_and_index(void **state) {
   for (int i = 0; i < 60; i++) copied += grown[i] != 7;
   assert_int_equal(copied, 12); /* the rest left as it was */
   assert_int_equal(vlff_lattice_cells(nd), 60);
+  /* regrid: the same copy into a new array whose other cells are the fill */
+  uint16_t *r = vlff_lattice_regrid(old, sizeof old[0], 0x07, dims, sh, nd);
+  assert_non_null(r);
+  for (int i = 0; i < 60; i++) assert_int_equal(r[i], grown[i] == 7 ? 0x0707 : grown[i]);
+  free(r);
+  r = vlff_lattice_regrid(NULL, sizeof old[0], 0, dims, sh, nd); /* no old grid: all fill */
+  assert_non_null(r);
+  for (int i = 0; i < 60; i++) assert_int_equal(r[i], 0);
+  free(r);
 }
 
 /* A saved grid is recognised as a grown version of a grid on its lattice. */

@@ -23,21 +23,18 @@ wait_until 600 'grep -q "box grown for keyframe" "$tmp/log"'
 check "a keyframe that sees beyond the first box grows it: $(grep -m1 -o 'box grown for keyframe.*' "$tmp/log")" \
   'grep -q "box grown for keyframe at" "$tmp/log"'
 # The map segment: the grid beyond +-2.5 m on x, on the first box's lattice.
-grown_map() {
+read_map() {
   read -r _ ox oy oz < <("$shm" stat "$p-m" | grep '^grid_origin ')
   read -r _ vs < <("$shm" stat "$p-m" | grep '^grid_voxel_size ')
   read -r _ dx dy dz < <("$shm" stat "$p-m" | grep '^grid_dims ')
-  awk -v o="$ox" -v d="$dx" -v v="$vs" "BEGIN { exit !(o < -2.6 || o + d * v > 2.6) }"
 }
-wait_until 600 grown_map
+past_first_box() { awk -v o="$ox" -v d="$dx" -v v="$vs" "BEGIN { exit !(o < -2.6 || o + d * v > 2.6) }"; }
+wait_until 600 'read_map && past_first_box'
 sleep 3 # a few keyframes more in the grown map (the simulator walks the flat round)
 kill "$simpid"; wait "$simpid"; simpid=
 sleep 1
-read -r _ ox oy oz < <("$shm" stat "$p-m" | grep '^grid_origin ')
-read -r _ vs < <("$shm" stat "$p-m" | grep '^grid_voxel_size ')
-read -r _ dx dy dz < <("$shm" stat "$p-m" | grep '^grid_dims ')
-check "the map's grid grew past the first box (origin $ox $oy $oz, $dx x $dy x $dz voxels of $vs m)" \
-  'awk -v o="$ox" -v d="$dx" -v v="$vs" "BEGIN { exit !(o < -2.6 || o + d * v > 2.6) }"'
+read_map
+check "the map's grid grew past the first box (origin $ox $oy $oz, $dx x $dy x $dz voxels of $vs m)" past_first_box
 check "on the first box's lattice (origin -2.5 + whole voxels)" \
   'awk -v o="$ox" -v v="$vs" "BEGIN { k = (o + 2.5) / v; r = k - int(k + (k < 0 ? -0.5 : 0.5)); exit !(r < 1e-6 && r > -1e-6) }"'
 # A labelled voxel beyond the first box: the flat's walls at x = +-4.9 m.
