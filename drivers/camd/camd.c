@@ -494,6 +494,12 @@ static int setup_gpio(struct camd *d) {
   return 0;
 }
 
+static bool frames_done(const struct camd *d) {
+  uint64_t committed =
+      d->pair ? vlff_pair_get_stats(d->pair)->pairs : vlff_pipe_get_stats(d->slots[0].pipe)->committed;
+  return d->max_frames > 0 && committed >= (uint64_t)d->max_frames;
+}
+
 /* Grabs until a signal, --frames or --seconds: 0, or 1 when a camera
  * refuses its configuration. */
 static int run(struct camd *d) {
@@ -509,9 +515,7 @@ static int run(struct camd *d) {
   while (!stop_req) {
     if (vlff_service_watchdog_due(&svc, vlff_now_ns())) vlff_service_watchdog();
     if (d->max_seconds > 0 && (double)(vlff_now_ns() - t0) * 1e-9 >= d->max_seconds) break;
-    uint64_t committed =
-        d->pair ? vlff_pair_get_stats(d->pair)->pairs : vlff_pipe_get_stats(d->slots[0].pipe)->committed;
-    if (d->max_frames > 0 && committed >= (uint64_t)d->max_frames) break;
+    if (frames_done(d)) break;
     int open = 0, refused = 0;
     for (int i = 0; i < d->nslots; i++) {
       bool was = d->slots[i].cam != NULL;
@@ -533,7 +537,9 @@ static int run(struct camd *d) {
     for (int i = 0; i < d->nslots; i++) slot_trigger(&d->slots[i], pend);
     /* Each camera's stream fills its buffers in the background: a short
      * wait per camera keeps both drained. */
-    for (int i = 0; i < d->nslots; i++) slot_grab(&d->slots[i], 20 / d->nslots, d->cfg.shm.ring);
+    /* --frames is checked after each camera's grab too: with two cameras
+     * either grab can complete a pair, and one pass could pass the count. */
+    for (int i = 0; i < d->nslots && !frames_done(d); i++) slot_grab(&d->slots[i], 20 / d->nslots, d->cfg.shm.ring);
     uint64_t now = vlff_now_ns();
     const bool stalled = now - last_pass > 250000000u;
     last_pass = now;
