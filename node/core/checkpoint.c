@@ -126,6 +126,12 @@ int save_checkpoint_begin(struct vlff_node *n) {
   }
   VLFF_DEBUG(TAG, "checkpoint: observation grid %s written in %.0f ms", VLFF_Q(path), (vlff_seconds() - t) * 1e3);
   n->ckpt_owed = true;
+  /* The map the grid holds is at least this version: said with the
+   * checkpoint, so that a resumed map is compared with what was saved
+   * rather than with a map published while the field was written. */
+  pthread_mutex_lock(&n->slock);
+  n->ckpt_map_version = n->st.map_version;
+  pthread_mutex_unlock(&n->slock);
   return 1;
 }
 
@@ -151,7 +157,7 @@ int save_checkpoint_end(struct vlff_node *n) {
   pthread_mutex_unlock(&n->slock);
   n->ckpt_steps = steps;
   VLFF_DEBUG(TAG, "checkpoint: field written in %.0f ms", (vlff_seconds() - t) * 1e3);
-  VLFF_INFO(TAG, "checkpoint %s at step %lld", VLFF_Q(path), steps);
+  VLFF_INFO(TAG, "checkpoint %s at step %lld, map v%llu", VLFF_Q(path), steps, (unsigned long long)n->ckpt_map_version);
   return 0;
 }
 

@@ -152,6 +152,7 @@ struct vlff_node {
    * fed only while both move (vlff_node_status). */
   _Atomic uint64_t ingest_beat_ns, trainer_beat_ns;
   int ckpt_slot;
+  uint64_t ckpt_map_version;   /* trainer: the newest map published when the grid was written */
   bool ckpt_owed;             /* trainer: the grid of ckpt_slot is written, its field not yet (save_checkpoint_begin) */
   struct vlff_pacer pacer;    /* trainer: node.cpu_budget's pacing and the measured use (budget.h) */
   int nonfinite_run;          /* trainer: steps in a row whose loss was not finite */

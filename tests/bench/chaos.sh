@@ -130,10 +130,19 @@ done
 cold=$(awk -v a="$t_cold" -v b="$(now)" 'BEGIN { printf "%.3f", b - a }')
 echo "chaos: node published map v$v after a cold start of ${cold} s; $target kills follow"
 
-# The 3D mIoU a node log shows at its last checkpoint (empty: none yet).
+# The 3D mIoU a node log shows for the map its last checkpoint holds (empty:
+# none yet): the newest status line's whose map version is at most the one the
+# checkpoint line names, since the field is written a pass after the grid and
+# a map published meanwhile is not in the checkpoint.
 ckpt_q() {
-  tr '\r' '\n' <"$1" | awk '/map v[0-9]+ (flips [0-9]+ )?mIoU/ { for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") last = $(i + 1) }
-                              / I node: checkpoint / { at = last } END { print at }'
+  tr '\r' '\n' <"$1" | awk '/map v[0-9]+ (flips [0-9]+ )?mIoU/ {
+      for (i = 1; i <= NF; i++) if ($i ~ /^v[0-9]+$/) v = substr($i, 2) + 0
+      for (i = 1; i <= NF; i++) if ($i == "3D" && $(i + 1) != "-") { n++; sv[n] = v; sq[n] = $(i + 1) }
+    }
+    / I node: checkpoint .* map v[0-9]+$/ {
+      saved = substr($NF, 2) + 0; at = ""
+      for (j = n; j >= 1; j--) if (sv[j] <= saved) { at = sq[j]; break }
+    } END { print at }'
 }
 # The first 3D mIoU a node log shows on a map newer than version $2 (empty: none yet).
 resumed_q() {
