@@ -178,11 +178,16 @@ int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, 
 
 /* Measured surface points, refined by the field's surface: xyz[n] (moved in
  * place) are points a depth sensor measured along the rays of cam's pixels
- * pix[n]. Each moves along its ray to the field's surface there (the
+ * pix[n]. Each moves along its ray toward the field's surface there (the
  * opacity-weighted depth of the rendered ray, where it is at least half
  * opaque) when that lies within the measurement's noise band (the band
  * depth-guided training samples: 4 cm + 3 % of the depth, at least 3 sigma
- * of train.depth_noise_m d^2), and stays where it was otherwise. A stereo
+ * of train.depth_noise_m d^2), and stays where it was otherwise. It moves
+ * to the two depths' inverse-variance mean: the sensor's variance
+ * (train.depth_noise_m d^2)^2 against the square of the density's spread
+ * along the ray (at least 5 mm), so a precise sensor's point barely moves
+ * (a depth noise of 0 moves none) and a stereo one's goes nearly all the
+ * way. A stereo
  * sensor's single measurement is off by 9-16 cm at 3-4 m; the field has
  * fitted that surface from every view. Returns the points moved; 0, with
  * nothing moved, also for n = 0, a NULL argument, a non-finite pose,

@@ -279,6 +279,7 @@ struct vlff_work {
   float *a1[VLFF_MLP_MAX_LAYERS], *a2[VLFF_MLP_MAX_LAYERS], *a3[VLFF_MLP_MAX_LAYERS];
   float *in2, *in3, *dy_a, *dy_b, *dout1, *din2, *din3, *denc;
   float *hray, *fray, *gf, *dh, *wsum, *tfeat, *rgb, *depth, *logits, *opac, *norm;
+  float *depth2; /* per ray: opacity-weighted squared depth (render_chunk; the surface's spread) */
   struct vlff_ray *rbuf;
   float *grad;             /* this thread's MLP gradient */
   /* The table gradient of the level this thread updates, zero between

@@ -321,6 +321,7 @@ static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct
     next[r] = 0;
     w->rgb[3 * r] = w->rgb[3 * r + 1] = w->rgb[3 * r + 2] = 0;
     w->depth[r] = 0;
+    w->depth2[r] = 0;
     w->opac[r] = 0;
     w->wsum[r] = 0;
   }
@@ -349,6 +350,7 @@ static void render_chunk(struct vlff_field *f, struct vlff_work *w, const struct
       float wt = trans[r] * (1.0f - keep);
       trans[r] *= keep;
       w->depth[r] += wt * w->t[id];
+      w->depth2[r] += wt * w->t[id] * w->t[id];
       w->opac[r] += wt;
       if (want_rgb && wt > 0) {
         float *row = w->in2 + (size_t)n2 * in2w;
@@ -498,6 +500,10 @@ struct snap_ctx {
 /* Density alone along each point's ray (no colour, no feature head); the
  * ray's surface is its opacity-weighted depth where it is at least half
  * opaque. */
+/* The field's surface is never known better than this along a ray (m): a
+ * fraction of its finest cells, and what a sharp density's samples leave. */
+#define SNAP_MIN_SPREAD 0.005
+
 static void snap_task(void *ctx, int task, int thread) {
   struct snap_ctx *sc = ctx;
   struct vlff_field *f = sc->f;
@@ -516,7 +522,17 @@ static void snap_task(void *ctx, int task, int thread) {
     if (!(w->opac[r] >= 0.5f) || !(zm > 0) || !isfinite(zm)) continue;
     double zr = w->depth[r] / w->opac[r];
     if (!(fabs(zr - zm) <= vlff_depth_band((float)zm, noise))) continue;
-    for (int k = 0; k < 3; k++) q[k] = (float)(m[4 * k + 3] + rel[k] * (zr / zm));
+    /* Both depths are estimates: the measurement's variance is the
+     * sensor's (noise d^2)^2, the field's its density's spread along the
+     * ray. The point moves to their inverse-variance mean: a stereo
+     * camera's point far out goes nearly all the way, a structured-light
+     * point on a thin thing (a window on a wall, whose density the field
+     * smears into the wall's) barely moves. */
+    double vm = (double)noise * zm * zm, vf = w->depth2[r] / w->opac[r] - zr * zr;
+    vm *= vm;
+    if (!(vf > SNAP_MIN_SPREAD * SNAP_MIN_SPREAD)) vf = SNAP_MIN_SPREAD * SNAP_MIN_SPREAD;
+    double z = zm + (zr - zm) * vm / (vm + vf);
+    for (int k = 0; k < 3; k++) q[k] = (float)(m[4 * k + 3] + rel[k] * (z / zm));
     moved++;
   }
   sc->moved[task] = moved;

@@ -58,7 +58,7 @@ static void work_free(struct vlff_work *w) {
                    (void **)&w->p, (void **)&w->enc, (void **)&w->in2, (void **)&w->in3, (void **)&w->dy_a,
                    (void **)&w->dy_b, (void **)&w->dout1, (void **)&w->din2, (void **)&w->din3,
                    (void **)&w->denc, (void **)&w->hray, (void **)&w->fray, (void **)&w->gf, (void **)&w->dh,
-                   (void **)&w->wsum, (void **)&w->tfeat, (void **)&w->rgb, (void **)&w->depth,
+                   (void **)&w->wsum, (void **)&w->tfeat, (void **)&w->rgb, (void **)&w->depth, (void **)&w->depth2,
                    (void **)&w->logits, (void **)&w->grad, (void **)&w->opac, (void **)&w->norm, (void **)&w->rbuf,
                    (void **)&w->tgrad, (void **)&w->tmarks};
   for (size_t i = 0; i < sizeof(ptrs) / sizeof(ptrs[0]); i++) {
@@ -112,6 +112,7 @@ static int work_alloc(struct vlff_field *f, struct vlff_work *w) {
   w->tfeat = xalloc(RD * fs, &ok);
   w->rgb = xalloc(R * 3 * fs, &ok);
   w->depth = xalloc(R * fs, &ok);
+  w->depth2 = xalloc(R * fs, &ok);
   w->logits = xalloc(RD * fs, &ok);
   w->grad = xalloc(f->nmlp * fs, &ok);
   w->tgrad = xalloc(f->enc.size * (size_t)f->enc.feats * fs, &ok);
