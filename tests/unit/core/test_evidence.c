@@ -709,6 +709,59 @@ static void test_grow(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Paged, then grown: a voxel of the first box whose evidence a full budget
+ * paged out stays readable where it is in the world after the grid grows
+ * (toward -x, so that every voxel index changes), and comes back into a
+ * slot, its samples whole, when it is seen again. */
+static void test_paged_then_grown(void **state) {
+  (void)state;
+  char dir[] = "/tmp/vlff-test-evgrow-XXXXXX", path[64];
+  assert_non_null(mkdtemp(dir));
+  snprintf(path, sizeof path, "%s/evidence.pages", dir);
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  cfg.field.feature_dim = D;
+  cfg.field.grow = true;
+  memcpy(cfg.field.scene_min, origin, sizeof origin);
+  for (int a = 0; a < 3; a++) cfg.field.scene_max[a] = origin[a] + 4;
+  cfg.publish.evidence_voxel_m = 0.5;
+  cfg.publish.evidence_max_mb = 1;
+  char err[256];
+  struct vlff_evidence *e = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
+  assert_non_null(e);
+  assert_int_equal(vlff_evidence_page_to(e, path, 1 << 20, err, sizeof err), 0);
+  const float mark[D] = {0, 0, 1, 0}, stray[D] = {1, 0, 0, 0};
+  const float E[2 * D] = {0, 0, 1, 0, 1, 0, 0, 0}, fc[2] = {0.5f, 0.6f}; /* the field leans to prompt 1 */
+  float score, out[D];
+  add_at(e, 1, 2, 3, mark); /* the first voxel in memory: the first given up */
+  const double lo[3] = {-2, -2, 0}, hi[3] = {30, 14, 4}, lo2[3] = {-6, -2, 0};
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 1);
+  int t = 0;
+  for (; vlff_evidence_paged_out(e) == 0; t++) {
+    assert_true(t < 56 * 32 * 8);
+    add_at(e, 8 + t % 56, t / 56 % 32, t / (56 * 32), stray);
+  }
+  assert_int_equal(vlff_evidence_get(e, voxel_at(e, 1, 2, 3), out), 0); /* paged */
+  assert_int_equal(label_at(e, 1, 2, 3, E, 1, fc, &score), 0);
+  const long before = voxel_at(e, 1, 2, 3);
+  assert_int_equal(vlff_evidence_grow(e, lo2, hi, 1000, err, sizeof err), 1);
+  assert_true(voxel_at(e, 1, 2, 3) != before);
+  assert_int_equal(vlff_evidence_paged(e), (size_t)vlff_evidence_paged_out(e));
+  /* read where it was: the evidence's prompt, at the paged cosines' score */
+  assert_int_equal(label_at(e, 1, 2, 3, E, 1, fc, &score), 0);
+  assert_float_equal(score, (0.5f + 1.0f) / 2, 1e-2);
+  /* a stray paged beside it reads as a stray */
+  assert_int_equal(label_at(e, 8, 0, 0, E, 1, fc, &score), 1);
+  /* seen again: back in a slot with its 16 samples and the new view's */
+  add_at(e, 1, 2, 3, mark);
+  assert_int_equal(vlff_evidence_get(e, voxel_at(e, 1, 2, 3), out), 32);
+  assert_float_equal(out[2], 1.0f, 1e-3);
+  assert_int_equal(vlff_evidence_paged_in(e), 1);
+  assert_int_equal(vlff_evidence_evicted(e), 0);
+  vlff_evidence_destroy(e);
+  assert_int_equal(rmdir(dir), 0);
+}
+
 /* Saved evidence of more voxels than the budget holds (its budget lowered
  * since) keeps the most-observed, at equal counts the lowest voxel indices,
  * each as it was saved, and counts the rest as given up; a budget with room
@@ -808,6 +861,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
     cmocka_unit_test(test_full_budget_pages_out),
     cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load),
-    cmocka_unit_test(test_grow),
+    cmocka_unit_test(test_grow), cmocka_unit_test(test_paged_then_grown),
     cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan), cmocka_unit_test(test_recent_views_replace_old))
