@@ -424,6 +424,13 @@ static bool publish_keyframes(struct vlff_node *n, struct vlff_refresh *rf, doub
   return whole;
 }
 
+/* The keyframes waiting now, taken and published before other work (a
+ * slice, a checkpoint): true when that was a whole publish. */
+static bool serve_keyframes(struct vlff_node *n, struct vlff_refresh *rf, double *next_kf_publish) {
+  take_candidates(n, false);
+  return publish_keyframes(n, rf, next_kf_publish);
+}
+
 /* The young-field schedules, both keyed on the field's step count. */
 static void apply_warmup(struct vlff_node *n) {
   /* A young field learns faster from more, cheaper steps: a quarter
@@ -558,8 +565,7 @@ void *trainer_main(void *arg) {
         /* Keyframes still go first: those admitted during the step are
          * published before the slice, not a pass later. One that had to be
          * a whole publish refreshed the map and restarted the round. */
-        take_candidates(n, false);
-        publish_keyframes(n, &rf, &next_kf_publish);
+        serve_keyframes(n, &rf, &next_kf_publish);
         to = vlff_refresh_due(&rf, vlff_seconds(), vlff_publisher_refresh_done(n->pub));
       }
     }
@@ -592,8 +598,7 @@ void *trainer_main(void *arg) {
             if (candidates_waiting(n)) break;
           } else {
             served = true;
-            take_candidates(n, false);
-            if (publish_keyframes(n, &rf, &next_kf_publish)) break;
+            if (serve_keyframes(n, &rf, &next_kf_publish)) break;
           }
           t = vlff_seconds();
         }
@@ -613,8 +618,7 @@ void *trainer_main(void *arg) {
     } else if (now >= next_ckpt) {
       /* A checkpoint holds the trainer for a while (the field's moments are
        * written whole): the keyframes already waiting go out before it. */
-      take_candidates(n, false);
-      publish_keyframes(n, &rf, &next_kf_publish);
+      serve_keyframes(n, &rf, &next_kf_publish);
       save_checkpoint_begin(n);
       next_ckpt = now + cfg->node.checkpoint_period_s;
     }

@@ -532,6 +532,7 @@ static void snap_task(void *ctx, int task, int thread) {
     vm *= vm;
     if (!(vf > SNAP_MIN_SPREAD * SNAP_MIN_SPREAD)) vf = SNAP_MIN_SPREAD * SNAP_MIN_SPREAD;
     double z = zm + (zr - zm) * vm / (vm + vf);
+    if (z == zm) continue; /* a sensor without noise: the measurement stands */
     for (int k = 0; k < 3; k++) q[k] = (float)(m[4 * k + 3] + rel[k] * (z / zm));
     moved++;
   }

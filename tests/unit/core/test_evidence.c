@@ -188,6 +188,36 @@ static void test_field_trust_follows_exposure(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Prompt 1's object (cosines 0.6, 0.8 with E_LOST) 2.2 m before prompt 0's
+ * wall at 3.2 m, seen once each. */
+static const float E_LOST[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
+static void object_before_wall(struct vlff_evidence *e) {
+  struct wall a, b;
+  wall_make(&a, 2.2f, (const float[D]){0.6f, 0.8f});
+  wall_make(&b, 3.2f, (const float[D]){0.8f, 0.6f});
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+}
+
+/* 16 points on each of object_before_wall's surfaces, four in each of four
+ * voxels; the field says prompt 0 everywhere, sure enough that w = 1 keeps
+ * its word (0.9 + 0.6 > 0.5 + 0.8 on the object), fitted (60 rays) or
+ * young (10). */
+enum { LOST_N = 32 };
+struct lost_points {
+  float xyz[LOST_N * 3], fcos[LOST_N * 2];
+  uint16_t fitted[LOST_N], young[LOST_N];
+};
+static void lost_points(struct lost_points *p) {
+  for (int i = 0; i < LOST_N; i++) {
+    p->xyz[3 * i] = i & 1 ? 0.1f : -0.1f, p->xyz[3 * i + 1] = i & 2 ? 0.1f : -0.1f;
+    p->xyz[3 * i + 2] = i < LOST_N / 2 ? 2.2f : 3.2f;
+    p->fcos[2 * i] = 0.9f, p->fcos[2 * i + 1] = 0.5f;
+    p->fitted[i] = 60, p->young[i] = 10;
+  }
+}
+
 /* Lost classes: a census over the map finds the prompt the fitted field
  * gave away (it labels none of the points the evidence labels so), and
  * later labels read the evidence there; a class the field keeps, an
@@ -195,25 +225,13 @@ static void test_field_trust_follows_exposure(void **state) {
 static void test_lost_class_read_from_evidence(void **state) {
   (void)state;
   struct vlff_evidence *e = make(1 << 20);
-  const float E[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
-  struct wall a, b;
-  wall_make(&a, 2.2f, (const float[D]){0.6f, 0.8f}); /* prompt 1's object: cosines 0.6, 0.8 */
-  wall_make(&b, 3.2f, (const float[D]){0.8f, 0.6f}); /* prompt 0's wall behind it */
-  char err[256];
-  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
-  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
-  /* 16 points on each, four in each of four voxels; the field says prompt
-   * 0 everywhere, sure enough that w = 1 keeps its word (0.9 + 0.6 > 0.5 +
-   * 0.8 on the object). */
-  enum { N = 32 };
-  float xyz[N * 3], fcos[N * 2];
-  uint16_t fitted[N], young[N];
-  for (int i = 0; i < N; i++) {
-    xyz[3 * i] = i & 1 ? 0.1f : -0.1f, xyz[3 * i + 1] = i & 2 ? 0.1f : -0.1f;
-    xyz[3 * i + 2] = i < N / 2 ? 2.2f : 3.2f;
-    fcos[2 * i] = 0.9f, fcos[2 * i + 1] = 0.5f;
-    fitted[i] = 60, young[i] = 10;
-  }
+  object_before_wall(e);
+  struct lost_points p;
+  lost_points(&p);
+  enum { N = LOST_N };
+  const float *E = E_LOST, *xyz = p.xyz;
+  float *fcos = p.fcos; /* the field's word changes below */
+  const uint16_t *fitted = p.fitted, *young = p.young;
   int lab[N];
   float margin[N];
   unsigned long long nf, ne;
@@ -298,25 +316,14 @@ static void test_lost_class_read_from_evidence(void **state) {
 static void test_lost_classes_saved(void **state) {
   (void)state;
   struct vlff_evidence *e = make(1 << 20), *r = make(1 << 20);
-  const float E[2 * D] = {1, 0, 0, 0, 0, 1, 0, 0};
-  struct wall a, b;
-  wall_make(&a, 2.2f, (const float[D]){0.6f, 0.8f});
-  wall_make(&b, 3.2f, (const float[D]){0.8f, 0.6f});
+  object_before_wall(e);
+  object_before_wall(r);
+  struct lost_points p;
+  lost_points(&p);
+  enum { N = LOST_N };
+  const float *E = E_LOST, *xyz = p.xyz, *fcos = p.fcos;
+  const uint16_t *fitted = p.fitted;
   char err[256];
-  for (int i = 0; i < 2; i++) {
-    struct vlff_evidence *x = i ? r : e;
-    assert_int_equal(vlff_evidence_add(x, &a.v, err, sizeof err), 0);
-    assert_int_equal(vlff_evidence_add(x, &b.v, err, sizeof err), 0);
-  }
-  enum { N = 32 };
-  float xyz[N * 3], fcos[N * 2];
-  uint16_t fitted[N];
-  for (int i = 0; i < N; i++) {
-    xyz[3 * i] = i & 1 ? 0.1f : -0.1f, xyz[3 * i + 1] = i & 2 ? 0.1f : -0.1f;
-    xyz[3 * i + 2] = i < N / 2 ? 2.2f : 3.2f;
-    fcos[2 * i] = 0.9f, fcos[2 * i + 1] = 0.5f;
-    fitted[i] = 60;
-  }
   int lab[N];
   uint8_t blk[VLFF_EVIDENCE_LOST_BYTES], bad[VLFF_EVIDENCE_LOST_BYTES];
   vlff_evidence_lost_save(e, blk); /* nothing lost yet: a block that restores nothing */
