@@ -539,6 +539,11 @@ static double snap_gain(struct vlff_field *f, const struct scene_view *sv, const
                        powf(xyz[3 * j + 2] - meas[3 * j + 2], 2));
     move[pass] = median(after, n);
   }
+  /* a sensor without noise: every measurement stands */
+  f->cfg.train.depth_noise_m = 0;
+  memcpy(xyz, meas, n * 3 * sizeof(float));
+  assert_int_equal(vlff_field_snap_surface(f, v, pix, n, xyz), 0);
+  assert_memory_equal(xyz, meas, n * 3 * sizeof(float));
   f->cfg.train.depth_noise_m = noise;
   print_message("median move of a measured point: %.4f m, from a sensor ten times more precise %.4f m\n", move[0],
                 move[1]);
