@@ -643,6 +643,23 @@ static void test_save_load(void **state) {
   vlff_evidence_destroy(g);
 }
 
+/* The node's evidence for a growing box (field.grow) that starts as
+ * make()'s grid, with a 1 MB budget (an index of at most 65536 voxels);
+ * *cfg is its configuration. */
+static struct vlff_evidence *make_growing(struct vlff_config *cfg) {
+  vlff_config_defaults(cfg);
+  cfg->field.feature_dim = D;
+  cfg->field.grow = true;
+  memcpy(cfg->field.scene_min, origin, sizeof origin);
+  for (int a = 0; a < 3; a++) cfg->field.scene_max[a] = origin[a] + 4;
+  cfg->publish.evidence_voxel_m = 0.5;
+  cfg->publish.evidence_max_mb = 1;
+  char err[256];
+  struct vlff_evidence *e = vlff_evidence_for(&cfg->publish, &cfg->field, VLFF_MAX_PROMPTS, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  return e;
+}
+
 /* A growing box's evidence (field.grow): the grid grows on its lattice and
  * every voxel's evidence stays where it is in the world; the new part takes
  * evidence; a save of the grown grid loads into a first-box evidence by
@@ -651,16 +668,8 @@ static void test_save_load(void **state) {
 static void test_grow(void **state) {
   (void)state;
   struct vlff_config cfg;
-  vlff_config_defaults(&cfg);
-  cfg.field.feature_dim = D;
-  cfg.field.grow = true;
-  memcpy(cfg.field.scene_min, origin, sizeof origin);
-  for (int a = 0; a < 3; a++) cfg.field.scene_max[a] = origin[a] + 4;
-  cfg.publish.evidence_voxel_m = 0.5;
-  cfg.publish.evidence_max_mb = 1; /* an index of at most 65536 voxels */
+  struct vlff_evidence *e = make_growing(&cfg);
   char err[256];
-  struct vlff_evidence *e = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
-  assert_non_null(e);
   struct wall a;
   wall_make(&a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
   assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
@@ -726,16 +735,8 @@ static void test_paged_then_grown(void **state) {
   assert_non_null(mkdtemp(dir));
   snprintf(path, sizeof path, "%s/evidence.pages", dir);
   struct vlff_config cfg;
-  vlff_config_defaults(&cfg);
-  cfg.field.feature_dim = D;
-  cfg.field.grow = true;
-  memcpy(cfg.field.scene_min, origin, sizeof origin);
-  for (int a = 0; a < 3; a++) cfg.field.scene_max[a] = origin[a] + 4;
-  cfg.publish.evidence_voxel_m = 0.5;
-  cfg.publish.evidence_max_mb = 1;
+  struct vlff_evidence *e = make_growing(&cfg);
   char err[256];
-  struct vlff_evidence *e = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
-  assert_non_null(e);
   assert_int_equal(vlff_evidence_page_to(e, path, 1 << 20, err, sizeof err), 0);
   const float mark[D] = {0, 0, 1, 0}, stray[D] = {1, 0, 0, 0};
   const float E[2 * D] = {0, 0, 1, 0, 1, 0, 0, 0}, fc[2] = {0.5f, 0.6f}; /* the field leans to prompt 1 */
