@@ -497,13 +497,13 @@ struct snap_ctx {
   size_t *moved; /* [tasks] */
 };
 
-/* Density alone along each point's ray (no colour, no feature head); the
- * ray's surface is its opacity-weighted depth where it is at least half
- * opaque. */
 /* The field's surface is never known better than this along a ray (m): a
  * fraction of its finest cells, and what a sharp density's samples leave. */
 #define SNAP_MIN_SPREAD 0.005
 
+/* Density alone along each point's ray (no colour, no feature head); the
+ * ray's surface is its opacity-weighted depth where it is at least half
+ * opaque. */
 static void snap_task(void *ctx, int task, int thread) {
   struct snap_ctx *sc = ctx;
   struct vlff_field *f = sc->f;
