@@ -187,9 +187,9 @@ int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, 
  * (train.depth_noise_m d^2)^2 against the square of the density's spread
  * along the ray (at least 5 mm), so a precise sensor's point barely moves
  * (a depth noise of 0 moves none) and a stereo one's goes nearly all the
- * way. A stereo
- * sensor's single measurement is off by 9-16 cm at 3-4 m; the field has
- * fitted that surface from every view. Returns the points moved; 0, with
+ * way. A stereo sensor's single measurement is off by 9-16 cm at 3-4 m;
+ * the field has fitted that surface from every view. Returns the points
+ * moved (those left where they were are not counted); 0, with
  * nothing moved, also for n = 0, a NULL argument, a non-finite pose,
  * non-positive focal lengths or any pixel outside the image. Costs a
  * render of density alone. */
