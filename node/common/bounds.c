@@ -67,6 +67,18 @@ int vlff_field_pose_plausible(const struct vlff_cfg_field *field, const double c
                      : vlff_pose_plausible(c2w, field->scene_min, field->scene_max, why, whylen);
 }
 
+int vlff_pose_step_plausible(const double prev_c2w[16], double prev_depth_max_m, const double c2w[16],
+                             double depth_max_m, char *why, size_t whylen) {
+  double dx = c2w[3] - prev_c2w[3], dy = c2w[7] - prev_c2w[7], dz = c2w[11] - prev_c2w[11];
+  double step = sqrt(dx * dx + dy * dy + dz * dz);
+  double bound = fmin(VLFF_MAX_POSE_STEP_M, fmax(VLFF_MIN_POSE_STEP_M, fmax(prev_depth_max_m, depth_max_m)));
+  if (step <= bound) return 0;
+  if (why && whylen)
+    snprintf(why, whylen, "camera moved %g m since the keyframe candidate before, farther than the %g m either "
+             "frame's depth reaches", step, bound);
+  return -1;
+}
+
 int vlff_pose_plausible(const double c2w[16], const double lo[3], const double hi[3], char *why, size_t whylen) {
   const char axis[3] = {'x', 'y', 'z'};
   double grow = 0;

@@ -49,4 +49,18 @@ int vlff_pose_plausible(const double c2w[16], const double lo[3], const double h
 struct vlff_cfg_field;
 int vlff_field_pose_plausible(const struct vlff_cfg_field *field, const double c2w[16], char *why, size_t whylen);
 
+/* A box-free check of a pose's units. A camera that moves farther between
+ * two frames than the farthest depth either measured shares no surface
+ * between them, and no tracker follows it across that: such a step says the
+ * poses are not in metres (in millimetres every step is 1000 times too
+ * long) or the tracker jumped. The bound is never under
+ * VLFF_MIN_POSE_STEP_M, so that a camera facing a wall at arm's length is
+ * not held to its depth, and never over VLFF_MAX_POSE_STEP_M, so that one
+ * wild depth pixel does not switch the check off. 0 when plausible, -1
+ * with *why set. */
+#define VLFF_MIN_POSE_STEP_M 1.0
+#define VLFF_MAX_POSE_STEP_M 100.0
+int vlff_pose_step_plausible(const double prev_c2w[16], double prev_depth_max_m, const double c2w[16],
+                             double depth_max_m, char *why, size_t whylen);
+
 #endif

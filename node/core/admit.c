@@ -53,7 +53,7 @@ static void resample_rgb(const uint8_t *src, int sw, int sh, size_t sstride, int
 /* Depth is sampled, never averaged: averaging across an edge invents
  * surfaces floating between foreground and background. */
 static size_t resample_depth(const void *src, uint32_t fmt, int sw, int sh, size_t sstride, float *dst,
-                             int dw, int dh) {
+                             int dw, int dh, float *max) {
   size_t valid = 0;
   for (int y = 0; y < dh; y++)
     for (int x = 0; x < dw; x++) {
@@ -69,6 +69,7 @@ static size_t resample_depth(const void *src, uint32_t fmt, int sw, int sh, size
       }
       if (!(d > 0) || !isfinite(d)) d = 0;
       valid += d > 0;
+      if (d > *max) *max = d;
       dst[(size_t)y * dw + x] = d;
     }
   return valid;
@@ -322,11 +323,28 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
   }
   resample_rgb(vlff_frame_plane(buf, VLFF_PLANE_COLOR), (int)cp->width, (int)cp->height, cp->stride,
                cp->format == VLFF_PIX_RGB8 ? 3 : 1, c->rgb, dw, dh);
+  float depth_max = 0;
   size_t valid = resample_depth(vlff_frame_plane(buf, VLFF_PLANE_DEPTH), dp->format, (int)dp->width,
-                                (int)dp->height, dp->stride, c->depth, dw, dh);
+                                (int)dp->height, dp->stride, c->depth, dw, dh, &depth_max);
   if (valid == 0) {
     candidate_free(c);
     refuse(n, &ig->rl, VLFF_REFUSED_EMPTY_DEPTH, id, "the depth plane has no valid pixel (all 0 or NaN)");
+    return;
+  }
+  /* Poses in millimetres pass any world-sized bound until the robot has
+   * gone far, but every step between candidates is then longer than the
+   * depth can reach. The next candidate is measured from this one whatever
+   * becomes of it, so that a tracker's one jump (a relocalisation, a
+   * replayed loop starting over) costs one frame, not all that follow. */
+  char why[192];
+  bool step_ok = !ig->have_prev || !vlff_pose_step_plausible(ig->prev_c2w, ig->prev_depth_max_m, pose, depth_max,
+                                                             why, sizeof why);
+  memcpy(ig->prev_c2w, pose, sizeof ig->prev_c2w);
+  ig->prev_depth_max_m = depth_max;
+  ig->have_prev = true;
+  if (!step_ok) {
+    candidate_free(c);
+    refuse(n, &ig->rl, VLFF_REFUSED_POSE_RANGE, id, "%s: poses in millimetres, or a jump of the tracker?", why);
     return;
   }
   double sx = (double)dw / cp->width, sy = (double)dh / cp->height;

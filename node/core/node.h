@@ -59,7 +59,8 @@ enum vlff_refusal {
   VLFF_REFUSED_BAD_INTRINSICS = 5, /* focal lengths or principal point implausible for the image size */
   VLFF_REFUSED_NO_POSE = 6,        /* none in the frame, none in the pose ring within pose_tolerance_s */
   VLFF_REFUSED_BAD_POSE = 7,       /* not a rigid transform (NaN, rotation not orthonormal) */
-  VLFF_REFUSED_POSE_RANGE = 8,     /* camera far outside the scene box: wrong units or frame */
+  VLFF_REFUSED_POSE_RANGE = 8,     /* camera far outside the box or the world, or a step between keyframe
+                                      candidates beyond their depth: wrong units or frame */
   VLFF_REFUSED_NO_DEPTH = 9,       /* no depth plane of the colour plane's size in a depth format */
   VLFF_REFUSED_EMPTY_DEPTH = 10,   /* depth plane without one valid pixel */
   VLFF_REFUSED_TOO_SMALL = 11,     /* under 4x4 pixels at train.image_scale */

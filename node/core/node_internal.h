@@ -211,6 +211,11 @@ struct ingest {
   size_t held_len;
   double held_since_s;
   bool holding;
+  /* The keyframe candidate before (whatever became of it): its pose and
+   * farthest depth, for the box-free units check (vlff_pose_step_plausible). */
+  double prev_c2w[16];
+  double prev_depth_max_m;
+  bool have_prev;
 };
 
 /* Events per second over windows of at least a second (frames in, training

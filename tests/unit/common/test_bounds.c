@@ -91,6 +91,35 @@ static void test_field_pose_bounds(void **state) {
   assert_int_equal(vlff_field_pose_plausible(&c.field, m, why, sizeof why), -1);
 }
 
+/* The box-free units check: a step between two candidates within the
+ * farther depth of the two (at least VLFF_MIN_POSE_STEP_M) passes; the same
+ * walk in millimetres does not. */
+static void test_pose_step(void **state) {
+  (void)state;
+  double a[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}, b[16];
+  memcpy(b, a, sizeof b);
+  b[3] = 3.0, b[7] = 4.0; /* 5 m */
+  assert_int_equal(vlff_pose_step_plausible(a, 5.0, b, 2.0, why, sizeof why), 0);
+  assert_int_equal(vlff_pose_step_plausible(a, 2.0, b, 5.0, why, sizeof why), 0);
+  assert_int_equal(vlff_pose_step_plausible(a, 4.9, b, 4.9, why, sizeof why), -1);
+  assert_string_equal(why, "camera moved 5 m since the keyframe candidate before, farther than the 4.9 m either "
+                           "frame's depth reaches");
+  /* Facing a wall at 0.3 m, a step of VLFF_MIN_POSE_STEP_M still passes. */
+  memcpy(b, a, sizeof b);
+  b[11] = VLFF_MIN_POSE_STEP_M;
+  assert_int_equal(vlff_pose_step_plausible(a, 0.3, b, 0.3, why, sizeof why), 0);
+  /* 8 cm at 5 Hz (a walk at 0.4 m/s) in millimetres, 6 m of depth. */
+  memcpy(b, a, sizeof b);
+  b[3] = 80;
+  assert_int_equal(vlff_pose_step_plausible(a, 6.0, b, 6.0, why, sizeof why), -1);
+  /* One wild depth pixel does not lift the bound past VLFF_MAX_POSE_STEP_M. */
+  b[3] = 200;
+  assert_int_equal(vlff_pose_step_plausible(a, 6.0, b, 1e30, why, sizeof why), -1);
+  assert_non_null(strstr(why, "farther than the 100 m"));
+  b[3] = NAN;
+  assert_int_equal(vlff_pose_step_plausible(a, 6.0, b, 6.0, why, sizeof why), -1);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(test_real_cameras_pass), cmocka_unit_test(test_corrupt_intrinsics_refused),
+    cmocka_unit_test(test_real_cameras_pass), cmocka_unit_test(test_pose_step), cmocka_unit_test(test_corrupt_intrinsics_refused),
     cmocka_unit_test(test_pose_bounds), cmocka_unit_test(test_field_pose_bounds))

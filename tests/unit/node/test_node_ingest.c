@@ -66,7 +66,7 @@ static int teardown(void **state) {
   return tk_teardown(&tk);
 }
 
-enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, FUTURE_POSE };
+enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, FUTURE_POSE, POSE_CM, POSE_JUMPED };
 
 /* Writes simulator frame `index` into the ring, stamped t_ns. The pose
  * travels in the frame except for NO_POSE_FLAG (the pose ring must give
@@ -85,6 +85,9 @@ static void put_frame(struct vlff_ring *ring, struct vlff_sim *s, struct vlff_si
     memset(h->pose, 0, sizeof h->pose);
   }
   if (kind == FUTURE_POSE) h->pose_t_ns = vlff_shm_now_ns() + 3000000000ull; /* a camera clock 3 s ahead */
+  /* A tracker reporting centimetres; one that relocalised 40 m away. */
+  for (int r = 0; r < 3; r++) h->pose[r * 4 + 3] *= kind == POSE_CM ? 100 : 1;
+  if (kind == POSE_JUMPED) h->pose[3] += 40;
   memcpy((uint8_t *)h + h->plane[0].offset, f->rgb, (size_t)f->width * f->height * 3);
   if (kind != NO_DEPTH) memcpy((uint8_t *)h + h->plane[1].offset, f->depth_mm, (size_t)f->width * f->height * 2);
   assert_int_equal(vlff_ring_commit(ring, len), 0);
@@ -366,11 +369,65 @@ static void test_future_pose_refused(void **state) {
   tk_scene_close(&sc);
 }
 
+/* Poses in the wrong units without a box to catch them (field.grow: the
+ * world's limit is a kilometre). A tracker that jumps once (relocalised 40 m
+ * away) costs the one keyframe candidate after the jump; one that reports
+ * centimetres has every candidate refused, each step between them far
+ * longer than the depth reaches, with the reason in the log. */
+static void test_pose_units_refused(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg);
+  cfg.field.grow = true;
+  char log[400];
+  snprintf(log, sizeof log, "%s/units.log", tk.dir);
+  /* The node's log is this process's stderr: kept in a file meanwhile. */
+  fflush(stderr);
+  int saved = dup(2), fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  assert_true(saved >= 0 && fd >= 0);
+  dup2(fd, 2);
+  close(fd);
+  struct tk_scene sc;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 320, 240, &src);
+  /* Frames 0.25 s apart (keyframes.rate_hz 5), 6 walk frames apart: the
+   * jump comes with frame 30. */
+  const int nmetres = 10, ncm = 6;
+  for (int i = 0; i < nmetres + ncm; i++) {
+    enum frame_kind kind = i < nmetres / 2 ? GOOD : i < nmetres ? POSE_JUMPED : POSE_CM;
+    put_frame(sc.ring, sc.sim, sc.frame, i * 6, vlff_shm_now_ns(), kind);
+    tk_sleep_s(0.25);
+  }
+  struct vlff_node_status st;
+  double t0 = vlff_seconds();
+  do {
+    tk_sleep_s(0.1);
+    vlff_node_status(n, &st);
+  } while (st.refused[VLFF_REFUSED_POSE_RANGE] < 1 + ncm && vlff_seconds() - t0 < 10 * tk.scale);
+  tk_sleep_s(0.5);
+  vlff_node_status(n, &st);
+  printf("%lld candidates refused for their pose, %lld frames refused\n", st.refused[VLFF_REFUSED_POSE_RANGE],
+         st.frames_invalid);
+  tk_node_destroy(n, src);
+  fflush(stderr);
+  dup2(saved, 2);
+  close(saved);
+  assert_int_equal(st.refused[VLFF_REFUSED_POSE_RANGE], 1 + ncm);
+  assert_int_equal(st.frames_invalid, 1 + ncm);
+  const char *text = tk_slurp(log);
+  if (!strstr(text, "frame 30 refused, pose out of range: camera moved ") ||
+      !strstr(text, " m since the keyframe candidate before, farther than the ") ||
+      !strstr(text, "poses in millimetres, or a jump of the tracker?"))
+    fail_msg("no line on the jump in:\n%s", text);
+  tk_scene_close(&sc);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_setup_teardown(test_status_says_why, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_adapter_feeds_node, setup, teardown),
       cmocka_unit_test_setup_teardown(test_future_pose_refused, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_pose_units_refused, setup, teardown),
   };
   if (getenv("VLFF_TEST_FILTER")) cmocka_set_test_filter(getenv("VLFF_TEST_FILTER"));
   if (getenv("VLFF_TEST_DEBUG")) vlff_log_set_level(VLFF_LOG_DEBUG); /* every refusal's detail */
