@@ -343,6 +343,10 @@ static int finish(struct run *r, const char *snapshot_dir) {
     VLFF_INFO("node", "the box grew %lld times, to [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m; %lld growths refused",
               st.box_growths, st.box_lo[0], st.box_hi[0], st.box_lo[1], st.box_hi[1], st.box_lo[2], st.box_hi[2],
               st.box_refused);
+  if (st.keyframes_paged_out || st.keyframes_dropped)
+    VLFF_INFO("node", "keyframes beyond keyframes.memory_mb: %lld in the page file (%lld paged out, %lld brought "
+                      "back), %lld dropped",
+              st.keyframes_paged, st.keyframes_paged_out, st.keyframes_paged_in, st.keyframes_dropped);
   if (st.evidence_paged_out || st.evidence_dropped)
     VLFF_INFO("node", "evidence beyond publish.evidence_max_mb: %lld voxels in the page file (%lld paged out, %lld "
                       "brought back), %lld given up",

@@ -272,6 +272,7 @@ static const struct key schema[] = {
     DBL("keyframes.min_translation_m", keyframes.min_translation_m, 0, 100, 0.0),
     DBL("keyframes.min_rotation_deg", keyframes.min_rotation_deg, 0, 180, 0.0),
     INT("keyframes.memory_mb", keyframes.memory_mb, 1, 1 << 20, 1024),
+    INT("keyframes.page_mb", keyframes.page_mb, 0, 1 << 20, 2048),
     INT("keyframes.max_keyframes", keyframes.max_keyframes, 1, 1 << 20, 325),
     INT("keyframes.start_after", keyframes.start_after, 1, 1 << 20, 5),
     INT("keyframes.recent", keyframes.recent, 1, 1 << 20, 8),

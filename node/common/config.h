@@ -219,6 +219,7 @@ struct vlff_cfg_keyframes {
   double min_translation_m;
   double min_rotation_deg;
   int memory_mb;                   /* keyframe store budget */
+  int page_mb;                     /* disk in node.state_dir for evicted keyframes (0: dropped) */
   int max_keyframes;
   int start_after;                 /* train once this many are held */
   int recent;                      /* the newest this many share half the rays */

@@ -130,10 +130,10 @@ int apply_prompt_set(struct vlff_node *n, int idx, char *err, size_t errlen) {
 static void reset_mapping(struct vlff_node *n) {
   char err[256];
   struct vlff_field *f = vlff_field_create(&n->cfg.field, &n->cfg.train, n->cfg.node.threads, err, sizeof err);
-  struct vlff_kfstore *s =
-      vlff_kfstore_create((size_t)n->cfg.keyframes.memory_mb << 20, n->cfg.keyframes.max_keyframes, KF_PROTECT);
+  char serr[256] = "";
+  struct vlff_kfstore *s = f ? node_kfstore_create(&n->cfg, serr, sizeof serr) : NULL;
   if (!f || !s) {
-    VLFF_ERROR(TAG, "reset failed: %s", f ? "out of memory" : err);
+    VLFF_ERROR(TAG, "reset failed: %s", f ? serr : err);
     vlff_field_destroy(f);
     vlff_kfstore_destroy(s);
     return;
@@ -145,6 +145,8 @@ static void reset_mapping(struct vlff_node *n) {
   n->ckpt_steps = -1; /* the saved map is no longer the learned one */
   n->ckpt_owed = false;
   n->store = s;
+  n->kf_full_said = false;
+  n->kf_dropped_said = 0;
   vlff_publisher_reset(n->pub);
   if (n->prompt_emb) vlff_field_set_prompts(n->field, n->prompt_emb, n->prompt_k, err, sizeof err);
   VLFF_INFO(TAG, "mapping reset");
@@ -248,6 +250,10 @@ void update_state(struct vlff_node *n) {
   n->st.keyframes = vlff_kfstore_count(n->store);
   n->st.keyframes_evicted = vlff_kfstore_evicted(n->store);
   n->st.keyframes_retired = vlff_kfstore_retired(n->store);
+  n->st.keyframes_paged = vlff_kfstore_paged(n->store);
+  n->st.keyframes_paged_out = vlff_kfstore_paged_out(n->store);
+  n->st.keyframes_paged_in = vlff_kfstore_paged_in(n->store);
+  n->st.keyframes_dropped = vlff_kfstore_dropped(n->store);
   n->st.state = !n->mapping ? VLFF_NODE_STOPPED
                 : n->st.keyframes >= n->cfg.keyframes.start_after ? VLFF_NODE_OPERATIONAL
                                                                   : VLFF_NODE_PREOP;

@@ -66,6 +66,24 @@ static void say_scene_box(const struct vlff_config *c) {
   VLFF_INFO("node", "scene box [%g %g %g]..[%g %g %g] m from %s", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], from);
 }
 
+struct vlff_kfstore *node_kfstore_create(const struct vlff_config *cfg, char *err, size_t errlen) {
+  struct vlff_kfstore *s =
+      vlff_kfstore_create((size_t)cfg->keyframes.memory_mb << 20, cfg->keyframes.max_keyframes, KF_PROTECT);
+  if (!s) {
+    snprintf(err, errlen, "keyframe store: %s", strerror(errno));
+    return NULL;
+  }
+  if (cfg->keyframes.page_mb > 0) {
+    char path[VLFF_CFG_PATH + 32];
+    snprintf(path, sizeof path, "%s/keyframes.pages", cfg->node.state_dir);
+    if (vlff_kfstore_page_to(s, path, (size_t)cfg->keyframes.page_mb << 20, err, errlen)) {
+      vlff_kfstore_destroy(s);
+      return NULL;
+    }
+  }
+  return s;
+}
+
 struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct vlff_source_hooks *hooks, char *err,
                                    size_t errlen) {
   static const struct vlff_source_hooks none;
@@ -105,11 +123,8 @@ struct vlff_node *vlff_node_create(const struct vlff_config *cfg, const struct v
   }
   n->field = vlff_field_create(&cfg->field, &cfg->train, n->cfg.node.threads, err, errlen);
   if (!n->field) goto fail;
-  n->store = vlff_kfstore_create((size_t)cfg->keyframes.memory_mb << 20, cfg->keyframes.max_keyframes, KF_PROTECT);
-  if (!n->store) {
-    snprintf(err, errlen, "keyframe store: %s", strerror(errno));
-    goto fail;
-  }
+  n->store = node_kfstore_create(cfg, err, errlen);
+  if (!n->store) goto fail;
   n->model_h = cfg->vlm.input_height;
   n->model_w = cfg->vlm.input_width;
   if (cfg->prompts.embeddings[0]) {

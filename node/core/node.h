@@ -82,6 +82,11 @@ struct vlff_node_status {
   int keyframes;
   long long keyframes_evicted;
   long long keyframes_retired;  /* dropped because newer depth saw through what they show */
+  /* Keyframe paging (keyframes.page_mb): evicted keyframes in the state
+   * directory's page file now, written there and brought back since the
+   * start (or the last reset), and evicted with nowhere to go (no page
+   * file, it full, an I/O error). */
+  long long keyframes_paged, keyframes_paged_out, keyframes_paged_in, keyframes_dropped;
   /* Evidence paging (publish.evidence_page_mb; docs/field.md): voxels whose
    * evidence is in the state directory's page file now, written there and
    * brought back since the start (or the last reset), and given up for

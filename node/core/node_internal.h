@@ -83,6 +83,10 @@
 #define PENDING_CAP 16
 #define LAT_CAP 4096
 #define KF_PROTECT 8  /* newest keyframes never evicted */
+/* A paged keyframe comes back when the camera is this near it
+ * (vlff_pose_distance: metres + 0.5 m per radian): in the same room, looking
+ * the same way. */
+#define KF_PAGE_IN_RADIUS 1.5
 #define KF_HISTORY 32 /* admitted keyframes the pose check compares against */
 
 struct candidate {
@@ -167,6 +171,7 @@ struct vlff_node {
   int n_accepted;
   long long cleared_seen; /* vlff_publisher_cleared when keyframes were last checked against it */
   bool kf_full_said;      /* the keyframe store's first eviction was logged */
+  long long kf_dropped_said; /* keyframes dropped (not paged) when last logged */
   /* trainer: the label flips of the publishes since the last whole refresh
    * ended (all, without new evidence, and the voxels that could) */
   long long round_flips, round_flips_elsewhere, round_mapped_elsewhere;
@@ -228,6 +233,11 @@ struct rate_meter {
 
 /* ingest.c (ingest thread; candidate_free on any thread that owns the candidate) */
 void candidate_free(struct candidate *c);
+
+/* lifecycle.c: the keyframe store by the config, paging to the state
+ * directory's keyframes.pages (a new file) when keyframes.page_mb > 0; NULL
+ * with err. */
+struct vlff_kfstore *node_kfstore_create(const struct vlff_config *cfg, char *err, size_t errlen);
 void queue_push(struct vlff_node *n, struct candidate *c);
 void pending_remove(struct candidate **pending, int *npend, int i);
 struct vlff_ring *attach_input(struct vlff_node *n, const char *name, uint32_t kind);

@@ -226,8 +226,22 @@ static void take_candidates(struct vlff_node *n, bool wait) {
             n->kf_full_said = true;
             VLFF_INFO(TAG, "keyframes: the store is full at %d keyframes (keyframes.memory_mb %d MiB, "
                            "max_keyframes %d); from now on each new one replaces the most redundant (the view "
-                           "nearest another), counted as evicted",
-                      vlff_kfstore_count(n->store), n->cfg.keyframes.memory_mb, n->cfg.keyframes.max_keyframes);
+                           "nearest another), counted as evicted, %s",
+                      vlff_kfstore_count(n->store), n->cfg.keyframes.memory_mb, n->cfg.keyframes.max_keyframes,
+                      n->cfg.keyframes.page_mb > 0 ? "which goes to keyframes.pages (keyframes.page_mb) and comes "
+                                                     "back when the camera returns near it"
+                                                   : "and dropped (keyframes.page_mb 0)");
+          }
+          /* The camera back where it has been: a view of it paged out comes
+           * back, at most one a keyframe. */
+          if (vlff_kfstore_page_in(n->store, c->view.c2w, KF_PAGE_IN_RADIUS) > 0)
+            VLFF_DEBUG(TAG, "keyframes: one paged keyframe back near keyframe %lld", c->id);
+          long long dropped = vlff_kfstore_dropped(n->store);
+          if (dropped > n->kf_dropped_said) {
+            n->kf_dropped_said = dropped;
+            vlff_warn_limited(&n->warned.kf_store, TAG, "keyframes: %lld evicted keyframes dropped, not paged%s%s",
+                              dropped, vlff_kfstore_page_error(n->store)[0] ? ": " : " (keyframes.page_mb 0)",
+                              vlff_kfstore_page_error(n->store));
           }
           grow_to_view(n, &c->view);
           /* The view passed the same check just above: these cannot refuse it. */

@@ -3,8 +3,10 @@
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include <cmocka.h>
 
 #include "keyframes.h"
@@ -146,7 +148,171 @@ static void test_contradicted_retired(void **st) {
   vlff_kfstore_destroy(s);
 }
 
+/* Keyframe id's pixels, depth and features all say id. */
+static struct vlff_keyframe_in make_marked(long long id, double x) {
+  struct vlff_keyframe_in k = make(id, x, 0);
+  for (int i = 0; i < W * H; i++) depth[i] = (float)id + 0.5f;
+  for (int i = 0; i < FW * FH * D; i++) feat[i] = (uint16_t)(1000 + id);
+  return k;
+}
+
+static const struct vlff_view *view_of(struct vlff_kfstore *s, long long id) {
+  const struct vlff_view *v;
+  const float *w;
+  int n = vlff_kfstore_views(s, 1, &v, &w);
+  for (int i = 0; i < n; i++)
+    if (vlff_kfstore_id(s, i) == id) return &v[i];
+  return NULL;
+}
+
+static char page_dir[64];
+static char page_path[96];
+
+static int page_setup(void **st) {
+  (void)st;
+  snprintf(page_dir, sizeof page_dir, "/tmp/vlff-kfpage-XXXXXX");
+  if (!mkdtemp(page_dir)) return -1;
+  snprintf(page_path, sizeof page_path, "%s/keyframes.pages", page_dir);
+  return 0;
+}
+
+static int page_teardown(void **st) {
+  (void)st;
+  unlink(page_path);
+  return rmdir(page_dir);
+}
+
+/* A full store pages its evicted keyframes out whole; a camera back near
+ * one brings it back, pixels, depth and features as they were, as the
+ * oldest view, and the view that leaves for it goes to the page file. A
+ * paged view that would be the next to go stays there (no thrashing). */
+static void test_paged_and_back(void **st) {
+  (void)st;
+  size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
+  struct vlff_kfstore *s = vlff_kfstore_create(cost * 3, 100, 1);
+  char err[256];
+  assert_int_equal(vlff_kfstore_page_to(s, page_path, 1 << 20, err, sizeof err), 0);
+  /* Views 1 m apart along x: on these ties the oldest goes, so 17, 18, 19
+   * stay and 10..16 are paged. */
+  for (int i = 0; i < 10; i++) {
+    struct vlff_keyframe_in k = make_marked(10 + i, i);
+    assert_int_equal(vlff_kfstore_add(s, &k), 0);
+  }
+  assert_int_equal(vlff_kfstore_count(s), 3);
+  assert_int_equal(vlff_kfstore_evicted(s), 7);
+  assert_int_equal(vlff_kfstore_paged(s), 7);
+  assert_int_equal(vlff_kfstore_paged_out(s), 7);
+  assert_int_equal(vlff_kfstore_dropped(s), 0);
+  const size_t len = vlff_kfstore_page_bytes(s) / 7;
+  assert_true(len > 0 && vlff_kfstore_page_bytes(s) == 7 * len);
+  /* Far from every paged view: nothing comes back. */
+  double c2w[16] = {1, 0, 0, 50, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  assert_int_equal(vlff_kfstore_page_in(s, c2w, 1.5), 0);
+  /* Back at x = 0: keyframe 10 returns; 17 (the most redundant) leaves. */
+  c2w[3] = 0;
+  assert_int_equal(vlff_kfstore_page_in(s, c2w, 1.5), 1);
+  assert_true(has_id(s, 10) && has_id(s, 18) && has_id(s, 19) && !has_id(s, 17));
+  assert_int_equal(vlff_kfstore_id(s, 0), 10); /* the oldest: not protected, not recent */
+  assert_int_equal(vlff_kfstore_paged_in(s), 1);
+  assert_int_equal(vlff_kfstore_paged_out(s), 8);
+  assert_int_equal(vlff_kfstore_paged(s), 7);
+  assert_int_equal(vlff_kfstore_bytes(s), 3 * cost);
+  assert_true(vlff_kfstore_page_bytes(s) == 7 * len); /* 17 took 10's place */
+  const struct vlff_view *v = view_of(s, 10);
+  assert_non_null(v);
+  assert_int_equal(v->rgb[0], 10);
+  assert_int_equal(v->rgb[W * H * 3 - 1], 10);
+  assert_float_equal(v->depth[W * H - 1], 10.5, 0);
+  assert_int_equal(v->features[FW * FH * D - 1], 1010);
+  assert_float_equal(v->c2w[3], 0, 0);
+  /* At x = 1: keyframe 11 would be the next to go (1 m from 10, as 18 is
+   * from 19), so it stays paged. */
+  c2w[3] = 1;
+  assert_int_equal(vlff_kfstore_page_in(s, c2w, 1.5), 0);
+  assert_int_equal(vlff_kfstore_paged_in(s), 1);
+  /* A page file cut short: the keyframe is dropped, counted, the store as it was. */
+  assert_int_equal(truncate(page_path, 0), 0);
+  c2w[3] = 5;
+  assert_int_equal(vlff_kfstore_page_in(s, c2w, 1.5), -1);
+  assert_int_equal(vlff_kfstore_dropped(s), 1);
+  assert_int_equal(vlff_kfstore_paged(s), 6);
+  assert_int_equal(vlff_kfstore_count(s), 3);
+  assert_non_null(strstr(vlff_kfstore_page_error(s), "short read"));
+  vlff_kfstore_destroy(s);
+}
+
+/* A page file's budget: what does not fit is dropped and counted, with the
+ * reason; without a page file every evicted keyframe is dropped. */
+static void test_page_file_full(void **st) {
+  (void)st;
+  size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
+  struct vlff_kfstore *s = vlff_kfstore_create(cost * 3, 100, 1);
+  struct vlff_kfstore *none = vlff_kfstore_create(cost * 3, 100, 1);
+  char err[256];
+  struct vlff_keyframe_in k = make_marked(1, 0);
+  const size_t len = (size_t)W * H * (3 + sizeof(float)) + (size_t)FW * FH * D * sizeof(uint16_t);
+  assert_int_equal(vlff_kfstore_page_to(s, page_path, 2 * len + len / 2, err, sizeof err), 0);
+  for (int i = 0; i < 10; i++) {
+    k = make_marked(i, i);
+    assert_int_equal(vlff_kfstore_add(s, &k), 0);
+    assert_int_equal(vlff_kfstore_add(none, &k), 0);
+  }
+  assert_int_equal(vlff_kfstore_paged(s), 2);
+  assert_int_equal(vlff_kfstore_dropped(s), 5);
+  assert_non_null(strstr(vlff_kfstore_page_error(s), "is full"));
+  assert_int_equal(vlff_kfstore_dropped(none), 7);
+  assert_int_equal(vlff_kfstore_paged(none), 0);
+  double c2w[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  assert_int_equal(vlff_kfstore_page_in(none, c2w, 1.5), 0);
+  /* A page file where none can be made. */
+  assert_int_equal(vlff_kfstore_page_to(none, "/nonexistent-dir/keyframes.pages", 1 << 20, err, sizeof err), -1);
+  assert_non_null(strstr(err, "keyframe page file /nonexistent-dir/keyframes.pages: "));
+  vlff_kfstore_destroy(s);
+  vlff_kfstore_destroy(none);
+}
+
+/* Views of one place count once: an evicted view of the place of a kept
+ * one is not paged, and a newer view of a paged place overwrites it (a
+ * robot on a loop does not fill the file with copies). */
+static void test_same_place_once(void **st) {
+  (void)st;
+  size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
+  struct vlff_kfstore *s = vlff_kfstore_create(cost * 2, 100, 1);
+  char err[256];
+  assert_int_equal(vlff_kfstore_page_to(s, page_path, 1 << 20, err, sizeof err), 0);
+  /* Two held, one protected: each add evicts the older (A at x = 0 first). */
+  const double xs[] = {0, 10, 20, 0, 30, 40};
+  for (int i = 0; i < 6; i++) {
+    struct vlff_keyframe_in k = make_marked(i, xs[i]);
+    assert_int_equal(vlff_kfstore_add(s, &k), 0);
+  }
+  /* 0, 1, 2 paged; then 3 (at 0's place) overwrote 0's record. */
+  assert_int_equal(vlff_kfstore_paged_out(s), 4);
+  assert_int_equal(vlff_kfstore_paged(s), 3);
+  const size_t len = (size_t)W * H * (3 + sizeof(float)) + (size_t)FW * FH * D * sizeof(uint16_t);
+  assert_true(vlff_kfstore_page_bytes(s) == 3 * len);
+  double c2w[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  assert_int_equal(vlff_kfstore_page_in(s, c2w, 1.5), 1);
+  assert_true(has_id(s, 3) && !has_id(s, 0));
+  assert_int_equal(view_of(s, 3)->rgb[0], 3);
+  /* A view on top of a kept one: that one goes, and is not paged. */
+  struct vlff_kfstore *t = vlff_kfstore_create(cost * 2, 100, 0);
+  assert_int_equal(vlff_kfstore_page_to(t, page_path, 1 << 20, err, sizeof err), 0);
+  for (int i = 0; i < 3; i++) {
+    struct vlff_keyframe_in k = make_marked(i, i == 2 ? 0.01 : 5.0 * i);
+    assert_int_equal(vlff_kfstore_add(t, &k), 0);
+  }
+  assert_int_equal(vlff_kfstore_evicted(t), 1);
+  assert_int_equal(vlff_kfstore_paged(t), 0);
+  assert_int_equal(vlff_kfstore_dropped(t), 0);
+  vlff_kfstore_destroy(t);
+  vlff_kfstore_destroy(s);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_budget_and_copy), cmocka_unit_test(test_redundant_view_goes),
     cmocka_unit_test(test_newest_protected_and_weights), cmocka_unit_test(test_pose_distance),
-    cmocka_unit_test(test_contradicted_retired))
+    cmocka_unit_test(test_contradicted_retired),
+    cmocka_unit_test_setup_teardown(test_paged_and_back, page_setup, page_teardown),
+    cmocka_unit_test_setup_teardown(test_page_file_full, page_setup, page_teardown),
+    cmocka_unit_test_setup_teardown(test_same_place_once, page_setup, page_teardown))

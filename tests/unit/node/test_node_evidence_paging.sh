@@ -6,11 +6,14 @@
 # counted in its stop line, none given up for good), the file goes when the
 # node stops, and the checkpoint holds every voxel's evidence: the node
 # started again pages out what is beyond its budget instead of dropping it.
-# The keyframe store, kept to 12 keyframes, says when it is full and counts
-# what it evicts in the stop line.
+# The keyframe store, kept to 6 keyframes (fewer than the walk's places),
+# says when it is full, pages what it evicts out to keyframes.pages
+# (keyframes.page_mb; a newer view of a paged place overwrites it) and
+# counts it in the stop line, none dropped; that file goes with the node
+# too.
 set -u
 node_field=  # the default field: its evidence records (D = 512) fill the 1 MiB budget
-node_yaml_extra=$'publish:\n  evidence_max_mb: 1\n  evidence_page_mb: 64\nkeyframes:\n  max_keyframes: 12'
+node_yaml_extra=$'publish:\n  evidence_max_mb: 1\n  evidence_page_mb: 64\nkeyframes:\n  max_keyframes: 6\n  page_mb: 128'
 . "$(dirname "$0")/node_sh.sh" nep "$@"
 "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
 simpid=$!
@@ -21,6 +24,8 @@ check "a full evidence budget pages out to the state directory: said ($(grep -o 
 # again; and past the keyframe store's.
 sleep 3
 wait_until 600 'grep -q "keyframes: the store is full" "$tmp/log"'
+check "evicted keyframes go to the state directory's keyframes.pages ($(stat -c %s "$tmp/keyframes.pages" 2>&1) bytes)" \
+  '[[ -s $tmp/keyframes.pages ]]'
 kill "$simpid"; wait "$simpid"; simpid=
 stop_node
 line=$(grep "evidence beyond publish.evidence_max_mb" "$tmp/log")
@@ -29,7 +34,10 @@ check "the stop line counts what was paged ($line), nothing given up for good" \
 check "the page file goes with the node" '[[ ! -e $tmp/evidence.pages ]]'
 stopped=$(grep "stopped: " "$tmp/log")
 check "a full keyframe store is said once ($(grep -o 'keyframes: the store is full[^;]*' "$tmp/log")), and what it evicted counted at the stop ($stopped)" \
-  '(( $(grep -c "keyframes: the store is full at 12 keyframes (keyframes.memory_mb [0-9]* MiB, max_keyframes 12); from now on each new one replaces the most redundant" "$tmp/log") == 1 )) && [[ $stopped =~ [0-9]+\ keyframes\ \(([0-9]+)\ evicted ]] && (( BASH_REMATCH[1] > 0 ))'
+  '(( $(grep -c "keyframes: the store is full at 6 keyframes (keyframes.memory_mb [0-9]* MiB, max_keyframes 6); from now on each new one replaces the most redundant" "$tmp/log") == 1 )) && [[ $stopped =~ [0-9]+\ keyframes\ \(([0-9]+)\ evicted ]] && (( BASH_REMATCH[1] > 0 ))'
+kline=$(grep "keyframes beyond keyframes.memory_mb" "$tmp/log")
+check "the keyframes' page file is said ($(grep -o 'which goes to keyframes.pages[^;]*' "$tmp/log")) and counted at the stop ($kline), none dropped, and goes with the node" \
+  'grep -q "counted as evicted, which goes to keyframes.pages (keyframes.page_mb) and comes back when the camera returns near it" "$tmp/log" && [[ $kline =~ ([0-9]+)\ in\ the\ page\ file\ \(([0-9]+)\ paged\ out,\ ([0-9]+)\ brought\ back\),\ 0\ dropped ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[2] >= BASH_REMATCH[1] + BASH_REMATCH[3] )) && [[ ! -e $tmp/keyframes.pages ]]'
 check "no page file error" '! grep -q "evidence: page file" "$tmp/log"'
 # Started again on its checkpoint: the evidence beyond the budget is paged,
 # not given up (the load would say how many it gave up). A file a killed
