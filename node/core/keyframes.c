@@ -278,11 +278,12 @@ int vlff_kfstore_page_in(struct vlff_kfstore *s, const double c2w[16], double ra
     for (int j = 0; j < s->count; j++) nn = fmin(nn, vlff_pose_distance(p.view.c2w, s->kfs[j].view.c2w));
     if (!(nn > victim_nn)) return 0;
   }
+  char *mem = malloc(p.len);
+  if (!mem) return 0; /* it stays paged */
   s->pg[best] = s->pg[--s->npg];
   s->page_used -= p.len;
-  char *mem = malloc(p.len);
   size_t done = 0;
-  while (mem && done < p.len) {
+  while (done < p.len) {
     ssize_t r = pread(s->fd, mem + done, p.len - done, p.off + (off_t)done);
     if (r <= 0) {
       if (r < 0 && errno == EINTR) continue;

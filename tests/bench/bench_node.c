@@ -525,8 +525,9 @@ int main(int argc, char **argv) {
       flat1_end = map_miou3d(wmap, wsnap, &wpts, in_flat1);
       miou3d_end = map_miou3d(wmap, wsnap, &wpts, in_all);
       printf("t=%5.1f s  frame %lld written, the map at frame %lld: the walk's end; flat 1's 3D mIoU %.1f, the "
-             "building's %.1f, %d keyframes, %lld evicted\n",
-             ts[ns - 1], written - 1, st.miou2d_frame, flat1_end, miou3d_end, st.keyframes, st.keyframes_evicted);
+             "building's %.1f, %d keyframes, %lld evicted (%lld paged out, %lld brought back, %lld dropped)\n",
+             ts[ns - 1], written - 1, st.miou2d_frame, flat1_end, miou3d_end, st.keyframes, st.keyframes_evicted,
+             st.keyframes_paged_out, st.keyframes_paged_in, st.keyframes_dropped);
     }
     if (ns % 10 == 0)
       printf("t=%5.1f s  it %lld  kf %d  2D mIoU %.1f  3D mIoU %.1f\n", ts[ns - 1], st.iteration, st.keyframes,
