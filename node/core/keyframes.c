@@ -169,7 +169,10 @@ static bool page_out(struct vlff_kfstore *s, const struct kf *k) {
   if (s->npg == s->pgcap) {
     int cap = s->pgcap ? 2 * s->pgcap : 64;
     struct paged *p = realloc(s->pg, (size_t)cap * sizeof *p);
-    if (!p) return false;
+    if (!p) {
+      snprintf(s->page_err, sizeof s->page_err, "%s: no memory for its index", s->path);
+      return false;
+    }
     s->pg = p, s->pgcap = cap;
   }
   off_t off = same >= 0 ? s->pg[same].off : page_place(s, len);

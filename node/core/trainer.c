@@ -236,12 +236,13 @@ static void take_candidates(struct vlff_node *n, bool wait) {
            * back, at most one a keyframe. */
           if (vlff_kfstore_page_in(n->store, c->view.c2w, KF_PAGE_IN_RADIUS) > 0)
             VLFF_DEBUG(TAG, "keyframes: one paged keyframe back near keyframe %lld", c->id);
+          /* With keyframes.page_mb 0 dropping is what was asked for, and
+           * the store's first fill said so. */
           long long dropped = vlff_kfstore_dropped(n->store);
-          if (dropped > n->kf_dropped_said) {
+          if (n->cfg.keyframes.page_mb > 0 && dropped > n->kf_dropped_said) {
             n->kf_dropped_said = dropped;
-            vlff_warn_limited(&n->warned.kf_store, TAG, "keyframes: %lld evicted keyframes dropped, not paged%s%s",
-                              dropped, vlff_kfstore_page_error(n->store)[0] ? ": " : " (keyframes.page_mb 0)",
-                              vlff_kfstore_page_error(n->store));
+            vlff_warn_limited(&n->warned.kf_store, TAG, "keyframes: %lld evicted keyframes dropped, not paged: %s",
+                              dropped, vlff_kfstore_page_error(n->store));
           }
           grow_to_view(n, &c->view);
           /* The view passed the same check just above: these cannot refuse it. */

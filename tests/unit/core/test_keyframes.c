@@ -3,9 +3,11 @@
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <unistd.h>
 #include <cmocka.h>
 
@@ -309,10 +311,45 @@ static void test_same_place_once(void **st) {
   vlff_kfstore_destroy(s);
 }
 
+/* A write the kernel refuses (the file-size limit, as a full disk would):
+ * the keyframe is dropped, counted, with the kernel's reason; the records
+ * written before stay readable. */
+static void test_page_write_fails(void **st) {
+  (void)st;
+  size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
+  struct vlff_kfstore *s = vlff_kfstore_create(cost * 3, 100, 1);
+  char err[256];
+  assert_int_equal(vlff_kfstore_page_to(s, page_path, 1 << 20, err, sizeof err), 0);
+  const size_t len = (size_t)W * H * (3 + sizeof(float)) + (size_t)FW * FH * D * sizeof(uint16_t);
+  struct rlimit old, lim;
+  assert_int_equal(getrlimit(RLIMIT_FSIZE, &old), 0);
+  lim = old;
+  lim.rlim_cur = (rlim_t)(2 * len + len / 2);
+  void (*was)(int) = signal(SIGXFSZ, SIG_IGN);
+  assert_int_equal(setrlimit(RLIMIT_FSIZE, &lim), 0);
+  for (int i = 0; i < 6; i++) {
+    struct vlff_keyframe_in k = make_marked(i, i);
+    assert_int_equal(vlff_kfstore_add(s, &k), 0);
+  }
+  assert_int_equal(setrlimit(RLIMIT_FSIZE, &old), 0);
+  signal(SIGXFSZ, was);
+  /* 0 and 1 written whole; 2 cut short by the limit. */
+  assert_int_equal(vlff_kfstore_paged(s), 2);
+  assert_int_equal(vlff_kfstore_dropped(s), 1);
+  assert_non_null(strstr(vlff_kfstore_page_error(s), "File too large"));
+  double c2w[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  assert_int_equal(vlff_kfstore_page_in(s, c2w, 1.5), 1);
+  const struct vlff_view *v = view_of(s, 0);
+  assert_non_null(v);
+  assert_float_equal(v->depth[W * H - 1], 0.5, 0);
+  vlff_kfstore_destroy(s);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_budget_and_copy), cmocka_unit_test(test_redundant_view_goes),
     cmocka_unit_test(test_newest_protected_and_weights), cmocka_unit_test(test_pose_distance),
     cmocka_unit_test(test_contradicted_retired),
     cmocka_unit_test_setup_teardown(test_paged_and_back, page_setup, page_teardown),
     cmocka_unit_test_setup_teardown(test_page_file_full, page_setup, page_teardown),
-    cmocka_unit_test_setup_teardown(test_same_place_once, page_setup, page_teardown))
+    cmocka_unit_test_setup_teardown(test_same_place_once, page_setup, page_teardown),
+    cmocka_unit_test_setup_teardown(test_page_write_fails, page_setup, page_teardown))
