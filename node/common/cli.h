@@ -62,7 +62,9 @@ void vlff_cli_restart(void);
 extern volatile sig_atomic_t vlff_cli_stop;
 /* SIGINT and SIGTERM set vlff_cli_stop; without SA_RESTART, so a blocked
  * read or sleep returns EINTR and the loop around it sees the request.
- * SIGPIPE is ignored: a reader that went away is an EPIPE, not a death. */
+ * SIGPIPE is ignored: a reader that went away is an EPIPE, not a death.
+ * So is SIGXFSZ: a page file at the file-size limit (systemd's LimitFSIZE)
+ * is a failed write, counted, not a killed node. */
 void vlff_cli_catch_stop(void);
 
 int vlff_cli_usage_error(const struct vlff_cli *cli, const char *fmt, ...) __attribute__((format(printf, 2, 3)));

@@ -273,13 +273,22 @@ int vlff_kfstore_page_in(struct vlff_kfstore *s, const double c2w[16], double ra
   }
   if (best < 0) return 0;
   struct paged p = s->pg[best];
-  /* It comes back only when it would not be the next to go. */
+  /* It comes back only when, the victim gone for it, it would not be the
+   * next to go: its nearest view then is farther than every other
+   * candidate's (strictly: as the oldest it would lose a tie). */
   if (s->count >= s->max_count || s->bytes + p.bytes > s->budget) {
-    double victim_nn;
-    victim_of(s, &victim_nn);
-    double nn = INFINITY;
-    for (int j = 0; j < s->count; j++) nn = fmin(nn, vlff_pose_distance(p.view.c2w, s->kfs[j].view.c2w));
-    if (!(nn > victim_nn)) return 0;
+    const int victim = victim_of(s, NULL), candidates = s->count - s->protect;
+    double nn = INFINITY, next = INFINITY;
+    for (int j = 0; j < s->count; j++)
+      if (j != victim) nn = fmin(nn, vlff_pose_distance(p.view.c2w, s->kfs[j].view.c2w));
+    for (int i = 0; i < candidates; i++) {
+      if (i == victim) continue;
+      double d = vlff_pose_distance(s->kfs[i].view.c2w, p.view.c2w);
+      for (int j = 0; j < s->count; j++)
+        if (j != i && j != victim) d = fmin(d, vlff_pose_distance(s->kfs[i].view.c2w, s->kfs[j].view.c2w));
+      next = fmin(next, d);
+    }
+    if (!(nn > next)) return 0;
   }
   char *mem = malloc(p.len);
   if (!mem) return 0; /* it stays paged */

@@ -12,8 +12,9 @@
  *  - A keyframe that newer depth contradicts is retired on request
  *    (vlff_kfstore_retire), whatever its age, but never the newest.
  *  - vlff_kfstore_views() hands out views pointing into the store; they stay
- *    valid until the next add. Weights favour recent keyframes (half of the
- *    rays go to the newest `recent`) while every keyframe keeps a share.
+ *    valid until the next add, retire or page-in. Weights favour recent
+ *    keyframes (half of the rays go to the newest `recent`) while every
+ *    keyframe keeps a share.
  *  - Not thread-safe: one owner (the trainer thread).
  */
 #ifndef VLFF_KEYFRAMES_H
@@ -62,30 +63,30 @@ int vlff_kfstore_views(struct vlff_kfstore *s, int recent, const struct vlff_vie
 long long vlff_kfstore_id(const struct vlff_kfstore *s, int i);
 
 /* Paging. Without a page file an evicted keyframe is dropped. With one
- * (vlff_kfstore_page_to: a path in the node's state directory, created or
- * truncated, and a byte budget), an evicted keyframe is written there
- * instead, whole (pixels, depth, features, pose, intrinsics), and its pose
- * kept in memory; it is dropped only when the file is full or a write
- * fails. Views of one place (within 5 cm and 0.1 rad) count once: an
- * evicted view of the place of a view kept in memory is not paged (the
- * newer view holds that place), and one of the place of a paged view
- * overwrites it. vlff_kfstore_page_in(c2w, radius) brings back the paged keyframe
- * nearest to the camera pose c2w (vlff_pose_distance) within radius, when it
- * covers more than the keyframe that would leave for it: its nearest
- * keyframe in memory is farther than the eviction victim's (so it is not
- * the next to go, and paging cannot thrash). It joins as the oldest view
- * (not protected, not recent), evicting (paging out) as an add does.
- * Returns 1 when one came back, 0 when none qualified, -1 when its read
- * failed (it is then dropped, counted). The file holds one store's life:
- * page_to replaces any file of that name, and the store's destroy removes
- * its own. Why: a building's keyframes do not fit a
- * robot's memory; without paging, a robot that returns to a flat trains on
- * none of its earlier views of it (docs/node.md, "Memory"). */
+ * (vlff_kfstore_page_to: a path in the node's state directory, made anew,
+ * and a byte budget), an evicted keyframe is written there instead, whole
+ * (pixels, depth, features, pose, intrinsics), and its pose kept in
+ * memory; it is dropped only when the file is full or a write fails. Views
+ * of one place (vlff_pose_distance under 0.05: 5 cm, or 0.1 rad) count
+ * once: an evicted view of the place of a view kept (or of the one coming
+ * in) is not paged, and one of the place of a paged view overwrites it.
+ * vlff_kfstore_page_in(c2w, radius) brings back the paged keyframe nearest
+ * to the camera pose c2w within radius when, the eviction victim gone for
+ * it, it would not be the next to go (its nearest view farther than every
+ * other candidate's), so that one page-in does not undo itself at the
+ * next add. It joins as the oldest view (not protected, not recent),
+ * evicting (paging out) as an add does. Returns 1 when one came back, 0
+ * when none qualified (or no memory for it), -1 when its read failed (it
+ * is then dropped, counted). The file holds one store's life: page_to
+ * replaces any file of that name, and the store's destroy removes its own
+ * (not a newer store's of the same name). Why: a building's keyframes do
+ * not fit a robot's memory; without paging, a robot that returns to a flat
+ * trains on none of its earlier views of it (docs/node.md, "Memory"). */
 int vlff_kfstore_page_to(struct vlff_kfstore *s, const char *path, size_t max_bytes, char *err, size_t errlen);
 int vlff_kfstore_page_in(struct vlff_kfstore *s, const double c2w[16], double radius);
 /* Keyframes in the page file now; written there and brought back since
  * create; evicted with nowhere to go (no page file, it full, an I/O
- * error). The page file's path ("" when none) and its last error. */
+ * error); the file's bytes in use; its last error ("" when none). */
 long long vlff_kfstore_paged(const struct vlff_kfstore *s);
 long long vlff_kfstore_paged_out(const struct vlff_kfstore *s);
 long long vlff_kfstore_paged_in(const struct vlff_kfstore *s);

@@ -76,10 +76,9 @@ struct vlff_kfstore *node_kfstore_create(const struct vlff_config *cfg, char *er
   if (cfg->keyframes.page_mb > 0) {
     char path[VLFF_CFG_PATH + 32];
     snprintf(path, sizeof path, "%s/keyframes.pages", cfg->node.state_dir);
-    if (vlff_kfstore_page_to(s, path, (size_t)cfg->keyframes.page_mb << 20, err, errlen)) {
-      vlff_kfstore_destroy(s);
-      return NULL;
-    }
+    char perr[256];
+    if (vlff_kfstore_page_to(s, path, (size_t)cfg->keyframes.page_mb << 20, perr, sizeof perr))
+      VLFF_WARN("node", "keyframes: %s: evicted keyframes will be dropped (counted), not paged", perr);
   }
   return s;
 }

@@ -235,8 +235,9 @@ struct rate_meter {
 void candidate_free(struct candidate *c);
 
 /* lifecycle.c: the keyframe store by the config, paging to the state
- * directory's keyframes.pages (a new file) when keyframes.page_mb > 0; NULL
- * with err. */
+ * directory's keyframes.pages (a new file) when keyframes.page_mb > 0 (a
+ * file that cannot be made is warned about, and the store drops what it
+ * evicts); NULL with err when there is no memory. */
 struct vlff_kfstore *node_kfstore_create(const struct vlff_config *cfg, char *err, size_t errlen);
 void queue_push(struct vlff_node *n, struct candidate *c);
 void pending_remove(struct candidate **pending, int *npend, int i);

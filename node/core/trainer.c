@@ -234,8 +234,12 @@ static void take_candidates(struct vlff_node *n, bool wait) {
           }
           /* The camera back where it has been: a view of it paged out comes
            * back, at most one a keyframe. */
-          if (vlff_kfstore_page_in(n->store, c->view.c2w, KF_PAGE_IN_RADIUS) > 0)
+          if (vlff_kfstore_page_in(n->store, c->view.c2w, KF_PAGE_IN_RADIUS) > 0) {
             VLFF_DEBUG(TAG, "keyframes: one paged keyframe back near keyframe %lld", c->id);
+            /* Newer depth may have seen through what it shows while it was
+             * on disk (retire_contradicted below judges it now). */
+            n->cleared_seen = -1;
+          }
           /* With keyframes.page_mb 0 dropping is what was asked for, and
            * the store's first fill said so. */
           long long dropped = vlff_kfstore_dropped(n->store);

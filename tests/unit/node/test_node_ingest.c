@@ -422,12 +422,44 @@ static void test_pose_units_refused(void **state) {
   tk_scene_close(&sc);
 }
 
+/* A keyframe page file that cannot be made (a directory has its name): the
+ * node starts all the same, says so, and will drop what it evicts. */
+static void test_kf_page_file_refused(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg);
+  char path[600], log[400];
+  snprintf(path, sizeof path, "%s/keyframes.pages", cfg.node.state_dir);
+  assert_int_equal(mkdir(cfg.node.state_dir, 0750), 0);
+  assert_int_equal(mkdir(path, 0750), 0);
+  snprintf(log, sizeof log, "%s/kfpage.log", tk.dir);
+  fflush(stderr);
+  int saved = dup(2), fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  assert_true(saved >= 0 && fd >= 0);
+  dup2(fd, 2);
+  close(fd);
+  struct tk_scene sc;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 320, 240, &src);
+  tk_node_destroy(n, src);
+  fflush(stderr);
+  dup2(saved, 2);
+  close(saved);
+  const char *text = tk_slurp(log);
+  if (!strstr(text, " W node: keyframes: keyframe page file ") ||
+      !strstr(text, "keyframes.pages: File exists: evicted keyframes will be dropped (counted), not paged"))
+    fail_msg("no warning on the page file in:\n%s", text);
+  rmdir(path);
+  tk_scene_close(&sc);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_setup_teardown(test_status_says_why, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_adapter_feeds_node, setup, teardown),
       cmocka_unit_test_setup_teardown(test_future_pose_refused, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_units_refused, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_kf_page_file_refused, setup, teardown),
   };
   if (getenv("VLFF_TEST_FILTER")) cmocka_set_test_filter(getenv("VLFF_TEST_FILTER"));
   if (getenv("VLFF_TEST_DEBUG")) vlff_log_set_level(VLFF_LOG_DEBUG); /* every refusal's detail */
