@@ -184,6 +184,21 @@ static int page_teardown(void **st) {
   return rmdir(page_dir);
 }
 
+/* A page file record: a keyframe's depth, features and pixels. */
+static size_t record_len(void) {
+  return (size_t)W * H * (3 + sizeof(float)) + (size_t)FW * FH * D * sizeof(uint16_t);
+}
+
+/* A store holding `held` keyframes, the newest `protect` of them never
+ * evicted, paging to page_path (1 MiB). */
+static struct vlff_kfstore *paging_store(int held, int protect) {
+  struct vlff_kfstore *s = vlff_kfstore_create(vlff_kfstore_cost(W, H, FW, FH, D, 1) * (size_t)held, 100, protect);
+  char err[256];
+  assert_non_null(s);
+  assert_int_equal(vlff_kfstore_page_to(s, page_path, 1 << 20, err, sizeof err), 0);
+  return s;
+}
+
 /* A full store pages its evicted keyframes out whole; a camera back near
  * one brings it back, pixels, depth and features as they were, as the
  * oldest view, and the view that leaves for it goes to the page file. A
@@ -191,9 +206,7 @@ static int page_teardown(void **st) {
 static void test_paged_and_back(void **st) {
   (void)st;
   size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
-  struct vlff_kfstore *s = vlff_kfstore_create(cost * 3, 100, 1);
-  char err[256];
-  assert_int_equal(vlff_kfstore_page_to(s, page_path, 1 << 20, err, sizeof err), 0);
+  struct vlff_kfstore *s = paging_store(3, 1);
   /* Views 1 m apart along x: on these ties the oldest goes, so 17, 18, 19
    * stay and 10..16 are paged. */
   for (int i = 0; i < 10; i++) {
@@ -235,8 +248,7 @@ static void test_paged_and_back(void **st) {
   assert_int_equal(vlff_kfstore_paged_in(s), 1);
   /* A second store paging to the same name makes its own file; the first
    * one's destroy leaves that alone (a mapping reset does this). */
-  struct vlff_kfstore *u = vlff_kfstore_create(cost * 3, 100, 1);
-  assert_int_equal(vlff_kfstore_page_to(u, page_path, 1 << 20, err, sizeof err), 0);
+  struct vlff_kfstore *u = paging_store(3, 1);
   vlff_kfstore_destroy(s);
   assert_int_equal(access(page_path, F_OK), 0);
   /* Views at 0, 10, 20, 30: 0 paged. Back at 0 it would come back for 10,
@@ -267,7 +279,7 @@ static void test_page_file_full(void **st) {
   struct vlff_kfstore *none = vlff_kfstore_create(cost * 3, 100, 1);
   char err[256];
   struct vlff_keyframe_in k = make_marked(1, 0);
-  const size_t len = (size_t)W * H * (3 + sizeof(float)) + (size_t)FW * FH * D * sizeof(uint16_t);
+  const size_t len = record_len();
   assert_int_equal(vlff_kfstore_page_to(s, page_path, 2 * len + len / 2, err, sizeof err), 0);
   for (int i = 0; i < 10; i++) {
     k = make_marked(i, i);
@@ -293,10 +305,7 @@ static void test_page_file_full(void **st) {
  * robot on a loop does not fill the file with copies). */
 static void test_same_place_once(void **st) {
   (void)st;
-  size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
-  struct vlff_kfstore *s = vlff_kfstore_create(cost * 2, 100, 1);
-  char err[256];
-  assert_int_equal(vlff_kfstore_page_to(s, page_path, 1 << 20, err, sizeof err), 0);
+  struct vlff_kfstore *s = paging_store(2, 1);
   /* Two held, one protected: each add evicts the older (A at x = 0 first). */
   const double xs[] = {0, 10, 20, 0, 30, 40};
   for (int i = 0; i < 6; i++) {
@@ -306,7 +315,7 @@ static void test_same_place_once(void **st) {
   /* 0, 1, 2 paged; then 3 (at 0's place) overwrote 0's record. */
   assert_int_equal(vlff_kfstore_paged_out(s), 4);
   assert_int_equal(vlff_kfstore_paged(s), 3);
-  const size_t len = (size_t)W * H * (3 + sizeof(float)) + (size_t)FW * FH * D * sizeof(uint16_t);
+  const size_t len = record_len();
   assert_true(vlff_kfstore_page_bytes(s) == 3 * len);
   /* 0's record (the file's first) holds 3's pixels now: depth, features, rgb. */
   FILE *f = fopen(page_path, "rb");
@@ -322,8 +331,7 @@ static void test_same_place_once(void **st) {
   double c2w[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
   assert_int_equal(vlff_kfstore_page_in(s, c2w, 1.5), 0);
   /* A view on top of a kept one: that one goes, and is not paged. */
-  struct vlff_kfstore *t = vlff_kfstore_create(cost * 2, 100, 0);
-  assert_int_equal(vlff_kfstore_page_to(t, page_path, 1 << 20, err, sizeof err), 0);
+  struct vlff_kfstore *t = paging_store(2, 0);
   for (int i = 0; i < 3; i++) {
     struct vlff_keyframe_in k = make_marked(i, i == 2 ? 0.01 : 5.0 * i);
     assert_int_equal(vlff_kfstore_add(t, &k), 0);
@@ -340,11 +348,8 @@ static void test_same_place_once(void **st) {
  * written before stay readable. */
 static void test_page_write_fails(void **st) {
   (void)st;
-  size_t cost = vlff_kfstore_cost(W, H, FW, FH, D, 1);
-  struct vlff_kfstore *s = vlff_kfstore_create(cost * 3, 100, 1);
-  char err[256];
-  assert_int_equal(vlff_kfstore_page_to(s, page_path, 1 << 20, err, sizeof err), 0);
-  const size_t len = (size_t)W * H * (3 + sizeof(float)) + (size_t)FW * FH * D * sizeof(uint16_t);
+  struct vlff_kfstore *s = paging_store(3, 1);
+  const size_t len = record_len();
   struct rlimit old, lim;
   assert_int_equal(getrlimit(RLIMIT_FSIZE, &old), 0);
   lim = old;

@@ -369,6 +369,23 @@ static void test_future_pose_refused(void **state) {
   tk_scene_close(&sc);
 }
 
+/* The in-process node's log is this process's stderr: kept in the file
+ * path until stderr_back (with what stderr_to returned). */
+static int stderr_to(const char *path) {
+  fflush(stderr);
+  int saved = dup(2), fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  assert_true(saved >= 0 && fd >= 0);
+  dup2(fd, 2);
+  close(fd);
+  return saved;
+}
+
+static void stderr_back(int saved) {
+  fflush(stderr);
+  dup2(saved, 2);
+  close(saved);
+}
+
 /* Poses in the wrong units without a box to catch them (field.grow: the
  * world's limit is a kilometre). A tracker that jumps once (relocalised 40 m
  * away) costs the one keyframe candidate after the jump; one that reports
@@ -381,12 +398,7 @@ static void test_pose_units_refused(void **state) {
   cfg.field.grow = true;
   char log[400];
   snprintf(log, sizeof log, "%s/units.log", tk.dir);
-  /* The node's log is this process's stderr: kept in a file meanwhile. */
-  fflush(stderr);
-  int saved = dup(2), fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  assert_true(saved >= 0 && fd >= 0);
-  dup2(fd, 2);
-  close(fd);
+  int saved = stderr_to(log);
   struct tk_scene sc;
   struct vlff_sim_source *src;
   struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 320, 240, &src);
@@ -409,9 +421,7 @@ static void test_pose_units_refused(void **state) {
   printf("%lld candidates refused for their pose, %lld frames refused\n", st.refused[VLFF_REFUSED_POSE_RANGE],
          st.frames_invalid);
   tk_node_destroy(n, src);
-  fflush(stderr);
-  dup2(saved, 2);
-  close(saved);
+  stderr_back(saved);
   assert_int_equal(st.refused[VLFF_REFUSED_POSE_RANGE], 1 + ncm);
   assert_int_equal(st.frames_invalid, 1 + ncm);
   const char *text = tk_slurp(log);
@@ -433,18 +443,12 @@ static void test_kf_page_file_refused(void **state) {
   assert_int_equal(mkdir(cfg.node.state_dir, 0750), 0);
   assert_int_equal(mkdir(path, 0750), 0);
   snprintf(log, sizeof log, "%s/kfpage.log", tk.dir);
-  fflush(stderr);
-  int saved = dup(2), fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  assert_true(saved >= 0 && fd >= 0);
-  dup2(fd, 2);
-  close(fd);
+  int saved = stderr_to(log);
   struct tk_scene sc;
   struct vlff_sim_source *src;
   struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 320, 240, &src);
   tk_node_destroy(n, src);
-  fflush(stderr);
-  dup2(saved, 2);
-  close(saved);
+  stderr_back(saved);
   const char *text = tk_slurp(log);
   if (!strstr(text, " W node: keyframes: keyframe page file ") ||
       !strstr(text, "keyframes.pages: File exists: evicted keyframes will be dropped (counted), not paged"))
