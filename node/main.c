@@ -295,6 +295,10 @@ static void tick(struct run *r, double now) {
     if (st.box_growths || st.box_refused)
       snprintf(mem + strlen(mem), sizeof mem - strlen(mem), " box %.0fx%.0fx%.0f m%s", st.box_hi[0] - st.box_lo[0],
                st.box_hi[1] - st.box_lo[1], st.box_hi[2] - st.box_lo[2], st.box_refused ? " CAPPED" : "");
+    /* Keyframes on disk (keyframes.page_mb), once the store has paged any. */
+    if (st.keyframes_paged_out || st.keyframes_dropped)
+      snprintf(mem + strlen(mem), sizeof mem - strlen(mem), " kf paged %lld%s", st.keyframes_paged,
+               st.keyframes_dropped ? " DROPPING" : "");
     vlff_log_status("[%6.1f s] frames %lld (%.1f/s%s) refused %lld%s kf %d rej %lld | it %lld (%.1f/s) loss %.4f "
                     "psnr %.1f | %s | %s | map v%llu flips %lld mIoU 2D %s 3D %s%s%s   ",
                     now - r->t0, st.frames_in, st.fps_in,

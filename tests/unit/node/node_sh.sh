@@ -17,7 +17,8 @@ printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate
 # plumbing, not what it learns, and a sanitizer build trains and publishes the
 # default 512 dimensions slowly.
 printf '%s\n' "${node_field-$'field:\n  feature_dim: 64\n  hash_log2_size: 16'}" >>"$tmp/n.yaml"
-# More top-level YAML from the sourcing test, before the node starts.
+# More top-level YAML from the sourcing test, before the node starts; and
+# more options (node_args, e.g. --status).
 [[ -n ${node_yaml_extra:-} ]] && printf '%s\n' "$node_yaml_extra" >>"$tmp/n.yaml"
-"$node" --config "$tmp/n.yaml" 2>"$tmp/log" &
+"$node" --config "$tmp/n.yaml" ${node_args:-} 2>"$tmp/log" &
 nodepid=$!

@@ -9,10 +9,11 @@
 # The keyframe store, kept to 6 keyframes (fewer than the walk's places),
 # says when it is full, pages what it evicts out to keyframes.pages
 # (keyframes.page_mb; a newer view of a paged place overwrites it) and
-# counts it in the stop line, none dropped; that file goes with the node
-# too.
+# counts it in the stop line and on --status, none dropped; that file goes
+# with the node too.
 set -u
 node_field=  # the default field: its evidence records (D = 512) fill the 1 MiB budget
+node_args=--status
 node_yaml_extra=$'publish:\n  evidence_max_mb: 1\n  evidence_page_mb: 64\nkeyframes:\n  max_keyframes: 6\n  page_mb: 128'
 . "$(dirname "$0")/node_sh.sh" nep "$@"
 "$sim" --config "$tmp/n.yaml" --quiet 2>"$tmp/simlog" &
@@ -24,8 +25,8 @@ check "a full evidence budget pages out to the state directory: said ($(grep -o 
 # again; and past the keyframe store's.
 sleep 3
 wait_until 600 'grep -q "keyframes: the store is full" "$tmp/log"'
-check "evicted keyframes go to the state directory's keyframes.pages ($(stat -c %s "$tmp/keyframes.pages" 2>&1) bytes)" \
-  '[[ -s $tmp/keyframes.pages ]]'
+check "evicted keyframes go to the state directory's keyframes.pages ($(stat -c %s "$tmp/keyframes.pages" 2>&1) bytes), said on --status ($(grep -ao 'rss [0-9]* MiB kf paged [0-9]*' "$tmp/log" | tail -1))" \
+  '[[ -s $tmp/keyframes.pages ]] && grep -aq "| mem kf [0-9]*/[0-9]* ev [0-9]*/1 rss [0-9]* MiB kf paged [1-9][0-9]* |" "$tmp/log"'
 kill "$simpid"; wait "$simpid"; simpid=
 stop_node
 line=$(grep "evidence beyond publish.evidence_max_mb" "$tmp/log")
