@@ -25,6 +25,8 @@ check "a full evidence budget pages out to the state directory: said ($(grep -o 
 # again; and past the keyframe store's.
 sleep 3
 wait_until 600 'grep -q "keyframes: the store is full" "$tmp/log"'
+# --status is redrawn every half second: the first paged keyframe shows on a later line.
+wait_until 300 'grep -aq "rss [0-9]* MiB kf paged [1-9]" "$tmp/log"'
 check "evicted keyframes go to the state directory's keyframes.pages ($(stat -c %s "$tmp/keyframes.pages" 2>&1) bytes), said on --status ($(grep -ao 'rss [0-9]* MiB kf paged [0-9]*' "$tmp/log" | tail -1))" \
   '[[ -s $tmp/keyframes.pages ]] && grep -aq "| mem kf [0-9]*/[0-9]* ev [0-9]*/1 rss [0-9]* MiB kf paged [1-9][0-9]* |" "$tmp/log"'
 kill "$simpid"; wait "$simpid"; simpid=
