@@ -153,6 +153,18 @@ int vlff_read_at(int fd, uint64_t off, void *p, size_t n) {
   return 0;
 }
 
+int vlff_write_at(int fd, uint64_t off, const void *p, size_t n) {
+  const unsigned char *b = p;
+  while (n) {
+    ssize_t w = pwrite(fd, b, n, (off_t)off);
+    if (w < 0 && errno == EINTR) continue;
+    if (w < 0) return -1;
+    if (w == 0) return errno = EIO, -1;
+    b += w, n -= (size_t)w, off += (uint64_t)w;
+  }
+  return 0;
+}
+
 int vlff_write_file_atomic(const char *path, const void *data, size_t len, char *err, size_t errlen) {
   struct vlff_atomic a;
   if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return -1;

@@ -80,6 +80,10 @@ int vlff_write_all(int fd, const void *p, size_t n);
 /* pread(2) of all n bytes at offset off, retried on EINTR and short reads:
  * 0, or -1 with errno set (EIO where the file ends first). */
 int vlff_read_at(int fd, uint64_t off, void *p, size_t n);
+/* pwrite(2) of all n bytes at offset off, retried on EINTR and short
+ * writes: 0, or -1 with errno set (EIO where the kernel wrote nothing and
+ * gave no reason). */
+int vlff_write_at(int fd, uint64_t off, const void *p, size_t n);
 /* A whole regular file of at most max bytes (opened with vlff_open_regular);
  * *buf is NUL-terminated (not counted in *len), the caller frees it. */
 int vlff_read_file(const char *path, size_t max, uint8_t **buf, size_t *len, char *err, size_t errlen);

@@ -5,8 +5,9 @@
  */
 #include "keyframes.h"
 
-#include "select.h"
+#include "files.h"
 #include "mem.h"
+#include "select.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -180,21 +181,15 @@ static bool page_out(struct vlff_kfstore *s, const struct kf *k) {
     snprintf(s->page_err, sizeof s->page_err, "%s is full (%zu MiB)", s->path, s->page_max >> 20);
     return false;
   }
-  size_t done = 0;
-  while (done < len) {
-    ssize_t w = pwrite(s->fd, (const char *)k->mem + done, len - done, off + (off_t)done);
-    if (w <= 0) {
-      if (w < 0 && errno == EINTR) continue;
-      snprintf(s->page_err, sizeof s->page_err, "%s: %s", s->path, w < 0 ? strerror(errno) : "short write");
-      if (same >= 0) { /* the record it was overwriting is lost too */
-        s->page_used -= len;
-        s->pg[same] = s->pg[--s->npg];
-        s->dropped++;
-      }
-      page_free(s, off, len);
-      return false;
+  if (vlff_write_at(s->fd, (uint64_t)off, k->mem, len)) {
+    snprintf(s->page_err, sizeof s->page_err, "%s: %s", s->path, strerror(errno));
+    if (same >= 0) { /* the record it was overwriting is lost too */
+      s->page_used -= len;
+      s->pg[same] = s->pg[--s->npg];
+      s->dropped++;
     }
-    done += (size_t)w;
+    page_free(s, off, len);
+    return false;
   }
   if (same < 0) s->page_used += len;
   struct paged *p = &s->pg[same >= 0 ? same : s->npg++];
@@ -207,20 +202,21 @@ static bool page_out(struct vlff_kfstore *s, const struct kf *k) {
 }
 
 /* The keyframe that would be evicted next and its distance to its nearest
- * other keyframe (the oldest, at INFINITY, when every one is protected). */
-static int victim_of(const struct vlff_kfstore *s, double *nn_out) {
+ * other keyframe (the oldest, at INFINITY, when every one is protected).
+ * As if keyframe skip (-1: none) were gone and a view at extra (NULL: none)
+ * were there: what page_in asks of a swap. */
+static int victim_of(const struct vlff_kfstore *s, int skip, const double *extra, double *nn_out) {
   int candidates = s->count - s->protect;
   int victim = 0;
   double best = INFINITY;
-  if (candidates >= 1) {
-    for (int i = 0; i < candidates; i++) {
-      double nn = INFINITY;
-      for (int j = 0; j < s->count; j++)
-        if (j != i) nn = fmin(nn, vlff_pose_distance(s->kfs[i].view.c2w, s->kfs[j].view.c2w));
-      if (nn < best) { /* strict: on ties the older view goes */
-        best = nn;
-        victim = i;
-      }
+  for (int i = 0; i < candidates; i++) {
+    if (i == skip) continue;
+    double nn = extra ? vlff_pose_distance(s->kfs[i].view.c2w, extra) : INFINITY;
+    for (int j = 0; j < s->count; j++)
+      if (j != i && j != skip) nn = fmin(nn, vlff_pose_distance(s->kfs[i].view.c2w, s->kfs[j].view.c2w));
+    if (nn < best) { /* strict: on ties the older view goes */
+      best = nn;
+      victim = i;
     }
   }
   if (nn_out) *nn_out = best;
@@ -231,7 +227,7 @@ static int victim_of(const struct vlff_kfstore *s, double *nn_out) {
  * paged one coming back). */
 static void evict_one(struct vlff_kfstore *s, const double *incoming) {
   double nn;
-  int victim = victim_of(s, &nn);
+  int victim = victim_of(s, -1, NULL, &nn);
   if (incoming) nn = fmin(nn, vlff_pose_distance(s->kfs[victim].view.c2w, incoming));
   /* A view of the same place as one kept carries nothing the store lacks. */
   if (!(nn < KF_SAME_PLACE) && !page_out(s, &s->kfs[victim])) s->dropped++;
@@ -277,35 +273,23 @@ int vlff_kfstore_page_in(struct vlff_kfstore *s, const double c2w[16], double ra
    * next to go: its nearest view then is farther than every other
    * candidate's (strictly: as the oldest it would lose a tie). */
   if (s->count >= s->max_count || s->bytes + p.bytes > s->budget) {
-    const int victim = victim_of(s, NULL), candidates = s->count - s->protect;
-    double nn = INFINITY, next = INFINITY;
+    const int victim = victim_of(s, -1, NULL, NULL);
+    double nn = INFINITY, next;
     for (int j = 0; j < s->count; j++)
       if (j != victim) nn = fmin(nn, vlff_pose_distance(p.view.c2w, s->kfs[j].view.c2w));
-    for (int i = 0; i < candidates; i++) {
-      if (i == victim) continue;
-      double d = vlff_pose_distance(s->kfs[i].view.c2w, p.view.c2w);
-      for (int j = 0; j < s->count; j++)
-        if (j != i && j != victim) d = fmin(d, vlff_pose_distance(s->kfs[i].view.c2w, s->kfs[j].view.c2w));
-      next = fmin(next, d);
-    }
+    victim_of(s, victim, p.view.c2w, &next);
     if (!(nn > next)) return 0;
   }
   char *mem = malloc(p.len);
   if (!mem) return 0; /* it stays paged */
   s->pg[best] = s->pg[--s->npg];
   s->page_used -= p.len;
-  size_t done = 0;
-  while (done < p.len) {
-    ssize_t r = pread(s->fd, mem + done, p.len - done, p.off + (off_t)done);
-    if (r <= 0) {
-      if (r < 0 && errno == EINTR) continue;
-      snprintf(s->page_err, sizeof s->page_err, "%s: %s", s->path, r < 0 ? strerror(errno) : "short read");
-      break;
-    }
-    done += (size_t)r;
-  }
+  const bool read = vlff_read_at(s->fd, (uint64_t)p.off, mem, p.len) == 0;
+  if (!read) /* vlff_read_at says EIO where the file ends first */
+    snprintf(s->page_err, sizeof s->page_err, "%s: %s", s->path,
+             errno == EIO ? "short read, or an I/O error" : strerror(errno));
   page_free(s, p.off, p.len);
-  if (done < p.len) {
+  if (!read) {
     free(mem);
     s->dropped++;
     return -1;
