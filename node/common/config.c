@@ -264,6 +264,7 @@ static const struct key schema[] = {
     DBL("train.near_m", train.near_m, 0, 100, 0.05),
     DBL("train.depth_noise_m", train.depth_noise_m, 0, 1, 0.01),
     INT("train.occupancy_resolution", train.occupancy_resolution, 8, 512, 64),
+    DBL("train.occupancy_cell_m", train.occupancy_cell_m, 0, 10, 0),
     DBL("train.occupancy_max_mb", train.occupancy_max_mb, 1, 1 << 20, 256),
     INT("train.occupancy_update_steps", train.occupancy_update_steps, 1, 1 << 20, 16),
     DBL("train.image_scale", train.image_scale, 0.05, 1, 0.5),
@@ -1288,6 +1289,13 @@ static int check_cross(struct parse *p, struct vlff_config *cfg) {
                           "origin when field.grow is on, got axis %d spanning [%g, %g]",
                           w, i, cfg->field.scene_min[i], cfg->field.scene_max[i]);
     }
+  if (cfg->train.occupancy_cell_m != 0 && !cfg->field.grow)
+    return fail_cross(p, "train.occupancy_cell_m", "expected 0 unless field.grow is on (a fixed box has "
+                      "train.occupancy_resolution cells per axis), got %g",
+                      cfg->train.occupancy_cell_m);
+  if (cfg->train.occupancy_cell_m != 0 && cfg->train.occupancy_cell_m < 0.01)
+    return fail_cross(p, "train.occupancy_cell_m", "expected 0 (from the first box) or a cell of 0.01-10 m, got %g",
+                      cfg->train.occupancy_cell_m);
   if (cfg->prompts.active >= cfg->prompts.set_count)
     return fail_cross(p, "prompts.active", "expected an index below %d (the number of prompt sets), got %d",
                 cfg->prompts.set_count, cfg->prompts.active);

@@ -35,7 +35,7 @@
 #include "mem.h"
 
 #define CKPT_MAGIC "VLFFCKPT"
-#define CKPT_VERSION 6u
+#define CKPT_VERSION 7u
 /* Version 1 lacks the exposure; it still loads, the field counting as fitted
  * everywhere, so a robot's learned map survives the upgrade. Its later
  * checkpoints carry that on until a mapping reset: nothing tells where an
@@ -54,6 +54,10 @@
 /* Versions 1-5 hold no box: their grid is the fixed box's (growing fields
  * came with version 6). */
 #define CKPT_VERSION_NO_BOX 5u
+/* Version 6 does not say its occupancy cells' size: a growing field's
+ * cells then came from its first box and train.occupancy_resolution, so it
+ * loads only where the cells still do (train.occupancy_cell_m 0). */
+#define CKPT_VERSION_NO_CELL_SIZE 6u
 #define CKPT_BOM 0x01020304u
 
 struct ckpt_header {
@@ -68,6 +72,9 @@ struct ckpt_header {
 };
 struct ckpt_box { /* from version 6, after the header */
   int32_t k0[3], dims[3];
+};
+struct ckpt_cell { /* from version 7, after the box: the occupancy cells' size (m) per axis */
+  double m[3];
 };
 
 /* Word-wise FNV-style mix: fast enough for hundreds of MB. */
@@ -218,10 +225,13 @@ int vlff_field_save(const struct vlff_field *f, const char *path, char *err, siz
   h.cells = f->enc.cubic;
   struct ckpt_box b;
   for (int i = 0; i < 3; i++) b.k0[i] = f->occ_k0[i], b.dims[i] = f->occ.dims[i];
+  struct ckpt_cell cell;
+  for (int i = 0; i < 3; i++) cell.m[i] = f->occ.cell[i];
   struct sum s;
   sum_init(&s);
   size_t np = f->nparams * sizeof(float), nc = vlff_occ_cells(&f->occ);
-  int rc = write_all(fd, &h, sizeof(h), &s) || write_all(fd, &b, sizeof b, &s) || write_all(fd, f->params, np, &s) ||
+  int rc = write_all(fd, &h, sizeof(h), &s) || write_all(fd, &b, sizeof b, &s) ||
+           write_all(fd, &cell, sizeof cell, &s) || write_all(fd, f->params, np, &s) ||
            write_all(fd, f->adam_m, np, &s) || write_all(fd, f->adam_v, np, &s) ||
            write_all(fd, f->occ.density, nc * sizeof(float), &s) || write_all(fd, f->occ.occ, nc, &s) ||
            write_all(fd, f->exposure, nc * sizeof(uint16_t), &s) || write_all(fd, f->avg, f->nmlp * sizeof(float), &s) ||
@@ -273,6 +283,21 @@ static int box_check(const struct vlff_field *f, const struct ckpt_box *b, char 
   return 0;
 }
 
+/* A checkpoint's occupancy cells: the densities, exposures and losses it
+ * holds are per cell, so cells of another size (train.occupancy_cell_m or
+ * occupancy_resolution changed) would put them in the wrong places. */
+static int cell_check(const struct vlff_field *f, const struct ckpt_cell *c, char *why, size_t len) {
+  for (int a = 0; a < 3; a++)
+    if (!(fabs(c->m[a] - f->occ.cell[a]) <= 1e-6 * f->occ.cell[a])) {
+      snprintf(why, len,
+               "occupancy cells of %g m on axis %d, this node's are %g m (train.occupancy_cell_m or "
+               "occupancy_resolution changed)",
+               c->m[a], a, (double)f->occ.cell[a]);
+      return -1;
+    }
+  return 0;
+}
+
 int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t errlen) {
   if (!f || !path) {
     if (err && errlen) snprintf(err, errlen, "checkpoint: no field or path");
@@ -299,7 +324,16 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   int r = read_all(fd, &h, sizeof(h), &s);
   if (!r && !memcmp(h.magic, CKPT_MAGIC, 8) && h.version > CKPT_VERSION_NO_BOX && h.version <= CKPT_VERSION) {
     r = read_all(fd, &b, sizeof b, &s);
-    if (!r && box_check(f, &b, whybuf, sizeof whybuf)) why = whybuf;
+    /* the cells first: the box is counted in them */
+    if (!r && h.version > CKPT_VERSION_NO_CELL_SIZE) {
+      struct ckpt_cell cell;
+      r = read_all(fd, &cell, sizeof cell, &s);
+      if (!r && cell_check(f, &cell, whybuf, sizeof whybuf)) why = whybuf;
+    } else if (!r && f->cfg.field.grow && f->cfg.train.occupancy_cell_m > 0) {
+      why = "a growing field's checkpoint before version 7 does not say its occupancy cells' size: it loads only "
+            "with train.occupancy_cell_m 0 (its cells were the first box's longest side / occupancy_resolution)";
+    }
+    if (!r && !why && box_check(f, &b, whybuf, sizeof whybuf)) why = whybuf;
     nc = (size_t)b.dims[0] * b.dims[1] * b.dims[2]; /* within the cap when box_check passed */
   } else if (!r && f->cfg.field.grow) {
     nc = 0, why = "a growing field's checkpoint holds its box (version 6 on), this one none";

@@ -39,13 +39,18 @@ void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]) {
   const int res = f->cfg.train.occupancy_resolution;
   double longest = 0;
   for (int a = 0; a < 3; a++) longest = fmax(longest, c->scene_max[a] - c->scene_min[a]);
+  /* A growing field's cells are a size in metres for its whole life; the
+   * first box only says where it starts (train.occupancy_cell_m), or, when
+   * that is 0, gives the size as its longest side over the resolution. */
+  const double cube = f->cfg.train.occupancy_cell_m > 0 ? f->cfg.train.occupancy_cell_m : longest / res;
   for (int a = 0; a < 3; a++) {
     double ext = c->scene_max[a] - c->scene_min[a];
     f->first_lo[a] = c->scene_min[a];
     k0[a] = 0;
     if (c->grow) {
-      f->occ.cell[a] = (float)(longest / res);
-      /* the first box rounded out to whole cells (the longest side is exact) */
+      f->occ.cell[a] = (float)cube;
+      /* the first box rounded out to whole cells (the longest side is exact
+       * when the cells come from it) */
       dims[a] = (int)ceil(ext / f->occ.cell[a] - 1e-6);
       if (dims[a] < 1) dims[a] = 1;
     } else {

@@ -178,8 +178,14 @@ uint64_t vlff_field_plan_bytes(const struct vlff_cfg_field *field, const struct 
   const uint64_t spr = (uint64_t)train->samples_per_ray, nrays = (uint64_t)train->rays_per_step;
   const uint64_t chunk = spr < VLFF_CHUNK_SAMPLES ? VLFF_CHUNK_SAMPLES / spr : 1;
   const uint64_t samples = (nrays + chunk - 1) / chunk * chunk * spr;
-  const uint64_t cells = (uint64_t)train->occupancy_resolution * train->occupancy_resolution *
-                         train->occupancy_resolution;
+  uint64_t cells = (uint64_t)train->occupancy_resolution * train->occupancy_resolution *
+                   (uint64_t)train->occupancy_resolution;
+  if (field->grow && train->occupancy_cell_m > 0) {
+    /* the first box's cells of that size (the growths are within occupancy_max_mb) */
+    cells = 1;
+    for (int a = 0; a < 3; a++)
+      cells *= (uint64_t)fmax(1.0, ceil((field->scene_max[a] - field->scene_min[a]) / train->occupancy_cell_m));
+  }
   const uint64_t fs = sizeof(float);
   return fs * (3 * (ntable + nmlp) + 4 * nmlp) + fs * samples * (3 + (uint64_t)enc.levels * enc.feats) +
          cells * (fs + 1 + sizeof(uint16_t) + fs) + nrays * (sizeof(struct vlff_ray) + fs);
@@ -265,6 +271,16 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
   {
     int k0[3], dims[3];
     vlff_field_first_layout(f, k0, dims);
+    const double cells = (double)dims[0] * dims[1] * dims[2];
+    if (cfg->field.grow && !vlff_occ_fits(&cfg->train, cells)) {
+      if (err && errlen)
+        snprintf(err, errlen,
+             "field: the first box's %.0f occupancy cells of %g m need %.0f MiB, more than train.occupancy_max_mb "
+             "(%g): larger train.occupancy_cell_m, or a smaller first box",
+             cells, (double)f->occ.cell[0], vlff_occ_bytes(cells) / 1048576.0, cfg->train.occupancy_max_mb);
+      vlff_field_destroy(f);
+      return NULL;
+    }
     if (ok && vlff_field_occ_layout(f, k0, dims, 0)) ok = 0;
   }
   f->nrays = f->nrays_max = cfg->train.rays_per_step;

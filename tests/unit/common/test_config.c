@@ -899,6 +899,14 @@ static void test_grow_keys(void **state) {
   assert_true(grow != fixed);
   assert_int_equal(load("field:\n  grow: true\n  world_limit_m: 20\n", &cfg), 0);
   assert_true(vlff_config_field_hash(&cfg.field) != grow);
+  /* a growing field's cells in metres: only when growing, and a real size */
+  assert_int_equal(load("field:\n  grow: true\ntrain:\n  occupancy_cell_m: 0.2\n", &cfg), 0);
+  assert_true(cfg.train.occupancy_cell_m == 0.2);
+  assert_int_equal(load("train:\n  occupancy_cell_m: 0.2\n", &cfg), -1);
+  assert_non_null(strstr(err, "train.occupancy_cell_m"));
+  assert_non_null(strstr(err, "unless field.grow is on"));
+  assert_int_equal(load("field:\n  grow: true\ntrain:\n  occupancy_cell_m: 0.001\n", &cfg), -1);
+  assert_non_null(strstr(err, "0.01-10 m"));
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,

@@ -76,7 +76,7 @@ static void write_forged(const char *path, unsigned char *b, size_t len) {
 /* The file layout (checkpoint.c): an 80-byte header (the step at byte 48),
  * params, Adam m, Adam v (float32 each), the occupancy density (float32),
  * ... then the averaged MLP weights. */
-enum { HDR = 104, STEP_AT = 48 }; /* the header and the box (version 6) */
+enum { HDR = 128, STEP_AT = 48 }; /* the header, the box and the cells' size (version 7) */
 
 struct forgery {
   const char *what;

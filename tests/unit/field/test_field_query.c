@@ -417,7 +417,27 @@ static void test_exposure(void **state) {
   fclose(in);
   uint32_t version;
   memcpy(&version, b + 8, 4);
-  assert_int_equal(version, 6);
+  assert_int_equal(version, 7);
+  /* Version 7 adds the occupancy cells' size (three float64 after the box):
+   * another size is refused by name, the field untouched; without it, the
+   * file is version 6's, which loads (a fixed box's cells are its
+   * resolution's). */
+  double cell_m[3];
+  memcpy(cell_m, b + 104, sizeof cell_m);
+  assert_true(cell_m[0] == f->occ.cell[0] && cell_m[2] == f->occ.cell[2]);
+  const double other_cell = cell_m[1] * 1.5;
+  memcpy(b + 104 + 8, &other_cell, sizeof other_cell);
+  forge(path, b, (size_t)size, 7);
+  struct vlff_field *h6 = trained(&cfg, 2);
+  assert_int_equal(vlff_field_load(h6, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "occupancy cells of"));
+  assert_int_equal(vlff_field_steps(h6), 2);
+  memmove(b + 104, b + 128, (size_t)size - 128);
+  size -= 24;
+  forge(path, b, (size_t)size, 6);
+  assert_int_equal(vlff_field_load(h6, path, err, sizeof(err)), 0);
+  assert_true(same_queries(f, h6));
+  vlff_field_destroy(h6);
   /* Version 6 adds the box (24 bytes after the 80-byte header): without
    * it, the file is version 5's. */
   memmove(b + 80, b + 104, (size_t)size - 104);

@@ -411,6 +411,24 @@ static void test_growth(void **state) {
   assert_int_equal(vlff_field_grow(h, room_lo, far_hi, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "field.grow is off"));
   vlff_field_destroy(h);
+  /* Cells in metres (train.occupancy_cell_m): 0.3 m cubes from the first
+   * box's low corner, whatever its size; a checkpoint whose cells are the
+   * 4.5 / 64 m of the first box is refused there (its cells' densities would
+   * land in the wrong places); a first box whose cells pass the memory cap
+   * is refused at create. */
+  struct vlff_config metres = cfg;
+  metres.train.occupancy_cell_m = 0.3;
+  h = vlff_field_create(&metres.field, &metres.train, metres.node.threads, err, sizeof(err));
+  assert_non_null(h);
+  for (int a = 0; a < 3; a++) assert_true(h->occ.cell[a] == 0.3f);
+  vlff_field_box(h, glo, ghi);
+  assert_true(fabs(ghi[0] - 0.4) < 1e-6 && fabs(ghi[1] - 2.5) < 1e-6); /* 8 cells past 0.25, 15 on 4.5 m */
+  assert_int_equal(vlff_field_load(h, path, err, sizeof(err)), -1);
+  assert_non_null(strstr(err, "occupancy cells of"));
+  vlff_field_destroy(h);
+  metres.train.occupancy_cell_m = 0.01, metres.train.occupancy_max_mb = 1;
+  assert_null(vlff_field_create(&metres.field, &metres.train, metres.node.threads, err, sizeof(err)));
+  assert_non_null(strstr(err, "first box"));
   unlink(path);
 
   /* A mapping reset starts over in the first box. */
