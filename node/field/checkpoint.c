@@ -6,7 +6,8 @@
  *             array sizes, step, rng, occupancy cursor, the encoding's
  *             cells (from version 5; before, per axis); from version 6 the
  *             occupancy grid's place on its lattice (first cell, cells per
- *             axis: the box, which a growing field's checkpoint restores)
+ *             axis: the box, which a growing field's checkpoint restores);
+ *             from version 7 the occupancy cells' size per axis (float64)
  *   arrays  : params, Adam m, Adam v (float32), occupancy density (float32),
  *             occupancy bits (uint8), per-cell exposure (uint16; from
  *             version 2), the averaged MLP weights queries read (float32,

@@ -27,7 +27,7 @@ import struct, sys
 path, mode = sys.argv[1], sys.argv[2]
 b = bytearray(open(path, "rb").read())
 nparams, ntable = struct.unpack_from("<QQ", b, 24)  # after magic, version, BOM, config hash
-p0 = 80 + 24  # params[0]: after the 80-byte header and the box (version 6)
+p0 = 80 + 24 + 24  # params[0]: after the 80-byte header, the box and the cells' size (version 7)
 if mode == "nan":
     b[p0:p0 + 4] = struct.pack("<f", float("nan"))
 else:
