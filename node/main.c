@@ -63,6 +63,10 @@ static int on_can_command(void *ctx, const struct vlff_can_command *cmd) {
   return vlff_node_command(ctx, cmd->code, cmd->arg) == 0 ? VLFF_CAN_RES_OK : VLFF_CAN_RES_BUSY;
 }
 
+/* A count for CAN's 32-bit words: saturating, never wrapped to a small one
+ * (the PAGING frame saturates it again to its signals' width). */
+static uint32_t can_count(long long v) { return v <= 0 ? 0 : v >= (long long)UINT32_MAX ? UINT32_MAX : (uint32_t)v; }
+
 static void can_publish_status(struct vlff_can *can, const struct vlff_node_status *st, double dropped_per_s) {
   struct vlff_can_status cs = {
       .iteration = (uint32_t)st->iteration,
@@ -84,6 +88,11 @@ static void can_publish_status(struct vlff_can *can, const struct vlff_node_stat
       .mem_keyframes_limit_mb = (float)st->mem_keyframes_limit_mb,
       .mem_evidence_mb = (float)st->mem_evidence_mb,
       .mem_evidence_limit_mb = (float)st->mem_evidence_limit_mb,
+      .keyframes_paged = can_count(st->keyframes_paged),
+      .keyframes_dropped = can_count(st->keyframes_dropped),
+      .evidence_dropped = can_count(st->evidence_dropped),
+      .box_growths = can_count(st->box_growths),
+      .box_refused = can_count(st->box_refused),
   };
   _Static_assert(VLFF_REFUSED_COUNT <= VLFF_CAN_REFUSAL_CODES, "every refusal reason has a bit in INGEST");
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) cs.refused[r] = (uint32_t)st->refused[r];

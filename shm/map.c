@@ -72,7 +72,7 @@ struct status_block {
   uint8_t pad[56];
   struct vlff_map_status st;
 };
-_Static_assert(sizeof(struct vlff_map_status) == 784, "struct vlff_map_status is the segment's layout");
+_Static_assert(sizeof(struct vlff_map_status) == 928, "struct vlff_map_status is the segment's layout");
 _Static_assert(STATUS_OFFSET >= sizeof(struct seg_hdr) + sizeof(struct map_ctl) &&
                    STATUS_OFFSET + sizeof(struct status_block) <= MAP_BUF_OFFSET,
                "the status block lies between the control words and the buffers");

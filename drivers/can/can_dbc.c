@@ -96,7 +96,14 @@ static const char dbc_template[] =
     " SG_ MemEvidence : 40|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
     " SG_ MemEvidenceLimit : 52|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
     "\n"
-    "BO_ {S4} VLFF_STATUS_FD: 48 VLFF\n"
+    "BO_ {S7} VLFF_PAGING: 8 VLFF\n"
+    " SG_ KeyframesPaged : 0|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
+    " SG_ KeyframesDropped : 16|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
+    " SG_ EvidenceDropped : 32|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
+    " SG_ BoxGrowths : 48|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
+    " SG_ BoxRefused : 56|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
+    "\n"
+    "BO_ {S4} VLFF_STATUS_FD: 64 VLFF\n"
     " SG_ Iteration : 0|32@1+ (1,0) [0|4294967295] \"\" CONTROLLER\n"
     " SG_ Keyframes : 32|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
     " SG_ PromptSet : 48|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
@@ -148,6 +155,11 @@ static const char dbc_template[] =
     " SG_ MemKeyframesLimit : 348|12@1+ (4,0) [0|16380] \"MiB\" CONTROLLER\n"
     " SG_ MemEvidence : 360|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
     " SG_ MemEvidenceLimit : 372|12@1+ (1,0) [0|4095] \"MiB\" CONTROLLER\n"
+    " SG_ KeyframesPaged : 384|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
+    " SG_ KeyframesDropped : 400|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
+    " SG_ EvidenceDropped : 416|16@1+ (1,0) [0|65535] \"\" CONTROLLER\n"
+    " SG_ BoxGrowths : 432|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
+    " SG_ BoxRefused : 440|8@1+ (1,0) [0|255] \"\" CONTROLLER\n"
     "\n"
     "BO_ {CMD} VLFF_COMMAND: 4 CONTROLLER\n"
     " SG_ Target : 0|8@1+ (1,0) [0|255] \"\" VLFF\n"
@@ -168,7 +180,8 @@ static const char dbc_template[] =
     "CM_ BO_ {S3} \"Health at can.status_base_id + 3; counters saturate at 65535; Err*/Bus* bits 4..6 and 56..63 cover the status period just ended.\";\n"
     "CM_ BO_ {S5} \"Frames the node refused, at can.status_base_id + 5 (+ 4 is the FD frame's id): total since start, the latest reason, one bit per reason that refused a frame in the status period just ended, and how many were refused in it. vlff-node --status and its log give the per-reason counts.\";\n"
     "CM_ BO_ {S6} \"Memory against its limits at can.status_base_id + 6, MiB: the process's resident set, the keyframe store and keyframes.memory_mb (4 MiB steps), the evidence and publish.evidence_max_mb. A signal with every bit set is unknown or above its range.\";\n"
-    "CM_ BO_ {S4} \"With can.fd: the six status payloads (TRAIN, LOSS, MAP, HEALTH, INGEST, MEMORY, 8 bytes each, in that order) in one CAN FD frame at can.status_base_id + 4 instead of six classic frames.\";\n"
+    "CM_ BO_ {S7} \"What the memory limits pushed out, at can.status_base_id + 7: the keyframes in the state directory's page file now, the keyframes dropped with nowhere to go and the voxels whose evidence was given up since start (saturating at 65535), the map box's growths and refused growths since start (saturating at 255). vlff-shm stat has the exact counts.\";\n"
+    "CM_ BO_ {S4} \"With can.fd: the seven status payloads (TRAIN, LOSS, MAP, HEALTH, INGEST, MEMORY, PAGING, 8 bytes each, in that order; bytes 56..63 zero, CAN FD having no 56-byte length) in one CAN FD frame at can.status_base_id + 4 instead of seven classic frames.\";\n"
     "CM_ BO_ {CMD} \"Command from a controller at can.command_id. Exactly 4 bytes; Target 0 = every node. Other lengths are dropped and counted.\";\n"
     "CM_ BO_ {ACK} \"Acknowledgement at can.ack_id for every well-formed command addressed to this node.\";\n"
     "CM_ SG_ {S2} MapAge \"Age of the published map; 65535 = never published or older than 65.534 s.\";\n"
@@ -179,6 +192,8 @@ static const char dbc_template[] =
     "CM_ SG_ {S5} RefusedNoPose \"No pose in the frame and none in the pose ring within source.pose_tolerance_s: is vlff-pose (or the SLAM adapter) running, on the same clock?\";\n"
     "CM_ SG_ {S5} RefusedFuturePose \"The frame's pose, or the newest in the pose ring, is stamped more than pose.future_tolerance_s ahead of the clock: the pose source's clock or clock offset is wrong.\";\n"
     "CM_ SG_ {S5} RefusedFeaturesLate \"A keyframe's features did not come within vlm.feature_timeout_s, or 16 newer keyframes already waited for theirs: the feature source is slower than the keyframes come, or stopped.\";\n"
+    "CM_ SG_ {S7} KeyframesDropped \"Keyframes evicted from a full store with nowhere to go (keyframes.page_mb 0, the page file full or failing); each is logged.\";\n"
+    "CM_ SG_ {S7} BoxRefused \"Keyframes whose box the field or the map could not grow to (field.world_limit_m, train.occupancy_max_mb, shm.map_max_voxels, the evidence's index budget).\";\n"
     "CM_ SG_ {CMD} Argument \"prompt-set: index into prompts.sets; other commands: 0.\";\n"
     "BA_DEF_ BO_ \"VFrameFormat\" ENUM \"StandardCAN\",\"ExtendedCAN\",\"reserved\",\"J1939PG\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"StandardCAN_FD\",\"ExtendedCAN_FD\";\n"
     "BA_DEF_ BO_ \"GenMsgCycleTime\" INT 0 65535;\n"
@@ -193,6 +208,7 @@ static const char dbc_template[] =
     "BA_ \"GenMsgCycleTime\" BO_ {S4} {FDMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S5} {STMS};\n"
     "BA_ \"GenMsgCycleTime\" BO_ {S6} {STMS};\n"
+    "BA_ \"GenMsgCycleTime\" BO_ {S7} {STMS};\n"
     "VAL_ {HB} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
     "VAL_ {S0} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
     "VAL_ {S4} NmtState 0 \"BootUp\" 4 \"Stopped\" 5 \"Operational\" 127 \"PreOperational\" 143 \"Error\" ;\n"
@@ -232,7 +248,7 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
   const int base = cfg->status_base_id, hb = VLFF_CANP_HEARTBEAT_BASE + cfg->node_id;
   const int fd_id = base + VLFF_CANP_STATUS_FD_OFFSET;
   const int ingest_id = base + vlff_canp_status_offset(VLFF_CANP_INGEST);
-  /* With can.fd the node sends its status only as the FD frame: the six
+  /* With can.fd the node sends its status only as the FD frame: the seven
    * classic status messages are left out, lest a controller's DBC-driven
    * timeout monitor wait for frames that never come. Without it the FD
    * message stays for reference (a controller may switch) while its id is
@@ -249,6 +265,7 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
       {"S4", fd_id},
       {"S5", ingest_id},
       {"S6", base + vlff_canp_status_offset(VLFF_CANP_MEMORY)},
+      {"S7", base + vlff_canp_status_offset(VLFF_CANP_PAGING)},
       {"CMD", cfg->command_id},
       {"ACK", cfg->ack_id},
       {"NODE", cfg->node_id},
@@ -256,7 +273,7 @@ int vlff_can_write_dbc(const struct vlff_cfg_can *cfg, FILE *out, char *err, siz
       {"STMS", cfg->status_ms},
       {"FDMS", cfg->status_ms},
   };
-  static const char classic[][5] = {"{S0}", "{S1}", "{S2}", "{S3}", "{S5}", "{S6}"};
+  static const char classic[][5] = {"{S0}", "{S1}", "{S2}", "{S3}", "{S5}", "{S6}", "{S7}"};
   bool skipping = false;
   for (const char *p = dbc_template; *p;) {
     const char *nl = strchr(p, '\n');

@@ -27,6 +27,7 @@ static uint32_t get32(const uint8_t *p) {
 }
 
 static uint16_t sat16(uint64_t v) { return v > 0xffff ? 0xffff : (uint16_t)v; }
+static uint8_t sat8(uint64_t v) { return v > 0xff ? 0xff : (uint8_t)v; }
 
 /* An unsigned field of len bits (len <= 16) from bit start, little-endian
  * (DBC "@1+"). */
@@ -116,6 +117,17 @@ void vlff_canp_encode_status(int index, const struct vlff_can_status *st, const 
       put_bits(out, 40, 12, mib_field(st->mem_evidence_mb, 1, 12));
       put_bits(out, 52, 12, mib_field(st->mem_evidence_limit_mb, 1, 12));
       break;
+    case VLFF_CANP_PAGING:
+      /* Saturating: a controller needs to see that keyframes or evidence
+       * are being lost, or that the box stopped growing; the exact counts
+       * are in the map's status (vlff-shm stat). Growths are few (one per
+       * keyframe that sees past the box), hence a byte each. */
+      put16(out, sat16(st->keyframes_paged));
+      put16(out + 2, sat16(st->keyframes_dropped));
+      put16(out + 4, sat16(st->evidence_dropped));
+      out[6] = sat8(st->box_growths);
+      out[7] = sat8(st->box_refused);
+      break;
     default:
       break;
   }
@@ -160,6 +172,13 @@ int vlff_canp_decode_status(int index, const uint8_t *d, int len, struct vlff_ca
       v->mem_keyframes_limit_mb = mib_value(get_bits(d, 28, 12), 4, 12);
       v->mem_evidence_mb = mib_value(get_bits(d, 40, 12), 1, 12);
       v->mem_evidence_limit_mb = mib_value(get_bits(d, 52, 12), 1, 12);
+      return 0;
+    case VLFF_CANP_PAGING:
+      v->keyframes_paged = get16(d);
+      v->keyframes_dropped = get16(d + 2);
+      v->evidence_dropped = get16(d + 4);
+      v->box_growths = d[6];
+      v->box_refused = d[7];
       return 0;
     default:
       return -1;

@@ -17,9 +17,10 @@
 #include "vlff_can.h"
 
 #define VLFF_CANP_HEARTBEAT_BASE 0x700
-#define VLFF_CANP_STATUS_FRAMES 6 /* TRAIN, LOSS, MAP, HEALTH, INGEST, MEMORY */
-#define VLFF_CANP_STATUS_FD_OFFSET 4 /* FD: one frame at base + 4 holding all six payloads */
-#define VLFF_CANP_STATUS_FD_LEN 48   /* six 8-byte payloads, a CAN FD length */
+#define VLFF_CANP_STATUS_FRAMES 7 /* TRAIN, LOSS, MAP, HEALTH, INGEST, MEMORY, PAGING */
+#define VLFF_CANP_STATUS_FD_OFFSET 4 /* FD: one frame at base + 4 holding all seven payloads */
+/* Seven 8-byte payloads and 8 zero bytes: CAN FD lengths go 48, then 64. */
+#define VLFF_CANP_STATUS_FD_LEN 64
 #define VLFF_CANP_CMD_LEN 4
 #define VLFF_CANP_ACK_LEN 4
 
@@ -29,12 +30,14 @@ enum vlff_canp_status_index {
   VLFF_CANP_MAP = 2,
   VLFF_CANP_HEALTH = 3,
   VLFF_CANP_INGEST = 4, /* classic id base + 5: base + 4 is the FD frame's */
-  VLFF_CANP_MEMORY = 5  /* classic id base + 6 */
+  VLFF_CANP_MEMORY = 5, /* classic id base + 6 */
+  VLFF_CANP_PAGING = 6  /* classic id base + 7 */
 };
 
 /* Classic frame id offset of status frame index (from status_base_id). */
 int vlff_canp_status_offset(int index);
-/* The status frame index of a classic id offset; -1 for none (4 is FD's). */
+/* The status frame index of a classic id offset (0..3, 5..7); -1 for none
+ * (4 is FD's). */
 int vlff_canp_status_index(int offset);
 
 /* What vlff_can adds to the node's snapshot in the HEALTH frame. */
@@ -49,7 +52,7 @@ struct vlff_canp_link {
   uint32_t refused_period; /* frames refused this period */
 };
 
-/* The decoded (physical) values of the six status frames. */
+/* The decoded (physical) values of the seven status frames. */
 struct vlff_canp_status_view {
   uint32_t iteration;
   uint16_t keyframes;
@@ -69,6 +72,9 @@ struct vlff_canp_status_view {
   uint8_t refused_period;  /* saturating */
   /* MiB; -1: unknown or above the signal's range */
   double mem_rss_mb, mem_keyframes_mb, mem_keyframes_limit_mb, mem_evidence_mb, mem_evidence_limit_mb;
+  /* PAGING, saturating */
+  uint16_t keyframes_paged, keyframes_dropped, evidence_dropped;
+  uint8_t box_growths, box_refused;
 };
 
 enum vlff_canp_cmd_check {

@@ -147,7 +147,7 @@ const char *vlff_can_result_name(int r) {
 int vlff_can_check_config(const struct vlff_cfg_can *cfg, char *err, size_t errlen) {
   const int node = cfg->node_id, base = cfg->status_base_id;
   const int hb = VLFF_CANP_HEARTBEAT_BASE + node;
-  const int last = base + (cfg->fd ? VLFF_CANP_STATUS_FD_OFFSET : vlff_canp_status_offset(VLFF_CANP_MEMORY));
+  const int last = base + (cfg->fd ? VLFF_CANP_STATUS_FD_OFFSET : vlff_canp_status_offset(VLFF_CANP_PAGING));
   if (cfg->interface[0] == 0 || strlen(cfg->interface) >= IFNAMSIZ) {
     snprintf(err, errlen, "key 'can.interface': expected an interface name of 1..%d characters, got '%s'",
              IFNAMSIZ - 1, VLFF_Q(cfg->interface));

@@ -4,7 +4,7 @@
  * A struct vlff_can owns one raw SocketCAN socket bound to a named interface
  * and one thread. The thread sends a CANopen-style heartbeat (COB-ID
  * 0x700 + node id, one NMT state byte, boot-up 0x00 first), the status
- * frames (status_base_id + 0..3 and + 5, or one CAN FD frame at status_base_id + 4)
+ * frames (status_base_id + 0..3 and + 5..7, or one CAN FD frame at status_base_id + 4)
  * and acknowledgements, receives commands on command_id and decodes error
  * frames. configs/vlff.dbc describes every frame; docs/can.md
  * has the table.
@@ -119,6 +119,12 @@ struct vlff_can_status {
   float mem_rss_mb;                /* the process's resident set */
   float mem_keyframes_mb, mem_keyframes_limit_mb; /* the keyframe store, keyframes.memory_mb */
   float mem_evidence_mb, mem_evidence_limit_mb;   /* the evidence, publish.evidence_max_mb */
+  /* What the limits pushed out (PAGING frame, which saturates them). */
+  uint32_t keyframes_paged;   /* keyframes in the state directory's page file now */
+  uint32_t keyframes_dropped; /* keyframes evicted with nowhere to go, since start */
+  uint32_t evidence_dropped;  /* voxels whose evidence was given up for good, since start */
+  uint32_t box_growths;       /* the map's box grown, since start */
+  uint32_t box_refused;       /* keyframes whose box could not be grown to, since start */
 };
 
 struct vlff_can_command {

@@ -162,6 +162,10 @@ static void print_status(int index, const uint8_t *d) {
       print_mib("keyframes", v.mem_keyframes_mb, v.mem_keyframes_limit_mb);
       print_mib("evidence", v.mem_evidence_mb, v.mem_evidence_limit_mb);
       break;
+    case VLFF_CANP_PAGING:
+      printf("PAGING keyframes_paged=%u keyframes_dropped=%u evidence_dropped=%u box_growths=%u box_refused=%u",
+             v.keyframes_paged, v.keyframes_dropped, v.evidence_dropped, v.box_growths, v.box_refused);
+      break;
   }
 }
 

@@ -254,6 +254,8 @@ void update_state(struct vlff_node *n) {
   n->st.keyframes_paged_out = vlff_kfstore_paged_out(n->store);
   n->st.keyframes_paged_in = vlff_kfstore_paged_in(n->store);
   n->st.keyframes_dropped = vlff_kfstore_dropped(n->store);
+  n->st.keyframes_page_mb = (double)vlff_kfstore_page_bytes(n->store) / (1 << 20);
+  n->st.keyframes_page_limit_mb = (double)vlff_kfstore_page_limit(n->store) / (1 << 20);
   n->st.state = !n->mapping ? VLFF_NODE_STOPPED
                 : n->st.keyframes >= n->cfg.keyframes.start_after ? VLFF_NODE_OPERATIONAL
                                                                   : VLFF_NODE_PREOP;
@@ -279,51 +281,72 @@ static const char *state_name(int state) {
   }
 }
 
-/* The status, as --status and CAN have it, into the map segment for any
- * controller (vlff-shm stat, vlff-view). Every reason is listed, counted or
- * not, with its name, so that readers learn the list from the segment. */
-void share_status(struct vlff_node *n) {
+/* Every reason is listed, counted or not, with its name, so that readers
+ * learn the list from the segment. */
+void vlff_node_map_status(const struct vlff_node_status *st, struct vlff_map_status *out) {
   _Static_assert(VLFF_REFUSED_COUNT - 1 <= VLFF_SHM_MAX_REASONS, "every refusal reason fits the map's status");
-  struct vlff_node_status st;
-  vlff_node_status(n, &st);
   struct vlff_map_status ms = {
-      .state = st.state,
-      .error_flags = st.error_flags,
-      .frames_in = (uint64_t)st.frames_in,
-      .frames_lost = (uint64_t)st.frames_lost,
-      .frames_refused = (uint64_t)st.frames_invalid,
-      .keyframes = (uint64_t)st.keyframes,
-      .keyframes_evicted = (uint64_t)st.keyframes_evicted,
-      .iterations = (uint64_t)st.iteration,
-      .iterations_per_s = st.it_per_s,
-      .fps_in = st.fps_in,
-      .loss = st.loss,
-      .loss_rgb = st.loss_rgb,
-      .loss_depth = st.loss_depth,
-      .loss_feat = st.loss_feat,
-      .psnr = st.psnr,
-      .cpu_budget = st.cpu_budget,
-      .cpu_used = st.cpu_used,
-      .frame_to_map_ms_p50 = st.frame_to_map_ms_p50,
-      .frame_to_map_ms_p99 = st.frame_to_map_ms_p99,
-      .publish_interval_s = st.publish_interval_s,
-      .label_flips = (uint64_t)st.label_flips,
-      .label_flips_refresh = (uint64_t)st.label_flips_refresh,
-      .label_flips_total = (uint64_t)st.label_flips_total,
-      .label_flip_frac = st.label_flip_frac,
-      .mem_keyframes_mb = st.mem_keyframes_mb,
-      .mem_keyframes_limit_mb = st.mem_keyframes_limit_mb,
-      .mem_evidence_mb = st.mem_evidence_mb,
-      .mem_evidence_limit_mb = st.mem_evidence_limit_mb,
-      .mem_field_mb = st.mem_field_mb,
-      .mem_rss_mb = st.mem_rss_mb,
+      .state = st->state,
+      .error_flags = st->error_flags,
+      .frames_in = (uint64_t)st->frames_in,
+      .frames_lost = (uint64_t)st->frames_lost,
+      .frames_refused = (uint64_t)st->frames_invalid,
+      .keyframes = (uint64_t)st->keyframes,
+      .keyframes_evicted = (uint64_t)st->keyframes_evicted,
+      .iterations = (uint64_t)st->iteration,
+      .iterations_per_s = st->it_per_s,
+      .fps_in = st->fps_in,
+      .loss = st->loss,
+      .loss_rgb = st->loss_rgb,
+      .loss_depth = st->loss_depth,
+      .loss_feat = st->loss_feat,
+      .psnr = st->psnr,
+      .cpu_budget = st->cpu_budget,
+      .cpu_used = st->cpu_used,
+      .frame_to_map_ms_p50 = st->frame_to_map_ms_p50,
+      .frame_to_map_ms_p99 = st->frame_to_map_ms_p99,
+      .publish_interval_s = st->publish_interval_s,
+      .label_flips = (uint64_t)st->label_flips,
+      .label_flips_refresh = (uint64_t)st->label_flips_refresh,
+      .label_flips_total = (uint64_t)st->label_flips_total,
+      .label_flip_frac = st->label_flip_frac,
+      .mem_keyframes_mb = st->mem_keyframes_mb,
+      .mem_keyframes_limit_mb = st->mem_keyframes_limit_mb,
+      .mem_evidence_mb = st->mem_evidence_mb,
+      .mem_evidence_limit_mb = st->mem_evidence_limit_mb,
+      .mem_field_mb = st->mem_field_mb,
+      .mem_rss_mb = st->mem_rss_mb,
+      .keyframes_paged = (uint64_t)st->keyframes_paged,
+      .keyframes_paged_out = (uint64_t)st->keyframes_paged_out,
+      .keyframes_paged_in = (uint64_t)st->keyframes_paged_in,
+      .keyframes_dropped = (uint64_t)st->keyframes_dropped,
+      .keyframes_page_mb = st->keyframes_page_mb,
+      .keyframes_page_limit_mb = st->keyframes_page_limit_mb,
+      .evidence_paged = (uint64_t)st->evidence_paged,
+      .evidence_paged_out = (uint64_t)st->evidence_paged_out,
+      .evidence_paged_in = (uint64_t)st->evidence_paged_in,
+      .evidence_dropped = (uint64_t)st->evidence_dropped,
+      .box_lo = {st->box_lo[0], st->box_lo[1], st->box_lo[2]},
+      .box_hi = {st->box_hi[0], st->box_hi[1], st->box_hi[2]},
+      .box_growths = (uint64_t)st->box_growths,
+      .box_refused = (uint64_t)st->box_refused,
   };
-  snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st.state));
+  snprintf(ms.state_name, sizeof ms.state_name, "%s", state_name(st->state));
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
     struct vlff_map_reason *e = &ms.reason[ms.reason_count++];
     snprintf(e->name, sizeof e->name, "%s", vlff_refusal_name(r));
-    e->count = (uint64_t)st.refused[r];
+    e->count = (uint64_t)st->refused[r];
   }
+  *out = ms;
+}
+
+/* The status, as --status and CAN have it, into the map segment for any
+ * controller (vlff-shm stat, vlff-view, vlff-dds). */
+void share_status(struct vlff_node *n) {
+  struct vlff_node_status st;
+  vlff_node_status(n, &st);
+  struct vlff_map_status ms;
+  vlff_node_map_status(&st, &ms);
   char err[320];
   /* A map truncated under the node is replaced by the library; say so. */
   if (vlff_publisher_set_status(n->pub, &ms, err, sizeof err))

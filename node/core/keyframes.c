@@ -312,6 +312,7 @@ long long vlff_kfstore_paged_out(const struct vlff_kfstore *s) { return s->paged
 long long vlff_kfstore_paged_in(const struct vlff_kfstore *s) { return s->paged_in; }
 long long vlff_kfstore_dropped(const struct vlff_kfstore *s) { return s->dropped; }
 size_t vlff_kfstore_page_bytes(const struct vlff_kfstore *s) { return s->page_used; }
+size_t vlff_kfstore_page_limit(const struct vlff_kfstore *s) { return s->page_max; }
 const char *vlff_kfstore_page_error(const struct vlff_kfstore *s) { return s->page_err; }
 
 int vlff_kfstore_add(struct vlff_kfstore *s, const struct vlff_keyframe_in *in) {

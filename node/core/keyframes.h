@@ -86,12 +86,14 @@ int vlff_kfstore_page_to(struct vlff_kfstore *s, const char *path, size_t max_by
 int vlff_kfstore_page_in(struct vlff_kfstore *s, const double c2w[16], double radius);
 /* Keyframes in the page file now; written there and brought back since
  * create; evicted with nowhere to go (no page file, it full, an I/O
- * error); the file's bytes in use; its last error ("" when none). */
+ * error); the file's bytes in use and its byte budget (0 without a page
+ * file); its last error ("" when none). */
 long long vlff_kfstore_paged(const struct vlff_kfstore *s);
 long long vlff_kfstore_paged_out(const struct vlff_kfstore *s);
 long long vlff_kfstore_paged_in(const struct vlff_kfstore *s);
 long long vlff_kfstore_dropped(const struct vlff_kfstore *s);
 size_t vlff_kfstore_page_bytes(const struct vlff_kfstore *s);
+size_t vlff_kfstore_page_limit(const struct vlff_kfstore *s);
 const char *vlff_kfstore_page_error(const struct vlff_kfstore *s);
 
 /* Pose distance used for redundancy: metres + 0.5 m per radian of rotation. */

@@ -30,6 +30,7 @@
 #include "source.h"
 
 struct vlff_node;
+struct vlff_map_status;
 
 enum vlff_node_state { /* CANopen NMT-like */
   VLFF_NODE_BOOT = 0x00,
@@ -87,6 +88,9 @@ struct vlff_node_status {
    * start (or the last reset), and evicted with nowhere to go (no page
    * file, it full, an I/O error). */
   long long keyframes_paged, keyframes_paged_out, keyframes_paged_in, keyframes_dropped;
+  /* The keyframes' page file, MiB: in use, and its limit (keyframes.page_mb;
+   * 0 when there is none: page_mb 0, or the file could not be made). */
+  double keyframes_page_mb, keyframes_page_limit_mb;
   /* Evidence paging (publish.evidence_page_mb; docs/field.md): voxels whose
    * evidence is in the state directory's page file now, written there and
    * brought back since the start (or the last reset), and given up for
@@ -215,6 +219,12 @@ void vlff_node_join(struct vlff_node *n);
 int vlff_node_snapshot(struct vlff_node *n, struct vlff_snapshot *out, char *err, size_t errlen);
 
 void vlff_node_status(struct vlff_node *n, struct vlff_node_status *out);
+/* The status as the map segment carries it to controllers (vlff-shm stat,
+ * the viewer, the DDS bridge; vlff/shm.h, struct vlff_map_status): every
+ * figure that has a field there, the state's name, and every refusal reason
+ * by name, counted or not. t_ns and updates are left 0 (the library sets
+ * them). A function of its own so that a test sees each field carried. */
+void vlff_node_map_status(const struct vlff_node_status *st, struct vlff_map_status *out);
 
 /* Queue a command for the trainer. Returns 0, or -1 for an unknown command
  * or an out-of-range argument (nothing is queued then). */

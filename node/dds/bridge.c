@@ -955,7 +955,7 @@ static void poll_camera(struct vlff_dds *b) {
 }
 
 /* Key-value lists of the status, built in fixed storage. */
-#define MAX_KV (32 + VLFF_SHM_MAX_REASONS)
+#define MAX_KV (48 + VLFF_SHM_MAX_REASONS)
 /* two statuses of MAX_KV pairs (CDR: two lengths), name, message, hardware id */
 _Static_assert(2 * (MAX_KV * (48 + 48 + 8) + 96 + 2 * VLFF_CFG_STR) + VLFF_DDS_MSG_OVERHEAD <=
                    VLFF_DDS_STATUS_MAX_BYTES,
@@ -1031,6 +1031,22 @@ static void send_status(struct vlff_dds *b) {
     kv(&lk, "mem_evidence_limit_mb", "%.1f", s.mem_evidence_limit_mb);
     kv(&lk, "mem_field_mb", "%.1f", s.mem_field_mb);
     kv(&lk, "mem_rss_mb", "%.1f", s.mem_rss_mb);
+    /* what went to the page files, came back or was dropped, and the map's
+     * box: as vlff-shm stat prints them */
+    kv(&lk, "keyframes_paged", "%" PRIu64, s.keyframes_paged);
+    kv(&lk, "keyframes_paged_out", "%" PRIu64, s.keyframes_paged_out);
+    kv(&lk, "keyframes_paged_in", "%" PRIu64, s.keyframes_paged_in);
+    kv(&lk, "keyframes_dropped", "%" PRIu64, s.keyframes_dropped);
+    kv(&lk, "keyframes_page_mb", "%.1f", s.keyframes_page_mb);
+    kv(&lk, "keyframes_page_limit_mb", "%.1f", s.keyframes_page_limit_mb);
+    kv(&lk, "evidence_paged", "%" PRIu64, s.evidence_paged);
+    kv(&lk, "evidence_paged_out", "%" PRIu64, s.evidence_paged_out);
+    kv(&lk, "evidence_paged_in", "%" PRIu64, s.evidence_paged_in);
+    kv(&lk, "evidence_dropped", "%" PRIu64, s.evidence_dropped);
+    kv(&lk, "box_lo", "%.3f %.3f %.3f", s.box_lo[0], s.box_lo[1], s.box_lo[2]);
+    kv(&lk, "box_hi", "%.3f %.3f %.3f", s.box_hi[0], s.box_hi[1], s.box_hi[2]);
+    kv(&lk, "box_growths", "%" PRIu64, s.box_growths);
+    kv(&lk, "box_refused", "%" PRIu64, s.box_refused);
     kv(&lk, "map_version", "%" PRIu64, vlff_map_version(m));
     for (uint32_t i = 0; i < s.reason_count && i < VLFF_SHM_MAX_REASONS; i++) {
       char key[48];

@@ -1156,6 +1156,30 @@ static void write_learner(struct jw *w, struct vlff_map *map) {
        (unsigned long long)st.label_flips, (unsigned long long)st.label_flips_refresh,
        (unsigned long long)st.label_flips_total);
   jw_num(w, "%.4f", st.label_flip_frac);
+  /* What went to the page files, came back or was dropped, and the map's
+   * box (arrays of x, y, z): as vlff-shm stat prints them. */
+  const char *count_keys[] = {"keyframes_paged", "keyframes_paged_out", "keyframes_paged_in", "keyframes_dropped",
+                              "evidence_paged",  "evidence_paged_out",  "evidence_paged_in",  "evidence_dropped",
+                              "box_growths",     "box_refused"};
+  const uint64_t counts[] = {st.keyframes_paged, st.keyframes_paged_out, st.keyframes_paged_in, st.keyframes_dropped,
+                             st.evidence_paged,  st.evidence_paged_out,  st.evidence_paged_in,  st.evidence_dropped,
+                             st.box_growths,     st.box_refused};
+  _Static_assert(sizeof count_keys / sizeof *count_keys == sizeof counts / sizeof *counts, "one key per count");
+  for (size_t i = 0; i < sizeof counts / sizeof *counts; i++)
+    jw_f(w, ",\"%s\":%llu", count_keys[i], (unsigned long long)counts[i]);
+  jw_s(w, ",\"keyframes_page_mb\":");
+  jw_num(w, "%.1f", st.keyframes_page_mb);
+  jw_s(w, ",\"keyframes_page_limit_mb\":");
+  jw_num(w, "%.1f", st.keyframes_page_limit_mb);
+  for (int c = 0; c < 2; c++) {
+    const double *v = c ? st.box_hi : st.box_lo;
+    jw_s(w, c ? ",\"box_hi\":[" : ",\"box_lo\":[");
+    for (int a = 0; a < 3; a++) {
+      if (a) jw_s(w, ",");
+      jw_num(w, "%.3f", v[a]);
+    }
+    jw_s(w, "]");
+  }
   jw_s(w, "}");
 }
 

@@ -144,6 +144,15 @@ static int print_status(struct vlff_map *m, const char *name) {
          st.frame_to_map_ms_p99, st.publish_interval_s, st.label_flips, st.label_flips_refresh, st.label_flips_total,
          st.label_flip_frac, st.mem_keyframes_mb, st.mem_keyframes_limit_mb, st.mem_evidence_mb,
          st.mem_evidence_limit_mb, st.mem_field_mb, st.mem_rss_mb);
+  printf("keyframes_paged %" PRIu64 "\nkeyframes_paged_out %" PRIu64 "\nkeyframes_paged_in %" PRIu64
+         "\nkeyframes_dropped %" PRIu64 "\nkeyframes_page_mb %.1f\nkeyframes_page_limit_mb %.1f\n"
+         "evidence_paged %" PRIu64 "\nevidence_paged_out %" PRIu64 "\nevidence_paged_in %" PRIu64
+         "\nevidence_dropped %" PRIu64 "\nbox_lo %.3f %.3f %.3f\nbox_hi %.3f %.3f %.3f\nbox_growths %" PRIu64
+         "\nbox_refused %" PRIu64 "\n",
+         st.keyframes_paged, st.keyframes_paged_out, st.keyframes_paged_in, st.keyframes_dropped, st.keyframes_page_mb,
+         st.keyframes_page_limit_mb, st.evidence_paged, st.evidence_paged_out, st.evidence_paged_in,
+         st.evidence_dropped, st.box_lo[0], st.box_lo[1], st.box_lo[2], st.box_hi[0], st.box_hi[1], st.box_hi[2],
+         st.box_growths, st.box_refused);
   return 0;
 }
 

@@ -172,6 +172,14 @@ static bool text_is(const diagnostic_msgs_msg_dds__DiagnosticStatus_ *s, const c
   return v && !strcmp(v, w);
 }
 
+/* A box corner as the bridge prints it, "x y z" in metres. */
+static bool box_is(const diagnostic_msgs_msg_dds__DiagnosticStatus_ *s, const char *key, const double v[3]) {
+  char w[96];
+  snprintf(w, sizeof w, "%.3f %.3f %.3f", v[0], v[1], v[2]);
+  const char *got = value_of(s, key);
+  return got && !strcmp(got, w);
+}
+
 /* The learner's entry against the segment's status (the node gone). */
 static int compare_status(const diagnostic_msgs_msg_dds__DiagnosticArray_ *a, struct vlff_map *m, const char *node,
                           bool verbose) {
@@ -194,6 +202,16 @@ static int compare_status(const diagnostic_msgs_msg_dds__DiagnosticArray_ *a, st
          !text_is(l, "mem_keyframes_mb", "%.1f", st.mem_keyframes_mb) +
          !text_is(l, "mem_keyframes_limit_mb", "%.1f", st.mem_keyframes_limit_mb) +
          !text_is(l, "mem_rss_mb", "%.1f", st.mem_rss_mb);
+  /* paging and the map's box: every key, whatever its value */
+  bad += !num_is(l, "keyframes_paged", st.keyframes_paged) + !num_is(l, "keyframes_paged_out", st.keyframes_paged_out) +
+         !num_is(l, "keyframes_paged_in", st.keyframes_paged_in) +
+         !num_is(l, "keyframes_dropped", st.keyframes_dropped) +
+         !text_is(l, "keyframes_page_mb", "%.1f", st.keyframes_page_mb) +
+         !text_is(l, "keyframes_page_limit_mb", "%.1f", st.keyframes_page_limit_mb) +
+         !num_is(l, "evidence_paged", st.evidence_paged) + !num_is(l, "evidence_paged_out", st.evidence_paged_out) +
+         !num_is(l, "evidence_paged_in", st.evidence_paged_in) + !num_is(l, "evidence_dropped", st.evidence_dropped) +
+         !box_is(l, "box_lo", st.box_lo) + !box_is(l, "box_hi", st.box_hi) +
+         !num_is(l, "box_growths", st.box_growths) + !num_is(l, "box_refused", st.box_refused);
   for (uint32_t i = 0; i < st.reason_count; i++) {
     char key[64];
     snprintf(key, sizeof key, "refused: %s", st.reason[i].name);

@@ -88,7 +88,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 7
+#define VLFF_SHM_ABI_VERSION 8
 
 /* ------------------------------------------------------------------ errors */
 
@@ -575,6 +575,22 @@ struct vlff_map_status {
    * writer process's resident set; -1 while unknown. */
   double mem_keyframes_mb, mem_keyframes_limit_mb, mem_evidence_mb, mem_evidence_limit_mb;
   double mem_field_mb, mem_rss_mb;
+  /* Paging (vlff-node; docs/node.md, "Memory"): what no longer fits the
+   * memory limits above goes to page files in the writer's state directory
+   * and comes back when the robot returns, and what has nowhere to go is
+   * dropped and counted. Keyframes: in the page file now, written there and
+   * brought back since the start (or the last reset), dropped; the page
+   * file's MiB in use and its limit (vlff-node: keyframes.page_mb; 0 = no
+   * page file). Evidence: voxels whose evidence is in its page file now,
+   * written there and brought back since the start, given up for good. */
+  uint64_t keyframes_paged, keyframes_paged_out, keyframes_paged_in, keyframes_dropped;
+  double keyframes_page_mb, keyframes_page_limit_mb;
+  uint64_t evidence_paged, evidence_paged_out, evidence_paged_in, evidence_dropped;
+  /* The map's box in world metres (min and max corners; it may grow: docs/
+   * shm.md, "A map that grows"), how often it grew since the start, and how
+   * many growths were refused (the map or the field at a configured limit). */
+  double box_lo[3], box_hi[3];
+  uint64_t box_growths, box_refused;
 };
 
 /* Writer: replaces the status (t_ns and updates are set here, the rest is taken as

@@ -25,12 +25,14 @@ int main(int argc, char **argv) {
                                      .map_version = 77, .fps_in = 29.97f, .fps_dropped = 1.5f, .prompt_set = 2,
                                      .error_flags = VLFF_CAN_ERRF_CAMERA_LOST, .frames_refused = 193,
                                      .last_refusal = 6, .mem_rss_mb = 1435, .mem_keyframes_mb = 60,
-                                     .mem_keyframes_limit_mb = 2048, .mem_evidence_mb = 9, .mem_evidence_limit_mb = 16};
+                                     .mem_keyframes_limit_mb = 2048, .mem_evidence_mb = 9, .mem_evidence_limit_mb = 16,
+                                     .keyframes_paged = 128, .keyframes_dropped = 3, .evidence_dropped = 70000,
+                                     .box_growths = 12, .box_refused = 2};
   const struct vlff_canp_link link = {.nmt_state = VLFF_NMT_OPERATIONAL, .extra_flags = 0x40, .can_errors = 0x01,
                                       .cmd_rejected = 3, .tx_dropped = 4, .map_age_ms = 1500,
                                       .refused_active = 1u << (6 - 1), .refused_period = 15};
-  static const char *const names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST",
-                                      "VLFF_MEMORY"};
+  static const char *const names[] = {"VLFF_TRAIN",  "VLFF_LOSS",   "VLFF_MAP",   "VLFF_HEALTH",
+                                      "VLFF_INGEST", "VLFF_MEMORY", "VLFF_PAGING"};
   _Static_assert(sizeof names / sizeof names[0] == VLFF_CANP_STATUS_FRAMES, "a name per status frame");
   unsigned char fd[VLFF_CANP_STATUS_FD_LEN] = {0};
   for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) {

@@ -193,7 +193,9 @@ static struct vlff_can_status fixed_status(void) {
                                .fps_in = 29.97f, .fps_dropped = 0.5f, .prompt_set = 1,
                                .error_flags = VLFF_CAN_ERRF_POSE_STALE, .frames_refused = 193, .last_refusal = 6,
                                .mem_rss_mb = 1435, .mem_keyframes_mb = 60, .mem_keyframes_limit_mb = 2048,
-                               .mem_evidence_mb = 9, .mem_evidence_limit_mb = 16};
+                               .mem_evidence_mb = 9, .mem_evidence_limit_mb = 16, .keyframes_paged = 128,
+                               .keyframes_dropped = 3, .evidence_dropped = 70000, .box_growths = 12,
+                               .box_refused = 2};
   st.refused[6] = 193;
   return st;
 }
@@ -560,7 +562,8 @@ static void check_dbc_frames(bool fd) {
     assert_true(bus_recv(bus, &f, 1.0, NULL) > 0);
     if (f.can_id == 0x700 + (uint32_t)n->cfg.can.node_id && f.data[0] == VLFF_NMT_OPERATIONAL) break;
   }
-  int counts[8] = {0};
+  /* [offset from status_base_id] per status frame (4: FD), [8] heartbeats */
+  int counts[9] = {0};
   int checked = 0;
   double end = mono() + 1.5;
   while (mono() < end && checked < 200) {
@@ -573,7 +576,7 @@ static void check_dbc_frames(bool fd) {
       double v;
       assert_int_equal(dbc_decode(m, "NmtState", f.data, f.len, &v), 0);
       if (v != VLFF_NMT_OPERATIONAL) continue; /* frames from before set_state */
-      counts[7]++;
+      counts[8]++;
     } else if (!strcmp(m->name, "VLFF_STATUS_FD")) {
       assert_true(fd);
       for (int p = 0; p < VLFF_CANP_STATUS_FRAMES; p++)
@@ -593,9 +596,9 @@ static void check_dbc_frames(bool fd) {
     }
     checked++;
   }
-  printf("dbc%s: %d frames decoded and checked (hb %d, status %d/%d/%d/%d/%d/%d, fd %d)\n", fd ? " (FD)" : "",
-         checked, counts[7], counts[0], counts[1], counts[2], counts[3], counts[5], counts[6], counts[4]);
-  assert_true(counts[7] >= 20);
+  printf("dbc%s: %d frames decoded and checked (hb %d, status %d/%d/%d/%d/%d/%d/%d, fd %d)\n", fd ? " (FD)" : "",
+         checked, counts[8], counts[0], counts[1], counts[2], counts[3], counts[5], counts[6], counts[7], counts[4]);
+  assert_true(counts[8] >= 20);
   if (fd) assert_true(counts[4] >= 10);
   else for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) assert_true(counts[vlff_canp_status_offset(i)] >= 10);
   node_stop(n);

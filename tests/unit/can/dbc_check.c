@@ -1,5 +1,7 @@
 #include "dbc_check.h"
 
+#include "can_proto.h"
+
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -43,10 +45,11 @@ static int near(const char *sig, double got, double want, double tol, char *why,
 
 int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data, int len,
                      const struct vlff_can_status *st, int nmt_state, char *why, size_t n) {
-  const char *prefix_names[6] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_MEMORY"};
+  const char *prefix_names[VLFF_CANP_STATUS_FRAMES] = {"VLFF_TRAIN",  "VLFF_LOSS",   "VLFF_MAP",   "VLFF_HEALTH",
+                                                       "VLFF_INGEST", "VLFF_MEMORY", "VLFF_PAGING"};
   const char *kind = m->name;
   if (!strcmp(m->name, "VLFF_STATUS_FD")) {
-    if (part < 0 || part > 5) { snprintf(why, n, "bad FD part %d", part); return -1; }
+    if (part < 0 || part >= VLFF_CANP_STATUS_FRAMES) { snprintf(why, n, "bad FD part %d", part); return -1; }
     kind = prefix_names[part];
   }
   if (len != m->dlc) {
@@ -83,6 +86,12 @@ int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data,
     c[k++] = (struct want){"MemKeyframesLimit", expect_mib(st->mem_keyframes_limit_mb, 4, 12), 0};
     c[k++] = (struct want){"MemEvidence", expect_mib(st->mem_evidence_mb, 1, 12), 0};
     c[k++] = (struct want){"MemEvidenceLimit", expect_mib(st->mem_evidence_limit_mb, 1, 12), 0};
+  } else if (!strcmp(kind, "VLFF_PAGING")) {
+    c[k++] = (struct want){"KeyframesPaged", st->keyframes_paged > 65535 ? 65535 : st->keyframes_paged, 0};
+    c[k++] = (struct want){"KeyframesDropped", st->keyframes_dropped > 65535 ? 65535 : st->keyframes_dropped, 0};
+    c[k++] = (struct want){"EvidenceDropped", st->evidence_dropped > 65535 ? 65535 : st->evidence_dropped, 0};
+    c[k++] = (struct want){"BoxGrowths", st->box_growths > 255 ? 255 : st->box_growths, 0};
+    c[k++] = (struct want){"BoxRefused", st->box_refused > 255 ? 255 : st->box_refused, 0};
   } else {
     snprintf(why, n, "%s is not a status message", m->name);
     return -1;

@@ -9,8 +9,8 @@
 #include "dbc.h"
 #include "vlff_can.h"
 
-/* m: VLFF_TRAIN/LOSS/MAP/HEALTH/INGEST (or VLFF_STATUS_FD with part 0..4
- * naming the 8-byte part). Node-provided fields must match exactly (scaled values within
+/* m: VLFF_TRAIN/LOSS/MAP/HEALTH/INGEST/MEMORY/PAGING (or VLFF_STATUS_FD
+ * with part 0..6 naming the 8-byte part). Node-provided fields must match exactly (scaled values within
  * half a step, saturation as documented). Returns 0, or -1 with why. */
 int dbc_check_status(const struct dbc_message *m, int part, const uint8_t *data, int len,
                      const struct vlff_can_status *st, int nmt_state, char *why, size_t n);

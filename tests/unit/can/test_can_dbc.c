@@ -27,11 +27,12 @@ static int setup(void **state) {
 
 /* Every bit of each status payload belongs to at most one signal, and all
  * bits but HEALTH bit 7, the INGEST reason bits without a reason yet and the
- * FD frame's padding are described. */
+ * FD frame's padding (its last 8 bytes) are described. */
 static void test_layout_covers_payload(void **state) {
   (void)state;
-  const char *names[] = {"VLFF_TRAIN",     "VLFF_LOSS",    "VLFF_MAP", "VLFF_HEALTH",   "VLFF_INGEST",
-                         "VLFF_MEMORY",    "VLFF_STATUS_FD", "VLFF_COMMAND", "VLFF_ACK", "VLFF_HEARTBEAT"};
+  const char *names[] = {"VLFF_TRAIN",  "VLFF_LOSS",   "VLFF_MAP",       "VLFF_HEALTH",  "VLFF_INGEST",
+                         "VLFF_MEMORY", "VLFF_PAGING", "VLFF_STATUS_FD", "VLFF_COMMAND", "VLFF_ACK",
+                         "VLFF_HEARTBEAT"};
   /* Reason codes 1..VLFF_CAN_REFUSAL_CODES-1 fit the INGEST bits; those
    * the node does not define yet are unused. */
   const int reason_bits_unused = 16 - (VLFF_REFUSED_COUNT - 1);
@@ -52,7 +53,7 @@ static void test_layout_covers_payload(void **state) {
     for (int b = 0; b < m->dlc * 8; b++) unused += owner[b] < 0;
     int expect_unused = !strcmp(names[i], "VLFF_HEALTH")      ? 1
                         : !strcmp(names[i], "VLFF_INGEST")    ? reason_bits_unused
-                        : !strcmp(names[i], "VLFF_STATUS_FD") ? 1 + reason_bits_unused
+                        : !strcmp(names[i], "VLFF_STATUS_FD") ? 1 + reason_bits_unused + 64
                                                               : 0;
     assert_int_equal(unused, expect_unused);
   }
@@ -67,6 +68,7 @@ static void test_layout_covers_payload(void **state) {
   assert_int_equal(dbc_find_name(&db, "VLFF_INGEST")->id,
                    cfg.can.status_base_id + vlff_canp_status_offset(VLFF_CANP_INGEST));
   assert_int_equal(dbc_find_name(&db, "VLFF_MEMORY")->id, cfg.can.status_base_id + 6);
+  assert_int_equal(dbc_find_name(&db, "VLFF_PAGING")->id, cfg.can.status_base_id + 7);
   /* One bit per reason the node defines, in code order, in both frames. */
   for (int r = 1; r < VLFF_REFUSED_COUNT; r++) {
     int found = 0;
@@ -87,7 +89,8 @@ static float rnd(double hi) { return (float)(hi * rand() / RAND_MAX); }
 
 static void test_random_status_decodes(void **state) {
   (void)state;
-  const char *names[] = {"VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_MEMORY"};
+  const char *names[] = {"VLFF_TRAIN",  "VLFF_LOSS",   "VLFF_MAP",   "VLFF_HEALTH",
+                         "VLFF_INGEST", "VLFF_MEMORY", "VLFF_PAGING"};
   _Static_assert(sizeof names / sizeof names[0] == VLFF_CANP_STATUS_FRAMES, "a name per status frame");
   const struct dbc_message *fd = dbc_find_name(&db, "VLFF_STATUS_FD");
   srand(7);
@@ -99,7 +102,9 @@ static void test_random_status_decodes(void **state) {
         .error_flags = (uint32_t)(rand() & 0x0f), .frames_refused = (uint32_t)rand() * 2u,
         .last_refusal = (uint32_t)(rand() % VLFF_REFUSED_COUNT), .mem_rss_mb = rnd(70000),
         .mem_keyframes_mb = rnd(17000), .mem_keyframes_limit_mb = rnd(17000), .mem_evidence_mb = rnd(4200),
-        .mem_evidence_limit_mb = rnd(4200)};
+        .mem_evidence_limit_mb = rnd(4200), .keyframes_paged = (uint32_t)(rand() % 70000),
+        .keyframes_dropped = (uint32_t)(rand() % 70000), .evidence_dropped = (uint32_t)rand() * 2u,
+        .box_growths = (uint32_t)(rand() % 300), .box_refused = (uint32_t)(rand() % 300)};
     if (it % 11 == 0) st.mem_rss_mb = -1, st.mem_evidence_mb = NAN;
     if (it % 10 == 0) st.loss_total = NAN;
     if (it % 13 == 0) st.loss_depth = -1;

@@ -21,7 +21,9 @@ static void test_status_roundtrip(void **state) {
                                .fps_in = 29.97f, .fps_dropped = 1.5f, .prompt_set = 3,
                                .error_flags = VLFF_CAN_ERRF_POSE_STALE | 0xf0u, .frames_refused = 0x01020304,
                                .last_refusal = 6, .mem_rss_mb = 1435.4f, .mem_keyframes_mb = 58.3f,
-                               .mem_keyframes_limit_mb = 2048, .mem_evidence_mb = 9.6f, .mem_evidence_limit_mb = 16};
+                               .mem_keyframes_limit_mb = 2048, .mem_evidence_mb = 9.6f, .mem_evidence_limit_mb = 16,
+                               .keyframes_paged = 0x0102, .keyframes_dropped = 0x0304, .evidence_dropped = 0x0506,
+                               .box_growths = 7, .box_refused = 8};
   struct vlff_canp_link link = {.nmt_state = VLFF_NMT_OPERATIONAL, .extra_flags = VLFF_CAN_ERRF_TX_DROPPED,
                                 .can_errors = VLFF_CAN_BUS_OFF, .cmd_rejected = 70000, .tx_dropped = 12,
                                 .map_age_ms = 250, .refused_active = 0x0120, .refused_period = 300};
@@ -63,14 +65,23 @@ static void test_status_roundtrip(void **state) {
   assert_true(v.mem_evidence_mb == 10);
   assert_true(v.mem_evidence_limit_mb == 16);
   assert_int_equal(f[5][0] | f[5][1] << 8, 1435);
+  /* PAGING: each count in its own place, little-endian. */
+  assert_int_equal(v.keyframes_paged, 0x0102);
+  assert_int_equal(v.keyframes_dropped, 0x0304);
+  assert_int_equal(v.evidence_dropped, 0x0506);
+  assert_int_equal(v.box_growths, 7);
+  assert_int_equal(v.box_refused, 8);
+  const uint8_t paging[8] = {0x02, 0x01, 0x04, 0x03, 0x06, 0x05, 7, 8};
+  assert_memory_equal(f[6], paging, 8);
   assert_int_equal(vlff_canp_decode_status(VLFF_CANP_STATUS_FRAMES, f[0], 8, &v), -1);
-  /* INGEST's and MEMORY's classic ids skip base + 4, the FD frame's. */
+  /* INGEST's, MEMORY's and PAGING's classic ids skip base + 4, the FD frame's. */
   assert_int_equal(vlff_canp_status_offset(VLFF_CANP_HEALTH), 3);
   assert_int_equal(vlff_canp_status_offset(VLFF_CANP_INGEST), 5);
   assert_int_equal(vlff_canp_status_offset(VLFF_CANP_MEMORY), 6);
+  assert_int_equal(vlff_canp_status_offset(VLFF_CANP_PAGING), 7);
   for (int i = 0; i < VLFF_CANP_STATUS_FRAMES; i++) assert_int_equal(vlff_canp_status_index(vlff_canp_status_offset(i)), i);
   assert_int_equal(vlff_canp_status_index(VLFF_CANP_STATUS_FD_OFFSET), -1);
-  assert_int_equal(vlff_canp_status_index(7), -1);
+  assert_int_equal(vlff_canp_status_index(8), -1);
   assert_int_equal(vlff_canp_status_index(-1), -1);
 }
 
@@ -110,6 +121,20 @@ static void test_scaling_saturates(void **state) {
   vlff_canp_encode_status(VLFF_CANP_MEMORY, &st, &link, f);
   vlff_canp_decode_status(VLFF_CANP_MEMORY, f, 8, &v);
   assert_true(v.mem_evidence_mb == 4094 && v.mem_keyframes_limit_mb == 16376);
+  /* Paging counts saturate at their signals' width, never wrap. */
+  st.keyframes_paged = 65536, st.keyframes_dropped = 65535, st.evidence_dropped = UINT32_MAX;
+  st.box_growths = 256, st.box_refused = 255;
+  vlff_canp_encode_status(VLFF_CANP_PAGING, &st, &link, f);
+  vlff_canp_decode_status(VLFF_CANP_PAGING, f, 8, &v);
+  assert_int_equal(v.keyframes_paged, 65535);
+  assert_int_equal(v.keyframes_dropped, 65535);
+  assert_int_equal(v.evidence_dropped, 65535);
+  assert_int_equal(v.box_growths, 255);
+  assert_int_equal(v.box_refused, 255);
+  st.keyframes_paged = 65534, st.box_growths = 254;
+  vlff_canp_encode_status(VLFF_CANP_PAGING, &st, &link, f);
+  vlff_canp_decode_status(VLFF_CANP_PAGING, f, 8, &v);
+  assert_true(v.keyframes_paged == 65534 && v.box_growths == 254);
 }
 
 static void test_command_validation(void **state) {
@@ -201,13 +226,19 @@ static void test_config_check(void **state) {
   cfg.can.fd = true;
   cfg.can.command_id = cfg.can.status_base_id + 4; /* the FD frame's id */
   assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
-  /* Classic frames end at base + 5 (INGEST). */
+  /* Classic frames end at base + 7 (PAGING). */
+  for (int off = 5; off <= 7; off++) {
+    vlff_config_defaults(&cfg);
+    cfg.can.command_id = cfg.can.status_base_id + off;
+    assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
+    assert_non_null(strstr(err, "can.command_id"));
+  }
   vlff_config_defaults(&cfg);
-  cfg.can.command_id = cfg.can.status_base_id + 5;
-  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
-  assert_non_null(strstr(err, "can.command_id"));
-  vlff_config_defaults(&cfg);
-  cfg.can.status_base_id = 0x7fb;
+  cfg.can.command_id = cfg.can.status_base_id + 8;
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), 0);
+  cfg.can.status_base_id = 0x7f8; /* PAGING at 0x7ff */
+  assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), 0);
+  cfg.can.status_base_id = 0x7f9;
   assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), -1);
   cfg.can.fd = true; /* one frame at base + 4 fits */
   assert_int_equal(vlff_can_check_config(&cfg.can, err, sizeof err), 0);

@@ -66,11 +66,11 @@ def node_check(path):
             decoded.append((frame.name, {k: float(v.phys_value) for k, v in frame.decode(data).items()}))
     names = {n for n, _ in decoded}
     # With can.fd (the case's config) one STATUS_FD frame carries what the
-    # classic TRAIN, LOSS, MAP, HEALTH, INGEST and MEMORY frames would.
+    # classic TRAIN, LOSS, MAP, HEALTH, INGEST, MEMORY and PAGING frames would.
     fd = "VLFF_STATUS_FD" in names
-    train, mapm, ingest, mem = (("VLFF_STATUS_FD",) * 4 if fd
-                                else ("VLFF_TRAIN", "VLFF_MAP", "VLFF_INGEST", "VLFF_MEMORY"))
-    for want in ("VLFF_HEARTBEAT", "VLFF_ACK", train, mapm, ingest, mem):
+    train, mapm, ingest, mem, paging = (("VLFF_STATUS_FD",) * 5 if fd
+                                        else ("VLFF_TRAIN", "VLFF_MAP", "VLFF_INGEST", "VLFF_MEMORY", "VLFF_PAGING"))
+    for want in ("VLFF_HEARTBEAT", "VLFF_ACK", train, mapm, ingest, mem, paging):
         if want not in names:
             fails.append(f"no {want} frame captured")
     states = [d["NmtState"] for n, d in decoded if n == "VLFF_HEARTBEAT"]
@@ -108,6 +108,14 @@ def node_check(path):
         fails.append(f"{mem}.MemRss: {last.get('MemRss')}, vlff-shm stat {rss}")
     if not 0 <= last.get("MemKeyframes", -1) <= last.get("MemKeyframesLimit", -1):
         fails.append(f"{mem}.MemKeyframes: {last.get('MemKeyframes')} of {last.get('MemKeyframesLimit')}")
+    # The stopped node's paging counts and box growths: vlff-shm stat's,
+    # saturated to the signals' width.
+    last = newest.get(paging, {})
+    for sig, key, top in (("KeyframesPaged", "keyframes_paged", 65535), ("KeyframesDropped", "keyframes_dropped", 65535),
+                          ("EvidenceDropped", "evidence_dropped", 65535), ("BoxGrowths", "box_growths", 255),
+                          ("BoxRefused", "box_refused", 255)):
+        if last.get(sig) != min(int(stat[key]), top):
+            fails.append(f"{paging}.{sig}: {last.get(sig)}, vlff-shm stat {stat[key]}")
     if not any(d["FpsIn"] > 0 for n, d in decoded if n == mapm):
         fails.append(f"no {mapm} frame with frames coming in")
     for f in fails:
@@ -127,6 +135,8 @@ def candump_check(path):
         "VLFF_HEALTH": {"ErrPoseStale": 1, "ErrCameraLost": 0, "FpsDropped": 0.5},
         "VLFF_MEMORY": {"MemRss": 1435, "MemKeyframes": 60, "MemKeyframesLimit": 2048, "MemEvidence": 9,
                         "MemEvidenceLimit": 16},
+        "VLFF_PAGING": {"KeyframesPaged": 128, "KeyframesDropped": 3, "EvidenceDropped": 65535, "BoxGrowths": 12,
+                        "BoxRefused": 2},
     }
     newest = {}
     for fid, data in frames:
@@ -174,14 +184,17 @@ expect = {
                     "RefusedPeriod": 15},
     "VLFF_MEMORY": {"MemRss": 1435, "MemKeyframes": 60, "MemKeyframesLimit": 2048, "MemEvidence": 9,
                     "MemEvidenceLimit": 16},
+    # can_dbc_frames' 70000 voxels given up saturate
+    "VLFF_PAGING": {"KeyframesPaged": 128, "KeyframesDropped": 3, "EvidenceDropped": 65535, "BoxGrowths": 12,
+                    "BoxRefused": 2},
     "VLFF_HEARTBEAT": {"NmtState": 5},
     "VLFF_COMMAND": {"Target": 17, "Command": 5, "Argument": 2, "Sequence": 17},
     "VLFF_ACK": {"Node": 17, "Command": 5, "Result": 2, "Sequence": 17},
 }
-CLASSIC = ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_MEMORY")
+CLASSIC = ("VLFF_TRAIN", "VLFF_LOSS", "VLFF_MAP", "VLFF_HEALTH", "VLFF_INGEST", "VLFF_MEMORY", "VLFF_PAGING")
 expect["VLFF_STATUS_FD"] = {k: v for m in CLASSIC for k, v in expect[m].items()}
 ids = {"VLFF_HEARTBEAT": 0x700 + 17, "VLFF_TRAIN": 0x200, "VLFF_HEALTH": 0x203, "VLFF_STATUS_FD": 0x204,
-       "VLFF_INGEST": 0x205, "VLFF_MEMORY": 0x206,
+       "VLFF_INGEST": 0x205, "VLFF_MEMORY": 0x206, "VLFF_PAGING": 0x207,
        "VLFF_COMMAND": 0x611, "VLFF_ACK": 0x591}
 
 fails = 0

@@ -10,7 +10,9 @@
 # says when it is full, pages what it evicts out to keyframes.pages
 # (keyframes.page_mb; a newer view of a paged place overwrites it) and
 # counts it in the stop line and on --status, none dropped; that file goes
-# with the node too.
+# with the node too. The map's status (vlff-shm stat) shows the keyframes'
+# page file against keyframes.page_mb, and after the stop the counts of the
+# stop lines.
 set -u
 node_field=  # the default field: its evidence records (D = 512) fill the 1 MiB budget
 node_args=--status
@@ -29,16 +31,32 @@ wait_until 600 'grep -q "keyframes: the store is full" "$tmp/log"'
 wait_until 300 'grep -aq "rss [0-9]* MiB kf paged [1-9]" "$tmp/log"'
 check "evicted keyframes go to the state directory's keyframes.pages ($(stat -c %s "$tmp/keyframes.pages" 2>&1) bytes), said on --status ($(grep -ao 'rss [0-9]* MiB kf paged [0-9]*' "$tmp/log" | tail -1))" \
   '[[ -s $tmp/keyframes.pages ]] && grep -aq "| mem kf [0-9]*/[0-9]* ev [0-9]*/1 rss [0-9]* MiB kf paged [1-9][0-9]* |" "$tmp/log"'
+# The map's status has the page file's use against keyframes.page_mb (the
+# trainer shares its status a tenth of a second at most after --status saw
+# it, or after a step that a sanitizer build makes long: poll).
+val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
+kf_page_ok() {
+  awk -v u="$(val keyframes_page_mb)" "BEGIN { exit !(u > 0 && u <= 128) }" && [[ $(val keyframes_page_limit_mb) == 128.0 ]] &&
+    (( $(val keyframes_paged_out) > 0 ))
+}
+wait_until 300 '"$shm" stat $p-m >"$tmp/stat" && kf_page_ok'
+check "vlff-shm stat: the keyframes' page file $(val keyframes_page_mb) of $(val keyframes_page_limit_mb) MiB, $(val keyframes_paged_out) keyframes written to it" kf_page_ok
 kill "$simpid"; wait "$simpid"; simpid=
 stop_node
+# A stopped node's segment keeps the counts it stopped with: those of its
+# stop lines, for any controller (vlff-shm stat; the viewer and DDS show
+# the same block).
+"$shm" stat $p-m >"$tmp/stat"
 line=$(grep "evidence beyond publish.evidence_max_mb" "$tmp/log")
+kline=$(grep "keyframes beyond keyframes.memory_mb" "$tmp/log")
+check "vlff-shm stat after the stop: keyframes paged $(val keyframes_paged) (out $(val keyframes_paged_out), in $(val keyframes_paged_in), dropped $(val keyframes_dropped)), evidence paged $(val evidence_paged) (out $(val evidence_paged_out), in $(val evidence_paged_in), dropped $(val evidence_dropped)): the stop lines' counts" \
+  '[[ "$kline" == *": $(val keyframes_paged) in the page file ($(val keyframes_paged_out) paged out, $(val keyframes_paged_in) brought back), $(val keyframes_dropped) dropped"* && "$line" == *": $(val evidence_paged) voxels in the page file ($(val evidence_paged_out) paged out, $(val evidence_paged_in) brought back), $(val evidence_dropped) given up"* ]]'
 check "the stop line counts what was paged ($line), nothing given up for good" \
   '[[ $line =~ ([0-9]+)\ voxels\ in\ the\ page\ file\ \(([0-9]+)\ paged\ out,\ ([0-9]+)\ brought\ back\),\ 0\ given\ up ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[2] >= BASH_REMATCH[1] ))'
 check "the page file goes with the node" '[[ ! -e $tmp/evidence.pages ]]'
 stopped=$(grep "stopped: " "$tmp/log")
 check "a full keyframe store is said once ($(grep -o 'keyframes: the store is full[^;]*' "$tmp/log")), and what it evicted counted at the stop ($stopped)" \
   '(( $(grep -c "keyframes: the store is full at 6 keyframes (keyframes.memory_mb [0-9]* MiB, max_keyframes 6); from now on each new one replaces the most redundant" "$tmp/log") == 1 )) && [[ $stopped =~ [0-9]+\ keyframes\ \(([0-9]+)\ evicted ]] && (( BASH_REMATCH[1] > 0 ))'
-kline=$(grep "keyframes beyond keyframes.memory_mb" "$tmp/log")
 check "the keyframes' page file is said ($(grep -o 'which goes to keyframes.pages[^;]*' "$tmp/log")) and counted at the stop ($kline), none dropped, and goes with the node" \
   'grep -q "counted as evicted, which goes to keyframes.pages (keyframes.page_mb) and comes back when the camera returns near it" "$tmp/log" && [[ $kline =~ ([0-9]+)\ in\ the\ page\ file\ \(([0-9]+)\ paged\ out,\ ([0-9]+)\ brought\ back\),\ 0\ dropped ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[2] >= BASH_REMATCH[1] + BASH_REMATCH[3] )) && [[ ! -e $tmp/keyframes.pages ]]'
 check "no page file error" '! grep -q "evidence: page file" "$tmp/log"'

@@ -52,6 +52,15 @@ stop_node
 line=$(grep "the box grew" "$tmp/log")
 check "the stop line counts the growths ($line)" \
   '[[ $line =~ the\ box\ grew\ ([0-9]+)\ times,\ to\ \[(-?[0-9.]+),\ (-?[0-9.]+)\].*\ ([0-9]+)\ growths\ refused ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[4] == 0 ))'
+# The stopped node's map status has the box and its counts as the stop line
+# says them (to its 0.1 m), for any controller.
+"$shm" stat "$p-m" >"$tmp/stat"
+read -r _ lx ly lz < <(grep '^box_lo ' "$tmp/stat")
+read -r _ hx hy hz < <(grep '^box_hi ' "$tmp/stat")
+stat_line=$(awk -v lx="$lx" -v ly="$ly" -v lz="$lz" -v hx="$hx" -v hy="$hy" -v hz="$hz" \
+  '$1 == "box_growths" { g = $2 } $1 == "box_refused" { r = $2 } END { printf "the box grew %d times, to [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m; %d growths refused", g, lx, hx, ly, hy, lz, hz, r }' "$tmp/stat")
+check "vlff-shm stat: box $lx $ly $lz .. $hx $hy $hz m, $(grep -E '^box_(growths|refused) ' "$tmp/stat" | tr '\n' ' '): the stop line's" \
+  '[[ -n $hz && $line == *"$stat_line" ]]'
 # Restarted on its checkpoint: the field and the map resume in the grown box.
 dims_before="$dx $dy $dz"
 "$node" --config "$tmp/n.yaml" 2>"$tmp/log2" &

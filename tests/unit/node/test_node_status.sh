@@ -39,6 +39,12 @@ check "vlff-shm stat: label flips $(val label_flips), $(val label_flips_refresh)
 le() { awk -v a="$1" -v b="$2" 'BEGIN { exit !(a + 0 <= b + 0) }'; }
 check "vlff-shm stat: memory keyframes $(val mem_keyframes_mb)/$(val mem_keyframes_limit_mb), evidence $(val mem_evidence_mb)/$(val mem_evidence_limit_mb), field $(val mem_field_mb), rss $(val mem_rss_mb) MiB" \
   'pos "$(val mem_keyframes_mb)" && le "$(val mem_keyframes_mb)" "$(val mem_keyframes_limit_mb)" && [[ $(val mem_keyframes_limit_mb) == 64.0 && $(val mem_evidence_limit_mb) == 16.0 ]] && le "$(val mem_evidence_mb)" "$(val mem_evidence_limit_mb)" && pos "$(val mem_field_mb)" && le "$(val mem_field_mb)" "$(val mem_rss_mb)" && le "$(val mem_keyframes_mb)" "$(val mem_rss_mb)"'
+# Paging and the box (issue 48): the keyframes' page file is there with the
+# default limit (keyframes.page_mb 2048) and holds at most what was written
+# to it; the simulated room loses nothing for good; the fixed box
+# (field.grow off) never grows and holds the room.
+check "vlff-shm stat: keyframes paged $(val keyframes_paged) of $(val keyframes_paged_out) out, $(val keyframes_dropped) dropped, page file $(val keyframes_page_mb) of $(val keyframes_page_limit_mb) MiB, evidence $(val evidence_dropped) dropped, box $(grep '^box_lo ' "$tmp/stat" | cut -d' ' -f2-) .. $(grep '^box_hi ' "$tmp/stat" | cut -d' ' -f2-) grown $(val box_growths), refused $(val box_refused)" \
+  '(( $(val keyframes_paged) <= $(val keyframes_paged_out) && $(val keyframes_paged_in) <= $(val keyframes_paged_out) && $(val keyframes_dropped) == 0 && $(val evidence_dropped) == 0 && $(val box_growths) == 0 && $(val box_refused) == 0 )) && le "$(val keyframes_page_mb)" 2048 && [[ $(val keyframes_page_limit_mb) == 2048.0 ]] && awk '"'"'$1 == "box_lo" { split($0, lo) } $1 == "box_hi" { split($0, hi) } END { exit !(hi[2] - lo[2] > 1 && hi[3] - lo[3] > 1 && hi[4] - lo[4] > 1) }'"'"' "$tmp/stat"'
 check "frames refused is the sum of the reasons" \
   '[[ $(val frames_refused) == $(awk '"'"'$1 == "refused" { s += $2 } END { print s + 0 }'"'"' "$tmp/stat") ]]'
 

@@ -108,6 +108,34 @@ static struct vlff_map *small_map(const char *name, uint16_t labels[8], const ch
   return m;
 }
 
+/* The writer's paging counters and box (ABI 8; issue 48: memory bounded and
+ * visible) are printed by vlff-shm stat, one "key value" line each, every
+ * field its own value so that a field printed in another's place shows. */
+static void cli_status_paging_shown(void **state) {
+  (void)state;
+  char map[64], args[256], out[8192];
+  test_name(map, sizeof map, "clipage");
+  uint16_t labels[8] = {0};
+  const char *prompts[] = {"floor"};
+  struct vlff_map *m = small_map(map, labels, prompts, 1);
+  struct vlff_map_status st = {.keyframes_paged = 11, .keyframes_paged_out = 12, .keyframes_paged_in = 13,
+                               .keyframes_dropped = 14, .keyframes_page_mb = 15.375, .keyframes_page_limit_mb = 128,
+                               .evidence_paged = 21, .evidence_paged_out = 22, .evidence_paged_in = 23,
+                               .evidence_dropped = 24, .box_lo = {-2.5, -3.25, -1.5}, .box_hi = {7.5, 4.125, 1.5},
+                               .box_growths = 31, .box_refused = 32};
+  snprintf(st.state_name, sizeof st.state_name, "operational");
+  assert_int_equal(vlff_map_set_status(m, &st), 0);
+  snprintf(args, sizeof args, "stat %s", map);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  const char *want = "\nkeyframes_paged 11\nkeyframes_paged_out 12\nkeyframes_paged_in 13\nkeyframes_dropped 14\n"
+                     "keyframes_page_mb 15.4\nkeyframes_page_limit_mb 128.0\nevidence_paged 21\n"
+                     "evidence_paged_out 22\nevidence_paged_in 23\nevidence_dropped 24\n"
+                     "box_lo -2.500 -3.250 -1.500\nbox_hi 7.500 4.125 1.500\nbox_growths 31\nbox_refused 32\n";
+  if (!strstr(out, want)) fail_msg("stat '%s' lacks '%s'", out, want);
+  vlff_map_detach(m);
+  vlff_shm_unlink(map);
+}
+
 static void cli_commands(void **state) {
   (void)state;
   char ring[64], map[64], mbox[64], args[512], out[8192];
@@ -296,5 +324,5 @@ static void cli_escapes_names(void **state) {
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown),
+    cmocka_unit_test(cli_commands), cmocka_unit_test(cli_status_paging_shown), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown),
     cmocka_unit_test(cli_escapes_names), cmocka_unit_test(cli_wrong_targets))

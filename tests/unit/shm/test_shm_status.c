@@ -54,6 +54,13 @@ static void fill(struct vlff_map_status *s, uint64_t k) {
   s->mem_keyframes_mb = (double)k * 0.5, s->mem_keyframes_limit_mb = 1024;
   s->mem_evidence_mb = (double)k * 0.25, s->mem_evidence_limit_mb = 64;
   s->mem_field_mb = 300 + (double)k, s->mem_rss_mb = 1000 + (double)k * 2;
+  s->keyframes_paged = k * 19, s->keyframes_paged_out = k * 23, s->keyframes_paged_in = k * 29;
+  s->keyframes_dropped = k * 31;
+  s->keyframes_page_mb = (double)k * 0.75, s->keyframes_page_limit_mb = 4096;
+  s->evidence_paged = k * 37, s->evidence_paged_out = k * 41, s->evidence_paged_in = k * 43;
+  s->evidence_dropped = k * 47;
+  for (int a = 0; a < 3; a++) s->box_lo[a] = -2.5 - (double)(k % 50) * (a + 1), s->box_hi[a] = 2.5 + (double)k * a;
+  s->box_growths = k * 53, s->box_refused = k * 59;
   s->reason_count = (uint32_t)(k % (VLFF_SHM_MAX_REASONS + 1));
   for (uint32_t r = 0; r < s->reason_count; r++) {
     snprintf(s->reason[r].name, sizeof s->reason[r].name, "reason %u of %u", r % 16u,
@@ -103,6 +110,10 @@ static void set_and_read_back(void **state) {
   assert_true(got.t_ns >= t0 && got.t_ns <= vlff_shm_now_ns());
   assert_string_equal(got.reason[12].name, "reason 12 of 13");
   assert_int_equal(got.reason[12].count, 13012);
+  /* The block's last fields (ABI 8) reach the reader too. */
+  assert_int_equal(got.keyframes_dropped, 13 * 31);
+  assert_int_equal(got.evidence_dropped, 13 * 47);
+  assert_true(got.box_hi[2] == 2.5 + 26 && got.box_refused == 13 * 59);
 
   /* Fewer reasons next time: the entries no longer used read as empty. */
   fill(&s, 2);

@@ -133,7 +133,10 @@ function learnerOfStat(stat) {
     'loss_depth', 'loss_feat', 'psnr', 'cpu_budget', 'cpu_used', 'frame_to_map_ms_p50', 'frame_to_map_ms_p99',
     'publish_interval_s', 'label_flips', 'label_flips_refresh', 'label_flips_total', 'label_flip_frac',
     'mem_keyframes_mb', 'mem_keyframes_limit_mb', 'mem_evidence_mb', 'mem_evidence_limit_mb', 'mem_field_mb',
-    'mem_rss_mb']) out[k] = num(k);
+    'mem_rss_mb', 'keyframes_paged', 'keyframes_paged_out', 'keyframes_paged_in', 'keyframes_dropped',
+    'evidence_paged', 'evidence_paged_out', 'evidence_paged_in', 'evidence_dropped', 'box_growths', 'box_refused',
+    'keyframes_page_mb', 'keyframes_page_limit_mb']) out[k] = num(k);
+  for (const k of ['box_lo', 'box_hi']) out[k] = line(k).split(' ').map(Number);
   return out;
 }
 
