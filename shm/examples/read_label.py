@@ -7,7 +7,7 @@ Prints: label <id> confidence <0..255> prompt <text>
 import argparse, ctypes, ctypes.util, sys
 
 ap = argparse.ArgumentParser()
-ap.add_argument("--lib", default=ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.1")
+ap.add_argument("--lib", default=ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.2")
 ap.add_argument("map"), ap.add_argument("x", type=float), ap.add_argument("y", type=float), ap.add_argument("z", type=float)
 a = ap.parse_args()
 

@@ -9,7 +9,7 @@ read from the same consistent copy.
 import argparse, ctypes, ctypes.util, sys
 
 ap = argparse.ArgumentParser()
-ap.add_argument("--lib", default=ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.1")
+ap.add_argument("--lib", default=ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.2")
 ap.add_argument("--points")
 ap.add_argument("map")
 a = ap.parse_args()

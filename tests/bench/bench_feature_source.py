@@ -13,7 +13,7 @@ colour averaged over the block of pixels under the feature pixel, as a
 stand-in for a network on a CPU.
 
 Prints key=value pairs on one line (no RESULT: e2e.sh appends them to its
-own line). Usage: bench_feature_source.py --lib libvlff-shm.so.1 [--frames N]
+own line). Usage: bench_feature_source.py --lib libvlff-shm.so.2 [--frames N]
 """
 import argparse
 import ctypes
@@ -106,7 +106,7 @@ def measure(lib_path, h, w, frames):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--lib", required=True, help="libvlff-shm.so.1 of the build")
+    ap.add_argument("--lib", required=True, help="libvlff-shm.so.2 of the build")
     ap.add_argument("--frames", type=int, default=30)
     a = ap.parse_args()
     small, read, _ = measure(a.lib, 60, 80, a.frames)

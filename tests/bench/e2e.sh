@@ -14,6 +14,6 @@ done
 e2e=$("$B/bench/bench_e2e" | tee /dev/stderr | grep '^RESULT ') || { echo "e2e: bench_e2e failed" >&2; exit 1; }
 reg=$("$B/bench/bench_register" | grep '^RESULT ') || { echo "e2e: bench_register failed" >&2; exit 1; }
 ms=$(sed -n 's/.* register_ms_vga=\([0-9.]*\).*/\1/p' <<<"$reg")
-fs=$(/usr/bin/python3 "$(dirname "$0")/bench_feature_source.py" --lib "$B/shm/libvlff-shm.so.1") ||
+fs=$(/usr/bin/python3 "$(dirname "$0")/bench_feature_source.py" --lib "$B/shm/libvlff-shm.so.2") ||
   { echo "e2e: bench_feature_source.py failed" >&2; exit 1; }
 echo "${e2e} register_ms_vga=${ms} ${fs}"

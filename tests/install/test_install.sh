@@ -37,7 +37,7 @@ run_lib="$(pkg-config --variable=libdir vlff-shm)"
 check "C controller runs against a segment" 'LD_LIBRARY_PATH="$run_lib" "$tmp/ctl_c" /vlff-install-c-$$ | grep -q "^ok /vlff-install-c-$$ seq 0$"'
 check "C++ controller runs against a segment" 'LD_LIBRARY_PATH="$run_lib" "$tmp/ctl_cxx" /vlff-install-cxx-$$ | grep -q "^ok "'
 check "the C controller links the installed shared library" \
-  'LD_LIBRARY_PATH="$run_lib" ldd "$tmp/ctl_c" | grep -q "libvlff-shm.so.1 => $run_lib"'
+  'LD_LIBRARY_PATH="$run_lib" ldd "$tmp/ctl_c" | grep -q "libvlff-shm.so.2 => $run_lib"'
 # A copy of the prefix elsewhere still tells the truth (.pc relocatable).
 cp -a "$tmp/p" "$tmp/moved"
 check "moved prefix: pkg-config follows" \
@@ -50,7 +50,7 @@ check "installed extractor --help" '/usr/bin/python3 "$tmp/p/$ext" --help | grep
 for pre in p moved; do
   check "$pre: the extractor loads the prefix's libvlff-shm" \
     '[[ "$(cd / && PYTHONPATH="$tmp/$pre/share/vlff/extractor" /usr/bin/python3 -c \
-        "import vlff_extractor as e; print(e.load_library()._name)")" == "$(readlink -f "$tmp/$pre/$libdir")/libvlff-shm.so.1" ]]'
+        "import vlff_extractor as e; print(e.load_library()._name)")" == "$(readlink -f "$tmp/$pre/$libdir")/libvlff-shm.so.2" ]]'
 done
 for prog in "$tmp"/p/bin/vlff-*; do
   check "$(basename "$prog") --version" '"$prog" --version | grep -qE "^$(basename "$prog") [0-9]+\.[0-9]+\.[0-9]+$"'
@@ -123,7 +123,7 @@ check "moved prefix: without --config, vlff-pose reads the moved install's vlff.
 # prefix /usr, staged with DESTDIR as a packager does
 DESTDIR="$tmp/stage" cmake --install "$build" --prefix /usr >"$tmp/install2.log" 2>&1 || { cat "$tmp/install2.log"; exit 1; }
 check "/usr: configs in /etc/vlff" '[[ -f "$tmp/stage/etc/vlff/vlff.yaml" && ! -e "$tmp/stage/usr/etc" ]]'
-check "/usr: library in /usr/$libdir" '[[ -f "$tmp/stage/usr/$libdir/libvlff-shm.so.1" ]]'
+check "/usr: library in /usr/$libdir" '[[ -f "$tmp/stage/usr/$libdir/libvlff-shm.so.2" ]]'
 check "/usr: unit runs /usr/bin/vlff-node with /etc/vlff/vlff.yaml" \
   'grep -qx "ExecStart=/usr/bin/vlff-node --config /etc/vlff/vlff.yaml" "$tmp/stage/usr/lib/systemd/system/vlff-node.service"'
 check "/usr: sysusers file" '[[ -f "$tmp/stage/usr/lib/sysusers.d/vlff.conf" ]]'
@@ -139,11 +139,11 @@ check "/usr: CMake package in /usr/$libdir/cmake/vlff-shm" \
 # find_package(vlff-shm), start without LD_LIBRARY_PATH and load Q's library.
 mv "$tmp/p" "$tmp/q"
 unset LD_LIBRARY_PATH
-q_so=$(readlink -f "$tmp/q/$libdir/libvlff-shm.so.1")
-# loads_q EXE: the libvlff-shm.so.1 EXE loads is Q's
+q_so=$(readlink -f "$tmp/q/$libdir/libvlff-shm.so.2")
+# loads_q EXE: the libvlff-shm.so.2 EXE loads is Q's
 loads_q() {
   local got
-  got=$(ldd "$1" | sed -n 's/^[[:space:]]*libvlff-shm\.so\.1 => \(.*\) (0x[0-9a-f]*)$/\1/p')
+  got=$(ldd "$1" | sed -n 's/^[[:space:]]*libvlff-shm\.so\.2 => \(.*\) (0x[0-9a-f]*)$/\1/p')
   [[ -n "$got" && "$(readlink -f "$got")" == "$q_so" ]] || { echo "ldd $1:"; ldd "$1"; false; }
 }
 export PKG_CONFIG_PATH="$tmp/q/$libdir/pkgconfig"

@@ -26,7 +26,7 @@ Command line (FN is module_path.py:function):
         --dim 512 --height 120 --width 160 --fn my_lseg.py:features
 
 Installed as share/vlff/extractor/vlff_extractor.py under the prefix; that
-copy loads the libvlff-shm.so.1 installed beside it unless --lib says.
+copy loads the libvlff-shm.so.2 installed beside it unless --lib says.
 """
 import argparse
 import ctypes
@@ -84,10 +84,10 @@ def default_library():
     """The installed library beside an installed copy, else the system's."""
     if not INSTALLED_LIBDIR.startswith("@"):
         here = os.path.dirname(os.path.realpath(__file__))
-        cand = os.path.normpath(os.path.join(here, INSTALLED_LIBDIR, "libvlff-shm.so.1"))
+        cand = os.path.normpath(os.path.join(here, INSTALLED_LIBDIR, "libvlff-shm.so.2"))
         if os.path.exists(cand):
             return cand
-    return ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.1"
+    return ctypes.util.find_library("vlff-shm") or "libvlff-shm.so.2"
 
 
 def load_library(path=None):
