@@ -7,9 +7,10 @@
 #include <stdlib.h>
 #include <string.h>
 
-int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[3], const double lo[3],
-                       const double hi[3], double limit, uint32_t shift[3], uint32_t ndims[3]) {
-  int larger = 0;
+int vlff_lattice_fit(const double origin[3], double cell, const uint32_t dims[3], const long keep_lo[3],
+                     const long keep_hi[3], const double lo[3], const double hi[3], double limit, int32_t shift[3],
+                     uint32_t ndims[3]) {
+  int differs = 0;
   for (int a = 0; a < 3; a++)
     if (!(isfinite(lo[a]) && isfinite(hi[a]) && lo[a] <= hi[a]) || !(cell > 0)) return -1;
   for (int a = 0; a < 3; a++) {
@@ -17,42 +18,46 @@ int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[
     if (l > h) l = h = lo[a] < -limit ? -limit : limit; /* wholly beyond: its nearest edge */
     /* Cells from the old grid's first: the new range [k_lo, k_hi). */
     double kl = floor((l - origin[a]) / cell), kh = ceil((h - origin[a]) / cell);
-    if (kl > 0) kl = 0;
-    if (kh < dims[a]) kh = dims[a];
-    if (kh - kl > 2147483647.0) return -1;
-    shift[a] = (uint32_t)-kl;
+    if (keep_lo[a] < keep_hi[a]) {
+      if (kl > (double)keep_lo[a]) kl = (double)keep_lo[a];
+      if (kh < (double)keep_hi[a]) kh = (double)keep_hi[a];
+    }
+    if (kh <= kl) kh = kl + 1; /* a point on a cell boundary: that cell */
+    if (kh - kl > 2147483647.0 || fabs(kl) > 2147483647.0) return -1;
+    shift[a] = (int32_t)-kl;
     ndims[a] = (uint32_t)(kh - kl);
-    larger |= ndims[a] != dims[a];
+    differs |= shift[a] != 0 || ndims[a] != dims[a];
   }
-  return larger;
+  return differs;
 }
 
-int vlff_lattice_saved(const double origin0[3], double cell, const long k0[3], const uint32_t dims[3],
-                       const double so[3], const uint32_t sd[3], uint32_t shift[3]) {
-  int same = 1;
-  for (int a = 0; a < 3; a++) {
-    double k = (so[a] - origin0[a]) / cell;
-    long kr = lround(k);
-    if (!(fabs(k - (double)kr) < 1e-6) || kr > k0[a]) return 0;  /* another lattice, or starts inside */
-    if ((double)(k0[a] - kr) + dims[a] > (double)sd[a]) return 0; /* does not hold the grid */
-    shift[a] = (uint32_t)(k0[a] - kr);
-    same &= shift[a] == 0 && sd[a] == dims[a];
-  }
-  return !same;
+int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[3], const double lo[3],
+                       const double hi[3], double limit, int32_t shift[3], uint32_t ndims[3]) {
+  const long keep_lo[3] = {0, 0, 0}, keep_hi[3] = {(long)dims[0], (long)dims[1], (long)dims[2]};
+  return vlff_lattice_fit(origin, cell, dims, keep_lo, keep_hi, lo, hi, limit, shift, ndims);
 }
 
 void vlff_lattice_copy(void *dst, const uint32_t ndims[3], const void *src, const uint32_t dims[3],
-                       const uint32_t shift[3], size_t elem) {
-  const size_t row = (size_t)dims[0] * elem;
-  for (uint32_t z = 0; z < dims[2]; z++)
+                       const int32_t shift[3], size_t elem) {
+  /* the old grid's x range that lands in the new grid */
+  const long x0 = shift[0] < 0 ? -(long)shift[0] : 0;
+  const long x1 = (long)ndims[0] - shift[0] < (long)dims[0] ? (long)ndims[0] - shift[0] : (long)dims[0];
+  if (x1 <= x0) return;
+  const size_t row = (size_t)(x1 - x0) * elem;
+  for (uint32_t z = 0; z < dims[2]; z++) {
+    const long nz = (long)z + shift[2];
+    if (nz < 0 || nz >= (long)ndims[2]) continue;
     for (uint32_t y = 0; y < dims[1]; y++) {
-      size_t from = ((size_t)z * dims[1] + y) * dims[0];
-      size_t to = ((size_t)(z + shift[2]) * ndims[1] + (y + shift[1])) * ndims[0] + shift[0];
+      const long ny = (long)y + shift[1];
+      if (ny < 0 || ny >= (long)ndims[1]) continue;
+      size_t from = ((size_t)z * dims[1] + y) * dims[0] + (size_t)x0;
+      size_t to = ((size_t)nz * ndims[1] + (size_t)ny) * ndims[0] + (size_t)(x0 + shift[0]);
       memcpy((char *)dst + to * elem, (const char *)src + from * elem, row);
     }
+  }
 }
 
-void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const uint32_t shift[3],
+void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const int32_t shift[3],
                           const uint32_t ndims[3]) {
   const size_t bytes = vlff_lattice_cells(ndims) * elem;
   void *a = malloc(bytes ? bytes : 1);
@@ -60,4 +65,17 @@ void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t
   memset(a, fill, bytes);
   if (old) vlff_lattice_copy(a, ndims, old, dims, shift, elem);
   return a;
+}
+
+int vlff_lattice_saved(const double origin0[3], double cell, const long k0[3], const uint32_t dims[3],
+                       const double so[3], const uint32_t sd[3], int32_t shift[3]) {
+  int same = 1;
+  for (int a = 0; a < 3; a++) {
+    double k = (so[a] - origin0[a]) / cell;
+    long kr = lround(k);
+    if (!(fabs(k - (double)kr) < 1e-6) || sd[a] < 1 || labs(k0[a] - kr) > 2147483647L) return 0; /* another lattice */
+    shift[a] = (int32_t)(k0[a] - kr);
+    same &= shift[a] == 0 && sd[a] == dims[a];
+  }
+  return !same;
 }

@@ -7,24 +7,37 @@
  * evidence and the published map learned stays where it was when their
  * box grows (docs/field.md "Growth").
  *
- * Contract
+ * When a grid reaches its cap, it may instead be refitted to what it holds:
+ * the new grid on the same lattice holds the cells that hold something and
+ * the box asked for, and the old grid's empty cells beyond it are dropped
+ * (vlff_lattice_fit). Nothing held moves then either.
+ *
+ * Contract (shift: the old grid's first cell counted in the new grid, per
+ * axis; negative where the new grid starts inside the old one)
  *  - vlff_lattice_cover: the smallest grid on the lattice holding the old
- *    grid and [lo, hi], with [lo, hi] clipped to +-limit first: shift (the
- *    old grid's first cell, counted in the new grid) and ndims. 1 when it is
- *    larger than the old, 0 when the old holds it (shift 0, ndims = dims),
- *    -1 for a box that is empty or not finite, or a grid past 2^31 cells on
- *    an axis.
- *  - vlff_lattice_copy: each of the old grid's cells (elem bytes) to its
- *    place in the new grid; the new grid's other cells are left as they are.
+ *    grid and [lo, hi], with [lo, hi] clipped to +-limit first: shift (>= 0)
+ *    and ndims. 1 when it is larger than the old, 0 when the old holds it
+ *    (shift 0, ndims = dims), -1 for a box that is empty or not finite, or a
+ *    grid past 2^31 cells on an axis.
+ *  - vlff_lattice_fit: as cover, but holding only the old grid's cells
+ *    [keep_lo, keep_hi) (per axis, in old cells; keep_lo >= keep_hi on an
+ *    axis: none) besides [lo, hi]: 1 when it differs from the old grid, 0
+ *    when it is the old grid, -1 as cover.
+ *  - vlff_lattice_extend: widens [lo, hi) (old cells) to hold cell i.
+ *  - vlff_lattice_copy: each of the old grid's cells (elem bytes) that lies
+ *    in the new grid to its place there; the new grid's other cells are left
+ *    as they are.
  *  - vlff_lattice_regrid: a new grid's array of elem-byte cells, every byte
  *    fill, with the old grid's cells (old NULL: none) copied to their
  *    places; NULL when out of memory.
- *  - vlff_lattice_index: an old cell index's index in the new grid.
+ *  - vlff_lattice_index: an old cell index's index in the new grid, -1 when
+ *    the cell lies beyond it.
  *  - vlff_lattice_saved: whether a saved grid (origin so, sd cells) lies on
  *    the lattice of a grid k0 cells from origin0 (k0 <= 0 after growths) and
- *    holds it, larger: 1 and the shift, else 0 (another lattice, a grid that
- *    does not hold it, or the same grid). What a grown grid's file is to a
- *    grid that starts again in the first box.
+ *    differs from it: 1 and the shift, else 0 (another lattice, or the same
+ *    grid). What a grown or refitted grid's file is to a grid that starts
+ *    again in the first box; the caller checks that nothing it holds lies
+ *    beyond the saved grid.
  */
 #ifndef VLFF_LATTICE_H
 #define VLFF_LATTICE_H
@@ -33,18 +46,30 @@
 #include <stdint.h>
 
 int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[3], const double lo[3],
-                       const double hi[3], double limit, uint32_t shift[3], uint32_t ndims[3]);
+                       const double hi[3], double limit, int32_t shift[3], uint32_t ndims[3]);
+int vlff_lattice_fit(const double origin[3], double cell, const uint32_t dims[3], const long keep_lo[3],
+                     const long keep_hi[3], const double lo[3], const double hi[3], double limit, int32_t shift[3],
+                     uint32_t ndims[3]);
+static inline void vlff_lattice_extend(long lo[3], long hi[3], size_t i, const uint32_t dims[3]) {
+  const long c[3] = {(long)(i % dims[0]), (long)(i / dims[0] % dims[1]), (long)(i / ((size_t)dims[0] * dims[1]))};
+  for (int a = 0; a < 3; a++) {
+    if (c[a] < lo[a]) lo[a] = c[a];
+    if (c[a] + 1 > hi[a]) hi[a] = c[a] + 1;
+  }
+}
 void vlff_lattice_copy(void *dst, const uint32_t ndims[3], const void *src, const uint32_t dims[3],
-                       const uint32_t shift[3], size_t elem);
-void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const uint32_t shift[3],
+                       const int32_t shift[3], size_t elem);
+void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t dims[3], const int32_t shift[3],
                           const uint32_t ndims[3]);
-static inline size_t vlff_lattice_index(size_t i, const uint32_t dims[3], const uint32_t shift[3],
-                                        const uint32_t ndims[3]) {
-  size_t x = i % dims[0], y = i / dims[0] % dims[1], z = i / ((size_t)dims[0] * dims[1]);
-  return (x + shift[0]) + (size_t)ndims[0] * ((y + shift[1]) + (size_t)ndims[1] * (z + shift[2]));
+static inline long vlff_lattice_index(size_t i, const uint32_t dims[3], const int32_t shift[3],
+                                      const uint32_t ndims[3]) {
+  const long x = (long)(i % dims[0]) + shift[0], y = (long)(i / dims[0] % dims[1]) + shift[1],
+             z = (long)(i / ((size_t)dims[0] * dims[1])) + shift[2];
+  if (x < 0 || y < 0 || z < 0 || x >= (long)ndims[0] || y >= (long)ndims[1] || z >= (long)ndims[2]) return -1;
+  return x + (long)ndims[0] * (y + (long)ndims[1] * z);
 }
 static inline size_t vlff_lattice_cells(const uint32_t dims[3]) { return (size_t)dims[0] * dims[1] * dims[2]; }
 int vlff_lattice_saved(const double origin0[3], double cell, const long k0[3], const uint32_t dims[3],
-                       const double so[3], const uint32_t sd[3], uint32_t shift[3]);
+                       const double so[3], const uint32_t sd[3], int32_t shift[3]);
 
 #endif

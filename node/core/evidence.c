@@ -5,6 +5,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <limits.h>
 #include <math.h>
 #include <stdbool.h>
 #include <stdlib.h>
@@ -32,7 +33,7 @@
 
 struct vlff_evidence {
   double origin[3], voxel;
-  double origin0[3]; /* the first grid's origin: origin = origin0 + k0 x voxel, k0 <= 0 after growths */
+  double origin0[3]; /* the first grid's origin: origin = origin0 + k0 x voxel (growths, refits) */
   long k0[3];
   uint32_t dims[3];
   size_t nvox;
@@ -202,7 +203,7 @@ static int more_slots(struct vlff_evidence *e, size_t cap) {
 
 /* The grid shifted by sh voxels into nd (on the same lattice): every slot
  * and page record follows its voxel. */
-static int relayout(struct vlff_evidence *e, const uint32_t sh[3], const uint32_t nd[3], char *err, size_t errlen) {
+static int relayout(struct vlff_evidence *e, const int32_t sh[3], const uint32_t nd[3], char *err, size_t errlen) {
   const size_t n = vlff_lattice_cells(nd);
   if (n > e->max_vox || n > UINT32_MAX)
     return vlff_errf(err, errlen,
@@ -210,6 +211,10 @@ static int relayout(struct vlff_evidence *e, const uint32_t sh[3], const uint32_
                      "publish.evidence_max_mb indexes (%zu)",
                      nd[0] * e->voxel, nd[1] * e->voxel, nd[2] * e->voxel, n, e->max_vox),
            -1;
+  /* A refitted grid drops only voxels that hold nothing. */
+  for (size_t v = 0; v < e->nvox; v++)
+    if (e->slot[v] != -1 && vlff_lattice_index(v, e->dims, sh, nd) < 0)
+      return vlff_errf(err, errlen, "evidence: the new grid would drop voxel %zu's evidence", v), -1;
   int32_t *slot = malloc(n * sizeof *slot);
   size_t cap = e->cap_max < n ? e->cap_max : n;
   if (!slot || (cap > e->cap && more_slots(e, cap))) {
@@ -220,7 +225,7 @@ static int relayout(struct vlff_evidence *e, const uint32_t sh[3], const uint32_
   for (size_t v = 0; v < e->nvox; v++) {
     int32_t s = e->slot[v];
     if (s == -1) continue;
-    size_t nv = vlff_lattice_index(v, e->dims, sh, nd);
+    size_t nv = (size_t)vlff_lattice_index(v, e->dims, sh, nd);
     slot[nv] = s;
     if (s >= 0)
       e->owner[s] = (uint32_t)nv;
@@ -240,11 +245,21 @@ static int relayout(struct vlff_evidence *e, const uint32_t sh[3], const uint32_
 
 int vlff_evidence_grow(struct vlff_evidence *e, const double lo[3], const double hi[3], double limit, char *err,
                        size_t errlen) {
-  uint32_t sh[3], nd[3];
+  int32_t sh[3];
+  uint32_t nd[3];
   int rc = vlff_lattice_cover(e->origin, e->voxel, e->dims, lo, hi, limit, sh, nd);
   if (rc < 0) return vlff_errf(err, errlen, "evidence: growth to an empty or non-finite box"), -1;
   if (rc == 0) return 0;
   if (!e->max_vox) return vlff_errf(err, errlen, "evidence: the grid is fixed (field.grow is off)"), -1;
+  if (vlff_lattice_cells(nd) > e->max_vox) {
+    /* Past the index's budget: refit the grid to the voxels that hold
+     * evidence (in memory or paged) and [lo, hi], dropping the empty margins
+     * earlier growths left (vlff_lattice_fit). */
+    long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
+    for (size_t v = 0; v < e->nvox; v++)
+      if (e->slot[v] != -1) vlff_lattice_extend(klo, khi, v, e->dims);
+    if (vlff_lattice_fit(e->origin, e->voxel, e->dims, klo, khi, lo, hi, limit, sh, nd) == 0) return 0;
+  }
   return relayout(e, sh, nd, err, errlen) ? -1 : 1;
 }
 
@@ -883,10 +898,11 @@ static int read_record(const struct vlff_evidence *e, vlff_evidence_read_fn rd, 
   return 0;
 }
 
-/* A growing grid grows to a saved grid that holds it on its lattice (what
- * it had grown to when saved): -1 only when that growth fails. */
+/* A growing grid takes a saved grid on its lattice (what it had grown or
+ * been refitted to when saved), which must hold every voxel that holds
+ * evidence now: -1 only when that fails. */
 static int grow_to_saved(struct vlff_evidence *e, const struct ev_header *h, char *err, size_t errlen) {
-  uint32_t sh[3];
+  int32_t sh[3];
   if (!e->max_vox || h->D != e->D || h->voxel != e->voxel ||
       !vlff_lattice_saved(e->origin0, e->voxel, e->k0, e->dims, h->origin, h->dims, sh))
     return 0;

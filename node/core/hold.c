@@ -43,7 +43,7 @@ void vlff_hold_destroy(struct vlff_hold *h) {
   VLFF_FREE_ALL(h->label, h->seen, h->decided, h);
 }
 
-int vlff_hold_grow(struct vlff_hold *h, const uint32_t dims[3], const uint32_t sh[3], const uint32_t nd[3]) {
+int vlff_hold_grow(struct vlff_hold *h, const uint32_t dims[3], const int32_t sh[3], const uint32_t nd[3]) {
   uint16_t *label = vlff_lattice_regrid(h->label, sizeof *label, 0xff, dims, sh, nd); /* VLFF_LABEL_UNKNOWN */
   uint32_t *seen = vlff_lattice_regrid(h->seen, sizeof *seen, 0, dims, sh, nd);
   uint32_t *decided = vlff_lattice_regrid(h->decided, sizeof *decided, 0, dims, sh, nd);

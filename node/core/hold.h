@@ -55,10 +55,12 @@ struct vlff_hold_stats {
 /* NULL when out of memory. */
 struct vlff_hold *vlff_hold_create(size_t nvox, double hysteresis);
 void vlff_hold_destroy(struct vlff_hold *h);
-/* The map's grid grew on its lattice (lattice.h): each voxel's held label
- * and stamps move with it (from dims, shifted by sh, into nd); new voxels
- * hold none. -1 (h unchanged) when out of memory. */
-int vlff_hold_grow(struct vlff_hold *h, const uint32_t dims[3], const uint32_t sh[3], const uint32_t nd[3]);
+/* The map's grid grew or was refitted on its lattice (lattice.h): each
+ * voxel's held label and stamps move with it (from dims, shifted by sh, into
+ * nd; a voxel beyond nd is dropped, which the map does only to voxels that
+ * hold nothing); new voxels hold none. -1 (h unchanged) when out of
+ * memory. */
+int vlff_hold_grow(struct vlff_hold *h, const uint32_t dims[3], const int32_t sh[3], const uint32_t nd[3]);
 /* Forget every held label and evidence stamp (mapping reset, a load). */
 void vlff_hold_reset(struct vlff_hold *h);
 

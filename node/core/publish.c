@@ -10,6 +10,7 @@
 #include "hash.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -37,8 +38,8 @@ struct vlff_publisher {
   const struct vlff_source_hooks *hooks; /* NULL: none */
   double origin[3], voxel;
   struct vlff_cfg_field field; /* its box and growth: the bounds for poses and growth */
-  /* A growing box (field.grow): origin = origin0 + k0 x voxel, k0 <= 0
-   * after growths (the same k0, the same bits), at most max_voxels
+  /* A growing box (field.grow): origin = origin0 + k0 x voxel after
+   * growths and refits (the same k0, the same bits), at most max_voxels
    * (shm.map_max_voxels, the segment's capacity). */
   double origin0[3];
   long k0[3];
@@ -384,15 +385,32 @@ static int obs_get(struct obs_reader *r, uint64_t off, void *dst, size_t n, char
   return -1;
 }
 
-static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], const uint32_t nd[3]);
+static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3]);
 
-/* A growing map grows to a saved grid that holds its own on its lattice
- * (the grid it had grown to when saved): 1 when it grew, 0 when the grid is
- * not such (the geometry check refuses it then), -1 when growing failed. */
+/* A voxel that holds something: observed (free space or a surface), owed a
+ * relabel, seen through, or labelled (what was published is what was
+ * labelled). A refitted grid keeps every one. */
+static bool voxel_held(const struct vlff_publisher *p, size_t v) {
+  return p->observed[v] || p->hits[v] || p->thru[v] || p->dirty[v] || p->labels[v] != VLFF_LABEL_UNKNOWN;
+}
+
+/* Whether the grid shifted by sh into nd would drop a voxel that holds
+ * something. */
+static bool drops_held(const struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3]) {
+  for (size_t v = 0; v < p->nvox; v++)
+    if (vlff_lattice_index(v, p->dims, sh, nd) < 0 && voxel_held(p, v)) return true;
+  return false;
+}
+
+/* A growing map takes a saved grid on its lattice (the grid it had grown or
+ * been refitted to when saved) that holds every voxel the map holds now:
+ * 1 when it did, 0 when the grid is not such (the geometry check refuses it
+ * then), -1 when that failed. */
 static int grow_to_saved(struct vlff_publisher *p, const struct obs_header *h) {
-  uint32_t sh[3];
+  int32_t sh[3];
   if (!p->field.grow || h->voxel != p->voxel || vlff_lattice_cells(h->dims) > p->max_voxels ||
-      !vlff_lattice_saved(p->origin0, p->voxel, p->k0, p->dims, h->origin, h->dims, sh))
+      !vlff_lattice_saved(p->origin0, p->voxel, p->k0, p->dims, h->origin, h->dims, sh) ||
+      drops_held(p, sh, h->dims))
     return 0;
   return publisher_regrid(p, sh, h->dims) ? -1 : 1;
 }
@@ -586,7 +604,10 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
 
 /* The map's grid and everything kept per voxel, from dims shifted by sh
  * into nd: all allocated before anything changes. */
-static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], const uint32_t nd[3]) {
+/* The map's grid, grown or refitted on its lattice (lattice.h): every
+ * voxel that holds something keeps its place in the world (the callers
+ * never drop one: drops_held). */
+static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3]) {
   const size_t n = vlff_lattice_cells(nd);
   const uint32_t *od = p->dims;
   /* kept: what was observed and published where */
@@ -615,7 +636,7 @@ static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], cons
   }
   /* Between keyframes no view's list is open (thru_commit emptied it). */
   for (size_t k = 0; k < p->nthru; k++) thru_list[k] = (uint32_t)vlff_lattice_index(p->thru_list[k], od, sh, nd);
-  for (size_t k = 0; k < p->ndirty; k++) dirty_idx[k] = vlff_lattice_index(p->dirty_idx[k], od, sh, nd);
+  for (size_t k = 0; k < p->ndirty; k++) dirty_idx[k] = (size_t)vlff_lattice_index(p->dirty_idx[k], od, sh, nd);
   VLFF_FREE_ALL(p->observed, p->conf, p->hits, p->labels, p->hit_sum, p->pub_labels, p->pub_conf, p->thru, p->dirty,
                 p->qidx, p->dirty_idx, p->qxyz, p->qdens, p->qmargin, p->qlabel, p->runs, p->thru_list);
   p->observed = observed, p->conf = conf, p->hits = hits, p->labels = labels, p->hit_sum = hit_sum;
@@ -638,7 +659,8 @@ static int publisher_regrid(struct vlff_publisher *p, const uint32_t sh[3], cons
 }
 
 int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen) {
-  uint32_t sh[3], nd[3];
+  int32_t sh[3];
+  uint32_t nd[3];
   const double limit = p->field.grow ? p->field.world_limit_m : INFINITY;
   int rc = vlff_lattice_cover(p->origin, p->voxel, p->dims, lo, hi, limit, sh, nd);
   if (rc < 0) return snprintf(err, errlen, "map: growth to an empty or non-finite box"), -1;
@@ -648,16 +670,27 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
   if (p->ev && p->field.grow) erc = vlff_evidence_grow(p->ev, lo, hi, limit, e, sizeof e);
   if (rc == 0 && erc >= 0) return erc;
   if (!p->field.grow) return snprintf(err, errlen, "map: the box is fixed (field.grow is off)"), -1;
-  const size_t n = vlff_lattice_cells(nd);
-  if (erc < 0 || n > p->max_voxels) {
-    if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;
-    return snprintf(err, errlen,
-                    "map: growing to %.1f x %.1f x %.1f m needs %zu voxels of %.3f m, more than shm.map_max_voxels "
-                    "(%zu)",
-                    nd[0] * p->voxel, nd[1] * p->voxel, nd[2] * p->voxel, n, p->voxel, p->max_voxels),
-           -1;
-  }
+  if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;
   if (rc == 0) return 1; /* the evidence grew, the map's grid held it */
+  size_t n = vlff_lattice_cells(nd);
+  if (n > p->max_voxels) {
+    /* Past the capacity: refit the grid to the voxels that hold something
+     * and [lo, hi]. The margins earlier growths added ahead of the camera,
+     * and the first box's beyond the world seen, go where nothing was seen;
+     * every voxel that holds something stays where it is. */
+    long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
+    for (size_t v = 0; v < p->nvox; v++)
+      if (voxel_held(p, v)) vlff_lattice_extend(klo, khi, v, p->dims);
+    const uint32_t cover[3] = {nd[0], nd[1], nd[2]};
+    if (vlff_lattice_fit(p->origin, p->voxel, p->dims, klo, khi, lo, hi, limit, sh, nd) < 0 ||
+        (n = vlff_lattice_cells(nd)) > p->max_voxels)
+      return snprintf(err, errlen,
+                      "map: growing to %.1f x %.1f x %.1f m needs %zu voxels of %.3f m, more than shm.map_max_voxels "
+                      "(%zu), even without the voxels that hold nothing",
+                      cover[0] * p->voxel, cover[1] * p->voxel, cover[2] * p->voxel, vlff_lattice_cells(cover),
+                      p->voxel, p->max_voxels),
+             -1;
+  }
   if (publisher_regrid(p, sh, nd))
     return snprintf(err, errlen, "map: out of memory growing to %zu voxels", n), -1;
   return 1;

@@ -68,8 +68,7 @@ int vlff_field_occ_layout(struct vlff_field *f, const int k0[3], const int dims[
   const size_t n = vlff_lattice_cells(nd);
   /* the old grid, when copied, lies inside the new one */
   const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
-  const uint32_t sh[3] = {(uint32_t)(f->occ_k0[0] - k0[0]), (uint32_t)(f->occ_k0[1] - k0[1]),
-                          (uint32_t)(f->occ_k0[2] - k0[2])};
+  const int32_t sh[3] = {f->occ_k0[0] - k0[0], f->occ_k0[1] - k0[1], f->occ_k0[2] - k0[2]};
   /* New cells: nothing learned, every one a candidate for samples (as a new
    * field's), no loss measured yet (-1, which no byte fill gives). */
   float *dens = vlff_lattice_regrid(copy ? f->occ.density : NULL, sizeof *dens, 0, od, sh, nd);
@@ -103,7 +102,8 @@ long long vlff_field_growths(const struct vlff_field *f) { return f->grown; }
 int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen) {
   const struct vlff_cfg_field *c = &f->cfg.field;
   const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
-  uint32_t sh[3], nd[3];
+  int32_t sh[3];
+  uint32_t nd[3];
   /* Cells are cubic when growing; a fixed box's are not, but it only asks
    * whether the box holds [lo, hi], which whole cells of any size answer. */
   int rc = vlff_lattice_cover(f->box_lo, f->occ.cell[0], od, lo, hi, c->grow ? c->world_limit_m : INFINITY, sh, nd);
@@ -128,7 +128,7 @@ int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3]
                need / MIB, f->cfg.train.occupancy_max_mb);
     return -1;
   }
-  const int k0[3] = {f->occ_k0[0] - (int)sh[0], f->occ_k0[1] - (int)sh[1], f->occ_k0[2] - (int)sh[2]};
+  const int k0[3] = {f->occ_k0[0] - sh[0], f->occ_k0[1] - sh[1], f->occ_k0[2] - sh[2]};
   const int dims[3] = {(int)nd[0], (int)nd[1], (int)nd[2]};
   if (vlff_field_occ_layout(f, k0, dims, 1)) {
     if (err && errlen) snprintf(err, errlen, "field: out of memory growing the box (%.0f MiB)", need / MIB);

@@ -1,5 +1,6 @@
 /* vlff_lattice: grids that grow on a fixed lattice keep every cell in its
  * place in the world. */
+#include <limits.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -15,7 +16,8 @@ static void test_cover(void **state) {
   (void)state;
   const double origin[3] = {-1, -1, 0}, cell = 0.5;
   const uint32_t dims[3] = {4, 4, 2}; /* [-1, 1] x [-1, 1] x [0, 1] */
-  uint32_t sh[3], nd[3];
+  int32_t sh[3];
+  uint32_t nd[3];
   const double in_lo[3] = {-0.9, 0, 0.1}, in_hi[3] = {0.99, 1, 1};
   assert_int_equal(vlff_lattice_cover(origin, cell, dims, in_lo, in_hi, 100, sh, nd), 0);
   for (int a = 0; a < 3; a++) assert_int_equal(sh[a], 0), assert_int_equal(nd[a], dims[a]);
@@ -45,18 +47,19 @@ static void test_cover(void **state) {
 
 static void test_copy_and_index(void **state) {
   (void)state;
-  const uint32_t dims[3] = {3, 2, 2}, sh[3] = {1, 2, 0}, nd[3] = {5, 4, 3};
+  const uint32_t dims[3] = {3, 2, 2}, nd[3] = {5, 4, 3};
+  const int32_t sh[3] = {1, 2, 0};
   uint16_t old[12], grown[60];
   for (int i = 0; i < 12; i++) old[i] = (uint16_t)(100 + i);
   for (int i = 0; i < 60; i++) grown[i] = 7;
   vlff_lattice_copy(grown, nd, old, dims, sh, sizeof old[0]);
   int copied = 0;
   for (size_t i = 0; i < 12; i++) {
-    size_t j = vlff_lattice_index(i, dims, sh, nd);
+    long j = vlff_lattice_index(i, dims, sh, nd);
     assert_int_equal(grown[j], old[i]);
     /* the same place: x, y, z each moved by the shift */
     size_t x = i % 3, y = i / 3 % 2, z = i / 6;
-    assert_int_equal(j, (x + 1) + 5 * ((y + 2) + 4 * z));
+    assert_int_equal(j, (long)((x + 1) + 5 * ((y + 2) + 4 * z)));
   }
   for (int i = 0; i < 60; i++) copied += grown[i] != 7;
   assert_int_equal(copied, 12); /* the rest left as it was */
@@ -72,13 +75,66 @@ static void test_copy_and_index(void **state) {
   free(r);
 }
 
-/* A saved grid is recognised as a grown version of a grid on its lattice. */
+/* A refit: the smallest grid on the lattice holding the cells kept and a
+ * box, smaller than the old grid where the old grid's cells beyond hold
+ * nothing. The cells kept stay in their places; the others are dropped. */
+static void test_fit(void **state) {
+  (void)state;
+  const double origin[3] = {0, 0, 0}, cell = 1;
+  const uint32_t dims[3] = {6, 4, 3}; /* [0, 6] x [0, 4] x [0, 3] */
+  int32_t sh[3];
+  uint32_t nd[3];
+  /* held: x 1..2, y 0..3, z 1 (cells [1, 3) x [0, 4) x [1, 2)) */
+  long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
+  const size_t held[3] = {1 + 6 * (0 + 4 * 1), 2 + 6 * (3 + 4 * 1), 2 + 6 * (1 + 4 * 1)};
+  for (int i = 0; i < 3; i++) vlff_lattice_extend(klo, khi, held[i], dims);
+  assert_int_equal(klo[0], 1), assert_int_equal(khi[0], 3);
+  assert_int_equal(klo[1], 0), assert_int_equal(khi[1], 4);
+  assert_int_equal(klo[2], 1), assert_int_equal(khi[2], 2);
+  /* and a box beyond the grid toward -x: [-2.5, -1] x [1, 2] x [1, 2] */
+  const double lo[3] = {-2.5, 1, 1}, hi[3] = {-1, 2, 2};
+  assert_int_equal(vlff_lattice_fit(origin, cell, dims, klo, khi, lo, hi, 100, sh, nd), 1);
+  assert_int_equal(sh[0], 3), assert_int_equal(nd[0], 6);  /* cells -3 .. 2 */
+  assert_int_equal(sh[1], 0), assert_int_equal(nd[1], 4);  /* 0 .. 3 */
+  assert_int_equal(sh[2], -1), assert_int_equal(nd[2], 1); /* 1 only: starts inside the old grid */
+  uint16_t old[72], *r;
+  for (int i = 0; i < 72; i++) old[i] = (uint16_t)(1000 + i);
+  r = vlff_lattice_regrid(old, sizeof old[0], 0, dims, sh, nd);
+  assert_non_null(r);
+  int kept = 0;
+  for (size_t i = 0; i < 72; i++) {
+    long j = vlff_lattice_index(i, dims, sh, nd);
+    size_t x = i % 6, y = i / 6 % 4, z = i / 24;
+    if (z != 1 || x >= 3) {
+      assert_int_equal(j, -1); /* dropped: beyond the new grid */
+      continue;
+    }
+    assert_int_equal(j, (long)((x + 3) + 6 * y)); /* the same place */
+    assert_int_equal(r[j], old[i]);
+    kept++;
+  }
+  assert_int_equal(kept, 12);
+  for (size_t j = 0; j < 24; j++)
+    if (j % 6 < 3) assert_int_equal(r[j], 0); /* the new cells: the fill */
+  free(r);
+  /* nothing held: the box alone */
+  const long none_lo[3] = {0, 0, 0}, none_hi[3] = {0, 0, 0};
+  assert_int_equal(vlff_lattice_fit(origin, cell, dims, none_lo, none_hi, lo, hi, 100, sh, nd), 1);
+  assert_int_equal(nd[0] * nd[1] * nd[2], 2); /* x -3 .. -2, y 1, z 1 */
+  /* the whole grid held and a box inside it: the same grid */
+  const long all_lo[3] = {0, 0, 0}, all_hi[3] = {6, 4, 3};
+  const double in_lo[3] = {1, 1, 1}, in_hi[3] = {2, 2, 2};
+  assert_int_equal(vlff_lattice_fit(origin, cell, dims, all_lo, all_hi, in_lo, in_hi, 100, sh, nd), 0);
+}
+
+/* A saved grid is recognised as a grown or refitted version of a grid on
+ * its lattice. */
 static void test_saved(void **state) {
   (void)state;
   const double origin0[3] = {-2.5, -2.5, 0};
   const long k0[3] = {0, -2, 0}; /* grown by 2 cells toward -y so far */
   const uint32_t dims[3] = {10, 12, 4};
-  uint32_t sh[3];
+  int32_t sh[3];
   const double so[3] = {-3.0, -4.5, 0}; /* 1 cell more toward -x, 2 more toward -y */
   const uint32_t sd[3] = {12, 14, 4};
   assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, so, sd, sh), 1);
@@ -87,14 +143,17 @@ static void test_saved(void **state) {
   assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, same_o, dims, sh), 0); /* the same grid */
   const double off[3] = {-3.1, -4.5, 0};
   assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, off, sd, sh), 0); /* another lattice */
+  /* a refitted one: starts inside, or is smaller (the caller checks what it holds) */
   const uint32_t small[3] = {10, 12, 3};
-  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, same_o, small, sh), 0); /* does not hold it */
-  const double inside[3] = {-2.0, -3.5, 0};
-  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, inside, sd, sh), 0); /* starts inside */
+  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, same_o, small, sh), 1);
+  assert_int_equal(sh[2], 0);
+  const double inside[3] = {-2.0, -3.5, 0.5};
+  assert_int_equal(vlff_lattice_saved(origin0, 0.5, k0, dims, inside, sd, sh), 1);
+  assert_int_equal(sh[0], -1), assert_int_equal(sh[1], 0), assert_int_equal(sh[2], -1);
 }
 
 int main(void) {
   const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_copy_and_index),
-                                     cmocka_unit_test(test_saved)};
+                                     cmocka_unit_test(test_fit), cmocka_unit_test(test_saved)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -725,6 +725,58 @@ static void test_grow(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Past the index's share of the budget, the grid is refitted to the voxels
+ * that hold evidence and the box asked for: the empty margins of earlier
+ * growths are dropped, each voxel's evidence stays where it is in the world,
+ * a save of the refitted grid (which does not hold the first box) loads
+ * into a first-box evidence; a refit that still does not fit is refused,
+ * nothing changed. */
+static void test_refit(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  struct vlff_evidence *e = make_growing(&cfg); /* an index of at most 65536 voxels */
+  char err[256];
+  struct wall a;
+  wall_make(&a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  const double p[3] = {-0.1, 0.1, 2.2};
+  float x[D], y[D];
+  const int n = vlff_evidence_get(e, vlff_evidence_voxel(e, p), x);
+  assert_int_equal(n, 4);
+  const double lo[3] = {-2, -2, 0}, hi[3] = {30, 14, 4}; /* 64 x 32 x 8 voxels */
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 1);
+  const double margin[3] = {25, 10, 1}, far[3] = {-99.5, 0.2, 2.2};
+  assert_true(vlff_evidence_voxel(e, margin) >= 0);
+  /* 100 m toward -x: holding all of the grid would take 260 x 32 x 8 */
+  const double far_lo[3] = {-100, 0, 2}, far_hi[3] = {-99, 0.4, 2.4};
+  assert_int_equal(vlff_evidence_grow(e, far_lo, far_hi, 1000, err, sizeof err), 1);
+  assert_int_equal(vlff_evidence_voxel(e, margin), -1); /* held nothing: dropped */
+  assert_true(vlff_evidence_voxel(e, far) >= 0);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
+  assert_memory_equal(x, y, sizeof x);
+  assert_int_equal(vlff_evidence_voxels(e), 4);
+  /* even refitted, too large: refused, nothing changed */
+  const double huge_lo[3] = {-100, -100, 0}, huge_hi[3] = {100, 100, 4};
+  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, 1000, err, sizeof err), -1);
+  assert_non_null(strstr(err, "publish.evidence_max_mb"));
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
+  assert_true(vlff_evidence_voxel(e, far) >= 0);
+  /* saved refitted, loaded into a first-box evidence */
+  size_t len = vlff_evidence_save_size(e);
+  uint8_t *buf = malloc(len);
+  vlff_evidence_save(e, buf);
+  struct vlff_evidence *g = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
+  assert_non_null(g);
+  assert_int_equal(vlff_evidence_load(g, buf, len, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_voxel(g, far), vlff_evidence_voxel(e, far));
+  assert_int_equal(vlff_evidence_voxel(g, margin), -1);
+  assert_int_equal(vlff_evidence_get(g, vlff_evidence_voxel(g, p), y), n);
+  assert_memory_equal(x, y, sizeof x);
+  free(buf);
+  vlff_evidence_destroy(g);
+  vlff_evidence_destroy(e);
+}
+
 /* Paged, then grown: a voxel of the first box whose evidence a full budget
  * paged out stays readable where it is in the world after the grid grows
  * (toward -x, so that every voxel index changes), and comes back into a
@@ -869,6 +921,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
     cmocka_unit_test(test_full_budget_pages_out),
     cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load),
-    cmocka_unit_test(test_grow), cmocka_unit_test(test_paged_then_grown),
+    cmocka_unit_test(test_grow), cmocka_unit_test(test_refit), cmocka_unit_test(test_paged_then_grown),
     cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan), cmocka_unit_test(test_recent_views_replace_old))

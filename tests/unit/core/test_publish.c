@@ -848,10 +848,104 @@ static void test_hold_survives_restart(void **state) {
   vlff_shm_unlink(cc.shm.map);
 }
 
+/* ------------------------------------------------------ a refitted grid */
+
+/* A growing map at its capacity (shm.map_max_voxels) is refitted to the
+ * voxels that hold something and the box asked for: the first box's
+ * margins where nothing was seen are dropped, every voxel seen keeps its
+ * place and label for a reader attached throughout, the new part is mapped,
+ * and a save of the refitted grid (which does not hold the first box)
+ * loads into a new map; a box that even a refit cannot hold is refused,
+ * nothing changed. Before, such a growth was refused: the map's margins
+ * took the capacity that the world seen needed. */
+static void test_refit_under_reader(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "refit"); /* 8 cm voxels: the 5 m first box is 63^3, near the 2^18 capacity */
+  cfg.field.grow = true;
+  cfg.publish.evidence_weight = 0;
+  struct vlff_field *f = small_field(&cfg, 3, 11);
+  struct vlff_publisher *p = create(&cfg);
+  const char *prompts[3] = {"wall", "floor", "chair"};
+  struct vlff_map *m = vlff_map_attach(cfg.shm.map);
+  assert_non_null(m);
+  struct vlff_publish_result r;
+  struct vlff_view v = view(2.0f); /* from the origin, a wall 2 m along +z */
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+  const double pts[4][3] = {{0, 0, 2.02}, {0.5, 0.5, 2.03}, {0.3, -0.2, 1.0}, {0, 0, -2.0}};
+  uint16_t before[4], got;
+  uint8_t conf;
+  for (int i = 0; i < 4; i++) assert_int_equal(vlff_map_label_at(m, pts[i][0], pts[i][1], pts[i][2], &before[i], &conf), 0);
+  assert_true(before[0] < 3 && before[1] < 3);
+  assert_int_equal(before[2], VLFF_LABEL_FREE);
+  assert_int_equal(before[3], VLFF_LABEL_UNKNOWN); /* behind the camera: never seen */
+  double lo0[3], hi0[3], lo[3], hi[3];
+  long long grown;
+  vlff_publisher_box(p, lo0, hi0, &grown);
+  assert_int_equal(grown, 0);
+
+  /* 3.5 m further along +z: holding the first box too would take 63 x 63 x 107 */
+  const double glo[3] = {-0.5, -0.5, 2.5}, ghi[3] = {0.5, 0.5, 6};
+  assert_int_equal(vlff_field_grow(f, glo, ghi, err, sizeof err), 1);
+  assert_int_equal(vlff_publisher_grow(p, glo, ghi, err, sizeof err), 1);
+  vlff_publisher_box(p, lo, hi, &grown);
+  assert_int_equal(grown, 1);
+  assert_true(lo[2] > -0.2 && lo[2] <= 0 && hi[2] >= 6);  /* from the camera on: the -z half dropped */
+  assert_true(lo[0] > lo0[0] + 1 && hi[0] < hi0[0] - 1); /* and the x margins no ray reached */
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+  assert_true(r.whole);
+  for (int i = 0; i < 4; i++) {
+    assert_int_equal(vlff_map_label_at(m, pts[i][0], pts[i][1], pts[i][2], &got, &conf), 0);
+    assert_int_equal(got, before[i]); /* the same place, the same label (or unknown: beyond the grid) */
+  }
+  v = view(2.0f);
+  v.c2w[11] = 3.0; /* a wall at z = 5, in the new part */
+  assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+  assert_int_equal(vlff_map_label_at(m, 0, 0, 5.02, &got, &conf), 0);
+  assert_true(got < 3);
+  assert_int_equal(vlff_map_label_at(m, 0, 0, 4.0, &got, &conf), 0);
+  assert_int_equal(got, VLFF_LABEL_FREE);
+
+  /* too large even refitted: refused, nothing changed */
+  const double huge_lo[3] = {-40, -40, 0}, huge_hi[3] = {40, 40, 6};
+  assert_int_equal(vlff_publisher_grow(p, huge_lo, huge_hi, err, sizeof err), -1);
+  assert_non_null(strstr(err, "even without the voxels that hold nothing"));
+  double lo2[3], hi2[3];
+  vlff_publisher_box(p, lo2, hi2, &grown);
+  assert_memory_equal(lo2, lo, sizeof lo);
+  assert_memory_equal(hi2, hi, sizeof hi);
+
+  /* saved refitted, loaded into a map that starts again in the first box */
+  char path[128];
+  snprintf(path, sizeof path, "/tmp/vlff-test-refit-%d.obs", (int)getpid());
+  assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  struct vlff_config c2;
+  config_for(&c2, "refit2");
+  c2.field.grow = true;
+  c2.publish.evidence_weight = 0;
+  struct vlff_publisher *q = create(&c2);
+  if (vlff_publisher_load(q, path, err, sizeof err)) fail_msg("%s", err);
+  vlff_publisher_box(q, lo2, hi2, NULL);
+  assert_memory_equal(lo2, lo, sizeof lo);
+  assert_memory_equal(hi2, hi, sizeof hi);
+  const double wall5[3] = {0, 0, 5.02}, wall2[3] = {0.5, 0.5, 2.03};
+  assert_true(vlff_publisher_surface_known(q, wall5) && vlff_publisher_surface_known(q, wall2));
+  unlink(path);
+  vlff_publisher_destroy(q);
+  vlff_shm_unlink(c2.shm.map);
+  vlff_map_detach(m);
+  vlff_field_destroy(f);
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
     cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
     cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication),
       cmocka_unit_test(test_refresh_skips_settled),
-    cmocka_unit_test(test_grazing_surface_filled), cmocka_unit_test(test_hold_survives_restart))
+    cmocka_unit_test(test_grazing_surface_filled), cmocka_unit_test(test_hold_survives_restart),
+    cmocka_unit_test(test_refit_under_reader))
