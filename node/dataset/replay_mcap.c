@@ -209,7 +209,9 @@ static int play(struct player *p) {
            * node refuses a pose from the future. */
           base = now - off;
         } else if (now > due + 1000000ull) {
-          if (ev.kind == VLFF_IN_EV_FRAME) p->late++;
+          /* a late pose restarts the schedule as a late frame does, and the
+           * frames after it go out at the new times: counted alike */
+          p->late++;
           base = now - off;
         } else {
           vlff_replay_sleep_until(due);

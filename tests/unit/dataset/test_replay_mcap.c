@@ -378,7 +378,8 @@ static void close_writer(struct vlff_mcap_writer *w) {
  * after the last frame with one mean interval; each pose at its frame's time
  * or, between frames, at its own place. Times are the schedule's (base + the
  * recorded offset / rate): exact unless the replay ran late, which a host this
- * idle does not make it (a late frame is counted: the test then says so). */
+ * idle does not make it (a late record, frame or pose, is counted: the test
+ * then says so; a late pose was not, and shifted the frames after it). */
 static void check_pace(const struct vlff_config *cfg, const char *cfg_path, const char *path, const char *log,
                        double scale, int frames, const char *a1, const char *a2, const char *a3) {
   unlink_rings(cfg);
