@@ -673,7 +673,8 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
   if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;
   if (rc == 0) return 1; /* the evidence grew, the map's grid held it */
   size_t n = vlff_lattice_cells(nd);
-  if (n > p->max_voxels) {
+  const bool refit = n > p->max_voxels;
+  if (refit) {
     /* Past the capacity: refit the grid to the voxels that hold something
      * and [lo, hi]. The margins earlier growths added ahead of the camera,
      * and the first box's beyond the world seen, go where nothing was seen;
@@ -693,7 +694,7 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
   }
   if (publisher_regrid(p, sh, nd))
     return snprintf(err, errlen, "map: out of memory growing to %zu voxels", n), -1;
-  return 1;
+  return refit ? 2 : 1;
 }
 
 void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown) {

@@ -114,10 +114,13 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * the first box) and the evidence's grow on their lattices to hold [lo, hi]
  * clipped to +-field.world_limit_m; every voxel keeps what was observed,
  * published and held there; the next publish is whole (readers see the new
- * geometry with it: docs/shm.md "A map that grows"). 1 grown, 0 when both
- * already held it, -1 with err for a fixed box, a bad box, a grid past shm.map_max_voxels (the segment's
- * capacity), evidence past its index budget, or no memory; what did not
- * grow is unchanged. */
+ * geometry with it: docs/shm.md "A map that grows"). A grid that would pass
+ * its cap is refitted instead: to the voxels that hold something and
+ * [lo, hi], the empty ones beyond dropped (docs/field.md "Growth"). 1 grown,
+ * 2 grown with the map refitted, 0 when both already held it, -1 with err
+ * for a fixed box, a bad box, a grid past shm.map_max_voxels (the segment's
+ * capacity) or evidence past its index budget even refitted, or no memory;
+ * what did not grow is unchanged. */
 int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen);
 /* The map's box now, and its growths so far (grown may be NULL). */
 void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown);

@@ -160,9 +160,10 @@ static void grow_to_view(struct vlff_node *n, const struct vlff_view *v) {
     vlff_field_box(n->field, flo, fhi);
     vlff_publisher_box(n->pub, plo, phi, NULL);
     VLFF_INFO(TAG, "box grown for keyframe at (%.1f, %.1f, %.1f): field [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m, "
-                   "map [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m",
+                   "map [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m%s",
               v->c2w[3], v->c2w[7], v->c2w[11], flo[0], fhi[0], flo[1], fhi[1], flo[2], fhi[2], plo[0], phi[0],
-              plo[1], phi[1], plo[2], phi[2]);
+              plo[1], phi[1], plo[2], phi[2],
+              rp == 2 ? " (refitted at shm.map_max_voxels: the voxels that held nothing beyond it dropped)" : "");
   }
 }
 

@@ -10,8 +10,9 @@ stop_node() {
   kill -TERM "$nodepid"; wait "$nodepid"; rc=$?; nodepid=
   check "node exits 0 on SIGTERM (rc=$rc)" "[[ $rc == 0 ]]"
 }
-printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n' \
-  "$tmp" $p $p $p $p >"$tmp/n.yaml"
+# More keys under shm: from the sourcing test (node_shm_extra, indented).
+printf 'node:\n  state_dir: %s\nsource:\n  kind: sim\nsim:\n  frames: 20\n  rate_hz: 10\nshm:\n  ring: %s-r\n  map: %s-m\n  prompts: %s-p\n  feature_ring: %s-f\n%s' \
+  "$tmp" $p $p $p $p "${node_shm_extra:+$node_shm_extra$'\n'}" >"$tmp/n.yaml"
 # A light field (64-dim features, a 2^16 table) unless the test names its own
 # (node_field; empty for the default field): these tests check the node's
 # plumbing, not what it learns, and a sanitizer build trains and publishes the

@@ -5,12 +5,15 @@
 # field's, the evidence's and the map's boxes (said in the log, counted in
 # the stop line); the map segment keeps its name and capacity and shows the
 # grown grid, labelled beyond the first box; a restarted node resumes in the
-# grown box from its checkpoint.
+# grown box from its checkpoint. The map's capacity holds twice the flat (10 x 8
+# x 3 m, 240000 voxels of 0.1 m) but not the flat and the first box's 5 m of
+# height, nor the margins growths add: the map is refitted at it (docs/field.md
+# "Growth"), nothing refused, and the restarted node takes the refitted grid,
+# which does not hold its first box.
 set -u
 node_field=$'field:\n  feature_dim: 64\n  hash_log2_size: 16\n  grow: true'
-# 0.1 m voxels: the flat and the margins grown around it within
-# shm.map_max_voxels (2^21).
 node_yaml_extra=$'publish:\n  voxel_size_m: 0.1'
+node_shm_extra='  map_max_voxels: 480000'
 . "$(dirname "$0")/node_sh.sh" ngr "$@"
 # The simulator's world: the flat in its own box (the node's config without
 # growth, with the flat's box and layout).
@@ -48,6 +51,8 @@ for x in -4.85 -4.75 -4.65 4.65 4.75 4.85; do
   done
 done
 check "voxels beyond the first box carry class labels ($beyond of 54 probed at the flat's end walls)" '(( beyond > 0 ))'
+check "the map was refitted at its capacity: $(grep -m1 -o 'map \[[^]]*\] x .*refitted at shm.map_max_voxels' "$tmp/log")" \
+  'grep -q "refitted at shm.map_max_voxels" "$tmp/log"'
 stop_node
 line=$(grep "the box grew" "$tmp/log")
 check "the stop line counts the growths ($line)" \
