@@ -660,6 +660,21 @@ static struct vlff_evidence *make_growing(struct vlff_config *cfg) {
   return e;
 }
 
+/* e saved (*buf, *len: the save) and loaded into a new evidence of cfg,
+ * which starts in the first box. */
+static struct vlff_evidence *reloaded(const struct vlff_config *cfg, const struct vlff_evidence *e, uint8_t **buf,
+                                      size_t *len) {
+  char err[256];
+  *len = vlff_evidence_save_size(e);
+  *buf = malloc(*len);
+  assert_non_null(*buf);
+  vlff_evidence_save(e, *buf);
+  struct vlff_evidence *g = vlff_evidence_for(&cfg->publish, &cfg->field, VLFF_MAX_PROMPTS, err, sizeof err);
+  assert_non_null(g);
+  if (vlff_evidence_load(g, *buf, *len, err, sizeof err)) fail_msg("%s", err);
+  return g;
+}
+
 /* A growing box's evidence (field.grow): the grid grows on its lattice and
  * every voxel's evidence stays where it is in the world; the new part takes
  * evidence; a save of the grown grid loads into a first-box evidence by
@@ -703,12 +718,9 @@ static void test_grow(void **state) {
   assert_memory_equal(x, y, sizeof x);
 
   /* saved grown, loaded into a first-box evidence: it grows to the grid */
-  size_t len = vlff_evidence_save_size(e);
-  uint8_t *buf = malloc(len);
-  vlff_evidence_save(e, buf);
-  struct vlff_evidence *g = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
-  assert_non_null(g);
-  assert_int_equal(vlff_evidence_load(g, buf, len, err, sizeof err), 0);
+  size_t len;
+  uint8_t *buf;
+  struct vlff_evidence *g = reloaded(&cfg, e, &buf, &len);
   assert_int_equal(vlff_evidence_voxels(g), vlff_evidence_voxels(e));
   assert_int_equal(vlff_evidence_voxel(g, q), vlff_evidence_voxel(e, q));
   assert_int_equal(vlff_evidence_get(g, vlff_evidence_voxel(g, p), y), n);
@@ -762,12 +774,9 @@ static void test_refit(void **state) {
   assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
   assert_true(vlff_evidence_voxel(e, far) >= 0);
   /* saved refitted, loaded into a first-box evidence */
-  size_t len = vlff_evidence_save_size(e);
-  uint8_t *buf = malloc(len);
-  vlff_evidence_save(e, buf);
-  struct vlff_evidence *g = vlff_evidence_for(&cfg.publish, &cfg.field, VLFF_MAX_PROMPTS, err, sizeof err);
-  assert_non_null(g);
-  assert_int_equal(vlff_evidence_load(g, buf, len, err, sizeof err), 0);
+  size_t len;
+  uint8_t *buf;
+  struct vlff_evidence *g = reloaded(&cfg, e, &buf, &len);
   assert_int_equal(vlff_evidence_voxel(g, far), vlff_evidence_voxel(e, far));
   assert_int_equal(vlff_evidence_voxel(g, margin), -1);
   assert_int_equal(vlff_evidence_get(g, vlff_evidence_voxel(g, p), y), n);
