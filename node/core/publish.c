@@ -603,10 +603,9 @@ out:
 const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher *p) { return p->ev; }
 
 /* The map's grid and everything kept per voxel, from dims shifted by sh
- * into nd: all allocated before anything changes. */
-/* The map's grid, grown or refitted on its lattice (lattice.h): every
- * voxel that holds something keeps its place in the world (the callers
- * never drop one: drops_held). */
+ * into nd (grown or refitted on its lattice, lattice.h): all allocated
+ * before anything changes. Every voxel that holds something keeps its
+ * place in the world: the callers never drop one (drops_held). */
 static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3]) {
   const size_t n = vlff_lattice_cells(nd);
   const uint32_t *od = p->dims;
