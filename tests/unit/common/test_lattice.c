@@ -127,6 +127,51 @@ static void test_fit(void **state) {
   assert_int_equal(vlff_lattice_fit(origin, cell, dims, all_lo, all_hi, in_lo, in_hi, 100, sh, nd), 0);
 }
 
+/* Random grids, held cells and boxes: a refit holds every held cell and the
+ * box, and moves no cell in the world; a cover holds the whole old grid. */
+static void test_fit_random(void **state) {
+  (void)state;
+  unsigned seed = 7;
+  for (int t = 0; t < 300; t++) {
+    const double cell = 0.1 + 0.9 * rand_r(&seed) / (double)RAND_MAX;
+    double origin[3], lo[3], hi[3];
+    uint32_t dims[3];
+    for (int a = 0; a < 3; a++) {
+      origin[a] = (rand_r(&seed) % 2001 - 1000) * 0.01;
+      dims[a] = 1 + (uint32_t)(rand_r(&seed) % 9);
+      lo[a] = origin[a] + (rand_r(&seed) % 4001 - 2000) * 0.01;
+      hi[a] = lo[a] + (rand_r(&seed) % 1001) * 0.01;
+    }
+    const size_t n = vlff_lattice_cells(dims);
+    uint8_t held[9 * 9 * 9];
+    long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
+    for (size_t i = 0; i < n; i++) {
+      held[i] = rand_r(&seed) % 5 == 0;
+      if (held[i]) vlff_lattice_extend(klo, khi, i, dims);
+    }
+    int32_t sh[3];
+    uint32_t nd[3];
+    assert_true(vlff_lattice_fit(origin, cell, dims, klo, khi, lo, hi, 1e4, sh, nd) >= 0);
+    double norigin[3];
+    for (int a = 0; a < 3; a++) {
+      norigin[a] = origin[a] - sh[a] * cell;
+      /* the box, in whole cells */
+      assert_true(norigin[a] <= lo[a] + 1e-9 && norigin[a] + nd[a] * cell >= hi[a] - 1e-9);
+    }
+    for (size_t i = 0; i < n; i++) {
+      long j = vlff_lattice_index(i, dims, sh, nd);
+      if (!held[i]) continue;
+      assert_true(j >= 0);
+      /* the same cell corner in the world */
+      const size_t c[3] = {i % dims[0], i / dims[0] % dims[1], i / ((size_t)dims[0] * dims[1])};
+      const size_t d[3] = {(size_t)j % nd[0], (size_t)j / nd[0] % nd[1], (size_t)j / ((size_t)nd[0] * nd[1])};
+      for (int a = 0; a < 3; a++) assert_true(fabs(origin[a] + c[a] * cell - (norigin[a] + d[a] * cell)) < 1e-9);
+    }
+    assert_true(vlff_lattice_cover(origin, cell, dims, lo, hi, 1e4, sh, nd) >= 0);
+    for (int a = 0; a < 3; a++) assert_true(sh[a] >= 0 && sh[a] + dims[a] <= nd[a]);
+  }
+}
+
 /* A saved grid is recognised as a grown or refitted version of a grid on
  * its lattice. */
 static void test_saved(void **state) {
@@ -154,6 +199,7 @@ static void test_saved(void **state) {
 
 int main(void) {
   const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_copy_and_index),
-                                     cmocka_unit_test(test_fit), cmocka_unit_test(test_saved)};
+                                     cmocka_unit_test(test_fit), cmocka_unit_test(test_fit_random),
+                                     cmocka_unit_test(test_saved)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
