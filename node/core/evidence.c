@@ -12,6 +12,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "files.h"
 #include "lattice.h"
 #include "log.h"
 #include "select.h"
@@ -407,14 +408,10 @@ static int page_write(struct vlff_evidence *e, uint32_t vi, uint8_t count, const
   const size_t rs = page_record(e->D);
   e->pbuf[0] = count, e->pbuf[1] = 0;
   memcpy(e->pbuf + 2, mean, (size_t)e->D * 2);
-  ssize_t w;
-  do w = pwrite(e->page_fd, e->pbuf, rs, (off_t)((size_t)r * rs));
-  while (w < 0 && errno == EINTR);
-  if (w != (ssize_t)rs) {
+  if (vlff_write_at(e->page_fd, (uint64_t)r * rs, e->pbuf, rs)) {
     e->pfree[e->nfree++] = (uint32_t)r;
     if (!e->page_errors++)
-      snprintf(e->page_err, sizeof e->page_err, "%s: writing: %s", VLFF_Q(e->page_path),
-               w < 0 ? strerror(errno) : "short write (disk full?)");
+      snprintf(e->page_err, sizeof e->page_err, "%s: writing: %s", VLFF_Q(e->page_path), strerror(errno));
     return -1;
   }
   e->powner[r] = vi;
@@ -429,10 +426,7 @@ static int page_write(struct vlff_evidence *e, uint32_t vi, uint8_t count, const
  * back whole or is not what was written (counted). */
 static int page_read(struct vlff_evidence *e, size_t r, uint8_t *count, uint16_t *mean) {
   const size_t rs = page_record(e->D);
-  ssize_t n;
-  do n = pread(e->page_fd, e->pbuf, rs, (off_t)(r * rs));
-  while (n < 0 && errno == EINTR);
-  bool ok = n == (ssize_t)rs && e->pbuf[0] > 0;
+  bool ok = vlff_read_at(e->page_fd, (uint64_t)r * rs, e->pbuf, rs) == 0 && e->pbuf[0] > 0;
   for (int j = 0; ok && j < e->D; j++) {
     uint16_t h;
     memcpy(&h, e->pbuf + 2 + 2 * (size_t)j, 2);
