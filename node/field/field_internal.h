@@ -33,6 +33,11 @@ void vlff_pool_run(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
  * on the thread that runs them. */
 void vlff_pool_run_dynamic(struct vlff_pool *p, int ntasks, vlff_task_fn fn, void *ctx);
 /* ---- the box (grow.c) ---------------------------------------------------- */
+/* The first box's occupancy cells under a config: each cell's size (m) and
+ * the cells per axis (what vlff_field_plan_bytes counts before a field is
+ * made). */
+void vlff_field_first_cells(const struct vlff_cfg_field *c, const struct vlff_cfg_train *t, float cell[3],
+                            int dims[3]);
 /* The first box's occupancy lattice: sets occ.cell and occ.threshold and
  * first_lo, and gives the first grid's cells. */
 void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]);

@@ -34,30 +34,33 @@ void vlff_field_set_box(struct vlff_field *f) {
   vlff_encoding_set_inside(&f->enc, f->box_lo, f->box_hi);
 }
 
-void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]) {
-  const struct vlff_cfg_field *c = &f->cfg.field;
-  const int res = f->cfg.train.occupancy_resolution;
+void vlff_field_first_cells(const struct vlff_cfg_field *c, const struct vlff_cfg_train *t, float cell[3],
+                            int dims[3]) {
+  const int res = t->occupancy_resolution;
   double longest = 0;
   for (int a = 0; a < 3; a++) longest = fmax(longest, c->scene_max[a] - c->scene_min[a]);
   /* A growing field's cells are a size in metres for its whole life; the
    * first box only says where it starts (train.occupancy_cell_m), or, when
    * that is 0, gives the size as its longest side over the resolution. */
-  const double cube = f->cfg.train.occupancy_cell_m > 0 ? f->cfg.train.occupancy_cell_m : longest / res;
+  const double cube = t->occupancy_cell_m > 0 ? t->occupancy_cell_m : longest / res;
   for (int a = 0; a < 3; a++) {
     double ext = c->scene_max[a] - c->scene_min[a];
-    f->first_lo[a] = c->scene_min[a];
-    k0[a] = 0;
     if (c->grow) {
-      f->occ.cell[a] = (float)cube;
+      cell[a] = (float)cube;
       /* the first box rounded out to whole cells (the longest side is exact
        * when the cells come from it) */
-      dims[a] = (int)ceil(ext / f->occ.cell[a] - 1e-6);
+      dims[a] = (int)ceil(ext / cell[a] - 1e-6);
       if (dims[a] < 1) dims[a] = 1;
     } else {
-      f->occ.cell[a] = (float)(ext / res);
+      cell[a] = (float)(ext / res);
       dims[a] = res;
     }
   }
+}
+
+void vlff_field_first_layout(struct vlff_field *f, int k0[3], int dims[3]) {
+  vlff_field_first_cells(&f->cfg.field, &f->cfg.train, f->occ.cell, dims);
+  for (int a = 0; a < 3; a++) f->first_lo[a] = f->cfg.field.scene_min[a], k0[a] = 0;
   /* Occupied when a cell-long interval would stop >= 1 % of the light. */
   float cmin = fminf(f->occ.cell[0], fminf(f->occ.cell[1], f->occ.cell[2]));
   f->occ.threshold = 0.01005f / cmin;

@@ -178,17 +178,17 @@ uint64_t vlff_field_plan_bytes(const struct vlff_cfg_field *field, const struct 
   const uint64_t spr = (uint64_t)train->samples_per_ray, nrays = (uint64_t)train->rays_per_step;
   const uint64_t chunk = spr < VLFF_CHUNK_SAMPLES ? VLFF_CHUNK_SAMPLES / spr : 1;
   const uint64_t samples = (nrays + chunk - 1) / chunk * chunk * spr;
-  uint64_t cells = (uint64_t)train->occupancy_resolution * train->occupancy_resolution *
-                   (uint64_t)train->occupancy_resolution;
+  double cells = (double)train->occupancy_resolution * train->occupancy_resolution * train->occupancy_resolution;
   if (field->grow && train->occupancy_cell_m > 0) {
     /* the first box's cells of that size (the growths are within occupancy_max_mb) */
-    cells = 1;
-    for (int a = 0; a < 3; a++)
-      cells *= (uint64_t)fmax(1.0, ceil((field->scene_max[a] - field->scene_min[a]) / train->occupancy_cell_m));
+    float cell[3];
+    int dims[3];
+    vlff_field_first_cells(field, train, cell, dims);
+    cells = (double)dims[0] * dims[1] * dims[2];
   }
   const uint64_t fs = sizeof(float);
   return fs * (3 * (ntable + nmlp) + 4 * nmlp) + fs * samples * (3 + (uint64_t)enc.levels * enc.feats) +
-         cells * (fs + 1 + sizeof(uint16_t) + fs) + nrays * (sizeof(struct vlff_ray) + fs);
+         (uint64_t)vlff_occ_bytes(cells) + nrays * (sizeof(struct vlff_ray) + fs);
 }
 
 int vlff_field_check_memory(const struct vlff_cfg_field *field, const struct vlff_cfg_train *train, char *err,
