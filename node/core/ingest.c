@@ -134,6 +134,18 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
   const struct vlff_config *cfg = ig->cfg;
   if (ig->join && !*feats) {
     *feats = attach_input(n, cfg->shm.feature_ring, VLFF_RECORD_FEATURE);
+    /* From the oldest record the ring still holds, not the newest: the frame
+     * ring may have been attached first, and a frame read before this attach
+     * can have its features committed already (an extractor that started
+     * with its camera, or one that replaced its ring). The join keeps maps
+     * nobody waits for as orphans and evicts them oldest first; maps of
+     * frames older than a keyframe may wait for them are passed over, since
+     * an earlier camera session's frame ids may come again. */
+    if (*feats) {
+      vlff_ring_seek_oldest(*feats);
+      uint64_t now = vlff_now_ns(), back = (uint64_t)(cfg->vlm.feature_timeout_s * 1e9);
+      vlff_feature_join_not_before(ig->join, now > back ? now - back : 0);
+    }
     if (*feats && ig->feats_refused)
       VLFF_INFO(TAG, "attached to feature ring %s", cfg->shm.feature_ring);
     if (*feats)

@@ -32,7 +32,7 @@ struct feat {
 
 struct vlff_feature_join {
   int cap, dim, max_h, max_w;
-  uint64_t timeout_ns, seq;
+  uint64_t timeout_ns, seq, not_before_ns;
   struct waiting *frames;
   struct feat *feats;
   uint8_t *record; /* pump buffer */
@@ -111,6 +111,10 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
     vlff_errf(err, errlen, "feature record for frame %llu: dtype %u, [%u,%u,%u]; expected float16 with D=%d, at most %dx%d",
             (unsigned long long)h->frame_id, h->dtype, h->dim, h->height, h->width, j->dim, j->max_h, j->max_w);
     goto bad;
+  }
+  if (h->t_host_ns < j->not_before_ns) {
+    j->st.stale++;
+    return 1;
   }
   size_t hw = (size_t)h->height * h->width;
   const uint16_t *src = (const uint16_t *)((const uint8_t *)record + h->data_offset);
@@ -192,5 +196,7 @@ int vlff_feature_join_poll(struct vlff_feature_join *j, uint64_t now_ns, uint64_
   }
   return VLFF_JOIN_NONE;
 }
+
+void vlff_feature_join_not_before(struct vlff_feature_join *j, uint64_t t_ns) { j->not_before_ns = t_ns; }
 
 void vlff_feature_join_stats(const struct vlff_feature_join *j, struct vlff_feature_join_stats *st) { *st = j->st; }

@@ -29,6 +29,7 @@ struct vlff_feature_join;
 
 struct vlff_feature_join_stats {
   uint64_t joined, expired, bad_records, orphans_evicted, frames_refused;
+  uint64_t stale; /* records of frames stamped before vlff_feature_join_not_before's time */
 };
 
 /* capacity: keyframes waiting and feature maps held, each; dim: D;
@@ -42,7 +43,8 @@ void vlff_feature_join_destroy(struct vlff_feature_join *j);
 int vlff_feature_join_add_frame(struct vlff_feature_join *j, uint64_t frame_id, uint64_t now_ns, char *err,
                                 size_t errlen);
 
-/* One feature record (as read from the ring). */
+/* One feature record (as read from the ring): 0 taken, 1 passed over as
+ * stale (its frame stamped before vlff_feature_join_not_before's time). */
 int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record, size_t len, char *err,
                                  size_t errlen);
 
@@ -51,6 +53,12 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
  * the ring was replaced or truncated under the handle (what it held before is
  * taken): close it and attach again. */
 int vlff_feature_join_pump(struct vlff_feature_join *j, struct vlff_ring *ring);
+
+/* Records of frames stamped (t_host_ns, CLOCK_MONOTONIC) before t_ns are
+ * passed over and counted (stats.stale): a reader that starts at the
+ * oldest record a ring holds takes the maps of frames it may still read,
+ * not those of an earlier session whose frame ids may come again. */
+void vlff_feature_join_not_before(struct vlff_feature_join *j, uint64_t t_ns);
 
 enum vlff_join_result { VLFF_JOIN_NONE = 0, VLFF_JOIN_READY = 1, VLFF_JOIN_EXPIRED = 2 };
 

@@ -41,7 +41,18 @@ static int rm_one(const char *p, const struct stat *st, int flag, struct FTW *ft
   return remove(p) == 0 ? 0 : -1;
 }
 
+/* Nodes tk_node_create made and tk_node_destroy has not destroyed: a test
+ * that fails an assertion leaves its node running, and the next test, using
+ * the same segment names, would otherwise share its rings with it. */
+enum { TK_MAX_NODES = 8 };
+static struct {
+  struct vlff_node *n;
+  struct vlff_sim_source *src;
+} tk_nodes[TK_MAX_NODES];
+
 int tk_teardown(struct tk *t) {
+  for (int i = 0; i < TK_MAX_NODES; i++)
+    if (tk_nodes[i].n) tk_node_destroy(tk_nodes[i].n, tk_nodes[i].src);
   for (int i = 0; i < t->nchildren; i++)
     if (t->children[i] > 0) tk_stop_child(t, t->children[i], SIGKILL);
   t->nchildren = 0;
@@ -179,11 +190,19 @@ struct vlff_node *tk_node_create(const struct vlff_config *cfg, struct vlff_sim_
   if (!n) {
     vlff_sim_source_destroy(*src);
     *src = NULL;
+    return NULL;
   }
+  for (int i = 0; i < TK_MAX_NODES; i++)
+    if (!tk_nodes[i].n) {
+      tk_nodes[i].n = n, tk_nodes[i].src = *src;
+      break;
+    }
   return n;
 }
 
 void tk_node_destroy(struct vlff_node *n, struct vlff_sim_source *src) {
+  for (int i = 0; i < TK_MAX_NODES; i++)
+    if (tk_nodes[i].n == n) tk_nodes[i].n = NULL, tk_nodes[i].src = NULL;
   vlff_node_destroy(n, false);
   vlff_sim_source_destroy(src);
 }

@@ -95,7 +95,8 @@ struct vlff_frame_hdr *tk_frame_reserve(struct vlff_ring *ring, const struct vlf
                                         uint64_t t_ns, int w, int h, int depth_format, uint64_t *len);
 
 /* vlff_node_create with the simulator's hooks when cfg uses them; *src is
- * destroyed by the caller after the node (tk_node_destroy does both). */
+ * destroyed by the caller after the node (tk_node_destroy does both). A node
+ * a failed test leaves behind is destroyed by tk_teardown. */
 struct vlff_node *tk_node_create(const struct vlff_config *cfg, struct vlff_sim_source **src, char *err,
                                  size_t errlen);
 void tk_node_destroy(struct vlff_node *n, struct vlff_sim_source *src);

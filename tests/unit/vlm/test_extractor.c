@@ -26,7 +26,9 @@
 #include <vlff/shm.h>
 
 #include "field.h"
+#include "clock.h"
 #include "feature_join.h"
+#include "node.h"
 #include "testkit.h"
 #include "unit.h"
 
@@ -332,6 +334,21 @@ static long long features_late_count(const char *text) {
   return k;
 }
 
+/* Vectors for the prompts "wall" and "floor" in dir/prompts.embeddings
+ * (its path into emb). */
+static void write_embeddings(char *emb, size_t cap) {
+  snprintf(emb, cap, "%s/prompts.embeddings", tk.dir);
+  FILE *ef = fopen(emb, "w");
+  assert_non_null(ef);
+  fprintf(ef, "vlff-embeddings 1\ndim %d\n", D);
+  for (int k = 0; k < 2; k++) {
+    fprintf(ef, "%s\t", k ? "floor" : "wall");
+    for (int d = 0; d < D; d++) fprintf(ef, "%s%g", d ? " " : "", d == k ? 1.0 : 0.1);
+    fprintf(ef, "\n");
+  }
+  assert_int_equal(fclose(ef), 0);
+}
+
 /* vlff-node fed from a ring at 10 frames/s with the real extractor, whose
  * features take 1.5 s a frame against vlm.feature_timeout_s 0.5: every
  * keyframe's features come too late. The node refuses those keyframes
@@ -343,16 +360,7 @@ static void test_slow_feature_source_refused(void **state) {
   (void)state;
   if (!have_numpy()) skip();
   char emb[192];
-  snprintf(emb, sizeof emb, "%s/prompts.embeddings", tk.dir);
-  FILE *ef = fopen(emb, "w");
-  assert_non_null(ef);
-  fprintf(ef, "vlff-embeddings 1\ndim %d\n", D);
-  for (int k = 0; k < 2; k++) {
-    fprintf(ef, "%s\t", k ? "floor" : "wall");
-    for (int d = 0; d < D; d++) fprintf(ef, "%s%g", d ? " " : "", d == k ? 1.0 : 0.1);
-    fprintf(ef, "\n");
-  }
-  assert_int_equal(fclose(ef), 0);
+  write_embeddings(emb, sizeof emb);
   struct vlff_config cfg;
   const char *cfg_path = tk_config(&tk, &cfg,
       "node:\n  state_dir: %s/state\n  checkpoint_period_s: 0\n  log_level: info\n"
@@ -538,8 +546,92 @@ static void test_join_rules(void **state) {
   }
   vlff_feature_join_stats(j, &st);
   assert_int_equal(st.orphans_evicted, 1);
+
+  /* Read from a ring's oldest record: a map of a frame stamped before the
+   * join's time is passed over and counted, and joins nothing; one stamped
+   * at it joins. */
+  assert_int_equal(vlff_feature_join_poll(j, 60 * s, &id, out, &h, &w), VLFF_JOIN_EXPIRED); /* frames 1, 2 */
+  assert_int_equal(vlff_feature_join_poll(j, 60 * s, &id, out, &h, &w), VLFF_JOIN_EXPIRED);
+  vlff_feature_join_not_before(j, 50 * s);
+  assert_int_equal(vlff_feature_join_add_frame(j, 200, 60 * s, err, sizeof err), 0);
+  len = make_record(buf, cap, 200, 8, 2, 2, 0.f);
+  ((struct vlff_feature_hdr *)buf)->t_host_ns = 50 * s - 1;
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), 1);
+  assert_int_equal(vlff_feature_join_poll(j, 60 * s, &id, out, &h, &w), VLFF_JOIN_NONE);
+  vlff_feature_join_stats(j, &st);
+  assert_int_equal(st.stale, 1);
+  ((struct vlff_feature_hdr *)buf)->t_host_ns = 50 * s;
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), 0);
+  assert_int_equal(vlff_feature_join_poll(j, 60 * s, &id, out, &h, &w), VLFF_JOIN_READY);
+  assert_int_equal(id, 200);
   free(buf);
   vlff_feature_join_destroy(j);
+}
+
+/* An extractor that starts with its camera can commit a frame's features
+ * before the node, which attached the frame ring first, attaches the feature
+ * ring: the node must still take them. Here the feature ring holds the maps
+ * of frames 0-5 while the node refuses it (mode 0644 is wider than its
+ * 0640), and is then narrowed: the node attaches and joins every one; at the
+ * newest record it would have waited for them until vlm.feature_timeout_s
+ * and refused each frame as "features late". */
+static void test_features_before_attach(void **state) {
+  (void)state;
+  char emb[192];
+  write_embeddings(emb, sizeof emb);
+  struct vlff_config cfg;
+  tk_config(&tk, &cfg,
+            "node:\n  state_dir: %s/state\n  checkpoint_period_s: 0\n"
+            "prompts:\n  embeddings: %s\n  sets:\n    - name: two\n      prompts: [wall, floor]\n"
+            "source:\n  kind: ring\n  features: ring\n"
+            "field:\n  feature_dim: %d\n"
+            "vlm:\n  feature_timeout_s: 3\n  input_width: 80\n  input_height: 60\n"
+            "sim:\n  seed: 3\n  width: 160\n  height: 120\n  frames: 150\n"
+            "shm:\n%s  max_width: 320\n  max_height: 240\n"
+            "train:\n  image_scale: 0.5\n"
+            "keyframes:\n  start_after: 1\n",
+            tk.dir, emb, D, tk_shm_names(&tk));
+  vlff_shm_unlink(cfg.shm.feature_ring); /* an earlier test's extractor's */
+  struct tk_scene sc;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 160, 120, &src);
+  struct vlff_ring_params p = {.record_kind = VLFF_RECORD_FEATURE, .slots = 8,
+                               .slot_size = vlff_feature_slot_size(D, 60, 80), .perm = {.mode = 0644}};
+  struct vlff_ring *fr = vlff_ring_create(cfg.shm.feature_ring, &p);
+  if (!fr) fail_msg("%s", vlff_shm_last_message());
+  char path[300];
+  snprintf(path, sizeof path, "/dev/shm%s", cfg.shm.feature_ring);
+  assert_int_equal(chmod(path, 0644), 0); /* whatever the umask made of it */
+  size_t cap = vlff_ring_slot_size(fr);
+  for (long long i = 0; i < 6; i++) {
+    put_scene_frame(&sc, i);
+    uint8_t *rec = vlff_ring_reserve(fr, NULL);
+    assert_non_null(rec);
+    size_t len = make_record(rec, cap, (uint64_t)i, D, 60, 80, 0.1f);
+    ((struct vlff_feature_hdr *)rec)->t_host_ns = vlff_shm_now_ns();
+    assert_int_equal(vlff_ring_commit(fr, len), 0);
+    tk_sleep_s(0.1);
+  }
+  struct vlff_node_status st;
+  vlff_node_status(n, &st);
+  assert_int_equal(st.features_timeout, 0); /* nothing expired yet: 3 s */
+  assert_int_equal(chmod(path, 0640), 0);
+  double t0 = vlff_seconds();
+  do {
+    tk_sleep_s(0.2);
+    vlff_node_status(n, &st);
+  } while (st.keyframes < 6 && st.features_timeout == 0 && vlff_seconds() - t0 < 10 * tk.scale);
+  tk_sleep_s(3.5); /* past the timeout: a frame still waiting would have expired */
+  vlff_node_status(n, &st);
+  printf("%lld frames in, %d keyframes, %lld features late, %lld refused\n", st.frames_in, st.keyframes,
+         st.features_timeout, st.frames_invalid);
+  assert_int_equal(st.frames_in, 6);
+  assert_int_equal(st.features_timeout, 0);
+  assert_int_equal(st.refused[VLFF_REFUSED_FEATURES_LATE], 0);
+  assert_true(st.keyframes >= 1);
+  tk_node_destroy(n, src);
+  vlff_ring_close(fr);
+  tk_scene_close(&sc);
 }
 
 static int setup(void **state) {
@@ -557,4 +649,4 @@ VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(test_join_rules), cmocka_unit_test(test_join_transpose),
     cmocka_unit_test(test_python_extractor_round_trip), cmocka_unit_test(test_python_extractor_skips_to_newest),
     cmocka_unit_test(test_python_extractor_refuses_out_of_range),
-    cmocka_unit_test(test_slow_feature_source_refused))
+    cmocka_unit_test(test_slow_feature_source_refused), cmocka_unit_test(test_features_before_attach))
