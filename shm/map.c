@@ -25,6 +25,8 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #define MAP_BUF_OFFSET 4096u
 #define READ_RETRIES 10000
@@ -558,10 +560,118 @@ API int vlff_map_heartbeat(struct vlff_map *m) {
   return 0;
 }
 
+API uint64_t vlff_map_capacity(const struct vlff_map *m) { return m ? m->max_voxels : 0; }
+
+/* Writer: the map as published now (the current buffer's meta, grid and label
+ * image, the status block, the version) into the fresh segment ns of capacity
+ * geom, its buffer 0 made current. */
+static void copy_into(const struct vlff_map *m, struct seg *ns, const uint64_t geom[6]) {
+  const uint32_t c = atomic_load_explicit(&m->ctl->current, memory_order_relaxed) & 1;
+  const struct map_buf *ob = buf(m, c);
+  const struct map_meta *mm = &ob->meta;
+  struct map_ctl *nctl = (struct map_ctl *)(ns->base + sizeof(struct seg_hdr));
+  struct map_buf *nb = (struct map_buf *)(ns->base + MAP_BUF_OFFSET);
+  const uint64_t mv = m->max_voxels, nmv = geom[0], lpx = m->lw_max * m->lh_max;
+  memcpy(ns->base + STATUS_OFFSET, m->seg.base + STATUS_OFFSET, sizeof(struct status_block));
+  nb->meta = *mm;
+  if (mm->version) {
+    uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2];
+    memcpy((uint8_t *)nb + off_labels(), bufp(m, c, off_labels()), 2 * n);
+    memcpy((uint8_t *)nb + off_conf(nmv), bufp(m, c, off_conf(mv)), n);
+  }
+  if (mm->has_limg) {
+    uint64_t n = (uint64_t)mm->lw * mm->lh;
+    memcpy((uint8_t *)nb + off_llabels(nmv), bufp(m, c, off_llabels(mv)), 2 * n);
+    memcpy((uint8_t *)nb + off_lconf(nmv, lpx), bufp(m, c, off_lconf(mv, lpx)), n);
+  }
+  atomic_store(&nb->seq, 2);
+  atomic_store(&nctl->current, 0);
+  atomic_store(&nctl->version, m->last_version > mm->version ? m->last_version : mm->version);
+}
+
+API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
+  if (!m || !m->writer || max_voxels > UINT32_MAX) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_reserve: %s",
+            !m || !m->writer ? "not a writer handle" : "more than 2^32 - 1 voxels");
+    return -1;
+  }
+  if (writer_retry(m) < 0)
+    return -1;
+  if (max_voxels <= m->max_voxels)
+    return 0;
+  const uint64_t lpx = m->lw_max * m->lh_max;
+  uint64_t geom[6] = {max_voxels, m->lw_max, m->lh_max, buf_stride(max_voxels, lpx), MAP_BUF_OFFSET,
+                      log_cap_for(max_voxels)};
+  struct vlff_map_range *prev = malloc(geom[5] / 4 * sizeof *prev);
+  struct seg *ns = calloc(1, sizeof *ns);
+  char tmp[sizeof m->seg.name + 32];
+  int n = snprintf(tmp, sizeof tmp, "%.200s.grow%d", m->seg.name, (int)getpid());
+  if (!prev || !ns || n >= (int)sizeof tmp) {
+    free(prev), free(ns);
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
+    return -1;
+  }
+  /* Made and filled under a name of its own, then renamed over the map's: a reader
+   * attaching the name at any moment gets a whole map, the old one or the new. */
+  struct vlff_shm_perm perm = {.mode = m->seg.mode, .group = m->seg.group[0] ? m->seg.group : NULL};
+  if (shm_seg_create(ns, tmp, &shm_map_spec, geom, &perm) < 0) {
+    free(prev), free(ns);
+    return -1;
+  }
+  copy_into(m, ns, geom);
+  shm_seg_ready(ns);
+  atomic_store(&ns->h->last_ns, shm_now());
+  if (shm_seg_rename(ns, m->seg.name) < 0) {
+    shm_seg_close(ns);
+    shm_unlink(tmp);
+    free(prev), free(ns);
+    return -1;
+  }
+  /* Readers still on the old segment attach the new one at their next call. */
+  atomic_store_explicit(&m->seg.h->state, SEG_MOVED, memory_order_release);
+  shm_seg_close(&m->seg);
+  shm_seg_move(&m->seg, ns);
+  free(ns);
+  bind(m);
+  free(m->prev);
+  m->prev = prev;
+  m->prev_ok = false; /* buffer 1 holds nothing yet */
+  return 0;
+}
+
+/* Reader: the segment its writer moved to (vlff_map_reserve), attached under the
+ * same name in place of the old one. 0, or -1 (the old one kept, to try again). */
+static int follow(struct vlff_map *m) {
+  struct seg *ns = calloc(1, sizeof *ns);
+  if (!ns) {
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
+    return -1;
+  }
+  char name[sizeof m->seg.name];
+  snprintf(name, sizeof name, "%s", m->seg.name);
+  if (shm_seg_attach(ns, name, &shm_map_spec, false, NULL) < 0) {
+    free(ns);
+    return -1;
+  }
+  shm_seg_close(&m->seg);
+  shm_seg_move(&m->seg, ns);
+  free(ns);
+  bind(m);
+  return 0;
+}
+
+/* 0: the segment is usable; 1: it is not (EPIPE and the reason set); 2: a reader
+ * followed its writer to a new segment (what it was reading is gone: start over). */
 static int abandoned(struct vlff_map *m) {
   if (m->broken || shm_seg_check(&m->seg, false) < 0)
     return 1;
-  if (atomic_load_explicit(&m->seg.h->state, memory_order_acquire) == SEG_ABANDONED) {
+  uint32_t st = atomic_load_explicit(&m->seg.h->state, memory_order_acquire);
+  if (st == SEG_MOVED && !m->writer) {
+    if (follow(m) == 0)
+      return 2;
+    return 1;
+  }
+  if (st == SEG_ABANDONED || st == SEG_MOVED) {
     shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its writer; attach again", VLFF_Q(m->seg.name));
     return 1;
   }
@@ -588,7 +698,8 @@ typedef bool (*reader_fn)(const struct vlff_map *m, uint32_t b, const struct map
 
 static int read_consistent(struct vlff_map *m, struct map_meta *mm, reader_fn fn, void *ctx) {
   for (int i = 0; i < READ_RETRIES; i++) {
-    if (abandoned(m))
+    int a = abandoned(m);
+    if (a == 1)
       return -1;
     uint32_t c = atomic_load_explicit(&m->ctl->current, memory_order_acquire) & 1;
     struct map_buf *b = buf(m, c);
@@ -598,8 +709,10 @@ static int read_consistent(struct vlff_map *m, struct map_meta *mm, reader_fn fn
     shm_racy_copy(mm, &b->meta, sizeof *mm);
     bool ok = meta_sane(m, mm) && (!fn || fn(m, c, mm, ctx));
     shm_fence_acquire();
-    if (abandoned(m))
+    if ((a = abandoned(m)) == 1)
       return -1;
+    if (a == 2)
+      continue; /* read from the segment the writer left: read the new one */
     if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)
       continue;
     if (!ok) {
@@ -687,6 +800,7 @@ API int vlff_map_prompt(struct vlff_map *m, uint16_t label, char *out, size_t le
 API uint64_t vlff_map_version(struct vlff_map *m) {
   if (m->writer)
     return m->last_version;
+  (void)abandoned(m); /* a moved map's version goes on in the new segment */
   return atomic_load_explicit(&m->ctl->version, memory_order_acquire);
 }
 
@@ -699,7 +813,7 @@ API uint64_t vlff_map_age_ns(struct vlff_map *m) {
 }
 
 API int vlff_map_writer_alive(struct vlff_map *m, uint64_t max_silence_ns) {
-  if (abandoned(m))
+  if (abandoned(m) == 1)
     return 0;
   uint64_t hb = atomic_load_explicit(&m->seg.h->last_ns, memory_order_acquire), now = shm_now();
   if (now > hb && now - hb > max_silence_ns)
@@ -708,6 +822,8 @@ API int vlff_map_writer_alive(struct vlff_map *m, uint64_t max_silence_ns) {
 }
 
 API uint32_t vlff_map_generation(struct vlff_map *m) {
+  if (!m->writer)
+    (void)abandoned(m);
   return m->broken ? 0 : atomic_load(&m->seg.h->generation);
 }
 
@@ -748,8 +864,39 @@ API void vlff_map_snapshot_free(struct vlff_map_snapshot *s) {
   free(s);
 }
 
+static bool snap_fits(const struct vlff_map *m, const struct vlff_map_snapshot *s) {
+  return s->max_voxels == m->max_voxels && s->lw_max == m->lw_max && s->lh_max == m->lh_max &&
+         s->log_cap == m->log_cap;
+}
+
+/* A snapshot sized for the segment the handle reads now: a reader that followed
+ * its writer to a larger segment (vlff_map_reserve) reallocates it, and its next
+ * copy is whole. False when out of memory (the snapshot is then as it was). */
+static bool snap_resize(const struct vlff_map *m, struct vlff_map_snapshot *s) {
+  if (snap_fits(m, s))
+    return true;
+  uint64_t lpx = m->lw_max * m->lh_max;
+  uint16_t *labels = malloc(2 * m->max_voxels), *llabels = malloc(2 * lpx + 2);
+  uint8_t *conf = malloc(m->max_voxels), *lconf = malloc(lpx + 1);
+  struct vlff_map_range *changes = malloc(m->log_cap * sizeof *changes);
+  if (!labels || !llabels || !conf || !lconf || !changes) {
+    free(labels), free(llabels), free(conf), free(lconf), free(changes);
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "snapshot: out of memory for a map of %llu voxels",
+            (unsigned long long)m->max_voxels);
+    return false;
+  }
+  free(s->labels), free(s->llabels), free(s->conf), free(s->lconf), free(s->changes);
+  s->labels = labels, s->llabels = llabels, s->conf = conf, s->lconf = lconf, s->changes = changes;
+  s->max_voxels = m->max_voxels, s->lw_max = m->lw_max, s->lh_max = m->lh_max, s->log_cap = m->log_cap;
+  s->meta.version = 0; /* the next copy is whole */
+  s->nchanges = 0;
+  return true;
+}
+
 static bool copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx) {
   struct vlff_map_snapshot *s = ctx;
+  if (!snap_resize(m, s))
+    return false;
   uint64_t mv = m->max_voxels;
   if (mm->version) {
     uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2];
@@ -762,11 +909,6 @@ static bool copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), n);
   }
   return true;
-}
-
-static bool snap_fits(const struct vlff_map *m, const struct vlff_map_snapshot *s) {
-  return s->max_voxels == m->max_voxels && s->lw_max == m->lw_max && s->lh_max == m->lh_max &&
-         s->log_cap == m->log_cap;
 }
 
 /* The snapshot's change list after a whole copy of a map with meta mm. */
@@ -787,8 +929,8 @@ static void snap_done(struct vlff_map *m, struct vlff_map_snapshot *s, const str
 }
 
 API int vlff_map_snapshot_take(struct vlff_map *m, struct vlff_map_snapshot *s) {
-  if (!m || !s || !snap_fits(m, s)) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_take: snapshot not made for this map");
+  if (!m || !s) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_take: NULL argument");
     return -1;
   }
   if (read_consistent(m, &s->meta, copy_all, s) < 0) {
@@ -846,6 +988,8 @@ static bool logged_since(const struct vlff_map *m, struct vlff_map_snapshot *s, 
 static bool copy_changed(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
   struct follow_ctx *c = vctx;
   struct vlff_map_snapshot *s = c->s;
+  if (!snap_resize(m, s))
+    return false;
   const struct map_meta *old = &s->meta;
   uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2], mv = m->max_voxels;
   /* Once an attempt copied everything (torn, since it is retried), so do the rest. */
@@ -872,8 +1016,8 @@ static bool copy_changed(const struct vlff_map *m, uint32_t b, const struct map_
 }
 
 API int vlff_map_snapshot_follow(struct vlff_map *m, struct vlff_map_snapshot *s) {
-  if (!m || !s || !snap_fits(m, s)) {
-    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_follow: snapshot not made for this map");
+  if (!m || !s) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_follow: NULL argument");
     return -1;
   }
   struct map_meta mm;
@@ -1010,17 +1154,20 @@ API int vlff_map_get_status(struct vlff_map *m, struct vlff_map_status *out) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_get_status: NULL argument");
     return -1;
   }
-  struct status_block *b = status_block(m);
   for (int i = 0; i < READ_RETRIES; i++) {
-    if (abandoned(m))
+    if (abandoned(m) == 1)
       return -1;
+    struct status_block *b = status_block(m);
     uint64_t s1 = atomic_load_explicit(&b->seq, memory_order_acquire);
     if (s1 & 1)
       continue;
     shm_racy_copy(out, &b->st, sizeof *out);
     shm_fence_acquire();
-    if (abandoned(m))
+    int a = abandoned(m);
+    if (a == 1)
       return -1;
+    if (a == 2)
+      continue;
     if (atomic_load_explicit(&b->seq, memory_order_relaxed) != s1)
       continue;
     if (s1 == 0 || out->t_ns == 0) {

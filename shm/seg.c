@@ -282,8 +282,9 @@ static int validate(const char *name, const struct seg_hdr *h, uint64_t file_siz
             (int)h->creator_pid);
     return -1;
   }
-  if (st == SEG_ABANDONED) {
-    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: abandoned by its creator; attach again", VLFF_Q(name));
+  if (st == SEG_ABANDONED || st == SEG_MOVED) {
+    shm_err(VLFF_SHM_ERR_ABANDONED, EPIPE, "%s: %s by its creator; attach again", VLFF_Q(name),
+            st == SEG_MOVED ? "moved to a larger segment" : "abandoned");
     return -1;
   }
   if (st != SEG_READY) {
@@ -765,6 +766,34 @@ int shm_seg_retry(struct seg *s) {
     return -1;
   }
   return shm_seg_replace(s);
+}
+
+void shm_seg_move(struct seg *dst, struct seg *src) {
+  int prot = PROT_READ | (src->writable ? PROT_WRITE : 0);
+  shm_guard_unregister(src);
+  *dst = *src;
+  dst->guard_slot = 0;
+  atomic_store(&dst->fault, 0);
+  /* The slot src gave up is free: registering again cannot run out. */
+  (void)shm_guard_register(dst, prot);
+  src->base = NULL;
+  src->fd = -1;
+}
+
+int shm_seg_rename(struct seg *s, const char *name) {
+  if (check_name(name) < 0)
+    return -1;
+  /* POSIX names shm_open's files after the name; glibc keeps them in /dev/shm. */
+  char from[300], to[300];
+  snprintf(from, sizeof from, "/dev/shm%s", s->name);
+  snprintf(to, sizeof to, "/dev/shm%s", name);
+  if (rename(from, to) < 0) {
+    int e = errno;
+    shm_err(VLFF_SHM_ERR_SYS, e, "%s: cannot take the name %s: %s", VLFF_Q(s->name), VLFF_Q(name), strerror(e));
+    return -1;
+  }
+  snprintf(s->name, sizeof s->name, "%s", name);
+  return 0;
 }
 
 void shm_seg_ready(struct seg *s) { atomic_store_explicit(&s->h->state, SEG_READY, memory_order_release); }

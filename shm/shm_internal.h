@@ -17,7 +17,10 @@
 /* "VLFFSHM" + NUL as a little-endian word. */
 #define SEG_MAGIC 0x004D485346464C56ull
 
-enum seg_state { SEG_INIT = 0, SEG_READY = 1, SEG_ABANDONED = 2 };
+/* SEG_MOVED: the creator put a larger segment under the name (ABI 9, a map
+ * growing past its capacity: vlff_map_reserve); a reader attaches the name
+ * again and reads on there. */
+enum seg_state { SEG_INIT = 0, SEG_READY = 1, SEG_ABANDONED = 2, SEG_MOVED = 3 };
 
 /* Every segment starts with these 128 bytes. The geometry words are immutable after
  * creation and covered by geom_check, so a reader can tell a corrupt header from a
@@ -106,6 +109,13 @@ int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec,
 /* Create: returns 1 if a fresh segment was created (header written, state INIT: the
  * caller initialises its body then calls shm_seg_ready), 0 if a dead creator's
  * segment of identical geometry was taken over (generation bumped, state READY). */
+/* Moves the mapped segment src into dst (the SIGBUS guard follows it); src is
+ * left unmapped. */
+void shm_seg_move(struct seg *dst, struct seg *src);
+/* Gives the segment created as s under a temporary name the name `name`
+ * (rename in /dev/shm: whoever attaches the name from then on gets it, and
+ * whoever has the old file mapped keeps it). 0, or -1 with the error set. */
+int shm_seg_rename(struct seg *s, const char *name);
 int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
                    const struct vlff_shm_perm *perm);
 void shm_seg_ready(struct seg *s);

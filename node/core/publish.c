@@ -246,7 +246,10 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   }
   for (size_t i = 0; i < n; i++) p->labels[i] = VLFF_LABEL_UNKNOWN;
   memset(p->conf, 0, n);
-  struct vlff_map_params mp = {.max_voxels = (uint32_t)shm->map_max_voxels,
+  /* A growing map's segment starts with room for its first box and grows
+   * with it (publisher_regrid), up to shm.map_max_voxels; a fixed box's
+   * holds the capacity from the start, as it always did. */
+  struct vlff_map_params mp = {.max_voxels = field->grow ? (uint32_t)n : (uint32_t)shm->map_max_voxels,
                                .label_max_width = (uint32_t)shm->label_max_width,
                                .label_max_height = (uint32_t)shm->label_max_height,
                                .perm = {.mode = (mode_t)shm->mode, .group = shm->group}};
@@ -257,8 +260,8 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
     return NULL;
   }
   p->last_publish_s = -1;
-  VLFF_INFO(TAG, "map %s: %u x %u x %u voxels of %.3f m", shm->map, p->dims[0], p->dims[1], p->dims[2],
-            p->voxel);
+  VLFF_INFO(TAG, "map %s: %u x %u x %u voxels of %.3f m (its segment: %u voxels)", shm->map, p->dims[0], p->dims[1],
+            p->dims[2], p->voxel, mp.max_voxels);
   return p;
 }
 
@@ -405,14 +408,15 @@ static bool drops_held(const struct vlff_publisher *p, const int32_t sh[3], cons
 /* A growing map takes a saved grid on its lattice (the grid it had grown or
  * been refitted to when saved) that holds every voxel the map holds now:
  * 1 when it did, 0 when the grid is not such (the geometry check refuses it
- * then), -1 when that failed. */
+ * then), -1 out of memory, -2 the segment could not grow (publisher_regrid). */
 static int grow_to_saved(struct vlff_publisher *p, const struct obs_header *h) {
   int32_t sh[3];
   if (!p->field.grow || h->voxel != p->voxel || vlff_lattice_cells(h->dims) > p->max_voxels ||
       !vlff_lattice_saved(p->origin0, p->voxel, p->k0, p->dims, h->origin, h->dims, sh) ||
       drops_held(p, sh, h->dims))
     return 0;
-  return publisher_regrid(p, sh, h->dims) ? -1 : 1;
+  int g = publisher_regrid(p, sh, h->dims);
+  return g ? g : 1;
 }
 
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
@@ -442,9 +446,14 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   /* A grown map's file: this map grows to it first (the geometry check
    * below refuses any other grid). Growing changes nothing observed, so a
    * file refused after it leaves the map as it was, only larger. */
-  if (grow_to_saved(p, &h) < 0) {
-    snprintf(err, errlen, "%s: out of memory growing the map to the saved %ux%ux%u grid", path, h.dims[0], h.dims[1],
-             h.dims[2]);
+  int grown = grow_to_saved(p, &h);
+  if (grown < 0) {
+    if (grown == -2)
+      snprintf(err, errlen, "%s: the map's segment could not grow to the saved %ux%ux%u grid: %s", path, h.dims[0],
+               h.dims[1], h.dims[2], vlff_shm_last_message());
+    else
+      snprintf(err, errlen, "%s: out of memory growing the map to the saved %ux%ux%u grid", path, h.dims[0],
+               h.dims[1], h.dims[2]);
     goto out;
   }
   n = p->nvox, grids = sizeof(struct obs_header) + n + n * 2 + n * 12;
@@ -604,11 +613,22 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
 
 /* The map's grid and everything kept per voxel, from dims shifted by sh
  * into nd (grown or refitted on its lattice, lattice.h): all allocated
- * before anything changes. Every voxel that holds something keeps its
+ * before anything changes (0; -1 out of memory; -2 the map's segment could
+ * not grow, vlff_map_reserve's reason in vlff_shm_last_message). Every voxel that holds something keeps its
  * place in the world: the callers never drop one (drops_held). */
 static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3]) {
   const size_t n = vlff_lattice_cells(nd);
   const uint32_t *od = p->dims;
+  /* The segment first: a larger one holding the published map as it is takes
+   * its name (vlff_map_reserve; readers follow it), or nothing changes. A
+   * quarter more than this grid, up to shm.map_max_voxels: a robot walking on
+   * moves it a few times per building, not at every growth. */
+  if (p->map && n > vlff_map_capacity(p->map)) {
+    size_t want = n + n / 4 < p->max_voxels ? n + n / 4 : p->max_voxels;
+    if (vlff_map_reserve(p->map, want) < 0) return -2;
+    VLFF_INFO(TAG, "map: its segment now holds %zu voxels (%.1f MiB)", want,
+              (double)want * 6 / (1 << 20));
+  }
   /* kept: what was observed and published where */
   uint8_t *observed = vlff_lattice_regrid(p->observed, 1, 0, od, sh, nd);
   uint8_t *conf = vlff_lattice_regrid(p->conf, 1, 0, od, sh, nd);
@@ -691,7 +711,10 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
                       p->voxel, p->max_voxels),
              -1;
   }
-  if (publisher_regrid(p, sh, nd))
+  int g = publisher_regrid(p, sh, nd);
+  if (g == -2)
+    return snprintf(err, errlen, "map: its segment could not grow to %zu voxels: %s", n, vlff_shm_last_message()), -1;
+  if (g)
     return snprintf(err, errlen, "map: out of memory growing to %zu voxels", n), -1;
   return refit ? 2 : 1;
 }

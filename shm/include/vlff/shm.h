@@ -88,7 +88,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 8
+#define VLFF_SHM_ABI_VERSION 9
 
 /* ------------------------------------------------------------------ errors */
 
@@ -448,8 +448,20 @@ struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params 
 int vlff_map_publish(struct vlff_map *map, const struct vlff_map_update *update);
 /* Writer: says "alive" without a new map. */
 int vlff_map_heartbeat(struct vlff_map *map);
+/* Writer: makes room for grids of up to max_voxels voxels (0 when the segment
+ * holds that many already). A new segment, sized for it, holding what the map
+ * holds now (the published grid, label image, prompts, status, version), takes
+ * the name (ABI 9); the old one is marked moved, and every reader attached to it
+ * attaches the new one at its next call and reads on, the same labels at the same
+ * points (docs/shm.md "A map that grows"). The next publish may then be a grid of
+ * up to max_voxels. -1 (EINVAL: not a writer or max_voxels above 2^32 - 1;
+ * ENOSPC and others: the new segment could not be made; the old one is kept). */
+int vlff_map_reserve(struct vlff_map *map, uint64_t max_voxels);
+/* The grid size the segment holds (voxels), as the handle sees it now. */
+uint64_t vlff_map_capacity(const struct vlff_map *map);
 
-/* Reader: attaches read-only and validates the segment. */
+/* Reader: attaches read-only and validates the segment. A reader's handle follows
+ * its writer's vlff_map_reserve by itself. */
 struct vlff_map *vlff_map_attach(const char *name);
 /* Releases either handle; the segment stays. */
 void vlff_map_detach(struct vlff_map *map);

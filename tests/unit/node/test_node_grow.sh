@@ -3,8 +3,9 @@
 # that grows"): the node starts in a first box of +-2.5 m while the
 # simulator walks a 10 x 8 m flat. The keyframes that see beyond it grow the
 # field's, the evidence's and the map's boxes (said in the log, counted in
-# the stop line); the map segment keeps its name and capacity and shows the
-# grown grid, labelled beyond the first box; a restarted node resumes in the
+# the stop line); the map segment keeps its name, grows with the map (a
+# larger segment takes the name, vlff_map_reserve) and shows the grown grid,
+# labelled beyond the first box; a restarted node resumes in the
 # grown box from its checkpoint. The map's capacity holds twice the flat (10 x 8
 # x 3 m, 240000 voxels of 0.1 m) but not the flat and the first box's 5 m of
 # height, nor the margins growths add: the map is refitted at it (docs/field.md
@@ -51,6 +52,14 @@ for x in -4.85 -4.75 -4.65 4.65 4.75 4.85; do
   done
 done
 check "voxels beyond the first box carry class labels ($beyond of 54 probed at the flat's end walls)" '(( beyond > 0 ))'
+# The segment started with room for the first box (50^3 voxels of 0.1 m) and
+# grew with the map, within shm.map_max_voxels.
+cap=$("$shm" stat "$p-m" | awk '$1 == "max_voxels" { print $2 }')
+last=$(grep -o 'its segment now holds [0-9]*' "$tmp/log" | tail -1 | awk '{ print $5 }')
+check "the map's segment started with room for the first box: $(grep -m1 -o 'map /[^ ]*: 50 x 50 x 50 voxels.*' "$tmp/log")" \
+  'grep -q "map /[^ ]*: 50 x 50 x 50 voxels of 0.100 m (its segment: 125000 voxels)" "$tmp/log"'
+check "the map's segment grew with it, within shm.map_max_voxels (to $cap voxels, $(grep -c 'its segment now holds' "$tmp/log") moves)" \
+  '[[ -n $last && $cap == "$last" ]] && (( cap > 125000 && cap <= 480000 ))'
 check "the map was refitted at its capacity: $(grep -m1 -o 'map \[[^]]*\] x .*refitted at shm.map_max_voxels' "$tmp/log")" \
   'grep -q "refitted at shm.map_max_voxels" "$tmp/log"'
 stop_node

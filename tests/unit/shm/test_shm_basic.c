@@ -16,6 +16,7 @@
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 static struct vlff_ring *mk_ring(const char *name, uint32_t slots, uint64_t size) {
   struct vlff_ring_params p = {.record_kind = VLFF_RECORD_RAW, .slots = slots, .slot_size = size};
@@ -509,10 +510,76 @@ static void map_grows_under_reader(void **state) {
   assert_int_equal(errno, EMSGSIZE);
   assert_int_equal(vlff_map_label_at(r, -0.9, 1.9, 0.1, &label, &conf), 0);
   assert_int_equal(label, 3);
+  /* The segment grows (vlff_map_reserve): a new one holding the map as it is
+   * takes the name; the reader, attached throughout, follows it at its next
+   * call and reads the same labels, the status and the version as before. */
+  struct vlff_map_status st = {.t_ns = 5, .iterations = 1234, .box_growths = 7};
+  snprintf(st.state_name, sizeof st.state_name, "grown");
+  assert_int_equal(vlff_map_set_status(w, &st), 0);
+  const uint64_t v = vlff_map_version(w);
+  struct stat before, after;
+  char path[96];
+  snprintf(path, sizeof path, "/dev/shm%s", name);
+  assert_int_equal(stat(path, &before), 0);
+  assert_int_equal(vlff_map_capacity(w), 1000);
+  assert_int_equal(vlff_map_reserve(w, 500), 0); /* holds that already: nothing done */
+  assert_int_equal(vlff_map_capacity(w), 1000);
+  assert_int_equal(vlff_map_reserve(w, 11 * 10 * 10), 0);
+  assert_int_equal(vlff_map_capacity(w), 1100);
+  assert_int_equal(stat(path, &after), 0);
+  assert_true(after.st_ino != before.st_ino && after.st_size > before.st_size);
+  assert_int_equal(vlff_map_capacity(r), 1000); /* not looked yet */
+  assert_int_equal(vlff_map_label_at(r, old_pt[0], old_pt[1], old_pt[2], &label, &conf), 0);
+  assert_int_equal(label, 2);
+  assert_int_equal(conf, 200);
+  assert_int_equal(vlff_map_capacity(r), 1100);
+  assert_int_equal(vlff_map_label_at(r, -0.9, 1.9, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 3);
+  assert_int_equal(vlff_map_version(r), v);
+  char text[32];
+  assert_int_equal(vlff_map_prompt(r, 3, text, sizeof text), 0);
+  assert_string_equal(text, "sofa");
+  struct vlff_map_status got;
+  assert_int_equal(vlff_map_get_status(r, &got), 0);
+  assert_int_equal(got.iterations, 1234);
+  assert_int_equal(got.box_growths, 7);
+  assert_true(vlff_map_writer_alive(r, 10ull * 1000 * 1000 * 1000));
+  /* the grid that did not fit now does; a partial publish after it too */
+  for (int i = 0; i < 11 * 10 * 10; i++) big[i] = (uint16_t)(i % 4), cbig[i] = 50;
+  assert_int_equal(vlff_map_publish(w, &uc), 0);
+  struct vlff_map_range one = {5, 1};
+  big[5] = 1;
+  uc.ranges = &one, uc.range_count = 1;
+  assert_int_equal(vlff_map_publish(w, &uc), 0);
+  assert_int_equal(vlff_map_version(r), v + 2);
+  assert_int_equal(vlff_map_label_at(r, -1 + 5 * 0.25 + 0.1, 0.1, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 1);
+  assert_int_equal(vlff_map_label_at(r, -1 + 6 * 0.25 + 0.1, 0.1, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 6 % 4);
+  /* the snapshot made for the old segment follows into the new one, whole */
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 1);
+  assert_int_equal(vlff_map_snapshot_info(s, &info), 0);
+  assert_int_equal(info.grid.dims[2], 10);
+  assert_memory_equal(info.grid.labels, big, sizeof big);
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 0); /* nothing new */
+  /* a reader attached after it reads the same */
+  struct vlff_map *r2 = vlff_map_attach(name);
+  assert_non_null(r2);
+  assert_int_equal(vlff_map_label_at(r2, -1 + 5 * 0.25 + 0.1, 0.1, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 1);
+  vlff_map_detach(r2);
+  /* only a writer grows it; past 2^32 - 1 voxels refused */
+  assert_int_equal(vlff_map_reserve(r, 5000), -1);
+  assert_int_equal(errno, EINVAL);
+  assert_int_equal(vlff_map_reserve(w, 1ull << 33), -1);
+  assert_int_equal(errno, EINVAL);
   vlff_map_snapshot_free(s);
   vlff_map_detach(r);
   vlff_map_detach(w);
   assert_int_equal(vlff_shm_unlink(name), 0);
+  char tmpname[96];
+  snprintf(tmpname, sizeof tmpname, "/dev/shm%s.grow%d", name, (int)getpid());
+  assert_int_equal(access(tmpname, F_OK), -1); /* no temporary name left behind */
 }
 
 static void map_publish_and_read(void **state) {

@@ -1,7 +1,9 @@
 /* Map readers hammering snapshots and point lookups while the writer publishes as
  * fast as it can. Version k's voxels, confidences, prompts and label image are all a
  * function of k, so a snapshot mixing two versions cannot verify. Threads in one
- * process (so ThreadSanitizer checks the protocol) plus one reader process. */
+ * process (so ThreadSanitizer checks the protocol) plus one reader process. Then
+ * the same while the grid grows past the segment's capacity again and again
+ * (vlff_map_reserve moves the map to a larger segment under the readers). */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -22,22 +24,33 @@
 #define LW 32
 #define LH 24
 #define READERS 3
+#define GROW_MAX 40 /* growing: the grid's x side goes from DX to DX + GROW_MAX */
 
 static char name[64];
-static _Atomic int stop;
+static _Atomic int stop, growing;
+
+/* Version k's x side. */
+static uint32_t dx(uint64_t k) {
+  return DX + (atomic_load(&growing) ? (uint32_t)(k / 4 < GROW_MAX ? k / 4 : GROW_MAX) : 0);
+}
 
 static uint16_t lab(uint64_t k, uint64_t i) { return (uint16_t)(mix64(k * 1000003u + i) % 40); }
 static uint8_t cnf(uint64_t k, uint64_t i) { return (uint8_t)(k + i); }
 
 static void *writer(void *arg) {
   struct vlff_map *w = arg;
-  static uint16_t labels[NV], li[LW * LH];
-  static uint8_t conf[NV];
+  static uint16_t labels[(DX + GROW_MAX) * DY * DZ], li[LW * LH];
+  static uint8_t conf[(DX + GROW_MAX) * DY * DZ];
   char texts[4][64];
   const char *prompts[4] = {texts[0], texts[1], texts[2], texts[3]};
   uint64_t *published = calloc(1, sizeof *published);
-  for (uint64_t k = 1; !atomic_load(&stop); k++) {
-    for (uint64_t i = 0; i < NV; i++) {
+  /* growing, to the end whatever the host's speed */
+  for (uint64_t k = 1; !atomic_load(&stop) || (atomic_load(&growing) && k <= 4 * GROW_MAX + 1); k++) {
+    const uint64_t nv = (uint64_t)dx(k) * DY * DZ;
+    /* a new segment each time the grid outgrows it: GROW_MAX moves */
+    if (nv > vlff_map_capacity(w) && vlff_map_reserve(w, nv) != 0)
+      return NULL;
+    for (uint64_t i = 0; i < nv; i++) {
       labels[i] = lab(k, i);
       conf[i] = cnf(k, i);
     }
@@ -45,7 +58,7 @@ static void *writer(void *arg) {
       li[i] = lab(k, i + 7);
     for (int i = 0; i < 4; i++)
       snprintf(texts[i], sizeof texts[i], "v%llu-p%d", (unsigned long long)k, i);
-    struct vlff_map_grid g = {.origin = {(double)k, 0, 0}, .voxel_size = 0.1, .dims = {DX, DY, DZ},
+    struct vlff_map_grid g = {.origin = {(double)k, 0, 0}, .voxel_size = 0.1, .dims = {dx(k), DY, DZ},
                               .labels = labels, .confidence = conf};
     struct vlff_map_label_image img = {.width = LW, .height = LH, .labels = li, .t_ns = k, .fx = (double)k};
     struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = (int)(k % 4) + 1,
@@ -68,9 +81,10 @@ static void verify_loop(struct reader_res *res, uint64_t min_snapshots) {
     return;
   }
   struct vlff_map_snapshot *s = vlff_map_snapshot_new(m);
-  uint64_t last = 0;
+  uint64_t last = 0, n = 0;
   while (!atomic_load(&stop) || res->snapshots < min_snapshots) {
-    if (vlff_map_snapshot_take(m, s) != 0)
+    /* every other one followed (the changed runs, or whole), the rest taken whole */
+    if ((n++ % 2 ? vlff_map_snapshot_follow(m, s) : vlff_map_snapshot_take(m, s)) < 0)
       continue; /* EAGAIN under heavy publishing is allowed: never a torn result */
     struct vlff_map_info in;
     vlff_map_snapshot_info(s, &in);
@@ -81,9 +95,9 @@ static void verify_loop(struct reader_res *res, uint64_t min_snapshots) {
     if (k < last)
       res->backwards++;
     last = k;
-    int ok = in.grid.origin[0] == (double)k && in.grid.dims[0] == DX && in.prompt_count == (int)(k % 4) + 1 &&
+    int ok = in.grid.origin[0] == (double)k && in.grid.dims[0] == dx(k) && in.prompt_count == (int)(k % 4) + 1 &&
              in.has_label_image && in.label_image.t_ns == k && in.label_image.fx == (double)k;
-    for (uint64_t i = 0; ok && i < NV; i++)
+    for (uint64_t i = 0; ok && i < (uint64_t)dx(k) * DY * DZ; i++)
       ok = in.grid.labels[i] == lab(k, i) && in.grid.confidence[i] == cnf(k, i);
     for (uint64_t i = 0; ok && i < LW * LH; i++)
       ok = in.label_image.labels[i] == lab(k, i + 7);
@@ -113,8 +127,8 @@ static void *reader(void *arg) {
   return NULL;
 }
 
-static void snapshots_always_consistent(void **state) {
-  (void)state;
+static void run_stress(void) {
+  atomic_store(&stop, 0);
   test_name(name, sizeof name, "mapstress");
   struct vlff_map_params p = {.max_voxels = NV, .label_max_width = LW, .label_max_height = LH};
   struct vlff_map *w = vlff_map_create(name, &p);
@@ -166,6 +180,11 @@ static void snapshots_always_consistent(void **state) {
   assert_int_equal(cr.bad, 0);
   assert_true(cr.snapshots > 0);
   assert_true(*(uint64_t *)published > 20);
+  if (atomic_load(&growing)) {
+    /* it grew to the end and outgrew its first segment on the way */
+    assert_true(*(uint64_t *)published > 4 * GROW_MAX);
+    assert_true(vlff_map_capacity(w) >= (uint64_t)(DX + GROW_MAX) * DY * DZ);
+  }
   free(published);
   close(fd[0]);
   close(fd[1]);
@@ -173,5 +192,17 @@ static void snapshots_always_consistent(void **state) {
   vlff_shm_unlink(name);
 }
 
+static void snapshots_always_consistent(void **state) {
+  (void)state;
+  atomic_store(&growing, 0);
+  run_stress();
+}
+
+static void snapshots_consistent_while_the_segment_grows(void **state) {
+  (void)state;
+  atomic_store(&growing, 1);
+  run_stress();
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(snapshots_always_consistent))
+    cmocka_unit_test(snapshots_always_consistent), cmocka_unit_test(snapshots_consistent_while_the_segment_grows))
