@@ -163,5 +163,43 @@ static void test_replace_backs_off(void **state) {
   vlff_shm_unlink("/trunc");
 }
 
+/* A map that outgrows its segment while /dev/shm is full: the larger one cannot
+ * be made, the writer says so with the size, and the map stays whole in its
+ * segment for its reader; nothing is left under the temporary name. With room
+ * again it moves, and the reader follows. */
+static void test_reserve_when_full(void **state) {
+  (void)state;
+  need_tmpfs();
+  struct vlff_map_params mp = {.max_voxels = 1000};
+  struct vlff_map *w = vlff_map_create("/gmap", &mp);
+  assert_non_null(w);
+  struct vlff_map *r = vlff_map_attach("/gmap");
+  assert_non_null(r);
+  uint16_t labels[1000];
+  for (int i = 0; i < 1000; i++) labels[i] = (uint16_t)(i % 5);
+  struct vlff_map_grid g = {.origin = {0, 0, 0}, .voxel_size = 0.1, .dims = {10, 10, 10}, .labels = labels};
+  struct vlff_map_update u = {.grid = &g};
+  assert_int_equal(vlff_map_publish(w, &u), 0);
+  fill();
+  assert_int_equal(vlff_map_reserve(w, 200000), -1);
+  expect_nospace("map reserve");
+  assert_int_equal(vlff_map_capacity(w), 1000);
+  char tmp[64];
+  snprintf(tmp, sizeof tmp, "/dev/shm/gmap.grow%d", (int)getpid());
+  assert_int_equal(access(tmp, F_OK), -1);
+  uint16_t l;
+  assert_int_equal(vlff_map_label_at(r, 0.35, 0.05, 0.05, &l, NULL), 0);
+  assert_int_equal(l, 3);
+  assert_int_equal(vlff_map_publish(w, &u), 0); /* the writer goes on in the segment it has */
+  unlink(FILLER);
+  assert_int_equal(vlff_map_reserve(w, 20000), 0);
+  assert_int_equal(vlff_map_label_at(r, 0.35, 0.05, 0.05, &l, NULL), 0);
+  assert_int_equal(l, 3);
+  assert_int_equal(vlff_map_capacity(r), 20000);
+  vlff_map_detach(r);
+  vlff_map_detach(w);
+  vlff_shm_unlink("/gmap");
+}
+
 VLFF_UNIT_MAIN(private_shm, NULL, cmocka_unit_test(test_create_when_full), cmocka_unit_test(test_full_later_no_fault),
-               cmocka_unit_test(test_replace_backs_off))
+               cmocka_unit_test(test_replace_backs_off), cmocka_unit_test(test_reserve_when_full))
