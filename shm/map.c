@@ -25,6 +25,8 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <dirent.h>
+#include <stdint.h>
 #include <sys/mman.h>
 #include <unistd.h>
 
@@ -170,6 +172,33 @@ static void bind(struct vlff_map *m) {
   m->log_cap = m->seg.h->geom[5];
 }
 
+/* Writer: the temporaries "<name>.grow<pid>" that a writer killed in the middle of
+ * a vlff_map_reserve left in /dev/shm (the pid in the name no longer runs) are
+ * removed, so that a crash during a move does not leak a map's worth of memory. */
+static void sweep_moves(const char *name) {
+  char prefix[300];
+  int plen = snprintf(prefix, sizeof prefix, "%s.grow", name + 1);
+  DIR *d = opendir("/dev/shm");
+  if (!d || plen <= 0 || plen >= (int)sizeof prefix) {
+    if (d)
+      closedir(d);
+    return;
+  }
+  struct dirent *e;
+  while ((e = readdir(d)) != NULL) {
+    if (strncmp(e->d_name, prefix, (size_t)plen) != 0)
+      continue;
+    char *end;
+    long pid = strtol(e->d_name + plen, &end, 10);
+    if (*end || pid <= 0 || pid > INT32_MAX || pid == getpid() || shm_pid_alive((int32_t)pid))
+      continue;
+    char sn[300];
+    snprintf(sn, sizeof sn, "/%s", e->d_name);
+    shm_unlink(sn);
+  }
+  closedir(d);
+}
+
 API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *p) {
   if (!p || !p->max_voxels || (!p->label_max_width) != (!p->label_max_height)) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: map needs a voxel capacity and both or neither label image sizes",
@@ -190,6 +219,8 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
     return NULL;
   }
+  if (name && name[0] == '/' && !strchr(name + 1, '/'))
+    sweep_moves(name);
   int fresh = shm_seg_create(&m->seg, name, &shm_map_spec, geom, &p->perm);
   if (fresh < 0) {
     free(m->prev);
@@ -242,13 +273,25 @@ static int writer_retry(struct vlff_map *m) {
   return 0;
 }
 
+/* Attaches the segment the name leads to now: one opened just before its writer
+ * moved the map (vlff_map_reserve renames the new one over it, then marks the old
+ * one moved) is refused as moved, and the name then leads to the new one. */
+static int attach_current(struct seg *s, const char *name) {
+  for (int i = 0;; i++) {
+    if (shm_seg_attach(s, name, &shm_map_spec, false, NULL) == 0)
+      return 0;
+    if (vlff_shm_last_error() != VLFF_SHM_ERR_ABANDONED || i == 7)
+      return -1;
+  }
+}
+
 API struct vlff_map *vlff_map_attach(const char *name) {
   struct vlff_map *m = calloc(1, sizeof *m);
   if (!m) {
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
     return NULL;
   }
-  if (shm_seg_attach(&m->seg, name, &shm_map_spec, false, NULL) < 0) {
+  if (attach_current(&m->seg, name) < 0) {
     free(m);
     return NULL;
   }
@@ -562,13 +605,11 @@ API int vlff_map_heartbeat(struct vlff_map *m) {
 
 API uint64_t vlff_map_capacity(const struct vlff_map *m) { return m ? m->max_voxels : 0; }
 
-/* Writer: the map as published now (the current buffer's meta, grid and label
- * image, the status block, the version) into the fresh segment ns of capacity
- * geom, its buffer 0 made current. */
-static void copy_into(const struct vlff_map *m, struct seg *ns, const uint64_t geom[6]) {
-  const uint32_t c = atomic_load_explicit(&m->ctl->current, memory_order_relaxed) & 1;
-  const struct map_buf *ob = buf(m, c);
-  const struct map_meta *mm = &ob->meta;
+/* Writer: the map as published now (buffer c, whose meta mm was copied out and
+ * checked: its grid and label image, the status block, the version) into the
+ * fresh segment ns of capacity geom, its buffer 0 made current. */
+static void copy_into(const struct vlff_map *m, uint32_t c, const struct map_meta *mm, struct seg *ns,
+                      const uint64_t geom[6]) {
   struct map_ctl *nctl = (struct map_ctl *)(ns->base + sizeof(struct seg_hdr));
   struct map_buf *nb = (struct map_buf *)(ns->base + MAP_BUF_OFFSET);
   const uint64_t mv = m->max_voxels, nmv = geom[0], lpx = m->lw_max * m->lh_max;
@@ -599,6 +640,18 @@ API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
     return -1;
   if (max_voxels <= m->max_voxels)
     return 0;
+  /* What is copied must be what was published: not a segment truncated under
+   * us (its pages read as zeros), nor a meta that would copy past a buffer. */
+  if (shm_seg_check(&m->seg, true) < 0)
+    return writer_replace(m, "; the map did not grow");
+  const uint32_t c = atomic_load_explicit(&m->ctl->current, memory_order_relaxed) & 1;
+  struct map_meta mm;
+  memcpy(&mm, &buf(m, c)->meta, sizeof mm);
+  if (!meta_sane(m, &mm)) {
+    shm_err(VLFF_SHM_ERR_CORRUPT, EBADMSG, "%s: published map metadata is inconsistent; the map did not grow",
+            VLFF_Q(m->seg.name));
+    return -1;
+  }
   const uint64_t lpx = m->lw_max * m->lh_max;
   uint64_t geom[6] = {max_voxels, m->lw_max, m->lh_max, buf_stride(max_voxels, lpx), MAP_BUF_OFFSET,
                       log_cap_for(max_voxels)};
@@ -618,7 +671,18 @@ API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
     free(prev), free(ns);
     return -1;
   }
-  copy_into(m, ns, geom);
+  copy_into(m, c, &mm, ns, geom);
+  if (atomic_load(&m->seg.fault) || atomic_load(&ns->fault)) {
+    bool ours = atomic_load(&m->seg.fault) != 0;
+    shm_seg_close(ns);
+    shm_unlink(tmp);
+    free(prev), free(ns);
+    if (ours)
+      return writer_replace(m, "; the map did not grow");
+    shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s: the new segment shrank while being filled; the map did not grow",
+            VLFF_Q(tmp));
+    return -1;
+  }
   shm_seg_ready(ns);
   atomic_store(&ns->h->last_ns, shm_now());
   if (shm_seg_rename(ns, m->seg.name) < 0) {
@@ -649,7 +713,7 @@ static int follow(struct vlff_map *m) {
   }
   char name[sizeof m->seg.name];
   snprintf(name, sizeof name, "%s", m->seg.name);
-  if (shm_seg_attach(ns, name, &shm_map_spec, false, NULL) < 0) {
+  if (attach_current(ns, name) < 0) {
     free(ns);
     return -1;
   }
@@ -870,8 +934,9 @@ static bool snap_fits(const struct vlff_map *m, const struct vlff_map_snapshot *
 }
 
 /* A snapshot sized for the segment the handle reads now: a reader that followed
- * its writer to a larger segment (vlff_map_reserve) reallocates it, and its next
- * copy is whole. False when out of memory (the snapshot is then as it was). */
+ * its writer to a larger segment (vlff_map_reserve) reallocates it (what it held
+ * is gone: the caller copies whole). False when out of memory (the snapshot is
+ * then as it was). */
 static bool snap_resize(const struct vlff_map *m, struct vlff_map_snapshot *s) {
   if (snap_fits(m, s))
     return true;
@@ -888,8 +953,7 @@ static bool snap_resize(const struct vlff_map *m, struct vlff_map_snapshot *s) {
   free(s->labels), free(s->llabels), free(s->conf), free(s->lconf), free(s->changes);
   s->labels = labels, s->llabels = llabels, s->conf = conf, s->lconf = lconf, s->changes = changes;
   s->max_voxels = m->max_voxels, s->lw_max = m->lw_max, s->lh_max = m->lh_max, s->log_cap = m->log_cap;
-  s->meta.version = 0; /* the next copy is whole */
-  s->nchanges = 0;
+  s->nchanges = 0; /* s->meta is left alone: it may be the read's own meta (take) */
   return true;
 }
 
@@ -988,12 +1052,13 @@ static bool logged_since(const struct vlff_map *m, struct vlff_map_snapshot *s, 
 static bool copy_changed(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
   struct follow_ctx *c = vctx;
   struct vlff_map_snapshot *s = c->s;
+  const bool resized = !snap_fits(m, s); /* what it held is gone: copy everything */
   if (!snap_resize(m, s))
     return false;
   const struct map_meta *old = &s->meta;
   uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2], mv = m->max_voxels;
   /* Once an attempt copied everything (torn, since it is retried), so do the rest. */
-  c->whole = c->whole || !old->version || !mm->version || mm->version < old->version ||
+  c->whole = c->whole || resized || !old->version || !mm->version || mm->version < old->version ||
              s->generation != atomic_load(&m->seg.h->generation) ||
              !same_geometry(old, mm->origin, mm->voxel_size, mm->dims) ||
              !logged_since(m, s, old->version, mm->version, n);

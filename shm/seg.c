@@ -771,9 +771,10 @@ int shm_seg_retry(struct seg *s) {
 void shm_seg_move(struct seg *dst, struct seg *src) {
   int prot = PROT_READ | (src->writable ? PROT_WRITE : 0);
   shm_guard_unregister(src);
+  uint32_t fault = atomic_load(&src->fault);
   *dst = *src;
   dst->guard_slot = 0;
-  atomic_store(&dst->fault, 0);
+  atomic_store(&dst->fault, fault); /* a fault taken before the move still counts */
   /* The slot src gave up is free: registering again cannot run out. */
   (void)shm_guard_register(dst, prot);
   src->base = NULL;

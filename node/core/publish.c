@@ -248,8 +248,16 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   memset(p->conf, 0, n);
   /* A growing map's segment starts with room for its first box and grows
    * with it (publisher_regrid), up to shm.map_max_voxels; a fixed box's
-   * holds the capacity from the start, as it always did. */
-  struct vlff_map_params mp = {.max_voxels = field->grow ? (uint32_t)n : (uint32_t)shm->map_max_voxels,
+   * holds the capacity from the start, as it always did. A node restarted
+   * after its map grew asks for the size its segment has: a segment of
+   * another size would be replaced, not taken over, and its readers would
+   * see the version start again. */
+  uint32_t cap = field->grow ? (uint32_t)n : (uint32_t)shm->map_max_voxels;
+  struct vlff_shm_info had;
+  if (field->grow && vlff_shm_stat(shm->map, &had) == 0 && had.kind == VLFF_SHM_KIND_MAP && had.slot_size > cap &&
+      had.slot_size <= (uint64_t)shm->map_max_voxels)
+    cap = (uint32_t)had.slot_size;
+  struct vlff_map_params mp = {.max_voxels = cap,
                                .label_max_width = (uint32_t)shm->label_max_width,
                                .label_max_height = (uint32_t)shm->label_max_height,
                                .perm = {.mode = (mode_t)shm->mode, .group = shm->group}};

@@ -83,5 +83,7 @@ wait_until 600 '"$shm" stat "$p-m" 2>/dev/null | grep -q "^grid_dims $dims_befor
 check "restarted, the map is the grown grid again ($("$shm" stat "$p-m" | grep '^grid_dims '), was $dims_before)" \
   '"$shm" stat "$p-m" | grep -q "^grid_dims $dims_before\$"'
 check "no checkpoint or map refused on the restart" '! grep -qi "refused\|not an observation grid" "$tmp/log2"'
+check "restarted, the node asked for the segment's grown size and took it over ($(grep -m1 -o 'its segment: [0-9]* voxels' "$tmp/log2"))" \
+  'grep -q "(its segment: $cap voxels)" "$tmp/log2"'
 stop_node
 verdict

@@ -517,6 +517,8 @@ static void map_grows_under_reader(void **state) {
   snprintf(st.state_name, sizeof st.state_name, "grown");
   assert_int_equal(vlff_map_set_status(w, &st), 0);
   const uint64_t v = vlff_map_version(w);
+  struct vlff_map_snapshot *s2 = vlff_map_snapshot_new(r); /* made for the old segment, taken after */
+  assert_non_null(s2);
   struct stat before, after;
   char path[96];
   snprintf(path, sizeof path, "/dev/shm%s", name);
@@ -529,6 +531,12 @@ static void map_grows_under_reader(void **state) {
   assert_int_equal(stat(path, &after), 0);
   assert_true(after.st_ino != before.st_ino && after.st_size > before.st_size);
   assert_int_equal(vlff_map_capacity(r), 1000); /* not looked yet */
+  assert_int_equal(vlff_map_snapshot_take(r, s2), 0); /* follows, reallocates, copies */
+  assert_int_equal(vlff_map_snapshot_info(s2, &info), 0);
+  assert_int_equal(info.version, v);
+  assert_int_equal(info.grid.dims[0], 10);
+  assert_memory_equal(info.grid.labels, b, sizeof b);
+  vlff_map_snapshot_free(s2);
   assert_int_equal(vlff_map_label_at(r, old_pt[0], old_pt[1], old_pt[2], &label, &conf), 0);
   assert_int_equal(label, 2);
   assert_int_equal(conf, 200);
@@ -580,6 +588,48 @@ static void map_grows_under_reader(void **state) {
   char tmpname[96];
   snprintf(tmpname, sizeof tmpname, "/dev/shm%s.grow%d", name, (int)getpid());
   assert_int_equal(access(tmpname, F_OK), -1); /* no temporary name left behind */
+}
+
+/* A writer killed in the middle of a move leaves its temporary segment
+ * "<name>.grow<pid>": the next writer of that map removes it when that pid no
+ * longer runs, and leaves one whose pid does. Truncated under its writer, a map
+ * is not moved: what would be copied is not what was published. */
+static void map_move_leftovers(void **state) {
+  (void)state;
+  char name[64], dead[96], live[96];
+  test_name(name, sizeof name, "left");
+  pid_t child = fork();
+  if (child == 0)
+    _exit(0);
+  assert_int_equal(waitpid(child, NULL, 0), child);
+  snprintf(dead, sizeof dead, "%s.grow%d", name, (int)child);
+  snprintf(live, sizeof live, "%s.grow%d", name, (int)getppid());
+  for (int k = 0; k < 2; k++) {
+    int fd = shm_open(k ? live : dead, O_RDWR | O_CREAT | O_EXCL, 0600);
+    assert_true(fd >= 0);
+    assert_int_equal(ftruncate(fd, 4096), 0);
+    close(fd);
+  }
+  struct vlff_map *w = vlff_map_create(name, &small_map);
+  assert_non_null(w);
+  char path[128];
+  snprintf(path, sizeof path, "/dev/shm%s", dead);
+  assert_int_equal(access(path, F_OK), -1);
+  snprintf(path, sizeof path, "/dev/shm%s", live);
+  assert_int_equal(access(path, F_OK), 0);
+  assert_int_equal(shm_unlink(live), 0);
+  uint16_t a[8] = {1, 1, 1, 1, 1, 1, 1, 1};
+  struct vlff_map_grid g = {.origin = {0, 0, 0}, .voxel_size = 0.5, .dims = {2, 2, 2}, .labels = a};
+  struct vlff_map_update u = {.grid = &g};
+  assert_int_equal(vlff_map_publish(w, &u), 0);
+  snprintf(path, sizeof path, "/dev/shm%s", name);
+  assert_int_equal(truncate(path, 8192), 0);
+  assert_int_equal(vlff_map_reserve(w, 5000), -1);
+  assert_int_equal(errno, EPIPE);
+  assert_non_null(strstr(vlff_shm_last_message(), "the map did not grow"));
+  assert_int_equal(vlff_map_capacity(w), 1000);
+  vlff_map_detach(w);
+  assert_int_equal(vlff_shm_unlink(name), 0);
 }
 
 static void map_publish_and_read(void **state) {
@@ -746,5 +796,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(ring_takeover_of_dead_creator), cmocka_unit_test(attach_rejects_bad_segments),
     cmocka_unit_test(frame_records), cmocka_unit_test(pose_interpolation_and_tolerance),
     cmocka_unit_test(pose_quaternion_every_branch),
-    cmocka_unit_test(map_publish_and_read), cmocka_unit_test(map_grows_under_reader),
+    cmocka_unit_test(map_publish_and_read), cmocka_unit_test(map_grows_under_reader), cmocka_unit_test(map_move_leftovers),
     cmocka_unit_test(prompt_mailbox))
