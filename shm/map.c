@@ -658,7 +658,7 @@ API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
   struct vlff_map_range *prev = malloc(geom[5] / 4 * sizeof *prev);
   struct seg *ns = calloc(1, sizeof *ns);
   char tmp[sizeof m->seg.name + 32];
-  int n = snprintf(tmp, sizeof tmp, "%.200s.grow%d", m->seg.name, (int)getpid());
+  int n = snprintf(tmp, sizeof tmp, "%s.grow%d", m->seg.name, (int)getpid()); /* the create checks its length */
   if (!prev || !ns || n >= (int)sizeof tmp) {
     free(prev), free(ns);
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
