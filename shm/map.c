@@ -672,25 +672,17 @@ API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
     return -1;
   }
   copy_into(m, c, &mm, ns, geom);
-  if (atomic_load(&m->seg.fault) || atomic_load(&ns->fault)) {
-    bool ours = atomic_load(&m->seg.fault) != 0;
-    shm_seg_close(ns);
-    shm_unlink(tmp);
-    free(prev), free(ns);
-    if (ours)
-      return writer_replace(m, "; the map did not grow");
-    shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s: the new segment shrank while being filled; the map did not grow",
-            VLFF_Q(tmp));
-    return -1;
+  const bool ours = atomic_load(&m->seg.fault) != 0;
+  if (ours || atomic_load(&ns->fault)) {
+    if (!ours)
+      shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s: the new segment shrank while being filled; the map did not grow",
+              VLFF_Q(tmp));
+    goto drop;
   }
   shm_seg_ready(ns);
   atomic_store(&ns->h->last_ns, shm_now());
-  if (shm_seg_rename(ns, m->seg.name) < 0) {
-    shm_seg_close(ns);
-    shm_unlink(tmp);
-    free(prev), free(ns);
-    return -1;
-  }
+  if (shm_seg_rename(ns, m->seg.name) < 0)
+    goto drop;
   /* Readers still on the old segment attach the new one at their next call. */
   atomic_store_explicit(&m->seg.h->state, SEG_MOVED, memory_order_release);
   shm_seg_close(&m->seg);
@@ -701,6 +693,11 @@ API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
   m->prev = prev;
   m->prev_ok = false; /* buffer 1 holds nothing yet */
   return 0;
+drop: /* the new segment, not the map: the old one stays as it was */
+  shm_seg_close(ns);
+  shm_unlink(tmp);
+  free(prev), free(ns);
+  return ours ? writer_replace(m, "; the map did not grow") : -1;
 }
 
 /* Reader: the segment its writer moved to (vlff_map_reserve), attached under the

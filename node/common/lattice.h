@@ -23,6 +23,7 @@
  *    [keep_lo, keep_hi) (per axis, in old cells; keep_lo >= keep_hi on an
  *    axis: none) besides [lo, hi]: 1 when it differs from the old grid, 0
  *    when it is the old grid, -1 as cover.
+ *  - vlff_lattice_xyz: a cell index's x, y, z.
  *  - vlff_lattice_extend: widens [lo, hi) (old cells) to hold cell i.
  *  - vlff_lattice_copy: each of the old grid's cells (elem bytes) that lies
  *    in the new grid to its place there; the new grid's other cells are left
@@ -50,8 +51,13 @@ int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[
 int vlff_lattice_fit(const double origin[3], double cell, const uint32_t dims[3], const long keep_lo[3],
                      const long keep_hi[3], const double lo[3], const double hi[3], double limit, int32_t shift[3],
                      uint32_t ndims[3]);
+/* Cell index i of a dims grid as its x, y, z. */
+static inline void vlff_lattice_xyz(size_t i, const uint32_t dims[3], long c[3]) {
+  c[0] = (long)(i % dims[0]), c[1] = (long)(i / dims[0] % dims[1]), c[2] = (long)(i / ((size_t)dims[0] * dims[1]));
+}
 static inline void vlff_lattice_extend(long lo[3], long hi[3], size_t i, const uint32_t dims[3]) {
-  const long c[3] = {(long)(i % dims[0]), (long)(i / dims[0] % dims[1]), (long)(i / ((size_t)dims[0] * dims[1]))};
+  long c[3];
+  vlff_lattice_xyz(i, dims, c);
   for (int a = 0; a < 3; a++) {
     if (c[a] < lo[a]) lo[a] = c[a];
     if (c[a] + 1 > hi[a]) hi[a] = c[a] + 1;
@@ -63,8 +69,9 @@ void *vlff_lattice_regrid(const void *old, size_t elem, int fill, const uint32_t
                           const uint32_t ndims[3]);
 static inline long vlff_lattice_index(size_t i, const uint32_t dims[3], const int32_t shift[3],
                                       const uint32_t ndims[3]) {
-  const long x = (long)(i % dims[0]) + shift[0], y = (long)(i / dims[0] % dims[1]) + shift[1],
-             z = (long)(i / ((size_t)dims[0] * dims[1])) + shift[2];
+  long c[3];
+  vlff_lattice_xyz(i, dims, c);
+  const long x = c[0] + shift[0], y = c[1] + shift[1], z = c[2] + shift[2];
   if (x < 0 || y < 0 || z < 0 || x >= (long)ndims[0] || y >= (long)ndims[1] || z >= (long)ndims[2]) return -1;
   return x + (long)ndims[0] * (y + (long)ndims[1] * z);
 }

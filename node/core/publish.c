@@ -40,7 +40,7 @@ struct vlff_publisher {
   struct vlff_cfg_field field; /* its box and growth: the bounds for poses and growth */
   /* A growing box (field.grow): origin = origin0 + k0 x voxel after
    * growths and refits (the same k0, the same bits), at most max_voxels
-   * (shm.map_max_voxels, the segment's capacity). */
+   * (shm.map_max_voxels; the segment grows to it, publisher_regrid). */
   double origin0[3];
   long k0[3];
   size_t max_voxels;

@@ -118,9 +118,9 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * its cap is refitted instead: to the voxels that hold something and
  * [lo, hi], the empty ones beyond dropped (docs/field.md "Growth"). 1 grown,
  * 2 grown with the map refitted, 0 when both already held it, -1 with err
- * for a fixed box, a bad box, a grid past shm.map_max_voxels (the segment's
- * capacity) or evidence past its index budget even refitted, or no memory;
- * what did not grow is unchanged. */
+ * for a fixed box, a bad box, a grid past shm.map_max_voxels or evidence
+ * past its index budget even refitted, a map segment that could not grow to
+ * it (vlff_map_reserve), or no memory; what did not grow is unchanged. */
 int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen);
 /* The map's box now, and its growths so far (grown may be NULL). */
 void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown);
