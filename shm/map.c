@@ -199,6 +199,8 @@ static void sweep_moves(const char *name) {
   closedir(d);
 }
 
+static void status_withdraw(struct vlff_map *m);
+
 API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *p) {
   if (!p || !p->max_voxels || (!p->label_max_width) != (!p->label_max_height)) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: map needs a voxel capacity and both or neither label image sizes",
@@ -231,6 +233,8 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
   m->writer = true;
   if (fresh)
     shm_seg_ready(&m->seg);
+  else
+    status_withdraw(m);
   m->last_version = atomic_load(&m->ctl->version);
   atomic_store(&m->seg.h->last_ns, shm_now());
   return m;
@@ -1164,6 +1168,26 @@ static struct status_block *status_block(const struct vlff_map *m) {
 
 static bool text_fits(const char *s, size_t cap) { return memchr(s, 0, cap) != NULL; }
 
+static void status_write(struct status_block *b, const struct vlff_map_status *st) {
+  /* A writer that died mid-write left the word odd; continue from there. */
+  uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
+  atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
+  shm_fence_release();
+  shm_racy_copy(&b->st, st, sizeof *st);
+  atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
+}
+
+/* A taken-over segment still holds its dead writer's last status: readers would
+ * take it for the new writer's (a restarted node "at iteration 5000" before it
+ * has trained once). It reads as no status until the new writer sets one; the
+ * update count goes on. */
+static void status_withdraw(struct vlff_map *m) {
+  struct status_block *b = status_block(m);
+  struct vlff_map_status none = {0};
+  shm_racy_copy(&none.updates, &b->st.updates, sizeof none.updates);
+  status_write(b, &none);
+}
+
 API int vlff_map_set_status(struct vlff_map *m, const struct vlff_map_status *st) {
   if (!m || !m->writer || !st) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_set_status: not a writer handle or no status");
@@ -1200,12 +1224,7 @@ API int vlff_map_set_status(struct vlff_map *m, const struct vlff_map_status *st
   shm_racy_copy(&prev, &b->st.updates, sizeof prev);
   out.updates = prev + 1;
   out.t_ns = shm_now();
-  /* A writer that died mid-write left the word odd; continue from there. */
-  uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
-  atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
-  shm_fence_release();
-  shm_racy_copy(&b->st, &out, sizeof out);
-  atomic_store_explicit(&b->seq, odd + 1, memory_order_release);
+  status_write(b, &out);
   if (shm_seg_check(&m->seg, false) < 0)
     return writer_replace(m, "; this status was not set");
   return 0;

@@ -438,7 +438,8 @@ struct vlff_map_update {
 };
 
 /* Writer: creates the map segment (same O_EXCL / stale-creator / owner rules as
- * rings; a taken-over segment keeps its last map and bumps the generation). A publish
+ * rings; a taken-over segment keeps its last map and bumps the generation, and its
+ * dead writer's status reads as none until this writer sets one). A publish
  * or heartbeat that finds the file truncated fails once with EPIPE after replacing
  * the segment (version numbering on, the previous map is gone: publish it again). */
 struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *params);

@@ -192,6 +192,37 @@ static void malformed_status_refused(void **state) {
   vlff_shm_unlink(name);
 }
 
+/* A writer restarted on its segment (a take-over) does not inherit the dead
+ * one's status: a controller must not read "iteration 303" from a node that
+ * has not trained yet. The update count goes on. */
+static void takeover_withdraws_status(void **state) {
+  (void)state;
+  struct vlff_map *w = make_map("status-takeover");
+  struct vlff_map *r = vlff_map_attach(name);
+  struct vlff_map_status s, got;
+  fill(&s, 3);
+  assert_int_equal(vlff_map_set_status(w, &s), 0);
+  assert_int_equal(vlff_map_set_status(w, &s), 0);
+  vlff_map_detach(w);
+  assert_int_equal(vlff_map_get_status(r, &got), 0); /* the writer gone: its last status stays */
+  assert_true(matches(&got, 3));
+  w = vlff_map_create(name, &(struct vlff_map_params){.max_voxels = 64}); /* this process is the creator */
+  assert_non_null(w);
+  assert_int_equal(vlff_map_generation(r), 2);
+  memset(&got, 0xab, sizeof got);
+  assert_int_equal(vlff_map_get_status(r, &got), -1);
+  assert_int_equal(errno, ENOENT);
+  assert_int_equal(got.iterations, 0);
+  fill(&s, 4);
+  assert_int_equal(vlff_map_set_status(w, &s), 0);
+  assert_int_equal(vlff_map_get_status(r, &got), 0);
+  assert_true(matches(&got, 4));
+  assert_int_equal(got.updates, 3);
+  vlff_map_detach(r);
+  vlff_map_detach(w);
+  vlff_shm_unlink(name);
+}
+
 /* The block as anyone with write access to the file could leave it. */
 static uint8_t *map_block(int *fd) {
   char path[128];
@@ -327,5 +358,5 @@ static void reads_never_torn(void **state) {
 }
 
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(set_and_read_back), cmocka_unit_test(malformed_status_refused),
+    cmocka_unit_test(set_and_read_back), cmocka_unit_test(malformed_status_refused), cmocka_unit_test(takeover_withdraws_status),
     cmocka_unit_test(forged_blocks_not_trusted), cmocka_unit_test(reads_never_torn))
