@@ -239,7 +239,7 @@ static const struct key schema[] = {
     DVEC("field.scene_min", field.scene_min, -1e4, 1e4, scene_min_def),
     DVEC("field.scene_max", field.scene_max, -1e4, 1e4, scene_max_def),
     STR("field.scene_box_file", field.scene_box_file, ""),
-    BOOL("field.grow", field.grow, 0),
+    BOOL("field.grow", field.grow, 1),
     DBL("field.world_limit_m", field.world_limit_m, 10, 1e4, 1000),
 
     DBL("train.lr", train.lr, 0, 10, 1e-2),

@@ -209,7 +209,7 @@ struct vlff_cfg_train {
   double near_m;
   double depth_noise_m;            /* the depth sensor's noise sigma at 1 m, growing with range squared */
   int occupancy_resolution;
-  double occupancy_cell_m;         /* a growing field's cubic cells (m); 0: the first box's longest side / resolution */
+  double occupancy_cell_m;         /* a growing field's cubic cells (m); 0: the first box's own (each side / resolution) */
   double occupancy_max_mb;         /* a growing field's occupancy cells stay within this */
   int occupancy_update_steps;
   double image_scale;              /* training images scaled by this */

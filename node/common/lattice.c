@@ -7,17 +7,17 @@
 #include <stdlib.h>
 #include <string.h>
 
-int vlff_lattice_fit(const double origin[3], double cell, const uint32_t dims[3], const long keep_lo[3],
+int vlff_lattice_fit(const double origin[3], const double cell[3], const uint32_t dims[3], const long keep_lo[3],
                      const long keep_hi[3], const double lo[3], const double hi[3], double limit, int32_t shift[3],
                      uint32_t ndims[3]) {
   int differs = 0;
   for (int a = 0; a < 3; a++)
-    if (!(isfinite(lo[a]) && isfinite(hi[a]) && lo[a] <= hi[a]) || !(cell > 0)) return -1;
+    if (!(isfinite(lo[a]) && isfinite(hi[a]) && lo[a] <= hi[a]) || !(cell[a] > 0)) return -1;
   for (int a = 0; a < 3; a++) {
     double l = fmax(lo[a], -limit), h = fmin(hi[a], limit);
     if (l > h) l = h = lo[a] < -limit ? -limit : limit; /* wholly beyond: its nearest edge */
     /* Cells from the old grid's first: the new range [k_lo, k_hi). */
-    double kl = floor((l - origin[a]) / cell), kh = ceil((h - origin[a]) / cell);
+    double kl = floor((l - origin[a]) / cell[a]), kh = ceil((h - origin[a]) / cell[a]);
     if (keep_lo[a] < keep_hi[a]) {
       if (kl > (double)keep_lo[a]) kl = (double)keep_lo[a];
       if (kh < (double)keep_hi[a]) kh = (double)keep_hi[a];
@@ -31,7 +31,7 @@ int vlff_lattice_fit(const double origin[3], double cell, const uint32_t dims[3]
   return differs;
 }
 
-int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[3], const double lo[3],
+int vlff_lattice_cover(const double origin[3], const double cell[3], const uint32_t dims[3], const double lo[3],
                        const double hi[3], double limit, int32_t shift[3], uint32_t ndims[3]) {
   const long keep_lo[3] = {0, 0, 0}, keep_hi[3] = {(long)dims[0], (long)dims[1], (long)dims[2]};
   return vlff_lattice_fit(origin, cell, dims, keep_lo, keep_hi, lo, hi, limit, shift, ndims);

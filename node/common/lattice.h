@@ -1,7 +1,9 @@
 /*
  * vlff_lattice: dense grids that grow on a fixed lattice.
  *
- * A grid is dims cells of edge cell from origin (x fastest, then y, z). A
+ * A grid is dims cells of cell[a] metres on axis a from origin (x fastest,
+ * then y, z; cubic for the map's and the evidence's voxels, the box's own
+ * cells for the field's occupancy). A
  * larger grid on the same lattice holds the old one shifted by whole cells,
  * so each cell keeps its place in the world: what the field's occupancy, the
  * evidence and the published map learned stays where it was when their
@@ -46,11 +48,13 @@
 #include <stddef.h>
 #include <stdint.h>
 
-int vlff_lattice_cover(const double origin[3], double cell, const uint32_t dims[3], const double lo[3],
+int vlff_lattice_cover(const double origin[3], const double cell[3], const uint32_t dims[3], const double lo[3],
                        const double hi[3], double limit, int32_t shift[3], uint32_t ndims[3]);
-int vlff_lattice_fit(const double origin[3], double cell, const uint32_t dims[3], const long keep_lo[3],
+int vlff_lattice_fit(const double origin[3], const double cell[3], const uint32_t dims[3], const long keep_lo[3],
                      const long keep_hi[3], const double lo[3], const double hi[3], double limit, int32_t shift[3],
                      uint32_t ndims[3]);
+/* A cubic lattice's cell (voxels) as the per-axis sizes the functions take. */
+#define VLFF_LATTICE_CUBE(v) ((const double[3]){(v), (v), (v)})
 /* Cell index i of a dims grid as its x, y, z. */
 static inline void vlff_lattice_xyz(size_t i, const uint32_t dims[3], long c[3]) {
   c[0] = (long)(i % dims[0]), c[1] = (long)(i / dims[0] % dims[1]), c[2] = (long)(i / ((size_t)dims[0] * dims[1]));

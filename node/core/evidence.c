@@ -248,7 +248,7 @@ int vlff_evidence_grow(struct vlff_evidence *e, const double lo[3], const double
                        size_t errlen) {
   int32_t sh[3];
   uint32_t nd[3];
-  int rc = vlff_lattice_cover(e->origin, e->voxel, e->dims, lo, hi, limit, sh, nd);
+  int rc = vlff_lattice_cover(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, lo, hi, limit, sh, nd);
   if (rc < 0) return vlff_errf(err, errlen, "evidence: growth to an empty or non-finite box"), -1;
   if (rc == 0) return 0;
   if (!e->max_vox) return vlff_errf(err, errlen, "evidence: the grid is fixed (field.grow is off)"), -1;
@@ -259,7 +259,7 @@ int vlff_evidence_grow(struct vlff_evidence *e, const double lo[3], const double
     long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
     for (size_t v = 0; v < e->nvox; v++)
       if (e->slot[v] != -1) vlff_lattice_extend(klo, khi, v, e->dims);
-    if (vlff_lattice_fit(e->origin, e->voxel, e->dims, klo, khi, lo, hi, limit, sh, nd) == 0) return 0;
+    if (vlff_lattice_fit(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, klo, khi, lo, hi, limit, sh, nd) == 0) return 0;
   }
   return relayout(e, sh, nd, err, errlen) ? -1 : 1;
 }

@@ -689,7 +689,7 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
   int32_t sh[3];
   uint32_t nd[3];
   const double limit = p->field.grow ? p->field.world_limit_m : INFINITY;
-  int rc = vlff_lattice_cover(p->origin, p->voxel, p->dims, lo, hi, limit, sh, nd);
+  int rc = vlff_lattice_cover(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, lo, hi, limit, sh, nd);
   if (rc < 0) return snprintf(err, errlen, "map: growth to an empty or non-finite box"), -1;
   char e[256] = "";
   /* The evidence first: its grid is its own (publish.evidence_voxel_m). */
@@ -710,7 +710,7 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const doub
     for (size_t v = 0; v < p->nvox; v++)
       if (voxel_held(p, v)) vlff_lattice_extend(klo, khi, v, p->dims);
     const uint32_t cover[3] = {nd[0], nd[1], nd[2]};
-    if (vlff_lattice_fit(p->origin, p->voxel, p->dims, klo, khi, lo, hi, limit, sh, nd) < 0 ||
+    if (vlff_lattice_fit(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, klo, khi, lo, hi, limit, sh, nd) < 0 ||
         (n = vlff_lattice_cells(nd)) > p->max_voxels)
       return snprintf(err, errlen,
                       "map: growing to %.1f x %.1f x %.1f m needs %zu voxels of %.3f m, more than shm.map_max_voxels "

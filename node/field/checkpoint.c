@@ -56,8 +56,9 @@
  * came with version 6). */
 #define CKPT_VERSION_NO_BOX 5u
 /* Version 6 does not say its occupancy cells' size: a growing field's
- * cells then came from its first box and train.occupancy_resolution, so it
- * loads only where the cells still do (train.occupancy_cell_m 0). */
+ * cells were then cubes of its first box's longest side over
+ * train.occupancy_resolution, so it loads only where the cells still are
+ * (train.occupancy_cell_m 0 and a cubic first box). */
 #define CKPT_VERSION_NO_CELL_SIZE 6u
 #define CKPT_BOM 0x01020304u
 
@@ -330,9 +331,11 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
       struct ckpt_cell cell;
       r = read_all(fd, &cell, sizeof cell, &s);
       if (!r && cell_check(f, &cell, whybuf, sizeof whybuf)) why = whybuf;
-    } else if (!r && f->cfg.field.grow && f->cfg.train.occupancy_cell_m > 0) {
+    } else if (!r && f->cfg.field.grow &&
+               (f->cfg.train.occupancy_cell_m > 0 || f->occ.cell[0] != f->occ.cell[1] || f->occ.cell[0] != f->occ.cell[2])) {
       why = "a growing field's checkpoint before version 7 does not say its occupancy cells' size: it loads only "
-            "with train.occupancy_cell_m 0 (its cells were the first box's longest side / occupancy_resolution)";
+            "with train.occupancy_cell_m 0 and a cubic first box (its cells were the first box's longest side / "
+            "occupancy_resolution)";
     }
     if (!r && !why && box_check(f, &b, whybuf, sizeof whybuf)) why = whybuf;
     nc = (size_t)b.dims[0] * b.dims[1] * b.dims[2]; /* within the cap when box_check passed */

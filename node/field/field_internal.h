@@ -224,8 +224,9 @@ size_t vlff_adam_sparse(const struct vlff_adam *a, long long t, float lr, float 
 /* ---- sampling (sampler.c) ---------------------------------------------- */
 struct vlff_occupancy {
   /* Cells per axis: train.occupancy_resolution on each over a fixed box;
-   * over a growing one, cubic cells of the first box's longest side over
-   * that resolution, as many as the box holds. x fastest, then y, z. */
+   * over a growing one, train.occupancy_cell_m cubes or the first box's own
+   * cells (each side over that resolution), as many as the box holds. x
+   * fastest, then y, z. */
   int dims[3];
   float box_min[3], cell[3];
   float *density;          /* EMA of max density */

@@ -1,7 +1,7 @@
 /*
  * The field's box and its growth (field.h "Growth").
  *
- * A growing field's occupancy cells are cubic and lie on one lattice,
+ * A growing field's occupancy cells keep their size and lie on one lattice,
  * anchored at the first box's low corner, for the field's whole life: a
  * growth adds cells around the old ones and copies every old cell to the
  * same place in the world, so what was learned where the robot has been is
@@ -37,18 +37,17 @@ void vlff_field_set_box(struct vlff_field *f) {
 void vlff_field_first_cells(const struct vlff_cfg_field *c, const struct vlff_cfg_train *t, float cell[3],
                             int dims[3]) {
   const int res = t->occupancy_resolution;
-  double longest = 0;
-  for (int a = 0; a < 3; a++) longest = fmax(longest, c->scene_max[a] - c->scene_min[a]);
-  /* A growing field's cells are a size in metres for its whole life; the
-   * first box only says where it starts (train.occupancy_cell_m), or, when
-   * that is 0, gives the size as its longest side over the resolution. */
-  const double cube = t->occupancy_cell_m > 0 ? t->occupancy_cell_m : longest / res;
+  /* A growing field's cells are a size in metres for its whole life: cubes
+   * of train.occupancy_cell_m, the first box only saying where they start;
+   * or, when that is 0, the first box's own cells (each side over the
+   * resolution), so that a growing field given a scene's box samples and
+   * trusts as the fixed box did. */
   for (int a = 0; a < 3; a++) {
     double ext = c->scene_max[a] - c->scene_min[a];
     if (c->grow) {
-      cell[a] = (float)cube;
-      /* the first box rounded out to whole cells (the longest side is exact
-       * when the cells come from it) */
+      cell[a] = (float)(t->occupancy_cell_m > 0 ? t->occupancy_cell_m : ext / res);
+      /* the first box rounded out to whole cells (exact when the cells come
+       * from it) */
       dims[a] = (int)ceil(ext / cell[a] - 1e-6);
       if (dims[a] < 1) dims[a] = 1;
     } else {
@@ -107,9 +106,8 @@ int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3]
   const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
   int32_t sh[3];
   uint32_t nd[3];
-  /* Cells are cubic when growing; a fixed box's are not, but it only asks
-   * whether the box holds [lo, hi], which whole cells of any size answer. */
-  int rc = vlff_lattice_cover(f->box_lo, f->occ.cell[0], od, lo, hi, c->grow ? c->world_limit_m : INFINITY, sh, nd);
+  const double cell[3] = {f->occ.cell[0], f->occ.cell[1], f->occ.cell[2]};
+  int rc = vlff_lattice_cover(f->box_lo, cell, od, lo, hi, c->grow ? c->world_limit_m : INFINITY, sh, nd);
   if (rc < 0) {
     if (err && errlen) snprintf(err, errlen, "field: growth to an empty or non-finite box");
     return -1;

@@ -891,18 +891,23 @@ static void test_grow_keys(void **state) {
   assert_int_equal(load("", &cfg), 0);
   vlff_config_sim_box(&cfg.sim, &cfg.field, lo, hi);
   assert_true(lo[0] == -2.5 && hi[1] == 2.5); /* unset: the field's box */
+  /* growing by default; a fixed box's hash is the one it had before the
+   * growth keys existed, whatever world_limit_m says */
+  assert_true(cfg.field.grow);
+  const uint64_t grow = vlff_config_field_hash(&cfg.field);
+  assert_int_equal(load("field:\n  grow: false\n", &cfg), 0);
   const uint64_t fixed = vlff_config_field_hash(&cfg.field);
-  assert_int_equal(load("field:\n  world_limit_m: 20\n", &cfg), 0);
+  assert_int_equal(load("field:\n  grow: false\n  world_limit_m: 20\n", &cfg), 0);
   assert_true(vlff_config_field_hash(&cfg.field) == fixed);
   assert_int_equal(load("field:\n  grow: true\n", &cfg), 0);
-  const uint64_t grow = vlff_config_field_hash(&cfg.field);
+  assert_true(vlff_config_field_hash(&cfg.field) == grow);
   assert_true(grow != fixed);
   assert_int_equal(load("field:\n  grow: true\n  world_limit_m: 20\n", &cfg), 0);
   assert_true(vlff_config_field_hash(&cfg.field) != grow);
   /* a growing field's cells in metres: only when growing, and a real size */
   assert_int_equal(load("field:\n  grow: true\ntrain:\n  occupancy_cell_m: 0.2\n", &cfg), 0);
   assert_true(cfg.train.occupancy_cell_m == 0.2);
-  assert_int_equal(load("train:\n  occupancy_cell_m: 0.2\n", &cfg), -1);
+  assert_int_equal(load("field:\n  grow: false\ntrain:\n  occupancy_cell_m: 0.2\n", &cfg), -1);
   assert_non_null(strstr(err, "train.occupancy_cell_m"));
   assert_non_null(strstr(err, "unless field.grow is on"));
   assert_int_equal(load("field:\n  grow: true\ntrain:\n  occupancy_cell_m: 0.001\n", &cfg), -1);

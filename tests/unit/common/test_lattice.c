@@ -14,7 +14,7 @@
 
 static void test_cover(void **state) {
   (void)state;
-  const double origin[3] = {-1, -1, 0}, cell = 0.5;
+  const double origin[3] = {-1, -1, 0}, cell[3] = {0.5, 0.5, 0.5};
   const uint32_t dims[3] = {4, 4, 2}; /* [-1, 1] x [-1, 1] x [0, 1] */
   int32_t sh[3];
   uint32_t nd[3];
@@ -40,9 +40,19 @@ static void test_cover(void **state) {
   const double nan_hi[3] = {NAN, 0, 0}, empty_hi[3] = {-2, 0, 0};
   assert_int_equal(vlff_lattice_cover(origin, cell, dims, lo, nan_hi, 3, sh, nd), -1);
   assert_int_equal(vlff_lattice_cover(origin, cell, dims, lo, empty_hi, 3, sh, nd), -1);
-  assert_int_equal(vlff_lattice_cover(origin, 0, dims, lo, hi, 3, sh, nd), -1);
+  assert_int_equal(vlff_lattice_cover(origin, (const double[3]){0.5, 0, 0.5}, dims, lo, hi, 3, sh, nd), -1);
   /* past 2^31 cells on an axis */
-  assert_int_equal(vlff_lattice_cover(origin, 1e-6, dims, far_lo, far_hi, 1e4, sh, nd), -1);
+  assert_int_equal(vlff_lattice_cover(origin, VLFF_LATTICE_CUBE(1e-6), dims, far_lo, far_hi, 1e4, sh, nd), -1);
+  /* Cells of another size on each axis (a box's own occupancy cells): each
+   * axis counts in its own. [-1, 1] x [-1, 1] x [0, 1] as 4 x 8 x 10 cells;
+   * out by 0.2 below in x (one 0.5 cell), by 0.3 above in y (two 0.25
+   * cells) and 0.25 above in z (three 0.1 cells). */
+  const double aniso[3] = {0.5, 0.25, 0.1}, ahi[3] = {0, 1.3, 1.25};
+  const uint32_t adims[3] = {4, 8, 10};
+  assert_int_equal(vlff_lattice_cover(origin, aniso, adims, lo, ahi, 100, sh, nd), 1);
+  assert_int_equal(sh[0], 1), assert_int_equal(nd[0], 5);
+  assert_int_equal(sh[1], 0), assert_int_equal(nd[1], 10);
+  assert_int_equal(sh[2], 0), assert_int_equal(nd[2], 13);
 }
 
 static void test_copy_and_index(void **state) {
@@ -80,7 +90,7 @@ static void test_copy_and_index(void **state) {
  * nothing. The cells kept stay in their places; the others are dropped. */
 static void test_fit(void **state) {
   (void)state;
-  const double origin[3] = {0, 0, 0}, cell = 1;
+  const double origin[3] = {0, 0, 0}, cell[3] = {1, 1, 1};
   const uint32_t dims[3] = {6, 4, 3}; /* [0, 6] x [0, 4] x [0, 3] */
   int32_t sh[3];
   uint32_t nd[3];
@@ -133,8 +143,9 @@ static void test_fit_random(void **state) {
   (void)state;
   unsigned seed = 7;
   for (int t = 0; t < 300; t++) {
-    const double cell = 0.1 + 0.9 * rand_r(&seed) / (double)RAND_MAX;
-    double origin[3], lo[3], hi[3];
+    /* a cell size per axis, as a box's occupancy cells */
+    double cell[3], origin[3], lo[3], hi[3];
+    for (int a = 0; a < 3; a++) cell[a] = 0.1 + 0.9 * rand_r(&seed) / (double)RAND_MAX;
     uint32_t dims[3];
     for (int a = 0; a < 3; a++) {
       origin[a] = (rand_r(&seed) % 2001 - 1000) * 0.01;
@@ -154,9 +165,9 @@ static void test_fit_random(void **state) {
     assert_true(vlff_lattice_fit(origin, cell, dims, klo, khi, lo, hi, 1e4, sh, nd) >= 0);
     double norigin[3];
     for (int a = 0; a < 3; a++) {
-      norigin[a] = origin[a] - sh[a] * cell;
+      norigin[a] = origin[a] - sh[a] * cell[a];
       /* the box, in whole cells */
-      assert_true(norigin[a] <= lo[a] + 1e-9 && norigin[a] + nd[a] * cell >= hi[a] - 1e-9);
+      assert_true(norigin[a] <= lo[a] + 1e-9 && norigin[a] + nd[a] * cell[a] >= hi[a] - 1e-9);
     }
     for (size_t i = 0; i < n; i++) {
       long j = vlff_lattice_index(i, dims, sh, nd);
@@ -165,7 +176,7 @@ static void test_fit_random(void **state) {
       /* the same cell corner in the world */
       const size_t c[3] = {i % dims[0], i / dims[0] % dims[1], i / ((size_t)dims[0] * dims[1])};
       const size_t d[3] = {(size_t)j % nd[0], (size_t)j / nd[0] % nd[1], (size_t)j / ((size_t)nd[0] * nd[1])};
-      for (int a = 0; a < 3; a++) assert_true(fabs(origin[a] + c[a] * cell - (norigin[a] + d[a] * cell)) < 1e-9);
+      for (int a = 0; a < 3; a++) assert_true(fabs(origin[a] + c[a] * cell[a] - (norigin[a] + d[a] * cell[a])) < 1e-9);
     }
     assert_true(vlff_lattice_cover(origin, cell, dims, lo, hi, 1e4, sh, nd) >= 0);
     for (int a = 0; a < 3; a++) assert_true(sh[a] >= 0 && sh[a] + dims[a] <= nd[a]);

@@ -21,6 +21,7 @@ static struct vlff_view views[NV];
 
 static void cfg_small(struct vlff_config *cfg) {
   vlff_config_defaults(cfg);
+  cfg->field.grow = false; /* the scene's box */
   cfg->node.threads = 2;
   cfg->field.feature_dim = D;
   cfg->field.feature_width = 32;

@@ -323,6 +323,7 @@ static void test_mlp(void **state) {
 
 static void small_cfg(struct vlff_config *cfg) {
   vlff_config_defaults(cfg);
+  cfg->field.grow = false; /* the fixed box's encoding: dense coarse levels, the box's periods */
   cfg->field.hash_levels = 6;
   cfg->field.hash_log2_size = 10;
   cfg->field.base_resolution = 4;
@@ -464,6 +465,7 @@ static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
 static void check_encoding_simd(int isa, uint64_t *bits) {
   struct vlff_config cfg;
   vlff_config_defaults(&cfg);
+  cfg.field.grow = false; /* dense and hashed levels */
   cfg.field.hash_log2_size = 14;
   cfg.field.finest_resolution = 512;
   struct vlff_encoding e;

@@ -28,9 +28,9 @@ check "a full evidence budget pages out to the state directory: said ($(grep -o 
 sleep 3
 wait_until 600 'grep -q "keyframes: the store is full" "$tmp/log"'
 # --status is redrawn every half second: the first paged keyframe shows on a later line.
-wait_until 300 'grep -aq "rss [0-9]* MiB kf paged [1-9]" "$tmp/log"'
-check "evicted keyframes go to the state directory's keyframes.pages ($(stat -c %s "$tmp/keyframes.pages" 2>&1) bytes), said on --status ($(grep -ao 'rss [0-9]* MiB kf paged [0-9]*' "$tmp/log" | tail -1))" \
-  '[[ -s $tmp/keyframes.pages ]] && grep -aq "| mem kf [0-9]*/[0-9]* ev [0-9]*/1 rss [0-9]* MiB kf paged [1-9][0-9]* |" "$tmp/log"'
+wait_until 300 'grep -aEq "rss [0-9]* MiB( box [^|]*)? kf paged [1-9]" "$tmp/log"'
+check "evicted keyframes go to the state directory's keyframes.pages ($(stat -c %s "$tmp/keyframes.pages" 2>&1) bytes), said on --status ($(grep -aEo 'rss [0-9]* MiB( box [^|]*)? kf paged [0-9]*' "$tmp/log" | tail -1))" \
+  '[[ -s $tmp/keyframes.pages ]] && grep -aEq "\| mem kf [0-9]*/[0-9]* ev [0-9]*/1 rss [0-9]* MiB( box [0-9]+x[0-9]+x[0-9]+ m)? kf paged [1-9][0-9]* \|" "$tmp/log"'
 # The map's status has the page file's use against keyframes.page_mb (the
 # trainer shares its status a tenth of a second at most after --status saw
 # it, or after a step that a sanitizer build makes long: poll).

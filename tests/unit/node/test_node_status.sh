@@ -6,6 +6,8 @@
 set -u
 # Memory limits of its own, so that the status shows the config's.
 node_yaml_extra=$'keyframes:\n  memory_mb: 64\npublish:\n  evidence_max_mb: 16'
+# A fixed box (the box's status below; test_node_grow has a growing one).
+node_field=$'field:\n  feature_dim: 64\n  hash_log2_size: 16\n  grow: false'
 . "$(dirname "$0")/node_sh.sh" nst "$@"
 val() { awk -v k="$1" '$1 == k { print $2 }' "$tmp/stat"; }
 wait_until 200 '"$shm" stat $p-m >"$tmp/stat" 2>/dev/null && [[ -n $(val frames_in) ]]'
