@@ -244,8 +244,10 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
  * The map is replaced by a new segment whose version goes on from the last one
  * published, so that readers re-attaching never see the version go back; the publish
  * that found it is refused with the reason. */
-static void writer_rebind(struct vlff_map *m) {
+static void writer_rebind(struct vlff_map *m, int fresh) {
   bind(m);
+  if (!fresh)
+    status_withdraw(m); /* a dead writer's segment at the name now: not our status */
   m->prev_ok = false; /* the new segment's buffers hold nothing of ours */
   if (atomic_load(&m->ctl->version) < m->last_version)
     atomic_store(&m->ctl->version, m->last_version);
@@ -257,11 +259,12 @@ static void writer_rebind(struct vlff_map *m) {
 static int writer_replace(struct vlff_map *m, const char *what) {
   char msg[320];
   snprintf(msg, sizeof msg, "%s", vlff_shm_last_message());
-  if (shm_seg_replace(&m->seg) < 0) {
+  int fresh = shm_seg_replace(&m->seg);
+  if (fresh < 0) {
     m->broken = true;
     return -1;
   }
-  writer_rebind(m);
+  writer_rebind(m, fresh);
   shm_err(VLFF_SHM_ERR_TRUNCATED, EPIPE, "%s%s", msg, what);
   return -1;
 }
@@ -271,9 +274,10 @@ static int writer_replace(struct vlff_map *m, const char *what) {
 static int writer_retry(struct vlff_map *m) {
   if (!m->broken)
     return 0;
-  if (shm_seg_retry(&m->seg) < 0)
+  int fresh = shm_seg_retry(&m->seg);
+  if (fresh < 0)
     return -1;
-  writer_rebind(m);
+  writer_rebind(m, fresh);
   return 0;
 }
 

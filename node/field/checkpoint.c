@@ -291,13 +291,27 @@ static int box_check(const struct vlff_field *f, const struct ckpt_box *b, char 
 static int cell_check(const struct vlff_field *f, const struct ckpt_cell *c, char *why, size_t len) {
   for (int a = 0; a < 3; a++)
     if (!(fabs(c->m[a] - f->occ.cell[a]) <= 1e-6 * f->occ.cell[a])) {
+      const bool cube = c->m[0] == c->m[1] && c->m[0] == c->m[2];
+      /* A growing field's cubes from before the cells followed the first
+       * box's sides: the key that resumes it. */
+      char hint[96] = "";
+      if (cube && f->cfg.field.grow) snprintf(hint, sizeof hint, "; train.occupancy_cell_m: %.7g resumes it", c->m[0]);
       snprintf(why, len,
                "occupancy cells of %g m on axis %d, this node's are %g m (train.occupancy_cell_m or "
-               "occupancy_resolution changed)",
-               c->m[a], a, (double)f->occ.cell[a]);
+               "occupancy_resolution changed)%s",
+               c->m[a], a, (double)f->occ.cell[a], hint);
       return -1;
     }
   return 0;
+}
+
+/* Whether a checkpoint's hash is this field section's with field.grow set
+ * to grow: growth became the default, and a node upgraded over a fixed
+ * box's checkpoint should be told the one key that refuses it. */
+static bool written_growing(const struct vlff_cfg_field *c, uint64_t hash, bool grow) {
+  struct vlff_cfg_field other = *c;
+  other.grow = grow;
+  return vlff_config_field_hash(&other) == hash;
 }
 
 int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t errlen) {
@@ -315,7 +329,7 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   struct sum s;
   sum_init(&s);
   const char *why = NULL;
-  char whybuf[160];
+  char whybuf[320];
   float *p = NULL, *m = NULL, *v = NULL, *dens = NULL, *avg = NULL, *cerr = NULL;
   double err_mean = 0;
   uint8_t *occ = NULL;
@@ -353,7 +367,12 @@ int vlff_field_load(struct vlff_field *f, const char *path, char *err, size_t er
   else if (h.bom != CKPT_BOM)
     why = "written on a machine of other byte order";
   else if (h.config_hash != vlff_config_field_hash(&f->cfg.field))
-    why = "model configuration (field.*) differs from this node's";
+    why = written_growing(&f->cfg.field, h.config_hash, !f->cfg.field.grow)
+              ? (f->cfg.field.grow ? "model configuration (field.*) differs from this node's: it was written with "
+                                     "field.grow false (a fixed box, once the default); set that to resume it"
+                                   : "model configuration (field.*) differs from this node's: it was written with "
+                                     "field.grow true; set that to resume it")
+              : "model configuration (field.*) differs from this node's";
   else if (h.nparams != np || h.ntable != f->ntable || h.ncells != nc || h.feature_dim != f->D)
     why = "array sizes differ from this model";
   else if (h.version > CKPT_VERSION_AXIS_CELLS && h.cells != 0 && h.cells != 1)

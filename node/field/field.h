@@ -148,9 +148,10 @@ void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n,
  * and the frequency part are laid over the whole world (+-field.world_limit_m
  * around the first box) with the first box's cell sizes in metres: a point's
  * encoding never changes when the box grows, so growing changes nothing the
- * field has learned. The occupancy cells are cubic (the first box's longest
- * side over train.occupancy_resolution), on one lattice from the first box's
- * low corner.
+ * field has learned. The occupancy cells keep their size: cubes of
+ * train.occupancy_cell_m, or the first box's own cells (each side over
+ * train.occupancy_resolution), on one lattice from the first box's low
+ * corner.
  *  - vlff_field_grow: the box grows, in whole cells, to hold [lo, hi]
  *    (clipped to the world): 1 grown, 0 when it already held it, -1 (f
  *    unchanged) when the box is fixed, the box is empty or not finite, or

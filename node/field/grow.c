@@ -45,11 +45,17 @@ void vlff_field_first_cells(const struct vlff_cfg_field *c, const struct vlff_cf
   for (int a = 0; a < 3; a++) {
     double ext = c->scene_max[a] - c->scene_min[a];
     if (c->grow) {
-      cell[a] = (float)(t->occupancy_cell_m > 0 ? t->occupancy_cell_m : ext / res);
-      /* the first box rounded out to whole cells (exact when the cells come
-       * from it) */
-      dims[a] = (int)ceil(ext / cell[a] - 1e-6);
-      if (dims[a] < 1) dims[a] = 1;
+      if (t->occupancy_cell_m > 0) {
+        cell[a] = (float)t->occupancy_cell_m;
+        /* the first box rounded out to whole cells */
+        dims[a] = (int)ceil(ext / cell[a] - 1e-6);
+        if (dims[a] < 1) dims[a] = 1;
+      } else {
+        /* the box's own, counted as the box counts them: a float cell's
+         * rounding must not add one */
+        cell[a] = (float)(ext / res);
+        dims[a] = res;
+      }
     } else {
       cell[a] = (float)(ext / res);
       dims[a] = res;

@@ -275,9 +275,11 @@ struct vlff_field *vlff_field_create(const struct vlff_cfg_field *field, const s
     if (cfg->field.grow && !vlff_occ_fits(&cfg->train, cells)) {
       if (err && errlen)
         snprintf(err, errlen,
-             "field: the first box's %.0f occupancy cells of %g m need %.0f MiB, more than train.occupancy_max_mb "
-             "(%g): larger train.occupancy_cell_m, or a smaller first box",
-             cells, (double)f->occ.cell[0], vlff_occ_bytes(cells) / 1048576.0, cfg->train.occupancy_max_mb);
+             "field: the first box's %d x %d x %d occupancy cells of %g x %g x %g m need %.0f MiB, more than "
+             "train.occupancy_max_mb (%g): a larger train.occupancy_max_mb or train.occupancy_cell_m, a smaller "
+             "train.occupancy_resolution or first box, or field.grow false",
+             dims[0], dims[1], dims[2], (double)f->occ.cell[0], (double)f->occ.cell[1], (double)f->occ.cell[2],
+             vlff_occ_bytes(cells) / 1048576.0, cfg->train.occupancy_max_mb);
       vlff_field_destroy(f);
       return NULL;
     }

@@ -549,7 +549,7 @@ struct vlff_map_reason {
 };
 
 struct vlff_map_status {
-  uint64_t t_ns;           /* when it was set (set by vlff_map_set_status); 0 = never */
+  uint64_t t_ns;           /* when it was set (set by vlff_map_set_status); 0 = none (never set, or withdrawn by a writer that took the segment over) */
   uint64_t updates;        /* 1, 2, ... per vlff_map_set_status on this segment */
   int32_t state;           /* writer-defined code (vlff-node: enum vlff_node_state) */
   uint32_t error_flags;    /* writer-defined bits (vlff-node: enum vlff_node_error_flags) */

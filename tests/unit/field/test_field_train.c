@@ -415,6 +415,23 @@ static void test_growth(void **state) {
   const double far_hi[3] = {3, 2.5, 2.5};
   assert_int_equal(vlff_field_grow(h, room_lo, far_hi, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "field.grow is off"));
+  /* A fixed box's checkpoint and a growing field in the same box (the same
+   * cells): refused by the model's configuration, naming field.grow, each
+   * way (growth became the default: an upgraded node is told the key). */
+  char boxed[300];
+  snprintf(boxed, sizeof boxed, "%s.box", path);
+  assert_int_equal(vlff_field_save(h, boxed, err, sizeof(err)), 0);
+  struct vlff_config same = fixed;
+  same.field.grow = true;
+  struct vlff_field *gf = vlff_field_create(&same.field, &same.train, same.node.threads, err, sizeof(err));
+  assert_non_null(gf);
+  assert_int_equal(vlff_field_load(gf, boxed, err, sizeof(err)), -1);
+  if (!strstr(err, "written with field.grow false")) fail_msg("%s", err);
+  assert_int_equal(vlff_field_save(gf, boxed, err, sizeof(err)), 0);
+  assert_int_equal(vlff_field_load(h, boxed, err, sizeof(err)), -1);
+  if (!strstr(err, "written with field.grow true")) fail_msg("%s", err);
+  vlff_field_destroy(gf);
+  unlink(boxed);
   vlff_field_destroy(h);
   /* Cells in metres (train.occupancy_cell_m): 0.3 m cubes from the first
    * box's low corner, whatever its size; a checkpoint whose cells are the
@@ -430,7 +447,21 @@ static void test_growth(void **state) {
   assert_true(fabs(ghi[0] - 0.4) < 1e-6 && fabs(ghi[1] - 2.5) < 1e-6); /* 8 cells past 0.25, 15 on 4.5 m */
   assert_int_equal(vlff_field_load(h, path, err, sizeof(err)), -1);
   assert_non_null(strstr(err, "occupancy cells of"));
+  assert_null(strstr(err, "resumes it")); /* the box's own cells are not cubes here */
+  /* Its own checkpoint, in cubes, refused by a field whose cells follow the
+   * first box (a growing field written before they did): the key that
+   * resumes it is named. */
+  char cubes[300];
+  snprintf(cubes, sizeof cubes, "%s.cubes", path);
+  assert_int_equal(vlff_field_save(h, cubes, err, sizeof(err)), 0);
   vlff_field_destroy(h);
+  h = vlff_field_create(&cfg.field, &cfg.train, cfg.node.threads, err, sizeof(err));
+  assert_non_null(h);
+  assert_int_equal(vlff_field_load(h, cubes, err, sizeof(err)), -1);
+  if (!strstr(err, "occupancy cells of 0.3 m") || !strstr(err, "train.occupancy_cell_m: 0.3 resumes it"))
+    fail_msg("%s", err);
+  vlff_field_destroy(h);
+  unlink(cubes);
   metres.train.occupancy_cell_m = 0.01, metres.train.occupancy_max_mb = 1;
   assert_null(vlff_field_create(&metres.field, &metres.train, metres.node.threads, err, sizeof(err)));
   assert_non_null(strstr(err, "first box"));
