@@ -281,7 +281,7 @@ static const struct key schema[] = {
     INT("keyframes.posecheck_min_steps", keyframes.posecheck_min_steps, 0, 1 << 30, 200),
 
     DBL("publish.rate_hz", publish.rate_hz, 0.01, 1000, 1),
-    DBL("publish.voxel_size_m", publish.voxel_size_m, 0.001, 100, 0.05),
+    DBL("publish.voxel_size_m", publish.voxel_size_m, 0.001, 100, 0.1),
     INT("publish.label_width", publish.label_width, 8, 8192, 160),
     INT("publish.label_height", publish.label_height, 8, 8192, 120),
     ENUM("publish.label_image", publish.label_image, label_images, "surface"),
