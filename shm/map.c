@@ -638,6 +638,15 @@ static void copy_into(const struct vlff_map *m, uint32_t c, const struct map_met
   atomic_store(&nctl->version, m->last_version > mm->version ? m->last_version : mm->version);
 }
 
+/* The handle reads and writes the segment ns (allocated, mapped) from now on; its
+ * old one is unmapped. */
+static void adopt(struct vlff_map *m, struct seg *ns) {
+  shm_seg_close(&m->seg);
+  shm_seg_move(&m->seg, ns);
+  free(ns);
+  bind(m);
+}
+
 API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
   if (!m || !m->writer || max_voxels > UINT32_MAX) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_reserve: %s",
@@ -693,10 +702,7 @@ API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
     goto drop;
   /* Readers still on the old segment attach the new one at their next call. */
   atomic_store_explicit(&m->seg.h->state, SEG_MOVED, memory_order_release);
-  shm_seg_close(&m->seg);
-  shm_seg_move(&m->seg, ns);
-  free(ns);
-  bind(m);
+  adopt(m, ns);
   free(m->prev);
   m->prev = prev;
   m->prev_ok = false; /* buffer 1 holds nothing yet */
@@ -722,10 +728,7 @@ static int follow(struct vlff_map *m) {
     free(ns);
     return -1;
   }
-  shm_seg_close(&m->seg);
-  shm_seg_move(&m->seg, ns);
-  free(ns);
-  bind(m);
+  adopt(m, ns);
   return 0;
 }
 

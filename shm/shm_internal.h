@@ -109,6 +109,9 @@ int shm_seg_attach(struct seg *s, const char *name, const struct seg_spec *spec,
 /* Create: returns 1 if a fresh segment was created (header written, state INIT: the
  * caller initialises its body then calls shm_seg_ready), 0 if a dead creator's
  * segment of identical geometry was taken over (generation bumped, state READY). */
+int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
+                   const struct vlff_shm_perm *perm);
+void shm_seg_ready(struct seg *s);
 /* Moves the mapped segment src into dst (the SIGBUS guard follows it); src is
  * left unmapped. */
 void shm_seg_move(struct seg *dst, struct seg *src);
@@ -116,9 +119,6 @@ void shm_seg_move(struct seg *dst, struct seg *src);
  * (rename in /dev/shm: whoever attaches the name from then on gets it, and
  * whoever has the old file mapped keeps it). 0, or -1 with the error set. */
 int shm_seg_rename(struct seg *s, const char *name);
-int shm_seg_create(struct seg *s, const char *name, const struct seg_spec *spec, const uint64_t geom[6],
-                   const struct vlff_shm_perm *perm);
-void shm_seg_ready(struct seg *s);
 void shm_seg_close(struct seg *s);
 /* 0 if the mapping is still backed by the whole file; -1 (VLFF_SHM_ERR_TRUNCATED,
  * EPIPE) if the SIGBUS guard fired on it or, with stat_it, if the file is now smaller
