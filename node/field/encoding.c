@@ -55,7 +55,7 @@ void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cf
   for (int i = 0; i < 3; i++) {
     if (e->grow) {
       double half = cfg->world_limit_m + first;
-      e->box_min[i] = (float)(0.5 * (cfg->scene_min[i] + cfg->scene_max[i]) - half);
+      e->box_min[i] = (float)(0.5 * (cfg->scene_min[i] + cfg->scene_max[i]));
       e->box_ext[i] = 2 * half;
       world = 2 * half / first;
     } else {
@@ -69,6 +69,9 @@ void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cf
     double r = floor(base * pow(growth, l) * world + 1e-6);
     if (r < 1) r = 1;
     e->res[l] = (float)r;
+    /* Growing, p counts from the world's centre, r / 2 cells into the level */
+    e->kofs[l] = e->grow ? (int32_t)floor(r / 2) : 0;
+    e->shift[l] = e->grow && fmod(r, 2) != 0 ? 0.5f : 0.0f;
     double pts = (r + 1) * (r + 1) * (r + 1);
     /* A dense level would have to cover the whole world. */
     e->dense[l] = !e->grow && pts <= (double)e->size;
@@ -93,6 +96,12 @@ void vlff_encoding_set_cells(struct vlff_encoding *e, int cubic) {
     e->box_scale[i] = (float)(1.0 / s);
     e->p_top[i] = (float)(e->box_ext[i] / s);
     e->freq_scale[i] = (float)(M_PI * s / e->freq_ext[i]);
+    /* growing, the world's centre is p = 0; the angle stays the corner
+     * frame's (the corner is p_top / 2 below) */
+    e->p_lo[i] = e->grow ? -0.5f * e->p_top[i] : 0.0f;
+    e->p_hi[i] = e->grow ? 0.5f * e->p_top[i] : e->p_top[i];
+    /* (modulo 2 pi: every octave's angle is a multiple of the first's) */
+    e->freq_phase[i] = e->grow ? (float)fmod(0.5 * e->box_ext[i] / s * (M_PI * s / e->freq_ext[i]), 2 * M_PI) : 0.0f;
     if (!e->grow) e->in_lo[i] = 0.0f, e->in_hi[i] = e->p_top[i];
   }
 }
@@ -113,8 +122,8 @@ int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float
   int inside = 1;
   for (int i = 0; i < 3; i++) {
     float v = (x[i] - e->box_min[i]) * e->box_scale[i];
-    if (!(v >= 0.0f)) { v = 0.0f; inside = 0; }  /* also catches NaN */
-    if (v > e->p_top[i]) { v = e->p_top[i]; inside = 0; }
+    if (!(v >= e->p_lo[i])) { v = e->p_lo[i]; inside = 0; }  /* also catches NaN */
+    if (v > e->p_hi[i]) { v = e->p_hi[i]; inside = 0; }
     if (v < e->in_lo[i] || v > e->in_hi[i]) inside = 0;
     p[i] = v;
   }
@@ -126,16 +135,16 @@ int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float
  * y offset (c>>1)&1, z offset (c>>2)&1. */
 static inline __attribute__((always_inline)) void corners(const struct vlff_encoding *e, int l, const float *p,
                                                           uint32_t idx[8], float w[8]) {
-  const float r = e->res[l];
-  const uint32_t ri = (uint32_t)r;
+  const float r = e->res[l], sh = e->shift[l];
+  const int32_t ri = (int32_t)r, ko = e->kofs[l];
   uint32_t i0[3];
   float f[3];
   for (int a = 0; a < 3; a++) {
-    float pos = p[a] * r;
-    uint32_t c = (uint32_t)pos;
-    c = c >= ri ? ri - 1 : c;
-    i0[a] = c;
-    f[a] = pos - (float)c;
+    float pos = p[a] * r + sh;
+    int32_t c = (int32_t)floorf(pos) + ko;
+    c = c < 0 ? 0 : c >= ri ? ri - 1 : c;
+    i0[a] = (uint32_t)c;
+    f[a] = pos - (float)(c - ko);
   }
   uint32_t x0, x1, y0, y1, z0, z1;
   if (e->dense[l]) {
@@ -195,13 +204,21 @@ enum { VLFF_ENC_V4_BLOCK = 256, V4_GROUP = 8 };
  * g0 (of n) at level l, 16 points per vector, with the scalar corners()'s
  * arithmetic; lanes past n are computed from zeros (valid indices) and
  * never used. Returns the vectors filled. */
+/* A level's cell along one axis from pos = p * r + shift: floor(pos) +
+ * kofs, clamped to [0, r - 1] as corners() clamps it. */
+V4_TARGET static inline __m512i cell_v4(__m512 pos, __m512i ko, __m512i zero, __m512i rim1) {
+  __m512i c = _mm512_cvttps_epi32(_mm512_roundscale_ps(pos, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC));
+  return _mm512_min_epi32(_mm512_max_epi32(_mm512_add_epi32(c, ko), zero), rim1);
+}
+
 V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const float *px, const float *py,
                                 const float *pz, int g0, int n, uint32_t *ib, float *wb) {
   const float r = e->res[l];
   const int dense = e->dense[l];
   const uint32_t s1 = (uint32_t)r + 1, s2 = s1 * s1;
-  const __m512 vr = _mm512_set1_ps(r), fone = _mm512_set1_ps(1.0f);
+  const __m512 vr = _mm512_set1_ps(r), fone = _mm512_set1_ps(1.0f), vsh = _mm512_set1_ps(e->shift[l]);
   const __m512i rim1 = _mm512_set1_epi32((int)r - 1), one = _mm512_set1_epi32(1);
+  const __m512i ko = _mm512_set1_epi32(e->kofs[l]), zero = _mm512_setzero_si512();
   const __m512i my = _mm512_set1_epi32(dense ? (int)s1 : (int)2654435761u);
   const __m512i mz = _mm512_set1_epi32(dense ? (int)s2 : (int)805459861u);
   const __m512i mask = _mm512_set1_epi32((int)(e->size - 1));
@@ -210,15 +227,14 @@ V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const floa
   for (int v = 0; v < nv; v++) {
     int i0 = g0 + 16 * v, m = n - i0 < 16 ? n - i0 : 16;
     __mmask16 k = (__mmask16)((1u << m) - 1);
-    __m512 x = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, px + i0), vr);
-    __m512 y = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, py + i0), vr);
-    __m512 z = _mm512_mul_ps(_mm512_maskz_loadu_ps(k, pz + i0), vr);
-    __m512i cx = _mm512_min_epu32(_mm512_cvttps_epu32(x), rim1);
-    __m512i cy = _mm512_min_epu32(_mm512_cvttps_epu32(y), rim1);
-    __m512i cz = _mm512_min_epu32(_mm512_cvttps_epu32(z), rim1);
-    __m512 fx = _mm512_sub_ps(x, _mm512_cvtepu32_ps(cx));
-    __m512 fy = _mm512_sub_ps(y, _mm512_cvtepu32_ps(cy));
-    __m512 fz = _mm512_sub_ps(z, _mm512_cvtepu32_ps(cz));
+    /* p * r + shift (fixed: + 0, exactly p * r); floor, then kofs on */
+    __m512 x = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, px + i0), vr, vsh);
+    __m512 y = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, py + i0), vr, vsh);
+    __m512 z = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, pz + i0), vr, vsh);
+    __m512i cx = cell_v4(x, ko, zero, rim1), cy = cell_v4(y, ko, zero, rim1), cz = cell_v4(z, ko, zero, rim1);
+    __m512 fx = _mm512_sub_ps(x, _mm512_cvtepi32_ps(_mm512_sub_epi32(cx, ko)));
+    __m512 fy = _mm512_sub_ps(y, _mm512_cvtepi32_ps(_mm512_sub_epi32(cy, ko)));
+    __m512 fz = _mm512_sub_ps(z, _mm512_cvtepi32_ps(_mm512_sub_epi32(cz, ko)));
     __m512i x0 = cx, x1 = _mm512_add_epi32(cx, one);
     __m512i y0 = _mm512_mullo_epi32(cy, my), y1 = _mm512_add_epi32(y0, my);
     __m512i z0 = _mm512_mullo_epi32(cz, mz), z1 = _mm512_add_epi32(z0, mz);
@@ -345,13 +361,20 @@ V4_TARGET static void level_v4(const struct vlff_encoding *e, int l, const float
  * gradients are the AVX-512 kernels' bit for bit. Without them such a CPU
  * runs the portable loops, much slower (bench field_isa measures it). */
 #define V3_TARGET __attribute__((target("avx2,fma")))
+/* cell_v4's arithmetic, 8 lanes */
+V3_TARGET static inline __m256i cell_v3(__m256 pos, __m256i ko, __m256i zero, __m256i rim1) {
+  __m256i c = _mm256_cvttps_epi32(_mm256_floor_ps(pos));
+  return _mm256_min_epi32(_mm256_max_epi32(_mm256_add_epi32(c, ko), zero), rim1);
+}
+
 V3_TARGET static int corners_v3(const struct vlff_encoding *e, int l, const float *px, const float *py,
                                 const float *pz, int g0, int n, uint32_t *ib, float *wb) {
   const float r = e->res[l];
   const int dense = e->dense[l];
   const uint32_t s1 = (uint32_t)r + 1, s2 = s1 * s1;
-  const __m256 vr = _mm256_set1_ps(r), fone = _mm256_set1_ps(1.0f);
+  const __m256 vr = _mm256_set1_ps(r), fone = _mm256_set1_ps(1.0f), vsh = _mm256_set1_ps(e->shift[l]);
   const __m256i rim1 = _mm256_set1_epi32((int)r - 1), one = _mm256_set1_epi32(1);
+  const __m256i ko = _mm256_set1_epi32(e->kofs[l]), zero = _mm256_setzero_si256();
   const __m256i my = _mm256_set1_epi32(dense ? (int)s1 : (int)2654435761u);
   const __m256i mz = _mm256_set1_epi32(dense ? (int)s2 : (int)805459861u);
   const __m256i mask = _mm256_set1_epi32((int)(e->size - 1));
@@ -361,16 +384,13 @@ V3_TARGET static int corners_v3(const struct vlff_encoding *e, int l, const floa
   for (int v = 0; v < nv; v++) {
     int i0 = g0 + 8 * v, m = n - i0 < 8 ? n - i0 : 8;
     __m256i k = _mm256_cmpgt_epi32(_mm256_set1_epi32(m), lane);
-    /* Normalised coordinates are in [0, 1]: the signed conversion is exact. */
-    __m256 x = _mm256_mul_ps(_mm256_maskload_ps(px + i0, k), vr);
-    __m256 y = _mm256_mul_ps(_mm256_maskload_ps(py + i0, k), vr);
-    __m256 z = _mm256_mul_ps(_mm256_maskload_ps(pz + i0, k), vr);
-    __m256i cx = _mm256_min_epu32(_mm256_cvttps_epi32(x), rim1);
-    __m256i cy = _mm256_min_epu32(_mm256_cvttps_epi32(y), rim1);
-    __m256i cz = _mm256_min_epu32(_mm256_cvttps_epi32(z), rim1);
-    __m256 fx = _mm256_sub_ps(x, _mm256_cvtepi32_ps(cx));
-    __m256 fy = _mm256_sub_ps(y, _mm256_cvtepi32_ps(cy));
-    __m256 fz = _mm256_sub_ps(z, _mm256_cvtepi32_ps(cz));
+    __m256 x = _mm256_fmadd_ps(_mm256_maskload_ps(px + i0, k), vr, vsh);
+    __m256 y = _mm256_fmadd_ps(_mm256_maskload_ps(py + i0, k), vr, vsh);
+    __m256 z = _mm256_fmadd_ps(_mm256_maskload_ps(pz + i0, k), vr, vsh);
+    __m256i cx = cell_v3(x, ko, zero, rim1), cy = cell_v3(y, ko, zero, rim1), cz = cell_v3(z, ko, zero, rim1);
+    __m256 fx = _mm256_sub_ps(x, _mm256_cvtepi32_ps(_mm256_sub_epi32(cx, ko)));
+    __m256 fy = _mm256_sub_ps(y, _mm256_cvtepi32_ps(_mm256_sub_epi32(cy, ko)));
+    __m256 fz = _mm256_sub_ps(z, _mm256_cvtepi32_ps(_mm256_sub_epi32(cz, ko)));
     __m256i x0 = cx, x1 = _mm256_add_epi32(cx, one);
     __m256i y0 = _mm256_mullo_epi32(cy, my), y1 = _mm256_add_epi32(y0, my);
     __m256i z0 = _mm256_mullo_epi32(cz, mz), z1 = _mm256_add_epi32(z0, mz);
@@ -494,7 +514,9 @@ V3_TARGET static void backward_v3(const struct vlff_encoding *e, const float *p,
 /* sin and cos of x: reduction by pi/2 in two parts (pi/2 rounded to float,
  * then its error) and minimax polynomials on [-pi/4, pi/4] (the Cephes
  * single-precision coefficients): within 1e-7 of the exact values over the
- * [0, pi] used here (measured; the points are normalised into [0, 1]).
+ * [0, pi] a fixed box uses (measured; its points are normalised into
+ * [0, 1]; a growing field's world reaches further, where the reduction's
+ * error grows with the angle).
  * Written without calls or branches so that the loop over a block's points
  * vectorises: libm's sinf and cosf, called per point, were a fifth of the
  * encoding's time. */
@@ -524,7 +546,7 @@ static void encode_freq(const struct vlff_encoding *e, const float *p, int n, fl
     int m = n - i0 < B ? n - i0 : B;
     /* A fixed trip count (a short block padded with zeros) is what GCC's
      * -O2 cost model vectorises. */
-    for (int k = 0; k < 3 * m; k++) x[k] = p[3 * i0 + k] * e->freq_scale[k % 3];
+    for (int k = 0; k < 3 * m; k++) x[k] = p[3 * i0 + k] * e->freq_scale[k % 3] + e->freq_phase[k % 3];
     for (int k = 3 * m; k < 3 * B; k++) x[k] = 0.0f;
     for (int k = 0; k < 3 * B; k++) sincos_poly(x[k], &s[k], &c[k]);
     for (int i = 0; i < m; i++) {

@@ -462,24 +462,26 @@ static uint64_t fnv1a(uint64_t h, const void *p, size_t n) {
  * the box faces, a count that ends inside a vector, a prefetch group and a
  * coordinate block, and masked (inactive) levels. *bits receives a digest
  * of the kernel's outputs and gradients. */
-static void check_encoding_simd(int isa, uint64_t *bits) {
+static void check_encoding_simd(int isa, bool grow, uint64_t *bits) {
   struct vlff_config cfg;
   vlff_config_defaults(&cfg);
-  cfg.field.grow = false; /* dense and hashed levels */
+  cfg.field.grow = grow; /* fixed: dense and hashed levels; growing: from the world's centre */
   cfg.field.hash_log2_size = 14;
   cfg.field.finest_resolution = 512;
   struct vlff_encoding e;
   vlff_encoding_init(&e, &cfg.field);
-  int dense = 0, hashed = 0;
-  for (int l = 0; l < e.levels; l++) dense += e.dense[l], hashed += !e.dense[l];
-  assert_true(dense > 0 && hashed > 0);
+  int dense = 0, hashed = 0, odd = 0;
+  for (int l = 0; l < e.levels; l++) dense += e.dense[l], hashed += !e.dense[l], odd += e.shift[l] != 0;
+  assert_true(grow ? dense == 0 && odd > 0 && odd < e.levels : dense > 0 && hashed > 0);
   size_t nt = (size_t)e.levels * e.size * e.feats;
   float *table = falloc(nt);
   for (size_t i = 0; i < nt; i++) table[i] = frand();
   const int n = 300;
   float *p = falloc(3 * (size_t)n), *a = falloc((size_t)n * e.dim), *b = falloc((size_t)n * e.dim);
-  for (int i = 0; i < 3 * n; i++) p[i] = 0.5f + 0.5f * frand();
-  for (int i = 0; i < 12; i++) p[i] = (float)(i % 2);  /* faces and corners of the box */
+  /* growing: most points near the centre (the first box), some anywhere in
+   * the world, both signs */
+  for (int i = 0; i < 3 * n; i++) p[i] = grow ? 0.5f * frand() * (i % 3 ? 0.01f : 1.0f) : 0.5f + 0.5f * frand();
+  for (int i = 0; i < 12; i++) p[i] = (float)(i % 2) - (grow ? 0.5f : 0.0f); /* faces and corners of the box */
   for (int active = e.levels; active >= e.levels - 3; active -= 3) {
     e.active = active;
     for (int i = 0; i < n * e.dim; i++) a[i] = b[i] = frand();
@@ -542,10 +544,78 @@ static void test_encoding_simd(void **state) {
   const uint64_t seed = rng;
   uint64_t bits[3] = {0};
   int ran = 0;
-  for (int isa = 1; isa <= 2; isa++)
-    if (cpu_runs(isa)) rng = seed, check_encoding_simd(isa, &bits[isa]), ran++;
-  if (!ran) skip(); /* this CPU runs the portable loop only */
-  if (ran == 2) assert_true(bits[1] == bits[2]);
+  for (int grow = 0; grow <= 1; grow++) {
+    ran = 0;
+    for (int isa = 1; isa <= 2; isa++)
+      if (cpu_runs(isa)) rng = seed, check_encoding_simd(isa, grow, &bits[isa]), ran++;
+    if (!ran) skip(); /* this CPU runs the portable loop only */
+    if (ran == 2) assert_true(bits[1] == bits[2]);
+  }
+}
+
+/* A growing field's encoding is the world frame's (cells counted from the
+ * world's low corner, field.h "Growth") to double precision: a float
+ * position counted from that corner, ~86000 cells into the finest level
+ * of a 2 km world, resolved only 1/128 of a cell, and the trilinear
+ * weights of every point near the robot were that coarse. Here every
+ * level's output equals a double-precision interpolation in the corner
+ * frame, with the corner frame's cells (what a growing checkpoint learned
+ * in), for points in a building-sized first box, on every kernel the CPU
+ * runs. */
+static void test_encoding_world(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  vlff_config_defaults(&cfg);
+  assert_true(cfg.field.grow && cfg.field.world_limit_m >= 1000);
+  cfg.field.hash_log2_size = 14;
+  const double lo[3] = {-12.2, -5, -1.5}, hi[3] = {12.2, 5, 1.5};
+  memcpy(cfg.field.scene_min, lo, sizeof lo);
+  memcpy(cfg.field.scene_max, hi, sizeof hi);
+  struct vlff_encoding e;
+  vlff_encoding_init(&e, &cfg.field);
+  const double half = cfg.field.world_limit_m + 24.4;
+  const size_t nt = (size_t)e.levels * e.size * e.feats;
+  float *table = falloc(nt), *out = falloc(e.dim);
+  for (size_t i = 0; i < nt; i++) table[i] = frand();
+  int checked = 0;
+  for (int isa = 0; isa <= 2; isa++) {
+    if (!cpu_runs(isa)) continue;
+    e.simd = isa;
+    for (int k = 0; k < 200; k++) {
+      float x[3], p[3];
+      for (int a = 0; a < 3; a++) x[a] = (float)(lo[a] + (hi[a] - lo[a]) * (0.5 + 0.5 * frand()));
+      assert_int_equal(vlff_encoding_normalise(&e, x, p), 1);
+      vlff_encoding_forward(&e, table, p, 1, out, e.dim);
+      for (int l = 0; l < e.levels; l++) {
+        const double r = e.res[l];
+        uint32_t c[3];
+        double f[3];
+        bool edge = false;
+        for (int a = 0; a < 3; a++) {
+          double pos = ((double)x[a] - (0.5 * (lo[a] + hi[a]) - half)) / (2 * half) * r;
+          c[a] = (uint32_t)floor(pos);
+          f[a] = pos - floor(pos);
+          edge = edge || f[a] < 1e-3 || f[a] > 1 - 1e-3; /* a cell boundary: either side is right */
+        }
+        if (edge) continue;
+        double want[2] = {0, 0};
+        for (int q = 0; q < 8; q++) {
+          uint32_t cx = c[0] + (q & 1), cy = c[1] + ((q >> 1) & 1), cz = c[2] + ((q >> 2) & 1);
+          uint32_t idx = (cx ^ cy * 2654435761u ^ cz * 805459861u) & (e.size - 1);
+          double w = ((q & 1) ? f[0] : 1 - f[0]) * ((q & 2) ? f[1] : 1 - f[1]) * ((q & 4) ? f[2] : 1 - f[2]);
+          for (int ft = 0; ft < 2; ft++) want[ft] += w * table[((size_t)l * e.size + idx) * 2 + ft];
+        }
+        /* a weight 1/256 of a cell off moves an output by ~1e-2 */
+        for (int ft = 0; ft < 2; ft++)
+          if (fabs(out[2 * l + ft] - want[ft]) > 2e-4)
+            fail_msg("isa %d level %d (res %.0f) point (%g, %g, %g): %.6f, the world frame's %.6f", isa, l, r,
+                     (double)x[0], (double)x[1], (double)x[2], (double)out[2 * l + ft], want[ft]);
+        checked++;
+      }
+    }
+  }
+  assert_true(checked > 1000);
+  free(table), free(out);
 }
 
 static double render_ref(const double *sig, const float *delta, const float *v, int ns) {
@@ -844,6 +914,6 @@ static void test_f16(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_gemm), cmocka_unit_test(test_score), cmocka_unit_test(test_mlp),
-    cmocka_unit_test(test_encoding), cmocka_unit_test(test_encoding_cells), cmocka_unit_test(test_encoding_simd),
+    cmocka_unit_test(test_encoding), cmocka_unit_test(test_encoding_cells), cmocka_unit_test(test_encoding_simd), cmocka_unit_test(test_encoding_world),
     cmocka_unit_test(test_render), cmocka_unit_test(test_losses), cmocka_unit_test(test_adam),
     cmocka_unit_test(test_f16), cmocka_unit_test(test_f16_bulk))
