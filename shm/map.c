@@ -765,8 +765,12 @@ static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm) {
   return true;
 }
 
-/* Reads `fn` consistently from the current buffer: the seqlock retry loop. */
-typedef bool (*reader_fn)(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx);
+/* Reads `fn` consistently from the current buffer: the seqlock retry loop.
+ * fn returns READ_OK, READ_BAD (what it read is inconsistent, unless torn)
+ * or READ_FAILED (its own failure, already said with shm_err: a snapshot
+ * out of memory is not a corrupt map). */
+enum { READ_FAILED = -1, READ_BAD = 0, READ_OK = 1 };
+typedef int (*reader_fn)(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx);
 
 static int read_consistent(struct vlff_map *m, struct map_meta *mm, reader_fn fn, void *ctx) {
   for (int i = 0; i < READ_RETRIES; i++) {
@@ -779,7 +783,10 @@ static int read_consistent(struct vlff_map *m, struct map_meta *mm, reader_fn fn
     if (s1 & 1)
       continue;
     shm_racy_copy(mm, &b->meta, sizeof *mm);
-    bool ok = meta_sane(m, mm) && (!fn || fn(m, c, mm, ctx));
+    int r = !meta_sane(m, mm) ? READ_BAD : fn ? fn(m, c, mm, ctx) : READ_OK;
+    if (r == READ_FAILED)
+      return -1;
+    bool ok = r == READ_OK;
     shm_fence_acquire();
     if ((a = abandoned(m)) == 1)
       return -1;
@@ -818,7 +825,7 @@ struct at_ctx {
   uint8_t conf;
 };
 
-static bool read_voxel(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
+static int read_voxel(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
   struct at_ctx *c = vctx;
   uint64_t i;
   c->label = VLFF_LABEL_UNKNOWN;
@@ -827,7 +834,7 @@ static bool read_voxel(const struct vlff_map *m, uint32_t b, const struct map_me
     shm_racy_copy(&c->label, bufp(m, b, off_labels() + 2 * i), 2);
     shm_racy_copy(&c->conf, bufp(m, b, off_conf(m->max_voxels) + i), 1);
   }
-  return true;
+  return READ_OK;
 }
 
 API int vlff_map_label_at(struct vlff_map *m, double x, double y, double z, uint16_t *label, uint8_t *conf) {
@@ -965,10 +972,10 @@ static bool snap_resize(const struct vlff_map *m, struct vlff_map_snapshot *s) {
   return true;
 }
 
-static bool copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx) {
+static int copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx) {
   struct vlff_map_snapshot *s = ctx;
   if (!snap_resize(m, s))
-    return false;
+    return READ_FAILED;
   uint64_t mv = m->max_voxels;
   if (mm->version) {
     uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2];
@@ -980,7 +987,7 @@ static bool copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta
     shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * n);
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), n);
   }
-  return true;
+  return READ_OK;
 }
 
 /* The snapshot's change list after a whole copy of a map with meta mm. */
@@ -1057,12 +1064,12 @@ static bool logged_since(const struct vlff_map *m, struct vlff_map_snapshot *s, 
   return true;
 }
 
-static bool copy_changed(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
+static int copy_changed(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *vctx) {
   struct follow_ctx *c = vctx;
   struct vlff_map_snapshot *s = c->s;
   const bool resized = !snap_fits(m, s); /* what it held is gone: copy everything */
   if (!snap_resize(m, s))
-    return false;
+    return READ_FAILED;
   const struct map_meta *old = &s->meta;
   uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2], mv = m->max_voxels;
   /* Once an attempt copied everything (torn, since it is retried), so do the rest. */
@@ -1085,7 +1092,7 @@ static bool copy_changed(const struct vlff_map *m, uint32_t b, const struct map_
     shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * ln);
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), ln);
   }
-  return true;
+  return READ_OK;
 }
 
 API int vlff_map_snapshot_follow(struct vlff_map *m, struct vlff_map_snapshot *s) {

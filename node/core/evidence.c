@@ -244,24 +244,33 @@ static int relayout(struct vlff_evidence *e, const int32_t sh[3], const uint32_t
   return 0;
 }
 
-int vlff_evidence_grow(struct vlff_evidence *e, const double lo[3], const double hi[3], double limit, char *err,
-                       size_t errlen) {
+int vlff_evidence_grow(struct vlff_evidence *e, const double want_lo[3], const double want_hi[3], const double lo[3],
+                       const double hi[3], double limit, char *err, size_t errlen) {
+  const double *blo[2] = {want_lo, lo}, *bhi[2] = {want_hi, hi};
   int32_t sh[3];
   uint32_t nd[3];
-  int rc = vlff_lattice_cover(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, lo, hi, limit, sh, nd);
-  if (rc < 0) return vlff_errf(err, errlen, "evidence: growth to an empty or non-finite box"), -1;
-  if (rc == 0) return 0;
-  if (!e->max_vox) return vlff_errf(err, errlen, "evidence: the grid is fixed (field.grow is off)"), -1;
-  if (vlff_lattice_cells(nd) > e->max_vox) {
-    /* Past the index's budget: refit the grid to the voxels that hold
-     * evidence (in memory or paged) and [lo, hi], dropping the empty margins
-     * earlier growths left (vlff_lattice_fit). */
-    long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
-    for (size_t v = 0; v < e->nvox; v++)
-      if (e->slot[v] != -1) vlff_lattice_extend(klo, khi, v, e->dims);
-    if (vlff_lattice_fit(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, klo, khi, lo, hi, limit, sh, nd) == 0) return 0;
+  long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
+  bool scanned = false;
+  for (int t = 0; t < 2; t++) {
+    int rc = vlff_lattice_cover(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, blo[t], bhi[t], limit, sh, nd);
+    if (rc < 0) return vlff_errf(err, errlen, "evidence: growth to an empty or non-finite box"), -1;
+    if (rc == 0) return 0;
+    if (!e->max_vox) return vlff_errf(err, errlen, "evidence: the grid is fixed (field.grow is off)"), -1;
+    if (vlff_lattice_cells(nd) > e->max_vox) {
+      /* Past the index's budget: refit the grid to the voxels that hold
+       * evidence (in memory or paged) and the box, dropping the empty
+       * margins earlier growths left (vlff_lattice_fit). */
+      if (!scanned)
+        for (size_t v = 0; v < e->nvox; v++)
+          if (e->slot[v] != -1) vlff_lattice_extend(klo, khi, v, e->dims);
+      scanned = true;
+      if (vlff_lattice_fit(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, klo, khi, blo[t], bhi[t], limit, sh, nd) ==
+          0)
+        return 0;
+    }
+    if (!relayout(e, sh, nd, err, errlen)) return 1;
   }
-  return relayout(e, sh, nd, err, errlen) ? -1 : 1;
+  return -1; /* err: the smaller box's refusal */
 }
 
 void vlff_evidence_reset(struct vlff_evidence *e) {

@@ -83,7 +83,10 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
 struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, const struct vlff_cfg_field *field,
                                         int max_k, char *err, size_t errlen);
 /* Growth (field.grow): the grid grows on its lattice, in whole voxels, to
- * hold [lo, hi] clipped to +-limit; every voxel's evidence (in a slot or
+ * hold [want_lo, want_hi] clipped to +-limit, or, when the budget or memory
+ * refuses that, [lo, hi] (inside it: what must be held); past the budget it
+ * is refitted to the voxels that hold evidence and the box (the voxels
+ * scanned once for both). Every voxel's evidence (in a slot or
  * paged) stays where it is in the world, and more slots are allocated up
  * to the budget when the grid held fewer voxels than it. 1 grown, 0 when
  * the grid already held it; -1 with err for a box that is empty or not
@@ -91,8 +94,8 @@ struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, cons
  * vlff_evidence_create), an index past a quarter of publish.evidence_max_mb,
  * or no memory: the evidence unchanged. A load of saved evidence whose grid
  * holds this one on its lattice grows to it first. */
-int vlff_evidence_grow(struct vlff_evidence *e, const double lo[3], const double hi[3], double limit, char *err,
-                       size_t errlen);
+int vlff_evidence_grow(struct vlff_evidence *e, const double want_lo[3], const double want_hi[3], const double lo[3],
+                       const double hi[3], double limit, char *err, size_t errlen);
 void vlff_evidence_destroy(struct vlff_evidence *e);
 void vlff_evidence_reset(struct vlff_evidence *e);
 

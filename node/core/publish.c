@@ -396,7 +396,8 @@ static int obs_get(struct obs_reader *r, uint64_t off, void *dst, size_t n, char
   return -1;
 }
 
-static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3]);
+static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3], char *err,
+                            size_t errlen);
 
 /* A voxel that holds something: observed (free space or a surface), owed a
  * relabel, seen through, or labelled (what was published is what was
@@ -416,15 +417,14 @@ static bool drops_held(const struct vlff_publisher *p, const int32_t sh[3], cons
 /* A growing map takes a saved grid on its lattice (the grid it had grown or
  * been refitted to when saved) that holds every voxel the map holds now:
  * 1 when it did, 0 when the grid is not such (the geometry check refuses it
- * then), -1 out of memory, -2 the segment could not grow (publisher_regrid). */
-static int grow_to_saved(struct vlff_publisher *p, const struct obs_header *h) {
+ * then), -1 with err when it could not (publisher_regrid). */
+static int grow_to_saved(struct vlff_publisher *p, const struct obs_header *h, char *err, size_t errlen) {
   int32_t sh[3];
   if (!p->field.grow || h->voxel != p->voxel || vlff_lattice_cells(h->dims) > p->max_voxels ||
       !vlff_lattice_saved(p->origin0, p->voxel, p->k0, p->dims, h->origin, h->dims, sh) ||
       drops_held(p, sh, h->dims))
     return 0;
-  int g = publisher_regrid(p, sh, h->dims);
-  return g ? g : 1;
+  return publisher_regrid(p, sh, h->dims, err, errlen) ? -1 : 1;
 }
 
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
@@ -454,14 +454,9 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   /* A grown map's file: this map grows to it first (the geometry check
    * below refuses any other grid). Growing changes nothing observed, so a
    * file refused after it leaves the map as it was, only larger. */
-  int grown = grow_to_saved(p, &h);
-  if (grown < 0) {
-    if (grown == -2)
-      snprintf(err, errlen, "%s: the map's segment could not grow to the saved %ux%ux%u grid: %s", path, h.dims[0],
-               h.dims[1], h.dims[2], vlff_shm_last_message());
-    else
-      snprintf(err, errlen, "%s: out of memory growing the map to the saved %ux%ux%u grid", path, h.dims[0],
-               h.dims[1], h.dims[2]);
+  char why[256];
+  if (grow_to_saved(p, &h, why, sizeof why) < 0) {
+    snprintf(err, errlen, "%s: growing to the saved grid: %s", path, why);
     goto out;
   }
   n = p->nvox, grids = sizeof(struct obs_header) + n + n * 2 + n * 12;
@@ -621,10 +616,12 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
 
 /* The map's grid and everything kept per voxel, from dims shifted by sh
  * into nd (grown or refitted on its lattice, lattice.h): all allocated
- * before anything changes (0; -1 out of memory; -2 the map's segment could
- * not grow, vlff_map_reserve's reason in vlff_shm_last_message). Every voxel that holds something keeps its
- * place in the world: the callers never drop one (drops_held). */
-static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3]) {
+ * before anything changes (0; -1 with err, naming the grid: out of memory,
+ * or the map's segment could not grow, with vlff_map_reserve's reason).
+ * Every voxel that holds something keeps its place in the world: the
+ * callers never drop one (drops_held). */
+static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3], char *err,
+                            size_t errlen) {
   const size_t n = vlff_lattice_cells(nd);
   const uint32_t *od = p->dims;
   /* The segment first: a larger one holding the published map as it is takes
@@ -633,7 +630,10 @@ static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const
    * moves it a few times per building, not at every growth. */
   if (p->map && n > vlff_map_capacity(p->map)) {
     size_t want = n + n / 4 < p->max_voxels ? n + n / 4 : p->max_voxels;
-    if (vlff_map_reserve(p->map, want) < 0) return -2;
+    if (vlff_map_reserve(p->map, want) < 0)
+      return snprintf(err, errlen, "map: its segment could not grow to %zu voxels for %ux%ux%u: %s", want, nd[0],
+                      nd[1], nd[2], vlff_shm_last_message()),
+             -1;
     VLFF_INFO(TAG, "map: its segment now holds %zu voxels (%.1f MiB)", want,
               (double)want * 6 / (1 << 20));
   }
@@ -659,7 +659,7 @@ static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const
       vlff_hold_grow(p->hold, od, sh, nd)) {
     VLFF_FREE_ALL(observed, conf, hits, labels, hit_sum, pub_labels, pub_conf, thru, dirty, qidx, dirty_idx, qxyz,
                   qdens, qmargin, qlabel, runs, thru_list);
-    return -1;
+    return snprintf(err, errlen, "map: out of memory for %ux%ux%u voxels", nd[0], nd[1], nd[2]), -1;
   }
   /* Between keyframes no view's list is open (thru_commit emptied it). */
   for (size_t k = 0; k < p->nthru; k++) thru_list[k] = (uint32_t)vlff_lattice_index(p->thru_list[k], od, sh, nd);
@@ -685,46 +685,55 @@ static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const
   return 0;
 }
 
-int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen) {
+int vlff_publisher_grow(struct vlff_publisher *p, const double want_lo[3], const double want_hi[3],
+                        const double lo[3], const double hi[3], char *err, size_t errlen) {
+  const double *blo[2] = {want_lo, lo}, *bhi[2] = {want_hi, hi};
   int32_t sh[3];
   uint32_t nd[3];
   const double limit = p->field.grow ? p->field.world_limit_m : INFINITY;
   int rc = vlff_lattice_cover(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, lo, hi, limit, sh, nd);
+  if (rc >= 0) rc = vlff_lattice_cover(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, want_lo, want_hi, limit, sh, nd);
   if (rc < 0) return snprintf(err, errlen, "map: growth to an empty or non-finite box"), -1;
   char e[256] = "";
   /* The evidence first: its grid is its own (publish.evidence_voxel_m). */
   int erc = 0;
-  if (p->ev && p->field.grow) erc = vlff_evidence_grow(p->ev, lo, hi, limit, e, sizeof e);
+  if (p->ev && p->field.grow) erc = vlff_evidence_grow(p->ev, want_lo, want_hi, lo, hi, limit, e, sizeof e);
   if (rc == 0 && erc >= 0) return erc;
   if (!p->field.grow) return snprintf(err, errlen, "map: the box is fixed (field.grow is off)"), -1;
   if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;
-  if (rc == 0) return 1; /* the evidence grew, the map's grid held it */
-  size_t n = vlff_lattice_cells(nd);
-  const bool refit = n > p->max_voxels;
-  if (refit) {
-    /* Past the capacity: refit the grid to the voxels that hold something
-     * and [lo, hi]. The margins earlier growths added ahead of the camera,
-     * and the first box's beyond the world seen, go where nothing was seen;
-     * every voxel that holds something stays where it is. */
-    long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
-    for (size_t v = 0; v < p->nvox; v++)
-      if (voxel_held(p, v)) vlff_lattice_extend(klo, khi, v, p->dims);
-    const uint32_t cover[3] = {nd[0], nd[1], nd[2]};
-    if (vlff_lattice_fit(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, klo, khi, lo, hi, limit, sh, nd) < 0 ||
-        (n = vlff_lattice_cells(nd)) > p->max_voxels)
-      return snprintf(err, errlen,
-                      "map: growing to %.1f x %.1f x %.1f m needs %zu voxels of %.3f m, more than shm.map_max_voxels "
-                      "(%zu), even without the voxels that hold nothing",
-                      cover[0] * p->voxel, cover[1] * p->voxel, cover[2] * p->voxel, vlff_lattice_cells(cover),
-                      p->voxel, p->max_voxels),
-             -1;
+  /* The wanted box, or when a cap or memory refuses it, the one needed;
+   * past the capacity the grid is refitted, the voxels scanned once. */
+  long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
+  bool scanned = false;
+  for (int t = 0; t < 2; t++) {
+    if (t == 1 && vlff_lattice_cover(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, lo, hi, limit, sh, nd) == 0)
+      return erc; /* the wanted box refused, the grid holds the needed one */
+    size_t n = vlff_lattice_cells(nd);
+    const bool refit = n > p->max_voxels;
+    if (refit) {
+      /* Past the capacity: refit the grid to the voxels that hold something
+       * and the box. The margins earlier growths added ahead of the camera,
+       * and the first box's beyond the world seen, go where nothing was seen;
+       * every voxel that holds something stays where it is. */
+      if (!scanned)
+        for (size_t v = 0; v < p->nvox; v++)
+          if (voxel_held(p, v)) vlff_lattice_extend(klo, khi, v, p->dims);
+      scanned = true;
+      const uint32_t cover[3] = {nd[0], nd[1], nd[2]};
+      if (vlff_lattice_fit(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, klo, khi, blo[t], bhi[t], limit, sh, nd) <
+              0 ||
+          (n = vlff_lattice_cells(nd)) > p->max_voxels) {
+        snprintf(err, errlen,
+                 "map: growing to %.1f x %.1f x %.1f m needs %zu voxels of %.3f m, more than shm.map_max_voxels "
+                 "(%zu), even without the voxels that hold nothing",
+                 cover[0] * p->voxel, cover[1] * p->voxel, cover[2] * p->voxel, vlff_lattice_cells(cover), p->voxel,
+                 p->max_voxels);
+        continue;
+      }
+    }
+    if (publisher_regrid(p, sh, nd, err, errlen) == 0) return refit ? 2 : 1;
   }
-  int g = publisher_regrid(p, sh, nd);
-  if (g == -2)
-    return snprintf(err, errlen, "map: its segment could not grow to %zu voxels: %s", n, vlff_shm_last_message()), -1;
-  if (g)
-    return snprintf(err, errlen, "map: out of memory growing to %zu voxels", n), -1;
-  return refit ? 2 : 1;
+  return -1; /* err: the needed box's refusal */
 }
 
 void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown) {

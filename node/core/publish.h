@@ -111,17 +111,21 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
 /* Forget observations and evidence (mapping reset). */
 void vlff_publisher_reset(struct vlff_publisher *p);
 /* Growth (field.grow): the map's grid (publish.voxel_size_m as planned for
- * the first box) and the evidence's grow on their lattices to hold [lo, hi]
- * clipped to +-field.world_limit_m; every voxel keeps what was observed,
+ * the first box) and the evidence's grow on their lattices to hold
+ * [want_lo, want_hi] (the view with margins ahead) or, each when its cap or
+ * memory refuses that, [lo, hi] (inside it: what must be held), clipped to
+ * +-field.world_limit_m; every voxel keeps what was observed,
  * published and held there; the next publish is whole (readers see the new
  * geometry with it: docs/shm.md "A map that grows"). A grid that would pass
- * its cap is refitted instead: to the voxels that hold something and
- * [lo, hi], the empty ones beyond dropped (docs/field.md "Growth"). 1 grown,
+ * its cap is refitted instead: to the voxels that hold something and the
+ * box, the empty ones beyond dropped (docs/field.md "Growth"; the voxels
+ * are scanned once for both boxes). 1 grown,
  * 2 grown with the map refitted, 0 when both already held it, -1 with err
  * for a fixed box, a bad box, a grid past shm.map_max_voxels or evidence
  * past its index budget even refitted, a map segment that could not grow to
  * it (vlff_map_reserve), or no memory; what did not grow is unchanged. */
-int vlff_publisher_grow(struct vlff_publisher *p, const double lo[3], const double hi[3], char *err, size_t errlen);
+int vlff_publisher_grow(struct vlff_publisher *p, const double want_lo[3], const double want_hi[3],
+                        const double lo[3], const double hi[3], char *err, size_t errlen);
 /* The map's box now, and its growths so far (grown may be NULL). */
 void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown);
 

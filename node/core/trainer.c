@@ -152,8 +152,7 @@ static void grow_to_view(struct vlff_node *n, const struct vlff_view *v) {
   int rf = vlff_field_grow(n->field, alo, ahi, e, sizeof e);
   if (rf < 0) rf = vlff_field_grow(n->field, lo, hi, e, sizeof e);
   if (rf < 0) vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
-  int rp = vlff_publisher_grow(n->pub, alo, ahi, e, sizeof e);
-  if (rp < 0) rp = vlff_publisher_grow(n->pub, lo, hi, e, sizeof e);
+  int rp = vlff_publisher_grow(n->pub, alo, ahi, lo, hi, e, sizeof e);
   if (rp < 0) vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
   if (rf < 0 || rp < 0) n->grow_refused++;
   if (rf > 0 || rp > 0) {

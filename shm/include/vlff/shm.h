@@ -490,7 +490,9 @@ uint32_t vlff_map_generation(struct vlff_map *map);
 struct vlff_map_snapshot *vlff_map_snapshot_new(struct vlff_map *map);
 void vlff_map_snapshot_free(struct vlff_map_snapshot *snap);
 /* Reader: copies the current version into snap, retrying while the writer overwrites
- * it. 0, or -1 (EAGAIN after many retries, EPIPE). */
+ * it. 0, or -1 (EAGAIN after many retries, EPIPE, EBADMSG for a map whose metadata
+ * is inconsistent, ENOMEM when snap could not grow for a map its writer grew:
+ * vlff_shm_last_message says which). */
 int vlff_map_snapshot_take(struct vlff_map *map, struct vlff_map_snapshot *snap);
 
 /* Reader: brings snap up to the current version by copying only what changed since

@@ -695,11 +695,11 @@ static void test_grow(void **state) {
   assert_int_equal(vlff_evidence_voxel(e, q), -1); /* beyond the first box */
 
   const double lo[3] = {-4.6, -2, 0}, hi[3] = {1, 1, 7.9};
-  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 1);
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, lo, hi, 1000, err, sizeof err), 1);
   assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
   assert_memory_equal(x, y, sizeof x);
   assert_int_equal(vlff_evidence_voxels(e), 4);
-  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 0); /* held */
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, lo, hi, 1000, err, sizeof err), 0); /* held */
   /* the new part takes evidence: the same wall seen from 4.2 m further -x */
   struct wall b;
   wall_make(&b, 2.2f, (const float[D]){0, 0, 0, 1});
@@ -709,11 +709,11 @@ static void test_grow(void **state) {
   assert_true(vlff_evidence_get(e, vlff_evidence_voxel(e, q), y) > 0);
 
   /* past the index's quarter of the budget: refused, nothing changed */
-  const double huge_lo[3] = {-100, -100, 0}, huge_hi[3] = {100, 100, 4};
-  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, 1000, err, sizeof err), -1);
+  const double huge_lo[3] = {-100, -100, 0}, huge_hi[3] = {100, 100, 4}; /* holds part, below */
+  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, huge_lo, huge_hi, 1000, err, sizeof err), -1);
   assert_non_null(strstr(err, "publish.evidence_max_mb"));
   const double nan_hi[3] = {NAN, 0, 0};
-  assert_int_equal(vlff_evidence_grow(e, lo, nan_hi, 1000, err, sizeof err), -1);
+  assert_int_equal(vlff_evidence_grow(e, lo, nan_hi, lo, nan_hi, 1000, err, sizeof err), -1);
   assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
   assert_memory_equal(x, y, sizeof x);
 
@@ -727,7 +727,7 @@ static void test_grow(void **state) {
   assert_memory_equal(x, y, sizeof x);
   /* a fixed grid does not grow, and does not take the grown save */
   struct vlff_evidence *fixed = make(1 << 20);
-  assert_int_equal(vlff_evidence_grow(fixed, lo, hi, 1000, err, sizeof err), -1);
+  assert_int_equal(vlff_evidence_grow(fixed, lo, hi, lo, hi, 1000, err, sizeof err), -1);
   assert_non_null(strstr(err, "fixed"));
   assert_int_equal(vlff_evidence_load(fixed, buf, len, err, sizeof err), 1);
   assert_non_null(strstr(err, "another grid"));
@@ -756,23 +756,30 @@ static void test_refit(void **state) {
   const int n = vlff_evidence_get(e, vlff_evidence_voxel(e, p), x);
   assert_int_equal(n, 4);
   const double lo[3] = {-2, -2, 0}, hi[3] = {30, 14, 4}; /* 64 x 32 x 8 voxels */
-  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 1);
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, lo, hi, 1000, err, sizeof err), 1);
   const double margin[3] = {25, 10, 1}, far[3] = {-99.5, 0.2, 2.2};
   assert_true(vlff_evidence_voxel(e, margin) >= 0);
   /* 100 m toward -x: holding all of the grid would take 260 x 32 x 8 */
   const double far_lo[3] = {-100, 0, 2}, far_hi[3] = {-99, 0.4, 2.4};
-  assert_int_equal(vlff_evidence_grow(e, far_lo, far_hi, 1000, err, sizeof err), 1);
+  assert_int_equal(vlff_evidence_grow(e, far_lo, far_hi, far_lo, far_hi, 1000, err, sizeof err), 1);
   assert_int_equal(vlff_evidence_voxel(e, margin), -1); /* held nothing: dropped */
   assert_true(vlff_evidence_voxel(e, far) >= 0);
   assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
   assert_memory_equal(x, y, sizeof x);
   assert_int_equal(vlff_evidence_voxels(e), 4);
   /* even refitted, too large: refused, nothing changed */
-  const double huge_lo[3] = {-100, -100, 0}, huge_hi[3] = {100, 100, 4};
-  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, 1000, err, sizeof err), -1);
+  const double huge_lo[3] = {-100, -100, 0}, huge_hi[3] = {100, 100, 4}; /* holds part, below */
+  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, huge_lo, huge_hi, 1000, err, sizeof err), -1);
   assert_non_null(strstr(err, "publish.evidence_max_mb"));
   assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
   assert_true(vlff_evidence_voxel(e, far) >= 0);
+  /* that box wanted, a part of it needed: grown to the part, in one call */
+  const double part_lo[3] = {5, 0, 2}, part_hi[3] = {8, 0.4, 2.4}, part[3] = {7.5, 0.2, 2.2};
+  assert_int_equal(vlff_evidence_voxel(e, part), -1);
+  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, part_lo, part_hi, 1000, err, sizeof err), 1);
+  assert_true(vlff_evidence_voxel(e, part) >= 0 && vlff_evidence_voxel(e, far) >= 0);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), n);
+  assert_int_equal(vlff_evidence_grow(e, huge_lo, huge_hi, part_lo, part_hi, 1000, err, sizeof err), 0); /* held */
   /* saved refitted, loaded into a first-box evidence */
   size_t len;
   uint8_t *buf;
@@ -804,7 +811,7 @@ static void test_paged_then_grown(void **state) {
   float score, out[D];
   add_at(e, 1, 2, 3, mark); /* the first voxel in memory: the first given up */
   const double lo[3] = {-2, -2, 0}, hi[3] = {30, 14, 4}, lo2[3] = {-6, -2, 0};
-  assert_int_equal(vlff_evidence_grow(e, lo, hi, 1000, err, sizeof err), 1);
+  assert_int_equal(vlff_evidence_grow(e, lo, hi, lo, hi, 1000, err, sizeof err), 1);
   int t = 0;
   for (; vlff_evidence_paged_out(e) == 0; t++) {
     assert_true(t < 56 * 32 * 8);
@@ -813,7 +820,7 @@ static void test_paged_then_grown(void **state) {
   assert_int_equal(vlff_evidence_get(e, voxel_at(e, 1, 2, 3), out), 0); /* paged */
   assert_int_equal(label_at(e, 1, 2, 3, E, 1, fc, &score), 0);
   const long before = voxel_at(e, 1, 2, 3);
-  assert_int_equal(vlff_evidence_grow(e, lo2, hi, 1000, err, sizeof err), 1);
+  assert_int_equal(vlff_evidence_grow(e, lo2, hi, lo2, hi, 1000, err, sizeof err), 1);
   assert_true(voxel_at(e, 1, 2, 3) != before);
   assert_int_equal(vlff_evidence_paged(e), (size_t)vlff_evidence_paged_out(e));
   /* read where it was: the evidence's prompt, at the paged cosines' score */

@@ -889,7 +889,7 @@ static void test_refit_under_reader(void **state) {
   /* 3.5 m further along +z: holding the first box too would take 63 x 63 x 107 */
   const double glo[3] = {-0.5, -0.5, 2.5}, ghi[3] = {0.5, 0.5, 6};
   assert_int_equal(vlff_field_grow(f, glo, ghi, err, sizeof err), 1);
-  assert_int_equal(vlff_publisher_grow(p, glo, ghi, err, sizeof err), 2); /* refitted */
+  assert_int_equal(vlff_publisher_grow(p, glo, ghi, glo, ghi, err, sizeof err), 2); /* refitted */
   vlff_publisher_box(p, lo, hi, &grown);
   assert_int_equal(grown, 1);
   assert_true(lo[2] > -0.2 && lo[2] <= 0 && hi[2] >= 6);  /* from the camera on: the -z half dropped */
@@ -911,7 +911,7 @@ static void test_refit_under_reader(void **state) {
 
   /* too large even refitted: refused, nothing changed */
   const double huge_lo[3] = {-40, -40, 0}, huge_hi[3] = {40, 40, 6};
-  assert_int_equal(vlff_publisher_grow(p, huge_lo, huge_hi, err, sizeof err), -1);
+  assert_int_equal(vlff_publisher_grow(p, huge_lo, huge_hi, huge_lo, huge_hi, err, sizeof err), -1);
   assert_non_null(strstr(err, "even without the voxels that hold nothing"));
   double lo2[3], hi2[3];
   vlff_publisher_box(p, lo2, hi2, &grown);
@@ -936,6 +936,18 @@ static void test_refit_under_reader(void **state) {
   unlink(path);
   vlff_publisher_destroy(q);
   vlff_shm_unlink(c2.shm.map);
+
+  /* the wanted box (a view's margins ahead) too large even refitted, the
+   * needed one inside it fitting: one call grows to the needed one */
+  const double want_lo[3] = {-40, -40, 0}, want_hi[3] = {40, 40, 7}, need_lo[3] = {-0.5, -0.5, 6},
+               need_hi[3] = {0.5, 0.5, 7};
+  int g = vlff_publisher_grow(p, want_lo, want_hi, need_lo, need_hi, err, sizeof err);
+  assert_true(g == 1 || g == 2);
+  vlff_publisher_box(p, lo2, hi2, NULL);
+  assert_true(hi2[2] >= 7 && hi2[0] < 40 && lo2[0] > -40);
+  assert_true(vlff_publisher_surface_known(p, wall5)); /* nothing held moved */
+  /* held: nothing to do */
+  assert_int_equal(vlff_publisher_grow(p, want_lo, want_hi, need_lo, need_hi, err, sizeof err), 0);
   vlff_map_detach(m);
   vlff_field_destroy(f);
   vlff_publisher_destroy(p);

@@ -12,8 +12,11 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include <sys/mman.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -632,6 +635,86 @@ static void map_move_leftovers(void **state) {
   assert_int_equal(vlff_shm_unlink(name), 0);
 }
 
+/* The address space this process has mapped (VmSize), bytes. */
+static unsigned long long vm_size(void) {
+  FILE *f = fopen("/proc/self/status", "r");
+  assert_non_null(f);
+  char line[256];
+  unsigned long long kb = 0;
+  while (fgets(line, sizeof line, f))
+    if (sscanf(line, "VmSize: %llu kB", &kb) == 1)
+      break;
+  fclose(f);
+  assert_true(kb > 0);
+  return kb * 1024;
+}
+
+/* A reader whose writer grew the map past what the reader can allocate a
+ * snapshot for is told so (ENOMEM, "out of memory"), not that the map is
+ * corrupt: the seqlock loop used to turn the copy's failure into "published
+ * map metadata is inconsistent". In a child under an address-space limit
+ * that maps the grown segment but not a snapshot of it. */
+static void map_snapshot_out_of_memory(void **state) {
+  (void)state;
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+  skip(); /* the sanitizers' allocators abort where malloc would return NULL */
+#endif
+  char name[64];
+  struct vlff_map *w, *r;
+  map_pair("oom", name, sizeof name, &w, &r);
+  uint16_t labels[1000] = {0};
+  uint8_t confs[1000] = {0};
+  struct vlff_map_grid g = {.origin = {0, 0, 0}, .voxel_size = 0.1, .dims = {10, 10, 10}, .labels = labels,
+                            .confidence = confs};
+  struct vlff_map_update u = {.grid = &g, .prompt_count = -1};
+  assert_int_equal(vlff_map_publish(w, &u), 0);
+  struct vlff_map_snapshot *s = vlff_map_snapshot_new(r);
+  assert_non_null(s);
+  assert_int_equal(vlff_map_snapshot_take(r, s), 0);
+  /* 8 M voxels: a segment of ~50 MB (every page reserved in /dev/shm), a
+   * snapshot of 24 MB */
+  const uint64_t n = 1ull << 23;
+  assert_int_equal(vlff_map_reserve(w, n), 0);
+  char path[96];
+  struct stat sb;
+  snprintf(path, sizeof path, "/dev/shm%s", name);
+  assert_int_equal(stat(path, &sb), 0);
+  pid_t child = fork();
+  assert_true(child >= 0);
+  if (child == 0) {
+    /* room for the reader to map the grown segment, not for its snapshot */
+    unsigned long long lim = vm_size() + (unsigned long long)sb.st_size + (4ull << 20);
+    struct rlimit rl = {lim, lim};
+    if (setrlimit(RLIMIT_AS, &rl))
+      _exit(10);
+    if (vlff_map_snapshot_take(r, s) == 0) {
+      void *more = malloc(8 * n); /* qemu-user takes RLIMIT_AS and ignores it */
+      _exit(more ? 77 : 11);
+    }
+    if (errno != ENOMEM)
+      _exit(11);
+    if (!strstr(vlff_shm_last_message(), "out of memory"))
+      _exit(12);
+    if (vlff_map_snapshot_follow(r, s) != -1 || errno != ENOMEM)
+      _exit(13);
+    if (vlff_map_capacity(r) != n) /* it followed the writer: only the copy failed */
+      _exit(14);
+    _exit(0);
+  }
+  int st;
+  assert_int_equal(waitpid(child, &st, 0), child);
+  assert_true(WIFEXITED(st));
+  if (WEXITSTATUS(st) == 77) {
+    vlff_shm_unlink(name);
+    skip(); /* no address-space limit here */
+  }
+  assert_int_equal(WEXITSTATUS(st), 0);
+  vlff_map_snapshot_free(s);
+  vlff_map_detach(r);
+  vlff_map_detach(w);
+  assert_int_equal(vlff_shm_unlink(name), 0);
+}
+
 static void map_publish_and_read(void **state) {
   (void)state;
   char name[64];
@@ -797,4 +880,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(frame_records), cmocka_unit_test(pose_interpolation_and_tolerance),
     cmocka_unit_test(pose_quaternion_every_branch),
     cmocka_unit_test(map_publish_and_read), cmocka_unit_test(map_grows_under_reader), cmocka_unit_test(map_move_leftovers),
+    cmocka_unit_test(map_snapshot_out_of_memory),
     cmocka_unit_test(prompt_mailbox))
