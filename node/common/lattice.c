@@ -31,6 +31,11 @@ int vlff_lattice_fit(const double origin[3], const double cell[3], const uint32_
   return differs;
 }
 
+void vlff_box_union(const double alo[3], const double ahi[3], const double blo[3], const double bhi[3], double lo[3],
+                    double hi[3]) {
+  for (int a = 0; a < 3; a++) lo[a] = fmin(alo[a], blo[a]), hi[a] = fmax(ahi[a], bhi[a]);
+}
+
 int vlff_lattice_cover(const double origin[3], const double cell[3], const uint32_t dims[3], const double lo[3],
                        const double hi[3], double limit, int32_t shift[3], uint32_t ndims[3]) {
   const long keep_lo[3] = {0, 0, 0}, keep_hi[3] = {(long)dims[0], (long)dims[1], (long)dims[2]};

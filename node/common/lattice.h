@@ -25,6 +25,8 @@
  *    [keep_lo, keep_hi) (per axis, in old cells; keep_lo >= keep_hi on an
  *    axis: none) besides [lo, hi]: 1 when it differs from the old grid, 0
  *    when it is the old grid, -1 as cover.
+ *  - vlff_box_union: the smallest box holding boxes a and b (a NaN side
+ *    of one gives the other's).
  *  - vlff_lattice_xyz: a cell index's x, y, z.
  *  - vlff_lattice_extend: widens [lo, hi) (old cells) to hold cell i.
  *  - vlff_lattice_copy: each of the old grid's cells (elem bytes) that lies
@@ -48,6 +50,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+void vlff_box_union(const double alo[3], const double ahi[3], const double blo[3], const double bhi[3], double lo[3],
+                    double hi[3]);
 int vlff_lattice_cover(const double origin[3], const double cell[3], const uint32_t dims[3], const double lo[3],
                        const double hi[3], double limit, int32_t shift[3], uint32_t ndims[3]);
 int vlff_lattice_fit(const double origin[3], const double cell[3], const uint32_t dims[3], const long keep_lo[3],

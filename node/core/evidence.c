@@ -246,7 +246,9 @@ static int relayout(struct vlff_evidence *e, const int32_t sh[3], const uint32_t
 
 int vlff_evidence_grow(struct vlff_evidence *e, const double want_lo[3], const double want_hi[3], const double lo[3],
                        const double hi[3], double limit, char *err, size_t errlen) {
-  const double *blo[2] = {want_lo, lo}, *bhi[2] = {want_hi, hi};
+  double ulo[3], uhi[3]; /* the wanted box holds the needed one */
+  vlff_box_union(want_lo, want_hi, lo, hi, ulo, uhi);
+  const double *blo[2] = {ulo, lo}, *bhi[2] = {uhi, hi};
   int32_t sh[3];
   uint32_t nd[3];
   long klo[3] = {LONG_MAX, LONG_MAX, LONG_MAX}, khi[3] = {LONG_MIN, LONG_MIN, LONG_MIN};
@@ -264,9 +266,12 @@ int vlff_evidence_grow(struct vlff_evidence *e, const double want_lo[3], const d
         for (size_t v = 0; v < e->nvox; v++)
           if (e->slot[v] != -1) vlff_lattice_extend(klo, khi, v, e->dims);
       scanned = true;
-      if (vlff_lattice_fit(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, klo, khi, blo[t], bhi[t], limit, sh, nd) ==
-          0)
-        return 0;
+      int fit = vlff_lattice_fit(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, klo, khi, blo[t], bhi[t], limit, sh, nd);
+      if (fit == 0) return 0;
+      if (fit < 0) {
+        vlff_errf(err, errlen, "evidence: refitting to a %s box: more than 2^31 voxels on an axis", t ? "needed" : "wanted");
+        continue;
+      }
     }
     if (!relayout(e, sh, nd, err, errlen)) return 1;
   }

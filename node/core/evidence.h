@@ -83,8 +83,9 @@ struct vlff_evidence *vlff_evidence_create(const double origin[3], const uint32_
 struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, const struct vlff_cfg_field *field,
                                         int max_k, char *err, size_t errlen);
 /* Growth (field.grow): the grid grows on its lattice, in whole voxels, to
- * hold [want_lo, want_hi] clipped to +-limit, or, when the budget or memory
- * refuses that, [lo, hi] (inside it: what must be held); past the budget it
+ * hold [want_lo, want_hi] (taken together with [lo, hi]) clipped to
+ * +-limit, or, when the budget or memory refuses that, [lo, hi] (what must
+ * be held); past the budget it
  * is refitted to the voxels that hold evidence and the box (the voxels
  * scanned once for both). Every voxel's evidence (in a slot or
  * paged) stays where it is in the world, and more slots are allocated up

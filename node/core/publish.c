@@ -687,17 +687,19 @@ static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const
 
 int vlff_publisher_grow(struct vlff_publisher *p, const double want_lo[3], const double want_hi[3],
                         const double lo[3], const double hi[3], char *err, size_t errlen) {
-  const double *blo[2] = {want_lo, lo}, *bhi[2] = {want_hi, hi};
+  double ulo[3], uhi[3]; /* the wanted box holds the needed one */
+  vlff_box_union(want_lo, want_hi, lo, hi, ulo, uhi);
+  const double *blo[2] = {ulo, lo}, *bhi[2] = {uhi, hi};
   int32_t sh[3];
   uint32_t nd[3];
   const double limit = p->field.grow ? p->field.world_limit_m : INFINITY;
   int rc = vlff_lattice_cover(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, lo, hi, limit, sh, nd);
-  if (rc >= 0) rc = vlff_lattice_cover(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, want_lo, want_hi, limit, sh, nd);
+  if (rc >= 0) rc = vlff_lattice_cover(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, ulo, uhi, limit, sh, nd);
   if (rc < 0) return snprintf(err, errlen, "map: growth to an empty or non-finite box"), -1;
   char e[256] = "";
   /* The evidence first: its grid is its own (publish.evidence_voxel_m). */
   int erc = 0;
-  if (p->ev && p->field.grow) erc = vlff_evidence_grow(p->ev, want_lo, want_hi, lo, hi, limit, e, sizeof e);
+  if (p->ev && p->field.grow) erc = vlff_evidence_grow(p->ev, ulo, uhi, lo, hi, limit, e, sizeof e);
   if (rc == 0 && erc >= 0) return erc;
   if (!p->field.grow) return snprintf(err, errlen, "map: the box is fixed (field.grow is off)"), -1;
   if (erc < 0) return snprintf(err, errlen, "map: %s", e), -1;

@@ -112,9 +112,10 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
 void vlff_publisher_reset(struct vlff_publisher *p);
 /* Growth (field.grow): the map's grid (publish.voxel_size_m as planned for
  * the first box) and the evidence's grow on their lattices to hold
- * [want_lo, want_hi] (the view with margins ahead) or, each when its cap or
- * memory refuses that, [lo, hi] (inside it: what must be held), clipped to
- * +-field.world_limit_m; every voxel keeps what was observed,
+ * [want_lo, want_hi] (the view with margins ahead; taken together with
+ * [lo, hi]) or, each when its cap or memory refuses that, [lo, hi] (what
+ * must be held: so the map may hold the wanted box where the evidence holds
+ * only the needed one), clipped to +-field.world_limit_m; every voxel keeps what was observed,
  * published and held there; the next publish is whole (readers see the new
  * geometry with it: docs/shm.md "A map that grows"). A grid that would pass
  * its cap is refitted instead: to the voxels that hold something and the

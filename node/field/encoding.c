@@ -54,32 +54,51 @@ void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cf
   double world = 1.0;
   for (int i = 0; i < 3; i++) {
     if (e->grow) {
-      double half = cfg->world_limit_m + first;
-      e->box_min[i] = (float)(0.5 * (cfg->scene_min[i] + cfg->scene_max[i]));
+      double half = cfg->world_limit_m + first, c = 0.5 * (cfg->scene_min[i] + cfg->scene_max[i]);
+      e->corner[i] = c - half;
+      e->box_min[i] = (float)c; /* the origin: the first box's centre */
       e->box_ext[i] = 2 * half;
       world = 2 * half / first;
     } else {
+      e->corner[i] = 0;
       e->box_min[i] = (float)cfg->scene_min[i];
     }
   }
-  vlff_encoding_set_cells(e, 1);
   double base = cfg->base_resolution, fine = cfg->finest_resolution;
   double growth = e->levels > 1 ? exp((log(fine) - log(base)) / (e->levels - 1)) : 1.0;
   for (int l = 0; l < e->levels; l++) {
     double r = floor(base * pow(growth, l) * world + 1e-6);
     if (r < 1) r = 1;
     e->res[l] = (float)r;
-    /* Growing, p counts from the world's centre, r / 2 cells into the level */
-    e->kofs[l] = e->grow ? (int32_t)floor(r / 2) : 0;
-    e->shift[l] = e->grow && fmod(r, 2) != 0 ? 0.5f : 0.0f;
     double pts = (r + 1) * (r + 1) * (r + 1);
     /* A dense level would have to cover the whole world. */
     e->dense[l] = !e->grow && pts <= (double)e->size;
   }
+  vlff_encoding_set_cells(e, 1);
   vlff_encoding_set_inside(e, cfg->scene_min, cfg->scene_max);
   /* The gather kernel follows the GEMM's choice, so VLFF_GEMM=generic
    * makes the whole field portable code. */
   e->simd = VLFF_ENC_V4 && e->feats == 2 ? vlff_gemm_isa_level() : VLFF_ISA_PORTABLE;
+}
+
+/* Where the origin (box_min) lies in the corner frame: the clamp, the
+ * frequency part's phase and each level's whole and fractional cells
+ * (field_internal.h). Fixed: the origin is the corner. */
+static void place_origin(struct vlff_encoding *e) {
+  for (int i = 0; i < 3; i++) {
+    /* the origin's position in the corner frame, in double */
+    const double s = e->cubic ? fmax(e->box_ext[0], fmax(e->box_ext[1], e->box_ext[2])) : e->box_ext[i];
+    const double o = e->grow ? ((double)e->box_min[i] - e->corner[i]) / s : 0.0;
+    e->p_lo[i] = e->grow ? (float)-o : 0.0f;
+    e->p_hi[i] = e->grow ? (float)(e->box_ext[i] / s - o) : e->p_top[i];
+    /* (modulo 2 pi: every octave's angle is a multiple of the first's) */
+    e->freq_phase[i] = (float)fmod(o * (M_PI * s / e->freq_ext[i]), 2 * M_PI);
+    for (int l = 0; l < e->levels; l++) {
+      double a = o * e->res[l];
+      e->kofs[l][i] = (int32_t)floor(a);
+      e->shift[l][i] = (float)(a - floor(a));
+    }
+  }
 }
 
 /* Cubic cells: one scale for every axis, the longest spanning [0, 1], so
@@ -96,14 +115,15 @@ void vlff_encoding_set_cells(struct vlff_encoding *e, int cubic) {
     e->box_scale[i] = (float)(1.0 / s);
     e->p_top[i] = (float)(e->box_ext[i] / s);
     e->freq_scale[i] = (float)(M_PI * s / e->freq_ext[i]);
-    /* growing, the world's centre is p = 0; the angle stays the corner
-     * frame's (the corner is p_top / 2 below) */
-    e->p_lo[i] = e->grow ? -0.5f * e->p_top[i] : 0.0f;
-    e->p_hi[i] = e->grow ? 0.5f * e->p_top[i] : e->p_top[i];
-    /* (modulo 2 pi: every octave's angle is a multiple of the first's) */
-    e->freq_phase[i] = e->grow ? (float)fmod(0.5 * e->box_ext[i] / s * (M_PI * s / e->freq_ext[i]), 2 * M_PI) : 0.0f;
     if (!e->grow) e->in_lo[i] = 0.0f, e->in_hi[i] = e->p_top[i];
   }
+  place_origin(e);
+}
+
+void vlff_encoding_set_origin(struct vlff_encoding *e, const double o[3]) {
+  if (!e->grow) return;
+  for (int i = 0; i < 3; i++) e->box_min[i] = (float)o[i];
+  place_origin(e);
 }
 
 void vlff_encoding_set_inside(struct vlff_encoding *e, const double lo[3], const double hi[3]) {
@@ -135,12 +155,14 @@ int vlff_encoding_normalise(const struct vlff_encoding *e, const float *x, float
  * y offset (c>>1)&1, z offset (c>>2)&1. */
 static inline __attribute__((always_inline)) void corners(const struct vlff_encoding *e, int l, const float *p,
                                                           uint32_t idx[8], float w[8]) {
-  const float r = e->res[l], sh = e->shift[l];
-  const int32_t ri = (int32_t)r, ko = e->kofs[l];
+  const float r = e->res[l];
+  const int32_t ri = (int32_t)r;
   uint32_t i0[3];
   float f[3];
   for (int a = 0; a < 3; a++) {
-    float pos = p[a] * r + sh;
+    const int32_t ko = e->kofs[l][a];
+    /* one rounding, as the vector kernels' fused multiply-add (fixed: + 0) */
+    float pos = fmaf(p[a], r, e->shift[l][a]);
     int32_t c = (int32_t)floorf(pos) + ko;
     c = c < 0 ? 0 : c >= ri ? ri - 1 : c;
     i0[a] = (uint32_t)c;
@@ -216,9 +238,12 @@ V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const floa
   const float r = e->res[l];
   const int dense = e->dense[l];
   const uint32_t s1 = (uint32_t)r + 1, s2 = s1 * s1;
-  const __m512 vr = _mm512_set1_ps(r), fone = _mm512_set1_ps(1.0f), vsh = _mm512_set1_ps(e->shift[l]);
-  const __m512i rim1 = _mm512_set1_epi32((int)r - 1), one = _mm512_set1_epi32(1);
-  const __m512i ko = _mm512_set1_epi32(e->kofs[l]), zero = _mm512_setzero_si512();
+  const __m512 vr = _mm512_set1_ps(r), fone = _mm512_set1_ps(1.0f);
+  const __m512 shx = _mm512_set1_ps(e->shift[l][0]), shy = _mm512_set1_ps(e->shift[l][1]),
+               shz = _mm512_set1_ps(e->shift[l][2]);
+  const __m512i rim1 = _mm512_set1_epi32((int)r - 1), one = _mm512_set1_epi32(1), zero = _mm512_setzero_si512();
+  const __m512i kx = _mm512_set1_epi32(e->kofs[l][0]), ky = _mm512_set1_epi32(e->kofs[l][1]),
+                kz = _mm512_set1_epi32(e->kofs[l][2]);
   const __m512i my = _mm512_set1_epi32(dense ? (int)s1 : (int)2654435761u);
   const __m512i mz = _mm512_set1_epi32(dense ? (int)s2 : (int)805459861u);
   const __m512i mask = _mm512_set1_epi32((int)(e->size - 1));
@@ -228,13 +253,13 @@ V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const floa
     int i0 = g0 + 16 * v, m = n - i0 < 16 ? n - i0 : 16;
     __mmask16 k = (__mmask16)((1u << m) - 1);
     /* p * r + shift (fixed: + 0, exactly p * r); floor, then kofs on */
-    __m512 x = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, px + i0), vr, vsh);
-    __m512 y = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, py + i0), vr, vsh);
-    __m512 z = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, pz + i0), vr, vsh);
-    __m512i cx = cell_v4(x, ko, zero, rim1), cy = cell_v4(y, ko, zero, rim1), cz = cell_v4(z, ko, zero, rim1);
-    __m512 fx = _mm512_sub_ps(x, _mm512_cvtepi32_ps(_mm512_sub_epi32(cx, ko)));
-    __m512 fy = _mm512_sub_ps(y, _mm512_cvtepi32_ps(_mm512_sub_epi32(cy, ko)));
-    __m512 fz = _mm512_sub_ps(z, _mm512_cvtepi32_ps(_mm512_sub_epi32(cz, ko)));
+    __m512 x = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, px + i0), vr, shx);
+    __m512 y = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, py + i0), vr, shy);
+    __m512 z = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(k, pz + i0), vr, shz);
+    __m512i cx = cell_v4(x, kx, zero, rim1), cy = cell_v4(y, ky, zero, rim1), cz = cell_v4(z, kz, zero, rim1);
+    __m512 fx = _mm512_sub_ps(x, _mm512_cvtepi32_ps(_mm512_sub_epi32(cx, kx)));
+    __m512 fy = _mm512_sub_ps(y, _mm512_cvtepi32_ps(_mm512_sub_epi32(cy, ky)));
+    __m512 fz = _mm512_sub_ps(z, _mm512_cvtepi32_ps(_mm512_sub_epi32(cz, kz)));
     __m512i x0 = cx, x1 = _mm512_add_epi32(cx, one);
     __m512i y0 = _mm512_mullo_epi32(cy, my), y1 = _mm512_add_epi32(y0, my);
     __m512i z0 = _mm512_mullo_epi32(cz, mz), z1 = _mm512_add_epi32(z0, mz);
@@ -372,9 +397,12 @@ V3_TARGET static int corners_v3(const struct vlff_encoding *e, int l, const floa
   const float r = e->res[l];
   const int dense = e->dense[l];
   const uint32_t s1 = (uint32_t)r + 1, s2 = s1 * s1;
-  const __m256 vr = _mm256_set1_ps(r), fone = _mm256_set1_ps(1.0f), vsh = _mm256_set1_ps(e->shift[l]);
-  const __m256i rim1 = _mm256_set1_epi32((int)r - 1), one = _mm256_set1_epi32(1);
-  const __m256i ko = _mm256_set1_epi32(e->kofs[l]), zero = _mm256_setzero_si256();
+  const __m256 vr = _mm256_set1_ps(r), fone = _mm256_set1_ps(1.0f);
+  const __m256 shx = _mm256_set1_ps(e->shift[l][0]), shy = _mm256_set1_ps(e->shift[l][1]),
+               shz = _mm256_set1_ps(e->shift[l][2]);
+  const __m256i rim1 = _mm256_set1_epi32((int)r - 1), one = _mm256_set1_epi32(1), zero = _mm256_setzero_si256();
+  const __m256i kx = _mm256_set1_epi32(e->kofs[l][0]), ky = _mm256_set1_epi32(e->kofs[l][1]),
+                kz = _mm256_set1_epi32(e->kofs[l][2]);
   const __m256i my = _mm256_set1_epi32(dense ? (int)s1 : (int)2654435761u);
   const __m256i mz = _mm256_set1_epi32(dense ? (int)s2 : (int)805459861u);
   const __m256i mask = _mm256_set1_epi32((int)(e->size - 1));
@@ -384,13 +412,13 @@ V3_TARGET static int corners_v3(const struct vlff_encoding *e, int l, const floa
   for (int v = 0; v < nv; v++) {
     int i0 = g0 + 8 * v, m = n - i0 < 8 ? n - i0 : 8;
     __m256i k = _mm256_cmpgt_epi32(_mm256_set1_epi32(m), lane);
-    __m256 x = _mm256_fmadd_ps(_mm256_maskload_ps(px + i0, k), vr, vsh);
-    __m256 y = _mm256_fmadd_ps(_mm256_maskload_ps(py + i0, k), vr, vsh);
-    __m256 z = _mm256_fmadd_ps(_mm256_maskload_ps(pz + i0, k), vr, vsh);
-    __m256i cx = cell_v3(x, ko, zero, rim1), cy = cell_v3(y, ko, zero, rim1), cz = cell_v3(z, ko, zero, rim1);
-    __m256 fx = _mm256_sub_ps(x, _mm256_cvtepi32_ps(_mm256_sub_epi32(cx, ko)));
-    __m256 fy = _mm256_sub_ps(y, _mm256_cvtepi32_ps(_mm256_sub_epi32(cy, ko)));
-    __m256 fz = _mm256_sub_ps(z, _mm256_cvtepi32_ps(_mm256_sub_epi32(cz, ko)));
+    __m256 x = _mm256_fmadd_ps(_mm256_maskload_ps(px + i0, k), vr, shx);
+    __m256 y = _mm256_fmadd_ps(_mm256_maskload_ps(py + i0, k), vr, shy);
+    __m256 z = _mm256_fmadd_ps(_mm256_maskload_ps(pz + i0, k), vr, shz);
+    __m256i cx = cell_v3(x, kx, zero, rim1), cy = cell_v3(y, ky, zero, rim1), cz = cell_v3(z, kz, zero, rim1);
+    __m256 fx = _mm256_sub_ps(x, _mm256_cvtepi32_ps(_mm256_sub_epi32(cx, kx)));
+    __m256 fy = _mm256_sub_ps(y, _mm256_cvtepi32_ps(_mm256_sub_epi32(cy, ky)));
+    __m256 fz = _mm256_sub_ps(z, _mm256_cvtepi32_ps(_mm256_sub_epi32(cz, kz)));
     __m256i x0 = cx, x1 = _mm256_add_epi32(cx, one);
     __m256i y0 = _mm256_mullo_epi32(cy, my), y1 = _mm256_add_epi32(y0, my);
     __m256i z0 = _mm256_mullo_epi32(cz, mz), z1 = _mm256_add_epi32(z0, mz);

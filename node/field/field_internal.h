@@ -70,11 +70,12 @@ struct vlff_encoding {
   /* p = (x - min) * scale: the same scale on every axis (cubic cells), the
    * box's longest axis spanning [0, 1] and each axis [0, p_top]; the
    * frequency part's angle is p * freq_scale, [0, pi] over each axis.
-   * Growing, min is the world's centre and p spans [p_lo, p_hi] =
-   * +-p_top / 2 (below). */
+   * Growing, min is the origin (below) and p spans [p_lo, p_hi], the
+   * world's faces (+ phase on the angle). */
   float box_min[3], box_scale[3], p_top[3], freq_scale[3];
   float p_lo[3], p_hi[3];  /* the clamp: [0, p_top] fixed */
   float freq_phase[3];     /* added to the angle: 0 fixed; growing, what keeps it the world frame's */
+  double corner[3];        /* growing: the world's low corner, metres (the frame cells count from) */
   double box_ext[3];       /* the box's size, metres */
   int cubic;               /* 1: as above; 0: each axis scaled to [0, 1] (checkpoints before version 5) */
   /* Growing (field.grow): the box above is the whole world, a cube of
@@ -83,17 +84,20 @@ struct vlff_encoding {
    * grows; the levels keep the first box's cell sizes in metres and are all
    * hashed, and the frequency part keeps the first box's periods
    * (freq_ext). Fixed: freq_ext is the box's size.
-   * A growing field's positions are taken from the world's centre, not its
-   * corner: a float position counted from the corner of a 2 km world is
-   * ~86000 cells into the finest level, where a float resolves 1/128 of a
-   * cell, and the fit lost 6 points of 3D mIoU in the field alone to that
-   * (docs/field.md "Positions from the world's centre"). A level's cell is
-   * floor(p * res + shift) + kofs, the corner frame's cell exactly (kofs =
-   * floor(res / 2), shift = the half cell an odd res leaves); fixed, both 0. */
+   * A growing field's positions are taken from an origin near its box (min
+   * above: the first box's centre, moved with the box when it has gone far,
+   * vlff_encoding_set_origin), not from the world's corner: a float
+   * position counted from the corner of a 2 km world is ~86000 cells into
+   * the finest level, where a float resolves 1/128 of a cell, and the fit
+   * lost 6 points of 3D mIoU in the field alone to that (docs/field.md
+   * "Positions from an origin near the box"). A level's cell on axis a is
+   * floor(p * res + shift) + kofs, the corner frame's cell: kofs + shift
+   * is where the origin lies in the level's cells from the corner (kofs
+   * the whole cells); fixed, both 0. */
   int grow;
   double freq_ext[3];
-  float shift[32];
-  int32_t kofs[32];
+  float shift[32][3];
+  int32_t kofs[32][3];
   /* The field's box in normalised units: a point outside is "outside" for
    * vlff_encoding_normalise (the whole of [0, p_top] when fixed). */
   float in_lo[3], in_hi[3];
@@ -105,6 +109,10 @@ void vlff_encoding_init(struct vlff_encoding *e, const struct vlff_cfg_field *cf
 /* The cells' shape: cubic (1, the default) or each axis of the box scaled
  * to [0, 1] (0: what a field checkpointed before version 5 learned in). */
 void vlff_encoding_set_cells(struct vlff_encoding *e, int cubic);
+/* Growing: positions count from o (metres) from now on; every point keeps
+ * its cells and its encoding (to float rounding). Call before
+ * vlff_encoding_set_inside. */
+void vlff_encoding_set_origin(struct vlff_encoding *e, const double o[3]);
 /* Sets the field's box (metres) that vlff_encoding_normalise tests against. */
 void vlff_encoding_set_inside(struct vlff_encoding *e, const double lo[3], const double hi[3]);
 /* Normalised position of world point x, clamped to [p_lo, p_hi]; returns 0

@@ -9,6 +9,7 @@
  * (encoding.c), so a point's cells never move.
  */
 #include <math.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -19,18 +20,32 @@
 
 #define MIB 1048576.0
 
+/* How far (metres) the box's centre may move from the encoding's origin
+ * before the origin follows it: a float resolves a position a few hundred
+ * times finer than the finest cell there (the default first box's 2.4 mm
+ * cells: 40 m from the origin is 2^14 of them, resolved to 2^-9). */
+#define RECENTRE_M 16.0
+
 void vlff_field_set_box(struct vlff_field *f) {
+  bool far = false;
+  double c[3];
   for (int a = 0; a < 3; a++) {
     if (f->cfg.field.grow) {
-      double c = f->occ.cell[a];
-      f->box_lo[a] = f->first_lo[a] + f->occ_k0[a] * c;
-      f->box_hi[a] = f->box_lo[a] + f->occ.dims[a] * c;
+      double cell = f->occ.cell[a];
+      f->box_lo[a] = f->first_lo[a] + f->occ_k0[a] * cell;
+      f->box_hi[a] = f->box_lo[a] + f->occ.dims[a] * cell;
     } else {
       f->box_lo[a] = f->cfg.field.scene_min[a];
       f->box_hi[a] = f->cfg.field.scene_max[a];
     }
     f->occ.box_min[a] = (float)f->box_lo[a];
+    c[a] = 0.5 * (f->box_lo[a] + f->box_hi[a]);
+    far = far || fabs(c[a] - f->enc.box_min[a]) > RECENTRE_M;
   }
+  /* A box that went far from where the encoding counts positions from
+   * takes the origin with it: the cells are the world's whatever the
+   * origin (field_internal.h), only the float rounding is nearer. */
+  if (f->cfg.field.grow && far) vlff_encoding_set_origin(&f->enc, c);
   vlff_encoding_set_inside(&f->enc, f->box_lo, f->box_hi);
 }
 

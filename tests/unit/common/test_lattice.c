@@ -55,6 +55,20 @@ static void test_cover(void **state) {
   assert_int_equal(sh[2], 0), assert_int_equal(nd[2], 13);
 }
 
+/* The wanted box of a growth is taken together with the needed one. */
+static void test_box_union(void **state) {
+  (void)state;
+  const double alo[3] = {0, -1, 2}, ahi[3] = {4, 1, 3}, blo[3] = {-2, 0, 2.5}, bhi[3] = {1, 5, 2.6};
+  double lo[3], hi[3];
+  vlff_box_union(alo, ahi, blo, bhi, lo, hi);
+  const double wlo[3] = {-2, -1, 2}, whi[3] = {4, 5, 3};
+  assert_memory_equal(lo, wlo, sizeof lo);
+  assert_memory_equal(hi, whi, sizeof hi);
+  const double nlo[3] = {NAN, -1, 2};
+  vlff_box_union(nlo, ahi, blo, bhi, lo, hi);
+  assert_true(lo[0] == -2);
+}
+
 static void test_copy_and_index(void **state) {
   (void)state;
   const uint32_t dims[3] = {3, 2, 2}, nd[3] = {5, 4, 3};
@@ -209,7 +223,8 @@ static void test_saved(void **state) {
 }
 
 int main(void) {
-  const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_copy_and_index),
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_box_union),
+                                     cmocka_unit_test(test_copy_and_index),
                                      cmocka_unit_test(test_fit), cmocka_unit_test(test_fit_random),
                                      cmocka_unit_test(test_saved)};
   return cmocka_run_group_tests(tests, NULL, NULL);

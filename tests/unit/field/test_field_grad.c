@@ -471,7 +471,7 @@ static void check_encoding_simd(int isa, bool grow, uint64_t *bits) {
   struct vlff_encoding e;
   vlff_encoding_init(&e, &cfg.field);
   int dense = 0, hashed = 0, odd = 0;
-  for (int l = 0; l < e.levels; l++) dense += e.dense[l], hashed += !e.dense[l], odd += e.shift[l] != 0;
+  for (int l = 0; l < e.levels; l++) dense += e.dense[l], hashed += !e.dense[l], odd += e.shift[l][0] != 0;
   assert_true(grow ? dense == 0 && odd > 0 && odd < e.levels : dense > 0 && hashed > 0);
   size_t nt = (size_t)e.levels * e.size * e.feats;
   float *table = falloc(nt);
@@ -553,6 +553,64 @@ static void test_encoding_simd(void **state) {
   }
 }
 
+/* Every level's output at n points drawn in [lo, hi] against a
+ * double-precision trilinear interpolation in the world's corner frame
+ * (corner, side: the world cube), on every kernel the CPU runs; returns
+ * the levels checked. */
+static int check_world_frame(struct vlff_encoding *e, const float *table, const double lo[3], const double hi[3],
+                             const double corner[3], double side, int n) {
+  float *out = falloc(e->dim);
+  int checked = 0;
+  for (int isa = 0; isa <= 2; isa++) {
+    if (!cpu_runs(isa)) continue;
+    e->simd = isa;
+    for (int k = 0; k < n; k++) {
+      float x[3], p[3];
+      for (int a = 0; a < 3; a++) x[a] = (float)(lo[a] + (hi[a] - lo[a]) * (0.5 + 0.5 * frand()));
+      assert_int_equal(vlff_encoding_normalise(e, x, p), 1);
+      vlff_encoding_forward(e, table, p, 1, out, e->dim);
+      for (int l = 0; l < e->levels; l++) {
+        const double r = e->res[l];
+        uint32_t c[3];
+        double f[3];
+        bool edge = false;
+        for (int a = 0; a < 3; a++) {
+          double pos = ((double)x[a] - corner[a]) / side * r;
+          c[a] = (uint32_t)floor(pos);
+          f[a] = pos - floor(pos);
+          edge = edge || f[a] < 1e-3 || f[a] > 1 - 1e-3; /* a cell boundary: either side is right */
+        }
+        if (edge) continue;
+        double want[2] = {0, 0};
+        for (int q = 0; q < 8; q++) {
+          uint32_t cx = c[0] + (q & 1), cy = c[1] + ((q >> 1) & 1), cz = c[2] + ((q >> 2) & 1);
+          uint32_t idx = (cx ^ cy * 2654435761u ^ cz * 805459861u) & (e->size - 1);
+          double w = ((q & 1) ? f[0] : 1 - f[0]) * ((q & 2) ? f[1] : 1 - f[1]) * ((q & 4) ? f[2] : 1 - f[2]);
+          for (int ft = 0; ft < 2; ft++) want[ft] += w * table[((size_t)l * e->size + idx) * 2 + ft];
+        }
+        /* a weight 1/256 of a cell off moves an output by ~1e-2 */
+        for (int ft = 0; ft < 2; ft++)
+          if (fabs(out[2 * l + ft] - want[ft]) > 2e-4)
+            fail_msg("isa %d level %d (res %.0f) point (%g, %g, %g): %.6f, the world frame's %.6f", isa, l, r,
+                     (double)x[0], (double)x[1], (double)x[2], (double)out[2 * l + ft], want[ft]);
+        checked++;
+      }
+      /* the frequency part: the corner frame's angle, pi over the first box */
+      const int off = e->levels * e->feats;
+      for (int a = 0; a < 3; a++)
+        for (int b = 0; b < e->freq_bands; b++) {
+          double t = M_PI * ((double)x[a] - corner[a]) / e->freq_ext[a] * (1 << b);
+          const float *fo = out + off + a * 2 * e->freq_bands + 2 * b;
+          if (fabs(fo[0] - sin(t)) > 1e-4 || fabs(fo[1] - cos(t)) > 1e-4)
+            fail_msg("isa %d axis %d octave %d: sin/cos %g %g, the world frame's %g %g", isa, a, b, (double)fo[0],
+                     (double)fo[1], sin(t), cos(t));
+        }
+    }
+  }
+  free(out);
+  return checked;
+}
+
 /* A growing field's encoding is the world frame's (cells counted from the
  * world's low corner, field.h "Growth") to double precision: a float
  * position counted from that corner, ~86000 cells into the finest level
@@ -560,7 +618,9 @@ static void test_encoding_simd(void **state) {
  * weights of every point near the robot were that coarse. Here every
  * level's output equals a double-precision interpolation in the corner
  * frame, with the corner frame's cells (what a growing checkpoint learned
- * in), for points in a building-sized first box, on every kernel the CPU
+ * in), for points in a building-sized first box of a 1 km world; and,
+ * once the origin has followed the box 900 m away
+ * (vlff_encoding_set_origin), for points there, on every kernel the CPU
  * runs. */
 static void test_encoding_world(void **state) {
   (void)state;
@@ -573,49 +633,26 @@ static void test_encoding_world(void **state) {
   memcpy(cfg.field.scene_max, hi, sizeof hi);
   struct vlff_encoding e;
   vlff_encoding_init(&e, &cfg.field);
-  const double half = cfg.field.world_limit_m + 24.4;
+  const double half = cfg.field.world_limit_m + 24.4, corner[3] = {-half, -half, -half};
   const size_t nt = (size_t)e.levels * e.size * e.feats;
-  float *table = falloc(nt), *out = falloc(e.dim);
+  float *table = falloc(nt);
   for (size_t i = 0; i < nt; i++) table[i] = frand();
-  int checked = 0;
-  for (int isa = 0; isa <= 2; isa++) {
-    if (!cpu_runs(isa)) continue;
-    e.simd = isa;
-    for (int k = 0; k < 200; k++) {
-      float x[3], p[3];
-      for (int a = 0; a < 3; a++) x[a] = (float)(lo[a] + (hi[a] - lo[a]) * (0.5 + 0.5 * frand()));
-      assert_int_equal(vlff_encoding_normalise(&e, x, p), 1);
-      vlff_encoding_forward(&e, table, p, 1, out, e.dim);
-      for (int l = 0; l < e.levels; l++) {
-        const double r = e.res[l];
-        uint32_t c[3];
-        double f[3];
-        bool edge = false;
-        for (int a = 0; a < 3; a++) {
-          double pos = ((double)x[a] - (0.5 * (lo[a] + hi[a]) - half)) / (2 * half) * r;
-          c[a] = (uint32_t)floor(pos);
-          f[a] = pos - floor(pos);
-          edge = edge || f[a] < 1e-3 || f[a] > 1 - 1e-3; /* a cell boundary: either side is right */
-        }
-        if (edge) continue;
-        double want[2] = {0, 0};
-        for (int q = 0; q < 8; q++) {
-          uint32_t cx = c[0] + (q & 1), cy = c[1] + ((q >> 1) & 1), cz = c[2] + ((q >> 2) & 1);
-          uint32_t idx = (cx ^ cy * 2654435761u ^ cz * 805459861u) & (e.size - 1);
-          double w = ((q & 1) ? f[0] : 1 - f[0]) * ((q & 2) ? f[1] : 1 - f[1]) * ((q & 4) ? f[2] : 1 - f[2]);
-          for (int ft = 0; ft < 2; ft++) want[ft] += w * table[((size_t)l * e.size + idx) * 2 + ft];
-        }
-        /* a weight 1/256 of a cell off moves an output by ~1e-2 */
-        for (int ft = 0; ft < 2; ft++)
-          if (fabs(out[2 * l + ft] - want[ft]) > 2e-4)
-            fail_msg("isa %d level %d (res %.0f) point (%g, %g, %g): %.6f, the world frame's %.6f", isa, l, r,
-                     (double)x[0], (double)x[1], (double)x[2], (double)out[2 * l + ft], want[ft]);
-        checked++;
-      }
-    }
-  }
-  assert_true(checked > 1000);
-  free(table), free(out);
+  assert_true(check_world_frame(&e, table, lo, hi, corner, 2 * half, 200) > 1000);
+  const double o[3] = {900.3, -412.7, 20.1}, flo[3] = {888.1, -417.7, 18.6}, fhi[3] = {912.5, -407.7, 21.6};
+  vlff_encoding_set_origin(&e, o);
+  vlff_encoding_set_inside(&e, flo, fhi);
+  assert_true(check_world_frame(&e, table, flo, fhi, corner, 2 * half, 200) > 1000);
+  /* and a point keeps its encoding whatever the origin, to float rounding */
+  float xs[3] = {890.25f, -410.5f, 19.75f}, p[3], *a = falloc(e.dim), *b = falloc(e.dim);
+  const double o2[3] = {895.0, -409.0, 19.0};
+  vlff_encoding_normalise(&e, xs, p);
+  vlff_encoding_forward(&e, table, p, 1, a, e.dim);
+  vlff_encoding_set_origin(&e, o2);
+  vlff_encoding_normalise(&e, xs, p);
+  vlff_encoding_forward(&e, table, p, 1, b, e.dim);
+  for (int k = 0; k < e.dim; k++)
+    if (fabsf(a[k] - b[k]) > 2e-4f) fail_msg("output %d moved with the origin: %g vs %g", k, (double)a[k], (double)b[k]);
+  free(table), free(a), free(b);
 }
 
 static double render_ref(const double *sig, const float *delta, const float *v, int ns) {

@@ -658,6 +658,10 @@ static void map_snapshot_out_of_memory(void **state) {
   (void)state;
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
   skip(); /* the sanitizers' allocators abort where malloc would return NULL */
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || __has_feature(memory_sanitizer)
+  skip();
+#endif
 #endif
   char name[64];
   struct vlff_map *w, *r;
@@ -674,7 +678,11 @@ static void map_snapshot_out_of_memory(void **state) {
   /* 8 M voxels: a segment of ~50 MB (every page reserved in /dev/shm), a
    * snapshot of 24 MB */
   const uint64_t n = 1ull << 23;
-  assert_int_equal(vlff_map_reserve(w, n), 0);
+  if (vlff_map_reserve(w, n) < 0 && errno == ENOSPC) {
+    vlff_shm_unlink(name);
+    skip(); /* a small /dev/shm */
+  }
+  assert_int_equal(vlff_map_capacity(w), n);
   char path[96];
   struct stat sb;
   snprintf(path, sizeof path, "/dev/shm%s", name);
@@ -686,7 +694,7 @@ static void map_snapshot_out_of_memory(void **state) {
     unsigned long long lim = vm_size() + (unsigned long long)sb.st_size + (4ull << 20);
     struct rlimit rl = {lim, lim};
     if (setrlimit(RLIMIT_AS, &rl))
-      _exit(10);
+      _exit(77); /* a lower hard limit inherited */
     if (vlff_map_snapshot_take(r, s) == 0) {
       void *more = malloc(8 * n); /* qemu-user takes RLIMIT_AS and ignores it */
       _exit(more ? 77 : 11);
@@ -703,16 +711,14 @@ static void map_snapshot_out_of_memory(void **state) {
   }
   int st;
   assert_int_equal(waitpid(child, &st, 0), child);
+  vlff_shm_unlink(name); /* on every path (the handles stay usable) */
   assert_true(WIFEXITED(st));
-  if (WEXITSTATUS(st) == 77) {
-    vlff_shm_unlink(name);
+  if (WEXITSTATUS(st) == 77)
     skip(); /* no address-space limit here */
-  }
   assert_int_equal(WEXITSTATUS(st), 0);
   vlff_map_snapshot_free(s);
   vlff_map_detach(r);
   vlff_map_detach(w);
-  assert_int_equal(vlff_shm_unlink(name), 0);
 }
 
 static void map_publish_and_read(void **state) {
