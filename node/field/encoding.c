@@ -222,10 +222,6 @@ static inline __attribute__((always_inline)) void corners(const struct vlff_enco
 enum { VLFF_ENC_V4_BLOCK = 256, V4_GROUP = 8 };
 #define V4_TARGET __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")))
 
-/* Corner indices and trilinear weights of up to V4_GROUP x 16 points from
- * g0 (of n) at level l, 16 points per vector, with the scalar corners()'s
- * arithmetic; lanes past n are computed from zeros (valid indices) and
- * never used. Returns the vectors filled. */
 /* A level's cell along one axis from pos = p * r + shift: floor(pos) +
  * kofs, clamped to [0, r - 1] as corners() clamps it. */
 V4_TARGET static inline __m512i cell_v4(__m512 pos, __m512i ko, __m512i zero, __m512i rim1) {
@@ -233,6 +229,10 @@ V4_TARGET static inline __m512i cell_v4(__m512 pos, __m512i ko, __m512i zero, __
   return _mm512_min_epi32(_mm512_max_epi32(_mm512_add_epi32(c, ko), zero), rim1);
 }
 
+/* Corner indices and trilinear weights of up to V4_GROUP x 16 points from
+ * g0 (of n) at level l, 16 points per vector, with the scalar corners()'s
+ * arithmetic; lanes past n are computed from zeros (valid indices) and
+ * never used. Returns the vectors filled. */
 V4_TARGET static int corners_v4(const struct vlff_encoding *e, int l, const float *px, const float *py,
                                 const float *pz, int g0, int n, uint32_t *ib, float *wb) {
   const float r = e->res[l];
@@ -381,10 +381,6 @@ V4_TARGET static void level_v4(const struct vlff_encoding *e, int l, const float
   }
 }
 
-/* The same for CPUs with AVX2 but not AVX-512 (most x86 robot computers),
- * 8 points per vector, the same arithmetic in the same order: outputs and
- * gradients are the AVX-512 kernels' bit for bit. Without them such a CPU
- * runs the portable loops, much slower (bench field_isa measures it). */
 #define V3_TARGET __attribute__((target("avx2,fma")))
 /* cell_v4's arithmetic, 8 lanes */
 V3_TARGET static inline __m256i cell_v3(__m256 pos, __m256i ko, __m256i zero, __m256i rim1) {
@@ -392,6 +388,10 @@ V3_TARGET static inline __m256i cell_v3(__m256 pos, __m256i ko, __m256i zero, __
   return _mm256_min_epi32(_mm256_max_epi32(_mm256_add_epi32(c, ko), zero), rim1);
 }
 
+/* The same for CPUs with AVX2 but not AVX-512 (most x86 robot computers),
+ * 8 points per vector, the same arithmetic in the same order: outputs and
+ * gradients are the AVX-512 kernels' bit for bit. Without them such a CPU
+ * runs the portable loops, much slower (bench field_isa measures it). */
 V3_TARGET static int corners_v3(const struct vlff_encoding *e, int l, const float *px, const float *py,
                                 const float *pz, int g0, int n, uint32_t *ib, float *wb) {
   const float r = e->res[l];
