@@ -299,6 +299,51 @@ static void answers_at(struct vlff_field *f, const float *xyz, int n, struct ans
   vlff_field_exposure(f, xyz, (size_t)n, a->expo);
 }
 
+/* A growth that takes the box's centre more than 16 m from where the
+ * encoding counts positions from moves that origin with it (grow.c), and
+ * what was learned stays: the same cells, each point's answers to float
+ * rounding. */
+static void test_growth_far(void **state) {
+  (void)state;
+  const int d = 16, nv = 16, W = 40, H = 30;
+  struct vlff_config cfg;
+  scene_cfg(&cfg, d); /* [-2, 2.5] on every axis */
+  cfg.field.grow = true;
+  cfg.field.world_limit_m = 100;
+  convergence_budget(&cfg);
+  char err[256];
+  struct vlff_field *f = new_field(&cfg);
+  struct scene_view sv[16];
+  struct vlff_view v[16];
+  training_views(sv, v, nv, W, H, d);
+  for (int i = 0; i < (vlff_test_emulator() ? 3 : 10); i++)
+    assert_int_equal(vlff_field_step(f, v, nv, NULL, NULL, err, sizeof(err)), 0);
+  const float in[3 * 4] = {-1.49f, 0.3f, 0.5f, -0.5f, -1.2f, 0.01f, -1.0f, 1.49f, 1.0f, 0.0f, 0.0f, 1.99f};
+  struct answers before, after;
+  answers_at(f, in, 4, &before);
+  const float o0 = f->enc.box_min[0];
+  const double near_hi[3] = {20, 2.5, 2.5}, far_hi[3] = {40, 2.5, 2.5}, lo[3] = {-2, -2, -2};
+  assert_int_equal(vlff_field_grow(f, lo, near_hi, err, sizeof(err)), 1);
+  assert_true(f->enc.box_min[0] == o0); /* the centre 9 m away: not moved */
+  answers_at(f, in, 4, &after);
+  assert_memory_equal(&before, &after, sizeof before);
+  assert_int_equal(vlff_field_grow(f, lo, far_hi, err, sizeof(err)), 1);
+  double blo[3], bhi[3];
+  vlff_field_box(f, blo, bhi);
+  assert_true(fabs(f->enc.box_min[0] - 0.5 * (blo[0] + bhi[0])) < 1e-3); /* moved to the box's centre */
+  answers_at(f, in, 4, &after);
+  assert_memory_equal(before.expo, after.expo, sizeof before.expo);
+  for (int i = 0; i < 4; i++) {
+    if (fabsf(after.dens[i] - before.dens[i]) > 1e-3f * (1 + fabsf(before.dens[i])))
+      fail_msg("density at point %d: %g, %g before the origin moved", i, (double)after.dens[i], (double)before.dens[i]);
+    for (int k = 0; k < 16; k++)
+      if (fabsf(after.feat[16 * i + k] - before.feat[16 * i + k]) > 1e-3f)
+        fail_msg("feature %d at point %d: %g, %g before", k, i, (double)after.feat[16 * i + k],
+                 (double)before.feat[16 * i + k]);
+  }
+  vlff_field_destroy(f);
+}
+
 /* A growing field (field.grow): trained in a first box that holds the
  * room's low half, then grown to hold the whole room. Growth leaves what
  * was learned exactly as it was (the encoding's frame is the world's, the
@@ -984,4 +1029,5 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_marks_wrap), cmocka_unit_test(test_slab),
     cmocka_unit_test(test_chunk_gradient), cmocka_unit_test(test_class_balance),
     cmocka_unit_test(test_error_sampling_share), cmocka_unit_test(test_error_sampling_new_view),
-    cmocka_unit_test(test_convergence), cmocka_unit_test(test_growth), cmocka_unit_test(test_noisy_depth_unbiased))
+    cmocka_unit_test(test_convergence), cmocka_unit_test(test_growth), cmocka_unit_test(test_growth_far),
+    cmocka_unit_test(test_noisy_depth_unbiased))
