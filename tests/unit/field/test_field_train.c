@@ -341,6 +341,7 @@ static void test_growth_far(void **state) {
         fail_msg("feature %d at point %d: %g, %g before", k, i, (double)after.feat[16 * i + k],
                  (double)before.feat[16 * i + k]);
   }
+  for (int k = 0; k < nv; k++) scene_view_free(&sv[k]);
   vlff_field_destroy(f);
 }
 
