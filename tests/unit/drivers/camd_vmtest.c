@@ -70,6 +70,18 @@ static void failf(const char *fmt, ...) {
   vfprintf(stderr, fmt, ap);
   fputc('\n', stderr);
   va_end(ap);
+  /* SIGTERM first, so that its statistics line (triggers sent, edges seen,
+   * frames stamped) is in the output below: what a failure needs read. */
+  if (camd_pid > 0 && kill(camd_pid, SIGTERM) == 0) {
+    for (int i = 0; i < 100; i++) {
+      if (waitpid(camd_pid, NULL, WNOHANG) == camd_pid) {
+        camd_pid = -1; /* reaped: cleanup() has nothing to kill */
+        break;
+      }
+      struct timespec ts = {0, 50 * 1000 * 1000};
+      nanosleep(&ts, NULL);
+    }
+  }
   fprintf(stderr, "vlff-camd stderr:\n");
   dump(err_path);
   fprintf(stderr, "vlff-camd stdout:\n");
