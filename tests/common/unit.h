@@ -10,7 +10,8 @@
  * alarm, in a child process. vlff_test_normal() draws a reproducible
  * standard normal value from a 64-bit seed it advances.
  * vlff_test_wait_peak() waits for a spawned child and gives its peak
- * resident set.
+ * resident set. vlff_test_status_kb() reads one "Key: N kB" line of this
+ * process's /proc/self/status (-1 when absent).
  */
 #ifndef VLFF_UNIT_H
 #define VLFF_UNIT_H
@@ -19,6 +20,7 @@
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -34,6 +36,17 @@ static inline const char *vlff_test_prog(char *buf, size_t cap, const char *rel)
 
 /* The emulator this test runs under ($VLFF_EMULATOR: qemu-user in a
  * cross-built tree), NULL when it runs natively. */
+static inline double vlff_test_status_kb(const char *key) {
+  FILE *f = fopen("/proc/self/status", "r");
+  char line[256];
+  size_t n = strlen(key);
+  double kb = -1;
+  while (f && fgets(line, sizeof line, f))
+    if (!strncmp(line, key, n) && line[n] == ':' && sscanf(line + n + 1, "%lf", &kb) == 1) break;
+  if (f) fclose(f);
+  return kb;
+}
+
 static inline const char *vlff_test_emulator(void) {
   const char *emu = getenv("VLFF_EMULATOR");
   return emu && *emu ? emu : NULL;

@@ -299,6 +299,20 @@ static void answers_at(struct vlff_field *f, const float *xyz, int n, struct ans
   vlff_field_exposure(f, xyz, (size_t)n, a->expo);
 }
 
+/* Points in the room's low-x half (on its walls, floor and ceiling, where
+ * rays end): what the growth tests ask the field before and after. */
+static const float room_points[3 * 4] = {-1.49f, 0.3f,  0.5f, -0.5f, -1.2f, 0.01f,
+                                         -1.0f,  1.49f, 1.0f, 0.0f,  0.0f,  1.99f};
+
+/* The analytic room's config for a growing field ([-2, 2.5] on every axis
+ * the first box until the caller narrows it) within +-world_limit_m. */
+static void growing_room_cfg(struct vlff_config *cfg, int d, double world_limit_m) {
+  scene_cfg(cfg, d);
+  cfg->field.grow = true;
+  cfg->field.world_limit_m = world_limit_m;
+  convergence_budget(cfg);
+}
+
 /* A growth that takes the box's centre more than 16 m from where the
  * encoding counts positions from moves that origin with it (grow.c), and
  * what was learned stays: the same cells, each point's answers to float
@@ -307,10 +321,7 @@ static void test_growth_far(void **state) {
   (void)state;
   const int d = 16, nv = 16, W = 40, H = 30;
   struct vlff_config cfg;
-  scene_cfg(&cfg, d); /* [-2, 2.5] on every axis */
-  cfg.field.grow = true;
-  cfg.field.world_limit_m = 100;
-  convergence_budget(&cfg);
+  growing_room_cfg(&cfg, d, 100);
   char err[256];
   struct vlff_field *f = new_field(&cfg);
   struct scene_view sv[16];
@@ -318,7 +329,7 @@ static void test_growth_far(void **state) {
   training_views(sv, v, nv, W, H, d);
   for (int i = 0; i < (vlff_test_emulator() ? 3 : 10); i++)
     assert_int_equal(vlff_field_step(f, v, nv, NULL, NULL, err, sizeof(err)), 0);
-  const float in[3 * 4] = {-1.49f, 0.3f, 0.5f, -0.5f, -1.2f, 0.01f, -1.0f, 1.49f, 1.0f, 0.0f, 0.0f, 1.99f};
+  const float *in = room_points;
   struct answers before, after;
   answers_at(f, in, 4, &before);
   const float o0 = f->enc.box_min[0];
@@ -356,11 +367,8 @@ static void test_growth(void **state) {
   (void)state;
   const int d = 16, nv = 16, W = 40, H = 30;
   struct vlff_config cfg;
-  scene_cfg(&cfg, d); /* [-2, 2.5] on every axis */
-  cfg.field.grow = true;
-  cfg.field.world_limit_m = 10;
+  growing_room_cfg(&cfg, d, 10);
   cfg.field.scene_max[0] = 0.25; /* the first box: x in [-2, 0.25] */
-  convergence_budget(&cfg);
   char err[256];
   struct vlff_field *f = new_field(&cfg);
   struct scene_view sv[16];
@@ -382,9 +390,8 @@ static void test_growth(void **state) {
    * arithmetic, not the learning (test_convergence shows that). */
   const int early = vlff_test_emulator() ? 3 : light() ? 10 : 30;
   for (int i = 0; i < early; i++) assert_int_equal(vlff_field_step(f, v, nv, NULL, NULL, err, sizeof(err)), 0);
-  /* points in the first box (on the room's walls, floor and ceiling, where
-   * rays end), and one beyond it */
-  const float in[3 * 4] = {-1.49f, 0.3f, 0.5f, -0.5f, -1.2f, 0.01f, -1.0f, 1.49f, 1.0f, 0.0f, 0.0f, 1.99f};
+  /* points in the first box, and one beyond it */
+  const float *in = room_points;
   const float out[3] = {1.2f, 0.2f, 0.8f};
   struct answers before, after;
   answers_at(f, in, 4, &before);

@@ -635,20 +635,6 @@ static void map_move_leftovers(void **state) {
   assert_int_equal(vlff_shm_unlink(name), 0);
 }
 
-/* The address space this process has mapped (VmSize), bytes. */
-static unsigned long long vm_size(void) {
-  FILE *f = fopen("/proc/self/status", "r");
-  assert_non_null(f);
-  char line[256];
-  unsigned long long kb = 0;
-  while (fgets(line, sizeof line, f))
-    if (sscanf(line, "VmSize: %llu kB", &kb) == 1)
-      break;
-  fclose(f);
-  assert_true(kb > 0);
-  return kb * 1024;
-}
-
 /* A reader whose writer grew the map past what the reader can allocate a
  * snapshot for is told so (ENOMEM, "out of memory"), not that the map is
  * corrupt: the seqlock loop used to turn the copy's failure into "published
@@ -691,7 +677,10 @@ static void map_snapshot_out_of_memory(void **state) {
   assert_true(child >= 0);
   if (child == 0) {
     /* room for the reader to map the grown segment, not for its snapshot */
-    unsigned long long lim = vm_size() + (unsigned long long)sb.st_size + (4ull << 20);
+    const double vm_kb = vlff_test_status_kb("VmSize"); /* the address space mapped now */
+    if (!(vm_kb > 0))
+      _exit(15); /* no VmSize line */
+    unsigned long long lim = (unsigned long long)vm_kb * 1024 + (unsigned long long)sb.st_size + (4ull << 20);
     struct rlimit rl = {lim, lim};
     if (setrlimit(RLIMIT_AS, &rl))
       _exit(77); /* a lower hard limit inherited */

@@ -301,15 +301,7 @@ static void test_play_clock_step(void **state) {
 }
 
 /* This process's resident pages of mapped files, MiB (RssFile). */
-static double rss_file_mb(void) {
-  FILE *f = fopen("/proc/self/status", "r");
-  char line[256];
-  double kb = -1;
-  while (f && fgets(line, sizeof line, f))
-    if (sscanf(line, "RssFile: %lf kB", &kb) == 1) break;
-  if (f) fclose(f);
-  return kb / 1024;
-}
+static double rss_file_mb(void) { return vlff_test_status_kb("RssFile") / 1024; }
 
 /* --play maps its recording and gives back what it walked: checking and playing
  * a 50 MiB recording leaves at most a few MiB of it resident at any time (the
