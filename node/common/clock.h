@@ -22,6 +22,11 @@ double vlff_seconds(void);
  * that leave the machine (Foxglove, PTP-stamped cameras) and absolute
  * deadlines of pthread_cond_timedwait; never for durations. */
 uint64_t vlff_wall_ns(void);
+/* CLOCK_MONOTONIC minus CLOCK_REALTIME now, ns: the wall clock read between
+ * two monotonic reads, the tightest of a few tries kept, so that a thread
+ * preempted between two reads does not skew the offset by as long as it
+ * waited. For moving UNIX-time stamps onto vlff_now_ns's clock. */
+int64_t vlff_mono_minus_wall_ns(void);
 
 #ifdef __cplusplus
 }
