@@ -373,10 +373,13 @@ int vlff_arv_grab(struct vlff_arv *a, int timeout_ms, struct vlff_pipe *pipe, st
     };
     raw.stride = raw.width > 0 ? (size_t)raw.width * vlff_pix_bytes(raw.pix) : 0;
     /* Aravis stamps buffer arrival with the wall clock; move it onto
-     * CLOCK_MONOTONIC through the current offset between the two. Fall back
-     * to "now" when that is not plausible (no stamp, or a clock step). */
-    uint64_t sys = arv_buffer_get_system_timestamp(b), rnow = vlff_wall_ns();
-    raw.host_ns = sys && sys <= rnow && rnow - sys < 1000000000u ? now - (rnow - sys) : now;
+     * CLOCK_MONOTONIC through the current offset between the two, read
+     * bracketed (clock.h: two reads back to back are off by however long
+     * the thread was preempted between them). Fall back to "now" when that
+     * is not plausible (no stamp, or a clock step). */
+    const uint64_t sys = arv_buffer_get_system_timestamp(b);
+    const int64_t t = (int64_t)sys + vlff_mono_minus_wall_ns();
+    raw.host_ns = sys && t > 0 && (uint64_t)t <= now && now - (uint64_t)t < 1000000000u ? (uint64_t)t : now;
     rc = vlff_pipe_push(pipe, &raw, sink, poses) == 0 ? 1 : 0;
   }
   arv_stream_push_buffer(a->stream, b);

@@ -71,23 +71,48 @@ static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
  * pair was made yet (a camera's first frames after it starts streaming
  * need not keep its period: Aravis' fake camera sends its first at once,
  * off the grid of the later ones), as unmatched otherwise. */
-static void drop_oldest(struct vlff_pair *p, struct fifo *q) {
+static void drop_at(struct vlff_pair *p, struct fifo *q, int i) {
   const bool color = q == &p->color;
   const struct fifo *other = color ? &p->depth : &p->color;
-  const struct held *h = oldest(q);
+  const struct held *h = &q->f[(q->head + i) % HOLD];
   const uint64_t t = h->meta.host_ns;
   const uint64_t tol = !h->meta.trigger_stamped && p->free_tol_ns > p->tol_ns ? p->free_tol_ns : p->tol_ns;
   if (!p->paired || !other->started || t + tol < other->first_ns)
     (*(color ? &p->st.startup_color : &p->st.startup_depth))++;
   else
     (*(color ? &p->st.unmatched_color : &p->st.unmatched_depth))++;
-  pop(q);
+  /* the frames after it move up one place; its buffer goes to the end,
+   * the queue's free slot */
+  struct held gone = *h;
+  for (int j = i; j + 1 < q->n; j++) q->f[(q->head + j) % HOLD] = q->f[(q->head + j + 1) % HOLD];
+  q->f[(q->head + q->n - 1) % HOLD] = gone;
+  q->n--;
 }
 
-/* The slot a new frame goes into; a full queue gives up its oldest frame,
- * which no frame of the other stream has claimed in time. */
+static void drop_oldest(struct vlff_pair *p, struct fifo *q) { drop_at(p, q, 0); }
+
+/* The frame a full queue gives up: its oldest, unless the queue holds a
+ * frame stamped by a trigger. A triggered camera's frame can reach the host
+ * long after its edge on a loaded host (the VM's GigE range camera, later
+ * than the eight frames a 30 Hz colour camera sends meanwhile), and the
+ * colour frame that edge stamped is its partner: then the oldest frame not
+ * stamped goes first. A free-running frame pairs with a triggered one only
+ * when it began within the tolerance before that edge and no frame carries
+ * the edge's stamp, so the oldest of them is the one least likely to be
+ * wanted. */
+static int victim(const struct fifo *q) {
+  bool stamped = false;
+  for (int i = 0; i < q->n; i++) stamped |= q->f[(q->head + i) % HOLD].meta.trigger_stamped;
+  if (!stamped) return 0;
+  for (int i = 0; i < q->n; i++)
+    if (!q->f[(q->head + i) % HOLD].meta.trigger_stamped) return i;
+  return 0;
+}
+
+/* The slot a new frame goes into; a full queue gives up a frame that no
+ * frame of the other stream has claimed in time (victim). */
 static struct held *reserve_slot(struct vlff_pair *p, struct fifo *q, size_t bytes, char *err, size_t errlen) {
-  if (q->n == HOLD) drop_oldest(p, q);
+  if (q->n == HOLD) drop_at(p, q, victim(q));
   struct held *h = &q->f[(q->head + q->n) % HOLD];
   if (h->cap < bytes) {
     void *np = realloc(h->px, bytes);

@@ -26,7 +26,11 @@
  * never paired wrongly (and a camera running faster than configured still
  * gets its nearer frame paired), and the oldest frame of either queue that
  * can no longer find a partner (the other stream is already past it by more
- * than the tolerance, or its queue overflowed) is dropped and counted.
+ * than the tolerance) is dropped and counted. A queue that overflows (eight
+ * frames, the other stream late) drops and counts its oldest frame, or,
+ * while it holds a trigger-stamped frame, its oldest free-running one: a
+ * triggered camera's frame may arrive many of a free-running camera's
+ * frames after its edge, and the frame that edge stamped is its partner.
  *
  * A pair is written into the output sink: the colour frame's pixels,
  * timestamps, ids and pose, the range image registered into the colour

@@ -37,6 +37,9 @@ static struct vlff_pair *pair;
  * device time dev_ns (0: none). */
 static bool free_run;
 static uint64_t dev_ns;
+/* The next colour frame stamped (1) or not (0) whatever free_run says; -1:
+ * as free_run says. */
+static int color_stamped = -1;
 
 /* Colour frame k: every red byte k. */
 static void push_color(int k, uint64_t t) {
@@ -50,7 +53,7 @@ static void push_color(int k, uint64_t t) {
       p[0] = (uint8_t)k, p[1] = (uint8_t)x, p[2] = (uint8_t)y;
     }
   f.host_ns = t, f.device_frame_id = (uint64_t)k;
-  f.trigger_stamped = !free_run, f.device_ns = free_run ? dev_ns : 0;
+  f.trigger_stamped = color_stamped >= 0 ? color_stamped : !free_run, f.device_ns = free_run ? dev_ns : 0;
   assert_int_equal(s->commit(s, &f), 0);
 }
 
@@ -111,7 +114,7 @@ static int setup(void **state) {
   vlff_config_defaults(&cfg);
   snprintf(cfg.depth_camera.calibration, sizeof cfg.depth_camera.calibration, "%s", calib);
   cfg.depth_camera.pair_tolerance_s = 0.005;
-  free_run = false, dev_ns = 0;
+  free_run = false, dev_ns = 0, color_stamped = -1;
   out = vlff_memsink_new(64, W, H);
   char err[512];
   pair = vlff_pair_new(&cfg.depth_camera, &cfg.camera, vlff_memsink_sink(out), err, sizeof err);
@@ -420,6 +423,34 @@ static void test_free_running_first_frames(void **state) {
   assert_true(st->skew_max_ns < 10 * MS);
 }
 
+
+/* A free-running colour camera whose frame after each GPIO edge carries
+ * the edge's stamp, and a range camera the edge triggers whose frame
+ * reaches the host 400 ms later, twelve colour frames on (the VM's GigE
+ * camera under load): the queue of eight gives up free-running frames,
+ * never the stamped one, so every edge gives its pair. Failed before
+ * (the oldest went first: no pair at all). */
+static void test_triggered_frame_late(void **state) {
+  (void)state;
+  const uint64_t t0 = 20000 * MS;
+  int pending = -1, due = -1;
+  uint64_t edge_t = 0;
+  for (int k = 0; k < 100; k++) {
+    uint64_t t = t0 + (uint64_t)k * 33 * MS;
+    const int edge = k % 20 == 5; /* an edge 10 ms before this frame */
+    color_stamped = edge;
+    if (edge) edge_t = t - 10 * MS, pending = k, due = k + 12;
+    push_color(k, edge ? edge_t : t);
+    if (k == due) push_depth(pending, edge_t), pending = -1;
+  }
+  int first = -1;
+  assert_int_equal(check_records(&first), 5);
+  assert_int_equal(first, 5);
+  const struct vlff_pair_stats *st = vlff_pair_get_stats(pair);
+  assert_int_equal(st->pairs, 5);
+  assert_int_equal(st->unmatched_depth + st->startup_depth, 0);
+}
+
 int main(void) {
   vlff_log_set_level(VLFF_LOG_ERROR);
   const struct CMUnitTest tests[] = {
@@ -434,6 +465,7 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_free_running_startup, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_close_stray, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_first_frames, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_triggered_frame_late, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
