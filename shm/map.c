@@ -329,12 +329,28 @@ static bool same_geometry(const struct map_meta *a, const double origin[3], doub
          a->origin[1] == origin[1] && a->origin[2] == origin[2];
 }
 
+/* A grid's voxel size and extent within physical bounds
+ * (VLFF_MAP_VOXEL_MIN_M..VLFF_MAP_VOXEL_MAX_M, every corner within
+ * VLFF_MAP_COORD_MAX_M of the world's origin): NaN, infinite, zero or
+ * absurd geometry is no map, and a reader indexing by it would compute
+ * infinite voxel centres. */
+static bool geometry_physical(const double origin[3], double voxel, const uint32_t dims[3]) {
+  if (!(voxel >= VLFF_MAP_VOXEL_MIN_M && voxel <= VLFF_MAP_VOXEL_MAX_M)) return false;
+  for (int a = 0; a < 3; a++) {
+    const double hi = origin[a] + (double)dims[a] * voxel;
+    if (!(fabs(origin[a]) <= VLFF_MAP_COORD_MAX_M && fabs(hi) <= VLFF_MAP_COORD_MAX_M)) return false;
+  }
+  return true;
+}
+
 static int check_update(const struct vlff_map *m, const struct vlff_map_update *u) {
   if (u->grid) {
     const struct vlff_map_grid *g = u->grid;
-    if (!g->labels || !isfinite(g->voxel_size) || g->voxel_size <= 0 || !isfinite(g->origin[0]) ||
-        !isfinite(g->origin[1]) || !isfinite(g->origin[2]) || !g->dims[0] || !g->dims[1] || !g->dims[2])
-      return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "grid without labels, with non-finite geometry or 0 dims");
+    if (!g->labels || !g->dims[0] || !g->dims[1] || !g->dims[2])
+      return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, "grid without labels or with 0 dims");
+    if (!geometry_physical(g->origin, g->voxel_size, g->dims))
+      return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL,
+                        "grid geometry outside physical bounds (voxel size 1e-4..1e3 m, within 1e8 m of the origin)");
     uint64_t n;
     if (!dims_fit(g->dims, m->max_voxels, &n))
       return bad_update(m, VLFF_SHM_ERR_SIZE, EMSGSIZE, "grid larger than the map capacity");
@@ -753,8 +769,7 @@ static int abandoned(struct vlff_map *m) {
 /* A meta block read from shared memory is checked before any of it is used to index. */
 static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm) {
   bool has_grid = mm->dims[0] && mm->dims[1] && mm->dims[2];
-  if (has_grid && (!isfinite(mm->voxel_size) || mm->voxel_size <= 0 || !isfinite(mm->origin[0]) || !isfinite(mm->origin[1]) ||
-      !isfinite(mm->origin[2])))
+  if (has_grid && !geometry_physical(mm->origin, mm->voxel_size, mm->dims))
     return false;
   if (!dims_fit(mm->dims, m->max_voxels, NULL))
     return false;

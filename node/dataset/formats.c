@@ -9,6 +9,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <stdbool.h>
 #include <png.h>
 #include <setjmp.h>
 #include <stdio.h>
@@ -378,6 +379,20 @@ static int ply_type_of(const char *s) {
 
 static const int ply_size[] = {0, 1, 1, 2, 2, 4, 4, 4, 8};
 
+/* An integer type's range into lo..hi (false for the float types). */
+static bool ply_int_range(int t, double *lo, double *hi) {
+  static const double r[][2] = {{0, 0},          {-128, 127},          {0, 255},          {-32768, 32767},
+                                {0, 65535},      {-2147483648.0, 2147483647.0}, {0, 4294967295.0}};
+  if (t < PT_I8 || t > PT_U32) return false;
+  *lo = r[t][0], *hi = r[t][1];
+  return true;
+}
+
+static const char *ply_type_name(int t) {
+  static const char *const n[] = {"?", "char", "uchar", "short", "ushort", "int", "uint", "float", "double"};
+  return t >= 0 && t <= PT_F64 ? n[t] : "?";
+}
+
 static double ply_get(const uint8_t *p, int t) {
   /* binary_little_endian on any host */
   uint64_t u = 0;
@@ -419,6 +434,7 @@ struct ply_header {
   size_t nvert, pos; /* pos: the first byte after end_header */
   int nprop, ptype[PLY_MAX_PROPS];
   int ix, iy, iz, il; /* property indices of x, y, z, label */
+  int more;           /* elements follow the vertices (faces): bytes after them are theirs */
 };
 
 /* One "property" line of the vertex element. */
@@ -489,6 +505,7 @@ static int ply_header(const uint8_t *buf, size_t len, const char *name, struct p
     } else if (!strcmp(a, "element")) {
       if (in_vertex || nvert >= 0) {
         in_vertex = 0; /* elements after the vertices are never read */
+        h->more = 1;
         continue;
       }
       if (!strcmp(b, "vertex")) {
@@ -521,6 +538,10 @@ static int ply_header(const uint8_t *buf, size_t len, const char *name, struct p
     seterr(err, errlen, "%s: needs a vertex element with properties x, y, z and label", VLFF_Q(name));
     return -1;
   }
+  if (nvert == 0) {
+    seterr(err, errlen, "%s: the vertex element holds no vertices: no labelled point to score", VLFF_Q(name));
+    return -1;
+  }
   h->nvert = (size_t)nvert, h->pos = pos;
   return 0;
 }
@@ -538,6 +559,11 @@ static int ply_body_binary(const struct ply_header *h, const uint8_t *buf, size_
   if ((len - h->pos) / stride < n) {
     seterr(err, errlen, "%s: truncated: %zu vertices of %zu bytes need %zu bytes, %zu present", VLFF_Q(name), n, stride,
            n * stride, len - h->pos);
+    return -1;
+  }
+  if (!h->more && len - h->pos != n * stride) {
+    seterr(err, errlen, "%s: %zu bytes after the %zu vertices the header declares, and no element after them",
+           VLFF_Q(name), len - h->pos - n * stride, n);
     return -1;
   }
   double v[PLY_MAX_PROPS];
@@ -569,8 +595,20 @@ static int ply_body_ascii(const struct ply_header *h, const uint8_t *buf, size_t
         seterr(err, errlen, "%s: vertex %zu property %d: '%s' is not a number", VLFF_Q(name), k, i, VLFF_Q(tok));
         return -1;
       }
+      double lo, hi;
+      if (ply_int_range(h->ptype[i], &lo, &hi) && !(v[i] >= lo && v[i] <= hi && v[i] == floor(v[i]))) {
+        seterr(err, errlen, "%s: vertex %zu property %d: '%s' is not a %s (%.0f..%.0f)", VLFF_Q(name), k, i,
+               VLFF_Q(tok), ply_type_name(h->ptype[i]), lo, hi);
+        return -1;
+      }
     }
     ply_store(h, v, k, p);
+  }
+  while (s < end && (*s == ' ' || *s == '\t' || *s == '\n' || *s == '\r')) s++;
+  if (!h->more && s < end) {
+    seterr(err, errlen, "%s: data after the %zu vertices the header declares, and no element after them",
+           VLFF_Q(name), h->nvert);
+    return -1;
   }
   return 0;
 }

@@ -186,8 +186,9 @@ int vlff_scannet_geometry(struct vlff_dataset *ds, const double Kc[16], int cw, 
       for (int k = 0; k < 4; k++) s += ci[4 * r + k] * Ed[4 * k + c];
       ds->d2c[4 * r + c] = s;
     }
-  if (fabs(ds->d2c[3]) > 1 || fabs(ds->d2c[7]) > 1 || fabs(ds->d2c[11]) > 1) {
-    seterr(err, errlen, "%s: depth and colour cameras are more than 1 m apart", VLFF_Q(where));
+  const double apart = hypot(hypot(ds->d2c[3], ds->d2c[7]), ds->d2c[11]);
+  if (apart > 1) {
+    seterr(err, errlen, "%s: depth and colour cameras are %.2f m apart, more than 1 m", VLFF_Q(where), apart);
     return -1;
   }
   ds->registered = 1;

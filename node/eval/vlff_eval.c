@@ -655,7 +655,9 @@ struct result {
 
 static void summarize(struct result *r) {
   vlff_confusion_summary(&r->c, &r->s);
-  r->valid = 1;
+  /* No labelled sample (every held-out pixel or every point unlabelled):
+   * nothing was scored, which is n/a, not a score of 0. */
+  r->valid = r->s.present > 0;
 }
 
 /* A result as JSON (null when it was not computed). json-c escapes every
@@ -857,8 +859,14 @@ static void baselines(struct eval *e) {
   baseline_raw_2d(e);
   double t = vlff_seconds();
   size_t unseen = training_pass(e);
-  fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %.1f, fusion 3D mIoU %.1f, %zu labelled points no training view saw (%.1f s)\n",
-          100 * e->r2_raw.s.miou, 100 * e->r3_fusion.s.miou, unseen, vlff_seconds() - t);
+  char a[16], b[16];
+  fprintf(stderr, "vlff-eval: baselines: raw 2D mIoU %s, fusion 3D mIoU %s, %zu labelled points no training view saw (%.1f s)\n",
+          pct(&e->r2_raw, e->r2_raw.s.miou, a), pct(&e->r3_fusion, e->r3_fusion.s.miou, b), unseen,
+          vlff_seconds() - t);
+  if (!e->r2_raw.valid)
+    fprintf(stderr, "vlff-eval: no held-out pixel carries a class (every one unlabelled): the 2D scores are n/a\n");
+  if (!e->r3_fusion.valid)
+    fprintf(stderr, "vlff-eval: no labelled point carries a class (every one unlabelled): the 3D scores are n/a\n");
 }
 
 /* The field, fitted on the training frames for --iters steps or

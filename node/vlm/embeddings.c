@@ -160,6 +160,15 @@ static int parse_vector(const char *prompt, const char *p, int dim, float *v, co
     vlff_errf(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, VLFF_Q(prompt));
     return -1;
   }
+  /* Only a vector's direction matters (it is compared by cosine), but a
+   * length this far from any encoder's is no embedding, and products of
+   * such values overflow or flush to zero in float. */
+  const double norm = sqrt(ss);
+  if (norm < VLFF_EMBEDDINGS_MIN_NORM || norm > VLFF_EMBEDDINGS_MAX_NORM) {
+    vlff_errf(err, errlen, "%s:%d: vector for '%s' has length %.3g, expected %g to %g", name, lineno, VLFF_Q(prompt),
+              norm, VLFF_EMBEDDINGS_MIN_NORM, VLFF_EMBEDDINGS_MAX_NORM);
+    return -1;
+  }
   return 0;
 }
 

@@ -9,7 +9,10 @@
  *     # comment lines and empty lines are ignored
  *     chair<TAB>0.0123 -0.0456 ... (exactly dim numbers, single spaces)
  * A prompt is 1..63 bytes of valid UTF-8 without control characters,
- * unique in the file; the numbers are finite and not all zero. At most
+ * unique in the file; the numbers are finite, and the vector's length is
+ * VLFF_EMBEDDINGS_MIN_NORM to VLFF_EMBEDDINGS_MAX_NORM (only its direction
+ * is used, but a length far outside any encoder's is not an embedding, and
+ * its products overflow or flush to zero in float). At most
  * VLFF_EMBEDDINGS_MAX prompts. Vectors are stored as given (the field
  * normalises).
  *
@@ -27,6 +30,8 @@
 
 #define VLFF_EMBEDDINGS_MAX 4096
 #define VLFF_EMBEDDINGS_MAX_BYTES (64u << 20)
+#define VLFF_EMBEDDINGS_MIN_NORM 1e-6
+#define VLFF_EMBEDDINGS_MAX_NORM 1e6
 
 struct vlff_embeddings;
 

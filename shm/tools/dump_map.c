@@ -130,8 +130,13 @@ int vlff_dump_map(const char *name, const char *path) {
     goto done;
   }
   size_t nvox = (size_t)mi.grid.dims[0] * mi.grid.dims[1] * mi.grid.dims[2];
-  if (mi.version == 0 || nvox == 0) {
-    fprintf(stderr, "vlff-shm: %s: no map published yet (version %" PRIu64 ")\n", VLFF_Q(name), mi.version);
+  if (mi.version == 0) {
+    fprintf(stderr, "vlff-shm: %s: no map published yet (version 0)\n", VLFF_Q(name));
+    goto done;
+  }
+  if (nvox == 0) {
+    fprintf(stderr, "vlff-shm: %s: version %" PRIu64 " holds no grid (prompts or a label image only)\n", VLFF_Q(name),
+            mi.version);
     goto done;
   }
   size_t labelled = 0, free_ = 0, unknown = 0;

@@ -368,11 +368,22 @@ static int cmd_watch(const char *name, long count) {
     struct vlff_ring *r = vlff_ring_attach(name, VLFF_RECORD_ANY);
     if (!r)
       return vlff_shm_fail(name);
+    int said_gone = 0;
     while (!stop && (count <= 0 || seen < count)) {
       struct vlff_ring_view v;
       if (vlff_ring_read_begin(r, &v, 500000000ull) < 0) {
-        if (errno == ETIMEDOUT || errno == EINTR)
+        if (errno == ETIMEDOUT || errno == EINTR) {
+          /* Waiting on a ring whose writer is gone would look like a hang:
+           * said once (again after a new writer came and went). */
+          struct vlff_shm_info now;
+          if (vlff_shm_stat(name, &now) == 0) {
+            if (!now.creator_alive && !said_gone)
+              fprintf(stderr, "vlff-shm: %s: its writer (pid %d) is not running; waiting for a new one\n",
+                      VLFF_Q(name), (int)now.creator_pid);
+            said_gone = !now.creator_alive;
+          }
           continue;
+        }
         vlff_ring_close(r);
         return vlff_shm_fail(name);
       }

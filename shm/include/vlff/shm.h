@@ -378,6 +378,13 @@ int vlff_pose_lookup(struct vlff_ring *poses, uint64_t t_ns, uint64_t tolerance_
 #define VLFF_LABEL_FREE 0xFFFEu    /* observed empty space */
 #define VLFF_LABEL_UNKNOWN 0xFFFFu /* never observed */
 #define VLFF_SHM_MAX_PROMPTS 32
+/* A map grid's physical bounds: its voxel size in metres, and how far from
+ * the world's origin any of its corners may lie (1e8 m holds UTM
+ * coordinates); a publish outside them is refused (EINVAL) and a segment
+ * holding one reads as corrupt. */
+#define VLFF_MAP_VOXEL_MIN_M 1e-4
+#define VLFF_MAP_VOXEL_MAX_M 1e3
+#define VLFF_MAP_COORD_MAX_M 1e8
 #define VLFF_SHM_PROMPT_LEN 64     /* bytes including the terminating NUL */
 
 struct vlff_map; /* opaque: the writer (create) or a reader (attach) */

@@ -359,6 +359,10 @@ static void test_physical_bounds(void **state) {
       {"intrinsics.txt", "1e30 0 32 0\n0 1e30 24 0\n0 0 1 0\n0 0 0 1\n",
        "not a physical camera for the 64x48 images: fx 1e+30 outside"},
       {"intrinsics.txt", "50 0 32 0\n0 5 24 0\n0 0 1 0\n0 0 0 1\n", "pixel aspect"},
+      /* the field's cameras have no skew: one was dropped, every ray off by it */
+      {"intrinsics.txt", "50 1e6 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n",
+       "intrinsics.txt: skew 1e+06 is more than 0.1 % of fx=50; the camera model has none"},
+      {"intrinsics.txt", "50 0.04 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n", NULL},
       {"intrinsics.txt", GOOD_INTRINSICS, NULL},
   };
   expect_edits(path, edits, sizeof edits / sizeof *edits);
@@ -455,6 +459,43 @@ static void test_ply_formats(void **state) {
                        "property float z\nproperty uchar label\nend_header\n0123456789abc";
   assert_int_equal(vlff_ply_parse((const uint8_t *)trunc, strlen(trunc), "c.ply", &p, err, sizeof err), -1);
   assert_non_null(strstr(err, "truncated"));
+  /* What the header does not declare, and values its types cannot hold,
+   * are refused: a count of 10 over a file of 4746 vertices scored 10
+   * points; a count of 0 scored nothing, as 0.0; a uchar label of 300 or -5
+   * was taken as unlabelled. */
+  static const struct {
+    const char *ply, *says;
+  } bad[] = {
+      {"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+       "property float z\nproperty uchar label\nend_header\n0123456789abcdefghijklmnopqrstuvwxyz",
+       "d.ply: 23 bytes after the 1 vertices the header declares"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+       "property uchar label\nend_header\n0 0 0 1\n1 1 1 2\n",
+       "d.ply: data after the 1 vertices the header declares"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+       "property uchar label\nend_header\n0 0 0 300\n",
+       "d.ply: vertex 0 property 3: '300' is not a uchar (0..255)"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+       "property uchar label\nend_header\n0 0 0 -5\n",
+       "is not a uchar"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+       "property int label\nend_header\n0 0 0 2.5\n",
+       "'2.5' is not a int"},
+      {"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\n"
+       "property uchar label\nend_header\n",
+       "d.ply: the vertex element holds no vertices"},
+  };
+  for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
+    assert_int_equal(vlff_ply_parse((const uint8_t *)bad[k].ply, strlen(bad[k].ply), "d.ply", &p, err, sizeof err), -1);
+    if (!strstr(err, bad[k].says)) fail_msg("case %zu: %s", k, err);
+  }
+  /* an element after the vertices (ScanNet's faces) owns the bytes after them */
+  const char faces[] = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                       "property float z\nproperty uchar label\nelement face 1\nproperty list uchar int vertex_indices\n"
+                       "end_header\n0123456789abc\x03\0\0\0\0\0\0\0\0\0\0\0\0";
+  assert_int_equal(vlff_ply_parse((const uint8_t *)faces, sizeof faces - 1, "e.ply", &p, err, sizeof err), 0);
+  assert_int_equal(p.n, 1);
+  vlff_points_free(&p);
 }
 
 VLFF_UNIT_MAIN(setup, teardown,

@@ -214,6 +214,7 @@ struct sens_opts {
   uint64_t nframes_claimed;
   long truncate_to; /* < 0: bytes cut from the end */
   int skewed_frame; /* > 0: that frame's rotation is not orthonormal */
+  double apart;     /* > 0: the depth camera this far from the colour camera on every axis */
 };
 
 static void write_sens(const char *path, const struct sens_opts *o) {
@@ -229,6 +230,7 @@ static void write_sens(const char *path, const struct sens_opts *o) {
     e[0] = e[5] = e[10] = e[15] = 1;
   }
   m[3][3] = (float)BASE;
+  if (o->apart > 0) m[3][3] = m[3][7] = m[3][11] = (float)o->apart;
   fwrite(m, 4, 64, f);
   int32_t ctype = 2;
 #ifndef VLFF_HAVE_OPENCV
@@ -408,6 +410,8 @@ static void test_sens(void **state) {
       {{.version = 4, .dtype = 2, .nframes_claimed = 3}, "occi"},
       {{.version = 4, .dtype = 1, .nframes_claimed = 1ull << 40}, "do not fit"},
       {{.version = 4, .dtype = 1, .nframes_claimed = 3, .truncate_to = -10}, "frame 2"},
+      /* 0.7 m on every axis: under 1 m on each, 1.21 m apart */
+      {{.version = 4, .dtype = 1, .nframes_claimed = 3, .apart = 0.7}, "cameras are 1.21 m apart, more than 1 m"},
   };
   for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
     write_sens(path, &bad[k].o);

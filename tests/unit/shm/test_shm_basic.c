@@ -802,6 +802,18 @@ static void map_publish_and_read(void **state) {
   ub.grid = &nan;
   assert_int_equal(vlff_map_publish(w, &ub), -1);
   assert_int_equal(errno, EINVAL);
+  /* Finite but not physical: a reader indexing by a 1e300 m voxel wrote
+   * infinite voxel centres (vlff-shm dump-map). */
+  struct vlff_map_grid absurd[4] = {g, g, g, g};
+  absurd[0].voxel_size = 1e300, absurd[1].voxel_size = 1e-5, absurd[2].origin[1] = -2e8;
+  absurd[3].voxel_size = 900; /* within the size bound, but 10 voxels reach past 1e8 m from 1e8 - 1 */
+  absurd[3].origin[0] = 1e8 - 1;
+  for (int k = 0; k < 4; k++) {
+    ub.grid = &absurd[k];
+    assert_int_equal(vlff_map_publish(w, &ub), -1);
+    assert_int_equal(errno, EINVAL);
+  }
+  assert_non_null(strstr(vlff_shm_last_message(), "physical bounds"));
   const char *longp[] = {"a prompt that is far too long to fit into the sixty-four bytes of a slot...."};
   struct vlff_map_update up = {.prompts = longp, .prompt_count = 1};
   assert_int_equal(vlff_map_publish(w, &up), -1);

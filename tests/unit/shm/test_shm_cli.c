@@ -11,10 +11,10 @@
 #include <stdlib.h>
 #include <sys/wait.h>
 
-static int run(const char *args, char *out, size_t cap) {
+static int run_for(int seconds, const char *args, char *out, size_t cap) {
   char cmd[1024];
   const char *emu = getenv("VLFF_EMULATOR"); /* qemu-user in a cross-built tree */
-  snprintf(cmd, sizeof cmd, "timeout 30 %s %s %s 2>&1", emu ? emu : "", VLFF_SHM_CLI, args);
+  snprintf(cmd, sizeof cmd, "timeout %d %s %s %s 2>&1", seconds, emu ? emu : "", VLFF_SHM_CLI, args);
   FILE *f = popen(cmd, "r");
   assert_non_null(f);
   size_t n = fread(out, 1, cap - 1, f);
@@ -26,6 +26,30 @@ static int run(const char *args, char *out, size_t cap) {
   }
   int st = pclose(f);
   return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+static int run(const char *args, char *out, size_t cap) { return run_for(30, args, out, cap); }
+
+/* watch on a ring whose writer died waits for a new one, as it should, but
+ * says so: it printed nothing and looked hung. */
+static void cli_watch_dead_writer(void **state) {
+  (void)state;
+  char name[64], args[256], out[8192];
+  test_name(name, sizeof name, "cliwd");
+  pid_t pid = fork();
+  assert_true(pid >= 0);
+  if (pid == 0) {
+    struct vlff_ring_params rc = {.record_kind = VLFF_RECORD_FRAME, .slots = 4, .slot_size = 4096};
+    _exit(vlff_ring_create(name, &rc) ? 0 : 1); /* exits without closing: a dead writer's ring */
+  }
+  int st;
+  assert_int_equal(waitpid(pid, &st, 0), pid);
+  assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
+  snprintf(args, sizeof args, "watch %s 1", name);
+  assert_int_equal(run_for(3, args, out, sizeof out), 124); /* still waiting when timeout ends it */
+  if (!strstr(out, "its writer (pid ") || !strstr(out, ") is not running; waiting for a new one"))
+    fail_msg("watch: %s", out);
+  vlff_shm_unlink(name);
 }
 
 /* A FIFO at a name under /dev/shm (issue 51, item 1): list, stat and label
@@ -325,4 +349,5 @@ static void cli_escapes_names(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(cli_commands), cmocka_unit_test(cli_status_paging_shown), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown),
+    cmocka_unit_test(cli_watch_dead_writer),
     cmocka_unit_test(cli_escapes_names), cmocka_unit_test(cli_wrong_targets))

@@ -89,6 +89,15 @@ static void test_validation(void **state) {
   assert_true(vlff_embeddings_lookup(e, "table")[1] == 0);
   vlff_embeddings_free(e);
   refused("vlff-embeddings 1\ndim 2\nchair\t0 0\n", "zero vector");
+  /* Lengths no encoder gives: products of such values overflow (a
+   * dataset's 1e38 vector made its class unscorable) or flush to zero. */
+  refused("vlff-embeddings 1\ndim 2\nchair\t1e38 1e38\n", ":3: vector for 'chair' has length 1.41e+38, expected 1e-06 to 1e+06");
+  refused("vlff-embeddings 1\ndim 2\nchair\t1e-45 1e-45\n", ":3: vector for 'chair' has length");
+  refused("vlff-embeddings 1\ndim 2\nchair\t2e6 0\n", "has length");
+  const char *edges = "vlff-embeddings 1\ndim 2\nchair\t1.1e-6 0\ntable\t0 9.9e5\n";
+  e = vlff_embeddings_parse(edges, strlen(edges), "t.emb", 2, err, sizeof err);
+  if (!e) fail_msg("%s", err);
+  vlff_embeddings_free(e);
   refused("vlff-embeddings 1\ndim 2\nchair\t1 0\nchair\t0 1\n", ":4: duplicate prompt 'chair'");
   refused("vlff-embeddings 1\ndim 2\n\t1 0\n", ":3: prompt must be");
   refused("vlff-embeddings 1\ndim 2\nch\xff" "air\t1 0\n", ":3: prompt must be");
