@@ -64,8 +64,8 @@ struct vlff_pair {
 static struct held *oldest(struct fifo *q) { return q->n ? &q->f[q->head] : NULL; }
 static void pop(struct fifo *q) { q->head = (q->head + 1) % HOLD, q->n--; }
 
-/* Drops q's oldest frame, which found no partner in the other stream. It
- * is counted as a start-up frame when the other stream had not begun
+/* Drops q's frame i (0: its oldest), which found no partner in the other
+ * stream. It is counted as a start-up frame when the other stream had not begun
  * (nothing from it yet, or its first frame came more than the tolerance
  * after this one: no frame of it could have been this one's partner) or no
  * pair was made yet (a camera's first frames after it starts streaming
@@ -81,12 +81,14 @@ static void drop_at(struct vlff_pair *p, struct fifo *q, int i) {
     (*(color ? &p->st.startup_color : &p->st.startup_depth))++;
   else
     (*(color ? &p->st.unmatched_color : &p->st.unmatched_depth))++;
-  /* the frames after it move up one place; its buffer goes to the end,
-   * the queue's free slot */
+  /* The frames before it move back one place and the head past its
+   * buffer, which becomes the slot before the head: the slot after the
+   * queue (head + n), which a reservation may hold open, stays where it
+   * is. */
   struct held gone = *h;
-  for (int j = i; j + 1 < q->n; j++) q->f[(q->head + j) % HOLD] = q->f[(q->head + j + 1) % HOLD];
-  q->f[(q->head + q->n - 1) % HOLD] = gone;
-  q->n--;
+  for (int j = i; j > 0; j--) q->f[(q->head + j) % HOLD] = q->f[(q->head + j - 1) % HOLD];
+  q->f[q->head] = gone;
+  pop(q);
 }
 
 static void drop_oldest(struct vlff_pair *p, struct fifo *q) { drop_at(p, q, 0); }

@@ -171,6 +171,14 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   p->voxel = vlff_map_grid_plan(field->scene_min, field->scene_max, pub->voxel_size_m, (size_t)shm->map_max_voxels,
                                 p->dims);
   p->nvox = (size_t)p->dims[0] * p->dims[1] * p->dims[2];
+  if (p->voxel > VLFF_MAP_VOXEL_MAX_M) {
+    snprintf(err, errlen,
+             "the scene box needs voxels of %.0f m to fit shm.map_max_voxels (%d), more than a map may have (%g m): "
+             "raise shm.map_max_voxels or give a smaller box",
+             p->voxel, shm->map_max_voxels, VLFF_MAP_VOXEL_MAX_M);
+    vlff_publisher_destroy(p);
+    return NULL;
+  }
   if (p->voxel > pub->voxel_size_m)
     VLFF_WARN(TAG, "publish.voxel_size_m %.3f m needs more than shm.map_max_voxels; using %.3f m",
               pub->voxel_size_m, p->voxel);

@@ -687,7 +687,9 @@ static int read_poses(struct vlff_dataset *ds, const char *dir, const struct ste
     if (read_text(p, &buf, &len, err, errlen) < 0) return -1;
     double m[16];
     int rc = vlff_parse_matrix(buf, len, p, m, err, errlen);
-    int nonfinite = rc < 0 && (strstr(buf, "inf") || strstr(buf, "nan") || strstr(buf, "INF") || strstr(buf, "NaN"));
+    int nonfinite = 0;
+    for (const char *const *w = (const char *const[]){"inf", "Inf", "INF", "nan", "NaN", "NAN", NULL}; rc < 0 && *w; w++)
+      nonfinite |= strstr(buf, *w) != NULL;
     free(buf);
     if (rc < 0 && !ref && nonfinite) {
       ds->skipped++; /* ScanNet: lost tracking */

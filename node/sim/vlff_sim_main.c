@@ -123,6 +123,12 @@ static int write_dataset(const struct vlff_config *cfg, struct vlff_sim *s, cons
     fprintf(stderr, "vlff-sim: %s\n", err);
     return 1;
   }
+  if (pts.n == 0) { /* a dataset without one would be refused when read */
+    fprintf(stderr, "vlff-sim: no labelled point: no ray of the %d frames met a surface within sim.depth_max_m %g m\n",
+            n, cfg->sim.depth_max_m);
+    vlff_sim_points_free(&pts);
+    return 1;
+  }
   snprintf(p, sizeof p, "%s/points.ply", dir);
   int rc = vlff_ply_write(p, pts.xyz, NULL, pts.label, pts.n, err, sizeof err);
   vlff_sim_points_free(&pts);

@@ -301,11 +301,22 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
                 PROMPT_MAX);
       return -1;
     }
-    for (int k = 0; k < dim; k++)
-      if (!isfinite(vectors[(size_t)i * dim + k])) {
+    double ss = 0;
+    for (int k = 0; k < dim; k++) {
+      const float x = vectors[(size_t)i * dim + k];
+      if (!isfinite(x)) {
         vlff_errf(err, errlen, "%s: non-finite value in the vector of '%s'", VLFF_Q(path), VLFF_Q(prompts[i]));
         return -1;
       }
+      ss += (double)x * x;
+    }
+    /* what the parser would refuse is not written */
+    const double norm = sqrt(ss);
+    if (!(norm >= VLFF_EMBEDDINGS_MIN_NORM && norm <= VLFF_EMBEDDINGS_MAX_NORM)) {
+      vlff_errf(err, errlen, "%s: the vector of '%s' has length %.3g, expected %g to %g", VLFF_Q(path),
+                VLFF_Q(prompts[i]), norm, VLFF_EMBEDDINGS_MIN_NORM, VLFF_EMBEDDINGS_MAX_NORM);
+      return -1;
+    }
   }
   struct vlff_atomic a;
   if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return -1;

@@ -88,6 +88,20 @@ static void test_absurd_intrinsics_refused(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* A box the map's capacity can hold only in voxels larger than a map may
+ * have (shm.h: VLFF_MAP_VOXEL_MAX_M): refused at creation, naming the keys,
+ * where every publish would have been refused at run time. */
+static void test_voxels_past_bound_refused(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "bigvox");
+  for (int a = 0; a < 2; a++) cfg.field.scene_min[a] = -1e4, cfg.field.scene_max[a] = 1e4;
+  cfg.shm.map_max_voxels = 256;
+  assert_null(vlff_publisher_create(&cfg.publish, &cfg.shm, &cfg.field, NULL, err, sizeof err));
+  if (!strstr(err, "more than a map may have (1000 m): raise shm.map_max_voxels or give a smaller box"))
+    fail_msg("%s", err);
+}
+
 /* Plausible intrinsics, depth claiming tens of thousands of kilometres
  * (a float depth plane can say anything): the march stops at the map's
  * edge, the voxels the rays crossed inside the map are observed, and no
@@ -957,6 +971,7 @@ static void test_refit_under_reader(void **state) {
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
+    cmocka_unit_test(test_voxels_past_bound_refused),
     cmocka_unit_test(test_saved_map_loads_within_budget), cmocka_unit_test(test_surface_behind_voxel_face),
     cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication),
       cmocka_unit_test(test_refresh_skips_settled),

@@ -8,13 +8,17 @@
 #include "shm_test_util.h"
 #include "unit.h"
 
+#include <errno.h>
+#include <signal.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
-static int run_for(int seconds, const char *args, char *out, size_t cap) {
+static int run(const char *args, char *out, size_t cap) {
   char cmd[1024];
   const char *emu = getenv("VLFF_EMULATOR"); /* qemu-user in a cross-built tree */
-  snprintf(cmd, sizeof cmd, "timeout %d %s %s %s 2>&1", seconds, emu ? emu : "", VLFF_SHM_CLI, args);
+  snprintf(cmd, sizeof cmd, "timeout 30 %s %s %s 2>&1", emu ? emu : "", VLFF_SHM_CLI, args);
   FILE *f = popen(cmd, "r");
   assert_non_null(f);
   size_t n = fread(out, 1, cap - 1, f);
@@ -28,13 +32,12 @@ static int run_for(int seconds, const char *args, char *out, size_t cap) {
   return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
 }
 
-static int run(const char *args, char *out, size_t cap) { return run_for(30, args, out, cap); }
-
 /* watch on a ring whose writer died waits for a new one, as it should, but
- * says so: it printed nothing and looked hung. */
+ * says so: it printed nothing and looked hung. Its output is read as it
+ * comes (up to 30 s on a loaded or emulated host), then it is stopped. */
 static void cli_watch_dead_writer(void **state) {
   (void)state;
-  char name[64], args[256], out[8192];
+  char name[64], cmd[1024], path[128], out[8192] = "";
   test_name(name, sizeof name, "cliwd");
   pid_t pid = fork();
   assert_true(pid >= 0);
@@ -45,11 +48,31 @@ static void cli_watch_dead_writer(void **state) {
   int st;
   assert_int_equal(waitpid(pid, &st, 0), pid);
   assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
-  snprintf(args, sizeof args, "watch %s 1", name);
-  assert_int_equal(run_for(3, args, out, sizeof out), 124); /* still waiting when timeout ends it */
-  if (!strstr(out, "its writer (pid ") || !strstr(out, ") is not running; waiting for a new one"))
-    fail_msg("watch: %s", out);
+  snprintf(path, sizeof path, "/tmp/vlff-test-cliwd-%d.txt", (int)getpid());
+  const char *emu = getenv("VLFF_EMULATOR");
+  snprintf(cmd, sizeof cmd, "exec %s %s watch %s 1 >%s 2>&1", emu ? emu : "", VLFF_SHM_CLI, name, path);
+  pid_t w = fork();
+  assert_true(w >= 0);
+  if (w == 0) {
+    execl("/bin/sh", "sh", "-c", cmd, (char *)NULL);
+    _exit(127);
+  }
+  bool said = false;
+  for (int i = 0; i < 300 && !said; i++) {
+    usleep(100000);
+    FILE *f = fopen(path, "r");
+    if (!f) continue;
+    size_t n = fread(out, 1, sizeof out - 1, f);
+    out[n] = 0;
+    fclose(f);
+    said = strstr(out, ") is not running; waiting for a new one") != NULL;
+  }
+  assert_int_equal(waitpid(w, &st, WNOHANG), 0); /* still waiting, as it should */
+  kill(w, SIGTERM);
+  assert_int_equal(waitpid(w, &st, 0), w);
+  unlink(path);
   vlff_shm_unlink(name);
+  if (!said || !strstr(out, "its writer (pid ")) fail_msg("watch: %s", out);
 }
 
 /* A FIFO at a name under /dev/shm (issue 51, item 1): list, stat and label
@@ -156,6 +179,49 @@ static void cli_status_paging_shown(void **state) {
                      "evidence_paged_out 22\nevidence_paged_in 23\nevidence_dropped 24\n"
                      "box_lo -2.500 -3.250 -1.500\nbox_hi 7.500 4.125 1.500\nbox_growths 31\nbox_refused 32\n";
   if (!strstr(out, want)) fail_msg("stat '%s' lacks '%s'", out, want);
+  vlff_map_detach(m);
+  vlff_shm_unlink(map);
+}
+
+/* A segment whose published geometry was forged finite but absurd (a
+ * 1e300 m voxel; the header's checksum does not cover the map's meta):
+ * readers refuse it as corrupt; dump-map wrote infinite coordinates and
+ * label answered a class. The voxel size is found by its bytes, 0.375 m,
+ * which nothing else in the segment holds, and every copy replaced. */
+static void cli_forged_geometry_refused(void **state) {
+  (void)state;
+  char map[64], args[512], out[8192];
+  test_name(map, sizeof map, "cligeo");
+  struct vlff_map_params mp = {.max_voxels = 8};
+  struct vlff_map *m = vlff_map_create(map, &mp);
+  assert_non_null(m);
+  uint16_t labels[8] = {0, 1, 1, 0, 0, 1, 1, 0};
+  const char *prompts[] = {"floor", "door"};
+  struct vlff_map_grid g = {.voxel_size = 0.375, .dims = {2, 2, 2}, .labels = labels};
+  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 2};
+  assert_int_equal(vlff_map_publish(m, &u), 0);
+  assert_int_equal(vlff_map_publish(m, &u), 0); /* both buffers hold the geometry */
+  struct shm_raw r = {.fd = -1};
+  assert_int_equal(shm_raw_open(map, &r), 0);
+  const double was = 0.375, forged = 1e300;
+  int copies = 0;
+  for (size_t o = 0; o + 8 <= r.size; o += 8)
+    if (!memcmp(r.base + o, &was, 8)) memcpy(r.base + o, &forged, 8), copies++;
+  shm_raw_close(&r);
+  assert_true(copies >= 1);
+  struct vlff_map *rd = vlff_map_attach(map);
+  assert_non_null(rd);
+  uint16_t label;
+  uint8_t conf;
+  assert_int_equal(vlff_map_label_at(rd, 0.1, 0.1, 0.1, &label, &conf), -1);
+  assert_int_equal(errno, EBADMSG);
+  vlff_map_detach(rd);
+  snprintf(args, sizeof args, "label %s 0.1 0.1 0.1", map);
+  assert_int_equal(run(args, out, sizeof out), 1);
+  if (!strstr(out, "published map metadata is inconsistent")) fail_msg("label: %s", out);
+  snprintf(args, sizeof args, "dump-map %s /tmp/vlff-test-cligeo-%d.ply", map, (int)getpid());
+  assert_int_equal(run(args, out, sizeof out), 1);
+  if (!strstr(out, "published map metadata is inconsistent")) fail_msg("dump-map: %s", out);
   vlff_map_detach(m);
   vlff_shm_unlink(map);
 }
@@ -349,5 +415,5 @@ static void cli_escapes_names(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(cli_commands), cmocka_unit_test(cli_status_paging_shown), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown),
-    cmocka_unit_test(cli_watch_dead_writer),
+    cmocka_unit_test(cli_watch_dead_writer), cmocka_unit_test(cli_forged_geometry_refused),
     cmocka_unit_test(cli_escapes_names), cmocka_unit_test(cli_wrong_targets))

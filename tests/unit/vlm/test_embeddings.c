@@ -47,6 +47,9 @@ static void test_round_trip(void **state) {
   const char *bad[] = {"tab\there", "b", "c"};
   v[3] = 0;
   assert_int_equal(vlff_embeddings_save(path, 8, 3, bad, v, err, sizeof err), -1);
+  for (int i = 8; i < 16; i++) v[i] = 1e30f; /* "shower curtain": finite, length 2.8e30 */
+  assert_int_equal(vlff_embeddings_save(path, 8, 3, prompts, v, err, sizeof err), -1);
+  if (!strstr(err, "the vector of 'shower curtain' has length 2.83e+30")) fail_msg("%s", err);
   assert_int_equal(access(path, F_OK), -1);
 }
 
