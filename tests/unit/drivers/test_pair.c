@@ -451,6 +451,32 @@ static void test_triggered_frame_late(void **state) {
   assert_int_equal(st->unmatched_depth + st->startup_depth, 0);
 }
 
+/* A colour frame reserved (being converted) while a range frame's commit
+ * drops older colour frames: the reservation keeps its slot, and the frame
+ * committed into it pairs with its own range frame. */
+static void test_drop_during_reservation(void **state) {
+  (void)state;
+  const uint64_t t0 = 30000 * MS;
+  push_color(0, t0);
+  push_color(1, t0 + 33 * MS);
+  struct vlff_sink *s = vlff_pair_color_sink(pair);
+  struct vlff_sink_frame f = {.width = W, .height = H, .color_format = VLFF_PIX_RGB8};
+  char err[256];
+  assert_int_equal(s->reserve(s, &f, err, sizeof err), 0);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) {
+      uint8_t *p = f.color + y * f.color_stride + x * 3;
+      p[0] = 2, p[1] = (uint8_t)x, p[2] = (uint8_t)y;
+    }
+  f.host_ns = t0 + 66 * MS, f.device_frame_id = 2, f.trigger_stamped = true;
+  push_depth(1, t0 + 34 * MS); /* drops colour 0, pairs colour 1 */
+  assert_int_equal(s->commit(s, &f), 0);
+  push_depth(2, t0 + 67 * MS);
+  int first = -1;
+  assert_int_equal(check_records(&first), 2);
+  assert_int_equal(first, 1);
+}
+
 int main(void) {
   vlff_log_set_level(VLFF_LOG_ERROR);
   const struct CMUnitTest tests[] = {
@@ -466,6 +492,7 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_free_running_close_stray, setup, teardown),
       cmocka_unit_test_setup_teardown(test_free_running_first_frames, setup, teardown),
       cmocka_unit_test_setup_teardown(test_triggered_frame_late, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_drop_during_reservation, setup, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
