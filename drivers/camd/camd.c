@@ -356,7 +356,8 @@ static int parse_args(struct camd *d, int argc, char **argv) {
       break;
     case 's':
       d->max_seconds = strtod(optarg, &end);
-      if (*end || !(d->max_seconds > 0)) return vlff_cli_usage_error(&cli, "--seconds expects a positive number");
+      if (end == optarg || *end || !(d->max_seconds > 0 && d->max_seconds <= 1e9))
+        return vlff_cli_usage_error(&cli, "--seconds expects a number of seconds in (0, 1e9]");
       break;
     default: return vlff_cli_usage_error(&cli, "option '%s' not handled", VLFF_Q(argv[optind - 1]));
     }

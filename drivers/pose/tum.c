@@ -28,6 +28,7 @@ static const char *const result_names[VLFF_TUM_RESULTS] = {
     [VLFF_TUM_NUL] = "NUL byte",
     [VLFF_TUM_TOO_LONG] = "too long",
     [VLFF_TUM_FOREIGN] = "foreign sender",
+    [VLFF_TUM_FAR] = "position out of range",
 };
 
 const char *vlff_tum_result_name(int result) {
@@ -132,6 +133,11 @@ int vlff_tum_parse(const char *line, int extra_fields, struct vlff_tum_sample *o
     if (!isfinite(v[i])) {
       snprintf(why, whylen, "%s is %g", names[i], v[i]);
       return VLFF_TUM_NOT_FINITE;
+    }
+  for (int i = 1; i < 4; i++)
+    if (!(fabs(v[i]) <= VLFF_TUM_MAX_POSITION_M)) {
+      snprintf(why, whylen, "%s is %g m, beyond %g m", names[i], v[i], VLFF_TUM_MAX_POSITION_M);
+      return VLFF_TUM_FAR;
     }
   if (!exact) {
     if (!(fabs(v[0]) < 9.2e9)) {

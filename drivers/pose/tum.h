@@ -48,6 +48,9 @@
 /* A line of this many bytes or more (its newline not counted) is no TUM
  * line: refused as too long, and a reader need not hold more of it. */
 #define VLFF_TUM_LINE_MAX 65536
+/* No tracker's position lies farther from its origin (Earth-centred
+ * coordinates reach 6.4e6 m): beyond, a line is refused as out of range. */
+#define VLFF_TUM_MAX_POSITION_M 1e7
 
 enum vlff_tum_result {
   VLFF_TUM_OK = 0,         /* a record was produced */
@@ -62,6 +65,7 @@ enum vlff_tum_result {
   VLFF_TUM_NUL,            /* a NUL byte in the line (or its datagram) */
   VLFF_TUM_TOO_LONG,       /* VLFF_TUM_LINE_MAX bytes or more */
   VLFF_TUM_FOREIGN,        /* a datagram from another sender than the bound peer (the reader counts it) */
+  VLFF_TUM_FAR,            /* a position coordinate beyond VLFF_TUM_MAX_POSITION_M */
   VLFF_TUM_RESULTS
 };
 

@@ -19,6 +19,7 @@
 #include <netdb.h>
 #include <poll.h>
 #include <signal.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -206,11 +207,24 @@ static int read_stream(int fd, struct vlff_tum_feed *f, struct vlff_ring *ring, 
   return bad;
 }
 
+/* A port as written: decimal digits, 1..65535 (getaddrinfo takes 99999 and
+ * binds it modulo 65536, while the log says 99999). */
+static bool port_ok(const char *p) {
+  if (!*p || strlen(p) > 5) return false;
+  long v = 0;
+  for (; *p; p++) {
+    if (*p < '0' || *p > '9') return false;
+    v = v * 10 + (*p - '0');
+  }
+  return v >= 1 && v <= 65535;
+}
+
 /* "host:port", "[v6]:port" or ":port" (every address). */
 static int open_udp(const char *spec, char *err, size_t errlen) {
   char host[256];
   const char *colon = strrchr(spec, ':');
   if (!colon || !colon[1]) return snprintf(err, errlen, "udp '%.200s': expected ADDR:PORT", spec), -1;
+  if (!port_ok(colon + 1)) return snprintf(err, errlen, "udp '%.200s': port '%.20s' is not 1..65535", spec, colon + 1), -1;
   size_t hl = (size_t)(colon - spec);
   if (hl >= sizeof host) return snprintf(err, errlen, "udp '%.200s': address too long", spec), -1;
   memcpy(host, spec, hl);
@@ -293,6 +307,8 @@ static int parse_peer(const char *spec, struct peer *pr, char *err, size_t errle
   }
   struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_DGRAM,
                            .ai_flags = AI_NUMERICHOST | AI_NUMERICSERV}, *res;
+  if (port[0] && !port_ok(port))
+    return snprintf(err, errlen, "udp peer '%.200s': port '%s' is not 1..65535", spec, port), -1;
   int rc = getaddrinfo(host, port[0] ? port : NULL, &hints, &res);
   if (rc) return snprintf(err, errlen, "udp peer '%.200s': expected a numeric address, [:port]: %s", spec, gai_strerror(rc)), -1;
   struct sockaddr_storage ss = {0};
@@ -470,6 +486,9 @@ static int parse_options(int argc, char **argv, struct overrides *o, const char 
       if (!(fabs(n - 1) <= 0.01))
         return *status = vlff_cli_usage_error(&cli, "--extrinsic '%s': expected \"tx ty tz qx qy qz qw\" with a unit "
                                               "quaternion", optarg), -1;
+      /* the camera on the tracker's body: pose.extrinsic's bound */
+      if (!(fabs(s.p[0]) <= 1e4 && fabs(s.p[1]) <= 1e4 && fabs(s.p[2]) <= 1e4))
+        return *status = vlff_cli_usage_error(&cli, "--extrinsic '%s': translation beyond 1e4 m", optarg), -1;
       memcpy(o->extrinsic, s.p, 3 * sizeof(double));
       memcpy(o->extrinsic + 3, s.q, 4 * sizeof(double));
       o->have_extrinsic = 1;

@@ -19,6 +19,7 @@
  */
 #include <errno.h>
 #include <signal.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -62,10 +63,12 @@ static const struct vlff_cli cli = {
     "  vlff-sim --seed 3 --frames 200 --write-dataset /tmp/room3\n",
 };
 
+/* A finite number and nothing else: "nan" passed a range test written as
+ * x < lo || x > hi, and --rate nan then slept for ever. */
 static int parse_num(const char *s, double *x) {
   char *end;
   *x = strtod(s, &end);
-  return *s && !*end;
+  return *s && !*end && isfinite(*x);
 }
 
 

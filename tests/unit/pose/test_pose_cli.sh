@@ -19,9 +19,16 @@ check "unknown option: one line, then the usage, on stderr" \
   'head -1 "$tmp/e" | grep -q "bogus" && sed -n 2p "$tmp/e" | grep -q "^Usage: vlff-pose" && [[ ! -s "$tmp/o" ]]'
 check "bad --extrinsic exits 2" '"${pose[@]}" --extrinsic "0 0 0 0 0 0 3" </dev/null >/dev/null 2>&1; [[ $? == 2 ]]'
 check "bad --udp exits 1" '"${pose[@]}" -c "$tmp/c.yaml" --ring "$ring-u" --udp nowhere </dev/null >/dev/null 2>&1; [[ $? == 1 ]]'
+# getaddrinfo binds port 99999 modulo 65536 while the log said 99999; 0 binds a random one
+for p in 99999 0 +80 ""; do
+  check "--udp port '$p' refused, exit 1" '"${pose[@]}" -c "$tmp/c.yaml" --ring "$ring-u" --udp "127.0.0.1:$p" </dev/null >/dev/null 2>"$tmp/pe"; [[ $? == 1 ]]'
+done
+check "--udp port named" 'grep -q "port .99999. is not 1..65535" <("${pose[@]}" -c "$tmp/c.yaml" --ring "$ring-u" --udp 127.0.0.1:99999 </dev/null 2>&1)'
+check "--udp-peer port 99999 refused" '! "${pose[@]}" -c "$tmp/c.yaml" --ring "$ring-u" --udp 127.0.0.1:47999 --udp-peer 127.0.0.1:99999 </dev/null >/dev/null 2>&1'
+check "--extrinsic beyond 1e4 m exits 2" '"${pose[@]}" --extrinsic "1e308 0 0 0 0 0 1" </dev/null >/dev/null 2>&1; [[ $? == 2 ]]'
 check "missing file exits 1" '"${pose[@]}" -c "$tmp/c.yaml" --ring "$ring-m" "$tmp/none.txt" >/dev/null 2>&1; [[ $? == 1 ]]'
 check "no config found exits 1" 'VLFF_CONFIG="$tmp/absent.yaml" "${pose[@]}" </dev/null >/dev/null 2>&1; [[ $? == 1 ]]'
-printf '# timestamp tx ty tz qx qy qz qw\n10.0 1 2 3 0 0 0 1\n10.0 1 2 3 0 0 0 1\n9.0 1 2 3 0 0 0 1\n10.5 1 2 3 0 0 0 2\n10.6 1 2 nan 0 0 0 1\n10.7 1 2 3\n11.0 4 5 6 0 0 0.7071068 0.7071068\n' >"$tmp/t.txt"
+printf '# timestamp tx ty tz qx qy qz qw\n10.0 1 2 3 0 0 0 1\n10.0 1 2 3 0 0 0 1\n9.0 1 2 3 0 0 0 1\n10.5 1 2 3 0 0 0 2\n10.6 1 2 nan 0 0 0 1\n10.7 1 2 3\n11.0 4 5 6 0 0 0.7071068 0.7071068\n11.5 1e300 0 0 0 0 0 1\n' >"$tmp/t.txt"
 "${pose[@]}" --config "$tmp/c.yaml" <"$tmp/t.txt" >/dev/null 2>"$tmp/log"; rc=$?
 check "stdin: exit 0 with refusals (rc=$rc)" '[[ $rc == 0 ]]'
 check "duplicate named with its line" 'grep -q "stdin:3: refused, duplicate stamp" "$tmp/log"'
@@ -29,7 +36,8 @@ check "out of order named with its line" 'grep -q "stdin:4: refused, out of orde
 check "non-unit quaternion named with its line" 'grep -q "stdin:5: refused, non-unit quaternion" "$tmp/log"'
 check "NaN named with its line" 'grep -q "stdin:6: refused, not finite: tz is nan" "$tmp/log"'
 check "malformed named with its line" 'grep -q "stdin:7: refused, malformed: 4 fields, expected 8" "$tmp/log"'
-check "summary" 'grep -q "2 poses written to $ring, 5 lines refused (malformed 1, not finite 1, non-unit quaternion 1, duplicate stamp 1, out of order 1)" "$tmp/log"'
+check "out of range named with its line" 'grep -q "stdin:9: refused, position out of range: tx is 1e+300 m, beyond 1e+07 m" "$tmp/log"'
+check "summary" 'grep -q "2 poses written to $ring, 6 lines refused (malformed 1, not finite 1, non-unit quaternion 1, duplicate stamp 1, out of order 1, position out of range 1)" "$tmp/log"'
 check "the ring holds both records" '"${shm[@]}" stat "$ring" | grep -qx "head 2"'
 # The service's way: pose.udp in the config makes it listen (no FILE, no --udp).
 port=$((20000 + $$ % 20000))

@@ -76,6 +76,13 @@ static void test_parse(void **state) {
   assert_non_null(strstr(why, "tx is nan"));
   assert_int_equal(parse8("1 0 0 0 0 0 0 inf", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
   assert_int_equal(parse8("1 0 0 0 0 0 0 1e999", &s, why, sizeof why), VLFF_TUM_NOT_FINITE);
+  /* finite but no tracker's: 1e300 m was written into the ring, and an
+   * extrinsic's offset on top of 1.7e308 made it infinite */
+  assert_int_equal(parse8("1 1e300 0 0 0 0 0 1", &s, why, sizeof why), VLFF_TUM_FAR);
+  assert_string_equal(why, "tx is 1e+300 m, beyond 1e+07 m");
+  assert_int_equal(parse8("1 0 0 -1.7e308 0 0 0 1", &s, why, sizeof why), VLFF_TUM_FAR);
+  assert_int_equal(parse8("1 6378137 0 -9999999 0 0 0 1", &s, why, sizeof why), VLFF_TUM_OK); /* Earth-centred */
+  assert_string_equal(vlff_tum_result_name(VLFF_TUM_FAR), "position out of range");
 }
 
 /* The matrix of a quaternion rotates as the quaternion does. */

@@ -98,5 +98,30 @@ static void test_live_frames_match(void **state) {
   unlink(cfgpath);
 }
 
+/* Options whose value is not a finite number in range are usage errors
+ * (exit 2, the option named): --rate nan passed the range test and the
+ * simulator slept for ever after its first frame. */
+static void test_option_values_refused(void **state) {
+  (void)state;
+  const char *bin = getenv("VLFF_BINARY_DIR");
+  assert_non_null(bin);
+  static const char *const cases[][2] = {{"--rate nan", "--rate: expected a number in 0.1..1000, got 'nan'"},
+                                         {"--rate inf", "--rate: expected"},
+                                         {"--frames nan", "--frames"},
+                                         {"--count nan", "--count"}};
+  for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+    char cmd[1400], out[4096];
+    snprintf(cmd, sizeof cmd, "timeout 30 ${VLFF_EMULATOR:-} %s/node/sim/vlff-sim --count 1 --quiet %s 2>&1", bin,
+             cases[k][0]);
+    FILE *f = popen(cmd, "r");
+    assert_non_null(f);
+    size_t n = fread(out, 1, sizeof out - 1, f);
+    out[n] = 0;
+    int st = pclose(f);
+    if (!WIFEXITED(st) || WEXITSTATUS(st) != 2 || !strstr(out, cases[k][1]))
+      fail_msg("%s: status %d: %s", cases[k][0], WIFEXITED(st) ? WEXITSTATUS(st) : -1, out);
+  }
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
-    cmocka_unit_test(test_live_frames_match))
+    cmocka_unit_test(test_live_frames_match), cmocka_unit_test(test_option_values_refused))
