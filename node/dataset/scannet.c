@@ -80,6 +80,14 @@ static int tsv_column(const char *hdr, const char *name) {
   }
 }
 
+/* Tab-separated fields of a line (its end at '\n', a '\r' before it not a
+ * field's). */
+static size_t tsv_fields(const char *line) {
+  size_t n = 1;
+  for (const char *c = line; *c && *c != '\n'; c++) n += *c == '\t';
+  return n;
+}
+
 /* Field col of a line as an integer in [lo, hi]; -1 when absent or bad. */
 static int tsv_int(const char *line, int col, long lo, long hi, long *out) {
   const char *s = line;
@@ -88,6 +96,9 @@ static int tsv_int(const char *line, int col, long lo, long hi, long *out) {
     if (!s) return -1;
     s++;
   }
+  /* digits only: strtol skips white space, so an empty field read the
+   * next column's number, and it takes a sign */
+  if (*s < '0' || *s > '9') return -1;
   char *end;
   errno = 0;
   long v = strtol(s, &end, 10);
@@ -102,8 +113,17 @@ int vlff_scannet_labels_load(struct vlff_dataset *ds, const char *path, int set,
   size_t len;
   if (vlff_read_file(path, (size_t)16 << 20, &buf, &len, err, errlen) < 0) return -1;
   char *text = (char *)buf;
+  const char *nul = memchr(buf, 0, len);
+  if (nul) {
+    int at = 1;
+    for (const char *c = text; c < nul; c++) at += *c == '\n';
+    seterr(err, errlen, "%s:%d: NUL byte", VLFF_Q(path), at);
+    free(buf);
+    return -1;
+  }
   char *save = NULL, *line = strtok_r(text, "\n", &save);
   int cid = line ? tsv_column(line, "id") : -1, cnyu = line ? tsv_column(line, "nyu40id") : -1;
+  const size_t ncols = line ? tsv_fields(line) : 0;
   if (cid < 0 || cnyu < 0) {
     seterr(err, errlen, "%s:1: header lacks the columns 'id' and 'nyu40id' (scannetv2-labels.combined.tsv)",
            VLFF_Q(path));
@@ -122,6 +142,14 @@ int vlff_scannet_labels_load(struct vlff_dataset *ds, const char *path, int set,
     lineno++;
     if (!line[strspn(line, " \t\r")]) continue;
     long id, nyu;
+    /* More fields than the header names is no row of the file (rows whose
+     * line ends were lost read as one); fewer, empty last columns, as
+     * pandas reads them. */
+    if (tsv_fields(line) > ncols) {
+      seterr(err, errlen, "%s:%d: %zu fields, more than the header's %zu", VLFF_Q(path), lineno, tsv_fields(line),
+             ncols);
+      goto fail;
+    }
     if (tsv_int(line, cid, 1, TSV_MAX_ID, &id) < 0 || tsv_int(line, cnyu, 0, 40, &nyu) < 0) {
       seterr(err, errlen, "%s:%d: 'id' must be an integer in [1, %d] and 'nyu40id' one in [0, 40]", VLFF_Q(path),
              lineno,

@@ -364,12 +364,36 @@ static void test_export_layout(void **state) {
   assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
   assert_non_null(strstr(err, "scannetv2-labels.combined.tsv"));
   /* a TSV without ScanNet's columns, or with a bad row, names file and line */
-  put(p, "id\tname\n1\twall\n", 16);
+  put(p, "id\tname\n1\twall\n", 15);
   assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
   assert_non_null(strstr(err, ":1: header lacks"));
   putf(p, "%s9\tx\tx\t1\t41\n", tsv);
   assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
   assert_non_null(strstr(err, "combined.tsv:5:"));
+  /* An empty nyu40id read the next column's number (strtol skips the tab);
+   * a sign or a space was taken; rows run together read as one; a NUL cut
+   * a field short. */
+  static const char *const bad[][2] = {
+      {"9\tx\tx\t1\t\t3\n", "combined.tsv:5: 'id' must be an integer"},
+      {"9\tx\tx\t1\t 3\n", "combined.tsv:5: 'id' must be an integer"},
+      {"+9\tx\tx\t1\t3\n", "combined.tsv:5: 'id' must be an integer"},
+      {"9\tx\tx\t1\t3\t1\t1\t1\t1\t9\tx\tx\t1\t3\n", "combined.tsv:5: 14 fields, more than the header's 9"},
+  };
+  for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+    putf(p, "%s%s", tsv, bad[k][0]);
+    assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+    if (!strstr(err, bad[k][1])) fail_msg("case %zu: %s", k, err);
+  }
+  char withnul[sizeof tsv + 16];
+  memcpy(withnul, tsv, sizeof tsv - 1);
+  memcpy(withnul + sizeof tsv - 1, "9\tx\tx\t1\t3\0x\n", 13);
+  put(p, withnul, sizeof tsv - 1 + 13);
+  assert_int_equal(vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "combined.tsv:5: NUL byte")) fail_msg("NUL: %s", err);
+  /* fewer fields than the header (empty last columns) are a row */
+  putf(p, "%s9\tx\tx\t1\t3\n", tsv);
+  if (vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+  vlff_dataset_close(&ds);
 }
 
 static void test_sens(void **state) {
