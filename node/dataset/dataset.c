@@ -139,7 +139,24 @@ static int list_stems(const char *dir, const char *exts, struct stems *st, char 
   numeric_sort = 1;
   for (int i = 0; i < st->n; i++)
     if (!all_digits(st->s[i])) numeric_sort = 0;
+  /* A frame's number is its stem when every stem is an integer: one past
+   * 18 digits does not fit the number (it was listed, and --stride took
+   * it as another), and two stems of one number (3 and 03) would be one
+   * frame twice, its pose jumping between them. */
+  for (int i = 0; numeric_sort && i < st->n; i++)
+    if (strlen(st->s[i]) > 18) {
+      seterr(err, errlen, "%s: '%s%s': a frame number of more than 18 digits", VLFF_Q(dir), VLFF_Q(st->s[i]), st->ext);
+      free(st->s);
+      return -1;
+    }
   if (st->n) qsort(st->s, (size_t)st->n, sizeof *st->s, stem_cmp);
+  for (int i = 1; numeric_sort && i < st->n; i++)
+    if (atoll(st->s[i]) == atoll(st->s[i - 1])) {
+      seterr(err, errlen, "%s: '%s%s' and '%s%s' are both frame %lld", VLFF_Q(dir), VLFF_Q(st->s[i - 1]), st->ext,
+             VLFF_Q(st->s[i]), st->ext, atoll(st->s[i]));
+      free(st->s);
+      return -1;
+    }
   return 0;
 }
 
@@ -163,19 +180,21 @@ static hid_t h5_half(void) {
 }
 
 struct h5find {
-  char name[VLFF_DS_NAME];
+  char name[VLFF_DS_NAME], other[VLFF_DS_NAME]; /* the first dataset, and a second */
   int found;
 };
 
+/* The group's datasets in name order: the first's name, and how many
+ * (a second's name kept for messages). */
 static herr_t h5_first_dataset(hid_t g, const char *name, const H5L_info_t *info, void *op) {
   (void)info;
   struct h5find *f = op;
   H5O_info_t oi;
   if (H5Oget_info_by_name(g, name, &oi, H5P_DEFAULT) < 0) return 0;
   if (oi.type != H5O_TYPE_DATASET || strlen(name) >= VLFF_DS_NAME) return 0;
-  snprintf(f->name, sizeof f->name, "%s", name);
-  f->found = 1;
-  return 1;
+  snprintf(f->found ? f->other : f->name, sizeof f->name, "%s", name);
+  f->found++;
+  return 0;
 }
 
 /* An open feature file's dataset features/<name> as [rows][h][w][c]. */
@@ -221,6 +240,14 @@ static int h5feat_open(struct h5feat *h, const char *path, int one_frame, char *
   H5Literate(g, H5_INDEX_NAME, H5_ITER_INC, NULL, h5_first_dataset, &fd);
   if (!fd.found) {
     seterr(err, errlen, "%s: group 'features' holds no dataset", VLFF_Q(path));
+    goto fail;
+  }
+  /* A frame's own file holds its one map: with two, which is the frame's
+   * is a guess (the first by name was taken, silently). A scene's
+   * features.hdf keeps its first, as the reference's readers do. */
+  if (one_frame && fd.found > 1) {
+    seterr(err, errlen, "%s: group 'features' holds %d datasets ('%s', '%s'...), a frame's file one map",
+           VLFF_Q(path), fd.found, VLFF_Q(fd.name), VLFF_Q(fd.other));
     goto fail;
   }
   snprintf(h->name, sizeof h->name, "%s", fd.name);
@@ -399,7 +426,8 @@ static int features_dir_probe(struct vlff_dataset *ds, const char *dir, char *er
       errno = 0;
       long v = strtol(st.s[k], &end, 10);
       if (ds->skipped > 0 && all_digits(st.s[k]) && !errno && v <= ds->last_number) continue; /* a lost frame */
-      seterr(err, errlen, "%s/%s.hdf: the scene has no frame %s", VLFF_Q(dir), VLFF_Q(st.s[k]), VLFF_Q(st.s[k]));
+      seterr(err, errlen, "%s/%s.hdf: the scene has no frame %s (a frame's file is named by its stem, as its "
+                          "colour image is)", VLFF_Q(dir), VLFF_Q(st.s[k]), VLFF_Q(st.s[k]));
       goto out;
     }
     ds->feat_row[hit] = 0;
@@ -1063,6 +1091,12 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   }
   struct h5feat h;
   if (h5feat_open(&h, p, ds->feat_files, err, errlen) < 0) return -1;
+  if (ds->feat_files && strcmp(h.name, ds->feat_name)) {
+    seterr(err, errlen, "%s: holds features/%s; the scene's other frame files hold features/%s", VLFF_Q(p),
+           VLFF_Q(h.name), VLFF_Q(ds->feat_name));
+    h5feat_close(&h);
+    return -1;
+  }
   if (h.dims[1] != (hsize_t)ds->feat_height || h.dims[2] != (hsize_t)ds->feat_width ||
       h.dims[3] != (hsize_t)ds->feature_dim) {
     seterr(err, errlen, "%s: features/%s is %llux%llux%llu; the scene's are %dx%dx%d", VLFF_Q(p), VLFF_Q(h.name),

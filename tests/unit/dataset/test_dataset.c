@@ -439,6 +439,19 @@ static void test_scannet_layout(void **state) {
   assert_int_equal(vlff_dataset_read_frame(&ds, 0, NULL, dep, NULL, err, sizeof err), 0);
   assert_true(dep[10 * 64 + 20] == x->f[0]->depth_mm[10 * 64 + 20] * 0.001f);
   vlff_dataset_close(&ds);
+  /* Two stems of one frame number (3 and 03) were two frames, the pose
+   * jumping between them; a 20-digit stem was listed but no number. */
+  char a[600], b[600];
+  snprintf(a, sizeof a, "%s/color/3.png", path);
+  snprintf(b, sizeof b, "%s/color/03.png", path);
+  assert_int_equal(link(a, b), 0);
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "color: '03.png' and '3.png' are both frame 3")) fail_msg("%s", err);
+  snprintf(a, sizeof a, "%s/color/99999999999999999999.png", path);
+  assert_int_equal(rename(b, a), 0);
+  assert_int_equal(vlff_dataset_open(&ds, path, VLFF_DS_AUTO, err, sizeof err), -1);
+  if (!strstr(err, "'99999999999999999999.png': a frame number of more than 18 digits")) fail_msg("%s", err);
+  assert_int_equal(unlink(a), 0);
 }
 
 static void test_ply_formats(void **state) {

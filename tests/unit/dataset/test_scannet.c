@@ -484,6 +484,9 @@ static void test_sens_long_path(void **state) {
  * r = base + r + 1; rank 3 writes one map as [h,w,c]. With nframes > 0 a root
  * dataset "frames" of those numbers (as int64, or as float when as_float)
  * names each row's frame. */
+/* The name write_feats gives its map, features/<feat_dset>. */
+static const char *feat_dset = "lseg";
+
 static void write_feats(const char *path, float base, int rows, int h, int w, int c, int rank,
                         const long long *frames, int nframes, int as_float) {
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
@@ -497,7 +500,7 @@ static void write_feats(const char *path, float base, int rows, int h, int w, in
   for (int r = 0; r < rows; r++)
     for (size_t k = 0; k < per; k++) v[r * per + k] = base + (float)(r + 1);
   hid_t sp = rank == 3 ? H5Screate_simple(3, dims + 1, NULL) : H5Screate_simple(4, dims, NULL);
-  hid_t d = H5Dcreate2(g, "lseg", H5T_IEEE_F32LE, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  hid_t d = H5Dcreate2(g, feat_dset, H5T_IEEE_F32LE, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   assert_true(d >= 0);
   assert_true(H5Dwrite(d, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, v) >= 0);
   H5Dclose(d), H5Sclose(sp), H5Gclose(g);
@@ -699,6 +702,32 @@ static void test_features_some_frames(void **state) {
   assert_int_equal(vlff_dataset_read_features(&ds, frame_of(&ds, "6"), out, err, sizeof err), -1);
   if (!strstr(err, "features/6.hdf: features/lseg is 2x2x8; the scene's are 2x2x4")) fail_msg("%s", err);
   vlff_dataset_close(&ds);
+  /* a frame's file with two maps, or its map under another name than the
+   * other files': the first by name was read, silently */
+  for (int k = 0; k < 2; k++) {
+    if (k == 0) {
+      write_feats(p, 6, 1, 2, 2, 4, 3, NULL, 0, 0);
+      hid_t f = H5Fopen(p, H5F_ACC_RDWR, H5P_DEFAULT);
+      assert_true(f >= 0);
+      hsize_t dd[3] = {2, 2, 4};
+      hid_t sp = H5Screate_simple(3, dd, NULL);
+      hid_t d = H5Dcreate2(f, "features/aaa", H5T_IEEE_F32LE, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+      assert_true(d >= 0);
+      float zero[16] = {0};
+      assert_true(H5Dwrite(d, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, zero) >= 0);
+      H5Dclose(d), H5Sclose(sp), H5Fclose(f);
+    } else {
+      feat_dset = "other";
+      write_feats(p, 6, 1, 2, 2, 4, 3, NULL, 0, 0);
+      feat_dset = "lseg";
+    }
+    if (vlff_dataset_open(&ds, scene, VLFF_DS_AUTO, err, sizeof err) < 0) fail_msg("%s", err);
+    assert_int_equal(vlff_dataset_read_features(&ds, frame_of(&ds, "6"), out, err, sizeof err), -1);
+    const char *want = k ? "features/6.hdf: holds features/other; the scene's other frame files hold features/lseg"
+                         : "features/6.hdf: group 'features' holds 2 datasets ('aaa', 'lseg'...), a frame's file one map";
+    if (!strstr(err, want)) fail_msg("%s", err);
+    vlff_dataset_close(&ds);
+  }
   /* a file naming no frame of the scene, or two maps in one frame's file */
   snprintf(p, sizeof p, "%s/features/9.hdf", scene);
   write_feats(p, 0, 1, 2, 2, 4, 3, NULL, 0, 0);
