@@ -203,7 +203,12 @@ static void parse_args(int argc, char **argv, struct opts *o) {
   o->online_interval = 10, o->online_after = 60;
   int c, status;
   while ((c = vlff_cli_next(&cli, argc, argv, "c:", longopts, &status)) != -1) {
-    const char *a = argv[optind - 1], *v = optarg;
+    /* the option's name for messages: argv[optind - 1] is its value when
+     * given apart ("--frames 1" said "1: expected ...") */
+    char a[48] = "-c";
+    for (const struct option *lo = longopts; lo->name; lo++)
+      if (lo->val == c) snprintf(a, sizeof a, "--%s", lo->name);
+    const char *v = optarg;
     switch (c) {
     case VLFF_CLI_EXIT: exit(status);
     case O_QUIET: o->quiet = 1; break;
@@ -237,6 +242,13 @@ static void parse_args(int argc, char **argv, struct opts *o) {
   if (optind < argc) exit(vlff_cli_usage_error(&cli, "unexpected argument '%s'", argv[optind]));
   if (o->online && !o->dataset)
     exit(vlff_cli_usage_error(&cli, "--online plays a recorded scene: give it with --dataset"));
+  /* what describes the synthetic scene means nothing for a recorded one:
+   * said, not ignored */
+  if (o->dataset && (o->seed >= 0 || o->frames > 0 || o->difficulty >= 0 || o->dim > 0))
+    exit(vlff_cli_usage_error(&cli, "--seed, --frames, --difficulty and --feature-dim describe the synthetic scene; "
+                                    "a --dataset has its own"));
+  if (!o->dataset && (o->label_tsv || o->stride != 1))
+    exit(vlff_cli_usage_error(&cli, "--label-tsv and --stride apply to a --dataset"));
 }
 
 /* ---- scene loading ------------------------------------------------------ */
@@ -733,6 +745,16 @@ static void configure(struct eval *e, int argc, char **argv) {
   if (o->dim > 0) cfg->field.feature_dim = o->dim;
   if (o->threads >= 0) cfg->node.threads = o->threads;
   if (mkdir(o->out, 0755) < 0 && errno != EEXIST) die("%s: cannot create: %s", o->out, strerror(errno));
+  /* before the fit, not after it: a file, a FIFO or a directory it cannot
+   * write in was found only when the report was written, hours later */
+  struct stat st;
+  if (stat(o->out, &st) < 0 || !S_ISDIR(st.st_mode)) die("--out %s: not a directory", o->out);
+  char probe[4200];
+  snprintf(probe, sizeof probe, "%s/.vlff-eval-probe-XXXXXX", o->out);
+  int fd = mkstemp(probe);
+  if (fd < 0) die("--out %s: cannot write there: %s", o->out, strerror(errno));
+  close(fd);
+  unlink(probe);
 }
 
 /* The scene (a dataset or the synthetic room), its training images, the

@@ -437,6 +437,27 @@ static void test_fit_seconds_and_per_class(void **state) {
   /* a budget that is not a positive number is a usage error */
   snprintf(cmd, sizeof cmd, "%s --config %s --fit-seconds -1 --quiet --out %s/o >/dev/null 2>&1", eval, cfg, tmp);
   assert_int_not_equal(system(cmd), 0);
+  /* Usage errors name the option (an option's value given apart was named
+   * instead); synthetic-scene options with --dataset, and dataset options
+   * without one, are refused rather than ignored; an --out that is no
+   * writable directory is refused before the fit, not after it. */
+  static const char *const usage[][2] = {
+      {"--frames 1", "vlff-eval: --frames: expected an integer in 2..100000, got '1'"},
+      {"--dataset /nonexistent --seed 3", "--seed, --frames, --difficulty and --feature-dim describe the synthetic"},
+      {"--stride 2", "--label-tsv and --stride apply to a --dataset"},
+  };
+  char out[8192];
+  for (size_t k = 0; k < sizeof usage / sizeof usage[0]; k++) {
+    snprintf(cmd, sizeof cmd, "%s --config %s --quiet %s --out %s/o 2>&1", eval, cfg, usage[k][0], tmp);
+    int st = capture(cmd, out, sizeof out);
+    if (!WIFEXITED(st) || WEXITSTATUS(st) != 2 || !strstr(out, usage[k][1])) fail_msg("%s: %d: %s", usage[k][0], st, out);
+  }
+  char file[400];
+  snprintf(file, sizeof file, "%s/afile", tmp);
+  write_text(file, "x");
+  snprintf(cmd, sizeof cmd, "%s --config %s --quiet --iters 100000000 --out %s 2>&1", eval, cfg, file);
+  int st = capture(cmd, out, sizeof out);
+  if (!WIFEXITED(st) || WEXITSTATUS(st) != 1 || !strstr(out, "afile: not a directory")) fail_msg("%d: %s", st, out);
   tmp_remove();
 }
 
