@@ -372,6 +372,9 @@ int main(int argc, char **argv) {
   if (!r.quiet)
     fprintf(stderr, "vlff-replay: %s: %d frames %dx%d%s, %s\n", VLFF_Q(r.ds.dir), r.ds.n, r.ds.width, r.ds.height,
             features ? " with features" : "", r.backpressure ? "paced by the reader" : pace);
+  if (!r.quiet && r.ds.skipped)
+    fprintf(stderr, "vlff-replay: %s: %d more frames without a pose (lost tracking) skipped\n", VLFF_Q(r.ds.dir),
+            r.ds.skipped);
   if (features && r.ds.feat_frames < r.ds.n)
     fprintf(stderr, "vlff-replay: %s: the features hold %d of the %d frames: the others are passed over "
                     "(--no-features plays them all)\n",

@@ -788,6 +788,9 @@ static void load_scene(struct eval *e) {
   fprintf(stderr, "vlff-eval: scene %s: %d frames (%d train, %d held out) %dx%d, features %dx%dx%d, %zu labelled points, %d prompts (%.1f s)\n",
           o->dataset ? o->dataset : "synthetic", sc->n, e->ntrain, e->ntest, sc->W, sc->H, sc->fw, sc->fh, sc->D,
           sc->pts.n, sc->K, vlff_seconds() - t_load);
+  if (o->dataset && sc->ds.skipped)
+    fprintf(stderr, "vlff-eval: scene %s: %d more frames without a pose (lost tracking) skipped\n", o->dataset,
+            sc->ds.skipped);
   const int K = sc->K;
   if (vlff_confusion_init(&e->r2_raw.c, K, err, sizeof err) < 0 ||
       vlff_confusion_init(&e->r2_field.c, K, err, sizeof err) < 0 ||
@@ -1234,6 +1237,8 @@ static void write_report_json(const struct eval *e) {
     json_object_array_add(held_out(i, o->holdout) ? tef : trf, frame_json(sc, i));
   if (o->dataset) {
     json_object_object_add(src, "stride", json_object_new_int(sc->stride));
+    /* frames the scene lists whose pose was lost (ScanNet's -inf) */
+    json_object_object_add(src, "frames_without_pose", json_object_new_int(sc->ds.skipped));
   }
   /* the training frames the field fitted on, and why when not all */
   struct json_object *kf = json_object_new_object(), *kff = json_object_new_array();
