@@ -1213,6 +1213,25 @@ struct vlff_dataset_writer *vlff_dataset_writer_open(const char *dir, int nframe
   w->fw = feat_width, w->fh = feat_height, w->dim = feature_dim;
   w->added = calloc((size_t)nframes, 1);
   char p[PATHMAX];
+#ifndef VLFF_HAVE_HDF5
+  if (feature_dim > 0) { /* said before anything is made */
+    seterr(err, errlen, "%s: features need HDF5, which this build was configured without", VLFF_Q(dir));
+    goto fail;
+  }
+#endif
+  /* Into a new or empty directory only: over an older, larger scene its
+   * frames beyond this one's stayed and were read with them. */
+  DIR *old = opendir(dir);
+  if (old) {
+    struct dirent *e;
+    int any = 0;
+    while (!any && (e = readdir(old))) any = strcmp(e->d_name, ".") && strcmp(e->d_name, "..");
+    closedir(old);
+    if (any) {
+      seterr(err, errlen, "%s: exists and is not empty: a scene is written into a new or empty directory", VLFF_Q(dir));
+      goto fail;
+    }
+  }
   if (!w->added || mkdir_p1(dir, err, errlen) < 0) goto fail;
   const char *subs[] = {"rgb", "depth", "pose", "gt_semantic"};
   for (int i = 0; i < 4; i++) {

@@ -110,6 +110,11 @@ static void write_dataset(struct fixture *x, const char *name, char *path) {
                                 FEATURES ? x->f[i]->features : NULL, err, sizeof err) < 0)
       fail_msg("%s", err);
   if (vlff_dataset_writer_close(w, err, sizeof err) < 0) fail_msg("%s", err);
+  /* over a scene already there: its frames beyond the new one's stayed */
+  assert_null(vlff_dataset_writer_open(path, NF, f0->width, f0->height, f0->fx, f0->fy, f0->cx, f0->cy, lo, hi, "sim",
+                                       f0->feat_width, f0->feat_height, FEATURES ? f0->feature_dim : 0, err,
+                                       sizeof err));
+  if (!strstr(err, "exists and is not empty")) fail_msg("%s", err);
   char p[512];
   snprintf(p, sizeof p, "%s/points.ply", path);
   if (vlff_ply_write(p, x->pts.xyz, NULL, x->pts.label, x->pts.n, err, sizeof err) < 0) fail_msg("%s", err);
