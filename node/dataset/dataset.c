@@ -537,15 +537,18 @@ static int find_sens(const char *dir, char *out, char *err, size_t errlen) {
 /* ScanNet export with a depth camera of its own: intrinsic_depth.txt. */
 static int scannet_export_cameras(struct vlff_dataset *ds, const char *dir, char *err, size_t errlen) {
   char p[PATHMAX];
-  join(p, dir, "intrinsic/intrinsic_depth.txt");
-  if (!is_file(p)) return 0;
+  /* absent: the depth is the colour camera's; a FIFO or a directory there
+   * is refused, not taken for absent (optional_file) */
+  int have = optional_file(p, dir, "intrinsic/intrinsic_depth.txt", err, errlen);
+  if (have <= 0) return have;
   const char *names[4] = {"intrinsic/intrinsic_color.txt", "intrinsic/intrinsic_depth.txt",
                           "intrinsic/extrinsic_color.txt", "intrinsic/extrinsic_depth.txt"};
   double m[4][16];
   for (int k = 0; k < 4; k++) {
     join(p, dir, names[k]);
-    if (k >= 2 && !is_file(p)) { /* extrinsics absent: the cameras coincide */
-      for (int e = 0; e < 16; e++) m[k][e] = e % 5 == 0;
+    if (k >= 2 && (have = optional_file(p, dir, names[k], err, errlen)) <= 0) {
+      if (have < 0) return -1;
+      for (int e = 0; e < 16; e++) m[k][e] = e % 5 == 0; /* extrinsics absent: the cameras coincide */
       continue;
     }
     char *buf;

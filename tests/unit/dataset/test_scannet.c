@@ -356,8 +356,22 @@ static void test_export_layout(void **state) {
   }
   assert_string_equal(vlff_label_set_name(VLFF_LABELS_SCANNET20, 19), "otherfurniture");
   assert_null(vlff_label_set_name(VLFF_LABELS_SCANNET20, 20));
+  char p[600], moved[640];
+  /* a FIFO or a directory at a camera file's name is refused, not taken
+   * for absent (the depth camera was then taken for the colour camera) */
+  const char *cams[2] = {"intrinsic_depth.txt", "extrinsic_depth.txt"};
+  for (int k = 0; k < 2; k++) {
+    snprintf(p, sizeof p, "%s/intrinsic/%s", scene, cams[k]);
+    snprintf(moved, sizeof moved, "%s.kept", p);
+    int had = rename(p, moved) == 0;
+    assert_int_equal(mkfifo(p, 0600), 0);
+    struct vlff_dataset dk;
+    assert_int_equal(vlff_dataset_open(&dk, scene, VLFF_DS_AUTO, err, sizeof err), -1);
+    if (!strstr(err, cams[k]) || !strstr(err, "is a FIFO")) fail_msg("%s: %s", cams[k], err);
+    unlink(p);
+    if (had) assert_int_equal(rename(moved, p), 0);
+  }
   /* without the TSV, label ids cannot be classes: say where it looked */
-  char p[600];
   snprintf(p, sizeof p, "%s/scannetv2-labels.combined.tsv", root);
   unlink(p);
   struct vlff_dataset ds;
