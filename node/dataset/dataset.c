@@ -586,8 +586,9 @@ static int label_table(struct vlff_dataset *ds, const char *dir, const struct vl
   const char *up[3] = {"scannetv2-labels.combined.tsv", "../scannetv2-labels.combined.tsv",
                        "../../scannetv2-labels.combined.tsv"};
   for (int k = 0; k < 3 && !tsv[0]; k++) {
-    join(q, dir, up[k]);
-    if (is_file(q)) snprintf(tsv, sizeof tsv, "%s", q);
+    int r = optional_file(q, dir, up[k], err, errlen); /* a FIFO or directory there is named, not passed over */
+    if (r < 0) return -1;
+    if (r > 0) snprintf(tsv, sizeof tsv, "%s", q);
   }
   if (!tsv[0]) {
     seterr(err, errlen, "%s: label-filt/ holds ScanNet label ids, but scannetv2-labels.combined.tsv is neither "
