@@ -41,9 +41,9 @@ static uint64_t dev_ns;
  * as free_run says. */
 static int color_stamped = -1;
 
-/* Colour frame k: every red byte k. */
-static void push_color(int k, uint64_t t) {
-  struct vlff_sink *s = vlff_pair_color_sink(pair);
+/* Colour frame k reserved in the pairing's colour sink s and filled:
+ * every red byte k. */
+static struct vlff_sink_frame reserve_color(struct vlff_sink *s, int k) {
   struct vlff_sink_frame f = {.width = W, .height = H, .color_format = VLFF_PIX_RGB8};
   char err[256];
   assert_int_equal(s->reserve(s, &f, err, sizeof err), 0);
@@ -52,7 +52,15 @@ static void push_color(int k, uint64_t t) {
       uint8_t *p = f.color + y * f.color_stride + x * 3;
       p[0] = (uint8_t)k, p[1] = (uint8_t)x, p[2] = (uint8_t)y;
     }
-  f.host_ns = t, f.device_frame_id = (uint64_t)k;
+  f.device_frame_id = (uint64_t)k;
+  return f;
+}
+
+/* Colour frame k at t. */
+static void push_color(int k, uint64_t t) {
+  struct vlff_sink *s = vlff_pair_color_sink(pair);
+  struct vlff_sink_frame f = reserve_color(s, k);
+  f.host_ns = t;
   f.trigger_stamped = color_stamped >= 0 ? color_stamped : !free_run, f.device_ns = free_run ? dev_ns : 0;
   assert_int_equal(s->commit(s, &f), 0);
 }
@@ -460,15 +468,8 @@ static void test_drop_during_reservation(void **state) {
   push_color(0, t0);
   push_color(1, t0 + 33 * MS);
   struct vlff_sink *s = vlff_pair_color_sink(pair);
-  struct vlff_sink_frame f = {.width = W, .height = H, .color_format = VLFF_PIX_RGB8};
-  char err[256];
-  assert_int_equal(s->reserve(s, &f, err, sizeof err), 0);
-  for (int y = 0; y < H; y++)
-    for (int x = 0; x < W; x++) {
-      uint8_t *p = f.color + y * f.color_stride + x * 3;
-      p[0] = 2, p[1] = (uint8_t)x, p[2] = (uint8_t)y;
-    }
-  f.host_ns = t0 + 66 * MS, f.device_frame_id = 2, f.trigger_stamped = true;
+  struct vlff_sink_frame f = reserve_color(s, 2);
+  f.host_ns = t0 + 66 * MS, f.trigger_stamped = true;
   push_depth(1, t0 + 34 * MS); /* drops colour 0, pairs colour 1 */
   assert_int_equal(s->commit(s, &f), 0);
   push_depth(2, t0 + 67 * MS);
