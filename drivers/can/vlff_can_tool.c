@@ -357,6 +357,9 @@ int main(int argc, char **argv) {
     if (ids[i]) *fields[i] = (int)id_val[i];
   if (dbc) {
     if (vlff_can_write_dbc(&cfg.can, stdout, err, sizeof err)) {
+      /* ids given here: the command line is wrong, not the config */
+      if (ids[0] || ids[1] || ids[2] || ids[3])
+        return vlff_cli_usage_error(&cli, "the ids given on the command line do not fit together: %s", err);
       if (path) fprintf(stderr, "%s: %s\n", path, err);
       else fprintf(stderr, "vlff-can: %s\n", err);
       return 1;
