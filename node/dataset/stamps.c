@@ -73,19 +73,31 @@ static int from_file(const struct vlff_dataset *ds, const char *path, double *t,
     char stem[VLFF_DS_NAME + 1];
     double v;
     int used = 0;
-    if (sscanf(l, "%64s %lf %n", stem, &v, &used) != 2 || (l[used] && l[used] != '\r')) {
-      snprintf(err, errlen, "%s:%d: expected \"STEM SECONDS\"", VLFF_Q(path), line);
+    char secs[64];
+    if (sscanf(l, "%64s %63s %n", stem, secs, &used) != 2 || (l[used] && l[used] != '\r') ||
+        strspn(secs, "0123456789.eE+-") != strlen(secs) || sscanf(secs, "%lf", &v) != 1) {
+      /* decimal seconds only: sscanf's %lf read 0x1p-2 and nan */
+      snprintf(err, errlen, "%s:%d: expected \"STEM SECONDS\" (decimal seconds)", VLFF_Q(path), line);
       goto out;
     }
-    for (int i = 0; i < ds->n; i++) /* stems are few enough (thousands) to search */
+    int found = 0;
+    for (int i = 0; i < ds->n && !found; i++) /* stems are few enough (thousands) to search */
       if (!strcmp(ds->stem[i], stem)) {
         if (seen[i]) {
           snprintf(err, errlen, "%s:%d: frame %s listed twice", VLFF_Q(path), line, VLFF_Q(stem));
           goto out;
         }
-        seen[i] = 1, a[i] = v;
-        break;
+        seen[i] = 1, a[i] = v, found = 1;
       }
+    /* a stem of no frame: a typo, or another scene's file; a frame the
+     * scene lists but skipped (no pose) may keep its stamp */
+    char *end;
+    errno = 0;
+    long long num = strtoll(stem, &end, 10);
+    if (!found && !(ds->skipped > 0 && !*end && !errno && num >= 0 && num <= ds->last_number)) {
+      snprintf(err, errlen, "%s:%d: the scene has no frame %s", VLFF_Q(path), line, VLFF_Q(stem));
+      goto out;
+    }
   }
   for (int i = 0; i < ds->n; i++)
     if (!seen[i]) {

@@ -490,6 +490,19 @@ static void test_stamps_pace_the_replay(void **state) {
   snprintf(args, sizeof args, "-c %s --rate 100 --count 3 %s", cfg_path, scene);
   assert_int_equal(run_cli(args, out, sizeof out), 1);
   if (!strstr(out, "timestamps.txt: frame 00007: stamp 1.000000 s is ")) fail_msg("%s", out);
+  /* seconds are decimal (0x1p-2 was read as 0.25), and a stem names a frame
+   * of the scene (one of no frame was passed over) */
+  static const char *const bad[][2] = {{"99999 1.0", "timestamps.txt:151: the scene has no frame 99999"},
+                                       {"99999 0x1p-2", "timestamps.txt:151: expected \"STEM SECONDS\" (decimal seconds)"}};
+  for (int k = 0; k < 2; k++) {
+    f = fopen(p, "w");
+    assert_non_null(f);
+    for (int i = 0; i < FRAMES; i++) fprintf(f, "%05d %.6f\n", i, stamp(i));
+    fprintf(f, "%s\n", bad[k][0]);
+    fclose(f);
+    assert_int_equal(run_cli(args, out, sizeof out), 1);
+    if (!strstr(out, bad[k][1])) fail_msg("%s: %s", bad[k][0], out);
+  }
 }
 
 extern char **environ;
