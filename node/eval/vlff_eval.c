@@ -525,6 +525,8 @@ static void load_dataset(struct scene *sc, const struct opts *o, struct vlff_con
   const char *dir = ds.dir;
   if (!ds.has_features) die("%s: no features.hdf (needed for the feature field and the baselines)", dir);
   if (!ds.has_labels) die("%s: no gt_semantic/ or label-filt/ (needed for 2D evaluation)", dir);
+  if (o->label_tsv && !ds.label_map) /* given, not used: said, not ignored */
+    die("--label-tsv %s: %s's labels are class ids (gt_semantic/), which no label table maps", o->label_tsv, dir);
   if (ds.feature_dim > 1024) die("%s: D=%d is more than 1024", dir, ds.feature_dim);
   sc->W = ds.width, sc->H = ds.height, sc->fw = ds.feat_width, sc->fh = ds.feat_height, sc->D = ds.feature_dim;
   sc->fx = ds.fx, sc->fy = ds.fy, sc->cx = ds.cx, sc->cy = ds.cy;

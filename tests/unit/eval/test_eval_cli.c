@@ -109,6 +109,12 @@ static void test_dataset_matches_synthetic(void **state) {
   /* fusion sees millimetre-quantised depth from the dataset: nearly equal */
   assert_true(fabs(field(a, "miou3d_fusion") - field(b, "miou3d_fusion")) < 1.0);
   assert_non_null(strstr(a, "miou2d=n/a"));
+  /* a label table for a scene whose labels are class ids was ignored */
+  char tsv_out[4096];
+  snprintf(cmd, sizeof cmd, "%s --config %s --dataset %s/ds --iters 0 --quiet --label-tsv /nonexistent --out %s/c 2>&1",
+           eval, cfg, tmp, tmp);
+  run_failing(cmd, tsv_out, sizeof tsv_out);
+  if (!strstr(tsv_out, "--label-tsv /nonexistent: ") || !strstr(tsv_out, "labels are class ids")) fail_msg("%s", tsv_out);
   /* Fitted, the dataset's held-out frames are read one at a time, depth
    * included, for the label image's surface cells: the figures follow the
    * synthetic scene's (the same frames, depth in millimetres). */
