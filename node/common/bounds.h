@@ -49,6 +49,13 @@ int vlff_pose_plausible(const double c2w[16], const double lo[3], const double h
 struct vlff_cfg_field;
 int vlff_field_pose_plausible(const struct vlff_cfg_field *field, const double c2w[16], char *why, size_t whylen);
 
+/* The farthest depth a frame's pixel may give, metres: no RGB-D sensor
+ * measures beyond it (structured light and stereo stop near 10-20 m). A
+ * farther pixel is no measurement (a 16-bit sensor's 65535, a float 1e30)
+ * and is taken as invalid: all-65.5 m depth passed the bad-pose check as
+ * 100 % inliers and cleared the map's surfaces. */
+#define VLFF_DEPTH_MAX_M 40.0
+
 /* A box-free check of a pose's units. A camera that moves farther between
  * two frames than the farthest depth either measured shares no surface
  * between them, and no tracker follows it across that: such a step says the

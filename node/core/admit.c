@@ -67,7 +67,7 @@ static size_t resample_depth(const void *src, uint32_t fmt, int sw, int sh, size
       } else {
         memcpy(&d, row + (size_t)sx * 4, 4);
       }
-      if (!(d > 0) || !isfinite(d)) d = 0;
+      if (!(d > 0 && d <= VLFF_DEPTH_MAX_M)) d = 0; /* none, NaN, or beyond any sensor (bounds.h) */
       valid += d > 0;
       if (d > *max) *max = d;
       dst[(size_t)y * dw + x] = d;
@@ -93,6 +93,7 @@ static const char *const refusal_names[VLFF_REFUSED_COUNT] = {
     [VLFF_REFUSED_NO_FEATURES] = "no features",
     [VLFF_REFUSED_FUTURE_POSE] = "future pose",
     [VLFF_REFUSED_FEATURES_LATE] = "features late",
+    [VLFF_REFUSED_FUTURE_FRAME] = "future frame",
 };
 
 const char *vlff_refusal_name(int reason) {
@@ -175,6 +176,16 @@ static bool frame_checks(struct ingest *ig, const void *buf, ssize_t len) {
   if (vlff_frame_validate(buf, (size_t)len) != 0) {
     refuse(n, &ig->rl, VLFF_REFUSED_MALFORMED, id, "record of %zd bytes is not a well-formed frame (sizes, formats, "
            "planes, non-finite intrinsics or pose)", len);
+    return false;
+  }
+  /* A frame is stamped when it is taken, before it reaches the ring: one
+   * stamped ahead of the clock (beyond pose.future_tolerance_s, the pose
+   * stamps' bound) has a wrong clock, and its time would sort it after
+   * every frame to come (one such frame stopped keyframe selection). */
+  const double ahead_s = ((double)h->t_host_ns - (double)vlff_now_ns()) * 1e-9;
+  if (cfg->pose.future_tolerance_s > 0 && ahead_s > cfg->pose.future_tolerance_s) {
+    refuse(n, &ig->rl, VLFF_REFUSED_FUTURE_FRAME, id, "stamped %.3f s ahead of the clock (pose.future_tolerance_s "
+           "%g s): the camera driver's clock or clock offset is wrong", ahead_s, cfg->pose.future_tolerance_s);
     return false;
   }
   const struct vlff_plane *cp = &h->plane[VLFF_PLANE_COLOR];

@@ -162,6 +162,16 @@ static void ingest_features(struct ingest *ig, struct vlff_ring **feats, uint16_
       *feats = NULL;
       ig->feats_refused = -1; /* no refusal code: the next attach is logged either way */
     }
+    /* A bad record is named (rate-limited) and counted, not left to show
+     * up later as its keyframe's "features late". */
+    struct vlff_feature_join_stats js;
+    vlff_feature_join_stats(ig->join, &js);
+    if (js.bad_records > ig->feats_bad) {
+      vlff_warn_limited(&n->warned.feature_bad, TAG, "feature ring %s: %llu bad records refused so far; the latest: %s",
+                        cfg->shm.feature_ring, (unsigned long long)js.bad_records,
+                        vlff_feature_join_last_bad(ig->join));
+      ig->feats_bad = js.bad_records;
+    }
     uint64_t fid;
     int fh, fw, ev;
     while ((ev = vlff_feature_join_poll(ig->join, vlff_now_ns(), &fid, fbuf, &fh, &fw)) != VLFF_JOIN_NONE) {

@@ -68,6 +68,7 @@ enum vlff_refusal {
   VLFF_REFUSED_NO_FEATURES = 12,   /* simulated features could not be rendered */
   VLFF_REFUSED_FUTURE_POSE = 13,   /* pose stamped ahead of the clock beyond pose.future_tolerance_s */
   VLFF_REFUSED_FEATURES_LATE = 14, /* a keyframe's features (ring or model) did not come in time */
+  VLFF_REFUSED_FUTURE_FRAME = 15,  /* frame stamped ahead of the clock beyond pose.future_tolerance_s */
   VLFF_REFUSED_COUNT
 };
 

@@ -116,7 +116,7 @@ struct vlff_node {
   /* vlff_warn_limited's counters, one per line that can come with every frame,
    * keyframe, iteration or request (each used by one thread). */
   struct {
-    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, encoder,
+    uint64_t mailbox, mailbox_refused, mailbox_answer, map_status, publish, feature_ring, feature_bad, encoder,
         kf_rejected, kf_refused, kf_store, step_failed, nonfinite, rollback, cpu_budget, grow;
   } warned;
   long long grow_refused; /* trainer: keyframes whose box the field or the map could not grow to (field.grow) */
@@ -206,6 +206,7 @@ struct ingest {
   int npend;
   struct vlff_feature_join *join;
   int feats_refused; /* attach_refused's last code for the feature ring */
+  uint64_t feats_bad;  /* bad feature records already said */
   struct vlff_ring *poses;
   double pose_reattach_s;
   bool pose_miss;

@@ -38,7 +38,10 @@ struct vlff_feature_join {
   uint8_t *record; /* pump buffer */
   size_t record_cap;
   struct vlff_feature_join_stats st;
+  char last_bad[256]; /* the latest bad record's reason */
 };
+
+const char *vlff_feature_join_last_bad(const struct vlff_feature_join *j) { return j->last_bad; }
 
 
 struct vlff_feature_join *vlff_feature_join_create(int capacity, double timeout_s, int dim, int max_h, int max_w,
@@ -118,14 +121,19 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
   }
   size_t hw = (size_t)h->height * h->width;
   const uint16_t *src = (const uint16_t *)((const uint8_t *)record + h->data_offset);
-  /* Refuse non-finite data before touching any slot. */
-  size_t total = hw * (size_t)j->dim, nonfinite = 0;
-  for (size_t i = 0; i < total; i++) nonfinite += (src[i] & 0x7C00u) == 0x7C00u; /* no early exit: vectorises */
-  if (nonfinite) {
+  /* Refuse non-finite data, and values beyond VLFF_FEATURE_MAX_ABS (no
+   * vision-language model's: maps of 65504s drove the feature loss from
+   * 0.05 to 1800, wrecked colour and geometry and went into the
+   * checkpoint), before touching any slot. In float16 bits, |x| > 1000 is
+   * a magnitude above 0x63D0; infinities and NaNs are above it too. */
+  size_t total = hw * (size_t)j->dim, outside = 0;
+  for (size_t i = 0; i < total; i++) outside += (src[i] & 0x7FFFu) > 0x63D0u; /* no early exit: vectorises */
+  if (outside) {
     size_t i = 0;
-    while ((src[i] & 0x7C00u) != 0x7C00u) i++;
-    vlff_errf(err, errlen, "feature record for frame %llu: non-finite value at %zu (%zu in all)",
-              (unsigned long long)h->frame_id, i, nonfinite);
+    while ((src[i] & 0x7FFFu) <= 0x63D0u) i++;
+    vlff_errf(err, errlen, "feature record for frame %llu: %s value at %zu (%zu outside [-%g, %g] in all)",
+              (unsigned long long)h->frame_id, (src[i] & 0x7C00u) == 0x7C00u ? "non-finite" : "out-of-range", i,
+              outside, VLFF_FEATURE_MAX_ABS, VLFF_FEATURE_MAX_ABS);
     goto bad;
   }
   struct feat *slot = NULL;
@@ -148,6 +156,7 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
   return 0;
 bad:
   j->st.bad_records++;
+  if (err && errlen) snprintf(j->last_bad, sizeof j->last_bad, "%s", err);
   return -1;
 }
 
@@ -163,7 +172,8 @@ int vlff_feature_join_pump(struct vlff_feature_join *j, struct vlff_ring *ring) 
       if (errno == EPIPE) return -1;
       return accepted;
     }
-    if (vlff_feature_join_add_record(j, j->record, (size_t)n, NULL, 0) == 0) accepted++;
+    char err[256];
+    if (vlff_feature_join_add_record(j, j->record, (size_t)n, err, sizeof err) == 0) accepted++;
   }
 }
 

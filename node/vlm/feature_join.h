@@ -14,7 +14,10 @@
  * Contract
  *  - int functions return >= 0 on success, -1 on error with one line in
  *    err. A bad feature record is refused and counted; the join's state is
- *    unchanged by it.
+ *    unchanged by it. Values must be finite and within +-VLFF_FEATURE_MAX_ABS
+ *    (no vision-language model's features come near it). The latest bad
+ *    record's reason is kept for the caller's log
+ *    (vlff_feature_join_last_bad).
  *  - The caller owns the join (vlff_feature_join_destroy). One thread at a
  *    time.
  */
@@ -23,6 +26,8 @@
 
 #include <stddef.h>
 #include <stdint.h>
+
+#define VLFF_FEATURE_MAX_ABS 1000.0
 
 struct vlff_ring;
 struct vlff_feature_join;
@@ -53,6 +58,9 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
  * the ring was replaced or truncated under the handle (what it held before is
  * taken): close it and attach again. */
 int vlff_feature_join_pump(struct vlff_feature_join *j, struct vlff_ring *ring);
+
+/* Why the latest bad record was refused ("" before any). */
+const char *vlff_feature_join_last_bad(const struct vlff_feature_join *j);
 
 /* Records of frames stamped (t_host_ns, CLOCK_MONOTONIC) before t_ns are
  * passed over and counted (stats.stale): a reader that starts at the

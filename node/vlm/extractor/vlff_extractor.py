@@ -12,7 +12,7 @@ A feature function slower than the camera never falls behind: each frame
 served is the newest in the ring when the previous one is done, and the
 frames passed over are counted (skipped) and summarised on stderr every
 5 s, as are features refused (wrong shape, non-finite after the float16
-conversion).
+conversion, or beyond +-1000, as the node refuses).
 
 Library use:
     from vlff_extractor import Extractor
@@ -222,8 +222,11 @@ class Extractor:
         bits = np.ctypeslib.as_array((ctypes.c_uint16 * n).from_address(slot + out.data_offset)).view("<u2")
         with np.errstate(over="ignore", invalid="ignore"):
             np.copyto(bits.view("<f2").reshape(f.shape), f, casting="unsafe")
-        if int(np.max(bits & np.uint16(0x7FFF), initial=0)) >= 0x7C00:
-            raise ValueError(f"frame {hdr.frame_id}: non-finite features (NaN, Inf, or beyond float16's +-65504)")
+        # The node also refuses magnitudes beyond 1000 (feature_join.h,
+        # VLFF_FEATURE_MAX_ABS; 0x63D0 is 1000 in float16 bits): no model's.
+        if int(np.max(bits & np.uint16(0x7FFF), initial=0)) > 0x63D0:
+            raise ValueError(f"frame {hdr.frame_id}: non-finite features or values beyond +-1000 (NaN, Inf, "
+                             "or a magnitude no vision-language model gives)")
         out.frame_id, out.t_host_ns, out.sensor_id = hdr.frame_id, hdr.t_host_ns, hdr.sensor_id
         if self.lib.vlff_ring_commit(self.features, out.data_offset + 2 * n) != 0:
             raise ShmError(self._msg())

@@ -66,7 +66,7 @@ static int teardown(void **state) {
   return tk_teardown(&tk);
 }
 
-enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, FUTURE_POSE, POSE_CM, POSE_JUMPED };
+enum frame_kind { GOOD, NO_POSE_FLAG, NO_DEPTH, BAD_INTRINSICS, FUTURE_POSE, POSE_CM, POSE_JUMPED, FAR_DEPTH };
 
 /* Writes simulator frame `index` into the ring, stamped t_ns. The pose
  * travels in the frame except for NO_POSE_FLAG (the pose ring must give
@@ -90,6 +90,8 @@ static void put_frame(struct vlff_ring *ring, struct vlff_sim *s, struct vlff_si
   if (kind == POSE_JUMPED) h->pose[3] += 40;
   memcpy((uint8_t *)h + h->plane[0].offset, f->rgb, (size_t)f->width * f->height * 3);
   if (kind != NO_DEPTH) memcpy((uint8_t *)h + h->plane[1].offset, f->depth_mm, (size_t)f->width * f->height * 2);
+  if (kind == FAR_DEPTH) /* a 16-bit sensor's 65535 everywhere: 65.5 m, no measurement */
+    memset((uint8_t *)h + h->plane[1].offset, 0xff, (size_t)f->width * f->height * 2);
   assert_int_equal(vlff_ring_commit(ring, len), 0);
 }
 
@@ -369,6 +371,38 @@ static void test_future_pose_refused(void **state) {
   tk_scene_close(&sc);
 }
 
+/* A frame stamped 1000 s ahead of the clock is refused (one stopped all
+ * keyframe selection after it, silently), and one whose every depth pixel
+ * is beyond any sensor (a 16-bit sensor's 65535) is refused as empty depth
+ * (it passed the bad-pose check as 100 % inliers and cleared the map's
+ * surfaces); good frames after them are still taken. */
+static void test_future_frame_and_far_depth_refused(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  write_config(&cfg);
+  struct tk_scene sc;
+  struct vlff_sim_source *src;
+  struct vlff_node *n = tk_scene_node(&sc, &cfg, 16, 320, 240, &src);
+  put_frame(sc.ring, sc.sim, sc.frame, 0, vlff_shm_now_ns() + 1000000000000ull, GOOD);
+  put_frame(sc.ring, sc.sim, sc.frame, 1, vlff_shm_now_ns(), FAR_DEPTH);
+  struct vlff_node_status st;
+  double t0 = vlff_seconds();
+  for (int i = 2; i < 40; i++) {
+    put_frame(sc.ring, sc.sim, sc.frame, i, vlff_shm_now_ns(), GOOD);
+    tk_sleep_s(0.05);
+    vlff_node_status(n, &st);
+    if (st.keyframes >= 3 || vlff_seconds() - t0 > 20 * tk.scale) break;
+  }
+  printf("%d keyframes; refused: future frame %lld, empty depth %lld\n", st.keyframes,
+         st.refused[VLFF_REFUSED_FUTURE_FRAME], st.refused[VLFF_REFUSED_EMPTY_DEPTH]);
+  assert_int_equal(st.refused[VLFF_REFUSED_FUTURE_FRAME], 1);
+  assert_int_equal(st.refused[VLFF_REFUSED_EMPTY_DEPTH], 1);
+  assert_true(st.keyframes >= 3);
+  assert_string_equal(vlff_refusal_name(VLFF_REFUSED_FUTURE_FRAME), "future frame");
+  tk_node_destroy(n, src);
+  tk_scene_close(&sc);
+}
+
 /* The in-process node's log is this process's stderr: kept in the file
  * path until stderr_back (with what stderr_to returned). */
 static int stderr_to(const char *path) {
@@ -462,6 +496,7 @@ int main(void) {
       cmocka_unit_test_setup_teardown(test_status_says_why, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_adapter_feeds_node, setup, teardown),
       cmocka_unit_test_setup_teardown(test_future_pose_refused, setup, teardown),
+      cmocka_unit_test_setup_teardown(test_future_frame_and_far_depth_refused, setup, teardown),
       cmocka_unit_test_setup_teardown(test_pose_units_refused, setup, teardown),
       cmocka_unit_test_setup_teardown(test_kf_page_file_refused, setup, teardown),
   };

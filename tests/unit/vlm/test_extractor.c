@@ -461,7 +461,7 @@ static void test_join_transpose(void **state) {
   assert_true(vlff_feature_layout(hdr, cap, TD, TH, TW) > 0);
   hdr->frame_id = 3;
   uint16_t *data = (uint16_t *)(buf + hdr->data_offset);
-  for (size_t i = 0; i < (size_t)TD * TH * TW; i++) data[i] = (uint16_t)(i * 7 % 0x7000); /* finite halves */
+  for (size_t i = 0; i < (size_t)TD * TH * TW; i++) data[i] = (uint16_t)(i * 7 % 0x6000); /* halves within +-512 */
   assert_int_equal(vlff_feature_join_add_record(j, buf, (size_t)(hdr->data_offset + hdr->data_size), err, sizeof err), 0);
   assert_int_equal(vlff_feature_join_add_frame(j, 3, 1, err, sizeof err), 0);
   uint16_t *out = malloc((size_t)TD * TH * TW * sizeof *out);
@@ -533,9 +533,19 @@ static void test_join_rules(void **state) {
   assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), -1);
   len = make_record(buf, cap, 1, 8, 2, 2, 0.f);
   assert_int_equal(vlff_feature_join_add_record(j, buf, len - 2, err, sizeof err), -1);
+  /* finite but beyond any model's features: 65504 (float16's largest)
+   * drove the feature loss from 0.05 to 1800; 1000 itself is taken */
+  len = make_record(buf, cap, 1, 8, 2, 2, 0.f);
+  ((uint16_t *)(buf + ((struct vlff_feature_hdr *)buf)->data_offset))[5] = 0xFBFF; /* -65504 */
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), -1);
+  if (!strstr(err, "out-of-range value at 5 (1 outside [-1000, 1000] in all)")) fail_msg("%s", err);
+  assert_string_equal(vlff_feature_join_last_bad(j), err);
+  len = make_record(buf, cap, 99, 8, 2, 2, 0.f);
+  ((uint16_t *)(buf + ((struct vlff_feature_hdr *)buf)->data_offset))[5] = 0x63D0; /* 1000 */
+  assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), 0);
   struct vlff_feature_join_stats st;
   vlff_feature_join_stats(j, &st);
-  assert_int_equal(st.bad_records, 5);
+  assert_int_equal(st.bad_records, 6);
   /* None of them reached keyframe 1. */
   assert_int_equal(vlff_feature_join_poll(j, 40 * s, &id, out, &h, &w), VLFF_JOIN_NONE);
 
@@ -545,7 +555,7 @@ static void test_join_rules(void **state) {
     assert_int_equal(vlff_feature_join_add_record(j, buf, len, err, sizeof err), 0);
   }
   vlff_feature_join_stats(j, &st);
-  assert_int_equal(st.orphans_evicted, 1);
+  assert_int_equal(st.orphans_evicted, 2); /* 99 (the 1000 above) and 100 */
 
   /* Read from a ring's oldest record: a map of a frame stamped before the
    * join's time is passed over and counted, and joins nothing; one stamped
