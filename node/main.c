@@ -294,6 +294,7 @@ static int finish(struct run *r, const char *snapshot_dir) {
   vlff_service_stopping();
   VLFF_INFO("node", "stopping (%s)", vlff_cli_stop == SIGTERM ? "SIGTERM"
                                      : vlff_cli_stop == SIGINT ? "SIGINT"
+                                     : vlff_cli_stop == SIGHUP ? "SIGHUP"
                                                                 : "run_seconds reached");
 #ifdef VLFF_HAVE_CAN
   vlff_can_close(r->can);
@@ -337,6 +338,9 @@ static int finish(struct run *r, const char *snapshot_dir) {
 
 int main(int argc, char **argv) {
   vlff_node_process_setup();
+  /* first: a stop signal while the config loads (50 ms after start) killed
+   * the node with an empty log; caught, it stops after start-up, cleanly */
+  vlff_cli_catch_stop();
   enum { OPT_CHECK = 256, OPT_STATUS, OPT_SNAPSHOT, OPT_FRESH };
   static const struct option opts[] = {
       {"config", required_argument, NULL, 'c'},
@@ -374,7 +378,6 @@ int main(int argc, char **argv) {
   if (vlff_config_load(config_path, &r.cfg, err, sizeof err)) return vlff_cli_config_error(err);
   if (fresh) r.cfg.node.resume = false;
   vlff_log_set_level(r.cfg.node.log_level);
-  vlff_cli_catch_stop();
   VLFF_INFO("node", "vlff-node %s starting, config %s", vlff_version(), config_path);
   if (start(&r)) return 1;
   while (!vlff_cli_stop && !vlff_node_finished(r.node)) {

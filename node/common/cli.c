@@ -99,6 +99,9 @@ void vlff_cli_catch_stop(void) {
   sigemptyset(&sa.sa_mask);
   sigaction(SIGINT, &sa, NULL);
   sigaction(SIGTERM, &sa, NULL);
+  /* a hang-up (the terminal or ssh session gone) stops as cleanly: its
+   * default action killed the node with no log line and no checkpoint */
+  sigaction(SIGHUP, &sa, NULL);
   signal(SIGPIPE, SIG_IGN);
   signal(SIGXFSZ, SIG_IGN);
 }

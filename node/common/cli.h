@@ -57,10 +57,10 @@ void vlff_cli_restart(void);
 
 /* A usage error found by the program itself (bad operands, a value out of
  * range): "<prog>: <message>" and the usage on stderr. Returns 2. */
-/* The signal (SIGINT or SIGTERM) that asked the program to stop, 0 while
+/* The signal (SIGINT, SIGTERM or SIGHUP) that asked the program to stop, 0 while
  * none has: set by the handlers vlff_cli_catch_stop installs. */
 extern volatile sig_atomic_t vlff_cli_stop;
-/* SIGINT and SIGTERM set vlff_cli_stop; without SA_RESTART, so a blocked
+/* SIGINT, SIGTERM and SIGHUP set vlff_cli_stop; without SA_RESTART, so a blocked
  * read or sleep returns EINTR and the loop around it sees the request.
  * SIGPIPE is ignored: a reader that went away is an EPIPE, not a death.
  * So is SIGXFSZ: a page file at the file-size limit (systemd's LimitFSIZE)
