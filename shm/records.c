@@ -119,7 +119,14 @@ API int vlff_frame_validate(const void *record, size_t len) {
       return bad_frame("size is not stride * height", i);
     if (p->offset < sizeof h || p->offset > len || p->size > len - p->offset)
       return bad_frame("pixels outside the record", i);
+    if (p->offset % 64) /* the header's contract; vlff_frame_layout keeps it */
+      return bad_frame("plane offset not 64-aligned", i);
   }
+  /* Planes that share bytes: a depth plane laid inside the colour plane was
+   * read from colour bytes, and only the trainer's pose check caught it. */
+  if (h.nplanes == 2 && h.plane[0].offset < h.plane[1].offset + h.plane[1].size &&
+      h.plane[1].offset < h.plane[0].offset + h.plane[0].size)
+    return bad_frame("planes overlap", 1);
   if (h.nplanes == 2 && (h.plane[1].width != h.plane[0].width || h.plane[1].height != h.plane[0].height))
     return bad_frame("depth and color sizes differ", 1);
   if ((h.flags & VLFF_FRAME_INTRINSICS_VALID) &&

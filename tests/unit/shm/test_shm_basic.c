@@ -328,6 +328,16 @@ static void frame_records(void **state) {
   b.plane[1].format = VLFF_PIX_RGB8;
   memcpy(rec, &b, sizeof b);
   assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  /* a depth plane laid inside the colour plane (read from colour bytes),
+   * and one off the 64-byte grid the header promises */
+  b = h;
+  b.plane[1].offset = h.plane[0].offset + 64;
+  memcpy(rec, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  b = h;
+  b.plane[1].offset = h.plane[1].offset - 1;
+  memcpy(rec, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(rec, sz), -1);
   free(rec);
 
   struct vlff_feature_hdr f;
