@@ -10,6 +10,7 @@
 #include <linux/can/raw.h>
 #include <net/if.h>
 #include <poll.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -352,13 +353,20 @@ int main(int argc, char **argv) {
     fprintf(stderr, "vlff-can: %s; using the default ids\n", err);
     vlff_config_defaults(&cfg);
   }
+  /* The config's own ids are checked before any given here replaces one,
+   * so that a refusal blames the one at fault. */
+  const bool given = ids[0] || ids[1] || ids[2] || ids[3];
+  if (given && path && vlff_can_check_config(&cfg.can, err, sizeof err)) {
+    fprintf(stderr, "%s: %s\n", path, err);
+    return 1;
+  }
   int *fields[4] = {&cfg.can.node_id, &cfg.can.status_base_id, &cfg.can.command_id, &cfg.can.ack_id};
   for (int i = 0; i < 4; i++)
     if (ids[i]) *fields[i] = (int)id_val[i];
   if (dbc) {
     if (vlff_can_write_dbc(&cfg.can, stdout, err, sizeof err)) {
       /* ids given here: the command line is wrong, not the config */
-      if (ids[0] || ids[1] || ids[2] || ids[3])
+      if (given)
         return vlff_cli_usage_error(&cli, "the ids given on the command line do not fit together: %s", err);
       if (path) fprintf(stderr, "%s: %s\n", path, err);
       else fprintf(stderr, "vlff-can: %s\n", err);

@@ -56,6 +56,13 @@ int vlff_field_pose_plausible(const struct vlff_cfg_field *field, const double c
  * 100 % inliers and cleared the map's surfaces. */
 #define VLFF_DEPTH_MAX_M 40.0
 
+/* The largest magnitude a vision-language feature value may have: no
+ * model's come near it, and a map of float16's 65504s drove the feature loss
+ * from 0.05 to 1800 and into the checkpoint. In float16 bits, |x| above it
+ * is (bits & 0x7FFF) > VLFF_FEATURE_MAX_ABS_F16 (NaN and Inf are above too). */
+#define VLFF_FEATURE_MAX_ABS 1000.0
+#define VLFF_FEATURE_MAX_ABS_F16 0x63D0u
+
 /* A box-free check of a pose's units. A camera that moves farther between
  * two frames than the farthest depth either measured shares no surface
  * between them, and no tracker follows it across that: such a step says the

@@ -100,8 +100,10 @@ void vlff_cli_catch_stop(void) {
   sigaction(SIGINT, &sa, NULL);
   sigaction(SIGTERM, &sa, NULL);
   /* a hang-up (the terminal or ssh session gone) stops as cleanly: its
-   * default action killed the node with no log line and no checkpoint */
-  sigaction(SIGHUP, &sa, NULL);
+   * default action killed the node with no log line and no checkpoint.
+   * One ignored on purpose (nohup) stays ignored. */
+  struct sigaction hup;
+  if (sigaction(SIGHUP, NULL, &hup) == 0 && hup.sa_handler != SIG_IGN) sigaction(SIGHUP, &sa, NULL);
   signal(SIGPIPE, SIG_IGN);
   signal(SIGXFSZ, SIG_IGN);
 }

@@ -60,7 +60,8 @@ void vlff_cli_restart(void);
 /* The signal (SIGINT, SIGTERM or SIGHUP) that asked the program to stop, 0 while
  * none has: set by the handlers vlff_cli_catch_stop installs. */
 extern volatile sig_atomic_t vlff_cli_stop;
-/* SIGINT, SIGTERM and SIGHUP set vlff_cli_stop; without SA_RESTART, so a blocked
+/* SIGINT, SIGTERM and SIGHUP (unless ignored, as nohup leaves it) set
+ * vlff_cli_stop; without SA_RESTART, so a blocked
  * read or sleep returns EINTR and the loop around it sees the request.
  * SIGPIPE is ignored: a reader that went away is an EPIPE, not a death.
  * So is SIGXFSZ: a page file at the file-size limit (systemd's LimitFSIZE)

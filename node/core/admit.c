@@ -339,7 +339,7 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
                                 (int)dp->height, dp->stride, c->depth, dw, dh, &depth_max);
   if (valid == 0) {
     candidate_free(c);
-    refuse(n, &ig->rl, VLFF_REFUSED_EMPTY_DEPTH, id, "the depth plane has no valid pixel (all 0 or NaN)");
+    refuse(n, &ig->rl, VLFF_REFUSED_EMPTY_DEPTH, id, "the depth plane has no valid pixel (all 0, NaN or beyond 40 m)");
     return;
   }
   /* Poses in millimetres pass any world-sized bound until the robot has

@@ -1131,12 +1131,14 @@ int vlff_dataset_read_features(const struct vlff_dataset *ds, int i, uint16_t *o
   if (fs >= 0) H5Sclose(fs);
   h5feat_close(&h);
   if (rc == 0) {
-    /* non-finite features would poison training and evaluation */
+    /* non-finite features, or values beyond any model's (bounds.h), would
+     * poison training and evaluation, and the node refuses them */
     size_t n = (size_t)ds->feat_height * ds->feat_width * ds->feature_dim;
     for (size_t k = 0; k < n; k++)
-      if ((out[k] & 0x7c00u) == 0x7c00u) {
-        seterr(err, errlen, "%s: features/%s frame %s has a non-finite value at element %zu", VLFF_Q(p),
-               VLFF_Q(ds->feat_name), VLFF_Q(ds->stem[i]), k);
+      if ((out[k] & 0x7FFFu) > VLFF_FEATURE_MAX_ABS_F16) {
+        seterr(err, errlen, "%s: features/%s frame %s has a %s value at element %zu (beyond +-%g)", VLFF_Q(p),
+               VLFF_Q(ds->feat_name), VLFF_Q(ds->stem[i]), (out[k] & 0x7c00u) == 0x7c00u ? "non-finite" : "huge",
+               k, VLFF_FEATURE_MAX_ABS);
         return -1;
       }
   }

@@ -215,6 +215,7 @@ static int play(struct player *p) {
           base = now - off;
         } else {
           vlff_replay_sleep_until(due);
+          if (vlff_cli_stop) break; /* cut short: this record's time has not come */
         }
         newest = rec, have_newest = 1;
       }

@@ -74,8 +74,9 @@ static int from_file(const struct vlff_dataset *ds, const char *path, double *t,
     double v;
     int used = 0;
     char secs[64];
+    char *vend = NULL;
     if (sscanf(l, "%64s %63s %n", stem, secs, &used) != 2 || (l[used] && l[used] != '\r') ||
-        strspn(secs, "0123456789.eE+-") != strlen(secs) || sscanf(secs, "%lf", &v) != 1) {
+        strspn(secs, "0123456789.eE+-") != strlen(secs) || (v = strtod(secs, &vend), *vend)) {
       /* decimal seconds only: sscanf's %lf read 0x1p-2 and nan */
       snprintf(err, errlen, "%s:%d: expected \"STEM SECONDS\" (decimal seconds)", VLFF_Q(path), line);
       goto out;

@@ -124,13 +124,12 @@ int vlff_feature_join_add_record(struct vlff_feature_join *j, const void *record
   /* Refuse non-finite data, and values beyond VLFF_FEATURE_MAX_ABS (no
    * vision-language model's: maps of 65504s drove the feature loss from
    * 0.05 to 1800, wrecked colour and geometry and went into the
-   * checkpoint), before touching any slot. In float16 bits, |x| > 1000 is
-   * a magnitude above 0x63D0; infinities and NaNs are above it too. */
+   * checkpoint), before touching any slot (bounds.h). */
   size_t total = hw * (size_t)j->dim, outside = 0;
-  for (size_t i = 0; i < total; i++) outside += (src[i] & 0x7FFFu) > 0x63D0u; /* no early exit: vectorises */
+  for (size_t i = 0; i < total; i++) outside += (src[i] & 0x7FFFu) > VLFF_FEATURE_MAX_ABS_F16; /* vectorises */
   if (outside) {
     size_t i = 0;
-    while ((src[i] & 0x7FFFu) <= 0x63D0u) i++;
+    while ((src[i] & 0x7FFFu) <= VLFF_FEATURE_MAX_ABS_F16) i++;
     vlff_errf(err, errlen, "feature record for frame %llu: %s value at %zu (%zu outside [-%g, %g] in all)",
               (unsigned long long)h->frame_id, (src[i] & 0x7C00u) == 0x7C00u ? "non-finite" : "out-of-range", i,
               outside, VLFF_FEATURE_MAX_ABS, VLFF_FEATURE_MAX_ABS);

@@ -27,7 +27,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define VLFF_FEATURE_MAX_ABS 1000.0
+#include "bounds.h" /* VLFF_FEATURE_MAX_ABS */
 
 struct vlff_ring;
 struct vlff_feature_join;

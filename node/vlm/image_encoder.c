@@ -8,6 +8,7 @@
  * for a memcpy.
  */
 #include "image_encoder.h"
+#include "feature_join.h"
 
 #include <math.h>
 #include <pthread.h>
@@ -173,7 +174,15 @@ int vlff_image_encoder_run(struct vlff_image_encoder *e, const uint8_t *rgb, int
     }
     float s = (e->normalize && ss > 0) ? (float)(1.0 / sqrt(ss)) : 1.0f;
     uint16_t *o = out + p * (size_t)e->dim;
-    for (int d = 0; d < e->dim; d++) o[d] = vlff_f32_to_f16(f[(size_t)d * hw + p] * s);
+    for (int d = 0; d < e->dim; d++) {
+      const float v = f[(size_t)d * hw + p] * s;
+      if (!(fabsf(v) <= VLFF_FEATURE_MAX_ABS)) { /* the feature ring's bound (feature_join.h) */
+        vlff_errf(err, errlen, "%s: feature %g at pixel %zu, channel %d, beyond +-%g", e->path, (double)v, p, d,
+                  VLFF_FEATURE_MAX_ABS);
+        return -1;
+      }
+      o[d] = vlff_f32_to_f16(v);
+    }
   }
   return 0;
 }

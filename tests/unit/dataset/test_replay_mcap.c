@@ -29,6 +29,7 @@
 #include <cmocka.h>
 
 #include "config.h"
+#include "bounds.h"
 #include "dataset.h"
 #include "files.h"
 #include "inputs.h"
@@ -65,8 +66,10 @@ static void fill_scene(void) {
     for (int k = 0; k < H * W * 3; k++) rgb[i][k] = (uint8_t)next_rand();
     for (int k = 0; k < H * W; k++) depth[i][k] = k % 7 == 0 ? 0 : (uint16_t)(300 + next_rand() % 5000);
     for (int k = 0; k < FH * FW * FD; k++) {
-      /* finite half floats of both signs, no NaN or infinity */
-      uint16_t h = (uint16_t)(next_rand() & 0xFBFF);
+      /* half floats of both signs within +-1000 (bounds.h: no NaN,
+       * infinity or value beyond any model's) */
+      uint32_t r = next_rand();
+      uint16_t h = (uint16_t)((r & 0x8000u) | ((r >> 16) % (VLFF_FEATURE_MAX_ABS_F16 + 1)));
       feat_hwc[i][k] = h;
     }
     double a = 0.3 * i + 0.1, b = -0.2 * i;

@@ -334,10 +334,18 @@ static void frame_records(void **state) {
   b.plane[1].offset = h.plane[0].offset + 64;
   memcpy(rec, &b, sizeof b);
   assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  /* off the grid only: one more byte of record after the depth plane, the
+   * plane moved onto it */
+  uint8_t *big = calloc(1, sz + 1);
   b = h;
-  b.plane[1].offset = h.plane[1].offset - 1;
-  memcpy(rec, &b, sizeof b);
-  assert_int_equal(vlff_frame_validate(rec, sz), -1);
+  b.plane[1].offset = h.plane[1].offset + 1;
+  memcpy(big, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(big, sz + 1), -1);
+  assert_non_null(strstr(vlff_shm_last_message(), "not 64-aligned"));
+  b.plane[1].offset = h.plane[1].offset;
+  memcpy(big, &b, sizeof b);
+  assert_int_equal(vlff_frame_validate(big, sz + 1), 0);
+  free(big);
   free(rec);
 
   struct vlff_feature_hdr f;
