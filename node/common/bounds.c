@@ -22,6 +22,13 @@ static void focal_range(int n, double *lo, double *hi) {
   *hi = n / (2.0 * tan(VLFF_MIN_FOV_DEG * 0.5 * deg));
 }
 
+int vlff_skew_plausible(double fx, double skew, char *why, size_t whylen) {
+  if (fabs(skew) <= VLFF_MAX_SKEW_FRAC * fx) return 0;
+  if (why && whylen) snprintf(why, whylen, "skew %g is more than %g %% of fx=%g; the camera model has none", skew,
+                              100 * VLFF_MAX_SKEW_FRAC, fx);
+  return -1;
+}
+
 int vlff_intrinsics_plausible(int width, int height, double fx, double fy, double cx, double cy, char *why,
                               size_t whylen) {
   if (width < 1 || height < 1 || width > VLFF_MAX_IMAGE_SIDE || height > VLFF_MAX_IMAGE_SIDE) {

@@ -40,6 +40,12 @@
 
 int vlff_intrinsics_plausible(int width, int height, double fx, double fy, double cx, double cy, char *why,
                               size_t whylen);
+/* A camera matrix's skew against the field's cameras, which have square
+ * pixel axes: a skew would be dropped, every ray off by it. Calibrations give
+ * 0, or rounding's worth: at most VLFF_MAX_SKEW_FRAC of fx. 0 when
+ * plausible, -1 with *why set. */
+#define VLFF_MAX_SKEW_FRAC 1e-3
+int vlff_skew_plausible(double fx, double skew, char *why, size_t whylen);
 
 /* lo and hi: the scene box (lo < hi on every axis), or both NULL. */
 int vlff_pose_plausible(const double c2w[16], const double lo[3], const double hi[3], char *why, size_t whylen);

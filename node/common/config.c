@@ -23,6 +23,7 @@
 #include <unistd.h>
 #include <yaml.h>
 
+#include "bounds.h" /* VLFF_DEPTH_MAX_M */
 #include "files.h"
 #include "scene_box.h"
 #include "vlff/shm.h" /* vlff_prompt_check: the mailbox's and the embeddings format's rule */
@@ -212,7 +213,7 @@ static const struct key schema[] = {
     DBL("sim.speed_mps", sim.speed_mps, 0.01, 10, 0.4),
     DBL("sim.depth_noise_m", sim.depth_noise_m, 0, 1, 0.01),
     DBL("sim.depth_hole_frac", sim.depth_hole_frac, 0, 1, 0.02),
-    DBL("sim.depth_max_m", sim.depth_max_m, 0.1, 40, 6), /* the node takes no depth beyond 40 m (bounds.h) */
+    DBL("sim.depth_max_m", sim.depth_max_m, 0.1, VLFF_DEPTH_MAX_M, 6), /* the node takes no depth beyond it */
     INT("sim.frames", sim.frames, 1, 1000000, 300),
     /* A part of the walk, for a robot of a fleet that covers one region. */
     INT("sim.range_first", sim.range_first, 0, 999999, 0),

@@ -167,6 +167,14 @@ static void no_pose_detail(const struct vlff_config *cfg, struct vlff_ring *pose
     vlff_pose_miss_hint(poses, cfg->shm.pose_ring, t_ns, cfg->source.pose_tolerance_s, why, len);
 }
 
+/* Whether a stamp (CLOCK_MONOTONIC ns) lies ahead of the clock by more than
+ * pose.future_tolerance_s (0: never), by *ahead_s seconds: frames and poses
+ * are stamped when taken, so neither can. */
+static bool ahead_of_clock(const struct vlff_config *cfg, uint64_t t_ns, double *ahead_s) {
+  *ahead_s = ((double)t_ns - (double)vlff_now_ns()) * 1e-9;
+  return cfg->pose.future_tolerance_s > 0 && *ahead_s > cfg->pose.future_tolerance_s;
+}
+
 /* Stage 1: the record, its size, its colour format, its intrinsics. */
 static bool frame_checks(struct ingest *ig, const void *buf, ssize_t len) {
   struct vlff_node *n = ig->n;
@@ -182,8 +190,8 @@ static bool frame_checks(struct ingest *ig, const void *buf, ssize_t len) {
    * stamped ahead of the clock (beyond pose.future_tolerance_s, the pose
    * stamps' bound) has a wrong clock, and its time would sort it after
    * every frame to come (one such frame stopped keyframe selection). */
-  const double ahead_s = ((double)h->t_host_ns - (double)vlff_now_ns()) * 1e-9;
-  if (cfg->pose.future_tolerance_s > 0 && ahead_s > cfg->pose.future_tolerance_s) {
+  double ahead_s;
+  if (ahead_of_clock(cfg, h->t_host_ns, &ahead_s)) {
     refuse(n, &ig->rl, VLFF_REFUSED_FUTURE_FRAME, id, "stamped %.3f s ahead of the clock (pose.future_tolerance_s "
            "%g s): the camera driver's clock or clock offset is wrong", ahead_s, cfg->pose.future_tolerance_s);
     return false;
@@ -275,8 +283,8 @@ static int frame_pose(struct ingest *ig, const struct vlff_frame_hdr *h, bool ma
   uint64_t pose_t = in_frame ? h->pose_t_ns
                     : vlff_ring_read_latest(ig->poses, &newest, sizeof newest, NULL) == (ssize_t)sizeof newest
                         ? newest.t_ns : 0;
-  double ahead_s = ((double)pose_t - (double)vlff_now_ns()) * 1e-9;
-  if (cfg->pose.future_tolerance_s > 0 && ahead_s > cfg->pose.future_tolerance_s) {
+  double ahead_s;
+  if (ahead_of_clock(cfg, pose_t, &ahead_s)) {
     refuse(n, &ig->rl, VLFF_REFUSED_FUTURE_POSE, id, "%s stamped %.3f s ahead of the clock (pose.future_tolerance_s "
            "%g s): the pose source's clock or clock offset is wrong",
            in_frame ? "the frame's pose is" : "the newest pose in the pose ring is", ahead_s, cfg->pose.future_tolerance_s);
@@ -339,7 +347,8 @@ static void frame_admit(struct ingest *ig, const void *buf, const double pose[16
                                 (int)dp->height, dp->stride, c->depth, dw, dh, &depth_max);
   if (valid == 0) {
     candidate_free(c);
-    refuse(n, &ig->rl, VLFF_REFUSED_EMPTY_DEPTH, id, "the depth plane has no valid pixel (all 0, NaN or beyond 40 m)");
+    refuse(n, &ig->rl, VLFF_REFUSED_EMPTY_DEPTH, id, "the depth plane has no valid pixel (all 0, NaN or beyond %g m)",
+           VLFF_DEPTH_MAX_M);
     return;
   }
   /* Poses in millimetres pass any world-sized bound until the robot has

@@ -480,14 +480,11 @@ static int check_intrinsics(struct vlff_dataset *ds, const double K[16], const c
     seterr(err, errlen, "%s: not a camera matrix (expected [fx s cx; 0 fy cy; 0 0 1])", VLFF_Q(path));
     return -1;
   }
-  /* The field's cameras have square pixel axes: a skew would be dropped,
-   * every ray off by it. Calibrations give 0, or rounding's worth. */
-  if (!(fabs(K[1]) <= 1e-3 * ds->fx)) {
-    seterr(err, errlen, "%s: skew %g is more than 0.1 %% of fx=%g; the camera model has none", VLFF_Q(path), K[1],
-           ds->fx);
+  char why[200];
+  if (vlff_skew_plausible(ds->fx, K[1], why, sizeof why)) {
+    seterr(err, errlen, "%s: %s", VLFF_Q(path), why);
     return -1;
   }
-  char why[200];
   if (vlff_intrinsics_plausible(ds->width, ds->height, ds->fx, ds->fy, ds->cx, ds->cy, why, sizeof why)) {
     seterr(err, errlen, "%s: not a physical camera for the %dx%d images: %s", VLFF_Q(path), ds->width, ds->height, why);
     return -1;

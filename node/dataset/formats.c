@@ -364,16 +364,18 @@ int vlff_parse_bbox(const char *buf, size_t len, const char *name, double lo[3],
 
 enum ply_type { PT_NONE, PT_I8, PT_U8, PT_I16, PT_U16, PT_I32, PT_U32, PT_F32, PT_F64 };
 
+/* The PLY type names, each type's own first, then its sized alias. */
+static const struct {
+  const char *n;
+  int t;
+} ply_types[] = {{"char", PT_I8},    {"int8", PT_I8},     {"uchar", PT_U8},   {"uint8", PT_U8},
+                 {"short", PT_I16},  {"int16", PT_I16},   {"ushort", PT_U16}, {"uint16", PT_U16},
+                 {"int", PT_I32},    {"int32", PT_I32},   {"uint", PT_U32},   {"uint32", PT_U32},
+                 {"float", PT_F32},  {"float32", PT_F32}, {"double", PT_F64}, {"float64", PT_F64}};
+
 static int ply_type_of(const char *s) {
-  static const struct {
-    const char *n;
-    int t;
-  } tab[] = {{"char", PT_I8},    {"int8", PT_I8},     {"uchar", PT_U8},   {"uint8", PT_U8},
-             {"short", PT_I16},  {"int16", PT_I16},   {"ushort", PT_U16}, {"uint16", PT_U16},
-             {"int", PT_I32},    {"int32", PT_I32},   {"uint", PT_U32},   {"uint32", PT_U32},
-             {"float", PT_F32},  {"float32", PT_F32}, {"double", PT_F64}, {"float64", PT_F64}};
-  for (size_t i = 0; i < sizeof tab / sizeof tab[0]; i++)
-    if (!strcmp(tab[i].n, s)) return tab[i].t;
+  for (size_t i = 0; i < sizeof ply_types / sizeof ply_types[0]; i++)
+    if (!strcmp(ply_types[i].n, s)) return ply_types[i].t;
   return PT_NONE;
 }
 
@@ -389,8 +391,9 @@ static bool ply_int_range(int t, double *lo, double *hi) {
 }
 
 static const char *ply_type_name(int t) {
-  static const char *const n[] = {"?", "char", "uchar", "short", "ushort", "int", "uint", "float", "double"};
-  return t >= 0 && t <= PT_F64 ? n[t] : "?";
+  for (size_t i = 0; i < sizeof ply_types / sizeof ply_types[0]; i++)
+    if (ply_types[i].t == t) return ply_types[i].n;
+  return "?";
 }
 
 static double ply_get(const uint8_t *p, int t) {

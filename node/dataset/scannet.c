@@ -192,9 +192,8 @@ static int check_camera(const double K[16], int w, int h, const char *path, char
     seterr(err, errlen, "%s: principal point (%g, %g) lies outside the %dx%d image", VLFF_Q(path), cx, cy, w, h);
     return -1;
   }
-  /* as the reference layout's (dataset.c): the model has no skew */
-  if (!(fabs(K[1]) <= 1e-3 * fx)) {
-    seterr(err, errlen, "%s: skew %g is more than 0.1 %% of fx=%g; the camera model has none", VLFF_Q(path), K[1], fx);
+  if (vlff_skew_plausible(fx, K[1], why, sizeof why)) {
+    seterr(err, errlen, "%s: %s", VLFF_Q(path), why);
     return -1;
   }
   return 0;

@@ -125,6 +125,15 @@ static int grow(struct vlff_embeddings *e, int *cap) {
   return 0;
 }
 
+/* A vector of squared length ss is an embedding's. Only its direction
+ * matters (it is compared by cosine), but a length this far from any
+ * encoder's is no embedding, and products of such values overflow or flush
+ * to zero in float. The parser and the writer hold vectors to it alike. */
+static bool length_ok(double ss) {
+  const double norm = sqrt(ss);
+  return norm >= VLFF_EMBEDDINGS_MIN_NORM && norm <= VLFF_EMBEDDINGS_MAX_NORM;
+}
+
 /* The numbers at p of prompt's line: dim finite floats separated by single
  * spaces, not all zero, into v. */
 static int parse_vector(const char *prompt, const char *p, int dim, float *v, const char *name, int lineno, char *err,
@@ -160,13 +169,9 @@ static int parse_vector(const char *prompt, const char *p, int dim, float *v, co
     vlff_errf(err, errlen, "%s:%d: zero vector for '%s'", name, lineno, VLFF_Q(prompt));
     return -1;
   }
-  /* Only a vector's direction matters (it is compared by cosine), but a
-   * length this far from any encoder's is no embedding, and products of
-   * such values overflow or flush to zero in float. */
-  const double norm = sqrt(ss);
-  if (norm < VLFF_EMBEDDINGS_MIN_NORM || norm > VLFF_EMBEDDINGS_MAX_NORM) {
+  if (!length_ok(ss)) {
     vlff_errf(err, errlen, "%s:%d: vector for '%s' has length %.3g, expected %g to %g", name, lineno, VLFF_Q(prompt),
-              norm, VLFF_EMBEDDINGS_MIN_NORM, VLFF_EMBEDDINGS_MAX_NORM);
+              sqrt(ss), VLFF_EMBEDDINGS_MIN_NORM, VLFF_EMBEDDINGS_MAX_NORM);
     return -1;
   }
   return 0;
@@ -310,11 +315,9 @@ int vlff_embeddings_save(const char *path, int dim, int count, const char *const
       }
       ss += (double)x * x;
     }
-    /* what the parser would refuse is not written */
-    const double norm = sqrt(ss);
-    if (!(norm >= VLFF_EMBEDDINGS_MIN_NORM && norm <= VLFF_EMBEDDINGS_MAX_NORM)) {
+    if (!length_ok(ss)) { /* what the parser would refuse is not written */
       vlff_errf(err, errlen, "%s: the vector of '%s' has length %.3g, expected %g to %g", VLFF_Q(path),
-                VLFF_Q(prompts[i]), norm, VLFF_EMBEDDINGS_MIN_NORM, VLFF_EMBEDDINGS_MAX_NORM);
+                VLFF_Q(prompts[i]), sqrt(ss), VLFF_EMBEDDINGS_MIN_NORM, VLFF_EMBEDDINGS_MAX_NORM);
       return -1;
     }
   }

@@ -8,7 +8,7 @@
  * for a memcpy.
  */
 #include "image_encoder.h"
-#include "feature_join.h"
+#include "bounds.h" /* VLFF_FEATURE_MAX_ABS */
 
 #include <math.h>
 #include <pthread.h>
@@ -176,7 +176,7 @@ int vlff_image_encoder_run(struct vlff_image_encoder *e, const uint8_t *rgb, int
     uint16_t *o = out + p * (size_t)e->dim;
     for (int d = 0; d < e->dim; d++) {
       const float v = f[(size_t)d * hw + p] * s;
-      if (!(fabsf(v) <= VLFF_FEATURE_MAX_ABS)) { /* the feature ring's bound (feature_join.h) */
+      if (!(fabsf(v) <= VLFF_FEATURE_MAX_ABS)) { /* the feature ring's bound */
         vlff_errf(err, errlen, "%s: feature %g at pixel %zu, channel %d, beyond +-%g", e->path, (double)v, p, d,
                   VLFF_FEATURE_MAX_ABS);
         return -1;

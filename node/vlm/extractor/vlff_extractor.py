@@ -222,8 +222,8 @@ class Extractor:
         bits = np.ctypeslib.as_array((ctypes.c_uint16 * n).from_address(slot + out.data_offset)).view("<u2")
         with np.errstate(over="ignore", invalid="ignore"):
             np.copyto(bits.view("<f2").reshape(f.shape), f, casting="unsafe")
-        # The node also refuses magnitudes beyond 1000 (feature_join.h,
-        # VLFF_FEATURE_MAX_ABS; 0x63D0 is 1000 in float16 bits): no model's.
+        # The node also refuses magnitudes beyond 1000 (node/common/bounds.h,
+        # VLFF_FEATURE_MAX_ABS_F16: 0x63D0 is 1000 in float16 bits): no model's.
         if int(np.max(bits & np.uint16(0x7FFF), initial=0)) > 0x63D0:
             raise ValueError(f"frame {hdr.frame_id}: non-finite features or values beyond +-1000 (NaN, Inf, "
                              "or a magnitude no vision-language model gives)")
