@@ -264,7 +264,7 @@ static void tick(struct run *r, double now) {
     if (st.cpu_used >= 0) snprintf(cpu, sizeof cpu, "cpu %.2f", st.cpu_used);
     if (st.cpu_budget > 0) snprintf(cpu + strlen(cpu), sizeof cpu - strlen(cpu), " of %.2f", st.cpu_budget);
     /* Memory against its limits, MiB: keyframes, evidence, the process. */
-    char mem[144] = "mem -";
+    char mem[192] = "mem -";
     if (st.mem_rss_mb >= 0)
       snprintf(mem, sizeof mem, "mem kf %.0f/%.0f ev %.0f/%.0f rss %.0f MiB", st.mem_keyframes_mb,
                st.mem_keyframes_limit_mb, st.mem_evidence_mb, st.mem_evidence_limit_mb, st.mem_rss_mb);
@@ -272,6 +272,10 @@ static void tick(struct run *r, double now) {
     if (st.box_growths || st.box_refused)
       snprintf(mem + strlen(mem), sizeof mem - strlen(mem), " box %.0fx%.0fx%.0f m%s", st.box_hi[0] - st.box_lo[0],
                st.box_hi[1] - st.box_lo[1], st.box_hi[2] - st.box_lo[2], st.box_refused ? " CAPPED" : "");
+    /* The far map, once the grid slid (docs/field.md "Beyond the caps"). */
+    if (st.box_slides)
+      snprintf(mem + strlen(mem), sizeof mem - strlen(mem), " far %.1f/%.0f MiB%s", st.far_mb, st.far_limit_mb,
+               st.far_dropped ? " DROPPING" : "");
     /* Keyframes on disk (keyframes.page_mb), once the store has paged any. */
     if (st.keyframes_paged_out || st.keyframes_dropped)
       snprintf(mem + strlen(mem), sizeof mem - strlen(mem), " kf paged %lld%s", st.keyframes_paged,
@@ -325,6 +329,10 @@ static int finish(struct run *r, const char *snapshot_dir) {
     VLFF_INFO("node", "the box grew %lld times, to [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m; %lld growths refused",
               st.box_growths, st.box_lo[0], st.box_hi[0], st.box_lo[1], st.box_hi[1], st.box_lo[2], st.box_hi[2],
               st.box_refused);
+  if (st.box_slides)
+    VLFF_INFO("node", "the map slid %lld times at shm.map_max_voxels; its far map holds %lld blocks, %.1f of "
+                      "shm.map_far_max_mb %.0f MiB, %lld blocks dropped",
+              st.box_slides, st.far_blocks, st.far_mb, st.far_limit_mb, st.far_dropped);
   if (st.keyframes_paged_out || st.keyframes_dropped)
     VLFF_INFO("node", "keyframes beyond keyframes.memory_mb: %lld in the page file (%lld paged out, %lld brought "
                       "back), %lld dropped",

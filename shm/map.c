@@ -47,6 +47,11 @@ struct map_meta {
   uint64_t lt_ns;
   char prompts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
   uint64_t limg_version; /* the version that set the label image */
+  /* The far map (vlff/shm.h): its geometry and counts, its bytes at
+   * off_far in the buffer, and the version that set it. */
+  double far_origin[3], far_voxel;
+  uint32_t far_nblocks, far_nruns;
+  uint64_t far_version;
 };
 
 struct map_buf {
@@ -84,7 +89,7 @@ _Static_assert(STATUS_OFFSET >= sizeof(struct seg_hdr) + sizeof(struct map_ctl) 
 struct vlff_map {
   struct seg seg;
   struct map_ctl *ctl;
-  uint64_t max_voxels, lw_max, lh_max, stride, log_cap;
+  uint64_t max_voxels, lw_max, lh_max, stride, log_cap, far_cap;
   bool writer;
   bool broken;           /* writer: the segment could not be replaced */
   uint64_t last_version; /* writer: carried over into a replacing segment */
@@ -97,6 +102,10 @@ struct vlff_map {
   struct vlff_map_range *scratch; /* the update's runs being merged */
   uint32_t *gaps;
   size_t scratch_cap;
+  /* Writer: the far map the next publish carries (vlff_map_set_far). */
+  bool far_staged;
+  struct vlff_map_far far_next;
+  uint8_t *far_stage;
 };
 
 struct vlff_map_snapshot {
@@ -107,6 +116,8 @@ struct vlff_map_snapshot {
   uint8_t *conf;
   uint16_t *llabels;
   uint8_t *lconf;
+  uint64_t far_cap;
+  uint8_t *far;
   /* What the last take or follow changed: changes[0..nchanges), all = whole. */
   struct vlff_map_range *changes; /* log_cap */
   size_t nchanges;
@@ -129,7 +140,16 @@ static uint64_t off_labels(void) { return BUF_HDR; }
 static uint64_t off_conf(uint64_t mv) { return off_labels() + align64(2 * mv); }
 static uint64_t off_llabels(uint64_t mv) { return off_conf(mv) + align64(mv); }
 static uint64_t off_lconf(uint64_t mv, uint64_t lpx) { return off_llabels(mv) + align64(2 * lpx); }
-static uint64_t buf_stride(uint64_t mv, uint64_t lpx) { return align64(off_lconf(mv, lpx) + lpx); }
+static uint64_t off_far(uint64_t mv, uint64_t lpx) { return align64(off_lconf(mv, lpx) + lpx); }
+/* A buffer holds the grid, the label image and far_cap bytes of far map. */
+static uint64_t buf_stride(uint64_t mv, uint64_t lpx, uint64_t far_cap) { return off_far(mv, lpx) + align64(far_cap); }
+#define FAR_CAP_MAX (1ull << 36)
+
+API uint64_t vlff_map_far_bytes(uint32_t nblocks, uint32_t nruns) {
+  return (uint64_t)nblocks * sizeof(struct vlff_map_far_block) + (uint64_t)nruns * sizeof(struct vlff_map_far_run);
+}
+_Static_assert(sizeof(struct vlff_map_far_block) == 16 && sizeof(struct vlff_map_far_run) == 6,
+               "the far map's records are the segment's layout");
 
 static uint64_t log_cap_for(uint64_t mv) {
   uint64_t c = LOG_MIN;
@@ -142,7 +162,9 @@ static uint64_t map_total(const uint64_t g[6]) {
   uint64_t mv = g[0], lw = g[1], lh = g[2];
   if (!mv || mv > (1ull << 32) || lw > 65536 || lh > 65536 || (!lw) != (!lh))
     return 0;
-  if (g[3] != buf_stride(mv, lw * lh) || g[4] != MAP_BUF_OFFSET || g[5] != log_cap_for(mv))
+  const uint64_t grid = buf_stride(mv, lw * lh, 0);
+  if (g[3] < grid || (g[3] - grid) % 64 || g[3] - grid > FAR_CAP_MAX || g[4] != MAP_BUF_OFFSET ||
+      g[5] != log_cap_for(mv))
     return 0;
   return MAP_BUF_OFFSET + 2 * g[3] + g[5] * sizeof(struct log_entry);
 }
@@ -170,6 +192,7 @@ static void bind(struct vlff_map *m) {
   m->lh_max = m->seg.h->geom[2];
   m->stride = m->seg.h->geom[3];
   m->log_cap = m->seg.h->geom[5];
+  m->far_cap = m->stride - buf_stride(m->max_voxels, m->lw_max * m->lh_max, 0);
 }
 
 /* Writer: the temporaries "<name>.grow<pid>" that a writer killed in the middle of
@@ -213,7 +236,7 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
     return NULL;
   }
   uint64_t lpx = (uint64_t)p->label_max_width * p->label_max_height;
-  uint64_t geom[6] = {p->max_voxels, p->label_max_width, p->label_max_height, buf_stride(p->max_voxels, lpx),
+  uint64_t geom[6] = {p->max_voxels, p->label_max_width, p->label_max_height, buf_stride(p->max_voxels, lpx, 0),
                       MAP_BUF_OFFSET, log_cap_for(p->max_voxels)};
   m->prev = malloc(geom[5] / 4 * sizeof *m->prev);
   if (!m->prev) {
@@ -314,6 +337,7 @@ API void vlff_map_detach(struct vlff_map *m) {
   free(m->prev);
   free(m->scratch);
   free(m->gaps);
+  free(m->far_stage);
   free(m);
 }
 
@@ -341,6 +365,12 @@ static bool geometry_physical(const double origin[3], double voxel, const uint32
     if (!(fabs(origin[a]) <= VLFF_MAP_COORD_MAX_M && fabs(hi) <= VLFF_MAP_COORD_MAX_M)) return false;
   }
   return true;
+}
+
+/* The far lattice's corner and voxel within the grid's physical bounds. */
+static bool far_geometry_physical(const double origin[3], double voxel) {
+  const uint32_t one[3] = {1, 1, 1};
+  return geometry_physical(origin, voxel, one);
 }
 
 static int check_update(const struct vlff_map *m, const struct vlff_map_update *u) {
@@ -591,6 +621,18 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     shm_racy_copy(bufp(m, nb, off_llabels(mv)), bufp(m, cur, off_llabels(mv)), 2 * n);
     shm_racy_copy(bufp(m, nb, off_lconf(mv, lpx)), bufp(m, cur, off_lconf(mv, lpx)), n);
   }
+  const uint64_t foff = off_far(mv, lpx);
+  if (m->far_staged) {
+    const struct vlff_map_far *f = &m->far_next;
+    shm_racy_copy(bufp(m, nb, foff), m->far_stage, vlff_map_far_bytes(f->nblocks, f->nruns));
+    memcpy(meta.far_origin, f->origin, sizeof meta.far_origin);
+    meta.far_voxel = f->voxel_size;
+    meta.far_nblocks = f->nblocks, meta.far_nruns = f->nruns;
+    meta.far_version = version;
+    m->far_staged = false;
+  } else if (meta.far_nblocks && nbm.far_version != meta.far_version) {
+    shm_racy_copy(bufp(m, nb, foff), bufp(m, cur, foff), vlff_map_far_bytes(meta.far_nblocks, meta.far_nruns));
+  }
   /* Logged before the flip: a reader that sees this version finds its runs. */
   log_append(m, version, logged, nlogged);
   uint64_t now = shm_now();
@@ -629,6 +671,77 @@ API int vlff_map_heartbeat(struct vlff_map *m) {
 
 API uint64_t vlff_map_capacity(const struct vlff_map *m) { return m ? m->max_voxels : 0; }
 
+API const char *vlff_map_far_check(const struct vlff_map_far *f) {
+  if (!f)
+    return "no far map";
+  if (!far_geometry_physical(f->origin, f->voxel_size))
+    return "far map geometry outside physical bounds (voxel size 1e-4..1e3 m, within 1e8 m of the origin)";
+  if (!f->blocks || !f->runs || f->nruns < f->nblocks)
+    return "far map without blocks or runs";
+  const double reach = VLFF_MAP_COORD_MAX_M / (f->voxel_size * VLFF_MAP_FAR_EDGE);
+  for (uint32_t b = 0; b < f->nblocks; b++) {
+    const struct vlff_map_far_block *k = &f->blocks[b];
+    for (int a = 0; a < 3; a++)
+      if (fabs((double)k->key[a]) + 1 > reach)
+        return "a far block beyond 1e8 m of the origin";
+    if (b && memcmp(k->key, f->blocks[b - 1].key, sizeof k->key) != 0) {
+      const int32_t *p = f->blocks[b - 1].key;
+      bool after = k->key[2] != p[2] ? k->key[2] > p[2] : k->key[1] != p[1] ? k->key[1] > p[1] : k->key[0] > p[0];
+      if (!after)
+        return "far blocks not sorted by key (z, y, x)";
+    } else if (b) {
+      return "a far block key given twice";
+    }
+    const uint32_t end = b + 1 < f->nblocks ? f->blocks[b + 1].first_run : f->nruns;
+    if (k->first_run != (b ? k->first_run : 0) || end <= k->first_run || end > f->nruns)
+      return "far block runs out of order or out of range";
+    uint64_t sum = 0;
+    for (uint32_t r = k->first_run; r < end; r++) {
+      if (!f->runs[r].count)
+        return "a far run of 0 voxels";
+      sum += f->runs[r].count;
+    }
+    if (sum != (uint64_t)VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE)
+      return "a far block whose runs do not cover its voxels";
+  }
+  return NULL;
+}
+
+API int vlff_map_set_far(struct vlff_map *m, const struct vlff_map_far *f) {
+  if (!m || !m->writer) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_set_far: not a writer handle");
+    return -1;
+  }
+  static const struct vlff_map_far none = {.voxel_size = 1};
+  if (!f || !f->nblocks)
+    f = &none;
+  const char *why = f->nblocks ? vlff_map_far_check(f) : NULL;
+  if (why)
+    return bad_update(m, VLFF_SHM_ERR_INVAL, EINVAL, why);
+  const uint64_t n = vlff_map_far_bytes(f->nblocks, f->nruns);
+  if (n > m->far_cap) {
+    shm_err(VLFF_SHM_ERR_SIZE, EMSGSIZE, "%s: far map of %llu bytes, the segment holds %llu (vlff_map_reserve_far)",
+            VLFF_Q(m->seg.name), (unsigned long long)n, (unsigned long long)m->far_cap);
+    return -1;
+  }
+  uint8_t *stage = n ? malloc(n) : NULL;
+  if (n && !stage) {
+    shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "out of memory");
+    return -1;
+  }
+  if (n) {
+    const size_t nb = (size_t)f->nblocks * sizeof *f->blocks;
+    memcpy(stage, f->blocks, nb);
+    memcpy(stage + nb, f->runs, (size_t)f->nruns * sizeof *f->runs);
+  }
+  free(m->far_stage);
+  m->far_stage = stage;
+  m->far_next = *f;
+  m->far_next.blocks = NULL, m->far_next.runs = NULL;
+  m->far_staged = true;
+  return 0;
+}
+
 /* Writer: the map as published now (buffer c, whose meta mm was copied out and
  * checked: its grid and label image, the status block, the version) into the
  * fresh segment ns of capacity geom, its buffer 0 made current. */
@@ -639,6 +752,9 @@ static void copy_into(const struct vlff_map *m, uint32_t c, const struct map_met
   const uint64_t mv = m->max_voxels, nmv = geom[0], lpx = m->lw_max * m->lh_max;
   memcpy(ns->base + STATUS_OFFSET, m->seg.base + STATUS_OFFSET, sizeof(struct status_block));
   nb->meta = *mm;
+  if (mm->far_nblocks)
+    memcpy((uint8_t *)nb + off_far(nmv, lpx), bufp(m, c, off_far(mv, lpx)),
+           vlff_map_far_bytes(mm->far_nblocks, mm->far_nruns));
   if (mm->version) {
     uint64_t n = (uint64_t)mm->dims[0] * mm->dims[1] * mm->dims[2];
     memcpy((uint8_t *)nb + off_labels(), bufp(m, c, off_labels()), 2 * n);
@@ -664,15 +780,27 @@ static void adopt(struct vlff_map *m, struct seg *ns) {
 }
 
 API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
-  if (!m || !m->writer || max_voxels > UINT32_MAX) {
+  return vlff_map_reserve_far(m, max_voxels, m ? m->far_cap : 0);
+}
+
+API uint64_t vlff_map_far_capacity(const struct vlff_map *m) { return m ? m->far_cap : 0; }
+
+API int vlff_map_reserve_far(struct vlff_map *m, uint64_t max_voxels, uint64_t far_bytes) {
+  if (!m || !m->writer || max_voxels > UINT32_MAX || far_bytes > FAR_CAP_MAX) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_reserve: %s",
-            !m || !m->writer ? "not a writer handle" : "more than 2^32 - 1 voxels");
+            !m || !m->writer            ? "not a writer handle"
+            : max_voxels > UINT32_MAX ? "more than 2^32 - 1 voxels"
+                                        : "a far map of more than 64 GiB");
     return -1;
   }
   if (writer_retry(m) < 0)
     return -1;
-  if (max_voxels <= m->max_voxels)
+  if (max_voxels <= m->max_voxels && far_bytes <= m->far_cap)
     return 0;
+  if (max_voxels < m->max_voxels)
+    max_voxels = m->max_voxels;
+  if (far_bytes < m->far_cap)
+    far_bytes = m->far_cap;
   /* What is copied must be what was published: not a segment truncated under
    * us (its pages read as zeros), nor a meta that would copy past a buffer. */
   if (shm_seg_check(&m->seg, true) < 0)
@@ -686,7 +814,7 @@ API int vlff_map_reserve(struct vlff_map *m, uint64_t max_voxels) {
     return -1;
   }
   const uint64_t lpx = m->lw_max * m->lh_max;
-  uint64_t geom[6] = {max_voxels, m->lw_max, m->lh_max, buf_stride(max_voxels, lpx), MAP_BUF_OFFSET,
+  uint64_t geom[6] = {max_voxels, m->lw_max, m->lh_max, buf_stride(max_voxels, lpx, far_bytes), MAP_BUF_OFFSET,
                       log_cap_for(max_voxels)};
   struct vlff_map_range *prev = malloc(geom[5] / 4 * sizeof *prev);
   struct seg *ns = calloc(1, sizeof *ns);
@@ -777,6 +905,9 @@ static bool meta_sane(const struct vlff_map *m, const struct map_meta *mm) {
     return false;
   if (mm->has_limg && (mm->lw > m->lw_max || mm->lh > m->lh_max))
     return false;
+  if (mm->far_nblocks && (vlff_map_far_bytes(mm->far_nblocks, mm->far_nruns) > m->far_cap ||
+                          mm->far_nruns < mm->far_nblocks || !far_geometry_physical(mm->far_origin, mm->far_voxel)))
+    return false;
   return true;
 }
 
@@ -834,6 +965,64 @@ static bool voxel_index(const struct map_meta *mm, double x, double y, double z,
   return true;
 }
 
+/* The far map's answer at p, from the far bytes at base (a buffer's or a
+ * snapshot's) that mm describes (checked by meta_sane): READ_OK with the
+ * label (VLFF_LABEL_UNKNOWN where no block holds p), READ_BAD when the runs
+ * break the contract (torn, or written by something else than this library). */
+static int far_lookup(const uint8_t *base, const struct map_meta *mm, const double p[3], uint16_t *label,
+                      uint8_t *conf) {
+  *label = VLFF_LABEL_UNKNOWN, *conf = 0;
+  if (!mm->far_nblocks)
+    return READ_OK;
+  const double E = VLFF_MAP_FAR_EDGE;
+  int32_t key[3];
+  uint32_t l = 0, mul = 1;
+  for (int a = 0; a < 3; a++, mul *= VLFF_MAP_FAR_EDGE) {
+    const double v = floor((p[a] - mm->far_origin[a]) / mm->far_voxel), k = floor(v / E);
+    if (!(fabs(k) < 2147483647.0))
+      return READ_OK;
+    key[a] = (int32_t)k;
+    const double in = v - k * E;
+    l += mul * (uint32_t)(in >= 0 && in < E ? in : 0);
+  }
+  const struct vlff_map_far_block *blocks = (const struct vlff_map_far_block *)base;
+  const struct vlff_map_far_run *runs = (const struct vlff_map_far_run *)(base + (size_t)mm->far_nblocks * 16);
+  size_t lo = 0, hi = mm->far_nblocks;
+  struct vlff_map_far_block blk;
+  while (lo < hi) {
+    size_t mid = lo + (hi - lo) / 2;
+    shm_racy_copy(&blk, &blocks[mid], sizeof blk);
+    int c = 0;
+    for (int a = 2; a >= 0 && !c; a--)
+      c = (blk.key[a] > key[a]) - (blk.key[a] < key[a]);
+    if (!c) {
+      uint32_t end = mm->far_nruns;
+      if (mid + 1 < mm->far_nblocks)
+        shm_racy_copy(&end, &blocks[mid + 1].first_run, sizeof end);
+      if (blk.first_run >= end || end > mm->far_nruns)
+        return READ_BAD;
+      uint32_t acc = 0;
+      for (uint32_t r = blk.first_run; r < end; r++) {
+        struct vlff_map_far_run run;
+        shm_racy_copy(&run, &runs[r], sizeof run);
+        if (!run.count)
+          return READ_BAD;
+        acc += run.count;
+        if (l < acc) {
+          *label = run.label, *conf = run.conf;
+          return READ_OK;
+        }
+      }
+      return READ_BAD;
+    }
+    if (c < 0)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  return READ_OK;
+}
+
 struct at_ctx {
   double x, y, z;
   uint16_t label;
@@ -848,8 +1037,10 @@ static int read_voxel(const struct vlff_map *m, uint32_t b, const struct map_met
   if (voxel_index(mm, c->x, c->y, c->z, &i)) {
     shm_racy_copy(&c->label, bufp(m, b, off_labels() + 2 * i), 2);
     shm_racy_copy(&c->conf, bufp(m, b, off_conf(m->max_voxels) + i), 1);
+    return READ_OK;
   }
-  return READ_OK;
+  const double p[3] = {c->x, c->y, c->z};
+  return far_lookup(bufp(m, b, off_far(m->max_voxels, m->lw_max * m->lh_max)), mm, p, &c->label, &c->conf);
 }
 
 API int vlff_map_label_at(struct vlff_map *m, double x, double y, double z, uint16_t *label, uint8_t *conf) {
@@ -938,8 +1129,10 @@ API struct vlff_map_snapshot *vlff_map_snapshot_new(struct vlff_map *m) {
     s->lconf = malloc(lpx + 1);
     s->log_cap = m->log_cap;
     s->changes = malloc(m->log_cap * sizeof *s->changes);
+    s->far_cap = m->far_cap;
+    s->far = malloc(m->far_cap + 1);
   }
-  if (!s || !s->labels || !s->conf || !s->llabels || !s->lconf || !s->changes) {
+  if (!s || !s->labels || !s->conf || !s->llabels || !s->lconf || !s->changes || !s->far) {
     vlff_map_snapshot_free(s);
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "snapshot: out of memory");
     return NULL;
@@ -955,12 +1148,13 @@ API void vlff_map_snapshot_free(struct vlff_map_snapshot *s) {
   free(s->llabels);
   free(s->lconf);
   free(s->changes);
+  free(s->far);
   free(s);
 }
 
 static bool snap_fits(const struct vlff_map *m, const struct vlff_map_snapshot *s) {
   return s->max_voxels == m->max_voxels && s->lw_max == m->lw_max && s->lh_max == m->lh_max &&
-         s->log_cap == m->log_cap;
+         s->log_cap == m->log_cap && s->far_cap == m->far_cap;
 }
 
 /* A snapshot sized for the segment the handle reads now: a reader that followed
@@ -974,17 +1168,25 @@ static bool snap_resize(const struct vlff_map *m, struct vlff_map_snapshot *s) {
   uint16_t *labels = malloc(2 * m->max_voxels), *llabels = malloc(2 * lpx + 2);
   uint8_t *conf = malloc(m->max_voxels), *lconf = malloc(lpx + 1);
   struct vlff_map_range *changes = malloc(m->log_cap * sizeof *changes);
-  if (!labels || !llabels || !conf || !lconf || !changes) {
-    free(labels), free(llabels), free(conf), free(lconf), free(changes);
+  uint8_t *far = malloc(m->far_cap + 1);
+  if (!labels || !llabels || !conf || !lconf || !changes || !far) {
+    free(labels), free(llabels), free(conf), free(lconf), free(changes), free(far);
     shm_err(VLFF_SHM_ERR_SYS, ENOMEM, "snapshot: out of memory for a map of %llu voxels",
             (unsigned long long)m->max_voxels);
     return false;
   }
-  free(s->labels), free(s->llabels), free(s->conf), free(s->lconf), free(s->changes);
-  s->labels = labels, s->llabels = llabels, s->conf = conf, s->lconf = lconf, s->changes = changes;
+  free(s->labels), free(s->llabels), free(s->conf), free(s->lconf), free(s->changes), free(s->far);
+  s->labels = labels, s->llabels = llabels, s->conf = conf, s->lconf = lconf, s->changes = changes, s->far = far;
   s->max_voxels = m->max_voxels, s->lw_max = m->lw_max, s->lh_max = m->lh_max, s->log_cap = m->log_cap;
+  s->far_cap = m->far_cap;
   s->nchanges = 0; /* s->meta is left alone: it may be the read's own meta (take) */
   return true;
+}
+
+static void copy_far(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, struct vlff_map_snapshot *s) {
+  if (mm->far_nblocks)
+    shm_racy_copy(s->far, bufp(m, b, off_far(m->max_voxels, m->lw_max * m->lh_max)),
+                  vlff_map_far_bytes(mm->far_nblocks, mm->far_nruns));
 }
 
 static int copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx) {
@@ -1002,6 +1204,7 @@ static int copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta 
     shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * n);
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), n);
   }
+  copy_far(m, b, mm, s);
   return READ_OK;
 }
 
@@ -1107,6 +1310,8 @@ static int copy_changed(const struct vlff_map *m, uint32_t b, const struct map_m
     shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * ln);
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), ln);
   }
+  if (mm->far_version != old->far_version)
+    copy_far(m, b, mm, s);
   return READ_OK;
 }
 
@@ -1176,11 +1381,38 @@ API uint16_t vlff_map_snapshot_label_at(const struct vlff_map_snapshot *s, doubl
   uint64_t i;
   if (conf)
     *conf = 0;
-  if (!s || !voxel_index(&s->meta, x, y, z, &i))
+  if (!s || !isfinite(x) || !isfinite(y) || !isfinite(z) || !s->meta.version)
     return VLFF_LABEL_UNKNOWN;
+  if (!voxel_index(&s->meta, x, y, z, &i)) {
+    const double p[3] = {x, y, z};
+    uint16_t label;
+    uint8_t c;
+    if (far_lookup(s->far, &s->meta, p, &label, &c) != READ_OK)
+      return VLFF_LABEL_UNKNOWN;
+    if (conf)
+      *conf = c;
+    return label;
+  }
   if (conf)
     *conf = s->conf[i];
   return s->labels[i];
+}
+
+API int vlff_map_snapshot_far(const struct vlff_map_snapshot *s, struct vlff_map_far *f) {
+  if (!s || !f) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "vlff_map_snapshot_far: NULL argument");
+    return -1;
+  }
+  const struct map_meta *mm = &s->meta;
+  memset(f, 0, sizeof *f);
+  if (!mm->version || !mm->far_nblocks)
+    return 0;
+  memcpy(f->origin, mm->far_origin, sizeof f->origin);
+  f->voxel_size = mm->far_voxel;
+  f->nblocks = mm->far_nblocks, f->nruns = mm->far_nruns;
+  f->blocks = (const struct vlff_map_far_block *)s->far;
+  f->runs = (const struct vlff_map_far_run *)(s->far + (size_t)mm->far_nblocks * sizeof *f->blocks);
+  return 0;
 }
 
 API const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *s, uint16_t label) {

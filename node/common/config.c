@@ -188,6 +188,7 @@ static const struct key schema[] = {
     INT("shm.pose_slots", shm.pose_slots, 2, 65536, 256),
     STR("shm.map", shm.map, "/vlff-map"),
     INT("shm.map_max_voxels", shm.map_max_voxels, 1, 1 << 26, 1 << 21),
+    INT("shm.map_far_max_mb", shm.map_far_max_mb, 0, 4096, 64),
     INT("shm.label_max_width", shm.label_max_width, 16, 8192, 640),
     INT("shm.label_max_height", shm.label_max_height, 16, 8192, 480),
     STR("shm.prompts", shm.prompts, "/vlff-prompts"),

@@ -4,6 +4,7 @@
 #include "lattice.h"
 
 #include <math.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -29,6 +30,44 @@ int vlff_lattice_fit(const double origin[3], const double cell[3], const uint32_
     differs |= shift[a] != 0 || ndims[a] != dims[a];
   }
   return differs;
+}
+
+int vlff_lattice_window(const double origin[3], const double cell[3], const uint32_t dims[3], const double lo[3],
+                        const double hi[3], double limit, size_t max_cells, int32_t shift[3], uint32_t ndims[3]) {
+  long nlo[3], nhi[3], top = 0;
+  for (int a = 0; a < 3; a++) {
+    if (!(isfinite(lo[a]) && isfinite(hi[a]) && lo[a] <= hi[a]) || !(cell[a] > 0)) return -1;
+    const double l = floor((fmax(lo[a], -limit) - origin[a]) / cell[a]);
+    const double h = ceil((fmin(hi[a], limit) - origin[a]) / cell[a]);
+    if (fabs(l) > 2147483647.0 || fabs(h) > 2147483647.0) return -1;
+    nlo[a] = (long)l, nhi[a] = (long)h;
+    if ((long)dims[a] > top) top = (long)dims[a];
+  }
+  /* The largest margin m (in cells, the same on every axis) whose grid fits:
+   * the grid grows with m, so a bisection finds it. */
+  long good = -1, bad = top + 1;
+  int32_t sh[3];
+  uint32_t nd[3];
+  while (bad - good > 1) {
+    const long m = good + (bad - good) / 2;
+    long klo[3], khi[3];
+    bool none = false;
+    for (int a = 0; a < 3; a++) {
+      klo[a] = nlo[a] - m > 0 ? nlo[a] - m : 0;
+      khi[a] = nhi[a] + m < (long)dims[a] ? nhi[a] + m : (long)dims[a];
+      none = none || klo[a] >= khi[a];
+    }
+    /* No old cell within m on some axis: none at all (fit keeps per axis). */
+    for (int a = 0; none && a < 3; a++) klo[a] = khi[a] = 0;
+    if (vlff_lattice_fit(origin, cell, dims, klo, khi, lo, hi, limit, sh, nd) >= 0 &&
+        vlff_lattice_cells(nd) <= max_cells) {
+      good = m;
+      memcpy(shift, sh, sizeof sh), memcpy(ndims, nd, sizeof nd);
+    } else {
+      bad = m;
+    }
+  }
+  return good >= 0 ? 1 : -1;
 }
 
 void vlff_box_union(const double alo[3], const double ahi[3], const double blo[3], const double bhi[3], double lo[3],

@@ -25,6 +25,13 @@
  *    [keep_lo, keep_hi) (per axis, in old cells; keep_lo >= keep_hi on an
  *    axis: none) besides [lo, hi]: 1 when it differs from the old grid, 0
  *    when it is the old grid, -1 as cover.
+ *  - vlff_lattice_window: a capped grid that must move on (the robot walked
+ *    beyond what max_cells holds around what it saw): the grid on the
+ *    lattice holding [lo, hi] (clipped to +-limit) and the old grid's cells
+ *    within m cells of it, for the largest m (the same on every axis) that
+ *    keeps it within max_cells: 1 and shift, ndims; -1 when [lo, hi] alone
+ *    passes max_cells, or as fit. The old cells beyond it are the caller's
+ *    to keep elsewhere (the map's far blocks) or to drop.
  *  - vlff_box_union: the smallest box holding boxes a and b (a NaN side
  *    of one gives the other's).
  *  - vlff_lattice_xyz: a cell index's x, y, z.
@@ -57,6 +64,8 @@ int vlff_lattice_cover(const double origin[3], const double cell[3], const uint3
 int vlff_lattice_fit(const double origin[3], const double cell[3], const uint32_t dims[3], const long keep_lo[3],
                      const long keep_hi[3], const double lo[3], const double hi[3], double limit, int32_t shift[3],
                      uint32_t ndims[3]);
+int vlff_lattice_window(const double origin[3], const double cell[3], const uint32_t dims[3], const double lo[3],
+                        const double hi[3], double limit, size_t max_cells, int32_t shift[3], uint32_t ndims[3]);
 /* A cubic lattice's cell (voxels) as the per-axis sizes the functions take. */
 #define VLFF_LATTICE_CUBE(v) ((const double[3]){(v), (v), (v)})
 /* Cell index i of a dims grid as its x, y, z. */

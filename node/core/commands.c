@@ -241,6 +241,9 @@ void update_state(struct vlff_node *n) {
   double box_lo[3], box_hi[3];
   long long grown;
   vlff_publisher_box(n->pub, box_lo, box_hi, &grown);
+  long long slides, far_dropped;
+  size_t far_blocks, far_bytes, far_limit;
+  vlff_publisher_far(n->pub, &slides, &far_blocks, &far_bytes, &far_limit, &far_dropped);
   pthread_mutex_lock(&n->slock);
   unsigned f = n->st.error_flags & VLFF_NODE_ERR_CHECKPOINT;
   if (vlff_frame_watch_lost(&n->fwatch, now, n->cfg.shm.ring)) f |= VLFF_NODE_ERR_CAMERA_LOST, n->st.fps_in = 0;
@@ -266,6 +269,8 @@ void update_state(struct vlff_node *n) {
   n->st.evidence_paged = (long long)paged, n->st.evidence_paged_out = paged_out;
   n->st.evidence_paged_in = paged_in, n->st.evidence_dropped = dropped;
   n->st.box_growths = grown, n->st.box_refused = n->grow_refused;
+  n->st.box_slides = slides, n->st.far_blocks = (long long)far_blocks, n->st.far_dropped = far_dropped;
+  n->st.far_mb = (double)far_bytes / (1 << 20), n->st.far_limit_mb = (double)far_limit / (1 << 20);
   memcpy(n->st.box_lo, box_lo, sizeof box_lo), memcpy(n->st.box_hi, box_hi, sizeof box_hi);
   pthread_mutex_unlock(&n->slock);
 }

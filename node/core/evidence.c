@@ -86,9 +86,19 @@ struct vlff_evidence {
   uint8_t *pbuf;        /* [record] one record's bytes */
   float pc[VLFF_FIELD_MAX_PROMPTS]; /* one record's cosines (label) */
   long long paged_out, paged_in, page_errors;
+  /* Paged records of voxels a slide left beyond the grid (evidence_slide),
+   * by lattice voxel (origin0 + k x voxel): they come back when the grid
+   * covers them again. */
+  struct far_rec {
+    long k[3];
+    uint32_t r;
+  } *far;
+  size_t nfar, far_cap;
+  long long slides;
 };
 
 #define NO_VOXEL UINT32_MAX
+#define FAR_VOXEL (UINT32_MAX - 1) /* powner of a record beyond the grid (e->far) */
 /* slot[] values: >= 0 a slot, -1 no evidence, <= -2 a page record. */
 static bool is_paged(int32_t s) { return s <= -2; }
 static size_t record_of(int32_t s) { return (size_t)(-2 - (long)s); }
@@ -112,6 +122,7 @@ void vlff_evidence_destroy(struct vlff_evidence *e) {
     close(e->page_fd);
     unlink(e->page_path); /* its records index this run's table only */
   }
+  free(e->far);
   VLFF_FREE_ALL(e->page_path, e->slot, e->mean, e->views, e->owner, e->seen, e->cos, e->dirty, e->tmp, e->powner, e->pcos, e->pfree,
                 e->E, e->pbuf, e);
 }
@@ -202,6 +213,8 @@ static int more_slots(struct vlff_evidence *e, size_t cap) {
   return 0;
 }
 
+static void far_return(struct vlff_evidence *e);
+
 /* The grid shifted by sh voxels into nd (on the same lattice): every slot
  * and page record follows its voxel. */
 static int relayout(struct vlff_evidence *e, const int32_t sh[3], const uint32_t nd[3], char *err, size_t errlen) {
@@ -241,7 +254,73 @@ static int relayout(struct vlff_evidence *e, const int32_t sh[3], const uint32_t
     e->dims[a] = nd[a];
   }
   e->nvox = n;
+  far_return(e);
   return 0;
+}
+
+static int page_write(struct vlff_evidence *e, uint32_t vi, uint8_t count, const uint16_t *mean, const float *cos);
+static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float *E, int K);
+static void pack_slots(struct vlff_evidence *e);
+
+/* The grid at its index's cap moves on by sh into nd (vlff_lattice_window):
+ * each voxel it leaves pages its evidence out (kept by lattice voxel in
+ * e->far; without a page file, or with a full one, it is given up:
+ * evicted), then the far records the new grid covers come back to their
+ * voxels. */
+static int evidence_slide(struct vlff_evidence *e, const int32_t sh[3], const uint32_t nd[3], char *err,
+                          size_t errlen) {
+  for (size_t v = 0; v < e->nvox; v++) {
+    const int32_t s = e->slot[v];
+    if (s == -1 || vlff_lattice_index(v, e->dims, sh, nd) >= 0) continue;
+    if (e->nfar == e->far_cap) {
+      size_t c = e->far_cap ? 2 * e->far_cap : 1024;
+      struct far_rec *nf = realloc(e->far, c * sizeof *nf);
+      if (!nf) return vlff_errf(err, errlen, "evidence: out of memory sliding the grid"), -1;
+      e->far = nf, e->far_cap = c;
+    }
+    long r;
+    if (s >= 0) {
+      const float *cs = e->page_path && e->pvalid ? slot_cosines(e, s, e->E, e->pk) : NULL;
+      r = e->page_path ? page_write(e, FAR_VOXEL, e->views[s], e->mean + (size_t)s * e->D, cs) : -1;
+      e->evicted += r < 0;
+      e->views[s] = 0; /* freed: packed below */
+    } else {
+      r = (long)record_of(s);
+    }
+    e->slot[v] = -1;
+    if (r < 0) continue;
+    e->powner[r] = FAR_VOXEL;
+    struct far_rec *f = &e->far[e->nfar++];
+    long c[3];
+    vlff_lattice_xyz(v, e->dims, c);
+    for (int a = 0; a < 3; a++) f->k[a] = e->k0[a] + c[a];
+    f->r = (uint32_t)r;
+  }
+  pack_slots(e);
+  if (relayout(e, sh, nd, err, errlen)) return -1; /* drops no evidence now: nothing lost */
+  e->slides++;
+  return 0;
+}
+
+/* The far records the grid covers now back to their voxels (after any
+ * relayout: a growth or refit may reach them too). */
+static void far_return(struct vlff_evidence *e) {
+  for (size_t j = 0; j < e->nfar;) {
+    long i = 0, mul = 1;
+    bool in = true;
+    for (int a = 0; a < 3; a++) {
+      const long c = e->far[j].k[a] - e->k0[a];
+      in = in && c >= 0 && c < (long)e->dims[a];
+      i += c * mul, mul *= (long)e->dims[a];
+    }
+    if (!in) {
+      j++;
+      continue;
+    }
+    e->slot[i] = -2 - (int32_t)e->far[j].r;
+    e->powner[e->far[j].r] = (uint32_t)i;
+    e->far[j] = e->far[--e->nfar];
+  }
 }
 
 int vlff_evidence_grow(struct vlff_evidence *e, const double want_lo[3], const double want_hi[3], const double lo[3],
@@ -275,6 +354,16 @@ int vlff_evidence_grow(struct vlff_evidence *e, const double want_lo[3], const d
     }
     if (!relayout(e, sh, nd, err, errlen)) return 1;
   }
+  /* Even refitted neither box fits the index: the grid slides with the
+   * robot, to the wanted box or else the needed one (a refit, which keeps
+   * everything, went first). */
+  for (int t = 0; t < 2; t++) {
+    char serr[256];
+    if (vlff_lattice_window(e->origin, VLFF_LATTICE_CUBE(e->voxel), e->dims, blo[t], bhi[t], limit, e->max_vox, sh,
+                            nd) > 0 &&
+        !evidence_slide(e, sh, nd, serr, sizeof serr))
+      return 1;
+  }
   return -1; /* err: the smaller box's refusal */
 }
 
@@ -289,6 +378,7 @@ void vlff_evidence_reset(struct vlff_evidence *e) {
   memset(e->n_ev, 0, sizeof e->n_ev);
   e->nlost = 0;
   e->paged = e->page_top = e->nfree = 0;
+  e->nfar = 0;
   e->paged_out = e->paged_in = e->page_errors = 0;
   e->pvalid = false;
   if (e->page_fd >= 0 && ftruncate(e->page_fd, 0)) e->page_errors++;
@@ -327,9 +417,6 @@ static bool recent(const struct vlff_evidence *e, size_t s) { return e->nadd - e
  * first slots), and packs the rest. The least-observed voxels are the depth
  * noise's strays in front of and behind surfaces and surfaces seen once from
  * afar; a voxel seen again starts over. Returns the slots freed. */
-static const float *slot_cosines(struct vlff_evidence *e, int32_t s, const float *E, int K);
-static int page_write(struct vlff_evidence *e, uint32_t vi, uint8_t count, const uint16_t *mean, const float *cos);
-
 static size_t reclaim(struct vlff_evidence *e) {
   size_t hist[MAX_VIEWS + 1] = {0}, want = e->cap / RECLAIM_DIV ? e->cap / RECLAIM_DIV : 1;
   for (size_t s = 0; s < e->used; s++)
@@ -350,6 +437,12 @@ static size_t reclaim(struct vlff_evidence *e) {
     e->views[s] = 0; /* a live slot holds at least one sample */
     freed++;
   }
+  pack_slots(e);
+  return freed;
+}
+
+/* The slots whose views were set to 0 (given up) packed away. */
+static void pack_slots(struct vlff_evidence *e) {
   size_t hi = e->used;
   for (size_t s = 0; s < hi; s++) {
     if (e->views[s]) continue;
@@ -361,7 +454,6 @@ static size_t reclaim(struct vlff_evidence *e) {
     move_slot(e, --hi, s);
   }
   e->used = hi;
-  return freed;
 }
 
 /* ------------------------------------------------------------ paging */
@@ -466,6 +558,7 @@ int vlff_evidence_page_to(struct vlff_evidence *e, const char *path, size_t max_
   for (size_t v = 0; v < e->nvox; v++)
     if (is_paged(e->slot[v])) e->slot[v] = -1;
   e->paged = e->page_top = e->nfree = 0;
+  e->nfar = 0;
   e->page_cap = max_bytes / page_record(e->D);
   if (e->page_cap > (size_t)INT32_MAX - 2) e->page_cap = (size_t)INT32_MAX - 2;
   if (!e->page_cap) return 0;
@@ -841,7 +934,7 @@ struct ev_header {
 static size_t record_size(int D) { return 4 + 1 + (size_t)D * 2; }
 
 size_t vlff_evidence_save_size(const struct vlff_evidence *e) {
-  return sizeof(struct ev_header) + (e->used + e->paged) * record_size(e->D);
+  return sizeof(struct ev_header) + (e->used + e->paged - e->nfar) * record_size(e->D);
 }
 
 size_t vlff_evidence_save_part(const struct vlff_evidence *e, uint64_t *cursor, uint8_t *out, size_t cap) {
@@ -851,7 +944,7 @@ size_t vlff_evidence_save_part(const struct vlff_evidence *e, uint64_t *cursor, 
   const size_t rs = record_size(e->D);
   uint8_t *o = out;
   if (*cursor == 0) {
-    struct ev_header h = {.D = e->D, .voxel = e->voxel, .used = e->used + e->paged};
+    struct ev_header h = {.D = e->D, .voxel = e->voxel, .used = e->used + e->paged - e->nfar};
     memcpy(h.dims, e->dims, sizeof h.dims);
     memcpy(h.origin, e->origin, sizeof h.origin);
     if (cap < sizeof h) return 0;

@@ -93,8 +93,15 @@ struct vlff_evidence *vlff_evidence_for(const struct vlff_cfg_publish *pub, cons
  * the grid already held it; -1 with err for a box that is empty or not
  * finite, a fixed grid (vlff_evidence_for with field.grow off, or
  * vlff_evidence_create), an index past a quarter of publish.evidence_max_mb,
- * or no memory: the evidence unchanged. A load of saved evidence whose grid
- * holds this one on its lattice grows to it first. */
+ * or no memory: the evidence unchanged. Where even a refit passes the index
+ * budget, the grid slides with the box instead (vlff_lattice_window; 1): the
+ * voxels it leaves page their evidence out, kept by their place in the
+ * world, and come back to their voxels when a later grid covers them (a
+ * slide back, a growth or a refit); without a page file, or with a full
+ * one, it is given up (vlff_evidence_evicted). Such far records are not in
+ * a save (vlff_evidence_save_size counts the grid's voxels). A load of
+ * saved evidence whose grid holds this one on its lattice grows to it
+ * first. */
 int vlff_evidence_grow(struct vlff_evidence *e, const double want_lo[3], const double want_hi[3], const double lo[3],
                        const double hi[3], double limit, char *err, size_t errlen);
 void vlff_evidence_destroy(struct vlff_evidence *e);

@@ -103,6 +103,11 @@ struct vlff_node_status {
    * evidence's index budget). */
   double box_lo[3], box_hi[3];
   long long box_growths, box_refused;
+  /* Beyond the caps (docs/field.md): how often the map's grid slid with
+   * the robot, and the far map it left behind (publish.h, far.h): blocks,
+   * MiB and its limit (shm.map_far_max_mb), blocks dropped for that limit. */
+  long long box_slides, far_blocks, far_dropped;
+  double far_mb, far_limit_mb;
   long long frames_in;          /* frames read from the ring */
   long long frames_lost;        /* lapped or torn in the ring */
   long long frames_invalid;     /* refused, all reasons: the sum of refused[] */

@@ -19,6 +19,7 @@
 
 #include "bounds.h"
 #include "evidence.h"
+#include "far.h"
 #include "hold.h"
 #include "lattice.h"
 #include "log.h"
@@ -48,6 +49,12 @@ struct vlff_publisher {
   /* The grid grew since the last publish: the next writes it whole, as it
    * is (its labels are still right; only readers' geometry is new). */
   bool regridded;
+  /* The far map (far.h): what the window left when it slid at its cap;
+   * NULL for a fixed box. far_owed: the next publish carries it. */
+  struct vlff_far *far;
+  bool far_owed;
+  long long slides;
+  size_t far_limit; /* bytes: shm.map_far_max_mb */
   uint64_t heartbeat_warned;       /* vlff_warn_limited's */
   uint32_t dims[3];
   size_t nvox;
@@ -150,6 +157,7 @@ struct vlff_publisher {
 
 void vlff_publisher_destroy(struct vlff_publisher *p) {
   if (!p) return;
+  vlff_far_destroy(p->far);
   vlff_map_detach(p->map);
   vlff_evidence_destroy(p->ev);
   vlff_hold_destroy(p->hold);
@@ -185,6 +193,12 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
   for (int i = 0; i < 3; i++) p->origin[i] = p->origin0[i] = field->scene_min[i];
   p->field = *field;
   p->max_voxels = (size_t)shm->map_max_voxels;
+  p->far_limit = (size_t)shm->map_far_max_mb << 20;
+  if (field->grow && !(p->far = vlff_far_create(p->origin0, p->voxel, p->far_limit))) {
+    snprintf(err, errlen, "out of memory");
+    vlff_publisher_destroy(p);
+    return NULL;
+  }
   p->lw = pub->label_width;
   p->lh = pub->label_height;
   if (p->lw > shm->label_max_width || p->lh > shm->label_max_height) {
@@ -356,7 +370,12 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
     vlff_atomic_abort(&a);
     return -1;
   }
-  return vlff_atomic_commit(&a, err, errlen);
+  if (vlff_atomic_commit(&a, err, errlen)) return -1;
+  /* The far map beside it (far.h): the same checkpoint's, or none. */
+  char fp[VLFF_CFG_PATH + 64];
+  if (p->far && snprintf(fp, sizeof fp, "%s.far", path) >= (int)sizeof fp)
+    return snprintf(err, errlen, "%s.far: path too long", path), -1;
+  return p->far ? vlff_far_save(p->far, fp, err, errlen) : 0;
 }
 
 /* A saved map is read a piece at a time, never held whole: its evidence
@@ -406,6 +425,7 @@ static int obs_get(struct obs_reader *r, uint64_t off, void *dst, size_t n, char
 
 static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3], char *err,
                             size_t errlen);
+static void far_restore_voxel(void *ctx, size_t i, uint16_t label, uint8_t conf);
 
 /* A voxel that holds something: observed (free space or a surface), owed a
  * relabel, seen through, or labelled (what was published is what was
@@ -614,6 +634,15 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   p->nthru = 0;
   p->need_full = true; /* every voxel may have changed */
   rc = 0;
+  /* What the window had left behind, beside the grid's file (far.h). */
+  char fp[VLFF_CFG_PATH + 64], ferr[400];
+  if (p->far && snprintf(fp, sizeof fp, "%s.far", path) < (int)sizeof fp) {
+    int fr = vlff_far_load(p->far, fp, ferr, sizeof ferr);
+    if (fr < 0)
+      VLFF_WARN(TAG, "far map not restored (the map reads unknown beyond its window until the robot returns): %s",
+                ferr);
+    p->far_owed = fr == 0 || p->far_owed;
+  }
 out:
   VLFF_FREE_ALL(g, marks, r.buf);
   close(r.fd);
@@ -626,12 +655,13 @@ const struct vlff_evidence *vlff_publisher_evidence(const struct vlff_publisher 
  * into nd (grown or refitted on its lattice, lattice.h): all allocated
  * before anything changes (0; -1 with err, naming the grid: out of memory,
  * or the map's segment could not grow, with vlff_map_reserve's reason).
- * Every voxel that holds something keeps its place in the world: the
- * callers never drop one (drops_held). */
+ * Every voxel that holds something keeps its place in the world: growths
+ * and refits never drop one (drops_held); a slide (publisher_slide) gives
+ * those it drops to the far map first. */
 static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3], char *err,
                             size_t errlen) {
   const size_t n = vlff_lattice_cells(nd);
-  const uint32_t *od = p->dims;
+  const uint32_t od[3] = {p->dims[0], p->dims[1], p->dims[2]};
   /* The segment first: a larger one holding the published map as it is takes
    * its name (vlff_map_reserve; readers follow it), or nothing changes. A
    * quarter more than this grid, up to shm.map_max_voxels: a robot walking on
@@ -670,8 +700,17 @@ static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const
     return snprintf(err, errlen, "map: out of memory for %ux%ux%u voxels", nd[0], nd[1], nd[2]), -1;
   }
   /* Between keyframes no view's list is open (thru_commit emptied it). */
-  for (size_t k = 0; k < p->nthru; k++) thru_list[k] = (uint32_t)vlff_lattice_index(p->thru_list[k], od, sh, nd);
-  for (size_t k = 0; k < p->ndirty; k++) dirty_idx[k] = (size_t)vlff_lattice_index(p->dirty_idx[k], od, sh, nd);
+  /* A slide (publisher_slide) drops voxels from them: those beyond the new grid. */
+  size_t nt = 0, ndirty = 0;
+  for (size_t k = 0; k < p->nthru; k++) {
+    long i = vlff_lattice_index(p->thru_list[k], od, sh, nd);
+    if (i >= 0) thru_list[nt++] = (uint32_t)i;
+  }
+  for (size_t k = 0; k < p->ndirty; k++) {
+    long i = vlff_lattice_index(p->dirty_idx[k], od, sh, nd);
+    if (i >= 0) dirty_idx[ndirty++] = (size_t)i;
+  }
+  p->nthru = nt, p->ndirty = ndirty;
   VLFF_FREE_ALL(p->observed, p->conf, p->hits, p->labels, p->hit_sum, p->pub_labels, p->pub_conf, p->thru, p->dirty,
                 p->qidx, p->dirty_idx, p->qxyz, p->qdens, p->qmargin, p->qlabel, p->runs, p->thru_list);
   p->observed = observed, p->conf = conf, p->hits = hits, p->labels = labels, p->hit_sum = hit_sum;
@@ -684,12 +723,54 @@ static int publisher_regrid(struct vlff_publisher *p, const int32_t sh[3], const
     p->dims[a] = nd[a];
   }
   p->nvox = n;
+  /* The far map's voxels the grid covers now come back (a slide's return,
+   * or a growth or refit that reaches them). */
+  if (p->far && vlff_far_blocks(p->far)) vlff_far_restore(p->far, od, sh, nd, p->k0, far_restore_voxel, p);
   /* Readers see the new geometry with the next publish, which writes the
    * whole grid as it is: relabelling it all (need_full) would hold the
    * keyframes behind it for a second on a building. */
   p->regridded = true;
   p->refresh_at = 0;
   p->grown++;
+  return 0;
+}
+
+static void count_state(struct vlff_publisher *p, size_t i, int d);
+
+/* A voxel the far map gives back to the window: what was published there,
+ * as observed (a class: a measured surface at the voxel's centre, seen
+ * twice; FREE: space seen through), so that the next relabel keeps it
+ * mapped. */
+static void far_restore_voxel(void *ctx, size_t i, uint16_t label, uint8_t conf) {
+  struct vlff_publisher *p = ctx;
+  p->labels[i] = p->pub_labels[i] = label;
+  p->conf[i] = p->pub_conf[i] = conf;
+  p->observed[i] = 1;
+  count_state(p, i, 1); /* a new voxel of the grid: UNKNOWN, counted nowhere, before */
+  if (label > VLFF_LABEL_MAX) return;
+  long c[3];
+  vlff_lattice_xyz(i, p->dims, c);
+  p->hits[i] = 2;
+  for (int a = 0; a < 3; a++) p->hit_sum[3 * i + a] = (float)(2 * (p->origin[a] + (c[a] + 0.5) * p->voxel));
+}
+
+/* The grid at its cap moves on by sh into nd (vlff_lattice_window): the
+ * voxels it leaves go to the far map, then the far map's voxels the new
+ * grid covers come back; the next publish carries the far map. */
+static int publisher_slide(struct vlff_publisher *p, const int32_t sh[3], const uint32_t nd[3], char *err,
+                           size_t errlen) {
+  const long long dropped = vlff_far_dropped(p->far);
+  if (vlff_far_store(p->far, p->dims, p->k0, sh, nd, p->labels, p->conf))
+    return snprintf(err, errlen, "map: out of memory for the far map"), -1;
+  if (publisher_regrid(p, sh, nd, err, errlen)) return -1;
+  p->n_labelled = p->n_free = 0; /* the voxels it left are counted out */
+  for (size_t i = 0; i < p->nvox; i++) count_state(p, i, 1);
+  p->far_owed = true;
+  p->slides++;
+  if (vlff_far_dropped(p->far) > dropped)
+    VLFF_WARN(TAG, "far map: %lld blocks farthest from the robot dropped for shm.map_far_max_mb (%lld so far); "
+                   "they read unknown",
+              vlff_far_dropped(p->far) - dropped, vlff_far_dropped(p->far));
   return 0;
 }
 
@@ -743,6 +824,17 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double want_lo[3], const
     }
     if (publisher_regrid(p, sh, nd, err, errlen) == 0) return refit ? 2 : 1;
   }
+  /* Even refitted neither box fits the capacity: the grid slides with the
+   * robot, to the wanted box or else the needed one, what it leaves kept in
+   * the far map (far.h). A refit, which keeps everything where it is, goes
+   * first. */
+  for (int t = 0; p->far && t < 2; t++) {
+    char serr[320];
+    if (vlff_lattice_window(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, blo[t], bhi[t], limit, p->max_voxels,
+                            sh, nd) > 0 &&
+        publisher_slide(p, sh, nd, serr, sizeof serr) == 0)
+      return 3;
+  }
   return -1; /* err: the needed box's refusal */
 }
 
@@ -751,7 +843,17 @@ void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[
   if (grown) *grown = p->grown;
 }
 
+void vlff_publisher_far(const struct vlff_publisher *p, long long *slides, size_t *blocks, size_t *bytes,
+                        size_t *limit, long long *dropped) {
+  *slides = p->slides;
+  *blocks = p->far ? vlff_far_blocks(p->far) : 0;
+  *bytes = p->far ? vlff_far_bytes(p->far) : 0;
+  *limit = p->far_limit;
+  *dropped = p->far ? vlff_far_dropped(p->far) : 0;
+}
+
 void vlff_publisher_reset(struct vlff_publisher *p) {
+  if (p->far) vlff_far_reset(p->far), p->far_owed = true;
   if (p->ev) vlff_evidence_reset(p->ev);
   p->ev_full_said = p->ev_overflow_said = p->ev_paged_said = p->ev_page_error_said = false;
   p->lost_mask = 0;
@@ -1347,6 +1449,26 @@ static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t
 
 /* Publishes runs[0..nruns) of the grid (runs NULL: the whole grid), the
  * prompts and, when img is not NULL, the label image. */
+/* The far map to the segment, for the next publish to carry: the segment
+ * moved to a larger one first when it does not hold it (a quarter more,
+ * as the grid's growths), and the move said in the log. */
+static int publish_far(struct vlff_publisher *p, char *err, size_t errlen) {
+  struct vlff_map_far far;
+  if (vlff_far_export(p->far, &far)) return snprintf(err, errlen, "map publish: out of memory for the far map"), -1;
+  const uint64_t want = vlff_map_far_bytes(far.nblocks, far.nruns);
+  if (want > vlff_map_far_capacity(p->map)) {
+    if (vlff_map_reserve_far(p->map, vlff_map_capacity(p->map), want + want / 4))
+      return snprintf(err, errlen, "map: its segment could not grow for a far map of %.1f MiB: %s",
+                      (double)want / (1 << 20), vlff_shm_last_message()),
+             -1;
+    VLFF_INFO(TAG, "map: its segment now has room for a far map of %.1f MiB", (double)(want + want / 4) / (1 << 20));
+  }
+  if (vlff_map_set_far(p->map, &far))
+    return snprintf(err, errlen, "map publish: the far map: %s", vlff_shm_last_message()), -1;
+  p->far_owed = false;
+  return 0;
+}
+
 static int publish_ranges(struct vlff_publisher *p, const struct vlff_map_range *runs, size_t nruns,
                           const char *const *prompts, int k, const struct vlff_map_label_image *img,
                           struct vlff_publish_result *r, char *err, size_t errlen) {
@@ -1355,7 +1477,9 @@ static int publish_ranges(struct vlff_publisher *p, const struct vlff_map_range 
   memcpy(grid.dims, p->dims, sizeof grid.dims);
   struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k, .label_image = img,
                                .ranges = runs, .range_count = runs ? nruns : 0};
+  if (p->far_owed && publish_far(p, err, errlen)) return -1;
   if (vlff_map_publish(p->map, &up)) {
+    p->far_owed = true;
     snprintf(err, errlen, "map publish: %s", vlff_shm_last_message());
     p->need_full = true; /* a replaced segment holds nothing: all of it again */
     return -1;

@@ -120,8 +120,12 @@ void vlff_publisher_reset(struct vlff_publisher *p);
  * geometry with it: docs/shm.md "A map that grows"). A grid that would pass
  * its cap is refitted instead: to the voxels that hold something and the
  * box, the empty ones beyond dropped (docs/field.md "Growth"; the voxels
- * are scanned once for both boxes). 1 grown,
- * 2 grown with the map refitted, 0 when both already held it, -1 with err
+ * are scanned once for both boxes). Where even that passes the cap, the
+ * grid slides with the robot (vlff_lattice_window): the voxels it leaves
+ * go to the far map (far.h), published beside the grid, and come back
+ * when it covers them again; the evidence slides alike (evidence.h). 1
+ * grown, 2 grown with the map refitted, 3 slid, 0 when both already held
+ * it, -1 with err
  * for a fixed box, a bad box, a grid past shm.map_max_voxels or evidence
  * past its index budget even refitted, a map segment that could not grow to
  * it (vlff_map_reserve), or no memory; what did not grow is unchanged. */
@@ -129,6 +133,10 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double want_lo[3], const
                         const double lo[3], const double hi[3], char *err, size_t errlen);
 /* The map's box now, and its growths so far (grown may be NULL). */
 void vlff_publisher_box(const struct vlff_publisher *p, double lo[3], double hi[3], long long *grown);
+/* Beyond the caps: the grid's slides so far, and the far map's blocks,
+ * bytes, byte limit and blocks dropped for it (all 0 for a fixed box). */
+void vlff_publisher_far(const struct vlff_publisher *p, long long *slides, size_t *blocks, size_t *bytes,
+                        size_t *limit, long long *dropped);
 
 /* Publication (docs/node.md, "Publishing"). The grid is relabelled through
  * the field in three ways, each published at once to the map segment, whose

@@ -127,7 +127,9 @@ static bool view_extent(const struct vlff_view *v, double lo[3], double hi[3]) {
  * both, ahead of what it needs by a quarter of the box's side on that axis
  * (at least GROW_AHEAD_M): each growth copies every grid, so a robot walking
  * on grows them a few times per building rather than every few keyframes.
- * When a cap refuses that, the growth is tried again with the margin alone.
+ * When a cap refuses that, the growth is tried again with the margin alone,
+ * and where a cap refuses both, each grid slides with the camera instead
+ * (docs/field.md "Beyond the caps").
  * What cannot grow even then (the world's limit, a memory cap) is said,
  * rate-limited, and counted; the keyframe is trained and mapped within the
  * box as it is. */
@@ -149,8 +151,12 @@ static void grow_to_view(struct vlff_node *n, const struct vlff_view *v) {
   }
   if (held) return;
   char e[320];
+  /* Growing (the wanted box, else the needed one) before sliding: a growth
+   * keeps every cell. */
   int rf = vlff_field_grow(n->field, alo, ahi, e, sizeof e);
   if (rf < 0) rf = vlff_field_grow(n->field, lo, hi, e, sizeof e);
+  if (rf < 0) rf = vlff_field_slide(n->field, alo, ahi, e, sizeof e);
+  if (rf < 0) rf = vlff_field_slide(n->field, lo, hi, e, sizeof e);
   if (rf < 0) vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
   int rp = vlff_publisher_grow(n->pub, alo, ahi, lo, hi, e, sizeof e);
   if (rp < 0) vlff_warn_limited(&n->warned.grow, TAG, "the box does not grow: %s", e);
@@ -162,7 +168,9 @@ static void grow_to_view(struct vlff_node *n, const struct vlff_view *v) {
                    "map [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f] m%s",
               v->c2w[3], v->c2w[7], v->c2w[11], flo[0], fhi[0], flo[1], fhi[1], flo[2], fhi[2], plo[0], phi[0],
               plo[1], phi[1], plo[2], phi[2],
-              rp == 2 ? " (refitted at shm.map_max_voxels: the voxels that held nothing beyond it dropped)" : "");
+              rp == 2   ? " (refitted at shm.map_max_voxels: the voxels that held nothing beyond it dropped)"
+              : rp == 3 ? " (slid at shm.map_max_voxels: what it left is in the far map)"
+                        : "");
   }
 }
 

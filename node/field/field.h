@@ -155,14 +155,22 @@ void vlff_field_exposure(const struct vlff_field *f, const float *xyz, size_t n,
  *  - vlff_field_grow: the box grows, in whole cells, to hold [lo, hi]
  *    (clipped to the world): 1 grown, 0 when it already held it, -1 (f
  *    unchanged) when the box is fixed, the box is empty or not finite, or
- *    the cells would pass train.occupancy_max_mb (err names the size). New
- *    cells start as a new field's (occupied, nothing fitted); old cells keep
- *    their state. A mapping reset (vlff_field_reinit) returns to the first
- *    box. Checkpoints keep the box.
- *  - vlff_field_box: the box now; vlff_field_growths: growths since create. */
+ *    [lo, hi] alone would pass train.occupancy_max_mb (err names the size).
+ *    New cells start as a new field's (occupied, nothing fitted); old cells
+ *    keep their state.
+ *  - vlff_field_slide: as grow, but where the grown box would pass
+ *    train.occupancy_max_mb the box slides instead (vlff_lattice_window:
+ *    [lo, hi] and as much of the old box around it as fits): 2, the cells
+ *    it leaves dropped (the hash grid, the world's, keeps what was learned
+ *    there; docs/field.md "Beyond the caps"). A mapping reset
+ *    (vlff_field_reinit) returns to the first box. Checkpoints keep the box.
+ *  - vlff_field_box: the box now; vlff_field_growths: growths since create
+ *    (slides too), vlff_field_slides: slides since create. */
 int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen);
+int vlff_field_slide(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen);
 void vlff_field_box(const struct vlff_field *f, double lo[3], double hi[3]);
 long long vlff_field_growths(const struct vlff_field *f);
+long long vlff_field_slides(const struct vlff_field *f);
 
 /* Render a view at cam's pose and intrinsics (cam->rgb/depth/features are
  * ignored). Outputs may be NULL: rgb[h][w][3] in [0,1], depth[h][w] metres,

@@ -356,7 +356,7 @@ struct vlff_field {
    * (first_lo; 0 when fixed). grown: growths since create. */
   double box_lo[3], box_hi[3], first_lo[3];
   int occ_k0[3];
-  long long grown;
+  long long grown, slides;
   /* Training rays whose measured depth ended in each occupancy cell
    * (saturating): how much the field has been fitted there
    * (vlff_field_exposure). */

@@ -121,8 +121,10 @@ void vlff_field_box(const struct vlff_field *f, double lo[3], double hi[3]) {
 }
 
 long long vlff_field_growths(const struct vlff_field *f) { return f->grown; }
+long long vlff_field_slides(const struct vlff_field *f) { return f->slides; }
 
-int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen) {
+static int grow_or_slide(struct vlff_field *f, const double lo[3], const double hi[3], bool slide, char *err,
+                         size_t errlen) {
   const struct vlff_cfg_field *c = &f->cfg.field;
   const uint32_t od[3] = {(uint32_t)f->occ.dims[0], (uint32_t)f->occ.dims[1], (uint32_t)f->occ.dims[2]};
   int32_t sh[3];
@@ -140,7 +142,16 @@ int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3]
     if (err && errlen) snprintf(err, errlen, "field: the box is fixed (field.grow is off)");
     return -1;
   }
-  const double need = vlff_occ_bytes((double)vlff_lattice_cells(nd));
+  double need = vlff_occ_bytes((double)vlff_lattice_cells(nd));
+  int grown = 1;
+  /* Past train.occupancy_max_mb the box slides with the robot instead: the
+   * cells it leaves are dropped, and come back, as a growth's new cells do,
+   * occupied with nothing fitted (the hash grid is the world's: what was
+   * learned there is still in it). */
+  const size_t max_cells = (size_t)(f->cfg.train.occupancy_max_mb * 1048576.0 / vlff_occ_bytes(1));
+  if (slide && !vlff_occ_fits(&f->cfg.train, (double)vlff_lattice_cells(nd)) &&
+      vlff_lattice_window(f->box_lo, cell, od, lo, hi, c->world_limit_m, max_cells, sh, nd) > 0)
+    grown = 2, need = vlff_occ_bytes((double)vlff_lattice_cells(nd));
   if (!vlff_occ_fits(&f->cfg.train, (double)vlff_lattice_cells(nd))) {
     if (err && errlen)
       snprintf(err, errlen,
@@ -157,5 +168,14 @@ int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3]
     return -1;
   }
   f->grown++;
-  return 1;
+  f->slides += grown == 2;
+  return grown;
+}
+
+int vlff_field_grow(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen) {
+  return grow_or_slide(f, lo, hi, false, err, errlen);
+}
+
+int vlff_field_slide(struct vlff_field *f, const double lo[3], const double hi[3], char *err, size_t errlen) {
+  return grow_or_slide(f, lo, hi, true, err, errlen);
 }

@@ -9,6 +9,8 @@
 
 #include <errno.h>
 #include <inttypes.h>
+#include <math.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -77,8 +79,56 @@ static void write_binary(struct out *o, const struct vlff_map_info *mi, const st
   }
 }
 
+/* The far map after the grid, when there is one: VLFFFAR1, origin, voxel
+ * size, block and run counts, the blocks and the runs as in the segment. */
+static void write_far(struct out *o, const struct vlff_map_far *f) {
+  if (!f->nblocks) return;
+  put(o, "VLFFFAR1", 8);
+  put(o, f->origin, 24);
+  put(o, &f->voxel_size, 8);
+  put(o, &f->nblocks, 4);
+  put(o, &f->nruns, 4);
+  put(o, f->blocks, (size_t)f->nblocks * sizeof *f->blocks);
+  put(o, f->runs, (size_t)f->nruns * sizeof *f->runs);
+}
+
+/* The far map's labelled voxels outside the grid (the grid answers inside
+ * it, docs/shm.md "The far map"): their count, and each written to o when o
+ * is given. */
+static size_t far_labelled(struct out *o, const struct vlff_map_far *f, const struct vlff_map_grid *g) {
+  const uint32_t E = VLFF_MAP_FAR_EDGE;
+  size_t n = 0;
+  for (uint32_t b = 0; b < f->nblocks; b++) {
+    const uint32_t end = b + 1 < f->nblocks ? f->blocks[b + 1].first_run : f->nruns;
+    uint32_t at = 0;
+    for (uint32_t r = f->blocks[b].first_run; r < end; at += f->runs[r].count, r++) {
+      const struct vlff_map_far_run *run = &f->runs[r];
+      if (run->label > VLFF_LABEL_MAX) continue;
+      for (uint32_t v = at; v < at + run->count; v++) {
+        const uint32_t c[3] = {v % E, v / E % E, v / (E * E)};
+        double w[3];
+        bool in_grid = true;
+        for (int a = 0; a < 3; a++) {
+          w[a] = f->origin[a] + ((double)f->blocks[b].key[a] * E + c[a] + 0.5) * f->voxel_size;
+          const double gi = floor((w[a] - g->origin[a]) / g->voxel_size);
+          in_grid = in_grid && gi >= 0 && gi < g->dims[a];
+        }
+        if (in_grid) continue;
+        n++;
+        if (!o) continue;
+        float xyz[3] = {(float)w[0], (float)w[1], (float)w[2]};
+        put(o, xyz, sizeof xyz);
+        put(o, vlff_label_color(run->label), 3);
+        put(o, &run->label, 2);
+        put(o, &run->conf, 1);
+      }
+    }
+  }
+  return n;
+}
+
 static void write_ply(struct out *o, const struct vlff_map_info *mi, const struct vlff_map_snapshot *s,
-                      size_t labelled) {
+                      const struct vlff_map_far *far, size_t labelled) {
   const struct vlff_map_grid *g = &mi->grid;
   char head[512];
   int n = snprintf(head, sizeof head,
@@ -111,6 +161,7 @@ static void write_ply(struct out *o, const struct vlff_map_info *mi, const struc
         put(o, &lab, 2);
         put(o, &conf, 1);
       }
+  far_labelled(o, far, g);
 }
 
 int vlff_dump_map(const char *name, const char *path) {
@@ -123,9 +174,11 @@ int vlff_dump_map(const char *name, const char *path) {
   if (!m) return vlff_shm_fail(name);
   struct vlff_map_snapshot *s = vlff_map_snapshot_new(m);
   struct vlff_map_info mi;
+  struct vlff_map_far far;
   int rc = 1;
   struct out o = {0};
-  if (!s || vlff_map_snapshot_take(m, s) < 0 || vlff_map_snapshot_info(s, &mi) < 0) {
+  if (!s || vlff_map_snapshot_take(m, s) < 0 || vlff_map_snapshot_info(s, &mi) < 0 ||
+      vlff_map_snapshot_far(s, &far) < 0) {
     vlff_shm_fail(name);
     goto done;
   }
@@ -144,15 +197,22 @@ int vlff_dump_map(const char *name, const char *path) {
     uint16_t l = mi.grid.labels[i];
     labelled += l <= VLFF_LABEL_MAX, free_ += l == VLFF_LABEL_FREE, unknown += l == VLFF_LABEL_UNKNOWN;
   }
-  if (ends_with(path, ".ply") || ends_with(path, ".PLY")) write_ply(&o, &mi, s, labelled);
-  else write_binary(&o, &mi, s, nvox);
+  const size_t far_n = far_labelled(NULL, &far, &mi.grid);
+  if (ends_with(path, ".ply") || ends_with(path, ".PLY")) {
+    write_ply(&o, &mi, s, &far, labelled + far_n);
+  } else {
+    write_binary(&o, &mi, s, nvox);
+    write_far(&o, &far);
+  }
   if (o.oom) {
     fprintf(stderr, "vlff-shm: %s: out of memory for %zu voxels\n", VLFF_Q(path), nvox);
   } else if (vlff_write_file_atomic(path, o.p, o.n, err, sizeof err) < 0) {
     fprintf(stderr, "vlff-shm: %s\n", err);
   } else {
-    printf("version %" PRIu64 " voxels %zu labelled %zu free %zu unknown %zu -> %s\n", mi.version, nvox, labelled,
-           free_, unknown, VLFF_Q(path));
+    printf("version %" PRIu64 " voxels %zu labelled %zu free %zu unknown %zu", mi.version, nvox, labelled, free_,
+           unknown);
+    if (far.nblocks) printf(" far_blocks %" PRIu32 " far_labelled %zu", far.nblocks, far_n);
+    printf(" -> %s\n", VLFF_Q(path));
     rc = 0;
   }
 done:

@@ -188,6 +188,10 @@ static int cmd_stat(const char *name) {
     printf("grid_origin %.4f %.4f %.4f\ngrid_voxel_size %.4f\ngrid_dims %" PRIu32 " %" PRIu32 " %" PRIu32 "\n",
            mi.grid.origin[0], mi.grid.origin[1], mi.grid.origin[2], mi.grid.voxel_size, mi.grid.dims[0],
            mi.grid.dims[1], mi.grid.dims[2]);
+    struct vlff_map_far far;
+    if (vlff_map_snapshot_far(s, &far) == 0)
+      printf("far_blocks %" PRIu32 "\nfar_bytes %" PRIu64 "\nfar_capacity %" PRIu64 "\n", far.nblocks,
+             vlff_map_far_bytes(far.nblocks, far.nruns), vlff_map_far_capacity(m));
     for (int i = 0; i < mi.prompt_count; i++)
       printf("prompt %d %s\n", i, VLFF_Q(vlff_map_snapshot_prompt(s, (uint16_t)i)));
     if (mi.has_label_image)

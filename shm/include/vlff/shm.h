@@ -88,7 +88,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change of any segment layout. */
-#define VLFF_SHM_ABI_VERSION 9
+#define VLFF_SHM_ABI_VERSION 10
 
 /* ------------------------------------------------------------------ errors */
 
@@ -468,6 +468,55 @@ int vlff_map_reserve(struct vlff_map *map, uint64_t max_voxels);
 /* The grid size the segment holds (voxels), as the handle sees it now. */
 uint64_t vlff_map_capacity(const struct vlff_map *map);
 
+/* The far map (ABI 10). A robot's world is larger than any grid a controller
+ * should copy: the grid above is the window around the robot, and what the
+ * writer moved out of it as the robot went on is kept beside it, compacted,
+ * as far blocks: cubes of VLFF_MAP_FAR_EDGE voxels of voxel_size on a lattice
+ * from origin (block key k covers origin + [k x EDGE, (k + 1) x EDGE) x
+ * voxel_size on each axis), each a run-length list of (label, confidence)
+ * over its EDGE^3 voxels in the grid's order (x fastest, then y, z). Where the
+ * grid covers a point, the grid answers; elsewhere the far block holding it,
+ * else VLFF_LABEL_UNKNOWN. vlff_map_label_at and the snapshots read both
+ * (docs/shm.md "The far map"). */
+#define VLFF_MAP_FAR_EDGE 16u
+struct vlff_map_far_block {
+  int32_t key[3];     /* block coordinates on the far lattice */
+  uint32_t first_run; /* its runs: [first_run, the next block's first_run or nruns) */
+};
+struct vlff_map_far_run {
+  uint16_t label; /* as the grid's: a prompt, VLFF_LABEL_FREE or VLFF_LABEL_UNKNOWN */
+  uint16_t count; /* voxels, >= 1; a block's counts sum to EDGE^3 */
+  uint8_t conf;
+  uint8_t pad;
+};
+struct vlff_map_far {
+  double origin[3], voxel_size;
+  uint32_t nblocks, nruns;
+  const struct vlff_map_far_block *blocks; /* sorted by key: z, then y, then x; each key once */
+  const struct vlff_map_far_run *runs;
+};
+/* The bytes a far map of nblocks blocks and nruns runs takes in the segment
+ * (each of its two buffers holds one). */
+uint64_t vlff_map_far_bytes(uint32_t nblocks, uint32_t nruns);
+/* NULL when far keeps the contract above (blocks and runs, sorted unique
+ * keys, every block's runs of at least one voxel summing to EDGE^3, a
+ * geometry within the grid's physical bounds), else a constant text naming
+ * what it breaks: for a writer checking a far map it read back (a
+ * checkpoint) before it publishes it. */
+const char *vlff_map_far_check(const struct vlff_map_far *far);
+/* Writer: the far map the next publish carries (any publish, partial ones
+ * too), copied now; NULL or no blocks: none. Until then readers read the far
+ * map they had. -1: EINVAL for one that breaks the contract above (unsorted
+ * or repeated keys, a block whose runs do not sum to EDGE^3, a run of 0, a
+ * geometry outside the grid's physical bounds), EMSGSIZE when it passes the
+ * segment's far capacity (vlff_map_reserve_far), ENOMEM. */
+int vlff_map_set_far(struct vlff_map *map, const struct vlff_map_far *far);
+/* Writer: as vlff_map_reserve, also making room for a far map of far_bytes
+ * (vlff_map_far_bytes); neither capacity shrinks. */
+int vlff_map_reserve_far(struct vlff_map *map, uint64_t max_voxels, uint64_t far_bytes);
+/* The far map's capacity in bytes, as the handle sees it now. */
+uint64_t vlff_map_far_capacity(const struct vlff_map *map);
+
 /* Reader: attaches read-only and validates the segment. A reader's handle follows
  * its writer's vlff_map_reserve by itself. */
 struct vlff_map *vlff_map_attach(const char *name);
@@ -475,8 +524,9 @@ struct vlff_map *vlff_map_attach(const char *name);
 void vlff_map_detach(struct vlff_map *map);
 
 /* Reader: the label and confidence of the voxel holding world point (x,y,z) in the
- * current version, read consistently. 0 and the label (VLFF_LABEL_UNKNOWN outside
- * the grid or before the first publish), or -1 (EINVAL: a NaN or infinite
+ * current version, read consistently: the grid's voxel, else the far map's
+ * (above). 0 and the label (VLFF_LABEL_UNKNOWN outside both, or before the
+ * first publish), or -1 (EINVAL: a NaN or infinite
  * coordinate; EPIPE; EAGAIN if the writer kept changing it for too long; EBADMSG:
  * inconsistent map metadata). conf may be NULL. */
 int vlff_map_label_at(struct vlff_map *map, double x, double y, double z, uint16_t *label, uint8_t *conf);
@@ -535,6 +585,9 @@ struct vlff_map_info {
 int vlff_map_snapshot_info(const struct vlff_map_snapshot *snap, struct vlff_map_info *info);
 uint16_t vlff_map_snapshot_label_at(const struct vlff_map_snapshot *snap, double x, double y, double z,
                                     uint8_t *conf);
+/* The snapshot's far map (pointers into snap; nblocks 0 when it has none).
+ * 0, or -1 (EINVAL) for NULL arguments. */
+int vlff_map_snapshot_far(const struct vlff_map_snapshot *snap, struct vlff_map_far *far);
 /* Prompt text of a label, NULL if none. */
 const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *snap, uint16_t label);
 

@@ -222,10 +222,57 @@ static void test_saved(void **state) {
   assert_int_equal(sh[0], -1), assert_int_equal(sh[1], 0), assert_int_equal(sh[2], -1);
 }
 
+/* A capped grid that must move on (vlff_lattice_window): the box it needs
+ * and the old cells within the largest margin that fits the cap. */
+static void test_window(void **state) {
+  (void)state;
+  const double origin[3] = {0, 0, 0}, cell[3] = {1, 1, 1};
+  const uint32_t dims[3] = {10, 10, 10};
+  int32_t sh[3];
+  uint32_t nd[3];
+  /* far beyond +x: no old cell is near enough to keep: the box alone */
+  const double flo[3] = {20, 0, 0}, fhi[3] = {22, 2, 2};
+  assert_int_equal(vlff_lattice_window(origin, cell, dims, flo, fhi, 1000, 60, sh, nd), 1);
+  assert_int_equal(sh[0], -20), assert_int_equal(nd[0], 2);
+  assert_int_equal(sh[1], 0), assert_int_equal(nd[1], 2);
+  assert_int_equal(sh[2], 0), assert_int_equal(nd[2], 2);
+  /* across the +x face: margin 2 fits 200 cells (4 x 6 x 6 = 144), 3 would not (5 x 8 x 8) */
+  const double lo[3] = {9, 4, 4}, hi[3] = {11, 6, 6};
+  assert_int_equal(vlff_lattice_window(origin, cell, dims, lo, hi, 1000, 200, sh, nd), 1);
+  assert_int_equal(sh[0], -7), assert_int_equal(nd[0], 4);
+  assert_int_equal(sh[1], -2), assert_int_equal(nd[1], 6);
+  assert_int_equal(sh[2], -2), assert_int_equal(nd[2], 6);
+  /* the box alone passes the cap */
+  assert_int_equal(vlff_lattice_window(origin, cell, dims, lo, hi, 1000, 7, sh, nd), -1);
+  const double bad[3] = {NAN, 0, 0};
+  assert_int_equal(vlff_lattice_window(origin, cell, dims, bad, hi, 1000, 200, sh, nd), -1);
+  /* random grids and boxes: the window holds the box, fits the cap, and
+   * keeps every old cell within its margin of the box */
+  unsigned seed = 11;
+  for (int t = 0; t < 300; t++) {
+    double o[3], c[3], blo[3], bhi[3];
+    uint32_t d[3];
+    for (int a = 0; a < 3; a++) {
+      c[a] = 0.1 + 0.9 * rand_r(&seed) / (double)RAND_MAX;
+      o[a] = (rand_r(&seed) % 2001 - 1000) * 0.01;
+      d[a] = 1 + (uint32_t)(rand_r(&seed) % 30);
+      blo[a] = o[a] + (rand_r(&seed) % 8001 - 2000) * 0.01;
+      bhi[a] = blo[a] + (rand_r(&seed) % 301) * 0.01;
+    }
+    const size_t cap = 1 + (size_t)(rand_r(&seed) % 5000);
+    if (vlff_lattice_window(o, c, d, blo, bhi, 1000, cap, sh, nd) < 0) continue;
+    assert_true(vlff_lattice_cells(nd) <= cap);
+    for (int a = 0; a < 3; a++) {
+      const double wlo = o[a] - sh[a] * c[a], whi = wlo + nd[a] * c[a];
+      assert_true(wlo <= blo[a] + 1e-9 && whi >= bhi[a] - 1e-9);
+    }
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {cmocka_unit_test(test_cover), cmocka_unit_test(test_box_union),
                                      cmocka_unit_test(test_copy_and_index),
                                      cmocka_unit_test(test_fit), cmocka_unit_test(test_fit_random),
-                                     cmocka_unit_test(test_saved)};
+                                     cmocka_unit_test(test_saved), cmocka_unit_test(test_window)};
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

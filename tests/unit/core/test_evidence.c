@@ -793,6 +793,67 @@ static void test_refit(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Beyond the caps (docs/field.md): a box that even a refit cannot hold
+ * with the grid (the first wall 500 m behind) slides the grid instead; the
+ * wall's evidence pages out, kept by its place in the world, is not in a
+ * save of the slid grid, and comes back to its voxel when the grid slides
+ * back: seen again, its samples join the ones it had. Without a page file
+ * a slide gives evidence up, counted. */
+static void test_slide(void **state) {
+  (void)state;
+  char dir[] = "/tmp/vlff-test-evslide-XXXXXX", path[64];
+  assert_non_null(mkdtemp(dir));
+  snprintf(path, sizeof path, "%s/evidence.pages", dir);
+  for (int paging = 1; paging >= 0; paging--) {
+    struct vlff_config cfg;
+    struct vlff_evidence *e = make_growing(&cfg); /* an index of at most 65536 voxels of 0.5 m */
+    char err[256];
+    if (paging) assert_int_equal(vlff_evidence_page_to(e, path, 1 << 20, err, sizeof err), 0);
+    struct wall a;
+    wall_make(&a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
+    assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+    const double p[3] = {-0.1, 0.1, 2.2};
+    float x[D], y[D];
+    const int n = vlff_evidence_get(e, vlff_evidence_voxel(e, p), x);
+    assert_int_equal(n, 4);
+    const size_t held = vlff_evidence_voxels(e);
+    /* 40 x 40 x 4 m, 500 m along x: 51200 voxels alone, far more with the wall */
+    const double lo[3] = {500, -20, 0}, hi[3] = {540, 20, 4};
+    assert_int_equal(vlff_evidence_grow(e, lo, hi, lo, hi, 1000, err, sizeof err), 1);
+    assert_int_equal(vlff_evidence_voxel(e, p), -1); /* beyond the grid now */
+    assert_true(vlff_evidence_voxel(e, (const double[3]){520, 0, 2}) >= 0);
+    assert_int_equal(vlff_evidence_voxels(e), 0);
+    if (!paging) {
+      assert_int_equal(vlff_evidence_evicted(e), (long long)held); /* given up, counted */
+      vlff_evidence_destroy(e);
+      continue;
+    }
+    assert_int_equal(vlff_evidence_paged(e), held);
+    /* a save holds the grid's evidence: none */
+    size_t len;
+    uint8_t *buf;
+    struct vlff_evidence *g = reloaded(&cfg, e, &buf, &len);
+    assert_int_equal(vlff_evidence_voxels(g) + vlff_evidence_paged(g), 0);
+    free(buf);
+    vlff_evidence_destroy(g);
+    /* back at the first wall: the grid slides back, the wall's records with it */
+    const double blo[3] = {-2, -2, 0}, bhi[3] = {2, 2, 4};
+    assert_int_equal(vlff_evidence_grow(e, blo, bhi, blo, bhi, 1000, err, sizeof err), 1);
+    assert_true(vlff_evidence_voxel(e, p) >= 0);
+    assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+    assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, p), y), 2 * n);
+    for (int j = 0; j < D; j++) assert_float_equal(x[j], y[j], 2e-3);
+    assert_true(vlff_evidence_paged_in(e) >= 1);
+    g = reloaded(&cfg, e, &buf, &len);
+    assert_int_equal(vlff_evidence_get(g, vlff_evidence_voxel(g, p), y), 2 * n);
+    free(buf);
+    vlff_evidence_destroy(g);
+    vlff_evidence_destroy(e);
+  }
+  unlink(path);
+  rmdir(dir);
+}
+
 /* Paged, then grown: a voxel of the first box whose evidence a full budget
  * paged out stays readable where it is in the world after the grid grows
  * (toward -x, so that every voxel index changes), and comes back into a
@@ -937,6 +998,7 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_budget_and_bad_values), cmocka_unit_test(test_full_budget_gives_up_least_observed),
     cmocka_unit_test(test_full_budget_pages_out),
     cmocka_unit_test(test_labels_read_between_voxel_centres), cmocka_unit_test(test_save_load),
-    cmocka_unit_test(test_grow), cmocka_unit_test(test_refit), cmocka_unit_test(test_paged_then_grown),
+    cmocka_unit_test(test_grow), cmocka_unit_test(test_refit), cmocka_unit_test(test_slide),
+    cmocka_unit_test(test_paged_then_grown),
     cmocka_unit_test(test_load_thins_to_budget),
     cmocka_unit_test(test_grid_plan), cmocka_unit_test(test_recent_views_replace_old))

@@ -968,6 +968,118 @@ static void test_refit_under_reader(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* Beyond the caps (docs/field.md "Beyond the caps"): a map whose grid holds
+ * one view's box walks 40 m along a corridor of walls. Each growth past
+ * shm.map_max_voxels slides the grid with the camera; what it leaves is
+ * published as far blocks beside it, so a reader attached throughout reads
+ * every wall it passed with the label it had, through the same handle; a
+ * followed snapshot holds the far blocks; walking back restores them into
+ * the grid as measured surfaces. */
+static void test_slide_under_reader(void **state) {
+  (void)state;
+  struct vlff_config cfg;
+  config_for(&cfg, "slide");
+  cfg.field.grow = true;
+  cfg.publish.evidence_weight = 0;
+  cfg.shm.map_max_voxels = 50000; /* 8 cm voxels: about two views' boxes */
+  const double first_lo[3] = {-1.5, -1.2, -0.2}, first_hi[3] = {1.5, 1.2, 2.3};
+  memcpy(cfg.field.scene_min, first_lo, sizeof first_lo);
+  memcpy(cfg.field.scene_max, first_hi, sizeof first_hi);
+  struct vlff_field *f = small_field(&cfg, 3, 11);
+  struct vlff_publisher *p = create(&cfg);
+  const char *prompts[3] = {"wall", "floor", "chair"};
+  struct vlff_map *m = vlff_map_attach(cfg.shm.map);
+  assert_non_null(m);
+  struct vlff_map_snapshot *snap = vlff_map_snapshot_new(m);
+  assert_non_null(snap);
+  struct vlff_publish_result r;
+  enum { STEPS = 11 };
+  uint16_t seen[STEPS], front[STEPS];
+  int slides = 0;
+  for (int k = 0; k < STEPS; k++) {
+    const double x = 4.0 * k; /* a camera every 4 m along x, a wall 2 m ahead along +z */
+    const double lo[3] = {x - 1.4, -1.1, -0.1}, hi[3] = {x + 1.4, 1.1, 2.2};
+    if (k) {
+      assert_true(vlff_field_grow(f, lo, hi, err, sizeof err) >= 0);
+      int g = vlff_publisher_grow(p, lo, hi, lo, hi, err, sizeof err);
+      if (g < 0) fail_msg("step %d: %s", k, err);
+      slides += g == 3;
+      double blo[3], bhi[3];
+      vlff_publisher_box(p, blo, bhi, NULL);
+      assert_true(blo[0] <= lo[0] && bhi[0] >= hi[0]); /* the view is held */
+      assert_true(blo[0] > x - 4.0);                   /* the first walls are not */
+    }
+    struct vlff_view v = view_at(x, 2.0f);
+    assert_int_equal(vlff_publisher_observe(p, &v, err, sizeof err), 0);
+    assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+    uint8_t conf;
+    assert_int_equal(vlff_map_label_at(m, x + 0.3, 0.2, 2.02, &seen[k], &conf), 0);
+    assert_true(seen[k] < 3); /* a wall, labelled */
+    assert_int_equal(vlff_map_label_at(m, x + 0.3, 0.2, 1.0, &front[k], &conf), 0);
+    assert_int_not_equal(front[k], VLFF_LABEL_UNKNOWN); /* the space in front, observed */
+  }
+  assert_int_equal(slides, STEPS - 1);
+  /* every wall the camera passed, through the same handle: the far map's
+   * answer is the label each had when the grid left it */
+  for (int k = 0; k < STEPS; k++) {
+    uint16_t got;
+    uint8_t conf;
+    assert_int_equal(vlff_map_label_at(m, 4.0 * k + 0.3, 0.2, 2.02, &got, &conf), 0);
+    assert_int_equal(got, seen[k]);
+    assert_int_equal(vlff_map_label_at(m, 4.0 * k + 0.3, 0.2, 1.0, &got, &conf), 0);
+    assert_int_equal(got, front[k]);
+  }
+  uint16_t got;
+  uint8_t conf;
+  assert_int_equal(vlff_map_label_at(m, 2.0, 0.2, -3.0, &got, &conf), 0);
+  assert_int_equal(got, VLFF_LABEL_UNKNOWN); /* never seen */
+  assert_int_equal(vlff_map_snapshot_take(m, snap), 0);
+  struct vlff_map_far far;
+  assert_int_equal(vlff_map_snapshot_far(snap, &far), 0);
+  assert_true(far.nblocks > 10);
+  assert_int_equal(vlff_map_snapshot_label_at(snap, 0.3, 0.2, 2.02, &conf), seen[0]);
+  /* a checkpoint holds the far map beside the grid: a restarted node
+   * publishes it again with its first map */
+  char path[128];
+  snprintf(path, sizeof path, "/tmp/vlff-test-slide-%d.obs", (int)getpid());
+  assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  struct vlff_config c2 = cfg;
+  snprintf(c2.shm.map, sizeof c2.shm.map, "/vlff-test-publish-slide2-%d", (int)getpid());
+  struct vlff_publisher *q = create(&c2);
+  if (vlff_publisher_load(q, path, err, sizeof err)) fail_msg("%s", err);
+  assert_int_equal(vlff_publisher_publish(q, f, prompts, 3, &r, err, sizeof err), 0);
+  struct vlff_map *m2 = vlff_map_attach(c2.shm.map);
+  assert_non_null(m2);
+  for (int k = 0; k + 1 < STEPS; k++) {
+    assert_int_equal(vlff_map_label_at(m2, 4.0 * k + 0.3, 0.2, 2.02, &got, &conf), 0);
+    assert_int_equal(got, seen[k]);
+  }
+  vlff_map_detach(m2);
+  vlff_publisher_destroy(q);
+  vlff_shm_unlink(c2.shm.map);
+  unlink(path);
+  strcat(path, ".far");
+  unlink(path);
+  /* back to the start: the grid slides back over the far blocks, which come
+   * back as measured surfaces (their labels kept until they are relabelled) */
+  const double lo[3] = {-1.4, -1.1, -0.1}, hi[3] = {1.4, 1.1, 2.2};
+  assert_int_equal(vlff_publisher_grow(p, lo, hi, lo, hi, err, sizeof err), 3);
+  const double wall0[3] = {0.3, 0.2, 2.02};
+  assert_true(vlff_publisher_surface_known(p, wall0));
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+  assert_int_equal(vlff_map_label_at(m, 0.3, 0.2, 2.02, &got, &conf), 0);
+  assert_true(got < 3);
+  assert_int_equal(vlff_map_label_at(m, 0.3, 0.2, 1.0, &got, &conf), 0);
+  assert_int_not_equal(got, VLFF_LABEL_UNKNOWN);
+  assert_int_equal(vlff_map_label_at(m, 40.3, 0.2, 2.02, &got, &conf), 0);
+  assert_int_equal(got, seen[STEPS - 1]); /* the far end, now far */
+  vlff_map_snapshot_free(snap);
+  vlff_map_detach(m);
+  vlff_field_destroy(f);
+  vlff_publisher_destroy(p);
+  vlff_shm_unlink(cfg.shm.map);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
@@ -976,4 +1088,4 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_every_pixel_counts), cmocka_unit_test(test_incremental_publication),
       cmocka_unit_test(test_refresh_skips_settled),
     cmocka_unit_test(test_grazing_surface_filled), cmocka_unit_test(test_hold_survives_restart),
-    cmocka_unit_test(test_refit_under_reader))
+    cmocka_unit_test(test_refit_under_reader), cmocka_unit_test(test_slide_under_reader))

@@ -556,6 +556,22 @@ static void test_growth(void **state) {
   assert_non_null(strstr(err, "train.occupancy_max_mb"));
   vlff_field_box(h, lo, hi);
   assert_true(hi[0] < 0.25 + c16 + 1e-6);
+  /* Beyond the caps (docs/field.md): sliding instead, the box moves to a
+   * far box and as much around it as 1 MB of cells holds; a box that alone
+   * passes the cap is still refused */
+  assert_int_equal(vlff_field_slide(h, huge_lo, huge_hi, err, sizeof(err)), -1);
+  const double slide_lo[3] = {7, 7, 7}, slide_hi[3] = {9, 9, 9};
+  assert_int_equal(vlff_field_grow(h, slide_lo, slide_hi, err, sizeof(err)), -1); /* growing would pass it */
+  assert_int_equal(vlff_field_slide(h, slide_lo, slide_hi, err, sizeof(err)), 2);
+  assert_int_equal(vlff_field_slides(h), 1);
+  vlff_field_box(h, lo, hi);
+  double cells = 1;
+  for (int a = 0; a < 3; a++) {
+    assert_true(lo[a] <= 7 && hi[a] >= 9);
+    cells *= (hi[a] - lo[a]) / c16;
+  }
+  assert_true(cells * 11 <= 1048576.0 + 1);
+  assert_int_equal(vlff_field_slide(h, slide_lo, slide_hi, err, sizeof(err)), 0); /* held */
   vlff_field_destroy(h);
   for (int k = 0; k < nv; k++) scene_view_free(&sv[k]);
   vlff_field_destroy(f);

@@ -611,6 +611,157 @@ static void map_grows_under_reader(void **state) {
   assert_int_equal(access(tmpname, F_OK), -1); /* no temporary name left behind */
 }
 
+/* The far map (docs/shm.md "The far map"): blocks of 16^3 voxels beside the
+ * grid, run-length coded. A reader attached before the segment grew room for
+ * them reads them through the same handle (the segment moved), the grid
+ * answers where it covers a point, the far blocks elsewhere; a followed
+ * snapshot takes each new far map; writers' far maps that break the
+ * contract are refused and change nothing. */
+static void far_block(struct vlff_map_far_run *runs, uint32_t *nr, uint16_t label, uint8_t conf) {
+  /* the block's lower half in z (8 layers: 2048 voxels) label, the rest FREE */
+  runs[(*nr)++] = (struct vlff_map_far_run){.label = label, .count = 2048, .conf = conf};
+  runs[(*nr)++] = (struct vlff_map_far_run){.label = VLFF_LABEL_FREE, .count = 2048, .conf = 255};
+}
+
+static void map_far_blocks(void **state) {
+  (void)state;
+  char name[64];
+  struct vlff_map *w, *r;
+  map_pair("far", name, sizeof name, &w, &r);
+  struct vlff_map_snapshot *s = vlff_map_snapshot_new(r);
+  assert_non_null(s);
+  const char *prompts[] = {"wall", "floor", "door"};
+  uint16_t a[64];
+  for (int i = 0; i < 64; i++) a[i] = 1;
+  struct vlff_map_grid g = {.origin = {0, 0, 0}, .voxel_size = 0.25, .dims = {4, 4, 4}, .labels = a};
+  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 3};
+  assert_int_equal(vlff_map_publish(w, &u), 0);
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 1);
+  /* two blocks 4 m (16 voxels) apart on x, one 40 m up z: keys (5,0,0),
+   * (6,0,0), (0,0,10); the lattice from the grid's corner */
+  struct vlff_map_far_block blocks[3] = {{{5, 0, 0}, 0}, {{6, 0, 0}, 2}, {{0, 0, 10}, 4}};
+  struct vlff_map_far_run runs[6];
+  uint32_t nr = 0;
+  far_block(runs, &nr, 0, 90);
+  far_block(runs, &nr, 2, 91);
+  far_block(runs, &nr, 1, 92);
+  struct vlff_map_far far = {.origin = {0, 0, 0}, .voxel_size = 0.25, .nblocks = 3, .nruns = nr, .blocks = blocks,
+                             .runs = runs};
+  /* no room yet: the segment's far capacity is 0 */
+  assert_int_equal(vlff_map_far_capacity(w), 0);
+  assert_int_equal(vlff_map_set_far(w, &far), -1);
+  assert_int_equal(errno, EMSGSIZE);
+  assert_int_equal(vlff_map_reserve_far(w, 1000, vlff_map_far_bytes(3, nr)), 0);
+  assert_true(vlff_map_far_capacity(w) >= vlff_map_far_bytes(3, nr));
+  assert_int_equal(vlff_map_capacity(w), 1000);
+  /* contract breaches refused, nothing staged */
+  struct vlff_map_far bad = far;
+  struct vlff_map_far_block swapped[3] = {blocks[1], blocks[0], blocks[2]};
+  swapped[0].first_run = 0, swapped[1].first_run = 2;
+  bad.blocks = swapped;
+  assert_int_equal(vlff_map_set_far(w, &bad), -1);
+  assert_int_equal(errno, EINVAL);
+  assert_non_null(strstr(vlff_shm_last_message(), "sorted"));
+  struct vlff_map_far_run short_runs[6];
+  memcpy(short_runs, runs, sizeof runs);
+  short_runs[3].count = 2047;
+  bad = far, bad.runs = short_runs;
+  assert_int_equal(vlff_map_set_far(w, &bad), -1);
+  assert_non_null(strstr(vlff_shm_last_message(), "cover"));
+  short_runs[3].count = 0;
+  assert_int_equal(vlff_map_set_far(w, &bad), -1);
+  bad = far, bad.voxel_size = NAN;
+  assert_int_equal(vlff_map_set_far(w, &bad), -1);
+  struct vlff_map_far_block twice[3] = {blocks[0], blocks[0], blocks[2]};
+  twice[1].first_run = 2;
+  bad = far, bad.blocks = twice;
+  assert_int_equal(vlff_map_set_far(w, &bad), -1);
+  assert_non_null(strstr(vlff_shm_last_message(), "twice"));
+  /* staged, then carried by a partial publish of one voxel */
+  assert_int_equal(vlff_map_set_far(w, &far), 0);
+  uint16_t label;
+  uint8_t conf;
+  assert_int_equal(vlff_map_label_at(r, 20.5, 0.5, 0.5, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN); /* not published yet */
+  a[0] = 2;
+  struct vlff_map_range one = {0, 1};
+  struct vlff_map_update up = {.grid = &g, .ranges = &one, .range_count = 1};
+  assert_int_equal(vlff_map_publish(w, &up), 0);
+  /* block (5,0,0): x 20..24 m; its low half (z < 2 m) label 0 */
+  assert_int_equal(vlff_map_label_at(r, 20.5, 0.5, 0.5, &label, &conf), 0);
+  assert_int_equal(label, 0);
+  assert_int_equal(conf, 90);
+  assert_int_equal(vlff_map_label_at(r, 23.9, 3.9, 2.1, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_FREE);
+  assert_int_equal(vlff_map_label_at(r, 24.1, 0.5, 1.9, &label, &conf), 0);
+  assert_int_equal(label, 2); /* block (6,0,0) */
+  assert_int_equal(conf, 91);
+  assert_int_equal(vlff_map_label_at(r, 0.5, 3.5, 40.2, &label, &conf), 0);
+  assert_int_equal(label, 1); /* block (0,0,10) */
+  assert_int_equal(vlff_map_label_at(r, 28.1, 0.5, 0.5, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN); /* no block */
+  assert_int_equal(vlff_map_label_at(r, -3.9, 0.5, 0.5, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN);
+  assert_int_equal(vlff_map_label_at(r, 0.1, 0.1, 0.1, &label, &conf), 0);
+  assert_int_equal(label, 2); /* the grid, its changed voxel */
+  /* the follower takes the far map (whole: the segment moved for it) */
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 1);
+  assert_int_equal(vlff_map_snapshot_label_at(s, 24.1, 0.5, 1.9, &conf), 2);
+  assert_int_equal(vlff_map_snapshot_label_at(s, 0.5, 3.5, 40.2, &conf), 1);
+  assert_int_equal(vlff_map_snapshot_label_at(s, 0.1, 0.1, 0.1, &conf), 2);
+  struct vlff_map_far got;
+  assert_int_equal(vlff_map_snapshot_far(s, &got), 0);
+  assert_int_equal(got.nblocks, 3);
+  assert_int_equal(got.nruns, nr);
+  assert_memory_equal(got.blocks, blocks, sizeof blocks);
+  assert_memory_equal(got.runs, runs, sizeof runs);
+  /* publishes without a new far map keep it, in both buffers */
+  for (int i = 0; i < 3; i++) {
+    a[1] = (uint16_t)i;
+    one.first = 1;
+    assert_int_equal(vlff_map_publish(w, &up), 0);
+    assert_int_equal(vlff_map_label_at(r, 24.1, 0.5, 1.9, &label, &conf), 0);
+    assert_int_equal(label, 2);
+  }
+  /* a grid over a far block answers there itself */
+  uint16_t big[16 * 4 * 4];
+  for (int i = 0; i < 16 * 4 * 4; i++) big[i] = 1;
+  struct vlff_map_grid g2 = {.origin = {20, 0, 0}, .voxel_size = 0.25, .dims = {16, 4, 4}, .labels = big};
+  struct vlff_map_update u2 = {.grid = &g2};
+  assert_int_equal(vlff_map_publish(w, &u2), 0);
+  assert_int_equal(vlff_map_label_at(r, 20.5, 0.5, 0.5, &label, &conf), 0);
+  assert_int_equal(label, 1);
+  assert_int_equal(vlff_map_label_at(r, 24.1, 0.5, 1.9, &label, &conf), 0);
+  assert_int_equal(label, 2); /* beyond the grid: the far block */
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 1); /* the geometry changed */
+  /* a new far map of one block replaces it with a partial publish; the
+   * follower copies it with the runs */
+  far.nblocks = 1, far.nruns = 2, far.blocks = &blocks[2], blocks[2].first_run = 0, far.runs = &runs[4];
+  assert_int_equal(vlff_map_set_far(w, &far), 0);
+  struct vlff_map_update up2 = {.grid = &g2, .ranges = &one, .range_count = 1};
+  assert_int_equal(vlff_map_publish(w, &up2), 0);
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 0);
+  assert_int_equal(vlff_map_snapshot_label_at(s, 24.1, 0.5, 1.9, &conf), VLFF_LABEL_UNKNOWN);
+  assert_int_equal(vlff_map_snapshot_label_at(s, 0.5, 3.5, 40.2, &conf), 1);
+  assert_int_equal(vlff_map_label_at(r, 24.1, 0.5, 1.9, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN);
+  /* none: every far point unknown */
+  assert_int_equal(vlff_map_set_far(w, NULL), 0);
+  assert_int_equal(vlff_map_publish(w, &up2), 0);
+  assert_int_equal(vlff_map_label_at(r, 0.5, 3.5, 40.2, &label, &conf), 0);
+  assert_int_equal(label, VLFF_LABEL_UNKNOWN);
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 0);
+  assert_int_equal(vlff_map_snapshot_far(s, &got), 0);
+  assert_int_equal(got.nblocks, 0);
+  /* only a writer sets one */
+  assert_int_equal(vlff_map_set_far(r, &far), -1);
+  assert_int_equal(errno, EINVAL);
+  vlff_map_snapshot_free(s);
+  vlff_map_detach(r);
+  vlff_map_detach(w);
+  assert_int_equal(vlff_shm_unlink(name), 0);
+}
+
 /* A writer killed in the middle of a move leaves its temporary segment
  * "<name>.grow<pid>": the next writer of that map removes it when that pid no
  * longer runs, and leaves one whose pid does. Truncated under its writer, a map
@@ -904,6 +1055,7 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(ring_takeover_of_dead_creator), cmocka_unit_test(attach_rejects_bad_segments),
     cmocka_unit_test(frame_records), cmocka_unit_test(pose_interpolation_and_tolerance),
     cmocka_unit_test(pose_quaternion_every_branch),
-    cmocka_unit_test(map_publish_and_read), cmocka_unit_test(map_grows_under_reader), cmocka_unit_test(map_move_leftovers),
+    cmocka_unit_test(map_publish_and_read), cmocka_unit_test(map_grows_under_reader), cmocka_unit_test(map_far_blocks),
+    cmocka_unit_test(map_move_leftovers),
     cmocka_unit_test(map_snapshot_out_of_memory),
     cmocka_unit_test(prompt_mailbox))

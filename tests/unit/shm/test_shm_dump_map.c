@@ -141,6 +141,58 @@ static void python_snapshot_example(void **state) {
                            "5 5 5 65535 unknown\n");
 }
 
+/* The far map (docs/shm.md "The far map") is dumped too: its labelled
+ * voxels join the PLY's, and the binary file ends with its section. */
+static void far_map_dumped(void **state) {
+  (void)state;
+  /* one block, key (1, 0, 0) on the grid's lattice: x 7..15 m; its first
+   * voxel wall (conf 77), the rest unknown */
+  const struct vlff_map_far_block blk = {{1, 0, 0}, 0};
+  const struct vlff_map_far_run runs[2] = {{.label = 1, .count = 1, .conf = 77},
+                                           {.label = VLFF_LABEL_UNKNOWN, .count = 4095}};
+  const struct vlff_map_far far = {.origin = {-1, 0, 2}, .voxel_size = 0.5, .nblocks = 1, .nruns = 2,
+                                   .blocks = &blk, .runs = runs};
+  assert_int_equal(vlff_map_reserve_far(w, 64, vlff_map_far_bytes(1, 2)), 0);
+  assert_int_equal(vlff_map_set_far(w, &far), 0);
+  struct vlff_map_grid g = {.origin = {-1, 0, 2}, .voxel_size = 0.5, .dims = {4, 4, 4}, .labels = labels,
+                            .confidence = conf};
+  struct vlff_map_range none = {0, 0};
+  struct vlff_map_update u = {.grid = &g, .ranges = &none, .range_count = 1};
+  assert_int_equal(vlff_map_publish(w, &u), 0);
+  char cmd[1024], out[512], path[128];
+  snprintf(path, sizeof path, "%s/far.ply", dir);
+  snprintf(cmd, sizeof cmd, "%s dump-map %s %s", VLFF_SHM_CLI, name, path);
+  assert_int_equal(run(cmd, out, sizeof out), 0);
+  assert_non_null(strstr(out, "labelled 3 free 30 unknown 31 far_blocks 1 far_labelled 1 -> "));
+  size_t n;
+  const uint8_t *b = slurp(path, &n);
+  assert_non_null(strstr((const char *)b, "element vertex 4\n"));
+  const float want[3] = {7.25f, 0.25f, 2.25f};
+  const uint8_t *v = b + n - 18;
+  uint16_t lab;
+  memcpy(&lab, v + 15, 2);
+  assert_memory_equal(v, want, 12);
+  assert_int_equal(lab, 1);
+  assert_int_equal(v[17], 77);
+  snprintf(path, sizeof path, "%s/far.bin", dir);
+  snprintf(cmd, sizeof cmd, "%s dump-map %s %s", VLFF_SHM_CLI, name, path);
+  assert_int_equal(run(cmd, out, sizeof out), 0);
+  b = slurp(path, &n);
+  const size_t grid_end = 72 + 64 * 3 + 64 * 3, far_n = 8 + 24 + 8 + 8 + 16 + 12;
+  assert_int_equal(n, grid_end + far_n);
+  assert_memory_equal(b + grid_end, "VLFFFAR1", 8);
+  uint32_t counts[2];
+  memcpy(counts, b + grid_end + 40, 8);
+  assert_int_equal(counts[0], 1);
+  assert_int_equal(counts[1], 2);
+  assert_memory_equal(b + grid_end + 48, &blk, 16);
+  assert_memory_equal(b + grid_end + 64, runs, 12);
+  /* a point in it, through the library's reader */
+  snprintf(cmd, sizeof cmd, "%s label %s 7.3 0.3 2.3", VLFF_SHM_CLI, name);
+  assert_int_equal(run(cmd, out, sizeof out), 0);
+  assert_non_null(strstr(out, "label 1 confidence 77 prompt wall"));
+}
+
 static void missing_map_fails(void **state) {
   (void)state;
   char cmd[1024], out[512];
@@ -153,4 +205,5 @@ static void missing_map_fails(void **state) {
 
 VLFF_UNIT_MAIN(setup, teardown,
     cmocka_unit_test(binary_dump_is_the_grid), cmocka_unit_test(ply_dump_holds_the_labelled_voxels),
-    cmocka_unit_test(python_snapshot_example), cmocka_unit_test(missing_map_fails))
+    cmocka_unit_test(python_snapshot_example), cmocka_unit_test(far_map_dumped),
+    cmocka_unit_test(missing_map_fails))
