@@ -225,6 +225,14 @@ static void sweep_moves(const char *name) {
 static void status_withdraw(struct vlff_map *m);
 
 API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_params *p) {
+  return vlff_map_create_far(name, p, 0);
+}
+
+API struct vlff_map *vlff_map_create_far(const char *name, const struct vlff_map_params *p, uint64_t far_bytes) {
+  if (far_bytes > FAR_CAP_MAX) {
+    shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: a far map of more than 64 GiB", VLFF_Q(name ? name : "(null)"));
+    return NULL;
+  }
   if (!p || !p->max_voxels || (!p->label_max_width) != (!p->label_max_height)) {
     shm_err(VLFF_SHM_ERR_INVAL, EINVAL, "%s: map needs a voxel capacity and both or neither label image sizes",
             VLFF_Q(name ? name : "(null)"));
@@ -236,8 +244,8 @@ API struct vlff_map *vlff_map_create(const char *name, const struct vlff_map_par
     return NULL;
   }
   uint64_t lpx = (uint64_t)p->label_max_width * p->label_max_height;
-  uint64_t geom[6] = {p->max_voxels, p->label_max_width, p->label_max_height, buf_stride(p->max_voxels, lpx, 0),
-                      MAP_BUF_OFFSET, log_cap_for(p->max_voxels)};
+  uint64_t geom[6] = {p->max_voxels, p->label_max_width, p->label_max_height,
+                      buf_stride(p->max_voxels, lpx, far_bytes), MAP_BUF_OFFSET, log_cap_for(p->max_voxels)};
   m->prev = malloc(geom[5] / 4 * sizeof *m->prev);
   if (!m->prev) {
     free(m);
@@ -548,8 +556,11 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
    * so that no version number ever names two different maps. */
   uint64_t base = atomic_load_explicit(&m->ctl->version, memory_order_relaxed);
   uint64_t version = (meta.version > base ? meta.version : base) + 1;
-  /* A writer that died mid-publish left this buffer odd; continue from there. */
-  uint64_t odd = atomic_load_explicit(&b->seq, memory_order_relaxed) | 1;
+  /* A writer that died mid-publish left this buffer odd; continue from there
+   * (its far area may be half written whatever its meta says). */
+  const uint64_t was = atomic_load_explicit(&b->seq, memory_order_relaxed);
+  const bool torn = was & 1;
+  uint64_t odd = was | 1;
   atomic_store_explicit(&b->seq, odd, memory_order_relaxed);
   shm_fence_release();
 
@@ -630,7 +641,9 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
     meta.far_nblocks = f->nblocks, meta.far_nruns = f->nruns;
     meta.far_version = version;
     m->far_staged = false;
-  } else if (meta.far_nblocks && nbm.far_version != meta.far_version) {
+    free(m->far_stage); /* published: the buffers hold it now */
+    m->far_stage = NULL;
+  } else if (meta.far_nblocks && (torn || nbm.far_version != meta.far_version)) {
     shm_racy_copy(bufp(m, nb, foff), bufp(m, cur, foff), vlff_map_far_bytes(meta.far_nblocks, meta.far_nruns));
   }
   /* Logged before the flip: a reader that sees this version finds its runs. */
@@ -1001,7 +1014,7 @@ static int far_lookup(const uint8_t *base, const struct map_meta *mm, const doub
         shm_racy_copy(&end, &blocks[mid + 1].first_run, sizeof end);
       if (blk.first_run >= end || end > mm->far_nruns)
         return READ_BAD;
-      uint32_t acc = 0;
+      uint64_t acc = 0;
       for (uint32_t r = blk.first_run; r < end; r++) {
         struct vlff_map_far_run run;
         shm_racy_copy(&run, &runs[r], sizeof run);
@@ -1183,10 +1196,24 @@ static bool snap_resize(const struct vlff_map *m, struct vlff_map_snapshot *s) {
   return true;
 }
 
-static void copy_far(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, struct vlff_map_snapshot *s) {
-  if (mm->far_nblocks)
-    shm_racy_copy(s->far, bufp(m, b, off_far(m->max_voxels, m->lw_max * m->lh_max)),
-                  vlff_map_far_bytes(mm->far_nblocks, mm->far_nruns));
+static struct vlff_map_far far_of(const struct map_meta *mm, const uint8_t *base) {
+  struct vlff_map_far f = {.voxel_size = mm->far_voxel, .nblocks = mm->far_nblocks, .nruns = mm->far_nruns,
+                           .blocks = (const struct vlff_map_far_block *)base,
+                           .runs = (const struct vlff_map_far_run *)(base + (size_t)mm->far_nblocks * 16)};
+  memcpy(f.origin, mm->far_origin, sizeof f.origin);
+  return f;
+}
+
+/* The far map copied into the snapshot and checked there (the copy is the
+ * reader's own: what callers of vlff_map_snapshot_far index by): READ_OK,
+ * or READ_BAD when it breaks the contract (torn: the read is retried). */
+static int copy_far(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, struct vlff_map_snapshot *s) {
+  if (!mm->far_nblocks)
+    return READ_OK;
+  shm_racy_copy(s->far, bufp(m, b, off_far(m->max_voxels, m->lw_max * m->lh_max)),
+                vlff_map_far_bytes(mm->far_nblocks, mm->far_nruns));
+  const struct vlff_map_far f = far_of(mm, s->far);
+  return vlff_map_far_check(&f) ? READ_BAD : READ_OK;
 }
 
 static int copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta *mm, void *ctx) {
@@ -1204,8 +1231,7 @@ static int copy_all(const struct vlff_map *m, uint32_t b, const struct map_meta 
     shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * n);
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), n);
   }
-  copy_far(m, b, mm, s);
-  return READ_OK;
+  return copy_far(m, b, mm, s);
 }
 
 /* The snapshot's change list after a whole copy of a map with meta mm. */
@@ -1311,7 +1337,7 @@ static int copy_changed(const struct vlff_map *m, uint32_t b, const struct map_m
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), ln);
   }
   if (mm->far_version != old->far_version)
-    copy_far(m, b, mm, s);
+    return copy_far(m, b, mm, s);
   return READ_OK;
 }
 
@@ -1407,11 +1433,7 @@ API int vlff_map_snapshot_far(const struct vlff_map_snapshot *s, struct vlff_map
   memset(f, 0, sizeof *f);
   if (!mm->version || !mm->far_nblocks)
     return 0;
-  memcpy(f->origin, mm->far_origin, sizeof f->origin);
-  f->voxel_size = mm->far_voxel;
-  f->nblocks = mm->far_nblocks, f->nruns = mm->far_nruns;
-  f->blocks = (const struct vlff_map_far_block *)s->far;
-  f->runs = (const struct vlff_map_far_run *)(s->far + (size_t)mm->far_nblocks * sizeof *f->blocks);
+  *f = far_of(mm, s->far);
   return 0;
 }
 

@@ -111,7 +111,7 @@ struct vlff_cfg_shm {
   int pose_slots;
   char map[VLFF_CFG_STR];
   int map_max_voxels;              /* map segment capacity */
-  int map_far_max_mb;              /* the far map beside it (far.h), MiB; 0 = none */
+  int map_far_max_mb;              /* the far map beside it (far.h), MiB; 0: a slide's voxels dropped, counted */
   int label_max_width, label_max_height;
   char prompts[VLFF_CFG_STR];      /* prompt mailbox segment */
   char feature_ring[VLFF_CFG_STR];

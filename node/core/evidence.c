@@ -214,6 +214,7 @@ static int more_slots(struct vlff_evidence *e, size_t cap) {
 }
 
 static void far_return(struct vlff_evidence *e);
+static void page_release(struct vlff_evidence *e, size_t r);
 
 /* The grid shifted by sh voxels into nd (on the same lattice): every slot
  * and page record follows its voxel. */
@@ -269,15 +270,18 @@ static void pack_slots(struct vlff_evidence *e);
  * voxels. */
 static int evidence_slide(struct vlff_evidence *e, const int32_t sh[3], const uint32_t nd[3], char *err,
                           size_t errlen) {
+  /* Room for every record first: nothing changes unless all of it can. */
+  size_t leaving = 0;
+  for (size_t v = 0; v < e->nvox; v++) leaving += e->slot[v] != -1 && vlff_lattice_index(v, e->dims, sh, nd) < 0;
+  if (e->nfar + leaving > e->far_cap) {
+    size_t c = e->nfar + leaving + 1024;
+    struct far_rec *nf = realloc(e->far, c * sizeof *nf);
+    if (!nf) return vlff_errf(err, errlen, "evidence: out of memory sliding the grid"), -1;
+    e->far = nf, e->far_cap = c;
+  }
   for (size_t v = 0; v < e->nvox; v++) {
     const int32_t s = e->slot[v];
     if (s == -1 || vlff_lattice_index(v, e->dims, sh, nd) >= 0) continue;
-    if (e->nfar == e->far_cap) {
-      size_t c = e->far_cap ? 2 * e->far_cap : 1024;
-      struct far_rec *nf = realloc(e->far, c * sizeof *nf);
-      if (!nf) return vlff_errf(err, errlen, "evidence: out of memory sliding the grid"), -1;
-      e->far = nf, e->far_cap = c;
-    }
     long r;
     if (s >= 0) {
       const float *cs = e->page_path && e->pvalid ? slot_cosines(e, s, e->E, e->pk) : NULL;
@@ -297,7 +301,10 @@ static int evidence_slide(struct vlff_evidence *e, const int32_t sh[3], const ui
     f->r = (uint32_t)r;
   }
   pack_slots(e);
-  if (relayout(e, sh, nd, err, errlen)) return -1; /* drops no evidence now: nothing lost */
+  if (relayout(e, sh, nd, err, errlen)) {
+    far_return(e); /* the grid as it was: its voxels' records back */
+    return -1;
+  }
   e->slides++;
   return 0;
 }
@@ -317,8 +324,12 @@ static void far_return(struct vlff_evidence *e) {
       j++;
       continue;
     }
-    e->slot[i] = -2 - (int32_t)e->far[j].r;
-    e->powner[e->far[j].r] = (uint32_t)i;
+    if (e->slot[i] == -1) {
+      e->slot[i] = -2 - (int32_t)e->far[j].r;
+      e->powner[e->far[j].r] = (uint32_t)i;
+    } else {
+      page_release(e, e->far[j].r); /* the voxel has evidence of its own again: the newer stays */
+    }
     e->far[j] = e->far[--e->nfar];
   }
 }

@@ -35,6 +35,9 @@ struct vlff_far {
   /* vlff_far_export's arrays */
   struct vlff_map_far_block *xb;
   struct vlff_map_far_run *xr;
+  /* The prompts the labels index (vlff_far_prompts); k -1: not said yet. */
+  int k;
+  char texts[VLFF_SHM_MAX_PROMPTS][VLFF_SHM_PROMPT_LEN];
 };
 
 static long floor_div(long a, long b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
@@ -68,6 +71,7 @@ struct vlff_far *vlff_far_create(const double origin[3], double voxel, size_t ma
   memcpy(f->origin, origin, sizeof f->origin);
   f->voxel = voxel;
   f->max_bytes = max_bytes;
+  f->k = -1;
   return f;
 }
 
@@ -126,6 +130,14 @@ static size_t local_of(const long k[3], const int32_t key[3]) {
 }
 
 /* Budget: the blocks farthest from centre (block units) go first. */
+static void trim(struct vlff_far *f, const double centre[3]);
+
+void vlff_far_trim(struct vlff_far *f, const long k0[3], const uint32_t dims[3]) {
+  double centre[3];
+  for (int a = 0; a < 3; a++) centre[a] = (double)(k0[a] + (long)dims[a] / 2) / E;
+  trim(f, centre);
+}
+
 static void trim(struct vlff_far *f, const double centre[3]) {
   while (f->n && vlff_far_bytes(f) > f->max_bytes) {
     size_t worst = 0;
@@ -225,9 +237,6 @@ int vlff_far_store(struct vlff_far *f, const uint32_t dims[3], const long k0[3],
     }
   }
   free(lab), free(cf);
-  double centre[3];
-  for (int a = 0; a < 3; a++) centre[a] = (double)(k0[a] - sh[a] + (long)nd[a] / 2) / E;
-  trim(f, centre);
 out:
   free(keys);
   return rc;
@@ -261,6 +270,43 @@ void vlff_far_restore(const struct vlff_far *f, const uint32_t dims[3], const in
   }
 }
 
+int vlff_far_prompts(struct vlff_far *f, const char *const *prompts, int k) {
+  if (k < 0 || k > VLFF_SHM_MAX_PROMPTS) k = 0;
+  bool same = f->k == k || f->k < 0; /* the first list: the labels index it */
+  for (int i = 0; same && f->k >= 0 && i < k; i++) same = !strncmp(f->texts[i], prompts[i], VLFF_SHM_PROMPT_LEN);
+  if (same) {
+    if (f->k < 0) {
+      for (int i = 0; i < k; i++) snprintf(f->texts[i], sizeof f->texts[i], "%s", prompts[i]);
+      f->k = k;
+    }
+    return 0;
+  }
+  /* Old label i -> the index of its text in the new list, else UNKNOWN. */
+  uint16_t to[VLFF_SHM_MAX_PROMPTS];
+  for (int i = 0; i < VLFF_SHM_MAX_PROMPTS; i++) {
+    to[i] = VLFF_LABEL_UNKNOWN;
+    for (int j = 0; i < f->k && j < k; j++)
+      if (!strncmp(f->texts[i], prompts[j], VLFF_SHM_PROMPT_LEN)) {
+        to[i] = (uint16_t)j;
+        break;
+      }
+  }
+  int changed = 0;
+  for (size_t b = 0; b < f->n; b++)
+    for (uint32_t r = 0; r < f->b[b].nruns; r++) {
+      struct vlff_map_far_run *run = &f->b[b].runs[r];
+      if (run->label > VLFF_LABEL_MAX) continue;
+      const uint16_t l = run->label < VLFF_SHM_MAX_PROMPTS ? to[run->label] : VLFF_LABEL_UNKNOWN;
+      if (l == VLFF_LABEL_UNKNOWN) run->conf = 0;
+      changed |= l != run->label;
+      run->label = l;
+    }
+  memset(f->texts, 0, sizeof f->texts);
+  for (int i = 0; i < k; i++) snprintf(f->texts[i], sizeof f->texts[i], "%s", prompts[i]);
+  f->k = k;
+  return changed;
+}
+
 int vlff_far_export(struct vlff_far *f, struct vlff_map_far *out) {
   struct vlff_map_far_block *xb = realloc(f->xb, (f->n + 1) * sizeof *xb);
   if (xb) f->xb = xb;
@@ -281,11 +327,12 @@ int vlff_far_export(struct vlff_far *f, struct vlff_map_far *out) {
 
 /* ------------------------------------------------------------ checkpoint */
 
-/* File: "VLFFFAR1", origin (3 doubles), voxel (double), nblocks, nruns
- * (u32 each), the blocks and runs as the segment holds them, FNV-1a 64 of
- * everything before it. */
+/* File: "VLFFFAR1", origin (3 doubles), voxel (double), nblocks, nruns,
+ * the prompt count k (u32 each), k prompts of VLFF_SHM_PROMPT_LEN bytes
+ * (the texts the labels index), the blocks and runs as the segment holds
+ * them, FNV-1a 64 of everything before it. */
 #define FAR_MAGIC "VLFFFAR1"
-#define FAR_HEAD (8 + 32 + 8)
+#define FAR_HEAD (8 + 32 + 12)
 
 int vlff_far_save(struct vlff_far *f, const char *path, char *err, size_t errlen) {
   if (!f->n) {
@@ -294,67 +341,98 @@ int vlff_far_save(struct vlff_far *f, const char *path, char *err, size_t errlen
   }
   struct vlff_map_far m;
   if (vlff_far_export(f, &m)) return snprintf(err, errlen, "%s: out of memory", VLFF_Q(path)), -1;
-  const size_t body = (size_t)vlff_map_far_bytes(m.nblocks, m.nruns), len = FAR_HEAD + body + 8;
-  uint8_t *buf = malloc(len);
+  const uint32_t k = f->k > 0 ? (uint32_t)f->k : 0;
+  const size_t texts = (size_t)k * VLFF_SHM_PROMPT_LEN, body = (size_t)vlff_map_far_bytes(m.nblocks, m.nruns);
+  const size_t len = FAR_HEAD + texts + body + 8;
+  uint8_t *buf = malloc(len), *q = buf;
   if (!buf) return snprintf(err, errlen, "%s: out of memory", VLFF_Q(path)), -1;
-  memcpy(buf, FAR_MAGIC, 8);
-  memcpy(buf + 8, m.origin, 24);
-  memcpy(buf + 32, &m.voxel_size, 8);
-  memcpy(buf + 40, &m.nblocks, 4);
-  memcpy(buf + 44, &m.nruns, 4);
-  memcpy(buf + FAR_HEAD, m.blocks, (size_t)m.nblocks * sizeof *m.blocks);
-  memcpy(buf + FAR_HEAD + (size_t)m.nblocks * sizeof *m.blocks, m.runs, (size_t)m.nruns * sizeof *m.runs);
-  const uint64_t sum = vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, FAR_HEAD + body);
-  memcpy(buf + FAR_HEAD + body, &sum, 8);
+  memcpy(q, FAR_MAGIC, 8), q += 8;
+  memcpy(q, m.origin, 24), q += 24;
+  memcpy(q, &m.voxel_size, 8), q += 8;
+  memcpy(q, &m.nblocks, 4), q += 4;
+  memcpy(q, &m.nruns, 4), q += 4;
+  memcpy(q, &k, 4), q += 4;
+  memcpy(q, f->texts, texts), q += texts;
+  memcpy(q, m.blocks, (size_t)m.nblocks * sizeof *m.blocks), q += (size_t)m.nblocks * sizeof *m.blocks;
+  memcpy(q, m.runs, (size_t)m.nruns * sizeof *m.runs), q += (size_t)m.nruns * sizeof *m.runs;
+  const uint64_t sum = vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, (size_t)(q - buf));
+  memcpy(q, &sum, 8);
   int rc = vlff_write_file_atomic(path, buf, len, err, errlen);
   free(buf);
   return rc;
+}
+
+/* The far map in a file's bytes (len, checked for its length and sum) as
+ * blocks of their own: NULL with why when it is not this lattice's or
+ * breaks the segment's contract. */
+static struct fblock *far_parse(const struct vlff_far *f, const uint8_t *buf, size_t len, uint32_t *nb, uint32_t *nr,
+                                uint32_t *k, const char **why) {
+  struct vlff_map_far m = {0};
+  memcpy(m.origin, buf + 8, 24);
+  memcpy(&m.voxel_size, buf + 32, 8);
+  memcpy(&m.nblocks, buf + 40, 4);
+  memcpy(&m.nruns, buf + 44, 4);
+  memcpy(k, buf + 48, 4);
+  uint64_t sum;
+  memcpy(&sum, buf + len - 8, 8);
+  const uint64_t texts = (uint64_t)*k * VLFF_SHM_PROMPT_LEN;
+  if (*k > VLFF_SHM_MAX_PROMPTS || len != FAR_HEAD + texts + vlff_map_far_bytes(m.nblocks, m.nruns) + 8)
+    return *why = "truncated or too long", NULL;
+  if (sum != vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, len - 8)) return *why = "checksum mismatch", NULL;
+  if (memcmp(m.origin, f->origin, sizeof m.origin) || m.voxel_size != f->voxel)
+    return *why = "of another map's lattice (publish.voxel_size_m or the first box changed since)", NULL;
+  if (!m.nblocks) return *why = "no blocks", NULL;
+  /* aligned copies: the records follow the texts at any offset */
+  struct vlff_map_far_block *blocks = malloc((size_t)m.nblocks * sizeof *blocks);
+  struct vlff_map_far_run *runs = malloc((size_t)m.nruns * sizeof *runs + 1);
+  struct fblock *b = calloc(m.nblocks, sizeof *b);
+  if (!blocks || !runs || !b) {
+    free(blocks), free(runs), free(b);
+    return *why = "out of memory", NULL;
+  }
+  const uint8_t *at = buf + FAR_HEAD + texts;
+  memcpy(blocks, at, (size_t)m.nblocks * sizeof *blocks);
+  memcpy(runs, at + (size_t)m.nblocks * sizeof *blocks, (size_t)m.nruns * sizeof *runs);
+  m.blocks = blocks, m.runs = runs;
+  *why = vlff_map_far_check(&m);
+  for (uint32_t j = 0; !*why && j < m.nblocks; j++) {
+    const uint32_t end = j + 1 < m.nblocks ? blocks[j + 1].first_run : m.nruns;
+    b[j].nruns = end - blocks[j].first_run;
+    memcpy(b[j].key, blocks[j].key, sizeof b[j].key);
+    if (!(b[j].runs = malloc(b[j].nruns * sizeof *b[j].runs))) *why = "out of memory";
+    else memcpy(b[j].runs, runs + blocks[j].first_run, b[j].nruns * sizeof *b[j].runs);
+  }
+  free(blocks), free(runs);
+  if (*why) {
+    for (uint32_t j = 0; j < m.nblocks; j++) free(b[j].runs);
+    free(b);
+    return NULL;
+  }
+  *nb = m.nblocks, *nr = m.nruns;
+  return b;
 }
 
 int vlff_far_load(struct vlff_far *f, const char *path, char *err, size_t errlen) {
   if (access(path, F_OK) && errno == ENOENT) return 1;
   uint8_t *buf;
   size_t len;
-  /* at most the budget's blocks and runs, and a header */
-  if (vlff_read_file(path, f->max_bytes + FAR_HEAD + 8 + 1, &buf, &len, err, errlen)) return -1;
-  const char *why = NULL;
-  struct vlff_map_far m = {0};
-  uint64_t sum;
-  if (len < FAR_HEAD + 8 || memcmp(buf, FAR_MAGIC, 8)) {
-    why = "not a far map (VLFFFAR1)";
-  } else {
-    memcpy(m.origin, buf + 8, 24);
-    memcpy(&m.voxel_size, buf + 32, 8);
-    memcpy(&m.nblocks, buf + 40, 4);
-    memcpy(&m.nruns, buf + 44, 4);
-    memcpy(&sum, buf + len - 8, 8);
-    if (len != FAR_HEAD + vlff_map_far_bytes(m.nblocks, m.nruns) + 8) why = "truncated or too long";
-    else if (sum != vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, len - 8)) why = "checksum mismatch";
-    else if (memcmp(m.origin, f->origin, sizeof m.origin) || m.voxel_size != f->voxel)
-      why = "of another map's lattice (publish.voxel_size_m or the first box changed since)";
-  }
-  struct fblock *b = NULL;
-  if (!why) {
-    m.blocks = (const struct vlff_map_far_block *)(buf + FAR_HEAD); /* 8-aligned: malloc'd, header of 48 */
-    m.runs = (const struct vlff_map_far_run *)(buf + FAR_HEAD + (size_t)m.nblocks * sizeof *m.blocks);
-    why = m.nblocks ? vlff_map_far_check(&m) : "no blocks";
-  }
-  if (!why && !(b = calloc(m.nblocks, sizeof *b))) why = "out of memory";
-  for (uint32_t j = 0; !why && j < m.nblocks; j++) {
-    const uint32_t end = j + 1 < m.nblocks ? m.blocks[j + 1].first_run : m.nruns;
-    b[j].nruns = end - m.blocks[j].first_run;
-    memcpy(b[j].key, m.blocks[j].key, sizeof b[j].key);
-    if (!(b[j].runs = malloc(b[j].nruns * sizeof *b[j].runs))) why = "out of memory";
-    else memcpy(b[j].runs, m.runs + m.blocks[j].first_run, b[j].nruns * sizeof *b[j].runs);
-  }
-  if (why) {
-    for (uint32_t j = 0; b && j < m.nblocks; j++) free(b[j].runs);
-    free(b), free(buf);
+  const size_t texts = (size_t)VLFF_SHM_MAX_PROMPTS * VLFF_SHM_PROMPT_LEN;
+  if (vlff_read_file(path, f->max_bytes + FAR_HEAD + texts + 8, &buf, &len, err, errlen)) return -1;
+  const char *why = "not a far map (VLFFFAR1)";
+  uint32_t nb = 0, nr = 0, k = 0;
+  struct fblock *b = len >= FAR_HEAD + 8 && !memcmp(buf, FAR_MAGIC, 8) ? far_parse(f, buf, len, &nb, &nr, &k, &why)
+                                                                       : NULL;
+  if (!b) {
+    free(buf);
     return snprintf(err, errlen, "%s: %s", VLFF_Q(path), why), -1;
   }
-  free(buf);
   vlff_far_reset(f);
   free(f->b);
-  f->b = b, f->n = f->cap = m.nblocks, f->nruns = m.nruns;
+  f->b = b, f->n = f->cap = nb, f->nruns = nr;
+  memset(f->texts, 0, sizeof f->texts);
+  for (uint32_t i = 0; i < k; i++)
+    memcpy(f->texts[i], buf + FAR_HEAD + (size_t)i * VLFF_SHM_PROMPT_LEN, VLFF_SHM_PROMPT_LEN - 1);
+  f->k = (int)k;
+  free(buf);
   return 0;
 }

@@ -41,12 +41,20 @@ void vlff_far_reset(struct vlff_far *f);
 
 /* The window of dims voxels from lattice voxel k0 moves by sh into nd
  * (lattice.h's shift): each of its voxels that leaves it goes to its block
- * (labels/conf: the window's published values), in every block that holds
- * one of them that is not VLFF_LABEL_UNKNOWN or that existed already. Then
- * blocks beyond max_bytes are dropped, the farthest from the new window's
- * centre first. */
+ * (labels/conf: the window's values), in every block that holds one of them
+ * that is not VLFF_LABEL_UNKNOWN or that existed already. What it stores
+ * are copies: a slide that then fails leaves the window holding them too,
+ * and the grid answers before the far map. */
 int vlff_far_store(struct vlff_far *f, const uint32_t dims[3], const long k0[3], const int32_t sh[3],
                    const uint32_t nd[3], const uint16_t *labels, const uint8_t *conf);
+/* Blocks beyond max_bytes dropped, the farthest from the centre of the
+ * window of dims voxels from lattice voxel k0 first (counted). */
+void vlff_far_trim(struct vlff_far *f, const long k0[3], const uint32_t dims[3]);
+/* The prompts the far map's labels index: the first call says them; a
+ * later list that differs remaps every stored label to its text's index in
+ * the new list, or to UNKNOWN where the new list lacks it (a label's
+ * meaning is its text, not its number). 1 when a label changed, else 0. */
+int vlff_far_prompts(struct vlff_far *f, const char *const *prompts, int k);
 /* The voxels of the new window (nd from lattice voxel nk0) that were not in
  * the old one (dims, at shift sh in the new) and that a far block holds as
  * something else than UNKNOWN: fn(ctx, index in the new window, label,
@@ -56,8 +64,8 @@ void vlff_far_restore(const struct vlff_far *f, const uint32_t dims[3], const in
 /* The far map as the segment takes it (pointers valid until the next
  * store or reset): 0, or -1 when out of memory. */
 int vlff_far_export(struct vlff_far *f, struct vlff_map_far *out);
-/* Checkpoints: the far map to path, written atomically (none: path
- * removed), and read back: 0, 1 when there is no file, -1 with err for a
+/* Checkpoints: the far map and the prompts its labels index to path,
+ * written atomically (none: path removed), and read back: 0, 1 when there is no file, -1 with err for a
  * file that is not a far map of this lattice (truncated, corrupt, a
  * checksum that fails, a block that breaks the segment's contract,
  * vlff_map_far_check), the far map then as it was. A file of more than

@@ -55,6 +55,8 @@ struct vlff_publisher {
   bool far_owed;
   long long slides;
   size_t far_limit; /* bytes: shm.map_far_max_mb */
+  double far_retry_s, far_warned_s; /* a far map the segment refused: tried again from then; the last drop said */
+  uint32_t far_gen; /* the segment's generation the far map was published to */
   uint64_t heartbeat_warned;       /* vlff_warn_limited's */
   uint32_t dims[3];
   size_t nvox;
@@ -276,14 +278,19 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
    * see the version start again. */
   uint32_t cap = field->grow ? (uint32_t)n : (uint32_t)shm->map_max_voxels;
   struct vlff_shm_info had;
-  if (field->grow && vlff_shm_stat(shm->map, &had) == 0 && had.kind == VLFF_SHM_KIND_MAP && had.slot_size > cap &&
-      had.slot_size <= (uint64_t)shm->map_max_voxels)
-    cap = (uint32_t)had.slot_size;
+  const bool was = field->grow && vlff_shm_stat(shm->map, &had) == 0 && had.kind == VLFF_SHM_KIND_MAP;
+  if (was && had.slot_size > cap && had.slot_size <= (uint64_t)shm->map_max_voxels) cap = (uint32_t)had.slot_size;
+  /* ... and the room its far map had (far.h), within shm.map_far_max_mb. */
+  uint64_t far_cap = 0;
+  struct vlff_map *old = was ? vlff_map_attach(shm->map) : NULL;
+  if (old && vlff_map_far_capacity(old) <= (uint64_t)p->far_limit + p->far_limit / 4 + 64)
+    far_cap = vlff_map_far_capacity(old);
+  vlff_map_detach(old);
   struct vlff_map_params mp = {.max_voxels = cap,
                                .label_max_width = (uint32_t)shm->label_max_width,
                                .label_max_height = (uint32_t)shm->label_max_height,
                                .perm = {.mode = (mode_t)shm->mode, .group = shm->group}};
-  p->map = vlff_map_create(shm->map, &mp);
+  p->map = vlff_map_create_far(shm->map, &mp, far_cap);
   if (!p->map) {
     snprintf(err, errlen, "map segment %s: %s", shm->map, vlff_shm_last_message());
     vlff_publisher_destroy(p);
@@ -375,7 +382,11 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
   char fp[VLFF_CFG_PATH + 64];
   if (p->far && snprintf(fp, sizeof fp, "%s.far", path) >= (int)sizeof fp)
     return snprintf(err, errlen, "%s.far: path too long", path), -1;
-  return p->far ? vlff_far_save(p->far, fp, err, errlen) : 0;
+  if (p->far && vlff_far_save(p->far, fp, err, errlen)) {
+    unlink(fp); /* never a far map of another checkpoint beside this grid */
+    return -1;
+  }
+  return 0;
 }
 
 /* A saved map is read a piece at a time, never held whole: its evidence
@@ -763,14 +774,18 @@ static int publisher_slide(struct vlff_publisher *p, const int32_t sh[3], const 
   if (vlff_far_store(p->far, p->dims, p->k0, sh, nd, p->labels, p->conf))
     return snprintf(err, errlen, "map: out of memory for the far map"), -1;
   if (publisher_regrid(p, sh, nd, err, errlen)) return -1;
+  vlff_far_trim(p->far, p->k0, p->dims); /* only now: a failed slide drops nothing */
   p->n_labelled = p->n_free = 0; /* the voxels it left are counted out */
   for (size_t i = 0; i < p->nvox; i++) count_state(p, i, 1);
   p->far_owed = true;
   p->slides++;
-  if (vlff_far_dropped(p->far) > dropped)
-    VLFF_WARN(TAG, "far map: %lld blocks farthest from the robot dropped for shm.map_far_max_mb (%lld so far); "
+  const double now = vlff_seconds();
+  if (vlff_far_dropped(p->far) > dropped && now - p->far_warned_s >= 10) {
+    p->far_warned_s = now;
+    VLFF_WARN(TAG, "far map: blocks farthest from the robot dropped for shm.map_far_max_mb (%d MiB; %lld so far); "
                    "they read unknown",
-              vlff_far_dropped(p->far) - dropped, vlff_far_dropped(p->far));
+              (int)(p->far_limit >> 20), vlff_far_dropped(p->far));
+  }
   return 0;
 }
 
@@ -831,9 +846,10 @@ int vlff_publisher_grow(struct vlff_publisher *p, const double want_lo[3], const
   for (int t = 0; p->far && t < 2; t++) {
     char serr[320];
     if (vlff_lattice_window(p->origin, VLFF_LATTICE_CUBE(p->voxel), p->dims, blo[t], bhi[t], limit, p->max_voxels,
-                            sh, nd) > 0 &&
-        publisher_slide(p, sh, nd, serr, sizeof serr) == 0)
-      return 3;
+                            sh, nd) <= 0)
+      continue;
+    if (publisher_slide(p, sh, nd, serr, sizeof serr) == 0) return 3;
+    snprintf(err, errlen, "%s", serr); /* the slide's reason, not the refit's */
   }
   return -1; /* err: the needed box's refusal */
 }
@@ -1454,19 +1470,39 @@ static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t
  * as the grid's growths), and the move said in the log. */
 static int publish_far(struct vlff_publisher *p, char *err, size_t errlen) {
   struct vlff_map_far far;
-  if (vlff_far_export(p->far, &far)) return snprintf(err, errlen, "map publish: out of memory for the far map"), -1;
+  if (vlff_far_export(p->far, &far)) return snprintf(err, errlen, "out of memory for the far map"), -1;
   const uint64_t want = vlff_map_far_bytes(far.nblocks, far.nruns);
   if (want > vlff_map_far_capacity(p->map)) {
     if (vlff_map_reserve_far(p->map, vlff_map_capacity(p->map), want + want / 4))
-      return snprintf(err, errlen, "map: its segment could not grow for a far map of %.1f MiB: %s",
+      return snprintf(err, errlen, "its segment could not grow for a far map of %.1f MiB: %s",
                       (double)want / (1 << 20), vlff_shm_last_message()),
              -1;
     VLFF_INFO(TAG, "map: its segment now has room for a far map of %.1f MiB", (double)(want + want / 4) / (1 << 20));
   }
-  if (vlff_map_set_far(p->map, &far))
-    return snprintf(err, errlen, "map publish: the far map: %s", vlff_shm_last_message()), -1;
+  if (vlff_map_set_far(p->map, &far)) return snprintf(err, errlen, "%s", vlff_shm_last_message()), -1;
   p->far_owed = false;
   return 0;
+}
+
+/* Before a publish: the far map is owed when it was never published to
+ * this segment (a replaced one holds none) or its labels' prompts changed,
+ * and is staged for the publish. One the segment refuses (no room in
+ * /dev/shm, ...) does not hold the grid back: the grid is published
+ * without it, said (rate-limited), and the far map tried again 5 s on. */
+static void far_before_publish(struct vlff_publisher *p, const char *const *prompts, int k) {
+  if (!p->far) return;
+  if (vlff_far_prompts(p->far, prompts, k)) p->far_owed = true;
+  const uint32_t gen = vlff_map_generation(p->map);
+  if (gen != p->far_gen && vlff_far_blocks(p->far)) p->far_owed = true;
+  const double now = vlff_seconds();
+  if (!p->far_owed || now < p->far_retry_s) return;
+  char e[400];
+  if (publish_far(p, e, sizeof e)) {
+    p->far_retry_s = now + 5;
+    VLFF_WARN(TAG, "map: published without its far map (readers read the window; tried again in 5 s): %s", e);
+    return;
+  }
+  p->far_gen = vlff_map_generation(p->map); /* the segment it went to (a move makes a new one) */
 }
 
 static int publish_ranges(struct vlff_publisher *p, const struct vlff_map_range *runs, size_t nruns,
@@ -1477,7 +1513,7 @@ static int publish_ranges(struct vlff_publisher *p, const struct vlff_map_range 
   memcpy(grid.dims, p->dims, sizeof grid.dims);
   struct vlff_map_update up = {.grid = &grid, .prompts = prompts, .prompt_count = k, .label_image = img,
                                .ranges = runs, .range_count = runs ? nruns : 0};
-  if (p->far_owed && publish_far(p, err, errlen)) return -1;
+  far_before_publish(p, prompts, k);
   if (vlff_map_publish(p->map, &up)) {
     p->far_owed = true;
     snprintf(err, errlen, "map publish: %s", vlff_shm_last_message());

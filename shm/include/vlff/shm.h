@@ -511,6 +511,10 @@ const char *vlff_map_far_check(const struct vlff_map_far *far);
  * geometry outside the grid's physical bounds), EMSGSIZE when it passes the
  * segment's far capacity (vlff_map_reserve_far), ENOMEM. */
 int vlff_map_set_far(struct vlff_map *map, const struct vlff_map_far *far);
+/* Writer: as vlff_map_create, with room for a far map of far_bytes from the
+ * start (a restarted writer asks for the far capacity its segment had, so
+ * that it takes the segment over in place rather than replacing it). */
+struct vlff_map *vlff_map_create_far(const char *name, const struct vlff_map_params *params, uint64_t far_bytes);
 /* Writer: as vlff_map_reserve, also making room for a far map of far_bytes
  * (vlff_map_far_bytes); neither capacity shrinks. */
 int vlff_map_reserve_far(struct vlff_map *map, uint64_t max_voxels, uint64_t far_bytes);
@@ -585,8 +589,10 @@ struct vlff_map_info {
 int vlff_map_snapshot_info(const struct vlff_map_snapshot *snap, struct vlff_map_info *info);
 uint16_t vlff_map_snapshot_label_at(const struct vlff_map_snapshot *snap, double x, double y, double z,
                                     uint8_t *conf);
-/* The snapshot's far map (pointers into snap; nblocks 0 when it has none).
- * 0, or -1 (EINVAL) for NULL arguments. */
+/* The snapshot's far map (pointers into snap; nblocks 0 when it has none),
+ * checked against the contract when it was copied (a take or follow of a
+ * far map that breaks it fails with EBADMSG). 0, or -1 (EINVAL) for NULL
+ * arguments. */
 int vlff_map_snapshot_far(const struct vlff_map_snapshot *snap, struct vlff_map_far *far);
 /* Prompt text of a label, NULL if none. */
 const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *snap, uint16_t label);

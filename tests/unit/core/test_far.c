@@ -91,6 +91,27 @@ static void test_store_restore(void **state) {
   const int32_t up[3] = {0, -N, 0};
   vlff_far_restore(f, dims, up, dims, k0, collect, NULL);
   assert_memory_equal(got_lab, lab, sizeof lab);
+  /* the labels are texts: the first prompt list says which; a new list
+   * renames each to its text's index there, UNKNOWN where it is gone */
+  const char *abc[3] = {"floor", "wall", "door"}, *cba[2] = {"door", "floor"};
+  assert_int_equal(vlff_far_prompts(f, abc, 3), 0);
+  assert_int_equal(vlff_far_prompts(f, abc, 3), 0);
+  assert_int_equal(vlff_far_prompts(f, cba, 2), 1);
+  for (int i = 0; i < NV; i++) got_lab[i] = VLFF_LABEL_UNKNOWN;
+  vlff_far_restore(f, dims, up, dims, k0, collect, NULL);
+  for (int i = 0; i < NV; i++)
+    if (lab[i] == 7) assert_int_equal(got_lab[i], VLFF_LABEL_UNKNOWN); /* label 7: no text in the first list */
+  /* the floor again, labelled by the first list's indices */
+  for (int i = 0; i < NV; i++)
+    if (lab[i] <= VLFF_LABEL_MAX) lab[i] = (uint16_t)(i % N % 3);
+  assert_int_equal(vlff_far_prompts(f, abc, 3), 0); /* nothing labelled to rename: the list only */
+  assert_int_equal(vlff_far_store(f, dims, k0, down, dims, lab, conf), 0);
+  assert_int_equal(vlff_far_prompts(f, cba, 2), 1);
+  for (int i = 0; i < NV; i++) got_lab[i] = VLFF_LABEL_UNKNOWN;
+  vlff_far_restore(f, dims, up, dims, k0, collect, NULL);
+  const uint16_t renamed[3] = {1, VLFF_LABEL_UNKNOWN, 0}; /* floor -> 1, wall gone, door -> 0 */
+  for (int i = 0; i < NV; i++)
+    if (lab[i] <= VLFF_LABEL_MAX) assert_int_equal(got_lab[i], renamed[lab[i]]);
   /* a checkpoint: saved, read back into a far map of the same lattice */
   char path[64];
   snprintf(path, sizeof path, "/tmp/vlff-test-far-%d.far", (int)getpid());
@@ -160,6 +181,9 @@ static void test_budget(void **state) {
   vlff_far_destroy(all);
   struct vlff_far *f = vlff_far_create(origin, 0.1, near);
   assert_int_equal(vlff_far_store(f, dims, k0, away, dims, lab, conf), 0);
+  assert_int_equal(vlff_far_dropped(f), 0); /* stored whole: only a trim drops */
+  const long at[3] = {100, 0, 0};        /* the new window */
+  vlff_far_trim(f, at, dims);
   assert_int_equal(vlff_far_bytes(f), near);
   assert_int_equal(vlff_far_dropped(f), 2);
   assert_int_equal(vlff_far_export(f, &out), 0);

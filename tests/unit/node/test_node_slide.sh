@@ -36,6 +36,7 @@ blocks=$("$shm" stat "$p-m" | awk '$1 == "far_blocks" { print $2 }')
 check "vlff-shm stat shows the far map ($("$shm" stat "$p-m" | grep -E '^far_' | tr '\n' ' '))" '(( ${blocks:-0} > 0 ))'
 # Class labels on the flat's end walls (x = +-4.9 m), counted where the
 # window covers the probe and where it does not: those the far map answers.
+probe() {
 inside=0 outside=0
 for x in -4.85 -4.75 -4.65 4.65 4.75 4.85; do
   for y in -2 -1 0 1 2; do
@@ -51,6 +52,8 @@ for x in -4.85 -4.75 -4.65 4.65 4.75 4.85; do
     done
   done
 done
+}
+probe
 check "walls the window left read class labels from the far map ($outside probes beyond the window, $inside within)" \
   '(( outside > 0 ))'
 stop_node
@@ -58,4 +61,18 @@ line=$(grep "the map slid" "$tmp/log")
 check "the stop line counts the slides and the far map ($line)" \
   '[[ $line =~ the\ map\ slid\ ([0-9]+)\ times.*holds\ ([0-9]+)\ blocks ]] && (( BASH_REMATCH[1] > 0 && BASH_REMATCH[2] > 0 ))'
 check "no growth refused" 'grep -q "0 growths refused" "$tmp/log"'
+# Restarted on its checkpoint: the far map comes back with the first map,
+# and the segment, far room and all, is taken over in place (the version
+# goes on) rather than replaced.
+version=$("$shm" stat "$p-m" | awk '$1 == "version" { print $2 }')
+"$node" --config "$tmp/n.yaml" 2>"$tmp/log2" &
+nodepid=$!
+wait_until 600 'grep -q "resumed from" "$tmp/log2" && (( $(far_blocks) > 0 )) && (( $("$shm" stat "$p-m" | awk "\$1 == \"version\" { print \$2 }") > version ))'
+check "restarted, the segment taken over in place (version $version, now $("$shm" stat "$p-m" | awk '$1 == "version" { print $2 }'))"   '(( $("$shm" stat "$p-m" | awk "\$1 == \"version\" { print \$2 }") > version )) && (( $("$shm" stat "$p-m" | awk "\$1 == \"generation\" { print \$2 }") > 0 ))'
+read -r _ ox oy oz < <("$shm" stat "$p-m" | grep '^grid_origin ')
+read -r _ dx dy dz < <("$shm" stat "$p-m" | grep '^grid_dims ')
+probe
+check "restarted, the far map is published again from the checkpoint ($(far_blocks) blocks; $outside probes beyond the window labelled)"   '(( outside > 0 ))'
+check "no far map refused on the restart" '! grep -q "far map not restored" "$tmp/log2"'
+stop_node
 verdict

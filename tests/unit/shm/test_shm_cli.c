@@ -226,6 +226,60 @@ static void cli_forged_geometry_refused(void **state) {
   vlff_shm_unlink(map);
 }
 
+/* A far map forged after it was published (a block's runs pointed past
+ * the far area): the reader's lookup there and dump-map refuse it as
+ * corrupt instead of reading past their copies (dump-map walked the runs it
+ * was given and overflowed its snapshot). The block record is found by its
+ * key, (7, 7, 7), in both buffers. */
+static void cli_forged_far_refused(void **state) {
+  (void)state;
+  char map[64], args[512], out[8192];
+  test_name(map, sizeof map, "clifar");
+  struct vlff_map_params mp = {.max_voxels = 8};
+  struct vlff_map *m = vlff_map_create_far(map, &mp, 4096);
+  assert_non_null(m);
+  uint16_t labels[8] = {0};
+  const char *prompts[] = {"floor"};
+  struct vlff_map_grid g = {.voxel_size = 0.5, .dims = {2, 2, 2}, .labels = labels};
+  const struct vlff_map_far_block blk = {{7, 7, 7}, 0};
+  const struct vlff_map_far_run runs[2] = {{.label = 0, .count = 100, .conf = 9},
+                                           {.label = VLFF_LABEL_UNKNOWN, .count = 3996}};
+  const struct vlff_map_far far = {.voxel_size = 0.5, .nblocks = 1, .nruns = 2, .blocks = &blk, .runs = runs};
+  assert_int_equal(vlff_map_set_far(m, &far), 0);
+  struct vlff_map_update u = {.grid = &g, .prompts = prompts, .prompt_count = 1};
+  assert_int_equal(vlff_map_publish(m, &u), 0);
+  assert_int_equal(vlff_map_publish(m, &u), 0); /* both buffers hold it */
+  snprintf(args, sizeof args, "label %s 56.1 56.1 56.1", map);
+  assert_int_equal(run(args, out, sizeof out), 0);
+  if (!strstr(out, "label 0 confidence 9 prompt floor")) fail_msg("label: %s", out);
+  struct shm_raw r = {.fd = -1};
+  assert_int_equal(shm_raw_open(map, &r), 0);
+  const uint32_t forged = 0x40000000;
+  int copies = 0;
+  for (size_t o = 0; o + 16 <= r.size; o += 4)
+    if (!memcmp(r.base + o, &blk, 16)) memcpy(r.base + o + 12, &forged, 4), copies++;
+  shm_raw_close(&r);
+  assert_int_equal(copies, 2);
+  struct vlff_map *rd = vlff_map_attach(map);
+  assert_non_null(rd);
+  uint16_t label;
+  uint8_t conf;
+  assert_int_equal(vlff_map_label_at(rd, 56.1, 56.1, 56.1, &label, &conf), -1);
+  assert_int_equal(errno, EBADMSG);
+  assert_int_equal(vlff_map_label_at(rd, 0.1, 0.1, 0.1, &label, &conf), 0); /* the grid's own voxel */
+  struct vlff_map_snapshot *s = vlff_map_snapshot_new(rd);
+  assert_non_null(s);
+  assert_int_equal(vlff_map_snapshot_take(rd, s), -1);
+  assert_int_equal(errno, EBADMSG);
+  vlff_map_snapshot_free(s);
+  vlff_map_detach(rd);
+  snprintf(args, sizeof args, "dump-map %s /tmp/vlff-test-clifar-%d.ply", map, (int)getpid());
+  assert_int_equal(run(args, out, sizeof out), 1);
+  if (!strstr(out, "published map metadata is inconsistent")) fail_msg("dump-map: %s", out);
+  vlff_map_detach(m);
+  vlff_shm_unlink(map);
+}
+
 static void cli_commands(void **state) {
   (void)state;
   char ring[64], map[64], mbox[64], args[512], out[8192];
@@ -416,4 +470,5 @@ static void cli_escapes_names(void **state) {
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(cli_commands), cmocka_unit_test(cli_status_paging_shown), cmocka_unit_test(cli_fifo_refused), cmocka_unit_test(cli_mailbox_repairs_shown),
     cmocka_unit_test(cli_watch_dead_writer), cmocka_unit_test(cli_forged_geometry_refused),
+    cmocka_unit_test(cli_forged_far_refused),
     cmocka_unit_test(cli_escapes_names), cmocka_unit_test(cli_wrong_targets))
