@@ -635,7 +635,8 @@ API int vlff_map_publish(struct vlff_map *m, const struct vlff_map_update *u) {
   const uint64_t foff = off_far(mv, lpx);
   if (m->far_staged) {
     const struct vlff_map_far *f = &m->far_next;
-    shm_racy_copy(bufp(m, nb, foff), m->far_stage, vlff_map_far_bytes(f->nblocks, f->nruns));
+    if (f->nblocks) /* none: no bytes (and no staged copy to read them from) */
+      shm_racy_copy(bufp(m, nb, foff), m->far_stage, vlff_map_far_bytes(f->nblocks, f->nruns));
     memcpy(meta.far_origin, f->origin, sizeof meta.far_origin);
     meta.far_voxel = f->voxel_size;
     meta.far_nblocks = f->nblocks, meta.far_nruns = f->nruns;
@@ -684,6 +685,14 @@ API int vlff_map_heartbeat(struct vlff_map *m) {
 
 API uint64_t vlff_map_capacity(const struct vlff_map *m) { return m ? m->max_voxels : 0; }
 
+/* a's order against b's (z, then y, then x): -1, 0 or 1. */
+static int key_order(const int32_t a[3], const int32_t b[3]) {
+  for (int i = 2; i >= 0; i--)
+    if (a[i] != b[i])
+      return a[i] < b[i] ? -1 : 1;
+  return 0;
+}
+
 API const char *vlff_map_far_check(const struct vlff_map_far *f) {
   if (!f)
     return "no far map";
@@ -695,16 +704,13 @@ API const char *vlff_map_far_check(const struct vlff_map_far *f) {
   for (uint32_t b = 0; b < f->nblocks; b++) {
     const struct vlff_map_far_block *k = &f->blocks[b];
     for (int a = 0; a < 3; a++)
-      if (fabs((double)k->key[a]) + 1 > reach)
+      if (fabs((double)k->key[a]) + 1 > reach || k->key[a] == INT32_MIN || k->key[a] == INT32_MAX)
         return "a far block beyond 1e8 m of the origin";
-    if (b && memcmp(k->key, f->blocks[b - 1].key, sizeof k->key) != 0) {
-      const int32_t *p = f->blocks[b - 1].key;
-      bool after = k->key[2] != p[2] ? k->key[2] > p[2] : k->key[1] != p[1] ? k->key[1] > p[1] : k->key[0] > p[0];
-      if (!after)
-        return "far blocks not sorted by key (z, y, x)";
-    } else if (b) {
+    const int order = b ? key_order(f->blocks[b - 1].key, k->key) : -1;
+    if (!order)
       return "a far block key given twice";
-    }
+    if (order > 0)
+      return "far blocks not sorted by key (z, y, x)";
     const uint32_t end = b + 1 < f->nblocks ? f->blocks[b + 1].first_run : f->nruns;
     if (k->first_run != (b ? k->first_run : 0) || end <= k->first_run || end > f->nruns)
       return "far block runs out of order or out of range";
@@ -1005,14 +1011,25 @@ static int far_lookup(const uint8_t *base, const struct map_meta *mm, const doub
   while (lo < hi) {
     size_t mid = lo + (hi - lo) / 2;
     shm_racy_copy(&blk, &blocks[mid], sizeof blk);
-    int c = 0;
-    for (int a = 2; a >= 0 && !c; a--)
-      c = (blk.key[a] > key[a]) - (blk.key[a] < key[a]);
+    const int c = key_order(blk.key, key);
     if (!c) {
+      /* The block read is checked whole: its runs from where the block
+       * before it ends to where the next begins, covering its voxels, and
+       * its neighbours' keys on either side of it. */
       uint32_t end = mm->far_nruns;
-      if (mid + 1 < mm->far_nblocks)
-        shm_racy_copy(&end, &blocks[mid + 1].first_run, sizeof end);
-      if (blk.first_run >= end || end > mm->far_nruns)
+      struct vlff_map_far_block nb;
+      if (mid + 1 < mm->far_nblocks) {
+        shm_racy_copy(&nb, &blocks[mid + 1], sizeof nb);
+        end = nb.first_run;
+        if (key_order(key, nb.key) >= 0)
+          return READ_BAD;
+      }
+      if (mid) {
+        shm_racy_copy(&nb, &blocks[mid - 1], sizeof nb);
+        if (key_order(nb.key, key) >= 0)
+          return READ_BAD;
+      }
+      if ((!mid && blk.first_run) || blk.first_run >= end || end > mm->far_nruns)
         return READ_BAD;
       uint64_t acc = 0;
       for (uint32_t r = blk.first_run; r < end; r++) {
@@ -1020,13 +1037,11 @@ static int far_lookup(const uint8_t *base, const struct map_meta *mm, const doub
         shm_racy_copy(&run, &runs[r], sizeof run);
         if (!run.count)
           return READ_BAD;
-        acc += run.count;
-        if (l < acc) {
+        if (l >= acc && l < acc + run.count)
           *label = run.label, *conf = run.conf;
-          return READ_OK;
-        }
+        acc += run.count;
       }
-      return READ_BAD;
+      return acc == (uint64_t)VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE ? READ_OK : READ_BAD;
     }
     if (c < 0)
       lo = mid + 1;
@@ -1336,7 +1351,10 @@ static int copy_changed(const struct vlff_map *m, uint32_t b, const struct map_m
     shm_racy_copy(s->llabels, bufp(m, b, off_llabels(mv)), 2 * ln);
     shm_racy_copy(s->lconf, bufp(m, b, off_lconf(mv, m->lw_max * m->lh_max)), ln);
   }
-  if (mm->far_version != old->far_version)
+  /* A new far map, or counts or geometry that are not the copy's (forged:
+   * a copy is only ever handed out checked). */
+  if (mm->far_version != old->far_version || mm->far_nblocks != old->far_nblocks || mm->far_nruns != old->far_nruns ||
+      mm->far_voxel != old->far_voxel || memcmp(mm->far_origin, old->far_origin, sizeof mm->far_origin))
     return copy_far(m, b, mm, s);
   return READ_OK;
 }

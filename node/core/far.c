@@ -182,6 +182,9 @@ int vlff_far_store(struct vlff_far *f, const uint32_t dims[3], const long k0[3],
     }
     memcpy(keys[nk++], key, sizeof key);
   }
+  rc = 0;
+  if (!nk) goto out; /* nothing leaving holds anything */
+  rc = -1;
   /* Each block once, sorted. */
   qsort(keys, nk, sizeof *keys, key_order);
   size_t u = 0;
@@ -434,5 +437,10 @@ int vlff_far_load(struct vlff_far *f, const char *path, char *err, size_t errlen
     memcpy(f->texts[i], buf + FAR_HEAD + (size_t)i * VLFF_SHM_PROMPT_LEN, VLFF_SHM_PROMPT_LEN - 1);
   f->k = (int)k;
   free(buf);
+  /* A class label names one of its k prompts: any other names nothing. */
+  for (size_t j = 0; j < f->n; j++)
+    for (uint32_t r = 0; r < f->b[j].nruns; r++)
+      if (f->b[j].runs[r].label <= VLFF_LABEL_MAX && f->b[j].runs[r].label >= k)
+        f->b[j].runs[r].label = VLFF_LABEL_UNKNOWN, f->b[j].runs[r].conf = 0;
   return 0;
 }

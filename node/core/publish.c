@@ -201,6 +201,9 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
     vlff_publisher_destroy(p);
     return NULL;
   }
+  /* The first publish says the far map, none too: a segment taken over
+   * holds the one a previous run published, of its own voxels and prompts. */
+  p->far_owed = p->far != NULL;
   p->lw = pub->label_width;
   p->lh = pub->label_height;
   if (p->lw > shm->label_max_width || p->lh > shm->label_max_height) {

@@ -743,18 +743,26 @@ static void test_grow(void **state) {
  * a save of the refitted grid (which does not hold the first box) loads
  * into a first-box evidence; a refit that still does not fit is refused,
  * nothing changed. */
+/* A wall 2.2 m ahead of the first box's camera added to e (a: its view);
+ * x: the mean at p, on it, of the 4 samples there. */
+static const double wall_p[3] = {-0.1, 0.1, 2.2};
+static void first_wall(struct vlff_evidence *e, struct wall *a, float x[D]) {
+  char err[256];
+  wall_make(a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
+  assert_int_equal(vlff_evidence_add(e, &a->v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, wall_p), x), 4);
+}
+
 static void test_refit(void **state) {
   (void)state;
   struct vlff_config cfg;
   struct vlff_evidence *e = make_growing(&cfg); /* an index of at most 65536 voxels */
   char err[256];
   struct wall a;
-  wall_make(&a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
-  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
-  const double p[3] = {-0.1, 0.1, 2.2};
   float x[D], y[D];
-  const int n = vlff_evidence_get(e, vlff_evidence_voxel(e, p), x);
-  assert_int_equal(n, 4);
+  first_wall(e, &a, x);
+  const double *p = wall_p;
+  const int n = 4;
   const double lo[3] = {-2, -2, 0}, hi[3] = {30, 14, 4}; /* 64 x 32 x 8 voxels */
   assert_int_equal(vlff_evidence_grow(e, lo, hi, lo, hi, 1000, err, sizeof err), 1);
   const double margin[3] = {25, 10, 1}, far[3] = {-99.5, 0.2, 2.2};
@@ -810,12 +818,10 @@ static void test_slide(void **state) {
     char err[256];
     if (paging) assert_int_equal(vlff_evidence_page_to(e, path, 1 << 20, err, sizeof err), 0);
     struct wall a;
-    wall_make(&a, 2.2f, (const float[D]){0.25f, -1, 0.5f, 0});
-    assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
-    const double p[3] = {-0.1, 0.1, 2.2};
     float x[D], y[D];
-    const int n = vlff_evidence_get(e, vlff_evidence_voxel(e, p), x);
-    assert_int_equal(n, 4);
+    first_wall(e, &a, x);
+    const double *p = wall_p;
+    const int n = 4;
     const size_t held = vlff_evidence_voxels(e);
     /* 40 x 40 x 4 m, 500 m along x: 51200 voxels alone, far more with the wall */
     const double lo[3] = {500, -20, 0}, hi[3] = {540, 20, 4};

@@ -75,4 +75,18 @@ probe
 check "restarted, the far map is published again from the checkpoint ($(far_blocks) blocks; $outside probes beyond the window labelled)"   '(( outside > 0 ))'
 check "no far map refused on the restart" '! grep -q "far map not restored" "$tmp/log2"'
 stop_node
+# Started afresh on the same segment, the camera on again: its first map
+# says the far map too, empty, rather than leave the last run's published
+# beside a new grid.
+version=$("$shm" stat "$p-m" | awk '$1 == "version" { print $2 }')
+"$node" --config "$tmp/n.yaml" --fresh 2>"$tmp/log3" &
+nodepid=$!
+"$sim" --config "$tmp/s.yaml" --quiet 2>"$tmp/simlog" &
+simpid=$!
+wait_until 600 '(( $("$shm" stat "$p-m" | awk "\$1 == \"version\" { print \$2 }") > version ))'
+fresh_blocks=$(far_blocks) # read at once: the new walk slides only once it leaves its first window
+kill "$simpid"; wait "$simpid"; simpid=
+check "started afresh, the last run's far map is not published (far_blocks $fresh_blocks at its first maps)" \
+  '[[ $fresh_blocks == 0 ]] && [[ ! -e $tmp/map.0.obs.far && ! -e $tmp/map.1.obs.far ]]'
+stop_node
 verdict

@@ -672,6 +672,10 @@ static void map_far_blocks(void **state) {
   assert_int_equal(vlff_map_set_far(w, &bad), -1);
   bad = far, bad.voxel_size = NAN;
   assert_int_equal(vlff_map_set_far(w, &bad), -1);
+  struct vlff_map_far_block edge[1] = {{{INT32_MAX, 0, 0}, 0}}; /* a key no reader could reach */
+  bad = far, bad.nblocks = 1, bad.nruns = 2, bad.blocks = edge, bad.voxel_size = 1e-4;
+  assert_int_equal(vlff_map_set_far(w, &bad), -1);
+  assert_non_null(strstr(vlff_shm_last_message(), "beyond"));
   struct vlff_map_far_block twice[3] = {blocks[0], blocks[0], blocks[2]};
   twice[1].first_run = 2;
   bad = far, bad.blocks = twice;
