@@ -5,6 +5,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <limits.h>
 #include <math.h>
 #include <stdbool.h>
@@ -13,6 +14,7 @@
 #include <unistd.h>
 
 #include "files.h"
+#include "hash.h"
 #include "lattice.h"
 #include "log.h"
 #include "select.h"
@@ -1103,3 +1105,153 @@ size_t vlff_evidence_capacity(const struct vlff_evidence *e) { return e->cap; }
 
 long long vlff_evidence_evicted(const struct vlff_evidence *e) { return e->evicted; }
 long long vlff_evidence_overflow(const struct vlff_evidence *e) { return e->overflow; }
+
+/* ------------------------------------------------------- far records saved */
+
+/* File: "VLFFEVF1", D (i32), 4 pad bytes, voxel and the first grid's origin
+ * (4 doubles), n (u64), n records of the lattice voxel (3 i64), the count
+ * (u8) and the mean (D float16), FNV-1a 64 of everything before it. */
+#define EVF_MAGIC "VLFFEVF1"
+#define EVF_HEAD (8 + 8 + 32 + 8)
+static size_t evf_record(int D) { return 24 + 1 + (size_t)D * 2; }
+
+size_t vlff_evidence_far_records(const struct vlff_evidence *e) { return e->nfar; }
+
+int vlff_evidence_save_far(const struct vlff_evidence *e, const char *path, char *err, size_t errlen) {
+  if (!e->nfar) {
+    if (unlink(path) && errno != ENOENT) return vlff_errf(err, errlen, "%s: %s", VLFF_Q(path), strerror(errno)), -1;
+    return 0;
+  }
+  /* Reading a record back uses the page buffer: scratch, as in save_part. */
+  struct vlff_evidence *pg = (struct vlff_evidence *)e;
+  const size_t rs = evf_record(e->D);
+  uint8_t head[EVF_HEAD], *rec = malloc(rs);
+  if (!rec) return vlff_errf(err, errlen, "%s: out of memory", VLFF_Q(path)), -1;
+  const int32_t D = e->D;
+  const uint64_t n = e->nfar;
+  memset(head, 0, sizeof head);
+  memcpy(head, EVF_MAGIC, 8);
+  memcpy(head + 8, &D, 4);
+  memcpy(head + 16, &e->voxel, 8);
+  memcpy(head + 24, e->origin0, 24);
+  memcpy(head + 48, &n, 8);
+  struct vlff_atomic a;
+  if (vlff_atomic_begin(&a, path, 0644, err, errlen) < 0) return free(rec), -1;
+  uint64_t sum = vlff_fnv1a64(VLFF_FNV1A64_INIT, head, sizeof head);
+  bool ok = vlff_write_all(a.fd, head, sizeof head) == 0;
+  for (size_t j = 0; ok && j < e->nfar; j++) {
+    const int64_t k[3] = {e->far[j].k[0], e->far[j].k[1], e->far[j].k[2]};
+    memcpy(rec, k, 24);
+    if (page_read(pg, e->far[j].r, &rec[24], (uint16_t *)pg->tmp)) {
+      rec[24] = 1; /* unreadable (counted): a sample of nothing, as save_part writes it */
+      memset(rec + 25, 0, (size_t)e->D * 2);
+    } else {
+      memcpy(rec + 25, pg->tmp, (size_t)e->D * 2);
+    }
+    sum = vlff_fnv1a64(sum, rec, rs);
+    ok = vlff_write_all(a.fd, rec, rs) == 0;
+  }
+  free(rec);
+  ok = ok && vlff_write_all(a.fd, &sum, 8) == 0;
+  if (!ok) {
+    vlff_errf(err, errlen, "%s: write failed: %s", VLFF_Q(a.tmp), strerror(errno));
+    vlff_atomic_abort(&a);
+    return -1;
+  }
+  return vlff_atomic_commit(&a, err, errlen);
+}
+
+/* Without a page file every record is given up: only the header is read,
+ * for the count (held to the file's length). */
+static int evf_drop_all(struct vlff_evidence *e, const char *path, long long *dropped, char *err, size_t errlen) {
+  int fd = vlff_open_regular(path, err, errlen);
+  if (fd < 0) return -1;
+  uint8_t head[EVF_HEAD];
+  struct stat st;
+  int32_t D = 0;
+  uint64_t n = 0;
+  const bool ok = fstat(fd, &st) == 0 && vlff_read_at(fd, 0, head, sizeof head) == 0 && !memcmp(head, EVF_MAGIC, 8);
+  close(fd);
+  if (ok) memcpy(&D, head + 8, 4), memcpy(&n, head + 48, 8);
+  const size_t rs = evf_record(e->D);
+  if (!ok || D != e->D || n > ((uint64_t)st.st_size - EVF_HEAD) / rs || (uint64_t)st.st_size != EVF_HEAD + n * rs + 8)
+    return vlff_errf(err, errlen, "%s: not far evidence of this feature size (VLFFEVF1), or truncated", VLFF_Q(path)),
+           -1;
+  *dropped = (long long)n;
+  e->evicted += (long long)n;
+  return 0;
+}
+
+int vlff_evidence_load_far(struct vlff_evidence *e, const char *path, long long *dropped, char *err, size_t errlen) {
+  *dropped = 0;
+  if (access(path, F_OK) && errno == ENOENT) return 1;
+  if (!e->page_path) return evf_drop_all(e, path, dropped, err, errlen);
+  const size_t rs = evf_record(e->D);
+  uint8_t *buf;
+  size_t len;
+  /* at most what the page file holds, and a header */
+  if (vlff_read_file(path, EVF_HEAD + e->page_cap * rs + 8, &buf, &len, err, errlen)) return -1;
+  const char *why = NULL;
+  int32_t D = 0;
+  double voxel = 0, origin0[3] = {0, 0, 0};
+  uint64_t n = 0, sum = 0;
+  if (len < EVF_HEAD + 8 || memcmp(buf, EVF_MAGIC, 8)) {
+    why = "not far evidence (VLFFEVF1)";
+  } else {
+    memcpy(&D, buf + 8, 4);
+    memcpy(&voxel, buf + 16, 8);
+    memcpy(origin0, buf + 24, 24);
+    memcpy(&n, buf + 48, 8);
+    memcpy(&sum, buf + len - 8, 8);
+    if (D != e->D || voxel != e->voxel || memcmp(origin0, e->origin0, sizeof origin0))
+      why = "of another grid or feature size (publish.evidence_voxel_m, the first box or field.feature_dim changed "
+            "since)";
+    else if (n > (len - EVF_HEAD - 8) / rs || len != EVF_HEAD + n * rs + 8)
+      why = "truncated or too long";
+    else if (sum != vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, len - 8))
+      why = "checksum mismatch";
+  }
+  /* Every record checked before any is taken. */
+  for (uint64_t j = 0; !why && j < n; j++) {
+    const uint8_t *r = buf + EVF_HEAD + j * rs;
+    int64_t k[3];
+    memcpy(k, r, 24);
+    for (int a = 0; a < 3 && !why; a++)
+      if (k[a] < -(int64_t)INT32_MAX || k[a] > (int64_t)INT32_MAX) why = "a record beyond the lattice";
+    if (!why && !r[24]) why = "a record of no samples";
+    for (int d = 0; !why && d < e->D; d++) {
+      uint16_t h;
+      memcpy(&h, r + 25 + 2 * (size_t)d, 2);
+      if ((h & 0x7c00) == 0x7c00) why = "a record whose mean is not finite";
+    }
+  }
+  size_t need = e->nfar + (size_t)n;
+  if (!why && need > e->far_cap) {
+    struct far_rec *nf = realloc(e->far, need * sizeof *nf);
+    if (!nf) why = "out of memory";
+    else e->far = nf, e->far_cap = need;
+  }
+  if (why) {
+    free(buf);
+    return vlff_errf(err, errlen, "%s: %s", VLFF_Q(path), why), -1;
+  }
+  for (uint64_t j = 0; j < n; j++) {
+    const uint8_t *r = buf + EVF_HEAD + j * rs;
+    int64_t k[3];
+    memcpy(k, r, 24);
+    memcpy(e->tmp, r + 25, (size_t)e->D * 2); /* aligned for page_write's mean */
+    const int rec = e->page_path ? page_write(e, FAR_VOXEL, r[24], (const uint16_t *)e->tmp, NULL) : -1;
+    if (rec < 0) {
+      ++*dropped; /* no page file, or a full one: given up, as a full budget's */
+      e->evicted++;
+      continue;
+    }
+    struct far_rec *f = &e->far[e->nfar++];
+    for (int a = 0; a < 3; a++) f->k[a] = (long)k[a];
+    f->r = (uint32_t)rec;
+  }
+  free(buf);
+  e->paged_out -= (long long)n - *dropped; /* what a load pages is not given up for room */
+  far_return(e); /* any the grid covers now */
+  return 0;
+}

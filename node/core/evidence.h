@@ -211,6 +211,20 @@ typedef int (*vlff_evidence_read_fn)(void *ctx, uint64_t off, void *dst, size_t 
 int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, void *ctx, uint64_t len,
                             char *err, size_t errlen);
 
+/* The far records (evidence of voxels a slide left beyond the grid, kept in
+ * the page file: vlff_evidence_grow), which a save of the grid does not
+ * hold, saved beside it: read back from the page file and written to path
+ * atomically (none: path removed). load_far takes such a file after a load
+ * (0; 1 when there is none; -1 with err for one of another grid or feature
+ * size, truncated, corrupt, a checksum that fails, a record of no samples
+ * or a mean that is not finite: nothing taken): its records go to the page
+ * file as far records again, those the grid covers back to their voxels;
+ * without a page file, or with a full one, each is given up, counted in
+ * *dropped and vlff_evidence_evicted. far_records: how many there are. */
+int vlff_evidence_save_far(const struct vlff_evidence *e, const char *path, char *err, size_t errlen);
+int vlff_evidence_load_far(struct vlff_evidence *e, const char *path, long long *dropped, char *err, size_t errlen);
+size_t vlff_evidence_far_records(const struct vlff_evidence *e);
+
 /* Pages what the budget gives up to the file at path, holding at most
  * max_bytes of it (0: no paging; the default until called). The file is
  * made (0600, truncated) at the first page-out and removed at destroy; one

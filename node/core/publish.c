@@ -389,6 +389,12 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
     unlink(fp); /* never a far map of another checkpoint beside this grid */
     return -1;
   }
+  /* ... and the evidence the grid's left in the page file (evidence.h). */
+  if (p->ev && p->far && snprintf(fp, sizeof fp, "%s.evfar", path) < (int)sizeof fp &&
+      vlff_evidence_save_far(p->ev, fp, err, errlen)) {
+    unlink(fp);
+    return -1;
+  }
   return 0;
 }
 
@@ -656,6 +662,15 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
       VLFF_WARN(TAG, "far map not restored (the map reads unknown beyond its window until the robot returns): %s",
                 ferr);
     p->far_owed = fr == 0 || p->far_owed;
+    long long dropped = 0;
+    if (p->ev && snprintf(fp, sizeof fp, "%s.evfar", path) < (int)sizeof fp &&
+        vlff_evidence_load_far(p->ev, fp, &dropped, ferr, sizeof ferr) < 0)
+      VLFF_WARN(TAG, "evidence beyond the map's window not restored (its voxels read the field until seen again): %s",
+                ferr);
+    if (dropped)
+      VLFF_WARN(TAG, "%s: %lld voxels' evidence beyond the map's window given up: no page file holds them "
+                     "(publish.evidence_page_mb)",
+                VLFF_Q(fp), dropped);
   }
 out:
   VLFF_FREE_ALL(g, marks, r.buf);

@@ -842,6 +842,40 @@ static void test_slide(void **state) {
     assert_int_equal(vlff_evidence_voxels(g) + vlff_evidence_paged(g), 0);
     free(buf);
     vlff_evidence_destroy(g);
+    /* ... the far records beside it: a restarted evidence takes them into
+     * its own page file, and the wall's evidence comes back with the grid */
+    char fpath[96], gpages[96];
+    snprintf(fpath, sizeof fpath, "%s/map.obs.evfar", dir);
+    snprintf(gpages, sizeof gpages, "%s/evidence2.pages", dir);
+    assert_int_equal(vlff_evidence_far_records(e), held);
+    assert_int_equal(vlff_evidence_save_far(e, fpath, err, sizeof err), 0);
+    struct vlff_config c2;
+    g = make_growing(&c2);
+    long long dropped;
+    assert_int_equal(vlff_evidence_load_far(g, fpath, &dropped, err, sizeof err), 0);
+    assert_int_equal(dropped, (long long)held); /* no page file: given up, counted */
+    assert_int_equal(vlff_evidence_evicted(g), (long long)held);
+    vlff_evidence_destroy(g);
+    g = make_growing(&c2);
+    assert_int_equal(vlff_evidence_page_to(g, gpages, 1 << 20, err, sizeof err), 0);
+    assert_int_equal(vlff_evidence_load_far(g, fpath, &dropped, err, sizeof err), 0);
+    assert_int_equal(dropped, 0);
+    assert_int_equal(vlff_evidence_far_records(g), 0); /* the first box holds the wall: back at once */
+    assert_true(vlff_evidence_paged(g) >= 1);
+    assert_int_equal(vlff_evidence_add(g, &a.v, err, sizeof err), 0);
+    assert_int_equal(vlff_evidence_get(g, vlff_evidence_voxel(g, p), y), 2 * n);
+    for (int j = 0; j < D; j++) assert_float_equal(x[j], y[j], 2e-3);
+    vlff_evidence_destroy(g);
+    /* a cut file, or one of another grid, refused with nothing taken */
+    assert_int_equal(truncate(fpath, 70), 0);
+    g = make_growing(&c2);
+    assert_int_equal(vlff_evidence_load_far(g, fpath, &dropped, err, sizeof err), -1);
+    assert_non_null(strstr(err, "truncated"));
+    assert_int_equal(vlff_evidence_paged(g) + vlff_evidence_far_records(g), 0);
+    vlff_evidence_destroy(g);
+    unlink(fpath);
+    assert_int_equal(vlff_evidence_load_far(e, fpath, &dropped, err, sizeof err), 1); /* none */
+    unlink(gpages);
     /* back at the first wall: the grid slides back, the wall's records with it */
     const double blo[3] = {-2, -2, 0}, bhi[3] = {2, 2, 4};
     assert_int_equal(vlff_evidence_grow(e, blo, bhi, blo, bhi, 1000, err, sizeof err), 1);
