@@ -96,6 +96,7 @@ struct vlff_evidence {
     uint32_t r;
   } *far;
   size_t nfar, far_cap;
+  uint64_t far_gen; /* vlff_evidence_far_generation */
   long long slides;
 };
 
@@ -303,6 +304,7 @@ static int evidence_slide(struct vlff_evidence *e, const int32_t sh[3], const ui
     f->r = (uint32_t)r;
   }
   pack_slots(e);
+  e->far_gen++;
   if (relayout(e, sh, nd, err, errlen)) {
     far_return(e); /* the grid as it was: its voxels' records back */
     return -1;
@@ -333,6 +335,7 @@ static void far_return(struct vlff_evidence *e) {
       page_release(e, e->far[j].r); /* the voxel has evidence of its own again: the newer stays */
     }
     e->far[j] = e->far[--e->nfar];
+    e->far_gen++;
   }
 }
 
@@ -392,6 +395,7 @@ void vlff_evidence_reset(struct vlff_evidence *e) {
   e->nlost = 0;
   e->paged = e->page_top = e->nfree = 0;
   e->nfar = 0;
+  e->far_gen++;
   e->paged_out = e->paged_in = e->page_errors = 0;
   e->pvalid = false;
   if (e->page_fd >= 0 && ftruncate(e->page_fd, 0)) e->page_errors++;
@@ -572,6 +576,7 @@ int vlff_evidence_page_to(struct vlff_evidence *e, const char *path, size_t max_
     if (is_paged(e->slot[v])) e->slot[v] = -1;
   e->paged = e->page_top = e->nfree = 0;
   e->nfar = 0;
+  e->far_gen++;
   e->page_cap = max_bytes / page_record(e->D);
   if (e->page_cap > (size_t)INT32_MAX - 2) e->page_cap = (size_t)INT32_MAX - 2;
   if (!e->page_cap) return 0;
@@ -1116,6 +1121,26 @@ long long vlff_evidence_overflow(const struct vlff_evidence *e) { return e->over
 static size_t evf_record(int D) { return 24 + 1 + (size_t)D * 2; }
 
 size_t vlff_evidence_far_records(const struct vlff_evidence *e) { return e->nfar; }
+uint64_t vlff_evidence_far_generation(const struct vlff_evidence *e) { return e->far_gen; }
+
+/* A VLFFEVF1 file's header (its first EVF_HEAD bytes, of a file of size
+ * bytes) checked against this evidence: NULL and *n its records, or why
+ * not. The checksum is the caller's, which has read the records. */
+static const char *evf_head(const struct vlff_evidence *e, const uint8_t *head, uint64_t size, uint64_t *n) {
+  int32_t D = 0;
+  double voxel = 0, origin0[3] = {0, 0, 0};
+  if (size < EVF_HEAD + 8 || memcmp(head, EVF_MAGIC, 8)) return "not far evidence (VLFFEVF1)";
+  memcpy(&D, head + 8, 4);
+  memcpy(&voxel, head + 16, 8);
+  memcpy(origin0, head + 24, 24);
+  memcpy(n, head + 48, 8);
+  if (D != e->D || voxel != e->voxel || memcmp(origin0, e->origin0, sizeof origin0))
+    return "of another grid or feature size (publish.evidence_voxel_m, the first box or field.feature_dim changed "
+           "since)";
+  const size_t rs = evf_record(e->D);
+  if (*n > (size - EVF_HEAD - 8) / rs || size != EVF_HEAD + *n * rs + 8) return "truncated or too long";
+  return NULL;
+}
 
 int vlff_evidence_save_far(const struct vlff_evidence *e, const char *path, char *err, size_t errlen) {
   if (!e->nfar) {
@@ -1168,15 +1193,11 @@ static int evf_drop_all(struct vlff_evidence *e, const char *path, long long *dr
   if (fd < 0) return -1;
   uint8_t head[EVF_HEAD];
   struct stat st;
-  int32_t D = 0;
   uint64_t n = 0;
-  const bool ok = fstat(fd, &st) == 0 && vlff_read_at(fd, 0, head, sizeof head) == 0 && !memcmp(head, EVF_MAGIC, 8);
+  const char *why = fstat(fd, &st) || vlff_read_at(fd, 0, head, sizeof head) ? "unreadable"
+                                                                              : evf_head(e, head, (uint64_t)st.st_size, &n);
   close(fd);
-  if (ok) memcpy(&D, head + 8, 4), memcpy(&n, head + 48, 8);
-  const size_t rs = evf_record(e->D);
-  if (!ok || D != e->D || n > ((uint64_t)st.st_size - EVF_HEAD) / rs || (uint64_t)st.st_size != EVF_HEAD + n * rs + 8)
-    return vlff_errf(err, errlen, "%s: not far evidence of this feature size (VLFFEVF1), or truncated", VLFF_Q(path)),
-           -1;
+  if (why) return vlff_errf(err, errlen, "%s: %s", VLFF_Q(path), why), -1;
   *dropped = (long long)n;
   e->evicted += (long long)n;
   return 0;
@@ -1191,25 +1212,11 @@ int vlff_evidence_load_far(struct vlff_evidence *e, const char *path, long long 
   size_t len;
   /* at most what the page file holds, and a header */
   if (vlff_read_file(path, EVF_HEAD + e->page_cap * rs + 8, &buf, &len, err, errlen)) return -1;
-  const char *why = NULL;
-  int32_t D = 0;
-  double voxel = 0, origin0[3] = {0, 0, 0};
   uint64_t n = 0, sum = 0;
-  if (len < EVF_HEAD + 8 || memcmp(buf, EVF_MAGIC, 8)) {
-    why = "not far evidence (VLFFEVF1)";
-  } else {
-    memcpy(&D, buf + 8, 4);
-    memcpy(&voxel, buf + 16, 8);
-    memcpy(origin0, buf + 24, 24);
-    memcpy(&n, buf + 48, 8);
+  const char *why = evf_head(e, buf, len, &n);
+  if (!why) {
     memcpy(&sum, buf + len - 8, 8);
-    if (D != e->D || voxel != e->voxel || memcmp(origin0, e->origin0, sizeof origin0))
-      why = "of another grid or feature size (publish.evidence_voxel_m, the first box or field.feature_dim changed "
-            "since)";
-    else if (n > (len - EVF_HEAD - 8) / rs || len != EVF_HEAD + n * rs + 8)
-      why = "truncated or too long";
-    else if (sum != vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, len - 8))
-      why = "checksum mismatch";
+    if (sum != vlff_fnv1a64(VLFF_FNV1A64_INIT, buf, len - 8)) why = "checksum mismatch";
   }
   /* Every record checked before any is taken. */
   for (uint64_t j = 0; !why && j < n; j++) {
@@ -1252,6 +1259,7 @@ int vlff_evidence_load_far(struct vlff_evidence *e, const char *path, long long 
   }
   free(buf);
   e->paged_out -= (long long)n - *dropped; /* what a load pages is not given up for room */
+  e->far_gen++;
   far_return(e); /* any the grid covers now */
   return 0;
 }

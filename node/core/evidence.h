@@ -224,6 +224,10 @@ int vlff_evidence_load_from(struct vlff_evidence *e, vlff_evidence_read_fn rd, v
 int vlff_evidence_save_far(const struct vlff_evidence *e, const char *path, char *err, size_t errlen);
 int vlff_evidence_load_far(struct vlff_evidence *e, const char *path, long long *dropped, char *err, size_t errlen);
 size_t vlff_evidence_far_records(const struct vlff_evidence *e);
+/* Changes whenever the far records may have changed (a slide, a record
+ * back in the grid, a reset, a load): a checkpoint rewrites save_far's file
+ * only then. */
+uint64_t vlff_evidence_far_generation(const struct vlff_evidence *e);
 
 /* Pages what the budget gives up to the file at path, holding at most
  * max_bytes of it (0: no paging; the default until called). The file is

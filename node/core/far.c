@@ -32,6 +32,7 @@ struct vlff_far {
   size_t n, cap;
   size_t nruns; /* over all blocks */
   long long dropped;
+  uint64_t gen; /* vlff_far_generation */
   /* vlff_far_export's arrays */
   struct vlff_map_far_block *xb;
   struct vlff_map_far_run *xr;
@@ -79,6 +80,7 @@ void vlff_far_reset(struct vlff_far *f) {
   for (size_t i = 0; i < f->n; i++) free(f->b[i].runs);
   f->n = f->nruns = 0;
   f->dropped = 0;
+  f->gen++;
 }
 
 void vlff_far_destroy(struct vlff_far *f) {
@@ -91,6 +93,7 @@ void vlff_far_destroy(struct vlff_far *f) {
 size_t vlff_far_blocks(const struct vlff_far *f) { return f->n; }
 size_t vlff_far_bytes(const struct vlff_far *f) { return vlff_map_far_bytes((uint32_t)f->n, (uint32_t)f->nruns); }
 long long vlff_far_dropped(const struct vlff_far *f) { return f->dropped; }
+uint64_t vlff_far_generation(const struct vlff_far *f) { return f->gen; }
 
 static void decode(const struct fblock *b, uint16_t *lab, uint8_t *conf) {
   size_t at = 0;
@@ -152,6 +155,7 @@ static void trim(struct vlff_far *f, const double centre[3]) {
     memmove(f->b + worst, f->b + worst + 1, (f->n - worst - 1) * sizeof *f->b);
     f->n--;
     f->dropped++;
+    f->gen++;
   }
 }
 
@@ -241,6 +245,7 @@ int vlff_far_store(struct vlff_far *f, const uint32_t dims[3], const long k0[3],
   }
   free(lab), free(cf);
 out:
+  f->gen++; /* even a failed store may have changed blocks it made before */
   free(keys);
   return rc;
 }
@@ -281,6 +286,7 @@ int vlff_far_prompts(struct vlff_far *f, const char *const *prompts, int k) {
     if (f->k < 0) {
       for (int i = 0; i < k; i++) snprintf(f->texts[i], sizeof f->texts[i], "%s", prompts[i]);
       f->k = k;
+      f->gen++; /* the texts a checkpoint holds */
     }
     return 0;
   }
@@ -307,6 +313,7 @@ int vlff_far_prompts(struct vlff_far *f, const char *const *prompts, int k) {
   memset(f->texts, 0, sizeof f->texts);
   for (int i = 0; i < k; i++) snprintf(f->texts[i], sizeof f->texts[i], "%s", prompts[i]);
   f->k = k;
+  f->gen++;
   return changed;
 }
 
@@ -442,5 +449,6 @@ int vlff_far_load(struct vlff_far *f, const char *path, char *err, size_t errlen
     for (uint32_t r = 0; r < f->b[j].nruns; r++)
       if (f->b[j].runs[r].label <= VLFF_LABEL_MAX && f->b[j].runs[r].label >= k)
         f->b[j].runs[r].label = VLFF_LABEL_UNKNOWN, f->b[j].runs[r].conf = 0;
+  f->gen++;
   return 0;
 }

@@ -77,5 +77,9 @@ int vlff_far_load(struct vlff_far *f, const char *path, char *err, size_t errlen
 size_t vlff_far_blocks(const struct vlff_far *f);
 size_t vlff_far_bytes(const struct vlff_far *f);
 long long vlff_far_dropped(const struct vlff_far *f);
+/* Changes whenever what vlff_far_save would write may have changed (a
+ * store, a drop, a reset, a load, the prompts): a checkpoint rewrites the
+ * file only then (learned state is written only when it changed). */
+uint64_t vlff_far_generation(const struct vlff_far *f);
 
 #endif

@@ -53,6 +53,13 @@ struct vlff_publisher {
    * NULL for a fixed box. far_owed: the next publish carries it. */
   struct vlff_far *far;
   bool far_owed;
+  /* The far files last written beside each checkpoint's grid (the node
+   * alternates two): rewritten only when their generation changed. */
+  struct saved_far {
+    char path[VLFF_CFG_PATH + 64];
+    uint64_t far_gen, evfar_gen;
+  } saved[2];
+  int saved_next;
   long long slides;
   size_t far_limit; /* bytes: shm.map_far_max_mb */
   double far_retry_s, far_warned_s; /* a far map the segment refused: tried again from then; the last drop said */
@@ -338,7 +345,9 @@ static size_t obs_v4_size(const struct vlff_publisher *p) { return obs_v3_size(p
 /* Written as it is made: the grids, then the evidence a megabyte at a time
  * (with paging it holds every voxel the robot has seen, most of it not in
  * memory), the checksum taken as the bytes go. */
-int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
+static int save_far_files(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
+
+int vlff_publisher_save(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   size_t n = p->nvox, evn = p->ev ? vlff_evidence_save_size(p->ev) : 0;
   size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + obs_v4_size(p) + 8;
   const size_t piece = (size_t)1 << 20, rec = 5 + (size_t)p->D * 2;
@@ -381,19 +390,50 @@ int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *
     return -1;
   }
   if (vlff_atomic_commit(&a, err, errlen)) return -1;
-  /* The far map beside it (far.h): the same checkpoint's, or none. */
-  char fp[VLFF_CFG_PATH + 64];
-  if (p->far && snprintf(fp, sizeof fp, "%s.far", path) >= (int)sizeof fp)
-    return snprintf(err, errlen, "%s.far: path too long", path), -1;
-  if (p->far && vlff_far_save(p->far, fp, err, errlen)) {
-    unlink(fp); /* never a far map of another checkpoint beside this grid */
-    return -1;
+  return p->far ? save_far_files(p, path, err, errlen) : 0;
+}
+
+/* The file beside a checkpoint's grid file: path + ext. */
+static int beside(char *out, size_t cap, const char *path, const char *ext, char *err, size_t errlen) {
+  if (snprintf(out, cap, "%s%s", path, ext) < (int)cap) return 0;
+  return snprintf(err, errlen, "%s%s: path too long", path, ext), -1;
+}
+
+/* A far file is written, or its name kept free, unless the one there is of
+ * this generation. */
+static bool far_current(const char *file, uint64_t have, uint64_t gen, bool any) {
+  return have == gen && (any ? access(file, F_OK) == 0 : access(file, F_OK) && errno == ENOENT);
+}
+
+/* The far map beside the grid (far.h), and the evidence the grid left in
+ * the page file (evidence.h): the same checkpoint's, or none. Rewritten
+ * only when they changed since this grid file's last save (learned state
+ * is written only when it changed); a failed write removes the file, never
+ * leaving another checkpoint's beside this grid. */
+static int save_far_files(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
+  struct saved_far *sv = NULL;
+  for (int i = 0; i < 2 && !sv; i++)
+    if (!strcmp(p->saved[i].path, path)) sv = &p->saved[i];
+  if (!sv) {
+    sv = &p->saved[p->saved_next], p->saved_next ^= 1;
+    *sv = (struct saved_far){.far_gen = UINT64_MAX, .evfar_gen = UINT64_MAX};
+    if (snprintf(sv->path, sizeof sv->path, "%s", path) >= (int)sizeof sv->path) sv->path[0] = 0;
   }
-  /* ... and the evidence the grid's left in the page file (evidence.h). */
-  if (p->ev && p->far && snprintf(fp, sizeof fp, "%s.evfar", path) < (int)sizeof fp &&
-      vlff_evidence_save_far(p->ev, fp, err, errlen)) {
-    unlink(fp);
-    return -1;
+  char fp[VLFF_CFG_PATH + 80];
+  const uint64_t fg = vlff_far_generation(p->far);
+  if (beside(fp, sizeof fp, path, ".far", err, errlen)) return -1;
+  if (!far_current(fp, sv->far_gen, fg, vlff_far_blocks(p->far) > 0)) {
+    sv->far_gen = UINT64_MAX;
+    if (vlff_far_save(p->far, fp, err, errlen)) return unlink(fp), -1;
+    sv->far_gen = fg;
+  }
+  if (!p->ev) return 0;
+  const uint64_t eg = vlff_evidence_far_generation(p->ev);
+  if (beside(fp, sizeof fp, path, ".evfar", err, errlen)) return -1;
+  if (!far_current(fp, sv->evfar_gen, eg, vlff_evidence_far_records(p->ev) > 0)) {
+    sv->evfar_gen = UINT64_MAX;
+    if (vlff_evidence_save_far(p->ev, fp, err, errlen)) return unlink(fp), -1;
+    sv->evfar_gen = eg;
   }
   return 0;
 }
@@ -655,15 +695,15 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   p->need_full = true; /* every voxel may have changed */
   rc = 0;
   /* What the window had left behind, beside the grid's file (far.h). */
-  char fp[VLFF_CFG_PATH + 64], ferr[400];
-  if (p->far && snprintf(fp, sizeof fp, "%s.far", path) < (int)sizeof fp) {
+  char fp[VLFF_CFG_PATH + 80], ferr[400];
+  if (p->far && !beside(fp, sizeof fp, path, ".far", ferr, sizeof ferr)) {
     int fr = vlff_far_load(p->far, fp, ferr, sizeof ferr);
     if (fr < 0)
       VLFF_WARN(TAG, "far map not restored (the map reads unknown beyond its window until the robot returns): %s",
                 ferr);
     p->far_owed = fr == 0 || p->far_owed;
     long long dropped = 0;
-    if (p->ev && snprintf(fp, sizeof fp, "%s.evfar", path) < (int)sizeof fp &&
+    if (p->ev && !beside(fp, sizeof fp, path, ".evfar", ferr, sizeof ferr) &&
         vlff_evidence_load_far(p->ev, fp, &dropped, ferr, sizeof ferr) < 0)
       VLFF_WARN(TAG, "evidence beyond the map's window not restored (its voxels read the field until seen again): %s",
                 ferr);

@@ -102,8 +102,11 @@ bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vl
 /* The observation grids (what measured depth has seen) are learned state
  * too: saved beside each field checkpoint so a restarted node publishes the
  * same map at once. Save is atomic; load refuses a file of another grid,
- * a truncated or corrupt one, and then leaves the grids untouched. */
-int vlff_publisher_save(const struct vlff_publisher *p, const char *path, char *err, size_t errlen);
+ * a truncated or corrupt one, and then leaves the grids untouched. With a
+ * growing box, the far map and the far evidence go beside it (path.far,
+ * path.evfar), rewritten only when they changed since that path's last
+ * save. */
+int vlff_publisher_save(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
 /* The evidence observe() averages into (evidence.h), NULL without it
  * (publish.evidence_weight 0): for tests and tools to read. */

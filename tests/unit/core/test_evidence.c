@@ -825,7 +825,9 @@ static void test_slide(void **state) {
     const size_t held = vlff_evidence_voxels(e);
     /* 40 x 40 x 4 m, 500 m along x: 51200 voxels alone, far more with the wall */
     const double lo[3] = {500, -20, 0}, hi[3] = {540, 20, 4};
+    const uint64_t gen0 = vlff_evidence_far_generation(e);
     assert_int_equal(vlff_evidence_grow(e, lo, hi, lo, hi, 1000, err, sizeof err), 1);
+    assert_true(vlff_evidence_far_generation(e) != gen0); /* a checkpoint writes the far records again */
     assert_int_equal(vlff_evidence_voxel(e, p), -1); /* beyond the grid now */
     assert_true(vlff_evidence_voxel(e, (const double[3]){520, 0, 2}) >= 0);
     assert_int_equal(vlff_evidence_voxels(e), 0);
@@ -848,7 +850,10 @@ static void test_slide(void **state) {
     snprintf(fpath, sizeof fpath, "%s/map.obs.evfar", dir);
     snprintf(gpages, sizeof gpages, "%s/evidence2.pages", dir);
     assert_int_equal(vlff_evidence_far_records(e), held);
+    const uint64_t gen1 = vlff_evidence_far_generation(e);
     assert_int_equal(vlff_evidence_save_far(e, fpath, err, sizeof err), 0);
+    assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0); /* the wall's view: beyond the grid */
+    assert_int_equal(vlff_evidence_far_generation(e), gen1); /* nothing far changed: no rewrite owed */
     struct vlff_config c2;
     g = make_growing(&c2);
     long long dropped;
@@ -872,6 +877,11 @@ static void test_slide(void **state) {
     assert_int_equal(vlff_evidence_load_far(g, fpath, &dropped, err, sizeof err), -1);
     assert_non_null(strstr(err, "truncated"));
     assert_int_equal(vlff_evidence_paged(g) + vlff_evidence_far_records(g), 0);
+    vlff_evidence_destroy(g);
+    g = make_growing(&c2); /* without a page file too: refused, not counted as given up */
+    assert_int_equal(vlff_evidence_load_far(g, fpath, &dropped, err, sizeof err), -1);
+    assert_non_null(strstr(err, "truncated"));
+    assert_int_equal(vlff_evidence_evicted(g), 0);
     vlff_evidence_destroy(g);
     unlink(fpath);
     assert_int_equal(vlff_evidence_load_far(e, fpath, &dropped, err, sizeof err), 1); /* none */

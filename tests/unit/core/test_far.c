@@ -94,9 +94,17 @@ static void test_store_restore(void **state) {
   /* the labels are texts: the first prompt list says which; a new list
    * renames each to its text's index there, UNKNOWN where it is gone */
   const char *abc[3] = {"floor", "wall", "door"}, *cba[2] = {"door", "floor"};
+  uint64_t gen = vlff_far_generation(f);
   assert_int_equal(vlff_far_prompts(f, abc, 3), 0);
+  assert_true(vlff_far_generation(f) != gen); /* the texts a checkpoint holds: written again */
+  gen = vlff_far_generation(f);
   assert_int_equal(vlff_far_prompts(f, abc, 3), 0);
+  struct vlff_map_far x;
+  assert_int_equal(vlff_far_export(f, &x), 0);
+  vlff_far_restore(f, dims, up, dims, k0, collect, NULL);
+  assert_int_equal(vlff_far_generation(f), gen); /* nothing changed: no rewrite owed */
   assert_int_equal(vlff_far_prompts(f, cba, 2), 1);
+  assert_true(vlff_far_generation(f) != gen);
   for (int i = 0; i < NV; i++) got_lab[i] = VLFF_LABEL_UNKNOWN;
   vlff_far_restore(f, dims, up, dims, k0, collect, NULL);
   for (int i = 0; i < NV; i++)
@@ -116,9 +124,13 @@ static void test_store_restore(void **state) {
   char path[64];
   snprintf(path, sizeof path, "/tmp/vlff-test-far-%d.far", (int)getpid());
   char err[512];
+  gen = vlff_far_generation(f);
   assert_int_equal(vlff_far_save(f, path, err, sizeof err), 0);
+  assert_int_equal(vlff_far_generation(f), gen);
   struct vlff_far *g = vlff_far_create(origin, 0.1, 1 << 20);
+  gen = vlff_far_generation(g);
   assert_int_equal(vlff_far_load(g, path, err, sizeof err), 0);
+  assert_true(vlff_far_generation(g) != gen);
   struct vlff_map_far a, b;
   assert_int_equal(vlff_far_export(f, &a), 0);
   assert_int_equal(vlff_far_export(g, &b), 0);

@@ -1044,6 +1044,15 @@ static void test_slide_under_reader(void **state) {
   char path[128];
   snprintf(path, sizeof path, "/tmp/vlff-test-slide-%d.obs", (int)getpid());
   assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  /* written only when it changed: a second save leaves the far file as it
+   * was (atomic writes would give it a new inode) */
+  char fpath[160];
+  snprintf(fpath, sizeof fpath, "%s.far", path);
+  struct stat st0, st1;
+  assert_int_equal(stat(fpath, &st0), 0);
+  assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  assert_int_equal(stat(fpath, &st1), 0);
+  assert_true(st0.st_ino == st1.st_ino);
   struct vlff_config c2 = cfg;
   snprintf(c2.shm.map, sizeof c2.shm.map, "/vlff-test-publish-slide2-%d", (int)getpid());
   struct vlff_publisher *q = create(&c2);
@@ -1058,9 +1067,7 @@ static void test_slide_under_reader(void **state) {
   vlff_map_detach(m2);
   vlff_publisher_destroy(q);
   vlff_shm_unlink(c2.shm.map);
-  unlink(path);
-  strcat(path, ".far");
-  unlink(path);
+  unlink(path), unlink(fpath);
   /* back to the start: the grid slides back over the far blocks, which come
    * back as measured surfaces (their labels kept until they are relabelled) */
   const double lo[3] = {-1.4, -1.1, -0.1}, hi[3] = {1.4, 1.1, 2.2};
@@ -1075,6 +1082,17 @@ static void test_slide_under_reader(void **state) {
   assert_int_not_equal(got, VLFF_LABEL_UNKNOWN);
   assert_int_equal(vlff_map_label_at(m, 4.0 * (STEPS - 1) + 0.3, 0.2, 2.02, &got, &conf), 0);
   assert_int_equal(got, seen[STEPS - 1]); /* the far end, now far */
+  /* the far map changed with the slide back: written again; then kept; a
+   * far file gone from beside the grid is written again */
+  assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  assert_int_equal(stat(fpath, &st0), 0);
+  assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  assert_int_equal(stat(fpath, &st1), 0);
+  assert_true(st0.st_ino == st1.st_ino);
+  unlink(fpath);
+  assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  assert_int_equal(stat(fpath, &st1), 0);
+  unlink(path), unlink(fpath);
   vlff_map_snapshot_free(snap);
   vlff_map_detach(m);
   vlff_field_destroy(f);
