@@ -335,6 +335,11 @@ int vlff_far_export(struct vlff_far *f, struct vlff_map_far *out) {
   return 0;
 }
 
+void vlff_far_export_release(struct vlff_far *f) {
+  free(f->xb), free(f->xr);
+  f->xb = NULL, f->xr = NULL;
+}
+
 /* ------------------------------------------------------------ checkpoint */
 
 /* File: "VLFFFAR1", origin (3 doubles), voxel (double), nblocks, nruns,
@@ -369,6 +374,7 @@ int vlff_far_save(struct vlff_far *f, const char *path, char *err, size_t errlen
   memcpy(q, &sum, 8);
   int rc = vlff_write_file_atomic(path, buf, len, err, errlen);
   free(buf);
+  vlff_far_export_release(f);
   return rc;
 }
 

@@ -64,6 +64,10 @@ void vlff_far_restore(const struct vlff_far *f, const uint32_t dims[3], const in
 /* The far map as the segment takes it (pointers valid until the next
  * store or reset): 0, or -1 when out of memory. */
 int vlff_far_export(struct vlff_far *f, struct vlff_map_far *out);
+/* The last export's arrays freed (its pointers then invalid): the segment
+ * stages a copy of its own (vlff_map_set_far), and a far map kept whole
+ * twice in the node's memory would double what shm.map_far_max_mb bounds. */
+void vlff_far_export_release(struct vlff_far *f);
 /* Checkpoints: the far map and the prompts its labels index to path,
  * written atomically (none: path removed), and read back: 0, 1 when there is no file, -1 with err for a
  * file that is not a far map of this lattice (truncated, corrupt, a

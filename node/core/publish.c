@@ -1521,8 +1521,6 @@ static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t
   return true;
 }
 
-/* Publishes runs[0..nruns) of the grid (runs NULL: the whole grid), the
- * prompts and, when img is not NULL, the label image. */
 /* The far map to the segment, for the next publish to carry: the segment
  * moved to a larger one first when it does not hold it (a quarter more,
  * as the grid's growths), and the move said in the log. */
@@ -1537,7 +1535,9 @@ static int publish_far(struct vlff_publisher *p, char *err, size_t errlen) {
              -1;
     VLFF_INFO(TAG, "map: its segment now has room for a far map of %.1f MiB", (double)(want + want / 4) / (1 << 20));
   }
-  if (vlff_map_set_far(p->map, &far)) return snprintf(err, errlen, "%s", vlff_shm_last_message()), -1;
+  const int rc = vlff_map_set_far(p->map, &far);
+  vlff_far_export_release(p->far); /* the segment stages its own copy */
+  if (rc) return snprintf(err, errlen, "%s", vlff_shm_last_message()), -1;
   p->far_owed = false;
   return 0;
 }
@@ -1563,6 +1563,8 @@ static void far_before_publish(struct vlff_publisher *p, const char *const *prom
   p->far_gen = vlff_map_generation(p->map); /* the segment it went to (a move makes a new one) */
 }
 
+/* Publishes runs[0..nruns) of the grid (runs NULL: the whole grid), the
+ * prompts and, when img is not NULL, the label image. */
 static int publish_ranges(struct vlff_publisher *p, const struct vlff_map_range *runs, size_t nruns,
                           const char *const *prompts, int k, const struct vlff_map_label_image *img,
                           struct vlff_publish_result *r, char *err, size_t errlen) {
