@@ -17,6 +17,7 @@
 
 #include "cli.h"
 #include "diagnostic_msgs.h"
+#include "far_walk.h"
 #include "hash.h"
 #include "log.h"
 #include "palette.h"
@@ -190,25 +191,37 @@ static void put_f32(uint8_t *p, float f) {
   for (int i = 0; i < 4; i++) p[i] = (uint8_t)(u >> (8 * i));
 }
 
-void vlff_dds_put_point(uint8_t *p, const struct vlff_map_grid *g, size_t i) {
-  uint16_t l = g->labels[i];
-  size_t ix = i % g->dims[0], iy = (i / g->dims[0]) % g->dims[1], iz = i / ((size_t)g->dims[0] * g->dims[1]);
-  put_f32(p, (float)(g->origin[0] + ((double)ix + 0.5) * g->voxel_size));
-  put_f32(p + 4, (float)(g->origin[1] + ((double)iy + 0.5) * g->voxel_size));
-  put_f32(p + 8, (float)(g->origin[2] + ((double)iz + 0.5) * g->voxel_size));
+/* A map point: centre, label, confidence (0..255). */
+static void put_xyz(uint8_t *p, const double c[3], uint16_t l, uint8_t conf) {
+  for (int a = 0; a < 3; a++) put_f32(p + 4 * a, (float)c[a]);
   p[12] = (uint8_t)l;
   p[13] = (uint8_t)(l >> 8);
   p[14] = p[15] = 0;
-  put_f32(p + 16, (float)(g->confidence ? g->confidence[i] : 255) / 255.0f);
+  put_f32(p + 16, (float)conf / 255.0f);
 }
 
-int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *npoints) {
+void vlff_dds_put_point(uint8_t *p, const struct vlff_map_grid *g, size_t i) {
+  size_t ix = i % g->dims[0], iy = (i / g->dims[0]) % g->dims[1], iz = i / ((size_t)g->dims[0] * g->dims[1]);
+  const double c[3] = {g->origin[0] + ((double)ix + 0.5) * g->voxel_size,
+                       g->origin[1] + ((double)iy + 0.5) * g->voxel_size,
+                       g->origin[2] + ((double)iz + 0.5) * g->voxel_size};
+  put_xyz(p, c, g->labels[i], g->confidence ? g->confidence[i] : 255);
+}
+
+static void put_far(void *ctx, const double c[3], uint16_t label, uint8_t conf) {
+  uint8_t **p = ctx;
+  put_xyz(*p, c, label, conf);
+  *p += VLFF_DDS_POINT_STEP;
+}
+
+int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *far, uint8_t **out,
+                   uint32_t *npoints) {
   const struct vlff_map_grid *g = &info->grid;
   size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
   if (!g->labels) total = 0;
-  size_t n = 0;
+  size_t n = vlff_far_walk(far, g, NULL, NULL);
   for (size_t i = 0; i < total; i++) n += g->labels[i] <= VLFF_LABEL_MAX;
-  uint8_t *buf = malloc(n ? n * VLFF_DDS_POINT_STEP : 1);
+  uint8_t *buf = n <= UINT32_MAX / VLFF_DDS_POINT_STEP ? malloc(n ? n * VLFF_DDS_POINT_STEP : 1) : NULL;
   if (!buf) {
     errno = ENOMEM;
     return -1;
@@ -219,6 +232,7 @@ int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *np
     vlff_dds_put_point(p, g, i);
     p += VLFF_DDS_POINT_STEP;
   }
+  vlff_far_walk(far, g, put_far, &p); /* what the window left behind */
   *out = buf;
   *npoints = (uint32_t)n;
   return 0;
@@ -482,7 +496,9 @@ static bool write_ok(struct vlff_dds *b, int id, const void *msg) {
 static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
   uint8_t *data;
   uint32_t n;
-  if (vlff_dds_cloud(info, &data, &n) < 0) {
+  struct vlff_map_far far = {0};
+  if (vlff_map_snapshot_far(b->snap, &far) < 0) far.nblocks = 0;
+  if (vlff_dds_cloud(info, &far, &data, &n) < 0) {
     vlff_warn_limited(&b->warn_map, TAG, "map version %" PRIu64 ": no memory for %s's points", info->version,
                       VLFF_Q(b->o.map));
     return false;

@@ -142,8 +142,11 @@ int vlff_dds_parse_prompts(const char *data, size_t len, char texts[][VLFF_SHM_P
  * its label. */
 void vlff_dds_put_point(uint8_t *p, const struct vlff_map_grid *g, size_t i);
 /* The point cloud's payload of a snapshot: little-endian points as in the
- * contract, into a malloc'd buffer (*out, *npoints). 0, or -1/ENOMEM. */
-int vlff_dds_cloud(const struct vlff_map_info *info, uint8_t **out, uint32_t *npoints);
+ * contract, into a malloc'd buffer (*out, *npoints): the grid's labelled
+ * voxels, then far's (the snapshot's far map, NULL: none) where the grid
+ * does not cover them (far_walk.h). 0, or -1/ENOMEM. */
+int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *far, uint8_t **out,
+                   uint32_t *npoints);
 
 struct vlff_dds;
 /* Creates the participant, topics, writers and reader. NULL with err. */

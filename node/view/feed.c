@@ -13,6 +13,7 @@
 #include "clock.h"
 #include "json.h"
 #include "cvshim.h"
+#include "far_walk.h"
 
 #include "log.h"
 
@@ -425,17 +426,14 @@ static struct vlff_view_msg *voxels_msg(struct vlff_feed *f, const uint32_t *idx
   return head;
 }
 
-/* Voxel idx as a point of the cloud (view.h: VLFF_VIEW_CLOUD_STRIDE bytes, little-endian). */
-static void pack_point(uint8_t *o, const struct feed_map *m, size_t idx, const uint8_t (*rgb)[3]) {
-  size_t i = idx % m->dims[0], j = idx / m->dims[0] % m->dims[1], k = idx / m->dims[0] / m->dims[1];
-  const float c[3] = {(float)(m->origin[0] + (i + 0.5) * m->vs), (float)(m->origin[1] + (j + 0.5) * m->vs),
-                      (float)(m->origin[2] + (k + 0.5) * m->vs)};
+/* A point of the cloud (view.h: VLFF_VIEW_CLOUD_STRIDE bytes, little-endian). */
+static void pack_xyz(uint8_t *o, const double centre[3], uint16_t l, uint8_t conf, const uint8_t (*rgb)[3]) {
   for (int a = 0; a < 3; a++) {
+    const float c = (float)centre[a];
     uint32_t u;
-    memcpy(&u, &c[a], 4);
+    memcpy(&u, &c, 4);
     for (int b = 0; b < 4; b++) o[4 * a + b] = (uint8_t)(u >> (8 * b));
   }
-  uint16_t l = m->labels[idx];
   if (is_occupied(l)) {
     memcpy(o + 12, l < VLFF_SHM_MAX_PROMPTS ? rgb[l] : rgb[VLFF_SHM_MAX_PROMPTS], 3);
     o[15] = 255;
@@ -444,15 +442,42 @@ static void pack_point(uint8_t *o, const struct feed_map *m, size_t idx, const u
   }
   o[16] = (uint8_t)l;
   o[17] = (uint8_t)(l >> 8);
-  o[18] = m->conf ? m->conf[idx] : 255;
+  o[18] = conf;
   o[19] = 0;
 }
 
-/* The point cloud of the listed voxels (idx == NULL: every occupied voxel, the
- * whole map), in pieces of at most cloud_piece_bytes. */
+/* Voxel idx of the map copy as a point of the cloud. */
+static void pack_point(uint8_t *o, const struct feed_map *m, size_t idx, const uint8_t (*rgb)[3]) {
+  size_t i = idx % m->dims[0], j = idx / m->dims[0] % m->dims[1], k = idx / m->dims[0] / m->dims[1];
+  const double c[3] = {m->origin[0] + (i + 0.5) * m->vs, m->origin[1] + (j + 0.5) * m->vs,
+                       m->origin[2] + (k + 0.5) * m->vs};
+  pack_xyz(o, c, m->labels[idx], m->conf ? m->conf[idx] : 255, rgb);
+}
+
+/* Far voxels into the cloud being built (far_walk.h). */
+struct far_pack {
+  uint8_t *o;
+  const uint8_t (*rgb)[3];
+};
+
+static void pack_far(void *ctx, const double centre[3], uint16_t label, uint8_t conf) {
+  struct far_pack *fp = ctx;
+  pack_xyz(fp->o, centre, label, conf, fp->rgb);
+  fp->o += VLFF_VIEW_CLOUD_STRIDE;
+}
+
+/* The point cloud of the listed voxels (idx == NULL: every occupied voxel and
+ * the far map's labelled voxels beyond the grid, the whole map), in pieces of
+ * at most cloud_piece_bytes. The far map changes only with the grid's
+ * geometry or the prompts, which send the map whole. */
 static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx, size_t n, uint64_t t) {
   const struct feed_map *m = &f->m;
-  if (!idx) n = (size_t)m->occupied;
+  struct vlff_map_far far = {0};
+  const struct vlff_map_grid g = {{m->origin[0], m->origin[1], m->origin[2]}, m->vs, {m->dims[0], m->dims[1], m->dims[2]},
+                                  m->labels, m->conf};
+  size_t nfar = 0;
+  if (!idx && m->snap && vlff_map_snapshot_far(m->snap, &far) == 0) nfar = vlff_far_walk(&far, &g, NULL, NULL);
+  if (!idx) n = (size_t)m->occupied + nfar;
   size_t need = (n ? n : 1) * VLFF_VIEW_CLOUD_STRIDE;
   if (need > f->pts_cap) {
     uint8_t *p = realloc(f->pts, need);
@@ -468,8 +493,10 @@ static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx,
   if (idx) {
     for (; k < n; k++) pack_point(f->pts + k * VLFF_VIEW_CLOUD_STRIDE, m, idx[k], (const uint8_t(*)[3])rgb);
   } else {
-    for (size_t i = 0; i < m->n && k < n; i++)
+    for (size_t i = 0; i < m->n && k < n - nfar; i++)
       if (is_occupied(m->labels[i])) pack_point(f->pts + k++ * VLFF_VIEW_CLOUD_STRIDE, m, i, (const uint8_t(*)[3])rgb);
+    struct far_pack fp = {f->pts + k * VLFF_VIEW_CLOUD_STRIDE, (const uint8_t(*)[3])rgb};
+    if (nfar) k += vlff_far_walk(&far, &g, pack_far, &fp);
   }
   int pieces = 0;
   struct vlff_view_msg *c =

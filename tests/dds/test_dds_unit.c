@@ -123,7 +123,7 @@ static void test_cloud(void **state) {
   in.grid = (struct vlff_map_grid){{1, -2, 0.5}, 0.5, {2, 3, 2}, labels, conf};
   uint8_t *d;
   uint32_t n;
-  assert_int_equal(vlff_dds_cloud(&in, &d, &n), 0);
+  assert_int_equal(vlff_dds_cloud(&in, NULL, &d, &n), 0);
   assert_int_equal(n, 4); /* indices 2, 5, 8, 11 */
   const uint8_t *last = d + 3 * VLFF_DDS_POINT_STEP;
   /* index 11 = (1, 2, 1) */
@@ -136,8 +136,34 @@ static void test_cloud(void **state) {
   assert_int_equal(d[13], 0x01);
   free(d);
   in.grid.confidence = NULL; /* all 255 */
-  assert_int_equal(vlff_dds_cloud(&in, &d, &n), 0);
+  assert_int_equal(vlff_dds_cloud(&in, NULL, &d, &n), 0);
   assert_float_equal(f32_at(d + 16), 1.0, 0);
+  free(d);
+  /* beside the grid, its far map (what the window left as the robot went
+   * on): a block of class 3 beyond it, and a block the grid lies in, whose
+   * voxels the grid covers are the grid's (stale there), free and unknown
+   * ones left out */
+  const struct vlff_map_far_block blocks[2] = {{{-1, 0, 0}, 0}, {{0, 0, 0}, 1}};
+  const uint16_t E3 = VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE;
+  const struct vlff_map_far_run runs[5] = {{3, E3, 40, 0},
+                                           {5, 1, 9, 0},
+                                           {VLFF_LABEL_FREE, 1, 0, 0},
+                                           {9, 2, 102, 0},
+                                           {VLFF_LABEL_UNKNOWN, (uint16_t)(E3 - 4), 0, 0}};
+  struct vlff_map_far far = {{1, -2, 0.5}, 0.5, 2, 5, blocks, runs};
+  assert_null(vlff_map_far_check(&far));
+  assert_int_equal(vlff_dds_cloud(&in, &far, &d, &n), 0);
+  assert_int_equal(n, 4 + E3 + 2);
+  const uint8_t *p = d + 4 * VLFF_DDS_POINT_STEP; /* block (-1, 0, 0)'s first voxel */
+  assert_float_equal(f32_at(p), 1 + (-16 + 0.5) * 0.5, 1e-6);
+  assert_float_equal(f32_at(p + 4), -2 + 0.25, 1e-6);
+  assert_int_equal(p[12] | p[13] << 8, 3);
+  assert_float_equal(f32_at(p + 16), 40 / 255.0, 1e-6);
+  p = d + (size_t)(n - 2) * VLFF_DDS_POINT_STEP; /* voxel (2, 0, 0): beyond the grid's 2 x 3 x 2 */
+  assert_float_equal(f32_at(p), 1 + 2.5 * 0.5, 1e-6);
+  assert_float_equal(f32_at(p + 8), 0.5 + 0.25, 1e-6);
+  assert_int_equal(p[12] | p[13] << 8, 9);
+  assert_int_equal(p[VLFF_DDS_POINT_STEP + 12], 9);
   free(d);
 }
 

@@ -577,6 +577,53 @@ static void test_cloud(void **state) {
   vlff_feed_free(f);
 }
 
+/* A map beyond its grid (vlff/shm.h "The far map"): the whole cloud holds
+ * the far map's labelled voxels too, at their centres, after the grid's;
+ * those of a far block the grid covers are the grid's, not points again. */
+static void test_cloud_far(void **state) {
+  (void)state;
+  struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .brick = 4, .cloud_piece_bytes = 1 << 20,
+                                .world_frame = "odom"};
+  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  const uint16_t E3 = VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE;
+  /* block (0, 0, 0) holds the grid's first 10 x-voxels of its first row and
+   * 6 beyond it (x 10-15); block (1, 0, 0) lies beyond the grid, all chair */
+  const struct vlff_map_far_block blocks[2] = {{{0, 0, 0}, 0}, {{1, 0, 0}, 3}};
+  const struct vlff_map_far_run runs[4] = {
+      {0, 10, 50, 0}, {0, 6, 60, 0}, {VLFF_LABEL_UNKNOWN, (uint16_t)(E3 - 16), 0, 0}, {2, E3, 77, 0}};
+  const struct vlff_map_far far = {{-1, 0, 0.5}, 0.25, 2, 4, blocks, runs};
+  struct vlff_map *m = vlff_map_create_far(name, &mp, vlff_map_far_bytes(2, 4));
+  assert_non_null(m);
+  assert_int_equal(vlff_map_set_far(m, &far), 0);
+  assert_int_equal(publish(m, prompts, 3), 0);
+  struct vlff_feed *f = vlff_feed_new(&fp);
+  assert_non_null(f);
+  usleep(1100000); /* the feed tries to attach once a second */
+  struct vlff_view_msg *whole = poll_cloud(f);
+  assert_non_null(whole);
+  assert_null(whole->next);
+  const size_t occupied = NX * NY + 2, total = occupied + 6 + E3;
+  const uint8_t *pt = piece_points(whole, total), *first = pt + occupied * VLFF_VIEW_CLOUD_STRIDE,
+                *last = pt + (total - 1) * VLFF_VIEW_CLOUD_STRIDE;
+  float c[3];
+  memcpy(c, first, 12); /* little-endian floats, as this host's */
+  assert_float_equal(c[0], -1 + 10.5 * 0.25, 1e-5);
+  assert_float_equal(c[1], 0.125, 1e-5);
+  assert_float_equal(c[2], 0.5 + 0.125, 1e-5);
+  assert_int_equal(first[16] | first[17] << 8, 0);
+  assert_int_equal(first[15], 255);
+  assert_int_equal(first[18], 60);
+  memcpy(c, last, 12); /* block (1, 0, 0)'s last voxel: lattice (31, 15, 15) */
+  assert_float_equal(c[0], -1 + 31.5 * 0.25, 1e-5);
+  assert_float_equal(c[1], 15.5 * 0.25, 1e-5);
+  assert_float_equal(c[2], 0.5 + 15.5 * 0.25, 1e-5);
+  assert_int_equal(last[16] | last[17] << 8, 2);
+  assert_int_equal(last[18], 77);
+  vlff_view_msg_unref(whole);
+  vlff_feed_free(f);
+  vlff_map_detach(m);
+}
+
 /* The voxels of a /map/voxels message in pieces (under bound each, numbered 0..n-1
  * in a row, full on the first piece of a whole map only, every piece with the
  * version's head) into idx/lab/cf, in order: their count; *npieces the pieces. */
@@ -675,5 +722,6 @@ VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test_setup_teardown(test_fresh, setup, teardown),
     cmocka_unit_test_setup_teardown(test_feed_follows_log, setup, teardown),
     cmocka_unit_test_setup_teardown(test_cloud, setup, teardown),
+    cmocka_unit_test_setup_teardown(test_cloud_far, setup, teardown),
     cmocka_unit_test_setup_teardown(test_voxel_pieces, setup, teardown),
     cmocka_unit_test_setup_teardown(test_grid, setup, teardown))
