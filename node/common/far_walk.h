@@ -15,6 +15,11 @@
  * label, conf) for each far voxel whose label is a class (a prompt index,
  * <= VLFF_LABEL_MAX) and that g does not cover, in block order, then the
  * voxels' order within a block; fn NULL only counts. Returns the count.
+ * At most max_points: a far map of more (the default shm.map_far_max_mb
+ * holds tens of millions of labelled voxels, gigabytes as points) gives
+ * whole blocks, the nearest to the grid's centre first, while they fit,
+ * and *left_out (may be NULL) the points it left out, for the caller to
+ * say. The same arguments always give the same points.
  */
 #ifndef VLFF_FAR_WALK_H
 #define VLFF_FAR_WALK_H
@@ -23,7 +28,12 @@
 
 #include "vlff/shm.h"
 
+/* The bound the viewer and the DDS bridge give: the default
+ * shm.map_max_voxels, 40 MB of their 20-byte points, as many as a full grid. */
+#define VLFF_FAR_POINTS_MAX ((size_t)2 << 20)
+
 typedef void (*vlff_far_point_fn)(void *ctx, const double centre[3], uint16_t label, uint8_t conf);
-size_t vlff_far_walk(const struct vlff_map_far *far, const struct vlff_map_grid *g, vlff_far_point_fn fn, void *ctx);
+size_t vlff_far_walk(const struct vlff_map_far *far, const struct vlff_map_grid *g, size_t max_points,
+                     vlff_far_point_fn fn, void *ctx, size_t *left_out);
 
 #endif

@@ -215,11 +215,11 @@ static void put_far(void *ctx, const double c[3], uint16_t label, uint8_t conf) 
 }
 
 int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *far, uint8_t **out,
-                   uint32_t *npoints) {
+                   uint32_t *npoints, size_t *far_left) {
   const struct vlff_map_grid *g = &info->grid;
   size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
   if (!g->labels) total = 0;
-  size_t n = vlff_far_walk(far, g, NULL, NULL);
+  size_t n = vlff_far_walk(far, g, VLFF_FAR_POINTS_MAX, NULL, NULL, far_left);
   for (size_t i = 0; i < total; i++) n += g->labels[i] <= VLFF_LABEL_MAX;
   uint8_t *buf = n <= UINT32_MAX / VLFF_DDS_POINT_STEP ? malloc(n ? n * VLFF_DDS_POINT_STEP : 1) : NULL;
   if (!buf) {
@@ -232,7 +232,7 @@ int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *
     vlff_dds_put_point(p, g, i);
     p += VLFF_DDS_POINT_STEP;
   }
-  vlff_far_walk(far, g, put_far, &p); /* what the window left behind */
+  vlff_far_walk(far, g, VLFF_FAR_POINTS_MAX, put_far, &p, NULL); /* what the window left behind */
   *out = buf;
   *npoints = (uint32_t)n;
   return 0;
@@ -275,7 +275,7 @@ struct vlff_dds {
   uint64_t last_post_ns;
   volatile sig_atomic_t stop;
   struct vlff_dds_counts c;
-  uint64_t warn_attach, warn_map, warn_prompt, warn_mailbox, warn_write, warn_ring, warn_image;
+  uint64_t warn_attach, warn_map, warn_far, warn_prompt, warn_mailbox, warn_write, warn_ring, warn_image;
 };
 
 static void set_err(char *err, size_t errlen, const char *what, dds_return_t rc) {
@@ -497,8 +497,9 @@ static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
   uint8_t *data;
   uint32_t n;
   struct vlff_map_far far = {0};
+  size_t left = 0;
   if (vlff_map_snapshot_far(b->snap, &far) < 0) far.nblocks = 0;
-  if (vlff_dds_cloud(info, &far, &data, &n) < 0) {
+  if (vlff_dds_cloud(info, &far, &data, &n, &left) < 0) {
     vlff_warn_limited(&b->warn_map, TAG, "map version %" PRIu64 ": no memory for %s's points", info->version,
                       VLFF_Q(b->o.map));
     return false;
@@ -523,6 +524,9 @@ static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
   bool ok = write_ok(b, VLFF_DDS_MAP, &msg);
   free(data);
   if (!ok) return false;
+  if (left)
+    vlff_warn_limited(&b->warn_far, TAG, "map version %" PRIu64 ": %zu far voxels beyond the grid left out (at most %zu, "
+                      "the nearest blocks first)", info->version, left, VLFF_FAR_POINTS_MAX);
   b->sent_version = info->version;
   b->sent_generation = info->generation;
   b->c.maps_sent++;

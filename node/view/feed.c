@@ -80,6 +80,7 @@ struct vlff_feed {
   uint64_t last_grid_ns;
   bool grid_owed; /* the map changed since the last grid sent */
   uint64_t too_large; /* grids and depth images not sent for their size (rate-limited log) */
+  uint64_t far_cut;   /* whole clouds that left far voxels out (rate-limited log) */
 };
 
 /* Foxglove stamps are wall-clock; the segments' are CLOCK_MONOTONIC. */
@@ -475,8 +476,12 @@ static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx,
   struct vlff_map_far far = {0};
   const struct vlff_map_grid g = {{m->origin[0], m->origin[1], m->origin[2]}, m->vs, {m->dims[0], m->dims[1], m->dims[2]},
                                   m->labels, m->conf};
-  size_t nfar = 0;
-  if (!idx && m->snap && vlff_map_snapshot_far(m->snap, &far) == 0) nfar = vlff_far_walk(&far, &g, NULL, NULL);
+  size_t nfar = 0, left = 0;
+  if (!idx && m->snap && vlff_map_snapshot_far(m->snap, &far) == 0)
+    nfar = vlff_far_walk(&far, &g, VLFF_FAR_POINTS_MAX, NULL, NULL, &left);
+  if (left)
+    vlff_warn_limited(&f->far_cut, "vlff-view", "/map/points: %zu far voxels beyond the grid left out (at most %zu, "
+                      "the nearest blocks first)", left, VLFF_FAR_POINTS_MAX);
   if (!idx) n = (size_t)m->occupied + nfar;
   size_t need = (n ? n : 1) * VLFF_VIEW_CLOUD_STRIDE;
   if (need > f->pts_cap) {
@@ -496,7 +501,7 @@ static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx,
     for (size_t i = 0; i < m->n && k < n - nfar; i++)
       if (is_occupied(m->labels[i])) pack_point(f->pts + k++ * VLFF_VIEW_CLOUD_STRIDE, m, i, (const uint8_t(*)[3])rgb);
     struct far_pack fp = {f->pts + k * VLFF_VIEW_CLOUD_STRIDE, (const uint8_t(*)[3])rgb};
-    if (nfar) k += vlff_far_walk(&far, &g, pack_far, &fp);
+    if (nfar) k += vlff_far_walk(&far, &g, VLFF_FAR_POINTS_MAX, pack_far, &fp, NULL);
   }
   int pieces = 0;
   struct vlff_view_msg *c =

@@ -1,0 +1,108 @@
+/* vlff_far_walk: the far map's labelled voxels as points, those the grid
+ * covers left to the grid, and a far map past the bound cut to whole
+ * blocks, the nearest to the grid first. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "far_walk.h"
+
+#define E3 (VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE)
+
+struct seen {
+  size_t n;
+  double first[3], last[3];
+  uint16_t last_label;
+  uint8_t last_conf;
+  double max_x;
+};
+
+static void collect(void *ctx, const double c[3], uint16_t label, uint8_t conf) {
+  struct seen *s = ctx;
+  if (!s->n) memcpy(s->first, c, sizeof s->first);
+  memcpy(s->last, c, sizeof s->last);
+  s->last_label = label, s->last_conf = conf;
+  if (!s->n || c[0] > s->max_x) s->max_x = c[0];
+  s->n++;
+}
+
+/* A corridor of n blocks along x from block 0: each a wall run of 256
+ * voxels (its first z layer), the rest free. */
+static void corridor(uint32_t n, struct vlff_map_far_block *b, struct vlff_map_far_run *r) {
+  for (uint32_t j = 0; j < n; j++) {
+    b[j] = (struct vlff_map_far_block){{(int32_t)j, 0, 0}, 2 * j};
+    r[2 * j] = (struct vlff_map_far_run){1, 256, 100, 0};
+    r[2 * j + 1] = (struct vlff_map_far_run){VLFF_LABEL_FREE, E3 - 256, 0, 0};
+  }
+}
+
+static void test_points(void **state) {
+  (void)state;
+  struct vlff_map_far_block b[4];
+  struct vlff_map_far_run r[8];
+  corridor(4, b, r);
+  const struct vlff_map_far far = {{0, 0, 0}, 0.1, 4, 8, b, r};
+  assert_null(vlff_map_far_check(&far));
+  struct seen s = {0};
+  size_t left = 7;
+  /* no grid: every labelled voxel, in block order, at its centre */
+  assert_int_equal(vlff_far_walk(&far, NULL, 1 << 20, collect, &s, &left), 4 * 256);
+  assert_int_equal(s.n, 4 * 256);
+  assert_int_equal(left, 0);
+  assert_float_equal(s.first[0], 0.05, 1e-9);
+  assert_float_equal(s.last[0], (63 + 0.5) * 0.1, 1e-9);
+  assert_float_equal(s.last[1], (15 + 0.5) * 0.1, 1e-9);
+  assert_float_equal(s.last[2], 0.05, 1e-9);
+  assert_int_equal(s.last_label, 1);
+  assert_int_equal(s.last_conf, 100);
+  /* a grid over the first block and a half: those voxels are the grid's */
+  uint16_t labels[24 * 16 * 16] = {0};
+  const struct vlff_map_grid g = {{0, 0, 0}, 0.1, {24, 16, 16}, labels, NULL};
+  memset(&s, 0, sizeof s);
+  assert_int_equal(vlff_far_walk(&far, &g, 1 << 20, collect, &s, NULL), 4 * 256 - 24 * 16);
+  assert_float_equal(s.first[0], (24 + 0.5) * 0.1, 1e-9);
+  /* counting alone gives the same */
+  assert_int_equal(vlff_far_walk(&far, &g, 1 << 20, NULL, NULL, NULL), 4 * 256 - 24 * 16);
+  assert_int_equal(vlff_far_walk(NULL, &g, 1 << 20, collect, &s, &left), 0);
+}
+
+/* Past the bound: whole blocks, the nearest to the grid's centre first,
+ * the rest counted as left out; the same call gives the same points. */
+static void test_bound(void **state) {
+  (void)state;
+  enum { NB = 40 };
+  struct vlff_map_far_block b[NB];
+  struct vlff_map_far_run r[2 * NB];
+  corridor(NB, b, r);
+  const struct vlff_map_far far = {{0, 0, 0}, 0.1, NB, 2 * NB, b, r};
+  assert_null(vlff_map_far_check(&far));
+  /* the robot's window in block 30 (x 48-49.6 m), above the corridor's wall runs */
+  uint16_t labels[8] = {0};
+  const struct vlff_map_grid g = {{30 * 1.6 + 0.4, 0.4, 0.4}, 0.1, {2, 2, 2}, labels, NULL};
+  struct seen s = {0};
+  size_t left = 0;
+  /* 5 whole blocks fit in 1300 points (not 5 and a part) */
+  assert_int_equal(vlff_far_walk(&far, &g, 1300, collect, &s, &left), 5 * 256);
+  assert_int_equal(left, (NB - 5) * 256);
+  /* the nearest: blocks 28-32 (x 44.8-52.8 m) */
+  assert_true(s.max_x < 33 * 1.6);
+  assert_true(s.first[0] >= 28 * 1.6 && s.first[0] < 33 * 1.6);
+  struct seen t = {0};
+  assert_int_equal(vlff_far_walk(&far, &g, 1300, collect, &t, NULL), 5 * 256);
+  assert_memory_equal(s.first, t.first, sizeof s.first);
+  assert_memory_equal(s.last, t.last, sizeof s.last);
+  assert_int_equal(vlff_far_walk(&far, &g, 1300, NULL, NULL, NULL), 5 * 256);
+  /* a bound under one block: none, all left out */
+  assert_int_equal(vlff_far_walk(&far, &g, 100, NULL, NULL, &left), 0);
+  assert_int_equal(left, NB * 256);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test(test_points), cmocka_unit_test(test_bound)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
