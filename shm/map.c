@@ -1455,6 +1455,10 @@ API int vlff_map_snapshot_far(const struct vlff_map_snapshot *s, struct vlff_map
   return 0;
 }
 
+API uint64_t vlff_map_snapshot_far_version(const struct vlff_map_snapshot *s) {
+  return s && s->meta.version ? s->meta.far_version : 0;
+}
+
 API const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *s, uint16_t label) {
   if (!s || label >= s->meta.prompt_count)
     return NULL;

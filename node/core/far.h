@@ -62,7 +62,7 @@ int vlff_far_prompts(struct vlff_far *f, const char *const *prompts, int k);
 void vlff_far_restore(const struct vlff_far *f, const uint32_t dims[3], const int32_t sh[3], const uint32_t nd[3],
                       const long nk0[3], void (*fn)(void *ctx, size_t i, uint16_t label, uint8_t conf), void *ctx);
 /* The far map as the segment takes it (pointers valid until the next
- * store or reset): 0, or -1 when out of memory. */
+ * store, reset, export, save or release): 0, or -1 when out of memory. */
 int vlff_far_export(struct vlff_far *f, struct vlff_map_far *out);
 /* The last export's arrays freed (its pointers then invalid): the segment
  * stages a copy of its own (vlff_map_set_far), and a far map kept whole

@@ -408,8 +408,10 @@ static bool far_current(const char *file, uint64_t have, uint64_t gen, bool any)
 /* The far map beside the grid (far.h), and the evidence the grid left in
  * the page file (evidence.h): the same checkpoint's, or none. Rewritten
  * only when they changed since this grid file's last save (learned state
- * is written only when it changed); a failed write removes the file, never
- * leaving another checkpoint's beside this grid. */
+ * is written only when it changed), or when the last write read a record
+ * back from a failing page file (written as a record of nothing: tried
+ * again). A failed write removes its file and the far evidence beside it,
+ * never leaving another checkpoint's beside this grid. */
 static int save_far_files(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   struct saved_far *sv = NULL;
   for (int i = 0; i < 2 && !sv; i++)
@@ -424,7 +426,12 @@ static int save_far_files(struct vlff_publisher *p, const char *path, char *err,
   if (beside(fp, sizeof fp, path, ".far", err, errlen)) return -1;
   if (!far_current(fp, sv->far_gen, fg, vlff_far_blocks(p->far) > 0)) {
     sv->far_gen = UINT64_MAX;
-    if (vlff_far_save(p->far, fp, err, errlen)) return unlink(fp), -1;
+    if (vlff_far_save(p->far, fp, err, errlen)) {
+      unlink(fp);
+      sv->evfar_gen = UINT64_MAX;
+      if (p->ev && !beside(fp, sizeof fp, path, ".evfar", NULL, 0)) unlink(fp);
+      return -1;
+    }
     sv->far_gen = fg;
   }
   if (!p->ev) return 0;
@@ -432,8 +439,9 @@ static int save_far_files(struct vlff_publisher *p, const char *path, char *err,
   if (beside(fp, sizeof fp, path, ".evfar", err, errlen)) return -1;
   if (!far_current(fp, sv->evfar_gen, eg, vlff_evidence_far_records(p->ev) > 0)) {
     sv->evfar_gen = UINT64_MAX;
+    const long long perr = vlff_evidence_page_errors(p->ev);
     if (vlff_evidence_save_far(p->ev, fp, err, errlen)) return unlink(fp), -1;
-    sv->evfar_gen = eg;
+    if (vlff_evidence_page_errors(p->ev) == perr) sv->evfar_gen = eg;
   }
   return 0;
 }
@@ -1529,10 +1537,12 @@ static int publish_far(struct vlff_publisher *p, char *err, size_t errlen) {
   if (vlff_far_export(p->far, &far)) return snprintf(err, errlen, "out of memory for the far map"), -1;
   const uint64_t want = vlff_map_far_bytes(far.nblocks, far.nruns);
   if (want > vlff_map_far_capacity(p->map)) {
-    if (vlff_map_reserve_far(p->map, vlff_map_capacity(p->map), want + want / 4))
+    if (vlff_map_reserve_far(p->map, vlff_map_capacity(p->map), want + want / 4)) {
+      vlff_far_export_release(p->far);
       return snprintf(err, errlen, "its segment could not grow for a far map of %.1f MiB: %s",
                       (double)want / (1 << 20), vlff_shm_last_message()),
              -1;
+    }
     VLFF_INFO(TAG, "map: its segment now has room for a far map of %.1f MiB", (double)(want + want / 4) / (1 << 20));
   }
   const int rc = vlff_map_set_far(p->map, &far);

@@ -219,10 +219,17 @@ int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *
   const struct vlff_map_grid *g = &info->grid;
   size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
   if (!g->labels) total = 0;
-  size_t n = vlff_far_walk(far, g, VLFF_FAR_POINTS_MAX, NULL, NULL, far_left);
+  struct vlff_far_pick pick;
+  if (vlff_far_pick(far, g, VLFF_FAR_POINTS_MAX, &pick)) {
+    errno = ENOMEM;
+    return -1;
+  }
+  if (far_left) *far_left = pick.left;
+  size_t n = pick.points;
   for (size_t i = 0; i < total; i++) n += g->labels[i] <= VLFF_LABEL_MAX;
   uint8_t *buf = n <= UINT32_MAX / VLFF_DDS_POINT_STEP ? malloc(n ? n * VLFF_DDS_POINT_STEP : 1) : NULL;
   if (!buf) {
+    vlff_far_pick_free(&pick);
     errno = ENOMEM;
     return -1;
   }
@@ -232,7 +239,8 @@ int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *
     vlff_dds_put_point(p, g, i);
     p += VLFF_DDS_POINT_STEP;
   }
-  vlff_far_walk(far, g, VLFF_FAR_POINTS_MAX, put_far, &p, NULL); /* what the window left behind */
+  vlff_far_emit(far, g, &pick, put_far, &p); /* what the window left behind: pick.points */
+  vlff_far_pick_free(&pick);
   *out = buf;
   *npoints = (uint32_t)n;
   return 0;
@@ -256,7 +264,7 @@ struct vlff_dds {
   uint32_t snap_generation;
   bool prompts_pending, label_pending; /* in snap, not sent yet */
   bool ring_has_pose;     /* poses come from the frames */
-  uint64_t sent_version;
+  uint64_t sent_version, far_sent; /* far_sent: the far map's version in the last whole map */
   uint32_t sent_generation;
   /* Following the map: shadow is the grid as subscribers know it (the last
    * whole map sent and the updates after it); upd the changed voxels not
@@ -529,6 +537,7 @@ static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
                       "the nearest blocks first)", info->version, left, VLFF_FAR_POINTS_MAX);
   b->sent_version = info->version;
   b->sent_generation = info->generation;
+  b->far_sent = vlff_map_snapshot_far_version(b->snap);
   b->c.maps_sent++;
   VLFF_DEBUG(TAG, "map version %" PRIu64 ": %u points (whole: %s)", info->version, n, b->full_why);
   return true;
@@ -792,6 +801,8 @@ static void poll_map(struct vlff_dds *b) {
       char *json = vlff_dds_prompt_json(b->snap, info.prompt_count);
       if (json && b->full_prompts && strcmp(json, b->full_prompts)) mark_full(b, "new prompts");
       free(json);
+      /* the whole map carries the far map; map/updates the grid's changes */
+      if (vlff_map_snapshot_far_version(b->snap) != b->far_sent) mark_full(b, "a new far map");
     }
     b->prompts_pending = b->w[VLFF_DDS_PROMPTS] != 0;
     /* The label image is re-rendered for the same view as the field learns

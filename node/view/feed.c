@@ -33,7 +33,7 @@ struct feed_map {
   uint64_t next_attach_ns;
   int reported; /* an attach failure was reported; say it once */
   /* the state last sent */
-  uint64_t version, publish_ns;
+  uint64_t version, publish_ns, far_version;
   uint32_t generation;
   double origin[3], vs;
   uint32_t dims[3];
@@ -469,25 +469,28 @@ static void pack_far(void *ctx, const double centre[3], uint16_t label, uint8_t 
 
 /* The point cloud of the listed voxels (idx == NULL: every occupied voxel and
  * the far map's labelled voxels beyond the grid, the whole map), in pieces of
- * at most cloud_piece_bytes. The far map changes only with the grid's
- * geometry or the prompts, which send the map whole. */
+ * at most cloud_piece_bytes. A new far map sends the map whole
+ * (map_needs_full). */
 static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx, size_t n, uint64_t t) {
   const struct feed_map *m = &f->m;
   struct vlff_map_far far = {0};
   const struct vlff_map_grid g = {{m->origin[0], m->origin[1], m->origin[2]}, m->vs, {m->dims[0], m->dims[1], m->dims[2]},
                                   m->labels, m->conf};
-  size_t nfar = 0, left = 0;
-  if (!idx && m->snap && vlff_map_snapshot_far(m->snap, &far) == 0)
-    nfar = vlff_far_walk(&far, &g, VLFF_FAR_POINTS_MAX, NULL, NULL, &left);
-  if (left)
+  struct vlff_far_pick pick = {0};
+  if (!idx && m->snap && vlff_map_snapshot_far(m->snap, &far) == 0 &&
+      vlff_far_pick(&far, &g, VLFF_FAR_POINTS_MAX, &pick))
+    vlff_log(VLFF_LOG_WARN, "vlff-view", "/map/points: no memory to choose the far map's points: the grid alone");
+  if (pick.left)
     vlff_warn_limited(&f->far_cut, "vlff-view", "/map/points: %zu far voxels beyond the grid left out (at most %zu, "
-                      "the nearest blocks first)", left, VLFF_FAR_POINTS_MAX);
+                      "the nearest blocks first)", pick.left, VLFF_FAR_POINTS_MAX);
+  const size_t nfar = pick.points;
   if (!idx) n = (size_t)m->occupied + nfar;
   size_t need = (n ? n : 1) * VLFF_VIEW_CLOUD_STRIDE;
   if (need > f->pts_cap) {
     uint8_t *p = realloc(f->pts, need);
     if (!p) {
       vlff_log(VLFF_LOG_WARN, "vlff-view", "out of memory for a point cloud of %zu points", n);
+      vlff_far_pick_free(&pick);
       return NULL;
     }
     f->pts = p, f->pts_cap = need;
@@ -501,8 +504,9 @@ static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx,
     for (size_t i = 0; i < m->n && k < n - nfar; i++)
       if (is_occupied(m->labels[i])) pack_point(f->pts + k++ * VLFF_VIEW_CLOUD_STRIDE, m, i, (const uint8_t(*)[3])rgb);
     struct far_pack fp = {f->pts + k * VLFF_VIEW_CLOUD_STRIDE, (const uint8_t(*)[3])rgb};
-    if (nfar) k += vlff_far_walk(&far, &g, VLFF_FAR_POINTS_MAX, pack_far, &fp, NULL);
+    k += vlff_far_emit(&far, &g, &pick, pack_far, &fp); /* exactly nfar */
   }
+  vlff_far_pick_free(&pick);
   int pieces = 0;
   struct vlff_view_msg *c =
       vlff_view_cloud_msgs(VLFF_VIEW_CH_CLOUD, f->p.world_frame, f->pts, k, t, f->p.cloud_piece_bytes, &pieces);
@@ -748,14 +752,14 @@ static int map_take_version(struct vlff_feed *f, struct vlff_map_info *info) {
   return vlff_map_snapshot_info(m->snap, info) != 0 ? -1 : 0;
 }
 
-/* Whether the snapshot must be sent whole: a first map, a new geometry or
- * new prompts. */
+/* Whether the snapshot must be sent whole: a first map, a new geometry, new
+ * prompts or a new far map (/map/points carries it with the whole map). */
 static int map_needs_full(const struct feed_map *m, const struct vlff_map_info *info) {
   const struct vlff_map_grid *g = &info->grid;
   size_t n = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
   int full = !m->labels || n != m->n || memcmp(g->dims, m->dims, sizeof m->dims) ||
              memcmp(g->origin, m->origin, sizeof m->origin) || g->voxel_size != m->vs ||
-             info->prompt_count != m->prompt_count;
+             info->prompt_count != m->prompt_count || vlff_map_snapshot_far_version(m->snap) != m->far_version;
   for (int i = 0; !full && i < info->prompt_count && i < VLFF_SHM_MAX_PROMPTS; i++) {
     const char *p = vlff_map_snapshot_prompt(m->snap, (uint16_t)i);
     full = strcmp(p ? p : "", m->prompts[i]) != 0;
@@ -939,6 +943,7 @@ static int map_poll(struct vlff_feed *f, unsigned wanted, struct vlff_view_msg *
   m->version = info.version;
   m->publish_ns = info.publish_ns;
   m->generation = info.generation;
+  m->far_version = vlff_map_snapshot_far_version(m->snap);
   int nout = full ? map_whole_msgs(f, wanted, edge, t, out, cap) : map_delta_msgs(f, g, wanted, edge, t, out, cap);
   if (nout < 0) return 0;
   f->grid_owed = true;

@@ -594,6 +594,12 @@ uint16_t vlff_map_snapshot_label_at(const struct vlff_map_snapshot *snap, double
  * far map that breaks it fails with EBADMSG). 0, or -1 (EINVAL) for NULL
  * arguments. */
 int vlff_map_snapshot_far(const struct vlff_map_snapshot *snap, struct vlff_map_far *far);
+/* The version of the publish that gave the snapshot's far map (the last
+ * vlff_map_set_far before it, an empty far map too), 0 when none ever did
+ * or snap is NULL or holds no map (2.4.0). A reader that sends the far map
+ * on (a viewer, a bridge) sends it again when this differs from the one it
+ * sent: the grid's geometry can stay the same when it changes. */
+uint64_t vlff_map_snapshot_far_version(const struct vlff_map_snapshot *snap);
 /* Prompt text of a label, NULL if none. */
 const char *vlff_map_snapshot_prompt(const struct vlff_map_snapshot *snap, uint16_t label);
 

@@ -399,19 +399,22 @@ static void test_dds_section(void **state) {
    * times its largest message, together within dds.history_max_mb, the
    * depth that holds the most named (with its line when the file sets it). */
   expect_error("dds:\n  qos:\n    map:\n      depth: 1000\n", "t.yaml:4:14: key 'dds.qos.map.depth': ",
-               "fits dds.history_max_mb (512 MiB), got keep last 1000 of up to 40.0 MiB");
-  expect_error("shm:\n  map_max_voxels: 67108864\n", "t.yaml: key 'dds.qos.map.depth': ", "up to 1280.0 MiB");
+               "fits dds.history_max_mb (512 MiB), got keep last 1000 of up to 80.0 MiB");
+  /* the grid's 2 M voxels and the far map's 2 M points beside them (far_walk.h) */
+  expect_error("shm:\n  map_max_voxels: 67108864\n", "t.yaml: key 'dds.qos.map.depth': ", "up to 1320.0 MiB");
+  expect_error("shm:\n  map_max_voxels: 67108864\nfield:\n  grow: false\n", "t.yaml: key 'dds.qos.map.depth': ",
+               "up to 1280.0 MiB"); /* a fixed box has no far map */
   expect_error("dds:\n  history_max_mb: 20\n", "t.yaml: key 'dds.qos.map.depth': ", "dds.history_max_mb (20 MiB)");
   expect_error("dds:\n  qos:\n    camera_image:\n      depth: 100\n", "t.yaml:4:14: key 'dds.qos.camera_image.depth': ",
                "keep last 100 of up to 5.9 MiB");
   /* map/updates take what the others leave: at least a point an update */
-  expect_error("dds:\n  history_max_mb: 46.8\n  qos:\n    map_updates:\n      depth: 1000\n",
+  expect_error("dds:\n  history_max_mb: 86.8\n  qos:\n    map_updates:\n      depth: 1000\n",
                "t.yaml:5:14: key 'dds.qos.map_updates.depth': ", "leaves no point per update");
-  expect_error("dds:\n  history_max_mb: 46.8\n", "t.yaml: key 'dds.qos.map_updates.depth': ", "keep last 200");
+  expect_error("dds:\n  history_max_mb: 86.8\n", "t.yaml: key 'dds.qos.map_updates.depth': ", "keep last 200");
   expect_error("dds:\n  history_max_mb: 0.001\n", "t.yaml:2:19: key 'dds.history_max_mb': ", "expected");
-  assert_int_equal(load("dds:\n  history_max_mb: 46.8\n  map_updates: false\n", &cfg), 0);
+  assert_int_equal(load("dds:\n  history_max_mb: 86.8\n  map_updates: false\n", &cfg), 0);
   assert_int_equal(load("", &cfg), 0);
-  assert_true(vlff_config_dds_message_max(&cfg, VLFF_DDS_MAP) == (2u << 20) * 20 + VLFF_DDS_MSG_OVERHEAD);
+  assert_true(vlff_config_dds_message_max(&cfg, VLFF_DDS_MAP) == (4u << 20) * 20 + VLFF_DDS_MSG_OVERHEAD);
   uint64_t pts = vlff_config_dds_update_points(&cfg);
   assert_true(pts > 50000); /* a large region's change, within 512 MiB */
   assert_true(vlff_config_dds_message_max(&cfg, VLFF_DDS_MAP_UPDATES) == pts * 24 + VLFF_DDS_MSG_OVERHEAD);

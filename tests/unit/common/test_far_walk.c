@@ -1,6 +1,7 @@
-/* vlff_far_walk: the far map's labelled voxels as points, those the grid
- * covers left to the grid, and a far map past the bound cut to whole
- * blocks, the nearest to the grid first. */
+/* vlff_far_pick / vlff_far_emit: the far map's labelled voxels as points,
+ * those the grid covers left to the grid, and a far map past the bound cut
+ * to whole blocks, the nearest to the grid first; what is emitted is
+ * exactly what was picked. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -41,6 +42,18 @@ static void corridor(uint32_t n, struct vlff_map_far_block *b, struct vlff_map_f
   }
 }
 
+/* pick, then emit into s: the points emitted (always the pick's). */
+static size_t walk(const struct vlff_map_far *far, const struct vlff_map_grid *g, size_t max, struct seen *s,
+                   size_t *left) {
+  struct vlff_far_pick pick;
+  assert_int_equal(vlff_far_pick(far, g, max, &pick), 0);
+  size_t n = vlff_far_emit(far, g, &pick, s ? collect : NULL, s);
+  assert_int_equal(n, pick.points);
+  if (left) *left = pick.left;
+  vlff_far_pick_free(&pick);
+  return n;
+}
+
 static void test_points(void **state) {
   (void)state;
   struct vlff_map_far_block b[4];
@@ -51,7 +64,7 @@ static void test_points(void **state) {
   struct seen s = {0};
   size_t left = 7;
   /* no grid: every labelled voxel, in block order, at its centre */
-  assert_int_equal(vlff_far_walk(&far, NULL, 1 << 20, collect, &s, &left), 4 * 256);
+  assert_int_equal(walk(&far, NULL, 1 << 20, &s, &left), 4 * 256);
   assert_int_equal(s.n, 4 * 256);
   assert_int_equal(left, 0);
   assert_float_equal(s.first[0], 0.05, 1e-9);
@@ -64,11 +77,20 @@ static void test_points(void **state) {
   uint16_t labels[24 * 16 * 16] = {0};
   const struct vlff_map_grid g = {{0, 0, 0}, 0.1, {24, 16, 16}, labels, NULL};
   memset(&s, 0, sizeof s);
-  assert_int_equal(vlff_far_walk(&far, &g, 1 << 20, collect, &s, NULL), 4 * 256 - 24 * 16);
+  assert_int_equal(walk(&far, &g, 1 << 20, &s, NULL), 4 * 256 - 24 * 16);
   assert_float_equal(s.first[0], (24 + 0.5) * 0.1, 1e-9);
-  /* counting alone gives the same */
-  assert_int_equal(vlff_far_walk(&far, &g, 1 << 20, NULL, NULL, NULL), 4 * 256 - 24 * 16);
-  assert_int_equal(vlff_far_walk(NULL, &g, 1 << 20, collect, &s, &left), 0);
+  /* a grid that ends a voxel before a block, and one a voxel into it:
+   * counted from the runs or voxel by voxel, the same points */
+  const struct vlff_map_grid g15 = {{0, 0, 0}, 0.1, {15, 16, 16}, labels, NULL},
+                             g17 = {{0, 0, 0}, 0.1, {17, 16, 16}, labels, NULL};
+  assert_int_equal(walk(&far, &g15, 1 << 20, NULL, NULL), 4 * 256 - 15 * 16);
+  assert_int_equal(walk(&far, &g17, 1 << 20, NULL, NULL), 4 * 256 - 17 * 16);
+  /* no far map, an empty one */
+  struct vlff_far_pick pick;
+  assert_int_equal(vlff_far_pick(NULL, &g, 1 << 20, &pick), 0);
+  assert_int_equal(pick.points + pick.left, 0);
+  assert_int_equal(vlff_far_emit(NULL, &g, &pick, collect, &s), 0);
+  vlff_far_pick_free(&pick);
 }
 
 /* Past the bound: whole blocks, the nearest to the grid's centre first,
@@ -87,18 +109,17 @@ static void test_bound(void **state) {
   struct seen s = {0};
   size_t left = 0;
   /* 5 whole blocks fit in 1300 points (not 5 and a part) */
-  assert_int_equal(vlff_far_walk(&far, &g, 1300, collect, &s, &left), 5 * 256);
+  assert_int_equal(walk(&far, &g, 1300, &s, &left), 5 * 256);
   assert_int_equal(left, (NB - 5) * 256);
-  /* the nearest: blocks 28-32 (x 44.8-52.8 m) */
+  /* the nearest: blocks 28-32 (x 44.8-52.8 m), block 30 first */
   assert_true(s.max_x < 33 * 1.6);
-  assert_true(s.first[0] >= 28 * 1.6 && s.first[0] < 33 * 1.6);
+  assert_true(s.first[0] >= 30 * 1.6 && s.first[0] < 31 * 1.6);
   struct seen t = {0};
-  assert_int_equal(vlff_far_walk(&far, &g, 1300, collect, &t, NULL), 5 * 256);
+  assert_int_equal(walk(&far, &g, 1300, &t, NULL), 5 * 256);
   assert_memory_equal(s.first, t.first, sizeof s.first);
   assert_memory_equal(s.last, t.last, sizeof s.last);
-  assert_int_equal(vlff_far_walk(&far, &g, 1300, NULL, NULL, NULL), 5 * 256);
   /* a bound under one block: none, all left out */
-  assert_int_equal(vlff_far_walk(&far, &g, 100, NULL, NULL, &left), 0);
+  assert_int_equal(walk(&far, &g, 100, NULL, &left), 0);
   assert_int_equal(left, NB * 256);
 }
 

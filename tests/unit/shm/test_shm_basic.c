@@ -719,6 +719,8 @@ static void map_far_blocks(void **state) {
   assert_int_equal(got.nruns, nr);
   assert_memory_equal(got.blocks, blocks, sizeof blocks);
   assert_memory_equal(got.runs, runs, sizeof runs);
+  const uint64_t fv = vlff_map_snapshot_far_version(s);
+  assert_true(fv > 0 && fv <= vlff_map_version(r));
   /* publishes without a new far map keep it, in both buffers */
   for (int i = 0; i < 3; i++) {
     a[1] = (uint16_t)i;
@@ -727,6 +729,8 @@ static void map_far_blocks(void **state) {
     assert_int_equal(vlff_map_label_at(r, 24.1, 0.5, 1.9, &label, &conf), 0);
     assert_int_equal(label, 2);
   }
+  assert_int_equal(vlff_map_snapshot_follow(r, s), 0);
+  assert_int_equal(vlff_map_snapshot_far_version(s), fv); /* the same far map */
   /* a grid over a far block answers there itself */
   uint16_t big[16 * 4 * 4];
   for (int i = 0; i < 16 * 4 * 4; i++) big[i] = 1;
@@ -757,6 +761,9 @@ static void map_far_blocks(void **state) {
   assert_int_equal(vlff_map_snapshot_follow(r, s), 0);
   assert_int_equal(vlff_map_snapshot_far(s, &got), 0);
   assert_int_equal(got.nblocks, 0);
+  /* an emptied far map is a new far map too, of this version */
+  assert_int_equal(vlff_map_snapshot_far_version(s), vlff_map_version(r));
+  assert_int_equal(vlff_map_snapshot_far_version(NULL), 0);
   /* only a writer sets one */
   assert_int_equal(vlff_map_set_far(r, &far), -1);
   assert_int_equal(errno, EINVAL);
