@@ -9,7 +9,6 @@
  * (line:column) of every key and value for error messages.
  */
 #include "config.h"
-#include "far_walk.h"
 #include "hash.h"
 
 #include <ctype.h>
@@ -1171,9 +1170,9 @@ uint64_t vlff_config_dds_message_max(const struct vlff_config *cfg, int id) {
   const uint64_t lab = (uint64_t)m->label_max_width * (uint64_t)m->label_max_height;
   const uint64_t o = VLFF_DDS_MSG_OVERHEAD;
   switch (id) {
-  /* vlff-dds' point_step; a growing box's map carries its far map too (far_walk.h) */
-  case VLFF_DDS_MAP:
-    return ((uint64_t)m->map_max_voxels + (cfg->field.grow && m->map_far_max_mb > 0 ? VLFF_FAR_POINTS_MAX : 0)) * 20 + o;
+  /* vlff-dds' point_step; a growing box's map carries as many far points as
+   * the grid holds voxels at most (far_walk.h) */
+  case VLFF_DDS_MAP: return (uint64_t)m->map_max_voxels * (cfg->field.grow && m->map_far_max_mb > 0 ? 2 : 1) * 20 + o;
   case VLFF_DDS_MAP_UPDATES: return vlff_config_dds_update_points(cfg) * 24 + o;
   case VLFF_DDS_STATUS: return VLFF_DDS_STATUS_MAX_BYTES;
   case VLFF_DDS_PROMPTS_IN: return (uint64_t)cfg->dds.max_prompt_bytes + o;

@@ -11,8 +11,10 @@
  * those far voxels are not points of their own. And a far map can hold far
  * more than a cloud should carry (the default shm.map_far_max_mb holds tens
  * of millions of labelled voxels, gigabytes as points), so the points are
- * bounded, and the work with them: a block beside the grid is counted from
- * its runs, not voxel by voxel.
+ * bounded (the viewer and the DDS bridge: as many as the segment's grid
+ * holds voxels, a whole map at most twice a full grid), and the work with
+ * them: a block beside the grid is counted from its runs, not voxel by
+ * voxel.
  *
  * Contract: far was checked (vlff_map_snapshot_far); g is the grid of the
  * same map version (NULL or without labels: every far voxel counts).
@@ -32,10 +34,6 @@
 #include <stdint.h>
 
 #include "vlff/shm.h"
-
-/* The bound the viewer and the DDS bridge give: the default
- * shm.map_max_voxels, 40 MB of their 20-byte points, as many as a full grid. */
-#define VLFF_FAR_POINTS_MAX ((size_t)2 << 20)
 
 struct vlff_far_pick {
   size_t points, left;

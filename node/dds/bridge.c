@@ -214,13 +214,13 @@ static void put_far(void *ctx, const double c[3], uint16_t label, uint8_t conf) 
   *p += VLFF_DDS_POINT_STEP;
 }
 
-int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *far, uint8_t **out,
+int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *far, size_t far_max, uint8_t **out,
                    uint32_t *npoints, size_t *far_left) {
   const struct vlff_map_grid *g = &info->grid;
   size_t total = (size_t)g->dims[0] * g->dims[1] * g->dims[2];
   if (!g->labels) total = 0;
   struct vlff_far_pick pick;
-  if (vlff_far_pick(far, g, VLFF_FAR_POINTS_MAX, &pick)) {
+  if (vlff_far_pick(far, g, far_max, &pick)) {
     errno = ENOMEM;
     return -1;
   }
@@ -507,7 +507,8 @@ static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
   struct vlff_map_far far = {0};
   size_t left = 0;
   if (vlff_map_snapshot_far(b->snap, &far) < 0) far.nblocks = 0;
-  if (vlff_dds_cloud(info, &far, &data, &n, &left) < 0) {
+  const size_t far_max = b->map ? (size_t)vlff_map_capacity(b->map) : 0;
+  if (vlff_dds_cloud(info, &far, far_max, &data, &n, &left) < 0) {
     vlff_warn_limited(&b->warn_map, TAG, "map version %" PRIu64 ": no memory for %s's points", info->version,
                       VLFF_Q(b->o.map));
     return false;
@@ -534,7 +535,7 @@ static bool send_map(struct vlff_dds *b, const struct vlff_map_info *info) {
   if (!ok) return false;
   if (left)
     vlff_warn_limited(&b->warn_far, TAG, "map version %" PRIu64 ": %zu far voxels beyond the grid left out (at most %zu, "
-                      "the nearest blocks first)", info->version, left, VLFF_FAR_POINTS_MAX);
+                      "as many as the grid holds voxels, the nearest blocks first)", info->version, left, far_max);
   b->sent_version = info->version;
   b->sent_generation = info->generation;
   b->far_sent = vlff_map_snapshot_far_version(b->snap);

@@ -144,10 +144,9 @@ void vlff_dds_put_point(uint8_t *p, const struct vlff_map_grid *g, size_t i);
 /* The point cloud's payload of a snapshot: little-endian points as in the
  * contract, into a malloc'd buffer (*out, *npoints): the grid's labelled
  * voxels, then far's (the snapshot's far map, NULL: none) where the grid
- * does not cover them, at most VLFF_FAR_POINTS_MAX, the nearest blocks
- * first (far_walk.h; *far_left, may be NULL: those left out). 0, or
- * -1/ENOMEM. */
-int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *far, uint8_t **out,
+ * does not cover them, at most far_max, the nearest blocks first
+ * (far_walk.h; *far_left, may be NULL: those left out). 0, or -1/ENOMEM. */
+int vlff_dds_cloud(const struct vlff_map_info *info, const struct vlff_map_far *far, size_t far_max, uint8_t **out,
                    uint32_t *npoints, size_t *far_left);
 
 struct vlff_dds;

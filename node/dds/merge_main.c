@@ -359,7 +359,7 @@ static void send_fleet(dds_entity_t map_w, dds_entity_t prompts_w, struct vlff_m
   info.grid = *grid;
   uint8_t *data;
   uint32_t n;
-  if (vlff_dds_cloud(&info, NULL, &data, &n, NULL) == 0) { /* a merged grid: no far map */
+  if (vlff_dds_cloud(&info, NULL, 0, &data, &n, NULL) == 0) { /* a merged grid: no far map */
     sensor_msgs_msg_dds__PointField_ fields[5] = {
         {"x", 0, VLFF_DDS_FLOAT32, 1},     {"y", 4, VLFF_DDS_FLOAT32, 1},          {"z", 8, VLFF_DDS_FLOAT32, 1},
         {"label", 12, VLFF_DDS_UINT16, 1}, {"confidence", 16, VLFF_DDS_FLOAT32, 1}};

@@ -477,12 +477,12 @@ static struct vlff_view_msg *cloud_msg(struct vlff_feed *f, const uint32_t *idx,
   const struct vlff_map_grid g = {{m->origin[0], m->origin[1], m->origin[2]}, m->vs, {m->dims[0], m->dims[1], m->dims[2]},
                                   m->labels, m->conf};
   struct vlff_far_pick pick = {0};
-  if (!idx && m->snap && vlff_map_snapshot_far(m->snap, &far) == 0 &&
-      vlff_far_pick(&far, &g, VLFF_FAR_POINTS_MAX, &pick))
+  const size_t far_max = m->map ? (size_t)vlff_map_capacity(m->map) : 0;
+  if (!idx && m->snap && vlff_map_snapshot_far(m->snap, &far) == 0 && vlff_far_pick(&far, &g, far_max, &pick))
     vlff_log(VLFF_LOG_WARN, "vlff-view", "/map/points: no memory to choose the far map's points: the grid alone");
   if (pick.left)
     vlff_warn_limited(&f->far_cut, "vlff-view", "/map/points: %zu far voxels beyond the grid left out (at most %zu, "
-                      "the nearest blocks first)", pick.left, VLFF_FAR_POINTS_MAX);
+                      "as many as the grid holds voxels, the nearest blocks first)", pick.left, far_max);
   const size_t nfar = pick.points;
   if (!idx) n = (size_t)m->occupied + nfar;
   size_t need = (n ? n : 1) * VLFF_VIEW_CLOUD_STRIDE;

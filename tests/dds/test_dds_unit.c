@@ -123,7 +123,7 @@ static void test_cloud(void **state) {
   in.grid = (struct vlff_map_grid){{1, -2, 0.5}, 0.5, {2, 3, 2}, labels, conf};
   uint8_t *d;
   uint32_t n;
-  assert_int_equal(vlff_dds_cloud(&in, NULL, &d, &n, NULL), 0);
+  assert_int_equal(vlff_dds_cloud(&in, NULL, 0, &d, &n, NULL), 0);
   assert_int_equal(n, 4); /* indices 2, 5, 8, 11 */
   const uint8_t *last = d + 3 * VLFF_DDS_POINT_STEP;
   /* index 11 = (1, 2, 1) */
@@ -136,7 +136,7 @@ static void test_cloud(void **state) {
   assert_int_equal(d[13], 0x01);
   free(d);
   in.grid.confidence = NULL; /* all 255 */
-  assert_int_equal(vlff_dds_cloud(&in, NULL, &d, &n, NULL), 0);
+  assert_int_equal(vlff_dds_cloud(&in, NULL, 0, &d, &n, NULL), 0);
   assert_float_equal(f32_at(d + 16), 1.0, 0);
   free(d);
   /* beside the grid, its far map (what the window left as the robot went
@@ -152,7 +152,7 @@ static void test_cloud(void **state) {
                                            {VLFF_LABEL_UNKNOWN, (uint16_t)(E3 - 4), 0, 0}};
   struct vlff_map_far far = {{1, -2, 0.5}, 0.5, 2, 5, blocks, runs};
   assert_null(vlff_map_far_check(&far));
-  assert_int_equal(vlff_dds_cloud(&in, &far, &d, &n, NULL), 0);
+  assert_int_equal(vlff_dds_cloud(&in, &far, 1 << 20, &d, &n, NULL), 0);
   assert_int_equal(n, 4 + E3 + 2);
   const uint8_t *p = d + 4 * VLFF_DDS_POINT_STEP; /* block (-1, 0, 0)'s first voxel */
   assert_float_equal(f32_at(p), 1 + (-16 + 0.5) * 0.5, 1e-6);

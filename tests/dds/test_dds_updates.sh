@@ -51,10 +51,10 @@ kill -TERM $b; wait $b; rc=$?
 check "vlff-dds exits 0 on SIGTERM (rc=$rc)" '[[ $rc == 0 ]]'
 kill -TERM $w; wait $w
 
-# dds.history_max_mb: a 4000-voxel map (81 KB a whole map) and the prompt
+# dds.history_max_mb: a 4000-voxel map without a far map (81 KB a whole map) and the prompt
 # list leave 30 updates 8 points each; the churn's updates change 18 voxels,
 # so every version goes as a whole map, none as an update.
-printf 'dds:\n  domain_id: %d\n  namespace: %ss\n  poll_hz: 50\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n  history_max_mb: 0.1247\n  qos:\n    map_updates:\n      depth: 30\nshm:\n  map_max_voxels: 4000\n' \
+printf 'dds:\n  domain_id: %d\n  namespace: %ss\n  poll_hz: 50\n  status: false\n  prompts_in: false\n  label_image: false\n  camera_image: false\n  camera_info: false\n  tf: false\n  history_max_mb: 0.1247\n  qos:\n    map_updates:\n      depth: 30\nshm:\n  map_max_voxels: 4000\n  map_far_max_mb: 0\n' \
   $domain $ns >"$tmp/s.yaml"
 check "--check-config gives map updates their share" \
   '"$dds" --check-config "$tmp/s.yaml" | grep -qx "dds.history_max_mb: 0.1247 (map updates of up to 8 points)"'

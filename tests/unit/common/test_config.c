@@ -400,8 +400,8 @@ static void test_dds_section(void **state) {
    * depth that holds the most named (with its line when the file sets it). */
   expect_error("dds:\n  qos:\n    map:\n      depth: 1000\n", "t.yaml:4:14: key 'dds.qos.map.depth': ",
                "fits dds.history_max_mb (512 MiB), got keep last 1000 of up to 80.0 MiB");
-  /* the grid's 2 M voxels and the far map's 2 M points beside them (far_walk.h) */
-  expect_error("shm:\n  map_max_voxels: 67108864\n", "t.yaml: key 'dds.qos.map.depth': ", "up to 1320.0 MiB");
+  /* the grid's voxels and as many far points beside them (far_walk.h) */
+  expect_error("shm:\n  map_max_voxels: 67108864\n", "t.yaml: key 'dds.qos.map.depth': ", "up to 2560.0 MiB");
   expect_error("shm:\n  map_max_voxels: 67108864\nfield:\n  grow: false\n", "t.yaml: key 'dds.qos.map.depth': ",
                "up to 1280.0 MiB"); /* a fixed box has no far map */
   expect_error("dds:\n  history_max_mb: 20\n", "t.yaml: key 'dds.qos.map.depth': ", "dds.history_max_mb (20 MiB)");

@@ -584,7 +584,8 @@ static void test_cloud_far(void **state) {
   (void)state;
   struct vlff_feed_params fp = {.map_name = name, .frames_name = "", .brick = 4, .cloud_piece_bytes = 1 << 20,
                                 .world_frame = "odom"};
-  struct vlff_map_params mp = {N, 8, 8, {0, NULL}};
+  /* room for 8192 voxels: the cloud carries as many far points at most */
+  struct vlff_map_params mp = {8192, 8, 8, {0, NULL}};
   const uint16_t E3 = VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE;
   /* block (0, 0, 0) holds the grid's first 10 x-voxels of its first row and
    * 6 beyond it (x 10-15); block (1, 0, 0) lies beyond the grid, all chair */
