@@ -6,6 +6,10 @@
  *   map_writer write NAME SEED SECONDS   a 20x20x10 grid of 0.1 m voxels at
  *       the origin: a floor, a wall and a box labelled, confidences that
  *       differ by SEED (odd for 1, even for 2), a prompt list of SEED's;
+ *       seed 1's map also has a far map (what a robot's window left
+ *       behind, vlff/shm.h "The far map"): a layer of floor beside the
+ *       grid (x -1.6 to 0 m), and a block of wall the grid covers up to
+ *       1 m (the grid answers there) reaching 0.6 m above it;
  *       published once; after 2 s a partial publish (its runs) that clears
  *       part of the wall and labels a new box, then prints "changed"; alive
  *       (heartbeats) for SECONDS.
@@ -21,7 +25,8 @@
  *       fleet segment: each fleet voxel holds the text with the most
  *       evidence (confidences summed per text) among the robot voxels
  *       falling in it, its confidence that evidence over their count, and
- *       no other voxel is labelled. The robots' maps differ in age by
+ *       no other voxel is labelled. A robot's far voxels beyond its grid
+ *       count as its voxels (decoded here, not with vlff's code). The robots' maps differ in age by
  *       seconds, a fraction of a percent of weight at vlff-merge's default
  *       half-life: a text within 1 % of the best is accepted, and a
  *       confidence within 2. Exit 0 when all agree; the first mismatches
@@ -49,10 +54,20 @@ static int write_map(const char *name, int seed, double secs) {
   static const char *const lists[2][3] = {{"wall", "floor", "chair"}, {"floor", "table", "wall"}};
   const char *const *texts = lists[seed == 2];
   struct vlff_map_params mp = {N, 0, 0, {0, NULL}};
-  struct vlff_map *m = vlff_map_create(name, &mp);
+  /* seed 1's far map: block (-1, 0, 0), its first z layer floor (256
+   * voxels), and block (0, 0, 0), all wall, whose voxels the grid covers
+   * (up to 1 m) are the grid's, and whose 6 layers above it (1536 voxels)
+   * are far voxels */
+  static const struct vlff_map_far_block blocks[2] = {{{-1, 0, 0}, 0}, {{0, 0, 0}, 2}};
+  enum { E3 = VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE * VLFF_MAP_FAR_EDGE, LAYER = E3 / VLFF_MAP_FAR_EDGE };
+  const struct vlff_map_far_run far_runs[3] = {
+      {1, LAYER, 150, 0}, {VLFF_LABEL_FREE, E3 - LAYER, 0, 0}, {0, E3, 90, 0}}; /* floor, free; wall */
+  const struct vlff_map_far far = {{0, 0, 0}, 0.1, 2, 3, blocks, far_runs};
+  struct vlff_map *m =
+      seed == 1 ? vlff_map_create_far(name, &mp, vlff_map_far_bytes(2, 3)) : vlff_map_create(name, &mp);
   static uint16_t labels[N];
   static uint8_t conf[N];
-  if (!m) {
+  if (!m || (seed == 1 && vlff_map_set_far(m, &far) < 0)) {
     fprintf(stderr, "map_writer: %s\n", vlff_shm_last_message());
     return 1;
   }
@@ -190,6 +205,29 @@ struct want {
   double sum[4];
 };
 
+/* A robot's voxel at p (its frame) with label and confidence, moved by its
+ * transform (tf, c/sn its yaw's cosine and sine) into the fleet's grid fg:
+ * a vote for its text in the fleet voxel it falls in (1; 0 outside it). */
+static int vote(struct want *want, const struct vlff_map_grid *fg, const struct vlff_map_snapshot *s,
+                 const double tf[4], double c, double sn, const double p[3], uint16_t label, uint8_t conf) {
+  double w[3] = {c * p[0] - sn * p[1] + tf[0], sn * p[0] + c * p[1] + tf[1], p[2] + tf[2]};
+  size_t ix[3];
+  for (int a = 0; a < 3; a++) {
+    double f = floor((w[a] - fg->origin[a]) / fg->voxel_size);
+    if (!(f >= 0 && f < fg->dims[a])) return 0;
+    ix[a] = (size_t)f;
+  }
+  struct want *wv = &want[ix[0] + fg->dims[0] * (ix[1] + (size_t)fg->dims[1] * ix[2])];
+  const char *t = vlff_map_snapshot_prompt(s, label);
+  int x = 0;
+  while (x < wv->ntexts && strcmp(wv->text[x], t)) x++;
+  if (x == 4) return 0; /* the robots here hold 2 texts at most */
+  if (x == wv->ntexts) snprintf(wv->text[wv->ntexts++], sizeof wv->text[0], "%s", t);
+  wv->sum[x] += conf / 255.0;
+  wv->n++;
+  return 1;
+}
+
 static int check(const char *fleet, int nrobots, char **robots, bool anyof) {
   struct vlff_map *fm = vlff_map_attach(fleet);
   struct vlff_map_snapshot *fs = fm ? vlff_map_snapshot_new(fm) : NULL;
@@ -201,6 +239,7 @@ static int check(const char *fleet, int nrobots, char **robots, bool anyof) {
   const struct vlff_map_grid *fg = &fi.grid;
   size_t total = (size_t)fg->dims[0] * fg->dims[1] * fg->dims[2];
   struct want *want = calloc(total, sizeof *want);
+  size_t nfar = 0; /* votes from the robots' far maps */
   for (int r = 0; r < nrobots; r++) {
     char name[256];
     double tf[4];
@@ -224,25 +263,28 @@ static int check(const char *fleet, int nrobots, char **robots, bool anyof) {
           if (g->labels[v] > VLFF_LABEL_MAX) continue;
           double p[3] = {g->origin[0] + (i + 0.5) * g->voxel_size, g->origin[1] + (j + 0.5) * g->voxel_size,
                          g->origin[2] + (k + 0.5) * g->voxel_size};
-          double w[3] = {c * p[0] - sn * p[1] + tf[0], sn * p[0] + c * p[1] + tf[1], p[2] + tf[2]};
-          size_t ix[3];
-          int inside = 1;
-          for (int a = 0; a < 3 && inside; a++) {
-            double f = floor((w[a] - fg->origin[a]) / fg->voxel_size);
-            inside = f >= 0 && f < fg->dims[a];
-            ix[a] = inside ? (size_t)f : 0;
-          }
-          if (!inside) continue;
-          size_t fv = ix[0] + fg->dims[0] * (ix[1] + (size_t)fg->dims[1] * ix[2]);
-          struct want *wv = &want[fv];
-          const char *t = vlff_map_snapshot_prompt(s, g->labels[v]);
-          int x = 0;
-          while (x < wv->ntexts && strcmp(wv->text[x], t)) x++;
-          if (x == 4) continue; /* the robots here hold 2 texts at most */
-          if (x == wv->ntexts) snprintf(wv->text[wv->ntexts++], sizeof wv->text[0], "%s", t);
-          wv->sum[x] += (g->confidence ? g->confidence[v] : 255) / 255.0;
-          wv->n++;
+          vote(want, fg, s, tf, c, sn, p, g->labels[v], g->confidence ? g->confidence[v] : 255);
         }
+    /* its far voxels beyond its grid, decoded from the runs */
+    struct vlff_map_far far;
+    if (vlff_map_snapshot_far(s, &far) < 0) far.nblocks = 0;
+    const uint32_t E = VLFF_MAP_FAR_EDGE;
+    for (uint32_t b = 0; b < far.nblocks; b++) {
+      const uint32_t end = b + 1 < far.nblocks ? far.blocks[b + 1].first_run : far.nruns;
+      uint32_t at = 0;
+      for (uint32_t u = far.blocks[b].first_run; u < end; at += far.runs[u++].count)
+        for (uint32_t q = at; far.runs[u].label <= VLFF_LABEL_MAX && q < at + far.runs[u].count; q++) {
+          const uint32_t l[3] = {q % E, q / E % E, q / (E * E)};
+          double p[3];
+          int in_grid = 1;
+          for (int a = 0; a < 3; a++) {
+            p[a] = far.origin[a] + ((double)far.blocks[b].key[a] * E + l[a] + 0.5) * far.voxel_size;
+            const double f = floor((p[a] - g->origin[a]) / g->voxel_size);
+            in_grid = in_grid && f >= 0 && f < g->dims[a];
+          }
+          if (!in_grid) nfar += vote(want, fg, s, tf, c, sn, p, far.runs[u].label, far.runs[u].conf);
+        }
+    }
     vlff_map_snapshot_free(s);
     vlff_map_detach(m);
   }
@@ -267,8 +309,9 @@ static int check(const char *fleet, int nrobots, char **robots, bool anyof) {
       printf("check: fleet voxel %zu: '%s' confidence %d, expected '%s' %ld (of %d robot voxels, %d texts)\n", v,
              text ? text : "-", cf, w->n ? w->text[bk] : "-", w->n ? lrint(255 * best / w->n) : -1L, w->n, w->ntexts);
   }
-  printf("check: %zu labelled voxels expected (%zu where robots disagree), %zu mismatches, fleet map version %llu, "
-         "%d labels\n", labelled, overlap, bad, (unsigned long long)fi.version, fi.prompt_count);
+  printf("check: %zu labelled voxels expected (%zu where robots disagree, %zu robot voxels from far maps), %zu "
+         "mismatches, fleet map version %llu, %d labels\n",
+         labelled, overlap, nfar, bad, (unsigned long long)fi.version, fi.prompt_count);
   free(want);
   vlff_map_snapshot_free(fs);
   vlff_map_detach(fm);

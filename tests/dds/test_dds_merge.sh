@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # vlff-merge on a real network stack (netns_kit.sh): in namespace A two
 # robots, each a map segment of known content (map_writer) served by its own
-# vlff-dds (/r1, /r2), changed by a partial publish after 2 s (so the fleet
+# vlff-dds (/r1, /r2), robot 1's with a far map beyond its grid (which its
+# bridge sends with the whole map), changed by a partial publish after 2 s (so the fleet
 # is right only if vlff-merge applies the robots' map/updates); in B
 # vlff-merge (dds.merge) with robot 2 moved by 1 m in x and turned 90
 # degrees, so that the two maps overlap: robot 2's transform is not
@@ -64,6 +65,8 @@ wait_until 300 '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/c
 check "the fleet map holds the text with the most evidence in each voxel, the robots' updates applied, robot 2 placed by its tf ($(tail -1 "$tmp/check"))" \
   '"$writer" check $p-fleet $p-m1@0,0,0,0 $p-m2@1.0,0,0,90 >"$tmp/check" 2>&1'
 check "the fleet's labels are the union of the robots' texts, 32 at most (wall floor chair table, thing 0..27)" 'grep -q ", 32 labels$" "$tmp/check"'
+check "robot 1's far map beyond its grid (256 floor, 1536 wall voxels) reached the fleet through its bridge's map" \
+  'grep -q "1792 robot voxels from far maps), 0 mismatches" "$tmp/check"'
 check "the texts left out are logged, naming the robot and the texts" \
   'grep -q "/r4: 4 of its 32 prompt texts left out of the fleet.s labels (at most 32 in all), with the points labelled with them: .thing 28., .thing 29., .thing 30., .thing 31.$" "$tmp/merge.log"'
 check "the check fails against another transform (robot 2 not turned), or it proves nothing" \
