@@ -342,11 +342,11 @@ struct obs_header {
 static size_t obs_v3_size(const struct vlff_publisher *p) { return p->nvox + 16 + vlff_hold_save_size(p->hold); }
 static size_t obs_v4_size(const struct vlff_publisher *p) { return obs_v3_size(p) + VLFF_EVIDENCE_LOST_BYTES; }
 
+static int save_far_files(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
+
 /* Written as it is made: the grids, then the evidence a megabyte at a time
  * (with paging it holds every voxel the robot has seen, most of it not in
  * memory), the checksum taken as the bytes go. */
-static int save_far_files(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
-
 int vlff_publisher_save(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   size_t n = p->nvox, evn = p->ev ? vlff_evidence_save_size(p->ev) : 0;
   size_t len = sizeof(struct obs_header) + n + n * 2 + n * 12 + obs_v4_size(p) + 8;
