@@ -19,8 +19,10 @@
  * Contract: far was checked (vlff_map_snapshot_far); g is the grid of the
  * same map version (NULL or without labels: every far voxel counts).
  *  - vlff_far_pick chooses the points: each far voxel whose label is a class
- *    (a prompt index, <= VLFF_LABEL_MAX) and that g does not cover. At most
- *    max_points of them: past it, whole blocks, the nearest to the grid's
+ *    (a prompt index, <= VLFF_LABEL_MAX) and that g does not cover (of a
+ *    far map whose voxels are not the grid's size, the blocks across the
+ *    grid's boundary are left out whole: reading them voxel by voxel could
+ *    take any time). At most max_points of them: past it, whole blocks, the nearest to the grid's
  *    centre first, while they fit; pick->left counts those left out, for
  *    the caller to say. 0, or -1 out of memory (nothing picked; left: all).
  *  - vlff_far_emit gives exactly pick->points of them: fn(ctx, centre,

@@ -57,7 +57,10 @@ struct vlff_publisher {
    * alternates two): rewritten only when their generation changed. */
   struct saved_far {
     char path[VLFF_CFG_PATH + 64];
-    uint64_t far_gen, evfar_gen;
+    struct far_file {
+      uint64_t gen;                  /* of what it holds; UINT64_MAX: unknown */
+      uint64_t ino, size, mtime_ns; /* the file as written (0, 0, 0: none) */
+    } far, evfar;
   } saved[2];
   int saved_next;
   long long slides;
@@ -399,18 +402,28 @@ static int beside(char *out, size_t cap, const char *path, const char *ext, char
   return snprintf(err, errlen, "%s%s: path too long", path, ext), -1;
 }
 
-/* A far file is written, or its name kept free, unless the one there is of
- * this generation. */
-static bool far_current(const char *file, uint64_t have, uint64_t gen, bool any) {
-  return have == gen && (any ? access(file, F_OK) == 0 : access(file, F_OK) && errno == ENOENT);
+/* The file at path as it is now (all 0: none). */
+static struct far_file file_id(const char *path, uint64_t gen) {
+  struct stat st;
+  if (stat(path, &st)) return (struct far_file){.gen = gen};
+  return (struct far_file){gen, (uint64_t)st.st_ino, (uint64_t)st.st_size,
+                           (uint64_t)st.st_mtim.tv_sec * 1000000000u + (uint64_t)st.st_mtim.tv_nsec};
+}
+
+/* A far file is written, or its name kept free, unless the one there is
+ * the one written of this generation: the same file, size and time (one
+ * removed, replaced or written over since is written again). */
+static bool far_current(const char *file, const struct far_file *had, uint64_t gen) {
+  const struct far_file now = file_id(file, gen);
+  return had->gen == gen && now.ino == had->ino && now.size == had->size && now.mtime_ns == had->mtime_ns;
 }
 
 /* The far map beside the grid (far.h), and the evidence the grid left in
  * the page file (evidence.h): the same checkpoint's, or none. Rewritten
  * only when they changed since this grid file's last save (learned state
- * is written only when it changed), or when the last write read a record
- * back from a failing page file (written as a record of nothing: tried
- * again). A failed write removes its file and the far evidence beside it,
+ * is written only when it changed), when the file there is not the one
+ * written then, or when the last write read a record back from a failing
+ * page file (written as a record of nothing: tried again). A failed write removes its file and the far evidence beside it,
  * never leaving another checkpoint's beside this grid. */
 static int save_far_files(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   struct saved_far *sv = NULL;
@@ -418,30 +431,30 @@ static int save_far_files(struct vlff_publisher *p, const char *path, char *err,
     if (!strcmp(p->saved[i].path, path)) sv = &p->saved[i];
   if (!sv) {
     sv = &p->saved[p->saved_next], p->saved_next ^= 1;
-    *sv = (struct saved_far){.far_gen = UINT64_MAX, .evfar_gen = UINT64_MAX};
+    *sv = (struct saved_far){.far.gen = UINT64_MAX, .evfar.gen = UINT64_MAX};
     if (snprintf(sv->path, sizeof sv->path, "%s", path) >= (int)sizeof sv->path) sv->path[0] = 0;
   }
   char fp[VLFF_CFG_PATH + 80];
   const uint64_t fg = vlff_far_generation(p->far);
   if (beside(fp, sizeof fp, path, ".far", err, errlen)) return -1;
-  if (!far_current(fp, sv->far_gen, fg, vlff_far_blocks(p->far) > 0)) {
-    sv->far_gen = UINT64_MAX;
+  if (!far_current(fp, &sv->far, fg)) {
+    sv->far.gen = UINT64_MAX;
     if (vlff_far_save(p->far, fp, err, errlen)) {
       unlink(fp);
-      sv->evfar_gen = UINT64_MAX;
+      sv->evfar.gen = UINT64_MAX;
       if (p->ev && !beside(fp, sizeof fp, path, ".evfar", NULL, 0)) unlink(fp);
       return -1;
     }
-    sv->far_gen = fg;
+    sv->far = file_id(fp, fg);
   }
   if (!p->ev) return 0;
   const uint64_t eg = vlff_evidence_far_generation(p->ev);
   if (beside(fp, sizeof fp, path, ".evfar", err, errlen)) return -1;
-  if (!far_current(fp, sv->evfar_gen, eg, vlff_evidence_far_records(p->ev) > 0)) {
-    sv->evfar_gen = UINT64_MAX;
+  if (!far_current(fp, &sv->evfar, eg)) {
+    sv->evfar.gen = UINT64_MAX;
     const long long perr = vlff_evidence_page_errors(p->ev);
     if (vlff_evidence_save_far(p->ev, fp, err, errlen)) return unlink(fp), -1;
-    if (vlff_evidence_page_errors(p->ev) == perr) sv->evfar_gen = eg;
+    if (vlff_evidence_page_errors(p->ev) == perr) sv->evfar = file_id(fp, eg);
   }
   return 0;
 }

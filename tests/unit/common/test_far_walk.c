@@ -85,6 +85,16 @@ static void test_points(void **state) {
                              g17 = {{0, 0, 0}, 0.1, {17, 16, 16}, labels, NULL};
   assert_int_equal(walk(&far, &g15, 1 << 20, NULL, NULL), 4 * 256 - 15 * 16);
   assert_int_equal(walk(&far, &g17, 1 << 20, NULL, NULL), 4 * 256 - 17 * 16);
+  /* a grid holding the first two blocks whole: none of theirs */
+  const struct vlff_map_grid g32 = {{0, 0, 0}, 0.1, {32, 16, 16}, labels, NULL};
+  assert_int_equal(walk(&far, &g32, 1 << 20, NULL, NULL), 2 * 256);
+  /* a far map of another voxel size: the blocks apart from the grid are
+   * read, those across its boundary left out whole and said (read voxel by
+   * voxel they could take any time), those inside it give nothing */
+  const struct vlff_map_far fine = {{0, 0, 0}, 0.05, 4, 8, b, r}; /* blocks of 0.8 m: x 0-3.2 m */
+  const struct vlff_map_grid g12 = {{0, 0, 0}, 0.1, {12, 16, 16}, labels, NULL}; /* x 0-1.2 m */
+  assert_int_equal(walk(&fine, &g12, 1 << 20, NULL, &left), 2 * 256); /* blocks 2 and 3 */
+  assert_int_equal(left, 256);                                          /* block 1, across x = 1.2 m */
   /* no far map, an empty one */
   struct vlff_far_pick pick;
   assert_int_equal(vlff_far_pick(NULL, &g, 1 << 20, &pick), 0);

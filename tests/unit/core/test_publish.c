@@ -4,6 +4,7 @@
  * intrinsics with depth reaching far beyond the map (or cx = -1e9 /
  * fx = 0.001) marched hundreds of millions of steps per pixel: the test
  * then hung until ctest's timeout. */
+#include <fcntl.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -1092,6 +1093,29 @@ static void test_slide_under_reader(void **state) {
   unlink(fpath);
   assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
   assert_int_equal(stat(fpath, &st1), 0);
+  /* and one written over since (a byte flipped in place: the same file and
+   * size, a later time) is written again, as it was */
+  const ssize_t len = (ssize_t)st1.st_size;
+  assert_true(len > 64);
+  uint8_t *before = malloc((size_t)len), *after = malloc((size_t)len);
+  assert_non_null(before), assert_non_null(after);
+  int fd = open(fpath, O_RDWR);
+  assert_true(fd >= 0);
+  assert_int_equal(pread(fd, before, (size_t)len, 0), len);
+  usleep(30000); /* past the file system's clock tick */
+  assert_int_equal(pwrite(fd, "\xff", 1, 60), 1);
+  close(fd);
+  assert_int_equal(stat(fpath, &st0), 0);
+  assert_true(st0.st_ino == st1.st_ino);
+  assert_int_equal(vlff_publisher_save(p, path, err, sizeof err), 0);
+  assert_int_equal(stat(fpath, &st1), 0);
+  assert_true(st0.st_ino != st1.st_ino);
+  fd = open(fpath, O_RDONLY);
+  assert_true(fd >= 0);
+  assert_int_equal(pread(fd, after, (size_t)len, 0), len);
+  close(fd);
+  assert_memory_equal(before, after, (size_t)len);
+  free(before), free(after);
   unlink(path), unlink(fpath);
   vlff_map_snapshot_free(snap);
   vlff_map_detach(m);
