@@ -184,15 +184,14 @@ void restore_checkpoint(struct vlff_node *n) {
      * them beside this run's: a later resume must never fall back to them. */
     int removed = 0;
     for (int i = 0; i < 2; i++) {
-      char op[VLFF_CFG_PATH + 32], fp[2][VLFF_CFG_PATH + 40];
+      char op[VLFF_CFG_PATH + 32], fp[VLFF_CFG_PATH + 40];
       obs_path(n, i, op, sizeof op);
-      snprintf(fp[0], sizeof fp[0], "%s.far", op);   /* the far map beside it (publish.h) */
-      snprintf(fp[1], sizeof fp[1], "%s.evfar", op); /* and its evidence */
       removed += have[i] && unlink(path[i]) == 0;
-      if (unlink(op) != 0 && errno != ENOENT) VLFF_WARN(TAG, "fresh start: cannot remove %s: %s", VLFF_Q(op), strerror(errno));
-      for (int j = 0; j < 2; j++)
-        if (unlink(fp[j]) != 0 && errno != ENOENT)
-          VLFF_WARN(TAG, "fresh start: cannot remove %s: %s", VLFF_Q(fp[j]), strerror(errno));
+      for (int j = 0; j < 3; j++) { /* the grid, the far map and its evidence beside it (publish.h) */
+        snprintf(fp, sizeof fp, "%s%s", op, vlff_publisher_files[j]);
+        if (unlink(fp) != 0 && errno != ENOENT)
+          VLFF_WARN(TAG, "fresh start: cannot remove %s: %s", VLFF_Q(fp), strerror(errno));
+      }
       if (have[i] && access(path[i], F_OK) == 0)
         VLFF_WARN(TAG, "fresh start: cannot remove %s: %s", VLFF_Q(path[i]), strerror(errno));
     }

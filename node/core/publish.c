@@ -396,6 +396,9 @@ int vlff_publisher_save(struct vlff_publisher *p, const char *path, char *err, s
   return p->far ? save_far_files(p, path, err, errlen) : 0;
 }
 
+const char *const vlff_publisher_files[3] = {"", ".far", ".evfar"};
+enum { FILE_FAR = 1, FILE_EVFAR = 2 }; /* in vlff_publisher_files */
+
 /* The file beside a checkpoint's grid file: path + ext. */
 static int beside(char *out, size_t cap, const char *path, const char *ext, char *err, size_t errlen) {
   if (snprintf(out, cap, "%s%s", path, ext) < (int)cap) return 0;
@@ -423,8 +426,9 @@ static bool far_current(const char *file, const struct far_file *had, uint64_t g
  * only when they changed since this grid file's last save (learned state
  * is written only when it changed), when the file there is not the one
  * written then, or when the last write read a record back from a failing
- * page file (written as a record of nothing: tried again). A failed write removes its file and the far evidence beside it,
- * never leaving another checkpoint's beside this grid. */
+ * page file (written as a record of nothing: tried again). A failed write
+ * removes its file and the far evidence beside it, never leaving another
+ * checkpoint's beside this grid. */
 static int save_far_files(struct vlff_publisher *p, const char *path, char *err, size_t errlen) {
   struct saved_far *sv = NULL;
   for (int i = 0; i < 2 && !sv; i++)
@@ -436,20 +440,20 @@ static int save_far_files(struct vlff_publisher *p, const char *path, char *err,
   }
   char fp[VLFF_CFG_PATH + 80];
   const uint64_t fg = vlff_far_generation(p->far);
-  if (beside(fp, sizeof fp, path, ".far", err, errlen)) return -1;
+  if (beside(fp, sizeof fp, path, vlff_publisher_files[FILE_FAR], err, errlen)) return -1;
   if (!far_current(fp, &sv->far, fg)) {
     sv->far.gen = UINT64_MAX;
     if (vlff_far_save(p->far, fp, err, errlen)) {
       unlink(fp);
       sv->evfar.gen = UINT64_MAX;
-      if (p->ev && !beside(fp, sizeof fp, path, ".evfar", NULL, 0)) unlink(fp);
+      if (p->ev && !beside(fp, sizeof fp, path, vlff_publisher_files[FILE_EVFAR], NULL, 0)) unlink(fp);
       return -1;
     }
     sv->far = file_id(fp, fg);
   }
   if (!p->ev) return 0;
   const uint64_t eg = vlff_evidence_far_generation(p->ev);
-  if (beside(fp, sizeof fp, path, ".evfar", err, errlen)) return -1;
+  if (beside(fp, sizeof fp, path, vlff_publisher_files[FILE_EVFAR], err, errlen)) return -1;
   if (!far_current(fp, &sv->evfar, eg)) {
     sv->evfar.gen = UINT64_MAX;
     const long long perr = vlff_evidence_page_errors(p->ev);
@@ -717,14 +721,14 @@ int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, s
   rc = 0;
   /* What the window had left behind, beside the grid's file (far.h). */
   char fp[VLFF_CFG_PATH + 80], ferr[400];
-  if (p->far && !beside(fp, sizeof fp, path, ".far", ferr, sizeof ferr)) {
+  if (p->far && !beside(fp, sizeof fp, path, vlff_publisher_files[FILE_FAR], ferr, sizeof ferr)) {
     int fr = vlff_far_load(p->far, fp, ferr, sizeof ferr);
     if (fr < 0)
       VLFF_WARN(TAG, "far map not restored (the map reads unknown beyond its window until the robot returns): %s",
                 ferr);
     p->far_owed = fr == 0 || p->far_owed;
     long long dropped = 0;
-    if (p->ev && !beside(fp, sizeof fp, path, ".evfar", ferr, sizeof ferr) &&
+    if (p->ev && !beside(fp, sizeof fp, path, vlff_publisher_files[FILE_EVFAR], ferr, sizeof ferr) &&
         vlff_evidence_load_far(p->ev, fp, &dropped, ferr, sizeof ferr) < 0)
       VLFF_WARN(TAG, "evidence beyond the map's window not restored (its voxels read the field until seen again): %s",
                 ferr);

@@ -107,6 +107,9 @@ bool vlff_publisher_contradicted(const struct vlff_publisher *p, const struct vl
  * path.evfar), rewritten only when they changed since that path's last
  * save. */
 int vlff_publisher_save(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
+/* The files a save at path is: path followed by each of these (the grid's
+ * own, the far map, the far evidence), for whoever removes a save whole. */
+extern const char *const vlff_publisher_files[3];
 int vlff_publisher_load(struct vlff_publisher *p, const char *path, char *err, size_t errlen);
 /* The evidence observe() averages into (evidence.h), NULL without it
  * (publish.evidence_weight 0): for tests and tools to read. */
