@@ -699,9 +699,15 @@ int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *
       if (!nv) continue;
       const uint16_t *src = v->features + ((size_t)fj * v->feat_width + fi) * D;
       vlff_f16_to_f32_n(src, f, (size_t)D);
-      bool ok = true;
-      for (int j = 0; j < D; j++) ok &= isfinite(f[j]);
-      for (int t = 0; ok && t < nv; t++) accumulate(e, vox[t], f);
+      /* Averaged as a direction: the map reads cosines, which ignore a
+       * feature's length, so a long feature must not outweigh a short one
+       * in the mean (a zero one has no direction and adds nothing). */
+      float nn = 0;
+      for (int j = 0; j < D; j++) nn += f[j] * f[j];
+      if (!(nn > 0) || !isfinite(nn)) continue;
+      const float inv = 1.0f / sqrtf(nn);
+      for (int j = 0; j < D; j++) f[j] *= inv;
+      for (int t = 0; t < nv; t++) accumulate(e, vox[t], f);
     }
   return 0;
 }

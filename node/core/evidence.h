@@ -1,7 +1,10 @@
 /*
  * Per-voxel evidence: the raw vision-language features of admitted
- * keyframes, averaged in the voxels where their measured depth ends
- * (OpenScene-style multi-view fusion, kept online beside the field).
+ * keyframes, each scaled to unit length and averaged in the voxels where
+ * their measured depth ends (OpenScene-style multi-view fusion, kept online
+ * beside the field). Unit length because the map reads cosines, which
+ * ignore a feature's length: in a plain mean a long feature outweighed a
+ * short one (docs/field.md, "Evidence").
  *
  * Why: the field is a smooth, shared decoder. Over a large scene it can
  * give a small or rare object's feature away to a larger look-alike, and a
@@ -111,9 +114,10 @@ void vlff_evidence_reset(struct vlff_evidence *e);
  * the depth image (v->depth, metres along the camera axis, width x height;
  * a view without depth or features adds nothing) at its four quarter
  * points, unprojected with the view's intrinsics and pose, and its feature
- * averaged once into every voxel those points reach. Non-finite features
- * and depths are skipped. The caller has checked the view's intrinsics and
- * pose (vlff_publisher_check_view); D must match. */
+ * averaged once into every voxel those points reach. Non-finite depths are
+ * skipped. The caller has checked the view's intrinsics and
+ * pose (vlff_publisher_check_view); D must match. Each feature joins the
+ * means at unit length; one that is zero or not finite is skipped. */
 int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *err, size_t errlen);
 
 /* The voxel index of world point x (-1 outside the grid). */

@@ -75,6 +75,35 @@ static void test_views_average_where_depth_ends(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* Features join the mean as directions: a view whose features are eight
+ * times as long as another's (a model that is surer, or brighter light)
+ * does not outweigh it, and the map's cosines read both alike. With the
+ * plain mean the first view's prompt won (8/9 of the mean). Zero and
+ * non-finite features add nothing. */
+static void test_views_average_as_directions(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20);
+  struct wall a, b, z;
+  wall_make(&a, 2.2f, (const float[D]){8, 0, 0, 0});
+  wall_make(&b, 2.2f, (const float[D]){0, 0.5f, 0, 0});
+  wall_make(&z, 2.2f, (const float[D]){0, 0, 0, 0});
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_add(e, &b.v, err, sizeof err), 0);
+  const double x[3] = {0.1, 0.1, 2.2};
+  float out[D];
+  const int n = vlff_evidence_get(e, vlff_evidence_voxel(e, x), out);
+  assert_true(n >= 2);
+  assert_float_equal(out[0], 0.5f, 2e-3);
+  assert_float_equal(out[1], 0.5f, 2e-3);
+  assert_int_equal(vlff_evidence_add(e, &z.v, err, sizeof err), 0);
+  z.feat[0] = vlff_f32_to_f16(NAN);
+  assert_int_equal(vlff_evidence_add(e, &z.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_get(e, vlff_evidence_voxel(e, x), out), n);
+  assert_float_equal(out[0], 0.5f, 2e-3);
+  vlff_evidence_destroy(e);
+}
+
 /* A feature pixel whose footprint straddles two voxels is averaged into
  * both: with cx = 3, feature column 1 (depth columns 2 and 3) sees the wall
  * at x = -0.03 and +0.03 m, either side of the voxel face at x = 0. The
@@ -1041,6 +1070,7 @@ static void test_recent_views_replace_old(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_views_average_where_depth_ends),
+    cmocka_unit_test(test_views_average_as_directions),
     cmocka_unit_test(test_footprint_reaches_every_voxel),
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
