@@ -622,6 +622,8 @@ size_t vlff_evidence_page_memory(const struct vlff_evidence *e) {
 }
 
 /* The running mean of one voxel takes feature f (D finite floats). */
+static float dot16(const float *a, const float *b, int n);
+
 static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
   int32_t s = e->slot[vi];
   if (s < 0) {
@@ -655,6 +657,16 @@ static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
    * thousand features of D values, on the trainer's thread */
   float *mean = e->tmp + e->D, a = 1.0f / (float)(n < RECENT_SAMPLES ? n : RECENT_SAMPLES);
   vlff_f16_to_f32_n(m, mean, (size_t)e->D);
+  /* A mean of unit vectors is at most 1 long; a longer one was saved before
+   * features were averaged as directions (a checkpoint or far file of an
+   * older node) and, kept at its length, would outweigh the new samples
+   * for as long as it was longer. Brought to unit length, it weighs as the
+   * samples it holds. */
+  const float nn = dot16(mean, mean, e->D);
+  if (nn > 1.0201f) {
+    const float inv = 1.0f / sqrtf(nn);
+    for (int j = 0; j < e->D; j++) mean[j] *= inv;
+  }
   for (int j = 0; j < e->D; j++) mean[j] += (f[j] - mean[j]) * a;
   vlff_f32_to_f16_n(mean, m, (size_t)e->D);
 }

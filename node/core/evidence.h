@@ -117,7 +117,9 @@ void vlff_evidence_reset(struct vlff_evidence *e);
  * averaged once into every voxel those points reach. Non-finite depths are
  * skipped. The caller has checked the view's intrinsics and
  * pose (vlff_publisher_check_view); D must match. Each feature joins the
- * means at unit length; one that is zero or not finite is skipped. */
+ * means at unit length; one that is zero or not finite is skipped. A mean
+ * longer than 1 (saved by a node that averaged features at their own
+ * length) is brought to unit length when a sample joins it. */
 int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *err, size_t errlen);
 
 /* The voxel index of world point x (-1 outside the grid). */

@@ -104,6 +104,43 @@ static void test_views_average_as_directions(void **state) {
   vlff_evidence_destroy(e);
 }
 
+/* A mean saved by a node that averaged features at their own length (a
+ * checkpoint from before directions) joins the new samples at unit length:
+ * kept 8 long, it held 8 / 9 of the mean after as many new samples as it
+ * had. */
+static void test_old_long_mean_joins_as_direction(void **state) {
+  (void)state;
+  struct vlff_evidence *e = make(1 << 20), *g = make(1 << 20);
+  struct wall a, b;
+  wall_make(&a, 2.2f, (const float[D]){1, 0, 0, 0});
+  wall_make(&b, 2.2f, (const float[D]){0, 1, 0, 0});
+  char err[256];
+  assert_int_equal(vlff_evidence_add(e, &a.v, err, sizeof err), 0);
+  const size_t n = vlff_evidence_save_size(e), rec = 4 + 1 + 2 * D;
+  uint8_t *buf = malloc(n);
+  vlff_evidence_save(e, buf);
+  /* the four voxels' records close the save: their means made 8 long */
+  for (size_t r = 1; r <= 4; r++)
+    for (int j = 0; j < D; j++) {
+      uint16_t h;
+      memcpy(&h, buf + n - r * rec + 5 + 2 * j, 2);
+      h = vlff_f32_to_f16(8 * vlff_f16_to_f32(h));
+      memcpy(buf + n - r * rec + 5 + 2 * j, &h, 2);
+    }
+  assert_int_equal(vlff_evidence_load(g, buf, n, err, sizeof err), 0);
+  const long vi = vlff_evidence_voxel(g, (const double[3]){0.1, 0.1, 2.2});
+  float out[D];
+  assert_int_equal(vlff_evidence_get(g, vi, out), 4);
+  assert_float_equal(out[0], 8.0f, 1e-3);
+  assert_int_equal(vlff_evidence_add(g, &b.v, err, sizeof err), 0);
+  assert_int_equal(vlff_evidence_get(g, vi, out), 8);
+  assert_float_equal(out[0], 0.5f, 2e-3);
+  assert_float_equal(out[1], 0.5f, 2e-3);
+  free(buf);
+  vlff_evidence_destroy(e);
+  vlff_evidence_destroy(g);
+}
+
 /* A feature pixel whose footprint straddles two voxels is averaged into
  * both: with cx = 3, feature column 1 (depth columns 2 and 3) sees the wall
  * at x = -0.03 and +0.03 m, either side of the voxel face at x = 0. The
@@ -1071,6 +1108,7 @@ static void test_recent_views_replace_old(void **state) {
 VLFF_UNIT_MAIN(NULL, NULL,
     cmocka_unit_test(test_views_average_where_depth_ends),
     cmocka_unit_test(test_views_average_as_directions),
+    cmocka_unit_test(test_old_long_mean_joins_as_direction),
     cmocka_unit_test(test_footprint_reaches_every_voxel),
     cmocka_unit_test(test_labels_combine_field_and_evidence),
     cmocka_unit_test(test_field_trust_follows_exposure), cmocka_unit_test(test_lost_class_read_from_evidence),
