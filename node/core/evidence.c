@@ -621,9 +621,10 @@ size_t vlff_evidence_page_memory(const struct vlff_evidence *e) {
   return e->page_alloc * (sizeof *e->powner + (size_t)e->max_k + sizeof *e->pfree);
 }
 
-/* The running mean of one voxel takes feature f (D finite floats). */
 static float dot16(const float *a, const float *b, int n);
 
+/* The running mean of one voxel takes feature f (D finite floats of unit
+ * length). */
 static void accumulate(struct vlff_evidence *e, long vi, const float *f) {
   int32_t s = e->slot[vi];
   if (s < 0) {
@@ -714,8 +715,7 @@ int vlff_evidence_add(struct vlff_evidence *e, const struct vlff_view *v, char *
       /* Averaged as a direction: the map reads cosines, which ignore a
        * feature's length, so a long feature must not outweigh a short one
        * in the mean (a zero one has no direction and adds nothing). */
-      float nn = 0;
-      for (int j = 0; j < D; j++) nn += f[j] * f[j];
+      const float nn = dot16(f, f, D);
       if (!(nn > 0) || !isfinite(nn)) continue;
       const float inv = 1.0f / sqrtf(nn);
       for (int j = 0; j < D; j++) f[j] *= inv;
