@@ -295,6 +295,7 @@ static const struct key schema[] = {
     INT("publish.evidence_max_mb", publish.evidence_max_mb, 1, 1 << 16, 64),
     INT("publish.evidence_page_mb", publish.evidence_page_mb, 0, 1 << 20, 512),
     DBL("publish.label_hysteresis", publish.label_hysteresis, 0, 2, 0.05),
+    DBL("publish.region_weight", publish.region_weight, 0, 100, 1.0),
 
     INT("prompts.active", prompts.active, 0, VLFF_MAX_PROMPT_SETS - 1, 0),
     STR("prompts.template", prompts.templ, "{}"),

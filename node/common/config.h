@@ -242,6 +242,7 @@ struct vlff_cfg_publish {
   int evidence_max_mb;             /* memory for those features */
   int evidence_page_mb;            /* disk in node.state_dir for what that memory gives up (0: dropped) */
   double label_hysteresis;         /* a voxel's label changes without new evidence only past this margin (hold.h) */
+  double region_weight;            /* a label image cell's vote with its image region beside its own scores (0: off; regions.h) */
 };
 
 struct vlff_cfg_prompts {

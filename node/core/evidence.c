@@ -903,6 +903,13 @@ static int argmax(const float *v, int K, float *gap) {
 void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
                          const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
                          int *label, float *score, float *margin) {
+  vlff_evidence_label_scores(e, xyz, n, fcos, rays, trust_rays, E, K, stamp, w, label, score, margin, NULL);
+}
+
+void vlff_evidence_label_scores(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
+                                const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
+                                int *label, float *score, float *margin, float *scores) {
+  const size_t stride = (size_t)K; /* scores' rows, as the caller has them */
   if (K > e->max_k) K = e->max_k;
   if (stamp != e->stamp || K != e->stamp_k || (e->page_path && !e->pvalid)) {
     memset(e->dirty, 1, e->used);
@@ -952,6 +959,17 @@ void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, co
         b1 = a * fc[ke] + w * ec[ke];
         b2 = b1 - w * gap;
       }
+    }
+    if (scores) {
+      /* the sums as scaled; a lost class read from the evidence wins by
+       * the evidence's margin, as score and margin say */
+      float *o = scores + i * stride, other = -INFINITY;
+      for (size_t k = (size_t)K; k < stride; k++) o[k] = 0.0f;
+      for (int k = 0; k < K; k++) {
+        o[k] = any ? (a * fc[k] + (ec ? w * ec[k] : 0.0f)) * scale : 0.0f;
+        if (k != best && o[k] > other) other = o[k];
+      }
+      if (any && K > 1) o[best] = other + (b1 - b2) * scale;
     }
     label[i] = any ? best : -1;
     if (score) score[i] = any ? b1 * scale : 0.0f;

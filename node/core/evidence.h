@@ -151,6 +151,13 @@ int vlff_evidence_get(const struct vlff_evidence *e, long vi, float *out);
 void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
                          const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
                          int *label, float *score, float *margin);
+/* As vlff_evidence_label, and each point's K sums into scores[n][K] (as
+ * scaled; their best is the label, except where a lost class is read from
+ * the evidence: that class then scores the best other plus the margin; all
+ * 0 where the label is -1), for a vote over many points (regions.h). */
+void vlff_evidence_label_scores(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
+                                const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
+                                int *label, float *score, float *margin, float *scores);
 
 /* Lost classes. The field is a shared decoder: over a large scene it can
  * give a whole object's class away to a look-alike (its every point labelled

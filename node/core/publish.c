@@ -24,6 +24,7 @@
 #include "lattice.h"
 #include "log.h"
 #include "palette.h"
+#include "regions.h"
 #include "select.h"
 #include "mem.h"
 #include "vlff/shm.h"
@@ -95,6 +96,15 @@ struct vlff_publisher {
   size_t nsel, nhole;
   float *sel_xyz, *snap_xyz, *sel_score;
   int *sel_lab;
+  /* Regions (regions.h, publish.region_weight; with evidence only): the
+   * surface pixels' colours of the latest camera's image (sel_col, made at
+   * set_camera, which keeps no image), grouped with their measured points
+   * when an image begins; the pixels' sums as the pieces label them
+   * (sel_vec [pixels][ik], ik: the image's prompts), voted when it ends. */
+  struct vlff_regions *regions;
+  float region_weight;
+  float *sel_col, *sel_vec;
+  int ik;
   struct vlff_view cam;
   bool have_cam;
   uint64_t cam_t_ns;
@@ -173,11 +183,12 @@ void vlff_publisher_destroy(struct vlff_publisher *p) {
   vlff_map_detach(p->map);
   vlff_evidence_destroy(p->ev);
   vlff_hold_destroy(p->hold);
+  vlff_regions_destroy(p->regions);
   VLFF_FREE_ALL(p->thru, p->thru_list);
   VLFF_FREE_ALL(p->observed, p->hits, p->hit_sum, p->labels, p->conf, p->qidx, p->qxyz, p->qdens,
                 p->qmargin, p->qlabel, p->img_labels, p->img_conf, p->img_lab, p->img_score,
                 p->sel_pix, p->hole_pix, p->isel_pix, p->ihole_pix, p->sel_xyz, p->snap_xyz, p->sel_score,
-                p->sel_lab, p->qcos, p->qrays,
+                p->sel_lab, p->qcos, p->qrays, p->sel_col, p->sel_vec,
                 p->dirty, p->dirty_idx, p->runs, p->pub_labels, p->pub_conf, p);
 }
 
@@ -265,7 +276,14 @@ struct vlff_publisher *vlff_publisher_create(const struct vlff_cfg_publish *pub,
     p->lost_ratio = pub->lost_class_ratio;
     p->qcos = malloc(QBLOCK * VLFF_FIELD_MAX_PROMPTS * sizeof *p->qcos);
     p->qrays = malloc(QBLOCK * sizeof *p->qrays);
-    if (!p->ev || !p->qcos || !p->qrays) {
+    if (pub->region_weight > 0 && p->surface) {
+      p->region_weight = (float)pub->region_weight;
+      p->regions = vlff_regions_create(p->lw, p->lh);
+      p->sel_col = malloc(li * 3 * sizeof *p->sel_col);
+      p->sel_vec = malloc(li * VLFF_FIELD_MAX_PROMPTS * sizeof *p->sel_vec);
+    }
+    if (!p->ev || !p->qcos || !p->qrays ||
+        (p->region_weight > 0 && (!p->regions || !p->sel_col || !p->sel_vec))) {
       if (p->ev) snprintf(err, errlen, "out of memory");
       vlff_publisher_destroy(p);
       return NULL;
@@ -1254,9 +1272,10 @@ int vlff_publisher_observe(struct vlff_publisher *p, const struct vlff_view *v, 
 
 /* Labels (and score, margin: either may be NULL) of n points: the field's,
  * or with evidence the field's cosines combined with the voxels' evidence
- * (evidence.h). stamp: a hash of the prompt embeddings. */
+ * (evidence.h; and with it, each point's sums into vec[n][K], or NULL).
+ * stamp: a hash of the prompt embeddings. */
 static int label_points(struct vlff_publisher *p, struct vlff_field *f, const float *xyz, size_t n, uint64_t stamp,
-                        int *lab, float *score, float *margin) {
+                        int *lab, float *score, float *margin, float *vec) {
   if (!p->ev) return vlff_field_query(f, xyz, n, NULL, NULL, lab, score, margin);
   int K;
   const float *E = vlff_field_prompt_embeddings(f, &K);
@@ -1268,8 +1287,9 @@ static int label_points(struct vlff_publisher *p, struct vlff_field *f, const fl
       const float *x = xyz + 3 * (a + j);
       if (new_surface(p, voxel_of(p, (const double[3]){x[0], x[1], x[2]}))) p->qrays[j] = 0;
     }
-    vlff_evidence_label(p->ev, xyz + 3 * a, m, p->qcos, p->qrays, p->trust_rays, E, K, stamp, p->ev_weight, lab + a,
-                        score ? score + a : NULL, margin ? margin + a : NULL);
+    vlff_evidence_label_scores(p->ev, xyz + 3 * a, m, p->qcos, p->qrays, p->trust_rays, E, K, stamp, p->ev_weight,
+                               lab + a, score ? score + a : NULL, margin ? margin + a : NULL,
+                               vec ? vec + a * (size_t)K : NULL);
   }
   return 0;
 }
@@ -1303,6 +1323,7 @@ int vlff_publisher_set_camera(struct vlff_publisher *p, const struct vlff_view *
   p->cam = *v;
   p->nsel = vlff_label_surface(v->c2w, v->fx, v->fy, v->cx, v->cy, v->width, v->height, p->surface ? v->depth : NULL,
                                p->lw, p->lh, p->sel_xyz, p->sel_pix, p->hole_pix, &p->nhole);
+  if (p->regions) vlff_regions_colours(v->rgb, v->width, v->height, p->lw, p->lh, p->sel_pix, p->nsel, p->sel_col);
   p->cam.rgb = NULL;
   p->cam.depth = NULL;
   p->cam.features = NULL;
@@ -1437,7 +1458,7 @@ static uint64_t prompt_stamp(const struct vlff_publisher *p, struct vlff_field *
  * query failed. */
 static int label_occupied(struct vlff_publisher *p, struct vlff_field *f, size_t nocc, uint64_t stamp, char *err,
                           size_t errlen) {
-  if (nocc && label_points(p, f, p->qxyz, nocc, stamp, p->qlabel, NULL, p->qmargin)) {
+  if (nocc && label_points(p, f, p->qxyz, nocc, stamp, p->qlabel, NULL, p->qmargin, NULL)) {
     snprintf(err, errlen, "field query of %zu occupied voxels failed", nocc);
     return -1;
   }
@@ -1493,6 +1514,8 @@ static void label_image_begin(struct vlff_publisher *p) {
   memcpy(p->isel_pix, p->sel_pix, p->nsel * sizeof *p->isel_pix);
   memcpy(p->ihole_pix, p->hole_pix, p->nhole * sizeof *p->ihole_pix);
   memcpy(p->snap_xyz, p->sel_xyz, p->nsel * 3 * sizeof *p->snap_xyz);
+  /* grouped by the measured points, before the pieces move them */
+  if (p->regions) vlff_regions_build(p->regions, p->sel_col, p->isel_pix, p->snap_xyz, p->insel);
 }
 
 /* Up to n more of its pixels, holes (rendered) first, then surface points:
@@ -1510,7 +1533,10 @@ static int label_image_piece(struct vlff_publisher *p, struct vlff_field *f, uin
      * metres, where a point query reads free space or the next object;
      * the field has fitted that surface from every view. */
     vlff_field_snap_surface(f, &p->icam, p->isel_pix + s0, s1 - s0, p->snap_xyz + 3 * s0);
-    if (label_points(p, f, p->snap_xyz + 3 * s0, s1 - s0, stamp, p->sel_lab + s0, p->sel_score + s0, NULL)) return -1;
+    vlff_field_prompt_embeddings(f, &p->ik);
+    if (label_points(p, f, p->snap_xyz + 3 * s0, s1 - s0, stamp, p->sel_lab + s0, p->sel_score + s0, NULL,
+                     p->regions ? p->sel_vec + s0 * (size_t)p->ik : NULL))
+      return -1;
     for (size_t j = s0; j < s1; j++) {
       p->img_lab[p->isel_pix[j]] = p->sel_lab[j];
       p->img_score[p->isel_pix[j]] = p->sel_score[j];
@@ -1523,6 +1549,13 @@ static int label_image_piece(struct vlff_publisher *p, struct vlff_field *f, uin
 /* The finished label image into *img. */
 static void label_image_end(struct vlff_publisher *p, struct vlff_map_label_image *img) {
   size_t li = (size_t)p->lw * p->lh;
+  /* Each surface pixel voted with its region (out of memory: as labelled). */
+  if (p->regions && p->insel && p->ev &&
+      vlff_regions_vote(p->regions, p->sel_vec, p->insel, p->ik, p->region_weight, p->sel_lab, p->sel_score) == 0)
+    for (size_t j = 0; j < p->insel; j++) {
+      p->img_lab[p->isel_pix[j]] = p->sel_lab[j];
+      p->img_score[p->isel_pix[j]] = p->sel_score[j];
+    }
   for (size_t i = 0; i < li; i++) {
     p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;
     float s = p->img_score[i] * 255.0f;

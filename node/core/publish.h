@@ -22,7 +22,11 @@
  * publish.label_image: surface, a pixel with measured depth gets the label
  * of the field's feature (and evidence) at that measured surface point,
  * for the same reason; the rest are volume-rendered (label -1, UNKNOWN,
- * where the rendered opacity stays under one half).
+ * where the rendered opacity stays under one half). With evidence and
+ * publish.region_weight > 0, those surface pixels are grouped into regions
+ * of the keyframe's image (colour and measured points, regions.h) and each
+ * reads its own sums plus the weight times its region's mean; its
+ * confidence stays its own score at the label it gets.
  *
  * Contract: one owner thread (the trainer). Functions returning int give 0,
  * or -1 with err filled.

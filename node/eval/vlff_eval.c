@@ -42,6 +42,7 @@
 #include "log.h"
 #include "metrics.h"
 #include "online.h"
+#include "regions.h"
 #include "palette.h"
 #include "rng.h"
 #include "select.h"
@@ -944,15 +945,16 @@ static struct vlff_field *fit_field(struct eval *e) {
 
 struct field_read;
 static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n,
-                            const struct field_read *fr, int *label);
+                            const struct field_read *fr, int *label, float *scores);
 
 /* 2D: the held-out frames rendered at the feature-map resolution and
  * segmented: the field alone; and with evidence, the node's label image
  * (publish.label_image: surface): a pixel whose measured depth ends on a
  * surface is labelled there (moved onto the field's surface within the
- * sensor's noise) by the field's cosines and the evidence, the rest keep
- * the rendered label. The first --overlays frames are drawn
- * beside their truth. */
+ * sensor's noise) by the field's cosines and the evidence, voted with its
+ * region of the view's image (publish.region_weight, regions.h), the rest
+ * keep the rendered label. The first --overlays frames are drawn beside
+ * their truth. */
 static void score_field_2d(struct eval *e, struct vlff_field *fld) {
   struct scene *sc = &e->sc;
   const int fw = sc->fw, fh = sc->fh;
@@ -963,21 +965,31 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
   float *xyz = xcalloc(3 * npx, sizeof(float));
   uint32_t *pix = xcalloc(npx, sizeof(uint32_t));
   int *lab = xcalloc(npx, sizeof(int));
+  const float beta = (float)e->cfg.publish.region_weight;
+  struct vlff_regions *rg = e->ev && beta > 0 ? vlff_regions_create(fw, fh) : NULL;
+  if (e->ev && beta > 0 && !rg) die("out of memory");
+  float *col = rg ? xcalloc(3 * npx, sizeof(float)) : NULL, *vec = rg ? xcalloc(npx * (size_t)sc->K, sizeof(float)) : NULL;
   int nover = 0;
   for (int i = 0; i < sc->n; i++) {
     if (!held_out(i, e->o.holdout)) continue;
     memcpy(cam.c2w, sc->f[i].c2w, sizeof cam.c2w);
     if (vlff_field_render(fld, &cam, NULL, NULL, NULL, e->pl, NULL) < 0) die("render of frame %d failed", i);
     const int overlay = nover < e->o.overlays;
-    const struct frame *f = frame_data(sc, i, FD_LABEL | (e->ev ? FD_DEPTH : 0) | (overlay ? FD_RGB : 0));
+    const struct frame *f = frame_data(sc, i, FD_LABEL | (e->ev ? FD_DEPTH : 0) | (overlay || rg ? FD_RGB : 0));
     vlff_downsample_labels(f->label, sc->W, sc->H, e->gl, fw, fh);
     vlff_confusion_add(&e->r2_alone.c, e->gl, e->pl, npx);
     if (e->ev) {
       /* the cells the node's label image reads on the measured surface */
       size_t m = vlff_label_surface(f->c2w, sc->fx, sc->fy, sc->cx, sc->cy, sc->W, sc->H, f->depth, fw, fh, xyz, pix,
                                     NULL, NULL);
+      if (rg) {
+        /* regions of the measured points, as the publisher groups them */
+        vlff_regions_colours(f->rgb, sc->W, sc->H, fw, fh, pix, m, col);
+        vlff_regions_build(rg, col, pix, xyz, m);
+      }
       vlff_field_snap_surface(fld, &cam, pix, m, xyz);
-      evidence_labels(e, fld, xyz, m, NULL, lab);
+      evidence_labels(e, fld, xyz, m, NULL, lab, vec);
+      if (rg && vlff_regions_vote(rg, vec, m, sc->K, beta, lab, NULL)) die("out of memory");
       for (size_t j = 0; j < m; j++) e->pl[pix[j]] = lab[j];
     }
     vlff_confusion_add(&e->r2_field.c, e->gl, e->pl, npx);
@@ -986,7 +998,8 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
       nover++;
     }
   }
-  free(xyz), free(pix), free(lab);
+  free(xyz), free(pix), free(lab), free(col), free(vec);
+  vlff_regions_destroy(rg);
   summarize(&e->r2_field);
   summarize(&e->r2_alone);
 }
@@ -1039,15 +1052,16 @@ static struct field_read read_field(struct vlff_field *fld, const float *xyz, si
 /* n points labelled as the node labels its map: the field's cosines there,
  * weighed by its exposure, combined with the voxels' evidence (points in
  * voxels without evidence keep the field's label). fr: the field read at
- * those points, or NULL to read it now. */
+ * those points, or NULL to read it now; scores: NULL, or [n][K] for each
+ * point's sums (evidence.h). */
 static void evidence_labels(struct eval *e, struct vlff_field *fld, const float *xyz, size_t n,
-                            const struct field_read *fr, int *label) {
+                            const struct field_read *fr, int *label, float *scores) {
   int K;
   const float *E = vlff_field_prompt_embeddings(fld, &K);
   struct field_read own = {0};
   if (!fr) own = read_field(fld, xyz, n), fr = &own;
-  vlff_evidence_label(e->ev, xyz, n, fr->cs, fr->rays, e->cfg.publish.field_trust_rays, E, K, 1,
-                      (float)e->cfg.publish.evidence_weight, label, NULL, NULL);
+  vlff_evidence_label_scores(e->ev, xyz, n, fr->cs, fr->rays, e->cfg.publish.field_trust_rays, E, K, 1,
+                             (float)e->cfg.publish.evidence_weight, label, NULL, NULL, scores);
   free(own.cs), free(own.rays);
 }
 
@@ -1060,7 +1074,7 @@ static void score_field_3d(struct eval *e, struct vlff_field *fld, const struct 
   if (vlff_field_query(fld, sc->pts.xyz, np, NULL, NULL, e->pred3, NULL, NULL) < 0) die("3D query failed");
   vlff_confusion_add(&e->r3_alone.c, sc->pts.label, e->pred3, np);
   summarize(&e->r3_alone);
-  if (e->ev) evidence_labels(e, fld, sc->pts.xyz, np, fr, e->pred3);
+  if (e->ev) evidence_labels(e, fld, sc->pts.xyz, np, fr, e->pred3, NULL);
   vlff_confusion_add(&e->r3_field.c, sc->pts.label, e->pred3, np);
   summarize(&e->r3_field);
 }
@@ -1099,7 +1113,7 @@ static void census(struct eval *e, struct vlff_field *fld, const struct field_re
   const size_t np = e->sc.pts.n;
   int *lab = xcalloc(np, sizeof(int));
   vlff_evidence_census_begin(e->ev);
-  evidence_labels(e, fld, e->sc.pts.xyz, np, fr, lab);
+  evidence_labels(e, fld, e->sc.pts.xyz, np, fr, lab, NULL);
   int nlost = vlff_evidence_census_end(e->ev, e->cfg.publish.lost_class_ratio);
   for (int k = 0; k < e->sc.K && nlost; k++) {
     unsigned long long nf, ne;

@@ -200,6 +200,19 @@ static void test_labels_combine_field_and_evidence(void **state) {
   assert_int_equal(lab[0], 1);
   assert_int_equal(lab[1], 0); /* outside the grid: the field alone */
   assert_float_equal(score[1], 0.6f, 1e-6);
+  /* The sums behind those labels (a region's vote reads them, regions.h):
+   * each prompt's, scaled as the score; the best is the label, its sum
+   * the score; all 0 for the point the field does not score. */
+  float sums[3 * 2];
+  int lab2[3];
+  memset(sums, 0x7f, sizeof sums);
+  vlff_evidence_label_scores(e, xyz, 3, fcos, NULL, 0, E, 2, 1, 1.0f, lab2, NULL, NULL, sums);
+  for (int i = 0; i < 3; i++) assert_int_equal(lab2[i], lab[i]);
+  assert_true(sums[1] > sums[0]);
+  assert_float_equal(sums[1], score[0], 1e-6);
+  assert_float_equal(sums[2], 0.6f, 1e-6); /* point 1: the field alone */
+  assert_float_equal(sums[3], 0.5f, 1e-6);
+  assert_true(sums[4] == 0 && sums[5] == 0);
   /* A small weight leaves the field's decision standing. */
   vlff_evidence_label(e, xyz, 1, fcos, NULL, 0, E, 2, 1, 0.1f, lab, NULL, NULL);
   assert_int_equal(lab[0], 0);
@@ -327,6 +340,12 @@ static void test_lost_class_read_from_evidence(void **state) {
   for (int i = 0; i < N; i++) assert_int_equal(lab[i], i < N / 2 ? 1 : 0);
   assert_float_equal(margin[0], 0.1f, 1e-3);
   assert_float_equal(score[0], (0.5f + 0.8f) / 2, 1e-3); /* prompt 1's own sum */
+  /* The sums a region votes with say the same: the restored prompt leads
+   * the other by that margin. */
+  float sums[2 * N];
+  vlff_evidence_label_scores(e, xyz, N, fcos, fitted, 50, E, 2, 1, 1.0f, lab, NULL, NULL, sums);
+  assert_int_equal(lab[0], 1);
+  assert_float_equal(sums[1] - sums[0], 0.1f, 1e-3);
   /* The next census counts what the field picks, not what was restored:
    * still lost. */
   vlff_evidence_census_begin(e);

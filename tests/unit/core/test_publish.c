@@ -1124,7 +1124,120 @@ static void test_slide_under_reader(void **state) {
   vlff_shm_unlink(cfg.shm.map);
 }
 
+/* The label image's regions (publish.region_weight, regions.h): a wall 2 m
+ * in front of the camera whose evidence reads prompt 0, but for a patch
+ * whose views leaned to prompt 1 by a little. In a camera image of one
+ * colour the patch reads what the wall reads; without the vote, or where
+ * the image shows the patch in a colour of its own, it keeps prompt 1. The
+ * field is not fitted (no rays): the labels are the evidence's. An image
+ * made in pieces, with a camera set halfway, is the image made whole. */
+static uint16_t image_label_at(struct vlff_publisher *p, struct vlff_field *f, struct vlff_map *m,
+                               struct vlff_map_snapshot *s, int x, int y) {
+  const char *prompts[3] = {"wall", "door", "chair"};
+  struct vlff_publish_result r;
+  struct vlff_map_info in;
+  assert_int_equal(vlff_publisher_publish(p, f, prompts, 3, &r, err, sizeof err), 0);
+  take(m, s, &in);
+  assert_true(in.has_label_image);
+  return in.label_image.labels[(size_t)y * in.label_image.width + x];
+}
+
+static void test_label_image_regions(void **state) {
+  (void)state;
+  enum { FW = 32, FH = 24, D = 16 };
+  static uint16_t feat[FW * FH * D];
+  static uint8_t rgb[W * H * 3];
+  for (int j = 0; j < FH; j++)
+    for (int i = 0; i < FW; i++) {
+      float v[D] = {0};
+      const bool patch = i >= 12 && i < 20 && j >= 8 && j < 16;
+      v[0] = patch ? 0.55f : 1.0f, v[1] = patch ? 0.6f : 0.0f;
+      vlff_f32_to_f16_n(v, feat + ((size_t)j * FW + i) * D, D);
+    }
+  memset(rgb, 120, sizeof rgb);
+  struct vlff_publisher *p[2];
+  struct vlff_config cfg[2];
+  struct vlff_field *f = NULL;
+  float e[3 * D] = {0};
+  e[0] = e[D + 1] = e[2 * D + 2] = 1; /* prompts along the first three axes */
+  for (int k = 0; k < 2; k++) {
+    config_for(&cfg[k], k ? "noregions" : "regions");
+    cfg[k].publish.label_width = W, cfg[k].publish.label_height = H;
+    cfg[k].publish.region_weight = k ? 0 : 1;
+    if (!f) {
+      f = small_field(&cfg[k], 3, 1);
+      assert_int_equal(vlff_field_set_prompts(f, e, 3, err, sizeof err), 0);
+    } else {
+      cfg[k].field = cfg[0].field, cfg[k].node.threads = 1;
+    }
+    p[k] = create(&cfg[k]);
+    struct vlff_view v = view(2.0f);
+    v.rgb = rgb, v.features = feat, v.feat_width = FW, v.feat_height = FH, v.feature_dim = D;
+    assert_int_equal(vlff_publisher_observe(p[k], &v, err, sizeof err), 0);
+    assert_int_equal(vlff_publisher_set_camera(p[k], &v, 1, 1, err, sizeof err), 0);
+  }
+  struct vlff_map *m[2] = {vlff_map_attach(cfg[0].shm.map), vlff_map_attach(cfg[1].shm.map)};
+  assert_true(m[0] && m[1]);
+  struct vlff_map_snapshot *s = vlff_map_snapshot_new(m[0]), *s1 = vlff_map_snapshot_new(m[1]);
+  /* the patch's middle, and the wall beside it */
+  assert_int_equal(image_label_at(p[1], f, m[1], s1, W / 2, H / 2), 1);
+  assert_int_equal(image_label_at(p[1], f, m[1], s1, 4, 4), 0);
+  assert_int_equal(image_label_at(p[0], f, m[0], s, W / 2, H / 2), 0);
+  assert_int_equal(image_label_at(p[0], f, m[0], s, 4, 4), 0);
+
+  /* The patch's middle in a colour of its own (inside the evidence's
+   * blend with the wall at the patch's edge): a region of its own. */
+  for (int y = 20; y < 28; y++)
+    for (int x = 28; x < 36; x++) rgb[(y * W + x) * 3] = 230, rgb[(y * W + x) * 3 + 2] = 20;
+  struct vlff_view v = view(2.0f);
+  v.rgb = rgb;
+  assert_int_equal(vlff_publisher_set_camera(p[0], &v, 2, 2, err, sizeof err), 0);
+  assert_int_equal(image_label_at(p[0], f, m[0], s, W / 2, H / 2), 1);
+  assert_int_equal(image_label_at(p[0], f, m[0], s, 4, 4), 0);
+  struct vlff_map_info in;
+  take(m[0], s, &in);
+  const size_t li = (size_t)W * H;
+  uint16_t *whole = malloc(li * sizeof *whole);
+  assert_non_null(whole);
+  memcpy(whole, in.label_image.labels, li * sizeof *whole);
+
+  /* In pieces, a grey camera set after the first: the coloured camera's
+   * image, voted with its own regions. */
+  const char *prompts[3] = {"wall", "door", "chair"};
+  struct vlff_publish_result r;
+  vlff_publisher_set_image_piece(p[0], 700);
+  vlff_publisher_set_slice_piece(p[0], SIZE_MAX); /* each slice reaches its target: the round ends */
+  for (int sl = 0; sl < 2; sl++)
+    assert_int_equal(vlff_publisher_publish_slice(p[0], f, prompts, 3, (sl + 1) / 2.0, &r, err, sizeof err), 0);
+  int calls = 0;
+  do {
+    assert_int_equal(vlff_publisher_publish_image(p[0], f, prompts, 3, &r, err, sizeof err), 0);
+    if (++calls == 1) {
+      static uint8_t grey[W * H * 3];
+      memset(grey, 120, sizeof grey);
+      struct vlff_view g = view(2.0f);
+      g.rgb = grey;
+      assert_int_equal(vlff_publisher_set_camera(p[0], &g, 3, 3, err, sizeof err), 0);
+    }
+  } while (!r.scored && calls < 100);
+  assert_true(calls > 2);
+  take(m[0], s, &in);
+  assert_int_equal(in.label_image.t_ns, 2);
+  assert_memory_equal(whole, in.label_image.labels, li * sizeof *whole);
+  free(whole);
+
+  vlff_map_snapshot_free(s);
+  vlff_map_snapshot_free(s1);
+  for (int k = 0; k < 2; k++) {
+    vlff_map_detach(m[k]);
+    vlff_publisher_destroy(p[k]);
+    vlff_shm_unlink(cfg[k].shm.map);
+  }
+  vlff_field_destroy(f);
+}
+
 VLFF_UNIT_MAIN(NULL, NULL,
+    cmocka_unit_test(test_label_image_regions),
     cmocka_unit_test(test_moved_object_clears),
     cmocka_unit_test(test_absurd_intrinsics_refused), cmocka_unit_test(test_far_depth_bounded),
     cmocka_unit_test(test_voxels_past_bound_refused),

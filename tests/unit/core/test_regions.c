@@ -1,0 +1,198 @@
+/* Regions of a label image (regions.h): surface cells are grouped by the
+ * camera image's colour and the measured points' geometry, and a cell whose
+ * own scores lean the wrong way by a little reads what its surface reads. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "regions.h"
+#include "unit.h"
+
+enum { LW = 40, LH = 30, IW = 160, IH = 120, K = 3 };
+
+/* A camera at the origin looking along +z at a wall 2 m away: cell (x, y)'s
+ * point, with the cells in [x0, x1) x [y0, y1) pushed back by step metres. */
+static size_t wall(uint32_t *pix, float *xyz, int x0, int x1, int y0, int y1, float step) {
+  size_t n = 0;
+  for (int y = 0; y < LH; y++)
+    for (int x = 0; x < LW; x++) {
+      const float z = 2.0f + (x >= x0 && x < x1 && y >= y0 && y < y1 ? step : 0.0f);
+      pix[n] = (uint32_t)(y * LW + x);
+      xyz[3 * n] = (x + 0.5f - LW / 2.0f) * 0.05f * z / 2.0f;
+      xyz[3 * n + 1] = (y + 0.5f - LH / 2.0f) * 0.05f * z / 2.0f;
+      xyz[3 * n + 2] = z;
+      n++;
+    }
+  return n;
+}
+
+/* An image of one grey with the image pixels under cells [x0, x1) x [y0,
+ * y1) in another colour. */
+static void image(uint8_t *rgb, int x0, int x1, int y0, int y1, const uint8_t other[3]) {
+  for (int y = 0; y < IH; y++)
+    for (int x = 0; x < IW; x++) {
+      const int cx = x * LW / IW, cy = y * LH / IH;
+      const bool in = cx >= x0 && cx < x1 && cy >= y0 && cy < y1;
+      for (int c = 0; c < 3; c++) rgb[(y * IW + x) * 3 + c] = in ? other[c] : 120;
+    }
+}
+
+/* Scores: class 0 everywhere, clearly (0.6 against 0.3), except in the
+ * patch, where class 1 leads by 0.05: what a surface's evidence does where
+ * the views that saw it leaned toward a look-alike. */
+static void scores(float *s, const uint32_t *pix, size_t n, int x0, int x1, int y0, int y1) {
+  for (size_t i = 0; i < n; i++) {
+    const int x = (int)(pix[i] % LW), y = (int)(pix[i] / LW);
+    const bool in = x >= x0 && x < x1 && y >= y0 && y < y1;
+    s[i * K] = in ? 0.45f : 0.6f;
+    s[i * K + 1] = in ? 0.5f : 0.3f;
+    s[i * K + 2] = 0.1f;
+  }
+}
+
+struct world {
+  uint32_t pix[LW * LH];
+  float xyz[3 * LW * LH], col[3 * LW * LH], s[K * LW * LH];
+  uint8_t rgb[IW * IH * 3];
+  int lab[LW * LH];
+  float score[LW * LH];
+};
+
+static int label_at(const struct world *w, size_t n, int x, int y) {
+  for (size_t i = 0; i < n; i++)
+    if (w->pix[i] == (uint32_t)(y * LW + x)) return w->lab[i];
+  return -2;
+}
+
+/* One wall of one colour: one region, and the patch whose scores lean to
+ * class 1 reads class 0 as the wall does; with beta 0 each cell reads its
+ * own best. */
+static void test_patch_reads_its_surface(void **state) {
+  (void)state;
+  struct world *w = calloc(1, sizeof *w);
+  struct vlff_regions *r = vlff_regions_create(LW, LH);
+  assert_non_null(w);
+  assert_non_null(r);
+  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
+  image(w->rgb, 0, 0, 0, 0, (const uint8_t[3]){0, 0, 0});
+  vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
+  assert_float_equal(w->col[0], 120 / 255.0, 1e-6);
+  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n), 1);
+  scores(w->s, w->pix, n, 10, 20, 10, 20);
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 0.0f, w->lab, w->score), 0);
+  assert_int_equal(label_at(w, n, 15, 15), 1);
+  assert_int_equal(label_at(w, n, 2, 2), 0);
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, w->score), 0);
+  for (size_t i = 0; i < n; i++) assert_int_equal(w->lab[i], 0);
+  /* its score: the cell's own at the voted label */
+  for (size_t i = 0; i < n; i++)
+    if (w->pix[i] == 15 * LW + 15) assert_float_equal(w->score[i], 0.45f, 1e-6);
+  vlff_regions_destroy(r);
+  free(w);
+}
+
+/* The patch in another colour (a picture on the wall), or set back by a
+ * depth step of the same grey (a door ajar): a region of its own, which
+ * keeps its own reading; the wall around it keeps its own. */
+static void test_colour_and_depth_separate(void **state) {
+  (void)state;
+  struct world *w = calloc(1, sizeof *w);
+  struct vlff_regions *r = vlff_regions_create(LW, LH);
+  assert_non_null(w);
+  assert_non_null(r);
+  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
+  image(w->rgb, 10, 20, 10, 20, (const uint8_t[3]){200, 60, 40});
+  vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
+  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n), 2);
+  assert_int_equal(vlff_regions_of(r, 15 * LW + 15), vlff_regions_of(r, 12 * LW + 12));
+  assert_int_not_equal(vlff_regions_of(r, 15 * LW + 15), vlff_regions_of(r, 2 * LW + 2));
+  scores(w->s, w->pix, n, 10, 20, 10, 20);
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
+  assert_int_equal(label_at(w, n, 15, 15), 1);
+  assert_int_equal(label_at(w, n, 2, 2), 0);
+
+  n = wall(w->pix, w->xyz, 10, 20, 10, 20, 0.4f);
+  image(w->rgb, 0, 0, 0, 0, (const uint8_t[3]){0, 0, 0});
+  vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
+  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n), 2);
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
+  assert_int_equal(label_at(w, n, 15, 15), 1);
+  assert_int_equal(label_at(w, n, 2, 2), 0);
+  /* without colours the depth step still separates; a flat wall is one */
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 2);
+  n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 1);
+  vlff_regions_destroy(r);
+  free(w);
+}
+
+/* The same scene on a grid twice as fine groups the same surfaces (k
+ * scales with the cell count): the colour patch is a region at both. */
+static void test_grid_size_free(void **state) {
+  (void)state;
+  enum { L2W = 2 * LW, L2H = 2 * LH };
+  struct vlff_regions *r = vlff_regions_create(L2W, L2H);
+  uint32_t *pix = calloc(L2W * L2H, sizeof *pix);
+  float *xyz = calloc(3 * L2W * L2H, sizeof *xyz), *col = calloc(3 * L2W * L2H, sizeof *col);
+  uint8_t *rgb = calloc(IW * IH * 3, 1);
+  assert_non_null(r);
+  assert_true(pix && xyz && col && rgb);
+  size_t n = 0;
+  for (int y = 0; y < L2H; y++)
+    for (int x = 0; x < L2W; x++, n++) {
+      pix[n] = (uint32_t)(y * L2W + x);
+      xyz[3 * n] = (x + 0.5f - L2W / 2.0f) * 0.025f, xyz[3 * n + 1] = (y + 0.5f - L2H / 2.0f) * 0.025f;
+      xyz[3 * n + 2] = 2.0f;
+    }
+  image(rgb, 10, 20, 10, 20, (const uint8_t[3]){200, 60, 40});
+  vlff_regions_colours(rgb, IW, IH, L2W, L2H, pix, n, col);
+  assert_int_equal(vlff_regions_build(r, col, pix, xyz, n), 2);
+  vlff_regions_destroy(r);
+  free(pix), free(xyz), free(col), free(rgb);
+}
+
+/* Cells nothing scored (label -1) stay so and weigh nothing; cells outside
+ * the grid or given twice are regions of their own; a point that is not a
+ * number joins nothing. */
+static void test_hostile_cells(void **state) {
+  (void)state;
+  struct world *w = calloc(1, sizeof *w);
+  struct vlff_regions *r = vlff_regions_create(LW, LH);
+  assert_non_null(w);
+  assert_non_null(r);
+  assert_null(vlff_regions_create(0, 5));
+  assert_null(vlff_regions_create(5, -1));
+  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
+  /* the whole patch unscored, its scores huge for class 2: nothing moves */
+  scores(w->s, w->pix, n, 10, 20, 10, 20);
+  for (size_t i = 0; i < n; i++) {
+    const int x = (int)(w->pix[i] % LW), y = (int)(w->pix[i] / LW);
+    w->lab[i] = x >= 10 && x < 20 && y >= 10 && y < 20 ? -1 : 0;
+    if (w->lab[i] < 0) w->s[i * K + 2] = 1e6f;
+  }
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 1);
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
+  for (size_t i = 0; i < n; i++) {
+    const int x = (int)(w->pix[i] % LW), y = (int)(w->pix[i] / LW);
+    assert_int_equal(w->lab[i], x >= 10 && x < 20 && y >= 10 && y < 20 ? -1 : 0);
+  }
+  w->pix[5] = LW * LH + 7;   /* outside */
+  w->pix[6] = w->pix[7];     /* twice */
+  w->xyz[3 * 100] = NAN;     /* not a point */
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 4);
+  assert_int_not_equal(vlff_regions_of(r, 5), vlff_regions_of(r, 0));
+  assert_int_not_equal(vlff_regions_of(r, 100), vlff_regions_of(r, 0));
+  /* more cells than the grid holds: the grid's */
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, (size_t)LW * LH * 2) >= 1, 1);
+  vlff_regions_destroy(r);
+  free(w);
+}
+
+VLFF_UNIT_MAIN(NULL, NULL, cmocka_unit_test(test_patch_reads_its_surface), cmocka_unit_test(test_colour_and_depth_separate),
+               cmocka_unit_test(test_grid_size_free), cmocka_unit_test(test_hostile_cells))
