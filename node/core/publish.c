@@ -1501,7 +1501,7 @@ enum { TAIL_NONE, TAIL_IMAGE, TAIL_SCORE };
 /* A label image of the last camera (p->cam) at the map's label image size
  * begins: its camera and pixels are copied (set_camera may replace them
  * before it is done). */
-static void label_image_begin(struct vlff_publisher *p) {
+static void label_image_begin(struct vlff_publisher *p, const struct vlff_field *f) {
   struct vlff_view cam = p->cam;
   double sx = (double)p->lw / cam.width, sy = (double)p->lh / cam.height;
   cam.width = p->lw;
@@ -1515,7 +1515,9 @@ static void label_image_begin(struct vlff_publisher *p) {
   memcpy(p->ihole_pix, p->hole_pix, p->nhole * sizeof *p->ihole_pix);
   memcpy(p->snap_xyz, p->sel_xyz, p->nsel * 3 * sizeof *p->snap_xyz);
   /* grouped by the measured points, before the pieces move them */
-  if (p->regions) vlff_regions_build(p->regions, p->sel_col, p->isel_pix, p->snap_xyz, p->insel);
+  if (p->regions)
+    vlff_regions_build(p->regions, p->sel_col, p->isel_pix, p->snap_xyz, p->insel,
+                       (const double[3]){cam.c2w[3], cam.c2w[7], cam.c2w[11]}, (float)vlff_field_depth_noise(f));
 }
 
 /* Up to n more of its pixels, holes (rendered) first, then surface points:
@@ -1573,7 +1575,7 @@ static void label_image_end(struct vlff_publisher *p, struct vlff_map_label_imag
  * into *img. */
 static bool label_image(struct vlff_publisher *p, struct vlff_field *f, uint64_t stamp,
                         struct vlff_map_label_image *img) {
-  label_image_begin(p);
+  label_image_begin(p, f);
   if (label_image_piece(p, f, stamp, p->inhole + p->insel)) return false;
   label_image_end(p, img);
   return true;
@@ -1876,7 +1878,7 @@ int vlff_publisher_publish_image(struct vlff_publisher *p, struct vlff_field *f,
    * far labelled for the others, so it begins again. */
   uint64_t eh = embeddings_hash(p, f);
   if (p->ipix != SIZE_MAX && eh != p->istamp) p->ipix = SIZE_MAX;
-  if (p->ipix == SIZE_MAX) label_image_begin(p), p->istamp = eh;
+  if (p->ipix == SIZE_MAX) label_image_begin(p, f), p->istamp = eh;
   double t0 = vlff_seconds();
   size_t n = p->px_s > 0 ? (size_t)(IMAGE_PIECE_S / p->px_s) : IMAGE_PIECE_MIN, before = p->ipix;
   if (n < IMAGE_PIECE_MIN) n = IMAGE_PIECE_MIN;

@@ -5,9 +5,12 @@
 #include <string.h>
 
 /* Edge weight per unit of colour distance (rgb in 0..1) and per metre
- * between the cells' surface points (regions.h). */
+ * between the cells' surface points beyond the sensor's noise (regions.h). */
 #define COLOUR_WEIGHT 2.0f
 #define METRE_WEIGHT 1.0f
+/* The noise a step must pass, in sigmas of the farther point's depth (the
+ * band depth-guided training and the snap use, field_internal.h). */
+#define NOISE_SIGMAS 3.0f
 /* Felzenszwalb's k for a grid of this many cells; scaled with the grid. */
 #define K_CELLS 4800.0
 
@@ -21,6 +24,7 @@ struct vlff_regions {
   size_t ncell;
   int32_t *at;      /* [ncell] the surface cell number of a grid cell, -1 none */
   float *col, *pt;  /* [ncell][3] per surface cell */
+  float *sigma;    /* [ncell] its depth noise sigma (m) */
   uint32_t *parent, *size, *root_id;
   float *inner;     /* [ncell] a region's largest internal edge (at its root) */
   struct edge *edges;
@@ -39,13 +43,15 @@ struct vlff_regions *vlff_regions_create(int lw, int lh) {
   r->at = malloc(n * sizeof *r->at);
   r->col = malloc(n * 3 * sizeof *r->col);
   r->pt = malloc(n * 3 * sizeof *r->pt);
+  r->sigma = malloc(n * sizeof *r->sigma);
   r->parent = malloc(n * sizeof *r->parent);
   r->size = malloc(n * sizeof *r->size);
   r->root_id = malloc(n * sizeof *r->root_id);
   r->inner = malloc(n * sizeof *r->inner);
   r->edges = malloc(n * 4 * sizeof *r->edges);
   r->region = malloc(n * sizeof *r->region);
-  if (!r->at || !r->col || !r->pt || !r->parent || !r->size || !r->root_id || !r->inner || !r->edges || !r->region) {
+  if (!r->at || !r->col || !r->pt || !r->sigma || !r->parent || !r->size || !r->root_id || !r->inner || !r->edges ||
+      !r->region) {
     vlff_regions_destroy(r);
     return NULL;
   }
@@ -55,7 +61,8 @@ struct vlff_regions *vlff_regions_create(int lw, int lh) {
 
 void vlff_regions_destroy(struct vlff_regions *r) {
   if (!r) return;
-  free(r->at), free(r->col), free(r->pt), free(r->parent), free(r->size), free(r->root_id), free(r->inner);
+  free(r->at), free(r->col), free(r->pt), free(r->sigma), free(r->parent), free(r->size), free(r->root_id);
+  free(r->inner);
   free(r->edges), free(r->region), free(r->sum);
   free(r);
 }
@@ -95,7 +102,8 @@ void vlff_regions_colours(const uint8_t *rgb, int width, int height, int lw, int
   }
 }
 
-size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32_t *pix, const float *xyz, size_t n) {
+size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32_t *pix, const float *xyz, size_t n,
+                          const double origin[3], float noise_1m) {
   if (r->n) /* the last build's cells are forgotten */
     for (size_t i = 0; i < r->ncell; i++) r->at[i] = -1;
   if (n > r->ncell) n = r->ncell;
@@ -106,9 +114,17 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
     r->at[pix[i]] = (int32_t)i;
   }
   r->n = n;
+  if (!(noise_1m >= 0) || !isfinite(noise_1m)) noise_1m = 0;
   for (size_t i = 0; i < n; i++) {
     r->parent[i] = (uint32_t)i, r->size[i] = 1, r->inner[i] = 0;
     memcpy(r->pt + 3 * i, xyz + 3 * i, 3 * sizeof(float));
+    /* the depth noise's sigma at the point's range: noise_1m d^2 */
+    float d2 = 0;
+    for (int c = 0; c < 3; c++) {
+      const float q = xyz[3 * i + c] - (float)origin[c];
+      d2 += q * q;
+    }
+    r->sigma[i] = noise_1m * d2;
     if (col)
       memcpy(r->col + 3 * i, col + 3 * i, 3 * sizeof(float));
     else
@@ -132,7 +148,12 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
         q = r->pt[3 * i + c] - r->pt[3 * (size_t)j + c];
         dp += q * q;
       }
-      float w = COLOUR_WEIGHT * sqrtf(dc) + METRE_WEIGHT * sqrtf(dp);
+      /* two measurements of one surface differ by their noise: only a step
+       * beyond it separates (a stereo camera's is a decimetre at 3 m) */
+      const float sig = r->sigma[i] > r->sigma[j] ? r->sigma[i] : r->sigma[j];
+      float step = sqrtf(dp) - NOISE_SIGMAS * sig;
+      if (step < 0) step = 0;
+      float w = COLOUR_WEIGHT * sqrtf(dc) + METRE_WEIGHT * step;
       if (!isfinite(w)) continue; /* a point that is not one joins nothing */
       r->edges[ne++] = (struct edge){w, (uint32_t)i, (uint32_t)j};
     }

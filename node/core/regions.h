@@ -16,14 +16,17 @@
  * vlff_label_surface: pix[i] the cell, xyz[3 i] its world point). Two
  * neighbouring surface cells (8-neighbourhood) are joined by an edge of
  * weight
- *   2 |rgb_a - rgb_b| + |p_a - p_b| / 1 m
+ *   2 |rgb_a - rgb_b| + max(0, |p_a - p_b| - 3 sigma) / 1 m
  * (rgb: the mean colour of the cell's image pixels in 0..1, Euclidean; p:
- * the surface points), and the edges are merged in increasing weight into
- * regions by Felzenszwalb and Huttenlocher's rule (IJCV 2004): two regions
- * join when the edge is no heavier than either region's largest internal
- * edge plus k / size, with k = 1 for every 4800 cells (the same share of
- * the image makes a region at any label image size). Without an image
- * (rgb NULL) colour does not separate anything; depth steps still do.
+ * the measured points; sigma: the depth noise at the farther one's range
+ * d from the camera, noise_1m d^2 as train.depth_noise_m says, so that a
+ * stereo camera's noise does not cut a wall into pieces where a structured
+ * light sensor's would not), and the edges are merged in increasing weight
+ * into regions by Felzenszwalb and Huttenlocher's rule (IJCV 2004): two
+ * regions join when the edge is no heavier than either region's largest
+ * internal edge plus k / size, with k = 1 for every 4800 cells (the same
+ * share of the image makes a region at any label image size). Without colours
+ * (col NULL) colour does not separate anything; depth steps still do.
  *
  * Vote: cell i's scores s_i[K] (the combined field and evidence sums of
  * evidence.h) plus beta times its region's mean scores; its label is the
@@ -53,10 +56,13 @@ void vlff_regions_colours(const uint8_t *rgb, int width, int height, int lw, int
                           float *col);
 
 /* Groups the n surface cells pix[0..n) (indices into the lw x lh grid; a
- * cell outside it or given twice is a region of its own) with world points
- * xyz[3 n] and colours col[3 n] (vlff_regions_colours; NULL: no colour).
- * Returns the number of regions. */
-size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32_t *pix, const float *xyz, size_t n);
+ * cell outside it or given twice is a region of its own; a point not
+ * finite joins nothing) with measured world points xyz[3 n], colours
+ * col[3 n] (vlff_regions_colours; NULL: no colour), the camera's position
+ * origin and the depth noise's sigma at 1 m noise_1m (0, or not a finite
+ * non-negative number: every step counts). Returns the number of regions. */
+size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32_t *pix, const float *xyz, size_t n,
+                          const double origin[3], float noise_1m);
 
 /* The region of surface cell i of the last build (0 .. regions - 1). */
 uint32_t vlff_regions_of(const struct vlff_regions *r, size_t i);

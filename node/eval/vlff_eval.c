@@ -985,7 +985,8 @@ static void score_field_2d(struct eval *e, struct vlff_field *fld) {
       if (rg) {
         /* regions of the measured points, as the publisher groups them */
         vlff_regions_colours(f->rgb, sc->W, sc->H, fw, fh, pix, m, col);
-        vlff_regions_build(rg, col, pix, xyz, m);
+        const double o[3] = {f->c2w[3], f->c2w[7], f->c2w[11]};
+        vlff_regions_build(rg, col, pix, xyz, m, o, (float)e->cfg.train.depth_noise_m);
       }
       vlff_field_snap_surface(fld, &cam, pix, m, xyz);
       evidence_labels(e, fld, xyz, m, NULL, lab, vec);

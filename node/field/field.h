@@ -204,6 +204,9 @@ int vlff_field_render_pixels(struct vlff_field *f, const struct vlff_view *cam, 
  * render of density alone. */
 size_t vlff_field_snap_surface(struct vlff_field *f, const struct vlff_view *cam, const uint32_t *pix, size_t n,
                                float *xyz);
+/* The depth sensor's noise sigma at 1 m the field was made with
+ * (train.depth_noise_m; sigma grows with the range squared). */
+double vlff_field_depth_noise(const struct vlff_field *f);
 
 /* Bounds of the learned state, far beyond what training produces (the
  * analytic scene's field after 3,000 steps: |params| <= 5, |Adam m| <=

@@ -557,3 +557,5 @@ int vlff_field_render(struct vlff_field *f, const struct vlff_view *cam, float *
   if (!cam || cam->width <= 0 || cam->height <= 0) return -1;
   return vlff_field_render_pixels(f, cam, NULL, (size_t)cam->width * cam->height, rgb, depth, feature, label, score);
 }
+
+double vlff_field_depth_noise(const struct vlff_field *f) { return f->cfg.train.depth_noise_m; }

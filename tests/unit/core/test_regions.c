@@ -15,6 +15,7 @@
 #include "unit.h"
 
 enum { LW = 40, LH = 30, IW = 160, IH = 120, K = 3 };
+static const double O[3] = {0, 0, 0}; /* the camera */
 
 /* A camera at the origin looking along +z at a wall 2 m away: cell (x, y)'s
  * point, with the cells in [x0, x1) x [y0, y1) pushed back by step metres. */
@@ -83,7 +84,7 @@ static void test_patch_reads_its_surface(void **state) {
   image(w->rgb, 0, 0, 0, 0, (const uint8_t[3]){0, 0, 0});
   vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
   assert_float_equal(w->col[0], 120 / 255.0, 1e-6);
-  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n), 1);
+  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n, O, 0), 1);
   scores(w->s, w->pix, n, 10, 20, 10, 20);
   assert_int_equal(vlff_regions_vote(r, w->s, n, K, 0.0f, w->lab, w->score), 0);
   assert_int_equal(label_at(w, n, 15, 15), 1);
@@ -109,7 +110,7 @@ static void test_colour_and_depth_separate(void **state) {
   size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
   image(w->rgb, 10, 20, 10, 20, (const uint8_t[3]){200, 60, 40});
   vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
-  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n), 2);
+  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n, O, 0), 2);
   assert_int_equal(vlff_regions_of(r, 15 * LW + 15), vlff_regions_of(r, 12 * LW + 12));
   assert_int_not_equal(vlff_regions_of(r, 15 * LW + 15), vlff_regions_of(r, 2 * LW + 2));
   scores(w->s, w->pix, n, 10, 20, 10, 20);
@@ -120,14 +121,45 @@ static void test_colour_and_depth_separate(void **state) {
   n = wall(w->pix, w->xyz, 10, 20, 10, 20, 0.4f);
   image(w->rgb, 0, 0, 0, 0, (const uint8_t[3]){0, 0, 0});
   vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
-  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n), 2);
+  assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n, O, 0), 2);
   assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
   assert_int_equal(label_at(w, n, 15, 15), 1);
   assert_int_equal(label_at(w, n, 2, 2), 0);
   /* without colours the depth step still separates; a flat wall is one */
-  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 2);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 2);
   n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
-  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 1);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 1);
+  vlff_regions_destroy(r);
+  free(w);
+}
+
+/* A wall 3 m away as a stereo camera measures it (sigma 0.01 d^2 = 9 cm,
+ * each point off by up to two sigma): with the sensor's noise given it is
+ * one surface, and the 0.6 m step of a door set back the wall's height
+ * still cuts it (the wall left of the door, the door, the wall right of
+ * it); taken
+ * as exact, the noise cuts it into pieces. */
+static void test_depth_noise(void **state) {
+  (void)state;
+  struct world *w = calloc(1, sizeof *w);
+  struct vlff_regions *r = vlff_regions_create(LW, LH);
+  assert_non_null(w);
+  assert_non_null(r);
+  size_t n = wall(w->pix, w->xyz, 10, 20, 0, LH, 0.6f);
+  unsigned seed = 3;
+  for (size_t i = 0; i < n; i++) {
+    const float k = 1.5f + (2.0f * (float)rand_r(&seed) / (float)RAND_MAX - 1.0f) * 0.09f; /* 2 m -> 3 m +- 2 sigma */
+    for (int c = 0; c < 3; c++) w->xyz[3 * i + c] *= k;
+  }
+  const size_t exact = vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0);
+  assert_true(exact > 20);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0.01f), 3);
+  assert_int_not_equal(vlff_regions_of(r, 15), vlff_regions_of(r, 2));
+  assert_int_not_equal(vlff_regions_of(r, 15), vlff_regions_of(r, 25));
+  assert_int_equal(vlff_regions_of(r, 2), vlff_regions_of(r, (LH - 1) * LW + 2));
+  /* a noise that is not one: every step counts */
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, NAN), exact);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, -1.0f), exact);
   vlff_regions_destroy(r);
   free(w);
 }
@@ -152,7 +184,7 @@ static void test_grid_size_free(void **state) {
     }
   image(rgb, 10, 20, 10, 20, (const uint8_t[3]){200, 60, 40});
   vlff_regions_colours(rgb, IW, IH, L2W, L2H, pix, n, col);
-  assert_int_equal(vlff_regions_build(r, col, pix, xyz, n), 2);
+  assert_int_equal(vlff_regions_build(r, col, pix, xyz, n, O, 0), 2);
   vlff_regions_destroy(r);
   free(pix), free(xyz), free(col), free(rgb);
 }
@@ -176,7 +208,7 @@ static void test_hostile_cells(void **state) {
     w->lab[i] = x >= 10 && x < 20 && y >= 10 && y < 20 ? -1 : 0;
     if (w->lab[i] < 0) w->s[i * K + 2] = 1e6f;
   }
-  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 1);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 1);
   assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
   for (size_t i = 0; i < n; i++) {
     const int x = (int)(w->pix[i] % LW), y = (int)(w->pix[i] / LW);
@@ -185,14 +217,14 @@ static void test_hostile_cells(void **state) {
   w->pix[5] = LW * LH + 7;   /* outside */
   w->pix[6] = w->pix[7];     /* twice */
   w->xyz[3 * 100] = NAN;     /* not a point */
-  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n), 4);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 4);
   assert_int_not_equal(vlff_regions_of(r, 5), vlff_regions_of(r, 0));
   assert_int_not_equal(vlff_regions_of(r, 100), vlff_regions_of(r, 0));
   /* more cells than the grid holds: the grid's */
-  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, (size_t)LW * LH * 2) >= 1, 1);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, (size_t)LW * LH * 2, O, 0) >= 1, 1);
   vlff_regions_destroy(r);
   free(w);
 }
 
 VLFF_UNIT_MAIN(NULL, NULL, cmocka_unit_test(test_patch_reads_its_surface), cmocka_unit_test(test_colour_and_depth_separate),
-               cmocka_unit_test(test_grid_size_free), cmocka_unit_test(test_hostile_cells))
+               cmocka_unit_test(test_grid_size_free), cmocka_unit_test(test_depth_noise), cmocka_unit_test(test_hostile_cells))
