@@ -11,6 +11,10 @@
 /* The noise a step must pass, in sigmas of the farther point's depth (the
  * band depth-guided training and the snap use, field_internal.h). */
 #define NOISE_SIGMAS 3.0f
+/* A cell's weight in its region's mean is its margin (best minus second
+ * sum) plus this: cells whose own reading is clear say more about what
+ * their surface is, and a region of cells with no margin still averages. */
+#define MARGIN_FLOOR 0.02f
 /* Felzenszwalb's k for a grid of this many cells; scaled with the grid. */
 #define K_CELLS 4800.0
 
@@ -196,19 +200,25 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
     r->sum = s, r->sum_cap = need;
   }
   memset(r->sum, 0, need * sizeof *r->sum);
-  uint32_t *cnt = r->root_id; /* free after build: the voting cells per region */
-  memset(cnt, 0, r->nregions * sizeof *cnt);
+  float *wsum = r->inner; /* free after build: the weight per region */
+  memset(wsum, 0, r->nregions * sizeof *wsum);
   for (size_t i = 0; i < n; i++) {
     if (label[i] < 0) continue;
-    cnt[r->region[i]]++;
+    const float *own = scores + i * (size_t)K;
+    float b1 = -INFINITY, b2 = -INFINITY;
+    for (int c = 0; c < K; c++)
+      if (own[c] > b1) b2 = b1, b1 = own[c];
+      else if (own[c] > b2) b2 = own[c];
+    const float wt = (K > 1 && isfinite(b1 - b2) ? b1 - b2 : 1.0f) + MARGIN_FLOOR;
+    wsum[r->region[i]] += wt;
     float *s = r->sum + (size_t)r->region[i] * K;
-    for (int c = 0; c < K; c++) s[c] += scores[i * (size_t)K + c];
+    for (int c = 0; c < K; c++) s[c] += wt * own[c];
   }
   for (size_t i = 0; i < n; i++) {
     if (label[i] < 0) continue;
     const uint32_t g = r->region[i];
     const float *s = r->sum + (size_t)g * K, *own = scores + i * (size_t)K;
-    const float wr = beta / (float)cnt[g];
+    const float wr = beta / wsum[g];
     int best = 0;
     float bv = -INFINITY;
     for (int c = 0; c < K; c++) {

@@ -29,8 +29,10 @@
  * (col NULL) colour does not separate anything; depth steps still do.
  *
  * Vote: cell i's scores s_i[K] (the combined field and evidence sums of
- * evidence.h) plus beta times its region's mean scores; its label is the
- * best of those, its score its own s_i at that label.
+ * evidence.h) plus beta times its region's mean scores, each cell weighing
+ * in that mean its margin (best minus second sum) plus 0.02: a clear
+ * reading says more about its surface than one that barely leans; its label
+ * is the best of those, its score its own s_i at that label.
  *
  * Contract: a vlff_regions is scratch for one lw x lh grid, used by one
  * thread at a time; build, then vote with scores of the same cells in the

@@ -65,6 +65,29 @@ struct world {
   float score[LW * LH];
 };
 
+/* A world and regions of the LW x LH grid. */
+static struct world *world_new(struct vlff_regions **r) {
+  struct world *w = calloc(1, sizeof *w);
+  *r = vlff_regions_create(LW, LH);
+  assert_non_null(w);
+  assert_non_null(*r);
+  return w;
+}
+
+/* A flat wall 2 m away, its image grey but for cells [x0, x1) x [y0, y1)
+ * in colour c, and the cells' colours: the cells. */
+static size_t painted_wall(struct world *w, int x0, int x1, int y0, int y1, const uint8_t c[3]) {
+  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
+  image(w->rgb, x0, x1, y0, y1, c);
+  vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
+  return n;
+}
+
+static void world_free(struct world *w, struct vlff_regions *r) {
+  vlff_regions_destroy(r);
+  free(w);
+}
+
 static int label_at(const struct world *w, size_t n, int x, int y) {
   for (size_t i = 0; i < n; i++)
     if (w->pix[i] == (uint32_t)(y * LW + x)) return w->lab[i];
@@ -76,13 +99,9 @@ static int label_at(const struct world *w, size_t n, int x, int y) {
  * own best. */
 static void test_patch_reads_its_surface(void **state) {
   (void)state;
-  struct world *w = calloc(1, sizeof *w);
-  struct vlff_regions *r = vlff_regions_create(LW, LH);
-  assert_non_null(w);
-  assert_non_null(r);
-  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
-  image(w->rgb, 0, 0, 0, 0, (const uint8_t[3]){0, 0, 0});
-  vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
+  struct vlff_regions *r;
+  struct world *w = world_new(&r);
+  size_t n = painted_wall(w, 0, 0, 0, 0, (const uint8_t[3]){0, 0, 0});
   assert_float_equal(w->col[0], 120 / 255.0, 1e-6);
   assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n, O, 0), 1);
   scores(w->s, w->pix, n, 10, 20, 10, 20);
@@ -94,8 +113,7 @@ static void test_patch_reads_its_surface(void **state) {
   /* its score: the cell's own at the voted label */
   for (size_t i = 0; i < n; i++)
     if (w->pix[i] == 15 * LW + 15) assert_float_equal(w->score[i], 0.45f, 1e-6);
-  vlff_regions_destroy(r);
-  free(w);
+  world_free(w, r);
 }
 
 /* The patch in another colour (a picture on the wall), or set back by a
@@ -103,13 +121,9 @@ static void test_patch_reads_its_surface(void **state) {
  * keeps its own reading; the wall around it keeps its own. */
 static void test_colour_and_depth_separate(void **state) {
   (void)state;
-  struct world *w = calloc(1, sizeof *w);
-  struct vlff_regions *r = vlff_regions_create(LW, LH);
-  assert_non_null(w);
-  assert_non_null(r);
-  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
-  image(w->rgb, 10, 20, 10, 20, (const uint8_t[3]){200, 60, 40});
-  vlff_regions_colours(w->rgb, IW, IH, LW, LH, w->pix, n, w->col);
+  struct vlff_regions *r;
+  struct world *w = world_new(&r);
+  size_t n = painted_wall(w, 10, 20, 10, 20, (const uint8_t[3]){200, 60, 40});
   assert_int_equal(vlff_regions_build(r, w->col, w->pix, w->xyz, n, O, 0), 2);
   assert_int_equal(vlff_regions_of(r, 15 * LW + 15), vlff_regions_of(r, 12 * LW + 12));
   assert_int_not_equal(vlff_regions_of(r, 15 * LW + 15), vlff_regions_of(r, 2 * LW + 2));
@@ -129,22 +143,18 @@ static void test_colour_and_depth_separate(void **state) {
   assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 2);
   n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
   assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 1);
-  vlff_regions_destroy(r);
-  free(w);
+  world_free(w, r);
 }
 
 /* A wall 3 m away as a stereo camera measures it (sigma 0.01 d^2 = 9 cm,
  * each point off by up to two sigma): with the sensor's noise given it is
  * one surface, and the 0.6 m step of a door set back the wall's height
  * still cuts it (the wall left of the door, the door, the wall right of
- * it); taken
- * as exact, the noise cuts it into pieces. */
+ * it); taken as exact, the noise cuts it into pieces. */
 static void test_depth_noise(void **state) {
   (void)state;
-  struct world *w = calloc(1, sizeof *w);
-  struct vlff_regions *r = vlff_regions_create(LW, LH);
-  assert_non_null(w);
-  assert_non_null(r);
+  struct vlff_regions *r;
+  struct world *w = world_new(&r);
   size_t n = wall(w->pix, w->xyz, 10, 20, 0, LH, 0.6f);
   unsigned seed = 3;
   for (size_t i = 0; i < n; i++) {
@@ -160,8 +170,7 @@ static void test_depth_noise(void **state) {
   /* a noise that is not one: every step counts */
   assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, NAN), exact);
   assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, -1.0f), exact);
-  vlff_regions_destroy(r);
-  free(w);
+  world_free(w, r);
 }
 
 /* The same scene on a grid twice as fine groups the same surfaces (k
@@ -194,10 +203,8 @@ static void test_grid_size_free(void **state) {
  * number joins nothing. */
 static void test_hostile_cells(void **state) {
   (void)state;
-  struct world *w = calloc(1, sizeof *w);
-  struct vlff_regions *r = vlff_regions_create(LW, LH);
-  assert_non_null(w);
-  assert_non_null(r);
+  struct vlff_regions *r;
+  struct world *w = world_new(&r);
   assert_null(vlff_regions_create(0, 5));
   assert_null(vlff_regions_create(5, -1));
   size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
@@ -222,8 +229,7 @@ static void test_hostile_cells(void **state) {
   assert_int_not_equal(vlff_regions_of(r, 100), vlff_regions_of(r, 0));
   /* more cells than the grid holds: the grid's */
   assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, (size_t)LW * LH * 2, O, 0) >= 1, 1);
-  vlff_regions_destroy(r);
-  free(w);
+  world_free(w, r);
 }
 
 VLFF_UNIT_MAIN(NULL, NULL, cmocka_unit_test(test_patch_reads_its_surface), cmocka_unit_test(test_colour_and_depth_separate),
