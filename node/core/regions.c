@@ -1,6 +1,7 @@
 #include "regions.h"
 
 #include <math.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -163,7 +164,7 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
     }
   }
   qsort(r->edges, ne, sizeof *r->edges, edge_cmp);
-  const float k = (float)(K_CELLS > 0 ? (double)r->ncell / K_CELLS : 1.0);
+  const float k = (float)((double)r->ncell / K_CELLS);
   for (size_t t = 0; t < ne; t++) {
     uint32_t a = find(r->parent, r->edges[t].a), b = find(r->parent, r->edges[t].b);
     if (a == b) continue;
@@ -202,20 +203,26 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
   memset(r->sum, 0, need * sizeof *r->sum);
   float *wsum = r->inner; /* free after build: the weight per region */
   memset(wsum, 0, r->nregions * sizeof *wsum);
+  uint8_t *skip = (uint8_t *)r->root_id; /* free after build too: cells that neither vote nor are voted */
   for (size_t i = 0; i < n; i++) {
-    if (label[i] < 0) continue;
     const float *own = scores + i * (size_t)K;
+    bool finite = true;
+    for (int c = 0; c < K; c++) finite &= isfinite(own[c]) != 0;
+    /* nothing scored it, or a score that is not a number (which would
+     * take its whole region with it): it keeps its label */
+    skip[i] = label[i] < 0 || !finite;
+    if (skip[i]) continue;
     float b1 = -INFINITY, b2 = -INFINITY;
     for (int c = 0; c < K; c++)
       if (own[c] > b1) b2 = b1, b1 = own[c];
       else if (own[c] > b2) b2 = own[c];
-    const float wt = (K > 1 && isfinite(b1 - b2) ? b1 - b2 : 1.0f) + MARGIN_FLOOR;
+    const float wt = (K > 1 ? b1 - b2 : 1.0f) + MARGIN_FLOOR;
     wsum[r->region[i]] += wt;
     float *s = r->sum + (size_t)r->region[i] * K;
     for (int c = 0; c < K; c++) s[c] += wt * own[c];
   }
   for (size_t i = 0; i < n; i++) {
-    if (label[i] < 0) continue;
+    if (skip[i]) continue;
     const uint32_t g = r->region[i];
     const float *s = r->sum + (size_t)g * K, *own = scores + i * (size_t)K;
     const float wr = beta / wsum[g];

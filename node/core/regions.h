@@ -72,8 +72,8 @@ uint32_t vlff_regions_of(const struct vlff_regions *r, size_t i);
 /* Labels of the last build's n cells from their scores [n][K] (K >= 1),
  * voted with their regions at weight beta (>= 0; 0: each cell's own best):
  * label[i], and score[i] (may be NULL) cell i's own score at that label. A
- * cell whose label is -1 on entry (nothing scored it) stays so and adds
- * nothing to its region. 0, or -1 when out of memory (label untouched). */
+ * cell whose label is -1 on entry (nothing scored it), or with a score
+ * that is not finite, keeps its label and adds nothing to its region. 0, or -1 when out of memory (label untouched). */
 int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int K, float beta, int *label,
                       float *score);
 

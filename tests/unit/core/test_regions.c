@@ -221,6 +221,13 @@ static void test_hostile_cells(void **state) {
     const int x = (int)(w->pix[i] % LW), y = (int)(w->pix[i] / LW);
     assert_int_equal(w->lab[i], x >= 10 && x < 20 && y >= 10 && y < 20 ? -1 : 0);
   }
+  /* a cell scoring NaN keeps its label and takes no region with it: its
+   * neighbour, clearly class 2, stays so */
+  w->s[0] = NAN, w->lab[0] = 1;
+  w->s[K] = 0.1f, w->s[K + 1] = 0.1f, w->s[K + 2] = 0.9f;
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
+  assert_int_equal(w->lab[0], 1);
+  assert_int_equal(w->lab[1], 2);
   w->pix[5] = LW * LH + 7;   /* outside */
   w->pix[6] = w->pix[7];     /* twice */
   w->xyz[3 * 100] = NAN;     /* not a point */
