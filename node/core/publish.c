@@ -1552,7 +1552,7 @@ static int label_image_piece(struct vlff_publisher *p, struct vlff_field *f, uin
 static void label_image_end(struct vlff_publisher *p, struct vlff_map_label_image *img) {
   size_t li = (size_t)p->lw * p->lh;
   /* Each surface pixel voted with its region (out of memory: as labelled). */
-  if (p->regions && p->insel && p->ev &&
+  if (p->regions && p->insel &&
       vlff_regions_vote(p->regions, p->sel_vec, p->insel, p->ik, p->region_weight, p->sel_lab, p->sel_score) == 0)
     for (size_t j = 0; j < p->insel; j++) {
       p->img_lab[p->isel_pix[j]] = p->sel_lab[j];

@@ -28,8 +28,7 @@ struct vlff_regions {
   int lw, lh;
   size_t ncell;
   int32_t *at;      /* [ncell] the surface cell number of a grid cell, -1 none */
-  float *col, *pt;  /* [ncell][3] per surface cell */
-  float *sigma;    /* [ncell] its depth noise sigma (m) */
+  float *sigma;     /* [ncell] per surface cell: its depth noise sigma (m) */
   uint32_t *parent, *size, *root_id;
   float *inner;     /* [ncell] a region's largest internal edge (at its root) */
   struct edge *edges;
@@ -46,8 +45,6 @@ struct vlff_regions *vlff_regions_create(int lw, int lh) {
   size_t n = (size_t)lw * lh;
   r->lw = lw, r->lh = lh, r->ncell = n;
   r->at = malloc(n * sizeof *r->at);
-  r->col = malloc(n * 3 * sizeof *r->col);
-  r->pt = malloc(n * 3 * sizeof *r->pt);
   r->sigma = malloc(n * sizeof *r->sigma);
   r->parent = malloc(n * sizeof *r->parent);
   r->size = malloc(n * sizeof *r->size);
@@ -55,7 +52,7 @@ struct vlff_regions *vlff_regions_create(int lw, int lh) {
   r->inner = malloc(n * sizeof *r->inner);
   r->edges = malloc(n * 4 * sizeof *r->edges);
   r->region = malloc(n * sizeof *r->region);
-  if (!r->at || !r->col || !r->pt || !r->sigma || !r->parent || !r->size || !r->root_id || !r->inner || !r->edges ||
+  if (!r->at || !r->sigma || !r->parent || !r->size || !r->root_id || !r->inner || !r->edges ||
       !r->region) {
     vlff_regions_destroy(r);
     return NULL;
@@ -66,7 +63,7 @@ struct vlff_regions *vlff_regions_create(int lw, int lh) {
 
 void vlff_regions_destroy(struct vlff_regions *r) {
   if (!r) return;
-  free(r->at), free(r->col), free(r->pt), free(r->sigma), free(r->parent), free(r->size), free(r->root_id);
+  free(r->at), free(r->sigma), free(r->parent), free(r->size), free(r->root_id);
   free(r->inner);
   free(r->edges), free(r->region), free(r->sum);
   free(r);
@@ -122,7 +119,6 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
   if (!(noise_1m >= 0) || !isfinite(noise_1m)) noise_1m = 0;
   for (size_t i = 0; i < n; i++) {
     r->parent[i] = (uint32_t)i, r->size[i] = 1, r->inner[i] = 0;
-    memcpy(r->pt + 3 * i, xyz + 3 * i, 3 * sizeof(float));
     /* the depth noise's sigma at the point's range: noise_1m d^2 */
     float d2 = 0;
     for (int c = 0; c < 3; c++) {
@@ -130,10 +126,6 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
       d2 += q * q;
     }
     r->sigma[i] = noise_1m * d2;
-    if (col)
-      memcpy(r->col + 3 * i, col + 3 * i, 3 * sizeof(float));
-    else
-      memset(r->col + 3 * i, 0, 3 * sizeof(float));
   }
   /* the edges to the right, down, down-right and down-left neighbours */
   size_t ne = 0;
@@ -148,9 +140,9 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
       if (j < 0) continue;
       float dc = 0, dp = 0;
       for (int c = 0; c < 3; c++) {
-        float q = r->col[3 * i + c] - r->col[3 * (size_t)j + c];
+        float q = col ? col[3 * i + c] - col[3 * (size_t)j + c] : 0.0f;
         dc += q * q;
-        q = r->pt[3 * i + c] - r->pt[3 * (size_t)j + c];
+        q = xyz[3 * i + c] - xyz[3 * (size_t)j + c];
         dp += q * q;
       }
       /* two measurements of one surface differ by their noise: only a step

@@ -25,8 +25,9 @@
  * into regions by Felzenszwalb and Huttenlocher's rule (IJCV 2004): two
  * regions join when the edge is no heavier than either region's largest
  * internal edge plus k / size, with k = 1 for every 4800 cells (the same
- * share of the image makes a region at any label image size). Without colours
- * (col NULL) colour does not separate anything; depth steps still do.
+ * share of the image makes a region at any label image size). Without
+ * colours (col NULL) colour does not separate anything; depth steps still
+ * do.
  *
  * Vote: cell i's scores s_i[K] (the combined field and evidence sums of
  * evidence.h) plus beta times its region's mean scores, each cell weighing
@@ -73,7 +74,8 @@ uint32_t vlff_regions_of(const struct vlff_regions *r, size_t i);
  * voted with their regions at weight beta (>= 0; 0: each cell's own best):
  * label[i], and score[i] (may be NULL) cell i's own score at that label. A
  * cell whose label is -1 on entry (nothing scored it), or with a score
- * that is not finite, keeps its label and adds nothing to its region. 0, or -1 when out of memory (label untouched). */
+ * that is not finite, keeps its label and adds nothing to its region. 0,
+ * or -1 when out of memory (label untouched). */
 int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int K, float beta, int *label,
                       float *score);
 
