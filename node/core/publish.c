@@ -1520,6 +1520,14 @@ static void label_image_begin(struct vlff_publisher *p, const struct vlff_field 
                        (const double[3]){cam.c2w[3], cam.c2w[7], cam.c2w[11]}, (float)vlff_field_depth_noise(f));
 }
 
+/* Surface points s0..s1's labels and scores into their pixels of the image. */
+static void surface_to_image(struct vlff_publisher *p, size_t s0, size_t s1) {
+  for (size_t j = s0; j < s1; j++) {
+    p->img_lab[p->isel_pix[j]] = p->sel_lab[j];
+    p->img_score[p->isel_pix[j]] = p->sel_score[j];
+  }
+}
+
 /* Up to n more of its pixels, holes (rendered) first, then surface points:
  * 0, or -1 when the field failed. */
 static int label_image_piece(struct vlff_publisher *p, struct vlff_field *f, uint64_t stamp, size_t n) {
@@ -1539,10 +1547,7 @@ static int label_image_piece(struct vlff_publisher *p, struct vlff_field *f, uin
     if (label_points(p, f, p->snap_xyz + 3 * s0, s1 - s0, stamp, p->sel_lab + s0, p->sel_score + s0, NULL,
                      p->regions ? p->sel_vec + s0 * (size_t)p->ik : NULL))
       return -1;
-    for (size_t j = s0; j < s1; j++) {
-      p->img_lab[p->isel_pix[j]] = p->sel_lab[j];
-      p->img_score[p->isel_pix[j]] = p->sel_score[j];
-    }
+    surface_to_image(p, s0, s1);
   }
   p->ipix = b;
   return 0;
@@ -1554,10 +1559,7 @@ static void label_image_end(struct vlff_publisher *p, struct vlff_map_label_imag
   /* Each surface pixel voted with its region (out of memory: as labelled). */
   if (p->regions && p->insel &&
       vlff_regions_vote(p->regions, p->sel_vec, p->insel, p->ik, p->region_weight, p->sel_lab, p->sel_score) == 0)
-    for (size_t j = 0; j < p->insel; j++) {
-      p->img_lab[p->isel_pix[j]] = p->sel_lab[j];
-      p->img_score[p->isel_pix[j]] = p->sel_score[j];
-    }
+    surface_to_image(p, 0, p->insel);
   for (size_t i = 0; i < li; i++) {
     p->img_labels[i] = p->img_lab[i] >= 0 ? (uint16_t)p->img_lab[i] : VLFF_LABEL_UNKNOWN;
     float s = p->img_score[i] * 255.0f;
