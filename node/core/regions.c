@@ -125,7 +125,10 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
       const float q = xyz[3 * i + c] - (float)origin[c];
       d2 += q * q;
     }
-    r->sigma[i] = noise_1m * d2;
+    const float sg = noise_1m * d2;
+    /* a camera position that is not a number tells no range: every step
+     * counts, as without a noise */
+    r->sigma[i] = isfinite(sg) ? sg : 0.0f;
   }
   /* the edges to the right, down, down-right and down-left neighbours */
   size_t ne = 0;
@@ -180,12 +183,17 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
   return nr;
 }
 
-uint32_t vlff_regions_of(const struct vlff_regions *r, size_t i) { return i < r->n ? r->region[i] : 0; }
+uint32_t vlff_regions_of(const struct vlff_regions *r, size_t i) { return i < r->n ? r->region[i] : UINT32_MAX; }
 
 int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int K, float beta, int *label,
                       float *score) {
   if (n > r->n) n = r->n;
-  if (K < 1) return 0;
+  if (K < 1 || n == 0 || r->nregions == 0) return 0;
+  /* beta 0, negative or not a number: each cell's own best; the vote
+   * itself compares own / beta + mean for beta > 1 (the same order), so
+   * that a huge beta cannot overflow into infinities */
+  if (!(beta > 0)) beta = 0;
+  const float own_w = beta > 1 ? 1.0f / beta : 1.0f, mean_w = beta > 1 ? 1.0f : beta;
   const size_t need = r->nregions * (size_t)K;
   if (need > r->sum_cap) {
     float *s = realloc(r->sum, need * sizeof *s);
@@ -209,6 +217,12 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
       if (own[c] > b1) b2 = b1, b1 = own[c];
       else if (own[c] > b2) b2 = own[c];
     const float wt = (K > 1 ? b1 - b2 : 1.0f) + MARGIN_FLOOR;
+    /* finite scores whose margin is not (near FLT_MAX apart): as one
+     * that is not a number */
+    if (!isfinite(wt)) {
+      skip[i] = 1;
+      continue;
+    }
     wsum[r->region[i]] += wt;
     float *s = r->sum + (size_t)r->region[i] * K;
     for (int c = 0; c < K; c++) s[c] += wt * own[c];
@@ -217,14 +231,19 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
     if (skip[i]) continue;
     const uint32_t g = r->region[i];
     const float *s = r->sum + (size_t)g * K, *own = scores + i * (size_t)K;
-    const float wr = beta / wsum[g];
-    int best = 0;
+    const float wr = mean_w / wsum[g];
+    int best = 0, mine = 0;
     float bv = -INFINITY;
+    bool sane = isfinite(wr);
     for (int c = 0; c < K; c++) {
-      float v = own[c] + wr * s[c];
+      const float m = wr * s[c];
+      sane &= isfinite(m) != 0;
+      const float v = own_w * own[c] + m;
       if (v > bv) bv = v, best = c;
+      if (own[c] > own[mine]) mine = c;
     }
-    label[i] = best;
+    /* a region whose sums overflowed says nothing: the cell's own best */
+    label[i] = sane ? best : mine;
     if (score) score[i] = own[best];
   }
   return 0;

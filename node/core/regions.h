@@ -60,22 +60,28 @@ void vlff_regions_colours(const uint8_t *rgb, int width, int height, int lw, int
 
 /* Groups the n surface cells pix[0..n) (indices into the lw x lh grid; a
  * cell outside it or given twice is a region of its own; a point not
- * finite joins nothing) with measured world points xyz[3 n], colours
- * col[3 n] (vlff_regions_colours; NULL: no colour), the camera's position
- * origin and the depth noise's sigma at 1 m noise_1m (0, or not a finite
- * non-negative number: every step counts). Returns the number of regions. */
+ * finite joins nothing; at most lw x lh cells: those past that are not
+ * grouped) with measured world points xyz[3 n], colours col[3 n]
+ * (vlff_regions_colours; NULL: no colour), the camera's position origin
+ * and the depth noise's sigma at 1 m noise_1m (0, not a finite
+ * non-negative number, or an origin that is not finite: every step
+ * counts). Returns the number of regions. */
 size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32_t *pix, const float *xyz, size_t n,
                           const double origin[3], float noise_1m);
 
-/* The region of surface cell i of the last build (0 .. regions - 1). */
+/* The region of surface cell i of the last build (0 .. regions - 1;
+ * UINT32_MAX for a cell it did not group). */
 uint32_t vlff_regions_of(const struct vlff_regions *r, size_t i);
 
 /* Labels of the last build's n cells from their scores [n][K] (K >= 1),
- * voted with their regions at weight beta (>= 0; 0: each cell's own best):
- * label[i], and score[i] (may be NULL) cell i's own score at that label. A
- * cell whose label is -1 on entry (nothing scored it), or with a score
- * that is not finite, keeps its label and adds nothing to its region. 0,
- * or -1 when out of memory (label untouched). */
+ * voted with their regions at weight beta (> 0, however large; 0,
+ * negative or not a number: each cell's own best): label[i], and score[i]
+ * (may be NULL) cell i's own score at that label. A cell whose label is -1
+ * on entry (nothing scored it), or with a score that is not finite (or
+ * whose best two are too far apart for their margin to be), keeps its
+ * label and adds nothing to its region; a cell whose region's weighted
+ * sums overflow takes its own best; cells past the build's are left as
+ * they are. 0, or -1 when out of memory (label untouched). */
 int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int K, float beta, int *label,
                       float *score);
 

@@ -1,6 +1,7 @@
 /* Regions of a label image (regions.h): surface cells are grouped by the
  * camera image's colour and the measured points' geometry, and a cell whose
  * own scores lean the wrong way by a little reads what its surface reads. */
+#include <float.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -234,10 +235,65 @@ static void test_hostile_cells(void **state) {
   assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 4);
   assert_int_not_equal(vlff_regions_of(r, 5), vlff_regions_of(r, 0));
   assert_int_not_equal(vlff_regions_of(r, 100), vlff_regions_of(r, 0));
-  /* more cells than the grid holds: the grid's */
+  /* more cells than the grid holds: the grid's; the rest are in no region
+   * and the vote leaves them as they are */
   assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, (size_t)LW * LH * 2, O, 0) >= 1, 1);
+  assert_int_equal(vlff_regions_of(r, (size_t)LW * LH), UINT32_MAX);
+  world_free(w, r);
+}
+
+/* Extremes that are numbers still vote sanely: an empty build, a beta
+ * from 0 to FLT_MAX (or not a number), scores near FLT_MAX, a camera
+ * position that is not a number. */
+static void test_extremes(void **state) {
+  (void)state;
+  struct vlff_regions *r;
+  struct world *w = world_new(&r);
+  /* nothing built, nothing to vote: no work, no label touched */
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, 0, O, 0), 0);
+  w->lab[0] = 7;
+  assert_int_equal(vlff_regions_vote(r, w->s, 0, K, 1.0f, w->lab, NULL), 0);
+  assert_int_equal(w->lab[0], 7);
+  /* the leaning patch on one wall: any beta > 0 large enough takes it back,
+   * the largest too; 0, negative and NaN leave each cell its own best */
+  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 1);
+  const float betas[] = {1.0f, 10.0f, 1e30f, FLT_MAX, INFINITY, 0.0f, -1.0f, NAN};
+  for (size_t b = 0; b < sizeof betas / sizeof *betas; b++) {
+    scores(w->s, w->pix, n, 10, 20, 10, 20);
+    for (size_t i = 0; i < n; i++) w->lab[i] = 0;
+    assert_int_equal(vlff_regions_vote(r, w->s, n, K, betas[b], w->lab, w->score), 0);
+    const int patch = betas[b] > 0 ? 0 : 1;
+    assert_int_equal(label_at(w, n, 15, 15), patch);
+    assert_int_equal(label_at(w, n, 2, 2), 0);
+  }
+  /* a cell whose best two are 2 FLT_MAX apart weighs nothing (its margin is
+   * not a number we can add) and keeps its label; its neighbours vote as
+   * before */
+  scores(w->s, w->pix, n, 10, 20, 10, 20);
+  for (size_t i = 0; i < n; i++) w->lab[i] = 0;
+  w->s[0] = -FLT_MAX, w->s[1] = FLT_MAX, w->s[2] = -FLT_MAX, w->lab[0] = 1;
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
+  assert_int_equal(w->lab[0], 1);
+  assert_int_equal(label_at(w, n, 15, 15), 0);
+  assert_int_equal(label_at(w, n, 1, 0), 0);
+  /* scores near FLT_MAX whose weighted sum overflows: each cell its own
+   * best, not one label for the whole region */
+  for (size_t i = 0; i < n; i++) {
+    w->s[i * K] = 0.0f, w->s[i * K + 1] = 0.5f * FLT_MAX, w->s[i * K + 2] = FLT_MAX;
+    w->lab[i] = 0;
+  }
+  w->s[3 * K + 1] = FLT_MAX, w->s[3 * K + 2] = 0.5f * FLT_MAX;
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
+  assert_int_equal(w->lab[3], 1);
+  assert_int_equal(w->lab[4], 2);
+  /* a camera position that is not a number: the flat wall stays one
+   * region (its steps are all 0), as without a noise */
+  const double nan_o[3] = {NAN, 0, 0};
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, nan_o, 0.01f), 1);
   world_free(w, r);
 }
 
 VLFF_UNIT_MAIN(NULL, NULL, cmocka_unit_test(test_patch_reads_its_surface), cmocka_unit_test(test_colour_and_depth_separate),
-               cmocka_unit_test(test_grid_size_free), cmocka_unit_test(test_depth_noise), cmocka_unit_test(test_hostile_cells))
+               cmocka_unit_test(test_grid_size_free), cmocka_unit_test(test_depth_noise), cmocka_unit_test(test_hostile_cells),
+               cmocka_unit_test(test_extremes))
