@@ -17,7 +17,12 @@
  * their surface is, and a region of cells with no margin still averages. */
 #define MARGIN_FLOOR 0.02f
 /* Felzenszwalb's k for a grid of this many cells; scaled with the grid. */
-#define K_CELLS 4800.0
+#define K_CELLS 2400.0
+/* Two regions join only when their mean colours (rgb in 0..1, Euclidean)
+ * are at most this far apart: Felzenszwalb's rule looks at edges alone,
+ * and a chain of small steps leaks one surface into the next (a door into
+ * its wall through a checkered panel's like squares). */
+#define MEAN_COLOUR_MAX 0.1f
 
 struct edge {
   float w;
@@ -31,6 +36,7 @@ struct vlff_regions {
   float *sigma;     /* [ncell] per surface cell: its depth noise sigma (m) */
   uint32_t *parent, *size, *root_id;
   float *inner;     /* [ncell] a region's largest internal edge (at its root) */
+  float *csum;      /* [ncell][3] a region's colour sum (at its root) */
   struct edge *edges;
   uint32_t *region; /* [ncell] per surface cell, after build */
   size_t n, nregions;
@@ -50,9 +56,10 @@ struct vlff_regions *vlff_regions_create(int lw, int lh) {
   r->size = malloc(n * sizeof *r->size);
   r->root_id = malloc(n * sizeof *r->root_id);
   r->inner = malloc(n * sizeof *r->inner);
+  r->csum = malloc(n * 3 * sizeof *r->csum);
   r->edges = malloc(n * 4 * sizeof *r->edges);
   r->region = malloc(n * sizeof *r->region);
-  if (!r->at || !r->sigma || !r->parent || !r->size || !r->root_id || !r->inner || !r->edges ||
+  if (!r->at || !r->sigma || !r->parent || !r->size || !r->root_id || !r->inner || !r->csum || !r->edges ||
       !r->region) {
     vlff_regions_destroy(r);
     return NULL;
@@ -64,9 +71,20 @@ struct vlff_regions *vlff_regions_create(int lw, int lh) {
 void vlff_regions_destroy(struct vlff_regions *r) {
   if (!r) return;
   free(r->at), free(r->sigma), free(r->parent), free(r->size), free(r->root_id);
-  free(r->inner);
+  free(r->inner), free(r->csum);
   free(r->edges), free(r->region), free(r->sum);
   free(r);
+}
+
+/* The mean colours of two regions (colour sums over sizes) further apart
+ * than MEAN_COLOUR_MAX. */
+static bool mean_colours_apart(const float *sa, uint32_t na, const float *sb, uint32_t nb) {
+  float d = 0;
+  for (int c = 0; c < 3; c++) {
+    const float q = sa[c] / (float)na - sb[c] / (float)nb;
+    d += q * q;
+  }
+  return d > MEAN_COLOUR_MAX * MEAN_COLOUR_MAX;
 }
 
 static uint32_t find(uint32_t *parent, uint32_t x) {
@@ -119,6 +137,7 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
   if (!(noise_1m >= 0) || !isfinite(noise_1m)) noise_1m = 0;
   for (size_t i = 0; i < n; i++) {
     r->parent[i] = (uint32_t)i, r->size[i] = 1, r->inner[i] = 0;
+    for (int c = 0; c < 3; c++) r->csum[3 * i + c] = col ? col[3 * i + c] : 0.0f;
     /* the depth noise's sigma at the point's range: noise_1m d^2 */
     float d2 = 0;
     for (int c = 0; c < 3; c++) {
@@ -165,11 +184,13 @@ size_t vlff_regions_build(struct vlff_regions *r, const float *col, const uint32
     if (a == b) continue;
     const float w = r->edges[t].w;
     if (w > r->inner[a] + k / (float)r->size[a] || w > r->inner[b] + k / (float)r->size[b]) continue;
+    if (col && mean_colours_apart(r->csum + 3 * a, r->size[a], r->csum + 3 * b, r->size[b])) continue;
     if (r->size[a] < r->size[b]) {
       uint32_t q = a;
       a = b, b = q;
     }
     r->parent[b] = a, r->size[a] += r->size[b];
+    for (int c = 0; c < 3; c++) r->csum[3 * a + c] += r->csum[3 * b + c];
     r->inner[a] = w; /* edges come in increasing weight: the largest so far */
   }
   size_t nr = 0;

@@ -24,10 +24,13 @@
  * light sensor's would not), and the edges are merged in increasing weight
  * into regions by Felzenszwalb and Huttenlocher's rule (IJCV 2004): two
  * regions join when the edge is no heavier than either region's largest
- * internal edge plus k / size, with k = 1 for every 4800 cells (the same
- * share of the image makes a region at any label image size). Without
- * colours (col NULL) colour does not separate anything; depth steps still
- * do.
+ * internal edge plus k / size, with k = 1 for every 2400 cells (the same
+ * share of the image makes a region at any label image size), and when
+ * their mean colours are at most 0.1 apart: the rule looks at edges
+ * alone, and a chain of small steps would leak one surface into the next
+ * (a checkered door into its wall through squares like the wall's).
+ * Without colours (col NULL) colour does not separate anything; depth
+ * steps still do.
  *
  * Vote: cell i's scores s_i[K] (the combined field and evidence sums of
  * evidence.h) plus beta times its region's mean scores, each cell weighing

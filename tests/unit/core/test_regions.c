@@ -242,6 +242,33 @@ static void test_hostile_cells(void **state) {
   world_free(w, r);
 }
 
+/* A wall whose grey ramps from left to right in steps too small for any
+ * edge to separate: its regions' mean colours stay within 0.1 of each
+ * other (regions.h), so a ramp across more than that is cut where a ramp
+ * within it is one region. */
+static void test_colour_leak(void **state) {
+  (void)state;
+  struct vlff_regions *r;
+  struct world *w = world_new(&r);
+  size_t n = wall(w->pix, w->xyz, 0, 0, 0, 0, 0);
+  const float spans[] = {40.0f / 255, 8.0f / 255}; /* 0.27 and 0.054 apart as rgb */
+  for (int t = 0; t < 2; t++) {
+    for (size_t i = 0; i < n; i++)
+      for (int c = 0; c < 3; c++) w->col[3 * i + c] = 100.0f / 255 + spans[t] * (float)(w->pix[i] % LW) / (LW - 1);
+    size_t nr = vlff_regions_build(r, w->col, w->pix, w->xyz, n, O, 0);
+    const uint32_t left = vlff_regions_of(r, 0), right = vlff_regions_of(r, LW - 1);
+    if (t == 0) {
+      assert_true(nr > 1);
+      assert_int_not_equal(left, right);
+    } else {
+      assert_int_equal(nr, 1);
+    }
+  }
+  /* without colours only depth separates: one region */
+  assert_int_equal(vlff_regions_build(r, NULL, w->pix, w->xyz, n, O, 0), 1);
+  world_free(w, r);
+}
+
 /* Extremes that are numbers still vote sanely: an empty build, a beta
  * from 0 to FLT_MAX (or not a number), scores near FLT_MAX, a camera
  * position that is not a number. */
@@ -296,4 +323,4 @@ static void test_extremes(void **state) {
 
 VLFF_UNIT_MAIN(NULL, NULL, cmocka_unit_test(test_patch_reads_its_surface), cmocka_unit_test(test_colour_and_depth_separate),
                cmocka_unit_test(test_grid_size_free), cmocka_unit_test(test_depth_noise), cmocka_unit_test(test_hostile_cells),
-               cmocka_unit_test(test_extremes))
+               cmocka_unit_test(test_extremes), cmocka_unit_test(test_colour_leak))
