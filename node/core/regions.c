@@ -20,8 +20,8 @@
 #define K_CELLS 2400.0
 /* Two regions join only when their mean colours (rgb in 0..1, Euclidean)
  * are at most this far apart: Felzenszwalb's rule looks at edges alone,
- * and a chain of small steps leaks one surface into the next (a door into
- * its wall through a checkered panel's like squares). */
+ * and a chain of small steps leaks one surface into the next (a checkered
+ * door into its wall through squares like the wall's). */
 #define MEAN_COLOUR_MAX 0.1f
 
 struct edge {
@@ -265,7 +265,7 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
     }
     /* a region whose sums overflowed says nothing: the cell's own best */
     label[i] = sane ? best : mine;
-    if (score) score[i] = own[best];
+    if (score) score[i] = own[label[i]];
   }
   return 0;
 }

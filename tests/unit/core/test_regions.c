@@ -311,9 +311,11 @@ static void test_extremes(void **state) {
     w->lab[i] = 0;
   }
   w->s[3 * K + 1] = FLT_MAX, w->s[3 * K + 2] = 0.5f * FLT_MAX;
-  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, NULL), 0);
+  assert_int_equal(vlff_regions_vote(r, w->s, n, K, 1.0f, w->lab, w->score), 0);
   assert_int_equal(w->lab[3], 1);
   assert_int_equal(w->lab[4], 2);
+  /* each with its own score at that label */
+  assert_true(w->score[3] == FLT_MAX && w->score[4] == FLT_MAX);
   /* a camera position that is not a number: the flat wall stays one
    * region (its steps are all 0), as without a noise */
   const double nan_o[3] = {NAN, 0, 0};
