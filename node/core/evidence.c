@@ -13,6 +13,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "best.h"
 #include "files.h"
 #include "hash.h"
 #include "lattice.h"
@@ -889,17 +890,6 @@ bool vlff_evidence_lost(const struct vlff_evidence *e, int k, unsigned long long
   return e->lost[k];
 }
 
-/* The best of K values, and the gap to the second in *gap (may be NULL). */
-static int argmax(const float *v, int K, float *gap) {
-  int b = 0;
-  float s = -INFINITY;
-  for (int k = 1; k < K; k++)
-    if (v[k] > v[b]) s = v[b], b = k;
-    else if (v[k] > s) s = v[k];
-  if (gap) *gap = K > 1 ? v[b] - s : 0.0f;
-  return b;
-}
-
 void vlff_evidence_label(struct vlff_evidence *e, const float *xyz, size_t n, const float *fcos,
                          const uint16_t *rays, int trust_rays, const float *E, int K, uint64_t stamp, float w,
                          int *label, float *score, float *margin) {
@@ -949,9 +939,9 @@ void vlff_evidence_label_scores(struct vlff_evidence *e, const float *xyz, size_
     float scale = ec && a + w > 0 ? 1.0f / (a + w) : 1.0f;
     if (ec && any && (count || restore)) {
       float gap;
-      const int ke = argmax(ec, K, &gap);
+      const int ke = vlff_best_of(ec, K, &gap);
       /* Only a fitted field's label says what it keeps of a class. */
-      if (count && a >= 1.0f) e->n_field[argmax(fc, K, NULL)]++, e->n_ev[ke]++;
+      if (count && a >= 1.0f) e->n_field[vlff_best_of(fc, K, NULL)]++, e->n_ev[ke]++;
       if (restore && e->lost[ke] && ke != best) {
         /* A class the field has lost is read from the evidence wherever it
          * finds it: that class's sum, and the evidence's own margin. */

@@ -5,6 +5,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "best.h"
+
 /* Edge weight per unit of colour distance (rgb in 0..1) and per metre
  * between the cells' surface points beyond the sensor's noise (regions.h). */
 #define COLOUR_WEIGHT 2.0f
@@ -233,11 +235,9 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
      * take its whole region with it): it keeps its label */
     skip[i] = label[i] < 0 || !finite;
     if (skip[i]) continue;
-    float b1 = -INFINITY, b2 = -INFINITY;
-    for (int c = 0; c < K; c++)
-      if (own[c] > b1) b2 = b1, b1 = own[c];
-      else if (own[c] > b2) b2 = own[c];
-    const float wt = (K > 1 ? b1 - b2 : 1.0f) + MARGIN_FLOOR;
+    float gap;
+    vlff_best_of(own, K, &gap);
+    const float wt = (K > 1 ? gap : 1.0f) + MARGIN_FLOOR;
     /* finite scores whose margin is not (near FLT_MAX apart): as one
      * that is not a number */
     if (!isfinite(wt)) {
@@ -253,7 +253,7 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
     const uint32_t g = r->region[i];
     const float *s = r->sum + (size_t)g * K, *own = scores + i * (size_t)K;
     const float wr = mean_w / wsum[g];
-    int best = 0, mine = 0;
+    int best = 0;
     float bv = -INFINITY;
     bool sane = isfinite(wr);
     for (int c = 0; c < K; c++) {
@@ -261,10 +261,9 @@ int vlff_regions_vote(struct vlff_regions *r, const float *scores, size_t n, int
       sane &= isfinite(m) != 0;
       const float v = own_w * own[c] + m;
       if (v > bv) bv = v, best = c;
-      if (own[c] > own[mine]) mine = c;
     }
     /* a region whose sums overflowed says nothing: the cell's own best */
-    label[i] = sane ? best : mine;
+    label[i] = sane ? best : vlff_best_of(own, K, NULL);
     if (score) score[i] = own[label[i]];
   }
   return 0;
